@@ -1,0 +1,1 @@
+"""QA procedures as readable scripts."""

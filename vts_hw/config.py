@@ -1,0 +1,215 @@
+"""rig.yaml: the room, validated at load.
+
+Every error names the file, the key (dotted path) and what was expected, in one sentence.
+Passwords never live in the file: a camera names the environment variable that holds its
+password (``password_env``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+from pathlib import Path
+from typing import Literal, Optional
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from .errors import ConfigError
+
+ENV_CONFIG = "VTS_CONFIG"
+_NAME_RE = r"^[A-Za-z0-9][A-Za-z0-9_.-]*$"
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class CameraConfig(_Strict):
+    """One Axis camera."""
+
+    name: str = Field(pattern=_NAME_RE, description="short name used on the command line and in files")
+    host: str = Field(min_length=1)
+    port: int = Field(default=80, ge=1, le=65535)
+    scheme: Literal["http", "https"] = "http"
+    user: str = "root"
+    password_env: Optional[str] = Field(
+        default=None, pattern=r"^[A-Za-z_][A-Za-z0-9_]*$",
+        description="name of the environment variable holding the password")
+    led_port: int = Field(default=1, ge=1, le=8, description="I/O output port of the LED ring, 1-based")
+    resolution: tuple[int, int] = (640, 480)
+    fps: float = Field(default=25.0, gt=0, le=60)
+    compression: int = Field(default=25, ge=0, le=100, description="Axis compression; JPEG quality is 100 - compression")
+    timeout_s: float = Field(default=5.0, gt=0, le=120)
+
+    @field_validator("resolution", mode="before")
+    @classmethod
+    def _parse_resolution(cls, v):
+        if isinstance(v, str):
+            m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", v)
+            if not m:
+                raise ValueError("expected WIDTHxHEIGHT such as 640x480")
+            return int(m.group(1)), int(m.group(2))
+        return v
+
+    @property
+    def base_url(self) -> str:
+        default = 80 if self.scheme == "http" else 443
+        port = "" if self.port == default else f":{self.port}"
+        return f"{self.scheme}://{self.host}{port}"
+
+    @property
+    def resolution_str(self) -> str:
+        return f"{self.resolution[0]}x{self.resolution[1]}"
+
+    def password(self) -> Optional[str]:
+        """The password from the environment, or None when no variable is named.
+
+        Raises ConfigError when the variable is named but not set."""
+        if self.password_env is None:
+            return None
+        value = os.environ.get(self.password_env)
+        if value is None:
+            raise ConfigError(
+                f"camera {self.name!r}: environment variable {self.password_env} "
+                f"(its password_env) is not set")
+        return value
+
+
+class TriggerConfig(_Strict):
+    backend: Literal["none", "triggerbox", "visa", "daqmx"] = "none"
+    address: Optional[str] = Field(default=None, description="serial port, VISA resource or DAQmx device")
+    frequency_hz: float = Field(default=1.0, ge=0.1, le=1000.0)
+    duty: float = Field(default=0.5, ge=0.01, le=0.99)
+    high_v: float = Field(default=5.0, ge=-10, le=10)
+    low_v: float = Field(default=0.0, ge=-10, le=10)
+    pulse_ms: int = Field(default=100, ge=1, le=10000)
+
+    @model_validator(mode="after")
+    def _levels(self):
+        if self.low_v >= self.high_v:
+            raise ValueError("low_v must be below high_v")
+        if self.backend != "none" and not self.address:
+            raise ValueError(f"backend {self.backend!r} needs an address")
+        return self
+
+
+class ToleranceWindow(_Strict):
+    """QATrack+-style window: action low <= tolerance low <= tolerance high <= action high."""
+
+    action_low: Optional[float] = None
+    tolerance_low: Optional[float] = None
+    tolerance_high: Optional[float] = None
+    action_high: Optional[float] = None
+    unit: str = ""
+
+    @model_validator(mode="after")
+    def _ordered(self):
+        vals = [v for v in (self.action_low, self.tolerance_low, self.tolerance_high, self.action_high)
+                if v is not None]
+        if vals != sorted(vals):
+            raise ValueError("expected action_low <= tolerance_low <= tolerance_high <= action_high")
+        return self
+
+
+class CalibrationPaths(_Strict):
+    stereo: Optional[Path] = None
+    spect: Optional[Path] = None
+
+
+class ResultsConfig(_Strict):
+    url: Optional[str] = Field(default=None, description="database URL; default a per-user SQLite file")
+
+
+class RigConfig(_Strict):
+    rig: str = Field(default="vts", pattern=_NAME_RE)
+    cameras: list[CameraConfig] = Field(min_length=1)
+    trigger: TriggerConfig = TriggerConfig()
+    tolerances: dict[str, ToleranceWindow] = Field(default_factory=dict)
+    calibration: CalibrationPaths = CalibrationPaths()
+    results: ResultsConfig = ResultsConfig()
+    recordings_dir: Optional[Path] = None
+
+    @model_validator(mode="after")
+    def _unique_names(self):
+        names = [c.name for c in self.cameras]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"camera names must be unique; repeated: {', '.join(dup)}")
+        return self
+
+    def camera(self, name: str) -> CameraConfig:
+        for c in self.cameras:
+            if c.name == name:
+                return c
+        known = ", ".join(c.name for c in self.cameras)
+        raise ConfigError(f"no camera named {name!r} in the rig config (known: {known})")
+
+
+def _loc(loc: tuple) -> str:
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out += ("." if out else "") + str(part)
+    return out or "(top level)"
+
+
+def _describe(err: dict) -> str:
+    typ = err.get("type", "")
+    if typ == "missing":
+        return "is required but missing"
+    if typ == "extra_forbidden":
+        return "is not a known key"
+    msg = err.get("msg", "is invalid")
+    msg = re.sub(r"^Value error, ", "", msg)
+    got = err.get("input")
+    if typ not in ("model_type",) and not isinstance(got, (dict, list)):
+        return f"{msg[0].lower() + msg[1:]} (got {got!r})"
+    return msg[0].lower() + msg[1:]
+
+
+def parse_rig(data, source: str = "rig.yaml") -> RigConfig:
+    """Validate an already-parsed mapping; errors name ``source``."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{source}: expected a mapping at the top level, got {type(data).__name__}")
+    try:
+        return RigConfig.model_validate(data)
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        more = len(exc.errors()) - 1
+        tail = f" ({more} more error{'s' if more > 1 else ''})" if more else ""
+        raise ConfigError(f"{source}: {_loc(first['loc'])} {_describe(first)}{tail}") from None
+
+
+def load_rig(path: str | os.PathLike | None = None) -> RigConfig:
+    """Load and validate a rig.yaml; ``None`` means $VTS_CONFIG, then ./rig.yaml."""
+    if path is None:
+        path = os.environ.get(ENV_CONFIG) or "rig.yaml"
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: no such config file (give --config or set {ENV_CONFIG})") from None
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read the config file ({exc.strerror})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark else ""
+        raise ConfigError(f"{p}: not valid YAML{where}") from None
+    return parse_rig(data, str(p))
+
+
+def config_digest(path: str | os.PathLike) -> str:
+    """sha256 of the config file's bytes (stored with runs and recordings)."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def dump_rig(cfg: RigConfig) -> str:
+    """YAML text of a config (used by the simulated rig to write DIR/rig.yaml)."""
+    data = cfg.model_dump(mode="json", exclude_none=True)
+    return yaml.safe_dump(data, sort_keys=False)
