@@ -1,0 +1,37 @@
+# vts-hw: every target sets itself up on a fresh Debian machine (CI runs as root).
+#   make demo   the main job on the simulated rig
+#   make test   the whole test suite
+#   make bench  the benchmarks (ratios measured in one run)
+
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+# Debian packages the tests need (installed when missing, if we may)
+TEST_DEBS := curl
+
+.PHONY: demo test bench venv debs clean
+
+venv: $(STAMP)
+
+$(STAMP): pyproject.toml
+	@tools/ensure-debs python3-venv
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[dev]'
+	@touch $(STAMP)
+
+debs:
+	@tools/ensure-debs $(TEST_DEBS)
+
+demo: $(STAMP)
+	$(VENV)/bin/vts demo
+
+test: $(STAMP) debs
+	$(PY) -m pytest
+
+bench: $(STAMP)
+	$(PY) bench/run_all.py
+
+clean:
+	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis

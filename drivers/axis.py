@@ -1,0 +1,358 @@
+"""Axis network camera over VAPIX: snapshot, stream, parameters, LED output, info, clock.
+
+One :class:`AxisCamera` per camera, built on requests with digest authentication. Every call
+has a timeout, and every failure is one of the typed errors below, each with a sentence that
+names the camera and says what to do. The password is held only in the auth object: it is
+never part of a URL, a repr, a log line or an error message.
+"""
+
+from __future__ import annotations
+
+import json
+import statistics
+import time
+from dataclasses import dataclass
+from typing import Iterator
+from urllib.parse import quote
+
+import requests
+from requests.auth import HTTPBasicAuth, HTTPDigestAuth
+
+from ..axis_jpeg import inspect_jpeg
+from ..errors import DeviceError
+
+try:  # the config model is only needed by from_config
+    from ..config import CameraConfig
+except ImportError:  # pragma: no cover
+    CameraConfig = None  # type: ignore
+
+
+class AxisError(DeviceError):
+    """A camera failed; ``camera`` names it."""
+
+    def __init__(self, camera: str, message: str):
+        super().__init__(message)
+        self.camera = camera
+
+
+class CameraUnreachable(AxisError):
+    """No connection, or a connection that timed out or was dropped."""
+
+
+class CameraUnauthorized(AxisError):
+    """The camera refused the credentials (HTTP 401 after answering the challenge)."""
+
+
+class TooManyViewers(AxisError):
+    """HTTP 503: the camera is serving as many streams as it can."""
+
+
+class BadReply(AxisError):
+    """The camera answered, but not with what was asked for."""
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One JPEG as received from a camera."""
+
+    seq: int
+    jpeg: bytes
+    camera_time: float | None
+    host_time: float
+    problems: tuple[str, ...] = ()
+
+    @property
+    def complete(self) -> bool:
+        return not any("cut short" in p for p in self.problems)
+
+
+@dataclass(frozen=True)
+class ClockOffset:
+    """camera clock minus host clock, in seconds, with its uncertainty."""
+
+    offset_s: float
+    uncertainty_s: float
+    host_time: float
+    method: str
+    samples: int
+
+
+class _AxisAuth(HTTPDigestAuth):
+    """Answer a 401 challenge: digest always; basic only over HTTPS (never in clear)."""
+
+    def handle_401(self, r, **kwargs):
+        challenge = r.headers.get("www-authenticate", "")
+        if "digest" in challenge.lower():
+            return super().handle_401(r, **kwargs)
+        if "basic" in challenge.lower() and r.url.lower().startswith("https://"):
+            r.content
+            r.close()
+            prep = r.request.copy()
+            HTTPBasicAuth(self.username, self.password)(prep)
+            _r = r.connection.send(prep, **kwargs)
+            _r.history.append(r)
+            _r.request = prep
+            return _r
+        return r
+
+    def __repr__(self) -> str:  # never show the password
+        return f"<AxisAuth user={self.username!r}>"
+
+
+def frame_from_bytes(seq: int, jpeg: bytes, host_time: float, problems=()) -> Frame:
+    """A Frame with the camera time read from the JPEG's Axis segment (None if absent)."""
+    probs = list(problems)
+    cam_t = None
+    try:
+        info = inspect_jpeg(jpeg)
+        cam_t = info.timestamp
+        probs += [p for p in info.problems if p not in probs and "product" not in p]
+    except Exception as exc:  # not a JPEG at all
+        probs.append(str(exc))
+    return Frame(seq, jpeg, cam_t, host_time, tuple(probs))
+
+
+class AxisCamera:
+    """One Axis camera.
+
+    ``AxisCamera.from_config(cfg)`` takes a rig.yaml camera entry and its password from the
+    environment variable that entry names.
+    """
+
+    def __init__(self, name: str, base_url: str, user: str | None = "root", password: str | None = None,
+                 *, timeout: float = 5.0, led_port: int = 1, resolution: str = "640x480",
+                 fps: float = 25.0, compression: int = 25):
+        self.name = name
+        self.base_url = base_url.rstrip("/")
+        self.user = user
+        self.timeout = timeout
+        self.led_port = led_port
+        self.resolution = resolution
+        self.fps = fps
+        self.compression = compression
+        self._auth = _AxisAuth(user, password) if (user and password is not None) else None
+        self._session = requests.Session()
+        self._vapix: int | None = None
+
+    @classmethod
+    def from_config(cls, cfg: "CameraConfig") -> "AxisCamera":
+        return cls(cfg.name, cfg.base_url, cfg.user, cfg.password(), timeout=cfg.timeout_s,
+                   led_port=cfg.led_port, resolution=cfg.resolution_str, fps=cfg.fps,
+                   compression=cfg.compression)
+
+    def __repr__(self) -> str:
+        return f"AxisCamera({self.name!r}, {self.base_url!r}, user={self.user!r})"
+
+    def close(self) -> None:
+        self._session.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # -- HTTP ----------------------------------------------------------------------
+    def new_session(self) -> requests.Session:
+        """A session of its own (a stream in a thread must not share connections)."""
+        return requests.Session()
+
+    def request(self, method: str, path: str, *, params=None, json_body=None, stream: bool = False,
+                session: requests.Session | None = None, timeout=None) -> requests.Response:
+        """One VAPIX request with auth and timeout; HTTP failures become typed errors."""
+        url = self.base_url + path
+        sess = session or self._session
+        try:
+            r = sess.request(method, url, params=params, json=json_body, auth=self._auth, stream=stream,
+                             timeout=timeout or (self.timeout, self.timeout))
+        except requests.Timeout:
+            raise CameraUnreachable(self.name, f"camera {self.name} at {self.base_url} did not answer "
+                                               f"within {self.timeout:g} s") from None
+        except requests.ConnectionError as exc:
+            raise CameraUnreachable(self.name, f"camera {self.name} at {self.base_url} is unreachable "
+                                               f"({_reason(exc)})") from None
+        self.check_status(r)
+        return r
+
+    def check_status(self, r: requests.Response) -> None:
+        if r.status_code == 401:
+            r.close()
+            if self._auth is None:
+                raise CameraUnauthorized(self.name, f"camera {self.name} asks for a password and the "
+                                                    f"rig config gives none (set password_env)")
+            raise CameraUnauthorized(self.name, f"camera {self.name} refused user {self.user!r} (HTTP 401): "
+                                                f"check the password")
+        if r.status_code == 503:
+            r.close()
+            raise TooManyViewers(self.name, f"camera {self.name} has too many viewers (HTTP 503): "
+                                            f"close other streams and try again")
+        if r.status_code == 404:
+            r.close()
+            raise BadReply(self.name, f"camera {self.name} does not know {r.request.path_url.split('?')[0]} "
+                                      f"(HTTP 404)")
+        if r.status_code >= 400:
+            r.close()
+            raise BadReply(self.name, f"camera {self.name} answered HTTP {r.status_code} to "
+                                      f"{r.request.path_url.split('?')[0]}")
+
+    def _text(self, path: str, params=None) -> str:
+        r = self.request("GET", path, params=params)
+        text = r.text
+        stripped = text.lstrip()
+        if stripped.startswith("# Error:") or stripped.startswith("Error:"):
+            msg = stripped.split(":", 1)[1].strip().splitlines()[0] if ":" in stripped else stripped
+            raise BadReply(self.name, f"camera {self.name} refused {path}: {msg}")
+        return text
+
+    # -- images --------------------------------------------------------------------
+    def snapshot(self) -> Frame:
+        """One JPEG from ``jpg/image.cgi``, with its camera time and host receive time."""
+        r = self.request("GET", "/axis-cgi/jpg/image.cgi",
+                         params={"resolution": self.resolution, "compression": self.compression})
+        data = r.content
+        host_t = time.time()
+        ctype = r.headers.get("content-type", "")
+        if not data.startswith(b"\xff\xd8"):
+            raise BadReply(self.name, f"camera {self.name} sent {ctype or 'data'} instead of a JPEG")
+        frame = frame_from_bytes(0, data, host_t)
+        return frame
+
+    def stream(self, **kwargs) -> Iterator:
+        """Frames of ``mjpg/video.cgi`` that reconnect on drops and stalls; see axis_stream."""
+        from .axis_stream import FrameStream
+        return iter(FrameStream(self, **kwargs))
+
+    # -- parameters ----------------------------------------------------------------
+    @property
+    def vapix_version(self) -> int:
+        """3 when ``/axis-cgi/param.cgi`` exists, else 2 (``view/`` and ``admin/param.cgi``)."""
+        if self._vapix is None:
+            try:
+                self._text("/axis-cgi/param.cgi", {"action": "list", "group": "Brand"})
+                self._vapix = 3
+            except BadReply as exc:
+                if "404" not in str(exc):
+                    raise
+                self._text("/axis-cgi/view/param.cgi", {"action": "list", "group": "Brand"})
+                self._vapix = 2
+        return self._vapix
+
+    def get_params(self, group: str) -> dict[str, str]:
+        """``root.``-less parameter names and values of a group, e.g. ``Image.I0``."""
+        path = "/axis-cgi/param.cgi" if self.vapix_version == 3 else "/axis-cgi/view/param.cgi"
+        text = self._text(path, {"action": "list", "group": group})
+        out = {}
+        for line in text.splitlines():
+            if "=" in line:
+                k, v = line.split("=", 1)
+                out[k.strip().removeprefix("root.")] = v.strip()
+        if not out:
+            raise BadReply(self.name, f"camera {self.name} listed no parameters in group {group!r}")
+        return out
+
+    def set_params(self, values: dict[str, object]) -> None:
+        path = "/axis-cgi/param.cgi" if self.vapix_version == 3 else "/axis-cgi/admin/param.cgi"
+        params = {"action": "update"}
+        params.update({k: str(v) for k, v in values.items()})
+        text = self._text(path, params)
+        if text.strip() != "OK":
+            raise BadReply(self.name, f"camera {self.name} did not confirm the update: {text.strip()[:80]!r}")
+
+    # -- LED on the I/O output port -------------------------------------------------
+    def _port(self, action: str) -> None:
+        # port.cgi wants the action characters percent-encoded (/ and \)
+        path = "/axis-cgi/io/port.cgi?action=" + quote(action, safe=":")
+        text = self._text(path)
+        if text.strip() and not text.strip().upper().startswith("OK"):
+            raise BadReply(self.name, f"camera {self.name}: port.cgi answered {text.strip()[:80]!r}")
+
+    def led_on(self) -> None:
+        self._port(f"{self.led_port}:/")
+
+    def led_off(self) -> None:
+        self._port(f"{self.led_port}:\\")
+
+    def led_pulse(self, ms: int) -> None:
+        if not 1 <= int(ms) <= 60000:
+            raise ValueError("LED pulse must be 1 to 60000 ms")
+        self._port(f"{self.led_port}:/{int(ms)}\\")
+
+    # -- device info and clock -------------------------------------------------------
+    def device_info(self) -> dict[str, str]:
+        """Brand, product, serial number and firmware: basicdeviceinfo.cgi, else param groups."""
+        try:
+            r = self.request("POST", "/axis-cgi/basicdeviceinfo.cgi",
+                             json_body={"apiVersion": "1.0", "method": "getAllProperties"})
+            props = r.json()["data"]["propertyList"]
+            return {k: str(v) for k, v in props.items()}
+        except BadReply as exc:
+            if "404" not in str(exc):
+                raise
+        except (ValueError, KeyError, TypeError):
+            raise BadReply(self.name, f"camera {self.name} sent device info that is not the expected JSON") \
+                from None
+        info = {}
+        for group in ("Brand", "Properties"):
+            for k, v in self.get_params(group).items():
+                info[k.split(".", 1)[1] if "." in k else k] = v
+        return info
+
+    def clock_offset(self, samples: int = 5) -> ClockOffset:
+        """Camera clock minus host clock.
+
+        From ``time.cgi`` (ms resolution, midpoint of the round trip, best of ``samples``)
+        where the camera has it, else from the 10 ms stamps of snapshots (each stamp is
+        taken before the image is sent, so the offset is biased low by up to the exposure
+        and encode time; the uncertainty says so).
+        """
+        best = None
+        try:
+            for _ in range(samples):
+                t0 = time.time()
+                r = self.request("POST", "/axis-cgi/time.cgi",
+                                 json_body={"apiVersion": "1.0", "method": "getDateTimeInfo"})
+                t1 = time.time()
+                cam = _parse_iso(r.json()["data"]["dateTime"])
+                rtt = t1 - t0
+                if best is None or rtt < best[1]:
+                    best = (cam - (t0 + t1) / 2, rtt, (t0 + t1) / 2)
+            return ClockOffset(best[0], best[1] / 2 + 0.001, best[2], "time.cgi", samples)
+        except BadReply as exc:
+            if "404" not in str(exc):
+                raise
+        except (ValueError, KeyError, TypeError):
+            raise BadReply(self.name, f"camera {self.name} sent time.cgi JSON without data.dateTime") from None
+        offsets, rtts = [], []
+        for _ in range(samples):
+            t0 = time.time()
+            f = self.snapshot()
+            if f.camera_time is None:
+                raise BadReply(self.name, f"camera {self.name} sends JPEGs without the Axis time segment")
+            offsets.append(f.camera_time - t0)
+            rtts.append(f.host_time - t0)
+        return ClockOffset(statistics.median(offsets), max(rtts) + 0.01, time.time(), "snapshot", samples)
+
+
+def _parse_iso(s: str) -> float:
+    from datetime import datetime, timezone
+    s = s.strip().replace("Z", "+00:00")
+    dt = datetime.fromisoformat(s)
+    if dt.tzinfo is None:
+        dt = dt.replace(tzinfo=timezone.utc)
+    return dt.timestamp()
+
+
+def _reason(exc: Exception) -> str:
+    text = str(exc)
+    for key, words in (("Connection refused", "connection refused"),
+                       ("Name or service not known", "unknown host"),
+                       ("timed out", "timed out"),
+                       ("reset by peer", "connection reset"),
+                       ("RemoteDisconnected", "connection closed by the camera")):
+        if key in text:
+            return words
+    return type(exc).__name__
+
+
+__all__ = ["AxisCamera", "AxisError", "CameraUnreachable", "CameraUnauthorized", "TooManyViewers",
+           "BadReply", "Frame", "ClockOffset", "frame_from_bytes", "json"]

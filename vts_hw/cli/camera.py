@@ -1,0 +1,146 @@
+"""`vts camera ...`: snapshot, stream, LED, info and recording of the rig's Axis cameras."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import click
+
+from ..config import config_digest
+from ..drivers.axis import AxisCamera
+from ..drivers.axis_stream import FrameStream, StreamGap
+from . import cli
+from .common import echo_json, fmt_time, json_option, with_rig
+
+
+@cli.group()
+def camera() -> None:
+    """Talk to one camera of the rig (or several, for `record`)."""
+
+
+def _open(rig, name: str) -> AxisCamera:
+    return AxisCamera.from_config(rig.camera(name))
+
+
+@camera.command()
+@click.argument("name")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="JPEG file to write.")
+@with_rig
+def snapshot(name: str, output: str, rig) -> None:
+    """Save one JPEG from camera NAME, exactly as the camera sent it."""
+    with _open(rig, name) as cam:
+        frame = cam.snapshot()
+    Path(output).write_bytes(frame.jpeg)
+    click.echo(f"{output}: {len(frame.jpeg)} bytes, camera time {fmt_time(frame.camera_time)}, "
+               f"received {fmt_time(frame.host_time)}")
+    for p in frame.problems:
+        click.echo(f"  warning: {p}", err=True)
+
+
+@camera.command()
+@click.argument("name")
+@click.option("--seconds", type=float, default=None, help="Stop after this long (default: until Ctrl-C).")
+@click.option("--fps", type=float, default=None, help="Frame rate to ask for (default: the config's).")
+@with_rig
+def stream(name: str, seconds: float | None, fps: float | None, rig) -> None:
+    """Print a line per frame of camera NAME's MJPEG stream: sequence, times, latency, size.
+
+    Drops and stalls reconnect; missing frames are printed as gaps.
+    """
+    with _open(rig, name) as cam:
+        s = FrameStream(cam, fps=fps, duration=seconds)
+        try:
+            for item in s:
+                if isinstance(item, StreamGap):
+                    click.echo(f"GAP   after frame {item.after_seq}: {item.missing} frame(s) missing ({item.reason})")
+                    continue
+                lat = "" if item.camera_time is None else f"{(item.host_time - item.camera_time) * 1000:8.1f} ms"
+                click.echo(f"{item.seq:6d}  {fmt_time(item.camera_time)}  {fmt_time(item.host_time)}  "
+                           f"{lat}  {len(item.jpeg):7d} B")
+        except KeyboardInterrupt:
+            s.stop()
+        st = s.stats
+        click.echo(f"{st.frames} frames, {st.missing} missing in {st.gaps} gap(s), {st.torn} torn, "
+                   f"{st.reconnects} reconnect(s)", err=True)
+
+
+@camera.command()
+@click.argument("name")
+@click.argument("state", type=click.Choice(["on", "off", "pulse"]))
+@click.argument("ms", type=click.IntRange(1, 60000), required=False)
+@with_rig
+def led(name: str, state: str, ms: int | None, rig) -> None:
+    """Switch the LED ring of camera NAME: on, off, or pulse MS milliseconds."""
+    with _open(rig, name) as cam:
+        if state == "on":
+            cam.led_on()
+        elif state == "off":
+            cam.led_off()
+        else:
+            if ms is None:
+                raise click.UsageError("pulse needs a duration in milliseconds, e.g. `led cam1 pulse 300`")
+            cam.led_pulse(ms)
+    click.echo(f"{name}: LED {state}{f' {ms} ms' if state == 'pulse' else ''} (output port {cam.led_port}): OK")
+
+
+@camera.command()
+@click.argument("name")
+@json_option
+@with_rig
+def info(name: str, as_json: bool, rig) -> None:
+    """Device info, VAPIX version, image settings and clock offset of camera NAME."""
+    with _open(rig, name) as cam:
+        dev = cam.device_info()
+        vapix = cam.vapix_version
+        image = cam.get_params("Image.I0")
+        off = cam.clock_offset()
+    data = {"camera": name, "url": cam.base_url, "vapix": vapix, "device": dev, "image": image,
+            "clock_offset_s": round(off.offset_s, 4), "clock_offset_uncertainty_s": round(off.uncertainty_s, 4),
+            "clock_method": off.method}
+    if as_json:
+        echo_json(data)
+        return
+    click.echo(f"{name}  {cam.base_url}  VAPIX {vapix}")
+    for k, v in dev.items():
+        click.echo(f"  {k}: {v}")
+    for k, v in image.items():
+        click.echo(f"  {k}: {v}")
+    click.echo(f"  clock: camera - host = {off.offset_s:+.3f} s (± {off.uncertainty_s:.3f} s, {off.method})")
+
+
+@camera.command()
+@click.argument("names", nargs=-1)
+@click.option("--all", "all_cameras", is_flag=True, help="Record every camera of the rig.")
+@click.option("--seconds", type=float, required=True, help="How long to record.")
+@click.option("-o", "--output", "out", type=click.Path(file_okay=False), required=True,
+              help="Recording folder to create (or append to).")
+@with_rig
+def record(names: tuple[str, ...], all_cameras: bool, seconds: float, out: str, rig) -> None:
+    """Record cameras NAMES... at once into a recording folder.
+
+    Per camera: NAME.mjpeg (the JPEGs exactly as received), NAME.index.csv, and one
+    manifest.json. Every frame is flushed as it arrives; Ctrl-C keeps what was recorded.
+    """
+    from ..recorder import Recorder
+    from .progress import record_with_progress
+
+    if all_cameras:
+        names = tuple(c.name for c in rig.cameras)
+    if not names:
+        raise click.UsageError("name at least one camera, or give --all")
+    cams = [_open(rig, n) for n in names]
+    import os
+    cfg_path = os.environ.get("VTS_CONFIG")
+    meta = {"rig": rig.rig, "seconds_asked": seconds}
+    if cfg_path and Path(cfg_path).exists():
+        meta["rig_digest"] = config_digest(cfg_path)
+    rec = Recorder(cams, out, seconds=seconds, meta=meta)
+    manifest = record_with_progress(rec, seconds)
+    click.echo(f"{out}: status {manifest['status']}")
+    for name, m in manifest["cameras"].items():
+        err = f"  ERROR: {m['error']}" if m.get("error") else ""
+        click.echo(f"  {name}: {m['frames']} frames, {m['dropped_frames']} dropped, "
+                   f"{m.get('torn_frames_discarded', 0)} torn, {m.get('reconnects', 0)} reconnect(s) "
+                   f"-> {Path(out) / m['mjpeg']}{err}")
+    _ = time

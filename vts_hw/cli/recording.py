@@ -1,0 +1,50 @@
+"""`vts recording ...`: inspect recordings and rebuild their indexes."""
+
+from __future__ import annotations
+
+import click
+
+from .. import recording as rec_mod
+from . import cli
+from .common import echo_json, fmt_time, json_option
+
+
+@cli.group()
+def recording() -> None:
+    """Inspect recordings (folders, .mjpg captures, JPEG files) and repair their indexes."""
+
+
+@recording.command()
+@click.argument("folder", type=click.Path(file_okay=False))
+def reindex(folder: str) -> None:
+    """Rebuild every NAME.index.csv in FOLDER from NAME.mjpeg alone (after a crash)."""
+    report = rec_mod.reindex(folder)
+    for name, r in report.items():
+        torn = f", {r['torn']} torn frame(s) at the end left out" if r["torn"] else ""
+        click.echo(f"{name}: {r['frames']} frames indexed ({r['host_times_kept']} with host times kept){torn}")
+
+
+@recording.command()
+@click.argument("paths", nargs=-1, required=True, type=click.Path())
+@json_option
+def info(paths: tuple[str, ...], as_json: bool) -> None:
+    """Frames in recordings, .mjpg captures or JPEG files: count, camera times, gaps."""
+    summaries = []
+    for p in paths:
+        summaries += rec_mod.info(p)
+    if as_json:
+        echo_json([s.as_dict() for s in summaries])
+        return
+    for s in summaries:
+        dur = (s.last_time - s.first_time) if s.first_time is not None and s.last_time is not None else None
+        click.echo(f"{s.source}: {s.frames} frame(s), {s.with_time} with Axis time, {s.torn} torn")
+        if s.first_time is not None:
+            click.echo(f"  camera time {fmt_time(s.first_time)} .. {fmt_time(s.last_time)}"
+                       f" ({dur:.2f} s{f', {s.fps:g} fps' if s.fps else ''})")
+        if s.gaps:
+            missing = sum(g["missing"] for g in s.gaps)
+            click.echo(f"  {len(s.gaps)} gap(s), {missing} frame(s) missing:")
+            for g in s.gaps[:20]:
+                click.echo(f"    after frame {g['after_frame']}: {g['seconds']} s ({g['missing']} missing)")
+        for p in s.problems[:20]:
+            click.echo(f"  note: {p}")
