@@ -1,0 +1,85 @@
+"""Recording folders written from real Axis frames: byte-exact, indexed, rebuildable."""
+
+import json
+
+import pytest
+
+from vts_hw.axis_jpeg import inspect_jpeg
+from vts_hw.errors import DataError
+from vts_hw.mjpeg import read_frames_file
+from vts_hw.recording import Recording, info, read_index, reindex
+
+
+@pytest.fixture()
+def real_frames(axis_frames):
+    return [b for b, _ in read_frames_file(axis_frames / "t.mjpg")]
+
+
+def _record(folder, frames, skip=()):
+    with Recording(folder, ["cam1"], {"rig": "test"}) as rec:
+        for i, f in enumerate(frames):
+            if i in skip:
+                continue
+            rec.write_frame("cam1", f, inspect_jpeg(f).timestamp, 1000.0 + i * 0.06)
+    return rec
+
+
+def test_byte_exact_mjpeg_and_index(tmp_path, real_frames):
+    _record(tmp_path, real_frames)
+    data = (tmp_path / "cam1.mjpeg").read_bytes()
+    assert data == b"".join(real_frames)
+    rows = read_index(tmp_path / "cam1.index.csv")
+    assert len(rows) == 16
+    for r, f in zip(rows, real_frames):
+        assert data[r.offset:r.offset + r.length] == f
+        assert r.camera_time == pytest.approx(inspect_jpeg(f).timestamp)
+    m = json.loads((tmp_path / "manifest.json").read_text())
+    assert m["status"] == "complete" and m["cameras"]["cam1"]["frames"] == 16
+
+
+def test_reindex_from_mjpeg_alone_keeps_host_times(tmp_path, real_frames):
+    _record(tmp_path, real_frames)
+    before = (tmp_path / "cam1.index.csv").read_text()
+    (tmp_path / "cam1.index.csv").write_text(before.splitlines()[0] + "\n" + "\n".join(before.splitlines()[1:6]) + "\n3,99")
+    report = reindex(tmp_path)
+    assert report["cam1"] == {"frames": 16, "host_times_kept": 5, "torn": 0}
+    after = read_index(tmp_path / "cam1.index.csv")
+    assert [r.offset for r in after] == [r.offset for r in read_index_from_text(tmp_path, before)]
+    (tmp_path / "cam1.index.csv").unlink()
+    assert reindex(tmp_path)["cam1"]["frames"] == 16
+
+
+def read_index_from_text(tmp_path, text):
+    p = tmp_path / "copy.csv"
+    p.write_text(text)
+    return read_index(p)
+
+
+def test_frame_in_flight_at_a_kill_is_left_out_and_reported(tmp_path, real_frames):
+    _record(tmp_path, real_frames)
+    with open(tmp_path / "cam1.mjpeg", "ab") as f:
+        f.write(real_frames[0][:1234])  # the frame being written when the process died
+    summary = info(tmp_path)[0]
+    assert summary.frames == 16 and any("reindex" in p for p in summary.problems)
+    report = reindex(tmp_path)
+    assert report["cam1"]["frames"] == 16 and report["cam1"]["torn"] == 1
+
+
+def test_info_reports_gaps_from_camera_times(tmp_path, real_frames):
+    _record(tmp_path, real_frames, skip={5, 6, 7})
+    s = info(tmp_path)[0]
+    assert s.frames == 13
+    assert len(s.gaps) == 1 and s.gaps[0]["missing"] == 3 and s.gaps[0]["after_frame"] == 4
+    assert s.fps == pytest.approx(16.667, abs=0.01)
+
+
+def test_info_on_files_and_bad_paths(tmp_path, axis_frames):
+    (s,) = info(axis_frames / "img00012680.jpg")
+    assert s.torn == 1 and s.frames == 1
+    (s,) = info(axis_frames / "00000000.jpg")
+    assert s.with_time == 0 and any("no Axis time" in p for p in s.problems)
+    with pytest.raises(DataError, match="no such file"):
+        info(tmp_path / "nothing")
+    (tmp_path / "junk.bin").write_bytes(b"hello")
+    with pytest.raises(DataError, match="no JPEG frames"):
+        info(tmp_path / "junk.bin")
