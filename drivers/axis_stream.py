@@ -125,6 +125,8 @@ class FrameStream:
                         yield frame
                         if self.nbrofframes is not None and seq >= self.nbrofframes:
                             return
+                        if self.duration is not None and time.monotonic() - started >= self.duration:
+                            return
                         if self.stop_event.is_set():
                             return
                     ended_normally = True

@@ -17,3 +17,20 @@ def shared_data() -> Path:
 @pytest.fixture(scope="session")
 def axis_frames(shared_data) -> Path:
     return shared_data / "axis-frames"
+
+
+@pytest.fixture()
+def sim_rig():
+    """A fresh simulated rig of two cameras for each test (no state leaks between tests)."""
+    from vts_hw.sim_devices.rig import SimRig
+
+    with SimRig(n_cameras=2, seed=1) as rig, rig.env():
+        yield rig
+
+
+@pytest.fixture()
+def cam1(sim_rig):
+    from vts_hw.drivers.axis import AxisCamera
+
+    with AxisCamera.from_config(sim_rig.config().camera("cam1")) as cam:
+        yield cam

@@ -211,5 +211,5 @@ def config_digest(path: str | os.PathLike) -> str:
 
 def dump_rig(cfg: RigConfig) -> str:
     """YAML text of a config (used by the simulated rig to write DIR/rig.yaml)."""
-    data = cfg.model_dump(mode="json", exclude_none=True)
+    data = cfg.model_dump(mode="json", exclude_none=True, exclude_defaults=True)
     return yaml.safe_dump(data, sort_keys=False)

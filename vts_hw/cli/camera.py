@@ -50,12 +50,13 @@ def stream(name: str, seconds: float | None, fps: float | None, rig) -> None:
     """
     with _open(rig, name) as cam:
         s = FrameStream(cam, fps=fps, duration=seconds)
+        click.echo(f"{'frame':>6}  {'camera time':<23}  {'host receive time':<23}  {'host-cam':>11}  {'size':>9}")
         try:
             for item in s:
                 if isinstance(item, StreamGap):
                     click.echo(f"GAP   after frame {item.after_seq}: {item.missing} frame(s) missing ({item.reason})")
                     continue
-                lat = "" if item.camera_time is None else f"{(item.host_time - item.camera_time) * 1000:8.1f} ms"
+                lat = "" if item.camera_time is None else f"{(item.host_time - item.camera_time) * 1000:+8.1f} ms"
                 click.echo(f"{item.seq:6d}  {fmt_time(item.camera_time)}  {fmt_time(item.host_time)}  "
                            f"{lat}  {len(item.jpeg):7d} B")
         except KeyboardInterrupt:

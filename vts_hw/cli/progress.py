@@ -35,7 +35,7 @@ def record_with_progress(rec: Recorder, seconds: float | None) -> dict:
             with Live(_table(rec, seconds, t0), console=console, refresh_per_second=4) as live:
                 rec.wait(on_tick=lambda r: live.update(_table(r, seconds, t0)))
         else:
-            last = [0.0]
+            last = [time.monotonic()]
 
             def tick(r):
                 if time.monotonic() - last[0] >= 5:

@@ -1,0 +1,59 @@
+"""One simulated camera as the simulated HTTP server sees it: frames, LED and clock.
+
+:class:`SimCameraSource` ties a camera of the :class:`~.scene.Scene` to a
+:class:`~.render.Renderer` and a :class:`~.clock.SimClock`. Each JPEG it hands out carries the
+two Axis comment segments (time from that camera's own clock, product id), like a real one.
+All methods are safe to call from several HTTP handler threads at once: the scene's
+schedules and the renderer lock what they share, and nothing here keeps mutable state.
+"""
+
+from __future__ import annotations
+
+from vts_hw.axis_jpeg import AxisProduct, stamp_jpeg
+
+from .clock import SimClock
+from .render import Renderer
+from .scene import Scene
+
+
+class SimCameraSource:
+    """Frames and LED of camera ``cam`` of ``scene``, at times read from ``clock``."""
+
+    def __init__(self, scene: Scene, renderer: Renderer, cam: str, clock: SimClock):
+        if cam not in scene.cameras:
+            raise KeyError(f"the scene has no camera {cam!r} (it has {', '.join(scene.cameras)})")
+        self.scene = scene
+        self.renderer = renderer
+        self.clock = clock
+        self.name: str = cam
+        model = scene.cameras[cam]
+        self.width: int = model.width
+        self.height: int = model.height
+        self.product: AxisProduct = scene.products[cam]
+
+    def camera_time(self, host_t: float | None = None) -> float:
+        """This camera's clock at host time ``host_t`` (default: now)."""
+        t = self.clock.now() if host_t is None else host_t
+        return self.scene.clocks[self.name].camera_time(t)
+
+    def set_led(self, on: bool) -> None:
+        """Switch the LED ring on or off, now."""
+        self.scene.set_led(self.name, on, self.clock.now())
+
+    def pulse_led(self, duration_s: float) -> None:
+        """LED on now, off ``duration_s`` simulated seconds later."""
+        self.scene.pulse_led(self.name, self.clock.now(), duration_s)
+
+    def led_on(self) -> bool:
+        return self.scene.led_on(self.name, self.clock.now())
+
+    def jpeg(self, quality: int, host_t: float | None = None) -> tuple[bytes, float]:
+        """The frame at host time ``host_t`` (default: now) as a stamped JPEG.
+
+        Returns ``(jpeg_bytes, camera_epoch)``: the camera-clock time of the frame (the stamp
+        in the JPEG is that time truncated to 10 ms, as a camera writes it).
+        """
+        t = self.clock.now() if host_t is None else host_t
+        img = self.renderer.render(self.name, t)
+        cam_t = self.camera_time(t)
+        return stamp_jpeg(self.renderer.encode(img, quality), cam_t, self.product), cam_t

@@ -1,0 +1,208 @@
+"""What each simulated camera sees: a grey 640x480 image of the scene, and its JPEG.
+
+A marker's outline is the exact projection of a 3D circle (a disk's rim, or the circle where
+the viewing cone touches a sphere) through the full camera model, distortion and drift
+included: ``outline_points`` points of the circle go through :func:`cv2.projectPoints`, and the
+convex polygon they form is rasterised by :func:`polygon_coverage` -- the exact covered length
+of each of ``supersample`` sub-rows per pixel row, i.e. exact area in x and supersampled in y.
+Disks are uniformly bright; spheres have a soft radial profile made of concentric outlines
+scaled about the outline's centroid (which keeps the centroid where it is).
+
+Speed: the noise-free image (float32, not yet quantised) is cached per camera, keyed by the
+LED state, every marker's projected centre rounded to 1e-3 px, and the table/body poses, so a
+static scene is rasterised once. Noise comes from a bank of precomputed float32 frames, taken
+at a random bank index and a random row/column offset, and added by one OpenCV call that also
+rounds and clips to uint8 -- so quantisation happens after the noise, as in a real sensor.
+"""
+
+from __future__ import annotations
+
+import random
+import threading
+from collections import OrderedDict
+
+import cv2
+import numpy as np
+
+from .scene import Scene
+
+# Sphere brightness profile: (scale of the outline, weight); weights sum to 1, so the centre
+# is at full level and the rim at 0.35 of it.
+SPHERE_RINGS = ((1.0, 0.35), (0.85, 0.13), (0.7, 0.13), (0.55, 0.13), (0.4, 0.13), (0.25, 0.13))
+DISK_RINGS = ((1.0, 1.0),)
+
+
+def polygon_centroid(poly: np.ndarray) -> np.ndarray:
+    """Area centroid of a simple polygon (Nx2)."""
+    x, y = poly[:, 0], poly[:, 1]
+    x1, y1 = np.roll(x, -1), np.roll(y, -1)
+    cross = x * y1 - x1 * y
+    area = cross.sum() / 2.0
+    return np.array([((x + x1) * cross).sum(), ((y + y1) * cross).sum()]) / (6.0 * area)
+
+
+def polygon_coverage(poly: np.ndarray, x0: int, y0: int, w: int, h: int,
+                     supersample: int = 8, rings=DISK_RINGS) -> np.ndarray:
+    """Brightness (0..1) of the patch ``[y0, y0+h) x [x0, x0+w)`` covered by a convex polygon
+    (Nx2, pixel coordinates, pixel centres at integers). Float32 (h, w).
+
+    Each pixel row is cut into ``supersample`` sub-rows; on each, the polygon covers one span
+    ``[xl, xr]`` whose overlap with every pixel is taken exactly. ``rings`` adds copies of the
+    polygon scaled about its centroid, each with a weight: ``((1.0, 1.0),)`` is a uniform fill.
+    """
+    s = supersample
+    scales = np.array([sc for sc, _ in rings])[:, None]
+    weights = np.array([wt for _, wt in rings])
+    cx, cy = polygon_centroid(poly)
+    ys = y0 - 0.5 + (np.arange(h * s) + 0.5) / s
+    q = (cy + (ys[None, :] - cy) / scales).ravel()  # each ring's sub-rows, mapped onto the polygon
+    # Split the polygon at its lowest and highest vertex into two chains along which y only
+    # grows; a sub-row's span lies between the two chains' x at its height.
+    lo = int(np.argmin(poly[:, 1]))
+    ring = np.concatenate([poly[lo:], poly[:lo]])
+    hi = int(np.argmax(ring[:, 1]))
+    chain_a = ring[:hi + 1]
+    chain_b = np.concatenate([ring[hi:], ring[:1]])[::-1]
+    xa = np.interp(q, chain_a[:, 1], chain_a[:, 0], left=np.nan, right=np.nan)
+    xb = np.interp(q, chain_b[:, 1], chain_b[:, 0], left=np.nan, right=np.nan)
+    k = len(weights)
+    inside = ~(np.isnan(xa) | np.isnan(xb)).reshape(k, -1)
+    xl = np.where(inside, cx + scales * (np.fmin(xa, xb).reshape(k, -1) - cx), np.inf)
+    xr = np.where(inside, cx + scales * (np.fmax(xa, xb).reshape(k, -1) - cx), -np.inf)
+    cols = x0 + np.arange(w)
+    cover = np.minimum(xr[:, :, None], cols + 0.5) - np.maximum(xl[:, :, None], cols - 0.5)
+    np.clip(cover, 0.0, 1.0, out=cover)
+    total = np.tensordot(weights, cover, axes=1)  # (h*s, w)
+    return total.reshape(h, s, w).mean(axis=1).astype(np.float32)
+
+
+def encode(img: np.ndarray, quality: int) -> bytes:
+    """JPEG of a grey image at ``quality`` (1..100), via OpenCV."""
+    ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise RuntimeError("JPEG encoding failed")
+    return buf.tobytes()
+
+
+class Renderer:
+    """Renders grey images of a :class:`Scene` as each camera sees it. Thread-safe.
+
+    ``background`` is the mean grey level of the dim background (with gentle low-frequency
+    structure, seeded per camera). Marker light adds to it: ``marker_level - background`` while
+    the camera's LED is on (so markers reach about ``marker_level``), only ``led_off_level``
+    while it is off. ``noise_sigma`` is the sensor noise (grey levels, 1 sigma; 0 gives
+    noise-free images). ``stats`` counts cache hits and misses.
+    """
+
+    def __init__(self, scene: Scene, noise_sigma: float = 2.0, background: float = 20.0,
+                 marker_level: float = 220.0, led_off_level: float = 5.0, supersample: int = 8,
+                 outline_points: int = 96, noise_frames: int = 8, noise_pad: int = 32,
+                 seed: int = 0, cache_size: int = 4):
+        self.scene = scene
+        self.noise_sigma = float(noise_sigma)
+        self.marker_level = float(marker_level)
+        self.led_off_level = float(led_off_level)
+        self.background_level = float(background)
+        self.supersample = int(supersample)
+        self.outline_points = int(outline_points)
+        self.cache_size = int(cache_size)
+        self._bg = {name: self._make_background(c.width, c.height, background, seed * 101 + i)
+                    for i, (name, c) in enumerate(scene.cameras.items())}
+        self._cache: dict[str, OrderedDict] = {name: OrderedDict() for name in scene.cameras}
+        self._lock = threading.Lock()
+        self._rng = random.Random(seed)
+        self._pad = int(noise_pad)
+        self._noise = None
+        if self.noise_sigma > 0:
+            w = max(c.width for c in scene.cameras.values()) + self._pad
+            h = max(c.height for c in scene.cameras.values()) + self._pad
+            self._noise = np.random.default_rng(seed).normal(
+                0.0, self.noise_sigma, (noise_frames, h, w)).astype(np.float32)
+        self.stats = {"hits": 0, "misses": 0}
+
+    @staticmethod
+    def _make_background(w: int, h: int, level: float, seed: int) -> np.ndarray:
+        """Dim background: ``level`` plus smooth waves of a few grey levels and a vignette."""
+        rng = np.random.default_rng(seed)
+        xx, yy = np.meshgrid(np.linspace(-1, 1, w), np.linspace(-1, 1, h))
+        bg = np.full((h, w), level, dtype=np.float64)
+        for amp in (2.5, 1.5):
+            fx, fy = rng.uniform(0.3, 1.2, 2)
+            bg += amp * np.cos(np.pi * (fx * xx + fy * yy) + rng.uniform(0, 2 * np.pi))
+        bg -= 3.0 * (xx ** 2 + yy ** 2) / 2.0 - 1.0
+        return bg.astype(np.float32)
+
+    def background(self, cam: str) -> np.ndarray:
+        """The background ``cam`` shows where there is no marker, as a noise-free uint8 image."""
+        return np.clip(np.rint(self._bg[cam]), 0, 255).astype(np.uint8)
+
+    # ------------------------------------------------------------------ rendering
+    def render(self, cam: str, t: float, noise: bool = True) -> np.ndarray:
+        """The uint8 (H, W) image ``cam`` sees at host time ``t``, with sensor noise unless
+        ``noise`` is False (or ``noise_sigma`` is 0)."""
+        clean = self.clean(cam, t)
+        if self._noise is None or not noise:
+            return np.clip(np.rint(clean), 0, 255).astype(np.uint8)
+        h, w = clean.shape
+        with self._lock:
+            k = self._rng.randrange(len(self._noise))
+            dy, dx = self._rng.randrange(self._pad + 1), self._rng.randrange(self._pad + 1)
+        return cv2.add(clean, self._noise[k, dy:dy + h, dx:dx + w], dtype=cv2.CV_8U)
+
+    def clean(self, cam: str, t: float) -> np.ndarray:
+        """The noise-free float32 image at ``t`` (not quantised), from the cache when the scene
+        looks the same. The array is shared: do not modify it."""
+        camera, markers, uv, _ = self.scene.project_markers(cam, t)
+        led = self.scene.led_on(cam, t)
+        key = (led, tuple(np.round(uv, 3).ravel().tolist()), self.scene.pose_key(t))
+        cache = self._cache[cam]
+        with self._lock:
+            img = cache.get(key)
+            if img is not None:
+                cache.move_to_end(key)
+                self.stats["hits"] += 1
+                return img
+        img = self._rasterise(cam, camera, markers, led)
+        with self._lock:
+            self.stats["misses"] += 1
+            cache[key] = img
+            while len(cache) > self.cache_size:
+                cache.popitem(last=False)
+        return img
+
+    def signal(self, camera, markers) -> np.ndarray:
+        """Float32 (H, W) marker brightness in 0..1 (coverage times profile), no background."""
+        sig = np.zeros((camera.height, camera.width), dtype=np.float32)
+        eye = camera.center
+        drawn = [m for m in markers
+                 if m.faces(eye) and camera.to_camera(m.center[None])[0, 2] > m.diameter_mm]
+        if not drawn:
+            return sig
+        n = self.outline_points
+        outlines = camera.project(np.vstack([m.outline(eye, n) for m in drawn])).reshape(-1, n, 2)
+        for m, poly in zip(drawn, outlines):
+            self._draw(sig, poly, SPHERE_RINGS if m.kind == "sphere" else DISK_RINGS)
+        return sig
+
+    def _draw(self, sig: np.ndarray, poly: np.ndarray, rings) -> None:
+        h_img, w_img = sig.shape
+        x0, y0 = np.maximum(np.floor(poly.min(axis=0) + 0.5).astype(int) - 1, 0)
+        x1, y1 = np.minimum(np.floor(poly.max(axis=0) + 0.5).astype(int) + 2, (w_img, h_img))
+        if x1 <= x0 or y1 <= y0:
+            return  # entirely outside the image
+        patch = polygon_coverage(poly, x0, y0, x1 - x0, y1 - y0, self.supersample, rings)
+        region = sig[y0:y1, x0:x1]
+        np.maximum(region, patch, out=region)
+
+    def _rasterise(self, cam: str, camera, markers, led: bool) -> np.ndarray:
+        bg = self._bg[cam]
+        sig = self.signal(camera, markers)
+        amp = self.marker_level - self.background_level if led else self.led_off_level
+        img = bg + sig * amp
+        img.flags.writeable = False
+        return img
+
+    @staticmethod
+    def encode(img: np.ndarray, quality: int) -> bytes:
+        """JPEG of ``img`` at ``quality`` (see :func:`encode`)."""
+        return encode(img, quality)

@@ -1,0 +1,239 @@
+"""The simulated rig: one scene, a simulated Axis camera per scene camera, on 127.0.0.1.
+
+From Python (tests)::
+
+    with SimRig(n_cameras=2) as rig:
+        cfg = rig.config()            # a RigConfig pointing at the simulated cameras
+        with rig.env():               # the password variables it names, set for the block
+            cam = AxisCamera.from_config(cfg.cameras[0])
+
+From the shell: ``vts sim up`` (foreground, Ctrl-C stops) or ``vts sim up --detach --dir DIR``
+which writes ``DIR/rig.yaml`` and ``DIR/sim.env`` and runs this module in the background;
+``vts sim down --dir DIR`` stops it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import secrets
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+from ..config import RigConfig, dump_rig, parse_rig
+from ..errors import VtsError
+from .axis_camera import SimAxisCamera
+from .camera_source import SimCameraSource
+from .clock import RealClock, VirtualClock
+from .render import Renderer
+from .scene import Scene
+
+PID_FILE = "sim.pid"
+_children: dict[int, subprocess.Popen] = {}  # started from this process: reaped on stop
+READY_FILE = "rig.yaml"
+
+
+def password_var(cam: str) -> str:
+    return f"VTS_SIM_{cam.upper().replace('-', '_').replace('.', '_')}_PASSWORD"
+
+
+class SimRig:
+    """A running simulated rig. ``faults`` of each camera: ``rig.servers[name].faults``."""
+
+    def __init__(self, n_cameras: int = 2, seed: int = 0, *, user: str = "root", password: str | None = None,
+                 firmware: str = "vapix3", clock=None, fps: float = 25.0):
+        self.clock = clock or RealClock()
+        self.scene = Scene.reference(seed=seed, n_cameras=n_cameras, start_epoch=self.clock.now())
+        self.renderer = Renderer(self.scene)
+        self.user = user
+        self.password = password or secrets.token_urlsafe(12)
+        self.fps = fps
+        self.sources = {name: SimCameraSource(self.scene, self.renderer, name, self.clock)
+                        for name in self.scene.cameras}
+        self.servers = {name: SimAxisCamera(src, user=user, password=self.password, firmware=firmware,
+                                            clock=self.clock)
+                        for name, src in self.sources.items()}
+        self._started = False
+
+    # -- life cycle --------------------------------------------------------------------
+    def start(self) -> "SimRig":
+        for srv in self.servers.values():
+            srv.start()
+        self._started = True
+        return self
+
+    def stop(self) -> None:
+        for srv in self.servers.values():
+            srv.stop()
+        self._started = False
+
+    def __enter__(self) -> "SimRig":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    # -- what a client needs -------------------------------------------------------------
+    def config(self, rig_name: str = "sim") -> RigConfig:
+        cams = [{"name": name, "host": "127.0.0.1", "port": srv.port, "user": self.user,
+                 "password_env": password_var(name), "fps": self.fps}
+                for name, srv in self.servers.items()]
+        return parse_rig({"rig": rig_name, "cameras": cams}, "simulated rig")
+
+    def env_vars(self) -> dict[str, str]:
+        return {password_var(name): self.password for name in self.servers}
+
+    @contextlib.contextmanager
+    def env(self):
+        """Set the password variables for the duration of a block (tests)."""
+        old = {k: os.environ.get(k) for k in self.env_vars()}
+        os.environ.update(self.env_vars())
+        try:
+            yield
+        finally:
+            for k, v in old.items():
+                if v is None:
+                    os.environ.pop(k, None)
+                else:
+                    os.environ[k] = v
+
+    def write(self, folder: str | Path) -> tuple[Path, Path]:
+        """Write ``rig.yaml`` and ``sim.env`` (mode 600: it holds the password)."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        env_path = folder / "sim.env"
+        fd = os.open(env_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+        with os.fdopen(fd, "w") as f:
+            f.write("# source this file: the passwords of the simulated cameras\n")
+            for k, v in self.env_vars().items():
+                f.write(f"export {k}='{v}'\n")
+            f.write(f"export VTS_CONFIG='{(folder / 'rig.yaml').resolve()}'\n")
+        rig_path = folder / "rig.yaml"
+        tmp = folder / ".rig.yaml.tmp"
+        tmp.write_text("# the simulated rig written by `vts sim up`\n" + dump_rig(self.config()))
+        os.replace(tmp, rig_path)  # rig.yaml appears only once everything is up
+        return rig_path, env_path
+
+
+def load_env_file(path: str | Path) -> dict[str, str]:
+    """The variables of a sim.env file."""
+    out = {}
+    for line in Path(path).read_text().splitlines():
+        line = line.strip()
+        if line.startswith("export ") and "=" in line:
+            k, v = line[len("export "):].split("=", 1)
+            out[k.strip()] = v.strip().strip("'\"")
+    return out
+
+
+# -- running in the foreground or detached ----------------------------------------------------
+def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = "vapix3",
+          rate: float = 1.0, on_ready=None) -> None:
+    """Run a rig until SIGINT/SIGTERM. With ``folder``: write rig.yaml, sim.env and sim.pid."""
+    clock = RealClock() if rate == 1.0 else VirtualClock(time.time(), rate=rate)
+    stop = threading.Event()
+
+    def _stop(*_):
+        stop.set()
+
+    signal.signal(signal.SIGTERM, _stop)
+    signal.signal(signal.SIGINT, _stop)
+    with SimRig(n_cameras=n_cameras, seed=seed, firmware=firmware, clock=clock) as rig:
+        if folder is not None:
+            folder = Path(folder)
+            folder.mkdir(parents=True, exist_ok=True)
+            (folder / PID_FILE).write_text(f"{os.getpid()}\n")
+            rig.write(folder)
+        if on_ready:
+            on_ready(rig)
+        while not stop.wait(0.5):
+            pass
+    if folder is not None:
+        for name in (PID_FILE,):
+            with contextlib.suppress(FileNotFoundError):
+                (Path(folder) / name).unlink()
+
+
+def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmware: str = "vapix3",
+                   rate: float = 1.0, timeout: float = 30.0) -> int:
+    """Start ``serve`` in a background process; return its pid once rig.yaml is written."""
+    folder = Path(folder).resolve()
+    folder.mkdir(parents=True, exist_ok=True)
+    if is_running(folder):
+        raise VtsError(f"a simulated rig is already running in {folder} (vts sim down --dir {folder})")
+    for name in (READY_FILE, PID_FILE):
+        with contextlib.suppress(FileNotFoundError):
+            (folder / name).unlink()
+    log = open(folder / "sim.log", "ab")
+    cmd = [sys.executable, "-m", "vts_hw.sim_devices.rig", str(folder), str(n_cameras), str(seed), firmware,
+           str(rate)]
+    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=log, start_new_session=True)
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if (folder / READY_FILE).exists():
+            _children[proc.pid] = proc
+            return proc.pid
+        if proc.poll() is not None:
+            raise VtsError(f"the simulated rig failed to start (exit {proc.returncode}); see {folder / 'sim.log'}")
+        time.sleep(0.05)
+    proc.kill()
+    raise VtsError(f"the simulated rig did not come up within {timeout:g} s; see {folder / 'sim.log'}")
+
+
+def _pid(folder: Path) -> int | None:
+    try:
+        return int((folder / PID_FILE).read_text().strip())
+    except (OSError, ValueError):
+        return None
+
+
+def is_running(folder: str | Path) -> bool:
+    pid = _pid(Path(folder))
+    if pid is None:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def stop_detached(folder: str | Path, timeout: float = 10.0) -> bool:
+    """Stop the rig started in ``folder``; False when none was running."""
+    folder = Path(folder)
+    pid = _pid(folder)
+    if pid is None or not is_running(folder):
+        with contextlib.suppress(FileNotFoundError):
+            (folder / PID_FILE).unlink()
+        return False
+    os.kill(pid, signal.SIGTERM)
+    child = _children.pop(pid, None)
+    if child is not None:
+        try:
+            child.wait(timeout)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.wait()
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.05)
+    else:
+        os.kill(pid, signal.SIGKILL)
+    with contextlib.suppress(FileNotFoundError):
+        (folder / PID_FILE).unlink()
+    return True
+
+
+if __name__ == "__main__":  # the detached process
+    _folder, _n, _seed, _fw, _rate = sys.argv[1:6]
+    serve(_folder, int(_n), int(_seed), _fw, float(_rate))

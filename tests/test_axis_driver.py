@@ -1,0 +1,117 @@
+"""The Axis driver against the simulated camera over HTTP (digest auth, VAPIX 2 and 3)."""
+
+import time
+
+import cv2
+import numpy as np
+import pytest
+
+from vts_hw.drivers.axis import (AxisCamera, BadReply, CameraUnauthorized, CameraUnreachable,
+                                 TooManyViewers)
+
+
+def _bright(jpeg):
+    img = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_GRAYSCALE)
+    return img, int((img > 128).sum())
+
+
+def test_snapshot_is_640x480_with_the_camera_clock(sim_rig, cam1):
+    src = sim_rig.sources["cam1"]
+    before = src.camera_time()
+    frame = cam1.snapshot()
+    after = src.camera_time()
+    img, _ = _bright(frame.jpeg)
+    assert img.shape == (480, 640)
+    assert frame.problems == ()
+    # stamped from that camera's clock (offset and skew against the host), to 10 ms
+    assert before - 0.05 <= frame.camera_time <= after + 0.05
+    assert abs(frame.camera_time - frame.host_time) > 0.01 or abs(src.camera_time(frame.host_time) - frame.host_time) < 0.01
+
+
+def test_led_changes_what_the_next_frame_shows(cam1, sim_rig):
+    cam1.led_off()
+    _, dark = _bright(cam1.snapshot().jpeg)
+    cam1.led_on()
+    _, lit = _bright(cam1.snapshot().jpeg)
+    assert dark < 20 and lit > 500
+    assert sim_rig.sources["cam1"].led_on()
+    cam1.led_pulse(300)
+    assert sim_rig.sources["cam1"].led_on()
+    time.sleep(0.45)
+    assert not sim_rig.sources["cam1"].led_on()
+    _, after = _bright(cam1.snapshot().jpeg)
+    assert after < 20
+
+
+def test_parameters_vapix3(cam1):
+    assert cam1.vapix_version == 3
+    params = cam1.get_params("Image.I0")
+    key = next(k for k in params if k.endswith("Appearance.Compression"))
+    cam1.set_params({key: 40})
+    assert cam1.get_params("Image.I0")[key] == "40"
+    with pytest.raises(BadReply, match="cam1"):
+        cam1.get_params("NoSuchGroup")
+
+
+def test_vapix2_detection_and_paths():
+    from vts_hw.sim_devices.rig import SimRig
+
+    with SimRig(n_cameras=1, firmware="vapix2") as rig, rig.env():
+        with AxisCamera.from_config(rig.config().cameras[0]) as cam:
+            assert cam.vapix_version == 2
+            params = cam.get_params("Image.I0")
+            key = next(k for k in params if k.endswith("Appearance.Compression"))
+            cam.set_params({key: 35})
+            assert cam.get_params("Image.I0")[key] == "35"
+            info = cam.device_info()  # no basicdeviceinfo.cgi: from the Brand/Properties groups
+            assert info
+            off = cam.clock_offset(samples=3)  # no time.cgi: from snapshot stamps
+            truth = rig.sources["cam1"].camera_time(off.host_time) - off.host_time
+            assert off.method == "snapshot"
+            assert abs(off.offset_s - truth) < off.uncertainty_s + 0.05
+
+
+def test_device_info_and_clock_offset(sim_rig, cam1):
+    info = cam1.device_info()
+    assert info.get("Brand", "").upper().startswith("AXIS")
+    off = cam1.clock_offset()
+    truth = sim_rig.sources["cam1"].camera_time(off.host_time) - off.host_time
+    assert off.method == "time.cgi"
+    assert abs(off.offset_s - truth) < 0.02
+    assert abs(truth) > 0.001  # the simulated clocks really are off
+
+
+def test_wrong_password_is_a_clear_error_without_the_password(sim_rig):
+    cfg = sim_rig.config().camera("cam1")
+    cam = AxisCamera("cam1", cfg.base_url, "root", "not-the-password")
+    with pytest.raises(CameraUnauthorized) as ei:
+        cam.snapshot()
+    assert "cam1" in str(ei.value) and "not-the-password" not in str(ei.value)
+    assert "not-the-password" not in repr(cam)
+    nopass = AxisCamera("cam1", cfg.base_url, None, None)
+    with pytest.raises(CameraUnauthorized, match="password_env"):
+        nopass.snapshot()
+
+
+def test_unreachable_camera(unused_port=None):
+    import socket
+    s = socket.socket()
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    cam = AxisCamera("camX", f"http://127.0.0.1:{port}", "root", "pw", timeout=1.0)
+    with pytest.raises(CameraUnreachable, match="camX .* unreachable"):
+        cam.snapshot()
+
+
+def test_too_many_viewers_and_rejected_auth(sim_rig, cam1):
+    faults = sim_rig.servers["cam1"].faults
+    faults.too_many_viewers = True
+    with pytest.raises(TooManyViewers, match="cam1"):
+        cam1.snapshot()
+    faults.too_many_viewers = False
+    faults.reject_auth = True
+    with pytest.raises(CameraUnauthorized):
+        cam1.snapshot()
+    faults.reject_auth = False
+    assert cam1.snapshot().camera_time is not None

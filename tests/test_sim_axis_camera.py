@@ -1,0 +1,746 @@
+"""The simulated Axis camera over real HTTP on loopback: VAPIX answers, digest auth, faults.
+
+Clients are independent of the server code: requests, curl, OpenCV/FFmpeg, and a raw socket
+client written here (with its own digest computation) for byte-exact checks. A small fake
+frame source stands in for ``SimCameraSource``; the last tests use the real one.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import http.client
+import re
+import secrets
+import shutil
+import socket
+import subprocess
+import time
+from datetime import datetime, timezone
+
+import cv2
+import numpy as np
+import pytest
+import requests
+from requests.auth import HTTPDigestAuth
+
+from vts_hw.axis_jpeg import AxisProduct, inspect_jpeg, stamp_jpeg
+from vts_hw.sim_devices.axis_camera import SimAxisCamera
+from vts_hw.sim_devices.clock import VirtualClock
+from vts_hw.sim_devices.digest import parse_auth_params
+from vts_hw.sim_devices.faults import Faults
+
+PASSWORD = "s3cret pw"
+AUTH = HTTPDigestAuth("root", PASSWORD)
+PART_RE = re.compile(rb"--myboundary\r\nContent-Type: image/jpeg\r\nContent-Length: (\d+)\r\n\r\n")
+
+
+# ----------------------------------------------------------------------------------------
+# A fake frame source with the SimCameraSource interface
+# ----------------------------------------------------------------------------------------
+class FakeSource:
+    """640x480 frames: a textured background, four disks that are bright only with the LED on."""
+
+    def __init__(self, name: str = "cam0", offset_s: float = 3.25, render_s: float = 0.0):
+        self.name, self.width, self.height = name, 640, 480
+        self.render_s = render_s  # time a frame takes to make (after its stamp)
+        self.product = AxisProduct(0x01A2, (5, 55, 1), bytes.fromhex("ACCC8E192567"))
+        self.offset_s = offset_s
+        self.led_calls: list[tuple] = []
+        self._led, self._pulse_until = False, 0.0
+        rng = np.random.default_rng(1)
+        self._background = (rng.normal(30, 8, (480, 640)).clip(0, 255)).astype(np.uint8)
+        self._disks = np.zeros((480, 640), np.uint8)
+        for x, y in ((160, 120), (480, 120), (160, 360), (480, 360)):
+            cv2.circle(self._disks, (x, y), 12, 255, -1)
+
+    def camera_time(self, host_t: float | None = None) -> float:
+        return (time.time() if host_t is None else host_t) + self.offset_s
+
+    def set_led(self, on: bool) -> None:
+        self.led_calls.append(("set", on))
+        self._led, self._pulse_until = bool(on), 0.0
+
+    def pulse_led(self, duration_s: float) -> None:
+        self.led_calls.append(("pulse", duration_s))
+        self._pulse_until = time.time() + duration_s
+
+    def led_on(self) -> bool:
+        return self._led or time.time() < self._pulse_until
+
+    def jpeg(self, quality: int, host_t: float | None = None) -> tuple[bytes, float]:
+        epoch = self.camera_time(host_t)
+        image = np.maximum(self._background, self._disks) if self.led_on() else self._background
+        ok, enc = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, quality])
+        time.sleep(self.render_s)
+        return stamp_jpeg(enc.tobytes(), epoch, self.product), epoch
+
+
+@pytest.fixture
+def source():
+    return FakeSource()
+
+
+@pytest.fixture
+def cam(source):
+    with SimAxisCamera(source, password=PASSWORD) as camera:
+        yield camera
+
+
+@pytest.fixture
+def cam2(source):
+    with SimAxisCamera(source, password=PASSWORD, firmware="vapix2") as camera:
+        yield camera
+
+
+# ----------------------------------------------------------------------------------------
+# A raw client with its own digest computation, for byte-exact checks
+# ----------------------------------------------------------------------------------------
+def _md5(text: str) -> str:
+    return hashlib.md5(text.encode()).hexdigest()
+
+
+def auth_header(cam, path: str, method: str = "GET", password: str = PASSWORD) -> str:
+    """Ask for a challenge, answer it the RFC 7616 way (MD5, qop=auth)."""
+    challenge = requests.request(method, cam.url + path).headers["WWW-Authenticate"]
+    fields = dict(re.findall(r'(\w+)="?([^",]*)"?', challenge))
+    cnonce, nc = secrets.token_hex(8), "00000001"
+    ha1 = _md5(f"root:{fields['realm']}:{password}")
+    ha2 = _md5(f"{method}:{path}")
+    response = _md5(f"{ha1}:{fields['nonce']}:{nc}:{cnonce}:auth:{ha2}")
+    return (f'Digest username="root", realm="{fields["realm"]}", nonce="{fields["nonce"]}", uri="{path}", '
+            f'response="{response}", qop=auth, nc={nc}, cnonce="{cnonce}", opaque="{fields["opaque"]}"')
+
+
+class Raw:
+    """One connection: ``with Raw(...) as (sock, reader)`` closes both ends on exit (a
+    socket with a reader made by makefile() stays open until the reader is closed too)."""
+
+    def __init__(self, sock: socket.socket):
+        self.sock, self.reader = sock, sock.makefile("rb")
+
+    def __iter__(self):
+        return iter((self, self.reader))
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self):
+        self.reader.close()
+        self.sock.close()
+
+
+def raw_request(cam, path: str, auth: bool = True, timeout: float = 5.0) -> Raw:
+    """Send one GET on a fresh socket; unpacks as (connection, binary reader)."""
+    sock = socket.create_connection(("127.0.0.1", cam.port), timeout=timeout)
+    head = f"GET {path} HTTP/1.1\r\nHost: 127.0.0.1\r\n"
+    if auth:
+        head += f"Authorization: {auth_header(cam, path)}\r\n"
+    sock.sendall((head + "\r\n").encode())
+    return Raw(sock)
+
+
+def read_head(reader) -> tuple[bytes, dict[str, str]]:
+    status = reader.readline()
+    headers = {}
+    while (line := reader.readline()) not in (b"\r\n", b""):
+        key, _, value = line.decode("latin-1").partition(":")
+        headers[key.strip().lower()] = value.strip()
+    return status, headers
+
+
+def read_all(reader, limit_s: float = 8.0) -> bytes:
+    data, t_end = bytearray(), time.monotonic() + limit_s
+    while time.monotonic() < t_end:
+        chunk = reader.read1(65536)
+        if not chunk:
+            return bytes(data)
+        data += chunk
+    raise AssertionError("the stream did not end")
+
+
+def walk_parts(body: bytes) -> list[tuple[int, bytes]]:
+    """Walk a multipart body strictly by Content-Length; fails on any deviation from the
+    layout of the real capture: boundary line, two headers, blank line, JPEG, CRLF."""
+    parts, pos = [], 0
+    while pos < len(body):
+        m = PART_RE.match(body, pos)
+        assert m, f"no part header at byte {pos}: {body[pos:pos + 80]!r}"
+        n = int(m.group(1))
+        jpeg = body[m.end():m.end() + n]
+        assert body[m.end() + n:m.end() + n + 2] == b"\r\n", "a part must end with CRLF"
+        parts.append((n, jpeg))
+        pos = m.end() + n + 2
+    return parts
+
+
+def stream(cam, query: str = "", limit_s: float = 8.0) -> tuple[bytes, dict, bytes]:
+    sock, reader = raw_request(cam, "/axis-cgi/mjpg/video.cgi" + query)
+    with sock:
+        status, headers = read_head(reader)
+        return status, headers, read_all(reader, limit_s)
+
+
+def get(cam, path: str, **kw) -> requests.Response:
+    return requests.get(cam.url + path, auth=AUTH, timeout=5, **kw)
+
+
+# ----------------------------------------------------------------------------------------
+# Snapshot, authentication
+# ----------------------------------------------------------------------------------------
+def test_snapshot_is_a_stamped_640x480_jpeg_of_the_camera_clock(cam, source):
+    before = source.camera_time()
+    r = get(cam, "/axis-cgi/jpg/image.cgi?resolution=640x480&compression=30")
+    after = source.camera_time()
+    assert r.status_code == 200
+    assert r.headers["Content-Type"] == "image/jpeg"
+    assert int(r.headers["Content-Length"]) == len(r.content)
+    info = inspect_jpeg(r.content)
+    assert info.problems == ()
+    assert (info.width, info.height) == (640, 480)
+    assert info.product == source.product
+    assert before - 0.05 <= info.timestamp <= after + 0.05  # the stamp is truncated to 10 ms
+
+
+def test_no_credentials_or_wrong_password_get_a_digest_challenge(cam):
+    r = requests.get(cam.url + "/axis-cgi/jpg/image.cgi")
+    assert r.status_code == 401
+    challenge = r.headers["WWW-Authenticate"]
+    assert challenge.startswith("Digest ")
+    assert 'realm="AXIS_ACCC8E192567"' in challenge and 'qop="auth"' in challenge
+    assert "algorithm=MD5" in challenge and "opaque=" in challenge and "nonce=" in challenge
+    assert requests.get(cam.url + "/axis-cgi/jpg/image.cgi", auth=HTTPDigestAuth("root", "nope")).status_code == 401
+    assert requests.get(cam.url + "/axis-cgi/jpg/image.cgi", auth=("root", PASSWORD)).status_code == 401  # basic
+    assert get(cam, "/axis-cgi/jpg/image.cgi").status_code == 200
+
+
+def test_raw_digest_answer_and_expired_nonce_is_stale(cam):
+    path = "/axis-cgi/param.cgi?action=list&group=Brand.ProdNbr"
+    sock, reader = raw_request(cam, path)
+    with sock:
+        status, headers = read_head(reader)
+        assert status == b"HTTP/1.1 200 OK\r\n"
+        assert reader.read(int(headers["content-length"])) == b"root.Brand.ProdNbr=P1344\r\n"
+    header = auth_header(cam, path)
+    cam.auth.now = lambda: time.monotonic() + cam.auth.nonce_ttl_s + 10  # the nonce is now old
+    conn = http.client.HTTPConnection("127.0.0.1", cam.port, timeout=5)
+    conn.request("GET", path, headers={"Authorization": header})
+    r = conn.getresponse()
+    r.read()
+    assert r.status == 401
+    assert "stale=true" in r.getheader("WWW-Authenticate")
+    conn.close()
+
+
+def test_digest_for_another_uri_is_refused(cam):
+    header = auth_header(cam, "/axis-cgi/date.cgi?action=get")
+    conn = http.client.HTTPConnection("127.0.0.1", cam.port, timeout=5)
+    conn.request("GET", "/axis-cgi/jpg/image.cgi", headers={"Authorization": header})
+    assert conn.getresponse().status == 401
+    conn.close()
+
+
+def test_digest_header_parsing_of_the_clients_we_meet():
+    ffmpeg = ('username="root",realm="AXIS_1",nonce="a.b.c",uri="/x?a=1,2",response="ff",'
+              'algorithm=MD5,opaque="o",qop="auth",cnonce="c1",nc=00000001')
+    curl = ('username="root", realm="AXIS_1", nonce="a.b.c", uri="/x?a=1,2", cnonce="c1", '
+            'nc=00000001, qop=auth, response="ff", opaque="o", algorithm=MD5')
+    assert parse_auth_params(ffmpeg) == parse_auth_params(curl)
+    assert parse_auth_params(curl)["uri"] == "/x?a=1,2" and parse_auth_params(curl)["qop"] == "auth"
+    assert parse_auth_params(r'realm="a \"quoted\" b", x=1')["realm"] == 'a "quoted" b'
+
+
+def test_curl_digest(cam, tmp_path):
+    curl = shutil.which("curl")
+    if curl is None:
+        pytest.skip("curl is not installed")
+    out = tmp_path / "snap.jpg"
+    run = subprocess.run([curl, "-sS", "--fail", "--digest", "-u", f"root:{PASSWORD}", "-o", str(out),
+                          cam.url + "/axis-cgi/jpg/image.cgi?resolution=640x480"], capture_output=True, timeout=10)
+    assert run.returncode == 0, run.stderr
+    assert inspect_jpeg(out.read_bytes()).problems == ()
+    run = subprocess.run([curl, "-sS", "--digest", "-u", f"root:{PASSWORD}",
+                          cam.url + "/axis-cgi/io/port.cgi?action=1%3A%2F"], capture_output=True, timeout=10)
+    assert run.stdout == b"OK\r\n"
+    run = subprocess.run([curl, "-sS", "-o", "/dev/null", "-w", "%{http_code}", "--digest", "-u", "root:wrong",
+                          cam.url + "/axis-cgi/jpg/image.cgi"], capture_output=True, timeout=10)
+    assert run.stdout == b"401"
+
+
+def test_opencv_ffmpeg_reads_the_stream_with_credentials_in_the_url(cam):
+    cap = cv2.VideoCapture(f"http://root:{PASSWORD.replace(' ', '%20')}@127.0.0.1:{cam.port}"
+                           "/axis-cgi/mjpg/video.cgi?resolution=640x480&fps=25", cv2.CAP_FFMPEG)
+    try:
+        assert cap.isOpened()
+        frames = [cap.read() for _ in range(5)]
+    finally:
+        cap.release()
+    assert all(ok for ok, _ in frames)
+    assert frames[-1][1].shape[:2] == (480, 640)
+    assert cam.counter("auth_failures") >= 1  # FFmpeg really went through the digest challenge
+
+
+def test_opencv_with_a_wrong_password_does_not_open(cam):
+    cap = cv2.VideoCapture(f"http://root:wrong@127.0.0.1:{cam.port}/axis-cgi/mjpg/video.cgi", cv2.CAP_FFMPEG)
+    try:
+        assert not cap.isOpened() or not cap.read()[0]
+    finally:
+        cap.release()
+    assert cam.counter("frames_served") == 0
+
+
+# ----------------------------------------------------------------------------------------
+# The MJPEG stream
+# ----------------------------------------------------------------------------------------
+def test_stream_layout_is_byte_exact_like_the_real_capture(cam, axis_frames):
+    real = (axis_frames / "t.mjpg").read_bytes()
+    real_parts = walk_parts(real)  # the walker's template is what the real camera sends
+    assert len(real_parts) == 16
+    status, headers, body = stream(cam, "?nbrofframes=4")
+    assert status == b"HTTP/1.0 200 OK\r\n"
+    assert headers["content-type"] == "multipart/x-mixed-replace; boundary=myboundary"
+    parts = walk_parts(body)
+    assert len(parts) == 4
+    for n, jpeg in parts:
+        assert n == len(jpeg) and inspect_jpeg(jpeg).problems == ()
+    assert body.startswith(real[:real.index(b"\r\n\r\n") - len(str(real_parts[0][0]))])  # same header text
+
+
+def test_nbrofframes_ends_the_stream(cam):
+    _, _, body = stream(cam, "?nbrofframes=7&fps=30")
+    assert len(walk_parts(body)) == 7
+
+
+def test_duration_ends_the_stream(cam):
+    t0 = time.monotonic()
+    _, _, body = stream(cam, "?duration=1&fps=10")
+    elapsed = time.monotonic() - t0
+    assert 9 <= len(walk_parts(body)) <= 11
+    assert 0.8 <= elapsed <= 2.5
+
+
+def test_fps_pacing_without_drift(cam):
+    sock, reader = raw_request(cam, "/axis-cgi/mjpg/video.cgi?fps=20")
+    with sock:
+        read_head(reader)
+        data, t_end = bytearray(), time.monotonic() + 1.0
+        while time.monotonic() < t_end:
+            data += reader.read1(65536)
+    n = len(PART_RE.findall(bytes(data)))
+    assert 14 <= n <= 24, n
+
+
+def test_stream_pacing_does_not_drift():
+    """Frame k is due at start + k/fps: 10 ms of capture time per frame must not add up."""
+    slow = FakeSource(render_s=0.01)
+    with SimAxisCamera(slow, password=PASSWORD) as camera:
+        _, _, body = stream(camera, "?fps=25&nbrofframes=25")
+    stamps = np.array([inspect_jpeg(j).timestamp for _, j in walk_parts(body)])
+    residual = stamps - stamps[0] - np.arange(25) / 25.0
+    assert np.abs(residual).max() < 0.025, residual  # stamps are truncated to 10 ms
+
+
+def test_pacing_follows_the_given_clock(source):
+    fast = VirtualClock(rate=20.0)  # simulated time runs 20 times faster than real time
+    with SimAxisCamera(source, password=PASSWORD, clock=fast) as camera:
+        t0 = time.monotonic()
+        _, _, body = stream(camera, "?fps=10&duration=2")  # 2 s of simulated time
+        elapsed = time.monotonic() - t0
+    assert 19 <= len(walk_parts(body)) <= 21
+    assert elapsed < 1.0
+
+
+def test_lower_resolution_and_compression(cam):
+    r = get(cam, "/axis-cgi/jpg/image.cgi?resolution=320x240")
+    info = inspect_jpeg(r.content)
+    assert (info.width, info.height) == (320, 240) and info.problems == ()
+    fine = get(cam, "/axis-cgi/jpg/image.cgi?compression=0").content
+    coarse = get(cam, "/axis-cgi/jpg/image.cgi?compression=90").content
+    assert len(coarse) < 0.5 * len(fine)
+    _, _, body = stream(cam, "?resolution=160x120&nbrofframes=2")
+    assert all(inspect_jpeg(j).width == 160 for _, j in walk_parts(body))
+
+
+def test_unsupported_resolution_and_bad_arguments_are_400(cam):
+    r = get(cam, "/axis-cgi/jpg/image.cgi?resolution=1234x5")
+    assert r.status_code == 400 and r.text.startswith("Error:") and "640x480" in r.text
+    assert get(cam, "/axis-cgi/mjpg/video.cgi?fps=fast").status_code == 400
+    assert get(cam, "/axis-cgi/jpg/image.cgi?compression=101").status_code == 400
+
+
+def test_client_disconnect_is_quiet_and_counted_down(cam, capfd):
+    for _ in range(3):
+        sock, reader = raw_request(cam, "/axis-cgi/mjpg/video.cgi")
+        read_head(reader)
+        reader.read1(1000)
+        sock.close()
+    deadline = time.monotonic() + 3
+    while cam.counter("active_streams") and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert cam.counter("active_streams") == 0
+    assert "Traceback" not in capfd.readouterr().err
+
+
+def test_stop_ends_running_streams(source):
+    camera = SimAxisCamera(source, password=PASSWORD).start()
+    sock, reader = raw_request(camera, "/axis-cgi/mjpg/video.cgi")
+    read_head(reader)
+    reader.read1(1000)
+    t0 = time.monotonic()
+    camera.stop()
+    with sock:
+        read_all(reader, limit_s=3)
+    assert time.monotonic() - t0 < 3
+
+
+# ----------------------------------------------------------------------------------------
+# Parameters, firmware versions, I/O, device info, time
+# ----------------------------------------------------------------------------------------
+def test_param_list_groups(cam, source):
+    r = get(cam, "/axis-cgi/param.cgi?action=list&group=Brand")
+    assert r.headers["Content-Type"].startswith("text/plain")
+    assert "root.Brand.ProdShortName=AXIS P1344\r\n" in r.text
+    assert "root.Brand.ProdType=Network Camera\r\n" in r.text
+    assert all(line.startswith("root.Brand.") for line in r.text.splitlines())
+    props = get(cam, "/axis-cgi/param.cgi?action=list&group=Properties").text
+    assert "root.Properties.System.SerialNumber=ACCC8E192567\r\n" in props
+    assert f"root.Properties.Firmware.Version={source.product.firmware_str}\r\n" in props
+    assert "root.Properties.Image.Resolution=640x480," in props
+    assert "root.Properties.API.HTTP.Version=3\r\n" in props
+    image = get(cam, "/axis-cgi/param.cgi?action=list&group=Image.I0").text
+    for line in ("Appearance.Resolution=640x480", "Appearance.Compression=25", "Stream.FPS=25"):
+        assert f"root.Image.I0.{line}\r\n" in image
+    io = get(cam, "/axis-cgi/param.cgi?action=list&group=IOPort.I0").text
+    assert "root.IOPort.I0.Direction=output\r\n" in io and "root.IOPort.I0.Output.Active=" in io
+    tm = get(cam, "/axis-cgi/param.cgi?action=list&group=root.Time").text
+    for key in ("SyncSource", "NTP.Server", "ObtainFromDHCP"):
+        assert f"root.Time.{key}=" in tm
+
+
+def test_param_update_and_errors(cam):
+    r = get(cam, "/axis-cgi/param.cgi?action=update&Image.I0.Appearance.Compression=30")
+    assert (r.status_code, r.text) == (200, "OK\r\n")
+    assert get(cam, "/axis-cgi/param.cgi?action=list&group=Image.I0.Appearance.Compression").text == \
+        "root.Image.I0.Appearance.Compression=30\r\n"
+    r = get(cam, "/axis-cgi/param.cgi?action=list&group=Nonsense")
+    assert (r.status_code, r.text) == (200, "# Error: Error -1 getting param in group 'Nonsense'\r\n")
+    for bad in ("Image.I0.NoSuch=1", "Image.I0.Appearance.Compression=200", "Brand.ProdNbr=X"):
+        r = get(cam, "/axis-cgi/param.cgi?action=update&" + bad)
+        assert r.status_code == 200 and r.text.startswith("# Error:"), bad
+    assert "Compression=30" in get(cam, "/axis-cgi/param.cgi?action=list&group=Image.I0").text
+
+
+def test_param_store_is_per_camera(source):
+    with SimAxisCamera(source, password=PASSWORD) as a, SimAxisCamera(FakeSource("cam1"), password=PASSWORD) as b:
+        get(a, "/axis-cgi/param.cgi?action=update&Time.NTP.Server=10.0.0.9")
+        assert "10.0.0.9" in get(a, "/axis-cgi/param.cgi?action=list&group=Time").text
+        assert "10.0.0.9" not in get(b, "/axis-cgi/param.cgi?action=list&group=Time").text
+
+
+def test_vapix2_paths(cam2):
+    assert get(cam2, "/axis-cgi/param.cgi?action=list&group=Brand").status_code == 404
+    r = get(cam2, "/axis-cgi/view/param.cgi?action=list&group=Properties.API.HTTP.Version")
+    assert r.text == "root.Properties.API.HTTP.Version=2\r\n"
+    assert get(cam2, "/axis-cgi/view/param.cgi?action=update&Time.NTP.Server=1.2.3.4").text.startswith("# Error:")
+    assert get(cam2, "/axis-cgi/admin/param.cgi?action=update&Time.NTP.Server=1.2.3.4").text == "OK\r\n"
+    assert "1.2.3.4" in get(cam2, "/axis-cgi/view/param.cgi?action=list&group=Time.NTP").text
+    body = {"apiVersion": "1.0", "method": "getAllProperties"}
+    assert requests.post(cam2.url + "/axis-cgi/basicdeviceinfo.cgi", json=body, auth=AUTH).status_code == 404
+    assert requests.post(cam2.url + "/axis-cgi/time.cgi", json=body, auth=AUTH).status_code == 404
+    assert get(cam2, "/axis-cgi/date.cgi?action=get").status_code == 200
+
+
+def test_vapix3_keeps_the_old_param_paths(cam):
+    assert get(cam, "/axis-cgi/view/param.cgi?action=list&group=Brand.Brand").text == "root.Brand.Brand=AXIS\r\n"
+
+
+def test_basic_device_info(cam, source):
+    r = requests.post(cam.url + "/axis-cgi/basicdeviceinfo.cgi", auth=AUTH,
+                      json={"apiVersion": "1.0", "context": "t", "method": "getAllProperties"})
+    assert r.status_code == 200 and r.headers["Content-Type"] == "application/json"
+    reply = r.json()
+    assert reply["apiVersion"] == "1.0" and reply["context"] == "t"
+    props = reply["data"]["propertyList"]
+    assert props["Brand"] == "AXIS" and props["ProdNbr"] == "P1344"
+    assert props["SerialNumber"] == "ACCC8E192567" and props["Version"] == source.product.firmware_str
+    r = requests.post(cam.url + "/axis-cgi/basicdeviceinfo.cgi", auth=AUTH, json={"apiVersion": "1.0", "method": "x"})
+    assert "error" in r.json()
+
+
+def test_io_port_drives_the_led(cam, source):
+    r = get(cam, "/axis-cgi/io/port.cgi?action=1%3A%2F")
+    assert r.text == "OK\r\n" and source.led_on()
+    assert get(cam, "/axis-cgi/io/port.cgi?checkactive=1").text == "port1=active\r\n"
+    assert get(cam, "/axis-cgi/io/port.cgi?action=1%3A%5C").text == "OK\r\n" and not source.led_on()
+    assert get(cam, "/axis-cgi/io/port.cgi?action=1%3A%2F300%5C").text == "OK\r\n"
+    assert source.led_calls[-1] == ("pulse", 0.3) and source.led_on()
+    assert get(cam, "/axis-cgi/io/port.cgi?action=2%3A%2F").text.startswith("# Error:")
+    assert get(cam, "/axis-cgi/io/port.cgi?action=1%3Ax").text.startswith("# Error:")
+    assert len(source.led_calls) == 3
+
+
+def test_led_state_shows_in_the_next_frame(cam):
+    def disk_level():
+        img = cv2.imdecode(np.frombuffer(get(cam, "/axis-cgi/jpg/image.cgi").content, np.uint8), 0)
+        return img[120, 160]
+    get(cam, "/axis-cgi/io/port.cgi?action=1%3A%2F")
+    assert disk_level() > 200
+    get(cam, "/axis-cgi/io/port.cgi?action=1%3A%5C")
+    assert disk_level() < 100
+
+
+def test_date_and_time_are_the_camera_clock(cam, source):
+    text = get(cam, "/axis-cgi/date.cgi?action=get").text
+    assert re.fullmatch(r"[A-Z][a-z]{2} \d\d, \d{4} \d\d:\d\d:\d\d\r\n", text)
+    shown = datetime.strptime(text.strip(), "%b %d, %Y %H:%M:%S").replace(tzinfo=timezone.utc).timestamp()
+    assert abs(shown - source.camera_time()) < 2.0
+    assert get(cam, "/axis-cgi/date.cgi?action=set").text.startswith("# Error:")
+    before = source.camera_time()
+    r = requests.post(cam.url + "/axis-cgi/time.cgi", auth=AUTH,
+                      json={"apiVersion": "1.0", "method": "getDateTimeInfo"})
+    after = source.camera_time()
+    iso = r.json()["data"]["dateTime"]
+    assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z", iso)
+    t = datetime.strptime(iso, "%Y-%m-%dT%H:%M:%S.%fZ").replace(tzinfo=timezone.utc).timestamp()
+    assert before - 0.002 <= t <= after + 0.002
+    assert abs(t - time.time() - source.offset_s) < 0.5  # the camera's clock, not the host's
+
+
+def test_unknown_paths_are_404(cam):
+    assert get(cam, "/axis-cgi/nothing.cgi").status_code == 404
+    assert requests.get(cam.url + "/index.html").status_code == 404
+
+
+# ----------------------------------------------------------------------------------------
+# Control endpoint
+# ----------------------------------------------------------------------------------------
+def test_control_endpoint_faults_and_state(cam):
+    assert requests.get(cam.url + "/sim/faults").json() == Faults().to_dict()
+    r = requests.post(cam.url + "/sim/faults", json={"drop_after_frames": 3, "torn_mode": "cut"})
+    assert r.status_code == 200 and r.json()["drop_after_frames"] == 3
+    assert cam.faults.drop_after_frames == 3 and cam.faults.torn_mode == "cut"
+    bad = requests.post(cam.url + "/sim/faults", json={"no_such_fault": 1})
+    assert bad.status_code == 400 and "no_such_fault" in bad.json()["error"]
+    assert requests.post(cam.url + "/sim/faults", json={"stall_s": "long"}).status_code == 400
+    assert cam.faults.drop_after_frames == 3  # a refused change changes nothing
+    r = requests.post(cam.url + "/sim/faults?reset=1", json={"reject_auth": True})
+    assert r.json()["drop_after_frames"] is None and r.json()["reject_auth"] is True
+    get(cam, "/axis-cgi/jpg/image.cgi")  # refused: reject_auth
+    cam.faults.reset()
+    get(cam, "/axis-cgi/jpg/image.cgi")
+    sock, reader = raw_request(cam, "/axis-cgi/mjpg/video.cgi")
+    with sock:
+        read_head(reader)
+        reader.read1(1000)
+        state = requests.get(cam.url + "/sim/state").json()
+    assert state["name"] == "cam0" and state["led_on"] is False
+    assert abs(state["camera_time"] - (time.time() + 3.25)) < 0.5
+    assert state["active_streams"] == 1 and state["connections"] >= 2
+    assert state["frames_served"] >= 2 and state["snapshots_served"] == 1
+
+
+# ----------------------------------------------------------------------------------------
+# Faults
+# ----------------------------------------------------------------------------------------
+def test_fault_drop_after_frames(cam):
+    cam.set_faults(drop_after_frames=3)
+    t0 = time.monotonic()
+    _, _, body = stream(cam, "?nbrofframes=50")
+    assert len(walk_parts(body)) == 3
+    assert time.monotonic() - t0 < 1.0
+
+
+def test_fault_drop_reaches_a_running_stream(cam):
+    sock, reader = raw_request(cam, "/axis-cgi/mjpg/video.cgi")
+    with sock:
+        read_head(reader)
+        first = reader.read1(65536)
+        requests.post(cam.url + "/sim/faults", json={"drop_after_frames": 0})
+        rest = read_all(reader, limit_s=2)
+    assert len(PART_RE.findall(first + rest)) < 10
+
+
+def test_fault_stall_keeps_the_connection_open(cam):
+    cam.set_faults(stall_after_frames=2, stall_s=1.0)
+    sock, reader = raw_request(cam, "/axis-cgi/mjpg/video.cgi?nbrofframes=4")
+    with sock:
+        read_head(reader)
+        data, arrivals = b"", []
+        while chunk := reader.read1(65536):
+            data += chunk
+            arrivals.append((time.monotonic(), len(PART_RE.findall(data))))
+    assert len(walk_parts(data)) == 4
+    t2 = min(t for t, n in arrivals if n >= 2)
+    t3 = min(t for t, n in arrivals if n >= 3)
+    assert 0.9 <= t3 - t2 <= 2.0
+
+
+def test_fault_too_many_viewers(cam):
+    cam.faults.too_many_viewers = True
+    for path in ("/axis-cgi/mjpg/video.cgi", "/axis-cgi/jpg/image.cgi"):
+        r = get(cam, path)
+        assert r.status_code == 503 and "Too many viewers" in r.text
+    assert get(cam, "/axis-cgi/param.cgi?action=list&group=Brand.Brand").status_code == 200
+    cam.faults.too_many_viewers = False
+    assert get(cam, "/axis-cgi/jpg/image.cgi").status_code == 200
+
+
+def test_fault_max_viewers(cam):
+    cam.set_faults(max_viewers=1)
+    sock, reader = raw_request(cam, "/axis-cgi/mjpg/video.cgi")
+    with sock:
+        read_head(reader)
+        reader.read1(1000)
+        assert get(cam, "/axis-cgi/mjpg/video.cgi?nbrofframes=1").status_code == 503
+    deadline = time.monotonic() + 3
+    while cam.counter("active_streams") and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert get(cam, "/axis-cgi/mjpg/video.cgi?nbrofframes=1").status_code == 200
+
+
+def test_fault_reject_auth(cam):
+    cam.faults.reject_auth = True
+    r = get(cam, "/axis-cgi/jpg/image.cgi")
+    assert r.status_code == 401 and r.headers["WWW-Authenticate"].startswith("Digest ")
+    cam.faults.reject_auth = False
+    assert get(cam, "/axis-cgi/jpg/image.cgi").status_code == 200
+
+
+def test_fault_torn_jpeg_in_a_stream(cam):
+    cam.set_faults(torn_jpeg_at=2)
+    _, _, body = stream(cam, "?nbrofframes=4")
+    parts = walk_parts(body)  # "short": Content-Length states the short length
+    assert len(parts) == 4
+    assert [inspect_jpeg(j).complete for _, j in parts] == [True, True, False, True]
+    assert parts[2][0] < 0.6 * parts[1][0]
+
+
+def test_fault_torn_jpeg_cut_kills_the_connection_mid_frame(cam):
+    cam.set_faults(torn_jpeg_at=1, torn_mode="cut")
+    _, _, body = stream(cam, "?nbrofframes=4")
+    heads = list(PART_RE.finditer(body))
+    assert len(heads) == 2
+    stated, received = int(heads[1].group(1)), len(body) - heads[1].end()
+    assert 0.4 * stated <= received <= 0.6 * stated
+
+
+def test_fault_torn_snapshot(cam):
+    cam.set_faults(torn_jpeg_at=0)
+    r = get(cam, "/axis-cgi/jpg/image.cgi")
+    assert r.status_code == 200 and int(r.headers["Content-Length"]) == len(r.content)
+    assert not inspect_jpeg(r.content).complete
+    assert inspect_jpeg(get(cam, "/axis-cgi/jpg/image.cgi").content).complete  # only that one
+    cam.set_faults(torn_jpeg_at=0, torn_mode="cut")
+    conn = http.client.HTTPConnection("127.0.0.1", cam.port, timeout=5)
+    path = "/axis-cgi/jpg/image.cgi"
+    conn.request("GET", path, headers={"Authorization": auth_header(cam, path)})
+    with pytest.raises(http.client.IncompleteRead):
+        conn.getresponse().read()
+    conn.close()
+
+
+def test_fault_wrong_content_length_swallows_the_next_boundary(cam):
+    cam.set_faults(wrong_content_length_at=1)
+    _, _, body = stream(cam, "?nbrofframes=3")
+    heads = list(PART_RE.finditer(body))
+    assert len(heads) == 3
+    actual = heads[2].start() - 2 - heads[1].end()  # up to the CRLF before the next boundary
+    assert int(heads[1].group(1)) == actual + 100
+    naive_end = heads[1].end() + int(heads[1].group(1))
+    assert naive_end > heads[2].start()  # a naive reader eats the next part's boundary
+    assert int(heads[0].group(1)) == heads[1].start() - 2 - heads[0].end()  # the others are right
+
+
+def test_fault_missing_content_length(cam):
+    cam.set_faults(missing_content_length=True)
+    _, _, body = stream(cam, "?nbrofframes=3")
+    assert b"Content-Length" not in body.split(b"\xff\xd8", 1)[0]
+    chunks = body.split(b"--myboundary\r\nContent-Type: image/jpeg\r\n\r\n")
+    assert chunks[0] == b"" and len(chunks) == 4
+    assert all(c.endswith(b"\r\n") and inspect_jpeg(c[:-2]).complete for c in chunks[1:])
+
+
+def test_fault_close_after_response(cam):
+    path = "/axis-cgi/param.cgi?action=list&group=Brand.Brand"
+    conn = http.client.HTTPConnection("127.0.0.1", cam.port, timeout=5)
+    for _ in range(2):  # healthy: keep-alive, two requests on one connection
+        conn.request("GET", path, headers={"Authorization": auth_header(cam, path)})
+        r = conn.getresponse()
+        assert r.read() == b"root.Brand.Brand=AXIS\r\n" and not r.will_close
+    sock_before = conn.sock
+    conn.close()
+    assert sock_before is not None
+    cam.faults.close_after_response = True
+    sock, reader = raw_request(cam, path)
+    with sock:
+        status, headers = read_head(reader)
+        assert status == b"HTTP/1.0 200 OK\r\n" and headers["connection"] == "close"
+        assert reader.read(int(headers["content-length"])) == b"root.Brand.Brand=AXIS\r\n"
+        assert reader.read1(10) == b""  # the camera closed the connection
+    r = requests.get(cam.url + path)  # the 401 is closed too
+    assert r.status_code == 401 and r.headers["Connection"] == "close"
+
+
+# ----------------------------------------------------------------------------------------
+# With the real frame source
+# ----------------------------------------------------------------------------------------
+@pytest.fixture
+def real_cam():
+    pytest.importorskip("vts_hw.sim_devices.camera_source")
+    from vts_hw.sim_devices.camera_source import SimCameraSource
+    from vts_hw.sim_devices.clock import RealClock
+    from vts_hw.sim_devices.render import Renderer
+    from vts_hw.sim_devices.scene import Scene
+
+    scene = Scene.reference()
+    clock = RealClock()
+    src = SimCameraSource(scene, Renderer(scene), next(iter(scene.cameras)), clock)
+    with SimAxisCamera(src, password=PASSWORD, clock=clock) as camera:
+        yield camera
+
+
+def test_real_source_snapshot_stamp_and_stream(real_cam):
+    src = real_cam.source
+    before = src.camera_time()
+    r = get(real_cam, "/axis-cgi/jpg/image.cgi?resolution=640x480")
+    after = src.camera_time()
+    info = inspect_jpeg(r.content)
+    assert (info.width, info.height) == (640, 480) and info.problems == ()
+    assert before - 0.05 <= info.timestamp <= after + 0.05
+    _, _, body = stream(real_cam, "?nbrofframes=3")
+    assert len(walk_parts(body)) == 3
+    cap = cv2.VideoCapture(f"http://root:{PASSWORD.replace(' ', '%20')}@127.0.0.1:{real_cam.port}"
+                           "/axis-cgi/mjpg/video.cgi", cv2.CAP_FFMPEG)
+    try:
+        ok, img = cap.read()
+    finally:
+        cap.release()
+    assert ok and img.shape[:2] == (480, 640)
+
+
+def test_real_source_led_lights_the_markers(real_cam):
+    """port.cgi switches the scene's LED: the wall markers (where the scene's ground truth
+    puts them) are bright in the next frame with the LED on, and gone with it off."""
+    src = real_cam.source
+
+    def marker_levels():
+        img = cv2.imdecode(np.frombuffer(get(real_cam, "/axis-cgi/jpg/image.cgi").content, np.uint8), 0)
+        truth = src.scene.truth(src.name, src.clock.now())
+        assert len(truth) >= 4
+        return np.array([img[int(round(v)), int(round(u))] for _, u, v in truth]), np.median(img)
+
+    get(real_cam, "/axis-cgi/io/port.cgi?action=1%3A%2F")
+    assert src.led_on()
+    lit, background = marker_levels()
+    get(real_cam, "/axis-cgi/io/port.cgi?action=1%3A%5C")
+    assert not src.led_on()
+    dark, _ = marker_levels()
+    assert lit.min() > background + 80, (lit, background)
+    assert dark.max() < background + 30, (dark, background)
+    get(real_cam, "/axis-cgi/io/port.cgi?action=1%3A%2F300%5C")  # a 300 ms pulse
+    pulsed, _ = marker_levels()
+    time.sleep(0.4)
+    after, _ = marker_levels()
+    assert pulsed.min() > background + 80 and after.max() < background + 30

@@ -1,0 +1,72 @@
+"""`vts sim ...`: bring the simulated rig up and down."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from . import cli
+
+
+@cli.group()
+def sim() -> None:
+    """The simulated rig: Axis cameras on 127.0.0.1 that see one simulated room."""
+
+
+@sim.command()
+@click.option("--cameras", "n_cameras", type=click.IntRange(1, 16), default=2, show_default=True,
+              help="How many cameras.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the scene (poses, drift, noise).")
+@click.option("--vapix", type=click.Choice(["3", "2"]), default="3", show_default=True,
+              help="Firmware generation the cameras answer as.")
+@click.option("--rate", type=float, default=1.0, show_default=True,
+              help="Speed of the simulated clock (e.g. 86400: a day per second, for drift).")
+@click.option("--detach", is_flag=True, help="Run in the background (needs --dir).")
+@click.option("--dir", "folder", type=click.Path(file_okay=False), default=None,
+              help="Where to write rig.yaml and sim.env (and sim.pid, sim.log when detached).")
+def up(n_cameras: int, seed: int, vapix: str, rate: float, detach: bool, folder: str | None) -> None:
+    """Run the simulated rig (foreground: Ctrl-C stops it).
+
+    With --dir DIR it writes DIR/rig.yaml pointing at the simulated cameras and DIR/sim.env
+    with the password variables that rig.yaml names: `source DIR/sim.env` and every `vts`
+    command then talks to the simulated rig.
+    """
+    from ..sim_devices import rig as simrig  # imports the scene only when asked
+
+    fw = "vapix3" if vapix == "3" else "vapix2"
+    if detach:
+        if not folder:
+            raise click.UsageError("--detach needs --dir DIR (where rig.yaml and sim.env go)")
+        pid = simrig.start_detached(folder, n_cameras, seed, fw, rate)
+        _describe(Path(folder))
+        click.echo(f"simulated rig running in the background (pid {pid}); stop it with: vts sim down --dir {folder}")
+        return
+
+    def ready(rig):
+        for name, srv in rig.servers.items():
+            click.echo(f"{name}: {srv.url}")
+        if folder:
+            _describe(Path(folder))
+        click.echo("simulated rig up; Ctrl-C stops it")
+
+    simrig.serve(folder, n_cameras, seed, fw, rate, on_ready=ready)
+    click.echo("simulated rig stopped")
+
+
+def _describe(folder: Path) -> None:
+    click.echo(f"wrote {folder / 'rig.yaml'} and {folder / 'sim.env'}")
+    click.echo(f"use it with: source {folder / 'sim.env'}")
+
+
+@sim.command()
+@click.option("--dir", "folder", type=click.Path(file_okay=False), required=True,
+              help="The folder given to `vts sim up --detach`.")
+def down(folder: str) -> None:
+    """Stop the simulated rig running in the background for DIR."""
+    from ..sim_devices import rig as simrig
+
+    if simrig.stop_detached(folder):
+        click.echo(f"simulated rig in {folder} stopped")
+    else:
+        click.echo(f"no simulated rig was running in {folder}")
