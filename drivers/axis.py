@@ -8,7 +8,6 @@ never part of a URL, a repr, a log line or an error message.
 
 from __future__ import annotations
 
-import json
 import statistics
 import time
 from dataclasses import dataclass
@@ -21,10 +20,10 @@ from requests.auth import HTTPBasicAuth, HTTPDigestAuth
 from ..axis_jpeg import inspect_jpeg
 from ..errors import DeviceError
 
-try:  # the config model is only needed by from_config
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
     from ..config import CameraConfig
-except ImportError:  # pragma: no cover
-    CameraConfig = None  # type: ignore
 
 
 class AxisError(DeviceError):
@@ -355,4 +354,4 @@ def _reason(exc: Exception) -> str:
 
 
 __all__ = ["AxisCamera", "AxisError", "CameraUnreachable", "CameraUnauthorized", "TooManyViewers",
-           "BadReply", "Frame", "ClockOffset", "frame_from_bytes", "json"]
+           "BadReply", "Frame", "ClockOffset", "frame_from_bytes"]

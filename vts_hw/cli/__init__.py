@@ -25,11 +25,7 @@ def cli(verbose: int) -> None:
 
 
 def _register() -> None:
-    from . import camera, recording  # noqa: F401  (each adds its commands)
-    try:
-        from . import sim, demo  # noqa: F401
-    except ImportError:  # pragma: no cover  (during development)
-        pass
+    from . import camera, demo, recording, sim  # noqa: F401  (each adds its commands)
 
 
 def main(argv=None) -> None:
