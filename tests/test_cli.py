@@ -122,3 +122,27 @@ def test_wrong_password_is_one_sentence(env, tmp_path):
 def test_help_explains():
     p = vts("camera", "record", "--help")
     assert "--seconds" in p.stdout and "manifest.json" in p.stdout
+
+
+def test_stream_prints_frames_for_the_time_asked(env):
+    p = vts("camera", "stream", "cam1", "--seconds", "1", env=env)
+    lines = [x for x in p.stdout.splitlines()[1:] if x.strip()]
+    assert 18 <= len(lines) <= 30
+    assert "0 missing" in p.stderr
+
+
+def test_sim_up_in_the_foreground_stops_cleanly_on_ctrl_c(tmp_path):
+    proc = subprocess.Popen([*VTS, "sim", "up", "--cameras", "1", "--dir", str(tmp_path)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 30
+        while not (tmp_path / "rig.yaml").exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert (tmp_path / "rig.yaml").exists()
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=15)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    assert "cam1: http://127.0.0.1:" in out and "stopped" in out
+    assert "Traceback" not in err
