@@ -120,8 +120,9 @@ class AxisCamera:
 
     def __init__(self, name: str, base_url: str, user: str | None = "root", password: str | None = None,
                  *, timeout: float = 5.0, led_port: int = 1, resolution: str = "640x480",
-                 fps: float = 25.0, compression: int = 25):
+                 fps: float = 25.0, compression: int = 25, clock=time.time):
         self.name = name
+        self.clock = clock  # host clock (UTC epoch s); a simulation on a virtual clock passes its own
         self.base_url = base_url.rstrip("/")
         self.user = user
         self.timeout = timeout
@@ -134,10 +135,10 @@ class AxisCamera:
         self._vapix: int | None = None
 
     @classmethod
-    def from_config(cls, cfg: "CameraConfig") -> "AxisCamera":
+    def from_config(cls, cfg: "CameraConfig", clock=time.time) -> "AxisCamera":
         return cls(cfg.name, cfg.base_url, cfg.user, cfg.password(), timeout=cfg.timeout_s,
                    led_port=cfg.led_port, resolution=cfg.resolution_str, fps=cfg.fps,
-                   compression=cfg.compression)
+                   compression=cfg.compression, clock=clock)
 
     def __repr__(self) -> str:
         return f"AxisCamera({self.name!r}, {self.base_url!r}, user={self.user!r})"
@@ -209,7 +210,7 @@ class AxisCamera:
         r = self.request("GET", "/axis-cgi/jpg/image.cgi",
                          params={"resolution": self.resolution, "compression": self.compression})
         data = r.content
-        host_t = time.time()
+        host_t = self.clock()
         ctype = r.headers.get("content-type", "")
         if not data.startswith(b"\xff\xd8"):
             raise BadReply(self.name, f"camera {self.name} sent {ctype or 'data'} instead of a JPEG")
@@ -307,10 +308,10 @@ class AxisCamera:
         best = None
         try:
             for _ in range(samples):
-                t0 = time.time()
+                t0 = self.clock()
                 r = self.request("POST", "/axis-cgi/time.cgi",
                                  json_body={"apiVersion": "1.0", "method": "getDateTimeInfo"})
-                t1 = time.time()
+                t1 = self.clock()
                 cam = _parse_iso(r.json()["data"]["dateTime"])
                 rtt = t1 - t0
                 if best is None or rtt < best[1]:
@@ -323,13 +324,13 @@ class AxisCamera:
             raise BadReply(self.name, f"camera {self.name} sent time.cgi JSON without data.dateTime") from None
         offsets, rtts = [], []
         for _ in range(samples):
-            t0 = time.time()
+            t0 = self.clock()
             f = self.snapshot()
             if f.camera_time is None:
                 raise BadReply(self.name, f"camera {self.name} sends JPEGs without the Axis time segment")
             offsets.append(f.camera_time - t0)
             rtts.append(f.host_time - t0)
-        return ClockOffset(statistics.median(offsets), max(rtts) + 0.01, time.time(), "snapshot", samples)
+        return ClockOffset(statistics.median(offsets), max(rtts) + 0.01, self.clock(), "snapshot", samples)
 
 
 def _parse_iso(s: str) -> float:

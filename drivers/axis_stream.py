@@ -168,7 +168,7 @@ class FrameStream:
         missing = max(1, int(round(dt / interval)) - 1)
         self.stats.gaps += 1
         self.stats.missing += missing
-        return StreamGap(after_seq, t0, t1, missing, reason or "camera skipped frames", time.time())
+        return StreamGap(after_seq, t0, t1, missing, reason or "camera skipped frames", self.camera.clock())
 
     def _one_connection(self, session, remaining: float | None, seq: int):
         """Yield frames (or the string 'torn') from one HTTP connection until it ends."""
@@ -194,7 +194,7 @@ class FrameStream:
                 chunk = raw.read1(65536)
                 if not chunk:
                     break
-                host_t = time.time()
+                host_t = cam.clock()
                 for part in parser.feed(chunk):
                     if not part.complete:
                         yield "torn"
@@ -206,7 +206,7 @@ class FrameStream:
             last = parser.flush()
             if last is not None and last.body:
                 if last.complete:
-                    yield frame_from_bytes(seq, last.body, time.time(), last.problems)
+                    yield frame_from_bytes(seq, last.body, cam.clock(), last.problems)
                 else:
                     yield "torn"
         finally:

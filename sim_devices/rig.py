@@ -30,7 +30,7 @@ from .axis_camera import SimAxisCamera
 from .camera_source import SimCameraSource
 from .clock import RealClock, VirtualClock
 from .render import Renderer
-from .scene import Scene
+from .scene import CameraDrift, Scene
 
 PID_FILE = "sim.pid"
 _children: dict[int, subprocess.Popen] = {}  # started from this process: reaped on stop
@@ -45,9 +45,14 @@ class SimRig:
     """A running simulated rig. ``faults`` of each camera: ``rig.servers[name].faults``."""
 
     def __init__(self, n_cameras: int = 2, seed: int = 0, *, user: str = "root", password: str | None = None,
-                 firmware: str = "vapix3", clock=None, fps: float = 25.0):
+                 firmware: str = "vapix3", clock=None, fps: float = 25.0,
+                 drift_px_per_60_days: dict[str, float] | None = None):
         self.clock = clock or RealClock()
         self.scene = Scene.reference(seed=seed, n_cameras=n_cameras, start_epoch=self.clock.now())
+        for i, (cam, px) in enumerate(sorted((drift_px_per_60_days or {}).items())):
+            # a camera that drifts faster than the reference rig's (the demo's bad camera)
+            self.scene.drifts[cam] = CameraDrift.reference(self.scene.cameras[cam].focal, seed * 7919 + i,
+                                                           self.scene.start_epoch, px)
         self.renderer = Renderer(self.scene)
         self.user = user
         self.password = password or secrets.token_urlsafe(12)

@@ -11,7 +11,7 @@ import hashlib
 import os
 import re
 from pathlib import Path
-from typing import Literal, Optional
+from typing import Literal, Optional, Union
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
@@ -42,6 +42,10 @@ class CameraConfig(_Strict):
     fps: float = Field(default=25.0, gt=0, le=60)
     compression: int = Field(default=25, ge=0, le=100, description="Axis compression; JPEG quality is 100 - compression")
     timeout_s: float = Field(default=5.0, gt=0, le=120)
+    wall_mm_per_px: float = Field(default=1.25, gt=0, le=100,
+                                  description="scale at the wall markers, for drift in mm")
+    locked_params: dict[str, Union[str, int, float]] = Field(
+        default_factory=dict, description="further VAPIX parameters the daily QA checks, e.g. exposure")
 
     @field_validator("resolution", mode="before")
     @classmethod

@@ -12,20 +12,38 @@ from . import cli
 
 @cli.command()
 @click.option("-o", "--output", "out", type=click.Path(file_okay=False), default="demo-out", show_default=True,
-              help="Folder for what the demo writes.")
-@click.option("--seconds", type=float, default=3.0, show_default=True, help="Length of the recording.")
-@click.option("--cameras", "n_cameras", type=click.IntRange(1, 8), default=2, show_default=True)
-def demo(out: str, seconds: float, n_cameras: int) -> None:
-    """Bring up a simulated rig, snapshot every camera, light the LEDs, record both, and say what was written."""
+              help="Folder for what the demo writes (its results store is made afresh).")
+@click.option("--days", type=click.IntRange(1, 730), default=60, show_default=True,
+              help="Simulated days of daily QA.")
+@click.option("--seconds", type=float, default=3.0, show_default=True, help="Length of the camera recording.")
+@click.option("--frames", type=click.IntRange(1, 50), default=5, show_default=True,
+              help="LED-on snapshots per camera and day.")
+def demo(out: str, days: int, seconds: float, frames: int) -> None:
+    """The simulated rig, end to end.
+
+    1. The cameras: a simulated rig of two Axis cameras on 127.0.0.1; device info, clock offset,
+       LED on and off snapshots, and a short recording of both through the real driver.
+    2. The daily QA: baseline on day 0, then the daily set once per simulated day for --days
+       days on a virtual clock (cam2 drifts past its tolerance along the way), stored in a
+       fresh results store, each day's measured drift compared with the drift the scene injected.
+    3. The drift trend report, HTML and PDF.
+    """
+    out_dir = Path(out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    click.echo("== 1. the cameras")
+    _cameras(out_dir, seconds)
+    click.echo(f"\n== 2. the daily QA, {days} simulated days")
+    _daily(out_dir, days, frames)
+
+
+def _cameras(out_dir: Path, seconds: float) -> None:
     from ..drivers.axis import AxisCamera
     from ..recorder import Recorder
     from ..recording import info
     from ..sim_devices.rig import SimRig
     from .progress import record_with_progress
 
-    out_dir = Path(out)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    with SimRig(n_cameras=n_cameras) as rig, rig.env():
+    with SimRig(n_cameras=2) as rig, rig.env():
         rig.write(out_dir / "sim")
         cfg = rig.config()
         click.echo(f"simulated rig up: {', '.join(f'{c.name} at {c.base_url}' for c in cfg.cameras)}")
@@ -51,7 +69,41 @@ def demo(out: str, seconds: float, n_cameras: int) -> None:
         gaps = sum(g["missing"] for g in s.gaps)
         click.echo(f"  {rec_dir / (s.source + '.mjpeg')}: {s.frames} frames at {s.fps} fps, {gaps} missing")
     click.echo(f"  {rec_dir / 'manifest.json'}: status {manifest['status']}")
-    click.echo(f"done; inspect with: vts recording info {rec_dir}")
+
+
+def _daily(out_dir: Path, days: int, frames: int) -> None:
+    from ..demo import run_demo
+
+    cams: list[str] = []
+
+    def on_day(row):
+        if not cams:
+            cams.extend(row.cameras)
+            head = "  day  state     " + "".join(f"{c + ' dx, dy px (truth)':<40}" for c in cams)
+            click.echo(head)
+        changed = row.state != getattr(on_day, "last", None)
+        on_day.last = row.state
+        if row.day % 5 == 0 or changed or row.day == 1:
+            cells = []
+            for c in cams:
+                v = row.cameras.get(c, {})
+                if "dx" in v:
+                    cells.append(f"{v['dx']:+.3f}, {v['dy']:+.3f} ({v['truth_dx']:+.3f}, {v['truth_dy']:+.3f}) "
+                                 f"{v['state'][:3]:<3}")
+                else:
+                    cells.append(f"{v.get('state', '?')}")
+            click.echo(f"  {row.day:>3}  {row.state:<9} " + "".join(f"{x:<40}" for x in cells))
+
+    res = run_demo(out_dir, days=days, frames=frames, on_day=on_day, on_step=lambda m: click.echo(m))
+    click.echo("\nmeasured drift minus injected drift, largest over all days (goal <= 0.05 px):")
+    for cam, (ex, ey) in res.max_error_px.items():
+        click.echo(f"  {cam}: x {ex:.4f} px, y {ey:.4f} px  {'OK' if max(ex, ey) <= 0.05 else 'OVER'}")
+    states = [r.state for r in res.rows]
+    click.echo(f"\n{len(states)} daily runs: {states.count('OK')} OK, {states.count('TOLERANCE')} TOLERANCE, "
+               f"{states.count('ACTION')} ACTION")
+    click.echo(f"results store: {res.store_path}")
+    click.echo(f"report:        {res.report_html}")
+    click.echo(f"               {res.report_pdf}")
 
 
 def _bright(jpeg: bytes) -> int:

@@ -1,0 +1,234 @@
+"""The daily QA set, and the drift QA alone, as one readable script.
+
+For each camera of the rig:
+
+1. reachable — the camera answers (device info);
+2. parameters — resolution, compression and frame rate (and any ``locked_params`` of the
+   config, e.g. exposure) are still what the config locks them to;
+3. clock — camera clock minus host clock is within tolerance;
+4. LED and drift — the wall-marker drift procedure (``drift.py``) against the baseline.
+
+Everything measured goes into the results store as one run (written in one transaction); the
+run's state is the worst of its measurements. ``plan()`` lists the steps without touching the
+rig (``--dry-run``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+from ..drivers.axis import AxisCamera, AxisError
+from ..tolerance import State, Window, merged_tolerances, worst
+from .baseline import load_baseline
+from .drift import DriftAnalysis
+
+EXIT_CODES = {State.OK: 0, State.TOLERANCE: 10, State.ACTION: 20}
+STEPS = ("reachable", "params", "clock", "drift")
+
+
+@dataclass
+class CameraResult:
+    camera: str
+    measures: list = field(default_factory=list)   # (subject, metric, value, unit, state)
+    problems: list[str] = field(default_factory=list)
+    drift: DriftAnalysis | None = None
+
+    @property
+    def state(self) -> State:
+        return worst(m[4] for m in self.measures if "/" not in m[0])
+
+
+@dataclass
+class QAResult:
+    procedure: str
+    run_id: int | None
+    started: float
+    cameras: list[CameraResult]
+    artifacts: list[str] = field(default_factory=list)
+
+    @property
+    def state(self) -> State:
+        return worst(c.state for c in self.cameras)
+
+    @property
+    def exit_code(self) -> int:
+        return EXIT_CODES[self.state]
+
+    def results_data(self) -> dict:
+        return {
+            "procedure": self.procedure, "run_id": self.run_id, "started": self.started, "state": str(self.state),
+            "cameras": [{"camera": c.camera, "state": str(c.state), "problems": c.problems,
+                         "measurements": [{"subject": s, "metric": m, "value": v, "unit": u, "state": str(st)}
+                                          for s, m, v, u, st in c.measures if "/" not in s],
+                         "drift": c.drift.results_data() if c.drift is not None and c.drift.analyzed else None}
+                        for c in self.cameras],
+            "artifacts": self.artifacts,
+        }
+
+    def results(self) -> str:
+        lines = [f"{self.procedure} QA: {self.state}" + (f" (run {self.run_id})" if self.run_id else "")]
+        for c in self.cameras:
+            lines.append(f"  {c.camera}: {c.state}")
+            for s, m, v, u, st in c.measures:
+                if "/" in s:
+                    continue
+                val = "n/a" if v is None else f"{v:+.3f}" if isinstance(v, float) and not v.is_integer() else f"{v:g}"
+                flag = "" if st == State.OK else f"   <- {st}"
+                lines.append(f"      {m:<17} {val:>9} {u}{flag}")
+            for p in c.problems:
+                lines.append(f"      ! {p}")
+        return "\n".join(lines)
+
+
+class QARun:
+    """One QA run over the cameras of a rig. ``steps`` chooses the checks (default: all)."""
+
+    def __init__(self, rig, store, *, steps=STEPS, cameras: list[str] | None = None, n_frames: int = 5,
+                 clock: Callable[[], float] = time.time, artifacts_dir: str | Path | None = None,
+                 plots: bool = False, operator: str = "", config_digest: str = "",
+                 camera_factory: Callable | None = None, progress: Callable[[str], None] | None = None):
+        self.rig = rig
+        self.store = store
+        self.steps = tuple(steps)
+        self.procedure = "daily" if set(self.steps) == set(STEPS) else "drift" if self.steps == ("drift",) \
+            else "qa:" + "+".join(self.steps)
+        self.camera_names = cameras or [c.name for c in rig.cameras]
+        self.n_frames = n_frames
+        self.clock = clock
+        self.artifacts_dir = Path(artifacts_dir) if artifacts_dir else None
+        self.plots = plots
+        self.operator = operator
+        self.config_digest = config_digest
+        self.camera_factory = camera_factory or (lambda cfg: AxisCamera.from_config(cfg, clock=clock))
+        self.progress = progress or (lambda msg: None)
+        self.tolerances: dict[str, Window] = merged_tolerances(rig.tolerances)
+
+    def plan(self) -> list[str]:
+        """The steps this run would take, without touching the rig."""
+        out = []
+        for name in self.camera_names:
+            cfg = self.rig.camera(name)
+            if "reachable" in self.steps:
+                out.append(f"{name}: ask {cfg.base_url} for its device info")
+            if "params" in self.steps:
+                locked = ", ".join(f"{k}={v}" for k, v in self.locked(cfg).items())
+                out.append(f"{name}: check the locked parameters ({locked})")
+            if "clock" in self.steps:
+                out.append(f"{name}: measure its clock against this host")
+            if "drift" in self.steps:
+                out.append(f"{name}: LED on, {self.n_frames} snapshots; LED off, 1 snapshot; LED on; "
+                           f"detect the wall markers and compare with the baseline")
+        out.append(f"store the run ({self.procedure}) in {getattr(self.store, 'url', 'the results store')}")
+        return out
+
+    @staticmethod
+    def locked(cfg) -> dict[str, str]:
+        values = {"Image.I0.Appearance.Resolution": cfg.resolution_str,
+                  "Image.I0.Appearance.Compression": str(cfg.compression),
+                  "Image.I0.Stream.FPS": f"{cfg.fps:g}"}
+        values.update(getattr(cfg, "locked_params", {}) or {})
+        return values
+
+    def run(self) -> QAResult:
+        now = self.clock()
+        self.store.sync_tolerances(self.tolerances, at=now)
+        results: list[CameraResult] = []
+        artifacts: list[str] = []
+        with self.store.begin_run(self.procedure, rig=self.rig.rig, operator=self.operator, started=now,
+                                  config_digest=self.config_digest) as h:
+            for name in self.camera_names:
+                self.progress(f"{name}: checking")
+                res = self._camera(name)
+                results.append(res)
+                for subject, metric, value, unit, state in res.measures:
+                    h.measure(subject, metric, value, unit, status=str(state), at=now)
+                for path in self._save_artifacts(h.run_id, res):
+                    h.artifact(path, kind="plot" if path.suffix == ".png" else "frame")
+                    artifacts.append(str(path))
+            state = worst(r.state for r in results)
+            h.finish(status=str(state), finished=self.clock())
+            run_id = h.run_id
+        return QAResult(self.procedure, run_id, now, results, artifacts)
+
+    # -- one camera ------------------------------------------------------------------------
+    def _camera(self, name: str) -> CameraResult:
+        cfg = self.rig.camera(name)
+        out = CameraResult(name)
+        tol = self.tolerances
+
+        def add(metric, value, unit, window=None):
+            w = tol.get(window or metric)
+            st = State.ACTION if value is None else (w.state(value) if w else State.OK)
+            out.measures.append((name, metric, value, unit, st))
+
+        try:
+            cam = self.camera_factory(cfg)
+        except Exception as exc:  # e.g. the password variable is not set
+            out.problems.append(str(exc))
+            add("camera_reachable", 0.0, "")
+            return out
+        with cam:
+            try:
+                if "reachable" in self.steps:
+                    cam.device_info()
+                    add("camera_reachable", 1.0, "")
+                if "params" in self.steps:
+                    changed = self._params(cam, cfg, out)
+                    add("params_changed", float(changed), "params")
+                if "clock" in self.steps:
+                    off = cam.clock_offset()
+                    add("clock_offset_s", off.offset_s, "s")
+                if "drift" in self.steps:
+                    baseline = load_baseline(self.store, name)
+                    mm = getattr(cfg, "wall_mm_per_px", 1.25)
+                    d = DriftAnalysis.acquire(cam, baseline, self.n_frames, mm_per_px=mm).analyze(tol)
+                    out.drift = d
+                    out.measures += [(m.subject, m.metric, m.value, m.unit, m.state) for m in d.measures]
+                    out.problems += [f"marker {m} not found" for m in d.missing]
+                    out.problems += [f"stray bright blob at ({x:.0f}, {y:.0f}) px" for x, y in d.strays]
+                    if d.led_off_visible:
+                        out.problems.append(f"{d.led_off_visible} marker(s) still bright with the LED off")
+            except AxisError as exc:
+                out.problems.append(str(exc))
+                add("camera_reachable", 0.0, "")
+        return out
+
+    def _params(self, cam, cfg, out: CameraResult) -> int:
+        changed = 0
+        groups: dict[str, dict[str, str]] = {}
+        for key, want in self.locked(cfg).items():
+            group = key.rsplit(".", 2)[0] if key.count(".") >= 2 else key.split(".")[0]
+            if group not in groups:
+                try:
+                    groups[group] = cam.get_params(group)
+                except AxisError as exc:
+                    if "Error" not in str(exc):
+                        raise
+                    groups[group] = {}
+            have = groups[group].get(key)
+            if have is None or have.strip() != str(want):
+                changed += 1
+                out.problems.append(f"parameter {key} is {have!r}, locked at {want!r}")
+        return changed
+
+    def _save_artifacts(self, run_id: int, res: CameraResult) -> list[Path]:
+        if self.artifacts_dir is None or res.drift is None:
+            return []
+        d = self.artifacts_dir / f"run{run_id:06d}"
+        d.mkdir(parents=True, exist_ok=True)
+        paths = []
+        on = d / f"{res.camera}-led-on.jpg"
+        on.write_bytes(res.drift.frames_on[0].jpeg)
+        paths.append(on)
+        if res.drift.frame_off is not None:
+            off = d / f"{res.camera}-led-off.jpg"
+            off.write_bytes(res.drift.frame_off.jpeg)
+            paths.append(off)
+        if self.plots:
+            png = d / f"{res.camera}-drift.png"
+            res.drift.plot(png)
+            paths.append(png)
+        return paths

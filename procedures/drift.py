@@ -1,0 +1,356 @@
+"""Wall-marker drift: has a fixed camera moved since its baseline, and does its LED work?
+
+The procedure, as a physicist does it every morning:
+
+1. LED on, a few snapshots; LED off, one snapshot (then the LED is switched back on).
+2. Detect the bright blobs (sub-pixel centroids) in every LED-on frame and match each to its
+   baseline marker (nearest, one-to-one, within a gate).
+3. Per marker and per camera: mean and SD of the displacement in x and y, in pixels and in mm
+   at the wall; markers not found and stray blobs are reported, never dropped silently.
+4. The LED-off frame must show none of the markers (the LED switches).
+5. Each metric gets a state from its tolerance window; the run's state is the worst.
+
+It reads like pylinac: ``DriftAnalysis.acquire(camera, baseline)`` (or ``.from_frames``) →
+``analyze(tolerances)`` → ``results()`` / ``results_data()`` / ``plot()``.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from .. import __version__
+from ..detect import DetectorSettings, detect_jpeg
+from ..tolerance import DEFAULT_TOLERANCES, State, Window, worst
+
+GATE_PX = 12.0          # a marker further than this from its baseline position is not that marker
+LED_SETTLE_S = 0.1      # time for the LED ring to switch before the next frame is taken
+
+
+@dataclass(frozen=True)
+class BaselineMarker:
+    id: str
+    x: float
+    y: float
+
+
+@dataclass(frozen=True)
+class Baseline:
+    """The wall markers of one camera when the baseline was set."""
+
+    camera: str
+    markers: tuple[BaselineMarker, ...]
+    taken: float
+    run_id: int | None = None
+
+    @classmethod
+    def from_frames(cls, camera: str, jpegs: list[bytes], taken: float,
+                    settings: DetectorSettings | None = None) -> "Baseline":
+        """Markers seen in every frame, averaged; IDs M1.. in reading order (rows, then columns)."""
+        per_frame = [detect_jpeg(j, settings or DetectorSettings()).blobs for j in jpegs]
+        if not per_frame or not per_frame[0]:
+            return cls(camera, (), taken)
+        ref = np.array([(b.x, b.y) for b in per_frame[0]])
+        sums = np.zeros_like(ref)
+        counts = np.zeros(len(ref))
+        for blobs in per_frame:
+            pts = np.array([(b.x, b.y) for b in blobs]).reshape(-1, 2)
+            for i, j in _match(ref, pts, GATE_PX):
+                sums[i] += pts[j]
+                counts[i] += 1
+        keep = counts == len(per_frame)
+        mean = sums[keep] / counts[keep, None]
+        order = sorted(range(len(mean)), key=lambda k: (round(mean[k][1] / 40), mean[k][0]))
+        markers = tuple(BaselineMarker(f"M{n + 1}", float(mean[k][0]), float(mean[k][1]))
+                        for n, k in enumerate(order))
+        return cls(camera, markers, taken)
+
+    def points(self) -> np.ndarray:
+        return np.array([(m.x, m.y) for m in self.markers]).reshape(-1, 2)
+
+
+def _match(ref: np.ndarray, pts: np.ndarray, gate: float) -> list[tuple[int, int]]:
+    """One-to-one nearest matching (Hungarian on distance), pairs further than ``gate`` dropped."""
+    if len(ref) == 0 or len(pts) == 0:
+        return []
+    d = np.linalg.norm(ref[:, None, :] - pts[None, :, :], axis=2)
+    rows, cols = linear_sum_assignment(np.minimum(d, 10 * gate))
+    return [(int(i), int(j)) for i, j in zip(rows, cols) if d[i, j] <= gate]
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """A frame as the procedure uses it: the JPEG and when it was taken."""
+
+    jpeg: bytes
+    camera_time: float | None
+    host_time: float
+
+
+@dataclass
+class MarkerDrift:
+    id: str
+    baseline: tuple[float, float]
+    found: int
+    dx: list[float] = field(default_factory=list)
+    dy: list[float] = field(default_factory=list)
+
+    def stats(self) -> tuple[float, float, float, float]:
+        if not self.dx:
+            return math.nan, math.nan, math.nan, math.nan
+        dx, dy = np.array(self.dx), np.array(self.dy)
+        sdx = float(dx.std(ddof=1)) if len(dx) > 1 else 0.0
+        sdy = float(dy.std(ddof=1)) if len(dy) > 1 else 0.0
+        return float(dx.mean()), float(dy.mean()), sdx, sdy
+
+
+@dataclass(frozen=True)
+class Measure:
+    subject: str
+    metric: str
+    value: float | None
+    unit: str
+    state: State
+
+
+class DriftAnalysis:
+    """Drift of one camera against its baseline, from LED-on frames and an LED-off frame."""
+
+    procedure = "drift"
+
+    def __init__(self, camera: str, baseline: Baseline, frames_on: list[Snapshot], frame_off: Snapshot | None,
+                 mm_per_px: float = 1.25, settings: DetectorSettings | None = None):
+        self.camera = camera
+        self.baseline = baseline
+        self.frames_on = frames_on
+        self.frame_off = frame_off
+        self.mm_per_px = mm_per_px
+        self.settings = settings or DetectorSettings()
+        self.analyzed = False
+
+    # -- load ----------------------------------------------------------------------------
+    @classmethod
+    def from_frames(cls, camera: str, baseline: Baseline, jpegs_on: list[bytes], jpeg_off: bytes | None,
+                    **kwargs) -> "DriftAnalysis":
+        on = [Snapshot(j, None, 0.0) for j in jpegs_on]
+        off = Snapshot(jpeg_off, None, 0.0) if jpeg_off is not None else None
+        return cls(camera, baseline, on, off, **kwargs)
+
+    @classmethod
+    def acquire(cls, cam, baseline: Baseline, n_frames: int = 5, **kwargs) -> "DriftAnalysis":
+        """LED on, ``n_frames`` snapshots, LED off, one snapshot, LED back on."""
+        frames_on, frame_off = acquire_led_frames(cam, n_frames)
+        return cls(cam.name, baseline, frames_on, frame_off, **kwargs)
+
+    # -- analyze -------------------------------------------------------------------------
+    def analyze(self, tolerances: dict[str, Window] | None = None) -> "DriftAnalysis":
+        tol = dict(DEFAULT_TOLERANCES)
+        tol.update(tolerances or {})
+        self.tolerances = tol
+        ref = self.baseline.points()
+        self.markers = [MarkerDrift(m.id, (m.x, m.y), 0) for m in self.baseline.markers]
+        strays: list[tuple[float, float]] = []
+        self.detections = []
+        for snap in self.frames_on:
+            res = detect_jpeg(snap.jpeg, self.settings)
+            self.detections.append(res)
+            pts = np.array([(b.x, b.y) for b in res.blobs]).reshape(-1, 2)
+            pairs = _match(ref, pts, GATE_PX)
+            matched = {j for _, j in pairs}
+            for i, j in pairs:
+                md = self.markers[i]
+                md.found += 1
+                md.dx.append(float(pts[j][0] - ref[i][0]))
+                md.dy.append(float(pts[j][1] - ref[i][1]))
+            strays += [tuple(pts[j]) for j in range(len(pts)) if j not in matched]
+            strays += [(b.x, b.y) for b, why in res.rejected if why != "area" or b.area >= self.settings.min_area]
+        n = len(self.frames_on)
+        # a stray counts if it is there in at least half the frames (not a flicker of noise)
+        self.strays = _persistent(strays, n)
+        # LED off: how many baseline markers are still bright
+        self.led_off_visible = None
+        if self.frame_off is not None:
+            res = detect_jpeg(self.frame_off.jpeg, self.settings)
+            pts = np.array([(b.x, b.y) for b in res.blobs]).reshape(-1, 2)
+            self.led_off_visible = len(_match(ref, pts, GATE_PX))
+        self.missing = [m.id for m in self.markers if m.found < max(1, (n + 1) // 2)]
+        good = [m for m in self.markers if m.id not in self.missing]
+        self.measures: list[Measure] = []
+        cam = self.camera
+        if good:
+            means = np.array([m.stats() for m in good])
+            dx, dy = float(means[:, 0].mean()), float(means[:, 1].mean())
+            sd = float(np.nanmax(means[:, 2:4]))
+            spread = (float(means[:, 0].std()), float(means[:, 1].std()))
+        else:
+            dx = dy = sd = math.nan
+            spread = (math.nan, math.nan)
+        self.drift_px = (dx, dy)
+        self.spread_px = spread
+        add = self._add
+        add(cam, "drift_x_px", dx, "px")
+        add(cam, "drift_y_px", dy, "px")
+        add(cam, "drift_x_mm", dx * self.mm_per_px, "mm", window="drift_x_px", scale=self.mm_per_px)
+        add(cam, "drift_y_mm", dy * self.mm_per_px, "mm", window="drift_y_px", scale=self.mm_per_px)
+        add(cam, "drift_sd_px", sd, "px")
+        add(cam, "markers_missing", float(len(self.missing)), "markers")
+        add(cam, "stray_blobs", float(len(self.strays)), "blobs")
+        if self.led_off_visible is not None:
+            add(cam, "led_off_visible", float(self.led_off_visible), "markers")
+        for m in self.markers:
+            mx, my, sx, sy = m.stats()
+            subj = f"{cam}/{m.id}"
+            state_ok = m.id not in self.missing
+            add(subj, "drift_x_px", mx if state_ok else None, "px")
+            add(subj, "drift_y_px", my if state_ok else None, "px")
+            add(subj, "drift_sd_px", max(sx, sy) if state_ok else None, "px")
+        self.state = worst(m.state for m in self.measures if "/" not in m.subject)
+        self.analyzed_at = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+        self.analyzed = True
+        return self
+
+    def _add(self, subject, metric, value, unit, window=None, scale=1.0):
+        w = self.tolerances.get(window or metric)
+        if value is None or (isinstance(value, float) and math.isnan(value)):
+            state = State.ACTION
+            value = None
+        elif w is None:
+            state = State.OK
+        else:
+            state = w.state(value / scale)
+        self.measures.append(Measure(subject, metric, value, unit, state))
+
+    # -- report --------------------------------------------------------------------------
+    def _need(self):
+        if not self.analyzed:
+            raise RuntimeError("call analyze() first")
+
+    def results_data(self) -> dict:
+        self._need()
+        return {
+            "procedure": self.procedure, "camera": self.camera, "state": str(self.state),
+            "software_version": __version__, "analyzed": self.analyzed_at,
+            "baseline": {"taken": self.baseline.taken, "run_id": self.baseline.run_id,
+                         "markers": [m.__dict__ for m in self.baseline.markers]},
+            "frames": len(self.frames_on), "mm_per_px": self.mm_per_px,
+            "drift_px": {"x": _r(self.drift_px[0]), "y": _r(self.drift_px[1])},
+            "drift_mm": {"x": _r(self.drift_px[0] * self.mm_per_px), "y": _r(self.drift_px[1] * self.mm_per_px)},
+            "spread_between_markers_px": {"x": _r(self.spread_px[0]), "y": _r(self.spread_px[1])},
+            "markers": [{"id": m.id, "found": m.found, **dict(zip(("dx_px", "dy_px", "sd_x_px", "sd_y_px"),
+                                                                 map(_r, m.stats())))}
+                        for m in self.markers],
+            "missing": self.missing,
+            "strays": [{"x": _r(x), "y": _r(y)} for x, y in self.strays],
+            "led_off_visible": self.led_off_visible,
+            "measurements": [{"subject": m.subject, "metric": m.metric, "value": _r(m.value), "unit": m.unit,
+                              "state": str(m.state)} for m in self.measures],
+        }
+
+    def results(self) -> str:
+        self._need()
+        d = self.results_data()
+        lines = [f"Wall-marker drift, camera {self.camera}: {self.state}",
+                 f"  {len(self.frames_on)} frames against the baseline of "
+                 f"{_date(self.baseline.taken)} ({len(self.baseline.markers)} markers)",
+                 f"  drift x {_f(self.drift_px[0])} px ({_f(d['drift_mm']['x'])} mm at the wall), "
+                 f"y {_f(self.drift_px[1])} px ({_f(d['drift_mm']['y'])} mm)"]
+        for m in d["markers"]:
+            lines.append(f"    {m['id']}: dx {_f(m['dx_px'])} ± {_f(m['sd_x_px'])} px, dy {_f(m['dy_px'])} ± "
+                         f"{_f(m['sd_y_px'])} px, found in {m['found']}/{len(self.frames_on)} frames")
+        if self.missing:
+            lines.append(f"  MISSING markers: {', '.join(self.missing)}")
+        for s in d["strays"]:
+            lines.append(f"  STRAY bright blob at ({s['x']:.1f}, {s['y']:.1f}) px")
+        if self.led_off_visible is not None:
+            lines.append("  LED check: " + ("markers vanish with the LED off (OK)" if self.led_off_visible == 0 else
+                                           f"{self.led_off_visible} marker(s) still bright with the LED off"))
+        for m in self.measures:
+            if "/" not in m.subject and m.state != State.OK:
+                lines.append(f"  {m.state}: {m.metric} = {_f(m.value)} {m.unit}")
+        return "\n".join(lines)
+
+    def plot(self, path=None, arrow_scale: float = 20.0):
+        """The first LED-on frame with baseline (+) and current (x) centroids, and arrows
+        from baseline to current, ``arrow_scale`` times longer than the drift."""
+        import cv2
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        self._need()
+        img = cv2.imdecode(np.frombuffer(self.frames_on[0].jpeg, np.uint8), cv2.IMREAD_GRAYSCALE)
+        fig, ax = plt.subplots(figsize=(8, 6.4), dpi=100)
+        ax.imshow(img, cmap="gray", vmin=0, vmax=255)
+        for m in self.markers:
+            bx, by = m.baseline
+            ax.plot(bx, by, "+", color="#4fc3f7", ms=12, mew=1.5)
+            ax.annotate(m.id, (bx, by), xytext=(10, -10), textcoords="offset points", color="#4fc3f7", fontsize=9)
+            mx, my, _, _ = m.stats()
+            if not math.isnan(mx):
+                ax.plot(bx + mx, by + my, "x", color="#ffb74d", ms=9, mew=1.5)
+                ax.annotate("", xy=(bx + arrow_scale * mx, by + arrow_scale * my), xytext=(bx, by),
+                            arrowprops=dict(arrowstyle="->", color="#ffb74d", lw=1.5))
+            else:
+                ax.plot(bx, by, "o", mfc="none", mec="red", ms=18)
+        for x, y in self.strays:
+            ax.plot(x, y, "s", mfc="none", mec="red", ms=14)
+        ax.set_title(f"{self.camera}: drift x {_f(self.drift_px[0])} px, y {_f(self.drift_px[1])} px "
+                     f"({self.state}); arrows ×{arrow_scale:g}")
+        ax.set_xlim(0, img.shape[1])
+        ax.set_ylim(img.shape[0], 0)
+        fig.tight_layout()
+        if path is not None:
+            fig.savefig(path)
+            plt.close(fig)
+        return fig
+
+
+def acquire_led_frames(cam, n_frames: int = 5, settle_s: float = LED_SETTLE_S):
+    """LED on, ``n_frames`` snapshots, LED off, one snapshot; the LED is left on."""
+    import time
+    cam.led_on()
+    time.sleep(settle_s)
+    on = [_snap(cam.snapshot()) for _ in range(n_frames)]
+    cam.led_off()
+    time.sleep(settle_s)
+    try:
+        off = _snap(cam.snapshot())
+    finally:
+        cam.led_on()
+    return on, off
+
+
+def _snap(frame) -> Snapshot:
+    return Snapshot(frame.jpeg, frame.camera_time, frame.host_time)
+
+
+def _persistent(points: list[tuple[float, float]], n_frames: int, radius: float = 5.0) -> list[tuple[float, float]]:
+    """Cluster points seen across frames; keep clusters seen in at least half the frames."""
+    clusters: list[list[tuple[float, float]]] = []
+    for p in points:
+        for c in clusters:
+            if math.dist(c[0], p) <= radius:
+                c.append(p)
+                break
+        else:
+            clusters.append([p])
+    need = max(1, (n_frames + 1) // 2)
+    return [tuple(np.mean(c, axis=0)) for c in clusters if len(c) >= need]
+
+
+def _r(v, nd: int = 4):
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return None
+    return round(float(v), nd)
+
+
+def _f(v) -> str:
+    return "n/a" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:+.3f}"
+
+
+def _date(t: float) -> str:
+    return _dt.datetime.fromtimestamp(t, _dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")

@@ -1,0 +1,90 @@
+"""The glue between `vts qa` and the procedures: open the store, run, print, exit code."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import click
+
+from ..config import ENV_CONFIG, config_digest
+from .common import echo_json, fmt_time
+
+
+def open_store(rig):
+    """The results store named by the config (default: a per-user SQLite file)."""
+    from ..store import ResultsStore
+    return ResultsStore(rig.results.url)
+
+
+def artifacts_dir(store) -> Path:
+    """Saved frames go beside an SQLite file, else into the per-user data folder."""
+    url = str(getattr(store, "url", ""))
+    if url.startswith("sqlite:///"):
+        return Path(url[len("sqlite:///"):]).parent / "artifacts"
+    base = os.environ.get("XDG_DATA_HOME") or os.path.join(os.path.expanduser("~"), ".local", "share")
+    return Path(base) / "vts-hw" / "artifacts"
+
+
+def _digest() -> str:
+    p = os.environ.get(ENV_CONFIG)
+    return config_digest(p) if p and Path(p).exists() else ""
+
+
+def run_qa(rig, steps, cameras, frames, plots, dry_run, operator, as_json, clock=time.time) -> int:
+    from ..procedures.daily import QARun
+
+    if dry_run:
+        run = QARun(rig, _DryStore(rig), steps=steps, cameras=cameras or None, n_frames=frames)
+        for i, step in enumerate(run.plan(), 1):
+            click.echo(f"{i:2d}. {step}")
+        return 0
+    with open_store(rig) as store:
+        run = QARun(rig, store, steps=steps, cameras=cameras or None, n_frames=frames, plots=plots,
+                    artifacts_dir=artifacts_dir(store), operator=operator, config_digest=_digest(), clock=clock,
+                    progress=lambda m: click.echo(m, err=True) if not as_json else None)
+        result = run.run()
+    if as_json:
+        echo_json(result.results_data())
+    else:
+        click.echo(result.results())
+        if result.artifacts:
+            click.echo(f"  saved: {Path(result.artifacts[0]).parent}")
+    return result.exit_code
+
+
+def set_baseline(rig, cameras, frames, dry_run, operator, as_json, clock=time.time) -> None:
+    from ..drivers.axis import AxisCamera
+    from ..procedures.baseline import save_baselines
+    from ..procedures.drift import Baseline, acquire_led_frames
+
+    names = cameras or [c.name for c in rig.cameras]
+    if dry_run:
+        for n in names:
+            click.echo(f"{n}: LED on, {frames} snapshots, detect the wall markers, store them as the baseline")
+        return
+    baselines = []
+    for name in names:
+        with AxisCamera.from_config(rig.camera(name), clock=clock) as cam:
+            on, _ = acquire_led_frames(cam, frames)
+        b = Baseline.from_frames(name, [s.jpeg for s in on], clock())
+        if not b.markers:
+            raise click.ClickException(f"camera {name}: no wall markers found with the LED on; baseline not set")
+        baselines.append(b)
+    with open_store(rig) as store:
+        run_id = save_baselines(store, baselines, rig=rig.rig, operator=operator, started=clock(),
+                                config_digest=_digest())
+    if as_json:
+        echo_json({"run_id": run_id, "baselines": [{"camera": b.camera, "taken": b.taken,
+                                                    "markers": [m.__dict__ for m in b.markers]} for b in baselines]})
+        return
+    for b in baselines:
+        click.echo(f"{b.camera}: baseline of {len(b.markers)} markers set {fmt_time(b.taken)} (run {run_id})")
+        for m in b.markers:
+            click.echo(f"    {m.id}: ({m.x:.2f}, {m.y:.2f}) px")
+
+
+class _DryStore:
+    def __init__(self, rig):
+        self.url = rig.results.url or "the default results store"

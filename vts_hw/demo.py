@@ -1,0 +1,117 @@
+"""The demo: the daily QA of a simulated rig, day after day, on a virtual clock.
+
+A simulated rig of two cameras comes up on 127.0.0.1 (the reference rig, with cam2 drifting
+faster than the others so that it passes its tolerance along the way). The baseline is set
+on day 0; then the clock jumps a day at a time and the daily QA set runs against the
+simulated cameras through the real drivers, into a fresh results store. Each day the drift
+the QA measured is compared with the drift the scene injected (the truth). At the end the
+drift trend report is written (HTML and PDF).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+DAY = 86400.0
+FAST_CAMERA = "cam2"
+FAST_DRIFT_PX_PER_60_DAYS = 2.4
+
+
+@dataclass
+class DayRow:
+    day: int
+    when: float
+    state: str
+    cameras: dict[str, dict] = field(default_factory=dict)  # name -> dx, dy, truth_dx, truth_dy, state
+
+
+@dataclass
+class DemoResult:
+    rows: list[DayRow]
+    store_path: Path
+    report_html: Path
+    report_pdf: Path
+    max_error_px: dict[str, tuple[float, float]]
+
+
+def injected_drift(scene, cam: str, t0: float, t1: float) -> tuple[float, float]:
+    """Mean image displacement of the wall markers between t0 and t1: the truth."""
+    a = {m: (u, v) for m, u, v in scene.truth(cam, t0) if m.startswith("W")}
+    b = {m: (u, v) for m, u, v in scene.truth(cam, t1) if m.startswith("W")}
+    d = np.array([np.subtract(b[k], a[k]) for k in a if k in b])
+    return float(d[:, 0].mean()), float(d[:, 1].mean())
+
+
+def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 5, seed: int = 0,
+             on_day: Callable[[DayRow], None] | None = None, on_step: Callable[[str], None] | None = None) -> DemoResult:
+    from .config import parse_rig
+    from .drivers.axis import AxisCamera
+    from .procedures.baseline import save_baselines
+    from .procedures.daily import QARun
+    from .procedures.drift import Baseline, acquire_led_frames
+    from .report import build_drift_report
+    from .sim_devices.clock import VirtualClock
+    from .sim_devices.rig import SimRig
+    from .store import ResultsStore
+
+    say = on_step or (lambda m: None)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    db = out / "results.sqlite"
+    for p in out.glob("results.sqlite*"):
+        p.unlink()  # a fresh store each demo: its history is the demo's 60 days
+    clock = VirtualClock(time.time() - days * DAY)  # the demo's last day is today
+    with SimRig(n_cameras=n_cameras, seed=seed, clock=clock,
+                drift_px_per_60_days={FAST_CAMERA: FAST_DRIFT_PX_PER_60_DAYS}) as rig, rig.env():
+        base = rig.config().model_dump(mode="json", exclude_none=True)
+        base["results"] = {"url": f"sqlite:///{db.resolve()}"}
+        base["rig"] = "sim-demo"
+        cfg = parse_rig(base, "demo rig")
+        scene = rig.scene
+        with ResultsStore(cfg.results.url) as store:
+            # day 0: the baseline
+            t_base = clock.now()
+            baselines = []
+            for c in cfg.cameras:
+                with AxisCamera.from_config(c, clock=clock.now) as cam:
+                    on, _ = acquire_led_frames(cam, frames)
+                baselines.append(Baseline.from_frames(c.name, [s.jpeg for s in on], clock.now()))
+            save_baselines(store, baselines, rig=cfg.rig, operator="demo", started=t_base)
+            say(f"day 0: baseline set ({', '.join(f'{b.camera}: {len(b.markers)} markers' for b in baselines)})")
+            rows: list[DayRow] = []
+            for day in range(1, days + 1):
+                clock.advance(t_base + day * DAY - clock.now())  # day `day` after the baseline
+                qa = QARun(cfg, store, n_frames=frames, clock=clock.now, operator="demo",
+                           artifacts_dir=out / "artifacts", plots=(day == days))
+                res = qa.run()
+                row = DayRow(day, res.started, str(res.state))
+                for c in res.cameras:
+                    d = c.drift
+                    if d is None or not d.analyzed:
+                        row.cameras[c.camera] = {"state": str(c.state)}
+                        continue
+                    tx, ty = injected_drift(scene, c.camera, t_base, res.started)
+                    row.cameras[c.camera] = {"dx": d.drift_px[0], "dy": d.drift_px[1], "truth_dx": tx,
+                                             "truth_dy": ty, "state": str(c.state)}
+                rows.append(row)
+                if on_day:
+                    on_day(row)
+            now = clock.now()
+            say("writing the drift trend report")
+            html = out / "drift-report.html"
+            pdf = out / "drift-report.pdf"
+            build_drift_report(store, html, now=now, rig=cfg.rig)
+            build_drift_report(store, pdf, now=now, rig=cfg.rig)
+    err: dict[str, tuple[float, float]] = {}
+    for r in rows:
+        for cam, v in r.cameras.items():
+            if "dx" in v:
+                ex, ey = abs(v["dx"] - v["truth_dx"]), abs(v["dy"] - v["truth_dy"])
+                px, py = err.get(cam, (0.0, 0.0))
+                err[cam] = (max(px, ex), max(py, ey))
+    return DemoResult(rows, db, html, pdf, err)

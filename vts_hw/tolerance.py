@@ -1,0 +1,116 @@
+"""Tolerance windows and states, after QATrack+.
+
+A window has up to four limits: action low <= tolerance low <= tolerance high <= action high.
+A value outside an action limit is ACTION, outside a tolerance limit TOLERANCE, else OK. A
+missing limit is no limit. A run's state is the worst of its measurements' states.
+
+The defaults below are what a physicist would accept for the reference rig (1.25 mm per
+pixel at the wall, about 1.11 mm per pixel at the FOV centre); a rig.yaml ``tolerances:``
+section overrides them per metric. The README lists them.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import asdict, dataclass
+
+
+class State(str, enum.Enum):
+    OK = "OK"
+    TOLERANCE = "TOLERANCE"
+    ACTION = "ACTION"
+
+    @property
+    def rank(self) -> int:
+        return _RANK[self]
+
+    def __str__(self) -> str:
+        return self.value
+
+
+_RANK = {State.OK: 0, State.TOLERANCE: 1, State.ACTION: 2}
+
+
+def worst(states) -> State:
+    """The worst of some states (OK when there are none)."""
+    out = State.OK
+    for s in states:
+        s = State(s)
+        if s.rank > out.rank:
+            out = s
+    return out
+
+
+@dataclass(frozen=True)
+class Window:
+    action_low: float | None = None
+    tolerance_low: float | None = None
+    tolerance_high: float | None = None
+    action_high: float | None = None
+    unit: str = ""
+
+    def __post_init__(self):
+        vals = [v for v in (self.action_low, self.tolerance_low, self.tolerance_high, self.action_high)
+                if v is not None]
+        if vals != sorted(vals):
+            raise ValueError("a tolerance window needs action_low <= tolerance_low <= tolerance_high <= action_high")
+
+    def state(self, value: float | None) -> State:
+        """The state of a value; a value that could not be measured (None or NaN) is ACTION."""
+        if value is None or (isinstance(value, float) and math.isnan(value)):
+            return State.ACTION
+        if (self.action_low is not None and value < self.action_low) or \
+                (self.action_high is not None and value > self.action_high):
+            return State.ACTION
+        if (self.tolerance_low is not None and value < self.tolerance_low) or \
+                (self.tolerance_high is not None and value > self.tolerance_high):
+            return State.TOLERANCE
+        return State.OK
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+    def describe(self) -> str:
+        def f(v):
+            return "-" if v is None else f"{v:g}"
+        return (f"action < {f(self.action_low)} <= tol < {f(self.tolerance_low)} .. "
+                f"{f(self.tolerance_high)} < tol <= {f(self.action_high)} < action {self.unit}").strip()
+
+    @classmethod
+    def symmetric(cls, tolerance: float, action: float, unit: str = "") -> "Window":
+        return cls(-action, -tolerance, tolerance, action, unit)
+
+
+# metric name -> default window. Drift is the mean displacement of the wall markers from their
+# baseline, per camera and axis (1 px is 1.25 mm at the wall, about 1.1 mm at the FOV centre).
+DEFAULT_TOLERANCES: dict[str, Window] = {
+    "drift_x_px": Window.symmetric(1.0, 2.0, "px"),
+    "drift_y_px": Window.symmetric(1.0, 2.0, "px"),
+    # frame-to-frame SD of the marker displacement: a shaking mount or a failing sensor
+    "drift_sd_px": Window(tolerance_high=0.1, action_high=0.3, unit="px"),
+    # baseline markers not found (1 is worth a look, 2 or more leave too few to trust the drift)
+    "markers_missing": Window(tolerance_high=0, action_high=1, unit="markers"),
+    # bright blobs that are not baseline markers (a reflection, a new object on the wall)
+    "stray_blobs": Window(tolerance_high=0, unit="blobs"),
+    # markers still bright with the LED switched off: the LED did not switch (or stray light)
+    "led_off_visible": Window(tolerance_high=0, action_high=0, unit="markers"),
+    # the camera answered (1) or not (0)
+    "camera_reachable": Window(action_low=1),
+    # camera clock minus host clock: scans measure and correct it, this catches a broken NTP
+    "clock_offset_s": Window.symmetric(5.0, 60.0, "s"),
+    # parameters that differ from the locked configuration (resolution, compression, fps)
+    "params_changed": Window(tolerance_high=0, action_high=0, unit="params"),
+}
+
+
+def merged_tolerances(overrides: dict | None) -> dict[str, Window]:
+    """Defaults, with the rig config's windows (objects with the same fields) on top."""
+    out = dict(DEFAULT_TOLERANCES)
+    for metric, w in (overrides or {}).items():
+        if isinstance(w, Window):
+            out[metric] = w
+        else:
+            d = w.model_dump() if hasattr(w, "model_dump") else dict(w)
+            out[metric] = Window(**d)
+    return out
