@@ -1,0 +1,22 @@
+"""The results store: QA runs, measurements, tolerance windows and artifacts.
+
+    from vts_hw.store import ResultsStore
+    with ResultsStore() as store:                     # default: a per-user SQLite file
+        with store.begin_run("drift", rig="vts") as run:
+            run.measure("cam1", "drift_x_px", 0.4)
+            run.artifact("frames/cam1.jpg")
+        # normal exit: finished in one transaction; an exception: aborted
+
+See store.py for the API, schema.py for the tables, docs/decisions/0007-results-store.md
+for the reasons.
+"""
+
+from .errors import StoreError
+from .handle import RunHandle
+from .paths import default_path, default_url
+from .records import MEASUREMENT_STATUSES, RUN_STATUSES, Artifact, Measurement, Run
+from .schema import SCHEMA_VERSION
+from .store import ResultsStore
+
+__all__ = ["ResultsStore", "RunHandle", "Run", "Measurement", "Artifact", "StoreError",
+           "default_url", "default_path", "RUN_STATUSES", "MEASUREMENT_STATUSES", "SCHEMA_VERSION"]

@@ -1,0 +1,67 @@
+"""Engines: SQLite set up for safety and concurrency, anything else left to SQLAlchemy.
+
+SQLite (file): the parent directory is created; every connection gets a busy timeout,
+foreign keys on, ``synchronous = FULL`` and the WAL journal (readers never wait for the
+writer; a commit is one append to the WAL, so a ``kill -9`` at any moment leaves the last
+committed state). Python's sqlite3 driver does not BEGIN before DDL or SELECT (legacy
+transaction control), so its transaction handling is switched off and SQLAlchemy emits
+BEGIN itself: ``BEGIN`` for reads (one snapshot per read) and ``BEGIN IMMEDIATE`` for
+writes (take the write lock first, waiting up to the busy timeout, instead of failing
+half-way when another writer got there first).
+
+In-memory SQLite (``sqlite://``) shares one connection (tests; one thread at a time).
+"""
+
+from __future__ import annotations
+
+import logging
+
+from sqlalchemy import Connection, create_engine, event
+from sqlalchemy.engine import URL, Engine
+from sqlalchemy.pool import StaticPool
+
+from .paths import masked, sqlite_file
+
+log = logging.getLogger(__name__)
+
+#: execution option that makes the next BEGIN on a SQLite connection a BEGIN IMMEDIATE
+WRITE_OPTION = "vts_store_write"
+
+
+def make_engine(url: URL, busy_timeout: float) -> Engine:
+    """An engine for ``url``; for SQLite, configured as the module docstring says."""
+    if url.get_backend_name() != "sqlite":
+        return create_engine(url, pool_pre_ping=True)
+    path = sqlite_file(url)
+    if path is None:
+        engine = create_engine(url, poolclass=StaticPool, connect_args={"check_same_thread": False})
+    else:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        engine = create_engine(url, connect_args={"timeout": busy_timeout, "check_same_thread": False})
+    _sqlite_setup(engine, busy_timeout, wal=path is not None, where=masked(url))
+    return engine
+
+
+def _sqlite_setup(engine: Engine, busy_timeout: float, wal: bool, where: str) -> None:
+    @event.listens_for(engine, "connect")
+    def _on_connect(dbapi_conn, _record):
+        dbapi_conn.isolation_level = None  # SQLAlchemy emits BEGIN (below), not the driver
+        cur = dbapi_conn.cursor()
+        try:
+            cur.execute(f"PRAGMA busy_timeout = {int(busy_timeout * 1000)}")
+            cur.execute("PRAGMA foreign_keys = ON")
+            if wal:
+                mode = cur.execute("PRAGMA journal_mode").fetchone()[0]
+                if str(mode).lower() != "wal":
+                    mode = cur.execute("PRAGMA journal_mode = WAL").fetchone()[0]
+                    if str(mode).lower() != "wal":
+                        log.warning("%s: cannot use the WAL journal (got %s); readers may wait for writers",
+                                    where, mode)
+            cur.execute("PRAGMA synchronous = FULL")
+        finally:
+            cur.close()
+
+    @event.listens_for(engine, "begin")
+    def _on_begin(conn: Connection):
+        write = conn.get_execution_options().get(WRITE_OPTION, False)
+        conn.exec_driver_sql("BEGIN IMMEDIATE" if write else "BEGIN")

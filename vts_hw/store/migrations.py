@@ -1,0 +1,116 @@
+"""Schema versioning: create a fresh store, or upgrade an older one in place, on open.
+
+The version lives in the database (``schema_migrations``: one row per version applied, the
+current version is the highest). On open, in one write transaction:
+
+* no vts-hw tables at all -> create the current schema and record SCHEMA_VERSION;
+* an older version -> apply each step after it in order, recording each;
+* a newer version -> refuse (this vts-hw does not know that layout; upgrade vts-hw);
+* vts-hw tables but no version table -> refuse (not a store we created; touch nothing).
+
+A step is a function of the dialect returning DDL, so the same step runs on SQLite and
+PostgreSQL (and tests compile it for PostgreSQL without a server). Steps describe the schema
+*as it was at that version*, never the current ``schema.py`` tables, so a later change to
+``schema.py`` cannot change what an old step does. Steps only add (columns with defaults,
+tables, indexes); they never rewrite rows. DDL is transactional on both databases, so a
+kill during an upgrade leaves the old version intact.
+
+Version history:
+  1  runs, measurements, tolerances, artifacts (path, sha256), schema_migrations
+  2  runs.host, runs.pid, runs.process_start (dead-run detection); artifacts.kind;
+     index on runs.status
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+from sqlalchemy import (Column, Connection, Index, Integer, MetaData, String, Table, Text, func, inspect,
+                        insert, select)
+from sqlalchemy.engine import Dialect
+from sqlalchemy.schema import CreateColumn, CreateIndex, DDLElement
+
+from . import schema
+from .errors import StoreError
+
+
+@dataclass(frozen=True)
+class Migration:
+    version: int
+    description: str
+    statements: Callable[[Dialect], list]  # DDL strings or DDLElements, in order
+
+
+def add_column(dialect: Dialect, table: str, column: Column) -> str:
+    """``ALTER TABLE t ADD COLUMN ...`` rendered for a dialect (the syntax SQLite and PostgreSQL share).
+
+    A NOT NULL column needs a server default (SQLite requires it, and old rows need a value)."""
+    if not column.nullable and column.server_default is None:
+        raise ValueError(f"migration adds NOT NULL column {table}.{column.name} without a default")
+    prep = dialect.identifier_preparer
+    return f"ALTER TABLE {prep.quote(table)} ADD COLUMN {CreateColumn(column).compile(dialect=dialect)}"
+
+
+def _v2(dialect: Dialect) -> list:
+    runs_v2 = Table("runs", MetaData(), Column("status", String(16)))
+    return [
+        add_column(dialect, "runs", Column("host", Text, nullable=False, server_default="")),
+        add_column(dialect, "runs", Column("pid", Integer)),
+        add_column(dialect, "runs", Column("process_start", Text, nullable=False, server_default="")),
+        add_column(dialect, "artifacts", Column("kind", Text, nullable=False, server_default="frame")),
+        CreateIndex(Index("ix_runs_status", runs_v2.c.status)),
+    ]
+
+
+#: version -> the step that upgrades version-1 to it (version 1 is the first layout)
+MIGRATIONS: dict[int, Migration] = {
+    2: Migration(2, "runs: host, pid, process_start for dead-run detection; artifacts: kind", _v2),
+}
+
+assert sorted(MIGRATIONS) == list(range(2, schema.SCHEMA_VERSION + 1)), "a migration step is missing"
+
+
+def stored_version(conn: Connection) -> int | None:
+    """The schema version recorded in the database, None when there is no version table."""
+    if not inspect(conn).has_table(schema.schema_migrations.name):
+        return None
+    return conn.scalar(select(func.max(schema.schema_migrations.c.version)))
+
+
+def _record(conn: Connection, version: int, description: str) -> None:
+    conn.execute(insert(schema.schema_migrations).values(
+        version=version, applied=time.time(), description=description))
+
+
+def ensure_schema(conn: Connection, where: str) -> tuple[int, int]:
+    """Create or upgrade the schema inside the caller's write transaction.
+
+    Returns (version found, version now); found is 0 for a fresh database. ``where`` (the
+    masked URL) names the database in errors."""
+    names = set(inspect(conn).get_table_names())
+    if schema.schema_migrations.name not in names:
+        ours = sorted(names & {t.name for t in schema.TABLES})
+        if ours:
+            raise StoreError(f"{where}: has table(s) {', '.join(ours)} but no schema version; "
+                             f"it is not a vts-hw results store, so it was left untouched")
+        schema.metadata.create_all(conn)
+        _record(conn, schema.SCHEMA_VERSION, f"created at version {schema.SCHEMA_VERSION}")
+        return 0, schema.SCHEMA_VERSION
+    found = stored_version(conn)
+    if found is None or found < 1:
+        raise StoreError(f"{where}: its schema_migrations table is empty; cannot tell its schema version")
+    if found > schema.SCHEMA_VERSION:
+        raise StoreError(f"{where}: schema version {found} is newer than this vts-hw understands "
+                         f"({schema.SCHEMA_VERSION}); upgrade vts-hw to use it")
+    for version in range(found + 1, schema.SCHEMA_VERSION + 1):
+        step = MIGRATIONS[version]
+        for stmt in step.statements(conn.dialect):
+            if isinstance(stmt, str):
+                conn.exec_driver_sql(stmt)
+            else:
+                assert isinstance(stmt, DDLElement)
+                conn.execute(stmt)
+        _record(conn, version, step.description)
+    return found, schema.SCHEMA_VERSION

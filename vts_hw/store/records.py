@@ -1,0 +1,71 @@
+"""What the store hands back: plain frozen records, no database objects.
+
+``Run.status`` is a plain string (one of ``RUN_STATUSES``); ``Measurement.status`` is a
+``State`` (a measurement is always OK, TOLERANCE or ACTION). Times are UTC epoch seconds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..tolerance import State
+
+#: every status a run can have; "running" until finish() or abort() (or dead-run detection)
+RUN_STATUSES = ("running", "OK", "TOLERANCE", "ACTION", "aborted", "error")
+#: the statuses finish() accepts
+FINISH_STATUSES = ("OK", "TOLERANCE", "ACTION", "error")
+#: the statuses a measurement can have
+MEASUREMENT_STATUSES = tuple(s.value for s in State)
+
+
+@dataclass(frozen=True)
+class Run:
+    id: int
+    procedure: str
+    rig: str
+    started: float
+    finished: float | None
+    status: str
+    software_version: str
+    config_digest: str
+    operator: str
+    notes: str
+
+
+@dataclass(frozen=True)
+class Measurement:
+    id: int
+    run_id: int
+    started: float  # the run's start, for trending without a second query
+    subject: str
+    metric: str
+    value: float | None  # None: not measured (NaN is stored as None too)
+    unit: str
+    status: State
+    tolerance_id: int | None  # the window the status was judged with (None: given, or no window)
+
+
+@dataclass(frozen=True)
+class Artifact:
+    id: int
+    run_id: int
+    path: str
+    sha256: str
+    kind: str
+
+
+def run_from_row(row) -> Run:
+    """A Run from a ``runs`` row (any mapping-like row with those columns)."""
+    return Run(id=row.id, procedure=row.procedure, rig=row.rig, started=row.started,
+               finished=row.finished, status=row.status, software_version=row.software_version,
+               config_digest=row.config_digest, operator=row.operator, notes=row.notes)
+
+
+def measurement_from_row(row) -> Measurement:
+    return Measurement(id=row.id, run_id=row.run_id, started=row.started, subject=row.subject,
+                       metric=row.metric, value=row.value, unit=row.unit, status=State(row.status),
+                       tolerance_id=row.tolerance_id)
+
+
+def artifact_from_row(row) -> Artifact:
+    return Artifact(id=row.id, run_id=row.run_id, path=row.path, sha256=row.sha256, kind=row.kind)

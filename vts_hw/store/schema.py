@@ -1,0 +1,112 @@
+"""The results schema, in portable SQLAlchemy Core (SQLite today, PostgreSQL later).
+
+Portable types only: Integer keys, Double for values and UTC epoch times (SQLite REAL,
+PostgreSQL DOUBLE PRECISION), Text for free text, short VARCHARs only where a CHECK bounds
+them. Constraints are named (naming convention) so that a later migration can address them
+on PostgreSQL.
+
+Tables:
+  schema_migrations  one row per schema version applied (current version = the highest)
+  runs               one row per QA run, written "running" at begin and completed at finish
+  measurements       the run's values with the status judged at the time and the window used
+  tolerances         append-only history of windows per metric, each with effective_from
+  artifacts          saved files (frames) of a run, by path and sha256
+
+Rows are never updated except a run's status/finished/notes when it ends, and never deleted:
+a change of tolerance is a new row, so old statuses and the windows behind them stay as
+they were.
+"""
+
+from __future__ import annotations
+
+from sqlalchemy import (CheckConstraint, Column, Double, ForeignKey, Index, Integer, MetaData,
+                        String, Table, Text, func)
+
+from .records import MEASUREMENT_STATUSES, RUN_STATUSES
+
+#: the version a fresh database is created at; migrations.py upgrades older ones to it
+SCHEMA_VERSION = 2
+
+NAMING = {
+    "ix": "ix_%(table_name)s_%(column_0_N_name)s",
+    "uq": "uq_%(table_name)s_%(column_0_name)s",
+    "ck": "ck_%(table_name)s_%(constraint_name)s",
+    "fk": "fk_%(table_name)s_%(column_0_name)s_%(referred_table_name)s",
+    "pk": "pk_%(table_name)s",
+}
+
+metadata = MetaData(naming_convention=NAMING)
+
+schema_migrations = Table(
+    "schema_migrations", metadata,
+    Column("version", Integer, primary_key=True, autoincrement=False),
+    Column("applied", Double, nullable=False),
+    Column("description", Text, nullable=False, server_default=""),
+)
+
+runs = Table(
+    "runs", metadata,
+    Column("id", Integer, primary_key=True),
+    Column("procedure", Text, nullable=False),
+    Column("rig", Text, nullable=False, server_default=""),
+    Column("started", Double, nullable=False),
+    Column("finished", Double),
+    Column("status", String(16), nullable=False),
+    Column("software_version", Text, nullable=False, server_default=""),
+    Column("config_digest", Text, nullable=False, server_default=""),
+    Column("operator", Text, nullable=False, server_default=""),
+    Column("notes", Text, nullable=False, server_default=""),
+    # version 2: who wrote the "running" row, so that a later open can tell it died
+    Column("host", Text, nullable=False, server_default=""),
+    Column("pid", Integer),
+    Column("process_start", Text, nullable=False, server_default=""),
+    CheckConstraint(Column("status").in_(RUN_STATUSES), name="status"),
+)
+Index(None, runs.c.procedure, runs.c.started)
+Index(None, runs.c.status)  # version 2
+
+tolerances = Table(
+    "tolerances", metadata,
+    Column("id", Integer, primary_key=True),
+    Column("metric", Text, nullable=False),
+    Column("action_low", Double),
+    Column("tolerance_low", Double),
+    Column("tolerance_high", Double),
+    Column("action_high", Double),
+    Column("unit", Text, nullable=False, server_default=""),
+    Column("effective_from", Double, nullable=False),
+    Column("recorded", Double, nullable=False),  # when the row was written (audit)
+    Column("note", Text, nullable=False, server_default=""),
+)
+Index(None, tolerances.c.metric, tolerances.c.effective_from)
+
+measurements = Table(
+    "measurements", metadata,
+    Column("id", Integer, primary_key=True),
+    Column("run_id", Integer, ForeignKey(runs.c.id), nullable=False),
+    Column("subject", Text, nullable=False, server_default=""),
+    Column("metric", Text, nullable=False),
+    Column("value", Double),
+    Column("unit", Text, nullable=False, server_default=""),
+    Column("status", String(16), nullable=False),
+    Column("tolerance_id", Integer, ForeignKey(tolerances.c.id)),
+    CheckConstraint(Column("status").in_(MEASUREMENT_STATUSES), name="status"),
+)
+Index(None, measurements.c.run_id)
+Index(None, measurements.c.metric)
+
+artifacts = Table(
+    "artifacts", metadata,
+    Column("id", Integer, primary_key=True),
+    Column("run_id", Integer, ForeignKey(runs.c.id), nullable=False),
+    Column("path", Text, nullable=False),
+    Column("sha256", String(64), nullable=False),
+    # version 2: what the file is
+    Column("kind", Text, nullable=False, server_default="frame"),
+    CheckConstraint(func.length(Column("sha256")) == 64, name="sha256"),
+)
+Index(None, artifacts.c.run_id)
+
+#: the tables of a vts-hw results store (a database holding some of them but no
+#: schema_migrations is not one we created, and is not touched)
+TABLES = (schema_migrations, runs, tolerances, measurements, artifacts)

@@ -1,0 +1,276 @@
+"""ResultsStore: QA runs, measurements, tolerance windows and artifacts in one database.
+
+SQLite file by default (see paths.default_url), any SQLAlchemy URL in principle; everything
+goes through SQLAlchemy Core with portable types (see schema.py, and docs/decisions/0007).
+
+Opening a store creates or upgrades its schema (migrations.py), then marks "aborted" the runs
+this host left "running" whose process is gone (liveness.py). The URL is shown only with the
+password masked, and is never written into the database.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import logging
+import os
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+from sqlalchemy import Connection, insert, select, text, update
+from sqlalchemy.exc import ArgumentError, DBAPIError, NoSuchModuleError, SQLAlchemyError
+
+from ..tolerance import Window
+from .engine import WRITE_OPTION, make_engine
+from .errors import StoreError
+from .handle import RunHandle
+from .liveness import host_name, is_alive, process_start
+from .migrations import ensure_schema, stored_version
+from .paths import masked, to_url
+from .queries import (select_artifacts, select_measurements, select_running_runs, select_runs,
+                      select_tolerance_at, select_tolerances_at)
+from .records import Artifact, Measurement, Run, artifact_from_row, measurement_from_row, run_from_row
+from .schema import SCHEMA_VERSION, runs, tolerances
+
+log = logging.getLogger(__name__)
+
+_BAD_URL = ("the results database URL is not valid (expected e.g. sqlite:////path/results.sqlite "
+            "or postgresql://user@host/db)")
+
+
+def _reason(exc: BaseException) -> str:
+    """The driver's own message, short, without SQLAlchemy's statement dump."""
+    if isinstance(exc, DBAPIError) and exc.orig is not None:
+        return str(exc.orig).strip().splitlines()[0]
+    if isinstance(exc, OSError):
+        return exc.strerror or str(exc)
+    return str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+
+
+def _window(row) -> Window:
+    return Window(row.action_low, row.tolerance_low, row.tolerance_high, row.action_high, row.unit)
+
+
+class ResultsStore:
+    """The results database. ``url`` None means default_url(); a plain path means a SQLite file.
+
+    ``busy_timeout`` (seconds) is how long a SQLite writer waits for another writer."""
+
+    def __init__(self, url: str | os.PathLike | None = None, *, busy_timeout: float = 30.0):
+        try:
+            self._url = to_url(url)
+        except ArgumentError:
+            raise StoreError(_BAD_URL) from None
+        self._closed = False
+        self._engine = None
+        try:
+            self._engine = make_engine(self._url, busy_timeout)
+            # the common case, an up-to-date store, needs no write lock (a reader must be able
+            # to open while a writer holds a long transaction)
+            with self._read() as conn:
+                found = now = stored_version(conn)
+            if found != SCHEMA_VERSION:
+                with self._write() as conn:
+                    if conn.dialect.name == "postgresql":  # serialise concurrent first opens/upgrades
+                        conn.execute(text("SELECT pg_advisory_xact_lock(7007007)"))
+                    found, now = ensure_schema(conn, self.url)  # checks again under the lock
+        except StoreError:
+            self.close()
+            raise
+        except NoSuchModuleError:
+            self.close()
+            raise StoreError(f"{self.url}: no SQLAlchemy dialect for this kind of database") from None
+        except ModuleNotFoundError as exc:
+            self.close()
+            raise StoreError(f"{self.url}: the database driver {exc.name!r} is not installed") from None
+        except (SQLAlchemyError, OSError) as exc:
+            self.close()
+            raise StoreError(f"{self.url}: cannot open the results store ({_reason(exc)})") from exc
+        if found == 0:
+            log.info("%s: created results store (schema version %d)", self.url, now)
+        elif found != now:
+            log.info("%s: upgraded results store schema from version %d to %d", self.url, found, now)
+        try:
+            self.mark_dead_runs_aborted()
+        except SQLAlchemyError as exc:  # e.g. another writer holds the lock: the next open retries
+            log.warning("%s: could not check for runs left running (%s)", self.url, _reason(exc))
+
+    # -- plumbing -------------------------------------------------------------------------
+
+    @property
+    def url(self) -> str:
+        """The database URL with any password masked."""
+        return masked(self._url)
+
+    def __repr__(self) -> str:
+        return f"ResultsStore({self.url!r})"
+
+    __str__ = __repr__
+
+    def close(self) -> None:
+        self._closed = True
+        if self._engine is not None:
+            self._engine.dispose()
+
+    def __enter__(self) -> "ResultsStore":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _connect(self) -> Connection:
+        if self._closed or self._engine is None:
+            raise RuntimeError(f"the results store {self.url} is closed")
+        return self._engine.connect()
+
+    @contextmanager
+    def _read(self) -> Iterator[Connection]:
+        """A connection for reads; on SQLite each read is one snapshot (BEGIN ... ROLLBACK)."""
+        with self._connect() as conn:
+            yield conn
+
+    @contextmanager
+    def _write(self) -> Iterator[Connection]:
+        """One write transaction (SQLite: BEGIN IMMEDIATE); committed on exit, rolled back on
+        any exception including KeyboardInterrupt."""
+        with self._connect() as conn:
+            conn.execution_options(**{WRITE_OPTION: True})
+            with conn.begin():
+                yield conn
+
+    @property
+    def schema_version(self) -> int:
+        with self._read() as conn:
+            return stored_version(conn) or 0
+
+    # -- tolerance windows ----------------------------------------------------------------
+
+    @staticmethod
+    def _set_tolerance(conn: Connection, metric: str, window: Window, effective_from: float,
+                       note: str) -> tuple[int, bool]:
+        if not isinstance(metric, str) or not metric:
+            raise ValueError("a tolerance window needs a metric name")
+        if not isinstance(window, Window):
+            raise TypeError(f"expected a Window for {metric!r}, got {type(window).__name__}")
+        current = conn.execute(select_tolerance_at(metric, effective_from)).first()
+        if current is not None and _window(current) == window:
+            return current.id, False
+        new = conn.execute(insert(tolerances).values(
+            metric=metric, action_low=window.action_low, tolerance_low=window.tolerance_low,
+            tolerance_high=window.tolerance_high, action_high=window.action_high, unit=window.unit,
+            effective_from=effective_from, recorded=time.time(), note=note))
+        return new.inserted_primary_key[0], True
+
+    def set_tolerance(self, metric: str, window: Window, effective_from: float | None = None,
+                      note: str = "") -> int:
+        """Add a window for ``metric`` taking effect at ``effective_from`` (default now); return its id.
+
+        History is append-only: nothing already stored changes. If the window in effect at
+        that time is identical, nothing is added and its id is returned."""
+        when = time.time() if effective_from is None else float(effective_from)
+        with self._write() as conn:
+            return self._set_tolerance(conn, metric, window, when, note)[0]
+
+    def tolerance(self, metric: str, at: float | None = None) -> tuple[int, Window] | None:
+        """(id, window) of ``metric`` in effect at ``at`` (default now), None if there was none."""
+        when = time.time() if at is None else float(at)
+        with self._read() as conn:
+            row = conn.execute(select_tolerance_at(metric, when)).first()
+        return None if row is None else (row.id, _window(row))
+
+    def tolerances(self, at: float | None = None) -> dict[str, tuple[int, Window]]:
+        """Every metric's (id, window) in effect at ``at`` (default now)."""
+        when = time.time() if at is None else float(at)
+        with self._read() as conn:
+            rows = conn.execute(select_tolerances_at(when)).all()
+        return {r.metric: (r.id, _window(r)) for r in rows}
+
+    def sync_tolerances(self, windows: dict[str, Window], at: float | None = None) -> list[str]:
+        """Make ``windows`` the ones in effect from ``at`` (default now), in one transaction.
+
+        Only metrics whose window differs from the one in effect are added; their names are
+        returned. Metrics not in ``windows`` keep their window."""
+        when = time.time() if at is None else float(at)
+        changed = []
+        with self._write() as conn:
+            for metric, window in windows.items():
+                if self._set_tolerance(conn, metric, window, when, note="sync")[1]:
+                    changed.append(metric)
+        return changed
+
+    # -- runs -----------------------------------------------------------------------------
+
+    def begin_run(self, procedure: str, rig: str = "", operator: str = "", notes: str = "",
+                  config_digest: str = "", software_version: str | None = None,
+                  started: float | None = None) -> RunHandle:
+        """Commit a "running" row for a new run (with this host, pid and process start) and
+        return its handle. ``software_version`` None means vts_hw.__version__."""
+        if not isinstance(procedure, str) or not procedure:
+            raise ValueError("a run needs a procedure name")
+        if software_version is None:
+            from .. import __version__ as software_version
+        when = time.time() if started is None else float(started)
+        with self._write() as conn:
+            new = conn.execute(insert(runs).values(
+                procedure=procedure, rig=rig, started=when, finished=None, status="running",
+                software_version=software_version, config_digest=config_digest, operator=operator,
+                notes=notes, host=host_name(), pid=os.getpid(), process_start=process_start()))
+            run_id = new.inserted_primary_key[0]
+        return RunHandle(self, run_id, when)
+
+    def _end_run(self, run_id: int, status: str, note: str, finished: float | None) -> bool:
+        """Set a still-running run's status, appending ``note`` to its notes; False if it was not running."""
+        with self._write() as conn:
+            row = conn.execute(select(runs.c.status, runs.c.notes).where(runs.c.id == run_id)).first()
+            if row is None or row.status != "running":
+                return False
+            notes = f"{row.notes}\n{note}" if row.notes else note
+            conn.execute(update(runs).where(runs.c.id == run_id, runs.c.status == "running")
+                         .values(status=status, notes=notes, finished=finished))
+        return True
+
+    def mark_dead_runs_aborted(self) -> int:
+        """Mark "aborted" every run of this host still "running" whose process is gone; return how many.
+
+        Their finished time stays empty (nobody knows when they died). Runs of other hosts,
+        and runs whose process cannot be checked, are left alone."""
+        me = host_name()
+        with self._read() as conn:
+            rows = conn.execute(select_running_runs(me)).all()
+        n = 0
+        for r in rows:
+            if is_alive(r.pid, r.process_start) is False:
+                stamp = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+                note = (f"aborted: its process (pid {r.pid} on {me}) ended without finishing the run "
+                        f"(found {stamp})")
+                if self._end_run(r.id, "aborted", note, finished=None):
+                    n += 1
+                    log.warning("%s: run %d was left running by a process that is gone; marked aborted",
+                                self.url, r.id)
+        return n
+
+    def runs(self, procedure: str | tuple | None = None, since: float | None = None,
+             status=None) -> list[Run]:
+        """Runs, oldest first; procedure and status may be one value or a tuple."""
+        with self._read() as conn:
+            return [run_from_row(r) for r in conn.execute(select_runs(procedure, since, status))]
+
+    def run(self, run_id: int) -> Run:
+        """One run; KeyError if there is none with that id."""
+        with self._read() as conn:
+            row = conn.execute(select(runs).where(runs.c.id == run_id)).first()
+        if row is None:
+            raise KeyError(f"no run {run_id} in {self.url}")
+        return run_from_row(row)
+
+    def measurements(self, procedure: str | tuple | None = None, metric: str | tuple | None = None,
+                     subject: str | None = None, since: float | None = None,
+                     run_id: int | None = None) -> list[Measurement]:
+        """Measurements, ordered by their run's start, then id."""
+        q = select_measurements(procedure, metric, subject, since, run_id)
+        with self._read() as conn:
+            return [measurement_from_row(r) for r in conn.execute(q)]
+
+    def artifacts(self, run_id: int) -> list[Artifact]:
+        with self._read() as conn:
+            return [artifact_from_row(r) for r in conn.execute(select_artifacts(run_id))]
