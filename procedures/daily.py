@@ -147,8 +147,7 @@ class QARun:
                     # where the metric has a window of its own, the store judges it and keeps the
                     # window's id with the value; derived metrics (mm) carry the state judged here
                     own = metric in self.tolerances
-                    st = h.measure(subject, metric, value, unit, status=None if own else str(state), at=now)
-                    assert st == state, f"{subject} {metric}: store says {st}, procedure {state}"
+                    h.measure(subject, metric, value, unit, status=None if own else str(state), at=now)
                 for path in self._save_artifacts(h.run_id, res):
                     h.artifact(path, kind="plot" if path.suffix == ".png" else "frame")
                     artifacts.append(str(path))
