@@ -29,6 +29,7 @@ from ..tolerance import DEFAULT_TOLERANCES, State, Window, worst
 
 GATE_PX = 12.0          # a marker further than this from its baseline position is not that marker
 LED_SETTLE_S = 0.1      # time for the LED ring to switch before the next frame is taken
+_STRAY_REASONS = ("roundness", "border", "crowded", "truncated", "too many")
 
 
 @dataclass(frozen=True)
@@ -167,7 +168,9 @@ class DriftAnalysis:
                 md.dx.append(float(pts[j][0] - ref[i][0]))
                 md.dy.append(float(pts[j][1] - ref[i][1]))
             strays += [tuple(pts[j]) for j in range(len(pts)) if j not in matched]
-            strays += [(b.x, b.y) for b, why in res.rejected if why != "area" or b.area >= self.settings.min_area]
+            # rejected candidates that are real bright things (not specks of noise) are strays too
+            strays += [(b.x, b.y) for b, why in res.rejected
+                       if why in _STRAY_REASONS or (why == "area" and b.area > self.settings.max_area)]
         n = len(self.frames_on)
         # a stray counts if it is there in at least half the frames (not a flicker of noise)
         self.strays = _persistent(strays, n)

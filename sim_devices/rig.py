@@ -15,6 +15,7 @@ which writes ``DIR/rig.yaml`` and ``DIR/sim.env`` and runs this module in the ba
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import os
 import secrets
 import signal
@@ -81,6 +82,14 @@ class SimRig:
 
     def __exit__(self, *exc) -> None:
         self.stop()
+
+    def ntp_sync(self, at: float | None = None) -> None:
+        """The cameras' NTP sync: each clock keeps its residual offset, and its skew starts
+        accumulating afresh from ``at`` (default now). Without it a clock runs free, gaining
+        its skew (tens of ppm: seconds a day) for as long as the simulation runs."""
+        at = self.clock.now() if at is None else at
+        for name, c in list(self.scene.clocks.items()):
+            self.scene.clocks[name] = dataclasses.replace(c, ref_epoch=at)
 
     # -- what a client needs -------------------------------------------------------------
     def config(self, rig_name: str = "sim") -> RigConfig:

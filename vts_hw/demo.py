@@ -86,6 +86,7 @@ def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 
             rows: list[DayRow] = []
             for day in range(1, days + 1):
                 clock.advance(t_base + day * DAY - clock.now())  # day `day` after the baseline
+                rig.ntp_sync(clock.now() - 1800.0)  # the cameras' NTP synced their clocks half an hour ago
                 qa = QARun(cfg, store, n_frames=frames, clock=clock.now, operator="demo",
                            artifacts_dir=out / "artifacts", plots=(day == days))
                 res = qa.run()

@@ -28,8 +28,12 @@ def drift(since: str, out: str, as_json: bool, rig) -> None:
 
     if not (out.endswith(".html") or out.endswith(".pdf")):
         raise click.UsageError("the report is written as .html or .pdf: give -o report.html or -o report.pdf")
+    try:
+        start = parse_since(since)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--since") from None
     with open_store(rig) as store:
-        rep = build_drift_report(store, out, since=parse_since(since), rig=rig.rig)
+        rep = build_drift_report(store, out, since=start, rig=rig.rig)
     if as_json:
         echo_json(rep.results_data())
     else:
