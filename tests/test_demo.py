@@ -1,0 +1,51 @@
+"""The 60-day demo is the issue's acceptance check: measured drift against the injected truth,
+every day, and the report's forecast against the injected trend."""
+
+import numpy as np
+import pytest
+
+from vts_hw.demo import DAY, FAST_CAMERA, run_demo
+from vts_hw.report import build_drift_report
+from vts_hw.store import ResultsStore
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    out = tmp_path_factory.mktemp("demo")
+    return run_demo(out, days=60, frames=3)
+
+
+def test_measured_drift_within_005_px_of_the_truth_every_day(demo):
+    assert len(demo.rows) == 60
+    for row in demo.rows:
+        for cam, v in row.cameras.items():
+            assert abs(v["dx"] - v["truth_dx"]) <= 0.05, (row.day, cam)
+            assert abs(v["dy"] - v["truth_dy"]) <= 0.05, (row.day, cam)
+    assert set(demo.max_error_px) == {"cam1", "cam2"}
+
+
+def test_the_fast_camera_passes_its_tolerance_along_the_way(demo):
+    states = [r.cameras[FAST_CAMERA]["state"] for r in demo.rows]
+    assert states[0] == "OK" and states[-1] == "TOLERANCE"
+    first = states.index("TOLERANCE")
+    row = demo.rows[first]
+    v = row.cameras[FAST_CAMERA]
+    assert max(abs(v["truth_dx"]), abs(v["truth_dy"])) > 0.95  # it is the drift, not something else
+    assert demo.report_html.stat().st_size > 20000 and demo.report_pdf.read_bytes()[:5] == b"%PDF-"
+
+
+def test_forecast_agrees_with_the_injected_trend(demo):
+    t = np.array([r.when for r in demo.rows])
+    with ResultsStore(demo.store_path) as store:
+        data = build_drift_report(store, demo.report_html.with_name("again.html"), now=t[-1] + 60).results_data()
+    for axis in ("x", "y"):
+        truth = np.array([r.cameras[FAST_CAMERA][f"truth_d{axis}"] for r in demo.rows])
+        slope, icpt = np.polyfit(t, truth, 1)
+        fc = data["cameras"][FAST_CAMERA]["axes"][axis]["forecast"]
+        level = np.sign(slope) * 2.0
+        t_cross = (level - icpt) / slope
+        if t_cross - t[-1] > 365 * DAY:
+            assert fc["status"] != "date"
+            continue
+        assert fc["status"] == "date" and fc["level"] == level
+        assert abs(fc["t"] - t_cross) < 3 * DAY, (axis, (fc["t"] - t_cross) / DAY)
