@@ -8,7 +8,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 # Debian packages the tests need (installed when missing, if we may)
-TEST_DEBS := curl
+TEST_DEBS := curl chromium fonts-dejavu-core poppler-utils
 
 .PHONY: demo test bench venv debs clean
 
