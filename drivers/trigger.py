@@ -1,0 +1,184 @@
+"""The contract every trigger and sync generator keeps, and the log they all write.
+
+A trigger generator sends a repeating square wave into the SPECT gating input and
+contact-closure start pulses to the VTS recorder (channel 1) and the SPECT (channel 2).
+Backends: our trigger box (serial), a SCPI function generator (VISA), an NI-DAQmx counter.
+
+Each backend declares what it can do in ``capabilities``; asking for anything else raises
+:class:`Unsupported` (one sentence naming the device and what it cannot do), never a silent
+no-op. Every command and reply, and every edge time a device reports, is appended to the
+session's ``trigger.csv`` by :class:`TriggerLog`.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol, runtime_checkable
+
+from ..errors import DeviceError
+
+# what a backend can do
+FREQUENCY = "frequency"      # set the square wave's frequency
+DUTY = "duty"                # set its duty cycle
+LEVELS = "levels"            # set its high and low voltages
+PULSE = "pulse"              # a start pulse on channel 1 or 2
+FIRE = "fire"                # square wave and both start pulses on the same tick
+CLOCK = "clock"              # a device clock that can be mapped to host time
+EDGES = "edges"              # reports the times of the edges it sent
+
+CHANNELS = {1: "VTS start", 2: "SPECT start"}
+
+
+class TriggerError(DeviceError):
+    """A trigger generator failed or refused a command; the message names it."""
+
+
+class Unsupported(TriggerError):
+    """The backend cannot do what was asked."""
+
+
+@dataclass(frozen=True)
+class TriggerStatus:
+    """What the device confirms (not what was asked)."""
+
+    device: str
+    running: bool
+    frequency_hz: float | None = None
+    duty: float | None = None
+    high_v: float | None = None
+    low_v: float | None = None
+    edges: int | None = None                 # rising edges since the last start
+    first_edge_device_us: int | None = None
+    last_edge_device_us: int | None = None
+    errors: tuple[str, ...] = ()
+    extra: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class ClockMapping:
+    """host_time = ref_host + (device_us - ref_device_us) * 1e-6 * (1 + drift_ppm * 1e-6).
+
+    Fitted from round trips; ``residual_s`` is the RMS of the fit, ``uncertainty_s`` half the
+    shortest round trip (the most the midpoint can be off by)."""
+
+    ref_host: float
+    ref_device_us: int
+    drift_ppm: float
+    residual_s: float
+    uncertainty_s: float
+    samples: int
+
+    def to_host(self, device_us: int | float) -> float:
+        return self.ref_host + (device_us - self.ref_device_us) * 1e-6 * (1.0 + self.drift_ppm * 1e-6)
+
+    def to_device_us(self, host_t: float) -> float:
+        return self.ref_device_us + (host_t - self.ref_host) / (1e-6 * (1.0 + self.drift_ppm * 1e-6))
+
+
+@runtime_checkable
+class TriggerGenerator(Protocol):
+    """The contract. Every method returns what the device confirms."""
+
+    name: str
+    capabilities: frozenset[str]
+
+    def configure(self, frequency_hz: float, duty: float = 0.5, high_v: float | None = None,
+                  low_v: float | None = None) -> TriggerStatus: ...
+    def start(self) -> TriggerStatus: ...           # the square wave alone
+    def stop(self) -> TriggerStatus: ...            # ends on a whole period where the device can
+    def pulse(self, channel: int, ms: int) -> None: ...
+    def fire(self) -> TriggerStatus: ...            # square wave and both start pulses together
+    def status(self) -> TriggerStatus: ...
+    def clock_mapping(self, samples: int = 20) -> ClockMapping: ...
+    def close(self) -> None: ...
+
+
+class TriggerBase:
+    """Shared behaviour: capability checks, channel checks, the log."""
+
+    name: str = "trigger"
+    capabilities: frozenset[str] = frozenset()
+
+    def __init__(self, name: str, log: "TriggerLog | None" = None):
+        self.name = name
+        self.log = log or TriggerLog(None)
+
+    def require(self, capability: str, what: str | None = None) -> None:
+        if capability not in self.capabilities:
+            raise Unsupported(f"{self.name} cannot {what or _WHAT.get(capability, capability)}")
+
+    @staticmethod
+    def check_channel(channel: int) -> None:
+        if channel not in CHANNELS:
+            raise ValueError(f"start pulse channel must be 1 (VTS) or 2 (SPECT), not {channel}")
+
+    def clock_mapping(self, samples: int = 20) -> ClockMapping:
+        self.require(CLOCK)
+        raise NotImplementedError  # pragma: no cover
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self) -> None:
+        self.log.close()
+
+
+_WHAT = {FREQUENCY: "set a frequency", DUTY: "set a duty cycle", LEVELS: "set output levels",
+         PULSE: "send a start pulse", FIRE: "start the square wave and the start pulses together",
+         CLOCK: "report a device clock to map to host time", EDGES: "report edge times"}
+
+
+LOG_HEADER = ["host_time", "device_time_us", "device", "kind", "text"]
+
+
+class TriggerLog:
+    """Append-only ``trigger.csv``: host time, device time (where known), device, kind, text.
+
+    Kinds: ``cmd`` (sent), ``reply`` (received), ``edge`` (an edge time the device reported),
+    ``event`` (anything else worth keeping: a reconnect, a fitted clock mapping). Each line
+    is flushed as written, so a crash keeps everything logged before it. ``None`` as the path
+    keeps the lines in memory only (``lines``).
+    """
+
+    def __init__(self, path: str | os.PathLike | None, clock=time.time):
+        self.path = Path(path) if path is not None else None
+        self.clock = clock
+        self.lines: list[list[str]] = []
+        self._lock = threading.Lock()
+        self._f = None
+        if self.path is not None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            new = not self.path.exists() or self.path.stat().st_size == 0
+            self._f = open(self.path, "a", newline="", encoding="utf-8")
+            self._w = csv.writer(self._f)
+            if new:
+                self._w.writerow(LOG_HEADER)
+                self._f.flush()
+
+    def write(self, device: str, kind: str, text: str, device_us: int | float | None = None,
+              host_time: float | None = None) -> None:
+        row = [f"{self.clock() if host_time is None else host_time:.6f}",
+               "" if device_us is None else f"{device_us:.0f}", device, kind, text]
+        with self._lock:
+            self.lines.append(row)
+            if self._f is not None and not self._f.closed:
+                self._w.writerow(row)
+                self._f.flush()
+
+    def close(self) -> None:
+        with self._lock:
+            if self._f is not None and not self._f.closed:
+                self._f.close()
+
+
+def read_log(path: str | os.PathLike) -> list[dict]:
+    with open(path, newline="", encoding="utf-8") as f:
+        return list(csv.DictReader(f))

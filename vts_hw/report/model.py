@@ -1,0 +1,212 @@
+"""The data of a drift report: per camera the runs, bands, control limits, trend and forecast.
+
+These classes hold numbers only; ``drift.py`` fills them from the results store and
+``html.py`` / ``pdf.py`` / ``plots.py`` render them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..tolerance import State, Window, worst
+from .times import fmt_date
+from .trend import ControlLimits, Forecast, Trend
+
+AXES = ("x", "y")
+# camera-level metrics the drift QA writes (subject = camera name)
+CAMERA_METRICS = ("drift_x_px", "drift_y_px", "drift_x_mm", "drift_y_mm", "drift_sd_px",
+                  "markers_missing", "stray_blobs", "led_off_visible")
+# the metrics that say whether the camera itself is healthy, beside the drift
+CHECK_METRICS = ("led_off_visible", "markers_missing", "stray_blobs")
+
+
+def _clean(v):
+    """A JSON-safe number: NaN/inf become None, numpy scalars plain floats."""
+    if v is None:
+        return None
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+@dataclass
+class RunPoint:
+    """One completed drift (or daily) run as seen by one camera."""
+    run_id: int
+    t: float
+    procedure: str
+    values: dict[str, float | None]
+    status: dict[str, str]        # metric -> OK / TOLERANCE / ACTION
+
+    def value(self, metric: str) -> float:
+        v = self.values.get(metric)
+        return math.nan if v is None else float(v)
+
+    @property
+    def state(self) -> State:
+        """Worst state of this camera's measurements in this run."""
+        return worst(s for m, s in self.status.items() if m in CAMERA_METRICS)
+
+    def as_dict(self) -> dict:
+        return {"run_id": self.run_id, "t": self.t, "date": fmt_date(self.t),
+                "procedure": self.procedure, "state": str(self.state),
+                "values": {k: _clean(v) for k, v in self.values.items()},
+                "status": dict(self.status)}
+
+
+@dataclass(frozen=True)
+class BandSegment:
+    """A tolerance window in effect from ``start`` to ``end`` (``window_id`` None: the default)."""
+    start: float
+    end: float
+    window_id: int | None
+    window: Window
+
+    def as_dict(self) -> dict:
+        return {"start": self.start, "end": self.end, "window_id": self.window_id,
+                "window": self.window.as_dict(), "default": self.window_id is None}
+
+
+@dataclass
+class AxisSummary:
+    """Control limits, trend and forecast of one axis of one camera."""
+    control: ControlLimits
+    trend: Trend
+    forecast: Forecast
+
+    def as_dict(self) -> dict:
+        return {"control": self.control.as_dict(), "trend": self.trend.as_dict(),
+                "forecast": self.forecast.as_dict()}
+
+
+@dataclass
+class CameraDrift:
+    """Everything the report says about one camera."""
+    name: str
+    points: list[RunPoint]                 # runs shown (in the report period), oldest first
+    baselines: list[float]                 # baseline times shown
+    baseline_t: float | None               # the latest baseline (may be before the period)
+    axes: dict[str, AxisSummary]           # "x", "y"
+    mm_per_px: dict[str, float | None]     # from the stored px and mm values, per axis
+    markers: dict[str, dict[str, float | None]] = field(default_factory=dict)  # latest run, per marker
+
+    @property
+    def latest(self) -> RunPoint | None:
+        return self.points[-1] if self.points else None
+
+    @property
+    def state(self) -> State:
+        """The state of the camera in its latest run (OK when it has none)."""
+        return self.latest.state if self.latest else State.OK
+
+    def times(self) -> np.ndarray:
+        return np.array([p.t for p in self.points], dtype=float)
+
+    def series(self, metric: str) -> np.ndarray:
+        return np.array([p.value(metric) for p in self.points], dtype=float)
+
+    def events(self, metric: str) -> list[RunPoint]:
+        """Runs in which a check metric (LED, missing markers, stray blobs) was not zero."""
+        return [p for p in self.points if (p.values.get(metric) or 0) > 0]
+
+    def nearest_forecast(self) -> tuple[str, Forecast] | None:
+        """The axis whose forecast comes first, among those within a year."""
+        hits = [(a, s.forecast) for a, s in self.axes.items() if s.forecast.within_year]
+        return min(hits, key=lambda h: h[1].t) if hits else None
+
+    def as_dict(self) -> dict:
+        return {"name": self.name, "state": str(self.state),
+                "latest": self.latest.as_dict() if self.latest else None,
+                "baseline_t": self.baseline_t, "baselines": list(self.baselines),
+                "mm_per_px": {a: _clean(v) for a, v in self.mm_per_px.items()},
+                "axes": {a: s.as_dict() for a, s in self.axes.items()},
+                "series": [p.as_dict() for p in self.points],
+                "markers": {m: {k: _clean(v) for k, v in d.items()} for m, d in self.markers.items()}}
+
+
+@dataclass(frozen=True)
+class RunInfo:
+    """A run listed as such (a baseline, or a run that did not complete)."""
+    id: int
+    procedure: str
+    started: float
+    status: str
+    rig: str = ""
+    operator: str = ""
+    notes: str = ""
+
+    @classmethod
+    def of(cls, run) -> "RunInfo":
+        return cls(id=run.id, procedure=run.procedure, started=run.started,
+                   status=str(run.status or "unfinished"), rig=run.rig or "",
+                   operator=run.operator or "", notes=run.notes or "")
+
+    def as_dict(self) -> dict:
+        return {**self.__dict__, "date": fmt_date(self.started)}
+
+
+@dataclass
+class DriftReport:
+    """A drift trend report: what ``build_drift_report`` computed and where it wrote it."""
+    title: str
+    rig: str | None
+    since: float | None
+    now: float
+    period_start: float | None             # first run shown (or since)
+    cameras: dict[str, CameraDrift]
+    bands: dict[str, list[BandSegment]]    # "x", "y": windows of drift_x_px / drift_y_px
+    baselines: list[RunInfo]               # baseline runs in the period
+    not_completed: list[RunInfo]           # aborted / error / unfinished runs in the period
+    software_version: str
+    control_method: str
+    out: Path | None = None
+
+    @property
+    def state(self) -> State:
+        return worst(c.state for c in self.cameras.values())
+
+    @property
+    def plot_count(self) -> int:
+        """Plots the report holds: one per camera with runs."""
+        return sum(1 for c in self.cameras.values() if c.points)
+
+    def window_now(self, axis: str) -> Window:
+        return self.bands[axis][-1].window
+
+    def attention(self) -> list[str]:
+        """One line per thing a physicist should look at, worst first."""
+        out = []
+        for c in self.cameras.values():
+            if c.latest and c.state != State.OK:
+                bad = [m for m, s in c.latest.status.items() if m in CAMERA_METRICS and s != "OK"]
+                out.append((c.state.rank, f"{c.name}: {c.state} in the latest run ({', '.join(sorted(bad))})"))
+            nf = c.nearest_forecast()
+            if nf:
+                axis, f = nf
+                when = "has reached" if f.status == "reached" else "reaches"
+                on = "" if f.status == "reached" else f" on {fmt_date(f.t)}"
+                out.append((1, f"{c.name}: the drift trend in {axis} {when} the action level "
+                               f"({f.level:+g} px){on}"))
+            led = c.events("led_off_visible")
+            if led:
+                out.append((1, f"{c.name}: LED check failed on {len(led)} run(s), last {fmt_date(led[-1].t)}"))
+        if self.not_completed:
+            out.append((0, f"{len(self.not_completed)} run(s) did not complete (listed below)"))
+        return [text for _, text in sorted(out, key=lambda x: -x[0])]
+
+    def results_data(self) -> dict:
+        """Everything computed, as a JSON-ready dict (no NaN: missing numbers are None)."""
+        return {
+            "report": "drift", "title": self.title, "rig": self.rig, "since": self.since,
+            "now": self.now, "period_start": self.period_start, "state": str(self.state),
+            "software_version": self.software_version, "control_method": self.control_method,
+            "out": str(self.out) if self.out else None,
+            "bands": {a: [s.as_dict() for s in segs] for a, segs in self.bands.items()},
+            "cameras": {n: c.as_dict() for n, c in self.cameras.items()},
+            "baselines": [r.as_dict() for r in self.baselines],
+            "not_completed": [r.as_dict() for r in self.not_completed],
+            "attention": self.attention(),
+        }
