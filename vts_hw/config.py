@@ -89,6 +89,7 @@ class TriggerConfig(_Strict):
     high_v: float = Field(default=5.0, ge=-10, le=10)
     low_v: float = Field(default=0.0, ge=-10, le=10)
     pulse_ms: int = Field(default=100, ge=1, le=10000)
+    simulated: bool = Field(default=False, description="visa: use the shipped pyvisa-sim instrument")
 
     @model_validator(mode="after")
     def _levels(self):

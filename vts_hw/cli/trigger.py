@@ -1,0 +1,101 @@
+"""`vts trigger ...`: the square wave and the start pulses, as the device confirms them."""
+
+from __future__ import annotations
+
+import click
+
+from . import cli
+from .common import echo_json, json_option, with_rig
+
+log_option = click.option("--log", "log_path", type=click.Path(dir_okay=False), default="trigger.csv",
+                          show_default=True, help="trigger.csv to append every command, reply and edge to.")
+
+
+@cli.group()
+def trigger() -> None:
+    """The trigger and sync generator of the rig's `trigger:` section (trigger box, VISA
+    function generator or NI-DAQmx). Every command prints what the device confirms."""
+
+
+def _show(st, as_json: bool) -> None:
+    if as_json:
+        echo_json(st.__dict__)
+        return
+    parts = [f"{st.device}: output {'ON' if st.running else 'OFF'}"]
+    if st.frequency_hz is not None:
+        parts.append(f"{st.frequency_hz:g} Hz")
+    if st.duty is not None:
+        parts.append(f"duty {st.duty * 100:g} %")
+    if st.high_v is not None and st.low_v is not None:
+        parts.append(f"{st.low_v:g}..{st.high_v:g} V")
+    if st.edges is not None:
+        parts.append(f"{st.edges} rising edge(s)")
+    click.echo(", ".join(parts))
+    for e in st.errors:
+        click.echo(f"  device error: {e}")
+
+
+def _open(rig, log_path):
+    from ..triggers import open_trigger
+    return open_trigger(rig.trigger, log_path)
+
+
+@trigger.command()
+@log_option
+@json_option
+@with_rig
+def start(log_path, as_json, rig) -> None:
+    """Configure the square wave from the config (frequency, duty, levels) and start it."""
+    from ..drivers.trigger import LEVELS
+    t = rig.trigger
+    with _open(rig, log_path) as gen:
+        levels = (t.high_v, t.low_v) if LEVELS in gen.capabilities else (None, None)
+        gen.configure(t.frequency_hz, t.duty, *levels)
+        _show(gen.start(), as_json)
+
+
+@trigger.command()
+@log_option
+@json_option
+@with_rig
+def stop(log_path, as_json, rig) -> None:
+    """Stop the square wave (on a whole period where the device can)."""
+    with _open(rig, log_path) as gen:
+        _show(gen.stop(), as_json)
+
+
+@trigger.command()
+@log_option
+@json_option
+@with_rig
+def status(log_path, as_json, rig) -> None:
+    """What the device says it is doing."""
+    with _open(rig, log_path) as gen:
+        _show(gen.status(), as_json)
+
+
+@trigger.command()
+@click.argument("channel", type=click.IntRange(1, 2))
+@click.argument("ms", type=click.IntRange(1, 10000), required=False)
+@log_option
+@with_rig
+def pulse(channel, ms, log_path, rig) -> None:
+    """A start pulse (contact closure) on CHANNEL: 1 = VTS start, 2 = SPECT start."""
+    ms = ms or rig.trigger.pulse_ms
+    with _open(rig, log_path) as gen:
+        gen.pulse(channel, ms)
+    click.echo(f"{gen.name}: start pulse on channel {channel} for {ms} ms: OK")
+
+
+@trigger.command()
+@log_option
+@json_option
+@with_rig
+def fire(log_path, as_json, rig) -> None:
+    """Configure, then start the square wave and both start pulses together."""
+    from ..drivers.trigger import LEVELS
+    t = rig.trigger
+    with _open(rig, log_path) as gen:
+        levels = (t.high_v, t.low_v) if LEVELS in gen.capabilities else (None, None)
+        gen.configure(t.frequency_hz, t.duty, *levels)
+        _show(gen.fire(), as_json)

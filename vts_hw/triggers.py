@@ -1,0 +1,27 @@
+"""Open the rig's trigger generator from the config's ``trigger`` section."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from .config import TriggerConfig
+from .drivers.trigger import TriggerGenerator, TriggerLog
+from .errors import ConfigError
+
+
+def open_trigger(cfg: TriggerConfig, log_path: str | Path | None = None, clock=None) -> TriggerGenerator:
+    """The backend the config names, logging to ``log_path`` (trigger.csv) when given."""
+    import time
+    log = TriggerLog(log_path, clock=clock or time.time)
+    if cfg.backend == "none":
+        raise ConfigError("the rig config has no trigger generator (trigger: backend: none)")
+    if cfg.backend == "triggerbox":
+        from .drivers.trigger_box import TriggerBox
+        return TriggerBox(cfg.address, log=log)
+    if cfg.backend == "visa":
+        from .drivers.function_generator import FunctionGenerator
+        return FunctionGenerator(cfg.address, sim=cfg.simulated, log=log)
+    if cfg.backend == "daqmx":
+        from .drivers.daqmx import DaqmxTrigger, NidaqmxPort
+        return DaqmxTrigger(NidaqmxPort(cfg.address), log=log)
+    raise ConfigError(f"unknown trigger backend {cfg.backend!r}")  # pragma: no cover (validated)
