@@ -301,6 +301,13 @@ class DriftAnalysis:
                 ax.plot(bx, by, "o", mfc="none", mec="red", ms=18)
         for x, y in self.strays:
             ax.plot(x, y, "s", mfc="none", mec="red", ms=14)
+        from matplotlib.lines import Line2D
+        ax.legend(handles=[Line2D([], [], ls="", marker="+", color="#4fc3f7", ms=10, label="baseline"),
+                           Line2D([], [], ls="", marker="x", color="#ffb74d", ms=8, label="today"),
+                           Line2D([], [], color="#ffb74d", label=f"drift ×{arrow_scale:g}"),
+                           Line2D([], [], ls="", marker="o", mfc="none", mec="red", ms=10,
+                                  label="missing / stray")],
+                  loc="lower right", fontsize=8, framealpha=0.8)
         ax.set_title(f"{self.camera}: drift x {_f(self.drift_px[0])} px, y {_f(self.drift_px[1])} px "
                      f"({self.state}); arrows ×{arrow_scale:g}")
         ax.set_xlim(0, img.shape[1])
