@@ -42,6 +42,10 @@ class Unsupported(TriggerError):
     """The backend cannot do what was asked."""
 
 
+class OutOfRange(TriggerError, ValueError):
+    """A value outside the device's range. Raised before anything is sent to the device."""
+
+
 @dataclass(frozen=True)
 class TriggerStatus:
     """What the device confirms (not what was asked)."""

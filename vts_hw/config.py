@@ -90,6 +90,10 @@ class TriggerConfig(_Strict):
     low_v: float = Field(default=0.0, ge=-10, le=10)
     pulse_ms: int = Field(default=100, ge=1, le=10000)
     simulated: bool = Field(default=False, description="visa: use the shipped pyvisa-sim instrument")
+    lines: Optional[tuple[str, str]] = Field(
+        default=None, description="daqmx: digital lines of start channels 1 and 2, e.g. Dev1/port0/line0")
+    fire_trigger: Optional[str] = Field(
+        default=None, description="daqmx: terminal that starts the counter with the start pulses, e.g. /Dev1/PFI0")
 
     @model_validator(mode="after")
     def _levels(self):

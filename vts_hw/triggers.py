@@ -22,6 +22,6 @@ def open_trigger(cfg: TriggerConfig, log_path: str | Path | None = None, clock=N
         from .drivers.function_generator import FunctionGenerator
         return FunctionGenerator(cfg.address, sim=cfg.simulated, log=log)
     if cfg.backend == "daqmx":
-        from .drivers.daqmx import DaqmxTrigger, NidaqmxPort
-        return DaqmxTrigger(NidaqmxPort(cfg.address), log=log)
+        from .drivers.daqmx import DaqmxTrigger
+        return DaqmxTrigger(cfg.address, lines=cfg.lines, fire_trigger=cfg.fire_trigger, log=log)
     raise ConfigError(f"unknown trigger backend {cfg.backend!r}")  # pragma: no cover (validated)

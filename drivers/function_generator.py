@@ -1,0 +1,538 @@
+"""Keysight (Agilent) 33500-series function generator over VISA: the square wave for the SPECT gating input.
+
+One :class:`FunctionGenerator` per instrument channel, speaking a small SCPI subset through
+pyvisa (DESIGN.md, "Function generator (VISA, SCPI)"):
+
+    *IDN?  *RST  SYST:ERR?
+    FUNC SQU              FUNC?
+    FREQ <hz>             FREQ?
+    FUNC:SQU:DCYC <pct>   FUNC:SQU:DCYC?
+    VOLT:HIGH <v>         VOLT:HIGH?
+    VOLT:LOW <v>          VOLT:LOW?
+    OUTP 1|0              OUTP?
+
+(channel 2 prefixes ``SOUR2:`` and uses ``OUTP2``). Each setting is declared once as a
+:class:`Setting` with its command, its query and a validator; a value outside the instrument's
+range raises :class:`OutOfRange` before anything is sent. After every setting the error queue
+is read (``SYST:ERR?`` until ``+0,"No error"``) and an instrument-side refusal raises
+:class:`~vts_hw.drivers.trigger.TriggerError` with the instrument's own message. Every command
+and reply goes to the session's ``trigger.csv``.
+
+A 33500 has no contact-closure outputs and no clock that times its output, so this backend
+can do FREQUENCY, DUTY and LEVELS only: :meth:`pulse`, :meth:`fire` and :meth:`clock_mapping`
+raise :class:`~vts_hw.drivers.trigger.Unsupported` and say what to use instead.
+
+``sim=True`` talks to the pyvisa-sim model shipped as ``vts_hw/sim_devices/keysight_33500.yaml``;
+each instance gets a freshly parsed simulated device (docs/decisions/0010).
+"""
+
+from __future__ import annotations
+
+import atexit
+import contextlib
+import importlib.resources
+import math
+import re
+from pathlib import Path
+from typing import Any, Callable
+
+from .trigger import (
+    CLOCK,
+    DUTY,
+    FIRE,
+    FREQUENCY,
+    LEVELS,
+    PULSE,
+    OutOfRange,
+    ClockMapping,
+    TriggerBase,
+    TriggerError,
+    TriggerLog,
+    TriggerStatus,
+)
+
+SIM_PACKAGE = "vts_hw.sim_devices"
+SIM_YAML = "keysight_33500.yaml"
+#: an address the simulated generator answers on (pyvisa-sim opens no socket)
+SIM_RESOURCE = "TCPIP0::127.0.0.1::inst0::INSTR"
+
+# The instrument's ranges (33500B family, square wave, output termination 50 ohm = *RST default).
+FREQ_MIN_HZ = 1e-6            # 1 uHz on every 33500 model
+FREQ_MAX_HZ = 20e6            # square wave on the 20 MHz models; the 30 MHz models go further
+DUTY_MIN_PCT = 0.01           # square duty cycle at low frequencies ...
+DUTY_MAX_PCT = 99.99
+MIN_PULSE_S = 16e-9           # ... narrowed at high frequency by the 16 ns minimum pulse width
+LEVEL_LIMIT_V = 5.0           # |VOLT:HIGH|, |VOLT:LOW| into the 50 ohm setting (10 V with LOAD INF)
+MIN_AMPLITUDE_V = 1e-3        # VOLT:HIGH - VOLT:LOW, 1 mVpp into 50 ohm
+FUNCTIONS = ("SIN", "SQU", "TRI", "RAMP", "PULS", "PRBS", "NOIS", "ARB", "DC")
+MAX_ERRORS_READ = 32          # more than the instrument's error queue holds
+
+# what a confirmed value may differ from the asked one by (instrument resolution)
+_TOLERANCE = {"frequency_hz": (1e-9, 1e-6), "duty_percent": (0.0, 1e-3),
+              "high_v": (0.0, 1e-3), "low_v": (0.0, 1e-3)}
+
+_MODEL = re.compile(r"^335\d\d[AB]$")
+_NO_PULSE = ("a Keysight 33500 has no contact-closure outputs; send the start pulses from the "
+             "trigger box or an NI-DAQmx digital line (backend daqmx)")
+
+
+# ---- declared settings (PyMeasure-style) -------------------------------------------------------
+
+def in_range(low: float, high: float, unit: str, what: str) -> Callable[[Any], float]:
+    """A validator: a finite number within [low, high], else :class:`OutOfRange`."""
+
+    def check(value: Any) -> float:
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            raise OutOfRange(f"{what} must be a number of {unit}, not {value!r}") from None
+        if not math.isfinite(v) or not low <= v <= high:
+            raise OutOfRange(f"{what} {value!r} {unit} is outside the instrument's range "
+                             f"{low:g} to {high:g} {unit}")
+        return v
+
+    check.__doc__ = f"{what}: {low:g} to {high:g} {unit}"
+    return check
+
+
+def one_of(*choices: str, what: str) -> Callable[[Any], str]:
+    def check(value: Any) -> str:
+        if not isinstance(value, str) or value.upper() not in choices:
+            raise OutOfRange(f"{what} must be one of {', '.join(choices)}, not {value!r}")
+        return value.upper()
+
+    check.__doc__ = f"{what}: one of {', '.join(choices)}"
+    return check
+
+
+def boolean(value: Any) -> bool:
+    """on/off: True or False (1 or 0)"""
+    if value not in (True, False):  # 1 and 0 compare equal to True and False
+        raise OutOfRange(f"output state must be True or False, not {value!r}")
+    return bool(value)
+
+
+def scpi_number(value: float) -> str:
+    """The shortest text that reads back as the same float: 1 -> '1', 1e-06 -> '1E-06'."""
+    text = repr(float(value))
+    if text.endswith(".0"):
+        text = text[:-2]
+    return text.upper()
+
+
+def _scpi_bool(value: bool) -> str:
+    return "1" if value else "0"
+
+
+def _parse_bool(reply: str) -> bool:
+    if reply in ("1", "ON"):
+        return True
+    if reply in ("0", "OFF"):
+        return False
+    raise ValueError(reply)
+
+
+class Setting:
+    """An instrument setting declared once: set command, query, validator and reply parser.
+
+    Reading the attribute queries the instrument; assigning validates (raising
+    :class:`OutOfRange` before anything is sent), sends the command and reads the error queue.
+    ``{src}`` in a command becomes ``SOUR2:`` on channel 2, ``{ch}`` becomes ``2``.
+    """
+
+    def __init__(self, command: str, query: str, validator: Callable[[Any], Any], *,
+                 parse: Callable[[str], Any] = float, fmt: Callable[[Any], str] = scpi_number,
+                 doc: str = ""):
+        self.command = command
+        self.query = query
+        self.validator = validator
+        self.parse = parse
+        self.fmt = fmt
+        self.__doc__ = f"{doc} ({validator.__doc__}); set with {command!r}, read with {query!r}"
+        self.name = ""
+
+    def __set_name__(self, owner, name: str) -> None:
+        self.name = name
+
+    def __get__(self, obj, objtype=None):
+        if obj is None:
+            return self
+        return obj._read_setting(self)
+
+    def __set__(self, obj, value) -> None:
+        obj._apply_setting(self, obj._validate(self, value))
+
+
+# ---- the driver ----------------------------------------------------------------------------------
+
+class FunctionGenerator(TriggerBase):
+    """A Keysight/Agilent 33500-series channel as the square-wave source of the trigger contract."""
+
+    capabilities = frozenset({FREQUENCY, DUTY, LEVELS})
+
+    function = Setting("{src}FUNC {value}", "{src}FUNC?", one_of(*FUNCTIONS, what="function"),
+                       parse=str, fmt=str, doc="waveform")
+    frequency_hz = Setting("{src}FREQ {value}", "{src}FREQ?",
+                           in_range(FREQ_MIN_HZ, FREQ_MAX_HZ, "Hz", "frequency"),
+                           doc="frequency in Hz")
+    duty_percent = Setting("{src}FUNC:SQU:DCYC {value}", "{src}FUNC:SQU:DCYC?",
+                           in_range(DUTY_MIN_PCT, DUTY_MAX_PCT, "%", "square duty cycle"),
+                           doc="square-wave duty cycle in percent")
+    high_v = Setting("{src}VOLT:HIGH {value}", "{src}VOLT:HIGH?",
+                     in_range(-LEVEL_LIMIT_V, LEVEL_LIMIT_V, "V", "high level"),
+                     doc="high level in volts (as the instrument's 50 ohm termination setting states it)")
+    low_v = Setting("{src}VOLT:LOW {value}", "{src}VOLT:LOW?",
+                    in_range(-LEVEL_LIMIT_V, LEVEL_LIMIT_V, "V", "low level"),
+                    doc="low level in volts (as the instrument's 50 ohm termination setting states it)")
+    output = Setting("OUTP{ch} {value}", "OUTP{ch}?", boolean, parse=_parse_bool, fmt=_scpi_bool,
+                     doc="output on")
+
+    def __init__(self, resource: str | Any, *, sim: bool = False, visa_library: str | None = None,
+                 log: TriggerLog | None = None, name: str = "fgen", timeout_ms: int = 2000,
+                 channel: int = 1):
+        """Open ``resource`` (a VISA address) and identify the instrument.
+
+        ``sim=True`` uses the shipped pyvisa-sim model (a fresh simulated device per instance);
+        ``visa_library`` picks another VISA backend (``"@py"``, ``"path/to/model.yaml@sim"``);
+        neither means pyvisa's default. ``resource`` may also be an already open pyvisa-like
+        resource (``write``/``query``/``close``), as the protocol tests do.
+        """
+        super().__init__(name, log)
+        if channel not in (1, 2):
+            raise ValueError(f"a 33500 has channel 1 or 2, not {channel!r}")
+        if sim and visa_library:
+            raise ValueError("give sim=True or visa_library, not both")
+        self.channel = channel
+        self._src = "" if channel == 1 else f"SOUR{channel}:"
+        self._ch = "" if channel == 1 else str(channel)
+        self._known: dict[str, Any] = {}        # last values the instrument confirmed or accepted
+        self._closed = False
+        self.idn = ""
+        self.stale_errors: tuple[str, ...] = ()
+        if isinstance(resource, str):
+            library = f"{sim_yaml_path()}@sim" if sim else (visa_library or "")
+            self.address = resource
+            self.resource = _open_visa(resource, library, timeout_ms, name)
+            self.log.write(name, "event", f"open {resource} ({'simulated' if sim else library or 'default VISA'})")
+        else:
+            self.address = str(getattr(resource, "resource_name", type(resource).__name__))
+            self.resource = resource
+        try:
+            self._identify()
+        except BaseException:
+            self._close_resource()
+            raise
+
+    def __repr__(self) -> str:
+        return f"<FunctionGenerator {self.name} {self.address} channel {self.channel}>"
+
+    # -- the trigger contract --------------------------------------------------------------------
+
+    def configure(self, frequency_hz: float, duty: float = 0.5, high_v: float | None = None,
+                  low_v: float | None = None) -> TriggerStatus:
+        """A square wave of ``frequency_hz`` and ``duty`` (a fraction), levels if given (both).
+
+        Every value is checked before anything is sent; then FUNC SQU, FREQ, DCYC and the levels
+        are set (each followed by SYST:ERR?) and the instrument's read-back is returned. A
+        read-back that differs from what was asked raises TriggerError.
+        """
+        self.require(FREQUENCY)
+        self.require(DUTY)
+        if (high_v is None) != (low_v is None):
+            raise OutOfRange(f"{self.name}: give both high_v and low_v, or neither "
+                             f"(got high_v={high_v!r}, low_v={low_v!r}); nothing was sent")
+        levels = high_v is not None
+        if levels:
+            self.require(LEVELS)
+        try:
+            duty_f = float(duty)
+        except (TypeError, ValueError):
+            raise OutOfRange(f"{self.name}: duty must be a fraction, not {duty!r}; nothing was sent") from None
+        f = self._validate(FunctionGenerator.frequency_hz, frequency_hz)
+        pct = self._validate(FunctionGenerator.duty_percent, round(duty_f * 100.0, 9), frequency_hz=f)
+        asked = {"frequency_hz": f, "duty_percent": pct}
+        if levels:
+            hi = self._validate(FunctionGenerator.high_v, high_v, low_v=_finite_or_none(low_v))
+            lo = self._validate(FunctionGenerator.low_v, low_v, high_v=hi)
+            asked.update(high_v=hi, low_v=lo)
+
+        self._apply_setting(FunctionGenerator.function, "SQU")
+        self._apply_setting(FunctionGenerator.frequency_hz, f)
+        self._apply_setting(FunctionGenerator.duty_percent, pct)
+        if levels:
+            # the instrument refuses a high below the present low (and a low above the present
+            # high), so the order depends on where the levels are now
+            if hi > self.low_v:
+                self._apply_setting(FunctionGenerator.high_v, hi)
+                self._apply_setting(FunctionGenerator.low_v, lo)
+            else:
+                self._apply_setting(FunctionGenerator.low_v, lo)
+                self._apply_setting(FunctionGenerator.high_v, hi)
+
+        st = self.status()
+        self._raise_on_errors("configure", st.errors)
+        if st.extra.get("function") != "SQU":
+            raise TriggerError(f"{self.name} was set to a square wave but confirms {st.extra.get('function')!r}")
+        got = {"frequency_hz": st.frequency_hz, "duty_percent": st.extra["duty_percent"],
+               "high_v": st.high_v, "low_v": st.low_v}
+        for key, want in asked.items():
+            rel, abs_ = _TOLERANCE[key]
+            if got[key] is None or not math.isclose(got[key], want, rel_tol=rel, abs_tol=abs_):
+                raise TriggerError(f"{self.name} was asked for {key} {want:g} but confirms {got[key]!r}")
+        return st
+
+    def start(self) -> TriggerStatus:
+        """Output on (``OUTP 1``): the square wave alone. Refused unless the function is SQU."""
+        fn = self.function
+        if fn != "SQU":
+            raise TriggerError(f"{self.name} is set to {fn}, not a square wave: call configure() first")
+        self.output = True
+        st = self.status()
+        self._raise_on_errors("start", st.errors)
+        if not st.running:
+            raise TriggerError(f"{self.name} was switched on but reports its output off")
+        return st
+
+    def stop(self) -> TriggerStatus:
+        """Output off (``OUTP 0``). The 33500 opens its output at once, not at the end of a period."""
+        self.output = False
+        st = self.status()
+        self._raise_on_errors("stop", st.errors)
+        if st.running:
+            raise TriggerError(f"{self.name} was switched off but reports its output on")
+        return st
+
+    def pulse(self, channel: int, ms: int) -> None:
+        self.require(PULSE, f"send a start pulse: {_NO_PULSE}")
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    def fire(self) -> TriggerStatus:
+        self.require(FIRE, f"start the square wave and the start pulses together: {_NO_PULSE}")
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    def clock_mapping(self, samples: int = 20) -> ClockMapping:
+        self.require(CLOCK, "report a device clock to map to host time: a 33500 has no clock "
+                            "readable over SCPI that times its output; time the edges from the "
+                            "SPECT list-mode gating signal instead")
+        raise AssertionError("unreachable")  # pragma: no cover
+
+    def status(self) -> TriggerStatus:
+        """What the instrument reports now: function, frequency, duty, levels, output, errors."""
+        fn = self.function
+        f = self.frequency_hz
+        pct = self.duty_percent
+        hi = self.high_v
+        lo = self.low_v
+        on = self.output
+        errors = self._read_errors()
+        return TriggerStatus(device=self.name, running=on, frequency_hz=f, duty=pct / 100.0,
+                             high_v=hi, low_v=lo, errors=errors,
+                             extra={"function": fn, "duty_percent": pct, "channel": self.channel,
+                                    "idn": self.idn})
+
+    def reset(self) -> None:
+        """``*RST``: the instrument's defaults (sine 1 kHz, output off). Not simulated by pyvisa-sim."""
+        self._write("*RST")
+        self._known.clear()
+        self._raise_on_errors("'*RST'", self._read_errors())
+
+    def check_errors(self) -> None:
+        """Read the error queue; raise TriggerError with the instrument's messages if any."""
+        self._raise_on_errors("the last commands", self._read_errors())
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self._close_resource()
+            self.log.write(self.name, "event", "closed")
+        super().close()
+
+    # -- settings ----------------------------------------------------------------------------------
+
+    def _validate(self, setting: Setting, value: Any, **context: Any) -> Any:
+        """The value as it will be sent, or OutOfRange naming this device. Sends nothing.
+
+        Cross-checks use ``context`` (values about to be set) and else the last values the
+        instrument confirmed: the duty cycle against the 16 ns minimum pulse at the frequency,
+        and high above low by at least 1 mV.
+        """
+        try:
+            v = setting.validator(value)
+            if setting is FunctionGenerator.duty_percent:
+                f = context.get("frequency_hz", self._known.get("frequency_hz"))
+                if f is not None:
+                    low = max(DUTY_MIN_PCT, 100.0 * MIN_PULSE_S * f)
+                    high = min(DUTY_MAX_PCT, 100.0 * (1.0 - MIN_PULSE_S * f))
+                    if not low <= v <= high:
+                        raise OutOfRange(f"square duty cycle {v:g} % is outside the instrument's "
+                                         f"range {low:g} to {high:g} % at {f:g} Hz")
+            elif setting is FunctionGenerator.high_v:
+                lo = context["low_v"] if "low_v" in context else self._known.get("low_v")
+                if lo is not None and v - lo < MIN_AMPLITUDE_V:
+                    raise OutOfRange(f"high level {v:g} V must be at least {MIN_AMPLITUDE_V * 1e3:g} mV "
+                                     f"above the low level {lo:g} V")
+            elif setting is FunctionGenerator.low_v:
+                hi = context["high_v"] if "high_v" in context else self._known.get("high_v")
+                if hi is not None and hi - v < MIN_AMPLITUDE_V:
+                    raise OutOfRange(f"low level {v:g} V must be at least {MIN_AMPLITUDE_V * 1e3:g} mV "
+                                     f"below the high level {hi:g} V")
+        except OutOfRange as e:
+            raise OutOfRange(f"{self.name}: {e}; nothing was sent") from None
+        return v
+
+    def _apply_setting(self, setting: Setting, value: Any) -> None:
+        command = self._scpi(setting.command, setting.fmt(value))
+        self._write(command)
+        self._raise_on_errors(repr(command), self._read_errors())
+        self._known[setting.name] = value
+
+    def _read_setting(self, setting: Setting) -> Any:
+        query = self._scpi(setting.query)
+        reply = self._query(query)
+        try:
+            value = setting.parse(reply)
+        except ValueError:
+            raise TriggerError(f"{self.name} answered {query!r} with {reply!r}, not a "
+                               f"{setting.name} value") from None
+        self._known[setting.name] = value
+        return value
+
+    def _scpi(self, template: str, value: str = "") -> str:
+        return template.format(src=self._src, ch=self._ch, value=value)
+
+    # -- the wire ----------------------------------------------------------------------------------
+
+    def _write(self, command: str) -> None:
+        self.log.write(self.name, "cmd", command)
+        try:
+            self.resource.write(command)
+        except Exception as e:
+            if _is_visa_error(e):
+                raise TriggerError(f"{self.name} at {self.address}: cannot send {command!r} ({e})") from e
+            raise
+
+    def _query(self, command: str) -> str:
+        self.log.write(self.name, "cmd", command)
+        try:
+            reply = self.resource.query(command).strip()
+        except Exception as e:
+            if _is_visa_error(e):
+                raise TriggerError(f"{self.name} at {self.address}: no answer to {command!r} ({e})") from e
+            raise
+        self.log.write(self.name, "reply", reply)
+        return reply
+
+    def _read_errors(self) -> tuple[str, ...]:
+        """SYST:ERR? until +0,"No error"; the messages read before it."""
+        errors = []
+        for _ in range(MAX_ERRORS_READ):
+            reply = self._query("SYST:ERR?")
+            code, _, _message = reply.partition(",")
+            try:
+                n = int(code)
+            except ValueError:
+                raise TriggerError(f"{self.name} answered SYST:ERR? with {reply!r}") from None
+            if n == 0:
+                return tuple(errors)
+            errors.append(reply)
+        raise TriggerError(f"{self.name} still reports errors after {MAX_ERRORS_READ} reads of "
+                           f"SYST:ERR?: {'; '.join(errors[:3])} ...")
+
+    def _raise_on_errors(self, what: str, errors: tuple[str, ...]) -> None:
+        if errors:
+            raise TriggerError(f"{self.name} refused {what}: {'; '.join(errors)}")
+
+    def _identify(self) -> None:
+        self.idn = self._query("*IDN?")
+        parts = [p.strip() for p in self.idn.split(",")]
+        model = parts[1] if len(parts) >= 2 else ""
+        if not _MODEL.match(model):
+            raise TriggerError(f"{self.name} at {self.address} answers *IDN? with {self.idn!r}, "
+                               f"not a Keysight/Agilent 33500-series generator")
+        if self.channel == 2 and model[4] != "2":  # 335x2: the two-channel models
+            raise TriggerError(f"{self.name}: the {model} at {self.address} has one channel, not 2")
+        self.model = model
+        # errors left from before we connected are not ours: log them, keep them, go on
+        self.stale_errors = self._read_errors()
+        for err in self.stale_errors:
+            self.log.write(self.name, "event", f"error left in the queue before connecting: {err}")
+
+    def _close_resource(self) -> None:
+        try:
+            self.resource.close()
+        except Exception:  # closing a dead connection must not hide the error that killed it
+            pass
+
+
+# ---- VISA plumbing ---------------------------------------------------------------------------------
+
+_files = contextlib.ExitStack()
+atexit.register(_files.close)
+
+
+def sim_yaml_path() -> Path:
+    """The shipped pyvisa-sim model, as a file path (package data of ``vts_hw.sim_devices``)."""
+    ref = importlib.resources.files(SIM_PACKAGE).joinpath(SIM_YAML)
+    if isinstance(ref, Path):
+        return ref
+    return _files.enter_context(importlib.resources.as_file(ref))  # pragma: no cover - zipped install
+
+
+def _finite_or_none(value: Any) -> float | None:
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) else None
+
+
+def _is_visa_error(e: Exception) -> bool:
+    try:
+        import pyvisa.errors
+    except ImportError:  # pragma: no cover - pyvisa is a dependency
+        return False
+    return isinstance(e, (pyvisa.errors.Error, TimeoutError, OSError))
+
+
+def _open_visa(address: str, library: str, timeout_ms: int, name: str):
+    import pyvisa
+
+    try:
+        rm = pyvisa.ResourceManager(library)
+    except Exception as e:
+        raise TriggerError(f"{name}: cannot load the VISA library {library or '(default)'!r}: {e}") from e
+    if type(rm.visalib).__module__.startswith("pyvisa_sim"):
+        _fresh_sim_devices(rm, name)
+        # pyvisa-sim "opens" any address and then never answers: say what is wrong instead
+        known = rm.visalib.devices.list_resources()
+        try:
+            canonical = pyvisa.rname.to_canonical_name(address)
+        except Exception:
+            canonical = address
+        if canonical not in known:
+            raise TriggerError(f"{name}: cannot open {address}: the simulated model at "
+                               f"{rm.visalib.library_path} has only {', '.join(known)}")
+    try:
+        return rm.open_resource(address, read_termination="\n", write_termination="\n",
+                                timeout=timeout_ms)
+    except Exception as e:
+        raise TriggerError(f"{name}: cannot open {address} through {library or 'the default VISA'}: {e}") from e
+
+
+def _fresh_sim_devices(rm, name: str) -> None:
+    """Give the next session a freshly parsed simulated device.
+
+    pyvisa keeps one library object per YAML path for the whole process (and one
+    ResourceManager per library), and pyvisa-sim keeps device state in that object, so a new
+    ResourceManager alone would hand a new instance the old state (pyvisa-sim issues #82, #83).
+    Re-parsing the definitions gives sessions opened from now on new devices; sessions already
+    open keep theirs.
+    """
+    lib = rm.visalib
+    try:
+        from pyvisa_sim import parser
+
+        path = str(lib.library_path)
+        lib.devices = parser.get_devices("default.yaml", True) if path == "unset" else parser.get_devices(path, False)
+    except Exception as e:
+        raise TriggerError(f"{name}: cannot load a fresh simulated device from {lib.library_path}: {e}") from e
