@@ -34,6 +34,7 @@ from .render import Renderer
 from .scene import CameraDrift, Scene
 
 PID_FILE = "sim.pid"
+TRIGGERS = ("none", "triggerbox", "visa")
 _children: dict[int, subprocess.Popen] = {}  # started from this process: reaped on stop
 READY_FILE = "rig.yaml"
 
@@ -47,7 +48,11 @@ class SimRig:
 
     def __init__(self, n_cameras: int = 2, seed: int = 0, *, user: str = "root", password: str | None = None,
                  firmware: str = "vapix3", clock=None, fps: float = 25.0,
-                 drift_px_per_60_days: dict[str, float] | None = None):
+                 drift_px_per_60_days: dict[str, float] | None = None, trigger: str = "none"):
+        if trigger not in TRIGGERS:
+            raise ValueError(f"trigger must be one of {', '.join(TRIGGERS)}, not {trigger!r}")
+        self.trigger = trigger
+        self.trigger_box = None  # the firmware in the emulator, when trigger == "triggerbox"
         self.clock = clock or RealClock()
         self.scene = Scene.reference(seed=seed, n_cameras=n_cameras, start_epoch=self.clock.now())
         for i, (cam, px) in enumerate(sorted((drift_px_per_60_days or {}).items())):
@@ -69,12 +74,18 @@ class SimRig:
     def start(self) -> "SimRig":
         for srv in self.servers.values():
             srv.start()
+        if self.trigger == "triggerbox":
+            from .trigger_box import SimTriggerBox
+            self.trigger_box = SimTriggerBox().start()
         self._started = True
         return self
 
     def stop(self) -> None:
         for srv in self.servers.values():
             srv.stop()
+        if self.trigger_box is not None:
+            self.trigger_box.stop()
+            self.trigger_box = None
         self._started = False
 
     def __enter__(self) -> "SimRig":
@@ -96,7 +107,16 @@ class SimRig:
         cams = [{"name": name, "host": "127.0.0.1", "port": srv.port, "user": self.user,
                  "password_env": password_var(name), "fps": self.fps}
                 for name, srv in self.servers.items()]
-        return parse_rig({"rig": rig_name, "cameras": cams}, "simulated rig")
+        return parse_rig({"rig": rig_name, "cameras": cams, "trigger": self.trigger_config()}, "simulated rig")
+
+    def trigger_config(self) -> dict:
+        """The rig config's trigger section for the simulated trigger generator."""
+        if self.trigger == "triggerbox" and self.trigger_box is not None:
+            return {"backend": "triggerbox", "address": self.trigger_box.port}
+        if self.trigger == "visa":
+            from ..drivers.function_generator import SIM_RESOURCE
+            return {"backend": "visa", "address": SIM_RESOURCE, "simulated": True, "high_v": 2.5, "low_v": 0.0}
+        return {"backend": "none"}
 
     def env_vars(self) -> dict[str, str]:
         return {password_var(name): self.password for name in self.servers}
@@ -146,7 +166,7 @@ def load_env_file(path: str | Path) -> dict[str, str]:
 
 # -- running in the foreground or detached ----------------------------------------------------
 def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = "vapix3",
-          rate: float = 1.0, on_ready=None) -> None:
+          rate: float = 1.0, on_ready=None, trigger: str = "none") -> None:
     """Run a rig until SIGINT/SIGTERM. With ``folder``: write rig.yaml, sim.env and sim.pid."""
     clock = RealClock() if rate == 1.0 else VirtualClock(time.time(), rate=rate)
     stop = threading.Event()
@@ -156,7 +176,7 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
 
     signal.signal(signal.SIGTERM, _stop)
     signal.signal(signal.SIGINT, _stop)
-    with SimRig(n_cameras=n_cameras, seed=seed, firmware=firmware, clock=clock) as rig:
+    with SimRig(n_cameras=n_cameras, seed=seed, firmware=firmware, clock=clock, trigger=trigger) as rig:
         if folder is not None:
             folder = Path(folder)
             folder.mkdir(parents=True, exist_ok=True)
@@ -173,7 +193,7 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
 
 
 def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmware: str = "vapix3",
-                   rate: float = 1.0, timeout: float = 30.0) -> int:
+                   rate: float = 1.0, timeout: float = 60.0, trigger: str = "none") -> int:
     """Start ``serve`` in a background process; return its pid once rig.yaml is written."""
     folder = Path(folder).resolve()
     folder.mkdir(parents=True, exist_ok=True)
@@ -184,7 +204,7 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
             (folder / name).unlink()
     log = open(folder / "sim.log", "ab")
     cmd = [sys.executable, "-m", "vts_hw.sim_devices.rig", str(folder), str(n_cameras), str(seed), firmware,
-           str(rate)]
+           str(rate), trigger]
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=log, start_new_session=True)
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -249,5 +269,5 @@ def stop_detached(folder: str | Path, timeout: float = 10.0) -> bool:
 
 
 if __name__ == "__main__":  # the detached process
-    _folder, _n, _seed, _fw, _rate = sys.argv[1:6]
-    serve(_folder, int(_n), int(_seed), _fw, float(_rate))
+    _folder, _n, _seed, _fw, _rate, _trigger = sys.argv[1:7]
+    serve(_folder, int(_n), int(_seed), _fw, float(_rate), trigger=_trigger)

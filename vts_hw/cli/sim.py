@@ -22,10 +22,13 @@ def sim() -> None:
               help="Firmware generation the cameras answer as.")
 @click.option("--rate", type=float, default=1.0, show_default=True,
               help="Speed of the simulated clock (e.g. 86400: a day per second, for drift).")
+@click.option("--trigger", type=click.Choice(["none", "triggerbox", "visa"]), default="none", show_default=True,
+              help="A simulated trigger generator: our firmware in the emulator behind a pty, or the "
+                   "pyvisa-sim function generator.")
 @click.option("--detach", is_flag=True, help="Run in the background (needs --dir).")
 @click.option("--dir", "folder", type=click.Path(file_okay=False), default=None,
               help="Where to write rig.yaml and sim.env (and sim.pid, sim.log when detached).")
-def up(n_cameras: int, seed: int, vapix: str, rate: float, detach: bool, folder: str | None) -> None:
+def up(n_cameras: int, seed: int, vapix: str, rate: float, trigger: str, detach: bool, folder: str | None) -> None:
     """Run the simulated rig (foreground: Ctrl-C stops it).
 
     With --dir DIR it writes DIR/rig.yaml pointing at the simulated cameras and DIR/sim.env
@@ -38,7 +41,7 @@ def up(n_cameras: int, seed: int, vapix: str, rate: float, detach: bool, folder:
     if detach:
         if not folder:
             raise click.UsageError("--detach needs --dir DIR (where rig.yaml and sim.env go)")
-        pid = simrig.start_detached(folder, n_cameras, seed, fw, rate)
+        pid = simrig.start_detached(folder, n_cameras, seed, fw, rate, trigger=trigger)
         _describe(Path(folder))
         click.echo(f"simulated rig running in the background (pid {pid}); stop it with: vts sim down --dir {folder}")
         return
@@ -46,11 +49,13 @@ def up(n_cameras: int, seed: int, vapix: str, rate: float, detach: bool, folder:
     def ready(rig):
         for name, srv in rig.servers.items():
             click.echo(f"{name}: {srv.url}")
+        if rig.trigger_box is not None:
+            click.echo(f"trigger box: {rig.trigger_box.port} (firmware in the emulator)")
         if folder:
             _describe(Path(folder))
         click.echo("simulated rig up; Ctrl-C stops it")
 
-    simrig.serve(folder, n_cameras, seed, fw, rate, on_ready=ready)
+    simrig.serve(folder, n_cameras, seed, fw, rate, on_ready=ready, trigger=trigger)
     click.echo("simulated rig stopped")
 
 
