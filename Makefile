@@ -8,9 +8,10 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 # Debian packages the tests need (installed when missing, if we may)
+# (the AVR toolchain and simavr are installed by firmware/Makefile, which `make test` runs)
 TEST_DEBS := curl chromium fonts-dejavu-core poppler-utils
 
-.PHONY: demo test bench venv debs clean
+.PHONY: demo test bench venv debs firmware clean
 
 venv: $(STAMP)
 
@@ -28,10 +29,16 @@ demo: $(STAMP)
 	$(VENV)/bin/vts demo
 
 test: $(STAMP) debs
+	$(MAKE) -C firmware
 	$(PY) -m pytest
 
-bench: $(STAMP)
+bench: $(STAMP) debs
+	$(MAKE) -C firmware
 	$(PY) bench/run_all.py
+
+# the trigger box firmware (avr-gcc) and its emulator harness (libsimavr)
+firmware:
+	$(MAKE) -C firmware
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis
