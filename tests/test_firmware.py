@@ -1,0 +1,519 @@
+"""Firmware in the loop: the trigger box firmware (firmware/trigger_box) runs in simavr
+behind a pty (vts_hw.sim_devices.trigger_box) and is driven over its serial protocol with
+pyserial. The output pins are judged from the harness's edge log in emulated cycles (16 per
+microsecond), which are exact and deterministic; nothing here depends on how fast the
+host is (waits are in emulated cycles, assertions never on wall-clock time).
+
+Two boxes per module: one in real time (the serial tests) and one ten times faster than
+real time, for periods of seconds (0.1 Hz is 10 s a period).
+"""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+import serial
+
+from vts_hw.sim_devices.trigger_box import F_CPU, SimTriggerBox
+
+# The first test may build the firmware, and on a fresh machine install the AVR toolchain
+# and simavr from Debian first (make -C firmware): give it room.
+pytestmark = pytest.mark.timeout(600)
+
+US = F_CPU // 1_000_000   # cycles per microsecond
+# A pin change made by a timer is logged when simavr next checks its timers, at an
+# instruction boundary: up to a few cycles after the exact cycle (no drift: the timer
+# itself runs on the exact cycle). Per-edge comparisons allow this much.
+JITTER = 5
+ALIGN = 16                # *TRG: all three rising edges within 1 us
+
+
+# ---------------------------------------------------------------------------- helpers
+class Link:
+    """A pyserial client, as a driver would be."""
+
+    def __init__(self, box: SimTriggerBox):
+        self.box = box
+        self.s = serial.Serial(box.port, 115200, timeout=10)
+        self.s.reset_input_buffer()
+
+    def line(self) -> str:
+        r = self.s.readline()
+        assert r.endswith(b"\n"), f"no reply line (got {r!r})"
+        return r[:-1].decode("ascii")
+
+    def ask(self, cmd: str) -> str:
+        self.s.write(cmd.encode("ascii") + b"\n")
+        return self.line()
+
+    def ok(self, cmd: str) -> None:
+        r = self.ask(cmd)
+        assert r == "OK", f"{cmd!r} answered {r!r}"
+
+    def wait_off(self, max_seconds: float = 30.0) -> None:
+        """Poll OUTP? (every 5 ms emulated) until the wave has stopped."""
+        deadline = self.box.cycles_now() + int(max_seconds * F_CPU)
+        while self.ask("OUTP?") != "OFF":
+            assert self.box.cycles_now() < deadline, "the wave did not stop"
+            self.box.wait_cycles(F_CPU // 200)
+
+    def reset(self) -> None:
+        self.ok("*RST")
+        self.wait_off()
+        self.ok("*CLS")
+
+    def close(self) -> None:
+        self.s.close()
+
+
+def rises(edges, pin="OC1A"):
+    return [e.cycle for e in edges if e.pin == pin and e.value == 1]
+
+
+def falls(edges, pin="OC1A"):
+    return [e.cycle for e in edges if e.pin == pin and e.value == 0]
+
+
+def run_wave(link: Link, freq: str, duty: str, seconds: float, trg: bool = False):
+    """Configure, start, run `seconds` of emulated time, stop; the OC1A edges of the run."""
+    box = link.box
+    n0 = len(box.edges("OC1A"))
+    link.ok(f"FREQ {freq}")
+    link.ok(f"DUTY {duty}")
+    link.ok("*TRG" if trg else "OUTP ON")
+    box.wait_cycles(int(seconds * F_CPU))
+    link.ok("OUTP OFF")
+    link.wait_off()
+    return box.edges("OC1A")[n0:]
+
+
+def check_whole_periods(edges, period: int, high: int):
+    """The run starts rising, alternates, every period and every high time is exact
+    (within the logging jitter), and it ends low after a complete high time."""
+    assert edges, "no edges"
+    assert edges[0].value == 1, "the wave must start with a rising edge"
+    levels = [e.value for e in edges]
+    assert levels == [1, 0] * (len(edges) // 2), "edges must alternate and end low"
+    r, f = rises(edges), falls(edges)
+    periods = [b - a for a, b in zip(r, r[1:])]
+    highs = [b - a for a, b in zip(r, f)]
+    assert all(abs(p - period) <= JITTER for p in periods), (min(periods), max(periods), period)
+    assert all(abs(h - high) <= JITTER for h in highs), (min(highs), max(highs), high)
+    return r, f
+
+
+def ppm_error(r, period: float) -> float:
+    measured = (r[-1] - r[0]) / (len(r) - 1)
+    return (measured - period) / period * 1e6
+
+
+# ---------------------------------------------------------------------------- fixtures
+@pytest.fixture(scope="module")
+def box():
+    with SimTriggerBox(speed=1) as b:
+        yield b
+
+
+@pytest.fixture(scope="module")
+def box10():
+    with SimTriggerBox(speed=10) as b:
+        yield b
+
+
+@pytest.fixture
+def tb(box):
+    link = Link(box)
+    link.reset()
+    yield link
+    link.close()
+
+
+@pytest.fixture
+def tb10(box10):
+    link = Link(box10)
+    link.reset()
+    yield link
+    link.close()
+
+
+# ---------------------------------------------------------------------------- identity
+def test_identity_defaults_and_forms(tb):
+    assert tb.ask("*IDN?") == "VTS,TRIGGERBOX,0000,1.0.0"
+    assert tb.ask("FREQ?") == "1.000000000"
+    assert tb.ask("DUTY?") == "0.500000"
+    assert tb.ask("OUTP?") == "OFF"
+    assert tb.ask("PULSE:WIDTH?") == "100"
+    assert tb.ask("SYST:ERR?") == '0,"No error"'
+    assert tb.ask("EDGES?").count(",") == 2
+    # lines may end in \r\n; headers are case-insensitive; SCPI long forms
+    tb.s.write(b"*idn?\r\n")
+    assert tb.line() == "VTS,TRIGGERBOX,0000,1.0.0"
+    tb.ok("frequency 2.5")
+    assert tb.ask("Freq?") == "2.500000000"
+    tb.ok("DUTY 25e-2")
+    assert tb.ask("duty?") == "0.250000"
+    assert tb.ask("SYSTEM:ERROR:NEXT?") == '0,"No error"'
+
+
+# ---------------------------------------------------------------------------- frequency
+# exactly representable: 16 MHz / f is an integer number of cycles Timer1 can count
+@pytest.mark.parametrize("freq", ["1000", "100", "50", "10"])
+def test_frequency_exact_real_time(tb, freq):
+    period = F_CPU // int(freq)
+    assert tb.ask(f"FREQ {freq}") == "OK"
+    assert float(tb.ask("FREQ?")) == float(freq)
+    edges = run_wave(tb, freq, "0.5", 1.0)
+    r, _ = check_whole_periods(edges, period, period // 2)
+    assert len(r) >= int(freq) // 2
+    err = ppm_error(r, period)
+    print(f"{freq} Hz: {len(r)} periods, error {err:+.4f} ppm")
+    assert abs(err) <= 1.0
+
+
+@pytest.mark.parametrize("freq,seconds", [("2", 2.0), ("1", 3.0), ("0.5", 4.5), ("0.1", 21.0)])
+def test_frequency_exact_low(tb10, freq, seconds):
+    period = round(F_CPU / float(freq))
+    edges = run_wave(tb10, freq, "0.5", seconds)
+    r, _ = check_whole_periods(edges, period, period // 2)
+    assert len(r) >= 2
+    err = ppm_error(r, period)
+    print(f"{freq} Hz: {len(r)} periods, error {err:+.4f} ppm")
+    assert abs(err) <= 1.0
+
+
+# 16 MHz / f is not a whole number of cycles: the device makes the nearest whole number
+# (the best a 16 MHz clock can do) and reports the frequency it really makes
+@pytest.mark.parametrize("freq,seconds,bound_ppm,box_name", [
+    ("333", 1.0, 1.01, "tb"),       # 48048 cycles, fast PWM at clk/1: +1.0 ppm
+    ("7", 2.0, 0.13, "tb10"),       # 2285714 cycles in CTC laps: +0.125 ppm
+    ("0.13", 16.0, 0.01, "tb10"),   # 123076923 cycles in CTC laps: +0.0006 ppm
+])
+def test_frequency_awkward(request, freq, seconds, bound_ppm, box_name):
+    link = request.getfixturevalue(box_name)
+    link.ok(f"FREQ {freq}")
+    actual = float(link.ask("FREQ?"))
+    period = F_CPU / actual
+    requested_ppm = (actual - float(freq)) / float(freq) * 1e6
+    assert abs(requested_ppm) <= bound_ppm
+    edges = run_wave(link, freq, "0.5", seconds)
+    r = rises(edges)
+    err = ppm_error(r, round(period))
+    print(f"{freq} Hz: makes {actual} Hz ({requested_ppm:+.3f} ppm from the request); "
+          f"measured vs reported {err:+.4f} ppm over {len(r)} periods")
+    assert abs(err) <= 1.0
+
+
+# ---------------------------------------------------------------------------- duty
+@pytest.mark.parametrize("freq,duty,box_name", [
+    ("1000", "0.01", "tb"), ("1000", "0.99", "tb"), ("10", "0.25", "tb"),
+    ("7", "0.01", "tb10"), ("0.5", "0.7", "tb10"), ("0.1", "0.01", "tb10"),
+])
+def test_duty(request, freq, duty, box_name):
+    link = request.getfixturevalue(box_name)
+    seconds = max(0.5, 2.5 / float(freq))
+    edges = run_wave(link, freq, duty, seconds)
+    r, f = rises(edges), falls(edges)
+    assert len(r) >= 2
+    reported = float(link.ask("DUTY?"))
+    for a, b, c in zip(r, f, r[1:]):
+        measured = (b - a) / (c - a)
+        assert abs(measured - float(duty)) <= 0.001, (measured, duty)
+        assert abs(measured - reported) <= 1e-6 + JITTER / (c - a)
+    print(f"{freq} Hz duty {duty}: measured {(f[0] - r[0]) / (r[1] - r[0]):.6f}, reports {reported}")
+
+
+# ---------------------------------------------------------------------------- *TRG
+@pytest.mark.parametrize("freq,duty,width,box_name", [
+    ("100", "0.5", 20, "tb"),        # fast PWM, clk/1
+    ("0.5", "0.1", 50, "tb10"),      # fast PWM, clk/1024
+    ("0.1", "0.01", 30, "tb10"),     # CTC laps
+])
+def test_trg_aligns_wave_and_pulses(request, freq, duty, width, box_name):
+    link = request.getfixturevalue(box_name)
+    box = link.box
+    n0 = len(box.edges())
+    link.ok(f"FREQ {freq}")
+    link.ok(f"DUTY {duty}")
+    link.ok(f"PULSE:WIDTH {width}")
+    link.ok("*TRG")
+    assert link.ask("OUTP?") == "ON"
+    box.wait_cycles((width + 10) * 1000 * US)
+    link.ok("OUTP OFF")
+    link.wait_off()
+    new = box.edges()[n0:]
+    wave = [e for e in new if e.pin == "OC1A"]
+    assert wave[0].value == 1, "the square wave starts with a rising edge"
+    t0 = wave[0].cycle
+    for ch in ("CH1", "CH2"):
+        pulse = [e for e in new if e.pin == ch]
+        assert [e.value for e in pulse] == [1, 0]
+        delta = pulse[0].cycle - t0
+        print(f"{freq} Hz: {ch} rises {delta:+d} cycles from OC1A")
+        assert abs(delta) <= ALIGN
+        got = pulse[1].cycle - pulse[0].cycle
+        assert abs(got - width * 1000 * US) <= 20 * US, (ch, got)   # within 20 us
+    check_whole_periods(wave, round(F_CPU / float(freq)), round(F_CPU / float(freq) * float(duty)))
+    # EDGES? counts what the pin did, and times it to the microsecond
+    n, first, last = map(int, link.ask("EDGES?").split(","))
+    assert n == len(rises(wave))
+    assert abs(first - wave[0].cycle / US) <= 1
+    assert abs(last - rises(wave)[-1] / US) <= 1
+
+
+def test_trg_refused_while_running(tb):
+    tb.ok("FREQ 100")
+    tb.ok("OUTP ON")
+    assert tb.ask("*TRG") == "ERR -221 Settings conflict"
+    tb.ok("OUTP OFF")
+    tb.wait_off()
+
+
+# ---------------------------------------------------------------------------- OUTP OFF
+@pytest.mark.parametrize("freq,duty,delays,box_name", [
+    ("1000", "0.99", (0.2, 0.2003, 0.2007), "tb"),  # 160-cycle low phase
+    ("1000", "0.01", (0.2, 0.2005), "tb"),
+    ("50", "0.5", (0.21, 0.205), "tb"),
+    ("0.5", "0.5", (0.5, 1.5), "tb10"),             # clk/1024: stop decided on TCNT1
+    ("7", "0.9", (0.3, 0.4), "tb10"),               # CTC laps, short low phase
+    ("0.1", "0.3", (1.0, 5.0), "tb10"),             # CTC laps: OFF in high and low phase
+])
+def test_outp_off_ends_on_a_whole_period(request, freq, duty, delays, box_name):
+    link = request.getfixturevalue(box_name)
+    box = link.box
+    period = round(F_CPU / float(freq))
+    high = round(period * float(duty))
+    for delay in delays:
+        edges = run_wave(link, freq, duty, delay)
+        check_whole_periods(edges, period, high)
+        # and nothing after the stop
+        n = len(box.edges("OC1A"))
+        box.wait_cycles(min(2 * period, 3 * F_CPU))
+        assert len(box.edges("OC1A")) == n, "edges after the wave stopped"
+
+
+def test_outp_on_while_finishing_keeps_running(tb10):
+    box = tb10.box
+    n0 = len(box.edges("OC1A"))
+    tb10.ok("FREQ 0.5")
+    tb10.ok("DUTY 0.9")
+    tb10.ok("OUTP ON")
+    box.wait_cycles(F_CPU // 2)        # in the high phase
+    tb10.ok("OUTP OFF")
+    assert tb10.ask("OUTP?") == "ON"   # still finishing its period
+    tb10.ok("OUTP ON")                 # changed our mind: keep going
+    box.wait_cycles(5 * F_CPU)
+    assert tb10.ask("OUTP?") == "ON"
+    tb10.ok("OUTP OFF")
+    tb10.wait_off()
+    r, _ = check_whole_periods(box.edges("OC1A")[n0:], 32_000_000, 28_800_000)
+    assert len(r) >= 3
+
+
+# ---------------------------------------------------------------------------- pulses
+def test_pulse_widths_and_refusals(tb):
+    box = tb.box
+    n0 = len(box.edges())
+    tb.ok("PULSE 1 5")
+    tb.ok("PULSE 2 250")
+    assert tb.ask("PULSE 2 10") == "ERR -221 Settings conflict"   # still closed
+    box.wait_cycles(300 * 1000 * US)
+    tb.ok("PULSE 2 1")
+    box.wait_cycles(10 * 1000 * US)
+    new = box.edges()[n0:]
+    assert not [e for e in new if e.pin == "OC1A"], "pulses must not touch the wave"
+    for ch, widths in (("CH1", [5]), ("CH2", [250, 1])):
+        e = [x for x in new if x.pin == ch]
+        assert [x.value for x in e] == [1, 0] * len(widths)
+        got = [(b.cycle - a.cycle) / US for a, b in zip(e[::2], e[1::2])]
+        for g, w in zip(got, widths):
+            print(f"{ch} {w} ms: {g - w * 1000:+.2f} us")
+            assert abs(g - w * 1000) <= 5.0
+    for bad, code in (("PULSE 3 10", -222), ("PULSE 0 10", -222), ("PULSE 1 0", -222),
+                      ("PULSE 1 10001", -222), ("PULSE 1 1.5", -104), ("PULSE 1", -109),
+                      ("PULSE 1 2 3", -108), ("PULSE x 10", -104), ("PULSE 1,,2", -102)):
+        assert tb.ask(bad).startswith(f"ERR {code} "), bad
+    tb.ask("*CLS")
+
+
+# ---------------------------------------------------------------------------- bad input
+BAD = [
+    ("FROB", "ERR -113 Undefined header"),
+    ("FREQ 2000", "ERR -222 Data out of range"),
+    ("FREQ 0.09", "ERR -222 Data out of range"),
+    ("FREQ -5", "ERR -222 Data out of range"),
+    ("FREQ abc", "ERR -104 Data type error"),
+    ("FREQ 1e", "ERR -104 Data type error"),
+    ("FREQ", "ERR -109 Missing parameter"),
+    ("FREQ 10 20", "ERR -108 Parameter not allowed"),
+    ("FREQ? 5", "ERR -108 Parameter not allowed"),
+    ("DUTY 1.5", "ERR -222 Data out of range"),
+    ("DUTY 0.005", "ERR -222 Data out of range"),
+    ("OUTP MAYBE", "ERR -224 Illegal parameter value"),
+    ("*IDN? x", "ERR -108 Parameter not allowed"),
+    ("FREQ 10", "ERR -221 Settings conflict"),    # valid, but not while the wave is on
+    ("DUTY 0.5", "ERR -221 Settings conflict"),
+    ("*TRG", "ERR -221 Settings conflict"),
+]
+
+
+def test_bad_and_garbled_input_change_nothing(tb):
+    box = tb.box
+    n0 = len(box.edges("OC1A"))
+    tb.ok("FREQ 200")
+    tb.ok("DUTY 0.3")
+    tb.ok("OUTP ON")
+    box.wait_cycles(F_CPU // 10)
+    before = (tb.ask("FREQ?"), tb.ask("DUTY?"), tb.ask("OUTP?"))
+    for cmd, reply in BAD:
+        assert tb.ask(cmd) == reply, cmd
+    # binary junk in a line: one error for the line
+    tb.s.write(bytes([0x00, 0xFF, 0x80, 0x1B, 0x7F, 0x03]) + b"FREQ 10\n")
+    assert tb.line() == "ERR -101 Invalid character"
+    # an overlong line: one error, and nothing of it is executed
+    tb.s.write(b"FREQ 10 " + b"9" * 200 + b"\n")
+    assert tb.line() == "ERR -363 Input buffer overrun"
+    # empty lines are not commands: no reply at all
+    tb.s.write(b"\n\r\n   \n\t\n")
+    assert tb.ask("*IDN?") == "VTS,TRIGGERBOX,0000,1.0.0"
+    # random junk with line ends in it: every non-blank line answers ERR, none executes
+    junk = bytes(os.urandom(300)).replace(b"\n", b"\r")
+    junk = b"\n".join(junk[i:i + 30] for i in range(0, 300, 30))
+    tb.s.write(junk + b"\n*IDN?\n")
+    while True:
+        r = tb.line()
+        if r == "VTS,TRIGGERBOX,0000,1.0.0":
+            break
+        assert r.startswith("ERR "), r
+    # the wave never noticed
+    assert (tb.ask("FREQ?"), tb.ask("DUTY?"), tb.ask("OUTP?")) == before
+    box.wait_cycles(F_CPU // 10)
+    tb.ok("OUTP OFF")
+    tb.wait_off()
+    edges = box.edges("OC1A")[n0:]
+    r, f = check_whole_periods(edges, 80_000, 24_000)
+    # one unbroken grid of periods from the first edge to the last: no phase jump
+    assert all(abs((c - r[0]) - k * 80_000) <= JITTER for k, c in enumerate(r))
+    tb.ask("*CLS")
+
+
+def test_commands_in_a_burst_are_not_lost(tb):
+    tb.ok("FREQ 1000")
+    tb.ok("OUTP ON")
+    tb.s.write(b"FREQ?\n" * 30 + b"EDGES?\n" * 10)
+    assert [tb.line() for _ in range(30)] == ["1000.000000000"] * 30
+    counts = [int(tb.line().split(",")[0]) for _ in range(10)]
+    assert counts == sorted(counts) and counts[0] > 0
+    tb.ok("OUTP OFF")
+    tb.wait_off()
+
+
+# ---------------------------------------------------------------------------- errors
+def test_error_queue_order_and_overflow(tb):
+    for cmd in ("BOGUS", "FREQ 5000", "DUTY x", "OUTP 2"):
+        assert tb.ask(cmd).startswith("ERR ")
+    assert tb.ask("SYST:ERR?") == '-113,"Undefined header"'
+    assert tb.ask("SYST:ERR?") == '-222,"Data out of range"'
+    assert tb.ask("SYST:ERR?") == '-104,"Data type error"'
+    assert tb.ask("SYST:ERR?") == '-224,"Illegal parameter value"'
+    assert tb.ask("SYST:ERR?") == '0,"No error"'
+    for _ in range(10):
+        tb.ask("BOGUS")
+    got = [tb.ask("SYST:ERR?") for _ in range(9)]
+    assert got == ['-113,"Undefined header"'] * 7 + ['-350,"Queue overflow"', '0,"No error"']
+    tb.ask("BOGUS")
+    tb.ok("*CLS")
+    assert tb.ask("SYST:ERR?") == '0,"No error"'
+
+
+# ---------------------------------------------------------------------------- clock
+def test_time_is_monotonic_and_the_emulated_clock(tb):
+    box = tb.box
+    last = -1
+    for _ in range(8):
+        n0 = len(box.uart())
+        t = int(tb.ask("TIME?"))
+        ev = box.uart()[n0:]
+        sent = [u.cycle for u in ev if u.direction == "RX" and u.value == 0x0A][-1]
+        answered = [u.cycle for u in ev if u.direction == "TX"][0]
+        # sampled after the command's last byte arrived and before the reply left
+        assert sent / US - 1 <= t <= answered / US + 1, (sent / US, t, answered / US)
+        assert t > last
+        last = t
+        box.wait_cycles(F_CPU // 50)
+
+
+def test_time_and_edges_past_32_bits():
+    """The device clock is 64-bit: a build whose clock starts 0.3 ms before 2^32 us."""
+    offset_us = 34_359_736 * 125
+    with SimTriggerBox(speed=1, firmware="trigger_box_late") as box:
+        link = Link(box)
+        t = int(link.ask("TIME?"))
+        assert t > 2**32
+        assert abs(t - offset_us - box.cycles_now() / US) < 0.5e6   # same clock, give or take
+        edges = run_wave(link, "1000", "0.5", 0.05)
+        n, first, last = map(int, link.ask("EDGES?").split(","))
+        r = rises(edges)
+        assert n == len(r)
+        assert abs(first - offset_us - r[0] / US) <= 1
+        assert abs(last - offset_us - r[-1] / US) <= 1
+        link.close()
+
+
+def test_edges_query_while_running(tb):
+    box = tb.box
+    n0 = len(box.edges("OC1A"))
+    tb.ok("FREQ 50")
+    tb.ok("OUTP ON")
+    box.wait_cycles(F_CPU // 5)
+    before = len(rises(box.edges("OC1A")[n0:]))
+    n, first, last = map(int, tb.ask("EDGES?").split(","))
+    after = len(rises(box.edges("OC1A")[n0:]))
+    assert before <= n <= after + 1
+    assert last - first == (n - 1) * 20_000
+    tb.ok("OUTP OFF")
+    tb.wait_off()
+    r = rises(box.edges("OC1A")[n0:])
+    n, first, last = map(int, tb.ask("EDGES?").split(","))
+    assert n == len(r)
+    assert abs(first - r[0] / US) <= 1 and abs(last - r[-1] / US) <= 1
+
+
+# ---------------------------------------------------------------------------- *RST
+def test_rst_stops_on_a_whole_period_and_restores_defaults(tb):
+    box = tb.box
+    n0 = len(box.edges())
+    tb.ok("FREQ 20")
+    tb.ok("DUTY 0.8")
+    tb.ok("PULSE:WIDTH 500")
+    tb.ok("*TRG")
+    box.wait_cycles(F_CPU // 10)
+    tb.ok("*RST")
+    tb.wait_off()
+    new = box.edges()[n0:]
+    check_whole_periods([e for e in new if e.pin == "OC1A"], 800_000, 640_000)
+    for ch in ("CH1", "CH2"):   # *RST opens the contacts at once
+        e = [x for x in new if x.pin == ch]
+        assert [x.value for x in e] == [1, 0]
+        assert e[1].cycle - e[0].cycle < 500 * 1000 * US
+    assert (tb.ask("FREQ?"), tb.ask("DUTY?"), tb.ask("PULSE:WIDTH?")) == (
+        "1.000000000", "0.500000", "100")
+
+
+# ---------------------------------------------------------------------------- unplug
+def test_unplug_and_replug():
+    with SimTriggerBox(speed=1) as box:
+        link = Link(box)
+        link.ok("FREQ 10")
+        box.unplug()
+        with pytest.raises(serial.SerialException):
+            link.s.write(b"*IDN?\n")
+            link.s.readline()
+        link.s.close()
+        port = box.replug()
+        link = Link(box)
+        assert port == link.s.port
+        assert link.ask("*IDN?").startswith("VTS,TRIGGERBOX,")
+        assert link.ask("FREQ?") == "1.000000000"      # a fresh power-up ...
+        assert abs(int(link.ask("TIME?")) - box.cycles_now() / US) < 0.5e6  # ... and clock
+        link.close()
