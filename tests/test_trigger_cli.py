@@ -43,8 +43,10 @@ def test_what_the_backend_cannot_do_is_one_clear_sentence(tmp_path):
     assert p.returncode == 4 and "Traceback" not in p.stderr
 
 
-def test_no_trigger_configured(tmp_path):
+def test_no_trigger_configured(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
     cfg = tmp_path / "rig.yaml"
     cfg.write_text(yaml.safe_dump({"cameras": [{"name": "cam1", "host": "127.0.0.1"}]}))
     p = vts("trigger", "status", "--config", str(cfg))
     assert p.returncode == 2 and "backend: none" in p.stderr
+    assert not (tmp_path / "trigger.csv").exists()  # nothing written for a device that is not there

@@ -12,9 +12,9 @@ from .errors import ConfigError
 def open_trigger(cfg: TriggerConfig, log_path: str | Path | None = None, clock=None) -> TriggerGenerator:
     """The backend the config names, logging to ``log_path`` (trigger.csv) when given."""
     import time
-    log = TriggerLog(log_path, clock=clock or time.time)
     if cfg.backend == "none":
         raise ConfigError("the rig config has no trigger generator (trigger: backend: none)")
+    log = TriggerLog(log_path, clock=clock or time.time)
     if cfg.backend == "triggerbox":
         from .drivers.trigger_box import TriggerBox
         return TriggerBox(cfg.address, log=log)
