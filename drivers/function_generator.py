@@ -36,6 +36,7 @@ import re
 from pathlib import Path
 from typing import Any, Callable
 
+from .settings import Setting, in_range
 from .trigger import (
     CLOCK,
     DUTY,
@@ -51,6 +52,7 @@ from .trigger import (
     TriggerStatus,
 )
 
+DEVICE = "the instrument"
 SIM_PACKAGE = "vts_hw.sim_devices"
 SIM_YAML = "keysight_33500.yaml"
 #: an address the simulated generator answers on (pyvisa-sim opens no socket)
@@ -77,23 +79,6 @@ _NO_PULSE = ("a Keysight 33500 has no contact-closure outputs; send the start pu
 
 
 # ---- declared settings (PyMeasure-style) -------------------------------------------------------
-
-def in_range(low: float, high: float, unit: str, what: str) -> Callable[[Any], float]:
-    """A validator: a finite number within [low, high], else :class:`OutOfRange`."""
-
-    def check(value: Any) -> float:
-        try:
-            v = float(value)
-        except (TypeError, ValueError):
-            raise OutOfRange(f"{what} must be a number of {unit}, not {value!r}") from None
-        if not math.isfinite(v) or not low <= v <= high:
-            raise OutOfRange(f"{what} {value!r} {unit} is outside the instrument's range "
-                             f"{low:g} to {high:g} {unit}")
-        return v
-
-    check.__doc__ = f"{what}: {low:g} to {high:g} {unit}"
-    return check
-
 
 def one_of(*choices: str, what: str) -> Callable[[Any], str]:
     def check(value: Any) -> str:
@@ -132,35 +117,11 @@ def _parse_bool(reply: str) -> bool:
     raise ValueError(reply)
 
 
-class Setting:
-    """An instrument setting declared once: set command, query, validator and reply parser.
+class ScpiSetting(Setting):
+    """A setting of the instrument. ``{src}`` in a command becomes ``SOUR2:`` on channel 2,
+    ``{ch}`` becomes ``2``; numbers go out in their shortest exact form."""
 
-    Reading the attribute queries the instrument; assigning validates (raising
-    :class:`OutOfRange` before anything is sent), sends the command and reads the error queue.
-    ``{src}`` in a command becomes ``SOUR2:`` on channel 2, ``{ch}`` becomes ``2``.
-    """
-
-    def __init__(self, command: str, query: str, validator: Callable[[Any], Any], *,
-                 parse: Callable[[str], Any] = float, fmt: Callable[[Any], str] = scpi_number,
-                 doc: str = ""):
-        self.command = command
-        self.query = query
-        self.validator = validator
-        self.parse = parse
-        self.fmt = fmt
-        self.__doc__ = f"{doc} ({validator.__doc__}); set with {command!r}, read with {query!r}"
-        self.name = ""
-
-    def __set_name__(self, owner, name: str) -> None:
-        self.name = name
-
-    def __get__(self, obj, objtype=None):
-        if obj is None:
-            return self
-        return obj._read_setting(self)
-
-    def __set__(self, obj, value) -> None:
-        obj._apply_setting(self, obj._validate(self, value))
+    default_fmt = staticmethod(scpi_number)
 
 
 # ---- the driver ----------------------------------------------------------------------------------
@@ -170,21 +131,21 @@ class FunctionGenerator(TriggerBase):
 
     capabilities = frozenset({FREQUENCY, DUTY, LEVELS})
 
-    function = Setting("{src}FUNC {value}", "{src}FUNC?", one_of(*FUNCTIONS, what="function"),
+    function = ScpiSetting("{src}FUNC {value}", "{src}FUNC?", one_of(*FUNCTIONS, what="function"),
                        parse=str, fmt=str, doc="waveform")
-    frequency_hz = Setting("{src}FREQ {value}", "{src}FREQ?",
-                           in_range(FREQ_MIN_HZ, FREQ_MAX_HZ, "Hz", "frequency"),
+    frequency_hz = ScpiSetting("{src}FREQ {value}", "{src}FREQ?",
+                               in_range(FREQ_MIN_HZ, FREQ_MAX_HZ, "frequency", "Hz", DEVICE),
                            doc="frequency in Hz")
-    duty_percent = Setting("{src}FUNC:SQU:DCYC {value}", "{src}FUNC:SQU:DCYC?",
-                           in_range(DUTY_MIN_PCT, DUTY_MAX_PCT, "%", "square duty cycle"),
+    duty_percent = ScpiSetting("{src}FUNC:SQU:DCYC {value}", "{src}FUNC:SQU:DCYC?",
+                           in_range(DUTY_MIN_PCT, DUTY_MAX_PCT, "square duty cycle", "%", DEVICE),
                            doc="square-wave duty cycle in percent")
-    high_v = Setting("{src}VOLT:HIGH {value}", "{src}VOLT:HIGH?",
-                     in_range(-LEVEL_LIMIT_V, LEVEL_LIMIT_V, "V", "high level"),
+    high_v = ScpiSetting("{src}VOLT:HIGH {value}", "{src}VOLT:HIGH?",
+                     in_range(-LEVEL_LIMIT_V, LEVEL_LIMIT_V, "high level", "V", DEVICE),
                      doc="high level in volts (as the instrument's 50 ohm termination setting states it)")
-    low_v = Setting("{src}VOLT:LOW {value}", "{src}VOLT:LOW?",
-                    in_range(-LEVEL_LIMIT_V, LEVEL_LIMIT_V, "V", "low level"),
+    low_v = ScpiSetting("{src}VOLT:LOW {value}", "{src}VOLT:LOW?",
+                    in_range(-LEVEL_LIMIT_V, LEVEL_LIMIT_V, "low level", "V", DEVICE),
                     doc="low level in volts (as the instrument's 50 ohm termination setting states it)")
-    output = Setting("OUTP{ch} {value}", "OUTP{ch}?", boolean, parse=_parse_bool, fmt=_scpi_bool,
+    output = ScpiSetting("OUTP{ch} {value}", "OUTP{ch}?", boolean, parse=_parse_bool, fmt=_scpi_bool,
                      doc="output on")
 
     def __init__(self, resource: str | Any, *, sim: bool = False, visa_library: str | None = None,
@@ -379,6 +340,9 @@ class FunctionGenerator(TriggerBase):
         except OutOfRange as e:
             raise OutOfRange(f"{self.name}: {e}; nothing was sent") from None
         return v
+
+    def _write_setting(self, setting: Setting, value: Any) -> None:
+        self._apply_setting(setting, self._validate(setting, value))
 
     def _apply_setting(self, setting: Setting, value: Any) -> None:
         command = self._scpi(setting.command, setting.fmt(value))

@@ -43,6 +43,7 @@ from typing import Any, Callable, Sequence
 
 import serial
 
+from .settings import Setting, in_range, whole_in_range
 from .trigger import (
     CLOCK,
     DUTY,
@@ -59,6 +60,7 @@ from .trigger import (
     TriggerStatus,
 )
 
+DEVICE = "the trigger box"
 BAUDRATE = 115200
 FREQ_MIN_HZ = 0.1
 FREQ_MAX_HZ = 1000.0
@@ -94,37 +96,6 @@ class BoxGone(TriggerError):
 
 # ---- declared settings (PyMeasure style) ----------------------------------------------------------
 
-def in_range(low: float, high: float, what: str, unit: str = "") -> Callable[[Any], float]:
-    """A validator: a finite real number within [low, high], else OutOfRange (a ValueError)."""
-    unit_s = f" {unit}" if unit else ""
-
-    def check(value: Any) -> float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise OutOfRange(f"{what} must be a number{unit_s and ' of' + unit_s}, not {value!r}")
-        v = float(value)
-        if not math.isfinite(v) or not low <= v <= high:
-            raise OutOfRange(f"{what} {value!r}{unit_s} is outside the trigger box's range "
-                             f"{low:g} to {high:g}{unit_s}")
-        return v
-
-    check.__doc__ = f"{what}: {low:g} to {high:g}{unit_s}"
-    return check
-
-
-def whole_in_range(low: int, high: int, what: str, unit: str) -> Callable[[Any], int]:
-    """A validator: a whole number within [low, high] (5.0 is 5; 5.5 and True are refused)."""
-
-    def check(value: Any) -> int:
-        if (isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value)
-                or value != int(value) or not low <= value <= high):
-            raise OutOfRange(f"{what} must be a whole number of {unit} from {low} to {high}, "
-                             f"not {value!r}")
-        return int(value)
-
-    check.__doc__ = f"{what}: whole {unit} from {low} to {high}"
-    return check
-
-
 _pulse_ms = whole_in_range(PULSE_MS_MIN, PULSE_MS_MAX, "a start pulse", "ms")
 
 
@@ -137,34 +108,11 @@ def number_text(value: float) -> str:
     return text
 
 
-class BoxSetting:
-    """A value of the box declared once: set command, query, validator, reply parser.
+class BoxSetting(Setting):
+    """A value of the box: assigning validates, sends the command and requires ``OK``;
+    numbers go out as the box's parser takes them."""
 
-    Reading the attribute queries the box; assigning validates (OutOfRange before anything is
-    sent), sends the command and requires ``OK``.
-    """
-
-    def __init__(self, command: str, query: str, validator: Callable[[Any], Any], *,
-                 fmt: Callable[[Any], str] = number_text, parse: Callable[[str], Any] = float,
-                 doc: str = ""):
-        self.command = command
-        self.query = query
-        self.validator = validator
-        self.fmt = fmt
-        self.parse = parse
-        self.name = ""
-        self.__doc__ = f"{doc} ({validator.__doc__}); set with {command!r}, read with {query!r}"
-
-    def __set_name__(self, owner, name: str) -> None:
-        self.name = name
-
-    def __get__(self, obj, objtype=None):
-        if obj is None:
-            return self
-        return obj._parse(self.query, obj.query(self.query), self.parse, self.name)
-
-    def __set__(self, obj, value) -> None:
-        obj._command(self.command.format(obj._validate(self, value, self.fmt)))
+    default_fmt = staticmethod(number_text)
 
 
 # ---- what the box reports -------------------------------------------------------------------------
@@ -219,9 +167,10 @@ class TriggerBox(TriggerBase):
 
     capabilities = frozenset({FREQUENCY, DUTY, PULSE, FIRE, CLOCK, EDGES})
 
-    frequency_hz = BoxSetting("FREQ {}", "FREQ?", in_range(FREQ_MIN_HZ, FREQ_MAX_HZ, "frequency", "Hz"),
+    frequency_hz = BoxSetting("FREQ {}", "FREQ?",
+                              in_range(FREQ_MIN_HZ, FREQ_MAX_HZ, "frequency", "Hz", DEVICE),
                               doc="square-wave frequency in Hz; reads back what the timer makes")
-    duty = BoxSetting("DUTY {}", "DUTY?", in_range(DUTY_MIN, DUTY_MAX, "duty cycle"),
+    duty = BoxSetting("DUTY {}", "DUTY?", in_range(DUTY_MIN, DUTY_MAX, "duty cycle", "", DEVICE),
                       doc="square-wave duty cycle, a fraction")
     fire_pulse_ms = BoxSetting("PULSE:WIDTH {}", "PULSE:WIDTH?",
                                whole_in_range(PULSE_MS_MIN, PULSE_MS_MAX, "start pulse width", "ms"),
@@ -370,6 +319,12 @@ class TriggerBox(TriggerBase):
             return parse(reply)
         except (TypeError, ValueError):
             raise TriggerError(f"{self.where} answered {cmd!r} with {reply!r}, not a {what}") from None
+
+    def _read_setting(self, setting: BoxSetting) -> Any:
+        return self._parse(setting.query, self.query(setting.query), setting.parse, setting.name)
+
+    def _write_setting(self, setting: BoxSetting, value: Any) -> None:
+        self._command(setting.command.format(self._validate(setting, value, setting.fmt)))
 
     def _validate(self, setting: BoxSetting, value: Any, fmt: Callable[[Any], str] | None = None):
         try:
