@@ -40,17 +40,21 @@ def _open(rig, log_path):
     return open_trigger(rig.trigger, log_path)
 
 
+def _configure(gen, t) -> None:
+    """Frequency and duty from the config, and the levels where the device has them."""
+    from ..drivers.trigger import LEVELS
+    levels = (t.high_v, t.low_v) if LEVELS in gen.capabilities else (None, None)
+    gen.configure(t.frequency_hz, t.duty, *levels)
+
+
 @trigger.command()
 @log_option
 @json_option
 @with_rig
 def start(log_path, as_json, rig) -> None:
     """Configure the square wave from the config (frequency, duty, levels) and start it."""
-    from ..drivers.trigger import LEVELS
-    t = rig.trigger
     with _open(rig, log_path) as gen:
-        levels = (t.high_v, t.low_v) if LEVELS in gen.capabilities else (None, None)
-        gen.configure(t.frequency_hz, t.duty, *levels)
+        _configure(gen, rig.trigger)
         _show(gen.start(), as_json)
 
 
@@ -93,9 +97,6 @@ def pulse(channel, ms, log_path, rig) -> None:
 @with_rig
 def fire(log_path, as_json, rig) -> None:
     """Configure, then start the square wave and both start pulses together."""
-    from ..drivers.trigger import LEVELS
-    t = rig.trigger
     with _open(rig, log_path) as gen:
-        levels = (t.high_v, t.low_v) if LEVELS in gen.capabilities else (None, None)
-        gen.configure(t.frequency_hz, t.duty, *levels)
+        _configure(gen, rig.trigger)
         _show(gen.fire(), as_json)
