@@ -210,9 +210,12 @@ def test_clock_mapping_over_5_s(box, csv_path):
     # But its pacing lets the two wander by 0.1-0.2 ms, which over 5 s is tens of ppm: 30
     # mappings on fresh boxes gave -88 to +38 ppm (SD 31 ppm), standard errors 10-33 ppm and
     # residuals 120-280 us (docs/decisions/0011). A few ppm is tested on synthetic round trips.
-    # Under CPU contention the wander grows with the standard error: judge the drift by both.
+    # Under CPU contention the emulator lags the host and catches up, and over 5 s that is an
+    # apparent drift of a few hundred ppm that the fit rightly reports: so the drift is judged
+    # against the fit's own standard error, and what matters most is checked below: fresh round
+    # trips are predicted to within their half round trip plus the wander.
     assert box.drift_se_ppm < 100
-    assert abs(m.drift_ppm) < max(150.0, 5 * box.drift_se_ppm)
+    assert abs(m.drift_ppm) < 50 + 6 * box.drift_se_ppm
     assert m.residual_s < 0.5e-3
     assert 0 < m.uncertainty_s < 2e-3
     assert 40 <= m.samples <= 50      # the best half of 100, less any outliers of the fit
