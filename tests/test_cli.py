@@ -6,6 +6,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -68,6 +69,9 @@ def test_record_info_reindex(env, tmp_path):
     assert len(read_index(rec / "cam1.index.csv")) == summary[0]["frames"]
     manifest = (rec / "manifest.json").read_text()
     assert env["VTS_SIM_CAM1_PASSWORD"] not in manifest
+    import hashlib
+    digest = hashlib.sha256(Path(env["VTS_CONFIG"]).read_bytes()).hexdigest()
+    assert json.loads(manifest)["rig_digest"] == digest
 
 
 def test_kill_9_loses_at_most_the_frame_in_flight(env, tmp_path):

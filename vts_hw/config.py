@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Literal, Optional, Union
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
 
 from .errors import ConfigError
 
@@ -139,6 +139,12 @@ class RigConfig(_Strict):
     calibration: CalibrationPaths = CalibrationPaths()
     results: ResultsConfig = ResultsConfig()
     recordings_dir: Optional[Path] = None
+    _source: Optional[Path] = PrivateAttr(default=None)   # the file it was read from
+
+    @property
+    def digest(self) -> str:
+        """sha256 of the file this config was read from ("" when it was not read from one)."""
+        return config_digest(self._source) if self._source is not None and self._source.exists() else ""
 
     @model_validator(mode="after")
     def _unique_names(self):
@@ -210,7 +216,9 @@ def load_rig(path: str | os.PathLike | None = None) -> RigConfig:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}" if mark else ""
         raise ConfigError(f"{p}: not valid YAML{where}") from None
-    return parse_rig(data, str(p))
+    rig = parse_rig(data, str(p))
+    rig._source = p
+    return rig
 
 
 def config_digest(path: str | os.PathLike) -> str:

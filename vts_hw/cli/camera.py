@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import click
 
-from ..config import config_digest
 from ..drivers.axis import AxisCamera
 from ..drivers.axis_stream import FrameStream, StreamGap
 from . import cli
@@ -131,11 +129,7 @@ def record(names: tuple[str, ...], all_cameras: bool, seconds: float, out: str, 
     if not names:
         raise click.UsageError("name at least one camera, or give --all")
     cams = [_open(rig, n) for n in names]
-    import os
-    cfg_path = os.environ.get("VTS_CONFIG")
-    meta = {"rig": rig.rig, "seconds_asked": seconds}
-    if cfg_path and Path(cfg_path).exists():
-        meta["rig_digest"] = config_digest(cfg_path)
+    meta = {"rig": rig.rig, "seconds_asked": seconds, "rig_digest": rig.digest}
     rec = Recorder(cams, out, seconds=seconds, meta=meta)
     manifest = record_with_progress(rec, seconds)
     click.echo(f"{out}: status {manifest['status']}")
@@ -144,4 +138,3 @@ def record(names: tuple[str, ...], all_cameras: bool, seconds: float, out: str, 
         click.echo(f"  {name}: {m['frames']} frames, {m['dropped_frames']} dropped, "
                    f"{m.get('torn_frames_discarded', 0)} torn, {m.get('reconnects', 0)} reconnect(s) "
                    f"-> {Path(out) / m['mjpeg']}{err}")
-    _ = time

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import click
 
-from ..config import ENV_CONFIG, config_digest
 from .common import echo_json, fmt_time
 
 
@@ -27,11 +26,6 @@ def artifacts_dir(store) -> Path:
     return Path(base) / "vts-hw" / "artifacts"
 
 
-def _digest() -> str:
-    p = os.environ.get(ENV_CONFIG)
-    return config_digest(p) if p and Path(p).exists() else ""
-
-
 def run_qa(rig, steps, cameras, frames, plots, dry_run, operator, as_json, clock=time.time) -> int:
     from ..procedures.daily import QARun
 
@@ -42,7 +36,7 @@ def run_qa(rig, steps, cameras, frames, plots, dry_run, operator, as_json, clock
         return 0
     with open_store(rig) as store:
         run = QARun(rig, store, steps=steps, cameras=cameras or None, n_frames=frames, plots=plots,
-                    artifacts_dir=artifacts_dir(store), operator=operator, config_digest=_digest(), clock=clock,
+                    artifacts_dir=artifacts_dir(store), operator=operator, config_digest=rig.digest, clock=clock,
                     progress=lambda m: click.echo(m, err=True) if not as_json else None)
         result = run.run()
     if as_json:
@@ -74,7 +68,7 @@ def set_baseline(rig, cameras, frames, dry_run, operator, as_json, clock=time.ti
         baselines.append(b)
     with open_store(rig) as store:
         run_id = save_baselines(store, baselines, rig=rig.rig, operator=operator, started=clock(),
-                                config_digest=_digest())
+                                config_digest=rig.digest)
     if as_json:
         echo_json({"run_id": run_id, "baselines": [{"camera": b.camera, "taken": b.taken,
                                                     "markers": [m.__dict__ for m in b.markers]} for b in baselines]})
