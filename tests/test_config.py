@@ -44,7 +44,8 @@ def test_good_file(tmp_path, monkeypatch):
     monkeypatch.setenv("VTS_CAM1_PASSWORD", "s3cret")
     assert rig.camera("cam1").password() == "s3cret"
     assert rig.camera("cam2").password() is None
-    assert parse_rig(__import__("yaml").safe_load(dump_rig(rig))) == rig
+    assert parse_rig(__import__("yaml").safe_load(dump_rig(rig))).model_dump() == rig.model_dump()
+    assert rig.digest and len(rig.digest) == 64
 
 
 @pytest.mark.parametrize("change, key, expected", [
