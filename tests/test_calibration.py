@@ -1,0 +1,265 @@
+"""Stereo calibration on the 13 real checkerboard pairs (shared data, 9 × 6 inner corners)."""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from vts_hw.calibration import (
+    StereoCalibration,
+    board_points,
+    calibrate_from_corners,
+    calibrate_stereo,
+    find_corners,
+    find_pairs,
+)
+from vts_hw.calibration_io import rotation_angle_deg
+from vts_hw.errors import DataError
+
+PATTERN = (9, 6)
+NAMES = [f"{i:02d}" for i in range(1, 15) if i != 10]
+
+
+@pytest.fixture(scope="module")
+def pairs(shared_data):
+    return find_pairs(shared_data / "stereo-checkerboard")
+
+
+@pytest.fixture(scope="module")
+def calib(pairs):
+    return calibrate_stereo(pairs)
+
+
+@pytest.fixture(scope="module")
+def corners(pairs):
+    """Corners of every real pair, found by the module (all 13 pairs have them)."""
+    left = [find_corners(cv2.imread(str(lp), cv2.IMREAD_GRAYSCALE)) for lp, _ in pairs]
+    right = [find_corners(cv2.imread(str(rp), cv2.IMREAD_GRAYSCALE)) for _, rp in pairs]
+    return left, right
+
+
+@pytest.fixture(scope="module")
+def plain_reference(pairs):
+    """Straightforward OpenCV: default flags everywhere, findChessboardCorners + cornerSubPix."""
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.001)
+    obj = np.zeros((54, 3), np.float32)
+    obj[:, :2] = np.mgrid[0:9, 0:6].T.reshape(-1, 2)
+    objs, left, right = [], [], []
+    for lp, rp in pairs:
+        gl = cv2.imread(str(lp), cv2.IMREAD_GRAYSCALE)
+        gr = cv2.imread(str(rp), cv2.IMREAD_GRAYSCALE)
+        okl, cl = cv2.findChessboardCorners(gl, PATTERN)
+        okr, cr = cv2.findChessboardCorners(gr, PATTERN)
+        if okl and okr:
+            objs.append(obj)
+            left.append(cv2.cornerSubPix(gl, cl, (11, 11), (-1, -1), crit))
+            right.append(cv2.cornerSubPix(gr, cr, (11, 11), (-1, -1), crit))
+    size = gl.shape[::-1]
+    rms1, k1, d1, _, _ = cv2.calibrateCamera(objs, left, size, None, None)
+    rms2, k2, d2, _, _ = cv2.calibrateCamera(objs, right, size, None, None)
+    rms_s, *_, t, _e, _f = cv2.stereoCalibrate(objs, left, right, k1, d1, k2, d2, size)
+    return {"n": len(objs), "left": rms1, "right": rms2, "stereo": rms_s,
+            "baseline": float(np.linalg.norm(t))}
+
+
+def _rotate_x(deg):
+    rot, _ = cv2.Rodrigues(np.array([np.radians(deg), 0.0, 0.0]))
+    return rot
+
+
+# ---- corners -------------------------------------------------------------------------------
+def test_pairs_found(pairs):
+    assert [lp.stem for lp, _ in pairs] == [f"left{n}" for n in NAMES]
+    assert [rp.stem for _, rp in pairs] == [f"right{n}" for n in NAMES]
+
+
+def test_corners_found_in_every_real_image(corners):
+    left, right = corners
+    for c in left + right:
+        assert c is not None and c.shape == (54, 1, 2)
+
+
+def test_no_board_gives_none():
+    assert find_corners(np.full((480, 640), 128, np.uint8)) is None
+
+
+def test_colour_image_accepted(pairs):
+    img = cv2.imread(str(pairs[0][0]), cv2.IMREAD_COLOR)
+    assert find_corners(img).shape == (54, 1, 2)
+
+
+# ---- calibration vs plain OpenCV -----------------------------------------------------------
+def test_all_pairs_used(calib, plain_reference):
+    assert plain_reference["n"] == 13
+    assert [v.name for v in calib.per_view] == NAMES
+    assert calib.skipped == {}
+    assert calib.image_size == (640, 480)
+
+
+def test_rms_within_10_percent_of_plain_opencv(calib, plain_reference):
+    assert calib.rms_left == pytest.approx(plain_reference["left"], rel=0.10)
+    assert calib.rms_right == pytest.approx(plain_reference["right"], rel=0.10)
+    assert calib.rms_stereo == pytest.approx(plain_reference["stereo"], rel=0.10)
+    assert 0 < calib.rms_stereo < 1.0
+
+
+def test_baseline_matches_plain_opencv_within_1_percent(calib, plain_reference):
+    assert calib.baseline == pytest.approx(plain_reference["baseline"], rel=0.01)
+    assert calib.unit == "squares"
+
+
+def test_per_view_errors_agree_with_stereo_rms(calib):
+    errs = np.array([[v.left, v.right] for v in calib.per_view])
+    assert np.sqrt(np.mean(errs**2)) == pytest.approx(calib.rms_stereo, rel=1e-6)
+
+
+def test_real_outlier_view_02(calib):
+    """Pair 02 is five times the median in the real set (see decision 0012); no other is flagged."""
+    assert calib.outliers == ["02"]
+
+
+def test_projection_matrices_triangulate_board(calib, corners):
+    """Triangulating view 03's corners gives the board: neighbouring corners one square apart."""
+    left, right = corners
+    p1, p2 = calib.projection_matrices()
+    assert p1.shape == p2.shape == (3, 4)
+    ul = cv2.undistortPoints(left[2], calib.K1, calib.d1, P=calib.K1)
+    ur = cv2.undistortPoints(right[2], calib.K2, calib.d2, P=calib.K2)
+    hom = cv2.triangulatePoints(p1, p2, ul.reshape(-1, 2).T, ur.reshape(-1, 2).T)
+    pts = (hom[:3] / hom[3]).T.reshape(6, 9, 3)
+    steps = np.linalg.norm(np.diff(pts, axis=1), axis=2)
+    assert np.median(steps) == pytest.approx(1.0, rel=0.02)
+
+
+def test_square_in_mm_scales_translation(corners, calib):
+    left, right = corners
+    mm = calibrate_from_corners(left, right, (640, 480), names=NAMES, square=25.0, unit="mm")
+    assert mm.baseline == pytest.approx(25.0 * calib.baseline, rel=1e-4)
+    assert mm.rms_stereo == pytest.approx(calib.rms_stereo, rel=1e-4)
+    assert mm.compare(calib)["translation"] is None
+
+
+def test_pairs_without_board_are_skipped(pairs):
+    blank = np.full((480, 640), 128, np.uint8)
+    imgs = [(cv2.imread(str(lp), 0), cv2.imread(str(rp), 0)) for lp, rp in pairs[:5]]
+    imgs.append((imgs[0][0], blank))
+    cal = calibrate_stereo(imgs)
+    assert cal.skipped == {"pair06": "no 9x6 board found in the right image"}
+    assert len(cal.per_view) == 5
+
+
+def test_too_few_pairs_is_a_data_error(pairs):
+    with pytest.raises(DataError, match="at least 3"):
+        calibrate_stereo(pairs[:2])
+
+
+def test_unreadable_image_is_a_data_error(tmp_path, pairs):
+    bad = tmp_path / "left99.jpg"
+    bad.write_bytes(b"not a jpeg")
+    with pytest.raises(DataError, match="left99.jpg"):
+        calibrate_stereo([(bad, pairs[0][1])])
+
+
+# ---- outliers ------------------------------------------------------------------------------
+def test_wrong_pairing_flagged(corners):
+    """Right corners of pairs 03 and 13 swapped: exactly those two pairs are flagged."""
+    left, right = corners
+    right = list(right)
+    right[2], right[11] = right[11], right[2]
+    cal = calibrate_from_corners(left, right, (640, 480), names=NAMES)
+    assert cal.outliers == ["03", "13"]
+
+
+def test_shuffled_corners_flagged(corners):
+    left, right = corners
+    left = list(left)
+    left[7] = np.random.default_rng(1).permutation(left[7])
+    cal = calibrate_from_corners(left, right, (640, 480), names=NAMES)
+    assert "08" in cal.outliers
+
+
+# ---- save / load / compare -----------------------------------------------------------------
+def test_save_load_round_trip(calib, tmp_path):
+    path = calib.save(tmp_path / "calib.json")
+    back = StereoCalibration.load(path)
+    assert back == calib
+    assert back.results_data() == calib.results_data()
+    np.testing.assert_array_equal(back.R, calib.R)
+    assert back.baseline == calib.baseline
+    assert back.per_view == calib.per_view
+    assert json.loads(path.read_text())["software"] == calib.software
+
+
+def test_results_data_is_json_ready(calib):
+    data = json.loads(json.dumps(calib.results_data()))
+    assert data["outliers"] == ["02"]
+    assert data["created"].endswith("+00:00")
+    assert len(data["K1"]) == 3 and len(data["T"]) == 3
+
+
+def test_results_text(calib):
+    text = calib.results()
+    assert "baseline 3.3" in text and "OUTLIER" in text and "stereo" in text
+
+
+@pytest.mark.parametrize(
+    ("change", "key"),
+    [
+        (lambda d: d.pop("R"), "'R'"),
+        (lambda d: d.update(K1=[[1, 2], [3, 4]]), "'K1'"),
+        (lambda d: d.update(T=[0, "x", 1]), "'T'"),
+        (lambda d: d.update(unit="inch"), "'unit'"),
+        (lambda d: d.update(rms_left=None), "'rms_left'"),
+        (lambda d: d.update(image_size=[640]), "'image_size'"),
+        (lambda d: d["per_view"][0].pop("left"), "'per_view[0].left'"),
+        (lambda d: d.update(format="something else"), "'format'"),
+    ],
+)
+def test_bad_file_names_file_and_key(calib, tmp_path, change, key):
+    data = calib.results_data()
+    change(data)
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(DataError) as err:
+        StereoCalibration.load(path)
+    assert str(path) in str(err.value) and key in str(err.value)
+
+
+def test_missing_and_non_json_files(tmp_path):
+    with pytest.raises(DataError, match="nothere.json"):
+        StereoCalibration.load(tmp_path / "nothere.json")
+    junk = tmp_path / "junk.json"
+    junk.write_text("{not json")
+    with pytest.raises(DataError, match="junk.json"):
+        StereoCalibration.load(junk)
+
+
+def test_compare_reports_perturbation(calib):
+    data = calib.results_data()
+    data["R"] = (_rotate_x(0.5) @ calib.R).tolist()
+    data["T"] = (calib.T + [0.0, 0.0, 0.1]).tolist()
+    data["K1"][0][0] += 2.0
+    data["K2"][1][2] -= 1.5
+    moved = StereoCalibration(**{k: data[k] for k in ("K1", "d1", "K2", "d2", "R", "T")},
+                              image_size=calib.image_size, pattern=calib.pattern,
+                              square=calib.square, unit=calib.unit, rms_left=calib.rms_left,
+                              rms_right=calib.rms_right, rms_stereo=calib.rms_stereo,
+                              per_view=calib.per_view, outlier_rule=calib.outlier_rule)
+    diff = moved.compare(calib)
+    assert diff["rotation_deg"] == pytest.approx(0.5, abs=1e-9)
+    assert diff["translation"] == pytest.approx(0.1, abs=1e-12)
+    assert diff["fx1"] == pytest.approx(2.0) and diff["cy2"] == pytest.approx(-1.5)
+    assert diff["fy1"] == diff["cx1"] == diff["fx2"] == 0.0
+    assert diff["unit"] == "squares"
+    same = calib.compare(calib)
+    assert same["rotation_deg"] == 0.0 and same["translation"] == 0.0
+
+
+def test_rotation_angle_small_angles():
+    assert rotation_angle_deg(_rotate_x(0.01)) == pytest.approx(0.01, rel=1e-6)
+
+
+def test_board_points_unit():
+    pts = board_points(PATTERN, 2.0)
+    assert pts.shape == (54, 3) and pts[1, 0] == 2.0 and pts[9, 1] == 2.0

@@ -1,0 +1,218 @@
+"""Stereo calibration of the two VTS cameras from views of a planar checkerboard.
+
+`find_corners` finds the inner corners of the board in one grey image (classic
+cv2.findChessboardCorners, then cv2.cornerSubPix). `calibrate_stereo` calibrates each camera
+(cv2.calibrateCamera), then the pair's extrinsics with the intrinsics held fixed
+(cv2.stereoCalibrateExtended with CALIB_FIX_INTRINSIC), and flags views whose stereo RMS is
+more than `outlier_factor` × the median of the views. Choices and measurements:
+docs/decisions/0012-stereo-calibration.md.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from datetime import datetime, timezone
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+import vts_hw
+from vts_hw.calibration_io import StereoCalibration, ViewError
+from vts_hw.errors import DataError
+
+__all__ = [
+    "StereoCalibration",
+    "ViewError",
+    "board_points",
+    "calibrate_from_corners",
+    "calibrate_stereo",
+    "find_corners",
+    "find_pairs",
+]
+
+PATTERN = (9, 6)
+MIN_PAIRS = 3
+OUTLIER_FACTOR = 3.0
+SUBPIX_WINDOW = (11, 11)
+SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 1e-3)
+
+ImageOrPath = np.ndarray | str | Path
+
+
+def find_corners(gray: np.ndarray, pattern: tuple[int, int] = PATTERN) -> np.ndarray | None:
+    """Inner corners (N × 1 × 2 float32, row by row) of a `pattern` board, or None if not found.
+
+    A colour image is converted to grey first.
+    """
+    gray = _to_gray(gray)
+    flags = cv2.CALIB_CB_ADAPTIVE_THRESH + cv2.CALIB_CB_NORMALIZE_IMAGE
+    found, corners = cv2.findChessboardCorners(gray, pattern, flags=flags)
+    if not found:
+        return None
+    refined = cv2.cornerSubPix(gray, corners, SUBPIX_WINDOW, (-1, -1), SUBPIX_CRITERIA)
+    return refined.reshape(-1, 1, 2)  # OpenCV 5 returns N x 2, OpenCV 4 N x 1 x 2
+
+
+def board_points(pattern: tuple[int, int] = PATTERN, square: float = 1.0) -> np.ndarray:
+    """The board's corners in its own plane (N × 3 float32, z = 0), in the order OpenCV finds them."""
+    cols, rows = pattern
+    pts = np.zeros((cols * rows, 3), np.float32)
+    pts[:, :2] = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2) * square
+    return pts
+
+
+def find_pairs(directory: str | Path) -> list[tuple[Path, Path]]:
+    """(leftNN, rightNN) image paths in `directory`, matched by their suffix, sorted by name."""
+    directory = Path(directory)
+    pattern = re.compile(r"^left(.*)\.(jpe?g|png|bmp|tiff?)$", re.IGNORECASE)
+    pairs = []
+    for left in sorted(directory.iterdir()):
+        m = pattern.match(left.name)
+        if not m:
+            continue
+        right = next((p for p in sorted(directory.glob(f"right{m.group(1)}.*"))
+                      if p.suffix.lower() == left.suffix.lower()), None)
+        if right is not None:
+            pairs.append((left, right))
+    return pairs
+
+
+def calibrate_stereo(
+    pairs: Sequence[tuple[ImageOrPath, ImageOrPath]],
+    pattern: tuple[int, int] = PATTERN,
+    square: float = 1.0,
+    unit: str = "squares",
+    names: Sequence[str] | None = None,
+    calib_flags: int = 0,
+    outlier_factor: float = OUTLIER_FACTOR,
+) -> StereoCalibration:
+    """Calibrate a stereo pair of cameras from (left, right) images or image paths.
+
+    Pairs in which either image shows no board are skipped and listed in `skipped`.
+    `square` is the side of a square in `unit` ("squares" with square=1 when it is unknown).
+    `calib_flags` go to cv2.calibrateCamera (default: 5 distortion coefficients).
+    """
+    if names is None:
+        names = [_pair_name(i, left, right) for i, (left, right) in enumerate(pairs)]
+    if len(names) != len(pairs):
+        raise ValueError(f"{len(names)} names for {len(pairs)} pairs")
+    left_corners, right_corners, kept, skipped = [], [], [], {}
+    image_size = None
+    for name, (left, right) in zip(names, pairs):
+        gl, gr = _load_gray(left), _load_gray(right)
+        for img, src in ((gl, left), (gr, right)):
+            size = (img.shape[1], img.shape[0])
+            if image_size is None:
+                image_size = size
+            elif size != image_size:
+                raise DataError(f"{_label(src, name)} is {size[0]}x{size[1]} px, the other images"
+                                f" are {image_size[0]}x{image_size[1]} px.")
+        cl, cr = find_corners(gl, pattern), find_corners(gr, pattern)
+        if cl is None or cr is None:
+            missing = " and ".join(s for s, c in (("left", cl), ("right", cr)) if c is None)
+            skipped[name] = f"no {pattern[0]}x{pattern[1]} board found in the {missing} image"
+            continue
+        left_corners.append(cl)
+        right_corners.append(cr)
+        kept.append(name)
+    if image_size is None:
+        raise DataError("no image pairs given for the stereo calibration.")
+    return calibrate_from_corners(left_corners, right_corners, image_size, names=kept,
+                                  pattern=pattern, square=square, unit=unit, skipped=skipped,
+                                  calib_flags=calib_flags, outlier_factor=outlier_factor)
+
+
+def calibrate_from_corners(
+    left_corners: Sequence[np.ndarray],
+    right_corners: Sequence[np.ndarray],
+    image_size: tuple[int, int],
+    names: Sequence[str] | None = None,
+    pattern: tuple[int, int] = PATTERN,
+    square: float = 1.0,
+    unit: str = "squares",
+    skipped: dict[str, str] | None = None,
+    calib_flags: int = 0,
+    outlier_factor: float = OUTLIER_FACTOR,
+) -> StereoCalibration:
+    """The calibration itself, from corners already found (one entry per usable pair)."""
+    if unit == "squares" and square != 1.0:
+        raise ValueError("with unit 'squares' the square size must be 1")
+    n = len(left_corners)
+    if n != len(right_corners):
+        raise ValueError("left and right corner lists differ in length")
+    names = list(names) if names is not None else [f"pair{i + 1:02d}" for i in range(n)]
+    skipped = dict(skipped or {})
+    if n < MIN_PAIRS:
+        raise DataError(f"only {n} pair(s) show the board in both images; the stereo calibration"
+                        f" needs at least {MIN_PAIRS}.")
+    obj = [board_points(pattern, square)] * n
+    left = [np.asarray(c, np.float32).reshape(-1, 1, 2) for c in left_corners]
+    right = [np.asarray(c, np.float32).reshape(-1, 1, 2) for c in right_corners]
+    rms_l, k1, d1, _, _ = cv2.calibrateCamera(obj, left, image_size, None, None, flags=calib_flags)
+    rms_r, k2, d2, _, _ = cv2.calibrateCamera(obj, right, image_size, None, None, flags=calib_flags)
+    out = cv2.stereoCalibrateExtended(
+        obj, left, right, k1, d1, k2, d2, image_size, None, None,
+        flags=cv2.CALIB_FIX_INTRINSIC,
+    )
+    # (retval, K1, d1, K2, d2, R, T, E, F, [rvecs, tvecs,] perViewErrors): index both ends.
+    rms_s, k1, d1, k2, d2, rot, t, per_view = *out[:7], out[-1]
+    views = flag_outliers(
+        [ViewError(name, float(e[0]), float(e[1])) for name, e in zip(names, per_view)],
+        outlier_factor,
+    )
+    return StereoCalibration(
+        K1=k1, d1=d1, K2=k2, d2=d2, R=rot, T=t,
+        image_size=(int(image_size[0]), int(image_size[1])),
+        pattern=(int(pattern[0]), int(pattern[1])),
+        square=float(square), unit=unit,
+        rms_left=float(rms_l), rms_right=float(rms_r), rms_stereo=float(rms_s),
+        per_view=views,
+        outlier_rule=f"pair RMS (both images) > {outlier_factor:g} x median of the pairs",
+        skipped=skipped,
+        created=datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        software=vts_hw.__version__,
+    )
+
+
+def flag_outliers(views: list[ViewError], factor: float = OUTLIER_FACTOR) -> list[ViewError]:
+    """Copies of `views` with `outlier` set where the pair's RMS exceeds factor × the median."""
+    if not views:
+        return []
+    limit = factor * float(np.median([v.rms for v in views]))
+    return [ViewError(v.name, v.left, v.right, v.rms > limit) for v in views]
+
+
+def _to_gray(img: np.ndarray) -> np.ndarray:
+    img = np.asarray(img)
+    if img.ndim == 3 and img.shape[2] == 3:
+        return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    if img.ndim == 3 and img.shape[2] == 4:
+        return cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY)
+    if img.ndim != 2:
+        raise ValueError(f"expected a grey or colour image, got shape {img.shape}")
+    return img
+
+
+def _load_gray(src: ImageOrPath) -> np.ndarray:
+    if isinstance(src, (str, Path)):
+        img = cv2.imread(str(src), cv2.IMREAD_GRAYSCALE)
+        if img is None:
+            raise DataError(f"{src}: cannot be read as an image.")
+        return img
+    return _to_gray(src)
+
+
+def _pair_name(i: int, left: ImageOrPath, right: ImageOrPath) -> str:
+    """'01' for left01.jpg/right01.jpg, else 'left-stem/right-stem', else 'pairNN'."""
+    if isinstance(left, (str, Path)) and isinstance(right, (str, Path)):
+        ls, rs = Path(left).stem, Path(right).stem
+        if ls.lower().startswith("left") and rs.lower()[5:] == ls.lower()[4:] and ls[4:]:
+            return ls[4:]
+        return f"{ls}/{rs}"
+    return f"pair{i + 1:02d}"
+
+
+def _label(src: ImageOrPath, name: str) -> str:
+    return str(src) if isinstance(src, (str, Path)) else f"an image of pair {name}"
