@@ -25,7 +25,7 @@ def cli(verbose: int) -> None:
 
 
 def _register() -> None:
-    from . import camera, demo, qa, recording, report, sim, trigger  # noqa: F401  (each adds its commands)
+    from . import calibrate, camera, demo, qa, recording, report, sim, trigger  # noqa: F401  (each adds its commands)
 
 
 def main(argv=None) -> None:
