@@ -1,0 +1,14 @@
+"""The SPECT side: reconstructed volumes in the SPECT frame, their readers, sphere centroids.
+
+* :class:`Volume` (:mod:`.volume`) — data, voxel size, origin, axis directions, ``index_to_mm``;
+* :func:`read_volume` / :func:`register_reader` (:mod:`.readers`) — Interfile 3.3, DICOM NM,
+  ``.npz``, picked by extension then content;
+* :func:`find_spheres` (:mod:`.spheres`) — centroids of the N hottest spheres, mm.
+"""
+
+from vts_hw.spect.readers import VolumeReader, read_volume, list_readers, reader_for, register_reader
+from vts_hw.spect.spheres import SphereResult, SphereSettings, find_spheres
+from vts_hw.spect.volume import Volume
+
+__all__ = ["Volume", "VolumeReader", "read_volume", "reader_for", "list_readers", "register_reader",
+           "SphereResult", "SphereSettings", "find_spheres"]

@@ -1,0 +1,159 @@
+"""Interfile 3.3 volumes: an ASCII header (``.hdr``/``.h33``) and a raw data file.
+
+Conventions (the writer and the reader agree on them; see docs/decisions/0014):
+
+* ``!matrix size [1]`` is the fastest-varying index in the data file (columns), ``[2]`` the
+  rows, ``[3]`` the slices (planes).
+* Matrix axis [1] runs along SPECT **+X**, [2] along SPECT **−Y** (rows run from the top of a
+  transaxial slice down, the usual display convention), [3] along SPECT **+Z**.
+* ``scaling factor (mm/pixel) [i]`` is the voxel size along matrix axis ``i``.
+* ``first pixel offset (mm) [i]`` is the SPECT coordinate — X for [1], Y for [2], Z for [3] —
+  of the **centre** of the first voxel in the file. When absent the volume is centred on the
+  origin (FOV centre), which is where a reconstruction's centre is by definition.
+* ``!data offset in bytes`` (default 0) skips a file preamble.
+
+Keys are matched case-insensitively, with the leading ``!`` and repeated blanks ignored.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+from vts_hw.errors import DataError
+from vts_hw.spect.volume import Volume
+
+# (number format, bytes per pixel) -> numpy kind+size; byte order added later
+_FORMATS = {
+    ("unsigned integer", 1): "u1", ("unsigned integer", 2): "u2", ("unsigned integer", 4): "u4",
+    ("signed integer", 1): "i1", ("signed integer", 2): "i2", ("signed integer", 4): "i4",
+    ("float", 4): "f4", ("float", 8): "f8", ("short float", 4): "f4", ("long float", 8): "f8",
+}
+_BYTE_ORDERS = {"littleendian": "<", "bigendian": ">"}
+_DIRECTION = np.array([[0.0, 0.0, 1.0], [0.0, -1.0, 0.0], [1.0, 0.0, 0.0]])  # [3], [2], [1]
+
+
+def _norm(key: str) -> str:
+    return re.sub(r"\s+", " ", key.strip().lstrip("!").strip().lower())
+
+
+def parse_header(path: Path) -> dict[str, str]:
+    """``key := value`` lines to a dict of normalised keys; comments (``;``) dropped."""
+    try:
+        text = path.read_text(encoding="latin-1")
+    except OSError as e:
+        raise DataError(f"{path}: cannot read the Interfile header ({e.strerror})") from None
+    lines = [ln.split(";", 1)[0] for ln in text.splitlines()]
+    if not any("interfile" in ln.lower() for ln in lines[:5]):
+        raise DataError(f"{path}: not an Interfile header (no '!INTERFILE :=' line at the top)")
+    header: dict[str, str] = {}
+    for ln in lines:
+        if ":=" in ln:
+            key, value = ln.split(":=", 1)
+            header[_norm(key)] = value.strip()
+    return header
+
+
+def _get(header: dict[str, str], path: Path, key: str, default: str | None = None) -> str:
+    value = header.get(_norm(key), default)
+    if value is None or value == "":
+        raise DataError(f"{path}: missing key '{key}' in the Interfile header")
+    return value
+
+
+def _number(header, path, key, kind=float, default=None):
+    text = _get(header, path, key, default)
+    try:
+        return kind(text)
+    except ValueError:
+        raise DataError(f"{path}: key '{key}' is '{text}', not a number") from None
+
+
+def read_interfile(path) -> Volume:
+    """Read an Interfile 3.3 volume (header path); returns the canonical :class:`Volume`."""
+    path = Path(path)
+    h = parse_header(path)
+    shape = [_number(h, path, f"!matrix size [{i}]", int) for i in (1, 2, 3)]
+    if min(shape) <= 0:
+        raise DataError(f"{path}: matrix size {shape} is not positive")
+    size = [_number(h, path, f"scaling factor (mm/pixel) [{i}]") for i in (1, 2, 3)]
+    fmt = _norm(_get(h, path, "!number format"))
+    nbytes = _number(h, path, "!number of bytes per pixel", int)
+    if (fmt, nbytes) not in _FORMATS:
+        raise DataError(f"{path}: unknown number format '{fmt}' with {nbytes} bytes per pixel")
+    order_text = _norm(_get(h, path, "imagedata byte order", "LITTLEENDIAN"))
+    if order_text not in _BYTE_ORDERS:
+        raise DataError(f"{path}: unknown imagedata byte order '{order_text}'")
+    dtype = np.dtype(_BYTE_ORDERS[order_text] + _FORMATS[(fmt, nbytes)])
+    data_path = path.parent / _get(h, path, "!name of data file")
+    offset = _number(h, path, "!data offset in bytes", int, "0")
+    try:
+        raw = data_path.read_bytes()
+    except OSError as e:
+        raise DataError(f"{path}: cannot read the data file {data_path} ({e.strerror})") from None
+    expected = int(np.prod(shape)) * nbytes
+    if len(raw) - offset != expected:
+        raise DataError(f"{path}: data file {data_path.name} holds {len(raw) - offset} bytes "
+                        f"after the offset, the header says {expected} ({shape[0]}×{shape[1]}×"
+                        f"{shape[2]} × {nbytes} bytes)")
+    data = np.frombuffer(raw, dtype=dtype, offset=offset).reshape(shape[2], shape[1], shape[0])
+    centre = [(n - 1) / 2 * s for n, s in zip(shape, size)]  # default: centred on the origin
+    default_xyz = (-centre[0], centre[1], -centre[2])
+    xyz = [_number(h, path, f"first pixel offset (mm) [{i}]", float, repr(default_xyz[i - 1]))
+           for i in (1, 2, 3)]
+    vol = Volume(data.astype(dtype.newbyteorder("=")), (size[2], size[1], size[0]), xyz,
+                 _DIRECTION, path)
+    return vol.canonical()
+
+
+def write_interfile(volume: Volume, path, number_format: str = "float") -> Path:
+    """Write ``volume`` as ``path`` (header, ``.h33``/``.hdr``) plus ``<stem>.img`` (raw data).
+
+    ``number_format``: ``"float"`` (4-byte float) or ``"unsigned integer"`` (2 bytes, values
+    rounded and clipped to 0..65535). Returns the header path.
+    """
+    path = Path(path)
+    v = volume.canonical()
+    data = v.data[:, ::-1, :]  # file axes: [3]=+Z slices, [2]=-Y rows, [1]=+X columns
+    if number_format == "float":
+        raw, nbytes = np.ascontiguousarray(data, dtype="<f4"), 4
+    elif number_format == "unsigned integer":
+        raw = np.ascontiguousarray(np.clip(np.rint(data), 0, 65535), dtype="<u2")
+        nbytes = 2
+    else:
+        raise ValueError(f"number_format must be 'float' or 'unsigned integer', not {number_format!r}")
+    nz, ny, nx = v.data.shape
+    dz, dy, dx = v.voxel_size
+    first = v.index_to_mm((0, ny - 1, 0))  # the first voxel in the file: top row of slice 0
+    data_path = path.with_suffix(".img")
+    data_path.write_bytes(raw.tobytes())
+    lines = [
+        "!INTERFILE :=",
+        "!imaging modality := nucmed",
+        "!version of keys := 3.3",
+        "!GENERAL DATA :=",
+        f"!name of data file := {data_path.name}",
+        "!data offset in bytes := 0",
+        "!GENERAL IMAGE DATA :=",
+        "!type of data := Tomographic",
+        "imagedata byte order := LITTLEENDIAN",
+        "number of dimensions := 3",
+        f"!matrix size [1] := {nx}",
+        f"!matrix size [2] := {ny}",
+        f"!matrix size [3] := {nz}",
+        f"!number format := {number_format}",
+        f"!number of bytes per pixel := {nbytes}",
+        f"scaling factor (mm/pixel) [1] := {dx!r}",
+        f"scaling factor (mm/pixel) [2] := {dy!r}",
+        f"scaling factor (mm/pixel) [3] := {dz!r}",
+        "; SPECT frame: [1] runs along +X, [2] along -Y (rows top to bottom), [3] along +Z;",
+        "; first pixel offset = X, Y, Z (mm) of the centre of the first voxel in the file",
+        f"first pixel offset (mm) [1] := {float(first[0])!r}",
+        f"first pixel offset (mm) [2] := {float(first[1])!r}",
+        f"first pixel offset (mm) [3] := {float(first[2])!r}",
+        "!END OF INTERFILE :=",
+    ]
+    path.write_text("\n".join(lines) + "\n", encoding="ascii")
+    return path
