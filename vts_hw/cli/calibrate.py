@@ -1,4 +1,5 @@
-"""`vts calibrate ...`: stereo calibration of the two cameras from checkerboard images."""
+"""`vts calibrate ...`: stereo calibration of the two cameras from checkerboard images
+(`stereo`), and the VTS → SPECT mapping from the 7-sphere phantom (`spect`)."""
 
 from __future__ import annotations
 
@@ -221,4 +222,228 @@ def stereo(images: tuple[str, ...], sim: bool, sim_poses: int, sim_seed: int,
         click.echo(_sim_text(truth))
     if change is not None:
         click.echo(_compare_text(change, prev_path))
+    click.echo(f"wrote {out_path}")
+
+
+# ---------------------------------------------------------------- vts calibrate spect
+SIM_FRAMES = 5          # noisy frames averaged per camera in --sim
+SIM_MIN_SEP_PX = 0.3    # match_epipolar min_sep_px in --sim (a few times the averaged noise)
+SIM_LABEL_MM = 5.0      # a triangulated point within this of a true marker is that marker
+
+
+def read_points(path) -> np.ndarray:
+    """Sphere centres (N×3, mm) from a CSV with a header x,y,z or a JSON list of [x, y, z].
+
+    DataError for a missing or unreadable file, a missing column, a non-number or a row that
+    is not three numbers.
+    """
+    import csv
+    import json
+
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: no such file.")
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"{path}: cannot read the points ({exc}).") from None
+    if path.suffix.lower() == ".json":
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise DataError(f"{path}: not valid JSON ({exc.msg}, line {exc.lineno}).") from None
+        if isinstance(data, dict) and "points" in data:
+            data = data["points"]
+        if not isinstance(data, list) or not all(
+                isinstance(p, list) and len(p) == 3
+                and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in p)
+                for p in data):
+            raise DataError(f"{path}: expected a JSON list of [x, y, z] points in mm.")
+        pts = np.array(data, dtype=float).reshape(-1, 3)
+    else:
+        rows = [r for r in csv.reader(text.splitlines()) if any(c.strip() for c in r)]
+        if not rows:
+            raise DataError(f"{path}: empty; expected a CSV with a header x,y,z (mm).")
+        header = [c.strip().lower() for c in rows[0]]
+        missing = [k for k in ("x", "y", "z") if k not in header]
+        if missing:
+            raise DataError(f"{path}: the header {','.join(rows[0])!r} lacks column(s) "
+                            f"{','.join(missing)}; expected x,y,z (mm).")
+        cols = [header.index(k) for k in ("x", "y", "z")]
+        pts_list = []
+        for n, row in enumerate(rows[1:], start=2):
+            try:
+                pts_list.append([float(row[c]) for c in cols])
+            except (IndexError, ValueError):
+                raise DataError(f"{path}, line {n}: {','.join(row)!r} is not three numbers "
+                                "x,y,z.") from None
+        pts = np.array(pts_list, dtype=float).reshape(-1, 3)
+    if len(pts) == 0:
+        raise DataError(f"{path}: no points.")
+    if not np.all(np.isfinite(pts)):
+        raise DataError(f"{path}: non-finite coordinates.")
+    return pts
+
+
+def _average_detections(frames) -> np.ndarray:
+    """Blob centres (N×2) averaged over frames: each blob of the first frame with the nearest
+    blob (within 1 px) of every frame; blobs not seen in every frame are dropped."""
+    first = np.array([(b.x, b.y) for b in frames[0].blobs], dtype=float).reshape(-1, 2)
+    sums, counts = first.copy(), np.ones(len(first))
+    for det in frames[1:]:
+        pts = np.array([(b.x, b.y) for b in det.blobs], dtype=float).reshape(-1, 2)
+        if len(pts) == 0:
+            continue
+        d = np.linalg.norm(first[:, None, :] - pts[None, :, :], axis=-1)
+        near = np.argmin(d, axis=1)
+        ok = d[np.arange(len(first)), near] < 1.0
+        sums[ok] += pts[near[ok]]
+        counts[ok] += 1
+    keep = counts == len(frames)
+    return sums[keep] / counts[keep, None]
+
+
+def sim_spect_inputs(seed: int, workdir: Path) -> tuple[np.ndarray, Path, dict]:
+    """The simulated session: the phantom triangulated by the stereo VTS (in camera 1's frame)
+    and a SimSpect volume of its true centres (SPECT frame = scene world frame).
+
+    Returns the VTS points, the volume path and a dict of what the sim did and its truth.
+    """
+    from ..detect import detect
+    from ..registration import RigidTransform
+    from ..sim_devices.render import Renderer
+    from ..sim_devices.scene import Scene
+    from ..sim_devices.spect import SimSpect
+    from ..triangulate import match_epipolar, triangulate
+
+    scene = Scene.reference(seed, start_epoch=0.0)
+    scene.add_phantom()
+    t = 10.0
+    names = ("cam1", "cam2")
+    for cam in names:
+        scene.set_led(cam, True, t - 1)
+    renderer = Renderer(scene, seed=seed)
+    pts = [_average_detections([detect(renderer.render(cam, t)) for _ in range(SIM_FRAMES)])
+           for cam in names]
+    cams = [scene.camera_at(cam, t) for cam in names]  # the true cameras: perfect calibration
+    m = match_epipolar(cams[0], pts[0], cams[1], pts[1], min_sep_px=SIM_MIN_SEP_PX)
+    if not m.pairs:
+        raise DataError("simulation: no stereo matches between the two cameras.")
+    tri = triangulate(cams, [pts[0][m.index_a], pts[1][m.index_b]])
+    world = tri.points
+
+    # Which triangulated point is a phantom sphere (the wall markers are seen too): the sim
+    # labels each point by the nearest true marker.
+    markers = scene.markers_world(t)
+    centres = np.array([mk.center for mk in markers])
+    d = np.linalg.norm(world[:, None, :] - centres[None, :, :], axis=-1)
+    nearest = np.argmin(d, axis=1)
+    is_sphere = np.array([markers[k].id.startswith("S") and d[i, k] < SIM_LABEL_MM
+                          for i, k in enumerate(nearest)], dtype=bool)
+    spheres_true = np.array([mk.center for mk in markers if mk.id.startswith("S")])
+    if is_sphere.sum() != len(spheres_true):
+        raise DataError(f"simulation: the VTS triangulated {int(is_sphere.sum())} of the "
+                        f"{len(spheres_true)} phantom spheres ({len(m.ambiguous)} ambiguous "
+                        "detections withheld).")
+    world = world[is_sphere]
+    tri_err = d[np.flatnonzero(is_sphere), nearest[is_sphere]]
+
+    c1 = cams[0]
+    vts = world @ c1.R.T + c1.t  # the VTS frame: camera 1's
+    volume = SimSpect(seed=seed).write(workdir / "sim_spect.npz", spheres_true)
+    truth = RigidTransform(c1.R.T, -c1.R.T @ c1.t)  # VTS (cam1) -> SPECT (world)
+    info = {
+        "seed": seed,
+        "frames_averaged": SIM_FRAMES,
+        "min_sep_px": SIM_MIN_SEP_PX,
+        "calibration": "the simulator's true camera models (as if perfectly calibrated)",
+        "vts_frame": "camera 1",
+        "matched_pairs": len(m.pairs),
+        "ambiguous_withheld": len(m.ambiguous),
+        "triangulation_rms_px": float(np.sqrt(np.mean(tri.rms_px[is_sphere] ** 2))),
+        "triangulation_error_mm": {"rms": float(np.sqrt(np.mean(tri_err ** 2))),
+                                   "max": float(tri_err.max())},
+        "phantom_centre_spect_mm": spheres_true.mean(axis=0),
+        "truth": truth,
+    }
+    return vts, volume, info
+
+
+def _sim_compare(mapping, info: dict) -> dict:
+    """How the recovered VTS → SPECT transform compares with the simulated truth."""
+    from ..registration import difference
+
+    truth, est = info["truth"], mapping.transform
+    d = difference(truth, est)
+    centre_vts = truth.inverse().apply(info["phantom_centre_spect_mm"])
+    at_phantom = np.linalg.norm(est.apply(centre_vts) - truth.apply(centre_vts))
+    return {"rotation_error_deg": d.angle_deg,
+            "translation_error_at_phantom_mm": float(at_phantom),
+            "translation_error_at_origin_mm": d.translation_norm_mm,
+            "true_transform": {"R": truth.R.tolist(), "t_mm": truth.t.tolist()}}
+
+
+@calibrate.command()
+@click.option("--vts", "vts_path", type=click.Path(dir_okay=False), default=None,
+              help="Phantom sphere centres in the VTS frame: CSV with a header x,y,z (mm), or a"
+                   " JSON list of [x, y, z].")
+@click.option("--volume", type=click.Path(), default=None,
+              help="Reconstructed SPECT volume of the phantom (any format `read_volume` reads).")
+@click.option("--sim", is_flag=True, help="Map a simulated session (stereo VTS + SimSpect volume)"
+              " and compare with the simulated truth.")
+@click.option("--sim-seed", type=int, default=0, show_default=True,
+              help="Seed of the simulated rig, noise and volume.")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), default="spect_mapping.json",
+              show_default=True, help="VTS → SPECT transform file to write.")
+@json_option
+def spect(vts_path: str | None, volume: str | None, sim: bool, sim_seed: int, output: str,
+          as_json: bool) -> None:
+    """VTS → SPECT mapping from the 7-sphere phantom: its sphere centres in the VTS frame
+    (--vts) and its reconstructed SPECT volume (--volume), or a simulated session (--sim).
+
+    Prints the transform, the FRE and the leave-one-out TRE; writes the transform to -o.
+    """
+    import tempfile
+
+    from ..procedures.spect_mapping import SpectMapping
+
+    if sim and (vts_path or volume):
+        raise click.UsageError("give either --vts and --volume, or --sim, not both")
+    if not sim and not (vts_path and volume):
+        raise click.UsageError("give --vts POINTS and --volume VOLUME, or --sim")
+
+    out_path = Path(output)
+    info = None
+    if sim:
+        with tempfile.TemporaryDirectory(prefix="vts-spect-sim-") as tmp:
+            points, vol_path, info = sim_spect_inputs(sim_seed, Path(tmp))
+            mapping = SpectMapping.from_volume(points, vol_path).analyze()
+    else:
+        points = read_points(vts_path)
+        if not Path(volume).exists():
+            raise DataError(f"{volume}: no such file or directory.")
+        mapping = SpectMapping.from_volume(points, volume).analyze()
+    compare = _sim_compare(mapping, info) if info is not None else None
+    mapping.save(out_path)
+
+    if as_json:
+        data = mapping.results_data()
+        data["output"] = str(out_path)
+        if info is not None:
+            data["sim"] = {k: v for k, v in info.items() if k != "truth"}
+            data["sim"]["phantom_centre_spect_mm"] = info["phantom_centre_spect_mm"].tolist()
+            data["sim_truth"] = compare
+        echo_json(data)
+        return
+    if info is not None:
+        err = info["triangulation_error_mm"]
+        click.echo(f"Simulated session (seed {info['seed']}): VTS = the two simulated cameras with"
+                   f" their TRUE models (as if perfectly calibrated), detections averaged over"
+                   f" {info['frames_averaged']} noisy frames, VTS frame = camera 1;"
+                   f" triangulation error RMS {err['rms']:.3f} mm, max {err['max']:.3f} mm.")
+    click.echo(mapping.results())
+    if compare is not None:
+        click.echo(f"Compared with the simulated truth (camera 1's pose inverse): rotation off by"
+                   f" {compare['rotation_error_deg']:.4f} deg, translation off by"
+                   f" {compare['translation_error_at_phantom_mm']:.3f} mm at the phantom.")
     click.echo(f"wrote {out_path}")

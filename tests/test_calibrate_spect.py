@@ -1,0 +1,107 @@
+"""`vts calibrate spect`: the simulated session against the truth, files, bad inputs."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from vts_hw.registration import RigidTransform
+from vts_hw.sim_devices.spect import SimSpect, phantom_centres
+
+
+def vts(*args, cwd):
+    return subprocess.run([sys.executable, "-m", "vts_hw.cli.__main__", "calibrate", "spect",
+                           *map(str, args)], capture_output=True, text=True, cwd=cwd, timeout=600)
+
+
+def test_sim_json_against_truth(tmp_path):
+    out = tmp_path / "map.json"
+    r = vts("--sim", "--json", "-o", out, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    assert d["n_spheres"] == 7 and d["output"] == str(out)
+    assert d["fre_mm"] < 0.5
+    assert "true camera models" in d["sim"]["calibration"]
+    # measured (seeds 0-3): rotation 0.006-0.02 deg, translation at the phantom 0.01-0.02 mm
+    assert d["sim_truth"]["rotation_error_deg"] < 0.1
+    assert d["sim_truth"]["translation_error_at_phantom_mm"] < 0.3
+    T = RigidTransform.load(out)
+    assert np.allclose(T.R, d["transform"]["R"]) and np.allclose(T.t, d["transform"]["t_mm"])
+    assert np.allclose(T.R, d["sim_truth"]["true_transform"]["R"], atol=1e-3)
+
+
+def test_sim_text(tmp_path):
+    r = vts("--sim", "--sim-seed", "1", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "as if perfectly calibrated" in r.stdout
+    assert "Compared with the simulated truth" in r.stdout
+    assert (tmp_path / "spect_mapping.json").exists()
+
+
+@pytest.fixture()
+def session(tmp_path):
+    """Known VTS points (a rigid motion of the true centres) and a SimSpect volume of them."""
+    spect = phantom_centres()
+    truth = RigidTransform.from_euler_xyz_deg([5.0, -10.0, 30.0], [12.0, -40.0, 300.0])
+    vts_pts = truth.inverse().apply(spect)
+    volume = SimSpect(seed=7).write(tmp_path / "phantom.npz", spect)
+    return vts_pts, volume, truth
+
+
+def test_files_csv(tmp_path, session):
+    vts_pts, volume, truth = session
+    csv = tmp_path / "vts.csv"
+    csv.write_text("x,y,z\n" + "".join(f"{x:.4f},{y:.4f},{z:.4f}\n" for x, y, z in vts_pts[::-1]))
+    r = vts("--vts", csv, "--volume", volume, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "FRE (RMS fit residual)" in r.stdout and "leave-one-out TRE" in r.stdout
+    T = RigidTransform.load(tmp_path / "spect_mapping.json")
+    assert np.linalg.norm(T.apply(vts_pts) - truth.apply(vts_pts), axis=1).max() < 1.5
+
+
+def test_files_json(tmp_path, session):
+    vts_pts, volume, _ = session
+    pts = tmp_path / "vts.json"
+    pts.write_text(json.dumps(vts_pts.tolist()))
+    out = tmp_path / "m.json"
+    r = vts("--vts", pts, "--volume", volume, "-o", out, "--json", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["fre_mm"] < 2.0
+    RigidTransform.load(out)
+
+
+@pytest.mark.parametrize("text", ["a,b,c\n1,2,3\n", "x,y,z\n1,2,oops\n", ""])
+def test_bad_csv(tmp_path, session, text):
+    _, volume, _ = session
+    csv = tmp_path / "bad.csv"
+    csv.write_text(text)
+    r = vts("--vts", csv, "--volume", volume, cwd=tmp_path)
+    assert r.returncode == 3, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and r.stderr.startswith("vts: ")
+    assert str(csv) in r.stderr
+    assert not (tmp_path / "spect_mapping.json").exists()
+
+
+def test_missing_volume(tmp_path, session):
+    vts_pts, _, _ = session
+    csv = tmp_path / "vts.csv"
+    csv.write_text("x,y,z\n" + "".join(f"{x},{y},{z}\n" for x, y, z in vts_pts))
+    r = vts("--vts", csv, "--volume", tmp_path / "nope.npz", cwd=tmp_path)
+    assert r.returncode == 3, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and "nope.npz" in r.stderr
+
+
+def test_wrong_sphere_count(tmp_path, session):
+    vts_pts, volume, _ = session
+    csv = tmp_path / "vts.csv"
+    csv.write_text("x,y,z\n" + "".join(f"{x},{y},{z}\n" for x, y, z in vts_pts[:5]))
+    r = vts("--vts", csv, "--volume", volume, cwd=tmp_path)
+    assert r.returncode == 3, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_usage(tmp_path):
+    assert vts(cwd=tmp_path).returncode == 2
+    assert vts("--sim", "--vts", "x.csv", cwd=tmp_path).returncode == 2
