@@ -240,11 +240,9 @@ class SpectMapping:
         self._need()
         return self.match.fre_mm
 
-    def _meta(self) -> dict:
+    def _figures(self) -> dict:
+        """Correspondence, FRE and TRE: kept with the saved transform and in the results."""
         return {
-            "from_frame": "VTS",
-            "to_frame": "SPECT",
-            "procedure": "spect_mapping",
             "n_spheres": len(self.vts_points),
             "correspondence": list(self.match.order),
             "fre_mm": self.match.fre_mm,
@@ -256,6 +254,9 @@ class SpectMapping:
             "tre_per_sphere_mm": self.tre.per_point.tolist(),
         }
 
+    def _meta(self) -> dict:
+        return {"from_frame": "VTS", "to_frame": "SPECT", "procedure": "spect_mapping", **self._figures()}
+
     # ------------------------------------------------------------------ output
     def results_data(self) -> dict:
         """JSON-ready results: date, software version, transform, FRE and TRE (mm)."""
@@ -265,19 +266,11 @@ class SpectMapping:
             "procedure": "spect_mapping",
             "date": self.analyzed_at,
             "vts_hw_version": __version__,
-            "n_spheres": len(self.vts_points),
-            "correspondence": list(self.match.order),
             "ambiguous": self.match.ambiguous,
             "transform": {"R": T.R.tolist(), "t_mm": T.t.tolist(),
                           "euler_xyz_deg": T.as_euler_xyz_deg().tolist(),
                           "rotation_angle_deg": T.rotation_angle_deg},
-            "fre_mm": self.match.fre_mm,
-            "fre_limit_mm": self.fre_limit_mm,
-            "runner_up_fre_mm": self.match.runner_up_fre_mm,
-            "residuals_mm": self.residuals_mm.tolist(),
-            "tre_rms_mm": self.tre.rms,
-            "tre_max_mm": self.tre.max,
-            "tre_per_sphere_mm": self.tre.per_point.tolist(),
+            **self._figures(),
         }
 
     def results(self) -> str:
