@@ -62,7 +62,7 @@ class Frame:
 
     @property
     def complete(self) -> bool:
-        return not any("cut short" in p for p in self.problems)
+        return not any("cut short" in p or "not a JPEG" in p for p in self.problems)
 
 
 @dataclass(frozen=True)

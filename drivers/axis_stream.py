@@ -196,19 +196,19 @@ class FrameStream:
                     break
                 host_t = cam.clock()
                 for part in parser.feed(chunk):
-                    if not part.complete:
+                    # the header walk in frame_from_bytes already says whether the JPEG is whole
+                    frame = frame_from_bytes(seq, part.body, host_t, part.problems)
+                    if not frame.complete:
                         yield "torn"
                         continue
-                    yield frame_from_bytes(seq, part.body, host_t, part.problems)
+                    yield frame
                     seq += 1
                 if self.stop_event.is_set():
                     return
             last = parser.flush()
             if last is not None and last.body:
-                if last.complete:
-                    yield frame_from_bytes(seq, last.body, cam.clock(), last.problems)
-                else:
-                    yield "torn"
+                frame = frame_from_bytes(seq, last.body, cam.clock(), last.problems)
+                yield frame if frame.complete else "torn"
         finally:
             with self._lock:
                 self._resp = None

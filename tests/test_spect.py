@@ -14,7 +14,7 @@ from vts_hw.spect import (Volume, VolumeReader, find_spheres, read_volume, reade
 from vts_hw.spect.readers import list_readers
 from vts_hw.spect.volume import CANONICAL_DIRECTION
 
-pydicom = pytest.importorskip("pydicom")
+import pydicom  # a dependency of vts-hw: never skipped
 
 EXTENSIONS = [".h33", ".hdr", ".dcm", ".npz"]
 OFFGRID = (1.37, -0.81, 2.06)  # mm: the phantom is not aligned with the voxel grid
