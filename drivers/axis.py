@@ -50,6 +50,14 @@ class BadReply(AxisError):
     """The camera answered, but not with what was asked for."""
 
 
+class NotFound(BadReply):
+    """HTTP 404: this firmware does not have that CGI (how VAPIX 2 and 3 are told apart)."""
+
+
+class Refused(BadReply):
+    """HTTP 200 with a ``# Error:`` body: the camera refused the request (unknown group...)."""
+
+
 @dataclass(frozen=True)
 class Frame:
     """One JPEG as received from a camera."""
@@ -188,7 +196,7 @@ class AxisCamera:
                                             f"close other streams and try again")
         if r.status_code == 404:
             r.close()
-            raise BadReply(self.name, f"camera {self.name} does not know {r.request.path_url.split('?')[0]} "
+            raise NotFound(self.name, f"camera {self.name} does not know {r.request.path_url.split('?')[0]} "
                                       f"(HTTP 404)")
         if r.status_code >= 400:
             r.close()
@@ -201,7 +209,7 @@ class AxisCamera:
         stripped = text.lstrip()
         if stripped.startswith("# Error:") or stripped.startswith("Error:"):
             msg = stripped.split(":", 1)[1].strip().splitlines()[0] if ":" in stripped else stripped
-            raise BadReply(self.name, f"camera {self.name} refused {path}: {msg}")
+            raise Refused(self.name, f"camera {self.name} refused {path}: {msg}")
         return text
 
     # -- images --------------------------------------------------------------------
@@ -230,9 +238,7 @@ class AxisCamera:
             try:
                 self._text("/axis-cgi/param.cgi", {"action": "list", "group": "Brand"})
                 self._vapix = 3
-            except BadReply as exc:
-                if "404" not in str(exc):
-                    raise
+            except NotFound:
                 self._text("/axis-cgi/view/param.cgi", {"action": "list", "group": "Brand"})
                 self._vapix = 2
         return self._vapix
@@ -285,9 +291,8 @@ class AxisCamera:
                              json_body={"apiVersion": "1.0", "method": "getAllProperties"})
             props = r.json()["data"]["propertyList"]
             return {k: str(v) for k, v in props.items()}
-        except BadReply as exc:
-            if "404" not in str(exc):
-                raise
+        except NotFound:
+            pass
         except (ValueError, KeyError, TypeError):
             raise BadReply(self.name, f"camera {self.name} sent device info that is not the expected JSON") \
                 from None
@@ -317,9 +322,8 @@ class AxisCamera:
                 if best is None or rtt < best[1]:
                     best = (cam - (t0 + t1) / 2, rtt, (t0 + t1) / 2)
             return ClockOffset(best[0], best[1] / 2 + 0.001, best[2], "time.cgi", samples)
-        except BadReply as exc:
-            if "404" not in str(exc):
-                raise
+        except NotFound:
+            pass
         except (ValueError, KeyError, TypeError):
             raise BadReply(self.name, f"camera {self.name} sent time.cgi JSON without data.dateTime") from None
         offsets, rtts = [], []
@@ -355,4 +359,4 @@ def _reason(exc: Exception) -> str:
 
 
 __all__ = ["AxisCamera", "AxisError", "CameraUnreachable", "CameraUnauthorized", "TooManyViewers",
-           "BadReply", "Frame", "ClockOffset", "frame_from_bytes"]
+           "BadReply", "NotFound", "Refused", "Frame", "ClockOffset", "frame_from_bytes"]

@@ -21,6 +21,10 @@ from ..mjpeg import MultipartParser, boundary_from_content_type
 from .axis import AxisCamera, AxisError, BadReply, CameraUnauthorized, frame_from_bytes
 
 
+class NotAStream(BadReply):
+    """The camera answered the stream request with something that is not multipart MJPEG."""
+
+
 @dataclass(frozen=True)
 class StreamGap:
     """Frames missing between two received frames (or while reconnecting)."""
@@ -135,7 +139,7 @@ class FrameStream:
                 except (AxisError, urllib3.exceptions.HTTPError, OSError, DataError) as exc:
                     if self.stop_event.is_set():
                         return
-                    if isinstance(exc, BadReply) and "multipart" in str(exc):
+                    if isinstance(exc, NotAStream):
                         raise
                     reason = _why(exc)
                     self.stats.last_error = reason
@@ -186,7 +190,7 @@ class FrameStream:
         try:
             ctype = resp.headers.get("content-type", "")
             if "multipart" not in ctype.lower():
-                raise BadReply(cam.name, f"camera {cam.name} sent {ctype or 'no content type'} instead of a "
+                raise NotAStream(cam.name, f"camera {cam.name} sent {ctype or 'no content type'} instead of a "
                                          f"multipart MJPEG stream")
             parser = MultipartParser(boundary_from_content_type(ctype))
             raw = resp.raw
