@@ -96,7 +96,7 @@ def test_wrong_password_is_a_clear_error_without_the_password(sim_rig):
         nopass.snapshot()
 
 
-def test_unreachable_camera(unused_port=None):
+def test_unreachable_camera():
     import socket
     s = socket.socket()
     s.bind(("127.0.0.1", 0))
