@@ -25,7 +25,8 @@ def cli(verbose: int) -> None:
 
 
 def _register() -> None:
-    from . import calibrate, camera, demo, qa, recording, report, sim, trigger  # noqa: F401  (each adds its commands)
+    from . import (calibrate, camera, demo, qa, recording, report, scan, sim,  # noqa: F401  (each adds its commands)
+                   sync, trigger)
 
 
 def main(argv=None) -> None:
