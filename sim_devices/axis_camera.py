@@ -178,6 +178,14 @@ class SimAxisCamera:
         self.faults.update(changes)
         return self.faults
 
+    def go_offline(self, seconds: float) -> threading.Timer:
+        """Drop off the network for ``seconds`` (the ``offline`` fault, cleared by a timer)."""
+        self.faults.offline = True
+        timer = threading.Timer(seconds, setattr, (self.faults, "offline", False))
+        timer.daemon = True
+        timer.start()
+        return timer
+
     def state(self) -> dict[str, Any]:
         with self._lock:
             counters = dict(self._counters)
@@ -335,6 +343,9 @@ class _Handler(BaseHTTPRequestHandler):
                 return
             if not path.startswith("/axis-cgi/"):
                 self._send(404, _BODY_404, "text/html")
+                return
+            if self.cam.faults.offline:
+                self._hang_up()
                 return
             self.cam.count("requests")
             if not self._authorized(method):
@@ -562,7 +573,7 @@ class _StreamWriter:
             if clock.now() - target > self.period:  # fell behind (stall, slow client): go on live
                 t0 = self._next_tick(clock.now()) - k * self.period
                 continue
-            if faults.drop_after_frames is not None and k >= faults.drop_after_frames:
+            if faults.offline or (faults.drop_after_frames is not None and k >= faults.drop_after_frames):
                 self.h._hang_up()
                 return
             if not stalled and faults.stall_after_frames is not None and k >= faults.stall_after_frames:

@@ -1,10 +1,177 @@
-"""`vts scan ...`: a scan session (trigger + recordings). Filled in by the scan-session work."""
+"""`vts scan ...`: a scan session (trigger + recordings) with live status; see procedures/scan.py."""
 
 from __future__ import annotations
 
+import contextlib
+import signal
+import sys
+import time
+from pathlib import Path
+
+import click
+from rich.console import Console
+from rich.live import Live
+from rich.markup import escape
+from rich.table import Table
+
 from . import cli
+from .common import echo_json, fmt_time, json_option, with_rig
+
+REFRESH_S = 0.5          # the live table, about twice a second
+PLAIN_EVERY_S = 2.0      # a status line this often when stderr is not a terminal
 
 
 @cli.group()
 def scan() -> None:
     """Start the VTS for a patient scan: cameras recording, trigger fired, live status."""
+
+
+@scan.command()
+@click.option("-o", "--output", "out", type=click.Path(file_okay=False), default=None,
+              help="Session folder to create (default: ./scan-YYYYmmddTHHMMSSZ).")
+@click.option("--duration", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Stop after S seconds from the trigger (default: until Ctrl-C).")
+@click.option("--dry-run", is_flag=True, help="List the steps for this rig without touching it.")
+@json_option
+@with_rig
+def start(out: str | None, duration: float | None, dry_run: bool, as_json: bool, rig) -> None:
+    """Check cameras and trigger, record every camera, fire the trigger, show live status.
+
+    Ctrl-C (or the duration) stops the square wave, closes the recordings, measures the
+    camera clocks again and writes the manifest; the session is complete either way.
+    """
+    from ..procedures.scan import ScanSession, default_folder
+
+    folder = Path(out) if out else default_folder()
+    err = Console(stderr=True, highlight=False)
+    session = ScanSession(rig, folder, duration=duration,
+                          on_step=lambda name, text: err.print(f"[green]ok[/]  {escape(name)}: {escape(text)}",
+                                                              soft_wrap=True))
+    if dry_run:
+        steps = session.plan()
+        if as_json:
+            echo_json({"folder": str(folder), "steps": [s.__dict__ for s in steps]})
+        else:
+            click.echo(f"scan plan for rig {rig.rig} (dry run: nothing was touched)")
+            for i, s in enumerate(steps, 1):
+                click.echo(f"  {i}. {s.name}: {s.text}")
+        return
+    with _sigterm_as_interrupt():
+        try:
+            session.start()
+        except KeyboardInterrupt:
+            with _no_interrupts():
+                session.stop("interrupted")
+            click.echo(f"vts: interrupted before the scan started"
+                       f"{f'; what was recorded is in {folder}' if session.recorder else ''}", err=True)
+            sys.exit(130)
+        reason = "error"
+        try:
+            reason = _live(session, err)
+        except KeyboardInterrupt:
+            reason = "interrupted"
+        finally:
+            with _no_interrupts():
+                err.print(f"stopping ({reason}) ...")
+                manifest = session.stop(reason)
+    if as_json:
+        echo_json(manifest)
+    else:
+        _summary(folder, manifest)
+
+
+# -- live status -------------------------------------------------------------------------------------
+
+def _live(session, console: Console) -> str:
+    if console.is_terminal:
+        with Live(_table(session.status(), session.folder), console=console,
+                  refresh_per_second=1 / REFRESH_S, transient=False) as live:
+            return session.wait(lambda st: live.update(_table(st, session.folder)), REFRESH_S)
+    last = [0.0]
+
+    def plain(st):
+        if time.monotonic() - last[0] >= PLAIN_EVERY_S:
+            last[0] = time.monotonic()
+            cams = ", ".join(f"{c.name} {c.frames} frames {c.fps:.1f} fps {c.dropped} dropped" for c in st.cameras)
+            click.echo(f"[{st.elapsed_s:6.1f} s] {cams}; {_trigger_text(st.trigger)}", err=True)
+    return session.wait(plain, REFRESH_S)
+
+
+def _table(st, folder) -> Table:
+    of = f" of {st.duration_s:g} s" if st.duration_s else ""
+    t = Table(title=f"scan {folder}  {st.elapsed_s:6.1f} s{of}  (Ctrl-C stops)", title_justify="left",
+              caption=_trigger_text(st.trigger), caption_justify="left")
+    for col in ("camera", "frames", "fps", "dropped", "reconnects", "state"):
+        t.add_column(col, justify="left" if col in ("camera", "state") else "right")
+    for c in st.cameras:
+        state = c.state if c.state in ("ok", "waiting") else f"[red]{c.state}[/]"
+        t.add_row(c.name, str(c.frames), f"{c.fps:.1f}", str(c.dropped), str(c.reconnects), state)
+    return t
+
+
+def _trigger_text(tr: dict) -> str:
+    if tr.get("backend") == "none":
+        return "trigger: none (recording only)"
+    parts = [f"trigger: {tr.get('backend')}"]
+    if tr.get("fired"):
+        parts.append(f"fired ({tr.get('mode')}) at {fmt_time(tr.get('fire_time'))}")
+        if tr.get("edges") is not None:
+            parts.append(f"{tr['edges']} rising edge(s)")
+    elif tr.get("fired") is None:
+        parts.append("fire state unknown")
+    else:
+        parts.append("not fired")
+    if tr.get("errors"):
+        parts.append(f"ERROR {tr['errors'][-1]}")
+    return ", ".join(parts)
+
+
+def _summary(folder: Path, m: dict) -> None:
+    if not m:
+        click.echo(f"{folder}: nothing recorded")
+        return
+    scan = m.get("scan", {})
+    click.echo(f"{folder}: status {m['status']} (stopped: {scan.get('stop_reason')})")
+    for name, c in m["cameras"].items():
+        before = (c.get("clock_offset_before") or {}).get("offset_s")
+        after = (c.get("clock_offset_after") or {}).get("offset_s")
+        clock = (f", clock {before:+.3f} s -> {after:+.3f} s" if before is not None and after is not None else "")
+        click.echo(f"  {name}: {c['frames']} frames, {c['dropped_frames']} dropped in {len(c['gaps'])} gap(s), "
+                   f"{c.get('reconnects', 0)} reconnect(s){clock}")
+    tr = m.get("trigger", {})
+    if tr.get("backend") == "none":
+        click.echo("  trigger: none (recording only)")
+    else:
+        fired = f"fired at {fmt_time(tr.get('fire_time'))} ({tr.get('mode')})" if tr.get("fired") else "NOT fired"
+        edges = f", {tr['edges']} rising edge(s)" if tr.get("edges") is not None else ""
+        click.echo(f"  trigger: {tr.get('backend')} {fired}{edges}; log {folder / 'trigger.csv'}")
+        if tr.get("note"):
+            click.echo(f"  note: {tr['note']}")
+    for p in scan.get("problems", []):
+        click.echo(f"  problem: {p}")
+
+
+# -- signals -----------------------------------------------------------------------------------------
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """SIGTERM stops the scan as cleanly as Ctrl-C does."""
+    def handler(signum, frame):
+        raise KeyboardInterrupt
+    old = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+@contextlib.contextmanager
+def _no_interrupts():
+    """While the session is being closed, a second Ctrl-C must not cut the manifest short."""
+    old_int = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    old_term = signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old_int)
+        signal.signal(signal.SIGTERM, old_term)

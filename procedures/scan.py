@@ -1,0 +1,646 @@
+"""A scan session: every camera recording and the trigger fired, and nothing lost whatever happens.
+
+The steps, in this order (``ScanSession.plan()`` lists them without touching the rig; the
+reasons are in ``docs/decisions/0016-scan-session.md``):
+
+1. check every camera: reachable, password accepted, the configured resolution offered;
+2. check the trigger generator: its status, then frequency, duty (and levels where it has
+   them) from the rig config; a square wave left running is stopped first;
+3. map the trigger's device clock to host time (backends that have one);
+4. measure each camera's clock offset (camera − host);
+5. start recording every camera into the session folder (a thread per camera);
+6. wait until every camera has delivered its first frame;
+7. fire: start pulses and square wave together (``fire()``), or the square wave alone on a
+   backend without start pulses; backend ``none`` records only;
+8. run until ``stop()``, the duration, or Ctrl-C (the caller's ``KeyboardInterrupt``);
+9. stop: square wave off, recordings closed, clock offsets measured again, the trigger clock
+   mapped again, the manifest written.
+
+Steps 1–4 touch no file: a scan that cannot start leaves nothing behind but one clear error.
+From step 5 on, a failure never costs a recorded frame: a camera that drops is reconnected
+while the others go on (its gap goes into the manifest), a trigger that fails to fire or is
+unplugged is noted in the manifest and the recordings go on, and the manifest is rewritten
+at each step so that a killed process leaves a folder ``vts recording reindex`` makes whole.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime as _dt
+import inspect
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+from ..config import RigConfig
+from ..drivers.axis import AxisCamera, BadReply
+from ..drivers.trigger import CLOCK, EDGES, FIRE, LEVELS, TriggerError, TriggerLog
+from ..errors import DeviceError, VtsError
+from ..recorder import Recorder
+from ..recording import write_json_atomic
+
+FIRST_FRAME_TIMEOUT_S = 10.0   # a camera silent this long after the recording started: no fire
+TRIGGER_POLL_S = 1.0           # how often the trigger's edges are read during the scan
+STATUS_EVERY = 5               # a backend without edge counts: its full status every 5 polls
+RECONNECT_BACKOFF_MAX_S = 1.0  # a camera that comes back is recording again within a second
+OFFSET_SAMPLES = 5
+BOOT_WAIT_S = 2.0              # a trigger box reset by the opening of its port is answering by then
+
+
+class ScanError(DeviceError):
+    """The scan could not start, or had to stop before the trigger; the message says why."""
+
+    def __init__(self, message: str, exit_code: int | None = None):
+        super().__init__(message)
+        if exit_code is not None:
+            self.exit_code = exit_code
+
+
+class SessionExists(VtsError):
+    """The session folder already holds a recording (a scan never appends to an old one)."""
+
+
+@dataclass(frozen=True)
+class Step:
+    """One step of the plan: a short name and what it does on this rig."""
+
+    name: str
+    text: str
+
+
+@dataclass(frozen=True)
+class CameraState:
+    name: str
+    frames: int
+    fps: float
+    dropped: int
+    reconnects: int
+    state: str
+
+
+@dataclass(frozen=True)
+class ScanStatus:
+    """What the live display shows: phase, elapsed scan time, cameras, trigger."""
+
+    phase: str
+    elapsed_s: float
+    duration_s: float | None
+    cameras: tuple[CameraState, ...]
+    trigger: dict = field(default_factory=dict)
+
+
+def default_folder(now: float | None = None, parent: str | Path = ".") -> Path:
+    """``./scan-YYYYmmddTHHMMSSZ``: a new folder per scan, named by its UTC start."""
+    t = _dt.datetime.fromtimestamp(time.time() if now is None else now, _dt.timezone.utc)
+    return Path(parent) / f"scan-{t:%Y%m%dT%H%M%SZ}"
+
+
+def _iso(t: float) -> str:
+    return _dt.datetime.fromtimestamp(t, _dt.timezone.utc).strftime("%H:%M:%S.%f")[:-3] + "Z"
+
+
+def _asdict(obj) -> dict | None:
+    if obj is None:
+        return None
+    d = dataclasses.asdict(obj)
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
+
+
+def _why(exc: BaseException) -> str:
+    return str(exc) if isinstance(exc, VtsError) else f"{type(exc).__name__}: {exc}"
+
+
+class _ScanRecorder(Recorder):
+    """The recorder, retrying a lost camera at least once a second (not up to every 5 s)."""
+
+    def start(self) -> None:
+        super().start()
+        for stream in self._streams.values():
+            stream.max_backoff = RECONNECT_BACKOFF_MAX_S
+
+
+# ---- the trigger side --------------------------------------------------------------------------
+
+class ScanTrigger:
+    """The session's trigger generator: checked, fired, watched and stopped.
+
+    Only ``check()`` raises (before anything is recorded). Every later failure is kept in
+    :attr:`info` (``errors``) and the scan goes on recording.
+    """
+
+    def __init__(self, rig: RigConfig, clock=time.time):
+        self.cfg = rig.trigger
+        self.clock = clock
+        self.gen = None
+        self.log: TriggerLog | None = None
+        self.fired = False
+        self.edges: int | None = None
+        self._polls = 0
+        self.lost = False          # the device failed during the scan: no more polling
+        self._closed = False
+        self._lock = threading.Lock()
+        c = self.cfg
+        self.info: dict = {"backend": c.backend, "address": c.address, "fired": False, "errors": []}
+        if c.backend == "none":
+            self.info.update(mode="none", note="no trigger generator (trigger backend none): recording only")
+        else:
+            self.info["asked"] = {"frequency_hz": c.frequency_hz, "duty": c.duty, "high_v": c.high_v,
+                                  "low_v": c.low_v, "pulse_ms": c.pulse_ms}
+
+    @property
+    def present(self) -> bool:
+        return self.cfg.backend != "none"
+
+    def caps(self) -> frozenset:
+        return getattr(self.gen, "capabilities", frozenset())
+
+    def error(self, when: str, exc: BaseException | str) -> None:
+        text = f"{when}: {exc if isinstance(exc, str) else _why(exc)}"
+        with self._lock:
+            if text not in self.info["errors"]:
+                self.info["errors"].append(text)
+
+    # -- before the recording --------------------------------------------------------------------
+    def check(self) -> None:
+        """Open, read the status, stop a square wave left running, configure, map the clock.
+
+        The log is kept in memory until :meth:`attach_log` (no file before the scan starts)."""
+        if not self.present:
+            return
+        from ..triggers import open_trigger
+        try:
+            self.gen = open_trigger(self.cfg, None, clock=self.clock)
+            self.log = self.gen.log
+            if hasattr(self.gen, "identify"):
+                self.info["idn"] = self._identify()
+            st = self.gen.status()
+            if st.running:
+                self.info["was_running"] = True
+                self.gen.stop()
+            levels = (self.cfg.high_v, self.cfg.low_v) if LEVELS in self.caps() else (None, None)
+            if LEVELS not in self.caps():  # fixed TTL levels: nothing to ask
+                for key in ("high_v", "low_v"):
+                    self.info["asked"].pop(key)
+            self.info["confirmed"] = _asdict(self.gen.configure(self.cfg.frequency_hz, self.cfg.duty, *levels))
+            self.info["device"] = self.gen.name
+            self.info["capabilities"] = sorted(self.caps())
+        except Exception as exc:
+            self.close()
+            where = f"{self.cfg.backend} trigger at {self.cfg.address}"
+            raise ScanError(f"cannot start the scan: {_why(exc)}" if isinstance(exc, VtsError)
+                            else f"cannot start the scan: the {where} failed ({_why(exc)})",
+                            getattr(exc, "exit_code", None)) from None
+        self.map_clock("clock_mapping_before")
+
+    def _identify(self) -> str:
+        """``*IDN?``, once more after a pause if it timed out: opening a real Uno's port resets
+        the board, and its bootloader holds the line for about 1.5 s (docs/decisions/0011)."""
+        try:
+            return self.gen.identify().raw
+        except TriggerError as exc:
+            if type(exc) is not TriggerError:  # refused or gone: not a board still booting
+                raise
+            time.sleep(BOOT_WAIT_S)
+            return self.gen.identify().raw
+
+    def map_clock(self, key: str) -> None:
+        if self.gen is None or CLOCK not in self.caps():
+            return
+        try:
+            self.info[key] = _asdict(self.gen.clock_mapping())
+        except Exception as exc:
+            self.error("clock mapping", exc)
+
+    def attach_log(self, path: Path) -> None:
+        """Write what was logged so far to ``path`` (trigger.csv) and log there from now on."""
+        if self.gen is None:
+            return
+        mem, log = self.gen.log, TriggerLog(path, clock=self.clock)
+        for host, dev, device, kind, text in mem.lines:
+            log.write(device, kind, text, device_us=float(dev) if dev else None, host_time=float(host))
+        self.gen.log = self.log = log
+        self.info["log"] = path.name
+
+    # -- the scan --------------------------------------------------------------------------------
+    def fire(self) -> None:
+        """Start pulses and square wave together; the square wave alone where there are no pulses."""
+        if self.gen is None:
+            return
+        sent = self.clock()
+        try:
+            if FIRE in self.caps():
+                kw = {"pulse_ms": self.cfg.pulse_ms} if "pulse_ms" in inspect.signature(self.gen.fire).parameters \
+                    else {}
+                st = self.gen.fire(**kw)
+                self.info.update(mode="start pulses and square wave", start_pulses=True)
+            else:
+                st = self.gen.start()
+                self.info.update(mode="square wave only", start_pulses=False,
+                                 note=f"{self.gen.name} cannot send start pulses: the square wave was started "
+                                      f"alone; the SPECT is started by hand")
+        except Exception as exc:
+            self.info["fire_sent_host_time"] = sent
+            self.error("fire", exc)
+            self.fired = None  # unknown: stop() switches the output off to be sure
+            return
+        self.fired = True
+        first = st.extra.get("first_edge_host")
+        self.info.update(fired=True, fire_sent_host_time=sent, fire_confirmed_host_time=self.clock(),
+                         fire_time=first if first is not None else sent,
+                         fire_time_source=("first rising edge, device clock mapped to host" if first is not None
+                                           else "host time when the command was sent"),
+                         fire_status=_asdict(st))
+        self.edges = st.edges
+
+    def poll(self) -> None:
+        """Read the edges so far (trigger box), else the status every few calls; a failure is
+        noted, not raised."""
+        if self.gen is None or not self.fired or self.lost:
+            return
+        self._polls += 1
+        try:
+            if EDGES in self.caps() and hasattr(self.gen, "edges"):
+                self.edges = self.gen.edges()[0]
+            elif self._polls % STATUS_EVERY == 0:
+                st = self.gen.status()
+                if not st.running:
+                    self.error("during the scan", f"{self.gen.name} reports its output off")
+        except Exception as exc:
+            self.error("during the scan", exc)
+            self.lost = True  # not asked again until the stop: one sentence, not one a second
+
+    def stop(self) -> None:
+        """Square wave off where it may be on (the trigger box ends its period first)."""
+        if self.gen is None or self.fired is False:
+            return
+        try:
+            st = self.gen.stop()
+            self.info["stop_status"] = _asdict(st)
+            self.info["stopped_host_time"] = self.clock()
+            if st.edges is not None:
+                self.edges = st.edges
+        except Exception as exc:
+            self.error("stop", exc)
+            self.lost = True
+
+    def finish(self) -> None:
+        """After the recordings are closed: the clock mapped again (over the whole session), closed."""
+        if self.gen is None:
+            return
+        if self.fired and not self.lost:
+            self.map_clock("clock_mapping_after")
+        self.info["edges"] = self.edges
+        self.close()
+
+    def close(self) -> None:
+        if self.gen is not None and not self._closed:
+            self._closed = True
+            try:
+                self.gen.close()
+            except Exception as exc:
+                self.error("close", exc)
+
+    def live(self) -> dict:
+        with self._lock:
+            errors = list(self.info["errors"])
+        return {"backend": self.cfg.backend, "mode": self.info.get("mode"), "fired": self.fired,
+                "edges": self.edges, "fire_time": self.info.get("fire_time"), "errors": errors}
+
+
+# ---- the session -------------------------------------------------------------------------------
+
+class ScanSession:
+    """One scan: ``start()`` (steps 1–7), ``wait()`` (8), ``stop()`` (9) — or ``run()``.
+
+    ``duration`` counts from the fire; None runs until :meth:`request_stop` or Ctrl-C.
+    ``on_step(name, text)`` is told as each step is done.
+    """
+
+    def __init__(self, rig: RigConfig, folder: str | Path, *, duration: float | None = None,
+                 clock=time.time, first_frame_timeout: float = FIRST_FRAME_TIMEOUT_S,
+                 on_step: Callable[[str, str], None] | None = None):
+        self.rig = rig
+        self.folder = Path(folder)
+        self.duration = duration
+        self.clock = clock
+        self.first_frame_timeout = first_frame_timeout
+        self.on_step = on_step or (lambda name, text: None)
+        self.cameras: list[AxisCamera] = []
+        self.trigger = ScanTrigger(rig, clock)
+        self.recorder: _ScanRecorder | None = None
+        self.phase = "planned"
+        self.times: dict[str, float | None] = {}
+        self.cam_notes: dict[str, dict] = {c.name: {} for c in rig.cameras}
+        self.stop_reason: str | None = None
+        self.manifest: dict | None = None
+        self._scan_t0: float | None = None      # monotonic time the scan clock started (the fire)
+        self._stop = threading.Event()
+        self._stop_lock = threading.Lock()
+        self._monitor: threading.Thread | None = None
+        self._rates: dict[str, deque] = {c.name: deque(maxlen=16) for c in rig.cameras}
+
+    # -- the plan ------------------------------------------------------------------------------------
+    def plan(self) -> list[Step]:
+        """The steps this session will take on this rig. Touches nothing."""
+        r, t = self.rig, self.rig.trigger
+        cams = ", ".join(f"{c.name} ({c.base_url})" for c in r.cameras)
+        res = sorted({c.resolution_str for c in r.cameras})
+        fps = sorted({f"{c.fps:g}" for c in r.cameras})
+        steps = [Step("check cameras", f"check {len(r.cameras)} camera(s) {cams}: reachable, password accepted, "
+                                       f"{'/'.join(res)} offered, {'/'.join(fps)} fps asked")]
+        if t.backend == "none":
+            steps.append(Step("check trigger", "no trigger generator (trigger backend none): recording only"))
+        else:
+            levels = f", levels {t.low_v:g}..{t.high_v:g} V where it has them" if t.backend != "triggerbox" else ""
+            steps += [Step("check trigger", f"check the {t.backend} trigger at {t.address}: status, stop a square wave "
+                                            f"left running, configure {t.frequency_hz:g} Hz, duty {t.duty:g}{levels}"),
+                      Step("map trigger clock", "map the trigger's device clock to host time (where it has one)")]
+        steps += [
+            Step("measure offsets", f"measure each camera's clock offset (camera - host, {OFFSET_SAMPLES} samples)"),
+            Step("start recording", f"record every camera into {self.folder}/ (<camera>.mjpeg, "
+                                    f"<camera>.index.csv, manifest.json)"),
+            Step("first frames", f"wait for the first frame of every camera (at most {self.first_frame_timeout:g} s; "
+                                 f"else stop without firing)"),
+        ]
+        if t.backend == "none":
+            steps.append(Step("fire", "nothing to fire: the scan clock starts when every camera is recording"))
+        else:
+            steps.append(Step("fire", f"start pulses ({t.pulse_ms} ms, channels 1 VTS and 2 SPECT) and the "
+                                      f"square wave together, or the square wave alone where the device has no "
+                                      f"start pulses; log to {self.folder}/trigger.csv"))
+        steps += [
+            Step("run", f"record for {self.duration:g} s" if self.duration else "record until Ctrl-C"),
+            Step("stop", "stop the square wave, close the recordings, measure the clock offsets again, "
+                         "write the manifest"),
+        ]
+        return steps
+
+    # -- steps 1-7 -------------------------------------------------------------------------------------
+    def start(self) -> None:
+        """Check, measure, record, wait for first frames, fire. Raises ScanError (nothing left
+        running) when the scan cannot start; once recording, what was recorded is kept."""
+        self.times["session_started"] = self.clock()
+        self.phase = "checking"
+        if self.folder.exists() and any(self.folder.iterdir()):
+            raise SessionExists(f"{self.folder} is not empty: give a new folder with -o")
+        try:
+            self._check()
+        except BaseException:
+            self._close_cameras()
+            self.trigger.close()
+            raise
+        self._start_recording()
+        try:
+            self._record_and_fire()
+        except (ScanError, KeyboardInterrupt):
+            raise  # stopped already, or the caller stops it
+        except Exception as exc:  # a bug or an odd device: what is recorded is closed and kept
+            self.trigger.error("start", exc)
+            self.stop("error")
+            raise
+
+    def _check(self) -> None:
+        self._check_cameras()
+        self.on_step("check cameras", ", ".join(f"{c.name} ok" for c in self.cameras))
+        self.trigger.check()
+        if self.trigger.present:
+            st = self.trigger.info.get("confirmed") or {}
+            self.on_step("check trigger", f"{self.trigger.gen.name}: {st.get('frequency_hz')} Hz, "
+                                          f"duty {st.get('duty')}")
+        self._measure_offsets("clock_offset_before", strict=True)
+        self.on_step("measure offsets", ", ".join(
+            f"{n} {d['clock_offset_before']['offset_s']:+.3f} s" for n, d in self.cam_notes.items()))
+
+    def _record_and_fire(self) -> None:
+        self.on_step("start recording", str(self.folder))
+        self._wait_first_frames()
+        self.on_step("first frames", "every camera is recording")
+        self.phase = "firing"
+        self.trigger.fire()
+        self._scan_t0 = time.monotonic()
+        self.times["scan_started"] = self.trigger.info.get("fire_time") or self.clock()
+        self.phase = "running"
+        if self.trigger.present:
+            self._monitor = threading.Thread(target=self._watch_trigger, name="scan-trigger", daemon=True)
+            self._monitor.start()
+        self._write_manifest()
+        t = self.trigger.info
+        self.on_step("fire", "recording only" if not self.trigger.present else
+                     (f"{t['mode']} at {_iso(t['fire_time'])}" if t.get("fired") else f"FAILED: {t['errors'][-1]}"))
+
+    def _check_cameras(self) -> None:
+        failures: list[VtsError] = []
+        for cfg in self.rig.cameras:
+            try:
+                cam = AxisCamera.from_config(cfg, clock=self.clock)
+                self.cameras.append(cam)
+                info = cam.device_info()
+                self.cam_notes[cfg.name].update(
+                    url=cam.base_url, resolution=cfg.resolution_str, fps_asked=cfg.fps,
+                    device={k: info.get(k) for k in ("ProdNbr", "SerialNumber", "Version") if k in info})
+                self._check_image(cam, cfg)
+            except VtsError as exc:
+                failures.append(exc)
+        if failures:
+            raise ScanError("cannot start the scan: " + "; ".join(str(e) for e in failures),
+                            failures[0].exit_code)
+
+    def _check_image(self, cam: AxisCamera, cfg) -> None:
+        try:
+            offered = cam.get_params("Properties.Image").get("Properties.Image.Resolution", "")
+        except BadReply:
+            offered = ""  # older firmware does not list them: the stream request will tell
+        sizes = [s.strip().lower() for s in offered.split(",") if s.strip()]
+        if sizes and cfg.resolution_str.lower() not in sizes:
+            raise ScanError(f"camera {cfg.name} does not offer {cfg.resolution_str} (it offers {offered})")
+        fps = cam.get_params("Image.I0").get("Image.I0.Stream.FPS", "")
+        if fps.isdigit() and 0 < int(fps) < cfg.fps:
+            self.cam_notes[cfg.name]["warning"] = f"the camera limits its streams to {fps} fps"
+
+    def _measure_offsets(self, key: str, strict: bool) -> None:
+        failures = []
+        for cam in self.cameras:
+            try:
+                self.cam_notes[cam.name][key] = _asdict(cam.clock_offset(OFFSET_SAMPLES))
+            except VtsError as exc:
+                self.cam_notes[cam.name][key] = {"error": str(exc)}
+                failures.append(exc)
+        if failures and strict:
+            raise ScanError("cannot start the scan: " + "; ".join(str(e) for e in failures))
+
+    def _start_recording(self) -> None:
+        meta = {"kind": "scan", "rig": self.rig.rig, "rig_digest": self.rig.digest,
+                "duration_asked": self.duration}
+        self.phase = "recording"
+        self.recorder = _ScanRecorder(self.cameras, self.folder, seconds=None, meta=meta)
+        self.times["recording_started"] = self.recorder.recording.started
+        self.trigger.attach_log(self.folder / "trigger.csv")
+        self._write_manifest()
+        self.recorder.start()
+
+    def _wait_first_frames(self) -> None:
+        deadline = time.monotonic() + self.first_frame_timeout
+        while True:
+            prog = self.recorder.progress.values()
+            dead = [p for p in prog if p.error]
+            if dead:
+                why = "; ".join(f"camera {p.name}: {p.error}" for p in dead)
+                break
+            if all(p.frames > 0 for p in prog):
+                self.times["first_frames"] = self.clock()
+                return
+            if time.monotonic() > deadline:
+                why = ", ".join(f"camera {p.name}" for p in prog if not p.frames) + \
+                    f" delivered no frame within {self.first_frame_timeout:g} s"
+                break
+            time.sleep(0.02)
+        self.trigger.error("not fired", why)
+        self.stop("no first frame")
+        raise ScanError(f"scan stopped before the trigger: {why}; what was recorded is in {self.folder}")
+
+    def _watch_trigger(self) -> None:
+        while not self._stop.wait(TRIGGER_POLL_S):
+            self.trigger.poll()
+
+    # -- step 8 ------------------------------------------------------------------------------------
+    def request_stop(self) -> None:
+        """Ask :meth:`wait` to return (from any thread)."""
+        self._stop.set()
+
+    def wait(self, on_tick: Callable[[ScanStatus], None] | None = None, interval: float = 0.5) -> str:
+        """Until the duration, :meth:`request_stop`, or Ctrl-C (raised to the caller).
+        Returns why it ended: ``duration`` or ``stopped``."""
+        next_tick = time.monotonic()
+        while True:
+            now = time.monotonic()
+            if self._stop.is_set():
+                return "stopped"
+            if self.duration is not None and self._scan_t0 is not None and now - self._scan_t0 >= self.duration:
+                return "duration"
+            if on_tick is not None and now >= next_tick:
+                on_tick(self.status())
+                next_tick = now + interval
+            time.sleep(0.05)
+
+    def status(self) -> ScanStatus:
+        """A snapshot for the live display (fps over the last two seconds)."""
+        now = time.monotonic()
+        cams = []
+        if self.recorder is not None:
+            for p in self.recorder.progress.values():
+                hist = self._rates[p.name]
+                hist.append((now, p.frames))
+                while len(hist) > 2 and now - hist[1][0] >= 2.0:
+                    hist.popleft()
+                (t0, f0) = hist[0]
+                fps = (p.frames - f0) / (now - t0) if now - t0 > 0.2 else 0.0
+                quiet = p.last_frame is None or now - p.last_frame > 1.0
+                state = p.error or ("reconnecting" if quiet and p.frames else "waiting" if quiet else "ok")
+                cams.append(CameraState(p.name, p.frames, fps, p.dropped, p.reconnects, state))
+        elapsed = now - self._scan_t0 if self._scan_t0 is not None else 0.0
+        return ScanStatus(self.phase, elapsed, self.duration, tuple(cams), self.trigger.live())
+
+    # -- step 9 ------------------------------------------------------------------------------------
+    def stop(self, reason: str = "stopped") -> dict:
+        """Square wave off, recordings closed, offsets measured again, manifest written.
+
+        Safe in any state and more than once (later calls return the same manifest); returns
+        the manifest ({} when nothing was recorded)."""
+        with self._stop_lock:
+            if self.manifest is not None:
+                return self.manifest
+            self.stop_reason = reason
+            self.phase = "stopping"
+            self._stop.set()
+            self.times["stopped"] = self.clock()
+            stop_mono = time.monotonic()
+            if self._monitor is not None:
+                self._monitor.join(timeout=10)
+            self.trigger.stop()
+            if self.recorder is None:
+                self.trigger.finish()
+                self._close_cameras()
+                self.phase = "stopped"
+                self.manifest = {}
+                return self.manifest
+            self.recorder.finish("recording")  # closed; the status is set below, last
+            self._note_trailing_gaps(stop_mono)
+            self._measure_offsets("clock_offset_after", strict=False)
+            self.trigger.finish()
+            self.times["finished"] = self.clock()
+            problems = self._problems()
+            rec = self.recorder.recording
+            rec.status = "failed" if reason == "no first frame" else ("partial" if problems else "complete")
+            self.manifest = self._write_manifest(problems)
+            self._close_cameras()
+            self.phase = "stopped"
+            return self.manifest
+
+    def _note_trailing_gaps(self, stop_mono: float) -> None:
+        """A camera silent at the end (still off the network when the scan stopped) has a gap
+        that no later frame reveals: it is added here."""
+        rec = self.recorder.recording
+        for cam in self.cameras:
+            p = self.recorder.progress[cam.name]
+            if p.last_frame is None:
+                continue
+            silent = stop_mono - p.last_frame
+            if silent > max(1.0, 3.0 / cam.fps):
+                w = rec.writers[cam.name]
+                rec.add_gap(cam.name, {"after_frame": w.frames - 1, "camera_t0": w.last_camera_time,
+                                       "camera_t1": None, "missing": int(round(silent * cam.fps)),
+                                       "reason": f"no frames for the last {silent:.1f} s of the scan",
+                                       "host_time": self.times["stopped"]})
+
+    def _problems(self) -> list[str]:
+        out = []
+        rec = self.recorder.recording
+        for name, gaps in rec.gaps.items():
+            p = self.recorder.progress[name]
+            if p.error:
+                out.append(p.error if p.error.startswith(f"camera {name}") else f"camera {name}: {p.error}")
+            if gaps:
+                missing = sum(g.get("missing", 0) for g in gaps)
+                out.append(f"camera {name}: {missing} frame(s) missing in {len(gaps)} gap(s), "
+                           f"{p.reconnects} reconnect(s)")
+            if "error" in (self.cam_notes[name].get("clock_offset_after") or {}):
+                out.append(f"camera {name}: clock offset after the scan not measured")
+        out += [f"trigger: {e}" for e in self.trigger.info["errors"]]
+        return out
+
+    def _write_manifest(self, problems: list[str] | None = None) -> dict:
+        rec = self.recorder.recording
+        for name, notes in self.cam_notes.items():
+            rec.notes[name].update(notes)
+        rec.meta["scan"] = {"times": dict(self.times), "duration_asked": self.duration,
+                            "stop_reason": self.stop_reason, "problems": problems or [],
+                            "steps": [s.name for s in self.plan()]}
+        rec.meta["trigger"] = self.trigger.info
+        for attempt in range(3):  # a camera thread may be adding its notes at this very moment
+            try:
+                data = rec.manifest()
+                break
+            except RuntimeError:
+                if attempt == 2:
+                    raise
+                time.sleep(0.01)
+        write_json_atomic(rec.folder / "manifest.json", data)
+        return data
+
+    def _close_cameras(self) -> None:
+        for cam in self.cameras:
+            cam.close()
+
+    # -- all of it ---------------------------------------------------------------------------------
+    def run(self, on_tick: Callable[[ScanStatus], None] | None = None) -> dict:
+        """start(), wait(), stop(); Ctrl-C stops cleanly (reason ``interrupted``)."""
+        self.start()
+        reason = "interrupted"
+        try:
+            reason = self.wait(on_tick)
+        finally:
+            manifest = self.stop(reason)
+        return manifest
