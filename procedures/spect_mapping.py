@@ -207,6 +207,21 @@ class SpectMapping:
                              **find_kwargs)
         return cls(vts, found.centroids, fre_limit_mm)
 
+    @classmethod
+    def from_stereo(cls, calibration, pts_left, pts_right, volume_path, tol_mm: float = 3.0,
+                    fre_limit_mm: float = FRE_LIMIT_MM) -> "SpectMapping":
+        """The phantom seen by the stereo VTS (marker detections in px, left and right, wall
+        markers and all) and by the SPECT (a volume): the spheres are picked out of the VTS's
+        stereo hypotheses by the shape of the SPECT's centroids
+        (:func:`vts_hw.body_finder.locate_body`), so nothing but the two measurements decides
+        which detection is a sphere."""
+        from ..body_finder import locate_body
+        from ..spect import find_spheres, read_volume
+
+        spect = find_spheres(read_volume(volume_path), strict=True).centroids
+        fit = locate_body(calibration.cameras(), pts_left, pts_right, spect, tol_mm=tol_mm)
+        return cls(fit.points, spect, fre_limit_mm)
+
     # ------------------------------------------------------------------ analysis
     def analyze(self) -> "SpectMapping":
         n_v, n_s = len(self.vts_points), len(self.spect_points)

@@ -23,7 +23,7 @@ from .render import Renderer, encode, polygon_coverage
 from .scene import CameraModel, Scene, rotation_matrix
 
 PATTERN = (9, 6)
-SQUARE_MM = 30.0
+SQUARE_MM = 50.0         # a 9 x 6 board of 50 mm squares (about 550 x 400 mm): see docs/decisions/0015
 BOARD_WHITE = 200.0      # grey level of the white paper under the LEDs' and room light
 BOARD_BLACK = 35.0       # grey level of the printed black squares
 BACKGROUND = 20.0        # the dim room behind the board (as in render.Renderer)
@@ -196,3 +196,17 @@ def decode(jpeg: bytes) -> np.ndarray:
     if img is None:
         raise ValueError("not a JPEG image")
     return img
+
+
+def render_pairs(scene: Scene, n: int = 18, seed: int = 0, pattern: tuple[int, int] = PATTERN,
+                 square_mm: float = SQUARE_MM, cams: tuple[str, str] = ("cam1", "cam2")):
+    """``n`` stereo views of the board as an operator would hold it (:func:`board_poses`):
+    a list of (left, right) grey images and their names ``sim01``…, each image with its own
+    noise."""
+    pairs, names = [], []
+    for k, pose in enumerate(board_poses(scene, n=n, seed=seed, pattern=pattern, square_mm=square_mm)):
+        pairs.append(tuple(decode(render_board(scene, cam, pose, pattern, square_mm,
+                                               seed=seed * 10007 + 2 * k + i))
+                           for i, cam in enumerate(cams)))
+        names.append(f"sim{k + 1:02d}")
+    return pairs, names

@@ -55,7 +55,7 @@ def test_sim_recovers_the_simulated_cameras(tmp_path):
     assert r.returncode == 0, r.stderr
     data = json.loads(r.stdout)
     truth = data["sim_truth"]
-    assert data["unit"] == "mm" and data["square"] == 30.0 and not data["skipped"]
+    assert data["unit"] == "mm" and data["square"] == 50.0 and not data["skipped"]
     assert len(data["per_view"]) == 15
     # Measured (seed 0, 15 poses): stereo RMS 0.058 px; focal errors -0.02 / +0.01 % (cam1),
     # +0.50 / +0.53 % (cam2); baseline +2.1 mm (+0.18 %); stereo rotation off by 0.33 deg,

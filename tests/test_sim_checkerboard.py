@@ -87,5 +87,5 @@ def test_truth_corners_order_matches_board_points(scene, poses):
     from vts_hw.calibration import board_points
 
     R, t = poses[0]
-    world = board_points((9, 6), 30.0).astype(float) @ R.T + t
+    world = board_points((9, 6), cb.SQUARE_MM).astype(float) @ R.T + t
     assert np.allclose(cb.truth_corners(scene, "cam2", poses[0]), scene.cameras["cam2"].project(world))

@@ -103,6 +103,13 @@ class StereoCalibration:
         p2 = self.K2 @ np.hstack([self.R, self.T.reshape(3, 1)])
         return p1, p2
 
+    def cameras(self) -> list:
+        """The pair as :class:`vts_hw.triangulate.Camera` objects in camera 1's frame (the VTS
+        frame): camera 1 at the origin, camera 2 at ``R``, ``T`` (in ``unit``)."""
+        from .triangulate import Camera
+        return [Camera(self.K1, self.d1, np.eye(3), np.zeros(3), "left"),
+                Camera(self.K2, self.d2, self.R, self.T.ravel(), "right")]
+
     # ---- comparison ------------------------------------------------------------------
     def compare(self, previous: StereoCalibration) -> dict[str, Any]:
         """Change from `previous` to this calibration (this minus previous).

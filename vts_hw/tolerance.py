@@ -101,6 +101,17 @@ DEFAULT_TOLERANCES: dict[str, Window] = {
     "clock_offset_s": Window.symmetric(5.0, 60.0, "s"),
     # parameters that differ from the locked configuration (resolution, compression, fps)
     "params_changed": Window(tolerance_high=0, action_high=0, unit="params"),
+    # 7-sphere steps, VTS against SPECT over every sphere and position. The reference system
+    # reached mean differences of 0.3-0.4 mm, max 1.1-1.3 mm and rotation differences of
+    # 0.1-0.6 deg; a 1 % scale error is 1 mm over the 10 cm the steps cover.
+    "steps_slope": Window(0.98, 0.99, 1.01, 1.02),
+    "steps_intercept_mm": Window.symmetric(1.0, 2.0, "mm"),
+    "steps_r2": Window(action_low=0.995, tolerance_low=0.999),
+    "steps_diff_mean_mm": Window(tolerance_high=0.6, action_high=1.0, unit="mm"),
+    "steps_diff_max_mm": Window(tolerance_high=1.5, action_high=2.5, unit="mm"),
+    "steps_diff_sd_mm": Window(tolerance_high=0.5, action_high=1.0, unit="mm"),
+    "steps_rotation_diff_deg": Window.symmetric(0.75, 1.5, "deg"),
+    "steps_translation_diff_mm": Window.symmetric(0.75, 1.5, "mm"),
 }
 
 

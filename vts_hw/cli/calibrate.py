@@ -130,18 +130,23 @@ def _compare_text(change: dict, prev_path: Path) -> str:
     return "\n".join(lines)
 
 
+def _sim_square_mm() -> float:
+    from ..sim_devices.checkerboard import SQUARE_MM
+    return SQUARE_MM
+
+
 @calibrate.command()
 @click.argument("images", nargs=-1, type=click.Path())
 @click.option("--sim", is_flag=True, help="Calibrate from checkerboard views rendered by the simulator"
               " (no IMAGES) and compare with the simulated cameras.")
-@click.option("--sim-poses", type=click.IntRange(3, 200), default=18, show_default=True,
+@click.option("--sim-poses", type=click.IntRange(3, 200), default=20, show_default=True,
               help="Number of simulated board poses.")
 @click.option("--sim-seed", type=int, default=0, show_default=True,
               help="Seed of the simulated rig, poses and noise.")
 @click.option("--pattern", default="9x6", show_default=True, callback=_pattern,
               help="Inner corners of the board, COLSxROWS.")
 @click.option("--square", type=click.FloatRange(min=0, min_open=True), default=None,
-              help="Side of a square (default: 30 mm with --sim, else 1 square).")
+              help="Side of a square (default: the simulated board's 50 mm with --sim, else 1 square).")
 @click.option("--unit", type=click.Choice(["mm", "squares"]), default=None,
               help="Unit of --square (default: mm when --square or --sim is given, else squares).")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default="calibration.json",
@@ -169,7 +174,7 @@ def stereo(images: tuple[str, ...], sim: bool, sim_poses: int, sim_seed: int,
     if unit is None:
         unit = "mm" if (square is not None or sim) else "squares"
     if square is None:
-        square = 30.0 if (sim and unit == "mm") else 1.0
+        square = _sim_square_mm() if (sim and unit == "mm") else 1.0
     if unit == "squares" and square != 1.0:
         raise click.UsageError("with --unit squares the square is 1; give --unit mm with --square")
 
@@ -191,16 +196,9 @@ def stereo(images: tuple[str, ...], sim: bool, sim_poses: int, sim_seed: int,
         from ..sim_devices.scene import Scene
 
         scene = Scene.reference(sim_seed, start_epoch=0.0)
-        square_mm = square if unit == "mm" else cb.SQUARE_MM  # "squares": a 30 mm board
-        poses = cb.board_poses(scene, n=sim_poses, seed=sim_seed, pattern=pattern,
-                               square_mm=square_mm)
-        pairs, names = [], []
-        for k, pose in enumerate(poses):
-            views = [cb.decode(cb.render_board(scene, cam, pose, pattern, square_mm,
-                                               seed=sim_seed * 10007 + 2 * k + i))
-                     for i, cam in enumerate(("cam1", "cam2"))]
-            pairs.append(tuple(views))
-            names.append(f"sim{k + 1:02d}")
+        square_mm = square if unit == "mm" else cb.SQUARE_MM  # "squares": the simulated board
+        pairs, names = cb.render_pairs(scene, n=sim_poses, seed=sim_seed, pattern=pattern,
+                                       square_mm=square_mm)
         calib = calibrate_stereo(pairs, pattern=pattern, square=square, unit=unit, names=names)
         truth = sim_truth(calib, scene) if unit == "mm" else None
     else:

@@ -1,0 +1,166 @@
+"""Find a known rigid body (the 7-sphere phantom) among the points the VTS sees.
+
+The stereo VTS sees more than the phantom: the wall markers behind the gantry, and, with two
+cameras, pairings that the epipolar constraint alone cannot decide (two spheres near one
+epipolar line). The SPECT sees only the hot spheres. So the phantom is found by its shape:
+
+* :func:`candidate_points` triangulates *every* pairing of a detection in camera A with a
+  detection in camera B that the epipolar constraint allows (ambiguous ones included): each is
+  a hypothesis, a 3D point with the two detections it came from.
+* :func:`find_body` looks for the template's shape (for instance the SPECT centroids at the same
+  table position, in their own frame) among those hypotheses: every ordered triple of points
+  whose distances match a well-spread triple of the template within ``tol_mm`` gives a rigid
+  fit; the fit that brings the most template points onto a hypothesis wins. A detection used by
+  two spheres, or a second fit as good as the best with another assignment, is an error, not a
+  guess.
+
+Distances are in mm; a wrong pairing of two spheres on one epipolar line lands centimetres away
+in depth, far outside the tolerance, so shape decides what the epipolar constraint could not.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from .errors import DataError
+from .registration import RigidTransform, kabsch
+from .triangulate import epipolar_distances, triangulate
+
+__all__ = ["Hypotheses", "BodyFit", "candidate_points", "find_body", "locate_body"]
+
+DEFAULT_TOL_MM = 3.0
+
+
+@dataclass(frozen=True)
+class Hypotheses:
+    """3D points from every epipolar-allowed pairing: ``points[k]`` from detection
+    ``pairs[k][0]`` of camera A and ``pairs[k][1]`` of camera B (reprojection RMS ``rms_px``)."""
+
+    points: np.ndarray          # (K, 3) mm, in the cameras' world frame
+    pairs: np.ndarray           # (K, 2) int
+    rms_px: np.ndarray          # (K,)
+
+
+@dataclass(frozen=True)
+class BodyFit:
+    """The template found: ``points[i]`` is template point ``i`` as seen (``index[i]`` into
+    the searched points); ``transform`` takes template coordinates onto them."""
+
+    points: np.ndarray          # (M, 3)
+    index: np.ndarray           # (M,) int
+    transform: RigidTransform
+    rms_mm: float               # RMS distance template (moved) -> found points
+    candidates_tried: int
+
+
+def candidate_points(cams: Sequence, pts_a, pts_b, max_px: float = 2.0) -> Hypotheses:
+    """Triangulate every pairing (i in A, j in B) whose symmetric epipolar distance is below
+    ``max_px`` (the detections' pixels, distortion included)."""
+    a = np.asarray(pts_a, float).reshape(-1, 2)
+    b = np.asarray(pts_b, float).reshape(-1, 2)
+    if len(a) == 0 or len(b) == 0:
+        return Hypotheses(np.zeros((0, 3)), np.zeros((0, 2), int), np.zeros(0))
+    d = epipolar_distances(cams[0], a, cams[1], b)
+    ii, jj = np.nonzero(d < max_px)
+    if len(ii) == 0:
+        return Hypotheses(np.zeros((0, 3)), np.zeros((0, 2), int), np.zeros(0))
+    tri = triangulate(list(cams[:2]), [a[ii], b[jj]])
+    return Hypotheses(np.asarray(tri.points), np.stack([ii, jj], axis=1), np.asarray(tri.rms_px))
+
+
+def _anchor(template: np.ndarray) -> tuple[int, int, int]:
+    """The template triple with the largest triangle: the best conditioned fit from 3 points."""
+    best, area = (0, 1, 2), -1.0
+    for i, j, k in itertools.combinations(range(len(template)), 3):
+        a = 0.5 * np.linalg.norm(np.cross(template[j] - template[i], template[k] - template[i]))
+        if a > area:
+            best, area = (i, j, k), a
+    return best
+
+
+def find_body(points, template, tol_mm: float = DEFAULT_TOL_MM,
+              exclusive: np.ndarray | None = None) -> BodyFit:
+    """Where the rigid ``template`` (M×3) lies among ``points`` (N×3, N ≥ M).
+
+    ``exclusive`` (N×k ints, optional) names what each point is made of (e.g. the two
+    detections of a stereo hypothesis): two template points may not share any of it.
+    Raises :class:`DataError` when the template is not found whole within ``tol_mm``, or when
+    two different assignments fit it equally well.
+    """
+    pts = np.asarray(points, float).reshape(-1, 3)
+    tpl = np.asarray(template, float).reshape(-1, 3)
+    m = len(tpl)
+    if m < 3:
+        raise DataError(f"a body needs at least 3 points to be found, the template has {m}.")
+    if len(pts) < m:
+        raise DataError(f"only {len(pts)} point(s) seen, the body has {m}.")
+    a, b, c = _anchor(tpl)
+    dab, dac, dbc = (np.linalg.norm(tpl[p] - tpl[q]) for p, q in ((a, b), (a, c), (b, c)))
+    dist = np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=-1)
+    fits: list[tuple[int, float, tuple, RigidTransform]] = []
+    tried = 0
+    for i, j in zip(*np.nonzero(np.abs(dist - dab) < tol_mm)):
+        if i == j:
+            continue
+        ks = np.nonzero((np.abs(dist[i] - dac) < tol_mm) & (np.abs(dist[j] - dbc) < tol_mm))[0]
+        for k in ks:
+            if k in (i, j):
+                continue
+            tried += 1
+            tr = kabsch(tpl[[a, b, c]], pts[[i, j, k]])
+            moved = tr.apply(tpl)
+            dd = np.linalg.norm(moved[:, None, :] - pts[None, :, :], axis=-1)
+            near = np.argmin(dd, axis=1)
+            ok = dd[np.arange(m), near] < tol_mm
+            if ok.sum() < 3:
+                continue
+            fits.append((int(ok.sum()), 0.0, tuple(np.where(ok, near, -1)), tr))
+    if not fits:
+        raise DataError(f"the {m}-point body was not found among the {len(pts)} points seen "
+                        f"(no three of them match its shape within {tol_mm:g} mm).")
+    # refine each distinct assignment on all its inliers, then rank
+    ranked: dict[tuple, tuple[int, float, RigidTransform]] = {}
+    for n_in, _, assign, _tr in fits:
+        if assign in ranked:
+            continue
+        sel = np.array([i for i, p in enumerate(assign) if p >= 0])
+        idx = np.array([assign[i] for i in sel])
+        tr = kabsch(tpl[sel], pts[idx])
+        rms = float(np.sqrt(np.mean(np.sum((tr.apply(tpl[sel]) - pts[idx]) ** 2, axis=1))))
+        ranked[assign] = (n_in, rms, tr)
+    order = sorted(ranked.items(), key=lambda kv: (-kv[1][0], kv[1][1]))
+    assign, (n_in, rms, tr) = order[0]
+    if n_in < m:
+        missing = [str(i + 1) for i, p in enumerate(assign) if p < 0]
+        raise DataError(f"the body was found with {n_in} of its {m} points: point(s) "
+                        f"{', '.join(missing)} not seen within {tol_mm:g} mm of where they belong.")
+    idx = np.array(assign, int)
+    if len(set(idx.tolist())) < m or (exclusive is not None and _shares(exclusive, idx)):
+        raise DataError("two points of the body were matched to the same detection: the view is "
+                        "ambiguous at this position.")
+    for other, (n2, rms2, _) in order[1:]:
+        if n2 == m and other != assign and rms2 < max(2.0 * rms, 0.5 * tol_mm) \
+                and not (exclusive is not None and _shares(exclusive, np.array(other, int))):
+            raise DataError(f"the body fits two ways among the points seen (RMS {rms:.2f} and "
+                            f"{rms2:.2f} mm): ambiguous, not guessed.")
+    return BodyFit(pts[idx], idx, tr, rms, tried)
+
+
+def _shares(exclusive: np.ndarray, idx: np.ndarray) -> bool:
+    ex = np.asarray(exclusive)[idx]
+    for col in range(ex.shape[1]):
+        if len(set(ex[:, col].tolist())) < len(idx):
+            return True
+    return False
+
+
+def locate_body(cams: Sequence, pts_a, pts_b, template, tol_mm: float = DEFAULT_TOL_MM,
+                max_px: float = 2.0) -> BodyFit:
+    """The body ``template`` seen by a stereo pair: :func:`candidate_points` then
+    :func:`find_body`, no detection used twice."""
+    hyp = candidate_points(cams, pts_a, pts_b, max_px)
+    return find_body(hyp.points, template, tol_mm, exclusive=hyp.pairs)
