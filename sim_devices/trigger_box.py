@@ -111,6 +111,7 @@ class SimTriggerBox:
         self._uart: list[UartByte] = []
         self._log_pos = 0
         self._log_path: Path | None = None
+        self._anchor: tuple[int, float, float] | None = None   # (cycle, host epoch s, speed)
 
     # ------------------------------------------------------------------ life cycle
     def start(self) -> "SimTriggerBox":
@@ -125,6 +126,7 @@ class SimTriggerBox:
         tag = f"boot{self.boots}"
         self._log_path = self.dir / f"{tag}.edges.log"
         self._edges, self._uart, self._log_pos = [], [], 0
+        self._anchor = None
         pty_file = self.dir / f"{tag}.pty"
         self._status_path = self.dir / f"{tag}.status"
         cmd = [str(harness), "--edges", str(self._log_path), "--pty-file", str(pty_file),
@@ -212,6 +214,9 @@ class SimTriggerBox:
         end = data.rfind(b"\n") + 1      # only whole lines; the rest comes next time
         self._log_pos += end
         for line in data[:end].decode("ascii", "replace").splitlines():
+            if line.startswith("# t0 "):      # the pacing's host-time anchor (tbsim.c)
+                cycle, realtime, _mono, speed = line.split()[2:6]
+                self._anchor = (int(cycle), float(realtime), float(speed))
             if not line or line.startswith("#"):
                 continue
             cycle, what, value = line.split()
@@ -226,6 +231,24 @@ class SimTriggerBox:
         if pin is None:
             return list(self._edges)
         return [e for e in self._edges if e.pin == pin]
+
+    def host_time(self, cycle: int) -> float:
+        """The host time (UTC epoch seconds) at which the emulation is paced to reach ``cycle``:
+        ``t0 + (cycle - c0) / F_CPU / speed`` from the anchor the harness logs as it starts.
+        The emulation keeps to it within ~0.2 ms while the host gives it the CPU (it lags
+        and catches up after a stall). Needs ``speed > 0``."""
+        if self._anchor is None:
+            deadline = time.monotonic() + 5.0
+            while self._anchor is None and time.monotonic() < deadline:
+                self._read_log()
+                if self._anchor is None:
+                    time.sleep(0.002)
+        if self._anchor is None:
+            raise RuntimeError("the trigger box emulator has logged no host-time anchor")
+        c0, t0, speed = self._anchor
+        if speed <= 0:
+            raise RuntimeError("emulated cycles have no host time at speed 0 (as fast as possible)")
+        return t0 + (cycle - c0) / F_CPU / speed
 
     def uart(self) -> list[UartByte]:
         """Every serial byte so far, oldest first (empty with ``log_uart=False``)."""

@@ -10,7 +10,9 @@
  *     and, unless --no-uart-log, every byte on the serial line:
  *         <cycle> RX <hex>     host -> device, the cycle the byte was handed to the UART
  *         <cycle> TX <hex>     device -> host, the cycle the firmware wrote UDR0
- *     Lines starting with '#' are comments.
+ *     Lines starting with '#' are comments; one of them, written as the emulation starts,
+ *     anchors emulated cycles to host time (see the pacing below):
+ *         # t0 <cycle> <CLOCK_REALTIME epoch s> <CLOCK_MONOTONIC s> <speed>
  *
  * Usage: tbsim --edges FILE [--pty-file FILE] [--status FILE] [--speed X]
  *              [--mcu NAME] [--freq HZ] [--no-uart-log] FIRMWARE.elf
@@ -377,6 +379,13 @@ int main(int argc, char **argv)
 	const double ahead_slack_s = 0.00002;
 	double t0 = now_s();
 	avr_cycle_count_t c0 = avr->cycle;
+	/* the host-time anchor of the pacing: cycle c0 is due at t0, cycle c at
+	 * t0 + (c - c0) / frequency / speed (CLOCK_REALTIME epoch seconds and CLOCK_MONOTONIC) */
+	struct timespec rt0;
+	clock_gettime(CLOCK_REALTIME, &rt0);
+	fprintf(log_file, "# t0 %llu %.9f %.9f %.9g\n", (unsigned long long)c0,
+		rt0.tv_sec + rt0.tv_nsec * 1e-9, t0, speed);
+	fflush(log_file);
 	avr_cycle_count_t next_check = c0 + check_every;
 	double next_status = t0;
 	const pid_t parent = getppid();
