@@ -213,10 +213,16 @@ class AxisCamera:
         return text
 
     # -- images --------------------------------------------------------------------
-    def snapshot(self) -> Frame:
-        """One JPEG from ``jpg/image.cgi``, with its camera time and host receive time."""
+    def snapshot(self, compression: int | None = None) -> Frame:
+        """One JPEG from ``jpg/image.cgi``, with its camera time and host receive time.
+
+        ``compression`` (0-100, VAPIX) overrides the configured one for this request only: the
+        camera's own settings, and so its stream, are left as they are."""
+        comp = self.compression if compression is None else int(compression)
+        if not 0 <= comp <= 100:
+            raise ValueError(f"compression must be 0-100, not {comp}")
         r = self.request("GET", "/axis-cgi/jpg/image.cgi",
-                         params={"resolution": self.resolution, "compression": self.compression})
+                         params={"resolution": self.resolution, "compression": comp})
         data = r.content
         host_t = self.clock()
         ctype = r.headers.get("content-type", "")

@@ -40,6 +40,11 @@ from .steps_analysis import StepAnalysis
 
 N_SPHERES = 7
 LED_SETTLE_S = 0.2
+# VAPIX compression of the QA snapshots (JPEG quality about 90): asked per request, so the
+# cameras' configured stream (compression 25, quality about 75) is untouched. At the stream's
+# compression the JPEG's block artefacts bias each centroid by a few hundredths of a pixel, the
+# same in every frame, so averaging frames cannot remove them (docs/decisions/0015).
+SNAPSHOT_COMPRESSION = 10
 POSITIONS_FILE = "positions.json"
 
 
@@ -164,8 +169,8 @@ class StepSession:
 
     def __init__(self, cameras: Sequence, calibration, mapping, positioner: Positioner,
                  spect: SpectSource, out_dir, plan: list[StepPosition] | None = None,
-                 frames: int = 5, tol_mm: float = 3.0, progress: Callable[[str], None] | None = None,
-                 clock: Callable[[], float] = time.time):
+                 frames: int = 10, tol_mm: float = 3.0, progress: Callable[[str], None] | None = None,
+                 clock: Callable[[], float] = time.time, compression: int | None = SNAPSHOT_COMPRESSION):
         if len(cameras) != 2:
             raise DataError(f"the step test needs a stereo pair of cameras, got {len(cameras)}.")
         if getattr(calibration, "unit", "mm") != "mm":
@@ -182,14 +187,15 @@ class StepSession:
         self.tol_mm = tol_mm
         self.progress = progress or (lambda m: None)
         self.clock = clock
+        self.compression = compression
         self.seen: list[SeenPosition] = []
 
     def plan(self) -> list[str]:
         names = [getattr(c, "name", f"camera {i + 1}") for i, c in enumerate(self.cameras)]
         out = [f"LED on: {', '.join(names)}"]
         for p in self.plan_:
-            out.append(f"{p.label}: {p.instruction} Then {self.frames} snapshots per camera; the "
-                       "SPECT acquires and reconstructs this position")
+            out.append(f"{p.label}: {p.instruction} Then {self.frames} snapshots per camera (compression "
+                       f"{self.compression}); the SPECT acquires and reconstructs this position")
         out.append(f"save what the VTS saw to {self.out / POSITIONS_FILE} after each position")
         out.append("per position: SPECT sphere centroids, the same spheres in the VTS (stereo), mapped "
                    "to the SPECT frame; regression, differences, 6-DOF move; store the run")
@@ -209,7 +215,7 @@ class StepSession:
             pts = {}
             for k, cam in enumerate(self.cameras):
                 name = getattr(cam, "name", f"cam{k + 1}")
-                snaps = [cam.snapshot() for _ in range(self.frames)]
+                snaps = [cam.snapshot(self.compression) for _ in range(self.frames)]
                 (self.out / f"{pos.label}-{name}.jpg").write_bytes(snaps[0].jpeg)
                 pts[name] = average_centroids([detect_jpeg(s.jpeg) for s in snaps]).tolist()
             self.spect.acquired(pos)

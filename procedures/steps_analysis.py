@@ -229,7 +229,7 @@ class StepAnalysis:
         a = axes[3]
         pos = np.arange(len(self.labels))
         for m in range(self.diffs.shape[1]):
-            a.plot(pos, self.diffs[:, m], ".-", lw=0.6, ms=3, label=f"S{m + 1}")
+            a.plot(pos, self.diffs[:, m], ".-", lw=0.6, ms=3, label=f"sphere {m + 1}")
         a.set_xticks(pos)
         a.set_xticklabels(self.labels, rotation=90, fontsize=7)
         a.set_ylabel("VTS–SPECT distance mm")

@@ -71,10 +71,13 @@ def score(analysis: StepAnalysis, truth: dict[str, np.ndarray], mapping_transfor
     }
 
 
-def run_sim_steps(out_dir, seed: int = 0, *, frames: int = 5, n_vertical: int = 10, n_axial: int = 10,
+def run_sim_steps(out_dir, seed: int = 0, *, frames: int = 10, n_vertical: int = 10, n_axial: int = 10,
                   poses: int = 20, store=None, tolerances=None, operator: str = "sim",
-                  progress: Callable[[str], None] | None = None, plot: bool = True) -> SimStepsResult:
-    """Calibrate, map and run the step test on a simulated rig of its own; score it."""
+                  progress: Callable[[str], None] | None = None, plot: bool = True,
+                  rig=None, compression: int | None = None) -> SimStepsResult:
+    """Calibrate, map and run the step test on a simulated rig (``rig``, a running SimRig, or
+    one of its own); score it."""
+    import contextlib
     import time
 
     from ..calibration import calibrate_stereo
@@ -85,19 +88,25 @@ def run_sim_steps(out_dir, seed: int = 0, *, frames: int = 5, n_vertical: int = 
     from ..sim_devices.spect import SimSpect
     from ..sim_devices.step_table import SPECT_MATRIX, sphere_centres
     from .spect_mapping import SpectMapping
-    from .steps import LED_SETTLE_S, StepSession, average_centroids, step_plan, store_steps
+    from .steps import (LED_SETTLE_S, SNAPSHOT_COMPRESSION, StepSession, average_centroids, step_plan,
+                        store_steps)
     from ..detect import detect_jpeg
 
     say = progress or (lambda m: None)
+    compression = SNAPSHOT_COMPRESSION if compression is None else compression
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    with SimRig(n_cameras=2, seed=seed) as rig, rig.env():
+    with contextlib.ExitStack() as stack:
+        if rig is None:
+            rig = stack.enter_context(SimRig(n_cameras=2, seed=seed))
+        stack.enter_context(rig.env())
         cfg = rig.config()
         scene = rig.scene
-        scene.add_phantom()
+        if "phantom" not in scene.bodies:
+            scene.add_phantom()
         clock = rig.clock.now
         say(f"stereo calibration from {poses} rendered checkerboard views")
-        pairs, names = cb.render_pairs(scene, n=poses, seed=seed)
+        pairs, names = cb.render_pairs(scene, n=poses, seed=seed, t=clock())
         calib = calibrate_stereo(pairs, square=cb.SQUARE_MM, unit="mm", names=names)
         calib.save(out / "calibration.json")
         say(f"  RMS {calib.rms_left:.3f} / {calib.rms_right:.3f} / {calib.rms_stereo:.3f} px")
@@ -107,19 +116,22 @@ def run_sim_steps(out_dir, seed: int = 0, *, frames: int = 5, n_vertical: int = 
                 cam.led_on()
             time.sleep(LED_SETTLE_S)
             say("VTS -> SPECT mapping from the phantom at its placement")
-            pts = [average_centroids([detect_jpeg(cam.snapshot().jpeg) for _ in range(frames)])
+            pts = [average_centroids([detect_jpeg(cam.snapshot(compression).jpeg)
+                                      for _ in range(frames)])
                    for cam in cams]
             vol = SimSpect(matrix=SPECT_MATRIX, seed=seed * 1009 + 999).write(
                 out / "mapping-volume.npz", sphere_centres(scene, clock()))
             mapping = SpectMapping.from_stereo(calib, pts[0], pts[1], vol).analyze()
             mapping.save(out / "spect_mapping.json")
             say(f"  FRE {mapping.fre_mm:.2f} mm, leave-one-out TRE {mapping.tre.rms:.2f} mm")
-            table = SimTable(scene, clock, seed=seed)
+            # a virtual clock moves on a little per position, as the table would take time
+            settle = (lambda: rig.clock.advance(20.0)) if hasattr(rig.clock, "advance") else None
+            table = SimTable(scene, clock, seed=seed, settle=settle)
             spect = SimSpectSource(scene, clock, out / "spect", seed=seed)
             started = clock()
             session = StepSession(cams, calib, mapping.transform, table, spect, out,
                                   plan=step_plan(n_vertical, n_axial), frames=frames, progress=say,
-                                  clock=clock)
+                                  clock=clock, compression=compression)
             session.acquire()
         finally:
             for cam in cams:

@@ -199,10 +199,13 @@ def decode(jpeg: bytes) -> np.ndarray:
 
 
 def render_pairs(scene: Scene, n: int = 18, seed: int = 0, pattern: tuple[int, int] = PATTERN,
-                 square_mm: float = SQUARE_MM, cams: tuple[str, str] = ("cam1", "cam2")):
+                 square_mm: float = SQUARE_MM, cams: tuple[str, str] = ("cam1", "cam2"),
+                 t: float | None = None):
     """``n`` stereo views of the board as an operator would hold it (:func:`board_poses`):
     a list of (left, right) grey images and their names ``sim01``…, each image with its own
-    noise."""
+    noise. With ``t`` the cameras are as they are at ``t`` (drift included), else as mounted."""
+    if t is not None:
+        cams = tuple(scene.camera_at(c, t) for c in cams)
     pairs, names = [], []
     for k, pose in enumerate(board_poses(scene, n=n, seed=seed, pattern=pattern, square_mm=square_mm)):
         pairs.append(tuple(decode(render_board(scene, cam, pose, pattern, square_mm,

@@ -49,3 +49,18 @@ def test_forecast_agrees_with_the_injected_trend(demo):
             continue
         assert fc["status"] == "date" and fc["level"] == level
         assert abs(fc["t"] - t_cross) < 3 * DAY, (axis, (fc["t"] - t_cross) / DAY)
+
+
+def test_the_step_test_follows_the_daily_qa_and_is_in_the_report(demo):
+    steps = demo.steps
+    assert steps is not None and steps.run_id is not None
+    assert all(r.r2 >= 0.999 for r in steps.analysis.regressions.values())
+    assert steps.scores["position_rms_mm"] <= 0.15
+    with ResultsStore(demo.store_path) as store:
+        runs = store.runs(procedure="sphere-steps")
+        assert [r.id for r in runs] == [steps.run_id]
+        # after the last daily run, on the demo's clock
+        assert runs[0].started > max(r.when for r in demo.rows)
+    html = demo.report_html.read_text()
+    assert f'alt="7-sphere step test, run {steps.run_id}"' in html
+    assert 'data-plots-expected="3"' in html     # two cameras' drift and the step test

@@ -37,6 +37,7 @@ class DemoResult:
     report_html: Path
     report_pdf: Path
     max_error_px: dict[str, tuple[float, float]]
+    steps: object = None  # the step test's SimStepsResult
 
 
 def injected_drift(scene, cam: str, t0: float, t1: float) -> tuple[float, float]:
@@ -54,6 +55,7 @@ def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 
     from .procedures.baseline import save_baselines
     from .procedures.daily import QARun
     from .procedures.drift import Baseline, acquire_led_frames
+    from .procedures.steps_sim import run_sim_steps
     from .report import build_drift_report
     from .sim_devices.clock import VirtualClock
     from .sim_devices.rig import SimRig
@@ -102,8 +104,15 @@ def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 
                 rows.append(row)
                 if on_day:
                     on_day(row)
+            say("7-sphere step test: stereo calibration, VTS -> SPECT mapping, 22 positions")
+            steps = run_sim_steps(out / "steps", seed, store=store, rig=rig, operator="demo",
+                                  tolerances=cfg.tolerances)
+            say(f"step test: {steps.analysis.state} (run {steps.run_id}); against the truth: 3D RMS "
+                f"{steps.scores['position_rms_mm']:.3f} mm, move off by "
+                f"{steps.scores['move_rotation_error_deg']:.3f} deg / "
+                f"{steps.scores['move_translation_error_mm']:.3f} mm")
             now = clock.now()
-            say("writing the drift trend report")
+            say("writing the QA report (drift trend and step test)")
             html = out / "drift-report.html"
             pdf = out / "drift-report.pdf"
             build_drift_report(store, html, now=now, rig=cfg.rig)
@@ -115,4 +124,4 @@ def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 
                 ex, ey = abs(v["dx"] - v["truth_dx"]), abs(v["dy"] - v["truth_dy"])
                 px, py = err.get(cam, (0.0, 0.0))
                 err[cam] = (max(px, ex), max(py, ey))
-    return DemoResult(rows, db, html, pdf, err)
+    return DemoResult(rows, db, html, pdf, err, steps)

@@ -25,7 +25,7 @@ def cli(verbose: int) -> None:
 
 
 def _register() -> None:
-    from . import (calibrate, camera, demo, qa, recording, report, scan, sim,  # noqa: F401  (each adds its commands)
+    from . import (calibrate, camera, demo, qa, qa_steps, recording, report, scan, sim,  # noqa: F401
                    sync, trigger)
 
 

@@ -26,7 +26,9 @@ def demo(out: str, days: int, seconds: float, frames: int) -> None:
     2. The daily QA: baseline on day 0, then the daily set once per simulated day for --days
        days on a virtual clock (cam2 drifts past its tolerance along the way), stored in a
        fresh results store, each day's measured drift compared with the drift the scene injected.
-    3. The drift trend report, HTML and PDF.
+    3. The 7-sphere step test on the same rig: stereo calibration from rendered checkerboards,
+       the VTS -> SPECT mapping, then 22 table positions, scored against the truth.
+    4. The QA report (drift trend and step test), HTML and PDF.
     """
     out_dir = Path(out)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -101,6 +103,13 @@ def _daily(out_dir: Path, days: int, frames: int) -> None:
     states = [r.state for r in res.rows]
     click.echo(f"\n{len(states)} daily runs: {states.count('OK')} OK, {states.count('TOLERANCE')} TOLERANCE, "
                f"{states.count('ACTION')} ACTION")
+    if res.steps is not None:
+        click.echo("\n== 3. the 7-sphere step test (after the daily QA, same rig)")
+        click.echo(res.steps.analysis.results())
+        sc = res.steps.scores
+        click.echo(f"against the truth: VTS 3D RMS {sc['position_rms_mm']:.3f} mm (goal <= 0.15), 6-DOF move "
+                   f"rotation {sc['move_rotation_error_deg']:.4f} deg (goal <= 0.05), translation "
+                   f"{sc['move_translation_error_mm']:.3f} mm (goal <= 0.1)")
     click.echo(f"results store: {res.store_path}")
     click.echo(f"report:        {res.report_html}")
     click.echo(f"               {res.report_pdf}")

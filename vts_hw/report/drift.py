@@ -123,6 +123,9 @@ def _mm_per_px(points: list[RunPoint], axis: str) -> float | None:
     return float(np.sum(px[ok] * mm[ok]) / den) if den > 1e-12 else None
 
 
+from .steps import collect_steps  # noqa: E402
+
+
 def collect(store, since: float | None = None, now: float | None = None, rig: str | None = None,
             title: str | None = None) -> DriftReport:
     """Read the store and compute the report's data (nothing is written)."""
@@ -208,7 +211,8 @@ def collect(store, since: float | None = None, now: float | None = None, rig: st
         rig=rig, since=since, now=now, period_start=period_start, cameras=cameras, bands=bands,
         baselines=[RunInfo.of(r) for r in in_period if r.id in baseline_ids],
         not_completed=[RunInfo.of(r) for r in in_period if not _completed(r) and r.id not in baseline_ids],
-        software_version=__version__, control_method=CONTROL_METHOD)
+        software_version=__version__, control_method=CONTROL_METHOD,
+        steps=collect_steps(store, since, now, rig))
 
 
 def _camera_sort_key(name: str):

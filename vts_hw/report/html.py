@@ -15,6 +15,7 @@ from pathlib import Path
 from .model import AXES, CameraDrift, DriftReport, RunPoint
 from .plots import STATE_COLOURS, camera_figure, figure_png
 from .text import camera_forecast_text, fmt_num, fmt_slope, forecast_text, latest_text, led_text, period_text
+from .steps import steps_html
 from .times import fmt_date, fmt_datetime
 from .trend import CONTROL_RUNS
 
@@ -255,6 +256,7 @@ def render_html(report: DriftReport) -> str:
     attention = report.attention()
     items = "".join(f"<li>{escape(a)}</li>" for a in attention) or "<li>Nothing needs attention.</li>"
     cams = "".join(_camera_section(report, c) for c in report.cameras.values() if c.points)
+    steps = steps_html(report.steps) if report.steps is not None else ""
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8">
 <meta name="viewport" content="width=device-width, initial-scale=1">
@@ -272,6 +274,7 @@ def render_html(report: DriftReport) -> str:
 </section>
 <section class="card"><h2>Summary</h2>{_summary(report)}</section>
 {cams}
+{steps}
 <section class="card"><h2>Runs that did not complete</h2>{_run_list(report.not_completed, "None in this period.")}</section>
 <section class="card"><h2>Baselines</h2>{_run_list(report.baselines, "No baseline set in this period.")}</section>
 <section class="card"><h2>Tolerance windows</h2>{_windows_table(report)}</section>

@@ -9,12 +9,16 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..tolerance import State, Window, worst
 from .times import fmt_date
 from .trend import ControlLimits, Forecast, Trend
+
+if TYPE_CHECKING:
+    from .steps import StepsSummary
 
 AXES = ("x", "y")
 # camera-level metrics the drift QA writes (subject = camera name)
@@ -163,6 +167,11 @@ class DriftReport:
     software_version: str
     control_method: str
     out: Path | None = None
+    steps: "StepsSummary | None" = None    # the 7-sphere step tests of the period
+
+    @property
+    def steps_state(self) -> State | None:
+        return None if self.steps is None else self.steps.state
 
     @property
     def state(self) -> State:
@@ -170,8 +179,9 @@ class DriftReport:
 
     @property
     def plot_count(self) -> int:
-        """Plots the report holds: one per camera with runs."""
-        return sum(1 for c in self.cameras.values() if c.points)
+        """Plots the report holds: one per camera with runs, and the step test's."""
+        steps = 1 if self.steps is not None and self.steps.plot_png is not None else 0
+        return sum(1 for c in self.cameras.values() if c.points) + steps
 
     def window_now(self, axis: str) -> Window:
         return self.bands[axis][-1].window
@@ -193,6 +203,10 @@ class DriftReport:
             led = c.events("led_off_visible")
             if led:
                 out.append((1, f"{c.name}: LED check failed on {len(led)} run(s), last {fmt_date(led[-1].t)}"))
+        if self.steps is not None and self.steps.state not in (None, State.OK):
+            bad = sorted({f"{m.metric} ({m.subject})" for m in self.steps.measures if str(m.status) != "OK"})
+            out.append((self.steps.state.rank, f"7-sphere step test: {self.steps.state} in run "
+                                               f"{self.steps.latest.id} ({', '.join(bad)})"))
         if self.not_completed:
             out.append((0, f"{len(self.not_completed)} run(s) did not complete (listed below)"))
         return [text for _, text in sorted(out, key=lambda x: -x[0])]
@@ -209,4 +223,5 @@ class DriftReport:
             "baselines": [r.as_dict() for r in self.baselines],
             "not_completed": [r.as_dict() for r in self.not_completed],
             "attention": self.attention(),
+            "steps": None if self.steps is None else self.steps.results_data(),
         }

@@ -117,3 +117,6 @@ def write_pdf(report: DriftReport, out: Path) -> None:
         for cam in report.cameras.values():
             if cam.points:
                 pdf.savefig(camera_figure(report, cam, figsize=A4_LANDSCAPE, header=_camera_header(report, cam)))
+        if report.steps is not None:
+            from .steps import steps_figure
+            pdf.savefig(steps_figure(report.steps, figsize=A4_LANDSCAPE))

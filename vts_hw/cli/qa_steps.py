@@ -1,0 +1,192 @@
+"""`vts qa steps`: the 7-sphere step test, VTS against SPECT."""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import sys
+import time
+from pathlib import Path
+
+import click
+
+from ..errors import ConfigError, DataError
+from .common import config_option, echo_json, json_option
+from .qa import qa
+
+
+def _default_out() -> Path:
+    return Path(f"steps-{_dt.datetime.now().strftime('%Y%m%d-%H%M%S')}")
+
+
+def _print(analysis, extra_lines, as_json, data_extra=None) -> None:
+    if as_json:
+        data = analysis.results_data()
+        data.update(data_extra or {})
+        echo_json(data)
+        return
+    click.echo(analysis.results())
+    for line in extra_lines:
+        click.echo(line)
+
+
+@qa.command()
+@click.option("--sim", is_flag=True, help="Run the whole chain on a simulated rig of its own: stereo "
+              "calibration from rendered checkerboards, VTS -> SPECT mapping, then the steps with the "
+              "simulated table and SPECT; scored against the truth.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the simulated rig (--sim).")
+@config_option
+@click.option("-o", "--out", "out_dir", type=click.Path(file_okay=False), default=None,
+              help="Session folder: snapshots, positions.json, volumes (--sim), the plot "
+                   "[default: steps-YYYYmmdd-HHMMSS].")
+@click.option("--volumes", type=click.Path(file_okay=False), default=None,
+              help="Folder of the SPECT's reconstructed volumes, one per position named after it "
+                   "(baseline.*, V01.*, ..., A01.*, ..., free.*). Real rig only.")
+@click.option("--calibration", "calibration_path", type=click.Path(dir_okay=False), default=None,
+              help="Stereo calibration file (default: the config's calibration.stereo).")
+@click.option("--mapping", "mapping_path", type=click.Path(dir_okay=False), default=None,
+              help="VTS -> SPECT transform file (default: the config's calibration.spect).")
+@click.option("--analyze", "analyze_dir", type=click.Path(file_okay=False), default=None,
+              help="Do not acquire: analyse the positions a session saved in this folder (with "
+                   "--volumes), e.g. when the reconstructions arrive after the VTS part.")
+@click.option("--frames", type=click.IntRange(1, 100), default=10, show_default=True,
+              help="Snapshots per camera and position (their centroids are averaged).")
+@click.option("--vertical", type=click.IntRange(0, 50), default=10, show_default=True,
+              help="Vertical steps.")
+@click.option("--axial", type=click.IntRange(0, 50), default=10, show_default=True, help="Axial steps.")
+@click.option("--step-mm", type=click.FloatRange(1.0, 100.0), default=10.0, show_default=True,
+              help="Nominal step (what the operator is asked to move).")
+@click.option("--store", "store_url", default=None,
+              help="Results store URL or SQLite file (default: the config's; with --sim "
+                   "OUT/results.sqlite).")
+@click.option("--dry-run", is_flag=True, help="List the steps without touching the rig or the store.")
+@click.option("--operator", default=lambda: os.environ.get("USER", ""), help="Who runs it.")
+@json_option
+def steps(sim, seed, config_path, out_dir, volumes, calibration_path, mapping_path, analyze_dir,
+          frames, vertical, axial, step_mm, store_url, dry_run, operator, as_json) -> None:
+    """The 7-sphere step test: is the VTS a measuring instrument?
+
+    Baseline, VERTICAL steps of about 1 cm up, AXIAL steps of about 1 cm along the table, then a
+    free turn and shift of the phantom. On the real rig the operator moves the table when asked
+    and presses Enter; the SPECT's reconstructions of the positions are read from --volumes. At
+    each position a stereo snapshot gives the spheres in 3D, mapped into the SPECT frame.
+
+    Reported and stored: per axis the regression of VTS against SPECT (slope, intercept, R²),
+    the VTS-SPECT distances (max, mean, SD), and the 6-DOF move from the first position to the
+    last as each system sees it, with the differences; tolerance states, and a plot.
+    Exit status: 0 OK, 10 TOLERANCE, 20 ACTION; 2-5 when the test could not run.
+    """
+    from ..procedures.daily import EXIT_CODES
+    from ..procedures.steps import step_plan
+
+    plan = step_plan(vertical, axial, step_mm)
+    out = Path(out_dir) if out_dir else (Path(analyze_dir) if analyze_dir else _default_out())
+    if sim:
+        if analyze_dir or volumes:
+            raise click.UsageError("--sim makes its own volumes; it takes no --analyze or --volumes")
+        if dry_run:
+            click.echo("1. bring up a simulated rig (2 cameras on 127.0.0.1) with the 7-sphere phantom")
+            click.echo("2. stereo calibration from 20 rendered checkerboard views (50 mm squares)")
+            click.echo("3. VTS -> SPECT mapping from the phantom and a simulated SPECT volume")
+            for i, p in enumerate(plan, 4):
+                click.echo(f"{i}. {p.label}: the simulated table moves; {frames} snapshots per camera; "
+                           "the simulated SPECT writes its volume")
+            click.echo(f"{len(plan) + 4}. analyse, score against the truth, store in "
+                       f"{store_url or out / 'results.sqlite'}")
+            return
+        sys.exit(EXIT_CODES[_run_sim(out, seed, frames, vertical, axial, store_url, operator, as_json)])
+    sys.exit(EXIT_CODES[_run_rig(config_path, out, plan, volumes, calibration_path, mapping_path,
+                                 analyze_dir, frames, store_url, dry_run, operator, as_json)])
+
+
+def _open_store(url):
+    from ..store import ResultsStore
+    return ResultsStore(url)
+
+
+def _run_sim(out, seed, frames, vertical, axial, store_url, operator, as_json):
+    from ..procedures.steps_sim import run_sim_steps
+
+    say = (lambda m: None) if as_json else (lambda m: click.echo(m, err=True))
+    url = store_url or f"sqlite:///{(out / 'results.sqlite').resolve()}"
+    out.mkdir(parents=True, exist_ok=True)
+    with _open_store(url) as store:
+        res = run_sim_steps(out, seed, frames=frames, n_vertical=vertical, n_axial=axial, store=store,
+                            operator=operator or "sim", progress=say)
+    s = res.scores
+    lines = [
+        "Against the simulated truth:",
+        f"  VTS 3D positions: RMS {s['position_rms_mm']:.3f} mm, max {s['position_max_mm']:.3f} mm "
+        f"(through the measured mapping: RMS {s['mapped_rms_mm']:.3f} mm)",
+        f"  6-DOF move: rotation off by {s['move_rotation_error_deg']:.4f} deg, translation by "
+        f"{s['move_translation_error_mm']:.3f} mm",
+        f"  SPECT centroids: RMS {s['spect_centroid_rms_mm']:.3f} mm",
+        f"run {res.run_id} stored in {url}; plot {res.artifacts[0] if res.artifacts else '-'}",
+    ]
+    _print(res.analysis, lines, as_json, {"sim_truth": s, "run_id": res.run_id, "out": str(out)})
+    return res.analysis.state
+
+
+def _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path, analyze_dir, frames,
+             store_url, dry_run, operator, as_json):
+    from ..calibration_io import StereoCalibration
+    from ..config import load_rig
+    from ..drivers.axis import AxisCamera
+    from ..procedures.steps import (OperatorPositioner, StepSession, VolumeFolder, analyze_positions,
+                                    load_positions, store_steps)
+    from ..registration import RigidTransform
+
+    rig = load_rig(config_path)
+    cal_path = calibration_path or rig.calibration.stereo
+    map_path = mapping_path or rig.calibration.spect
+    if cal_path is None:
+        raise ConfigError("no stereo calibration: give --calibration or set calibration.stereo in the "
+                          "rig config (`vts calibrate stereo`).")
+    if map_path is None:
+        raise ConfigError("no VTS -> SPECT mapping: give --mapping or set calibration.spect in the rig "
+                          "config (`vts calibrate spect`).")
+    if len(rig.cameras) < 2:
+        raise ConfigError("the step test needs two cameras in the rig config.")
+    if not volumes:
+        raise click.UsageError("give --volumes DIR: the folder the SPECT's reconstructions of the "
+                               "positions are (or will be) exported to")
+    calib = StereoCalibration.load(cal_path)
+    mapping = RigidTransform.load(map_path)
+    spect = VolumeFolder(volumes)
+    say = (lambda m: None) if as_json else (lambda m: click.echo(m, err=True))
+    started = time.time()
+    if analyze_dir:
+        seen, plan = load_positions(analyze_dir)
+    else:
+        cameras = [AxisCamera.from_config(c) for c in rig.cameras[:2]]
+        ask = OperatorPositioner(lambda text: click.prompt(text, default="", show_default=False,
+                                                           prompt_suffix=" ", err=True))
+        session = StepSession(cameras, calib, mapping, ask, spect, out, plan=plan, frames=frames,
+                              progress=say)
+        if dry_run:
+            for i, step in enumerate(session.plan(), 1):
+                click.echo(f"{i:2d}. {step}")
+            return _ok()
+        try:
+            seen = session.acquire()
+        finally:
+            for c in cameras:
+                c.close()
+        say(f"the VTS part is saved in {out / 'positions.json'}")
+    try:
+        analysis = analyze_positions(seen, plan, calib, mapping, spect, rig.tolerances, progress=say)
+    except DataError as exc:
+        raise DataError(f"{exc} (the VTS part is kept: run `vts qa steps --analyze {out} --volumes "
+                        f"{volumes}` when that is fixed)") from None
+    png = out / "steps.png"
+    analysis.plot(png)
+    with _open_store(store_url or rig.results.url) as store:
+        run_id = store_steps(store, analysis, rig.tolerances, rig=rig.rig, operator=operator,
+                             started=started, config_digest=rig.digest, artifacts=[png])
+    _print(analysis, [f"run {run_id} stored; plot {png}"], as_json, {"run_id": run_id, "out": str(out)})
+    return analysis.state
+
+
+def _ok():
+    from ..tolerance import State
+    return State.OK
