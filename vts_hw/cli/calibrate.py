@@ -11,7 +11,7 @@ import numpy as np
 
 from ..errors import DataError
 from . import cli
-from .common import echo_json, json_option
+from .common import config_option, echo_json, json_option
 
 _IMAGE = re.compile(r"^(left|right)(.*)\.(jpe?g|png|bmp|tiff?)$", re.IGNORECASE)
 
@@ -225,8 +225,6 @@ def stereo(images: tuple[str, ...], sim: bool, sim_poses: int, sim_seed: int,
 
 # ---------------------------------------------------------------- vts calibrate spect
 SIM_FRAMES = 5          # noisy frames averaged per camera in --sim
-SIM_MIN_SEP_PX = 0.3    # match_epipolar min_sep_px in --sim (a few times the averaged noise)
-SIM_LABEL_MM = 5.0      # a triangulated point within this of a true marker is that marker
 
 
 def read_points(path) -> np.ndarray:
@@ -283,36 +281,25 @@ def read_points(path) -> np.ndarray:
     return pts
 
 
-def _average_detections(frames) -> np.ndarray:
-    """Blob centres (N×2) averaged over frames: each blob of the first frame with the nearest
-    blob (within 1 px) of every frame; blobs not seen in every frame are dropped."""
-    first = np.array([(b.x, b.y) for b in frames[0].blobs], dtype=float).reshape(-1, 2)
-    sums, counts = first.copy(), np.ones(len(first))
-    for det in frames[1:]:
-        pts = np.array([(b.x, b.y) for b in det.blobs], dtype=float).reshape(-1, 2)
-        if len(pts) == 0:
-            continue
-        d = np.linalg.norm(first[:, None, :] - pts[None, :, :], axis=-1)
-        near = np.argmin(d, axis=1)
-        ok = d[np.arange(len(first)), near] < 1.0
-        sums[ok] += pts[near[ok]]
-        counts[ok] += 1
-    keep = counts == len(frames)
-    return sums[keep] / counts[keep, None]
-
-
 def sim_spect_inputs(seed: int, workdir: Path) -> tuple[np.ndarray, Path, dict]:
     """The simulated session: the phantom triangulated by the stereo VTS (in camera 1's frame)
     and a SimSpect volume of its true centres (SPECT frame = scene world frame).
 
+    Which detections are spheres (the wall markers are seen too, and some stereo pairings are
+    ambiguous) is decided as on the real rig: by the shape of the SPECT's centroids
+    (:func:`vts_hw.body_finder.locate_body`); the truth is used only to score.
     Returns the VTS points, the volume path and a dict of what the sim did and its truth.
     """
+    from ..body_finder import locate_body
     from ..detect import detect
+    from ..procedures.steps import average_centroids
     from ..registration import RigidTransform
     from ..sim_devices.render import Renderer
     from ..sim_devices.scene import Scene
     from ..sim_devices.spect import SimSpect
-    from ..triangulate import match_epipolar, triangulate
+    from ..sim_devices.step_table import sphere_centres
+    from ..spect import find_spheres, read_volume
+    from ..triangulate import Camera
 
     scene = Scene.reference(seed, start_epoch=0.0)
     scene.add_phantom()
@@ -321,50 +308,65 @@ def sim_spect_inputs(seed: int, workdir: Path) -> tuple[np.ndarray, Path, dict]:
     for cam in names:
         scene.set_led(cam, True, t - 1)
     renderer = Renderer(scene, seed=seed)
-    pts = [_average_detections([detect(renderer.render(cam, t)) for _ in range(SIM_FRAMES)])
+    pts = [average_centroids([detect(renderer.render(cam, t)) for _ in range(SIM_FRAMES)])
            for cam in names]
-    cams = [scene.camera_at(cam, t) for cam in names]  # the true cameras: perfect calibration
-    m = match_epipolar(cams[0], pts[0], cams[1], pts[1], min_sep_px=SIM_MIN_SEP_PX)
-    if not m.pairs:
-        raise DataError("simulation: no stereo matches between the two cameras.")
-    tri = triangulate(cams, [pts[0][m.index_a], pts[1][m.index_b]])
-    world = tri.points
-
-    # Which triangulated point is a phantom sphere (the wall markers are seen too): the sim
-    # labels each point by the nearest true marker.
-    markers = scene.markers_world(t)
-    centres = np.array([mk.center for mk in markers])
-    d = np.linalg.norm(world[:, None, :] - centres[None, :, :], axis=-1)
-    nearest = np.argmin(d, axis=1)
-    is_sphere = np.array([markers[k].id.startswith("S") and d[i, k] < SIM_LABEL_MM
-                          for i, k in enumerate(nearest)], dtype=bool)
-    spheres_true = np.array([mk.center for mk in markers if mk.id.startswith("S")])
-    if is_sphere.sum() != len(spheres_true):
-        raise DataError(f"simulation: the VTS triangulated {int(is_sphere.sum())} of the "
-                        f"{len(spheres_true)} phantom spheres ({len(m.ambiguous)} ambiguous "
-                        "detections withheld).")
-    world = world[is_sphere]
-    tri_err = d[np.flatnonzero(is_sphere), nearest[is_sphere]]
-
-    c1 = cams[0]
-    vts = world @ c1.R.T + c1.t  # the VTS frame: camera 1's
+    true_cams = [scene.camera_at(cam, t) for cam in names]  # the true cameras: perfect calibration
+    c1 = true_cams[0]
+    # in camera 1's frame, as a stereo calibration would give them
+    cams = [Camera(c.K, c.dist, c.R @ c1.R.T, c.t - c.R @ c1.R.T @ c1.t, c.name) for c in true_cams]
+    spheres_true = sphere_centres(scene, t)
     volume = SimSpect(seed=seed).write(workdir / "sim_spect.npz", spheres_true)
+    spect = find_spheres(read_volume(volume), strict=True).centroids
+    fit = locate_body(cams, pts[0], pts[1], spect)
+    vts = fit.points
     truth = RigidTransform(c1.R.T, -c1.R.T @ c1.t)  # VTS (cam1) -> SPECT (world)
+    world = truth.apply(vts)
+    tri_err = np.min(np.linalg.norm(world[:, None, :] - spheres_true[None, :, :], axis=-1), axis=1)
     info = {
         "seed": seed,
         "frames_averaged": SIM_FRAMES,
-        "min_sep_px": SIM_MIN_SEP_PX,
         "calibration": "the simulator's true camera models (as if perfectly calibrated)",
         "vts_frame": "camera 1",
-        "matched_pairs": len(m.pairs),
-        "ambiguous_withheld": len(m.ambiguous),
-        "triangulation_rms_px": float(np.sqrt(np.mean(tri.rms_px[is_sphere] ** 2))),
+        "spheres_found_by": "the shape of the SPECT centroids among the stereo hypotheses",
+        "shape_rms_mm": fit.rms_mm,
         "triangulation_error_mm": {"rms": float(np.sqrt(np.mean(tri_err ** 2))),
                                    "max": float(tri_err.max())},
         "phantom_centre_spect_mm": spheres_true.mean(axis=0),
         "truth": truth,
     }
     return vts, volume, info
+
+
+def _from_cameras(config_path, calibration_path, volume, frames: int, quiet: bool):
+    """The mapping with the VTS side measured now by the rig's first two cameras."""
+    import time
+
+    from ..calibration_io import StereoCalibration
+    from ..config import load_rig
+    from ..detect import detect_jpeg
+    from ..drivers.axis import AxisCamera
+    from ..errors import ConfigError
+    from ..procedures.spect_mapping import SpectMapping
+    from ..procedures.steps import LED_SETTLE_S, SNAPSHOT_COMPRESSION, average_centroids
+
+    rig = load_rig(config_path)
+    path = calibration_path or rig.calibration.stereo
+    if path is None:
+        raise ConfigError("no stereo calibration: give --calibration or set calibration.stereo in the "
+                          "rig config (`vts calibrate stereo`).")
+    if len(rig.cameras) < 2:
+        raise ConfigError("--from-cameras needs two cameras in the rig config.")
+    calib = StereoCalibration.load(path)
+    pts = []
+    for cfg in rig.cameras[:2]:
+        with AxisCamera.from_config(cfg) as cam:
+            cam.led_on()
+            time.sleep(LED_SETTLE_S)
+            if not quiet:
+                click.echo(f"{cam.name}: {frames} snapshots", err=True)
+            pts.append(average_centroids([detect_jpeg(cam.snapshot(SNAPSHOT_COMPRESSION).jpeg)
+                                          for _ in range(frames)]))
+    return SpectMapping.from_stereo(calib, pts[0], pts[1], volume).analyze()
 
 
 def _sim_compare(mapping, info: dict) -> dict:
@@ -387,6 +389,15 @@ def _sim_compare(mapping, info: dict) -> dict:
                    " JSON list of [x, y, z].")
 @click.option("--volume", type=click.Path(), default=None,
               help="Reconstructed SPECT volume of the phantom (any format `read_volume` reads).")
+@click.option("--from-cameras", is_flag=True,
+              help="Take the VTS side from the rig's two cameras now (LED on, --frames snapshots each,"
+                   " triangulated with the stereo calibration); the spheres are picked out by the"
+                   " shape of the SPECT's. Needs --volume.")
+@click.option("--calibration", "calibration_path", type=click.Path(dir_okay=False), default=None,
+              help="Stereo calibration for --from-cameras (default: the config's calibration.stereo).")
+@click.option("--frames", type=click.IntRange(1, 100), default=10, show_default=True,
+              help="Snapshots per camera with --from-cameras.")
+@config_option
 @click.option("--sim", is_flag=True, help="Map a simulated session (stereo VTS + SimSpect volume)"
               " and compare with the simulated truth.")
 @click.option("--sim-seed", type=int, default=0, show_default=True,
@@ -394,10 +405,12 @@ def _sim_compare(mapping, info: dict) -> dict:
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default="spect_mapping.json",
               show_default=True, help="VTS → SPECT transform file to write.")
 @json_option
-def spect(vts_path: str | None, volume: str | None, sim: bool, sim_seed: int, output: str,
+def spect(vts_path: str | None, volume: str | None, from_cameras: bool, calibration_path: str | None,
+          frames: int, config_path: str | None, sim: bool, sim_seed: int, output: str,
           as_json: bool) -> None:
     """VTS → SPECT mapping from the 7-sphere phantom: its sphere centres in the VTS frame
-    (--vts) and its reconstructed SPECT volume (--volume), or a simulated session (--sim).
+    (--vts, or --from-cameras to measure them now) and its reconstructed SPECT volume
+    (--volume), or a simulated session (--sim).
 
     Prints the transform, the FRE and the leave-one-out TRE; writes the transform to -o.
     """
@@ -405,10 +418,12 @@ def spect(vts_path: str | None, volume: str | None, sim: bool, sim_seed: int, ou
 
     from ..procedures.spect_mapping import SpectMapping
 
-    if sim and (vts_path or volume):
-        raise click.UsageError("give either --vts and --volume, or --sim, not both")
-    if not sim and not (vts_path and volume):
-        raise click.UsageError("give --vts POINTS and --volume VOLUME, or --sim")
+    if sim and (vts_path or volume or from_cameras):
+        raise click.UsageError("give either --vts/--from-cameras and --volume, or --sim, not both")
+    if vts_path and from_cameras:
+        raise click.UsageError("give either --vts POINTS or --from-cameras, not both")
+    if not sim and not ((vts_path or from_cameras) and volume):
+        raise click.UsageError("give --vts POINTS (or --from-cameras) and --volume VOLUME, or --sim")
 
     out_path = Path(output)
     info = None
@@ -416,6 +431,10 @@ def spect(vts_path: str | None, volume: str | None, sim: bool, sim_seed: int, ou
         with tempfile.TemporaryDirectory(prefix="vts-spect-sim-") as tmp:
             points, vol_path, info = sim_spect_inputs(sim_seed, Path(tmp))
             mapping = SpectMapping.from_volume(points, vol_path).analyze()
+    elif from_cameras:
+        if not Path(volume).exists():
+            raise DataError(f"{volume}: no such file or directory.")
+        mapping = _from_cameras(config_path, calibration_path, volume, frames, as_json)
     else:
         points = read_points(vts_path)
         if not Path(volume).exists():
