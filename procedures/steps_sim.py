@@ -74,7 +74,7 @@ def score(analysis: StepAnalysis, truth: dict[str, np.ndarray], mapping_transfor
 def run_sim_steps(out_dir, seed: int = 0, *, frames: int = 10, n_vertical: int = 10, n_axial: int = 10,
                   poses: int = 20, store=None, tolerances=None, operator: str = "sim",
                   progress: Callable[[str], None] | None = None, plot: bool = True,
-                  rig=None, compression: int | None = None) -> SimStepsResult:
+                  rig=None, compression: int | None = None, rig_name: str | None = None) -> SimStepsResult:
     """Calibrate, map and run the step test on a simulated rig (``rig``, a running SimRig, or
     one of its own); score it."""
     import contextlib
@@ -144,7 +144,7 @@ def run_sim_steps(out_dir, seed: int = 0, *, frames: int = 10, n_vertical: int =
         analysis.plot(png)
         result.artifacts.append(png)
     if store is not None:
-        result.run_id = store_steps(store, analysis, tolerances, rig=cfg.rig, operator=operator,
+        result.run_id = store_steps(store, analysis, tolerances, rig=rig_name or cfg.rig, operator=operator,
                                     started=started, config_digest=cfg.digest,
                                     artifacts=result.artifacts, clock=clock)
     return result

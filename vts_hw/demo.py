@@ -106,7 +106,7 @@ def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 
                     on_day(row)
             say("7-sphere step test: stereo calibration, VTS -> SPECT mapping, 22 positions")
             steps = run_sim_steps(out / "steps", seed, store=store, rig=rig, operator="demo",
-                                  tolerances=cfg.tolerances)
+                                  tolerances=cfg.tolerances, rig_name=cfg.rig)
             say(f"step test: {steps.analysis.state} (run {steps.run_id}); against the truth: 3D RMS "
                 f"{steps.scores['position_rms_mm']:.3f} mm, move off by "
                 f"{steps.scores['move_rotation_error_deg']:.3f} deg / "
