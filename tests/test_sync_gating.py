@@ -228,7 +228,7 @@ class ToyReader:
 
 
 def test_a_vendor_reader_is_added_and_the_analysis_does_not_change(tmp_path, monkeypatch):
-    monkeypatch.setattr(base, "_READERS", dict(base._READERS))
+    monkeypatch.setattr(base._REGISTRY, "_readers", dict(base._REGISTRY._readers))
     register_reader(ToyReader())
     delay = 0.23
     lines = [f"TOYLM {T0 + 50:.3f} 10.0", "0.0 5.0"]      # high at the start (delay < duty*P)

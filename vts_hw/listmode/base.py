@@ -27,7 +27,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from vts_hw.errors import DataError
+from vts_hw.formats import FormatRegistry
 
 SNIFF_BYTES = 64
 
@@ -82,53 +82,26 @@ class ListModeReader(Protocol):
         ...
 
 
-_READERS: dict[str, ListModeReader] = {}
+_REGISTRY: FormatRegistry[ListModeReader] = FormatRegistry(
+    "list-mode", content_first=True, check=lambda r: isinstance(r, ListModeReader),
+    sniff_bytes=SNIFF_BYTES)
 
 
 def register_reader(reader: ListModeReader) -> None:
     """Add (or replace, by name) a reader."""
-    if not isinstance(reader, ListModeReader):
-        raise TypeError(f"{reader!r} is not a ListModeReader (name, extensions, sniff, read)")
-    _READERS[reader.name] = reader
+    _REGISTRY.register(reader)
 
 
 def list_readers() -> list[ListModeReader]:
     """The registered readers, in registration order."""
-    return list(_READERS.values())
-
-
-def _head(path: Path) -> bytes:
-    try:
-        with open(path, "rb") as f:
-            return f.read(SNIFF_BYTES)
-    except OSError as e:
-        raise DataError(f"{path}: cannot read ({e.strerror})") from None
+    return _REGISTRY.readers()
 
 
 def reader_for(path) -> ListModeReader:
     """The reader for ``path``: by content, else by suffix; DataError if none."""
-    path = Path(path)
-    head = _head(path)
-    for r in _READERS.values():
-        if r.sniff(head):
-            return r
-    ext = path.suffix.lower()
-    for r in _READERS.values():
-        if ext in r.extensions:
-            return r      # it will say what is wrong with the content
-    raise DataError(f"{path}: not a list-mode file of a known format (known: "
-                    f"{', '.join(_READERS) or 'none'})")
+    return _REGISTRY.reader_for(path)
 
 
 def read_listmode(path, fmt: str | None = None) -> ListMode:
     """Read a list-mode file; ``fmt`` (a reader name) overrides the choice."""
-    path = Path(path)
-    if not path.exists():
-        raise DataError(f"{path}: no such file")
-    if not path.is_file():
-        raise DataError(f"{path}: not a file")
-    if fmt is not None:
-        if fmt not in _READERS:
-            raise DataError(f"{path}: unknown list-mode format '{fmt}' (known: {', '.join(_READERS)})")
-        return _READERS[fmt].read(path)
-    return reader_for(path).read(path)
+    return _REGISTRY.read(path, fmt)

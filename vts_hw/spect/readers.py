@@ -14,14 +14,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from vts_hw.errors import DataError
+from vts_hw.formats import FormatRegistry
 from vts_hw.spect.dicom_nm import read_dicom_nm
 from vts_hw.spect.interfile import read_interfile
 from vts_hw.spect.npz import read_npz
 from vts_hw.spect.volume import Volume
-
-SNIFF_BYTES = 512
-
 
 @dataclass(frozen=True)
 class VolumeReader:
@@ -33,52 +30,27 @@ class VolumeReader:
     read: Callable[[Path], Volume]
 
 
-_READERS: dict[str, VolumeReader] = {}
+_REGISTRY: FormatRegistry[VolumeReader] = FormatRegistry("volume")
 
 
 def register_reader(reader: VolumeReader) -> None:
     """Add (or replace, by name) a reader."""
-    _READERS[reader.name] = reader
+    _REGISTRY.register(reader)
 
 
 def list_readers() -> list[VolumeReader]:
     """The registered readers, in registration order."""
-    return list(_READERS.values())
-
-
-def _head(path: Path) -> bytes:
-    try:
-        with open(path, "rb") as f:
-            return f.read(SNIFF_BYTES)
-    except OSError as e:
-        raise DataError(f"{path}: cannot read ({e.strerror})") from None
+    return _REGISTRY.readers()
 
 
 def reader_for(path) -> VolumeReader:
     """The reader for ``path``: by extension, else by content; DataError if none."""
-    path = Path(path)
-    ext = path.suffix.lower()
-    for r in _READERS.values():
-        if ext in r.extensions:
-            return r
-    head = _head(path)
-    for r in _READERS.values():
-        if r.sniff(head):
-            return r
-    raise DataError(f"{path}: unknown volume format (known: "
-                    f"{', '.join(r.name for r in _READERS.values())})")
+    return _REGISTRY.reader_for(path)
 
 
 def read_volume(path, fmt: str | None = None) -> Volume:
     """Read a reconstructed volume; ``fmt`` (a reader name) overrides the choice."""
-    path = Path(path)
-    if fmt is not None:
-        if fmt not in _READERS:
-            raise DataError(f"{path}: unknown volume format '{fmt}' (known: {', '.join(_READERS)})")
-        return _READERS[fmt].read(path)
-    if not path.is_file():
-        raise DataError(f"{path}: no such file")
-    return reader_for(path).read(path)
+    return _REGISTRY.read(path, fmt)
 
 
 register_reader(VolumeReader(
