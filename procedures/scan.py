@@ -350,7 +350,7 @@ class ScanSession:
         res = sorted({c.resolution_str for c in r.cameras})
         fps = sorted({f"{c.fps:g}" for c in r.cameras})
         steps = [Step("check cameras", f"check {len(r.cameras)} camera(s) {cams}: reachable, password accepted, "
-                                       f"{'/'.join(res)} offered, {'/'.join(fps)} fps asked")]
+                                       f"{'/'.join(res)} offered, {'/'.join(fps)} fps asked; LED ring on")]
         if t.backend == "none":
             steps.append(Step("check trigger", "no trigger generator (trigger backend none): recording only"))
         else:
@@ -442,6 +442,8 @@ class ScanSession:
                     url=cam.base_url, resolution=cfg.resolution_str, fps_asked=cfg.fps,
                     device={k: info.get(k) for k in ("ProdNbr", "SerialNumber", "Version") if k in info})
                 self._check_image(cam, cfg)
+                cam.led_on()  # the markers are retro-reflective: bright only with the LED ring on
+                self.cam_notes[cfg.name]["led"] = "on"
             except VtsError as exc:
                 failures.append(exc)
         if failures:

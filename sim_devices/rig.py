@@ -103,11 +103,14 @@ class SimRig:
             self.scene.clocks[name] = dataclasses.replace(c, ref_epoch=at)
 
     # -- what a client needs -------------------------------------------------------------
-    def config(self, rig_name: str = "sim") -> RigConfig:
+    def config(self, rig_name: str = "sim", calibration: dict | None = None) -> RigConfig:
         cams = [{"name": name, "host": "127.0.0.1", "port": srv.port, "user": self.user,
                  "password_env": password_var(name), "fps": self.fps}
                 for name, srv in self.servers.items()]
-        return parse_rig({"rig": rig_name, "cameras": cams, "trigger": self.trigger_config()}, "simulated rig")
+        data = {"rig": rig_name, "cameras": cams, "trigger": self.trigger_config()}
+        if calibration:
+            data["calibration"] = calibration
+        return parse_rig(data, "simulated rig")
 
     def trigger_config(self) -> dict:
         """The rig config's trigger section for the simulated trigger generator."""
@@ -136,9 +139,17 @@ class SimRig:
                     os.environ[k] = v
 
     def write(self, folder: str | Path) -> tuple[Path, Path]:
-        """Write ``rig.yaml`` and ``sim.env`` (mode 600: it holds the password)."""
+        """Write ``rig.yaml`` and ``sim.env`` (mode 600: it holds the password), and the true
+        cameras' ``calibration.json`` and ``spect_mapping.json`` (sim_devices/sync_sim.py; with
+        two cameras or more), named in rig.yaml's ``calibration:`` section (absolute paths)."""
+        from .sync_sim import write_true_calibration
+
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
+        calibration = None
+        if len(self.scene.cameras) >= 2:  # a stereo pair: the first two cameras
+            cal, mp = write_true_calibration(self.scene, folder)
+            calibration = {"stereo": str(cal.resolve()), "spect": str(mp.resolve())}
         env_path = folder / "sim.env"
         fd = os.open(env_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
         with os.fdopen(fd, "w") as f:
@@ -148,7 +159,8 @@ class SimRig:
             f.write(f"export VTS_CONFIG='{(folder / 'rig.yaml').resolve()}'\n")
         rig_path = folder / "rig.yaml"
         tmp = folder / ".rig.yaml.tmp"
-        tmp.write_text("# the simulated rig written by `vts sim up`\n" + dump_rig(self.config()))
+        tmp.write_text("# the simulated rig written by `vts sim up`; calibration: the scene's true cameras\n"
+                       + dump_rig(self.config(calibration=calibration)))
         os.replace(tmp, rig_path)  # rig.yaml appears only once everything is up
         return rig_path, env_path
 

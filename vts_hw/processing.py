@@ -716,9 +716,7 @@ def process_recording(folder, cameras, workers: int | None = None, mapping=None,
         finally:
             cv2.setNumThreads(before)
     else:
-        import multiprocessing as mp
-        ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
-        with ProcessPoolExecutor(min(workers, len(tasks)), mp_context=ctx,
+        with ProcessPoolExecutor(min(workers, len(tasks)), mp_context=_pool_context(),
                                  initializer=_init_worker, initargs=(state, 1)) as pool:
             for res in pool.map(_process_chunk, tasks):
                 results.append(res)
@@ -727,6 +725,19 @@ def process_recording(folder, cameras, workers: int | None = None, mapping=None,
                     progress(done, n_pairs)
     return _assemble(folder, names, frames, times, fits, ia, ib, results, s, mapping,
                      host_to_spect, period, cams, warnings)
+
+
+def _pool_context():
+    """Workers come from a fork server (its own clean process, with this module imported once),
+    never by forking this process: a caller with threads (HTTP servers, recorders, OpenCV's
+    pool) may hold a lock at the moment of a fork, and the forked worker would wait on it for
+    ever. Where there is no fork server, spawn."""
+    import multiprocessing as mp
+    if "forkserver" in mp.get_all_start_methods():
+        ctx = mp.get_context("forkserver")
+        ctx.set_forkserver_preload([__name__])
+        return ctx
+    return mp.get_context("spawn")
 
 
 def _frame_period(t: np.ndarray) -> float:

@@ -2,9 +2,130 @@
 
 from __future__ import annotations
 
+import sys
+import time
+from pathlib import Path
+
+import click
+
 from . import cli
+from .common import config_option, echo_json, json_option
+
+EXIT_CODES = {"OK": 0, "TOLERANCE": 10, "ACTION": 20}   # as the QA procedures (procedures/daily.py)
 
 
 @cli.group()
 def sync() -> None:
     """Time synchronisation of a scan session with the SPECT list-mode."""
+
+
+def _calibration_files(config_path, calibration, mapping):
+    """--calibration/--mapping, else the rig config's calibration section (relative paths from
+    the rig.yaml's folder). ConfigError when there is no stereo calibration at all."""
+    from ..config import load_rig
+    from ..errors import ConfigError, VtsError
+
+    if calibration and mapping:
+        return Path(calibration), Path(mapping)
+    why = ""
+    rig = None
+    try:
+        rig = load_rig(config_path)
+    except VtsError as exc:
+        if config_path is not None:   # named explicitly: its error is the answer
+            raise
+        why = f" (no rig config: {exc})"
+    base = Path(rig._source).parent if rig is not None and rig._source is not None else Path(".")
+
+    def from_rig(p):
+        if p is None:
+            return None
+        p = Path(p)
+        return p if p.is_absolute() else base / p
+
+    cal = Path(calibration) if calibration else from_rig(rig.calibration.stereo if rig else None)
+    mp = Path(mapping) if mapping else from_rig(rig.calibration.spect if rig else None)
+    if cal is None:
+        raise ConfigError("no stereo calibration: give --calibration FILE or set calibration.stereo in "
+                          f"rig.yaml{why}")
+    return cal, mp
+
+
+class _Progress:
+    """Frame pairs processed, on stderr: a line per 10 % (and the last)."""
+
+    def __init__(self):
+        self.last = -1
+        self.t0 = time.monotonic()
+
+    def __call__(self, done: int, total: int) -> None:
+        step = int(10 * done / max(total, 1))
+        if step != self.last or done == total:
+            self.last = step
+            click.echo(f"processing the recording: {done}/{total} frame pairs "
+                       f"({time.monotonic() - self.t0:.1f} s)", err=True)
+
+
+@sync.command()
+@click.argument("session", type=click.Path())
+@click.option("--listmode", "listmode", type=click.Path(), required=True,
+              help="The SPECT list-mode file of the same scan.")
+@click.option("--calibration", type=click.Path(dir_okay=False), default=None,
+              help="Stereo calibration file (default: the rig config's calibration.stereo).")
+@click.option("--mapping", type=click.Path(dir_okay=False), default=None,
+              help="VTS -> SPECT transform file (default: the rig config's calibration.spect).")
+@click.option("-o", "--output", "out", type=click.Path(dir_okay=False), default=None,
+              help="Write the HTML report here (self-contained: the plot inline).")
+@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None,
+              help="Also write the plot as a PNG here.")
+@click.option("--export", "export_dir", type=click.Path(file_okay=False), default=None,
+              help="Export the marker trajectories in the SPECT frame on SPECT time to DIR "
+                   "(trajectories.csv and .json, docs/trajectory-format.md).")
+@click.option("--marker", type=int, default=None,
+              help="The marker id to follow (default: the one with the largest axial range).")
+@click.option("--workers", type=click.IntRange(1, 256), default=None,
+              help="Processes for the recording (default: every core).")
+@json_option
+@config_option
+def analyze(session, listmode, calibration, mapping, out, plot_path, export_dir, marker, workers,
+            as_json, config_path) -> None:
+    """Put a scan SESSION and its SPECT list-mode on one clock.
+
+    The gating signal gives the SPECT start delay, clock and dead time; the recording gives the
+    marker's motion on the host clock; the motion events found in both give the time
+    difference of each and the overall offset (VTS - SPECT, median).
+
+    Exit status like the QA procedures: 0 OK (every event seen by both within 20 ms), 10
+    TOLERANCE (within 100 ms, or an event seen by one system only), 20 ACTION.
+    """
+    from ..procedures.sync import SyncAnalysis, check_session, export_trajectories
+    from ..report.sync_html import write_sync_html
+
+    check_session(session)           # a bad folder says so before anything else is read
+    cal, mp = _calibration_files(config_path, calibration, mapping)
+    a = SyncAnalysis(session, listmode, cal, mp, marker=marker, workers=workers, progress=_Progress())
+    a.analyze()
+    data = a.results_data()
+    png = None
+    if out or plot_path:
+        png = a.plot(plot_path)
+    if out:
+        write_sync_html(data, png, out)
+        data["report"] = str(out)
+    if export_dir:
+        csv_path, json_path = export_trajectories(a.tracks, a.gating, export_dir, mp)
+        data["export"] = [str(csv_path), str(json_path)]
+    if as_json:
+        echo_json(data)
+    else:
+        click.echo(a.results())
+        if out:
+            click.echo(f"report: {out}")
+        if plot_path:
+            click.echo(f"plot: {plot_path}")
+        if export_dir:
+            click.echo(f"trajectories (SPECT frame, SPECT time): {', '.join(data['export'])}")
+    sys.stdout.flush()
+    code = EXIT_CODES[data["summary"]["state"]]
+    if code:
+        sys.exit(code)

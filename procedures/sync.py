@@ -1,0 +1,504 @@
+"""The sync check: one scan session (recordings + trigger log) and the SPECT's list-mode, put
+on one clock, with the motion of a source marker as the common ruler.
+
+``SyncAnalysis(session_dir, listmode_path, calibration, mapping).analyze()`` then
+``results()`` (text), ``results_data()`` (JSON-ready dict), ``plot(path)`` (PNG).
+
+What it does (the reasons are in docs/decisions/0019-sync-analysis.md):
+
+1. **Gating** (:mod:`vts_hw.sync_gating`): the trigger log (``trigger.csv``) gives the square
+   wave's period and the host time of its first rising edge (the start pulse); the list-mode's
+   gating voltage gives the edges on the SPECT clock. Fitted together: the SPECT start delay
+   against the trigger, the SPECT clock's skew, list-mode time ↔ host time, and the dead time
+   (head rotations: no events).
+2. **VTS** (:func:`vts_hw.processing.process_recording`): every frame pair triangulated, each
+   camera's stamps mapped to host time by its clock model (offset and skew fitted to the
+   frames' stamp / receive-time pairs). The moving marker: the named one, else the one with
+   the largest axial range (SPECT Z through the VTS → SPECT mapping, 2nd–98th percentile;
+   without a mapping the largest range of motion) among those seen in at least a fifth of
+   the frames the most-seen marker was. A marker whose track broke in a camera gap is re-joined (ids
+   that follow each other in time and meet within ``join_mm``).
+3. **SPECT**: the axial centre of mass of the counts in ``bin_s`` bins (for the plot and to
+   find the steps), list-mode time mapped to host time through the gating clock.
+4. **Events** (:mod:`vts_hw.sync_events`): steps found in both traces, each timed by fitting a
+   smooth step to the raw samples (VTS: the marker's z per frame; SPECT: every event's z) —
+   the mid-crossing, in host time. Matched by time; per event ``dt = t_vts − t_spect``; the
+   overall offset is the median of dt, its spread the SD and the largest deviation. An event
+   in a camera gap is reported as seen by the SPECT only.
+
+Clocks: every time in the results is host UTC epoch seconds unless named otherwise
+(``*_list_s``: list-mode seconds since the SPECT acquisition start; ``*_rel_s``: seconds since
+the trigger's first edge). Positions mm, SPECT frame when a mapping is given.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from ..errors import DataError
+from ..sync_events import StepFit, find_steps, fit_step, match_events, robust_sd
+from ..sync_gating import GatingResult, WaveInfo, analyze_gating, axial_centre_of_mass, wave_from_trigger_log
+
+__all__ = ["SyncAnalysis", "SyncEvent", "export_trajectories", "load_calibration", "load_mapping",
+           "check_session"]
+
+BIN_S = 0.05          # SPECT centre-of-mass bins for finding steps and for the plot
+MATCH_S = 0.5         # a VTS and a SPECT step further apart than this are different events
+JOIN_MM = 60.0        # track pieces meeting within this (mm) across a gap are one marker
+HALF_WINDOW_S = 0.8   # samples fitted around each step
+
+
+# ----------------------------------------------------------------------------- inputs
+
+def check_session(folder) -> dict:
+    """The session's manifest; DataError naming the folder when it is not a scan session."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DataError(f"{folder}: no such session folder")
+    mf = folder / "manifest.json"
+    try:
+        manifest = json.loads(mf.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise DataError(f"{folder}: not a session folder (no manifest.json)") from None
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise DataError(f"{mf}: cannot read the manifest ({exc})") from None
+    if not isinstance(manifest, dict) or not isinstance(manifest.get("cameras"), dict):
+        raise DataError(f"{mf}: not a recording manifest (no cameras)")
+    if not (folder / "trigger.csv").exists():
+        raise DataError(f"{folder}: no trigger.csv: the session has no trigger log to time the "
+                        f"SPECT against (was it recorded with trigger backend none?)")
+    return manifest
+
+
+def load_calibration(calibration):
+    """A StereoCalibration (or cameras) as given, or read from a path."""
+    if calibration is None or not isinstance(calibration, (str, Path)):
+        return calibration
+    from ..calibration_io import StereoCalibration
+    return StereoCalibration.load(calibration)
+
+
+def load_mapping(mapping):
+    """A VTS → SPECT mapping: RigidTransform/SpectMapping as given, or read from a path (a
+    RigidTransform file, or a saved SpectMapping whose ``transform`` it holds)."""
+    if mapping is None or not isinstance(mapping, (str, Path)):
+        return getattr(mapping, "transform", mapping) if mapping is not None and not hasattr(mapping, "apply") \
+            else mapping
+    from ..registration import RigidTransform
+    path = Path(mapping)
+    try:
+        return RigidTransform.load(path)
+    except DataError:
+        try:
+            d = json.loads(path.read_text(encoding="utf-8"))
+            return RigidTransform.from_dict(d["transform"])
+        except Exception:
+            raise DataError(f"{path}: not a VTS -> SPECT transform file") from None
+
+
+# ----------------------------------------------------------------------------- results
+
+@dataclass
+class SyncEvent:
+    """One motion event: the VTS's and the SPECT's fitted step (either may be missing)."""
+
+    vts: StepFit | None
+    spect: StepFit | None
+    note: str = ""
+
+    @property
+    def seen_by(self) -> str:
+        return "both" if self.vts and self.spect else ("VTS only" if self.vts else "SPECT only")
+
+    @property
+    def dt_s(self) -> float | None:
+        """t_vts − t_spect (s), both host time; None unless seen by both."""
+        return self.vts.t_mid - self.spect.t_mid if self.vts and self.spect else None
+
+    @property
+    def t(self) -> float:
+        return self.spect.t_mid if self.spect else self.vts.t_mid
+
+
+class _HostToList:
+    """host UTC epoch s → SPECT list-mode s (since the acquisition start), via the gating clock."""
+
+    def __init__(self, clock):
+        self.clock = clock
+        self.__doc__ = ("spect_time: SPECT list-mode seconds since the acquisition start, from host "
+                        "time through the gating clock (square-wave edges fitted: start delay "
+                        f"{clock.start_delay_s * 1e3:.2f} ms, skew {clock.skew_ppm:+.2f} ppm)")
+
+    def __call__(self, host_t):
+        return self.clock.to_list(host_t)
+
+
+def _chains(tracks, join_mm: float) -> list[list[int]]:
+    """Marker ids grouped into one physical marker each: pieces that follow one another in time
+    and meet within ``join_mm`` (a track broken by a camera gap), closest first."""
+    t = tracks.point_time
+    info = []
+    for m in tracks.marker_ids():
+        sel = np.flatnonzero(tracks.marker == m)
+        order = sel[np.argsort(t[sel], kind="stable")]
+        info.append((float(t[order[0]]), float(t[order[-1]]), tracks.xyz[order[0]], tracks.xyz[order[-1]], m))
+    info.sort(key=lambda x: x[0])
+    chains: list[dict] = []
+    for first, last, p0, p1, m in info:
+        best, best_d = None, join_mm
+        for c in chains:
+            if c["last"] < first:
+                d = float(np.linalg.norm(c["end"] - p0))
+                if d <= best_d:
+                    best, best_d = c, d
+        if best is None:
+            chains.append({"ids": [m], "last": last, "end": p1})
+        else:
+            best["ids"].append(m)
+            best["last"], best["end"] = last, p1
+    return [c["ids"] for c in chains]
+
+
+def _trace_gaps(t: np.ndarray, period: float, factor: float = 3.0) -> list[list[float]]:
+    """[start, end) host s where the trace has no sample for more than ``factor`` periods."""
+    if t.size < 2:
+        return []
+    d = np.diff(t)
+    i = np.flatnonzero(d > factor * period)
+    return [[float(t[k]), float(t[k + 1])] for k in i]
+
+
+class SyncAnalysis:
+    """The sync check of one scan session against one list-mode file (see the module).
+
+    ``calibration``: a StereoCalibration, its file, or cameras as ``process_recording`` takes
+    them. ``mapping``: VTS → SPECT (RigidTransform, its file, or an analysed SpectMapping); the
+    VTS trace is then SPECT Z, else the marker's displacement along its main direction of
+    motion. ``marker``: the id to follow (default: the one with the largest axial range).
+    ``progress(done, total)``: frame pairs processed.
+    """
+
+    def __init__(self, session_dir, listmode_path, calibration=None, mapping=None, *,
+                 marker: int | None = None, workers: int | None = None,
+                 progress: Callable[[int, int], None] | None = None):
+        self.session = Path(session_dir)
+        self.listmode_path = Path(listmode_path)
+        self.calibration = calibration
+        self.mapping = mapping
+        self.marker = marker
+        self.workers = workers
+        self.progress = progress
+        self.manifest: dict | None = None
+        self.wave: WaveInfo | None = None
+        self.gating: GatingResult | None = None
+        self.lm = None
+        self.tracks = None
+        self.events: list[SyncEvent] = []
+        self.problems: list[str] = []
+        self._done = False
+
+    # ------------------------------------------------------------------ analysis
+    def analyze(self, *, bin_s: float = BIN_S, match_s: float = MATCH_S, join_mm: float = JOIN_MM,
+                min_step_mm: float = 4.0) -> "SyncAnalysis":
+        from ..listmode import read_listmode
+        from ..processing import process_recording
+
+        self.manifest = check_session(self.session)
+        self.lm = read_listmode(self.listmode_path)
+        self.wave = wave_from_trigger_log(self.session / "trigger.csv")
+        self.gating = analyze_gating(self.lm, period_s=self.wave.host_period_s, fire_host=self.wave.start_host)
+        self.problems = list(self.gating.problems)
+        if self.calibration is None:
+            raise DataError(f"{self.session}: no stereo calibration given: the marker cannot be triangulated")
+        cams = load_calibration(self.calibration)
+        mapping = load_mapping(self.mapping)
+        self.calibration_info = {
+            "stereo": str(self.calibration) if isinstance(self.calibration, (str, Path)) else "given",
+            "spect": (str(self.mapping) if isinstance(self.mapping, (str, Path)) else
+                      ("given" if mapping is not None else None)),
+            "note": "; ".join(dict.fromkeys(n for n in (getattr(cams, "outlier_rule", ""),
+                                                        (getattr(mapping, "meta", None) or {}).get("note", ""))
+                                            if str(n).startswith("simulated rig")))}
+        self.tracks = process_recording(self.session, cams, workers=self.workers, mapping=mapping,
+                                        host_to_spect=_HostToList(self.gating.clock), progress=self.progress)
+        self.tracks.meta.setdefault("warnings", [])
+        self.problems += [f"processing: {w}" for w in self.tracks.meta.get("warnings", [])]
+        for name, cam in self.manifest["cameras"].items():
+            gaps = cam.get("gaps") or []
+            if gaps:
+                self.problems.append(f"camera {name}: {sum(g.get('missing', 0) for g in gaps)} frame(s) "
+                                     f"missing in {len(gaps)} gap(s) (manifest); events there are seen "
+                                     f"by the SPECT only")
+        self._vts_trace(join_mm)
+        self._spect_trace(bin_s)
+        self._events(match_s, min_step_mm)
+        self._done = True
+        return self
+
+    def _vts_trace(self, join_mm: float) -> None:
+        tr = self.tracks
+        if not tr.marker_ids():
+            raise DataError(f"{self.session}: no marker was triangulated in the recording (LEDs off? "
+                            f"wrong calibration?)")
+        chains = _chains(tr, join_mm)
+        axial = tr.xyz_spect is not None
+
+        def values(ids):
+            sel = np.isin(tr.marker, ids)
+            t = tr.point_time[sel]
+            order = np.argsort(t, kind="stable")
+            if axial:
+                return t[order], tr.xyz_spect[sel][order, 2]
+            xyz = tr.xyz[sel][order]
+            c = xyz - np.median(xyz, axis=0)
+            _, _, vt = np.linalg.svd(c, full_matrices=False)
+            return t[order], c @ vt[0]
+
+        if self.marker is not None:
+            pick = [c for c in chains if self.marker in c]
+            if not pick:
+                raise DataError(f"{self.session}: no marker {self.marker} in the recording (markers: "
+                                f"{', '.join(str(m) for m in tr.marker_ids())})")
+            chain = pick[0]
+        else:
+            # the largest axial range (2nd to 98th percentile: a stray point does not count)
+            # among markers seen in at least a fifth of the frames the longest one was seen in
+            counts = [int(np.isin(tr.marker, c).sum()) for c in chains]
+            common = [c for c, n in zip(chains, counts) if n >= 0.2 * max(counts)]
+
+            def axial_range(c):
+                p2, p98 = np.percentile(values(c)[1], [2, 98])
+                return float(p98 - p2)
+            chain = max(common, key=axial_range)
+        t, z = values(chain)
+        self.marker_ids = [int(m) for m in chain]
+        self.vts_t, self.vts_z = t, z
+        self.vts_axial = axial
+        period = float(tr.meta.get("frame_period_s") or np.median(np.diff(tr.host_time)))
+        self.vts_period = period
+        self.vts_gaps = _trace_gaps(t, period)
+        if not axial:
+            self.problems.append("no VTS -> SPECT mapping: the VTS trace is the marker's displacement along "
+                                 "its main direction of motion, not SPECT Z (sign not comparable)")
+
+    def _spect_trace(self, bin_s: float) -> None:
+        g, lm = self.gating, self.lm
+        t_list, z = axial_centre_of_mass(lm, bin_s=bin_s, dead=g.dead)
+        self.spect_bin_s = bin_s
+        self.spect_t = np.asarray(g.clock.to_host(t_list))
+        self.spect_z = z
+        self.event_t = np.asarray(g.clock.to_host(np.asarray(lm.t, float)))
+        self.event_z = np.asarray(lm.z, float)
+        self.dead_host = np.asarray(g.clock.to_host(g.dead)).reshape(-1, 2) if len(g.dead) else np.empty((0, 2))
+
+    def _fit_all(self, cands, t, z, noise, what) -> list[StepFit]:
+        out = []
+        for c in cands:
+            try:
+                out.append(fit_step(t, z, c.t, half_window_s=HALF_WINDOW_S, noise_mm=noise,
+                                    method=f"{what}: normal-CDF edge fitted to the raw samples"))
+            except ValueError as exc:
+                self.problems.append(f"{what} step near {self._rel(c.t):.2f} s not fitted: {exc}")
+        return out
+
+    def _events(self, match_s: float, min_step_mm: float) -> None:
+        vts_c = find_steps(self.vts_t, self.vts_z, min_step_mm=min_step_mm)
+        spect_c = find_steps(self.spect_t, self.spect_z, min_step_mm=min_step_mm)
+        self.vts_steps = self._fit_all(vts_c, self.vts_t, self.vts_z,
+                                       robust_sd(np.diff(self.vts_z)) / math.sqrt(2), "VTS")
+        self.spect_steps = self._fit_all(spect_c, self.event_t, self.event_z, None, "SPECT")
+        def signs(steps):   # without SPECT Z the VTS trace's sign means nothing: time alone
+            return [s.step_mm if self.vts_axial else 1.0 for s in steps]
+        pairs = match_events([s.t_mid for s in self.vts_steps], signs(self.vts_steps),
+                             [s.t_mid for s in self.spect_steps], signs(self.spect_steps), match_s)
+        self.events = []
+        for i, j in pairs:
+            ev = SyncEvent(self.vts_steps[i] if i is not None else None,
+                           self.spect_steps[j] if j is not None else None)
+            if ev.vts is None:
+                inside = any(a - 0.5 <= ev.t <= b + 0.5 for a, b in self.vts_gaps) or \
+                    ev.t < self.vts_t[0] or ev.t > self.vts_t[-1]
+                ev.note = "in a gap of the VTS recording" if inside else "not seen by the VTS"
+            elif ev.spect is None:
+                dead = any(a - 0.5 <= ev.t <= b + 0.5 for a, b in self.dead_host)
+                ev.note = "in SPECT dead time (heads rotating)" if dead else "not seen by the SPECT"
+            self.events.append(ev)
+        if not any(e.dt_s is not None for e in self.events):
+            self.problems.append("no motion event seen by both systems: the offset is not measured")
+
+    # ------------------------------------------------------------------ figures
+    def _rel(self, t):
+        return np.asarray(t, float) - self.wave.start_host
+
+    @property
+    def dts(self) -> np.ndarray:
+        return np.array([e.dt_s for e in self.events if e.dt_s is not None], float)
+
+    @property
+    def offset_s(self) -> float | None:
+        """Median of t_vts − t_spect over the events both saw (s)."""
+        d = self.dts
+        return float(np.median(d)) if d.size else None
+
+    def results_data(self) -> dict:
+        """Everything as a JSON-ready dict (host UTC epoch s; see the module for the clocks)."""
+        self._need()
+        g = self.gating
+        d = self.dts
+        off = self.offset_s
+        events = []
+        for k, e in enumerate(self.events, 1):
+            events.append({
+                "event": k, "seen_by": e.seen_by, "note": e.note,
+                "t_vts": e.vts.t_mid if e.vts else None, "t_spect": e.spect.t_mid if e.spect else None,
+                "t_rel_s": float(self._rel(e.t)), "t_list_s": float(g.clock.to_list(e.t)),
+                "dt_s": e.dt_s, "step_vts_mm": e.vts.step_mm if e.vts else None,
+                "step_spect_mm": e.spect.step_mm if e.spect else None,
+                "vts_fit": e.vts.to_json() if e.vts else None,
+                "spect_fit": e.spect.to_json() if e.spect else None})
+        summary = {
+            "events": len(self.events), "events_both": int(d.size),
+            "events_spect_only": sum(e.seen_by == "SPECT only" for e in self.events),
+            "events_vts_only": sum(e.seen_by == "VTS only" for e in self.events),
+            "offset_s": off,
+            "spread_sd_s": float(np.std(d, ddof=1)) if d.size > 1 else None,
+            "max_abs_dt_s": float(np.max(np.abs(d))) if d.size else None,
+            "max_dev_from_offset_s": float(np.max(np.abs(d - off))) if d.size else None,
+            "start_delay_s": g.start_delay_s,
+            "start_delay_modulo_s": g.clock.period_spect,
+            "spect_clock_offset_s": g.clock_offset_s,
+            "spect_skew_ppm": g.clock.skew_ppm,
+        }
+        from ..report.sync_html import sync_state
+        summary["state"] = sync_state({"summary": summary})
+        clock_fits = self.tracks.meta.get("clock_fits", {})
+        return {
+            "procedure": "sync check", "session": str(self.session), "listmode": str(self.listmode_path),
+            "clocks": "host UTC epoch s unless named: *_list_s SPECT list-mode s since its acquisition "
+                      "start, *_rel_s s since the trigger's first edge",
+            "summary": summary, "events": events,
+            "trigger": {"device": self.wave.device, "start_host": self.wave.start_host,
+                        "period_s": self.wave.period_s, "host_period_s": self.wave.host_period_s,
+                        "duty": self.wave.duty, "start_pulse": self.wave.start_pulse, "how": self.wave.how},
+            "gating": g.to_json(),
+            "dead_time_host": self.dead_host.tolist(),
+            "vts": {"markers": self.marker_ids, "trace": "SPECT Z" if self.vts_axial else "main direction of motion",
+                    "samples": int(self.vts_t.size), "frame_period_s": self.vts_period,
+                    "gaps_host": self.vts_gaps, "clock_fits": clock_fits,
+                    "marker_summary": self.tracks.marker_summary()},
+            "spect": {"bin_s": self.spect_bin_s, "events": int(self.lm.n_events), "duration_s": self.lm.duration_s},
+            "calibration": dict(self.calibration_info),
+            "problems": list(self.problems),
+        }
+
+    def results(self) -> str:
+        """A short text summary for people (times relative to the trigger's first edge)."""
+        self._need()
+        r = self.results_data()
+        s = r["summary"]
+        lines = [f"sync check: {self.session} with {self.listmode_path.name}",
+                 f"  SPECT start delay {s['start_delay_s'] * 1e3:.1f} ms after the start pulse "
+                 f"(modulo {s['start_delay_modulo_s']:.3f} s), SPECT clock {s['spect_skew_ppm']:+.1f} ppm, "
+                 f"its wall clock {s['spect_clock_offset_s']:+.3f} s from host",
+                 "  dead time: " + (", ".join(f"{a:.2f}-{b:.2f} s" for a, b in self._rel(self.dead_host))
+                                     or "none"),
+                 f"  VTS marker {'+'.join(str(m) for m in self.marker_ids)} ({r['vts']['trace']}), "
+                 f"{r['vts']['samples']} samples" + (", gaps " + ", ".join(
+                     f"{a:.2f}-{b:.2f} s" for a, b in self._rel(np.array(self.vts_gaps).reshape(-1, 2)))
+                     if self.vts_gaps else "")]
+        for e in r["events"]:
+            dt = f"dt {e['dt_s'] * 1e3:+7.1f} ms" if e["dt_s"] is not None else f"{e['seen_by']}: {e['note']}"
+            step = e["step_spect_mm"] if e["step_spect_mm"] is not None else e["step_vts_mm"]
+            lines.append(f"  event {e['event']}: at {e['t_rel_s']:7.2f} s, step {step:+6.1f} mm, {dt}")
+        if s["offset_s"] is not None:
+            sd = f", SD {s['spread_sd_s'] * 1e3:.1f} ms" if s["spread_sd_s"] is not None else ""
+            lines.append(f"  offset VTS - SPECT (median of {s['events_both']}): {s['offset_s'] * 1e3:+.1f} ms{sd}, "
+                         f"largest |dt| {s['max_abs_dt_s'] * 1e3:.1f} ms")
+        if self.calibration_info.get("note"):
+            lines.append(f"  calibration: {self.calibration_info['note']}")
+        lines.append(f"  state: {s['state']} (every event within 20 ms: OK; 100 ms: TOLERANCE)")
+        for p in self.problems:
+            lines.append(f"  note: {p}")
+        return "\n".join(lines)
+
+    def figure(self):
+        """Both traces on one time axis (s since the trigger's first edge), dead time shaded,
+        gaps of the VTS hatched, events marked; below, dt per event (ms)."""
+        self._need()
+        from matplotlib.figure import Figure
+        fig = Figure(figsize=(10, 5.6))
+        ax, bx = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
+        for a, b in self._rel(self.dead_host):
+            for x in (ax, bx):
+                x.axvspan(a, b, color="#d0d4da", alpha=0.6, lw=0)
+        for a, b in self._rel(np.array(self.vts_gaps).reshape(-1, 2)):
+            ax.axvspan(a, b, facecolor="none", edgecolor="#c62828", hatch="//", lw=0)
+        ax.plot(self._rel(self.spect_t), self.spect_z, color="#e08a00", lw=1.0,
+                label=f"SPECT: axial centre of mass ({self.spect_bin_s * 1e3:.0f} ms bins)")
+        ax.plot(self._rel(self.vts_t), self.vts_z, ".", ms=2.0, color="#1f5fa8",
+                label=f"VTS: marker {'+'.join(str(m) for m in self.marker_ids)} "
+                      f"{'SPECT Z' if self.vts_axial else '(main direction)'}")
+        for k, e in enumerate(self.events, 1):
+            x = float(self._rel(e.t))
+            ax.axvline(x, color="#5b2a86", lw=0.8, ls="--")
+            ax.annotate(str(k), (x, 1.0), xycoords=("data", "axes fraction"), ha="center", va="bottom",
+                        fontsize=8, color="#5b2a86")
+            if e.dt_s is not None:
+                bx.plot([x], [e.dt_s * 1e3], "o", color="#2e7d32", ms=5)
+            else:
+                bx.plot([x], [0.0], "x", color="#c62828", ms=6)
+        off = self.offset_s
+        if off is not None:
+            bx.axhline(off * 1e3, color="#2e7d32", lw=0.8, ls=":")
+        bx.axhline(0, color="#888", lw=0.5)
+        ax.set_ylabel("axial position (mm)")
+        bx.set_ylabel("VTS − SPECT\n(ms)")
+        bx.set_xlabel("time since the trigger's first edge (s, host clock)")
+        ax.legend(loc="best", fontsize=8)
+        ax.set_title("VTS and SPECT on one clock: grey = SPECT dead time, hatched = VTS gap, "
+                     "dashed = motion events", fontsize=9, pad=14)
+        fig.tight_layout()
+        return fig
+
+    def plot(self, path=None) -> bytes:
+        """PNG of :meth:`figure`; written to ``path`` when given. Returns the bytes."""
+        from ..report.plots import figure_png
+        png = figure_png(self.figure())
+        if path is not None:
+            Path(path).write_bytes(png)
+        return png
+
+    def _need(self) -> None:
+        if not self._done:
+            raise RuntimeError("call analyze() first")
+
+
+# ----------------------------------------------------------------------------- export
+
+def export_trajectories(tracks, gating: GatingResult, out, mapping=None,
+                        stem: str = "trajectories") -> tuple[Path, Path]:
+    """Write a session's marker trajectories **in the SPECT frame on SPECT time** to
+    ``out/<stem>.csv`` and ``.json`` (docs/trajectory-format.md): ``spect_time`` = SPECT
+    list-mode seconds since the acquisition start, from host time through ``gating``'s clock;
+    ``x_spect_mm``.. through ``mapping`` (VTS → SPECT), or the tracks' own SPECT positions.
+    DataError when neither gives SPECT positions."""
+    mapping = load_mapping(mapping)
+    if mapping is None and tracks.xyz_spect is None:
+        raise DataError("no VTS -> SPECT mapping: the trajectories cannot be put in the SPECT frame "
+                        "(give --mapping or set calibration.spect in rig.yaml)")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    exported = tracks.with_spect(mapping, _HostToList(gating.clock))
+    c = gating.clock
+    exported.meta["sync"] = {"spect_time": "SPECT list-mode s since the acquisition start",
+                             "start_delay_s": c.start_delay_s, "skew_ppm": c.skew_ppm,
+                             "t_wave_list_s": c.t_wave, "fire_host": c.fire_host,
+                             "spect_start_time": gating.start_time,
+                             "dead_time_list_s": np.asarray(gating.dead).tolist()}
+    return exported.save(out / f"{stem}.csv")

@@ -1,0 +1,148 @@
+"""The sync check on the simulated rig, end to end: a scan session with a moving source marker,
+the simulated SPECT following the trigger the box actually emitted, and the truth to score it.
+
+Used by tests/test_sync.py and bench/sync_accuracy.py. The rig must be a running
+``SimRig(trigger="triggerbox")`` whose ``write(folder)`` has been called (rig.yaml with the
+true cameras' calibration files). Host UTC epoch seconds throughout.
+
+The scene's LEDs are switched on here (the scan session does not switch them: on the real
+rig the LED rings are on for the whole scan), and the source marker is placed before the
+scan starts and its moves scheduled once the fire time is known, clear of the simulated
+SPECT's head rotations (:func:`vts_hw.sim_devices.sync_sim.plan_sync_moves`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..sim_devices.spect_listmode import ListModeTruth, SimListModeSpect
+from ..sim_devices.sync_sim import place_source_marker, plan_sync_moves, schedule_source_moves
+
+__all__ = ["SimSyncScan", "prepare", "start_moves", "simulate_spect", "score", "cli_scan", "fire_time_of"]
+
+SPECT_TAIL_S = 0.6   # the SPECT acquisition ends this long before the scan (start delay ≤ 0.4 s)
+
+
+@dataclass
+class SimSyncScan:
+    """What a simulated sync scan did: the session, the list-mode and the truth."""
+
+    session: Path
+    listmode: Path | None
+    fire_host: float
+    source: object              # SourceMarker: the moves (host s)
+    spect: ListModeTruth | None
+
+
+def prepare(rig, position=(10.0, -20.0, 5.0), rate_cps: float = 3000.0):
+    """LEDs on, clocks synced, a source marker at rest in the scene. Returns its truth."""
+    for src in rig.sources.values():
+        src.set_led(True)
+    rig.ntp_sync()
+    if "source" in rig.scene.bodies:
+        raise ValueError("the scene already has a source marker")
+    return place_source_marker(rig.scene, position=position, rate_cps=rate_cps)
+
+
+def start_moves(rig, marker, fire_host: float, duration_s: float, n: int = 4, seed: int = 0,
+                times_rel=None, steps=None):
+    """Schedule the source marker's moves for a scan fired at ``fire_host``: planned clear of
+    the head rotations (``n``, ``seed``), or at ``times_rel`` s after the fire with ``steps``
+    mm. Returns the truth."""
+    if times_rel is None:
+        times, steps = plan_sync_moves(fire_host, duration_s, n=n, seed=seed)
+    else:
+        times = [fire_host + float(x) for x in times_rel]
+    if times[0] < time.time() + 0.3:
+        raise RuntimeError("the first move would start in the past: the fire time came too late")
+    return schedule_source_moves(rig.scene, marker, times, steps)
+
+
+def fire_time_of(session: Path, timeout: float = 30.0, proc=None) -> float:
+    """The trigger's fire time from a session's manifest (a scan running in another process)."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            m = json.loads((Path(session) / "manifest.json").read_text())
+            t = (m.get("trigger") or {}).get("fire_time")
+            if t is not None and m["trigger"].get("fired"):
+                return float(t)
+        except (OSError, ValueError):
+            pass
+        if proc is not None and proc.poll() is not None:
+            raise RuntimeError(f"the scan process ended (exit {proc.returncode}) before firing")
+        time.sleep(0.05)
+    raise TimeoutError(f"{session}: the scan did not fire within {timeout:g} s")
+
+
+def simulate_spect(rig, source, session: Path, duration_s: float, out: Path | None = None,
+                   seed: int = 0) -> tuple[Path, ListModeTruth]:
+    """The simulated SPECT's list-mode of the scan: it follows the trigger box's pins (the
+    start pulse and square wave the emulator actually emitted) for ``duration_s`` list-mode s."""
+    out = Path(out) if out else Path(session).parent / (Path(session).name + ".vtslm")
+    truth = SimListModeSpect(rig.scene, [source], seed=seed).follow_trigger_box(rig.trigger_box, out, duration_s)
+    return out, truth
+
+
+def score(analysis, source, spect_truth: ListModeTruth) -> dict:
+    """Per true move: the VTS and SPECT event times minus the move's middle (host s), and the
+    start delay's error. Truth of an event: the move's mid time ``t_mid`` (half the
+    displacement done), the instant both systems should report."""
+    rows = []
+    for mv in source.moves:
+        ev = min(analysis.events, key=lambda e: abs(e.t - mv.t_mid), default=None)
+        if ev is None or abs(ev.t - mv.t_mid) > 0.5:
+            rows.append({"t_mid": mv.t_mid, "found": False})
+            continue
+        rows.append({"t_mid": mv.t_mid, "found": True, "seen_by": ev.seen_by, "step_mm": mv.step_mm,
+                     "vts_err_s": ev.vts.t_mid - mv.t_mid if ev.vts else None,
+                     "spect_err_s": ev.spect.t_mid - mv.t_mid if ev.spect else None,
+                     "dt_s": ev.dt_s})
+    return {"moves": rows, "start_delay_err_s": analysis.gating.start_delay_s - spect_truth.start_delay_s,
+            "start_delay_true_s": spect_truth.start_delay_s, "extra_events": len(analysis.events)
+            - sum(r["found"] for r in rows)}
+
+
+def cli_scan(rig, rig_yaml, session, duration_s: float, marker, *, n: int = 4, seed: int = 0,
+             times_rel=None, steps=None, kill_after_s: float | None = None,
+             spect_s: float | None = None, timeout: float = 120.0) -> SimSyncScan:
+    """``vts scan start --duration D -o SESSION`` in a subprocess against the running ``rig``
+    (this process's simulated cameras and trigger box); the source marker's moves are
+    scheduled as soon as the manifest says the trigger fired. ``kill_after_s``: SIGKILL the
+    scan process that long after the fire (a crash: nothing is closed). Then the simulated
+    SPECT follows the box for ``spect_s`` list-mode s (default: the scan less 0.6 s); ``seed``
+    draws both the move plan and the SPECT (start delay, clock, counts)."""
+    session = Path(session)
+    env = {**os.environ, **rig.env_vars(), "VTS_CONFIG": str(rig_yaml)}
+    cmd = [sys.executable, "-m", "vts_hw.cli.__main__", "scan", "start", "--duration", f"{duration_s:g}",
+           "-o", str(session)]
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        fire = fire_time_of(session, 60.0, proc)
+        truth = start_moves(rig, marker, fire, kill_after_s or duration_s, n=n, seed=seed,
+                            times_rel=times_rel, steps=steps)
+        if kill_after_s is not None:
+            time.sleep(max(0.0, fire + kill_after_s - time.time()))
+            proc.send_signal(signal.SIGKILL)
+            proc.wait(timeout=10)
+        else:
+            out, err = proc.communicate(timeout=timeout)
+            if proc.returncode != 0:
+                raise RuntimeError(f"vts scan start failed ({proc.returncode}): {err.strip()}")
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        for f in (proc.stdout, proc.stderr):
+            if f is not None:
+                f.close()
+    lm, spect = simulate_spect(rig, truth, session, spect_s or (kill_after_s or duration_s) - SPECT_TAIL_S,
+                               seed=seed)
+    return SimSyncScan(session, lm, fire, truth, spect)
