@@ -5,8 +5,8 @@ Used by tests/test_sync.py and bench/sync_accuracy.py. The rig must be a running
 ``SimRig(trigger="triggerbox")`` whose ``write(folder)`` has been called (rig.yaml with the
 true cameras' calibration files). Host UTC epoch seconds throughout.
 
-The scene's LEDs are switched on here (the scan session does not switch them: on the real
-rig the LED rings are on for the whole scan), and the source marker is placed before the
+The scene's LEDs are switched on here too (the scan session switches them on through the
+driver as well), and the source marker is placed before the
 scan starts and its moves scheduled once the fire time is known, clear of the simulated
 SPECT's head rotations (:func:`vts_hw.sim_devices.sync_sim.plan_sync_moves`).
 """

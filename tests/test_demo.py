@@ -64,3 +64,24 @@ def test_the_step_test_follows_the_daily_qa_and_is_in_the_report(demo):
     html = demo.report_html.read_text()
     assert f'alt="7-sphere step test, run {steps.run_id}"' in html
     assert 'data-plots-expected="3"' in html     # two cameras' drift and the step test
+
+
+def test_vts_demo_command_end_to_end_with_a_scan(tmp_path):
+    """`make demo` runs this command: every section, the step test and a short scan with the
+    sync check (events against the truth) included."""
+    import re
+    import subprocess
+    import sys
+
+    out = tmp_path / "demo"
+    r = subprocess.run([sys.executable, "-m", "vts_hw.cli.__main__", "demo", "-o", str(out), "--days", "1",
+                        "--seconds", "1", "--scan-seconds", "16"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    for heading in ("== 1. the cameras", "== 2. the daily QA", "== 3. the 7-sphere step test",
+                    "== 4. a scan of 16 s and the sync check"):
+        assert heading in r.stdout
+    errors = [abs(float(x)) for x in re.findall(r"(?:VTS|SPECT) ([+-]\d+\.\d) ms", r.stdout)]
+    assert errors and max(errors) <= 20.0
+    assert "not found" not in r.stdout
+    assert (out / "sync-report.html").stat().st_size > 20_000
+    assert (out / "trajectories" / "trajectories.csv").exists()

@@ -18,7 +18,9 @@ from . import cli
 @click.option("--seconds", type=float, default=3.0, show_default=True, help="Length of the camera recording.")
 @click.option("--frames", type=click.IntRange(1, 50), default=5, show_default=True,
               help="LED-on snapshots per camera and day.")
-def demo(out: str, days: int, seconds: float, frames: int) -> None:
+@click.option("--scan-seconds", type=click.FloatRange(0, 600), default=20.0, show_default=True,
+              help="Length of the simulated scan (0: no scan).")
+def demo(out: str, days: int, seconds: float, frames: int, scan_seconds: float) -> None:
     """The simulated rig, end to end.
 
     1. The cameras: a simulated rig of two Axis cameras on 127.0.0.1; device info, clock offset,
@@ -29,6 +31,9 @@ def demo(out: str, days: int, seconds: float, frames: int) -> None:
     3. The 7-sphere step test on the same rig: stereo calibration from rendered checkerboards,
        the VTS -> SPECT mapping, then 22 table positions, scored against the truth.
     4. The QA report (drift trend and step test), HTML and PDF.
+    5. A scan: `vts scan start` against a rig with the trigger-box firmware in the emulator and a
+       source marker moved along the table; the simulated SPECT writes list-mode following the
+       trigger the box emitted; `vts sync analyze` lines the two up, scored against the truth.
     """
     out_dir = Path(out)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -36,6 +41,9 @@ def demo(out: str, days: int, seconds: float, frames: int) -> None:
     _cameras(out_dir, seconds)
     click.echo(f"\n== 2. the daily QA, {days} simulated days")
     _daily(out_dir, days, frames)
+    if scan_seconds > 0:
+        click.echo(f"\n== 4. a scan of {scan_seconds:g} s and the sync check")
+        _scan(out_dir, scan_seconds)
 
 
 def _cameras(out_dir: Path, seconds: float) -> None:
@@ -113,6 +121,53 @@ def _daily(out_dir: Path, days: int, frames: int) -> None:
     click.echo(f"results store: {res.store_path}")
     click.echo(f"report:        {res.report_html}")
     click.echo(f"               {res.report_pdf}")
+
+
+def _scan(out_dir: Path, seconds: float) -> None:
+    import subprocess
+    import sys
+
+    from ..procedures import sync_sim
+    from ..sim_devices.rig import SimRig
+
+    scan_dir = out_dir / "scan"
+    if scan_dir.exists():
+        import shutil
+        shutil.rmtree(scan_dir)      # a scan refuses a folder that is not empty
+    rig = SimRig(n_cameras=2, seed=3, trigger="triggerbox").start()
+    try:
+        rig_yaml, _ = rig.write(out_dir / "scan-rig")
+        marker = sync_sim.prepare(rig)
+        click.echo(f"vts scan start --duration {seconds:g} -o {scan_dir}  (trigger box firmware in the "
+                   "emulator; a source marker moved along the table)")
+        run = sync_sim.cli_scan(rig, rig_yaml, scan_dir, seconds, marker, n=3, seed=1)
+    finally:
+        rig.stop()
+    import json
+
+    report = out_dir / "sync-report.html"
+    cmd = [sys.executable, "-m", "vts_hw.cli.__main__", "sync", "analyze", str(run.session),
+           "--listmode", str(run.listmode), "--config", str(rig_yaml), "-o", str(report),
+           "--export", str(out_dir / "trajectories"), "--json"]
+    click.echo(f"vts sync analyze {run.session} --listmode {run.listmode} -o {report}")
+    p = subprocess.run(cmd, capture_output=True, text=True)
+    if p.returncode not in (0, 10, 20):
+        click.echo(p.stderr.rstrip(), err=True)
+        raise click.ClickException("the sync analysis failed")
+    data = json.loads(p.stdout)
+    g = data["gating"]
+    click.echo(f"  state {data['summary']['state']}; {len(data['events'])} motion event(s); SPECT start delay "
+               f"{g['start_delay_s'] * 1e3:.2f} ms (true {run.spect.start_delay_s * 1e3:.2f} ms)")
+    click.echo("  per move, event time minus the true mid-move time (host clock; goal within 20 ms):")
+    for k, mv in enumerate(run.source.moves, 1):
+        ev = min(data["events"], key=lambda e: abs((e["t_spect"] or e["t_vts"]) - mv.t_mid), default=None)
+        if ev is None or abs((ev["t_spect"] or ev["t_vts"]) - mv.t_mid) > 0.5:
+            click.echo(f"    move {k} ({mv.step_mm:+.1f} mm): not found")
+            continue
+        f = lambda v: "  -  " if v is None else f"{(v - mv.t_mid) * 1e3:+.1f} ms"  # noqa: E731
+        click.echo(f"    move {k} ({mv.step_mm:+5.1f} mm at {mv.t_mid - run.fire_host:5.2f} s): VTS {f(ev['t_vts'])},"
+                   f" SPECT {f(ev['t_spect'])}, seen by {ev['seen_by']}")
+    click.echo(f"  report: {report}; trajectories (SPECT frame, SPECT time): {', '.join(data['export'])}")
 
 
 def _bright(jpeg: bytes) -> int:
