@@ -39,8 +39,10 @@ class Recorder:
     """Record ``cameras`` for ``seconds`` (None: until stop()) into ``folder``."""
 
     def __init__(self, cameras: list[AxisCamera], folder: str | Path, seconds: float | None = None,
-                 meta: dict | None = None, give_up_after: float | None = None):
+                 meta: dict | None = None, give_up_after: float | None = None,
+                 max_backoff: float = 5.0):
         self.cameras = cameras
+        self.max_backoff = max_backoff  # longest wait between reconnection attempts (s)
         self.seconds = seconds
         self.give_up_after = give_up_after
         self.stop_event = threading.Event()
@@ -52,7 +54,7 @@ class Recorder:
     def start(self) -> None:
         for cam in self.cameras:
             stream = FrameStream(cam, duration=self.seconds, stop_event=self.stop_event,
-                                 give_up_after=self.give_up_after)
+                                 give_up_after=self.give_up_after, max_backoff=self.max_backoff)
             self._streams[cam.name] = stream
             t = threading.Thread(target=self._run, args=(cam, stream), name=f"rec-{cam.name}", daemon=True)
             self._threads.append(t)
