@@ -178,8 +178,13 @@ def load_env_file(path: str | Path) -> dict[str, str]:
 
 # -- running in the foreground or detached ----------------------------------------------------
 def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = "vapix3",
-          rate: float = 1.0, on_ready=None, trigger: str = "none") -> None:
-    """Run a rig until SIGINT/SIGTERM. With ``folder``: write rig.yaml, sim.env and sim.pid."""
+          rate: float = 1.0, on_ready=None, trigger: str = "none", spect: bool = False) -> None:
+    """Run a rig until SIGINT/SIGTERM. With ``folder``: write rig.yaml, sim.env and sim.pid.
+    ``spect``: a simulated SPECT records every scan the trigger box starts, into
+    ``folder/spect`` (:class:`~vts_hw.sim_devices.spect_follower.SpectFollower`)."""
+    if spect and (trigger != "triggerbox" or folder is None):
+        raise VtsError("the simulated SPECT needs --trigger triggerbox and --dir (it writes its "
+                       "list-mode files into DIR/spect)")
     clock = RealClock() if rate == 1.0 else VirtualClock(time.time(), rate=rate)
     stop = threading.Event()
 
@@ -188,7 +193,15 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
 
     signal.signal(signal.SIGTERM, _stop)
     signal.signal(signal.SIGINT, _stop)
-    with SimRig(n_cameras=n_cameras, seed=seed, firmware=firmware, clock=clock, trigger=trigger) as rig:
+    rig = SimRig(n_cameras=n_cameras, seed=seed, firmware=firmware, clock=clock, trigger=trigger)
+    follower = None
+    if spect:
+        from .spect_follower import SpectFollower
+        follower = SpectFollower(rig, Path(folder) / "spect", seed=seed,
+                                 log=lambda m: print(m, flush=True))  # the scene, before cameras serve
+    with rig:
+        if follower is not None:
+            follower.start()
         if folder is not None:
             folder = Path(folder)
             folder.mkdir(parents=True, exist_ok=True)
@@ -198,6 +211,8 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
             on_ready(rig)
         while not stop.wait(0.5):
             pass
+        if follower is not None:
+            follower.stop()
     if folder is not None:
         for name in (PID_FILE,):
             with contextlib.suppress(FileNotFoundError):
@@ -205,7 +220,8 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
 
 
 def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmware: str = "vapix3",
-                   rate: float = 1.0, timeout: float = 60.0, trigger: str = "none") -> int:
+                   rate: float = 1.0, timeout: float = 60.0, trigger: str = "none",
+                   spect: bool = False) -> int:
     """Start ``serve`` in a background process; return its pid once rig.yaml is written."""
     folder = Path(folder).resolve()
     folder.mkdir(parents=True, exist_ok=True)
@@ -216,7 +232,7 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
             (folder / name).unlink()
     log = open(folder / "sim.log", "ab")
     cmd = [sys.executable, "-m", "vts_hw.sim_devices.rig", str(folder), str(n_cameras), str(seed), firmware,
-           str(rate), trigger]
+           str(rate), trigger] + (["spect"] if spect else [])
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=log, start_new_session=True)
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -282,4 +298,4 @@ def stop_detached(folder: str | Path, timeout: float = 10.0) -> bool:
 
 if __name__ == "__main__":  # the detached process
     _folder, _n, _seed, _fw, _rate, _trigger = sys.argv[1:7]
-    serve(_folder, int(_n), int(_seed), _fw, float(_rate), trigger=_trigger)
+    serve(_folder, int(_n), int(_seed), _fw, float(_rate), trigger=_trigger, spect="spect" in sys.argv[7:])

@@ -25,10 +25,16 @@ def sim() -> None:
 @click.option("--trigger", type=click.Choice(["none", "triggerbox", "visa"]), default="none", show_default=True,
               help="A simulated trigger generator: our firmware in the emulator behind a pty, or the "
                    "pyvisa-sim function generator.")
+@click.option("--spect", is_flag=True,
+              help="A simulated SPECT beside the rig (needs --trigger triggerbox and --dir): a source "
+                   "marker on the table moves every ~15 s once the box sends its SPECT start pulse, and "
+                   "each scan's list-mode is written to DIR/spect/ when the square wave stops (for "
+                   "`vts sync analyze`).")
 @click.option("--detach", is_flag=True, help="Run in the background (needs --dir).")
 @click.option("--dir", "folder", type=click.Path(file_okay=False), default=None,
               help="Where to write rig.yaml and sim.env (and sim.pid, sim.log when detached).")
-def up(n_cameras: int, seed: int, vapix: str, rate: float, trigger: str, detach: bool, folder: str | None) -> None:
+def up(n_cameras: int, seed: int, vapix: str, rate: float, trigger: str, spect: bool, detach: bool,
+       folder: str | None) -> None:
     """Run the simulated rig (foreground: Ctrl-C stops it).
 
     With --dir DIR it writes DIR/rig.yaml pointing at the simulated cameras and DIR/sim.env
@@ -38,10 +44,12 @@ def up(n_cameras: int, seed: int, vapix: str, rate: float, trigger: str, detach:
     from ..sim_devices import rig as simrig  # imports the scene only when asked
 
     fw = "vapix3" if vapix == "3" else "vapix2"
+    if spect and (trigger != "triggerbox" or not folder):
+        raise click.UsageError("--spect needs --trigger triggerbox and --dir DIR")
     if detach:
         if not folder:
             raise click.UsageError("--detach needs --dir DIR (where rig.yaml and sim.env go)")
-        pid = simrig.start_detached(folder, n_cameras, seed, fw, rate, trigger=trigger)
+        pid = simrig.start_detached(folder, n_cameras, seed, fw, rate, trigger=trigger, spect=spect)
         _describe(Path(folder))
         click.echo(f"simulated rig running in the background (pid {pid}); stop it with: vts sim down --dir {folder}")
         return
@@ -53,9 +61,11 @@ def up(n_cameras: int, seed: int, vapix: str, rate: float, trigger: str, detach:
             click.echo(f"trigger box: {rig.trigger_box.port} (firmware in the emulator)")
         if folder:
             _describe(Path(folder))
+        if spect:
+            click.echo(f"simulated SPECT: each scan's list-mode goes to {Path(folder) / 'spect'}")
         click.echo("simulated rig up; Ctrl-C stops it")
 
-    simrig.serve(folder, n_cameras, seed, fw, rate, on_ready=ready, trigger=trigger)
+    simrig.serve(folder, n_cameras, seed, fw, rate, on_ready=ready, trigger=trigger, spect=spect)
     click.echo("simulated rig stopped")
 
 
