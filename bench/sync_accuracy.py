@@ -65,18 +65,17 @@ def main() -> int:
           f"{len(run.source.moves)} moves; command: {' '.join(cmd[3:])}")
     ok = True
     events = data["events"]
-    for k, mv in enumerate(run.source.moves, 1):
-        ev = min(events, key=lambda e: abs((e["t_spect"] or e["t_vts"]) - mv.t_mid), default=None)
-        if ev is None or abs((ev["t_spect"] or ev["t_vts"]) - mv.t_mid) > 0.5:
-            print(f"  move {k} at {mv.t_mid - run.fire_host:6.2f} s ({mv.step_mm:+.1f} mm): NOT FOUND")
+    f = lambda v: "   -   " if v is None else f"{v * 1e3:+7.2f}"  # noqa: E731
+    for k, row in enumerate(sync_sim.match_moves(events, run.source.moves), 1):
+        head = f"  move {k} at {row['t_mid'] - run.fire_host:6.2f} s ({row['step_mm']:+5.1f} mm)"
+        if not row["found"]:
+            print(f"{head}: NOT FOUND")
             ok = False
             continue
-        ve = None if ev["t_vts"] is None else ev["t_vts"] - mv.t_mid
-        se = None if ev["t_spect"] is None else ev["t_spect"] - mv.t_mid
-        f = lambda v: "   -   " if v is None else f"{v * 1e3:+7.2f}"  # noqa: E731
-        print(f"  move {k} at {mv.t_mid - run.fire_host:6.2f} s ({mv.step_mm:+5.1f} mm): VTS {f(ve)} ms, "
-              f"SPECT {f(se)} ms, VTS-SPECT {f(ev['dt_s'])} ms (seen by {ev['seen_by']})")
-        ok &= ev["seen_by"] == "both" and max(abs(ve), abs(se), abs(ev["dt_s"])) <= EVENT_GOAL_S
+        print(f"{head}: VTS {f(row['vts_err_s'])} ms, SPECT {f(row['spect_err_s'])} ms, "
+              f"VTS-SPECT {f(row['dt_s'])} ms (seen by {row['seen_by']})")
+        ok &= row["seen_by"] == "both" and max(abs(row["vts_err_s"]), abs(row["spect_err_s"]),
+                                               abs(row["dt_s"])) <= EVENT_GOAL_S
     extra = len(events) - len(run.source.moves)
     delay_err = data["summary"]["start_delay_s"] - run.spect.start_delay_s
     print(f"  events reported {len(events)} (extra {extra}); offset VTS-SPECT (median) "

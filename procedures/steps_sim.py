@@ -84,9 +84,8 @@ def run_sim_steps(out_dir, seed: int = 0, *, frames: int = 10, n_vertical: int =
     from ..drivers.axis import AxisCamera
     from ..sim_devices import checkerboard as cb
     from ..sim_devices.rig import SimRig
-    from ..sim_devices.step_table import SimSpectSource, SimTable
     from ..sim_devices.spect import SimSpect
-    from ..sim_devices.step_table import SPECT_MATRIX, sphere_centres
+    from ..sim_devices.step_table import SPECT_MATRIX, SimSpectSource, SimTable, sphere_centres
     from .spect_mapping import SpectMapping
     from .steps import (LED_SETTLE_S, SNAPSHOT_COMPRESSION, StepSession, average_centroids, step_plan,
                         store_steps)

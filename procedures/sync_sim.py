@@ -5,8 +5,7 @@ Used by tests/test_sync.py and bench/sync_accuracy.py. The rig must be a running
 ``SimRig(trigger="triggerbox")`` whose ``write(folder)`` has been called (rig.yaml with the
 true cameras' calibration files). Host UTC epoch seconds throughout.
 
-The scene's LEDs are switched on here too (the scan session switches them on through the
-driver as well), and the source marker is placed before the
+The scan session switches the LED rings on through the driver; the source marker is placed before the
 scan starts and its moves scheduled once the fire time is known, clear of the simulated
 SPECT's head rotations (:func:`vts_hw.sim_devices.sync_sim.plan_sync_moves`).
 """
@@ -25,7 +24,7 @@ from pathlib import Path
 from ..sim_devices.spect_listmode import ListModeTruth, SimListModeSpect
 from ..sim_devices.sync_sim import place_source_marker, plan_sync_moves, schedule_source_moves
 
-__all__ = ["SimSyncScan", "prepare", "start_moves", "simulate_spect", "score", "cli_scan", "fire_time_of"]
+__all__ = ["SimSyncScan", "prepare", "start_moves", "simulate_spect", "match_moves", "cli_scan", "fire_time_of"]
 
 SPECT_TAIL_S = 0.6   # the SPECT acquisition ends this long before the scan (start delay ≤ 0.4 s)
 
@@ -42,9 +41,8 @@ class SimSyncScan:
 
 
 def prepare(rig, position=(10.0, -20.0, 5.0), rate_cps: float = 3000.0):
-    """LEDs on, clocks synced, a source marker at rest in the scene. Returns its truth."""
-    for src in rig.sources.values():
-        src.set_led(True)
+    """Clocks synced, a source marker at rest in the scene (the scan session switches the LED
+    rings on). Returns its truth."""
     rig.ntp_sync()
     if "source" in rig.scene.bodies:
         raise ValueError("the scene already has a source marker")
@@ -91,23 +89,26 @@ def simulate_spect(rig, source, session: Path, duration_s: float, out: Path | No
     return out, truth
 
 
-def score(analysis, source, spect_truth: ListModeTruth) -> dict:
-    """Per true move: the VTS and SPECT event times minus the move's middle (host s), and the
-    start delay's error. Truth of an event: the move's mid time ``t_mid`` (half the
-    displacement done), the instant both systems should report."""
+def match_moves(events: list[dict], moves, window_s: float = 0.5) -> list[dict]:
+    """Each true move with the reported event nearest its mid time (``events`` as in
+    ``SyncAnalysis.results_data()["events"]``, host s): the VTS and SPECT event times minus the
+    move's middle (the instant both systems should report), their difference and who saw it;
+    ``found`` False when no event lies within ``window_s``."""
     rows = []
-    for mv in source.moves:
-        ev = min(analysis.events, key=lambda e: abs(e.t - mv.t_mid), default=None)
-        if ev is None or abs(ev.t - mv.t_mid) > 0.5:
-            rows.append({"t_mid": mv.t_mid, "found": False})
+    for mv in moves:
+        ev = min(events, key=lambda e: abs(_event_time(e) - mv.t_mid), default=None)
+        if ev is None or abs(_event_time(ev) - mv.t_mid) > window_s:
+            rows.append({"t_mid": mv.t_mid, "step_mm": mv.step_mm, "found": False})
             continue
-        rows.append({"t_mid": mv.t_mid, "found": True, "seen_by": ev.seen_by, "step_mm": mv.step_mm,
-                     "vts_err_s": ev.vts.t_mid - mv.t_mid if ev.vts else None,
-                     "spect_err_s": ev.spect.t_mid - mv.t_mid if ev.spect else None,
-                     "dt_s": ev.dt_s})
-    return {"moves": rows, "start_delay_err_s": analysis.gating.start_delay_s - spect_truth.start_delay_s,
-            "start_delay_true_s": spect_truth.start_delay_s, "extra_events": len(analysis.events)
-            - sum(r["found"] for r in rows)}
+        rows.append({"t_mid": mv.t_mid, "step_mm": mv.step_mm, "found": True, "seen_by": ev["seen_by"],
+                     "vts_err_s": None if ev["t_vts"] is None else ev["t_vts"] - mv.t_mid,
+                     "spect_err_s": None if ev["t_spect"] is None else ev["t_spect"] - mv.t_mid,
+                     "dt_s": ev["dt_s"]})
+    return rows
+
+
+def _event_time(e: dict) -> float:
+    return e["t_spect"] if e["t_spect"] is not None else e["t_vts"]
 
 
 def cli_scan(rig, rig_yaml, session, duration_s: float, marker, *, n: int = 4, seed: int = 0,

@@ -101,7 +101,7 @@ def find_body(points, template, tol_mm: float = DEFAULT_TOL_MM,
     a, b, c = _anchor(tpl)
     dab, dac, dbc = (np.linalg.norm(tpl[p] - tpl[q]) for p, q in ((a, b), (a, c), (b, c)))
     dist = np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=-1)
-    fits: list[tuple[int, float, tuple, RigidTransform]] = []
+    assignments: set[tuple] = set()   # template point -> point index (-1: not found)
     tried = 0
     for i, j in zip(*np.nonzero(np.abs(dist - dab) < tol_mm)):
         if i == j:
@@ -111,27 +111,23 @@ def find_body(points, template, tol_mm: float = DEFAULT_TOL_MM,
             if k in (i, j):
                 continue
             tried += 1
-            tr = kabsch(tpl[[a, b, c]], pts[[i, j, k]])
-            moved = tr.apply(tpl)
+            moved = kabsch(tpl[[a, b, c]], pts[[i, j, k]]).apply(tpl)
             dd = np.linalg.norm(moved[:, None, :] - pts[None, :, :], axis=-1)
             near = np.argmin(dd, axis=1)
             ok = dd[np.arange(m), near] < tol_mm
-            if ok.sum() < 3:
-                continue
-            fits.append((int(ok.sum()), 0.0, tuple(np.where(ok, near, -1)), tr))
-    if not fits:
+            if ok.sum() >= 3:
+                assignments.add(tuple(int(x) for x in np.where(ok, near, -1)))
+    if not assignments:
         raise DataError(f"the {m}-point body was not found among the {len(pts)} points seen "
                         f"(no three of them match its shape within {tol_mm:g} mm).")
-    # refine each distinct assignment on all its inliers, then rank
+    # refit each distinct assignment on all its points, then rank: most points, then best fit
     ranked: dict[tuple, tuple[int, float, RigidTransform]] = {}
-    for n_in, _, assign, _tr in fits:
-        if assign in ranked:
-            continue
+    for assign in assignments:
         sel = np.array([i for i, p in enumerate(assign) if p >= 0])
         idx = np.array([assign[i] for i in sel])
         tr = kabsch(tpl[sel], pts[idx])
         rms = float(np.sqrt(np.mean(np.sum((tr.apply(tpl[sel]) - pts[idx]) ** 2, axis=1))))
-        ranked[assign] = (n_in, rms, tr)
+        ranked[assign] = (len(sel), rms, tr)
     order = sorted(ranked.items(), key=lambda kv: (-kv[1][0], kv[1][1]))
     assign, (n_in, rms, tr) = order[0]
     if n_in < m:

@@ -103,12 +103,10 @@ class StereoCalibration:
         p2 = self.K2 @ np.hstack([self.R, self.T.reshape(3, 1)])
         return p1, p2
 
-    def cameras(self) -> list:
+    def cameras(self, names=("left", "right")) -> list:
         """The pair as :class:`vts_hw.triangulate.Camera` objects in camera 1's frame (the VTS
         frame): camera 1 at the origin, camera 2 at ``R``, ``T`` (in ``unit``)."""
-        from .triangulate import Camera
-        return [Camera(self.K1, self.d1, np.eye(3), np.zeros(3), "left"),
-                Camera(self.K2, self.d2, self.R, self.T.ravel(), "right")]
+        return stereo_cameras(self, names)
 
     # ---- comparison ------------------------------------------------------------------
     def compare(self, previous: StereoCalibration) -> dict[str, Any]:
@@ -212,6 +210,14 @@ class StereoCalibration:
             raise DataError(f"{path}: key 'format' is not {FORMAT!r}, so this is not a stereo"
                             " calibration file.")
         return _from_data(path, data)
+
+
+def stereo_cameras(calib, names=("left", "right")) -> list:
+    """:meth:`StereoCalibration.cameras` of any object with ``K1, d1, K2, d2, R, T``."""
+    from .triangulate import Camera
+    a, b = names[:2]
+    return [Camera(calib.K1, calib.d1, np.eye(3), np.zeros(3), a),
+            Camera(calib.K2, calib.d2, calib.R, np.ravel(calib.T), b)]
 
 
 def rotation_angle_deg(rot: np.ndarray) -> float:

@@ -84,9 +84,8 @@ def cameras_from_calibration(calib, names: Sequence[str] = ("cam1", "cam2")) -> 
     if getattr(calib, "unit", "mm") != "mm":
         raise DataError(f"the stereo calibration's translation is in {calib.unit!r}, not mm: "
                         "calibrate with the checkerboard's square size to get tracks in mm")
-    a, b = names[:2]
-    return {a: Camera(calib.K1, calib.d1, np.eye(3), np.zeros(3), a),
-            b: Camera(calib.K2, calib.d2, calib.R, calib.T, b)}
+    from .calibration_io import stereo_cameras
+    return {c.name: c for c in stereo_cameras(calib, names)}
 
 
 def _camera_dict(cameras, available: Sequence[str]) -> dict[str, Camera]:

@@ -293,13 +293,12 @@ def sim_spect_inputs(seed: int, workdir: Path) -> tuple[np.ndarray, Path, dict]:
     from ..body_finder import locate_body
     from ..detect import detect
     from ..procedures.steps import average_centroids
-    from ..registration import RigidTransform
     from ..sim_devices.render import Renderer
     from ..sim_devices.scene import Scene
     from ..sim_devices.spect import SimSpect
     from ..sim_devices.step_table import sphere_centres
+    from ..sim_devices.sync_sim import true_spect_mapping, true_stereo_calibration
     from ..spect import find_spheres, read_volume
-    from ..triangulate import Camera
 
     scene = Scene.reference(seed, start_epoch=0.0)
     scene.add_phantom()
@@ -310,16 +309,14 @@ def sim_spect_inputs(seed: int, workdir: Path) -> tuple[np.ndarray, Path, dict]:
     renderer = Renderer(scene, seed=seed)
     pts = [average_centroids([detect(renderer.render(cam, t)) for _ in range(SIM_FRAMES)])
            for cam in names]
-    true_cams = [scene.camera_at(cam, t) for cam in names]  # the true cameras: perfect calibration
-    c1 = true_cams[0]
-    # in camera 1's frame, as a stereo calibration would give them
-    cams = [Camera(c.K, c.dist, c.R @ c1.R.T, c.t - c.R @ c1.R.T @ c1.t, c.name) for c in true_cams]
+    # the true cameras in camera 1's frame, as a perfect stereo calibration would give them
+    cams = true_stereo_calibration(scene, t, names).cameras(names)
     spheres_true = sphere_centres(scene, t)
     volume = SimSpect(seed=seed).write(workdir / "sim_spect.npz", spheres_true)
     spect = find_spheres(read_volume(volume), strict=True).centroids
     fit = locate_body(cams, pts[0], pts[1], spect)
     vts = fit.points
-    truth = RigidTransform(c1.R.T, -c1.R.T @ c1.t)  # VTS (cam1) -> SPECT (world)
+    truth = true_spect_mapping(scene, t, names)  # VTS (cam1) -> SPECT (world)
     world = truth.apply(vts)
     tri_err = np.min(np.linalg.norm(world[:, None, :] - spheres_true[None, :, :], axis=-1), axis=1)
     info = {

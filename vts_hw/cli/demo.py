@@ -159,14 +159,13 @@ def _scan(out_dir: Path, seconds: float) -> None:
     click.echo(f"  state {data['summary']['state']}; {len(data['events'])} motion event(s); SPECT start delay "
                f"{g['start_delay_s'] * 1e3:.2f} ms (true {run.spect.start_delay_s * 1e3:.2f} ms)")
     click.echo("  per move, event time minus the true mid-move time (host clock; goal within 20 ms):")
-    for k, mv in enumerate(run.source.moves, 1):
-        ev = min(data["events"], key=lambda e: abs((e["t_spect"] or e["t_vts"]) - mv.t_mid), default=None)
-        if ev is None or abs((ev["t_spect"] or ev["t_vts"]) - mv.t_mid) > 0.5:
-            click.echo(f"    move {k} ({mv.step_mm:+.1f} mm): not found")
+    ms = lambda v: "  -  " if v is None else f"{v * 1e3:+.1f} ms"  # noqa: E731
+    for k, row in enumerate(sync_sim.match_moves(data["events"], run.source.moves), 1):
+        head = f"    move {k} ({row['step_mm']:+5.1f} mm at {row['t_mid'] - run.fire_host:5.2f} s)"
+        if not row["found"]:
+            click.echo(f"{head}: not found")
             continue
-        f = lambda v: "  -  " if v is None else f"{(v - mv.t_mid) * 1e3:+.1f} ms"  # noqa: E731
-        click.echo(f"    move {k} ({mv.step_mm:+5.1f} mm at {mv.t_mid - run.fire_host:5.2f} s): VTS {f(ev['t_vts'])},"
-                   f" SPECT {f(ev['t_spect'])}, seen by {ev['seen_by']}")
+        click.echo(f"{head}: VTS {ms(row['vts_err_s'])}, SPECT {ms(row['spect_err_s'])}, seen by {row['seen_by']}")
     click.echo(f"  report: {report}; trajectories (SPECT frame, SPECT time): {', '.join(data['export'])}")
 
 

@@ -11,6 +11,7 @@ from pathlib import Path
 import click
 
 from ..errors import ConfigError, DataError
+from ..tolerance import State
 from .common import config_option, echo_json, json_option
 from .qa import qa
 
@@ -166,7 +167,7 @@ def _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path, an
         if dry_run:
             for i, step in enumerate(session.plan(), 1):
                 click.echo(f"{i:2d}. {step}")
-            return _ok()
+            return State.OK
         try:
             seen = session.acquire()
         finally:
@@ -186,7 +187,3 @@ def _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path, an
     _print(analysis, [f"run {run_id} stored; plot {png}"], as_json, {"run_id": run_id, "out": str(out)})
     return analysis.state
 
-
-def _ok():
-    from ..tolerance import State
-    return State.OK

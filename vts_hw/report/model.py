@@ -170,10 +170,6 @@ class DriftReport:
     steps: "StepsSummary | None" = None    # the 7-sphere step tests of the period
 
     @property
-    def steps_state(self) -> State | None:
-        return None if self.steps is None else self.steps.state
-
-    @property
     def state(self) -> State:
         return worst(c.state for c in self.cameras.values())
 

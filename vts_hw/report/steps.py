@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from html import escape
 from pathlib import Path
 
-from ..tolerance import State, worst
+from ..tolerance import State
 from .times import fmt_datetime
 
 PROCEDURE = "sphere-steps"
@@ -162,8 +162,4 @@ def steps_figure(s: StepsSummary, figsize=(11.69, 8.27)):
     return fig
 
 
-def steps_state(s: StepsSummary | None) -> State | None:
-    return None if s is None else s.state
-
-
-__all__ = ["StepsSummary", "collect_steps", "steps_html", "steps_figure", "worst"]
+__all__ = ["StepsSummary", "collect_steps", "steps_html", "steps_figure"]
