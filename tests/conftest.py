@@ -34,3 +34,6 @@ def cam1(sim_rig):
 
     with AxisCamera.from_config(sim_rig.config().camera("cam1")) as cam:
         yield cam
+
+
+from fsfaults import readonly_dir, small_disk  # noqa: E402,F401  (fixtures: a full disk, a read-only folder)
