@@ -158,6 +158,39 @@ class Recording:
 
 
 # -- reading -------------------------------------------------------------------------
+MANIFEST = "manifest.json"
+
+
+def load_manifest(folder: str | Path, *, missing_ok: bool = False) -> dict | None:
+    """The manifest of a recording folder, checked for its shape; DataError naming the file
+    when it cannot be read or is not a recording manifest (a mapping whose ``cameras`` is a
+    mapping of camera name to a mapping). ``missing_ok``: None when there is no manifest."""
+    path = Path(folder) / MANIFEST
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        if missing_ok:
+            return None
+        raise DataError(f"{Path(folder)}: not a recording folder (no {MANIFEST})") from None
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read the manifest ({exc.strerror or exc})") from None
+    try:
+        data = json.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError, RecursionError):
+        raise DataError(f"{path}: not a recording manifest (not valid JSON)") from None
+    if not isinstance(data, dict):
+        raise DataError(f"{path}: not a recording manifest (expected a JSON object, got {_json_kind(data)})")
+    cams = data.get("cameras", {})
+    if not isinstance(cams, dict) or not all(isinstance(k, str) and isinstance(v, dict) for k, v in cams.items()):
+        raise DataError(f"{path}: not a recording manifest (\"cameras\" must map each camera name to its entry)")
+    return data
+
+
+def _json_kind(v) -> str:
+    return {list: "a list", str: "a string", int: "a number", float: "a number", bool: "true/false",
+            type(None): "null"}.get(type(v), type(v).__name__)
+
+
 @dataclass
 class FrameRow:
     frame: int
