@@ -37,7 +37,6 @@ from ..config import RigConfig
 from ..drivers.axis import AxisCamera, BadReply
 from ..errors import VtsError
 from ..recorder import Recorder
-from ..recording import write_json_atomic
 from .scan_trigger import ScanError, ScanTrigger, plain_dict
 
 FIRST_FRAME_TIMEOUT_S = 10.0   # a camera silent this long after the recording started: no fire
@@ -404,14 +403,11 @@ class ScanSession:
         rec.meta["trigger"] = self.trigger.info
         for attempt in range(3):  # a camera thread may be adding its notes at this very moment
             try:
-                data = rec.manifest()
-                break
+                return rec.write_manifest()
             except RuntimeError:
                 if attempt == 2:
                     raise
                 time.sleep(0.01)
-        write_json_atomic(rec.folder / "manifest.json", data)
-        return data
 
     def _close_cameras(self) -> None:
         for cam in self.cameras:

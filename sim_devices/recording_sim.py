@@ -23,7 +23,7 @@ from typing import Callable
 import numpy as np
 
 from vts_hw.axis_jpeg import stamp_jpeg
-from vts_hw.recording import Recording
+from vts_hw.recording_writer import Recording
 
 from .render import Renderer, encode
 from .scene import Marker, RigidBody, Scene

@@ -221,14 +221,14 @@ def test_bad_inputs_are_data_errors(tmp_path, processed):
 
 
 def test_reindexed_and_recovered_recordings(tmp_path):
-    from vts_hw.recording import reindex
+    from vts_hw.reindex import reindex
 
     folder = tmp_path / "killed"
     sim = simulate_recording(folder, duration_s=3.0, seed=4, torn_tail=("cam2",),
                              clock_offsets_s={"cam1": 0.0, "cam2": 5.0})
     before = process_recording(folder, true_cameras(sim), workers=1)
     report = reindex(folder)  # what `vts recording reindex` does after a kill -9
-    assert report["cam2"]["torn"] == 1 and report["cam2"]["host_times_kept"] == 75
+    assert report["cam2"].torn == 1 and report["cam2"].host_times_kept == 75 and report["cam2"].replaced
     after = process_recording(folder, true_cameras(sim), workers=1)
     assert np.array_equal(after.xyz, before.xyz) and after.meta["warnings"] == []
     # an index lost entirely: no receive times for cam2, so no way to host time but its own

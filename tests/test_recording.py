@@ -7,7 +7,9 @@ import pytest
 from vts_hw.axis_jpeg import inspect_jpeg
 from vts_hw.errors import DataError
 from vts_hw.mjpeg import read_frames_file
-from vts_hw.recording import Recording, info, read_index, reindex
+from vts_hw.recording import info, read_index
+from vts_hw.recording_writer import Recording
+from vts_hw.reindex import reindex
 
 
 @pytest.fixture()
@@ -42,11 +44,12 @@ def test_reindex_from_mjpeg_alone_keeps_host_times(tmp_path, real_frames):
     before = (tmp_path / "cam1.index.csv").read_text()
     (tmp_path / "cam1.index.csv").write_text(before.splitlines()[0] + "\n" + "\n".join(before.splitlines()[1:6]) + "\n3,99")
     report = reindex(tmp_path)
-    assert report["cam1"] == {"frames": 16, "host_times_kept": 5, "torn": 0}
+    c = report["cam1"]
+    assert (c.frames, c.host_times_kept, c.torn, c.replaced) == (16, 5, 0, True)
     after = read_index(tmp_path / "cam1.index.csv")
     assert [r.offset for r in after] == [r.offset for r in read_index_from_text(tmp_path, before)]
     (tmp_path / "cam1.index.csv").unlink()
-    assert reindex(tmp_path)["cam1"]["frames"] == 16
+    assert reindex(tmp_path)["cam1"].frames == 16
 
 
 def read_index_from_text(tmp_path, text):
@@ -62,7 +65,7 @@ def test_frame_in_flight_at_a_kill_is_left_out_and_reported(tmp_path, real_frame
     summary = info(tmp_path)[0]
     assert summary.frames == 16 and any("reindex" in p for p in summary.problems)
     report = reindex(tmp_path)
-    assert report["cam1"]["frames"] == 16 and report["cam1"]["torn"] == 1
+    assert report["cam1"].frames == 16 and report["cam1"].torn == 1
 
 
 def test_info_reports_gaps_from_camera_times(tmp_path, real_frames):

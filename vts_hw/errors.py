@@ -23,3 +23,9 @@ class DeviceError(VtsError):
     """A device that cannot be reached or answers wrongly. Subclassed per failure."""
 
     exit_code = 4
+
+
+class UsageError(VtsError):
+    """A command asked for something it must not do (e.g. write over an existing recording)."""
+
+    exit_code = 2

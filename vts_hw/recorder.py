@@ -2,7 +2,17 @@
 
 Each thread runs a reconnecting :class:`FrameStream` and appends every frame to the folder as
 it arrives; gaps go into the manifest. One camera failing (even for good) never stops the
-others, and whatever was recorded stays on disk.
+others, and whatever was recorded stays on disk. A frame that cannot be written (disk full)
+stops every camera: the files end with the last whole frame and the manifest says why.
+
+The status of a finished recording says what it holds, never more:
+
+* ``complete`` — every camera streamed for the whole time (frames the camera skipped are
+  counted in the manifest as ``dropped_frames`` and shown, never hidden);
+* ``partial`` — some camera failed, lost its stream (reconnected), or recorded nothing, or
+  the disk filled up; each camera's cause is one sentence in the manifest (``error``);
+* ``failed`` — no camera recorded a frame;
+* ``interrupted`` — stopped early (Ctrl-C).
 """
 
 from __future__ import annotations
@@ -15,7 +25,8 @@ from typing import Callable
 
 from .drivers.axis import AxisCamera, AxisError
 from .drivers.axis_stream import FrameStream, StreamGap
-from .recording import Recording
+from .files import WriteFailed
+from .recording_writer import Recording
 
 
 @dataclass
@@ -25,7 +36,8 @@ class CameraProgress:
     dropped: int = 0
     torn: int = 0
     reconnects: int = 0
-    error: str = ""
+    error: str = ""    # why this camera recorded nothing more (one sentence naming it)
+    lost: str = ""     # the stream was lost and came back (frames missing in between)
     started: float = field(default_factory=time.monotonic)
     last_frame: float | None = None
 
@@ -40,15 +52,17 @@ class Recorder:
 
     def __init__(self, cameras: list[AxisCamera], folder: str | Path, seconds: float | None = None,
                  meta: dict | None = None, give_up_after: float | None = None,
-                 max_backoff: float = 5.0):
+                 max_backoff: float = 5.0, append: bool = False):
         self.cameras = cameras
         self.max_backoff = max_backoff  # longest wait between reconnection attempts (s)
         self.seconds = seconds
         self.give_up_after = give_up_after
         self.stop_event = threading.Event()
         self.progress = {c.name: CameraProgress(c.name) for c in cameras}
-        self.recording = Recording(Path(folder), [c.name for c in cameras], dict(meta or {}))
+        self.recording = Recording(Path(folder), [c.name for c in cameras], dict(meta or {}), append=append)
+        self.write_failure: WriteFailed | None = None  # the first frame that could not be written
         self._streams: dict[str, FrameStream] = {}
+        self._interrupted = False
         self._threads: list[threading.Thread] = []
 
     def start(self) -> None:
@@ -73,17 +87,31 @@ class Recorder:
                 self.recording.write_frame(cam.name, item.jpeg, item.camera_time, item.host_time)
                 prog.frames += 1
                 prog.last_frame = time.monotonic()
+        except WriteFailed as exc:  # disk full: every camera stops, what is on disk stays whole
+            self.write_failure = self.write_failure or exc
+            prog.error = f"camera {cam.name}: stopped: {exc}"
+            self.stop_event.set()
         except AxisError as exc:
             prog.error = str(exc)
-            self.recording.notes[cam.name]["error"] = str(exc)
         except Exception as exc:  # keep the other cameras going, and say what happened
-            prog.error = f"{type(exc).__name__}: {exc}"
-            self.recording.notes[cam.name]["error"] = prog.error
+            prog.error = f"camera {cam.name}: {type(exc).__name__}: {exc}"
         finally:
             prog.torn = stream.stats.torn
             prog.reconnects = stream.stats.reconnects
-            self.recording.notes[cam.name].update(torn_frames_discarded=stream.stats.torn,
-                                                  reconnects=stream.stats.reconnects)
+            if not prog.error and prog.frames == 0 and not self._interrupted:
+                why = stream.stats.last_error or "no frame arrived"
+                prog.error = f"camera {cam.name}: recorded nothing in {self.seconds:g} s ({why})" \
+                    if self.seconds else f"camera {cam.name}: recorded nothing ({why})"
+            elif not prog.error and stream.stats.reconnects:
+                why = stream.stats.last_error or "the camera ended the stream early"
+                prog.lost = (f"camera {cam.name}: stream lost and reconnected {stream.stats.reconnects} time(s) "
+                             f"(last: {why})")
+            notes = self.recording.notes[cam.name]
+            notes.update(torn_frames_discarded=stream.stats.torn, reconnects=stream.stats.reconnects)
+            if prog.error:
+                notes["error"] = prog.error
+            elif prog.lost:
+                notes["problem"] = prog.lost
 
     @property
     def running(self) -> bool:
@@ -102,10 +130,28 @@ class Recorder:
                 on_tick(self)
 
     def finish(self, status: str | None = None) -> dict:
+        """Stop, close the recording with its status (see the module docstring; ``status``
+        given overrides it, e.g. ``interrupted``) and return the manifest written."""
+        self._interrupted = status == "interrupted"
         self.stop()
         for t in self._threads:
             t.join(timeout=10)
         if status is None:
-            status = "complete" if not any(p.error for p in self.progress.values()) else "partial"
+            status = self.status()
+        if self.write_failure is not None:
+            self.recording.problems.append(str(self.write_failure))
         self.recording.close(status)
         return self.recording.manifest()
+
+    def status(self) -> str:
+        progs = list(self.progress.values())
+        if not any(p.frames for p in progs):
+            return "failed"
+        if self.write_failure is not None or any(p.error or p.lost for p in progs):
+            return "partial"
+        return "complete"
+
+    def problems(self) -> list[str]:
+        """One sentence per camera that did not record all the way, and the write failure."""
+        out = [p.error or p.lost for p in self.progress.values() if p.error or p.lost]
+        return out

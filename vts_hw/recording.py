@@ -1,160 +1,28 @@
-"""Recording folders: per camera the JPEGs exactly as received, an index, and a manifest.
+"""Reading recording folders: per camera the JPEGs exactly as received, an index, and a manifest.
 
 Layout (DESIGN.md "Recording"):
 
 * ``manifest.json`` — cameras, times, software version, rig digest, frame counts and gaps;
-  written at the start (status ``recording``) and rewritten atomically at the end;
-* ``<name>.mjpeg`` — the JPEGs concatenated, append-only, flushed after every frame;
-* ``<name>.index.csv`` — ``frame,offset,length,camera_time,host_time``, a line per frame,
-  written after the frame's bytes and flushed with them.
+* ``<name>.mjpeg`` — the JPEGs concatenated, append-only, written frame by frame;
+* ``<name>.index.csv`` — ``frame,offset,length,camera_time,host_time``, a line per frame.
 
-A ``kill -9`` loses at most the frame in flight: the JPEG bytes go out before their index
-line, and :func:`reindex` rebuilds every index from the ``.mjpeg`` alone (keeping the host
-times of frames the old index already had).
+Writing them is ``recording_writer.py``; rebuilding an index from the ``.mjpeg`` alone is
+``reindex.py``. This module reads: the index, the manifest (checked for its shape), and a
+summary of the frames of a folder, an ``.mjpg`` capture or a JPEG file.
 """
 
 from __future__ import annotations
 
 import csv
-import io
 import json
-import os
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
-from . import __version__
 from .axis_jpeg import inspect_jpeg
 from .errors import DataError
-from .mjpeg import read_frames_file, split_jpegs
+from .mjpeg import read_frames_file
 
 INDEX_HEADER = ["frame", "offset", "length", "camera_time", "host_time"]
-FSYNC_EVERY_S = 1.0  # flush() per frame survives a killed process; fsync bounds a power cut
-
-
-class CameraWriter:
-    """Append frames of one camera to ``<name>.mjpeg`` and ``<name>.index.csv``."""
-
-    def __init__(self, folder: Path, name: str):
-        self.name = name
-        self.mjpeg_path = folder / f"{name}.mjpeg"
-        self.index_path = folder / f"{name}.index.csv"
-        self._mjpeg = open(self.mjpeg_path, "ab", buffering=0)
-        self._offset = self._mjpeg.seek(0, os.SEEK_END)
-        new_index = not self.index_path.exists() or self.index_path.stat().st_size == 0
-        self._index = open(self.index_path, "a", newline="", encoding="ascii")
-        if new_index:
-            self._index.write(",".join(INDEX_HEADER) + "\n")
-            self._index.flush()
-        self.frames = 0
-        self.first_camera_time: float | None = None
-        self.last_camera_time: float | None = None
-        self._last_sync = time.monotonic()
-
-    def write(self, jpeg: bytes, camera_time: float | None, host_time: float) -> None:
-        self._mjpeg.write(jpeg)  # unbuffered: in the kernel before the index line is written
-        ct = "" if camera_time is None else f"{camera_time:.2f}"
-        self._index.write(f"{self.frames},{self._offset},{len(jpeg)},{ct},{host_time:.6f}\n")
-        self._index.flush()
-        self._offset += len(jpeg)
-        self.frames += 1
-        if camera_time is not None:
-            if self.first_camera_time is None:
-                self.first_camera_time = camera_time
-            self.last_camera_time = camera_time
-        now = time.monotonic()
-        if now - self._last_sync >= FSYNC_EVERY_S:
-            self._sync()
-            self._last_sync = now
-
-    def _sync(self) -> None:
-        for f in (self._mjpeg, self._index):
-            try:
-                os.fsync(f.fileno())
-            except OSError:
-                pass
-
-    def close(self) -> None:
-        if not self._mjpeg.closed:
-            self._sync()
-            self._mjpeg.close()
-            self._index.close()
-
-
-def write_json_atomic(path: Path, data: dict) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    with open(tmp, "w", encoding="utf-8") as f:
-        json.dump(data, f, indent=2, sort_keys=False)
-        f.write("\n")
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
-@dataclass
-class Recording:
-    """A recording folder being written. Use as a context manager."""
-
-    folder: Path
-    cameras: list[str]
-    meta: dict = field(default_factory=dict)
-
-    def __post_init__(self):
-        self.folder = Path(self.folder)
-        self.folder.mkdir(parents=True, exist_ok=True)
-        self.writers = {name: CameraWriter(self.folder, name) for name in self.cameras}
-        self.gaps: dict[str, list[dict]] = {name: [] for name in self.cameras}
-        self.notes: dict[str, dict] = {name: {} for name in self.cameras}
-        self.started = time.time()
-        self.status = "recording"
-        self.write_manifest()
-
-    def write_frame(self, camera: str, jpeg: bytes, camera_time: float | None, host_time: float) -> None:
-        self.writers[camera].write(jpeg, camera_time, host_time)
-
-    def add_gap(self, camera: str, gap: dict) -> None:
-        self.gaps[camera].append(gap)
-
-    def manifest(self) -> dict:
-        cams = {}
-        for name, w in self.writers.items():
-            cams[name] = {
-                "mjpeg": w.mjpeg_path.name,
-                "index": w.index_path.name,
-                "frames": w.frames,
-                "first_camera_time": w.first_camera_time,
-                "last_camera_time": w.last_camera_time,
-                "gaps": self.gaps[name],
-                "dropped_frames": sum(g.get("missing", 0) for g in self.gaps[name]),
-                **self.notes[name],
-            }
-        return {
-            "format": "vts-recording/1",
-            "software": {"name": "vts-hw", "version": __version__},
-            "status": self.status,
-            "started": self.started,
-            "finished": None if self.status == "recording" else time.time(),
-            **self.meta,
-            "cameras": cams,
-        }
-
-    def write_manifest(self) -> None:
-        write_json_atomic(self.folder / "manifest.json", self.manifest())
-
-    def close(self, status: str = "complete") -> None:
-        for w in self.writers.values():
-            w.close()
-        self.status = status
-        self.write_manifest()
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, exc_type, exc, tb):
-        if self.status == "recording":
-            self.close("complete" if exc_type is None else
-                       ("interrupted" if exc_type is KeyboardInterrupt else "failed"))
-        return False
 
 
 # -- reading -------------------------------------------------------------------------
@@ -214,73 +82,6 @@ def read_index(path: Path) -> list[FrameRow]:
             except (TypeError, ValueError):
                 break  # a line cut short by a kill: everything before it stands
     return rows
-
-
-def reindex(folder: str | Path) -> dict[str, dict]:
-    """Rebuild every ``<name>.index.csv`` of a folder from its ``.mjpeg`` alone.
-
-    Host receive times are kept for frames the old index had at the same offset (they are
-    not in the JPEG). A frame cut short at the end is left out of the index and reported.
-    Returns per camera: frames indexed, frames kept from the old index, torn frames.
-    """
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise DataError(f"{folder}: not a recording folder")
-    mjpegs = sorted(folder.glob("*.mjpeg"))
-    if not mjpegs:
-        raise DataError(f"{folder}: no .mjpeg files to index")
-    report = {}
-    for path in mjpegs:
-        name = path.name[: -len(".mjpeg")]
-        index_path = folder / f"{name}.index.csv"
-        old = {}
-        if index_path.exists():
-            try:
-                old = {r.offset: r for r in read_index(index_path)}
-            except DataError:
-                old = {}
-        data = path.read_bytes()
-        spans = split_jpegs(data)
-        buf = io.StringIO()
-        buf.write(",".join(INDEX_HEADER) + "\n")
-        n = kept = torn = 0
-        for span in spans:
-            if not span.complete:
-                torn += 1
-                continue
-            jpeg = data[span.offset:span.offset + span.length]
-            try:
-                ct = inspect_jpeg(jpeg).timestamp
-            except DataError:
-                ct = None
-            prev = old.get(span.offset)
-            ht = prev.host_time if prev is not None and prev.length == span.length else None
-            kept += ht is not None
-            buf.write(f"{n},{span.offset},{span.length},{'' if ct is None else f'{ct:.2f}'},"
-                      f"{'' if ht is None else f'{ht:.6f}'}\n")
-            n += 1
-        tmp = index_path.with_suffix(".csv.tmp")
-        tmp.write_text(buf.getvalue(), encoding="ascii")
-        os.replace(tmp, index_path)
-        report[name] = {"frames": n, "host_times_kept": kept, "torn": torn}
-    _mark_reindexed(folder, report)
-    return report
-
-
-def _mark_reindexed(folder: Path, report: dict) -> None:
-    mpath = folder / "manifest.json"
-    try:
-        manifest = json.loads(mpath.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        manifest = {"format": "vts-recording/1", "status": "recovered", "cameras": {}}
-    if manifest.get("status") == "recording":
-        manifest["status"] = "recovered"  # the recorder never closed it
-    for name, r in report.items():
-        cam = manifest.setdefault("cameras", {}).setdefault(name, {})
-        cam["frames"] = r["frames"]
-        cam["torn_at_end"] = r["torn"]
-    manifest["reindexed"] = time.time()
-    write_json_atomic(mpath, manifest)
 
 
 # -- info --------------------------------------------------------------------------

@@ -168,7 +168,7 @@ class Tracks:
                "position_frame": "x_mm..z_mm: VTS frame; x_spect_mm..: SPECT frame",
                "meta": self.meta, "frames": frames,
                "unpaired": {k: [int(x) for x in v] for k, v in self.unpaired.items()}}
-        from .recording import write_json_atomic
+        from .files import write_json_atomic
         write_json_atomic(json_path, doc)
         return csv_path, json_path
 

@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import click
 
 from ..drivers.axis import AxisCamera
 from ..drivers.axis_stream import FrameStream, StreamGap
+from ..files import write_atomic
 from . import cli
-from .common import echo_json, fmt_time, json_option, with_rig
+from .common import PositiveSeconds, echo_json, fmt_time, json_option, with_rig
 
 
 @cli.group()
@@ -29,7 +31,7 @@ def snapshot(name: str, output: str, rig) -> None:
     """Save one JPEG from camera NAME, exactly as the camera sent it."""
     with _open(rig, name) as cam:
         frame = cam.snapshot()
-    Path(output).write_bytes(frame.jpeg)
+    write_atomic(output, frame.jpeg)  # whole or not at all: never a 0-byte or cut JPEG
     click.echo(f"{output}: {len(frame.jpeg)} bytes, camera time {fmt_time(frame.camera_time)}, "
                f"received {fmt_time(frame.host_time)}")
     for p in frame.problems:
@@ -38,25 +40,32 @@ def snapshot(name: str, output: str, rig) -> None:
 
 @camera.command()
 @click.argument("name")
-@click.option("--seconds", type=float, default=None, help="Stop after this long (default: until Ctrl-C).")
-@click.option("--fps", type=float, default=None, help="Frame rate to ask for (default: the config's).")
+@click.option("--seconds", type=PositiveSeconds(), default=None, help="Stop after this long (default: until Ctrl-C).")
+@click.option("--fps", type=PositiveSeconds("a frame rate"), default=None,
+              help="Frame rate to ask for (default: the config's).")
 @with_rig
 def stream(name: str, seconds: float | None, fps: float | None, rig) -> None:
     """Print a line per frame of camera NAME's MJPEG stream: sequence, times, latency, size.
 
-    Drops and stalls reconnect; missing frames are printed as gaps.
+    Latency is the host's receive time minus the camera's capture stamp, with the camera's
+    clock offset (measured first) taken out; the stamps have 10 ms resolution. Drops and
+    stalls reconnect; missing frames are printed as gaps.
     """
     with _open(rig, name) as cam:
+        off = cam.clock_offset()
+        click.echo(f"# clock: camera - host = {off.offset_s:+.4f} s (± {off.uncertainty_s * 1000:.0f} ms, "
+                   f"{off.method}); latency = receive - capture with that offset taken out", err=True)
         s = FrameStream(cam, fps=fps, duration=seconds)
-        click.echo(f"{'frame':>6}  {'camera time':<23}  {'host receive time':<23}  {'host-cam':>11}  {'size':>9}")
+        click.echo(f"{'frame':>6}  {'camera time':<23}  {'host receive time':<23}  {'latency':>10}  {'size':>9}")
         try:
             for item in s:
                 if isinstance(item, StreamGap):
                     click.echo(f"GAP   after frame {item.after_seq}: {item.missing} frame(s) missing ({item.reason})")
                     continue
-                lat = "" if item.camera_time is None else f"{(item.host_time - item.camera_time) * 1000:+8.1f} ms"
+                lat = "-" if item.camera_time is None else \
+                    f"{(item.host_time - item.camera_time + off.offset_s) * 1000:+7.1f} ms"
                 click.echo(f"{item.seq:6d}  {fmt_time(item.camera_time)}  {fmt_time(item.host_time)}  "
-                           f"{lat}  {len(item.jpeg):7d} B")
+                           f"{lat:>10}  {len(item.jpeg):7d} B")
         except KeyboardInterrupt:
             s.stop()
         st = s.stats
@@ -108,18 +117,30 @@ def info(name: str, as_json: bool, rig) -> None:
     click.echo(f"  clock: camera - host = {off.offset_s:+.3f} s (± {off.uncertainty_s:.3f} s, {off.method})")
 
 
+EXIT_CODES = {"complete": 0, "partial": 4, "failed": 4, "interrupted": 130}
+
+
 @camera.command()
 @click.argument("names", nargs=-1)
 @click.option("--all", "all_cameras", is_flag=True, help="Record every camera of the rig.")
-@click.option("--seconds", type=float, required=True, help="How long to record.")
+@click.option("--seconds", type=PositiveSeconds(), required=True, help="How long to record.")
 @click.option("-o", "--output", "out", type=click.Path(file_okay=False), required=True,
-              help="Recording folder to create (or append to).")
+              help="Recording folder to create.")
+@click.option("--append", is_flag=True,
+              help="Add to the recording already in the folder, keeping every entry of its manifest.")
 @with_rig
-def record(names: tuple[str, ...], all_cameras: bool, seconds: float, out: str, rig) -> None:
+def record(names: tuple[str, ...], all_cameras: bool, seconds: float, out: str, append: bool, rig) -> None:
     """Record cameras NAMES... at once into a recording folder.
 
     Per camera: NAME.mjpeg (the JPEGs exactly as received), NAME.index.csv, and one
-    manifest.json. Every frame is flushed as it arrives; Ctrl-C keeps what was recorded.
+    manifest.json. Every frame is written as it arrives; Ctrl-C keeps what was recorded. A
+    folder that already holds a recording is never changed, unless --append adds to it.
+
+    \b
+    Exit status: 0 complete (every camera streamed the whole time; frames a camera
+    skipped are counted and shown); 4 partial or failed (a camera recorded nothing, failed,
+    or lost its stream: one sentence per camera says why); 3 a file could not be written
+    (e.g. disk full: what was kept is said); 2 bad input; 130 interrupted.
     """
     from ..recorder import Recorder
     from .progress import record_with_progress
@@ -128,13 +149,26 @@ def record(names: tuple[str, ...], all_cameras: bool, seconds: float, out: str, 
         names = tuple(c.name for c in rig.cameras)
     if not names:
         raise click.UsageError("name at least one camera, or give --all")
-    cams = [_open(rig, n) for n in names]
+    cfgs = [rig.camera(n) for n in names]           # unknown names and unset passwords: before any file
+    for cfg in cfgs:
+        cfg.password()
+    cams = [AxisCamera.from_config(cfg) for cfg in cfgs]
     meta = {"rig": rig.rig, "seconds_asked": seconds, "rig_digest": rig.digest}
-    rec = Recorder(cams, out, seconds=seconds, meta=meta)
+    rec = Recorder(cams, out, seconds=seconds, meta=meta, append=append)
     manifest = record_with_progress(rec, seconds)
-    click.echo(f"{out}: status {manifest['status']}")
-    for name, m in manifest["cameras"].items():
-        err = f"  ERROR: {m['error']}" if m.get("error") else ""
-        click.echo(f"  {name}: {m['frames']} frames, {m['dropped_frames']} dropped, "
+    status = manifest["status"]
+    click.echo(f"{out}: status {status}" + (" (added to the recording already there)" if append else ""))
+    for name in names:
+        m = manifest["cameras"][name]
+        added = f" (+{rec.recording.writers[name].frames_added})" if append else ""
+        click.echo(f"  {name}: {m['frames']} frames{added}, {m['dropped_frames']} dropped, "
                    f"{m.get('torn_frames_discarded', 0)} torn, {m.get('reconnects', 0)} reconnect(s) "
-                   f"-> {Path(out) / m['mjpeg']}{err}")
+                   f"-> {Path(out) / m['mjpeg']}")
+    for problem in rec.problems():
+        click.echo(f"vts: {problem}", err=True)
+    if rec.write_failure is not None:
+        sys.exit(rec.write_failure.exit_code)
+    code = EXIT_CODES.get(status, 4)
+    if code == 130:
+        click.echo(f"vts: interrupted; what was recorded is kept in {out}", err=True)
+    sys.exit(code)

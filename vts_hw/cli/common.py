@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import json
+import math
 
 import click
 
@@ -14,6 +15,27 @@ config_option = click.option(
     help=f"rig.yaml of the room (default: ${ENV_CONFIG}, then ./rig.yaml).")
 
 json_option = click.option("--json", "as_json", is_flag=True, help="Machine-readable JSON on stdout.")
+
+
+class PositiveSeconds(click.ParamType):
+    """A finite number greater than zero (refuses nan, inf, 0 and negatives with one sentence)."""
+
+    name = "seconds"
+
+    def __init__(self, what: str = "a duration in seconds"):
+        self.what = what
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            v = float(value)
+        else:
+            try:
+                v = float(str(value).strip())
+            except ValueError:
+                self.fail(f"{value!r} is not a number (expected {self.what} greater than 0)", param, ctx)
+        if not math.isfinite(v) or v <= 0:
+            self.fail(f"{value!r} is not {self.what} greater than 0", param, ctx)
+        return v
 
 
 def with_rig(f):

@@ -16,12 +16,32 @@ def recording() -> None:
 
 @recording.command()
 @click.argument("folder", type=click.Path(file_okay=False))
-def reindex(folder: str) -> None:
-    """Rebuild every NAME.index.csv in FOLDER from NAME.mjpeg alone (after a crash)."""
-    report = rec_mod.reindex(folder)
-    for name, r in report.items():
-        torn = f", {r['torn']} torn frame(s) at the end left out" if r["torn"] else ""
-        click.echo(f"{name}: {r['frames']} frames indexed ({r['host_times_kept']} with host times kept){torn}")
+@json_option
+def reindex(folder: str, as_json: bool) -> None:
+    """Rebuild every NAME.index.csv in FOLDER from NAME.mjpeg alone (after a crash).
+
+    An index is replaced only when the rebuilt one keeps every frame the old one lists;
+    otherwise the old one stays and the rebuilt one is written beside it as
+    NAME.index.rebuilt.csv. A manifest that is not a recording manifest is kept as
+    manifest.unreadable.json and a fresh one written. Exit status: 0 rebuilt; 3 something
+    was damaged or could not be written (said in one sentence per problem).
+    """
+    from ..errors import DataError
+    from ..reindex import reindex as do_reindex
+
+    report = do_reindex(folder)
+    if as_json:
+        echo_json({"folder": str(report.folder), "cameras": [c.as_dict() for c in report.cameras],
+                   "problems": report.problems})
+    else:
+        for r in report.cameras:
+            torn = f", {r.torn} torn frame(s) at the end left out" if r.torn else ""
+            what = "indexed" if r.replaced else "found (index NOT replaced)"
+            click.echo(f"{r.name}: {r.frames} frames {what} ({r.host_times_kept} with host times kept){torn}")
+    for problem in report.problems:
+        click.echo(f"vts: {problem}", err=True)
+    if report.problems:
+        raise DataError(f"{folder}: reindexed with {len(report.problems)} problem(s) (above); nothing was lost")
 
 
 @recording.command()
