@@ -21,6 +21,8 @@ from pathlib import Path
 from typing import Callable
 
 from ..drivers.axis import AxisCamera, AxisError, Refused
+from ..errors import VtsError
+from ..files import ensure_dir, write_atomic
 from ..tolerance import State, Window, merged_tolerances, worst
 from .baseline import load_baseline
 from .drift import DriftAnalysis
@@ -48,6 +50,8 @@ class QAResult:
     started: float
     cameras: list[CameraResult]
     artifacts: list[str] = field(default_factory=list)
+    finished: float | None = None
+    store_error: str | None = None   # the store could not take the run: its figures are here only
 
     @property
     def state(self) -> State:
@@ -66,6 +70,7 @@ class QAResult:
                          "drift": c.drift.results_data() if c.drift is not None and c.drift.analyzed else None}
                         for c in self.cameras],
             "artifacts": self.artifacts,
+            **({"store_error": self.store_error} if self.store_error else {}),
         }
 
     def results(self) -> str:
@@ -132,32 +137,81 @@ class QARun:
         values.update(getattr(cfg, "locked_params", {}) or {})
         return values
 
+    def preflight(self) -> dict:
+        """Setup mistakes end here, before the rig or the store is touched for writing: an
+        unknown camera name or an unset password variable (ConfigError, exit 2), a camera
+        without a drift baseline (NoBaseline, exit 5). Returns the baselines (drift step)."""
+        for name in self.camera_names:
+            self.rig.camera(name).password()
+        if "drift" not in self.steps:
+            return {}
+        return {name: load_baseline(self.store, name) for name in self.camera_names}
+
     def run(self) -> QAResult:
+        """Measure every camera, then store the run in one transaction.
+
+        The run's "running" row is written first (a run killed half-way is found and marked
+        aborted). A store that cannot be written — at the start or at the end — never costs
+        a measured figure: the cameras are measured all the same and the result carries
+        ``store_error``; the caller keeps the figures elsewhere (``unsaved_record()``)."""
+        baselines = self.preflight()
         now = self.clock()
-        self.store.sync_tolerances(self.tolerances, at=now)
+        handle, store_error = None, None
+        try:
+            self.store.sync_tolerances(self.tolerances, at=now)
+            handle = self.store.begin_run(self.procedure, rig=self.rig.rig, operator=self.operator, started=now,
+                                          config_digest=self.config_digest)
+        except VtsError as exc:   # the store cannot be written: measure all the same
+            store_error = str(exc)
         results: list[CameraResult] = []
-        artifacts: list[str] = []
-        with self.store.begin_run(self.procedure, rig=self.rig.rig, operator=self.operator, started=now,
-                                  config_digest=self.config_digest) as h:
+        try:
             for name in self.camera_names:
                 self.progress(f"{name}: checking")
-                res = self._camera(name)
-                results.append(res)
-                for subject, metric, value, unit, state in res.measures:
-                    # where the metric has a window of its own, the store judges it and keeps the
-                    # window's id with the value; derived metrics (mm) carry the state judged here
-                    own = metric in self.tolerances
-                    h.measure(subject, metric, value, unit, status=None if own else str(state), at=now)
-                for path in self._save_artifacts(h.run_id, res):
-                    h.artifact(path, kind="plot" if path.suffix == ".png" else "frame")
-                    artifacts.append(str(path))
-            state = worst(r.state for r in results)
-            h.finish(status=str(state), finished=self.clock())
-            run_id = h.run_id
-        return QAResult(self.procedure, run_id, now, results, artifacts)
+                results.append(self._camera(name, baselines.get(name)))
+        except BaseException as exc:
+            if handle is not None:
+                handle.__exit__(type(exc), exc, exc.__traceback__)   # aborted, with the reason
+            raise
+        result = QAResult(self.procedure, None, now, results, finished=self.clock(),
+                          store_error=store_error)
+        result.artifacts = self._save_all_artifacts(handle.run_id if handle else None, results)
+        if handle is not None:
+            try:
+                self._store(handle, result)
+                result.run_id = handle.run_id
+            except VtsError as exc:
+                result.store_error = str(exc)
+                try:   # likely to fail too; else the next open marks it aborted (its process is gone)
+                    handle.abort(f"the run could not be stored ({exc}); its figures were kept elsewhere")
+                except VtsError:
+                    pass
+        return result
+
+    def _store(self, h, result: "QAResult") -> None:
+        for res in result.cameras:
+            for subject, metric, value, unit, state in res.measures:
+                # where the metric has a window of its own, the store judges it and keeps the
+                # window's id with the value; derived metrics (mm) carry the state judged here
+                own = metric in self.tolerances
+                h.measure(subject, metric, value, unit, status=None if own else str(state), at=result.started)
+        for path in result.artifacts:
+            h.artifact(path, kind="plot" if str(path).endswith(".png") else "frame")
+        h.finish(status=str(result.state), finished=result.finished)
+
+    def unsaved_record(self, result: "QAResult") -> dict:
+        """Everything needed to store ``result`` later (vts_hw.store.unsaved)."""
+        from .. import __version__
+        return {"procedure": self.procedure, "rig": self.rig.rig, "operator": self.operator,
+                "config_digest": self.config_digest, "software_version": __version__,
+                "started": result.started, "finished": result.finished, "state": str(result.state),
+                "store_error": result.store_error,
+                "measurements": [{"subject": s, "metric": m, "value": v, "unit": u, "state": str(st)}
+                                 for c in result.cameras for s, m, v, u, st in c.measures],
+                "tolerances": {k: w.as_dict() for k, w in self.tolerances.items()},
+                "artifacts": list(result.artifacts), "results": result.results_data()}
 
     # -- one camera ------------------------------------------------------------------------
-    def _camera(self, name: str) -> CameraResult:
+    def _camera(self, name: str, baseline=None) -> CameraResult:
         cfg = self.rig.camera(name)
         out = CameraResult(name)
         tol = self.tolerances
@@ -169,7 +223,7 @@ class QARun:
 
         try:
             cam = self.camera_factory(cfg)
-        except Exception as exc:  # e.g. the password variable is not set
+        except AxisError as exc:  # a device that cannot be reached (setup mistakes failed preflight)
             out.problems.append(str(exc))
             add("camera_reachable", 0.0, "")
             return out
@@ -185,7 +239,7 @@ class QARun:
                     off = cam.clock_offset()
                     add("clock_offset_s", off.offset_s, "s")
                 if "drift" in self.steps:
-                    baseline = load_baseline(self.store, name)
+                    baseline = baseline or load_baseline(self.store, name)
                     mm = getattr(cfg, "wall_mm_per_px", 1.25)
                     d = DriftAnalysis.acquire(cam, baseline, self.n_frames, mm_per_px=mm).analyze(tol)
                     out.drift = d
@@ -215,19 +269,26 @@ class QARun:
                 out.problems.append(f"parameter {key} is {have!r}, locked at {want!r}")
         return changed
 
-    def _save_artifacts(self, run_id: int, res: CameraResult) -> list[Path]:
+    def _save_all_artifacts(self, run_id: int | None, results: list[CameraResult]) -> list[str]:
+        """Frames (and plots) beside the store; a file that cannot be written is a problem of
+        its camera, never a lost run."""
+        out = []
+        for res in results:
+            try:
+                out += [str(p) for p in self._save_artifacts(run_id, res)]
+            except (VtsError, OSError) as exc:
+                res.problems.append(f"frames not saved: {exc}")
+        return out
+
+    def _save_artifacts(self, run_id: int | None, res: CameraResult) -> list[Path]:
         if self.artifacts_dir is None or res.drift is None:
             return []
-        d = self.artifacts_dir / f"run{run_id:06d}"
-        d.mkdir(parents=True, exist_ok=True)
-        paths = []
-        on = d / f"{res.camera}-led-on.jpg"
-        on.write_bytes(res.drift.frames_on[0].jpeg)
-        paths.append(on)
+        d = self.artifacts_dir / (f"run{run_id:06d}" if run_id is not None else
+                                  f"unsaved-{int(self.clock())}-{res.camera}")
+        ensure_dir(d, "artifacts folder")
+        paths = [write_atomic(d / f"{res.camera}-led-on.jpg", res.drift.frames_on[0].jpeg)]
         if res.drift.frame_off is not None:
-            off = d / f"{res.camera}-led-off.jpg"
-            off.write_bytes(res.drift.frame_off.jpeg)
-            paths.append(off)
+            paths.append(write_atomic(d / f"{res.camera}-led-off.jpg", res.drift.frame_off.jpeg))
         if self.plots:
             png = d / f"{res.camera}-drift.png"
             res.drift.plot(png)

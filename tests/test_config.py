@@ -21,7 +21,7 @@ GOOD = textwrap.dedent("""\
       address: /dev/ttyACM0
       frequency_hz: 10
     tolerances:
-      drift_px:
+      drift_x_px:
         action_low: -2
         tolerance_low: -1
         tolerance_high: 1
@@ -54,7 +54,8 @@ def test_good_file(tmp_path, monkeypatch):
     (("resolution: 640x480", "resolution: big"), "cameras[1].resolution", "WIDTHxHEIGHT"),
     (("frequency_hz: 10", "frequency_hz: 5000"), "trigger.frequency_hz", "1000"),
     (("host: 192.0.2.10\n", "host: 192.0.2.10\n    password: hunter2\n"), "cameras[0].password", "not a known key"),
-    (("tolerance_high: 1", "tolerance_high: 3"), "tolerances.drift_px", "action_low <= tolerance_low"),
+    (("tolerance_high: 1", "tolerance_high: 3"), "tolerances.drift_x_px", "action_low <= tolerance_low"),
+    (("drift_x_px:", "drift_z_px:"), "tolerances", "'drift_z_px', which is not a metric with a tolerance"),
     (("name: cam2", "name: cam1"), "(top level)", "unique"),
 ])
 def test_bad_values_name_file_key_and_expectation(tmp_path, change, key, expected):

@@ -260,9 +260,17 @@ def test_context_manager_aborts_on_exception(store):
             1 / 0
     r = store.run(run.run_id)
     assert r.status == "aborted" and r.finished is not None
-    assert r.notes.startswith("operator note\naborted: ZeroDivisionError: division by zero")
+    assert r.notes.startswith("operator note\naborted: unexpected error (ZeroDivisionError): division by zero")
     assert "1 measurement(s) not stored" in r.notes
     assert store.measurements() == [] and store.artifacts(r.id) == []
+
+
+def test_a_users_error_is_noted_by_its_sentence_not_its_class(store):
+    from vts_hw.errors import DataError
+    with pytest.raises(DataError):
+        with store.begin_run("drift") as run:
+            raise DataError("camera cam2 has no drift baseline")
+    assert store.run(run.run_id).notes == "aborted: camera cam2 has no drift baseline"
 
 
 def test_context_manager_aborts_on_keyboard_interrupt(store):

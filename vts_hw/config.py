@@ -146,6 +146,16 @@ class RigConfig(_Strict):
         """sha256 of the file this config was read from ("" when it was not read from one)."""
         return config_digest(self._source) if self._source is not None and self._source.exists() else ""
 
+    @field_validator("tolerances")
+    @classmethod
+    def _known_metrics(cls, v: dict):
+        from .tolerance import DEFAULT_TOLERANCES
+        unknown = sorted(set(v) - set(DEFAULT_TOLERANCES))
+        if unknown:
+            raise ValueError(f"names {unknown[0]!r}, which is not a metric with a tolerance window "
+                             f"(known: {', '.join(DEFAULT_TOLERANCES)})")
+        return v
+
     @model_validator(mode="after")
     def _unique_names(self):
         names = [c.name for c in self.cameras]

@@ -53,3 +53,19 @@ def daily(rig, cameras, frames, plots, dry_run, operator, as_json) -> None:
     sys.exit(run_qa(rig, ("reachable", "params", "clock", "drift"), list(cameras), frames, plots, dry_run,
                     operator, as_json))
 
+
+
+@qa.command("import")
+@click.argument("files", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False))
+@with_rig
+def import_(rig, files) -> None:
+    """Store QA runs that the results store could not take when they ran.
+
+    A run whose store could not be written (disk full, read-only, database down) is kept in
+    an ``unsaved/*.json`` file next to the store (the run says where). This stores each FILE
+    as the run it was, with its own times, states and tolerance windows, and renames the
+    file ``*.imported`` so it is never stored twice.
+    """
+    from .qa_run import import_runs
+    for f, run_id in import_runs(rig, files):
+        click.echo(f"{f}: stored as run {run_id}")

@@ -39,13 +39,32 @@ def run_qa(rig, steps, cameras, frames, plots, dry_run, operator, as_json, clock
                     artifacts_dir=artifacts_dir(store), operator=operator, config_digest=rig.digest, clock=clock,
                     progress=lambda m: click.echo(m, err=True) if not as_json else None)
         result = run.run()
+        unsaved = None
+        if result.store_error:
+            from ..store.unsaved import save_unsaved
+            unsaved, tried = save_unsaved(store.url, run.unsaved_record(result))
+    data = result.results_data()
+    if result.store_error:
+        data["unsaved_file"] = str(unsaved) if unsaved else None
     if as_json:
-        echo_json(result.results_data())
+        echo_json(data)
     else:
         click.echo(result.results())
         if result.artifacts:
             click.echo(f"  saved: {Path(result.artifacts[0]).parent}")
+    if result.store_error:
+        where = (f"its figures are above and in {unsaved} (`vts qa import {unsaved}` stores them later)"
+                 if unsaved else "its figures are above only: no fallback file could be written either ("
+                 + "; ".join(tried) + ")")
+        click.echo(f"vts: the {result.procedure} run was NOT stored: {result.store_error}; {where}", err=True)
+        return 3
     return result.exit_code
+
+
+def import_runs(rig, files) -> list[tuple[str, int]]:
+    from ..store.unsaved import import_unsaved
+    with open_store(rig) as store:
+        return [(f, import_unsaved(store, f)) for f in files]
 
 
 def set_baseline(rig, cameras, frames, dry_run, operator, as_json, clock=time.time) -> None:
@@ -54,6 +73,8 @@ def set_baseline(rig, cameras, frames, dry_run, operator, as_json, clock=time.ti
     from ..procedures.drift import Baseline, acquire_led_frames
 
     names = cameras or [c.name for c in rig.cameras]
+    for n in names:   # unknown names, unset password variables: before anything is touched
+        rig.camera(n).password()
     if dry_run:
         for n in names:
             click.echo(f"{n}: LED on, {frames} snapshots, detect the wall markers, store them as the baseline")

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING
 
 from sqlalchemy import insert, select, update
 
+from ..errors import VtsError
 from ..tolerance import State, Window, worst
 from .errors import StoreError
 from .records import FINISH_STATUSES, Run, run_from_row
@@ -158,13 +159,17 @@ class RunHandle:
             try:
                 self.finish()
             except BaseException as err:
-                self._abort_quietly(f"finish failed: {type(err).__name__}: {err}")
+                self._abort_quietly(f"finish failed: {err}" if isinstance(err, VtsError) else
+                                    f"finish failed: unexpected error ({type(err).__name__}): {err}")
                 raise
             return False
         if issubclass(exc_type, KeyboardInterrupt):
             reason = "interrupted (KeyboardInterrupt)"
-        else:
-            reason = f"{exc_type.__name__}: {exc}" if str(exc) else exc_type.__name__
+        elif isinstance(exc, VtsError):  # a user's error: its sentence says it all
+            reason = str(exc) or "stopped by an error"
+        else:                             # a bug: its type helps whoever reads the notes
+            reason = f"unexpected error ({exc_type.__name__}): {exc}" if str(exc) else \
+                f"unexpected error ({exc_type.__name__})"
         self._abort_quietly(reason)
         return False  # never swallow the exception
 

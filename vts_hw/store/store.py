@@ -92,7 +92,8 @@ class ResultsStore:
             log.info("%s: upgraded results store schema from version %d to %d", self.url, found, now)
         try:
             self.mark_dead_runs_aborted()
-        except SQLAlchemyError as exc:  # e.g. another writer holds the lock: the next open retries
+        except (SQLAlchemyError, StoreError) as exc:  # e.g. another writer holds the lock, or the
+            # disk is full: the next open retries
             log.warning("%s: could not check for runs left running (%s)", self.url, _reason(exc))
 
     # -- plumbing -------------------------------------------------------------------------
@@ -125,18 +126,27 @@ class ResultsStore:
 
     @contextmanager
     def _read(self) -> Iterator[Connection]:
-        """A connection for reads; on SQLite each read is one snapshot (BEGIN ... ROLLBACK)."""
-        with self._connect() as conn:
-            yield conn
+        """A connection for reads; on SQLite each read is one snapshot (BEGIN ... ROLLBACK).
+        A database error is a StoreError naming the store."""
+        try:
+            with self._connect() as conn:
+                yield conn
+        except (SQLAlchemyError, OSError) as exc:
+            raise StoreError(f"{self.url}: cannot read the results store ({_reason(exc)})") from exc
 
     @contextmanager
     def _write(self) -> Iterator[Connection]:
         """One write transaction (SQLite: BEGIN IMMEDIATE); committed on exit, rolled back on
-        any exception including KeyboardInterrupt."""
-        with self._connect() as conn:
-            conn.execution_options(**{WRITE_OPTION: True})
-            with conn.begin():
-                yield conn
+        any exception including KeyboardInterrupt. A database error (disk full, read-only,
+        locked for too long) is a StoreError naming the store; nothing of the transaction is
+        stored."""
+        try:
+            with self._connect() as conn:
+                conn.execution_options(**{WRITE_OPTION: True})
+                with conn.begin():
+                    yield conn
+        except (SQLAlchemyError, OSError) as exc:
+            raise StoreError(f"{self.url}: cannot write to the results store ({_reason(exc)})") from exc
 
     @property
     def schema_version(self) -> int:

@@ -1,0 +1,87 @@
+"""Results that the store could not take: kept in a file until `vts qa import` puts them in.
+
+When a run's figures cannot be written to the results store (disk full, read-only, a
+database that is down), they are written as JSON to ``unsaved/`` next to an SQLite store's
+file — else to the per-user data folder, the current folder, or the temporary folder, the
+first that takes it. The file holds everything needed to store the run later with its own
+times, states and tolerance windows (:func:`import_unsaved`); nothing is judged again.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import socket
+import tempfile
+from pathlib import Path
+
+from ..errors import DataError
+from ..files import WriteFailed, write_json_atomic
+from .paths import default_path, sqlite_file, to_url
+
+FORMAT = "vts-unsaved-run/1"
+
+
+def candidate_folders(url: str | None) -> list[Path]:
+    """Where an unsaved run may go, best first."""
+    out = []
+    try:
+        db = sqlite_file(to_url(url))
+    except Exception:  # a URL that does not parse: the other places still work
+        db = None
+    if db is not None:
+        out.append(db.parent / "unsaved")
+    out += [default_path().parent / "unsaved", Path.cwd(), Path(tempfile.gettempdir())]
+    return out
+
+
+def save_unsaved(url: str | None, run: dict) -> tuple[Path | None, list[str]]:
+    """Write ``run`` (see :func:`import_unsaved` for its keys) to the first place that takes
+    it; return the path (None if none did) and why the places before it failed."""
+    stamp = _dt.datetime.fromtimestamp(run.get("started") or 0, _dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    name = f"{run.get('procedure', 'run')}-{stamp}-{socket.gethostname()}-{os.getpid()}.json"
+    doc = {"format": FORMAT, **run}
+    tried = []
+    for folder in candidate_folders(url):
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            return write_json_atomic(folder / name, doc), tried
+        except (OSError, WriteFailed) as exc:
+            tried.append(f"{folder}: {exc}")
+    return None, tried
+
+
+def load_unsaved(path: str | Path) -> dict:
+    p = Path(path)
+    try:
+        doc = json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise DataError(f"{p}: cannot read the unsaved run ({exc})") from None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT or not isinstance(doc.get("measurements"), list):
+        raise DataError(f"{p}: not an unsaved run written by vts (format {FORMAT})")
+    return doc
+
+
+def import_unsaved(store, path: str | Path) -> int:
+    """Store an unsaved run with its own start and finish times, states and notes; return
+    its run id. The file is renamed ``*.imported`` so that it is never stored twice."""
+    p = Path(path)
+    doc = load_unsaved(p)
+    try:
+        procedure, started = str(doc["procedure"]), float(doc["started"])
+        with store.begin_run(procedure, rig=doc.get("rig", ""), operator=doc.get("operator", ""),
+                             config_digest=doc.get("config_digest", ""), started=started,
+                             software_version=doc.get("software_version"),
+                             notes=f"imported from {p.name}: the store could not take it when it ran "
+                                   f"({doc.get('store_error', 'unknown reason')})") as h:
+            for m in doc["measurements"]:
+                h.measure(m["subject"], m["metric"], m["value"], m.get("unit", ""), status=m["state"])
+            for a in doc.get("artifacts", []):
+                if Path(a).exists():
+                    h.artifact(a, kind="plot" if str(a).endswith(".png") else "frame")
+            run = h.finish(status=doc["state"], finished=float(doc.get("finished") or started))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DataError(f"{p}: not an unsaved run written by vts ({exc})") from None
+    os.replace(p, p.with_name(p.name + ".imported"))
+    return run.id
