@@ -35,7 +35,7 @@ from typing import Callable
 
 from ..config import RigConfig
 from ..drivers.axis import AxisCamera, BadReply
-from ..errors import VtsError
+from ..errors import UsageError, VtsError
 from ..recorder import Recorder
 from .scan_trigger import ScanError, ScanTrigger, plain_dict
 
@@ -48,7 +48,7 @@ OFFSET_SAMPLES = 5
 __all__ = ["ScanSession", "ScanError", "ScanTrigger", "SessionExists", "default_folder"]
 
 
-class SessionExists(VtsError):
+class SessionExists(UsageError):
     """The session folder already holds a recording (a scan never appends to an old one)."""
 
 
@@ -300,6 +300,8 @@ class ScanSession:
             now = time.monotonic()
             if self._stop.is_set():
                 return "stopped"
+            if self.recorder is not None and self.recorder.write_failure is not None:
+                return "disk full"
             if self.duration is not None and self._scan_t0 is not None and now - self._scan_t0 >= self.duration:
                 return "duration"
             if on_tick is not None and now >= next_tick:
@@ -391,6 +393,8 @@ class ScanSession:
             if "error" in (self.cam_notes[name].get("clock_offset_after") or {}):
                 out.append(f"camera {name}: clock offset after the scan not measured")
         out += [f"trigger: {e}" for e in self.trigger.info["errors"]]
+        if self.recorder.write_failure is not None:
+            out.append(f"recording stopped: {self.recorder.write_failure}")
         return out
 
     def _write_manifest(self, problems: list[str] | None = None) -> dict:

@@ -316,3 +316,30 @@ def _wait_frames(folder, n, proc, timeout=30.0):
             return
         time.sleep(0.1)
     raise AssertionError(f"no {n} frames in {folder} within {timeout:g} s")
+
+
+def test_disk_full_during_a_scan_stops_it_and_keeps_every_whole_frame(plain_rig, small_disk):
+    rig, cfg, rig_yaml = plain_rig
+    disk = small_disk(1536)
+    folder = disk.path / "scan"
+    p = subprocess.run([*VTS, "scan", "start", "--duration", "30", "-o", str(folder)], env=_env(rig, rig_yaml),
+                       capture_output=True, text=True, timeout=90)
+    assert p.returncode == 3, p.stdout + p.stderr
+    assert "no space left on device" in p.stderr and "whole frame(s)" in p.stderr and "Traceback" not in p.stderr
+    m = _manifest(folder)
+    assert m["status"] == "partial" and m["scan"]["stop_reason"] == "disk full"
+    assert any("recording stopped" in x for x in m["scan"]["problems"])
+    for name in ("cam1", "cam2"):
+        rows = _frames_decode(folder, name)
+        assert len(rows) == m["cameras"][name]["frames"] > 0
+        assert (folder / f"{name}.mjpeg").stat().st_size == rows[-1].offset + rows[-1].length
+    assert not [f for f in disk.files() if f.endswith(".tmp") or "reserve" in f]
+
+
+def test_scan_refuses_durations_that_are_not(plain_rig, tmp_path):
+    rig, cfg, rig_yaml = plain_rig
+    for bad in ("nan", "inf", "-1", "0"):
+        p = subprocess.run([*VTS, "scan", "start", "--duration", bad, "-o", str(tmp_path / "s")],
+                           env=_env(rig, rig_yaml), capture_output=True, text=True, timeout=60)
+        assert p.returncode == 2 and "--duration" in p.stderr, (bad, p.stderr)
+    assert not (tmp_path / "s").exists()

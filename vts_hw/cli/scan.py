@@ -15,7 +15,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from . import cli
-from .common import echo_json, fmt_time, json_option, with_rig
+from .common import PositiveSeconds, echo_json, fmt_time, json_option, with_rig
 
 REFRESH_S = 0.5          # the live table, about twice a second
 PLAIN_EVERY_S = 2.0      # a status line this often when stderr is not a terminal
@@ -29,7 +29,7 @@ def scan() -> None:
 @scan.command()
 @click.option("-o", "--output", "out", type=click.Path(file_okay=False), default=None,
               help="Session folder to create (default: ./scan-YYYYmmddTHHMMSSZ).")
-@click.option("--duration", type=click.FloatRange(min=0, min_open=True), default=None,
+@click.option("--duration", type=PositiveSeconds(), default=None,
               help="Stop after S seconds from the trigger (default: until Ctrl-C).")
 @click.option("--dry-run", is_flag=True, help="List the steps for this rig without touching it.")
 @json_option
@@ -38,7 +38,13 @@ def start(out: str | None, duration: float | None, dry_run: bool, as_json: bool,
     """Check cameras and trigger, record every camera, fire the trigger, show live status.
 
     Ctrl-C (or the duration) stops the square wave, closes the recordings, measures the
-    camera clocks again and writes the manifest; the session is complete either way.
+    camera clocks again and writes the manifest.
+
+    \b
+    Exit status: 0 the session is complete; 4 it is partial (a camera dropped, a trigger
+    failed: the problems are listed) or failed; 3 a file could not be written (disk full:
+    the recording stops, every whole frame is kept); 2 bad input or a non-empty folder;
+    130 interrupted before the scan started.
     """
     from ..procedures.scan import ScanSession, default_folder
 
@@ -78,6 +84,12 @@ def start(out: str | None, duration: float | None, dry_run: bool, as_json: bool,
         echo_json(manifest)
     else:
         _summary(folder, manifest)
+    if session.recorder is not None and session.recorder.write_failure is not None:
+        click.echo(f"vts: {session.recorder.write_failure}", err=True)
+        sys.exit(session.recorder.write_failure.exit_code)
+    if manifest and manifest.get("status") != "complete":
+        click.echo(f"vts: the session in {folder} is {manifest.get('status')}: see the problems above", err=True)
+        sys.exit(4)
 
 
 # -- live status -------------------------------------------------------------------------------------
