@@ -270,7 +270,9 @@ class FunctionGenerator(TriggerBase):
         raise AssertionError("unreachable")  # pragma: no cover
 
     def fire(self) -> TriggerStatus:
-        self.require(FIRE, f"start the square wave and the start pulses together: {_NO_PULSE}")
+        self.require(FIRE, f"start the square wave and the start pulses together: {_NO_PULSE}; nothing "
+                           f"was sent, so no start pulses went out and the square wave was not started "
+                           f"(the square wave alone: vts trigger start)")
         raise AssertionError("unreachable")  # pragma: no cover
 
     def clock_mapping(self, samples: int = 20) -> ClockMapping:

@@ -107,19 +107,43 @@ def open_message_resource(address: str, library: str, timeout_ms: int, name: str
         if canonical not in known:
             raise TriggerError(f"{name}: cannot open {address}: the simulated model at "
                                f"{rm.visalib.library_path} has only {', '.join(known)}")
+    else:
+        _check_address(address, name)
     try:
         return rm.open_resource(address, read_termination="\n", write_termination="\n",
                                 timeout=timeout_ms, open_timeout=timeout_ms)
     except pyvisa.errors.VisaIOError as e:
         if e.error_code == pyvisa.constants.StatusCode.error_invalid_resource_name:
-            raise TriggerError(f"{name}: {address!r} is not a VISA address (e.g. "
-                               f"TCPIP::192.168.1.20::5025::SOCKET or TCPIP::192.168.1.20::INSTR)") from None
+            raise _not_an_address(address, name) from None
         raise visa_failure(e, name, address, None, timeout_ms) from None
     except Exception as e:
         if is_visa_error(e):
             raise visa_failure(e, name, address, None, timeout_ms) from None
         raise TriggerError(f"{name}: cannot open {address} through "
                            f"{library or 'the default VISA'}: {e}") from e
+
+
+def _not_an_address(address: str, name: str) -> TriggerError:
+    return TriggerError(f"{name}: {address!r} is not a VISA address (e.g. "
+                        f"TCPIP::192.168.1.20::5025::SOCKET or TCPIP::192.168.1.20::INSTR)")
+
+
+def _check_address(address: str, name: str) -> None:
+    """A VISA address, and for the LAN a host name that resolves: said plainly before a VISA
+    backend fails on it in its own words (pyvisa-py answers an unknown VXI-11 host with EBADF)."""
+    from pyvisa import rname
+
+    try:
+        parsed = rname.parse_resource_name(address)
+    except rname.InvalidResourceName:
+        raise _not_an_address(address, name) from None
+    host = getattr(parsed, "host_address", None)
+    if host:
+        try:
+            socket.getaddrinfo(host, None)
+        except (socket.gaierror, UnicodeError):
+            raise TriggerError(f"{name}: cannot reach {address}: no host is called {host!r} "
+                               f"(check the trigger address in rig.yaml)") from None
 
 
 def _fresh_sim_devices(rm, name: str) -> None:

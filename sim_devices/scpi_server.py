@@ -89,7 +89,7 @@ class SimFunctionGenerator:
         self._server = _Server(("127.0.0.1", self.port), _Handler)
         self._server.owner = self  # type: ignore[attr-defined]
         self.port = self._server.server_address[1]
-        self._thread = threading.Thread(target=self._server.serve_forever, name=f"sim-33500-{self.port}",
+        self._thread = threading.Thread(target=self._server.serve_forever, args=(0.05,), name=f"sim-33500-{self.port}",
                                         daemon=True)
         self._thread.start()
         return self
