@@ -131,3 +131,12 @@ def test_fire_on_the_trigger_box_says_what_went_out(tmp_path):
             assert (closed.value, opened.value) == (1, 0)
             assert abs(closed.cycle - up[0]) <= 16 * 10
             assert abs((opened.cycle - closed.cycle) / F_CPU - 0.050) < 0.001
+
+
+def test_a_level_the_generator_cannot_make_is_refused_before_anything_is_sent(tmp_path, fgen):
+    rig = _fgen_rig(tmp_path, fgen, high_v=8.0, low_v=0.0)     # rig.yaml allows ±10 V; a 33500 into 50 ohm ±5 V
+    p = vts("trigger", "start", "--config", str(rig), "--log", str(tmp_path / "t.csv"))
+    assert p.returncode == 4, p.stderr
+    assert p.stderr == ("vts: fgen: high level 8.0 V is outside the instrument's range -5 to 5 V; "
+                        "nothing was sent\n")
+    assert fgen.instrument.channels[1].high_v == 0.05 and fgen.instrument.events == []
