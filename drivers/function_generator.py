@@ -22,18 +22,19 @@ A 33500 has no contact-closure outputs and no clock that times its output, so th
 can do FREQUENCY, DUTY and LEVELS only: :meth:`pulse`, :meth:`fire` and :meth:`clock_mapping`
 raise :class:`~vts_hw.drivers.trigger.Unsupported` and say what to use instead.
 
-``sim=True`` talks to the pyvisa-sim model shipped as ``vts_hw/sim_devices/keysight_33500.yaml``;
-each instance gets a freshly parsed simulated device (docs/decisions/0010).
+A real 33500 is reached on the LAN as ``TCPIP::HOST::5025::SOCKET`` (or ``TCPIP::HOST::INSTR``),
+the simulated rig's as ``TCPIP::127.0.0.1::PORT::SOCKET`` (``vts_hw.sim_devices.scpi_server``),
+both through pyvisa's default VISA (pyvisa-py where no IVI VISA is installed); opening and VISA
+failures (refused, timed out, connection lost) are one-sentence TriggerErrors naming the resource
+(:mod:`.visa`). ``sim=True`` talks to the pyvisa-sim model shipped as
+``vts_hw/sim_devices/keysight_33500.yaml`` instead, for the unit tests; each instance gets a
+freshly parsed simulated device (docs/decisions/0010, 0021).
 """
 
 from __future__ import annotations
 
-import atexit
-import contextlib
-import importlib.resources
 import math
 import re
-from pathlib import Path
 from typing import Any, Callable
 
 from .settings import Setting, in_range
@@ -51,10 +52,11 @@ from .trigger import (
     TriggerLog,
     TriggerStatus,
 )
+from .visa import is_visa_error, open_message_resource, sim_yaml_path, visa_failure
+
+__all__ = ["FunctionGenerator", "OutOfRange", "SIM_RESOURCE", "sim_yaml_path", "scpi_number"]
 
 DEVICE = "the instrument"
-SIM_PACKAGE = "vts_hw.sim_devices"
-SIM_YAML = "keysight_33500.yaml"
 #: an address the simulated generator answers on (pyvisa-sim opens no socket)
 SIM_RESOURCE = "TCPIP0::127.0.0.1::inst0::INSTR"
 
@@ -173,7 +175,7 @@ class FunctionGenerator(TriggerBase):
         if isinstance(resource, str):
             library = f"{sim_yaml_path()}@sim" if sim else (visa_library or "")
             self.address = resource
-            self.resource = _open_visa(resource, library, timeout_ms, name)
+            self.resource = open_message_resource(resource, library, timeout_ms, name)
             self.log.write(name, "event", f"open {resource} ({'simulated' if sim else library or 'default VISA'})")
         else:
             self.address = str(getattr(resource, "resource_name", type(resource).__name__))
@@ -268,7 +270,9 @@ class FunctionGenerator(TriggerBase):
         raise AssertionError("unreachable")  # pragma: no cover
 
     def fire(self) -> TriggerStatus:
-        self.require(FIRE, f"start the square wave and the start pulses together: {_NO_PULSE}")
+        self.require(FIRE, f"start the square wave and the start pulses together: {_NO_PULSE}; nothing "
+                           f"was sent, so no start pulses went out and the square wave was not started "
+                           f"(the square wave alone: vts trigger start)")
         raise AssertionError("unreachable")  # pragma: no cover
 
     def clock_mapping(self, samples: int = 20) -> ClockMapping:
@@ -371,8 +375,8 @@ class FunctionGenerator(TriggerBase):
         try:
             self.resource.write(command)
         except Exception as e:
-            if _is_visa_error(e):
-                raise TriggerError(f"{self.name} at {self.address}: cannot send {command!r} ({e})") from e
+            if is_visa_error(e):
+                raise self._failure(e, command) from None
             raise
 
     def _query(self, command: str) -> str:
@@ -380,11 +384,16 @@ class FunctionGenerator(TriggerBase):
         try:
             reply = self.resource.query(command).strip()
         except Exception as e:
-            if _is_visa_error(e):
-                raise TriggerError(f"{self.name} at {self.address}: no answer to {command!r} ({e})") from e
+            if is_visa_error(e):
+                raise self._failure(e, command) from None
             raise
         self.log.write(self.name, "reply", reply)
         return reply
+
+    def _failure(self, e: BaseException, command: str) -> TriggerError:
+        err = visa_failure(e, self.name, self.address, command, getattr(self.resource, "timeout", None))
+        self.log.write(self.name, "event", str(err))
+        return err
 
     def _read_errors(self) -> tuple[str, ...]:
         """SYST:ERR? until +0,"No error"; the messages read before it."""
@@ -428,19 +437,7 @@ class FunctionGenerator(TriggerBase):
             pass
 
 
-# ---- VISA plumbing ---------------------------------------------------------------------------------
-
-_files = contextlib.ExitStack()
-atexit.register(_files.close)
-
-
-def sim_yaml_path() -> Path:
-    """The shipped pyvisa-sim model, as a file path (package data of ``vts_hw.sim_devices``)."""
-    ref = importlib.resources.files(SIM_PACKAGE).joinpath(SIM_YAML)
-    if isinstance(ref, Path):
-        return ref
-    return _files.enter_context(importlib.resources.as_file(ref))  # pragma: no cover - zipped install
-
+# ---- helpers -----------------------------------------------------------------------------------------
 
 def _finite_or_none(value: Any) -> float | None:
     try:
@@ -448,55 +445,3 @@ def _finite_or_none(value: Any) -> float | None:
     except (TypeError, ValueError):
         return None
     return v if math.isfinite(v) else None
-
-
-def _is_visa_error(e: Exception) -> bool:
-    try:
-        import pyvisa.errors
-    except ImportError:  # pragma: no cover - pyvisa is a dependency
-        return False
-    return isinstance(e, (pyvisa.errors.Error, TimeoutError, OSError))
-
-
-def _open_visa(address: str, library: str, timeout_ms: int, name: str):
-    import pyvisa
-
-    try:
-        rm = pyvisa.ResourceManager(library)
-    except Exception as e:
-        raise TriggerError(f"{name}: cannot load the VISA library {library or '(default)'!r}: {e}") from e
-    if type(rm.visalib).__module__.startswith("pyvisa_sim"):
-        _fresh_sim_devices(rm, name)
-        # pyvisa-sim "opens" any address and then never answers: say what is wrong instead
-        known = rm.visalib.devices.list_resources()
-        try:
-            canonical = pyvisa.rname.to_canonical_name(address)
-        except Exception:
-            canonical = address
-        if canonical not in known:
-            raise TriggerError(f"{name}: cannot open {address}: the simulated model at "
-                               f"{rm.visalib.library_path} has only {', '.join(known)}")
-    try:
-        return rm.open_resource(address, read_termination="\n", write_termination="\n",
-                                timeout=timeout_ms)
-    except Exception as e:
-        raise TriggerError(f"{name}: cannot open {address} through {library or 'the default VISA'}: {e}") from e
-
-
-def _fresh_sim_devices(rm, name: str) -> None:
-    """Give the next session a freshly parsed simulated device.
-
-    pyvisa keeps one library object per YAML path for the whole process (and one
-    ResourceManager per library), and pyvisa-sim keeps device state in that object, so a new
-    ResourceManager alone would hand a new instance the old state (pyvisa-sim issues #82, #83).
-    Re-parsing the definitions gives sessions opened from now on new devices; sessions already
-    open keep theirs.
-    """
-    lib = rm.visalib
-    try:
-        from pyvisa_sim import parser
-
-        path = str(lib.library_path)
-        lib.devices = parser.get_devices("default.yaml", True) if path == "unset" else parser.get_devices(path, False)
-    except Exception as e:
-        raise TriggerError(f"{name}: cannot load a fresh simulated device from {lib.library_path}: {e}") from e

@@ -27,6 +27,7 @@ from pathlib import Path
 
 from ..config import RigConfig, dump_rig, parse_rig
 from ..errors import VtsError
+from ..files import WriteFailed, ensure_dir, os_reason, write_atomic
 from .axis_camera import SimAxisCamera
 from .camera_source import SimCameraSource
 from .clock import RealClock, VirtualClock
@@ -34,6 +35,10 @@ from .render import Renderer
 from .scene import CameraDrift, Scene
 
 PID_FILE = "sim.pid"
+LOG_FILE = "sim.log"
+FGEN_LOG = "fgen_output.csv"     # the simulated function generator's output changes (host times)
+FAILED = "simulated rig failed: "  # how the detached process says why it stopped (last line of sim.log)
+FOLDER = "simulated rig folder"
 TRIGGERS = ("none", "triggerbox", "visa")
 _children: dict[int, subprocess.Popen] = {}  # started from this process: reaped on stop
 READY_FILE = "rig.yaml"
@@ -53,6 +58,7 @@ class SimRig:
             raise ValueError(f"trigger must be one of {', '.join(TRIGGERS)}, not {trigger!r}")
         self.trigger = trigger
         self.trigger_box = None  # the firmware in the emulator, when trigger == "triggerbox"
+        self.function_generator = None  # a 33522B on a TCP socket, when trigger == "visa"
         self.clock = clock or RealClock()
         self.scene = Scene.reference(seed=seed, n_cameras=n_cameras, start_epoch=self.clock.now())
         for i, (cam, px) in enumerate(sorted((drift_px_per_60_days or {}).items())):
@@ -77,6 +83,9 @@ class SimRig:
         if self.trigger == "triggerbox":
             from .trigger_box import SimTriggerBox
             self.trigger_box = SimTriggerBox().start()
+        if self.trigger == "visa":
+            from .scpi_server import SimFunctionGenerator
+            self.function_generator = SimFunctionGenerator(clock=self.clock.now).start()
         self._started = True
         return self
 
@@ -86,6 +95,9 @@ class SimRig:
         if self.trigger_box is not None:
             self.trigger_box.stop()
             self.trigger_box = None
+        if self.function_generator is not None:
+            self.function_generator.stop()
+            self.function_generator = None
         self._started = False
 
     def __enter__(self) -> "SimRig":
@@ -116,9 +128,9 @@ class SimRig:
         """The rig config's trigger section for the simulated trigger generator."""
         if self.trigger == "triggerbox" and self.trigger_box is not None:
             return {"backend": "triggerbox", "address": self.trigger_box.port}
-        if self.trigger == "visa":
-            from ..drivers.function_generator import SIM_RESOURCE
-            return {"backend": "visa", "address": SIM_RESOURCE, "simulated": True, "high_v": 2.5, "low_v": 0.0}
+        if self.trigger == "visa" and self.function_generator is not None:
+            # reached as a real 33500 on the LAN is: a VISA SOCKET resource (pyvisa-py)
+            return {"backend": "visa", "address": self.function_generator.resource, "high_v": 2.5, "low_v": 0.0}
         return {"backend": "none"}
 
     def env_vars(self) -> dict[str, str]:
@@ -144,24 +156,19 @@ class SimRig:
         two cameras or more), named in rig.yaml's ``calibration:`` section (absolute paths)."""
         from .sync_sim import write_true_calibration
 
-        folder = Path(folder)
-        folder.mkdir(parents=True, exist_ok=True)
+        folder = ensure_dir(folder, FOLDER)
         calibration = None
         if len(self.scene.cameras) >= 2:  # a stereo pair: the first two cameras
             cal, mp = write_true_calibration(self.scene, folder)
             calibration = {"stereo": str(cal.resolve()), "spect": str(mp.resolve())}
         env_path = folder / "sim.env"
-        fd = os.open(env_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-        with os.fdopen(fd, "w") as f:
-            f.write("# source this file: the passwords of the simulated cameras\n")
-            for k, v in self.env_vars().items():
-                f.write(f"export {k}='{v}'\n")
-            f.write(f"export VTS_CONFIG='{(folder / 'rig.yaml').resolve()}'\n")
+        env = ["# source this file: the passwords of the simulated cameras"]
+        env += [f"export {k}='{v}'" for k, v in self.env_vars().items()]
+        env.append(f"export VTS_CONFIG='{(folder / 'rig.yaml').resolve()}'")
+        write_atomic(env_path, "\n".join(env) + "\n", mode=0o600)
         rig_path = folder / "rig.yaml"
-        tmp = folder / ".rig.yaml.tmp"
-        tmp.write_text("# the simulated rig written by `vts sim up`; calibration: the scene's true cameras\n"
-                       + dump_rig(self.config(calibration=calibration)))
-        os.replace(tmp, rig_path)  # rig.yaml appears only once everything is up
+        write_atomic(rig_path, "# the simulated rig written by `vts sim up`; calibration: the scene's true "
+                     "cameras\n" + dump_rig(self.config(calibration=calibration)))  # last: once all is up
         return rig_path, env_path
 
 
@@ -185,6 +192,8 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
     if spect and (trigger != "triggerbox" or folder is None):
         raise VtsError("the simulated SPECT needs --trigger triggerbox and --dir (it writes its "
                        "list-mode files into DIR/spect)")
+    if folder is not None:
+        folder = ensure_dir(folder, FOLDER)  # before anything starts: a folder we cannot use stops here
     clock = RealClock() if rate == 1.0 else VirtualClock(time.time(), rate=rate)
     stop = threading.Event()
 
@@ -199,38 +208,46 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
         from .spect_follower import SpectFollower
         follower = SpectFollower(rig, Path(folder) / "spect", seed=seed,
                                  log=lambda m: print(m, flush=True))  # the scene, before cameras serve
-    with rig:
-        if follower is not None:
-            follower.start()
+    try:
+        with rig:
+            if follower is not None:
+                follower.start()
+            if folder is not None:
+                write_atomic(folder / PID_FILE, f"{os.getpid()}\n")
+                if rig.function_generator is not None:
+                    try:
+                        rig.function_generator.log_to(folder / FGEN_LOG)
+                    except OSError as e:
+                        raise WriteFailed(folder / FGEN_LOG, os_reason(e)) from None
+                rig.write(folder)
+            if on_ready:
+                on_ready(rig)
+            while not stop.wait(0.5):
+                pass
+            if follower is not None:
+                follower.stop()
+    finally:
         if folder is not None:
-            folder = Path(folder)
-            folder.mkdir(parents=True, exist_ok=True)
-            (folder / PID_FILE).write_text(f"{os.getpid()}\n")
-            rig.write(folder)
-        if on_ready:
-            on_ready(rig)
-        while not stop.wait(0.5):
-            pass
-        if follower is not None:
-            follower.stop()
-    if folder is not None:
-        for name in (PID_FILE,):
             with contextlib.suppress(FileNotFoundError):
-                (Path(folder) / name).unlink()
+                (folder / PID_FILE).unlink()
 
 
 def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmware: str = "vapix3",
                    rate: float = 1.0, timeout: float = 60.0, trigger: str = "none",
                    spect: bool = False) -> int:
     """Start ``serve`` in a background process; return its pid once rig.yaml is written."""
-    folder = Path(folder).resolve()
-    folder.mkdir(parents=True, exist_ok=True)
+    folder = ensure_dir(Path(folder).resolve(), FOLDER)
     if is_running(folder):
         raise VtsError(f"a simulated rig is already running in {folder} (vts sim down --dir {folder})")
     for name in (READY_FILE, PID_FILE):
         with contextlib.suppress(FileNotFoundError):
             (folder / name).unlink()
-    log = open(folder / "sim.log", "ab")
+    log_path = folder / LOG_FILE
+    try:
+        log = open(log_path, "ab")
+    except OSError as e:
+        raise WriteFailed(log_path, os_reason(e)) from None
+    log_start = log.tell()
     cmd = [sys.executable, "-m", "vts_hw.sim_devices.rig", str(folder), str(n_cameras), str(seed), firmware,
            str(rate), trigger] + (["spect"] if spect else [])
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=log, start_new_session=True)
@@ -240,10 +257,49 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
             _children[proc.pid] = proc
             return proc.pid
         if proc.poll() is not None:
-            raise VtsError(f"the simulated rig failed to start (exit {proc.returncode}); see {folder / 'sim.log'}")
+            log.close()
+            err = VtsError(f"the simulated rig failed to start (exit {proc.returncode}): "
+                           f"{failure_cause(log_path, log_start)} (the whole log: {log_path})")
+            if proc.returncode in (2, 3, 4):  # the cause was one of ours: keep its exit code
+                err.exit_code = proc.returncode
+            raise err
         time.sleep(0.05)
     proc.kill()
-    raise VtsError(f"the simulated rig did not come up within {timeout:g} s; see {folder / 'sim.log'}")
+    proc.wait()
+    log.close()
+    raise VtsError(f"the simulated rig did not come up within {timeout:g} s; its log {log_path} ends: "
+                   f"{failure_cause(log_path, log_start)}")
+
+
+def failure_cause(log_path: Path, start: int = 0) -> str:
+    """Why the detached rig stopped, from what it wrote to sim.log after byte ``start``: the
+    line it writes when it fails (``FAILED``), else the last line that is not part of a
+    traceback's listing."""
+    try:
+        with open(log_path, "rb") as f:
+            f.seek(start)
+            lines = [ln.rstrip() for ln in f.read().decode("utf-8", "replace").splitlines() if ln.strip()]
+    except OSError as e:
+        return f"its log cannot be read ({os_reason(e)})"
+    for line in reversed(lines):
+        if line.startswith(FAILED):
+            return line[len(FAILED):]
+    plain = [ln for ln in lines if not ln.startswith((" ", "\t", "Traceback"))]
+    if plain:
+        return plain[-1]
+    return "it wrote nothing to its log (was it killed, or is the disk full?)"
+
+
+def _why(exc: BaseException) -> str:
+    """An unexpected exception in one line: its type, the first line of its message and, when
+    the message goes on (a build's output), its last line."""
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    if not lines:
+        return type(exc).__name__
+    text = lines[0].rstrip(":")
+    if len(lines) > 1:
+        text += f": {lines[-1]}"
+    return f"{type(exc).__name__}: {text}"
 
 
 def _pid(folder: Path) -> int | None:
@@ -296,6 +352,21 @@ def stop_detached(folder: str | Path, timeout: float = 10.0) -> bool:
     return True
 
 
+def _main(argv: list[str]) -> int:
+    """The detached process: serve until stopped; on failure, one last line saying why."""
+    folder, n, seed, fw, rate, trigger = argv[:6]
+    try:
+        serve(folder, int(n), int(seed), fw, float(rate), trigger=trigger, spect="spect" in argv[6:])
+    except VtsError as e:
+        print(f"{FAILED}{e}", file=sys.stderr, flush=True)
+        return e.exit_code
+    except Exception as e:
+        import traceback
+        traceback.print_exc()
+        print(f"{FAILED}{_why(e)}", file=sys.stderr, flush=True)
+        return 1
+    return 0
+
+
 if __name__ == "__main__":  # the detached process
-    _folder, _n, _seed, _fw, _rate, _trigger = sys.argv[1:7]
-    serve(_folder, int(_n), int(_seed), _fw, float(_rate), trigger=_trigger, spect="spect" in sys.argv[7:])
+    sys.exit(_main(sys.argv[1:]))

@@ -261,7 +261,7 @@ def test_an_instrument_that_does_not_answer_is_a_trigger_error(tmp_path):
     data["devices"]["keysight_33522B"]["dialogues"] = [{"q": "*RST"}]   # no *IDN?
     path = tmp_path / "mute.yaml"
     path.write_text(yaml.safe_dump(data))
-    with pytest.raises(TriggerError, match=r"fgen at TCPIP0.*no answer to '\*IDN\?'"):
+    with pytest.raises(TriggerError, match=r"fgen: the instrument at TCPIP0::127.0.0.1::inst0::INSTR did not answer '\*IDN\?' within 0.1 s"):
         FunctionGenerator(SIM_RESOURCE, visa_library=f"{path}@sim", timeout_ms=100)
 
 

@@ -1,5 +1,5 @@
 """The scan session on the simulated rig: cameras over HTTP, the trigger box firmware in the
-emulator over a pty, the function generator in pyvisa-sim. What the box really emitted comes
+emulator over a pty, the function generator on a TCP socket (VISA SOCKET through pyvisa-py). What the box really emitted comes
 from the emulator's pin log; the camera clock offsets are scored against the scene's truth."""
 
 from __future__ import annotations
@@ -132,12 +132,20 @@ def test_session_with_the_trigger_box(box_rig, tmp_path):
 
 def test_session_with_the_function_generator(tmp_path):
     rig, cfg, _ = _rig("visa", tmp_path)
+    assert cfg.trigger.address == rig.function_generator.resource and not cfg.trigger.simulated
     try:
         with rig.env():
             m = ScanSession(cfg, tmp_path / "scan", duration=3.0).run()
     finally:
+        runs = rig.function_generator.instrument.runs(1)
         rig.stop()
     tr = m["trigger"]
+    # what the instrument on its socket really did: one 1 Hz 0..2.5 V square wave, on from the
+    # fire to the stop the session logged
+    (run,) = runs
+    assert (run.function, run.frequency_hz, run.duty_percent, run.high_v, run.low_v) == ("SQU", 1.0, 50.0, 2.5, 0.0)
+    assert tr["fire_sent_host_time"] <= run.start <= tr["fire_confirmed_host_time"]
+    assert run.stop is not None and run.stop <= tr["stopped_host_time"] and run.stop - run.start >= 3.0
     assert m["status"] == "complete" and tr["fired"]
     assert tr["mode"] == "square wave only" and tr["start_pulses"] is False and "start pulses" in tr["note"]
     assert tr["confirmed"]["high_v"] == 2.5 and tr["confirmed"]["low_v"] == 0.0

@@ -23,8 +23,9 @@ def sim() -> None:
 @click.option("--rate", type=float, default=1.0, show_default=True,
               help="Speed of the simulated clock (e.g. 86400: a day per second, for drift).")
 @click.option("--trigger", type=click.Choice(["none", "triggerbox", "visa"]), default="none", show_default=True,
-              help="A simulated trigger generator: our firmware in the emulator behind a pty, or the "
-                   "pyvisa-sim function generator.")
+              help="A simulated trigger generator: our firmware in the emulator behind a pty, or a "
+                   "Keysight 33522B function generator on a TCP socket on 127.0.0.1 (reached through VISA "
+                   "as TCPIP::127.0.0.1::PORT::SOCKET; its settings last while the rig runs).")
 @click.option("--spect", is_flag=True,
               help="A simulated SPECT beside the rig (needs --trigger triggerbox and --dir): a source "
                    "marker on the table moves every ~15 s once the box sends its SPECT start pulse, and "
@@ -39,7 +40,9 @@ def up(n_cameras: int, seed: int, vapix: str, rate: float, trigger: str, spect: 
 
     With --dir DIR it writes DIR/rig.yaml pointing at the simulated cameras and DIR/sim.env
     with the password variables that rig.yaml names: `source DIR/sim.env` and every `vts`
-    command then talks to the simulated rig.
+    command then talks to the simulated rig. A DIR that cannot be created or written ends the
+    command before anything starts (exit 3); a detached rig that fails to start says why (the
+    last line of DIR/sim.log).
     """
     from ..sim_devices import rig as simrig  # imports the scene only when asked
 
@@ -59,6 +62,8 @@ def up(n_cameras: int, seed: int, vapix: str, rate: float, trigger: str, spect: 
             click.echo(f"{name}: {srv.url}")
         if rig.trigger_box is not None:
             click.echo(f"trigger box: {rig.trigger_box.port} (firmware in the emulator)")
+        if rig.function_generator is not None:
+            click.echo(f"function generator: {rig.function_generator.resource} (a simulated Keysight 33522B)")
         if folder:
             _describe(Path(folder))
         if spect:

@@ -96,7 +96,31 @@ def pulse(channel, ms, log_path, rig) -> None:
 @json_option
 @with_rig
 def fire(log_path, as_json, rig) -> None:
-    """Configure, then start the square wave and both start pulses together."""
+    """Configure, then start the square wave and both start pulses together, and say what went
+    out as the device confirms it. A backend without start pulses (the function generator) says
+    so and changes nothing."""
+    import inspect
+
+    from ..drivers.settings import Setting
+    from ..drivers.trigger import CHANNELS, FIRE, LEVELS
+    t = rig.trigger
     with _open(rig, log_path) as gen:
-        _configure(gen, rig.trigger)
-        _show(gen.fire(), as_json)
+        if FIRE in gen.capabilities:  # else fire() below refuses, in the driver's words, before anything is sent
+            _configure(gen, t)
+        kw = {"pulse_ms": t.pulse_ms} if "pulse_ms" in inspect.signature(gen.fire).parameters else {}
+        st = gen.fire(**kw)
+        width = getattr(gen, "fire_pulse_ms", None)
+        # a device setting (the trigger box: PULSE:WIDTH?) is read back from the device
+        confirmed = isinstance(getattr(type(gen), "fire_pulse_ms", None), Setting)
+        fixed_levels = LEVELS not in gen.capabilities
+    pulses = {"channels": {str(c): what for c, what in CHANNELS.items()}, "width_ms": width}
+    if as_json:
+        echo_json({**st.__dict__, "start_pulses": pulses})
+        return
+    _show(st, False)
+    if fixed_levels:
+        click.echo("  square wave at the device's fixed TTL levels")
+    both = " and ".join(f"channel {c} ({what})" for c, what in CHANNELS.items())
+    how = f"the device confirms {width} ms" if confirmed else f"{width} ms timed by the host"
+    click.echo(f"start pulses: {both}, {width} ms each, sent with the square wave's first rising edge "
+               f"({st.device} accepted the fire; {how})")

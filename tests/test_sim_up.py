@@ -1,0 +1,82 @@
+"""`vts sim up` as a user runs it: a --dir it cannot use, a detached rig that fails to start,
+and the simulated function generator whose state lasts between `vts trigger` commands."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+
+import pytest
+
+from vts_hw.config import load_rig
+from vts_hw.sim_devices.rig import FGEN_LOG, load_env_file
+from vts_hw.sim_devices.scpi_server import read_output_log
+
+VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
+
+
+def vts(*args, env=None, timeout=90):
+    return subprocess.run([*VTS, *args], capture_output=True, text=True, env=env, timeout=timeout)
+
+
+@pytest.mark.parametrize("detach", [False, True], ids=["foreground", "detached"])
+def test_a_dir_that_cannot_be_created_is_one_sentence_and_exit_3(readonly_dir, detach):
+    d = readonly_dir / "sim"
+    p = vts("sim", "up", "--cameras", "1", "--dir", str(d), *(["--detach"] if detach else []))
+    assert p.returncode == 3, p.stderr
+    assert p.stderr == (f"vts: {d}: could not be written (cannot create the simulated rig folder: "
+                        f"read-only file system)\n")
+    assert p.stdout == "" and not d.exists()
+
+
+@pytest.mark.parametrize("detach", [False, True], ids=["foreground", "detached"])
+def test_a_read_only_dir_is_one_sentence_and_exit_3(readonly_dir, detach):
+    p = vts("sim", "up", "--cameras", "1", "--dir", str(readonly_dir), *(["--detach"] if detach else []))
+    assert p.returncode == 3, p.stderr
+    assert p.stderr == f"vts: {readonly_dir}: could not be written (the simulated rig folder is not writable)\n"
+    assert "Traceback" not in p.stderr and list(readonly_dir.iterdir()) == []
+
+
+def test_a_detached_rig_that_fails_to_start_says_why(tmp_path):
+    d = tmp_path / "sim"
+    missing = tmp_path / "no-firmware"
+    env = {**os.environ, "VTS_FIRMWARE_DIR": str(missing)}     # the trigger box cannot be built
+    (d).mkdir()
+    (d / "sim.log").write_text("an older run's line\n")         # sim.log is appended to: not this run's cause
+    p = vts("sim", "up", "--detach", "--cameras", "1", "--trigger", "triggerbox", "--dir", str(d), env=env)
+    assert p.returncode == 1, p.stderr
+    assert p.stderr == (f"vts: the simulated rig failed to start (exit 1): RuntimeError: trigger box firmware "
+                        f"sources not found in {missing} (the whole log: {d / 'sim.log'})\n")
+    assert not (d / "rig.yaml").exists() and not (d / "sim.pid").exists()
+    log = (d / "sim.log").read_text()
+    assert log.startswith("an older run's line\n") and "Traceback" in log   # the details stay in the log
+
+
+def test_the_simulated_function_generator_keeps_its_state_between_commands(tmp_path):
+    d = tmp_path / "sim"
+    p = vts("sim", "up", "--detach", "--cameras", "1", "--trigger", "visa", "--dir", str(d))
+    assert p.returncode == 0, p.stderr
+    try:
+        env = {**os.environ, **load_env_file(d / "sim.env")}
+        trigger = load_rig(d / "rig.yaml").trigger           # reached as a real 33500 on the LAN
+        assert trigger.backend == "visa" and not trigger.simulated
+        assert re.fullmatch(r"TCPIP::127\.0\.0\.1::\d+::SOCKET", trigger.address)
+        log = str(tmp_path / "trigger.csv")
+        p = vts("trigger", "start", "--log", log, env=env)
+        assert p.returncode == 0, p.stderr
+        assert p.stdout.strip() == "fgen: output ON, 1 Hz, duty 50 %, 0..2.5 V"
+        p = vts("trigger", "status", "--json", "--log", log, env=env)
+        assert p.returncode == 0, p.stderr
+        st = json.loads(p.stdout)
+        assert (st["running"], st["frequency_hz"], st["duty"], st["high_v"], st["low_v"]) == (True, 1.0, 0.5, 2.5, 0.0)
+        # the instrument's own log of its output, with host times
+        (ev,) = read_output_log(d / FGEN_LOG)
+        assert ev.output and ev.function == "SQU" and ev.frequency_hz == 1.0
+        p = vts("trigger", "stop", "--log", log, env=env)
+        assert p.returncode == 0 and "output OFF" in p.stdout
+        assert [e.output for e in read_output_log(d / FGEN_LOG)] == [True, False]
+    finally:
+        assert vts("sim", "down", "--dir", str(d)).returncode == 0
