@@ -221,7 +221,8 @@ def sweep(only: str | None, timeout: float, show: bool, root: Path) -> dict:
     # mount, so make it a path under a regular FILE (ENOTDIR) -- an output that cannot be written
     fx.readonly_out = root / "empty.txt" / "out.file"
     results = {"cases": 0, "passed": 0, "tracebacks": [], "hangs": [], "bad_exit": []}
-    env_backup = dict(os.environ)
+    env_backup, cwd = dict(os.environ), os.getcwd()
+    os.chdir(root)   # default outputs (trigger.csv, drift-report.html) land in the sandbox
     os.environ["XDG_DATA_HOME"] = str(root / "xdg")
     os.environ.pop("VTS_CONFIG", None)
     try:
@@ -250,6 +251,7 @@ def sweep(only: str | None, timeout: float, show: bool, root: Path) -> dict:
                     last = (err.strip().splitlines() or [""])[-1][:160]
                     print(f"  exit {code}: {label}\n      {last}")
     finally:
+        os.chdir(cwd)
         os.environ.clear()
         os.environ.update(env_backup)
     return results
