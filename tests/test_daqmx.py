@@ -434,3 +434,22 @@ def test_real_nidaqmx_configure_start_pulse_fire_stop(daq_device, tmp_path):
         assert not trig.stop().running
     kinds = {r["kind"] for r in read_log(tmp_path / "trigger.csv")}
     assert {"cmd", "reply", "event"} <= kinds
+
+
+def test_the_rig_configs_pulse_width_reaches_the_daqmx_fire(monkeypatch, clock):
+    """rig.yaml's trigger.pulse_ms is the width of the start pulses fire() sends (it was
+    always the driver's 100 ms default)."""
+    from vts_hw.config import TriggerConfig
+    from vts_hw.drivers import daqmx
+    from vts_hw.triggers import open_trigger
+
+    port = FakePort(clock)
+    monkeypatch.setattr(daqmx, "NidaqmxPort", lambda: port)
+    trig = open_trigger(TriggerConfig(backend="daqmx", address="Dev1/ctr0", lines=LINES, pulse_ms=250))
+    assert trig.fire_pulse_ms == 250
+    trig._sleep, trig._clock = clock.sleep, clock     # the fake clock moves only when it sleeps
+    trig.configure(1.0, 0.5)
+    trig.fire()
+    rises = [c for c in port.calls if c[0] == "lines" and c[2] == (True, True)]
+    falls = [c for c in port.calls if c[0] == "lines" and c[2] == (False, False) and c[-1] > rises[0][-1]]
+    assert falls[0][-1] - rises[0][-1] == pytest.approx(0.25)

@@ -23,5 +23,6 @@ def open_trigger(cfg: TriggerConfig, log_path: str | Path | None = None, clock=N
         return FunctionGenerator(cfg.address, sim=cfg.simulated, log=log)
     if cfg.backend == "daqmx":
         from .drivers.daqmx import DaqmxTrigger
-        return DaqmxTrigger(cfg.address, lines=cfg.lines, fire_trigger=cfg.fire_trigger, log=log)
+        return DaqmxTrigger(cfg.address, lines=cfg.lines, fire_trigger=cfg.fire_trigger,
+                            fire_pulse_ms=cfg.pulse_ms, log=log)
     raise ConfigError(f"unknown trigger backend {cfg.backend!r}")  # pragma: no cover (validated)
