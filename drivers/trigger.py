@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 from ..errors import DeviceError
+from ..files import WriteFailed, os_reason
 
 # what a backend can do
 FREQUENCY = "frequency"      # set the square wave's frequency
@@ -156,31 +157,44 @@ class TriggerLog:
         self.path = Path(path) if path is not None else None
         self.clock = clock
         self.lines: list[list[str]] = []
+        self.write_error: WriteFailed | None = None   # the file stopped taking lines (kept in ``lines``)
         self._lock = threading.Lock()
         self._f = None
         if self.path is not None:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            new = not self.path.exists() or self.path.stat().st_size == 0
-            self._f = open(self.path, "a", newline="", encoding="utf-8")
-            self._w = csv.writer(self._f)
-            if new:
-                self._w.writerow(LOG_HEADER)
-                self._f.flush()
+            try:
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+                new = not self.path.exists() or self.path.stat().st_size == 0
+                self._f = open(self.path, "a", newline="", encoding="utf-8")
+                self._w = csv.writer(self._f)
+                if new:
+                    self._w.writerow(LOG_HEADER)
+                    self._f.flush()
+            except OSError as exc:
+                raise WriteFailed(self.path, os_reason(exc), "nothing was sent to the device") from None
 
     def write(self, device: str, kind: str, text: str, device_us: int | float | None = None,
               host_time: float | None = None) -> None:
+        """Log one line. A file that stops taking lines (disk full) never stops the device: the
+        line is kept in memory and ``write_error`` says from which line on the file is short."""
         row = [f"{self.clock() if host_time is None else host_time:.6f}",
                "" if device_us is None else f"{device_us:.0f}", device, kind, text]
         with self._lock:
             self.lines.append(row)
-            if self._f is not None and not self._f.closed:
-                self._w.writerow(row)
-                self._f.flush()
+            if self._f is not None and not self._f.closed and self.write_error is None:
+                try:
+                    self._w.writerow(row)
+                    self._f.flush()
+                except OSError as exc:
+                    self.write_error = WriteFailed(self.path, os_reason(exc),
+                                                   f"it holds the first {len(self.lines) - 1} line(s) of this run")
 
     def close(self) -> None:
         with self._lock:
             if self._f is not None and not self._f.closed:
-                self._f.close()
+                try:
+                    self._f.close()
+                except OSError as exc:   # the last buffered line could not be written
+                    self.write_error = self.write_error or WriteFailed(self.path, os_reason(exc))
 
 
 def read_log(path: str | os.PathLike) -> list[dict]:

@@ -140,3 +140,24 @@ def test_a_level_the_generator_cannot_make_is_refused_before_anything_is_sent(tm
     assert p.stderr == ("vts: fgen: high level 8.0 V is outside the instrument's range -5 to 5 V; "
                         "nothing was sent\n")
     assert fgen.instrument.channels[1].high_v == 0.05 and fgen.instrument.events == []
+
+
+def test_a_trigger_log_that_cannot_be_written(tmp_path, fgen, small_disk):
+    rig = _fgen_rig(tmp_path, fgen)
+    (tmp_path / "afile").write_text("x")
+    p = vts("trigger", "status", "--config", str(rig), "--log", str(tmp_path / "afile" / "trigger.csv"))
+    assert p.returncode == 3 and "could not be written" in p.stderr and "nothing was sent" in p.stderr
+    assert "Traceback" not in p.stderr
+    # the disk fills while the device works: the device does what it was told, the log is short, exit 3
+    disk = small_disk(64)
+    log = disk.path / "trigger.csv"
+    head = "host_time,device_us,device,kind,text\n"
+    row = "1.000000,,fgen,event,earlier\n"
+    log.write_text(head + row * ((4096 - len(head)) // len(row)) + "#" * ((4096 - len(head)) % len(row) - 1) + "\n")
+    assert log.stat().st_size == 4096                                       # its page is full
+    disk.fill(leave=0)
+    p = vts("trigger", "start", "--config", str(rig), "--log", str(log))
+    assert p.returncode == 3 and str(log) in p.stderr and "no space left on device" in p.stderr
+    assert p.stdout.strip().startswith("fgen: output ON")                   # said what the device did
+    assert fgen.instrument.runs(1)[0].stop is None                         # and it did it
+    assert "Traceback" not in p.stderr

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+
 import click
 
 from . import cli
@@ -40,6 +42,17 @@ def _open(rig, log_path):
     return open_trigger(rig.trigger, log_path)
 
 
+@contextlib.contextmanager
+def _session(rig, log_path):
+    """The device for one command; a trigger.csv that stopped taking lines is said at the end
+    (exit 3): the device did what was printed, the log file is short."""
+    gen = _open(rig, log_path)
+    with gen:
+        yield gen
+    if gen.log.write_error is not None:
+        raise gen.log.write_error
+
+
 def _configure(gen, t) -> None:
     """Frequency and duty from the config, and the levels where the device has them."""
     from ..drivers.trigger import LEVELS
@@ -53,7 +66,7 @@ def _configure(gen, t) -> None:
 @with_rig
 def start(log_path, as_json, rig) -> None:
     """Configure the square wave from the config (frequency, duty, levels) and start it."""
-    with _open(rig, log_path) as gen:
+    with _session(rig, log_path) as gen:
         _configure(gen, rig.trigger)
         _show(gen.start(), as_json)
 
@@ -64,7 +77,7 @@ def start(log_path, as_json, rig) -> None:
 @with_rig
 def stop(log_path, as_json, rig) -> None:
     """Stop the square wave (on a whole period where the device can)."""
-    with _open(rig, log_path) as gen:
+    with _session(rig, log_path) as gen:
         _show(gen.stop(), as_json)
 
 
@@ -74,7 +87,7 @@ def stop(log_path, as_json, rig) -> None:
 @with_rig
 def status(log_path, as_json, rig) -> None:
     """What the device says it is doing."""
-    with _open(rig, log_path) as gen:
+    with _session(rig, log_path) as gen:
         _show(gen.status(), as_json)
 
 
@@ -86,7 +99,7 @@ def status(log_path, as_json, rig) -> None:
 def pulse(channel, ms, log_path, rig) -> None:
     """A start pulse (contact closure) on CHANNEL: 1 = VTS start, 2 = SPECT start."""
     ms = ms or rig.trigger.pulse_ms
-    with _open(rig, log_path) as gen:
+    with _session(rig, log_path) as gen:
         gen.pulse(channel, ms)
     click.echo(f"{gen.name}: start pulse on channel {channel} for {ms} ms: OK")
 
@@ -104,7 +117,7 @@ def fire(log_path, as_json, rig) -> None:
     from ..drivers.settings import Setting
     from ..drivers.trigger import CHANNELS, FIRE, LEVELS
     t = rig.trigger
-    with _open(rig, log_path) as gen:
+    with _session(rig, log_path) as gen:
         if FIRE in gen.capabilities:  # else fire() below refuses, in the driver's words, before anything is sent
             _configure(gen, t)
         kw = {"pulse_ms": t.pulse_ms} if "pulse_ms" in inspect.signature(gen.fire).parameters else {}
