@@ -1,4 +1,5 @@
-"""Server-side HTTP digest authentication (RFC 7616 / RFC 2617), as an Axis camera does it.
+"""Server-side HTTP digest authentication (RFC 7616 / RFC 2617), as an Axis camera does it
+(and :class:`BasicAuth`, for cameras set to basic).
 
 Only what the simulated cameras need: algorithm MD5, ``qop="auth"`` (and the old RFC 2069
 form without qop), a realm such as ``AXIS_ACCC8E192567``, a fixed per-server ``opaque`` and
