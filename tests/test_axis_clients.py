@@ -193,3 +193,44 @@ def test_basic_auth_is_never_sent_in_clear():
                 cam.snapshot()
         assert "basic authentication over plain http" in str(err.value) and "scheme: https" in str(err.value)
         assert server.counter("requests") == 1  # the challenge was not answered
+
+
+# ----------------------------------------------------------------------------------------
+# As a user: vts sim up --model axis211 --https, then vts camera ...
+# ----------------------------------------------------------------------------------------
+def test_vts_against_a_legacy_https_rig(tmp_path):
+    import json
+    import os
+    import sys
+
+    from vts_hw.sim_devices.rig import load_env_file
+
+    def vts(*args, env=None):
+        return subprocess.run([sys.executable, "-m", "vts_hw.cli.__main__", *args], capture_output=True,
+                              text=True, env=env, timeout=90)
+
+    d = tmp_path / "sim"
+    up = vts("sim", "up", "--model", "axis211", "--https", "--cameras", "1", "--detach", "--dir", str(d))
+    assert up.returncode == 0, up.stderr
+    try:
+        env = dict(os.environ, **load_env_file(d / "sim.env"))
+        rig_yaml = (d / "rig.yaml").read_text()
+        assert "scheme: https" in rig_yaml and f"ca_cert: {(d / 'sim-camera-cert.pem').resolve()}" in rig_yaml
+        p = vts("camera", "info", "cam1", "--json", env=env)
+        assert p.returncode == 0, p.stderr
+        info = json.loads(p.stdout)
+        assert info["url"].startswith("https://127.0.0.1:") and info["vapix"] == 2
+        assert (info["device"]["ProdNbr"], info["device"]["Version"]) == ("211", "4.47")
+        assert info["clock_method"] == "snapshot"
+        p = vts("camera", "led", "cam1", "on", env=env)
+        assert p.returncode == 0 and "OK" in p.stdout, p.stderr
+        # the same rig without the certificate: one sentence, exit 4
+        (d / "no-cert.yaml").write_text("\n".join(line for line in rig_yaml.splitlines() if "ca_cert" not in line))
+        p = vts("camera", "snapshot", "cam1", "-o", str(tmp_path / "x.jpg"),
+                env=dict(env, VTS_CONFIG=str(d / "no-cert.yaml")))
+        assert p.returncode == 4 and "Traceback" not in p.stderr
+        assert p.stderr.strip().splitlines() == [p.stderr.strip()]
+        assert "could not be verified" in p.stderr and "ca_cert" in p.stderr
+        assert not (tmp_path / "x.jpg").exists()
+    finally:
+        vts("sim", "down", "--dir", str(d))
