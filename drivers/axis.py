@@ -192,6 +192,9 @@ class AxisCamera:
         except requests.ConnectionError as exc:
             raise CameraUnreachable(self.name, f"camera {self.name} at {self.base_url} is unreachable "
                                                f"({_reason(exc)})") from None
+        except requests.exceptions.ChunkedEncodingError:  # the body cut short of its Content-Length
+            raise CameraUnreachable(self.name, f"camera {self.name} at {self.base_url} closed the connection "
+                                               f"in the middle of its answer to {path}") from None
         self.check_status(r)
         return r
 
