@@ -270,3 +270,17 @@ def test_our_driver_works_the_legacy_camera(rig_211):
         assert offset.method == "snapshot"
         truth = src.camera_time(offset.host_time) - offset.host_time
         assert abs(offset.offset_s - truth) < offset.uncertainty_s + 0.02
+
+
+@pytest.mark.parametrize("model", ["p1375", "axis211"])
+def test_opencv_ffmpeg_reads_the_colour_stream_of_each_model(model):
+    with SimRig(n_cameras=1, seed=6, firmware=model, password="pw") as rig:
+        port = rig.servers["cam1"].port
+        cap = cv2.VideoCapture(f"http://root:pw@127.0.0.1:{port}/axis-cgi/mjpg/video.cgi", cv2.CAP_FFMPEG)
+        try:
+            frames = [cap.read() for _ in range(3)]
+        finally:
+            cap.release()
+    assert all(ok and img.shape == (480, 640, 3) for ok, img in frames)
+    img = frames[-1][1].astype(int)
+    assert np.median(img[..., 0] - img[..., 2]) >= 5  # decoded in colour: the blue-grey background
