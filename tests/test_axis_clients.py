@@ -125,7 +125,9 @@ def test_https_rig_config_names_the_certificate(https_rig, certificate):
     assert cfg.base_url == f"https://127.0.0.1:{https_rig.servers['cam1'].port}"
 
 
-def test_driver_over_https_with_basic_auth(https_rig):
+def test_driver_over_https_with_basic_auth(https_rig, monkeypatch):
+    # requests lets this variable override a session's verify: ca_cert must win all the same
+    monkeypatch.setenv("REQUESTS_CA_BUNDLE", requests.certs.where())
     server = https_rig.servers["cam1"]
     with AxisCamera.from_config(https_rig.config().camera("cam1")) as cam:
         assert cam.device_info()["ProdNbr"] == "P1375"
