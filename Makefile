@@ -9,7 +9,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 # Debian packages the tests need (installed when missing, if we may)
 # (the AVR toolchain and simavr are installed by firmware/Makefile, which `make test` runs)
-TEST_DEBS := curl chromium fonts-dejavu-core poppler-utils
+TEST_DEBS := curl openssl chromium fonts-dejavu-core poppler-utils
 
 .PHONY: demo test bench venv debs firmware clean
 

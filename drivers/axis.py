@@ -1,9 +1,13 @@
 """Axis network camera over VAPIX: snapshot, stream, parameters, LED output, info, clock.
 
-One :class:`AxisCamera` per camera, built on requests with digest authentication. Every call
-has a timeout, and every failure is one of the typed errors below, each with a sentence that
-names the camera and says what to do. The password is held only in the auth object: it is
-never part of a URL, a repr, a log line or an error message.
+One :class:`AxisCamera` per camera, built on requests with digest authentication (basic only
+over HTTPS, never in clear). Every call has a timeout, and every failure is one of the typed
+errors below, each with a sentence that names the camera and says what to do. The password is
+held only in the auth object: it is never part of a URL, a repr, a log line or an error message.
+
+Old firmware (VAPIX 2, e.g. an AXIS 211 on 4.4x) is told apart by a 404 on ``param.cgi`` and is
+answered on its own paths: ``view/`` and ``admin/param.cgi``, ``io/output.cgi`` for the LED,
+the Brand and Properties parameters for the device info, the JPEG stamps for the clock.
 """
 
 from __future__ import annotations
@@ -128,8 +132,9 @@ class AxisCamera:
 
     def __init__(self, name: str, base_url: str, user: str | None = "root", password: str | None = None,
                  *, timeout: float = 5.0, led_port: int = 1, resolution: str = "640x480",
-                 fps: float = 25.0, compression: int = 25, clock=time.time):
+                 fps: float = 25.0, compression: int = 25, clock=time.time, verify: bool | str = True):
         self.name = name
+        self.verify = verify if isinstance(verify, bool) else str(verify)  # HTTPS: the system's CAs, or a PEM file
         self.clock = clock  # host clock (UTC epoch s); a simulation on a virtual clock passes its own
         self.base_url = base_url.rstrip("/")
         self.user = user
@@ -139,14 +144,15 @@ class AxisCamera:
         self.fps = fps
         self.compression = compression
         self._auth = _AxisAuth(user, password) if (user and password is not None) else None
-        self._session = requests.Session()
+        self._session = self.new_session()
         self._vapix: int | None = None
+        self._output_cgi = "/axis-cgi/io/port.cgi"  # io/output.cgi on VAPIX 2 firmware
 
     @classmethod
     def from_config(cls, cfg: "CameraConfig", clock=time.time) -> "AxisCamera":
         return cls(cfg.name, cfg.base_url, cfg.user, cfg.password(), timeout=cfg.timeout_s,
                    led_port=cfg.led_port, resolution=cfg.resolution_str, fps=cfg.fps,
-                   compression=cfg.compression, clock=clock)
+                   compression=cfg.compression, clock=clock, verify=cfg.ca_cert or True)
 
     def __repr__(self) -> str:
         return f"AxisCamera({self.name!r}, {self.base_url!r}, user={self.user!r})"
@@ -163,7 +169,9 @@ class AxisCamera:
     # -- HTTP ----------------------------------------------------------------------
     def new_session(self) -> requests.Session:
         """A session of its own (a stream in a thread must not share connections)."""
-        return requests.Session()
+        session = requests.Session()
+        session.verify = self.verify
+        return session
 
     def request(self, method: str, path: str, *, params=None, json_body=None, stream: bool = False,
                 session: requests.Session | None = None, timeout=None) -> requests.Response:
@@ -171,20 +179,33 @@ class AxisCamera:
         url = self.base_url + path
         sess = session or self._session
         try:
+            # verify per request: requests lets REQUESTS_CA_BUNDLE override a session's verify
             r = sess.request(method, url, params=params, json=json_body, auth=self._auth, stream=stream,
-                             timeout=timeout or (self.timeout, self.timeout))
+                             timeout=timeout or (self.timeout, self.timeout), verify=self.verify)
+        except requests.exceptions.SSLError as exc:
+            raise CameraUnreachable(self.name, f"camera {self.name} at {self.base_url}: HTTPS failed "
+                                               f"({_tls_reason(exc)}); if the camera has a self-signed "
+                                               f"certificate, name it in rig.yaml (ca_cert:)") from None
         except requests.Timeout:
             raise CameraUnreachable(self.name, f"camera {self.name} at {self.base_url} did not answer "
                                                f"within {self.timeout:g} s") from None
         except requests.ConnectionError as exc:
             raise CameraUnreachable(self.name, f"camera {self.name} at {self.base_url} is unreachable "
                                                f"({_reason(exc)})") from None
+        except requests.exceptions.ChunkedEncodingError:  # the body cut short of its Content-Length
+            raise CameraUnreachable(self.name, f"camera {self.name} at {self.base_url} closed the connection "
+                                               f"in the middle of its answer to {path}") from None
         self.check_status(r)
         return r
 
     def check_status(self, r: requests.Response) -> None:
         if r.status_code == 401:
             r.close()
+            challenge = r.headers.get("www-authenticate", "").lower()
+            if challenge.startswith("basic") and not r.url.lower().startswith("https://"):
+                raise CameraUnauthorized(self.name, f"camera {self.name} asks for basic authentication over "
+                                                    f"plain http, which would send the password in clear: "
+                                                    f"use scheme: https (or digest on the camera)")
             if self._auth is None:
                 raise CameraUnauthorized(self.name, f"camera {self.name} asks for a password and the "
                                                     f"rig config gives none (set password_env)")
@@ -272,11 +293,18 @@ class AxisCamera:
 
     # -- LED on the I/O output port -------------------------------------------------
     def _port(self, action: str) -> None:
-        # port.cgi wants the action characters percent-encoded (/ and \)
-        path = "/axis-cgi/io/port.cgi?action=" + quote(action, safe=":")
-        text = self._text(path)
+        # port.cgi (output.cgi on VAPIX 2) wants the action characters percent-encoded (/ and \)
+        query = "?action=" + quote(action, safe=":")
+        try:
+            text = self._text(self._output_cgi + query)
+        except NotFound:
+            if self._output_cgi == "/axis-cgi/io/output.cgi":
+                raise
+            self._output_cgi = "/axis-cgi/io/output.cgi"  # firmware before 5.00
+            text = self._text(self._output_cgi + query)
         if text.strip() and not text.strip().upper().startswith("OK"):
-            raise BadReply(self.name, f"camera {self.name}: port.cgi answered {text.strip()[:80]!r}")
+            cgi = self._output_cgi.rsplit("/", 1)[-1]
+            raise BadReply(self.name, f"camera {self.name}: {cgi} answered {text.strip()[:80]!r}")
 
     def led_on(self) -> None:
         self._port(f"{self.led_port}:/")
@@ -302,10 +330,11 @@ class AxisCamera:
         except (ValueError, KeyError, TypeError):
             raise BadReply(self.name, f"camera {self.name} sent device info that is not the expected JSON") \
                 from None
-        info = {}
-        for group in ("Brand", "Properties"):
-            for k, v in self.get_params(group).items():
-                info[k.split(".", 1)[1] if "." in k else k] = v
+        info = {k.removeprefix("Brand."): v for k, v in self.get_params("Brand").items()}
+        props = self.get_params("Properties")
+        for key, name in _DEVICE_INFO_PARAMS.items():
+            if name in props:
+                info[key] = props[name]
         return info
 
     def clock_offset(self, samples: int = 5) -> ClockOffset:
@@ -341,6 +370,24 @@ class AxisCamera:
             offsets.append(f.camera_time - t0)
             rtts.append(f.host_time - t0)
         return ClockOffset(statistics.median(offsets), max(rtts) + 0.01, self.clock(), "snapshot", samples)
+
+
+_DEVICE_INFO_PARAMS = {  # basicdeviceinfo.cgi property -> parameter, for firmware without it
+    "Version": "Properties.Firmware.Version", "BuildDate": "Properties.Firmware.BuildDate",
+    "SerialNumber": "Properties.System.SerialNumber", "HardwareID": "Properties.System.HardwareID",
+    "Architecture": "Properties.System.Architecture", "Soc": "Properties.System.Soc",
+}
+
+
+def _tls_reason(exc: Exception) -> str:
+    text = str(exc)
+    for key, words in (("CERTIFICATE_VERIFY_FAILED", "the camera's certificate could not be verified"),
+                       ("WRONG_VERSION_NUMBER", "the camera does not speak HTTPS on that port"),
+                       ("Hostname mismatch", "the certificate is for another host"),
+                       ("doesn't match", "the certificate is for another host")):
+        if key in text:
+            return words
+    return "TLS error"
 
 
 def _parse_iso(s: str) -> float:

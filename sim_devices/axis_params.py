@@ -1,13 +1,110 @@
-"""The parameter tree of a simulated Axis camera (``param.cgi``): values, groups, updates."""
+"""What a simulated Axis camera is: its model profile (YAML package data) and parameter tree.
+
+A profile is one YAML file beside this module (:data:`MODELS`), chosen by the camera's
+``model`` argument (``SimAxisCamera(source, model="axis211")``), the way QCoDeS picks a
+simulated instrument from a YAML file. It names the firmware generation and everything that
+follows from it: the VAPIX version, the CGIs that exist (every other ``/axis-cgi/`` path is a
+404, as on the real firmware), the APIs ``apidiscovery.cgi`` lists, whether the connection is
+closed after each response, the layout of the Axis JPEG comment segments, and the parameter
+tree, written as the ``root.``-less lines of a ``param.cgi?action=list`` dump. Placeholders in
+braces are filled per camera: ``{serial}``, ``{mac}``, ``{name}``, ``{resolution}``,
+``{resolutions}``, ``{firmware}``, ``{hardware_id}``, ``{fps}``, ``{compression}``.
+
+:class:`ParamStore` holds one camera's tree in memory and answers ``action=list`` and
+``action=update`` as the firmware does (``Brand`` and ``Properties`` read-only, a few values
+checked, all-or-nothing updates).
+"""
 
 from __future__ import annotations
 
+import re
 import threading
+from dataclasses import dataclass
+from importlib import resources
+from typing import Any
+
+import yaml
+
+from vts_hw.axis_jpeg import AxisProduct
 
 DEFAULT_FPS = 25
 MAX_FPS = 30
 DEFAULT_COMPRESSION = 25
-PRODUCT_NUMBER = "P1344"
+DEFAULT_MODEL = "p1375"
+MODELS = {"p1375": "axis_p1375.yaml",   # AXIS P1375, AXIS OS 10.12: current firmware
+          "axis211": "axis_211.yaml"}    # AXIS 211, firmware 4.47: the reference system's camera
+LEGACY_ALIASES = {"vapix3": DEFAULT_MODEL, "vapix2": "axis211"}  # the former firmware= names
+JPEG_LAYOUTS = ("after_app0", "after_tables")
+
+_PLACEHOLDER = re.compile(r"\{(serial|mac|name|resolution|resolutions|firmware|hardware_id|fps|compression)\}")
+
+
+@dataclass(frozen=True)
+class Profile:
+    """One camera model on one firmware generation (read from its YAML file)."""
+
+    model: str
+    """The profile's name (``p1375``, ``axis211``)."""
+    vapix: int
+    firmware: tuple[int, int, int]
+    """Properties.Firmware.Version and the firmware bytes of the JPEG product segment."""
+    firmware_str: str
+    hardware_id: int
+    oui: bytes | None
+    """First three MAC bytes of this product line (None: keep the source's MAC)."""
+    jpeg_layout: str
+    """``after_app0``: time then product after the JFIF header (firmware 5 and later);
+    ``after_tables``: product then time after the quantisation tables (firmware 4.x)."""
+    time_extra_zero: bool
+    """Firmware 4.x leaves the 5 spare bytes of the time segment zero; later ones repeat the time."""
+    close_after_response: bool
+    """Old web servers answer HTTP/1.0 and close the connection after every response."""
+    cgis: frozenset[str]
+    apis: tuple[dict[str, str], ...]
+    params_text: str
+
+    @classmethod
+    def load(cls, model: str) -> "Profile":
+        model = LEGACY_ALIASES.get(model, model)
+        if model not in MODELS:
+            raise ValueError(f"no simulated Axis model {model!r}; known: {', '.join(MODELS)}")
+        data = yaml.safe_load(resources.files(__package__).joinpath(MODELS[model]).read_text("utf-8"))
+        fw = tuple(int(x) for x in str(data["firmware"]).split("."))
+        if len(fw) != 3 or not all(0 <= x <= 255 for x in fw):
+            raise ValueError(f"{MODELS[model]}: firmware must be three numbers 0-255, not {data['firmware']}")
+        if data["jpeg_layout"] not in JPEG_LAYOUTS:
+            raise ValueError(f"{MODELS[model]}: jpeg_layout must be one of {JPEG_LAYOUTS}")
+        oui = data.get("oui")
+        return cls(model=model, vapix=int(data["vapix"]), firmware=fw,  # type: ignore[arg-type]
+                   firmware_str=str(data.get("firmware_version", data["firmware"])),
+                   hardware_id=int(data["hardware_id"]), oui=bytes.fromhex(oui) if oui else None,
+                   jpeg_layout=data["jpeg_layout"], time_extra_zero=bool(data.get("time_extra_zero", False)),
+                   close_after_response=bool(data.get("close_after_response", False)),
+                   cgis=frozenset(data["cgis"]), apis=tuple(data.get("apis") or ()),
+                   params_text=data["params"])
+
+    def product(self, source_product: AxisProduct) -> AxisProduct:
+        """The product segment this camera writes: this model's hardware id and firmware, the
+        source's MAC (with this product line's OUI where the profile names one)."""
+        mac = source_product.mac if self.oui is None else self.oui + source_product.mac[3:]
+        return AxisProduct(self.hardware_id, self.firmware, mac)
+
+    def params(self, product: AxisProduct, name: str, resolutions: list[str]) -> dict[str, str]:
+        """The parameter tree (``root.X=Y``) with this camera's values filled in."""
+        values = {"serial": product.mac.hex().upper(), "mac": product.mac_str, "name": name,
+                  "resolution": resolutions[0], "resolutions": ",".join(resolutions),
+                  "firmware": self.firmware_str, "hardware_id": format(product.hardware_id, "X"),
+                  "fps": str(DEFAULT_FPS), "compression": str(DEFAULT_COMPRESSION)}
+        tree: dict[str, str] = {}
+        for line in self.params_text.splitlines():
+            line = line.strip()
+            if not line or line.startswith("#"):
+                continue
+            key, sep, value = line.partition("=")
+            if not sep:
+                raise ValueError(f"{MODELS[self.model]}: parameter line without '=': {line!r}")
+            tree["root." + key.strip()] = _PLACEHOLDER.sub(lambda m: values[m.group(1)], value)
+        return tree
 
 
 class ParamStore:
@@ -28,6 +125,10 @@ class ParamStore:
     def get(self, name: str) -> str:
         with self._lock:
             return self._values[self._full(name)]
+
+    def find(self, name: str) -> str | None:
+        with self._lock:
+            return self._values.get(self._full(name))
 
     def list(self, groups: str | None) -> str:
         """The body of ``action=list``: matching lines, and an error line per unknown group."""
@@ -65,39 +166,6 @@ class ParamStore:
         return True
 
 
-def default_params(source, firmware: str, resolutions: list[str]) -> dict[str, str]:
-    product = source.product
-    serial = product.mac.hex().upper()
-    return {
-        "root.Brand.Brand": "AXIS",
-        "root.Brand.ProdFullName": f"AXIS {PRODUCT_NUMBER} Network Camera",
-        "root.Brand.ProdNbr": PRODUCT_NUMBER,
-        "root.Brand.ProdShortName": f"AXIS {PRODUCT_NUMBER}",
-        "root.Brand.ProdType": "Network Camera",
-        "root.Brand.ProdVariant": "",
-        "root.Brand.WebURL": "http://www.axis.com",
-        "root.Properties.API.HTTP.Version": "3" if firmware == "vapix3" else "2",
-        "root.Properties.Firmware.Version": product.firmware_str,
-        "root.Properties.Firmware.BuildDate": "Jan 01 2020 00:00",
-        "root.Properties.Image.Format": "jpeg,mjpeg",
-        "root.Properties.Image.Resolution": ",".join(resolutions),
-        "root.Properties.System.HardwareID": format(product.hardware_id, "X"),
-        "root.Properties.System.SerialNumber": serial,
-        "root.Image.I0.Name": source.name,
-        "root.Image.I0.Appearance.Resolution": resolutions[0],
-        "root.Image.I0.Appearance.Compression": str(DEFAULT_COMPRESSION),
-        "root.Image.I0.Stream.FPS": str(DEFAULT_FPS),
-        "root.IOPort.I0.Configurable": "no",
-        "root.IOPort.I0.Direction": "output",
-        "root.IOPort.I0.Output.Name": "LED ring",
-        "root.IOPort.I0.Output.Active": "closed",
-        "root.IOPort.I0.Output.Button": "none",
-        "root.IOPort.I0.Output.PulseTime": "0",
-        "root.Network.eth0.MACAddress": product.mac_str,
-        "root.Time.SyncSource": "NTP",
-        "root.Time.ObtainFromDHCP": "no",
-        "root.Time.NTP.Server": "192.168.0.1",
-        "root.Time.POSIXTimeZone": "UTC",
-    }
-
-
+def describe(profile: Profile) -> dict[str, Any]:
+    """The profile in a few words (for ``/sim/state`` and logs)."""
+    return {"model": profile.model, "vapix": profile.vapix, "firmware_version": profile.firmware_str}

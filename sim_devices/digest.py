@@ -1,4 +1,5 @@
-"""Server-side HTTP digest authentication (RFC 7616 / RFC 2617), as an Axis camera does it.
+"""Server-side HTTP digest authentication (RFC 7616 / RFC 2617), as an Axis camera does it
+(and :class:`BasicAuth`, for cameras set to basic).
 
 Only what the simulated cameras need: algorithm MD5, ``qop="auth"`` (and the old RFC 2069
 form without qop), a realm such as ``AXIS_ACCC8E192567``, a fixed per-server ``opaque`` and
@@ -23,6 +24,7 @@ Usage::
 
 from __future__ import annotations
 
+import base64
 import hashlib
 import hmac
 import secrets
@@ -31,7 +33,7 @@ from dataclasses import dataclass
 from typing import Callable
 from urllib.parse import urlsplit
 
-__all__ = ["DigestAuth", "AuthResult", "parse_auth_params", "digest_response"]
+__all__ = ["DigestAuth", "BasicAuth", "AuthResult", "parse_auth_params", "digest_response"]
 
 
 @dataclass(frozen=True)
@@ -192,3 +194,32 @@ def _same_target(uri: str, request_target: str) -> bool:
     if uri == request_target:
         return True
     return urlsplit(uri).path == urlsplit(request_target).path
+
+
+class BasicAuth:
+    """HTTP basic authentication for one user of one realm (same interface as DigestAuth).
+
+    Real Axis cameras can be set to basic; the simulated ones use it only when asked (an
+    HTTPS camera, or a test that a client never sends a password in clear)."""
+
+    def __init__(self, realm: str, user: str, password: str):
+        self.realm = realm
+        self.user = user
+        self.password = password
+
+    def challenge(self, stale: bool = False) -> str:
+        return f'Basic realm="{self.realm}"'
+
+    def check(self, method: str, header: str | None, request_target: str) -> AuthResult:
+        if not header:
+            return AuthResult(False, reason="no credentials")
+        scheme, _, rest = header.strip().partition(" ")
+        if scheme.lower() != "basic":
+            return AuthResult(False, reason=f"{scheme} authentication is not accepted")
+        try:
+            user, sep, password = base64.b64decode(rest.strip(), validate=True).decode("utf-8").partition(":")
+        except (ValueError, UnicodeDecodeError):
+            return AuthResult(False, reason="malformed basic credentials")
+        good = sep and hmac.compare_digest(user.encode(), self.user.encode()) & hmac.compare_digest(
+            password.encode(), self.password.encode())
+        return AuthResult(True) if good else AuthResult(False, reason="wrong user name or password")

@@ -1,4 +1,4 @@
-"""What each simulated camera sees: a grey 640x480 image of the scene, and its JPEG.
+"""What each simulated camera sees: a grey 640x480 image of the scene, and its colour JPEG.
 
 A marker's outline is the exact projection of a 3D circle (a disk's rim, or the circle where
 the viewing cone touches a sphere) through the full camera model, distortion and drift
@@ -13,6 +13,12 @@ LED state, every marker's projected centre rounded to 1e-3 px, and the table/bod
 static scene is rasterised once. Noise comes from a bank of precomputed float32 frames, taken
 at a random bank index and a random row/column offset, and added by one OpenCV call that also
 rounds and clips to uint8 -- so quantisation happens after the noise, as in a real sensor.
+
+JPEG: as a real Axis camera sends it, 3-component YCbCr with 4:2:0 chroma (:func:`encode`).
+The grey image becomes the luma; blue and red are lifted and lowered by a few levels on the dim
+background and meet at white on the LED-lit markers, so the background is slightly coloured and
+the markers white, and the decoded luma is the grey image (``cv2.IMREAD_GRAYSCALE`` gives it
+back, and skips the chroma work).
 """
 
 from __future__ import annotations
@@ -76,9 +82,28 @@ def polygon_coverage(poly: np.ndarray, x0: int, y0: int, w: int, h: int,
     return total.reshape(h, s, w).mean(axis=1).astype(np.float32)
 
 
-def encode(img: np.ndarray, quality: int) -> bytes:
-    """JPEG of a grey image at ``quality`` (1..100), via OpenCV."""
-    ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+# Blue = 0.96 g + 8, red = 1.01525 g - 3.05: the luma 0.299 R + 0.587 G + 0.114 B stays g
+# (0.299 * 1.01525 + 0.114 * 0.96 = 0.413; 0.299 * -3.05 + 0.114 * 8 = 0), the background
+# (g ~ 20) is a dim blue-grey, and a marker (g ~ 220) is white within a level.
+_LEVELS = np.arange(256, dtype=np.float64)
+_BLUE = np.clip(np.rint(0.96 * _LEVELS + 8.0), 0, 255).astype(np.uint8)
+_RED = np.clip(np.rint(1.01525 * _LEVELS - 3.05), 0, 255).astype(np.uint8)
+_JPEG_420 = [cv2.IMWRITE_JPEG_SAMPLING_FACTOR, cv2.IMWRITE_JPEG_SAMPLING_FACTOR_420]
+
+
+def colourise(img: np.ndarray) -> np.ndarray:
+    """The BGR image of a grey one: the same luma, a slight tint that fades out towards white."""
+    return cv2.merge([cv2.LUT(img, _BLUE), img, cv2.LUT(img, _RED)])
+
+
+def encode(img: np.ndarray, quality: int, colour: bool = True) -> bytes:
+    """JPEG at ``quality`` (1..100), via OpenCV: of a grey image, 3-component YCbCr 4:2:0 as a
+    camera sends it (:func:`colourise`), or 1-component with ``colour=False``; a BGR image is
+    encoded as it is."""
+    params = [cv2.IMWRITE_JPEG_QUALITY, int(quality)]
+    if colour and img.ndim == 2:
+        img, params = colourise(img), params + _JPEG_420
+    ok, buf = cv2.imencode(".jpg", img, params)
     if not ok:
         raise RuntimeError("JPEG encoding failed")
     return buf.tobytes()
@@ -203,6 +228,6 @@ class Renderer:
         return img
 
     @staticmethod
-    def encode(img: np.ndarray, quality: int) -> bytes:
+    def encode(img: np.ndarray, quality: int, colour: bool = True) -> bytes:
         """JPEG of ``img`` at ``quality`` (see :func:`encode`)."""
-        return encode(img, quality)
+        return encode(img, quality, colour)

@@ -53,7 +53,8 @@ class SimRig:
 
     def __init__(self, n_cameras: int = 2, seed: int = 0, *, user: str = "root", password: str | None = None,
                  firmware: str = "vapix3", clock=None, fps: float = 25.0,
-                 drift_px_per_60_days: dict[str, float] | None = None, trigger: str = "none"):
+                 drift_px_per_60_days: dict[str, float] | None = None, trigger: str = "none",
+                 tls: tuple[str, str] | None = None):
         if trigger not in TRIGGERS:
             raise ValueError(f"trigger must be one of {', '.join(TRIGGERS)}, not {trigger!r}")
         self.trigger = trigger
@@ -71,8 +72,11 @@ class SimRig:
         self.fps = fps
         self.sources = {name: SimCameraSource(self.scene, self.renderer, name, self.clock)
                         for name in self.scene.cameras}
-        self.servers = {name: SimAxisCamera(src, user=user, password=self.password, firmware=firmware,
-                                            clock=self.clock)
+        # firmware: the camera model (p1375, axis211; vapix3/vapix2 name them too). tls=(cert, key):
+        # HTTPS cameras with basic authentication, the certificate named in config() as ca_cert
+        self.tls = tls
+        self.servers = {name: SimAxisCamera(src, user=user, password=self.password, model=firmware,
+                                            clock=self.clock, tls=tls, auth="basic" if tls else "digest")
                         for name, src in self.sources.items()}
         self._started = False
 
@@ -118,6 +122,7 @@ class SimRig:
     def config(self, rig_name: str = "sim", calibration: dict | None = None) -> RigConfig:
         cams = [{"name": name, "host": "127.0.0.1", "port": srv.port, "user": self.user,
                  "password_env": password_var(name), "fps": self.fps}
+                | ({"scheme": "https", "ca_cert": str(Path(self.tls[0]).resolve())} if self.tls else {})
                 for name, srv in self.servers.items()]
         data = {"rig": rig_name, "cameras": cams, "trigger": self.trigger_config()}
         if calibration:
@@ -185,7 +190,8 @@ def load_env_file(path: str | Path) -> dict[str, str]:
 
 # -- running in the foreground or detached ----------------------------------------------------
 def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = "vapix3",
-          rate: float = 1.0, on_ready=None, trigger: str = "none", spect: bool = False) -> None:
+          rate: float = 1.0, on_ready=None, trigger: str = "none", spect: bool = False,
+          https: bool = False) -> None:
     """Run a rig until SIGINT/SIGTERM. With ``folder``: write rig.yaml, sim.env and sim.pid.
     ``spect``: a simulated SPECT records every scan the trigger box starts, into
     ``folder/spect`` (:class:`~vts_hw.sim_devices.spect_follower.SpectFollower`)."""
@@ -202,7 +208,13 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
 
     signal.signal(signal.SIGTERM, _stop)
     signal.signal(signal.SIGINT, _stop)
-    rig = SimRig(n_cameras=n_cameras, seed=seed, firmware=firmware, clock=clock, trigger=trigger)
+    tls = None
+    if https:  # a self-signed certificate beside rig.yaml (or in a folder of its own)
+        from tempfile import mkdtemp
+
+        from .tls import self_signed
+        tls = tuple(str(p) for p in self_signed(folder if folder is not None else mkdtemp(prefix="vts-sim-tls-")))
+    rig = SimRig(n_cameras=n_cameras, seed=seed, firmware=firmware, clock=clock, trigger=trigger, tls=tls)
     follower = None
     if spect:
         from .spect_follower import SpectFollower
@@ -234,7 +246,7 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
 
 def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmware: str = "vapix3",
                    rate: float = 1.0, timeout: float = 60.0, trigger: str = "none",
-                   spect: bool = False) -> int:
+                   spect: bool = False, https: bool = False) -> int:
     """Start ``serve`` in a background process; return its pid once rig.yaml is written."""
     folder = ensure_dir(Path(folder).resolve(), FOLDER)
     if is_running(folder):
@@ -249,7 +261,7 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
         raise WriteFailed(log_path, os_reason(e)) from None
     log_start = log.tell()
     cmd = [sys.executable, "-m", "vts_hw.sim_devices.rig", str(folder), str(n_cameras), str(seed), firmware,
-           str(rate), trigger] + (["spect"] if spect else [])
+           str(rate), trigger] + (["spect"] if spect else []) + (["https"] if https else [])
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=log, start_new_session=True)
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -356,7 +368,8 @@ def _main(argv: list[str]) -> int:
     """The detached process: serve until stopped; on failure, one last line saying why."""
     folder, n, seed, fw, rate, trigger = argv[:6]
     try:
-        serve(folder, int(n), int(seed), fw, float(rate), trigger=trigger, spect="spect" in argv[6:])
+        serve(folder, int(n), int(seed), fw, float(rate), trigger=trigger, spect="spect" in argv[6:],
+              https="https" in argv[6:])
     except VtsError as e:
         print(f"{FAILED}{e}", file=sys.stderr, flush=True)
         return e.exit_code

@@ -118,3 +118,17 @@ def test_too_many_viewers_and_rejected_auth(sim_rig, cam1):
         cam1.snapshot()
     faults.reject_auth = False
     assert cam1.snapshot().camera_time is not None
+
+
+def test_snapshot_cut_mid_answer_is_one_sentence(sim_rig, cam1):
+    """The camera states the whole JPEG's length, sends half and dies: an unreachable-camera
+    sentence, not a library exception; a torn JPEG of the stated length is a frame with problems."""
+    server = sim_rig.servers["cam1"]
+    server.set_faults(torn_jpeg_at=0, torn_mode="cut")
+    with pytest.raises(CameraUnreachable, match=r"^camera cam1 at http://127\.0\.0\.1:\d+ closed the connection "
+                                                r"in the middle of its answer to /axis-cgi/jpg/image\.cgi$"):
+        cam1.snapshot()
+    server.set_faults(reset=True, torn_jpeg_at=0, torn_mode="short")
+    torn = cam1.snapshot()
+    assert not torn.complete and "cut short" in " ".join(torn.problems)
+    assert cam1.snapshot().complete  # the next one is whole

@@ -200,7 +200,8 @@ def test_snapshot_is_a_stamped_640x480_jpeg_of_the_camera_clock(cam, source):
     info = inspect_jpeg(r.content)
     assert info.problems == ()
     assert (info.width, info.height) == (640, 480)
-    assert info.product == source.product
+    # the product segment of the model (P1375 on 10.12.240) with the source's MAC
+    assert info.product == cam.product == AxisProduct(0x931, (10, 12, 240), source.product.mac)
     assert before - 0.05 <= info.timestamp <= after + 0.05  # the stamp is truncated to 10 ms
 
 
@@ -222,7 +223,7 @@ def test_raw_digest_answer_and_expired_nonce_is_stale(cam):
     with sock:
         status, headers = read_head(reader)
         assert status == b"HTTP/1.1 200 OK\r\n"
-        assert reader.read(int(headers["content-length"])) == b"root.Brand.ProdNbr=P1344\r\n"
+        assert reader.read(int(headers["content-length"])) == b"root.Brand.ProdNbr=P1375\r\n"
     header = auth_header(cam, path)
     cam.auth.now = lambda: time.monotonic() + cam.auth.nonce_ttl_s + 10  # the nonce is now old
     conn = http.client.HTTPConnection("127.0.0.1", cam.port, timeout=5)
@@ -400,12 +401,12 @@ def test_stop_ends_running_streams(source):
 def test_param_list_groups(cam, source):
     r = get(cam, "/axis-cgi/param.cgi?action=list&group=Brand")
     assert r.headers["Content-Type"].startswith("text/plain")
-    assert "root.Brand.ProdShortName=AXIS P1344\r\n" in r.text
+    assert "root.Brand.ProdShortName=AXIS P1375\r\n" in r.text
     assert "root.Brand.ProdType=Network Camera\r\n" in r.text
     assert all(line.startswith("root.Brand.") for line in r.text.splitlines())
     props = get(cam, "/axis-cgi/param.cgi?action=list&group=Properties").text
     assert "root.Properties.System.SerialNumber=ACCC8E192567\r\n" in props
-    assert f"root.Properties.Firmware.Version={source.product.firmware_str}\r\n" in props
+    assert "root.Properties.Firmware.Version=10.12.240\r\n" in props
     assert "root.Properties.Image.Resolution=640x480," in props
     assert "root.Properties.API.HTTP.Version=3\r\n" in props
     image = get(cam, "/axis-cgi/param.cgi?action=list&group=Image.I0").text
@@ -448,7 +449,10 @@ def test_vapix2_paths(cam2):
     body = {"apiVersion": "1.0", "method": "getAllProperties"}
     assert requests.post(cam2.url + "/axis-cgi/basicdeviceinfo.cgi", json=body, auth=AUTH).status_code == 404
     assert requests.post(cam2.url + "/axis-cgi/time.cgi", json=body, auth=AUTH).status_code == 404
-    assert get(cam2, "/axis-cgi/date.cgi?action=get").status_code == 200
+    assert requests.post(cam2.url + "/axis-cgi/apidiscovery.cgi", json=body, auth=AUTH).status_code == 404
+    assert get(cam2, "/axis-cgi/io/port.cgi?action=1%3A%2F").status_code == 404  # port.cgi came with 5.00
+    assert get(cam2, "/axis-cgi/date.cgi?action=get").status_code == 404
+    assert get(cam2, "/axis-cgi/admin/date.cgi?action=get").status_code == 200
 
 
 def test_vapix3_keeps_the_old_param_paths(cam):
@@ -462,8 +466,8 @@ def test_basic_device_info(cam, source):
     reply = r.json()
     assert reply["apiVersion"] == "1.0" and reply["context"] == "t"
     props = reply["data"]["propertyList"]
-    assert props["Brand"] == "AXIS" and props["ProdNbr"] == "P1344"
-    assert props["SerialNumber"] == "ACCC8E192567" and props["Version"] == source.product.firmware_str
+    assert props["Brand"] == "AXIS" and props["ProdNbr"] == "P1375"
+    assert props["SerialNumber"] == "ACCC8E192567" and props["Version"] == "10.12.240"
     r = requests.post(cam.url + "/axis-cgi/basicdeviceinfo.cgi", auth=AUTH, json={"apiVersion": "1.0", "method": "x"})
     assert "error" in r.json()
 

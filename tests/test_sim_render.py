@@ -132,7 +132,9 @@ def test_jpeg_decodes_to_the_image(scene):
     r = Renderer(scene)
     img = r.render("cam1", T0)
     data = r.encode(img, 75)
-    back = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    colour = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert colour.shape == (480, 640, 3)  # colour, as a camera sends it
+    back = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
     assert back.shape == (480, 640) and back.dtype == np.uint8
     assert np.abs(back.astype(int) - img).mean() < 3
     assert len(r.encode(img, 30)) < len(data) < len(r.encode(img, 95))

@@ -46,6 +46,21 @@ class CameraConfig(_Strict):
                                   description="scale at the wall markers, for drift in mm")
     locked_params: dict[str, Union[str, int, float]] = Field(
         default_factory=dict, description="further VAPIX parameters the daily QA checks, e.g. exposure")
+    ca_cert: Optional[Path] = Field(
+        default=None, description="https: a PEM certificate to trust for this camera (e.g. its self-signed one)")
+
+    @field_validator("ca_cert")
+    @classmethod
+    def _cert_exists(cls, v):
+        if v is not None and not v.is_file():
+            raise ValueError("no such certificate file")
+        return v
+
+    @model_validator(mode="after")
+    def _cert_needs_https(self):
+        if self.ca_cert is not None and self.scheme != "https":
+            raise ValueError("ca_cert needs scheme: https")
+        return self
 
     @field_validator("resolution", mode="before")
     @classmethod
@@ -60,7 +75,8 @@ class CameraConfig(_Strict):
     @property
     def base_url(self) -> str:
         default = 80 if self.scheme == "http" else 443
-        port = "" if self.port == default else f":{self.port}"
+        given = self.port if "port" in self.model_fields_set else default  # https without a port: 443
+        port = "" if given == default else f":{given}"
         return f"{self.scheme}://{self.host}{port}"
 
     @property

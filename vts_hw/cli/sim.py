@@ -19,7 +19,13 @@ def sim() -> None:
               help="How many cameras.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the scene (poses, drift, noise).")
 @click.option("--vapix", type=click.Choice(["3", "2"]), default="3", show_default=True,
-              help="Firmware generation the cameras answer as.")
+              help="Firmware generation the cameras answer as (2: as --model axis211).")
+@click.option("--model", type=click.Choice(["p1375", "axis211"]), default=None,
+              help="The camera model and firmware: p1375 (AXIS P1375, current firmware; the default) or "
+                   "axis211 (AXIS 211 on firmware 4.47, VAPIX 2: the reference system's camera).")
+@click.option("--https", is_flag=True,
+              help="HTTPS cameras with basic authentication and a self-signed certificate (written to "
+                   "--dir and named in rig.yaml as ca_cert).")
 @click.option("--rate", type=float, default=1.0, show_default=True,
               help="Speed of the simulated clock (e.g. 86400: a day per second, for drift).")
 @click.option("--trigger", type=click.Choice(["none", "triggerbox", "visa"]), default="none", show_default=True,
@@ -34,8 +40,8 @@ def sim() -> None:
 @click.option("--detach", is_flag=True, help="Run in the background (needs --dir).")
 @click.option("--dir", "folder", type=click.Path(file_okay=False), default=None,
               help="Where to write rig.yaml and sim.env (and sim.pid, sim.log when detached).")
-def up(n_cameras: int, seed: int, vapix: str, rate: float, trigger: str, spect: bool, detach: bool,
-       folder: str | None) -> None:
+def up(n_cameras: int, seed: int, vapix: str, model: str | None, https: bool, rate: float, trigger: str,
+       spect: bool, detach: bool, folder: str | None) -> None:
     """Run the simulated rig (foreground: Ctrl-C stops it).
 
     With --dir DIR it writes DIR/rig.yaml pointing at the simulated cameras and DIR/sim.env
@@ -46,13 +52,13 @@ def up(n_cameras: int, seed: int, vapix: str, rate: float, trigger: str, spect: 
     """
     from ..sim_devices import rig as simrig  # imports the scene only when asked
 
-    fw = "vapix3" if vapix == "3" else "vapix2"
+    fw = model or ("vapix3" if vapix == "3" else "vapix2")
     if spect and (trigger != "triggerbox" or not folder):
         raise click.UsageError("--spect needs --trigger triggerbox and --dir DIR")
     if detach:
         if not folder:
             raise click.UsageError("--detach needs --dir DIR (where rig.yaml and sim.env go)")
-        pid = simrig.start_detached(folder, n_cameras, seed, fw, rate, trigger=trigger, spect=spect)
+        pid = simrig.start_detached(folder, n_cameras, seed, fw, rate, trigger=trigger, spect=spect, https=https)
         _describe(Path(folder))
         click.echo(f"simulated rig running in the background (pid {pid}); stop it with: vts sim down --dir {folder}")
         return
@@ -70,7 +76,7 @@ def up(n_cameras: int, seed: int, vapix: str, rate: float, trigger: str, spect: 
             click.echo(f"simulated SPECT: each scan's list-mode goes to {Path(folder) / 'spect'}")
         click.echo("simulated rig up; Ctrl-C stops it")
 
-    simrig.serve(folder, n_cameras, seed, fw, rate, on_ready=ready, trigger=trigger, spect=spect)
+    simrig.serve(folder, n_cameras, seed, fw, rate, on_ready=ready, trigger=trigger, spect=spect, https=https)
     click.echo("simulated rig stopped")
 
 
