@@ -218,11 +218,12 @@ class SimAxisCamera:
             self._snapshot = (version, n + 1)
             return n
 
-    def frame(self, width: int, height: int, quality: int) -> bytes:
-        """One JPEG from the source, scaled when a lower resolution was asked, with the Axis
-        segments this model's firmware writes (its product id, its layout)."""
+    def frame(self, width: int, height: int, quality: int, host_t: float | None = None) -> bytes:
+        """One JPEG from the source (captured at host time ``host_t``, default now), scaled
+        when a lower resolution was asked, with the Axis segments this model's firmware
+        writes (its product id, its layout)."""
         with self._source_lock:
-            jpeg, epoch = self.source.jpeg(quality)
+            jpeg, epoch = self.source.jpeg(quality, host_t)
         if (width, height) != (self.source.width, self.source.height):
             image = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_UNCHANGED)
             small = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)

@@ -21,6 +21,10 @@ if TYPE_CHECKING:
     from .axis_http import Handler
 
 BOUNDARY = "myboundary"
+# A stream that falls behind its frame grid by less than this (the host was busy) sends its
+# frames late, each captured at its grid time; further behind (a stall, a client that does not
+# read) it skips to the live frame and the frames in between are lost, as a camera's are.
+CATCH_UP_S = 1.0
 STREAM_HEADER = (
     "HTTP/1.0 200 OK\r\n"
     "Cache-Control: no-cache\r\n"
@@ -155,7 +159,8 @@ class StreamWriter:
                 return
             if not self.cam.sleep_until(target):
                 return
-            if clock.now() - target > self.period:  # fell behind (stall, slow client): go on live
+            late = clock.now() - target
+            if late > CATCH_UP_S:  # a stall or a client that does not read: frames are lost, go on live
                 t0 = self._next_tick(clock.now()) - k * self.period
                 continue
             if faults.offline or (faults.drop_after_frames is not None and k >= faults.drop_after_frames):
@@ -166,7 +171,9 @@ class StreamWriter:
                 if not self.cam.sleep_until(clock.now() + faults.stall_s):
                     return
                 continue
-            if not self._send_part(k):
+            # a little late (this host was busy): the frame was captured on time, as a camera's
+            # sensor does; it is rendered for its grid time and sent late
+            if not self._send_part(k, target if late > 0.5 * self.period else None):
                 return
             k += 1
 
@@ -175,10 +182,11 @@ class StreamWriter:
         period), so that frames of successive streams share one time grid, as a camera's do."""
         return math.ceil(t / self.period) * self.period
 
-    def _send_part(self, k: int) -> bool:
-        """Write part ``k``; False when the connection was deliberately cut."""
+    def _send_part(self, k: int, captured: float | None = None) -> bool:
+        """Write part ``k`` (captured at host time ``captured``, default now); False when the
+        connection was deliberately cut."""
         faults = self.cam.faults
-        jpeg = self.cam.frame(*self.size, self.quality)
+        jpeg = self.cam.frame(*self.size, self.quality, captured)
         body, stated, cut = jpeg, len(jpeg), False
         if faults.torn_jpeg_at == k:
             body = jpeg[: len(jpeg) // 2]
