@@ -147,6 +147,23 @@ def test_a_glob_that_matches_nothing_and_a_truncated_listmode(two_scans, tmp_pat
     assert r.stderr.startswith(f"vts: {cut}: ") and "truncated" in r.stderr
 
 
+def test_a_failure_record_beside_other_scans_listmodes_is_the_answer(two_scans, tmp_path):
+    """The glob matches only another scan's list-mode, and a failure record covers this session
+    (its start is this session's start pulse): the record is the answer, not "do not belong"."""
+    cwd, env, (lm1, lm2), _ = two_scans
+    from vts_hw.listmode.failures import write_failure_record
+    shutil.copy(lm2, tmp_path / lm2.name)
+    fire = json.loads((cwd / "scan1" / "manifest.json").read_text())["trigger"]["fire_time"]
+    write_failure_record(tmp_path, lm1.name, "could not write it (read-only file system)",
+                         by="the simulated SPECT", start=fire, end=fire + 20.0)
+    (tmp_path / "junk.failed.json").write_text("{not json")          # not a record: ignored
+    r = _shell(cwd, env, f"vts sync analyze scan1 --listmode {tmp_path}/scan-*.vtslm")
+    assert r.returncode == 3 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert r.stderr.startswith("vts: the simulated SPECT failed to record this scan (")
+    assert r.stderr.strip().endswith(f"could not write it (read-only file system) (record {tmp_path}/"
+                                     f"{lm1.name.removesuffix('.vtslm')}.failed.json)")
+
+
 def test_a_spect_that_cannot_record_says_so_where_the_user_looks(tmp_path, small_disk):
     """The README's commands with sim/spect on a 256 kB disk: the 8 s list-mode does not fit.
     The simulated SPECT leaves a failure record (and nothing half-written); `vts sync analyze`
