@@ -91,6 +91,22 @@ def test_moves_are_planned_clear_of_the_head_rotations():
         plan_sync_moves(fire, 8.0, n=4)
 
 
+def test_when_a_list_mode_was_acquired_is_read_from_its_ends(tmp_path):
+    """read_listmode_span: the header's start and the END block's time, as the whole file says;
+    a file cut short gives the planned duration (reading it whole says what is wrong)."""
+    from vts_hw.listmode import VtslmWriter, read_listmode, read_listmode_span
+    path = tmp_path / "a.vtslm"
+    with VtslmWriter(path, start_time=1_795_000_000.5, duration_s=30.0, gate_rate_hz=2000.0) as w:
+        w.events(np.linspace(0, 20, 5000), np.zeros(5000), np.zeros(5000), np.zeros(5000, np.uint8))
+        w.gate(np.zeros(40000))
+        w.close(20.25)                                   # stopped before the planned 30 s
+    lm = read_listmode(path)
+    assert read_listmode_span(path) == (lm.start_time, lm.duration_s) == (1_795_000_000.5, 20.25)
+    cut = tmp_path / "cut.vtslm"
+    cut.write_bytes(path.read_bytes()[:50000])
+    assert read_listmode_span(cut) == (1_795_000_000.5, 30.0)
+
+
 # ------------------------------------------------------------------- on the simulated rig
 
 @pytest.fixture()
