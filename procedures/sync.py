@@ -6,6 +6,9 @@ on one clock, with the motion of a source marker as the common ruler.
 
 What it does (the reasons are in docs/decisions/0019-sync-analysis.md):
 
+0. **Inputs** (:mod:`.sync_inputs`): the session checked; of the list-mode file(s) given (a
+   shell glob may give several), the one whose acquisition overlaps the session — else one
+   sentence (the files do not belong together, or the SPECT's failure record for this scan).
 1. **Gating** (:mod:`vts_hw.sync_gating`): the trigger log (``trigger.csv``) gives the square
    wave's period and the host time of its first rising edge (the start pulse); the list-mode's
    gating voltage gives the edges on the SPECT clock. Fitted together: the SPECT start delay
@@ -33,7 +36,6 @@ the trigger's first edge). Positions mm, SPECT frame when a mapping is given.
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,62 +46,15 @@ import numpy as np
 from ..errors import DataError
 from ..sync_events import StepFit, find_steps, fit_step, match_events, robust_sd
 from ..sync_gating import GatingResult, WaveInfo, analyze_gating, axial_centre_of_mass, wave_from_trigger_log
+from .sync_inputs import CLOCK_SLACK_S, check_session, choose_listmode, load_calibration, load_mapping
 
 __all__ = ["SyncAnalysis", "SyncEvent", "export_trajectories", "load_calibration", "load_mapping",
-           "check_session"]
+           "check_session", "choose_listmode"]
 
 BIN_S = 0.05          # SPECT centre-of-mass bins for finding steps and for the plot
 MATCH_S = 0.5         # a VTS and a SPECT step further apart than this are different events
 JOIN_MM = 60.0        # track pieces meeting within this (mm) across a gap are one marker
 HALF_WINDOW_S = 0.8   # samples fitted around each step
-
-
-# ----------------------------------------------------------------------------- inputs
-
-def check_session(folder) -> dict:
-    """The session's manifest; DataError naming the folder when it is not a scan session."""
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise DataError(f"{folder}: no such session folder")
-    mf = folder / "manifest.json"
-    try:
-        manifest = json.loads(mf.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise DataError(f"{folder}: not a session folder (no manifest.json)") from None
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise DataError(f"{mf}: cannot read the manifest ({exc})") from None
-    if not isinstance(manifest, dict) or not isinstance(manifest.get("cameras"), dict):
-        raise DataError(f"{mf}: not a recording manifest (no cameras)")
-    if not (folder / "trigger.csv").exists():
-        raise DataError(f"{folder}: no trigger.csv: the session has no trigger log to time the "
-                        f"SPECT against (was it recorded with trigger backend none?)")
-    return manifest
-
-
-def load_calibration(calibration):
-    """A StereoCalibration (or cameras) as given, or read from a path."""
-    if calibration is None or not isinstance(calibration, (str, Path)):
-        return calibration
-    from ..calibration_io import StereoCalibration
-    return StereoCalibration.load(calibration)
-
-
-def load_mapping(mapping):
-    """A VTS → SPECT mapping: RigidTransform/SpectMapping as given, or read from a path (a
-    RigidTransform file, or a saved SpectMapping whose ``transform`` it holds)."""
-    if mapping is None or not isinstance(mapping, (str, Path)):
-        return getattr(mapping, "transform", mapping) if mapping is not None and not hasattr(mapping, "apply") \
-            else mapping
-    from ..registration import RigidTransform
-    path = Path(mapping)
-    try:
-        return RigidTransform.load(path)
-    except DataError:
-        try:
-            d = json.loads(path.read_text(encoding="utf-8"))
-            return RigidTransform.from_dict(d["transform"])
-        except Exception:
-            raise DataError(f"{path}: not a VTS -> SPECT transform file") from None
 
 
 # ----------------------------------------------------------------------------- results
@@ -186,9 +141,12 @@ class SyncAnalysis:
 
     def __init__(self, session_dir, listmode_path, calibration=None, mapping=None, *,
                  marker: int | None = None, workers: int | None = None,
-                 progress: Callable[[int, int], None] | None = None):
+                 progress: Callable[[int, int], None] | None = None, clock_slack_s: float = CLOCK_SLACK_S):
         self.session = Path(session_dir)
-        self.listmode_path = Path(listmode_path)
+        many = isinstance(listmode_path, (list, tuple))
+        self.listmode_candidates = [Path(p) for p in (listmode_path if many else [listmode_path])]
+        self.listmode_path = self.listmode_candidates[0]
+        self.clock_slack_s = clock_slack_s
         self.calibration = calibration
         self.mapping = mapping
         self.marker = marker
@@ -210,10 +168,12 @@ class SyncAnalysis:
         from ..processing import process_recording
 
         self.manifest = check_session(self.session)
+        self.listmode_path, notes = choose_listmode(self.session, self.listmode_candidates, manifest=self.manifest,
+                                                    slack_s=self.clock_slack_s)
         self.lm = read_listmode(self.listmode_path)
         self.wave = wave_from_trigger_log(self.session / "trigger.csv")
         self.gating = analyze_gating(self.lm, period_s=self.wave.host_period_s, fire_host=self.wave.start_host)
-        self.problems = list(self.gating.problems)
+        self.problems = notes + list(self.gating.problems)
         if self.calibration is None:
             raise DataError(f"{self.session}: no stereo calibration given: the marker cannot be triangulated")
         cams = load_calibration(self.calibration)
@@ -380,6 +340,7 @@ class SyncAnalysis:
         clock_fits = self.tracks.meta.get("clock_fits", {})
         return {
             "procedure": "sync check", "session": str(self.session), "listmode": str(self.listmode_path),
+            "listmode_given": [str(c) for c in self.listmode_candidates],
             "clocks": "host UTC epoch s unless named: *_list_s SPECT list-mode s since its acquisition "
                       "start, *_rel_s s since the trigger's first edge",
             "summary": summary, "events": events,
@@ -428,43 +389,11 @@ class SyncAnalysis:
         return "\n".join(lines)
 
     def figure(self):
-        """Both traces on one time axis (s since the trigger's first edge), dead time shaded,
-        gaps of the VTS hatched, events marked; below, dt per event (ms)."""
+        """Both traces on one time axis, dead time shaded, VTS gaps hatched, events marked;
+        below, dt per event (:func:`.sync_plot.sync_figure`)."""
         self._need()
-        from matplotlib.figure import Figure
-        fig = Figure(figsize=(10, 5.6))
-        ax, bx = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
-        for a, b in self._rel(self.dead_host):
-            for x in (ax, bx):
-                x.axvspan(a, b, color="#d0d4da", alpha=0.6, lw=0)
-        for a, b in self._rel(np.array(self.vts_gaps).reshape(-1, 2)):
-            ax.axvspan(a, b, facecolor="none", edgecolor="#c62828", hatch="//", lw=0)
-        ax.plot(self._rel(self.spect_t), self.spect_z, color="#e08a00", lw=1.0,
-                label=f"SPECT: axial centre of mass ({self.spect_bin_s * 1e3:.0f} ms bins)")
-        ax.plot(self._rel(self.vts_t), self.vts_z, ".", ms=2.0, color="#1f5fa8",
-                label=f"VTS: marker {'+'.join(str(m) for m in self.marker_ids)} "
-                      f"{'SPECT Z' if self.vts_axial else '(main direction)'}")
-        for k, e in enumerate(self.events, 1):
-            x = float(self._rel(e.t))
-            ax.axvline(x, color="#5b2a86", lw=0.8, ls="--")
-            ax.annotate(str(k), (x, 1.0), xycoords=("data", "axes fraction"), ha="center", va="bottom",
-                        fontsize=8, color="#5b2a86")
-            if e.dt_s is not None:
-                bx.plot([x], [e.dt_s * 1e3], "o", color="#2e7d32", ms=5)
-            else:
-                bx.plot([x], [0.0], "x", color="#c62828", ms=6)
-        off = self.offset_s
-        if off is not None:
-            bx.axhline(off * 1e3, color="#2e7d32", lw=0.8, ls=":")
-        bx.axhline(0, color="#888", lw=0.5)
-        ax.set_ylabel("axial position (mm)")
-        bx.set_ylabel("VTS − SPECT\n(ms)")
-        bx.set_xlabel("time since the trigger's first edge (s, host clock)")
-        ax.legend(loc="best", fontsize=8)
-        ax.set_title("VTS and SPECT on one clock: grey = SPECT dead time, hatched = VTS gap, "
-                     "dashed = motion events", fontsize=9, pad=14)
-        fig.tight_layout()
-        return fig
+        from .sync_plot import sync_figure
+        return sync_figure(self)
 
     def plot(self, path=None) -> bytes:
         """PNG of :meth:`figure`; written to ``path`` when given. Returns the bytes."""

@@ -6,7 +6,10 @@ marker starts moving along the table axis every ~15 s (for 10 minutes), clear of
 head rotations; when the square wave stops, the simulated SPECT writes the list-mode of that acquisition,
 following the start pulse and square wave the emulated box actually emitted, into
 ``<dir>/spect/scan-<UTC time>.vtslm`` (truth beside it in ``.truth.json``). Then it waits for
-the next scan. So a person can try the whole scan-time chain by hand::
+the next scan. A scan it cannot record (a full or read-only folder, a scan too short, the rig
+stopped mid-scan) is said in sim.log and left as ``scan-<UTC time>.failed.json`` in the same
+folder (docs/listmode-format.md, "Failure records"), which `vts sync analyze` and `vts sim down`
+report. So a person can try the whole scan-time chain by hand::
 
     vts sim up --trigger triggerbox --spect --detach --dir sim
     source sim/sim.env; export VTS_CONFIG=sim/rig.yaml
@@ -22,6 +25,10 @@ import datetime as _dt
 import threading
 import time
 from pathlib import Path
+
+from vts_hw.errors import VtsError
+from vts_hw.files import ensure_dir, os_reason
+from vts_hw.listmode.failures import write_failure_record
 
 from .spect_listmode import SimListModeSpect
 from .sync_sim import place_source_marker, plan_sync_moves, schedule_source_moves
@@ -46,6 +53,7 @@ class SpectFollower:
         self.log = log
         self.marker = place_source_marker(rig.scene)
         self.written: list[Path] = []
+        self.failures: list[Path] = []       # failure records written (scans not recorded)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -71,6 +79,7 @@ class SpectFollower:
             box = self.rig.trigger_box
             if box is None or not box.running():
                 continue
+            scan, out = None, None        # (fire, end) host s of the scan being followed; its file
             try:
                 starts = self._rising("CH2", seen_cycle)
                 if not starts:
@@ -78,6 +87,7 @@ class SpectFollower:
                 start = starts[0]
                 seen_cycle = start.cycle          # whatever happens next, this pulse is handled
                 fire = box.host_time(start.cycle)
+                scan = (fire, None)
                 self.log(f"sim SPECT: start pulse at {_iso(fire)}; the source marker moves every "
                          f"~{MOVE_EVERY_S:g} s")
                 times, steps = plan_sync_moves(fire, HORIZON_S, n=int(HORIZON_S / MOVE_EVERY_S),
@@ -85,21 +95,45 @@ class SpectFollower:
                 source = schedule_source_moves(self.rig.scene, self.marker, times, steps)
                 last = self._wait_wave_end(start.cycle)
                 if last is None:
+                    self._failed(fire, None, "the simulated rig was stopped while the scan was running")
                     return
                 seen_cycle = last
-                duration = box.host_time(last) - fire - SPECT_TAIL_S
+                scan = (fire, box.host_time(last))
+                duration = scan[1] - fire - SPECT_TAIL_S
                 if duration <= 1.0:
-                    self.log("sim SPECT: the scan was too short to record")
+                    self._failed(*scan, f"the scan was too short to record ({duration + SPECT_TAIL_S:.1f} s "
+                                        f"of square wave; more than {1.0 + SPECT_TAIL_S:g} s needed)")
                     continue
                 n += 1
-                self.folder.mkdir(parents=True, exist_ok=True)
-                out = self.folder / f"scan-{_dt.datetime.fromtimestamp(fire, _dt.timezone.utc):%Y%m%dT%H%M%SZ}.vtslm"
+                out = self.folder / _listmode_name(fire)
+                ensure_dir(self.folder, "simulated SPECT folder")
                 SimListModeSpect(self.rig.scene, [source], seed=self.seed + n) \
                     .follow_trigger_box(box, out, duration)
                 self.written.append(out)
                 self.log(f"sim SPECT: wrote {out} ({duration:.1f} s)")
-            except Exception as exc:  # keep the rig up; say what happened in sim.log
-                self.log(f"sim SPECT: {type(exc).__name__}: {exc}")
+            except Exception as exc:  # keep the rig up; say what happened where the user looks
+                why = f"{type(exc).__name__}: {exc}"
+                if isinstance(exc, OSError):
+                    why = f"could not write {out.name if out else 'into ' + str(self.folder)} ({os_reason(exc)})"
+                elif isinstance(exc, VtsError):
+                    why = str(exc)
+                self._failed(*(scan or (None, None)), why)
+
+    def _failed(self, start: float | None, end: float | None, reason: str) -> None:
+        """Say it in sim.log and leave a failure record where the list-mode would have gone
+        (docs/listmode-format.md, "Failure records"), for `vts sync analyze` and `vts sim down`."""
+        self.log(f"sim SPECT: FAILED to record the scan started at "
+                 f"{_iso(start) if start is not None else 'an unknown time'}: {reason}")
+        log = self.folder.parent / "sim.log"
+        try:
+            ensure_dir(self.folder, "simulated SPECT folder")
+            rec = write_failure_record(self.folder, _listmode_name(start if start is not None else time.time()),
+                                       reason, by="the simulated SPECT", start=start, end=end,
+                                       log=log if log.exists() else None)
+        except VtsError as exc:
+            self.log(f"sim SPECT: and could not leave a failure record: {exc}")
+            return
+        self.failures.append(rec)
 
     def _wait_wave_end(self, start_cycle: int) -> int | None:
         """The cycle of the wave's last edge once it has been quiet for WAVE_ENDED_S."""
@@ -112,6 +146,10 @@ class SpectFollower:
             elif time.monotonic() - quiet_since > WAVE_ENDED_S:
                 return last_edge
         return None
+
+
+def _listmode_name(fire: float) -> str:
+    return f"scan-{_dt.datetime.fromtimestamp(fire, _dt.timezone.utc):%Y%m%dT%H%M%SZ}.vtslm"
 
 
 def _iso(t: float) -> str:

@@ -37,13 +37,16 @@ separate ``<file>.truth.json`` (:class:`ListModeTruth`) and is never in the list
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from vts_hw.files import write_json_atomic
 from vts_hw.listmode.vtslm import VtslmWriter
 from vts_hw.sim_devices.scene import Scene
 from vts_hw.sim_devices.source_marker import SourceMarker
@@ -148,9 +151,7 @@ class ListModeTruth:
         return self.acquisition_start_host + np.asarray(t, dtype=float) / (1.0 + self.skew)
 
     def save(self, path) -> Path:
-        path = Path(path)
-        path.write_text(json.dumps(asdict(self), indent=1))
-        return path
+        return write_json_atomic(path, asdict(self), indent=1)
 
     @classmethod
     def load(cls, path) -> "ListModeTruth":
@@ -277,6 +278,33 @@ def write_sim_listmode(path, scene: Scene, sources, trigger: TriggerEdges, durat
     dead, stops = _dead_intervals(duration_s, s, rng)
     dead_arr = np.array(dead, dtype=float).reshape(-1, 2)
     path = Path(path)
+    part = path.with_name(f".{path.name}.{os.getpid()}.part")   # hidden from a glob until whole
+    try:
+        n_events = _write(part, s, rng, scene, srcs, trigger, duration_s, dead, dead_arr, stops, host,
+                          spect_start_time, skew)
+        rising_in = trigger.rising[(trigger.rising >= h_start) & (trigger.rising < host(duration_s))]
+        truth = ListModeTruth(
+            listmode=path.name, acquisition_start_host=h_start, start_pulse_host=trigger.start_pulse,
+            wave_start_host=wave_start, start_delay_s=delay,
+            start_delay_from_wave_s=None if wave_start is None else h_start - wave_start,
+            clock_offset_s=offset, clock_skew_ppm=skew_ppm, spect_start_time=spect_start_time,
+            duration_s=float(duration_s), dead=[list(map(float, d)) for d in dead],
+            period_s=trigger.period_s, rising_edges_recorded=int(rising_in.size),
+            trigger=trigger.source,
+            sources=[x.to_json() if isinstance(x, SourceMarker) else asdict(_as_source(x)) for x in sources],
+            n_events=int(n_events), seed=int(seed))
+        truth.save(truth_path(path))
+        os.replace(part, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            part.unlink()
+        raise
+    return truth
+
+
+def _write(path: Path, s: SimSpectSettings, rng, scene, srcs, trigger, duration_s, dead, dead_arr, stops, host,
+           spect_start_time, skew) -> int:
+    """The VTSLM file itself; returns the number of events."""
     n_events = 0
     with VtslmWriter(path, start_time=spect_start_time, duration_s=duration_s,
                      gate_rate_hz=s.gate_rate_hz, gate_volts_per_count=s.gate_volts_per_count,
@@ -301,19 +329,7 @@ def write_sim_listmode(path, scene: Scene, sources, trigger: TriggerEdges, durat
                 w.events(t, z, u, head)
                 n_events += t.size
         w.close(duration_s)
-    rising_in = trigger.rising[(trigger.rising >= h_start) & (trigger.rising < host(duration_s))]
-    truth = ListModeTruth(
-        listmode=path.name, acquisition_start_host=h_start, start_pulse_host=trigger.start_pulse,
-        wave_start_host=wave_start, start_delay_s=delay,
-        start_delay_from_wave_s=None if wave_start is None else h_start - wave_start,
-        clock_offset_s=offset, clock_skew_ppm=skew_ppm, spect_start_time=spect_start_time,
-        duration_s=float(duration_s), dead=[list(map(float, d)) for d in dead],
-        period_s=trigger.period_s, rising_edges_recorded=int(rising_in.size),
-        trigger=trigger.source,
-        sources=[x.to_json() if isinstance(x, SourceMarker) else asdict(_as_source(x)) for x in sources],
-        n_events=int(n_events), seed=int(seed))
-    truth.save(truth_path(path))
-    return truth
+    return n_events
 
 
 def _frame_angles(f_t: np.ndarray, dead: list, stops: list, step_deg: float) -> np.ndarray:

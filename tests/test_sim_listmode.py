@@ -221,3 +221,15 @@ def test_edges_from_a_function_generator_log_stop_at_outp_0(tmp_path):
     assert truth.start_pulse_host is None
     assert truth.acquisition_start_host == pytest.approx(T0 + 1.0 + truth.start_delay_s)
     assert truth.start_delay_from_wave_s == pytest.approx(truth.start_delay_s)
+
+
+def test_a_list_mode_that_does_not_fit_leaves_nothing_behind(small_disk):
+    """A real full disk (a 128 kB tmpfs; 10 s of list-mode is ~0.5 MB): the write fails with
+    ENOSPC and neither a half-written list-mode (a glob would pick it up) nor a truth is left."""
+    disk = small_disk(128)
+    scene = Scene.reference(seed=2, start_epoch=T0)
+    src = add_source_marker(scene, [T0 + 5.0], [12.0], position=(10.0, -20.0, 5.0), rate_cps=3000.0)
+    with pytest.raises(OSError) as e:
+        write_sim_listmode(disk.path / "a.vtslm", scene, [src], square_wave(T0 + 1.0, 1.0, 0.5, 12), 10.0, seed=1)
+    assert e.value.errno == 28                     # ENOSPC
+    assert disk.files() == {}

@@ -91,6 +91,22 @@ def test_moves_are_planned_clear_of_the_head_rotations():
         plan_sync_moves(fire, 8.0, n=4)
 
 
+def test_when_a_list_mode_was_acquired_is_read_from_its_ends(tmp_path):
+    """read_listmode_span: the header's start and the END block's time, as the whole file says;
+    a file cut short gives the planned duration (reading it whole says what is wrong)."""
+    from vts_hw.listmode import VtslmWriter, read_listmode, read_listmode_span
+    path = tmp_path / "a.vtslm"
+    with VtslmWriter(path, start_time=1_795_000_000.5, duration_s=30.0, gate_rate_hz=2000.0) as w:
+        w.events(np.linspace(0, 20, 5000), np.zeros(5000), np.zeros(5000), np.zeros(5000, np.uint8))
+        w.gate(np.zeros(40000))
+        w.close(20.25)                                   # stopped before the planned 30 s
+    lm = read_listmode(path)
+    assert read_listmode_span(path) == (lm.start_time, lm.duration_s) == (1_795_000_000.5, 20.25)
+    cut = tmp_path / "cut.vtslm"
+    cut.write_bytes(path.read_bytes()[:50000])
+    assert read_listmode_span(cut) == (1_795_000_000.5, 30.0)
+
+
 # ------------------------------------------------------------------- on the simulated rig
 
 @pytest.fixture()
@@ -279,11 +295,17 @@ def test_bad_inputs_end_in_one_sentence(tmp_path):
     (tmp_path / "session").mkdir()
     (tmp_path / "session" / "manifest.json").write_text(json.dumps({"cameras": {"cam1": {}}}))
     (tmp_path / "session" / "trigger.csv").write_text("host_time,device_time_us,device,kind,text\n")
+    (tmp_path / "untriggered").mkdir()       # recorded with trigger backend none: no trigger log
+    (tmp_path / "untriggered" / "manifest.json").write_text(json.dumps({"cameras": {"cam1": {}}}))
     cal = tmp_path / "calibration.json"
     cal.write_text("{}")
     cases = [
         ([str(tmp_path / "nope"), "--listmode", str(junk)], 3, "no such session folder"),
         ([str(tmp_path / "empty"), "--listmode", str(junk)], 3, "not a session folder (no manifest.json)"),
+        ([str(tmp_path / "untriggered"), "--listmode", str(junk)], 3,
+         f"vts: {tmp_path / 'untriggered'}: no trigger.csv: the session has no trigger log to time the SPECT "
+         f"against (was it recorded with trigger backend none?)"),
+        ([str(tmp_path / "session")], 2, "give the scan's list-mode: --listmode FILE"),
         ([str(tmp_path / "session"), "--listmode", str(junk)], 2, "no stereo calibration: give --calibration"),
         ([str(tmp_path / "session"), "--listmode", str(junk), "--calibration", str(cal)], 3,
          f"{junk}: "),
@@ -294,7 +316,8 @@ def test_bad_inputs_end_in_one_sentence(tmp_path):
         p = subprocess.run([*VTS, "sync", "analyze", *args], env=env, cwd=tmp_path, capture_output=True,
                            text=True, timeout=60)
         assert p.returncode == code and text in p.stderr, (args, p.stderr)
-        assert "Traceback" not in p.stderr and len(p.stderr.strip().splitlines()) == 1
+        one_line = len(p.stderr.strip().splitlines()) == 1
+        assert "Traceback" not in p.stderr and (one_line or p.stderr.startswith("Usage:"))   # click's usage
 
 
 def test_the_sim_rig_writes_its_true_calibration(tmp_path):

@@ -96,3 +96,7 @@ def down(folder: str) -> None:
         click.echo(f"simulated rig in {folder} stopped")
     else:
         click.echo(f"no simulated rig was running in {folder}")
+    from ..listmode.failures import read_failure_records
+    failed = read_failure_records(Path(folder) / "spect")     # what the simulated SPECT could not record
+    for rec in failed:
+        click.echo(f"{rec.describe()} ({rec.path})")

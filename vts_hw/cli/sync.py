@@ -68,8 +68,14 @@ class _Progress:
 
 @sync.command()
 @click.argument("session", type=click.Path())
-@click.option("--listmode", "listmode", type=click.Path(), required=True,
-              help="The SPECT list-mode file of the same scan.")
+@click.argument("more", nargs=-1, type=click.Path(), metavar="[LISTMODE]...")
+@click.option("--listmode", "listmode", type=click.Path(), multiple=True, metavar="FILE",
+              help="The SPECT list-mode file of the same scan. Several files may follow it (a shell "
+                   "glob such as sim/spect/scan-*.vtslm): the one whose acquisition overlaps the "
+                   "session is taken.")
+@click.option("--clock-slack", type=click.FloatRange(0, 3600), default=None, metavar="SECONDS",
+              help="How far the SPECT's wall clock may be off the host's when matching a list-mode to "
+                   "the session (default: 10 s).")
 @click.option("--calibration", type=click.Path(dir_okay=False), default=None,
               help="Stereo calibration file (default: the rig config's calibration.stereo).")
 @click.option("--mapping", type=click.Path(dir_okay=False), default=None,
@@ -87,23 +93,31 @@ class _Progress:
               help="Processes for the recording (default: every core).")
 @json_option
 @config_option
-def analyze(session, listmode, calibration, mapping, out, plot_path, export_dir, marker, workers,
-            as_json, config_path) -> None:
+def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plot_path, export_dir, marker,
+            workers, as_json, config_path) -> None:
     """Put a scan SESSION and its SPECT list-mode on one clock.
 
     The gating signal gives the SPECT start delay, clock and dead time; the recording gives the
     marker's motion on the host clock; the motion events found in both give the time
     difference of each and the overall offset (VTS - SPECT, median).
 
+    A list-mode whose acquisition (its header's start time and duration) does not overlap the
+    session is refused (exit 3), as is a choice of several that overlap; when none belongs, a
+    failure record the SPECT left beside the files says why it recorded nothing.
+
     Exit status like the QA procedures: 0 OK (every event seen by both within 20 ms), 10
     TOLERANCE (within 100 ms, or an event seen by one system only), 20 ACTION.
     """
-    from ..procedures.sync import SyncAnalysis, check_session, export_trajectories
+    from ..procedures.sync import CLOCK_SLACK_S, SyncAnalysis, check_session, export_trajectories
     from ..report.sync_html import write_sync_html
 
+    candidates = [*listmode, *more]
+    if not candidates:
+        raise click.UsageError("give the scan's list-mode: --listmode FILE")
     check_session(session)           # a bad folder says so before anything else is read
     cal, mp = _calibration_files(config_path, calibration, mapping)
-    a = SyncAnalysis(session, listmode, cal, mp, marker=marker, workers=workers, progress=_Progress())
+    a = SyncAnalysis(session, candidates, cal, mp, marker=marker, workers=workers, progress=_Progress(),
+                     clock_slack_s=CLOCK_SLACK_S if clock_slack is None else clock_slack)
     a.analyze()
     data = a.results_data()
     png = None

@@ -27,6 +27,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
+from vts_hw.errors import DataError
 from vts_hw.formats import FormatRegistry
 
 SNIFF_BYTES = 64
@@ -105,3 +106,20 @@ def reader_for(path) -> ListModeReader:
 def read_listmode(path, fmt: str | None = None) -> ListMode:
     """Read a list-mode file; ``fmt`` (a reader name) overrides the choice."""
     return _REGISTRY.read(path, fmt)
+
+
+def read_listmode_span(path) -> tuple[float, float]:
+    """``(start_time, duration_s)`` of a list-mode file: when it was acquired (SPECT wall
+    clock, UTC epoch s) and for how long (s). From the header alone when the reader offers
+    ``span(path)`` (optional; VTSLM does), else from the whole file."""
+    path = Path(path)
+    if not path.exists():
+        raise DataError(f"{path}: no such file")
+    if not path.is_file():
+        raise DataError(f"{path}: not a file")
+    reader = _REGISTRY.reader_for(path)
+    span = getattr(reader, "span", None)
+    if callable(span):
+        return span(path)
+    lm = reader.read(path)
+    return lm.start_time, lm.duration_s

@@ -329,6 +329,33 @@ def read_vtslm(path) -> ListMode:
         header=header, source=path, format=NAME)
 
 
+def vtslm_span(path) -> tuple[float, float]:
+    """``(start_time, duration_s)`` of a VTSLM file from its preamble, header and last 24 bytes
+    only (a 20-minute file is not read whole to learn when it was acquired): the END block's
+    time when the file ends with one, else the header's planned ``duration_s`` (a file cut
+    short is refused by :func:`read_vtslm`, not here). DataError naming the file."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(PREAMBLE.size)
+            length = PREAMBLE.unpack_from(head)[3] if len(head) == PREAMBLE.size else 0
+            data = head + f.read(length)
+            header, end = _header(path, data)
+            size = f.seek(0, 2)
+            duration = float(header["duration_s"])
+            if size >= end + BLOCK.size + END.itemsize:
+                f.seek(size - BLOCK.size - END.itemsize)
+                tail = f.read(BLOCK.size + END.itemsize)
+                tag, n, rsize, _ = BLOCK.unpack_from(tail)
+                if tag == b"END " and n == 1 and rsize == END.itemsize:
+                    duration = int(np.frombuffer(tail, END, 1, BLOCK.size)["t_ns"][0]) / 1e9
+    except FileNotFoundError:
+        raise DataError(f"{path}: no such file") from None
+    except OSError as e:
+        raise DataError(f"{path}: cannot read ({e.strerror})") from None
+    return float(header["start_time"]), duration
+
+
 class VtslmReader:
     """The registry entry for VTSLM."""
 
@@ -342,3 +369,7 @@ class VtslmReader:
     @staticmethod
     def read(path: Path) -> ListMode:
         return read_vtslm(path)
+
+    @staticmethod
+    def span(path: Path) -> tuple[float, float]:
+        return vtslm_span(path)
