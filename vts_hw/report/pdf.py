@@ -66,28 +66,33 @@ def _text_size(fig, renderer, text: str, fontsize: float, weight="normal") -> tu
     return bb.width / fig.bbox.width, bb.height / fig.bbox.height
 
 
-def _layout_table(fig, renderer, header, rows, width):
-    """Wrapped cells, font size, column widths and row heights (figure fractions) so that the
-    table is at most ``width`` wide; the smallest font and narrowest wrap as a last resort."""
+def _layout_table(fig, renderer, header, rows, width, height):
+    """Wrapped cells, font size, column widths and row heights (figure fractions).
+
+    The largest font (and widest wrap) at which the table is at most ``width`` wide and, if
+    possible, ``height`` tall; a table too tall at any font goes on over more pages."""
     pad_x = CELL_PAD_PT / 72 / fig.get_figwidth()
     pad_y = CELL_PAD_PT / 72 / fig.get_figheight()
+    fitting = None
     for wrap in TABLE_WRAPS:
         cells = [[_wrap(h, min(wrap, 12)) for h in header]] + [[_wrap(c, wrap) for c in r] for r in rows]
         for fs in TABLE_FONTS:
             sizes = [[_text_size(fig, renderer, c, fs, "bold" if i == 0 else "normal") for c in row]
                      for i, row in enumerate(cells)]
             col_w = [max(sz[j][0] for sz in sizes) + 2 * pad_x for j in range(len(header))]
+            row_h = [max(w_h[1] for w_h in sz) + 2 * pad_y for sz in sizes]
+            layout = (cells, fs, col_w, row_h)
             if sum(col_w) <= width:
-                row_h = [max(w_h[1] for w_h in sz) + 2 * pad_y for sz in sizes]
-                return cells, fs, col_w, row_h
-    return cells, fs, col_w, row_h
+                if sum(row_h) <= height:
+                    return layout
+                fitting = fitting or layout
+        if fitting:
+            return fitting
+    return layout
 
 
-def draw_table(fig, renderer, top, header, rows, colours, width=1 - 2 * MARGIN, left=MARGIN) -> float:
-    """Draw the table with its top at ``top``; widths spread to ``width``. Returns its bottom."""
-    cells, fs, col_w, row_h = _layout_table(fig, renderer, header, rows, width)
-    spare = (width - sum(col_w)) / len(col_w)
-    col_w = [w + max(spare, 0) for w in col_w]
+def _draw_rows(fig, top, cells, fs, col_w, row_h, colours, left=MARGIN) -> float:
+    """Draw the header row and ``cells`` (rows), top at ``top``; returns the bottom."""
     y = top
     for i, (row, h) in enumerate(zip(cells, row_h)):
         x = left
@@ -103,11 +108,46 @@ def draw_table(fig, renderer, top, header, rows, colours, width=1 - 2 * MARGIN, 
     return y
 
 
-def title_page(report: DriftReport) -> Figure:
-    """Title, overall state, what needs attention, the summary table, runs that did not complete."""
+def _page(report: DriftReport, continued: bool = False):
+    """A new summary page: its figure, a renderer to measure text, and the footer's top."""
+    fig = Figure(figsize=A4_LANDSCAPE)
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    if continued:
+        fig.text(MARGIN, 0.93, f"{report.title} — summary (continued)", fontsize=14, fontweight="bold")
+    method = (f"Control limits: {report.control_method} (pending until {CONTROL_RUNS} runs). Trend: least "
+              f"squares since each camera's latest baseline, ± its standard error; {TREND_RULE}. "
+              "Forecast: the date the line reaches the action level now in effect. "
+              "n.s.: not significant. All times UTC.")
+    foot = fig.text(MARGIN, 0.04, textwrap.fill(method, 170), fontsize=7.5, color="#5f6b7a", va="bottom")
+    return fig, renderer, _top(fig, renderer, foot)
+
+
+def _top(fig, renderer, text) -> float:
+    return text.get_window_extent(renderer).y1 / fig.bbox.height
+
+
+def _bottom(fig, renderer, text) -> float:
+    return text.get_window_extent(renderer).y0 / fig.bbox.height
+
+
+def _closing_text(report: DriftReport) -> str:
+    nc = report.not_completed
+    listed = [f"  {fmt_datetime(r.started)}  {r.procedure:<15} run {r.id:<5} {r.status:<9} "
+              f"{textwrap.shorten(r.notes.replace(chr(10), ' '), 90)}" for r in nc[:8]]
+    if len(nc) > 8:
+        listed.append(f"  … and {len(nc) - 8} more")
+    body = "Runs that did not complete: " + ("none" if not nc else "") + "".join("\n" + x for x in listed)
+    bl = report.baselines
+    return body + "\nBaselines set in the period: " + (", ".join(fmt_date(r.started) for r in bl) or "none")
+
+
+def title_pages(report: DriftReport) -> list[Figure]:
+    """Title, overall state, what needs attention, the summary table (over more pages when it
+    is too long for one), the runs that did not complete and the baselines."""
+    gap = 0.025
     with matplotlib.rc_context(FONT):
-        fig = Figure(figsize=A4_LANDSCAPE)
-        renderer = FigureCanvasAgg(fig).get_renderer()
+        fig, renderer, floor = _page(report)
+        pages = [fig]
         state = str(report.state) if report.cameras else "no data"
         fig.text(MARGIN, 0.93, report.title, fontsize=20, fontweight="bold")
         fig.text(MARGIN, 0.895, f"{period_text(report)} · generated {fmt_datetime(report.now)} · "
@@ -120,28 +160,39 @@ def title_page(report: DriftReport) -> Figure:
             shown.append(f"  … and {len(lines) - 8} more (see the camera pages)")
         text = fig.text(MARGIN, 0.80, "\n".join(shown) or "Nothing needs attention.", fontsize=9.5,
                         va="top", linespacing=1.5, color="#1d2733" if shown else "#5f6b7a")
-        y = text.get_window_extent(renderer).y0 / fig.bbox.height - 0.035
+        y = _bottom(fig, renderer, text) - gap
+        closing = fig.text(MARGIN, 0, _closing_text(report), fontsize=8.5, va="bottom", family="monospace",
+                           linespacing=1.4)
+        closing_h = _top(fig, renderer, closing)
+        closing.remove()
         rows, colours = _summary_rows(report)
-        if rows:
-            y = draw_table(fig, renderer, y, SUMMARY_COLUMNS, rows, colours) - 0.04
-        else:
+        if not rows:
             fig.text(MARGIN, y, "No completed drift runs in this period.", fontsize=11, va="top")
             y -= 0.05
-        nc = report.not_completed
-        listed = [f"  {fmt_datetime(r.started)}  {r.procedure:<15} run {r.id:<5} {r.status:<9} "
-                  f"{textwrap.shorten(r.notes.replace(chr(10), ' '), 90)}" for r in nc[:8]]
-        if len(nc) > 8:
-            listed.append(f"  … and {len(nc) - 8} more")
-        body = "Runs that did not complete: " + ("none" if not nc else "") + "".join("\n" + x for x in listed)
-        bl = report.baselines
-        body += "\nBaselines set in the period: " + (", ".join(fmt_date(r.started) for r in bl) or "none")
-        fig.text(MARGIN, y, body, fontsize=8.5, va="top", family="monospace", linespacing=1.4)
-        method = (f"Control limits: {report.control_method} (pending until {CONTROL_RUNS} runs). Trend: least "
-                  f"squares since each camera's latest baseline, ± its standard error; {TREND_RULE}. "
-                  "Forecast: the date the line reaches the action level now in effect. "
-                  "n.s.: not significant. All times UTC.")
-        fig.text(MARGIN, 0.04, textwrap.fill(method, 170), fontsize=7.5, color="#5f6b7a", va="bottom")
-    return fig
+        else:
+            cells, fs, col_w, row_h = _layout_table(fig, renderer, SUMMARY_COLUMNS, rows, 1 - 2 * MARGIN,
+                                                    y - floor - 2 * gap - closing_h)
+            col_w = [w + max(0.0, (1 - 2 * MARGIN - sum(col_w)) / len(col_w)) for w in col_w]
+            head, body, body_h, todo = cells[0], cells[1:], row_h[1:], list(range(len(rows)))
+            while todo:
+                room = y - floor - gap - row_h[0]
+                last = sum(body_h[i] for i in todo) <= room - gap - closing_h
+                n = len(todo) if last else max(1, next((k for k in range(len(todo), 0, -1)
+                                                        if sum(body_h[i] for i in todo[:k]) <= room), 1))
+                take, todo = todo[:n], todo[n:]
+                y = _draw_rows(fig, y, [head] + [body[i] for i in take], fs, col_w,
+                               [row_h[0]] + [body_h[i] for i in take], [colours[i] for i in take]) - gap
+                if todo:
+                    fig, renderer, floor = _page(report, continued=True)
+                    pages.append(fig)
+                    y = 0.89
+        if y - gap - closing_h < floor:
+            fig, renderer, floor = _page(report, continued=True)
+            pages.append(fig)
+            y = 0.89
+        fig.text(MARGIN, y - gap, _closing_text(report), fontsize=8.5, va="top", family="monospace",
+                 linespacing=1.4)
+    return pages
 
 
 def _camera_header(report: DriftReport, cam: CameraDrift) -> list[str]:
@@ -168,8 +219,10 @@ def render_pdf(report: DriftReport) -> bytes:
     meta = {"Title": report.title, "Subject": "VTS camera drift trend", "Creator": f"vts-hw {report.software_version}",
             "CreationDate": utc(report.now).replace(microsecond=0) if report.now else _dt.datetime.now(_dt.timezone.utc)}
     buf = io.BytesIO()
-    with PdfPages(buf, metadata=meta) as pdf:
-        pdf.savefig(title_page(report))
+    # TrueType fonts embedded (not Type 3): text that viewers and pdftotext measure truly
+    with matplotlib.rc_context({"pdf.fonttype": 42}), PdfPages(buf, metadata=meta) as pdf:
+        for page in title_pages(report):
+            pdf.savefig(page)
         for cam in report.cameras.values():
             if cam.points:
                 pdf.savefig(camera_figure(report, cam, figsize=A4_LANDSCAPE, header=_camera_header(report, cam)))

@@ -14,7 +14,10 @@ def fmt_num(v, spec: str = ".3f") -> str:
     """A number, or an en dash when missing."""
     if v is None or (isinstance(v, float) and not math.isfinite(v)):
         return "–"
-    return format(v, spec)
+    text = format(v, spec)
+    if text.startswith("-") and not any(c in "123456789" for c in text):   # no "-0.00"
+        text = ("+" if "+" in spec else "") + text[1:]
+    return text
 
 
 def fmt_slope(trend: Trend, html: bool = False) -> str:
@@ -84,7 +87,7 @@ def camera_forecast_text(cam: CameraDrift) -> tuple[str, bool]:
     """The camera's action-level forecast for a summary, and whether it falls within a year.
 
     The earliest axis within a year (``2026-09-23 (y)``); else ``not within a year`` when a
-    significant trend points far away; else why there is no forecast: ``none: 3 runs / 0.0 d``
+    significant trend points far away; else why there is no forecast: ``none yet (3 runs / 0.0 d)``
     (too few runs for a trend) or ``none: trend not significant``.
     """
     nf = cam.nearest_forecast()
@@ -98,4 +101,4 @@ def camera_forecast_text(cam: CameraDrift) -> tuple[str, bool]:
     if any(f.status == "not significant" for f in fs):
         return "none: trend not significant", False
     trend = next(iter(cam.axes.values())).trend
-    return f"none: {trend.short_reason}" if trend.short_reason else "none", False
+    return f"none yet ({trend.short_reason})" if trend.short_reason else "none", False
