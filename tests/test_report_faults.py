@@ -301,3 +301,26 @@ def test_disk_full_keeps_the_previous_report(tmp_path, small_disk, name):
     p = vts("report", "drift", "-o", str(disk.path / f"new-{name}"), env=env)
     assert p.returncode == 3 and "nothing was written there" in one_sentence(p)
     assert disk.files() == {name: len(previous)}
+
+
+def test_a_summary_too_long_for_one_page_goes_on_over_more(tmp_path):
+    """40 cameras: the table goes on over "summary (continued)" pages, each row once, every
+    word on its page, no two words overlapping."""
+    from vts_hw.report.pdf import pdf_bytes, title_pages
+
+    names = [f"cam{i}" for i in range(1, 41)]
+    with ResultsStore(f"sqlite:///{tmp_path / 's.sqlite'}") as s:
+        s.begin_run("drift-baseline", rig="vts", started=NOW - 2 * DAY).finish(finished=NOW - 2 * DAY + 60)
+        h = s.begin_run("daily", rig="vts", started=NOW - DAY)
+        for cam in names:
+            h.measure(cam, "drift_x_px", 0.1, "px")
+            h.measure(cam, "drift_y_px", -0.1, "px")
+        h.finish(finished=NOW - DAY + 60)
+        report = collect(s, now=NOW, rig="vts")
+    pages = title_pages(report)
+    assert len(pages) >= 2
+    (tmp_path / "title.pdf").write_bytes(pdf_bytes(pages))
+    read = assert_pdf_fits(tmp_path / "title.pdf", overlap_pages=range(len(pages)))
+    words = [w[4] for _, _, ws in read for w in ws]
+    assert sorted(w for w in words if re.fullmatch(r"cam\d+", w)) == sorted(names)
+    assert "(continued)" in words and words.count("Camera") == len(pages)

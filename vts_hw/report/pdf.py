@@ -214,19 +214,28 @@ def _camera_header(report: DriftReport, cam: CameraDrift) -> list[str]:
     return lines
 
 
+def pdf_bytes(figures, metadata: dict | None = None) -> bytes:
+    """Figures as the pages of one PDF, in memory."""
+    buf = io.BytesIO()
+    # TrueType fonts embedded (not Type 3): text that viewers and pdftotext measure truly
+    with matplotlib.rc_context({"pdf.fonttype": 42}), PdfPages(buf, metadata=metadata) as pdf:
+        for fig in figures:
+            pdf.savefig(fig)
+    return buf.getvalue()
+
+
 def render_pdf(report: DriftReport) -> bytes:
     """The title page and one page per camera with runs (and the step test), as PDF bytes."""
     meta = {"Title": report.title, "Subject": "VTS camera drift trend", "Creator": f"vts-hw {report.software_version}",
             "CreationDate": utc(report.now).replace(microsecond=0) if report.now else _dt.datetime.now(_dt.timezone.utc)}
-    buf = io.BytesIO()
-    # TrueType fonts embedded (not Type 3): text that viewers and pdftotext measure truly
-    with matplotlib.rc_context({"pdf.fonttype": 42}), PdfPages(buf, metadata=meta) as pdf:
-        for page in title_pages(report):
-            pdf.savefig(page)
+
+    def pages():
+        yield from title_pages(report)
         for cam in report.cameras.values():
             if cam.points:
-                pdf.savefig(camera_figure(report, cam, figsize=A4_LANDSCAPE, header=_camera_header(report, cam)))
+                yield camera_figure(report, cam, figsize=A4_LANDSCAPE, header=_camera_header(report, cam))
         if report.steps is not None:
             from .steps import steps_figure
-            pdf.savefig(steps_figure(report.steps, figsize=A4_LANDSCAPE))
-    return buf.getvalue()
+            yield steps_figure(report.steps, figsize=A4_LANDSCAPE)
+
+    return pdf_bytes(pages(), meta)

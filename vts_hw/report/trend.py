@@ -92,7 +92,8 @@ class Trend:
     @property
     def short_reason(self) -> str:
         """``3 runs / 0.0 d`` (for a table cell)."""
-        return "" if self.ok else f"{self.n} runs / {self.span_days:.1f} d"
+        runs = "1 run" if self.n == 1 else f"{self.n} runs"
+        return "" if self.ok else f"{runs} / {self.span_days:.1f}\u00a0d"   # no line break before "d"
 
     def _per_30d(self, v):
         return None if v is None else v * SLOPE_PERIOD_DAYS
