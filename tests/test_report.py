@@ -151,13 +151,19 @@ def test_forecast_matches_the_injected_trend(html_report):
     assert cam2.nearest_forecast()[0] == "y"
 
 
-def test_flat_camera_is_not_within_a_year(html_report):
+def test_flat_camera_has_no_forecast(html_report):
     report, _ = html_report
     for axis in ("x", "y"):
+        tr = report.cameras["cam1"].axes[axis].trend
         f = report.cameras["cam1"].axes[axis].forecast
-        assert not f.within_year and f.label(str) == "not within a year"
-    # cam2 x drifts, but slowly: reaches 1.5 px after about 500 days
-    assert report.cameras["cam2"].axes["x"].forecast.label(str) == "not within a year"
+        # a slope of noise: no date, and the reason says so
+        assert tr.ok and not tr.significant and tr.p_value >= 0.05
+        assert f.status == "not significant" and f.t is None and not f.within_year
+        assert f.label(str) == "none: trend not significant" and "not significant (p = " in f.reason
+    # cam2 x drifts, significantly but slowly: reaches 1.5 px after about 500 days
+    x = report.cameras["cam2"].axes["x"]
+    assert x.trend.significant and x.forecast.status == "beyond horizon"
+    assert x.forecast.label(str) == "not within a year"
     assert report.cameras["cam1"].nearest_forecast() is None
 
 
@@ -237,16 +243,25 @@ def test_parse_since():
     assert parse_since("12h", now=now) == now - 12 * 3600
     assert parse_since("2026-09-01") == dt.datetime(2026, 9, 1, tzinfo=dt.timezone.utc).timestamp()
     assert parse_since("2026-09-01T08:30+02:00") == dt.datetime(2026, 9, 1, 6, 30, tzinfo=dt.timezone.utc).timestamp()
-    for bad in ("", "sixty days", "60x", "2026-13-01"):
+    assert parse_since("all", now=now) is None and parse_since(" ALL ") is None
+    for bad in ("", "sixty days", "60x", "2026-13-01", "-5d", "1e400d", "nan", "2026-02-30"):
         with pytest.raises(BadSince, match="expected a duration"):
-            parse_since(bad)
-    assert issubclass(BadSince, ValueError)
+            parse_since(bad, now=now)
+    for absurd in ("1000000d", "99999999999w", "9" * 400 + "d"):
+        with pytest.raises(BadSince, match=r"reaches back before 1970-01-01.*give at most 20717d"):
+            parse_since(absurd, now=now)
+    with pytest.raises(BadSince, match=r"is before 1970-01-01"):
+        parse_since("0001-01-01", now=now)
+    with pytest.raises(BadSince, match=r"'9999-12-31' is in the future"):
+        parse_since("9999-12-31", now=now)
+    assert issubclass(BadSince, ValueError) and BadSince("x").exit_code == 2
 
 
 def test_trend_functions():
     t = T0 + np.arange(20) * DAY
     tr = fit_trend(t, 0.1 + 0.05 * np.arange(20))
     assert tr.slope_per_day == pytest.approx(0.05) and tr.slope_se_per_day == pytest.approx(0, abs=1e-12)
+    assert tr.significant and tr.span_days == 19
     f = forecast(tr, -2.0, 2.0, now=t[-1])
     assert f.status == "date" and f.t == pytest.approx(T0 + (2.0 - 0.1) / 0.05 * DAY)
     assert forecast(tr, -2.0, None, now=t[-1]).status == "no limit"
@@ -255,6 +270,40 @@ def test_trend_functions():
     assert forecast(down, -2.0, 2.0, now=t[-1]).status == "beyond horizon"
     assert not fit_trend(t[:2], [0, 1]).ok and forecast(fit_trend(t[:2], [0, 1]), -1, 1, t[-1]).status == "no fit"
     assert control_limits(t[:5], np.zeros(5)).pending
+
+
+def test_a_trend_needs_five_runs_over_seven_days():
+    rng = np.random.default_rng(3)
+    # three runs minutes apart: their noise over minutes would be hundreds of px per 30 days
+    minutes = T0 + np.array([0, 240, 480])
+    tr = fit_trend(minutes, [0.004, -0.003, 0.006])
+    assert not tr.ok and tr.slope_per_30d is None
+    assert tr.reason == "3 runs over 0.0 days: a trend needs 5 runs over 7 days"
+    f = forecast(tr, -2.0, 2.0, now=minutes[-1])
+    assert f.status == "no fit" and f.t is None and f.reason == tr.reason
+    # enough runs but too short a span; enough span but too few runs
+    assert fit_trend(T0 + np.arange(10) * 0.5 * DAY, np.zeros(10)).reason.startswith("10 runs over 4.5 days")
+    assert fit_trend(T0 + np.array([0, 5, 10, 20]) * DAY, np.arange(4.0)).reason.startswith("4 runs over 20.0 days")
+    # exactly five over seven days: a trend, with SE, 95 % CI (t with 3 dof) and p-value
+    t = T0 + np.linspace(0, 7, 5) * DAY
+    tr = fit_trend(t, 0.05 * np.linspace(0, 7, 5) + rng.normal(0, 0.01, 5))
+    assert tr.ok and tr.n == 5 and tr.span_days == pytest.approx(7)
+    assert tr.ci95_per_day == pytest.approx(3.182 * tr.slope_se_per_day, rel=1e-3)
+    assert tr.significant and tr.p_value < 0.001
+
+
+def test_no_forecast_without_a_significant_slope():
+    rng = np.random.default_rng(11)
+    t = T0 + np.arange(12) * DAY
+    v = rng.normal(0, 0.2, 12)                 # a camera that does not move, measured noisily
+    tr = fit_trend(t, v)
+    assert tr.ok and not tr.significant
+    f = forecast(tr, -2.0, 2.0, now=t[-1])
+    assert f.status == "not significant" and f.t is None and f"p = {tr.p_value:.2f}" in f.reason
+    # the same slope with little noise is significant, and gets its date
+    sure = fit_trend(t, tr.slope_per_day * np.arange(12) + rng.normal(0, 0.001, 12))
+    assert sure.significant
+    assert forecast(sure, -2.0, 2.0, now=t[-1]).status in ("date", "beyond horizon")
 
 
 # --- files --------------------------------------------------------------------------------

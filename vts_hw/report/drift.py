@@ -26,7 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..errors import VtsError
+from ..errors import ConfigError
+from ..files import ensure_dir, write_atomic
 from ..tolerance import DEFAULT_TOLERANCES
 from .model import (AXES, AxisSummary, BandSegment, CameraDrift, DriftReport,
                     RunInfo, RunPoint)
@@ -40,8 +41,8 @@ BAND_METRICS = {"x": "drift_x_px", "y": "drift_y_px"}
 _BISECT_RESOLUTION_S = 60.0
 
 
-class ReportError(VtsError):
-    """A report that cannot be written (unknown output format, unwritable path)."""
+class ReportError(ConfigError):
+    """A report asked for in a format it cannot be written in (exit 2, like a usage error)."""
 
 
 def _completed(run) -> bool:
@@ -212,7 +213,7 @@ def collect(store, since: float | None = None, now: float | None = None, rig: st
         baselines=[RunInfo.of(r) for r in in_period if r.id in baseline_ids],
         not_completed=[RunInfo.of(r) for r in in_period if not _completed(r) and r.id not in baseline_ids],
         software_version=__version__, control_method=CONTROL_METHOD,
-        steps=collect_steps(store, since, now, rig))
+        steps=collect_steps(store, since, now, rig), has_baseline=bool(baseline_runs))
 
 
 def _camera_sort_key(name: str):
@@ -220,6 +221,18 @@ def _camera_sort_key(name: str):
     head = name.rstrip("0123456789")
     tail = name[len(head):]
     return (head, int(tail) if tail else -1, name)
+
+
+def report_format(out: str | Path) -> str:
+    """``.html`` or ``.pdf`` (from the name's suffix); ReportError (exit 2) for anything else."""
+    out = Path(out)
+    suffix = out.suffix.lower()
+    if suffix == ".htm":
+        return ".html"
+    if suffix not in (".html", ".pdf"):
+        raise ReportError(f"{out}: the report is written as .html or .pdf, not {suffix or 'a name without suffix'}: "
+                          f"give -o report.html or -o report.pdf")
+    return suffix
 
 
 def build_drift_report(store, out: str | Path, since: float | None = None, now: float | None = None,
@@ -230,24 +243,24 @@ def build_drift_report(store, out: str | Path, since: float | None = None, now: 
     external resources); ``.pdf`` gives a title page with the summary and one page per camera.
     ``since``/``now`` bound the period shown (UTC epoch seconds; ``now`` defaults to the current
     time, runs after it are ignored); ``rig`` keeps only that rig's runs.
+
+    The file is rendered in memory and written whole (``files.write_atomic``): on a full disk
+    or an unwritable folder nothing is half-written, a previous report stays as it was, and
+    ``WriteFailed`` (exit 3) names the file.
     """
     out = Path(out)
-    suffix = out.suffix.lower()
-    if suffix not in (".html", ".htm", ".pdf"):
-        raise ReportError(f"{out}: the report is written as .html or .pdf, not {suffix or 'no suffix'!r}")
+    suffix = report_format(out)
     report = collect(store, since=since, now=now, rig=rig, title=title)
     report.out = out
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        if suffix == ".pdf":
-            from .pdf import write_pdf
-            write_pdf(report, out)
-        else:
-            from .html import write_html
-            write_html(report, out)
-    except OSError as e:
-        raise ReportError(f"{out}: cannot write the report ({e.strerror or e})") from None
+    if suffix == ".pdf":
+        from .pdf import render_pdf
+        data: bytes | str = render_pdf(report)
+    else:
+        from .html import render_html
+        data = render_html(report)
+    ensure_dir(out.parent, "report folder")
+    write_atomic(out, data)
     return report
 
 
-__all__ = ["build_drift_report", "collect", "DriftReport", "ReportError", "parse_since"]
+__all__ = ["build_drift_report", "collect", "DriftReport", "ReportError", "parse_since", "report_format"]

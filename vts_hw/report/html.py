@@ -10,14 +10,14 @@ from __future__ import annotations
 
 import base64
 from html import escape
-from pathlib import Path
 
 from .model import AXES, CameraDrift, DriftReport, RunPoint
 from .plots import STATE_COLOURS, camera_figure, figure_png
-from .text import camera_forecast_text, fmt_num, fmt_slope, forecast_text, latest_text, led_text, period_text
+from .text import (camera_forecast_text, fmt_num, fmt_slope, forecast_detail, latest_text, led_text,
+                   period_text, trend_detail)
 from .steps import steps_html
 from .times import fmt_date, fmt_datetime
-from .trend import CONTROL_RUNS
+from .trend import CONTROL_RUNS, HORIZON_DAYS, MIN_TREND_DAYS, MIN_TREND_RUNS, SIGNIFICANCE
 
 CSS = """
 :root { --ok: %(OK)s; --tol: %(TOLERANCE)s; --act: %(ACTION)s; --ink: #1d2733; --muted: #5f6b7a;
@@ -35,6 +35,7 @@ section.card { background: #fff; border: 1px solid var(--line); border-radius: 8
 .banner.TOLERANCE { border-left-color: var(--tol); } .banner.ACTION { border-left-color: var(--act); }
 .banner .big { font-size: 20px; font-weight: 650; }
 .banner ul { margin: 8px 0 0; padding-left: 20px; }
+.banner p.quiet { margin: 8px 0 0; color: var(--muted); }
 .badge { display: inline-block; padding: 1px 9px; border-radius: 10px; color: #fff; font-weight: 600;
          font-size: 12px; letter-spacing: .03em; vertical-align: middle; }
 .badge.OK { background: var(--ok); } .badge.TOLERANCE { background: var(--tol); } .badge.ACTION { background: var(--act); }
@@ -127,12 +128,11 @@ def _axis_table(report: DriftReport, cam: CameraDrift) -> str:
         ctrl = (f"{c.mean:+.3f} ± {3 * c.sd:.3f} ({fmt_num(c.lower, '+.3f')} … {fmt_num(c.upper, '+.3f')})"
                 if not c.pending else f"pending ({c.n}/{CONTROL_RUNS} runs)")
         w = report.window_now(a)
-        fit = (f"{s.trend.n} runs, {fmt_date(s.trend.t0)} – {fmt_date(s.trend.t_end)}, "
-               f"residual SD {s.trend.residual_sd:.3f} px" if s.trend.ok else f"{s.trend.n} runs: too few")
+        fit = trend_detail(s.trend)
         action = fmt_num(w.action_low, "+g") + " / " + fmt_num(w.action_high, "+g")
         soon = ' class="soon"' if s.forecast.within_year else ""
         rows.append(f"<tr><td><b>{a}</b></td>{_cell(escape(ctrl))}{_cell(fmt_slope(s.trend, html=True))}"
-                    f"<td>{escape(fit)}</td>{_cell(action)}<td{soon}>{escape(forecast_text(s.forecast))}</td></tr>")
+                    f"<td>{escape(fit)}</td>{_cell(action)}<td{soon}>{escape(forecast_detail(s.forecast))}</td></tr>")
     return ("<table><thead><tr><th>Axis</th><th class=num>Control limits px (mean ± 3 SD)</th>"
             "<th class=num>Trend px/30 d</th><th>Fit</th><th class=num>Action level now px</th>"
             "<th>Reaches action level</th></tr></thead><tbody>" + "".join(rows) + "</tbody></table>")
@@ -238,11 +238,13 @@ def _method(report: DriftReport) -> str:
         f"{CONTROL_RUNS}). Points outside them show that the camera has moved since the baseline period "
         "even while inside tolerance.</li>"
         "<li><b>Trend</b>: least-squares line through every run since the camera's latest baseline "
-        "(also before the report period); slope per 30 days ± its standard error "
-        "(<span class=ns>n.s.</span>: smaller than twice its standard error).</li>"
-        "<li><b>Forecast</b>: the date the trend line reaches the action level in the direction of its "
-        "slope, with the window in effect now; <i>not within a year</i> when that is more than 365 days "
-        "ahead or the trend runs away from the limit.</li>"
+        f"(also before the report period), once there are at least {MIN_TREND_RUNS} runs spanning "
+        f"{MIN_TREND_DAYS:g} days (runs minutes apart say nothing about a drift over months); slope per "
+        "30 days ± its standard error, with its 95 % confidence interval and p-value "
+        f"(<span class=ns>n.s.</span>: not significant, p ≥ {SIGNIFICANCE:g}).</li>"
+        "<li><b>Forecast</b>: only for a significant slope, the date the trend line reaches the action "
+        "level in the direction of its slope, with the window in effect now; <i>not within a year</i> "
+        f"when that is more than {HORIZON_DAYS:g} days ahead. Without a date the table says why.</li>"
         "<li><b>Bands</b>: the <code>drift_x_px</code>/<code>drift_y_px</code> windows recorded in the "
         "results store, as a step function of the date each took effect.</li>"
         "<li><b>Baselines</b> (dashed vertical lines) reset the drift to zero for the cameras they "
@@ -254,7 +256,8 @@ def render_html(report: DriftReport) -> str:
     """The report as an HTML string."""
     state = report.state if report.cameras else None
     attention = report.attention()
-    items = "".join(f"<li>{escape(a)}</li>" for a in attention) or "<li>Nothing needs attention.</li>"
+    items = (f'<ul>{"".join(f"<li>{escape(a)}</li>" for a in attention)}</ul>' if attention
+             else '<p class="quiet">Nothing needs attention.</p>')
     cams = "".join(_camera_section(report, c) for c in report.cameras.values() if c.points)
     steps = steps_html(report.steps) if report.steps is not None else ""
     return f"""<!DOCTYPE html>
@@ -270,7 +273,7 @@ def render_html(report: DriftReport) -> str:
 </header>
 <section class="card banner {escape(str(state or 'OK'))}">
 <div class="big">Overall {_badge(state)} <span class="meta">worst state of each camera's latest run</span></div>
-<ul>{items}</ul>
+{items}
 </section>
 <section class="card"><h2>Summary</h2>{_summary(report)}</section>
 {cams}
@@ -284,8 +287,3 @@ def render_html(report: DriftReport) -> str:
 <script>{SCRIPT}</script>
 </body></html>
 """
-
-
-def write_html(report: DriftReport, out: Path) -> None:
-    """Write the report to ``out`` (UTF-8)."""
-    Path(out).write_text(render_html(report), encoding="utf-8")

@@ -7,6 +7,7 @@ These classes hold numbers only; ``drift.py`` fills them from the results store 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -15,7 +16,7 @@ import numpy as np
 
 from ..tolerance import State, Window, worst
 from .times import fmt_date
-from .trend import ControlLimits, Forecast, Trend
+from .trend import TREND_RULE, ControlLimits, Forecast, Trend
 
 if TYPE_CHECKING:
     from .steps import StepsSummary
@@ -26,6 +27,35 @@ CAMERA_METRICS = ("drift_x_px", "drift_y_px", "drift_x_mm", "drift_y_mm", "drift
                   "markers_missing", "stray_blobs", "led_off_visible")
 # the metrics that say whether the camera itself is healthy, beside the drift
 CHECK_METRICS = ("led_off_visible", "markers_missing", "stray_blobs")
+
+
+# "NoBaseline: ...", "ValueError: ...", "vts_hw.errors.DataError: ..." at the start of a note or
+# after "aborted: ": a Python exception's name, which says nothing to a physicist
+_EXC_NAME = re.compile(r"(^|:\s+)(?:[a-z_][\w]*\.)*"
+                       r"((?=[A-Za-z0-9]*[a-z])(?=[A-Z][A-Za-z0-9]*[A-Z])[A-Z][A-Za-z0-9]*"
+                       r"|[A-Z][A-Za-z0-9]*(?:Error|Exception|Warning|Interrupt|Exit))(?::\s*|$)")
+_ERRNO = re.compile(r"\[Errno -?\d+\]\s*")
+_EXC_ALONE = {"TimeoutError": "timed out", "KeyboardInterrupt": "interrupted (Ctrl-C)", "SystemExit": "the program exited",
+              "MemoryError": "out of memory"}
+
+
+def readable_note(text: str | None) -> str:
+    """A run's stored note without Python exception names.
+
+    ``aborted: NoBaseline: camera cam1 has no ...`` reads ``aborted: camera cam1 has no ...``;
+    a bare name (``aborted: KeyboardInterrupt``) becomes words. The store keeps the note as
+    written (history is never rewritten); only what the report shows is cleaned.
+    """
+    text = (text or "").strip()
+
+    def sub(m: re.Match) -> str:
+        name = m.group(2)
+        rest_empty = m.end() == len(text)
+        if rest_empty:
+            return m.group(1) + _EXC_ALONE.get(name, "failed (" + re.sub(r"(?<!^)(?=[A-Z])", " ", name).lower() + ")")
+        return m.group(1)
+
+    return _ERRNO.sub("", _EXC_NAME.sub(sub, text))
 
 
 def _clean(v):
@@ -140,13 +170,15 @@ class RunInfo:
     status: str
     rig: str = ""
     operator: str = ""
-    notes: str = ""
+    notes: str = ""             # as the report shows it (readable_note)
+    stored_notes: str = ""      # as the store holds it
 
     @classmethod
     def of(cls, run) -> "RunInfo":
         return cls(id=run.id, procedure=run.procedure, started=run.started,
                    status=str(run.status or "unfinished"), rig=run.rig or "",
-                   operator=run.operator or "", notes=run.notes or "")
+                   operator=run.operator or "", notes=readable_note(run.notes),
+                   stored_notes=run.notes or "")
 
     def as_dict(self) -> dict:
         return {**self.__dict__, "date": fmt_date(self.started)}
@@ -168,6 +200,7 @@ class DriftReport:
     control_method: str
     out: Path | None = None
     steps: "StepsSummary | None" = None    # the 7-sphere step tests of the period
+    has_baseline: bool = True              # the store holds a completed baseline (any time up to now)
 
     @property
     def state(self) -> State:
@@ -203,6 +236,8 @@ class DriftReport:
             bad = sorted({f"{m.metric} ({m.subject})" for m in self.steps.measures if str(m.status) != "OK"})
             out.append((self.steps.state.rank, f"7-sphere step test: {self.steps.state} in run "
                                                f"{self.steps.latest.id} ({', '.join(bad)})"))
+        if not self.has_baseline and (self.cameras or self.not_completed):
+            out.append((1, "no drift baseline is recorded: set one with `vts qa drift --set-baseline`"))
         if self.not_completed:
             out.append((0, f"{len(self.not_completed)} run(s) did not complete (listed below)"))
         return [text for _, text in sorted(out, key=lambda x: -x[0])]
@@ -218,6 +253,7 @@ class DriftReport:
             "cameras": {n: c.as_dict() for n, c in self.cameras.items()},
             "baselines": [r.as_dict() for r in self.baselines],
             "not_completed": [r.as_dict() for r in self.not_completed],
+            "has_baseline": self.has_baseline, "trend_rule": TREND_RULE,
             "attention": self.attention(),
             "steps": None if self.steps is None else self.steps.results_data(),
         }

@@ -1,26 +1,38 @@
 """The drift report as a PDF: a title page with the summary, then one page per camera.
 
-Written with matplotlib's ``PdfPages`` (A4 landscape); the camera pages use the same figure as
-the HTML report with a text header of the key numbers.
+Rendered in memory with matplotlib's ``PdfPages`` (A4 landscape) and written whole by the
+caller; the camera pages use the same figure as the HTML report with a text header of the key
+numbers. The summary table is laid out from measured text: long cells wrap, and the font
+shrinks until every column fits the page.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
+import io
 import textwrap
-from pathlib import Path
 
 import matplotlib
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
 
 from .model import AXES, CameraDrift, DriftReport
 from .plots import FONT, STATE_COLOURS, ZONE_COLOURS, camera_figure
-from .text import camera_forecast_text, fmt_slope, forecast_text, latest_text, led_text, period_text
+from .text import (camera_forecast_text, fmt_slope, forecast_detail, latest_text, led_text, period_text,
+                   trend_detail)
 from .times import fmt_date, fmt_datetime, utc
-from .trend import CONTROL_RUNS
+from .trend import CONTROL_RUNS, TREND_RULE
 
 A4_LANDSCAPE = (11.69, 8.27)
+MARGIN = 0.05                      # left and right, as a fraction of the page width
+TABLE_FONTS = (8.0, 7.5, 7.0, 6.5, 6.0, 5.5)
+TABLE_WRAPS = (22, 16, 11)         # characters per line a cell is wrapped at, tried in turn
+CELL_PAD_PT = 4.0
+HEADER_WIDTH_CHARS = 150           # monospace lines of a camera page's header
+SUMMARY_COLUMNS = ["Camera", "Latest run", "Drift x px (mm)", "Drift y px (mm)", "State",
+                   "Trend x px/30 d", "Trend y px/30 d", "Action level forecast", "LED check"]
 
 
 def _summary_rows(report: DriftReport):
@@ -30,8 +42,8 @@ def _summary_rows(report: DriftReport):
         nf = cam.nearest_forecast()
         rows.append([cam.name, fmt_date(p.t) if p else "–", latest_text(cam, p, "x"), latest_text(cam, p, "y"),
                      str(cam.state) if p else "no data", fmt_slope(cam.axes["x"].trend),
-                     fmt_slope(cam.axes["y"].trend),
-                     camera_forecast_text(cam)[0], led_text(cam)])
+                     fmt_slope(cam.axes["y"].trend), camera_forecast_text(cam)[0], led_text(cam)])
+
         def bg(status):
             return ZONE_COLOURS.get(status, "white") if status and status != "OK" else "white"
         st = str(cam.state)
@@ -42,81 +54,188 @@ def _summary_rows(report: DriftReport):
     return rows, colours
 
 
-def title_page(report: DriftReport) -> Figure:
-    """Title, overall state, what needs attention, the summary table, runs that did not complete."""
+def _wrap(text: str, width: int) -> str:
+    return "\n".join(textwrap.wrap(text, width, break_long_words=True, break_on_hyphens=False)) or text
+
+
+def _text_size(fig, renderer, text: str, fontsize: float, weight="normal") -> tuple[float, float]:
+    """Width and height of ``text`` in figure fractions."""
+    t = fig.text(0, 0, text, fontsize=fontsize, fontweight=weight)
+    bb = t.get_window_extent(renderer)
+    t.remove()
+    return bb.width / fig.bbox.width, bb.height / fig.bbox.height
+
+
+def _layout_table(fig, renderer, header, rows, width, height):
+    """Wrapped cells, font size, column widths and row heights (figure fractions).
+
+    The largest font (and widest wrap) at which the table is at most ``width`` wide and, if
+    possible, ``height`` tall; a table too tall at any font goes on over more pages."""
+    pad_x = CELL_PAD_PT / 72 / fig.get_figwidth()
+    pad_y = CELL_PAD_PT / 72 / fig.get_figheight()
+    fitting = None
+    for wrap in TABLE_WRAPS:
+        cells = [[_wrap(h, min(wrap, 12)) for h in header]] + [[_wrap(c, wrap) for c in r] for r in rows]
+        for fs in TABLE_FONTS:
+            sizes = [[_text_size(fig, renderer, c, fs, "bold" if i == 0 else "normal") for c in row]
+                     for i, row in enumerate(cells)]
+            col_w = [max(sz[j][0] for sz in sizes) + 2 * pad_x for j in range(len(header))]
+            row_h = [max(w_h[1] for w_h in sz) + 2 * pad_y for sz in sizes]
+            layout = (cells, fs, col_w, row_h)
+            if sum(col_w) <= width:
+                if sum(row_h) <= height:
+                    return layout
+                fitting = fitting or layout
+        if fitting:
+            return fitting
+    return layout
+
+
+def _draw_rows(fig, top, cells, fs, col_w, row_h, colours, left=MARGIN) -> float:
+    """Draw the header row and ``cells`` (rows), top at ``top``; returns the bottom."""
+    y = top
+    for i, (row, h) in enumerate(zip(cells, row_h)):
+        x = left
+        y -= h
+        for j, (text, w) in enumerate(zip(row, col_w)):
+            fc = "#eef1f5" if i == 0 else colours[i - 1][j]
+            fig.add_artist(Rectangle((x, y), w, h, transform=fig.transFigure, fc=fc, ec="#dfe3e8", lw=0.6))
+            bold = i == 0 or j == 4
+            colour = "white" if (i > 0 and j == 4 and fc != "white") else "#1d2733"
+            fig.text(x + w / 2, y + h / 2, text, fontsize=fs, ha="center", va="center", ma="center",
+                     fontweight="bold" if bold else "normal", color=colour)
+            x += w
+    return y
+
+
+def _page(report: DriftReport, continued: bool = False):
+    """A new summary page: its figure, a renderer to measure text, and the footer's top."""
+    fig = Figure(figsize=A4_LANDSCAPE)
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    if continued:
+        fig.text(MARGIN, 0.93, f"{report.title} — summary (continued)", fontsize=14, fontweight="bold")
+    method = (f"Control limits: {report.control_method} (pending until {CONTROL_RUNS} runs). Trend: least "
+              f"squares since each camera's latest baseline, ± its standard error; {TREND_RULE}. "
+              "Forecast: the date the line reaches the action level now in effect. "
+              "n.s.: not significant. All times UTC.")
+    foot = fig.text(MARGIN, 0.04, textwrap.fill(method, 170), fontsize=7.5, color="#5f6b7a", va="bottom")
+    return fig, renderer, _top(fig, renderer, foot)
+
+
+def _top(fig, renderer, text) -> float:
+    return text.get_window_extent(renderer).y1 / fig.bbox.height
+
+
+def _bottom(fig, renderer, text) -> float:
+    return text.get_window_extent(renderer).y0 / fig.bbox.height
+
+
+def _closing_text(report: DriftReport) -> str:
+    nc = report.not_completed
+    listed = [f"  {fmt_datetime(r.started)}  {r.procedure:<15} run {r.id:<5} {r.status:<9} "
+              f"{textwrap.shorten(r.notes.replace(chr(10), ' '), 90)}" for r in nc[:8]]
+    if len(nc) > 8:
+        listed.append(f"  … and {len(nc) - 8} more")
+    body = "Runs that did not complete: " + ("none" if not nc else "") + "".join("\n" + x for x in listed)
+    bl = report.baselines
+    return body + "\nBaselines set in the period: " + (", ".join(fmt_date(r.started) for r in bl) or "none")
+
+
+def title_pages(report: DriftReport) -> list[Figure]:
+    """Title, overall state, what needs attention, the summary table (over more pages when it
+    is too long for one), the runs that did not complete and the baselines."""
+    gap = 0.025
     with matplotlib.rc_context(FONT):
-        fig = Figure(figsize=A4_LANDSCAPE)
+        fig, renderer, floor = _page(report)
+        pages = [fig]
         state = str(report.state) if report.cameras else "no data"
-        fig.text(0.05, 0.93, report.title, fontsize=20, fontweight="bold")
-        fig.text(0.05, 0.895, f"{period_text(report)} · generated {fmt_datetime(report.now)} · "
-                              f"vts-hw {report.software_version}", fontsize=9, color="#5f6b7a")
-        fig.text(0.05, 0.84, " Overall " + state + " ", fontsize=13, fontweight="bold", color="white",
+        fig.text(MARGIN, 0.93, report.title, fontsize=20, fontweight="bold")
+        fig.text(MARGIN, 0.895, f"{period_text(report)} · generated {fmt_datetime(report.now)} · "
+                                f"vts-hw {report.software_version}", fontsize=9, color="#5f6b7a")
+        fig.text(MARGIN, 0.84, " Overall " + state + " ", fontsize=13, fontweight="bold", color="white",
                  bbox={"boxstyle": "round,pad=0.35", "fc": STATE_COLOURS.get(state, "#9aa3ad"), "ec": "none"})
-        lines = report.attention() or ["Nothing needs attention."]
-        fig.text(0.05, 0.80, "\n".join("• " + a for a in lines[:8]), fontsize=9.5, va="top", linespacing=1.5)
-        y_table = 0.80 - 0.03 * min(len(lines), 8) - 0.04
+        lines = report.attention()
+        shown = ["• " + textwrap.fill(a, 140, subsequent_indent="  ") for a in lines[:8]]
+        if len(lines) > 8:
+            shown.append(f"  … and {len(lines) - 8} more (see the camera pages)")
+        text = fig.text(MARGIN, 0.80, "\n".join(shown) or "Nothing needs attention.", fontsize=9.5,
+                        va="top", linespacing=1.5, color="#1d2733" if shown else "#5f6b7a")
+        y = _bottom(fig, renderer, text) - gap
+        closing = fig.text(MARGIN, 0, _closing_text(report), fontsize=8.5, va="bottom", family="monospace",
+                           linespacing=1.4)
+        closing_h = _top(fig, renderer, closing)
+        closing.remove()
         rows, colours = _summary_rows(report)
-        if rows:
-            ax = fig.add_axes((0.05, max(y_table - 0.05 * (len(rows) + 1), 0.3), 0.9, 0.05 * (len(rows) + 1)))
-            ax.axis("off")
-            cols = ["Camera", "Latest run", "Drift x px (mm)", "Drift y px (mm)", "State",
-                    "Trend x px/30 d", "Trend y px/30 d", "Action level forecast", "LED check"]
-            widths = [0.06, 0.085, 0.1, 0.1, 0.085, 0.115, 0.115, 0.12, 0.22]
-            tab = ax.table(cellText=rows, cellColours=colours, colLabels=cols, loc="upper left",
-                           cellLoc="center", colColours=["#eef1f5"] * len(cols), colWidths=widths)
-            tab.auto_set_font_size(False)
-            tab.set_fontsize(8)
-            tab.scale(1, 1.5)
-            for (r, c), cell in tab.get_celld().items():
-                cell.set_edgecolor("#dfe3e8")
-                if r > 0 and c == 4:
-                    cell.get_text().set_color("white")
-                    cell.get_text().set_fontweight("bold")
-            y_next = max(y_table - 0.05 * (len(rows) + 1), 0.3) - 0.05
+        if not rows:
+            fig.text(MARGIN, y, "No completed drift runs in this period.", fontsize=11, va="top")
+            y -= 0.05
         else:
-            fig.text(0.05, y_table, "No completed drift runs in this period.", fontsize=11)
-            y_next = y_table - 0.06
-        nc = report.not_completed
-        text = ("Runs that did not complete: " + ("none" if not nc else "") + "\n"
-                + "\n".join(f"  {fmt_datetime(r.started)}  {r.procedure:<15} run {r.id:<5} {r.status:<9} "
-                            f"{textwrap.shorten(r.notes.replace(chr(10), ' '), 70)}"
-                            for r in nc[:8]) + (f"\n  … and {len(nc) - 8} more" if len(nc) > 8 else ""))
-        bl = report.baselines
-        text += "\nBaselines set in the period: " + (", ".join(fmt_date(r.started) for r in bl) or "none")
-        fig.text(0.05, y_next, text, fontsize=8.5, va="top", family="monospace", linespacing=1.4)
-        method = (f"Control limits: {report.control_method} (pending until {CONTROL_RUNS} runs). Trend: least "
-                  "squares since each camera's latest baseline; forecast: the date the line reaches the action "
-                  "level now in effect, 'not within a year' beyond 365 days or when the trend runs away from the "
-                  "limit. n.s.: slope smaller than twice its standard error. All times UTC.")
-        fig.text(0.05, 0.04, textwrap.fill(method, 160), fontsize=7.5, color="#5f6b7a", va="bottom")
-    return fig
+            cells, fs, col_w, row_h = _layout_table(fig, renderer, SUMMARY_COLUMNS, rows, 1 - 2 * MARGIN,
+                                                    y - floor - 2 * gap - closing_h)
+            col_w = [w + max(0.0, (1 - 2 * MARGIN - sum(col_w)) / len(col_w)) for w in col_w]
+            head, body, body_h, todo = cells[0], cells[1:], row_h[1:], list(range(len(rows)))
+            while todo:
+                room = y - floor - gap - row_h[0]
+                last = sum(body_h[i] for i in todo) <= room - gap - closing_h
+                n = len(todo) if last else max(1, next((k for k in range(len(todo), 0, -1)
+                                                        if sum(body_h[i] for i in todo[:k]) <= room), 1))
+                take, todo = todo[:n], todo[n:]
+                y = _draw_rows(fig, y, [head] + [body[i] for i in take], fs, col_w,
+                               [row_h[0]] + [body_h[i] for i in take], [colours[i] for i in take]) - gap
+                if todo:
+                    fig, renderer, floor = _page(report, continued=True)
+                    pages.append(fig)
+                    y = 0.89
+        if y - gap - closing_h < floor:
+            fig, renderer, floor = _page(report, continued=True)
+            pages.append(fig)
+            y = 0.89
+        fig.text(MARGIN, y - gap, _closing_text(report), fontsize=8.5, va="top", family="monospace",
+                 linespacing=1.4)
+    return pages
 
 
 def _camera_header(report: DriftReport, cam: CameraDrift) -> list[str]:
     p = cam.latest
+    base = fmt_date(cam.baseline_t) if cam.baseline_t else "none recorded (the trend uses every run)"
     lines = [f"{cam.name} — {cam.state}",
-             f"latest run {fmt_datetime(p.t)} · {len(cam.points)} runs shown · baseline "
-             f"{fmt_date(cam.baseline_t) if cam.baseline_t else 'none recorded'}"]
+             f"latest run {fmt_datetime(p.t)} · {len(cam.points)} runs shown · baseline {base}"]
     for a in AXES:
         s = cam.axes[a]
         c = s.control
         ctrl = (f"control {c.mean:+.3f} ± {3 * c.sd:.3f}" if not c.pending else f"control pending ({c.n}/{CONTROL_RUNS})")
-        lines.append(f"{a}: latest {latest_text(cam, p, a):<15} px (mm)   trend {fmt_slope(s.trend):<20} px/30 d   "
-                     f"{ctrl:<24}   action level: {forecast_text(s.forecast)}")
-    lines.append(f"LED check: {led_text(cam)}   markers missing on {len(cam.events('markers_missing'))} run(s)   "
+        trend = (f"trend {fmt_slope(s.trend)} px/30 d ({trend_detail(s.trend)})" if s.trend.ok
+                 else f"no trend yet: {trend_detail(s.trend)}")
+        line = (f"{a}: latest {latest_text(cam, p, a)} px (mm) · {ctrl} · {trend} · "
+                f"action level: {forecast_detail(s.forecast)}")
+        lines.append(textwrap.fill(line, HEADER_WIDTH_CHARS, subsequent_indent="   "))
+    lines.append(f"LED check: {led_text(cam)} · markers missing on {len(cam.events('markers_missing'))} run(s) · "
                  f"stray blobs on {len(cam.events('stray_blobs'))} run(s)")
     return lines
 
 
-def write_pdf(report: DriftReport, out: Path) -> None:
-    """Write the title page and one page per camera with runs."""
+def pdf_bytes(figures, metadata: dict | None = None) -> bytes:
+    """Figures as the pages of one PDF, in memory."""
+    buf = io.BytesIO()
+    # TrueType fonts embedded (not Type 3): text that viewers and pdftotext measure truly
+    with matplotlib.rc_context({"pdf.fonttype": 42}), PdfPages(buf, metadata=metadata) as pdf:
+        for fig in figures:
+            pdf.savefig(fig)
+    return buf.getvalue()
+
+
+def render_pdf(report: DriftReport) -> bytes:
+    """The title page and one page per camera with runs (and the step test), as PDF bytes."""
     meta = {"Title": report.title, "Subject": "VTS camera drift trend", "Creator": f"vts-hw {report.software_version}",
             "CreationDate": utc(report.now).replace(microsecond=0) if report.now else _dt.datetime.now(_dt.timezone.utc)}
-    with PdfPages(out, metadata=meta) as pdf:
-        pdf.savefig(title_page(report))
+
+    def pages():
+        yield from title_pages(report)
         for cam in report.cameras.values():
             if cam.points:
-                pdf.savefig(camera_figure(report, cam, figsize=A4_LANDSCAPE, header=_camera_header(report, cam)))
+                yield camera_figure(report, cam, figsize=A4_LANDSCAPE, header=_camera_header(report, cam))
         if report.steps is not None:
             from .steps import steps_figure
-            pdf.savefig(steps_figure(report.steps, figsize=A4_LANDSCAPE))
+            yield steps_figure(report.steps, figsize=A4_LANDSCAPE)
+
+    return pdf_bytes(pages(), meta)

@@ -20,7 +20,9 @@ from matplotlib.patches import Patch
 
 from .model import CameraDrift, DriftReport
 from .times import fmt_date, utc
-from .trend import CONTROL_K, CONTROL_RUNS, DAY
+from .trend import CONTROL_K, CONTROL_RUNS, DAY, MIN_TREND_DAYS, MIN_TREND_RUNS
+
+MIN_SPAN_S = 3600.0   # the narrowest time axis: an hour
 
 STATE_COLOURS = {"OK": "#2e7d32", "TOLERANCE": "#e08a00", "ACTION": "#c62828"}
 ZONE_COLOURS = {"OK": "#e6f4e7", "TOLERANCE": "#fff0d6", "ACTION": "#fde4e4"}
@@ -37,28 +39,36 @@ def _d(t):
 
 
 def time_range(report: DriftReport, cam: CameraDrift) -> tuple[float, float]:
-    """The plotted time range: the period, plus room on the right for the forecast."""
-    t = cam.times()
-    start = report.period_start if report.period_start is not None else float(t.min())
-    start = min(start, float(t.min()))
-    span = max(report.now - start, DAY)
-    ext = max(14 * DAY, 0.2 * span)
+    """The plotted time range: the runs, baselines and incomplete runs shown, up to the report
+    date, plus room on the right for a forecast date that is near.
+
+    Scaled to the data, not to the period asked for: three runs of this morning in a 60-day
+    period are drawn over hours, not squeezed into one pixel column.
+    """
+    ts = [float(x) for x in cam.times()] + list(cam.baselines)
+    ts += [r.started for r in report.not_completed]
+    start = min(ts) if ts else (report.period_start if report.period_start is not None else report.now - DAY)
+    end = max([report.now, *ts])
+    span = max(end - start, MIN_SPAN_S)
+    ext = 0.03 * span
     nf = cam.nearest_forecast()
-    if nf and nf[1].status == "date" and nf[1].t - report.now <= max(span, 60 * DAY):
-        ext = max(ext, nf[1].t - report.now + 0.05 * span)
-    return start - 0.02 * span, report.now + ext
+    if nf and nf[1].status == "date" and nf[1].t - end <= max(span, 60 * DAY):
+        ext = max(ext, nf[1].t - end + 0.05 * span)
+    return start - 0.03 * span, end + ext
 
 
 def _ylim(report, cam, axis, t0, t1):
+    """The drift axis: the runs, the tolerance and action levels in effect over the plotted
+    time, and the control limits, with a margin; never a trend line's extrapolation."""
     vals = [v for v in cam.series(f"drift_{axis}_px") if np.isfinite(v)]
     for seg in report.bands[axis]:
+        if seg.end < t0 or seg.start > t1:
+            continue
         w = seg.window
         vals += [v for v in (w.action_low, w.action_high, w.tolerance_low, w.tolerance_high) if v is not None]
     s = cam.axes[axis]
     if not s.control.pending:
         vals += [s.control.lower, s.control.upper]
-    if s.trend.ok:
-        vals += list(s.trend.at([max(t0, s.trend.t0), t1]))
     lo, hi = (min(vals), max(vals)) if vals else (-1.0, 1.0)
     pad = 0.08 * max(hi - lo, 0.5)
     return lo - pad, hi + pad
@@ -101,24 +111,27 @@ def _drift_panel(ax, report, cam, axis, t0, t1):
         xc = [_d(max(s.control.start, t0)), _d(t1)]
         for y, style in ((s.control.mean, "--"), (s.control.lower, ":"), (s.control.upper, ":")):
             ax.plot(xc, [y, y], color=CONTROL_COLOUR, ls=style, lw=1.1, zorder=2)
-    # trend: solid over the fitted runs, dashed into the future
+    # trend: solid over the fitted runs; dashed into the future only towards a forecast date
     f = s.forecast
     if s.trend.ok:
         a = max(s.trend.t0, t0)
-        b = min(f.t, t1) if f.status == "date" else t1
-        ax.plot([_d(a), _d(s.trend.t_end)], s.trend.at([a, s.trend.t_end]), color=TREND_COLOUR, lw=1.6, zorder=3)
-        if b > s.trend.t_end:
-            ax.plot([_d(s.trend.t_end), _d(b)], s.trend.at([s.trend.t_end, b]), color=TREND_COLOUR,
-                    lw=1.6, ls=(0, (5, 3)), zorder=3)
-        if f.status == "date" and f.t <= t1:
-            ax.plot([_d(f.t)], [f.level], marker="D", ms=6, color=STATE_COLOURS["ACTION"], mec="white", zorder=5)
-            ax.annotate(f"action level\n{fmt_date(f.t)}", (_d(f.t), f.level), xytext=(-8, 0 if f.level > 0 else 0),
-                        textcoords="offset points", ha="right", va="bottom" if f.level > 0 else "top",
-                        fontsize=8, color=STATE_COLOURS["ACTION"], fontweight="bold")
-        elif f.status in ("date", "beyond horizon"):
-            txt = (f"action level {fmt_date(f.t)} →" if f.status == "date" else "action level: not within a year")
-            ax.text(0.99, 0.04 if (f.level or 0) < 0 else 0.96, txt, transform=ax.transAxes, ha="right",
-                    va="bottom" if (f.level or 0) < 0 else "top", fontsize=8, color=TREND_COLOUR)
+        style = {"color": TREND_COLOUR, "lw": 1.6, "zorder": 3}
+        if not s.trend.significant:
+            style.update(lw=1.1, alpha=0.6)
+        ax.plot([_d(a), _d(s.trend.t_end)], s.trend.at([a, s.trend.t_end]), **style)
+        if f.status == "date":
+            b = min(f.t, t1)
+            if b > s.trend.t_end:
+                ax.plot([_d(s.trend.t_end), _d(b)], s.trend.at([s.trend.t_end, b]), ls=(0, (5, 3)), **style)
+            if f.t <= t1:
+                ax.plot([_d(f.t)], [f.level], marker="D", ms=6, color=STATE_COLOURS["ACTION"], mec="white", zorder=5)
+                ax.annotate(f"action level\n{fmt_date(f.t)}", (_d(f.t), f.level), xytext=(-8, 0),
+                            textcoords="offset points", ha="right", va="bottom" if f.level > 0 else "top",
+                            fontsize=8, color=STATE_COLOURS["ACTION"], fontweight="bold")
+            else:
+                ax.text(0.99, 0.04 if f.level < 0 else 0.96, f"action level {fmt_date(f.t)} →",
+                        transform=ax.transAxes, ha="right", va="bottom" if f.level < 0 else "top",
+                        fontsize=8, color=TREND_COLOUR)
     # the runs, coloured by the state the QA gave them
     t = cam.times()
     v = cam.series(f"drift_{axis}_px")
@@ -139,9 +152,11 @@ def _drift_panel(ax, report, cam, axis, t0, t1):
         sec = ax.secondary_yaxis("right", functions=(lambda px, k=k: px * k, lambda mm, k=k: mm / k))
         sec.set_ylabel("mm at the wall")
     pend = "" if not s.control.pending else f"control limits pending ({s.control.n}/{CONTROL_RUNS} runs)"
-    slope = ""
     if s.trend.ok:
         slope = f"trend {s.trend.slope_per_30d:+.3f} ± {s.trend.slope_se_per_30d:.3f} px / 30 d"
+        slope += "" if s.trend.significant else f" (not significant, p = {s.trend.p_value:.2f})"
+    else:
+        slope = f"no trend yet ({s.trend.short_reason}; needs {MIN_TREND_RUNS} runs / {MIN_TREND_DAYS:g} d)"
     ax.set_title("   ".join(x for x in (f"{cam.name} — drift {axis}", slope, pend) if x), loc="left")
 
 
@@ -181,29 +196,38 @@ def _legend_handles():
         Patch(color=ZONE_COLOURS["TOLERANCE"], label="tolerance"),
         Patch(color=ZONE_COLOURS["ACTION"], label="action"),
         Line2D([], [], color=CONTROL_COLOUR, ls=":", label=f"control limits (mean ± {CONTROL_K:g} SD)"),
-        Line2D([], [], color=TREND_COLOUR, lw=1.6, label="linear trend (dashed: forecast)"),
+        Line2D([], [], color=TREND_COLOUR, lw=1.6, label="linear trend (dashed: to the forecast)"),
         Line2D([], [], color=BASELINE_COLOUR, ls="--", label="baseline"),
         Line2D([], [], color="#999999", ls="-.", label="report date"),
     ]
 
 
+HEADER_TITLE_PT = 15.0
+HEADER_LINE_PT = 8.5
+HEADER_LINESPACING = 1.35
+
+
+def header_height_in(header: list[str]) -> float:
+    """Inches the text header of a PDF camera page takes: the title, then one line each."""
+    lines = sum(h.count("\n") + 1 for h in header[1:])
+    return (HEADER_TITLE_PT * 1.6 + lines * HEADER_LINE_PT * HEADER_LINESPACING + 10) / 72
+
+
 def camera_figure(report: DriftReport, cam: CameraDrift, figsize=(10.0, 7.6),
                   header: list[str] | None = None) -> Figure:
-    """The figure of one camera; ``header`` lines (PDF pages) go in a text block on top."""
+    """The figure of one camera; ``header`` lines (PDF pages) go in a text block on top, as
+    tall as its lines (the plots take the rest of the page)."""
     import matplotlib
     with matplotlib.rc_context(FONT):
         fig = Figure(figsize=figsize, layout="constrained")
-        ratios = ([1.15] if header else []) + [3, 3, 1.45]
-        axs = fig.subplots(len(ratios), 1, gridspec_kw={"height_ratios": ratios})
+        body = fig
         if header:
-            hax, axs = axs[0], axs[1:]
-            hax.axis("off")
-            # texts outside the layout, so that a long line cannot squeeze the plots
-            hax.text(0, 1, header[0], fontsize=15, fontweight="bold", va="top",
-                     transform=hax.transAxes).set_in_layout(False)
-            hax.text(0, 0.68, "\n".join(header[1:]), fontsize=8.5, va="top", family="monospace",
-                     transform=hax.transAxes, linespacing=1.35).set_in_layout(False)
-        ax_x, ax_y, ax_s = axs
+            hh = header_height_in(header)
+            top, body = fig.subfigures(2, 1, height_ratios=[hh, figsize[1] - hh])
+            top.text(0.035, 1 - 6 / 72 / hh, header[0], fontsize=HEADER_TITLE_PT, fontweight="bold", va="top")
+            top.text(0.035, 1 - (6 + HEADER_TITLE_PT * 1.6) / 72 / hh, "\n".join(header[1:]),
+                     fontsize=HEADER_LINE_PT, va="top", family="monospace", linespacing=HEADER_LINESPACING)
+        ax_x, ax_y, ax_s = body.subplots(3, 1, gridspec_kw={"height_ratios": [3, 3, 1.45]})
         t0, t1 = time_range(report, cam)
         _drift_panel(ax_x, report, cam, "x", t0, t1)
         _drift_panel(ax_y, report, cam, "y", t0, t1)
@@ -217,8 +241,8 @@ def camera_figure(report: DriftReport, cam: CameraDrift, figsize=(10.0, 7.6),
         ax_y.sharex(ax_s)
         ax_x.tick_params(labelbottom=False)
         ax_y.tick_params(labelbottom=False)
-        fig.legend(handles=_legend_handles(), loc="outside lower center", ncol=7, frameon=False,
-                   handlelength=1.8, columnspacing=1.2)
+        body.legend(handles=_legend_handles(), loc="outside lower center", ncol=7, frameon=False,
+                    handlelength=1.8, columnspacing=1.2)
     return fig
 
 

@@ -12,6 +12,7 @@ import datetime as _dt
 from html import escape
 from pathlib import Path
 
+from ..files import write_atomic
 from .html import CSS, SCRIPT
 
 GOAL_S = 0.020     # the project's goal for VTS-SPECT agreement (issue 6)
@@ -30,6 +31,23 @@ def sync_state(data: dict) -> str:
     if worst > GOAL_S or s.get("events_spect_only") or s.get("events_vts_only"):
         return "TOLERANCE"
     return "OK"
+
+
+def state_reason(data: dict) -> str:
+    """Why the state is what it is, in words (the banner's line when nothing else is listed)."""
+    s = data["summary"]
+    worst = s.get("max_abs_dt_s")
+    if not s.get("events_both") or worst is None:
+        return "no motion event was seen by both the VTS and the SPECT"
+    if worst > LIMIT_S:
+        return f"an event differs by {worst * 1e3:.0f} ms, more than {LIMIT_S * 1e3:.0f} ms"
+    one_side = (s.get("events_spect_only") or 0) + (s.get("events_vts_only") or 0)
+    if worst > GOAL_S:
+        return f"an event differs by {worst * 1e3:.0f} ms, more than the {GOAL_S * 1e3:.0f} ms goal"
+    if one_side:
+        return f"{one_side} event(s) seen by one system only"
+    agree = f"every one of the {s['events_both']} event(s) agrees within {GOAL_S * 1e3:.0f} ms"
+    return agree if data.get("problems") else agree + "; no problems found"
 
 
 def _ms(v, fmt="+.1f") -> str:
@@ -82,7 +100,9 @@ def render_sync_html(data: dict, png: bytes, title: str = "VTS–SPECT sync chec
         _kpi("SPECT start delay", _ms(s["start_delay_s"], ".1f"), f"ms (mod {s['start_delay_modulo_s']:.3f} s)"),
         _kpi("SPECT clock", f"{s['spect_skew_ppm']:+.1f}", "ppm"),
     ])
-    problems = "".join(f"<li>{escape(p)}</li>" for p in data["problems"]) or "<li>None.</li>"
+    problems = "".join(f"<li>{escape(p)}</li>" for p in data["problems"])
+    banner = (f'<p class="quiet">{escape(state_reason(data))}.</p>'
+              + (f"<ul>{problems}</ul>" if problems else ""))
     vts = data["vts"]
     fits = "".join(
         f"<tr><td>{escape(name)}</td><td class=num>{f.get('offset_s', float('nan')):+.4f}</td>"
@@ -107,7 +127,7 @@ def render_sync_html(data: dict, png: bytes, title: str = "VTS–SPECT sync chec
 <section class="card banner {state}">
 <div class="big">{f'<span class="badge {state}">{state}</span>'} <span class="meta">goal: every event within
 {GOAL_S * 1e3:.0f} ms; {LIMIT_S * 1e3:.0f} ms is what the previous system achieved</span></div>
-<ul>{problems}</ul>
+{banner}
 </section>
 <section class="card"><h2>Summary</h2><div class="cards">{kpis}</div>
 <img class="plot" alt="VTS and SPECT traces on one time axis" src="data:image/png;base64,{img}">
@@ -139,6 +159,5 @@ gaps: {_intervals(vts['gaps_host'], t0)}</p>
 
 
 def write_sync_html(data: dict, png: bytes, out) -> Path:
-    out = Path(out)
-    out.write_text(render_sync_html(data, png), encoding="utf-8")
-    return out
+    """Write the report whole or not at all (``files.write_atomic``: WriteFailed names the file)."""
+    return write_atomic(Path(out), render_sync_html(data, png))

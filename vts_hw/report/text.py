@@ -7,27 +7,53 @@ from html import escape
 
 from .model import CameraDrift, DriftReport, RunPoint
 from .times import fmt_date
-from .trend import Forecast, Trend
+from .trend import SIGNIFICANCE, Forecast, Trend
 
 
 def fmt_num(v, spec: str = ".3f") -> str:
     """A number, or an en dash when missing."""
     if v is None or (isinstance(v, float) and not math.isfinite(v)):
         return "–"
-    return format(v, spec)
+    text = format(v, spec)
+    if text.startswith("-") and not any(c in "123456789" for c in text):   # no "-0.00"
+        text = ("+" if "+" in spec else "") + text[1:]
+    return text
 
 
 def fmt_slope(trend: Trend, html: bool = False) -> str:
-    """``+0.600 ± 0.012`` px per 30 days, marked n.s. when below twice its standard error."""
+    """``+0.600 ± 0.012`` px per 30 days (± its standard error), marked n.s. when not
+    significant; ``none yet`` while there are too few runs (``trend_detail`` says why)."""
     if not trend.ok:
-        return "–"
+        return "none yet"
     text = f"{trend.slope_per_30d:+.3f} ± {trend.slope_se_per_30d:.3f}"
     if trend.significant:
         return escape(text) if html else text
     return f'{escape(text)} <span class="ns">n.s.</span>' if html else text + " n.s."
 
 
+def trend_detail(trend: Trend) -> str:
+    """The fit in words: runs, dates, 95 % CI and p-value; or why there is no trend."""
+    if not trend.ok:
+        return trend.reason
+    p = "p < 0.001" if trend.p_value < 0.001 else f"p = {trend.p_value:.3f}"
+    sig = "" if trend.significant else f", not significant (p ≥ {SIGNIFICANCE:g})"
+    return (f"{trend.n} runs, {fmt_date(trend.t0)} – {fmt_date(trend.t_end)} ({trend.span_days:.1f} days); "
+            f"95 % CI {trend.slope_per_30d - trend.ci95_per_30d:+.3f} … {trend.slope_per_30d + trend.ci95_per_30d:+.3f}"
+            f" px/30 d, {p}{sig}; residual SD {trend.residual_sd:.3f} px")
+
+
 def forecast_text(f: Forecast) -> str:
+    return f.label(fmt_date)
+
+
+def forecast_detail(f: Forecast) -> str:
+    """The forecast with its reason when there is no date."""
+    if f.status == "no fit":
+        return "none (no trend yet)"
+    if f.status == "not significant":
+        return "none (the slope is not significant)"
+    if f.status == "no limit" and f.reason:
+        return f"none ({f.reason})"
     return f.label(fmt_date)
 
 
@@ -60,12 +86,19 @@ def period_text(report: DriftReport) -> str:
 def camera_forecast_text(cam: CameraDrift) -> tuple[str, bool]:
     """The camera's action-level forecast for a summary, and whether it falls within a year.
 
-    The earliest axis within a year (``2026-09-23 (y)``); else ``not within a year`` when at least
-    one axis has a trend, else why there is none (``too few runs``).
+    The earliest axis within a year (``2026-09-23 (y)``); else ``not within a year`` when a
+    significant trend points far away; else why there is no forecast: ``none yet (3 runs / 0.0 d)``
+    (too few runs for a trend) or ``none: trend not significant``.
     """
     nf = cam.nearest_forecast()
     if nf:
         return f"{forecast_text(nf[1])} ({nf[0]})", True
-    if any(s.trend.ok for s in cam.axes.values()):
+    fs = [s.forecast for s in cam.axes.values()]
+    if any(f.status in ("beyond horizon", "away") for f in fs):
         return "not within a year", False
-    return forecast_text(next(iter(cam.axes.values())).forecast), False
+    if any(f.status == "no limit" for f in fs):
+        return "no action level", False
+    if any(f.status == "not significant" for f in fs):
+        return "none: trend not significant", False
+    trend = next(iter(cam.axes.values())).trend
+    return f"none yet ({trend.short_reason})" if trend.short_reason else "none", False
