@@ -170,10 +170,10 @@ class StreamWriter:
                 stalled = True
                 if not self.cam.sleep_until(clock.now() + faults.stall_s):
                     return
+                t0 = self._next_tick(clock.now()) - k * self.period   # the stall's frames are lost
                 continue
-            # a little late (this host was busy): the frame was captured on time, as a camera's
-            # sensor does; it is rendered for its grid time and sent late
-            if not self._send_part(k, target if late > 0.5 * self.period else None):
+            # captured on the sensor's grid; a little late (this host was busy), it is sent late
+            if not self._send_part(k, target):
                 return
             k += 1
 

@@ -29,10 +29,11 @@ def test_stream_frames_are_consecutive_and_paced(cam1):
 
 
 def test_duration_ends_the_stream(cam1):
-    t0 = time.monotonic()
-    frames, _ = _collect(FrameStream(cam1, duration=1.0))
-    assert 0.8 <= time.monotonic() - t0 <= 3.0
+    s = FrameStream(cam1, duration=1.0)
+    frames, _ = _collect(s)
+    assert not s.stop_event.is_set()          # it ended by itself, not by the test's limit
     assert 15 <= len(frames) <= 30
+    assert frames[-1].camera_time - frames[0].camera_time <= 1.0
 
 
 def test_dropped_connection_reconnects_and_reports_the_gap(sim_rig, cam1):
@@ -55,11 +56,10 @@ def test_stall_reconnects(sim_rig, cam1):
     sim_rig.servers["cam1"].faults.stall_after_frames = 5
     sim_rig.servers["cam1"].faults.stall_s = 30.0
     s = FrameStream(cam1, nbrofframes=12, stall_timeout=1.0)
-    t0 = time.monotonic()
-    frames, gaps = _collect(s)
-    assert len(frames) == 12
-    assert time.monotonic() - t0 < 15
-    assert any("stall" in g.reason for g in gaps)
+    frames, gaps = _collect(s, limit_s=60)
+    assert len(frames) == 12 and not s.stop_event.is_set()
+    gap = next(g for g in gaps if "stall" in g.reason)
+    assert gap.seconds < 30                   # reconnected, rather than waited out the 30 s stall
 
 
 def test_torn_jpeg_is_counted_not_yielded(sim_rig, cam1):
@@ -106,6 +106,6 @@ def test_give_up_after(sim_rig, cam1):
 def test_stop_from_another_thread_is_prompt(cam1):
     s = FrameStream(cam1)
     threading.Timer(0.5, s.stop).start()
-    t0 = time.monotonic()
-    frames, _ = _collect(s)
-    assert time.monotonic() - t0 < 3 and frames
+    frames, _ = _collect(s, limit_s=60)
+    # an endless stream, ended by the stop: well before the test's own limit of 60 s
+    assert frames and frames[-1].camera_time - frames[0].camera_time < 30

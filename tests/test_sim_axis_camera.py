@@ -315,21 +315,29 @@ def test_nbrofframes_ends_the_stream(cam):
 
 def test_duration_ends_the_stream(cam):
     t0 = time.monotonic()
-    _, _, body = stream(cam, "?duration=1&fps=10")
+    _, _, body = stream(cam, "?duration=1&fps=10")   # returns at the end of the body: the stream ended
     elapsed = time.monotonic() - t0
-    assert 9 <= len(walk_parts(body)) <= 11
-    assert 0.8 <= elapsed <= 2.5
+    parts = walk_parts(body)
+    assert 9 <= len(parts) <= 11
+    stamps = [inspect_jpeg(j).timestamp for _, j in parts]
+    assert 0.8 <= stamps[-1] - stamps[0] <= 1.0      # one second of the camera's own clock
+    assert elapsed >= 0.8                            # paced, not sent at once (only a lower bound:
+    # a loaded host may be slower, never faster)
 
 
-def test_fps_pacing_without_drift(cam):
-    sock, reader = raw_request(cam, "/axis-cgi/mjpg/video.cgi?fps=20")
+def test_fps_pacing_is_spread_over_time(cam):
+    """20 frames at 20 fps come over about a second, not at once (a lower bound only: a loaded
+    host may be slower, never faster); their stamps are the camera's 50 ms grid."""
+    sock, reader = raw_request(cam, "/axis-cgi/mjpg/video.cgi?fps=20&nbrofframes=20")
     with sock:
         read_head(reader)
-        data, t_end = bytearray(), time.monotonic() + 1.0
-        while time.monotonic() < t_end:
-            data += reader.read1(65536)
-    n = len(PART_RE.findall(bytes(data)))
-    assert 14 <= n <= 24, n
+        t0 = time.monotonic()
+        data = read_all(reader)
+        spread = time.monotonic() - t0
+    parts = walk_parts(data)
+    stamps = np.array([inspect_jpeg(j).timestamp for _, j in parts])
+    assert len(parts) == 20 and spread >= 0.8
+    assert np.abs(np.diff(stamps) - 0.05).max() < 0.011
 
 
 def test_stream_pacing_does_not_drift():
@@ -348,8 +356,12 @@ def test_pacing_follows_the_given_clock(source):
         t0 = time.monotonic()
         _, _, body = stream(camera, "?fps=10&duration=2")  # 2 s of simulated time
         elapsed = time.monotonic() - t0
-    assert 19 <= len(walk_parts(body)) <= 21
-    assert elapsed < 1.0
+    parts = walk_parts(body)
+    stamps = [inspect_jpeg(j).timestamp for _, j in parts]
+    assert 19 <= len(parts) <= 21 and 1.8 <= stamps[-1] - stamps[0] <= 2.0
+    # paced by the given clock, not the host's: 2 s of camera time in much less real time
+    # (0.1 s at a rate of 20; the bound is the simulated duration itself, 20 times that)
+    assert elapsed < 2.0
 
 
 def test_lower_resolution_and_compression(cam):
@@ -388,11 +400,9 @@ def test_stop_ends_running_streams(source):
     sock, reader = raw_request(camera, "/axis-cgi/mjpg/video.cgi")
     read_head(reader)
     reader.read1(1000)
-    t0 = time.monotonic()
     camera.stop()
     with sock:
-        read_all(reader, limit_s=3)
-    assert time.monotonic() - t0 < 3
+        read_all(reader, limit_s=30)   # returns at the end of the stream; fails if it never ends
 
 
 # ----------------------------------------------------------------------------------------
@@ -549,10 +559,8 @@ def test_control_endpoint_faults_and_state(cam):
 # ----------------------------------------------------------------------------------------
 def test_fault_drop_after_frames(cam):
     cam.set_faults(drop_after_frames=3)
-    t0 = time.monotonic()
     _, _, body = stream(cam, "?nbrofframes=50")
     assert len(walk_parts(body)) == 3
-    assert time.monotonic() - t0 < 1.0
 
 
 def test_fault_drop_reaches_a_running_stream(cam):
@@ -574,10 +582,13 @@ def test_fault_stall_keeps_the_connection_open(cam):
         while chunk := reader.read1(65536):
             data += chunk
             arrivals.append((time.monotonic(), len(PART_RE.findall(data))))
-    assert len(walk_parts(data)) == 4
+    parts = walk_parts(data)
+    assert len(parts) == 4
     t2 = min(t for t, n in arrivals if n >= 2)
     t3 = min(t for t, n in arrivals if n >= 3)
-    assert 0.9 <= t3 - t2 <= 2.0
+    assert t3 - t2 >= 0.9                        # nothing came during the stall (a lower bound)
+    stamps = [inspect_jpeg(j).timestamp for _, j in parts]
+    assert 0.9 <= stamps[2] - stamps[1] <= 1.2   # and the frames of the stall are lost, as a camera's
 
 
 def test_fault_too_many_viewers(cam):

@@ -568,10 +568,9 @@ def test_readers_are_not_blocked_by_a_writer_holding_a_big_transaction(store, db
     try:
         # a reader that would give up after 0.2 s sees the committed state at once
         with ResultsStore(str(db), busy_timeout=0.2) as reader:
-            t = time.monotonic()
+            # (a reader blocked by the writer would fail with "database is locked" after 0.2 s)
             assert [r.procedure for r in reader.runs()] == ["drift"]
             assert len(reader.measurements()) == 1
-            assert time.monotonic() - t < 5
     finally:
         writer.execute("COMMIT")
         writer.close()
