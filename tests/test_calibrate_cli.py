@@ -251,3 +251,12 @@ def test_disk_full_everywhere_but_tmpdir(boards, tmp_path, small_disk):
                         f" written there; the calibration was saved to {saved[0]} instead\n")
     assert StereoCalibration.load(saved[0]).rms_stereo == pytest.approx(0.448, abs=5e-4)
     assert disk.files() == {}
+
+
+def test_read_only_output_folder(boards, tmp_path, readonly_dir):
+    r = vts(boards, "-o", readonly_dir / "cal.json", cwd=tmp_path)
+    assert r.returncode == 3 and "RMS reprojection error" in r.stdout
+    saved = list(tmp_path.glob("cal-*.json"))
+    assert len(saved) == 1 and StereoCalibration.load(saved[0]).unit == "squares"
+    assert r.stderr == (f"vts: {readonly_dir / 'cal.json'}: could not be written (read-only file system);"
+                        f" nothing was written there; the calibration was saved to {saved[0]} instead\n")
