@@ -146,3 +146,26 @@ def test_from_cameras_needs_a_calibration(tmp_path):
     vol = SimSpect(seed=0).write(tmp_path / "v.npz", phantom_centres())
     r = vts("--from-cameras", "--volume", vol, "--config", cfg, cwd=tmp_path)
     assert r.returncode == 2 and "calibration.stereo" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_disk_full_keeps_the_mapping(tmp_path, session, small_disk):
+    """-o on a full disk: the sentence names the file, the previous mapping there is intact, the
+    new one is saved in the current folder and reads back; nothing half-written."""
+    vts_pts, volume, truth = session
+    csv = tmp_path / "vts.csv"
+    csv.write_text("x,y,z\n" + "".join(f"{x},{y},{z}\n" for x, y, z in vts_pts))
+    disk = small_disk(64)
+    out = disk.path / "spect_mapping.json"
+    assert vts("--vts", csv, "--volume", volume, "-o", out, cwd=tmp_path).returncode == 0
+    before = out.read_bytes()
+    disk.fill()
+    r = vts("--vts", csv, "--volume", volume, "-o", out, cwd=tmp_path)
+    assert r.returncode == 3
+    assert "FRE (RMS fit residual)" in r.stdout and "wrote" not in r.stdout
+    saved = list(tmp_path.glob("spect_mapping-*.json"))
+    assert len(saved) == 1
+    assert r.stderr == (f"vts: {out}: could not be written (no space left on device); the previous"
+                        f" version is unchanged; the mapping was saved to {saved[0]} instead\n")
+    T = RigidTransform.load(saved[0])
+    assert np.linalg.norm(T.apply(vts_pts) - truth.apply(vts_pts), axis=1).max() < 1.5
+    assert out.read_bytes() == before and disk.files() == {"spect_mapping.json": len(before)}

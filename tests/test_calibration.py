@@ -214,6 +214,9 @@ def test_results_text(calib):
         (lambda d: d.update(image_size=[640]), "'image_size'"),
         (lambda d: d["per_view"][0].pop("left"), "'per_view[0].left'"),
         (lambda d: d.update(format="something else"), "'format'"),
+        (lambda d: d["uncertainty"]["camera1"].update(fx="big"), "'uncertainty.camera1'"),
+        (lambda d: d["uncertainty"].update(stereo_cov=[[1.0]]), "'uncertainty.stereo_cov'"),
+        (lambda d: d.update(distortion_model=["k1"]), "'distortion_model'"),
     ],
 )
 def test_bad_file_names_file_and_key(calib, tmp_path, change, key):
@@ -263,3 +266,95 @@ def test_rotation_angle_small_angles():
 def test_board_points_unit():
     pts = board_points(PATTERN, 2.0)
     assert pts.shape == (54, 3) and pts[1, 0] == 2.0 and pts[9, 1] == 2.0
+
+
+# ---- lens model and uncertainty ------------------------------------------------------------
+def test_real_pairs_keep_opencvs_five_terms(calib):
+    """The wide real lens needs k2, k3 and the tangential terms: 'auto' keeps OpenCV's default."""
+    for cam in ("camera1", "camera2"):
+        assert calib.distortion_model[cam]["fitted"] == ["k1", "k2", "p1", "p2", "k3"]
+        assert "auto (BIC)" in calib.distortion_model[cam]["chosen_by"]
+
+
+def test_uncertainty_of_intrinsics_is_opencvs(calib, pairs, corners):
+    """Each camera's standard deviations are those cv2.calibrateCameraExtended reports."""
+    obj = [board_points(PATTERN)] * len(pairs)
+    for cam, side in (("camera1", corners[0]), ("camera2", corners[1])):
+        sd = cv2.calibrateCameraExtended(obj, side, (640, 480), None, None)[5].ravel()
+        ours = calib.uncertainty[cam]
+        for i, name in enumerate(("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")):
+            assert ours[name] == pytest.approx(sd[i], rel=1e-3), name
+    st = calib.uncertainty["stereo"]
+    assert 0.01 < max(st["rx"], st["ry"], st["rz"]) < 1.0      # degrees
+    assert 0 < st["baseline"] < 0.01 * calib.baseline
+
+
+def test_uncertainty_matches_the_spread_of_repeated_calibrations():
+    """Corners with known noise (the simulated rig's exact corners + 0.1 px Gaussian): the
+    spread of the estimates over repeated noise draws is the predicted standard deviation."""
+    from vts_hw.sim_devices import checkerboard as cb
+    from vts_hw.sim_devices.scene import Scene
+
+    scene = Scene.reference(1, start_epoch=0.0)
+    poses = cb.board_poses(scene, n=12, seed=1)
+    exact = [[cb.truth_corners(scene, cam, pose) for pose in poses] for cam in ("cam1", "cam2")]
+    rng = np.random.default_rng(0)
+    est, predicted = [], []
+    for _ in range(30):
+        noisy = [[c + rng.normal(0, 0.1, c.shape) for c in side] for side in exact]
+        cal = calibrate_from_corners(*noisy, (640, 480), square=cb.SQUARE_MM, unit="mm",
+                                     distortion="k1")
+        est.append([cal.K1[0, 2], cal.K2[0, 0], cal.d1[0], rotation_angle_deg(cal.R)])
+        u = cal.uncertainty
+        predicted.append([u["camera1"]["cx"], u["camera2"]["fx"], u["camera1"]["k1"], u["stereo"]["ry"]])
+    spread = np.std(est, axis=0, ddof=1)
+    ratio = spread / np.mean(predicted, axis=0)
+    print("spread / predicted (cx1, fx2, k1 of 1, ry):", np.round(ratio, 2))
+    assert np.all((ratio > 0.6) & (ratio < 1.6)), ratio
+
+
+def test_old_file_without_uncertainty_still_loads_and_compares(calib, tmp_path):
+    data = calib.results_data()
+    del data["uncertainty"], data["distortion_model"]
+    path = tmp_path / "old.json"
+    path.write_text(json.dumps(data))
+    old = StereoCalibration.load(path)
+    assert old.uncertainty is None and old.distortion_model == {}
+    assert "±" not in old.results()
+    diff = calib.compare(old)
+    assert diff["previous_has_uncertainty"] is False and diff["warnings"] == []
+    cx1 = next(r for r in diff["judged"] if r["parameter"] == "cx1")
+    assert cx1["sd"] == pytest.approx(np.sqrt(2) * calib.uncertainty["camera1"]["cx"])
+    assert old.compare(calib)["judged"] == []      # nothing to judge with: no warnings made up
+
+
+def _moved(calib, **changes):
+    data = calib.results_data()
+    for key, (i, j, delta) in changes.items():
+        data[key][i][j] += delta
+    mats = {k: data[k] for k in ("K1", "d1", "K2", "d2", "R", "T")}
+    return StereoCalibration(**mats, image_size=calib.image_size, pattern=calib.pattern,
+                             square=calib.square, unit=calib.unit, rms_left=calib.rms_left,
+                             rms_right=calib.rms_right, rms_stereo=calib.rms_stereo,
+                             per_view=calib.per_view, outlier_rule=calib.outlier_rule,
+                             uncertainty=calib.uncertainty)
+
+
+def test_a_move_beyond_the_uncertainty_is_a_warning(calib):
+    sd = calib.uncertainty["camera1"]["cx"]
+    combined = np.sqrt(2) * sd
+    small = _moved(calib, K1=(0, 2, 2.0 * combined)).compare(calib)
+    assert small["warnings"] == []
+    big = _moved(calib, K1=(0, 2, 4.0 * combined)).compare(calib)
+    assert len(big["warnings"]) == 1
+    w = big["warnings"][0]
+    assert w.startswith("WARNING: cx1 moved by +") and "4.0 x its combined standard deviation" in w
+
+
+def test_a_turned_camera_is_a_rotation_warning(calib):
+    moved = _moved(calib)
+    moved.R = _rotate_x(1.0) @ calib.R
+    diff = moved.compare(calib)
+    assert diff["rotation_deg"] == pytest.approx(1.0)
+    assert any(w.startswith("WARNING: rotation moved by +1 deg") for w in diff["warnings"]), diff["warnings"]
+    assert not any("cx1" in w or "fx1" in w for w in diff["warnings"])

@@ -2,14 +2,17 @@
 
 `find_corners` finds the inner corners of the board in one grey image (classic
 cv2.findChessboardCorners, then cv2.cornerSubPix). `calibrate_stereo` calibrates each camera
-(cv2.calibrateCamera), then the pair's extrinsics with the intrinsics held fixed
-(cv2.stereoCalibrateExtended with CALIB_FIX_INTRINSIC), and flags views whose stereo RMS is
-more than `outlier_factor` × the median of the views. Choices and measurements:
-docs/decisions/0012-stereo-calibration.md.
+(cv2.calibrateCamera, with the lens model the data support: `fit_camera`), then the pair's
+extrinsics with the intrinsics held fixed (cv2.stereoCalibrateExtended with
+CALIB_FIX_INTRINSIC), flags views whose stereo RMS is more than `outlier_factor` × the median
+of the views, and gives every parameter's standard deviation
+(`vts_hw.calibration_uncertainty.stereo_covariance`). Choices and measurements:
+docs/decisions/0012-stereo-calibration.md and 0024-calibration-uncertainty.md.
 """
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Sequence
 from datetime import datetime, timezone
@@ -20,6 +23,7 @@ import numpy as np
 
 import vts_hw
 from vts_hw.calibration_io import StereoCalibration, ViewError
+from vts_hw.calibration_uncertainty import stereo_covariance
 from vts_hw.errors import DataError
 
 __all__ = [
@@ -30,6 +34,7 @@ __all__ = [
     "calibrate_stereo",
     "find_corners",
     "find_pairs",
+    "fit_camera",
 ]
 
 PATTERN = (9, 6)
@@ -37,6 +42,12 @@ MIN_PAIRS = 3
 OUTLIER_FACTOR = 3.0
 SUBPIX_WINDOW = (11, 11)
 SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 1e-3)
+# Lens models: "opencv" is OpenCV's default (k1, k2, p1, p2, k3); "k1" fits the first radial
+# term only. "auto" takes the one with the lower Bayesian information criterion (fit_camera).
+DISTORTION = {
+    "opencv": (0, ["k1", "k2", "p1", "p2", "k3"]),
+    "k1": (cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST, ["k1"]),
+}
 
 ImageOrPath = np.ndarray | str | Path
 
@@ -85,14 +96,14 @@ def calibrate_stereo(
     square: float = 1.0,
     unit: str = "squares",
     names: Sequence[str] | None = None,
-    calib_flags: int = 0,
+    distortion: str = "auto",
     outlier_factor: float = OUTLIER_FACTOR,
 ) -> StereoCalibration:
     """Calibrate a stereo pair of cameras from (left, right) images or image paths.
 
     Pairs in which either image shows no board are skipped and listed in `skipped`.
     `square` is the side of a square in `unit` ("squares" with square=1 when it is unknown).
-    `calib_flags` go to cv2.calibrateCamera (default: 5 distortion coefficients).
+    `distortion`: the lens model of each camera, "auto", "k1" or "opencv" (:func:`fit_camera`).
     """
     if names is None:
         names = [_pair_name(i, left, right) for i, (left, right) in enumerate(pairs)]
@@ -121,7 +132,7 @@ def calibrate_stereo(
         raise DataError("no image pairs given for the stereo calibration.")
     return calibrate_from_corners(left_corners, right_corners, image_size, names=kept,
                                   pattern=pattern, square=square, unit=unit, skipped=skipped,
-                                  calib_flags=calib_flags, outlier_factor=outlier_factor)
+                                  distortion=distortion, outlier_factor=outlier_factor)
 
 
 def calibrate_from_corners(
@@ -133,7 +144,7 @@ def calibrate_from_corners(
     square: float = 1.0,
     unit: str = "squares",
     skipped: dict[str, str] | None = None,
-    calib_flags: int = 0,
+    distortion: str = "auto",
     outlier_factor: float = OUTLIER_FACTOR,
 ) -> StereoCalibration:
     """The calibration itself, from corners already found (one entry per usable pair)."""
@@ -150,14 +161,22 @@ def calibrate_from_corners(
     obj = [board_points(pattern, square)] * n
     left = [np.asarray(c, np.float32).reshape(-1, 1, 2) for c in left_corners]
     right = [np.asarray(c, np.float32).reshape(-1, 1, 2) for c in right_corners]
-    rms_l, k1, d1, _, _ = cv2.calibrateCamera(obj, left, image_size, None, None, flags=calib_flags)
-    rms_r, k2, d2, _, _ = cv2.calibrateCamera(obj, right, image_size, None, None, flags=calib_flags)
+    rms_l, k1, d1, model1, poses1 = fit_camera(obj, left, image_size, distortion)
+    rms_r, k2, d2, model2, poses2 = fit_camera(obj, right, image_size, distortion)
     out = cv2.stereoCalibrateExtended(
         obj, left, right, k1, d1, k2, d2, image_size, None, None,
         flags=cv2.CALIB_FIX_INTRINSIC,
     )
-    # (retval, K1, d1, K2, d2, R, T, E, F, [rvecs, tvecs,] perViewErrors): index both ends.
-    rms_s, k1, d1, k2, d2, rot, t, per_view = *out[:7], out[-1]
+    # (retval, K1, d1, K2, d2, R, T, E, F, rvecs, tvecs, perViewErrors)
+    rms_s, k1, d1, k2, d2, rot, t = out[:7]
+    per_view = out[-1]
+    if len(out) >= 12:
+        rvecs, tvecs = out[9], out[10]
+    else:  # OpenCV < 4.6 gives no board poses: camera 1's, as PnP sees them
+        poses = [cv2.solvePnP(o, c, k1, d1)[1:] for o, c in zip(obj, left)]
+        rvecs, tvecs = [p[0] for p in poses], [p[1] for p in poses]
+    uncertainty = stereo_covariance(obj, left, right, (k1, d1, model1["fitted"], *poses1),
+                                    (k2, d2, model2["fitted"], *poses2), rot, t, rvecs, tvecs)
     views = flag_outliers(
         [ViewError(name, float(e[0]), float(e[1])) for name, e in zip(names, per_view)],
         outlier_factor,
@@ -171,9 +190,48 @@ def calibrate_from_corners(
         per_view=views,
         outlier_rule=f"pair RMS (both images) > {outlier_factor:g} x median of the pairs",
         skipped=skipped,
+        distortion_model={"camera1": model1, "camera2": model2},
+        uncertainty=uncertainty,
         created=datetime.now(timezone.utc).isoformat(timespec="seconds"),
         software=vts_hw.__version__,
     )
+
+
+def fit_camera(obj, corners, image_size, distortion: str = "auto"):
+    """One camera's intrinsics: (rms, K, d, model, (rvecs, tvecs)) with cv2.calibrateCamera.
+
+    `distortion` "opencv" fits OpenCV's default five coefficients, "k1" only the first radial
+    term; "auto" fits both and keeps the one with the lower Bayesian information criterion
+    (n ln(RSS/n) + p ln n over the n corner coordinates): a narrow lens whose corners stay near
+    the image centre cannot tell k2, k3 and the tangential terms from the principal point and
+    k1, and fitting them there moves the principal point by many pixels; a wide lens needs
+    them (docs/decisions/0024). `model` says which terms were fitted and why.
+    """
+    if distortion not in ("auto", *DISTORTION):
+        raise ValueError(f"distortion must be 'auto', 'k1' or 'opencv', not {distortion!r}")
+    fits = {}
+    for name in (("k1", "opencv") if distortion == "auto" else (distortion,)):
+        flags, fitted = DISTORTION[name]
+        rms, K, d, rvecs, tvecs = cv2.calibrateCamera(obj, corners, image_size, None, None, flags=flags)
+        fits[name] = (float(rms), K, d, fitted, (rvecs, tvecs))
+    if distortion != "auto":
+        rms, K, d, fitted, poses = fits[distortion]
+        return rms, K, d, {"fitted": fitted, "chosen_by": f"asked for ({distortion})"}, poses
+    n_obs = 2 * sum(len(c) for c in corners)  # coordinates
+    bic = {}
+    for name, (rms, _, _, fitted, _) in fits.items():
+        n_par = 4 + len(fitted) + 6 * len(corners)
+        bic[name] = n_obs * math.log(max(rms, 1e-300) ** 2 / 2) + n_par * math.log(n_obs)
+    name = "opencv" if bic["opencv"] < bic["k1"] else "k1"
+    rms, K, d, fitted, poses = fits[name]
+    why = ("its lower residual outweighs 4 more terms" if name == "opencv"
+           else "4 more terms do not lower the residual enough")
+    return rms, K, d, {
+        "fitted": fitted,
+        "chosen_by": (f"auto (BIC): RMS {fits['opencv'][0]:.4f} px with k1, k2, p1, p2, k3 vs"
+                      f" {fits['k1'][0]:.4f} px with k1 alone, BIC {bic['opencv']:.1f} vs {bic['k1']:.1f}:"
+                      f" {why}"),
+    }, poses
 
 
 def flag_outliers(views: list[ViewError], factor: float = OUTLIER_FACTOR) -> list[ViewError]:

@@ -7,6 +7,7 @@ checks every key; a missing or malformed one raises `DataError` naming the file 
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 from dataclasses import dataclass, field
@@ -16,7 +17,9 @@ from typing import Any
 import cv2
 import numpy as np
 
+from vts_hw.calibration_uncertainty import beyond, differences, optional_keys, warning_text
 from vts_hw.errors import DataError
+from vts_hw.files import write_atomic
 
 FORMAT = "vts-hw stereo calibration"
 FORMAT_VERSION = 1
@@ -74,6 +77,10 @@ class StereoCalibration:
     skipped: dict[str, str] = field(default_factory=dict)  # view name -> why it was left out
     created: str = ""  # UTC ISO 8601
     software: str = ""  # vts_hw.__version__
+    # camera1/camera2 -> {"fitted": [distortion terms], "chosen_by": why}; {} in older files
+    distortion_model: dict[str, Any] = field(default_factory=dict)
+    # standard deviations (vts_hw.calibration_uncertainty.stereo_covariance); None in older files
+    uncertainty: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
         for key in _MATRICES:
@@ -114,7 +121,9 @@ class StereoCalibration:
 
         Focal lengths and principal points in px per camera; `rotation_deg` is the angle of
         the rotation R · R_prevᵀ; `translation` is |T − T_prev| and `baseline` the change of
-        |T|, both in `unit` (None when the two calibrations use different units).
+        |T|, both in `unit` (None when the two calibrations use different units). `judged`: each
+        fitted parameter's change against its combined standard deviation, and `warnings` one
+        line for each beyond K_SIGMA of them (vts_hw.calibration_uncertainty.differences).
         """
         out: dict[str, Any] = {}
         for cam, (k_new, k_old) in (("1", (self.K1, previous.K1)), ("2", (self.K2, previous.K2))):
@@ -127,6 +136,10 @@ class StereoCalibration:
         out["translation"] = float(np.linalg.norm(self.T - previous.T)) if same_unit else None
         out["baseline"] = (self.baseline - previous.baseline) if same_unit else None
         out["unit"] = self.unit if same_unit else None
+        rows = differences(self, previous, self.uncertainty, previous.uncertainty, same_unit)
+        out["judged"] = rows
+        out["previous_has_uncertainty"] = previous.uncertainty is not None
+        out["warnings"] = [warning_text(r, "moved") for r in beyond(rows)]
         return out
 
     # ---- reporting -------------------------------------------------------------------
@@ -155,6 +168,10 @@ class StereoCalibration:
             created=self.created,
             software=self.software,
         )
+        if self.distortion_model:
+            data["distortion_model"] = copy.deepcopy(self.distortion_model)
+        if self.uncertainty is not None:
+            data["uncertainty"] = copy.deepcopy(self.uncertainty)
         return data
 
     def results(self) -> str:
@@ -167,11 +184,20 @@ class StereoCalibration:
             f"  RMS reprojection error: left {self.rms_left:.3f} px, right {self.rms_right:.3f} px,"
             f" stereo {self.rms_stereo:.3f} px",
         ]
-        for cam, k in (("1", self.K1), ("2", self.K2)):
-            lines.append(f"  camera {cam}: fx {k[0, 0]:.2f} fy {k[1, 1]:.2f} cx {k[0, 2]:.2f}"
-                         f" cy {k[1, 2]:.2f} px")
+        unc = self.uncertainty or {}
+        for cam, k, d in (("1", self.K1, self.d1), ("2", self.K2, self.d2)):
+            sd = unc.get(f"camera{cam}", {})
+            pm = {n: (f" ± {sd[n]:.2g}" if n in sd else "") for n in ("fx", "fy", "cx", "cy", "k1")}
+            fitted = self.distortion_model.get(f"camera{cam}", {}).get("fitted")
+            lines.append(f"  camera {cam}: fx {k[0, 0]:.2f}{pm['fx']} fy {k[1, 1]:.2f}{pm['fy']}"
+                         f" cx {k[0, 2]:.2f}{pm['cx']} cy {k[1, 2]:.2f}{pm['cy']} px, k1 {d[0]:+.4f}"
+                         f"{pm['k1']}" + (f" (distortion fitted: {', '.join(fitted)})" if fitted else ""))
         angle = rotation_angle_deg(self.R)
-        lines.append(f"  baseline {self.baseline:.4g} {u}, rotation between cameras {angle:.3f} deg")
+        st = unc.get("stereo", {})
+        b_sd = f" ± {st['baseline']:.2g}" if "baseline" in st else ""
+        lines.append(f"  baseline {self.baseline:.4g}{b_sd} {u}, rotation between cameras {angle:.3f} deg"
+                     + (f" (± {max(st['rx'], st['ry'], st['rz']):.2g} deg about the least certain axis)"
+                        if "rx" in st else ""))
         for v in self.per_view:
             flag = "  OUTLIER" if v.outlier else ""
             lines.append(f"    {v.name}: left {v.left:.3f} right {v.right:.3f} px{flag}")
@@ -186,13 +212,14 @@ class StereoCalibration:
         return self.results_data() == other.results_data()
 
     # ---- file ------------------------------------------------------------------------
+    def text(self) -> str:
+        """The file's JSON text."""
+        return json.dumps(self.results_data(), indent=2) + "\n"
+
     def save(self, path: str | Path) -> Path:
-        """Write the calibration as JSON (atomically: a temporary file then a rename)."""
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(json.dumps(self.results_data(), indent=2) + "\n", encoding="utf-8")
-        tmp.replace(path)
-        return path
+        """Write the calibration as JSON, whole or not at all (vts_hw.files.write_atomic:
+        WriteFailed naming the file, the previous version unchanged)."""
+        return write_atomic(path, self.text())
 
     @classmethod
     def load(cls, path: str | Path) -> StereoCalibration:
@@ -301,4 +328,5 @@ def _from_data(path: Path, data: dict[str, Any]) -> StereoCalibration:
         skipped=dict(skipped),
         created=text("created"),
         software=text("software"),
+        **optional_keys(path, data),
     )

@@ -13,8 +13,6 @@ from ..errors import DataError
 from . import cli
 from .common import config_option, echo_json, json_option
 
-_IMAGE = re.compile(r"^(left|right)(.*)\.(jpe?g|png|bmp|tiff?)$", re.IGNORECASE)
-
 
 @cli.group()
 def calibrate() -> None:
@@ -26,113 +24,6 @@ def _pattern(ctx, param, value: str) -> tuple[int, int]:
     if not m or int(m.group(1)) < 2 or int(m.group(2)) < 2:
         raise click.BadParameter(f"{value!r} is not COLSxROWS of inner corners such as 9x6")
     return int(m.group(1)), int(m.group(2))
-
-
-def image_pairs(args: list[str]) -> list[tuple[Path, Path]]:
-    """(left, right) image paths from directories and/or files named leftNN / rightNN.
-
-    A directory gives its pairs (:func:`vts_hw.calibration.find_pairs`); files are paired by
-    what follows 'left' / 'right' in their names. DataError for a missing file, a file not
-    named left* or right*, an unmatched image, or no pair at all.
-    """
-    from ..calibration import find_pairs
-
-    pairs: list[tuple[Path, Path]] = []
-    files: dict[str, dict[str, Path]] = {"left": {}, "right": {}}
-    for arg in args:
-        path = Path(arg)
-        if path.is_dir():
-            found = find_pairs(path)
-            if not found:
-                raise DataError(f"{path}: no leftNN/rightNN image pairs in this directory.")
-            pairs.extend(found)
-            continue
-        if not path.exists():
-            raise DataError(f"{path}: no such file or directory.")
-        m = _IMAGE.match(path.name)
-        if not m:
-            raise DataError(f"{path}: image names must be leftNN.jpg / rightNN.jpg (or .png) so"
-                            " that left and right can be paired.")
-        side, key = m.group(1).lower(), m.group(2).lower()
-        if key in files[side]:
-            raise DataError(f"{path} and {files[side][key]} are both {side} image {key!r}.")
-        files[side][key] = path
-    for side, other in (("left", "right"), ("right", "left")):
-        for key, path in files[side].items():
-            if key not in files[other]:
-                raise DataError(f"{path} has no matching {other} image ({other}{key}.*).")
-    pairs.extend((files["left"][k], files["right"][k]) for k in sorted(files["left"]))
-    if not pairs:
-        raise DataError("no image pairs given: name leftNN/rightNN images or a directory of them.")
-    return pairs
-
-
-def sim_truth(calib, scene) -> dict:
-    """How `calib` (cam1 = left, cam2 = right, unit mm) compares with the simulated cameras."""
-    from ..calibration_io import rotation_angle_deg
-
-    c1, c2 = scene.cameras["cam1"], scene.cameras["cam2"]
-    r_true = c2.R @ c1.R.T
-    t_true = c2.t - r_true @ c1.t
-    out: dict = {"cameras": {}}
-    for cam, k_est, d_est in ((c1, calib.K1, calib.d1), (c2, calib.K2, calib.d2)):
-        rows = {}
-        for key, (i, j) in (("fx", (0, 0)), ("fy", (1, 1)), ("cx", (0, 2)), ("cy", (1, 2))):
-            rows[key] = {"estimated": float(k_est[i, j]), "true": float(cam.K[i, j]),
-                         "error": float(k_est[i, j] - cam.K[i, j])}
-            if key in ("fx", "fy"):
-                rows[key]["error_percent"] = 100.0 * rows[key]["error"] / float(cam.K[i, j])
-        rows["k1"] = {"estimated": float(d_est.ravel()[0]), "true": float(cam.dist[0]),
-                      "error": float(d_est.ravel()[0] - cam.dist[0])}
-        out["cameras"][cam.name] = rows
-    base_true = float(np.linalg.norm(t_true))
-    base_err = calib.baseline - base_true
-    cos = float(np.dot(calib.T.ravel(), t_true) / (calib.baseline * base_true))
-    out["rotation"] = {"estimated_deg": rotation_angle_deg(calib.R),
-                       "true_deg": rotation_angle_deg(r_true),
-                       "error_deg": rotation_angle_deg(calib.R @ r_true.T)}
-    out["baseline"] = {"estimated": calib.baseline, "true": base_true, "error": base_err,
-                       "error_percent": 100.0 * base_err / base_true, "unit": calib.unit,
-                       "direction_error_deg": float(np.degrees(np.arccos(min(1.0, cos))))}
-    return out
-
-
-def _sim_text(truth: dict) -> str:
-    lines = ["Compared with the simulated truth (estimated - true):"]
-    for name, rows in truth["cameras"].items():
-        fx, fy, cx, cy, k1 = (rows[k] for k in ("fx", "fy", "cx", "cy", "k1"))
-        lines.append(f"  {name}: fx {fx['error']:+.2f} px ({fx['error_percent']:+.3f} %),"
-                     f" fy {fy['error']:+.2f} px ({fy['error_percent']:+.3f} %),"
-                     f" cx {cx['error']:+.2f} px, cy {cy['error']:+.2f} px,"
-                     f" k1 {k1['estimated']:+.4f} vs {k1['true']:+.4f}")
-    rot, base = truth["rotation"], truth["baseline"]
-    lines.append(f"  stereo rotation {rot['estimated_deg']:.4f} deg vs {rot['true_deg']:.4f} deg:"
-                 f" off by {rot['error_deg']:.4f} deg")
-    lines.append(f"  baseline {base['estimated']:.2f} vs {base['true']:.2f} {base['unit']}:"
-                 f" {base['error']:+.2f} {base['unit']} ({base['error_percent']:+.3f} %),"
-                 f" direction off by {base['direction_error_deg']:.4f} deg")
-    return "\n".join(lines)
-
-
-def _compare_text(change: dict, prev_path: Path) -> str:
-    unit = change["unit"]
-    lines = [f"Change from the previous calibration {prev_path}:"]
-    for cam in ("1", "2"):
-        lines.append(f"  camera {cam}: fx {change['fx' + cam]:+.2f} fy {change['fy' + cam]:+.2f}"
-                     f" cx {change['cx' + cam]:+.2f} cy {change['cy' + cam]:+.2f} px")
-    text = f"  rotation between cameras changed by {change['rotation_deg']:.4f} deg"
-    if unit is None:
-        text += "; translation not compared (different units)"
-    else:
-        text += (f", translation by {change['translation']:.4g} {unit},"
-                 f" baseline {change['baseline']:+.4g} {unit}")
-    lines.append(text)
-    return "\n".join(lines)
-
-
-def _sim_square_mm() -> float:
-    from ..sim_devices.checkerboard import SQUARE_MM
-    return SQUARE_MM
 
 
 @calibrate.command()
@@ -153,19 +44,27 @@ def _sim_square_mm() -> float:
               show_default=True, help="Calibration file to write.")
 @click.option("--previous", type=click.Path(dir_okay=False), default=None,
               help="Calibration to compare with (default: the existing -o file, if any).")
+@click.option("--distortion", type=click.Choice(["auto", "k1", "opencv"]), default="auto",
+              show_default=True, help="Lens distortion fitted: k1 alone, OpenCV's five terms (k1, k2,"
+              " p1, p2, k3), or auto: whichever the data support (BIC), per camera.")
+@click.option("--force", is_flag=True, help="Replace the -o file even if it holds a calibration in mm"
+              " and this one is in squares, or is not a calibration file.")
 @json_option
 def stereo(images: tuple[str, ...], sim: bool, sim_poses: int, sim_seed: int,
            pattern: tuple[int, int], square: float | None, unit: str | None, output: str,
-           previous: str | None, as_json: bool) -> None:
+           previous: str | None, distortion: str, force: bool, as_json: bool) -> None:
     """Calibrate the two cameras from IMAGES: leftNN/rightNN checkerboard pairs (files or a
     directory), or from simulated views with --sim.
 
-    Prints the RMS reprojection error of each camera and of the pair, the error of each
-    pair with outliers flagged, the pairs skipped, and the change from the previous
-    calibration; writes the calibration to -o.
+    Prints the RMS reprojection error of each camera and of the pair with each parameter's
+    standard deviation, the error of each pair with outliers flagged, the pairs skipped, and
+    the change from the previous calibration; writes the calibration to -o. A parameter that
+    moved by more than 3 combined standard deviations (or, with --sim, is that far from the
+    truth) gets a WARNING line; warnings do not change the exit code (0). Exit 2: a usage
+    mistake (e.g. squares over a calibration in mm); 3: bad images or files, or -o could not be
+    written (the calibration is then saved in the current folder or $TMPDIR, said where).
     """
-    from ..calibration import calibrate_stereo
-    from ..calibration_io import StereoCalibration
+    from ..procedures import stereo_calibration as proc
 
     if sim and images:
         raise click.UsageError("give either IMAGES or --sim, not both")
@@ -178,53 +77,34 @@ def stereo(images: tuple[str, ...], sim: bool, sim_poses: int, sim_seed: int,
     if unit == "squares" and square != 1.0:
         raise click.UsageError("with --unit squares the square is 1; give --unit mm with --square")
 
-    out_path = Path(output)
-    prev_path = Path(previous) if previous else (out_path if out_path.exists() else None)
-    prev = None
-    if prev_path is not None:
-        try:
-            prev = StereoCalibration.load(prev_path)
-        except DataError:
-            if previous:
-                raise
-            raise DataError(f"{out_path} exists and is not a stereo calibration file; give another"
-                            " -o (or move it away).") from None
-
-    truth = None
+    names = truth = None
+    proc.replaceable(Path(output), unit, force)  # before the work: a forgotten --square, a wrong -o
     if sim:
-        from ..sim_devices import checkerboard as cb
-        from ..sim_devices.scene import Scene
+        from ..procedures.calibration_sim import sim_views
 
-        scene = Scene.reference(sim_seed, start_epoch=0.0)
-        square_mm = square if unit == "mm" else cb.SQUARE_MM  # "squares": the simulated board
-        pairs, names = cb.render_pairs(scene, n=sim_poses, seed=sim_seed, pattern=pattern,
-                                       square_mm=square_mm)
-        calib = calibrate_stereo(pairs, pattern=pattern, square=square, unit=unit, names=names)
-        truth = sim_truth(calib, scene) if unit == "mm" else None
+        square_mm = square if unit == "mm" else None  # "squares": the simulated board's size
+        pairs, names, truth = sim_views(sim_seed, sim_poses, pattern, square_mm)
+        truth = truth if unit == "mm" else None
     else:
-        calib = calibrate_stereo(image_pairs(list(images)), pattern=pattern, square=square, unit=unit)
-
-    change = calib.compare(prev) if prev is not None else None
-    calib.save(out_path)
+        pairs = proc.image_pairs(list(images))
+    run = proc.run(pairs, output=output, pattern=pattern, square=square, unit=unit, names=names,
+                   previous=previous, force=force, truth=truth, distortion=distortion)
     if as_json:
-        data = calib.results_data()
-        data["output"] = str(out_path)
-        if change is not None:
-            data["change"] = dict(change, previous=str(prev_path))
-        if truth is not None:
-            data["sim_truth"] = truth
-        echo_json(data)
-        return
-    click.echo(calib.results())
-    if truth is not None:
-        click.echo(_sim_text(truth))
-    if change is not None:
-        click.echo(_compare_text(change, prev_path))
-    click.echo(f"wrote {out_path}")
+        echo_json(run.results_data())
+        for line in run.warnings:
+            click.echo(line, err=True)
+    else:
+        click.echo(run.results())
+    if run.saved.error is not None:
+        raise run.saved.error
+
+
+def _sim_square_mm() -> float:
+    from ..procedures.calibration_sim import sim_square_mm
+    return sim_square_mm()
 
 
 # ---------------------------------------------------------------- vts calibrate spect
-SIM_FRAMES = 5          # noisy frames averaged per camera in --sim
 
 
 def read_points(path) -> np.ndarray:
@@ -281,59 +161,6 @@ def read_points(path) -> np.ndarray:
     return pts
 
 
-def sim_spect_inputs(seed: int, workdir: Path) -> tuple[np.ndarray, Path, dict]:
-    """The simulated session: the phantom triangulated by the stereo VTS (in camera 1's frame)
-    and a SimSpect volume of its true centres (SPECT frame = scene world frame).
-
-    Which detections are spheres (the wall markers are seen too, and some stereo pairings are
-    ambiguous) is decided as on the real rig: by the shape of the SPECT's centroids
-    (:func:`vts_hw.body_finder.locate_body`); the truth is used only to score.
-    Returns the VTS points, the volume path and a dict of what the sim did and its truth.
-    """
-    from ..body_finder import locate_body
-    from ..detect import detect
-    from ..procedures.steps import average_centroids
-    from ..sim_devices.render import Renderer
-    from ..sim_devices.scene import Scene
-    from ..sim_devices.spect import SimSpect
-    from ..sim_devices.step_table import sphere_centres
-    from ..sim_devices.sync_sim import true_spect_mapping, true_stereo_calibration
-    from ..spect import find_spheres, read_volume
-
-    scene = Scene.reference(seed, start_epoch=0.0)
-    scene.add_phantom()
-    t = 10.0
-    names = ("cam1", "cam2")
-    for cam in names:
-        scene.set_led(cam, True, t - 1)
-    renderer = Renderer(scene, seed=seed)
-    pts = [average_centroids([detect(renderer.render(cam, t)) for _ in range(SIM_FRAMES)])
-           for cam in names]
-    # the true cameras in camera 1's frame, as a perfect stereo calibration would give them
-    cams = true_stereo_calibration(scene, t, names).cameras(names)
-    spheres_true = sphere_centres(scene, t)
-    volume = SimSpect(seed=seed).write(workdir / "sim_spect.npz", spheres_true)
-    spect = find_spheres(read_volume(volume), strict=True).centroids
-    fit = locate_body(cams, pts[0], pts[1], spect)
-    vts = fit.points
-    truth = true_spect_mapping(scene, t, names)  # VTS (cam1) -> SPECT (world)
-    world = truth.apply(vts)
-    tri_err = np.min(np.linalg.norm(world[:, None, :] - spheres_true[None, :, :], axis=-1), axis=1)
-    info = {
-        "seed": seed,
-        "frames_averaged": SIM_FRAMES,
-        "calibration": "the simulator's true camera models (as if perfectly calibrated)",
-        "vts_frame": "camera 1",
-        "spheres_found_by": "the shape of the SPECT centroids among the stereo hypotheses",
-        "shape_rms_mm": fit.rms_mm,
-        "triangulation_error_mm": {"rms": float(np.sqrt(np.mean(tri_err ** 2))),
-                                   "max": float(tri_err.max())},
-        "phantom_centre_spect_mm": spheres_true.mean(axis=0),
-        "truth": truth,
-    }
-    return vts, volume, info
-
-
 def _from_cameras(config_path, calibration_path, volume, frames: int, quiet: bool):
     """The mapping with the VTS side measured now by the rig's first two cameras."""
     import time
@@ -366,20 +193,6 @@ def _from_cameras(config_path, calibration_path, volume, frames: int, quiet: boo
     return SpectMapping.from_stereo(calib, pts[0], pts[1], volume).analyze()
 
 
-def _sim_compare(mapping, info: dict) -> dict:
-    """How the recovered VTS → SPECT transform compares with the simulated truth."""
-    from ..registration import difference
-
-    truth, est = info["truth"], mapping.transform
-    d = difference(truth, est)
-    centre_vts = truth.inverse().apply(info["phantom_centre_spect_mm"])
-    at_phantom = np.linalg.norm(est.apply(centre_vts) - truth.apply(centre_vts))
-    return {"rotation_error_deg": d.angle_deg,
-            "translation_error_at_phantom_mm": float(at_phantom),
-            "translation_error_at_origin_mm": d.translation_norm_mm,
-            "true_transform": {"R": truth.R.tolist(), "t_mm": truth.t.tolist()}}
-
-
 @calibrate.command()
 @click.option("--vts", "vts_path", type=click.Path(dir_okay=False), default=None,
               help="Phantom sphere centres in the VTS frame: CSV with a header x,y,z (mm), or a"
@@ -409,11 +222,14 @@ def spect(vts_path: str | None, volume: str | None, from_cameras: bool, calibrat
     (--vts, or --from-cameras to measure them now) and its reconstructed SPECT volume
     (--volume), or a simulated session (--sim).
 
-    Prints the transform, the FRE and the leave-one-out TRE; writes the transform to -o.
+    Prints the transform, the FRE and the leave-one-out TRE; writes the transform to -o. If -o
+    cannot be written (exit 3) the mapping is saved in the current folder or $TMPDIR instead.
     """
+    import json
     import tempfile
 
     from ..procedures.spect_mapping import SpectMapping
+    from ..save_or_keep import save_or_keep
 
     if sim and (vts_path or volume or from_cameras):
         raise click.UsageError("give either --vts/--from-cameras and --volume, or --sim, not both")
@@ -425,6 +241,8 @@ def spect(vts_path: str | None, volume: str | None, from_cameras: bool, calibrat
     out_path = Path(output)
     info = None
     if sim:
+        from ..procedures.calibration_sim import compare_mapping_with_truth, sim_spect_inputs
+
         with tempfile.TemporaryDirectory(prefix="vts-spect-sim-") as tmp:
             points, vol_path, info = sim_spect_inputs(sim_seed, Path(tmp))
             mapping = SpectMapping.from_volume(points, vol_path).analyze()
@@ -437,18 +255,25 @@ def spect(vts_path: str | None, volume: str | None, from_cameras: bool, calibrat
         if not Path(volume).exists():
             raise DataError(f"{volume}: no such file or directory.")
         mapping = SpectMapping.from_volume(points, volume).analyze()
-    compare = _sim_compare(mapping, info) if info is not None else None
-    mapping.save(out_path)
+    compare = compare_mapping_with_truth(mapping, info) if info is not None else None
+    # the transform file as RigidTransform.save writes it, but kept if -o cannot be written
+    saved = save_or_keep(out_path, json.dumps(mapping.transform.to_dict(), indent=2) + "\n", "mapping")
 
     if as_json:
         data = mapping.results_data()
-        data["output"] = str(out_path)
+        data.update(saved.data())
         if info is not None:
             data["sim"] = {k: v for k, v in info.items() if k != "truth"}
             data["sim"]["phantom_centre_spect_mm"] = info["phantom_centre_spect_mm"].tolist()
             data["sim_truth"] = compare
         echo_json(data)
-        return
+    else:
+        _spect_text(mapping, info, compare, saved)
+    if saved.error is not None:
+        raise saved.error
+
+
+def _spect_text(mapping, info, compare, saved) -> None:
     if info is not None:
         err = info["triangulation_error_mm"]
         click.echo(f"Simulated session (seed {info['seed']}): VTS = the two simulated cameras with"
@@ -460,4 +285,5 @@ def spect(vts_path: str | None, volume: str | None, from_cameras: bool, calibrat
         click.echo(f"Compared with the simulated truth (camera 1's pose inverse): rotation off by"
                    f" {compare['rotation_error_deg']:.4f} deg, translation off by"
                    f" {compare['translation_error_at_phantom_mm']:.3f} mm at the phantom.")
-    click.echo(f"wrote {out_path}")
+    if saved.written:
+        click.echo(f"wrote {saved.written}")
