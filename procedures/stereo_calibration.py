@@ -20,7 +20,7 @@ from typing import Any
 from ..calibration import calibrate_stereo, find_pairs
 from ..calibration_io import StereoCalibration
 from ..calibration_uncertainty import K_SIGMA, compare_with_truth
-from ..errors import ConfigError, DataError
+from ..errors import DataError, UsageError
 from ..save_or_keep import Saved, save_or_keep
 
 _IMAGE = re.compile(r"^(left|right)(.*)\.(jpe?g|png|bmp|tiff?)$", re.IGNORECASE)
@@ -65,7 +65,7 @@ def image_pairs(args: list[str]) -> list[tuple[Path, Path]]:
 
 def replaceable(out_path: Path, unit: str, force: bool = False) -> StereoCalibration | None:
     """The calibration now in ``out_path`` (None if there is no file), once it is clear that a
-    new one in ``unit`` may replace it: ConfigError (exit 2) for an mm calibration about to be
+    new one in ``unit`` may replace it: UsageError (exit 2) for an mm calibration about to be
     replaced by one in squares (a forgotten --square), DataError (exit 3) for a file that is not
     a calibration; ``force`` replaces either."""
     if not out_path.exists():
@@ -78,7 +78,7 @@ def replaceable(out_path: Path, unit: str, force: bool = False) -> StereoCalibra
         raise DataError(f"{out_path} exists and is not a stereo calibration file; give another -o,"
                         " move it away, or give --force to replace it.") from None
     if old.unit == "mm" and unit == "squares" and not force:
-        raise ConfigError(f"{out_path} holds a calibration in mm (squares of {old.square:g} mm) and"
+        raise UsageError(f"{out_path} holds a calibration in mm (squares of {old.square:g} mm) and"
                           " this one would be in squares because --square was not given: give"
                           " --square with the side of a square in mm, another -o, or --force to"
                           " replace it.")
