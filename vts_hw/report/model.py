@@ -236,7 +236,7 @@ class DriftReport:
             bad = sorted({f"{m.metric} ({m.subject})" for m in self.steps.measures if str(m.status) != "OK"})
             out.append((self.steps.state.rank, f"7-sphere step test: {self.steps.state} in run "
                                                f"{self.steps.latest.id} ({', '.join(bad)})"))
-        if not self.has_baseline and (self.cameras or self.not_completed):
+        if not self.has_baseline:   # an empty store too: the first thing to do
             out.append((1, "no drift baseline is recorded: set one with `vts qa drift --set-baseline`"))
         if self.not_completed:
             out.append((0, f"{len(self.not_completed)} run(s) did not complete (listed below)"))
