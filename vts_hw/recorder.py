@@ -100,8 +100,8 @@ class Recorder:
             prog.reconnects = stream.stats.reconnects
             if not prog.error and prog.frames == 0 and not self._interrupted:
                 why = stream.stats.last_error or "no frame arrived"
-                prog.error = f"camera {cam.name}: recorded nothing in {self.seconds:g} s ({why})" \
-                    if self.seconds else f"camera {cam.name}: recorded nothing ({why})"
+                prog.error = (f"camera {cam.name}: recorded nothing in {self.seconds:g} s" if self.seconds
+                              else f"camera {cam.name}: recorded nothing") + f"; last error: {why}"
             elif not prog.error and stream.stats.reconnects:
                 why = stream.stats.last_error or "the camera ended the stream early"
                 prog.lost = (f"camera {cam.name}: stream lost and reconnected {stream.stats.reconnects} time(s) "
