@@ -1,0 +1,45 @@
+"""docs/faults.md: every row names a test, and that test exists (a row is a test)."""
+
+import ast
+import re
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+ROW = re.compile(r"^\|(.+)\|\s*$")
+NODE = re.compile(r"(tests/test_\w+\.py)::(\w+)")
+
+
+def rows():
+    out = []
+    for line in (REPO / "docs" / "faults.md").read_text().splitlines():
+        m = ROW.match(line)
+        if not m or set(line) <= set("|-: "):
+            continue
+        cells = [c.strip() for c in m.group(1).split("|")]
+        if cells[0] in ("fault or bad input", "fault (sim)"):
+            continue
+        out.append(cells)
+    return out
+
+
+def test_every_row_is_a_test_that_exists():
+    found = rows()
+    assert len(found) >= 80, len(found)
+    defined: dict[str, set[str]] = {}
+    for cells in found:
+        assert len(cells) == 5, cells
+        nodes = NODE.findall(cells[-1])
+        assert nodes, f"row without a test: {cells[0]}"
+        for path, name in nodes:
+            if path not in defined:
+                tree = ast.parse((REPO / path).read_text())
+                defined[path] = {n.name for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)}
+            assert name in defined[path], f"{cells[0]}: {path}::{name} does not exist"
+
+
+def test_every_exit_code_is_documented():
+    allowed = {"0", "2", "3", "4", "5", "10", "20", "130", "–", "-"}
+    for cells in rows():
+        codes = set(re.findall(r"\d+|–|-", cells[2]))
+        assert codes, cells
+        assert codes <= allowed | {"1"}, cells   # 1 only for a sim that fails for an unforeseen reason
