@@ -83,3 +83,34 @@ def test_info_on_files_and_bad_paths(tmp_path, axis_frames):
     (tmp_path / "junk.bin").write_bytes(b"hello")
     with pytest.raises(DataError, match="no JPEG frames"):
         info(tmp_path / "junk.bin")
+
+
+# ---- bad index files (found by bench/fuzz.py): a DataError naming the file, never a traceback
+
+def test_an_index_that_is_not_ascii_text(tmp_path, real_frames):
+    _record(tmp_path, real_frames[:3])
+    idx = tmp_path / "cam1.index.csv"
+    idx.write_bytes(b"frame,offset,length,camera_time,host_time\n0,0,\xff\xd8,1.0,2.0\n")
+    with pytest.raises(DataError, match=r"cam1.index.csv: not a recording index \(byte 46 is not ASCII text\)"):
+        read_index(idx)
+    with pytest.raises(DataError, match="not a recording index"):
+        info(tmp_path)
+
+
+@pytest.mark.parametrize("bad", ["1,nan-ish,5,,", "1,100,-5,,", "1,100,5,inf,", "1,100,5,,1e400", "1,100,5"])
+def test_a_bad_line_before_the_last_is_an_error_not_the_end(tmp_path, real_frames, bad):
+    _record(tmp_path, real_frames[:3])
+    idx = tmp_path / "cam1.index.csv"
+    lines = idx.read_text().splitlines()
+    idx.write_text("\n".join(lines[:2] + [bad] + lines[2:]) + "\n")
+    with pytest.raises(DataError, match=r"cam1.index.csv: line 3 is not a frame,offset,length,camera_time,host_time row"):
+        read_index(idx)
+    idx.write_text("\n".join(lines + [bad]))  # the same line last: the frame in flight at a kill
+    assert len(read_index(idx)) == 3
+
+
+def test_info_of_camera_times_with_an_absurd_frame_step(tmp_path):
+    # a median step of 1e-310 s: the gap in frames is not a finite number
+    s = __import__("vts_hw.recording", fromlist=["summarize_times"]).summarize_times(
+        "cam1", [0.0, 1e-310, 2e-310, 5.0])
+    assert len(s.gaps) == 1 and s.gaps[0]["missing"] >= 1
