@@ -254,6 +254,46 @@ def test_npz_bad_content(tmp_path):
     assert "not a readable .npz" in _one_line_error(p)
 
 
+def _npz_bytes(tmp_path) -> bytearray:
+    p = tmp_path / "good.npz"
+    np.savez_compressed(p, data=np.arange(64.0).reshape(4, 4, 4), voxel_size=np.ones(3),
+                        origin=np.zeros(3))
+    return bytearray(p.read_bytes())
+
+
+def test_npz_broken_archives(tmp_path):
+    """Archives zipfile and zlib refuse with their own exceptions (found by bench/fuzz.py)."""
+    p = tmp_path / "v.npz"
+    raw = _npz_bytes(tmp_path)
+    c = raw.find(b"PK\x01\x02")  # the first central directory record
+    version = raw.copy()
+    version[c + 6] = 160  # "version needed to extract" 16.0: zipfile's NotImplementedError
+    p.write_bytes(version)
+    assert "not a readable .npz archive (NotImplementedError: zip file version 16.0)" in _one_line_error(p)
+    patched = raw.copy()
+    patched[c + 8] |= 0x20  # flag bit 5, compressed patched data
+    p.write_bytes(patched)
+    assert "compressed patched data" in _one_line_error(p)
+    deflate = raw.copy()
+    start = 30 + int.from_bytes(raw[26:28], "little") + int.from_bytes(raw[28:30], "little")
+    deflate[start:start + 8] = b"\xff" * 8  # the first member's compressed data garbled
+    p.write_bytes(deflate)
+    assert "not a readable .npz archive (error: Error -3 while decompressing" in _one_line_error(p)
+
+
+def test_npz_header_claiming_more_than_the_member_holds(tmp_path):
+    import io
+    import zipfile
+
+    head = io.BytesIO()
+    np.lib.format.write_array_header_1_0(
+        head, {"descr": "<f8", "fortran_order": False, "shape": (4000, 4000, 4000)})
+    p = tmp_path / "v.npz"
+    with zipfile.ZipFile(p, "w") as z:
+        z.writestr("data.npy", head.getvalue() + b"\0" * 64)  # 512 GB claimed, 64 bytes held
+    assert "'data' claims 512000000000 bytes of float64 (4000, 4000, 4000)" in _one_line_error(p)
+
+
 def test_missing_file_and_unknown_format(tmp_path):
     assert "no such file" in _one_line_error(tmp_path / "nothing.npz")
     p = tmp_path / "mystery.bin"
