@@ -192,6 +192,29 @@ def test_interfile_bad_number_and_missing_data_file(interfile):
     assert "cannot read the data file" in _one_line_error(interfile)
 
 
+@pytest.mark.parametrize("change, expected", [
+    (("!name of data file := v.img", "!name of data file := v\x00.img"),
+     "key '!name of data file' holds a NUL byte"),
+    (("!name of data file := v.img", "!name of data file := /dev/zero"),
+     "the data file /dev/zero is not a regular file"),
+    (("!name of data file := v.img", "!name of data file := ."), "is not a regular file"),
+    (("scaling factor (mm/pixel) [1] := 4.4", "scaling factor (mm/pixel) [1] := 0"),
+     "key 'scaling factor (mm/pixel) [1]' is 0.0, not a positive number of mm"),
+    (("scaling factor (mm/pixel) [2] := 4.4", "scaling factor (mm/pixel) [2] := nan"),
+     "key 'scaling factor (mm/pixel) [2]' is nan"),
+    (("!data offset in bytes := 0", "!data offset in bytes := -8"),
+     "key '!data offset in bytes' is -8, not a byte count"),
+    (("first pixel offset (mm) [3] := ", "first pixel offset (mm) [3] := inf ;"),
+     "'first pixel offset (mm)' is"),
+])
+def test_interfile_values_the_reader_cannot_use(interfile, change, expected):
+    """Header values found by bench/fuzz.py that used to end in a traceback."""
+    text = interfile.read_text()
+    assert change[0] in text
+    interfile.write_text(text.replace(*change))
+    assert expected in _one_line_error(interfile)
+
+
 def test_not_an_interfile_header(tmp_path):
     p = tmp_path / "x.hdr"
     p.write_text("hello\n")

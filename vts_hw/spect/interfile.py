@@ -17,6 +17,7 @@ Keys are matched case-insensitively, with the leading ``!`` and repeated blanks 
 
 from __future__ import annotations
 
+import math
 import re
 from pathlib import Path
 
@@ -79,6 +80,10 @@ def read_interfile(path) -> Volume:
     if min(shape) <= 0:
         raise DataError(f"{path}: matrix size {shape} is not positive")
     size = [_number(h, path, f"scaling factor (mm/pixel) [{i}]") for i in (1, 2, 3)]
+    for i, v in enumerate(size, 1):
+        if not (math.isfinite(v) and v > 0):
+            raise DataError(f"{path}: key 'scaling factor (mm/pixel) [{i}]' is {v}, not a positive "
+                            f"number of mm")
     fmt = _norm(_get(h, path, "!number format"))
     nbytes = _number(h, path, "!number of bytes per pixel", int)
     if (fmt, nbytes) not in _FORMATS:
@@ -87,13 +92,20 @@ def read_interfile(path) -> Volume:
     if order_text not in _BYTE_ORDERS:
         raise DataError(f"{path}: unknown imagedata byte order '{order_text}'")
     dtype = np.dtype(_BYTE_ORDERS[order_text] + _FORMATS[(fmt, nbytes)])
-    data_path = path.parent / _get(h, path, "!name of data file")
+    name = _get(h, path, "!name of data file")
+    data_path = path.parent / name
+    if "\x00" in name:
+        raise DataError(f"{path}: key '!name of data file' holds a NUL byte ({name!r})")
+    if data_path.exists() and not data_path.is_file():  # a folder, /dev/zero, a FIFO
+        raise DataError(f"{path}: the data file {data_path} is not a regular file")
     offset = _number(h, path, "!data offset in bytes", int, "0")
+    if offset < 0:
+        raise DataError(f"{path}: key '!data offset in bytes' is {offset}, not a byte count")
     try:
         raw = data_path.read_bytes()
     except OSError as e:
         raise DataError(f"{path}: cannot read the data file {data_path} ({e.strerror})") from None
-    expected = int(np.prod(shape)) * nbytes
+    expected = math.prod(shape) * nbytes
     if len(raw) - offset != expected:
         raise DataError(f"{path}: data file {data_path.name} holds {len(raw) - offset} bytes "
                         f"after the offset, the header says {expected} ({shape[0]}×{shape[1]}×"
@@ -103,6 +115,8 @@ def read_interfile(path) -> Volume:
     default_xyz = (-centre[0], centre[1], -centre[2])
     xyz = [_number(h, path, f"first pixel offset (mm) [{i}]", float, repr(default_xyz[i - 1]))
            for i in (1, 2, 3)]
+    if not all(math.isfinite(v) for v in xyz):
+        raise DataError(f"{path}: 'first pixel offset (mm)' is {xyz}, not three finite numbers")
     vol = Volume(data.astype(dtype.newbyteorder("=")), (size[2], size[1], size[0]), xyz,
                  _DIRECTION, path)
     return vol.canonical()
