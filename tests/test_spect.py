@@ -258,6 +258,26 @@ def test_dicom_frames_not_matching(dicom):
     _one_line_error(dicom)
 
 
+@pytest.mark.parametrize("old, new, expected", [
+    # an element with an unknown value representation: pydicom's NotImplementedError
+    (b"\x28\x00\x30\x00DS", b"\x28\x00\x30\x00D2",
+     "a corrupt DICOM data element after element (0028,0011) (NotImplementedError: Unknown Value "
+     "Representation '0x44 0x32' in tag (0028,0030))"),
+    # a decimal string that is not a number
+    (b"4.4\\4.4", b"4.4\\4'4", "DICOM PixelSpacing is ['4.4', \"4'4\"], not 2 finite numbers"),
+    # the Detector Information Sequence's VR garbled into bytes (its item then is an int)
+    (b"\x54\x00\x22\x00SQ", b"\x54\x00\x22\x00OB",
+     "DICOM NM without ImagePositionPatient/ImageOrientationPatient"),
+])
+def test_dicom_corrupt_elements(dicom, old, new, expected):
+    """Corrupt elements found by bench/fuzz.py: pydicom decodes lazily, so they used to raise
+    pydicom's or float()'s own exceptions from deep in the reader."""
+    raw = dicom.read_bytes()
+    assert raw.count(old) == 1
+    dicom.write_bytes(raw.replace(old, new))
+    assert expected in _one_line_error(dicom)
+
+
 @pytest.mark.parametrize("drop", ["voxel_size", "origin", "data"])
 def test_npz_missing_key(tmp_path, drop):
     p = tmp_path / "v.npz"
