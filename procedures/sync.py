@@ -42,6 +42,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import DataError
+from ..recording import MANIFEST, load_manifest
 from ..sync_events import StepFit, find_steps, fit_step, match_events, robust_sd
 from ..sync_gating import GatingResult, WaveInfo, analyze_gating, axial_centre_of_mass, wave_from_trigger_log
 
@@ -61,15 +62,11 @@ def check_session(folder) -> dict:
     folder = Path(folder)
     if not folder.is_dir():
         raise DataError(f"{folder}: no such session folder")
-    mf = folder / "manifest.json"
-    try:
-        manifest = json.loads(mf.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise DataError(f"{folder}: not a session folder (no manifest.json)") from None
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise DataError(f"{mf}: cannot read the manifest ({exc})") from None
-    if not isinstance(manifest, dict) or not isinstance(manifest.get("cameras"), dict):
-        raise DataError(f"{mf}: not a recording manifest (no cameras)")
+    if not (folder / MANIFEST).exists():
+        raise DataError(f"{folder}: not a session folder (no {MANIFEST})")
+    manifest = load_manifest(folder)  # DataError naming the file: unreadable, not JSON, wrong shape
+    if "cameras" not in manifest:
+        raise DataError(f"{folder / MANIFEST}: not a recording manifest (no cameras)")
     if not (folder / "trigger.csv").exists():
         raise DataError(f"{folder}: no trigger.csv: the session has no trigger log to time the "
                         f"SPECT against (was it recorded with trigger backend none?)")

@@ -7,7 +7,7 @@ import pytest
 from vts_hw.axis_jpeg import inspect_jpeg
 from vts_hw.errors import DataError
 from vts_hw.mjpeg import read_frames_file
-from vts_hw.recording import Recording, info, read_index, reindex
+from vts_hw.recording import Recording, info, load_manifest, read_index, reindex
 
 
 @pytest.fixture()
@@ -114,3 +114,29 @@ def test_info_of_camera_times_with_an_absurd_frame_step(tmp_path):
     s = __import__("vts_hw.recording", fromlist=["summarize_times"]).summarize_times(
         "cam1", [0.0, 1e-310, 2e-310, 5.0])
     assert len(s.gaps) == 1 and s.gaps[0]["missing"] >= 1
+
+
+@pytest.mark.parametrize("text, words", [
+    (b"[]", "not a recording manifest (expected a JSON object, got a list)"),
+    (b'{"cameras": []}', 'not a recording manifest ("cameras" must map each camera name to its entry)'),
+    (b'{"cameras": {"cam1": 3}}', 'not a recording manifest ("cameras" must map each camera name to its entry)'),
+    (b'{"cameras": {"cam1": {"gaps": {"missing": 3}}}}', "not a recording manifest (cameras.cam1.gaps must be a list of gaps"),
+    (b'{"cameras": {"cam1": {"gaps": [{"missing": "3"}]}}}', "not a recording manifest (cameras.cam1.gaps must be a list of gaps"),
+    (b'{"cameras": {"cam1"', "not a recording manifest (not valid JSON)"),
+    (b"\xff\xd8\xff\xe0", "not a recording manifest (not valid JSON)"),
+    (b"[" * 100_000, "not a recording manifest (not valid JSON)"),
+])
+def test_load_manifest_of_the_wrong_shape(tmp_path, text, words):
+    (tmp_path / "manifest.json").write_bytes(text)
+    with pytest.raises(DataError) as ei:
+        load_manifest(tmp_path)
+    assert str(ei.value).startswith(f"{tmp_path / 'manifest.json'}: {words}")
+
+
+def test_load_manifest_of_a_recording_and_of_no_manifest(tmp_path, real_frames):
+    _record(tmp_path, real_frames[:2])
+    assert load_manifest(tmp_path)["cameras"]["cam1"]["frames"] == 2
+    (tmp_path / "manifest.json").unlink()
+    assert load_manifest(tmp_path, missing_ok=True) is None
+    with pytest.raises(DataError, match="not a recording folder"):
+        load_manifest(tmp_path)

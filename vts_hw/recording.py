@@ -183,7 +183,17 @@ def load_manifest(folder: str | Path, *, missing_ok: bool = False) -> dict | Non
     cams = data.get("cameras", {})
     if not isinstance(cams, dict) or not all(isinstance(k, str) and isinstance(v, dict) for k, v in cams.items()):
         raise DataError(f"{path}: not a recording manifest (\"cameras\" must map each camera name to its entry)")
+    for name, cam in cams.items():
+        gaps = cam.get("gaps", [])
+        if not isinstance(gaps, list) or not all(
+                isinstance(g, dict) and _count_or_none(g.get("missing")) for g in gaps):
+            raise DataError(f"{path}: not a recording manifest (cameras.{name}.gaps must be a list of "
+                            f"gaps, each with a whole number of frames missing)")
     return data
+
+
+def _count_or_none(v) -> bool:
+    return v is None or (isinstance(v, int) and not isinstance(v, bool) and v >= 0)
 
 
 def _json_kind(v) -> str:

@@ -102,6 +102,8 @@ def make_seeds(out: Path, axis_frames: Path) -> dict[str, int]:
     put("manifest", "recording.json", (rec_dir / "manifest.json").read_bytes().replace(
         b'"complete"', b'"recording"'))
     fixture("recording_index", "cam1.mjpeg", (rec_dir / "cam1.mjpeg").read_bytes())
+    fixture("manifest", "cam1.index.csv", (rec_dir / "cam1.index.csv").read_bytes())
+    fixture("manifest", "trigger.csv", b"device,event,host_time\n")  # check_session wants one
 
     # ---- list-mode: the simulated SPECT, and a hand-made file with every block kind
     import numpy as np

@@ -72,6 +72,8 @@ def import_parsers() -> None:
     from vts_hw import axis_jpeg, config, mjpeg, recording
     from vts_hw.calibration_io import StereoCalibration
     from vts_hw.listmode import read_listmode
+    from vts_hw.procedures.sync import check_session
+    from vts_hw.processing import _manifest_cameras
     from vts_hw.registration import RigidTransform
     from vts_hw.spect.dicom_nm import read_dicom_nm
     from vts_hw.spect.interfile import read_interfile
@@ -80,7 +82,8 @@ def import_parsers() -> None:
     P.update(axis_jpeg=axis_jpeg, mjpeg=mjpeg, recording=recording, config=config,
              StereoCalibration=StereoCalibration, read_listmode=read_listmode,
              RigidTransform=RigidTransform, read_dicom_nm=read_dicom_nm,
-             read_interfile=read_interfile, read_npz=read_npz, read_volume=read_volume)
+             read_interfile=read_interfile, read_npz=read_npz, read_volume=read_volume,
+             check_session=check_session, manifest_cameras=_manifest_cameras)
 
 
 # ------------------------------------------------------------------------------- targets
@@ -115,6 +118,8 @@ def _index(data: bytes, s: Scratch) -> None:
 def _manifest(data: bytes, s: Scratch) -> None:
     s.file("manifest.json", data, s.rec)
     s.call(P["recording"].load_manifest, s.rec)
+    s.call(P["check_session"], s.rec)      # `vts sync analyze`
+    s.call(P["manifest_cameras"], s.rec)   # `vts process`
 
 
 def _listmode(data: bytes, s: Scratch) -> None:
@@ -161,7 +166,8 @@ TARGETS: dict[str, Target] = {t.name: t for t in [
            fixtures=("cam1.mjpeg",), max_len=4096,
            tokens=(b"frame,offset,length,camera_time,host_time\n", b",", b"\n", b"\r\n", b"nan",
                    b"inf", b"-1", b"1e999", b"\x00")),
-    Target("manifest", "recording.load_manifest", _manifest, max_len=4096,
+    Target("manifest", "recording.load_manifest, sync.check_session, processing", _manifest,
+           fixtures=("cam1.index.csv", "trigger.csv"), max_len=4096,
            tokens=_JSON + (b'"cameras"', b'"cam1"', b'"frames"', b'"status"', b'"gaps"')),
     Target("listmode", "listmode.read_listmode (VTSLM)", _listmode, max_len=16384,
            tokens=(b"\x89VTSLM\r\n", b"EVNT", b"TMRK", b"FRAM", b"GATE", b"DEAD", b"END ",
