@@ -137,3 +137,17 @@ def test_a_document_that_is_not_a_mapping(tmp_path):
     for text, got in (("", "an empty document"), ("- a\n", "a list"), ("cam1\n", "a single string")):
         with pytest.raises(ConfigError, match=f"expected a mapping .* at the top level, got {got}$"):
             load_rig(_write(tmp_path, text))
+
+
+def test_vts_with_a_binary_rig_yaml_is_one_sentence_and_exit_2(tmp_path, axis_frames):
+    """`vts qa daily --config FILE` where FILE is a JPEG: as a user runs it."""
+    import subprocess
+    import sys
+
+    p = tmp_path / "rig.yaml"
+    p.write_bytes((axis_frames / "tst.jpg").read_bytes())
+    r = subprocess.run([sys.executable, "-m", "vts_hw.cli.__main__", "qa", "daily", "--config", str(p)],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2
+    assert r.stderr.strip() == (f"vts: {p}: not a YAML text file (a NUL byte at byte 4: a binary file, "
+                                "or text saved as UTF-16)")
