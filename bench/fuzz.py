@@ -249,8 +249,9 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--timeout", type=int, default=10, help="seconds one input may take")
     ap.add_argument("--keep", type=int, default=3, help="crashing inputs saved per crash site")
-    ap.add_argument("--frames", default=str(ROOT.parent / "shared" / "data" / "axis-frames"),
-                    help="the real Axis frames (../shared/data/axis-frames)")
+    shared = Path(os.environ.get("VTS_SHARED_DATA", ROOT.parent / "shared" / "data"))
+    ap.add_argument("--frames", default=str(shared / "axis-frames"),
+                    help="the real Axis frames (../shared/data/axis-frames, or $VTS_SHARED_DATA)")
     ap.add_argument("--json", default=None, help="also write the figures to this JSON file")
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
