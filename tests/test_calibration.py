@@ -263,3 +263,16 @@ def test_rotation_angle_small_angles():
 def test_board_points_unit():
     pts = board_points(PATTERN, 2.0)
     assert pts.shape == (54, 3) and pts[1, 0] == 2.0 and pts[9, 1] == 2.0
+
+
+@pytest.mark.parametrize("text, words", [
+    ("[" * 5000 + "]" * 5000, "not a JSON calibration file (nested too deeply)."),
+    ('{"format": ' + "9" * 5000 + "}", "not a JSON calibration file (Exceeds the limit (4300 digits)"),
+])
+def test_json_that_the_json_module_refuses_beyond_syntax(tmp_path, text, words):
+    """RecursionError and the int-digits ValueError of json.loads: a DataError naming the file."""
+    path = tmp_path / "calibration.json"
+    path.write_text(text)
+    with pytest.raises(DataError) as err:
+        StereoCalibration.load(path)
+    assert str(err.value).startswith(f"{path}: {words}")

@@ -206,10 +206,19 @@ class StereoCalibration:
             data = json.loads(text)
         except json.JSONDecodeError as exc:
             raise DataError(f"{path}: not a JSON calibration file ({exc.msg}, line {exc.lineno}).")
+        except (ValueError, RecursionError) as exc:  # a 5000-digit number, arrays nested 1000 deep
+            raise DataError(f"{path}: not a JSON calibration file ({_json_trouble(exc)}).") from None
         if not isinstance(data, dict) or data.get("format") != FORMAT:
             raise DataError(f"{path}: key 'format' is not {FORMAT!r}, so this is not a stereo"
                             " calibration file.")
         return _from_data(path, data)
+
+
+def _json_trouble(exc: Exception) -> str:
+    """What json.loads found beyond a syntax error, in words."""
+    if isinstance(exc, RecursionError):
+        return "nested too deeply"
+    return str(exc).split(":")[0]  # "Exceeds the limit (4300 digits) for integer string conversion"
 
 
 def stereo_cameras(calib, names=("left", "right")) -> list:

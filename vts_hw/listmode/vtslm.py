@@ -224,6 +224,9 @@ def _header(path: Path, data: bytes) -> tuple[dict, int]:
         header = json.loads(data[PREAMBLE.size:end].decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
         raise DataError(f"{path}: the header is not valid JSON ({e})") from None
+    except (ValueError, RecursionError) as e:  # a 5000-digit number, arrays nested 1000 deep
+        why = "nested too deeply" if isinstance(e, RecursionError) else str(e).split(":")[0]
+        raise DataError(f"{path}: the header is not valid JSON ({why})") from None
     if not isinstance(header, dict):
         raise DataError(f"{path}: the header is not a JSON object")
     for key, (ok, what) in REQUIRED.items():
