@@ -276,3 +276,19 @@ def test_json_that_the_json_module_refuses_beyond_syntax(tmp_path, text, words):
     with pytest.raises(DataError) as err:
         StereoCalibration.load(path)
     assert str(err.value).startswith(f"{path}: {words}")
+
+
+@pytest.mark.parametrize("key", ["square", "K1"])
+def test_a_number_no_float_can_hold(calib, tmp_path, key):
+    """A 401-digit JSON integer: json gives an int that float() overflows on."""
+    data = calib.results_data()
+    if key == "K1":
+        data["K1"][0][0] = 10 ** 400
+    else:
+        data[key] = 10 ** 400
+    path = tmp_path / "calibration.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(DataError) as err:
+        StereoCalibration.load(path)
+    msg = str(err.value)
+    assert msg.startswith(f"{path}: key '{key}' must be") and len(msg) < len(str(path)) + 120

@@ -247,3 +247,10 @@ def test_load_of_json_beyond_syntax_and_a_bad_meta(tmp_path, text, words):
     with pytest.raises(DataError) as err:
         RigidTransform.load(path)
     assert str(path) in str(err.value) and words in str(err.value) and "\n" not in str(err.value)
+
+
+def test_load_of_a_number_no_float_can_hold(tmp_path):
+    path = tmp_path / "spect_mapping.json"
+    path.write_text('{"R": [[1,0,0],[0,1,0],[0,0,1%s]], "t_mm": [0,0,0]}' % ("0" * 400))
+    with pytest.raises(DataError, match="missing or malformed R/t_mm"):
+        RigidTransform.load(path)

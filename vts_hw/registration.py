@@ -122,7 +122,7 @@ class RigidTransform:
         try:
             R = np.asarray(d["R"], float).reshape(3, 3)
             t = np.asarray(d["t_mm"], float).reshape(3)
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
             raise DataError(f"not a rigid transform: missing or malformed R/t_mm ({exc})") from None
         if not np.all(np.isfinite(R)) or not np.all(np.isfinite(t)):
             raise DataError("not a rigid transform: R or t_mm holds non-finite numbers")

@@ -40,7 +40,8 @@ END = np.dtype([("t_ns", "<i8")])
 RECORDS = {b"EVNT": EVENT, b"TMRK": MARK, b"FRAM": FRAME, b"GATE": GATE, b"DEAD": DEAD, b"END ": END}
 
 def _number(v):
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    # a JSON integer of 400 digits is an int no float can hold: not a number here
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) < 1e300
 
 
 def _positive(v):
@@ -48,7 +49,7 @@ def _positive(v):
 
 
 def _int(v):
-    return isinstance(v, int) and not isinstance(v, bool)
+    return isinstance(v, int) and not isinstance(v, bool) and -2**63 <= v < 2**63
 
 
 # header keys every file must have: name -> (check, what it must be)
@@ -233,7 +234,9 @@ def _header(path: Path, data: bytes) -> tuple[dict, int]:
         if key not in header:
             raise DataError(f"{path}: header key {key!r} is missing")
         if not ok(header[key]):
-            raise DataError(f"{path}: header key {key!r} must be {what}, not {header[key]!r}")
+            shown = repr(header[key])
+            shown = shown if len(shown) <= 40 else shown[:37] + "..."
+            raise DataError(f"{path}: header key {key!r} must be {what}, not {shown}")
     return header, end
 
 
