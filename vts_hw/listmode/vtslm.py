@@ -14,7 +14,6 @@ a handful of ``numpy.frombuffer`` calls; :func:`write_vtslm` writes a ListMode b
 from __future__ import annotations
 
 import json
-import math
 import struct
 from pathlib import Path
 
