@@ -18,6 +18,7 @@ target keeps beside its input, e.g. the Interfile's data file).
 
 from __future__ import annotations
 
+import re
 import shutil
 from pathlib import Path
 
@@ -128,6 +129,12 @@ def make_seeds(out: Path, axis_frames: Path) -> dict[str, int]:
         w.gate([0.0, 5.0, 5.0, 0.0])
         w.dead([0.05], [0.08])
     put("listmode", "small.vtslm", (work / "small.vtslm").read_bytes())
+    raw = (work / "small.vtslm").read_bytes()  # its start_time made a 400-digit integer
+    head = raw[16:16 + int.from_bytes(raw[12:16], "little")]
+    huge = head.replace(b'"start_time": ', b'"start_time": 1' + b"0" * 400 + b', "was": ')
+    huge += b" " * (-(16 + len(huge)) % 8)
+    put("listmode", "edge-huge.vtslm", raw[:12] + len(huge).to_bytes(4, "little") + huge
+        + raw[16 + len(head):])
 
     # ---- volumes: the simulated SPECT, small, through the code's writers
     from vts_hw.sim_devices.spect import SimSpect, phantom_centres
@@ -151,4 +158,28 @@ def make_seeds(out: Path, axis_frames: Path) -> dict[str, int]:
     for p in rig_dir.glob("*.json"):
         target = "mapping" if "mapping" in p.name else "calibration"
         put(target, p.name, p.read_bytes())
+        if target == "calibration":  # its square size made a 400-digit integer
+            put(target, "edge-huge.json", re.sub(rb'"square": [^,]+', b'"square": 1' + b"0" * 400,
+                                                 p.read_bytes()))
+    edge_seeds(put)
     return {d.name: len(list(d.iterdir())) for d in sorted(seeds.iterdir())}
+
+
+def edge_seeds(put) -> None:
+    """Valid-looking inputs at the edges a mutation reaches only slowly: JSON nested deeper
+    than Python's recursion limit, a number of 400 digits (an int no float can hold), a
+    value of the wrong JSON type, a YAML bomb and deep YAML nesting."""
+    deep = b"[" * 1200 + b"]" * 1200
+    big = b"1" + b"0" * 400
+    put("manifest", "edge-deep.json", b'{"cameras": {"cam1": {"gaps": ' + deep + b"}}}")
+    put("manifest", "edge-gaps.json", b'{"cameras": {"cam1": {"gaps": [{"missing": "3"}, 5]}}}')
+    put("calibration", "edge-deep.json", b'{"format": "vts-hw stereo calibration", "K1": ' + deep + b"}")
+    put("mapping", "edge-deep.json", b'{"R": ' + deep + b"}")
+    put("mapping", "edge-meta.json", b'{"R": [[1,0,0],[0,1,0],[0,0,1]], "t_mm": [0,0,' + big
+        + b'], "meta": 5}')
+    put("rig_yaml", "edge-deep.yaml", b"rig: x\ncameras: " + b"[" * 40 + b"]" * 40 + b"\n")
+    put("rig_yaml", "edge-bomb.yaml", b"a: &a [x, x, x, x, x, x, x, x, x, x]\n" + b"".join(
+        b"%c: &%c [" % (98 + i, 98 + i) + b", ".join([b"*%c" % (97 + i)] * 10) + b"]\n"
+        for i in range(9)))
+    put("rig_yaml", "edge-date.yaml", b"rig: x\nrecordings_dir: 2024-02-30\ncameras: []\n")
+

@@ -151,7 +151,8 @@ def _rig_yaml(data: bytes, s: Scratch) -> None:
 
 
 _JSON = (b'"', b"{", b"}", b"[", b"]", b",", b":", b"null", b"true", b"false", b"NaN",
-         b"Infinity", b"-Infinity", b"1e999", b"-0", b"0.5", b"[[1,0,0],[0,1,0],[0,0,1]]")
+         b"Infinity", b"-Infinity", b"1e999", b"-0", b"0.5", b"[[1,0,0],[0,1,0],[0,0,1]]",
+         b": 5", b': "x"', b": []", b": {}", b"[[[[[[[[[[[[[[[[", b"1" + b"0" * 400)
 _JPEG = (b"\xff\xd8", b"\xff\xd9", b"\xff\xda", b"\xff\xc0", b"\xff\xfe\x00\x0f\x0a\x01",
          b"\xff\xfe\x00\x0f\x0a\x00", b"\xff\x00", b"\xff\xd0", b"\xff\xff")
 
