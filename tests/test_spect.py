@@ -198,6 +198,9 @@ def test_interfile_bad_number_and_missing_data_file(interfile):
     (("!name of data file := v.img", "!name of data file := /dev/zero"),
      "the data file /dev/zero is not a regular file"),
     (("!name of data file := v.img", "!name of data file := ."), "is not a regular file"),
+    (("!name of data file := v.img", "!name of data file := " + "v" * 300 + ".img"),
+     "cannot read the data file 'vvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvv'... (304 characters) "
+     "(File name too long)"),
     (("scaling factor (mm/pixel) [1] := 4.4", "scaling factor (mm/pixel) [1] := 0"),
      "key 'scaling factor (mm/pixel) [1]' is 0.0, not a positive number of mm"),
     (("scaling factor (mm/pixel) [2] := 4.4", "scaling factor (mm/pixel) [2] := nan"),

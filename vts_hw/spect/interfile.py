@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import re
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -94,17 +95,18 @@ def read_interfile(path) -> Volume:
     dtype = np.dtype(_BYTE_ORDERS[order_text] + _FORMATS[(fmt, nbytes)])
     name = _get(h, path, "!name of data file")
     data_path = path.parent / name
+    shown = data_path if len(name) <= 80 else f"{name[:40]!r}... ({len(name)} characters)"
     if "\x00" in name:
-        raise DataError(f"{path}: key '!name of data file' holds a NUL byte ({name!r})")
-    if data_path.exists() and not data_path.is_file():  # a folder, /dev/zero, a FIFO
-        raise DataError(f"{path}: the data file {data_path} is not a regular file")
+        raise DataError(f"{path}: key '!name of data file' holds a NUL byte ({name[:40]!r})")
     offset = _number(h, path, "!data offset in bytes", int, "0")
     if offset < 0:
         raise DataError(f"{path}: key '!data offset in bytes' is {offset}, not a byte count")
     try:
+        if not stat.S_ISREG(data_path.stat().st_mode):  # a folder, /dev/zero, a FIFO
+            raise DataError(f"{path}: the data file {shown} is not a regular file")
         raw = data_path.read_bytes()
-    except OSError as e:
-        raise DataError(f"{path}: cannot read the data file {data_path} ({e.strerror})") from None
+    except OSError as e:  # missing, unreadable, a name too long
+        raise DataError(f"{path}: cannot read the data file {shown} ({e.strerror})") from None
     expected = math.prod(shape) * nbytes
     if len(raw) - offset != expected:
         raise DataError(f"{path}: data file {data_path.name} holds {len(raw) - offset} bytes "
