@@ -151,3 +151,9 @@ def test_vts_with_a_binary_rig_yaml_is_one_sentence_and_exit_2(tmp_path, axis_fr
     assert r.returncode == 2
     assert r.stderr.strip() == (f"vts: {p}: not a YAML text file (a NUL byte at byte 4: a binary file, "
                                 "or text saved as UTF-16)")
+
+
+def test_a_file_too_large_to_be_a_rig_config(tmp_path):
+    p = _write(tmp_path, "rig: x\n" + "#" * (1 << 20) + "\n")
+    with pytest.raises(ConfigError, match=r"larger than 1 MB, so not a rig config file$"):
+        load_rig(p)
