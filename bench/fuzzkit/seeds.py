@@ -82,7 +82,10 @@ def make_seeds(out: Path, axis_frames: Path) -> dict[str, int]:
     # ---- real Axis frames, and a recording written from them
     from vts_hw.axis_jpeg import inspect_jpeg
     from vts_hw.mjpeg import read_frames_file
-    from vts_hw.recording import Recording
+    try:
+        from vts_hw.recording_writer import Recording  # where the writer lives after the split
+    except ImportError:
+        from vts_hw.recording import Recording
 
     capture = (axis_frames / "t.mjpg").read_bytes()
     frames = [b for b, _ in read_frames_file(axis_frames / "t.mjpg")]
