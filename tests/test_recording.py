@@ -140,3 +140,14 @@ def test_load_manifest_of_a_recording_and_of_no_manifest(tmp_path, real_frames):
     assert load_manifest(tmp_path, missing_ok=True) is None
     with pytest.raises(DataError, match="not a recording folder"):
         load_manifest(tmp_path)
+
+
+def test_a_lenient_read_keeps_every_whole_row_for_a_rebuild(tmp_path, real_frames):
+    _record(tmp_path, real_frames[:4])
+    idx = tmp_path / "cam1.index.csv"
+    lines = idx.read_text().splitlines()
+    idx.write_text("\n".join(lines[:2] + ["garbage", "7,12,-1,,"] + lines[2:]) + "\n")
+    with pytest.raises(DataError, match="line 3 is not a frame"):
+        read_index(idx)
+    rows = read_index(idx, lenient=True)
+    assert [r.frame for r in rows] == [0, 1, 2, 3] and all(r.host_time for r in rows)

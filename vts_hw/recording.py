@@ -210,10 +210,11 @@ class FrameRow:
     host_time: float | None
 
 
-def read_index(path: Path) -> list[FrameRow]:
+def read_index(path: Path, *, lenient: bool = False) -> list[FrameRow]:
     """The rows of a ``<name>.index.csv``. A last line that is not a whole row is the frame in
     flight when the recorder was killed: it is left out and everything before it stands. Any
-    other bad line, or a file that is not an index, is a DataError naming the file (and line)."""
+    other bad line, or a file that is not an index, is a DataError naming the file (and line).
+    ``lenient`` (for rebuilding an index): bad lines are skipped, every whole row is kept."""
     path = Path(path)
     try:
         raw = path.read_bytes()
@@ -231,8 +232,8 @@ def read_index(path: Path) -> list[FrameRow]:
     for k, (lineno, line) in enumerate(body):
         row = _index_row(line)
         if row is None:
-            if k == len(body) - 1:
-                break  # a line cut short by a kill: everything before it stands
+            if lenient or k == len(body) - 1:
+                continue  # the last: a line cut short by a kill; everything before it stands
             shown = line if len(line) <= 60 else line[:57] + "..."
             raise DataError(f"{path}: line {lineno} is not a frame,offset,length,camera_time,"
                             f"host_time row ({shown!r}); run 'vts recording reindex'")
