@@ -358,3 +358,31 @@ def test_a_turned_camera_is_a_rotation_warning(calib):
     assert diff["rotation_deg"] == pytest.approx(1.0)
     assert any(w.startswith("WARNING: rotation moved by +1 deg") for w in diff["warnings"]), diff["warnings"]
     assert not any("cx1" in w or "fx1" in w for w in diff["warnings"])
+@pytest.mark.parametrize("text, words", [
+    ("[" * 5000 + "]" * 5000, "not a JSON calibration file (nested too deeply)."),
+    ('{"format": ' + "9" * 5000 + "}", "not a JSON calibration file (Exceeds the limit (4300 digits)"),
+])
+def test_json_that_the_json_module_refuses_beyond_syntax(tmp_path, text, words):
+    """RecursionError and the int-digits ValueError of json.loads: a DataError naming the file."""
+    path = tmp_path / "calibration.json"
+    path.write_text(text)
+    with pytest.raises(DataError) as err:
+        StereoCalibration.load(path)
+    assert str(err.value).startswith(f"{path}: {words}")
+
+
+@pytest.mark.parametrize("key", ["square", "K1"])
+def test_a_number_no_float_can_hold(calib, tmp_path, key):
+    """A 401-digit JSON integer: json gives an int that float() overflows on."""
+    data = calib.results_data()
+    if key == "K1":
+        data["K1"][0][0] = 10 ** 400
+    else:
+        data[key] = 10 ** 400
+    path = tmp_path / "calibration.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(DataError) as err:
+        StereoCalibration.load(path)
+    msg = str(err.value)
+    assert msg.startswith(f"{path}: key '{key}' must be") and len(msg) < len(str(path)) + 120
+

@@ -92,3 +92,69 @@ def test_unset_password_variable_is_named(tmp_path, monkeypatch):
         rig.camera("cam1").password()
     with pytest.raises(ConfigError, match="no camera named 'cam9'"):
         rig.camera("cam9")
+
+
+# ---- files that are not YAML text at all (found by bench/fuzz.py): one sentence, never a traceback
+
+def _write_bytes(tmp_path, data: bytes):
+    p = tmp_path / "rig.yaml"
+    p.write_bytes(data)
+    return p
+
+
+@pytest.mark.parametrize("data, expected", [
+    (b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR", r"not a YAML text file \(a NUL byte at byte 8"),
+    ("rig: x\n".encode("utf-16"), r"not a YAML text file \(a NUL byte at byte \d+: a binary file, or text saved as UTF-16\)"),
+    (b"rig: caf\xe9\n", r"not UTF-8 text \(byte 8 cannot be decoded\)"),
+])
+def test_a_binary_or_non_utf8_file(tmp_path, data, expected):
+    p = _write_bytes(tmp_path, data)
+    with pytest.raises(ConfigError, match=expected) as ei:
+        load_rig(p)
+    assert str(ei.value).startswith(f"{p}: ") and "\n" not in str(ei.value)
+
+
+def test_yaml_bombs_are_refused_before_they_expand(tmp_path):
+    laughs = 'a: &a ["x","x","x","x","x","x","x","x","x","x"]\n' + "".join(
+        f"{chr(98 + i)}: &{chr(98 + i)} [" + ",".join([f"*{chr(97 + i)}"] * 10) + "]\n" for i in range(9))
+    merges = "a: &a {x: 1, y: 2, z: 3}\n" + "".join(
+        f"{chr(98 + i)}: &{chr(98 + i)} {{<<: [" + ",".join([f"*{chr(97 + i)}"] * 3) + "]}\n"
+        for i in range(20))  # 3**20 keys once merged
+    for text in (laughs, merges):
+        with pytest.raises(ConfigError, match=r"aliases \(\*name\) expand to more than 100,000 values"):
+            load_rig(_write(tmp_path, text))
+
+
+def test_deep_nesting_and_values_yaml_cannot_build(tmp_path):
+    with pytest.raises(ConfigError, match="nested more than 32 levels deep at line 2"):
+        load_rig(_write(tmp_path, "rig: x\ncameras: " + "[" * 2000 + "]" * 2000 + "\n"))
+    with pytest.raises(ConfigError, match=r"not valid YAML \(a value cannot be read: day is out of range"):
+        load_rig(_write(tmp_path, "rig: x\nrecordings_dir: 2024-02-30\n"))
+    with pytest.raises(ConfigError, match=r"not valid YAML at line 1 \(could not determine a constructor"):
+        load_rig(_write(tmp_path, "cameras: !!python/object/apply:os.system [echo]\n"))
+
+
+def test_a_document_that_is_not_a_mapping(tmp_path):
+    for text, got in (("", "an empty document"), ("- a\n", "a list"), ("cam1\n", "a single string")):
+        with pytest.raises(ConfigError, match=f"expected a mapping .* at the top level, got {got}$"):
+            load_rig(_write(tmp_path, text))
+
+
+def test_vts_with_a_binary_rig_yaml_is_one_sentence_and_exit_2(tmp_path, axis_frames):
+    """`vts qa daily --config FILE` where FILE is a JPEG: as a user runs it."""
+    import subprocess
+    import sys
+
+    p = tmp_path / "rig.yaml"
+    p.write_bytes((axis_frames / "tst.jpg").read_bytes())
+    r = subprocess.run([sys.executable, "-m", "vts_hw.cli.__main__", "qa", "daily", "--config", str(p)],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2
+    assert r.stderr.strip() == (f"vts: {p}: not a YAML text file (a NUL byte at byte 4: a binary file, "
+                                "or text saved as UTF-16)")
+
+
+def test_a_file_too_large_to_be_a_rig_config(tmp_path):
+    p = _write(tmp_path, "rig: x\n" + "#" * (1 << 20) + "\n")
+    with pytest.raises(ConfigError, match=r"larger than 1 MB, so not a rig config file$"):
+        load_rig(p)

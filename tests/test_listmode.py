@@ -299,3 +299,28 @@ def test_the_writer_refuses_a_bad_header_before_writing(tmp_path):
     with pytest.raises(ValueError, match="gate_rate_hz"):
         VtslmWriter(tmp_path / "x.vtslm", start_time=1.0, duration_s=1.0, gate_rate_hz=0)
     assert not (tmp_path / "x.vtslm").exists()
+
+
+@pytest.mark.parametrize("header, words", [
+    (b"[" * 5000 + b"]" * 5000, "the header is not valid JSON (nested too deeply)"),
+    (b'{"heads": ' + b"9" * 5000 + b"}", "the header is not valid JSON (Exceeds the limit (4300 digits)"),
+])
+def test_a_header_json_refuses_beyond_syntax(tmp_path, header, words):
+    p = tmp_path / "deep.vtslm"
+    p.write_bytes(vtslm.PREAMBLE.pack(vtslm.MAGIC, 1, 0, len(header)) + header)
+    one_line_error(p, words)
+
+
+@pytest.mark.parametrize("key", ["start_time", "duration_s", "gate_t0_ns"])
+def test_a_header_number_no_float_can_hold(good, tmp_path, key):
+    """A 401-digit JSON integer: json gives an int that float() overflows on."""
+    path, _ = good
+    raw = path.read_bytes()
+    _, _, _, length = vtslm.PREAMBLE.unpack_from(raw)
+    header = json.loads(raw[16:16 + length])
+    header[key] = 10 ** 400
+    text = json.dumps(header).encode()
+    text += b" " * (-(16 + len(text)) % 8)
+    p = tmp_path / "huge.vtslm"
+    p.write_bytes(vtslm.PREAMBLE.pack(vtslm.MAGIC, 1, 0, len(text)) + text + raw[16 + length:])
+    one_line_error(p, f"header key '{key}' must be a")

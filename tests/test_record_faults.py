@@ -240,3 +240,20 @@ def test_disk_full_during_reindex_changes_nothing(rig, small_disk):
     p = vts(env, "recording", "reindex", str(out))
     assert p.returncode == 3 and "cam1.index.csv" in p.stderr and "no space left on device" in p.stderr
     assert {q.name: q.read_bytes() for q in out.iterdir()} == before
+
+
+def test_reindex_replaces_a_damaged_index_and_keeps_it_beside(rig, tmp_path):
+    _, env = rig
+    out = tmp_path / "rec"
+    index = _recorded(env, out)
+    lines = index.decode().splitlines()
+    lines[5] = "garbage,in,the,middle"                 # a bad line before the last
+    damaged = ("\n".join(lines) + "\n").encode()
+    (out / "cam1.index.csv").write_bytes(damaged)
+    p = vts(env, "recording", "reindex", str(out))
+    assert p.returncode == 3 and "cam1.index.damaged.csv" in p.stderr and "Traceback" not in p.stderr
+    assert (out / "cam1.index.damaged.csv").read_bytes() == damaged
+    rows = read_index(out / "cam1.index.csv")
+    assert len(rows) == _consistent(out, "cam1") == len(lines) - 1
+    # the host times of every whole row were kept: only the frame of the bad line lost its own
+    assert sum(r.host_time is None for r in rows) == 1

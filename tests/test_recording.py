@@ -7,7 +7,7 @@ import pytest
 from vts_hw.axis_jpeg import inspect_jpeg
 from vts_hw.errors import DataError
 from vts_hw.mjpeg import read_frames_file
-from vts_hw.recording import info, read_index
+from vts_hw.recording import info, load_manifest, read_index
 from vts_hw.recording_writer import Recording
 from vts_hw.reindex import reindex
 
@@ -86,3 +86,71 @@ def test_info_on_files_and_bad_paths(tmp_path, axis_frames):
     (tmp_path / "junk.bin").write_bytes(b"hello")
     with pytest.raises(DataError, match="no JPEG frames"):
         info(tmp_path / "junk.bin")
+
+
+# ---- bad index files (found by bench/fuzz.py): a DataError naming the file, never a traceback
+
+def test_an_index_that_is_not_ascii_text(tmp_path, real_frames):
+    _record(tmp_path, real_frames[:3])
+    idx = tmp_path / "cam1.index.csv"
+    idx.write_bytes(b"frame,offset,length,camera_time,host_time\n0,0,\xff\xd8,1.0,2.0\n")
+    with pytest.raises(DataError, match=r"cam1.index.csv: not a recording index \(byte 46 is not ASCII text\)"):
+        read_index(idx)
+    with pytest.raises(DataError, match="not a recording index"):
+        info(tmp_path)
+
+
+@pytest.mark.parametrize("bad", ["1,nan-ish,5,,", "1,100,-5,,", "1,100,5,inf,", "1,100,5,,1e400", "1,100,5"])
+def test_a_bad_line_before_the_last_is_an_error_not_the_end(tmp_path, real_frames, bad):
+    _record(tmp_path, real_frames[:3])
+    idx = tmp_path / "cam1.index.csv"
+    lines = idx.read_text().splitlines()
+    idx.write_text("\n".join(lines[:2] + [bad] + lines[2:]) + "\n")
+    with pytest.raises(DataError, match=r"cam1.index.csv: line 3 is not a frame,offset,length,camera_time,host_time row"):
+        read_index(idx)
+    idx.write_text("\n".join(lines + [bad]))  # the same line last: the frame in flight at a kill
+    assert len(read_index(idx)) == 3
+
+
+def test_info_of_camera_times_with_an_absurd_frame_step(tmp_path):
+    # a median step of 1e-310 s: the gap in frames is not a finite number
+    s = __import__("vts_hw.recording", fromlist=["summarize_times"]).summarize_times(
+        "cam1", [0.0, 1e-310, 2e-310, 5.0])
+    assert len(s.gaps) == 1 and s.gaps[0]["missing"] >= 1
+
+
+@pytest.mark.parametrize("text, words", [
+    (b"[]", "not a recording manifest (expected a JSON object, got a list)"),
+    (b'{"cameras": []}', 'not a recording manifest ("cameras" must map each camera name to its entry)'),
+    (b'{"cameras": {"cam1": 3}}', 'not a recording manifest ("cameras" must map each camera name to its entry)'),
+    (b'{"cameras": {"cam1": {"gaps": {"missing": 3}}}}', "not a recording manifest (cameras.cam1.gaps must be a list of gaps"),
+    (b'{"cameras": {"cam1": {"gaps": [{"missing": "3"}]}}}', "not a recording manifest (cameras.cam1.gaps must be a list of gaps"),
+    (b'{"cameras": {"cam1"', "not a recording manifest (not valid JSON)"),
+    (b"\xff\xd8\xff\xe0", "not a recording manifest (not valid JSON)"),
+    (b"[" * 100_000, "not a recording manifest (not valid JSON)"),
+])
+def test_load_manifest_of_the_wrong_shape(tmp_path, text, words):
+    (tmp_path / "manifest.json").write_bytes(text)
+    with pytest.raises(DataError) as ei:
+        load_manifest(tmp_path)
+    assert str(ei.value).startswith(f"{tmp_path / 'manifest.json'}: {words}")
+
+
+def test_load_manifest_of_a_recording_and_of_no_manifest(tmp_path, real_frames):
+    _record(tmp_path, real_frames[:2])
+    assert load_manifest(tmp_path)["cameras"]["cam1"]["frames"] == 2
+    (tmp_path / "manifest.json").unlink()
+    assert load_manifest(tmp_path, missing_ok=True) is None
+    with pytest.raises(DataError, match="not a recording folder"):
+        load_manifest(tmp_path)
+
+
+def test_a_lenient_read_keeps_every_whole_row_for_a_rebuild(tmp_path, real_frames):
+    _record(tmp_path, real_frames[:4])
+    idx = tmp_path / "cam1.index.csv"
+    lines = idx.read_text().splitlines()
+    idx.write_text("\n".join(lines[:2] + ["garbage", "7,12,-1,,"] + lines[2:]) + "\n")
+    with pytest.raises(DataError, match="line 3 is not a frame"):
+        read_index(idx)
+    rows = read_index(idx, lenient=True)
+    assert [r.frame for r in rows] == [0, 1, 2, 3] and all(r.host_time for r in rows)

@@ -233,3 +233,24 @@ def test_phantom_motion_from_triangulated_spheres():
     assert d.angle_deg < 0.1
     assert d.translation_norm_mm < 0.3
     assert np.allclose(measured.as_euler_xyz_deg(), [2.0, -4.0, 6.0], atol=0.1)
+
+
+@pytest.mark.parametrize("text, words", [
+    ("[" * 5000 + "]" * 5000, "nested too deeply"),
+    ('{"R": ' + "9" * 5000 + "}", "Exceeds the limit (4300 digits) for integer string conversion"),
+    ('{"R": [[1,0,0],[0,1,0],[0,0,1]], "t_mm": [0,0,0], "meta": 5}', "'meta' must be a JSON object, not int"),
+    ('{"R": [[1,0,0],[0,1,0],[0,0,1]], "t_mm": [0,0,0], "meta": "ab"}', "'meta' must be a JSON object, not str"),
+])
+def test_load_of_json_beyond_syntax_and_a_bad_meta(tmp_path, text, words):
+    path = tmp_path / "spect_mapping.json"
+    path.write_text(text)
+    with pytest.raises(DataError) as err:
+        RigidTransform.load(path)
+    assert str(path) in str(err.value) and words in str(err.value) and "\n" not in str(err.value)
+
+
+def test_load_of_a_number_no_float_can_hold(tmp_path):
+    path = tmp_path / "spect_mapping.json"
+    path.write_text('{"R": [[1,0,0],[0,1,0],[0,0,1%s]], "t_mm": [0,0,0]}' % ("0" * 400))
+    with pytest.raises(DataError, match="missing or malformed R/t_mm"):
+        RigidTransform.load(path)

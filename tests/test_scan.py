@@ -20,6 +20,7 @@ import pytest
 from vts_hw import __version__
 from vts_hw.config import load_rig
 from vts_hw.drivers.trigger import read_log
+from vts_hw.errors import DataError
 from vts_hw.procedures.scan import ScanError, ScanSession
 from vts_hw.recording import read_index
 from vts_hw.sim_devices.rig import SimRig
@@ -318,7 +319,7 @@ def _wait_frames(folder, n, proc, timeout=30.0):
         try:
             counts = [len(read_index(folder / f"{c}.index.csv")) for c in ("cam1", "cam2")]
             fired = _manifest(folder)["scan"]["times"].get("scan_started")
-        except (OSError, ValueError, KeyError):
+        except (OSError, ValueError, KeyError, DataError):  # not there yet, or being written
             counts, fired = [0], None
         if min(counts) >= n and fired:
             return

@@ -192,6 +192,32 @@ def test_interfile_bad_number_and_missing_data_file(interfile):
     assert "cannot read the data file" in _one_line_error(interfile)
 
 
+@pytest.mark.parametrize("change, expected", [
+    (("!name of data file := v.img", "!name of data file := v\x00.img"),
+     "key '!name of data file' holds a NUL byte"),
+    (("!name of data file := v.img", "!name of data file := /dev/zero"),
+     "the data file /dev/zero is not a regular file"),
+    (("!name of data file := v.img", "!name of data file := ."), "is not a regular file"),
+    (("!name of data file := v.img", "!name of data file := " + "v" * 300 + ".img"),
+     "cannot read the data file 'vvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvv'... (304 characters) "
+     "(File name too long)"),
+    (("scaling factor (mm/pixel) [1] := 4.4", "scaling factor (mm/pixel) [1] := 0"),
+     "key 'scaling factor (mm/pixel) [1]' is 0.0, not a positive number of mm"),
+    (("scaling factor (mm/pixel) [2] := 4.4", "scaling factor (mm/pixel) [2] := nan"),
+     "key 'scaling factor (mm/pixel) [2]' is nan"),
+    (("!data offset in bytes := 0", "!data offset in bytes := -8"),
+     "key '!data offset in bytes' is -8, not a byte count"),
+    (("first pixel offset (mm) [3] := ", "first pixel offset (mm) [3] := inf ;"),
+     "'first pixel offset (mm)' is"),
+])
+def test_interfile_values_the_reader_cannot_use(interfile, change, expected):
+    """Header values found by bench/fuzz.py that used to end in a traceback."""
+    text = interfile.read_text()
+    assert change[0] in text
+    interfile.write_text(text.replace(*change))
+    assert expected in _one_line_error(interfile)
+
+
 def test_not_an_interfile_header(tmp_path):
     p = tmp_path / "x.hdr"
     p.write_text("hello\n")
@@ -235,6 +261,26 @@ def test_dicom_frames_not_matching(dicom):
     _one_line_error(dicom)
 
 
+@pytest.mark.parametrize("old, new, expected", [
+    # an element with an unknown value representation: pydicom's NotImplementedError
+    (b"\x28\x00\x30\x00DS", b"\x28\x00\x30\x00D2",
+     "a corrupt DICOM data element after element (0028,0011) (NotImplementedError: Unknown Value "
+     "Representation '0x44 0x32' in tag (0028,0030))"),
+    # a decimal string that is not a number
+    (b"4.4\\4.4", b"4.4\\4'4", "DICOM PixelSpacing is ['4.4', \"4'4\"], not 2 finite numbers"),
+    # the Detector Information Sequence's VR garbled into bytes (its item then is an int)
+    (b"\x54\x00\x22\x00SQ", b"\x54\x00\x22\x00OB",
+     "DICOM NM without ImagePositionPatient/ImageOrientationPatient"),
+])
+def test_dicom_corrupt_elements(dicom, old, new, expected):
+    """Corrupt elements found by bench/fuzz.py: pydicom decodes lazily, so they used to raise
+    pydicom's or float()'s own exceptions from deep in the reader."""
+    raw = dicom.read_bytes()
+    assert raw.count(old) == 1
+    dicom.write_bytes(raw.replace(old, new))
+    assert expected in _one_line_error(dicom)
+
+
 @pytest.mark.parametrize("drop", ["voxel_size", "origin", "data"])
 def test_npz_missing_key(tmp_path, drop):
     p = tmp_path / "v.npz"
@@ -252,6 +298,46 @@ def test_npz_bad_content(tmp_path):
     assert "'voxel_size' must be 3 numbers" in _one_line_error(p)
     p.write_bytes(b"not a zip")
     assert "not a readable .npz" in _one_line_error(p)
+
+
+def _npz_bytes(tmp_path) -> bytearray:
+    p = tmp_path / "good.npz"
+    np.savez_compressed(p, data=np.arange(64.0).reshape(4, 4, 4), voxel_size=np.ones(3),
+                        origin=np.zeros(3))
+    return bytearray(p.read_bytes())
+
+
+def test_npz_broken_archives(tmp_path):
+    """Archives zipfile and zlib refuse with their own exceptions (found by bench/fuzz.py)."""
+    p = tmp_path / "v.npz"
+    raw = _npz_bytes(tmp_path)
+    c = raw.find(b"PK\x01\x02")  # the first central directory record
+    version = raw.copy()
+    version[c + 6] = 160  # "version needed to extract" 16.0: zipfile's NotImplementedError
+    p.write_bytes(version)
+    assert "not a readable .npz archive (NotImplementedError: zip file version 16.0)" in _one_line_error(p)
+    patched = raw.copy()
+    patched[c + 8] |= 0x20  # flag bit 5, compressed patched data
+    p.write_bytes(patched)
+    assert "compressed patched data" in _one_line_error(p)
+    deflate = raw.copy()
+    start = 30 + int.from_bytes(raw[26:28], "little") + int.from_bytes(raw[28:30], "little")
+    deflate[start:start + 8] = b"\xff" * 8  # the first member's compressed data garbled
+    p.write_bytes(deflate)
+    assert "not a readable .npz archive (error: Error -3 while decompressing" in _one_line_error(p)
+
+
+def test_npz_header_claiming_more_than_the_member_holds(tmp_path):
+    import io
+    import zipfile
+
+    head = io.BytesIO()
+    np.lib.format.write_array_header_1_0(
+        head, {"descr": "<f8", "fortran_order": False, "shape": (4000, 4000, 4000)})
+    p = tmp_path / "v.npz"
+    with zipfile.ZipFile(p, "w") as z:
+        z.writestr("data.npy", head.getvalue() + b"\0" * 64)  # 512 GB claimed, 64 bytes held
+    assert "'data' claims 512000000000 bytes of float64 (4000, 4000, 4000)" in _one_line_error(p)
 
 
 def test_missing_file_and_unknown_format(tmp_path):

@@ -328,3 +328,21 @@ def test_the_sim_rig_writes_its_true_calibration(tmp_path):
     c1 = rig.scene.camera_at("cam1", rig.scene.start_epoch)
     world = np.array([[10.0, -20.0, 5.0], [100.0, 50.0, -80.0]])
     assert np.allclose(mp.apply(c1.to_camera(world)), world, atol=1e-9)   # VTS (camera 1) -> SPECT
+
+
+@pytest.mark.parametrize("manifest, words", [
+    ("[]", "not a recording manifest (expected a JSON object, got a list)"),
+    ('{"cameras": []}', 'not a recording manifest ("cameras" must map each camera name to its entry)'),
+    ('{"cameras": {"cam1": 3}}', 'not a recording manifest ("cameras" must map each camera name to its entry)'),
+])
+def test_a_manifest_of_the_wrong_shape_is_one_sentence(tmp_path, manifest, words):
+    """`vts sync analyze` on a session whose manifest.json is not a recording manifest."""
+    session = tmp_path / "session"
+    session.mkdir()
+    (session / "manifest.json").write_text(manifest)
+    (session / "trigger.csv").write_text("host_time,device_time_us,device,kind,text\n")
+    env = {k: v for k, v in os.environ.items() if k != "VTS_CONFIG"}
+    p = subprocess.run([*VTS, "sync", "analyze", str(session), "--listmode", str(tmp_path / "x.vtslm")],
+                       env=env, cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert p.returncode == 3, p.stderr
+    assert p.stderr.strip() == f"vts: {session / 'manifest.json'}: {words}"

@@ -233,10 +233,25 @@ class StereoCalibration:
             data = json.loads(text)
         except json.JSONDecodeError as exc:
             raise DataError(f"{path}: not a JSON calibration file ({exc.msg}, line {exc.lineno}).")
+        except (ValueError, RecursionError) as exc:  # a 5000-digit number, arrays nested 1000 deep
+            raise DataError(f"{path}: not a JSON calibration file ({_json_trouble(exc)}).") from None
         if not isinstance(data, dict) or data.get("format") != FORMAT:
             raise DataError(f"{path}: key 'format' is not {FORMAT!r}, so this is not a stereo"
                             " calibration file.")
         return _from_data(path, data)
+
+
+def _shown(value: Any) -> str:
+    """A value as messages quote it: its repr, cut to 40 characters."""
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _json_trouble(exc: Exception) -> str:
+    """What json.loads found beyond a syntax error, in words."""
+    if isinstance(exc, RecursionError):
+        return "nested too deeply"
+    return str(exc).split(":")[0]  # "Exceeds the limit (4300 digits) for integer string conversion"
 
 
 def stereo_cameras(calib, names=("left", "right")) -> list:
@@ -263,15 +278,16 @@ def _from_data(path: Path, data: dict[str, Any]) -> StereoCalibration:
 
     def number(key: str, value: Any = None) -> float:
         value = need(key) if value is None else value
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise DataError(f"{path}: key '{key}' must be a finite number (got {value!r}).")
+        # abs(v) < 1e300: also False for NaN, inf and a 400-digit JSON integer no float holds
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not abs(value) < 1e300:
+            raise DataError(f"{path}: key '{key}' must be a finite number (got {_shown(value)}).")
         return float(value)
 
     def matrix(key: str) -> np.ndarray:
         value = need(key)
         try:
             arr = np.asarray(value, dtype=float)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise DataError(f"{path}: key '{key}' must be a list of numbers.") from None
         want = _MATRICES[key]
         ok = arr.ndim == len(want) and all(w is None or w == s for w, s in zip(want, arr.shape))
@@ -284,13 +300,13 @@ def _from_data(path: Path, data: dict[str, Any]) -> StereoCalibration:
         value = need(key)
         if (not isinstance(value, list) or len(value) != 2
                 or not all(isinstance(x, int) and not isinstance(x, bool) and x > 0 for x in value)):
-            raise DataError(f"{path}: key '{key}' must be two positive integers (got {value!r}).")
+            raise DataError(f"{path}: key '{key}' must be two positive integers (got {_shown(value)}).")
         return int(value[0]), int(value[1])
 
     def text(key: str) -> str:
         value = need(key)
         if not isinstance(value, str):
-            raise DataError(f"{path}: key '{key}' must be a string (got {value!r}).")
+            raise DataError(f"{path}: key '{key}' must be a string (got {_shown(value)}).")
         return value
 
     mats = {key: matrix(key) for key in _MATRICES}

@@ -208,14 +208,18 @@ def _describe(err: dict) -> str:
     msg = re.sub(r"^Value error, ", "", msg)
     got = err.get("input")
     if typ not in ("model_type",) and not isinstance(got, (dict, list)):
-        return f"{msg[0].lower() + msg[1:]} (got {got!r})"
+        shown = repr(got)
+        shown = shown if len(shown) <= 80 else shown[:77] + "..."
+        return f"{msg[0].lower() + msg[1:]} (got {shown})"
     return msg[0].lower() + msg[1:]
 
 
 def parse_rig(data, source: str = "rig.yaml") -> RigConfig:
     """Validate an already-parsed mapping; errors name ``source``."""
     if not isinstance(data, dict):
-        raise ConfigError(f"{source}: expected a mapping at the top level, got {type(data).__name__}")
+        got = {type(None): "an empty document", list: "a list", str: "a single string"}.get(
+            type(data), f"a single {type(data).__name__}")
+        raise ConfigError(f"{source}: expected a mapping (rig:, cameras:, ...) at the top level, got {got}")
     try:
         return RigConfig.model_validate(data)
     except ValidationError as exc:
@@ -225,23 +229,93 @@ def parse_rig(data, source: str = "rig.yaml") -> RigConfig:
         raise ConfigError(f"{source}: {_loc(first['loc'])} {_describe(first)}{tail}") from None
 
 
+MAX_CONFIG_BYTES = 1 << 20   # a rig.yaml is a few kB; anything this large is not one
+MAX_YAML_DEPTH = 32          # rig.yaml nests 4 levels deep
+MAX_YAML_NODES = 100_000    # a rig.yaml has some hundred; aliases that expand beyond: a YAML bomb
+
+
+def _read_text(p: Path) -> str:
+    """The config file's text; ConfigError naming the file when it is not UTF-8 YAML text."""
+    try:
+        with open(p, "rb") as f:
+            raw = f.read(MAX_CONFIG_BYTES + 1)
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: no such config file (give --config or set {ENV_CONFIG})") from None
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read the config file ({exc.strerror or exc})") from None
+    if len(raw) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{p}: larger than {MAX_CONFIG_BYTES >> 20} MB, so not a rig config file")
+    nul = raw.find(b"\x00")
+    if nul >= 0:
+        raise ConfigError(f"{p}: not a YAML text file (a NUL byte at byte {nul}: a binary file, "
+                          f"or text saved as UTF-16)")
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{p}: not UTF-8 text (byte {exc.start} cannot be decoded); "
+                          f"save the config as UTF-8") from None
+
+
+def _check_depth(text: str, p: Path) -> None:
+    """Refuse deep nesting before the (recursive) composer sees it."""
+    depth = 0
+    for ev in yaml.parse(text, Loader=yaml.SafeLoader):
+        if isinstance(ev, yaml.CollectionStartEvent):
+            depth += 1
+            if depth > MAX_YAML_DEPTH:
+                raise ConfigError(f"{p}: nested more than {MAX_YAML_DEPTH} levels deep at line "
+                                  f"{ev.start_mark.line + 1}, so not a rig config")
+        elif isinstance(ev, yaml.CollectionEndEvent):
+            depth -= 1
+
+
+def _expanded_size(node, memo: dict) -> int:
+    """Nodes of the document with every alias (and merge key) expanded; linear time."""
+    key = id(node)
+    if key in memo:
+        return memo[key]
+    memo[key] = 1  # a recursive alias counts once
+    n = 1
+    if isinstance(node, yaml.SequenceNode):
+        n += sum(_expanded_size(c, memo) for c in node.value)
+    elif isinstance(node, yaml.MappingNode):
+        n += sum(_expanded_size(k, memo) + _expanded_size(v, memo) for k, v in node.value)
+    memo[key] = n
+    return n
+
+
+def _load_yaml(text: str, p: Path):
+    """``yaml.safe_load``, refusing YAML bombs (aliases that expand to millions of nodes) and
+    deep nesting before anything is built from them."""
+    _check_depth(text, p)
+    loader = yaml.SafeLoader(text)
+    try:
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        if _expanded_size(node, {}) > MAX_YAML_NODES:
+            raise ConfigError(f"{p}: its aliases (*name) expand to more than {MAX_YAML_NODES:,} "
+                              f"values, which no rig config needs (a YAML bomb?)")
+        return loader.construct_document(node)
+    finally:
+        loader.dispose()
+
+
 def load_rig(path: str | os.PathLike | None = None) -> RigConfig:
     """Load and validate a rig.yaml; ``None`` means $VTS_CONFIG, then ./rig.yaml."""
     if path is None:
         path = os.environ.get(ENV_CONFIG) or "rig.yaml"
     p = Path(path)
+    text = _read_text(p)
     try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"{p}: no such config file (give --config or set {ENV_CONFIG})") from None
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read the config file ({exc.strerror})") from None
-    try:
-        data = yaml.safe_load(text)
+        data = _load_yaml(text, p)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}" if mark else ""
-        raise ConfigError(f"{p}: not valid YAML{where}") from None
+        problem = getattr(exc, "problem", None)
+        raise ConfigError(f"{p}: not valid YAML{where}" + (f" ({problem})" if problem else "")) from None
+    except (ValueError, OverflowError) as exc:  # a value YAML cannot build, e.g. 2024-02-30
+        raise ConfigError(f"{p}: not valid YAML (a value cannot be read: {exc})") from None
     rig = parse_rig(data, str(p))
     rig._source = p
     return rig

@@ -30,7 +30,6 @@ Units: mm, px, s. See docs/decisions/0018-processing.md and docs/trajectory-form
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from concurrent.futures import ProcessPoolExecutor
@@ -45,7 +44,7 @@ from scipy.optimize import linear_sum_assignment
 from .camera_clock import ClockFit, fit_camera_clock
 from .detect import DEFAULT as DEFAULT_DETECTOR, DetectorSettings, detect
 from .errors import DataError
-from .recording import read_index
+from .recording import load_manifest, read_index
 from .tracks import TRACKS_FORMAT, Tracks
 from .triangulate import Camera, as_camera, fundamental_matrix, match_epipolar
 
@@ -448,11 +447,8 @@ def track_identities(frame_of_point: np.ndarray, times: np.ndarray, points: np.n
 
 # ------------------------------------------------------------------ entry point
 def _manifest_cameras(folder: Path) -> list[str]:
-    try:
-        m = json.loads((folder / "manifest.json").read_text(encoding="utf-8"))
-        names = list(m.get("cameras", {}))
-    except (OSError, ValueError):
-        names = []
+    m = load_manifest(folder, missing_ok=True)  # a bad manifest is a DataError naming it
+    names = list(m.get("cameras", {})) if m is not None else []
     found = sorted(p.name[: -len(".index.csv")] for p in folder.glob("*.index.csv"))
     return [n for n in names if n in found] + [n for n in found if n not in names]
 

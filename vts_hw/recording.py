@@ -13,8 +13,8 @@ summary of the frames of a folder, an ``.mjpg`` capture or a JPEG file.
 
 from __future__ import annotations
 
-import csv
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -51,7 +51,17 @@ def load_manifest(folder: str | Path, *, missing_ok: bool = False) -> dict | Non
     cams = data.get("cameras", {})
     if not isinstance(cams, dict) or not all(isinstance(k, str) and isinstance(v, dict) for k, v in cams.items()):
         raise DataError(f"{path}: not a recording manifest (\"cameras\" must map each camera name to its entry)")
+    for name, cam in cams.items():
+        gaps = cam.get("gaps", [])
+        if not isinstance(gaps, list) or not all(
+                isinstance(g, dict) and _count_or_none(g.get("missing")) for g in gaps):
+            raise DataError(f"{path}: not a recording manifest (cameras.{name}.gaps must be a list of "
+                            f"gaps, each with a whole number of frames missing)")
     return data
+
+
+def _count_or_none(v) -> bool:
+    return v is None or (isinstance(v, int) and not isinstance(v, bool) and v >= 0)
 
 
 def _json_kind(v) -> str:
@@ -68,20 +78,55 @@ class FrameRow:
     host_time: float | None
 
 
-def read_index(path: Path) -> list[FrameRow]:
+def read_index(path: Path, *, lenient: bool = False) -> list[FrameRow]:
+    """The rows of a ``<name>.index.csv``. A last line that is not a whole row is the frame in
+    flight when the recorder was killed: it is left out and everything before it stands. Any
+    other bad line, or a file that is not an index, is a DataError naming the file (and line).
+    ``lenient`` (for rebuilding an index): bad lines are skipped, every whole row is kept."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read the index ({exc.strerror or exc})") from None
+    try:
+        text = raw.decode("ascii")
+    except UnicodeDecodeError as exc:
+        raise DataError(f"{path}: not a recording index (byte {exc.start} is not ASCII text)") from None
+    lines = [ln[:-1] if ln.endswith("\r") else ln for ln in text.split("\n")]
+    if lines[0].split(",") != INDEX_HEADER:
+        raise DataError(f"{path}: not a recording index (expected columns {','.join(INDEX_HEADER)})")
+    body = [(i + 2, ln) for i, ln in enumerate(lines[1:]) if ln.strip()]
     rows = []
-    with open(path, newline="", encoding="ascii") as f:
-        reader = csv.DictReader(f)
-        if reader.fieldnames != INDEX_HEADER:
-            raise DataError(f"{path}: not a recording index (expected columns {','.join(INDEX_HEADER)})")
-        for r in reader:
-            try:
-                rows.append(FrameRow(int(r["frame"]), int(r["offset"]), int(r["length"]),
-                                     float(r["camera_time"]) if r["camera_time"] else None,
-                                     float(r["host_time"]) if r["host_time"] else None))
-            except (TypeError, ValueError):
-                break  # a line cut short by a kill: everything before it stands
+    for k, (lineno, line) in enumerate(body):
+        row = _index_row(line)
+        if row is None:
+            if lenient or k == len(body) - 1:
+                continue  # the last: a line cut short by a kill; everything before it stands
+            shown = line if len(line) <= 60 else line[:57] + "..."
+            raise DataError(f"{path}: line {lineno} is not a frame,offset,length,camera_time,"
+                            f"host_time row ({shown!r}); run 'vts recording reindex'")
+        rows.append(row)
     return rows
+
+
+_MAX_TIME = 1e11  # epoch seconds (year 5138): beyond it a time is garbage, not a stamp
+
+
+def _index_row(line: str) -> FrameRow | None:
+    """One index line, or None when it is not a whole, sane row."""
+    parts = line.split(",")
+    if len(parts) != len(INDEX_HEADER):
+        return None
+    try:
+        frame, offset, length = (int(x) for x in parts[:3])
+        times = [float(x) if x.strip() else None for x in parts[3:]]
+    except ValueError:
+        return None
+    if frame < 0 or offset < 0 or length <= 0:
+        return None
+    if any(t is not None and not (math.isfinite(t) and 0.0 <= t < _MAX_TIME) for t in times):
+        return None
+    return FrameRow(frame, offset, length, times[0], times[1])
 
 
 # -- info --------------------------------------------------------------------------
@@ -116,8 +161,10 @@ def summarize_times(source: str, times: list[float | None], torn: int = 0, probl
         if med:
             for i, d in enumerate(diffs):
                 if d > 1.5 * med + 0.011:
+                    frames = d / med  # huge (not finite) for a median step of 1e-300 s
+                    missing = int(round(frames)) - 1 if math.isfinite(frames) else len(times)
                     gaps.append({"after_frame": i, "camera_t0": ts[i], "camera_t1": ts[i + 1],
-                                 "seconds": round(d, 3), "missing": max(1, int(round(d / med)) - 1)})
+                                 "seconds": round(d, 3), "missing": max(1, missing)})
                 elif d < 0:
                     gaps.append({"after_frame": i, "camera_t0": ts[i], "camera_t1": ts[i + 1],
                                  "seconds": round(d, 3), "missing": 0, "note": "time went backwards"})

@@ -122,13 +122,16 @@ class RigidTransform:
         try:
             R = np.asarray(d["R"], float).reshape(3, 3)
             t = np.asarray(d["t_mm"], float).reshape(3)
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
             raise DataError(f"not a rigid transform: missing or malformed R/t_mm ({exc})") from None
         if not np.all(np.isfinite(R)) or not np.all(np.isfinite(t)):
             raise DataError("not a rigid transform: R or t_mm holds non-finite numbers")
         if np.abs(R @ R.T - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
             raise DataError("not a rigid transform: R is not a proper rotation matrix")
-        return cls(R, t, dict(d.get("meta") or {}))
+        meta = d.get("meta") or {}
+        if not isinstance(meta, dict):
+            raise DataError(f"not a rigid transform: 'meta' must be a JSON object, not {type(meta).__name__}")
+        return cls(R, t, dict(meta))
 
     def save(self, path) -> Path:
         """Write :meth:`to_dict` as JSON (atomically: a temporary file, then rename)."""
@@ -146,6 +149,9 @@ class RigidTransform:
             d = json.loads(path.read_text(encoding="utf-8"))
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise DataError(f"cannot read transform file {path}: {exc}") from None
+        except (ValueError, RecursionError) as exc:  # a 5000-digit number, arrays nested 1000 deep
+            why = "nested too deeply" if isinstance(exc, RecursionError) else str(exc).split(":")[0]
+            raise DataError(f"cannot read transform file {path}: {why}") from None
         if not isinstance(d, dict):
             raise DataError(f"cannot read transform file {path}: not a JSON object")
         try:

@@ -3,7 +3,8 @@
 Reindex repairs; it never makes anything worse (docs/decisions/0026-recordings-never-lose.md):
 
 * an index is replaced only when the rebuilt one still holds every frame the old one listed
-  (same offset and length). Otherwise — the ``.mjpeg`` damaged, truncated, or not the file the
+  (same offset and length); a damaged index (a bad line before its last) is replaced, and
+  kept beside as ``<name>.index.damaged.csv``. Otherwise — the ``.mjpeg`` damaged, truncated, or not the file the
   index was written for — the old index stays in place and the rebuilt one is written beside
   it as ``<name>.index.rebuilt.csv``, and the report says so;
 * host receive times are not in the JPEGs: they are kept from the old index for the frames it
@@ -32,6 +33,7 @@ from .recording import INDEX_HEADER, MANIFEST, FrameRow, load_manifest, read_ind
 
 RESERVE_NAME = ".vts-reserve"   # the recording writer's reserve, left behind by a killed recorder
 REBUILT_SUFFIX = ".index.rebuilt.csv"
+DAMAGED_SUFFIX = ".index.damaged.csv"
 UNREADABLE_MANIFEST = "manifest.unreadable.json"
 
 
@@ -63,7 +65,7 @@ class ReindexReport:
 
     @property
     def problems(self) -> list[str]:
-        out = [f"{c.name}: {c.note}" for c in self.cameras if not c.replaced]
+        out = [f"{c.name}: {c.note}" for c in self.cameras if c.note]
         return out + ([self.manifest_note] if self.manifest_note else [])
 
 
@@ -79,14 +81,17 @@ def _read_mjpeg(path: Path):
 
 
 def _old_index(path: Path) -> tuple[list[FrameRow] | None, str]:
+    """The old index's rows and, when it is damaged, why (its whole rows are still read, for
+    their host times)."""
     if not path.exists():
         return None, ""
     try:
         return read_index(path), ""
     except DataError as exc:
-        return None, str(exc)
-    except (OSError, UnicodeDecodeError) as exc:
-        return None, f"{path}: cannot read the old index ({exc})"
+        try:
+            return read_index(path, lenient=True), str(exc)
+        except DataError:
+            return None, str(exc)
 
 
 def _rebuild(data, old: dict[int, FrameRow]) -> tuple[str, int, int, int, set]:
@@ -125,17 +130,21 @@ def reindex_camera(folder: Path, mjpeg: Path) -> CameraReindex:
             data.close()
     lost = [r for r in old_rows or [] if (r.offset, r.length) not in found]
     rebuilt = folder / f"{name}{REBUILT_SUFFIX}"
-    if lost:
+    if lost and not old_problem:
         write_atomic(rebuilt, text, encoding="ascii")
         note = (f"the rebuilt index would lose {len(lost)} of the {len(old_rows)} frame(s) the old one lists "
                 f"({mjpeg.name} holds {n} whole frame(s)): the old index is kept as it was and the rebuilt "
                 f"one is beside it as {rebuilt.name}")
         return CameraReindex(name, n, kept, torn, len(old_rows), False, note)
+    note = ""
+    if old_problem:   # a damaged index is replaced, and kept beside for whoever wants to look
+        damaged = folder / f"{name}{DAMAGED_SUFFIX}"
+        write_atomic(damaged, index_path.read_bytes(), kept="the old index is unchanged")
+        note = f"the old index was damaged ({old_problem}); it is kept as {damaged.name}"
     write_atomic(index_path, text, encoding="ascii",
                  kept="the old index is unchanged" if index_path.exists() else "no index was written")
     with contextlib.suppress(FileNotFoundError):
         rebuilt.unlink()  # an earlier rebuilt copy is now the index
-    note = f"the old index could not be read and was replaced ({old_problem})" if old_problem else ""
     return CameraReindex(name, n, kept, torn, None if old_rows is None else len(old_rows), True, note)
 
 

@@ -14,7 +14,6 @@ a handful of ``numpy.frombuffer`` calls; :func:`write_vtslm` writes a ListMode b
 from __future__ import annotations
 
 import json
-import math
 import struct
 from pathlib import Path
 
@@ -40,7 +39,8 @@ END = np.dtype([("t_ns", "<i8")])
 RECORDS = {b"EVNT": EVENT, b"TMRK": MARK, b"FRAM": FRAME, b"GATE": GATE, b"DEAD": DEAD, b"END ": END}
 
 def _number(v):
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    # a JSON integer of 400 digits is an int no float can hold: not a number here
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) < 1e300
 
 
 def _positive(v):
@@ -48,7 +48,7 @@ def _positive(v):
 
 
 def _int(v):
-    return isinstance(v, int) and not isinstance(v, bool)
+    return isinstance(v, int) and not isinstance(v, bool) and -2**63 <= v < 2**63
 
 
 # header keys every file must have: name -> (check, what it must be)
@@ -224,13 +224,18 @@ def _header(path: Path, data: bytes) -> tuple[dict, int]:
         header = json.loads(data[PREAMBLE.size:end].decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
         raise DataError(f"{path}: the header is not valid JSON ({e})") from None
+    except (ValueError, RecursionError) as e:  # a 5000-digit number, arrays nested 1000 deep
+        why = "nested too deeply" if isinstance(e, RecursionError) else str(e).split(":")[0]
+        raise DataError(f"{path}: the header is not valid JSON ({why})") from None
     if not isinstance(header, dict):
         raise DataError(f"{path}: the header is not a JSON object")
     for key, (ok, what) in REQUIRED.items():
         if key not in header:
             raise DataError(f"{path}: header key {key!r} is missing")
         if not ok(header[key]):
-            raise DataError(f"{path}: header key {key!r} must be {what}, not {header[key]!r}")
+            shown = repr(header[key])
+            shown = shown if len(shown) <= 40 else shown[:37] + "..."
+            raise DataError(f"{path}: header key {key!r} must be {what}, not {shown}")
     return header, end
 
 

@@ -18,6 +18,8 @@ writer for another set-up.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -38,14 +40,51 @@ def _pydicom():
 
 
 def _geometry_item(ds):
+    from pydicom.dataset import Dataset
+
     if "ImagePositionPatient" in ds and "ImageOrientationPatient" in ds:
         return ds
     seq = ds.get("DetectorInformationSequence")
-    if seq:
-        item = seq[0]
-        if "ImagePositionPatient" in item and "ImageOrientationPatient" in item:
-            return item
+    item = seq[0] if isinstance(seq, Sequence) and len(seq) else None
+    if isinstance(item, Dataset) and "ImagePositionPatient" in item and "ImageOrientationPatient" in item:
+        return item
     return None
+
+
+def _decode_all(ds, path: Path) -> None:
+    """Decode every element now: pydicom decodes lazily, on first access, and a corrupt element
+    (unknown VR, wrong length, a sequence cut short) raises whatever its decoder raises."""
+    tag = None
+    try:
+        for elem in ds.iterall():
+            tag = elem.tag
+    except Exception as e:  # noqa: BLE001 - pydicom's decoders raise many kinds; none is documented
+        after = f" after element {tag}" if tag is not None else ""
+        raise DataError(f"{path}: a corrupt DICOM data element{after} "
+                        f"({type(e).__name__}: {' '.join(str(e).split())[:120]})") from None
+
+
+def _numbers(path: Path, ds, key: str, n: int) -> list[float]:
+    """``n`` finite numbers from element ``key``; DataError naming the file and the key."""
+    value = ds.get(key)
+    values = list(value) if isinstance(value, Sequence) and not isinstance(value, (str, bytes)) \
+        else [value]
+    try:
+        out = [float(v) for v in values]
+    except (TypeError, ValueError, OverflowError):
+        out = []
+    if len(out) != n or not all(math.isfinite(v) for v in out):
+        raise DataError(f"{path}: DICOM {key} is {repr(value)[:60]}, not {n} finite "
+                        f"number{'s' * (n > 1)}")
+    return out
+
+
+def _count(path: Path, ds, key: str) -> int:
+    """A positive whole number from element ``key`` (Rows, Columns, NumberOfFrames)."""
+    (v,) = _numbers(path, ds, key, 1)
+    if v != int(v) or v < 1:
+        raise DataError(f"{path}: DICOM {key} is {v:g}, not a positive whole number")
+    return int(v)
 
 
 def read_dicom_nm(path, patient_to_spect=PATIENT_TO_SPECT) -> Volume:
@@ -60,6 +99,7 @@ def read_dicom_nm(path, patient_to_spect=PATIENT_TO_SPECT) -> Volume:
         raise DataError(f"{path}: cannot read ({e.strerror or e})") from None
     except Exception as e:  # truncated or corrupt data elements
         raise DataError(f"{path}: unreadable DICOM ({type(e).__name__}: {e})") from None
+    _decode_all(ds, path)
     modality = ds.get("Modality", None)
     if modality != "NM":
         raise DataError(f"{path}: not a DICOM NM image (Modality is {modality or 'missing'})")
@@ -69,32 +109,35 @@ def read_dicom_nm(path, patient_to_spect=PATIENT_TO_SPECT) -> Volume:
     geo = _geometry_item(ds)
     if geo is None:
         raise DataError(f"{path}: DICOM NM without ImagePositionPatient/ImageOrientationPatient")
-    step = ds.get("SpacingBetweenSlices") or ds.get("SliceThickness")
-    if not step:
+    step_key = "SpacingBetweenSlices" if ds.get("SpacingBetweenSlices") else "SliceThickness"
+    if not ds.get(step_key):
         raise DataError(f"{path}: DICOM NM without SpacingBetweenSlices or SliceThickness")
+    (step,) = _numbers(path, ds, step_key, 1)
+    rows, cols = _count(path, ds, "Rows"), _count(path, ds, "Columns")
+    frames = _count(path, ds, "NumberOfFrames") if ds.get("NumberOfFrames") else 1
+    dr, dc = _numbers(path, ds, "PixelSpacing", 2)
+    slope = _numbers(path, ds, "RescaleSlope", 1)[0] if ds.get("RescaleSlope") else 1.0
+    intercept = _numbers(path, ds, "RescaleIntercept", 1)[0] if ds.get("RescaleIntercept") else 0.0
+    iop = np.asarray(_numbers(path, geo, "ImageOrientationPatient", 6))
+    ipp = np.asarray(_numbers(path, geo, "ImagePositionPatient", 3))
     try:
         arr = ds.pixel_array
     except Exception as e:
         raise DataError(f"{path}: DICOM pixel data unreadable ({e})") from None
-    frames = int(ds.get("NumberOfFrames", 1) or 1)
     if arr.ndim == 2:
         arr = arr[None]
-    if arr.shape != (frames, int(ds.Rows), int(ds.Columns)):
+    if arr.shape != (frames, rows, cols):
         raise DataError(f"{path}: pixel data shape {arr.shape} does not match "
-                        f"{frames} frames of {ds.Rows}×{ds.Columns}")
-    slope = float(ds.get("RescaleSlope", 1.0) or 1.0)
-    intercept = float(ds.get("RescaleIntercept", 0.0) or 0.0)
+                        f"{frames} frames of {rows}×{cols}")
     data = arr.astype(np.float32) * np.float32(slope) + np.float32(intercept)
-    iop = np.asarray([float(v) for v in geo.ImageOrientationPatient])
     row_cos, col_cos = iop[:3], iop[3:]
     normal = np.cross(row_cos, col_cos)
     m = np.asarray(patient_to_spect, dtype=float)
     # array axes: 0 = frames (along the normal), 1 = rows (along col_cos), 2 = columns (row_cos)
     direction = np.stack([m @ normal, m @ col_cos, m @ row_cos])
-    dr, dc = (float(v) for v in ds.PixelSpacing)
-    origin = m @ np.asarray([float(v) for v in geo.ImagePositionPatient])
+    origin = m @ ipp
     try:
-        vol = Volume(data, (float(step), dr, dc), origin, direction, path)
+        vol = Volume(data, (step, dr, dc), origin, direction, path)
         return vol.canonical()
     except ValueError as e:
         raise DataError(f"{path}: unusable DICOM geometry ({e})") from None
@@ -106,7 +149,7 @@ def write_dicom_nm(volume: Volume, path, patient_to_spect=PATIENT_TO_SPECT) -> P
     Slices are written as standard transaxial images (IOP ``1,0,0,0,1,0`` under the default
     mapping: rows run from anterior to posterior, frames from the feet to the head).
     """
-    pydicom = _pydicom()
+    _pydicom()  # one sentence when pydicom is missing
     from pydicom.dataset import Dataset, FileMetaDataset
     from pydicom.sequence import Sequence
     from pydicom.tag import Tag

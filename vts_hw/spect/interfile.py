@@ -17,7 +17,9 @@ Keys are matched case-insensitively, with the leading ``!`` and repeated blanks 
 
 from __future__ import annotations
 
+import math
 import re
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -79,6 +81,10 @@ def read_interfile(path) -> Volume:
     if min(shape) <= 0:
         raise DataError(f"{path}: matrix size {shape} is not positive")
     size = [_number(h, path, f"scaling factor (mm/pixel) [{i}]") for i in (1, 2, 3)]
+    for i, v in enumerate(size, 1):
+        if not (math.isfinite(v) and v > 0):
+            raise DataError(f"{path}: key 'scaling factor (mm/pixel) [{i}]' is {v}, not a positive "
+                            f"number of mm")
     fmt = _norm(_get(h, path, "!number format"))
     nbytes = _number(h, path, "!number of bytes per pixel", int)
     if (fmt, nbytes) not in _FORMATS:
@@ -87,13 +93,21 @@ def read_interfile(path) -> Volume:
     if order_text not in _BYTE_ORDERS:
         raise DataError(f"{path}: unknown imagedata byte order '{order_text}'")
     dtype = np.dtype(_BYTE_ORDERS[order_text] + _FORMATS[(fmt, nbytes)])
-    data_path = path.parent / _get(h, path, "!name of data file")
+    name = _get(h, path, "!name of data file")
+    data_path = path.parent / name
+    shown = data_path if len(name) <= 80 else f"{name[:40]!r}... ({len(name)} characters)"
+    if "\x00" in name:
+        raise DataError(f"{path}: key '!name of data file' holds a NUL byte ({name[:40]!r})")
     offset = _number(h, path, "!data offset in bytes", int, "0")
+    if offset < 0:
+        raise DataError(f"{path}: key '!data offset in bytes' is {offset}, not a byte count")
     try:
+        if not stat.S_ISREG(data_path.stat().st_mode):  # a folder, /dev/zero, a FIFO
+            raise DataError(f"{path}: the data file {shown} is not a regular file")
         raw = data_path.read_bytes()
-    except OSError as e:
-        raise DataError(f"{path}: cannot read the data file {data_path} ({e.strerror})") from None
-    expected = int(np.prod(shape)) * nbytes
+    except OSError as e:  # missing, unreadable, a name too long
+        raise DataError(f"{path}: cannot read the data file {shown} ({e.strerror})") from None
+    expected = math.prod(shape) * nbytes
     if len(raw) - offset != expected:
         raise DataError(f"{path}: data file {data_path.name} holds {len(raw) - offset} bytes "
                         f"after the offset, the header says {expected} ({shape[0]}×{shape[1]}×"
@@ -103,6 +117,8 @@ def read_interfile(path) -> Volume:
     default_xyz = (-centre[0], centre[1], -centre[2])
     xyz = [_number(h, path, f"first pixel offset (mm) [{i}]", float, repr(default_xyz[i - 1]))
            for i in (1, 2, 3)]
+    if not all(math.isfinite(v) for v in xyz):
+        raise DataError(f"{path}: 'first pixel offset (mm)' is {xyz}, not three finite numbers")
     vol = Volume(data.astype(dtype.newbyteorder("=")), (size[2], size[1], size[0]), xyz,
                  _DIRECTION, path)
     return vol.canonical()

@@ -9,23 +9,57 @@ the canonical layout. ``origin`` is the SPECT (X, Y, Z) position of the centre o
 
 from __future__ import annotations
 
+import math
+import struct
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
+from numpy.lib import format as fmt
 
 from vts_hw.errors import DataError
 from vts_hw.spect.volume import CANONICAL_DIRECTION, Volume
+
+
+KEYS = ("data", "voxel_size", "origin", "direction")
+MAX_ARRAY_BYTES = 4 << 30  # 4 GiB: far above any reconstructed volume
+# what a broken zip archive or .npy member raises from zipfile, zlib and numpy.lib.format
+_BROKEN = (OSError, EOFError, ValueError, KeyError, NotImplementedError, RuntimeError,
+           zipfile.BadZipFile, zlib.error, struct.error)
+
+
+def _arrays(path: Path) -> dict[str, np.ndarray]:
+    """The archive's arrays we read, each checked against its declared size before it is
+    allocated (a header may claim terabytes); never unpickles."""
+    arrays = {}
+    with zipfile.ZipFile(path) as zf:
+        for info in zf.infolist():
+            key = info.filename[:-4] if info.filename.endswith(".npy") else None
+            if key not in KEYS or key in arrays:
+                continue
+            with zf.open(info) as f:
+                major, _minor = fmt.read_magic(f)
+                read_header = fmt.read_array_header_1_0 if major == 1 else fmt.read_array_header_2_0
+                shape, _fortran, dtype = read_header(f)
+            if dtype.hasobject:
+                raise DataError(f"{path}: '{key}' holds Python objects, not numbers")
+            size = math.prod(shape) * dtype.itemsize
+            if size > min(info.file_size, MAX_ARRAY_BYTES):
+                raise DataError(f"{path}: '{key}' claims {size} bytes of {dtype} {tuple(shape)}, "
+                                f"but its member holds {info.file_size}")
+            with zf.open(info) as f:
+                arrays[key] = fmt.read_array(f, allow_pickle=False)
+    return arrays
 
 
 def read_npz(path) -> Volume:
     """Read a ``.npz`` volume; returns the canonical :class:`Volume`."""
     path = Path(path)
     try:
-        with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in z.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as e:
-        raise DataError(f"{path}: not a readable .npz archive ({e})") from None
+        arrays = _arrays(path)
+    except _BROKEN as e:
+        raise DataError(f"{path}: not a readable .npz archive ({type(e).__name__}: {e})") from None
     for key in ("data", "voxel_size", "origin"):
         if key not in arrays:
             raise DataError(f"{path}: npz missing key '{key}' (has {sorted(arrays)})")

@@ -1,0 +1,203 @@
+"""The fuzz targets: one per parser of outside bytes, each a function of one input.
+
+A target writes the input where its parser reads it (a file in a scratch folder on a RAM disk
+when there is one) and calls the parser, and the parser's follow-up readers that a user's
+command would call next. :class:`vts_hw.errors.VtsError` and its subclasses are the answers
+the project promises for bad input: :meth:`Scratch.call` counts them as handled. Anything
+else escapes the target and is a crash (bench/fuzz.py counts it and saves the input).
+
+Nothing from ``vts_hw`` is imported at the top of this module: the fuzzing child process
+imports the parsers inside ``atheris.instrument_imports`` (see :func:`import_parsers`), so
+that their code is instrumented for coverage.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+
+@dataclass(frozen=True)
+class Target:
+    name: str
+    what: str                           # the parser(s), for the table
+    run: Callable[[bytes, "Scratch"], None]
+    instrument: tuple[str, ...] = ("vts_hw",)   # modules atheris instruments for coverage
+    max_len: int = 8192                 # longest input the fuzzer makes
+    tokens: tuple[bytes, ...] = ()      # a libFuzzer dictionary: pieces a mutation may insert
+    fixtures: tuple[str, ...] = ()      # seed-folder files copied beside the input (read-only)
+
+
+class Scratch:
+    """A per-process scratch folder; the input goes to a fixed file name in it."""
+
+    def __init__(self, fixtures_dir: Path | None = None, fixtures=()):
+        base = "/dev/shm" if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK) else None
+        self.dir = Path(tempfile.mkdtemp(prefix="vts-fuzz-", dir=base))
+        self.rec = self.dir / "rec"
+        self.rec.mkdir()
+        for name in fixtures:
+            shutil.copy(fixtures_dir / name, self.dir / name)
+            shutil.copy(fixtures_dir / name, self.rec / name)
+        self.handled = 0
+
+    def file(self, name: str, data: bytes, folder: Path | None = None) -> Path:
+        p = (folder or self.dir) / name
+        with open(p, "wb") as f:
+            f.write(data)
+        return p
+
+    def call(self, fn, *args):
+        """``fn(*args)``; a typed error is a handled answer (counted), anything else escapes."""
+        from vts_hw.errors import VtsError
+        try:
+            return fn(*args)
+        except VtsError:
+            self.handled += 1
+            return None
+
+    def close(self) -> None:
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+
+P: dict = {}  # the parsers, filled by import_parsers()
+
+
+def import_parsers() -> None:
+    """Import every parser a target calls (inside atheris.instrument_imports in the child)."""
+    from vts_hw import axis_jpeg, config, mjpeg, recording
+    from vts_hw.calibration_io import StereoCalibration
+    from vts_hw.listmode import read_listmode
+    from vts_hw.procedures.sync import check_session
+    from vts_hw.processing import _manifest_cameras
+    from vts_hw.registration import RigidTransform
+    from vts_hw.spect.dicom_nm import read_dicom_nm
+    from vts_hw.spect.interfile import read_interfile
+    from vts_hw.spect.npz import read_npz
+    from vts_hw.spect.readers import read_volume
+    P.update(axis_jpeg=axis_jpeg, mjpeg=mjpeg, recording=recording, config=config,
+             StereoCalibration=StereoCalibration, read_listmode=read_listmode,
+             RigidTransform=RigidTransform, read_dicom_nm=read_dicom_nm,
+             read_interfile=read_interfile, read_npz=read_npz, read_volume=read_volume,
+             check_session=check_session, manifest_cameras=_manifest_cameras)
+
+
+# ------------------------------------------------------------------------------- targets
+
+def _mjpeg(data: bytes, s: Scratch) -> None:
+    m = P["mjpeg"]
+    s.call(m.read_frames_file, s.file("capture.mjpg", data))
+    parser = m.MultipartParser(b"myboundary")
+    step = 1 + len(data) % 509  # the stream arrives in pieces of any size
+    for i in range(0, len(data), step):
+        for part in parser.feed(data[i:i + step]):
+            part.complete
+    parser.flush()
+    s.call(m.boundary_from_content_type, data[:200].decode("latin-1"))
+
+
+def _axis_jpeg(data: bytes, s: Scratch) -> None:
+    a = P["axis_jpeg"]
+    info = s.call(a.inspect_jpeg, data)
+    if info is not None:
+        info.timestamp
+    a.axis_timestamp(data)
+
+
+def _index(data: bytes, s: Scratch) -> None:
+    r = P["recording"]
+    p = s.file("cam1.index.csv", data, s.rec)
+    s.call(r.read_index, p)
+    s.call(r.info, s.rec)  # `vts recording info`: the index against its .mjpeg
+
+
+def _manifest(data: bytes, s: Scratch) -> None:
+    s.file("manifest.json", data, s.rec)
+    s.call(P["recording"].load_manifest, s.rec)
+    s.call(P["check_session"], s.rec)      # `vts sync analyze`
+    s.call(P["manifest_cameras"], s.rec)   # `vts process`
+
+
+def _listmode(data: bytes, s: Scratch) -> None:
+    s.call(P["read_listmode"], s.file("scan.vtslm", data))
+
+
+def _interfile(data: bytes, s: Scratch) -> None:
+    s.call(P["read_interfile"], s.file("vol.h33", data))  # vol.img beside it is the seed's
+
+
+def _dicom(data: bytes, s: Scratch) -> None:
+    s.call(P["read_dicom_nm"], s.file("vol.dcm", data))
+
+
+def _npz(data: bytes, s: Scratch) -> None:
+    s.call(P["read_npz"], s.file("vol.npz", data))
+
+
+def _calibration(data: bytes, s: Scratch) -> None:
+    s.call(P["StereoCalibration"].load, s.file("calibration.json", data))
+
+
+def _mapping(data: bytes, s: Scratch) -> None:
+    s.call(P["RigidTransform"].load, s.file("spect_mapping.json", data))
+
+
+def _rig_yaml(data: bytes, s: Scratch) -> None:
+    s.call(P["config"].load_rig, s.file("rig.yaml", data))
+
+
+_JSON = (b'"', b"{", b"}", b"[", b"]", b",", b":", b"null", b"true", b"false", b"NaN",
+         b"Infinity", b"-Infinity", b"1e999", b"-0", b"0.5", b"[[1,0,0],[0,1,0],[0,0,1]]",
+         b": 5", b': "x"', b": []", b": {}", b"[[[[[[[[[[[[[[[[", b"1" + b"0" * 400)
+_JPEG = (b"\xff\xd8", b"\xff\xd9", b"\xff\xda", b"\xff\xc0", b"\xff\xfe\x00\x0f\x0a\x01",
+         b"\xff\xfe\x00\x0f\x0a\x00", b"\xff\x00", b"\xff\xd0", b"\xff\xff")
+
+TARGETS: dict[str, Target] = {t.name: t for t in [
+    Target("mjpeg", "mjpeg.read_frames_file, MultipartParser, boundary_from_content_type", _mjpeg,
+           max_len=24000, tokens=_JPEG + (b"--myboundary\r\n", b"Content-Type: image/jpeg\r\n",
+                                          b"Content-Length: ", b"\r\n\r\n", b"\n\n",
+                                          b"multipart/x-mixed-replace; boundary=")),
+    Target("axis_jpeg", "axis_jpeg.inspect_jpeg, axis_timestamp", _axis_jpeg,
+           max_len=12000, tokens=_JPEG),
+    Target("recording_index", "recording.read_index, recording.info", _index,
+           fixtures=("cam1.mjpeg",), max_len=4096,
+           tokens=(b"frame,offset,length,camera_time,host_time\n", b",", b"\n", b"\r\n", b"nan",
+                   b"inf", b"-1", b"1e999", b"\x00")),
+    Target("manifest", "recording.load_manifest, sync.check_session, processing", _manifest,
+           fixtures=("cam1.index.csv", "trigger.csv"), max_len=4096,
+           tokens=_JSON + (b'"cameras"', b'"cam1"', b'"frames"', b'"status"', b'"gaps"')),
+    Target("listmode", "listmode.read_listmode (VTSLM)", _listmode, max_len=16384,
+           tokens=(b"\x89VTSLM\r\n", b"EVNT", b"TMRK", b"FRAM", b"GATE", b"DEAD", b"END ",
+                   b'"heads"', b'"duration_s"', b'"gate_rate_hz"', b"\xff\xff\xff\xff",
+                   b"\x00\x00\x00\x00") + _JSON),
+    Target("interfile", "spect.interfile.read_interfile", _interfile, fixtures=("vol.img",),
+           max_len=4096,
+           tokens=(b"!INTERFILE :=", b":=", b"!matrix size [1] := ", b"!number format := ",
+                   b"float", b"unsigned integer", b"signed integer", b"!number of bytes per pixel := ",
+                   b"imagedata byte order := BIGENDIAN", b"!name of data file := ",
+                   b"!data offset in bytes := ", b"scaling factor (mm/pixel) [3] := ",
+                   b"first pixel offset (mm) [2] := ", b"nan", b"inf", b"-1", b"0", b"\x00",
+                   b"99999999999")),
+    Target("dicom", "spect.dicom_nm.read_dicom_nm", _dicom, instrument=("vts_hw", "pydicom"),
+           max_len=12000, tokens=(b"DICM", b"NM", b"DS", b"IS", b"US", b"SQ", b"OW", b"UL",
+                                  b"\xe0\x7f\x10\x00", b"\x28\x00\x10\x00", b"\x28\x00\x11\x00",
+                                  b"\x28\x00\x08\x00", b"\x28\x00\x30\x00", b"\xfe\xff\x00\xe0",
+                                  b"\xff\xff\xff\xff", b"1.2.840.10008.1.2.4.50")),
+    Target("npz", "spect.npz.read_npz", _npz, max_len=8192,
+           tokens=(b"PK\x03\x04", b"PK\x01\x02", b"PK\x05\x06", b"\x93NUMPY", b"data.npy",
+                   b"'descr': '<f4'", b"'shape': (", b"'fortran_order': True")),
+    Target("calibration", "calibration_io.StereoCalibration.load", _calibration, max_len=8192,
+           tokens=_JSON + (b'"K1"', b'"d2"', b'"R"', b'"T"', b'"per_view"', b'"skipped"',
+                           b'"image_size"', b'"unit"', b'"mm"', b'"squares"')),
+    Target("mapping", "registration.RigidTransform.load", _mapping, max_len=4096,
+           tokens=_JSON + (b'"R"', b'"t_mm"', b'"meta"', b'"format"')),
+    Target("rig_yaml", "config.load_rig", _rig_yaml, instrument=("vts_hw", "yaml"), max_len=4096,
+           tokens=(b"cameras:\n", b"  - name: ", b"    host: ", b"port: ", b"&a ", b"*a", b"!!",
+                   b"!!python/object:os.system", b"!!binary ", b"<<: *a", b"[", b"]", b"{", b"}",
+                   b": ", b"- ", b"\n", b"\t", b"---\n", b"...\n", b"%YAML 1.1\n", b"? ",
+                   b".nan", b".inf", b"~", b"0x1F", b"\xff\xfe", b"\xef\xbb\xbf", b"\x00")),
+]}
