@@ -1,7 +1,7 @@
 """Keysight (Agilent) 33500-series function generator over VISA: the square wave for the SPECT gating input.
 
 One :class:`FunctionGenerator` per instrument channel, speaking a small SCPI subset through
-pyvisa (DESIGN.md, "Function generator (VISA, SCPI)"):
+pyvisa (docs/design.md, "Function generator (VISA, SCPI)"):
 
     *IDN?  *RST  SYST:ERR?
     FUNC SQU              FUNC?

@@ -1,7 +1,7 @@
 """Our trigger box (ATmega328P firmware in ``firmware/``) over its USB serial line.
 
 115200 baud 8N1, one ASCII command per line, one reply line per command, lines end in ``\n``
-(DESIGN.md, "Trigger box (our own firmware, serial)"; firmware/trigger_box/commands.h):
+(docs/design.md, "Trigger box (our own firmware, serial)"; firmware/trigger_box/commands.h):
 
     *IDN?                  VTS,TRIGGERBOX,<serial>,<firmware>
     *RST                   OK                (wave ends on a whole period, defaults restored)

@@ -12,7 +12,7 @@ volume). Neither side knows which sphere is which, so:
 2. :class:`SpectMapping` fits the transform (Kabsch, VTS → SPECT), and reports the fiducial
    registration error (FRE, the fit residual) and the leave-one-out target registration error
    (TRE: each sphere predicted from a fit to the others). The fit residual alone says little
-   about accuracy (DESIGN.md); the TRE is the figure to watch.
+   about accuracy (docs/design.md); the TRE is the figure to watch.
 
 It reads like pylinac: ``SpectMapping(vts_points, spect_points).analyze()`` →
 ``results()`` / ``results_data()`` / ``save(path)``.

@@ -3,7 +3,7 @@
 Input: for every table position (baseline, vertical steps, axial steps, the final free move)
 the sphere centres as the VTS saw them, already mapped into the SPECT frame, and as the SPECT
 saw them (centroids in the reconstructed volume), both in one sphere order (S1..S7 of the
-baseline). Output, as in DESIGN.md:
+baseline). Output, as in docs/design.md:
 
 * per axis (x lateral, y vertical, z axial) the regression of the VTS coordinate against the
   SPECT coordinate over every sphere and position: slope, intercept (mm), R²;

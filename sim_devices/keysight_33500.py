@@ -5,7 +5,7 @@ rig serves it on a TCP socket on 127.0.0.1 (:mod:`.scpi_server`), where a VISA c
 as ``TCPIP::127.0.0.1::PORT::SOCKET``, as a real 33500 is reached on port 5025 of the LAN. The
 driver's unit tests use the pyvisa-sim model ``keysight_33500.yaml`` instead.
 
-What it understands (DESIGN.md, "Function generator"; short or long forms, any case, several
+What it understands (docs/design.md, "Function generator"; short or long forms, any case, several
 commands in one line separated by ``;``, the SCPI path rules for headers without a leading colon)::
 
     *IDN?  *RST  *CLS  *OPC  *OPC?  *WAI          SYSTem:ERRor[:NEXT]?  SYSTem:VERSion?

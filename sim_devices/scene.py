@@ -3,7 +3,7 @@
 One model with ground truth, in the SPECT frame (millimetres): origin at the centre of the
 field of view (FOV) on the axis of rotation, X lateral, Y up, Z axial along the table.
 Cameras follow the OpenCV convention (world -> camera: ``x_c = R @ x_w + t``; camera x right,
-y down, z forward). :meth:`Scene.reference` builds the reference rig of DESIGN.md.
+y down, z forward). :meth:`Scene.reference` builds the reference rig of docs/design.md.
 
 Time-dependent parts take ``t`` (host UTC epoch seconds):
 
@@ -31,7 +31,7 @@ from vts_hw.axis_jpeg import AxisProduct
 
 DAY = 86400.0
 
-# Reference rig (DESIGN.md, "The room"). Millimetres, pixels.
+# Reference rig (docs/design.md, "The room"). Millimetres, pixels.
 CAM_Y = 1100.0          # camera height above the table axis (2.1 m above a floor 1.0 m below the axis)
 CAM_Z = -3530.0         # cameras over the patient's head, 3.7 m from the FOV centre
 BASELINE = 1200.0       # X spread of the cameras

@@ -1,7 +1,7 @@
 """The simulated side of the 7-sphere step test: a table that moves, a SPECT that images.
 
 :class:`SimTable` is the :class:`~vts_hw.procedures.steps.Positioner` of the simulated rig: it
-moves the scene's table by a "1 cm" step that is really 9.5–10.5 mm (DESIGN.md), and for the
+moves the scene's table by a "1 cm" step that is really 9.5–10.5 mm (docs/design.md), and for the
 ``free`` position turns the phantom by a few degrees about a random axis and shifts it by a few
 centimetres, as an operator's hand would. :class:`SimSpectSource` writes, for every position,
 the reconstructed SPECT volume of the spheres where the scene has them at that moment

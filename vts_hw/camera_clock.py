@@ -1,6 +1,6 @@
 """The camera clock model: each camera's own clock mapped to host time (offset and skew).
 
-Every frame of a recording has two times (vts_hw/recording.py, DESIGN.md "clocks"):
+Every frame of a recording has two times (vts_hw/recording.py, docs/design.md "clocks"):
 
 * ``camera_time`` — the camera's own clock, stamped in the JPEG when the image was taken,
   truncated to the camera's tick (10 ms, ``tick_s``): UTC epoch seconds *of the camera*;

@@ -1,6 +1,6 @@
 """Reading recording folders: per camera the JPEGs exactly as received, an index, and a manifest.
 
-Layout (DESIGN.md "Recording"):
+Layout (docs/design.md "Recording"):
 
 * ``manifest.json`` — cameras, times, software version, rig digest, frame counts and gaps;
 * ``<name>.mjpeg`` — the JPEGs concatenated, append-only, written frame by frame;

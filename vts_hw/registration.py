@@ -3,7 +3,7 @@
 * :class:`RigidTransform` — ``x -> R @ x + t`` (mm); Euler angles, inverse, composition, JSON.
 * :func:`kabsch` — least-squares rigid fit by SVD with the reflection fix.
 * :func:`fre` / :func:`loo_tre` — fiducial registration error and leave-one-out target
-  registration error (the fit residual alone says little about accuracy: DESIGN.md).
+  registration error (the fit residual alone says little about accuracy: docs/design.md).
 * :func:`difference` — how far apart two transforms are (rotation in degrees, translation in mm).
 
 Euler convention everywhere: **extrinsic x-y-z** (rotate about the fixed x axis, then the fixed

@@ -1,6 +1,6 @@
 """The reconstructed SPECT volume: a data array with its place in the SPECT frame.
 
-The SPECT frame (DESIGN.md): origin at the centre of the field of view on the axis of
+The SPECT frame (docs/design.md): origin at the centre of the field of view on the axis of
 rotation, X lateral, Y vertical (up), Z axial; millimetres.
 
 A :class:`Volume` is an affine grid:
