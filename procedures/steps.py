@@ -244,11 +244,13 @@ def load_positions(folder) -> tuple[list[SeenPosition], list[StepPosition]]:
     if not path.is_file():
         raise DataError(f"{path}: no such file; give the folder of a step session.")
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(path.read_bytes().decode("utf-8"))
         plan = [StepPosition(**p) for p in data["plan"]]
         seen = [SeenPosition(**s) for s in data["positions"]]
-    except (json.JSONDecodeError, KeyError, TypeError) as exc:
-        raise DataError(f"{path}: not a step-session file ({exc}).") from None
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read ({exc.strerror or exc}).") from None
+    except (ValueError, KeyError, TypeError, RecursionError) as exc:   # JSON, UTF-8, shape
+        raise DataError(f"{path}: not a step-session file ({str(exc)[:120] or type(exc).__name__}).") from None
     return seen, plan
 
 

@@ -169,3 +169,13 @@ def test_disk_full_keeps_the_mapping(tmp_path, session, small_disk):
     T = RigidTransform.load(saved[0])
     assert np.linalg.norm(T.apply(vts_pts) - truth.apply(vts_pts), axis=1).max() < 1.5
     assert out.read_bytes() == before and disk.files() == {"spect_mapping.json": len(before)}
+
+
+@pytest.mark.parametrize("doc", ["[" * 5000, "[[1, 2, " + "9" * 400 + "]]", "[[1, 2, 1" + "0" * 5000 + "]]"])
+def test_a_points_file_json_beyond_syntax_is_a_data_error(tmp_path, doc):
+    from vts_hw.cli.calibrate import read_points
+    from vts_hw.errors import DataError
+    p = tmp_path / "pts.json"
+    p.write_text(doc)
+    with pytest.raises(DataError, match="pts.json"):
+        read_points(p)

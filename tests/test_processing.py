@@ -293,3 +293,12 @@ def test_stereo_calibration_and_export_in_the_spect_frame(processed):
     assert np.abs(out.xyz - tracks.xyz).max() > 100.0       # ... from camera 1's frame
     assert np.allclose(out.spect_time, out.host_time - spect_start)
     assert out.meta["spect_mapping"]["meta"] == {} and out.meta["cameras"] == ["cam1", "cam2"]
+
+
+@pytest.mark.parametrize("doc", ["[]", '{"format": "vts-trajectory/1"}',
+                                 '{"format": "vts-trajectory/1", "cameras": [1, 2], "frames": {}}', "[" * 5000])
+def test_a_trajectory_file_of_the_wrong_shape_is_a_data_error(tmp_path, doc):
+    (tmp_path / "t.json").write_text(doc)
+    (tmp_path / "t.csv").write_text("frame,marker,x_mm,y_mm,z_mm\n")
+    with pytest.raises(DataError, match="t.json"):
+        Tracks.load(tmp_path / "t.csv")

@@ -143,3 +143,13 @@ def test_the_qa_report_shows_the_latest_step_test_and_refuses_a_changed_plot(tmp
         rep2 = build_drift_report(store, tmp_path / "report2.html")
         assert rep2.steps.plot_png is None and "changed after the run" in rep2.steps.plot_problem
         assert 'data-plots-expected="0"' in (tmp_path / "report2.html").read_text()
+
+
+@pytest.mark.parametrize("doc", [b"[]", b'{"plan": [{"x": 1}], "positions": []}', b"\xff\xfe", b"[" * 5000,
+                                 b'{"plan": 1e999999}'])
+def test_a_step_session_file_of_the_wrong_shape_is_a_data_error(tmp_path, doc):
+    from vts_hw.errors import DataError
+    from vts_hw.procedures.steps import load_positions
+    (tmp_path / "positions.json").write_bytes(doc)
+    with pytest.raises(DataError, match="positions.json"):
+        load_positions(tmp_path)

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -134,12 +133,9 @@ class RigidTransform:
         return cls(R, t, dict(meta))
 
     def save(self, path) -> Path:
-        """Write :meth:`to_dict` as JSON (atomically: a temporary file, then rename)."""
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(json.dumps(self.to_dict(), indent=2) + "\n", encoding="utf-8")
-        os.replace(tmp, path)
-        return path
+        """Write :meth:`to_dict` as JSON, whole or not at all (vts_hw/files.py)."""
+        from .files import write_json_atomic
+        return write_json_atomic(path, self.to_dict())
 
     @classmethod
     def load(cls, path) -> "RigidTransform":

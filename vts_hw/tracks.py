@@ -179,10 +179,19 @@ class Tracks:
         json_path, csv_path = path.with_suffix(".json"), path.with_suffix(".csv")
         try:
             doc = json.loads(json_path.read_text(encoding="utf-8"))
-        except (OSError, ValueError) as exc:
-            raise DataError(f"{json_path}: cannot read the trajectory metadata ({exc})") from None
-        if doc.get("format") != TRACKS_FORMAT:
+        except (OSError, ValueError, RecursionError) as exc:
+            raise DataError(f"{json_path}: cannot read the trajectory metadata "
+                            f"({str(exc)[:120] or 'nested too deeply'})") from None
+        if not isinstance(doc, dict) or doc.get("format") != TRACKS_FORMAT:
             raise DataError(f"{json_path}: not a {TRACKS_FORMAT} file")
+        try:
+            return cls._from_files(doc, json_path, csv_path)
+        except (KeyError, TypeError, ValueError, IndexError, OverflowError, AttributeError) as exc:
+            raise DataError(f"{json_path} / {csv_path.name}: not a whole {TRACKS_FORMAT} trajectory "
+                            f"({type(exc).__name__}: {str(exc)[:80]})") from None
+
+    @classmethod
+    def _from_files(cls, doc: dict, json_path: Path, csv_path: Path) -> "Tracks":
         c1, c2 = doc["cameras"]
         fr = doc["frames"]
         nanf = lambda a: np.array([np.nan if v is None else v for v in a], float)  # noqa: E731

@@ -128,6 +128,8 @@ def read_points(path) -> np.ndarray:
             data = json.loads(text)
         except json.JSONDecodeError as exc:
             raise DataError(f"{path}: not valid JSON ({exc.msg}, line {exc.lineno}).") from None
+        except (ValueError, RecursionError) as exc:  # too deep, or a number of thousands of digits
+            raise DataError(f"{path}: not usable JSON ({str(exc) or 'nested too deeply'}).") from None
         if isinstance(data, dict) and "points" in data:
             data = data["points"]
         if not isinstance(data, list) or not all(
@@ -135,7 +137,10 @@ def read_points(path) -> np.ndarray:
                 and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in p)
                 for p in data):
             raise DataError(f"{path}: expected a JSON list of [x, y, z] points in mm.")
-        pts = np.array(data, dtype=float).reshape(-1, 3)
+        try:
+            pts = np.array(data, dtype=float).reshape(-1, 3)
+        except OverflowError:
+            raise DataError(f"{path}: a coordinate is too large to be a number of mm.") from None
     else:
         rows = [r for r in csv.reader(text.splitlines()) if any(c.strip() for c in r)]
         if not rows:
