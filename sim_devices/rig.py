@@ -339,7 +339,7 @@ def stop_detached(folder: str | Path, timeout: float = 10.0) -> bool:
     folder = Path(folder)
     pid = _pid(folder)
     if pid is None or not is_running(folder):
-        with contextlib.suppress(FileNotFoundError):
+        with contextlib.suppress(OSError):   # absent, or DIR is not a folder at all
             (folder / PID_FILE).unlink()
         return False
     os.kill(pid, signal.SIGTERM)
