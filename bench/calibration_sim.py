@@ -18,12 +18,12 @@ import argparse
 
 import numpy as np
 
-from vts_hw.calibration import calibrate_stereo
-from vts_hw.calibration_uncertainty import compare_with_truth
-from vts_hw.procedures.calibration_sim import sim_views
-from vts_hw.registration import kabsch
+from vts_hw.vision.calibration import calibrate_stereo
+from vts_hw.vision.calibration_uncertainty import compare_with_truth
+from vts_hw.sim_devices.scenarios.calibration_views import sim_views
+from vts_hw.vision.registration import kabsch
 from vts_hw.sim_devices.scene import Scene
-from vts_hw.triangulate import triangulate
+from vts_hw.vision.triangulate import triangulate
 
 FIGURES = ("cx px", "cy px", "fx px", "k1", "rotation deg", "3D RMS mm", "3D RMS rigid mm")
 

@@ -18,7 +18,7 @@ import math
 import cv2
 import numpy as np
 
-from vts_hw.detect import Blob, DetectorSettings, detect
+from vts_hw.vision.detect import Blob, DetectorSettings, detect
 from vts_hw.sim_devices.render import Renderer, encode
 from vts_hw.sim_devices.scene import Scene
 

@@ -19,7 +19,7 @@ import time
 import cv2
 import numpy as np
 
-from vts_hw.detect import detect_jpeg
+from vts_hw.vision.detect import detect_jpeg
 from vts_hw.sim_devices.render import Renderer, encode
 from vts_hw.sim_devices.scene import Scene
 

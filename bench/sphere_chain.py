@@ -26,7 +26,7 @@ import tempfile
 import time
 
 from vts_hw.procedures.steps import SNAPSHOT_COMPRESSION
-from vts_hw.procedures.steps_sim import run_sim_steps
+from vts_hw.sim_devices.scenarios.step_chain import run_sim_steps
 
 GOALS = {"position_rms_mm": 0.15, "move_rotation_error_deg": 0.05, "move_translation_error_mm": 0.1}
 LABELS = {"position_rms_mm": "3D position RMS error (mm)",

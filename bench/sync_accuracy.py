@@ -25,7 +25,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from vts_hw.procedures import sync_sim
+from vts_hw.sim_devices.scenarios import sync_session as sync_sim
 from vts_hw.sim_devices.rig import SimRig
 
 EVENT_GOAL_S = 0.020

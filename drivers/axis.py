@@ -21,13 +21,13 @@ from urllib.parse import quote
 import requests
 from requests.auth import HTTPBasicAuth, HTTPDigestAuth
 
-from ..axis_jpeg import inspect_jpeg
-from ..errors import DeviceError
+from vts_hw.recording.axis_jpeg import inspect_jpeg
+from vts_hw.errors import DeviceError
 
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from ..config import CameraConfig
+    from vts_hw.config import CameraConfig
 
 
 class AxisError(DeviceError):
@@ -254,7 +254,7 @@ class AxisCamera:
 
     def stream(self, **kwargs) -> Iterator:
         """Frames of ``mjpg/video.cgi`` that reconnect on drops and stalls; see axis_stream."""
-        from .axis_stream import FrameStream
+        from vts_hw.drivers.axis_stream import FrameStream
         return iter(FrameStream(self, **kwargs))
 
     # -- parameters ----------------------------------------------------------------

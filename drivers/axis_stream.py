@@ -16,9 +16,9 @@ from dataclasses import dataclass, field
 
 import urllib3
 
-from ..errors import DataError
-from ..mjpeg import MultipartParser, boundary_from_content_type
-from .axis import AxisCamera, AxisError, BadReply, CameraUnauthorized, frame_from_bytes
+from vts_hw.errors import DataError
+from vts_hw.recording.mjpeg import MultipartParser, boundary_from_content_type
+from vts_hw.drivers.axis import AxisCamera, AxisError, BadReply, CameraUnauthorized, frame_from_bytes
 
 
 class NotAStream(BadReply):

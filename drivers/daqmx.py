@@ -32,7 +32,7 @@ import time
 from contextlib import contextmanager
 from typing import Any, Callable, Iterator, Protocol, Sequence, runtime_checkable
 
-from .trigger import (
+from vts_hw.drivers.trigger import (
     CHANNELS,
     DUTY,
     FIRE,

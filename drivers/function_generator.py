@@ -37,8 +37,8 @@ import math
 import re
 from typing import Any, Callable
 
-from .settings import Setting, in_range
-from .trigger import (
+from vts_hw.drivers.settings import Setting, in_range
+from vts_hw.drivers.trigger import (
     CLOCK,
     DUTY,
     FIRE,
@@ -52,7 +52,7 @@ from .trigger import (
     TriggerLog,
     TriggerStatus,
 )
-from .visa import is_visa_error, open_message_resource, sim_yaml_path, visa_failure
+from vts_hw.drivers.visa import is_visa_error, open_message_resource, sim_yaml_path, visa_failure
 
 __all__ = ["FunctionGenerator", "OutOfRange", "SIM_RESOURCE", "sim_yaml_path", "scpi_number"]
 

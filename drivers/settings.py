@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from typing import Any, Callable
 
-from .trigger import OutOfRange
+from vts_hw.drivers.trigger import OutOfRange
 
 
 def in_range(low: float, high: float, what: str, unit: str = "",

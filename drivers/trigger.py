@@ -20,8 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol, runtime_checkable
 
-from ..errors import DeviceError
-from ..files import WriteFailed, os_reason
+from vts_hw.errors import DeviceError
+from vts_hw.files import WriteFailed, os_reason
 
 # what a backend can do
 FREQUENCY = "frequency"      # set the square wave's frequency

@@ -43,8 +43,8 @@ from typing import Any, Callable, Sequence
 
 import serial
 
-from .settings import Setting, in_range, whole_in_range
-from .trigger import (
+from vts_hw.drivers.settings import Setting, in_range, whole_in_range
+from vts_hw.drivers.trigger import (
     CLOCK,
     DUTY,
     EDGES,

@@ -21,7 +21,7 @@ import importlib.resources
 import socket
 from pathlib import Path
 
-from .trigger import TriggerError
+from vts_hw.drivers.trigger import TriggerError
 
 SIM_PACKAGE = "vts_hw.sim_devices"
 SIM_YAML = "keysight_33500.yaml"

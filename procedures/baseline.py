@@ -8,8 +8,8 @@ markers is that camera's baseline; setting a new one never changes the old runs.
 
 from __future__ import annotations
 
-from ..errors import VtsError
-from .drift import Baseline, BaselineMarker
+from vts_hw.errors import VtsError
+from vts_hw.procedures.drift import Baseline, BaselineMarker
 
 PROCEDURE = "drift-baseline"
 

@@ -20,12 +20,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from ..drivers.axis import AxisCamera, AxisError, Refused
-from ..errors import VtsError
-from ..files import ensure_dir, write_atomic
-from ..tolerance import State, Window, merged_tolerances, worst
-from .baseline import load_baseline
-from .drift import DriftAnalysis
+from vts_hw.drivers.axis import AxisCamera, AxisError, Refused
+from vts_hw.errors import VtsError
+from vts_hw.files import ensure_dir, write_atomic
+from vts_hw.tolerance import State, Window, merged_tolerances, worst
+from vts_hw.procedures.baseline import load_baseline
+from vts_hw.procedures.drift import DriftAnalysis
 
 EXIT_CODES = {State.OK: 0, State.TOLERANCE: 10, State.ACTION: 20}
 STEPS = ("reachable", "params", "clock", "drift")
@@ -200,7 +200,7 @@ class QARun:
 
     def unsaved_record(self, result: "QAResult") -> dict:
         """Everything needed to store ``result`` later (vts_hw.store.unsaved)."""
-        from .. import __version__
+        from vts_hw import __version__
         return {"procedure": self.procedure, "rig": self.rig.rig, "operator": self.operator,
                 "config_digest": self.config_digest, "software_version": __version__,
                 "started": result.started, "finished": result.finished, "state": str(result.state),

@@ -23,9 +23,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from .. import __version__
-from ..detect import DetectorSettings, detect_jpeg
-from ..tolerance import DEFAULT_TOLERANCES, State, Window, worst
+from vts_hw import __version__
+from vts_hw.vision.detect import DetectorSettings, detect_jpeg
+from vts_hw.tolerance import DEFAULT_TOLERANCES, State, Window, worst
 
 GATE_PX = 12.0          # a marker further than this from its baseline position is not that marker
 LED_SETTLE_S = 0.1      # time for the LED ring to switch before the next frame is taken

@@ -33,11 +33,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from ..config import RigConfig
-from ..drivers.axis import AxisCamera, BadReply
-from ..errors import UsageError, VtsError
-from ..recorder import Recorder
-from .scan_trigger import ScanError, ScanTrigger, plain_dict
+from vts_hw.config import RigConfig
+from vts_hw.drivers.axis import AxisCamera, BadReply
+from vts_hw.errors import UsageError, VtsError
+from vts_hw.recording.capture import Recorder
+from vts_hw.procedures.scan_trigger import ScanError, ScanTrigger, plain_dict
 
 FIRST_FRAME_TIMEOUT_S = 10.0   # a camera silent this long after the recording started: no fire
 TRIGGER_POLL_S = 1.0           # how often the trigger's edges are read during the scan

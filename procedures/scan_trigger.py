@@ -13,9 +13,9 @@ import threading
 import time
 from pathlib import Path
 
-from ..config import RigConfig
-from ..drivers.trigger import CLOCK, EDGES, FIRE, LEVELS, TriggerError, TriggerLog
-from ..errors import DeviceError, VtsError
+from vts_hw.config import RigConfig
+from vts_hw.drivers.trigger import CLOCK, EDGES, FIRE, LEVELS, TriggerError, TriggerLog
+from vts_hw.errors import DeviceError, VtsError
 
 STATUS_EVERY = 5               # a backend without edge counts: its full status every 5 polls
 BOOT_WAIT_S = 2.0              # a trigger box reset by the opening of its port is answering by then
@@ -89,7 +89,7 @@ class ScanTrigger:
         The log is kept in memory until :meth:`attach_log` (no file before the scan starts)."""
         if not self.present:
             return
-        from ..triggers import open_trigger
+        from vts_hw.drivers.registry import open_trigger
         try:
             self.gen = open_trigger(self.cfg, None, clock=self.clock)
             self.log = self.gen.log

@@ -37,9 +37,9 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from .. import __version__
-from ..errors import DataError
-from ..registration import LooTre, RigidTransform, fre, kabsch, loo_tre
+from vts_hw import __version__
+from vts_hw.errors import DataError
+from vts_hw.vision.registration import LooTre, RigidTransform, fre, kabsch, loo_tre
 
 __all__ = ["correspond", "Correspondence", "SpectMapping", "FRE_LIMIT_MM",
            "SIGNATURE_MARGIN_MM", "MAX_PERMUTATIONS"]
@@ -200,7 +200,7 @@ class SpectMapping:
                     **find_kwargs) -> "SpectMapping":
         """SPECT points from a reconstructed volume (any format :func:`read_volume` knows);
         a sphere count other than the VTS count raises :class:`DataError`."""
-        from ..spect import find_spheres, read_volume
+        from vts_hw.spect import find_spheres, read_volume
 
         vts = _as_points(vts_points, "VTS")
         found = find_spheres(read_volume(volume_path), n_expected=len(vts), strict=True,
@@ -213,10 +213,10 @@ class SpectMapping:
         """The phantom seen by the stereo VTS (marker detections in px, left and right, wall
         markers and all) and by the SPECT (a volume): the spheres are picked out of the VTS's
         stereo hypotheses by the shape of the SPECT's centroids
-        (:func:`vts_hw.body_finder.locate_body`), so nothing but the two measurements decides
+        (:func:`vts_hw.vision.body_finder.locate_body`), so nothing but the two measurements decides
         which detection is a sphere."""
-        from ..body_finder import locate_body
-        from ..spect import find_spheres, read_volume
+        from vts_hw.vision.body_finder import locate_body
+        from vts_hw.spect import find_spheres, read_volume
 
         spect = find_spheres(read_volume(volume_path), strict=True).centroids
         fit = locate_body(calibration.cameras(), pts_left, pts_right, spect, tol_mm=tol_mm)

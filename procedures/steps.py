@@ -18,7 +18,7 @@ loses nothing, and ``vts qa steps --analyze OUT`` can finish the job when the vo
 
 Then (:meth:`StepSession.analyze`), per position: the SPECT centroids from the volume (ordered
 like the baseline's spheres), the same spheres found among the VTS's stereo hypotheses by
-their shape (:func:`vts_hw.body_finder.locate_body`, which also settles pairings the
+their shape (:func:`vts_hw.vision.body_finder.locate_body`, which also settles pairings the
 epipolar constraint alone leaves ambiguous), triangulated with the stereo calibration and
 mapped into the SPECT frame with the VTS → SPECT transform. :class:`StepAnalysis` does the
 rest.
@@ -35,8 +35,8 @@ from typing import Callable, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
-from ..errors import DataError
-from .steps_analysis import StepAnalysis
+from vts_hw.errors import DataError
+from vts_hw.procedures.steps_analysis import StepAnalysis
 
 N_SPHERES = 7
 LED_SETTLE_S = 0.2
@@ -203,7 +203,7 @@ class StepSession:
 
     # ------------------------------------------------------------------ acquisition
     def acquire(self) -> list[SeenPosition]:
-        from ..detect import detect_jpeg
+        from vts_hw.vision.detect import detect_jpeg
 
         self.out.mkdir(parents=True, exist_ok=True)
         for cam in self.cameras:
@@ -258,9 +258,9 @@ def analyze_positions(seen: list[SeenPosition], plan: list[StepPosition], calibr
                       spect: SpectSource, tolerances=None, tol_mm: float = 3.0,
                       progress: Callable[[str], None] | None = None) -> StepAnalysis:
     """SPECT centroids and VTS spheres per position, then :class:`StepAnalysis`."""
-    from ..body_finder import locate_body
-    from ..spect import find_spheres, read_volume
-    from .spect_mapping import correspond
+    from vts_hw.vision.body_finder import locate_body
+    from vts_hw.spect import find_spheres, read_volume
+    from vts_hw.procedures.spect_mapping import correspond
 
     say = progress or (lambda m: None)
     if len(seen) < 2:
@@ -307,7 +307,7 @@ def store_steps(store, analysis: StepAnalysis, tolerances=None, *, rig: str = ""
 
     The tolerance windows in use are synced into the store first, so each measurement keeps
     the id of the window that judged it and a later change of tolerance rewrites nothing."""
-    from ..tolerance import merged_tolerances
+    from vts_hw.tolerance import merged_tolerances
 
     started = clock() if started is None else started
     store.sync_tolerances(merged_tolerances(tolerances), at=started)

@@ -25,10 +25,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from .. import __version__
-from ..errors import DataError
-from ..registration import RigidTransform, kabsch
-from ..tolerance import State, Window, merged_tolerances, worst
+from vts_hw import __version__
+from vts_hw.errors import DataError
+from vts_hw.vision.registration import RigidTransform, kabsch
+from vts_hw.tolerance import State, Window, merged_tolerances, worst
 
 AXES = ("x", "y", "z")
 AXIS_NAMES = {"x": "lateral", "y": "vertical", "z": "axial"}

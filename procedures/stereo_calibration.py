@@ -1,9 +1,9 @@
 """The stereo calibration as a procedure: checkerboard pairs in, a checked calibration saved.
 
 :func:`run` checks that the output may be replaced (:func:`replaceable`: a calibration in mm is
-not replaced by one in squares by mistake), calibrates (:func:`vts_hw.calibration.calibrate_stereo`),
+not replaced by one in squares by mistake), calibrates (:func:`vts_hw.vision.calibration.calibrate_stereo`),
 judges the change from the previous calibration and, for simulated views, the errors against the
-true cameras (:mod:`vts_hw.calibration_uncertainty`), and saves it so that a full disk cannot lose
+true cameras (:mod:`vts_hw.vision.calibration_uncertainty`), and saves it so that a full disk cannot lose
 it (:func:`vts_hw.save_or_keep.save_or_keep`). The :class:`CalibrationRun` it returns prints
 itself (``results()``) and gives its JSON (``results_data()``); it raises nothing once the
 calibration is computed: a failed write is in ``saved.error`` for the caller to raise after
@@ -17,11 +17,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..calibration import calibrate_stereo, find_pairs
-from ..calibration_io import StereoCalibration
-from ..calibration_uncertainty import K_SIGMA, compare_with_truth
-from ..errors import DataError, UsageError
-from ..save_or_keep import Saved, save_or_keep
+from vts_hw.vision.calibration import calibrate_stereo, find_pairs
+from vts_hw.vision.calibration_io import StereoCalibration
+from vts_hw.vision.calibration_uncertainty import K_SIGMA, compare_with_truth
+from vts_hw.errors import DataError, UsageError
+from vts_hw.save_or_keep import Saved, save_or_keep
 
 _IMAGE = re.compile(r"^(left|right)(.*)\.(jpe?g|png|bmp|tiff?)$", re.IGNORECASE)
 
@@ -29,7 +29,7 @@ _IMAGE = re.compile(r"^(left|right)(.*)\.(jpe?g|png|bmp|tiff?)$", re.IGNORECASE)
 def image_pairs(args: list[str]) -> list[tuple[Path, Path]]:
     """(left, right) image paths from directories and/or files named leftNN / rightNN.
 
-    A directory gives its pairs (:func:`vts_hw.calibration.find_pairs`); files are paired by
+    A directory gives its pairs (:func:`vts_hw.vision.calibration.find_pairs`); files are paired by
     what follows 'left' / 'right' in their names. DataError for a missing file, a file not
     named left* or right*, an unmatched image, or no pair at all.
     """
@@ -131,7 +131,7 @@ def run(pairs, *, output, pattern=(9, 6), square: float = 1.0, unit: str = "squa
     """Calibrate from ``pairs`` and save to ``output`` (see the module docstring). ``previous``:
     the calibration file to compare with (default: the one now in ``output``); ``truth``: the
     true cameras as a StereoCalibration, for simulated views; ``distortion``: see
-    :func:`vts_hw.calibration.fit_camera`."""
+    :func:`vts_hw.vision.calibration.fit_camera`."""
     out_path = Path(output)
     current = replaceable(out_path, unit, force)
     prev_path, prev = None, None

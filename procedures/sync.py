@@ -9,12 +9,12 @@ What it does (the reasons are in docs/decisions/0019-sync-analysis.md):
 0. **Inputs** (:mod:`.sync_inputs`): the session checked; of the list-mode file(s) given (a
    shell glob may give several), the one whose acquisition overlaps the session — else one
    sentence (the files do not belong together, or the SPECT's failure record for this scan).
-1. **Gating** (:mod:`vts_hw.sync_gating`): the trigger log (``trigger.csv``) gives the square
+1. **Gating** (:mod:`vts_hw.spect.gating`): the trigger log (``trigger.csv``) gives the square
    wave's period and the host time of its first rising edge (the start pulse); the list-mode's
    gating voltage gives the edges on the SPECT clock. Fitted together: the SPECT start delay
    against the trigger, the SPECT clock's skew, list-mode time ↔ host time, and the dead time
    (head rotations: no events).
-2. **VTS** (:func:`vts_hw.processing.process_recording`): every frame pair triangulated, each
+2. **VTS** (:func:`vts_hw.recording.processing.process_recording`): every frame pair triangulated, each
    camera's stamps mapped to host time by its clock model (offset and skew fitted to the
    frames' stamp / receive-time pairs). The moving marker: the named one, else the one with
    the largest axial range (SPECT Z through the VTS → SPECT mapping, 2nd–98th percentile;
@@ -23,7 +23,7 @@ What it does (the reasons are in docs/decisions/0019-sync-analysis.md):
    that follow each other in time and meet within ``join_mm``).
 3. **SPECT**: the axial centre of mass of the counts in ``bin_s`` bins (for the plot and to
    find the steps), list-mode time mapped to host time through the gating clock.
-4. **Events** (:mod:`vts_hw.sync_events`): steps found in both traces, each timed by fitting a
+4. **Events** (:mod:`vts_hw.timing.motion_events`): steps found in both traces, each timed by fitting a
    smooth step to the raw samples (VTS: the marker's z per frame; SPECT: every event's z) —
    the mid-crossing, in host time. Matched by time; per event ``dt = t_vts − t_spect``; the
    overall offset is the median of dt, its spread the SD and the largest deviation. An event
@@ -43,10 +43,10 @@ from typing import Callable
 
 import numpy as np
 
-from ..errors import DataError
-from ..sync_events import StepFit, find_steps, fit_step, match_events, robust_sd
-from ..sync_gating import GatingResult, WaveInfo, analyze_gating, axial_centre_of_mass, wave_from_trigger_log
-from .sync_inputs import CLOCK_SLACK_S, check_session, choose_listmode, load_calibration, load_mapping
+from vts_hw.errors import DataError
+from vts_hw.timing.motion_events import StepFit, find_steps, fit_step, match_events, robust_sd
+from vts_hw.spect.gating import GatingResult, WaveInfo, analyze_gating, axial_centre_of_mass, wave_from_trigger_log
+from vts_hw.procedures.sync_inputs import CLOCK_SLACK_S, check_session, choose_listmode, load_calibration, load_mapping
 
 __all__ = ["SyncAnalysis", "SyncEvent", "export_trajectories", "load_calibration", "load_mapping",
            "check_session", "choose_listmode"]
@@ -164,8 +164,8 @@ class SyncAnalysis:
     # ------------------------------------------------------------------ analysis
     def analyze(self, *, bin_s: float = BIN_S, match_s: float = MATCH_S, join_mm: float = JOIN_MM,
                 min_step_mm: float = 4.0) -> "SyncAnalysis":
-        from ..listmode import read_listmode
-        from ..processing import process_recording
+        from vts_hw.spect.listmode import read_listmode
+        from vts_hw.recording.processing import process_recording
 
         self.manifest = check_session(self.session)
         self.listmode_path, notes = choose_listmode(self.session, self.listmode_candidates, manifest=self.manifest,
@@ -335,7 +335,7 @@ class SyncAnalysis:
             "spect_clock_offset_s": g.clock_offset_s,
             "spect_skew_ppm": g.clock.skew_ppm,
         }
-        from ..report.sync_html import sync_state
+        from vts_hw.report.sync_html import sync_state
         summary["state"] = sync_state({"summary": summary})
         clock_fits = self.tracks.meta.get("clock_fits", {})
         return {
@@ -392,12 +392,12 @@ class SyncAnalysis:
         """Both traces on one time axis, dead time shaded, VTS gaps hatched, events marked;
         below, dt per event (:func:`.sync_plot.sync_figure`)."""
         self._need()
-        from .sync_plot import sync_figure
+        from vts_hw.procedures.sync_plot import sync_figure
         return sync_figure(self)
 
     def plot(self, path=None) -> bytes:
         """PNG of :meth:`figure`; written to ``path`` when given. Returns the bytes."""
-        from ..report.plots import figure_png
+        from vts_hw.report.plots import figure_png
         png = figure_png(self.figure())
         if path is not None:
             Path(path).write_bytes(png)

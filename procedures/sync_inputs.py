@@ -25,9 +25,9 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import DataError
-from ..listmode.failures import read_failure_records, utc_span
-from ..recording import load_manifest
+from vts_hw.errors import DataError
+from vts_hw.spect.listmode.failures import read_failure_records, utc_span
+from vts_hw.recording.folder import load_manifest
 
 __all__ = ["CLOCK_SLACK_S", "SessionSpan", "check_session", "session_span", "choose_listmode",
            "load_calibration", "load_mapping"]
@@ -95,7 +95,7 @@ def _trigger_rows(folder: Path) -> list[float]:
 
 def _last_frame_times(folder: Path, manifest: dict) -> list[float]:
     """The last host receive time in each camera's index (a session that never finished)."""
-    from ..recording import read_index
+    from vts_hw.recording.folder import read_index
     out = []
     for name in manifest.get("cameras", {}):
         try:
@@ -110,7 +110,7 @@ def _last_frame_times(folder: Path, manifest: dict) -> list[float]:
 
 def session_span(folder, manifest: dict | None = None) -> SessionSpan | None:
     """When the session at ``folder`` recorded, or None when nothing in it says (see module)."""
-    from ..sync_gating import wave_from_trigger_log
+    from vts_hw.spect.gating import wave_from_trigger_log
 
     folder = Path(folder)
     manifest = manifest if manifest is not None else check_session(folder)
@@ -174,7 +174,7 @@ def choose_listmode(session, candidates, *, manifest: dict | None = None,
                     slack_s: float = CLOCK_SLACK_S) -> tuple[Path, list[str]]:
     """The list-mode of ``candidates`` (paths; a shell pattern that matched nothing arrives as
     itself) that belongs to the session, and notes on the choice. DataError otherwise (module)."""
-    from ..listmode import read_listmode_span
+    from vts_hw.spect.listmode import read_listmode_span
 
     session = Path(session)
     paths = list(dict.fromkeys(Path(c) for c in candidates))
@@ -247,7 +247,7 @@ def load_calibration(calibration):
     """A StereoCalibration (or cameras) as given, or read from a path."""
     if calibration is None or not isinstance(calibration, (str, Path)):
         return calibration
-    from ..calibration_io import StereoCalibration
+    from vts_hw.vision.calibration_io import StereoCalibration
     return StereoCalibration.load(calibration)
 
 
@@ -257,7 +257,7 @@ def load_mapping(mapping):
     if mapping is None or not isinstance(mapping, (str, Path)):
         return getattr(mapping, "transform", mapping) if mapping is not None and not hasattr(mapping, "apply") \
             else mapping
-    from ..registration import RigidTransform
+    from vts_hw.vision.registration import RigidTransform
     path = Path(mapping)
     try:
         return RigidTransform.load(path)

@@ -47,12 +47,12 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .axis_http import Handler
-from .axis_params import DEFAULT_MODEL, ParamStore, Profile, describe
-from .axis_streaming import BOUNDARY, restamp
-from .clock import RealClock
-from .digest import BasicAuth, DigestAuth
-from .faults import Faults
+from vts_hw.sim_devices.axis_http import Handler
+from vts_hw.sim_devices.axis_params import DEFAULT_MODEL, ParamStore, Profile, describe
+from vts_hw.sim_devices.axis_streaming import BOUNDARY, restamp
+from vts_hw.sim_devices.clock import RealClock
+from vts_hw.sim_devices.digest import BasicAuth, DigestAuth
+from vts_hw.sim_devices.faults import Faults
 
 __all__ = ["SimAxisCamera", "ParamStore", "BOUNDARY"]
 

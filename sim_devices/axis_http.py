@@ -17,10 +17,10 @@ from ipaddress import ip_address
 from typing import TYPE_CHECKING
 from urllib.parse import parse_qs, parse_qsl, urlsplit
 
-from .axis_streaming import Reject, serve_snapshot, serve_stream
+from vts_hw.sim_devices.axis_streaming import Reject, serve_snapshot, serve_stream
 
 if TYPE_CHECKING:
-    from .axis_camera import SimAxisCamera, _Server
+    from vts_hw.sim_devices.axis_camera import SimAxisCamera, _Server
 
 _MONTHS = ("Jan", "Feb", "Mar", "Apr", "May", "Jun", "Jul", "Aug", "Sep", "Oct", "Nov", "Dec")
 _HTML = ("<HTML><HEAD><TITLE>{code} {reason}</TITLE></HEAD>\r\n"

@@ -25,7 +25,7 @@ from typing import Any
 
 import yaml
 
-from vts_hw.axis_jpeg import AxisProduct
+from vts_hw.recording.axis_jpeg import AxisProduct
 
 DEFAULT_FPS = 25
 MAX_FPS = 30

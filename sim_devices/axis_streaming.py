@@ -13,12 +13,12 @@ import struct
 from email.utils import formatdate
 from typing import TYPE_CHECKING
 
-from vts_hw.axis_jpeg import SOI, AxisProduct, AxisTime, comment_segment
+from vts_hw.recording.axis_jpeg import SOI, AxisProduct, AxisTime, comment_segment
 
-from .axis_params import DEFAULT_FPS, MAX_FPS
+from vts_hw.sim_devices.axis_params import DEFAULT_FPS, MAX_FPS
 
 if TYPE_CHECKING:
-    from .axis_http import Handler
+    from vts_hw.sim_devices.axis_http import Handler
 
 BOUNDARY = "myboundary"
 # A stream that falls behind its frame grid by less than this (the host was busy) sends its

@@ -9,11 +9,11 @@ schedules and the renderer lock what they share, and nothing here keeps mutable 
 
 from __future__ import annotations
 
-from vts_hw.axis_jpeg import AxisProduct, stamp_jpeg
+from vts_hw.recording.axis_jpeg import AxisProduct, stamp_jpeg
 
-from .clock import SimClock
-from .render import Renderer
-from .scene import Scene
+from vts_hw.sim_devices.clock import SimClock
+from vts_hw.sim_devices.render import Renderer
+from vts_hw.sim_devices.scene import Scene
 
 
 class SimCameraSource:

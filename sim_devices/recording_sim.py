@@ -1,9 +1,9 @@
 """A simulated recording folder written straight from the scene: no HTTP, no real time.
 
-For tests and benchmarks of the processing (vts_hw/processing.py): each camera's frames are
+For tests and benchmarks of the processing (vts_hw/recording/processing.py): each camera's frames are
 rendered at their exposure times (host clock), JPEG-encoded, stamped with the camera's own
 clock (truncated to 10 ms, as an Axis camera does) and written with the
-:class:`~vts_hw.recording.Recording` writer, with a simulated host receive time = exposure +
+:class:`~vts_hw.recording.writer.Recording` writer, with a simulated host receive time = exposure +
 latency (a floor, exponential jitter, rare large outliers; a late frame delays the frames
 behind it, as on one TCP connection).
 
@@ -22,11 +22,11 @@ from typing import Callable
 
 import numpy as np
 
-from vts_hw.axis_jpeg import stamp_jpeg
-from vts_hw.recording_writer import Recording
+from vts_hw.recording.axis_jpeg import stamp_jpeg
+from vts_hw.recording.writer import Recording
 
-from .render import Renderer, encode
-from .scene import Marker, RigidBody, Scene
+from vts_hw.sim_devices.render import Renderer, encode
+from vts_hw.sim_devices.scene import Marker, RigidBody, Scene
 
 __all__ = ["BAND_LAYOUT", "BreathingBand", "SimRecording", "simulate_recording"]
 
@@ -137,7 +137,7 @@ def simulate_recording(folder, duration_s: float = 20.0, fps: float = 25.0, seed
     if scene is None:
         scene = Scene.reference(seed=seed, start_epoch=1_790_000_000.0 + 1000.0 * seed)
     if clock_offsets_s:
-        from .scene import CameraClock
+        from vts_hw.sim_devices.scene import CameraClock
         for name, off in clock_offsets_s.items():
             old = scene.clocks[name]
             scene.clocks[name] = CameraClock(float(off), old.skew_ppm, old.ref_epoch)
@@ -182,7 +182,7 @@ def simulate_recording(folder, duration_s: float = 20.0, fps: float = 25.0, seed
     with Recording(folder, names, meta) as rec:
         for cam in names:
             clock = scene.clocks[cam]
-            for t0, t1 in gaps.get(cam, ()):  # in the recorder's form (vts_hw/recorder.py)
+            for t0, t1 in gaps.get(cam, ()):  # in the recorder's form (vts_hw/recording/capture.py)
                 before = int(np.searchsorted(out.exposure[cam], start + t0)) - 1
                 rec.add_gap(cam, {"after_frame": before,
                                   "camera_t0": clock.camera_time(start + t0),

@@ -30,7 +30,7 @@ from collections import OrderedDict
 import cv2
 import numpy as np
 
-from .scene import Scene
+from vts_hw.sim_devices.scene import Scene
 
 # Sphere brightness profile: (scale of the outline, weight); weights sum to 1, so the centre
 # is at full level and the rim at 0.35 of it.

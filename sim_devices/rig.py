@@ -25,14 +25,14 @@ import threading
 import time
 from pathlib import Path
 
-from ..config import RigConfig, dump_rig, parse_rig
-from ..errors import VtsError
-from ..files import WriteFailed, ensure_dir, os_reason, write_atomic
-from .axis_camera import SimAxisCamera
-from .camera_source import SimCameraSource
-from .clock import RealClock, VirtualClock
-from .render import Renderer
-from .scene import CameraDrift, Scene
+from vts_hw.config import RigConfig, dump_rig, parse_rig
+from vts_hw.errors import VtsError
+from vts_hw.files import WriteFailed, ensure_dir, os_reason, write_atomic
+from vts_hw.sim_devices.axis_camera import SimAxisCamera
+from vts_hw.sim_devices.camera_source import SimCameraSource
+from vts_hw.sim_devices.clock import RealClock, VirtualClock
+from vts_hw.sim_devices.render import Renderer
+from vts_hw.sim_devices.scene import CameraDrift, Scene
 
 PID_FILE = "sim.pid"
 LOG_FILE = "sim.log"
@@ -85,10 +85,10 @@ class SimRig:
         for srv in self.servers.values():
             srv.start()
         if self.trigger == "triggerbox":
-            from .trigger_box import SimTriggerBox
+            from vts_hw.sim_devices.trigger_box import SimTriggerBox
             self.trigger_box = SimTriggerBox().start()
         if self.trigger == "visa":
-            from .scpi_server import SimFunctionGenerator
+            from vts_hw.sim_devices.scpi_server import SimFunctionGenerator
             self.function_generator = SimFunctionGenerator(clock=self.clock.now).start()
         self._started = True
         return self
@@ -157,9 +157,9 @@ class SimRig:
 
     def write(self, folder: str | Path) -> tuple[Path, Path]:
         """Write ``rig.yaml`` and ``sim.env`` (mode 600: it holds the password), and the true
-        cameras' ``calibration.json`` and ``spect_mapping.json`` (sim_devices/sync_sim.py; with
+        cameras' ``calibration.json`` and ``spect_mapping.json`` (sim_devices/sync_truth.py; with
         two cameras or more), named in rig.yaml's ``calibration:`` section (absolute paths)."""
-        from .sync_sim import write_true_calibration
+        from vts_hw.sim_devices.sync_truth import write_true_calibration
 
         folder = ensure_dir(folder, FOLDER)
         calibration = None
@@ -212,12 +212,12 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
     if https:  # a self-signed certificate beside rig.yaml (or in a folder of its own)
         from tempfile import mkdtemp
 
-        from .tls import self_signed
+        from vts_hw.sim_devices.tls import self_signed
         tls = tuple(str(p) for p in self_signed(folder if folder is not None else mkdtemp(prefix="vts-sim-tls-")))
     rig = SimRig(n_cameras=n_cameras, seed=seed, firmware=firmware, clock=clock, trigger=trigger, tls=tls)
     follower = None
     if spect:
-        from .spect_follower import SpectFollower
+        from vts_hw.sim_devices.spect_follower import SpectFollower
         follower = SpectFollower(rig, Path(folder) / "spect", seed=seed,
                                  log=lambda m: print(m, flush=True))  # the scene, before cameras serve
     try:

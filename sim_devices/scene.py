@@ -27,7 +27,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from vts_hw.axis_jpeg import AxisProduct
+from vts_hw.recording.axis_jpeg import AxisProduct
 
 DAY = 86400.0
 

@@ -24,7 +24,7 @@ import time
 from dataclasses import astuple, fields
 from pathlib import Path
 
-from .keysight_33500 import Keysight33500, OutputEvent
+from vts_hw.sim_devices.keysight_33500 import Keysight33500, OutputEvent
 
 MAX_LINE = 64 * 1024          # a longer line without a terminator is dropped (an input buffer)
 OUTPUT_LOG_HEADER = [f.name for f in fields(OutputEvent)]

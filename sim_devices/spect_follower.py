@@ -28,10 +28,10 @@ from pathlib import Path
 
 from vts_hw.errors import VtsError
 from vts_hw.files import ensure_dir, os_reason
-from vts_hw.listmode.failures import write_failure_record
+from vts_hw.spect.listmode.failures import write_failure_record
 
-from .spect_listmode import SimListModeSpect
-from .sync_sim import place_source_marker, plan_sync_moves, schedule_source_moves
+from vts_hw.sim_devices.spect_listmode import SimListModeSpect
+from vts_hw.sim_devices.sync_truth import place_source_marker, plan_sync_moves, schedule_source_moves
 
 HORIZON_S = 600.0      # moves are planned over the first 10 minutes after a start pulse
 MOVE_EVERY_S = 15.0    # about one move per this many seconds

@@ -8,7 +8,7 @@ Where the trigger comes from (host UTC epoch seconds throughout):
   (:meth:`SimTriggerBox.host_time`: ``t0 + cycles / 16 MHz / speed``);
 * the simulated function generator (pyvisa-sim emits nothing): :func:`edges_from_trigger_log`
   rebuilds the wave from the session's ``trigger.csv`` (``OUTP 1`` sent at the host time
-  logged, frequency, duty, levels; :func:`vts_hw.sync_gating.wave_from_trigger_log`);
+  logged, frequency, duty, levels; :func:`vts_hw.spect.gating.wave_from_trigger_log`);
 * anything else: a :class:`TriggerEdges` built by hand (offline tests).
 
 What the simulated SPECT does (:func:`write_sim_listmode`, all in one pass, so a 60 s or a
@@ -47,10 +47,10 @@ from pathlib import Path
 import numpy as np
 
 from vts_hw.files import write_json_atomic
-from vts_hw.listmode.vtslm import VtslmWriter
+from vts_hw.spect.listmode.vtslm import VtslmWriter
 from vts_hw.sim_devices.scene import Scene
 from vts_hw.sim_devices.source_marker import SourceMarker
-from vts_hw.sync_gating import square_wave_edges, wave_from_trigger_log
+from vts_hw.spect.gating import square_wave_edges, wave_from_trigger_log
 
 __all__ = ["TriggerEdges", "Source", "SimSpectSettings", "ListModeTruth", "SimListModeSpect",
            "edges_from_trigger_box", "edges_from_trigger_log", "write_sim_listmode", "truth_path"]

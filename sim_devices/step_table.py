@@ -17,8 +17,8 @@ from typing import Callable
 
 import numpy as np
 
-from .scene import PHANTOM_PLACEMENT, Scene
-from .spect import SimSpect
+from vts_hw.sim_devices.scene import PHANTOM_PLACEMENT, Scene
+from vts_hw.sim_devices.spect import SimSpect
 
 STEP_RANGE_MM = (9.5, 10.5)
 FREE_ANGLE_DEG = (3.0, 8.0)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from vts_hw.axis_jpeg import AxisProduct, AxisTime, JpegError, axis_timestamp, inspect_jpeg, stamp_jpeg
+from vts_hw.recording.axis_jpeg import AxisProduct, AxisTime, JpegError, axis_timestamp, inspect_jpeg, stamp_jpeg
 
 
 def test_firmware_6_frame(axis_frames):

@@ -13,8 +13,8 @@ import pytest
 import requests
 from requests.auth import HTTPDigestAuth
 
-from vts_hw.axis_jpeg import inspect_jpeg
-from vts_hw.detect import detect, detect_jpeg
+from vts_hw.recording.axis_jpeg import inspect_jpeg
+from vts_hw.vision.detect import detect, detect_jpeg
 from vts_hw.drivers.axis import AxisCamera
 from vts_hw.sim_devices.axis_params import MODELS, Profile
 from vts_hw.sim_devices.axis_streaming import restamp

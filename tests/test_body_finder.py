@@ -3,12 +3,12 @@
 import numpy as np
 import pytest
 
-from vts_hw.body_finder import candidate_points, find_body, locate_body
+from vts_hw.vision.body_finder import candidate_points, find_body, locate_body
 from vts_hw.errors import DataError
-from vts_hw.registration import RigidTransform
+from vts_hw.vision.registration import RigidTransform
 from vts_hw.sim_devices.scene import PHANTOM_LAYOUT, Scene
 from vts_hw.sim_devices.step_table import sphere_centres
-from vts_hw.triangulate import as_camera
+from vts_hw.vision.triangulate import as_camera
 
 TEMPLATE = np.array([PHANTOM_LAYOUT[f"S{k}"] for k in range(1, 8)], float)
 

@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from vts_hw.calibration_io import StereoCalibration
+from vts_hw.vision.calibration_io import StereoCalibration
 
 
 def vts(*args, cwd):

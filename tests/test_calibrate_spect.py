@@ -7,7 +7,7 @@ import sys
 import numpy as np
 import pytest
 
-from vts_hw.registration import RigidTransform
+from vts_hw.vision.registration import RigidTransform
 from vts_hw.sim_devices.spect import SimSpect, phantom_centres
 
 
@@ -112,7 +112,7 @@ def test_from_cameras_on_a_live_simulated_rig(tmp_path):
     checkerboards, a SPECT volume of the phantom; the spheres picked out by shape."""
     import os
 
-    from vts_hw.registration import difference
+    from vts_hw.vision.registration import difference
     from vts_hw.sim_devices.rig import SimRig
     from vts_hw.sim_devices.step_table import sphere_centres
 

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from vts_hw.calibration import (
+from vts_hw.vision.calibration import (
     StereoCalibration,
     board_points,
     calibrate_from_corners,
@@ -14,7 +14,7 @@ from vts_hw.calibration import (
     find_corners,
     find_pairs,
 )
-from vts_hw.calibration_io import rotation_angle_deg
+from vts_hw.vision.calibration_io import rotation_angle_deg
 from vts_hw.errors import DataError
 
 PATTERN = (9, 6)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.optimize import linprog
 
-from vts_hw.camera_clock import ClockFit, fit_camera_clock, fit_recording_clocks, lower_envelope
+from vts_hw.timing.camera_clock import ClockFit, fit_camera_clock, fit_recording_clocks, lower_envelope
 from vts_hw.errors import DataError
 from vts_hw.sim_devices.recording_sim import simulate_recording
 from vts_hw.sim_devices.scene import CameraClock

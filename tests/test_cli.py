@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from vts_hw.mjpeg import split_jpegs
-from vts_hw.recording import read_index
+from vts_hw.recording.mjpeg import split_jpegs
+from vts_hw.recording.folder import read_index
 from vts_hw.sim_devices.rig import load_env_file
 
 VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]

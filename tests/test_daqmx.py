@@ -441,7 +441,7 @@ def test_the_rig_configs_pulse_width_reaches_the_daqmx_fire(monkeypatch, clock):
     always the driver's 100 ms default)."""
     from vts_hw.config import TriggerConfig
     from vts_hw.drivers import daqmx
-    from vts_hw.triggers import open_trigger
+    from vts_hw.drivers.registry import open_trigger
 
     port = FakePort(clock)
     monkeypatch.setattr(daqmx, "NidaqmxPort", lambda: port)

@@ -4,7 +4,7 @@ every day, and the report's forecast against the injected trend."""
 import numpy as np
 import pytest
 
-from vts_hw.demo import DAY, FAST_CAMERA, run_demo
+from vts_hw.sim_devices.scenarios.demo_days import DAY, FAST_CAMERA, run_demo
 from vts_hw.report import build_drift_report
 from vts_hw.store import ResultsStore
 

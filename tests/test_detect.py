@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from vts_hw.detect import (Blob, DetectionResult, DetectorSettings, auto_threshold, detect,
+from vts_hw.vision.detect import (Blob, DetectionResult, DetectorSettings, auto_threshold, detect,
                            detect_jpeg)
 from vts_hw.sim_devices.render import Renderer, encode, polygon_centroid, polygon_coverage
 from vts_hw.sim_devices.scene import Scene

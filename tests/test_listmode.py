@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from vts_hw.errors import DataError
-from vts_hw.listmode import (ListMode, VtslmWriter, list_readers, read_listmode, read_vtslm,
+from vts_hw.spect.listmode import (ListMode, VtslmWriter, list_readers, read_listmode, read_vtslm,
                              reader_for, write_vtslm)
-from vts_hw.listmode import vtslm
+from vts_hw.spect.listmode import vtslm
 
 START = 1_795_000_000.123456
 

@@ -5,8 +5,8 @@ import re
 
 from hypothesis import given, settings, strategies as st
 
-from vts_hw.axis_jpeg import inspect_jpeg
-from vts_hw.mjpeg import MultipartParser, boundary_from_content_type, jpeg_end, read_frames_file, split_jpegs
+from vts_hw.recording.axis_jpeg import inspect_jpeg
+from vts_hw.recording.mjpeg import MultipartParser, boundary_from_content_type, jpeg_end, read_frames_file, split_jpegs
 
 
 def _real(axis_frames):

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from vts_hw.errors import DataError
-from vts_hw.processing import (ProcessSettings, Tracks, pair_frames, process_recording,
+from vts_hw.recording.processing import (ProcessSettings, Tracks, pair_frames, process_recording,
                                track_identities, triangulate_fast)
-from vts_hw.registration import RigidTransform
+from vts_hw.vision.registration import RigidTransform
 from vts_hw.sim_devices.recording_sim import BAND_LAYOUT, simulate_recording
-from vts_hw.triangulate import as_camera, triangulate
+from vts_hw.vision.triangulate import as_camera, triangulate
 
 FLOOR = 0.004  # the simulated receive delay's floor (recording_sim default)
 
@@ -99,7 +99,7 @@ def test_gap_and_torn_tail_still_process(tmp_path):
     with open(mj, "r+b") as f:
         f.truncate(mj.stat().st_size - 100)
     # and a frame whose bytes were damaged (not a JPEG any more)
-    from vts_hw.recording import read_index
+    from vts_hw.recording.folder import read_index
     row = read_index(folder / "cam1.index.csv")[10]
     with open(folder / "cam1.mjpeg", "r+b") as f:
         f.seek(row.offset)
@@ -221,7 +221,7 @@ def test_bad_inputs_are_data_errors(tmp_path, processed):
 
 
 def test_reindexed_and_recovered_recordings(tmp_path):
-    from vts_hw.reindex import reindex
+    from vts_hw.recording.reindex import reindex
 
     folder = tmp_path / "killed"
     sim = simulate_recording(folder, duration_s=3.0, seed=4, torn_tail=("cam2",),
@@ -245,8 +245,8 @@ def test_reindexed_and_recovered_recordings(tmp_path):
 def test_chunk_matching_follows_match_epipolar(processed):
     """The chunk-wide matcher gives match_epipolar's answer frame by frame, including frames
     with ambiguous points (two markers level along the baseline) and missing points."""
-    from vts_hw.processing import _ideal, _match_chunk
-    from vts_hw.triangulate import fundamental_matrix, match_epipolar
+    from vts_hw.recording.processing import _ideal, _match_chunk
+    from vts_hw.vision.triangulate import fundamental_matrix, match_epipolar
 
     sim, _, _ = processed
     cams = [as_camera(c) for c in true_cameras(sim).values()]

@@ -12,8 +12,8 @@ import sys
 
 import pytest
 
-from vts_hw.mjpeg import split_jpegs
-from vts_hw.recording import read_index
+from vts_hw.recording.mjpeg import split_jpegs
+from vts_hw.recording.folder import read_index
 from vts_hw.sim_devices.rig import SimRig
 
 VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]

@@ -4,8 +4,8 @@ import json
 import threading
 
 from vts_hw.drivers.axis import AxisCamera
-from vts_hw.recorder import Recorder
-from vts_hw.recording import info, read_index
+from vts_hw.recording.capture import Recorder
+from vts_hw.recording.folder import info, read_index
 
 
 def _cams(rig):

@@ -4,12 +4,12 @@ import json
 
 import pytest
 
-from vts_hw.axis_jpeg import inspect_jpeg
+from vts_hw.recording.axis_jpeg import inspect_jpeg
 from vts_hw.errors import DataError
-from vts_hw.mjpeg import read_frames_file
-from vts_hw.recording import info, load_manifest, read_index
-from vts_hw.recording_writer import Recording
-from vts_hw.reindex import reindex
+from vts_hw.recording.mjpeg import read_frames_file
+from vts_hw.recording.folder import info, load_manifest, read_index
+from vts_hw.recording.writer import Recording
+from vts_hw.recording.reindex import reindex
 
 
 @pytest.fixture()
@@ -114,7 +114,7 @@ def test_a_bad_line_before_the_last_is_an_error_not_the_end(tmp_path, real_frame
 
 def test_info_of_camera_times_with_an_absurd_frame_step(tmp_path):
     # a median step of 1e-310 s: the gap in frames is not a finite number
-    s = __import__("vts_hw.recording", fromlist=["summarize_times"]).summarize_times(
+    s = __import__("vts_hw.recording.folder", fromlist=["summarize_times"]).summarize_times(
         "cam1", [0.0, 1e-310, 2e-310, 5.0])
     assert len(s.gaps) == 1 and s.gaps[0]["missing"] >= 1
 

@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 
 import vts_hw
 from vts_hw.errors import DataError
-from vts_hw.registration import RigidTransform, difference, fre, kabsch, loo_tre
+from vts_hw.vision.registration import RigidTransform, difference, fre, kabsch, loo_tre
 from vts_hw.sim_devices.scene import PHANTOM_LAYOUT
 
 PHANTOM = np.array(list(PHANTOM_LAYOUT.values()))
@@ -202,7 +202,7 @@ def test_phantom_motion_from_triangulated_spheres():
     """Initial -> final 6-DOF motion of the phantom from stereo 3D positions (0.02 px noise)
     against the scene's ground truth: the 7-sphere step procedure in miniature."""
     from vts_hw.sim_devices.scene import PHANTOM_PLACEMENT, Scene
-    from vts_hw.triangulate import match_epipolar, triangulate
+    from vts_hw.vision.triangulate import match_epipolar, triangulate
 
     t0 = 1_700_000_000.0
     scene = Scene.reference(seed=0, start_epoch=t0)

@@ -22,7 +22,7 @@ from vts_hw.config import load_rig
 from vts_hw.drivers.trigger import read_log
 from vts_hw.errors import DataError
 from vts_hw.procedures.scan import ScanError, ScanSession
-from vts_hw.recording import read_index
+from vts_hw.recording.folder import read_index
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.sim_devices.trigger_box import F_CPU
 

@@ -23,7 +23,7 @@ import pytest
 import requests
 from requests.auth import HTTPDigestAuth
 
-from vts_hw.axis_jpeg import AxisProduct, inspect_jpeg, stamp_jpeg
+from vts_hw.recording.axis_jpeg import AxisProduct, inspect_jpeg, stamp_jpeg
 from vts_hw.sim_devices.axis_camera import SimAxisCamera
 from vts_hw.sim_devices.clock import VirtualClock
 from vts_hw.sim_devices.digest import parse_auth_params

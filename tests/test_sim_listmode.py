@@ -12,7 +12,7 @@ import json
 import numpy as np
 import pytest
 
-from vts_hw.listmode import read_listmode
+from vts_hw.spect.listmode import read_listmode
 from vts_hw.sim_devices.scene import Scene
 from vts_hw.sim_devices.source_marker import (add_source_marker, min_jerk, plan_moves,
                                               source_marker_from_json)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from vts_hw.axis_jpeg import inspect_jpeg
+from vts_hw.recording.axis_jpeg import inspect_jpeg
 from vts_hw.sim_devices.camera_source import SimCameraSource
 from vts_hw.sim_devices.clock import VirtualClock
 from vts_hw.sim_devices.render import Renderer, polygon_centroid, polygon_coverage

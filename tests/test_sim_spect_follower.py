@@ -151,7 +151,7 @@ def test_a_failure_record_beside_other_scans_listmodes_is_the_answer(two_scans, 
     """The glob matches only another scan's list-mode, and a failure record covers this session
     (its start is this session's start pulse): the record is the answer, not "do not belong"."""
     cwd, env, (lm1, lm2), _ = two_scans
-    from vts_hw.listmode.failures import write_failure_record
+    from vts_hw.spect.listmode.failures import write_failure_record
     shutil.copy(lm2, tmp_path / lm2.name)
     fire = json.loads((cwd / "scan1" / "manifest.json").read_text())["trigger"]["fire_time"]
     write_failure_record(tmp_path, lm1.name, "could not write it (read-only file system)",

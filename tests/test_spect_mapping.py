@@ -13,7 +13,7 @@ from vts_hw import __version__
 from vts_hw.errors import DataError
 from vts_hw.procedures.spect_mapping import (FRE_LIMIT_MM, SpectMapping, correspond,
                                              correspondence)
-from vts_hw.registration import RigidTransform, difference
+from vts_hw.vision.registration import RigidTransform, difference
 from vts_hw.sim_devices.spect import SimSpect, phantom_centres
 from vts_hw.spect import find_spheres, read_volume
 

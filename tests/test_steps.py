@@ -13,7 +13,7 @@ import pytest
 
 from vts_hw.errors import DataError
 from vts_hw.procedures.steps import (OperatorPositioner, VolumeFolder, load_positions, step_plan)
-from vts_hw.procedures.steps_sim import run_sim_steps
+from vts_hw.sim_devices.scenarios.step_chain import run_sim_steps
 from vts_hw.store import ResultsStore
 
 SEED = 3

@@ -7,7 +7,7 @@ import pytest
 
 from vts_hw.errors import DataError
 from vts_hw.procedures.steps_analysis import StepAnalysis, six_dof
-from vts_hw.registration import RigidTransform
+from vts_hw.vision.registration import RigidTransform
 from vts_hw.sim_devices.scene import PHANTOM_LAYOUT
 from vts_hw.tolerance import State, Window
 

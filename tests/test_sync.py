@@ -21,15 +21,15 @@ import numpy as np
 import pytest
 
 from vts_hw.config import load_rig
-from vts_hw.processing import Tracks
-from vts_hw.procedures import sync_sim
+from vts_hw.recording.processing import Tracks
+from vts_hw.sim_devices.scenarios import sync_session as sync_sim
 from vts_hw.procedures.scan import ScanSession
 from vts_hw.procedures.sync import SyncAnalysis
-from vts_hw.registration import RigidTransform
+from vts_hw.vision.registration import RigidTransform
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.sim_devices.source_marker import min_jerk
-from vts_hw.sim_devices.sync_sim import plan_sync_moves
-from vts_hw.sync_events import find_steps, fit_step, match_events
+from vts_hw.sim_devices.sync_truth import plan_sync_moves
+from vts_hw.timing.motion_events import find_steps, fit_step, match_events
 
 VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
 EVENT_GOAL_S = 0.020
@@ -94,7 +94,7 @@ def test_moves_are_planned_clear_of_the_head_rotations():
 def test_when_a_list_mode_was_acquired_is_read_from_its_ends(tmp_path):
     """read_listmode_span: the header's start and the END block's time, as the whole file says;
     a file cut short gives the planned duration (reading it whole says what is wrong)."""
-    from vts_hw.listmode import VtslmWriter, read_listmode, read_listmode_span
+    from vts_hw.spect.listmode import VtslmWriter, read_listmode, read_listmode_span
     path = tmp_path / "a.vtslm"
     with VtslmWriter(path, start_time=1_795_000_000.5, duration_s=30.0, gate_rate_hz=2000.0) as w:
         w.events(np.linspace(0, 20, 5000), np.zeros(5000), np.zeros(5000), np.zeros(5000, np.uint8))

@@ -15,13 +15,14 @@ from vts_hw.drivers.function_generator import SIM_RESOURCE, FunctionGenerator
 from vts_hw.drivers.trigger import TriggerLog
 from vts_hw.drivers.trigger_box import TriggerBox
 from vts_hw.errors import DataError
-from vts_hw.listmode import GATE_TRANSITIONS, ListMode, base, read_listmode, register_reader
+from vts_hw.spect.listmode import GATE_TRANSITIONS, ListMode, read_listmode, register_reader
+from vts_hw.spect.listmode import base
 from vts_hw.sim_devices.scene import Scene
 from vts_hw.sim_devices.source_marker import add_source_marker
 from vts_hw.sim_devices.spect_listmode import (SimListModeSpect, SimSpectSettings, TriggerEdges,
                                                edges_from_trigger_box, write_sim_listmode)
 from vts_hw.sim_devices.trigger_box import F_CPU, SimTriggerBox
-from vts_hw.sync_gating import (analyze_gating, axial_centre_of_mass, dead_time_from_events,
+from vts_hw.spect.gating import (analyze_gating, axial_centre_of_mass, dead_time_from_events,
                                 find_gate_edges, fit_spect_clock, square_wave_edges,
                                 wave_from_trigger_log)
 

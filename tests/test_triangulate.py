@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from vts_hw.sim_devices.scene import DAY, CameraModel, Scene
-from vts_hw.triangulate import (Camera, as_camera, epipolar_distances, match_epipolar,
+from vts_hw.vision.triangulate import (Camera, as_camera, epipolar_distances, match_epipolar,
                                 predicted_covariance, triangulate, undistort)
 
 T0 = 1_700_000_000.0

@@ -16,7 +16,7 @@ from typing import Literal, Optional, Union
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
 
-from .errors import ConfigError
+from vts_hw.errors import ConfigError
 
 ENV_CONFIG = "VTS_CONFIG"
 _NAME_RE = r"^[A-Za-z0-9][A-Za-z0-9_.-]*$"
@@ -165,7 +165,7 @@ class RigConfig(_Strict):
     @field_validator("tolerances")
     @classmethod
     def _known_metrics(cls, v: dict):
-        from .tolerance import DEFAULT_TOLERANCES
+        from vts_hw.tolerance import DEFAULT_TOLERANCES
         unknown = sorted(set(v) - set(DEFAULT_TOLERANCES))
         if unknown:
             raise ValueError(f"names {unknown[0]!r}, which is not a metric with a tolerance window "

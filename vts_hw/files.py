@@ -20,7 +20,7 @@ import json
 import os
 from pathlib import Path
 
-from .errors import DataError
+from vts_hw.errors import DataError
 
 
 class WriteFailed(DataError):

@@ -12,7 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Generic, TypeVar
 
-from .errors import DataError
+from vts_hw.errors import DataError
 
 R = TypeVar("R")
 SNIFF_BYTES = 512

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
-from .files import WriteFailed, write_atomic
+from vts_hw.files import WriteFailed, write_atomic
 
 
 @dataclass

@@ -2,10 +2,10 @@
 
 * MJPEG and Axis JPEG: the real frames and the real multipart capture in
   ``../shared/data/axis-frames`` (its README), plus a recording's ``.mjpeg``;
-* recording index and manifest: a recording written by :class:`vts_hw.recording.Recording`
+* recording index and manifest: a recording written by :class:`vts_hw.recording.writer.Recording`
   from the real frames (and the manifest a scan writes: status, gaps, notes);
 * list-mode: a short acquisition of the simulated SPECT (``sim_devices/spect_listmode.py``)
-  and a small file made with :class:`~vts_hw.listmode.VtslmWriter`;
+  and a small file made with :class:`~vts_hw.spect.listmode.VtslmWriter`;
 * Interfile, DICOM NM, .npz: small volumes of the simulated SPECT written by the code's
   writers (``sim_devices/spect.py`` → ``vts_hw/spect``);
 * calibration and mapping JSON, rig.yaml: written by the simulated rig (``SimRig.write``:
@@ -80,12 +80,12 @@ def make_seeds(out: Path, axis_frames: Path) -> dict[str, int]:
     work.mkdir(parents=True)
 
     # ---- real Axis frames, and a recording written from them
-    from vts_hw.axis_jpeg import inspect_jpeg
-    from vts_hw.mjpeg import read_frames_file
+    from vts_hw.recording.axis_jpeg import inspect_jpeg
+    from vts_hw.recording.mjpeg import read_frames_file
     try:
-        from vts_hw.recording_writer import Recording  # where the writer lives after the split
+        from vts_hw.recording.writer import Recording  # where the writer lives after the split
     except ImportError:
-        from vts_hw.recording import Recording
+        from vts_hw.recording.folder import Recording
 
     capture = (axis_frames / "t.mjpg").read_bytes()
     frames = [b for b, _ in read_frames_file(axis_frames / "t.mjpg")]
@@ -112,7 +112,7 @@ def make_seeds(out: Path, axis_frames: Path) -> dict[str, int]:
     # ---- list-mode: the simulated SPECT, and a hand-made file with every block kind
     import numpy as np
 
-    from vts_hw.listmode import VtslmWriter
+    from vts_hw.spect.listmode import VtslmWriter
     from vts_hw.sim_devices.scene import Scene
     from vts_hw.sim_devices.spect_listmode import SimSpectSettings, TriggerEdges, write_sim_listmode
 

@@ -69,12 +69,15 @@ P: dict = {}  # the parsers, filled by import_parsers()
 
 def import_parsers() -> None:
     """Import every parser a target calls (inside atheris.instrument_imports in the child)."""
-    from vts_hw import axis_jpeg, config, mjpeg, recording
-    from vts_hw.calibration_io import StereoCalibration
-    from vts_hw.listmode import read_listmode
+    from vts_hw import config
+    from vts_hw.recording.folder import axis_jpeg
+    from vts_hw.recording.folder import mjpeg
+    from vts_hw.recording import folder as recording
+    from vts_hw.vision.calibration_io import StereoCalibration
+    from vts_hw.spect.listmode import read_listmode
     from vts_hw.procedures.sync import check_session
-    from vts_hw.processing import _manifest_cameras
-    from vts_hw.registration import RigidTransform
+    from vts_hw.recording.processing import _manifest_cameras
+    from vts_hw.vision.registration import RigidTransform
     from vts_hw.spect.dicom_nm import read_dicom_nm
     from vts_hw.spect.interfile import read_interfile
     from vts_hw.spect.npz import read_npz

@@ -7,8 +7,8 @@ import sys
 
 import click
 
-from .. import __version__
-from ..errors import VtsError
+from vts_hw import __version__
+from vts_hw.errors import VtsError
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
@@ -25,7 +25,7 @@ def cli(verbose: int) -> None:
 
 
 def _register() -> None:
-    from . import (calibrate, camera, demo, qa, qa_steps, recording, report, scan, sim,  # noqa: F401
+    from vts_hw.cli import (calibrate, camera, demo, qa, qa_steps, recording, report, scan, sim,  # noqa: F401
                    sync, trigger)
 
 

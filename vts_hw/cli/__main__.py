@@ -1,3 +1,3 @@
-from . import main
+from vts_hw.cli import main
 
 main()

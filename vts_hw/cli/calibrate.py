@@ -9,9 +9,9 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ..errors import DataError
-from . import cli
-from .common import config_option, echo_json, json_option
+from vts_hw.errors import DataError
+from vts_hw.cli import cli
+from vts_hw.cli.common import config_option, echo_json, json_option
 
 
 @cli.group()
@@ -64,7 +64,7 @@ def stereo(images: tuple[str, ...], sim: bool, sim_poses: int, sim_seed: int,
     mistake (e.g. squares over a calibration in mm); 3: bad images or files, or -o could not be
     written (the calibration is then saved in the current folder or $TMPDIR, said where).
     """
-    from ..procedures import stereo_calibration as proc
+    from vts_hw.procedures import stereo_calibration as proc
 
     if sim and images:
         raise click.UsageError("give either IMAGES or --sim, not both")
@@ -80,7 +80,7 @@ def stereo(images: tuple[str, ...], sim: bool, sim_poses: int, sim_seed: int,
     names = truth = None
     proc.replaceable(Path(output), unit, force)  # before the work: a forgotten --square, a wrong -o
     if sim:
-        from ..procedures.calibration_sim import sim_views
+        from vts_hw.sim_devices.scenarios.calibration_views import sim_views
 
         square_mm = square if unit == "mm" else None  # "squares": the simulated board's size
         pairs, names, truth = sim_views(sim_seed, sim_poses, pattern, square_mm)
@@ -100,7 +100,7 @@ def stereo(images: tuple[str, ...], sim: bool, sim_poses: int, sim_seed: int,
 
 
 def _sim_square_mm() -> float:
-    from ..procedures.calibration_sim import sim_square_mm
+    from vts_hw.sim_devices.scenarios.calibration_views import sim_square_mm
     return sim_square_mm()
 
 
@@ -170,13 +170,13 @@ def _from_cameras(config_path, calibration_path, volume, frames: int, quiet: boo
     """The mapping with the VTS side measured now by the rig's first two cameras."""
     import time
 
-    from ..calibration_io import StereoCalibration
-    from ..config import load_rig
-    from ..detect import detect_jpeg
-    from ..drivers.axis import AxisCamera
-    from ..errors import ConfigError
-    from ..procedures.spect_mapping import SpectMapping
-    from ..procedures.steps import LED_SETTLE_S, SNAPSHOT_COMPRESSION, average_centroids
+    from vts_hw.vision.calibration_io import StereoCalibration
+    from vts_hw.config import load_rig
+    from vts_hw.vision.detect import detect_jpeg
+    from vts_hw.drivers.axis import AxisCamera
+    from vts_hw.errors import ConfigError
+    from vts_hw.procedures.spect_mapping import SpectMapping
+    from vts_hw.procedures.steps import LED_SETTLE_S, SNAPSHOT_COMPRESSION, average_centroids
 
     rig = load_rig(config_path)
     path = calibration_path or rig.calibration.stereo
@@ -233,8 +233,8 @@ def spect(vts_path: str | None, volume: str | None, from_cameras: bool, calibrat
     import json
     import tempfile
 
-    from ..procedures.spect_mapping import SpectMapping
-    from ..save_or_keep import save_or_keep
+    from vts_hw.procedures.spect_mapping import SpectMapping
+    from vts_hw.save_or_keep import save_or_keep
 
     if sim and (vts_path or volume or from_cameras):
         raise click.UsageError("give either --vts/--from-cameras and --volume, or --sim, not both")
@@ -246,7 +246,7 @@ def spect(vts_path: str | None, volume: str | None, from_cameras: bool, calibrat
     out_path = Path(output)
     info = None
     if sim:
-        from ..procedures.calibration_sim import compare_mapping_with_truth, sim_spect_inputs
+        from vts_hw.sim_devices.scenarios.calibration_views import compare_mapping_with_truth, sim_spect_inputs
 
         with tempfile.TemporaryDirectory(prefix="vts-spect-sim-") as tmp:
             points, vol_path, info = sim_spect_inputs(sim_seed, Path(tmp))

@@ -7,11 +7,11 @@ from pathlib import Path
 
 import click
 
-from ..drivers.axis import AxisCamera
-from ..drivers.axis_stream import FrameStream, StreamGap
-from ..files import write_atomic
-from . import cli
-from .common import PositiveSeconds, echo_json, fmt_time, json_option, with_rig
+from vts_hw.drivers.axis import AxisCamera
+from vts_hw.drivers.axis_stream import FrameStream, StreamGap
+from vts_hw.files import write_atomic
+from vts_hw.cli import cli
+from vts_hw.cli.common import PositiveSeconds, echo_json, fmt_time, json_option, with_rig
 
 
 @cli.group()
@@ -142,8 +142,8 @@ def record(names: tuple[str, ...], all_cameras: bool, seconds: float, out: str, 
     or lost its stream: one sentence per camera says why); 3 a file could not be written
     (e.g. disk full: what was kept is said); 2 bad input; 130 interrupted.
     """
-    from ..recorder import Recorder
-    from .progress import record_with_progress
+    from vts_hw.recording.capture import Recorder
+    from vts_hw.cli.progress import record_with_progress
 
     if all_cameras:
         names = tuple(c.name for c in rig.cameras)

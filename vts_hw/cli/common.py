@@ -8,7 +8,7 @@ import math
 
 import click
 
-from ..config import ENV_CONFIG, RigConfig, load_rig
+from vts_hw.config import ENV_CONFIG, RigConfig, load_rig
 
 config_option = click.option(
     "--config", "config_path", type=click.Path(dir_okay=False), envvar=ENV_CONFIG, default=None,

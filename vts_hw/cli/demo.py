@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from . import cli
+from vts_hw.cli import cli
 
 
 @cli.command()
@@ -47,11 +47,11 @@ def demo(out: str, days: int, seconds: float, frames: int, scan_seconds: float) 
 
 
 def _cameras(out_dir: Path, seconds: float) -> None:
-    from ..drivers.axis import AxisCamera
-    from ..recorder import Recorder
-    from ..recording import info
-    from ..sim_devices.rig import SimRig
-    from .progress import record_with_progress
+    from vts_hw.drivers.axis import AxisCamera
+    from vts_hw.recording.capture import Recorder
+    from vts_hw.recording.folder import info
+    from vts_hw.sim_devices.rig import SimRig
+    from vts_hw.cli.progress import record_with_progress
 
     with SimRig(n_cameras=2) as rig, rig.env():
         rig.write(out_dir / "sim")
@@ -82,7 +82,7 @@ def _cameras(out_dir: Path, seconds: float) -> None:
 
 
 def _daily(out_dir: Path, days: int, frames: int) -> None:
-    from ..demo import run_demo
+    from vts_hw.sim_devices.scenarios.demo_days import run_demo
 
     cams: list[str] = []
 
@@ -127,8 +127,8 @@ def _scan(out_dir: Path, seconds: float) -> None:
     import subprocess
     import sys
 
-    from ..procedures import sync_sim
-    from ..sim_devices.rig import SimRig
+    from vts_hw.sim_devices.scenarios import sync_session as sync_sim
+    from vts_hw.sim_devices.rig import SimRig
 
     scan_dir = out_dir / "scan"
     if scan_dir.exists():

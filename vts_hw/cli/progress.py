@@ -9,7 +9,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from ..recorder import Recorder
+from vts_hw.recording.capture import Recorder
 
 
 def _table(rec: Recorder, seconds: float | None, t0: float) -> Table:

@@ -7,8 +7,8 @@ import sys
 
 import click
 
-from . import cli
-from .common import json_option, with_rig
+from vts_hw.cli import cli
+from vts_hw.cli.common import json_option, with_rig
 
 
 @cli.group()
@@ -37,7 +37,7 @@ def drift(rig, cameras, frames, plots, dry_run, operator, as_json, set_baseline)
     baseline markers, mean and SD of the displacement in x and y (px and mm at the wall); an
     LED-off frame checks that the markers vanish. Stored in the results store.
     """
-    from .qa_run import run_qa, set_baseline as do_baseline
+    from vts_hw.cli.qa_run import run_qa, set_baseline as do_baseline
     if set_baseline:
         do_baseline(rig, list(cameras), frames, dry_run, operator, as_json)
         return
@@ -49,7 +49,7 @@ def drift(rig, cameras, frames, plots, dry_run, operator, as_json, set_baseline)
 @with_rig
 def daily(rig, cameras, frames, plots, dry_run, operator, as_json) -> None:
     """The daily set: each camera reachable, its parameters still locked, its clock, the LED, the drift."""
-    from .qa_run import run_qa
+    from vts_hw.cli.qa_run import run_qa
     sys.exit(run_qa(rig, ("reachable", "params", "clock", "drift"), list(cameras), frames, plots, dry_run,
                     operator, as_json))
 
@@ -66,6 +66,6 @@ def import_(rig, files) -> None:
     as the run it was, with its own times, states and tolerance windows, and renames the
     file ``*.imported`` so it is never stored twice.
     """
-    from .qa_run import import_runs
+    from vts_hw.cli.qa_run import import_runs
     for f, run_id in import_runs(rig, files):
         click.echo(f"{f}: stored as run {run_id}")

@@ -8,12 +8,12 @@ from pathlib import Path
 
 import click
 
-from .common import echo_json, fmt_time
+from vts_hw.cli.common import echo_json, fmt_time
 
 
 def open_store(rig):
     """The results store named by the config (default: a per-user SQLite file)."""
-    from ..store import ResultsStore
+    from vts_hw.store import ResultsStore
     return ResultsStore(rig.results.url)
 
 
@@ -27,7 +27,7 @@ def artifacts_dir(store) -> Path:
 
 
 def run_qa(rig, steps, cameras, frames, plots, dry_run, operator, as_json, clock=time.time) -> int:
-    from ..procedures.daily import QARun
+    from vts_hw.procedures.daily import QARun
 
     if dry_run:
         run = QARun(rig, _DryStore(rig), steps=steps, cameras=cameras or None, n_frames=frames)
@@ -41,7 +41,7 @@ def run_qa(rig, steps, cameras, frames, plots, dry_run, operator, as_json, clock
         result = run.run()
         unsaved = None
         if result.store_error:
-            from ..store.unsaved import save_unsaved
+            from vts_hw.store.unsaved import save_unsaved
             unsaved, tried = save_unsaved(store.url, run.unsaved_record(result))
     data = result.results_data()
     if result.store_error:
@@ -62,15 +62,15 @@ def run_qa(rig, steps, cameras, frames, plots, dry_run, operator, as_json, clock
 
 
 def import_runs(rig, files) -> list[tuple[str, int]]:
-    from ..store.unsaved import import_unsaved
+    from vts_hw.store.unsaved import import_unsaved
     with open_store(rig) as store:
         return [(f, import_unsaved(store, f)) for f in files]
 
 
 def set_baseline(rig, cameras, frames, dry_run, operator, as_json, clock=time.time) -> None:
-    from ..drivers.axis import AxisCamera
-    from ..procedures.baseline import save_baselines
-    from ..procedures.drift import Baseline, acquire_led_frames
+    from vts_hw.drivers.axis import AxisCamera
+    from vts_hw.procedures.baseline import save_baselines
+    from vts_hw.procedures.drift import Baseline, acquire_led_frames
 
     names = cameras or [c.name for c in rig.cameras]
     for n in names:   # unknown names, unset password variables: before anything is touched

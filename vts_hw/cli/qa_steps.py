@@ -10,10 +10,10 @@ from pathlib import Path
 
 import click
 
-from ..errors import ConfigError, DataError
-from ..tolerance import State
-from .common import config_option, echo_json, json_option
-from .qa import qa
+from vts_hw.errors import ConfigError, DataError
+from vts_hw.tolerance import State
+from vts_hw.cli.common import config_option, echo_json, json_option
+from vts_hw.cli.qa import qa
 
 
 def _default_out() -> Path:
@@ -77,8 +77,8 @@ def steps(sim, seed, config_path, out_dir, volumes, calibration_path, mapping_pa
     last as each system sees it, with the differences; tolerance states, and a plot.
     Exit status: 0 OK, 10 TOLERANCE, 20 ACTION; 2-5 when the test could not run.
     """
-    from ..procedures.daily import EXIT_CODES
-    from ..procedures.steps import step_plan
+    from vts_hw.procedures.daily import EXIT_CODES
+    from vts_hw.procedures.steps import step_plan
 
     plan = step_plan(vertical, axial, step_mm)
     out = Path(out_dir) if out_dir else (Path(analyze_dir) if analyze_dir else _default_out())
@@ -101,12 +101,12 @@ def steps(sim, seed, config_path, out_dir, volumes, calibration_path, mapping_pa
 
 
 def _open_store(url):
-    from ..store import ResultsStore
+    from vts_hw.store import ResultsStore
     return ResultsStore(url)
 
 
 def _run_sim(out, seed, frames, vertical, axial, store_url, operator, as_json):
-    from ..procedures.steps_sim import run_sim_steps
+    from vts_hw.sim_devices.scenarios.step_chain import run_sim_steps
 
     say = (lambda m: None) if as_json else (lambda m: click.echo(m, err=True))
     url = store_url or f"sqlite:///{(out / 'results.sqlite').resolve()}"
@@ -130,12 +130,12 @@ def _run_sim(out, seed, frames, vertical, axial, store_url, operator, as_json):
 
 def _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path, analyze_dir, frames,
              store_url, dry_run, operator, as_json):
-    from ..calibration_io import StereoCalibration
-    from ..config import load_rig
-    from ..drivers.axis import AxisCamera
-    from ..procedures.steps import (OperatorPositioner, StepSession, VolumeFolder, analyze_positions,
+    from vts_hw.vision.calibration_io import StereoCalibration
+    from vts_hw.config import load_rig
+    from vts_hw.drivers.axis import AxisCamera
+    from vts_hw.procedures.steps import (OperatorPositioner, StepSession, VolumeFolder, analyze_positions,
                                     load_positions, store_steps)
-    from ..registration import RigidTransform
+    from vts_hw.vision.registration import RigidTransform
 
     rig = load_rig(config_path)
     cal_path = calibration_path or rig.calibration.stereo

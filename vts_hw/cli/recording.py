@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import click
 
-from .. import recording as rec_mod
-from . import cli
-from .common import echo_json, fmt_time, json_option
+from vts_hw.recording import folder as rec_mod
+from vts_hw.cli import cli
+from vts_hw.cli.common import echo_json, fmt_time, json_option
 
 
 @cli.group()
@@ -26,8 +26,8 @@ def reindex(folder: str, as_json: bool) -> None:
     manifest.unreadable.json and a fresh one written. Exit status: 0 rebuilt; 3 something
     was damaged or could not be written (said in one sentence per problem).
     """
-    from ..errors import DataError
-    from ..reindex import reindex as do_reindex
+    from vts_hw.errors import DataError
+    from vts_hw.recording.reindex import reindex as do_reindex
 
     report = do_reindex(folder)
     if as_json:

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import click
 
-from . import cli
-from .common import echo_json, json_option, with_rig
+from vts_hw.cli import cli
+from vts_hw.cli.common import echo_json, json_option, with_rig
 
 
 @cli.group()
@@ -31,8 +31,8 @@ def drift(since: str, out: str, as_json: bool, rig) -> None:
     Exit status: 0 written; 2 a bad --since or -o; 3 the store or the file could not be
     read or written (a previous report is left as it was).
     """
-    from ..report.drift import build_drift_report, parse_since, report_format
-    from .qa_run import open_store
+    from vts_hw.report.drift import build_drift_report, parse_since, report_format
+    from vts_hw.cli.qa_run import open_store
 
     report_format(out)                  # ReportError: one sentence, exit 2
     start = parse_since(since)          # BadSince: one sentence, exit 2

@@ -14,8 +14,8 @@ from rich.live import Live
 from rich.markup import escape
 from rich.table import Table
 
-from . import cli
-from .common import PositiveSeconds, echo_json, fmt_time, json_option, with_rig
+from vts_hw.cli import cli
+from vts_hw.cli.common import PositiveSeconds, echo_json, fmt_time, json_option, with_rig
 
 REFRESH_S = 0.5          # the live table, about twice a second
 PLAIN_EVERY_S = 2.0      # a status line this often when stderr is not a terminal
@@ -46,7 +46,7 @@ def start(out: str | None, duration: float | None, dry_run: bool, as_json: bool,
     the recording stops, every whole frame is kept); 2 bad input or a non-empty folder;
     130 interrupted before the scan started.
     """
-    from ..procedures.scan import ScanSession, default_folder
+    from vts_hw.procedures.scan import ScanSession, default_folder
 
     folder = Path(out) if out else default_folder()
     err = Console(stderr=True, highlight=False)

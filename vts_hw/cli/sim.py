@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from . import cli
+from vts_hw.cli import cli
 
 
 @cli.group()
@@ -50,7 +50,7 @@ def up(n_cameras: int, seed: int, vapix: str, model: str | None, https: bool, ra
     command before anything starts (exit 3); a detached rig that fails to start says why (the
     last line of DIR/sim.log).
     """
-    from ..sim_devices import rig as simrig  # imports the scene only when asked
+    from vts_hw.sim_devices import rig as simrig  # imports the scene only when asked
 
     fw = model or ("vapix3" if vapix == "3" else "vapix2")
     if spect and (trigger != "triggerbox" or not folder):
@@ -90,13 +90,13 @@ def _describe(folder: Path) -> None:
               help="The folder given to `vts sim up --detach`.")
 def down(folder: str) -> None:
     """Stop the simulated rig running in the background for DIR."""
-    from ..sim_devices import rig as simrig
+    from vts_hw.sim_devices import rig as simrig
 
     if simrig.stop_detached(folder):
         click.echo(f"simulated rig in {folder} stopped")
     else:
         click.echo(f"no simulated rig was running in {folder}")
-    from ..listmode.failures import read_failure_records
+    from vts_hw.spect.listmode.failures import read_failure_records
     failed = read_failure_records(Path(folder) / "spect")     # what the simulated SPECT could not record
     for rec in failed:
         click.echo(f"{rec.describe()} ({rec.path})")

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import click
 
-from . import cli
-from .common import config_option, echo_json, json_option
+from vts_hw.cli import cli
+from vts_hw.cli.common import config_option, echo_json, json_option
 
 EXIT_CODES = {"OK": 0, "TOLERANCE": 10, "ACTION": 20}   # as the QA procedures (procedures/daily.py)
 
@@ -22,8 +22,8 @@ def sync() -> None:
 def _calibration_files(config_path, calibration, mapping):
     """--calibration/--mapping, else the rig config's calibration section (relative paths from
     the rig.yaml's folder). ConfigError when there is no stereo calibration at all."""
-    from ..config import load_rig
-    from ..errors import ConfigError, VtsError
+    from vts_hw.config import load_rig
+    from vts_hw.errors import ConfigError, VtsError
 
     if calibration and mapping:
         return Path(calibration), Path(mapping)
@@ -108,8 +108,8 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
     Exit status like the QA procedures: 0 OK (every event seen by both within 20 ms), 10
     TOLERANCE (within 100 ms, or an event seen by one system only), 20 ACTION.
     """
-    from ..procedures.sync import CLOCK_SLACK_S, SyncAnalysis, check_session, export_trajectories
-    from ..report.sync_html import write_sync_html
+    from vts_hw.procedures.sync import CLOCK_SLACK_S, SyncAnalysis, check_session, export_trajectories
+    from vts_hw.report.sync_html import write_sync_html
 
     candidates = [*listmode, *more]
     if not candidates:

@@ -6,8 +6,8 @@ import contextlib
 
 import click
 
-from . import cli
-from .common import echo_json, json_option, with_rig
+from vts_hw.cli import cli
+from vts_hw.cli.common import echo_json, json_option, with_rig
 
 log_option = click.option("--log", "log_path", type=click.Path(dir_okay=False), default="trigger.csv",
                           show_default=True, help="trigger.csv to append every command, reply and edge to.")
@@ -38,7 +38,7 @@ def _show(st, as_json: bool) -> None:
 
 
 def _open(rig, log_path):
-    from ..triggers import open_trigger
+    from vts_hw.drivers.registry import open_trigger
     return open_trigger(rig.trigger, log_path)
 
 
@@ -55,7 +55,7 @@ def _session(rig, log_path):
 
 def _configure(gen, t) -> None:
     """Frequency and duty from the config, and the levels where the device has them."""
-    from ..drivers.trigger import LEVELS
+    from vts_hw.drivers.trigger import LEVELS
     levels = (t.high_v, t.low_v) if LEVELS in gen.capabilities else (None, None)
     gen.configure(t.frequency_hz, t.duty, *levels)
 
@@ -114,8 +114,8 @@ def fire(log_path, as_json, rig) -> None:
     so and changes nothing."""
     import inspect
 
-    from ..drivers.settings import Setting
-    from ..drivers.trigger import CHANNELS, FIRE, LEVELS
+    from vts_hw.drivers.settings import Setting
+    from vts_hw.drivers.trigger import CHANNELS, FIRE, LEVELS
     t = rig.trigger
     with _session(rig, log_path) as gen:
         if FIRE in gen.capabilities:  # else fire() below refuses, in the driver's words, before anything is sent

@@ -7,8 +7,8 @@
   seconds, for ``vts report drift --since``.
 """
 
-from .drift import ReportError, build_drift_report, collect
-from .model import DriftReport
-from .times import BadSince, parse_since
+from vts_hw.report.drift import ReportError, build_drift_report, collect
+from vts_hw.report.model import DriftReport
+from vts_hw.report.times import BadSince, parse_since
 
 __all__ = ["build_drift_report", "collect", "DriftReport", "ReportError", "parse_since", "BadSince"]

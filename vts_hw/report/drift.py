@@ -25,14 +25,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
-from ..errors import ConfigError
-from ..files import ensure_dir, write_atomic
-from ..tolerance import DEFAULT_TOLERANCES
-from .model import (AXES, AxisSummary, BandSegment, CameraDrift, DriftReport,
+from vts_hw import __version__
+from vts_hw.errors import ConfigError
+from vts_hw.files import ensure_dir, write_atomic
+from vts_hw.tolerance import DEFAULT_TOLERANCES
+from vts_hw.report.model import (AXES, AxisSummary, BandSegment, CameraDrift, DriftReport,
                     RunInfo, RunPoint)
-from .times import parse_since  # noqa: F401  (re-exported for the CLI)
-from .trend import CONTROL_METHOD, control_limits, fit_trend, forecast
+from vts_hw.report.times import parse_since  # noqa: F401  (re-exported for the CLI)
+from vts_hw.report.trend import CONTROL_METHOD, control_limits, fit_trend, forecast
 
 DRIFT_PROCEDURES = ("drift", "daily")
 BASELINE_PROCEDURE = "drift-baseline"
@@ -124,7 +124,7 @@ def _mm_per_px(points: list[RunPoint], axis: str) -> float | None:
     return float(np.sum(px[ok] * mm[ok]) / den) if den > 1e-12 else None
 
 
-from .steps import collect_steps  # noqa: E402
+from vts_hw.report.steps import collect_steps  # noqa: E402
 
 
 def collect(store, since: float | None = None, now: float | None = None, rig: str | None = None,
@@ -253,10 +253,10 @@ def build_drift_report(store, out: str | Path, since: float | None = None, now: 
     report = collect(store, since=since, now=now, rig=rig, title=title)
     report.out = out
     if suffix == ".pdf":
-        from .pdf import render_pdf
+        from vts_hw.report.pdf import render_pdf
         data: bytes | str = render_pdf(report)
     else:
-        from .html import render_html
+        from vts_hw.report.html import render_html
         data = render_html(report)
     ensure_dir(out.parent, "report folder")
     write_atomic(out, data)

@@ -11,13 +11,13 @@ from __future__ import annotations
 import base64
 from html import escape
 
-from .model import AXES, CameraDrift, DriftReport, RunPoint
-from .plots import STATE_COLOURS, camera_figure, figure_png
-from .text import (camera_forecast_text, fmt_num, fmt_slope, forecast_detail, latest_text, led_text,
+from vts_hw.report.model import AXES, CameraDrift, DriftReport, RunPoint
+from vts_hw.report.plots import STATE_COLOURS, camera_figure, figure_png
+from vts_hw.report.text import (camera_forecast_text, fmt_num, fmt_slope, forecast_detail, latest_text, led_text,
                    period_text, trend_detail)
-from .steps import steps_html
-from .times import fmt_date, fmt_datetime
-from .trend import CONTROL_RUNS, HORIZON_DAYS, MIN_TREND_DAYS, MIN_TREND_RUNS, SIGNIFICANCE
+from vts_hw.report.steps import steps_html
+from vts_hw.report.times import fmt_date, fmt_datetime
+from vts_hw.report.trend import CONTROL_RUNS, HORIZON_DAYS, MIN_TREND_DAYS, MIN_TREND_RUNS, SIGNIFICANCE
 
 CSS = """
 :root { --ok: %(OK)s; --tol: %(TOLERANCE)s; --act: %(ACTION)s; --ink: #1d2733; --muted: #5f6b7a;

@@ -14,12 +14,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..tolerance import State, Window, worst
-from .times import fmt_date
-from .trend import TREND_RULE, ControlLimits, Forecast, Trend
+from vts_hw.tolerance import State, Window, worst
+from vts_hw.report.times import fmt_date
+from vts_hw.report.trend import TREND_RULE, ControlLimits, Forecast, Trend
 
 if TYPE_CHECKING:
-    from .steps import StepsSummary
+    from vts_hw.report.steps import StepsSummary
 
 AXES = ("x", "y")
 # camera-level metrics the drift QA writes (subject = camera name)

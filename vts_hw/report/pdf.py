@@ -18,12 +18,12 @@ from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
-from .model import AXES, CameraDrift, DriftReport
-from .plots import FONT, STATE_COLOURS, ZONE_COLOURS, camera_figure
-from .text import (camera_forecast_text, fmt_slope, forecast_detail, latest_text, led_text, period_text,
+from vts_hw.report.model import AXES, CameraDrift, DriftReport
+from vts_hw.report.plots import FONT, STATE_COLOURS, ZONE_COLOURS, camera_figure
+from vts_hw.report.text import (camera_forecast_text, fmt_slope, forecast_detail, latest_text, led_text, period_text,
                    trend_detail)
-from .times import fmt_date, fmt_datetime, utc
-from .trend import CONTROL_RUNS, TREND_RULE
+from vts_hw.report.times import fmt_date, fmt_datetime, utc
+from vts_hw.report.trend import CONTROL_RUNS, TREND_RULE
 
 A4_LANDSCAPE = (11.69, 8.27)
 MARGIN = 0.05                      # left and right, as a fraction of the page width
@@ -235,7 +235,7 @@ def render_pdf(report: DriftReport) -> bytes:
             if cam.points:
                 yield camera_figure(report, cam, figsize=A4_LANDSCAPE, header=_camera_header(report, cam))
         if report.steps is not None:
-            from .steps import steps_figure
+            from vts_hw.report.steps import steps_figure
             yield steps_figure(report.steps, figsize=A4_LANDSCAPE)
 
     return pdf_bytes(pages(), meta)

@@ -18,9 +18,9 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
-from .model import CameraDrift, DriftReport
-from .times import fmt_date, utc
-from .trend import CONTROL_K, CONTROL_RUNS, DAY, MIN_TREND_DAYS, MIN_TREND_RUNS
+from vts_hw.report.model import CameraDrift, DriftReport
+from vts_hw.report.times import fmt_date, utc
+from vts_hw.report.trend import CONTROL_K, CONTROL_RUNS, DAY, MIN_TREND_DAYS, MIN_TREND_RUNS
 
 MIN_SPAN_S = 3600.0   # the narrowest time axis: an hour
 

@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 from html import escape
 from pathlib import Path
 
-from ..tolerance import State
-from .times import fmt_datetime
+from vts_hw.tolerance import State
+from vts_hw.report.times import fmt_datetime
 
 PROCEDURE = "sphere-steps"
 

@@ -12,8 +12,8 @@ import datetime as _dt
 from html import escape
 from pathlib import Path
 
-from ..files import write_atomic
-from .html import CSS, SCRIPT
+from vts_hw.files import write_atomic
+from vts_hw.report.html import CSS, SCRIPT
 
 GOAL_S = 0.020     # the project's goal for VTS-SPECT agreement (issue 6)
 LIMIT_S = 0.100    # what the system this replaces achieved

@@ -5,9 +5,9 @@ from __future__ import annotations
 import math
 from html import escape
 
-from .model import CameraDrift, DriftReport, RunPoint
-from .times import fmt_date
-from .trend import SIGNIFICANCE, Forecast, Trend
+from vts_hw.report.model import CameraDrift, DriftReport, RunPoint
+from vts_hw.report.times import fmt_date
+from vts_hw.report.trend import SIGNIFICANCE, Forecast, Trend
 
 
 def fmt_num(v, spec: str = ".3f") -> str:

@@ -7,7 +7,7 @@ import math
 import re
 import time
 
-from ..errors import ConfigError
+from vts_hw.errors import ConfigError
 
 _UNITS = {"h": 3600.0, "d": 86400.0, "w": 7 * 86400.0}
 _RELATIVE = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([hdw])\s*$", re.IGNORECASE)

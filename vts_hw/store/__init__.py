@@ -11,12 +11,12 @@ See store.py for the API, schema.py for the tables, docs/decisions/0007-results-
 for the reasons.
 """
 
-from .errors import StoreError
-from .handle import RunHandle
-from .paths import default_path, default_url
-from .records import MEASUREMENT_STATUSES, RUN_STATUSES, Artifact, Measurement, Run
-from .schema import SCHEMA_VERSION
-from .store import ResultsStore
+from vts_hw.store.errors import StoreError
+from vts_hw.store.handle import RunHandle
+from vts_hw.store.paths import default_path, default_url
+from vts_hw.store.records import MEASUREMENT_STATUSES, RUN_STATUSES, Artifact, Measurement, Run
+from vts_hw.store.schema import SCHEMA_VERSION
+from vts_hw.store.store import ResultsStore
 
 __all__ = ["ResultsStore", "RunHandle", "Run", "Measurement", "Artifact", "StoreError",
            "default_url", "default_path", "RUN_STATUSES", "MEASUREMENT_STATUSES", "SCHEMA_VERSION"]

@@ -20,7 +20,7 @@ from sqlalchemy import Connection, create_engine, event
 from sqlalchemy.engine import URL, Engine
 from sqlalchemy.pool import StaticPool
 
-from .paths import masked, sqlite_file
+from vts_hw.store.paths import masked, sqlite_file
 
 log = logging.getLogger(__name__)
 

@@ -1,6 +1,6 @@
 """The store's one user-facing error."""
 
-from ..errors import DataError
+from vts_hw.errors import DataError
 
 
 class StoreError(DataError):

@@ -23,14 +23,14 @@ from typing import TYPE_CHECKING
 
 from sqlalchemy import insert, select, update
 
-from ..errors import VtsError
-from ..tolerance import State, Window, worst
-from .errors import StoreError
-from .records import FINISH_STATUSES, Run, run_from_row
-from .schema import artifacts, measurements, runs
+from vts_hw.errors import VtsError
+from vts_hw.tolerance import State, Window, worst
+from vts_hw.store.errors import StoreError
+from vts_hw.store.records import FINISH_STATUSES, Run, run_from_row
+from vts_hw.store.schema import artifacts, measurements, runs
 
 if TYPE_CHECKING:
-    from .store import ResultsStore
+    from vts_hw.store.store import ResultsStore
 
 log = logging.getLogger(__name__)
 

@@ -32,8 +32,8 @@ from sqlalchemy import (Column, Connection, Index, Integer, MetaData, String, Ta
 from sqlalchemy.engine import Dialect
 from sqlalchemy.schema import CreateColumn, CreateIndex, DDLElement
 
-from . import schema
-from .errors import StoreError
+from vts_hw.store import schema
+from vts_hw.store.errors import StoreError
 
 
 @dataclass(frozen=True)

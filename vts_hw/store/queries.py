@@ -10,7 +10,7 @@ from collections.abc import Iterable
 
 from sqlalchemy import Select, and_, func, select
 
-from .schema import artifacts, measurements, runs, tolerances
+from vts_hw.store.schema import artifacts, measurements, runs, tolerances
 
 
 def _one_or_many(col, value):

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..tolerance import State
+from vts_hw.tolerance import State
 
 #: every status a run can have; "running" until finish() or abort() (or dead-run detection)
 RUN_STATUSES = ("running", "OK", "TOLERANCE", "ACTION", "aborted", "error")

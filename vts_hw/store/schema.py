@@ -22,7 +22,7 @@ from __future__ import annotations
 from sqlalchemy import (CheckConstraint, Column, Double, ForeignKey, Index, Integer, MetaData,
                         String, Table, Text, func)
 
-from .records import MEASUREMENT_STATUSES, RUN_STATUSES
+from vts_hw.store.records import MEASUREMENT_STATUSES, RUN_STATUSES
 
 #: the version a fresh database is created at; migrations.py upgrades older ones to it
 SCHEMA_VERSION = 2

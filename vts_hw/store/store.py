@@ -20,17 +20,17 @@ from contextlib import contextmanager
 from sqlalchemy import Connection, insert, select, text, update
 from sqlalchemy.exc import ArgumentError, DBAPIError, NoSuchModuleError, SQLAlchemyError
 
-from ..tolerance import Window
-from .engine import WRITE_OPTION, make_engine
-from .errors import StoreError
-from .handle import RunHandle
-from .liveness import host_name, is_alive, process_start
-from .migrations import ensure_schema, stored_version
-from .paths import masked, to_url
-from .queries import (select_artifacts, select_measurements, select_running_runs, select_runs,
+from vts_hw.tolerance import Window
+from vts_hw.store.engine import WRITE_OPTION, make_engine
+from vts_hw.store.errors import StoreError
+from vts_hw.store.handle import RunHandle
+from vts_hw.store.liveness import host_name, is_alive, process_start
+from vts_hw.store.migrations import ensure_schema, stored_version
+from vts_hw.store.paths import masked, to_url
+from vts_hw.store.queries import (select_artifacts, select_measurements, select_running_runs, select_runs,
                       select_tolerance_at, select_tolerances_at)
-from .records import Artifact, Measurement, Run, artifact_from_row, measurement_from_row, run_from_row
-from .schema import SCHEMA_VERSION, runs, tolerances
+from vts_hw.store.records import Artifact, Measurement, Run, artifact_from_row, measurement_from_row, run_from_row
+from vts_hw.store.schema import SCHEMA_VERSION, runs, tolerances
 
 log = logging.getLogger(__name__)
 
@@ -218,7 +218,7 @@ class ResultsStore:
         if not isinstance(procedure, str) or not procedure:
             raise ValueError("a run needs a procedure name")
         if software_version is None:
-            from .. import __version__ as software_version
+            from vts_hw import __version__ as software_version
         when = time.time() if started is None else float(started)
         with self._write() as conn:
             new = conn.execute(insert(runs).values(

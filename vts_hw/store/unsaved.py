@@ -16,9 +16,9 @@ import socket
 import tempfile
 from pathlib import Path
 
-from ..errors import DataError
-from ..files import WriteFailed, write_json_atomic
-from .paths import default_path, sqlite_file, to_url
+from vts_hw.errors import DataError
+from vts_hw.files import WriteFailed, write_json_atomic
+from vts_hw.store.paths import default_path, sqlite_file, to_url
 
 FORMAT = "vts-unsaved-run/1"
 

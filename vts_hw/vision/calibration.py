@@ -6,7 +6,7 @@ cv2.findChessboardCorners, then cv2.cornerSubPix). `calibrate_stereo` calibrates
 extrinsics with the intrinsics held fixed (cv2.stereoCalibrateExtended with
 CALIB_FIX_INTRINSIC), flags views whose stereo RMS is more than `outlier_factor` × the median
 of the views, and gives every parameter's standard deviation
-(`vts_hw.calibration_uncertainty.stereo_covariance`). Choices and measurements:
+(`vts_hw.vision.calibration_uncertainty.stereo_covariance`). Choices and measurements:
 docs/decisions/0012-stereo-calibration.md and 0024-calibration-uncertainty.md.
 """
 
@@ -22,8 +22,8 @@ import cv2
 import numpy as np
 
 import vts_hw
-from vts_hw.calibration_io import StereoCalibration, ViewError
-from vts_hw.calibration_uncertainty import stereo_covariance
+from vts_hw.vision.calibration_io import StereoCalibration, ViewError
+from vts_hw.vision.calibration_uncertainty import stereo_covariance
 from vts_hw.errors import DataError
 
 __all__ = [

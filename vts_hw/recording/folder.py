@@ -18,9 +18,9 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from .axis_jpeg import inspect_jpeg
-from .errors import DataError
-from .mjpeg import read_frames_file
+from vts_hw.recording.axis_jpeg import inspect_jpeg
+from vts_hw.errors import DataError
+from vts_hw.recording.mjpeg import read_frames_file
 
 INDEX_HEADER = ["frame", "offset", "length", "camera_time", "host_time"]
 

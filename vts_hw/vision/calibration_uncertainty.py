@@ -1,7 +1,7 @@
 """How certain a stereo calibration is, and whether a difference is more than that.
 
 :func:`stereo_covariance` propagates the corner noise through the two steps of
-:func:`vts_hw.calibration.calibrate_from_corners` (each camera's intrinsics from its own views,
+:func:`vts_hw.vision.calibration.calibrate_from_corners` (each camera's intrinsics from its own views,
 then the stereo rotation and translation with those intrinsics fixed): to first order every
 estimate is a linear map of the corner residuals, built from the Jacobians of the reprojection
 at the solution (the board poses eliminated by their Schur complements); the residual variance
@@ -23,7 +23,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .errors import DataError
+from vts_hw.errors import DataError
 
 K_SIGMA = 3.0   # a change beyond this many combined standard deviations is reported
 DIST_NAMES = ("k1", "k2", "p1", "p2", "k3")

@@ -1,6 +1,6 @@
 """The camera clock model: each camera's own clock mapped to host time (offset and skew).
 
-Every frame of a recording has two times (vts_hw/recording.py, docs/design.md "clocks"):
+Every frame of a recording has two times (vts_hw/recording/folder.py, docs/design.md "clocks"):
 
 * ``camera_time`` — the camera's own clock, stamped in the JPEG when the image was taken,
   truncated to the camera's tick (10 ms, ``tick_s``): UTC epoch seconds *of the camera*;
@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import DataError
+from vts_hw.errors import DataError
 
 __all__ = ["ClockFit", "fit_camera_clock", "fit_recording_clocks", "lower_envelope", "dequantise"]
 
@@ -328,7 +328,7 @@ def _jackknife(x, y, a, k, blocks: int) -> float:
 
 def fit_recording_clocks(folder, latency_s: float = 0.0) -> dict[str, ClockFit]:
     """:func:`fit_camera_clock` for every camera of a recording folder (from its indexes)."""
-    from .recording import read_index
+    from vts_hw.recording.folder import read_index
 
     folder = Path(folder)
     out = {}

@@ -1,6 +1,6 @@
 """The stereo calibration record: its numbers, its text summary, its JSON file, its comparison.
 
-`StereoCalibration` is what `vts_hw.calibration.calibrate_stereo` returns. It is saved as JSON
+`StereoCalibration` is what `vts_hw.vision.calibration.calibrate_stereo` returns. It is saved as JSON
 with every matrix written as nested lists, so the file can be read and diffed by hand. Loading
 checks every key; a missing or malformed one raises `DataError` naming the file and the key.
 """
@@ -17,7 +17,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from vts_hw.calibration_uncertainty import beyond, differences, optional_keys, warning_text
+from vts_hw.vision.calibration_uncertainty import beyond, differences, optional_keys, warning_text
 from vts_hw.errors import DataError
 from vts_hw.files import write_atomic
 
@@ -79,7 +79,7 @@ class StereoCalibration:
     software: str = ""  # vts_hw.__version__
     # camera1/camera2 -> {"fitted": [distortion terms], "chosen_by": why}; {} in older files
     distortion_model: dict[str, Any] = field(default_factory=dict)
-    # standard deviations (vts_hw.calibration_uncertainty.stereo_covariance); None in older files
+    # standard deviations (vts_hw.vision.calibration_uncertainty.stereo_covariance); None in older files
     uncertainty: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
@@ -111,7 +111,7 @@ class StereoCalibration:
         return p1, p2
 
     def cameras(self, names=("left", "right")) -> list:
-        """The pair as :class:`vts_hw.triangulate.Camera` objects in camera 1's frame (the VTS
+        """The pair as :class:`vts_hw.vision.triangulate.Camera` objects in camera 1's frame (the VTS
         frame): camera 1 at the origin, camera 2 at ``R``, ``T`` (in ``unit``)."""
         return stereo_cameras(self, names)
 
@@ -123,7 +123,7 @@ class StereoCalibration:
         the rotation R · R_prevᵀ; `translation` is |T − T_prev| and `baseline` the change of
         |T|, both in `unit` (None when the two calibrations use different units). `judged`: each
         fitted parameter's change against its combined standard deviation, and `warnings` one
-        line for each beyond K_SIGMA of them (vts_hw.calibration_uncertainty.differences).
+        line for each beyond K_SIGMA of them (vts_hw.vision.calibration_uncertainty.differences).
         """
         out: dict[str, Any] = {}
         for cam, (k_new, k_old) in (("1", (self.K1, previous.K1)), ("2", (self.K2, previous.K2))):
@@ -256,7 +256,7 @@ def _json_trouble(exc: Exception) -> str:
 
 def stereo_cameras(calib, names=("left", "right")) -> list:
     """:meth:`StereoCalibration.cameras` of any object with ``K1, d1, K2, d2, R, T``."""
-    from .triangulate import Camera
+    from vts_hw.vision.triangulate import Camera
     a, b = names[:2]
     return [Camera(calib.K1, calib.d1, np.eye(3), np.zeros(3), a),
             Camera(calib.K2, calib.d2, calib.R, np.ravel(calib.T), b)]

@@ -4,7 +4,7 @@ Clocks and units (everything a reader returns follows them, whatever the file st
 
 * **list-mode time** ``t``: seconds since the acquisition start, counted by the SPECT's own
   clock (its tick counter). It runs at the SPECT clock's rate, which differs from the host's
-  by a skew of some tens of ppm; :mod:`vts_hw.sync_gating` maps it to trigger and host time.
+  by a skew of some tens of ppm; :mod:`vts_hw.spect.gating` maps it to trigger and host time.
 * ``start_time``: the SPECT's wall clock (UTC epoch seconds, *its* clock, off the host's by
   up to seconds) at ``t = 0``, as the file's header states it.
 * positions: millimetres in the SPECT frame; ``z`` is axial (along the table), ``u`` the

@@ -1,6 +1,6 @@
 """Marker tracks of a recording: positions (mm) over time with identities, and their files.
 
-:class:`Tracks` is what :func:`vts_hw.processing.process_recording` returns; :meth:`Tracks.save`
+:class:`Tracks` is what :func:`vts_hw.recording.processing.process_recording` returns; :meth:`Tracks.save`
 and :meth:`Tracks.load` read and write the documented trajectory format
 (docs/trajectory-format.md: a CSV of points and a JSON of the frames, cameras and metadata).
 Clocks: ``host_time`` is the host's UTC epoch seconds as mapped from the cameras' stamps;
@@ -16,7 +16,7 @@ from typing import Callable
 
 import numpy as np
 
-from .errors import DataError
+from vts_hw.errors import DataError
 
 __all__ = ["Tracks", "TRACKS_FORMAT"]
 
@@ -25,7 +25,7 @@ TRACKS_FORMAT = "vts-trajectory/1"
 
 @dataclass(eq=False)
 class Tracks:
-    """Marker positions over time: the result of :func:`vts_hw.processing.process_recording`.
+    """Marker positions over time: the result of :func:`vts_hw.recording.processing.process_recording`.
 
     Per *paired frame* f (F of them, in time order): ``host_time[f]`` (host UTC epoch s, the
     mean of the two cameras' mapped exposure times), ``camera_time[f, c]`` (camera c's own
@@ -168,7 +168,7 @@ class Tracks:
                "position_frame": "x_mm..z_mm: VTS frame; x_spect_mm..: SPECT frame",
                "meta": self.meta, "frames": frames,
                "unpaired": {k: [int(x) for x in v] for k, v in self.unpaired.items()}}
-        from .files import write_json_atomic
+        from vts_hw.files import write_json_atomic
         write_json_atomic(json_path, doc)
         return csv_path, json_path
 

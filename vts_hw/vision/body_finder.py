@@ -26,9 +26,9 @@ from typing import Sequence
 
 import numpy as np
 
-from .errors import DataError
-from .registration import RigidTransform, kabsch
-from .triangulate import epipolar_distances, triangulate
+from vts_hw.errors import DataError
+from vts_hw.vision.registration import RigidTransform, kabsch
+from vts_hw.vision.triangulate import epipolar_distances, triangulate
 
 __all__ = ["Hypotheses", "BodyFit", "candidate_points", "find_body", "locate_body"]
 

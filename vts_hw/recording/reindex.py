@@ -25,11 +25,11 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .axis_jpeg import inspect_jpeg
-from .errors import DataError
-from .files import WriteFailed, os_reason, write_atomic, write_json_atomic
-from .mjpeg import split_jpegs
-from .recording import INDEX_HEADER, MANIFEST, FrameRow, load_manifest, read_index
+from vts_hw.recording.axis_jpeg import inspect_jpeg
+from vts_hw.errors import DataError
+from vts_hw.files import WriteFailed, os_reason, write_atomic, write_json_atomic
+from vts_hw.recording.mjpeg import split_jpegs
+from vts_hw.recording.folder import INDEX_HEADER, MANIFEST, FrameRow, load_manifest, read_index
 
 RESERVE_NAME = ".vts-reserve"   # the recording writer's reserve, left behind by a killed recorder
 REBUILT_SUFFIX = ".index.rebuilt.csv"

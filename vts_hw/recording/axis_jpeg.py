@@ -16,7 +16,7 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass, field
 
-from .errors import DataError
+from vts_hw.errors import DataError
 
 SOI = b"\xff\xd8"
 EOI = b"\xff\xd9"

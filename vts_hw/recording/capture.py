@@ -23,10 +23,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from .drivers.axis import AxisCamera, AxisError
-from .drivers.axis_stream import FrameStream, StreamGap
-from .files import WriteFailed
-from .recording_writer import Recording
+from vts_hw.drivers.axis import AxisCamera, AxisError
+from vts_hw.drivers.axis_stream import FrameStream, StreamGap
+from vts_hw.files import WriteFailed
+from vts_hw.recording.writer import Recording
 
 
 @dataclass

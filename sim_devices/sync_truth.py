@@ -1,7 +1,7 @@
 """What the sync check needs from the simulated rig: its true calibration files and a move plan.
 
 * :func:`true_stereo_calibration` / :func:`true_spect_mapping` — the scene's **true** cameras
-  as a :class:`~vts_hw.calibration_io.StereoCalibration` (VTS frame = camera 1's frame) and
+  as a :class:`~vts_hw.vision.calibration_io.StereoCalibration` (VTS frame = camera 1's frame) and
   the true VTS → SPECT rigid transform (SPECT frame = the scene's world frame:
   ``RigidTransform(c1.R.T, −c1.R.T·c1.t)``). A perfect calibration: what the sync analysis
   measures is then timing, not calibration error. :func:`write_true_calibration` writes both
@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from vts_hw.calibration_io import StereoCalibration
-from vts_hw.registration import RigidTransform
+from vts_hw.vision.calibration_io import StereoCalibration
+from vts_hw.vision.registration import RigidTransform
 from vts_hw.sim_devices.scene import Scene
 
 __all__ = ["true_stereo_calibration", "true_spect_mapping", "write_true_calibration", "place_source_marker",
@@ -122,7 +122,7 @@ def place_source_marker(scene: Scene, *, name: str = "source", marker_id: str = 
     """Put a source marker at rest into a running scene (before a scan starts: adding a body
     while cameras render is not safe). Its moves come later, from :func:`schedule_source_moves`.
     Returns the truth so far (no moves)."""
-    from .source_marker import add_source_marker
+    from vts_hw.sim_devices.source_marker import add_source_marker
     return add_source_marker(scene, [], [], name=name, marker_id=marker_id, position=position,
                              rate_cps=rate_cps)
 
@@ -132,7 +132,7 @@ def schedule_source_moves(scene: Scene, marker, move_times, steps_mm, move_s: fl
     time is known: the moves are built on a scratch scene by
     :func:`~.source_marker.add_source_marker` and its pose schedule replaces the body's in one
     assignment (the rendering threads see either the old or the new one). Returns the truth."""
-    from .source_marker import add_source_marker
+    from vts_hw.sim_devices.source_marker import add_source_marker
     scratch = Scene([], {}, {}, {}, [], scene.start_epoch)
     truth = add_source_marker(scratch, move_times, steps_mm, name=marker.body, marker_id=marker.marker_id,
                               position=marker.position, move_s=move_s, rate_cps=marker.rate_cps)

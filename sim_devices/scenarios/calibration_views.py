@@ -17,16 +17,16 @@ SIM_FRAMES = 5          # noisy frames averaged per camera in `vts calibrate spe
 
 def sim_square_mm() -> float:
     """Side of a square of the simulated board (mm)."""
-    from ..sim_devices.checkerboard import SQUARE_MM
+    from vts_hw.sim_devices.checkerboard import SQUARE_MM
     return SQUARE_MM
 
 
 def sim_views(seed: int, n: int, pattern=(9, 6), square_mm: float | None = None):
     """``n`` rendered stereo views of the board held before the reference rig of ``seed``:
     (pairs, names, truth) with ``truth`` the rig's true cameras as a StereoCalibration in mm."""
-    from ..sim_devices import checkerboard as cb
-    from ..sim_devices.scene import Scene
-    from ..sim_devices.sync_sim import true_stereo_calibration
+    from vts_hw.sim_devices import checkerboard as cb
+    from vts_hw.sim_devices.scene import Scene
+    from vts_hw.sim_devices.sync_truth import true_stereo_calibration
 
     scene = Scene.reference(seed, start_epoch=0.0)
     pairs, names = cb.render_pairs(scene, n=n, seed=seed, pattern=pattern,
@@ -40,18 +40,18 @@ def sim_spect_inputs(seed: int, workdir: Path) -> tuple[np.ndarray, Path, dict]:
 
     Which detections are spheres (the wall markers are seen too, and some stereo pairings are
     ambiguous) is decided as on the real rig: by the shape of the SPECT's centroids
-    (:func:`vts_hw.body_finder.locate_body`); the truth is used only to score.
+    (:func:`vts_hw.vision.body_finder.locate_body`); the truth is used only to score.
     Returns the VTS points, the volume path and a dict of what the sim did and its truth.
     """
-    from ..body_finder import locate_body
-    from ..detect import detect
-    from ..sim_devices.render import Renderer
-    from ..sim_devices.scene import Scene
-    from ..sim_devices.spect import SimSpect
-    from ..sim_devices.step_table import sphere_centres
-    from ..sim_devices.sync_sim import true_spect_mapping, true_stereo_calibration
-    from ..spect import find_spheres, read_volume
-    from .steps import average_centroids
+    from vts_hw.vision.body_finder import locate_body
+    from vts_hw.vision.detect import detect
+    from vts_hw.sim_devices.render import Renderer
+    from vts_hw.sim_devices.scene import Scene
+    from vts_hw.sim_devices.spect import SimSpect
+    from vts_hw.sim_devices.step_table import sphere_centres
+    from vts_hw.sim_devices.sync_truth import true_spect_mapping, true_stereo_calibration
+    from vts_hw.spect import find_spheres, read_volume
+    from vts_hw.procedures.steps import average_centroids
 
     scene = Scene.reference(seed, start_epoch=0.0)
     scene.add_phantom()
@@ -89,7 +89,7 @@ def sim_spect_inputs(seed: int, workdir: Path) -> tuple[np.ndarray, Path, dict]:
 
 def compare_mapping_with_truth(mapping, info: dict) -> dict:
     """How the recovered VTS → SPECT transform compares with the simulated truth."""
-    from ..registration import difference
+    from vts_hw.vision.registration import difference
 
     truth, est = info["truth"], mapping.transform
     d = difference(truth, est)

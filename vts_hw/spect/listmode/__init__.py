@@ -9,10 +9,10 @@
   :func:`read_vtslm`.
 """
 
-from vts_hw.listmode.base import (GATE_SAMPLES, GATE_TRANSITIONS, ListMode, ListModeReader,
+from vts_hw.spect.listmode.base import (GATE_SAMPLES, GATE_TRANSITIONS, ListMode, ListModeReader,
                                   list_readers, read_listmode, read_listmode_span, reader_for,
                                   register_reader)
-from vts_hw.listmode.vtslm import VtslmReader, VtslmWriter, read_vtslm, write_vtslm
+from vts_hw.spect.listmode.vtslm import VtslmReader, VtslmWriter, read_vtslm, write_vtslm
 
 register_reader(VtslmReader())
 

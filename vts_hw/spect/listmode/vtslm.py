@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from vts_hw.errors import DataError
-from vts_hw.listmode.base import GATE_SAMPLES, ListMode
+from vts_hw.spect.listmode.base import GATE_SAMPLES, ListMode
 
 NAME = "vtslm"
 EXTENSIONS = (".vtslm",)

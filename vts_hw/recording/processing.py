@@ -1,10 +1,10 @@
 """Process a recording folder: decode, detect, match and triangulate every frame, on every core.
 
-:func:`process_recording` turns a recording folder (vts_hw/recording.py) of a stereo pair into
-:class:`~vts_hw.tracks.Tracks`: marker positions (mm) over host time with identities.
+:func:`process_recording` turns a recording folder (vts_hw/recording/folder.py) of a stereo pair into
+:class:`~vts_hw.recording.tracks.Tracks`: marker positions (mm) over host time with identities.
 
 1. **Clocks.** Each camera's clock is fitted to host time from its index
-   (:mod:`vts_hw.camera_clock`); every frame gets a *mapped host time* from its JPEG stamp
+   (:mod:`vts_hw.timing.camera_clock`); every frame gets a *mapped host time* from its JPEG stamp
    (a frame without a stamp: its receive time minus the median delay).
 2. **Pairing.** Each frame of the first camera is paired with the second camera's frame
    nearest in mapped host time, if within half a frame period (one-to-one, the closer wins).
@@ -13,8 +13,8 @@
 3. **Per chunk of pairs, in worker processes** (``workers`` = every core by default): the
    JPEGs are read from the ``.mjpeg`` files by the byte offsets of the index (one read per
    camera per chunk: no JPEG bytes go through pipes), decoded at full resolution
-   (``cv2.imdecode``, grey), detected (:func:`vts_hw.detect.detect`), matched by the epipolar
-   constraint (the rules of :func:`vts_hw.triangulate.match_epipolar`; a fast path when
+   (``cv2.imdecode``, grey), detected (:func:`vts_hw.vision.detect.detect`), matched by the epipolar
+   constraint (the rules of :func:`vts_hw.vision.triangulate.match_epipolar`; a fast path when
    every point has at most one candidate), and triangulated all at once: a linear solution on
    undistorted points, then one Gauss-Newton step on the reprojection error in pixels through
    the full camera model (``cv2.projectPoints``), vectorised over the chunk's points.
@@ -41,12 +41,12 @@ import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from .camera_clock import ClockFit, fit_camera_clock
-from .detect import DEFAULT as DEFAULT_DETECTOR, DetectorSettings, detect
-from .errors import DataError
-from .recording import load_manifest, read_index
-from .tracks import TRACKS_FORMAT, Tracks
-from .triangulate import Camera, as_camera, fundamental_matrix, match_epipolar
+from vts_hw.timing.camera_clock import ClockFit, fit_camera_clock
+from vts_hw.vision.detect import DEFAULT as DEFAULT_DETECTOR, DetectorSettings, detect
+from vts_hw.errors import DataError
+from vts_hw.recording.folder import load_manifest, read_index
+from vts_hw.recording.tracks import TRACKS_FORMAT, Tracks
+from vts_hw.vision.triangulate import Camera, as_camera, fundamental_matrix, match_epipolar
 
 __all__ = ["Tracks", "ProcessSettings", "process_recording", "cameras_from_calibration",
            "pair_frames", "triangulate_fast", "track_identities", "CameraFrames",
@@ -78,12 +78,12 @@ class ProcessSettings:
 
 # ------------------------------------------------------------------ inputs
 def cameras_from_calibration(calib, names: Sequence[str] = ("cam1", "cam2")) -> dict[str, Camera]:
-    """Two :class:`Camera` objects from a :class:`~vts_hw.calibration_io.StereoCalibration`
+    """Two :class:`Camera` objects from a :class:`~vts_hw.vision.calibration_io.StereoCalibration`
     (the VTS frame is camera 1's frame; T in the calibration's unit, mm for a real one)."""
     if getattr(calib, "unit", "mm") != "mm":
         raise DataError(f"the stereo calibration's translation is in {calib.unit!r}, not mm: "
                         "calibrate with the checkerboard's square size to get tracks in mm")
-    from .calibration_io import stereo_cameras
+    from vts_hw.vision.calibration_io import stereo_cameras
     return {c.name: c for c in stereo_cameras(calib, names)}
 
 
@@ -206,7 +206,7 @@ def triangulate_fast(cam_a: Camera, cam_b: Camera, pts_a: np.ndarray, pts_b: np.
     vectorised: linear triangulation (DLT, inhomogeneous least squares) on normalized
     (undistorted) coordinates — given, or computed here — then ``iterations`` Gauss-Newton
     steps on the pixel reprojection error through the full camera models (numerical
-    Jacobian, all points at once). One step reaches :func:`vts_hw.triangulate.triangulate`'s
+    Jacobian, all points at once). One step reaches :func:`vts_hw.vision.triangulate.triangulate`'s
     optimum to ~1e-7 mm (the linear solution alone is within ~1 µm at 0.05 px noise)."""
     pa, pb = np.asarray(pts_a, float).reshape(-1, 2), np.asarray(pts_b, float).reshape(-1, 2)
     m = len(pa)

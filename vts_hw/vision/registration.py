@@ -134,7 +134,7 @@ class RigidTransform:
 
     def save(self, path) -> Path:
         """Write :meth:`to_dict` as JSON, whole or not at all (vts_hw/files.py)."""
-        from .files import write_json_atomic
+        from vts_hw.files import write_json_atomic
         return write_json_atomic(path, self.to_dict())
 
     @classmethod

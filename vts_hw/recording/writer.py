@@ -29,10 +29,10 @@ import threading
 import time
 from pathlib import Path
 
-from . import __version__
-from .errors import DataError, UsageError
-from .files import WriteFailed, ensure_dir, os_reason, write_json_atomic
-from .recording import INDEX_HEADER, MANIFEST, load_manifest, read_index
+from vts_hw import __version__
+from vts_hw.errors import DataError, UsageError
+from vts_hw.files import WriteFailed, ensure_dir, os_reason, write_json_atomic
+from vts_hw.recording.folder import INDEX_HEADER, MANIFEST, load_manifest, read_index
 
 FSYNC_EVERY_S = 1.0        # write() per frame survives a killed process; fsync bounds a power cut
 RESERVE_NAME = ".vts-reserve"

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .config import TriggerConfig
-from .drivers.trigger import TriggerGenerator, TriggerLog
-from .errors import ConfigError
+from vts_hw.config import TriggerConfig
+from vts_hw.drivers.trigger import TriggerGenerator, TriggerLog
+from vts_hw.errors import ConfigError
 
 
 def open_trigger(cfg: TriggerConfig, log_path: str | Path | None = None, clock=None) -> TriggerGenerator:
@@ -16,13 +16,13 @@ def open_trigger(cfg: TriggerConfig, log_path: str | Path | None = None, clock=N
         raise ConfigError("the rig config has no trigger generator (trigger: backend: none)")
     log = TriggerLog(log_path, clock=clock or time.time)
     if cfg.backend == "triggerbox":
-        from .drivers.trigger_box import TriggerBox
+        from vts_hw.drivers.trigger_box import TriggerBox
         return TriggerBox(cfg.address, log=log)
     if cfg.backend == "visa":
-        from .drivers.function_generator import FunctionGenerator
+        from vts_hw.drivers.function_generator import FunctionGenerator
         return FunctionGenerator(cfg.address, sim=cfg.simulated, log=log)
     if cfg.backend == "daqmx":
-        from .drivers.daqmx import DaqmxTrigger
+        from vts_hw.drivers.daqmx import DaqmxTrigger
         return DaqmxTrigger(cfg.address, lines=cfg.lines, fire_trigger=cfg.fire_trigger,
                             fire_pulse_ms=cfg.pulse_ms, log=log)
     raise ConfigError(f"unknown trigger backend {cfg.backend!r}")  # pragma: no cover (validated)

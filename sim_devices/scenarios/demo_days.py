@@ -50,16 +50,16 @@ def injected_drift(scene, cam: str, t0: float, t1: float) -> tuple[float, float]
 
 def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 5, seed: int = 0,
              on_day: Callable[[DayRow], None] | None = None, on_step: Callable[[str], None] | None = None) -> DemoResult:
-    from .config import parse_rig
-    from .drivers.axis import AxisCamera
-    from .procedures.baseline import save_baselines
-    from .procedures.daily import QARun
-    from .procedures.drift import Baseline, acquire_led_frames
-    from .procedures.steps_sim import run_sim_steps
-    from .report import build_drift_report
-    from .sim_devices.clock import VirtualClock
-    from .sim_devices.rig import SimRig
-    from .store import ResultsStore
+    from vts_hw.config import parse_rig
+    from vts_hw.drivers.axis import AxisCamera
+    from vts_hw.procedures.baseline import save_baselines
+    from vts_hw.procedures.daily import QARun
+    from vts_hw.procedures.drift import Baseline, acquire_led_frames
+    from vts_hw.sim_devices.scenarios.step_chain import run_sim_steps
+    from vts_hw.report import build_drift_report
+    from vts_hw.sim_devices.clock import VirtualClock
+    from vts_hw.sim_devices.rig import SimRig
+    from vts_hw.store import ResultsStore
 
     say = on_step or (lambda m: None)
     out = Path(out)

@@ -17,8 +17,8 @@ import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .axis_jpeg import EOI, SOI
-from .errors import DataError
+from vts_hw.recording.axis_jpeg import EOI, SOI
+from vts_hw.errors import DataError
 
 _MAX_HEADER = 4096
 

@@ -7,7 +7,7 @@ true cameras' calibration files). Host UTC epoch seconds throughout.
 
 The scan session switches the LED rings on through the driver; the source marker is placed before the
 scan starts and its moves scheduled once the fire time is known, clear of the simulated
-SPECT's head rotations (:func:`vts_hw.sim_devices.sync_sim.plan_sync_moves`).
+SPECT's head rotations (:func:`vts_hw.sim_devices.sync_truth.plan_sync_moves`).
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..sim_devices.spect_listmode import ListModeTruth, SimListModeSpect
-from ..sim_devices.sync_sim import place_source_marker, plan_sync_moves, schedule_source_moves
+from vts_hw.sim_devices.spect_listmode import ListModeTruth, SimListModeSpect
+from vts_hw.sim_devices.sync_truth import place_source_marker, plan_sync_moves, schedule_source_moves
 
 __all__ = ["SimSyncScan", "prepare", "start_moves", "simulate_spect", "match_moves", "cli_scan", "fire_time_of"]
 

@@ -1,6 +1,6 @@
 """The sync check's SPECT half: what the gating signal and the events of a list-mode say.
 
-Pure functions on a :class:`~vts_hw.listmode.ListMode` (list-mode time: seconds since the
+Pure functions on a :class:`~vts_hw.spect.listmode.ListMode` (list-mode time: seconds since the
 acquisition start on the SPECT's clock):
 
 * :func:`find_gate_edges` — the square wave's rising and falling edges in the recorded gating
@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from vts_hw.errors import DataError
-from vts_hw.listmode.base import GATE_TRANSITIONS, ListMode
+from vts_hw.spect.listmode.base import GATE_TRANSITIONS, ListMode
 
 __all__ = ["GateEdges", "SpectClock", "GatingResult", "WaveInfo", "find_gate_edges",
            "fit_spect_clock", "dead_time_from_events", "axial_centre_of_mass", "analyze_gating",

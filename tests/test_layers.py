@@ -1,0 +1,87 @@
+"""The house keeps its layers: every import of the package read from the source.
+
+config → drivers → procedures → store → reports: a layer imports only the layers before it
+(and the core everything builds on). The core imports no driver, procedure or simulator; only
+the CLI and the simulated scenarios import the simulator; every import is absolute; no module
+is over 500 lines. See docs/decisions/0028-structure.md.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+FOLDERS = {"vts_hw": "vts_hw", "drivers": "vts_hw.drivers", "procedures": "vts_hw.procedures",
+           "sim_devices": "vts_hw.sim_devices"}
+# what each layer may import, besides itself
+ALLOWED = {
+    "core": set(),
+    "drivers": {"core"},
+    "procedures": {"core", "drivers"},
+    "store": {"core"},
+    "report": {"core", "store"},
+    "sim": {"core"},
+    "scenarios": {"core", "drivers", "procedures", "store", "report", "sim"},
+    "cli": {"core", "drivers", "procedures", "store", "report", "sim", "scenarios"},
+}
+
+
+def layer(module: str) -> str:
+    parts = module.split(".")
+    if parts[:3] == ["vts_hw", "sim_devices", "scenarios"]:
+        return "scenarios"
+    return {"drivers": "drivers", "procedures": "procedures", "sim_devices": "sim", "cli": "cli",
+            "store": "store", "report": "report"}.get(parts[1] if len(parts) > 1 else "", "core")
+
+
+def modules():
+    for folder, package in FOLDERS.items():
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            rel = path.relative_to(ROOT / folder).with_suffix("").parts
+            yield path, ".".join([package, *[p for p in rel if p != "__init__"]])
+
+
+def imports(path: Path):
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.ImportFrom):
+            yield node.lineno, node.level, node.module or ""
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                yield node.lineno, 0, alias.name
+
+
+def test_the_rules_see_every_layer():
+    """The check reads real code: every layer has modules, and the CLI imports every other one."""
+    seen = {layer(m) for _, m in modules()}
+    assert seen == set(ALLOWED)
+    cli_imports = {layer(t) for p, m in modules() if layer(m) == "cli"
+                   for _, _, t in imports(p) if t.startswith("vts_hw.")}
+    assert cli_imports >= {"core", "drivers", "procedures", "store", "report", "sim", "scenarios"}
+
+
+def test_imports_go_one_way():
+    wrong = []
+    for path, module in modules():
+        src = layer(module)
+        for line, level, target in imports(path):
+            if level or not target.startswith("vts_hw.") and target != "vts_hw":
+                continue
+            dst = layer(target) if target != "vts_hw" else "core"
+            if dst != src and dst not in ALLOWED[src]:
+                wrong.append(f"{path.relative_to(ROOT)}:{line} ({src}) imports {target} ({dst})")
+    assert wrong == []
+
+
+def test_every_import_is_absolute():
+    relative = [f"{p.relative_to(ROOT)}:{line}" for p, _ in modules() for line, level, _ in imports(p) if level]
+    assert relative == []
+
+
+@pytest.mark.parametrize("folder", sorted(FOLDERS))
+def test_no_module_over_500_lines(folder):
+    long = {str(p.relative_to(ROOT)): n for p in (ROOT / folder).rglob("*.py")
+            if (n := len(p.read_text().splitlines())) > 500}
+    assert long == {}

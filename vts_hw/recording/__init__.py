@@ -1,0 +1,1 @@
+"""Recording folders: their format, writing, reading, capture, reindex, processing, tracks."""

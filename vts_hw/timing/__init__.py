@@ -1,0 +1,1 @@
+"""Timing: device clocks mapped to host time, and the timing of motion events."""

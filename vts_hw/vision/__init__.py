@@ -1,0 +1,1 @@
+"""Vision: marker detection, camera calibration, triangulation, registration, the body finder."""
