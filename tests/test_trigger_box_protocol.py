@@ -564,12 +564,21 @@ def test_trigger_csv_lines(tmp_path):
         ("cmd", "EDGES?"), ("reply", "1,5000000,5000000"),
         ("edge", "first rising edge (1 of 1); host time = when reported (no clock mapping)"),
         ("cmd", "SYST:ERR?"), ("reply", '0,"No error"'),
+        # the neutral row (docs/trigger-log-format.md): no clock mapping, so the host time of
+        # the write plus the command's 8 bytes on the wire, ± until its reply came
+        ("wave_start", "period_s=0.1 duty=0.25 high_v=5.0 low_v=0.0 start_pulse=no time=host_write "
+                       "uncertainty_s=0.001"),
         ("cmd", "EDGES?"), ("reply", "1,5000000,5000000"),
         ("cmd", "EDGES?"), ("reply", "4,5000000,5300000"),
         ("edge", "last rising edge (4 of 4); host time = when reported (no clock mapping)"),
         ("event", "closed /dev/ttyFAKE0"),
     ]
     assert all(r["device"] == "triggerbox" for r in rows)
+    start = next(r for r in rows if r["kind"] == "wave_start")
+    outp_on = next(r for r in rows if r["text"] == "OUTP ON")
+    assert float(start["host_time"]) == pytest.approx(float(outp_on["host_time"]) + 8 * 10 / 115200, abs=2e-6)
+    assert start["device_time_us"] == "5000000"
+    rows = [r for r in rows if r["kind"] != "wave_start"]
     # commands and replies carry host time only; edge lines carry the device time
     assert all(r["device_time_us"] == "" for r in rows if r["kind"] in ("cmd", "reply", "event"))
     assert [r["device_time_us"] for r in rows if r["kind"] == "edge"] == ["5000000", "5300000"]
