@@ -435,5 +435,5 @@ class SimListModeSpect:
 
     def follow_trigger_log(self, log_path, path, duration_s: float, device: str | None = None,
                            until: float | None = None) -> ListModeTruth:
-        """Follow the wave a trigger log describes (the function generator)."""
+        """Follow the wave a trigger log describes, from its neutral rows (any backend)."""
         return self.write(path, edges_from_trigger_log(log_path, device, until), duration_s)

@@ -324,7 +324,8 @@ def test_a_trigger_box_log_gives_the_wave_and_the_box_drift(tmp_path):
     p = tmp_path / "trigger.csv"
     p.write_text("host_time,device_time_us,device,kind,text\n" + "".join(
         f'{T0 + h:.6f},,triggerbox,{k},"{text}"\n' for h, k, text in rows))
-    w = wave_from_trigger_log(p)
+    w = wave_from_trigger_log(p)       # written before the neutral rows: converted on read
+    assert w.converted and w.time_source == "device_clock_mapped"
     assert w.start_host == pytest.approx(T0 + 1.0006, abs=1e-6) and "mapped" in w.how
     assert (w.period_s, w.duty, w.start_pulse, w.high_v, w.low_v) == (0.5, 0.25, True, 5.0, 0.0)
     assert w.n_rising == 5                      # OFF at 2.2 s into the wave: it ends at 2.5 s
