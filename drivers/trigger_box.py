@@ -41,7 +41,6 @@ from vts_hw.drivers.trigger_box_protocol import (BAUDRATE, DEVICE, DUTY_ABS_TOLE
                                                  MAX_ERRORS_READ, MAX_LINE, MODEL, POLL_S, PULSE_MS_MAX,
                                                  PULSE_MS_MIN, SETTINGS_CONFLICT, VENDOR, BoxGone, BoxIdentity,
                                                  BoxRefused, BoxSetting, _pulse_ms, number_text, parse_refusal)
-from vts_hw.drivers.trigger_box_protocol import uint as _uint
 
 #: the levels of the box's TTL outputs, as the neutral log rows state them
 HIGH_V, LOW_V = 5.0, 0.0
@@ -393,43 +392,6 @@ class TriggerBox(BoxClock, TriggerBase):
                 errors.append(reply)
         raise TriggerError(f"{self.where} still reports errors after {MAX_ERRORS_READ} reads of "
                            f"SYST:ERR?: {'; '.join(errors[:3])} ...")
-
-    # -- edges and the clock ------------------------------------------------------------------------------
-
-    def device_time_us(self) -> int:
-        """``TIME?``: microseconds since the box booted."""
-        return self._parse("TIME?", self.query("TIME?"), _uint, "count of microseconds")
-
-    def edges(self) -> tuple[int, int, int]:
-        """``EDGES?``: (rising edges since the last start, device us of the first, of the last).
-
-        A first or last edge not logged before is written to ``trigger.csv`` as an ``edge`` line
-        with its device time, and its host time through :attr:`mapping` when one has been fitted
-        (else the host time of the report, and the text says so).
-        """
-        self.require(EDGES)
-        with self._lock:
-            reply = self.query("EDGES?")
-            parts = reply.split(",")
-            if len(parts) != 3:
-                raise TriggerError(f"{self.where} answered 'EDGES?' with {reply!r}, "
-                                   f"not '<count>,<first us>,<last us>'")
-            n, first, last = (self._parse("EDGES?", p.strip(), _uint, "count or time") for p in parts)
-            if n:
-                self._log_edges(n, first, last)
-        return n, first, last
-
-    def _log_edges(self, n: int, first: int, last: int) -> None:
-        logged_first, logged_last = self._logged_edges
-        m = self.mapping
-        how = "host time mapped from the box clock" if m else "host time = when reported (no clock mapping)"
-        if first != logged_first:
-            self._log("edge", f"first rising edge (1 of {n}); {how}", device_us=first,
-                      host_time=m.to_host(first) if m else None)
-        if last != logged_last and last != first:
-            self._log("edge", f"last rising edge ({n} of {n}); {how}", device_us=last,
-                      host_time=m.to_host(last) if m else None)
-        self._logged_edges = (first, last)
 
     # -- the neutral rows of trigger.csv (docs/trigger-log-format.md) ---------------------------------
 

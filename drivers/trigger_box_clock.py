@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass
 from typing import Sequence
 
-from vts_hw.drivers.trigger import CLOCK, ClockMapping, TriggerError
+from vts_hw.drivers.trigger import CLOCK, EDGES, ClockMapping, TriggerError
 from vts_hw.drivers.trigger_box_protocol import uint
 
 MAX_ROUND_TRIPS_KEPT = 2000    # clock-mapping history (about 100 calls of 20)
@@ -129,9 +129,45 @@ def fit_clock(trips: Sequence[RoundTrip]) -> tuple[ClockMapping, float]:
 
 
 class BoxClock:
-    """The trigger box driver's clock mapping (a mixin of
-    :class:`~vts_hw.drivers.trigger_box.TriggerBox`, which provides ``_exchange``, ``_lock``,
-    ``_log``, ``clock``, ``sleep``, ``where``, ``_serial``, ``baudrate`` and ``_batches``)."""
+    """The trigger box driver's clock: ``TIME?``, ``EDGES?`` and their mapping to host time (a
+    mixin of :class:`~vts_hw.drivers.trigger_box.TriggerBox`, which provides ``query``,
+    ``_exchange``, ``_parse``, ``_lock``, ``_log``, ``clock``, ``sleep``, ``where``, ``_serial``,
+    ``baudrate``, ``_batches`` and ``_logged_edges``)."""
+
+    def device_time_us(self) -> int:
+        """``TIME?``: microseconds since the box booted."""
+        return self._parse("TIME?", self.query("TIME?"), uint, "count of microseconds")
+
+    def edges(self) -> tuple[int, int, int]:
+        """``EDGES?``: (rising edges since the last start, device us of the first, of the last).
+
+        A first or last edge not logged before is written to ``trigger.csv`` as an ``edge`` line
+        with its device time, and its host time through :attr:`mapping` when one has been fitted
+        (else the host time of the report, and the text says so).
+        """
+        self.require(EDGES)
+        with self._lock:
+            reply = self.query("EDGES?")
+            parts = reply.split(",")
+            if len(parts) != 3:
+                raise TriggerError(f"{self.where} answered 'EDGES?' with {reply!r}, "
+                                   f"not '<count>,<first us>,<last us>'")
+            n, first, last = (self._parse("EDGES?", p.strip(), uint, "count or time") for p in parts)
+            if n:
+                self._log_edges(n, first, last)
+        return n, first, last
+
+    def _log_edges(self, n: int, first: int, last: int) -> None:
+        logged_first, logged_last = self._logged_edges
+        m = self.mapping
+        how = "host time mapped from the box clock" if m else "host time = when reported (no clock mapping)"
+        if first != logged_first:
+            self._log("edge", f"first rising edge (1 of {n}); {how}", device_us=first,
+                      host_time=m.to_host(first) if m else None)
+        if last != logged_last and last != first:
+            self._log("edge", f"last rising edge ({n} of {n}); {how}", device_us=last,
+                      host_time=m.to_host(last) if m else None)
+        self._logged_edges = (first, last)
 
     def clock_mapping(self, samples: int = 20, *, over_s: float = 1.0, keep: float = 0.5,
                       history: bool = True) -> ClockMapping:
