@@ -616,6 +616,33 @@ def test_edges_are_logged_in_host_time_once_the_clock_is_mapped(tmp_path):
     assert len(event) == 1 and "drift +0.000" in event[0]["text"]
 
 
+
+def test_neutral_rows_of_a_fire_and_its_stop(tmp_path):
+    """What the box started and stopped, in the rows every backend writes: the start at the
+    first edge through the clock mapping, the end after the rising edges it counted once off."""
+    from vts_hw.recording.trigger_log import wave_from_trigger_log
+    clock = FakeClock(1000.0)
+    trips = [("TIME?", str(round((1000.0 + 0.25 * i - 990.0) * 1e6))) for i in range(4)]
+    pairs = lines(*trips, ("*TRG", "OK"), ("OUTP?", "ON"), ("FREQ?", "2"), ("DUTY?", "0.25"),
+                  ("EDGES?", "1,11000000,11000000"), ("SYST:ERR?", '0,"No error"'),
+                  ("OUTP OFF", "OK"), ("OUTP?", "ON"), ("FREQ?", "2"), ("DUTY?", "0.25"),
+                  ("EDGES?", "6,11000000,13500000"), ("SYST:ERR?", '0,"No error"'),
+                  ("OUTP?", "OFF"), ("OUTP?", "OFF"), ("FREQ?", "2"), ("DUTY?", "0.25"),
+                  ("EDGES?", "7,11000000,14000000"), ("SYST:ERR?", '0,"No error"'))
+    path = tmp_path / "trigger.csv"
+    with expected_protocol(pairs, log=TriggerLog(path, clock=clock), clock=clock) as box:
+        m = box.clock_mapping(samples=4, over_s=0.75, keep=1.0)
+        box.fire()
+        box.stop()
+    rows = read_log(path)
+    assert [r["kind"] for r in rows if r["kind"] in ("wave_start", "wave_stop", "clock")] == \
+        ["clock", "wave_start", "wave_stop"]
+    w = wave_from_trigger_log(path)
+    assert w.start_host == pytest.approx(m.to_host(11_000_000), abs=1e-6) and w.time_source == "device_clock_mapped"
+    assert (w.period_s, w.duty, w.high_v, w.low_v, w.start_pulse) == (0.5, 0.25, 5.0, 0.0, True)
+    assert w.n_rising == 7 and w.stop_host == pytest.approx(w.start_host + 3.5, abs=1e-6)   # the count once off
+    assert w.uncertainty_s == pytest.approx(m.uncertainty_s, rel=1e-2) and w.drift_ppm == pytest.approx(0, abs=1e-3)
+
 # ---- the clock mapping --------------------------------------------------------------------------------
 
 class SyntheticBox:
