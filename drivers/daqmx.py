@@ -475,4 +475,4 @@ def _open_daqmx(cfg, settings: DaqmxSettings, log) -> DaqmxTrigger:
                         fire_pulse_ms=cfg.pulse_ms, log=log)
 
 
-BACKEND = TriggerBackend("daqmx", "NI-DAQmx counter and digital lines", DaqmxSettings, _open_daqmx)
+BACKEND = TriggerBackend("daqmx", "an NI-DAQmx counter and digital lines", DaqmxSettings, _open_daqmx)

@@ -488,4 +488,4 @@ def _open_visa(cfg, settings: VisaSettings, log) -> FunctionGenerator:
                              timeout_ms=settings.timeout_ms)
 
 
-BACKEND = TriggerBackend("visa", "VISA function generator (SCPI)", VisaSettings, _open_visa, levels=True)
+BACKEND = TriggerBackend("visa", "a SCPI function generator over VISA", VisaSettings, _open_visa, levels=True)

@@ -459,4 +459,4 @@ def _open_box(cfg, settings: BoxSettings, log: TriggerLog) -> TriggerBox:
     return TriggerBox(cfg.address, timeout=settings.timeout_s, log=log)
 
 
-BACKEND = TriggerBackend("triggerbox", "trigger box (serial)", BoxSettings, _open_box)
+BACKEND = TriggerBackend("triggerbox", "our trigger box on a serial line", BoxSettings, _open_box)

@@ -155,7 +155,7 @@ class ToyTrigger(TriggerBase):
         return TriggerStatus("toy", self.running, f, d, hi, lo)
 
 
-TOY = TriggerBackend("toy", "toy test trigger", ToySettings,
+TOY = TriggerBackend("toy", "a toy in this test", ToySettings,
                      lambda cfg, settings, log: ToyTrigger(cfg.address, settings.flavour, log), levels=True)
 
 
@@ -175,7 +175,7 @@ def test_a_backend_registered_with_one_line_is_opened_from_rig_yaml_and_used_by_
     rig = load_rig(_rig_yaml(tmp_path, backend="toy", address="mem://1", flavour="sour", frequency_hz=2.0,
                              duty=0.25, high_v=2.5, low_v=0.0))
     steps = {s.name: s.text for s in ScanSession(rig, tmp_path / "scan").plan()}
-    assert steps["check trigger"].startswith("check the toy trigger (toy test trigger) at mem://1:")
+    assert steps["check trigger"].startswith("check the toy trigger, a toy in this test, at mem://1:")
     assert "configure 2 Hz, duty 0.25, levels 0..2.5 V" in steps["check trigger"]
     gen = registry.open_trigger(rig)
     assert isinstance(gen, ToyTrigger) and (gen.address, gen.flavour) == ("mem://1", "sour")
