@@ -45,7 +45,8 @@ import numpy as np
 
 from vts_hw.errors import DataError
 from vts_hw.timing.motion_events import StepFit, find_steps, fit_step, match_events, robust_sd
-from vts_hw.spect.gating import GatingResult, WaveInfo, analyze_gating, axial_centre_of_mass, wave_from_trigger_log
+from vts_hw.recording.trigger_log import WaveInfo, wave_from_trigger_log
+from vts_hw.spect.gating import GatingResult, analyze_gating, axial_centre_of_mass
 from vts_hw.procedures.sync_inputs import CLOCK_SLACK_S, check_session, choose_listmode, load_calibration, load_mapping
 
 __all__ = ["SyncAnalysis", "SyncEvent", "export_trajectories", "load_calibration", "load_mapping",
@@ -346,7 +347,9 @@ class SyncAnalysis:
             "summary": summary, "events": events,
             "trigger": {"device": self.wave.device, "start_host": self.wave.start_host,
                         "period_s": self.wave.period_s, "host_period_s": self.wave.host_period_s,
-                        "duty": self.wave.duty, "start_pulse": self.wave.start_pulse, "how": self.wave.how},
+                        "duty": self.wave.duty, "start_pulse": self.wave.start_pulse, "how": self.wave.how,
+                        "time_source": self.wave.time_source, "uncertainty_s": self.wave.uncertainty_s,
+                        "converted_from_old_log": self.wave.converted},
             "gating": g.to_json(),
             "dead_time_host": self.dead_host.tolist(),
             "vts": {"markers": self.marker_ids, "trace": "SPECT Z" if self.vts_axial else "main direction of motion",

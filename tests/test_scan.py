@@ -133,7 +133,7 @@ def test_session_with_the_trigger_box(box_rig, tmp_path):
 
 def test_session_with_the_function_generator(tmp_path):
     rig, cfg, _ = _rig("visa", tmp_path)
-    assert cfg.trigger.address == rig.function_generator.resource and not cfg.trigger.simulated
+    assert cfg.trigger.address == rig.function_generator.resource and not cfg.trigger.options.get("simulated", False)
     try:
         with rig.env():
             m = ScanSession(cfg, tmp_path / "scan", duration=3.0).run()
