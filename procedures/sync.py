@@ -48,7 +48,9 @@ from vts_hw.timing.motion_events import StepFit, find_steps, fit_step, match_eve
 from vts_hw.recording.trigger_log import WaveInfo, wave_from_trigger_log
 from vts_hw.spect.gating import GatingResult, analyze_gating, axial_centre_of_mass
 from vts_hw.figures import figure_png
-from vts_hw.procedures.sync_verdict import sync_verdict, sync_windows
+from vts_hw.procedures.sync_verdict import sync_measures, sync_verdict, sync_windows
+from vts_hw.results import Measure
+from vts_hw.tolerance import State
 from vts_hw.procedures.sync_inputs import CLOCK_SLACK_S, check_session, choose_listmode, load_calibration, load_mapping
 
 __all__ = ["SyncAnalysis", "SyncEvent", "export_trajectories", "load_calibration", "load_mapping",
@@ -367,6 +369,21 @@ class SyncAnalysis:
             "calibration": dict(self.calibration_info),
             "problems": list(self.problems),
         }
+
+    # ------------------------------------------------------------------ the QA result shape
+    procedure = "sync"
+
+    def measures(self) -> list[Measure]:
+        """The figures the tolerance table's sync windows judge (subject: the VTS against the SPECT)."""
+        self._need()
+        s = self.results_data()["summary"]
+        windows = sync_windows(self.tolerances)
+        units = {"sync_max_abs_dt_ms": "ms", "sync_events_one_system": "events", "sync_events_both": "events"}
+        return [Measure.judged("vts-spect", m, v, units[m], windows[m]) for m, v in sync_measures(s).items()]
+
+    @property
+    def state(self) -> State:
+        return State(self.results_data()["summary"]["state"])
 
     def results(self) -> str:
         """A short text summary for people (times relative to the trigger's first edge)."""
