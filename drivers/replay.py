@@ -12,7 +12,8 @@ the rig were there. rig.yaml::
 it faster than real time (1 = as recorded).
 
 * Playback starts at the first frame asked for (a snapshot or a stream), on the recording's
-  common timeline (its manifest's start), so the cameras of one folder stay in step.
+  common timeline (host receive times, from the first frame of any of its cameras), so the
+  cameras of one folder stay in step.
 * Every frame carries the recording's own times: ``camera_time`` as stamped, ``host_time``
   as received while recording (``time_source == "recording"``); ``clock_offset()`` is the
   recording's (median camera − host time).
@@ -60,7 +61,7 @@ class ReplayCamera:
         self.clock = clock
         self.resolution = resolution
         self.led_calls: list[str] = []
-        manifest = load_manifest(self.folder, missing_ok=True) or {}
+        load_manifest(self.folder, missing_ok=True)   # a folder with a broken manifest is named here
         index = self.folder / f"{self.source}.index.csv"
         if not index.is_file():
             have = sorted(p.name[: -len(".index.csv")] for p in self.folder.glob("*.index.csv"))
@@ -75,9 +76,7 @@ class ReplayCamera:
         self._times = [r.host_time if r.host_time is not None else r.camera_time for r in rows]
         if any(t is None for t in self._times):
             raise DataError(f"{index}: a frame has neither a camera nor a host time; cannot replay it")
-        start = manifest.get("started")
-        self._origin = float(start) if isinstance(start, (int, float)) and start <= self._times[0] \
-            else self._times[0]
+        self._origin = min([self._times[0], *_first_times(self.folder)])
         span = self._times[-1] - self._times[0]
         self.fps = float(fps or ((len(rows) - 1) / span if span > 0 else 25.0))
         self._t0: float | None = None   # monotonic time playback started
@@ -208,3 +207,18 @@ class _ReplayConnection:
             i += 1
             if i >= len(cam._times):
                 raise cam._ended()
+
+
+def _first_times(folder: Path) -> list[float]:
+    """The host (else camera) time of the first frame of each camera of a recording folder."""
+    out = []
+    for index in folder.glob("*.index.csv"):
+        try:
+            with open(index, encoding="ascii") as fh:
+                fh.readline()
+                parts = fh.readline().strip().split(",")
+            t = parts[4] or parts[3]
+            out.append(float(t))
+        except (OSError, ValueError, IndexError, UnicodeDecodeError):
+            continue   # a camera of the folder that cannot be read does not move the timeline
+    return out
