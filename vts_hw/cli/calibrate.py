@@ -111,7 +111,7 @@ def _from_cameras(config_path, calibration_path, volume, frames: int, quiet: boo
     """The mapping with the VTS side measured now by the rig's first two cameras."""
     from vts_hw.config import load_rig
     from vts_hw.drivers.registry import open_cameras
-    from vts_hw.procedures.spect_mapping import mapping_from_cameras, stereo_calibration_for
+    from vts_hw.procedures.mapping_inputs import mapping_from_cameras, stereo_calibration_for
 
     rig = load_rig(config_path)
     calib = stereo_calibration_for(rig, calibration_path)
