@@ -139,8 +139,9 @@ class Camera(Protocol):
     clock: Callable[[], float]
     led_switches: bool
 
-    def snapshot(self) -> Frame:
-        """One frame, now."""
+    def snapshot(self, compression: int | None = None) -> Frame:
+        """One frame, now. ``compression`` (0-100) is a hint for this request only; a kind
+        that cannot change it ignores it."""
 
     def open_stream(self, *, fps: float, duration: float | None, nbrofframes: int | None,
                     first_seq: int, stall_timeout: float) -> Connection:
