@@ -275,3 +275,16 @@ def test_replay_from_the_command_line(rig_recording, tmp_path):
                        capture_output=True, text=True, env=env)
     assert r.returncode == 0, r.stderr
     assert out.read_bytes()[:2] == b"\xff\xd8"
+
+
+def test_only_the_registry_builds_cameras():
+    """Procedures, the CLI and the scenarios receive cameras; none of them builds an AxisCamera."""
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    builds = re.compile(r"\b(AxisCamera|MjpegCamera|ReplayCamera)(\.from_config)?\(")
+    found = [f"{p.relative_to(root)}:{n}" for folder in ("vts_hw", "procedures", "sim_devices", "drivers", "bench")
+             for p in sorted((root / folder).rglob("*.py")) if p.name not in ("axis.py", "mjpeg.py", "replay.py")
+             for n, line in enumerate(p.read_text().splitlines(), 1) if builds.search(line)]
+    assert found == []
