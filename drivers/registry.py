@@ -60,6 +60,7 @@ def open_camera(cfg: CameraConfig, clock=None) -> Camera:
 def open_cameras(cfgs, clock=None) -> list[Camera]:
     """``open_camera`` for each entry (e.g. ``rig.cameras``); every kind is checked first, and
     the ones opened are closed again if a later one cannot be."""
+    cfgs = list(cfgs)
     check_camera_kinds(cfgs)
     out: list[Camera] = []
     try:
