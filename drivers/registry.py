@@ -8,7 +8,8 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
-from vts_hw.config import RigConfig, TriggerConfig, validation_message
+from vts_hw.camera import Camera
+from vts_hw.config import CameraConfig, RigConfig, TriggerConfig, validation_message
 from vts_hw.drivers.trigger import TriggerBackend, TriggerGenerator, TriggerLog
 from vts_hw.errors import ConfigError
 
@@ -72,3 +73,51 @@ def open_trigger(cfg: TriggerConfig | RigConfig, log_path: str | Path | None = N
     backend, settings = trigger_settings(t, where)
     log = TriggerLog(log_path, clock=clock or time.time)
     return backend.open(t, settings, log)
+
+
+# -- cameras -----------------------------------------------------------------------------
+# kind (rig.yaml cameras[].kind) -> "module:class"; the class has from_config(cfg, clock=...)
+# and implements vts_hw.camera.Camera. A new kind is one module in drivers/ and one line here.
+
+CAMERA_KINDS = {
+    "axis": "vts_hw.drivers.axis:AxisCamera",
+    "mjpeg": "vts_hw.drivers.mjpeg:MjpegCamera",
+    "replay": "vts_hw.drivers.replay:ReplayCamera",
+}
+
+
+def camera_class(kind: str, camera: str = "?"):
+    """The class of a camera kind; ConfigError naming the camera and the kind when unknown."""
+    if kind not in CAMERA_KINDS:
+        raise ConfigError(f"camera {camera!r}: unknown kind {kind!r} (known: {', '.join(sorted(CAMERA_KINDS))})")
+    module, cls = CAMERA_KINDS[kind].split(":")
+    return getattr(importlib.import_module(module), cls)
+
+
+def open_camera(cfg: CameraConfig, clock=None) -> Camera:
+    """The camera a rig.yaml camera entry names, of its ``kind`` (default ``axis``); ``clock``
+    is the host clock (a simulation on a virtual clock passes its own)."""
+    return camera_class(cfg.kind, cfg.name).from_config(cfg, clock=clock or time.time)
+
+
+def open_cameras(cfgs, clock=None) -> list[Camera]:
+    """``open_camera`` for each entry (e.g. ``rig.cameras``); every kind is checked first, and
+    the ones opened are closed again if a later one cannot be."""
+    cfgs = list(cfgs)
+    check_camera_kinds(cfgs)
+    out: list[Camera] = []
+    try:
+        for cfg in cfgs:
+            out.append(open_camera(cfg, clock=clock))
+    except BaseException:
+        for cam in out:
+            cam.close()
+        raise
+    return out
+
+
+def check_camera_kinds(cameras) -> None:
+    """Every camera entry names a known kind (ConfigError, exit 2, before anything is touched)."""
+    for cfg in cameras:
+        if cfg.kind not in CAMERA_KINDS:
+            camera_class(cfg.kind, cfg.name)

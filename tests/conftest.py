@@ -37,9 +37,9 @@ def sim_rig():
 
 @pytest.fixture()
 def cam1(sim_rig):
-    from vts_hw.drivers.axis import AxisCamera
+    from vts_hw.drivers.registry import open_camera
 
-    with AxisCamera.from_config(sim_rig.config().camera("cam1")) as cam:
+    with open_camera(sim_rig.config().camera("cam1")) as cam:
         yield cam
 
 

@@ -25,6 +25,7 @@ from vts_hw.store import ResultsStore
 from vts_hw.config import load_rig
 from vts_hw.recording.processing import Tracks
 from vts_hw.sim_devices.scenarios import sync_session as sync_sim
+from vts_hw.drivers.registry import open_cameras
 from vts_hw.procedures.scan import ScanSession
 from vts_hw.procedures.sync import SyncAnalysis
 from vts_hw.vision.registration import RigidTransform
@@ -241,7 +242,7 @@ def test_a_camera_offline_for_5_s_still_analyses(box_rig, tmp_path):
     rig, rig_yaml, marker = box_rig
     cfg = load_rig(rig_yaml)
     duration = 12.0
-    s = ScanSession(cfg, tmp_path / "scan", duration=duration)
+    s = ScanSession(cfg, tmp_path / "scan", open_cameras(cfg.cameras), duration=duration)
     s.start()
     fire = s.trigger.info["fire_time"]
     src = sync_sim.start_moves(rig, marker, fire, duration, times_rel=[2.0, 6.0, 10.0], steps=[18.0, -14.0, 12.0])

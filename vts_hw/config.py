@@ -11,7 +11,7 @@ import hashlib
 import os
 import re
 from pathlib import Path
-from typing import Literal, Optional, Union
+from typing import Any, Literal, Optional, Union
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
@@ -27,10 +27,15 @@ class _Strict(BaseModel):
 
 
 class CameraConfig(_Strict):
-    """One Axis camera."""
+    """One camera: an Axis camera by default, or another ``kind`` (drivers/registry.py)."""
 
     name: str = Field(pattern=_NAME_RE, description="short name used on the command line and in files")
-    host: str = Field(min_length=1)
+    kind: str = Field(default="axis", pattern=r"^[a-z][a-z0-9_]*$",
+                      description="which driver: axis (the default), mjpeg, replay (drivers/registry.py)")
+    options: dict[str, Any] = Field(
+        default_factory=dict, description="settings of the kind, checked by its driver (e.g. replay: folder, "
+                                          "camera, speed)")
+    host: Optional[str] = Field(default=None, min_length=1, description="network cameras: address")
     port: int = Field(default=80, ge=1, le=65535)
     scheme: Literal["http", "https"] = "http"
     user: str = "root"
@@ -60,6 +65,8 @@ class CameraConfig(_Strict):
     def _cert_needs_https(self):
         if self.ca_cert is not None and self.scheme != "https":
             raise ValueError("ca_cert needs scheme: https")
+        if self.kind == "axis" and not self.host:
+            raise ValueError("an Axis camera (kind axis, the default) needs a host")
         return self
 
     @field_validator("resolution", mode="before")
@@ -74,6 +81,10 @@ class CameraConfig(_Strict):
 
     @property
     def base_url(self) -> str:
+        """``scheme://host[:port]``; a camera without a host (e.g. a replay) shows its kind and
+        options instead."""
+        if not self.host:
+            return f"{self.kind}:" + ",".join(f"{k}={v}" for k, v in sorted(self.options.items()))
         default = 80 if self.scheme == "http" else 443
         given = self.port if "port" in self.model_fields_set else default  # https without a port: 443
         port = "" if given == default else f":{given}"
