@@ -23,6 +23,7 @@ from typing import Callable
 from vts_hw.camera import CameraError, NoParameters, Refused
 from vts_hw.errors import UsageError, VtsError
 from vts_hw.files import ensure_dir, write_atomic
+from vts_hw.results import Measure
 from vts_hw.tolerance import State, Window, merged_tolerances, worst
 from vts_hw.procedures.baseline import load_baseline
 from vts_hw.procedures.drift import DriftAnalysis
@@ -34,7 +35,7 @@ STEPS = ("reachable", "params", "clock", "drift")
 @dataclass
 class CameraResult:
     camera: str
-    measures: list = field(default_factory=list)   # (subject, metric, value, unit, state)
+    measures: list[Measure] = field(default_factory=list)
     problems: list[str] = field(default_factory=list)
     drift: DriftAnalysis | None = None
 
@@ -56,6 +57,11 @@ class QAResult:
     @property
     def state(self) -> State:
         return worst(c.state for c in self.cameras)
+
+    @property
+    def measures(self) -> list[Measure]:
+        """Every camera's measures, in camera order (the one QA result shape)."""
+        return [m for c in self.cameras for m in c.measures]
 
     @property
     def exit_code(self) -> int:
@@ -220,7 +226,7 @@ class QARun:
         def add(metric, value, unit, window=None):
             w = tol.get(window or metric)
             st = State.ACTION if value is None else (w.state(value) if w else State.OK)
-            out.measures.append((name, metric, value, unit, st))
+            out.measures.append(Measure(name, metric, value, unit, st))
 
         if self.open_camera is None:
             raise UsageError("QARun was given no cameras (open_camera=...)")

@@ -26,6 +26,7 @@ from scipy.optimize import linear_sum_assignment
 from vts_hw import __version__
 from vts_hw.camera import Frame
 from vts_hw.vision.detect import DetectorSettings, detect_jpeg
+from vts_hw.results import Measure
 from vts_hw.tolerance import DEFAULT_TOLERANCES, State, Window, worst
 
 GATE_PX = 12.0          # a marker further than this from its baseline position is not that marker
@@ -100,14 +101,6 @@ class MarkerDrift:
         sdy = float(dy.std(ddof=1)) if len(dy) > 1 else 0.0
         return float(dx.mean()), float(dy.mean()), sdx, sdy
 
-
-@dataclass(frozen=True)
-class Measure:
-    subject: str
-    metric: str
-    value: float | None
-    unit: str
-    state: State
 
 
 class DriftAnalysis:

@@ -28,6 +28,7 @@ from scipy import stats
 from vts_hw import __version__
 from vts_hw.errors import DataError
 from vts_hw.vision.registration import RigidTransform, kabsch
+from vts_hw.results import Measure
 from vts_hw.tolerance import State, Window, merged_tolerances, worst
 
 AXES = ("x", "y", "z")
@@ -38,14 +39,6 @@ METRICS = ("steps_slope", "steps_intercept_mm", "steps_r2", "steps_diff_max_mm",
            "steps_diff_mean_mm", "steps_diff_sd_mm", "steps_rotation_diff_deg",
            "steps_translation_diff_mm")
 
-
-@dataclass(frozen=True)
-class Measure:
-    subject: str
-    metric: str
-    value: float
-    unit: str
-    state: State
 
 
 @dataclass(frozen=True)

@@ -373,6 +373,7 @@ class SyncAnalysis:
     # ------------------------------------------------------------------ the QA result shape
     procedure = "sync"
 
+    @property
     def measures(self) -> list[Measure]:
         """The figures the tolerance table's sync windows judge (subject: the VTS against the SPECT)."""
         self._need()

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 
-from vts_hw.results import Measure, QAResult, overall_state
+from vts_hw.results import Analysis, Measure, overall_state
 from vts_hw.store import ResultsStore
 from vts_hw.store.results import store_result
 from vts_hw.store.unsaved import import_unsaved
@@ -17,19 +17,20 @@ class TwoFigures:
 
     procedure = "example"
 
+    @property
     def measures(self):
         return [Measure.judged("cam1", "drift_x_px", 0.2, "px", Window.symmetric(1.0, 2.0, "px")),
                 Measure.judged("cam1", "drift_y_px", 1.4, "px", Window.symmetric(1.0, 2.0, "px"))]
 
     @property
     def state(self):
-        return overall_state(self.measures())
+        return overall_state(self.measures)
 
     def results(self):
         return "two figures"
 
     def results_data(self):
-        return {"figures": [m.as_dict() for m in self.measures()]}
+        return {"figures": [m.as_dict() for m in self.measures]}
 
     def plot(self, path=None):
         return b""
@@ -37,7 +38,7 @@ class TwoFigures:
 
 def test_a_result_becomes_a_run_with_its_measures(tmp_path):
     result = TwoFigures()
-    assert isinstance(result, QAResult) and result.state is State.TOLERANCE
+    assert isinstance(result, Analysis) and result.state is State.TOLERANCE
     url = f"sqlite:///{tmp_path / 'r.sqlite'}"
     stored = store_result(url, result, rig="room1", started=1000.0)
     assert stored.ok and stored.unsaved is None

@@ -1,7 +1,7 @@
 """One shape for every QA result, after pylinac: load → analyze(tolerances) → results(),
 results_data(), plot(); each figure a :class:`Measure` judged by a tolerance window.
 
-A procedure's result keeps this shape (:class:`QAResult`) and is stored one way
+A procedure's result keeps this shape (:class:`Analysis`) and is stored one way
 (:func:`vts_hw.store.results.store_result`): a run of its ``procedure`` with one measurement
 per :class:`Measure`, the run's state the worst of them — or, when the store cannot take it,
 a file that ``vts qa import`` stores later.
@@ -9,16 +9,15 @@ a file that ``vts qa import`` stores later.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import NamedTuple, Protocol, runtime_checkable
 
 from vts_hw.tolerance import State, Window, worst
 
 
-@dataclass(frozen=True)
-class Measure:
+class Measure(NamedTuple):
     """One figure of a QA result: what was measured (``subject``: a camera, a marker, an event
-    set), which ``metric`` (the tolerance table's name), its value and unit, and its state."""
+    set), which ``metric`` (the tolerance table's name), its value and unit, and its state.
+    (A named tuple: ``subject, metric, value, unit, state = m`` reads it too.)"""
 
     subject: str
     metric: str
@@ -45,15 +44,16 @@ def overall_state(measures) -> State:
 
 
 @runtime_checkable
-class QAResult(Protocol):
-    """What every analysed QA procedure offers (its ``analyze(tolerances)`` has run)."""
+class Analysis(Protocol):
+    """What every analysed QA procedure offers (its ``analyze(tolerances)`` has run): its
+    ``procedure`` name, its ``measures`` and their worst ``state``, a text summary, the data as
+    JSON-ready dicts, and a plot."""
 
     procedure: str
+    measures: list[Measure]
 
     @property
     def state(self) -> State: ...
-
-    def measures(self) -> list[Measure]: ...
 
     def results(self) -> str: ...
 

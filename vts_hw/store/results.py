@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from vts_hw import __version__
-from vts_hw.results import QAResult
+from vts_hw.results import Analysis
 from vts_hw.store.errors import StoreError
 from vts_hw.store.unsaved import save_unsaved
 
@@ -27,7 +27,7 @@ class Stored:
         return self.run_id is not None
 
 
-def store_result(store_url: str | None, result: QAResult, *, rig: str = "", operator: str = "",
+def store_result(store_url: str | None, result: Analysis, *, rig: str = "", operator: str = "",
                  config_digest: str = "", started: float | None = None, notes: str = "",
                  artifacts=()) -> Stored:
     """Store ``result`` as a run of ``result.procedure``; never raises for a store that cannot
@@ -35,7 +35,7 @@ def store_result(store_url: str | None, result: QAResult, *, rig: str = "", oper
     from vts_hw.store import ResultsStore
 
     started = time.time() if started is None else float(started)
-    measures = result.measures()
+    measures = list(result.measures)
     try:
         with ResultsStore(store_url) as store, store.begin_run(
                 result.procedure, rig=rig, operator=operator, config_digest=config_digest,
