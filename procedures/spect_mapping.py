@@ -39,6 +39,9 @@ from scipy.optimize import linear_sum_assignment
 
 from vts_hw import __version__
 from vts_hw.errors import DataError
+from vts_hw.figures import figure_png
+from vts_hw.results import Measure, overall_state
+from vts_hw.tolerance import State, merged_tolerances
 from vts_hw.vision.registration import LooTre, RigidTransform, fre, kabsch, loo_tre
 
 __all__ = ["correspond", "Correspondence", "SpectMapping", "FRE_LIMIT_MM",
@@ -194,6 +197,7 @@ class SpectMapping:
         self.residuals_mm: np.ndarray | None = None
         self.tre: LooTre | None = None
         self.analyzed_at: str | None = None
+        self.tolerances: dict | None = None
 
     @classmethod
     def from_volume(cls, vts_points, volume_path, fre_limit_mm: float = FRE_LIMIT_MM,
@@ -223,7 +227,10 @@ class SpectMapping:
         return cls(fit.points, spect, fre_limit_mm)
 
     # ------------------------------------------------------------------ analysis
-    def analyze(self) -> "SpectMapping":
+    def analyze(self, tolerances: dict | None = None) -> "SpectMapping":
+        """Correspondence, Kabsch fit, FRE and leave-one-out TRE; ``tolerances``: the rig's
+        windows over the defaults (``mapping_fre_mm``, ``mapping_tre_rms_mm`` judge)."""
+        self.tolerances = tolerances
         n_v, n_s = len(self.vts_points), len(self.spect_points)
         if n_v != n_s:
             raise DataError(f"the VTS sees {n_v} spheres but the SPECT volume gives {n_s}: both "
@@ -272,6 +279,45 @@ class SpectMapping:
     def _meta(self) -> dict:
         return {"from_frame": "VTS", "to_frame": "SPECT", "procedure": "spect_mapping", **self._figures()}
 
+    # ------------------------------------------------------------------ the QA result shape
+    procedure = "spect_mapping"
+
+    @property
+    def measures(self) -> list[Measure]:
+        """FRE and leave-one-out TRE RMS, judged by the tolerance table (subject: the phantom)."""
+        self._need()
+        tol = merged_tolerances(self.tolerances)
+        return [Measure.judged("phantom", "mapping_fre_mm", self.match.fre_mm, "mm", tol["mapping_fre_mm"]),
+                Measure.judged("phantom", "mapping_tre_rms_mm", self.tre.rms, "mm", tol["mapping_tre_rms_mm"])]
+
+    @property
+    def state(self) -> State:
+        return overall_state(self.measures)
+
+    def plot(self, path=None) -> bytes:
+        """Per sphere: the fit's residual and the leave-one-out TRE (mm), the limits marked."""
+        from matplotlib.figure import Figure
+
+        self._need()
+        tol = merged_tolerances(self.tolerances)
+        fig = Figure(figsize=(7, 3.6))
+        ax = fig.add_subplot()
+        k = np.arange(len(self.residuals_mm))
+        ax.bar(k - 0.2, self.residuals_mm, 0.4, label="residual of the fit")
+        ax.bar(k + 0.2, self.tre.per_point, 0.4, label="leave-one-out TRE")
+        for w, style in ((tol["mapping_tre_rms_mm"].tolerance_high, ":"), (tol["mapping_tre_rms_mm"].action_high, "--")):
+            if w is not None:
+                ax.axhline(w, color="0.4", ls=style, lw=1)
+        ax.set_xticks(k, [f"S{i + 1}" for i in k])
+        ax.set_ylabel("mm")
+        ax.set_title(f"VTS → SPECT mapping ({self.analyzed_at}, vts-hw {__version__}): FRE "
+                     f"{self.match.fre_mm:.2f} mm, TRE RMS {self.tre.rms:.2f} mm — {self.state}", fontsize=9)
+        ax.legend(fontsize=8, frameon=False)
+        png = figure_png(fig)
+        if path is not None:
+            Path(path).write_bytes(png)
+        return png
+
     # ------------------------------------------------------------------ output
     def results_data(self) -> dict:
         """JSON-ready results: date, software version, transform, FRE and TRE (mm)."""
@@ -286,6 +332,8 @@ class SpectMapping:
                           "euler_xyz_deg": T.as_euler_xyz_deg().tolist(),
                           "rotation_angle_deg": T.rotation_angle_deg},
             **self._figures(),
+            "state": str(self.state),
+            "measures": [m.as_dict() for m in self.measures],
         }
 
     def results(self) -> str:

@@ -78,6 +78,8 @@ class StepAnalysis:
     free move.
     """
 
+    procedure = "sphere-steps"
+
     def __init__(self, labels, vts, spect, kinds=None, meta: dict | None = None):
         self.labels = [str(x) for x in labels]
         self.vts = np.asarray(vts, float)
