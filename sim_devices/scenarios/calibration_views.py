@@ -160,12 +160,12 @@ def sim_camera_views(seed: int, n_cameras: int, per_pair: int, pattern=(9, 6), s
     return images, true_cameras(scene, names, square_mm, pattern), info
 
 
-def cameras_against_truth(calib, truth, info) -> dict:
+def cameras_against_truth(calib, truth, points) -> dict:
     """The calibration's errors against the simulated truth (:func:`vts_hw.vision.multi_compare.against_truth`
-    on the FOV points), with what the points were."""
+    on the FOV points ``info["fov_points"]`` of :func:`sim_camera_views`), with what the points were."""
     from vts_hw.vision.multi_compare import against_truth
 
-    out = against_truth(calib, truth, info["fov_points"])
+    out = against_truth(calib, truth, points)
     out["points_3d"]["where"] = (f"{FOV_POINTS} points uniform in ±{FOV_BOX_MM[0]:g} x ±{FOV_BOX_MM[1]:g} x"
                                  f" ±{FOV_BOX_MM[2]:g} mm about the FOV centre, projected exactly by the true"
                                  " cameras, triangulated with the calibrated ones in the reference camera's frame")

@@ -154,6 +154,7 @@ class Solution:
     cost_end: float
     nfev: int
     status: str
+    start_rms: float = 0.0         # RMS (px) at the starting point
 
 
 def adjust(problem: Problem, p0: np.ndarray, loss: str = LOSS, f_scale: float | None = None,

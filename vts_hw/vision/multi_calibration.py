@@ -22,7 +22,9 @@ Choices and figures: docs/decisions/0030-n-camera-calibration.md.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
 from datetime import datetime, timezone
+from typing import Any
 
 import cv2
 import numpy as np
@@ -56,22 +58,24 @@ def _rms(res: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum(np.asarray(res).reshape(-1, 2) ** 2, axis=1))))
 
 
-def calibrate_cameras(corners: Mapping[str, Mapping[str, np.ndarray]],
-                      image_sizes: Mapping[str, tuple[int, int]],
-                      pattern: tuple[int, int] = PATTERN, square: float = 1.0, unit: str = "squares",
-                      distortion: str = "auto", reference: str | None = None,
-                      intrinsics: str = "refine", loss: str = bundle.LOSS,
-                      outlier_factor: float = OUTLIER_FACTOR,
-                      skipped: Mapping[str, str] | None = None) -> CameraCalibration:
-    """Calibrate the cameras of ``corners`` (camera → view name → the board's inner corners found
-    in that camera's image of that view) into the frame of ``reference`` (default the first
-    camera). ``image_sizes``: camera → (width, height). ``intrinsics``: "refine" (in the bundle
-    adjustment) or "fixed" (as each camera's own fit gave them); ``loss``: SciPy's robust loss
-    ("cauchy", "soft_l1", "huber") or "linear". See the module docstring."""
-    if unit == "squares" and square != 1.0:
-        raise ValueError("with unit 'squares' the square size must be 1")
-    if intrinsics not in ("refine", "fixed"):
-        raise ValueError(f"intrinsics must be 'refine' or 'fixed', not {intrinsics!r}")
+@dataclass
+class Start:
+    """Steps 1-3 done: the cameras (reference first), their own fits, the chained poses."""
+
+    names: list[str]
+    graph: ViewGraph
+    board: np.ndarray                       # the board's corners in its plane (n × 3)
+    pts: dict[str, dict[str, np.ndarray]]   # camera → view → corners (n × 1 × 2 float32)
+    own: dict[str, dict[str, Any]]          # camera → its own fit: rms, K, d, model, pose per view
+    pose: dict[str, tuple[np.ndarray, np.ndarray]]   # camera → (R, t) in the reference frame
+    board_in: dict[str, tuple[str, np.ndarray, np.ndarray]]  # view → (camera, rvec, tvec) to start from
+    edges: list[dict[str, Any]]
+
+
+def start(corners: Mapping[str, Mapping[str, np.ndarray]], image_sizes: Mapping[str, tuple[int, int]],
+          pattern: tuple[int, int] = PATTERN, square: float = 1.0, distortion: str = "auto",
+          reference: str | None = None) -> Start:
+    """Steps 1-3 of the module docstring."""
     names = list(corners)
     if len(names) < 2:
         raise DataError(f"only {len(names)} camera(s) given; a camera calibration needs at least two.")
@@ -90,7 +94,6 @@ def calibrate_cameras(corners: Mapping[str, Mapping[str, np.ndarray]],
             if len(x) != n_pts:
                 raise DataError(f"camera {c}, view {v}: {len(x)} corners, the {pattern[0]}x{pattern[1]} board"
                                 f" has {n_pts}.")
-    # 2. each camera's own intrinsics
     own = {}
     for c in names:
         views = graph.seen[c]
@@ -99,43 +102,73 @@ def calibrate_cameras(corners: Mapping[str, Mapping[str, np.ndarray]],
                             f" at least {MIN_VIEWS}.")
         rms, K, d, model, (rvecs, tvecs) = fit_camera([obj1] * len(views), [pts[c][v] for v in views],
                                                       tuple(image_sizes[c]), distortion)
-        own[c] = {"rms": rms, "K": K, "d": np.ravel(d)[:5], "model": model,
-                  "pose": {v: (np.ravel(r), np.ravel(t)) for v, r, t in zip(views, rvecs, tvecs)}}
-    # 3. poses along the spanning tree
+        own[c] = {"rms": rms, "K": K, "d": d, "model": model, "size": tuple(int(x) for x in image_sizes[c]),
+                  "pose": {v: (np.ravel(r), np.ravel(t)) for v, r, t in zip(views, rvecs, tvecs)},
+                  "rvecs": rvecs, "tvecs": tvecs}
     pose = {names[0]: (np.eye(3), np.zeros(3))}
-    edges = []
+    edges, board_in = [], {}
     for a, b in graph.spanning_tree(names[0]):
         shared = graph.shared(a, b)
-        rms, R, T, _, _, _ = pair_pose([obj1] * len(shared), [pts[a][v] for v in shared],
-                                       [pts[b][v] for v in shared], own[a]["K"], own[a]["d"],
-                                       own[b]["K"], own[b]["d"], tuple(image_sizes[a]))
+        rms, R, T, _, rvecs, tvecs = pair_pose([obj1] * len(shared), [pts[a][v] for v in shared],
+                                               [pts[b][v] for v in shared], own[a]["K"], own[a]["d"],
+                                               own[b]["K"], own[b]["d"], own[a]["size"])
         Ra, ta = pose[a]
         pose[b] = (R @ Ra, R @ ta + T)
+        for v, r, t in zip(shared, rvecs, tvecs):
+            board_in.setdefault(v, (a, np.ravel(r), np.ravel(t)))
         edges.append({"from": a, "to": b, "shared_views": len(shared), "rms": rms,
                       "distance": float(np.linalg.norm(T))})
-    views = graph.views
+    for v in graph.views:            # a view on no edge of the tree: the pose its camera's own fit gave
+        if v not in board_in:
+            c = next(c for c in names if v in own[c]["pose"])
+            board_in[v] = (c, *own[c]["pose"][v])
+    return Start(names, graph, obj1, pts, own, pose, board_in, edges)
+
+
+def adjust(st: Start, intrinsics: str = "refine", loss: str = bundle.LOSS):
+    """Step 4: (problem, solution, observations as (camera index, view index))."""
+    if intrinsics not in ("refine", "fixed"):
+        raise ValueError(f"intrinsics must be 'refine' or 'fixed', not {intrinsics!r}")
+    names, views = st.names, st.graph.views
     vpose = np.zeros((len(views), 6))
     for i, v in enumerate(views):
-        c = next(c for c in names if v in own[c]["pose"])
-        r_bc, t_bc = own[c]["pose"][v]
-        Rc, tc = pose[c]
+        c, r_bc, t_bc = st.board_in[v]
+        Rc, tc = st.pose[c]
         Rw = Rc.T @ cv2.Rodrigues(r_bc)[0]
         vpose[i] = np.r_[cv2.Rodrigues(Rw)[0].ravel(), Rc.T @ (t_bc - tc)]
-    # 4. the bundle adjustment
-    obs = [(ci, vi) for vi, v in enumerate(views) for ci, c in enumerate(names) if v in pts[c]]
-    problem = bundle.Problem(obj1, [o[0] for o in obs], [o[1] for o in obs],
-                             np.stack([pts[names[ci]][views[vi]].reshape(-1, 2) for ci, vi in obs]),
-                             len(names), len(views), [own[c]["model"]["fitted"] for c in names],
+    obs = [(ci, vi) for vi, v in enumerate(views) for ci, c in enumerate(names) if v in st.pts[c]]
+    problem = bundle.Problem(st.board, [o[0] for o in obs], [o[1] for o in obs],
+                             np.stack([st.pts[names[ci]][views[vi]].reshape(-1, 2) for ci, vi in obs]),
+                             len(names), len(views), [st.own[c]["model"]["fitted"] for c in names],
                              reference=0, fix_intrinsics=intrinsics == "fixed")
-    intr = np.array([[own[c]["K"][0, 0], own[c]["K"][1, 1], own[c]["K"][0, 2], own[c]["K"][1, 2],
-                      *np.r_[own[c]["d"], np.zeros(5)][:5]] for c in names])
-    cpose = np.array([np.r_[cv2.Rodrigues(pose[c][0])[0].ravel(), pose[c][1]] for c in names])
+    intr = np.array([[st.own[c]["K"][0, 0], st.own[c]["K"][1, 1], st.own[c]["K"][0, 2], st.own[c]["K"][1, 2],
+                      *np.r_[np.ravel(st.own[c]["d"]), np.zeros(5)][:5]] for c in names])
+    cpose = np.array([np.r_[cv2.Rodrigues(st.pose[c][0])[0].ravel(), st.pose[c][1]] for c in names])
     p0 = problem.pack(intr, cpose, vpose)
-    start_rms = _rms(problem.residuals(p0))
     sol = bundle.adjust(problem, p0, loss=loss)
-    intr, cpose, vpose = problem.unpack(sol.p)
+    sol.start_rms = _rms(problem.residuals(p0))
+    return problem, sol, obs
+
+
+def calibrate_cameras(corners: Mapping[str, Mapping[str, np.ndarray]],
+                      image_sizes: Mapping[str, tuple[int, int]],
+                      pattern: tuple[int, int] = PATTERN, square: float = 1.0, unit: str = "squares",
+                      distortion: str = "auto", reference: str | None = None,
+                      intrinsics: str = "refine", loss: str = bundle.LOSS,
+                      outlier_factor: float = OUTLIER_FACTOR,
+                      skipped: Mapping[str, str] | None = None) -> CameraCalibration:
+    """Calibrate the cameras of ``corners`` (camera → view name → the board's inner corners found
+    in that camera's image of that view) into the frame of ``reference`` (default the first
+    camera). ``image_sizes``: camera → (width, height). ``intrinsics``: "refine" (in the bundle
+    adjustment) or "fixed" (as each camera's own fit gave them); ``loss``: SciPy's robust loss
+    ("cauchy", "soft_l1", "huber") or "linear". See the module docstring."""
+    if unit == "squares" and square != 1.0:
+        raise ValueError("with unit 'squares' the square size must be 1")
+    st = start(corners, image_sizes, pattern, square, distortion, reference)
+    problem, sol, obs = adjust(st, intrinsics, loss)
+    names, views, own = st.names, st.graph.views, st.own
+    intr, cpose, _ = problem.unpack(sol.p)
     sds = bundle.covariance(problem, sol)
-    # figures
     res = sol.residuals
     per_obs = np.sqrt(np.mean(np.sum(res ** 2, axis=2), axis=1))
     view_errors: dict[str, dict[str, float]] = {v: {} for v in views}
@@ -148,19 +181,16 @@ def calibrate_cameras(corners: Mapping[str, Mapping[str, np.ndarray]],
     for ci, c in enumerate(names):
         mine = [k for k, (cj, _) in enumerate(obs) if cj == ci]
         K = np.array([[intr[ci, 0], 0, intr[ci, 2]], [0, intr[ci, 1], intr[ci, 3]], [0, 0, 1.0]])
-        n_d = max(len(own[c]["d"]), 1 + max([bundle.DIST_NAMES.index(f) for f in own[c]["model"]["fitted"]],
-                                            default=0))
         model = dict(own[c]["model"], own_rms=own[c]["rms"])
-        cam_fits.append(CameraFit(c, K, intr[ci, 4:4 + n_d], cv2.Rodrigues(cpose[ci, :3])[0], cpose[ci, 3:],
-                                  tuple(int(x) for x in image_sizes[c]), _rms(res[mine]), len(mine), model,
-                                  sds[ci] or None))
+        cam_fits.append(CameraFit(c, K, intr[ci, 4:9], cv2.Rodrigues(cpose[ci, :3])[0], cpose[ci, 3:],
+                                  own[c]["size"], _rms(res[mine]), len(mine), model, sds[ci] or None))
     rule = f"view RMS (every camera that saw it) > {outlier_factor:g} x median of the views"
     method = (f"per-camera OpenCV intrinsics, poses chained along the view graph from {names[0]},"
               f" one bundle adjustment ({'intrinsics refined' if intrinsics == 'refine' else 'intrinsics fixed'},"
               f" {loss} loss); {sol.nfev} evaluations: {sol.status}")
     return CameraCalibration(cam_fits, (int(pattern[0]), int(pattern[1])), float(square), unit, _rms(res),
-                             fits_v, rule, view_graph=graph.data(), skipped=dict(skipped or {}),
-                             initial={"rms": start_rms, "edges": edges,
+                             fits_v, rule, view_graph=st.graph.data(), skipped=dict(skipped or {}),
+                             initial={"rms": sol.start_rms, "edges": st.edges,
                                       "own_rms": {c: own[c]["rms"] for c in names}},
                              method=method,
                              created=datetime.now(timezone.utc).isoformat(timespec="seconds"),
