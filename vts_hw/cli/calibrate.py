@@ -258,8 +258,8 @@ def _from_cameras(config_path, calibration_path, volume, frames: int, quiet: boo
     """The mapping with the VTS side measured now by the rig's first two cameras."""
     import time
 
-    from vts_hw.vision.calibration_io import StereoCalibration
     from vts_hw.config import load_rig
+    from vts_hw.vision.multi_calibration_io import load_calibration
     from vts_hw.vision.detect import detect_jpeg
     from vts_hw.drivers.axis import AxisCamera
     from vts_hw.errors import ConfigError
@@ -273,7 +273,7 @@ def _from_cameras(config_path, calibration_path, volume, frames: int, quiet: boo
                           "rig config (`vts calibrate stereo`).")
     if len(rig.cameras) < 2:
         raise ConfigError("--from-cameras needs two cameras in the rig config.")
-    calib = StereoCalibration.load(path)
+    calib = load_calibration(path)      # a stereo or an N-camera file: its first two cameras
     pts = []
     for cfg in rig.cameras[:2]:
         with AxisCamera.from_config(cfg) as cam:

@@ -130,7 +130,6 @@ def _run_sim(out, seed, frames, vertical, axial, store_url, operator, as_json):
 
 def _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path, analyze_dir, frames,
              store_url, dry_run, operator, as_json):
-    from vts_hw.vision.calibration_io import StereoCalibration
     from vts_hw.config import load_rig
     from vts_hw.drivers.axis import AxisCamera
     from vts_hw.procedures.steps import (OperatorPositioner, StepSession, VolumeFolder, analyze_positions,
@@ -151,7 +150,8 @@ def _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path, an
     if not volumes:
         raise click.UsageError("give --volumes DIR: the folder the SPECT's reconstructions of the "
                                "positions are (or will be) exported to")
-    calib = StereoCalibration.load(cal_path)
+    from vts_hw.vision.multi_calibration_io import load_calibration
+    calib = load_calibration(cal_path)      # a stereo or an N-camera file: its first two cameras
     mapping = RigidTransform.load(map_path)
     spect = VolumeFolder(volumes)
     say = (lambda m: None) if as_json else (lambda m: click.echo(m, err=True))

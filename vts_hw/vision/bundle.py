@@ -161,10 +161,9 @@ def adjust(problem: Problem, p0: np.ndarray, loss: str = LOSS, f_scale: float | 
            max_nfev: int = 200) -> Solution:
     """Least squares over the free parameters from ``p0`` (see the module docstring).
 
-    ``f_scale``: the residual (px) beyond which the robust loss takes over; by default
-    ``F_SCALE_PX`` or 5 × the robust spread of the residuals at ``p0`` if that is larger, so that
-    corners found as well as a corner finder can find them are fitted as in plain least squares
-    and only a wrong corner or a wrong view is weighed down (decision 0030).
+    ``f_scale``: the residual (px) beyond which the robust loss takes over (default ``F_SCALE_PX``),
+    so that corners found as well as a corner finder can find them are fitted as in plain least
+    squares and only a wrong corner or a wrong view is weighed down (decision 0030).
     """
     p0 = np.asarray(p0, float).copy()
     free = problem._free
@@ -176,7 +175,7 @@ def adjust(problem: Problem, p0: np.ndarray, loss: str = LOSS, f_scale: float | 
 
     r0 = fun(p0[free])
     if f_scale is None:
-        f_scale = max(F_SCALE_PX, 5.0 * 1.4826 * float(np.median(np.abs(r0))))
+        f_scale = F_SCALE_PX
     def jac(x):
         p = p0.copy()
         p[free] = x

@@ -145,7 +145,10 @@ def adjust(st: Start, intrinsics: str = "refine", loss: str = bundle.LOSS):
                       *np.r_[np.ravel(st.own[c]["d"]), np.zeros(5)][:5]] for c in names])
     cpose = np.array([np.r_[cv2.Rodrigues(st.pose[c][0])[0].ravel(), st.pose[c][1]] for c in names])
     p0 = problem.pack(intr, cpose, vpose)
-    sol = bundle.adjust(problem, p0, loss=loss)
+    # the robust loss takes over beyond what a corner finder's noise can explain: 5 sigma of the
+    # worst camera's own fit (each camera's own views cannot be mispaired), at least F_SCALE_PX
+    noise = max(float(st.own[c]["rms"]) for c in names) / np.sqrt(2)
+    sol = bundle.adjust(problem, p0, loss=loss, f_scale=max(bundle.F_SCALE_PX, 5.0 * noise))
     sol.start_rms = _rms(problem.residuals(p0))
     return problem, sol, obs
 
