@@ -169,7 +169,7 @@ def test_n_camera_file_round_trip_and_readers(real_calib, tmp_path):
     assert back.baseline == pytest.approx(real_calib.baseline)
     cams = back.cameras()
     assert [c.name for c in cams] == ["left", "right"] and np.allclose(cams[0].R, np.eye(3))
-    # the readers of stereo files: K1 ... T and the two cameras named after the recording's
+    # the readers of stereo files: K1 ... T, its first two cameras named after the recording's
     assert np.allclose(back.stereo().T, back.T) and back.stereo().unit == "squares"
     mm = CameraCalibration(back.camera_fits, back.pattern, 25.0, "mm", back.rms, back.per_view, back.outlier_rule)
     assert set(cameras_from_calibration(mm, ["cam1", "cam2"])) == {"cam1", "cam2"}

@@ -79,22 +79,17 @@ class ProcessSettings:
 # ------------------------------------------------------------------ inputs
 def cameras_from_calibration(calib, names: Sequence[str] = ("cam1", "cam2")) -> dict[str, Camera]:
     """Two :class:`Camera` objects from a :class:`~vts_hw.vision.calibration_io.StereoCalibration`
-    (the VTS frame is camera 1's frame; T in the calibration's unit, mm for a real one), named
-    ``names``; from an N-camera calibration (``vts calibrate cameras``) every camera under its own
-    name when two or more of them are among ``names``, else its first two named ``names``."""
+    (the VTS frame is camera 1's frame; T in the calibration's unit, mm for a real one)."""
     if getattr(calib, "unit", "mm") != "mm":
         raise DataError(f"the stereo calibration's translation is in {calib.unit!r}, not mm: "
                         "calibrate with the checkerboard's square size to get tracks in mm")
-    if hasattr(calib, "camera_fits") and len(set(calib.names) & set(names)) >= 2:
-        return {c.name: c for c in calib.cameras()}
     from vts_hw.vision.calibration_io import stereo_cameras
     return {c.name: c for c in stereo_cameras(calib, names)}
 
 
 def _camera_dict(cameras, available: Sequence[str]) -> dict[str, Camera]:
     if hasattr(cameras, "K1") and hasattr(cameras, "R"):
-        named = hasattr(cameras, "camera_fits") and len(set(cameras.names) & set(available)) >= 2
-        return cameras_from_calibration(cameras, list(available) if named else list(available)[:2])
+        return cameras_from_calibration(cameras, list(available)[:2])
     if isinstance(cameras, dict):
         return {str(k): as_camera(v) for k, v in cameras.items()}
     cams = [as_camera(c) for c in cameras]
