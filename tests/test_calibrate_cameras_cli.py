@@ -122,3 +122,18 @@ def test_bad_inputs(boards, tmp_path):
 def test_help_says_how_images_are_named(tmp_path):
     r = vts("--help", cwd=tmp_path)
     assert "<camera>_<view>.jpg" in r.stdout and "one folder per" in r.stdout
+
+
+def test_stereo_and_n_camera_files_replace_and_compare_with_each_other(boards, tmp_path):
+    from vts_hw.vision.calibration_io import StereoCalibration
+
+    out = tmp_path / "calibration.json"
+    assert vts(boards, "-o", out, cwd=tmp_path, command="stereo").returncode == 0
+    r = vts(boards, "-o", out, cwd=tmp_path)                    # N cameras over a stereo file
+    assert r.returncode == 0, r.stderr
+    assert "(cameras matched by order (a stereo file)):" in r.stdout
+    assert isinstance(load_calibration(out), CameraCalibration)
+    r = vts(boards, "-o", out, cwd=tmp_path, command="stereo")  # and back
+    assert r.returncode == 0, r.stderr
+    assert f"Change from the previous calibration {out}" in r.stdout
+    assert isinstance(StereoCalibration.load(out), StereoCalibration)

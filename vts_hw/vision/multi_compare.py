@@ -52,6 +52,8 @@ def _warning(row: dict[str, Any], what: str, sd_name: str) -> str:
 def compare_cameras(new: CameraCalibration, old: CameraCalibration) -> dict[str, Any]:
     """This minus previous, per camera (see the module docstring)."""
     pairs, matched = _pairs(new, old)
+    if old.method == "stereo calibration file":     # named after the new cameras by from_stereo
+        matched = "order (a stereo file)"
     same_unit = new.unit == old.unit
     out: dict[str, Any] = {"matched_by": matched, "unit": new.unit if same_unit else None, "cameras": {}}
     judged = []
