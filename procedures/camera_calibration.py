@@ -21,7 +21,7 @@ import numpy as np
 
 from vts_hw.errors import DataError, UsageError
 from vts_hw.save_or_keep import Saved, save_or_keep
-from vts_hw.vision.calibration import _load_gray, find_corners
+from vts_hw.vision.calibration import find_corners, load_gray
 from vts_hw.vision.calibration_uncertainty import K_SIGMA
 from vts_hw.vision.multi_calibration import calibrate_cameras
 from vts_hw.vision.multi_calibration_io import CameraCalibration, load_calibration
@@ -99,7 +99,7 @@ def find_all_corners(images, pattern) -> tuple[dict, dict, dict]:
     for cam, views in images.items():
         corners[cam] = {}
         for view, src in views.items():
-            gray = _load_gray(src)
+            gray = load_gray(src)
             size = (gray.shape[1], gray.shape[0])
             if sizes.setdefault(cam, size) != size:
                 raise DataError(f"{src if isinstance(src, (str, Path)) else f'camera {cam}, view {view}'} is"

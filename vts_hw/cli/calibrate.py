@@ -140,8 +140,9 @@ def cameras(images: tuple[str, ...], sim: bool, n_cameras: int, sim_poses: int, 
                             (cam1_01.jpg, cam2_01.jpg, cam2_02.png ...)
       DIR                   a folder of such images, or a folder with one folder per
                             camera (DIR/cam1/01.jpg, DIR/cam2/01.jpg: named after the
-                            camera, each image after its view); leftNN/rightNN images
-                            are cameras 'left' and 'right'
+                            camera, each image after its view)
+      DIR/cam1 DIR/cam2     the camera folders themselves (images named by view)
+      leftNN/rightNN        stereo names: cameras 'left' and 'right'
 
     Each view must be seen by two or more cameras, and the views must connect every camera
     (no view needs all). Each camera's intrinsics come from OpenCV on its own views, the poses

@@ -6,8 +6,11 @@ cv2.findChessboardCorners, then cv2.cornerSubPix). `calibrate_stereo` calibrates
 extrinsics with the intrinsics held fixed (cv2.stereoCalibrateExtended with
 CALIB_FIX_INTRINSIC), flags views whose stereo RMS is more than `outlier_factor` × the median
 of the views, and gives every parameter's standard deviation
-(`vts_hw.vision.calibration_uncertainty.stereo_covariance`). Choices and measurements:
-docs/decisions/0012-stereo-calibration.md and 0024-calibration-uncertainty.md.
+(`vts_hw.vision.calibration_uncertainty.stereo_covariance`). These are the steps of the N-camera
+calibration for two cameras (`vts_hw.vision.multi_calibration`, its bundle adjustment run with
+the intrinsics fixed and a squared loss, which leaves OpenCV's stereo fit as it is). Choices and
+measurements: docs/decisions/0012-stereo-calibration.md, 0024-calibration-uncertainty.md and
+0030-n-camera-calibration.md.
 """
 
 from __future__ import annotations
@@ -259,6 +262,11 @@ def _to_gray(img: np.ndarray) -> np.ndarray:
     if img.ndim != 2:
         raise ValueError(f"expected a grey or colour image, got shape {img.shape}")
     return img
+
+
+def load_gray(src: ImageOrPath) -> np.ndarray:
+    """A grey image from a path (DataError naming it if it is not an image) or an array."""
+    return _load_gray(src)
 
 
 def _load_gray(src: ImageOrPath) -> np.ndarray:
