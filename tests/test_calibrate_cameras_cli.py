@@ -115,6 +115,9 @@ def test_bad_inputs(boards, tmp_path):
     assert "Traceback" not in r.stderr and r.stderr.count("\n") == 1
     assert vts(cwd=tmp_path).returncode == 2
     assert vts("--sim", boards, cwd=tmp_path).returncode == 2
+    r = vts(boards, "--reference", "cam9", "-o", tmp_path / "o.json", cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr == ("vts: the reference camera 'cam9' is not among the cameras of"
+                                              " the images: left, right.\n")
     r = vts(tmp_path / "missing", cwd=tmp_path)
     assert r.returncode == 3 and r.stderr == f"vts: {tmp_path / 'missing'}: no such file or directory.\n"
 

@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 
 import vts_hw
-from vts_hw.errors import DataError
+from vts_hw.errors import DataError, UsageError
 from vts_hw.vision import bundle
 from vts_hw.vision.calibration import OUTLIER_FACTOR, PATTERN, board_points, fit_camera
 from vts_hw.vision.multi_calibration_io import CameraCalibration, CameraFit, ViewFit
@@ -81,7 +81,8 @@ def start(corners: Mapping[str, Mapping[str, np.ndarray]], image_sizes: Mapping[
         raise DataError(f"only {len(names)} camera(s) given; a camera calibration needs at least two.")
     if reference is not None:
         if reference not in corners:
-            raise DataError(f"the reference camera {reference!r} is not among {', '.join(names)}.")
+            raise UsageError(f"the reference camera {reference!r} is not among the cameras of the images:"
+                             f" {', '.join(names)}.")
         names.remove(reference)
         names.insert(0, reference)
     graph = ViewGraph(names, {c: list(corners[c]) for c in names})
