@@ -1,28 +1,74 @@
-"""Open the rig's trigger generator from the config's ``trigger`` section."""
+"""Open the rig's devices from the config: the trigger generator of the ``trigger`` section."""
 
 from __future__ import annotations
 
+import importlib
+import time
 from pathlib import Path
 
-from vts_hw.config import TriggerConfig
-from vts_hw.drivers.trigger import TriggerGenerator, TriggerLog
+from pydantic import ValidationError
+
+from vts_hw.config import RigConfig, TriggerConfig, validation_message
+from vts_hw.drivers.trigger import TriggerBackend, TriggerGenerator, TriggerLog
 from vts_hw.errors import ConfigError
 
+# ---- trigger backends -------------------------------------------------------------------------------
+# A backend is one module that declares ``BACKEND = TriggerBackend(name, what, Settings, open)``
+# (its own pydantic settings model and its constructor) and one line here: its name in rig.yaml
+# (``trigger: backend:``) and where it is. A string is imported when the backend is first used,
+# so a rig without NI-DAQmx or VISA never imports them; a TriggerBackend may stand here directly.
 
-def open_trigger(cfg: TriggerConfig, log_path: str | Path | None = None, clock=None) -> TriggerGenerator:
-    """The backend the config names, logging to ``log_path`` (trigger.csv) when given."""
-    import time
+TRIGGER_BACKENDS: dict[str, TriggerBackend | str] = {
+    "triggerbox": "vts_hw.drivers.trigger_box:BACKEND",
+    "visa": "vts_hw.drivers.function_generator:BACKEND",
+    "daqmx": "vts_hw.drivers.daqmx:BACKEND",
+}
+
+
+def _source(rig: RigConfig | None) -> str:
+    src = getattr(rig, "_source", None) if rig is not None else None
+    return str(src) if src is not None else "rig.yaml"
+
+
+def trigger_backend(cfg: TriggerConfig, source: str = "rig.yaml") -> TriggerBackend | None:
+    """The registered backend ``cfg.backend`` names (None for ``none``); ConfigError naming
+    the file and the key for a name that is not registered."""
     if cfg.backend == "none":
+        return None
+    entry = TRIGGER_BACKENDS.get(cfg.backend)
+    if entry is None:
+        known = ", ".join(["none", *sorted(TRIGGER_BACKENDS)])
+        raise ConfigError(f"{source}: trigger.backend {cfg.backend!r} is not a trigger backend (known: {known})")
+    if isinstance(entry, str):
+        module, _, attr = entry.partition(":")
+        entry = getattr(importlib.import_module(module), attr or "BACKEND")
+    return entry
+
+
+def trigger_settings(cfg: TriggerConfig, source: str = "rig.yaml"):
+    """(backend, its settings): the section's own keys validated by the backend's model;
+    ConfigError naming the file and the key (``trigger.lines``) when they do not fit."""
+    backend = trigger_backend(cfg, source)
+    if backend is None:
+        if cfg.options:
+            raise ConfigError(f"{source}: trigger.{sorted(cfg.options)[0]} is not a known key "
+                              f"(trigger backend none has no settings)")
+        return None, None
+    try:
+        return backend, backend.settings.model_validate(cfg.options)
+    except ValidationError as exc:
+        raise ConfigError(validation_message(source, exc, ("trigger",))) from None
+
+
+def open_trigger(cfg: TriggerConfig | RigConfig, log_path: str | Path | None = None, clock=None,
+                 *, source: str | None = None) -> TriggerGenerator:
+    """The backend the config names (the rig's, or its ``trigger`` section), logging to
+    ``log_path`` (trigger.csv) when given."""
+    rig = cfg if isinstance(cfg, RigConfig) else None
+    t = rig.trigger if rig is not None else cfg
+    where = source or _source(rig)
+    if t.backend == "none":
         raise ConfigError("the rig config has no trigger generator (trigger: backend: none)")
+    backend, settings = trigger_settings(t, where)
     log = TriggerLog(log_path, clock=clock or time.time)
-    if cfg.backend == "triggerbox":
-        from vts_hw.drivers.trigger_box import TriggerBox
-        return TriggerBox(cfg.address, log=log)
-    if cfg.backend == "visa":
-        from vts_hw.drivers.function_generator import FunctionGenerator
-        return FunctionGenerator(cfg.address, sim=cfg.simulated, log=log)
-    if cfg.backend == "daqmx":
-        from vts_hw.drivers.daqmx import DaqmxTrigger
-        return DaqmxTrigger(cfg.address, lines=cfg.lines, fire_trigger=cfg.fire_trigger,
-                            fire_pulse_ms=cfg.pulse_ms, log=log)
-    raise ConfigError(f"unknown trigger backend {cfg.backend!r}")  # pragma: no cover (validated)
+    return backend.open(t, settings, log)

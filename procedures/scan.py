@@ -133,8 +133,11 @@ class ScanSession:
         if t.backend == "none":
             steps.append(Step("check trigger", "no trigger generator (trigger backend none): recording only"))
         else:
-            levels = f", levels {t.low_v:g}..{t.high_v:g} V where it has them" if t.backend != "triggerbox" else ""
-            steps += [Step("check trigger", f"check the {t.backend} trigger at {t.address}: status, stop a square wave "
+            from vts_hw.drivers.registry import trigger_backend
+            backend = trigger_backend(t, str(getattr(r, "_source", None) or "rig.yaml"))
+            levels = f", levels {t.low_v:g}..{t.high_v:g} V" if backend.levels else ""
+            steps += [Step("check trigger", f"check the {t.backend} trigger, {backend.what}, at {t.address}: "
+                                            f"status, stop a square wave "
                                             f"left running, configure {t.frequency_hz:g} Hz, duty {t.duty:g}{levels}"),
                       Step("map trigger clock", "map the trigger's device clock to host time (where it has one)")]
         steps += [

@@ -133,7 +133,7 @@ def test_session_with_the_trigger_box(box_rig, tmp_path):
 
 def test_session_with_the_function_generator(tmp_path):
     rig, cfg, _ = _rig("visa", tmp_path)
-    assert cfg.trigger.address == rig.function_generator.resource and not cfg.trigger.simulated
+    assert cfg.trigger.address == rig.function_generator.resource and not cfg.trigger.options.get("simulated", False)
     try:
         with rig.env():
             m = ScanSession(cfg, tmp_path / "scan", duration=3.0).run()
@@ -260,11 +260,18 @@ def test_cli_scan_with_duration(box_rig, tmp_path):
 def test_ctrl_c_stops_cleanly(plain_rig, tmp_path):
     rig, cfg, rig_yaml = plain_rig
     folder = tmp_path / "scan"
-    p = subprocess.Popen([*VTS, "scan", "start", "--json", "-o", str(folder)], env=_env(rig, rig_yaml),
+    # PYTHONFAULTHANDLER: a scan that does not stop is aborted and says where every thread was
+    p = subprocess.Popen([*VTS, "scan", "start", "--json", "-o", str(folder)],
+                         env={**_env(rig, rig_yaml), "PYTHONFAULTHANDLER": "1"},
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     _wait_frames(folder, 50, p)
     p.send_signal(signal.SIGINT)
-    out, err = p.communicate(timeout=30)
+    try:
+        out, err = p.communicate(timeout=90)    # a hang detector: stopping takes ~1 s when idle
+    except subprocess.TimeoutExpired:
+        p.send_signal(signal.SIGABRT)
+        out, err = p.communicate(timeout=30)
+        raise AssertionError(f"the scan did not stop within 90 s of Ctrl-C; its threads:\n{err[-6000:]}")
     assert p.returncode == 0, err
     m = json.loads(out)
     assert m["status"] == "complete" and m["scan"]["stop_reason"] == "interrupted"

@@ -21,12 +21,11 @@ def sync() -> None:
 
 def _calibration_files(config_path, calibration, mapping):
     """--calibration/--mapping, else the rig config's calibration section (relative paths from
-    the rig.yaml's folder). ConfigError when there is no stereo calibration at all."""
+    the rig.yaml's folder), and the rig's tolerance windows (None without a rig config).
+    ConfigError when there is no stereo calibration at all."""
     from vts_hw.config import load_rig
     from vts_hw.errors import ConfigError, VtsError
 
-    if calibration and mapping:
-        return Path(calibration), Path(mapping)
     why = ""
     rig = None
     try:
@@ -35,6 +34,9 @@ def _calibration_files(config_path, calibration, mapping):
         if config_path is not None:   # named explicitly: its error is the answer
             raise
         why = f" (no rig config: {exc})"
+    tolerances = rig.tolerances if rig is not None else None
+    if calibration and mapping:
+        return Path(calibration), Path(mapping), tolerances
     base = Path(rig._source).parent if rig is not None and rig._source is not None else Path(".")
 
     def from_rig(p):
@@ -48,7 +50,7 @@ def _calibration_files(config_path, calibration, mapping):
     if cal is None:
         raise ConfigError("no stereo calibration: give --calibration FILE or set calibration.stereo in "
                           f"rig.yaml{why}")
-    return cal, mp
+    return cal, mp, tolerances
 
 
 class _Progress:
@@ -106,7 +108,9 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
     failure record the SPECT left beside the files says why it recorded nothing.
 
     Exit status like the QA procedures: 0 OK (every event seen by both within 20 ms), 10
-    TOLERANCE (within 100 ms, or an event seen by one system only), 20 ACTION.
+    TOLERANCE (within 100 ms, or an event seen by one system only), 20 ACTION. The windows
+    are the tolerance table's sync_max_abs_dt_ms, sync_events_one_system and
+    sync_events_both (rig.yaml may override them).
     """
     from vts_hw.procedures.sync import CLOCK_SLACK_S, SyncAnalysis, check_session, export_trajectories
     from vts_hw.report.sync_html import write_sync_html
@@ -115,10 +119,10 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
     if not candidates:
         raise click.UsageError("give the scan's list-mode: --listmode FILE")
     check_session(session)           # a bad folder says so before anything else is read
-    cal, mp = _calibration_files(config_path, calibration, mapping)
+    cal, mp, tolerances = _calibration_files(config_path, calibration, mapping)
     a = SyncAnalysis(session, candidates, cal, mp, marker=marker, workers=workers, progress=_Progress(),
                      clock_slack_s=CLOCK_SLACK_S if clock_slack is None else clock_slack)
-    a.analyze()
+    a.analyze(tolerances=tolerances)
     data = a.results_data()
     png = None
     if out or plot_path:
