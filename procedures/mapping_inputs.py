@@ -18,7 +18,7 @@ from vts_hw.errors import ConfigError, DataError
 def stereo_calibration_for(rig, calibration_path=None):
     """The stereo calibration given, else the rig config's; ConfigError when there is none or
     the rig has fewer than two cameras."""
-    from vts_hw.vision.calibration_io import StereoCalibration
+    from vts_hw.vision.multi_calibration_io import load_calibration
 
     path = calibration_path or rig.calibration.stereo
     if path is None:
@@ -26,7 +26,7 @@ def stereo_calibration_for(rig, calibration_path=None):
                           "rig config (`vts calibrate stereo`).")
     if len(rig.cameras) < 2:
         raise ConfigError("--from-cameras needs two cameras in the rig config.")
-    return StereoCalibration.load(path)
+    return load_calibration(path)      # a stereo or an N-camera file: its first two cameras
 
 
 def mapping_from_cameras(cameras: Sequence, calibration, volume, frames: int = 10,

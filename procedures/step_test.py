@@ -39,7 +39,7 @@ class StepRun:
 
 def step_test_inputs(rig, calibration_path=None, mapping_path=None, volumes=None) -> StepInputs:
     """Calibration, mapping and SPECT volume folder; ConfigError (exit 2) naming what is missing."""
-    from vts_hw.vision.calibration_io import StereoCalibration
+    from vts_hw.vision.multi_calibration_io import load_calibration
     from vts_hw.vision.registration import RigidTransform
 
     cal_path = calibration_path or rig.calibration.stereo
@@ -55,7 +55,7 @@ def step_test_inputs(rig, calibration_path=None, mapping_path=None, volumes=None
     if not volumes:
         raise UsageError("give --volumes DIR: the folder the SPECT's reconstructions of the positions are "
                          "(or will be) exported to")
-    return StepInputs(StereoCalibration.load(cal_path), RigidTransform.load(map_path), VolumeFolder(volumes))
+    return StepInputs(load_calibration(cal_path), RigidTransform.load(map_path), VolumeFolder(volumes))
 
 
 def step_session(cameras: Sequence, inputs: StepInputs, out, plan: list[StepPosition], *, frames: int = 10,

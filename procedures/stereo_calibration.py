@@ -19,6 +19,7 @@ from typing import Any
 
 from vts_hw.vision.calibration import calibrate_stereo, find_pairs
 from vts_hw.vision.calibration_io import StereoCalibration
+from vts_hw.vision.multi_calibration_io import load_calibration
 from vts_hw.vision.calibration_uncertainty import K_SIGMA, compare_with_truth
 from vts_hw.errors import DataError, UsageError
 from vts_hw.save_or_keep import Saved, save_or_keep
@@ -71,7 +72,7 @@ def replaceable(out_path: Path, unit: str, force: bool = False) -> StereoCalibra
     if not out_path.exists():
         return None
     try:
-        old = StereoCalibration.load(out_path)
+        old = _as_stereo(load_calibration(out_path))
     except DataError:
         if force:
             return None
@@ -83,6 +84,11 @@ def replaceable(out_path: Path, unit: str, force: bool = False) -> StereoCalibra
                           " --square with the side of a square in mm, another -o, or --force to"
                           " replace it.")
     return old
+
+
+def _as_stereo(calib) -> StereoCalibration:
+    """A stereo calibration, or an N-camera one's first two cameras as one (to compare with)."""
+    return calib if isinstance(calib, StereoCalibration) else calib.stereo()
 
 
 @dataclass
@@ -137,7 +143,7 @@ def run(pairs, *, output, pattern=(9, 6), square: float = 1.0, unit: str = "squa
     prev_path, prev = None, None
     if previous is not None:
         prev_path = Path(previous)
-        prev = StereoCalibration.load(prev_path)
+        prev = _as_stereo(load_calibration(prev_path))
     elif current is not None:
         prev_path, prev = out_path, current
     calib = calibrate_stereo(pairs, pattern=pattern, square=square, unit=unit, names=names,

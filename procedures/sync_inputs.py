@@ -244,11 +244,12 @@ def _nothing_belongs(session: Path, span: SessionSpan | None, cands: list[_Candi
 # ----------------------------------------------------------------------------- calibration
 
 def load_calibration(calibration):
-    """A StereoCalibration (or cameras) as given, or read from a path."""
+    """A calibration (or cameras) as given, or read from a path: a stereo file (also one written
+    before N cameras) or an N-camera file (vts_hw.vision.multi_calibration_io.load_calibration)."""
     if calibration is None or not isinstance(calibration, (str, Path)):
         return calibration
-    from vts_hw.vision.calibration_io import StereoCalibration
-    return StereoCalibration.load(calibration)
+    from vts_hw.vision.multi_calibration_io import load_calibration as load
+    return load(calibration)
 
 
 def load_mapping(mapping):

@@ -99,3 +99,74 @@ def compare_mapping_with_truth(mapping, info: dict) -> dict:
             "translation_error_at_phantom_mm": float(at_phantom),
             "translation_error_at_origin_mm": d.translation_norm_mm,
             "true_transform": {"R": truth.R.tolist(), "t_mm": truth.t.tolist()}}
+
+
+# ------------------------------------------------------------------ N cameras
+FOV_BOX_MM = (250.0, 150.0, 250.0)   # half-sizes (X, Y, Z) of the box of points the 3D error is measured on
+FOV_POINTS = 400
+
+
+def true_cameras(scene, names=None, square_mm: float = 1.0, pattern=(9, 6)):
+    """The scene's true cameras as a CameraCalibration in mm, in the first camera's frame."""
+    from vts_hw.vision.multi_calibration_io import CameraCalibration, CameraFit
+
+    names = list(names or scene.camera_names)
+    ref = scene.cameras[names[0]]
+    fits = []
+    for n in names:
+        c = scene.cameras[n]
+        R = c.R @ ref.R.T
+        fits.append(CameraFit(n, c.K, c.dist, R, c.t - R @ ref.t, (int(c.width), int(c.height))))
+    return CameraCalibration(fits, tuple(pattern), float(square_mm), "mm", 0.0, [],
+                             "simulated rig: the scene's true cameras", method="truth")
+
+
+def fov_points(scene, names=None, seed: int = 99) -> np.ndarray:
+    """``FOV_POINTS`` points spread uniformly over a box about the field of view's centre
+    (± FOV_BOX_MM), in the first camera's frame (where the calibration puts them)."""
+    names = list(names or scene.camera_names)
+    ref = scene.cameras[names[0]]
+    world = np.random.default_rng(seed).uniform(-1, 1, (FOV_POINTS, 3)) * np.array(FOV_BOX_MM)
+    return ref.to_camera(world)
+
+
+def sim_camera_views(seed: int, n_cameras: int, per_pair: int, pattern=(9, 6), square_mm: float | None = None,
+                     scene=None):
+    """Checkerboard views for an N-camera calibration of the reference rig with ``n_cameras``
+    (or of ``scene``): the board held ``per_pair`` times towards each pair of cameras that
+    :func:`vts_hw.sim_devices.board_plan.plan_views` chooses, rendered (JPEG, noise) in those
+    two cameras. Returns (images: camera → view → grey image, truth: the true cameras,
+    info: the plan and the FOV points to score against)."""
+    from vts_hw.sim_devices import checkerboard as cb
+    from vts_hw.sim_devices.board_plan import plan_views
+    from vts_hw.sim_devices.scene import Scene
+
+    square_mm = cb.SQUARE_MM if square_mm is None else square_mm
+    scene = scene or Scene.reference(seed, n_cameras=n_cameras, start_epoch=0.0)
+    names = list(scene.camera_names)
+    plan = plan_views(scene, per_pair, seed, pattern=pattern, square_mm=square_mm)
+    images: dict[str, dict[str, np.ndarray]] = {n: {} for n in names}
+    k = 0
+    for (a, b), poses in plan:
+        for pose in poses:
+            k += 1
+            view = f"v{k:02d}"
+            for i, cam in enumerate((a, b)):
+                images[cam][view] = cb.decode(cb.render_board(scene, cam, pose, pattern, square_mm,
+                                                              seed=seed * 10007 + 2 * k + i))
+    info = {"seed": seed, "n_cameras": len(names), "pairs": [{"cameras": list(p), "views": len(v)} for p, v in plan],
+            "held_for": "each view is rendered in the two cameras it is held towards",
+            "fov_box_mm": list(FOV_BOX_MM), "fov_points": fov_points(scene, names)}
+    return images, true_cameras(scene, names, square_mm, pattern), info
+
+
+def cameras_against_truth(calib, truth, points) -> dict:
+    """The calibration's errors against the simulated truth (:func:`vts_hw.vision.multi_compare.against_truth`
+    on the FOV points ``info["fov_points"]`` of :func:`sim_camera_views`), with what the points were."""
+    from vts_hw.vision.multi_compare import against_truth
+
+    out = against_truth(calib, truth, points)
+    out["points_3d"]["where"] = (f"{FOV_POINTS} points uniform in ±{FOV_BOX_MM[0]:g} x ±{FOV_BOX_MM[1]:g} x"
+                                 f" ±{FOV_BOX_MM[2]:g} mm about the FOV centre, projected exactly by the true"
+                                 " cameras, triangulated with the calibrated ones in the reference camera's frame")
+    return out

@@ -1,8 +1,10 @@
-"""`vts calibrate ...`: stereo calibration of the two cameras from checkerboard images
-(`stereo`), and the VTS → SPECT mapping from the 7-sphere phantom (`spect`)."""
+"""`vts calibrate ...`: N cameras in one frame from checkerboard images (`cameras`), the stereo
+pair (`stereo`, the two-camera form), and the VTS → SPECT mapping from the 7-sphere phantom
+(`spect`)."""
 
 from __future__ import annotations
 
+import functools
 import re
 from pathlib import Path
 
@@ -89,6 +91,93 @@ def stereo(images: tuple[str, ...], sim: bool, sim_poses: int, sim_seed: int,
         pairs = proc.image_pairs(list(images))
     run = proc.run(pairs, output=output, pattern=pattern, square=square, unit=unit, names=names,
                    previous=previous, force=force, truth=truth, distortion=distortion)
+    if as_json:
+        echo_json(run.results_data())
+        for line in run.warnings:
+            click.echo(line, err=True)
+    else:
+        click.echo(run.results())
+    if run.saved.error is not None:
+        raise run.saved.error
+
+
+@calibrate.command()
+@click.argument("images", nargs=-1, type=click.Path())
+@click.option("--sim", is_flag=True, help="Calibrate from checkerboard views rendered by the simulator"
+              " (no IMAGES) and compare with the simulated cameras.")
+@click.option("--cameras", "n_cameras", type=click.IntRange(2, 8), default=4, show_default=True,
+              help="Cameras of the simulated room (with --sim).")
+@click.option("--sim-poses", type=click.IntRange(3, 50), default=8, show_default=True,
+              help="Simulated board poses held towards each chosen pair of cameras.")
+@click.option("--sim-seed", type=int, default=0, show_default=True,
+              help="Seed of the simulated rig, poses and noise.")
+@click.option("--pattern", default="9x6", show_default=True, callback=_pattern,
+              help="Inner corners of the board, COLSxROWS.")
+@click.option("--square", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Side of a square (default: the simulated board's 50 mm with --sim, else 1 square).")
+@click.option("--unit", type=click.Choice(["mm", "squares"]), default=None,
+              help="Unit of --square (default: mm when --square or --sim is given, else squares).")
+@click.option("--reference", default=None, help="The camera whose frame is the calibration's"
+              " (default: the first camera by name).")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), default="calibration.json",
+              show_default=True, help="Calibration file to write (compared with first if it exists).")
+@click.option("--previous", type=click.Path(dir_okay=False), default=None,
+              help="Calibration to compare with (default: the existing -o file, if any).")
+@click.option("--distortion", type=click.Choice(["auto", "k1", "opencv"]), default="auto",
+              show_default=True, help="Lens distortion fitted per camera (as for `stereo`).")
+@click.option("--force", is_flag=True, help="Replace the -o file even if it holds a calibration in mm"
+              " and this one is in squares, or is not a calibration file.")
+@json_option
+def cameras(images: tuple[str, ...], sim: bool, n_cameras: int, sim_poses: int, sim_seed: int,
+            pattern: tuple[int, int], square: float | None, unit: str | None, reference: str | None,
+            output: str, previous: str | None, distortion: str, force: bool, as_json: bool) -> None:
+    """Calibrate N >= 2 cameras into one frame (the reference camera's) from checkerboard IMAGES,
+    or from simulated views with --sim.
+
+    \b
+    IMAGES are files or folders:
+      <camera>_<view>.jpg   one image; the camera is the name before the last '_'
+                            (cam1_01.jpg, cam2_01.jpg, cam2_02.png ...)
+      DIR                   a folder of such images, or a folder with one folder per
+                            camera (DIR/cam1/01.jpg, DIR/cam2/01.jpg: named after the
+                            camera, each image after its view)
+      DIR/cam1 DIR/cam2     the camera folders themselves (images named by view)
+      leftNN/rightNN        stereo names: cameras 'left' and 'right'
+
+    Each view must be seen by two or more cameras, and the views must connect every camera
+    (no view needs all). Each camera's intrinsics come from OpenCV on its own views, the poses
+    are chained from the reference camera over shared views, then one bundle adjustment refines
+    everything. Prints per camera and per view RMS (outliers flagged), the view graph, and the
+    change from the previous calibration; writes -o. Exit 2: a usage mistake (e.g. squares over
+    a calibration in mm); 3: images or files that cannot be used — among them views that do
+    not connect the cameras, or a camera in no view shared with another — or -o could not be
+    written (the calibration is then saved in the current folder or $TMPDIR, said where).
+    """
+    from vts_hw.procedures import camera_calibration as proc
+
+    if sim and images:
+        raise click.UsageError("give either IMAGES or --sim, not both")
+    if not sim and not images:
+        raise click.UsageError("give the checkerboard IMAGES (or folders of them), or --sim")
+    if unit is None:
+        unit = "mm" if (square is not None or sim) else "squares"
+    if square is None:
+        square = _sim_square_mm() if (sim and unit == "mm") else 1.0
+    if unit == "squares" and square != 1.0:
+        raise click.UsageError("with --unit squares the square is 1; give --unit mm with --square")
+    proc.replaceable(Path(output), unit, force)  # before the work
+    truth = score = info = None
+    if sim:
+        from vts_hw.sim_devices.scenarios.calibration_views import cameras_against_truth, sim_camera_views
+
+        imgs, truth, info = sim_camera_views(sim_seed, n_cameras, sim_poses, pattern,
+                                             square if unit == "mm" else None)
+        truth = truth if unit == "mm" else None
+        score = functools.partial(cameras_against_truth, points=info.pop("fov_points"))
+    else:
+        imgs = proc.camera_images(list(images))
+    run = proc.run(imgs, output=output, pattern=pattern, square=square, unit=unit, previous=previous,
+                   force=force, distortion=distortion, reference=reference, truth=truth, score=score, sim=info)
     if as_json:
         echo_json(run.results_data())
         for line in run.warnings:

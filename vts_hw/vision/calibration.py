@@ -6,8 +6,11 @@ cv2.findChessboardCorners, then cv2.cornerSubPix). `calibrate_stereo` calibrates
 extrinsics with the intrinsics held fixed (cv2.stereoCalibrateExtended with
 CALIB_FIX_INTRINSIC), flags views whose stereo RMS is more than `outlier_factor` × the median
 of the views, and gives every parameter's standard deviation
-(`vts_hw.vision.calibration_uncertainty.stereo_covariance`). Choices and measurements:
-docs/decisions/0012-stereo-calibration.md and 0024-calibration-uncertainty.md.
+(`vts_hw.vision.calibration_uncertainty.stereo_covariance`). These are the steps of the N-camera
+calibration for two cameras (`vts_hw.vision.multi_calibration`, its bundle adjustment run with
+the intrinsics fixed and a squared loss, which leaves OpenCV's stereo fit as it is). Choices and
+measurements: docs/decisions/0012-stereo-calibration.md, 0024-calibration-uncertainty.md and
+0030-n-camera-calibration.md.
 """
 
 from __future__ import annotations
@@ -161,22 +164,30 @@ def calibrate_from_corners(
     obj = [board_points(pattern, square)] * n
     left = [np.asarray(c, np.float32).reshape(-1, 1, 2) for c in left_corners]
     right = [np.asarray(c, np.float32).reshape(-1, 1, 2) for c in right_corners]
-    rms_l, k1, d1, model1, poses1 = fit_camera(obj, left, image_size, distortion)
-    rms_r, k2, d2, model2, poses2 = fit_camera(obj, right, image_size, distortion)
-    out = cv2.stereoCalibrateExtended(
-        obj, left, right, k1, d1, k2, d2, image_size, None, None,
-        flags=cv2.CALIB_FIX_INTRINSIC,
-    )
-    # (retval, K1, d1, K2, d2, R, T, E, F, rvecs, tvecs, perViewErrors)
-    rms_s, k1, d1, k2, d2, rot, t = out[:7]
-    per_view = out[-1]
-    if len(out) >= 12:
-        rvecs, tvecs = out[9], out[10]
-    else:  # OpenCV < 4.6 gives no board poses: camera 1's, as PnP sees them
-        poses = [cv2.solvePnP(o, c, k1, d1)[1:] for o, c in zip(obj, left)]
-        rvecs, tvecs = [p[0] for p in poses], [p[1] for p in poses]
-    uncertainty = stereo_covariance(obj, left, right, (k1, d1, model1["fitted"], *poses1),
-                                    (k2, d2, model2["fitted"], *poses2), rot, t, rvecs, tvecs)
+    # The N-camera calibration's steps for two cameras (vts_hw.vision.multi_calibration): each
+    # camera's own fit, the pair's pose with the intrinsics fixed (cv2.stereoCalibrateExtended),
+    # and the bundle adjustment with the intrinsics fixed and a plain squared loss, which is the
+    # stereo fit itself (decision 0012: every figure traceable to one OpenCV fit).
+    from vts_hw.vision import multi_calibration as multi
+
+    keys = [f"{i:06d}" for i in range(n)]
+    st = multi.start({"camera1": dict(zip(keys, left)), "camera2": dict(zip(keys, right))},
+                     {"camera1": image_size, "camera2": image_size}, pattern, square, distortion)
+    problem, sol, obs = multi.adjust(st, intrinsics="fixed", loss="linear")
+    own1, own2 = st.own["camera1"], st.own["camera2"]
+    rms_l, k1, d1, model1 = own1["rms"], own1["K"], own1["d"], own1["model"]
+    rms_r, k2, d2, model2 = own2["rms"], own2["K"], own2["d"], own2["model"]
+    _, cpose, vpose = problem.unpack(sol.p)
+    rot, t = cv2.Rodrigues(cpose[1, :3])[0], cpose[1, 3:].reshape(3, 1)
+    rvecs = [v[:3].reshape(3, 1) for v in vpose]      # board poses in camera 1 = the frame
+    tvecs = [v[3:].reshape(3, 1) for v in vpose]
+    rms_s = multi._rms(sol.residuals)
+    err = np.sqrt(np.mean(np.sum(sol.residuals ** 2, axis=2), axis=1))
+    per_view = np.zeros((n, 2))
+    for e, (ci, vi) in zip(err, obs):
+        per_view[vi, ci] = e
+    uncertainty = stereo_covariance(obj, left, right, (k1, d1, model1["fitted"], own1["rvecs"], own1["tvecs"]),
+                                    (k2, d2, model2["fitted"], own2["rvecs"], own2["tvecs"]), rot, t, rvecs, tvecs)
     views = flag_outliers(
         [ViewError(name, float(e[0]), float(e[1])) for name, e in zip(names, per_view)],
         outlier_factor,
@@ -251,6 +262,11 @@ def _to_gray(img: np.ndarray) -> np.ndarray:
     if img.ndim != 2:
         raise ValueError(f"expected a grey or colour image, got shape {img.shape}")
     return img
+
+
+def load_gray(src: ImageOrPath) -> np.ndarray:
+    """A grey image from a path (DataError naming it if it is not an image) or an array."""
+    return _load_gray(src)
 
 
 def _load_gray(src: ImageOrPath) -> np.ndarray:

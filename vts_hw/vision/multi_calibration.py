@@ -1,0 +1,201 @@
+"""N ≥ 2 cameras calibrated into one frame from checkerboard views that each camera shares with
+another (no view needs every camera).
+
+:func:`calibrate_cameras` runs, in order:
+
+1. the view graph (:class:`~vts_hw.vision.view_graph.ViewGraph`): every camera must share a view
+   with another and the shared views must connect them all, else one sentence (DataError);
+2. each camera's intrinsics from its own views, with OpenCV (:func:`~vts_hw.vision.calibration.fit_camera`:
+   ``cv2.calibrateCamera`` and the lens model the data support);
+3. the cameras' poses chained from the reference camera along the spanning tree of the view
+   graph, each edge being the stereo calibration of its two cameras on the views they share
+   (:func:`pair_pose`: ``cv2.stereoCalibrateExtended`` with the intrinsics fixed — for two
+   cameras exactly the stereo calibration); each board pose from a camera that saw it;
+4. one bundle adjustment of all intrinsics, camera poses and board poses
+   (:func:`vts_hw.vision.bundle.adjust`, robust loss, sparse Jacobian).
+
+``intrinsics="fixed"`` keeps step 2's intrinsics in step 4 (with a plain squared loss that is
+OpenCV's stereo fit for two cameras: what ``vts calibrate stereo`` runs, decision 0012).
+Choices and figures: docs/decisions/0030-n-camera-calibration.md.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from typing import Any
+
+import cv2
+import numpy as np
+
+import vts_hw
+from vts_hw.errors import DataError, UsageError
+from vts_hw.vision import bundle
+from vts_hw.vision.calibration import OUTLIER_FACTOR, PATTERN, board_points, fit_camera
+from vts_hw.vision.multi_calibration_io import CameraCalibration, CameraFit, ViewFit
+from vts_hw.vision.view_graph import ViewGraph
+
+MIN_VIEWS = 3   # views a camera needs for its own intrinsics
+
+
+def pair_pose(obj, corners_a, corners_b, Ka, da, Kb, db, image_size):
+    """Camera b's pose from camera a's (x_b = R x_a + T) on views both saw, intrinsics fixed:
+    (rms, R, T, per-view errors (n × 2), board rvecs, tvecs in camera a)."""
+    out = cv2.stereoCalibrateExtended(obj, corners_a, corners_b, Ka, da, Kb, db, image_size, None, None,
+                                      flags=cv2.CALIB_FIX_INTRINSIC)
+    rms, R, T, per_view = out[0], out[5], out[6], out[-1]
+    if len(out) >= 12:
+        rvecs, tvecs = out[9], out[10]
+    else:  # pragma: no cover - OpenCV < 4.6
+        poses = [cv2.solvePnP(o, c, Ka, da)[1:] for o, c in zip(obj, corners_a)]
+        rvecs, tvecs = [p[0] for p in poses], [p[1] for p in poses]
+    return float(rms), R, np.ravel(T), np.asarray(per_view, float).reshape(-1, 2), rvecs, tvecs
+
+
+def _rms(res: np.ndarray) -> float:
+    """RMS of corner errors as OpenCV gives it: sqrt(mean of dx² + dy²) over the corners."""
+    return float(np.sqrt(np.mean(np.sum(np.asarray(res).reshape(-1, 2) ** 2, axis=1))))
+
+
+@dataclass
+class Start:
+    """Steps 1-3 done: the cameras (reference first), their own fits, the chained poses."""
+
+    names: list[str]
+    graph: ViewGraph
+    board: np.ndarray                       # the board's corners in its plane (n × 3)
+    pts: dict[str, dict[str, np.ndarray]]   # camera → view → corners (n × 1 × 2 float32)
+    own: dict[str, dict[str, Any]]          # camera → its own fit: rms, K, d, model, pose per view
+    pose: dict[str, tuple[np.ndarray, np.ndarray]]   # camera → (R, t) in the reference frame
+    board_in: dict[str, tuple[str, np.ndarray, np.ndarray]]  # view → (camera, rvec, tvec) to start from
+    edges: list[dict[str, Any]]
+
+
+def start(corners: Mapping[str, Mapping[str, np.ndarray]], image_sizes: Mapping[str, tuple[int, int]],
+          pattern: tuple[int, int] = PATTERN, square: float = 1.0, distortion: str = "auto",
+          reference: str | None = None) -> Start:
+    """Steps 1-3 of the module docstring."""
+    names = list(corners)
+    if len(names) < 2:
+        raise DataError(f"only {len(names)} camera(s) given; a camera calibration needs at least two.")
+    if reference is not None:
+        if reference not in corners:
+            raise UsageError(f"the reference camera {reference!r} is not among the cameras of the images:"
+                             f" {', '.join(names)}.")
+        names.remove(reference)
+        names.insert(0, reference)
+    graph = ViewGraph(names, {c: list(corners[c]) for c in names})
+    graph.check()
+    obj1 = board_points(pattern, square)
+    n_pts = len(obj1)
+    pts = {c: {v: np.asarray(x, np.float32).reshape(-1, 1, 2) for v, x in corners[c].items()} for c in names}
+    for c in names:
+        for v, x in pts[c].items():
+            if len(x) != n_pts:
+                raise DataError(f"camera {c}, view {v}: {len(x)} corners, the {pattern[0]}x{pattern[1]} board"
+                                f" has {n_pts}.")
+    own = {}
+    for c in names:
+        views = graph.seen[c]
+        if len(views) < MIN_VIEWS:
+            raise DataError(f"camera {c} found the board in only {len(views)} view(s); its intrinsics need"
+                            f" at least {MIN_VIEWS}.")
+        rms, K, d, model, (rvecs, tvecs) = fit_camera([obj1] * len(views), [pts[c][v] for v in views],
+                                                      tuple(image_sizes[c]), distortion)
+        own[c] = {"rms": rms, "K": K, "d": d, "model": model, "size": tuple(int(x) for x in image_sizes[c]),
+                  "pose": {v: (np.ravel(r), np.ravel(t)) for v, r, t in zip(views, rvecs, tvecs)},
+                  "rvecs": rvecs, "tvecs": tvecs}
+    pose = {names[0]: (np.eye(3), np.zeros(3))}
+    edges, board_in = [], {}
+    for a, b in graph.spanning_tree(names[0]):
+        shared = graph.shared(a, b)
+        rms, R, T, _, rvecs, tvecs = pair_pose([obj1] * len(shared), [pts[a][v] for v in shared],
+                                               [pts[b][v] for v in shared], own[a]["K"], own[a]["d"],
+                                               own[b]["K"], own[b]["d"], own[a]["size"])
+        Ra, ta = pose[a]
+        pose[b] = (R @ Ra, R @ ta + T)
+        for v, r, t in zip(shared, rvecs, tvecs):
+            board_in.setdefault(v, (a, np.ravel(r), np.ravel(t)))
+        edges.append({"from": a, "to": b, "shared_views": len(shared), "rms": rms,
+                      "distance": float(np.linalg.norm(T))})
+    for v in graph.views:            # a view on no edge of the tree: the pose its camera's own fit gave
+        if v not in board_in:
+            c = next(c for c in names if v in own[c]["pose"])
+            board_in[v] = (c, *own[c]["pose"][v])
+    return Start(names, graph, obj1, pts, own, pose, board_in, edges)
+
+
+def adjust(st: Start, intrinsics: str = "refine", loss: str = bundle.LOSS):
+    """Step 4: (problem, solution, observations as (camera index, view index))."""
+    if intrinsics not in ("refine", "fixed"):
+        raise ValueError(f"intrinsics must be 'refine' or 'fixed', not {intrinsics!r}")
+    names, views = st.names, st.graph.views
+    vpose = np.zeros((len(views), 6))
+    for i, v in enumerate(views):
+        c, r_bc, t_bc = st.board_in[v]
+        Rc, tc = st.pose[c]
+        Rw = Rc.T @ cv2.Rodrigues(r_bc)[0]
+        vpose[i] = np.r_[cv2.Rodrigues(Rw)[0].ravel(), Rc.T @ (t_bc - tc)]
+    obs = [(ci, vi) for vi, v in enumerate(views) for ci, c in enumerate(names) if v in st.pts[c]]
+    problem = bundle.Problem(st.board, [o[0] for o in obs], [o[1] for o in obs],
+                             np.stack([st.pts[names[ci]][views[vi]].reshape(-1, 2) for ci, vi in obs]),
+                             len(names), len(views), [st.own[c]["model"]["fitted"] for c in names],
+                             reference=0, fix_intrinsics=intrinsics == "fixed")
+    intr = np.array([[st.own[c]["K"][0, 0], st.own[c]["K"][1, 1], st.own[c]["K"][0, 2], st.own[c]["K"][1, 2],
+                      *np.r_[np.ravel(st.own[c]["d"]), np.zeros(5)][:5]] for c in names])
+    cpose = np.array([np.r_[cv2.Rodrigues(st.pose[c][0])[0].ravel(), st.pose[c][1]] for c in names])
+    p0 = problem.pack(intr, cpose, vpose)
+    # the robust loss takes over beyond what a corner finder's noise can explain: 5 sigma of the
+    # worst camera's own fit (each camera's own views cannot be mispaired), at least F_SCALE_PX
+    noise = max(float(st.own[c]["rms"]) for c in names) / np.sqrt(2)
+    sol = bundle.adjust(problem, p0, loss=loss, f_scale=max(bundle.F_SCALE_PX, 5.0 * noise))
+    sol.start_rms = _rms(problem.residuals(p0))
+    return problem, sol, obs
+
+
+def calibrate_cameras(corners: Mapping[str, Mapping[str, np.ndarray]],
+                      image_sizes: Mapping[str, tuple[int, int]],
+                      pattern: tuple[int, int] = PATTERN, square: float = 1.0, unit: str = "squares",
+                      distortion: str = "auto", reference: str | None = None,
+                      intrinsics: str = "refine", loss: str = bundle.LOSS,
+                      outlier_factor: float = OUTLIER_FACTOR,
+                      skipped: Mapping[str, str] | None = None) -> CameraCalibration:
+    """Calibrate the cameras of ``corners`` (camera → view name → the board's inner corners found
+    in that camera's image of that view) into the frame of ``reference`` (default the first
+    camera). ``image_sizes``: camera → (width, height). ``intrinsics``: "refine" (in the bundle
+    adjustment) or "fixed" (as each camera's own fit gave them); ``loss``: SciPy's robust loss
+    ("cauchy", "soft_l1", "huber") or "linear". See the module docstring."""
+    if unit == "squares" and square != 1.0:
+        raise ValueError("with unit 'squares' the square size must be 1")
+    st = start(corners, image_sizes, pattern, square, distortion, reference)
+    problem, sol, obs = adjust(st, intrinsics, loss)
+    names, views, own = st.names, st.graph.views, st.own
+    intr, cpose, _ = problem.unpack(sol.p)
+    sds = bundle.covariance(problem, sol)
+    res = sol.residuals
+    per_obs = np.sqrt(np.mean(np.sum(res ** 2, axis=2), axis=1))
+    view_errors: dict[str, dict[str, float]] = {v: {} for v in views}
+    for k, (ci, vi) in enumerate(obs):
+        view_errors[views[vi]][names[ci]] = float(per_obs[k])
+    fits_v = [ViewFit(v, view_errors[v]) for v in views]
+    limit = outlier_factor * float(np.median([f.rms for f in fits_v]))
+    fits_v = [ViewFit(f.name, f.errors, f.rms > limit) for f in fits_v]
+    cam_fits = []
+    for ci, c in enumerate(names):
+        mine = [k for k, (cj, _) in enumerate(obs) if cj == ci]
+        K = np.array([[intr[ci, 0], 0, intr[ci, 2]], [0, intr[ci, 1], intr[ci, 3]], [0, 0, 1.0]])
+        model = dict(own[c]["model"], own_rms=own[c]["rms"])
+        cam_fits.append(CameraFit(c, K, intr[ci, 4:9], cv2.Rodrigues(cpose[ci, :3])[0], cpose[ci, 3:],
+                                  own[c]["size"], _rms(res[mine]), len(mine), model, sds[ci] or None))
+    rule = f"view RMS (every camera that saw it) > {outlier_factor:g} x median of the views"
+    method = (f"per-camera OpenCV intrinsics, poses chained along the view graph from {names[0]},"
+              f" one bundle adjustment ({'intrinsics refined' if intrinsics == 'refine' else 'intrinsics fixed'},"
+              f" {loss} loss); {sol.nfev} evaluations: {sol.status}")
+    return CameraCalibration(cam_fits, (int(pattern[0]), int(pattern[1])), float(square), unit, _rms(res),
+                             fits_v, rule, view_graph=st.graph.data(), skipped=dict(skipped or {}),
+                             initial={"rms": sol.start_rms, "edges": st.edges,
+                                      "own_rms": {c: own[c]["rms"] for c in names}},
+                             method=method,
+                             created=datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                             software=vts_hw.__version__)

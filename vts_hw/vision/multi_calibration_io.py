@@ -1,0 +1,363 @@
+"""The N-camera calibration record and its file; one reader for every calibration file.
+
+:class:`CameraCalibration` holds N ≥ 2 cameras in one frame, the reference camera's (its R is the
+identity, its t zero), so that a two-camera file means what a stereo file means (the VTS frame
+is camera 1's). It is what :func:`vts_hw.vision.multi_calibration.calibrate_cameras` returns and
+what ``vts calibrate cameras`` writes (format ``vts-hw camera calibration``). For the readers of
+stereo files it also answers ``K1, d1, K2, d2, R, T, baseline`` (its first two cameras) and
+``cameras()``. :func:`load_calibration` reads either form: a stereo file written before N
+cameras existed loads as the :class:`~vts_hw.vision.calibration_io.StereoCalibration` it is.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from vts_hw.errors import DataError
+from vts_hw.files import write_atomic
+from vts_hw.vision.calibration_io import FORMAT as STEREO_FORMAT
+from vts_hw.vision.calibration_io import StereoCalibration, rotation_angle_deg
+
+FORMAT = "vts-hw camera calibration"
+FORMAT_VERSION = 1
+UNITS = ("squares", "mm")
+
+
+@dataclass(eq=False)
+class CameraFit:
+    """One calibrated camera: intrinsics ``K``, distortion ``d`` (OpenCV order), pose ``R``, ``t``
+    (x_cam = R x + t, x in the calibration's frame, t in its unit), its RMS (px) over the views it saw."""
+
+    name: str
+    K: np.ndarray
+    d: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    image_size: tuple[int, int]
+    rms: float = 0.0
+    n_views: int = 0
+    distortion_model: dict[str, Any] = field(default_factory=dict)
+    sd: dict[str, float] | None = None      # standard deviations of the fitted parameters
+
+    def __post_init__(self) -> None:
+        self.K = np.asarray(self.K, float).reshape(3, 3)
+        self.d = np.asarray(self.d, float).ravel()
+        self.R = np.asarray(self.R, float).reshape(3, 3)
+        self.t = np.asarray(self.t, float).ravel()
+
+    @property
+    def dist(self) -> np.ndarray:
+        return self.d
+
+    @property
+    def center(self) -> np.ndarray:
+        return -self.R.T @ self.t
+
+    def project(self, points) -> np.ndarray:
+        """Pixels (n × 2) of points (n × 3) in the calibration's frame, distortion included."""
+        uv, _ = cv2.projectPoints(np.asarray(points, float).reshape(-1, 1, 3), cv2.Rodrigues(self.R)[0],
+                                  self.t, self.K, self.d)
+        return uv.reshape(-1, 2)
+
+    def data(self) -> dict[str, Any]:
+        out = {"name": self.name, "image_size": list(self.image_size), "K": self.K.tolist(),
+               "d": self.d.tolist(), "R": self.R.tolist(), "t": self.t.tolist(), "rms": float(self.rms),
+               "views": int(self.n_views), "distortion_model": dict(self.distortion_model)}
+        if self.sd is not None:
+            out["sd"] = dict(self.sd)
+        return out
+
+
+@dataclass(frozen=True)
+class ViewFit:
+    """RMS (px) of one checkerboard view in each camera that saw it."""
+
+    name: str
+    errors: dict[str, float]
+    outlier: bool = False
+
+    @property
+    def rms(self) -> float:
+        return math.sqrt(sum(e * e for e in self.errors.values()) / len(self.errors))
+
+
+@dataclass(eq=False)
+class CameraCalibration:
+    """N cameras in the reference camera's frame (see the module docstring)."""
+
+    camera_fits: list[CameraFit]
+    pattern: tuple[int, int]
+    square: float
+    unit: str
+    rms: float
+    per_view: list[ViewFit]
+    outlier_rule: str
+    view_graph: dict[str, Any] = field(default_factory=dict)
+    skipped: dict[str, str] = field(default_factory=dict)
+    initial: dict[str, Any] = field(default_factory=dict)     # figures before the bundle adjustment
+    method: str = ""
+    created: str = ""
+    software: str = ""
+
+    def __post_init__(self) -> None:
+        if self.unit not in UNITS:
+            raise ValueError(f"unit must be one of {UNITS}, not {self.unit!r}")
+        if len(self.camera_fits) < 2:
+            raise ValueError("a camera calibration needs at least two cameras")
+
+    # ---- what the readers of stereo files use ------------------------------------------
+    @property
+    def names(self) -> list[str]:
+        return [c.name for c in self.camera_fits]
+
+    @property
+    def reference(self) -> str:
+        return self.camera_fits[0].name
+
+    def camera(self, name: str) -> CameraFit:
+        for c in self.camera_fits:
+            if c.name == name:
+                return c
+        raise KeyError(name)
+
+    @property
+    def K1(self) -> np.ndarray:
+        return self.camera_fits[0].K
+
+    @property
+    def d1(self) -> np.ndarray:
+        return self.camera_fits[0].d
+
+    @property
+    def K2(self) -> np.ndarray:
+        return self.camera_fits[1].K
+
+    @property
+    def d2(self) -> np.ndarray:
+        return self.camera_fits[1].d
+
+    @property
+    def R(self) -> np.ndarray:
+        """Camera 2 from camera 1 (x2 = R x1 + T), as in a stereo file."""
+        a, b = self.camera_fits[:2]
+        return b.R @ a.R.T
+
+    @property
+    def T(self) -> np.ndarray:
+        a, b = self.camera_fits[:2]
+        return b.t - self.R @ a.t
+
+    @property
+    def baseline(self) -> float:
+        return float(np.linalg.norm(self.T))
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        return self.camera_fits[0].image_size
+
+    @property
+    def uncertainty(self):
+        return None  # the stereo form's 'uncertainty'; here each camera carries its own 'sd'
+
+    @property
+    def outliers(self) -> list[str]:
+        return [v.name for v in self.per_view if v.outlier]
+
+    def cameras(self, names=None) -> list:
+        """Every camera as a :class:`vts_hw.vision.triangulate.Camera` in the calibration's frame,
+        named as calibrated (or by ``names``, in order)."""
+        from vts_hw.vision.triangulate import Camera
+        names = list(names) if names is not None else self.names
+        return [Camera(c.K, c.d, c.R, c.t, n) for c, n in zip(self.camera_fits, names)]
+
+    def stereo(self, a: str | None = None, b: str | None = None) -> StereoCalibration:
+        """Two of the cameras as a stereo calibration (camera ``a``'s frame), for tools that need one."""
+        ca = self.camera(a) if a else self.camera_fits[0]
+        cb = self.camera(b) if b else self.camera_fits[1]
+        R = cb.R @ ca.R.T
+        return StereoCalibration(K1=ca.K, d1=ca.d, K2=cb.K, d2=cb.d, R=R, T=cb.t - R @ ca.t,
+                                 image_size=ca.image_size, pattern=self.pattern, square=self.square,
+                                 unit=self.unit, rms_left=ca.rms, rms_right=cb.rms, rms_stereo=self.rms,
+                                 per_view=[], outlier_rule=self.outlier_rule, created=self.created,
+                                 software=self.software)
+
+    @classmethod
+    def from_stereo(cls, calib: StereoCalibration, names=("cam1", "cam2")) -> CameraCalibration:
+        """A stereo calibration as the two-camera form (camera 1's frame, as it was)."""
+        a, b = names[:2]
+        model = calib.distortion_model or {}
+        unc = calib.uncertainty or {}
+        fits = [CameraFit(a, calib.K1, calib.d1, np.eye(3), np.zeros(3), calib.image_size, calib.rms_left,
+                          len(calib.per_view), model.get("camera1", {}), unc.get("camera1")),
+                CameraFit(b, calib.K2, calib.d2, calib.R, calib.T, calib.image_size, calib.rms_right,
+                          len(calib.per_view), model.get("camera2", {}), unc.get("camera2"))]
+        views = [ViewFit(v.name, {a: v.left, b: v.right}, v.outlier) for v in calib.per_view]
+        return cls(fits, calib.pattern, calib.square, calib.unit, calib.rms_stereo, views,
+                   calib.outlier_rule, skipped=dict(calib.skipped), method="stereo calibration file",
+                   created=calib.created, software=calib.software)
+
+    # ---- reporting --------------------------------------------------------------------
+    def results_data(self) -> dict[str, Any]:
+        return {
+            "format": FORMAT, "format_version": FORMAT_VERSION,
+            "frame": f"camera {self.reference}'s (x_cam = R x + t)",
+            "reference": self.reference, "n_cameras": len(self.camera_fits),
+            "pattern": list(self.pattern), "square": float(self.square), "unit": self.unit,
+            "cameras": [c.data() for c in self.camera_fits],
+            "rms": float(self.rms),
+            "per_view": [{"name": v.name, "errors": dict(v.errors), "rms": v.rms, "outlier": bool(v.outlier)}
+                         for v in self.per_view],
+            "outlier_rule": self.outlier_rule, "outliers": self.outliers,
+            "view_graph": self.view_graph, "skipped": dict(self.skipped),
+            "initial": dict(self.initial), "method": self.method,
+            "created": self.created, "software": self.software,
+        }
+
+    def results(self) -> str:
+        u = self.unit
+        lines = [f"Camera calibration: {len(self.camera_fits)} cameras, {len(self.per_view)} views"
+                 f" (pattern {self.pattern[0]}x{self.pattern[1]}, square {self.square:g} {u}; frame of"
+                 f" {self.reference}; {self.created}, vts-hw {self.software})",
+                 f"  RMS reprojection error {self.rms:.3f} px over every corner"
+                 + (f" (after the pairwise start: {self.initial['rms']:.3f} px)" if "rms" in self.initial else "")]
+        for c in self.camera_fits:
+            sd = c.sd or {}
+            pm = {n: (f" ± {sd[n]:.2g}" if n in sd else "") for n in ("fx", "fy", "cx", "cy", "k1")}
+            pos = c.center
+            lines.append(f"  {c.name}: RMS {c.rms:.3f} px over {c.n_views} views; fx {c.K[0, 0]:.2f}{pm['fx']}"
+                         f" fy {c.K[1, 1]:.2f}{pm['fy']} cx {c.K[0, 2]:.2f}{pm['cx']} cy {c.K[1, 2]:.2f}{pm['cy']}"
+                         f" px, k1 {c.d[0]:+.4f}{pm['k1']}; at ({pos[0]:.4g}, {pos[1]:.4g}, {pos[2]:.4g}) {u},"
+                         f" turned {rotation_angle_deg(c.R):.3f} deg from {self.reference}")
+        for v in self.per_view:
+            errs = " ".join(f"{k} {e:.3f}" for k, e in v.errors.items())
+            lines.append(f"    view {v.name}: {errs} px" + ("  OUTLIER" if v.outlier else ""))
+        lines.append(f"  outlier rule: {self.outlier_rule}")
+        for name, why in self.skipped.items():
+            lines.append(f"  skipped {name}: {why}")
+        return "\n".join(lines)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, CameraCalibration):
+            return NotImplemented
+        return self.results_data() == other.results_data()
+
+    # ---- file ------------------------------------------------------------------------
+    def text(self) -> str:
+        return json.dumps(self.results_data(), indent=2) + "\n"
+
+    def save(self, path: str | Path) -> Path:
+        return write_atomic(path, self.text())
+
+    @classmethod
+    def load(cls, path: str | Path) -> CameraCalibration:
+        """Either file form as a CameraCalibration (a stereo file's cameras named cam1, cam2)."""
+        calib = load_calibration(path)
+        return calib if isinstance(calib, CameraCalibration) else cls.from_stereo(calib)
+
+
+def load_calibration(path: str | Path) -> StereoCalibration | CameraCalibration:
+    """The calibration in ``path``, in the form it was written: a stereo file (also one written
+    before N cameras) as a StereoCalibration, an N-camera file as a CameraCalibration. DataError
+    naming the file (and the key) for anything else."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"{path}: cannot read the calibration file ({exc}).") from exc
+    except json.JSONDecodeError as exc:
+        raise DataError(f"{path}: not a JSON calibration file ({exc.msg}, line {exc.lineno}).") from None
+    except (ValueError, RecursionError):
+        raise DataError(f"{path}: not a JSON calibration file (too deep or too long a number).") from None
+    kind = data.get("format") if isinstance(data, dict) else None
+    if kind == STEREO_FORMAT:
+        return StereoCalibration.load(path)
+    if kind != FORMAT:
+        raise DataError(f"{path}: key 'format' is neither {FORMAT!r} nor {STEREO_FORMAT!r}, so this is"
+                        " not a calibration file.")
+    return _from_data(path, data)
+
+
+def _from_data(path: Path, data: dict[str, Any]) -> CameraCalibration:
+    def need(obj, key, where=""):
+        if not isinstance(obj, dict) or key not in obj:
+            raise DataError(f"{path}: key '{where}{key}' is missing.")
+        return obj[key]
+
+    def number(value, key):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not abs(value) < 1e300:
+            raise DataError(f"{path}: key '{key}' must be a finite number.")
+        return float(value)
+
+    def matrix(value, key, shape):
+        try:
+            arr = np.asarray(value, dtype=float)
+        except (TypeError, ValueError, OverflowError):
+            raise DataError(f"{path}: key '{key}' must be a list of numbers.") from None
+        if (shape is not None and arr.shape != shape) or arr.size == 0 or not np.all(np.isfinite(arr)):
+            raise DataError(f"{path}: key '{key}' must be a {' × '.join(map(str, shape or ('n',)))}"
+                            " list of finite numbers.")
+        return arr
+
+    def pair(value, key):
+        if (not isinstance(value, list) or len(value) != 2
+                or not all(isinstance(x, int) and not isinstance(x, bool) and x > 0 for x in value)):
+            raise DataError(f"{path}: key '{key}' must be two positive integers.")
+        return int(value[0]), int(value[1])
+
+    unit = need(data, "unit")
+    if unit not in UNITS:
+        raise DataError(f"{path}: key 'unit' must be one of {', '.join(UNITS)} (got {unit!r}).")
+    cams = need(data, "cameras")
+    if not isinstance(cams, list) or len(cams) < 2:
+        raise DataError(f"{path}: key 'cameras' must list at least two cameras.")
+    fits = []
+    for i, c in enumerate(cams):
+        w = f"cameras[{i}]."
+        name = need(c, "name", w)
+        if not isinstance(name, str) or not name:
+            raise DataError(f"{path}: key '{w}name' must be a camera name.")
+        sd = c.get("sd")
+        if sd is not None and (not isinstance(sd, dict) or not all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and x >= 0
+                for x in sd.values())):
+            raise DataError(f"{path}: key '{w}sd' must hold finite, non-negative standard deviations.")
+        model = c.get("distortion_model", {})
+        if not isinstance(model, dict):
+            raise DataError(f"{path}: key '{w}distortion_model' must be a mapping.")
+        fits.append(CameraFit(name, matrix(need(c, "K", w), w + "K", (3, 3)), matrix(need(c, "d", w), w + "d", None),
+                              matrix(need(c, "R", w), w + "R", (3, 3)), matrix(need(c, "t", w), w + "t", (3,)),
+                              pair(need(c, "image_size", w), w + "image_size"),
+                              number(need(c, "rms", w), w + "rms"), int(number(c.get("views", 0), w + "views")),
+                              model, sd))
+    if len({f.name for f in fits}) != len(fits):
+        raise DataError(f"{path}: key 'cameras' names a camera twice.")
+    views = need(data, "per_view")
+    if not isinstance(views, list):
+        raise DataError(f"{path}: key 'per_view' must be a list of views.")
+    per_view = []
+    for i, v in enumerate(views):
+        errs = need(v, "errors", f"per_view[{i}].")
+        if not isinstance(v.get("name"), str) or not isinstance(errs, dict) or not errs:
+            raise DataError(f"{path}: key 'per_view[{i}]' must have a 'name' and 'errors' per camera.")
+        per_view.append(ViewFit(v["name"], {k: number(e, f"per_view[{i}].errors.{k}") for k, e in errs.items()},
+                                bool(v.get("outlier", False))))
+    texts = {}
+    for key in ("outlier_rule", "created", "software"):
+        texts[key] = need(data, key)
+        if not isinstance(texts[key], str):
+            raise DataError(f"{path}: key '{key}' must be a string.")
+    skipped = data.get("skipped", {})
+    if not isinstance(skipped, dict):
+        raise DataError(f"{path}: key 'skipped' must map views to reasons.")
+    return CameraCalibration(fits, pair(need(data, "pattern"), "pattern"), number(need(data, "square"), "square"),
+                             unit, number(need(data, "rms"), "rms"), per_view, texts["outlier_rule"],
+                             view_graph=data.get("view_graph") or {}, skipped=dict(skipped),
+                             initial=data.get("initial") or {}, method=str(data.get("method", "")),
+                             created=texts["created"], software=texts["software"])
