@@ -68,8 +68,16 @@ def test_files_json(tmp_path, session):
     out = tmp_path / "m.json"
     r = vts("--vts", pts, "--volume", volume, "-o", out, "--json", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
-    assert json.loads(r.stdout)["fre_mm"] < 2.0
+    data = json.loads(r.stdout)
+    assert data["fre_mm"] < 2.0 and data["state"] == "OK"
     RigidTransform.load(out)
+    # stored as a run, the one way every QA result is (no rig config: the per-user store)
+    from vts_hw.store import ResultsStore
+    with ResultsStore(None) as store:
+        run = store.run(data["stored"]["run_id"])
+        ms = {m.metric: m.value for m in store.measurements(run_id=run.id)}
+    assert run.procedure == "spect_mapping" and run.status == "OK"
+    assert ms == {"mapping_fre_mm": pytest.approx(data["fre_mm"]), "mapping_tre_rms_mm": pytest.approx(data["tre_rms_mm"])}
 
 
 @pytest.mark.parametrize("text", ["a,b,c\n1,2,3\n", "x,y,z\n1,2,oops\n", ""])

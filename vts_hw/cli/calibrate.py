@@ -6,13 +6,14 @@ from __future__ import annotations
 
 import functools
 import re
+import sys
 from pathlib import Path
 
 import click
 
 from vts_hw.errors import DataError
 from vts_hw.cli import cli
-from vts_hw.cli.common import config_option, echo_json, json_option
+from vts_hw.cli.common import config_option, echo_json, json_option, rig_if_any, say_stored, store_qa_result
 from vts_hw.procedures.mapping_inputs import read_points  # noqa: F401  (the points file, as `--vts` reads it)
 
 
@@ -276,11 +277,16 @@ def spect(vts_path: str | None, volume: str | None, from_cameras: bool, calibrat
             raise DataError(f"{volume}: no such file or directory.")
         mapping = SpectMapping.from_volume(points, volume).analyze()
     compare = compare_mapping_with_truth(mapping, info) if info is not None else None
+    rig = None if sim else rig_if_any(config_path)
+    mapping.tolerances = rig.tolerances if rig is not None else None   # the rig's windows judge it
     # the transform file as RigidTransform.save writes it, but kept if -o cannot be written
     saved = save_or_keep(out_path, json.dumps(mapping.transform.to_dict(), indent=2) + "\n", "mapping")
 
+    data = mapping.results_data()
+    stored = None
+    if not sim:   # a simulated session is a demonstration, not the room's history
+        stored = store_qa_result(rig, mapping, data, notes=f"saved to {saved.path}")
     if as_json:
-        data = mapping.results_data()
         data.update(saved.data())
         if info is not None:
             data["sim"] = {k: v for k, v in info.items() if k != "truth"}
@@ -289,6 +295,8 @@ def spect(vts_path: str | None, volume: str | None, from_cameras: bool, calibrat
         echo_json(data)
     else:
         _spect_text(mapping, info, compare, saved)
+    if stored is not None and say_stored(stored, mapping, "mapping", as_json) and saved.error is None:
+        sys.exit(3)
     if saved.error is not None:
         raise saved.error
 

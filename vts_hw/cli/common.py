@@ -57,3 +57,39 @@ def fmt_time(t: float | None) -> str:
         return "-"
     import datetime as _dt
     return _dt.datetime.fromtimestamp(t, _dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S.%f")[:-4] + "Z"
+
+
+def rig_if_any(config_path) -> RigConfig | None:
+    """The rig config when there is one (--config, $VTS_CONFIG, ./rig.yaml); None when none was
+    named and none is found. A config named explicitly that cannot be read is its error."""
+    from vts_hw.errors import VtsError
+    try:
+        return load_rig(config_path)
+    except VtsError:
+        if config_path is not None:
+            raise
+        return None
+
+
+def store_qa_result(rig: RigConfig | None, result, data: dict | None = None, **kw):
+    """Store a QA result the one way (vts_hw.store.results) in the rig's store (the per-user
+    one without a rig config); ``data`` (the --json output) gets a ``stored`` key."""
+    from vts_hw.store.results import store_result
+    stored = store_result(rig.results.url if rig is not None else None, result,
+                          rig=rig.rig if rig is not None else "",
+                          config_digest=rig.digest if rig is not None else "", **kw)
+    if data is not None:
+        data["stored"] = {"run_id": stored.run_id, "unsaved_file": str(stored.unsaved) if stored.unsaved else None}
+    return stored
+
+
+def say_stored(stored, result, what: str, as_json: bool) -> int:
+    """Say where a stored result went (stdout, or stderr under --json); a result the store did
+    not take is one sentence on stderr naming the fallback file, and exit status 3."""
+    if stored.ok:
+        click.echo(f"stored: run {stored.run_id} ({result.procedure}) in the results store", err=as_json)
+        return 0
+    where = (f"its figures are above and in {stored.unsaved} (`vts qa import {stored.unsaved}` stores them "
+             "later)" if stored.unsaved else "its figures are above only: no fallback file could be written")
+    click.echo(f"vts: the {what} was NOT stored: {stored.error}; {where}", err=True)
+    return 3

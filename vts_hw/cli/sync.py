@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from vts_hw.cli import cli
-from vts_hw.cli.common import config_option, echo_json, json_option
+from vts_hw.cli.common import config_option, echo_json, json_option, say_stored, store_qa_result
 
 EXIT_CODES = {"OK": 0, "TOLERANCE": 10, "ACTION": 20}   # as the QA procedures (procedures/daily.py)
 
@@ -115,7 +115,6 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
     """
     from vts_hw.procedures.sync import CLOCK_SLACK_S, SyncAnalysis, check_session, export_trajectories
     from vts_hw.report.sync_html import write_sync_html
-    from vts_hw.store.results import store_result
 
     candidates = [*listmode, *more]
     if not candidates:
@@ -135,11 +134,7 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
     if export_dir:
         csv_path, json_path = export_trajectories(a.tracks, a.gating, export_dir, mp)
         data["export"] = [str(csv_path), str(json_path)]
-    stored = store_result(rig.results.url if rig is not None else None, a,
-                          rig=rig.rig if rig is not None else "", notes=f"session {session}",
-                          config_digest=rig.digest if rig is not None else "",
-                          artifacts=[p for p in (plot_path,) if p])
-    data["stored"] = {"run_id": stored.run_id, "unsaved_file": str(stored.unsaved) if stored.unsaved else None}
+    stored = store_qa_result(rig, a, data, notes=f"session {session}", artifacts=[p for p in (plot_path,) if p])
     if as_json:
         echo_json(data)
     else:
@@ -150,13 +145,8 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
             click.echo(f"plot: {plot_path}")
         if export_dir:
             click.echo(f"trajectories (SPECT frame, SPECT time): {', '.join(data['export'])}")
-        if stored.ok:
-            click.echo(f"stored: run {stored.run_id} in the results store")
     sys.stdout.flush()
-    if not stored.ok:
-        where = (f"its figures are above and in {stored.unsaved} (`vts qa import {stored.unsaved}` stores them "
-                 "later)" if stored.unsaved else "its figures are above only: no fallback file could be written")
-        click.echo(f"vts: the sync check was NOT stored: {stored.error}; {where}", err=True)
+    if say_stored(stored, a, "sync check", as_json):
         sys.exit(3)
     code = EXIT_CODES[data["summary"]["state"]]
     if code:
