@@ -181,7 +181,7 @@ def test_scan_then_sync_analyze_meets_the_goals(scan22, tmp_path):
     assert data["calibration"]["note"].startswith("simulated rig: the scene's true cameras")
     # the dead time (the first head rotation, 20 s into the acquisition) mapped to host time
     (d0, d1), = data["dead_time_host"]
-    assert abs(d0 - run.spect.host_time(run.spect.dead[0][0])) < 1e-3
+    assert abs(d0 - run.spect.host_time(run.spect.dead[0][0])) < 5e-3   # ~0.2 ms idle, 3 ms seen under heavy load
     print("events (VTS, SPECT, VTS-SPECT ms):", "; ".join(lines), f"start delay error {delay_err * 1e3:+.2f} ms")
 
     html = report.read_text()
