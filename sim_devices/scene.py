@@ -373,8 +373,8 @@ class Scene:
         head = [c for c in cameras if c.center[2] < 0]
         foot = [c for c in cameras if c.center[2] > 0]
         wall = cls._wall(head, WALL_LAYOUT) if head else []
-        if foot:  # mirrored, so that each end's cameras see the same arrangement
-            wall += cls._wall(foot, {f"W{int(k[1:]) + len(WALL_LAYOUT)}": (-u, v)
+        if foot:  # mirrored (about the layout's middle): each end's cameras see the same arrangement
+            wall += cls._wall(foot, {f"W{int(k[1:]) + len(WALL_LAYOUT)}": (-u - 20.0, v)
                                      for k, (u, v) in WALL_LAYOUT.items()})
         scene = cls(cameras, clocks, drifts, products, wall, start)
         if gantry:

@@ -25,10 +25,12 @@ from vts_hw.sim_devices.scene import Scene
 
 __all__ = ["true_stereo_calibration", "true_spect_mapping", "write_true_calibration", "place_source_marker",
            "schedule_source_moves",
-           "plan_sync_moves", "CALIBRATION_FILE", "MAPPING_FILE"]
+           "plan_sync_moves", "true_cameras", "write_true_cameras", "CALIBRATION_FILE", "MAPPING_FILE",
+           "CAMERAS_FILE"]
 
 CALIBRATION_FILE = "calibration.json"
 MAPPING_FILE = "spect_mapping.json"
+CAMERAS_FILE = "cameras.json"
 NOTE = "simulated rig: the scene's true cameras (not a measured calibration)"
 
 
@@ -70,6 +72,26 @@ def write_true_calibration(scene: Scene, folder, t: float | None = None) -> tupl
     cal = true_stereo_calibration(scene, t).save(folder / CALIBRATION_FILE)
     mp = true_spect_mapping(scene, t).save(folder / MAPPING_FILE)
     return cal, mp
+
+
+def true_cameras(scene: Scene, t: float | None = None) -> dict:
+    """Every camera of ``scene`` at host time ``t`` (default its start), by name, in the
+    scene's world frame (= the SPECT frame): the true N-camera calibration."""
+    t = scene.start_epoch if t is None else float(t)
+    return {n: scene.camera_at(n, t) for n in scene.camera_names}
+
+
+def write_true_cameras(scene: Scene, folder, t: float | None = None) -> Path:
+    """``cameras.json``: every true camera (name, K, dist, R, t; mm, world frame), the N-camera
+    form :func:`vts_hw.vision.camera_set.load_cameras` reads."""
+    from vts_hw.files import write_json_atomic
+
+    path = Path(folder) / CAMERAS_FILE
+    write_json_atomic(path, {"format": "vts-hw cameras", "unit": "mm", "note": NOTE,
+                             "cameras": [{"name": n, "K": c.K.tolist(), "dist": c.dist.tolist(),
+                                          "R": c.R.tolist(), "t": c.t.tolist()}
+                                         for n, c in true_cameras(scene, t).items()]})
+    return path
 
 
 def plan_sync_moves(t_fire: float, duration_s: float, n: int = 4, seed: int = 0, *,
