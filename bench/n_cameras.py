@@ -42,7 +42,7 @@ from vts_hw.sim_devices.scene import Scene
 GOAL_LOCATED = 0.995
 GOAL_RMS_MM = 0.10
 ORBIT_MM = 230.0
-BAND_PLACEMENT = (60.0, 130.0, -40.0)  # chest height; no marker within 30 px of another in any view
+BAND_PLACEMENT = (-30.0, 130.0, 20.0)  # chest height; no marker within 30 px of another in any view
 FLOOR = 0.004  # the simulated receive delay's floor
 
 

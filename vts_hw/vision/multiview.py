@@ -19,7 +19,7 @@ invented). The rules (docs/decisions/0031-n-camera-tracking.md):
    all its detections reproject within the gate.
 3. **Selection**: groups are taken best first -- more cameras first, then lower reprojection
    RMS. A group whose detection is already taken is dropped. A rival group sharing a
-   detection, with as many cameras and an RMS not clearly worse (``rival_rms >= ratio * rms``
+   detection (and none already taken), with as many cameras and an RMS not clearly worse (``rival_rms > ratio * rms``
    and ``rival_rms - rms >= min_sep_px`` are needed to be clearly worse), makes both
    *ambiguous*: none of their detections is used.
 
@@ -281,14 +281,18 @@ def _select(geo, pts, norm, groups: np.ndarray, max_px, ratio, min_sep_px, out: 
     def shares(i, j):
         return bool(np.any((groups[i] >= 0) & (groups[i] == groups[j])))
 
+    def free(j):
+        return not any(d >= 0 and d in taken[c] for c, d in enumerate(groups[j].tolist()))
+
     for k in order.tolist():
         if dropped[k]:
             continue
-        if any(d >= 0 and d in taken[c] for c, d in enumerate(groups[k].tolist())):
+        if not free(k):
             dropped[k] = True
             continue
-        rivals = [j for j in order.tolist() if j != k and not dropped[j] and n[j] == n[k]
-                  and shares(k, j) and not (rms[j] >= ratio * rms[k] and rms[j] - rms[k] >= min_sep_px)]
+        # a rival: as many cameras, none of its detections in a point already, not clearly worse
+        rivals = [j for j in order.tolist() if j != k and not dropped[j] and n[j] == n[k] and free(j)
+                  and shares(k, j) and not (rms[j] > ratio * rms[k] and rms[j] - rms[k] >= min_sep_px)]
         if rivals:
             members = [k] + rivals
             out.ambiguous.append(Ambiguity(tuple(tuple(groups[j].tolist()) for j in members),
