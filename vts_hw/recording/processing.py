@@ -73,6 +73,8 @@ class ProcessSettings:
     position. ``max_gap_s``: a track not seen for this long ends (a later point gets a new id).
     ``latency_s``: known minimum exposure-to-receipt delay, subtracted from mapped times.
     ``chunk_pairs``: pairs per worker task (None: chosen from the pair count and workers).
+    ``max_rms_px``: with three or more cameras, a point whose reprojection RMS is larger is
+    not made (see :func:`vts_hw.vision.multiview.match_views`); two cameras keep 0013's rules.
     """
 
     max_px: float = 2.0
@@ -83,6 +85,7 @@ class ProcessSettings:
     max_gap_s: float = 1.0
     latency_s: float = 0.0
     chunk_pairs: int | None = None
+    max_rms_px: float = 0.5      # three or more cameras: a point's largest reprojection RMS
     detector: DetectorSettings = DEFAULT_DETECTOR
 
 
@@ -242,7 +245,7 @@ def _assemble(folder, names, frames, times, fits, sets, results, s, mapping, hos
         "markers": int(ids.max()) if len(ids) else 0,
         "settings": {"max_px": s.max_px, "ratio": s.ratio, "min_sep_px": s.min_sep_px,
                      "pair_fraction": s.pair_fraction, "gate_mm": s.gate_mm,
-                     "max_gap_s": s.max_gap_s, "latency_s": s.latency_s},
+                     "max_gap_s": s.max_gap_s, "latency_s": s.latency_s, "max_rms_px": s.max_rms_px},
         "calibration": {n: {"K": cams[n].K.tolist(), "dist": cams[n].dist.tolist(),
                             "R": cams[n].R.tolist(), "t": cams[n].t.tolist()} for n in names},
     }

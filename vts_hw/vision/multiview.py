@@ -16,7 +16,9 @@ invented). The rules (docs/decisions/0031-n-camera-tracking.md):
    (linear on undistorted points, then Gauss-Newton on the pixel reprojection error); a
    camera whose residual is above ``max_px`` leaves the group (one at a time, worst first,
    while at least two remain). Consistency over every pair of the group is then implied:
-   all its detections reproject within the gate.
+   all its detections reproject within the gate. A group whose RMS reprojection error is
+   above ``max_rms_px`` (0.5 px) makes no point: two detections that merely lie near each
+   other's epipolar line (two markers each seen by one camera) rarely fit that well.
 3. **Selection**: groups are taken best first -- more cameras first, then lower reprojection
    RMS. A group whose detection is already taken is dropped. A rival group sharing a
    detection (and none already taken), with as many cameras and an RMS not clearly worse (``rival_rms > ratio * rms``
@@ -43,6 +45,7 @@ __all__ = ["MultiPoint", "Ambiguity", "ViewMatches", "ViewGeometry", "match_view
            "triangulate_groups"]
 
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14)
+MAX_RMS_PX = 0.5   # a point's reprojection RMS (per camera, px) above this is no point
 
 
 @dataclass(frozen=True)
@@ -171,9 +174,11 @@ def triangulate_groups(geo: ViewGeometry, obs: np.ndarray, norm: np.ndarray, mas
 
 
 def match_views(geo: ViewGeometry, pts: Sequence, max_px: float = 2.0, ratio: float = 2.0,
-                min_sep_px: float = 0.0, norm: Sequence | None = None) -> ViewMatches:
+                min_sep_px: float = 0.0, norm: Sequence | None = None,
+                max_rms_px: float = MAX_RMS_PX) -> ViewMatches:
     """Correspondence and 3D points of one instant's detections ``pts`` (per camera Nc x 2
-    pixels; ``norm``: their normalized coordinates, if already known). See the module doc."""
+    pixels; ``norm``: their normalized coordinates, if already known). A group whose
+    reprojection RMS exceeds ``max_rms_px`` makes no point. See the module doc."""
     C = len(geo.cams)
     pts = [np.asarray(p, float).reshape(-1, 2) for p in pts]
     if len(pts) != C:
@@ -200,7 +205,7 @@ def match_views(geo: ViewGeometry, pts: Sequence, max_px: float = 2.0, ratio: fl
             seeds.append(row)
     if seeds:
         groups = _grow(geo, pts, norm, np.array(seeds, int), max_px)
-        _select(geo, pts, norm, groups, max_px, ratio, min_sep_px, out)
+        _select(geo, pts, norm, groups, max_px, ratio, min_sep_px, max_rms_px, out)
     used = [set() for _ in range(C)]
     for p in out.points:
         for c, d in enumerate(p.detections):
@@ -253,7 +258,8 @@ def _grow(geo, pts, norm, seeds: np.ndarray, max_px: float) -> np.ndarray:
     return groups[~inside_other.any(axis=1)]
 
 
-def _select(geo, pts, norm, groups: np.ndarray, max_px, ratio, min_sep_px, out: ViewMatches) -> None:
+def _select(geo, pts, norm, groups: np.ndarray, max_px, ratio, min_sep_px, max_rms_px,
+            out: ViewMatches) -> None:
     C = len(geo.cams)
     obs, mask = _gather(pts, groups)
     obs_n, _ = _gather(norm, groups)
@@ -274,6 +280,8 @@ def _select(geo, pts, norm, groups: np.ndarray, max_px, ratio, min_sep_px, out: 
     X, res, mask = X[first], res[first], mask[first]
     n = mask.sum(axis=1)
     rms = np.sqrt(np.nansum(np.where(mask, res, 0.0) ** 2, axis=1) / np.maximum(n, 1))
+    fits = rms <= max_rms_px
+    groups, X, res, mask, n, rms = groups[fits], X[fits], res[fits], mask[fits], n[fits], rms[fits]
     order = np.lexsort((rms, -n))
     taken = [set() for _ in range(C)]
     dropped = np.zeros(len(groups), bool)
