@@ -238,10 +238,12 @@ def _stereo(k0, s, cams, flat, n, counts, failed):
         X, rms = triangulate_fast(cams[0], cams[1], flat[0][0][ia], flat[1][0][ib],
                                   flat[0][1][ia], flat[1][1][ib])
         uv = np.concatenate([flat[0][0][ia], flat[1][0][ib]], axis=1)
+        fit = rms <= s.max_rms_px        # a pair that fits this badly is no point (as N views)
+        X, rms, uv, fk = X[fit], rms[fit], uv[fit], fk[fit]
         pair = k0 + fk
     else:
         X, rms, uv, pair = np.zeros((0, 3)), np.zeros(0), np.zeros((0, 4)), np.zeros(0, int)
-    matched = np.bincount(fk, minlength=n)[:, None] if len(ia) else np.zeros((n, 1), int)
+    matched = np.bincount(fk, minlength=n)[:, None] if len(fk) else np.zeros((n, 1), int)
     single = np.maximum(counts, 0) - matched - ambiguous
     return k0, pair, X, rms, uv, counts, failed, ambiguous, single
 

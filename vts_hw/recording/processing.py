@@ -73,8 +73,8 @@ class ProcessSettings:
     position. ``max_gap_s``: a track not seen for this long ends (a later point gets a new id).
     ``latency_s``: known minimum exposure-to-receipt delay, subtracted from mapped times.
     ``chunk_pairs``: pairs per worker task (None: chosen from the pair count and workers).
-    ``max_rms_px``: with three or more cameras, a point whose reprojection RMS is larger is
-    not made (see :func:`vts_hw.vision.multiview.match_views`); two cameras keep 0013's rules.
+    ``max_rms_px``: a point whose reprojection RMS is larger is not made, its detections count
+    as seen by one camera (see :func:`vts_hw.vision.multiview.match_views`).
     """
 
     max_px: float = 2.0
@@ -85,7 +85,7 @@ class ProcessSettings:
     max_gap_s: float = 1.0
     latency_s: float = 0.0
     chunk_pairs: int | None = None
-    max_rms_px: float = 0.5      # three or more cameras: a point's largest reprojection RMS
+    max_rms_px: float = 0.5      # a point's largest reprojection RMS (px)
     detector: DetectorSettings = DEFAULT_DETECTOR
 
 
