@@ -257,7 +257,7 @@ def _multiview(k0, s, flat, n, counts, failed):
     for k in range(n):
         pts = [f[0][f[3][k]:f[3][k + 1]] for f in flat]
         norm = [f[1][f[3][k]:f[3][k + 1]] for f in flat]
-        m = match_views(geo, pts, s.max_px, s.ratio, s.min_sep_px, norm=norm, max_rms_px=s.max_rms_px)
+        m = match_views(geo, pts, s.max_px, s.ratio, s.views_min_sep_px, norm=norm, max_rms_px=s.max_rms_px)
         for amb in m.ambiguous:
             for c in range(C):
                 ambiguous[k, c] += len({g[c] for g in amb.groups if g[c] >= 0})

@@ -75,6 +75,9 @@ class ProcessSettings:
     ``chunk_pairs``: pairs per worker task (None: chosen from the pair count and workers).
     ``max_rms_px``: a point whose reprojection RMS is larger is not made, its detections count
     as seen by one camera (see :func:`vts_hw.vision.multiview.match_views`).
+    ``views_min_sep_px``: with three or more cameras, the separation a rival group's RMS needs
+    from the best to be clearly worse (0013 advises ~3x the centroid noise; two cameras keep
+    ``min_sep_px``, 0 by default, so that their figures are 0018's).
     """
 
     max_px: float = 2.0
@@ -86,6 +89,7 @@ class ProcessSettings:
     latency_s: float = 0.0
     chunk_pairs: int | None = None
     max_rms_px: float = 0.5      # a point's largest reprojection RMS (px)
+    views_min_sep_px: float = 0.1  # three or more cameras: min_sep_px of match_views
     detector: DetectorSettings = DEFAULT_DETECTOR
 
 
@@ -245,7 +249,8 @@ def _assemble(folder, names, frames, times, fits, sets, results, s, mapping, hos
         "markers": int(ids.max()) if len(ids) else 0,
         "settings": {"max_px": s.max_px, "ratio": s.ratio, "min_sep_px": s.min_sep_px,
                      "pair_fraction": s.pair_fraction, "gate_mm": s.gate_mm,
-                     "max_gap_s": s.max_gap_s, "latency_s": s.latency_s, "max_rms_px": s.max_rms_px},
+                     "max_gap_s": s.max_gap_s, "latency_s": s.latency_s, "max_rms_px": s.max_rms_px,
+                     "views_min_sep_px": s.views_min_sep_px},
         "calibration": {n: {"K": cams[n].K.tolist(), "dist": cams[n].dist.tolist(),
                             "R": cams[n].R.tolist(), "t": cams[n].t.tolist()} for n in names},
     }
