@@ -244,10 +244,18 @@ def _nothing_belongs(session: Path, span: SessionSpan | None, cands: list[_Candi
 # ----------------------------------------------------------------------------- calibration
 
 def load_calibration(calibration):
-    """A StereoCalibration (or cameras) as given, or read from a path."""
+    """A StereoCalibration (or cameras) as given, or read from a path: a stereo calibration
+    file, or an N-camera one (a ``cameras`` list: ``vts_hw.vision.camera_set.load_cameras``)."""
     if calibration is None or not isinstance(calibration, (str, Path)):
         return calibration
     from vts_hw.vision.calibration_io import StereoCalibration
+    try:
+        data = json.loads(Path(calibration).read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError):
+        data = None                               # StereoCalibration.load says what is wrong
+    if isinstance(data, dict) and "K1" not in data and isinstance(data.get("cameras"), list):
+        from vts_hw.vision.camera_set import load_cameras
+        return load_cameras(calibration)
     return StereoCalibration.load(calibration)
 
 

@@ -131,13 +131,21 @@ def test_an_ambiguity_is_reported_never_guessed_and_a_further_view_settles_it(ro
 
 def test_n_cameras_from_any_calibration_form(room, tmp_path):
     scene, names, _ = room
-    path = write_true_cameras(scene, tmp_path)
+    path = write_true_cameras(scene, tmp_path, frame="world")
     cams = load_cameras(path)
     assert list(cams) == names
     assert np.allclose(cams["cam3"].R, scene.camera_at("cam3", T0).R)
     stereo = named_cameras(true_stereo_calibration(scene), ["cam1", "cam2"])
     assert list(stereo) == ["cam1", "cam2"] and np.allclose(stereo["cam1"].R, np.eye(3))
     assert list(named_cameras([scene.cameras[n] for n in names])) == names
+    # the rig's file is in camera 1's frame, as calibration.json; the sync analysis reads either
+    from vts_hw.procedures.sync_inputs import load_calibration
+    rig_file = write_true_cameras(scene, tmp_path / "rig", frame="cam1")
+    by_cam1 = load_calibration(rig_file)
+    assert list(by_cam1) == names and np.allclose(by_cam1["cam1"].R, np.eye(3), atol=1e-12)
+    assert np.allclose(by_cam1["cam4"].R, stereo_of(scene, "cam4"), atol=1e-12)
+    assert type(load_calibration(true_stereo_calibration(scene).save(tmp_path / "s.json"))).__name__ == \
+        "StereoCalibration"
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"cameras": [{"name": "a", "K": [1, 2]}, {"name": "b"}]}))
     with pytest.raises(DataError, match="camera 1 is not whole"):
@@ -145,3 +153,8 @@ def test_n_cameras_from_any_calibration_form(room, tmp_path):
     bad.write_text("[1, 2]")
     with pytest.raises(DataError, match="not a calibration"):
         load_cameras(bad)
+
+
+def stereo_of(scene, name):
+    """Camera ``name``'s rotation relative to camera 1 (what a calibration in cam1's frame holds)."""
+    return scene.camera_at(name, T0).R @ scene.camera_at("cam1", T0).R.T

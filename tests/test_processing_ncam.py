@@ -22,7 +22,7 @@ def recorded(tmp_path_factory):
     scene.gantry.step_and_shoot(start, 3.0, 20, 0.4, 0.2, start_deg=0.0, radius_mm=230.0)
     sim = simulate_recording(tmp / "rec", duration_s=5.0, seed=0, scene=scene, start=start,
                              band=BreathingBand(start, placement=PLACEMENT), gaps={"cam3": [(1.0, 1.6)]})
-    cams = write_true_cameras(scene, tmp, start)      # the N-camera calibration file
+    cams = write_true_cameras(scene, tmp, start, frame="world")      # the N-camera calibration file
     four = process_recording(sim.folder, cams_from(cams), workers=2)
     two = process_recording(sim.folder, {k: v for k, v in cams_from(cams).items() if k in ("cam1", "cam2")},
                             workers=2)

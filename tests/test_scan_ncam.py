@@ -10,6 +10,7 @@ from vts_hw.procedures.scan import ScanSession
 from vts_hw.recording.processing import process_recording
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.vision.camera_set import load_cameras
+from vts_hw.vision.registration import RigidTransform
 
 FPS = 25.0
 
@@ -30,17 +31,20 @@ def test_a_four_camera_scan_is_recorded_and_tracked(tmp_path):
     assert sorted(m["cameras"]) == ["cam1", "cam2", "cam3", "cam4"]
     for name, cam in m["cameras"].items():
         assert cam["frames"] >= 0.9 * 3.0 * FPS and cam["gaps"] == [], name
-    tracks = process_recording(folder, load_cameras(tmp_path / "rig" / "cameras.json"), workers=2)
+    # cameras.json is in camera 1's frame, like calibration.json: spect_mapping.json maps it
+    mapping = RigidTransform.load(tmp_path / "rig" / "spect_mapping.json")
+    tracks = process_recording(folder, load_cameras(tmp_path / "rig" / "cameras.json"), workers=2,
+                               mapping=mapping)
     assert tracks.camera_names == ["cam1", "cam2", "cam3", "cam4"] and len(tracks) >= 0.9 * 3.0 * FPS
     # each wall seen by the pair at its end: points from cam1+cam2 and from cam3+cam4
     sets = {tuple(np.flatnonzero(r)) for r in tracks.point_cameras}
     assert (0, 1) in sets and (2, 3) in sets
     truth = np.array([w.center for w in rig.scene.wall_markers])
-    err = np.linalg.norm(tracks.xyz[:, None, :] - truth[None], axis=2).min(axis=1)
+    err = np.linalg.norm(tracks.xyz_spect[:, None, :] - truth[None], axis=2).min(axis=1)
     assert err.max() < 1.0            # every point is a wall marker, where it is
     # the wall markers located are those two cameras see at some time (the heads hide some)
     ids = [w.id for w in rig.scene.wall_markers]
-    located = {ids[k] for k in np.linalg.norm(tracks.xyz[:, None, :] - truth[None], axis=2).argmin(axis=1)}
+    located = {ids[k] for k in np.linalg.norm(tracks.xyz_spect[:, None, :] - truth[None], axis=2).argmin(axis=1)}
     seen = set()
     for t in tracks.host_time[::5]:
         names = [m for c in rig.scene.camera_names for m, _, _ in rig.scene.truth(c, float(t))]
