@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 from vts_hw.config import load_rig
-from vts_hw.drivers.axis import AxisCamera
+from vts_hw.drivers.registry import open_cameras
 from vts_hw.recording.capture import Recorder
 from vts_hw.recording.folder import info
 from vts_hw.sim_devices.rig import load_env_file, start_detached, stop_detached
@@ -29,7 +29,7 @@ def run(n: int, seconds: float, work: Path) -> list[dict]:
     try:
         os.environ.update(load_env_file(simdir / "sim.env"))
         rig = load_rig(simdir / "rig.yaml")
-        cams = [AxisCamera.from_config(c) for c in rig.cameras]
+        cams = open_cameras(rig.cameras)
         rec_dir = work / f"rec{n}"
         rec = Recorder(cams, rec_dir, seconds=seconds)
         t0 = time.monotonic()

@@ -14,15 +14,15 @@ from __future__ import annotations
 
 import statistics
 import time
-from dataclasses import dataclass
-from typing import Iterator
 from urllib.parse import quote
 
 import requests
 from requests.auth import HTTPBasicAuth, HTTPDigestAuth
 
+from vts_hw.camera import CameraError, ClockOffset, Frame
+from vts_hw.camera import Refused as ContractRefused
+from vts_hw.camera_stream import FrameStream
 from vts_hw.recording.axis_jpeg import inspect_jpeg
-from vts_hw.errors import DeviceError
 
 from typing import TYPE_CHECKING
 
@@ -30,12 +30,8 @@ if TYPE_CHECKING:
     from vts_hw.config import CameraConfig
 
 
-class AxisError(DeviceError):
-    """A camera failed; ``camera`` names it."""
-
-    def __init__(self, camera: str, message: str):
-        super().__init__(message)
-        self.camera = camera
+class AxisError(CameraError):
+    """An Axis camera failed; ``camera`` names it."""
 
 
 class CameraUnreachable(AxisError):
@@ -44,6 +40,8 @@ class CameraUnreachable(AxisError):
 
 class CameraUnauthorized(AxisError):
     """The camera refused the credentials (HTTP 401 after answering the challenge)."""
+
+    retry = False  # reconnecting with the same password cannot help
 
 
 class TooManyViewers(AxisError):
@@ -58,34 +56,8 @@ class NotFound(BadReply):
     """HTTP 404: this firmware does not have that CGI (how VAPIX 2 and 3 are told apart)."""
 
 
-class Refused(BadReply):
+class Refused(BadReply, ContractRefused):
     """HTTP 200 with a ``# Error:`` body: the camera refused the request (unknown group...)."""
-
-
-@dataclass(frozen=True)
-class Frame:
-    """One JPEG as received from a camera."""
-
-    seq: int
-    jpeg: bytes
-    camera_time: float | None
-    host_time: float
-    problems: tuple[str, ...] = ()
-
-    @property
-    def complete(self) -> bool:
-        return not any("cut short" in p or "not a JPEG" in p for p in self.problems)
-
-
-@dataclass(frozen=True)
-class ClockOffset:
-    """camera clock minus host clock, in seconds, with its uncertainty."""
-
-    offset_s: float
-    uncertainty_s: float
-    host_time: float
-    method: str
-    samples: int
 
 
 class _AxisAuth(HTTPDigestAuth):
@@ -124,11 +96,15 @@ def frame_from_bytes(seq: int, jpeg: bytes, host_time: float, problems=()) -> Fr
 
 
 class AxisCamera:
-    """One Axis camera.
+    """One Axis camera: the ``axis`` kind of :class:`vts_hw.camera.Camera`.
 
     ``AxisCamera.from_config(cfg)`` takes a rig.yaml camera entry and its password from the
-    environment variable that entry names.
+    environment variable that entry names (``vts_hw.drivers.registry.open_camera`` calls it).
     """
+
+    led_switches = True
+    error_class = AxisError   # what its reconnecting stream raises when it gives up
+    stream_path = "/axis-cgi/mjpg/video.cgi"
 
     def __init__(self, name: str, base_url: str, user: str | None = "root", password: str | None = None,
                  *, timeout: float = 5.0, led_port: int = 1, resolution: str = "640x480",
@@ -252,10 +228,27 @@ class AxisCamera:
         frame = frame_from_bytes(0, data, host_t)
         return frame
 
-    def stream(self, **kwargs) -> Iterator:
-        """Frames of ``mjpg/video.cgi`` that reconnect on drops and stalls; see axis_stream."""
-        from vts_hw.drivers.axis_stream import FrameStream
-        return iter(FrameStream(self, **kwargs))
+    def make_frame(self, seq: int, jpeg: bytes, host_time: float, problems=()) -> Frame:
+        """A received JPEG as a Frame, timed by its Axis stamp."""
+        return frame_from_bytes(seq, jpeg, host_time, problems)
+
+    def open_stream(self, *, fps: float, duration: float | None = None, nbrofframes: int | None = None,
+                    first_seq: int = 0, stall_timeout: float = 2.0):
+        """One connection of ``mjpg/video.cgi`` (the camera ends it after ``duration`` s or
+        ``nbrofframes`` frames when asked)."""
+        from vts_hw.drivers.axis_stream import MultipartConnection, num
+        params: dict[str, object] = {"resolution": self.resolution, "fps": num(fps),
+                                     "compression": self.compression}
+        if duration is not None:
+            params["duration"] = max(1, int(duration + 0.999))
+        if nbrofframes is not None:
+            params["nbrofframes"] = nbrofframes
+        return MultipartConnection(self, self.stream_path, params, stall_timeout=stall_timeout,
+                                   first_seq=first_seq, make_frame=self.make_frame)
+
+    def stream(self, **kwargs) -> FrameStream:
+        """Frames that reconnect on drops and stalls, with gaps (vts_hw.camera_stream)."""
+        return FrameStream(self, **kwargs)
 
     # -- parameters ----------------------------------------------------------------
     @property

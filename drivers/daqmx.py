@@ -30,9 +30,14 @@ from __future__ import annotations
 import math
 import time
 from contextlib import contextmanager
-from typing import Any, Callable, Iterator, Protocol, Sequence, runtime_checkable
+from typing import Any, Callable, Iterator, Optional, Protocol, Sequence, runtime_checkable
+
+from pydantic import Field
 
 from vts_hw.drivers.trigger import (
+    HOST_WRITE,
+    BackendSettings,
+    TriggerBackend,
     CHANNELS,
     DUTY,
     FIRE,
@@ -58,6 +63,7 @@ DUTY_MAX = 1.0 - 1e-4
 MIN_PULSE_S = 100e-9          # high and low time: 2 ticks of a 20 MHz timebase
 PULSE_MS_MIN = 1
 PULSE_MS_MAX = 10_000
+TTL_HIGH_V, TTL_LOW_V = 5.0, 0.0    # nominal TTL levels, as the neutral log rows state them
 
 
 @runtime_checkable
@@ -240,6 +246,7 @@ class DaqmxTrigger(TriggerBase):
         self._trigger_in_task: str | None = None
         self._line_state = [False, False]
         self._last_fire: dict[str, Any] = {}
+        self._started: float | None = None     # host time of the wave's start, while it runs
         self._closed = False
         self.port: DaqmxPort = port if port is not None else NidaqmxPort()
         self.log.write(name, "event", f"open NI-DAQmx counter {counter}"
@@ -271,16 +278,24 @@ class DaqmxTrigger(TriggerBase):
         if self._trigger_in_task is not None:         # left armed by fire(): start without it
             self._configure_train(*self._asked, None)
         self._cmd(f"CO {self.counter} start")
+        t0 = self.log.clock()
         self.port.start_pulse_train()
+        t1 = self.log.clock()
         st = self.status()
         if not st.running:
             raise TriggerError(f"{self.name}: the counter task was started but reports done")
+        self._wave_started(t0, t1, start_pulse=False)
         return st
 
     def stop(self) -> TriggerStatus:
         """Stop the counter task: the output goes to its idle level at once, mid-period if need be."""
         self._cmd(f"CO {self.counter} stop")
+        t0 = self.log.clock()
         self.port.stop_pulse_train()
+        t1 = self.log.clock()
+        if self._started is not None:     # the output idles at once: the wave is cut there
+            self._started = None
+            self.log.wave_stopped(self.name, t0, rising_edges=None, time_source=HOST_WRITE, uncertainty_s=t1 - t0)
         st = self.status()
         if st.running:
             raise TriggerError(f"{self.name}: the counter task was stopped but reports running")
@@ -316,7 +331,9 @@ class DaqmxTrigger(TriggerBase):
             self._configure_train(f, d, self.fire_trigger)
             self._cmd(f"CO {self.counter} start (armed: starts on the rising edge of {self.fire_trigger})")
             self.port.start_pulse_train()
-            t_on = self._set_lines([True, True])
+            h0 = self.log.clock()
+            t_on = self._set_lines([True, True])          # the counter starts on this edge
+            h1 = self.log.clock()
             self._last_fire = {"fire": f"hardware start trigger on {self.fire_trigger}"}
         else:
             if self._trigger_in_task is not None:
@@ -324,11 +341,13 @@ class DaqmxTrigger(TriggerBase):
             t0 = self._clock()
             t_on = self._set_lines([True, True])
             self._cmd(f"CO {self.counter} start")
+            h0 = self.log.clock()
             try:
                 self.port.start_pulse_train()
             except BaseException:
                 self._set_lines([False, False])
                 raise
+            h1 = self.log.clock()
             skew = self._clock() - t0
             self._last_fire = {"fire": "software start", "fire_skew_bound_s": skew}
             self.log.write(self.name, "event", f"fire: software start, counter started within "
@@ -342,7 +361,16 @@ class DaqmxTrigger(TriggerBase):
         st = self.status()
         if not st.running:
             raise TriggerError(f"{self.name}: fire() started the counter task but it reports done")
+        self._wave_started(h0, h1, start_pulse=True)
         return st
+
+    def _wave_started(self, h0: float, h1: float, start_pulse: bool) -> None:
+        """``wave_start``: the counter starts during the call (or the line write that triggers
+        it) between host times ``h0`` and ``h1``; DAQmx reports no edge times."""
+        f, d = self._actual
+        self._started = h0
+        self.log.wave_started(self.name, h0, period_s=1.0 / f, duty=d, high_v=TTL_HIGH_V, low_v=TTL_LOW_V,
+                              start_pulse=start_pulse, time_source=HOST_WRITE, uncertainty_s=h1 - h0)
 
     def status(self) -> TriggerStatus:
         running = bool(self.port.pulse_train_running())
@@ -428,3 +456,23 @@ class DaqmxTrigger(TriggerBase):
         t = self._clock()
         self._line_state = list(values)
         return t
+
+
+# ---- the backend (vts_hw.drivers.registry.TRIGGER_BACKENDS["daqmx"]) ----------------------------------
+
+class DaqmxSettings(BackendSettings):
+    """NI-DAQmx's own keys in rig.yaml's ``trigger:`` section (``address``: the counter, e.g.
+    ``Dev1/ctr0``)."""
+
+    lines: Optional[tuple[str, str]] = Field(
+        default=None, description="digital lines of start channels 1 and 2, e.g. Dev1/port0/line0")
+    fire_trigger: Optional[str] = Field(
+        default=None, description="terminal that starts the counter with the start pulses, e.g. /Dev1/PFI0")
+
+
+def _open_daqmx(cfg, settings: DaqmxSettings, log) -> DaqmxTrigger:
+    return DaqmxTrigger(cfg.address, lines=settings.lines, fire_trigger=settings.fire_trigger,
+                        fire_pulse_ms=cfg.pulse_ms, log=log)
+
+
+BACKEND = TriggerBackend("daqmx", "an NI-DAQmx counter and digital lines", DaqmxSettings, _open_daqmx)

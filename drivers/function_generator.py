@@ -35,10 +35,15 @@ from __future__ import annotations
 
 import math
 import re
-from typing import Any, Callable
+from typing import Any, Callable, Literal
+
+from pydantic import Field
 
 from vts_hw.drivers.settings import Setting, in_range
 from vts_hw.drivers.trigger import (
+    HOST_WRITE,
+    BackendSettings,
+    TriggerBackend,
     CLOCK,
     DUTY,
     FIRE,
@@ -169,6 +174,7 @@ class FunctionGenerator(TriggerBase):
         self._src = "" if channel == 1 else f"SOUR{channel}:"
         self._ch = "" if channel == 1 else str(channel)
         self._known: dict[str, Any] = {}        # last values the instrument confirmed or accepted
+        self._started: float | None = None      # host time this instance switched the output on
         self._closed = False
         self.idn = ""
         self.stale_errors: tuple[str, ...] = ()
@@ -249,21 +255,38 @@ class FunctionGenerator(TriggerBase):
         fn = self.function
         if fn != "SQU":
             raise TriggerError(f"{self.name} is set to {fn}, not a square wave: call configure() first")
-        self.output = True
+        sent = self.log.clock()
+        self._write_setting(FunctionGenerator.output, True, host_time=sent)
         st = self.status()
         self._raise_on_errors("start", st.errors)
         if not st.running:
             raise TriggerError(f"{self.name} was switched on but reports its output off")
+        # a rising edge when the output switched on, between the write and the read-back
+        self._started = sent
+        self.log.wave_started(self.name, sent, period_s=1.0 / st.frequency_hz, duty=st.duty, high_v=st.high_v,
+                              low_v=st.low_v, start_pulse=False, time_source=HOST_WRITE,
+                              uncertainty_s=self.log.clock() - sent)
         return st
 
     def stop(self) -> TriggerStatus:
         """Output off (``OUTP 0``). The 33500 opens its output at once, not at the end of a period."""
-        self.output = False
+        sent = self.log.clock()
+        self._write_setting(FunctionGenerator.output, False, host_time=sent)
+        self._log_stop(sent, always=True)
         st = self.status()
         self._raise_on_errors("stop", st.errors)
         if st.running:
             raise TriggerError(f"{self.name} was switched off but reports its output on")
         return st
+
+    def _log_stop(self, sent: float, always: bool = False) -> None:
+        """``wave_stop`` at the write that opened the output (it does so at once, mid-period if
+        need be): on stop(), and on reset() when this instance started the wave or the
+        instrument said its output was on (a stop with no start before it is ignored by readers)."""
+        if always or self._started is not None or self._known.get("output"):
+            self.log.wave_stopped(self.name, sent, rising_edges=None, time_source=HOST_WRITE,
+                                  uncertainty_s=self.log.clock() - sent)
+        self._started = None
 
     def pulse(self, channel: int, ms: int) -> None:
         self.require(PULSE, f"send a start pulse: {_NO_PULSE}")
@@ -297,7 +320,9 @@ class FunctionGenerator(TriggerBase):
 
     def reset(self) -> None:
         """``*RST``: the instrument's defaults (sine 1 kHz, output off). Not simulated by pyvisa-sim."""
-        self._write("*RST")
+        sent = self.log.clock()
+        self._write("*RST", host_time=sent)
+        self._log_stop(sent)
         self._known.clear()
         self._raise_on_errors("'*RST'", self._read_errors())
 
@@ -345,12 +370,12 @@ class FunctionGenerator(TriggerBase):
             raise OutOfRange(f"{self.name}: {e}; nothing was sent") from None
         return v
 
-    def _write_setting(self, setting: Setting, value: Any) -> None:
-        self._apply_setting(setting, self._validate(setting, value))
+    def _write_setting(self, setting: Setting, value: Any, host_time: float | None = None) -> None:
+        self._apply_setting(setting, self._validate(setting, value), host_time)
 
-    def _apply_setting(self, setting: Setting, value: Any) -> None:
+    def _apply_setting(self, setting: Setting, value: Any, host_time: float | None = None) -> None:
         command = self._scpi(setting.command, setting.fmt(value))
-        self._write(command)
+        self._write(command, host_time)
         self._raise_on_errors(repr(command), self._read_errors())
         self._known[setting.name] = value
 
@@ -370,8 +395,8 @@ class FunctionGenerator(TriggerBase):
 
     # -- the wire ----------------------------------------------------------------------------------
 
-    def _write(self, command: str) -> None:
-        self.log.write(self.name, "cmd", command)
+    def _write(self, command: str, host_time: float | None = None) -> None:
+        self.log.write(self.name, "cmd", command, host_time=host_time)
         try:
             self.resource.write(command)
         except Exception as e:
@@ -445,3 +470,22 @@ def _finite_or_none(value: Any) -> float | None:
     except (TypeError, ValueError):
         return None
     return v if math.isfinite(v) else None
+
+
+# ---- the backend (vts_hw.drivers.registry.TRIGGER_BACKENDS["visa"]) -----------------------------------
+
+class VisaSettings(BackendSettings):
+    """The function generator's own keys in rig.yaml's ``trigger:`` section (``address``: its
+    VISA resource, e.g. ``TCPIP::HOST::5025::SOCKET``)."""
+
+    simulated: bool = Field(default=False, description="use the shipped pyvisa-sim instrument")
+    channel: Literal[1, 2] = Field(default=1, description="the instrument's output channel")
+    timeout_ms: int = Field(default=2000, ge=1, le=120_000, description="how long to wait for each reply")
+
+
+def _open_visa(cfg, settings: VisaSettings, log) -> FunctionGenerator:
+    return FunctionGenerator(cfg.address, sim=settings.simulated, log=log, channel=settings.channel,
+                             timeout_ms=settings.timeout_ms)
+
+
+BACKEND = TriggerBackend("visa", "a SCPI function generator over VISA", VisaSettings, _open_visa, levels=True)

@@ -7,7 +7,14 @@ Backends: our trigger box (serial), a SCPI function generator (VISA), an NI-DAQm
 Each backend declares what it can do in ``capabilities``; asking for anything else raises
 :class:`Unsupported` (one sentence naming the device and what it cannot do), never a silent
 no-op. Every command and reply, and every edge time a device reports, is appended to the
-session's ``trigger.csv`` by :class:`TriggerLog`.
+session's ``trigger.csv`` by :class:`TriggerLog`; beside them each backend writes what it
+started and stopped in neutral rows (:meth:`TriggerLog.wave_started`, :meth:`~TriggerLog.wave_stopped`,
+:meth:`~TriggerLog.clock_mapped`; docs/trigger-log-format.md), which is all the sync analysis
+and the simulated SPECT read.
+
+A backend is registered by name in ``vts_hw.drivers.registry.TRIGGER_BACKENDS`` as a
+:class:`TriggerBackend`: its own settings model (the keys of rig.yaml's ``trigger:`` section
+beyond the common ones, validated when it is opened) and its constructor.
 """
 
 from __future__ import annotations
@@ -18,10 +25,14 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol, runtime_checkable
+from typing import Any, Callable, Protocol, runtime_checkable
+
+from pydantic import BaseModel, ConfigDict
 
 from vts_hw.errors import DeviceError
 from vts_hw.files import WriteFailed, os_reason
+from vts_hw.recording.trigger_log import (CLOCK as CLOCK_ROW, DEVICE_CLOCK_MAPPED, HOST_WRITE, LOG_HEADER,
+                                          WAVE_START, WAVE_STOP, clock_text, wave_start_text, wave_stop_text)
 
 # what a backend can do
 FREQUENCY = "frequency"      # set the square wave's frequency
@@ -141,9 +152,6 @@ _WHAT = {FREQUENCY: "set a frequency", DUTY: "set a duty cycle", LEVELS: "set ou
          CLOCK: "report a device clock to map to host time", EDGES: "report edge times"}
 
 
-LOG_HEADER = ["host_time", "device_time_us", "device", "kind", "text"]
-
-
 class TriggerLog:
     """Append-only ``trigger.csv``: host time, device time (where known), device, kind, text.
 
@@ -188,6 +196,31 @@ class TriggerLog:
                     self.write_error = WriteFailed(self.path, os_reason(exc),
                                                    f"it holds the first {len(self.lines) - 1} line(s) of this run")
 
+    # -- the neutral rows (docs/trigger-log-format.md) ------------------------------------------
+
+    def wave_started(self, device: str, host_time: float, *, period_s: float, duty: float, high_v: float,
+                     low_v: float, start_pulse: bool, time_source: str, uncertainty_s: float | None,
+                     device_us: int | None = None) -> None:
+        """A ``wave_start`` row: the square wave's first rising edge at ``host_time``."""
+        self.write(device, WAVE_START, wave_start_text(
+            period_s=period_s, duty=duty, high_v=high_v, low_v=low_v, start_pulse=start_pulse,
+            time_source=time_source, uncertainty_s=uncertainty_s), device_us=device_us, host_time=host_time)
+
+    def wave_stopped(self, device: str, host_time: float, *, rising_edges: int | None, time_source: str,
+                     uncertainty_s: float | None, device_us: int | None = None) -> None:
+        """A ``wave_stop`` row: the output idle from ``host_time`` (after ``rising_edges`` whole
+        periods where the device counts them)."""
+        self.write(device, WAVE_STOP, wave_stop_text(rising_edges=rising_edges, time_source=time_source,
+                                                     uncertainty_s=uncertainty_s),
+                   device_us=device_us, host_time=host_time)
+
+    def clock_mapped(self, device: str, mapping: "ClockMapping", drift_se_ppm: float | None) -> None:
+        """A ``clock`` row: the device clock's mapping to host time (its reference pair)."""
+        self.write(device, CLOCK_ROW, clock_text(drift_ppm=mapping.drift_ppm, drift_se_ppm=drift_se_ppm,
+                                                 residual_s=mapping.residual_s,
+                                                 uncertainty_s=mapping.uncertainty_s, samples=mapping.samples),
+                   device_us=mapping.ref_device_us, host_time=mapping.ref_host)
+
     def close(self) -> None:
         with self._lock:
             if self._f is not None and not self._f.closed:
@@ -200,3 +233,25 @@ class TriggerLog:
 def read_log(path: str | os.PathLike) -> list[dict]:
     with open(path, newline="", encoding="utf-8") as f:
         return list(csv.DictReader(f))
+
+
+# ---- backends, registered by name (vts_hw.drivers.registry.TRIGGER_BACKENDS) ----------------------
+
+class BackendSettings(BaseModel):
+    """A backend's own keys in rig.yaml's ``trigger:`` section (beside the common ones:
+    ``backend``, ``address``, ``frequency_hz``, ``duty``, ``high_v``, ``low_v``, ``pulse_ms``).
+    Unknown keys are refused, so a misspelt key is an error naming it."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+@dataclass(frozen=True)
+class TriggerBackend:
+    """One trigger backend: ``open(cfg, settings, log)`` makes the generator from the common
+    trigger config (``vts_hw.config.TriggerConfig``) and its validated ``settings``."""
+
+    name: str
+    what: str                                   # in words, for plans and messages
+    settings: type[BackendSettings]
+    open: Callable[[Any, Any, "TriggerLog"], TriggerGenerator]
+    levels: bool = False                        # it sets output levels (LEVELS)

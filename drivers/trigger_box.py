@@ -1,22 +1,8 @@
 """Our trigger box (ATmega328P firmware in ``firmware/``) over its USB serial line.
 
-115200 baud 8N1, one ASCII command per line, one reply line per command, lines end in ``\n``
-(docs/design.md, "Trigger box (our own firmware, serial)"; firmware/trigger_box/commands.h):
-
-    *IDN?                  VTS,TRIGGERBOX,<serial>,<firmware>
-    *RST                   OK                (wave ends on a whole period, defaults restored)
-    *CLS                   OK                (error queue emptied)
-    FREQ <hz>    FREQ?     OK / the frequency the timer actually makes (FREQ only while off)
-    DUTY <f>     DUTY?     OK / the duty cycle it makes, a fraction   (DUTY only while off)
-    OUTP ON|OFF  OUTP?     OK / ON or OFF    (starts with a rising edge; OFF finishes the
-                                              period under way, and OUTP? says ON until then)
-    PULSE <ch> <ms>        OK                (contact closure on channel 1 VTS, 2 SPECT)
-    PULSE:WIDTH <ms> / ?   OK / the width of the pulses *TRG sends (default 100 ms)
-    *TRG                   OK                (wave and both start pulses on one timer tick)
-    TIME?                  device microseconds since boot (64-bit, never wraps in practice)
-    EDGES?                 <rising edges since start>,<device us of the first>,<of the last>
-    SYST:ERR?              <code>,"<message>" or 0,"No error"
-    anything refused       ERR <code> <message>  (nothing changes; the error is queued too)
+The wire protocol (its command table, ranges, refusals and reply parsers) is in
+:mod:`vts_hw.drivers.trigger_box_protocol`; the clock fit over ``TIME?`` round trips in
+:mod:`vts_hw.drivers.trigger_box_clock`; this module is the driver.
 
 Everything goes through one primitive, :meth:`TriggerBox.query`: clear stale input, write the
 line, read one line within the timeout, log both to ``trigger.csv``. A refusal raises
@@ -28,141 +14,40 @@ Settable values are declared once (:class:`BoxSetting`, PyMeasure style) with a 
 refuses a bad value before a byte is sent. The box has fixed TTL levels, so it does not have the
 LEVELS capability. The box's clock can be mapped to host time (:meth:`TriggerBox.clock_mapping`,
 a fit over ``TIME?`` round trips weighted towards the shortest), and the edge times the box
-reports are logged in host time through that mapping (docs/decisions/0011).
+reports are logged in host time through that mapping (docs/decisions/0011). What it starts
+and stops goes into ``trigger.csv`` as neutral rows too (docs/trigger-log-format.md).
 """
 
 from __future__ import annotations
 
 import math
-import re
-from collections import deque
 import threading
 import time
-from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from collections import deque
+from typing import Any, Callable
 
 import serial
+from pydantic import Field
 
-from vts_hw.drivers.settings import Setting, in_range, whole_in_range
-from vts_hw.drivers.trigger import (
-    CLOCK,
-    DUTY,
-    EDGES,
-    FIRE,
-    FREQUENCY,
-    LEVELS,
-    PULSE,
-    ClockMapping,
-    OutOfRange,
-    TriggerBase,
-    TriggerError,
-    TriggerLog,
-    TriggerStatus,
-)
+from vts_hw.drivers.settings import in_range, whole_in_range
+from vts_hw.drivers.trigger import (CLOCK, DEVICE_CLOCK_MAPPED, DUTY, EDGES, FIRE, FREQUENCY, HOST_WRITE,
+                                    LEVELS, PULSE, BackendSettings, ClockMapping, OutOfRange, TriggerBackend,
+                                    TriggerBase, TriggerError, TriggerLog, TriggerStatus)
+# re-exported: the box's clock mapping and wire protocol, as they were importable from here
+from vts_hw.drivers.trigger_box_clock import (MAX_ROUND_TRIPS_KEPT, BoxClock, RoundTrip,  # noqa: F401
+                                              best_round_trips, clock_jumped, fit_clock, wire_skew)
+from vts_hw.drivers.trigger_box_protocol import (BAUDRATE, DEVICE, DUTY_ABS_TOLERANCE, DUTY_MAX,  # noqa: F401
+                                                 DUTY_MIN, FREQ_MAX_HZ, FREQ_MIN_HZ, FREQ_REL_TOLERANCE,
+                                                 MAX_ERRORS_READ, MAX_LINE, MODEL, POLL_S, PULSE_MS_MAX,
+                                                 PULSE_MS_MIN, SETTINGS_CONFLICT, VENDOR, BoxGone, BoxIdentity,
+                                                 BoxRefused, BoxSetting, _pulse_ms, number_text, parse_refusal)
 
-DEVICE = "the trigger box"
-BAUDRATE = 115200
-FREQ_MIN_HZ = 0.1
-FREQ_MAX_HZ = 1000.0
-DUTY_MIN = 0.01
-DUTY_MAX = 0.99
-PULSE_MS_MIN = 1
-PULSE_MS_MAX = 10_000
-VENDOR = "VTS"
-MODEL = "TRIGGERBOX"
-
-#: how far a confirmed value may be from the asked one (the timer's resolution is far finer)
-FREQ_REL_TOLERANCE = 1e-3
-DUTY_ABS_TOLERANCE = 1e-3
-MAX_LINE = 256                 # bytes; a longer "line" is noise, not a reply
-MAX_ERRORS_READ = 16           # more than the firmware's error queue holds
-MAX_ROUND_TRIPS_KEPT = 2000    # clock-mapping history (about 100 calls of 20)
-POLL_S = 0.01                  # while waiting for the last period to finish
-SETTINGS_CONFLICT = -221       # the box's code for "not while the wave is on / a pulse runs"
-
-
-class BoxRefused(TriggerError):
-    """The box answered ``ERR <code> <message>``."""
-
-    def __init__(self, text: str, code: int | None, device_message: str):
-        super().__init__(text)
-        self.code = code
-        self.device_message = device_message
-
-
-class BoxGone(TriggerError):
-    """The serial port vanished (USB unplugged, box powered off, emulator stopped)."""
-
-
-# ---- declared settings (PyMeasure style) ----------------------------------------------------------
-
-_pulse_ms = whole_in_range(PULSE_MS_MIN, PULSE_MS_MAX, "a start pulse", "ms")
-
-
-def number_text(value: float) -> str:
-    """A value as the box's parser takes it: plain decimal, no exponent, at most 6 significant
-    digits (the timer quantises far more coarsely): 10 -> '10', 0.25 -> '0.25'."""
-    text = f"{value:.6g}"
-    if "e" in text:  # not reachable within the box's ranges; keep the wire free of exponents
-        text = f"{value:.6f}".rstrip("0").rstrip(".")
-    return text
-
-
-class BoxSetting(Setting):
-    """A value of the box: assigning validates, sends the command and requires ``OK``;
-    numbers go out as the box's parser takes them."""
-
-    default_fmt = staticmethod(number_text)
-
-
-# ---- what the box reports -------------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class BoxIdentity:
-    """``*IDN?`` parsed: ``VTS,TRIGGERBOX,<serial>,<firmware>``."""
-
-    vendor: str
-    model: str
-    serial: str
-    firmware: str
-    raw: str
-
-
-@dataclass(frozen=True)
-class RoundTrip:
-    """One ``TIME?`` exchange: host time just before the write and just after the reply.
-
-    ``skew`` moves the midpoint to where the box most likely read its clock: it reads it once
-    the whole command has arrived and before the first byte of its reply leaves, so with a
-    6-byte command and an 11-byte reply on a 115200-baud line the reading is
-    (11 - 6) * 10 / 115200 / 2 = 0.2 ms before the midpoint: skew = (wire_in - wire_out) / 2.
-    """
-
-    host_sent: float
-    host_received: float
-    device_us: int
-    skew: float = 0.0
-
-    @property
-    def rtt(self) -> float:
-        return self.host_received - self.host_sent
-
-    @property
-    def host_mid(self) -> float:
-        return 0.5 * (self.host_sent + self.host_received) + self.skew
-
-
-def wire_skew(cmd: str, reply: str, baudrate: float | None, bits_per_byte: int = 10) -> float:
-    """(time on the wire of the command line - of the reply line) / 2, in seconds (8N1: 10 bits
-    a byte); 0 when the baud rate is unknown."""
-    if not baudrate:
-        return 0.0
-    return (len(cmd) + 1 - (len(reply) + 1)) * bits_per_byte / baudrate / 2
-
+#: the levels of the box's TTL outputs, as the neutral log rows state them
+HIGH_V, LOW_V = 5.0, 0.0
 
 # ---- the driver -----------------------------------------------------------------------------------
 
-class TriggerBox(TriggerBase):
+class TriggerBox(BoxClock, TriggerBase):
     """The trigger box on a serial port, as a :class:`~vts_hw.drivers.trigger.TriggerGenerator`."""
 
     capabilities = frozenset({FREQUENCY, DUTY, PULSE, FIRE, CLOCK, EDGES})
@@ -201,6 +86,7 @@ class TriggerBox(TriggerBase):
         self._batches: list[list[RoundTrip]] = []   # kept TIME? round trips, per clock_mapping call
         self._logged_edges: tuple[int | None, int | None] = (None, None)
         self._reported: deque[int] = deque()     # codes raised as BoxRefused, still in the box's queue
+        self._wave: tuple[float, float, str, float | None] | None = None  # start host, period, time, ±
         try:
             self._serial = serial_factory(port, baudrate=baudrate, timeout=timeout,
                                           write_timeout=timeout)
@@ -298,8 +184,7 @@ class TriggerBox(TriggerBase):
         return BoxGone(f"{self.where} is gone (unplugged?): {cmd!r} failed ({self._gone})")
 
     def _refused(self, cmd: str, reply: str) -> BoxRefused:
-        m = re.match(r"ERR\s+(-?\d+)\s*(.*)$", reply)
-        code, message = (int(m.group(1)), m.group(2).strip()) if m else (None, reply[3:].strip())
+        code, message = parse_refusal(reply)
         said = f"ERR {code} {message}".strip() if code is not None else reply
         if code is not None:
             self._reported.append(code)  # the box queues it too; read_errors() will skip it
@@ -313,6 +198,14 @@ class TriggerBox(TriggerBase):
         reply = self.query(cmd)
         if reply != "OK":
             raise TriggerError(f"{self.where} answered {cmd!r} with {reply!r}, not OK")
+
+    def _command_timed(self, cmd: str) -> tuple[float, float]:
+        """A command whose only good answer is ``OK``: (host time just before the write, host
+        time the reply was complete)."""
+        reply, sent, received = self._exchange(cmd)
+        if reply != "OK":
+            raise TriggerError(f"{self.where} answered {cmd!r} with {reply!r}, not OK")
+        return sent, received
 
     def _parse(self, cmd: str, reply: str, parse: Callable[[str], Any], what: str) -> Any:
         try:
@@ -349,8 +242,10 @@ class TriggerBox(TriggerBase):
         """``*RST``: defaults restored; returns once the output is off (a running wave first
         finishes its period, up to 10 s at 0.1 Hz). The box's clock keeps running."""
         with self._lock:
-            self._command("*RST")
+            sent, received = self._command_timed("*RST")
             self._wait_off("*RST", 1.0 / FREQ_MIN_HZ)
+            if self._wave is not None:   # *RST ended it on a whole period; the count is reset too
+                self._wave_stopped("*RST", sent, None)
             self._logged_edges = (None, None)
 
     def clear_errors(self) -> None:
@@ -407,8 +302,9 @@ class TriggerBox(TriggerBase):
     def start(self) -> TriggerStatus:
         """``OUTP ON``: the square wave alone, from a rising edge. Returns the box's status."""
         with self._lock:
-            self._command("OUTP ON")
+            sent, received = self._command_timed("OUTP ON")
             st = self.status()
+            self._wave_started("OUTP ON", sent, received, st, start_pulse=False)
         if not st.running:
             raise TriggerError(f"{self.where} was switched on but reports its output OFF")
         return st
@@ -421,13 +317,14 @@ class TriggerBox(TriggerBase):
         ``running`` still True while the last period finishes.
         """
         with self._lock:
-            self._command("OUTP OFF")
+            sent, _ = self._command_timed("OUTP OFF")
             st = self.status()
             if st.running and wait:
                 self._wait_off("OUTP OFF", 1.0 / (st.frequency_hz or FREQ_MIN_HZ))
                 st = self.status()
                 if st.running:  # pragma: no cover - it said OFF a moment ago
                     raise TriggerError(f"{self.where} was switched off but reports its output ON")
+            self._wave_stopped("OUTP OFF", sent, st)
         return st
 
     def pulse(self, channel: int, ms: int) -> None:
@@ -449,8 +346,9 @@ class TriggerBox(TriggerBase):
         with self._lock:
             if pulse_ms is not None:
                 self.fire_pulse_ms = pulse_ms
-            self._command("*TRG")
+            sent, received = self._command_timed("*TRG")
             st = self.status()
+            self._wave_started("*TRG", sent, received, st, start_pulse=True)
         if not st.running:
             raise TriggerError(f"{self.where} was fired but reports its output OFF")
         return st
@@ -495,104 +393,42 @@ class TriggerBox(TriggerBase):
         raise TriggerError(f"{self.where} still reports errors after {MAX_ERRORS_READ} reads of "
                            f"SYST:ERR?: {'; '.join(errors[:3])} ...")
 
-    # -- edges and the clock ------------------------------------------------------------------------------
+    # -- the neutral rows of trigger.csv (docs/trigger-log-format.md) ---------------------------------
 
-    def device_time_us(self) -> int:
-        """``TIME?``: microseconds since the box booted."""
-        return self._parse("TIME?", self.query("TIME?"), _uint, "count of microseconds")
+    def _wave_started(self, cmd: str, sent: float, received: float, st: TriggerStatus, start_pulse: bool) -> None:
+        """``wave_start``: the first edge through the clock mapping when there is one, else the
+        host time the command was sent plus its time on the wire (± until its reply came)."""
+        if not st.running or not st.frequency_hz or st.duty is None:
+            return
+        period, first, m = 1.0 / st.frequency_hz, st.first_edge_device_us, self.mapping
+        if m is not None and first is not None:
+            host, how, unc = m.to_host(first), DEVICE_CLOCK_MAPPED, m.uncertainty_s
+        else:
+            host = sent + (len(cmd) + 1) * 10 / (self._wire_baud() or BAUDRATE)
+            how, unc = HOST_WRITE, received - sent
+        self._wave = (host, period, how, unc)
+        self.log.wave_started(self.name, host, period_s=period, duty=st.duty, high_v=HIGH_V, low_v=LOW_V,
+                              start_pulse=start_pulse, time_source=how, uncertainty_s=unc, device_us=first)
 
-    def edges(self) -> tuple[int, int, int]:
-        """``EDGES?``: (rising edges since the last start, device us of the first, of the last).
-
-        A first or last edge not logged before is written to ``trigger.csv`` as an ``edge`` line
-        with its device time, and its host time through :attr:`mapping` when one has been fitted
-        (else the host time of the report, and the text says so).
-        """
-        self.require(EDGES)
-        with self._lock:
-            reply = self.query("EDGES?")
-            parts = reply.split(",")
-            if len(parts) != 3:
-                raise TriggerError(f"{self.where} answered 'EDGES?' with {reply!r}, "
-                                   f"not '<count>,<first us>,<last us>'")
-            n, first, last = (self._parse("EDGES?", p.strip(), _uint, "count or time") for p in parts)
-            if n:
-                self._log_edges(n, first, last)
-        return n, first, last
-
-    def _log_edges(self, n: int, first: int, last: int) -> None:
-        logged_first, logged_last = self._logged_edges
-        m = self.mapping
-        how = "host time mapped from the box clock" if m else "host time = when reported (no clock mapping)"
-        if first != logged_first:
-            self._log("edge", f"first rising edge (1 of {n}); {how}", device_us=first,
-                      host_time=m.to_host(first) if m else None)
-        if last != logged_last and last != first:
-            self._log("edge", f"last rising edge ({n} of {n}); {how}", device_us=last,
-                      host_time=m.to_host(last) if m else None)
-        self._logged_edges = (first, last)
-
-    def clock_mapping(self, samples: int = 20, *, over_s: float = 1.0, keep: float = 0.5,
-                      history: bool = True) -> ClockMapping:
-        """Map the box's microseconds to host time from ``samples`` ``TIME?`` round trips.
-
-        The samples are spread evenly over ``over_s`` seconds; of each call's samples the
-        ``keep`` fraction with the shortest round trips is used. With ``history`` the fit also
-        uses the samples kept by earlier calls since the box's clock last went back (a reboot),
-        so a mapping at the end of a session fits the drift over the whole session. The fit
-        (:func:`fit_clock`) weights each sample by 1/round-trip²; the result is kept in
-        :attr:`mapping`, used for the edge lines of the log, and logged as an ``event``.
-        """
-        self.require(CLOCK)
-        if isinstance(samples, bool) or not isinstance(samples, int) or samples < 2:
-            raise ValueError(f"clock_mapping needs at least 2 samples, not {samples!r}")
-        if not over_s >= 0 or not 0 < keep <= 1:
-            raise ValueError(f"clock_mapping: over_s must be >= 0 and keep in (0, 1] "
-                             f"(got {over_s!r}, {keep!r})")
-        gap = over_s / (samples - 1)
-        trips: list[RoundTrip] = []
-        t_begin = self.clock()
-        for i in range(samples):
-            if i and gap > 0:
-                wait = t_begin + i * gap - self.clock()
-                if wait > 0:
-                    self.sleep(wait)
-            reply, sent, received = self._exchange("TIME?")
-            device_us = self._parse("TIME?", reply, _uint, "count of microseconds")
-            if trips and device_us < trips[-1].device_us:
-                raise TriggerError(f"{self.where}: its clock went back from {trips[-1].device_us} "
-                                   f"to {device_us} us during the clock mapping (did it reboot?)")
-            trips.append(RoundTrip(sent, received, device_us,
-                                   wire_skew("TIME?", reply, self._wire_baud())))
-        kept = best_round_trips(trips, keep)
-        with self._lock:
-            if self._batches and _clock_jumped(self._batches[-1][-1], kept[0]):
-                self._log("event", "box clock jumped since the last clock mapping (reboot?): "
-                                   "earlier samples dropped")
-                self._batches.clear()
-            if not history:
-                self._batches.clear()
-            self._batches.append(kept)
-            while sum(len(b) for b in self._batches) > MAX_ROUND_TRIPS_KEPT and len(self._batches) > 1:
-                self._batches.pop(0)
-            used = [t for b in self._batches for t in b]
-            mapping, drift_se = fit_clock(used)
-            self.mapping = mapping
-            self.drift_se_ppm = drift_se
-            span = (used[-1].device_us - used[0].device_us) * 1e-6
-            self._log("event",
-                      f"clock mapping: host = {mapping.ref_host:.6f} + (device_us - "
-                      f"{mapping.ref_device_us}) * 1e-6 * (1 + {mapping.drift_ppm:.3f}e-6); "
-                      f"drift {mapping.drift_ppm:+.3f} ± {drift_se:.3f} ppm, residual "
-                      f"{mapping.residual_s * 1e6:.1f} us, uncertainty {mapping.uncertainty_s * 1e6:.1f} us, "
-                      f"{mapping.samples} samples over {span:.3f} s ({len(kept)} of {len(trips)} kept now)",
-                      device_us=mapping.ref_device_us, host_time=mapping.ref_host)
-        return mapping
-
-    def _wire_baud(self) -> float | None:
-        """The line's baud rate when it is a real (or emulated) serial line, else None."""
-        baud = getattr(self._serial, "baudrate", self.baudrate)
-        return float(baud) if isinstance(baud, (int, float)) and baud > 0 else None
+    def _wave_stopped(self, cmd: str, sent: float, st: TriggerStatus | None) -> None:
+        """``wave_stop``: the box ends on a whole period, so the rising edges it counted (once it
+        reports its output off; while the last period runs, at least the periods begun before
+        the command) place the end at start + n periods."""
+        n = st.edges if st is not None else None
+        if self._wave is not None:
+            start, period, how, unc = self._wave
+            if n is None or st.running:
+                n = max(n or 0, math.ceil((sent - start) / period - 1e-9))
+            host = start + n * period
+        elif st is not None and st.frequency_hz and st.last_edge_device_us is not None:
+            period = 1.0 / st.frequency_hz      # started by another program: end of the last period
+            m = self.mapping
+            host = (m.to_host(st.last_edge_device_us) if m else sent) + period
+            how, unc = (DEVICE_CLOCK_MAPPED, m.uncertainty_s) if m else (HOST_WRITE, period)
+        else:
+            return
+        self._wave = None
+        self.log.wave_stopped(self.name, host, rising_edges=n, time_source=how, uncertainty_s=unc)
 
     # -- closing ---------------------------------------------------------------------------------------
 
@@ -610,84 +446,17 @@ class TriggerBox(TriggerBase):
         super().close()
 
 
-# ---- clock fit --------------------------------------------------------------------------------------
+# ---- the backend (vts_hw.drivers.registry.TRIGGER_BACKENDS["triggerbox"]) -------------------------------
 
-def _uint(text: str) -> int:
-    """A non-negative decimal integer of any size (the box's counters are 64-bit)."""
-    if not text.isdigit():
-        raise ValueError(text)
-    return int(text)
+class BoxSettings(BackendSettings):
+    """The trigger box's own keys in rig.yaml's ``trigger:`` section (``address``: its serial
+    port or a pyserial URL)."""
 
-
-def _clock_jumped(before: RoundTrip, after: RoundTrip) -> bool:
-    """The box's clock did not advance with the host's between two samples (to 1 %, far more
-    than any resonator is off, plus 50 ms): it rebooted, or it is another box."""
-    dh = after.host_mid - before.host_mid
-    dd = (after.device_us - before.device_us) * 1e-6
-    return dd < 0 or abs(dd - dh) > 0.01 * abs(dh) + 0.05
+    timeout_s: float = Field(default=1.0, gt=0, le=60, description="how long to wait for each reply")
 
 
-def best_round_trips(trips: Sequence[RoundTrip], keep: float = 0.5) -> list[RoundTrip]:
-    """The ``keep`` fraction (at least 2, at most all) with the shortest round trips, in time order."""
-    n = min(len(trips), max(2, math.ceil(keep * len(trips))))
-    best = sorted(range(len(trips)), key=lambda i: trips[i].rtt)[:n]
-    return [trips[i] for i in sorted(best)]
+def _open_box(cfg, settings: BoxSettings, log: TriggerLog) -> TriggerBox:
+    return TriggerBox(cfg.address, timeout=settings.timeout_s, log=log)
 
 
-def fit_clock(trips: Sequence[RoundTrip]) -> tuple[ClockMapping, float]:
-    """Fit host_mid = ref_host + (device_us - ref_device_us) * 1e-6 * (1 + drift * 1e-6).
-
-    Weighted least squares, weight 1/rtt² (the midpoint of a round trip is off by at most half
-    of it, so short round trips count most), then once more without samples whose residual is
-    beyond 4 robust SDs (and beyond their own half round trip). Differences are taken from the
-    first sample in integers before any float arithmetic, so 64-bit device counts and epoch
-    host times keep their microseconds. ``ref_device_us`` is the weighted centre of the samples
-    (where the offset is best known). Returns the mapping and the drift's standard error in ppm
-    (``inf`` when it cannot be estimated).
-    """
-    if len(trips) < 2:
-        raise ValueError("a clock fit needs at least 2 round trips")
-    d0 = trips[0].device_us
-    h0 = trips[0].host_mid
-    xs = [(t.device_us - d0) * 1e-6 for t in trips]
-    ys = [t.host_mid - h0 for t in trips]
-    rtts = [max(t.rtt, 1e-7) for t in trips]
-    use = [True] * len(trips)
-
-    def solve(mask):
-        w = [1.0 / r ** 2 if u else 0.0 for r, u in zip(rtts, mask)]
-        sw = sum(w)
-        xm = sum(wi * x for wi, x in zip(w, xs)) / sw
-        ym = sum(wi * y for wi, y in zip(w, ys)) / sw
-        sxx = sum(wi * (x - xm) ** 2 for wi, x in zip(w, xs))
-        if sxx <= 0 or sum(mask) < 2:
-            b = 1.0  # one device time only: offset alone, no drift
-        else:
-            b = sum(wi * (x - xm) * (y - ym) for wi, x, y in zip(w, xs, ys)) / sxx
-        res = [y - (ym + b * (x - xm)) for x, y in zip(xs, ys)]
-        return w, sw, xm, ym, sxx, b, res
-
-    w, sw, xm, ym, sxx, b, res = solve(use)
-    if len(trips) >= 6:
-        kept = sorted(abs(r) for r in res)
-        sigma = 1.4826 * kept[len(kept) // 2]
-        mask = [abs(r) <= max(4 * sigma, rt / 2) for r, rt in zip(res, rtts)]
-        if sum(mask) >= 3 and not all(mask):
-            use = mask
-            w, sw, xm, ym, sxx, b, res = solve(use)
-
-    n = sum(use)
-    ref_device_us = d0 + round(xm * 1e6)
-    x_ref = (ref_device_us - d0) * 1e-6
-    ref_host = h0 + ym + b * (x_ref - xm)
-    used_res = [r for r, u in zip(res, use) if u]
-    residual = math.sqrt(sum(r * r for r in used_res) / n)
-    if sxx > 0 and n > 2:
-        chi = sum(wi * r * r for wi, r in zip(w, res)) / (n - 2)
-        drift_se = math.sqrt(chi / sxx) * 1e6
-    else:
-        drift_se = math.inf
-    mapping = ClockMapping(ref_host=ref_host, ref_device_us=ref_device_us, drift_ppm=(b - 1.0) * 1e6,
-                           residual_s=residual,
-                           uncertainty_s=min(r for r, u in zip(rtts, use) if u) / 2, samples=n)
-    return mapping, drift_se
+BACKEND = TriggerBackend("triggerbox", "our trigger box on a serial line", BoxSettings, _open_box)

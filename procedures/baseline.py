@@ -8,14 +8,40 @@ markers is that camera's baseline; setting a new one never changes the old runs.
 
 from __future__ import annotations
 
+import time
+from typing import Callable
+
 from vts_hw.errors import VtsError
-from vts_hw.procedures.drift import Baseline, BaselineMarker
+from vts_hw.procedures.drift import Baseline, BaselineMarker, acquire_led_frames
 
 PROCEDURE = "drift-baseline"
 
 
 class NoBaseline(VtsError):
     exit_code = 5
+
+
+class NoMarkers(VtsError):
+    """A camera showed no wall markers with the LED on: no baseline is set for any camera."""
+
+
+def take_baseline(cam, frames: int = 5, clock: Callable[[], float] = time.time) -> Baseline:
+    """LED on, ``frames`` snapshots of camera ``cam``, the wall markers seen in every one."""
+    on, _ = acquire_led_frames(cam, frames)
+    b = Baseline.from_frames(cam.name, [f.jpeg for f in on], clock())
+    if not b.markers:
+        raise NoMarkers(f"camera {cam.name}: no wall markers found with the LED on; baseline not set")
+    return b
+
+
+def set_baselines(store, cameras, *, frames: int = 5, clock: Callable[[], float] = time.time, rig: str = "",
+                  operator: str = "", config_digest: str = "") -> tuple[int, list[Baseline]]:
+    """The drift baseline of each of ``cameras`` (given, opened by the caller), stored as one
+    run; returns (run id, baselines). A camera without markers stores nothing (NoMarkers)."""
+    baselines = [take_baseline(cam, frames, clock) for cam in cameras]
+    run_id = save_baselines(store, baselines, rig=rig, operator=operator, started=clock(),
+                            config_digest=config_digest)
+    return run_id, baselines
 
 
 def save_baselines(store, baselines: list[Baseline], rig: str = "", operator: str = "", started=None,

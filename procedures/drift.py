@@ -24,6 +24,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from vts_hw import __version__
+from vts_hw.camera import Frame
 from vts_hw.vision.detect import DetectorSettings, detect_jpeg
 from vts_hw.tolerance import DEFAULT_TOLERANCES, State, Window, worst
 
@@ -83,15 +84,6 @@ def _match(ref: np.ndarray, pts: np.ndarray, gate: float) -> list[tuple[int, int
     return [(int(i), int(j)) for i, j in zip(rows, cols) if d[i, j] <= gate]
 
 
-@dataclass(frozen=True)
-class Snapshot:
-    """A frame as the procedure uses it: the JPEG and when it was taken."""
-
-    jpeg: bytes
-    camera_time: float | None
-    host_time: float
-
-
 @dataclass
 class MarkerDrift:
     id: str
@@ -123,7 +115,7 @@ class DriftAnalysis:
 
     procedure = "drift"
 
-    def __init__(self, camera: str, baseline: Baseline, frames_on: list[Snapshot], frame_off: Snapshot | None,
+    def __init__(self, camera: str, baseline: Baseline, frames_on: list[Frame], frame_off: Frame | None,
                  mm_per_px: float = 1.25, settings: DetectorSettings | None = None):
         self.camera = camera
         self.baseline = baseline
@@ -137,8 +129,8 @@ class DriftAnalysis:
     @classmethod
     def from_frames(cls, camera: str, baseline: Baseline, jpegs_on: list[bytes], jpeg_off: bytes | None,
                     **kwargs) -> "DriftAnalysis":
-        on = [Snapshot(j, None, 0.0) for j in jpegs_on]
-        off = Snapshot(jpeg_off, None, 0.0) if jpeg_off is not None else None
+        on = [Frame(i, j, None, 0.0) for i, j in enumerate(jpegs_on)]
+        off = Frame(0, jpeg_off, None, 0.0) if jpeg_off is not None else None
         return cls(camera, baseline, on, off, **kwargs)
 
     @classmethod
@@ -271,6 +263,8 @@ class DriftAnalysis:
         if self.led_off_visible is not None:
             lines.append("  LED check: " + ("markers vanish with the LED off (OK)" if self.led_off_visible == 0 else
                                            f"{self.led_off_visible} marker(s) still bright with the LED off"))
+        else:
+            lines.append("  LED check: not made (no LED-off frame; e.g. a camera that cannot switch its LED)")
         for m in self.measures:
             if "/" not in m.subject and m.state != State.OK:
                 lines.append(f"  {m.state}: {m.metric} = {_f(m.value)} {m.unit}")
@@ -320,22 +314,23 @@ class DriftAnalysis:
 
 
 def acquire_led_frames(cam, n_frames: int = 5, settle_s: float = LED_SETTLE_S):
-    """LED on, ``n_frames`` snapshots, LED off, one snapshot; the LED is left on."""
+    """LED on, ``n_frames`` snapshots, LED off, one snapshot; the LED is left on.
+
+    A camera whose LED calls change nothing (``led_switches`` False, e.g. a replayed
+    recording) gives no LED-off frame: the LED check is not made rather than failed."""
     import time
     cam.led_on()
     time.sleep(settle_s)
-    on = [_snap(cam.snapshot()) for _ in range(n_frames)]
+    on = [cam.snapshot() for _ in range(n_frames)]
+    if not getattr(cam, "led_switches", True):
+        return on, None
     cam.led_off()
     time.sleep(settle_s)
     try:
-        off = _snap(cam.snapshot())
+        off = cam.snapshot()
     finally:
         cam.led_on()
     return on, off
-
-
-def _snap(frame) -> Snapshot:
-    return Snapshot(frame.jpeg, frame.camera_time, frame.host_time)
 
 
 def _persistent(points: list[tuple[float, float]], n_frames: int, radius: float = 5.0) -> list[tuple[float, float]]:

@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Callable
 
 from vts_hw.config import RigConfig
-from vts_hw.drivers.axis import AxisCamera, BadReply
+from vts_hw.camera import Camera, NoParameters
 from vts_hw.errors import UsageError, VtsError
 from vts_hw.recording.capture import Recorder
 from vts_hw.procedures.scan_trigger import ScanError, ScanTrigger, plain_dict
@@ -94,11 +94,12 @@ def _iso(t: float) -> str:
 class ScanSession:
     """One scan: ``start()`` (steps 1–7), ``wait()`` (8), ``stop()`` (9) — or ``run()``.
 
-    ``duration`` counts from the fire; None runs until :meth:`request_stop` or Ctrl-C.
-    ``on_step(name, text)`` is told as each step is done.
+    ``cameras`` are the rig's cameras, opened by the caller (``drivers.registry.open_cameras``);
+    the session checks, records and closes them. ``duration`` counts from the fire; None runs
+    until :meth:`request_stop` or Ctrl-C. ``on_step(name, text)`` is told as each step is done.
     """
 
-    def __init__(self, rig: RigConfig, folder: str | Path, *, duration: float | None = None,
+    def __init__(self, rig: RigConfig, folder: str | Path, cameras: list[Camera], *, duration: float | None = None,
                  clock=time.time, first_frame_timeout: float = FIRST_FRAME_TIMEOUT_S,
                  on_step: Callable[[str, str], None] | None = None):
         self.rig = rig
@@ -107,34 +108,39 @@ class ScanSession:
         self.clock = clock
         self.first_frame_timeout = first_frame_timeout
         self.on_step = on_step or (lambda name, text: None)
-        self.cameras: list[AxisCamera] = []
+        self.cameras: list[Camera] = list(cameras)
+        self._configs = {c.name: c for c in rig.cameras}
         self.trigger = ScanTrigger(rig, clock)
         self.recorder: Recorder | None = None
         self.phase = "planned"
         self.times: dict[str, float | None] = {}
-        self.cam_notes: dict[str, dict] = {c.name: {} for c in rig.cameras}
+        self.cam_notes: dict[str, dict] = {c.name: {} for c in self.cameras}
         self.stop_reason: str | None = None
         self.manifest: dict | None = None
         self._scan_t0: float | None = None      # monotonic time the scan clock started (the fire)
         self._stop = threading.Event()
         self._stop_lock = threading.Lock()
         self._monitor: threading.Thread | None = None
-        self._rates: dict[str, deque] = {c.name: deque(maxlen=16) for c in rig.cameras}
+        self._rates: dict[str, deque] = {c.name: deque(maxlen=16) for c in self.cameras}
 
     # -- the plan ------------------------------------------------------------------------------------
     def plan(self) -> list[Step]:
         """The steps this session will take on this rig. Touches nothing."""
         r, t = self.rig, self.rig.trigger
-        cams = ", ".join(f"{c.name} ({c.base_url})" for c in r.cameras)
-        res = sorted({c.resolution_str for c in r.cameras})
-        fps = sorted({f"{c.fps:g}" for c in r.cameras})
-        steps = [Step("check cameras", f"check {len(r.cameras)} camera(s) {cams}: reachable, password accepted, "
+        cfgs = [self._configs[c.name] for c in self.cameras if c.name in self._configs] or list(r.cameras)
+        cams = ", ".join(f"{c.name} ({c.base_url})" for c in cfgs)
+        res = sorted({c.resolution_str for c in cfgs})
+        fps = sorted({f"{c.fps:g}" for c in cfgs})
+        steps = [Step("check cameras", f"check {len(cfgs)} camera(s) {cams}: reachable, password accepted, "
                                        f"{'/'.join(res)} offered, {'/'.join(fps)} fps asked; LED ring on")]
         if t.backend == "none":
             steps.append(Step("check trigger", "no trigger generator (trigger backend none): recording only"))
         else:
-            levels = f", levels {t.low_v:g}..{t.high_v:g} V where it has them" if t.backend != "triggerbox" else ""
-            steps += [Step("check trigger", f"check the {t.backend} trigger at {t.address}: status, stop a square wave "
+            from vts_hw.drivers.registry import trigger_backend
+            backend = trigger_backend(t, str(getattr(r, "_source", None) or "rig.yaml"))
+            levels = f", levels {t.low_v:g}..{t.high_v:g} V" if backend.levels else ""
+            steps += [Step("check trigger", f"check the {t.backend} trigger, {backend.what}, at {t.address}: "
+                                            f"status, stop a square wave "
                                             f"left running, configure {t.frequency_hz:g} Hz, duty {t.duty:g}{levels}"),
                       Step("map trigger clock", "map the trigger's device clock to host time (where it has one)")]
         steps += [
@@ -212,13 +218,14 @@ class ScanSession:
 
     def _check_cameras(self) -> None:
         failures: list[VtsError] = []
-        for cfg in self.rig.cameras:
+        if not self.cameras:
+            raise ScanError("cannot start the scan: no cameras were given")
+        for cam in self.cameras:
             try:
-                cam = AxisCamera.from_config(cfg, clock=self.clock)
-                self.cameras.append(cam)
+                cfg = self.rig.camera(cam.name)
                 info = cam.device_info()
                 self.cam_notes[cfg.name].update(
-                    url=cam.base_url, resolution=cfg.resolution_str, fps_asked=cfg.fps,
+                    url=cfg.base_url, resolution=cfg.resolution_str, fps_asked=cfg.fps,
                     device={k: info.get(k) for k in ("ProdNbr", "SerialNumber", "Version") if k in info})
                 self._check_image(cam, cfg)
                 cam.led_on()  # the markers are retro-reflective: bright only with the LED ring on
@@ -229,10 +236,13 @@ class ScanSession:
             raise ScanError("cannot start the scan: " + "; ".join(str(e) for e in failures),
                             failures[0].exit_code)
 
-    def _check_image(self, cam: AxisCamera, cfg) -> None:
+    def _check_image(self, cam: Camera, cfg) -> None:
         try:
             offered = cam.get_params("Properties.Image").get("Properties.Image.Resolution", "")
-        except BadReply:
+        except NoParameters:
+            self.cam_notes[cfg.name]["parameters"] = "none (this kind of camera has no parameters)"
+            return
+        except VtsError:
             offered = ""  # older firmware does not list them: the stream request will tell
         sizes = [s.strip().lower() for s in offered.split(",") if s.strip()]
         if sizes and cfg.resolution_str.lower() not in sizes:

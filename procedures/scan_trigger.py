@@ -51,6 +51,7 @@ class ScanTrigger:
     """
 
     def __init__(self, rig: RigConfig, clock=time.time):
+        self.rig = rig
         self.cfg = rig.trigger
         self.clock = clock
         self.gen = None
@@ -91,7 +92,7 @@ class ScanTrigger:
             return
         from vts_hw.drivers.registry import open_trigger
         try:
-            self.gen = open_trigger(self.cfg, None, clock=self.clock)
+            self.gen = open_trigger(self.rig, None, clock=self.clock)
             self.log = self.gen.log
             if hasattr(self.gen, "identify"):
                 self.info["idn"] = self._identify()

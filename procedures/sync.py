@@ -45,7 +45,12 @@ import numpy as np
 
 from vts_hw.errors import DataError
 from vts_hw.timing.motion_events import StepFit, find_steps, fit_step, match_events, robust_sd
-from vts_hw.spect.gating import GatingResult, WaveInfo, analyze_gating, axial_centre_of_mass, wave_from_trigger_log
+from vts_hw.recording.trigger_log import WaveInfo, wave_from_trigger_log
+from vts_hw.spect.gating import GatingResult, analyze_gating, axial_centre_of_mass
+from vts_hw.figures import figure_png
+from vts_hw.procedures.sync_verdict import sync_measures, sync_verdict, sync_windows
+from vts_hw.results import Measure
+from vts_hw.tolerance import State
 from vts_hw.procedures.sync_inputs import CLOCK_SLACK_S, check_session, choose_listmode, load_calibration, load_mapping
 
 __all__ = ["SyncAnalysis", "SyncEvent", "export_trajectories", "load_calibration", "load_mapping",
@@ -159,11 +164,14 @@ class SyncAnalysis:
         self.tracks = None
         self.events: list[SyncEvent] = []
         self.problems: list[str] = []
+        self.tolerances: dict | None = None
         self._done = False
 
     # ------------------------------------------------------------------ analysis
     def analyze(self, *, bin_s: float = BIN_S, match_s: float = MATCH_S, join_mm: float = JOIN_MM,
-                min_step_mm: float = 4.0) -> "SyncAnalysis":
+                min_step_mm: float = 4.0, tolerances: dict | None = None) -> "SyncAnalysis":
+        """``tolerances``: the rig's tolerance windows over the defaults (the ``sync_*`` ones judge)."""
+        self.tolerances = tolerances
         from vts_hw.spect.listmode import read_listmode
         from vts_hw.recording.processing import process_recording
 
@@ -335,8 +343,9 @@ class SyncAnalysis:
             "spect_clock_offset_s": g.clock_offset_s,
             "spect_skew_ppm": g.clock.skew_ppm,
         }
-        from vts_hw.report.sync_html import sync_state
-        summary["state"] = sync_state({"summary": summary})
+        windows = sync_windows(self.tolerances)
+        state, reason = sync_verdict(summary, windows, self.problems)
+        summary["state"], summary["state_reason"] = state.value, reason
         clock_fits = self.tracks.meta.get("clock_fits", {})
         return {
             "procedure": "sync check", "session": str(self.session), "listmode": str(self.listmode_path),
@@ -344,9 +353,12 @@ class SyncAnalysis:
             "clocks": "host UTC epoch s unless named: *_list_s SPECT list-mode s since its acquisition "
                       "start, *_rel_s s since the trigger's first edge",
             "summary": summary, "events": events,
+            "windows": {m: w.as_dict() for m, w in windows.items()},
             "trigger": {"device": self.wave.device, "start_host": self.wave.start_host,
                         "period_s": self.wave.period_s, "host_period_s": self.wave.host_period_s,
-                        "duty": self.wave.duty, "start_pulse": self.wave.start_pulse, "how": self.wave.how},
+                        "duty": self.wave.duty, "start_pulse": self.wave.start_pulse, "how": self.wave.how,
+                        "time_source": self.wave.time_source, "uncertainty_s": self.wave.uncertainty_s,
+                        "converted_from_old_log": self.wave.converted},
             "gating": g.to_json(),
             "dead_time_host": self.dead_host.tolist(),
             "vts": {"markers": self.marker_ids, "trace": "SPECT Z" if self.vts_axial else "main direction of motion",
@@ -357,6 +369,21 @@ class SyncAnalysis:
             "calibration": dict(self.calibration_info),
             "problems": list(self.problems),
         }
+
+    # ------------------------------------------------------------------ the QA result shape
+    procedure = "sync"
+
+    def measures(self) -> list[Measure]:
+        """The figures the tolerance table's sync windows judge (subject: the VTS against the SPECT)."""
+        self._need()
+        s = self.results_data()["summary"]
+        windows = sync_windows(self.tolerances)
+        units = {"sync_max_abs_dt_ms": "ms", "sync_events_one_system": "events", "sync_events_both": "events"}
+        return [Measure.judged("vts-spect", m, v, units[m], windows[m]) for m, v in sync_measures(s).items()]
+
+    @property
+    def state(self) -> State:
+        return State(self.results_data()["summary"]["state"])
 
     def results(self) -> str:
         """A short text summary for people (times relative to the trigger's first edge)."""
@@ -397,7 +424,6 @@ class SyncAnalysis:
 
     def plot(self, path=None) -> bytes:
         """PNG of :meth:`figure`; written to ``path`` when given. Returns the bytes."""
-        from vts_hw.report.plots import figure_png
         png = figure_png(self.figure())
         if path is not None:
             Path(path).write_bytes(png)

@@ -49,7 +49,7 @@ import numpy as np
 
 from vts_hw.sim_devices.axis_http import Handler
 from vts_hw.sim_devices.axis_params import DEFAULT_MODEL, ParamStore, Profile, describe
-from vts_hw.sim_devices.axis_streaming import BOUNDARY, restamp
+from vts_hw.sim_devices.axis_streaming import BOUNDARY, restamp, unstamped
 from vts_hw.sim_devices.clock import RealClock
 from vts_hw.sim_devices.digest import BasicAuth, DigestAuth
 from vts_hw.sim_devices.faults import Faults
@@ -229,6 +229,8 @@ class SimAxisCamera:
             small = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
             _, enc = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, quality])
             jpeg = enc.tobytes()
+        if self.faults.no_axis_stamps:
+            return unstamped(jpeg)
         return restamp(jpeg, epoch, self.product, self.profile.jpeg_layout, self.profile.time_extra_zero)
 
     def sleep_until(self, target: float) -> bool:

@@ -83,6 +83,20 @@ def restamp(jpeg: bytes, epoch: float, product: AxisProduct, layout: str = "afte
     return b"".join(kept) + jpeg[i:]
 
 
+def unstamped(jpeg: bytes) -> bytes:
+    """``jpeg`` without any Axis comment segment (time or product), as a non-Axis camera sends it."""
+    if not jpeg.startswith(SOI):
+        raise ValueError("unstamped: not a JPEG")
+    kept, i, n = [SOI], 2, len(jpeg)
+    while i + 4 <= n and jpeg[i] == 0xFF and jpeg[i + 1] != 0xDA:
+        (length,) = struct.unpack(">H", jpeg[i + 2:i + 4])
+        seg = jpeg[i:i + 2 + length]
+        if not (jpeg[i + 1] == 0xFE and length == 15 and seg[4:6] in (b"\x0a\x00", b"\x0a\x01")):
+            kept.append(seg)
+        i += 2 + length
+    return b"".join(kept) + jpeg[i:]
+
+
 def image_args(h: "Handler") -> tuple[int, int, int]:
     """(width, height, JPEG quality) from resolution= and compression=."""
     cam = h.cam

@@ -47,6 +47,8 @@ class Faults:
     """Stream parts without a Content-Length header (clients must scan for the boundary)."""
     close_after_response: bool = False
     """Old firmware: ``HTTP/1.0`` and ``Connection: close`` on every response."""
+    no_axis_stamps: bool = False
+    """JPEGs without the Axis comment segments (no time, no product): a plain MJPEG camera."""
     offline: bool = False
     """Off the network (cable pulled, camera rebooting): running streams are cut before their
     next frame and every new VAPIX request is hung up on unanswered. ``/sim/`` still answers."""
@@ -91,7 +93,7 @@ _FIELD_TYPES = {
     "too_many_viewers": "bool", "max_viewers": "count?", "reject_auth": "bool",
     "torn_jpeg_at": "count?", "torn_mode": "mode", "wrong_content_length_at": "count?",
     "wrong_content_length_extra": "count", "missing_content_length": "bool",
-    "close_after_response": "bool", "offline": "bool",
+    "close_after_response": "bool", "offline": "bool", "no_axis_stamps": "bool",
 }
 
 

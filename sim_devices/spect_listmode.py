@@ -6,9 +6,10 @@ Where the trigger comes from (host UTC epoch seconds throughout):
   pins the emulator logged (``OC1A`` square wave, ``CH2`` SPECT start pulse) and maps their
   emulated cycles to host time with the anchor the harness logs as it starts
   (:meth:`SimTriggerBox.host_time`: ``t0 + cycles / 16 MHz / speed``);
-* the simulated function generator (pyvisa-sim emits nothing): :func:`edges_from_trigger_log`
-  rebuilds the wave from the session's ``trigger.csv`` (``OUTP 1`` sent at the host time
-  logged, frequency, duty, levels; :func:`vts_hw.spect.gating.wave_from_trigger_log`);
+* any backend that emits nothing here (the pyvisa-sim function generator, NI-DAQmx behind a
+  fake port): :func:`edges_from_trigger_log` rebuilds the wave from the neutral rows of the
+  session's ``trigger.csv`` (start host time, period, duty, levels, stop;
+  :func:`vts_hw.recording.trigger_log.wave_from_trigger_log`, docs/trigger-log-format.md);
 * anything else: a :class:`TriggerEdges` built by hand (offline tests).
 
 What the simulated SPECT does (:func:`write_sim_listmode`, all in one pass, so a 60 s or a
@@ -50,7 +51,7 @@ from vts_hw.files import write_json_atomic
 from vts_hw.spect.listmode.vtslm import VtslmWriter
 from vts_hw.sim_devices.scene import Scene
 from vts_hw.sim_devices.source_marker import SourceMarker
-from vts_hw.spect.gating import square_wave_edges, wave_from_trigger_log
+from vts_hw.recording.trigger_log import square_wave_edges, wave_from_trigger_log
 
 __all__ = ["TriggerEdges", "Source", "SimSpectSettings", "ListModeTruth", "SimListModeSpect",
            "edges_from_trigger_box", "edges_from_trigger_log", "write_sim_listmode", "truth_path"]
@@ -172,10 +173,10 @@ def edges_from_trigger_box(box, pulse_channel: str = "CH2") -> TriggerEdges:
 
 
 def edges_from_trigger_log(path, device: str | None = None, until: float | None = None) -> TriggerEdges:
-    """The square wave a ``trigger.csv`` says was sent (for the function generator, whose
-    simulated output is emitted nowhere): from ``OUTP 1`` at the host time logged, at the
-    logged frequency, duty and levels, until ``OUTP 0`` (or ``until`` if never stopped).
-    A trigger box's log works too (``*TRG`` also gives the start pulse)."""
+    """The square wave a ``trigger.csv`` says was sent, from its neutral rows (any backend):
+    from the ``wave_start`` row's host time, at its period, duty and levels, until its
+    ``wave_stop`` (or ``until`` if never stopped); the start pulse with the first edge when
+    the row says ``start_pulse=yes``."""
     wave = wave_from_trigger_log(path, device)
     rising, falling = square_wave_edges(wave, until)
     return TriggerEdges(rising, falling, wave.start_host if wave.start_pulse else None,
@@ -434,5 +435,5 @@ class SimListModeSpect:
 
     def follow_trigger_log(self, log_path, path, duration_s: float, device: str | None = None,
                            until: float | None = None) -> ListModeTruth:
-        """Follow the wave a trigger log describes (the function generator)."""
+        """Follow the wave a trigger log describes, from its neutral rows (any backend)."""
         return self.write(path, edges_from_trigger_log(log_path, device, until), duration_s)

@@ -1,10 +1,17 @@
 import os
+import tempfile
 from pathlib import Path
 
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("VTS_SHARED_DATA", REPO.parent / "shared" / "data"))
+
+
+def pytest_configure(config):
+    """No test writes the user's own results store (the per-user default, used when a rig.yaml
+    names none): the per-user data folder is a fresh one for the session (and its commands)."""
+    os.environ["XDG_DATA_HOME"] = tempfile.mkdtemp(prefix="vts-test-data-")
 
 
 @pytest.fixture(scope="session")
@@ -30,9 +37,9 @@ def sim_rig():
 
 @pytest.fixture()
 def cam1(sim_rig):
-    from vts_hw.drivers.axis import AxisCamera
+    from vts_hw.drivers.registry import open_camera
 
-    with AxisCamera.from_config(sim_rig.config().camera("cam1")) as cam:
+    with open_camera(sim_rig.config().camera("cam1")) as cam:
         yield cam
 
 

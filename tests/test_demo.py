@@ -8,6 +8,10 @@ from vts_hw.sim_devices.scenarios.demo_days import DAY, FAST_CAMERA, run_demo
 from vts_hw.report import build_drift_report
 from vts_hw.store import ResultsStore
 
+# 60 simulated days: ~40 s on an idle 2-core machine, several minutes on a loaded one; the
+# timeout is a hang detector, and it counts the module fixture's set-up
+pytestmark = pytest.mark.timeout(900)
+
 
 @pytest.fixture(scope="module")
 def demo(tmp_path_factory):

@@ -244,8 +244,13 @@ def test_trigger_csv_has_every_command_and_reply(tmp_path):
         if r["kind"] == "cmd" and r["text"].endswith("?"):
             assert nxt["kind"] == "reply"
     assert rows[-1]["kind"] == "event" and rows[-1]["text"] == "closed"
-    times = [float(r["host_time"]) for r in rows]
+    # the wire rows are stamped as written; the neutral row (docs/trigger-log-format.md) carries
+    # the time of what it describes: the wave started at the host time OUTP 1 was written
+    times = [float(r["host_time"]) for r in rows if r["kind"] != "wave_start"]
     assert times == sorted(times)
+    start, = [r for r in rows if r["kind"] == "wave_start"]
+    assert start["host_time"] == next(r for r in rows if r["text"] == "OUTP 1")["host_time"]
+    assert start["text"].startswith("period_s=1.0 duty=0.5 high_v=0.05 low_v=-0.05 start_pulse=no time=host_write ")
 
 
 def test_the_shipped_model_is_package_data_that_sim_finds():

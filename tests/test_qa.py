@@ -15,7 +15,7 @@ from vts_hw.config import parse_rig
 from vts_hw.procedures.baseline import NoBaseline, load_baseline, save_baselines
 from vts_hw.procedures.daily import QARun
 from vts_hw.procedures.drift import Baseline, acquire_led_frames
-from vts_hw.drivers.axis import AxisCamera
+from vts_hw.drivers.registry import open_camera
 from vts_hw.store import ResultsStore
 from vts_hw.tolerance import State
 
@@ -38,7 +38,7 @@ def store(rig_cfg):
 def _baseline(rig_cfg, store):
     bs = []
     for c in rig_cfg.cameras:
-        with AxisCamera.from_config(c) as cam:
+        with open_camera(c) as cam:
             on, _ = acquire_led_frames(cam, 3)
         bs.append(Baseline.from_frames(c.name, [s.jpeg for s in on], time.time()))
     return save_baselines(store, bs, rig=rig_cfg.rig)
@@ -49,7 +49,7 @@ def test_daily_set_all_ok_and_stored(rig_cfg, store, tmp_path):
         load_baseline(store, "cam1")
     _baseline(rig_cfg, store)
     assert len(load_baseline(store, "cam2").markers) == 5
-    res = QARun(rig_cfg, store, n_frames=3, artifacts_dir=tmp_path / "art", plots=True).run()
+    res = QARun(rig_cfg, store, open_camera=open_camera, n_frames=3, artifacts_dir=tmp_path / "art", plots=True).run()
     assert res.state == State.OK and res.exit_code == 0, res.results()
     run = store.run(res.run_id)
     assert run.procedure == "daily" and run.status == "OK"
@@ -70,7 +70,7 @@ def test_changed_parameter_and_dead_camera_are_actions(rig_cfg, store, sim_rig):
     _baseline(rig_cfg, store)
     sim_rig.servers["cam1"].params.update([("Image.I0.Appearance.Compression", "60")])
     sim_rig.servers["cam2"].stop()
-    res = QARun(rig_cfg, store, n_frames=2).run()
+    res = QARun(rig_cfg, store, open_camera=open_camera, n_frames=2).run()
     by_cam = {c.camera: c for c in res.cameras}
     assert res.state == State.ACTION and res.exit_code == 20
     assert any("Compression is '60', locked at '25'" in p for p in by_cam["cam1"].problems)
@@ -83,10 +83,10 @@ def test_changed_parameter_and_dead_camera_are_actions(rig_cfg, store, sim_rig):
 def test_tolerance_change_never_rewrites_history(rig_cfg, store):
     from vts_hw.tolerance import Window
     _baseline(rig_cfg, store)
-    first = QARun(rig_cfg, store, n_frames=2, steps=("drift",)).run()
+    first = QARun(rig_cfg, store, open_camera=open_camera, n_frames=2, steps=("drift",)).run()
     assert first.state == State.OK
     tight = rig_cfg.model_copy(update={"tolerances": {"drift_x_px": Window.symmetric(0.0, 0.0, "px")}})
-    second = QARun(tight, store, n_frames=2, steps=("drift",)).run()
+    second = QARun(tight, store, open_camera=open_camera, n_frames=2, steps=("drift",)).run()
     assert second.state == State.ACTION
     assert store.run(first.run_id).status == "OK"
     old = [m for m in store.measurements(run_id=first.run_id) if m.metric == "drift_x_px" and m.subject == "cam1"]

@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from vts_hw.config import parse_rig
-from vts_hw.drivers.axis import AxisCamera
+from vts_hw.drivers.registry import open_camera
 from vts_hw.procedures.baseline import save_baselines
 from vts_hw.procedures.daily import QARun
 from vts_hw.procedures.drift import Baseline, acquire_led_frames
@@ -46,7 +46,7 @@ def _setup(r, folder, store_url, extra=None):
 def _baseline(cfg, store):
     bs = []
     for c in cfg.cameras:
-        with AxisCamera.from_config(c) as cam:
+        with open_camera(c) as cam:
             on, _ = acquire_led_frames(cam, 2)
         bs.append(Baseline.from_frames(c.name, [s.jpeg for s in on], time.time()))
     save_baselines(store, bs, rig=cfg.rig)
@@ -146,7 +146,7 @@ def test_store_full_at_the_end_of_the_run(rig, tmp_path, small_disk):
             if not filled:
                 disk.fill(leave=0)
                 filled.append(msg)
-        res = QARun(cfg, s, n_frames=2, artifacts_dir=disk.path / "artifacts", progress=progress).run()
+        res = QARun(cfg, s, open_camera=open_camera, n_frames=2, artifacts_dir=disk.path / "artifacts", progress=progress).run()
     assert filled and res.run_id is None and "cannot write" in res.store_error
     assert {c.camera for c in res.cameras} == {"cam1", "cam2"}
     assert any(m[1] == "drift_x_px" for c in res.cameras for m in c.measures)

@@ -3,13 +3,13 @@
 import json
 import threading
 
-from vts_hw.drivers.axis import AxisCamera
+from vts_hw.drivers.registry import open_cameras
 from vts_hw.recording.capture import Recorder
 from vts_hw.recording.folder import info, read_index
 
 
 def _cams(rig):
-    return [AxisCamera.from_config(c) for c in rig.config().cameras]
+    return open_cameras(rig.config().cameras)
 
 
 def test_drop_on_one_camera_keeps_everything_and_states_the_gap(sim_rig, tmp_path):

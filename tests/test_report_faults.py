@@ -216,10 +216,15 @@ def test_an_old_note_with_a_class_name_reads_plainly(tmp_path):
 
 
 def _sync_data(problems: list[str], max_dt: float) -> dict:
+    """A sync check's data as the analysis gives it, its verdict from the tolerance table."""
+    from vts_hw.procedures.sync_verdict import sync_verdict, sync_windows
+    summary = {"events": 3, "events_both": 3, "events_spect_only": 0, "events_vts_only": 0,
+               "offset_s": 0.002, "spread_sd_s": 0.003, "max_abs_dt_s": max_dt, "start_delay_s": 0.01,
+               "start_delay_modulo_s": 1.0, "spect_clock_offset_s": 0.1, "spect_skew_ppm": 3.0}
+    state, reason = sync_verdict(summary, problems=problems)
+    summary.update(state=state.value, state_reason=reason)
     return {
-        "summary": {"events": 3, "events_both": 3, "events_spect_only": 0, "events_vts_only": 0,
-                    "offset_s": 0.002, "spread_sd_s": 0.003, "max_abs_dt_s": max_dt, "start_delay_s": 0.01,
-                    "start_delay_modulo_s": 1.0, "spect_clock_offset_s": 0.1, "spect_skew_ppm": 3.0},
+        "summary": summary, "windows": {m: w.as_dict() for m, w in sync_windows().items()},
         "events": [], "trigger": {"start_host": 0.0, "device": "triggerbox", "period_s": 1.0, "duty": 0.5,
                                   "how": "the box's clock"},
         "gating": {"rising_edges": 20, "falling_edges": 20, "gate_low_v": 0.0, "gate_high_v": 5.0,

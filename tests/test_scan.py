@@ -21,6 +21,7 @@ from vts_hw import __version__
 from vts_hw.config import load_rig
 from vts_hw.drivers.trigger import read_log
 from vts_hw.errors import DataError
+from vts_hw.drivers.registry import open_cameras
 from vts_hw.procedures.scan import ScanError, ScanSession
 from vts_hw.recording.folder import read_index
 from vts_hw.sim_devices.rig import SimRig
@@ -86,7 +87,7 @@ def _check_offsets(rig, cam_manifest, name):
 def test_session_with_the_trigger_box(box_rig, tmp_path):
     rig, cfg, rig_yaml = box_rig
     folder = tmp_path / "scan"
-    m = ScanSession(cfg, folder, duration=4.0).run()
+    m = ScanSession(cfg, folder, open_cameras(cfg.cameras), duration=4.0).run()
 
     assert m["status"] == "complete" and m["scan"]["problems"] == [] and m["scan"]["stop_reason"] == "duration"
     assert m["software"]["version"] == __version__
@@ -133,10 +134,10 @@ def test_session_with_the_trigger_box(box_rig, tmp_path):
 
 def test_session_with_the_function_generator(tmp_path):
     rig, cfg, _ = _rig("visa", tmp_path)
-    assert cfg.trigger.address == rig.function_generator.resource and not cfg.trigger.simulated
+    assert cfg.trigger.address == rig.function_generator.resource and not cfg.trigger.options.get("simulated", False)
     try:
         with rig.env():
-            m = ScanSession(cfg, tmp_path / "scan", duration=3.0).run()
+            m = ScanSession(cfg, tmp_path / "scan", open_cameras(cfg.cameras), duration=3.0).run()
     finally:
         runs = rig.function_generator.instrument.runs(1)
         rig.stop()
@@ -163,7 +164,7 @@ def test_a_camera_off_the_network_for_5_s(plain_rig, tmp_path):
     rig, cfg, _ = plain_rig
     folder = tmp_path / "scan"
     duration = 8.0
-    s = ScanSession(cfg, folder, duration=duration)
+    s = ScanSession(cfg, folder, open_cameras(cfg.cameras), duration=duration)
     s.start()
     threading.Timer(1.0, rig.servers["cam1"].go_offline, (5.0,)).start()
     m = s.stop(s.wait())
@@ -189,7 +190,7 @@ def test_a_camera_off_the_network_for_5_s(plain_rig, tmp_path):
 def test_trigger_unplugged_during_the_scan_keeps_the_recordings(box_rig, tmp_path):
     rig, cfg, _ = box_rig
     folder = tmp_path / "scan"
-    s = ScanSession(cfg, folder, duration=3.0)
+    s = ScanSession(cfg, folder, open_cameras(cfg.cameras), duration=3.0)
     s.start()
     time.sleep(1.0)
     rig.trigger_box.unplug()
@@ -210,7 +211,7 @@ def test_trigger_that_fails_to_fire_keeps_the_recordings(box_rig, tmp_path):
         if step == "first frames":
             rig.trigger_box.unplug()
 
-    m = ScanSession(cfg, folder, duration=2.0, on_step=unplug_before_the_fire).run()
+    m = ScanSession(cfg, folder, open_cameras(cfg.cameras), duration=2.0, on_step=unplug_before_the_fire).run()
     tr = m["trigger"]
     assert m["status"] == "partial" and tr["fired"] is False and tr["errors"][0].startswith("fire: ")
     assert any(p.startswith("trigger: fire: ") for p in m["scan"]["problems"])
@@ -224,7 +225,7 @@ def test_no_first_frame_means_no_fire(box_rig, tmp_path):
     rig.servers["cam2"].faults.max_viewers = 0  # answers the checks, never streams (HTTP 503)
     folder = tmp_path / "scan"
     with pytest.raises(ScanError, match="camera cam2 delivered no frame within 1 s"):
-        ScanSession(cfg, folder, duration=2.0, first_frame_timeout=1.0).start()
+        ScanSession(cfg, folder, open_cameras(cfg.cameras), duration=2.0, first_frame_timeout=1.0).start()
     m = _manifest(folder)
     assert m["status"] == "failed" and m["trigger"]["fired"] is False and m["scan"]["stop_reason"] == "no first frame"
     assert rig.trigger_box.edges() == []  # nothing started the SPECT
@@ -237,7 +238,7 @@ def test_unreachable_camera_is_named_and_nothing_is_written(box_rig, tmp_path):
     rig.servers["cam2"].stop()
     folder = tmp_path / "scan"
     with pytest.raises(ScanError, match=r"camera cam2 at http://127\.0\.0\.1:\d+ is unreachable"):
-        ScanSession(cfg, folder, duration=1.0).start()
+        ScanSession(cfg, folder, open_cameras(cfg.cameras), duration=1.0).start()
     assert not folder.exists()
     assert rig.trigger_box.edges() == []  # the trigger was never reached
 
@@ -260,11 +261,18 @@ def test_cli_scan_with_duration(box_rig, tmp_path):
 def test_ctrl_c_stops_cleanly(plain_rig, tmp_path):
     rig, cfg, rig_yaml = plain_rig
     folder = tmp_path / "scan"
-    p = subprocess.Popen([*VTS, "scan", "start", "--json", "-o", str(folder)], env=_env(rig, rig_yaml),
+    # PYTHONFAULTHANDLER: a scan that does not stop is aborted and says where every thread was
+    p = subprocess.Popen([*VTS, "scan", "start", "--json", "-o", str(folder)],
+                         env={**_env(rig, rig_yaml), "PYTHONFAULTHANDLER": "1"},
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     _wait_frames(folder, 50, p)
     p.send_signal(signal.SIGINT)
-    out, err = p.communicate(timeout=30)
+    try:
+        out, err = p.communicate(timeout=90)    # a hang detector: stopping takes ~1 s when idle
+    except subprocess.TimeoutExpired:
+        p.send_signal(signal.SIGABRT)
+        out, err = p.communicate(timeout=30)
+        raise AssertionError(f"the scan did not stop within 90 s of Ctrl-C; its threads:\n{err[-6000:]}")
     assert p.returncode == 0, err
     m = json.loads(out)
     assert m["status"] == "complete" and m["scan"]["stop_reason"] == "interrupted"

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from vts_hw.config import load_rig
+from vts_hw.drivers.registry import open_cameras
 from vts_hw.procedures.scan import ScanSession
 from vts_hw.recording.processing import process_recording
 from vts_hw.sim_devices.rig import SimRig
@@ -23,9 +24,7 @@ def test_a_four_camera_scan_is_recorded_and_tracked(tmp_path):
         cfg = load_rig(rig_yaml)
         with rig.env():
             folder = tmp_path / "scan"
-            s = ScanSession(cfg, folder, duration=3.0)
-            s.start()
-            m = s.stop(s.wait())
+            m = ScanSession(cfg, folder, open_cameras(cfg.cameras), duration=3.0).run()
     finally:
         rig.stop()
     assert sorted(m["cameras"]) == ["cam1", "cam2", "cam3", "cam4"]

@@ -546,7 +546,11 @@ def test_control_endpoint_faults_and_state(cam):
     sock, reader = raw_request(cam, "/axis-cgi/mjpg/video.cgi")
     with sock:
         read_head(reader)
-        reader.read1(1000)
+        got = b""
+        while got.count(b"\xff\xd9") < 2:     # two whole frames received (JPEG end markers)
+            chunk = reader.read1(65536)
+            assert chunk, "the stream ended before two frames"
+            got += chunk
         state = requests.get(cam.url + "/sim/state").json()
     assert state["name"] == "cam0" and state["led_on"] is False
     assert abs(state["camera_time"] - (time.time() + 3.25)) < 0.5

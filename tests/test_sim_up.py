@@ -62,7 +62,7 @@ def test_the_simulated_function_generator_keeps_its_state_between_commands(tmp_p
     try:
         env = {**os.environ, **load_env_file(d / "sim.env")}
         trigger = load_rig(d / "rig.yaml").trigger           # reached as a real 33500 on the LAN
-        assert trigger.backend == "visa" and not trigger.simulated
+        assert trigger.backend == "visa" and not trigger.options.get("simulated", False)
         assert re.fullmatch(r"TCPIP::127\.0\.0\.1::\d+::SOCKET", trigger.address)
         log = str(tmp_path / "trigger.csv")
         p = vts("trigger", "start", "--log", log, env=env)

@@ -20,9 +20,12 @@ import time
 import numpy as np
 import pytest
 
+from vts_hw.store import ResultsStore
+
 from vts_hw.config import load_rig
 from vts_hw.recording.processing import Tracks
 from vts_hw.sim_devices.scenarios import sync_session as sync_sim
+from vts_hw.drivers.registry import open_cameras
 from vts_hw.procedures.scan import ScanSession
 from vts_hw.procedures.sync import SyncAnalysis
 from vts_hw.vision.registration import RigidTransform
@@ -194,6 +197,14 @@ def test_scan_then_sync_analyze_meets_the_goals(scan22, tmp_path):
     true = np.array([m.center for m in rig.scene.markers_world(float(t_host[0])) if m.id == "SRC"])[0]
     assert np.linalg.norm(xyz[0] - true) < 1.0 and still.sum() > 100
     assert tracks.meta["sync"]["start_delay_s"] == pytest.approx(data["summary"]["start_delay_s"])
+    # stored as a run, the one way every QA result is: a measurement per sync window
+    run_id = data["stored"]["run_id"]
+    with ResultsStore(cfg.results.url) as store:
+        stored = store.run(run_id)
+        assert stored.procedure == "sync" and stored.status == "OK"
+        ms = {m.metric: m.value for m in store.measurements(run_id=run_id)}
+    assert ms == {"sync_max_abs_dt_ms": pytest.approx(data["summary"]["max_abs_dt_s"] * 1e3),
+                  "sync_events_one_system": 0, "sync_events_both": len(run.source.moves)}
 
 
 def test_without_a_mapping_and_with_a_named_marker(scan22):
@@ -231,7 +242,7 @@ def test_a_camera_offline_for_5_s_still_analyses(box_rig, tmp_path):
     rig, rig_yaml, marker = box_rig
     cfg = load_rig(rig_yaml)
     duration = 12.0
-    s = ScanSession(cfg, tmp_path / "scan", duration=duration)
+    s = ScanSession(cfg, tmp_path / "scan", open_cameras(cfg.cameras), duration=duration)
     s.start()
     fire = s.trigger.info["fire_time"]
     src = sync_sim.start_moves(rig, marker, fire, duration, times_rel=[2.0, 6.0, 10.0], steps=[18.0, -14.0, 12.0])

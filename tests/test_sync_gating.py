@@ -22,9 +22,9 @@ from vts_hw.sim_devices.source_marker import add_source_marker
 from vts_hw.sim_devices.spect_listmode import (SimListModeSpect, SimSpectSettings, TriggerEdges,
                                                edges_from_trigger_box, write_sim_listmode)
 from vts_hw.sim_devices.trigger_box import F_CPU, SimTriggerBox
+from vts_hw.recording.trigger_log import square_wave_edges, wave_from_trigger_log
 from vts_hw.spect.gating import (analyze_gating, axial_centre_of_mass, dead_time_from_events,
-                                find_gate_edges, fit_spect_clock, square_wave_edges,
-                                wave_from_trigger_log)
+                                find_gate_edges, fit_spect_clock)
 
 T0 = 1_795_000_000.0
 
@@ -275,7 +275,8 @@ def test_firmware_in_the_loop_start_delay(tmp_path):
     assert emitted.rising.size == 8 and np.allclose(np.diff(emitted.rising), 0.5, atol=1e-6)
     wave = wave_from_trigger_log(log_path)
     assert (wave.period_s, wave.duty, wave.n_rising, wave.start_pulse) == (0.5, 0.5, 8, True)
-    assert "mapped from the box clock" in wave.how
+    assert wave.time_source == "device_clock_mapped" and "mapped from the device clock" in wave.how
+    assert not wave.converted and 0 < wave.uncertainty_s < 3e-3      # from the neutral rows
     assert wave.drift_ppm is not None and wave.drift_se_ppm > 0    # from the driver's mapping
     assert abs(wave.start_host - emitted.rising[0]) < 3e-3   # driver vs emulator: 0.03-0.9 ms
     lm = read_listmode(tmp_path / "scan.vtslm")
@@ -323,7 +324,8 @@ def test_a_trigger_box_log_gives_the_wave_and_the_box_drift(tmp_path):
     p = tmp_path / "trigger.csv"
     p.write_text("host_time,device_time_us,device,kind,text\n" + "".join(
         f'{T0 + h:.6f},,triggerbox,{k},"{text}"\n' for h, k, text in rows))
-    w = wave_from_trigger_log(p)
+    w = wave_from_trigger_log(p)       # written before the neutral rows: converted on read
+    assert w.converted and w.time_source == "device_clock_mapped"
     assert w.start_host == pytest.approx(T0 + 1.0006, abs=1e-6) and "mapped" in w.how
     assert (w.period_s, w.duty, w.start_pulse, w.high_v, w.low_v) == (0.5, 0.25, True, 5.0, 0.0)
     assert w.n_rising == 5                      # OFF at 2.2 s into the wave: it ends at 2.5 s

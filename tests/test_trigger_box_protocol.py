@@ -564,12 +564,21 @@ def test_trigger_csv_lines(tmp_path):
         ("cmd", "EDGES?"), ("reply", "1,5000000,5000000"),
         ("edge", "first rising edge (1 of 1); host time = when reported (no clock mapping)"),
         ("cmd", "SYST:ERR?"), ("reply", '0,"No error"'),
+        # the neutral row (docs/trigger-log-format.md): no clock mapping, so the host time of
+        # the write plus the command's 8 bytes on the wire, ± until its reply came
+        ("wave_start", "period_s=0.1 duty=0.25 high_v=5.0 low_v=0.0 start_pulse=no time=host_write "
+                       "uncertainty_s=0.001"),
         ("cmd", "EDGES?"), ("reply", "1,5000000,5000000"),
         ("cmd", "EDGES?"), ("reply", "4,5000000,5300000"),
         ("edge", "last rising edge (4 of 4); host time = when reported (no clock mapping)"),
         ("event", "closed /dev/ttyFAKE0"),
     ]
     assert all(r["device"] == "triggerbox" for r in rows)
+    start = next(r for r in rows if r["kind"] == "wave_start")
+    outp_on = next(r for r in rows if r["text"] == "OUTP ON")
+    assert float(start["host_time"]) == pytest.approx(float(outp_on["host_time"]) + 8 * 10 / 115200, abs=2e-6)
+    assert start["device_time_us"] == "5000000"
+    rows = [r for r in rows if r["kind"] != "wave_start"]
     # commands and replies carry host time only; edge lines carry the device time
     assert all(r["device_time_us"] == "" for r in rows if r["kind"] in ("cmd", "reply", "event"))
     assert [r["device_time_us"] for r in rows if r["kind"] == "edge"] == ["5000000", "5300000"]
@@ -606,6 +615,33 @@ def test_edges_are_logged_in_host_time_once_the_clock_is_mapped(tmp_path):
              if r["kind"] == "event" and "clock mapping" in r["text"]]
     assert len(event) == 1 and "drift +0.000" in event[0]["text"]
 
+
+
+def test_neutral_rows_of_a_fire_and_its_stop(tmp_path):
+    """What the box started and stopped, in the rows every backend writes: the start at the
+    first edge through the clock mapping, the end after the rising edges it counted once off."""
+    from vts_hw.recording.trigger_log import wave_from_trigger_log
+    clock = FakeClock(1000.0)
+    trips = [("TIME?", str(round((1000.0 + 0.25 * i - 990.0) * 1e6))) for i in range(4)]
+    pairs = lines(*trips, ("*TRG", "OK"), ("OUTP?", "ON"), ("FREQ?", "2"), ("DUTY?", "0.25"),
+                  ("EDGES?", "1,11000000,11000000"), ("SYST:ERR?", '0,"No error"'),
+                  ("OUTP OFF", "OK"), ("OUTP?", "ON"), ("FREQ?", "2"), ("DUTY?", "0.25"),
+                  ("EDGES?", "6,11000000,13500000"), ("SYST:ERR?", '0,"No error"'),
+                  ("OUTP?", "OFF"), ("OUTP?", "OFF"), ("FREQ?", "2"), ("DUTY?", "0.25"),
+                  ("EDGES?", "7,11000000,14000000"), ("SYST:ERR?", '0,"No error"'))
+    path = tmp_path / "trigger.csv"
+    with expected_protocol(pairs, log=TriggerLog(path, clock=clock), clock=clock) as box:
+        m = box.clock_mapping(samples=4, over_s=0.75, keep=1.0)
+        box.fire()
+        box.stop()
+    rows = read_log(path)
+    assert [r["kind"] for r in rows if r["kind"] in ("wave_start", "wave_stop", "clock")] == \
+        ["clock", "wave_start", "wave_stop"]
+    w = wave_from_trigger_log(path)
+    assert w.start_host == pytest.approx(m.to_host(11_000_000), abs=1e-6) and w.time_source == "device_clock_mapped"
+    assert (w.period_s, w.duty, w.high_v, w.low_v, w.start_pulse) == (0.5, 0.25, 5.0, 0.0, True)
+    assert w.n_rising == 7 and w.stop_host == pytest.approx(w.start_host + 3.5, abs=1e-6)   # the count once off
+    assert w.uncertainty_s == pytest.approx(m.uncertainty_s, rel=1e-2) and w.drift_ppm == pytest.approx(0, abs=1e-3)
 
 # ---- the clock mapping --------------------------------------------------------------------------------
 

@@ -10,6 +10,7 @@ import yaml
 
 from vts_hw.drivers.function_generator import SIM_RESOURCE
 from vts_hw.drivers.trigger import read_log
+from vts_hw.recording.trigger_log import wave_from_trigger_log
 from vts_hw.sim_devices.scpi_server import SimFunctionGenerator
 from vts_hw.sim_devices.trigger_box import F_CPU, SimTriggerBox
 
@@ -58,6 +59,12 @@ def test_the_state_lasts_between_commands(tmp_path, fgen):
     sent = [r["text"] for r in read_log(log) if r["kind"] == "cmd"]
     assert sent.count("*IDN?") == 3 and "OUTP 1" in sent and "OUTP 0" in sent
     assert all(r["host_time"] for r in read_log(log))
+    # the wave the three processes made, from their neutral rows: started by the first, stopped by the third
+    wave = wave_from_trigger_log(log)
+    rows = read_log(log)
+    assert wave.start_host == float(next(r["host_time"] for r in rows if r["text"] == "OUTP 1"))
+    assert wave.stop_host == float(next(r["host_time"] for r in rows if r["text"] == "OUTP 0"))
+    assert (wave.period_s, wave.duty, wave.high_v, wave.low_v, wave.converted) == (1.0, 0.25, 2.5, 0.0, False)
 
 
 def test_fire_says_no_start_pulses_went_out_and_changes_nothing(tmp_path, fgen):

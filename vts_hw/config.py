@@ -11,7 +11,7 @@ import hashlib
 import os
 import re
 from pathlib import Path
-from typing import Literal, Optional, Union
+from typing import Any, Literal, Optional, Union
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
@@ -27,10 +27,15 @@ class _Strict(BaseModel):
 
 
 class CameraConfig(_Strict):
-    """One Axis camera."""
+    """One camera: an Axis camera by default, or another ``kind`` (drivers/registry.py)."""
 
     name: str = Field(pattern=_NAME_RE, description="short name used on the command line and in files")
-    host: str = Field(min_length=1)
+    kind: str = Field(default="axis", pattern=r"^[a-z][a-z0-9_]*$",
+                      description="which driver: axis (the default), mjpeg, replay (drivers/registry.py)")
+    options: dict[str, Any] = Field(
+        default_factory=dict, description="settings of the kind, checked by its driver (e.g. replay: folder, "
+                                          "camera, speed)")
+    host: Optional[str] = Field(default=None, min_length=1, description="network cameras: address")
     port: int = Field(default=80, ge=1, le=65535)
     scheme: Literal["http", "https"] = "http"
     user: str = "root"
@@ -60,6 +65,8 @@ class CameraConfig(_Strict):
     def _cert_needs_https(self):
         if self.ca_cert is not None and self.scheme != "https":
             raise ValueError("ca_cert needs scheme: https")
+        if self.kind == "axis" and not self.host:
+            raise ValueError("an Axis camera (kind axis, the default) needs a host")
         return self
 
     @field_validator("resolution", mode="before")
@@ -74,6 +81,10 @@ class CameraConfig(_Strict):
 
     @property
     def base_url(self) -> str:
+        """``scheme://host[:port]``; a camera without a host (e.g. a replay) shows its kind and
+        options instead."""
+        if not self.host:
+            return f"{self.kind}:" + ",".join(f"{k}={v}" for k, v in sorted(self.options.items()))
         default = 80 if self.scheme == "http" else 443
         given = self.port if "port" in self.model_fields_set else default  # https without a port: 443
         port = "" if given == default else f":{given}"
@@ -97,19 +108,27 @@ class CameraConfig(_Strict):
         return value
 
 
-class TriggerConfig(_Strict):
-    backend: Literal["none", "triggerbox", "visa", "daqmx"] = "none"
+class TriggerConfig(BaseModel):
+    """rig.yaml's ``trigger:`` section: the keys every backend shares, validated here, and the
+    backend's own keys (``options``), kept as given and validated by the backend's own settings
+    model when it is opened (``vts_hw.drivers.registry.open_trigger``): the core knows no
+    backend, so a new one needs no edit here (docs/decisions/0032-neutral-trigger-log.md)."""
+
+    model_config = ConfigDict(extra="allow", frozen=True)
+
+    backend: str = Field(default="none", pattern=_NAME_RE,
+                         description="none, or a name in vts_hw.drivers.registry.TRIGGER_BACKENDS")
     address: Optional[str] = Field(default=None, description="serial port, VISA resource or DAQmx device")
     frequency_hz: float = Field(default=1.0, ge=0.1, le=1000.0)
     duty: float = Field(default=0.5, ge=0.01, le=0.99)
     high_v: float = Field(default=5.0, ge=-10, le=10)
     low_v: float = Field(default=0.0, ge=-10, le=10)
     pulse_ms: int = Field(default=100, ge=1, le=10000)
-    simulated: bool = Field(default=False, description="visa: use the shipped pyvisa-sim instrument")
-    lines: Optional[tuple[str, str]] = Field(
-        default=None, description="daqmx: digital lines of start channels 1 and 2, e.g. Dev1/port0/line0")
-    fire_trigger: Optional[str] = Field(
-        default=None, description="daqmx: terminal that starts the counter with the start pulses, e.g. /Dev1/PFI0")
+
+    @property
+    def options(self) -> dict:
+        """The backend's own keys, as given (validated when the backend is opened)."""
+        return dict(self.model_extra or {})
 
     @model_validator(mode="after")
     def _levels(self):
@@ -223,10 +242,16 @@ def parse_rig(data, source: str = "rig.yaml") -> RigConfig:
     try:
         return RigConfig.model_validate(data)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        more = len(exc.errors()) - 1
-        tail = f" ({more} more error{'s' if more > 1 else ''})" if more else ""
-        raise ConfigError(f"{source}: {_loc(first['loc'])} {_describe(first)}{tail}") from None
+        raise ConfigError(validation_message(source, exc)) from None
+
+
+def validation_message(source: str, exc: ValidationError, prefix: tuple = ()) -> str:
+    """One sentence for a pydantic error: the file, the dotted key (under ``prefix``, e.g.
+    ``("trigger",)`` for a section validated on its own) and what was expected."""
+    first = exc.errors()[0]
+    more = len(exc.errors()) - 1
+    tail = f" ({more} more error{'s' if more > 1 else ''})" if more else ""
+    return f"{source}: {_loc(tuple(prefix) + tuple(first['loc']))} {_describe(first)}{tail}"
 
 
 MAX_CONFIG_BYTES = 1 << 20   # a rig.yaml is a few kB; anything this large is not one

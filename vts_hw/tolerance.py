@@ -112,6 +112,12 @@ DEFAULT_TOLERANCES: dict[str, Window] = {
     "steps_diff_sd_mm": Window(tolerance_high=0.5, action_high=1.0, unit="mm"),
     "steps_rotation_diff_deg": Window.symmetric(0.75, 1.5, "deg"),
     "steps_translation_diff_mm": Window.symmetric(0.75, 1.5, "mm"),
+    # sync check, VTS against SPECT per motion event both saw: the project's goal is 20 ms; 100 ms
+    # is what the system this replaces achieved. An event seen by one system only is worth a
+    # look; no event seen by both leaves nothing checked.
+    "sync_max_abs_dt_ms": Window(tolerance_high=20.0, action_high=100.0, unit="ms"),
+    "sync_events_one_system": Window(tolerance_high=0, unit="events"),
+    "sync_events_both": Window(action_low=1, unit="events"),
 }
 
 

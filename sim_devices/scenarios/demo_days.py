@@ -51,10 +51,9 @@ def injected_drift(scene, cam: str, t0: float, t1: float) -> tuple[float, float]
 def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 5, seed: int = 0,
              on_day: Callable[[DayRow], None] | None = None, on_step: Callable[[str], None] | None = None) -> DemoResult:
     from vts_hw.config import parse_rig
-    from vts_hw.drivers.axis import AxisCamera
-    from vts_hw.procedures.baseline import save_baselines
+    from vts_hw.drivers.registry import open_camera
+    from vts_hw.procedures.baseline import save_baselines, take_baseline
     from vts_hw.procedures.daily import QARun
-    from vts_hw.procedures.drift import Baseline, acquire_led_frames
     from vts_hw.sim_devices.scenarios.step_chain import run_sim_steps
     from vts_hw.report import build_drift_report
     from vts_hw.sim_devices.clock import VirtualClock
@@ -80,9 +79,8 @@ def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 
             t_base = clock.now()
             baselines = []
             for c in cfg.cameras:
-                with AxisCamera.from_config(c, clock=clock.now) as cam:
-                    on, _ = acquire_led_frames(cam, frames)
-                baselines.append(Baseline.from_frames(c.name, [s.jpeg for s in on], clock.now()))
+                with open_camera(c, clock=clock.now) as cam:
+                    baselines.append(take_baseline(cam, frames, clock.now))
             save_baselines(store, baselines, rig=cfg.rig, operator="demo", started=t_base)
             say(f"day 0: baseline set ({', '.join(f'{b.camera}: {len(b.markers)} markers' for b in baselines)})")
             rows: list[DayRow] = []
@@ -90,6 +88,7 @@ def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 
                 clock.advance(t_base + day * DAY - clock.now())  # day `day` after the baseline
                 rig.ntp_sync(clock.now() - 1800.0)  # the cameras' NTP synced their clocks half an hour ago
                 qa = QARun(cfg, store, n_frames=frames, clock=clock.now, operator="demo",
+                           open_camera=lambda c: open_camera(c, clock=clock.now),
                            artifacts_dir=out / "artifacts", plots=(day == days))
                 res = qa.run()
                 row = DayRow(day, res.started, str(res.state))

@@ -81,7 +81,7 @@ def run_sim_steps(out_dir, seed: int = 0, *, frames: int = 10, n_vertical: int =
     import time
 
     from vts_hw.vision.calibration import calibrate_stereo
-    from vts_hw.drivers.axis import AxisCamera
+    from vts_hw.drivers.registry import open_cameras
     from vts_hw.sim_devices import checkerboard as cb
     from vts_hw.sim_devices.rig import SimRig
     from vts_hw.sim_devices.spect import SimSpect
@@ -109,7 +109,7 @@ def run_sim_steps(out_dir, seed: int = 0, *, frames: int = 10, n_vertical: int =
         calib = calibrate_stereo(pairs, square=cb.SQUARE_MM, unit="mm", names=names)
         calib.save(out / "calibration.json")
         say(f"  RMS {calib.rms_left:.3f} / {calib.rms_right:.3f} / {calib.rms_stereo:.3f} px")
-        cams = [AxisCamera.from_config(c, clock=clock) for c in cfg.cameras[:2]]
+        cams = open_cameras(cfg.cameras[:2], clock=clock)
         try:
             for cam in cams:
                 cam.led_on()

@@ -7,11 +7,11 @@ import re
 from pathlib import Path
 
 import click
-import numpy as np
 
 from vts_hw.errors import DataError
 from vts_hw.cli import cli
 from vts_hw.cli.common import config_option, echo_json, json_option
+from vts_hw.procedures.mapping_inputs import read_points  # noqa: F401  (the points file, as `--vts` reads it)
 
 
 @cli.group()
@@ -107,95 +107,21 @@ def _sim_square_mm() -> float:
 # ---------------------------------------------------------------- vts calibrate spect
 
 
-def read_points(path) -> np.ndarray:
-    """Sphere centres (N×3, mm) from a CSV with a header x,y,z or a JSON list of [x, y, z].
-
-    DataError for a missing or unreadable file, a missing column, a non-number or a row that
-    is not three numbers.
-    """
-    import csv
-    import json
-
-    path = Path(path)
-    if not path.is_file():
-        raise DataError(f"{path}: no such file.")
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise DataError(f"{path}: cannot read the points ({exc}).") from None
-    if path.suffix.lower() == ".json":
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise DataError(f"{path}: not valid JSON ({exc.msg}, line {exc.lineno}).") from None
-        except (ValueError, RecursionError) as exc:  # too deep, or a number of thousands of digits
-            raise DataError(f"{path}: not usable JSON ({str(exc) or 'nested too deeply'}).") from None
-        if isinstance(data, dict) and "points" in data:
-            data = data["points"]
-        if not isinstance(data, list) or not all(
-                isinstance(p, list) and len(p) == 3
-                and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in p)
-                for p in data):
-            raise DataError(f"{path}: expected a JSON list of [x, y, z] points in mm.")
-        try:
-            pts = np.array(data, dtype=float).reshape(-1, 3)
-        except OverflowError:
-            raise DataError(f"{path}: a coordinate is too large to be a number of mm.") from None
-    else:
-        rows = [r for r in csv.reader(text.splitlines()) if any(c.strip() for c in r)]
-        if not rows:
-            raise DataError(f"{path}: empty; expected a CSV with a header x,y,z (mm).")
-        header = [c.strip().lower() for c in rows[0]]
-        missing = [k for k in ("x", "y", "z") if k not in header]
-        if missing:
-            raise DataError(f"{path}: the header {','.join(rows[0])!r} lacks column(s) "
-                            f"{','.join(missing)}; expected x,y,z (mm).")
-        cols = [header.index(k) for k in ("x", "y", "z")]
-        pts_list = []
-        for n, row in enumerate(rows[1:], start=2):
-            try:
-                pts_list.append([float(row[c]) for c in cols])
-            except (IndexError, ValueError):
-                raise DataError(f"{path}, line {n}: {','.join(row)!r} is not three numbers "
-                                "x,y,z.") from None
-        pts = np.array(pts_list, dtype=float).reshape(-1, 3)
-    if len(pts) == 0:
-        raise DataError(f"{path}: no points.")
-    if not np.all(np.isfinite(pts)):
-        raise DataError(f"{path}: non-finite coordinates.")
-    return pts
-
-
 def _from_cameras(config_path, calibration_path, volume, frames: int, quiet: bool):
     """The mapping with the VTS side measured now by the rig's first two cameras."""
-    import time
-
-    from vts_hw.vision.calibration_io import StereoCalibration
     from vts_hw.config import load_rig
-    from vts_hw.vision.detect import detect_jpeg
-    from vts_hw.drivers.axis import AxisCamera
-    from vts_hw.errors import ConfigError
-    from vts_hw.procedures.spect_mapping import SpectMapping
-    from vts_hw.procedures.steps import LED_SETTLE_S, SNAPSHOT_COMPRESSION, average_centroids
+    from vts_hw.drivers.registry import open_cameras
+    from vts_hw.procedures.mapping_inputs import mapping_from_cameras, stereo_calibration_for
 
     rig = load_rig(config_path)
-    path = calibration_path or rig.calibration.stereo
-    if path is None:
-        raise ConfigError("no stereo calibration: give --calibration or set calibration.stereo in the "
-                          "rig config (`vts calibrate stereo`).")
-    if len(rig.cameras) < 2:
-        raise ConfigError("--from-cameras needs two cameras in the rig config.")
-    calib = StereoCalibration.load(path)
-    pts = []
-    for cfg in rig.cameras[:2]:
-        with AxisCamera.from_config(cfg) as cam:
-            cam.led_on()
-            time.sleep(LED_SETTLE_S)
-            if not quiet:
-                click.echo(f"{cam.name}: {frames} snapshots", err=True)
-            pts.append(average_centroids([detect_jpeg(cam.snapshot(SNAPSHOT_COMPRESSION).jpeg)
-                                          for _ in range(frames)]))
-    return SpectMapping.from_stereo(calib, pts[0], pts[1], volume).analyze()
+    calib = stereo_calibration_for(rig, calibration_path)
+    cams = open_cameras(rig.cameras[:2])
+    try:
+        return mapping_from_cameras(cams, calib, volume, frames,
+                                    progress=None if quiet else (lambda m: click.echo(m, err=True)))
+    finally:
+        for cam in cams:
+            cam.close()
 
 
 @calibrate.command()

@@ -1,4 +1,4 @@
-"""`vts camera ...`: snapshot, stream, LED, info and recording of the rig's Axis cameras."""
+"""`vts camera ...`: snapshot, stream, LED, info and recording of the rig's cameras (any kind)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ from pathlib import Path
 
 import click
 
-from vts_hw.drivers.axis import AxisCamera
-from vts_hw.drivers.axis_stream import FrameStream, StreamGap
+from vts_hw.camera import Camera, NoParameters, StreamGap
+from vts_hw.drivers.registry import open_camera, open_cameras
 from vts_hw.files import write_atomic
 from vts_hw.cli import cli
 from vts_hw.cli.common import PositiveSeconds, echo_json, fmt_time, json_option, with_rig
@@ -19,8 +19,8 @@ def camera() -> None:
     """Talk to one camera of the rig (or several, for `record`)."""
 
 
-def _open(rig, name: str) -> AxisCamera:
-    return AxisCamera.from_config(rig.camera(name))
+def _open(rig, name: str) -> Camera:
+    return open_camera(rig.camera(name))
 
 
 @camera.command()
@@ -55,7 +55,7 @@ def stream(name: str, seconds: float | None, fps: float | None, rig) -> None:
         off = cam.clock_offset()
         click.echo(f"# clock: camera - host = {off.offset_s:+.4f} s (± {off.uncertainty_s * 1000:.0f} ms, "
                    f"{off.method}); latency = receive - capture with that offset taken out", err=True)
-        s = FrameStream(cam, fps=fps, duration=seconds)
+        s = cam.stream(fps=fps, duration=seconds)
         click.echo(f"{'frame':>6}  {'camera time':<23}  {'host receive time':<23}  {'latency':>10}  {'size':>9}")
         try:
             for item in s:
@@ -71,6 +71,8 @@ def stream(name: str, seconds: float | None, fps: float | None, rig) -> None:
         st = s.stats
         click.echo(f"{st.frames} frames, {st.missing} missing in {st.gaps} gap(s), {st.torn} torn, "
                    f"{st.reconnects} reconnect(s)", err=True)
+        for note in st.problems:
+            click.echo(f"  note: {note}", err=True)
 
 
 @camera.command()
@@ -89,7 +91,9 @@ def led(name: str, state: str, ms: int | None, rig) -> None:
             if ms is None:
                 raise click.UsageError("pulse needs a duration in milliseconds, e.g. `led cam1 pulse 300`")
             cam.led_pulse(ms)
-    click.echo(f"{name}: LED {state}{f' {ms} ms' if state == 'pulse' else ''} (output port {cam.led_port}): OK")
+    where = f"output port {cam.led_port}" if hasattr(cam, "led_port") else "no port"
+    noop = "" if cam.led_switches else " (a no-op on this camera: it cannot switch an LED)"
+    click.echo(f"{name}: LED {state}{f' {ms} ms' if state == 'pulse' else ''} ({where}): OK{noop}")
 
 
 @camera.command()
@@ -98,23 +102,28 @@ def led(name: str, state: str, ms: int | None, rig) -> None:
 @with_rig
 def info(name: str, as_json: bool, rig) -> None:
     """Device info, VAPIX version, image settings and clock offset of camera NAME."""
+    cfg = rig.camera(name)
     with _open(rig, name) as cam:
         dev = cam.device_info()
-        vapix = cam.vapix_version
-        image = cam.get_params("Image.I0")
+        vapix = getattr(cam, "vapix_version", None) or None
+        try:
+            image = cam.get_params("Image.I0")
+        except NoParameters:
+            image = {}
         off = cam.clock_offset()
-    data = {"camera": name, "url": cam.base_url, "vapix": vapix, "device": dev, "image": image,
+    data = {"camera": name, "kind": cfg.kind, "url": cfg.base_url, "vapix": vapix, "device": dev, "image": image,
             "clock_offset_s": round(off.offset_s, 4), "clock_offset_uncertainty_s": round(off.uncertainty_s, 4),
-            "clock_method": off.method}
+            "clock_method": off.method, "clock_source": off.source}
     if as_json:
         echo_json(data)
         return
-    click.echo(f"{name}  {cam.base_url}  VAPIX {vapix}")
+    click.echo(f"{name}  {cfg.base_url}  " + (f"VAPIX {vapix}" if vapix else f"kind {cfg.kind}"))
     for k, v in dev.items():
         click.echo(f"  {k}: {v}")
     for k, v in image.items():
         click.echo(f"  {k}: {v}")
-    click.echo(f"  clock: camera - host = {off.offset_s:+.3f} s (± {off.uncertainty_s:.3f} s, {off.method})")
+    click.echo(f"  clock: camera - host = {off.offset_s:+.3f} s (± {off.uncertainty_s:.3f} s, {off.method})"
+               + ("; no camera clock: times are host receipt times" if off.source == "receipt" else ""))
 
 
 EXIT_CODES = {"complete": 0, "partial": 4, "failed": 4, "interrupted": 130}
@@ -152,7 +161,7 @@ def record(names: tuple[str, ...], all_cameras: bool, seconds: float, out: str, 
     cfgs = [rig.camera(n) for n in names]           # unknown names and unset passwords: before any file
     for cfg in cfgs:
         cfg.password()
-    cams = [AxisCamera.from_config(cfg) for cfg in cfgs]
+    cams = open_cameras(cfgs)
     meta = {"rig": rig.rig, "seconds_asked": seconds, "rig_digest": rig.digest}
     rec = Recorder(cams, out, seconds=seconds, meta=meta, append=append)
     manifest = record_with_progress(rec, seconds)

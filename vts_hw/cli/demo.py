@@ -47,7 +47,7 @@ def demo(out: str, days: int, seconds: float, frames: int, scan_seconds: float) 
 
 
 def _cameras(out_dir: Path, seconds: float) -> None:
-    from vts_hw.drivers.axis import AxisCamera
+    from vts_hw.drivers.registry import open_cameras
     from vts_hw.recording.capture import Recorder
     from vts_hw.recording.folder import info
     from vts_hw.sim_devices.rig import SimRig
@@ -57,7 +57,7 @@ def _cameras(out_dir: Path, seconds: float) -> None:
         rig.write(out_dir / "sim")
         cfg = rig.config()
         click.echo(f"simulated rig up: {', '.join(f'{c.name} at {c.base_url}' for c in cfg.cameras)}")
-        cams = [AxisCamera.from_config(c) for c in cfg.cameras]
+        cams = open_cameras(cfg.cameras)
         for cam in cams:
             dev = cam.device_info()
             off = cam.clock_offset()

@@ -34,9 +34,13 @@ def run_qa(rig, steps, cameras, frames, plots, dry_run, operator, as_json, clock
         for i, step in enumerate(run.plan(), 1):
             click.echo(f"{i:2d}. {step}")
         return 0
+    from vts_hw.drivers.registry import check_camera_kinds, open_camera
+
+    check_camera_kinds(rig.camera(n) for n in (cameras or [c.name for c in rig.cameras]))
     with open_store(rig) as store:
         run = QARun(rig, store, steps=steps, cameras=cameras or None, n_frames=frames, plots=plots,
                     artifacts_dir=artifacts_dir(store), operator=operator, config_digest=rig.digest, clock=clock,
+                    open_camera=lambda cfg: open_camera(cfg, clock=clock),
                     progress=lambda m: click.echo(m, err=True) if not as_json else None)
         result = run.run()
         unsaved = None
@@ -68,28 +72,23 @@ def import_runs(rig, files) -> list[tuple[str, int]]:
 
 
 def set_baseline(rig, cameras, frames, dry_run, operator, as_json, clock=time.time) -> None:
-    from vts_hw.drivers.axis import AxisCamera
-    from vts_hw.procedures.baseline import save_baselines
-    from vts_hw.procedures.drift import Baseline, acquire_led_frames
+    from vts_hw.drivers.registry import check_camera_kinds, open_camera
+    from vts_hw.procedures.baseline import set_baselines
 
     names = cameras or [c.name for c in rig.cameras]
-    for n in names:   # unknown names, unset password variables: before anything is touched
-        rig.camera(n).password()
+    cfgs = [rig.camera(n) for n in names]
+    for cfg in cfgs:   # unknown names, kinds, unset password variables: before anything is touched
+        cfg.password()
+    check_camera_kinds(cfgs)
     if dry_run:
         for n in names:
             click.echo(f"{n}: LED on, {frames} snapshots, detect the wall markers, store them as the baseline")
         return
-    baselines = []
-    for name in names:
-        with AxisCamera.from_config(rig.camera(name), clock=clock) as cam:
-            on, _ = acquire_led_frames(cam, frames)
-        b = Baseline.from_frames(name, [s.jpeg for s in on], clock())
-        if not b.markers:
-            raise click.ClickException(f"camera {name}: no wall markers found with the LED on; baseline not set")
-        baselines.append(b)
-    with open_store(rig) as store:
-        run_id = save_baselines(store, baselines, rig=rig.rig, operator=operator, started=clock(),
-                                config_digest=rig.digest)
+    from contextlib import ExitStack
+    with ExitStack() as stack, open_store(rig) as store:
+        cams = [stack.enter_context(open_camera(cfg, clock=clock)) for cfg in cfgs]
+        run_id, baselines = set_baselines(store, cams, frames=frames, clock=clock, rig=rig.rig,
+                                          operator=operator, config_digest=rig.digest)
     if as_json:
         echo_json({"run_id": run_id, "baselines": [{"camera": b.camera, "taken": b.taken,
                                                     "markers": [m.__dict__ for m in b.markers]} for b in baselines]})

@@ -5,12 +5,10 @@ from __future__ import annotations
 import datetime as _dt
 import os
 import sys
-import time
 from pathlib import Path
 
 import click
 
-from vts_hw.errors import ConfigError, DataError
 from vts_hw.tolerance import State
 from vts_hw.cli.common import config_option, echo_json, json_option
 from vts_hw.cli.qa import qa
@@ -130,60 +128,29 @@ def _run_sim(out, seed, frames, vertical, axial, store_url, operator, as_json):
 
 def _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path, analyze_dir, frames,
              store_url, dry_run, operator, as_json):
-    from vts_hw.vision.calibration_io import StereoCalibration
     from vts_hw.config import load_rig
-    from vts_hw.drivers.axis import AxisCamera
-    from vts_hw.procedures.steps import (OperatorPositioner, StepSession, VolumeFolder, analyze_positions,
-                                    load_positions, store_steps)
-    from vts_hw.vision.registration import RigidTransform
+    from vts_hw.drivers.registry import open_cameras
+    from vts_hw.procedures.step_test import run_step_test, step_session, step_test_inputs
 
     rig = load_rig(config_path)
-    cal_path = calibration_path or rig.calibration.stereo
-    map_path = mapping_path or rig.calibration.spect
-    if cal_path is None:
-        raise ConfigError("no stereo calibration: give --calibration or set calibration.stereo in the "
-                          "rig config (`vts calibrate stereo`).")
-    if map_path is None:
-        raise ConfigError("no VTS -> SPECT mapping: give --mapping or set calibration.spect in the rig "
-                          "config (`vts calibrate spect`).")
-    if len(rig.cameras) < 2:
-        raise ConfigError("the step test needs two cameras in the rig config.")
-    if not volumes:
-        raise click.UsageError("give --volumes DIR: the folder the SPECT's reconstructions of the "
-                               "positions are (or will be) exported to")
-    calib = StereoCalibration.load(cal_path)
-    mapping = RigidTransform.load(map_path)
-    spect = VolumeFolder(volumes)
+    inputs = step_test_inputs(rig, calibration_path, mapping_path, volumes)
     say = (lambda m: None) if as_json else (lambda m: click.echo(m, err=True))
-    started = time.time()
-    if analyze_dir:
-        seen, plan = load_positions(analyze_dir)
-    else:
-        cameras = [AxisCamera.from_config(c) for c in rig.cameras[:2]]
-        ask = OperatorPositioner(lambda text: click.prompt(text, default="", show_default=False,
-                                                           prompt_suffix=" ", err=True))
-        session = StepSession(cameras, calib, mapping, ask, spect, out, plan=plan, frames=frames,
-                              progress=say)
-        if dry_run:
-            for i, step in enumerate(session.plan(), 1):
+
+    def ask(text):
+        return click.prompt(text, default="", show_default=False, prompt_suffix=" ", err=True)
+
+    cameras = [] if analyze_dir else open_cameras(rig.cameras[:2])
+    try:
+        if dry_run and not analyze_dir:
+            for i, step in enumerate(step_session(cameras, inputs, out, plan, frames=frames).plan(), 1):
                 click.echo(f"{i:2d}. {step}")
             return State.OK
-        try:
-            seen = session.acquire()
-        finally:
-            for c in cameras:
-                c.close()
-        say(f"the VTS part is saved in {out / 'positions.json'}")
-    try:
-        analysis = analyze_positions(seen, plan, calib, mapping, spect, rig.tolerances, progress=say)
-    except DataError as exc:
-        raise DataError(f"{exc} (the VTS part is kept: run `vts qa steps --analyze {out} --volumes "
-                        f"{volumes}` when that is fixed)") from None
-    png = out / "steps.png"
-    analysis.plot(png)
-    with _open_store(store_url or rig.results.url) as store:
-        run_id = store_steps(store, analysis, rig.tolerances, rig=rig.rig, operator=operator,
-                             started=started, config_digest=rig.digest, artifacts=[png])
-    _print(analysis, [f"run {run_id} stored; plot {png}"], as_json, {"run_id": run_id, "out": str(out)})
-    return analysis.state
-
+        with _open_store(store_url or rig.results.url) as store:
+            res = run_step_test(rig, inputs, out, plan, store, cameras=cameras, analyze_dir=analyze_dir,
+                                frames=frames, ask=ask, operator=operator, progress=say)
+    finally:
+        for c in cameras:
+            c.close()
+    _print(res.analysis, [f"run {res.run_id} stored; plot {res.plot}"], as_json,
+           {"run_id": res.run_id, "out": str(out)})
+    return res.analysis.state

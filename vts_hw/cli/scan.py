@@ -46,11 +46,14 @@ def start(out: str | None, duration: float | None, dry_run: bool, as_json: bool,
     the recording stops, every whole frame is kept); 2 bad input or a non-empty folder;
     130 interrupted before the scan started.
     """
+    from vts_hw.drivers.registry import check_camera_kinds, open_cameras
     from vts_hw.procedures.scan import ScanSession, default_folder
 
     folder = Path(out) if out else default_folder()
     err = Console(stderr=True, highlight=False)
-    session = ScanSession(rig, folder, duration=duration,
+    check_camera_kinds(rig.cameras)
+    cameras = [] if dry_run else open_cameras(rig.cameras)   # a dry run touches nothing
+    session = ScanSession(rig, folder, cameras, duration=duration,
                           on_step=lambda name, text: err.print(f"[green]ok[/]  {escape(name)}: {escape(text)}",
                                                               soft_wrap=True))
     if dry_run:

@@ -21,12 +21,11 @@ def sync() -> None:
 
 def _calibration_files(config_path, calibration, mapping):
     """--calibration/--mapping, else the rig config's calibration section (relative paths from
-    the rig.yaml's folder). ConfigError when there is no stereo calibration at all."""
+    the rig.yaml's folder), and the rig config (None without one).
+    ConfigError when there is no stereo calibration at all."""
     from vts_hw.config import load_rig
     from vts_hw.errors import ConfigError, VtsError
 
-    if calibration and mapping:
-        return Path(calibration), Path(mapping)
     why = ""
     rig = None
     try:
@@ -35,6 +34,8 @@ def _calibration_files(config_path, calibration, mapping):
         if config_path is not None:   # named explicitly: its error is the answer
             raise
         why = f" (no rig config: {exc})"
+    if calibration and mapping:
+        return Path(calibration), Path(mapping), rig
     base = Path(rig._source).parent if rig is not None and rig._source is not None else Path(".")
 
     def from_rig(p):
@@ -48,7 +49,7 @@ def _calibration_files(config_path, calibration, mapping):
     if cal is None:
         raise ConfigError("no stereo calibration: give --calibration FILE or set calibration.stereo in "
                           f"rig.yaml{why}")
-    return cal, mp
+    return cal, mp, rig
 
 
 class _Progress:
@@ -106,19 +107,24 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
     failure record the SPECT left beside the files says why it recorded nothing.
 
     Exit status like the QA procedures: 0 OK (every event seen by both within 20 ms), 10
-    TOLERANCE (within 100 ms, or an event seen by one system only), 20 ACTION.
+    TOLERANCE (within 100 ms, or an event seen by one system only), 20 ACTION. The windows
+    are the tolerance table's sync_max_abs_dt_ms, sync_events_one_system and
+    sync_events_both (rig.yaml may override them). The check is stored as a run of
+    procedure "sync" in the results store (rig.yaml's results.url); when the store cannot take
+    it, its figures go to a file that `vts qa import` stores later, and the exit status is 3.
     """
     from vts_hw.procedures.sync import CLOCK_SLACK_S, SyncAnalysis, check_session, export_trajectories
     from vts_hw.report.sync_html import write_sync_html
+    from vts_hw.store.results import store_result
 
     candidates = [*listmode, *more]
     if not candidates:
         raise click.UsageError("give the scan's list-mode: --listmode FILE")
     check_session(session)           # a bad folder says so before anything else is read
-    cal, mp = _calibration_files(config_path, calibration, mapping)
+    cal, mp, rig = _calibration_files(config_path, calibration, mapping)
     a = SyncAnalysis(session, candidates, cal, mp, marker=marker, workers=workers, progress=_Progress(),
                      clock_slack_s=CLOCK_SLACK_S if clock_slack is None else clock_slack)
-    a.analyze()
+    a.analyze(tolerances=rig.tolerances if rig is not None else None)
     data = a.results_data()
     png = None
     if out or plot_path:
@@ -129,6 +135,11 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
     if export_dir:
         csv_path, json_path = export_trajectories(a.tracks, a.gating, export_dir, mp)
         data["export"] = [str(csv_path), str(json_path)]
+    stored = store_result(rig.results.url if rig is not None else None, a,
+                          rig=rig.rig if rig is not None else "", notes=f"session {session}",
+                          config_digest=rig.digest if rig is not None else "",
+                          artifacts=[p for p in (plot_path,) if p])
+    data["stored"] = {"run_id": stored.run_id, "unsaved_file": str(stored.unsaved) if stored.unsaved else None}
     if as_json:
         echo_json(data)
     else:
@@ -139,7 +150,14 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
             click.echo(f"plot: {plot_path}")
         if export_dir:
             click.echo(f"trajectories (SPECT frame, SPECT time): {', '.join(data['export'])}")
+        if stored.ok:
+            click.echo(f"stored: run {stored.run_id} in the results store")
     sys.stdout.flush()
+    if not stored.ok:
+        where = (f"its figures are above and in {stored.unsaved} (`vts qa import {stored.unsaved}` stores them "
+                 "later)" if stored.unsaved else "its figures are above only: no fallback file could be written")
+        click.echo(f"vts: the sync check was NOT stored: {stored.error}; {where}", err=True)
+        sys.exit(3)
     code = EXIT_CODES[data["summary"]["state"]]
     if code:
         sys.exit(code)

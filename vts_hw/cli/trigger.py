@@ -39,7 +39,7 @@ def _show(st, as_json: bool) -> None:
 
 def _open(rig, log_path):
     from vts_hw.drivers.registry import open_trigger
-    return open_trigger(rig.trigger, log_path)
+    return open_trigger(rig, log_path)
 
 
 @contextlib.contextmanager

@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from vts_hw.drivers.axis import AxisCamera, AxisError
-from vts_hw.drivers.axis_stream import FrameStream, StreamGap
+from vts_hw.camera import Camera, CameraError, StreamGap
+from vts_hw.camera_stream import FrameStream
 from vts_hw.files import WriteFailed
 from vts_hw.recording.writer import Recording
 
@@ -48,9 +48,10 @@ class CameraProgress:
 
 
 class Recorder:
-    """Record ``cameras`` for ``seconds`` (None: until stop()) into ``folder``."""
+    """Record ``cameras`` (any :class:`vts_hw.camera.Camera`) for ``seconds`` (None: until
+    stop()) into ``folder``."""
 
-    def __init__(self, cameras: list[AxisCamera], folder: str | Path, seconds: float | None = None,
+    def __init__(self, cameras: list[Camera], folder: str | Path, seconds: float | None = None,
                  meta: dict | None = None, give_up_after: float | None = None,
                  max_backoff: float = 5.0, append: bool = False):
         self.cameras = cameras
@@ -67,14 +68,14 @@ class Recorder:
 
     def start(self) -> None:
         for cam in self.cameras:
-            stream = FrameStream(cam, duration=self.seconds, stop_event=self.stop_event,
-                                 give_up_after=self.give_up_after, max_backoff=self.max_backoff)
+            stream = cam.stream(duration=self.seconds, stop_event=self.stop_event,
+                                give_up_after=self.give_up_after, max_backoff=self.max_backoff)
             self._streams[cam.name] = stream
             t = threading.Thread(target=self._run, args=(cam, stream), name=f"rec-{cam.name}", daemon=True)
             self._threads.append(t)
             t.start()
 
-    def _run(self, cam: AxisCamera, stream: FrameStream) -> None:
+    def _run(self, cam: Camera, stream: FrameStream) -> None:
         prog = self.progress[cam.name]
         try:
             for item in stream:
@@ -91,7 +92,7 @@ class Recorder:
             self.write_failure = self.write_failure or exc
             prog.error = f"camera {cam.name}: stopped: {exc}"
             self.stop_event.set()
-        except AxisError as exc:
+        except CameraError as exc:
             prog.error = str(exc)
         except Exception as exc:  # keep the other cameras going, and say what happened
             prog.error = f"camera {cam.name}: {type(exc).__name__}: {exc}"
@@ -108,6 +109,8 @@ class Recorder:
                              f"(last: {why})")
             notes = self.recording.notes[cam.name]
             notes.update(torn_frames_discarded=stream.stats.torn, reconnects=stream.stats.reconnects)
+            if stream.stats.problems:
+                notes["stream_notes"] = list(stream.stats.problems)
             if prog.error:
                 notes["error"] = prog.error
             elif prog.lost:

@@ -18,6 +18,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
+from vts_hw.figures import figure_png  # noqa: F401  (re-exported for the reports)
 from vts_hw.report.model import CameraDrift, DriftReport
 from vts_hw.report.times import fmt_date, utc
 from vts_hw.report.trend import CONTROL_K, CONTROL_RUNS, DAY, MIN_TREND_DAYS, MIN_TREND_RUNS
@@ -244,12 +245,3 @@ def camera_figure(report: DriftReport, cam: CameraDrift, figsize=(10.0, 7.6),
         body.legend(handles=_legend_handles(), loc="outside lower center", ncol=7, frameon=False,
                     handlelength=1.8, columnspacing=1.2)
     return fig
-
-
-def figure_png(fig: Figure, dpi: int = 110) -> bytes:
-    """PNG bytes of a figure (no metadata beyond the image)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    FigureCanvasAgg(fig)
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi, metadata={"Software": None})
-    return buf.getvalue()

@@ -15,39 +15,12 @@ from pathlib import Path
 from vts_hw.files import write_atomic
 from vts_hw.report.html import CSS, SCRIPT
 
-GOAL_S = 0.020     # the project's goal for VTS-SPECT agreement (issue 6)
-LIMIT_S = 0.100    # what the system this replaces achieved
 
 
-def sync_state(data: dict) -> str:
-    """OK: every event both systems saw agrees within 20 ms; TOLERANCE: within 100 ms, or an
-    event seen by one system only; ACTION: worse, or no event seen by both."""
-    s = data["summary"]
-    worst = s.get("max_abs_dt_s")
-    if not s.get("events_both") or worst is None:
-        return "ACTION"
-    if worst > LIMIT_S:
-        return "ACTION"
-    if worst > GOAL_S or s.get("events_spect_only") or s.get("events_vts_only"):
-        return "TOLERANCE"
-    return "OK"
-
-
-def state_reason(data: dict) -> str:
-    """Why the state is what it is, in words (the banner's line when nothing else is listed)."""
-    s = data["summary"]
-    worst = s.get("max_abs_dt_s")
-    if not s.get("events_both") or worst is None:
-        return "no motion event was seen by both the VTS and the SPECT"
-    if worst > LIMIT_S:
-        return f"an event differs by {worst * 1e3:.0f} ms, more than {LIMIT_S * 1e3:.0f} ms"
-    one_side = (s.get("events_spect_only") or 0) + (s.get("events_vts_only") or 0)
-    if worst > GOAL_S:
-        return f"an event differs by {worst * 1e3:.0f} ms, more than the {GOAL_S * 1e3:.0f} ms goal"
-    if one_side:
-        return f"{one_side} event(s) seen by one system only"
-    agree = f"every one of the {s['events_both']} event(s) agrees within {GOAL_S * 1e3:.0f} ms"
-    return agree if data.get("problems") else agree + "; no problems found"
+def _limits(data: dict) -> tuple[float, float]:
+    """(goal, limit) in s: the sync_max_abs_dt_ms window the analysis judged with."""
+    w = (data.get("windows") or {}).get("sync_max_abs_dt_ms") or {}
+    return (w.get("tolerance_high") or 20.0) / 1e3, (w.get("action_high") or 100.0) / 1e3
 
 
 def _ms(v, fmt="+.1f") -> str:
@@ -60,11 +33,12 @@ def _kpi(label, value, unit="") -> str:
 
 
 def _events_table(data: dict) -> str:
+    goal_s, _ = _limits(data)
     rows = []
     for e in data["events"]:
         fit = e["spect_fit"] or {}
         vfit = e["vts_fit"] or {}
-        bad = e["dt_s"] is not None and abs(e["dt_s"]) > GOAL_S
+        bad = e["dt_s"] is not None and abs(e["dt_s"]) > goal_s
         cls = ' class="s-ACTION"' if bad else (' class="s-TOLERANCE"' if e["dt_s"] is None else "")
         step = e["step_spect_mm"] if e["step_spect_mm"] is not None else e["step_vts_mm"]
         rows.append(
@@ -90,7 +64,8 @@ def _intervals(pairs, t0) -> str:
 def render_sync_html(data: dict, png: bytes, title: str = "VTS–SPECT sync check") -> str:
     """The report as an HTML string."""
     s, g = data["summary"], data["gating"]
-    state = sync_state(data)
+    state = s["state"]
+    goal_s, limit_s = _limits(data)
     t0 = data["trigger"]["start_host"]
     kpis = "".join([
         _kpi("offset VTS − SPECT", _ms(s["offset_s"]), "ms (median)"),
@@ -101,7 +76,7 @@ def render_sync_html(data: dict, png: bytes, title: str = "VTS–SPECT sync chec
         _kpi("SPECT clock", f"{s['spect_skew_ppm']:+.1f}", "ppm"),
     ])
     problems = "".join(f"<li>{escape(p)}</li>" for p in data["problems"])
-    banner = (f'<p class="quiet">{escape(state_reason(data))}.</p>'
+    banner = (f'<p class="quiet">{escape(s["state_reason"])}.</p>'
               + (f"<ul>{problems}</ul>" if problems else ""))
     vts = data["vts"]
     fits = "".join(
@@ -126,7 +101,7 @@ def render_sync_html(data: dict, png: bytes, title: str = "VTS–SPECT sync chec
 </header>
 <section class="card banner {state}">
 <div class="big">{f'<span class="badge {state}">{state}</span>'} <span class="meta">goal: every event within
-{GOAL_S * 1e3:.0f} ms; {LIMIT_S * 1e3:.0f} ms is what the previous system achieved</span></div>
+{goal_s * 1e3:.0f} ms; {limit_s * 1e3:.0f} ms is what the previous system achieved</span></div>
 {banner}
 </section>
 <section class="card"><h2>Summary</h2><div class="cards">{kpis}</div>

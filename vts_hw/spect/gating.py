@@ -8,7 +8,7 @@ acquisition start on the SPECT's clock):
   noise never makes an edge), each edge timed where the voltage crosses the mid level,
   linearly interpolated between the two samples around it (sub-sample);
 * :func:`fit_spect_clock` — the edges against the known square wave: the trigger starts the
-  wave with a rising edge on the same timer tick as the SPECT start pulse (``*TRG``), and its
+  wave with a rising edge on the same timer tick as the SPECT start pulse (a ``fire``), and its
   period is known in host seconds. Rising edge *k* (k = 0 at the start pulse) is at list-mode
   time ``t_wave + k·P·(1 + skew)``, falling edges ``duty·P·(1 + skew)`` later. A least-squares
   fit of all edges gives ``t_wave`` (the start pulse on the list-mode clock), the SPECT
@@ -24,26 +24,25 @@ acquisition start on the SPECT's clock):
   switched on later): then that edge is the start edge and the delay is negative;
 * :func:`dead_time_from_events` — the intervals without events (heads rotating);
 * :func:`axial_centre_of_mass` — the mean axial position of the counts per time bin;
-* :func:`analyze_gating` — all of the above in one result;
-* :func:`wave_from_trigger_log` / :func:`square_wave_edges` — when a trigger log
-  (``trigger.csv``) says the wave started and stopped, its period, duty and levels.
+* :func:`analyze_gating` — all of the above in one result.
+
+The trigger's side (the wave's period and the host time of its first edge) comes from the
+session's ``trigger.csv``, read by :func:`vts_hw.recording.trigger_log.wave_from_trigger_log`
+from the neutral rows every backend writes (docs/trigger-log-format.md).
 """
 
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
 from vts_hw.errors import DataError
 from vts_hw.spect.listmode.base import GATE_TRANSITIONS, ListMode
 
-__all__ = ["GateEdges", "SpectClock", "GatingResult", "WaveInfo", "find_gate_edges",
-           "fit_spect_clock", "dead_time_from_events", "axial_centre_of_mass", "analyze_gating",
-           "wave_from_trigger_log", "square_wave_edges"]
+__all__ = ["GateEdges", "SpectClock", "GatingResult", "find_gate_edges", "fit_spect_clock",
+           "dead_time_from_events", "axial_centre_of_mass", "analyze_gating"]
 
 
 # ------------------------------------------------------------------------------------ edges
@@ -345,8 +344,8 @@ def analyze_gating(lm: ListMode, *, period_s: float | None = None, fire_host: fl
     """Edges, SPECT clock (start delay, skew, host mapping) and dead time of one list-mode.
 
     ``period_s`` (host s) and ``fire_host`` (host epoch s of the wave's first rising edge)
-    come from the trigger: :func:`wave_from_trigger_log` reads both from a session's
-    ``trigger.csv``. Raises DataError (naming the file) when the gating signal has no usable
+    come from the trigger: :func:`vts_hw.recording.trigger_log.wave_from_trigger_log` reads
+    both from a session's ``trigger.csv``. Raises DataError (naming the file) when the gating signal has no usable
     square wave.
     """
     where = lm.where()
@@ -375,203 +374,3 @@ def analyze_gating(lm: ListMode, *, period_s: float | None = None, fire_host: fl
                         f"is the period {period_s} s right?")
     dead = dead_time_from_events(lm, min_gap_s)
     return GatingResult(edges, clock, dead, lm.dead, lm.start_time, problems)
-
-
-# --------------------------------------------------------------------------- trigger log
-
-@dataclass(frozen=True)
-class WaveInfo:
-    """The square wave a trigger log says was sent (host UTC epoch s, volts)."""
-
-    device: str
-    start_host: float             # the first rising edge
-    period_s: float
-    duty: float
-    stop_host: float | None       # the wave's end (None: still running when the log ends)
-    n_rising: int | None          # rising edges sent, when the device reported it
-    high_v: float
-    low_v: float
-    start_pulse: bool             # the SPECT start pulse came with the first edge (*TRG)
-    how: str                      # where start_host came from
-    drift_ppm: float | None = None     # the box clock against the host (last clock mapping)
-    drift_se_ppm: float | None = None  # its standard error
-
-    @property
-    def host_period_s(self) -> float:
-        """The period in host seconds: ``period_s`` (the device's own seconds) corrected by the
-        box's drift when the log's last clock mapping measured it to 2 ppm or better (a
-        mapping spanning the session: one before and one after the scan); else ``period_s``."""
-        if self.drift_ppm is not None and self.drift_se_ppm is not None and self.drift_se_ppm <= 2.0:
-            return self.period_s * (1.0 + self.drift_ppm * 1e-6)
-        return self.period_s
-
-
-_FG_CMD = re.compile(r"^(?:SOUR\d:)?(FREQ|FUNC:SQU:DCYC|VOLT:HIGH|VOLT:LOW)\s+(\S+)$", re.I)
-_FG_QUERY = re.compile(r"^(?:SOUR\d:)?(FREQ|FUNC:SQU:DCYC|VOLT:HIGH|VOLT:LOW)\?$", re.I)
-_FG_OUTP = re.compile(r"^OUTP\d?\s+(1|0|ON|OFF)$", re.I)
-_BOX_BYTE_S = 10 / 115200          # one 8N1 byte at 115200 baud
-_DRIFT = re.compile(r"drift ([+-]?[\d.]+) ± (\S+) ppm")
-
-
-def _is_box(rows: list[dict], dev: str) -> bool:
-    """A trigger box (our firmware) rather than a SCPI function generator."""
-    for row in rows:
-        if row.get("device") != dev:
-            continue
-        text = (row.get("text") or "").strip().upper()
-        if row.get("kind") == "reply" and text.startswith("VTS,TRIGGERBOX"):
-            return True
-        if row.get("kind") == "cmd" and (text in ("*TRG", "OUTP ON", "OUTP OFF", "EDGES?", "TIME?")
-                                         or text.startswith(("PULSE", "DUTY"))):
-            return True
-    return False
-
-
-def _float(text: str) -> float | None:
-    try:
-        v = float(text)
-    except (TypeError, ValueError):
-        return None
-    return v if math.isfinite(v) else None
-
-
-def wave_from_trigger_log(path, device: str | None = None) -> WaveInfo:
-    """The last square wave started in a ``trigger.csv`` (drivers/trigger.py :class:`TriggerLog`).
-
-    Trigger box: started by ``*TRG`` (with the start pulses) or ``OUTP ON``; the first edge's
-    host time is the ``edge`` line the driver logs through its clock mapping, else the time the
-    command was sent plus its time on the wire; ``OUTP OFF``/``*RST`` let it finish the period
-    under way; the count of rising edges comes from the last ``EDGES?`` reply. Levels 0/5 V.
-    Function generator (SCPI): ``OUTP 1`` starts the wave at the host time it was sent (logged
-    just before), from a rising edge; ``OUTP 0`` ends it at once; ``FREQ``,
-    ``FUNC:SQU:DCYC`` (percent) and ``VOLT:HIGH/LOW`` as last set or read back.
-    """
-    import csv
-
-    path = Path(path)
-    try:
-        with open(path, newline="", encoding="utf-8") as f:
-            rows = list(csv.DictReader(f))
-    except FileNotFoundError:
-        raise DataError(f"{path}: no such file") from None
-    except (OSError, UnicodeDecodeError, csv.Error) as e:
-        raise DataError(f"{path}: cannot read the trigger log ({e})") from None
-    if rows and not {"host_time", "device", "kind", "text"} <= set(rows[0]):
-        raise DataError(f"{path}: not a trigger log (columns host_time, device_time_us, device, "
-                        f"kind, text)")
-    devices = [d for d in dict.fromkeys(r.get("device") for r in rows) if device in (None, d)]
-    box = {d: _is_box(rows, d) for d in devices}
-    settings = {d: {"FREQ": None, "DUTY": 0.5, "HIGH": None, "LOW": None} for d in devices}
-    last_cmd: dict[str, str] = {}
-    waves: list[dict] = []
-    current: dict[str, dict | None] = {d: None for d in devices}
-    for row in rows:
-        dev = row.get("device")
-        h = _float(row.get("host_time"))
-        if dev not in box or h is None:
-            continue
-        kind, text = row.get("kind"), (row.get("text") or "").strip()
-        up = text.upper()
-        st, w = settings[dev], current[dev]
-        if kind == "cmd":
-            last_cmd[dev] = up
-            if box[dev]:
-                key, _, value = up.partition(" ")
-                if key in ("FREQ", "DUTY") and _float(value) is not None:
-                    st[key] = _float(value)
-                elif up in ("*TRG", "OUTP ON"):
-                    w = current[dev] = {"start": h + (len(text) + 1) * _BOX_BYTE_S,
-                                        "how": f"{text} sent", "stop_cmd": None, "n": None,
-                                        "pulse": up == "*TRG", "set": dict(st), "device": dev}
-                    waves.append(w)
-                elif up in ("OUTP OFF", "*RST") and w is not None and w["stop_cmd"] is None:
-                    w["stop_cmd"] = h
-            else:
-                m = _FG_CMD.match(text)
-                if m:
-                    _fg_set(st, m.group(1).upper(), m.group(2))
-                m = _FG_OUTP.match(text)
-                if m and m.group(1).upper() in ("1", "ON"):
-                    w = current[dev] = {"start": h, "how": "OUTP 1 sent", "stop": None,
-                                        "pulse": False, "set": dict(st), "device": dev}
-                    waves.append(w)
-                elif m and w is not None and w["stop"] is None:
-                    w["stop"] = h
-        elif kind == "reply":
-            cmd = last_cmd.get(dev, "")
-            if box[dev]:
-                if cmd in ("FREQ?", "DUTY?") and _float(text) is not None:
-                    st[cmd[:4]] = _float(text)
-                elif cmd == "EDGES?" and w is not None:
-                    n = text.split(",")[0]
-                    if n.isdigit():
-                        w["n"] = int(n)
-            else:
-                m = _FG_QUERY.match(cmd)
-                if m:
-                    _fg_set(st, m.group(1).upper(), text)
-            if w is not None and w["set"]["FREQ"] is None:   # read back after the start
-                w["set"] = dict(st)
-        elif kind == "event" and box[dev] and text.startswith("clock mapping:"):
-            m = _DRIFT.search(text)
-            if m and _float(m.group(1)) is not None:
-                st["DRIFT"] = (_float(m.group(1)), float(m.group(2)))
-        elif kind == "edge" and box[dev] and w is not None and text.startswith("first rising edge") \
-                and "mapped from the box clock" in text:
-            w["start"] = h
-            w["how"] = "first edge, host time mapped from the box clock"
-    if not waves:
-        raise DataError(f"{path}: no square wave was started in this trigger log"
-                        + (f" by {device!r}" if device else ""))
-    w = waves[-1]
-    dev = w["device"]
-    freq, duty = w["set"]["FREQ"], w["set"]["DUTY"]
-    if not freq or freq <= 0:
-        raise DataError(f"{path}: the frequency of {dev}'s square wave is not in the trigger log")
-    period = 1.0 / freq
-    if box[dev]:
-        high, low = 5.0, 0.0
-        stop, n = None, None
-        if w["stop_cmd"] is not None:
-            # it finishes the period under way; the box's own count, read once it has
-            # stopped, is exact (a count read before then is too low, hence the max)
-            n = max(w["n"] or 0, math.ceil((w["stop_cmd"] - w["start"]) / period - 1e-9))
-            stop = w["start"] + n * period
-    else:
-        high = w["set"]["HIGH"] if w["set"]["HIGH"] is not None else 0.05   # the 33500's *RST
-        low = w["set"]["LOW"] if w["set"]["LOW"] is not None else -0.05
-        stop, n = w["stop"], None
-    drift, drift_se = settings[dev].get("DRIFT", (None, None))
-    return WaveInfo(device=dev, start_host=float(w["start"]), period_s=period, duty=float(duty),
-                    stop_host=stop, n_rising=n, high_v=float(high), low_v=float(low),
-                    start_pulse=bool(w["pulse"]), how=w["how"], drift_ppm=drift,
-                    drift_se_ppm=drift_se)
-
-
-def _fg_set(st: dict, key: str, text: str) -> None:
-    v = _float(text)
-    if v is None:
-        return
-    if key == "FREQ":
-        st["FREQ"] = v
-    elif key == "FUNC:SQU:DCYC":
-        st["DUTY"] = v / 100.0
-    elif key == "VOLT:HIGH":
-        st["HIGH"] = v
-    elif key == "VOLT:LOW":
-        st["LOW"] = v
-
-
-def square_wave_edges(wave: WaveInfo, until: float | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(rising, falling) host times of the wave a log describes, up to its stop (or ``until``
-    when it was still running; required then)."""
-    end = wave.stop_host if wave.stop_host is not None else until
-    if end is None:
-        raise ValueError(f"the wave of {wave.device} was never stopped: give `until`")
-    P = wave.period_s
-    n = wave.n_rising if wave.n_rising is not None else max(0, math.ceil((end - wave.start_host) / P - 1e-9))
-    rising = wave.start_host + np.arange(n) * P
-    falling = rising + wave.duty * P
-    if wave.n_rising is None:              # cut at the stop: a high phase ends there
-        falling = np.minimum(falling, end)
-    return rising, falling

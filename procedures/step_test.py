@@ -1,0 +1,92 @@
+"""The 7-sphere step test on the rig, whole: what `vts qa steps` runs, callable from a script.
+
+1. inputs: the stereo calibration and the VTS → SPECT mapping (given, else the rig config's),
+   the folder the SPECT's reconstructions arrive in (:func:`step_test_inputs`);
+2. acquire every position with the cameras given (``StepSession``), the operator moving the
+   table when asked — or, with ``analyze_dir``, the positions a session saved earlier;
+3. analyse against the SPECT volumes, plot, store the run (:func:`run_step_test`).
+
+The cameras are opened by the caller (``drivers.registry.open_cameras``), never here.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Sequence
+
+from vts_hw.errors import ConfigError, DataError, UsageError
+from vts_hw.procedures.steps import (StepPosition, StepSession, VolumeFolder, analyze_positions, load_positions,
+                                     store_steps)
+from vts_hw.procedures.steps_analysis import StepAnalysis
+
+
+@dataclass
+class StepInputs:
+    calibration: object
+    mapping: object
+    spect: VolumeFolder
+
+
+@dataclass
+class StepRun:
+    analysis: StepAnalysis
+    run_id: int
+    plot: Path
+    out: Path
+
+
+def step_test_inputs(rig, calibration_path=None, mapping_path=None, volumes=None) -> StepInputs:
+    """Calibration, mapping and SPECT volume folder; ConfigError (exit 2) naming what is missing."""
+    from vts_hw.vision.calibration_io import StereoCalibration
+    from vts_hw.vision.registration import RigidTransform
+
+    cal_path = calibration_path or rig.calibration.stereo
+    map_path = mapping_path or rig.calibration.spect
+    if cal_path is None:
+        raise ConfigError("no stereo calibration: give --calibration or set calibration.stereo in the "
+                          "rig config (`vts calibrate stereo`).")
+    if map_path is None:
+        raise ConfigError("no VTS -> SPECT mapping: give --mapping or set calibration.spect in the rig "
+                          "config (`vts calibrate spect`).")
+    if len(rig.cameras) < 2:
+        raise ConfigError("the step test needs two cameras in the rig config.")
+    if not volumes:
+        raise UsageError("give --volumes DIR: the folder the SPECT's reconstructions of the positions are "
+                         "(or will be) exported to")
+    return StepInputs(StereoCalibration.load(cal_path), RigidTransform.load(map_path), VolumeFolder(volumes))
+
+
+def step_session(cameras: Sequence, inputs: StepInputs, out, plan: list[StepPosition], *, frames: int = 10,
+                 ask: Callable[[str], object] = input, progress=None) -> StepSession:
+    """The acquisition on the given stereo pair, the operator answering ``ask`` at each position."""
+    from vts_hw.procedures.steps import OperatorPositioner
+    return StepSession(cameras, inputs.calibration, inputs.mapping, OperatorPositioner(ask), inputs.spect,
+                       out, plan=plan, frames=frames, progress=progress)
+
+
+def run_step_test(rig, inputs: StepInputs, out, plan: list[StepPosition], store, *, cameras: Sequence = (),
+                  analyze_dir=None, frames: int = 10, ask: Callable[[str], object] = input,
+                  operator: str = "", progress: Callable[[str], None] | None = None,
+                  clock: Callable[[], float] = time.time) -> StepRun:
+    """Acquire with ``cameras`` (or read ``analyze_dir``), analyse, plot and store one run."""
+    say = progress or (lambda m: None)
+    out = Path(out)
+    started = clock()
+    if analyze_dir:
+        seen, plan = load_positions(analyze_dir)
+    else:
+        seen = step_session(cameras, inputs, out, plan, frames=frames, ask=ask, progress=say).acquire()
+        say(f"the VTS part is saved in {out / 'positions.json'}")
+    try:
+        analysis = analyze_positions(seen, plan, inputs.calibration, inputs.mapping, inputs.spect,
+                                     rig.tolerances, progress=say)
+    except DataError as exc:
+        raise DataError(f"{exc} (the VTS part is kept: run `vts qa steps --analyze {out} --volumes "
+                        f"{inputs.spect.folder}` when that is fixed)") from None
+    png = out / "steps.png"
+    analysis.plot(png)
+    run_id = store_steps(store, analysis, rig.tolerances, rig=rig.rig, operator=operator, started=started,
+                         config_digest=rig.digest, artifacts=[png])
+    return StepRun(analysis, run_id, png, out)

@@ -1,0 +1,66 @@
+"""Every QA result is stored one way (vts_hw.store.results.store_result): a run with a
+measurement per measure — and on a full disk, a file that `vts qa import` stores later."""
+
+from __future__ import annotations
+
+import json
+
+from vts_hw.results import Measure, QAResult, overall_state
+from vts_hw.store import ResultsStore
+from vts_hw.store.results import store_result
+from vts_hw.store.unsaved import import_unsaved
+from vts_hw.tolerance import State, Window
+
+
+class TwoFigures:
+    """A QA result of the common shape with two figures, one in tolerance."""
+
+    procedure = "example"
+
+    def measures(self):
+        return [Measure.judged("cam1", "drift_x_px", 0.2, "px", Window.symmetric(1.0, 2.0, "px")),
+                Measure.judged("cam1", "drift_y_px", 1.4, "px", Window.symmetric(1.0, 2.0, "px"))]
+
+    @property
+    def state(self):
+        return overall_state(self.measures())
+
+    def results(self):
+        return "two figures"
+
+    def results_data(self):
+        return {"figures": [m.as_dict() for m in self.measures()]}
+
+    def plot(self, path=None):
+        return b""
+
+
+def test_a_result_becomes_a_run_with_its_measures(tmp_path):
+    result = TwoFigures()
+    assert isinstance(result, QAResult) and result.state is State.TOLERANCE
+    url = f"sqlite:///{tmp_path / 'r.sqlite'}"
+    stored = store_result(url, result, rig="room1", started=1000.0)
+    assert stored.ok and stored.unsaved is None
+    with ResultsStore(url) as store:
+        run = store.run(stored.run_id)
+        assert (run.procedure, run.rig, run.status, run.started) == ("example", "room1", "TOLERANCE", 1000.0)
+        got = sorted((m.metric, m.value, m.status.value) for m in store.measurements(run_id=run.id))
+    assert got == [("drift_x_px", 0.2, "OK"), ("drift_y_px", 1.4, "TOLERANCE")]
+
+
+def test_a_full_disk_keeps_every_figure_for_later(tmp_path, small_disk):
+    disk = small_disk(512)
+    url = f"sqlite:///{disk.path / 'r.sqlite'}"
+    with ResultsStore(url):
+        pass
+    disk.fill()
+    stored = store_result(url, TwoFigures(), rig="room1", started=2000.0)
+    assert not stored.ok and stored.error and stored.unsaved is not None
+    assert not str(stored.unsaved).startswith(str(disk.path))       # the full disk could not take it
+    doc = json.loads(stored.unsaved.read_text())
+    assert [m["value"] for m in doc["measurements"]] == [0.2, 1.4] and doc["state"] == "TOLERANCE"
+    other = f"sqlite:///{tmp_path / 'later.sqlite'}"
+    with ResultsStore(other) as store:
+        run_id = import_unsaved(store, stored.unsaved)
+        run = store.run(run_id)
+        assert run.status == "TOLERANCE" and run.started == 2000.0 and len(store.measurements(run_id=run_id)) == 2

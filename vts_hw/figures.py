@@ -1,0 +1,14 @@
+"""Figures as PNG bytes: what every result's ``plot()`` and every report embeds."""
+
+from __future__ import annotations
+
+import io
+
+
+def figure_png(fig, dpi: int = 110) -> bytes:
+    """PNG bytes of a matplotlib figure (no metadata beyond the image)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    FigureCanvasAgg(fig)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi, metadata={"Software": None})
+    return buf.getvalue()
