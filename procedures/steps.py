@@ -17,9 +17,10 @@ Everything seen is saved to ``<out>/positions.json`` as soon as it is seen, so a
 loses nothing, and ``vts qa steps --analyze OUT`` can finish the job when the volumes arrive.
 
 Then (:meth:`StepSession.analyze`), per position: the SPECT centroids from the volume (ordered
-like the baseline's spheres), the same spheres found among the VTS's stereo hypotheses by
-their shape (:func:`vts_hw.vision.body_finder.locate_body`, which also settles pairings the
-epipolar constraint alone leaves ambiguous), triangulated with the stereo calibration and
+like the baseline's spheres), the same spheres found among the VTS's hypotheses by their
+shape (:func:`vts_hw.vision.body_finder.locate_body_views`: with two cameras every
+epipolar-allowed pairing, shape settling what the epipolar constraint alone leaves ambiguous;
+with more, the points matched across every view), triangulated with the calibration and
 mapped into the SPECT frame with the VTS → SPECT transform. :class:`StepAnalysis` does the
 rest.
 """
@@ -160,19 +161,20 @@ class SeenPosition:
 
 
 class StepSession:
-    """Acquire the step test on a stereo pair and analyse it.
+    """Acquire the step test on two or more cameras and analyse it.
 
-    ``cameras``: two camera drivers (left = the calibration's camera 1, right = camera 2) with
-    ``led_on()`` and ``snapshot()``; ``calibration``: a StereoCalibration in mm; ``mapping``: the
-    VTS → SPECT RigidTransform.
+    ``cameras``: camera drivers with ``name``, ``led_on()`` and ``snapshot()`` (two: left = the
+    calibration's camera 1, right = camera 2); ``calibration``: the cameras in mm, any form
+    :func:`vts_hw.vision.camera_set.named_cameras` reads (a StereoCalibration, an N-camera
+    calibration, a dict of named cameras); ``mapping``: the VTS → SPECT RigidTransform.
     """
 
     def __init__(self, cameras: Sequence, calibration, mapping, positioner: Positioner,
                  spect: SpectSource, out_dir, plan: list[StepPosition] | None = None,
                  frames: int = 10, tol_mm: float = 3.0, progress: Callable[[str], None] | None = None,
                  clock: Callable[[], float] = time.time, compression: int | None = SNAPSHOT_COMPRESSION):
-        if len(cameras) != 2:
-            raise DataError(f"the step test needs a stereo pair of cameras, got {len(cameras)}.")
+        if len(cameras) < 2:
+            raise DataError(f"the step test needs two cameras or more, got {len(cameras)}.")
         if getattr(calibration, "unit", "mm") != "mm":
             raise DataError("the stereo calibration is in squares: calibrate with the square size "
                             "in mm (--square) so that the VTS measures millimetres.")
@@ -258,7 +260,8 @@ def analyze_positions(seen: list[SeenPosition], plan: list[StepPosition], calibr
                       spect: SpectSource, tolerances=None, tol_mm: float = 3.0,
                       progress: Callable[[str], None] | None = None) -> StepAnalysis:
     """SPECT centroids and VTS spheres per position, then :class:`StepAnalysis`."""
-    from vts_hw.vision.body_finder import locate_body
+    from vts_hw.vision.body_finder import locate_body_views
+    from vts_hw.vision.camera_set import named_cameras
     from vts_hw.spect import find_spheres, read_volume
     from vts_hw.procedures.spect_mapping import correspond
 
@@ -267,7 +270,6 @@ def analyze_positions(seen: list[SeenPosition], plan: list[StepPosition], calibr
         raise DataError(f"only {len(seen)} position(s) acquired; the step test needs the baseline "
                         "and at least one more.")
     by_label = {p.label: p for p in plan}
-    cams = calibration.cameras()
     vts_all, spect_all, labels, kinds = [], [], [], []
     reference = None
     for s in seen:
@@ -280,9 +282,14 @@ def analyze_positions(seen: list[SeenPosition], plan: list[StepPosition], calibr
         else:
             cents = cents[correspond(reference, cents)]
         names = list(s.points_px)
+        cams = named_cameras(calibration, names)    # a stereo pair takes the names seen
+        missing = [n for n in names if n not in cams]
+        if missing:
+            raise DataError(f"position {s.label}: camera(s) {', '.join(missing)} not in the calibration "
+                            f"(it has {', '.join(cams)}).")
         try:
-            fit = locate_body(cams, np.array(s.points_px[names[0]]), np.array(s.points_px[names[1]]),
-                              cents, tol_mm=tol_mm)
+            fit = locate_body_views([cams[n] for n in names], [np.array(s.points_px[n]).reshape(-1, 2)
+                                                               for n in names], cents, tol_mm=tol_mm)
         except DataError as exc:
             raise DataError(f"position {s.label}: {exc}") from None
         vts_all.append(mapping.apply(fit.points))

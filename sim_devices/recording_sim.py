@@ -107,6 +107,21 @@ class SimRecording:
         ids = [m.id for m in self.scene.wall_markers] + list(BAND_LAYOUT)
         return ids, np.concatenate([wall_b, band], axis=-2)
 
+    def seen_by(self, cam: str, t: float) -> np.ndarray:
+        """Which markers (in :meth:`marker_positions` order) camera ``cam`` sees at host time
+        ``t``: in front of it, facing it, centre inside the image, not behind a SPECT head."""
+        ids, pos = self.marker_positions(float(t))
+        camera = self.scene.camera_at(cam, float(t))
+        walls = list(self.scene.wall_markers)
+        faces = np.array([m.faces(camera.center) for m in walls] + [True] * (len(ids) - len(walls)))
+        uv = camera.project(pos)
+        inside = ((uv[:, 0] >= 0) & (uv[:, 0] <= camera.width - 1) & (uv[:, 1] >= 0)
+                  & (uv[:, 1] <= camera.height - 1) & (camera.to_camera(pos)[:, 2] > 0))
+        radius = np.array([m.diameter_mm / 2 for m in walls] + [BAND_DIAMETER / 2] * (len(ids) - len(walls)))
+        hidden = (self.scene.gantry.hides(camera.center, pos, float(t), radius)
+                  if self.scene.gantry is not None else np.zeros(len(ids), bool))
+        return faces & inside & ~hidden
+
 
 def simulate_recording(folder, duration_s: float = 20.0, fps: float = 25.0, seed: int = 0,
                        scene: Scene | None = None, band: BreathingBand | None = None,

@@ -187,7 +187,8 @@ class Renderer:
                 cache.move_to_end(key)
                 self.stats["hits"] += 1
                 return img
-        img = self._rasterise(cam, camera, markers, led)
+        hidden = self.scene.hidden(camera.center, markers, t)  # behind a SPECT head: not drawn
+        img = self._rasterise(cam, camera, [m for m, h in zip(markers, hidden) if not h], led)
         with self._lock:
             self.stats["misses"] += 1
             cache[key] = img

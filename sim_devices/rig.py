@@ -42,6 +42,7 @@ FOLDER = "simulated rig folder"
 TRIGGERS = ("none", "triggerbox", "visa")
 _children: dict[int, subprocess.Popen] = {}  # started from this process: reaped on stop
 READY_FILE = "rig.yaml"
+GANTRY_DWELL_S, GANTRY_MOVE_S, GANTRY_STEPS = 2.0, 1.0, 1_000_000  # turning for ~35 days
 
 
 def password_var(cam: str) -> str:
@@ -54,14 +55,20 @@ class SimRig:
     def __init__(self, n_cameras: int = 2, seed: int = 0, *, user: str = "root", password: str | None = None,
                  firmware: str = "vapix3", clock=None, fps: float = 25.0,
                  drift_px_per_60_days: dict[str, float] | None = None, trigger: str = "none",
-                 tls: tuple[str, str] | None = None):
+                 tls: tuple[str, str] | None = None, gantry: bool = False):
         if trigger not in TRIGGERS:
             raise ValueError(f"trigger must be one of {', '.join(TRIGGERS)}, not {trigger!r}")
         self.trigger = trigger
         self.trigger_box = None  # the firmware in the emulator, when trigger == "triggerbox"
         self.function_generator = None  # a 33522B on a TCP socket, when trigger == "visa"
         self.clock = clock or RealClock()
-        self.scene = Scene.reference(seed=seed, n_cameras=n_cameras, start_epoch=self.clock.now())
+        # gantry: the SPECT heads in the room, turning step-and-shoot from the start (3 deg steps,
+        # a stop of GANTRY_DWELL_S) and on for as long as the rig runs; without it there are none
+        self.scene = Scene.reference(seed=seed, n_cameras=n_cameras, start_epoch=self.clock.now(),
+                                     gantry=gantry)
+        if gantry:
+            self.scene.gantry.step_and_shoot(self.scene.start_epoch, 3.0, GANTRY_STEPS, GANTRY_DWELL_S,
+                                             GANTRY_MOVE_S, start_deg=0.0)
         for i, (cam, px) in enumerate(sorted((drift_px_per_60_days or {}).items())):
             # a camera that drifts faster than the reference rig's (the demo's bad camera)
             self.scene.drifts[cam] = CameraDrift.reference(self.scene.cameras[cam].focal, seed * 7919 + i,
@@ -158,14 +165,18 @@ class SimRig:
     def write(self, folder: str | Path) -> tuple[Path, Path]:
         """Write ``rig.yaml`` and ``sim.env`` (mode 600: it holds the password), and the true
         cameras' ``calibration.json`` and ``spect_mapping.json`` (sim_devices/sync_truth.py; with
-        two cameras or more), named in rig.yaml's ``calibration:`` section (absolute paths)."""
-        from vts_hw.sim_devices.sync_truth import write_true_calibration
+        two cameras or more), named in rig.yaml's ``calibration:`` section (absolute paths), and
+        with three or more ``cameras.json``: every true camera (the N-camera form
+        ``vts_hw.vision.camera_set.load_cameras`` reads)."""
+        from vts_hw.sim_devices.sync_truth import write_true_calibration, write_true_cameras
 
         folder = ensure_dir(folder, FOLDER)
         calibration = None
         if len(self.scene.cameras) >= 2:  # a stereo pair: the first two cameras
             cal, mp = write_true_calibration(self.scene, folder)
             calibration = {"stereo": str(cal.resolve()), "spect": str(mp.resolve())}
+        if len(self.scene.cameras) >= 3:
+            write_true_cameras(self.scene, folder)
         env_path = folder / "sim.env"
         env = ["# source this file: the passwords of the simulated cameras"]
         env += [f"export {k}='{v}'" for k, v in self.env_vars().items()]
@@ -191,7 +202,7 @@ def load_env_file(path: str | Path) -> dict[str, str]:
 # -- running in the foreground or detached ----------------------------------------------------
 def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = "vapix3",
           rate: float = 1.0, on_ready=None, trigger: str = "none", spect: bool = False,
-          https: bool = False) -> None:
+          https: bool = False, gantry: bool = False) -> None:
     """Run a rig until SIGINT/SIGTERM. With ``folder``: write rig.yaml, sim.env and sim.pid.
     ``spect``: a simulated SPECT records every scan the trigger box starts, into
     ``folder/spect`` (:class:`~vts_hw.sim_devices.spect_follower.SpectFollower`)."""
@@ -214,7 +225,8 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
 
         from vts_hw.sim_devices.tls import self_signed
         tls = tuple(str(p) for p in self_signed(folder if folder is not None else mkdtemp(prefix="vts-sim-tls-")))
-    rig = SimRig(n_cameras=n_cameras, seed=seed, firmware=firmware, clock=clock, trigger=trigger, tls=tls)
+    rig = SimRig(n_cameras=n_cameras, seed=seed, firmware=firmware, clock=clock, trigger=trigger, tls=tls,
+                 gantry=gantry)
     follower = None
     if spect:
         from vts_hw.sim_devices.spect_follower import SpectFollower
@@ -246,7 +258,7 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
 
 def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmware: str = "vapix3",
                    rate: float = 1.0, timeout: float = 60.0, trigger: str = "none",
-                   spect: bool = False, https: bool = False) -> int:
+                   spect: bool = False, https: bool = False, gantry: bool = False) -> int:
     """Start ``serve`` in a background process; return its pid once rig.yaml is written."""
     folder = ensure_dir(Path(folder).resolve(), FOLDER)
     if is_running(folder):
@@ -261,7 +273,8 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
         raise WriteFailed(log_path, os_reason(e)) from None
     log_start = log.tell()
     cmd = [sys.executable, "-m", "vts_hw.sim_devices.rig", str(folder), str(n_cameras), str(seed), firmware,
-           str(rate), trigger] + (["spect"] if spect else []) + (["https"] if https else [])
+           str(rate), trigger] + (["spect"] if spect else []) + (["https"] if https else []) \
+        + (["gantry"] if gantry else [])
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=log, start_new_session=True)
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -369,7 +382,7 @@ def _main(argv: list[str]) -> int:
     folder, n, seed, fw, rate, trigger = argv[:6]
     try:
         serve(folder, int(n), int(seed), fw, float(rate), trigger=trigger, spect="spect" in argv[6:],
-              https="https" in argv[6:])
+              https="https" in argv[6:], gantry="gantry" in argv[6:])
     except VtsError as e:
         print(f"{FAILED}{e}", file=sys.stderr, flush=True)
         return e.exit_code

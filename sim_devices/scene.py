@@ -296,6 +296,24 @@ def _pose(rvec, translation) -> Pose:
     return (tuple(float(x) for x in np.ravel(rvec)), tuple(float(x) for x in np.ravel(translation)))
 
 
+def camera_positions(n_cameras: int) -> list[tuple[float, float, float]]:
+    """Centres (mm) of the reference rig's cameras: pairs alternating between the head end
+    (Z < 0) and the foot end (Z > 0); see :meth:`Scene.reference`."""
+    if n_cameras < 1:
+        raise ValueError(f"a rig needs at least one camera, not {n_cameras}")
+    if n_cameras == 1:
+        return [(0.0, CAM_Y, CAM_Z)]
+    out = []
+    for i in range(n_cameras):
+        pair, side = divmod(i, 2)
+        end = -1.0 if pair % 2 == 0 else 1.0      # head end first
+        half = BASELINE / 2 / 2 ** (pair // 2)
+        alone = side == 0 and i == n_cameras - 1
+        x = 0.0 if alone else (-half if side == 0 else half) * (-end)  # seen from its end, cam1 left
+        out.append((x, CAM_Y + 300.0 * (pair // 2), -end * CAM_Z))
+    return out
+
+
 class Scene:
     """Cameras (base pose, clock, drift, product id), wall markers, the table and its bodies,
     and each camera's LED. Build the reference rig with :meth:`reference`."""
@@ -312,21 +330,29 @@ class Scene:
         self.table = Schedule((0.0, 0.0))  # (y, z) offsets of the table, mm
         self.bodies: dict[str, RigidBody] = {}
         self._leds = {name: Schedule(False) for name in self.cameras}
+        self.gantry = None  # the SPECT heads (sim_devices/gantry.py), when the room has them
 
     # ----------------------------------------------------------------- construction
     @classmethod
     def reference(cls, seed: int = 0, n_cameras: int = 2, start_epoch: float | None = None,
-                  drift_px_per_60_days: tuple[float, float] = (0.9, 1.3)) -> "Scene":
-        """The reference rig: ``n_cameras`` cameras over the patient's head, 5 wall markers.
+                  drift_px_per_60_days: tuple[float, float] = (0.9, 1.3),
+                  gantry=None) -> "Scene":
+        """The reference rig: ``n_cameras`` cameras in pairs at the head and foot ends.
 
-        Small per-camera differences (focal length, principal point, aim, roll, k1, clock
-        offset and skew, drift) are drawn from ``seed``, so a seed gives the same rig every time.
+        Pair 1 (cam1, cam2) looks over the patient's head, as the 2-camera rig of
+        docs/design.md; pair 2 (cam3, cam4) looks from the foot end; further pairs alternate
+        ends, each 300 mm higher and half as wide as the pair before at its end; an odd last
+        camera sits alone on the axis of its end (one camera: over the head). Each end's
+        cameras see their own wall of 5 markers beyond the gantry (W1-W5 for the head end,
+        W6-W10 for the foot end). Small per-camera differences (focal length, principal point,
+        aim, roll, k1, clock offset and skew, drift) are drawn from ``seed`` camera by camera,
+        so cam1 and cam2 are the same in every rig of a seed. ``gantry``: the SPECT heads
+        (a :class:`~vts_hw.sim_devices.gantry.Gantry`; ``True`` for the reference one, parked).
         """
         start = time.time() if start_epoch is None else float(start_epoch)
         rng = np.random.default_rng(seed)
-        xs = [0.0] if n_cameras == 1 else np.linspace(-BASELINE / 2, BASELINE / 2, n_cameras)
         cameras, clocks, drifts, products, macs = [], {}, {}, {}, set()
-        for i, x in enumerate(xs):
+        for i, centre in enumerate(camera_positions(n_cameras)):
             name = f"cam{i + 1}"
             f = FOCAL_PX * (1 + rng.normal(0, 0.005))
             cx = 319.5 + float(np.clip(rng.normal(0, 4), -10, 10))
@@ -335,7 +361,7 @@ class Scene:
             dist = np.array([K1 + rng.normal(0, 0.005), 0.0, 0.0, 0.0, 0.0])
             aim = rng.normal(0, 15.0, 3)
             roll = np.deg2rad(rng.normal(0, 0.3))
-            cameras.append(CameraModel.look_at(name, (x, CAM_Y, CAM_Z), aim, K, dist, roll))
+            cameras.append(CameraModel.look_at(name, centre, aim, K, dist, roll))
             clocks[name] = CameraClock(float(rng.uniform(-3, 3)), float(rng.uniform(-50, 50)), start)
             px = float(rng.uniform(*drift_px_per_60_days))
             drifts[name] = CameraDrift.reference(f, seed * 1000 + 17 * i, start, px)
@@ -344,10 +370,20 @@ class Scene:
                 mac = AXIS_OUI + bytes(rng.integers(0, 256, 3).tolist())
             macs.add(mac)
             products[name] = AxisProduct(0x0241, (5, 55, 1), mac)
-        return cls(cameras, clocks, drifts, products, cls._wall(cameras), start)
+        head = [c for c in cameras if c.center[2] < 0]
+        foot = [c for c in cameras if c.center[2] > 0]
+        wall = cls._wall(head, WALL_LAYOUT) if head else []
+        if foot:  # mirrored (about the layout's middle): each end's cameras see the same arrangement
+            wall += cls._wall(foot, {f"W{int(k[1:]) + len(WALL_LAYOUT)}": (-u - 20.0, v)
+                                     for k, (u, v) in WALL_LAYOUT.items()})
+        scene = cls(cameras, clocks, drifts, products, wall, start)
+        if gantry:
+            from vts_hw.sim_devices.gantry import Gantry
+            scene.gantry = gantry if isinstance(gantry, Gantry) else Gantry()
+        return scene
 
     @staticmethod
-    def _wall(cameras: list[CameraModel]) -> list[Marker]:
+    def _wall(cameras: list[CameraModel], layout=WALL_LAYOUT) -> list[Marker]:
         """Wall markers on a plane facing the cameras, WALL_DISTANCE beyond their mid-point."""
         mid = np.mean([c.center for c in cameras], axis=0)
         view = _unit(-mid)  # towards the FOV centre
@@ -356,7 +392,7 @@ class Scene:
         e_u = _unit(np.array([1.0, 0, 0]) - normal[0] * normal)
         e_v = _cross(e_u, normal)
         return [Marker(marker_id, centre + u * e_u + v * e_v, normal, WALL_DIAMETER, "disk")
-                for marker_id, (u, v) in WALL_LAYOUT.items()]
+                for marker_id, (u, v) in layout.items()]
 
     def add_body(self, body: RigidBody) -> RigidBody:
         self.bodies[body.name] = body
@@ -400,7 +436,8 @@ class Scene:
 
     def pose_key(self, t: float) -> tuple:
         """A hashable summary of everything on the table at ``t`` (for render caches)."""
-        return (self.table.at(t),) + tuple((n, b.pose.at(t)) for n, b in self.bodies.items())
+        key = (self.table.at(t),) + tuple((n, b.pose.at(t)) for n, b in self.bodies.items())
+        return key if self.gantry is None else key + (("gantry", self.gantry.key(t)),)
 
     # ----------------------------------------------------------------- ground truth
     def camera_at(self, cam: str, t: float) -> CameraModel:
@@ -428,7 +465,15 @@ class Scene:
         inside = ((uv[:, 0] >= 0) & (uv[:, 0] <= camera.width - 1)
                   & (uv[:, 1] >= 0) & (uv[:, 1] <= camera.height - 1))
         visible = inside & (depth > 0) & np.array([m.faces(eye) for m in markers])
-        return camera, markers, uv, visible
+        return camera, markers, uv, visible & ~self.hidden(eye, markers, t)
+
+    def hidden(self, eye, markers: list[Marker], t: float) -> np.ndarray:
+        """Whether each marker is hidden from ``eye`` by a SPECT head at ``t`` (bool array;
+        all False without a gantry). A marker is hidden whole when any of it would be."""
+        if self.gantry is None or not markers:
+            return np.zeros(len(markers), bool)
+        return self.gantry.hides(eye, np.array([m.center for m in markers]), t,
+                                 np.array([m.diameter_mm / 2 for m in markers]))
 
     def truth(self, cam: str, t: float) -> list[tuple[str, float, float]]:
         """``(marker_id, u, v)`` for each marker visible in ``cam`` at ``t`` (drift and

@@ -25,10 +25,12 @@ from vts_hw.sim_devices.scene import Scene
 
 __all__ = ["true_stereo_calibration", "true_spect_mapping", "write_true_calibration", "place_source_marker",
            "schedule_source_moves",
-           "plan_sync_moves", "CALIBRATION_FILE", "MAPPING_FILE"]
+           "plan_sync_moves", "true_cameras", "write_true_cameras", "CALIBRATION_FILE", "MAPPING_FILE",
+           "CAMERAS_FILE"]
 
 CALIBRATION_FILE = "calibration.json"
 MAPPING_FILE = "spect_mapping.json"
+CAMERAS_FILE = "cameras.json"
 NOTE = "simulated rig: the scene's true cameras (not a measured calibration)"
 
 
@@ -70,6 +72,40 @@ def write_true_calibration(scene: Scene, folder, t: float | None = None) -> tupl
     cal = true_stereo_calibration(scene, t).save(folder / CALIBRATION_FILE)
     mp = true_spect_mapping(scene, t).save(folder / MAPPING_FILE)
     return cal, mp
+
+
+def true_cameras(scene: Scene, t: float | None = None, frame: str = "world") -> dict:
+    """Every camera of ``scene`` at host time ``t`` (default its start), by name: the true
+    N-camera calibration, in the scene's world frame (= the SPECT frame) or, with
+    ``frame="cam1"``, in camera 1's frame as a calibration gives it (the VTS frame, which
+    :func:`true_spect_mapping` maps to the SPECT frame)."""
+    from vts_hw.vision.triangulate import Camera
+
+    t = scene.start_epoch if t is None else float(t)
+    cams = {n: scene.camera_at(n, t) for n in scene.camera_names}
+    if frame == "world":
+        return cams
+    first = cams[scene.camera_names[0]]
+    out = {}
+    for n, c in cams.items():            # x_c = R x_w + t, x_w = R1^T (x_1 - t1)
+        R = c.R @ first.R.T
+        out[n] = Camera(c.K, c.dist, R, c.t - R @ first.t, n)
+    return out
+
+
+def write_true_cameras(scene: Scene, folder, t: float | None = None, frame: str = "cam1") -> Path:
+    """``cameras.json``: every true camera (name, K, dist, R, t; mm), the N-camera form
+    :func:`vts_hw.vision.camera_set.load_cameras` reads; by default in camera 1's frame, like
+    ``calibration.json``, so that ``spect_mapping.json`` maps either to the SPECT frame."""
+    from vts_hw.files import write_json_atomic
+
+    Path(folder).mkdir(parents=True, exist_ok=True)
+    path = Path(folder) / CAMERAS_FILE
+    write_json_atomic(path, {"format": "vts-hw cameras", "unit": "mm", "note": NOTE, "frame": frame,
+                             "cameras": [{"name": n, "K": c.K.tolist(), "dist": c.dist.tolist(),
+                                          "R": c.R.tolist(), "t": c.t.tolist()}
+                                         for n, c in true_cameras(scene, t, frame).items()]})
+    return path
 
 
 def plan_sync_moves(t_fire: float, duration_s: float, n: int = 4, seed: int = 0, *,

@@ -174,6 +174,15 @@ def test_n_camera_file_round_trip_and_readers(real_calib, tmp_path):
     mm = CameraCalibration(back.camera_fits, back.pattern, 25.0, "mm", back.rms, back.per_view, back.outlier_rule)
     assert set(cameras_from_calibration(mm, ["cam1", "cam2"])) == {"cam1", "cam2"}
     assert set(cameras_from_calibration(mm, ["left", "right", "x"])) == {"left", "right"}
+    # every camera of an N-camera file reaches tracking (not only the first two)
+    third = type(back.camera_fits[0])("third", back.camera_fits[1].K, back.camera_fits[1].d,
+                                       back.camera_fits[1].R, back.camera_fits[1].t + 100.0, back.camera_fits[1].image_size)
+    three = CameraCalibration([*mm.camera_fits, third], back.pattern, 25.0, "mm", back.rms, back.per_view,
+                              back.outlier_rule)
+    assert list(cameras_from_calibration(three, ["cam1", "cam2", "cam3"])) == ["cam1", "cam2", "cam3"]
+    from vts_hw.vision.camera_set import load_cameras
+    cams3 = load_cameras(three.save(tmp_path / "three.json"))
+    assert list(cams3) == ["left", "right", "third"] and np.allclose(cams3["third"].t, third.t)
 
 
 @pytest.mark.parametrize("change, key", [

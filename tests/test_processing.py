@@ -245,7 +245,7 @@ def test_reindexed_and_recovered_recordings(tmp_path):
 def test_chunk_matching_follows_match_epipolar(processed):
     """The chunk-wide matcher gives match_epipolar's answer frame by frame, including frames
     with ambiguous points (two markers level along the baseline) and missing points."""
-    from vts_hw.recording.processing import _ideal, _match_chunk
+    from vts_hw.recording.chunks import _ideal, _match_chunk
     from vts_hw.vision.triangulate import fundamental_matrix, match_epipolar
 
     sim, _, _ = processed

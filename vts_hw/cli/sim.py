@@ -16,7 +16,11 @@ def sim() -> None:
 
 @sim.command()
 @click.option("--cameras", "n_cameras", type=click.IntRange(1, 16), default=2, show_default=True,
-              help="How many cameras.")
+              help="How many cameras: in pairs, the first pair over the patient's head, the second "
+                   "at the foot end, further pairs alternating (2: the reference rig's stereo pair).")
+@click.option("--gantry", is_flag=True,
+              help="The SPECT heads in the room, turning step-and-shoot (3 deg every 3 s) for as long "
+                   "as the rig runs: they hide markers from some cameras at some angles.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the scene (poses, drift, noise).")
 @click.option("--vapix", type=click.Choice(["3", "2"]), default="3", show_default=True,
               help="Firmware generation the cameras answer as (2: as --model axis211).")
@@ -40,8 +44,8 @@ def sim() -> None:
 @click.option("--detach", is_flag=True, help="Run in the background (needs --dir).")
 @click.option("--dir", "folder", type=click.Path(file_okay=False), default=None,
               help="Where to write rig.yaml and sim.env (and sim.pid, sim.log when detached).")
-def up(n_cameras: int, seed: int, vapix: str, model: str | None, https: bool, rate: float, trigger: str,
-       spect: bool, detach: bool, folder: str | None) -> None:
+def up(n_cameras: int, gantry: bool, seed: int, vapix: str, model: str | None, https: bool, rate: float,
+       trigger: str, spect: bool, detach: bool, folder: str | None) -> None:
     """Run the simulated rig (foreground: Ctrl-C stops it).
 
     With --dir DIR it writes DIR/rig.yaml pointing at the simulated cameras and DIR/sim.env
@@ -58,7 +62,8 @@ def up(n_cameras: int, seed: int, vapix: str, model: str | None, https: bool, ra
     if detach:
         if not folder:
             raise click.UsageError("--detach needs --dir DIR (where rig.yaml and sim.env go)")
-        pid = simrig.start_detached(folder, n_cameras, seed, fw, rate, trigger=trigger, spect=spect, https=https)
+        pid = simrig.start_detached(folder, n_cameras, seed, fw, rate, trigger=trigger, spect=spect, https=https,
+                                    gantry=gantry)
         _describe(Path(folder))
         click.echo(f"simulated rig running in the background (pid {pid}); stop it with: vts sim down --dir {folder}")
         return
@@ -76,7 +81,8 @@ def up(n_cameras: int, seed: int, vapix: str, model: str | None, https: bool, ra
             click.echo(f"simulated SPECT: each scan's list-mode goes to {Path(folder) / 'spect'}")
         click.echo("simulated rig up; Ctrl-C stops it")
 
-    simrig.serve(folder, n_cameras, seed, fw, rate, on_ready=ready, trigger=trigger, spect=spect, https=https)
+    simrig.serve(folder, n_cameras, seed, fw, rate, on_ready=ready, trigger=trigger, spect=spect, https=https,
+                 gantry=gantry)
     click.echo("simulated rig stopped")
 
 

@@ -27,13 +27,17 @@ TRACKS_FORMAT = "vts-trajectory/1"
 class Tracks:
     """Marker positions over time: the result of :func:`vts_hw.recording.processing.process_recording`.
 
-    Per *paired frame* f (F of them, in time order): ``host_time[f]`` (host UTC epoch s, the
-    mean of the two cameras' mapped exposure times), ``camera_time[f, c]`` (camera c's own
-    stamp, camera epoch s), ``camera_frame[f, c]`` (frame number in camera c's index),
-    ``n_blobs[f, c]`` (markers detected), optionally ``spect_time[f]`` (SPECT clock, s).
+    C cameras (``camera_names``). Per *paired frame* (frame set) f (F of them, in time
+    order): ``host_time[f]`` (host UTC epoch s, the mean of its cameras' mapped exposure
+    times), ``camera_time[f, c]`` (camera c's own stamp, camera epoch s; NaN when camera c
+    has no frame in the set), ``camera_frame[f, c]`` (frame number in camera c's index, -1
+    when none), ``n_blobs[f, c]`` (markers detected, -1 when no frame), ``n_single[f, c]``
+    (detections no other camera confirmed: markers seen by that camera only), optionally
+    ``spect_time[f]`` (SPECT clock, s).
     Per *point* p (N): ``point_frame[p]`` (its paired frame), ``marker[p]`` (identity, from
     1), ``xyz[p]`` (mm, VTS frame), ``reproj_px[p]`` (RMS reprojection error, px),
-    ``uv[p]`` (pixel centroids: camera 1 u, v, camera 2 u, v), optionally ``xyz_spect[p]``
+    ``uv[p]`` (pixel centroids: camera 1 u, v, camera 2 u, v, ...; NaN for a camera the point
+    was not seen by: ``point_cameras`` is its camera set), optionally ``xyz_spect[p]``
     (mm, SPECT frame). ``unpaired``: per camera, frame numbers left without a partner.
     Files: :meth:`save` / :meth:`load`, format in docs/trajectory-format.md.
     """
@@ -52,9 +56,15 @@ class Tracks:
     meta: dict = field(default_factory=dict)
     xyz_spect: np.ndarray | None = None
     spect_time: np.ndarray | None = None
+    n_single: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.host_time)
+
+    @property
+    def point_cameras(self) -> np.ndarray:
+        """(N, C) bool: which cameras each point was triangulated from."""
+        return ~np.isnan(self.uv[:, 0::2])
 
     @property
     def point_time(self) -> np.ndarray:
@@ -92,7 +102,8 @@ class Tracks:
             meta["spect_time"] = getattr(host_to_spect, "__doc__", None) or "host_to_spect"
         return Tracks(self.host_time, list(self.camera_names), self.camera_time,
                       self.camera_frame, self.n_blobs, self.point_frame, self.marker, self.xyz,
-                      self.reproj_px, self.uv, dict(self.unpaired), meta, xyz_spect, spect_time)
+                      self.reproj_px, self.uv, dict(self.unpaired), meta, xyz_spect, spect_time,
+                      self.n_single)
 
     def marker_summary(self) -> list[dict]:
         """Per marker id: points, first and last host time (s), mean position and range of
@@ -114,50 +125,58 @@ class Tracks:
 
     # -------------------------------------------------------------- files
     def _columns(self) -> list[str]:
-        c1, c2 = self.camera_names
-        cols = ["frame", "host_time", f"{c1}_frame", f"{c1}_time", f"{c2}_frame", f"{c2}_time"]
+        cols = ["frame", "host_time"]
+        for c in self.camera_names:
+            cols += [f"{c}_frame", f"{c}_time"]
         if self.spect_time is not None:
             cols.append("spect_time")
-        cols += ["marker", "x_mm", "y_mm", "z_mm", "reproj_px",
-                 f"{c1}_u", f"{c1}_v", f"{c2}_u", f"{c2}_v"]
+        cols += ["marker", "x_mm", "y_mm", "z_mm", "reproj_px"]
+        for c in self.camera_names:
+            cols += [f"{c}_u", f"{c}_v"]
         if self.xyz_spect is not None:
             cols += ["x_spect_mm", "y_spect_mm", "z_spect_mm"]
         return cols
 
     def save(self, path) -> tuple[Path, Path]:
         """Write ``<stem>.csv`` (a row per marker per paired frame) and ``<stem>.json``
-        (metadata and the table of every paired frame). Returns both paths."""
+        (metadata and the table of every paired frame). Returns both paths. A camera without
+        a frame in a set, or not used for a point, leaves its cells empty."""
         path = Path(path)
         csv_path, json_path = path.with_suffix(".csv"), path.with_suffix(".json")
         pf = self.point_frame
-        ct = ["" if not np.isfinite(v) else f"{v:.2f}" for v in self.camera_time.ravel()]
-        ct = np.array(ct, dtype=object).reshape(-1, 2)
+        C = len(self.camera_names)
+        ct = np.array(["" if not np.isfinite(v) else f"{v:.2f}" for v in self.camera_time.ravel()],
+                      dtype=object).reshape(-1, C)
+        cf = np.array(["" if v < 0 else str(int(v)) for v in self.camera_frame.ravel()],
+                      dtype=object).reshape(-1, C)
+        frame_txt = [f"{f},{self.host_time[f]:.6f}," + ",".join(f"{cf[f, c]},{ct[f, c]}" for c in range(C))
+                     for f in range(len(self.host_time))]
         lines = [",".join(self._columns())]
         has_st, has_sp = self.spect_time is not None, self.xyz_spect is not None
+        num = lambda v: "" if not np.isfinite(v) else f"{v:.4f}"  # noqa: E731
         for p in range(len(pf)):
             f = pf[p]
-            row = (f"{f},{self.host_time[f]:.6f},{self.camera_frame[f, 0]},{ct[f, 0]},"
-                   f"{self.camera_frame[f, 1]},{ct[f, 1]}")
+            row = frame_txt[f]
             if has_st:
                 row += f",{self.spect_time[f]:.6f}"
             x, y, z = self.xyz[p]
-            u1, v1, u2, v2 = self.uv[p]
             row += (f",{self.marker[p]},{x:.4f},{y:.4f},{z:.4f},{self.reproj_px[p]:.4f},"
-                    f"{u1:.4f},{v1:.4f},{u2:.4f},{v2:.4f}")
+                    + ",".join(num(v) for v in self.uv[p]))
             if has_sp:
                 xs, ys, zs = self.xyz_spect[p]
                 row += f",{xs:.4f},{ys:.4f},{zs:.4f}"
             lines.append(row)
         csv_path.write_text("\n".join(lines) + "\n", encoding="ascii")
-        c1, c2 = self.camera_names
         fin = lambda a: [None if not np.isfinite(v) else float(v) for v in a]  # noqa: E731
-        frames = {"host_time": [round(float(v), 6) for v in self.host_time],
-                  f"{c1}_frame": self.camera_frame[:, 0].tolist(),
-                  f"{c1}_time": fin(self.camera_time[:, 0]),
-                  f"{c2}_frame": self.camera_frame[:, 1].tolist(),
-                  f"{c2}_time": fin(self.camera_time[:, 1]),
-                  f"{c1}_blobs": self.n_blobs[:, 0].tolist(),
-                  f"{c2}_blobs": self.n_blobs[:, 1].tolist()}
+        frames = {"host_time": [round(float(v), 6) for v in self.host_time]}
+        for c, name in enumerate(self.camera_names):
+            frames[f"{name}_frame"] = [None if v < 0 else int(v) for v in self.camera_frame[:, c]]
+            frames[f"{name}_time"] = fin(self.camera_time[:, c])
+        for c, name in enumerate(self.camera_names):
+            frames[f"{name}_blobs"] = [None if v < 0 else int(v) for v in self.n_blobs[:, c]]
+        if self.n_single is not None:
+            for c, name in enumerate(self.camera_names):
+                frames[f"{name}_single"] = self.n_single[:, c].tolist()
         if has_st:
             frames["spect_time"] = [round(float(v), 6) for v in self.spect_time]
         doc = {"format": TRACKS_FORMAT, "csv": csv_path.name, "cameras": list(self.camera_names),
@@ -192,13 +211,20 @@ class Tracks:
 
     @classmethod
     def _from_files(cls, doc: dict, json_path: Path, csv_path: Path) -> "Tracks":
-        c1, c2 = doc["cameras"]
+        names = [str(c) for c in doc["cameras"]]
+        if len(names) < 2:
+            raise ValueError("fewer than two cameras")
+        C = len(names)
         fr = doc["frames"]
         nanf = lambda a: np.array([np.nan if v is None else v for v in a], float)  # noqa: E731
+        intm = lambda a: np.array([-1 if v is None else v for v in a]).astype(int)  # noqa: E731
         host = np.array(fr["host_time"], float)
-        camera_time = np.column_stack([nanf(fr[f"{c1}_time"]), nanf(fr[f"{c2}_time"])]).reshape(-1, 2)
-        camera_frame = np.column_stack([fr[f"{c1}_frame"], fr[f"{c2}_frame"]]).astype(int).reshape(-1, 2)
-        n_blobs = np.column_stack([fr[f"{c1}_blobs"], fr[f"{c2}_blobs"]]).astype(int).reshape(-1, 2)
+        camera_time = np.column_stack([nanf(fr[f"{c}_time"]) for c in names]).reshape(-1, C)
+        camera_frame = np.column_stack([intm(fr[f"{c}_frame"]) for c in names]).reshape(-1, C)
+        n_blobs = np.column_stack([intm(fr[f"{c}_blobs"]) for c in names]).reshape(-1, C)
+        n_single = None
+        if all(f"{c}_single" in fr for c in names):
+            n_single = np.column_stack([intm(fr[f"{c}_single"]) for c in names]).reshape(-1, C)
         spect_time = np.array(fr["spect_time"], float) if "spect_time" in fr else None
         try:
             with open(csv_path, encoding="ascii") as f:
@@ -212,16 +238,15 @@ class Tracks:
                 raise DataError(f"{csv_path}: no column {need!r}")
         rows = [r.split(",") for r in body.split("\n")] if body else []
         get = lambda name, typ=float: np.array([typ(r[col[name]]) for r in rows], typ)  # noqa: E731
+        opt = lambda name: np.array([float(r[col[name]]) if r[col[name]] else np.nan  # noqa: E731
+                                     for r in rows], float)
         xyz = np.column_stack([get("x_mm"), get("y_mm"), get("z_mm")]).reshape(-1, 3)
-        uv = np.column_stack([get(f"{c1}_u"), get(f"{c1}_v"), get(f"{c2}_u"),
-                              get(f"{c2}_v")]).reshape(-1, 4)
+        uv = np.column_stack([opt(f"{c}_{a}") for c in names for a in "uv"]).reshape(-1, 2 * C)
         xyz_spect = None
         if "x_spect_mm" in col:
             xyz_spect = np.column_stack([get("x_spect_mm"), get("y_spect_mm"),
                                          get("z_spect_mm")]).reshape(-1, 3)
         unpaired = {k: np.array(v, int) for k, v in doc.get("unpaired", {}).items()}
-        return cls(host, [c1, c2], camera_time, camera_frame, n_blobs, get("frame", int),
+        return cls(host, names, camera_time, camera_frame, n_blobs, get("frame", int),
                    get("marker", int), xyz, get("reproj_px"), uv, unpaired, doc.get("meta", {}),
-                   xyz_spect, spect_time)
-
-
+                   xyz_spect, spect_time, n_single)

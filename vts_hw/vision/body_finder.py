@@ -30,7 +30,7 @@ from vts_hw.errors import DataError
 from vts_hw.vision.registration import RigidTransform, kabsch
 from vts_hw.vision.triangulate import epipolar_distances, triangulate
 
-__all__ = ["Hypotheses", "BodyFit", "candidate_points", "find_body", "locate_body"]
+__all__ = ["Hypotheses", "BodyFit", "candidate_points", "find_body", "locate_body", "locate_body_views"]
 
 DEFAULT_TOL_MM = 3.0
 
@@ -160,3 +160,21 @@ def locate_body(cams: Sequence, pts_a, pts_b, template, tol_mm: float = DEFAULT_
     :func:`find_body`, no detection used twice."""
     hyp = candidate_points(cams, pts_a, pts_b, max_px)
     return find_body(hyp.points, template, tol_mm, exclusive=hyp.pairs)
+
+
+def locate_body_views(cams: Sequence, pts: Sequence, template, tol_mm: float = DEFAULT_TOL_MM,
+                      max_px: float = 2.0) -> BodyFit:
+    """The body ``template`` seen by N cameras (``pts``: each camera's detections): with two,
+    :func:`locate_body`; with more, the points :func:`vts_hw.vision.multiview.match_views`
+    makes from every camera that sees each marker (pairs one pair cannot tell apart are settled
+    by the others; what stays ambiguous is withheld), then :func:`find_body`, no detection
+    used twice."""
+    if len(cams) == 2:
+        return locate_body(cams, pts[0], pts[1], template, tol_mm, max_px)
+    from vts_hw.vision.multiview import ViewGeometry, match_views
+
+    m = match_views(ViewGeometry(cams), [np.asarray(p, float).reshape(-1, 2) for p in pts], max_px)
+    det = np.array([p.detections for p in m.points], int).reshape(-1, len(cams))
+    # a camera a point does not use is no resource it holds: a unique filler per point
+    exclusive = np.where(det >= 0, det, -1 - np.arange(len(det))[:, None])
+    return find_body(m.xyz, template, tol_mm, exclusive=exclusive)

@@ -1,0 +1,99 @@
+"""Calibrated cameras by name, whatever holds them: the one small interface N-camera code reads.
+
+Tracking, processing and the QA procedures need only a list of named cameras, each with
+``K``, ``dist``, ``R``, ``t`` in one world frame (mm). :func:`named_cameras` makes that
+``{name: Camera}`` from any of:
+
+* a dict ``name -> camera-like`` (anything with ``K, dist, R, t``: a scene ``CameraModel``, a
+  :class:`~vts_hw.vision.triangulate.Camera`, a calibration's camera);
+* a list of camera-likes with names (``.name``), else named like the recording's cameras;
+* a stereo calibration (``K1, d1, K2, d2, R, T``; the world is camera 1's frame);
+* an N-camera calibration: anything with ``cameras`` -- a dict, a list of named cameras, or a
+  method returning one.
+
+:func:`load_cameras` reads a calibration file: the stereo form
+(:class:`~vts_hw.vision.calibration_io.StereoCalibration`) or any JSON with a ``cameras`` list
+of ``{"name", "K", "dist", "R", "t"}`` (the N-camera form; ``unit`` mm when given).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Sequence
+
+from vts_hw.errors import DataError
+from vts_hw.vision.triangulate import Camera, as_camera
+
+__all__ = ["named_cameras", "load_cameras"]
+
+
+def _check_unit(obj: Any) -> None:
+    unit = getattr(obj, "unit", "mm")
+    if unit != "mm":
+        raise DataError(f"the calibration's translation is in {unit!r}, not mm: calibrate with the "
+                        "checkerboard's square size to get positions in mm")
+
+
+def named_cameras(obj: Any, available: Sequence[str] = ()) -> dict[str, Camera]:
+    """``{name: Camera}`` from any form above. ``available``: the names to give cameras that
+    have none (a stereo calibration's two, an unnamed list), in order."""
+    available = list(available)
+    if isinstance(obj, dict):
+        return {str(k): _named(v, str(k)) for k, v in obj.items()}
+    if hasattr(obj, "camera_fits"):      # an N-camera calibration (multi_calibration_io): every camera
+        _check_unit(obj)
+        fits = list(obj.camera_fits)
+        names = [c.name for c in fits]
+        if available and not set(names) <= set(available):   # named after its images: the recording's, in order
+            names = (available + names[len(available):])[:len(fits)]
+        return {n: Camera(c.K, c.d, c.R, c.t, n) for n, c in zip(names, fits)}
+    if hasattr(obj, "K1") and hasattr(obj, "T"):
+        _check_unit(obj)
+        from vts_hw.vision.calibration_io import stereo_cameras
+        names = (available + ["cam1", "cam2"][len(available):])[:2]
+        return {c.name: c for c in stereo_cameras(obj, names)}
+    if hasattr(obj, "cameras") and not isinstance(obj, (list, tuple)):
+        _check_unit(obj)
+        cams = obj.cameras() if callable(obj.cameras) else obj.cameras
+        return named_cameras(cams, available)
+    cams = [as_camera(c) for c in obj]
+    names = [c.name for c in cams]
+    if not all(names) or len(set(names)) != len(names):
+        names = (available + [f"cam{i + 1}" for i in range(len(cams))][len(available):])[:len(cams)]
+    return {n: _named(c, n) for n, c in zip(names, cams)}
+
+
+def _named(cam: Any, name: str) -> Camera:
+    c = as_camera(cam)
+    return c if c.name == name else Camera(c.K, c.dist, c.R, c.t, name)
+
+
+def load_cameras(path) -> dict[str, Camera]:
+    """The named cameras of a calibration file (stereo or N-camera); :class:`DataError`
+    naming the file when it is neither."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError) as exc:
+        raise DataError(f"{path}: cannot read the calibration ({str(exc)[:120] or type(exc).__name__})") from None
+    if isinstance(data, dict) and "format" in data:    # written by vts calibrate (stereo or N cameras)
+        from vts_hw.vision.multi_calibration_io import load_calibration
+        return named_cameras(load_calibration(path))
+    if isinstance(data, dict) and "K1" in data:
+        from vts_hw.vision.calibration_io import StereoCalibration
+        return named_cameras(StereoCalibration.load(path))
+    rows = data.get("cameras") if isinstance(data, dict) else None
+    if not isinstance(rows, list) or len(rows) < 2:
+        raise DataError(f"{path}: not a calibration (neither a stereo pair nor a list of 2 or more cameras)")
+    if data.get("unit", "mm") != "mm":
+        raise DataError(f"{path}: the cameras' translations are in {data.get('unit')!r}, not mm")
+    out = {}
+    for i, row in enumerate(rows):
+        try:
+            name = str(row.get("name") or f"cam{i + 1}")
+            out[name] = Camera(row["K"], row["dist"], row["R"], row["t"], name)
+        except (AttributeError, KeyError, TypeError, ValueError) as exc:
+            raise DataError(f"{path}: camera {i + 1} is not whole ({type(exc).__name__}: "
+                            f"{str(exc)[:80]}); each needs name, K, dist, R, t") from None
+    return out
