@@ -70,8 +70,8 @@ P: dict = {}  # the parsers, filled by import_parsers()
 def import_parsers() -> None:
     """Import every parser a target calls (inside atheris.instrument_imports in the child)."""
     from vts_hw import config
-    from vts_hw.recording.folder import axis_jpeg
-    from vts_hw.recording.folder import mjpeg
+    from vts_hw.recording import axis_jpeg
+    from vts_hw.recording import mjpeg
     from vts_hw.recording import folder as recording
     from vts_hw.vision.calibration_io import StereoCalibration
     from vts_hw.spect.listmode import read_listmode
