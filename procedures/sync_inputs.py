@@ -245,10 +245,20 @@ def _nothing_belongs(session: Path, span: SessionSpan | None, cands: list[_Candi
 
 def load_calibration(calibration):
     """A calibration (or cameras) as given, or read from a path: a stereo file (also one written
-    before N cameras) or an N-camera file (vts_hw.vision.multi_calibration_io.load_calibration)."""
+    before N cameras) or an N-camera file (vts_hw.vision.multi_calibration_io.load_calibration),
+    or a plain list of named cameras (the simulator's true ``cameras.json``:
+    vts_hw.vision.camera_set.load_cameras)."""
     if calibration is None or not isinstance(calibration, (str, Path)):
         return calibration
-    from vts_hw.vision.multi_calibration_io import load_calibration as load
+    from vts_hw.vision.multi_calibration_io import FORMAT, STEREO_FORMAT, load_calibration as load
+    try:
+        data = json.loads(Path(calibration).read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError):
+        data = None                                   # load() says what is wrong with the file
+    if isinstance(data, dict) and data.get("format") not in (FORMAT, STEREO_FORMAT) \
+            and isinstance(data.get("cameras"), list):
+        from vts_hw.vision.camera_set import load_cameras
+        return load_cameras(calibration)
     return load(calibration)
 
 

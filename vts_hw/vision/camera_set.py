@@ -77,8 +77,8 @@ def load_cameras(path) -> dict[str, Camera]:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError, RecursionError) as exc:
         raise DataError(f"{path}: cannot read the calibration ({str(exc)[:120] or type(exc).__name__})") from None
-    if isinstance(data, dict) and "format" in data:    # written by vts calibrate (stereo or N cameras)
-        from vts_hw.vision.multi_calibration_io import load_calibration
+    from vts_hw.vision.multi_calibration_io import FORMAT, STEREO_FORMAT, load_calibration
+    if isinstance(data, dict) and data.get("format") in (FORMAT, STEREO_FORMAT):   # written by vts calibrate
         return named_cameras(load_calibration(path))
     if isinstance(data, dict) and "K1" in data:
         from vts_hw.vision.calibration_io import StereoCalibration
