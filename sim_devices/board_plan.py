@@ -5,10 +5,13 @@ Each view is held towards one pair of cameras: the board faces the bisector of t
 directions to them from the point where their optical axes pass closest, turned and moved at
 random, and is kept only if the whole board is inside both images and faces both cameras at no
 more than ``max_obliquity_deg``. The pairs are chosen so that they connect every camera
-(:func:`plan_views`: the easiest pairs first — the smallest angle between the two cameras seen
-from the board — until the pairs connect all cameras and each camera is in two pairs where it
-can be), so no view needs every camera. The views are rendered in the two cameras they are
-held for (:mod:`vts_hw.sim_devices.scenarios.calibration_views`).
+(:func:`plan_views`: each camera's easiest pair first — the smallest angle between the two
+cameras seen from the board, its neighbour at the same end — then the easiest pairs until they
+connect all cameras, and each camera in two pairs where it can be), so no view needs every
+camera. A head and a foot camera face each other: the board held for them lies about flat,
+turned 45 deg in its plane, seen by both at no more than ``WIDE_GOOD_OBLIQUITY_DEG``
+(:func:`_wide_pair_poses`; docs/decisions/0030-n-camera-calibration.md). The views are rendered
+in the two cameras they are held for (:mod:`vts_hw.sim_devices.scenarios.calibration_views`).
 """
 
 from __future__ import annotations
@@ -70,13 +73,22 @@ def sees_board(scene: Scene, cam: str, pose: Pose, pattern=PATTERN, square_mm=SQ
 
 
 WIDE_PAIR_DEG = 90.0     # cameras further apart than this (seen from the board) face each other
-WIDE_MAX_OBLIQUITY_DEG = 72.5  # such a pair sees a board lying about flat at 70-73 deg: its corners are
-                               # found well (< 0.2 px) only up to about this, and with the board turned
-                               # 45 deg in its plane (squares seen edge-on shrink to 13 px: the corner
-                               # finder's window then takes the neighbours in)
+WIDE_GOOD_OBLIQUITY_DEG = 72.5  # such a pair sees a board lying about flat at 70-73 deg each: its corners
+WIDE_MAX_OBLIQUITY_DEG = 73.5   # are found well (< 0.2 px) only up to about 73.5 deg, and only with the
+                                # board turned 45 deg in its plane (squares seen edge-on shrink to 13 px
+                                # and the corner finder's window takes the neighbours in); poses up to
+                                # the max are kept only where too few are found within the good limit
 WIDE_TILT_DEG = 12.0     # how far such a board is tilted from the bisector either way
 WIDE_CANDIDATES = 4      # poses found per pose kept for such a pair, the best spread kept
 WIDE_TRIES = 40000
+
+
+def obliquity_deg(scene: Scene, cam: str, pose: Pose, pattern=PATTERN, square_mm=SQUARE_MM) -> float:
+    """Angle between the board's printed side (its normal) and the direction to camera ``cam``."""
+    R, _ = pose
+    centre = _to_world(pose, np.array([[(pattern[0] - 1) / 2 * square_mm, (pattern[1] - 1) / 2 * square_mm, 0]]))[0]
+    c = float(-np.asarray(R)[:, 2] @ _unit(scene.cameras[cam].center - centre))
+    return float(np.degrees(np.arccos(np.clip(c, -1, 1))))
 
 
 def _spread(normals: np.ndarray, n: int) -> list[int]:
@@ -95,11 +107,14 @@ def _spread(normals: np.ndarray, n: int) -> list[int]:
 def _wide_pair_poses(scene: Scene, a: str, b: str, n: int, rng, base, p, centre_b, pattern, square_mm) -> list[Pose]:
     """Poses for two cameras that face each other (a head and a foot camera): the board lies about
     flat between them, its printed side up towards the bisector, turned 45 deg (± 10) in its plane
-    and tilted by up to ``WIDE_TILT_DEG`` either way; poses both cameras see whole at no more than
-    ``WIDE_MAX_OBLIQUITY_DEG`` are drawn, and the ``n`` that face the most different ways kept."""
-    found: list[Pose] = []
+    and tilted by up to ``WIDE_TILT_DEG`` either way. Poses both cameras see whole at no more than
+    ``WIDE_MAX_OBLIQUITY_DEG`` are drawn (until ``WIDE_CANDIDATES`` per pose wanted are within
+    ``WIDE_GOOD_OBLIQUITY_DEG``), the least oblique of them kept as candidates, and of those the
+    ``n`` that face the most different ways."""
+    found: list[tuple[float, Pose]] = []
+    want = WIDE_CANDIDATES * n
     for _ in range(WIDE_TRIES):
-        if len(found) >= WIDE_CANDIDATES * n:
+        if sum(w <= WIDE_GOOD_OBLIQUITY_DEG for w, _ in found) >= want:
             break
         ang = [rng.uniform(-1.0, 1.0) * WIDE_TILT_DEG, rng.uniform(-1.0, 1.0) * WIDE_TILT_DEG,
                rng.choice([-45.0, 45.0]) + rng.uniform(-10.0, 10.0)]
@@ -108,11 +123,12 @@ def _wide_pair_poses(scene: Scene, a: str, b: str, n: int, rng, base, p, centre_
                                  rng.uniform(-150.0, 150.0)]) - R @ centre_b
         if all(sees_board(scene, c, (R, t), pattern, square_mm, max_obliquity_deg=WIDE_MAX_OBLIQUITY_DEG)
                for c in (a, b)):
-            found.append((R, t))
+            found.append((max(obliquity_deg(scene, c, (R, t), pattern, square_mm) for c in (a, b)), (R, t)))
     if len(found) < 3:
         return []
-    normals = np.array([-np.asarray(R)[:, 2] for R, _ in found])
-    return [found[k] for k in _spread(normals, min(n, len(found)))]
+    pool = [pose for _, pose in sorted(found, key=lambda wp: wp[0])[:want]]
+    normals = np.array([-np.asarray(R)[:, 2] for R, _ in pool])
+    return [pool[k] for k in _spread(normals, min(n, len(pool)))]
 
 
 def pair_poses(scene: Scene, a: str, b: str, n: int, seed: int = 0, pattern=PATTERN,
