@@ -27,6 +27,7 @@ from vts_hw.vision.multi_calibration import calibrate_cameras
 from vts_hw.vision.multi_calibration_io import CameraCalibration, load_calibration
 from vts_hw.vision.multi_compare import compare_cameras
 
+MAX_RMS_PX = 1.0   # a checkerboard fit above this overall RMS is not trusted (corner noise: 0.05-0.5 px)
 IMAGE_SUFFIXES = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff"}
 _NAMED = re.compile(r"^(?P<camera>.+)_(?P<view>[^_]+)$")
 _STEREO = re.compile(r"^(?P<camera>left|right)(?P<view>.+)$", re.IGNORECASE)
@@ -132,6 +133,20 @@ def replaceable(out_path: Path, unit: str, force: bool = False):
     return old
 
 
+def fit_warnings(calib: CameraCalibration) -> list[str]:
+    """WARNING lines for a fit that cannot be trusted: a bundle adjustment that stopped before it
+    converged, or an overall RMS above ``MAX_RMS_PX``."""
+    out = []
+    adj = calib.adjustment
+    if adj and not adj.get("converged", True):
+        out.append(f"WARNING: the bundle adjustment did not converge ({adj.get('evaluations')} evaluations:"
+                   f" {adj.get('status')}).")
+    if calib.rms > MAX_RMS_PX:
+        out.append(f"WARNING: RMS reprojection error {calib.rms:.3f} px is above the {MAX_RMS_PX:g} px a"
+                   " checkerboard calibration reaches: views that do not fit, or too few views per camera.")
+    return out
+
+
 @dataclass
 class CamerasRun:
     """A computed N-camera calibration, how it compares, and where it was saved."""
@@ -144,9 +159,22 @@ class CamerasRun:
     sim: dict[str, Any] | None = None
 
     @property
+    def untrusted(self) -> list[str]:
+        """The fit's own warnings (:func:`fit_warnings`): not written over -o without --force."""
+        return fit_warnings(self.calib)
+
+    @property
     def warnings(self) -> list[str]:
-        return (list(self.truth["warnings"]) if self.truth else []) + (
+        return self.untrusted + (list(self.truth["warnings"]) if self.truth else []) + (
             list(self.change["warnings"]) if self.change else [])
+
+    @property
+    def refused(self) -> str | None:
+        """Why the calibration was not written (an untrusted fit without --force), else None."""
+        if not self.untrusted or self.saved.written or self.saved.error is not None:
+            return None
+        why = self.untrusted[0].removeprefix("WARNING: ").rstrip(".")
+        return f"{self.saved.path} was not written, the fit cannot be trusted: {why}; give --force to write it anyway."
 
     def results_data(self) -> dict[str, Any]:
         data = self.calib.results_data()
@@ -173,7 +201,12 @@ class CamerasRun:
             lines.append(change_text(self.change, self.previous_path))
         if self.saved.written:
             lines.append(f"wrote {self.saved.written}")
-        if self.warnings:
+        lines += [f"  {w}" for w in self.untrusted]
+        if self.refused:
+            lines.append(f"NOT SAVED: {self.refused}")
+        elif self.untrusted:
+            lines.append(f"{len(self.warnings)} warning(s); the fit cannot be trusted but --force wrote it.")
+        elif self.warnings:
             lines.append(f"{len(self.warnings)} warning(s) above; the calibration was still saved"
                          " (a warning does not fail the run: exit code 0).")
         return "\n".join(lines)
@@ -185,7 +218,8 @@ def run(images, *, output, pattern=(9, 6), square: float = 1.0, unit: str = "squ
     """Calibrate the cameras of ``images`` (camera → view → path or grey image) and save to
     ``output``. ``previous``: the file to compare with (default the one in ``output``);
     ``truth``/``score``: for simulated views, the true cameras and a function (calib, truth) →
-    their errors."""
+    their errors. A fit that cannot be trusted (:func:`fit_warnings`) is not written unless
+    ``force`` (the caller exits 3: :attr:`CamerasRun.refused`)."""
     out_path = Path(output)
     current = replaceable(out_path, unit, force)
     prev_path, prev = None, None
@@ -202,7 +236,10 @@ def run(images, *, output, pattern=(9, 6), square: float = 1.0, unit: str = "squ
             prev = CameraCalibration.from_stereo(prev, calib.names[:2])
         change = compare_cameras(calib, prev)
     judged = score(calib, truth) if score is not None and truth is not None else None
-    saved = save_or_keep(out_path, calib.text(), "calibration")
+    if fit_warnings(calib) and not force:     # an untrusted fit does not replace the file
+        saved = Saved(out_path)
+    else:
+        saved = save_or_keep(out_path, calib.text(), "calibration")
     return CamerasRun(calib, saved, prev_path, change, judged, sim)
 
 

@@ -67,16 +67,28 @@ def test_image_names_and_folders(boards, tmp_path, layout):
 
 
 def test_sim_four_cameras_against_the_truth(tmp_path):
+    """The reference room of 4 cameras: pairs at the head and the foot end, facing each other."""
+    from vts_hw.sim_devices.scene import Scene
+
+    scene = Scene.reference(0, n_cameras=4, start_epoch=0.0)
+    head = {n for n, c in scene.cameras.items() if c.center[2] < 0}
+    assert head == {"cam1", "cam2"} and all(scene.cameras[n].center[2] > 0 for n in ("cam3", "cam4"))
     out = tmp_path / "sim.json"
     r = vts("--sim", "--cameras", 4, "--sim-poses", 5, "--json", "-o", out, cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
     assert d["n_cameras"] == 4 and d["unit"] == "mm" and d["view_graph"]["connected"]
     assert max(len(c) for c in d["view_graph"]["views"].values()) == 2      # no view needs all four
+    across = [p for p in d["sim"]["pairs"] if len(head & set(p["cameras"])) == 1]
+    assert across, d["sim"]["pairs"]                    # boards seen by a head and a foot camera
+    assert d["adjustment"]["converged"], d["adjustment"]
+    assert d["warnings"] == [] and r.stderr == ""
+    # measured (seed 0, 5 poses per pair): RMS 0.09 px; about 1.5 mm in camera 1's frame (the
+    # scale along the view), 0.03 mm after the best rigid fit (before the head-and-foot board
+    # plan: 200 evaluations without converging, RMS 2.4 px, 228 mm and 2.9 mm)
+    assert d["rms"] < 0.15
     p = d["sim_truth"]["points_3d"]
     assert p["unit"] == "mm" and p["n"] > 300
-    # measured (seed 0, 5 poses per pair): RMS about 5 mm in camera 1's frame (the scale along the
-    # view), 0.03 mm after the best rigid fit
     assert 0 < p["rms"] < 25 and p["rms_after_rigid_fit"] < 0.1
     assert set(d["sim_truth"]["cameras"]) == {"cam1", "cam2", "cam3", "cam4"}
     for rows in d["sim_truth"]["cameras"].values():
@@ -140,3 +152,29 @@ def test_stereo_and_n_camera_files_replace_and_compare_with_each_other(boards, t
     assert r.returncode == 0, r.stderr
     assert f"Change from the previous calibration {out}" in r.stdout
     assert isinstance(StereoCalibration.load(out), StereoCalibration)
+
+
+def test_a_fit_that_did_not_converge_is_not_saved(tmp_path, monkeypatch, capsys):
+    """A bundle adjustment stopped before it converged: a WARNING line, -o not written, exit 3;
+    --force writes it (exit 0), the file saying it did not converge."""
+    import functools
+
+    from vts_hw.cli import main
+    from vts_hw.vision import bundle
+
+    monkeypatch.setattr(bundle, "adjust", functools.partial(bundle.adjust, max_nfev=1))
+    out = tmp_path / "cal.json"
+    args = ["calibrate", "cameras", "--sim", "--cameras", "2", "--sim-poses", "4", "-o", str(out)]
+    with pytest.raises(SystemExit) as e:
+        main(args)
+    assert e.value.code == 3
+    o, err = capsys.readouterr()
+    assert "WARNING: the bundle adjustment did not converge (1 evaluations" in o
+    assert err.count("\n") == 1 and err.startswith(f"vts: {out} was not written, the fit cannot be trusted:")
+    assert err.rstrip().endswith("give --force to write it anyway.") and "Traceback" not in err
+    assert not out.exists()
+    main([*args, "--force", "--json"])
+    o, err = capsys.readouterr()
+    assert json.loads(o)["adjustment"]["converged"] is False
+    assert "WARNING: the bundle adjustment did not converge" in err
+    assert load_calibration(out).adjustment["converged"] is False

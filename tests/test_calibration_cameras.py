@@ -111,13 +111,15 @@ def _head_and_foot(seed=0):
     return scene
 
 
-@pytest.mark.parametrize("layout", ["row-3", "row-4", "head-and-foot-4"])
+@pytest.mark.parametrize("layout", ["reference-3", "reference-4", "head-and-foot-4"])
 def test_simulated_rooms_against_the_truth(layout):
     from vts_hw.sim_devices.scenarios.calibration_views import cameras_against_truth, fov_points, true_cameras
     from vts_hw.sim_devices.scene import Scene
 
     scene = _head_and_foot() if layout.startswith("head") else Scene.reference(3, n_cameras=int(layout[-1]),
                                                                               start_epoch=0.0)
+    ends = {int(np.sign(c.center[2])) for c in scene.cameras.values()}
+    assert ends == {-1, 1}            # the reference rooms too: cameras at the head and at the foot end
     corners = _sim_corners(scene, 6, 3)
     graph = ViewGraph(list(corners), {c: list(v) for c, v in corners.items()})
     assert graph.connected

@@ -127,7 +127,8 @@ def stereo(images: tuple[str, ...], sim: bool, sim_poses: int, sim_seed: int,
 @click.option("--distortion", type=click.Choice(["auto", "k1", "opencv"]), default="auto",
               show_default=True, help="Lens distortion fitted per camera (as for `stereo`).")
 @click.option("--force", is_flag=True, help="Replace the -o file even if it holds a calibration in mm"
-              " and this one is in squares, or is not a calibration file.")
+              " and this one is in squares, or is not a calibration file; write a fit that did not"
+              " converge or whose RMS is above 1 px.")
 @json_option
 def cameras(images: tuple[str, ...], sim: bool, n_cameras: int, sim_poses: int, sim_seed: int,
             pattern: tuple[int, int], square: float | None, unit: str | None, reference: str | None,
@@ -151,8 +152,10 @@ def cameras(images: tuple[str, ...], sim: bool, n_cameras: int, sim_poses: int, 
     everything. Prints per camera and per view RMS (outliers flagged), the view graph, and the
     change from the previous calibration; writes -o. Exit 2: a usage mistake (e.g. squares over
     a calibration in mm); 3: images or files that cannot be used — among them views that do
-    not connect the cameras, or a camera in no view shared with another — or -o could not be
-    written (the calibration is then saved in the current folder or $TMPDIR, said where).
+    not connect the cameras, or a camera in no view shared with another, or a fit that cannot be
+    trusted (the bundle adjustment did not converge, or RMS above 1 px: WARNING lines, -o not
+    written unless --force) — or -o could not be written (the calibration is then saved in the
+    current folder or $TMPDIR, said where).
     """
     from vts_hw.procedures import camera_calibration as proc
 
@@ -187,6 +190,8 @@ def cameras(images: tuple[str, ...], sim: bool, n_cameras: int, sim_poses: int, 
         click.echo(run.results())
     if run.saved.error is not None:
         raise run.saved.error
+    if run.refused:
+        raise DataError(run.refused)
 
 
 def _sim_square_mm() -> float:

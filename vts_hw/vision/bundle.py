@@ -155,6 +155,7 @@ class Solution:
     nfev: int
     status: str
     start_rms: float = 0.0         # RMS (px) at the starting point
+    converged: bool = True         # False: stopped at max_nfev before a tolerance was met
 
 
 def adjust(problem: Problem, p0: np.ndarray, loss: str = LOSS, f_scale: float | None = None,
@@ -187,7 +188,8 @@ def adjust(problem: Problem, p0: np.ndarray, loss: str = LOSS, f_scale: float | 
     p = p0.copy()
     p[free] = res.x
     return Solution(p, problem.project(p) - problem.uv, res.jac, free,
-                    float(0.5 * r0 @ r0), float(res.cost), int(res.nfev), str(res.message))
+                    float(0.5 * r0 @ r0), float(res.cost), int(res.nfev), str(res.message),
+                    converged=bool(res.status > 0))
 
 
 def covariance(problem: Problem, sol: Solution) -> dict[int, dict[str, float]]:

@@ -196,6 +196,7 @@ def calibrate_cameras(corners: Mapping[str, Mapping[str, np.ndarray]],
                              fits_v, rule, view_graph=st.graph.data(), skipped=dict(skipped or {}),
                              initial={"rms": sol.start_rms, "edges": st.edges,
                                       "own_rms": {c: own[c]["rms"] for c in names}},
+                             adjustment={"converged": sol.converged, "evaluations": sol.nfev, "status": sol.status},
                              method=method,
                              created=datetime.now(timezone.utc).isoformat(timespec="seconds"),
                              software=vts_hw.__version__)

@@ -102,6 +102,7 @@ class CameraCalibration:
     view_graph: dict[str, Any] = field(default_factory=dict)
     skipped: dict[str, str] = field(default_factory=dict)
     initial: dict[str, Any] = field(default_factory=dict)     # figures before the bundle adjustment
+    adjustment: dict[str, Any] = field(default_factory=dict)  # converged, evaluations, status
     method: str = ""
     created: str = ""
     software: str = ""
@@ -216,7 +217,7 @@ class CameraCalibration:
                          for v in self.per_view],
             "outlier_rule": self.outlier_rule, "outliers": self.outliers,
             "view_graph": self.view_graph, "skipped": dict(self.skipped),
-            "initial": dict(self.initial), "method": self.method,
+            "initial": dict(self.initial), "adjustment": dict(self.adjustment), "method": self.method,
             "created": self.created, "software": self.software,
         }
 
@@ -359,5 +360,6 @@ def _from_data(path: Path, data: dict[str, Any]) -> CameraCalibration:
     return CameraCalibration(fits, pair(need(data, "pattern"), "pattern"), number(need(data, "square"), "square"),
                              unit, number(need(data, "rms"), "rms"), per_view, texts["outlier_rule"],
                              view_graph=data.get("view_graph") or {}, skipped=dict(skipped),
-                             initial=data.get("initial") or {}, method=str(data.get("method", "")),
+                             initial=data.get("initial") or {}, adjustment=a if isinstance(a := data.get("adjustment"), dict) else {},
+                             method=str(data.get("method", "")),
                              created=texts["created"], software=texts["software"])
