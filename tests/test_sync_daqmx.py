@@ -15,6 +15,7 @@ import yaml
 from vts_hw.config import load_rig
 from vts_hw.drivers import daqmx
 from vts_hw.drivers.trigger import read_log
+from vts_hw.drivers.registry import open_cameras
 from vts_hw.procedures.scan import ScanSession
 from vts_hw.procedures.sync import SyncAnalysis
 from vts_hw.recording.trigger_log import wave_from_trigger_log
@@ -70,7 +71,7 @@ def test_a_daqmx_scan_is_sync_checked_end_to_end(tmp_path, monkeypatch):
         marker = sync_sim.prepare(rig)
         with rig.env():
             cfg = load_rig(rig_yaml)
-            s = ScanSession(cfg, tmp_path / "scan", duration=duration)
+            s = ScanSession(cfg, tmp_path / "scan", open_cameras(cfg.cameras), duration=duration)
             s.start()
             fire = s.trigger.info["fire_time"]
             src = sync_sim.start_moves(rig, marker, fire, duration, times_rel=[2.5, 6.0, 9.5],

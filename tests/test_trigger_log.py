@@ -174,7 +174,7 @@ def _rig_yaml(tmp_path, **trigger):
 def test_a_backend_registered_with_one_line_is_opened_from_rig_yaml_and_used_by_the_scan(tmp_path, toy_registered):
     rig = load_rig(_rig_yaml(tmp_path, backend="toy", address="mem://1", flavour="sour", frequency_hz=2.0,
                              duty=0.25, high_v=2.5, low_v=0.0))
-    steps = {s.name: s.text for s in ScanSession(rig, tmp_path / "scan").plan()}
+    steps = {s.name: s.text for s in ScanSession(rig, tmp_path / "scan", []).plan()}
     assert steps["check trigger"].startswith("check the toy trigger, a toy in this test, at mem://1:")
     assert "configure 2 Hz, duty 0.25, levels 0..2.5 V" in steps["check trigger"]
     gen = registry.open_trigger(rig)
@@ -201,7 +201,7 @@ def test_a_backends_own_keys_are_checked_by_its_model_naming_the_file_and_key(tm
     rig = load_rig(_rig_yaml(tmp_path, backend="toy", address="mem://1", flavour="Sour"))
     with pytest.raises(ScanError, match=r"^cannot start the scan: .*rig.yaml: trigger.flavour string should "
                                          r"match pattern") as e:
-        ScanSession(rig, tmp_path / "scan").trigger.check()
+        ScanSession(rig, tmp_path / "scan", []).trigger.check()
     assert e.value.exit_code == 2           # a config error, as the CLI exits
     rig = load_rig(_rig_yaml(tmp_path, backend="none", lines=["a", "b"]))
     with pytest.raises(ConfigError, match=r"trigger.lines is not a known key \(trigger backend none"):

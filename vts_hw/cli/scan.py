@@ -170,14 +170,18 @@ def _summary(folder: Path, m: dict) -> None:
 
 @contextlib.contextmanager
 def _sigterm_as_interrupt():
-    """SIGTERM stops the scan as cleanly as Ctrl-C does."""
+    """SIGTERM stops the scan as cleanly as Ctrl-C does; and Ctrl-C (SIGINT) always does, even
+    when the scan was started from a shell that left SIGINT ignored (a background job, nohup,
+    a service manager): Python then installs no KeyboardInterrupt of its own."""
     def handler(signum, frame):
         raise KeyboardInterrupt
-    old = signal.signal(signal.SIGTERM, handler)
+    old_term = signal.signal(signal.SIGTERM, handler)
+    old_int = signal.signal(signal.SIGINT, handler)
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, old)
+        signal.signal(signal.SIGTERM, old_term)
+        signal.signal(signal.SIGINT, old_int)
 
 
 @contextlib.contextmanager
