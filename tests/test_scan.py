@@ -261,9 +261,12 @@ def test_cli_scan_with_duration(box_rig, tmp_path):
 def test_ctrl_c_stops_cleanly(plain_rig, tmp_path):
     rig, cfg, rig_yaml = plain_rig
     folder = tmp_path / "scan"
-    # PYTHONFAULTHANDLER: a scan that does not stop is aborted and says where every thread was
+    # PYTHONFAULTHANDLER: a scan that does not stop is aborted and says where every thread was.
+    # Started with SIGINT ignored, as a shell starts a background job (or nohup, a service):
+    # Python then installs no KeyboardInterrupt, and Ctrl-C must still stop the scan.
     p = subprocess.Popen([*VTS, "scan", "start", "--json", "-o", str(folder)],
                          env={**_env(rig, rig_yaml), "PYTHONFAULTHANDLER": "1"},
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     _wait_frames(folder, 50, p)
     p.send_signal(signal.SIGINT)
