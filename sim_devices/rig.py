@@ -126,7 +126,8 @@ class SimRig:
             self.scene.clocks[name] = dataclasses.replace(c, ref_epoch=at)
 
     # -- what a client needs -------------------------------------------------------------
-    def config(self, rig_name: str = "sim", calibration: dict | None = None) -> RigConfig:
+    def config(self, rig_name: str = "sim", calibration: dict | None = None,
+               results_url: str | None = None) -> RigConfig:
         cams = [{"name": name, "host": "127.0.0.1", "port": srv.port, "user": self.user,
                  "password_env": password_var(name), "fps": self.fps}
                 | ({"scheme": "https", "ca_cert": str(Path(self.tls[0]).resolve())} if self.tls else {})
@@ -134,6 +135,8 @@ class SimRig:
         data = {"rig": rig_name, "cameras": cams, "trigger": self.trigger_config()}
         if calibration:
             data["calibration"] = calibration
+        if results_url:
+            data["results"] = {"url": results_url}
         return parse_rig(data, "simulated rig")
 
     def trigger_config(self) -> dict:
@@ -182,9 +185,11 @@ class SimRig:
         env += [f"export {k}='{v}'" for k, v in self.env_vars().items()]
         env.append(f"export VTS_CONFIG='{(folder / 'rig.yaml').resolve()}'")
         write_atomic(env_path, "\n".join(env) + "\n", mode=0o600)
-        rig_path = folder / "rig.yaml"
+        rig_path = folder / "rig.yaml"   # written last: once all is up
+        store = f"sqlite:///{(folder / 'results.sqlite').resolve()}"
         write_atomic(rig_path, "# the simulated rig written by `vts sim up`; calibration: the scene's true "
-                     "cameras\n" + dump_rig(self.config(calibration=calibration)))  # last: once all is up
+                     "cameras; results: its own store, never the user's\n"
+                     + dump_rig(self.config(calibration=calibration, results_url=store)))
         return rig_path, env_path
 
 
