@@ -114,9 +114,12 @@ def find_all_corners(images, pattern) -> tuple[dict, dict, dict]:
     return corners, sizes, skipped
 
 
-def replaceable(out_path: Path, unit: str, force: bool = False):
-    """The calibration now in ``out_path`` (None if none), once it is clear that a new one in
-    ``unit`` may replace it (as for the stereo calibration: decision 0024)."""
+def replaceable(out_path: Path, unit: str, force: bool = False, what: str = "calibration"):
+    """The calibration now in ``out_path`` (None if there is no file), once it is clear that a
+    new one in ``unit`` may replace it (decision 0024): UsageError (exit 2) for an mm
+    calibration about to be replaced by one in squares (a forgotten --square), DataError
+    (exit 3) for a file that is not a calibration (``what`` names the kind in the message);
+    ``force`` replaces either."""
     if not out_path.exists():
         return None
     try:
@@ -124,7 +127,7 @@ def replaceable(out_path: Path, unit: str, force: bool = False):
     except DataError:
         if force:
             return None
-        raise DataError(f"{out_path} exists and is not a calibration file; give another -o, move it"
+        raise DataError(f"{out_path} exists and is not a {what} file; give another -o, move it"
                         " away, or give --force to replace it.") from None
     if old.unit == "mm" and unit == "squares" and not force:
         raise UsageError(f"{out_path} holds a calibration in mm (squares of {old.square:g} mm) and this one"

@@ -21,7 +21,8 @@ from vts_hw.vision.calibration import calibrate_stereo, find_pairs
 from vts_hw.vision.calibration_io import StereoCalibration
 from vts_hw.vision.multi_calibration_io import load_calibration
 from vts_hw.vision.calibration_uncertainty import K_SIGMA, compare_with_truth
-from vts_hw.errors import DataError, UsageError
+from vts_hw.errors import DataError
+from vts_hw.procedures.camera_calibration import replaceable as any_replaceable
 from vts_hw.save_or_keep import Saved, save_or_keep
 
 _IMAGE = re.compile(r"^(left|right)(.*)\.(jpe?g|png|bmp|tiff?)$", re.IGNORECASE)
@@ -65,25 +66,9 @@ def image_pairs(args: list[str]) -> list[tuple[Path, Path]]:
 
 
 def replaceable(out_path: Path, unit: str, force: bool = False) -> StereoCalibration | None:
-    """The calibration now in ``out_path`` (None if there is no file), once it is clear that a
-    new one in ``unit`` may replace it: UsageError (exit 2) for an mm calibration about to be
-    replaced by one in squares (a forgotten --square), DataError (exit 3) for a file that is not
-    a calibration; ``force`` replaces either."""
-    if not out_path.exists():
-        return None
-    try:
-        old = _as_stereo(load_calibration(out_path))
-    except DataError:
-        if force:
-            return None
-        raise DataError(f"{out_path} exists and is not a stereo calibration file; give another -o,"
-                        " move it away, or give --force to replace it.") from None
-    if old.unit == "mm" and unit == "squares" and not force:
-        raise UsageError(f"{out_path} holds a calibration in mm (squares of {old.square:g} mm) and"
-                          " this one would be in squares because --square was not given: give"
-                          " --square with the side of a square in mm, another -o, or --force to"
-                          " replace it.")
-    return old
+    """:func:`camera_calibration.replaceable`, the calibration there read as a stereo pair."""
+    old = any_replaceable(out_path, unit, force, what="stereo calibration")
+    return None if old is None else _as_stereo(old)
 
 
 def _as_stereo(calib) -> StereoCalibration:

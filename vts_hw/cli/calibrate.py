@@ -29,20 +29,29 @@ def _pattern(ctx, param, value: str) -> tuple[int, int]:
     return int(m.group(1)), int(m.group(2))
 
 
+def _board_options(f):
+    """The checkerboard and simulation options every calibration from boards takes."""
+    for option in reversed([
+        click.option("--sim-seed", type=int, default=0, show_default=True,
+                     help="Seed of the simulated rig, poses and noise."),
+        click.option("--pattern", default="9x6", show_default=True, callback=_pattern,
+                     help="Inner corners of the board, COLSxROWS."),
+        click.option("--square", type=click.FloatRange(min=0, min_open=True), default=None,
+                     help="Side of a square (default: the simulated board's 50 mm with --sim, else 1 square)."),
+        click.option("--unit", type=click.Choice(["mm", "squares"]), default=None,
+                     help="Unit of --square (default: mm when --square or --sim is given, else squares)."),
+    ]):
+        f = option(f)
+    return f
+
+
 @calibrate.command()
 @click.argument("images", nargs=-1, type=click.Path())
 @click.option("--sim", is_flag=True, help="Calibrate from checkerboard views rendered by the simulator"
               " (no IMAGES) and compare with the simulated cameras.")
 @click.option("--sim-poses", type=click.IntRange(3, 200), default=20, show_default=True,
               help="Number of simulated board poses.")
-@click.option("--sim-seed", type=int, default=0, show_default=True,
-              help="Seed of the simulated rig, poses and noise.")
-@click.option("--pattern", default="9x6", show_default=True, callback=_pattern,
-              help="Inner corners of the board, COLSxROWS.")
-@click.option("--square", type=click.FloatRange(min=0, min_open=True), default=None,
-              help="Side of a square (default: the simulated board's 50 mm with --sim, else 1 square).")
-@click.option("--unit", type=click.Choice(["mm", "squares"]), default=None,
-              help="Unit of --square (default: mm when --square or --sim is given, else squares).")
+@_board_options
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default="calibration.json",
               show_default=True, help="Calibration file to write.")
 @click.option("--previous", type=click.Path(dir_okay=False), default=None,
@@ -110,14 +119,7 @@ def stereo(images: tuple[str, ...], sim: bool, sim_poses: int, sim_seed: int,
               help="Cameras of the simulated room (with --sim).")
 @click.option("--sim-poses", type=click.IntRange(3, 50), default=8, show_default=True,
               help="Simulated board poses held towards each chosen pair of cameras.")
-@click.option("--sim-seed", type=int, default=0, show_default=True,
-              help="Seed of the simulated rig, poses and noise.")
-@click.option("--pattern", default="9x6", show_default=True, callback=_pattern,
-              help="Inner corners of the board, COLSxROWS.")
-@click.option("--square", type=click.FloatRange(min=0, min_open=True), default=None,
-              help="Side of a square (default: the simulated board's 50 mm with --sim, else 1 square).")
-@click.option("--unit", type=click.Choice(["mm", "squares"]), default=None,
-              help="Unit of --square (default: mm when --square or --sim is given, else squares).")
+@_board_options
 @click.option("--reference", default=None, help="The camera whose frame is the calibration's"
               " (default: the first camera by name).")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default="calibration.json",
