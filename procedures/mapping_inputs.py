@@ -1,5 +1,5 @@
 """The VTS side of the VTS → SPECT mapping: the phantom's sphere centres from a points file,
-or measured now by two cameras (given, opened by the caller) with the stereo calibration.
+or measured now by the calibrated cameras (given, opened by the caller): two or more.
 
 What `vts calibrate spect --vts FILE` and `--from-cameras` run; a script calls the same.
 """
@@ -16,40 +16,53 @@ from vts_hw.errors import ConfigError, DataError
 
 
 def stereo_calibration_for(rig, calibration_path=None):
-    """The stereo calibration given, else the rig config's; ConfigError when there is none or
-    the rig has fewer than two cameras."""
+    """The camera calibration given, else the rig config's (stereo or N cameras); ConfigError
+    when there is none or the rig has fewer than two cameras."""
     from vts_hw.vision.multi_calibration_io import load_calibration
 
     path = calibration_path or rig.calibration.stereo
     if path is None:
-        raise ConfigError("no stereo calibration: give --calibration or set calibration.stereo in the "
-                          "rig config (`vts calibrate stereo`).")
+        raise ConfigError("no camera calibration: give --calibration or set calibration.stereo in the "
+                          "rig config (`vts calibrate stereo` or `vts calibrate cameras`).")
     if len(rig.cameras) < 2:
         raise ConfigError("--from-cameras needs two cameras in the rig config.")
-    return load_calibration(path)      # a stereo or an N-camera file: its first two cameras
+    return load_calibration(path)
+
+
+def calibrated_cameras(rig, calibration) -> list:
+    """The rig's camera configs the calibration covers (all of them for an N-camera file named
+    after the rig's cameras, the first two for a stereo file): the ones to open and measure
+    with. ConfigError when fewer than two."""
+    from vts_hw.vision.camera_set import covered_names
+
+    names = covered_names(calibration, [c.name for c in rig.cameras])
+    if len(names) < 2:
+        raise ConfigError(f"the calibration covers {len(names)} of the rig's cameras; two or more are needed.")
+    return [c for c in rig.cameras if c.name in names]
 
 
 def mapping_from_cameras(cameras: Sequence, calibration, volume, frames: int = 10,
                          progress: Callable[[str], None] | None = None):
     """The analysed mapping, its VTS side measured now: per camera LED on, ``frames``
-    snapshots, centroids averaged; the spheres picked out by the shape of the SPECT's."""
+    snapshots, centroids averaged; the spheres picked out by the shape of the SPECT's, seen
+    by every camera given (two or more, named as in the calibration or the rig)."""
     from vts_hw.procedures.spect_mapping import SpectMapping
     from vts_hw.procedures.steps import LED_SETTLE_S, SNAPSHOT_COMPRESSION, average_centroids
     from vts_hw.vision.detect import detect_jpeg
 
-    if len(cameras) != 2:
-        raise DataError(f"the mapping from cameras needs a stereo pair, got {len(cameras)} camera(s).")
+    if len(cameras) < 2:
+        raise DataError(f"the mapping from cameras needs two cameras or more, got {len(cameras)}.")
     if not Path(volume).exists():
         raise DataError(f"{volume}: no such file or directory.")
-    pts = []
-    for cam in cameras:
+    pts = {}
+    for k, cam in enumerate(cameras):
         cam.led_on()
         time.sleep(LED_SETTLE_S)
         if progress:
             progress(f"{cam.name}: {frames} snapshots")
-        pts.append(average_centroids([detect_jpeg(cam.snapshot(SNAPSHOT_COMPRESSION).jpeg)
-                                      for _ in range(frames)]))
-    return SpectMapping.from_stereo(calibration, pts[0], pts[1], volume).analyze()
+        pts[getattr(cam, "name", None) or f"cam{k + 1}"] = average_centroids(
+            [detect_jpeg(cam.snapshot(SNAPSHOT_COMPRESSION).jpeg) for _ in range(frames)])
+    return SpectMapping.from_views(calibration, pts, volume).analyze()
 
 
 def read_points(path) -> np.ndarray:

@@ -198,6 +198,7 @@ class SpectMapping:
         self.tre: LooTre | None = None
         self.analyzed_at: str | None = None
         self.tolerances: dict | None = None
+        self.vts_cameras: list[str] | None = None    # the cameras that measured the VTS side, if known
 
     @classmethod
     def from_volume(cls, vts_points, volume_path, fre_limit_mm: float = FRE_LIMIT_MM,
@@ -225,6 +226,27 @@ class SpectMapping:
         spect = find_spheres(read_volume(volume_path), strict=True).centroids
         fit = locate_body(calibration.cameras(), pts_left, pts_right, spect, tol_mm=tol_mm)
         return cls(fit.points, spect, fre_limit_mm)
+
+    @classmethod
+    def from_views(cls, calibration, points_px: dict, volume_path, tol_mm: float = 3.0,
+                   fre_limit_mm: float = FRE_LIMIT_MM) -> "SpectMapping":
+        """As :meth:`from_stereo`, from any number of cameras: ``points_px`` maps a camera name
+        (the calibration's, or the rig's for a file named otherwise) to its detections (px)."""
+        from vts_hw.vision.body_finder import locate_body_views
+        from vts_hw.vision.camera_set import named_cameras
+        from vts_hw.spect import find_spheres, read_volume
+
+        names = list(points_px)
+        cams = named_cameras(calibration, names)
+        missing = [n for n in names if n not in cams]
+        if missing:
+            raise DataError(f"camera(s) {', '.join(missing)} not in the calibration (it has {', '.join(cams)}).")
+        spect = find_spheres(read_volume(volume_path), strict=True).centroids
+        fit = locate_body_views([cams[n] for n in names],
+                                [np.asarray(points_px[n], float).reshape(-1, 2) for n in names], spect, tol_mm=tol_mm)
+        mapping = cls(fit.points, spect, fre_limit_mm)
+        mapping.vts_cameras = names
+        return mapping
 
     # ------------------------------------------------------------------ analysis
     def analyze(self, tolerances: dict | None = None) -> "SpectMapping":
@@ -274,6 +296,7 @@ class SpectMapping:
             "tre_rms_mm": self.tre.rms,
             "tre_max_mm": self.tre.max,
             "tre_per_sphere_mm": self.tre.per_point.tolist(),
+            **({"vts_cameras": list(self.vts_cameras)} if self.vts_cameras else {}),
         }
 
     def _meta(self) -> dict:

@@ -187,3 +187,59 @@ def test_a_points_file_json_beyond_syntax_is_a_data_error(tmp_path, doc):
     p.write_text(doc)
     with pytest.raises(DataError, match="pts.json"):
         read_points(p)
+
+
+def test_from_cameras_with_four_cameras_measures_with_all_four(tmp_path):
+    """A four-camera rig and an N-camera calibration of it: `--from-cameras` opens and measures
+    with every calibrated camera (the mapping names them), and the mapping is right."""
+    import os
+
+    from vts_hw.vision.registration import difference
+    from vts_hw.sim_devices.rig import SimRig
+    from vts_hw.sim_devices.step_table import sphere_centres
+
+    cal = tmp_path / "cal4.json"
+    r = subprocess.run([sys.executable, "-m", "vts_hw.cli.__main__", "calibrate", "cameras", "--sim",
+                        "--cameras", "4", "--sim-seed", "2", "-o", str(cal)], capture_output=True, text=True,
+                       timeout=600)
+    assert r.returncode == 0, r.stderr
+    with SimRig(n_cameras=4, seed=2) as rig:
+        rig.scene.add_phantom()
+        cfg, _ = rig.write(tmp_path / "rig")
+        vol = SimSpect(seed=2).write(tmp_path / "phantom.npz", sphere_centres(rig.scene, rig.clock.now()))
+        out = tmp_path / "map.json"
+        r = subprocess.run([sys.executable, "-m", "vts_hw.cli.__main__", "calibrate", "spect",
+                            "--from-cameras", "--volume", str(vol), "--calibration", str(cal),
+                            "--config", str(cfg), "--frames", "3", "--json", "-o", str(out)],
+                           capture_output=True, text=True, timeout=300, env={**os.environ, **rig.env_vars()})
+        assert r.returncode == 0, r.stderr
+        c1 = rig.scene.camera_at("cam1", rig.clock.now())
+    d = json.loads(r.stdout)
+    assert d["vts_cameras"] == ["cam1", "cam2", "cam3", "cam4"]
+    assert d["n_spheres"] == 7 and d["fre_mm"] < 0.5
+    truth = RigidTransform(c1.R.T, -c1.R.T @ c1.t)
+    assert difference(truth, RigidTransform.load(out)).angle_deg < 1.0
+
+
+def test_the_cameras_a_calibration_covers(tmp_path):
+    """Which of a rig's cameras to open: all the N-camera file names, the first two for a
+    stereo file or a file named after its images."""
+    from vts_hw.config import load_rig
+    from vts_hw.errors import ConfigError
+    from vts_hw.procedures.mapping_inputs import calibrated_cameras
+    from vts_hw.vision.triangulate import Camera
+
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text("cameras:\n" + "".join(f"  - {{name: {n}, host: 127.0.0.1, port: 9}}\n"
+                                          for n in ("head-l", "head-r", "foot-l", "foot-r")))
+    rig = load_rig(cfg)
+
+    def cams(*names):
+        return [Camera(np.eye(3), np.zeros(5), np.eye(3), np.zeros(3), n) for n in names]
+
+    names = lambda calib: [c.name for c in calibrated_cameras(rig, calib)]   # noqa: E731
+    assert names(cams("foot-r", "head-l", "foot-l")) == ["head-l", "foot-l", "foot-r"]
+    assert names(cams("IMG_a", "IMG_b", "IMG_c")) == ["head-l", "head-r", "foot-l"]
+    assert names(cams("", "")) == ["head-l", "head-r"]
+    with pytest.raises(ConfigError, match="covers 1 of the rig's cameras"):
+        calibrated_cameras(rig, cams("foot-l"))

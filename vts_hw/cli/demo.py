@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import click
@@ -47,38 +46,18 @@ def demo(out: str, days: int, seconds: float, frames: int, scan_seconds: float) 
 
 
 def _cameras(out_dir: Path, seconds: float) -> None:
-    from vts_hw.drivers.registry import open_cameras
-    from vts_hw.recording.capture import Recorder
-    from vts_hw.recording.folder import info
-    from vts_hw.sim_devices.rig import SimRig
     from vts_hw.cli.progress import record_with_progress
+    from vts_hw.sim_devices.scenarios.demo_rig import camera_tour
 
-    with SimRig(n_cameras=2) as rig, rig.env():
-        rig.write(out_dir / "sim")
-        cfg = rig.config()
-        click.echo(f"simulated rig up: {', '.join(f'{c.name} at {c.base_url}' for c in cfg.cameras)}")
-        cams = open_cameras(cfg.cameras)
-        for cam in cams:
-            dev = cam.device_info()
-            off = cam.clock_offset()
-            click.echo(f"{cam.name}: {dev.get('ProdNbr', '?')} firmware {dev.get('Version', '?')}, "
-                       f"VAPIX {cam.vapix_version}, clock {off.offset_s:+.3f} s against this host")
-            cam.led_off()
-            dark = cam.snapshot()
-            cam.led_on()
-            time.sleep(0.05)
-            lit = cam.snapshot()
-            (out_dir / f"{cam.name}-led-off.jpg").write_bytes(dark.jpeg)
-            (out_dir / f"{cam.name}-led-on.jpg").write_bytes(lit.jpeg)
-            click.echo(f"  wrote {out_dir / f'{cam.name}-led-on.jpg'} and {cam.name}-led-off.jpg "
-                       f"({_bright(lit.jpeg)} vs {_bright(dark.jpeg)} bright pixels)")
-        rec_dir = out_dir / "recording"
-        click.echo(f"recording {seconds:g} s from {len(cams)} cameras into {rec_dir} ...")
-        manifest = record_with_progress(Recorder(cams, rec_dir, seconds=seconds, meta={"rig": cfg.rig}), seconds)
-    for s in info(rec_dir):
+    tour = camera_tour(out_dir, seconds, record=record_with_progress, say=click.echo)
+    for c in tour.cameras:
+        click.echo(f"{c.name}: {c.product} firmware {c.firmware}, VAPIX {c.vapix}, clock "
+                   f"{c.clock_offset_s:+.3f} s against this host")
+        click.echo(f"  wrote {c.lit} and {c.dark.name} ({c.lit_bright_px} vs {c.dark_bright_px} bright pixels)")
+    for s in tour.streams:
         gaps = sum(g["missing"] for g in s.gaps)
-        click.echo(f"  {rec_dir / (s.source + '.mjpeg')}: {s.frames} frames at {s.fps} fps, {gaps} missing")
-    click.echo(f"  {rec_dir / 'manifest.json'}: status {manifest['status']}")
+        click.echo(f"  {tour.recording / (s.source + '.mjpeg')}: {s.frames} frames at {s.fps} fps, {gaps} missing")
+    click.echo(f"  {tour.recording / 'manifest.json'}: status {tour.manifest['status']}")
 
 
 def _daily(out_dir: Path, days: int, frames: int) -> None:
@@ -124,53 +103,22 @@ def _daily(out_dir: Path, days: int, frames: int) -> None:
 
 
 def _scan(out_dir: Path, seconds: float) -> None:
-    import subprocess
-    import sys
+    from vts_hw.sim_devices.scenarios.demo_rig import demo_scan
 
-    from vts_hw.sim_devices.scenarios import sync_session as sync_sim
-    from vts_hw.sim_devices.rig import SimRig
-
-    scan_dir = out_dir / "scan"
-    if scan_dir.exists():
-        import shutil
-        shutil.rmtree(scan_dir)      # a scan refuses a folder that is not empty
-    rig = SimRig(n_cameras=2, seed=3, trigger="triggerbox").start()
     try:
-        rig_yaml, _ = rig.write(out_dir / "scan-rig")
-        marker = sync_sim.prepare(rig)
-        click.echo(f"vts scan start --duration {seconds:g} -o {scan_dir}  (trigger box firmware in the "
-                   "emulator; a source marker moved along the table)")
-        run = sync_sim.cli_scan(rig, rig_yaml, scan_dir, seconds, marker, n=3, seed=1)
-    finally:
-        rig.stop()
-    import json
-
-    report = out_dir / "sync-report.html"
-    cmd = [sys.executable, "-m", "vts_hw.cli.__main__", "sync", "analyze", str(run.session),
-           "--listmode", str(run.listmode), "--config", str(rig_yaml), "-o", str(report),
-           "--export", str(out_dir / "trajectories"), "--json"]
-    click.echo(f"vts sync analyze {run.session} --listmode {run.listmode} -o {report}")
-    p = subprocess.run(cmd, capture_output=True, text=True)
-    if p.returncode not in (0, 10, 20):
-        click.echo(p.stderr.rstrip(), err=True)
-        raise click.ClickException("the sync analysis failed")
-    data = json.loads(p.stdout)
+        res = demo_scan(out_dir, seconds, say=click.echo)
+    except RuntimeError as exc:
+        raise click.ClickException(str(exc)) from None
+    data, run = res.data, res.run
     g = data["gating"]
     click.echo(f"  state {data['summary']['state']}; {len(data['events'])} motion event(s); SPECT start delay "
                f"{g['start_delay_s'] * 1e3:.2f} ms (true {run.spect.start_delay_s * 1e3:.2f} ms)")
     click.echo("  per move, event time minus the true mid-move time (host clock; goal within 20 ms):")
     ms = lambda v: "  -  " if v is None else f"{v * 1e3:+.1f} ms"  # noqa: E731
-    for k, row in enumerate(sync_sim.match_moves(data["events"], run.source.moves), 1):
+    for k, row in enumerate(res.moves, 1):
         head = f"    move {k} ({row['step_mm']:+5.1f} mm at {row['t_mid'] - run.fire_host:5.2f} s)"
         if not row["found"]:
             click.echo(f"{head}: not found")
             continue
         click.echo(f"{head}: VTS {ms(row['vts_err_s'])}, SPECT {ms(row['spect_err_s'])}, seen by {row['seen_by']}")
-    click.echo(f"  report: {report}; trajectories (SPECT frame, SPECT time): {', '.join(data['export'])}")
-
-
-def _bright(jpeg: bytes) -> int:
-    import cv2
-    import numpy as np
-    img = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_GRAYSCALE)
-    return int((img > 128).sum())
+    click.echo(f"  report: {res.report}; trajectories (SPECT frame, SPECT time): {', '.join(data['export'])}")

@@ -130,6 +130,7 @@ def _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path, an
              store_url, dry_run, operator, as_json):
     from vts_hw.config import load_rig
     from vts_hw.drivers.registry import open_cameras
+    from vts_hw.procedures.mapping_inputs import calibrated_cameras
     from vts_hw.procedures.step_test import run_step_test, step_session, step_test_inputs
 
     rig = load_rig(config_path)
@@ -139,7 +140,7 @@ def _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path, an
     def ask(text):
         return click.prompt(text, default="", show_default=False, prompt_suffix=" ", err=True)
 
-    cameras = [] if analyze_dir else open_cameras(rig.cameras[:2])
+    cameras = [] if analyze_dir else open_cameras(calibrated_cameras(rig, inputs.calibration))
     try:
         if dry_run and not analyze_dir:
             for i, step in enumerate(step_session(cameras, inputs, out, plan, frames=frames).plan(), 1):

@@ -25,7 +25,7 @@ from typing import Any, Sequence
 from vts_hw.errors import DataError
 from vts_hw.vision.triangulate import Camera, as_camera
 
-__all__ = ["named_cameras", "load_cameras"]
+__all__ = ["named_cameras", "load_cameras", "covered_names"]
 
 
 def _check_unit(obj: Any) -> None:
@@ -62,6 +62,17 @@ def named_cameras(obj: Any, available: Sequence[str] = ()) -> dict[str, Camera]:
     if not all(names) or len(set(names)) != len(names):
         names = (available + [f"cam{i + 1}" for i in range(len(cams))][len(available):])[:len(cams)]
     return {n: _named(c, n) for n, c in zip(names, cams)}
+
+
+def covered_names(calibration: Any, rig_names: Sequence[str]) -> list[str]:
+    """The rig's cameras (names, in the rig's order) that ``calibration`` calibrated: those it
+    names when it names only rig cameras, else the first as many as it holds (a stereo file, an
+    N-camera file named after its images)."""
+    own = list(named_cameras(calibration))
+    rig_names = list(rig_names)
+    if set(own) <= set(rig_names):
+        return [n for n in rig_names if n in own]
+    return rig_names[:len(own)]
 
 
 def _named(cam: Any, name: str) -> Camera:
