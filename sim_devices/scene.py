@@ -468,12 +468,21 @@ class Scene:
         return camera, markers, uv, visible & ~self.hidden(eye, markers, t)
 
     def hidden(self, eye, markers: list[Marker], t: float) -> np.ndarray:
-        """Whether each marker is hidden from ``eye`` by a SPECT head at ``t`` (bool array;
-        all False without a gantry). A marker is hidden whole when any of it would be."""
-        if self.gantry is None or not markers:
-            return np.zeros(len(markers), bool)
-        return self.gantry.hides(eye, np.array([m.center for m in markers]), t,
-                                 np.array([m.diameter_mm / 2 for m in markers]))
+        """Whether each marker is hidden from ``eye`` at ``t`` by a SPECT head or by a body that
+        is opaque (one with ``hides``, the patient's torso): bool array, all False when there
+        is neither. A marker is hidden whole when any of it would be."""
+        hidden = np.zeros(len(markers), bool)
+        if not markers:
+            return hidden
+        centres = np.array([m.center for m in markers])
+        radii = np.array([m.diameter_mm / 2 for m in markers])
+        if self.gantry is not None:
+            hidden |= self.gantry.hides(eye, centres, t, radii)
+        y, z = self.table.at(t)
+        for body in self.bodies.values():
+            if hasattr(body, "hides"):
+                hidden |= body.hides(eye, centres, t, radii, table_offset=(0.0, y, z))
+        return hidden
 
     def truth(self, cam: str, t: float) -> list[tuple[str, float, float]]:
         """``(marker_id, u, v)`` for each marker visible in ``cam`` at ``t`` (drift and
