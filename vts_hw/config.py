@@ -166,6 +166,23 @@ class ResultsConfig(_Strict):
     url: Optional[str] = Field(default=None, description="database URL; default a per-user SQLite file")
 
 
+class MotionConfig(_Strict):
+    """Patient motion: when the live view alerts, and what counts as one motion state."""
+
+    alert_mm: float = Field(default=3.0, gt=0, le=100,
+                            description="alert when the body has moved more than this (mm, breathing excluded)")
+    alert_deg: float = Field(default=2.0, gt=0, le=90, description="... or turned more than this (deg)")
+    alert_after_s: float = Field(default=1.0, ge=0, le=60,
+                                 description="for longer than this (s): a cough or a twitch does not alert")
+    alert_command: Optional[list[str]] = Field(
+        default=None, min_length=1,
+        description="a command run on each alert (argv list, no shell), e.g. [notify-send, VTS]; the alert's "
+                    "text is its last argument")
+    state_mm: float = Field(default=2.0, gt=0, le=100,
+                            description="a motion state: an interval of body pose within this (mm) ...")
+    state_deg: float = Field(default=1.0, gt=0, le=90, description="... and this (deg)")
+
+
 class RigConfig(_Strict):
     rig: str = Field(default="vts", pattern=_NAME_RE)
     cameras: list[CameraConfig] = Field(min_length=1)
@@ -173,6 +190,7 @@ class RigConfig(_Strict):
     tolerances: dict[str, ToleranceWindow] = Field(default_factory=dict)
     calibration: CalibrationPaths = CalibrationPaths()
     results: ResultsConfig = ResultsConfig()
+    motion: MotionConfig = MotionConfig()
     recordings_dir: Optional[Path] = None
     _source: Optional[Path] = PrivateAttr(default=None)   # the file it was read from
 
