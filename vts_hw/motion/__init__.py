@@ -8,7 +8,7 @@ The method and its reasons: docs/decisions/0035-breathing-and-body-motion.md; th
 docs/motion-formats.md.
 """
 
-from vts_hw.motion.analysis import MotionResult, analyze_motion
+from vts_hw.motion.analysis import MotionResult, MotionSettings, analyze_motion
 from vts_hw.motion.markers import MarkerSeries, marker_series
 
-__all__ = ["MarkerSeries", "marker_series", "MotionResult", "analyze_motion"]
+__all__ = ["MarkerSeries", "marker_series", "MotionResult", "MotionSettings", "analyze_motion"]

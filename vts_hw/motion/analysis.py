@@ -22,6 +22,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.ndimage import uniform_filter1d
 
 from vts_hw.errors import DataError
 from vts_hw.motion.bands import Bands, find_bands
@@ -29,9 +30,11 @@ from vts_hw.motion.body_pose import BodyPose, back_to_reference, fit_pose_breath
 from vts_hw.motion.events import MotionEvent, MotionState, find_events, motion_states
 from vts_hw.motion.markers import MarkerSeries
 from vts_hw.motion.respiration import Respiration, breath_cycles, breathing_vectors, principal_signal
-from vts_hw.motion.signal import highpass, sample_rate
+from vts_hw.motion.signal import fill_gaps, highpass, sample_rate
 
 __all__ = ["MotionResult", "MotionSettings", "analyze_motion"]
+
+BREATH_MM = 0.25      # a marker breathes above this RMS at 0.08-1 Hz (bands.find_bands's default)
 
 
 @dataclass(frozen=True)
@@ -141,14 +144,15 @@ def _provisional_moving(t, pose_pts, s, settings, fs):
     hx = highpass(t, np.where(ok[:, None], X, np.nan), 0.1)
     hs = highpass(t, np.where(ok, s, np.nan)[:, None], 0.1)[:, 0]
     k = (hs[ok] @ hx[ok]) / max(float(hs[ok] @ hs[ok]), 1e-12)
-    Xc = (X - np.outer(np.nan_to_num(s), k)).reshape(pose_pts.shape)
+    Xc = (X - np.outer(np.nan_to_num(s), k))
     h = max(1, int(round(0.2 * fs)))
+    Xc = uniform_filter1d(fill_gaps(t, Xc), 2 * h + 1, axis=0).reshape(pose_pts.shape)   # provisional: smearing is harmless
     sp = np.zeros(len(t))
     if len(t) > 2 * h:
         sp[h:-h] = np.linalg.norm(Xc[2 * h:] - Xc[:-2 * h], axis=2).max(axis=1) / (t[2 * h:] - t[:-2 * h])
     sp = np.nan_to_num(sp)
     sig = 1.4826 * np.median(np.abs(sp - np.median(sp)))
-    return sp > max(settings.min_speed, np.median(sp) + 6 * sig)
+    return sp > max(2.0 * settings.min_speed, np.median(sp) + 6 * sig)
 
 
 def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None) -> MotionResult:
@@ -196,7 +200,8 @@ def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None)
     # scale and sign of the respiratory signal: mm of the marker that breathes most, + = inhaled
     norms = np.linalg.norm(v, axis=1)
     scale = float(norms.max()) if norms.size else 0.0
-    if scale > 0:
+    breathes = bool(np.any(bands.breath_rms_mm[bands.patient] >= BREATH_MM))
+    if scale > 0 and breathes:
         up = np.array([0.0, 1.0, 0.0]) if series.frame == "spect" else np.array([0.0, -1.0, 0.0])
         sign = 1.0 if float(np.sum(v @ up)) >= 0 else -1.0
         v = v / (scale * sign)
@@ -204,6 +209,7 @@ def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None)
         s = s - np.nanmean(s[ref_sel])
     else:
         notes.append("no breathing found in the markers: the respiratory signal is flat")
+        s = np.zeros_like(s)
     pose.resp = s
     cycles, phase, rate = breath_cycles(t, s)
     resp = Respiration(t, s, phase, rate, cycles, v)

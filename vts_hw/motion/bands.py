@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vts_hw.errors import DataError
-from vts_hw.motion.signal import bandpass, lowpass
+from vts_hw.motion.signal import bandpass, lowpass, sample_rate
 
 __all__ = ["Bands", "find_bands"]
 
@@ -33,6 +33,10 @@ class Bands:
     range_mm: np.ndarray
     seen_fraction: np.ndarray
     why: list = field(default_factory=list)
+
+
+def _fs(t) -> int:
+    return max(1, int(round(sample_rate(t))))
 
 
 def find_bands(series, *, breath_mm: float = 0.25, moved_mm: float = 1.5, min_seen: float = 0.3,
@@ -53,7 +57,10 @@ def find_bands(series, *, breath_mm: float = 0.25, moved_mm: float = 1.5, min_se
         first, last = np.flatnonzero(ok)[[0, -1]]
         sl = slice(first, last + 1)
         bp = bandpass(t[sl], P[sl, m])
-        rms[m] = float(np.sqrt(np.mean(np.sum(bp[ok[sl]] ** 2, axis=1))))
+        e2 = np.where(ok[sl], np.sum(bp ** 2, axis=1), np.nan)
+        # the median over 10 s windows: a body move rings in the filter for a few seconds only
+        win = [e2[k:k + 10 * _fs(t)] for k in range(0, len(e2), 10 * _fs(t))]
+        rms[m] = float(np.sqrt(np.nanmedian([np.nanmean(w) for w in win if np.isfinite(w).sum() > 10] or [0.0])))
         slow = lowpass(t[sl], P[sl, m], 0.1)[ok[sl]]
         rng[m] = float(np.max(np.linalg.norm(slow - np.median(slow, axis=0), axis=1)))
         if rms[m] >= breath_mm:
@@ -72,7 +79,10 @@ def find_bands(series, *, breath_mm: float = 0.25, moved_mm: float = 1.5, min_se
     c = mean - mean.mean(axis=0)
     groups = [list(patient)]
     best = (0.0, None, None)
-    for axis in np.linalg.svd(c, full_matrices=False)[2]:     # the largest gap along any principal axis
+    vt = np.linalg.svd(c, full_matrices=False)[2]
+    ang = np.radians(np.arange(0.0, 180.0, 2.0))
+    dirs = np.concatenate([vt, np.cos(ang)[:, None] * vt[0] + np.sin(ang)[:, None] * vt[1]])
+    for axis in dirs:          # the largest gap along any direction in the markers' main plane
         pos = c @ axis
         order = np.argsort(pos)
         gaps = np.diff(pos[order])

@@ -1,0 +1,115 @@
+"""The motion exports read back: the 6-DOF series (CSV and JSON), the respiratory trace, the
+list-mode subsets, and CASToR's two files through a reader written here from CASToR's rules
+(not from the writer): keyword lines, comma- or space-separated numbers, the first trigger 0."""
+
+import csv
+import json
+import re
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from vts_hw.motion import analyze_motion, marker_series
+from vts_hw.motion.castor import write_castor
+from vts_hw.motion.exports import export_motion
+
+from motion_truth import patient_tracks
+
+
+def read_castor_keyword(path, key):
+    """The values after ``key:`` in a CASToR ASCII file (one line, or the lines that follow
+    when nothing follows the colon), as float rows."""
+    lines = path.read_text(encoding="ascii").splitlines()
+    for i, line in enumerate(lines):
+        if line.split(":", 1)[0].strip().lower() == key.lower():
+            rest = line.split(":", 1)[1].strip()
+            if rest:
+                return [[float(x) for x in re.split(r"[,\s]+", rest) if x]]
+            rows = []
+            for nxt in lines[i + 1:]:
+                if not nxt.strip() or ":" in nxt:
+                    break
+                rows.append([float(x) for x in re.split(r"[,\s]+", nxt.strip()) if x])
+            return rows
+    raise KeyError(key)
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    patient, tracks, _, t0 = patient_tracks(seed=5, duration_s=60.0, n_moves=2)
+    r = analyze_motion(marker_series(tracks))
+    out = tmp_path_factory.mktemp("export")
+    paths = export_motion(r, out, n_bins=4)
+    return patient, r, out, paths, t0
+
+
+def test_castor_files_have_one_trigger_and_one_line_per_state(exported):
+    _, r, out, _, _ = exported
+    dyn, rig = out / "castor_motion.dyn", out / "castor_motion_rigid.txt"
+    n = int(read_castor_keyword(dyn, "nb_motion_triggers")[0][0])
+    stamps = read_castor_keyword(dyn, "timestamp_motion_triggers")[0]
+    params = read_castor_keyword(rig, "Transformation_parameters")
+    assert n == len(r.states) == len(stamps) == len(params) == 3
+    assert stamps[0] == 0.0 and all(b > a for a, b in zip(stamps, stamps[1:]))
+    assert all(len(p) == 6 for p in params) and np.allclose(params[0], 0.0, atol=0.05)
+    assert rig.read_text().count("Rotation_convention: XYZ") == 1
+    assert read_castor_keyword(rig, "Transformation_mode")[0] == [0.0]
+    # host clock here: triggers are seconds from the first frame; the states start at the moves
+    for s, stamp in zip(r.states, stamps):
+        assert stamp == pytest.approx(s.t_start - r.series.t[0], abs=1e-3)
+
+
+def test_castor_parameters_are_the_state_poses_from_the_reference(exported):
+    patient, r, out, _, _ = exported
+    params = read_castor_keyword(out / "castor_motion_rigid.txt", "Transformation_parameters")
+    last = r.states[-1]
+    truth = patient.six_dof(0.5 * (last.t_start + last.t_end))
+    assert np.allclose(params[-1][:3], truth[:3], atol=0.3) and np.allclose(params[-1][3:], truth[3:], atol=0.2)
+
+
+def test_six_dof_csv_and_json_agree_and_quaternions_match_the_angles(exported):
+    _, r, out, _, _ = exported
+    with open(out / "motion_6dof.csv") as f:
+        rows = list(csv.DictReader(f))
+    doc = json.loads((out / "motion_6dof.json").read_text())
+    assert len(rows) == len(doc["columns"]["time_s"]) == len(r.pose.t)
+    assert "host clock" in doc["clock"] and doc["frame"].startswith("SPECT frame")
+    ok = [k for k, row in enumerate(rows) if row["quality"] == "ok"][::50]
+    assert len(ok) > 10
+    for k in ok:
+        e = [float(rows[k][c]) for c in ("rx_deg", "ry_deg", "rz_deg")]
+        q = [float(rows[k][c]) for c in ("qx", "qy", "qz", "qw")]
+        assert Rotation.from_quat(q).as_euler("xyz", degrees=True) == pytest.approx(e, abs=1e-3)
+        assert float(rows[k]["tx_mm"]) == pytest.approx(doc["columns"]["tx_mm"][k], abs=1e-3)
+    states = {int(row["state"]) for row in rows}
+    assert states == {0, 1, 2}
+    assert len(doc["events"]) == 2
+
+
+def test_respiration_and_subsets(exported):
+    patient, r, out, _, t0 = exported
+    with open(out / "respiration.csv") as f:
+        rows = list(csv.DictReader(f))
+    amp = np.array([float(x["amplitude_mm"]) for x in rows])
+    t = np.array([float(x["time_s"]) for x in rows]) + r.series.t[0]
+    assert np.corrcoef(amp, patient.breathing.value(t))[0, 1] > 0.98
+    sub = json.loads((out / "subsets.json").read_text())
+    ms = sub["motion_states"]
+    assert [s["state"] for s in ms] == [0, 1, 2]
+    assert all(a["interval_s"][1] == pytest.approx(b["interval_s"][0]) for a, b in zip(ms, ms[1:]))
+    for kind in ("amplitude", "phase"):
+        bins = sub["respiratory_bins"][kind]
+        assert len(bins) == 4 and all(b["frames"] > 0 and b["intervals"] for b in bins)
+    # amplitude bins: equal frame counts within a few frames, and their amplitudes really differ
+    counts = [b["frames"] for b in sub["respiratory_bins"]["amplitude"]]
+    assert max(counts) - min(counts) <= 0.05 * sum(counts)
+    lo = [b["amplitude_mm"][0] for b in sub["respiratory_bins"]["amplitude"]]
+    assert lo == sorted(lo) and lo[-1] > lo[0]
+
+
+def test_castor_writer_refuses_a_state_without_a_pose(tmp_path):
+    with pytest.raises(ValueError, match="without a pose"):
+        write_castor([0.0, 5.0], [[0] * 6, [np.nan] * 6], tmp_path)
+    p1, p2 = write_castor([3.0, 8.5], [[0] * 6, [1, 2, 3, 0.5, 0, 0]], tmp_path)
+    assert read_castor_keyword(p1, "timestamp_motion_triggers") == [[0.0, 5.5]]
