@@ -43,7 +43,9 @@ class MotionSettings:
     ``event_mm``/``event_deg``: the least change an event makes; ``min_speed``: mm/s a
     marker must move at before anything counts as motion; ``ref_min_s``/``ref_max_s``: the
     reference still period's least and largest length; ``margin_s``: frames this close to
-    motion are not still; ``iterations``: passes of steps 3-5."""
+    motion are not still; ``iterations``: passes of steps 3-5; ``outlier_rigid_mm``/``outlier_mm``: a
+    point further than this from the rigid fit (breathing not modelled) / from the fit with breathing
+    is left out of that frame (a wrong match, a ghost)."""
 
     state_mm: float = 2.0
     state_deg: float = 1.0
@@ -54,6 +56,9 @@ class MotionSettings:
     ref_max_s: float = 10.0
     margin_s: float = 1.0
     iterations: int = 2
+    outlier_rigid_mm: float = 40.0
+    max_outlier_share: float = 0.5
+    outlier_mm: float = 3.0
 
 
 @dataclass
@@ -114,11 +119,24 @@ def _reference(P, seen, sel, R=None, T=None):
     return ref
 
 
-def _pose_with_reference(P, seen, ref):
+def _pose_with_reference(P, seen, ref, weights=None):
     has = np.isfinite(ref[:, 0])
     use = seen & has[None]
-    R, T, _ = kabsch_batch(np.where(has[:, None], ref, 0.0), P, use)
+    R, T, _ = kabsch_batch(np.where(has[:, None], ref, 0.0), P, use, weights)
     return R, T
+
+
+def _robust_pose(P, seen, ref, scales=(60.0, 40.0)):
+    """A rigid fit per frame that a wrong point does not drag: Tukey-weighted Kabsch, its
+    scale shrinking (mm). Returns R, T and the weights (F, M)."""
+    w = seen.astype(float)
+    for c in scales:
+        R, T = _pose_with_reference(P, seen, ref, w)
+        res = np.linalg.norm(np.where(seen[..., None], P - (np.einsum("fij,mj->fmi", R, np.nan_to_num(ref))
+                                                           + T[:, None]), 0.0), axis=2)
+        u = np.clip(np.nan_to_num(res, nan=np.inf) / c, 0.0, 1.0)
+        w = np.where(seen, (1 - u ** 2) ** 2, 0.0)
+    return R, T, w
 
 
 def _segment_poses(t, P, seen, ref, still, fs):
@@ -130,7 +148,7 @@ def _segment_poses(t, P, seen, ref, still, fs):
         ok = np.isfinite(mean[:, 0])
         if ok.sum() < 3:
             continue
-        R, T, _ = kabsch_batch(ref, mean[None], ok[None])
+        R, T, _ = _robust_pose(mean[None], ok[None], ref, (20.0, 5.0, 2.0))
         D[a:b] = back_to_reference(np.repeat(R, b - a, 0), np.repeat(T, b - a, 0), P[a:b])
     return D
 
@@ -155,6 +173,12 @@ def _provisional_moving(t, pose_pts, s, settings, fs):
     return sp > max(2.0 * settings.min_speed, np.median(sp) + 6 * sig)
 
 
+def _inliers(P, seen, model, limit_mm):
+    """``seen`` without the points further than ``limit_mm`` from the model (F, M, 3)."""
+    res = np.linalg.norm(np.where(seen[..., None], P - model, 0.0), axis=2)
+    return seen & ~(np.nan_to_num(res, nan=np.inf) > limit_mm)
+
+
 def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None) -> MotionResult:
     """The whole analysis (see the module). DataError when the patient's markers cannot be found
     or no still period of ``ref_min_s`` exists for the reference."""
@@ -162,6 +186,7 @@ def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None)
     bands = find_bands(series)
     S = series.subset(bands.patient)
     t, P, seen = S.t, S.P, S.seen
+    seen_all = seen.copy()
     fs = sample_rate(t)
     notes = []
     # 2. provisional reference and pose; the first respiratory signal
@@ -169,8 +194,29 @@ def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None)
     ref = _reference(P, seen, sel0)
     R0, T0 = _pose_with_reference(P, seen, ref)
     ref = _reference(P, seen, sel0, R0, T0)
+    R0, T0, w = _robust_pose(P, seen, ref)
+    # a marker the robust fit leaves out in most frames is not one of the patient's (a wrong
+    # match, a ghost made of pieces); a single point far off the fit is left out of its frame
+    out_share = 1.0 - (seen & (w > 0)).sum(axis=0) / np.maximum(seen.sum(axis=0), 1)
+    bad = [m for m in range(P.shape[1]) if out_share[m] > st.max_outlier_share]
+    if bad and P.shape[1] - len(bad) >= 3:
+        for m in bad:
+            col = bands.patient[m]
+            bands.why[col] = (f"off the rigid fit of the others in {100 * out_share[m]:.0f} % of its frames: "
+                              f"not the patient's (a wrong match?)")
+            notes.append(f"marker {S.label(m)} left out: {bands.why[col]}")
+        keep = [m for m in range(P.shape[1]) if m not in bad]
+        bands.patient = [bands.patient[m] for m in keep]
+        bands.groups = [[c for c in g if c in bands.patient] for g in bands.groups]
+        bands.groups = [g for g in bands.groups if g]
+        S = series.subset(bands.patient)
+        P, seen, ref = S.P, S.seen, ref[keep]
+        seen_all = seen.copy()
+        R0, T0, w = _robust_pose(P, seen, ref)
+    seen = _inliers(P, seen, np.einsum("fij,mj->fmi", R0, ref) + T0[:, None], st.outlier_rigid_mm)
     R0, T0 = _pose_with_reference(P, seen, ref)
     D = back_to_reference(R0, T0, P) - ref[None]
+    D[~seen] = np.nan
     s, _, _ = principal_signal(t, D)
     pts = np.einsum("fij,mj->fmi", R0, ref) + T0[:, None]
     moving = _provisional_moving(t, pts, s, st, fs)
@@ -192,8 +238,14 @@ def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None)
         ref = _reference(P, seen, ref_sel, R, T)
         Dseg = _segment_poses(t, P, seen, ref, still, fs) - ref[None]
         v = breathing_vectors(t, Dseg, s, still)
-        R0, T0 = _pose_with_reference(P, seen, ref)
+        R0, T0, _ = _robust_pose(P, seen, ref)
         R, T, s, rms = fit_pose_breathing(ref, v, P, seen, R0, T0, s)
+        body = ref[None] + v[None] * np.nan_to_num(s)[:, None, None]
+        model = np.einsum("fij,fmj->fmi", R, body) + T[:, None]
+        seen_in = _inliers(P, seen_all, model, st.outlier_mm)
+        if (seen_in != seen).any():
+            seen = seen_in
+            R, T, s, rms = fit_pose_breathing(ref, v, P, seen, R0, T0, s)
         pose = BodyPose(t, R, T, s, rms, seen.sum(axis=1), ref.mean(axis=0))
         events, speed, moving, thr = find_events(pose, ref, min_speed=st.min_speed, event_mm=st.event_mm,
                                                  event_deg=st.event_deg)

@@ -22,14 +22,16 @@ __all__ = ["BodyPose", "kabsch_batch", "fit_pose_breathing", "back_to_reference"
 MIN_MARKERS = 3
 
 
-def kabsch_batch(ref, P, seen=None):
+def kabsch_batch(ref, P, seen=None, weights=None):
     """Per frame, the rigid ``(R, T)`` taking ``ref`` (M, 3) onto ``P[f]`` (M, 3) over the
-    markers ``seen[f]``. Returns R (F,3,3), T (F,3), rms (F,) mm; NaN where < 3 markers."""
+    markers ``seen[f]`` (``weights`` (F, M): a weighted fit). Returns R (F,3,3), T (F,3),
+    rms (F,) mm; NaN where < 3 markers."""
     P = np.asarray(P, float)
     seen = np.isfinite(P[..., 0]) if seen is None else seen
-    w = seen.astype(float)
+    w = seen.astype(float) if weights is None else np.where(seen, weights, 0.0)
+    seen = w > 0
+    ok = seen.sum(axis=1) >= MIN_MARKERS
     n = w.sum(axis=1)
-    ok = n >= MIN_MARKERS
     nn = np.where(ok, n, 1.0)[:, None]
     Pz = np.where(seen[..., None], P, 0.0)
     A = np.broadcast_to(ref, P.shape) * w[..., None]
@@ -47,7 +49,7 @@ def kabsch_batch(ref, P, seen=None):
     R = np.einsum("fji,fjk,fkl->fil", Vt, D, U.transpose(0, 2, 1))
     T = cb - np.einsum("fij,fj->fi", R, ca)
     res = np.where(seen[..., None], P - np.einsum("fij,mj->fmi", R, ref) - T[:, None], 0.0)
-    rms = np.sqrt(np.sum(res ** 2, axis=(1, 2)) / nn[:, 0])
+    rms = np.sqrt(np.sum(res ** 2, axis=(1, 2)) / np.maximum(seen.sum(axis=1), 1))
     R[~ok] = np.nan
     T[~ok] = np.nan
     rms[~ok] = np.nan
@@ -62,22 +64,31 @@ def _skew(q):
                      np.stack([-q[..., 1], q[..., 0], z], -1)], -2)
 
 
-def fit_pose_breathing(ref, v, P, seen, R0, T0, s0=None, iterations: int = 5):
+def fit_pose_breathing(ref, v, P, seen, R0, T0, s0=None, iterations: int = 6,
+                       robust_mm=(10.0, 5.0, 3.0)):
     """Per frame, ``(R, T, s)`` minimising ``sum_i |P_i - R (ref_i + v_i s) - T|^2`` over the
-    markers seen (Gauss-Newton from ``R0, T0, s0``). ``v`` all zero: ``s`` stays 0.
-    Returns R, T, s, rms (mm, per frame)."""
+    markers seen (Gauss-Newton from ``R0, T0, s0``), each point weighted by Tukey's biweight of
+    its residual at the scale ``robust_mm[k]`` in iteration k (the last scale from then on):
+    a wrong point (a ghost, a mismatch) loses its pull. ``v`` all zero: ``s`` stays 0.
+    Returns R, T, s, rms (mm, per frame, over the points with weight)."""
     F, M = seen.shape
     ok = (seen.sum(axis=1) >= MIN_MARKERS) & np.isfinite(R0[:, 0, 0])
     R = np.where(ok[:, None, None], R0, np.eye(3))
     T = np.where(ok[:, None], T0, 0.0)
     s = np.zeros(F) if s0 is None else np.where(np.isfinite(s0), s0, 0.0)
     breathing = bool(np.any(np.abs(v) > 0))
-    w = seen.astype(float)[..., None]
     Pz = np.where(seen[..., None], P, 0.0)
-    for _ in range(iterations):
+    for it in range(iterations):
         body = ref[None] + v[None] * s[:, None, None]                 # (F, M, 3)
         q = np.einsum("fij,fmj->fmi", R, body)
-        e = (Pz - q - T[:, None]) * w
+        e = Pz - q - T[:, None]
+        c = robust_mm[min(it, len(robust_mm) - 1)] if robust_mm else np.inf
+        u = np.clip(np.linalg.norm(e, axis=2) / c, 0.0, 1.0)
+        wm = np.where(seen, (1 - u ** 2) ** 2, 0.0)
+        enough = (wm > 0).sum(axis=1) >= MIN_MARKERS
+        wm = np.where(enough[:, None], wm, seen.astype(float))       # too few left: unweighted
+        w = wm[..., None]
+        e = e * w
         J = np.zeros((F, M, 3, 7))
         J[..., :3] = -_skew(q)
         J[..., 3:6] = np.eye(3)
@@ -99,8 +110,9 @@ def fit_pose_breathing(ref, v, P, seen, R0, T0, s0=None, iterations: int = 5):
         T = T + dx[:, 3:6]
         s = s + dx[:, 6]
     body = ref[None] + v[None] * s[:, None, None]
-    res = np.where(seen[..., None], P - np.einsum("fij,fmj->fmi", R, body) - T[:, None], 0.0)
-    rms = np.sqrt(np.sum(res ** 2, axis=(1, 2)) / np.maximum(seen.sum(axis=1), 1))
+    used = seen & (wm > 0)
+    res = np.where(used[..., None], P - np.einsum("fij,fmj->fmi", R, body) - T[:, None], 0.0)
+    rms = np.sqrt(np.sum(res ** 2, axis=(1, 2)) / np.maximum(used.sum(axis=1), 1))
     R[~ok], T[~ok], s[~ok], rms[~ok] = np.nan, np.nan, np.nan, np.nan
     return R, T, s, rms
 
