@@ -246,8 +246,9 @@ def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None)
         if (seen_in != seen).any():
             seen = seen_in
             R, T, s, rms = fit_pose_breathing(ref, v, P, seen, R0, T0, s)
-        pose = BodyPose(t, R, T, s, rms, seen.sum(axis=1), ref.mean(axis=0))
-        events, speed, moving, thr = find_events(pose, ref, min_speed=st.min_speed, event_mm=st.event_mm,
+        known = ref[np.isfinite(ref).all(axis=1)]
+        pose = BodyPose(t, R, T, s, rms, seen.sum(axis=1), known.mean(axis=0))
+        events, speed, moving, thr = find_events(pose, known, min_speed=st.min_speed, event_mm=st.event_mm,
                                                  event_deg=st.event_deg)
     # scale and sign of the respiratory signal: mm of the marker that breathes most, + = inhaled
     norms = np.linalg.norm(v, axis=1)
@@ -265,6 +266,6 @@ def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None)
     pose.resp = s
     cycles, phase, rate = breath_cycles(t, s)
     resp = Respiration(t, s, phase, rate, cycles, v)
-    states = motion_states(pose, events, moving, ref, state_mm=st.state_mm, state_deg=st.state_deg)
+    states = motion_states(pose, events, moving, known, state_mm=st.state_mm, state_deg=st.state_deg)
     return MotionResult(series, bands, S, ref, ref_period, pose, resp, events, states, speed, moving,
                         still, thr, st, notes)

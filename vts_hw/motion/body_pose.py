@@ -72,6 +72,9 @@ def fit_pose_breathing(ref, v, P, seen, R0, T0, s0=None, iterations: int = 6,
     a wrong point (a ghost, a mismatch) loses its pull. ``v`` all zero: ``s`` stays 0.
     Returns R, T, s, rms (mm, per frame, over the points with weight)."""
     F, M = seen.shape
+    known = np.isfinite(ref).all(axis=1) & np.isfinite(v).all(axis=1)   # a marker without a reference: unused
+    seen = seen & known[None]
+    ref, v = np.nan_to_num(ref), np.nan_to_num(v)
     ok = (seen.sum(axis=1) >= MIN_MARKERS) & np.isfinite(R0[:, 0, 0])
     R = np.where(ok[:, None, None], R0, np.eye(3))
     T = np.where(ok[:, None], T0, 0.0)
