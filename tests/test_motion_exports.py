@@ -112,4 +112,23 @@ def test_castor_writer_refuses_a_state_without_a_pose(tmp_path):
     with pytest.raises(ValueError, match="without a pose"):
         write_castor([0.0, 5.0], [[0] * 6, [np.nan] * 6], tmp_path)
     p1, p2 = write_castor([3.0, 8.5], [[0] * 6, [1, 2, 3, 0.5, 0, 0]], tmp_path)
-    assert read_castor_keyword(p1, "timestamp_motion_triggers") == [[0.0, 5.5]]
+    assert read_castor_keyword(p1, "timestamp_motion_triggers") == [[0.0, 8.5]]
+
+
+def test_on_the_spect_clock_times_are_list_mode_seconds(tmp_path):
+    """Tracks with SPECT times (as the sync analysis makes them): every time in the exports is
+    list-mode seconds, the CASToR triggers from the acquisition start (list-mode 0)."""
+    patient, tracks, _, t0 = patient_tracks(seed=5, duration_s=60.0, n_moves=2)
+    lead = 2.5                                 # the SPECT started 2.5 s before the first frame
+    synced = tracks.with_spect(None, lambda h: np.asarray(h) - t0 + lead)
+    r = analyze_motion(marker_series(synced))
+    assert r.series.clock == "spect"
+    export_motion(r, tmp_path)
+    doc = json.loads((tmp_path / "motion_6dof.json").read_text())
+    assert "SPECT list-mode" in doc["clock"] and doc["time_origin"] == 0.0
+    assert doc["columns"]["time_s"][0] == pytest.approx(lead, abs=1e-6)
+    stamps = read_castor_keyword(tmp_path / "castor_motion.dyn", "timestamp_motion_triggers")[0]
+    assert stamps[0] == 0.0
+    moves = sorted(m.t_start for m in patient.motion.moves)
+    for stamp, true_start in zip(stamps[1:], moves):
+        assert true_start - t0 + lead - 0.5 <= stamp <= true_start - t0 + lead + 2.0

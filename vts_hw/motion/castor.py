@@ -35,7 +35,7 @@ def _num(x: float, digits: int) -> str:
 
 def write_castor(starts_s, params, out) -> tuple[Path, Path]:
     """Write both files into ``out``. ``starts_s``: each state's start (s from the acquisition
-    start; the first is written as 0); ``params`` (N, 6): tx, ty, tz mm, rx, ry, rz deg. Nothing
+    start; the first is written as 0: the reference state holds from the start); ``params`` (N, 6): tx, ty, tz mm, rx, ry, rz deg. Nothing
     but keywords and numbers is written (no comment lines): what the files mean is in the 6-DOF
     JSON beside them."""
     starts = np.asarray(starts_s, float).reshape(-1)
@@ -44,7 +44,10 @@ def write_castor(starts_s, params, out) -> tuple[Path, Path]:
         raise ValueError("one start time and one set of parameters per motion state")
     if not np.all(np.isfinite(params)):
         raise ValueError("a motion state without a pose cannot be written for CASToR")
-    starts = starts - starts[0]
+    if len(starts) > 1 and np.any(np.diff(starts) <= 0):
+        raise ValueError("motion state start times must increase")
+    starts = starts.copy()
+    starts[0] = 0.0      # the reference state holds from the acquisition start
     out = ensure_dir(out, "export folder")
     dyn = (f"nb_motion_triggers: {len(starts)}\n"
            + "timestamp_motion_triggers: " + ",".join(_num(s, 3) for s in starts) + "\n")
