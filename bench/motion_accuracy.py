@@ -15,7 +15,10 @@ this run and printed; the goals:
 * false events in breathing-only runs: 0;
 * respiratory signal against the true b(t): correlation >= 0.98; rate error (median over the
   cycles found) <= 0.5 /min;
-* marker 3D RMS (rendered, points during body moves, against the true marker): <= 0.10 mm.
+* marker 3D RMS (rendered, points during body moves, against the true marker): <= 0.10 mm. Also
+  printed split by the marker's true speed (below / above 5 mm/s): the simulated cameras are
+  free-running, ~13 ms apart, so a fast marker is triangulated from views of different instants
+  (a limit of the processing, not of the motion analysis; docs/decisions/0035).
 
 Exit status 1 when a goal is missed.
 """
@@ -96,13 +99,20 @@ def rendered(seed, duration, n_cameras, n_moves, work):
     during = np.zeros(len(pt), bool)
     for m in sim.patient.motion.moves:
         during |= (pt >= m.t_start) & (pt <= m.t_end)
-    errs = []
+    errs, speeds = [], []
     for k in np.flatnonzero(during):
         truth = np.array(list(sim.patient.marker_truth(float(pt[k])).values()))
-        d = np.linalg.norm(truth - tracks.xyz[k], axis=1).min()
-        if d < 5.0:
-            errs.append(d)
-    return r, sim.patient, (float(np.sqrt(np.mean(np.square(errs)))) if errs else float("nan")), len(errs)
+        later = np.array(list(sim.patient.marker_truth(float(pt[k]) + 0.01).values()))
+        d = np.linalg.norm(truth - tracks.xyz[k], axis=1)
+        j = int(d.argmin())
+        if d[j] < 5.0:
+            errs.append(d[j])
+            speeds.append(float(np.linalg.norm(later[j] - truth[j])) / 0.01)
+    errs, speeds = np.array(errs), np.array(speeds)
+    rms = lambda sel: float(np.sqrt(np.mean(errs[sel] ** 2))) if sel.any() else float("nan")  # noqa: E731
+    split = {"slow": rms(speeds < 5.0), "fast": rms(speeds >= 5.0), "n_slow": int((speeds < 5.0).sum()),
+             "n_fast": int((speeds >= 5.0).sum())} if errs.size else {}
+    return r, sim.patient, (float(np.sqrt(np.mean(np.square(errs)))) if errs.size else float("nan")), len(errs), split
 
 
 def line(s, extra=""):
@@ -131,10 +141,12 @@ def main() -> int:
                 continue
             for nc in args.cameras:
                 for n_moves, kind in ((1, "move"), (0, "breathing only")):
-                    r, p, mrms, n = rendered(seed, args.render_duration, nc, n_moves, work)
+                    r, p, mrms, n, split = rendered(seed, args.render_duration, nc, n_moves, work)
                     s = score(r, p, f"seed {seed} rendered {nc} cam {kind}")
                     rows.append(s)
-                    extra = f" | marker 3D RMS during moves {mrms:.3f} mm ({n} points)" if n else ""
+                    extra = (f" | marker 3D RMS during moves {mrms:.3f} mm ({n} points; below 5 mm/s "
+                             f"{split['slow']:.3f} mm ({split['n_slow']}), faster {split['fast']:.3f} mm "
+                             f"({split['n_fast']}))") if n else ""
                     if n:
                         marker_rms.append(mrms)
                     print(line(s, extra), flush=True)
