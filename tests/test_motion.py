@@ -113,3 +113,34 @@ def test_kabsch_batch_finds_a_known_transform_with_missing_markers():
     ok = [0, 2, 3, 4]
     assert np.allclose(R[ok], Rs[ok], atol=1e-9) and np.allclose(T[ok], Ts[ok], atol=1e-6)
     assert np.isnan(T[1]).all() and np.nanmax(rms) < 1e-6
+
+
+def test_a_ghost_point_does_not_drag_the_pose():
+    """A wrong match: a 3D point that follows the body but sits 10-20 mm off, in pieces that
+    each get a new id, present in about half of the frames (as the 2-camera rendered recording
+    of test_motion_e2e has one)."""
+    patient, tracks, truth, t0 = patient_tracks(seed=4, duration_s=50.0, n_moves=1)
+    rng = np.random.default_rng(9)
+    host = tracks.host_time
+    a1 = next(m for m, n in truth["ids"].items() if n == "A1")
+    base = {f: p for f, m, p in zip(tracks.point_frame, tracks.marker, tracks.xyz) if m == a1}
+    pf, mk, xyz = [], [], []
+    next_id = int(tracks.marker.max()) + 1
+    for start in np.arange(0.0, 50.0, 5.0):                   # a piece every 5 s, 2.5 s long
+        off = rng.normal(size=3)
+        off *= rng.uniform(10.0, 20.0) / np.linalg.norm(off)
+        for f in np.flatnonzero((host >= t0 + start) & (host < t0 + start + 2.5)):
+            if f in base:
+                pf.append(f), mk.append(next_id), xyz.append(base[f] + off)
+        next_id += 1
+    n = len(pf)
+    tracks.point_frame = np.concatenate([tracks.point_frame, pf])
+    tracks.marker = np.concatenate([tracks.marker, mk])
+    tracks.xyz = np.concatenate([tracks.xyz, xyz])
+    tracks.xyz_spect = tracks.xyz.copy()
+    tracks.uv = np.concatenate([tracks.uv, np.zeros((n, 4))])
+    tracks.reproj_px = np.concatenate([tracks.reproj_px, np.zeros(n)])
+    r = analyze_motion(marker_series(tracks))
+    mm, deg = pose_errors(r, patient)
+    assert mm < 0.3 and deg < 0.2
+    assert len(r.events) == len(true_moves(patient)) == 1
