@@ -60,12 +60,34 @@ def test_castor_files_have_one_trigger_and_one_line_per_state(exported):
         assert stamp == pytest.approx(s.t_start - r.series.t[0], abs=1e-3)
 
 
-def test_castor_parameters_are_the_state_poses_from_the_reference(exported):
+def castor_matrix_from_source_rules(p):
+    """The 4x4 matrix CASToR 3.1.1's iDeformationRigid builds from one parameter line (written
+    here from its source, not from our writer): Translation(-t) times Rx(rA) Ry(rB) Rz(rC)."""
+    tx, ty, tz = p[:3]
+    a, b, c = np.radians(p[3:])
+    rx = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    ry = np.array([[np.cos(b), 0, np.sin(b)], [0, 1, 0], [-np.sin(b), 0, np.cos(b)]])
+    rz = np.array([[np.cos(c), -np.sin(c), 0], [np.sin(c), np.cos(c), 0], [0, 0, 1]])
+    trs = np.eye(4)
+    trs[:3, 3] = [-tx, -ty, -tz]
+    rot = np.eye(4)
+    rot[:3, :3] = rx @ ry @ rz
+    return trs @ rot
+
+
+def test_castor_parameters_undo_the_true_pose_of_each_state(exported):
+    """CASToR pulls: an output voxel at x takes the input at M x. For the reference image to be
+    carried into a state's pose, M must take a point of that state back to the reference."""
     patient, r, out, _, _ = exported
     params = read_castor_keyword(out / "castor_motion_rigid.txt", "Transformation_parameters")
-    last = r.states[-1]
-    truth = patient.six_dof(0.5 * (last.t_start + last.t_end))
-    assert np.allclose(params[-1][:3], truth[:3], atol=0.3) and np.allclose(params[-1][3:], truth[3:], atol=0.2)
+    assert np.allclose(castor_matrix_from_source_rules(params[0]), np.eye(4), atol=0.05)   # the reference state
+    for s, p in zip(r.states, params):
+        R, T = patient.body_transform(0.5 * (s.t_start + s.t_end))
+        x_ref = np.array([[0.0, 0.0, 0.0], [100.0, 50.0, -80.0], [-120.0, 80.0, 150.0]])
+        x_state = x_ref @ R.T + T
+        M = castor_matrix_from_source_rules(p)
+        back = x_state @ M[:3, :3].T + M[:3, 3]
+        assert np.abs(back - x_ref).max() < 0.5, (s.index, back - x_ref)
 
 
 def test_six_dof_csv_and_json_agree_and_quaternions_match_the_angles(exported):

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from vts_hw.files import ensure_dir, write_atomic, write_json_atomic
-from vts_hw.motion.castor import write_castor
+from vts_hw.motion.castor import castor_parameters, write_castor
 
 __all__ = ["export_motion", "time_origin", "clock_text", "respiratory_bins", "state_of_frames",
            "SIXDOF_CSV", "SIXDOF_JSON", "RESP_CSV", "SUBSETS_JSON", "MOTION_FORMAT"]
@@ -131,6 +131,6 @@ def export_motion(result, out, *, n_bins: int = 4, extra: dict | None = None) ->
                "note": "intervals [start, end) s; respiratory bins hold still frames with a pose only"}
     p_sub = write_json_atomic(out / SUBSETS_JSON, subsets)
     starts = [s.t_start - t0 for s in result.states]
-    params = [s.six_dof for s in result.states]
+    params = [castor_parameters(s.R, s.T) if s.R is not None else [np.nan] * 6 for s in result.states]
     p_dyn, p_rig = write_castor(starts, params, out)
     return [p_csv, Path(p_json), p_resp, Path(p_sub), p_dyn, p_rig]
