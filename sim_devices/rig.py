@@ -85,6 +85,8 @@ class SimRig:
         self.servers = {name: SimAxisCamera(src, user=user, password=self.password, model=firmware,
                                             clock=self.clock, tls=tls, auth="basic" if tls else "digest")
                         for name, src in self.sources.items()}
+        for name, srv in self.servers.items():     # each camera's shutter time, from its model profile
+            self.renderer.exposure[name] = srv.profile.exposure_ms / 1000.0
         self._started = False
 
     # -- life cycle --------------------------------------------------------------------
