@@ -218,3 +218,16 @@ def test_truth_files_are_readable_and_agree_with_the_model(tmp_path):
         assert float(row["breath"]) == pytest.approx(float(p.breathing.value(t)), abs=1e-4)
         truth = p.marker_truth(t)
         assert [float(row[f"A3_{a}"]) for a in "xyz"] == pytest.approx(truth["A3"], abs=1e-4)
+
+
+def test_every_camera_sees_all_eight_apart_from_each_other_and_the_wall():
+    for seed in range(3):
+        s = _scene(4) if seed == 0 else Scene.reference(seed=seed, n_cameras=4, start_epoch=T0)
+        add_patient(s, T0, 60.0, seed=seed, breathing=False)
+        for cam in s.cameras:
+            seen = {m: np.array((u, v)) for m, u, v in s.truth(cam, T0 + 1)}
+            assert set(BAND_MARKERS["chest"] + BAND_MARKERS["abdomen"]) <= set(seen), (seed, cam)
+            for m, uv in seen.items():
+                if m[0] in "CA":
+                    gaps = [np.linalg.norm(uv - other) for k, other in seen.items() if k != m]
+                    assert min(gaps) > 25.0, (seed, cam, m)
