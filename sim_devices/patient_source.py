@@ -19,7 +19,8 @@ from vts_hw.sim_devices.patient import Patient
 
 __all__ = ["HEART_MM", "PatientSource", "heart_source"]
 
-HEART_MM = (20.0, 30.0, -60.0)   # body coordinates (X lateral, Y anterior, Z towards the feet)
+HEART_MM = (20.0, 30.0, -60.0)   # body coordinates (X lateral, Y anterior, Z towards the feet): at rest
+                                 # (20, 0, 0) in the SPECT frame
 POSE_GRID_S = 0.01               # the body's pose is evaluated this often and interpolated
 
 
