@@ -24,7 +24,7 @@ SCAN_S = 12.0
 def scan(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("patient-scan")
     rig = SimRig(n_cameras=2, seed=2, trigger="triggerbox",
-                 patient=PatientOptions(seed=1, moves=1, minutes=1.5, still_s=5.0)).start()
+                 patient=PatientOptions(seed=1, moves=1, minutes=1.5, still_s=5.0, move_at_s=(9.0,))).start()
     try:
         rig_yaml, _ = rig.write(tmp / "rig")
         run = patient_scan(rig, rig_yaml, tmp / "scan", SCAN_S, truth_dir=tmp / "truth")
@@ -45,6 +45,9 @@ def test_the_recording_is_complete_and_the_truth_covers_it(scan):
     assert b - a == pytest.approx(SCAN_S, abs=1.0)
     t0 = run.patient.breathing.t0
     assert t0 < a and b < t0 + run.patient.breathing.duration_s          # the plan covers the scan
+    (move,) = run.moves_in_window()                                      # the move happened while recording
+    assert move.t_start == pytest.approx(t0 + 9.0) and move.t_end < b
+    assert not np.allclose(run.patient.six_dof(a), run.patient.six_dof(b))
     assert not any(p.name.startswith("patient") for p in run.session.iterdir())   # no truth in the session
     assert [p.name for p in run.truth_files] == ["patient.json", "patient_motion.csv"]
     rows = (tmp / "truth" / "patient_motion.csv").read_text().splitlines()

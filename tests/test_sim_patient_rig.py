@@ -111,3 +111,20 @@ def test_bad_patient_options_are_one_line_and_exit_2(args, words):
     res = CliRunner().invoke(cli, ["sim", "up", *args])
     assert res.exit_code == 2
     assert words in res.output and "Traceback" not in res.output
+
+
+def test_patient_options_travel_to_the_detached_rig_and_are_checked():
+    o = PatientOptions(seed=7, moves=2, minutes=1.5, breathing=False, still_s=4.0, creep_mm=2.5, move_at_s=(6.0, 20.5))
+    assert PatientOptions.from_arg(o.to_arg()) == o
+    assert PatientOptions.from_arg(PatientOptions().to_arg()) == PatientOptions()
+    scene = Scene.reference(seed=0, start_epoch=T0)
+    from vts_hw.sim_devices.patient_rig import put_patient
+    p = put_patient(scene, o, T0)
+    assert [m.t_start - T0 for m in p.motion.moves] == pytest.approx([6.0, 20.5])
+    assert not p.breathing.enabled and len(p.motion.creeps) == 1
+    for bad, words in ((PatientOptions(moves=2, move_at_s=(5.0,)), "one start time per body move"),
+                       (PatientOptions(moves=2, move_at_s=(9.0, 5.0)), "in order"),
+                       (PatientOptions(moves=3, minutes=0.5), "too short for 3 body moves"),
+                       (PatientOptions(moves=-1), "0 or more")):
+        with pytest.raises(ValueError, match=words):
+            put_patient(scene, bad, T0)
