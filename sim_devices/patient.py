@@ -370,15 +370,23 @@ def write_truth(patient: Patient, folder, t0: float, t1: float, rate_hz: float =
     ids = [m.id for m in patient.rest]
     cols = ["t", "tx_mm", "ty_mm", "tz_mm", "rx_deg", "ry_deg", "rz_deg", "breath", "phase"] + \
         [f"{i}_{a}" for i in ids for a in "xyz"]
-    lines = [",".join(cols)]
     # t0 + k / rate, not np.arange(t0, t1, step): at epoch seconds the step itself is off by
     # ~1e-7 s and the error grows along the file
-    for t in t0 + np.arange(int(np.ceil((t1 - t0) * rate_hz - 1e-9))) / rate_hz:
-        pos = patient.marker_truth(float(t))
-        row = [f"{t:.3f}"] + [f"{v:.4f}" for v in patient.six_dof(float(t))] + \
-            [f"{float(patient.breathing.value(t)):.4f}", f"{float(patient.breathing.phase(t)):.4f}"] + \
-            [f"{v:.4f}" for i in ids for v in pos[i]]
-        lines.append(",".join(row))
+    ts = t0 + np.arange(int(np.ceil((t1 - t0) * rate_hz - 1e-9))) / rate_hz
+    b = patient.breathing.value(ts)
+    table = np.empty((ts.size, len(cols)))
+    table[:, 0], table[:, 7], table[:, 8] = ts, b, patient.breathing.phase(ts)
+    rest = np.array([m.center for m in patient.rest])
+    drift = np.array([patient.breath_dir[i] for i in ids])
+    last_R, euler = None, None
+    for k, t in enumerate(ts):        # as six_dof and marker_truth, the rotation's angles once per pose
+        R, T = patient.motion.pose(float(t))
+        if last_R is None or not np.array_equal(R, last_R):
+            last_R, euler = R, Rotation.from_matrix(R).as_euler("xyz", degrees=True)
+        table[k, 1:4] = patient.placement + T - R @ patient.placement
+        table[k, 4:7] = euler
+        table[k, 9:] = ((rest + b[k] * drift) @ R.T + patient.placement + T).ravel()
+    lines = [",".join(cols)] + [f"{row[0]:.3f}," + ",".join(f"{v:.4f}" for v in row[1:]) for row in table]
     csv = folder / "patient_motion.csv"
     csv.write_text("\n".join(lines) + "\n")
     return [js, csv]

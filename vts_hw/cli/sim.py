@@ -49,7 +49,7 @@ def sim() -> None:
 @click.option("--patient-seed", type=int, default=None, help="Seed of the patient (default: --seed).")
 @click.option("--patient-moves", type=click.IntRange(0, 50), default=None,
               help="How many sudden body moves over the plan [default: 2].")
-@click.option("--patient-minutes", type=click.FloatRange(0.1, 600.0), default=None,
+@click.option("--patient-minutes", type=click.FloatRange(0.1, 240.0), default=None,
               help="How long the patient's plan lasts (moves are spread over it; after it the patient "
                    "lies still and no longer breathes) [default: 10].")
 @click.option("--no-breathing", is_flag=True, help="The patient does not breathe (body moves only).")
