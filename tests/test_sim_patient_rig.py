@@ -128,3 +128,16 @@ def test_patient_options_travel_to_the_detached_rig_and_are_checked():
                        (PatientOptions(moves=-1), "0 or more")):
         with pytest.raises(ValueError, match=words):
             put_patient(scene, bad, T0)
+
+
+def test_with_a_patient_the_simulated_spect_counts_its_heart_not_a_source_marker(tmp_path):
+    from vts_hw.sim_devices.spect_follower import SpectFollower
+
+    with_patient = SimRig(n_cameras=2, trigger="triggerbox", patient=PatientOptions(minutes=1.0))
+    heart = heart_source(with_patient.patient)
+    follower = SpectFollower(with_patient, tmp_path / "spect", sources=[heart], log=lambda m: None)
+    assert follower.sources == [heart] and follower.marker is None
+    assert list(with_patient.scene.bodies) == ["patient"]           # no source marker on the table
+    plain = SimRig(n_cameras=2, trigger="triggerbox")
+    assert SpectFollower(plain, tmp_path / "spect2", log=lambda m: None).marker is not None
+    assert "source" in plain.scene.bodies

@@ -80,6 +80,8 @@ def up(n_cameras: int, gantry: bool, seed: int, vapix: str, model: str | None, h
         pid = simrig.start_detached(folder, n_cameras, seed, fw, rate, trigger=trigger, spect=spect, https=https,
                                     gantry=gantry, patient=person)
         _describe(Path(folder))
+        if person is not None:
+            click.echo(f"simulated patient: its truth in {Path(folder) / 'truth'}")
         click.echo(f"simulated rig running in the background (pid {pid}); stop it with: vts sim down --dir {folder}")
         return
 
