@@ -17,8 +17,8 @@ this run and printed; the goals:
   cycles found) <= 0.5 /min;
 * marker 3D RMS (rendered, points during body moves, against the true marker): <= 0.10 mm. Also
   printed split by the marker's true speed (below / above 5 mm/s): the simulated cameras are
-  free-running, ~13 ms apart, so a fast marker is triangulated from views of different instants
-  (a limit of the processing, not of the motion analysis; docs/decisions/0035).
+  free-running, ~13 ms apart: processing brings every view to the frame set's instant before
+  triangulating (docs/decisions/0037; ``--no-align`` shows the figures without it).
 
 Exit status 1 when a goal is missed.
 """
@@ -84,15 +84,16 @@ def synthetic(seed, duration, n_moves):
     return r, patient, time.process_time() - c
 
 
-def rendered(seed, duration, n_cameras, n_moves, work):
+def rendered(seed, duration, n_cameras, n_moves, work, align=True):
     scene = Scene.reference(seed=seed, n_cameras=n_cameras, start_epoch=1_790_000_000.0 + 1000.0 * seed)
     folder = Path(work) / f"rec-{seed}-{n_cameras}-{n_moves}"
     sim = simulate_recording(folder, duration_s=duration, seed=seed, scene=scene,
                              patient={"n_moves": n_moves, "still_s": 12.0})
-    from vts_hw.recording.processing import process_recording
+    from vts_hw.recording.processing import ProcessSettings, process_recording
     from vts_hw.vision.registration import RigidTransform
     cams = {n: sim.scene.camera_at(n, scene.start_epoch + 5.0) for n in sim.cameras}
-    tracks = process_recording(folder, cams, workers=2, mapping=RigidTransform.identity())
+    tracks = process_recording(folder, cams, workers=2, mapping=RigidTransform.identity(),
+                               settings=ProcessSettings(align_times=align))
     r = analyze_motion(marker_series(tracks))
     # marker 3D error: each point against the nearest true patient marker at its time, during moves
     pt = tracks.point_time
@@ -128,6 +129,9 @@ def main() -> int:
     ap.add_argument("--render-duration", type=float, default=40.0, help="rendered runs (s)")
     ap.add_argument("--cameras", type=int, nargs="+", default=[4, 2])
     ap.add_argument("--no-render", action="store_true")
+    ap.add_argument("--no-align", action="store_true",
+                    help="triangulate each frame set's views as recorded, not brought to one instant "
+                         "(the processing before decision 0037, for comparison)")
     args = ap.parse_args()
     rows, marker_rms = [], []
     with tempfile.TemporaryDirectory() as work:
@@ -141,7 +145,8 @@ def main() -> int:
                 continue
             for nc in args.cameras:
                 for n_moves, kind in ((1, "move"), (0, "breathing only")):
-                    r, p, mrms, n, split = rendered(seed, args.render_duration, nc, n_moves, work)
+                    r, p, mrms, n, split = rendered(seed, args.render_duration, nc, n_moves, work,
+                                                             align=not args.no_align)
                     s = score(r, p, f"seed {seed} rendered {nc} cam {kind}")
                     rows.append(s)
                     extra = (f" | marker 3D RMS during moves {mrms:.3f} mm ({n} points; below 5 mm/s "

@@ -52,10 +52,12 @@ from vts_hw.recording.folder import load_manifest
 from vts_hw.recording.frames import (CameraFrames, frame_period, group_frames, load_camera_frames,
                                      mapped_times, pair_frames)
 from vts_hw.recording.identities import track_identities
+from vts_hw.recording.time_align import align_views
 from vts_hw.recording.tracks import TRACKS_FORMAT, Tracks
 from vts_hw.timing.camera_clock import ClockFit
 from vts_hw.vision.camera_set import named_cameras
 from vts_hw.vision.detect import DEFAULT as DEFAULT_DETECTOR, DetectorSettings
+from vts_hw.vision.multiview import ViewGeometry
 from vts_hw.vision.triangulate import Camera
 
 __all__ = ["Tracks", "ProcessSettings", "process_recording", "cameras_from_calibration",
@@ -78,6 +80,8 @@ class ProcessSettings:
     ``views_min_sep_px``: with three or more cameras, the separation a rival group's RMS needs
     from the best to be clearly worse (0013 advises ~3x the centroid noise; two cameras keep
     ``min_sep_px``, 0 by default, so that their figures are 0018's).
+    ``align_times``: bring each camera's view of a tracked marker to the frame set's time
+    before the final triangulation (:mod:`vts_hw.recording.time_align`, decision 0037).
     """
 
     max_px: float = 2.0
@@ -90,6 +94,7 @@ class ProcessSettings:
     chunk_pairs: int | None = None
     max_rms_px: float = 0.5      # a point's largest reprojection RMS (px)
     views_min_sep_px: float = 0.1  # three or more cameras: min_sep_px of match_views
+    align_times: bool = True
     detector: DetectorSettings = DEFAULT_DETECTOR
 
 
@@ -216,6 +221,13 @@ def _assemble(folder, names, frames, times, fits, sets, results, s, mapping, hos
                               for c in range(C)]).reshape(-1, C)
     host = np.nanmean(t_sets, axis=1) if n_sets else np.zeros(0)
     ids = track_identities(pair, host, X, s.gate_mm, s.max_gap_s)
+    n_aligned = 0
+    if s.align_times and len(X):
+        geo = ViewGeometry([cams[n] for n in names], names)
+        Xa, ra, _, n_aligned = align_views(geo, pair, ids, uv, t_sets, host, max_gap_s=2.5 * period)
+        moved = ~np.isnan(Xa[:, 0])
+        X, rms = X.copy(), rms.copy()
+        X[moved], rms[moved] = Xa[moved], ra[moved]
     cam_time = np.column_stack([np.where(present[:, c], frames[c].camera_time[np.maximum(sets[:, c], 0)],
                                          np.nan) for c in range(C)]).reshape(-1, C)
     cam_frame = np.column_stack([np.where(present[:, c], frames[c].frame[np.maximum(sets[:, c], 0)], -1)
@@ -245,12 +257,13 @@ def _assemble(folder, names, frames, times, fits, sets, results, s, mapping, hos
         "ambiguous_points": int(ambiguous.sum()),
         "ambiguous_detections": {names[c]: int(ambiguous[:, c].sum()) for c in range(C)},
         "single_camera_detections": {names[c]: int(single[:, c].sum()) for c in range(C)},
+        "views_time_aligned": int(n_aligned),
         "points_by_cameras_seen": {str(k): int((seen_by == k).sum()) for k in range(2, C + 1)},
         "markers": int(ids.max()) if len(ids) else 0,
         "settings": {"max_px": s.max_px, "ratio": s.ratio, "min_sep_px": s.min_sep_px,
                      "pair_fraction": s.pair_fraction, "gate_mm": s.gate_mm,
                      "max_gap_s": s.max_gap_s, "latency_s": s.latency_s, "max_rms_px": s.max_rms_px,
-                     "views_min_sep_px": s.views_min_sep_px},
+                     "views_min_sep_px": s.views_min_sep_px, "align_times": s.align_times},
         "calibration": {n: {"K": cams[n].K.tolist(), "dist": cams[n].dist.tolist(),
                             "R": cams[n].R.tolist(), "t": cams[n].t.tolist()} for n in names},
     }
