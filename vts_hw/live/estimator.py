@@ -5,8 +5,9 @@ Phases: ``waiting`` (no markers yet), ``reference`` (learning the first still pe
 ``reference_s`` of marker positions; restarted when the body did not keep still -- the model's
 residual above ``ref_max_rms_mm`` -- or fewer than three patient markers were seen), then
 ``tracking``. The patient's markers: with a SPECT frame, those inside the field of view
-(``fov_radius_mm`` of the axis, ``fov_half_length_mm`` along it), else those that breathe
-(spread ≥ ``min_breath_mm``): wall markers and still objects are left out. Bands: along the
+(``fov_radius_mm`` of the axis, ``fov_half_length_mm`` along it) that breathe (a range of at
+least ``min_breath_mm`` along their main direction in the reference period): wall markers and
+still objects (the table, a phantom) are left out. Bands: along the
 SPECT Z axis (the table), without a mapping along the first camera's viewing direction (the
 cameras look along the body). See :mod:`vts_hw.live.model` and 0036.
 """
@@ -21,7 +22,7 @@ from scipy.spatial.transform import Rotation
 from vts_hw.live.alerts import Alert, AlertRule
 from vts_hw.live.breathing import BreathingTrace
 from vts_hw.live.marker_tracks import MarkerTracks, assign
-from vts_hw.live.model import Fit, ReferenceModel, learn_reference
+from vts_hw.live.model import Fit, ReferenceModel, breathing_range, learn_reference
 
 __all__ = ["LiveSettings", "LiveEstimator", "LiveEstimate", "BandEstimate"]
 
@@ -36,7 +37,7 @@ class LiveSettings:
     ref_max_rms_mm: float = 1.0
     fov_radius_mm: float = 450.0
     fov_half_length_mm: float = 700.0
-    min_breath_mm: float = 0.3
+    min_breath_mm: float = 0.6     # a patient marker's breathing range (5th to 95th percentile) at least
     onset_fraction: float = 0.25
     settle_s: float = 2.0
     trace_window_s: float = 30.0
@@ -141,12 +142,10 @@ class LiveEstimator:
                     samples[s, col[i]] = pts[j]
         if len(keep):
             mean = np.nanmean(samples, axis=0)
+            patient = breathing_range(samples) >= self.s.min_breath_mm     # still objects are no patient
             if self.frame == "spect":
                 radial = np.linalg.norm(mean[:, :2], axis=1)
-                patient = (radial <= self.s.fov_radius_mm) & (np.abs(mean[:, 2]) <= self.s.fov_half_length_mm)
-            else:
-                spread = np.nanmax(np.linalg.norm(samples - mean, axis=2), axis=0)
-                patient = spread >= self.s.min_breath_mm
+                patient &= (radial <= self.s.fov_radius_mm) & (np.abs(mean[:, 2]) <= self.s.fov_half_length_mm)
             samples = samples[:, patient]
         if len(keep) == 0 or samples.shape[1] < 3:
             self._restart("fewer than three patient markers seen all along")

@@ -24,7 +24,7 @@ import numpy as np
 
 from vts_hw.vision.registration import kabsch
 
-__all__ = ["ReferenceModel", "Fit", "bands_along", "learn_reference"]
+__all__ = ["ReferenceModel", "Fit", "bands_along", "breathing_range", "learn_reference"]
 
 
 @dataclass
@@ -80,6 +80,21 @@ class ReferenceModel:
         r = x - ((m + beta[band, None] * gd) @ tr.R.T + tr.t)
         rms = float(np.sqrt(np.mean(np.sum(r * r, axis=1))))
         return Fit(tr.R, tr.t, np.where(seen, beta, np.nan), rms, len(idx))
+
+
+def breathing_range(samples: np.ndarray) -> np.ndarray:
+    """Per marker of ``samples`` (S, M, 3; NaN: not seen) the range (5th to 95th percentile, mm)
+    of its positions along their first principal direction."""
+    out = np.zeros(samples.shape[1])
+    for i in range(samples.shape[1]):
+        p = samples[:, i]
+        p = p[np.isfinite(p).all(axis=1)]
+        if len(p) < 3:
+            continue
+        p = p - p.mean(axis=0)
+        proj = p @ np.linalg.svd(p, full_matrices=False)[2][0]
+        out[i] = np.percentile(proj, 95) - np.percentile(proj, 5)
+    return out
 
 
 def bands_along(points: np.ndarray, axis: np.ndarray, gap_mm: float) -> np.ndarray:
