@@ -21,7 +21,7 @@ import datetime as _dt
 import queue
 import subprocess
 import threading
-from pathlib import Path
+import time
 from typing import Callable
 
 from vts_hw.errors import VtsError
@@ -112,9 +112,10 @@ class LiveMotion:
         if self._thread is not None:
             self._thread.join(10)
         snap = self.tracker.snapshot()
-        st = snap.stats
+        st = self.tracker.stats(last=None)
         summary = {k: st.get(k) for k in ("sets", "live_dropped", "unmatched_frames", "undecodable",
-                                          "latency_ms_p50", "latency_ms_p95")}
+                                          "latency_ms_p50", "latency_ms_p95", "latency_from_first_frame_ms_p50",
+                                          "latency_from_first_frame_ms_p95")}
         summary.update(phase=snap.phase, note=snap.note, six_dof_last=snap.six_dof,
                        **({"error": st["error"]} if st.get("error") else {}))
         session.update_manifest(lambda meta: meta["live_motion"].update(summary=summary))
@@ -137,7 +138,8 @@ class LiveMotion:
                 self.on_alert_text(text)
             except Exception:
                 pass
-            event = {"time": alert.time, "time_utc": _iso(alert.time), "onset": alert.onset,
+            raised = time.time()
+            event = {"raised": raised, "raised_utc": _iso(raised), "time": alert.time, "time_utc": _iso(alert.time), "onset": alert.onset,
                      "onset_utc": _iso(alert.onset), "move_mm": round(alert.move_mm, 3),
                      "turn_deg": round(alert.turn_deg, 3), "frame": est.frame,
                      "six_dof": None if est.six_dof is None else [round(v, 3) for v in est.six_dof],

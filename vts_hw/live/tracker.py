@@ -122,13 +122,20 @@ class LiveTracker:
             self.on_alert(alert, self.snapshot())
 
     # -- what it says ---------------------------------------------------------------------------
-    def stats(self) -> dict:
+    def stats(self, last: int | None = 500) -> dict:
+        """Counts, and the latency from a frame set's arrival (its last frame at the tap; and
+        its first) to its markers being in the estimate: p50, p95 in ms over the ``last`` sets
+        (None: all kept)."""
         lat = np.array(self.latency, float).reshape(-1, 2)
-        recent = lat[-500:]
+        if last is not None:
+            lat = lat[-last:]
+
+        def pct(col, q):
+            return round(float(np.percentile(lat[:, col], q) * 1e3), 3) if len(lat) else None
         return {"sets": self.sets, "live_dropped": dict(self.tap.dropped), "tapped": dict(self.tap.received),
                 "unmatched_frames": self.grouper.unmatched, "undecodable": self.undecodable,
-                "latency_ms_p50": float(np.percentile(recent[:, 0], 50) * 1e3) if len(recent) else None,
-                "latency_ms_p95": float(np.percentile(recent[:, 0], 95) * 1e3) if len(recent) else None,
+                "latency_ms_p50": pct(0, 50), "latency_ms_p95": pct(0, 95),
+                "latency_from_first_frame_ms_p50": pct(1, 50), "latency_from_first_frame_ms_p95": pct(1, 95),
                 "error": self.error}
 
     def snapshot(self) -> LiveEstimate:
