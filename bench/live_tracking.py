@@ -84,11 +84,12 @@ def report_recording(label: str, m: dict) -> None:
     live = m["live_motion"]["summary"]
     print(f"{label}: status {m['status']}; frames recorded "
           + ", ".join(f"{n} {c['frames']}" for n, c in cams.items()))
+    rec_drops = ", ".join(f"{n} {c['dropped_frames']}" for n, c in cams.items())
+    live_drops = ", ".join(f"{n} {v}" for n, v in live["live_dropped"].items())
     print(f"  frames dropped from the recording (goal 0): {sum(c['dropped_frames'] for c in cams.values())} "
-          f"({', '.join(f'{n} {c['dropped_frames']}' for n, c in cams.items())})")
-    print(f"  frames dropped from the live path: {sum(live['live_dropped'].values())} "
-          f"({', '.join(f'{n} {v}' for n, v in live['live_dropped'].items())}); frames in no set "
-          f"{live['unmatched_frames']}; frame sets estimated {live['sets']}")
+          f"({rec_drops})")
+    print(f"  frames dropped from the live path: {sum(live['live_dropped'].values())} ({live_drops}); "
+          f"frames in no set {live['unmatched_frames']}; frame sets estimated {live['sets']}")
     print(f"  arrival -> in the live estimate: p50 {live['latency_ms_p50']:.2f} ms, p95 "
           f"{live['latency_ms_p95']:.2f} ms (goal p95 <= 10 ms); from the set's first frame: p50 "
           f"{live['latency_from_first_frame_ms_p50']:.2f} ms, p95 {live['latency_from_first_frame_ms_p95']:.2f} ms")

@@ -116,7 +116,8 @@ class LiveMotion:
         summary = {k: st.get(k) for k in ("sets", "live_dropped", "unmatched_frames", "undecodable",
                                           "latency_ms_p50", "latency_ms_p95", "latency_from_first_frame_ms_p50",
                                           "latency_from_first_frame_ms_p95")}
-        summary.update(phase=snap.phase, note=snap.note, six_dof_last=snap.six_dof,
+        summary.update(phase=snap.phase, reference=self.tracker.estimator.reference_note, note=snap.note,
+                       six_dof_last=snap.six_dof,
                        **({"error": st["error"]} if st.get("error") else {}))
         session.update_manifest(lambda meta: meta["live_motion"].update(summary=summary))
 

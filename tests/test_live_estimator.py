@@ -95,3 +95,27 @@ def test_breathing_rate_of_a_known_signal():
     t = np.arange(0, 30, 0.04)
     assert breathing_rate(t, 3.0 * np.sin(2 * np.pi * t / 4.0)) == pytest.approx(15.0, rel=0.02)
     assert np.isnan(breathing_rate(t, 0.01 * np.sin(t)))
+
+
+def test_the_live_view_prints_what_the_estimator_says():
+    """The CLI's view: a rich table per band (sparkline of the trace, rate) and a plain line,
+    both from one snapshot; before the reference, the phase and its progress."""
+    from rich.console import Console
+
+    from vts_hw.cli.live_view import live_line, live_table, sparkline
+
+    p = _patient(20.0, seed=2)
+    est = LiveEstimator(MOTION, LiveSettings(reference_s=10.0))
+    for t in np.arange(0.0, 5.0, 0.04):
+        est.update(float(t), np.array([m.center for m in p.markers_at(float(t), np.zeros(3))]))
+    assert "learning the reference: 5.0 of 10 s" in live_line(est.snapshot())
+    est, _, _ = _run(p, 20.0)
+    snap = est.snapshot({"sets": 500, "live_dropped": {"cam1": 2}, "latency_ms_p50": 1.5, "latency_ms_p95": 3.25})
+    line = live_line(snap)
+    assert f"band 2 4/4 markers {snap.bands[1].distance_mm:.1f} mm" in line
+    assert f"{snap.bands[1].rate_per_min:.1f}/min" in line and "p95 3.2 ms" in line and "2 dropped" in line
+    con = Console(record=True, width=160)
+    con.print(live_table(snap))
+    text = con.export_text()
+    assert sparkline(snap.bands[0].trace) in text and "alerts 0" in text
+    assert sparkline([0.0, 1.0, 2.0, 3.0]) == "▁▃▆█"

@@ -3,8 +3,8 @@
 A *deviation* is measured from the alert reference pose (the reference, and after an alert
 the pose the body settled in): the translation of the markers' centre (mm) and the angle of
 the turn (deg). An *excursion* starts at its **onset**, the last instant the deviation was
-within the onset levels (``onset_mm``, ``onset_deg``: a fraction of the thresholds, above
-the fit's noise). The alert is raised at the first estimate where
+within the onset levels (``onset_mm``, ``onset_deg``: 15 % of the thresholds, or four times
+the still pose's noise measured over the reference period when that is more). The alert is raised at the first estimate where
 
 * the deviation exceeds ``alert_mm`` or ``alert_deg``, and
 * the excursion has lasted longer than ``after_s`` since its onset.
@@ -25,6 +25,8 @@ from scipy.spatial.transform import Rotation
 
 __all__ = ["AlertRule", "Alert"]
 
+NOISE_FACTOR = 4.0   # onset levels at least this many times the still pose's RMS noise
+
 
 @dataclass(frozen=True)
 class Alert:
@@ -39,11 +41,12 @@ class Alert:
 
 
 class AlertRule:
-    def __init__(self, alert_mm: float, alert_deg: float, after_s: float, onset_fraction: float = 0.25,
-                 settle_s: float = 2.0, noise_mm: float = 0.0):
+    def __init__(self, alert_mm: float, alert_deg: float, after_s: float, onset_fraction: float = 0.15,
+                 settle_s: float = 2.0, noise_mm: float = 0.0, noise_deg: float = 0.0):
         self.alert_mm, self.alert_deg, self.after_s = alert_mm, alert_deg, after_s
-        self.onset_mm = max(onset_fraction * alert_mm, 3.0 * noise_mm)
-        self.onset_deg = onset_fraction * alert_deg
+        # the onset levels: a fraction of the thresholds, but clear of the still pose's noise
+        self.onset_mm = max(onset_fraction * alert_mm, NOISE_FACTOR * noise_mm)
+        self.onset_deg = max(onset_fraction * alert_deg, NOISE_FACTOR * noise_deg)
         self.settle_s = settle_s
         self.R_ref = np.eye(3)
         self.c_ref: np.ndarray | None = None

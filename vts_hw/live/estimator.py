@@ -38,7 +38,7 @@ class LiveSettings:
     fov_radius_mm: float = 450.0
     fov_half_length_mm: float = 700.0
     min_breath_mm: float = 0.6     # a patient marker's breathing range (5th to 95th percentile) at least
-    onset_fraction: float = 0.25
+    onset_fraction: float = 0.15
     settle_s: float = 2.0
     trace_window_s: float = 30.0
 
@@ -88,6 +88,7 @@ class LiveEstimator:
         self.toward = np.asarray(toward, float)
         self.phase = "waiting"
         self.note = ""
+        self.reference_note = ""
         self.model: ReferenceModel | None = None
         self.rule: AlertRule | None = None
         self.fit: Fit | None = None
@@ -156,11 +157,12 @@ class LiveEstimator:
             return
         self.model = model
         self.rule = AlertRule(self.motion.alert_mm, self.motion.alert_deg, self.motion.alert_after_s,
-                              self.s.onset_fraction, self.s.settle_s, model.noise_mm)
+                              self.s.onset_fraction, self.s.settle_s, model.pose_noise_mm, model.pose_noise_deg)
         self.traces = [BreathingTrace(self.s.trace_window_s) for _ in range(model.n_bands)]
         self.phase = "tracking"
-        self.note = (f"reference: {model.mean.shape[0]} markers in {model.n_bands} band(s), "
-                     f"model residual {model.noise_mm:.2f} mm")
+        self.reference_note = self.note = (f"reference: {model.mean.shape[0]} markers in {model.n_bands} band(s), "
+                     f"model residual {model.noise_mm:.2f} mm, still pose noise {model.pose_noise_mm:.2f} mm "
+                     f"{model.pose_noise_deg:.3f} deg")
         self._ref = []
 
     def _predicted(self) -> np.ndarray:

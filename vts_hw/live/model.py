@@ -45,7 +45,9 @@ class ReferenceModel:
     direction: np.ndarray   # (M, 3) unit breathing directions
     gain: np.ndarray        # (M,) breathing spread relative to the band's mean
     band: np.ndarray        # (M,) band index per marker
-    noise_mm: float = 0.0   # residual RMS of the model over the reference period
+    noise_mm: float = 0.0   # residual RMS of the model over the reference period (per marker)
+    pose_noise_mm: float = 0.0    # RMS of the centre's move over the reference period (still body)
+    pose_noise_deg: float = 0.0   # RMS of the turn over the reference period
 
     @property
     def n_bands(self) -> int:
@@ -147,11 +149,15 @@ def learn_reference(samples: np.ndarray, axis, toward, gap_mm: float = 60.0,
             ok = np.isfinite(proj[:, j]) & np.isfinite(ref)
             if ok.sum() > 2 and np.corrcoef(proj[ok, j], ref[ok])[0, 1] < 0:
                 direction[i] = -direction[i]
-    res = []
+    res, moves, turns = [], [], []
+    c = model.centre
     for s in samples:
         ok = np.isfinite(s).all(axis=1)
         f = model.fit(np.flatnonzero(ok), s[ok], iterations=iterations)
         if f is not None:
             res.append(f.rms_mm)
-    model.noise_mm = float(np.sqrt(np.mean(np.square(res)))) if res else float("nan")
+            moves.append(np.linalg.norm(f.R @ c + f.T - c))
+            turns.append(np.degrees(np.arccos(np.clip((np.trace(f.R) - 1) / 2, -1.0, 1.0))))
+    rms = (lambda v: float(np.sqrt(np.mean(np.square(v)))) if v else float("nan"))
+    model.noise_mm, model.pose_noise_mm, model.pose_noise_deg = rms(res), rms(moves), rms(turns)
     return model

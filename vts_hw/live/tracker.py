@@ -63,7 +63,7 @@ class LiveTracker:
         self.undecodable = 0
         self.error = ""
         self._index = {n: i for i, n in enumerate(self.names)}
-        self._lock = threading.Lock()
+        self._lock = threading.RLock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -116,8 +116,8 @@ class LiveTracker:
         with self._lock:
             alert = self.estimator.update(fs.time, xyz)
             self.sets += 1
-        now = time.monotonic()
-        self.latency.append((now - fs.last_arrival, now - fs.first_arrival))
+            now = time.monotonic()
+            self.latency.append((now - fs.last_arrival, now - fs.first_arrival))
         if alert is not None and self.on_alert is not None:
             self.on_alert(alert, self.snapshot())
 
@@ -126,9 +126,10 @@ class LiveTracker:
         """Counts, and the latency from a frame set's arrival (its last frame at the tap; and
         its first) to its markers being in the estimate: p50, p95 in ms over the ``last`` sets
         (None: all kept)."""
-        lat = np.array(self.latency, float).reshape(-1, 2)
-        if last is not None:
-            lat = lat[-last:]
+        with self._lock:   # the worker appends to it
+            lat = list(self.latency) if last is None else \
+                [self.latency[i] for i in range(max(0, len(self.latency) - last), len(self.latency))]
+        lat = np.array(lat, float).reshape(-1, 2)
 
         def pct(col, q):
             return round(float(np.percentile(lat[:, col], q) * 1e3), 3) if len(lat) else None
