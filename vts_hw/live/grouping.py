@@ -24,12 +24,14 @@ class Pending:
     time: float              # host s
     arrival: float           # monotonic s it arrived at the tap
     uv: np.ndarray           # (k, 2) detections (px)
+    norm: np.ndarray | None = None   # their normalized (undistorted) coordinates
 
 
 @dataclass
 class FrameSet:
     time: float                      # mean host s of its frames
     uv: list[np.ndarray | None]      # per camera its detections, None: not in the set
+    norm: list[np.ndarray | None]    # and their normalized coordinates
     first_arrival: float
     last_arrival: float
 
@@ -80,4 +82,5 @@ class FrameGrouper:
                 continue
             out.append(FrameSet(float(np.mean([p.time for p in got])),
                                 [None if p is None else p.uv for p in members],
+                                [None if p is None else p.norm for p in members],
                                 first, max(p.arrival for p in got)))

@@ -106,11 +106,14 @@ class LiveTracker:
         blobs = detect(gray, self.detector).blobs
         uv = np.array([(b.x, b.y) for b in blobs], float).reshape(-1, 2)
         t = frame.host_time if frame.camera_time is None else frame.camera_time - self.offsets.get(name, 0.0)
-        return Pending(self._index[name], t, arrival, uv)
+        c = self._index[name]
+        # undistorted now, while the set may still wait for other cameras: off the set's path
+        return Pending(c, t, arrival, uv, self.geo.normalize(c, uv))
 
     def _estimate(self, fs: FrameSet) -> None:
         pts = [np.zeros((0, 2)) if u is None else u for u in fs.uv]
-        xyz = match_views(self.geo, pts, self.max_px).xyz
+        norm = [np.zeros((0, 2)) if u is None else u for u in fs.norm]
+        xyz = match_views(self.geo, pts, self.max_px, norm=norm).xyz
         if self.mapping is not None and len(xyz):
             xyz = self.mapping.apply(xyz)
         with self._lock:
