@@ -90,6 +90,7 @@ def report_recording(label: str, m: dict) -> None:
           f"({rec_drops})")
     print(f"  frames dropped from the live path: {sum(live['live_dropped'].values())} ({live_drops}); "
           f"frames in no set {live['unmatched_frames']}; frame sets estimated {live['sets']}")
+    print(f"  live {live.get('reference')}; onset levels {live.get('onset_mm')} mm, {live.get('onset_deg')} deg")
     print(f"  arrival -> in the live estimate: p50 {live['latency_ms_p50']:.2f} ms, p95 "
           f"{live['latency_ms_p95']:.2f} ms (goal p95 <= 10 ms); from the set's first frame: p50 "
           f"{live['latency_from_first_frame_ms_p50']:.2f} ms, p95 {live['latency_from_first_frame_ms_p95']:.2f} ms")
@@ -101,6 +102,7 @@ def main() -> int:
     ap.add_argument("--breathing-s", type=float, default=60.0)
     ap.add_argument("--seed", type=int, default=1)
     a = ap.parse_args()
+    load = os.getloadavg()
     with tempfile.TemporaryDirectory(prefix="vts-live-bench-") as tmp:
         tmp = Path(tmp)
         rig = SimRig(n_cameras=4, seed=a.seed).start()
@@ -110,7 +112,8 @@ def main() -> int:
             cfg = yaml.safe_load(rig_yaml.read_text())
             cfg["calibration"]["stereo"] = str(tmp / "rig" / "cameras.json")   # all four cameras
             rig_yaml.write_text(yaml.safe_dump(cfg))
-            print(f"live tracking bench: 4 simulated cameras at {rig.fps:g} fps, {os.cpu_count()} cores, "
+            print(f"live tracking bench: 4 simulated cameras at {rig.fps:g} fps, {os.cpu_count()} cores (load "
+                  f"average {load[0]:.2f} before the run), "
                   f"reference {REFERENCE_S:g} s, alert {cfg.get('motion', {}).get('alert_mm', 3.0)} mm / "
                   f"{cfg.get('motion', {}).get('alert_deg', 2.0)} deg after "
                   f"{cfg.get('motion', {}).get('alert_after_s', 1.0)} s (rig defaults)")
@@ -142,6 +145,7 @@ def main() -> int:
             m2, _ = run_scan(rig, rig_yaml, tmp / "breathing", a.breathing_s, patient, [])
             report_recording(f"breathing-only scan ({a.breathing_s:g} s)", m2)
             print(f"  false alerts (goal 0): {len(m2['live_motion']['alerts'])}")
+            print(f"load average after the run: {os.getloadavg()[0]:.2f} (other work on the machine counts)")
         finally:
             rig.stop()
     return 0

@@ -116,6 +116,9 @@ class LiveMotion:
         summary = {k: st.get(k) for k in ("sets", "live_dropped", "unmatched_frames", "undecodable",
                                           "latency_ms_p50", "latency_ms_p95", "latency_from_first_frame_ms_p50",
                                           "latency_from_first_frame_ms_p95")}
+        rule = self.tracker.estimator.rule
+        if rule is not None:
+            summary.update(onset_mm=round(rule.onset_mm, 3), onset_deg=round(rule.onset_deg, 3))
         summary.update(phase=snap.phase, reference=self.tracker.estimator.reference_note, note=snap.note,
                        six_dof_last=snap.six_dof,
                        **({"error": st["error"]} if st.get("error") else {}))

@@ -25,14 +25,12 @@ def breathing_rate(t: np.ndarray, v: np.ndarray, min_range_mm: float = 0.5) -> f
     h = 0.25 * (hi - lo)
     if hi - lo < min_range_mm:
         return float("nan")
-    ups = []
-    below = v[0] < mid - h
-    for ti, vi in zip(t, v):
-        if below and vi > mid + h:
-            ups.append(ti)
-            below = False
-        elif not below and vi < mid - h:
-            below = True
+    # hysteresis, vectorised: the last side (above mid + h, below mid - h) each sample was on;
+    # a breath starts where that side turns from below to above
+    side = np.where(v > mid + h, 1, np.where(v < mid - h, -1, 0))
+    idx = np.flatnonzero(side)
+    s = side[idx]
+    ups = t[idx[1:][(s[1:] == 1) & (s[:-1] == -1)]]
     if len(ups) < 2:
         return float("nan")
     return float(60.0 / np.mean(np.diff(ups)))

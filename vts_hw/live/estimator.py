@@ -99,7 +99,6 @@ class LiveEstimator:
         self._ref: list[tuple[float, np.ndarray, np.ndarray]] = []
         self._seen_idx = np.zeros(0, int)
         self._seen_x = np.zeros((0, 3))
-        self.history: list[tuple[float, np.ndarray]] = []   # (t, 6-DOF) of every estimate
 
     # -- input ---------------------------------------------------------------------------------
     def update(self, t: float, points) -> Alert | None:
@@ -186,7 +185,6 @@ class LiveEstimator:
         for k, tr in enumerate(self.traces):
             if np.isfinite(fit.beta[k]):
                 tr.add(t, float(fit.beta[k]))
-        self.history.append((t, self._six_dof()))
         return self.rule.update(t, fit.R, fit.T, m.centre)
 
     def _six_dof(self) -> np.ndarray:
