@@ -41,6 +41,7 @@ class LiveSettings:
     onset_fraction: float = 0.15
     settle_s: float = 2.0
     trace_window_s: float = 30.0
+    iterations: int = 6           # of the alternating fit, from the last solution
 
 
 @dataclass(frozen=True)
@@ -174,7 +175,7 @@ class LiveEstimator:
     def _track(self, t: float, pts: np.ndarray) -> Alert | None:
         m = self.model
         i_m, i_p = assign(self._predicted(), pts, self.s.gate_mm)
-        fit = m.fit(i_m, pts[i_p], None if self.fit is None else self.fit.beta)
+        fit = m.fit(i_m, pts[i_p], None if self.fit is None else self.fit.beta, iterations=self.s.iterations)
         self._seen_idx, self._seen_x = i_m, pts[i_p]
         if fit is None:
             self.note = f"{len(i_m)} marker(s) seen: too few for the pose"

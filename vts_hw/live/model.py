@@ -112,7 +112,7 @@ def bands_along(points: np.ndarray, axis: np.ndarray, gap_mm: float) -> np.ndarr
 
 
 def learn_reference(samples: np.ndarray, axis, toward, gap_mm: float = 60.0,
-                    iterations: int = 4) -> ReferenceModel:
+                    iterations: int = 6) -> ReferenceModel:
     """The model from ``samples`` (S, M, 3): M markers over S instants of the reference period
     (NaN where a marker was not seen; each marker needs a few instants). ``axis``: the body's
     long axis (bands lie across it); ``toward``: a point the breathing directions face (the
@@ -151,10 +151,12 @@ def learn_reference(samples: np.ndarray, axis, toward, gap_mm: float = 60.0,
                 direction[i] = -direction[i]
     res, moves, turns = [], [], []
     c = model.centre
-    for s in samples:
+    beta = None
+    for s in samples:   # in time order, each fit started from the last (as when tracking)
         ok = np.isfinite(s).all(axis=1)
-        f = model.fit(np.flatnonzero(ok), s[ok], iterations=iterations)
+        f = model.fit(np.flatnonzero(ok), s[ok], beta, iterations=iterations)
         if f is not None:
+            beta = np.where(np.isfinite(f.beta), f.beta, 0.0)
             res.append(f.rms_mm)
             moves.append(np.linalg.norm(f.R @ c + f.T - c))
             turns.append(np.degrees(np.arccos(np.clip((np.trace(f.R) - 1) / 2, -1.0, 1.0))))
