@@ -66,8 +66,8 @@ class LiveEstimate:
     time: float | None           # host s of the last estimate
     bands: tuple[BandEstimate, ...] = ()
     six_dof: tuple[float, ...] | None = None   # tx, ty, tz (mm), rx, ry, rz (deg, extrinsic x-y-z)
-    move_mm: float = 0.0         # the body's centre from the alert reference, breathing excluded
-    turn_deg: float = 0.0
+    move_mm: float = 0.0         # the body's centre (its markers') from the reference, breathing excluded
+    turn_deg: float = 0.0        # the body's turn from the reference
     state: str = ""              # still | off pose | moving | ALERT
     alerts: int = 0
     note: str = ""
@@ -210,7 +210,9 @@ class LiveEstimator:
             bands.append(BandEstimate(k + 1, int((m.band == k).sum()), int(len(idx)),
                                       tuple(float(x) for x in disp), float(v[-1]) if len(v) else float("nan"),
                                       tr.rate_per_min(), tuple(tr.recent())))
-        r = self.rule
+        r, f, c = self.rule, self.fit, m.centre
+        move = float(np.linalg.norm(f.R @ c + f.T - c))
+        turn = float(np.degrees(np.linalg.norm(Rotation.from_matrix(f.R).as_rotvec())))
         return LiveEstimate(self.phase, self.frame, self.time, tuple(bands),
-                            tuple(float(x) for x in self._six_dof()), r.move_mm, r.turn_deg, r.state,
+                            tuple(float(x) for x in self._six_dof()), move, turn, r.state,
                             len(r.alerts), self.note, dict(stats or {}))
