@@ -105,6 +105,7 @@ class ScanSession:
         self.rig = rig
         # live: the live motion path (procedures/scan_live.py LiveMotion), or None: records only
         self.live = live
+        self.live_error = ""
         self.folder = Path(folder)
         self.duration = duration
         self.clock = clock
@@ -270,15 +271,13 @@ class ScanSession:
         meta = {"kind": "scan", "rig": self.rig.rig, "rig_digest": self.rig.digest,
                 "duration_asked": self.duration}
         self.phase = "recording"
-        if self.live is not None:
-            self.live.prepare(self)
+        self._live_call("prepare")
         self.recorder = Recorder(self.cameras, self.folder, seconds=None, meta=meta,
                                  max_backoff=RECONNECT_BACKOFF_MAX_S,
                                  on_frame=None if self.live is None else self.live.on_frame)
         self.times["recording_started"] = self.recorder.recording.started
         self.trigger.attach_log(self.folder / "trigger.csv")
-        if self.live is not None:
-            self.live.start(self)
+        self._live_call("start")
         self._write_manifest()
         self.recorder.start()
 
@@ -363,8 +362,7 @@ class ScanSession:
             if self._monitor is not None:
                 self._monitor.join(timeout=10)
             self.trigger.stop()
-            if self.live is not None:
-                self.live.stop(self)   # its alerts in the manifest before the recording closes
+            self._live_call("stop")   # its alerts in the manifest before the recording closes
             if self.recorder is None:
                 self.trigger.finish()
                 self._close_cameras()
@@ -418,6 +416,20 @@ class ScanSession:
             out.append(f"recording stopped: {self.recorder.write_failure}")
         return out
 
+    def _live_call(self, step: str) -> None:
+        """``live.prepare/start/stop(self)``: a failure of the live path is noted and never stops
+        or loses the recording (the live path is then off)."""
+        if self.live is None:
+            return
+        try:
+            getattr(self.live, step)(self)
+        except Exception as exc:
+            self.live_error = f"live tracking failed at {step}: {type(exc).__name__}: {exc}"
+            if step != "stop":
+                self.live = None
+                if self.recorder is not None:
+                    self.recorder.on_frame = None
+
     def update_manifest(self, change: Callable[[dict], None]) -> dict | None:
         """``change(meta)`` on the manifest's top level, then the manifest rewritten whole
         (atomically, under the session's manifest lock: no entry of another writer is lost).
@@ -436,7 +448,8 @@ class ScanSession:
                 rec.notes[name].update(notes)
             rec.meta["scan"] = {"times": dict(self.times), "duration_asked": self.duration,
                                 "stop_reason": self.stop_reason, "problems": problems or [],
-                                "steps": [s.name for s in self.plan()]}
+                                "steps": [s.name for s in self.plan()],
+                                **({"live_error": self.live_error} if self.live_error else {})}
             rec.meta["trigger"] = self.trigger.info
             for attempt in range(3):  # a camera thread may be adding its notes at this very moment
                 try:

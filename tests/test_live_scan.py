@@ -131,3 +131,53 @@ def test_breathing_alone_raises_no_alert(patient_rig, tmp_path):
     assert live["summary"]["sets"] > 0.8 * 25 * DURATION_S
     assert max(abs(v) for v in live["summary"]["six_dof_last"][:3]) < 1.0
     assert "live motion: tracking" in err or "live motion: still" in err
+
+
+class _BrokenLive:
+    """A live path that fails: as it starts (``start``) or on every frame (``on_frame``)."""
+
+    def __init__(self, where: str):
+        self.where = where
+        self.frames = 0
+
+    def prepare(self, session):
+        pass
+
+    def on_frame(self, camera, frame):
+        self.frames += 1
+        raise RuntimeError("live path broken")
+
+    def start(self, session):
+        if self.where == "start":
+            raise RuntimeError("no worker today")
+
+    def stop(self, session):
+        raise RuntimeError("nothing to stop")
+
+
+@pytest.mark.parametrize("where", ["start", "on_frame"])
+def test_a_failing_live_path_never_costs_the_recording(tmp_path, where):
+    from vts_hw.config import load_rig
+    from vts_hw.drivers.registry import open_cameras
+    from vts_hw.procedures.scan import ScanSession
+
+    rig = SimRig(n_cameras=2, seed=3).start()
+    try:
+        rig.ntp_sync()
+        cfg = load_rig(rig.write(tmp_path / "rig")[0])
+        with rig.env():
+            live = _BrokenLive(where)
+            s = ScanSession(cfg, tmp_path / "scan", open_cameras(cfg.cameras), duration=2.0, live=live)
+            m = s.run()
+    finally:
+        rig.stop()
+    assert m["status"] == "complete"
+    frames = [cam["frames"] for cam in m["cameras"].values()]
+    for cam in m["cameras"].values():
+        assert cam["frames"] >= 40 and cam["dropped_frames"] == 0
+    if where == "start":
+        assert "no worker today" in m["scan"]["live_error"]
+        assert live.frames == 0      # it was unhooked when it failed to start
+    else:
+        assert "nothing to stop" in m["scan"]["live_error"]
+        assert live.frames == sum(frames) == s.recorder.on_frame_errors   # every frame recorded all the same
