@@ -119,3 +119,12 @@ def test_the_live_view_prints_what_the_estimator_says():
     text = con.export_text()
     assert sparkline(snap.bands[0].trace) in text and "alerts 0" in text
     assert sparkline([0.0, 1.0, 2.0, 3.0]) == "▁▃▆█"
+
+
+def test_a_move_during_the_reference_restarts_it_and_raises_no_alert():
+    """The reference is the first *still* period: a 5 mm move 4 s into it restarts it, and
+    the pose afterwards is measured from where the body settled (no alert for that move)."""
+    move = BodyMove(4.0, 4.6, (0.0, 0.0, 0.0), (0.0, 5.0, 0.0))
+    est, alerts, _ = _run(_patient(40.0, [move], seed=6), 40.0)
+    assert est.phase == "tracking" and alerts == []
+    assert abs(est.snapshot().six_dof[1]) < 0.5          # 0 from the settled pose, not 5 mm

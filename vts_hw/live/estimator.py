@@ -4,7 +4,8 @@ separated, and the alert state -- from 3D marker positions, one instant at a tim
 Phases: ``waiting`` (no markers yet), ``reference`` (learning the first still period:
 ``reference_s`` of marker positions; restarted when the body did not keep still -- the model's
 residual above ``ref_max_rms_mm`` -- or fewer than three patient markers were seen), then
-``tracking``. The patient's markers: with a SPECT frame, those inside the field of view
+``tracking``; a reference whose body pose spreads by more than a fifth of the alert
+thresholds (RMS) is not still either: restarted. The patient's markers: with a SPECT frame, those inside the field of view
 (``fov_radius_mm`` of the axis, ``fov_half_length_mm`` along it) that breathe (a range of at
 least ``min_breath_mm`` along their main direction in the reference period): wall markers and
 still objects (the table, a phantom) are left out. Bands: along the
@@ -35,6 +36,7 @@ class LiveSettings:
     max_gap_s: float = 1.0
     min_seen_fraction: float = 0.6
     ref_max_rms_mm: float = 1.0
+    ref_max_move_fraction: float = 0.2   # the pose's RMS spread over the reference: at most this of the thresholds
     fov_radius_mm: float = 450.0
     fov_half_length_mm: float = 700.0
     min_breath_mm: float = 0.6     # a patient marker's breathing range (5th to 95th percentile) at least
@@ -154,6 +156,11 @@ class LiveEstimator:
         model = learn_reference(samples, self.axis, self.toward, self.s.band_gap_mm)
         if not np.isfinite(model.noise_mm) or model.noise_mm > self.s.ref_max_rms_mm:
             self._restart(f"the body did not keep still (model residual {model.noise_mm:.2f} mm)")
+            return
+        f = self.s.ref_max_move_fraction
+        if model.pose_noise_mm > f * self.motion.alert_mm or model.pose_noise_deg > f * self.motion.alert_deg:
+            # a rigid move fits the model at every instant; it shows in the pose's spread instead
+            self._restart(f"the body moved ({model.pose_noise_mm:.2f} mm, {model.pose_noise_deg:.2f} deg RMS)")
             return
         self.model = model
         self.rule = AlertRule(self.motion.alert_mm, self.motion.alert_deg, self.motion.alert_after_s,
