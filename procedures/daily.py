@@ -53,6 +53,7 @@ class QAResult:
     artifacts: list[str] = field(default_factory=list)
     finished: float | None = None
     store_error: str | None = None   # the store could not take the run: its figures are here only
+    windows: dict = field(default_factory=dict)   # the tolerance windows the run was judged by
 
     @property
     def state(self) -> State:
@@ -78,6 +79,11 @@ class QAResult:
             "artifacts": self.artifacts,
             **({"store_error": self.store_error} if self.store_error else {}),
         }
+
+    def plot(self, path=None) -> bytes:
+        """PNG: per camera, the drift inside its windows and the other checks' states."""
+        from vts_hw.procedures.daily_plot import daily_png
+        return daily_png(self, self.windows, path)
 
     def results(self) -> str:
         lines = [f"{self.procedure} QA: {self.state}" + (f" (run {self.run_id})" if self.run_id else "")]
@@ -180,8 +186,8 @@ class QARun:
                 handle.__exit__(type(exc), exc, exc.__traceback__)   # aborted, with the reason
             raise
         result = QAResult(self.procedure, None, now, results, finished=self.clock(),
-                          store_error=store_error)
-        result.artifacts = self._save_all_artifacts(handle.run_id if handle else None, results)
+                          store_error=store_error, windows=self.tolerances)
+        result.artifacts = self._save_all_artifacts(handle.run_id if handle else None, results, result)
         if handle is not None:
             try:
                 self._store(handle, result)
@@ -281,15 +287,23 @@ class QARun:
                 out.problems.append(f"parameter {key} is {have!r}, locked at {want!r}")
         return changed
 
-    def _save_all_artifacts(self, run_id: int | None, results: list[CameraResult]) -> list[str]:
-        """Frames (and plots) beside the store; a file that cannot be written is a problem of
-        its camera, never a lost run."""
+    def _save_all_artifacts(self, run_id: int | None, results: list[CameraResult], result=None) -> list[str]:
+        """Frames (and plots: per camera, and the run's overview) beside the store; a file that
+        cannot be written is a problem of its camera, never a lost run."""
         out = []
         for res in results:
             try:
                 out += [str(p) for p in self._save_artifacts(run_id, res)]
             except (VtsError, OSError) as exc:
                 res.problems.append(f"frames not saved: {exc}")
+        if self.plots and self.artifacts_dir is not None and result is not None and results:
+            d = self.artifacts_dir / (f"run{run_id:06d}" if run_id is not None else f"unsaved-{int(self.clock())}")
+            try:
+                ensure_dir(d, "artifacts folder")
+                result.plot(d / f"{self.procedure.replace(':', '-')}.png")
+                out.append(str(d / f"{self.procedure.replace(':', '-')}.png"))
+            except (VtsError, OSError) as exc:
+                results[0].problems.append(f"overview plot not saved: {exc}")
         return out
 
     def _save_artifacts(self, run_id: int | None, res: CameraResult) -> list[Path]:

@@ -62,6 +62,8 @@ class Profile:
     cgis: frozenset[str]
     apis: tuple[dict[str, str], ...]
     params_text: str
+    exposure_ms: float = 8.0
+    """How long the sensor exposes each frame (the simulated image's motion blur)."""
 
     @classmethod
     def load(cls, model: str) -> "Profile":
@@ -81,7 +83,7 @@ class Profile:
                    jpeg_layout=data["jpeg_layout"], time_extra_zero=bool(data.get("time_extra_zero", False)),
                    close_after_response=bool(data.get("close_after_response", False)),
                    cgis=frozenset(data["cgis"]), apis=tuple(data.get("apis") or ()),
-                   params_text=data["params"])
+                   params_text=data["params"], exposure_ms=float(data.get("exposure_ms", 8.0)))
 
     def product(self, source_product: AxisProduct) -> AxisProduct:
         """The product segment this camera writes: this model's hardware id and firmware, the

@@ -7,7 +7,7 @@ on its long axis, X lateral, Y anterior (up), Z towards the feet (world axes whe
 at rest). The torso is an elliptic cylinder ``TORSO_HALF_WIDTH`` x ``TORSO_HALF_DEPTH`` mm,
 its axis along Z; it is opaque (:meth:`Patient.hides`). Each band goes round it at a Z of
 its own; its 4 markers (``C1..C4`` chest, ``A1..A4`` abdomen; 15 mm spheres on the band)
-sit at angles ``BAND_ANGLES_DEG`` from straight up, the outer ones on the flanks.
+sit at angles ``BAND_ANGLES`` from straight up, the outer ones on the flanks.
 
 Motion, all of it truth:
 
@@ -46,15 +46,22 @@ __all__ = ["Breathing", "BodyMove", "Creep", "BodyMotion", "Patient", "add_patie
 TORSO_HALF_WIDTH = 170.0          # mm, lateral
 TORSO_HALF_DEPTH = 110.0          # mm, anterior-posterior
 TORSO_HALF_LENGTH = 330.0         # mm, shoulders to hips
-PLACEMENT = (0.0, 0.0, 60.0)      # body origin in table coordinates: the heart near the FOV centre
-CHEST_Z, ABDOMEN_Z = -90.0, 140.0  # band positions along the body
-BAND_ANGLES_DEG = (-60.0, -20.0, 24.0, 64.0)   # from straight up, towards +X
+PLACEMENT = (0.0, -30.0, 60.0)    # body origin in table coordinates: the heart near the FOV centre
+CHEST_Z, ABDOMEN_Z = -90.0, 150.0  # band positions along the body
+BAND_ANGLES_DEG = (-48.0, -16.0, 19.0, 51.0)   # chest markers, from straight up, towards +X
+# the abdomen's closer together: further from the cameras over the head, they are seen higher in
+# the image, where the flanks' would come near the wall markers. At rest, in every camera of the
+# 4-camera reference rig (seeds 0-7), each band marker is >= 35 px from every wall marker and
+# >= 35 px from every other band marker, also at the top of a 15 mm breath (so only body moves
+# may merge two blobs, for a while)
+BAND_ANGLES = {"chest": BAND_ANGLES_DEG, "abdomen": (-42.0, -14.0, 17.0, 45.0)}
 # each band goes round the body a little askew (mm along Z per mm along X), as a band put on
 # by hand does, and the markers sit off-centre: side by side and level they would lie on one
-# epipolar line of a camera pair. At rest the closest pair is ~7 px off each other's line in
-# the reference rig; a turn of a few degrees can still bring two onto one line for a while
-# (ambiguities the matching must report, not guess).
-BAND_TILT = {"chest": 0.3, "abdomen": -0.25}
+# epipolar line of a camera pair. At rest, in both stereo pairs of the reference rig (head end
+# cam1-cam2, foot end cam3-cam4), every marker is >= 6 mm (~5 px) off the epipolar plane of
+# every other (tests/test_sim_patient.py); a turn of a few degrees can still bring two onto one
+# line for a while (ambiguities the matching must report, not guess).
+BAND_TILT = {"chest": 0.3, "abdomen": -0.3}
 MARKER_DIAMETER = 15.0
 BAND_MARKERS = {"chest": ("C1", "C2", "C3", "C4"), "abdomen": ("A1", "A2", "A3", "A4")}
 GRID_S = 0.01                     # the breathing signal is tabulated every 10 ms
@@ -144,8 +151,9 @@ class Breathing:
 
 @dataclass
 class BodyMove:
-    """A sudden shift and turn of the whole body: rotation (deg, about body X, Y, Z through the
-    body origin, as a rotation vector) and translation (mm, SPECT frame) over [t_start, t_end]."""
+    """A sudden shift and turn of the whole body over [t_start, t_end]: a rotation (deg, a
+    rotation vector in the SPECT frame's axes) about the body origin where it is at the time,
+    and a translation of that origin (mm, SPECT frame). Moves compose in time order."""
 
     t_start: float
     t_end: float
@@ -205,8 +213,8 @@ class BodyMotion:
                 break
             s = float(min_jerk((t - m.t_start) / (m.t_end - m.t_start)))
             dR = Rotation.from_rotvec(np.deg2rad(np.array(m.rotation_deg)) * s).as_matrix()
-            R = dR @ R
-            T = dR @ T + s * np.asarray(m.translation_mm, float)
+            R = dR @ R                       # turned about the body's origin where it is now:
+            T = T + s * np.asarray(m.translation_mm, float)   # the origin only translates
         for c in self.creeps:
             s = float(np.clip((t - c.t_start) / (c.t_end - c.t_start), 0.0, 1.0))
             T = T + s * np.asarray(c.translation_mm, float)
@@ -219,7 +227,7 @@ def _band_markers() -> tuple[list[Marker], dict[str, np.ndarray]]:
     """The 8 markers at rest (body coordinates) and each one's unit breathing direction."""
     markers, outward = [], {}
     for band, z in (("chest", CHEST_Z), ("abdomen", ABDOMEN_Z)):
-        for mid, a in zip(BAND_MARKERS[band], np.deg2rad(BAND_ANGLES_DEG)):
+        for mid, a in zip(BAND_MARKERS[band], np.deg2rad(BAND_ANGLES[band])):
             x = TORSO_HALF_WIDTH * np.sin(a)
             surface = np.array([x, TORSO_HALF_DEPTH * np.cos(a), z + BAND_TILT[band] * x])
             n = np.array([np.sin(a) / TORSO_HALF_WIDTH, np.cos(a) / TORSO_HALF_DEPTH, 0.0])
@@ -255,11 +263,14 @@ class Patient:
         hf = rng.uniform(0.15, 0.3)               # head-foot part, as a share of the AP amplitude
         self.breath_mm = {"chest": float(chest_ap), "abdomen": float(abd_ap)}
         self.breath_dir: dict[str, np.ndarray] = {}
-        for m in self.rest:
-            band = "chest" if m.id.startswith("C") else "abdomen"
-            amp = self.breath_mm[band] * (0.7 + 0.3 * abs(outward[m.id][1]))   # the flanks breathe less
+        for band, ids in BAND_MARKERS.items():
+            # along the outward normal, the flanks less: the band's most anterior-moving marker
+            # moves breath_mm[band] anterior-posterior in a normal breath (b = 1)
+            w = {i: (0.7 + 0.3 * abs(outward[i][1])) * outward[i] for i in ids}
+            top = max(v[1] for v in w.values())
             foot = np.array([0.0, 0.0, hf * self.breath_mm[band] * (1.0 if band == "abdomen" else -0.5)])
-            self.breath_dir[m.id] = amp * outward[m.id] + foot
+            for i in ids:
+                self.breath_dir[i] = self.breath_mm[band] * w[i] / top + foot
         self.pose = _PoseKey()
 
     # ------------------------------------------------------------------ scene interface
@@ -278,29 +289,36 @@ class Patient:
         return out
 
     def hides(self, eye, points, t: float, grow_mm=0.0, table_offset=(0.0, 0.0, 0.0)) -> np.ndarray:
-        """Whether the torso (an elliptic cylinder, shrunk by the marker's radius so that a
-        marker on it does not hide itself) lies between ``eye`` and each point. Bool (N,)."""
+        """Whether the torso (a closed elliptic cylinder, its ends included: a camera over the
+        head looks in through the shoulders) lies between ``eye`` and each point; the last
+        ``grow_mm`` + 2 mm before each point and 1 mm of the torso's skin do not count, so that
+        a marker on it does not hide itself. Bool (N,)."""
         R, T = self.motion.pose(t)
         origin = self.placement + T + np.asarray(table_offset, float)
-        eye_b = R.T @ (np.asarray(eye, float) - origin)
+        e = R.T @ (np.asarray(eye, float) - origin)
         pts = (np.asarray(points, float).reshape(-1, 3) - origin) @ R
-        d = pts - eye_b
+        d = pts - e
         grow = np.broadcast_to(np.asarray(grow_mm, float), (len(pts),))
         a, c = TORSO_HALF_WIDTH - 1.0, TORSO_HALF_DEPTH - 1.0
-        # (ex + s dx)^2/a^2 + (ey + s dy)^2/c^2 = 1 for s in (0, 1 - margin)
+        # inside the elliptic cylinder where A s^2 + B s + C < 0 along eye + s d
         A = d[:, 0] ** 2 / a ** 2 + d[:, 1] ** 2 / c ** 2
-        B = 2 * (eye_b[0] * d[:, 0] / a ** 2 + eye_b[1] * d[:, 1] / c ** 2)
-        C = eye_b[0] ** 2 / a ** 2 + eye_b[1] ** 2 / c ** 2 - 1.0
+        B = 2 * (e[0] * d[:, 0] / a ** 2 + e[1] * d[:, 1] / c ** 2)
+        C = e[0] ** 2 / a ** 2 + e[1] ** 2 / c ** 2 - 1.0
         disc = B * B - 4 * A * C
-        hidden = np.zeros(len(pts), bool)
-        ok = (disc > 0) & (A > 0)
-        sq = np.sqrt(np.where(ok, disc, 0.0))
-        s1 = np.where(ok, (-B - sq) / np.where(A > 0, 2 * A, 1.0), np.inf)
-        length = np.linalg.norm(d, axis=1)
-        s_end = 1.0 - (grow + 2.0) / np.maximum(length, 1e-9)
-        z_hit = eye_b[2] + s1 * d[:, 2]
-        hidden[ok] = ((s1 > 0) & (s1 < s_end) & (np.abs(z_hit) < TORSO_HALF_LENGTH))[ok]
-        return hidden
+        sq = np.sqrt(np.maximum(disc, 0.0))
+        along = A <= 1e-12                       # parallel to the axis: inside all along, or never
+        A_ = np.where(along, 1.0, A)
+        lo = np.where(along, np.where(C < 0, -np.inf, np.inf), (-B - sq) / (2 * A_))
+        hi = np.where(along, np.where(C < 0, np.inf, -np.inf), (-B + sq) / (2 * A_))
+        lo = np.where(~along & (disc <= 0), np.inf, lo)
+        # ... and between the two ends, |z| < half length
+        L = TORSO_HALF_LENGTH - 1.0
+        dz = np.where(np.abs(d[:, 2]) < 1e-12, 1e-12, d[:, 2])
+        z1, z2 = (-L - e[2]) / dz, (L - e[2]) / dz
+        lo = np.maximum(lo, np.minimum(z1, z2))
+        hi = np.minimum(hi, np.maximum(z1, z2))
+        s_end = 1.0 - (grow + 2.0) / np.maximum(np.linalg.norm(d, axis=1), 1e-9)
+        return np.maximum(lo, 0.0) < np.minimum(hi, s_end)
 
     # ------------------------------------------------------------------ truth
     def body_transform(self, t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -352,13 +370,23 @@ def write_truth(patient: Patient, folder, t0: float, t1: float, rate_hz: float =
     ids = [m.id for m in patient.rest]
     cols = ["t", "tx_mm", "ty_mm", "tz_mm", "rx_deg", "ry_deg", "rz_deg", "breath", "phase"] + \
         [f"{i}_{a}" for i in ids for a in "xyz"]
-    lines = [",".join(cols)]
-    for t in np.arange(t0, t1, 1.0 / rate_hz):
-        pos = patient.marker_truth(float(t))
-        row = [f"{t:.3f}"] + [f"{v:.4f}" for v in patient.six_dof(float(t))] + \
-            [f"{float(patient.breathing.value(t)):.4f}", f"{float(patient.breathing.phase(t)):.4f}"] + \
-            [f"{v:.4f}" for i in ids for v in pos[i]]
-        lines.append(",".join(row))
+    # t0 + k / rate, not np.arange(t0, t1, step): at epoch seconds the step itself is off by
+    # ~1e-7 s and the error grows along the file
+    ts = t0 + np.arange(int(np.ceil((t1 - t0) * rate_hz - 1e-9))) / rate_hz
+    b = patient.breathing.value(ts)
+    table = np.empty((ts.size, len(cols)))
+    table[:, 0], table[:, 7], table[:, 8] = ts, b, patient.breathing.phase(ts)
+    rest = np.array([m.center for m in patient.rest])
+    drift = np.array([patient.breath_dir[i] for i in ids])
+    last_R, euler = None, None
+    for k, t in enumerate(ts):        # as six_dof and marker_truth, the rotation's angles once per pose
+        R, T = patient.motion.pose(float(t))
+        if last_R is None or not np.array_equal(R, last_R):
+            last_R, euler = R, Rotation.from_matrix(R).as_euler("xyz", degrees=True)
+        table[k, 1:4] = patient.placement + T - R @ patient.placement
+        table[k, 4:7] = euler
+        table[k, 9:] = ((rest + b[k] * drift) @ R.T + patient.placement + T).ravel()
+    lines = [",".join(cols)] + [f"{row[0]:.3f}," + ",".join(f"{v:.4f}" for v in row[1:]) for row in table]
     csv = folder / "patient_motion.csv"
     csv.write_text("\n".join(lines) + "\n")
     return [js, csv]

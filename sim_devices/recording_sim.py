@@ -90,6 +90,7 @@ class SimRecording:
     camera_time: dict = field(default_factory=dict)
     host_time: dict = field(default_factory=dict)
     torn_bytes: dict = field(default_factory=dict)
+    patient: object = None
 
     @property
     def cameras(self) -> list[str]:
@@ -130,7 +131,7 @@ def simulate_recording(folder, duration_s: float = 20.0, fps: float = 25.0, seed
                        outlier_s: tuple = (0.05, 0.3), quality: int = 75,
                        noise_sigma: float = 2.0, gaps: dict | None = None,
                        torn_tail: tuple = (), clock_offsets_s: dict | None = None,
-                       start: float | None = None, add_band: bool = True,
+                       start: float | None = None, add_band: bool = True, patient: dict | None = None,
                        progress: Callable[[int, int], None] | None = None) -> SimRecording:
     """Write a recording folder of every camera of ``scene`` (default: the reference rig with
     ``seed``, 2 cameras, LEDs on, a :class:`BreathingBand`) over ``duration_s`` seconds.
@@ -159,6 +160,11 @@ def simulate_recording(folder, duration_s: float = 20.0, fps: float = 25.0, seed
     start = scene.start_epoch + 5.0 if start is None else float(start)
     if band is None:
         band = BreathingBand(start)
+    the_patient = None
+    if patient is not None:
+        from vts_hw.sim_devices.patient import add_patient
+        the_patient = add_patient(scene, start, duration_s, seed, **patient)
+        add_band = False
     if add_band and "band" not in scene.bodies:
         markers = [Marker(k, np.array(v), np.array([0.0, 1.0, 0.0]), BAND_DIAMETER, "sphere")
                    for k, v in BAND_LAYOUT.items()]
@@ -172,6 +178,7 @@ def simulate_recording(folder, duration_s: float = 20.0, fps: float = 25.0, seed
     gaps = gaps or {}
     folder = Path(folder)
     out = SimRecording(folder, scene, band, fps, duration_s)
+    out.patient = the_patient
     n = int(round(duration_s * fps))
     # Frame times per camera, then rendered in time order (the band's pose is set per frame).
     plan = []

@@ -8,6 +8,15 @@ of each of ``supersample`` sub-rows per pixel row, i.e. exact area in x and supe
 Disks are uniformly bright; spheres have a soft radial profile made of concentric outlines
 scaled about the outline's centroid (which keeps the centroid where it is).
 
+Motion blur: each camera exposes for ``exposure[cam]`` seconds (default 8 ms; the simulated
+Axis camera's profile sets it), centred on the frame's instant ``t``. A marker whose projected
+centre moves more than ``blur_min_px`` over the exposure is drawn as the mean of its outline at
+``blur_steps`` sub-instants spread evenly over it (so its centroid is where it was at ``t``, to
+first order); markers that move less are drawn once, as without blur, so a static scene
+renders exactly as it would with no exposure at all and stays cached. Only bodies that move
+continuously (the patient) are smeared: scheduled poses and table positions change in steps,
+at an instant, and are drawn as they are at ``t``.
+
 Speed: the noise-free image (float32, not yet quantised) is cached per camera, keyed by the
 LED state, every marker's projected centre rounded to 1e-3 px, and the table/body poses, so a
 static scene is rasterised once. Noise comes from a bank of precomputed float32 frames, taken
@@ -30,7 +39,7 @@ from collections import OrderedDict
 import cv2
 import numpy as np
 
-from vts_hw.sim_devices.scene import Scene
+from vts_hw.sim_devices.scene import Scene, Schedule
 
 # Sphere brightness profile: (scale of the outline, weight); weights sum to 1, so the centre
 # is at full level and the rim at 0.35 of it.
@@ -122,8 +131,12 @@ class Renderer:
     def __init__(self, scene: Scene, noise_sigma: float = 2.0, background: float = 20.0,
                  marker_level: float = 220.0, led_off_level: float = 5.0, supersample: int = 8,
                  outline_points: int = 96, noise_frames: int = 8, noise_pad: int = 32,
-                 seed: int = 0, cache_size: int = 4):
+                 seed: int = 0, cache_size: int = 4, exposure_s: float = 0.008, blur_steps: int = 5,
+                 blur_min_px: float = 0.2):
         self.scene = scene
+        self.exposure = {name: float(exposure_s) for name in scene.cameras}   # s, per camera
+        self.blur_steps = int(blur_steps)
+        self.blur_min_px = float(blur_min_px)
         self.noise_sigma = float(noise_sigma)
         self.marker_level = float(marker_level)
         self.led_off_level = float(led_off_level)
@@ -180,6 +193,9 @@ class Renderer:
         camera, markers, uv, _ = self.scene.project_markers(cam, t)
         led = self.scene.led_on(cam, t)
         key = (led, tuple(np.round(uv, 3).ravel().tolist()), self.scene.pose_key(t))
+        smear, ends = self._smear(cam, camera, markers, uv, t)
+        if smear:
+            key += (("blur", ends),)
         cache = self._cache[cam]
         with self._lock:
             img = cache.get(key)
@@ -188,7 +204,9 @@ class Renderer:
                 self.stats["hits"] += 1
                 return img
         hidden = self.scene.hidden(camera.center, markers, t)  # behind a SPECT head: not drawn
-        img = self._rasterise(cam, camera, [m for m, h in zip(markers, hidden) if not h], led)
+        keep = [i for i, h in enumerate(hidden) if not h]
+        img = self._rasterise(cam, camera, [markers[i] for i in keep], led,
+                              {k: smear[i] for k, i in enumerate(keep) if i in smear})
         with self._lock:
             self.stats["misses"] += 1
             cache[key] = img
@@ -196,33 +214,79 @@ class Renderer:
                 cache.popitem(last=False)
         return img
 
-    def signal(self, camera, markers) -> np.ndarray:
-        """Float32 (H, W) marker brightness in 0..1 (coverage times profile), no background."""
+    def _smear(self, cam: str, camera, markers, uv, t: float) -> tuple[dict, tuple]:
+        """The markers that move more than ``blur_min_px`` over the exposure: ``{index: [the
+        marker at each sub-instant]}``, and their projected centres at the exposure's two ends
+        (for the cache key). Only bodies that move continuously (a pose that is not a
+        :class:`Schedule`: the patient) are smeared; scheduled poses and the table change in
+        steps ("from this instant on") and are drawn as they are at ``t``."""
+        exposure, n = self.exposure.get(cam, 0.0), self.blur_steps
+        if exposure <= 0 or n < 2 or not markers:
+            return {}, ()
+        times = t + exposure * ((np.arange(n) + 0.5) / n - 0.5)
+        y, z = self.scene.table.at(t)
+        offset = np.array([0.0, y, z])
+        paths, k = {}, len(self.scene.wall_markers)
+        for body in list(self.scene.bodies.values()):
+            count = len(body.markers)
+            if not isinstance(body.pose, Schedule):
+                at = [body.markers_at(float(x), offset) for x in times]
+                paths.update({k + j: [ms[j] for ms in at] for j in range(count)})
+            k += count
+        paths = {i: p for i, p in paths.items() if i < len(markers) and p[0].id == markers[i].id}
+        if not paths:
+            return {}, ()
+        idx = sorted(paths)
+        uv0 = camera.project(np.array([paths[i][0].center for i in idx]))
+        uv1 = camera.project(np.array([paths[i][-1].center for i in idx]))
+        moved = np.maximum(np.linalg.norm(uv0 - uv[idx], axis=1), np.linalg.norm(uv1 - uv[idx], axis=1))
+        keep = [j for j, m in enumerate(moved) if m > self.blur_min_px]
+        if not keep:
+            return {}, ()
+        ends = tuple(np.round(np.hstack([uv0[keep], uv1[keep]]), 3).ravel().tolist())
+        return {idx[j]: paths[idx[j]] for j in keep}, ends
+
+    def signal(self, camera, markers, smear: dict | None = None) -> np.ndarray:
+        """Float32 (H, W) marker brightness in 0..1 (coverage times profile), no background.
+        ``smear``: for the index of a marker that moves during the exposure, the marker at each
+        sub-instant; it is drawn as the mean of those outlines."""
         sig = np.zeros((camera.height, camera.width), dtype=np.float32)
         eye = camera.center
-        drawn = [m for m in markers
+        smear = smear or {}
+        drawn = [(i, m) for i, m in enumerate(markers)
                  if m.faces(eye) and camera.to_camera(m.center[None])[0, 2] > m.diameter_mm]
         if not drawn:
             return sig
         n = self.outline_points
-        outlines = camera.project(np.vstack([m.outline(eye, n) for m in drawn])).reshape(-1, n, 2)
-        for m, poly in zip(drawn, outlines):
-            self._draw(sig, poly, SPHERE_RINGS if m.kind == "sphere" else DISK_RINGS)
+        outlines = camera.project(np.vstack([m.outline(eye, n) for _, m in drawn])).reshape(-1, n, 2)
+        for (i, m), poly in zip(drawn, outlines):
+            rings = SPHERE_RINGS if m.kind == "sphere" else DISK_RINGS
+            if i in smear:
+                path = smear[i]
+                polys = camera.project(np.vstack([p.outline(eye, n) for p in path])).reshape(-1, n, 2)
+                self._draw(sig, polys, rings)
+            else:
+                self._draw(sig, poly[None], rings)
         return sig
 
-    def _draw(self, sig: np.ndarray, poly: np.ndarray, rings) -> None:
+    def _draw(self, sig: np.ndarray, polys: np.ndarray, rings) -> None:
+        """Draw the mean of the outlines ``polys`` (k x n x 2; one outline: not blurred)."""
         h_img, w_img = sig.shape
-        x0, y0 = np.maximum(np.floor(poly.min(axis=0) + 0.5).astype(int) - 1, 0)
-        x1, y1 = np.minimum(np.floor(poly.max(axis=0) + 0.5).astype(int) + 2, (w_img, h_img))
+        x0, y0 = np.maximum(np.floor(polys.reshape(-1, 2).min(axis=0) + 0.5).astype(int) - 1, 0)
+        x1, y1 = np.minimum(np.floor(polys.reshape(-1, 2).max(axis=0) + 0.5).astype(int) + 2, (w_img, h_img))
         if x1 <= x0 or y1 <= y0:
             return  # entirely outside the image
-        patch = polygon_coverage(poly, x0, y0, x1 - x0, y1 - y0, self.supersample, rings)
+        patch = polygon_coverage(polys[0], x0, y0, x1 - x0, y1 - y0, self.supersample, rings)
+        if len(polys) > 1:
+            for poly in polys[1:]:
+                patch += polygon_coverage(poly, x0, y0, x1 - x0, y1 - y0, self.supersample, rings)
+            patch /= np.float32(len(polys))
         region = sig[y0:y1, x0:x1]
         np.maximum(region, patch, out=region)
 
-    def _rasterise(self, cam: str, camera, markers, led: bool) -> np.ndarray:
+    def _rasterise(self, cam: str, camera, markers, led: bool, smear: dict | None = None) -> np.ndarray:
         bg = self._bg[cam]
-        sig = self.signal(camera, markers)
+        sig = self.signal(camera, markers, smear)
         amp = self.marker_level - self.background_level if led else self.led_off_level
         img = bg + sig * amp
         img.flags.writeable = False

@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 
 from vts_hw.config import RigConfig, dump_rig, parse_rig
-from vts_hw.errors import VtsError
+from vts_hw.errors import UsageError, VtsError
 from vts_hw.files import WriteFailed, ensure_dir, os_reason, write_atomic
 from vts_hw.sim_devices.axis_camera import SimAxisCamera
 from vts_hw.sim_devices.camera_source import SimCameraSource
@@ -55,7 +55,7 @@ class SimRig:
     def __init__(self, n_cameras: int = 2, seed: int = 0, *, user: str = "root", password: str | None = None,
                  firmware: str = "vapix3", clock=None, fps: float = 25.0,
                  drift_px_per_60_days: dict[str, float] | None = None, trigger: str = "none",
-                 tls: tuple[str, str] | None = None, gantry: bool = False):
+                 tls: tuple[str, str] | None = None, gantry: bool = False, patient=None):
         if trigger not in TRIGGERS:
             raise ValueError(f"trigger must be one of {', '.join(TRIGGERS)}, not {trigger!r}")
         self.trigger = trigger
@@ -69,6 +69,12 @@ class SimRig:
         if gantry:
             self.scene.gantry.step_and_shoot(self.scene.start_epoch, 3.0, GANTRY_STEPS, GANTRY_DWELL_S,
                                              GANTRY_MOVE_S, start_deg=0.0)
+        # patient: a PatientOptions (sim_devices/patient_rig.py): the simulated patient on the table
+        # from now, before any camera serves; rig.patient is its truth (None without one)
+        self.patient = None
+        if patient is not None:
+            from vts_hw.sim_devices.patient_rig import put_patient
+            self.patient = put_patient(self.scene, patient, self.scene.start_epoch)
         for i, (cam, px) in enumerate(sorted((drift_px_per_60_days or {}).items())):
             # a camera that drifts faster than the reference rig's (the demo's bad camera)
             self.scene.drifts[cam] = CameraDrift.reference(self.scene.cameras[cam].focal, seed * 7919 + i,
@@ -85,6 +91,8 @@ class SimRig:
         self.servers = {name: SimAxisCamera(src, user=user, password=self.password, model=firmware,
                                             clock=self.clock, tls=tls, auth="basic" if tls else "digest")
                         for name, src in self.sources.items()}
+        for name, srv in self.servers.items():     # each camera's shutter time, from its model profile
+            self.renderer.exposure[name] = srv.profile.exposure_ms / 1000.0
         self._started = False
 
     # -- life cycle --------------------------------------------------------------------
@@ -207,13 +215,20 @@ def load_env_file(path: str | Path) -> dict[str, str]:
 # -- running in the foreground or detached ----------------------------------------------------
 def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = "vapix3",
           rate: float = 1.0, on_ready=None, trigger: str = "none", spect: bool = False,
-          https: bool = False, gantry: bool = False) -> None:
+          https: bool = False, gantry: bool = False, patient=None) -> None:
     """Run a rig until SIGINT/SIGTERM. With ``folder``: write rig.yaml, sim.env and sim.pid.
     ``spect``: a simulated SPECT records every scan the trigger box starts, into
-    ``folder/spect`` (:class:`~vts_hw.sim_devices.spect_follower.SpectFollower`)."""
+    ``folder/spect`` (:class:`~vts_hw.sim_devices.spect_follower.SpectFollower`).
+    ``patient``: a :class:`~vts_hw.sim_devices.patient_rig.PatientOptions`: the simulated
+    patient on the table, its truth in ``folder/truth``; the SPECT then counts its heart."""
     if spect and (trigger != "triggerbox" or folder is None):
         raise VtsError("the simulated SPECT needs --trigger triggerbox and --dir (it writes its "
                        "list-mode files into DIR/spect)")
+    if patient is not None:
+        try:
+            patient.check()
+        except ValueError as e:     # a plan that cannot be (too short for its moves)
+            raise UsageError(f"simulated patient: {e}") from None
     if folder is not None:
         folder = ensure_dir(folder, FOLDER)  # before anything starts: a folder we cannot use stops here
     clock = RealClock() if rate == 1.0 else VirtualClock(time.time(), rate=rate)
@@ -231,11 +246,15 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
         from vts_hw.sim_devices.tls import self_signed
         tls = tuple(str(p) for p in self_signed(folder if folder is not None else mkdtemp(prefix="vts-sim-tls-")))
     rig = SimRig(n_cameras=n_cameras, seed=seed, firmware=firmware, clock=clock, trigger=trigger, tls=tls,
-                 gantry=gantry)
+                 gantry=gantry, patient=patient)
     follower = None
     if spect:
         from vts_hw.sim_devices.spect_follower import SpectFollower
-        follower = SpectFollower(rig, Path(folder) / "spect", seed=seed,
+        sources = None
+        if rig.patient is not None:
+            from vts_hw.sim_devices.patient_source import heart_source
+            sources = [heart_source(rig.patient)]
+        follower = SpectFollower(rig, Path(folder) / "spect", seed=seed, sources=sources,
                                  log=lambda m: print(m, flush=True))  # the scene, before cameras serve
     try:
         with rig:
@@ -248,6 +267,12 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
                         rig.function_generator.log_to(folder / FGEN_LOG)
                     except OSError as e:
                         raise WriteFailed(folder / FGEN_LOG, os_reason(e)) from None
+                if rig.patient is not None:
+                    from vts_hw.sim_devices.patient_rig import TRUTH_DIR, write_patient_truth
+                    try:
+                        write_patient_truth(rig.patient, folder)
+                    except OSError as e:
+                        raise WriteFailed(folder / TRUTH_DIR, os_reason(e)) from None
                 rig.write(folder)
             if on_ready:
                 on_ready(rig)
@@ -263,7 +288,7 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
 
 def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmware: str = "vapix3",
                    rate: float = 1.0, timeout: float = 60.0, trigger: str = "none",
-                   spect: bool = False, https: bool = False, gantry: bool = False) -> int:
+                   spect: bool = False, https: bool = False, gantry: bool = False, patient=None) -> int:
     """Start ``serve`` in a background process; return its pid once rig.yaml is written."""
     folder = ensure_dir(Path(folder).resolve(), FOLDER)
     if is_running(folder):
@@ -279,7 +304,7 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
     log_start = log.tell()
     cmd = [sys.executable, "-m", "vts_hw.sim_devices.rig", str(folder), str(n_cameras), str(seed), firmware,
            str(rate), trigger] + (["spect"] if spect else []) + (["https"] if https else []) \
-        + (["gantry"] if gantry else [])
+        + (["gantry"] if gantry else []) + ([patient.to_arg()] if patient is not None else [])
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=log, start_new_session=True)
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -386,8 +411,10 @@ def _main(argv: list[str]) -> int:
     """The detached process: serve until stopped; on failure, one last line saying why."""
     folder, n, seed, fw, rate, trigger = argv[:6]
     try:
+        from vts_hw.sim_devices.patient_rig import PatientOptions
+        patient = next((PatientOptions.from_arg(a) for a in argv[6:] if a.startswith("patient=")), None)
         serve(folder, int(n), int(seed), fw, float(rate), trigger=trigger, spect="spect" in argv[6:],
-              https="https" in argv[6:], gantry="gantry" in argv[6:])
+              https="https" in argv[6:], gantry="gantry" in argv[6:], patient=patient)
     except VtsError as e:
         print(f"{FAILED}{e}", file=sys.stderr, flush=True)
         return e.exit_code

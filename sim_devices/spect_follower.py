@@ -42,16 +42,19 @@ POLL_S = 0.2
 
 class SpectFollower:
     """Watches ``rig.trigger_box``; one list-mode file per scan in ``folder``. Create it before
-    the rig's cameras are in use (it adds the source marker to the scene)."""
+    the rig's cameras are in use (it adds the source marker to the scene). ``sources``: what
+    holds the activity instead of a moving source marker (the patient's heart,
+    :func:`~vts_hw.sim_devices.patient_source.heart_source`): nothing is added or moved then."""
 
-    def __init__(self, rig, folder, seed: int = 0, log=print):
+    def __init__(self, rig, folder, seed: int = 0, log=print, sources=None):
         if rig.trigger != "triggerbox":
             raise ValueError("the simulated SPECT follows the trigger box: run the rig with trigger='triggerbox'")
         self.rig = rig
         self.folder = Path(folder)
         self.seed = seed
         self.log = log
-        self.marker = place_source_marker(rig.scene)
+        self.sources = list(sources) if sources else None
+        self.marker = None if self.sources else place_source_marker(rig.scene)
         self.written: list[Path] = []
         self.failures: list[Path] = []       # failure records written (scans not recorded)
         self._stop = threading.Event()
@@ -88,11 +91,16 @@ class SpectFollower:
                 seen_cycle = start.cycle          # whatever happens next, this pulse is handled
                 fire = box.host_time(start.cycle)
                 scan = (fire, None)
-                self.log(f"sim SPECT: start pulse at {_iso(fire)}; the source marker moves every "
-                         f"~{MOVE_EVERY_S:g} s")
-                times, steps = plan_sync_moves(fire, HORIZON_S, n=int(HORIZON_S / MOVE_EVERY_S),
-                                               seed=self.seed + n)
-                source = schedule_source_moves(self.rig.scene, self.marker, times, steps)
+                if self.sources:
+                    self.log(f"sim SPECT: start pulse at {_iso(fire)}; counting "
+                             f"{', '.join(getattr(x, 'name', x.body) for x in self.sources)}")
+                    sources = self.sources
+                else:
+                    self.log(f"sim SPECT: start pulse at {_iso(fire)}; the source marker moves every "
+                             f"~{MOVE_EVERY_S:g} s")
+                    times, steps = plan_sync_moves(fire, HORIZON_S, n=int(HORIZON_S / MOVE_EVERY_S),
+                                                   seed=self.seed + n)
+                    sources = [schedule_source_moves(self.rig.scene, self.marker, times, steps)]
                 last = self._wait_wave_end(start.cycle)
                 if last is None:
                     self._failed(fire, None, "the simulated rig was stopped while the scan was running")
@@ -107,7 +115,7 @@ class SpectFollower:
                 n += 1
                 out = self.folder / _listmode_name(fire)
                 ensure_dir(self.folder, "simulated SPECT folder")
-                SimListModeSpect(self.rig.scene, [source], seed=self.seed + n) \
+                SimListModeSpect(self.rig.scene, sources, seed=self.seed + n) \
                     .follow_trigger_box(box, out, duration)
                 self.written.append(out)
                 self.log(f"sim SPECT: wrote {out} ({duration:.1f} s)")

@@ -19,8 +19,9 @@ What the simulated SPECT does (:func:`write_sim_listmode`, all in one pass, so a
   with no pulse, after the wave's first rising edge);
 * its clock: list-mode time ``t = (h − h_start)·(1 + skew)``, its wall clock reads
   ``h + offset`` at the start (offset random ±3 s, skew random ±50 ppm);
-* events: Poisson arrivals from every source (:class:`~.source_marker.SourceMarker` or
-  :class:`Source`) at its rate, plus an optional uniform background; each on a random head,
+* events: Poisson arrivals from every source (:class:`~.source_marker.SourceMarker`,
+  :class:`Source`, or one that gives its own ``positions(scene, host_times)``, such as the
+  patient's heart, :class:`~.patient_source.PatientSource`) at its rate, plus an optional uniform background; each on a random head,
   at the source's position at that instant (the scene's pose schedules and table, evaluated on
   a 1 ms grid) projected on the head — z axial, u transaxial for the head's angle — plus a
   Gaussian intrinsic blur (4 mm SD); nothing beyond the axial field of view (±200 mm);
@@ -186,7 +187,7 @@ def edges_from_trigger_log(path, device: str | None = None, until: float | None 
 # ------------------------------------------------------------------------------ simulation
 
 def _as_source(s) -> Source:
-    if isinstance(s, Source):
+    if isinstance(s, Source) or hasattr(s, "positions"):   # a source that knows where it is (the patient's)
         return s
     if isinstance(s, SourceMarker):
         return Source(s.body, s.marker_id, s.rate_cps)
@@ -196,6 +197,8 @@ def _as_source(s) -> Source:
 
 def _positions(scene: Scene, src: Source, h0: float, n: int, dt: float) -> np.ndarray:
     """(n, 3) positions of a source at host times h0 + (i + ½)·dt (SPECT frame, mm)."""
+    if hasattr(src, "positions"):
+        return src.positions(scene, h0 + (np.arange(n) + 0.5) * dt)
     body = scene.bodies[src.body]
     ids = [m.id for m in body.markers]
     if src.marker_id not in ids:
@@ -292,7 +295,7 @@ def write_sim_listmode(path, scene: Scene, sources, trigger: TriggerEdges, durat
             duration_s=float(duration_s), dead=[list(map(float, d)) for d in dead],
             period_s=trigger.period_s, rising_edges_recorded=int(rising_in.size),
             trigger=trigger.source,
-            sources=[x.to_json() if isinstance(x, SourceMarker) else asdict(_as_source(x)) for x in sources],
+            sources=[x.to_json() if hasattr(x, "to_json") else asdict(_as_source(x)) for x in sources],
             n_events=int(n_events), seed=int(seed))
         truth.save(truth_path(path))
         os.replace(part, path)

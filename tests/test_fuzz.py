@@ -13,7 +13,7 @@ import pytest
 
 FUZZ = Path(__file__).resolve().parents[1] / "bench" / "fuzz.py"
 TARGETS = ["mjpeg", "axis_jpeg", "recording_index", "manifest", "listmode", "interfile", "dicom",
-           "npz", "calibration", "mapping", "rig_yaml"]
+           "npz", "calibration", "camera_calibration", "mapping", "rig_yaml"]
 ROW = re.compile(r"^(\w+)\s+(\d+)\s+(\d+)\s+(\d+)\s+(\d+)\s+([\d.]+)$", re.M)
 
 

@@ -62,8 +62,10 @@ def test_daily_set_all_ok_and_stored(rig_cfg, store, tmp_path):
     judged = [m for m in rows if m.metric == "drift_x_px"]
     assert all(m.tolerance_id is not None for m in judged)  # the window in effect is kept with the value
     arts = store.artifacts(res.run_id)
-    assert {a.kind for a in arts} == {"frame", "plot"} and len(arts) == 6
+    assert {a.kind for a in arts} == {"frame", "plot"} and len(arts) == 7
     assert all(os.path.exists(a.path) for a in arts)
+    overview = [a.path for a in arts if os.path.basename(a.path) == "daily.png"]
+    assert len(overview) == 1 and open(overview[0], "rb").read(8) == b"\x89PNG\r\n\x1a\n"
 
 
 def test_changed_parameter_and_dead_camera_are_actions(rig_cfg, store, sim_rig):
@@ -73,6 +75,14 @@ def test_changed_parameter_and_dead_camera_are_actions(rig_cfg, store, sim_rig):
     res = QARun(rig_cfg, store, open_camera=open_camera, n_frames=2).run()
     by_cam = {c.camera: c for c in res.cameras}
     assert res.state == State.ACTION and res.exit_code == 20
+    # the overview says which camera is in which state, and why, where a person looks
+    from vts_hw.procedures.daily_plot import daily_figure
+    fig = daily_figure(res, res.windows)
+    assert [ax.get_title() for ax in fig.axes] == ["cam1: ACTION", "cam2: ACTION"]
+    texts = [t.get_text() for ax in fig.axes for t in ax.texts]
+    assert any("params_changed 1" in t and "ACTION" in t for t in texts)
+    assert any("no drift" in t for t in texts)
+    assert res.plot()[:8] == b"\x89PNG\r\n\x1a\n"
     assert any("Compression is '60', locked at '25'" in p for p in by_cam["cam1"].problems)
     assert by_cam["cam1"].drift is not None and by_cam["cam1"].drift.missing == []
     assert ("cam2", "camera_reachable", 0.0) in [(s, m, v) for s, m, v, _, _ in by_cam["cam2"].measures]

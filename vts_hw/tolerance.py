@@ -123,6 +123,13 @@ DEFAULT_TOLERANCES: dict[str, Window] = {
     "sync_max_abs_dt_ms": Window(tolerance_high=20.0, action_high=100.0, unit="ms"),
     "sync_events_one_system": Window(tolerance_high=0, unit="events"),
     "sync_events_both": Window(action_low=1, unit="events"),
+    # patient motion over a scan, breathing excluded: the largest displacement of the patient
+    # markers' centroid and the largest turn from the reference pose. One SPECT pixel (~6.4 mm)
+    # can already cause artefacts: half of it is worth a look, a whole one needs correction or
+    # a repeat. Poses fitted in fewer than 95 % of the frames (markers hidden) are worth a look.
+    "motion_body_max_mm": Window(tolerance_high=3.2, action_high=6.4, unit="mm"),
+    "motion_body_max_deg": Window(tolerance_high=1.0, action_high=2.0, unit="deg"),
+    "motion_pose_coverage": Window(action_low=0.8, tolerance_low=0.95, unit="fraction"),
 }
 
 

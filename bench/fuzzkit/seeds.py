@@ -18,6 +18,7 @@ target keeps beside its input, e.g. the Interfile's data file).
 
 from __future__ import annotations
 
+import json
 import re
 import shutil
 from pathlib import Path
@@ -164,8 +165,25 @@ def make_seeds(out: Path, axis_frames: Path) -> dict[str, int]:
         if target == "calibration":  # its square size made a 400-digit integer
             put(target, "edge-huge.json", re.sub(rb'"square": [^,]+', b'"square": 1' + b"0" * 400,
                                                  p.read_bytes()))
+    # ---- an N-camera calibration file: the stereo one as the N = 2 case, and three cameras
+    from vts_hw.vision.calibration_io import StereoCalibration
+    from vts_hw.vision.multi_calibration_io import CameraCalibration
+
+    stereo = StereoCalibration.load(next(p for p in rig_dir.glob("*.json") if "mapping" not in p.name))
+    multi = CameraCalibration.from_stereo(stereo)
+    multi.save(work / "cameras.json")
+    put("camera_calibration", "two.json", (work / "cameras.json").read_bytes())
+    data = json.loads((work / "cameras.json").read_text())
+    third = dict(data["cameras"][1], name="cam3")
+    data["cameras"].append(third)
+    put("camera_calibration", "three.json", json.dumps(data).encode())
+    put("camera_calibration", "stereo.json", stereo_bytes(rig_dir))
     edge_seeds(put)
     return {d.name: len(list(d.iterdir())) for d in sorted(seeds.iterdir())}
+
+
+def stereo_bytes(rig_dir) -> bytes:
+    return next(p for p in rig_dir.glob("*.json") if "mapping" not in p.name).read_bytes()
 
 
 def edge_seeds(put) -> None:

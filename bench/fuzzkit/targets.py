@@ -74,6 +74,8 @@ def import_parsers() -> None:
     from vts_hw.recording import mjpeg
     from vts_hw.recording import folder as recording
     from vts_hw.vision.calibration_io import StereoCalibration
+    from vts_hw.vision.camera_set import load_cameras
+    from vts_hw.vision.multi_calibration_io import load_calibration
     from vts_hw.spect.listmode import read_listmode
     from vts_hw.procedures.sync import check_session
     from vts_hw.recording.processing import _manifest_cameras
@@ -86,7 +88,8 @@ def import_parsers() -> None:
              StereoCalibration=StereoCalibration, read_listmode=read_listmode,
              RigidTransform=RigidTransform, read_dicom_nm=read_dicom_nm,
              read_interfile=read_interfile, read_npz=read_npz, read_volume=read_volume,
-             check_session=check_session, manifest_cameras=_manifest_cameras)
+             check_session=check_session, manifest_cameras=_manifest_cameras,
+             load_calibration=load_calibration, load_cameras=load_cameras)
 
 
 # ------------------------------------------------------------------------------- targets
@@ -145,6 +148,14 @@ def _calibration(data: bytes, s: Scratch) -> None:
     s.call(P["StereoCalibration"].load, s.file("calibration.json", data))
 
 
+def _camera_calibration(data: bytes, s: Scratch) -> None:
+    path = s.file("cameras.json", data)
+    calib = s.call(P["load_calibration"], path)
+    if calib is not None:               # what the readers of a loaded file then ask of it
+        s.call(lambda: (calib.cameras(), calib.results()))
+    s.call(P["load_cameras"], path)
+
+
 def _mapping(data: bytes, s: Scratch) -> None:
     s.call(P["RigidTransform"].load, s.file("spect_mapping.json", data))
 
@@ -196,6 +207,11 @@ TARGETS: dict[str, Target] = {t.name: t for t in [
     Target("calibration", "calibration_io.StereoCalibration.load", _calibration, max_len=8192,
            tokens=_JSON + (b'"K1"', b'"d2"', b'"R"', b'"T"', b'"per_view"', b'"skipped"',
                            b'"image_size"', b'"unit"', b'"mm"', b'"squares"')),
+    Target("camera_calibration", "multi_calibration_io.load_calibration, camera_set.load_cameras",
+           _camera_calibration, max_len=12000,
+           tokens=_JSON + (b'"cameras"', b'"name"', b'"K"', b'"d"', b'"R"', b'"t"', b'"per_view"',
+                           b'"view_graph"', b'"image_size"', b'"unit"', b'"mm"', b'"format"',
+                           b'"vts-hw camera calibration"', b'"vts-hw stereo calibration"')),
     Target("mapping", "registration.RigidTransform.load", _mapping, max_len=4096,
            tokens=_JSON + (b'"R"', b'"t_mm"', b'"meta"', b'"format"')),
     Target("rig_yaml", "config.load_rig", _rig_yaml, instrument=("vts_hw", "yaml"), max_len=4096,

@@ -25,8 +25,8 @@ def cli(verbose: int) -> None:
 
 
 def _register() -> None:
-    from vts_hw.cli import (calibrate, camera, demo, qa, qa_steps, recording, report, scan, sim,  # noqa: F401
-                   sync, trigger)
+    from vts_hw.cli import (calibrate, camera, demo, motion, qa, qa_steps, recording, report, scan,  # noqa: F401
+                   sim, sync, trigger)
 
 
 def main(argv=None) -> None:

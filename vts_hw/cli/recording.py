@@ -6,7 +6,7 @@ import click
 
 from vts_hw.recording import folder as rec_mod
 from vts_hw.cli import cli
-from vts_hw.cli.common import echo_json, fmt_time, json_option
+from vts_hw.cli.common import config_option, echo_json, fmt_time, json_option
 
 
 @cli.group()
@@ -68,3 +68,39 @@ def info(paths: tuple[str, ...], as_json: bool) -> None:
                 click.echo(f"    after frame {g['after_frame']}: {g['seconds']} s ({g['missing']} missing)")
         for p in s.problems[:20]:
             click.echo(f"  note: {p}")
+
+
+@recording.command()
+@click.argument("session", type=click.Path(file_okay=False))
+@click.option("-o", "--output", "out", type=click.Path(file_okay=False), required=True,
+              help="Folder for trajectories.csv and trajectories.json (docs/trajectory-format.md).")
+@click.option("--calibration", type=click.Path(dir_okay=False), default=None,
+              help="Camera calibration file (default: the rig config's calibration.stereo).")
+@click.option("--mapping", type=click.Path(dir_okay=False), default=None,
+              help="VTS -> SPECT transform file (default: the rig config's calibration.spect): adds SPECT-frame "
+                   "positions.")
+@click.option("--workers", type=click.IntRange(1, 256), default=None, help="Processes (default: every core).")
+@json_option
+@config_option
+def process(session, out, calibration, mapping, workers, as_json, config_path) -> None:
+    """The marker tracks of a recording SESSION alone (for researchers): every frame set
+    triangulated, identities kept, written to OUT/trajectories.csv and .json (host time).
+    Exit status: 0 written; 2 no calibration; 3 the recording or the output could not be read
+    or written."""
+    from vts_hw.cli.sync import _Progress, _calibration_files
+    from vts_hw.files import ensure_dir
+    from vts_hw.procedures.sync_inputs import load_calibration, load_mapping
+    from vts_hw.recording.processing import process_recording
+
+    cal, mp, _ = _calibration_files(config_path, calibration, mapping)
+    tracks = process_recording(session, load_calibration(cal), workers=workers, mapping=load_mapping(mp),
+                               progress=_Progress())
+    folder = ensure_dir(out, "output folder")
+    paths = tracks.save(folder / "trajectories.csv")
+    if as_json:
+        echo_json({"session": str(session), "files": [str(p) for p in paths], "frames": len(tracks),
+                   "points": int(len(tracks.marker)), "markers": tracks.marker_summary(),
+                   "warnings": tracks.meta.get("warnings", [])})
+    else:
+        click.echo(f"{session}: {len(tracks)} frame sets, {len(tracks.marker)} points, "
+                   f"{len(tracks.marker_ids())} marker ids -> {', '.join(str(p) for p in paths)}")

@@ -40,12 +40,25 @@ def sim() -> None:
               help="A simulated SPECT beside the rig (needs --trigger triggerbox and --dir): a source "
                    "marker on the table moves every ~15 s once the box sends its SPECT start pulse, and "
                    "each scan's list-mode is written to DIR/spect/ when the square wave stops (for "
-                   "`vts sync analyze`).")
+                   "`vts sync analyze`). With --patient: no source marker, the counts come from the "
+                   "patient's heart, moving with the body and a little with the breathing.")
+@click.option("--patient", is_flag=True,
+              help="A simulated patient on the table from the start: a torso with a chest and an abdomen "
+                   "band of 4 marker spheres each, breathing, and sudden body moves after 15 s still. Its "
+                   "truth goes to DIR/truth/ (with --dir); with --spect the counts come from its heart.")
+@click.option("--patient-seed", type=int, default=None, help="Seed of the patient (default: --seed).")
+@click.option("--patient-moves", type=click.IntRange(0, 50), default=None,
+              help="How many sudden body moves over the plan [default: 2].")
+@click.option("--patient-minutes", type=click.FloatRange(0.1, 240.0), default=None,
+              help="How long the patient's plan lasts (moves are spread over it; after it the patient "
+                   "lies still and no longer breathes) [default: 10].")
+@click.option("--no-breathing", is_flag=True, help="The patient does not breathe (body moves only).")
 @click.option("--detach", is_flag=True, help="Run in the background (needs --dir).")
 @click.option("--dir", "folder", type=click.Path(file_okay=False), default=None,
               help="Where to write rig.yaml and sim.env (and sim.pid, sim.log when detached).")
 def up(n_cameras: int, gantry: bool, seed: int, vapix: str, model: str | None, https: bool, rate: float,
-       trigger: str, spect: bool, detach: bool, folder: str | None) -> None:
+       trigger: str, spect: bool, patient: bool, patient_seed: int | None, patient_moves: int | None,
+       patient_minutes: float | None, no_breathing: bool, detach: bool, folder: str | None) -> None:
     """Run the simulated rig (foreground: Ctrl-C stops it).
 
     With --dir DIR it writes DIR/rig.yaml pointing at the simulated cameras and DIR/sim.env
@@ -57,14 +70,18 @@ def up(n_cameras: int, gantry: bool, seed: int, vapix: str, model: str | None, h
     from vts_hw.sim_devices import rig as simrig  # imports the scene only when asked
 
     fw = model or ("vapix3" if vapix == "3" else "vapix2")
+    person = _patient(patient, seed if patient_seed is None else patient_seed, patient_moves, patient_minutes,
+                      no_breathing, patient_seed is not None)
     if spect and (trigger != "triggerbox" or not folder):
         raise click.UsageError("--spect needs --trigger triggerbox and --dir DIR")
     if detach:
         if not folder:
             raise click.UsageError("--detach needs --dir DIR (where rig.yaml and sim.env go)")
         pid = simrig.start_detached(folder, n_cameras, seed, fw, rate, trigger=trigger, spect=spect, https=https,
-                                    gantry=gantry)
+                                    gantry=gantry, patient=person)
         _describe(Path(folder))
+        if person is not None:
+            click.echo(f"simulated patient: its truth in {Path(folder) / 'truth'}")
         click.echo(f"simulated rig running in the background (pid {pid}); stop it with: vts sim down --dir {folder}")
         return
 
@@ -79,11 +96,41 @@ def up(n_cameras: int, gantry: bool, seed: int, vapix: str, model: str | None, h
             _describe(Path(folder))
         if spect:
             click.echo(f"simulated SPECT: each scan's list-mode goes to {Path(folder) / 'spect'}")
+        if rig.patient is not None:
+            click.echo(_patient_line(rig.patient, folder))
         click.echo("simulated rig up; Ctrl-C stops it")
 
     simrig.serve(folder, n_cameras, seed, fw, rate, on_ready=ready, trigger=trigger, spect=spect, https=https,
-                 gantry=gantry)
+                 gantry=gantry, patient=person)
     click.echo("simulated rig stopped")
+
+
+def _patient(on: bool, seed: int, moves: int | None, minutes: float | None, no_breathing: bool,
+             seed_given: bool):
+    """The patient options, or None; an option that needs --patient without it is a usage error."""
+    from vts_hw.sim_devices.patient_rig import PatientOptions
+
+    if not on:
+        given = [name for name, v in (("--patient-seed", seed_given), ("--patient-moves", moves is not None),
+                                      ("--patient-minutes", minutes is not None), ("--no-breathing", no_breathing))
+                 if v]
+        if given:
+            raise click.UsageError(f"{', '.join(given)} needs --patient")
+        return None
+    options = PatientOptions(seed=seed, moves=2 if moves is None else moves,
+                             minutes=10.0 if minutes is None else minutes, breathing=not no_breathing)
+    try:
+        options.check()
+    except ValueError as e:
+        raise click.UsageError(f"--patient-minutes/--patient-moves: {e}") from None
+    return options
+
+
+def _patient_line(patient, folder) -> str:
+    moves = ", ".join(f"{m.t_start - patient.breathing.t0:.0f} s" for m in patient.motion.moves) or "none"
+    where = f"; truth in {Path(folder) / 'truth'}" if folder else ""
+    return (f"simulated patient: breathing {'on' if patient.breathing.enabled else 'off'}, body moves at "
+            f"{moves} after the start, plan {patient.breathing.duration_s / 60:g} min{where}")
 
 
 def _describe(folder: Path) -> None:

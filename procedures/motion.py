@@ -1,0 +1,238 @@
+"""Offline patient motion of one scan session: the respiratory signal, the body's 6-DOF pose
+with breathing taken out, body-motion events and motion states, in the one QA result shape.
+
+``MotionAnalysis(session, listmode=None, calibration, mapping).analyze(tolerances)`` then
+``results()`` (text), ``results_data()`` (JSON-ready dict), ``plot(path)`` (PNG) and
+``export(dir)`` (docs/motion-formats.md).
+
+* **Tracks.** The recording is processed (:func:`vts_hw.recording.processing.process_recording`,
+  every camera the calibration covers). With a list-mode file, through the sync analysis
+  (:class:`.sync.SyncAnalysis`): every time is then SPECT list-mode seconds since the
+  acquisition start; without one, host time (seconds from the first frame in every output).
+  With a VTS → SPECT mapping the positions are in the SPECT frame, else the VTS frame. Every
+  output says which.
+* **Motion** (:func:`vts_hw.motion.analyze_motion`; method: docs/decisions/0035).
+* **Measures**: the largest displacement of the patient markers' centroid
+  (``motion_body_max_mm``) and the largest turn (``motion_body_max_deg``) from the reference
+  pose, and the share of frames with a pose (``motion_pose_coverage``).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from vts_hw import __version__
+from vts_hw.errors import DataError
+from vts_hw.figures import figure_png
+from vts_hw.motion import MotionSettings, analyze_motion, marker_series
+from vts_hw.motion.exports import clock_text, export_motion, time_origin
+from vts_hw.results import Measure, overall_state
+from vts_hw.tolerance import State, merged_tolerances
+from vts_hw.procedures.sync_inputs import load_calibration, load_mapping
+
+__all__ = ["MotionAnalysis", "METRICS"]
+
+METRICS = {"motion_body_max_mm": "mm", "motion_body_max_deg": "deg", "motion_pose_coverage": "fraction"}
+
+
+class MotionAnalysis:
+    """The motion analysis of one session (see the module). ``tracks``: already processed
+    tracks (then no recording is read; ``session`` only names the run). ``settings``: a
+    :class:`~vts_hw.motion.MotionSettings` (``motion_config``: a rig.yaml ``motion:`` section
+    whose ``state_mm``/``state_deg`` are taken)."""
+
+    procedure = "motion"
+
+    def __init__(self, session, listmode=None, calibration=None, mapping=None, *, tracks=None,
+                 settings: MotionSettings | None = None, motion_config=None, workers: int | None = None,
+                 progress: Callable[[int, int], None] | None = None):
+        self.session = Path(session)
+        self.listmode = listmode
+        self.calibration = calibration
+        self.mapping = mapping
+        self.tracks = tracks
+        if settings is None:
+            settings = MotionSettings()
+            if motion_config is not None:
+                settings = MotionSettings(state_mm=motion_config.state_mm, state_deg=motion_config.state_deg)
+        self.settings = settings
+        self.workers = workers
+        self.progress = progress
+        self.result = None
+        self.sync = None
+        self.problems: list[str] = []
+        self.manifest: dict = {}
+        self.tolerances = merged_tolerances(None)
+        self.analyzed_at = None
+
+    # ------------------------------------------------------------------ load
+    def _load_tracks(self) -> None:
+        if self.tracks is not None:
+            return
+        from vts_hw.recording.folder import load_manifest
+        if not self.session.is_dir():
+            raise DataError(f"{self.session}: no such session folder")
+        if self.calibration is None:
+            raise DataError(f"{self.session}: no calibration given: the markers cannot be triangulated")
+        if self.listmode is not None:
+            from vts_hw.procedures.sync import SyncAnalysis
+            self.sync = SyncAnalysis(self.session, self.listmode, self.calibration, self.mapping,
+                                     workers=self.workers, progress=self.progress)
+            self.sync.analyze()
+            self.tracks = self.sync.tracks
+            self.manifest = self.sync.manifest or {}
+            self.problems += [f"sync: {p}" for p in self.sync.problems]
+            return
+        self.manifest = load_manifest(self.session, missing_ok=True) or {}
+        if not self.manifest.get("cameras"):
+            raise DataError(f"{self.session}: not a recording folder (no manifest.json with cameras)")
+        from vts_hw.recording.processing import process_recording
+        self.tracks = process_recording(self.session, load_calibration(self.calibration), workers=self.workers,
+                                        mapping=load_mapping(self.mapping), progress=self.progress)
+        self.problems += [f"processing: {w}" for w in self.tracks.meta.get("warnings", [])]
+
+    # ------------------------------------------------------------------ analysis
+    def analyze(self, tolerances: dict | None = None) -> "MotionAnalysis":
+        """``tolerances``: the rig's windows (rig.yaml ``tolerances:``) over the defaults."""
+        self.tolerances = merged_tolerances(tolerances)
+        self._load_tracks()
+        series = marker_series(self.tracks)
+        self.result = analyze_motion(series, self.settings)
+        self.problems += list(self.result.notes)
+        for name, cam in (self.manifest.get("cameras") or {}).items():
+            gaps = cam.get("gaps") or []
+            if gaps:
+                self.problems.append(f"camera {name}: {sum(g.get('missing', 0) for g in gaps)} frame(s) missing "
+                                     f"in {len(gaps)} gap(s) (manifest)")
+        if series.frame != "spect":
+            self.problems.append("no VTS -> SPECT mapping: poses are in the VTS frame (camera 1's)")
+        if series.clock != "spect":
+            self.problems.append("no list-mode: times are on the host clock, not the SPECT's")
+        self.analyzed_at = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+        return self
+
+    def _need(self):
+        if self.result is None:
+            raise RuntimeError("call analyze() first")
+        return self.result
+
+    # ------------------------------------------------------------------ figures
+    def figures(self) -> dict:
+        r = self._need()
+        pose = r.pose
+        v = pose.valid
+        shift = np.linalg.norm(pose.centre_shift()[v], axis=1) if v.any() else np.array([np.nan])
+        ang = pose.angle_deg()[v] if v.any() else np.array([np.nan])
+        return {"motion_body_max_mm": float(np.max(shift)), "motion_body_max_deg": float(np.max(ang)),
+                "motion_pose_coverage": float(v.mean())}
+
+    @property
+    def measures(self) -> list[Measure]:
+        f = self.figures()
+        subject = {"motion_pose_coverage": "tracking"}
+        return [Measure.judged(subject.get(m, "body"), m, f[m], METRICS[m], self.tolerances.get(m)) for m in METRICS]
+
+    @property
+    def state(self) -> State:
+        return overall_state(self.measures)
+
+    # ------------------------------------------------------------------ outputs
+    def _rel(self, x):
+        return float(x) - time_origin(self._need())
+
+    def results_data(self) -> dict:
+        r = self._need()
+        t0 = time_origin(r)
+        S, B = r.series, r.bands
+        band_of = {m: k for k, g in enumerate(B.groups) for m in g}
+        markers = [{"marker": S.label(m), "patient": m in B.patient, "band": band_of.get(m), "why": B.why[m],
+                    "seen_fraction": float(B.seen_fraction[m]), "breathing_rms_mm": float(B.breath_rms_mm[m]),
+                    "points_by_camera": S.camera_sets[m] if S.camera_sets else {}}
+                   for m in range(len(S.ids))]
+        resp = r.respiration
+        amp = resp.amplitude[np.isfinite(resp.amplitude)]
+        measures = self.measures
+        summary = {**self.figures(), "events": len(r.events), "states": len(r.states),
+                   "breathing_cycles": len(resp.cycles), "breathing_rate_per_min": resp.mean_rate_per_min,
+                   "breathing_amplitude_mm": float(np.median([c.amplitude for c in resp.cycles]))
+                   if resp.cycles else (float(np.ptp(amp)) if amp.size else None),
+                   "pose_fit_rms_mm": float(np.nanmedian(r.pose.rms_mm)),
+                   "state": str(overall_state(measures))}
+        tm = self.tracks.meta if self.tracks is not None else {}
+        return {
+            "procedure": self.procedure, "date": self.analyzed_at, "vts_hw_version": __version__,
+            "session": str(self.session), "listmode": None if self.listmode is None else str(
+                getattr(self.sync, "listmode_path", self.listmode)),
+            "clock": clock_text(r), "time_origin": t0,
+            "frame": "SPECT frame" if S.frame == "spect" else "VTS frame (no VTS -> SPECT mapping)",
+            "summary": summary, "measures": [m.as_dict() for m in measures],
+            "windows": {m: self.tolerances[m].as_dict() for m in METRICS if m in self.tolerances},
+            "reference_period_s": [r.reference_period[0] - t0, r.reference_period[1] - t0],
+            "bands": [[S.label(m) for m in g] for g in B.groups],
+            "markers": markers,
+            "events": [{**e.to_json(), "t_start": e.t_start - t0, "t_end": e.t_end - t0} for e in r.events],
+            "states": [{**s.to_json(), "t_start": s.t_start - t0, "t_end": s.t_end - t0} for s in r.states],
+            "pose_gaps_s": [[a - t0, b - t0] for a, b in r.gaps],
+            "speed_thresholds_mm_s": r.thresholds,
+            "cameras": {"names": list(S.camera_names),
+                        "points_by_cameras_seen": tm.get("points_by_cameras_seen"),
+                        "unpaired_frames": tm.get("unpaired_frames"),
+                        "single_camera_detections": tm.get("single_camera_detections")},
+            "settings": dict(vars(self.settings)) if hasattr(self.settings, "__dict__") else {},
+            "problems": list(self.problems),
+        }
+
+    def results(self) -> str:
+        d = self.results_data()
+        s = d["summary"]
+        lines = [f"patient motion: {self.session} ({d['date']}, vts-hw {d['vts_hw_version']})",
+                 f"  times: {d['clock']}",
+                 f"  positions: {d['frame']}",
+                 f"  patient markers: {len([m for m in d['markers'] if m['patient']])} in {len(d['bands'])} band(s) "
+                 f"({'; '.join(', '.join(b) for b in d['bands'])}); reference {d['reference_period_s'][0]:.1f}-"
+                 f"{d['reference_period_s'][1]:.1f} s",
+                 f"  breathing: {s['breathing_cycles']} cycles, "
+                 + (f"{s['breathing_rate_per_min']:.1f} /min, " if s['breathing_rate_per_min'] else "")
+                 + (f"{s['breathing_amplitude_mm']:.1f} mm" if s['breathing_amplitude_mm'] is not None else ""),
+                 f"  body: moved up to {s['motion_body_max_mm']:.2f} mm and {s['motion_body_max_deg']:.2f} deg from "
+                 f"the reference; pose in {100 * s['motion_pose_coverage']:.1f} % of the frames "
+                 f"(fit RMS {s['pose_fit_rms_mm']:.3f} mm)"]
+        for k, e in enumerate(d["events"], 1):
+            c = e["change_6dof"]
+            lines.append(f"  event {k}: {e['t_start']:.2f}-{e['t_end']:.2f} s, shift {e['centroid_shift_mm']:.1f} mm, "
+                         f"turn {e['rotation_deg']:.2f} deg (t {c[0]:+.1f} {c[1]:+.1f} {c[2]:+.1f} mm, "
+                         f"r {c[3]:+.2f} {c[4]:+.2f} {c[5]:+.2f} deg)")
+        for st in d["states"]:
+            x = st["six_dof"]
+            lines.append(f"  state {st['state']}: {st['t_start']:.2f}-{st['t_end']:.2f} s, pose t {x[0]:+.2f} "
+                         f"{x[1]:+.2f} {x[2]:+.2f} mm, r {x[3]:+.2f} {x[4]:+.2f} {x[5]:+.2f} deg")
+        for m in d["measures"]:
+            lines.append(f"  {m['metric']}: {m['value']:.3g} {m['unit']} -> {m['state']}")
+        lines.append(f"  state: {s['state']}")
+        for p in self.problems:
+            lines.append(f"  note: {p}")
+        return "\n".join(lines)
+
+    def figure(self):
+        from vts_hw.procedures.motion_plot import motion_figure
+        return motion_figure(self._need(), self.results_data())
+
+    def plot(self, path=None) -> bytes:
+        png = figure_png(self.figure())
+        if path is not None:
+            Path(path).write_bytes(png)
+        return png
+
+    def export(self, out, n_bins: int = 4) -> list[Path]:
+        """The motion files (docs/motion-formats.md) and the marker trajectories
+        (``trajectories.csv``/``.json``, docs/trajectory-format.md) into ``out``."""
+        r = self._need()
+        paths = export_motion(r, out, n_bins=n_bins, extra={"session": str(self.session),
+                                                              "vts_hw_version": __version__})
+        if self.tracks is not None:
+            paths += list(self.tracks.save(Path(out) / "trajectories.csv"))
+        return paths

@@ -1,0 +1,146 @@
+"""The motion analysis core (vts_hw/motion) against the simulated patient's truth: synthetic
+tracks made from the patient model (noise 0.05 mm, points missing), marker ids shuffled."""
+
+import numpy as np
+import pytest
+
+from vts_hw.errors import DataError
+from vts_hw.motion import MotionSettings, analyze_motion, marker_series
+from vts_hw.motion.body_pose import kabsch_batch
+from vts_hw.sim_devices.patient import BodyMove
+
+from motion_truth import patient_tracks, pose_errors, true_moves
+
+
+@pytest.fixture(scope="module")
+def moving():
+    patient, tracks, truth, t0 = patient_tracks(seed=5, duration_s=60.0, n_moves=2, drop=0.02, dropout_s=2.0)
+    return patient, truth, analyze_motion(marker_series(tracks))
+
+
+def test_the_patient_markers_are_found_by_behaviour_and_grouped_in_bands(moving):
+    patient, truth, r = moving
+    names = [truth["ids"][ids[0]] for ids in r.patient.ids]
+    assert sorted(names) == sorted(m.id for m in patient.rest)          # the 8 band markers, no wall marker
+    groups = [sorted(truth["ids"][r.series.ids[m][0]][0] for m in g) for g in r.bands.groups]
+    assert sorted(groups) == [["A"] * 4, ["C"] * 4]
+    walls = [m for m in range(len(r.series.ids)) if m not in r.bands.patient]
+    assert len(walls) == 4 and all("not the patient" in r.bands.why[m] for m in walls)
+
+
+def test_body_pose_matches_the_truth_with_breathing_taken_out(moving):
+    patient, _, r = moving
+    mm, deg = pose_errors(r, patient)
+    assert mm < 0.3 and deg < 0.2
+    # and the pose really moved: the truth has moves of several mm
+    assert np.nanmax(np.linalg.norm(r.pose.six_dof()[:, :3], axis=1)) > 2.0
+
+
+def test_every_body_move_is_an_event_starting_near_its_true_start(moving):
+    patient, _, r = moving
+    moves = true_moves(patient)
+    assert len(moves) == 2
+    for m in moves:
+        near = [e for e in r.events if abs(e.t_start - m.t_start) <= 0.5]
+        assert len(near) == 1, (m, [e.to_json() for e in r.events])
+    assert len(r.events) == len(moves)
+    # one motion state per still pose between moves (each move here is over 2 mm or 1 deg)
+    assert len(r.states) == 3
+    for s, m in zip(r.states[1:], moves):
+        assert m.t_start - 0.5 <= s.t_start <= m.t_end + 0.5
+    true_last = patient.six_dof(r.states[-1].t_end - 1.0)
+    assert np.allclose(r.states[-1].six_dof[:3], true_last[:3], atol=0.3)
+    assert np.allclose(r.states[-1].six_dof[3:], true_last[3:], atol=0.2)
+
+
+def test_respiratory_signal_follows_the_true_breathing(moving):
+    patient, _, r = moving
+    b = patient.breathing.value(r.pose.t)
+    ok = r.pose.valid
+    assert np.corrcoef(r.respiration.amplitude[ok], b[ok])[0, 1] >= 0.98
+    errs = [abs(c.rate_per_min - patient.breathing.rate_per_min(0.5 * (c.t_start + c.t_end)))
+            for c in r.respiration.cycles]
+    assert len(errs) >= 8 and np.nanmedian(errs) <= 0.5
+    # the amplitude is in mm of the marker that breathes most, inhaling upwards (positive)
+    most = max(np.linalg.norm(v) for v in patient.breath_dir.values())
+    assert 0.5 * most < np.ptp(r.respiration.amplitude[ok]) < 3.0 * most
+
+
+def test_breathing_alone_makes_no_event_and_one_state():
+    patient, tracks, _, _ = patient_tracks(seed=3, duration_s=60.0, n_moves=0, drop=0.02)
+    r = analyze_motion(marker_series(tracks))
+    assert r.events == [] and len(r.states) == 1
+    mm, deg = pose_errors(r, patient, still_only=False)
+    assert mm < 0.3 and deg < 0.2
+
+
+def test_a_slow_creep_makes_states_but_no_event():
+    patient, tracks, _, _ = patient_tracks(seed=2, duration_s=60.0, n_moves=0, creep_mm=5.0)
+    r = analyze_motion(marker_series(tracks), MotionSettings(state_mm=2.0))
+    assert r.events == []
+    assert len(r.states) >= 2                     # 5 mm of drift in states of 2 mm
+    mm, _ = pose_errors(r, patient)
+    assert mm < 0.3
+
+
+def test_a_patient_who_moves_without_breathing_is_still_found():
+    moves = [BodyMove(1_790_000_030.0, 1_790_000_031.0, (0.0, 0.0, 2.0), (0.0, 3.0, 4.0))]
+    patient, tracks, _, _ = patient_tracks(seed=1, duration_s=50.0, breathing=False, moves=moves)
+    r = analyze_motion(marker_series(tracks))
+    assert len(r.events) == 1 and abs(r.events[0].t_start - 1_790_000_030.0) <= 0.5
+    assert any("flat" in n for n in r.notes)
+
+
+def test_still_markers_alone_are_refused_in_one_sentence():
+    _, tracks, truth, _ = patient_tracks(seed=1, duration_s=20.0, n_moves=0)
+    keep = np.isin(tracks.marker, [m for m, n in truth["ids"].items() if n.startswith("W")])
+    tracks.point_frame, tracks.marker, tracks.xyz = tracks.point_frame[keep], tracks.marker[keep], tracks.xyz[keep]
+    tracks.xyz_spect, tracks.uv, tracks.reproj_px = tracks.xyz_spect[keep], tracks.uv[keep], tracks.reproj_px[keep]
+    with pytest.raises(DataError, match="breathe or move"):
+        analyze_motion(marker_series(tracks))
+
+
+def test_kabsch_batch_finds_a_known_transform_with_missing_markers():
+    rng = np.random.default_rng(0)
+    ref = rng.normal(0, 100, (6, 3))
+    from scipy.spatial.transform import Rotation
+    Rs = Rotation.random(5, random_state=1).as_matrix()
+    Ts = rng.normal(0, 50, (5, 3))
+    P = np.einsum("fij,mj->fmi", Rs, ref) + Ts[:, None]
+    P[0, :3] = np.nan                                   # frame 0: 3 markers left
+    P[1, :4] = np.nan                                   # frame 1: 2 left: no pose
+    R, T, rms = kabsch_batch(ref, P)
+    ok = [0, 2, 3, 4]
+    assert np.allclose(R[ok], Rs[ok], atol=1e-9) and np.allclose(T[ok], Ts[ok], atol=1e-6)
+    assert np.isnan(T[1]).all() and np.nanmax(rms) < 1e-6
+
+
+def test_a_ghost_point_does_not_drag_the_pose():
+    """A wrong match: a 3D point that follows the body but sits 10-20 mm off, in pieces that
+    each get a new id, present in about half of the frames (as the 2-camera rendered recording
+    of test_motion_e2e has one)."""
+    patient, tracks, truth, t0 = patient_tracks(seed=4, duration_s=50.0, n_moves=1)
+    rng = np.random.default_rng(9)
+    host = tracks.host_time
+    a1 = next(m for m, n in truth["ids"].items() if n == "A1")
+    base = {f: p for f, m, p in zip(tracks.point_frame, tracks.marker, tracks.xyz) if m == a1}
+    pf, mk, xyz = [], [], []
+    next_id = int(tracks.marker.max()) + 1
+    for start in np.arange(0.0, 50.0, 5.0):                   # a piece every 5 s, 2.5 s long
+        off = rng.normal(size=3)
+        off *= rng.uniform(10.0, 20.0) / np.linalg.norm(off)
+        for f in np.flatnonzero((host >= t0 + start) & (host < t0 + start + 2.5)):
+            if f in base:
+                pf.append(f), mk.append(next_id), xyz.append(base[f] + off)
+        next_id += 1
+    n = len(pf)
+    tracks.point_frame = np.concatenate([tracks.point_frame, pf])
+    tracks.marker = np.concatenate([tracks.marker, mk])
+    tracks.xyz = np.concatenate([tracks.xyz, xyz])
+    tracks.xyz_spect = tracks.xyz.copy()
+    tracks.uv = np.concatenate([tracks.uv, np.zeros((n, 4))])
+    tracks.reproj_px = np.concatenate([tracks.reproj_px, np.zeros(n)])
+    r = analyze_motion(marker_series(tracks))
+    mm, deg = pose_errors(r, patient)
+    assert mm < 0.3 and deg < 0.2
+    assert len(r.events) == len(true_moves(patient)) == 1

@@ -1,0 +1,52 @@
+"""`vts motion analyze --listmode` on the simulated rig: a patient on the table (breathing, one
+body move), a scan session with the trigger box in the emulator, the simulated SPECT following
+it; the motion analysis goes through the sync analysis, so every time is list-mode seconds."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from vts_hw.sim_devices.patient import BodyMove, add_patient
+from vts_hw.sim_devices.rig import SimRig
+from vts_hw.sim_devices.scenarios import sync_session as sync_sim
+
+
+@pytest.fixture(scope="module")
+def synced_scan(tmp_path_factory):
+    import time
+    tmp = tmp_path_factory.mktemp("motion_synced")
+    rig = SimRig(n_cameras=2, seed=3, trigger="triggerbox").start()
+    try:
+        rig_yaml, _ = rig.write(tmp / "rig")
+        marker = sync_sim.prepare(rig)
+        t0 = time.time()
+        move = BodyMove(t0 + 14.0, t0 + 14.8, (0.3, 0.2, 0.6), (1.5, 2.0, 1.0))
+        patient = add_patient(rig.scene, t0, 40.0, 2, moves=[move])
+        run = sync_sim.cli_scan(rig, rig_yaml, tmp / "scan", 22.0, marker, n=2, seed=1)
+    finally:
+        rig.stop()
+    return run, rig_yaml, patient, move, tmp
+
+
+@pytest.mark.timeout(600)
+def test_motion_on_the_spect_clock(synced_scan):
+    run, rig_yaml, patient, move, tmp = synced_scan
+    p = subprocess.run([sys.executable, "-m", "vts_hw.cli", "motion", "analyze", str(run.session), "--listmode",
+                        str(run.listmode), "--export", str(tmp / "export"), "--json"],
+                       env={**os.environ, "VTS_CONFIG": str(rig_yaml)}, capture_output=True, text=True, timeout=600)
+    assert p.returncode in (0, 10, 20), p.stderr
+    data = json.loads(p.stdout)
+    assert "SPECT list-mode" in data["clock"] and data["time_origin"] == 0.0 and data["frame"] == "SPECT frame"
+    # the move's true start, on the list-mode clock: host time minus the fire, plus nothing
+    # more than the SPECT's start delay (< 0.5 s): within a second of the true start
+    true_list = move.t_start - run.fire_host
+    starts = [e["t_start"] for e in data["events"]]
+    assert any(abs(s - true_list) < 1.0 for s in starts), (starts, true_list)
+    dyn = (tmp / "export" / "castor_motion.dyn").read_text()
+    assert dyn.splitlines()[1].startswith("timestamp_motion_triggers: 0,")
+    six = json.loads((tmp / "export" / "motion_6dof.json").read_text())
+    assert "SPECT list-mode" in six["clock"]

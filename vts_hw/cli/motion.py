@@ -1,0 +1,81 @@
+"""`vts motion ...`: offline patient motion of a scan session."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from vts_hw.cli import cli
+from vts_hw.cli.common import config_option, echo_json, json_option, say_stored, store_qa_result
+
+EXIT_CODES = {"OK": 0, "TOLERANCE": 10, "ACTION": 20}
+
+
+@cli.group()
+def motion() -> None:
+    """Patient motion: breathing, body pose, motion events and states, exports for reconstruction."""
+
+
+@motion.command()
+@click.argument("session", type=click.Path())
+@click.option("--listmode", type=click.Path(dir_okay=False), default=None, metavar="FILE",
+              help="The SPECT list-mode of the same scan: times become list-mode seconds (through the sync "
+                   "analysis; the session then needs its trigger.csv). Without it: host time.")
+@click.option("--calibration", type=click.Path(dir_okay=False), default=None,
+              help="Camera calibration file (default: the rig config's calibration.stereo).")
+@click.option("--mapping", type=click.Path(dir_okay=False), default=None,
+              help="VTS -> SPECT transform file (default: the rig config's calibration.spect); without one "
+                   "poses are in the VTS frame.")
+@click.option("-o", "--output", "out", type=click.Path(dir_okay=False), default=None,
+              help="Write the HTML report here (self-contained: the plot inline).")
+@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None, help="Also write the plot as a PNG.")
+@click.option("--export", "export_dir", type=click.Path(file_okay=False), default=None,
+              help="Write the motion files to DIR (docs/motion-formats.md): motion_6dof.csv/.json, respiration.csv, "
+                   "subsets.json, castor_motion.dyn, castor_motion_rigid.txt, trajectories.csv/.json.")
+@click.option("--bins", type=click.IntRange(2, 20), default=4, show_default=True,
+              help="Respiratory bins (by amplitude and by phase) in subsets.json.")
+@click.option("--workers", type=click.IntRange(1, 256), default=None, help="Processes for the recording (default: every core).")
+@json_option
+@config_option
+def analyze(session, listmode, calibration, mapping, out, plot_path, export_dir, bins, workers, as_json,
+            config_path) -> None:
+    """Breathing, body 6-DOF pose, motion events and motion states of a scan SESSION.
+
+    The patient's markers are found by behaviour (they breathe or move); breathing is taken out
+    of the body pose; a motion state is an interval of pose within the rig's motion.state_mm and
+    motion.state_deg. Exit status like the QA procedures: 0 OK, 10 TOLERANCE, 20 ACTION
+    (windows motion_body_max_mm, motion_body_max_deg, motion_pose_coverage); 2 bad input; 3 a
+    file could not be read or written, or the run could not be stored (its figures then go
+    to a file that `vts qa import` stores later).
+    """
+    from vts_hw.cli.sync import _Progress, _calibration_files
+    from vts_hw.procedures.motion import MotionAnalysis
+    from vts_hw.report.motion_html import write_motion_html
+
+    cal, mp, rig = _calibration_files(config_path, calibration, mapping)
+    a = MotionAnalysis(session, listmode, cal, mp, motion_config=rig.motion if rig is not None else None,
+                       workers=workers, progress=_Progress())
+    a.analyze(tolerances=rig.tolerances if rig is not None else None)
+    data = a.results_data()
+    png = a.plot(plot_path) if (out or plot_path) else None
+    if out:
+        write_motion_html(data, png, out)
+        data["report"] = str(out)
+    if export_dir:
+        data["export"] = [str(p) for p in a.export(export_dir, n_bins=bins)]
+    stored = store_qa_result(rig, a, data, notes=f"session {session}", artifacts=[p for p in (plot_path,) if p])
+    if as_json:
+        echo_json(data)
+    else:
+        click.echo(a.results())
+        if out:
+            click.echo(f"report: {out}")
+        if export_dir:
+            click.echo(f"exported ({data['clock']}): {', '.join(data['export'])}")
+    sys.stdout.flush()
+    if say_stored(stored, a, "motion analysis", as_json):
+        sys.exit(3)
+    code = EXIT_CODES[data["summary"]["state"]]
+    if code:
+        sys.exit(code)

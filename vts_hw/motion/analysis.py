@@ -1,0 +1,271 @@
+"""The motion analysis of one session's marker tracks, start to end (method and reasons:
+docs/decisions/0035-breathing-and-body-motion.md).
+
+1. The patient's markers (:mod:`.bands`): those that breathe or move, grouped into bands.
+2. A first pose: the rigid fit (Kabsch) of every frame to a provisional reference (the first
+   seconds). What is left in the body's frame is the non-rigid part of breathing: its first
+   principal component (band-passed) is the first respiratory signal (:mod:`.respiration`).
+3. Still periods: the markers carried by the first pose, minus their regression on that signal
+   (the rigid part breathing puts into the pose), give a speed; frames away from fast runs
+   are still. The **reference** is the first still period (its mean positions).
+4. Breathing vectors per marker: displacement per unit of the signal, regressed over the still
+   periods (each run detrended on its own, its pose held fixed: the rigid part of breathing is
+   in the vectors, so it leaves the pose).
+5. Pose and breathing together per frame (:func:`.body_pose.fit_pose_breathing`); the
+   respiratory signal is now the fitted one (its slow part kept). Steps 3-5 once more with the
+   still periods from the new pose.
+6. Events and motion states (:mod:`.events`); respiratory cycles, phase and rate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.ndimage import uniform_filter1d
+
+from vts_hw.errors import DataError
+from vts_hw.motion.bands import Bands, find_bands
+from vts_hw.motion.body_pose import BodyPose, back_to_reference, fit_pose_breathing, kabsch_batch
+from vts_hw.motion.events import MotionEvent, MotionState, find_events, motion_states
+from vts_hw.motion.markers import MarkerSeries
+from vts_hw.motion.respiration import Respiration, breath_cycles, breathing_vectors, principal_signal
+from vts_hw.motion.signal import fill_gaps, highpass, sample_rate
+
+__all__ = ["MotionResult", "MotionSettings", "analyze_motion"]
+
+BREATH_MM = 0.25      # a marker breathes above this RMS at 0.08-1 Hz (bands.find_bands's default)
+
+
+@dataclass(frozen=True)
+class MotionSettings:
+    """``state_mm``/``state_deg``: a motion state's extent (rig.yaml ``motion:``);
+    ``event_mm``/``event_deg``: the least change an event makes; ``min_speed``: mm/s a
+    marker must move at before anything counts as motion; ``ref_min_s``/``ref_max_s``: the
+    reference still period's least and largest length; ``margin_s``: frames this close to
+    motion are not still; ``iterations``: passes of steps 3-5; ``outlier_rigid_mm``/``outlier_mm``: a
+    point further than this from the rigid fit (breathing not modelled) / from the fit with breathing
+    is left out of that frame (a wrong match, a ghost)."""
+
+    state_mm: float = 2.0
+    state_deg: float = 1.0
+    event_mm: float = 1.0
+    event_deg: float = 0.5
+    min_speed: float = 1.0
+    ref_min_s: float = 3.0
+    ref_max_s: float = 10.0
+    margin_s: float = 1.0
+    iterations: int = 2
+    outlier_rigid_mm: float = 40.0
+    max_outlier_share: float = 0.5
+    outlier_mm: float = 3.0
+
+
+@dataclass
+class MotionResult:
+    """What :func:`analyze_motion` found (times on ``series.clock``, positions in ``series.frame``)."""
+
+    series: MarkerSeries
+    bands: Bands
+    patient: MarkerSeries
+    reference: np.ndarray           # (M, 3) the patient's markers in the reference pose
+    reference_period: tuple
+    pose: BodyPose
+    respiration: Respiration
+    events: list
+    states: list
+    speed: np.ndarray
+    moving: np.ndarray
+    still: np.ndarray
+    thresholds: dict
+    settings: MotionSettings
+    notes: list = field(default_factory=list)
+
+    @property
+    def gaps(self) -> list:
+        """[start, end] times where the pose could not be fitted (fewer than 3 markers)."""
+        bad = ~self.pose.valid
+        t = self.pose.t
+        return [[float(t[a]), float(t[b - 1])] for a, b in _runs(bad)]
+
+
+def _runs(mask):
+    m = np.concatenate([[False], np.asarray(mask, bool), [False]])
+    d = np.diff(m.astype(int))
+    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
+
+
+def _dilate(mask, n):
+    if n <= 0 or not mask.any():
+        return mask.copy()
+    k = np.ones(2 * n + 1)
+    return np.convolve(mask.astype(float), k, mode="same") > 0
+
+
+def _reference(P, seen, sel, R=None, T=None):
+    """Mean positions over the frames ``sel``; a marker unseen there: its median over every
+    frame taken back through the pose (R, T), NaN without one."""
+    Q = P if R is None else back_to_reference(R, T, P)
+    M = P.shape[1]
+    ref = np.full((M, 3), np.nan)
+    for m in range(M):
+        ok = sel & seen[:, m]
+        if ok.sum() >= 3:
+            ref[m] = P[ok, m].mean(axis=0)
+        elif R is not None:
+            ok = seen[:, m] & np.isfinite(Q[:, m, 0])
+            if ok.any():
+                ref[m] = np.median(Q[ok, m], axis=0)
+    return ref
+
+
+def _pose_with_reference(P, seen, ref, weights=None):
+    has = np.isfinite(ref[:, 0])
+    use = seen & has[None]
+    R, T, _ = kabsch_batch(np.where(has[:, None], ref, 0.0), P, use, weights)
+    return R, T
+
+
+def _robust_pose(P, seen, ref, scales=(60.0, 40.0)):
+    """A rigid fit per frame that a wrong point does not drag: Tukey-weighted Kabsch, its
+    scale shrinking (mm). Returns R, T and the weights (F, M)."""
+    w = seen.astype(float)
+    for c in scales:
+        R, T = _pose_with_reference(P, seen, ref, w)
+        res = np.linalg.norm(np.where(seen[..., None], P - (np.einsum("fij,mj->fmi", R, np.nan_to_num(ref))
+                                                           + T[:, None]), 0.0), axis=2)
+        u = np.clip(np.nan_to_num(res, nan=np.inf) / c, 0.0, 1.0)
+        w = np.where(seen, (1 - u ** 2) ** 2, 0.0)
+    return R, T, w
+
+
+def _segment_poses(t, P, seen, ref, still, fs):
+    """Positions in the body frame with one pose per still run (NaN elsewhere)."""
+    D = np.full(P.shape, np.nan)
+    for a, b in _runs(still):
+        mean = np.array([P[a:b, m][seen[a:b, m]].mean(axis=0) if seen[a:b, m].any() else [np.nan] * 3
+                         for m in range(P.shape[1])])
+        ok = np.isfinite(mean[:, 0])
+        if ok.sum() < 3:
+            continue
+        R, T, _ = _robust_pose(mean[None], ok[None], ref, (20.0, 5.0, 2.0))
+        D[a:b] = back_to_reference(np.repeat(R, b - a, 0), np.repeat(T, b - a, 0), P[a:b])
+    return D
+
+
+def _provisional_moving(t, pose_pts, s, settings, fs):
+    """Frames moving, from the carried markers minus their regression on the signal."""
+    X = pose_pts.reshape(len(t), -1)
+    ok = np.isfinite(X).all(axis=1) & np.isfinite(s)
+    if ok.sum() < 20:
+        return np.zeros(len(t), bool)
+    hx = highpass(t, np.where(ok[:, None], X, np.nan), 0.1)
+    hs = highpass(t, np.where(ok, s, np.nan)[:, None], 0.1)[:, 0]
+    k = (hs[ok] @ hx[ok]) / max(float(hs[ok] @ hs[ok]), 1e-12)
+    Xc = (X - np.outer(np.nan_to_num(s), k))
+    h = max(1, int(round(0.2 * fs)))
+    Xc = uniform_filter1d(fill_gaps(t, Xc), 2 * h + 1, axis=0).reshape(pose_pts.shape)   # provisional: smearing is harmless
+    sp = np.zeros(len(t))
+    if len(t) > 2 * h:
+        sp[h:-h] = np.linalg.norm(Xc[2 * h:] - Xc[:-2 * h], axis=2).max(axis=1) / (t[2 * h:] - t[:-2 * h])
+    sp = np.nan_to_num(sp)
+    sig = 1.4826 * np.median(np.abs(sp - np.median(sp)))
+    return sp > max(2.0 * settings.min_speed, np.median(sp) + 6 * sig)
+
+
+def _inliers(P, seen, model, limit_mm):
+    """``seen`` without the points further than ``limit_mm`` from the model (F, M, 3)."""
+    res = np.linalg.norm(np.where(seen[..., None], P - model, 0.0), axis=2)
+    return seen & ~(np.nan_to_num(res, nan=np.inf) > limit_mm)
+
+
+def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None) -> MotionResult:
+    """The whole analysis (see the module). DataError when the patient's markers cannot be found
+    or no still period of ``ref_min_s`` exists for the reference."""
+    st = settings or MotionSettings()
+    bands = find_bands(series)
+    S = series.subset(bands.patient)
+    t, P, seen = S.t, S.P, S.seen
+    seen_all = seen.copy()
+    fs = sample_rate(t)
+    notes = []
+    # 2. provisional reference and pose; the first respiratory signal
+    sel0 = t <= t[0] + st.ref_max_s
+    ref = _reference(P, seen, sel0)
+    R0, T0 = _pose_with_reference(P, seen, ref)
+    ref = _reference(P, seen, sel0, R0, T0)
+    R0, T0, w = _robust_pose(P, seen, ref)
+    # a marker the robust fit leaves out in most frames is not one of the patient's (a wrong
+    # match, a ghost made of pieces); a single point far off the fit is left out of its frame
+    out_share = 1.0 - (seen & (w > 0)).sum(axis=0) / np.maximum(seen.sum(axis=0), 1)
+    bad = [m for m in range(P.shape[1]) if out_share[m] > st.max_outlier_share]
+    if bad and P.shape[1] - len(bad) >= 3:
+        for m in bad:
+            col = bands.patient[m]
+            bands.why[col] = (f"off the rigid fit of the others in {100 * out_share[m]:.0f} % of its frames: "
+                              f"not the patient's (a wrong match?)")
+            notes.append(f"marker {S.label(m)} left out: {bands.why[col]}")
+        keep = [m for m in range(P.shape[1]) if m not in bad]
+        bands.patient = [bands.patient[m] for m in keep]
+        bands.groups = [[c for c in g if c in bands.patient] for g in bands.groups]
+        bands.groups = [g for g in bands.groups if g]
+        S = series.subset(bands.patient)
+        P, seen, ref = S.P, S.seen, ref[keep]
+        seen_all = seen.copy()
+        R0, T0, w = _robust_pose(P, seen, ref)
+    seen = _inliers(P, seen, np.einsum("fij,mj->fmi", R0, ref) + T0[:, None], st.outlier_rigid_mm)
+    R0, T0 = _pose_with_reference(P, seen, ref)
+    D = back_to_reference(R0, T0, P) - ref[None]
+    D[~seen] = np.nan
+    s, _, _ = principal_signal(t, D)
+    pts = np.einsum("fij,mj->fmi", R0, ref) + T0[:, None]
+    moving = _provisional_moving(t, pts, s, st, fs)
+    v = np.zeros_like(ref)
+    R, T = R0, T0
+    ref_period = (float(t[0]), float(t[0]))
+    for _ in range(max(1, st.iterations)):
+        valid = np.isfinite(R[:, 0, 0])
+        still = valid & ~_dilate(moving, int(round(st.margin_s * fs)))
+        runs = [(a, b) for a, b in _runs(still) if t[b - 1] - t[a] >= st.ref_min_s]
+        if not runs:
+            raise DataError(f"no still period of {st.ref_min_s:g} s for the reference: the patient moved "
+                            f"all the time (or the markers were not seen)")
+        a, b = runs[0]
+        b = min(b, a + int(round(st.ref_max_s * fs)))
+        ref_sel = np.zeros(len(t), bool)
+        ref_sel[a:b] = True
+        ref_period = (float(t[a]), float(t[b - 1]))
+        ref = _reference(P, seen, ref_sel, R, T)
+        Dseg = _segment_poses(t, P, seen, ref, still, fs) - ref[None]
+        v = breathing_vectors(t, Dseg, s, still)
+        R0, T0, _ = _robust_pose(P, seen, ref)
+        R, T, s, rms = fit_pose_breathing(ref, v, P, seen, R0, T0, s)
+        body = ref[None] + v[None] * np.nan_to_num(s)[:, None, None]
+        model = np.einsum("fij,fmj->fmi", R, body) + T[:, None]
+        seen_in = _inliers(P, seen_all, model, st.outlier_mm)
+        if (seen_in != seen).any():
+            seen = seen_in
+            R, T, s, rms = fit_pose_breathing(ref, v, P, seen, R0, T0, s)
+        known = ref[np.isfinite(ref).all(axis=1)]
+        pose = BodyPose(t, R, T, s, rms, seen.sum(axis=1), known.mean(axis=0))
+        events, speed, moving, thr = find_events(pose, known, min_speed=st.min_speed, event_mm=st.event_mm,
+                                                 event_deg=st.event_deg)
+    # scale and sign of the respiratory signal: mm of the marker that breathes most, + = inhaled
+    norms = np.linalg.norm(v, axis=1)
+    scale = float(norms.max()) if norms.size else 0.0
+    breathes = bool(np.any(bands.breath_rms_mm[bands.patient] >= BREATH_MM))
+    if scale > 0 and breathes:
+        up = np.array([0.0, 1.0, 0.0]) if series.frame == "spect" else np.array([0.0, -1.0, 0.0])
+        sign = 1.0 if float(np.sum(v @ up)) >= 0 else -1.0
+        v = v / (scale * sign)
+        s = s * scale * sign
+        s = s - np.nanmean(s[ref_sel])
+    else:
+        notes.append("no breathing found in the markers: the respiratory signal is flat")
+        s = np.zeros_like(s)
+    pose.resp = s
+    cycles, phase, rate = breath_cycles(t, s)
+    resp = Respiration(t, s, phase, rate, cycles, v)
+    states = motion_states(pose, events, moving, known, state_mm=st.state_mm, state_deg=st.state_deg)
+    return MotionResult(series, bands, S, ref, ref_period, pose, resp, events, states, speed, moving,
+                        still, thr, st, notes)

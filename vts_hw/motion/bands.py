@@ -1,0 +1,94 @@
+"""Which tracked markers are the patient's, and in which band.
+
+Marker ids are whatever the tracker gave, so the patient's markers are found by behaviour: a
+marker that **breathes** (its band-passed 0.08-1 Hz motion above ``breath_mm`` RMS) or that
+**moved** with the others (a range of its slow motion above ``moved_mm``) and is seen in at
+least ``min_seen`` of the frames. Wall markers and anything else still are left out, and every
+marker's reason is kept. The patient's markers are then grouped into bands by geometry: sorted
+along the line they spread most on, split at the largest gap when it is over ``band_gap_mm``
+(the chest and abdomen bands are ~20 cm apart, the markers of one band ~5-15 cm).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from vts_hw.errors import DataError
+from vts_hw.motion.signal import bandpass, lowpass, sample_rate
+
+__all__ = ["Bands", "find_bands"]
+
+
+@dataclass
+class Bands:
+    """``patient``: column indices (into the series) of the patient's markers; ``groups``: the
+    bands, lists of those columns in order along the body; ``breath_rms_mm``, ``range_mm``,
+    ``seen_fraction`` per column of the series; ``why``: per column, the reason it is in or out."""
+
+    patient: list
+    groups: list
+    breath_rms_mm: np.ndarray
+    range_mm: np.ndarray
+    seen_fraction: np.ndarray
+    why: list = field(default_factory=list)
+
+
+def _fs(t) -> int:
+    return max(1, int(round(sample_rate(t))))
+
+
+def find_bands(series, *, breath_mm: float = 0.25, moved_mm: float = 1.5, min_seen: float = 0.3,
+               band_gap_mm: float = 60.0) -> Bands:
+    t, P = series.t, series.P
+    seen = series.seen
+    frac = seen.mean(axis=0)
+    M = P.shape[1]
+    rms = np.zeros(M)
+    rng = np.zeros(M)
+    why = []
+    patient = []
+    for m in range(M):
+        if frac[m] < min_seen:
+            why.append(f"seen in {100 * frac[m]:.0f} % of the frames (< {100 * min_seen:.0f} %)")
+            continue
+        ok = seen[:, m]
+        first, last = np.flatnonzero(ok)[[0, -1]]
+        sl = slice(first, last + 1)
+        bp = bandpass(t[sl], P[sl, m])
+        e2 = np.where(ok[sl], np.sum(bp ** 2, axis=1), np.nan)
+        # the median over 10 s windows: a body move rings in the filter for a few seconds only
+        win = [e2[k:k + 10 * _fs(t)] for k in range(0, len(e2), 10 * _fs(t))]
+        rms[m] = float(np.sqrt(np.nanmedian([np.nanmean(w) for w in win if np.isfinite(w).sum() > 10] or [0.0])))
+        slow = lowpass(t[sl], P[sl, m], 0.1)[ok[sl]]
+        rng[m] = float(np.max(np.linalg.norm(slow - np.median(slow, axis=0), axis=1)))
+        if rms[m] >= breath_mm:
+            patient.append(m)
+            why.append(f"breathes ({rms[m]:.2f} mm RMS at 0.08-1 Hz)")
+        elif rng[m] >= moved_mm:
+            patient.append(m)
+            why.append(f"moved ({rng[m]:.1f} mm) without breathing")
+        else:
+            why.append(f"still (breathing {rms[m]:.2f} mm RMS, moved {rng[m]:.1f} mm): not the patient's")
+    if len(patient) < 3:
+        raise DataError(f"only {len(patient)} marker(s) breathe or move: the patient's band markers need "
+                        f"at least 3 seen in {100 * min_seen:.0f} % of the frames (markers: "
+                        + "; ".join(f"{series.label(m)} {why[m]}" for m in range(M)) + ")")
+    mean = np.array([np.nanmedian(P[:, m], axis=0) for m in patient])
+    c = mean - mean.mean(axis=0)
+    groups = [list(patient)]
+    best = (0.0, None, None)
+    vt = np.linalg.svd(c, full_matrices=False)[2]
+    ang = np.radians(np.arange(0.0, 180.0, 2.0))
+    dirs = np.concatenate([vt, np.cos(ang)[:, None] * vt[0] + np.sin(ang)[:, None] * vt[1]])
+    for axis in dirs:          # the largest gap along any direction in the markers' main plane
+        pos = c @ axis
+        order = np.argsort(pos)
+        gaps = np.diff(pos[order])
+        if gaps.size and gaps.max() > best[0]:
+            best = (float(gaps.max()), order, int(gaps.argmax()) + 1)
+    if best[0] > band_gap_mm and min(best[2], len(patient) - best[2]) >= 2:
+        order, k = best[1], best[2]
+        groups = [[patient[i] for i in order[:k]], [patient[i] for i in order[k:]]]
+    return Bands(patient, groups, rms, rng, frac, why)

@@ -1,0 +1,136 @@
+"""The motion analysis's files for reconstruction and research (docs/motion-formats.md):
+
+* ``motion_6dof.csv`` / ``motion_6dof.json`` -- per frame: time, translation (mm), rotation
+  as Euler angles (deg, extrinsic x-y-z) and as a quaternion (x, y, z, w), motion state,
+  quality (markers used, fit RMS, moving);
+* ``respiration.csv`` -- per frame: time, amplitude (mm), phase (0-1), rate (/min);
+* ``subsets.json`` -- list-mode subsets: the time intervals of every motion state and of
+  ``n_bins`` respiratory bins by amplitude (equal counts of frames) and by phase (equal
+  widths), still frames only for the respiratory bins;
+* ``castor_motion.dyn`` and ``castor_motion_rigid.txt`` (:mod:`.castor`).
+
+Times are seconds from the acquisition start on the SPECT list-mode clock when the session was
+synced, else seconds from the first frame on the host clock; every file says which.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from vts_hw.files import ensure_dir, write_atomic, write_json_atomic
+from vts_hw.motion.castor import castor_parameters, write_castor
+
+__all__ = ["export_motion", "time_origin", "clock_text", "respiratory_bins", "state_of_frames",
+           "SIXDOF_CSV", "SIXDOF_JSON", "RESP_CSV", "SUBSETS_JSON", "MOTION_FORMAT"]
+
+SIXDOF_CSV, SIXDOF_JSON = "motion_6dof.csv", "motion_6dof.json"
+RESP_CSV, SUBSETS_JSON = "respiration.csv", "subsets.json"
+MOTION_FORMAT = "vts-motion/1"
+
+
+def time_origin(result) -> float:
+    """0 on the SPECT clock (list-mode seconds are from the acquisition start), else the first
+    frame's host time."""
+    return 0.0 if result.series.clock == "spect" else float(result.series.t[0])
+
+
+def clock_text(result) -> str:
+    if result.series.clock == "spect":
+        return "SPECT list-mode seconds since the acquisition start (synced through the gating signal)"
+    return (f"host clock, seconds since the first frame (UTC epoch {result.series.t[0]:.3f}); not synced "
+            "to the SPECT: give the list-mode to put the times on its clock")
+
+
+def state_of_frames(result) -> np.ndarray:
+    t = result.pose.t
+    out = np.full(len(t), -1)
+    for s in result.states:
+        out[(t >= s.t_start) & (t < s.t_end)] = s.index
+    return out
+
+
+def _intervals(t, mask, t0, dt):
+    m = np.concatenate([[False], mask, [False]])
+    d = np.diff(m.astype(int))
+    return [[round(float(t[a] - t0 - dt / 2), 4), round(float(t[b - 1] - t0 + dt / 2), 4)]
+            for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1))]
+
+
+def respiratory_bins(result, n_bins: int = 4, t0: float = 0.0) -> dict:
+    """Intervals per respiratory bin by amplitude and by phase (still frames with a pose)."""
+    t = result.pose.t
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.04
+    a = result.respiration.amplitude
+    ph = result.respiration.phase
+    use = result.pose.valid & ~result.moving & np.isfinite(a)
+    edges = np.quantile(a[use], np.linspace(0, 1, n_bins + 1)) if use.any() else np.zeros(n_bins + 1)
+    amp = []
+    for k in range(n_bins):
+        hi_ok = a <= edges[k + 1] if k == n_bins - 1 else a < edges[k + 1]
+        sel = use & (a >= edges[k]) & hi_ok
+        amp.append({"bin": k, "amplitude_mm": [float(edges[k]), float(edges[k + 1])],
+                    "frames": int(sel.sum()), "intervals": _intervals(t, sel, t0, dt)})
+    phase = []
+    for k in range(n_bins):
+        lo, hi = k / n_bins, (k + 1) / n_bins
+        sel = use & np.isfinite(ph) & (ph >= lo) & (ph < hi)
+        phase.append({"bin": k, "phase": [lo, hi], "frames": int(sel.sum()), "intervals": _intervals(t, sel, t0, dt)})
+    return {"amplitude": amp, "phase": phase}
+
+
+def export_motion(result, out, *, n_bins: int = 4, extra: dict | None = None) -> list[Path]:
+    """Write every file above into ``out``; returns their paths."""
+    out = ensure_dir(out, "export folder")
+    t0 = time_origin(result)
+    clock = clock_text(result)
+    pose = result.pose
+    t = pose.t - t0
+    six = pose.six_dof()
+    q = pose.quaternions()
+    state = state_of_frames(result)
+    moving = result.moving
+    n = pose.n_markers
+    quality = np.where(~pose.valid, "no pose", np.where(moving, "moving", "ok"))
+    frame = ("SPECT frame" if result.series.frame == "spect" else "VTS frame (no VTS->SPECT mapping given)")
+    cols = ["time_s", "tx_mm", "ty_mm", "tz_mm", "rx_deg", "ry_deg", "rz_deg", "qx", "qy", "qz", "qw",
+            "state", "markers", "fit_rms_mm", "quality"]
+    f = lambda v, d: "" if not np.isfinite(v) else f"{v:.{d}f}"  # noqa: E731
+    lines = [",".join(cols)]
+    for k in range(len(t)):
+        lines.append(",".join([f"{t[k]:.4f}"] + [f(x, 4) for x in six[k]] + [f(x, 7) for x in q[k]]
+                              + [str(int(state[k])), str(int(n[k])), f(pose.rms_mm[k], 4), str(quality[k])]))
+    p_csv = out / SIXDOF_CSV
+    write_atomic(p_csv, "\n".join(lines) + "\n")
+    nan = lambda a: [None if not np.isfinite(x) else round(float(x), 6) for x in a]  # noqa: E731
+    meta = {"format": MOTION_FORMAT, "clock": clock, "time_origin": t0, "frame": frame,
+            "transform": "reference pose -> pose at t, x -> R x + t (breathing excluded); rotations deg, "
+                         "extrinsic x-y-z (scipy 'xyz'); quaternion x, y, z, w",
+            "reference_period_s": [result.reference_period[0] - t0, result.reference_period[1] - t0],
+            "states": [{**s.to_json(), "t_start": s.t_start - t0, "t_end": s.t_end - t0} for s in result.states],
+            "events": [{**e.to_json(), "t_start": e.t_start - t0, "t_end": e.t_end - t0} for e in result.events],
+            **(extra or {})}
+    doc = {**meta, "columns": {"time_s": nan(t), "tx_mm": nan(six[:, 0]), "ty_mm": nan(six[:, 1]),
+                               "tz_mm": nan(six[:, 2]), "rx_deg": nan(six[:, 3]), "ry_deg": nan(six[:, 4]),
+                               "rz_deg": nan(six[:, 5]), "qx": nan(q[:, 0]), "qy": nan(q[:, 1]),
+                               "qz": nan(q[:, 2]), "qw": nan(q[:, 3]), "state": state.tolist(),
+                               "markers": n.tolist(), "fit_rms_mm": nan(pose.rms_mm),
+                               "quality": quality.tolist()}}
+    p_json = write_json_atomic(out / SIXDOF_JSON, doc, indent=None)
+    r = result.respiration
+    rl = ["time_s,amplitude_mm,phase,rate_per_min"]
+    for k in range(len(t)):
+        rl.append(f"{t[k]:.4f},{f(r.amplitude[k], 4)},{f(r.phase[k], 4)},{f(r.rate[k], 3)}")
+    p_resp = out / RESP_CSV
+    write_atomic(p_resp, "\n".join(rl) + "\n")
+    subsets = {"format": MOTION_FORMAT, "clock": clock, "time_origin": t0,
+               "motion_states": [{"state": s.index, "interval_s": [s.t_start - t0, s.t_end - t0],
+                                  "six_dof": s.six_dof} for s in result.states],
+               "respiratory_bins": respiratory_bins(result, n_bins, t0),
+               "note": "intervals [start, end) s; respiratory bins hold still frames with a pose only"}
+    p_sub = write_json_atomic(out / SUBSETS_JSON, subsets)
+    starts = [s.t_start - t0 for s in result.states]
+    params = [castor_parameters(s.R, s.T) if s.R is not None else [np.nan] * 6 for s in result.states]
+    p_dyn, p_rig = write_castor(starts, params, out)
+    return [p_csv, Path(p_json), p_resp, Path(p_sub), p_dyn, p_rig]

@@ -1,0 +1,110 @@
+"""Marker tracks as a regular table: per frame f and physical marker m, a position or NaN.
+
+:class:`~vts_hw.recording.tracks.Tracks` gives points with identities; an identity ends when a
+marker is unseen for a while (a camera gap, a SPECT head in the way) and the marker comes back
+under a new id. :func:`marker_series` re-joins such pieces (ids that follow one another in time
+and meet within ``join_mm``) and lays the points out as ``P[f, m, :]``.
+
+Clock and frame are chosen once here and said in :attr:`MarkerSeries.clock` and
+:attr:`MarkerSeries.frame`: SPECT list-mode seconds when the tracks have ``spect_time`` (else
+host UTC epoch seconds); SPECT-frame positions when the tracks have them (else the VTS frame).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from vts_hw.errors import DataError
+
+__all__ = ["MarkerSeries", "marker_series", "join_pieces"]
+
+JOIN_MM = 25.0        # pieces of one marker meet within this across a gap
+JOIN_GAP_S = 10.0     # ... and follow one another within this
+
+
+@dataclass
+class MarkerSeries:
+    """Positions ``P`` (F, M, 3) mm (NaN where unseen) at times ``t`` (F,) s; ``ids[m]``: the
+    track ids joined into marker m; ``clock``/``frame``: what ``t`` and ``P`` are;
+    ``cameras[f, m]``: how many cameras saw the point (0 when unseen); ``camera_sets``: per
+    marker, how many points each camera took part in."""
+
+    t: np.ndarray
+    P: np.ndarray
+    ids: list
+    clock: str = "host"
+    frame: str = "vts"
+    cameras: np.ndarray | None = None
+    camera_names: list = field(default_factory=list)
+    camera_sets: list = field(default_factory=list)
+
+    @property
+    def seen(self) -> np.ndarray:
+        """(F, M) bool."""
+        return np.isfinite(self.P[..., 0])
+
+    def subset(self, cols) -> "MarkerSeries":
+        cols = list(cols)
+        return MarkerSeries(self.t, self.P[:, cols], [self.ids[c] for c in cols], self.clock, self.frame,
+                            None if self.cameras is None else self.cameras[:, cols], list(self.camera_names),
+                            [self.camera_sets[c] for c in cols] if self.camera_sets else [])
+
+    def label(self, m: int) -> str:
+        return "+".join(str(i) for i in self.ids[m])
+
+
+def join_pieces(first, last, start_xyz, end_xyz, ids, join_mm=JOIN_MM, gap_s=JOIN_GAP_S) -> list[list]:
+    """Group track pieces into physical markers: a piece joins the chain whose end it follows
+    in time (within ``gap_s``) and meets nearest (within ``join_mm``)."""
+    order = np.argsort(first, kind="stable")
+    chains: list[dict] = []
+    for k in order:
+        best, best_d = None, join_mm
+        for c in chains:
+            if c["last"] < first[k] <= c["last"] + gap_s:
+                d = float(np.linalg.norm(c["end"] - start_xyz[k]))
+                if d <= best_d:
+                    best, best_d = c, d
+        if best is None:
+            chains.append({"ids": [ids[k]], "last": last[k], "end": end_xyz[k]})
+        else:
+            best["ids"].append(ids[k])
+            best["last"], best["end"] = last[k], end_xyz[k]
+    return [c["ids"] for c in chains]
+
+
+def marker_series(tracks, *, join_mm: float = JOIN_MM, use_spect: bool = True) -> MarkerSeries:
+    """The tracks as a :class:`MarkerSeries` (see the module for the clock and frame)."""
+    if len(tracks.marker) == 0:
+        raise DataError("no marker was triangulated in the recording (LEDs off? wrong calibration?)")
+    spect_clock = use_spect and tracks.spect_time is not None
+    spect_frame = use_spect and tracks.xyz_spect is not None
+    t_frames = np.asarray(tracks.spect_time if spect_clock else tracks.host_time, float)
+    xyz = np.asarray(tracks.xyz_spect if spect_frame else tracks.xyz, float)
+    pf = np.asarray(tracks.point_frame, int)
+    mk = np.asarray(tracks.marker, int)
+    pt = t_frames[pf]
+    uniq = sorted(set(mk.tolist()))
+    first, last, p0, p1 = [], [], [], []
+    for m in uniq:
+        sel = np.flatnonzero(mk == m)
+        o = sel[np.argsort(pt[sel], kind="stable")]
+        first.append(pt[o[0]]); last.append(pt[o[-1]]); p0.append(xyz[o[0]]); p1.append(xyz[o[-1]])
+    chains = join_pieces(np.array(first), np.array(last), np.array(p0), np.array(p1), uniq, join_mm)
+    col = {i: c for c, ch in enumerate(chains) for i in ch}
+    F, M = len(t_frames), len(chains)
+    P = np.full((F, M, 3), np.nan)
+    ncam = np.zeros((F, M), int)
+    cams = tracks.point_cameras
+    c_of = np.array([col[m] for m in mk.tolist()])
+    P[pf, c_of] = xyz            # a second point of one marker in one frame: the last wins
+    ncam[pf, c_of] = cams.sum(axis=1)
+    names = list(tracks.camera_names)
+    sets = []
+    for c in range(M):
+        sel = c_of == c
+        sets.append({n: int(cams[sel, k].sum()) for k, n in enumerate(names)})
+    return MarkerSeries(t_frames, P, chains, "spect" if spect_clock else "host",
+                        "spect" if spect_frame else "vts", ncam, names, sets)
