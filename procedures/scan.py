@@ -101,8 +101,11 @@ class ScanSession:
 
     def __init__(self, rig: RigConfig, folder: str | Path, cameras: list[Camera], *, duration: float | None = None,
                  clock=time.time, first_frame_timeout: float = FIRST_FRAME_TIMEOUT_S,
-                 on_step: Callable[[str, str], None] | None = None):
+                 on_step: Callable[[str, str], None] | None = None, live=None):
         self.rig = rig
+        # live: the live motion path (procedures/scan_live.py LiveMotion), or None: records only
+        self.live = live
+        self.live_error = ""
         self.folder = Path(folder)
         self.duration = duration
         self.clock = clock
@@ -120,6 +123,8 @@ class ScanSession:
         self._scan_t0: float | None = None      # monotonic time the scan clock started (the fire)
         self._stop = threading.Event()
         self._stop_lock = threading.Lock()
+        self._manifest_lock = threading.RLock()   # the session's thread and the live path's alerts
+        self._last_problems: list[str] = []
         self._monitor: threading.Thread | None = None
         self._rates: dict[str, deque] = {c.name: deque(maxlen=16) for c in self.cameras}
 
@@ -266,10 +271,13 @@ class ScanSession:
         meta = {"kind": "scan", "rig": self.rig.rig, "rig_digest": self.rig.digest,
                 "duration_asked": self.duration}
         self.phase = "recording"
+        self._live_call("prepare")
         self.recorder = Recorder(self.cameras, self.folder, seconds=None, meta=meta,
-                                 max_backoff=RECONNECT_BACKOFF_MAX_S)
+                                 max_backoff=RECONNECT_BACKOFF_MAX_S,
+                                 on_frame=None if self.live is None else self.live.on_frame)
         self.times["recording_started"] = self.recorder.recording.started
         self.trigger.attach_log(self.folder / "trigger.csv")
+        self._live_call("start")
         self._write_manifest()
         self.recorder.start()
 
@@ -354,6 +362,7 @@ class ScanSession:
             if self._monitor is not None:
                 self._monitor.join(timeout=10)
             self.trigger.stop()
+            self._live_call("stop")   # its alerts in the manifest before the recording closes
             if self.recorder is None:
                 self.trigger.finish()
                 self._close_cameras()
@@ -407,21 +416,48 @@ class ScanSession:
             out.append(f"recording stopped: {self.recorder.write_failure}")
         return out
 
+    def _live_call(self, step: str) -> None:
+        """``live.prepare/start/stop(self)``: a failure of the live path is noted and never stops
+        or loses the recording (the live path is then off)."""
+        if self.live is None:
+            return
+        try:
+            getattr(self.live, step)(self)
+        except Exception as exc:
+            self.live_error = f"live tracking failed at {step}: {type(exc).__name__}: {exc}"
+            if step != "stop":
+                self.live = None
+                if self.recorder is not None:
+                    self.recorder.on_frame = None
+
+    def update_manifest(self, change: Callable[[dict], None]) -> dict | None:
+        """``change(meta)`` on the manifest's top level, then the manifest rewritten whole
+        (atomically, under the session's manifest lock: no entry of another writer is lost).
+        From any thread; None once the recording is closed."""
+        with self._manifest_lock:
+            if self.recorder is None or self.recorder.recording.status != "recording":
+                return None
+            change(self.recorder.recording.meta)
+            return self._write_manifest(self._last_problems)
+
     def _write_manifest(self, problems: list[str] | None = None) -> dict:
-        rec = self.recorder.recording
-        for name, notes in self.cam_notes.items():
-            rec.notes[name].update(notes)
-        rec.meta["scan"] = {"times": dict(self.times), "duration_asked": self.duration,
-                            "stop_reason": self.stop_reason, "problems": problems or [],
-                            "steps": [s.name for s in self.plan()]}
-        rec.meta["trigger"] = self.trigger.info
-        for attempt in range(3):  # a camera thread may be adding its notes at this very moment
-            try:
-                return rec.write_manifest()
-            except RuntimeError:
-                if attempt == 2:
-                    raise
-                time.sleep(0.01)
+        with self._manifest_lock:
+            rec = self.recorder.recording
+            self._last_problems = list(problems or [])
+            for name, notes in self.cam_notes.items():
+                rec.notes[name].update(notes)
+            rec.meta["scan"] = {"times": dict(self.times), "duration_asked": self.duration,
+                                "stop_reason": self.stop_reason, "problems": problems or [],
+                                "steps": [s.name for s in self.plan()],
+                                **({"live_error": self.live_error} if self.live_error else {})}
+            rec.meta["trigger"] = self.trigger.info
+            for attempt in range(3):  # a camera thread may be adding its notes at this very moment
+                try:
+                    return rec.write_manifest()
+                except RuntimeError:
+                    if attempt == 2:
+                        raise
+                    time.sleep(0.01)
 
     def _close_cameras(self) -> None:
         for cam in self.cameras:

@@ -9,13 +9,14 @@ import time
 from pathlib import Path
 
 import click
-from rich.console import Console
+from rich.console import Console, Group
 from rich.live import Live
 from rich.markup import escape
 from rich.table import Table
 
 from vts_hw.cli import cli
 from vts_hw.cli.common import PositiveSeconds, echo_json, fmt_time, json_option, with_rig
+from vts_hw.cli.live_view import live_line, live_table
 
 REFRESH_S = 0.5          # the live table, about twice a second
 PLAIN_EVERY_S = 2.0      # a status line this often when stderr is not a terminal
@@ -32,9 +33,15 @@ def scan() -> None:
 @click.option("--duration", type=PositiveSeconds(), default=None,
               help="Stop after S seconds from the trigger (default: until Ctrl-C).")
 @click.option("--dry-run", is_flag=True, help="List the steps for this rig without touching it.")
+@click.option("--live/--no-live", default=True, show_default=True,
+              help="Track the patient's markers live while recording (needs the rig's calibration): "
+                   "motion alerts per the rig's motion: section.")
+@click.option("--reference", "reference_s", type=PositiveSeconds(), default=10.0, show_default=True,
+              help="Seconds of the first still period the live tracking learns as the reference.")
 @json_option
 @with_rig
-def start(out: str | None, duration: float | None, dry_run: bool, as_json: bool, rig) -> None:
+def start(out: str | None, duration: float | None, dry_run: bool, live: bool, reference_s: float,
+          as_json: bool, rig) -> None:
     """Check cameras and trigger, record every camera, fire the trigger, show live status.
 
     Ctrl-C (or the duration) stops the square wave, closes the recordings, measures the
@@ -53,7 +60,8 @@ def start(out: str | None, duration: float | None, dry_run: bool, as_json: bool,
     err = Console(stderr=True, highlight=False)
     check_camera_kinds(rig.cameras)
     cameras = [] if dry_run else open_cameras(rig.cameras)   # a dry run touches nothing
-    session = ScanSession(rig, folder, cameras, duration=duration,
+    motion = None if dry_run or not live else _live_motion(rig, reference_s, err)
+    session = ScanSession(rig, folder, cameras, duration=duration, live=motion,
                           on_step=lambda name, text: err.print(f"[green]ok[/]  {escape(name)}: {escape(text)}",
                                                               soft_wrap=True))
     if dry_run:
@@ -97,11 +105,32 @@ def start(out: str | None, duration: float | None, dry_run: bool, as_json: bool,
 
 # -- live status -------------------------------------------------------------------------------------
 
+def _live_motion(rig, reference_s: float, err: Console):
+    from vts_hw.live.estimator import LiveSettings
+    from vts_hw.procedures.scan_live import LiveMotion
+
+    def alert(text: str) -> None:   # one line and the bell
+        if err.is_terminal:
+            err.print(f"[bold red]ALERT[/] {escape(text)}", soft_wrap=True)
+            err.bell()
+        else:
+            click.echo(f"ALERT {text}\a", err=True)
+
+    return LiveMotion(rig, settings=LiveSettings(reference_s=reference_s), on_alert_text=alert,
+                      on_note=lambda text: click.echo(f"vts: {text}", err=True))
+
+
+def _views(session, st):
+    if session.live is None:
+        return _table(st, session.folder)
+    return Group(_table(st, session.folder), live_table(session.live.snapshot()))
+
+
 def _live(session, console: Console) -> str:
     if console.is_terminal:
-        with Live(_table(session.status(), session.folder), console=console,
+        with Live(_views(session, session.status()), console=console,
                   refresh_per_second=1 / REFRESH_S, transient=False) as live:
-            return session.wait(lambda st: live.update(_table(st, session.folder)), REFRESH_S)
+            return session.wait(lambda st: live.update(_views(session, st)), REFRESH_S)
     last = [0.0]
 
     def plain(st):
@@ -109,6 +138,8 @@ def _live(session, console: Console) -> str:
             last[0] = time.monotonic()
             cams = ", ".join(f"{c.name} {c.frames} frames {c.fps:.1f} fps {c.dropped} dropped" for c in st.cameras)
             click.echo(f"[{st.elapsed_s:6.1f} s] {cams}; {_trigger_text(st.trigger)}", err=True)
+            if session.live is not None:
+                click.echo(f"[{st.elapsed_s:6.1f} s] {live_line(session.live.snapshot())}", err=True)
     return session.wait(plain, REFRESH_S)
 
 

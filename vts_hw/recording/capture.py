@@ -53,8 +53,13 @@ class Recorder:
 
     def __init__(self, cameras: list[Camera], folder: str | Path, seconds: float | None = None,
                  meta: dict | None = None, give_up_after: float | None = None,
-                 max_backoff: float = 5.0, append: bool = False):
+                 max_backoff: float = 5.0, append: bool = False,
+                 on_frame: Callable[[str, object], None] | None = None):
         self.cameras = cameras
+        # on_frame(camera, frame): told of each frame after it is written (the live path's tap);
+        # it must return at once, and its failure never stops the recording (counted below)
+        self.on_frame = on_frame
+        self.on_frame_errors = 0
         self.max_backoff = max_backoff  # longest wait between reconnection attempts (s)
         self.seconds = seconds
         self.give_up_after = give_up_after
@@ -88,6 +93,11 @@ class Recorder:
                 self.recording.write_frame(cam.name, item.jpeg, item.camera_time, item.host_time)
                 prog.frames += 1
                 prog.last_frame = time.monotonic()
+                if self.on_frame is not None:
+                    try:
+                        self.on_frame(cam.name, item)
+                    except Exception:
+                        self.on_frame_errors += 1
         except WriteFailed as exc:  # disk full: every camera stops, what is on disk stays whole
             self.write_failure = self.write_failure or exc
             prog.error = f"camera {cam.name}: stopped: {exc}"

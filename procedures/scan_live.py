@@ -1,0 +1,183 @@
+"""The live motion path of a scan session: the tracker fed from the recording, its alerts
+acted on (terminal, manifest, command), its state for the live view.
+
+:class:`LiveMotion` is given to :class:`~vts_hw.procedures.scan.ScanSession` (``live=``). The
+session calls :meth:`LiveMotion.prepare` once the camera clocks are measured (the tracker needs
+their offsets), hands :meth:`LiveMotion.on_frame` to its recorder (called after each frame is
+written), and :meth:`LiveMotion.start` / :meth:`LiveMotion.stop` around the recording. Without
+a calibration of two of the session's cameras the live path stays off (the manifest says why)
+and the scan records as always.
+
+An alert is acted on in a thread of its own, never in the worker: ``on_alert_text(text)`` (the
+CLI prints the line and rings the bell), ``motion.alert_command`` started with the text as its
+last argument (no shell, not waited for; a failure to start it or a non-zero exit is reported
+through ``on_note`` and into the manifest, never fatal), and the event appended to the
+manifest's ``live_motion.alerts`` through the session's locked, atomic rewrite.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import queue
+import subprocess
+import threading
+import time
+from typing import Callable
+
+from vts_hw.errors import VtsError
+from vts_hw.live.estimator import LiveEstimate, LiveSettings
+from vts_hw.live.tracker import LiveTracker
+from vts_hw.procedures.sync_inputs import load_calibration, load_mapping
+from vts_hw.vision.camera_set import covered_names, named_cameras
+
+__all__ = ["LiveMotion"]
+
+COMMAND_TIMEOUT_S = 60.0
+
+
+def _iso(t: float) -> str:
+    return _dt.datetime.fromtimestamp(t, _dt.timezone.utc).isoformat(timespec="milliseconds")
+
+
+class LiveMotion:
+    """``calibration``/``mapping``: a path or object (default: the rig's ``calibration.stereo``
+    and ``calibration.spect``); ``settings``: the estimator's (default reference 10 s)."""
+
+    def __init__(self, rig, *, calibration=None, mapping=None, settings: LiveSettings | None = None,
+                 on_alert_text: Callable[[str], None] | None = None,
+                 on_note: Callable[[str], None] | None = None, queue_len: int = 4):
+        self.rig = rig
+        self.motion = rig.motion
+        self.calibration = calibration if calibration is not None else rig.calibration.stereo
+        self.mapping = mapping if mapping is not None else rig.calibration.spect
+        self.settings = settings
+        self.on_alert_text = on_alert_text or (lambda text: None)
+        self.on_note = on_note or (lambda text: None)
+        self.queue_len = queue_len
+        self.tracker: LiveTracker | None = None
+        self.off_reason = ""
+        self.alerts: list[dict] = []
+        self.commands: list[subprocess.Popen] = []
+        self._actions: queue.Queue = queue.Queue()
+        self._thread: threading.Thread | None = None
+        self._waiters: list[threading.Thread] = []
+
+    # -- set-up ---------------------------------------------------------------------------------
+    def prepare(self, session) -> None:
+        """Build the tracker for the session's cameras (offsets measured); off with a reason
+        when there is no calibration or it cannot be read."""
+        names = [c.name for c in session.cameras]
+        try:
+            if self.calibration is None:
+                raise VtsError("no camera calibration (calibration.stereo in rig.yaml)")
+            cal = load_calibration(self.calibration)
+            cams = named_cameras(cal, covered_names(cal, [c.name for c in self.rig.cameras]))
+            cams = {n: cams[n] for n in names if n in cams}
+            if len(cams) < 2:
+                raise VtsError(f"the calibration covers fewer than two of the cameras {', '.join(names)}")
+            mapping = load_mapping(self.mapping) if self.mapping is not None else None
+        except (VtsError, OSError, ValueError) as exc:
+            self.off_reason = str(exc)
+            self.on_note(f"live tracking off: {exc}")
+            return
+        offsets = {n: (session.cam_notes.get(n, {}).get("clock_offset_before") or {}).get("offset_s", 0.0)
+                   for n in cams}
+        fps = min(session.rig.camera(n).fps for n in cams)
+        self.tracker = LiveTracker(cams, self.motion, mapping=mapping, clock_offsets=offsets, fps=fps,
+                                   settings=self.settings, queue_len=self.queue_len, on_alert=self._queue_alert)
+
+    def on_frame(self, camera: str, frame) -> None:
+        if self.tracker is not None:
+            self.tracker.on_frame(camera, frame)
+
+    def start(self, session) -> None:
+        m = self.motion
+        entry = {"status": "off" if self.tracker is None else "on", "alerts": [],
+                 "alert_mm": m.alert_mm, "alert_deg": m.alert_deg, "alert_after_s": m.alert_after_s,
+                 **({"off_reason": self.off_reason} if self.tracker is None else
+                    {"frame": self.tracker.estimator.frame, "cameras": self.tracker.names})}
+        session.recorder.recording.meta["live_motion"] = entry
+        if self.tracker is None:
+            return
+        self._thread = threading.Thread(target=self._act, args=(session,), name="live-alerts", daemon=True)
+        self._thread.start()
+        self.tracker.start()
+
+    def stop(self, session) -> None:
+        """The tracker stopped, pending alerts acted on, the summary into the manifest."""
+        if self.tracker is None:
+            return
+        self.tracker.stop()
+        self._actions.put(None)
+        if self._thread is not None:
+            self._thread.join(10)
+        snap = self.tracker.snapshot()
+        st = self.tracker.stats(last=None)
+        summary = {k: st.get(k) for k in ("sets", "live_dropped", "unmatched_frames", "undecodable",
+                                          "latency_ms_p50", "latency_ms_p95", "latency_from_first_frame_ms_p50",
+                                          "latency_from_first_frame_ms_p95")}
+        rule = self.tracker.estimator.rule
+        if rule is not None:
+            summary.update(onset_mm=round(rule.onset_mm, 3), onset_deg=round(rule.onset_deg, 3))
+        summary.update(phase=snap.phase, reference=self.tracker.estimator.reference_note, note=snap.note,
+                       six_dof_last=snap.six_dof,
+                       **({"error": st["error"]} if st.get("error") else {}))
+        session.update_manifest(lambda meta: meta["live_motion"].update(summary=summary))
+
+    def snapshot(self) -> LiveEstimate | None:
+        return None if self.tracker is None else self.tracker.snapshot()
+
+    # -- alerts ---------------------------------------------------------------------------------
+    def _queue_alert(self, alert, estimate: LiveEstimate) -> None:   # in the worker: no waiting
+        self._actions.put((alert, estimate))
+
+    def _act(self, session) -> None:
+        while True:
+            item = self._actions.get()
+            if item is None:
+                return
+            alert, est = item
+            text = alert.text(self.motion.alert_mm, self.motion.alert_deg)
+            try:
+                self.on_alert_text(text)
+            except Exception:
+                pass
+            raised = time.time()
+            event = {"raised": raised, "raised_utc": _iso(raised), "time": alert.time, "time_utc": _iso(alert.time), "onset": alert.onset,
+                     "onset_utc": _iso(alert.onset), "move_mm": round(alert.move_mm, 3),
+                     "turn_deg": round(alert.turn_deg, 3), "frame": est.frame,
+                     "six_dof": None if est.six_dof is None else [round(v, 3) for v in est.six_dof],
+                     "text": text}
+            if self.motion.alert_command:
+                event["command"] = self._run_command(session, list(self.motion.alert_command) + [text])
+            self.alerts.append(event)
+            session.update_manifest(lambda meta: meta["live_motion"]["alerts"].append(event))
+
+    def _run_command(self, session, argv: list[str]) -> str:
+        try:
+            proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                    stderr=subprocess.PIPE, shell=False, start_new_session=True)
+        except OSError as exc:
+            self._command_failed(session, f"alert command {argv[0]!r} could not be started: {exc.strerror or exc}")
+            return "not started"
+        self.commands.append(proc)
+        w = threading.Thread(target=self._wait_command, args=(session, proc, argv[0]), daemon=True)
+        w.start()
+        self._waiters.append(w)
+        return "started"
+
+    def _wait_command(self, session, proc: subprocess.Popen, name: str) -> None:
+        try:
+            _, err = proc.communicate(timeout=COMMAND_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            self._command_failed(session, f"alert command {name!r} still running after {COMMAND_TIMEOUT_S:g} s "
+                                          f"(left running)")
+            return
+        if proc.returncode != 0:
+            why = (err or b"").decode(errors="replace").strip().splitlines()[-1:] or [""]
+            self._command_failed(session, f"alert command {name!r} failed (exit {proc.returncode})"
+                                          + (f": {why[0][:200]}" if why[0] else ""))
+
+    def _command_failed(self, session, text: str) -> None:
+        self.on_note(text)
+        session.update_manifest(lambda meta: meta["live_motion"].setdefault("command_problems", []).append(text))

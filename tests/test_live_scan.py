@@ -1,0 +1,183 @@
+"""Live motion during `vts scan start` on the simulated rig: two cameras over HTTP, a breathing
+patient in the scene, the CLI in a subprocess. A body move of 6 mm raises exactly one alert
+(stderr with the bell, the manifest, the alert command), breathing alone raises none, and the
+recording is whole either way."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from vts_hw.recording.folder import read_index
+from vts_hw.sim_devices.patient import BodyMove, add_patient
+from vts_hw.sim_devices.rig import SimRig
+
+VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
+DURATION_S = 12.0
+REFERENCE_S = 4.0
+MOVE_AT_S = 6.5          # after the fire; the reference is learned by then
+# the alert command: appends its last argument (the alert's text) to a file, then fails
+COMMAND = "import sys; open(sys.argv[1], 'a').write(sys.argv[-1] + '\\n'); sys.exit(3)"
+
+
+@pytest.fixture()
+def patient_rig(tmp_path):
+    rig = SimRig(n_cameras=2, seed=3).start()
+    rig.ntp_sync()
+    rig_yaml, _ = rig.write(tmp_path / "rig")
+    cfg = yaml.safe_load(rig_yaml.read_text())
+    cfg["motion"] = {"alert_command": [sys.executable, "-c", COMMAND, str(tmp_path / "alerts.txt")]}
+    rig_yaml.write_text(yaml.safe_dump(cfg))
+    patient = add_patient(rig.scene, time.time(), 120.0, seed=5, moves=[])
+    yield rig, rig_yaml, patient
+    rig.stop()
+
+
+def _scan_started(session, proc, timeout=60.0) -> float:
+    """The scan clock's start (host s) from the manifest of a scan running in another process."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        try:
+            t = json.loads((session / "manifest.json").read_text())["scan"]["times"].get("scan_started")
+            if t is not None:
+                return float(t)
+        except (OSError, ValueError, KeyError):
+            pass
+        assert proc.poll() is None, f"the scan ended (exit {proc.returncode}) before it started"
+        time.sleep(0.05)
+    raise TimeoutError("the scan did not start")
+
+
+def _scan(rig, rig_yaml, session, patient, move: BodyMove | None):
+    env = {**os.environ, **rig.env_vars(), "VTS_CONFIG": str(rig_yaml)}
+    proc = subprocess.Popen(VTS + ["scan", "start", "--duration", f"{DURATION_S:g}", "--reference",
+                                   f"{REFERENCE_S:g}", "-o", str(session)],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        fire = _scan_started(session, proc)
+        if move is not None:
+            move = BodyMove(fire + move.t_start, fire + move.t_end, move.rotation_deg, move.translation_mm)
+            patient.motion.moves.append(move)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    return proc.returncode, out, err, json.loads((session / "manifest.json").read_text()), move
+
+
+def _recording_whole(session, manifest):
+    """Complete, nothing dropped, every indexed frame decodes, the other entries intact."""
+    assert manifest["status"] == "complete"
+    assert manifest["format"] == "vts-recording/1" and manifest["kind"] == "scan"
+    assert manifest["scan"]["stop_reason"] == "duration" and manifest["scan"]["problems"] == []
+    assert {"scan_started", "stopped", "finished"} <= set(manifest["scan"]["times"])
+    assert manifest["trigger"]["backend"] == "none"
+    for name, cam in manifest["cameras"].items():
+        assert cam["dropped_frames"] == 0 and cam["gaps"] == []
+        assert "offset_s" in cam["clock_offset_before"] and "offset_s" in cam["clock_offset_after"]
+        rows = read_index(session / f"{name}.index.csv")
+        assert len(rows) == cam["frames"] >= 0.9 * 25 * DURATION_S
+        data = (session / f"{name}.mjpeg").read_bytes()
+        assert rows[-1].offset + rows[-1].length == len(data)
+        for r in rows[::10]:
+            img = cv2.imdecode(np.frombuffer(data[r.offset:r.offset + r.length], np.uint8), cv2.IMREAD_GRAYSCALE)
+            assert img is not None and img.shape == (480, 640)
+
+
+def test_a_body_move_raises_one_alert(patient_rig, tmp_path):
+    rig, rig_yaml, patient = patient_rig
+    session = tmp_path / "scan"
+    rc, out, err, m, move = _scan(rig, rig_yaml, session, patient,
+                                  BodyMove(MOVE_AT_S, MOVE_AT_S + 0.6, (0.0, 1.0, 0.0), (2.0, 5.0, 2.0)))
+    assert rc == 0, err
+    _recording_whole(session, m)
+    live = m["live_motion"]
+    assert live["status"] == "on" and live["frame"] == "spect"
+    assert live["summary"]["phase"] == "tracking"
+    assert len(live["alerts"]) == 1, live["alerts"]
+    a = live["alerts"][0]
+    assert a["move_mm"] > 3.0
+    assert move.t_start - 0.2 <= a["onset"] <= move.t_start + 0.6
+    assert a["time"] - a["onset"] > 1.0
+    truth = patient.six_dof(move.t_end + 1.0)
+    assert np.allclose(live["summary"]["six_dof_last"], truth, atol=[1.0, 1.0, 1.0, 0.3, 0.3, 0.3])
+    alert_lines = [ln for ln in err.splitlines() if ln.startswith("ALERT")]
+    assert len(alert_lines) == 1 and "PATIENT MOVED" in alert_lines[0] and alert_lines[0].endswith("\a")
+    # the command ran once, with the alert's text as its last argument; its failure reported
+    assert (tmp_path / "alerts.txt").read_text().splitlines() == [a["text"]]
+    assert "alert command" in err and "failed (exit 3)" in err
+    assert any("failed (exit 3)" in p for p in live["command_problems"])
+
+
+def test_breathing_alone_raises_no_alert(patient_rig, tmp_path):
+    rig, rig_yaml, patient = patient_rig
+    session = tmp_path / "scan"
+    rc, out, err, m, _ = _scan(rig, rig_yaml, session, patient, None)
+    assert rc == 0, err
+    _recording_whole(session, m)
+    live = m["live_motion"]
+    assert live["status"] == "on" and live["summary"]["phase"] == "tracking"
+    assert live["alerts"] == [] and "ALERT" not in err
+    assert not (tmp_path / "alerts.txt").exists()
+    assert live["summary"]["sets"] > 0.8 * 25 * DURATION_S
+    assert max(abs(v) for v in live["summary"]["six_dof_last"][:3]) < 1.0
+    assert "live motion: tracking" in err or "live motion: still" in err
+
+
+class _BrokenLive:
+    """A live path that fails: as it starts (``start``) or on every frame (``on_frame``)."""
+
+    def __init__(self, where: str):
+        self.where = where
+        self.frames = 0
+
+    def prepare(self, session):
+        pass
+
+    def on_frame(self, camera, frame):
+        self.frames += 1
+        raise RuntimeError("live path broken")
+
+    def start(self, session):
+        if self.where == "start":
+            raise RuntimeError("no worker today")
+
+    def stop(self, session):
+        raise RuntimeError("nothing to stop")
+
+
+@pytest.mark.parametrize("where", ["start", "on_frame"])
+def test_a_failing_live_path_never_costs_the_recording(tmp_path, where):
+    from vts_hw.config import load_rig
+    from vts_hw.drivers.registry import open_cameras
+    from vts_hw.procedures.scan import ScanSession
+
+    rig = SimRig(n_cameras=2, seed=3).start()
+    try:
+        rig.ntp_sync()
+        cfg = load_rig(rig.write(tmp_path / "rig")[0])
+        with rig.env():
+            live = _BrokenLive(where)
+            s = ScanSession(cfg, tmp_path / "scan", open_cameras(cfg.cameras), duration=2.0, live=live)
+            m = s.run()
+    finally:
+        rig.stop()
+    assert m["status"] == "complete"
+    frames = [cam["frames"] for cam in m["cameras"].values()]
+    for cam in m["cameras"].values():
+        assert cam["frames"] >= 40 and cam["dropped_frames"] == 0
+    if where == "start":
+        assert "no worker today" in m["scan"]["live_error"]
+        assert live.frames == 0      # it was unhooked when it failed to start
+    else:
+        assert "nothing to stop" in m["scan"]["live_error"]
+        assert live.frames == sum(frames) == s.recorder.on_frame_errors   # every frame recorded all the same

@@ -1,0 +1,225 @@
+"""The live estimate: per band the displacement and breathing, the body's 6-DOF with breathing
+separated, and the alert state -- from 3D marker positions, one instant at a time.
+
+Phases: ``waiting`` (no markers yet), ``reference`` (learning the first still period:
+``reference_s`` of marker positions; restarted when the body did not keep still -- the model's
+residual above ``ref_max_rms_mm`` -- or fewer than three patient markers were seen), then
+``tracking``; a reference whose body pose spreads by more than a fifth of the alert
+thresholds (RMS) is not still either: restarted. The patient's markers: with a SPECT frame, those inside the field of view
+(``fov_radius_mm`` of the axis, ``fov_half_length_mm`` along it) that breathe (a range of at
+least ``min_breath_mm`` along their main direction in the reference period): wall markers and
+still objects (the table, a phantom) are left out. Bands: along the
+SPECT Z axis (the table), without a mapping along the first camera's viewing direction (the
+cameras look along the body). See :mod:`vts_hw.live.model` and 0036.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from vts_hw.live.alerts import Alert, AlertRule
+from vts_hw.live.breathing import BreathingTrace
+from vts_hw.live.marker_tracks import MarkerTracks, assign
+from vts_hw.live.model import Fit, ReferenceModel, breathing_range, learn_reference
+
+__all__ = ["LiveSettings", "LiveEstimator", "LiveEstimate", "BandEstimate"]
+
+
+@dataclass(frozen=True)
+class LiveSettings:
+    reference_s: float = 10.0
+    band_gap_mm: float = 60.0
+    gate_mm: float = 15.0
+    max_gap_s: float = 1.0
+    min_seen_fraction: float = 0.6
+    ref_max_rms_mm: float = 1.0
+    ref_max_move_fraction: float = 0.2   # the pose's RMS spread over the reference: at most this of the thresholds
+    fov_radius_mm: float = 450.0
+    fov_half_length_mm: float = 700.0
+    min_breath_mm: float = 0.6     # a patient marker's breathing range (5th to 95th percentile) at least
+    onset_fraction: float = 0.15
+    settle_s: float = 2.0
+    trace_window_s: float = 30.0
+    iterations: int = 6           # of the alternating fit, from the last solution
+
+
+@dataclass(frozen=True)
+class BandEstimate:
+    band: int
+    markers: int                 # in the model
+    seen: int                    # in the last estimate
+    displacement_mm: tuple[float, float, float]   # centre of its seen markers minus the reference's
+    breathing_mm: float          # the band's breathing value now (mm along its markers' directions)
+    rate_per_min: float
+    trace: tuple[float, ...]     # the last seconds of breathing (for a sparkline)
+
+    @property
+    def distance_mm(self) -> float:
+        return float(np.linalg.norm(self.displacement_mm))
+
+
+@dataclass(frozen=True)
+class LiveEstimate:
+    phase: str                   # waiting | reference | tracking
+    frame: str                   # spect | vts: the frame of positions and the 6-DOF
+    time: float | None           # host s of the last estimate
+    bands: tuple[BandEstimate, ...] = ()
+    six_dof: tuple[float, ...] | None = None   # tx, ty, tz (mm), rx, ry, rz (deg, extrinsic x-y-z)
+    move_mm: float = 0.0         # the body's centre (its markers') from the reference, breathing excluded
+    turn_deg: float = 0.0        # the body's turn from the reference
+    state: str = ""              # still | off pose | moving | ALERT
+    alerts: int = 0
+    note: str = ""
+    stats: dict = field(default_factory=dict)
+
+
+class LiveEstimator:
+    """Feed :meth:`update` with each instant's 3D points (mm, in ``frame``); read
+    :meth:`snapshot`. ``motion``: anything with ``alert_mm``, ``alert_deg``, ``alert_after_s``
+    (the rig's ``motion:`` section). ``axis``: the body's long axis; ``toward``: the first
+    camera's centre, in the same frame."""
+
+    def __init__(self, motion, settings: LiveSettings | None = None, *, frame: str = "spect",
+                 axis=(0.0, 0.0, 1.0), toward=(0.0, 1500.0, -3500.0)):
+        self.motion = motion
+        self.s = settings or LiveSettings()
+        self.frame = frame
+        self.axis = np.asarray(axis, float)
+        self.toward = np.asarray(toward, float)
+        self.phase = "waiting"
+        self.note = ""
+        self.reference_note = ""
+        self.model: ReferenceModel | None = None
+        self.rule: AlertRule | None = None
+        self.fit: Fit | None = None
+        self.time: float | None = None
+        self.traces: list[BreathingTrace] = []
+        self._tracks = MarkerTracks(self.s.gate_mm, self.s.max_gap_s)
+        self._ref_t0: float | None = None
+        self._ref: list[tuple[float, np.ndarray, np.ndarray]] = []
+        self._seen_idx = np.zeros(0, int)
+        self._seen_x = np.zeros((0, 3))
+
+    # -- input ---------------------------------------------------------------------------------
+    def update(self, t: float, points) -> Alert | None:
+        """One instant's points (N, 3). Returns an alert when this estimate raised one."""
+        pts = np.asarray(points, float).reshape(-1, 3)
+        self.time = t
+        if self.phase != "tracking":
+            self._collect(t, pts)
+            return None
+        return self._track(t, pts)
+
+    def _collect(self, t: float, pts: np.ndarray) -> None:
+        if len(pts) == 0:
+            return
+        ids = self._tracks.update(t, pts)
+        if self._ref_t0 is None:
+            self._ref_t0 = t
+            self.phase = "reference"
+        self._ref.append((t, ids, pts))
+        if t - self._ref_t0 >= self.s.reference_s:
+            self._learn()
+
+    def _restart(self, why: str) -> None:
+        self.note = f"reference restarted: {why}"
+        keep = [r for r in self._ref if r[0] > self._ref[-1][0] - self.s.reference_s / 2]
+        self._ref = keep
+        self._ref_t0 = keep[0][0] if keep else None
+
+    def _learn(self) -> None:
+        n = len(self._ref)
+        counts: dict[int, int] = {}
+        for _, ids, _ in self._ref:
+            for i in ids.tolist():
+                counts[i] = counts.get(i, 0) + 1
+        keep = sorted(i for i, c in counts.items() if c >= self.s.min_seen_fraction * n)
+        col = {i: k for k, i in enumerate(keep)}
+        samples = np.full((n, len(keep), 3), np.nan)
+        for s, (_, ids, pts) in enumerate(self._ref):
+            for j, i in enumerate(ids.tolist()):
+                if i in col:
+                    samples[s, col[i]] = pts[j]
+        if len(keep):
+            mean = np.nanmean(samples, axis=0)
+            patient = breathing_range(samples) >= self.s.min_breath_mm     # still objects are no patient
+            if self.frame == "spect":
+                radial = np.linalg.norm(mean[:, :2], axis=1)
+                patient &= (radial <= self.s.fov_radius_mm) & (np.abs(mean[:, 2]) <= self.s.fov_half_length_mm)
+            samples = samples[:, patient]
+        if len(keep) == 0 or samples.shape[1] < 3:
+            self._restart("fewer than three patient markers seen all along")
+            return
+        model = learn_reference(samples, self.axis, self.toward, self.s.band_gap_mm)
+        if not np.isfinite(model.noise_mm) or model.noise_mm > self.s.ref_max_rms_mm:
+            self._restart(f"the body did not keep still (model residual {model.noise_mm:.2f} mm)")
+            return
+        f = self.s.ref_max_move_fraction
+        if model.pose_noise_mm > f * self.motion.alert_mm or model.pose_noise_deg > f * self.motion.alert_deg:
+            # a rigid move fits the model at every instant; it shows in the pose's spread instead
+            self._restart(f"the body moved ({model.pose_noise_mm:.2f} mm, {model.pose_noise_deg:.2f} deg RMS)")
+            return
+        self.model = model
+        self.rule = AlertRule(self.motion.alert_mm, self.motion.alert_deg, self.motion.alert_after_s,
+                              self.s.onset_fraction, self.s.settle_s, model.pose_noise_mm, model.pose_noise_deg)
+        self.traces = [BreathingTrace(self.s.trace_window_s) for _ in range(model.n_bands)]
+        self.phase = "tracking"
+        self.reference_note = self.note = (f"reference: {model.mean.shape[0]} markers in {model.n_bands} band(s), "
+                     f"model residual {model.noise_mm:.2f} mm, still pose noise {model.pose_noise_mm:.2f} mm "
+                     f"{model.pose_noise_deg:.3f} deg")
+        self._ref = []
+
+    def _predicted(self) -> np.ndarray:
+        m = self.model
+        if self.fit is None:
+            return m.mean
+        beta = np.nan_to_num(self.fit.beta)
+        return (m.mean + beta[m.band, None] * m.gain[:, None] * m.direction) @ self.fit.R.T + self.fit.T
+
+    def _track(self, t: float, pts: np.ndarray) -> Alert | None:
+        m = self.model
+        i_m, i_p = assign(self._predicted(), pts, self.s.gate_mm)
+        fit = m.fit(i_m, pts[i_p], None if self.fit is None else self.fit.beta, iterations=self.s.iterations)
+        self._seen_idx, self._seen_x = i_m, pts[i_p]
+        if fit is None:
+            self.note = f"{len(i_m)} marker(s) seen: too few for the pose"
+            return None
+        self.note = ""
+        beta = fit.beta if self.fit is None else np.where(np.isfinite(fit.beta), fit.beta, self.fit.beta)
+        self.fit = Fit(fit.R, fit.T, beta, fit.rms_mm, fit.n_markers)
+        for k, tr in enumerate(self.traces):
+            if np.isfinite(fit.beta[k]):
+                tr.add(t, float(fit.beta[k]))
+        return self.rule.update(t, fit.R, fit.T, m.centre)
+
+    def _six_dof(self) -> np.ndarray:
+        f = self.fit
+        return np.concatenate([f.T, Rotation.from_matrix(f.R).as_euler("xyz", degrees=True)])
+
+    # -- output --------------------------------------------------------------------------------
+    def snapshot(self, stats: dict | None = None) -> LiveEstimate:
+        if self.phase != "tracking" or self.fit is None:
+            note = self.note
+            if self.phase == "reference" and self._ref_t0 is not None and self.time is not None:
+                note = (f"learning the reference: {self.time - self._ref_t0:.1f} of {self.s.reference_s:g} s"
+                        + (f" ({self.note})" if self.note else ""))
+            return LiveEstimate(self.phase, self.frame, self.time, note=note, stats=dict(stats or {}))
+        m, bands = self.model, []
+        for k in range(m.n_bands):
+            sel = m.band[self._seen_idx] == k
+            idx = self._seen_idx[sel]
+            disp = (self._seen_x[sel].mean(axis=0) - m.mean[idx].mean(axis=0)) if len(idx) else np.full(3, np.nan)
+            tr = self.traces[k]
+            _, v = tr.values()
+            bands.append(BandEstimate(k + 1, int((m.band == k).sum()), int(len(idx)),
+                                      tuple(float(x) for x in disp), float(v[-1]) if len(v) else float("nan"),
+                                      tr.rate_per_min(), tuple(tr.recent())))
+        r, f, c = self.rule, self.fit, m.centre
+        move = float(np.linalg.norm(f.R @ c + f.T - c))
+        turn = float(np.degrees(np.linalg.norm(Rotation.from_matrix(f.R).as_rotvec())))
+        return LiveEstimate(self.phase, self.frame, self.time, tuple(bands),
+                            tuple(float(x) for x in self._six_dof()), move, turn, r.state,
+                            len(r.alerts), self.note, dict(stats or {}))
