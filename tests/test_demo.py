@@ -79,11 +79,21 @@ def test_vts_demo_command_end_to_end_with_a_scan(tmp_path):
 
     out = tmp_path / "demo"
     r = subprocess.run([sys.executable, "-m", "vts_hw.cli.__main__", "demo", "-o", str(out), "--days", "1",
-                        "--seconds", "1", "--scan-seconds", "16"], capture_output=True, text=True, timeout=600)
+                        "--seconds", "1", "--scan-seconds", "16", "--patient-seconds", "24"],
+                       capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
     for heading in ("== 1. the cameras", "== 2. the daily QA", "== 3. the 7-sphere step test",
-                    "== 4. a scan of 16 s and the sync check"):
+                    "== 5. a scan of 16 s and the sync check", "== 6. a patient scan of 24 s"):
         assert heading in r.stdout
+    # the patient: one live alert, the move found near its true start, the pose near the truth
+    patient = r.stdout.split("== 6.")[1]
+    assert len(re.findall(r"live alert (\d+\.\d+) s after the move started", patient)) == 1
+    start_ms = re.search(r"found by the analysis: start ([+-]\d+) ms off the truth", patient)
+    assert start_ms and abs(int(start_ms.group(1))) < 500, patient
+    pose = re.search(r"RMS (\d+\.\d+) mm, (\d+\.\d+) deg", patient)
+    assert float(pose.group(1)) <= 0.3 and float(pose.group(2)) <= 0.2, patient
+    assert (out / "patient-export" / "castor_motion_rigid.txt").exists() and (out / "motion-report.html").exists()
+    r.stdout = r.stdout.split("== 6.")[0]      # the sync figures below are the scan's
     errors = [abs(float(x)) for x in re.findall(r"(?:VTS|SPECT) ([+-]\d+\.\d) ms", r.stdout)]
     assert errors and max(errors) <= 20.0
     assert "not found" not in r.stdout

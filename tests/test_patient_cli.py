@@ -20,7 +20,7 @@ from vts_hw.sim_devices.spect_listmode import ListModeTruth
 from test_motion_exports import read_castor_keyword
 
 VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
-SCAN_S = 40.0
+SCAN_S = 34.0
 pytestmark = pytest.mark.timeout(600)
 
 
@@ -32,9 +32,9 @@ def vts(*args, env=None, timeout=300):
 def analysed(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("patient-cli")
     d = tmp / "sim"
-    # 45 s of plan: 15 s still, then 2 moves at least 8 s apart, all inside a 40 s scan started now
+    # 36 s of plan: 15 s still, then 2 moves 8 s apart or more, inside a 34 s scan started now
     p = vts("sim", "up", "--detach", "--cameras", "2", "--seed", "4", "--trigger", "triggerbox", "--spect",
-            "--patient", "--patient-moves", "2", "--patient-minutes", "0.75", "--dir", d)
+            "--patient", "--patient-moves", "2", "--patient-minutes", "0.6", "--dir", d)
     assert p.returncode == 0, p.stderr
     try:
         env = {**os.environ, **load_env_file(d / "sim.env"), "VTS_CONFIG": str(d / "rig.yaml")}

@@ -42,7 +42,7 @@ class DemoPatientScan:
 
 def demo_patient_scan(out_dir, seconds: float = 30.0, *, say: Callable[[str], None] = lambda m: None
                       ) -> DemoPatientScan:
-    """The patient scan of ``seconds`` (at least 20), its analysis, scored against the truth.
+    """The patient scan of ``seconds`` (at least 24), its analysis, scored against the truth.
     RuntimeError with the command's own message when a step fails."""
     from vts_hw.sim_devices.patient_rig import PatientOptions
     from vts_hw.sim_devices.rig import SimRig
@@ -55,7 +55,7 @@ def demo_patient_scan(out_dir, seconds: float = 30.0, *, say: Callable[[str], No
             shutil.rmtree(old)        # the demo's own files from an earlier run
         elif old.exists():
             old.unlink()
-    move_at = max(10.0, 0.55 * seconds)
+    move_at = max(16.0, 0.6 * seconds)     # after the live reference (10 s of tracking, from ~3 s into the plan)
     options = PatientOptions(seed=3, moves=1, minutes=max(1.0, (seconds + 60.0) / 60.0), still_s=6.0,
                              move_at_s=(move_at,))
     rig = SimRig(n_cameras=2, seed=5, trigger="triggerbox", patient=options).start()

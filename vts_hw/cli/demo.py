@@ -20,7 +20,7 @@ from vts_hw.cli import cli
 @click.option("--scan-seconds", type=click.FloatRange(0, 600), default=20.0, show_default=True,
               help="Length of the simulated scan (0: no scan).")
 @click.option("--patient-seconds", type=click.FloatRange(0, 600), default=30.0, show_default=True,
-              help="Length of the simulated patient scan (0: none; else at least 20).")
+              help="Length of the simulated patient scan (0: none; else at least 24).")
 def demo(out: str, days: int, seconds: float, frames: int, scan_seconds: float, patient_seconds: float) -> None:
     """The simulated rig, end to end.
 
@@ -40,8 +40,8 @@ def demo(out: str, days: int, seconds: float, frames: int, scan_seconds: float, 
        writes the report and the exports for reconstruction (CASToR, 6-DOF series, subsets),
        every figure scored against the simulated patient's truth.
     """
-    if 0 < patient_seconds < 20:
-        raise click.BadParameter("a patient scan needs at least 20 s (or 0: none)", param_hint="--patient-seconds")
+    if 0 < patient_seconds < 24:
+        raise click.BadParameter("a patient scan needs at least 24 s (or 0: none)", param_hint="--patient-seconds")
     out_dir = Path(out)
     out_dir.mkdir(parents=True, exist_ok=True)
     click.echo("== 1. the cameras")
