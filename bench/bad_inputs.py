@@ -25,12 +25,14 @@ import argparse
 import io
 import json
 import os
+import select
 import signal
 import socket
 import sys
 import tempfile
 import time
 import traceback
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import click
@@ -152,13 +154,17 @@ def _replace(base: list[str], p: click.Parameter, opt: str | None, value: str) -
     return out + [opt, value]
 
 
-def run_case(argv: list[str], timeout: float) -> tuple[int | None, str, str]:
-    """Run `vts ARGV` in a forked child; (exit code or None on a hang, stdout, stderr)."""
+def run_case(argv: list[str], timeout: float, workdir: Path | None = None) -> tuple[int | None, str, str]:
+    """Run `vts ARGV` in a forked child (in ``workdir``, so that default outputs of cases run at
+    once do not meet); (exit code or None on a hang, stdout, stderr)."""
     out_r, out_w = os.pipe()
     err_r, err_w = os.pipe()
     pid = os.fork()
     if pid == 0:  # the child: the CLI's own main(), as the console script runs it
         try:
+            if workdir is not None:
+                os.makedirs(workdir, exist_ok=True)
+                os.chdir(workdir)
             os.dup2(out_w, 1)
             os.dup2(err_w, 2)
             os.setsid()
@@ -182,7 +188,6 @@ def run_case(argv: list[str], timeout: float) -> tuple[int | None, str, str]:
     os.close(err_w)
     chunks = {out_r: [], err_r: []}
     deadline = time.monotonic() + timeout
-    import select
     open_fds = [out_r, err_r]
     hung = False
     while open_fds:
@@ -213,7 +218,7 @@ def walk(group: click.Group, path=()):
             yield path + (name,), c
 
 
-def sweep(only: str | None, timeout: float, show: bool, root: Path) -> dict:
+def sweep(only: str | None, timeout: float, show: bool, root: Path, jobs: int = 1) -> dict:
     from vts_hw.cli import _register, cli
     _register()
     fx = Fixtures(root)
@@ -221,6 +226,7 @@ def sweep(only: str | None, timeout: float, show: bool, root: Path) -> dict:
     # mount, so make it a path under a regular FILE (ENOTDIR) -- an output that cannot be written
     fx.readonly_out = root / "empty.txt" / "out.file"
     results = {"cases": 0, "passed": 0, "tracebacks": [], "hangs": [], "bad_exit": []}
+    planned: list[tuple[str, list[str]]] = []
     env_backup, cwd = dict(os.environ), os.getcwd()
     os.chdir(root)   # default outputs (trigger.csv, drift-report.html) land in the sandbox
     os.environ["XDG_DATA_HOME"] = str(root / "xdg")
@@ -236,8 +242,13 @@ def sweep(only: str | None, timeout: float, show: bool, root: Path) -> dict:
             else:
                 todo = list(cases(cmd_path, cmd, fx))
             for what, argv in todo:
+                planned.append((what, argv))
+        # cases run `jobs` at a time (each a forked child in a folder of its own); the parent's
+        # threads only fork, read pipes and wait
+        with ThreadPoolExecutor(max(1, jobs)) as pool:
+            done = pool.map(lambda k: run_case(planned[k][1], timeout, root / "cases" / str(k)), range(len(planned)))
+            for (what, argv), (code, out, err) in zip(planned, done):
                 results["cases"] += 1
-                code, out, err = run_case(argv, timeout)
                 label = f"vts {' '.join(argv)}  [{what}]"
                 if code is None:
                     results["hangs"].append(label)
@@ -263,10 +274,12 @@ def main() -> int:
     ap.add_argument("--timeout", type=float, default=60.0, help="seconds per case before it counts as a hang")
     ap.add_argument("--show", action="store_true", help="print every case and its last line")
     ap.add_argument("--json", action="store_true", help="the figures as JSON")
+    ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
+                    help="cases run at once (default: one per core)")
     a = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="vts-bad-inputs-") as tmp:
         t0 = time.monotonic()
-        r = sweep(a.only, a.timeout, a.show, Path(tmp))
+        r = sweep(a.only, a.timeout, a.show, Path(tmp), a.jobs)
         dt = time.monotonic() - t0
     if a.json:
         print(json.dumps(r, indent=1))
