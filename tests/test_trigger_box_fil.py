@@ -249,7 +249,9 @@ def test_64_bit_device_time_past_2_to_the_32_us():
         m = box.clock_mapping(samples=10, over_s=0.5)
         assert m.ref_device_us > 2**32
         reply, sent, received = box._exchange("TIME?")
-        assert abs(m.to_host(int(reply)) - (sent + received) / 2) < 2e-3
+        # a 32-bit count would be 4295 s off; the bound is the host's jitter over a 0.5 s fit
+        # (0.1-0.5 ms idle; 3.2 ms seen once under a loaded make test, the fit's slope thrown by it)
+        assert abs(m.to_host(int(reply)) - (sent + received) / 2) < 20e-3
 
         box.configure(100, 0.5)
         runs = []
