@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import tempfile
 import time
@@ -34,8 +33,8 @@ import yaml
 
 from vts_hw.sim_devices.patient import BodyMove, add_patient
 from vts_hw.sim_devices.rig import SimRig
+from vts_hw.sim_devices.scenarios.sync_session import run_scan_cli
 
-VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
 REFERENCE_S = 10.0
 # (start after the fire, duration, rotation deg, translation mm): 4-12 mm, small turns
 MOVES = [(16.0, 0.6, (0.0, 0.8, 0.0), (0.0, 4.0, 1.0)),
@@ -44,33 +43,18 @@ MOVES = [(16.0, 0.6, (0.0, 0.8, 0.0), (0.0, 4.0, 1.0)),
          (52.0, 1.2, (0.0, 2.5, 0.0), (-6.0, 3.0, -9.0))]
 
 
-def scan_started(session: Path, proc, timeout=60.0) -> float:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        try:
-            t = json.loads((session / "manifest.json").read_text())["scan"]["times"].get("scan_started")
-            if t is not None:
-                return float(t)
-        except (OSError, ValueError, KeyError):
-            pass
-        if proc.poll() is not None:
-            raise SystemExit(f"the scan ended (exit {proc.returncode}) before it started: {proc.stderr.read()}")
-        time.sleep(0.05)
-    raise SystemExit("the scan did not start")
-
-
 def run_scan(rig, rig_yaml, session: Path, duration: float, patient, moves) -> tuple[dict, list[BodyMove]]:
-    env = {**os.environ, **rig.env_vars(), "VTS_CONFIG": str(rig_yaml)}
-    proc = subprocess.Popen(VTS + ["scan", "start", "--duration", f"{duration:g}", "--reference",
-                                   f"{REFERENCE_S:g}", "-o", str(session)],
-                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    fire = scan_started(session, proc)
-    placed = [BodyMove(fire + a, fire + a + d, r, t) for a, d, r, t in moves if a + d < duration - 3]
-    patient.motion.moves.extend(placed)
-    _, err = proc.communicate(timeout=duration + 120)
-    if proc.returncode not in (0, 4):
-        raise SystemExit(f"vts scan start failed ({proc.returncode}): {err.strip()[-2000:]}")
-    return json.loads((session / "manifest.json").read_text()), placed
+    def place(start):
+        placed = [BodyMove(start + a, start + a + d, r, t) for a, d, r, t in moves if a + d < duration - 3]
+        patient.motion.moves.extend(placed)
+        return placed
+
+    try:
+        run = run_scan_cli(rig, rig_yaml, session, duration, args=("--reference", f"{REFERENCE_S:g}"), event="scan",
+                           on_fire=place, timeout=duration + 120)
+    except RuntimeError as exc:
+        raise SystemExit(str(exc)[-2000:]) from None
+    return json.loads((session / "manifest.json").read_text()), run.planned
 
 
 def centre_move_mm(patient, move: BodyMove, centre) -> float:

@@ -15,9 +15,9 @@ import numpy as np
 from vts_hw.errors import ConfigError, DataError
 
 
-def stereo_calibration_for(rig, calibration_path=None):
+def camera_calibration_for(rig, calibration_path=None, what: str = "--from-cameras"):
     """The camera calibration given, else the rig config's (stereo or N cameras); ConfigError
-    when there is none or the rig has fewer than two cameras."""
+    when there is none or the rig has fewer than two cameras (``what`` needs them)."""
     from vts_hw.vision.multi_calibration_io import load_calibration
 
     path = calibration_path or rig.calibration.stereo
@@ -25,7 +25,7 @@ def stereo_calibration_for(rig, calibration_path=None):
         raise ConfigError("no camera calibration: give --calibration or set calibration.stereo in the "
                           "rig config (`vts calibrate stereo` or `vts calibrate cameras`).")
     if len(rig.cameras) < 2:
-        raise ConfigError("--from-cameras needs two cameras in the rig config.")
+        raise ConfigError(f"{what} needs two cameras in the rig config.")
     return load_calibration(path)
 
 

@@ -222,10 +222,7 @@ class MotionAnalysis:
         return motion_figure(self._need(), self.results_data())
 
     def plot(self, path=None) -> bytes:
-        png = figure_png(self.figure())
-        if path is not None:
-            Path(path).write_bytes(png)
-        return png
+        return figure_png(self.figure(), path)
 
     def export(self, out, n_bins: int = 4) -> list[Path]:
         """The motion files (docs/motion-formats.md) and the marker trajectories

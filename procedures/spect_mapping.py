@@ -336,10 +336,7 @@ class SpectMapping:
         ax.set_title(f"VTS → SPECT mapping ({self.analyzed_at}, vts-hw {__version__}): FRE "
                      f"{self.match.fre_mm:.2f} mm, TRE RMS {self.tre.rms:.2f} mm — {self.state}", fontsize=9)
         ax.legend(fontsize=8, frameon=False)
-        png = figure_png(fig)
-        if path is not None:
-            Path(path).write_bytes(png)
-        return png
+        return figure_png(fig, path)
 
     # ------------------------------------------------------------------ output
     def results_data(self) -> dict:

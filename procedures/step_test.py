@@ -39,23 +39,18 @@ class StepRun:
 
 def step_test_inputs(rig, calibration_path=None, mapping_path=None, volumes=None) -> StepInputs:
     """Calibration, mapping and SPECT volume folder; ConfigError (exit 2) naming what is missing."""
-    from vts_hw.vision.multi_calibration_io import load_calibration
+    from vts_hw.procedures.mapping_inputs import camera_calibration_for
     from vts_hw.vision.registration import RigidTransform
 
-    cal_path = calibration_path or rig.calibration.stereo
+    calibration = camera_calibration_for(rig, calibration_path, "the step test")
     map_path = mapping_path or rig.calibration.spect
-    if cal_path is None:
-        raise ConfigError("no stereo calibration: give --calibration or set calibration.stereo in the "
-                          "rig config (`vts calibrate stereo`).")
     if map_path is None:
         raise ConfigError("no VTS -> SPECT mapping: give --mapping or set calibration.spect in the rig "
                           "config (`vts calibrate spect`).")
-    if len(rig.cameras) < 2:
-        raise ConfigError("the step test needs two cameras in the rig config.")
     if not volumes:
         raise UsageError("give --volumes DIR: the folder the SPECT's reconstructions of the positions are "
                          "(or will be) exported to")
-    return StepInputs(load_calibration(cal_path), RigidTransform.load(map_path), VolumeFolder(volumes))
+    return StepInputs(calibration, RigidTransform.load(map_path), VolumeFolder(volumes))
 
 
 def step_session(cameras: Sequence, inputs: StepInputs, out, plan: list[StepPosition], *, frames: int = 10,

@@ -425,10 +425,7 @@ class SyncAnalysis:
 
     def plot(self, path=None) -> bytes:
         """PNG of :meth:`figure`; written to ``path`` when given. Returns the bytes."""
-        png = figure_png(self.figure())
-        if path is not None:
-            Path(path).write_bytes(png)
-        return png
+        return figure_png(self.figure(), path)
 
     def _need(self) -> None:
         if not self._done:

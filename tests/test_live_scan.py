@@ -6,8 +6,6 @@ recording is whole either way."""
 from __future__ import annotations
 
 import json
-import os
-import subprocess
 import sys
 import time
 
@@ -19,8 +17,8 @@ import yaml
 from vts_hw.recording.folder import read_index
 from vts_hw.sim_devices.patient import BodyMove, add_patient
 from vts_hw.sim_devices.rig import SimRig
+from vts_hw.sim_devices.scenarios.sync_session import run_scan_cli
 
-VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
 DURATION_S = 12.0
 REFERENCE_S = 4.0
 MOVE_AT_S = 6.5          # after the fire; the reference is learned by then
@@ -41,37 +39,19 @@ def patient_rig(tmp_path):
     rig.stop()
 
 
-def _scan_started(session, proc, timeout=60.0) -> float:
-    """The scan clock's start (host s) from the manifest of a scan running in another process."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        try:
-            t = json.loads((session / "manifest.json").read_text())["scan"]["times"].get("scan_started")
-            if t is not None:
-                return float(t)
-        except (OSError, ValueError, KeyError):
-            pass
-        assert proc.poll() is None, f"the scan ended (exit {proc.returncode}) before it started"
-        time.sleep(0.05)
-    raise TimeoutError("the scan did not start")
-
-
 def _scan(rig, rig_yaml, session, patient, move: BodyMove | None):
-    env = {**os.environ, **rig.env_vars(), "VTS_CONFIG": str(rig_yaml)}
-    proc = subprocess.Popen(VTS + ["scan", "start", "--duration", f"{DURATION_S:g}", "--reference",
-                                   f"{REFERENCE_S:g}", "-o", str(session)],
-                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        fire = _scan_started(session, proc)
-        if move is not None:
-            move = BodyMove(fire + move.t_start, fire + move.t_end, move.rotation_deg, move.translation_mm)
-            patient.motion.moves.append(move)
-        out, err = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-    return proc.returncode, out, err, json.loads((session / "manifest.json").read_text()), move
+    """`vts scan start` in a subprocess; ``move`` (times from the scan's start) is put on the
+    patient once the scan clock has started."""
+    def place(start):
+        if move is None:
+            return None
+        placed = BodyMove(start + move.t_start, start + move.t_end, move.rotation_deg, move.translation_mm)
+        patient.motion.moves.append(placed)
+        return placed
+
+    run = run_scan_cli(rig, rig_yaml, session, DURATION_S, args=("--reference", f"{REFERENCE_S:g}"), event="scan",
+                       on_fire=place, check=False)
+    return run.returncode, run.out, run.err, json.loads((session / "manifest.json").read_text()), run.planned
 
 
 def _recording_whole(session, manifest):

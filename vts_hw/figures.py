@@ -5,10 +5,15 @@ from __future__ import annotations
 import io
 
 
-def figure_png(fig, dpi: int = 110) -> bytes:
-    """PNG bytes of a matplotlib figure (no metadata beyond the image)."""
+def figure_png(fig, path=None, dpi: int = 110) -> bytes:
+    """PNG bytes of a matplotlib figure (no metadata beyond the image); also written to
+    ``path`` when given (what every result's ``plot(path)`` does)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     FigureCanvasAgg(fig)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, metadata={"Software": None})
-    return buf.getvalue()
+    png = buf.getvalue()
+    if path is not None:
+        from pathlib import Path
+        Path(path).write_bytes(png)
+    return png

@@ -22,9 +22,6 @@ seconds throughout.
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,7 +29,7 @@ from pathlib import Path
 from vts_hw.recording.folder import load_manifest, read_index
 from vts_hw.sim_devices.patient import Patient, write_truth
 from vts_hw.sim_devices.patient_source import heart_source
-from vts_hw.sim_devices.scenarios.sync_session import SPECT_TAIL_S, fire_time_of
+from vts_hw.sim_devices.scenarios.sync_session import SPECT_TAIL_S, run_scan_cli
 from vts_hw.sim_devices.spect_listmode import ListModeTruth, SimListModeSpect
 
 __all__ = ["PatientScan", "patient_scan"]
@@ -81,22 +78,7 @@ def patient_scan(rig, rig_yaml, session_dir, duration_s: float, *, spect: bool =
         raise ValueError(f"{truth_dir}: the truth must not go into the session {session}")
     if ntp_sync:
         rig.ntp_sync()
-    env = {**os.environ, **rig.env_vars(), "VTS_CONFIG": str(rig_yaml)}
-    cmd = [sys.executable, "-m", "vts_hw.cli.__main__", "scan", "start", "--duration", f"{duration_s:g}",
-           "-o", str(session)]
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        fire = fire_time_of(session, 60.0, proc)
-        _, err = proc.communicate(timeout=timeout or duration_s + 90.0)
-        if proc.returncode not in (0, 4):   # 4: partial (a gap, listed in the manifest): still analysable
-            raise RuntimeError(f"vts scan start failed ({proc.returncode}): {err.strip()}")
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        for f in (proc.stdout, proc.stderr):
-            if f is not None:
-                f.close()
+    fire = run_scan_cli(rig, rig_yaml, session, duration_s, timeout=timeout or duration_s + 90.0).fire
     window = recorded_window(session)
     listmode, spect_truth = None, None
     if spect and getattr(rig, "trigger_box", None) is not None:

@@ -24,7 +24,8 @@ from pathlib import Path
 from vts_hw.sim_devices.spect_listmode import ListModeTruth, SimListModeSpect
 from vts_hw.sim_devices.sync_truth import place_source_marker, plan_sync_moves, schedule_source_moves
 
-__all__ = ["SimSyncScan", "prepare", "start_moves", "simulate_spect", "match_moves", "cli_scan", "fire_time_of"]
+__all__ = ["SimSyncScan", "prepare", "start_moves", "simulate_spect", "match_moves", "cli_scan", "fire_time_of",
+           "run_scan_cli", "ScanCli"]
 
 SPECT_TAIL_S = 0.6   # the SPECT acquisition ends this long before the scan (start delay ≤ 0.4 s)
 
@@ -63,21 +64,74 @@ def start_moves(rig, marker, fire_host: float, duration_s: float, n: int = 4, se
     return schedule_source_moves(rig.scene, marker, times, steps)
 
 
-def fire_time_of(session: Path, timeout: float = 30.0, proc=None) -> float:
-    """The trigger's fire time from a session's manifest (a scan running in another process)."""
+def fire_time_of(session: Path, timeout: float = 30.0, proc=None, event: str = "fire") -> float:
+    """When a scan running in another process started, from its manifest (host s): the
+    trigger's fire time (``event="fire"``), or the scan clock's start (``"scan"``: a rig
+    without a trigger)."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         try:
             m = json.loads((Path(session) / "manifest.json").read_text())
-            t = (m.get("trigger") or {}).get("fire_time")
-            if t is not None and m["trigger"].get("fired"):
+            if event == "fire":
+                t = (m.get("trigger") or {}).get("fire_time")
+                t = t if m["trigger"].get("fired") else None
+            else:
+                t = m["scan"]["times"].get("scan_started")
+            if t is not None:
                 return float(t)
-        except (OSError, ValueError):
+        except (OSError, ValueError, KeyError, TypeError):
             pass
         if proc is not None and proc.poll() is not None:
-            raise RuntimeError(f"the scan process ended (exit {proc.returncode}) before firing")
+            raise RuntimeError(f"the scan process ended (exit {proc.returncode}) before it started")
         time.sleep(0.05)
-    raise TimeoutError(f"{session}: the scan did not fire within {timeout:g} s")
+    raise TimeoutError(f"{session}: the scan did not start within {timeout:g} s")
+
+
+@dataclass
+class ScanCli:
+    """What :func:`run_scan_cli` saw: the start (host s), what ``on_fire`` returned, the exit
+    status and the scan's own output."""
+
+    fire: float
+    planned: object
+    returncode: int | None
+    out: str
+    err: str
+
+
+def run_scan_cli(rig, rig_yaml, session, duration_s: float, *, args=(), event: str = "fire", on_fire=None,
+                 kill_after_s: float | None = None, timeout: float = 120.0, check: bool = True) -> ScanCli:
+    """``vts scan start --duration D [ARGS] -o SESSION`` in a subprocess against the running
+    ``rig`` (this process's simulated cameras and trigger box). ``on_fire(start)`` runs as soon
+    as the manifest says the scan started (``event``: the trigger fired, or ``"scan"``: the
+    scan clock started), to schedule what the scene does during the scan; its return comes
+    back as ``planned``. ``kill_after_s``: SIGKILL the scan that long after the start (a crash:
+    nothing closed). ``check``: RuntimeError with the scan's stderr when it exits other than
+    0 or 4 (partial, a gap in the manifest: still analysable)."""
+    env = {**os.environ, **rig.env_vars(), "VTS_CONFIG": str(rig_yaml)}
+    cmd = [sys.executable, "-m", "vts_hw.cli.__main__", "scan", "start", "--duration", f"{duration_s:g}",
+           *map(str, args), "-o", str(session)]
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    out = err = ""
+    try:
+        fire = fire_time_of(session, 60.0, proc, event)
+        planned = on_fire(fire) if on_fire is not None else None
+        if kill_after_s is not None:
+            time.sleep(max(0.0, fire + kill_after_s - time.time()))
+            proc.send_signal(signal.SIGKILL)
+            proc.wait(timeout=10)
+        else:
+            out, err = proc.communicate(timeout=timeout)
+            if check and proc.returncode not in (0, 4):
+                raise RuntimeError(f"vts scan start failed ({proc.returncode}): {err.strip()}")
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        for f in (proc.stdout, proc.stderr):
+            if f is not None:
+                f.close()
+    return ScanCli(fire, planned, proc.returncode, out, err)
 
 
 def simulate_spect(rig, source, session: Path, duration_s: float, out: Path | None = None,
@@ -121,29 +175,11 @@ def cli_scan(rig, rig_yaml, session, duration_s: float, marker, *, n: int = 4, s
     SPECT follows the box for ``spect_s`` list-mode s (default: the scan less 0.6 s); ``seed``
     draws both the move plan and the SPECT (start delay, clock, counts)."""
     session = Path(session)
-    env = {**os.environ, **rig.env_vars(), "VTS_CONFIG": str(rig_yaml)}
-    cmd = [sys.executable, "-m", "vts_hw.cli.__main__", "scan", "start", "--duration", f"{duration_s:g}",
-           "-o", str(session)]
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        fire = fire_time_of(session, 60.0, proc)
-        truth = start_moves(rig, marker, fire, kill_after_s or duration_s, n=n, seed=seed,
-                            times_rel=times_rel, steps=steps)
-        if kill_after_s is not None:
-            time.sleep(max(0.0, fire + kill_after_s - time.time()))
-            proc.send_signal(signal.SIGKILL)
-            proc.wait(timeout=10)
-        else:
-            out, err = proc.communicate(timeout=timeout)
-            if proc.returncode not in (0, 4):   # 4: partial (a gap, listed in the manifest): still analysable
-                raise RuntimeError(f"vts scan start failed ({proc.returncode}): {err.strip()}")
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        for f in (proc.stdout, proc.stderr):
-            if f is not None:
-                f.close()
+    run = run_scan_cli(
+        rig, rig_yaml, session, duration_s, kill_after_s=kill_after_s, timeout=timeout,
+        on_fire=lambda fire: start_moves(rig, marker, fire, kill_after_s or duration_s, n=n, seed=seed,
+                                         times_rel=times_rel, steps=steps))
+    fire, truth = run.fire, run.planned
     lm, spect = simulate_spect(rig, truth, session, spect_s or (kill_after_s or duration_s) - SPECT_TAIL_S,
                                seed=seed)
     return SimSyncScan(session, lm, fire, truth, spect)

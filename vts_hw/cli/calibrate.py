@@ -208,10 +208,10 @@ def _from_cameras(config_path, calibration_path, volume, frames: int, quiet: boo
     """The mapping with the VTS side measured now by every camera the calibration covers."""
     from vts_hw.config import load_rig
     from vts_hw.drivers.registry import open_cameras
-    from vts_hw.procedures.mapping_inputs import calibrated_cameras, mapping_from_cameras, stereo_calibration_for
+    from vts_hw.procedures.mapping_inputs import calibrated_cameras, mapping_from_cameras, camera_calibration_for
 
     rig = load_rig(config_path)
-    calib = stereo_calibration_for(rig, calibration_path)
+    calib = camera_calibration_for(rig, calibration_path)
     cams = open_cameras(calibrated_cameras(rig, calib))
     try:
         return mapping_from_cameras(cams, calib, volume, frames,

@@ -5,6 +5,8 @@ from __future__ import annotations
 import functools
 import json
 import math
+import time
+from pathlib import Path
 
 import click
 
@@ -93,3 +95,76 @@ def say_stored(stored, result, what: str, as_json: bool) -> int:
              "later)" if stored.unsaved else "its figures are above only: no fallback file could be written")
     click.echo(f"vts: the {what} was NOT stored: {stored.error}; {where}", err=True)
     return 3
+
+
+def calibration_files(config_path, calibration, mapping):
+    """--calibration/--mapping, else the rig config's calibration section (relative paths from
+    the rig.yaml's folder), and the rig config (None without one).
+    ConfigError when there is no stereo calibration at all."""
+    from vts_hw.config import load_rig
+    from vts_hw.errors import ConfigError, VtsError
+
+    why = ""
+    rig = None
+    try:
+        rig = load_rig(config_path)
+    except VtsError as exc:
+        if config_path is not None:   # named explicitly: its error is the answer
+            raise
+        why = f" (no rig config: {exc})"
+    if calibration and mapping:
+        return Path(calibration), Path(mapping), rig
+    base = Path(rig._source).parent if rig is not None and rig._source is not None else Path(".")
+
+    def from_rig(p):
+        if p is None:
+            return None
+        p = Path(p)
+        return p if p.is_absolute() else base / p
+
+    cal = Path(calibration) if calibration else from_rig(rig.calibration.stereo if rig else None)
+    mp = Path(mapping) if mapping else from_rig(rig.calibration.spect if rig else None)
+    if cal is None:
+        raise ConfigError("no stereo calibration: give --calibration FILE or set calibration.stereo in "
+                          f"rig.yaml{why}")
+    return cal, mp, rig
+
+
+class FramesProgress:
+    """Frame pairs processed, on stderr: a line per 10 % (and the last)."""
+
+    def __init__(self):
+        self.last = -1
+        self.t0 = time.monotonic()
+
+    def __call__(self, done: int, total: int) -> None:
+        step = int(10 * done / max(total, 1))
+        if step != self.last or done == total:
+            self.last = step
+            click.echo(f"processing the recording: {done}/{total} frame pairs "
+                       f"({time.monotonic() - self.t0:.1f} s)", err=True)
+
+
+def finish_analysis(rig: RigConfig | None, result, data: dict, what: str, as_json: bool, *,
+                    notes: str = "", artifacts=(), lines=()) -> None:
+    """The end of every `... analyze` command: store the result the one way, print it (the
+    --json data, or its text and ``lines``), say where it was stored, and exit by its state
+    (procedures.daily's codes: 0 OK, 10 TOLERANCE, 20 ACTION; 3 when the store did not take it)."""
+    import sys
+
+    from vts_hw.procedures.daily import EXIT_CODES
+    from vts_hw.tolerance import State
+
+    stored = store_qa_result(rig, result, data, notes=notes, artifacts=list(artifacts))
+    if as_json:
+        echo_json(data)
+    else:
+        click.echo(result.results())
+        for line in lines:
+            click.echo(line)
+    sys.stdout.flush()
+    if say_stored(stored, result, what, as_json):
+        sys.exit(3)
+    code = EXIT_CODES[State(data["summary"]["state"])]
+    if code:
+        sys.exit(code)

@@ -2,14 +2,10 @@
 
 from __future__ import annotations
 
-import sys
-
 import click
 
 from vts_hw.cli import cli
-from vts_hw.cli.common import config_option, echo_json, json_option, say_stored, store_qa_result
-
-EXIT_CODES = {"OK": 0, "TOLERANCE": 10, "ACTION": 20}
+from vts_hw.cli.common import FramesProgress, calibration_files, config_option, finish_analysis, json_option
 
 
 @cli.group()
@@ -49,13 +45,12 @@ def analyze(session, listmode, calibration, mapping, out, plot_path, export_dir,
     file could not be read or written, or the run could not be stored (its figures then go
     to a file that `vts qa import` stores later).
     """
-    from vts_hw.cli.sync import _Progress, _calibration_files
     from vts_hw.procedures.motion import MotionAnalysis
     from vts_hw.report.motion_html import write_motion_html
 
-    cal, mp, rig = _calibration_files(config_path, calibration, mapping)
+    cal, mp, rig = calibration_files(config_path, calibration, mapping)
     a = MotionAnalysis(session, listmode, cal, mp, motion_config=rig.motion if rig is not None else None,
-                       workers=workers, progress=_Progress())
+                       workers=workers, progress=FramesProgress())
     a.analyze(tolerances=rig.tolerances if rig is not None else None)
     data = a.results_data()
     png = a.plot(plot_path) if (out or plot_path) else None
@@ -64,18 +59,7 @@ def analyze(session, listmode, calibration, mapping, out, plot_path, export_dir,
         data["report"] = str(out)
     if export_dir:
         data["export"] = [str(p) for p in a.export(export_dir, n_bins=bins)]
-    stored = store_qa_result(rig, a, data, notes=f"session {session}", artifacts=[p for p in (plot_path,) if p])
-    if as_json:
-        echo_json(data)
-    else:
-        click.echo(a.results())
-        if out:
-            click.echo(f"report: {out}")
-        if export_dir:
-            click.echo(f"exported ({data['clock']}): {', '.join(data['export'])}")
-    sys.stdout.flush()
-    if say_stored(stored, a, "motion analysis", as_json):
-        sys.exit(3)
-    code = EXIT_CODES[data["summary"]["state"]]
-    if code:
-        sys.exit(code)
+    finish_analysis(rig, a, data, "motion analysis", as_json, notes=f"session {session}",
+                    artifacts=[p for p in (plot_path,) if p],
+                    lines=[*([f"report: {out}"] if out else []),
+                           *([f"exported ({data['clock']}): {', '.join(data['export'])}"] if export_dir else [])])

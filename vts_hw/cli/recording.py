@@ -87,14 +87,14 @@ def process(session, out, calibration, mapping, workers, as_json, config_path) -
     triangulated, identities kept, written to OUT/trajectories.csv and .json (host time).
     Exit status: 0 written; 2 no calibration; 3 the recording or the output could not be read
     or written."""
-    from vts_hw.cli.sync import _Progress, _calibration_files
+    from vts_hw.cli.common import FramesProgress, calibration_files
     from vts_hw.files import ensure_dir
     from vts_hw.procedures.sync_inputs import load_calibration, load_mapping
     from vts_hw.recording.processing import process_recording
 
-    cal, mp, _ = _calibration_files(config_path, calibration, mapping)
+    cal, mp, _ = calibration_files(config_path, calibration, mapping)
     tracks = process_recording(session, load_calibration(cal), workers=workers, mapping=load_mapping(mp),
-                               progress=_Progress())
+                               progress=FramesProgress())
     folder = ensure_dir(out, "output folder")
     paths = tracks.save(folder / "trajectories.csv")
     if as_json:

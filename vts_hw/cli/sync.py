@@ -2,69 +2,15 @@
 
 from __future__ import annotations
 
-import sys
-import time
-from pathlib import Path
-
 import click
 
 from vts_hw.cli import cli
-from vts_hw.cli.common import config_option, echo_json, json_option, say_stored, store_qa_result
-
-EXIT_CODES = {"OK": 0, "TOLERANCE": 10, "ACTION": 20}   # as the QA procedures (procedures/daily.py)
+from vts_hw.cli.common import FramesProgress, calibration_files, config_option, finish_analysis, json_option
 
 
 @cli.group()
 def sync() -> None:
     """Time synchronisation of a scan session with the SPECT list-mode."""
-
-
-def _calibration_files(config_path, calibration, mapping):
-    """--calibration/--mapping, else the rig config's calibration section (relative paths from
-    the rig.yaml's folder), and the rig config (None without one).
-    ConfigError when there is no stereo calibration at all."""
-    from vts_hw.config import load_rig
-    from vts_hw.errors import ConfigError, VtsError
-
-    why = ""
-    rig = None
-    try:
-        rig = load_rig(config_path)
-    except VtsError as exc:
-        if config_path is not None:   # named explicitly: its error is the answer
-            raise
-        why = f" (no rig config: {exc})"
-    if calibration and mapping:
-        return Path(calibration), Path(mapping), rig
-    base = Path(rig._source).parent if rig is not None and rig._source is not None else Path(".")
-
-    def from_rig(p):
-        if p is None:
-            return None
-        p = Path(p)
-        return p if p.is_absolute() else base / p
-
-    cal = Path(calibration) if calibration else from_rig(rig.calibration.stereo if rig else None)
-    mp = Path(mapping) if mapping else from_rig(rig.calibration.spect if rig else None)
-    if cal is None:
-        raise ConfigError("no stereo calibration: give --calibration FILE or set calibration.stereo in "
-                          f"rig.yaml{why}")
-    return cal, mp, rig
-
-
-class _Progress:
-    """Frame pairs processed, on stderr: a line per 10 % (and the last)."""
-
-    def __init__(self):
-        self.last = -1
-        self.t0 = time.monotonic()
-
-    def __call__(self, done: int, total: int) -> None:
-        step = int(10 * done / max(total, 1))
-        if step != self.last or done == total:
-            self.last = step
-            click.echo(f"processing the recording: {done}/{total} frame pairs "
-                       f"({time.monotonic() - self.t0:.1f} s)", err=True)
 
 
 @sync.command()
@@ -120,8 +66,8 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
     if not candidates:
         raise click.UsageError("give the scan's list-mode: --listmode FILE")
     check_session(session)           # a bad folder says so before anything else is read
-    cal, mp, rig = _calibration_files(config_path, calibration, mapping)
-    a = SyncAnalysis(session, candidates, cal, mp, marker=marker, workers=workers, progress=_Progress(),
+    cal, mp, rig = calibration_files(config_path, calibration, mapping)
+    a = SyncAnalysis(session, candidates, cal, mp, marker=marker, workers=workers, progress=FramesProgress(),
                      clock_slack_s=CLOCK_SLACK_S if clock_slack is None else clock_slack)
     a.analyze(tolerances=rig.tolerances if rig is not None else None)
     data = a.results_data()
@@ -134,20 +80,8 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
     if export_dir:
         csv_path, json_path = export_trajectories(a.tracks, a.gating, export_dir, mp)
         data["export"] = [str(csv_path), str(json_path)]
-    stored = store_qa_result(rig, a, data, notes=f"session {session}", artifacts=[p for p in (plot_path,) if p])
-    if as_json:
-        echo_json(data)
-    else:
-        click.echo(a.results())
-        if out:
-            click.echo(f"report: {out}")
-        if plot_path:
-            click.echo(f"plot: {plot_path}")
-        if export_dir:
-            click.echo(f"trajectories (SPECT frame, SPECT time): {', '.join(data['export'])}")
-    sys.stdout.flush()
-    if say_stored(stored, a, "sync check", as_json):
-        sys.exit(3)
-    code = EXIT_CODES[data["summary"]["state"]]
-    if code:
-        sys.exit(code)
+    finish_analysis(rig, a, data, "sync check", as_json, notes=f"session {session}",
+                    artifacts=[p for p in (plot_path,) if p],
+                    lines=[*([f"report: {out}"] if out else []), *([f"plot: {plot_path}"] if plot_path else []),
+                           *([f"trajectories (SPECT frame, SPECT time): {', '.join(data['export'])}"]
+                             if export_dir else [])])

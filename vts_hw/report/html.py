@@ -115,9 +115,36 @@ def _summary(report: DriftReport) -> str:
             + "".join(rows) + "</tbody></table></div>")
 
 
-def _kpi(label, value, unit="") -> str:
+def kpi(label, value, unit="") -> str:
+    """One figure of a report's summary cards (``value`` is HTML already)."""
     return (f'<div class="kpi"><div class="k">{escape(label)}</div><div class="v">{value}'
             f' <span class="u">{escape(unit)}</span></div></div>')
+
+
+_kpi = kpi
+
+
+def page(title: str, state: str, meta_html: str, body_html: str, plots_expected: int = 1) -> str:
+    """A whole self-contained report page: the shared styles and script, a header with
+    ``title`` and the ``meta_html`` line, then ``body_html`` (the cards). ``state`` goes into
+    ``data-state`` (what the browser tests and a script read), ``plots_expected`` into
+    ``data-plots-expected`` (the script flags a plot that did not load)."""
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8">
+<meta name="viewport" content="width=device-width, initial-scale=1">
+<title>{escape(title)}</title>
+<style>{CSS}</style>
+</head>
+<body data-plots-expected="{plots_expected}" data-state="{escape(state)}">
+<main>
+<header><h1>{escape(title)}</h1>
+<div class="meta">{meta_html}</div>
+</header>
+{body_html}
+</main>
+<script>{SCRIPT}</script>
+</body></html>
+"""
 
 
 def _axis_table(report: DriftReport, cam: CameraDrift) -> str:
@@ -260,18 +287,8 @@ def render_html(report: DriftReport) -> str:
              else '<p class="quiet">Nothing needs attention.</p>')
     cams = "".join(_camera_section(report, c) for c in report.cameras.values() if c.points)
     steps = steps_html(report.steps) if report.steps is not None else ""
-    return f"""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8">
-<meta name="viewport" content="width=device-width, initial-scale=1">
-<title>{escape(report.title)}</title>
-<style>{CSS}</style>
-</head>
-<body data-plots-expected="{report.plot_count}" data-state="{escape(str(state or 'none'))}">
-<main>
-<header><h1>{escape(report.title)}</h1>
-<div class="meta">{escape(period_text(report))} · generated {fmt_datetime(report.now)} · vts-hw {escape(report.software_version)}</div>
-</header>
-<section class="card banner {escape(str(state or 'OK'))}">
+    meta = f"{escape(period_text(report))} · generated {fmt_datetime(report.now)} · vts-hw {escape(report.software_version)}"
+    return page(report.title, str(state or "none"), meta, f"""<section class="card banner {escape(str(state or 'OK'))}">
 <div class="big">Overall {_badge(state)} <span class="meta">worst state of each camera's latest run</span></div>
 {items}
 </section>
@@ -282,8 +299,5 @@ def render_html(report: DriftReport) -> str:
 <section class="card"><h2>Baselines</h2>{_run_list(report.baselines, "No baseline set in this period.")}</section>
 <section class="card"><h2>Tolerance windows</h2>{_windows_table(report)}</section>
 <section class="card"><h2>Method</h2>{_method(report)}</section>
-<footer>All times UTC. Drift in pixels of the camera image; mm at the wall from the QA's own conversion.</footer>
-</main>
-<script>{SCRIPT}</script>
-</body></html>
-"""
+<footer>All times UTC. Drift in pixels of the camera image; mm at the wall from the QA's own conversion.</footer>""",
+                plots_expected=report.plot_count)

@@ -10,14 +10,10 @@ from html import escape
 from pathlib import Path
 
 from vts_hw.files import write_atomic
-from vts_hw.report.html import CSS, SCRIPT
+from vts_hw.report.html import kpi as _kpi, page
 
 __all__ = ["render_motion_html", "write_motion_html"]
 
-
-def _kpi(label, value, unit="") -> str:
-    return (f'<div class="kpi"><div class="k">{escape(label)}</div><div class="v">{value}'
-            f' <span class="u">{escape(unit)}</span></div></div>')
 
 
 def _f(v, fmt=".2f") -> str:
@@ -56,19 +52,9 @@ def render_motion_html(data: dict, png: bytes, title: str = "Patient motion") ->
     problems = "".join(f"<li>{escape(p)}</li>" for p in data["problems"])
     gaps = ", ".join(f"{a:.2f}–{b:.2f} s" for a, b in data["pose_gaps_s"]) or "none"
     img = base64.b64encode(png).decode("ascii")
-    return f"""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8">
-<meta name="viewport" content="width=device-width, initial-scale=1">
-<title>{escape(title)}</title>
-<style>{CSS}</style>
-</head>
-<body data-plots-expected="1" data-state="{state}">
-<main>
-<header><h1>{escape(title)}</h1>
-<div class="meta">session {escape(data['session'])} · list-mode {escape(str(data['listmode'] or 'none'))} ·
-analysed {escape(str(data['date']))} UTC · vts-hw {escape(data['vts_hw_version'])}</div>
-</header>
-<section class="card banner {state}">
+    meta = (f"session {escape(data['session'])} · list-mode {escape(str(data['listmode'] or 'none'))} · "
+            f"analysed {escape(str(data['date']))} UTC · vts-hw {escape(data['vts_hw_version'])}")
+    return page(title, state, meta, f"""<section class="card banner {state}">
 <div class="big"><span class="badge {state}">{state}</span></div>
 <p class="quiet">Times: {escape(data['clock'])}. Positions: {escape(data['frame'])}. Breathing is taken
 out of the body pose; the reference is the first still period ({data['reference_period_s'][0]:.1f}–{data['reference_period_s'][1]:.1f} s).</p>
@@ -82,11 +68,7 @@ out of the body pose; the reference is the first still period ({data['reference_
 <section class="card"><h2>Motion states</h2>{_table(["state", "start s", "end s", "pose from the reference (tx ty tz mm, rx ry rz deg)", "frames"], states)}</section>
 <section class="card"><h2>Markers and cameras</h2>{_table(["marker", "patient", "band", "seen", "points by camera", "why"], markers)}
 <p class="muted">Frames without a body pose (fewer than 3 patient markers seen): {gaps}.</p></section>
-<footer>vts-hw patient motion. Method: docs/decisions/0035-breathing-and-body-motion.md; files: docs/motion-formats.md.</footer>
-</main>
-<script>{SCRIPT}</script>
-</body></html>
-"""
+<footer>vts-hw patient motion. Method: docs/decisions/0035-breathing-and-body-motion.md; files: docs/motion-formats.md.</footer>""")
 
 
 def write_motion_html(data: dict, png: bytes, out) -> Path:

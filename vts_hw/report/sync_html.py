@@ -13,7 +13,7 @@ from html import escape
 from pathlib import Path
 
 from vts_hw.files import write_atomic
-from vts_hw.report.html import CSS, SCRIPT
+from vts_hw.report.html import kpi as _kpi, page
 
 
 
@@ -26,10 +26,6 @@ def _limits(data: dict) -> tuple[float, float]:
 def _ms(v, fmt="+.1f") -> str:
     return "–" if v is None else format(v * 1e3, fmt)
 
-
-def _kpi(label, value, unit="") -> str:
-    return (f'<div class="kpi"><div class="k">{escape(label)}</div><div class="v">{value}'
-            f' <span class="u">{escape(unit)}</span></div></div>')
 
 
 def _events_table(data: dict) -> str:
@@ -88,18 +84,8 @@ def render_sync_html(data: dict, png: bytes, title: str = "VTS–SPECT sync chec
     note = f"<br><b>{escape(cal['note'])}</b>" if cal.get("note") else ""
     img = base64.b64encode(png).decode("ascii")
     now = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S")
-    return f"""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8">
-<meta name="viewport" content="width=device-width, initial-scale=1">
-<title>{escape(title)}</title>
-<style>{CSS}</style>
-</head>
-<body data-plots-expected="1" data-state="{state}">
-<main>
-<header><h1>{escape(title)}</h1>
-<div class="meta">session {escape(data['session'])} · list-mode {escape(data['listmode'])} · generated {now} UTC</div>
-</header>
-<section class="card banner {state}">
+    meta = f"session {escape(data['session'])} · list-mode {escape(data['listmode'])} · generated {now} UTC"
+    return page(title, state, meta, f"""<section class="card banner {state}">
 <div class="big">{f'<span class="badge {state}">{state}</span>'} <span class="meta">goal: every event within
 {goal_s * 1e3:.0f} ms; {limit_s * 1e3:.0f} ms is what the previous system achieved</span></div>
 {banner}
@@ -126,11 +112,7 @@ duty {data['trigger']['duty']:.3g}, first edge from {escape(data['trigger']['how
 gaps: {_intervals(vts['gaps_host'], t0)}</p>
 <table><thead><tr><th>camera</th><th class=num>clock offset s</th><th class=num>skew ppm</th>
 <th class=num>uncertainty ms</th></tr></thead><tbody>{fits}</tbody></table></section>
-<footer>All times UTC. Host clock unless named. vts-hw sync check.</footer>
-</main>
-<script>{SCRIPT}</script>
-</body></html>
-"""
+<footer>All times UTC. Host clock unless named. vts-hw sync check.</footer>""")
 
 
 def write_sync_html(data: dict, png: bytes, out) -> Path:
