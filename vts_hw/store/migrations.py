@@ -8,29 +8,33 @@ current version is the highest). On open, in one write transaction:
 * a newer version -> refuse (this vts-hw does not know that layout; upgrade vts-hw);
 * vts-hw tables but no version table -> refuse (not a store we created; touch nothing).
 
-A step is a function of the dialect returning DDL, so the same step runs on SQLite and
+A step is a function of the dialect returning DDL (and, where a new column needs a value in
+the rows already there, a function of the connection that fills it), so the same step runs on SQLite and
 PostgreSQL (and tests compile it for PostgreSQL without a server). Steps describe the schema
 *as it was at that version*, never the current ``schema.py`` tables, so a later change to
 ``schema.py`` cannot change what an old step does. Steps only add (columns with defaults,
-tables, indexes); they never rewrite rows. DDL is transactional on both databases, so a
+tables, indexes, and the first value of a column they add); they never rewrite stored values. DDL is transactional on both databases, so a
 kill during an upgrade leaves the old version intact.
 
 Version history:
   1  runs, measurements, tolerances, artifacts (path, sha256), schema_migrations
   2  runs.host, runs.pid, runs.process_start (dead-run detection); artifacts.kind;
      index on runs.status
+  3  runs.uid (unique; the rows already there get a fresh uuid4 each), index on runs (rig,
+     procedure, started); the outbox table (pushes to QATrack+)
 """
 
 from __future__ import annotations
 
 import time
+import uuid
 from dataclasses import dataclass
 from typing import Callable
 
-from sqlalchemy import (Column, Connection, Index, Integer, MetaData, String, Table, Text, func, inspect,
-                        insert, select)
+from sqlalchemy import (CheckConstraint, Column, Connection, Double, ForeignKey, Index, Integer, MetaData,
+                        String, Table, Text, UniqueConstraint, func, inspect, insert, select, update)
 from sqlalchemy.engine import Dialect
-from sqlalchemy.schema import CreateColumn, CreateIndex, DDLElement
+from sqlalchemy.schema import CreateColumn, CreateIndex, CreateTable, DDLElement
 
 from vts_hw.store import schema
 from vts_hw.store.errors import StoreError
@@ -40,7 +44,7 @@ from vts_hw.store.errors import StoreError
 class Migration:
     version: int
     description: str
-    statements: Callable[[Dialect], list]  # DDL strings or DDLElements, in order
+    statements: Callable[[Dialect], list]  # DDL strings, DDLElements or fill(conn) functions, in order
 
 
 def add_column(dialect: Dialect, table: str, column: Column) -> str:
@@ -64,9 +68,46 @@ def _v2(dialect: Dialect) -> list:
     ]
 
 
+def _v3(dialect: Dialect) -> list:
+    md = MetaData(naming_convention=schema.NAMING)
+    runs_v3 = Table("runs", md, Column("id", Integer, primary_key=True), Column("uid", String(32)),
+                    Column("rig", Text), Column("procedure", Text), Column("started", Double))
+    outbox_v3 = Table(
+        "outbox", md,
+        Column("id", Integer, primary_key=True),
+        Column("run_id", Integer, ForeignKey(runs_v3.c.id), nullable=False),
+        Column("target", Text, nullable=False),
+        Column("key", Text, nullable=False),
+        Column("state", String(16), nullable=False),
+        Column("attempts", Integer, nullable=False, server_default="0"),
+        Column("last_error", Text, nullable=False, server_default=""),
+        Column("created", Double, nullable=False),
+        Column("updated", Double, nullable=False),
+        Column("remote", Text, nullable=False, server_default=""),
+        CheckConstraint(Column("state").in_(("pending", "sent", "refused")), name="state"),
+        UniqueConstraint("target", "run_id", name="uq_outbox_target_run_id"),
+    )
+
+    def fill_uids(conn: Connection) -> None:
+        ids = conn.scalars(select(runs_v3.c.id).where(runs_v3.c.uid == "")).all()
+        for run_id in ids:
+            conn.execute(update(runs_v3).where(runs_v3.c.id == run_id).values(uid=uuid.uuid4().hex))
+
+    return [
+        add_column(dialect, "runs", Column("uid", String(32), nullable=False, server_default="")),
+        fill_uids,
+        CreateIndex(Index("uq_runs_uid", runs_v3.c.uid, unique=True)),
+        CreateIndex(Index("ix_runs_rig_procedure_started", runs_v3.c.rig, runs_v3.c.procedure,
+                          runs_v3.c.started)),
+        CreateTable(outbox_v3),
+        CreateIndex(Index("ix_outbox_state", outbox_v3.c.state)),
+    ]
+
+
 #: version -> the step that upgrades version-1 to it (version 1 is the first layout)
 MIGRATIONS: dict[int, Migration] = {
     2: Migration(2, "runs: host, pid, process_start for dead-run detection; artifacts: kind", _v2),
+    3: Migration(3, "runs: uid (identity across stores), index on rig; outbox (pushes to QATrack+)", _v3),
 }
 
 assert sorted(MIGRATIONS) == list(range(2, schema.SCHEMA_VERSION + 1)), "a migration step is missing"
@@ -109,6 +150,8 @@ def ensure_schema(conn: Connection, where: str) -> tuple[int, int]:
         for stmt in step.statements(conn.dialect):
             if isinstance(stmt, str):
                 conn.exec_driver_sql(stmt)
+            elif callable(stmt) and not isinstance(stmt, DDLElement):
+                stmt(conn)
             else:
                 assert isinstance(stmt, DDLElement)
                 conn.execute(stmt)

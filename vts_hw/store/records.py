@@ -14,6 +14,9 @@ from vts_hw.tolerance import State
 RUN_STATUSES = ("running", "OK", "TOLERANCE", "ACTION", "aborted", "error")
 #: the statuses finish() accepts
 FINISH_STATUSES = ("OK", "TOLERANCE", "ACTION", "error")
+#: the states of an outbox row: waiting (new, or failed and to be retried), done, or refused
+#: by the other system (kept for the user to fix, retried only when asked)
+OUTBOX_STATES = ("pending", "sent", "refused")
 #: the statuses a measurement can have
 MEASUREMENT_STATUSES = tuple(s.value for s in State)
 
@@ -30,6 +33,7 @@ class Run:
     config_digest: str
     operator: str
     notes: str
+    uid: str = ""  # the run's identity across stores (32 hex digits)
 
 
 @dataclass(frozen=True)
@@ -54,11 +58,27 @@ class Artifact:
     kind: str
 
 
+@dataclass(frozen=True)
+class OutboxItem:
+    """A run to push to ``target``: its state, tries, the last error, and what it created there."""
+    id: int
+    run_id: int
+    target: str
+    key: str
+    state: str  # one of OUTBOX_STATES
+    attempts: int
+    last_error: str
+    created: float
+    updated: float
+    remote: str
+
+
 def run_from_row(row) -> Run:
     """A Run from a ``runs`` row (any mapping-like row with those columns)."""
     return Run(id=row.id, procedure=row.procedure, rig=row.rig, started=row.started,
                finished=row.finished, status=row.status, software_version=row.software_version,
-               config_digest=row.config_digest, operator=row.operator, notes=row.notes)
+               config_digest=row.config_digest, operator=row.operator, notes=row.notes,
+               uid=row.uid)
 
 
 def measurement_from_row(row) -> Measurement:
@@ -69,3 +89,9 @@ def measurement_from_row(row) -> Measurement:
 
 def artifact_from_row(row) -> Artifact:
     return Artifact(id=row.id, run_id=row.run_id, path=row.path, sha256=row.sha256, kind=row.kind)
+
+
+def outbox_from_row(row) -> OutboxItem:
+    return OutboxItem(id=row.id, run_id=row.run_id, target=row.target, key=row.key, state=row.state,
+                      attempts=row.attempts, last_error=row.last_error, created=row.created,
+                      updated=row.updated, remote=row.remote)

@@ -11,8 +11,14 @@ Tables:
   measurements       the run's values with the status judged at the time and the window used
   tolerances         append-only history of windows per metric, each with effective_from
   artifacts          saved files (frames) of a run, by path and sha256
+  outbox             results waiting to be (or already) pushed to another system (QATrack+)
 
-Rows are never updated except a run's status/finished/notes when it ends, and never deleted:
+Every run has a ``uid`` (32 hex digits, unique in every store): a run copied into another
+store (``vts store migrate``) keeps it, so a copy made twice, or a push to QATrack+ from
+either store, is recognised as the same run.
+
+Rows are never updated except a run's status/finished/notes when it ends (and an outbox row's
+state as its push progresses), and never deleted:
 a change of tolerance is a new row, so old statuses and the windows behind them stay as
 they were.
 """
@@ -20,12 +26,12 @@ they were.
 from __future__ import annotations
 
 from sqlalchemy import (CheckConstraint, Column, Double, ForeignKey, Index, Integer, MetaData,
-                        String, Table, Text, func)
+                        String, Table, Text, UniqueConstraint, func)
 
-from vts_hw.store.records import MEASUREMENT_STATUSES, RUN_STATUSES
+from vts_hw.store.records import MEASUREMENT_STATUSES, OUTBOX_STATES, RUN_STATUSES
 
 #: the version a fresh database is created at; migrations.py upgrades older ones to it
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 
 NAMING = {
     "ix": "ix_%(table_name)s_%(column_0_N_name)s",
@@ -60,10 +66,14 @@ runs = Table(
     Column("host", Text, nullable=False, server_default=""),
     Column("pid", Integer),
     Column("process_start", Text, nullable=False, server_default=""),
+    # version 3: the run's identity across stores (uuid4 hex)
+    Column("uid", String(32), nullable=False, server_default=""),
     CheckConstraint(Column("status").in_(RUN_STATUSES), name="status"),
 )
 Index(None, runs.c.procedure, runs.c.started)
 Index(None, runs.c.status)  # version 2
+Index("uq_runs_uid", runs.c.uid, unique=True)  # version 3
+Index(None, runs.c.rig, runs.c.procedure, runs.c.started)  # version 3
 
 tolerances = Table(
     "tolerances", metadata,
@@ -107,6 +117,24 @@ artifacts = Table(
 )
 Index(None, artifacts.c.run_id)
 
+# version 3: one row per (run, target) to push; its state changes as the push progresses
+outbox = Table(
+    "outbox", metadata,
+    Column("id", Integer, primary_key=True),
+    Column("run_id", Integer, ForeignKey(runs.c.id), nullable=False),
+    Column("target", Text, nullable=False),              # e.g. "qatrack"
+    Column("key", Text, nullable=False),                 # idempotency key sent with the push
+    Column("state", String(16), nullable=False),
+    Column("attempts", Integer, nullable=False, server_default="0"),
+    Column("last_error", Text, nullable=False, server_default=""),
+    Column("created", Double, nullable=False),
+    Column("updated", Double, nullable=False),
+    Column("remote", Text, nullable=False, server_default=""),   # what the push created there (URL)
+    CheckConstraint(Column("state").in_(OUTBOX_STATES), name="state"),
+    UniqueConstraint("target", "run_id", name="uq_outbox_target_run_id"),
+)
+Index(None, outbox.c.state)
+
 #: the tables of a vts-hw results store (a database holding some of them but no
 #: schema_migrations is not one we created, and is not touched)
-TABLES = (schema_migrations, runs, tolerances, measurements, artifacts)
+TABLES = (schema_migrations, runs, tolerances, measurements, artifacts, outbox)

@@ -14,6 +14,7 @@ import datetime as _dt
 import logging
 import os
 import time
+import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 
@@ -29,8 +30,9 @@ from vts_hw.store.migrations import ensure_schema, stored_version
 from vts_hw.store.paths import masked, to_url
 from vts_hw.store.queries import (select_artifacts, select_measurements, select_running_runs, select_runs,
                       select_tolerance_at, select_tolerances_at)
-from vts_hw.store.records import Artifact, Measurement, Run, artifact_from_row, measurement_from_row, run_from_row
-from vts_hw.store.schema import SCHEMA_VERSION, runs, tolerances
+from vts_hw.store.records import (OUTBOX_STATES, Artifact, Measurement, OutboxItem, Run, artifact_from_row,
+                                  measurement_from_row, outbox_from_row, run_from_row)
+from vts_hw.store.schema import SCHEMA_VERSION, outbox, runs, tolerances
 
 log = logging.getLogger(__name__)
 
@@ -213,8 +215,8 @@ class ResultsStore:
     def begin_run(self, procedure: str, rig: str = "", operator: str = "", notes: str = "",
                   config_digest: str = "", software_version: str | None = None,
                   started: float | None = None) -> RunHandle:
-        """Commit a "running" row for a new run (with this host, pid and process start) and
-        return its handle. ``software_version`` None means vts_hw.__version__."""
+        """Commit a "running" row for a new run (with this host, pid and process start, and a
+        new uid) and return its handle. ``software_version`` None means vts_hw.__version__."""
         if not isinstance(procedure, str) or not procedure:
             raise ValueError("a run needs a procedure name")
         if software_version is None:
@@ -224,7 +226,8 @@ class ResultsStore:
             new = conn.execute(insert(runs).values(
                 procedure=procedure, rig=rig, started=when, finished=None, status="running",
                 software_version=software_version, config_digest=config_digest, operator=operator,
-                notes=notes, host=host_name(), pid=os.getpid(), process_start=process_start()))
+                notes=notes, host=host_name(), pid=os.getpid(), process_start=process_start(),
+                uid=uuid.uuid4().hex))
             run_id = new.inserted_primary_key[0]
         return RunHandle(self, run_id, when)
 
@@ -273,6 +276,12 @@ class ResultsStore:
             raise KeyError(f"no run {run_id} in {self.url}")
         return run_from_row(row)
 
+    def run_by_uid(self, uid: str) -> Run | None:
+        """The run with this uid (its identity across stores), None when there is none."""
+        with self._read() as conn:
+            row = conn.execute(select(runs).where(runs.c.uid == str(uid))).first()
+        return None if row is None else run_from_row(row)
+
     def measurements(self, procedure: str | tuple | None = None, metric: str | tuple | None = None,
                      subject: str | None = None, since: float | None = None,
                      run_id: int | None = None) -> list[Measurement]:
@@ -284,3 +293,43 @@ class ResultsStore:
     def artifacts(self, run_id: int) -> list[Artifact]:
         with self._read() as conn:
             return [artifact_from_row(r) for r in conn.execute(select_artifacts(run_id))]
+
+    # -- outbox: pushes to other systems ------------------------------------------------------
+
+    def outbox_add(self, run_id: int, target: str, key: str) -> OutboxItem:
+        """Put run ``run_id`` in the outbox for ``target`` ("pending"); the row already there
+        (whatever its state) is returned unchanged when the run was added before."""
+        now = time.time()
+        with self._write() as conn:
+            q = select(outbox).where(outbox.c.target == target, outbox.c.run_id == run_id)
+            row = conn.execute(q).first()
+            if row is None:
+                conn.execute(insert(outbox).values(run_id=run_id, target=target, key=key, state="pending",
+                                                   attempts=0, last_error="", created=now, updated=now,
+                                                   remote=""))
+                row = conn.execute(q).one()
+        return outbox_from_row(row)
+
+    def outbox_items(self, target: str, states=None, run_ids=None) -> list[OutboxItem]:
+        """Outbox rows for ``target``, oldest first; ``states``/``run_ids`` filter when given."""
+        q = select(outbox).where(outbox.c.target == target)
+        if states is not None:
+            q = q.where(outbox.c.state.in_([str(s) for s in states]))
+        if run_ids is not None:
+            q = q.where(outbox.c.run_id.in_([int(r) for r in run_ids]))
+        with self._read() as conn:
+            return [outbox_from_row(r) for r in conn.execute(q.order_by(outbox.c.id))]
+
+    def outbox_record(self, item_id: int, state: str, error: str = "", remote: str | None = None) -> OutboxItem:
+        """Record one attempt at pushing an outbox row: its new state, the error (or ""), and
+        what it created there; ``attempts`` goes up by one."""
+        if state not in OUTBOX_STATES:
+            raise ValueError(f"an outbox state is one of {', '.join(OUTBOX_STATES)}, not {state!r}")
+        values = dict(state=state, last_error=str(error), updated=time.time(), attempts=outbox.c.attempts + 1)
+        if remote is not None:
+            values["remote"] = str(remote)
+        with self._write() as conn:
+            done = conn.execute(update(outbox).where(outbox.c.id == item_id).values(**values))
+            if done.rowcount != 1:
+                raise KeyError(f"no outbox row {item_id} in {self.url}")
+            return outbox_from_row(conn.execute(select(outbox).where(outbox.c.id == item_id)).one())
