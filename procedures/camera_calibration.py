@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from vts_hw.errors import DataError, UsageError
+from vts_hw.procedures.calibration_result import CAMERAS_PROCEDURE, CalibrationResult
 from vts_hw.save_or_keep import Saved, save_or_keep
 from vts_hw.vision.calibration import find_corners, load_gray
 from vts_hw.vision.calibration_uncertainty import K_SIGMA
@@ -151,8 +152,12 @@ def fit_warnings(calib: CameraCalibration) -> list[str]:
 
 
 @dataclass
-class CamerasRun:
-    """A computed N-camera calibration, how it compares, and where it was saved."""
+class CamerasRun(CalibrationResult):
+    """A computed N-camera calibration, how it compares, and where it was saved; as a QA result
+    (procedure ``calibration_cameras``) the RMS of each camera and of the set, and whether the
+    bundle adjustment converged."""
+
+    procedure = CAMERAS_PROCEDURE
 
     calib: CameraCalibration
     saved: Saved
@@ -160,6 +165,11 @@ class CamerasRun:
     change: dict[str, Any] | None = None
     truth: dict[str, Any] | None = None
     sim: dict[str, Any] | None = None
+
+    def rms_figures(self):
+        c = self.calib
+        return ({f.name: f.rms for f in c.camera_fits}, c.rms,
+                bool((c.adjustment or {}).get("converged", True)))
 
     @property
     def untrusted(self) -> list[str]:

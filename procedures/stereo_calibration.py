@@ -23,6 +23,7 @@ from vts_hw.vision.multi_calibration_io import load_calibration
 from vts_hw.vision.calibration_uncertainty import K_SIGMA, compare_with_truth
 from vts_hw.errors import DataError
 from vts_hw.procedures.camera_calibration import replaceable as any_replaceable
+from vts_hw.procedures.calibration_result import STEREO_PROCEDURE, CalibrationResult
 from vts_hw.save_or_keep import Saved, save_or_keep
 
 _IMAGE = re.compile(r"^(left|right)(.*)\.(jpe?g|png|bmp|tiff?)$", re.IGNORECASE)
@@ -77,8 +78,11 @@ def _as_stereo(calib) -> StereoCalibration:
 
 
 @dataclass
-class CalibrationRun:
-    """A computed calibration, how it compares, and where it was saved."""
+class CalibrationRun(CalibrationResult):
+    """A computed calibration, how it compares, and where it was saved; as a QA result
+    (procedure ``calibration``) the RMS of each camera and of the pair."""
+
+    procedure = STEREO_PROCEDURE
 
     calib: StereoCalibration
     saved: Saved
@@ -86,6 +90,10 @@ class CalibrationRun:
     change: dict[str, Any] | None = None
     truth: dict[str, Any] | None = None
     notes: list[str] = field(default_factory=list)
+
+    def rms_figures(self):
+        c = self.calib
+        return {"left": c.rms_left, "right": c.rms_right}, c.rms_stereo, None
 
     @property
     def warnings(self) -> list[str]:

@@ -172,7 +172,8 @@ def test_moved_beyond_the_uncertainty_is_a_warning(boards, tmp_path):
     d = json.loads(r.stdout)
     assert len(d["change"]["warnings"]) == 1 and d["warnings"] == d["change"]["warnings"]
     assert d["change"]["warnings"][0].startswith("WARNING: cx1 moved by +8 px, 5.8 x its combined")
-    assert r.stderr == d["change"]["warnings"][0] + "\n"
+    # the warning, then where the run was stored (stderr under --json)
+    assert r.stderr == d["change"]["warnings"][0] + "\n" + f"stored: run {d['stored']['run_id']} (calibration) in the results store\n"
     row = next(x for x in d["change"]["judged"] if x["parameter"] == "cx1")
     assert row["change"] == pytest.approx(8.0) and row["ratio"] > 3
     assert StereoCalibration.load(out).K1[0, 2] == pytest.approx(data["K1"][0][2] + 8.0)
@@ -222,11 +223,13 @@ def test_disk_full_keeps_the_previous_file_and_saves_the_new_one_here(boards, tm
     assert data["rms_stereo"] > 0 and data["output"] is None
     fallback = work / data["saved_to"].rsplit("/", 1)[-1]
     assert data["saved_to"] == str(fallback) and fallback.name.startswith("calibration-")
-    assert r.stderr == (f"vts: {out}: could not be written (no space left on device); the previous"
-                        f" version is unchanged; the calibration was saved to {fallback} instead\n")
-    assert data["write_error"] == r.stderr[5:-1]
+    stored, err = r.stderr.split("\n", 1)               # the run is stored all the same (stderr under --json)
+    assert stored == f"stored: run {data['stored']['run_id']} (calibration) in the results store"
+    assert err == (f"vts: {out}: could not be written (no space left on device); the previous"
+                   f" version is unchanged; the calibration was saved to {fallback} instead\n")
+    assert data["write_error"] == err[5:-1]
     assert StereoCalibration.load(fallback).results_data() == {
-        k: v for k, v in data.items() if k not in ("output", "saved_to", "write_error", "change", "warnings")}
+        k: v for k, v in data.items() if k not in ("output", "saved_to", "write_error", "change", "warnings", "stored")}
     assert out.read_bytes() == before
     assert disk.files() == {"calibration.json": len(before)}     # no .tmp, no 0-byte file
 

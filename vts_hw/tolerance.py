@@ -117,6 +117,11 @@ DEFAULT_TOLERANCES: dict[str, Window] = {
     # a point not used in the fit (simulated: 0.05 and 0.08 mm)
     "mapping_fre_mm": Window(tolerance_high=1.0, action_high=2.0, unit="mm"),
     "mapping_tre_rms_mm": Window(tolerance_high=1.5, action_high=3.0, unit="mm"),
+    # camera calibration from checkerboards: the RMS reprojection error per camera and of the
+    # whole set (corner noise gives 0.05-0.5 px; above 1 px the fit is not trusted and not
+    # written without --force), and whether the bundle adjustment converged (1) or not (0)
+    "calibration_rms_px": Window(tolerance_high=0.5, action_high=1.0, unit="px"),
+    "calibration_converged": Window(action_low=1),
     # sync check, VTS against SPECT per motion event both saw: the project's goal is 20 ms; 100 ms
     # is what the system this replaces achieved. An event seen by one system only is worth a
     # look; no event seen by both leaves nothing checked.

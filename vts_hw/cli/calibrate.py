@@ -61,10 +61,11 @@ def _board_options(f):
               " p1, p2, k3), or auto: whichever the data support (BIC), per camera.")
 @click.option("--force", is_flag=True, help="Replace the -o file even if it holds a calibration in mm"
               " and this one is in squares, or is not a calibration file.")
+@config_option
 @json_option
 def stereo(images: tuple[str, ...], sim: bool, sim_poses: int, sim_seed: int,
            pattern: tuple[int, int], square: float | None, unit: str | None, output: str,
-           previous: str | None, distortion: str, force: bool, as_json: bool) -> None:
+           previous: str | None, distortion: str, force: bool, config_path: str | None, as_json: bool) -> None:
     """Calibrate the two cameras from IMAGES: leftNN/rightNN checkerboard pairs (files or a
     directory), or from simulated views with --sim.
 
@@ -82,6 +83,7 @@ def stereo(images: tuple[str, ...], sim: bool, sim_poses: int, sim_seed: int,
         raise click.UsageError("give either IMAGES or --sim, not both")
     if not sim and not images:
         raise click.UsageError("give the checkerboard IMAGES (or a directory of them), or --sim")
+    rig = None if sim else rig_if_any(config_path)   # a --config that cannot be read: before the work
     if unit is None:
         unit = "mm" if (square is not None or sim) else "squares"
     if square is None:
@@ -101,14 +103,7 @@ def stereo(images: tuple[str, ...], sim: bool, sim_poses: int, sim_seed: int,
         pairs = proc.image_pairs(list(images))
     run = proc.run(pairs, output=output, pattern=pattern, square=square, unit=unit, names=names,
                    previous=previous, force=force, truth=truth, distortion=distortion)
-    if as_json:
-        echo_json(run.results_data())
-        for line in run.warnings:
-            click.echo(line, err=True)
-    else:
-        click.echo(run.results())
-    if run.saved.error is not None:
-        raise run.saved.error
+    _end_calibration(run, rig, sim, as_json)
 
 
 @calibrate.command()
@@ -131,10 +126,12 @@ def stereo(images: tuple[str, ...], sim: bool, sim_poses: int, sim_seed: int,
 @click.option("--force", is_flag=True, help="Replace the -o file even if it holds a calibration in mm"
               " and this one is in squares, or is not a calibration file; write a fit that did not"
               " converge or whose RMS is above 1 px.")
+@config_option
 @json_option
 def cameras(images: tuple[str, ...], sim: bool, n_cameras: int, sim_poses: int, sim_seed: int,
             pattern: tuple[int, int], square: float | None, unit: str | None, reference: str | None,
-            output: str, previous: str | None, distortion: str, force: bool, as_json: bool) -> None:
+            output: str, previous: str | None, distortion: str, force: bool, config_path: str | None,
+            as_json: bool) -> None:
     """Calibrate N >= 2 cameras into one frame (the reference camera's) from checkerboard IMAGES,
     or from simulated views with --sim.
 
@@ -157,7 +154,13 @@ def cameras(images: tuple[str, ...], sim: bool, n_cameras: int, sim_poses: int, 
     not connect the cameras, or a camera in no view shared with another, or a fit that cannot be
     trusted (the bundle adjustment did not converge, or RMS above 1 px: WARNING lines, -o not
     written unless --force) — or -o could not be written (the calibration is then saved in the
-    current folder or $TMPDIR, said where).
+    current folder or $TMPDIR, said where), or the store did not take the run.
+
+    The calibration is stored as a run (procedure "calibration_cameras": the RMS of each camera
+    and of the set, judged by the calibration_rms_px window, and whether the bundle adjustment
+    converged), a fit not written too, in the rig's results store with the rig's name when
+    there is a rig config (--config, $VTS_CONFIG, ./rig.yaml), else in the per-user store with
+    an empty rig name. A --sim calibration is not stored.
     """
     from vts_hw.procedures import camera_calibration as proc
 
@@ -165,6 +168,7 @@ def cameras(images: tuple[str, ...], sim: bool, n_cameras: int, sim_poses: int, 
         raise click.UsageError("give either IMAGES or --sim, not both")
     if not sim and not images:
         raise click.UsageError("give the checkerboard IMAGES (or folders of them), or --sim")
+    rig = None if sim else rig_if_any(config_path)
     if unit is None:
         unit = "mm" if (square is not None or sim) else "squares"
     if square is None:
@@ -184,16 +188,36 @@ def cameras(images: tuple[str, ...], sim: bool, n_cameras: int, sim_poses: int, 
         imgs = proc.camera_images(list(images))
     run = proc.run(imgs, output=output, pattern=pattern, square=square, unit=unit, previous=previous,
                    force=force, distortion=distortion, reference=reference, truth=truth, score=score, sim=info)
+    _end_calibration(run, rig, sim, as_json)
+    if run.refused:
+        raise DataError(run.refused)
+
+
+def _end_calibration(run, rig, sim: bool, as_json: bool) -> None:
+    """Store a calibration from images as a run (not a simulated one: a demonstration, not the
+    room's history), print it, say where it was stored; -o's error, else exit 3 when the store
+    did not take it."""
+    run.tolerances = rig.tolerances if rig is not None else None   # the rig's windows judge it
+    data = run.results_data()
+    stored = None
+    if not sim:
+        sv = run.saved
+        notes = (f"saved to {sv.written}" if sv.written else
+                 f"saved to {sv.fallback} ({sv.path} could not be written)" if sv.fallback else
+                 f"not written: {getattr(run, 'refused', None) or sv.error or sv.path}")
+        stored = store_qa_result(rig, run, data, notes=notes)
     if as_json:
-        echo_json(run.results_data())
+        echo_json(data)
         for line in run.warnings:
             click.echo(line, err=True)
     else:
         click.echo(run.results())
+    sys.stdout.flush()
+    failed = stored is not None and say_stored(stored, run, "calibration", as_json)
     if run.saved.error is not None:
         raise run.saved.error
-    if run.refused:
-        raise DataError(run.refused)
+    if failed:
+        sys.exit(3)
 
 
 def _sim_square_mm() -> float:
