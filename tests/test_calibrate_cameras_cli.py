@@ -43,6 +43,15 @@ def test_real_pairs_equal_the_stereo_calibration(boards, stereo, tmp_path):
     assert d["rms"] == pytest.approx(stereo["rms_stereo"], rel=0.01)
     assert load_calibration(out).baseline == pytest.approx(stereo["baseline"], rel=0.005)
     assert d["outliers"] == ["02"] and d["view_graph"]["connected"] and "change" not in d
+    # stored as a run: no rig config here, so the per-user store and an empty rig name
+    from vts_hw.store import ResultsStore
+    with ResultsStore(None) as store:
+        run = store.run(d["stored"]["run_id"])
+        got = {(m.subject, m.metric): m.value for m in store.measurements(run_id=run.id)}
+    assert (run.procedure, run.rig, run.status) == ("calibration_cameras", "", "OK")
+    assert got == {("left", "calibration_rms_px"): pytest.approx(d["cameras"][0]["rms"]),
+                   ("right", "calibration_rms_px"): pytest.approx(d["cameras"][1]["rms"]),
+                   ("set", "calibration_rms_px"): pytest.approx(d["rms"]), ("set", "calibration_converged"): 1.0}
     # a second run reports the change from the file it replaces
     r = vts(boards, "-o", out, cwd=tmp_path)
     assert r.returncode == 0, r.stderr

@@ -37,6 +37,27 @@ def test_real_pairs_from_a_directory(boards, tmp_path):
     assert "WARNING" not in r.stdout and "warning(s)" not in r.stdout
 
 
+def test_stored_as_a_run_of_the_rig(boards, tmp_path):
+    """With a rig config the calibration is a run of that rig in its store: the RMS of each
+    camera and of the pair (a --sim calibration is not stored: test_sim_text_output)."""
+    from vts_hw.store import ResultsStore
+
+    url = f"sqlite:///{tmp_path / 'room.sqlite'}"
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text(f"rig: room-x\ncameras:\n  - name: cam1\n    host: 127.0.0.1\nresults:\n  url: {url}\n")
+    r = vts(boards, "-o", tmp_path / "cal.json", "--config", cfg, "--json", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    with ResultsStore(url) as store:
+        (run,) = store.runs()
+        got = {m.subject: (m.value, str(m.status)) for m in store.measurements(run_id=run.id)}
+    assert d["stored"] == {"run_id": run.id, "unsaved_file": None}
+    assert (run.procedure, run.rig, run.status) == ("calibration", "room-x", "OK")
+    assert run.notes == f"saved to {tmp_path / 'cal.json'}"
+    assert got == {"left": (pytest.approx(d["rms_left"]), "OK"), "right": (pytest.approx(d["rms_right"]), "OK"),
+                   "set": (pytest.approx(d["rms_stereo"]), "OK")}
+
+
 def test_real_pairs_from_files_json_and_previous(boards, tmp_path):
     files = [boards / f"{side}{n:02d}.jpg" for n in (1, 3, 4, 5, 6) for side in ("right", "left")]
     first = tmp_path / "first.json"
@@ -93,8 +114,12 @@ def test_sim_off_from_the_truth_is_a_warning(tmp_path):
 
 
 def test_sim_text_output(tmp_path):
+    (tmp_path / "rig.yaml").write_text(f"rig: room-x\ncameras:\n  - name: cam1\n    host: 127.0.0.1\n"
+                                       f"results:\n  url: sqlite:///{tmp_path / 'room.sqlite'}\n")
     r = vts("--sim", "--sim-poses", 6, "--sim-seed", 2, cwd=tmp_path)
     assert r.returncode == 0, r.stderr
+    # a simulated calibration is a demonstration, not the room's history: not stored
+    assert "stored:" not in r.stdout and not (tmp_path / "room.sqlite").exists()
     assert "RMS reprojection error" in r.stdout
     assert "Compared with the simulated truth" in r.stdout and "baseline" in r.stdout
     assert (tmp_path / "calibration.json").is_file()

@@ -1,6 +1,8 @@
 """The 60-day demo is the issue's acceptance check: measured drift against the injected truth,
 every day, and the report's forecast against the injected trend."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -36,6 +38,11 @@ def test_the_fast_camera_passes_its_tolerance_along_the_way(demo):
     v = row.cameras[FAST_CAMERA]
     assert max(abs(v["truth_dx"]), abs(v["truth_dy"])) > 0.95  # it is the drift, not something else
     assert demo.report_html.stat().st_size > 20000 and demo.report_pdf.read_bytes()[:5] == b"%PDF-"
+    # the rooms page over the demo's store: its one room, the fast camera in TOLERANCE, linked
+    rooms = demo.rooms_html.read_text()
+    assert re.search(r'<tr class="room" data-rig="sim-demo" data-state="TOLERANCE">', rooms)
+    assert f'<div class="cam" data-camera="{FAST_CAMERA}" data-state="TOLERANCE">' in rooms
+    assert 'href="rooms-sim-demo-drift.html"' in rooms and (demo.rooms_html.parent / "rooms-sim-demo-drift.html").is_file()
 
 
 def test_forecast_agrees_with_the_injected_trend(demo):

@@ -38,6 +38,7 @@ class DemoResult:
     report_pdf: Path
     max_error_px: dict[str, tuple[float, float]]
     steps: object = None  # the step test's SimStepsResult
+    rooms_html: Path | None = None  # the department page over the store (one room here)
 
 
 def injected_drift(scene, cam: str, t0: float, t1: float) -> tuple[float, float]:
@@ -116,6 +117,9 @@ def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 
             pdf = out / "drift-report.pdf"
             build_drift_report(store, html, now=now, rig=cfg.rig)
             build_drift_report(store, pdf, now=now, rig=cfg.rig)
+            from vts_hw.report.rooms import build_rooms_report
+            rooms = out / "rooms.html"
+            build_rooms_report(store, rooms, now=now)
     err: dict[str, tuple[float, float]] = {}
     for r in rows:
         for cam, v in r.cameras.items():
@@ -123,4 +127,4 @@ def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 
                 ex, ey = abs(v["dx"] - v["truth_dx"]), abs(v["dy"] - v["truth_dy"])
                 px, py = err.get(cam, (0.0, 0.0))
                 err[cam] = (max(px, ex), max(py, ey))
-    return DemoResult(rows, db, html, pdf, err, steps)
+    return DemoResult(rows, db, html, pdf, err, steps, rooms)

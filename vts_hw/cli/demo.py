@@ -31,7 +31,7 @@ def demo(out: str, days: int, seconds: float, frames: int, scan_seconds: float, 
        fresh results store, each day's measured drift compared with the drift the scene injected.
     3. The 7-sphere step test on the same rig: stereo calibration from rendered checkerboards,
        the VTS -> SPECT mapping, then 22 table positions, scored against the truth.
-    4. The QA report (drift trend and step test), HTML and PDF.
+    4. The QA report (drift trend and step test), HTML and PDF, and the rooms page.
     5. A scan: `vts scan start` against a rig with the trigger-box firmware in the emulator and a
        source marker moved along the table; the simulated SPECT writes list-mode following the
        trigger the box emitted; `vts sync analyze` lines the two up, scored against the truth.
@@ -111,6 +111,8 @@ def _daily(out_dir: Path, days: int, frames: int) -> None:
     click.echo(f"results store: {res.store_path}")
     click.echo(f"report:        {res.report_html}")
     click.echo(f"               {res.report_pdf}")
+    if res.rooms_html is not None:
+        click.echo(f"rooms page:    {res.rooms_html} (every rig in the store; `vts report rooms`)")
 
 
 def _scan(out_dir: Path, seconds: float) -> None:

@@ -124,6 +124,7 @@ def _mm_per_px(points: list[RunPoint], axis: str) -> float | None:
     return float(np.sum(px[ok] * mm[ok]) / den) if den > 1e-12 else None
 
 
+from vts_hw.report.history import collect_history  # noqa: E402
 from vts_hw.report.steps import collect_steps  # noqa: E402
 
 
@@ -213,7 +214,8 @@ def collect(store, since: float | None = None, now: float | None = None, rig: st
         baselines=[RunInfo.of(r) for r in in_period if r.id in baseline_ids],
         not_completed=[RunInfo.of(r) for r in in_period if not _completed(r) and r.id not in baseline_ids],
         software_version=__version__, control_method=CONTROL_METHOD,
-        steps=collect_steps(store, since, now, rig), has_baseline=bool(baseline_runs))
+        steps=collect_steps(store, since, now, rig), has_baseline=bool(baseline_runs),
+        history=collect_history(store, since, now, rig))
 
 
 def _camera_sort_key(name: str):
@@ -263,4 +265,26 @@ def build_drift_report(store, out: str | Path, since: float | None = None, now: 
     return report
 
 
-__all__ = ["build_drift_report", "collect", "DriftReport", "ReportError", "parse_since", "report_format"]
+def build_drift_report_rooms(store, out: str | Path, since: float | None = None, now: float | None = None,
+                             rigs=None) -> list[DriftReport]:
+    """The drift report of every rig in the store (or of ``rigs``) in one file: per rig its own
+    section (HTML) or pages (PDF), numbers computed per rig (cam1 of one room is not cam1 of
+    another). Written whole, as :func:`build_drift_report`."""
+    out = Path(out)
+    suffix = report_format(out)
+    now = time.time() if now is None else float(now)
+    reports = [collect(store, since=since, now=now, rig=r) for r in (store.rigs() if rigs is None else rigs)]
+    for r in reports:
+        r.out = out
+    if suffix == ".pdf":
+        from vts_hw.report.pdf import render_pdf_rooms
+        data: bytes | str = render_pdf_rooms(reports)
+    else:
+        from vts_hw.report.html import render_html_rooms
+        data = render_html_rooms(reports)
+    ensure_dir(out.parent, "report folder")
+    write_atomic(out, data)
+    return reports
+
+
+__all__ = ["build_drift_report", "build_drift_report_rooms", "collect", "DriftReport", "ReportError", "parse_since", "report_format"]

@@ -11,11 +11,13 @@ from __future__ import annotations
 import base64
 from html import escape
 
+from vts_hw.tolerance import worst
 from vts_hw.report.model import AXES, CameraDrift, DriftReport, RunPoint
 from vts_hw.report.plots import STATE_COLOURS, camera_figure, figure_png
 from vts_hw.report.text import (camera_forecast_text, fmt_num, fmt_slope, forecast_detail, latest_text, led_text,
                    period_text, trend_detail)
 from vts_hw.report.steps import steps_html
+from vts_hw.report.history_view import history_html
 from vts_hw.report.times import fmt_date, fmt_datetime
 from vts_hw.report.trend import CONTROL_RUNS, HORIZON_DAYS, MIN_TREND_DAYS, MIN_TREND_RUNS, SIGNIFICANCE
 
@@ -92,13 +94,13 @@ def _forecast_cell(cam: CameraDrift) -> str:
     return _cell(f'<span class="{"soon" if soon else "muted"}">{escape(text)}</span>', num=False)
 
 
-def _summary(report: DriftReport) -> str:
+def _summary(report: DriftReport, prefix: str = "") -> str:
     rows = []
     for cam in report.cameras.values():
         p = cam.latest
         rows.append(
             "<tr>"
-            f'<td><a href="#cam-{escape(cam.name)}"><b>{escape(cam.name)}</b></a></td>'
+            f'<td><a href="#{escape(prefix)}cam-{escape(cam.name)}"><b>{escape(cam.name)}</b></a></td>'
             f"{_cell(fmt_date(p.t) if p else '–')}"
             f"{_drift_cell(cam, p, 'x')}{_drift_cell(cam, p, 'y')}"
             f"<td>{_badge(cam.state if p else None)}</td>"
@@ -209,7 +211,7 @@ def _markers_table(cam: CameraDrift) -> str:
             f"<table><thead><tr><th>Marker</th>{head}</tr></thead><tbody>{rows}</tbody></table></details>")
 
 
-def _camera_section(report: DriftReport, cam: CameraDrift) -> str:
+def _camera_section(report: DriftReport, cam: CameraDrift, prefix: str = "") -> str:
     p = cam.latest
     png = base64.b64encode(figure_png(camera_figure(report, cam))).decode("ascii")
     kpis = "".join((
@@ -220,7 +222,7 @@ def _camera_section(report: DriftReport, cam: CameraDrift) -> str:
         _kpi("action level", escape(camera_forecast_text(cam)[0])),
         _kpi("baseline", fmt_date(cam.baseline_t) if cam.baseline_t else "none recorded"),
     ))
-    return (f'<section class="card" id="cam-{escape(cam.name)}"><h2>{escape(cam.name)} {_badge(cam.state)}'
+    return (f'<section class="card" id="{escape(prefix)}cam-{escape(cam.name)}"><h2>{escape(cam.name)} {_badge(cam.state)}'
             f' <span class="meta">latest run {fmt_datetime(p.t)} · {len(cam.points)} runs shown</span></h2>'
             f'<div class="cards">{kpis}</div>'
             f'<img class="plot" alt="{escape(cam.name)}: drift in x and y over time with tolerance and action '
@@ -282,22 +284,44 @@ def _method(report: DriftReport) -> str:
 def render_html(report: DriftReport) -> str:
     """The report as an HTML string."""
     state = report.state if report.cameras else None
+    meta = f"{escape(period_text(report))} · generated {fmt_datetime(report.now)} · vts-hw {escape(report.software_version)}"
+    return page(report.title, str(state or "none"), meta, report_body(report), plots_expected=report.plot_count)
+
+
+def render_html_rooms(reports: list[DriftReport], title: str = "VTS camera drift — all rooms") -> str:
+    """Several rigs' drift reports on one page: a list of the rooms, then each room's report
+    (its own banner, cameras, step test and history: numbers never mixed between rooms)."""
+    states = [r.state for r in reports if r.cameras]
+    state = worst(states) if states else None
+    links = "".join(f'<li><a href="#room-{i}">{escape(r.rig or "(no rig name)")}</a> '
+                    f'{_badge(r.state if r.cameras else None)}</li>' for i, r in enumerate(reports))
+    body = (f'<section class="card"><h2>Rooms</h2><ul id="rooms">{links}</ul><p class="muted">Each room below is '
+            "its own report: cam1 of one room is not cam1 of another.</p></section>"
+            + "".join(f'<section class="card room-head" id="room-{i}"><h2>{escape(r.title)}</h2></section>'
+                      + report_body(r, prefix=f"room-{i}-") for i, r in enumerate(reports)))
+    meta = (f"{len(reports)} room(s) · {escape(period_text(reports[0]))} · generated {fmt_datetime(reports[0].now)} · "
+            f"vts-hw {escape(reports[0].software_version)}" if reports else "no runs in the store")
+    return page(title, str(state or "none"), meta, body, plots_expected=sum(r.plot_count for r in reports))
+
+
+def report_body(report: DriftReport, prefix: str = "") -> str:
+    """The report's cards (``prefix`` makes the anchors unique when several share a page)."""
+    state = report.state if report.cameras else None
     attention = report.attention()
     items = (f'<ul>{"".join(f"<li>{escape(a)}</li>" for a in attention)}</ul>' if attention
              else '<p class="quiet">Nothing needs attention.</p>')
-    cams = "".join(_camera_section(report, c) for c in report.cameras.values() if c.points)
+    cams = "".join(_camera_section(report, c, prefix) for c in report.cameras.values() if c.points)
     steps = steps_html(report.steps) if report.steps is not None else ""
-    meta = f"{escape(period_text(report))} · generated {fmt_datetime(report.now)} · vts-hw {escape(report.software_version)}"
-    return page(report.title, str(state or "none"), meta, f"""<section class="card banner {escape(str(state or 'OK'))}">
+    steps += history_html(report.history)
+    return f"""<section class="card banner {escape(str(state or 'OK'))}">
 <div class="big">Overall {_badge(state)} <span class="meta">worst state of each camera's latest run</span></div>
 {items}
 </section>
-<section class="card"><h2>Summary</h2>{_summary(report)}</section>
+<section class="card"><h2>Summary</h2>{_summary(report, prefix)}</section>
 {cams}
 {steps}
 <section class="card"><h2>Runs that did not complete</h2>{_run_list(report.not_completed, "None in this period.")}</section>
 <section class="card"><h2>Baselines</h2>{_run_list(report.baselines, "No baseline set in this period.")}</section>
 <section class="card"><h2>Tolerance windows</h2>{_windows_table(report)}</section>
 <section class="card"><h2>Method</h2>{_method(report)}</section>
-<footer>All times UTC. Drift in pixels of the camera image; mm at the wall from the QA's own conversion.</footer>""",
-                plots_expected=report.plot_count)
+<footer>All times UTC. Drift in pixels of the camera image; mm at the wall from the QA's own conversion.</footer>"""

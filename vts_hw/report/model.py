@@ -201,6 +201,7 @@ class DriftReport:
     out: Path | None = None
     steps: "StepsSummary | None" = None    # the 7-sphere step tests of the period
     has_baseline: bool = True              # the store holds a completed baseline (any time up to now)
+    history: list = field(default_factory=list)   # report.history.ProcedureHistory per procedure with runs
 
     @property
     def state(self) -> State:
@@ -210,7 +211,8 @@ class DriftReport:
     def plot_count(self) -> int:
         """Plots the report holds: one per camera with runs, and the step test's."""
         steps = 1 if self.steps is not None and self.steps.plot_png is not None else 0
-        return sum(1 for c in self.cameras.values() if c.points) + steps
+        history = sum(1 for h in self.history if h.has_plot)
+        return sum(1 for c in self.cameras.values() if c.points) + steps + history
 
     def window_now(self, axis: str) -> Window:
         return self.bands[axis][-1].window
@@ -236,6 +238,7 @@ class DriftReport:
             bad = sorted({f"{m.metric} ({m.subject})" for m in self.steps.measures if str(m.status) != "OK"})
             out.append((self.steps.state.rank, f"7-sphere step test: {self.steps.state} in run "
                                                f"{self.steps.latest.id} ({', '.join(bad)})"))
+        out += [a for a in (h.attention() for h in self.history) if a is not None]
         if not self.has_baseline:   # an empty store too: the first thing to do
             out.append((1, "no drift baseline is recorded: set one with `vts qa drift --set-baseline`"))
         if self.not_completed:
@@ -256,4 +259,5 @@ class DriftReport:
             "has_baseline": self.has_baseline, "trend_rule": TREND_RULE,
             "attention": self.attention(),
             "steps": None if self.steps is None else self.steps.results_data(),
+            "history": [h.results_data() for h in self.history],
         }

@@ -226,16 +226,35 @@ def pdf_bytes(figures, metadata: dict | None = None) -> bytes:
 
 def render_pdf(report: DriftReport) -> bytes:
     """The title page and one page per camera with runs (and the step test), as PDF bytes."""
-    meta = {"Title": report.title, "Subject": "VTS camera drift trend", "Creator": f"vts-hw {report.software_version}",
+    return pdf_bytes(report_pages(report), _meta(report))
+
+
+def render_pdf_rooms(reports: list[DriftReport]) -> bytes:
+    """Several rigs' drift reports in one PDF, one after the other (each with its title page)."""
+    first = reports[0] if reports else None
+    meta = _meta(first) if first else {}
+    meta["Title"] = "VTS camera drift — all rooms"
+    if not reports:
+        fig = Figure(figsize=A4_LANDSCAPE)
+        fig.text(MARGIN, 0.9, "VTS camera drift — all rooms: the store holds no runs yet.", fontsize=14)
+        return pdf_bytes([fig], meta)
+    return pdf_bytes((p for r in reports for p in report_pages(r)), meta)
+
+
+def _meta(report: DriftReport) -> dict:
+    return {"Title": report.title, "Subject": "VTS camera drift trend", "Creator": f"vts-hw {report.software_version}",
             "CreationDate": utc(report.now).replace(microsecond=0) if report.now else _dt.datetime.now(_dt.timezone.utc)}
 
-    def pages():
-        yield from title_pages(report)
-        for cam in report.cameras.values():
-            if cam.points:
-                yield camera_figure(report, cam, figsize=A4_LANDSCAPE, header=_camera_header(report, cam))
-        if report.steps is not None:
-            from vts_hw.report.steps import steps_figure
-            yield steps_figure(report.steps, figsize=A4_LANDSCAPE)
 
-    return pdf_bytes(pages(), meta)
+def report_pages(report: DriftReport):
+    """The report's pages (figures), one by one."""
+    yield from title_pages(report)
+    for cam in report.cameras.values():
+        if cam.points:
+            yield camera_figure(report, cam, figsize=A4_LANDSCAPE, header=_camera_header(report, cam))
+    if report.steps is not None:
+        from vts_hw.report.steps import steps_figure
+        yield steps_figure(report.steps, figsize=A4_LANDSCAPE)
+    if report.history:
+        from vts_hw.report.history_view import history_figure
+        yield history_figure(report.history, figsize=A4_LANDSCAPE)

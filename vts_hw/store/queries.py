@@ -32,6 +32,11 @@ def select_runs(procedure=None, since: float | None = None, status=None) -> Sele
     return q.order_by(runs.c.started, runs.c.id)
 
 
+def select_rigs() -> Select:
+    """Every rig name that has a run, in order (an empty name too: runs stored without a rig config)."""
+    return select(runs.c.rig).distinct().order_by(runs.c.rig)
+
+
 def select_measurements(procedure=None, metric=None, subject: str | None = None,
                         since: float | None = None, run_id: int | None = None) -> Select:
     """Measurements with their run's start time, ordered by run start, then id."""

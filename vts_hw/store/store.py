@@ -28,7 +28,7 @@ from vts_hw.store.handle import RunHandle
 from vts_hw.store.liveness import host_name, is_alive, process_start
 from vts_hw.store.migrations import ensure_schema, stored_version
 from vts_hw.store.paths import masked, to_url
-from vts_hw.store.queries import (select_artifacts, select_measurements, select_running_runs, select_runs,
+from vts_hw.store.queries import (select_artifacts, select_measurements, select_rigs, select_running_runs, select_runs,
                       select_tolerance_at, select_tolerances_at)
 from vts_hw.store.records import (OUTBOX_STATES, Artifact, Measurement, OutboxItem, Run, artifact_from_row,
                                   measurement_from_row, outbox_from_row, run_from_row)
@@ -267,6 +267,11 @@ class ResultsStore:
         """Runs, oldest first; procedure and status may be one value or a tuple."""
         with self._read() as conn:
             return [run_from_row(r) for r in conn.execute(select_runs(procedure, since, status))]
+
+    def rigs(self) -> list[str]:
+        """The rig names of the store's runs, sorted ("" for runs stored without a rig name)."""
+        with self._read() as conn:
+            return [r[0] or "" for r in conn.execute(select_rigs())]
 
     def run(self, run_id: int) -> Run:
         """One run; KeyError if there is none with that id."""

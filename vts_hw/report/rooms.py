@@ -1,0 +1,236 @@
+"""A department's view: every rig (room) in the results store on one page.
+
+``build_rooms_report(store, "rooms.html")`` reads each rig's runs and writes, beside the page,
+each room's full drift report (``rooms-<rig>-drift.html``, linked relatively), then the page:
+per room the latest daily state of each camera with a drift sparkline, the days since the last
+step test, calibration and SPECT mapping, and the open ACTION items.
+
+Open ACTION item (the page's footnote says the same): a check — the same procedure (daily and
+drift QA count as one), the same camera or subject (a marker counts as its camera), the same
+quantity — whose latest completed result is ACTION. A later OK or TOLERANCE result of that
+check closes it; "since" is the first ACTION of the unbroken run of ACTION results. Motion
+analyses judge a patient's scan, not the room, and are never listed; drift baselines have no
+state.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from vts_hw import __version__
+from vts_hw.files import ensure_dir, write_atomic
+from vts_hw.tolerance import State, worst
+from vts_hw.report.drift import COMPLETED, DRIFT_PROCEDURES, collect, report_format
+from vts_hw.report.history import LABELS
+from vts_hw.report.model import DriftReport, RunInfo
+from vts_hw.report.times import fmt_date
+
+STEPS_PROCEDURES = ("sphere-steps",)
+CALIBRATION_PROCEDURES = ("calibration", "calibration_cameras")
+MAPPING_PROCEDURES = ("spect_mapping",)
+NOT_ROOM_CHECKS = ("motion", "drift-baseline")      # never open ACTION items (see the docstring)
+OPEN_RULE = ("An ACTION item is open while the latest completed result of the same check — the same "
+             "procedure (daily and drift QA count as one), the same camera or subject, the same quantity — "
+             "is ACTION; a later OK or TOLERANCE result of that check closes it. Motion analyses judge a "
+             "patient's scan, not the room, and are not listed.")
+
+
+@dataclass
+class OpenItem:
+    """A check whose latest result is ACTION."""
+    check: str                  # "daily QA", "sync check", ...
+    subject: str
+    metrics: list[str]
+    since: float                # the first ACTION result of the unbroken run
+    last_run: int
+    last_t: float
+    runs: int                   # ACTION runs since `since`
+
+    def text(self) -> str:
+        return (f"{self.check} · {self.subject}: {', '.join(self.metrics)} — ACTION since {fmt_date(self.since)}"
+                f" ({self.runs} run{'s' if self.runs != 1 else ''}, last run {self.last_run})")
+
+    def as_dict(self) -> dict:
+        return {**self.__dict__, "since_date": fmt_date(self.since), "text": self.text()}
+
+
+@dataclass
+class Room:
+    rig: str
+    drift: DriftReport
+    last_daily: RunInfo | None          # the latest completed daily/drift run, any time
+    last_steps: RunInfo | None
+    last_calibration: RunInfo | None
+    last_mapping: RunInfo | None
+    open_items: list[OpenItem] = field(default_factory=list)
+    drift_file: str = ""                # the room's drift report, relative to the rooms page
+
+    @property
+    def label(self) -> str:
+        return self.rig or "(no rig name)"
+
+    @property
+    def state(self) -> State | None:
+        """The worst state of the cameras' latest daily runs in the period; None: no daily QA."""
+        cams = [c for c in self.drift.cameras.values() if c.points]
+        return worst(c.state for c in cams) if cams else None
+
+    def daily_missing_text(self) -> str:
+        """What the page says instead of a state when the period has no daily QA."""
+        if self.last_daily is None:
+            return "no daily QA yet"
+        return f"no daily QA in the period (last {fmt_date(self.last_daily.started)})"
+
+    def as_dict(self) -> dict:
+        def info(r):
+            return None if r is None else r.as_dict()
+        return {"rig": self.rig, "state": str(self.state) if self.state else None,
+                "daily": None if self.state else self.daily_missing_text(),
+                "cameras": {n: {"state": str(c.state), "latest": c.latest.as_dict() if c.latest else None}
+                            for n, c in self.drift.cameras.items() if c.points},
+                "last_daily": info(self.last_daily), "last_steps": info(self.last_steps),
+                "last_calibration": info(self.last_calibration), "last_mapping": info(self.last_mapping),
+                "open_items": [i.as_dict() for i in self.open_items], "drift_report": self.drift_file,
+                "attention": self.drift.attention()}
+
+
+@dataclass
+class RoomsReport:
+    title: str
+    since: float | None
+    now: float
+    rooms: list[Room]
+    software_version: str = __version__
+    out: Path | None = None
+
+    @property
+    def state(self) -> State | None:
+        states = [r.state for r in self.rooms if r.state is not None]
+        return worst(states) if states else None
+
+    def results_data(self) -> dict:
+        return {"report": "rooms", "title": self.title, "since": self.since, "now": self.now,
+                "state": str(self.state) if self.state else None, "open_rule": OPEN_RULE,
+                "out": str(self.out) if self.out else None, "software_version": self.software_version,
+                "rooms": [r.as_dict() for r in self.rooms]}
+
+
+def days_since(t: float | None, now: float) -> str:
+    if t is None:
+        return "never"
+    d = int((now - t) // 86400)
+    return "today" if d <= 0 else "1 day ago" if d == 1 else f"{d} days ago"
+
+
+def _latest(runs, procedures) -> RunInfo | None:
+    done = [r for r in runs if r.procedure in procedures and str(r.status) in COMPLETED]
+    return RunInfo.of(done[-1]) if done else None
+
+
+def _check(procedure: str) -> str:
+    return LABELS.get(procedure, procedure)
+
+
+def open_items(measurements, runs) -> list[OpenItem]:
+    """The open ACTION items among ``runs`` (one rig's; see the module docstring) from their
+    ``measurements`` (any others are ignored)."""
+    done = {r.id: r for r in runs if str(r.status) in COMPLETED and r.procedure not in NOT_ROOM_CHECKS}
+    if not done:
+        return []
+    per_run: dict[int, dict[tuple[str, str, str], str]] = defaultdict(dict)
+    for m in measurements:
+        run = done.get(m.run_id)
+        if run is None:
+            continue
+        key = (_check(run.procedure), (m.subject or "").split("/")[0] or "-", m.metric)
+        per_run[m.run_id][key] = str(worst([per_run[m.run_id].get(key, "OK"), str(m.status)]))
+    open_: dict[tuple, list] = {}
+    for run in sorted(done.values(), key=lambda r: (r.started, r.id)):
+        for key, st in per_run.get(run.id, {}).items():
+            if st == "ACTION":
+                got = open_.setdefault(key, [run.started, run.id, run.started, 0])
+                got[1], got[2], got[3] = run.id, run.started, got[3] + 1
+            else:
+                open_.pop(key, None)
+    grouped: dict[tuple[str, str], OpenItem] = {}
+    for (check, subject, metric), (since, last_run, last_t, n) in sorted(open_.items()):
+        item = grouped.get((check, subject))
+        if item is None:
+            grouped[(check, subject)] = OpenItem(check, subject, [metric], since, last_run, last_t, n)
+        else:
+            item.metrics.append(metric)
+            item.since, item.runs = min(item.since, since), max(item.runs, n)
+            if last_t > item.last_t:
+                item.last_run, item.last_t = last_run, last_t
+    return sorted(grouped.values(), key=lambda i: (i.since, i.check, i.subject))
+
+
+def slug(rig: str) -> str:
+    """A file-name-safe form of a rig name ("unnamed" for the empty one)."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", rig).strip("._") or "unnamed"
+
+
+def drift_file_names(out: Path, rigs: list[str]) -> dict[str, str]:
+    """Each rig's drift report file name beside ``out`` (``rooms-<rig>-drift.html``), unique."""
+    names, used = {}, set()
+    for rig in rigs:
+        base = f"{out.stem}-{slug(rig)}-drift"
+        name, i = base + out.suffix.lower(), 2
+        while name.lower() in used:
+            name, i = f"{base}-{i}{out.suffix.lower()}", i + 1
+        used.add(name.lower())
+        names[rig] = name
+    return names
+
+
+def collect_rooms(store, since: float | None = None, now: float | None = None, rigs=None,
+                  out: Path | None = None) -> RoomsReport:
+    """Every rig's (or ``rigs``') room data; nothing is written."""
+    now = time.time() if now is None else float(now)
+    rigs = store.rigs() if rigs is None else list(rigs)
+    names = drift_file_names(Path(out or "rooms.html"), rigs)
+    all_runs = [r for r in store.runs() if r.started <= now]
+    checks = tuple(sorted({r.procedure for r in all_runs if r.procedure not in NOT_ROOM_CHECKS}))
+    measurements = store.measurements(procedure=checks) if checks else []
+    rooms = []
+    for rig in rigs:
+        runs = [r for r in all_runs if (r.rig or "") == rig]
+        rooms.append(Room(rig=rig, drift=collect(store, since=since, now=now, rig=rig),
+                          last_daily=_latest(runs, DRIFT_PROCEDURES), last_steps=_latest(runs, STEPS_PROCEDURES),
+                          last_calibration=_latest(runs, CALIBRATION_PROCEDURES),
+                          last_mapping=_latest(runs, MAPPING_PROCEDURES),
+                          open_items=open_items(measurements, runs), drift_file=names[rig]))
+    return RoomsReport("VTS rooms — department QA overview", since, now, rooms)
+
+
+def build_rooms_report(store, out: str | Path, since: float | None = None, now: float | None = None,
+                       rigs=None, progress=None) -> RoomsReport:
+    """Write each room's drift report beside ``out`` and then the rooms page (``.html`` or
+    ``.pdf``); every file is written whole (``files.write_atomic``). ``progress(text)`` hears
+    of each file written."""
+    out = Path(out)
+    suffix = report_format(out)
+    report = collect_rooms(store, since=since, now=now, rigs=rigs, out=out)
+    report.out = out
+    ensure_dir(out.parent, "report folder")
+    if suffix == ".pdf":
+        from vts_hw.report.pdf import render_pdf as render_drift
+        from vts_hw.report.rooms_pdf import render_rooms_pdf as render_rooms
+    else:
+        from vts_hw.report.html import render_html as render_drift
+        from vts_hw.report.rooms_html import render_rooms_html as render_rooms
+    for room in report.rooms:
+        path = out.parent / room.drift_file
+        room.drift.out = path
+        write_atomic(path, render_drift(room.drift))
+        if progress:
+            progress(f"wrote {path} ({room.label})")
+    write_atomic(out, render_rooms(report))
+    return report
+
+
+__all__ = ["build_rooms_report", "collect_rooms", "open_items", "RoomsReport", "Room", "OpenItem", "OPEN_RULE"]
