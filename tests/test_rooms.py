@@ -191,6 +191,17 @@ def test_report_rooms_pdf_and_a_folder_that_cannot_be_written(store_url, tmp_pat
     assert not list(readonly_dir.iterdir())
 
 
+def test_an_empty_store_says_so_in_every_form(tmp_path, capsys):
+    cfg = rig_yaml(tmp_path, f"sqlite:///{tmp_path / 'empty.sqlite'}")
+    for args in (("rooms", "-o", tmp_path / "rooms.html"), ("drift", "--rig", "all", "-o", tmp_path / "all.pdf")):
+        code, out, err = vts(capsys, "report", *args, "--config", cfg)
+        assert code == 0, err
+    html = (tmp_path / "rooms.html").read_text()
+    assert "The store holds no runs yet." in html and 'data-state="none"' in html and "badge OK" not in html
+    text = subprocess.run(["pdftotext", str(tmp_path / "all.pdf"), "-"], capture_output=True, text=True).stdout
+    assert "the store holds no runs yet" in text
+
+
 # --- in a real browser -------------------------------------------------------------------------
 
 def test_rooms_page_in_chromium_and_a_link_followed(rooms_page, tmp_path):

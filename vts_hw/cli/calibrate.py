@@ -277,6 +277,11 @@ def spect(vts_path: str | None, volume: str | None, from_cameras: bool, calibrat
 
     Prints the transform, the FRE and the leave-one-out TRE; writes the transform to -o. If -o
     cannot be written (exit 3) the mapping is saved in the current folder or $TMPDIR instead.
+
+    The mapping is stored as a run (procedure "spect_mapping") in the rig's results store with
+    the rig's name when there is a rig config (--config, $VTS_CONFIG, ./rig.yaml), else in the
+    per-user store with an empty rig name; a --sim mapping is not stored. Exit 3 also when the
+    store did not take the run (its figures go to a file `vts qa import` stores later).
     """
     import json
     import tempfile
