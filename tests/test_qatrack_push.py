@@ -181,6 +181,15 @@ def test_qatrack_missing_a_test_is_refused_with_its_message(peer, env, store):
     assert out[0].state == "refused" and "Missing data for tests: cam2_dy" in out[0].message
 
 
+def test_a_macro_qatrack_does_not_have_is_noted_on_the_sent_run(peer, env, store):
+    cfg = rig(peer.url, lists={"daily": {"test_list": "VTS daily", "macros": {**MACROS, "cam1/clock_offset_s": "cam1_clk"},
+                                         "ignore": ["*/M*/*", "cam2/clock_offset_s"]}})
+    fill(store, 1)
+    out = push_runs(store, cfg.qatrack, select_runs(store, cfg.qatrack, "room1"))
+    assert out[0].how == "posted" and "kept no value for cam1_clk" in out[0].message
+    assert "cam1_clk" not in peer.instances[0]["tests"] and "kept no value" in store.outbox_items("qatrack")[0].last_error
+
+
 def test_an_unmapped_measurement_is_refused_before_anything_is_posted(peer, env, store):
     cfg = rig(peer.url, lists={"daily": {"test_list": "VTS daily", "macros": dict(MACROS), "ignore": ["*/M*/*"]}})
     fill(store, 1)

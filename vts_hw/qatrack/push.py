@@ -111,7 +111,7 @@ def push_one(store, qcfg, client: QATrackClient, run, force_refused: bool = True
     if item.state == "refused" and not force_refused:
         return Outcome(run.id, run.procedure, item.key, "refused", "refused before", item.last_error)
     try:
-        payload = build_payload(store, qcfg, run)
+        build_payload(store, qcfg, run, attach=False)   # the mapping first: cheap, and before any request
     except NotMapped as exc:
         return _record(store, item, "refused", "not mapped", run, str(exc))
     lst = qcfg.lists[run.procedure]
@@ -120,6 +120,7 @@ def push_one(store, qcfg, client: QATrackClient, run, force_refused: bool = True
         there = client.instance_with_key(item.key)
         if there:
             return _record(store, item, "sent", "already there", run, remote=there)
+        payload = build_payload(store, qcfg, run)   # the attachments are rendered only to be posted
         try:
             made = client.create_instance(payload.body(utc))
         except Refused as exc:
