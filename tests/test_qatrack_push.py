@@ -165,10 +165,9 @@ def test_a_refusal_is_one_sentence_in_qatracks_words_and_kept(peer, env, store):
     assert item.state == "refused" and "Test list is not active" in item.last_error
     peer.fault = None
     assert select_runs(store, cfg.qatrack, "room1", pending=True) == []     # --pending leaves it
-    listed = push_runs(store, cfg.qatrack, select_runs(store, cfg.qatrack, "room1"), force_refused=False)
-    assert listed[0].how == "refused before" and peer.posts == 0               # no arguments: listed
+    assert [r.id for r in select_runs(store, cfg.qatrack, "room1")] == [rid]  # a push without: retries it
     named = push_runs(store, cfg.qatrack, select_runs(store, cfg.qatrack, "room1", run_ids=[rid]))
-    assert named[0].how == "posted" and peer.posts == 1                        # named: retried
+    assert named[0].how == "posted" and peer.posts == 1 and states(store) == ["sent"]
 
 
 def test_qatrack_missing_a_test_is_refused_with_its_message(peer, env, store):
@@ -309,3 +308,27 @@ def test_cli_daily_push_then_push_pending_and_dry_run(peer, sim_rig, tmp_path):
     env.pop("QATRACK_TOKEN")
     p = vts("qa", "push", "1")
     assert p.returncode == 2 and "QATRACK_TOKEN is not set" in p.stderr
+
+
+def test_cli_usage_errors_are_one_sentence(tmp_path, monkeypatch, capsys):
+    from vts_hw.cli import main
+
+    def vts(*a):
+        with pytest.raises(SystemExit) as e:
+            main(list(a))
+        err = capsys.readouterr().err
+        assert "Traceback" not in err and len([ln for ln in err.splitlines() if "vts:" in ln or "Error:" in ln]) == 1, err
+        return e.value.code, err
+
+    plain = tmp_path / "plain.yaml"
+    plain.write_text(yaml.safe_dump({"rig": "room1", "cameras": [{"name": "cam1", "host": "127.0.0.1"}],
+                                     "results": {"url": f"sqlite:///{tmp_path / 'r.sqlite'}"}}))
+    code, err = vts("qa", "push", "--config", str(plain))
+    assert code == 2 and "no qatrack: section" in err and str(plain) in err
+    full = tmp_path / "rig.yaml"
+    full.write_text(yaml.safe_dump({**yaml.safe_load(plain.read_text()),
+                                    "qatrack": qatrack_section("http://127.0.0.1:9/")}))
+    monkeypatch.setenv("QATRACK_TOKEN", TOKEN)
+    code, err = vts("qa", "push", "--config", str(full), "--pending", "3")
+    assert code == 2 and "not both" in err
+

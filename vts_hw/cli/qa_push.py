@@ -23,8 +23,8 @@ def qatrack_config(rig):
 
 @qa.command("push")
 @click.argument("runs", nargs=-1, type=click.IntRange(min=1))
-@click.option("--pending", is_flag=True, help="Retry the runs left pending (QATrack+ was down, slow or "
-              "failing); refused ones wait until named.")
+@click.option("--pending", is_flag=True, help="Retry only the runs left pending (QATrack+ was down, slow "
+              "or failing); refused ones wait for a push without --pending.")
 @click.option("--dry-run", is_flag=True, help="Show what would be posted (no request is made, no secret shown).")
 @json_option
 @with_rig
@@ -33,7 +33,9 @@ def push(rig, runs, pending, dry_run, as_json) -> None:
 
     RUN... are run ids of the results store. Without RUN or --pending: every finished run of
     this rig whose procedure has a list in rig.yaml's qatrack.lists and that is not sent yet
-    (runs QATrack+ refused before are listed, not retried: name them to retry). Each run is
+    (including the ones refused before: after fixing the mapping, this retries them all).
+    --pending retries only the runs left pending (cron-friendly: a refusal is not repeated
+    until someone fixes it and pushes without --pending). Each run is
     posted once: it carries the key vts-run-<uid> (QATrack+'s user_key), asked for before
     posting; every push goes through the store's outbox (pending, sent, refused).
     Credentials come from the environment variables qatrack.token_env (or user_env and
@@ -42,8 +44,8 @@ def push(rig, runs, pending, dry_run, as_json) -> None:
     Exit status: 0 every run sent (or already in QATrack+); 3 some left pending (QATrack+
     down, too slow, 5xx, or the store failed): `vts qa push --pending` retries them; 4
     QATrack+ refused something (a run's values, the test list assignment, or the
-    credentials): fix rig.yaml's qatrack: section, then name the runs again; 2 bad usage or
-    config.
+    credentials): fix rig.yaml's qatrack: section (or QATrack+), then push again without
+    --pending; 2 bad usage or config.
     """
     from vts_hw.cli.qa_run import open_store
     from vts_hw.qatrack import dry_run as plan, push_runs, select_runs
@@ -59,8 +61,7 @@ def push(rig, runs, pending, dry_run, as_json) -> None:
             rows = plan(store, qcfg, chosen)
             _print_plan(rows, as_json)
             return
-        outcomes = push_runs(store, qcfg, chosen, force_refused=bool(runs),
-                             progress=_progress(len(chosen), as_json))
+        outcomes = push_runs(store, qcfg, chosen, progress=_progress(len(chosen), as_json))
     sys.exit(_report(outcomes, as_json, what="runs" if len(chosen) != 1 else "run"))
 
 
@@ -91,11 +92,15 @@ def _report(outcomes, as_json: bool, what: str = "runs") -> int:
     refused = sum(1 for o in outcomes if o.state == "refused")
     click.echo(f"QATrack+: {len(sent)} of {len(outcomes)} {what} sent ({posted} posted now, "
                f"{len(sent) - posted} already there), {pending} pending, {refused} refused")
+    not_tried = sum(1 for o in outcomes if o.how == "not tried")
+    if not_tried:
+        click.echo(f"vts: QATrack+ stopped the batch: {not_tried} more {'run' if not_tried == 1 else 'runs'} "
+                   "not tried", err=True)
     if pending:
         click.echo("vts: runs left pending stay in the outbox; `vts qa push --pending` retries them", err=True)
     if refused:
-        click.echo("vts: refused runs stay in the outbox; fix rig.yaml's qatrack: section, then "
-                   "`vts qa push RUN` retries them", err=True)
+        click.echo("vts: refused runs stay in the outbox; fix rig.yaml's qatrack: section (or QATrack+), "
+                   "then `vts qa push` (without --pending) retries them", err=True)
     return code
 
 
@@ -154,4 +159,4 @@ def push_after_qa(rig, run_id, as_json: bool, store_url: str | None = None) -> N
         click.echo(f"QATrack+: {o.line()}", err=True)
     else:
         click.echo(f"vts: QATrack+: {o.line()}" + ("; `vts qa push --pending` retries it" if o.state == "pending"
-                                                   else f"; `vts qa push {run_id}` retries it"), err=True)
+                                                   else f"; after a fix, `vts qa push {run_id}` retries it"), err=True)

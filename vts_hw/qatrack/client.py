@@ -116,7 +116,7 @@ class QATrackClient:
             raise Unreachable(f"QATrack+ did not answer within {self.timeout:g} s ({method} {where})",
                               down=True) from None
         except requests.ConnectionError as exc:
-            reason = self._scrub(str(getattr(exc, "args", [exc])[0]))
+            reason = self._scrub(str(exc))
             short = "connection refused" if "refused" in reason.lower() else "cannot connect"
             raise Unreachable(f"QATrack+ is not reachable at {self.url} ({short})", down=True) from None
         except requests.RequestException as exc:
@@ -164,7 +164,6 @@ class QATrackClient:
         """The API token (asked for at api/get-token/ with the user and password the first time)."""
         if self._token is None:
             _, user, password = self._credentials
-            resp = None
             try:
                 resp = self._send("POST", self.api + "get-token/", auth=False,
                                   data={"username": user, "password": password})

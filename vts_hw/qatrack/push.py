@@ -22,7 +22,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Callable
 
-from vts_hw.errors import UsageError
+from vts_hw.errors import UsageError, VtsError
 from vts_hw.qatrack.client import AuthRefused, QATrackClient, Refused, Unreachable
 from vts_hw.qatrack.payload import PUSHABLE_STATUSES, NotMapped, build_payload, run_key
 
@@ -70,9 +70,10 @@ def exit_code(outcomes: list[Outcome]) -> int:
 
 def select_runs(store, qcfg, rig_name: str, run_ids=(), pending: bool = False) -> list:
     """The runs to push. Named ids: those (UsageError for one not in the store, not this rig's,
-    or not a finished result). ``pending``: the outbox's pending rows of this rig. Neither:
-    every finished run of this rig whose procedure has a list in ``qatrack.lists`` and that
-    is not sent yet (never tried, pending or refused)."""
+    or not a finished result). ``pending``: the outbox's pending rows of this rig (a refusal
+    is not repeated by a cron job). Neither: every finished run of this rig whose procedure
+    has a list in ``qatrack.lists`` and that is not sent yet (never tried, pending or refused:
+    what a person runs after fixing the mapping)."""
     if run_ids:
         out = []
         for rid in run_ids:
@@ -102,14 +103,12 @@ def _record(store, item, state: str, how: str, run, message: str = "", remote: s
     return Outcome(run.id, run.procedure, item.key, state, how, message, remote or "")
 
 
-def push_one(store, qcfg, client: QATrackClient, run, force_refused: bool = True) -> Outcome:
+def push_one(store, qcfg, client: QATrackClient, run) -> Outcome:
     """One attempt at one run (its outbox row added first). Unreachable (down) and AuthRefused
     propagate after the row is recorded "pending", so that the caller can stop the batch."""
     item = store.outbox_add(run.id, TARGET, run_key(run))
     if item.state == "sent":
         return Outcome(run.id, run.procedure, item.key, "sent", "already sent", remote=item.remote)
-    if item.state == "refused" and not force_refused:
-        return Outcome(run.id, run.procedure, item.key, "refused", "refused before", item.last_error)
     try:
         build_payload(store, qcfg, run, attach=False)   # the mapping first: cheap, and before any request
     except NotMapped as exc:
@@ -120,7 +119,10 @@ def push_one(store, qcfg, client: QATrackClient, run, force_refused: bool = True
         there = client.instance_with_key(item.key)
         if there:
             return _record(store, item, "sent", "already there", run, remote=there)
-        payload = build_payload(store, qcfg, run)   # the attachments are rendered only to be posted
+        try:
+            payload = build_payload(store, qcfg, run)   # the attachments are rendered only to be posted
+        except (VtsError, OSError) as exc:   # e.g. no room for the report in the temporary folder
+            return _record(store, item, "pending", "failed", run, f"the attachments could not be made: {exc}")
         try:
             made = client.create_instance(payload.body(utc))
         except Refused as exc:
@@ -145,7 +147,7 @@ def push_one(store, qcfg, client: QATrackClient, run, force_refused: bool = True
         return out
 
 
-def push_runs(store, qcfg, runs: list, client: QATrackClient | None = None, force_refused: bool = True,
+def push_runs(store, qcfg, runs: list, client: QATrackClient | None = None,
               progress: Callable[[int, int, Outcome], None] | None = None) -> list[Outcome]:
     """Push ``runs`` one by one; every run gets its outbox row before the first request.
     Stops at the first run QATrack+ does not answer at all or whose credentials it refuses:
@@ -158,10 +160,12 @@ def push_runs(store, qcfg, runs: list, client: QATrackClient | None = None, forc
     try:
         for n, run in enumerate(runs, 1):
             try:
-                o = push_one(store, qcfg, client, run, force_refused=force_refused)
+                o = push_one(store, qcfg, client, run)
             except (Unreachable, AuthRefused) as exc:
                 why = "credentials refused" if isinstance(exc, AuthRefused) else "failed"
                 out.append(Outcome(run.id, run.procedure, items[run.id].key, "pending", why, str(exc)))
+                if progress:
+                    progress(n, len(runs), out[-1])
                 for rest in runs[n:]:
                     it = items[rest.id]
                     if it.state != "sent":
@@ -170,8 +174,6 @@ def push_runs(store, qcfg, runs: list, client: QATrackClient | None = None, forc
                     else:
                         out.append(Outcome(rest.id, rest.procedure, it.key, "sent", "already sent",
                                            remote=it.remote))
-                if progress:
-                    progress(n, len(runs), out[-1])
                 break
             out.append(o)
             if progress:
