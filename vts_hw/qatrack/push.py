@@ -35,7 +35,7 @@ EXIT_SENT, EXIT_PENDING, EXIT_REFUSED = 0, 3, 4
 class Outcome:
     """What became of one run: ``state`` is the outbox state after the attempt ("sent",
     "pending", "refused"); ``how`` says more ("posted", "already there", "already sent",
-    "not tried", "failed", "refused")."""
+    "not mapped", "not tried", "failed", "refused", "credentials refused")."""
     run_id: int
     procedure: str
     key: str
