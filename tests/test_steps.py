@@ -105,6 +105,24 @@ def test_analyze_again_from_disk_gives_the_same_figures(chain, tmp_path):
     assert (session / "steps.png").exists()
 
 
+def test_analyze_with_push_posts_the_step_test_to_qatrack(chain, tmp_path):
+    """`vts qa steps ... --push`: the stored run goes to (the simulated) QATrack+ with its plot."""
+    from vts_hw.sim_devices.qatrack_server import QATrackSim
+    macros = {"x/steps_slope": "x_slope", "y/steps_slope": "y_slope", "z/steps_slope": "z_slope"}
+    with QATrackSim({"VTS steps": list(macros.values())}, {"SPECT 1": ["VTS steps"]}, token="t-123") as peer:
+        cfg = _rig_yaml(tmp_path)
+        cfg.write_text(cfg.read_text() + f"qatrack:\n  url: {peer.url}\n  unit: SPECT 1\n  token_env: QT_TOKEN\n"
+                       f"  report: none\n  lists:\n    sphere-steps:\n      test_list: VTS steps\n"
+                       f"      macros: {json.dumps(macros)}\n      ignore: ['*']\n")
+        r = vts("qa", "steps", "--config", str(cfg), "--analyze", str(chain.out_dir), "--volumes",
+                str(chain.out_dir / "spect"), *_files(chain), "--store", f"sqlite:///{tmp_path / 'r.sqlite'}",
+                "--push", env={"QT_TOKEN": "t-123"})
+        assert r.returncode == 0 and "posted in QATrack+" in r.stderr, r.stderr
+        (tli,) = peer.instances
+        assert tli["tests"]["x_slope"]["value"] == pytest.approx(chain.analysis.regressions["x"].slope)
+        assert tli["attachments"] == ["steps.png"]
+
+
 def test_a_missing_volume_names_the_position_and_keeps_the_vts_part(chain, tmp_path):
     vols = tmp_path / "vols"
     shutil.copytree(chain.out_dir / "spect", vols)

@@ -16,6 +16,7 @@ from typing import Any, Literal, Optional, Union
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
 
+from vts_hw.config_qatrack import QATrackConfig
 from vts_hw.errors import ConfigError
 
 ENV_CONFIG = "VTS_CONFIG"
@@ -191,6 +192,7 @@ class RigConfig(_Strict):
     calibration: CalibrationPaths = CalibrationPaths()
     results: ResultsConfig = ResultsConfig()
     motion: MotionConfig = MotionConfig()
+    qatrack: Optional[QATrackConfig] = None   # pushing results to QATrack+ (config_qatrack.py)
     recordings_dir: Optional[Path] = None
     _source: Optional[Path] = PrivateAttr(default=None)   # the file it was read from
 

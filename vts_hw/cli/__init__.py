@@ -25,7 +25,7 @@ def cli(verbose: int) -> None:
 
 
 def _register() -> None:
-    from vts_hw.cli import (calibrate, camera, demo, motion, qa, qa_steps, recording, report, scan,  # noqa: F401
+    from vts_hw.cli import (calibrate, camera, demo, motion, qa, qa_push, qa_steps, recording, report, scan,  # noqa: F401
                    sim, sync, trigger)
 
 

@@ -46,12 +46,18 @@ def drift(rig, cameras, frames, plots, dry_run, operator, as_json, set_baseline)
 
 @qa.command()
 @_common
+@click.option("--push", "push_after", is_flag=True,
+              help="Then post the stored run to QATrack+ (rig.yaml's qatrack: section, see `vts qa push`); a "
+                   "failed push is one line on stderr and stays in the outbox; the exit status stays the QA's.")
 @with_rig
-def daily(rig, cameras, frames, plots, dry_run, operator, as_json) -> None:
+def daily(rig, cameras, frames, plots, dry_run, operator, as_json, push_after) -> None:
     """The daily set: each camera reachable, its parameters still locked, its clock, the LED, the drift."""
     from vts_hw.cli.qa_run import run_qa
+    if push_after and not dry_run:
+        from vts_hw.cli.qa_push import check_push_config
+        check_push_config(rig)
     sys.exit(run_qa(rig, ("reachable", "params", "clock", "drift"), list(cameras), frames, plots, dry_run,
-                    operator, as_json))
+                    operator, as_json, push=push_after))
 
 
 

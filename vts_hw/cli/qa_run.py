@@ -26,7 +26,7 @@ def artifacts_dir(store) -> Path:
     return Path(base) / "vts-hw" / "artifacts"
 
 
-def run_qa(rig, steps, cameras, frames, plots, dry_run, operator, as_json, clock=time.time) -> int:
+def run_qa(rig, steps, cameras, frames, plots, dry_run, operator, as_json, clock=time.time, push=False) -> int:
     from vts_hw.procedures.daily import QARun
 
     if dry_run:
@@ -56,6 +56,9 @@ def run_qa(rig, steps, cameras, frames, plots, dry_run, operator, as_json, clock
         click.echo(result.results())
         if result.artifacts:
             click.echo(f"  saved: {Path(result.artifacts[0]).parent}")
+    if push:   # --push: the stored run to QATrack+; how it went is one line, never the exit code
+        from vts_hw.cli.qa_push import push_after_qa
+        push_after_qa(rig, None if result.store_error else result.run_id, as_json)
     if result.store_error:
         where = (f"its figures are above and in {unsaved} (`vts qa import {unsaved}` stores them later)"
                  if unsaved else "its figures are above only: no fallback file could be written either ("

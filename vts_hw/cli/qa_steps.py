@@ -60,9 +60,13 @@ def _print(analysis, extra_lines, as_json, data_extra=None) -> None:
                    "OUT/results.sqlite).")
 @click.option("--dry-run", is_flag=True, help="List the steps without touching the rig or the store.")
 @click.option("--operator", default=lambda: os.environ.get("USER", ""), help="Who runs it.")
+@click.option("--push", "push_after", is_flag=True,
+              help="Then post the stored run to QATrack+ (the rig config's qatrack: section, see `vts qa "
+                   "push`); a failed push is one line on stderr and stays in the outbox; the exit status "
+                   "stays the test's.")
 @json_option
 def steps(sim, seed, config_path, out_dir, volumes, calibration_path, mapping_path, analyze_dir,
-          frames, vertical, axial, step_mm, store_url, dry_run, operator, as_json) -> None:
+          frames, vertical, axial, step_mm, store_url, dry_run, operator, push_after, as_json) -> None:
     """The 7-sphere step test: is the VTS a measuring instrument?
 
     Baseline, VERTICAL steps of about 1 cm up, AXIAL steps of about 1 cm along the table, then a
@@ -79,6 +83,12 @@ def steps(sim, seed, config_path, out_dir, volumes, calibration_path, mapping_pa
     from vts_hw.procedures.steps import step_plan
 
     plan = step_plan(vertical, axial, step_mm)
+    push_rig = None
+    if push_after and not dry_run:   # the qatrack section and its credentials, before the test runs
+        from vts_hw.cli.qa_push import check_push_config
+        from vts_hw.config import load_rig
+        push_rig = load_rig(config_path)
+        check_push_config(push_rig)
     out = Path(out_dir) if out_dir else (Path(analyze_dir) if analyze_dir else _default_out())
     if sim:
         if analyze_dir or volumes:
@@ -93,9 +103,14 @@ def steps(sim, seed, config_path, out_dir, volumes, calibration_path, mapping_pa
             click.echo(f"{len(plan) + 4}. analyse, score against the truth, store in "
                        f"{store_url or out / 'results.sqlite'}")
             return
-        sys.exit(EXIT_CODES[_run_sim(out, seed, frames, vertical, axial, store_url, operator, as_json)])
-    sys.exit(EXIT_CODES[_run_rig(config_path, out, plan, volumes, calibration_path, mapping_path,
-                                 analyze_dir, frames, store_url, dry_run, operator, as_json)])
+        state, run_id, url = _run_sim(out, seed, frames, vertical, axial, store_url, operator, as_json)
+    else:
+        state, run_id, url = _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path,
+                                      analyze_dir, frames, store_url, dry_run, operator, as_json)
+    if push_rig is not None and not (dry_run and not analyze_dir):
+        from vts_hw.cli.qa_push import push_after_qa
+        push_after_qa(push_rig, run_id, as_json, store_url=url)
+    sys.exit(EXIT_CODES[state])
 
 
 def _open_store(url):
@@ -123,7 +138,7 @@ def _run_sim(out, seed, frames, vertical, axial, store_url, operator, as_json):
         f"run {res.run_id} stored in {url}; plot {res.artifacts[0] if res.artifacts else '-'}",
     ]
     _print(res.analysis, lines, as_json, {"sim_truth": s, "run_id": res.run_id, "out": str(out)})
-    return res.analysis.state
+    return res.analysis.state, res.run_id, url
 
 
 def _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path, analyze_dir, frames,
@@ -145,7 +160,7 @@ def _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path, an
         if dry_run and not analyze_dir:
             for i, step in enumerate(step_session(cameras, inputs, out, plan, frames=frames).plan(), 1):
                 click.echo(f"{i:2d}. {step}")
-            return State.OK
+            return State.OK, None, None
         with _open_store(store_url or rig.results.url) as store:
             res = run_step_test(rig, inputs, out, plan, store, cameras=cameras, analyze_dir=analyze_dir,
                                 frames=frames, ask=ask, operator=operator, progress=say)
@@ -154,4 +169,4 @@ def _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path, an
             c.close()
     _print(res.analysis, [f"run {res.run_id} stored; plot {res.plot}"], as_json,
            {"run_id": res.run_id, "out": str(out)})
-    return res.analysis.state
+    return res.analysis.state, res.run_id, store_url

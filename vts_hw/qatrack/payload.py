@@ -1,0 +1,165 @@
+"""What a run becomes in QATrack+: a test list instance's values, times, comment and attachments.
+
+Everything here reads our store and the rig config; nothing talks to QATrack+. A run that
+cannot be mapped (a measurement with no macro and no ``ignore`` pattern) is refused here with
+one sentence, before anything is posted: no list goes half-filled by accident.
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime as _dt
+import fnmatch
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from vts_hw.errors import VtsError
+
+#: what QATrack+ hears about a run that was pushed: its key (QATrack+'s ``user_key``)
+KEY_PREFIX = "vts-run-"
+#: run statuses that are results (the others: running, aborted, error)
+PUSHABLE_STATUSES = ("OK", "TOLERANCE", "ACTION")
+DRIFT_PROCEDURES = ("drift", "daily")
+
+
+class NotMapped(VtsError):
+    """A run the rig config's ``qatrack.lists`` cannot map (refused before posting)."""
+
+    exit_code = 4
+
+
+def run_key(run) -> str:
+    """The idempotency key of a run in QATrack+: ``vts-run-<uid>`` (its identity across stores)."""
+    return KEY_PREFIX + run.uid
+
+
+def iso(t: float | None) -> str | None:
+    if t is None:
+        return None
+    return _dt.datetime.fromtimestamp(float(t), _dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def measurement_name(m) -> str:
+    return f"{m.subject}/{m.metric}" if m.subject else m.metric
+
+
+@dataclass
+class Payload:
+    """A test list instance to post, and what it is made of (for --dry-run and the outcome)."""
+    run_id: int
+    key: str
+    test_list: str
+    data: dict                      # the JSON body, minus unit_test_collection until it is known
+    values: dict[str, object]       # macro -> value (None: skipped, not measured)
+    attachments: list[str] = field(default_factory=list)   # file names
+
+    def body(self, utc_url: str) -> dict:
+        return {"unit_test_collection": utc_url, **self.data}
+
+
+def tests_of(store, qcfg, run) -> tuple[str, dict[str, dict], dict[str, object]]:
+    """(test list name, QATrack+ ``tests`` dict, macro -> value) for ``run``; NotMapped when a
+    measurement has neither a macro nor an ignore pattern, or a macro has nothing to send."""
+    lst = qcfg.lists.get(run.procedure)
+    if lst is None:
+        raise NotMapped(f"rig.yaml has no qatrack.lists.{run.procedure} "
+                        f"entry (mapped: {', '.join(qcfg.lists)})")
+    by_name = {measurement_name(m): m for m in store.measurements(run_id=run.id)}
+    unmapped = sorted(n for n in by_name if n not in lst.macros and n.rsplit("/", 1)[-1] not in lst.macros
+                      and not any(fnmatch.fnmatchcase(n, p) for p in lst.ignore))
+    if unmapped:
+        shown = ", ".join(unmapped[:5]) + (f" and {len(unmapped) - 5} more" if len(unmapped) > 5 else "")
+        raise NotMapped(f"no macro for {shown} in "
+                        f"qatrack.lists.{run.procedure}.macros (map each, or match it with an ignore pattern)")
+    tests: dict[str, dict] = {}
+    values: dict[str, object] = {}
+    for name, macro in lst.macros.items():
+        m = by_name.get(name)
+        if m is None and "/" not in name:   # a bare METRIC: the run's only measurement of it
+            same = [x for n, x in by_name.items() if n.rsplit("/", 1)[-1] == name]
+            if len(same) > 1:
+                raise NotMapped(f"{name} (macro {macro}) is measured for "
+                                f"{len(same)} subjects; map SUBJECT/{name} instead")
+            m = same[0] if same else None
+        if m is None or m.value is None:
+            tests[macro] = {"skipped": True, "comment": f"{name}: not measured by the VTS in this run"}
+            values[macro] = None
+        else:
+            tests[macro] = {"value": m.value}
+            values[macro] = m.value
+    return lst.test_list, tests, values
+
+
+def comment_of(run) -> str:
+    return (f"VTS {run.procedure} run {run.id} on rig {run.rig or '-'}: {run.status}. "
+            f"Pushed by vts-hw {run.software_version or ''}".rstrip() + f"; key {run_key(run)}")
+
+
+def build_payload(store, qcfg, run, attach: bool = True, workdir: str | Path | None = None) -> Payload:
+    """The payload of ``run`` (attachments read or rendered when ``attach``; else only named)."""
+    test_list, tests, values = tests_of(store, qcfg, run)
+    data = {
+        "day": 0,
+        "in_progress": False,
+        "include_for_scheduling": True,
+        "work_started": iso(run.started),
+        "work_completed": iso(run.finished if run.finished is not None else run.started),
+        "user_key": run_key(run),
+        "comment": comment_of(run),
+        "tests": tests,
+    }
+    files = attachments(store, qcfg, run, workdir) if attach else planned_attachments(store, qcfg, run)
+    if attach:
+        data["attachments"] = [{"filename": name, "value": base64.b64encode(blob).decode("ascii"),
+                                "encoding": "base64"} for name, blob in files]
+        names = [name for name, _ in files]
+    else:
+        names = list(files)
+    return Payload(run.id, run_key(run), test_list, data, values, names)
+
+
+def _stored_plots(store, run) -> list[Path]:
+    return [Path(a.path) for a in store.artifacts(run.id) if a.kind == "plot" and Path(a.path).is_file()]
+
+
+def planned_attachments(store, qcfg, run) -> list[str]:
+    """The names of the files a push of ``run`` would attach (nothing is rendered)."""
+    names = []
+    if qcfg.plots:
+        stored = _stored_plots(store, run)
+        if stored:
+            names += [p.name for p in stored]
+        elif run.procedure in DRIFT_PROCEDURES:
+            cams = sorted({m.subject for m in store.measurements(run_id=run.id)
+                           if m.subject and "/" not in m.subject})
+            names += [f"vts-drift-run{run.id}-{c}.png" for c in cams]
+    if qcfg.report != "none":
+        names.append(f"vts-report-run{run.id}.{qcfg.report}")
+    return names
+
+
+def attachments(store, qcfg, run, workdir=None) -> list[tuple[str, bytes]]:
+    """The files to attach: the run's drift plot(s) (its stored plots, else rendered from the
+    store per camera for a drift/daily run) and the drift report as of the run's end."""
+    from vts_hw.report import build_drift_report, collect
+    from vts_hw.report.plots import camera_figure, figure_png
+
+    out: list[tuple[str, bytes]] = []
+    now = run.finished if run.finished is not None else run.started
+    if qcfg.plots:
+        stored = _stored_plots(store, run)
+        if stored:
+            out += [(p.name, p.read_bytes()) for p in stored]
+        elif run.procedure in DRIFT_PROCEDURES:
+            report = collect(store, now=now, rig=run.rig or None)
+            cams = {m.subject for m in store.measurements(run_id=run.id) if m.subject and "/" not in m.subject}
+            for name, cam in sorted(report.cameras.items()):
+                if name in cams and cam.points:
+                    out.append((f"vts-drift-run{run.id}-{name}.png", figure_png(camera_figure(report, cam))))
+    if qcfg.report != "none":
+        with tempfile.TemporaryDirectory(prefix="vts-qatrack-", dir=workdir) as tmp:
+            path = Path(tmp) / f"vts-report-run{run.id}.{qcfg.report}"
+            build_drift_report(store, path, now=now, rig=run.rig or None)
+            out.append((path.name, path.read_bytes()))
+    return out
