@@ -32,7 +32,7 @@ _ENV_RE = r"^[A-Za-z_][A-Za-z0-9_]*$"
 _MACRO_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")   # QATrack+ macro names are identifiers
 _METRIC_RE = re.compile(r"^[A-Za-z0-9_.:-]+$")
 #: what a ``lists:`` key may be: the procedure names runs are stored under
-PROCEDURE_RE = r"^(daily|drift|sphere-steps|sync|spect_mapping|motion|calibration|qa:[a-z+]+)$"
+PROCEDURE_RE = r"^(daily|drift|drift-baseline|sphere-steps|sync|spect_mapping|motion|calibration|calibration_cameras|qa:[a-z+]+)$"
 
 
 class _Strict(BaseModel):
@@ -98,8 +98,9 @@ class QATrackConfig(_Strict):
     def _procedures(cls, v: dict):
         for name in v:
             if not re.match(PROCEDURE_RE, name):
-                raise ValueError(f"{name!r} is not a procedure stored as runs (daily, drift, sphere-steps, "
-                                 f"sync, spect_mapping, motion, calibration)")
+                raise ValueError(f"{name!r} is not a procedure stored as runs (daily, drift, drift-baseline, "
+                                 f"sphere-steps, sync, spect_mapping, motion, calibration, calibration_cameras, "
+                                 f"qa:STEP+STEP)")
         return v
 
     @model_validator(mode="after")
