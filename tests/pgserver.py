@@ -62,7 +62,12 @@ def _free_port() -> int:
 
 
 class PgServer:
-    def __init__(self):
+    """``durable`` False (the tests): fsync and synchronous commit off, for speed (a killed
+    client is still rolled back; only a crash of the machine could lose commits). True (the
+    benchmarks): the server's defaults, every commit flushed to disk."""
+
+    def __init__(self, durable: bool = False):
+        self.durable = durable
         self.bindir = find_bindir()
         self.dir = Path(tempfile.mkdtemp(prefix="vts-pg-"))
         self.data = self.dir / "data"
@@ -92,7 +97,8 @@ class PgServer:
             self.proc = subprocess.Popen(
                 [str(self.bindir / "postgres"), "-D", str(self.data), "-p", str(self.port),
                  "-c", "listen_addresses=127.0.0.1", "-c", f"unix_socket_directories={self.dir}",
-                 "-c", "fsync=off", "-c", "full_page_writes=off", "-c", "synchronous_commit=off",
+                 *([] if self.durable else ["-c", "fsync=off", "-c", "full_page_writes=off",
+                                            "-c", "synchronous_commit=off"]),
                  "-c", "max_connections=200", "-c", "shared_buffers=32MB", "-c", "log_min_messages=warning"],
                 stdout=log, stderr=subprocess.STDOUT, cwd=self.dir, start_new_session=True, **self._as)
             log.close()
