@@ -211,6 +211,13 @@ class MotionConfig(_Strict):
     state_deg: float = Field(default=1.0, gt=0, le=90, description="... and this (deg)")
 
 
+def _set(section) -> bool:
+    """A config section that says something (not missing, empty, or all null)."""
+    if isinstance(section, dict):
+        return any(v is not None for v in section.values())
+    return section is not None
+
+
 class RigConfig(_Strict):
     rig: str = Field(default="vts", pattern=_NAME_RE)
     cameras: list[CameraConfig] = Field(min_length=1)
@@ -227,9 +234,11 @@ class RigConfig(_Strict):
     def _old_results_key(cls, data):
         """``results:`` is the old name of ``store:``: read it as that; both at once is an error."""
         if isinstance(data, dict) and "results" in data:
-            if "store" in data:
+            if _set(data.get("store")) and _set(data["results"]):
                 raise ValueError("store and results (the old name of store) are both given; keep only store")
-            data = {("store" if k == "results" else k): v for k, v in data.items()}
+            if _set(data.get("store")):    # an empty results: section beside store: is nothing
+                return {k: v for k, v in data.items() if k != "results"}
+            data = {("store" if k == "results" else k): v for k, v in data.items() if k != "store"}
         return data
 
     @property
