@@ -106,8 +106,10 @@ def test_room_stores_merge_into_one_department_store(tmp_path, pg_url):
             with ResultsStore(url) as room:
                 rep = copy_store(room, dept)
                 assert rep.ok and rep.new["runs"] == 5 and rep.new["measurements"] == 5
-        again = [copy_store(ResultsStore(url), dept) for url in rooms]
-        assert all(r.ok and sum(r.new.values()) == 0 and r.skipped_runs == 5 for r in again)
+        for url in rooms:
+            with ResultsStore(url) as room:
+                again = copy_store(room, dept)
+                assert again.ok and sum(again.new.values()) == 0 and again.skipped_runs == 5
         assert sorted({r.rig for r in dept.runs()}) == ["room1", "room2", "room3"]
         assert len(dept.runs()) == 11 and len(dept.measurements()) == 11
 

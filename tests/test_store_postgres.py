@@ -254,3 +254,27 @@ def test_vts_store_option_and_env_pick_the_store(tmp_path):
     assert code == 0 and out["url"] == f"sqlite:///{tmp_path}/cli.sqlite" and out["from"] == "--store"
     code, err = info("--store", "postgresql://u:hunter2@127.0.0.1/x", "store", "info")
     assert code == 2 and "holds a password" in err and "hunter2" not in err and "Traceback" not in err
+
+
+
+def test_vts_store_takes_a_report_from_postgresql_with_the_password_from_its_variable(pg_server, tmp_path,
+                                                                                        monkeypatch):
+    from test_report import populate
+
+    url = pg_server.password_url(pg_server.new_database(owner="vts"))
+    monkeypatch.setenv(PASSWORD_ENV, pg_server.password)
+    with ResultsStore(url, password_env=PASSWORD_ENV) as store:
+        populate(store)
+    cfg = tmp_path / "rig.yaml"      # the room's own store is another: --store wins
+    cfg.write_text(f"rig: vts\ncameras:\n  - name: cam1\n    host: 127.0.0.1\n"
+                   f"store:\n  url: sqlite:///{tmp_path}/room.sqlite\n")
+    env = {k: v for k, v in os.environ.items() if k not in (ENV_STORE, ENV_STORE_PASSWORD_ENV, PASSWORD_ENV)}
+    env.update(VTS_CONFIG=str(cfg), DEPT_DB_PW=pg_server.password)
+    out = tmp_path / "drift.html"
+    p = subprocess.run([*VTS, "--store", url, "--store-password-env", "DEPT_DB_PW", "report", "drift",
+                        "--since", "all", "-o", str(out), "--json"], env=env, capture_output=True, text=True,
+                       timeout=120)
+    assert p.returncode == 0, p.stderr
+    data = json.loads(p.stdout)
+    assert set(data["cameras"]) == {"cam1", "cam2"} and not (tmp_path / "room.sqlite").exists()
+    assert pg_server.password not in out.read_text() + p.stdout + p.stderr

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import os
 import sys
 
 import click
@@ -34,6 +35,9 @@ def cli(ctx: click.Context, verbose: int, store_url: str | None, store_password_
     Results go to the store named by --store, else $VTS_STORE, else rig.yaml's store.url.
     """
     ctx.meta[STORE_META] = (store_url, store_password_env)
+    if store_url or store_password_env or os.environ.get("VTS_STORE"):
+        from vts_hw.store.target import resolve_target
+        resolve_target(store_url, store_password_env)   # a bad URL (or one with a password): exit 2 now
     level = logging.WARNING - 10 * verbose
     logging.basicConfig(level=max(level, logging.DEBUG), format="%(levelname)s %(name)s: %(message)s")
 
