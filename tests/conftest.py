@@ -59,9 +59,12 @@ def pg_server():
 
 
 @pytest.fixture()
-def pg_url(pg_server) -> str:
-    """The URL of a fresh, empty database on the session's server (superuser, unix socket)."""
-    return pg_server.url(pg_server.new_database())
+def pg_url(pg_server):
+    """The URL of a fresh, empty database on the session's server (superuser, unix socket),
+    dropped after the test."""
+    name = pg_server.new_database()
+    yield pg_server.url(name)
+    pg_server.drop_database(name)
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])

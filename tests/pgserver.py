@@ -8,7 +8,8 @@ Debian's ``postgresql`` package when it is missing.
 
 Roles: ``postgres`` (superuser, trusted on the unix socket only) and ``vts`` (a password,
 scram-sha-256 over TCP), so the password path of the store is exercised for real.
-Each test gets a database of its own (:meth:`PgServer.new_database`, a copy of template0).
+Each test gets a database of its own (:meth:`PgServer.new_database`, a copy of template0,
+~0.1 s; dropped after the test, ~0.01 s).
 """
 
 from __future__ import annotations
@@ -151,6 +152,11 @@ class PgServer:
         with self.admin() as con:
             con.execute(f'CREATE DATABASE "{name}" OWNER {owner} TEMPLATE template0')
         return name
+
+    def drop_database(self, name: str) -> None:
+        """Drop a test's database (ending any connection left to it): the disk stays small."""
+        with self.admin() as con:
+            con.execute(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)')
 
     def url(self, db: str) -> str:
         """SQLAlchemy URL of the superuser over the unix socket (no password)."""
