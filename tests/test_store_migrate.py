@@ -159,3 +159,35 @@ def test_the_drift_report_from_the_postgresql_copy_has_the_same_numbers(demo_sto
     assert a.pop("out") != b.pop("out")
     assert a["cameras"] and a["cameras"]["cam2"]      # the report has its numbers ...
     assert json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)   # ... the same on both
+
+
+def test_a_store_being_written_is_copied_in_whole_runs(pg_url, tmp_path):
+    """A writer finishing runs while the copy reads: every run in the copy is whole as of one
+    moment (running with nothing, or ended with all its measurements and its artifact)."""
+    from store_writers import HERE
+
+    frame = tmp_path / "frame.jpg"
+    frame.write_bytes(b"x" * 100)
+    ResultsStore(pg_url).close()
+    writer = subprocess.Popen([sys.executable, str(HERE), pg_url, "3", "150", str(tmp_path / "done"), str(frame)],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    copy = f"sqlite:///{tmp_path / 'copy.sqlite'}"
+    try:
+        assert writer.stdout.readline().startswith("open")
+        copies = 0
+        while writer.poll() is None or copies < 2:
+            with ResultsStore(pg_url) as src, ResultsStore(copy) as dst:
+                copy_store(src, dst)
+            copies += 1
+    finally:
+        writer.wait(timeout=120)
+    assert writer.returncode == 0, writer.stderr.read()
+    with ResultsStore(copy) as dst:
+        runs = dst.runs()
+        assert len(runs) > 0
+        for r in runs:
+            ms, arts = dst.measurements(run_id=r.id), dst.artifacts(r.id)
+            if r.status in ("running", "aborted"):
+                assert ms == [] and arts == [], r
+            else:
+                assert len(ms) == int(r.notes.split("=")[1]) and len(arts) == 1, r

@@ -93,6 +93,7 @@ def copy_store(source, target, progress: Callable[[int, int], None] | None = Non
     ``progress(done, total)`` is called after each batch of runs."""
     rep = CopyReport()
     with source._read() as conn:
+        conn = _snapshot(conn)
         src_windows = conn.execute(select(tolerances).order_by(tolerances.c.id)).all()
         src_runs = conn.execute(select(runs).order_by(runs.c.id)).all()
     with target._read() as conn:
@@ -112,9 +113,10 @@ def copy_store(source, target, progress: Callable[[int, int], None] | None = Non
     todo = [r for r in src_runs if r.uid not in have_uids]
     rep.skipped_runs = len(src_runs) - len(todo)
     for start in range(0, len(todo), BATCH):
-        batch = todo[start:start + BATCH]
-        ids = [r.id for r in batch]
+        ids = [r.id for r in todo[start:start + BATCH]]
         with source._read() as conn:
+            conn = _snapshot(conn)   # a run and its rows as of one moment (a writer may be finishing it)
+            batch = conn.execute(select(runs).where(runs.c.id.in_(ids)).order_by(runs.c.id)).all()
             ms = conn.execute(select(measurements).where(measurements.c.run_id.in_(ids))
                               .order_by(measurements.c.id)).all()
             arts = conn.execute(select(artifacts).where(artifacts.c.run_id.in_(ids)).order_by(artifacts.c.id)).all()
@@ -139,6 +141,15 @@ def copy_store(source, target, progress: Callable[[int, int], None] | None = Non
     return rep
 
 
+def _snapshot(conn: Connection) -> Connection:
+    """The connection reading one snapshot for all its statements: PostgreSQL's READ COMMITTED
+    gives each statement its own, so ask for REPEATABLE READ; an SQLite read transaction
+    already is one snapshot."""
+    if conn.dialect.name == "postgresql":
+        return conn.execution_options(isolation_level="REPEATABLE READ")
+    return conn
+
+
 def _insert_many(conn: Connection, table, rows: list[dict]) -> None:
     if rows:
         conn.execute(insert(table), rows)
@@ -150,6 +161,7 @@ def _content(store, uids: set[str] | None, windows: set[tuple] | None) -> dict[s
     """Per table, the multiset of rows without local ids; restricted to runs whose uid is in
     ``uids`` and windows whose content is in ``windows`` when those are given."""
     with store._read() as conn:
+        conn = _snapshot(conn)
         win_rows = conn.execute(select(tolerances)).all()
         run_rows = conn.execute(select(runs)).all()
         meas_rows = conn.execute(select(measurements)).all()
