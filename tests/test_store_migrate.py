@@ -5,7 +5,6 @@ the drift report from the PostgreSQL copy has the same numbers as from the SQLit
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 
