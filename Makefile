@@ -9,7 +9,8 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 # Debian packages the tests need (installed when missing, if we may)
 # (the AVR toolchain and simavr are installed by firmware/Makefile, which `make test` runs)
-TEST_DEBS := curl openssl chromium fonts-dejavu-core poppler-utils
+# (postgresql: the tests start a throwaway server of their own, tests/pgserver.py)
+TEST_DEBS := curl openssl chromium fonts-dejavu-core poppler-utils postgresql
 
 .PHONY: demo test bench venv debs firmware clean
 

@@ -144,7 +144,7 @@ class SimRig:
         if calibration:
             data["calibration"] = calibration
         if results_url:
-            data["results"] = {"url": results_url}
+            data["store"] = {"url": results_url}
         return parse_rig(data, "simulated rig")
 
     def trigger_config(self) -> dict:

@@ -44,3 +44,32 @@ def cam1(sim_rig):
 
 
 from fsfaults import readonly_dir, small_disk  # noqa: E402,F401  (fixtures: a full disk, a read-only folder)
+
+
+# -- PostgreSQL: one throwaway server for the session, a fresh database per test ----------------
+
+@pytest.fixture(scope="session")
+def pg_server():
+    """A PostgreSQL server of the session's own (tests/pgserver.py), started on first use."""
+    from pgserver import PgServer
+
+    server = PgServer().start()
+    yield server
+    server.stop()
+
+
+@pytest.fixture()
+def pg_url(pg_server):
+    """The URL of a fresh, empty database on the session's server (superuser, unix socket),
+    dropped after the test."""
+    name = pg_server.new_database()
+    yield pg_server.url(name)
+    pg_server.drop_database(name)
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def store_url(request, tmp_path) -> str:
+    """A fresh results store's URL on each back end: an SQLite file, a PostgreSQL database."""
+    if request.param == "sqlite":
+        return f"sqlite:///{tmp_path / 'data' / 'results.sqlite'}"
+    return request.getfixturevalue("pg_url")

@@ -1,4 +1,5 @@
-"""The daily QA set against the simulated rig over HTTP, through the store and the CLI."""
+"""The daily QA set against the simulated rig over HTTP, through the store and the CLI.
+The store-using tests run on SQLite and on PostgreSQL (conftest.store_url)."""
 
 import json
 import os
@@ -22,11 +23,20 @@ from vts_hw.tolerance import State
 VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
 
 
-@pytest.fixture()
-def rig_cfg(sim_rig, tmp_path):
+def _cfg(sim_rig, url):
     data = sim_rig.config().model_dump(mode="json", exclude_none=True)
-    data["results"] = {"url": f"sqlite:///{tmp_path / 'results.sqlite'}"}
+    data["store"] = {"url": url}
     return parse_rig(data, "test rig")
+
+
+@pytest.fixture()
+def rig_cfg(sim_rig, store_url):
+    return _cfg(sim_rig, store_url)
+
+
+@pytest.fixture()
+def sqlite_rig_cfg(sim_rig, tmp_path):
+    return _cfg(sim_rig, f"sqlite:///{tmp_path / 'results.sqlite'}")
 
 
 @pytest.fixture()
@@ -111,7 +121,8 @@ def _cli_env(sim_rig, rig_cfg, tmp_path):
     return env
 
 
-def test_cli_baseline_daily_report_and_exit_codes(sim_rig, rig_cfg, tmp_path):
+def test_cli_baseline_daily_report_and_exit_codes(sim_rig, sqlite_rig_cfg, tmp_path):
+    rig_cfg = sqlite_rig_cfg
     env = _cli_env(sim_rig, rig_cfg, tmp_path)
 
     def vts(*a):
@@ -141,16 +152,13 @@ def test_cli_baseline_daily_report_and_exit_codes(sim_rig, rig_cfg, tmp_path):
 def test_kill_9_during_a_qa_run_leaves_it_aborted(sim_rig, rig_cfg, store, tmp_path):
     _baseline(rig_cfg, store)
     env = _cli_env(sim_rig, rig_cfg, tmp_path)
-    db = str(tmp_path / "results.sqlite")
     proc = subprocess.Popen([*VTS, "qa", "daily", "--frames", "20"], env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + 30
         running = None
         while time.monotonic() < deadline and running is None:
-            con = sqlite3.connect(db, timeout=5)
-            running = con.execute("select id from runs where status = 'running'").fetchone()
-            con.close()
+            running = [r.id for r in store.runs(status="running")] or None
             time.sleep(0.02)
         assert running is not None, "the QA run never started"
         os.kill(proc.pid, signal.SIGKILL)
@@ -160,5 +168,6 @@ def test_kill_9_during_a_qa_run_leaves_it_aborted(sim_rig, rig_cfg, store, tmp_p
         run = again.run(running[0])
         assert run.status == "aborted"
         assert again.measurements(run_id=run.id) == []
-        con = sqlite3.connect(db)
+    if rig_cfg.store.url.startswith("sqlite:///"):
+        con = sqlite3.connect(rig_cfg.store.url[len("sqlite:///"):])
         assert con.execute("pragma integrity_check").fetchone()[0] == "ok"

@@ -92,7 +92,7 @@ def sim(tmp_path_factory):
     p = vts("sim", "up", "--detach", "--dir", str(d))
     assert p.returncode == 0, p.stderr
     with open(d / "rig.yaml", "a") as f:
-        f.write(f"results:\n  url: sqlite:///{d / 'results.sqlite'}\n")
+        f.write(f"store:\n  url: sqlite:///{d / 'results.sqlite'}\n")   # (sim up wrote one: the last wins)
     env = dict(os.environ)
     env.update(load_env_file(d / "sim.env"))
     yield d, env

@@ -1,5 +1,6 @@
 """Every QA result is stored one way (vts_hw.store.results.store_result): a run with a
-measurement per measure — and on a full disk, a file that `vts qa import` stores later."""
+measurement per measure — and on a full disk, or a database server that is down, a file that
+`vts qa import` stores later. On both back ends (conftest.store_url)."""
 
 from __future__ import annotations
 
@@ -36,10 +37,10 @@ class TwoFigures:
         return b""
 
 
-def test_a_result_becomes_a_run_with_its_measures(tmp_path):
+def test_a_result_becomes_a_run_with_its_measures(store_url):
     result = TwoFigures()
     assert isinstance(result, Analysis) and result.state is State.TOLERANCE
-    url = f"sqlite:///{tmp_path / 'r.sqlite'}"
+    url = store_url
     stored = store_result(url, result, rig="room1", started=1000.0)
     assert stored.ok and stored.unsaved is None
     with ResultsStore(url) as store:
@@ -65,3 +66,24 @@ def test_a_full_disk_keeps_every_figure_for_later(tmp_path, small_disk):
         run_id = import_unsaved(store, stored.unsaved)
         run = store.run(run_id)
         assert run.status == "TOLERANCE" and run.started == 2000.0 and len(store.measurements(run_id=run_id)) == 2
+
+
+def test_a_database_server_that_is_down_keeps_every_figure_for_later(pg_server, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    db = pg_server.new_database(owner="vts")
+    down = f"postgresql://vts@127.0.0.1:{_closed_port()}/{db}"
+    stored = store_result(down, TwoFigures(), rig="room1", started=3000.0)
+    assert not stored.ok and "cannot read the results store" in stored.error and stored.unsaved is not None
+    doc = json.loads(stored.unsaved.read_text())
+    assert [m["value"] for m in doc["measurements"]] == [0.2, 1.4] and doc["rig"] == "room1"
+    # the server back (here: the right port): `vts qa import` puts the run in, once
+    with ResultsStore(pg_server.url(db)) as store:
+        run_id = import_unsaved(store, stored.unsaved)
+        assert store.run(run_id).started == 3000.0 and len(store.measurements(run_id=run_id)) == 2
+
+
+def _closed_port() -> int:
+    import socket
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]    # nothing listens there once the socket is closed

@@ -163,8 +163,36 @@ class CalibrationPaths(_Strict):
     spect: Optional[Path] = None
 
 
-class ResultsConfig(_Strict):
-    url: Optional[str] = Field(default=None, description="database URL; default a per-user SQLite file")
+class StoreConfig(_Strict):
+    """Where results go: ``store:`` in rig.yaml (``results:`` is its old name, still read)."""
+
+    url: Optional[str] = Field(
+        default=None, min_length=1,
+        description="database URL: sqlite:////path/results.sqlite or postgresql://user@host[:port]/db; "
+                    "default a per-user SQLite file")
+    password_env: Optional[str] = Field(
+        default=None, pattern=r"^[A-Za-z_][A-Za-z0-9_]*$",
+        description="name of the environment variable holding the database password (never in the URL)")
+
+    @field_validator("url")
+    @classmethod
+    def _no_password_in_url(cls, v):
+        if v is not None and "://" in v:
+            from sqlalchemy.engine import make_url
+            from sqlalchemy.exc import ArgumentError
+            try:
+                url = make_url(v)
+            except ArgumentError:
+                raise ValueError("is not a database URL (expected e.g. sqlite:////path/results.sqlite or "
+                                 "postgresql://user@host/db)") from None
+            if url.password is not None:
+                raise ValueError("holds a password; remove it from the URL and name the environment "
+                                 "variable that holds it in store.password_env") from None
+        return v
+
+
+#: the old name of StoreConfig (rig.yaml's ``results:`` section)
+ResultsConfig = StoreConfig
 
 
 class MotionConfig(_Strict):
@@ -184,17 +212,41 @@ class MotionConfig(_Strict):
     state_deg: float = Field(default=1.0, gt=0, le=90, description="... and this (deg)")
 
 
+def _set(section) -> bool:
+    """A config section that says something (not missing, empty, or all null)."""
+    if isinstance(section, dict):
+        return any(v is not None for v in section.values())
+    return section is not None
+
+
 class RigConfig(_Strict):
     rig: str = Field(default="vts", pattern=_NAME_RE)
     cameras: list[CameraConfig] = Field(min_length=1)
     trigger: TriggerConfig = TriggerConfig()
     tolerances: dict[str, ToleranceWindow] = Field(default_factory=dict)
     calibration: CalibrationPaths = CalibrationPaths()
-    results: ResultsConfig = ResultsConfig()
+    store: StoreConfig = StoreConfig()
     motion: MotionConfig = MotionConfig()
     qatrack: Optional[QATrackConfig] = None   # pushing results to QATrack+ (config_qatrack.py)
     recordings_dir: Optional[Path] = None
     _source: Optional[Path] = PrivateAttr(default=None)   # the file it was read from
+
+    @model_validator(mode="before")
+    @classmethod
+    def _old_results_key(cls, data):
+        """``results:`` is the old name of ``store:``: read it as that; both at once is an error."""
+        if isinstance(data, dict) and "results" in data:
+            if _set(data.get("store")) and _set(data["results"]):
+                raise ValueError("store and results (the old name of store) are both given; keep only store")
+            if _set(data.get("store")):    # an empty results: section beside store: is nothing
+                return {k: v for k, v in data.items() if k != "results"}
+            data = {("store" if k == "results" else k): v for k, v in data.items() if k != "store"}
+        return data
+
+    @property
+    def results(self) -> StoreConfig:
+        """The store section by its old name (``rig.results.url``)."""
+        return self.store
 
     @property
     def digest(self) -> str:
@@ -246,7 +298,8 @@ def _describe(err: dict) -> str:
     msg = err.get("msg", "is invalid")
     msg = re.sub(r"^Value error, ", "", msg)
     got = err.get("input")
-    if typ not in ("model_type",) and not isinstance(got, (dict, list)):
+    if typ not in ("model_type",) and not isinstance(got, (dict, list)) and "password" not in msg:
+        # (a value refused for holding a password is never echoed)
         shown = repr(got)
         shown = shown if len(shown) <= 80 else shown[:77] + "..."
         return f"{msg[0].lower() + msg[1:]} (got {shown})"

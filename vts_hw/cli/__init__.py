@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import os
 import sys
 
 import click
@@ -10,23 +11,40 @@ import click
 from vts_hw import __version__
 from vts_hw.errors import VtsError
 
+#: ctx.meta key of the global --store/--store-password-env (read by cli.common.store_target)
+STORE_META = "vts.store"
+
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(__version__, prog_name="vts")
 @click.option("-v", "--verbose", count=True, help="More log output (-vv for debug).")
-def cli(verbose: int) -> None:
+@click.option("--store", "store_url", metavar="URL", default=None,
+              help="Results store for every command: sqlite:////path/results.sqlite or "
+                   "postgresql://user@host[:port]/db (default: $VTS_STORE, then rig.yaml's store.url, then "
+                   "a per-user SQLite file). Never with a password in it (refused, exit 2).")
+@click.option("--store-password-env", metavar="NAME", default=None,
+              help="Environment variable holding the store's database password (default: "
+                   "$VTS_STORE_PASSWORD_ENV with --store/$VTS_STORE, else rig.yaml's store.password_env; "
+                   "else libpq's PGPASSWORD or ~/.pgpass).")
+@click.pass_context
+def cli(ctx: click.Context, verbose: int, store_url: str | None, store_password_env: str | None) -> None:
     """Control and QA of the stereo Visual Tracking System (VTS) used with SPECT.
 
     Every command that talks to the rig reads the room from --config FILE, else from the
     file named by $VTS_CONFIG, else ./rig.yaml. `vts sim up` brings up a simulated rig.
+    Results go to the store named by --store, else $VTS_STORE, else rig.yaml's store.url.
     """
+    ctx.meta[STORE_META] = (store_url, store_password_env)
+    if store_url or store_password_env or os.environ.get("VTS_STORE"):
+        from vts_hw.store.target import resolve_target
+        resolve_target(store_url, store_password_env)   # a bad URL (or one with a password): exit 2 now
     level = logging.WARNING - 10 * verbose
     logging.basicConfig(level=max(level, logging.DEBUG), format="%(levelname)s %(name)s: %(message)s")
 
 
 def _register() -> None:
     from vts_hw.cli import (calibrate, camera, demo, motion, qa, qa_push, qa_steps, recording, report, scan,  # noqa: F401
-                   sim, sync, trigger)
+                   sim, store, sync, trigger)
 
 
 def main(argv=None) -> None:

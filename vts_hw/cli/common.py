@@ -73,11 +73,22 @@ def rig_if_any(config_path) -> RigConfig | None:
         return None
 
 
+def store_target(rig: RigConfig | None = None, url: str | None = None):
+    """The store a command uses: ``url`` (a command's own --store), else the global
+    ``vts --store``, else $VTS_STORE, else the rig config's ``store:``, else the per-user
+    default (vts_hw.store.target). UsageError for a URL holding a password."""
+    from vts_hw.cli import STORE_META
+    from vts_hw.store.target import resolve_target
+    ctx = click.get_current_context(silent=True)
+    g_url, g_pw = ctx.meta.get(STORE_META, (None, None)) if ctx is not None else (None, None)
+    return resolve_target(url or g_url, g_pw, rig)
+
+
 def store_qa_result(rig: RigConfig | None, result, data: dict | None = None, **kw):
     """Store a QA result the one way (vts_hw.store.results) in the rig's store (the per-user
     one without a rig config); ``data`` (the --json output) gets a ``stored`` key."""
     from vts_hw.store.results import store_result
-    stored = store_result(rig.results.url if rig is not None else None, result,
+    stored = store_result(store_target(rig), result,
                           rig=rig.rig if rig is not None else "",
                           config_digest=rig.digest if rig is not None else "", **kw)
     if data is not None:

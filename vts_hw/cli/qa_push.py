@@ -144,12 +144,8 @@ def push_after_qa(rig, run_id, as_json: bool, store_url: str | None = None) -> N
         return
     qcfg = qatrack_config(rig)
     try:
-        if store_url is not None:
-            store = ResultsStore(store_url)
-        else:
-            from vts_hw.cli.qa_run import open_store
-            store = open_store(rig)
-        with store:
+        from vts_hw.cli.common import store_target
+        with ResultsStore(store_target(rig, store_url)) as store:
             outcomes = push_runs(store, qcfg, [store.run(run_id)])
     except (VtsError, OSError, KeyError) as exc:   # the QA is done and stored; a push problem is one line, not its exit code
         click.echo(f"vts: --push: run {run_id} was not pushed to QATrack+: {exc}", err=True)

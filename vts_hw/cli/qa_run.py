@@ -12,9 +12,11 @@ from vts_hw.cli.common import echo_json, fmt_time
 
 
 def open_store(rig):
-    """The results store named by the config (default: a per-user SQLite file)."""
+    """The results store: `vts --store`, $VTS_STORE, the config's store section, else a per-user
+    SQLite file (cli.common.store_target)."""
+    from vts_hw.cli.common import store_target
     from vts_hw.store import ResultsStore
-    return ResultsStore(rig.results.url)
+    return ResultsStore(store_target(rig))
 
 
 def artifacts_dir(store) -> Path:
@@ -104,4 +106,5 @@ def set_baseline(rig, cameras, frames, dry_run, operator, as_json, clock=time.ti
 
 class _DryStore:
     def __init__(self, rig):
-        self.url = rig.results.url or "the default results store"
+        from vts_hw.cli.common import store_target
+        self.url = store_target(rig).url or "the default results store"

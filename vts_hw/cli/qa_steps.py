@@ -161,7 +161,8 @@ def _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path, an
             for i, step in enumerate(step_session(cameras, inputs, out, plan, frames=frames).plan(), 1):
                 click.echo(f"{i:2d}. {step}")
             return State.OK, None, None
-        with _open_store(store_url or rig.results.url) as store:
+        from vts_hw.cli.common import store_target
+        with _open_store(store_target(rig, store_url)) as store:
             res = run_step_test(rig, inputs, out, plan, store, cameras=cameras, analyze_dir=analyze_dir,
                                 frames=frames, ask=ask, operator=operator, progress=say)
     finally:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from vts_hw.cli import cli
-from vts_hw.cli.common import echo_json, json_option, with_rig
+from vts_hw.cli.common import config_option, echo_json, json_option, rig_if_any
 
 ALL_RIGS = "all"
 
@@ -31,8 +31,8 @@ def report() -> None:
               show_default=True, help="report.html (self-contained) or report.pdf.")
 @rig_option
 @json_option
-@with_rig
-def drift(since: str, out: str, rig_name: str | None, as_json: bool, rig) -> None:
+@config_option
+def drift(since: str, out: str, rig_name: str | None, as_json: bool, config_path) -> None:
     """Drift trend per camera: drift in x and y over time with tolerance and action bands,
     control limits, the LED checks, and a forecast of the day the action level is reached;
     the step test, and the history of the sync checks, SPECT mappings, calibrations and
@@ -45,12 +45,19 @@ def drift(since: str, out: str, rig_name: str | None, as_json: bool, rig) -> Non
 
     Exit status: 0 written; 2 a bad --since, -o or --rig; 3 the store or the file could not be
     read or written (a previous report is left as it was).
+
+    Without a rig config (a department's workstation: `vts --store URL report drift --rig
+    NAME`), --rig is needed.
     """
     from vts_hw.report.drift import build_drift_report, build_drift_report_rooms, parse_since, report_format
     from vts_hw.cli.qa_run import open_store
 
     report_format(out)                  # ReportError: one sentence, exit 2
     start = parse_since(since)          # BadSince: one sentence, exit 2
+    rig = rig_if_any(config_path)
+    if rig is None and rig_name is None:
+        from vts_hw.errors import UsageError
+        raise UsageError("no rig config (--config, $VTS_CONFIG or ./rig.yaml), so give --rig NAME or --rig all")
     name = rig.rig if rig_name is None else rig_name
     with open_store(rig) as store:
         if name == ALL_RIGS:
@@ -87,8 +94,8 @@ def _known_rig(store, name: str, given: str | None) -> None:
                                       "written beside it as <name>-<rig>-drift.html (or .pdf) and linked.")
 @rig_option
 @json_option
-@with_rig
-def rooms(since: str, out: str, rig_name: str | None, as_json: bool, rig) -> None:
+@config_option
+def rooms(since: str, out: str, rig_name: str | None, as_json: bool, config_path) -> None:
     """One page over every rig (room) in the results store: each camera's latest daily QA state
     (OK / TOLERANCE / ACTION, or "no daily QA yet" — never OK without data) with a drift
     sparkline, the days since the last step test, calibration and SPECT mapping, the open ACTION
@@ -99,7 +106,8 @@ def rooms(since: str, out: str, rig_name: str | None, as_json: bool, rig) -> Non
     page's footnote says so; motion analyses (a patient's scan) are not listed.
 
     --rig NAME shows one room; the default (and --rig all) every rig in the store. Every file
-    is written whole or not at all.
+    is written whole or not at all. The store is `vts --store URL`, $VTS_STORE, else the rig
+    config's (a department's workstation needs no rig config).
 
     Exit status: 0 written; 2 a bad --since, -o or --rig; 3 the store or a file could not be
     read or written (a previous file is left as it was).
@@ -110,6 +118,7 @@ def rooms(since: str, out: str, rig_name: str | None, as_json: bool, rig) -> Non
 
     report_format(out)
     start = parse_since(since)
+    rig = rig_if_any(config_path)
     with open_store(rig) as store:
         rigs = None
         if rig_name not in (None, ALL_RIGS):

@@ -56,7 +56,7 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
     TOLERANCE (within 100 ms, or an event seen by one system only), 20 ACTION. The windows
     are the tolerance table's sync_max_abs_dt_ms, sync_events_one_system and
     sync_events_both (rig.yaml may override them). The check is stored as a run of
-    procedure "sync" in the results store (rig.yaml's results.url); when the store cannot take
+    procedure "sync" in the results store (rig.yaml's store.url); when the store cannot take
     it, its figures go to a file that `vts qa import` stores later, and the exit status is 3.
     """
     from vts_hw.procedures.sync import CLOCK_SLACK_S, SyncAnalysis, check_session, export_trajectories

@@ -9,17 +9,23 @@ BEGIN itself: ``BEGIN`` for reads (one snapshot per read) and ``BEGIN IMMEDIATE`
 writes (take the write lock first, waiting up to the busy timeout, instead of failing
 half-way when another writer got there first).
 
+PostgreSQL (``postgresql://`` is taken as psycopg 3, see paths.to_url): the server's default
+isolation (READ COMMITTED); a commit is durable when the server says so; a client killed
+mid-transaction is rolled back by the server.
+
 In-memory SQLite (``sqlite://``) shares one connection (tests; one thread at a time).
 """
 
 from __future__ import annotations
 
 import logging
+import os
 
 from sqlalchemy import Connection, create_engine, event
 from sqlalchemy.engine import URL, Engine
 from sqlalchemy.pool import StaticPool
 
+from vts_hw.store.errors import StoreError
 from vts_hw.store.paths import masked, sqlite_file
 
 log = logging.getLogger(__name__)
@@ -28,10 +34,24 @@ log = logging.getLogger(__name__)
 WRITE_OPTION = "vts_store_write"
 
 
-def make_engine(url: URL, busy_timeout: float) -> Engine:
-    """An engine for ``url``; for SQLite, configured as the module docstring says."""
+def make_engine(url: URL, busy_timeout: float, password_env: str | None = None) -> Engine:
+    """An engine for ``url``; for SQLite, configured as the module docstring says.
+
+    PostgreSQL: ``password_env`` names the environment variable whose value is handed to the
+    driver at each connect (the password lives in no URL, log or message); a connect gives
+    up after ``busy_timeout`` seconds at most (10 s unless the URL says otherwise)."""
     if url.get_backend_name() != "sqlite":
-        return create_engine(url, pool_pre_ping=True)
+        args = {}
+        if url.get_backend_name() == "postgresql" and "connect_timeout" not in url.query:
+            args["connect_timeout"] = max(1, min(10, int(busy_timeout)))
+        engine = create_engine(url, pool_pre_ping=True, connect_args=args)
+        if password_env:
+            password_from_env(url, password_env)      # unset: one sentence now, not at first use
+
+            @event.listens_for(engine, "do_connect")
+            def _password(_dialect, _conn_rec, _cargs, cparams):
+                cparams["password"] = password_from_env(url, password_env)
+        return engine
     path = sqlite_file(url)
     if path is None:
         engine = create_engine(url, poolclass=StaticPool, connect_args={"check_same_thread": False})
@@ -40,6 +60,15 @@ def make_engine(url: URL, busy_timeout: float) -> Engine:
         engine = create_engine(url, connect_args={"timeout": busy_timeout, "check_same_thread": False})
     _sqlite_setup(engine, busy_timeout, wal=path is not None, where=masked(url))
     return engine
+
+
+def password_from_env(url: URL, name: str) -> str:
+    """The password in environment variable ``name``; StoreError naming it when it is not set."""
+    value = os.environ.get(name)
+    if not value:
+        raise StoreError(f"{masked(url)}: the environment variable {name}, named to hold the database "
+                         f"password (store.password_env), is not set")
+    return value
 
 
 def _sqlite_setup(engine: Engine, busy_timeout: float, wal: bool, where: str) -> None:

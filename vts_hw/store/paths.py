@@ -8,6 +8,7 @@ else ``~/.local/share/vts-hw/results.sqlite``.
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 from sqlalchemy.engine import URL, make_url
@@ -28,13 +29,37 @@ def default_url() -> str:
     return f"sqlite:///{default_path()}"
 
 
-def to_url(url: str | os.PathLike | None) -> URL:
-    """A SQLAlchemy URL from a URL string, a plain file path (taken as SQLite) or None (default)."""
+@dataclass(frozen=True)
+class StoreTarget:
+    """A store to open: its URL (None: the per-user default), the name of the environment
+    variable holding its password (None: none, or libpq's own PGPASSWORD/~/.pgpass), and
+    where the URL came from (for messages)."""
+
+    url: str | None = None
+    password_env: str | None = None
+    source: str = "default"
+
+    def __str__(self) -> str:
+        return self.url or default_url()
+
+
+#: driver names taken as PostgreSQL through psycopg 3
+_PG_NAMES = {"postgresql": "postgresql+psycopg", "postgres": "postgresql+psycopg"}
+
+
+def to_url(url: "str | os.PathLike | StoreTarget | None") -> URL:
+    """A SQLAlchemy URL from a URL string, a plain file path (taken as SQLite), a StoreTarget or
+    None (default). ``postgresql://`` (and ``postgres://``) mean PostgreSQL through psycopg 3."""
+    if isinstance(url, StoreTarget):
+        url = url.url
     if url is None:
         url = default_url()
     if isinstance(url, os.PathLike) or "://" not in url:
         return URL.create("sqlite", database=str(Path(url).expanduser().absolute()))
-    return make_url(url)
+    parsed = make_url(url)
+    if parsed.drivername in _PG_NAMES:
+        parsed = parsed.set(drivername=_PG_NAMES[parsed.drivername])
+    return parsed
 
 
 def masked(url: URL) -> str:

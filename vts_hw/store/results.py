@@ -27,10 +27,11 @@ class Stored:
         return self.run_id is not None
 
 
-def store_result(store_url: str | None, result: Analysis, *, rig: str = "", operator: str = "",
+def store_result(store_url, result: Analysis, *, rig: str = "", operator: str = "",
                  config_digest: str = "", started: float | None = None, notes: str = "",
                  artifacts=()) -> Stored:
-    """Store ``result`` as a run of ``result.procedure``; never raises for a store that cannot
+    """Store ``result`` as a run of ``result.procedure`` in ``store_url`` (a URL, a StoreTarget or
+    None for the default); never raises for a store that cannot
     be opened or written — the figures then go to an unsaved-run file (see :class:`Stored`)."""
     from vts_hw.store import ResultsStore
 

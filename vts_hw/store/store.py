@@ -27,7 +27,7 @@ from vts_hw.store.errors import StoreError
 from vts_hw.store.handle import RunHandle
 from vts_hw.store.liveness import host_name, is_alive, process_start
 from vts_hw.store.migrations import ensure_schema, stored_version
-from vts_hw.store.paths import masked, to_url
+from vts_hw.store.paths import StoreTarget, masked, to_url
 from vts_hw.store.queries import (select_artifacts, select_measurements, select_rigs, select_running_runs, select_runs,
                       select_tolerance_at, select_tolerances_at)
 from vts_hw.store.records import (OUTBOX_STATES, Artifact, Measurement, OutboxItem, Run, artifact_from_row,
@@ -35,6 +35,10 @@ from vts_hw.store.records import (OUTBOX_STATES, Artifact, Measurement, OutboxIt
 from vts_hw.store.schema import SCHEMA_VERSION, outbox, runs, tolerances
 
 log = logging.getLogger(__name__)
+
+#: PostgreSQL advisory lock keys: schema creation/upgrade, and tolerance-window writes
+SCHEMA_LOCK = 7007007
+WINDOWS_LOCK = 7007008
 
 _BAD_URL = ("the results database URL is not valid (expected e.g. sqlite:////path/results.sqlite "
             "or postgresql://user@host/db)")
@@ -56,9 +60,14 @@ def _window(row) -> Window:
 class ResultsStore:
     """The results database. ``url`` None means default_url(); a plain path means a SQLite file.
 
-    ``busy_timeout`` (seconds) is how long a SQLite writer waits for another writer."""
+    ``busy_timeout`` (seconds) is how long a SQLite writer waits for another writer.
+    ``password_env`` (PostgreSQL) names the environment variable holding the password; a
+    StoreTarget brings its own."""
 
-    def __init__(self, url: str | os.PathLike | None = None, *, busy_timeout: float = 30.0):
+    def __init__(self, url: str | os.PathLike | StoreTarget | None = None, *, busy_timeout: float = 30.0,
+                 password_env: str | None = None):
+        if isinstance(url, StoreTarget):
+            password_env = password_env or url.password_env
         try:
             self._url = to_url(url)
         except ArgumentError:
@@ -66,7 +75,7 @@ class ResultsStore:
         self._closed = False
         self._engine = None
         try:
-            self._engine = make_engine(self._url, busy_timeout)
+            self._engine = make_engine(self._url, busy_timeout, password_env)
             # the common case, an up-to-date store, needs no write lock (a reader must be able
             # to open while a writer holds a long transaction)
             with self._read() as conn:
@@ -74,7 +83,7 @@ class ResultsStore:
             if found != SCHEMA_VERSION:
                 with self._write() as conn:
                     if conn.dialect.name == "postgresql":  # serialise concurrent first opens/upgrades
-                        conn.execute(text("SELECT pg_advisory_xact_lock(7007007)"))
+                        conn.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": SCHEMA_LOCK})
                     found, now = ensure_schema(conn, self.url)  # checks again under the lock
         except StoreError:
             self.close()
@@ -137,15 +146,19 @@ class ResultsStore:
             raise StoreError(f"{self.url}: cannot read the results store ({_reason(exc)})") from exc
 
     @contextmanager
-    def _write(self) -> Iterator[Connection]:
+    def _write(self, windows: bool = False) -> Iterator[Connection]:
         """One write transaction (SQLite: BEGIN IMMEDIATE); committed on exit, rolled back on
         any exception including KeyboardInterrupt. A database error (disk full, read-only,
         locked for too long) is a StoreError naming the store; nothing of the transaction is
-        stored."""
+        stored. ``windows``: the transaction reads then adds tolerance windows; on PostgreSQL
+        such transactions take one after the other (an advisory lock), as every SQLite write
+        does, so two writers syncing the same windows add them once."""
         try:
             with self._connect() as conn:
                 conn.execution_options(**{WRITE_OPTION: True})
                 with conn.begin():
+                    if windows and conn.dialect.name == "postgresql":
+                        conn.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": WINDOWS_LOCK})
                     yield conn
         except (SQLAlchemyError, OSError) as exc:
             raise StoreError(f"{self.url}: cannot write to the results store ({_reason(exc)})") from exc
@@ -180,7 +193,7 @@ class ResultsStore:
         History is append-only: nothing already stored changes. If the window in effect at
         that time is identical, nothing is added and its id is returned."""
         when = time.time() if effective_from is None else float(effective_from)
-        with self._write() as conn:
+        with self._write(windows=True) as conn:
             return self._set_tolerance(conn, metric, window, when, note)[0]
 
     def tolerance(self, metric: str, at: float | None = None) -> tuple[int, Window] | None:
@@ -204,7 +217,7 @@ class ResultsStore:
         returned. Metrics not in ``windows`` keep their window."""
         when = time.time() if at is None else float(at)
         changed = []
-        with self._write() as conn:
+        with self._write(windows=True) as conn:
             for metric, window in windows.items():
                 if self._set_tolerance(conn, metric, window, when, note="sync")[1]:
                     changed.append(metric)
