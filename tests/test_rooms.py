@@ -48,7 +48,7 @@ def vts(capsys, *args) -> tuple[int, str, str]:
 
 def rig_yaml(folder: Path, url: str, rig: str = "room-a") -> Path:
     cfg = folder / "rig.yaml"
-    cfg.write_text(f"rig: {rig}\ncameras:\n  - name: cam1\n    host: 127.0.0.1\nresults:\n  url: {url}\n")
+    cfg.write_text(f"rig: {rig}\ncameras:\n  - name: cam1\n    host: 127.0.0.1\nstore:\n  url: {url}\n")
     return cfg
 
 
@@ -171,6 +171,19 @@ def test_report_commands_refuse_bad_options(store_url, tmp_path, capsys):
     code, _, err = vts(capsys, "report", "rooms", "--config", cfg, "--since", "9999-12-31", "-o", tmp_path / "r.html")
     assert code == 2 and "is in the future" in err
     assert not list(tmp_path.glob("*.html"))
+
+
+def test_a_department_workstation_needs_no_rig_config(store_url, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)              # no ./rig.yaml here
+    monkeypatch.delenv("VTS_CONFIG", raising=False)
+    code, out, err = vts(capsys, "--store", store_url, "report", "rooms", "--since", "all", "-o", "rooms.html")
+    assert code == 0, err
+    assert "(3 room(s)" in out and (tmp_path / "rooms-room-b-drift.html").exists()
+    code, _, err = vts(capsys, "--store", store_url, "report", "drift", "-o", "d.html")
+    assert code == 2 and err.count("\n") == 1 and "give --rig NAME or --rig all" in err
+    monkeypatch.setenv("VTS_STORE", store_url)
+    code, out, err = vts(capsys, "report", "drift", "--rig", "room-b", "--since", "all", "-o", "d.html")
+    assert code == 0 and out.strip() == "wrote d.html", err
 
 
 def test_report_rooms_pdf_and_a_folder_that_cannot_be_written(store_url, tmp_path, capsys, readonly_dir):
