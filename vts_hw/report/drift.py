@@ -254,15 +254,19 @@ def build_drift_report(store, out: str | Path, since: float | None = None, now: 
     suffix = report_format(out)
     report = collect(store, since=since, now=now, rig=rig, title=title)
     report.out = out
+    _write(out, suffix, "render_pdf", "render_html", report)
+    return report
+
+
+def _write(out: Path, suffix: str, pdf: str, html: str, what) -> None:
+    """Render ``what`` with report.pdf's ``pdf`` or report.html's ``html`` function and write it whole."""
     if suffix == ".pdf":
-        from vts_hw.report.pdf import render_pdf
-        data: bytes | str = render_pdf(report)
+        from vts_hw.report import pdf as module
     else:
-        from vts_hw.report.html import render_html
-        data = render_html(report)
+        from vts_hw.report import html as module
+    data: bytes | str = getattr(module, pdf if suffix == ".pdf" else html)(what)
     ensure_dir(out.parent, "report folder")
     write_atomic(out, data)
-    return report
 
 
 def build_drift_report_rooms(store, out: str | Path, since: float | None = None, now: float | None = None,
@@ -276,14 +280,7 @@ def build_drift_report_rooms(store, out: str | Path, since: float | None = None,
     reports = [collect(store, since=since, now=now, rig=r) for r in (store.rigs() if rigs is None else rigs)]
     for r in reports:
         r.out = out
-    if suffix == ".pdf":
-        from vts_hw.report.pdf import render_pdf_rooms
-        data: bytes | str = render_pdf_rooms(reports)
-    else:
-        from vts_hw.report.html import render_html_rooms
-        data = render_html_rooms(reports)
-    ensure_dir(out.parent, "report folder")
-    write_atomic(out, data)
+    _write(out, suffix, "render_pdf_rooms", "render_html_rooms", reports)
     return reports
 
 
