@@ -218,9 +218,36 @@ def walk(group: click.Group, path=()):
             yield path + (name,), c
 
 
+def preload() -> int:
+    """Import every module of the package once, before the cases fork: a child then starts with
+    them (copy-on-write) instead of importing numpy, OpenCV, matplotlib, SQLAlchemy ... again,
+    which is most of a case's time. Nothing is run: the commands import lazily, as they do for a
+    user, only the import cost moves. A module that cannot be imported is left for its cases to
+    find. Returns how many were imported."""
+    import importlib
+    import pkgutil
+    import threading
+
+    import matplotlib
+    matplotlib.use("Agg")
+    import vts_hw
+    n = 0
+    for m in pkgutil.walk_packages(vts_hw.__path__, "vts_hw."):
+        if m.name.endswith("__main__"):
+            continue
+        try:
+            importlib.import_module(m.name)
+            n += 1
+        except Exception:   # noqa: BLE001 -- its cases report it, with the user's view of it
+            pass
+    assert threading.active_count() == 1, "an import started a thread: forking after it is unsafe"
+    return n
+
+
 def sweep(only: str | None, timeout: float, show: bool, root: Path, jobs: int = 1) -> dict:
     from vts_hw.cli import _register, cli
     _register()
+    preload()
     fx = Fixtures(root)
     # the read-only place: a folder whose writes fail even for root is not available without a
     # mount, so make it a path under a regular FILE (ENOTDIR) -- an output that cannot be written
