@@ -109,10 +109,26 @@ def populate(store: ResultsStore, seed: int = 7) -> None:
     h.finish(finished=T0 + 20 * DAY + 60)
 
 
+@pytest.fixture(scope="module", params=["sqlite", "postgresql"])
+def store(request, tmp_path_factory):
+    """The store filled by populate(), on each back end: the numbers tests run on both."""
+    if request.param == "sqlite":
+        url, server, name = f"sqlite:///{tmp_path_factory.mktemp('store') / 'results.sqlite'}", None, None
+    else:
+        server = request.getfixturevalue("pg_server")
+        name = server.new_database()
+        url = server.url(name)
+    with ResultsStore(url) as s:
+        populate(s)
+        yield s
+    if server is not None:
+        server.drop_database(name)
+
+
 @pytest.fixture(scope="module")
-def store(tmp_path_factory):
-    path = tmp_path_factory.mktemp("store") / "results.sqlite"
-    with ResultsStore(f"sqlite:///{path}") as s:
+def sqlite_store(tmp_path_factory):
+    """The same on SQLite alone, for the tests of the rendering (the file, the browser)."""
+    with ResultsStore(f"sqlite:///{tmp_path_factory.mktemp('store') / 'results.sqlite'}") as s:
         populate(s)
         yield s
 
@@ -123,15 +139,21 @@ def out_dir(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def html_report(store, out_dir):
-    out = out_dir / "drift.html"
+def html_report(store, tmp_path_factory):
+    out = tmp_path_factory.mktemp("report") / "drift.html"
     return build_drift_report(store, out, now=NOW, rig="vts"), out
 
 
 @pytest.fixture(scope="module")
-def pdf_report(store, out_dir):
+def rendered_html(sqlite_store, out_dir):
+    out = out_dir / "drift.html"
+    return build_drift_report(sqlite_store, out, now=NOW, rig="vts"), out
+
+
+@pytest.fixture(scope="module")
+def pdf_report(sqlite_store, out_dir):
     out = out_dir / "drift.pdf"
-    return build_drift_report(store, out, now=NOW, rig="vts"), out
+    return build_drift_report(sqlite_store, out, now=NOW, rig="vts"), out
 
 
 # --- numbers ------------------------------------------------------------------------------
@@ -326,8 +348,8 @@ def test_pdf_is_valid_with_a_page_per_camera(pdf_report):
     assert _pdf_pages(out) == 1 + len(report.cameras) == 3
 
 
-def test_html_is_self_contained(html_report):
-    report, out = html_report
+def test_html_is_self_contained(rendered_html):
+    report, out = rendered_html
     html = out.read_text(encoding="utf-8")
     refs = re.findall(r"""(?:src|href|action|poster)\s*=\s*["']?([^"'\s>]+)""", html, re.I)
     assert refs and all(r.startswith(("data:", "#")) for r in refs), [r for r in refs if not r.startswith(("data:", "#"))]
@@ -353,8 +375,8 @@ def _run_chromium(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
     return subprocess.run(cmd, capture_output=True, text=True, timeout=90)
 
 
-def test_html_renders_in_chromium(html_report, tmp_path):
-    report, out = html_report
+def test_html_renders_in_chromium(rendered_html, tmp_path):
+    report, out = rendered_html
     r = _run_chromium(tmp_path, "--virtual-time-budget=5000", "--dump-dom", out.resolve().as_uri())
     assert r.returncode == 0, r.stderr[-2000:]
     m = re.search(r'<body[^>]*data-plots-loaded="(\d+)"', r.stdout)
@@ -363,10 +385,10 @@ def test_html_renders_in_chromium(html_report, tmp_path):
     assert f'data-plots-expected="{report.plot_count}"' in r.stdout
 
 
-def test_html_screenshot_is_not_blank(html_report, tmp_path):
+def test_html_screenshot_is_not_blank(rendered_html, tmp_path):
     from PIL import Image
 
-    _, out = html_report
+    _, out = rendered_html
     shot = tmp_path / "report.png"
     r = _run_chromium(tmp_path, "--window-size=1280,2400", "--virtual-time-budget=5000", f"--screenshot={shot}",
                       out.resolve().as_uri())
