@@ -190,3 +190,38 @@ def test_a_store_being_written_is_copied_in_whole_runs(pg_url, tmp_path):
                 assert ms == [] and arts == [], r
             else:
                 assert len(ms) == int(r.notes.split("=")[1]) and len(arts) == 1, r
+
+
+def test_a_later_copy_brings_a_run_that_has_ended_and_a_push_that_went_on(tmp_path, pg_url):
+    src = f"sqlite:///{tmp_path / 'room.sqlite'}"
+    with ResultsStore(src) as s:
+        with s.begin_run("daily", rig="room1", started=1e9) as h:
+            h.measure("cam1", "drift_x_px", 0.1)
+        done = s.run(h.run_id)
+        item = s.outbox_add(done.id, "qatrack", f"vts-run-{done.uid}")
+        live = s.begin_run("daily", rig="room1", started=1e9 + 86400)     # still going at the first copy
+        live.measure("cam1", "drift_x_px", 0.2)
+        p = _vts("store", "migrate", "--from", src, "--to", pg_url, "--json")
+        assert p.returncode == 0, p.stderr
+        first = json.loads(p.stdout)
+        assert first["running_copied"] == 1 and first["new"]["measurements"] == 1 and first["ok"]
+
+        live.artifact(__file__, kind="plot")
+        live.finish()                                  # the run ends, and the push of the other goes on
+        s.outbox_record(item.id, "sent", remote="http://qa.example/api/qa/testlistinstances/7/")
+        p = _vts("store", "migrate", "--from", src, "--to", pg_url)
+        assert p.returncode == 0, p.stdout + p.stderr
+        assert "brought over: 1 run(s) that have ended since an earlier copy, 1 outbox row(s)" in p.stdout
+        assert all(ok == "ok" for *_, ok in _table(p.stdout).values()), p.stdout
+        with ResultsStore(pg_url) as t:
+            copied = t.run_by_uid(s.run(live.run_id).uid)
+            assert copied.status == "OK" and copied.finished is not None
+            assert [m.value for m in t.measurements(run_id=copied.id)] == [0.2]
+            assert [a.kind for a in t.artifacts(copied.id)] == ["plot"]
+            sent = t.outbox_items("qatrack")
+            assert [(o.state, o.remote, o.attempts) for o in sent] == \
+                   [("sent", "http://qa.example/api/qa/testlistinstances/7/", 1)]
+            assert table_counts(t) == table_counts(s)
+
+        p = _vts("store", "migrate", "--from", src, "--to", pg_url)
+        assert p.returncode == 0 and "0 new" in p.stdout and "brought over" not in p.stdout, p.stdout

@@ -79,7 +79,8 @@ def migrate(src, dst, from_password_env, to_password_env, as_json) -> None:
     with everything of it, so running the copy twice adds nothing, and several rooms' stores
     can be merged into one department store. Tolerance windows are the same by their content.
     Local ids are given afresh by the target. Runs still running in the source are copied as
-    they are (and said so); a later copy does not update them.
+    they are (and said so); a later copy brings their end (status, measurements, artifacts)
+    once they have ended, and the outbox rows whose push went on since.
 
     The check, per table: how many of the source's rows the target holds, and a checksum of
     those rows on each side (expressed without local ids). Progress goes to stderr.
@@ -105,7 +106,8 @@ def migrate(src, dst, from_password_env, to_password_env, as_json) -> None:
     new_total = sum(rep.new.values())
     if as_json:
         echo_json({"from": where[0], "to": where[1], "new": rep.new, "skipped_runs": rep.skipped_runs,
-                   "running_copied": rep.running_copied, "ok": rep.ok,
+                   "running_copied": rep.running_copied, "ended_runs": rep.ended_runs,
+                   "outbox_updated": rep.outbox_updated, "ok": rep.ok,
                    "tables": [{"table": c.table, "source": c.source, "in_target": c.found, "new": c.new,
                                "checksum_source": c.source_sum, "checksum_target": c.target_sum, "ok": c.ok}
                               for c in rep.checks]})
@@ -115,13 +117,16 @@ def migrate(src, dst, from_password_env, to_password_env, as_json) -> None:
         for c in rep.checks:
             click.echo(f"{c.table:<13} {c.source:>8} {c.found:>10} {c.new:>7}  {c.source_sum:<17} "
                        f"{c.target_sum:<17} {'ok' if c.ok else 'MISMATCH'}")
+        if rep.ended_runs or rep.outbox_updated:
+            click.echo(f"brought over: {rep.ended_runs} run(s) that have ended since an earlier copy, "
+                       f"{rep.outbox_updated} outbox row(s) whose push went on")
         if new_total == 0:
             click.echo(f"0 new: the target already held all {rep.skipped_runs} run(s) and their windows")
         else:
             click.echo(f"{rep.new['runs']} new run(s) copied ({rep.skipped_runs} already there)")
         if rep.running_copied:
             click.echo(f"note: {rep.running_copied} run(s) still running in the source were copied as running; "
-                       "a later copy does not update them", err=True)
+                       "a later copy brings their end", err=True)
     if not rep.ok:
         click.echo(f"vts: the copy does not match its source in table(s) {', '.join(rep.mismatched)} "
                    "(rows of the source missing or different in the target)", err=True)

@@ -7,6 +7,11 @@ references (measurements.run_id/tolerance_id, artifacts.run_id, outbox.run_id) a
 A run already in the target (by uid) is skipped with its children, so a second copy adds
 nothing, and several room stores can be merged into one department store.
 
+Two things may move on in the source after a copy, and a later copy brings them over: a run
+copied while still "running" that has ended since (its end, measurements and artifacts: the
+one change a run ever has), and an outbox row whose push went on (the later ``updated`` wins;
+a row new to a run already copied is added).
+
 Runs are copied in batches, each batch one write transaction of the target (a run and its
 children are never split): an interrupted copy leaves whole runs, and the next copy goes on.
 
@@ -24,7 +29,7 @@ from collections import Counter
 from dataclasses import dataclass, field
 from typing import Callable
 
-from sqlalchemy import Connection, insert, select
+from sqlalchemy import Connection, insert, select, update
 
 from vts_hw.store.schema import artifacts, measurements, outbox, runs, tolerances
 
@@ -60,8 +65,10 @@ class TableCheck:
 @dataclass
 class CopyReport:
     new: dict[str, int] = field(default_factory=lambda: {t: 0 for t in TABLES})
-    skipped_runs: int = 0          # already in the target (by uid)
+    skipped_runs: int = 0          # already in the target (by uid), nothing to bring
     running_copied: int = 0        # copied while still "running" in the source
+    ended_runs: int = 0            # copied running before, ended since: their end brought now
+    outbox_updated: int = 0        # outbox rows whose push went on in the source since
     checks: list[TableCheck] = field(default_factory=list)
 
     @property
@@ -97,7 +104,7 @@ def copy_store(source, target, progress: Callable[[int, int], None] | None = Non
         src_windows = conn.execute(select(tolerances).order_by(tolerances.c.id)).all()
         src_runs = conn.execute(select(runs).order_by(runs.c.id)).all()
     with target._read() as conn:
-        have_uids = set(conn.scalars(select(runs.c.uid)))
+        have = {r.uid: (r.id, r.status) for r in conn.execute(select(runs.c.uid, runs.c.id, runs.c.status))}
 
     # windows first (measurements refer to them), deduplicated by content
     window_ids: dict[int, int] = {}
@@ -110,7 +117,8 @@ def copy_store(source, target, progress: Callable[[int, int], None] | None = Non
                 rep.new["tolerances"] += 1
             window_ids[r.id] = by_key[key]
 
-    todo = [r for r in src_runs if r.uid not in have_uids]
+    # new runs, and runs the target holds as "running" that have ended in the source since
+    todo = [r for r in src_runs if r.uid not in have or (have[r.uid][1] == "running" and r.status != "running")]
     rep.skipped_runs = len(src_runs) - len(todo)
     for start in range(0, len(todo), BATCH):
         ids = [r.id for r in todo[start:start + BATCH]]
@@ -122,23 +130,57 @@ def copy_store(source, target, progress: Callable[[int, int], None] | None = Non
             arts = conn.execute(select(artifacts).where(artifacts.c.run_id.in_(ids)).order_by(artifacts.c.id)).all()
             outs = conn.execute(select(outbox).where(outbox.c.run_id.in_(ids)).order_by(outbox.c.id)).all()
         with target._write() as conn:
-            run_ids = {}
+            run_ids, added, ended = {}, set(), 0
             for r in batch:
-                run_ids[r.id] = conn.execute(insert(runs).values(**_pick(r, _RUN_COLS))).inserted_primary_key[0]
-                rep.running_copied += r.status == "running"
+                if r.uid not in have:
+                    run_ids[r.id] = conn.execute(insert(runs).values(**_pick(r, _RUN_COLS))).inserted_primary_key[0]
+                    added.add(r.id)
+                    rep.running_copied += r.status == "running"
+                    continue
+                tid = have[r.uid][0]   # running in the target, ended in the source: its end, once
+                done = conn.execute(update(runs).where(runs.c.id == tid, runs.c.status == "running")
+                                    .values(status=r.status, finished=r.finished, notes=r.notes))
+                if done.rowcount == 1:
+                    run_ids[r.id] = tid
+                    ended += 1
+            ms = [m for m in ms if m.run_id in run_ids]
+            arts = [a for a in arts if a.run_id in run_ids]
+            outs = [o for o in outs if o.run_id in added]   # an ended run's: _bring_outbox
             _insert_many(conn, measurements, [
                 dict(_pick(m, _MEAS_COLS), run_id=run_ids[m.run_id],
                      tolerance_id=None if m.tolerance_id is None else window_ids[m.tolerance_id]) for m in ms])
             _insert_many(conn, artifacts, [dict(_pick(a, _ART_COLS), run_id=run_ids[a.run_id]) for a in arts])
             _insert_many(conn, outbox, [dict(_pick(o, _OUT_COLS), run_id=run_ids[o.run_id]) for o in outs])
-        rep.new["runs"] += len(batch)
+        rep.new["runs"] += len(added)
+        rep.ended_runs += ended
         rep.new["measurements"] += len(ms)
         rep.new["artifacts"] += len(arts)
         rep.new["outbox"] += len(outs)
         if progress is not None:
             progress(start + len(batch), len(todo))
+    _bring_outbox(source, target, rep)
     rep.checks = verify(source, target, rep.new)
     return rep
+
+
+def _bring_outbox(source, target, rep: CopyReport) -> None:
+    """Outbox rows of runs copied before whose push went on in the source: the later ``updated``
+    wins; a row new to such a run is added. One write transaction."""
+    q = select(outbox, runs.c.uid).join_from(outbox, runs, outbox.c.run_id == runs.c.id)
+    with source._read() as conn:
+        src = conn.execute(q).all()
+    with target._write() as conn:
+        tgt = {(r.uid, r.target): r for r in conn.execute(q)}
+        run_of = {r.uid: r.id for r in conn.execute(select(runs.c.uid, runs.c.id)
+                                                     .where(runs.c.uid.in_({o.uid for o in src})))} if src else {}
+        for o in src:
+            t = tgt.get((o.uid, o.target))
+            if t is None and o.uid in run_of:
+                conn.execute(insert(outbox).values(**_pick(o, _OUT_COLS), run_id=run_of[o.uid]))
+                rep.new["outbox"] += 1
+            elif t is not None and float(o.updated) > float(t.updated):
+                conn.execute(update(outbox).where(outbox.c.id == t.id).values(**_pick(o, _OUT_COLS)))
+                rep.outbox_updated += 1
 
 
 def _snapshot(conn: Connection) -> Connection:
