@@ -115,13 +115,18 @@ def _daily(out_dir: Path, days: int, frames: int) -> None:
         click.echo(f"rooms page:    {res.rooms_html} (every rig in the store; `vts report rooms`)")
 
 
+def _scenario(run, out_dir: Path, seconds: float):
+    """Run a demo scenario; its RuntimeError (the simulated rig failed) is the CLI's one sentence."""
+    try:
+        return run(out_dir, seconds, say=click.echo)
+    except RuntimeError as exc:
+        raise click.ClickException(str(exc)) from None
+
+
 def _scan(out_dir: Path, seconds: float) -> None:
     from vts_hw.sim_devices.scenarios.demo_rig import demo_scan
 
-    try:
-        res = demo_scan(out_dir, seconds, say=click.echo)
-    except RuntimeError as exc:
-        raise click.ClickException(str(exc)) from None
+    res = _scenario(demo_scan, out_dir, seconds)
     data, run = res.data, res.run
     g = data["gating"]
     click.echo(f"  state {data['summary']['state']}; {len(data['events'])} motion event(s); SPECT start delay "
@@ -140,10 +145,7 @@ def _scan(out_dir: Path, seconds: float) -> None:
 def _patient(out_dir: Path, seconds: float) -> None:
     from vts_hw.sim_devices.scenarios.demo_patient import demo_patient_scan
 
-    try:
-        res = demo_patient_scan(out_dir, seconds, say=click.echo)
-    except RuntimeError as exc:
-        raise click.ClickException(str(exc)) from None
+    res = _scenario(demo_patient_scan, out_dir, seconds)
     d, mv = res.data, res.move
     click.echo(f"  {d['summary']['state']}; times: {d['clock']}")
     click.echo(f"  the true move: {mv['translation_mm']:.1f} mm and {mv['rotation_deg']:.1f} deg at "

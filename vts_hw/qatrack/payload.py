@@ -145,21 +145,23 @@ def attachments(store, qcfg, run, workdir=None) -> list[tuple[str, bytes]]:
     from vts_hw.report import build_drift_report, collect
     from vts_hw.report.plots import camera_figure, figure_png
 
-    out: list[tuple[str, bytes]] = []
+    plots: list[tuple[str, bytes]] = []
+    files: list[tuple[str, bytes]] = []
     now = run.finished if run.finished is not None else run.started
-    if qcfg.plots:
-        stored = _stored_plots(store, run)
-        if stored:
-            out += [(p.name, p.read_bytes()) for p in stored]
-        elif run.procedure in DRIFT_PROCEDURES:
-            report = collect(store, now=now, rig=run.rig or None)
-            cams = {m.subject for m in store.measurements(run_id=run.id) if m.subject and "/" not in m.subject}
-            for name, cam in sorted(report.cameras.items()):
-                if name in cams and cam.points:
-                    out.append((f"vts-drift-run{run.id}-{name}.png", figure_png(camera_figure(report, cam))))
+    report = None   # the drift report as of the run's end, collected once for the report and the plots
     if qcfg.report != "none":
         with tempfile.TemporaryDirectory(prefix="vts-qatrack-", dir=workdir) as tmp:
             path = Path(tmp) / f"vts-report-run{run.id}.{qcfg.report}"
-            build_drift_report(store, path, now=now, rig=run.rig or None)
-            out.append((path.name, path.read_bytes()))
-    return out
+            report = build_drift_report(store, path, now=now, rig=run.rig or None)
+            files.append((path.name, path.read_bytes()))
+    if qcfg.plots:
+        stored = _stored_plots(store, run)
+        if stored:
+            plots += [(p.name, p.read_bytes()) for p in stored]
+        elif run.procedure in DRIFT_PROCEDURES:
+            report = report or collect(store, now=now, rig=run.rig or None)
+            cams = {m.subject for m in store.measurements(run_id=run.id) if m.subject and "/" not in m.subject}
+            for name, cam in sorted(report.cameras.items()):
+                if name in cams and cam.points:
+                    plots.append((f"vts-drift-run{run.id}-{name}.png", figure_png(camera_figure(report, cam))))
+    return plots + files

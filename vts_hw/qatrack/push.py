@@ -24,7 +24,7 @@ from typing import Callable
 
 from vts_hw.errors import UsageError, VtsError
 from vts_hw.qatrack.client import AuthRefused, QATrackClient, Refused, Unreachable
-from vts_hw.qatrack.payload import PUSHABLE_STATUSES, NotMapped, build_payload, run_key
+from vts_hw.qatrack.payload import PUSHABLE_STATUSES, NotMapped, build_payload, run_key, tests_of
 
 TARGET = "qatrack"
 #: exit codes of `vts qa push` (and what --push adds to nothing: the QA's own code stands)
@@ -103,14 +103,16 @@ def _record(store, item, state: str, how: str, run, message: str = "", remote: s
     return Outcome(run.id, run.procedure, item.key, state, how, message, remote or "")
 
 
-def push_one(store, qcfg, client: QATrackClient, run) -> Outcome:
-    """One attempt at one run (its outbox row added first). Unreachable (down) and AuthRefused
-    propagate after the row is recorded "pending", so that the caller can stop the batch."""
-    item = store.outbox_add(run.id, TARGET, run_key(run))
+def push_one(store, qcfg, client: QATrackClient, run, item=None) -> Outcome:
+    """One attempt at one run (its outbox row ``item``, added first when not given). Unreachable
+    (down) and AuthRefused propagate after the row is recorded "pending", so that the caller
+    can stop the batch."""
+    if item is None:
+        item = store.outbox_add(run.id, TARGET, run_key(run))
     if item.state == "sent":
         return Outcome(run.id, run.procedure, item.key, "sent", "already sent", remote=item.remote)
     try:
-        build_payload(store, qcfg, run, attach=False)   # the mapping first: cheap, and before any request
+        tests_of(store, qcfg, run)   # the mapping first: cheap, and before any request
     except NotMapped as exc:
         return _record(store, item, "refused", "not mapped", run, str(exc))
     lst = qcfg.lists[run.procedure]
@@ -160,7 +162,7 @@ def push_runs(store, qcfg, runs: list, client: QATrackClient | None = None,
     try:
         for n, run in enumerate(runs, 1):
             try:
-                o = push_one(store, qcfg, client, run)
+                o = push_one(store, qcfg, client, run, items[run.id])
             except (Unreachable, AuthRefused) as exc:
                 why = "credentials refused" if isinstance(exc, AuthRefused) else "failed"
                 out.append(Outcome(run.id, run.procedure, items[run.id].key, "pending", why, str(exc)))
