@@ -154,3 +154,42 @@ def test_store_full_at_the_end_of_the_run(rig, tmp_path, small_disk):
     disk.free_up()
     with ResultsStore(url) as s:     # the run left "running" by this (living) process stays so
         assert [r.status for r in s.runs(procedure="daily")] in (["running"], ["aborted"])
+
+
+def test_postgresql_gone_during_the_run_keeps_every_figure_and_imports_later(rig, tmp_path, pg_server):
+    """The department's PostgreSQL store lets the run's row in, then shuts its door while the
+    cameras are measured (its connections ended, no new ones let in): the figures survive."""
+    db = pg_server.new_database()
+    url = pg_server.url(db)
+    cfg, env = _setup(rig, tmp_path / "a", url)
+    with ResultsStore(url) as s:
+        _baseline(cfg, s)
+    proc = subprocess.Popen([*VTS, "qa", "daily", "--frames", "2"], env=env, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    err = []
+    with pg_server.admin() as con:
+        for line in proc.stderr:
+            err.append(line)
+            if "cam1: checking" in line:
+                con.execute(f'ALTER DATABASE "{db}" WITH ALLOW_CONNECTIONS false')
+                con.execute("SELECT pg_terminate_backend(pid) FROM pg_stat_activity WHERE datname = %s", (db,))
+                break
+        out, rest = proc.communicate(timeout=120)
+        stderr = "".join(err) + rest
+        assert proc.returncode == 3, stderr
+        assert "NOT stored" in stderr and "vts qa import" in stderr and "Traceback" not in stderr
+        assert "drift_x_px" in out
+        unsaved = stderr.split("are above and in ")[1].split(" (")[0]
+        saved = json.loads(open(unsaved).read())
+        figures = {(m["subject"], m["metric"]) for m in saved["measurements"]}
+        assert ("cam1", "drift_x_px") in figures and ("cam2", "drift_x_px") in figures
+        con.execute(f'ALTER DATABASE "{db}" WITH ALLOW_CONNECTIONS true')
+    try:
+        p = vts(env, "qa", "import", unsaved)
+        assert p.returncode == 0, p.stderr
+        with ResultsStore(url) as s:
+            stored = {(m.subject, m.metric, m.value) for r in s.runs(procedure="daily")
+                      for m in s.measurements(run_id=r.id)}
+        assert {(m["subject"], m["metric"], m["value"]) for m in saved["measurements"]} == stored
+    finally:
+        pg_server.drop_database(db)
