@@ -37,6 +37,9 @@ from urllib.parse import parse_qs, urlencode, urlsplit
 
 BASE64_RE = re.compile(r"^([A-Za-z0-9+/]{4})*([A-Za-z0-9+/]{4}|[A-Za-z0-9+/]{3}=|[A-Za-z0-9+/]{2}==)$")
 PAGE = 10
+FAULTS = ("slow", "500", "400", "lose_answer", "down", "add_instance")
+"""Every fault the peer injects: the values of ``fault`` (``"400"`` as the tuple's head) and the
+methods that take it down or put a duplicate there; docs/faults.md has a row for each."""
 
 
 class _Server(ThreadingHTTPServer):

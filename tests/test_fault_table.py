@@ -43,3 +43,26 @@ def test_every_exit_code_is_documented():
         codes = set(re.findall(r"\d+|–|-", cells[2]))
         assert codes, cells
         assert codes <= allowed | {"1"}, cells   # 1 only for a sim that fails for an unforeseen reason
+
+
+def _table_text() -> str:
+    return (REPO / "docs" / "faults.md").read_text()
+
+
+def test_every_fault_the_simulated_camera_injects_has_a_row():
+    from dataclasses import fields
+
+    from vts_hw.sim_devices.faults import Faults
+    text = _table_text()
+    settings = {"version", "stall_s", "torn_mode", "wrong_content_length_extra"}   # they tune a fault
+    knobs = [f.name for f in fields(Faults) if f.name not in settings]
+    assert len(knobs) >= 10
+    missing = [k for k in knobs if f"`{k}`" not in text]
+    assert not missing, f"docs/faults.md has no row for the camera fault(s) {missing}"
+
+
+def test_every_fault_the_simulated_qatrack_injects_has_a_row():
+    from vts_hw.sim_devices.qatrack_server import FAULTS
+    text = _table_text()
+    missing = [k for k in FAULTS if not re.search(rf"sim `[^`]*\b{re.escape(k)}\b", text)]
+    assert not missing, f"docs/faults.md has no row for the QATrack+ fault(s) {missing}"
