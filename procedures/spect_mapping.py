@@ -385,3 +385,16 @@ class SpectMapping:
         :meth:`RigidTransform.load`."""
         self._need()
         return self.transform.save(path)
+
+
+def replaceable(out_path: Path, force: bool = False) -> None:
+    """Refuse, before any work, an ``-o`` that exists and is not a VTS → SPECT mapping file (a
+    rig.yaml or a calibration given by mistake would be lost): DataError (exit 3) naming it;
+    ``force`` replaces it anyway. An earlier mapping there is replaced, as before."""
+    if force or not out_path.exists():
+        return
+    try:
+        RigidTransform.load(out_path)
+    except DataError:
+        raise DataError(f"{out_path} exists and is not a VTS → SPECT mapping file; give another -o,"
+                        " move it away, or give --force to replace it.") from None

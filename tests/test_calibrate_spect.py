@@ -215,3 +215,25 @@ def test_the_cameras_a_calibration_covers(tmp_path):
     assert names(cams("", "")) == ["head-l", "head-r"]
     with pytest.raises(ConfigError, match="covers 1 of the rig's cameras"):
         calibrated_cameras(rig, cams("foot-l"))
+
+
+def test_an_output_that_is_not_a_mapping_is_refused_before_the_work(tmp_path, session):
+    """`-o rig.yaml` by mistake: refused in one sentence, the file byte-identical; --force
+    replaces it; an earlier mapping there is replaced without asking."""
+    vts_pts, volume, _ = session
+    csv = tmp_path / "vts.csv"
+    csv.write_text("x,y,z\n" + "".join(f"{x},{y},{z}\n" for x, y, z in vts_pts))
+    cfg = tmp_path / "rig.yaml"
+    cfg.write_text("rig: room1\ncameras:\n  - {name: cam1, host: 127.0.0.1}\n")
+    before = cfg.read_bytes()
+    r = vts("--vts", csv, "--volume", volume, "-o", cfg, cwd=tmp_path)
+    assert r.returncode == 3 and r.stderr == (f"vts: {cfg} exists and is not a VTS → SPECT mapping file;"
+                                              " give another -o, move it away, or give --force to replace it.\n")
+    assert "FRE" not in r.stdout and cfg.read_bytes() == before
+    assert not list(tmp_path.glob("spect_mapping*"))
+    out = tmp_path / "m.json"
+    assert vts("--vts", csv, "--volume", volume, "-o", out, cwd=tmp_path).returncode == 0
+    assert vts("--vts", csv, "--volume", volume, "-o", out, cwd=tmp_path).returncode == 0   # a mapping: replaced
+    r = vts("--vts", csv, "--volume", volume, "-o", cfg, "--force", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    RigidTransform.load(cfg)

@@ -266,10 +266,12 @@ def _from_cameras(config_path, calibration_path, volume, frames: int, quiet: boo
 @click.option("--sim-seed", type=int, default=0, show_default=True,
               help="Seed of the simulated rig, noise and volume.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default="spect_mapping.json",
-              show_default=True, help="VTS → SPECT transform file to write.")
+              show_default=True, help="VTS → SPECT transform file to write (an earlier mapping there is"
+              " replaced; any other file is refused, exit 3, unless --force).")
+@click.option("--force", is_flag=True, help="Replace the -o file even if it is not a mapping file.")
 @json_option
 def spect(vts_path: str | None, volume: str | None, from_cameras: bool, calibration_path: str | None,
-          frames: int, config_path: str | None, sim: bool, sim_seed: int, output: str,
+          frames: int, config_path: str | None, sim: bool, sim_seed: int, output: str, force: bool,
           as_json: bool) -> None:
     """VTS → SPECT mapping from the 7-sphere phantom: its sphere centres in the VTS frame
     (--vts, or --from-cameras to measure them now) and its reconstructed SPECT volume
@@ -277,6 +279,7 @@ def spect(vts_path: str | None, volume: str | None, from_cameras: bool, calibrat
 
     Prints the transform, the FRE and the leave-one-out TRE; writes the transform to -o. If -o
     cannot be written (exit 3) the mapping is saved in the current folder or $TMPDIR instead.
+    An -o that exists and is not a mapping file is refused before any work (exit 3).
 
     The mapping is stored as a run (procedure "spect_mapping") in the rig's results store with
     the rig's name when there is a rig config (--config, $VTS_CONFIG, ./rig.yaml), else in the
@@ -286,7 +289,7 @@ def spect(vts_path: str | None, volume: str | None, from_cameras: bool, calibrat
     import json
     import tempfile
 
-    from vts_hw.procedures.spect_mapping import SpectMapping
+    from vts_hw.procedures.spect_mapping import SpectMapping, replaceable
     from vts_hw.save_or_keep import save_or_keep
 
     if sim and (vts_path or volume or from_cameras):
@@ -297,6 +300,7 @@ def spect(vts_path: str | None, volume: str | None, from_cameras: bool, calibrat
         raise click.UsageError("give --vts POINTS (or --from-cameras) and --volume VOLUME, or --sim")
 
     out_path = Path(output)
+    replaceable(out_path, force)   # before the work: a rig.yaml given as -o by mistake
     info = None
     if sim:
         from vts_hw.sim_devices.scenarios.calibration_views import compare_mapping_with_truth, sim_spect_inputs
