@@ -52,6 +52,21 @@ def _baseline(cfg, store):
     save_baselines(store, bs, rig=cfg.rig)
 
 
+def _daily_breaking_the_store(env, breaks):
+    """`vts qa daily` in a subprocess; ``breaks()`` is called once the run's row is written and
+    the cameras are being measured. Returns (exit status, stdout, stderr)."""
+    proc = subprocess.Popen([*VTS, "qa", "daily", "--frames", "2"], env=env, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    err = []
+    for line in proc.stderr:
+        err.append(line)
+        if "cam1: checking" in line:
+            breaks()
+            break
+    out, rest = proc.communicate(timeout=120)
+    return proc.returncode, out, "".join(err) + rest
+
+
 def _runs(url):
     with ResultsStore(url) as s:
         return [(r.procedure, r.status) for r in s.runs()]
@@ -97,17 +112,8 @@ def test_full_store_keeps_every_figure_and_imports_later(rig, tmp_path, small_di
     with ResultsStore(url) as s:
         _baseline(cfg, s)
     # the disk fills up while the cameras are being measured (the run's row is written by then)
-    proc = subprocess.Popen([*VTS, "qa", "daily", "--frames", "2"], env=env, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    err = []
-    for line in proc.stderr:
-        err.append(line)
-        if "cam1: checking" in line:
-            disk.fill(leave=0)
-            break
-    out, rest = proc.communicate(timeout=120)
-    stderr = "".join(err) + rest
-    assert proc.returncode == 3, stderr
+    code, out, stderr = _daily_breaking_the_store(env, lambda: disk.fill(leave=0))
+    assert code == 3, stderr
     assert "NOT stored" in stderr and "vts qa import" in stderr and "Traceback" not in stderr
     assert "drift_x_px" in out                       # the figures are printed
     unsaved = stderr.split("are above and in ")[1].split(" (")[0]
@@ -164,19 +170,12 @@ def test_postgresql_gone_during_the_run_keeps_every_figure_and_imports_later(rig
     cfg, env = _setup(rig, tmp_path / "a", url)
     with ResultsStore(url) as s:
         _baseline(cfg, s)
-    proc = subprocess.Popen([*VTS, "qa", "daily", "--frames", "2"], env=env, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    err = []
     with pg_server.admin() as con:
-        for line in proc.stderr:
-            err.append(line)
-            if "cam1: checking" in line:
-                con.execute(f'ALTER DATABASE "{db}" WITH ALLOW_CONNECTIONS false')
-                con.execute("SELECT pg_terminate_backend(pid) FROM pg_stat_activity WHERE datname = %s", (db,))
-                break
-        out, rest = proc.communicate(timeout=120)
-        stderr = "".join(err) + rest
-        assert proc.returncode == 3, stderr
+        def shut():
+            con.execute(f'ALTER DATABASE "{db}" WITH ALLOW_CONNECTIONS false')
+            con.execute("SELECT pg_terminate_backend(pid) FROM pg_stat_activity WHERE datname = %s", (db,))
+        code, out, stderr = _daily_breaking_the_store(env, shut)
+        assert code == 3, stderr
         assert "NOT stored" in stderr and "vts qa import" in stderr and "Traceback" not in stderr
         assert "drift_x_px" in out
         unsaved = stderr.split("are above and in ")[1].split(" (")[0]
