@@ -205,7 +205,7 @@ class AxisCamera:
         text = r.text
         stripped = text.lstrip()
         if stripped.startswith("# Error:") or stripped.startswith("Error:"):
-            msg = stripped.split(":", 1)[1].strip().splitlines()[0] if ":" in stripped else stripped
+            msg = (stripped.split(":", 1)[1].strip().splitlines() or ["(no reason given)"])[0]
             raise Refused(self.name, f"camera {self.name} refused {path}: {msg}")
         return text
 

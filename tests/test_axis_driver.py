@@ -166,3 +166,11 @@ def test_device_info_and_time_json_of_the_wrong_shape_are_bad_replies(call, body
     cam._session = _Answers(body)
     with pytest.raises(BadReply, match="camera cam1 sent"):
         getattr(cam, call)()
+
+
+def test_a_refusal_without_a_reason_is_one_sentence():
+    # found by bench/fuzz.py (axis_vapix): "# Error:" and nothing after it was an IndexError
+    cam = AxisCamera("cam1", "http://127.0.0.1:9", "root", "pw")
+    cam._session = _Answers(b"# Error:  \n")
+    with pytest.raises(BadReply, match=r"camera cam1 refused /axis-cgi/param.cgi: \(no reason given\)"):
+        cam.vapix_version
