@@ -3,7 +3,12 @@
     .venv/bin/python bench/fuzz.py                      # 100,000 inputs per parser
     .venv/bin/python bench/fuzz.py --runs 2000 --only manifest,rig_yaml --crashes crashes/
 
-Each parser (bench/fuzzkit/targets.py) is fed ``--runs`` inputs by a coverage-guided fuzzer,
+The parsers: the files (MJPEG, Axis JPEG, recording index and manifest, list-mode, Interfile,
+DICOM, .npz, calibration and mapping JSON, rig.yaml, trigger.csv, SPECT points, trajectories,
+a step session's positions.json, unsaved runs, list-mode failure records) and the devices' replies, each input a
+transcript of what the device answers a driver's session (bench/fuzzkit/devices.py: the Axis
+camera's VAPIX replies, the trigger box's serial lines, the 33500's SCPI replies, QATrack+'s
+JSON). Each parser (bench/fuzzkit/targets.py) is fed ``--runs`` inputs by a coverage-guided fuzzer,
 atheris (libFuzzer), seeded with real and generated valid inputs (bench/fuzzkit/seeds.py);
 where atheris cannot be imported, hypothesis generates and mutates the inputs instead
 (``--engine hypothesis``). A ``VtsError`` (ConfigError, DataError, ...) is the answer the

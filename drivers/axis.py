@@ -205,7 +205,7 @@ class AxisCamera:
         text = r.text
         stripped = text.lstrip()
         if stripped.startswith("# Error:") or stripped.startswith("Error:"):
-            msg = stripped.split(":", 1)[1].strip().splitlines()[0] if ":" in stripped else stripped
+            msg = (stripped.split(":", 1)[1].strip().splitlines() or ["(no reason given)"])[0]
             raise Refused(self.name, f"camera {self.name} refused {path}: {msg}")
         return text
 
@@ -320,7 +320,7 @@ class AxisCamera:
             return {k: str(v) for k, v in props.items()}
         except NotFound:
             pass
-        except (ValueError, KeyError, TypeError):
+        except _NOT_THE_JSON:
             raise BadReply(self.name, f"camera {self.name} sent device info that is not the expected JSON") \
                 from None
         info = {k.removeprefix("Brand."): v for k, v in self.get_params("Brand").items()}
@@ -352,8 +352,9 @@ class AxisCamera:
             return ClockOffset(best[0], best[1] / 2 + 0.001, best[2], "time.cgi", samples)
         except NotFound:
             pass
-        except (ValueError, KeyError, TypeError):
-            raise BadReply(self.name, f"camera {self.name} sent time.cgi JSON without data.dateTime") from None
+        except _NOT_THE_JSON:
+            raise BadReply(self.name, f"camera {self.name} sent time.cgi JSON without a readable data.dateTime") \
+                from None
         offsets, rtts = [], []
         for _ in range(samples):
             t0 = self.clock()
@@ -364,6 +365,9 @@ class AxisCamera:
             rtts.append(f.host_time - t0)
         return ClockOffset(statistics.median(offsets), max(rtts) + 0.01, self.clock(), "snapshot", samples)
 
+
+#: what reading a JSON reply that is not the expected shape raises (RecursionError: nested too deeply)
+_NOT_THE_JSON = (ValueError, KeyError, TypeError, AttributeError, OverflowError, RecursionError)
 
 _DEVICE_INFO_PARAMS = {  # basicdeviceinfo.cgi property -> parameter, for firmware without it
     "Version": "Properties.Firmware.Version", "BuildDate": "Properties.Firmware.BuildDate",

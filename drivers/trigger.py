@@ -20,6 +20,7 @@ beyond the common ones, validated when it is opened) and its constructor.
 from __future__ import annotations
 
 import csv
+import math
 import os
 import threading
 import time
@@ -73,6 +74,16 @@ class TriggerStatus:
     last_edge_device_us: int | None = None
     errors: tuple[str, ...] = ()
     extra: dict = field(default_factory=dict)
+
+    def not_a_square_wave(self) -> str | None:
+        """What in the confirmed values no square wave can have (None when they describe one):
+        a frequency not above 0, a duty not between 0 and 1, a level not finite."""
+        f, d = self.frequency_hz, self.duty
+        if f is None or not math.isfinite(f) or f <= 0 or d is None or not 0 < d < 1:
+            return f"{f!r} Hz at duty {d!r}"
+        if any(v is not None and not math.isfinite(v) for v in (self.high_v, self.low_v)):
+            return f"levels {self.low_v!r}..{self.high_v!r} V"
+        return None
 
 
 @dataclass(frozen=True)

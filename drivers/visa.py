@@ -82,6 +82,8 @@ def visa_failure(e: BaseException, name: str, address: str, command: str | None,
         elif "error_timeout" in detail:
             detail = "no answer to the connection within the timeout"
         text = f"{name}: cannot connect to {address} ({detail})"
+    elif isinstance(e, UnicodeDecodeError):  # pyvisa decodes a reply as ASCII
+        text = f"{where} answered{during} with bytes that are not text: {e.object[:40]!r}"
     else:
         text = f"{where} failed{' on ' + repr(command) if command else ''} ({e})"
     return TriggerError(text)

@@ -391,3 +391,38 @@ def test_numbers_are_sent_exactly(value, text):
 
     assert scpi_number(value) == text
     assert float(text) == value and math.isfinite(float(text))
+
+
+class _Replies:
+    """A resource answering each query with the next line, decoded as pyvisa does (ASCII, strict)."""
+
+    resource_name, timeout = "TCPIP::127.0.0.1::5025::SOCKET", 100
+
+    def __init__(self, *replies: bytes):
+        self.replies = list(replies)
+
+    def write(self, command):
+        return len(command)
+
+    def query(self, command):
+        return self.replies.pop(0).decode("ascii")
+
+    def close(self):
+        pass
+
+
+def test_a_reply_that_is_not_ascii_is_a_trigger_error():
+    # found by bench/fuzz.py (function_generator): pyvisa's UnicodeDecodeError went through
+    with pytest.raises(TriggerError, match="answered '\\*IDN\\?' with bytes that are not text"):
+        FunctionGenerator(_Replies(b"\xffgilent Technologies,33522B,MY1,4.00"))
+
+
+def test_start_raises_when_the_instrument_confirms_0_hz():
+    # found by bench/fuzz.py (function_generator): FREQ? 0 after OUTP 1 was a ZeroDivisionError
+    with expected_protocol(FunctionGenerator, HELLO + [
+        ("FUNC?", "SQU"), ("OUTP 1", None), ("SYST:ERR?", OK),
+        ("FUNC?", "SQU"), ("FREQ?", e(0)), ("FUNC:SQU:DCYC?", e(50)), ("VOLT:HIGH?", e(5)),
+        ("VOLT:LOW?", e(0)), ("OUTP?", "1"), ("SYST:ERR?", OK),
+    ]) as fg:
+        with pytest.raises(TriggerError, match="confirms 0.0 Hz at duty 0.5: not a square wave"):
+            fg.start()

@@ -13,7 +13,10 @@ import pytest
 
 FUZZ = Path(__file__).resolve().parents[1] / "bench" / "fuzz.py"
 TARGETS = ["mjpeg", "axis_jpeg", "recording_index", "manifest", "listmode", "interfile", "dicom",
-           "npz", "calibration", "camera_calibration", "mapping", "rig_yaml"]
+           "npz", "calibration", "camera_calibration", "mapping", "rig_yaml",
+           # the devices' replies, and the files a user may hand back
+           "axis_vapix", "qatrack", "trigger_box", "function_generator", "trigger_log", "spect_points",
+           "tracks", "step_positions", "unsaved", "listmode_failures"]
 ROW = re.compile(r"^(\w+)\s+(\d+)\s+(\d+)\s+(\d+)\s+(\d+)\s+([\d.]+)$", re.M)
 
 

@@ -324,3 +324,18 @@ def test_a_header_number_no_float_can_hold(good, tmp_path, key):
     p = tmp_path / "huge.vtslm"
     p.write_bytes(vtslm.PREAMBLE.pack(vtslm.MAGIC, 1, 0, len(text)) + text + raw[16 + length:])
     one_line_error(p, f"header key '{key}' must be a")
+
+
+def test_failure_records_with_times_no_date_can_hold_are_left_out(tmp_path):
+    # found by bench/fuzz.py (listmode_failures): OverflowError from float() and from the date of describe()
+    from vts_hw.spect.listmode.failures import read_failure_records, write_failure_record
+
+    write_failure_record(tmp_path, "good.vtslm", "the disk was full", by="the SPECT", start=1_795_000_000.0,
+                         end=1_795_000_060.0)
+    head = '{"format": "vts-listmode-failure/1", "by": "x", "listmode": "a.vtslm", "reason": "r", '
+    (tmp_path / "huge.failed.json").write_text(head + '"failed_at": 1' + "0" * 400 + "}")
+    (tmp_path / "far.failed.json").write_text(head + '"start": 1e300, "failed_at": 1795000000}')
+    (tmp_path / "nan.failed.json").write_text(head + '"failed_at": NaN}')
+    records = read_failure_records(tmp_path)
+    assert [r.listmode for r in records] == ["good.vtslm"]
+    assert records[0].describe().startswith("the SPECT failed to record the scan (2026-")

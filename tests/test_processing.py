@@ -302,3 +302,14 @@ def test_a_trajectory_file_of_the_wrong_shape_is_a_data_error(tmp_path, doc):
     (tmp_path / "t.csv").write_text("frame,marker,x_mm,y_mm,z_mm\n")
     with pytest.raises(DataError, match="t.json"):
         Tracks.load(tmp_path / "t.csv")
+
+
+def test_a_trajectory_point_on_a_frame_the_json_lacks_is_a_data_error(tmp_path):
+    # found by bench/fuzz.py (tracks): the point of frame 5 of a 1-frame table made trajectory() an IndexError
+    (tmp_path / "t.json").write_text('{"format": "vts-trajectory/1", "cameras": ["cam1", "cam2"], "frames": '
+                                     '{"host_time": [1.0], "cam1_time": [1.0], "cam2_time": [1.0], "cam1_frame": [0], '
+                                     '"cam2_frame": [0], "cam1_blobs": [1], "cam2_blobs": [1]}}')
+    (tmp_path / "t.csv").write_text("frame,marker,x_mm,y_mm,z_mm,reproj_px,cam1_u,cam1_v,cam2_u,cam2_v\n"
+                                    "5,1,0,0,0,0,1,1,1,1\n")
+    with pytest.raises(DataError, match="not one of the 1 frames"):
+        Tracks.load(tmp_path / "t.csv")

@@ -87,3 +87,16 @@ def _closed_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]    # nothing listens there once the socket is closed
+
+
+def test_an_unsaved_run_naming_a_folder_as_its_artifact_imports_without_it(tmp_path):
+    # found by bench/fuzz.py (unsaved): a folder among the artifacts was an IsADirectoryError
+    plot = tmp_path / "plot.png"
+    plot.write_bytes(b"\x89PNG")
+    p = tmp_path / "run.json"
+    p.write_text(json.dumps({"format": "vts-unsaved-run/1", "procedure": "drift", "started": 2000.0,
+                             "state": "OK", "measurements": [], "artifacts": [str(tmp_path), str(plot)]}))
+    with ResultsStore(f"sqlite:///{tmp_path / 'r.sqlite'}") as store:
+        run_id = import_unsaved(store, p)
+        assert [a.path for a in store.artifacts(run_id=run_id)] == [str(plot)]
+    assert (tmp_path / "run.json.imported").exists()

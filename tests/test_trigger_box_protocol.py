@@ -823,3 +823,12 @@ def test_repr_and_thread_safety():
             t.join()
         assert sorted(got) == list(range(1000, 1000 + n))
     assert repr(box).startswith("<TriggerBox 'box-a' on /dev/ttyFAKE0 at 115200 baud")
+
+
+def test_start_raises_when_the_box_confirms_no_square_wave():
+    # found by bench/fuzz.py (trigger_box): a duty of 1.5 read back made the log's wave_start a ValueError
+    pairs = lines(("OUTP ON", "OK"), ("OUTP?", "ON"), ("FREQ?", "10"), ("DUTY?", "1.5"), ("EDGES?", "1,5,5"),
+                  ("SYST:ERR?", '0,"No error"'))
+    with expected_protocol(pairs) as box:
+        with pytest.raises(TriggerError, match="confirms 10.0 Hz at duty 1.5: not a square wave"):
+            box.start()

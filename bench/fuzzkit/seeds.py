@@ -72,7 +72,7 @@ def make_seeds(out: Path, axis_frames: Path) -> dict[str, int]:
 
     def fixture(target: str, name: str, data: bytes) -> None:
         d = fixtures / target
-        d.mkdir(parents=True, exist_ok=True)
+        (d / name).parent.mkdir(parents=True, exist_ok=True)
         (d / name).write_bytes(data)
 
     work = out / "make"
@@ -178,6 +178,8 @@ def make_seeds(out: Path, axis_frames: Path) -> dict[str, int]:
     data["cameras"].append(third)
     put("camera_calibration", "three.json", json.dumps(data).encode())
     put("camera_calibration", "stereo.json", stereo_bytes(rig_dir))
+    from fuzzkit.file_seeds import file_seeds
+    file_seeds(put, fixture, work, rec_dir)
     edge_seeds(put)
     return {d.name: len(list(d.iterdir())) for d in sorted(seeds.iterdir())}
 

@@ -41,8 +41,9 @@ class Scratch:
         self.rec = self.dir / "rec"
         self.rec.mkdir()
         for name in fixtures:
-            shutil.copy(fixtures_dir / name, self.dir / name)
-            shutil.copy(fixtures_dir / name, self.rec / name)
+            for d in (self.dir, self.rec):
+                (d / name).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy(fixtures_dir / name, d / name)
         self.handled = 0
 
     def file(self, name: str, data: bytes, folder: Path | None = None) -> Path:
@@ -84,6 +85,20 @@ def import_parsers() -> None:
     from vts_hw.spect.interfile import read_interfile
     from vts_hw.spect.npz import read_npz
     from vts_hw.spect.readers import read_volume
+    from vts_hw.drivers import axis, function_generator, trigger_box  # noqa: F401 - instrumented
+    from vts_hw.qatrack import client  # noqa: F401
+    from vts_hw.recording import trigger_log
+    from vts_hw.recording.tracks import Tracks
+    from vts_hw.procedures.mapping_inputs import read_points
+    from vts_hw.procedures.steps import load_positions
+    from vts_hw.procedures.sync_inputs import session_span
+    from vts_hw.store import ResultsStore
+    from vts_hw.spect.listmode.failures import read_failure_records
+    from vts_hw.store.unsaved import import_unsaved, load_unsaved
+    P.update(trigger_log=trigger_log, Tracks=Tracks, read_points=read_points, load_positions=load_positions,
+             session_span=session_span, load_unsaved=load_unsaved,
+             import_unsaved=import_unsaved, ResultsStore=ResultsStore,
+             read_failure_records=read_failure_records)
     P.update(axis_jpeg=axis_jpeg, mjpeg=mjpeg, recording=recording, config=config,
              StereoCalibration=StereoCalibration, read_listmode=read_listmode,
              RigidTransform=RigidTransform, read_dicom_nm=read_dicom_nm,
@@ -164,6 +179,71 @@ def _rig_yaml(data: bytes, s: Scratch) -> None:
     s.call(P["config"].load_rig, s.file("rig.yaml", data))
 
 
+def _axis_vapix(data: bytes, s: Scratch) -> None:
+    from fuzzkit.devices import ScriptedHTTP, drive_axis
+    drive_axis(s, ScriptedHTTP(data))
+
+
+def _qatrack(data: bytes, s: Scratch) -> None:
+    from fuzzkit.devices import ScriptedHTTP, drive_qatrack
+    drive_qatrack(s, ScriptedHTTP(data))
+
+
+def _trigger_box(data: bytes, s: Scratch) -> None:
+    from fuzzkit.devices import ScriptedSerial, drive_box
+    drive_box(s, ScriptedSerial(data))
+
+
+def _function_generator(data: bytes, s: Scratch) -> None:
+    from fuzzkit.devices import ScriptedVisa, drive_fgen
+    drive_fgen(s, ScriptedVisa(data))
+
+
+def _trigger_log(data: bytes, s: Scratch) -> None:
+    t = P["trigger_log"]
+    p = s.file("trigger.csv", data, s.rec)
+    s.call(t.read_trigger_rows, p)
+    s.call(t.wave_from_trigger_log, p)
+    s.call(P["session_span"], s.rec)   # `vts sync analyze`: which list-mode file is the session's
+
+
+def _points(data: bytes, s: Scratch) -> None:
+    s.call(P["read_points"], s.file("points.csv", data))
+    s.call(P["read_points"], s.file("points.json", data))
+
+
+def _tracks(data: bytes, s: Scratch) -> None:
+    tracks = P["Tracks"]
+    for name in ("tracks.json", "tracks.csv"):  # the other of the pair is the seed's
+        d = s.dir / name.split(".")[1]
+        s.file(name, data, d)
+        t = s.call(tracks.load, d / name)
+        if t is not None:              # what `vts motion` then asks of a loaded trajectory
+            s.call(lambda: [t.trajectory(m) for m in t.marker_ids()] + [t.marker_summary()])
+
+
+def _step_positions(data: bytes, s: Scratch) -> None:
+    s.file("positions.json", data, s.rec)
+    s.call(P["load_positions"], s.rec)
+
+
+def _unsaved(data: bytes, s: Scratch) -> None:
+    p = s.file("run.unsaved.json", data)
+    s.call(P["load_unsaved"], p)
+    if not hasattr(s, "store"):        # `vts store import`: into a store of this process
+        s.store = P["ResultsStore"](f"sqlite:///{s.dir / 'results.db'}")
+    s.call(P["import_unsaved"], s.store, p)
+
+
+def _listmode_failures(data: bytes, s: Scratch) -> None:
+    s.file("scan.failed.json", data, s.rec)
+    records = s.call(P["read_failure_records"], s.rec)
+    if not records:   # a file that is not a record is left out: the answer the module documents
+        s.handled += 1
+    for r in records or ():            # `vts sync analyze` names them when no list-mode fits
+        s.call(r.describe)
+
+
 _JSON = (b'"', b"{", b"}", b"[", b"]", b",", b":", b"null", b"true", b"false", b"NaN",
          b"Infinity", b"-Infinity", b"1e999", b"-0", b"0.5", b"[[1,0,0],[0,1,0],[0,0,1]]",
          b": 5", b': "x"', b": []", b": {}", b"[[[[[[[[[[[[[[[[", b"1" + b"0" * 400)
@@ -220,3 +300,47 @@ TARGETS: dict[str, Target] = {t.name: t for t in [
                    b": ", b"- ", b"\n", b"\t", b"---\n", b"...\n", b"%YAML 1.1\n", b"? ",
                    b".nan", b".inf", b"~", b"0x1F", b"\xff\xfe", b"\xef\xbb\xbf", b"\x00")),
 ]}
+TARGETS.update({t.name: t for t in [
+    Target("axis_vapix", "drivers.axis: param.cgi lists, basicdeviceinfo, time.cgi, port.cgi, snapshot",
+           _axis_vapix, max_len=16384,
+           tokens=_JSON + (b"\n--reply--\n", b"HTTP 404 text/plain\n", b"HTTP 200 application/json\n",
+                           b"HTTP 401 text/plain\n", b"HTTP 503 text/plain\n", b"# Error: ", b"OK", b"root.",
+                           b"=", b"Brand.", b"Properties.Firmware.Version=", b'"data"', b'"propertyList"',
+                           b'"dateTime"', b"2026-11-24T06:00:00", b"Z", b"+14:00", b"-0001", b"9999")),
+    Target("qatrack", "qatrack.client: get-token, unittestcollections pages, instances, DRF errors",
+           _qatrack, max_len=8192,
+           tokens=_JSON + (b"\n--reply--\n", b"HTTP 200 application/json\n", b"HTTP 400 application/json\n",
+                           b"HTTP 401 application/json\n", b"HTTP 302 text/html\n", b"HTTP 500 text/html\n",
+                           b'"token"', b'"results"', b'"next"', b'"url"', b'"site_url"', b'"count"',
+                           b'"detail"', b'"non_field_errors"', b'"http://evil.example/"', b'"?page=2"')),
+    Target("trigger_box", "drivers.trigger_box: *IDN?, OUTP?, FREQ?, EDGES?, TIME?, SYST:ERR?, ERR refusals",
+           _trigger_box, max_len=2048,
+           tokens=(b"\n", b"\r\n", b"OK\n", b"ON\n", b"OFF\n", b"ERR ", b"ERR -221 ", b"VTS,TRIGGERBOX,",
+                   b'0,"No error"\n', b'-100,"Command error"\n', b"18446744073709551615", b"0,0,0\n",
+                   b",", b"-1", b"nan", b"inf", b"1e308", b"0", b"\xff", b"\x00")),
+    Target("function_generator", "drivers.function_generator: *IDN?, SYST:ERR?, numeric and bool replies",
+           _function_generator, max_len=2048,
+           tokens=(b"\n", b"Agilent Technologies,33522B,MY1,4.00\n", b'+0,"No error"\n',
+                   b'-222,"Data out of range"\n', b"SQU\n", b"SIN\n", b"1\n", b"0\n", b"ON\n",
+                   b"+1.00000000000000E+01\n", b"9.9E+37", b"nan", b"inf", b"-0", b"0", b",", b"\xff", b"\x00")),
+    Target("trigger_log", "recording.trigger_log: read_trigger_rows, wave_from_trigger_log; sync session_span", _trigger_log, fixtures=("manifest.json",), max_len=4096,
+           tokens=(b"host_time,device_us,device,kind,text\r\n", b",", b"\r\n", b'"', b"wave_start",
+                   b"wave_stop", b"clock", b"cmd", b"reply", b"period_s=", b"duty=", b"high_v=", b"low_v=",
+                   b"rising_edges=", b"time=", b"uncertainty_s=", b"start_pulse=yes", b"drift_ppm=",
+                   b"OUTP ON", b"FREQ ", b"*TRG", b"nan", b"inf", b"-1", b"1e308", b"99999999999999")),
+    Target("spect_points", "procedures.mapping_inputs.read_points (CSV and JSON)", _points, max_len=4096,
+           tokens=_JSON + (b"x,y,z\n", b",", b"\n", b'"points"', b"\xef\xbb\xbf", b"nan", b"inf", b"1e999")),
+    Target("tracks", "recording.tracks.Tracks.load (trajectory CSV and JSON)", _tracks,
+           fixtures=("json/tracks.csv", "csv/tracks.json"), max_len=8192,
+           tokens=_JSON + (b'"cameras"', b'"markers"', b'"frames"', b'"unpaired"', b'"meta"', b'"format"',
+                           b",", b"\n", b"nan", b"inf", b"1e999", b"marker", b"x_mm", b"frame")),
+    Target("step_positions", "procedures.steps.load_positions (a step session's positions.json)",
+           _step_positions, max_len=8192,
+           tokens=_JSON + (b'"plan"', b'"positions"', b'"index"', b'"vertical_mm"', b'"axial_mm"')),
+    Target("unsaved", "store.unsaved.load_unsaved, import_unsaved (a run the store refused, kept as a file)", _unsaved,
+           max_len=8192, tokens=_JSON + (b'"format"', b'"measurements"', b'"procedure"', b'"state"')),
+    Target("listmode_failures", "spect.listmode.failures.read_failure_records (*.failed.json)",
+           _listmode_failures, max_len=4096,
+           tokens=_JSON + (b'"vts-listmode-failure/1"', b'"failed_at"', b'"start"', b'"end"', b'"by"',
+                           b'"listmode"', b'"reason"', b'"log"', b"1e300", b"-1e300")),
+]})

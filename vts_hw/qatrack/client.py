@@ -58,13 +58,16 @@ def drf_words(body, limit: int = 400) -> str:
     ``{"detail": m}`` -> m; ``{"field": [m, ...]}`` -> "field: m"; ``non_field_errors`` -> m."""
     parts: list[str] = []
 
-    def walk(value, field=""):
+    def walk(value, field="", depth=0):
+        if depth > 20:         # QATrack+'s errors are shallow; a deeper body is not one
+            return
         if isinstance(value, dict):
             for k, v in value.items():
-                walk(v, "" if k in ("detail", "non_field_errors") else (f"{field}.{k}" if field else str(k)))
+                walk(v, "" if k in ("detail", "non_field_errors") else (f"{field}.{k}" if field else str(k)),
+                     depth + 1)
         elif isinstance(value, list):
             for v in value:
-                walk(v, field)
+                walk(v, field, depth + 1)
         elif value is not None:
             text = " ".join(str(value).split())
             parts.append(f"{field}: {text}" if field else text)
@@ -145,16 +148,17 @@ class QATrackClient:
 
     def _all(self, url: str, params: dict) -> list[dict]:
         """Every result of a paginated list (following ``next`` on the same site)."""
-        out: list[dict] = []
         body = self._get_json(url, params)
-        out += list(body.get("results") or [])
+        out = _results(body, url)
         pages = 0
         while body.get("next") and pages < 100:
+            if not isinstance(body["next"], str):
+                raise Unreachable(f"QATrack+ answered GET {url} with a next page that is not a link")
             nxt = urljoin(self.api, body["next"])
             if urlsplit(nxt).netloc != urlsplit(self.api).netloc:
                 break   # never send the token to another host
             body = self._get_json(nxt)
-            out += list(body.get("results") or [])
+            out += _results(body, url)
             pages += 1
         return out
 
@@ -189,13 +193,16 @@ class QATrackClient:
             if len(found) > 1:
                 raise Refused(f"QATrack+ has {len(found)} active assignments of test list {test_list!r} to "
                               f"unit {unit!r}; the push needs exactly one", 409, "ambiguous")
+            if not isinstance(found[0].get("url"), str) or not found[0]["url"]:
+                raise Unreachable(f"QATrack+ listed the assignment of test list {test_list!r} to unit {unit!r} "
+                                  f"without its url")
             self._utc[key] = str(found[0]["url"])
         return self._utc[key]
 
     def instance_with_key(self, user_key: str) -> str | None:
         """The URL of the test list instance posted with ``user_key``, None when there is none."""
-        found = self._get_json(self.api + "qa/testlistinstances/", {"user_key": user_key})
-        results = found.get("results") or []
+        url = self.api + "qa/testlistinstances/"
+        results = _results(self._get_json(url, {"user_key": user_key}), url)
         return str(results[0].get("url") or results[0].get("site_url") or "") if results else None
 
     def create_instance(self, payload: dict) -> dict:
@@ -206,9 +213,17 @@ class QATrackClient:
         return body
 
 
+def _results(body: dict, url: str) -> list[dict]:
+    """The ``results`` of one page of a list: objects, or Unreachable naming the list."""
+    results = body.get("results") or []
+    if not isinstance(results, list) or not all(isinstance(r, dict) for r in results):
+        raise Unreachable(f"QATrack+ answered GET {url} with results that are not a list of objects")
+    return results
+
+
 def _json(resp):
     try:
         return resp.json()
-    except ValueError:
+    except (ValueError, RecursionError):   # not JSON, or nested too deeply to read
         text = " ".join((resp.text or "").split())
         return {"detail": text[:200] or f"HTTP {resp.status_code}"}

@@ -247,6 +247,11 @@ class Tracks:
             xyz_spect = np.column_stack([get("x_spect_mm"), get("y_spect_mm"),
                                          get("z_spect_mm")]).reshape(-1, 3)
         unpaired = {k: np.array(v, int) for k, v in doc.get("unpaired", {}).items()}
-        return cls(host, names, camera_time, camera_frame, n_blobs, get("frame", int),
+        point_frame = get("frame", int)
+        if len(point_frame) and not 0 <= point_frame.min() <= point_frame.max() < len(host):
+            raise ValueError(f"a point's frame is not one of the {len(host)} frames of the .json")
+        if not len(camera_time) == len(camera_frame) == len(n_blobs) == len(host):
+            raise ValueError("the frame columns of the .json differ in length")
+        return cls(host, names, camera_time, camera_frame, n_blobs, point_frame,
                    get("marker", int), xyz, get("reproj_px"), uv, unpaired, doc.get("meta", {}),
                    xyz_spect, spect_time, n_single)

@@ -78,7 +78,7 @@ def import_unsaved(store, path: str | Path) -> int:
             for m in doc["measurements"]:
                 h.measure(m["subject"], m["metric"], m["value"], m.get("unit", ""), status=m["state"])
             for a in doc.get("artifacts", []):
-                if Path(a).exists():
+                if Path(a).is_file():   # one gone since (or a folder named instead) is left out
                     h.artifact(a, kind="plot" if str(a).endswith(".png") else "frame")
             run = h.finish(status=doc["state"], finished=float(doc.get("finished") or started))
     except (KeyError, TypeError, ValueError) as exc:

@@ -82,16 +82,22 @@ def read_failure_records(folder) -> list[FailureRecord]:
                 continue
             rec = FailureRecord(by=str(d["by"]), listmode=str(d["listmode"]), reason=str(d["reason"]),
                                 start=_num(d.get("start")), end=_num(d.get("end")),
-                                failed_at=float(d["failed_at"]), log=d.get("log"), path=p)
-        except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError):
+                                failed_at=_num(d["failed_at"], required=True), log=d.get("log"), path=p)
+        except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError, OverflowError, RecursionError):
             continue
         out.append(rec)
     out.sort(key=lambda r: r.span[0])
     return out
 
 
-def _num(v) -> float | None:
-    return None if v is None else float(v)
+def _num(v, required: bool = False) -> float | None:
+    """A time of a record: None, or a UTC epoch a date can be made of (else ValueError,
+    OverflowError or TypeError: the file is not a record vts wrote)."""
+    if v is None and not required:
+        return None
+    t = float(v)
+    _dt.datetime.fromtimestamp(t, _dt.timezone.utc)
+    return t
 
 
 def utc_span(start: float, end: float) -> str:
