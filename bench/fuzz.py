@@ -137,7 +137,7 @@ def child(args) -> None:
         import atheris
 
         with atheris.instrument_imports(include=list(target.instrument)):
-            import_parsers()
+            import_parsers(target.uses)
         rec = Recorder(name, work, Path(args.crashes), args.runs, args.keep)
         live = work / "live" / name
         live.mkdir(parents=True, exist_ok=True)
@@ -154,7 +154,7 @@ def child(args) -> None:
         atheris.Setup([sys.argv[0], *flags, str(live), str(work / "seeds" / name)], rec)
         atheris.Fuzz()  # does not return: libFuzzer exits after -runs
     else:
-        import_parsers()
+        import_parsers(target.uses)
         rec = Recorder(name, work, Path(args.crashes), args.runs, args.keep)
         from fuzzkit.mutate import run_hypothesis
         run_hypothesis(rec, work / "seeds" / name, target, args.runs, args.seed, args.timeout)
@@ -223,15 +223,16 @@ def _fatal_kind(art: Path, rc: int) -> str:
 def print_table(results: list[dict], engine: str, runs: int) -> None:
     print(f"\nfuzz.py: {engine}, {runs:,} inputs per parser; a typed error (VtsError) is handled, "
           "any other exception a crash")
-    head = f"{'parser':<16} {'inputs':>9} {'typed errors':>12} {'crash sites':>11} {'crashes':>8} {'seconds':>8}"
+    w = max([16, *(len(r["target"]) for r in results)])
+    head = f"{'parser':<{w}} {'inputs':>9} {'typed errors':>12} {'crash sites':>11} {'crashes':>8} {'seconds':>8}"
     print(head)
     print("-" * len(head))
     for r in results:
-        print(f"{r['target']:<16} {r['inputs']:>9} {r['handled']:>12} {len(r['sites']):>11} "
+        print(f"{r['target']:<{w}} {r['inputs']:>9} {r['handled']:>12} {len(r['sites']):>11} "
               f"{r['crashes']:>8} {r['seconds']:>8.1f}")
     total = sum(r["crashes"] for r in results)
     print("-" * len(head))
-    print(f"{'total':<16} {sum(r['inputs'] for r in results):>9} "
+    print(f"{'total':<{w}} {sum(r['inputs'] for r in results):>9} "
           f"{sum(r['handled'] for r in results):>12} {sum(len(r['sites']) for r in results):>11} "
           f"{total:>8} {sum(r['seconds'] for r in results):>8.1f}")
     for r in results:

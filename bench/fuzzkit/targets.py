@@ -16,7 +16,7 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -30,6 +30,7 @@ class Target:
     max_len: int = 8192                 # longest input the fuzzer makes
     tokens: tuple[bytes, ...] = ()      # a libFuzzer dictionary: pieces a mutation may insert
     fixtures: tuple[str, ...] = ()      # seed-folder files copied beside the input (read-only)
+    uses: tuple[str, ...] = ()          # the names of SOURCES it calls (imported, instrumented, in its child)
 
 
 class Scratch:
@@ -68,43 +69,49 @@ class Scratch:
 P: dict = {}  # the parsers, filled by import_parsers()
 
 
-def import_parsers() -> None:
-    """Import every parser a target calls (inside atheris.instrument_imports in the child)."""
-    from vts_hw import config
-    from vts_hw.recording import axis_jpeg
-    from vts_hw.recording import mjpeg
-    from vts_hw.recording import folder as recording
-    from vts_hw.vision.calibration_io import StereoCalibration
-    from vts_hw.vision.camera_set import load_cameras
-    from vts_hw.vision.multi_calibration_io import load_calibration
-    from vts_hw.spect.listmode import read_listmode
-    from vts_hw.procedures.sync import check_session
-    from vts_hw.recording.processing import _manifest_cameras
-    from vts_hw.vision.registration import RigidTransform
-    from vts_hw.spect.dicom_nm import read_dicom_nm
-    from vts_hw.spect.interfile import read_interfile
-    from vts_hw.spect.npz import read_npz
-    from vts_hw.spect.readers import read_volume
-    from vts_hw.drivers import axis, function_generator, trigger_box  # noqa: F401 - instrumented
-    from vts_hw.qatrack import client  # noqa: F401
-    from vts_hw.recording import trigger_log
-    from vts_hw.recording.tracks import Tracks
-    from vts_hw.procedures.mapping_inputs import read_points
-    from vts_hw.procedures.steps import load_positions
-    from vts_hw.procedures.sync_inputs import session_span
-    from vts_hw.store import ResultsStore
-    from vts_hw.spect.listmode.failures import read_failure_records
-    from vts_hw.store.unsaved import import_unsaved, load_unsaved
-    P.update(trigger_log=trigger_log, Tracks=Tracks, read_points=read_points, load_positions=load_positions,
-             session_span=session_span, load_unsaved=load_unsaved,
-             import_unsaved=import_unsaved, ResultsStore=ResultsStore,
-             read_failure_records=read_failure_records)
-    P.update(axis_jpeg=axis_jpeg, mjpeg=mjpeg, recording=recording, config=config,
-             StereoCalibration=StereoCalibration, read_listmode=read_listmode,
-             RigidTransform=RigidTransform, read_dicom_nm=read_dicom_nm,
-             read_interfile=read_interfile, read_npz=read_npz, read_volume=read_volume,
-             check_session=check_session, manifest_cameras=_manifest_cameras,
-             load_calibration=load_calibration, load_cameras=load_cameras)
+# what each name in P is: (module, attribute), or (module, None) for the module itself
+SOURCES: dict[str, tuple[str, str | None]] = {
+    "config": ("vts_hw.config", None),
+    "axis_jpeg": ("vts_hw.recording.axis_jpeg", None),
+    "mjpeg": ("vts_hw.recording.mjpeg", None),
+    "recording": ("vts_hw.recording.folder", None),
+    "StereoCalibration": ("vts_hw.vision.calibration_io", "StereoCalibration"),
+    "load_cameras": ("vts_hw.vision.camera_set", "load_cameras"),
+    "load_calibration": ("vts_hw.vision.multi_calibration_io", "load_calibration"),
+    "read_listmode": ("vts_hw.spect.listmode", "read_listmode"),
+    "check_session": ("vts_hw.procedures.sync", "check_session"),
+    "manifest_cameras": ("vts_hw.recording.processing", "_manifest_cameras"),
+    "RigidTransform": ("vts_hw.vision.registration", "RigidTransform"),
+    "read_dicom_nm": ("vts_hw.spect.dicom_nm", "read_dicom_nm"),
+    "read_interfile": ("vts_hw.spect.interfile", "read_interfile"),
+    "read_npz": ("vts_hw.spect.npz", "read_npz"),
+    "read_volume": ("vts_hw.spect.readers", "read_volume"),
+    "axis": ("vts_hw.drivers.axis", None),
+    "function_generator": ("vts_hw.drivers.function_generator", None),
+    "trigger_box": ("vts_hw.drivers.trigger_box", None),
+    "qatrack_client": ("vts_hw.qatrack.client", None),
+    "trigger_log": ("vts_hw.recording.trigger_log", None),
+    "Tracks": ("vts_hw.recording.tracks", "Tracks"),
+    "read_points": ("vts_hw.procedures.mapping_inputs", "read_points"),
+    "load_positions": ("vts_hw.procedures.steps", "load_positions"),
+    "session_span": ("vts_hw.procedures.sync_inputs", "session_span"),
+    "ResultsStore": ("vts_hw.store", "ResultsStore"),
+    "read_failure_records": ("vts_hw.spect.listmode.failures", "read_failure_records"),
+    "load_unsaved": ("vts_hw.store.unsaved", "load_unsaved"),
+    "import_unsaved": ("vts_hw.store.unsaved", "import_unsaved"),
+}
+
+
+def import_parsers(names=None) -> None:
+    """Import the parsers ``names`` (of SOURCES; all when None) into P. The fuzzing child calls
+    it inside atheris.instrument_imports with its target's ``uses``: only those modules (and
+    what they import) are instrumented, so a child starts in a fraction of a second."""
+    import importlib
+
+    for name in SOURCES if names is None else names:
+        module, attr = SOURCES[name]
+        mod = importlib.import_module(module)
+        P[name] = mod if attr is None else getattr(mod, attr)
 
 
 # ------------------------------------------------------------------------------- targets
@@ -344,3 +351,17 @@ TARGETS.update({t.name: t for t in [
            tokens=_JSON + (b'"vts-listmode-failure/1"', b'"failed_at"', b'"start"', b'"end"', b'"by"',
                            b'"listmode"', b'"reason"', b'"log"', b"1e300", b"-1e300")),
 ]})
+
+# the parsers each target calls: its child imports (and instruments) only these
+_USES = {
+    "mjpeg": ("mjpeg",), "axis_jpeg": ("axis_jpeg",), "recording_index": ("recording",),
+    "manifest": ("recording", "check_session", "manifest_cameras"), "listmode": ("read_listmode",),
+    "interfile": ("read_interfile",), "dicom": ("read_dicom_nm",), "npz": ("read_npz",),
+    "calibration": ("StereoCalibration",), "camera_calibration": ("load_calibration", "load_cameras"),
+    "mapping": ("RigidTransform",), "rig_yaml": ("config",), "axis_vapix": ("axis",),
+    "qatrack": ("qatrack_client",), "trigger_box": ("trigger_box",), "function_generator": ("function_generator",),
+    "trigger_log": ("trigger_log", "session_span"), "spect_points": ("read_points",), "tracks": ("Tracks",),
+    "step_positions": ("load_positions",), "unsaved": ("load_unsaved", "import_unsaved", "ResultsStore"),
+    "listmode_failures": ("read_failure_records",),
+}
+TARGETS = {name: replace(t, uses=_USES[name]) for name, t in TARGETS.items()}
