@@ -92,6 +92,33 @@ def test_a_wave_cut_at_its_stop_and_the_last_of_several(tmp_path):
         wave_from_trigger_log(bad)
 
 
+@pytest.mark.parametrize("start, stop, why", [
+    ("period_s=2.5e-7 duty=0.5", "time=host_write", "its period is not between 1 µs and 1 h"),
+    ("period_s=1.0 duty=1.5", "time=host_write", "its duty is not between 0 and 1"),
+    ("period_s=1.0 duty=0", "time=host_write", "its duty is not between 0 and 1"),
+    ("period_s=1e-5 duty=0.5", "rising_edges=99999999999999 time=host_write", r"it has more than 1e\+07 rising edges"),
+])
+def test_a_wave_no_trigger_device_makes_is_refused_naming_the_file(tmp_path, start, stop, why):
+    """An edited or damaged log (found by bench/fuzz.py): refused, never turned into edges (the
+    simulated SPECT would have tried to allocate them all)."""
+    p = write_log(tmp_path / "trigger.csv", [
+        (0.0, "", "daqmx", "wave_start", start + " high_v=5.0 low_v=0.0 start_pulse=no time=host_write"),
+        (3.0, "", "daqmx", "wave_stop", stop)])
+    with pytest.raises(DataError, match=f"trigger.csv: the wave_start row of daqmx .* describes no wave a trigger"
+                                        f" device makes: {why} .*edited or damaged"):
+        wave_from_trigger_log(p)
+
+
+def test_a_wave_that_stops_before_it_starts_is_refused(tmp_path):
+    start = "period_s=1.0 duty=0.5 high_v=5.0 low_v=0.0 start_pulse=no time=host_write"
+    p = write_log(tmp_path / "trigger.csv", [(5.0, "", "daqmx", "wave_start", start)])
+    text = p.read_text().splitlines()
+    p.write_text("\n".join(text + [text[-1].replace("wave_start", "wave_stop").replace(f"{T0 + 5.0}", f"{T0 - 9.0}")])
+                 + "\n")
+    with pytest.raises(DataError, match="stops before it starts"):
+        wave_from_trigger_log(p)
+
+
 def test_an_old_function_generator_log_is_converted_on_read(tmp_path):
     """Written before the neutral rows: OUTP 1 starts the wave at the host time logged, OUTP 0 ends it."""
     p = write_log(tmp_path / "trigger.csv", [

@@ -236,6 +236,7 @@ def wave_from_trigger_log(path, device: str | None = None) -> WaveInfo:
             n = int(g["rising_edges"]) if g.get("rising_edges", "").isdigit() else None
             stop = start + n * period if n is not None else float(r["host_time"])
             break
+    _plausible(path, dev, row["host_time"], period, duty, start, stop, n)
     drift, drift_se = None, None
     for r in rows:
         if r.get("device") == dev and r["kind"] == CLOCK:
@@ -247,6 +248,23 @@ def wave_from_trigger_log(path, device: str | None = None) -> WaveInfo:
                     high_v=high, low_v=low, start_pulse=f.get("start_pulse") == "yes", how=how,
                     drift_ppm=drift, drift_se_ppm=drift_se, time_source=time_source, uncertainty_s=unc,
                     converted=converted)
+
+
+MAX_RISING_EDGES = 10**7   # a 1 kHz wave for almost 3 h; a sync wave is about 1 Hz for an hour
+
+
+def _plausible(path, dev, at, period: float, duty: float, start: float, stop, n) -> None:
+    """A wave no trigger device of ours can have made (a duty outside 0-1, a period beyond
+    1 µs-1 h, a stop before its start, more than MAX_RISING_EDGES edges) is a DataError naming
+    the file: such a log was edited or damaged, and its edges would mean nothing."""
+    edges = n if n is not None else ((stop - start) / period if stop is not None else 0)
+    why = ("its duty is not between 0 and 1" if not 0 < duty < 1 else
+           "its period is not between 1 µs and 1 h" if not 1e-6 <= period <= 3600 else
+           "it stops before it starts" if stop is not None and not stop >= start else
+           f"it has more than {MAX_RISING_EDGES:.0e} rising edges" if not edges <= MAX_RISING_EDGES else None)
+    if why:
+        raise DataError(f"{path}: the wave_start row of {dev} at {at} describes no wave a trigger device makes:"
+                        f" {why} (period_s={period:g}, duty={duty:g}); the log was edited or damaged")
 
 
 def square_wave_edges(wave: WaveInfo, until: float | None = None) -> tuple[np.ndarray, np.ndarray]:
