@@ -105,11 +105,15 @@ class RecordingHTTP:
 def drive_axis(s, session) -> None:
     """What `vts camera` commands ask of a camera: VAPIX version, parameters, an update, the
     LED, device info, clock offset, a snapshot."""
-    from vts_hw.drivers.axis import AxisCamera
+    import os
 
-    cam = AxisCamera("cam1", "http://127.0.0.1:9", "root", "pw", timeout=1.0, resolution="160x120",
-                     compression=90)
-    cam._session = session
+    from vts_hw.config import CameraConfig
+    from vts_hw.drivers.registry import open_camera
+
+    os.environ.setdefault("VTS_FUZZ_CAM1_PASSWORD", "pw")
+    cam = open_camera(CameraConfig(name="cam1", host="127.0.0.1", port=9, password_env="VTS_FUZZ_CAM1_PASSWORD",
+                                   timeout_s=1.0, resolution=(160, 120), compression=90))
+    cam._session = session   # the scripted transport in place of the camera's HTTP session
     s.call(lambda: cam.vapix_version)
     s.call(cam.get_params, "Image.I0")
     s.call(cam.set_params, {"Image.I0.Appearance.Compression": 30})
