@@ -261,8 +261,9 @@ class FunctionGenerator(TriggerBase):
         self._raise_on_errors("start", st.errors)
         if not st.running:
             raise TriggerError(f"{self.name} was switched on but reports its output off")
-        if st.not_a_square_wave():
-            raise TriggerError(f"{self.name} was switched on but confirms {st.not_a_square_wave()}: not a square wave")
+        wrong = st.not_a_square_wave()
+        if wrong:
+            raise TriggerError(f"{self.name} was switched on but confirms {wrong}: not a square wave")
         # a rising edge when the output switched on, between the write and the read-back
         self._started = sent
         self.log.wave_started(self.name, sent, period_s=1.0 / st.frequency_hz, duty=st.duty, high_v=st.high_v,

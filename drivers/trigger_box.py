@@ -400,9 +400,9 @@ class TriggerBox(BoxClock, TriggerBase):
         host time the command was sent plus its time on the wire (± until its reply came)."""
         if not st.running:
             return
-        if st.not_a_square_wave():  # nothing to time the scan by: say so rather than log it
-            raise TriggerError(f"{self.where} answered {cmd!r} but confirms {st.not_a_square_wave()}: "
-                               f"not a square wave")
+        wrong = st.not_a_square_wave()
+        if wrong:  # nothing to time the scan by: say so rather than log it
+            raise TriggerError(f"{self.where} answered {cmd!r} but confirms {wrong}: not a square wave")
         period, first, m = 1.0 / st.frequency_hz, st.first_edge_device_us, self.mapping
         if m is not None and first is not None:
             host, how, unc = m.to_host(first), DEVICE_CLOCK_MAPPED, m.uncertainty_s
