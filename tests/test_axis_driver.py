@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
+from fake_http import Answers
 from vts_hw.drivers.axis import (AxisCamera, BadReply, CameraUnauthorized, CameraUnreachable,
                                  TooManyViewers)
 
@@ -134,27 +135,6 @@ def test_snapshot_cut_mid_answer_is_one_sentence(sim_rig, cam1):
     assert cam1.snapshot().complete  # the next one is whole
 
 
-class _Answers:
-    """A requests session answering each request with the next (status, JSON body)."""
-
-    verify = True
-
-    def __init__(self, *bodies: bytes):
-        self.bodies = list(bodies)
-
-    def request(self, method, url, params=None, **_):
-        import requests
-        r = requests.Response()
-        r.status_code, r._content = 200, self.bodies.pop(0)
-        r.headers["Content-Type"] = "application/json"
-        r.request = requests.Request(method, url, params=params).prepare()
-        r.url = r.request.url
-        return r
-
-    def close(self):
-        pass
-
-
 @pytest.mark.parametrize("call, body", [
     ("device_info", b'{"data": {"propertyList": ["Brand", "AXIS"]}}'),
     ("device_info", b"[" * 5000 + b"]" * 5000),
@@ -163,7 +143,7 @@ class _Answers:
 def test_device_info_and_time_json_of_the_wrong_shape_are_bad_replies(call, body):
     # found by bench/fuzz.py (axis_vapix): AttributeError and RecursionError went through
     cam = AxisCamera("cam1", "http://127.0.0.1:9", "root", "pw")
-    cam._session = _Answers(body)
+    cam._session = Answers(body)
     with pytest.raises(BadReply, match="camera cam1 sent"):
         getattr(cam, call)()
 
@@ -171,6 +151,6 @@ def test_device_info_and_time_json_of_the_wrong_shape_are_bad_replies(call, body
 def test_a_refusal_without_a_reason_is_one_sentence():
     # found by bench/fuzz.py (axis_vapix): "# Error:" and nothing after it was an IndexError
     cam = AxisCamera("cam1", "http://127.0.0.1:9", "root", "pw")
-    cam._session = _Answers(b"# Error:  \n")
+    cam._session = Answers(b"# Error:  \n")
     with pytest.raises(BadReply, match=r"camera cam1 refused /axis-cgi/param.cgi: \(no reason given\)"):
         cam.vapix_version

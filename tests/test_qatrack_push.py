@@ -10,6 +10,7 @@ import sys
 import pytest
 import yaml
 
+from fake_http import Answers
 from vts_hw.config import parse_rig
 from vts_hw.errors import ConfigError
 from vts_hw.qatrack import exit_code, push_runs, run_key, select_runs
@@ -333,26 +334,6 @@ def test_cli_usage_errors_are_one_sentence(tmp_path, monkeypatch, capsys):
     assert code == 2 and "not both" in err
 
 
-
-class _Answers:
-    """A requests session answering each request with the next JSON body (status 200, or the
-    given one)."""
-
-    def __init__(self, *bodies):
-        self.bodies = list(bodies)
-
-    def request(self, method, url, **_):
-        import requests
-        status, body = self.bodies.pop(0) if isinstance(self.bodies[0], tuple) else (200, self.bodies.pop(0))
-        r = requests.Response()
-        r.status_code, r._content, r.url = status, body, url
-        r.headers["Content-Type"] = "application/json"
-        return r
-
-    def close(self):
-        pass
-
-
 @pytest.mark.parametrize("body, words", [
     (b'{"results": [{"name": "VTS daily"}]}', "without its url"),
     (b'{"results": {"url": "x"}}', "not a list of objects"),
@@ -362,7 +343,7 @@ class _Answers:
 def test_an_assignment_list_of_the_wrong_shape_is_one_sentence(body, words):
     # found by bench/fuzz.py (qatrack): KeyError, TypeError from urljoin went through
     from vts_hw.qatrack.client import QATrackClient, Unreachable
-    client = QATrackClient("http://127.0.0.1:9/", ("token", "t"), session=_Answers(body))
+    client = QATrackClient("http://127.0.0.1:9/", ("token", "t"), session=Answers(body))
     with pytest.raises(Unreachable, match=words):
         client.assignment("SPECT 1", "VTS daily")
 
@@ -370,11 +351,11 @@ def test_an_assignment_list_of_the_wrong_shape_is_one_sentence(body, words):
 def test_instances_and_errors_of_the_wrong_shape_are_one_sentence():
     # found by bench/fuzz.py (qatrack): results[0] of a dict was a KeyError; a deep body a RecursionError
     from vts_hw.qatrack.client import QATrackClient, Refused, Unreachable
-    client = QATrackClient("http://127.0.0.1:9/", ("token", "t"), session=_Answers(b'{"results": {"a": 1}}'))
+    client = QATrackClient("http://127.0.0.1:9/", ("token", "t"), session=Answers(b'{"results": {"a": 1}}'))
     with pytest.raises(Unreachable, match="not a list of objects"):
         client.instance_with_key("k")
     client = QATrackClient("http://127.0.0.1:9/", ("token", "t"),
-                           session=_Answers((400, b"[" * 5000 + b"]" * 5000)))
+                           session=Answers((400, b"[" * 5000 + b"]" * 5000)))
     with pytest.raises(Refused, match=r"refused POST .*\(400\)"):
         client.create_instance({})
     deep = "deep"

@@ -111,10 +111,8 @@ def test_a_wave_no_trigger_device_makes_is_refused_naming_the_file(tmp_path, sta
 
 def test_a_wave_that_stops_before_it_starts_is_refused(tmp_path):
     start = "period_s=1.0 duty=0.5 high_v=5.0 low_v=0.0 start_pulse=no time=host_write"
-    p = write_log(tmp_path / "trigger.csv", [(5.0, "", "daqmx", "wave_start", start)])
-    text = p.read_text().splitlines()
-    p.write_text("\n".join(text + [text[-1].replace("wave_start", "wave_stop").replace(f"{T0 + 5.0}", f"{T0 - 9.0}")])
-                 + "\n")
+    p = write_log(tmp_path / "trigger.csv", [(5.0, "", "daqmx", "wave_start", start),
+                                              (-9.0, "", "daqmx", "wave_stop", "time=host_write")])
     with pytest.raises(DataError, match="stops before it starts"):
         wave_from_trigger_log(p)
 
