@@ -78,7 +78,8 @@ def main() -> int:
         with QATrackSim(qlists, {"SPECT room 1": list(qlists)}, token="bench-token") as peer:
             os.environ["BENCH_QATRACK_TOKEN"] = "bench-token"
             cfg = parse_rig({"rig": RIG, "cameras": [{"name": "cam1", "host": "127.0.0.1"}],
-                             "qatrack": {"url": peer.url, "unit": "SPECT room 1", "token_env": "BENCH_QATRACK_TOKEN",
+                             "qatrack": {"url": peer.url, "unit": "SPECT room 1", "time_zone": "America/Toronto",
+                                         "token_env": "BENCH_QATRACK_TOKEN",
                                          "report": "none" if args.no_attachments else "html",
                                          "plots": not args.no_attachments, "lists": lists}}, "bench").qatrack
             with ResultsStore(db) as store:

@@ -27,7 +27,8 @@ VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
 
 
 def qatrack_section(url, **over):
-    q = {"url": url, "unit": "SPECT 1", "token_env": "QATRACK_TOKEN", "timeout_s": 2.0, "report": "none",
+    q = {"url": url, "unit": "SPECT 1", "time_zone": "America/Toronto", "token_env": "QATRACK_TOKEN",
+         "timeout_s": 2.0, "report": "none",
          "plots": False, "lists": {"daily": {"test_list": "VTS daily", "macros": dict(MACROS),
                                              "ignore": ["*/M*/*", "*/clock_offset_s"]}}}
     q.update(over)
@@ -86,7 +87,8 @@ def test_each_run_posted_once_with_values_times_and_key(peer, env, store):
     assert tli["user_key"] == run_key(run) == f"vts-run-{run.uid}"
     assert tli["tests"]["cam1_dx"]["value"] == pytest.approx(0.1) and tli["tests"]["cam2_dy"]["skipped"]
     assert run_key(run) in tli["comment"] and "OK" in tli["comment"] and "room1" in tli["comment"]
-    assert tli["work_started"].startswith("2023-11-15T22:13:20") and tli["work_completed"]
+    # 1.7e9 + 86400 s is 2023-11-15 22:13:20 UTC: 17:13:20 on the site's clock in Toronto, shown with its offset
+    assert tli["work_started"] == "2023-11-15T17:13:20-05:00" and tli["work_completed"]
     assert store.outbox_items("qatrack", run_ids=[ids[1]])[0].remote == tli["url"]
     # a second push: nothing left to send; naming a sent run posts nothing either
     assert select_runs(store, cfg.qatrack, "room1") == []
