@@ -21,7 +21,8 @@ The site's rules (work times in its zone, field errors, the list's rules) are in
   path: 404 HTML; anything outside ``/api/``: 302 to the site's login page (a wrong base URL).
 
 Faults (``server.fault``): ``None``; ``"slow"`` (every answer after ``slow_s``); ``"500"``
-(the server-error page); ``("400", message)`` (a POST refused with that message);
+(the server-error page); ``("400", message)`` (a POST refused with that message); ``"trickle"``
+(the status and headers at once, then the body one byte every ``trickle_s`` seconds);
 ``"lose_answer"`` (a POST is stored, then answered only after ``slow_s``: the client times
 out although the instance exists). ``down()`` stops listening, ``up()`` listens again on the
 same port; ``add_instance(key)`` puts an instance with that user key there (a duplicate).
@@ -40,7 +41,7 @@ from urllib.parse import parse_qs, urlencode, urlsplit
 from vts_hw.sim_devices.qatrack_site import NO_PERMISSION, Site
 
 PAGE = 100
-FAULTS = ("slow", "500", "400", "lose_answer", "down", "add_instance")
+FAULTS = ("slow", "500", "400", "lose_answer", "trickle", "down", "add_instance")
 """Every fault the peer injects: the values of ``fault`` (``"400"`` as the tuple's head) and the
 methods that take it down or put a duplicate there; docs/faults.md has a row for each."""
 ERROR_PAGE = ("<!DOCTYPE html>\n<html lang=\"en-us\"><head><title>example.com: Error {code} : {what}</title></head>"
@@ -73,6 +74,7 @@ class QATrackSim:
         self.last_post: dict | None = None   # the body of the last instance created
         self.fault = None
         self.slow_s = 2.0
+        self.trickle_s = 0.5
         self._lock = threading.Lock()
         self._port = port
         self._server: _Server | None = None
@@ -173,6 +175,15 @@ def _handler(sim: QATrackSim):
             for k, v in (extra or {}).items():
                 self.send_header(k, v)
             self.end_headers()
+            if sim.fault == "trickle":
+                try:
+                    for k in range(len(raw)):
+                        self.wfile.write(raw[k:k + 1])
+                        self.wfile.flush()
+                        time.sleep(sim.trickle_s)
+                except OSError:      # the client gave up
+                    pass
+                return
             self.wfile.write(raw)
 
         def _raw(self) -> bytes:

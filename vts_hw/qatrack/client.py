@@ -125,16 +125,17 @@ class QATrackClient:
         try:
             resp = self._session.request(method, url, headers=headers, timeout=self.timeout,
                                          allow_redirects=False, stream=True, **kw)
-            with resp:
-                body = bytearray()
-                for chunk in resp.iter_content(16384):
-                    body += chunk
-                    if time.monotonic() > deadline:
-                        raise requests.Timeout()
-                    if len(body) > MAX_ANSWER:
-                        raise Unreachable(f"QATrack+ answered {method} {where} with more than "
-                                          f"{MAX_ANSWER // 2**20} MiB", down=False)
-                resp._content = bytes(body)
+            if resp._content is False:       # not read yet (a session that answers from memory has read it)
+                with resp:
+                    body = bytearray()
+                    while chunk := resp.raw.read1(65536, decode_content=True):   # what has come, not a block
+                        body += chunk
+                        if time.monotonic() > deadline:
+                            raise requests.Timeout()
+                        if len(body) > MAX_ANSWER:
+                            raise Unreachable(f"QATrack+ answered {method} {where} with more than "
+                                              f"{MAX_ANSWER // 2**20} MiB", down=False)
+                    resp._content = bytes(body)
         except requests.Timeout:
             raise Unreachable(f"QATrack+ did not answer within {self.timeout:g} s ({method} {where})",
                               down=True) from None
