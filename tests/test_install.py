@@ -300,7 +300,8 @@ def test_a_simulated_scan_with_live_tracking_motion_analysis_and_qa_push_from_th
     assert (work / "motion.html").stat().st_size > 10_000
     assert (work / "export" / "castor_motion.dyn").is_file() and (work / "export" / "motion_6dof.csv").is_file()
 
-    rig["qatrack"] = {"url": "http://127.0.0.1:9/", "unit": "SPECT 1", "token_env": "QATRACK_TOKEN",
+    rig["qatrack"] = {"url": "http://127.0.0.1:9/", "unit": "SPECT 1", "time_zone": "Europe/Berlin",
+                      "token_env": "QATRACK_TOKEN",
                       "report": "none", "plots": False,
                       "lists": {"motion": {"test_list": "VTS motion", "ignore": ["tracking/*"],
                                            "macros": {"body/motion_body_max_mm": "body_mm",
