@@ -21,7 +21,7 @@ venv gets links to the distributions of the current venv that the wheel's own Re
 names, and theirs in turn, and nothing else (so an import the metadata does not declare fails
 here as on a user's machine); pip then installs the wheel with --no-index and no config (no
 find-links), so it must find every requirement met. The package itself comes only from the
-wheel or the sdist. About a minute; docs/decisions/0045-installed-as-users-install-it.md.
+wheel or the sdist. 1.5 to 3 minutes; docs/decisions/0045-installed-as-users-install-it.md.
 """
 
 from __future__ import annotations
