@@ -27,14 +27,15 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SPECT_FRAME", "VTS_FRAME", "volume_record", "frame_description"]
+__all__ = ["SPECT_FRAME", "VTS_FRAME", "VTS_AXES", "volume_record", "frame_description"]
 
 SPECT_FRAME = ("SPECT frame: mm, right-handed; X towards the patient's left, Y towards the patient's "
                "anterior (up for a supine patient), Z towards the patient's feet; origin where the volume "
                "the VTS -> SPECT mapping was made from puts it (DICOM NM: the patient-coordinate origin; "
                "Interfile: by its first pixel offset, else the volume's centre; npz: its origin)")
-VTS_FRAME = ("VTS frame: camera 1's, mm, right-handed (OpenCV: x right and y down in its image, z along "
-             "its optical axis; origin at its optical centre); no VTS -> SPECT mapping was given")
+VTS_AXES = ("VTS frame: camera 1's, mm, right-handed (OpenCV: x right and y down in its image, z along "
+            "its optical axis, origin at its optical centre)")
+VTS_FRAME = VTS_AXES + "; no VTS -> SPECT mapping was given"
 
 
 def volume_record(path, volume, fmt: str | None = None) -> dict:
