@@ -46,7 +46,7 @@ def test_motion_on_the_spect_clock(synced_scan):
     # more than the SPECT's start delay (< 0.5 s): within a second of the true start
     true_list = move.t_start - run.fire_host
     starts = [e["t_start"] for e in data["events"]]
-    assert any(abs(s - true_list) < 1.0 for s in starts), (starts, true_list)
+    assert any(abs(s - true_list) < 1.0 for s in starts), (starts, true_list, data["problems"])
     dyn = (tmp / "export" / "castor_motion.dyn").read_text()
     stamps = [ln for ln in dyn.splitlines() if ln.startswith("timestamp_motion_triggers:")]
     assert len(stamps) == 1 and re.fullmatch(r"timestamp_motion_triggers: 0(,\d+)+", stamps[0])   # whole seconds

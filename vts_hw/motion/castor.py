@@ -231,7 +231,7 @@ def plan_castor(states, t0: float, *, clock: str, frame: str, volume: dict | Non
         R = s.R @ ref.R.T                                  # the pose at the acquisition start -> state k
         T = s.T - R @ ref.T
         Rc, Tc = to_castor_frame(R, T, A, c)
-        params.append([round(float(v), 4) for v in castor_parameters(Rc, Tc)])
+        params.append([round(float(v), 4) + 0.0 for v in castor_parameters(Rc, Tc)])   # + 0.0: no -0.0
     return CastorPlan(None, [states[k].index for k, _ in lines], [n for _, n in lines], params, notes,
                       ref.index, A, c)
 
