@@ -208,8 +208,10 @@ def plan_castor(states, t0: float, *, clock: str, frame: str, volume: dict | Non
         A, c = castor_frame(volume)
     except ValueError as e:
         return CastorPlan(why=f"CASToR files not written: {e}")
-    starts = [s.t_start - t0 for s in states]
-    lines, merged = castor_schedule(starts)
+    try:
+        lines, merged = castor_schedule([s.t_start - t0 for s in states])
+    except ValueError as e:                       # no state, or two starting at once
+        return CastorPlan(why=f"CASToR files not written: {e}")
     for k, _ in lines:
         if states[k].R is None:
             s = states[k]
