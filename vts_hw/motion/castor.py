@@ -27,7 +27,7 @@ How CASToR 3.1.1 reads them (its sources, read for this module):
   line n. For it to follow the body (``x_state = R x_ref + T``), ``M`` is the pose's inverse:
   :func:`castor_parameters` gives ``t = R^T T`` and the angles of ``R^T``. CASToR's *backward*
   deformation is ``Translation(+t) . Rx(-rA) . Ry(-rB) . Rz(-rC)``, the exact inverse only for a
-  pure translation (:func:`castor_backward_matrix`).
+  pure translation or a turn about one axis through the origin (:func:`castor_backward_matrix`).
 * **Frame** (``iDeformationRigid::TransformImage``): a voxel's position is ``(i + 0.5 - N/2) * s``
   along each matrix axis -- origin at the **centre of the image matrix**, x, y, z along CASToR's
   matrix [1], [2], [3]. CASToR's documented frame is left-handed: x to the right seen from the
@@ -102,7 +102,7 @@ def castor_matrix(params) -> np.ndarray:
 
 def castor_backward_matrix(params) -> np.ndarray:
     """The 4x4 backward matrix CASToR 3.1.1 builds: Translation(+t) . Rx(-rA) . Ry(-rB) . Rz(-rC)
-    -- not the inverse of :func:`castor_matrix` unless the rotation is nil."""
+    -- the inverse of :func:`castor_matrix` only for a pure translation or a turn about one axis."""
     tx, ty, tz, a, b, c = np.asarray(params, float)
     M = np.eye(4)
     M[:3, :3] = _rot(-a, -b, -c)
