@@ -263,7 +263,11 @@ def test_a_known_point_and_rotation_reach_castor_parameters(tmp_path, make):
     to_vts = lambda x: x @ G.T + [150.0, -80.0, 2500.0]             # noqa: E731
 
     mapping = SpectMapping.from_volume(to_vts(p_sph), path).analyze()
-    assert mapping.fre_mm < 0.05 and mapping.spect_volume["format"] in ("dicom", "interfile")
+    vol = mapping.spect_volume
+    assert mapping.fre_mm < 0.05 and vol["file"] == path.name
+    assert (vol["format"], vol["patient_position"], vol["castor_image"]) == {
+        dicom_nm: ("dicom", "HFS", False), display_interfile: ("interfile", None, False),
+        castor_written: ("interfile", None, True)}[make]
 
     th, ph = np.radians(4.0), np.radians(2.0)
     Rz = np.array([[np.cos(th), -np.sin(th), 0], [np.sin(th), np.cos(th), 0], [0, 0, 1]])
