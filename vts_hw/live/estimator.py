@@ -49,6 +49,8 @@ class LiveSettings:
     settle_s: float = 2.0
     trace_window_s: float = 30.0
     iterations: int = 6           # of the alternating fit, from the last solution
+    iterations_after_gap: int = 30   # ... when that solution is older than gap_s (breathing went on meanwhile)
+    gap_s: float = 0.2
 
 
 @dataclass(frozen=True)
@@ -113,6 +115,7 @@ class LiveEstimator:
         self.restarts = 0
         self._ref = ReferenceCollector(self.s, frame, self.axis, self.toward)
         self._seen_idx = np.zeros(0, int)
+        self._fit_t: float | None = None
         self._seen_x = np.zeros((0, 3))
 
     # -- input ---------------------------------------------------------------------------------
@@ -122,8 +125,9 @@ class LiveEstimator:
         self.time = t
         if self.phase != "tracking":
             self._collect(t, pts)
-            return None
-        return self._track(t, pts)
+            if self.phase != "tracking":
+                return None
+        return self._track(t, pts)          # (the instant that completed the reference too)
 
     def _collect(self, t: float, pts: np.ndarray) -> None:
         self.observed = len(pts) >= 3
@@ -177,13 +181,16 @@ class LiveEstimator:
     def _track(self, t: float, pts: np.ndarray) -> Alert | None:
         m = self.model
         i_m, i_p = assign(self._predicted(), pts, self.s.gate_mm)
-        fit = m.fit(i_m, pts[i_p], None if self.fit is None else self.fit.beta, iterations=self.s.iterations)
+        after_gap = self._fit_t is None or t - self._fit_t > self.s.gap_s
+        fit = m.fit(i_m, pts[i_p], None if self.fit is None else self.fit.beta,
+                    iterations=self.s.iterations_after_gap if after_gap else self.s.iterations)
         self._seen_idx, self._seen_x = i_m, pts[i_p]
         self.observed = fit is not None
         if fit is None:
             self.note = f"{len(i_m)} of {len(m.mean)} markers seen"
             return None
         self.note = ""
+        self._fit_t = t
         beta = fit.beta if self.fit is None else np.where(np.isfinite(fit.beta), fit.beta, self.fit.beta)
         self.fit = Fit(fit.R, fit.T, beta, fit.rms_mm, fit.n_markers)
         for k, tr in enumerate(self.traces):

@@ -5,9 +5,9 @@ offset, measured when the scan started), or its receipt time when it has no stam
 oldest pending frame opens a set; each other camera's pending frame nearest in time within
 ``tolerance_s`` joins. A set goes out as soon as every camera has joined, or -- when some
 camera has nothing for it -- once that camera has sent a later frame, or has sent nothing for
-``wait_s`` (a camera gone quiet is not waited for), or ``wait_s`` has passed since the set's
-first frame arrived (then with the cameras it has: two or more make points; fewer are
-counted as unmatched). ``wait_s`` is longer than a frame period: on a busy host one camera's
+``wait_s`` (a camera gone quiet is not waited for by a set of two or more cameras: they make
+points without it), or ``wait_s`` has passed since the set's first frame arrived (then with
+the cameras it has: two or more make points; fewer are counted as unmatched). ``wait_s`` is longer than a frame period: on a busy host one camera's
 frames may arrive a few hundred milliseconds after the other's, and a set given up too soon
 is two frames lost (docs/decisions/0048).
 """
@@ -66,14 +66,18 @@ class FrameGrouper:
                 return out
             t0, c0 = min(heads)
             members: list[Pending | None] = [None] * self.n
-            waiting = False
+            may_come = []                    # cameras that may still send a frame for this set
             for c, q in enumerate(self.pending):
                 near = [p for p in q if abs(p.time - t0) <= self.tolerance_s]
                 if near:
                     members[c] = min(near, key=lambda p: abs(p.time - t0))
-                elif not any(p.time > t0 + self.tolerance_s for p in q) and self.last_arrival[c] is not None \
-                        and now - self.last_arrival[c] < self.wait_s:
-                    waiting = True           # this camera may still send one (it is not quiet)
+                elif not any(p.time > t0 + self.tolerance_s for p in q):
+                    may_come.append(c)
+            # a quiet camera is waited for only by a set that is nothing without it (one camera:
+            # after a gap, one camera's first frames may come back later than the other's)
+            alone = sum(p is not None for p in members) < 2
+            waiting = any(alone or (self.last_arrival[c] is not None and now - self.last_arrival[c] < self.wait_s)
+                          for c in may_come)
             first = min(p.arrival for p in members if p is not None)
             if waiting and now - first < self.wait_s:
                 return out

@@ -174,15 +174,18 @@ class LiveTracker:
                 resumed = fs.capture
             seen = fs.capture
         learned = f.learned if f.learned is not None or est.phase != "tracking" else fs.capture
+        # the figures first, then the facts that say they are current: a view reading in
+        # between sees old facts with new figures (never TRACKING on old figures)
+        if alert is not None or est.phase != phase or self._published_capture is None \
+                or fs.capture - self._published_capture >= self.publish_s:
+            self.published = est.snapshot()      # then its capture: a reader in between overstates its age
+            self._published_capture = fs.capture
         self.facts = Facts(est.phase, self.tap.first, seen, resumed, fs.capture,
                            "" if est.observed else est.note, learned)
         self.sets += 1
         now = self.clock()
         with self._lock:
             self.latency.append((now - fs.last_arrival, now - fs.first_arrival))
-        if alert is not None or est.phase != phase or self._published_capture is None \
-                or fs.capture - self._published_capture >= self.publish_s:
-            self.published, self._published_capture = est.snapshot(), fs.capture
         if alert is not None and self.on_alert is not None:
             self.on_alert(alert, self.snapshot())
 
