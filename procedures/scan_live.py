@@ -158,7 +158,7 @@ class LiveMotion:
                    late_s=self.tracker.late_s)
         if longest is not None:
             out.update(longest_not_tracking_s=round(longest.duration(longest.start), 3),
-                       longest_reason=longest.reasons[0])
+                       longest_reason="; ".join(longest.reasons[:3]))
         return out
 
     def _verdict(self, tracking: dict, snap: LiveEstimate) -> str:

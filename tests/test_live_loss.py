@@ -12,9 +12,12 @@ import pytest
 
 from vts_hw.live.estimator import LiveEstimator, LiveSettings
 from vts_hw.sim_devices.patient import BodyMotion, BodyMove, Breathing, Patient
+from vts_hw.sim_devices.scene import Scene
 
 MOTION = SimpleNamespace(alert_mm=3.0, alert_deg=2.0, alert_after_s=1.0)
-WALL = np.array([[-400.0, 900.0, 4000.0], [300.0, 1100.0, 4100.0], [0.0, 1500.0, 4050.0]])
+# the reference room's wall markers: behind the gantry, 0.38-0.49 m from the FOV centre along
+# the axis, inside the field of view's box as the cameras see it -- still, like a still patient
+WALL = np.array([m.center for m in Scene.reference(seed=1).wall_markers])
 RATE = 25.0
 
 
@@ -71,7 +74,7 @@ def test_breathing_through_bursts_never_alerts():
 
 def test_a_patient_who_does_not_breathe_is_tracked_rigidly_and_alerted_for():
     """Markers that do not breathe (held breath, markers on the head): the reference is every
-    marker inside the field of view (the wall outside it is left out), fitted rigidly; the
+    marker inside the bore (the still wall behind the gantry is left out), fitted rigidly; the
     bands say no breathing was seen; a 10.7 mm move alerts."""
     move = BodyMove(20.0, 20.8, (1.0, 0.0, 1.5), (6.0, 8.0, 3.0))
     p = Patient(Breathing(0.0, 60.0, 2, enabled=False), BodyMotion([move]), 2)

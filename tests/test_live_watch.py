@@ -127,3 +127,14 @@ def test_the_status_is_never_tracking_on_old_figures():
         status, reason = w.classify(now, f, {c: rng.uniform(0, 2) for c in CAMS})
         assert (status == TRACKING) == (now - seen <= LATE)
         assert status == TRACKING or reason.split(":")[0] in ("camera lost", "frames too late", "too few markers")
+
+
+def test_a_camera_that_sent_nothing_since_the_last_pose_is_lost_even_before_late_s():
+    """Frames reach the host 0.1 s after capture: 0.55 s after the last pose the cameras have
+    been quiet only 0.45 s, yet they sent nothing since that pose's frames: camera lost, not
+    frames too late (which is for frames that come, but late)."""
+    w = Watch(CAMS, late_s=LATE)
+    f = Facts("tracking", 0.0, seen=10.0, resumed=0.0, estimate=10.0, learned=0.0, seen_arrival=10.1)
+    assert w.classify(10.55, f, {"cam1": 0.46, "cam2": 0.46})[1].startswith("camera lost: no frames from any")
+    assert w.classify(10.55, f, {"cam1": 0.01, "cam2": 0.46})[1] == "camera lost: cam2 (no frame for 0.5 s)"
+    assert w.classify(10.55, f, {"cam1": 0.01, "cam2": 0.02})[1].startswith("frames too late")

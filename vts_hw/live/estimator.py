@@ -45,6 +45,8 @@ class LiveSettings:
     fov_radius_mm: float = 450.0
     fov_half_length_mm: float = 700.0
     min_breath_mm: float = 0.6     # a patient marker's breathing range (5th to 95th percentile) at least
+    bore_radius_mm: float = 300.0       # markers that do not breathe: inside the heads' orbit ...
+    bore_half_length_mm: float = 300.0  # ... and the heads' face (400 mm) with a margin, along the axis
     onset_fraction: float = 0.15
     settle_s: float = 2.0
     trace_window_s: float = 30.0

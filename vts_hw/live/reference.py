@@ -18,8 +18,12 @@ The patient's markers, from what they do over the reference:
 * markers that **breathe** (a range of at least ``min_breath_mm`` along their main direction)
   and, in the SPECT frame, lie inside the field of view: the wall, the table and a phantom are
   still and left out -- as long as three or more breathe;
-* otherwise, in the SPECT frame, **every marker inside the field of view** (a patient who holds
-  still, markers on the head): they are fitted rigidly, with no breathing term;
+* otherwise, in the SPECT frame, **every marker inside the bore** (a patient who holds still,
+  markers on the head): within ``bore_radius_mm`` of the axis and ``bore_half_length_mm`` of
+  the FOV centre along it, the space the detector heads turn around, where nothing but the
+  patient (and the table) is during a scan -- the wall behind the gantry is not (in the
+  reference room its markers are 0.38 m or more behind the FOV centre, the patient's within
+  0.25 m of it); they are fitted rigidly, with no breathing term;
 * otherwise (no SPECT mapping: still markers cannot be told from the wall's) no reference.
 
 See docs/decisions/0036-live-motion.md and 0048-live-tracking-when-frames-are-lost.md.
@@ -92,13 +96,17 @@ class ReferenceCollector:
             mean = np.nanmean(samples, axis=0)
             inside = ((np.linalg.norm(mean[:, :2], axis=1) <= self.s.fov_radius_mm)
                       & (np.abs(mean[:, 2]) <= self.s.fov_half_length_mm))
+        bore = np.zeros(samples.shape[1], bool)
+        if self.frame == "spect":
+            bore = ((np.linalg.norm(mean[:, :2], axis=1) <= self.s.bore_radius_mm)
+                    & (np.abs(mean[:, 2]) <= self.s.bore_half_length_mm))
         if (breathes & inside).sum() >= 3:
             patient = breathes & inside
-        elif self.frame == "spect" and inside.sum() >= 3:
-            patient = inside                 # a patient holding still, markers on the head
+        elif bore.sum() >= 3:
+            patient = bore                   # a patient holding still, markers on the head
         elif self.frame == "spect":
-            return None, (f"fewer than three markers inside the field of view ({int(inside.sum())} seen in "
-                          f"{self.s.min_seen_fraction:.0%} of the instants)")
+            return None, (f"fewer than three markers breathe ({int((breathes & inside).sum())}) and fewer than "
+                          f"three are still inside the bore ({int(bore.sum())})")
         else:
             return None, (f"fewer than three markers breathe ({int(breathes.sum())}); without a SPECT mapping "
                           f"(calibration.spect) still markers cannot be told from the wall's")

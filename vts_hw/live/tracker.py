@@ -168,11 +168,11 @@ class LiveTracker:
         est, f = self.estimator, self.facts
         phase = est.phase
         alert = est.update(fs.time, xyz)
-        seen, resumed = f.seen, f.resumed
+        seen, resumed, seen_arrival = f.seen, f.resumed, f.seen_arrival
         if est.observed:
             if seen is None or fs.capture - seen > self.late_s:
                 resumed = fs.capture
-            seen = fs.capture
+            seen, seen_arrival = fs.capture, fs.last_arrival
         learned = f.learned if f.learned is not None or est.phase != "tracking" else fs.capture
         # the figures first, then the facts that say they are current: a view reading in
         # between sees old facts with new figures (never TRACKING on old figures)
@@ -181,7 +181,7 @@ class LiveTracker:
             self.published = est.snapshot()      # then its capture: a reader in between overstates its age
             self._published_capture = fs.capture
         self.facts = Facts(est.phase, self.tap.first, seen, resumed, fs.capture,
-                           "" if est.observed else est.note, learned)
+                           "" if est.observed else est.note, learned, seen_arrival)
         self.sets += 1
         now = self.clock()
         with self._lock:

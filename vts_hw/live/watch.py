@@ -28,6 +28,7 @@ See docs/decisions/0048-live-tracking-when-frames-are-lost.md.
 from __future__ import annotations
 
 import datetime as _dt
+import re
 from dataclasses import dataclass, field
 
 __all__ = ["TRACKING", "REFERENCE", "NOT_TRACKING", "Facts", "Episode", "BlindAlert", "Change", "Watch"]
@@ -46,6 +47,7 @@ class Facts:
     estimate: float | None = None       # the last frame set estimated, whatever it gave
     why: str = ""                       # why the last frame set did not observe the patient
     learned: float | None = None        # when the reference was learned
+    seen_arrival: float | None = None   # when the last frame of the last observing set reached the tap
 
 
 @dataclass
@@ -84,7 +86,13 @@ class Change:
 
 
 def _kind(reason: str) -> str:
-    return reason.split(":", 1)[0]
+    """A reason without its figures ("camera lost: cam2", "frames too late"): a stretch lists
+    each kind once."""
+    head, _, rest = reason.partition(":")
+    if head == "camera lost":
+        names = re.findall(r"(\S+) \(no frame", rest)
+        return f"{head}: {', '.join(names) if names else 'all'}"
+    return head
 
 
 class Watch:
@@ -106,7 +114,8 @@ class Watch:
     # -- what it is now ---------------------------------------------------------------------------
     def classify(self, now: float, f: Facts, silent: dict) -> tuple[str, str]:
         """``(status, reason)`` at monotonic ``now``; ``silent``: per camera the seconds since
-        its last frame reached the live path (None: none yet). Changes nothing."""
+        its last frame reached the live path (None: none yet). A camera that sent nothing since
+        the last frame set that observed the patient counts as lost. Changes nothing."""
         if f.started is None:
             return NOT_TRACKING, "no frames yet"
         late = self.late_s
@@ -118,7 +127,9 @@ class Watch:
             if now - f.started <= self.reference_deadline_s:
                 return REFERENCE, f.why
             return NOT_TRACKING, f"no reference: none learned in {now - f.started:.0f} s" + (f" ({f.why})" if f.why else "")
-        lost = {n: s for n, s in silent.items() if s is None or s > late}
+        # lost: nothing since the last frame set that observed the patient, or quiet for late_s
+        lost = {n: s for n, s in silent.items()
+                if s is None or s > late or (f.seen_arrival is not None and now - s <= f.seen_arrival)}
         if len(silent) - len(lost) < 2:
             if len(lost) == len(silent):
                 quiet = min((s for s in lost.values() if s is not None), default=None)
@@ -126,6 +137,7 @@ class Watch:
                                       + (f" for {quiet:.1f} s" if quiet is not None else ""))
             return NOT_TRACKING, "camera lost: " + ", ".join(
                 f"{n} (no frame for {s:.1f} s)" if s is not None else f"{n} (no frame yet)" for n, s in lost.items())
+        lost = {n: s for n, s in lost.items() if s is None or s > late}     # the others are only behind
         if f.estimate is None:
             return NOT_TRACKING, "frames too late: no frame set estimated yet"
         if now - f.estimate > late:
