@@ -61,7 +61,8 @@ def _never_still_while_blind(err: str) -> None:
     assert lines
     for ln in lines:
         if "live motion: TRACKING" not in ln:
-            assert "still" not in ln and ("NOT TRACKING" in ln or "REFERENCE" in ln), ln
+            assert "NOT TRACKING" in ln or "REFERENCE" in ln, ln
+            assert "still, body" not in ln and ("body " not in ln or "motion since then NOT KNOWN" in ln), ln
 
 
 def _last_line_says(run, manifest, session):
@@ -157,3 +158,28 @@ def test_a_camera_switched_off_mid_scan_is_not_tracking_and_alerts(tmp_path):
     _never_still_while_blind(run.err)
     _last_line_says(run, m, tmp_path / "scan")
     assert m["status"] == "partial"                    # the camera's gap in the recording
+
+
+def test_a_scan_that_learned_no_reference_says_so_and_exits_4(tmp_path):
+    """A still patient and no SPECT mapping: the live path cannot tell the patient's markers
+    from the wall's. It says REFERENCE, then NOT TRACKING (no reference) with a NOT TRACKING
+    alert, and the scan ends with exit 4 and a last line saying the patient was not watched --
+    never `complete` and 0 with nobody watching."""
+    rig, rig_yaml, _ = _rig(tmp_path, breathing=False)
+    cfg = yaml.safe_load(rig_yaml.read_text())
+    cfg["calibration"]["spect"] = None
+    rig_yaml.write_text(yaml.safe_dump(cfg))
+    try:
+        run, m = _scan(rig, rig_yaml, tmp_path / "scan", 12.0, None)
+    finally:
+        rig.stop()
+    lm = m["live_motion"]
+    assert lm["status"] == "on" and lm["frame"] == "vts" and lm["summary"]["phase"] == "reference"
+    assert m["scan"]["live_problem"].startswith("the patient was not watched: no reference was learned")
+    assert lm["summary"]["watched"] is False and lm["summary"]["tracking"]["tracking_s"] == 0.0
+    assert lm["blind_alerts"] and any("no reference" in b["reason"] or "camera lost" in b["reason"]
+                                      or "frames too late" in b["reason"] for b in lm["blind_alerts"])
+    assert run.returncode == 4
+    assert f"problem: {m['scan']['live_problem']}" in run.out
+    _last_line_says(run, m, tmp_path / "scan")
+    _never_still_while_blind(run.err)
