@@ -138,3 +138,18 @@ def test_a_camera_that_sent_nothing_since_the_last_pose_is_lost_even_before_late
     assert w.classify(10.55, f, {"cam1": 0.46, "cam2": 0.46})[1].startswith("camera lost: no frames from any")
     assert w.classify(10.55, f, {"cam1": 0.01, "cam2": 0.46})[1] == "camera lost: cam2 (no frame for 0.5 s)"
     assert w.classify(10.55, f, {"cam1": 0.01, "cam2": 0.02})[1].startswith("frames too late")
+
+
+def test_a_break_shorter_than_the_watch_could_see_is_a_stretch_all_the_same():
+    """Poses at 5.0 s and next at 5.55 s, the watch looking every 0.1 s: it never saw NOT
+    TRACKING (at 5.5 s the pose was 0.5 s old), yet 0.55 s passed without a pose: a stretch."""
+    w = Watch(CAMS, late_s=LATE)
+    alive = {c: 0.01 for c in CAMS}
+    w.tick(4.9, Facts("tracking", 0.0, 4.9, 0.0, 4.9, "", 0.0), alive)
+    w.tick(5.0, Facts("tracking", 0.0, 5.0, 0.0, 5.0, "", 0.0), alive)
+    assert w.tick(5.5, Facts("tracking", 0.0, 5.0, 0.0, 5.0, "", 0.0), alive) == []
+    (ep,) = w.tick(5.6, Facts("tracking", 0.0, 5.55, 5.55, 5.55, "", 0.0, broke=5.0), alive)
+    assert (ep.start, ep.end) == (5.0, 5.55) and ep.reasons[0].startswith("no pose: 0.55 s without one")
+    assert w.tick(5.7, Facts("tracking", 0.0, 5.65, 5.55, 5.65, "", 0.0, broke=5.0), alive) == []   # once
+    w.finish(6.0)
+    assert w.totals()["not_tracking_s"] == pytest.approx(0.55) and w.totals()["tracking_s"] == pytest.approx(5.45)

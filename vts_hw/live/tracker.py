@@ -168,10 +168,10 @@ class LiveTracker:
         est, f = self.estimator, self.facts
         phase = est.phase
         alert = est.update(fs.time, xyz)
-        seen, resumed, seen_arrival = f.seen, f.resumed, f.seen_arrival
+        seen, resumed, broke, seen_arrival = f.seen, f.resumed, f.broke, f.seen_arrival
         if est.observed:
             if seen is None or fs.capture - seen > self.late_s:
-                resumed = fs.capture
+                resumed, broke = fs.capture, seen
             seen, seen_arrival = fs.capture, fs.last_arrival
         learned = f.learned if f.learned is not None or est.phase != "tracking" else fs.capture
         # the figures first, then the facts that say they are current: a view reading in
@@ -181,7 +181,7 @@ class LiveTracker:
             self.published = est.snapshot()      # then its capture: a reader in between overstates its age
             self._published_capture = fs.capture
         self.facts = Facts(est.phase, self.tap.first, seen, resumed, fs.capture,
-                           "" if est.observed else est.note, learned, seen_arrival)
+                           "" if est.observed else est.note, learned, seen_arrival, broke)
         self.sets += 1
         now = self.clock()
         with self._lock:

@@ -48,6 +48,7 @@ class Facts:
     why: str = ""                       # why the last frame set did not observe the patient
     learned: float | None = None        # when the reference was learned
     seen_arrival: float | None = None   # when the last frame of the last observing set reached the tap
+    broke: float | None = None          # the last observed instant before ``resumed`` (the break's start)
 
 
 @dataclass
@@ -110,6 +111,7 @@ class Watch:
         self.episodes: list[Episode] = []
         self._spent = {TRACKING: 0.0, REFERENCE: 0.0, NOT_TRACKING: 0.0}
         self._end: float | None = None
+        self._resumed: float | None = None      # the last break accounted for
 
     # -- what it is now ---------------------------------------------------------------------------
     def classify(self, now: float, f: Facts, silent: dict) -> tuple[str, str]:
@@ -175,6 +177,10 @@ class Watch:
             self._enter(status, reason, min(max(at, self.since), now), out)
         elif status == NOT_TRACKING and _kind(reason) not in map(_kind, self.episodes[-1].reasons):
             self.episodes[-1].reasons.append(reason)
+        elif status != NOT_TRACKING:
+            self._short_break(f, out)
+        if f.resumed is not None:
+            self._resumed = f.resumed
         if status == NOT_TRACKING:
             self.reason = reason
             ep = self.episodes[-1]
@@ -184,6 +190,19 @@ class Watch:
         else:
             self.reason = reason
         return out
+
+    def _short_break(self, f: Facts, out: list) -> None:
+        """A break in the poses longer than late_s that ended before the watch looked (the
+        ticks are a tenth of a second apart; on a busy host, more): a stretch all the same."""
+        if f.resumed is None or f.broke is None or f.resumed == self._resumed or f.broke < self.since:
+            return
+        ep = Episode(f.broke, [f"no pose: {f.resumed - f.broke:.2f} s without one (shorter than the live view "
+                               f"could show)"], end=f.resumed)
+        self._spent[self.status] += f.broke - self.since
+        self._spent[NOT_TRACKING] += f.resumed - f.broke
+        self.since = f.resumed
+        self.episodes.append(ep)
+        out.append(ep)
 
     def _enter(self, status: str, reason: str, at: float, out: list) -> None:
         if self.status is not None:
