@@ -42,7 +42,7 @@ def _run(patient, duration, lost=lambda t: False, frame="spect", seed=0, drop=0.
         if est.phase == "tracking":
             learned = t if learned is None else learned
             if est.observed:
-                errors.append(np.abs(np.array(est.snapshot().six_dof) - patient.six_dof(t)))
+                errors.append(np.abs(est.six_dof() - patient.six_dof(t)))
     return est, alerts, np.array(errors), learned
 
 

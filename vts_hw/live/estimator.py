@@ -200,7 +200,8 @@ class LiveEstimator:
                 tr.add(t, float(fit.beta[k]))
         return self.rule.update(t, fit.R, fit.T, m.centre)
 
-    def _six_dof(self) -> np.ndarray:
+    def six_dof(self) -> np.ndarray:
+        """The body's 6-DOF now (tx, ty, tz mm; rx, ry, rz deg), from the last pose; needs one."""
         f = self.fit
         return np.concatenate([f.T, Rotation.from_matrix(f.R).as_euler("xyz", degrees=True)])
 
@@ -227,5 +228,5 @@ class LiveEstimator:
         move = float(np.linalg.norm(f.R @ c + f.T - c))
         turn = float(np.degrees(np.linalg.norm(Rotation.from_matrix(f.R).as_rotvec())))
         return LiveEstimate(self.phase, self.frame, self.time, tuple(bands),
-                            tuple(float(x) for x in self._six_dof()), move, turn, r.state,
+                            tuple(float(x) for x in self.six_dof()), move, turn, r.state,
                             len(r.alerts), self.note, dict(stats or {}))
