@@ -35,7 +35,8 @@ def scan() -> None:
 @click.option("--dry-run", is_flag=True, help="List the steps for this rig without touching it.")
 @click.option("--live/--no-live", default=True, show_default=True,
               help="Track the patient's markers live while recording (needs the rig's calibration): "
-                   "motion alerts per the rig's motion: section.")
+                   "motion alerts per the rig's motion: section. With it on, a scan whose patient was not "
+                   "watched exits 4; --no-live for a scan without a patient (a sync check).")
 @click.option("--reference", "reference_s", type=PositiveSeconds(), default=10.0, show_default=True,
               help="Seconds of the first still period the live tracking learns as the reference.")
 @json_option
