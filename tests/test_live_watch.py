@@ -135,8 +135,9 @@ def test_a_camera_that_sent_nothing_since_the_last_pose_is_lost_even_before_late
     frames too late (which is for frames that come, but late)."""
     w = Watch(CAMS, late_s=LATE)
     f = Facts("tracking", 0.0, seen=10.0, resumed=0.0, estimate=10.0, learned=0.0, seen_arrival=10.1)
-    assert w.classify(10.55, f, {"cam1": 0.46, "cam2": 0.46})[1].startswith("camera lost: no frames from any")
-    assert w.classify(10.55, f, {"cam1": 0.01, "cam2": 0.46})[1] == "camera lost: cam2 (no frame for 0.5 s)"
+    assert w.classify(10.55, f, {"cam1": 0.46, "cam2": 0.46})[1] == "camera lost: no frames from any camera since the last pose"
+    assert w.classify(10.55, f, {"cam1": 0.01, "cam2": 0.46})[1] == "camera lost: cam2 (no frame since the last pose)"
+    assert w.classify(10.65, f, {"cam1": 0.01, "cam2": 0.56})[1] == "camera lost: cam2 (no frame for 0.6 s)"
     assert w.classify(10.55, f, {"cam1": 0.01, "cam2": 0.02})[1].startswith("frames too late")
 
 

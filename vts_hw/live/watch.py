@@ -136,9 +136,11 @@ class Watch:
             if len(lost) == len(silent):
                 quiet = min((s for s in lost.values() if s is not None), default=None)
                 return NOT_TRACKING, ("camera lost: no frames from any camera"
-                                      + (f" for {quiet:.1f} s" if quiet is not None else ""))
+                                      + ("" if quiet is None else f" for {quiet:.1f} s" if quiet > late
+                                         else " since the last pose"))
             return NOT_TRACKING, "camera lost: " + ", ".join(
-                f"{n} (no frame for {s:.1f} s)" if s is not None else f"{n} (no frame yet)" for n, s in lost.items())
+                f"{n} (no frame yet)" if s is None else f"{n} (no frame for {s:.1f} s)" if s > late
+                else f"{n} (no frame since the last pose)" for n, s in lost.items())
         lost = {n: s for n, s in lost.items() if s is None or s > late}     # the others are only behind
         if f.estimate is None:
             return NOT_TRACKING, "frames too late: no frame set estimated yet"
