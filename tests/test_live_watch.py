@@ -154,3 +154,19 @@ def test_a_break_shorter_than_the_watch_could_see_is_a_stretch_all_the_same():
     assert w.tick(5.7, Facts("tracking", 0.0, 5.65, 5.55, 5.65, "", 0.0, broke=5.0), alive) == []   # once
     w.finish(6.0)
     assert w.totals()["not_tracking_s"] == pytest.approx(0.55) and w.totals()["tracking_s"] == pytest.approx(5.45)
+
+
+def test_frames_late_not_lost_make_a_stretch_until_the_view_is_current_again():
+    """Poses every 0.04 s of capture, but from 5.0 s they reach the live path late: nothing
+    until 5.8 s (then the set captured at 5.2 s), the view current again at 6.0 s. No pose was
+    lost, yet nobody could see the patient from 5.5 s to 6.0 s: the stretch runs from the last
+    pose seen in time (5.0) to 6.0, not to 5.2 (the capture of the late frames)."""
+    w = Watch(CAMS, late_s=LATE)
+    alive = {c: 0.01 for c in CAMS}
+    w.tick(5.0, Facts("tracking", 0.0, 5.0, 0.0, 5.0, "", 0.0, seen_arrival=5.0), alive)
+    w.tick(5.6, Facts("tracking", 0.0, 5.0, 0.0, 5.0, "", 0.0, seen_arrival=5.0), alive)
+    assert w.status == NOT_TRACKING and w.reason.startswith("frames too late")
+    w.tick(5.8, Facts("tracking", 0.0, 5.2, 0.0, 5.2, "", 0.0, seen_arrival=5.8), alive)
+    (ep,) = [e for e in w.tick(6.0, Facts("tracking", 0.0, 5.6, 0.0, 5.6, "", 0.0, seen_arrival=6.0), alive)
+             if isinstance(e, Episode)]
+    assert (ep.start, ep.end) == (5.0, 6.0) and w.status == TRACKING

@@ -20,7 +20,7 @@ later than usual it arrived (so frames that reach the host late count as late).
 :meth:`Watch.tick` (one thread, a few times a second) keeps the record: status changes
 (:class:`Change`), NOT TRACKING stretches (:class:`Episode`: from the last instant observed to
 the first observed again, so a stretch is the time without a pose, not the time it took to
-notice), a :class:`BlindAlert` once a stretch lasts more than ``blind_alert_s``, and the time
+notice; when the frames were late rather than lost, to when the view had a fresh pose again), a :class:`BlindAlert` once a stretch lasts more than ``blind_alert_s``, and the time
 spent in each status (:meth:`Watch.totals`). Time without frames is never TRACKING.
 See docs/decisions/0048-live-tracking-when-frames-are-lost.md.
 """
@@ -173,7 +173,9 @@ class Watch:
                 ep = self.episodes[-1]
                 back = [x for x in (f.resumed, f.learned if status == TRACKING else None)
                         if x is not None and x >= ep.start]
-                at = max(back) if back else (f.seen or now)
+                # no break in the poses: frames came late, not lost; blind until the view had a
+                # fresh pose again (now, give or take a look of the watch)
+                at = max(back) if back else now
             else:
                 at = f.learned if f.learned is not None else now
             self._enter(status, reason, min(max(at, self.since), now), out)
