@@ -78,6 +78,10 @@ def report_recording(label: str, m: dict) -> None:
     print(f"  arrival -> in the live estimate: p50 {live['latency_ms_p50']:.2f} ms, p95 "
           f"{live['latency_ms_p95']:.2f} ms (goal p95 <= 10 ms); from the set's first frame: p50 "
           f"{live['latency_from_first_frame_ms_p50']:.2f} ms, p95 {live['latency_from_first_frame_ms_p95']:.2f} ms")
+    tr = live.get("tracking") or {}
+    print(f"  TRACKING {tr.get('tracking_s', 0):.1f} s, REFERENCE {tr.get('reference_s', 0):.1f} s, NOT TRACKING "
+          f"{tr.get('not_tracking_s', 0):.1f} s in {tr.get('not_tracking_stretches', 0)} stretch(es), NOT TRACKING "
+          f"alerts {len(m['live_motion'].get('blind_alerts', []))}" + (f"; {live['problem']}" if live.get("problem") else ""))
 
 
 def main() -> int:

@@ -106,6 +106,7 @@ class ScanSession:
         # live: the live motion path (procedures/scan_live.py LiveMotion), or None: records only
         self.live = live
         self.live_error = ""
+        self.live_problem = ""    # the live path's word at the end: the patient was not watched, and why
         self.folder = Path(folder)
         self.duration = duration
         self.clock = clock
@@ -363,6 +364,7 @@ class ScanSession:
                 self._monitor.join(timeout=10)
             self.trigger.stop()
             self._live_call("stop")   # its alerts in the manifest before the recording closes
+            self.live_problem = str(getattr(self.live, "problem", "") or "")
             if self.recorder is None:
                 self.trigger.finish()
                 self._close_cameras()
@@ -449,7 +451,8 @@ class ScanSession:
             rec.meta["scan"] = {"times": dict(self.times), "duration_asked": self.duration,
                                 "stop_reason": self.stop_reason, "problems": problems or [],
                                 "steps": [s.name for s in self.plan()],
-                                **({"live_error": self.live_error} if self.live_error else {})}
+                                **({"live_error": self.live_error} if self.live_error else {}),
+                                **({"live_problem": self.live_problem} if self.live_problem else {})}
             rec.meta["trigger"] = self.trigger.info
             for attempt in range(3):  # a camera thread may be adding its notes at this very moment
                 try:

@@ -12,7 +12,16 @@ An alert is acted on in a thread of its own, never in the worker: ``on_alert_tex
 CLI prints the line and rings the bell), ``motion.alert_command`` started with the text as its
 last argument (no shell, not waited for; a failure to start it or a non-zero exit is reported
 through ``on_note`` and into the manifest, never fatal), and the event appended to the
-manifest's ``live_motion.alerts`` through the session's locked, atomic rewrite.
+manifest through the session's locked, atomic rewrite. There are two kinds, acted on the same
+way: ``PATIENT MOVED`` (``live_motion.alerts``) and ``PATIENT NOT TRACKED``
+(``live_motion.blind_alerts``: NOT TRACKING for longer than ``motion.blind_alert_s``).
+
+Whether the patient is watched goes into the manifest as it changes: ``live_motion.state``
+(TRACKING, REFERENCE or NOT TRACKING with its reason, since when) and each stretch NOT
+TRACKING once it ends (``live_motion.not_tracking``). At the end the summary gives the time in
+each status, and :attr:`LiveMotion.problem` says when the patient was not watched: no
+reference learned, or NOT TRACKING for more than ``motion.blind_max_share`` of the live time
+(the scan then exits 4). See docs/decisions/0048-live-tracking-when-frames-are-lost.md.
 """
 
 from __future__ import annotations
@@ -27,12 +36,14 @@ from typing import Callable
 from vts_hw.errors import VtsError
 from vts_hw.live.estimator import LiveEstimate, LiveSettings
 from vts_hw.live.tracker import LiveTracker
+from vts_hw.live.watch import TRACKING, BlindAlert, Change, Episode
 from vts_hw.procedures.sync_inputs import load_calibration, load_mapping
 from vts_hw.vision.camera_set import covered_names, named_cameras
 
 __all__ = ["LiveMotion"]
 
 COMMAND_TIMEOUT_S = 60.0
+EPISODES_KEPT = 500        # NOT TRACKING stretches listed in the manifest (the rest counted)
 
 
 def _iso(t: float) -> str:
@@ -45,7 +56,7 @@ class LiveMotion:
 
     def __init__(self, rig, *, calibration=None, mapping=None, settings: LiveSettings | None = None,
                  on_alert_text: Callable[[str], None] | None = None,
-                 on_note: Callable[[str], None] | None = None, queue_len: int = 4):
+                 on_note: Callable[[str], None] | None = None, queue_len: int = 2):
         self.rig = rig
         self.motion = rig.motion
         self.calibration = calibration if calibration is not None else rig.calibration.stereo
@@ -56,11 +67,14 @@ class LiveMotion:
         self.queue_len = queue_len
         self.tracker: LiveTracker | None = None
         self.off_reason = ""
+        self.problem = ""          # set at stop: the patient was not watched, and why
         self.alerts: list[dict] = []
+        self.blind_alerts: list[dict] = []
         self.commands: list[subprocess.Popen] = []
         self._actions: queue.Queue = queue.Queue()
         self._thread: threading.Thread | None = None
         self._waiters: list[threading.Thread] = []
+        self._tracked_once = False
 
     # -- set-up ---------------------------------------------------------------------------------
     def prepare(self, session) -> None:
@@ -84,7 +98,8 @@ class LiveMotion:
                    for n in cams}
         fps = min(session.rig.camera(n).fps for n in cams)
         self.tracker = LiveTracker(cams, self.motion, mapping=mapping, clock_offsets=offsets, fps=fps,
-                                   settings=self.settings, queue_len=self.queue_len, on_alert=self._queue_alert)
+                                   settings=self.settings, queue_len=self.queue_len, on_alert=self._queue_alert,
+                                   on_event=self._queue_event)
 
     def on_frame(self, camera: str, frame) -> None:
         if self.tracker is not None:
@@ -94,6 +109,9 @@ class LiveMotion:
         m = self.motion
         entry = {"status": "off" if self.tracker is None else "on", "alerts": [],
                  "alert_mm": m.alert_mm, "alert_deg": m.alert_deg, "alert_after_s": m.alert_after_s,
+                 "blind_alert_s": m.blind_alert_s, "blind_max_share": m.blind_max_share,
+                 **({} if self.tracker is None else {"state": {"status": "NOT TRACKING", "reason": "no frames yet"},
+                                                     "blind_alerts": [], "not_tracking": []}),
                  **({"off_reason": self.off_reason} if self.tracker is None else
                     {"frame": self.tracker.estimator.frame, "cameras": self.tracker.names})}
         session.recorder.recording.meta["live_motion"] = entry
@@ -113,7 +131,8 @@ class LiveMotion:
             self._thread.join(10)
         snap = self.tracker.snapshot()
         st = self.tracker.stats(last=None)
-        summary = {k: st.get(k) for k in ("sets", "live_dropped", "unmatched_frames", "undecodable",
+        summary = {k: st.get(k) for k in ("sets", "live_dropped", "tapped", "processed", "queued",
+                                          "unmatched_frames", "undecodable",
                                           "latency_ms_p50", "latency_ms_p95", "latency_from_first_frame_ms_p50",
                                           "latency_from_first_frame_ms_p95")}
         rule = self.tracker.estimator.rule
@@ -122,36 +141,123 @@ class LiveMotion:
         summary.update(phase=snap.phase, reference=self.tracker.estimator.reference_note, note=snap.note,
                        six_dof_last=snap.six_dof,
                        **({"error": st["error"]} if st.get("error") else {}))
+        summary["tracking"] = tracking = self._tracking_summary()
+        self.problem = self._verdict(tracking, snap)
+        summary["watched"] = not self.problem
+        if self.problem:
+            summary["problem"] = self.problem
         session.update_manifest(lambda meta: meta["live_motion"].update(summary=summary))
+
+    def _tracking_summary(self) -> dict:
+        w = self.tracker.watch
+        tot = w.totals()
+        eps = w.episodes
+        longest = max(eps, key=lambda e: e.duration(e.start), default=None)
+        out = {k: (round(v, 3) if isinstance(v, float) else v) for k, v in tot.items()}
+        out.update(not_tracking_stretches=len(eps), blind_alerts=len(self.tracker.blind_alerts),
+                   late_s=self.tracker.late_s)
+        if longest is not None:
+            out.update(longest_not_tracking_s=round(longest.duration(longest.start), 3),
+                       longest_reason="; ".join(longest.reasons[:3]))
+        return out
+
+    def _verdict(self, tracking: dict, snap: LiveEstimate) -> str:
+        """Why the patient was not watched ("" when they were)."""
+        est = self.tracker.estimator
+        if est.phase != "tracking":
+            why = est.note or "no patient markers seen"
+            return f"the patient was not watched: no reference was learned ({why})"
+        share, limit = tracking.get("not_tracking_share"), self.motion.blind_max_share
+        if share is not None and share > limit:
+            return (f"the patient was not tracked for {share:.0%} of the live time (limit {limit:.0%}): "
+                    f"{tracking['not_tracking_s']:.1f} s in {tracking['not_tracking_stretches']} stretch(es), "
+                    f"the longest {tracking.get('longest_not_tracking_s', 0):.1f} s "
+                    f"({tracking.get('longest_reason', '')})")
+        return ""
 
     def snapshot(self) -> LiveEstimate | None:
         return None if self.tracker is None else self.tracker.snapshot()
 
     # -- alerts ---------------------------------------------------------------------------------
     def _queue_alert(self, alert, estimate: LiveEstimate) -> None:   # in the worker: no waiting
-        self._actions.put((alert, estimate))
+        self._actions.put(("motion", alert, estimate))
+
+    def _queue_event(self, event) -> None:    # in the watch thread: no waiting
+        self._actions.put(("event", event, None))
 
     def _act(self, session) -> None:
         while True:
             item = self._actions.get()
             if item is None:
                 return
-            alert, est = item
-            text = alert.text(self.motion.alert_mm, self.motion.alert_deg)
+            kind, what, est = item
             try:
-                self.on_alert_text(text)
-            except Exception:
-                pass
-            raised = time.time()
-            event = {"raised": raised, "raised_utc": _iso(raised), "time": alert.time, "time_utc": _iso(alert.time), "onset": alert.onset,
-                     "onset_utc": _iso(alert.onset), "move_mm": round(alert.move_mm, 3),
-                     "turn_deg": round(alert.turn_deg, 3), "frame": est.frame,
-                     "six_dof": None if est.six_dof is None else [round(v, 3) for v in est.six_dof],
-                     "text": text}
-            if self.motion.alert_command:
-                event["command"] = self._run_command(session, list(self.motion.alert_command) + [text])
-            self.alerts.append(event)
-            session.update_manifest(lambda meta: meta["live_motion"]["alerts"].append(event))
+                if kind == "motion":
+                    self._motion_alert(session, what, est)
+                elif isinstance(what, BlindAlert):
+                    self._blind_alert(session, what)
+                elif isinstance(what, Change):
+                    self._change(session, what)
+                elif isinstance(what, Episode):
+                    self._episode(session, what)
+            except Exception as exc:     # a note, never the end of acting on alerts
+                self.on_note(f"live motion: {type(exc).__name__}: {exc}")
+
+    def _say(self, text: str) -> None:
+        try:
+            self.on_alert_text(text)
+        except Exception:
+            pass
+
+    def _motion_alert(self, session, alert, est: LiveEstimate) -> None:
+        text = alert.text(self.motion.alert_mm, self.motion.alert_deg)
+        self._say(text)
+        raised = time.time()
+        event = {"kind": "motion", "raised": raised, "raised_utc": _iso(raised), "time": alert.time,
+                 "time_utc": _iso(alert.time), "onset": alert.onset, "onset_utc": _iso(alert.onset),
+                 "onset_known_s": round(alert.onset_known_s, 3), "move_mm": round(alert.move_mm, 3),
+                 "turn_deg": round(alert.turn_deg, 3), "frame": est.frame,
+                 "six_dof": None if est.six_dof is None else [round(v, 3) for v in est.six_dof],
+                 "text": text}
+        if self.motion.alert_command:
+            event["command"] = self._run_command(session, list(self.motion.alert_command) + [text])
+        self.alerts.append(event)
+        session.update_manifest(lambda meta: meta["live_motion"]["alerts"].append(event))
+
+    def _blind_alert(self, session, alert: BlindAlert) -> None:
+        text = alert.text()
+        self._say(text)
+        raised = time.time()
+        event = {"kind": "not tracking", "raised": raised, "raised_utc": _iso(raised), "since": alert.start,
+                 "since_utc": _iso(alert.start), "not_tracking_s": round(alert.raised - alert.start, 3),
+                 "reason": alert.reason, "text": text}
+        if self.motion.alert_command:
+            event["command"] = self._run_command(session, list(self.motion.alert_command) + [text])
+        self.blind_alerts.append(event)
+        session.update_manifest(lambda meta: meta["live_motion"]["blind_alerts"].append(event))
+
+    def _change(self, session, c: Change) -> None:
+        state = {"status": c.status, "since": c.at, "since_utc": _iso(c.at), **({"reason": c.reason} if c.reason else {})}
+        if c.status == TRACKING and not self._tracked_once:
+            self._tracked_once = True
+            self.on_note(f"live motion: TRACKING ({self.tracker.estimator.reference_note})")
+        session.update_manifest(lambda meta: meta["live_motion"].update(state=state))
+
+    def _episode(self, session, e: Episode) -> None:
+        host = self.tracker.host_of
+        entry = {"start": host(e.start), "start_utc": _iso(host(e.start)), "end": host(e.end),
+                 "end_utc": _iso(host(e.end)), "duration_s": round(e.end - e.start, 3), "reasons": e.reasons,
+                 "alerted": e.alerted}
+        if e.alerted:
+            self.on_note(f"live motion: tracked again after {e.end - e.start:.1f} s NOT TRACKING ({e.reasons[0]})")
+
+        def add(meta):
+            lm = meta["live_motion"]
+            if len(lm["not_tracking"]) < EPISODES_KEPT:
+                lm["not_tracking"].append(entry)
+            else:
+                lm["not_tracking_more"] = lm.get("not_tracking_more", 0) + 1
+        session.update_manifest(add)
 
     def _run_command(self, session, argv: list[str]) -> str:
         try:

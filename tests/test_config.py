@@ -57,6 +57,9 @@ def test_good_file(tmp_path, monkeypatch):
     (("tolerance_high: 1", "tolerance_high: 3"), "tolerances.drift_x_px", "action_low <= tolerance_low"),
     (("drift_x_px:", "drift_z_px:"), "tolerances", "'drift_z_px', which is not a metric with a tolerance"),
     (("name: cam2", "name: cam1"), "(top level)", "unique"),
+    (("rig: room-1\n", "rig: room-1\nmotion:\n  blind_alert_s: 0\n"), "motion.blind_alert_s", "greater than 0"),
+    (("rig: room-1\n", "rig: room-1\nmotion:\n  blind_max_share: 1.5\n"), "motion.blind_max_share",
+     "less than or equal to 1"),
 ])
 def test_bad_values_name_file_key_and_expectation(tmp_path, change, key, expected):
     p = _write(tmp_path, GOOD.replace(*change))

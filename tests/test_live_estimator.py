@@ -35,6 +35,7 @@ def _run(patient, duration, rate_hz=25.0, noise_mm=0.1, seed=0, settings=None):
     return est, alerts, np.array(errors)
 
 
+@pytest.mark.timeout(600)          # 6000 estimates: minutes on a busy 2-core machine (a guard, not a figure)
 def test_breathing_alone_never_alerts_and_the_pose_stays_put():
     """Ten minutes of breathing (deep breaths, pauses, a wandering baseline): no alert, and the
     body's 6-DOF stays within a fraction of the thresholds of the truth (which is still)."""

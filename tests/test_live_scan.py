@@ -110,7 +110,9 @@ def test_breathing_alone_raises_no_alert(patient_rig, tmp_path):
     assert not (tmp_path / "alerts.txt").exists()
     assert live["summary"]["sets"] > 0.8 * 25 * DURATION_S
     assert max(abs(v) for v in live["summary"]["six_dof_last"][:3]) < 1.0
-    assert "live motion: tracking" in err or "live motion: still" in err
+    assert "live motion: TRACKING; still, body" in err
+    assert live["summary"]["watched"] is True and live["state"]["status"] == "TRACKING"
+    assert live["summary"]["tracking"]["tracking_s"] > 0.5 * DURATION_S
 
 
 class _BrokenLive:

@@ -246,7 +246,9 @@ def test_unreachable_camera_is_named_and_nothing_is_written(box_rig, tmp_path):
 def test_cli_scan_with_duration(box_rig, tmp_path):
     rig, cfg, rig_yaml = box_rig
     folder = tmp_path / "scan"
-    p = subprocess.run([*VTS, "scan", "start", "--duration", "3", "-o", str(folder)], env=_env(rig, rig_yaml),
+    # no patient in the room: nothing to track live (with --live, exit 0 means the patient was watched)
+    p = subprocess.run([*VTS, "scan", "start", "--duration", "3", "--no-live", "-o", str(folder)],
+                       env=_env(rig, rig_yaml),
                        capture_output=True, text=True, timeout=60)
     assert p.returncode == 0, p.stderr
     assert f"{folder}: status complete (stopped: duration)" in p.stdout
@@ -264,7 +266,7 @@ def test_ctrl_c_stops_cleanly(plain_rig, tmp_path):
     # PYTHONFAULTHANDLER: a scan that does not stop is aborted and says where every thread was.
     # Started with SIGINT ignored, as a shell starts a background job (or nohup, a service):
     # Python then installs no KeyboardInterrupt, and Ctrl-C must still stop the scan.
-    p = subprocess.Popen([*VTS, "scan", "start", "--json", "-o", str(folder)],
+    p = subprocess.Popen([*VTS, "scan", "start", "--json", "--no-live", "-o", str(folder)],
                          env={**_env(rig, rig_yaml), "PYTHONFAULTHANDLER": "1"},
                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

@@ -69,7 +69,7 @@ def two_scans(tmp_path_factory):
     try:
         lms = []
         for k, seconds in ((1, 20), (2, 12)):
-            r = _vts(cwd, env, "scan", "start", "--duration", str(seconds), "-o", f"scan{k}")
+            r = _vts(cwd, env, "scan", "start", "--duration", str(seconds), "--no-live", "-o", f"scan{k}")
             assert r.returncode == 0, r.stderr
             lms = _wait_for(cwd / "sim" / "spect", "scan-*.vtslm", k, WAVE_ENDED_S + 60)
     finally:
@@ -173,7 +173,7 @@ def test_a_spect_that_cannot_record_says_so_where_the_user_looks(tmp_path, small
     disk = small_disk(256, name="sim/spect")
     env = _sim_up(tmp_path)
     try:
-        r = _vts(tmp_path, env, "scan", "start", "--duration", "8", "-o", "scan1")
+        r = _vts(tmp_path, env, "scan", "start", "--duration", "8", "--no-live", "-o", "scan1")
         assert r.returncode == 0, r.stderr
         record, = _wait_for(disk.path, "*.failed.json", 1, WAVE_ENDED_S + 60)
     finally:

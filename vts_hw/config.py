@@ -207,6 +207,12 @@ class MotionConfig(_Strict):
         default=None, min_length=1,
         description="a command run on each alert (argv list, no shell), e.g. [notify-send, VTS]; the alert's "
                     "text is its last argument")
+    blind_alert_s: float = Field(default=3.0, gt=0, le=600,
+                                 description="an alert of its own when the patient has not been tracked for longer "
+                                             "than this (s): a camera lost, too few markers, frames too late")
+    blind_max_share: float = Field(default=0.2, ge=0, le=1,
+                                   description="a scan whose patient was not tracked for more than this share of the "
+                                               "live time, or that learned no reference, was not watched: exit 4")
     state_mm: float = Field(default=2.0, gt=0, le=100,
                             description="a motion state: an interval of body pose within this (mm) ...")
     state_deg: float = Field(default=1.0, gt=0, le=90, description="... and this (deg)")

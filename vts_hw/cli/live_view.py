@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+from rich.markup import escape
 from rich.table import Table
 
 SPARK = "▁▂▃▄▅▆▇█"
@@ -41,23 +42,60 @@ def _stats(st: dict) -> str:
             + (f"; {st['error']}" if st.get("error") else ""))
 
 
+def _status(est, markup: bool) -> str:
+    """TRACKING / REFERENCE / NOT TRACKING, for how long, and why; the age of the figures."""
+    if not est.status:          # an estimate read straight from the estimator: its phase
+        return est.phase
+    colour = {"TRACKING": "green", "REFERENCE": "yellow"}.get(est.status, "bold red")
+    head = f"[{colour}]{est.status}[/]" if markup else est.status
+    if est.status_for_s is not None and est.status != "TRACKING":
+        head += f" {est.status_for_s:.1f} s"
+    if est.reason:
+        head += f": {escape(est.reason) if markup else est.reason}"
+    return head
+
+
+def _age(est) -> str:
+    return "" if est.age_s is None else f"figures {est.age_s:.1f} s old"
+
+
+def _pose(est) -> str:
+    """The body's offset: as it is while tracked; while not, the last one and its age, never
+    "still" (time without frames is time without data)."""
+    if est.six_dof is None:
+        return ""
+    body = f"body {_num(est.move_mm)} mm {_num(est.turn_deg, '{:.2f}')} deg (breathing excluded)"
+    if est.status in ("", "TRACKING"):
+        return f"{est.state}, {body}"
+    ago = f" {est.age_s:.1f} s ago" if est.age_s is not None else ""
+    return f"last pose{ago}: {body}; motion since then NOT KNOWN"
+
+
+def _breathing(b) -> str:
+    return sparkline(b.trace) if b.breathes else "none seen (fitted rigidly)"
+
+
 def live_table(est) -> Table:
-    """Per band: displacement, breathing trace and rate; the body's 6-DOF and alert state."""
+    """Whether the patient is tracked (and why not), the age of what is shown; per band:
+    displacement, breathing trace and rate; the body's 6-DOF and alert state."""
     if est is None:
         return Table(title="live motion: off")
-    state = est.state or est.phase
-    if state == "ALERT":
-        state = "[bold red]ALERT[/]"
-    title = (f"live motion: {state}  body {_num(est.move_mm)} mm {_num(est.turn_deg, '{:.2f}')} deg "
-             f"(breathing excluded)  alerts {est.alerts}")
-    t = Table(title=title, title_justify="left", caption=" · ".join(x for x in (_six(est), est.note,
-                                                                                 _stats(est.stats)) if x),
+    pose = _pose(est)
+    if est.state == "ALERT" and est.status in ("", "TRACKING"):
+        pose = "[bold red]ALERT[/] " + pose
+    title = "  ".join(x for x in (f"live motion: {_status(est, True)}", pose, f"alerts {est.alerts}",
+                                  _age(est)) if x)
+    t = Table(title=title, title_justify="left",
+              caption=" · ".join(escape(x) for x in (_six(est), est.note, _stats(est.stats)) if x),
               caption_justify="left")
     for col in ("band", "markers", "displacement mm", "breathing", "mm", "rate /min"):
         t.add_column(col, justify="left" if col in ("band", "breathing") else "right")
+    old = est.status not in ("", "TRACKING")      # the last pose's rows, dimmed and said to be old
+    if old and est.bands and est.age_s is not None:
+        t.title += f"\nthe bands as of {est.age_s:.1f} s ago:"
     for b in est.bands:
-        t.add_row(str(b.band), f"{b.seen}/{b.markers}", _num(b.distance_mm), sparkline(b.trace),
-                  _num(b.breathing_mm), _num(b.rate_per_min))
+        t.add_row(str(b.band), f"{b.seen}/{b.markers}", _num(b.distance_mm), _breathing(b),
+                  _num(b.breathing_mm), _num(b.rate_per_min), style="dim" if old else None)
     return t
 
 
@@ -65,9 +103,12 @@ def live_line(est) -> str:
     """One plain line (when stderr is not a terminal)."""
     if est is None:
         return "live motion: off"
+    age = f" ({_age(est)})" if est.age_s is not None else ""
     if est.phase != "tracking" or est.six_dof is None:
-        return f"live motion: {est.phase}" + (f" ({est.note})" if est.note else "")
+        return f"live motion: {_status(est, False)}" + (f" ({est.note})" if est.note else "") + age
     bands = "; ".join(f"band {b.band} {b.seen}/{b.markers} markers {_num(b.distance_mm)} mm, breathing "
-                      f"{_num(b.breathing_mm)} mm {_num(b.rate_per_min)}/min" for b in est.bands)
-    return (f"live motion: {est.state}, body {_num(est.move_mm)} mm {_num(est.turn_deg, '{:.2f}')} deg, "
-            f"alerts {est.alerts}; {bands}; {_six(est)}; {_stats(est.stats)}")
+                      + (f"{_num(b.breathing_mm)} mm {_num(b.rate_per_min)}/min" if b.breathes else "none seen")
+                      for b in est.bands)
+    status = f"{_status(est, False)}; " if est.status else ""
+    return (f"live motion: {status}{_pose(est)}, alerts {est.alerts}{age}; {bands}; {_six(est)}; "
+            f"{_stats(est.stats)}")

@@ -35,7 +35,8 @@ def scan() -> None:
 @click.option("--dry-run", is_flag=True, help="List the steps for this rig without touching it.")
 @click.option("--live/--no-live", default=True, show_default=True,
               help="Track the patient's markers live while recording (needs the rig's calibration): "
-                   "motion alerts per the rig's motion: section.")
+                   "motion alerts per the rig's motion: section. With it on, a scan whose patient was not "
+                   "watched exits 4; --no-live for a scan without a patient (a sync check).")
 @click.option("--reference", "reference_s", type=PositiveSeconds(), default=10.0, show_default=True,
               help="Seconds of the first still period the live tracking learns as the reference.")
 @json_option
@@ -48,10 +49,17 @@ def start(out: str | None, duration: float | None, dry_run: bool, live: bool, re
     camera clocks again and writes the manifest.
 
     \b
-    Exit status: 0 the session is complete; 4 it is partial (a camera dropped, a trigger
-    failed: the problems are listed) or failed; 3 a file could not be written (disk full:
-    the recording stops, every whole frame is kept); 2 bad input or a non-empty folder;
-    130 interrupted before the scan started.
+    The live view says at every moment whether the patient is watched: TRACKING, REFERENCE
+    (learning), or NOT TRACKING with the reason (camera lost, too few markers, frames too
+    late); NOT TRACKING for longer than motion.blind_alert_s (3 s) is an alert of its own.
+
+    \b
+    Exit status: 0 the session is complete and the patient was watched; 4 it is partial (a
+    camera dropped, a trigger failed: the problems are listed) or failed, or the patient
+    was not watched (no reference learned, or NOT TRACKING for more than
+    motion.blind_max_share of the time: every frame is still recorded); 3 a file could not
+    be written (disk full: the recording stops, every whole frame is kept); 2 bad input or a
+    non-empty folder; 130 interrupted before the scan started.
     """
     from vts_hw.drivers.registry import check_camera_kinds, open_cameras
     from vts_hw.procedures.scan import ScanSession, default_folder
@@ -101,6 +109,10 @@ def start(out: str | None, duration: float | None, dry_run: bool, live: bool, re
     if manifest and manifest.get("status") != "complete":
         click.echo(f"vts: the session in {folder} is {manifest.get('status')}: see the problems above", err=True)
         sys.exit(4)
+    problem = (manifest or {}).get("scan", {}).get("live_problem")
+    if problem:
+        click.echo(f"vts: the session in {folder} recorded every camera, but {problem}", err=True)
+        sys.exit(4)
 
 
 # -- live status -------------------------------------------------------------------------------------
@@ -120,7 +132,10 @@ def _live_motion(rig, reference_s: float, err: Console):
                       on_note=lambda text: click.echo(f"vts: {text}", err=True))
 
 
-def _views(session, st):
+def _views(session):
+    """Read afresh at each refresh (by rich's own thread): the figures shown carry their age
+    and status as of that moment, whatever the rest of the program is doing."""
+    st = session.status()
     if session.live is None:
         return _table(st, session.folder)
     return Group(_table(st, session.folder), live_table(session.live.snapshot()))
@@ -128,9 +143,9 @@ def _views(session, st):
 
 def _live(session, console: Console) -> str:
     if console.is_terminal:
-        with Live(_views(session, session.status()), console=console,
-                  refresh_per_second=1 / REFRESH_S, transient=False) as live:
-            return session.wait(lambda st: live.update(_views(session, st)), REFRESH_S)
+        with Live(console=console, get_renderable=lambda: _views(session),
+                  refresh_per_second=1 / REFRESH_S, transient=False):
+            return session.wait(None, REFRESH_S)
     last = [0.0]
 
     def plain(st):
@@ -193,8 +208,31 @@ def _summary(folder: Path, m: dict) -> None:
         click.echo(f"  trigger: {tr.get('backend')} {fired}{edges}; log {folder / 'trigger.csv'}")
         if tr.get("note"):
             click.echo(f"  note: {tr['note']}")
+    lm = m.get("live_motion") or {}
+    if lm:
+        click.echo(f"  live motion: {_live_summary(lm)}")
     for p in scan.get("problems", []):
         click.echo(f"  problem: {p}")
+    if scan.get("live_problem"):
+        click.echo(f"  problem: {scan['live_problem']}")
+
+
+def _live_summary(lm: dict) -> str:
+    if lm.get("status") == "off":
+        return f"off ({lm.get('off_reason', '')})"
+    s = lm.get("summary") or {}
+    tr = s.get("tracking") or {}
+    parts = [f"TRACKING {tr.get('tracking_s', 0):.1f} s, REFERENCE {tr.get('reference_s', 0):.1f} s, "
+             f"NOT TRACKING {tr.get('not_tracking_s', 0):.1f} s in {tr.get('not_tracking_stretches', 0)} stretch(es)"
+             + (f" (longest {tr['longest_not_tracking_s']:.1f} s: {tr.get('longest_reason', '')})"
+                if tr.get("longest_not_tracking_s") else "")]
+    parts.append(f"{len(lm.get('alerts', []))} motion alert(s), {len(lm.get('blind_alerts', []))} NOT TRACKING "
+                 f"alert(s)")
+    dropped = sum((s.get("live_dropped") or {}).values())
+    parts.append(f"{dropped} frame(s) dropped from the live path (never from the recording)")
+    if s.get("error"):
+        parts.append(s["error"])
+    return "; ".join(parts)
 
 
 # -- signals -----------------------------------------------------------------------------------------

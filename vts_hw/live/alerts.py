@@ -34,10 +34,12 @@ class Alert:
     onset: float         # host s the excursion started (the body left its pose)
     move_mm: float
     turn_deg: float
+    onset_known_s: float = 0.0   # the move started between onset and onset + this (the next estimate: a gap)
 
     def text(self, alert_mm: float, alert_deg: float) -> str:
+        gap = (f"; it started during {self.onset_known_s:.1f} s without a pose" if self.onset_known_s > 0.25 else "")
         return (f"PATIENT MOVED: {self.move_mm:.1f} mm, {self.turn_deg:.1f} deg (limits {alert_mm:g} mm, "
-                f"{alert_deg:g} deg) for {self.time - self.onset:.1f} s, breathing excluded")
+                f"{alert_deg:g} deg) for {self.time - self.onset:.1f} s, breathing excluded{gap}")
 
 
 class AlertRule:
@@ -51,6 +53,7 @@ class AlertRule:
         self.R_ref = np.eye(3)
         self.c_ref: np.ndarray | None = None
         self.onset: float | None = None      # last time within the onset levels
+        self.left: float | None = None       # the first estimate after it (the start lies between)
         self.alerted_at: float | None = None
         self.alerts: list[Alert] = []
         self.move_mm = 0.0
@@ -76,14 +79,16 @@ class AlertRule:
             if t - self.alerted_at <= self.settle_s:      # the rest of the move that alerted
                 self.R_ref, self.c_ref = R.copy(), c.copy()
                 self.move_mm = self.turn_deg = 0.0
-                self.onset = t
+                self.onset, self.left = t, None
                 return None
             self.alerted_at = None
         if self.move_mm <= self.onset_mm and self.turn_deg <= self.onset_deg or self.onset is None:
-            self.onset = t
+            self.onset, self.left = t, None
             return None
+        if self.left is None:
+            self.left = t
         if (self.move_mm > self.alert_mm or self.turn_deg > self.alert_deg) and t - self.onset > self.after_s:
-            a = Alert(t, self.onset, self.move_mm, self.turn_deg)
+            a = Alert(t, self.onset, self.move_mm, self.turn_deg, self.left - self.onset)
             self.alerts.append(a)
             self.alerted_at = t
             return a

@@ -2,15 +2,17 @@
 separated, and the alert state -- from 3D marker positions, one instant at a time.
 
 Phases: ``waiting`` (no markers yet), ``reference`` (learning the first still period:
-``reference_s`` of marker positions; restarted when the body did not keep still -- the model's
-residual above ``ref_max_rms_mm`` -- or fewer than three patient markers were seen), then
-``tracking``; a reference whose body pose spreads by more than a fifth of the alert
-thresholds (RMS) is not still either: restarted. The patient's markers: with a SPECT frame, those inside the field of view
-(``fov_radius_mm`` of the axis, ``fov_half_length_mm`` along it) that breathe (a range of at
-least ``min_breath_mm`` along their main direction in the reference period): wall markers and
-still objects (the table, a phantom) are left out. Bands: along the
-SPECT Z axis (the table), without a mapping along the first camera's viewing direction (the
-cameras look along the body). See :mod:`vts_hw.live.model` and 0036.
+``reference_s`` of marker positions, despite gaps; :mod:`vts_hw.live.reference` finds the
+patient's markers by what they do: those that breathe inside the field of view, or with none
+breathing every marker inside it; restarted when the body did not keep still -- the model's
+residual above ``ref_max_rms_mm``, or its pose spreading by more than a fifth of the alert
+thresholds (RMS)), then ``tracking``. Bands: along the SPECT Z axis (the table), without a
+mapping along the first camera's viewing direction (the cameras look along the body).
+
+Each :meth:`LiveEstimator.update` says whether that instant **observed** the patient
+(``observed``: a pose while tracking; three or more points while learning) and, when not,
+why (``note``): what :mod:`vts_hw.live.watch` needs to say whether the patient is tracked.
+See :mod:`vts_hw.live.model`, 0036 and 0048.
 """
 
 from __future__ import annotations
@@ -22,8 +24,9 @@ from scipy.spatial.transform import Rotation
 
 from vts_hw.live.alerts import Alert, AlertRule
 from vts_hw.live.breathing import BreathingTrace
-from vts_hw.live.marker_tracks import MarkerTracks, assign
-from vts_hw.live.model import Fit, ReferenceModel, breathing_range, learn_reference
+from vts_hw.live.marker_tracks import assign
+from vts_hw.live.model import Fit, ReferenceModel
+from vts_hw.live.reference import ReferenceCollector
 
 __all__ = ["LiveSettings", "LiveEstimator", "LiveEstimate", "BandEstimate"]
 
@@ -33,17 +36,23 @@ class LiveSettings:
     reference_s: float = 10.0
     band_gap_mm: float = 60.0
     gate_mm: float = 15.0
-    max_gap_s: float = 1.0
-    min_seen_fraction: float = 0.6
+    min_seen_fraction: float = 0.6     # of the reference's instants (frame sets), not of its time
+    ref_min_observed: float = 0.5      # the reference's instants cover at least this share of reference_s
+    ref_max_span: float = 3.0          # ... within at most this many reference_s (older instants let go)
+    step_s: float = 0.5                # instants further apart than this: the time between is not observed
     ref_max_rms_mm: float = 1.0
     ref_max_move_fraction: float = 0.2   # the pose's RMS spread over the reference: at most this of the thresholds
     fov_radius_mm: float = 450.0
     fov_half_length_mm: float = 700.0
     min_breath_mm: float = 0.6     # a patient marker's breathing range (5th to 95th percentile) at least
+    bore_radius_mm: float = 300.0       # markers that do not breathe: inside the heads' orbit ...
+    bore_half_length_mm: float = 300.0  # ... and the heads' face (400 mm) with a margin, along the axis
     onset_fraction: float = 0.15
     settle_s: float = 2.0
     trace_window_s: float = 30.0
     iterations: int = 6           # of the alternating fit, from the last solution
+    iterations_after_gap: int = 30   # ... when that solution is older than gap_s (breathing went on meanwhile)
+    gap_s: float = 0.2
 
 
 @dataclass(frozen=True)
@@ -55,6 +64,7 @@ class BandEstimate:
     breathing_mm: float          # the band's breathing value now (mm along its markers' directions)
     rate_per_min: float
     trace: tuple[float, ...]     # the last seconds of breathing (for a sparkline)
+    breathes: bool = True        # False: no breathing seen in the reference (fitted rigidly)
 
     @property
     def distance_mm(self) -> float:
@@ -74,6 +84,11 @@ class LiveEstimate:
     alerts: int = 0
     note: str = ""
     stats: dict = field(default_factory=dict)
+    # whether the patient is watched now (filled in by the tracker, vts_hw/live/watch.py):
+    status: str = ""             # TRACKING | REFERENCE | NOT TRACKING ("" : not known here)
+    reason: str = ""             # why NOT TRACKING (or what the reference is doing)
+    status_for_s: float | None = None   # how long it has been so
+    age_s: float | None = None   # how old the figures shown are (from the capture of their frames)
 
 
 class LiveEstimator:
@@ -97,10 +112,12 @@ class LiveEstimator:
         self.fit: Fit | None = None
         self.time: float | None = None
         self.traces: list[BreathingTrace] = []
-        self._tracks = MarkerTracks(self.s.gate_mm, self.s.max_gap_s)
-        self._ref_t0: float | None = None
-        self._ref: list[tuple[float, np.ndarray, np.ndarray]] = []
+        self.observed = False          # whether the last update observed the patient
+        self.learned_at: float | None = None   # host s the reference was learned
+        self.restarts = 0
+        self._ref = ReferenceCollector(self.s, frame, self.axis, self.toward)
         self._seen_idx = np.zeros(0, int)
+        self._fit_t: float | None = None
         self._seen_x = np.zeros((0, 3))
 
     # -- input ---------------------------------------------------------------------------------
@@ -110,50 +127,30 @@ class LiveEstimator:
         self.time = t
         if self.phase != "tracking":
             self._collect(t, pts)
-            return None
-        return self._track(t, pts)
+            if self.phase != "tracking":
+                return None
+        return self._track(t, pts)          # (the instant that completed the reference too)
 
     def _collect(self, t: float, pts: np.ndarray) -> None:
+        self.observed = len(pts) >= 3
         if len(pts) == 0:
             return
-        ids = self._tracks.update(t, pts)
-        if self._ref_t0 is None:
-            self._ref_t0 = t
+        if self.phase == "waiting":
             self.phase = "reference"
-        self._ref.append((t, ids, pts))
-        if t - self._ref_t0 >= self.s.reference_s:
-            self._learn()
+        self._ref.add(t, pts)
+        if self._ref.due(t):
+            self._learn(t)
 
     def _restart(self, why: str) -> None:
         self.note = f"reference restarted: {why}"
-        keep = [r for r in self._ref if r[0] > self._ref[-1][0] - self.s.reference_s / 2]
-        self._ref = keep
-        self._ref_t0 = keep[0][0] if keep else None
+        self.restarts += 1
+        self._ref.restart()
 
-    def _learn(self) -> None:
-        n = len(self._ref)
-        counts: dict[int, int] = {}
-        for _, ids, _ in self._ref:
-            for i in ids.tolist():
-                counts[i] = counts.get(i, 0) + 1
-        keep = sorted(i for i, c in counts.items() if c >= self.s.min_seen_fraction * n)
-        col = {i: k for k, i in enumerate(keep)}
-        samples = np.full((n, len(keep), 3), np.nan)
-        for s, (_, ids, pts) in enumerate(self._ref):
-            for j, i in enumerate(ids.tolist()):
-                if i in col:
-                    samples[s, col[i]] = pts[j]
-        if len(keep):
-            mean = np.nanmean(samples, axis=0)
-            patient = breathing_range(samples) >= self.s.min_breath_mm     # still objects are no patient
-            if self.frame == "spect":
-                radial = np.linalg.norm(mean[:, :2], axis=1)
-                patient &= (radial <= self.s.fov_radius_mm) & (np.abs(mean[:, 2]) <= self.s.fov_half_length_mm)
-            samples = samples[:, patient]
-        if len(keep) == 0 or samples.shape[1] < 3:
-            self._restart("fewer than three patient markers seen all along")
+    def _learn(self, t: float) -> None:
+        model, why = self._ref.learn(t)
+        if model is None:
+            self.note = f"reference not learned yet: {why}"
             return
-        model = learn_reference(samples, self.axis, self.toward, self.s.band_gap_mm)
         if not np.isfinite(model.noise_mm) or model.noise_mm > self.s.ref_max_rms_mm:
             self._restart(f"the body did not keep still (model residual {model.noise_mm:.2f} mm)")
             return
@@ -167,10 +164,14 @@ class LiveEstimator:
                               self.s.onset_fraction, self.s.settle_s, model.pose_noise_mm, model.pose_noise_deg)
         self.traces = [BreathingTrace(self.s.trace_window_s) for _ in range(model.n_bands)]
         self.phase = "tracking"
-        self.reference_note = self.note = (f"reference: {model.mean.shape[0]} markers in {model.n_bands} band(s), "
-                     f"model residual {model.noise_mm:.2f} mm, still pose noise {model.pose_noise_mm:.2f} mm "
-                     f"{model.pose_noise_deg:.3f} deg")
-        self._ref = []
+        still = [k + 1 for k in range(model.n_bands) if not model.band_breathes(k)]
+        self.reference_note = self.note = (
+            f"reference: {model.mean.shape[0]} markers in {model.n_bands} band(s)"
+            + (f" (band {', '.join(map(str, still))}: no breathing seen, fitted rigidly)" if still else "")
+            + f", {self._ref.observed():.1f} s of frames over {t - self._ref.t0:.1f} s, model residual "
+              f"{model.noise_mm:.2f} mm, still pose noise {model.pose_noise_mm:.2f} mm {model.pose_noise_deg:.3f} deg")
+        self.learned_at = t
+        self._ref = None
 
     def _predicted(self) -> np.ndarray:
         m = self.model
@@ -182,20 +183,25 @@ class LiveEstimator:
     def _track(self, t: float, pts: np.ndarray) -> Alert | None:
         m = self.model
         i_m, i_p = assign(self._predicted(), pts, self.s.gate_mm)
-        fit = m.fit(i_m, pts[i_p], None if self.fit is None else self.fit.beta, iterations=self.s.iterations)
+        after_gap = self._fit_t is None or t - self._fit_t > self.s.gap_s
+        fit = m.fit(i_m, pts[i_p], None if self.fit is None else self.fit.beta,
+                    iterations=self.s.iterations_after_gap if after_gap else self.s.iterations)
         self._seen_idx, self._seen_x = i_m, pts[i_p]
+        self.observed = fit is not None
         if fit is None:
-            self.note = f"{len(i_m)} marker(s) seen: too few for the pose"
+            self.note = f"{len(i_m)} of {len(m.mean)} markers seen"
             return None
         self.note = ""
+        self._fit_t = t
         beta = fit.beta if self.fit is None else np.where(np.isfinite(fit.beta), fit.beta, self.fit.beta)
         self.fit = Fit(fit.R, fit.T, beta, fit.rms_mm, fit.n_markers)
         for k, tr in enumerate(self.traces):
-            if np.isfinite(fit.beta[k]):
+            if np.isfinite(fit.beta[k]) and m.band_breathes(k):
                 tr.add(t, float(fit.beta[k]))
         return self.rule.update(t, fit.R, fit.T, m.centre)
 
-    def _six_dof(self) -> np.ndarray:
+    def six_dof(self) -> np.ndarray:
+        """The body's 6-DOF now (tx, ty, tz mm; rx, ry, rz deg), from the last pose; needs one."""
         f = self.fit
         return np.concatenate([f.T, Rotation.from_matrix(f.R).as_euler("xyz", degrees=True)])
 
@@ -203,8 +209,9 @@ class LiveEstimator:
     def snapshot(self, stats: dict | None = None) -> LiveEstimate:
         if self.phase != "tracking" or self.fit is None:
             note = self.note
-            if self.phase == "reference" and self._ref_t0 is not None and self.time is not None:
-                note = (f"learning the reference: {self.time - self._ref_t0:.1f} of {self.s.reference_s:g} s"
+            if self.phase == "reference" and self._ref is not None and self._ref.t0 is not None \
+                    and self.time is not None:
+                note = (f"learning the reference: {self.time - self._ref.t0:.1f} of {self.s.reference_s:g} s"
                         + (f" ({self.note})" if self.note else ""))
             return LiveEstimate(self.phase, self.frame, self.time, note=note, stats=dict(stats or {}))
         m, bands = self.model, []
@@ -216,10 +223,10 @@ class LiveEstimator:
             _, v = tr.values()
             bands.append(BandEstimate(k + 1, int((m.band == k).sum()), int(len(idx)),
                                       tuple(float(x) for x in disp), float(v[-1]) if len(v) else float("nan"),
-                                      tr.rate_per_min(), tuple(tr.recent())))
+                                      tr.rate_per_min(), tuple(tr.recent()), m.band_breathes(k)))
         r, f, c = self.rule, self.fit, m.centre
         move = float(np.linalg.norm(f.R @ c + f.T - c))
         turn = float(np.degrees(np.linalg.norm(Rotation.from_matrix(f.R).as_rotvec())))
         return LiveEstimate(self.phase, self.frame, self.time, tuple(bands),
-                            tuple(float(x) for x in self._six_dof()), move, turn, r.state,
+                            tuple(float(x) for x in self.six_dof()), move, turn, r.state,
                             len(r.alerts), self.note, dict(stats or {}))

@@ -13,7 +13,10 @@ breathing-corrected reference onto the seen positions with the least-squares bre
 value per band given the pose (a few iterations, started from the last solution). Breathing
 that follows the learned directions is taken out of the pose; a rigid move is not, because
 no common breathing value can mimic a translation or a turn of every marker of a band (the
-directions differ from marker to marker: the band expands). See 0036.
+directions differ from marker to marker: the band expands). A marker that does not breathe
+(a still patient, a marker on the head: its range below the breathing floor) gets no breathing
+term (gain 0): it is fitted rigidly, and a band of such markers has no breathing value. See 0036
+and 0048.
 """
 
 from __future__ import annotations
@@ -48,6 +51,12 @@ class ReferenceModel:
     noise_mm: float = 0.0   # residual RMS of the model over the reference period (per marker)
     pose_noise_mm: float = 0.0    # RMS of the centre's move over the reference period (still body)
     pose_noise_deg: float = 0.0   # RMS of the turn over the reference period
+    breathes: np.ndarray | None = None   # (M,) whether each marker breathes (None: all do)
+
+    def band_breathes(self, k: int) -> bool:
+        """Whether band ``k`` has a marker that breathes (else it has no breathing value)."""
+        sel = self.band == k
+        return bool(sel.any() and (self.breathes is None or self.breathes[sel].any()))
 
     @property
     def n_bands(self) -> int:
@@ -112,12 +121,14 @@ def bands_along(points: np.ndarray, axis: np.ndarray, gap_mm: float) -> np.ndarr
 
 
 def learn_reference(samples: np.ndarray, axis, toward, gap_mm: float = 60.0,
-                    iterations: int = 6) -> ReferenceModel:
+                    iterations: int = 6, breathes=None) -> ReferenceModel:
     """The model from ``samples`` (S, M, 3): M markers over S instants of the reference period
     (NaN where a marker was not seen; each marker needs a few instants). ``axis``: the body's
     long axis (bands lie across it); ``toward``: a point the breathing directions face (the
-    first camera's centre: markers on the front and flanks of a supine patient face it)."""
+    first camera's centre: markers on the front and flanks of a supine patient face it).
+    ``breathes``: (M,) bool, the markers that breathe (default all); the others get gain 0."""
     samples = np.asarray(samples, float)
+    breathes = np.ones(samples.shape[1], bool) if breathes is None else np.asarray(breathes, bool)
     mean = np.nanmean(samples, axis=0)
     M = mean.shape[0]
     direction = np.zeros((M, 3))
@@ -134,10 +145,11 @@ def learn_reference(samples: np.ndarray, axis, toward, gap_mm: float = 60.0,
     band = bands_along(mean, axis, gap_mm)
     gain = np.ones(M)
     for k in range(band.max() + 1 if M else 0):
-        sel = band == k
-        if spread[sel].mean() > 0:
+        sel = (band == k) & breathes
+        if sel.any() and spread[sel].mean() > 0:
             gain[sel] = spread[sel] / spread[sel].mean()
-    model = ReferenceModel(mean, direction, gain, band)
+    gain[~breathes] = 0.0          # no breathing term: fitted rigidly
+    model = ReferenceModel(mean, direction, gain, band, breathes=breathes.copy())
     # the signs of one band's directions must agree with each other: each marker's breathing
     # is compared with its band's first marker (correlation), not only with the camera
     for k in range(model.n_bands):

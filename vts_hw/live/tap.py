@@ -3,7 +3,8 @@
 The recorder hands each frame to :meth:`FrameTap.put` *after* writing it; ``put`` takes a
 lock for a deque append (no I/O, no wait for the consumer) and never fails the caller. When
 the live worker falls behind, the oldest frame of that camera is dropped from the live path
-(and counted) -- never from the recording.
+(and counted) -- never from the recording. Each camera's last arrival tells the live path
+which camera has gone quiet.
 """
 
 from __future__ import annotations
@@ -21,16 +22,22 @@ class FrameTap:
         self._q = {n: deque() for n in cameras}
         self.received = {n: 0 for n in cameras}
         self.dropped = {n: 0 for n in cameras}
+        self.last = {n: None for n in cameras}      # monotonic s of each camera's last frame
+        self.first: float | None = None              # ... of the first frame of any camera
         self._lock = threading.Lock()
         self._ready = threading.Event()
 
-    def put(self, name: str, frame) -> None:
-        """Queue a frame for the live path (cameras not tapped are ignored)."""
+    def put(self, name: str, frame, arrival: float | None = None) -> None:
+        """Queue a frame for the live path (cameras not tapped are ignored); ``arrival``:
+        monotonic s it arrived (default now)."""
         q = self._q.get(name)
         if q is None:
             return
-        item = (name, time.monotonic(), frame)
+        item = (name, time.monotonic() if arrival is None else arrival, frame)
         with self._lock:
+            self.last[name] = item[1]
+            if self.first is None:
+                self.first = item[1]
             if len(q) >= self.maxlen:
                 q.popleft()
                 self.dropped[name] += 1
@@ -49,6 +56,10 @@ class FrameTap:
                 q.clear()
         items.sort(key=lambda it: it[1])
         return items
+
+    def queued(self) -> dict:
+        with self._lock:
+            return {n: len(q) for n, q in self._q.items()}
 
     def wake(self) -> None:
         self._ready.set()

@@ -1,16 +1,25 @@
 """The live worker: frames from the tap decoded (grey, full resolution), detected, grouped
 across cameras by time, matched and triangulated over N views, mapped to the SPECT frame, and
-fed to the estimator -- in one thread of its own, beside the recording.
+fed to the estimator -- in one thread of its own, beside the recording; and a watch thread
+that says, a few times a second, whether the patient is tracked (:mod:`vts_hw.live.watch`).
 
 The worker never holds up the recording: it reads only what the tap gives it (bounded
-queues that drop the oldest for the live path) and everything it does happens in its own
-thread. An alert is handed to ``on_alert(alert, estimate)``, which must return at once (the
-scan session queues it for its own thread). A failure in the worker ends the live path
-with its reason in :meth:`LiveTracker.snapshot`; the recording goes on.
+queues, ``queue_len`` frames per camera, that drop the oldest for the live path: when it falls
+behind it works on the newest frames and counts the others) and everything it does happens in
+its own thread. What a view reads (:meth:`LiveTracker.snapshot`) is the last estimate the
+worker *published* (an immutable object, replaced whole) with its status and age worked out
+at the moment it is read: no lock is shared with the worker, so a view never waits for it,
+and a figure the worker has not renewed shows its age and NOT TRACKING, never as current.
+
+An alert is handed to ``on_alert(alert, estimate)`` and what the watch finds (status changes,
+NOT TRACKING stretches that ended, NOT TRACKING alerts) to ``on_event(event)``; both must
+return at once (the scan session queues them for its own thread). A failure in the worker
+ends the live path with its reason in :meth:`LiveTracker.snapshot`; the recording goes on.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 import traceback
@@ -23,24 +32,28 @@ import numpy as np
 from vts_hw.live.estimator import LiveEstimate, LiveEstimator, LiveSettings
 from vts_hw.live.grouping import FrameGrouper, FrameSet, Pending
 from vts_hw.live.tap import FrameTap
+from vts_hw.live.watch import NOT_TRACKING, BlindAlert, Facts, Watch
 from vts_hw.vision.detect import DEFAULT as DEFAULT_DETECTOR, DetectorSettings, detect
 from vts_hw.vision.multiview import ViewGeometry, match_views
 
 __all__ = ["LiveTracker"]
 
 LATENCY_KEEP = 200_000
+GROUP_WAIT_S = 1.0      # a frame set waits this long at most for a camera that is not quiet (0048)
 
 
 class LiveTracker:
     """``cameras``: ``{name: calibrated camera}`` (two or more; frames of other cameras are
     ignored); ``motion``: the rig's ``motion:`` section; ``mapping``: VTS → SPECT (anything
     with ``apply``) or None (positions stay in the calibration's frame); ``clock_offsets``:
-    per camera its clock minus host clock (s); ``fps``: the cameras' frame rate."""
+    per camera its clock minus host clock (s); ``fps``: the cameras' frame rate; ``late_s``:
+    how long without a pose is still TRACKING; ``clock``: monotonic seconds."""
 
     def __init__(self, cameras: dict, motion, *, mapping=None, clock_offsets: dict | None = None,
                  fps: float = 25.0, settings: LiveSettings | None = None,
-                 detector: DetectorSettings = DEFAULT_DETECTOR, queue_len: int = 4,
-                 on_alert: Callable | None = None, max_px: float = 2.0):
+                 detector: DetectorSettings = DEFAULT_DETECTOR, queue_len: int = 2,
+                 on_alert: Callable | None = None, on_event: Callable | None = None, max_px: float = 2.0,
+                 late_s: float = 0.5, publish_s: float = 0.1, clock: Callable[[], float] = time.monotonic):
         self.names = list(cameras)
         self.geo = ViewGeometry([cameras[n] for n in self.names], self.names)
         self.mapping = mapping
@@ -48,6 +61,9 @@ class LiveTracker:
         self.detector = detector
         self.max_px = max_px
         self.on_alert = on_alert
+        self.on_event = on_event or (lambda event: None)
+        self.clock = clock
+        self.late_s, self.publish_s = float(late_s), float(publish_s)
         cam0 = self.geo.cams[0]
         if mapping is not None:
             est = LiveEstimator(motion, settings, frame="spect", axis=(0.0, 0.0, 1.0),
@@ -57,15 +73,29 @@ class LiveTracker:
                                 toward=cam0.center)
         self.estimator = est
         self.tap = FrameTap(self.names, queue_len)
-        self.grouper = FrameGrouper(len(self.names), 0.5 / fps, 1.5 / fps)
+        self.grouper = FrameGrouper(len(self.names), 0.5 / fps, max(1.5 / fps, GROUP_WAIT_S))
+        self._host_minus_mono = time.time() - time.monotonic()
+        self.watch = Watch(self.names, late_s=late_s, blind_alert_s=getattr(motion, "blind_alert_s", 3.0),
+                           reference_deadline_s=2.0 * est.s.reference_s, host_of=self.host_of)
+        self.facts = Facts()
+        self.published: LiveEstimate = est.snapshot()
+        self._published_capture: float | None = None
+        self.blind_alerts: list[BlindAlert] = []
         self.latency: deque[tuple[float, float]] = deque(maxlen=LATENCY_KEEP)  # (from last, from first) s
         self.sets = 0
+        self.processed = {n: 0 for n in self.names}
         self.undecodable = 0
         self.error = ""
+        self._delay_floor: dict[str, float] = {}
         self._index = {n: i for i, n in enumerate(self.names)}
-        self._lock = threading.RLock()
+        self._lock = threading.Lock()           # the latency list only (never held for long)
         self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._threads: list[threading.Thread] = []
+        self._finished = False
+
+    def host_of(self, mono: float) -> float:
+        """Host epoch s of a monotonic time of this process."""
+        return mono + self._host_minus_mono
 
     # -- the hook -------------------------------------------------------------------------------
     def on_frame(self, camera: str, frame) -> None:
@@ -73,30 +103,45 @@ class LiveTracker:
         self.tap.put(camera, frame)
 
     def start(self) -> "LiveTracker":
-        self._thread = threading.Thread(target=self._run, name="live-tracker", daemon=True)
-        self._thread.start()
+        self._threads = [threading.Thread(target=self._run, name="live-tracker", daemon=True),
+                         threading.Thread(target=self._watch_run, name="live-watch", daemon=True)]
+        for t in self._threads:
+            t.start()
         return self
 
     def stop(self, timeout: float = 5.0) -> None:
+        """The threads stopped; the watch's last word (a NOT TRACKING stretch still open ends
+        now) handed to ``on_event``."""
         self._stop.set()
         self.tap.wake()
-        if self._thread is not None:
-            self._thread.join(timeout)
+        for t in self._threads:
+            t.join(timeout)
+        if not self._finished:
+            self._finished = True
+            now = self.clock()
+            self.tick(now)
+            for event in self.watch.finish(now):
+                self.on_event(event)
 
     # -- the worker -----------------------------------------------------------------------------
     def _run(self) -> None:
         try:
             while not self._stop.is_set():
-                items = self.tap.take(0.1)
-                for name, arrival, frame in items:
-                    p = self._detect(name, arrival, frame)
-                    if p is not None:
-                        self.grouper.add(p)
-                for fs in self.grouper.ready(time.monotonic()):
-                    self._estimate(fs)
+                self.step(0.1)
         except Exception as exc:   # the live path ends; the recording is not touched
             self.error = f"live tracking stopped: {type(exc).__name__}: {exc}"
             self.error_trace = traceback.format_exc()
+
+    def step(self, timeout: float, now: float | None = None) -> None:
+        """One round of the worker: what the tap holds detected, the sets ready estimated."""
+        items = self.tap.take(timeout)
+        for name, arrival, frame in items:
+            p = self._detect(name, arrival, frame)
+            self.processed[name] += 1
+            if p is not None:
+                self.grouper.add(p)
+        for fs in self.grouper.ready(self.clock() if now is None else now):
+            self._estimate(fs)
 
     def _detect(self, name: str, arrival: float, frame) -> Pending | None:
         gray = cv2.imdecode(np.frombuffer(frame.jpeg, np.uint8), cv2.IMREAD_GRAYSCALE)
@@ -107,8 +152,12 @@ class LiveTracker:
         uv = np.array([(b.x, b.y) for b in blobs], float).reshape(-1, 2)
         t = frame.host_time if frame.camera_time is None else frame.camera_time - self.offsets.get(name, 0.0)
         c = self._index[name]
+        # how much later than its best this camera's frame arrived: frames delayed before the
+        # tap (network, a busy recorder) are late even when the live path is not
+        delay = self.host_of(arrival) - t
+        floor = self._delay_floor[name] = min(self._delay_floor.get(name, delay), delay)
         # undistorted now, while the set may still wait for other cameras: off the set's path
-        return Pending(c, t, arrival, uv, self.geo.normalize(c, uv))
+        return Pending(c, t, arrival, uv, self.geo.normalize(c, uv), arrival - (delay - floor))
 
     def _estimate(self, fs: FrameSet) -> None:
         pts = [np.zeros((0, 2)) if u is None else u for u in fs.uv]
@@ -116,13 +165,57 @@ class LiveTracker:
         xyz = match_views(self.geo, pts, self.max_px, norm=norm).xyz
         if self.mapping is not None and len(xyz):
             xyz = self.mapping.apply(xyz)
+        est, f = self.estimator, self.facts
+        phase = est.phase
+        alert = est.update(fs.time, xyz)
+        seen, resumed, broke, seen_arrival = f.seen, f.resumed, f.broke, f.seen_arrival
+        if est.observed:
+            if seen is None or fs.capture - seen > self.late_s:
+                resumed, broke = fs.capture, seen
+            seen, seen_arrival = fs.capture, fs.last_arrival
+        learned = f.learned if f.learned is not None or est.phase != "tracking" else fs.capture
+        # the figures first, then the facts that say they are current: a view reading in
+        # between sees old facts with new figures (never TRACKING on old figures)
+        if alert is not None or est.phase != phase or self._published_capture is None \
+                or fs.capture - self._published_capture >= self.publish_s:
+            self.published = est.snapshot()      # then its capture: a reader in between overstates its age
+            self._published_capture = fs.capture
+        self.facts = Facts(est.phase, self.tap.first, seen, resumed, fs.capture,
+                           "" if est.observed else est.note, learned, seen_arrival, broke)
+        self.sets += 1
+        now = self.clock()
         with self._lock:
-            alert = self.estimator.update(fs.time, xyz)
-            self.sets += 1
-            now = time.monotonic()
             self.latency.append((now - fs.last_arrival, now - fs.first_arrival))
         if alert is not None and self.on_alert is not None:
             self.on_alert(alert, self.snapshot())
+
+    # -- the watch ------------------------------------------------------------------------------
+    def _watch_run(self) -> None:
+        try:
+            while not self._stop.wait(0.1):
+                self.tick()
+        except Exception as exc:
+            self.error = f"live watch stopped: {type(exc).__name__}: {exc}"
+            self.error_trace = traceback.format_exc()
+
+    def silence(self, now: float) -> dict:
+        """Per camera the seconds since its last frame reached the live path (None: none yet)."""
+        return {n: None if t is None else now - t for n, t in self.tap.last.items()}
+
+    def _facts(self) -> Facts:
+        f = self.facts
+        return dataclasses.replace(f, started=self.tap.first) if f.started is None else f
+
+    def tick(self, now: float | None = None) -> list:
+        """The watch evaluated at ``now`` (default the clock); what it found is handed to
+        ``on_event`` and returned."""
+        now = self.clock() if now is None else now
+        events = self.watch.tick(now, self._facts(), self.silence(now))
+        for e in events:
+            if isinstance(e, BlindAlert):
+                self.blind_alerts.append(e)
+            self.on_event(e)
+        return events
 
     # -- what it says ---------------------------------------------------------------------------
     def stats(self, last: int | None = 500) -> dict:
@@ -137,11 +230,26 @@ class LiveTracker:
         def pct(col, q):
             return round(float(np.percentile(lat[:, col], q) * 1e3), 3) if len(lat) else None
         return {"sets": self.sets, "live_dropped": dict(self.tap.dropped), "tapped": dict(self.tap.received),
+                "processed": dict(self.processed), "queued": self.tap.queued(),
                 "unmatched_frames": self.grouper.unmatched, "undecodable": self.undecodable,
                 "latency_ms_p50": pct(0, 50), "latency_ms_p95": pct(0, 95),
                 "latency_from_first_frame_ms_p50": pct(1, 50), "latency_from_first_frame_ms_p95": pct(1, 95),
                 "error": self.error}
 
-    def snapshot(self) -> LiveEstimate:
-        with self._lock:
-            return self.estimator.snapshot(self.stats())
+    def snapshot(self, now: float | None = None, stats: bool = True) -> LiveEstimate:
+        """The last published estimate, with whether the patient is tracked *now* and the age
+        of its figures. Never waits for the worker."""
+        now = self.clock() if now is None else now
+        f = self._facts()
+        status, reason = self.watch.classify(now, f, self.silence(now))
+        w = self.watch
+        if status == w.status and w.since is not None:
+            since = w.since
+        else:                   # the watch has not ticked since: as it will see it
+            since = (f.seen if status == NOT_TRACKING and f.seen is not None else f.started) or now
+        if self.error:
+            status, reason = NOT_TRACKING, self.error
+        cap = self._published_capture
+        return dataclasses.replace(self.published, status=status, reason=reason, status_for_s=max(0.0, now - since),
+                                   age_s=None if cap is None else max(0.0, now - cap),
+                                   stats=self.stats() if stats else {})
