@@ -129,6 +129,6 @@ def rooms(since: str, out: str, rig_name: str | None, as_json: bool, config_path
     if as_json:
         echo_json(rep.results_data())
     else:
-        no_daily = [r.label for r in rep.rooms if r.state is None]
+        no_daily = [r.label for r in rep.rooms if not r.has_daily]
         click.echo(f"wrote {out} ({len(rep.rooms)} room(s)"
                    + (f"; no daily QA in the period: {', '.join(no_daily)}" if no_daily else "") + ")")
