@@ -231,6 +231,8 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
             raise UsageError(f"simulated patient: {e}") from None
     if folder is not None:
         folder = ensure_dir(folder, FOLDER)  # before anything starts: a folder we cannot use stops here
+        if is_running(folder) and _pid(folder) != os.getpid():
+            raise _already_running(folder)
     clock = RealClock() if rate == 1.0 else VirtualClock(time.time(), rate=rate)
     stop = threading.Event()
 
@@ -292,16 +294,21 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
     """Start ``serve`` in a background process; return its pid once rig.yaml is written."""
     folder = ensure_dir(Path(folder).resolve(), FOLDER)
     if is_running(folder):
-        raise VtsError(f"a simulated rig is already running in {folder} (vts sim down --dir {folder})")
+        raise _already_running(folder)
     for name in (READY_FILE, PID_FILE):
         with contextlib.suppress(FileNotFoundError):
             (folder / name).unlink()
     log_path = folder / LOG_FILE
-    try:
+    try:   # the first line of this start, on disk before the rig starts: a full disk stops here
         log = open(log_path, "ab")
+        log_start = log.tell()
+        log.write(f"{time.strftime('%Y-%m-%dT%H:%M:%S%z')} vts sim up: starting ({n_cameras} cameras)\n".encode())
+        log.flush()
+        os.fsync(log.fileno())
     except OSError as e:
+        with contextlib.suppress(OSError, UnboundLocalError):
+            log.close()
         raise WriteFailed(log_path, os_reason(e)) from None
-    log_start = log.tell()
     cmd = [sys.executable, "-m", "vts_hw.sim_devices.rig", str(folder), str(n_cameras), str(seed), firmware,
            str(rate), trigger] + (["spect"] if spect else []) + (["https"] if https else []) \
         + (["gantry"] if gantry else []) + ([patient.to_arg()] if patient is not None else [])
@@ -313,8 +320,11 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
             return proc.pid
         if proc.poll() is not None:
             log.close()
+            cause = failure_cause(log_path, log_start)
+            if proc.returncode == 3 and cause == NOTHING_LOGGED and _disk_full(folder):
+                cause = f"{folder}: no space left on device"
             err = VtsError(f"the simulated rig failed to start (exit {proc.returncode}): "
-                           f"{failure_cause(log_path, log_start)} (the whole log: {log_path})")
+                           f"{cause} (the whole log: {log_path})")
             if proc.returncode in (2, 3, 4):  # the cause was one of ours: keep its exit code
                 err.exit_code = proc.returncode
             raise err
@@ -324,6 +334,11 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
     log.close()
     raise VtsError(f"the simulated rig did not come up within {timeout:g} s; its log {log_path} ends: "
                    f"{failure_cause(log_path, log_start)}")
+
+
+def _already_running(folder: Path) -> UsageError:
+    return UsageError(f"a simulated rig is already running in {folder}: stop it first "
+                      f"(vts sim down --dir {folder}) or give another --dir")
 
 
 def failure_cause(log_path: Path, start: int = 0) -> str:
@@ -342,7 +357,17 @@ def failure_cause(log_path: Path, start: int = 0) -> str:
     plain = [ln for ln in lines if not ln.startswith((" ", "\t", "Traceback"))]
     if plain:
         return plain[-1]
-    return "it wrote nothing to its log (was it killed, or is the disk full?)"
+    return NOTHING_LOGGED
+
+
+NOTHING_LOGGED = "it wrote nothing to its log (was it killed, or is the disk full?)"
+
+
+def _disk_full(folder: Path) -> bool:
+    try:
+        return os.statvfs(folder).f_bavail == 0
+    except OSError:
+        return False
 
 
 def _why(exc: BaseException) -> str:
@@ -416,12 +441,14 @@ def _main(argv: list[str]) -> int:
         serve(folder, int(n), int(seed), fw, float(rate), trigger=trigger, spect="spect" in argv[6:],
               https="https" in argv[6:], gantry="gantry" in argv[6:], patient=patient)
     except VtsError as e:
-        print(f"{FAILED}{e}", file=sys.stderr, flush=True)
+        with contextlib.suppress(OSError):     # a full disk takes the log too: the exit code still tells
+            print(f"{FAILED}{e}", file=sys.stderr, flush=True)
         return e.exit_code
     except Exception as e:
         import traceback
-        traceback.print_exc()
-        print(f"{FAILED}{_why(e)}", file=sys.stderr, flush=True)
+        with contextlib.suppress(OSError):
+            traceback.print_exc()
+            print(f"{FAILED}{_why(e)}", file=sys.stderr, flush=True)
         return 1
     return 0
 

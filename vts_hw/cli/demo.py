@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from vts_hw.cli import cli
+from vts_hw.cli.common import FiniteFloat, PositiveSeconds
 
 
 @cli.command()
@@ -14,12 +15,13 @@ from vts_hw.cli import cli
               help="Folder for what the demo writes (its results store is made afresh).")
 @click.option("--days", type=click.IntRange(1, 730), default=60, show_default=True,
               help="Simulated days of daily QA.")
-@click.option("--seconds", type=float, default=3.0, show_default=True, help="Length of the camera recording.")
+@click.option("--seconds", type=PositiveSeconds(max=600), default=3.0, show_default=True,
+              help="Length of the camera recording.")
 @click.option("--frames", type=click.IntRange(1, 50), default=5, show_default=True,
               help="LED-on snapshots per camera and day.")
-@click.option("--scan-seconds", type=click.FloatRange(0, 600), default=20.0, show_default=True,
+@click.option("--scan-seconds", type=FiniteFloat(0, 600, what="seconds"), default=20.0, show_default=True,
               help="Length of the simulated scan (0: no scan).")
-@click.option("--patient-seconds", type=click.FloatRange(0, 600), default=30.0, show_default=True,
+@click.option("--patient-seconds", type=FiniteFloat(0, 600, what="seconds"), default=30.0, show_default=True,
               help="Length of the simulated patient scan (0: none; else at least 24).")
 def demo(out: str, days: int, seconds: float, frames: int, scan_seconds: float, patient_seconds: float) -> None:
     """The simulated rig, end to end.

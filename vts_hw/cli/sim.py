@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from vts_hw.cli import cli
+from vts_hw.cli.common import FiniteFloat, positive
 
 
 @cli.group()
@@ -30,8 +31,9 @@ def sim() -> None:
 @click.option("--https", is_flag=True,
               help="HTTPS cameras with basic authentication and a self-signed certificate (written to "
                    "--dir and named in rig.yaml as ca_cert).")
-@click.option("--rate", type=float, default=1.0, show_default=True,
-              help="Speed of the simulated clock (e.g. 86400: a day per second, for drift).")
+@click.option("--rate", type=positive("a speed", max=1e6), default=1.0, show_default=True,
+              help="Speed of the simulated clock, greater than 0 and at most 1e6 (e.g. 86400: a day per "
+                   "second, for drift).")
 @click.option("--trigger", type=click.Choice(["none", "triggerbox", "visa"]), default="none", show_default=True,
               help="A simulated trigger generator: our firmware in the emulator behind a pty, or a "
                    "Keysight 33522B function generator on a TCP socket on 127.0.0.1 (reached through VISA "
@@ -49,7 +51,7 @@ def sim() -> None:
 @click.option("--patient-seed", type=int, default=None, help="Seed of the patient (default: --seed).")
 @click.option("--patient-moves", type=click.IntRange(0, 50), default=None,
               help="How many sudden body moves over the plan [default: 2].")
-@click.option("--patient-minutes", type=click.FloatRange(0.1, 240.0), default=None,
+@click.option("--patient-minutes", type=FiniteFloat(0.1, 240.0, what="minutes"), default=None,
               help="How long the patient's plan lasts (moves are spread over it; after it the patient "
                    "lies still and no longer breathes) [default: 10].")
 @click.option("--no-breathing", is_flag=True, help="The patient does not breathe (body moves only).")

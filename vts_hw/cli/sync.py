@@ -5,7 +5,8 @@ from __future__ import annotations
 import click
 
 from vts_hw.cli import cli
-from vts_hw.cli.common import FramesProgress, calibration_files, config_option, finish_analysis, json_option
+from vts_hw.cli.common import (FiniteFloat, FramesProgress, calibration_files, config_option, finish_analysis,
+                               json_option)
 
 
 @cli.group()
@@ -20,7 +21,7 @@ def sync() -> None:
               help="The SPECT list-mode file of the same scan. Several files may follow it (a shell "
                    "glob such as sim/spect/scan-*.vtslm): the one whose acquisition overlaps the "
                    "session is taken.")
-@click.option("--clock-slack", type=click.FloatRange(0, 3600), default=None, metavar="SECONDS",
+@click.option("--clock-slack", type=FiniteFloat(0, 3600, what="seconds"), default=None, metavar="SECONDS",
               help="How far the SPECT's wall clock may be off the host's when matching a list-mode to "
                    "the session (default: 10 s).")
 @click.option("--calibration", type=click.Path(dir_okay=False), default=None,
