@@ -49,9 +49,10 @@ class MotionAnalysis:
 
     def __init__(self, session, listmode=None, calibration=None, mapping=None, *, tracks=None,
                  settings: MotionSettings | None = None, motion_config=None, workers: int | None = None,
-                 progress: Callable[[int, int], None] | None = None):
+                 progress: Callable[[int, int], None] | None = None, clock_slack_s: float | None = None):
         self.session = Path(session)
-        self.listmode = listmode
+        self.listmode = listmode        # a file, or several: the sync analysis takes the session's own
+        self.clock_slack_s = clock_slack_s
         self.calibration = calibration
         self.mapping = mapping
         self.tracks = tracks
@@ -80,8 +81,10 @@ class MotionAnalysis:
             raise DataError(f"{self.session}: no calibration given: the markers cannot be triangulated")
         if self.listmode is not None:
             from vts_hw.procedures.sync import SyncAnalysis
+            from vts_hw.procedures.sync_inputs import CLOCK_SLACK_S
             self.sync = SyncAnalysis(self.session, self.listmode, self.calibration, self.mapping,
-                                     workers=self.workers, progress=self.progress)
+                                     workers=self.workers, progress=self.progress,
+                                     clock_slack_s=CLOCK_SLACK_S if self.clock_slack_s is None else self.clock_slack_s)
             self.sync.analyze()
             self.tracks = self.sync.tracks
             self.manifest = self.sync.manifest or {}

@@ -73,6 +73,28 @@ class PositiveSeconds(FiniteFloat):
         super().__init__(0, max, min_open=True, what=what)
 
 
+def listmode_options(f):
+    """The list-mode options of every command that takes a scan's SPECT list-mode (`vts sync
+    analyze`, `vts motion analyze`), one rule for all (docs/decisions/0025-which-listmode.md):
+    `--listmode FILE` (repeatable) and further files after the session, so the shell's
+    expansion of `--listmode sim/spect/scan-*.vtslm` parses as it reads; the one whose
+    acquisition belongs to the session is taken (`--clock-slack`). The command gets ``more``,
+    ``listmode`` and ``clock_slack``; :func:`listmode_candidates` joins them."""
+    f = click.option("--clock-slack", type=FiniteFloat(0, 3600, what="seconds"), default=None, metavar="SECONDS",
+                     help="How far the SPECT's wall clock may be off the host's when matching a list-mode to "
+                          "the session (default: 10 s).")(f)
+    f = click.option("--listmode", "listmode", type=click.Path(), multiple=True, metavar="FILE",
+                     help="The SPECT list-mode file of the same scan. Several files may follow it (a shell "
+                          "glob such as sim/spect/scan-*.vtslm): the one whose acquisition started on the "
+                          "session's start pulse (or overlaps it) is taken; none or two is refused (exit 3).")(f)
+    return click.argument("more", nargs=-1, type=click.Path(), metavar="[LISTMODE]...")(f)
+
+
+def listmode_candidates(listmode, more) -> list[str]:
+    """The list-mode files given to a command of :func:`listmode_options`, in order."""
+    return [*listmode, *more]
+
+
 def with_rig(f):
     """Load the rig config named by --config and pass it as ``rig``."""
     @config_option
