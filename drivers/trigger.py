@@ -164,13 +164,16 @@ _WHAT = {FREQUENCY: "set a frequency", DUTY: "set a duty cycle", LEVELS: "set ou
 
 
 def _check_is_trigger_log(path: Path) -> None:
-    """A file that is not a trigger log is never appended to: UsageError (exit 2) naming it."""
+    """A file that is not a trigger log is never appended to: UsageError (exit 2) naming it. A
+    trigger log's first line is its header: ``host_time`` first, ``device``, ``kind`` and ``text``
+    among the columns (LOG_HEADER, or a log of another version)."""
     with open(path, "rb") as f:
-        first = f.readline(4096)
-    header = ",".join(LOG_HEADER).encode()
-    if first.rstrip(b"\r\n") != header:
-        raise UsageError(f"{path} is not a trigger log (its first line is not {header.decode()!r}), so it was "
-                         "left as it was: name a new file or a trigger log with --log")
+        first = f.readline(4096).decode("utf-8", "replace").rstrip("\r\n")
+    fields = next(csv.reader([first]), []) if first else []
+    if not (fields[:1] == [LOG_HEADER[0]] and {"device", "kind", "text"} <= set(fields)):
+        raise UsageError(f"{path} is not a trigger log (its first line is not a header such as "
+                         f"{','.join(LOG_HEADER)!r}), so it was left as it was: name a new file or a trigger "
+                         "log with --log")
 
 
 class TriggerLog:
