@@ -30,7 +30,7 @@ from typing import Any, Callable, Protocol, runtime_checkable
 
 from pydantic import BaseModel, ConfigDict
 
-from vts_hw.errors import DeviceError
+from vts_hw.errors import DeviceError, UsageError
 from vts_hw.files import WriteFailed, os_reason
 from vts_hw.recording.trigger_log import (CLOCK as CLOCK_ROW, DEVICE_CLOCK_MAPPED, HOST_WRITE, LOG_HEADER,
                                           WAVE_START, WAVE_STOP, clock_text, wave_start_text, wave_stop_text)
@@ -163,6 +163,19 @@ _WHAT = {FREQUENCY: "set a frequency", DUTY: "set a duty cycle", LEVELS: "set ou
          CLOCK: "report a device clock to map to host time", EDGES: "report edge times"}
 
 
+def _check_is_trigger_log(path: Path) -> None:
+    """A file that is not a trigger log is never appended to: UsageError (exit 2) naming it. A
+    trigger log's first line is its header: ``host_time`` first, ``device``, ``kind`` and ``text``
+    among the columns (LOG_HEADER, or a log of another version)."""
+    with open(path, "rb") as f:
+        first = f.readline(4096).decode("utf-8", "replace").rstrip("\r\n")
+    fields = next(csv.reader([first]), []) if first else []
+    if not (fields[:1] == [LOG_HEADER[0]] and {"device", "kind", "text"} <= set(fields)):
+        raise UsageError(f"{path} is not a trigger log (its first line is not a header such as "
+                         f"{','.join(LOG_HEADER)!r}), so it was left as it was: name a new file or a trigger "
+                         "log with --log")
+
+
 class TriggerLog:
     """Append-only ``trigger.csv``: host time, device time (where known), device, kind, text.
 
@@ -183,6 +196,8 @@ class TriggerLog:
             try:
                 self.path.parent.mkdir(parents=True, exist_ok=True)
                 new = not self.path.exists() or self.path.stat().st_size == 0
+                if not new:
+                    _check_is_trigger_log(self.path)
                 self._f = open(self.path, "a", newline="", encoding="utf-8")
                 self._w = csv.writer(self._f)
                 if new:

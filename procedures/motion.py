@@ -29,6 +29,7 @@ from vts_hw import __version__
 from vts_hw.errors import DataError
 from vts_hw.figures import figure_png
 from vts_hw.motion import MotionSettings, analyze_motion, marker_series
+from vts_hw.motion.bands import band_names
 from vts_hw.motion.exports import clock_text, export_motion, time_origin
 from vts_hw.spect.frame import frame_description
 from vts_hw.results import Measure, overall_state
@@ -50,9 +51,10 @@ class MotionAnalysis:
 
     def __init__(self, session, listmode=None, calibration=None, mapping=None, *, tracks=None,
                  settings: MotionSettings | None = None, motion_config=None, workers: int | None = None,
-                 progress: Callable[[int, int], None] | None = None):
+                 progress: Callable[[int, int], None] | None = None, clock_slack_s: float | None = None):
         self.session = Path(session)
-        self.listmode = listmode
+        self.listmode = listmode        # a file, or several: the sync analysis takes the session's own
+        self.clock_slack_s = clock_slack_s
         self.calibration = calibration
         self.mapping = mapping
         self.tracks = tracks
@@ -82,8 +84,10 @@ class MotionAnalysis:
             raise DataError(f"{self.session}: no calibration given: the markers cannot be triangulated")
         if self.listmode is not None:
             from vts_hw.procedures.sync import SyncAnalysis
+            from vts_hw.procedures.sync_inputs import CLOCK_SLACK_S
             self.sync = SyncAnalysis(self.session, self.listmode, self.calibration, self.mapping,
-                                     workers=self.workers, progress=self.progress)
+                                     workers=self.workers, progress=self.progress,
+                                     clock_slack_s=CLOCK_SLACK_S if self.clock_slack_s is None else self.clock_slack_s)
             self.sync.analyze()
             self.tracks = self.sync.tracks
             self.manifest = self.sync.manifest or {}
@@ -150,8 +154,11 @@ class MotionAnalysis:
         r = self._need()
         t0 = time_origin(r)
         S, B = r.series, r.bands
-        band_of = {m: k for k, g in enumerate(B.groups) for m in g}
-        markers = [{"marker": S.label(m), "patient": m in B.patient, "band": band_of.get(m), "why": B.why[m],
+        centres = [np.nanmedian(S.P[:, g].reshape(-1, 3), axis=0) for g in B.groups]
+        names, naming = band_names(centres, S.frame)
+        band_of = {m: names[k] for k, g in enumerate(B.groups) for m in g}
+        markers = [{"marker": S.label(m), "number": S.number(m), "track_ids": [int(i) for i in S.ids[m]],
+                    "patient": m in B.patient, "band": band_of.get(m), "why": B.why[m],
                     "seen_fraction": float(B.seen_fraction[m]), "breathing_rms_mm": float(B.breath_rms_mm[m]),
                     "points_by_camera": S.camera_sets[m] if S.camera_sets else {}}
                    for m in range(len(S.ids))]
@@ -174,7 +181,8 @@ class MotionAnalysis:
             "summary": summary, "measures": [m.as_dict() for m in measures],
             "windows": {m: self.tolerances[m].as_dict() for m in METRICS if m in self.tolerances},
             "reference_period_s": [r.reference_period[0] - t0, r.reference_period[1] - t0],
-            "bands": [[S.label(m) for m in g] for g in B.groups],
+            "bands": [{"band": name, "markers": [S.label(m) for m in g]} for name, g in zip(names, B.groups)],
+            "band_naming": naming,
             "markers": markers,
             "events": [{**e.to_json(), "t_start": e.t_start - t0, "t_end": e.t_end - t0} for e in r.events],
             "states": [{**s.to_json(), "t_start": s.t_start - t0, "t_end": s.t_end - t0} for s in r.states],
@@ -195,7 +203,7 @@ class MotionAnalysis:
                  f"  times: {d['clock']}",
                  f"  positions: {d['frame']['definition']}",
                  f"  patient markers: {len([m for m in d['markers'] if m['patient']])} in {len(d['bands'])} band(s) "
-                 f"({'; '.join(', '.join(b) for b in d['bands'])}); reference {d['reference_period_s'][0]:.1f}-"
+                 f"({'; '.join(b['band'] + ': ' + ', '.join(b['markers']) for b in d['bands'])}); reference {d['reference_period_s'][0]:.1f}-"
                  f"{d['reference_period_s'][1]:.1f} s",
                  f"  breathing: {s['breathing_cycles']} cycles, "
                  + (f"{s['breathing_rate_per_min']:.1f} /min, " if s['breathing_rate_per_min'] else "")

@@ -55,12 +55,14 @@ class SimRig:
     def __init__(self, n_cameras: int = 2, seed: int = 0, *, user: str = "root", password: str | None = None,
                  firmware: str = "vapix3", clock=None, fps: float = 25.0,
                  drift_px_per_60_days: dict[str, float] | None = None, trigger: str = "none",
-                 tls: tuple[str, str] | None = None, gantry: bool = False, patient=None):
+                 tls: tuple[str, str] | None = None, gantry: bool = False, patient=None, qatrack: bool = False):
         if trigger not in TRIGGERS:
             raise ValueError(f"trigger must be one of {', '.join(TRIGGERS)}, not {trigger!r}")
         self.trigger = trigger
         self.trigger_box = None  # the firmware in the emulator, when trigger == "triggerbox"
         self.function_generator = None  # a 33522B on a TCP socket, when trigger == "visa"
+        self.qatrack = qatrack          # a simulated QATrack+ beside the rig (qatrack_rig.py)
+        self.qatrack_site = None
         self.clock = clock or RealClock()
         # gantry: the SPECT heads in the room, turning step-and-shoot from the start (3 deg steps,
         # a stop of GANTRY_DWELL_S) and on for as long as the rig runs; without it there are none
@@ -105,6 +107,9 @@ class SimRig:
         if self.trigger == "visa":
             from vts_hw.sim_devices.scpi_server import SimFunctionGenerator
             self.function_generator = SimFunctionGenerator(clock=self.clock.now).start()
+        if self.qatrack:
+            from vts_hw.sim_devices.qatrack_rig import start_site
+            self.qatrack_site = start_site(list(self.servers))
         self._started = True
         return self
 
@@ -117,6 +122,9 @@ class SimRig:
         if self.function_generator is not None:
             self.function_generator.stop()
             self.function_generator = None
+        if self.qatrack_site is not None:
+            self.qatrack_site.down()
+            self.qatrack_site = None
         self._started = False
 
     def __enter__(self) -> "SimRig":
@@ -145,6 +153,9 @@ class SimRig:
             data["calibration"] = calibration
         if results_url:
             data["store"] = {"url": results_url}
+        if self.qatrack_site is not None:
+            from vts_hw.sim_devices.qatrack_rig import section
+            data["qatrack"] = section(self.qatrack_site, list(self.servers))
         return parse_rig(data, "simulated rig")
 
     def trigger_config(self) -> dict:
@@ -157,7 +168,12 @@ class SimRig:
         return {"backend": "none"}
 
     def env_vars(self) -> dict[str, str]:
-        return {password_var(name): self.password for name in self.servers}
+        """The variables rig.yaml names: each camera's password (and the simulated QATrack+'s token)."""
+        out = {password_var(name): self.password for name in self.servers}
+        if self.qatrack_site is not None:
+            from vts_hw.sim_devices.qatrack_rig import TOKEN_ENV
+            out[TOKEN_ENV] = self.qatrack_site.token
+        return out
 
     @contextlib.contextmanager
     def env(self):
@@ -189,7 +205,7 @@ class SimRig:
         if len(self.scene.cameras) >= 3:
             write_true_cameras(self.scene, folder)
         env_path = folder / "sim.env"
-        env = ["# source this file: the passwords of the simulated cameras"]
+        env = ["# source this file: the passwords of the simulated cameras (and the simulated QATrack+'s token)"]
         env += [f"export {k}='{v}'" for k, v in self.env_vars().items()]
         env.append(f"export VTS_CONFIG='{(folder / 'rig.yaml').resolve()}'")
         write_atomic(env_path, "\n".join(env) + "\n", mode=0o600)
@@ -215,8 +231,9 @@ def load_env_file(path: str | Path) -> dict[str, str]:
 # -- running in the foreground or detached ----------------------------------------------------
 def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = "vapix3",
           rate: float = 1.0, on_ready=None, trigger: str = "none", spect: bool = False,
-          https: bool = False, gantry: bool = False, patient=None) -> None:
+          https: bool = False, gantry: bool = False, patient=None, qatrack: bool = False) -> None:
     """Run a rig until SIGINT/SIGTERM. With ``folder``: write rig.yaml, sim.env and sim.pid.
+    ``qatrack``: a simulated QATrack+ beside it, named in rig.yaml (its token in sim.env).
     ``spect``: a simulated SPECT records every scan the trigger box starts, into
     ``folder/spect`` (:class:`~vts_hw.sim_devices.spect_follower.SpectFollower`).
     ``patient``: a :class:`~vts_hw.sim_devices.patient_rig.PatientOptions`: the simulated
@@ -231,6 +248,8 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
             raise UsageError(f"simulated patient: {e}") from None
     if folder is not None:
         folder = ensure_dir(folder, FOLDER)  # before anything starts: a folder we cannot use stops here
+        if is_running(folder) and _pid(folder) != os.getpid():
+            raise _already_running(folder)
     clock = RealClock() if rate == 1.0 else VirtualClock(time.time(), rate=rate)
     stop = threading.Event()
 
@@ -246,7 +265,7 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
         from vts_hw.sim_devices.tls import self_signed
         tls = tuple(str(p) for p in self_signed(folder if folder is not None else mkdtemp(prefix="vts-sim-tls-")))
     rig = SimRig(n_cameras=n_cameras, seed=seed, firmware=firmware, clock=clock, trigger=trigger, tls=tls,
-                 gantry=gantry, patient=patient)
+                 gantry=gantry, patient=patient, qatrack=qatrack)
     follower = None
     if spect:
         from vts_hw.sim_devices.spect_follower import SpectFollower
@@ -288,23 +307,30 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
 
 def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmware: str = "vapix3",
                    rate: float = 1.0, timeout: float = 60.0, trigger: str = "none",
-                   spect: bool = False, https: bool = False, gantry: bool = False, patient=None) -> int:
+                   spect: bool = False, https: bool = False, gantry: bool = False, patient=None,
+                   qatrack: bool = False) -> int:
     """Start ``serve`` in a background process; return its pid once rig.yaml is written."""
     folder = ensure_dir(Path(folder).resolve(), FOLDER)
     if is_running(folder):
-        raise VtsError(f"a simulated rig is already running in {folder} (vts sim down --dir {folder})")
+        raise _already_running(folder)
     for name in (READY_FILE, PID_FILE):
         with contextlib.suppress(FileNotFoundError):
             (folder / name).unlink()
     log_path = folder / LOG_FILE
-    try:
+    try:   # the first line of this start, on disk before the rig starts: a full disk stops here
         log = open(log_path, "ab")
+        log_start = log.tell()
+        log.write(f"{time.strftime('%Y-%m-%dT%H:%M:%S%z')} vts sim up: starting ({n_cameras} cameras)\n".encode())
+        log.flush()
+        os.fsync(log.fileno())
     except OSError as e:
+        with contextlib.suppress(OSError, UnboundLocalError):
+            log.close()
         raise WriteFailed(log_path, os_reason(e)) from None
-    log_start = log.tell()
     cmd = [sys.executable, "-m", "vts_hw.sim_devices.rig", str(folder), str(n_cameras), str(seed), firmware,
            str(rate), trigger] + (["spect"] if spect else []) + (["https"] if https else []) \
-        + (["gantry"] if gantry else []) + ([patient.to_arg()] if patient is not None else [])
+        + (["gantry"] if gantry else []) + (["qatrack"] if qatrack else []) \
+        + ([patient.to_arg()] if patient is not None else [])
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=log, start_new_session=True)
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -313,8 +339,11 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
             return proc.pid
         if proc.poll() is not None:
             log.close()
+            cause = failure_cause(log_path, log_start)
+            if proc.returncode == 3 and cause == NOTHING_LOGGED and _disk_full(folder):
+                cause = f"{folder}: no space left on device"
             err = VtsError(f"the simulated rig failed to start (exit {proc.returncode}): "
-                           f"{failure_cause(log_path, log_start)} (the whole log: {log_path})")
+                           f"{cause} (the whole log: {log_path})")
             if proc.returncode in (2, 3, 4):  # the cause was one of ours: keep its exit code
                 err.exit_code = proc.returncode
             raise err
@@ -324,6 +353,11 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
     log.close()
     raise VtsError(f"the simulated rig did not come up within {timeout:g} s; its log {log_path} ends: "
                    f"{failure_cause(log_path, log_start)}")
+
+
+def _already_running(folder: Path) -> UsageError:
+    return UsageError(f"a simulated rig is already running in {folder}: stop it first "
+                      f"(vts sim down --dir {folder}) or give another --dir")
 
 
 def failure_cause(log_path: Path, start: int = 0) -> str:
@@ -342,7 +376,17 @@ def failure_cause(log_path: Path, start: int = 0) -> str:
     plain = [ln for ln in lines if not ln.startswith((" ", "\t", "Traceback"))]
     if plain:
         return plain[-1]
-    return "it wrote nothing to its log (was it killed, or is the disk full?)"
+    return NOTHING_LOGGED
+
+
+NOTHING_LOGGED = "it wrote nothing to its log (was it killed, or is the disk full?)"
+
+
+def _disk_full(folder: Path) -> bool:
+    try:
+        return os.statvfs(folder).f_bavail == 0
+    except OSError:
+        return False
 
 
 def _why(exc: BaseException) -> str:
@@ -414,14 +458,17 @@ def _main(argv: list[str]) -> int:
         from vts_hw.sim_devices.patient_rig import PatientOptions
         patient = next((PatientOptions.from_arg(a) for a in argv[6:] if a.startswith("patient=")), None)
         serve(folder, int(n), int(seed), fw, float(rate), trigger=trigger, spect="spect" in argv[6:],
-              https="https" in argv[6:], gantry="gantry" in argv[6:], patient=patient)
+              https="https" in argv[6:], gantry="gantry" in argv[6:], patient=patient,
+              qatrack="qatrack" in argv[6:])
     except VtsError as e:
-        print(f"{FAILED}{e}", file=sys.stderr, flush=True)
+        with contextlib.suppress(OSError):     # a full disk takes the log too: the exit code still tells
+            print(f"{FAILED}{e}", file=sys.stderr, flush=True)
         return e.exit_code
     except Exception as e:
         import traceback
-        traceback.print_exc()
-        print(f"{FAILED}{_why(e)}", file=sys.stderr, flush=True)
+        with contextlib.suppress(OSError):
+            traceback.print_exc()
+            print(f"{FAILED}{_why(e)}", file=sys.stderr, flush=True)
         return 1
     return 0
 

@@ -1,6 +1,11 @@
 """`vts motion analyze --listmode` on the simulated rig: a patient on the table (breathing, one
 body move), a scan session with the trigger box in the emulator, the simulated SPECT following
-it; the motion analysis goes through the sync analysis, so every time is list-mode seconds."""
+it; the motion analysis goes through the sync analysis, so every time is list-mode seconds.
+The list-mode is given as the README's glob over two scans' files, as `vts sync analyze` takes
+it: the session's own is picked (issue 21)."""
+
+import dataclasses
+import shutil
 
 import json
 import os
@@ -30,17 +35,35 @@ def synced_scan(tmp_path_factory):
         run = sync_sim.cli_scan(rig, rig_yaml, tmp / "scan", 22.0, marker, n=2, seed=1)
     finally:
         rig.stop()
+    spect = tmp / "spect"          # the scan's list-mode and the next scan's (10 minutes later)
+    spect.mkdir()
+    shutil.copy(run.listmode, spect / "scan-1.vtslm")
+    from vts_hw.spect.listmode.vtslm import read_vtslm, write_vtslm
+    lm = read_vtslm(run.listmode)
+    write_vtslm(spect / "scan-2.vtslm", dataclasses.replace(lm, start_time=lm.start_time + 600.0))
     return run, rig_yaml, patient, move, tmp
+
+
+def _shell(line: str, rig_yaml):
+    vts = f"{sys.executable} -m vts_hw.cli"
+    return subprocess.run(["bash", "-c", line.replace("vts ", vts + " ", 1)], capture_output=True, text=True,
+                          timeout=600, env={**os.environ, "VTS_CONFIG": str(rig_yaml)})
+
+
+def test_another_scans_listmode_alone_is_refused_before_any_work(synced_scan):
+    run, rig_yaml, patient, move, tmp = synced_scan
+    p = _shell(f"vts motion analyze {run.session} --listmode {tmp}/spect/scan-2.vtslm", rig_yaml)
+    assert p.returncode == 3 and "do not belong together" in p.stderr and "Traceback" not in p.stderr, p.stderr
 
 
 @pytest.mark.timeout(600)
 def test_motion_on_the_spect_clock(synced_scan):
     run, rig_yaml, patient, move, tmp = synced_scan
-    p = subprocess.run([sys.executable, "-m", "vts_hw.cli", "motion", "analyze", str(run.session), "--listmode",
-                        str(run.listmode), "--export", str(tmp / "export"), "--json"],
-                       env={**os.environ, "VTS_CONFIG": str(rig_yaml)}, capture_output=True, text=True, timeout=600)
+    p = _shell(f"vts motion analyze {run.session} --listmode {tmp}/spect/scan-*.vtslm --export {tmp / 'export'} "
+               "--json", rig_yaml)
     assert p.returncode in (0, 10, 20), p.stderr
     data = json.loads(p.stdout)
+    assert data["listmode"] == str(tmp / "spect" / "scan-1.vtslm")      # the session's own of the glob's two
     assert "SPECT list-mode" in data["clock"] and data["time_origin"] == 0.0 and data["frame"]["name"] == "SPECT frame"
     # the move's true start, on the list-mode clock: host time minus the fire, plus nothing
     # more than the SPECT's start delay (< 0.5 s): within a second of the true start

@@ -183,6 +183,12 @@ def test_rig_yaml_store_section_with_password_env_through_the_cli(pg_server, tmp
                    f"store:\n  url: {url}\n  password_env: ROOM7_DB_PW\n")
     env = {k: v for k, v in os.environ.items() if k not in (ENV_STORE, ENV_STORE_PASSWORD_ENV)}
     env["VTS_CONFIG"] = str(cfg)
+    p = subprocess.run([*VTS, "store", "info"], env=dict(env, ROOM7_DB_PW=pg_server.password),
+                       capture_output=True, text=True, timeout=60)
+    assert p.returncode == 3 and "is an empty database" in p.stderr     # reading makes no store (`store init` does)
+    p = subprocess.run([*VTS, "store", "init", url, "--password-env", "ROOM7_DB_PW"],
+                       env=dict(env, ROOM7_DB_PW=pg_server.password), capture_output=True, text=True, timeout=60)
+    assert p.returncode == 0 and "results store created" in p.stdout, p.stderr
     p = subprocess.run([*VTS, "store", "info", "--json"], env=dict(env, ROOM7_DB_PW=pg_server.password),
                        capture_output=True, text=True, timeout=60)
     assert p.returncode == 0, p.stderr
@@ -245,6 +251,8 @@ def test_vts_store_option_and_env_pick_the_store(tmp_path):
     def info(*args, **extra):
         p = subprocess.run([*VTS, *args], env=dict(env, **extra), capture_output=True, text=True, timeout=60)
         return p.returncode, (json.loads(p.stdout) if p.returncode == 0 else p.stderr)
+    for name in ("rig", "env", "cli"):   # `store info` reads: the stores exist
+        ResultsStore(tmp_path / f"{name}.sqlite").close()
     code, out = info("store", "info", "--json", "--config", str(cfg))
     assert code == 0 and out["url"] == f"sqlite:///{tmp_path}/rig.sqlite"
     code, out = info("store", "info", "--json", "--config", str(cfg), VTS_STORE=f"sqlite:///{tmp_path}/env.sqlite")

@@ -168,3 +168,20 @@ def test_a_trigger_log_that_cannot_be_written(tmp_path, fgen, small_disk):
     assert p.stdout.strip().startswith("fgen: output ON")                   # said what the device did
     assert fgen.instrument.runs(1)[0].stop is None                         # and it did it
     assert "Traceback" not in p.stderr
+
+
+def test_a_log_that_is_not_a_trigger_log_is_never_appended_to(tmp_path, fgen):
+    """`--log rig.yaml` by mistake (issue 21: no foreign file touched): refused before anything
+    is sent, the file as it was; an empty file becomes the log."""
+    rig = _fgen_rig(tmp_path, fgen, frequency_hz=1.0, high_v=2.5, low_v=0.0)
+    for name, data in (("rig-copy.yaml", rig.read_bytes()), ("notes.bin", bytes(range(256)) * 4)):
+        other = tmp_path / name
+        other.write_bytes(data)
+        p = vts("trigger", "start", "--config", str(rig), "--log", str(other))
+        assert p.returncode == 2 and "is not a trigger log" in p.stderr and str(other) in p.stderr, p.stderr
+        assert other.read_bytes() == data
+    assert fgen.instrument.runs(1) == []                      # nothing was sent
+    empty = tmp_path / "empty.csv"
+    empty.write_bytes(b"")
+    p = vts("trigger", "start", "--config", str(rig), "--log", str(empty))
+    assert p.returncode == 0 and read_log(empty)

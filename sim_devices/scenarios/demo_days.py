@@ -41,6 +41,11 @@ class DemoResult:
     rooms_html: Path | None = None  # the department page over the store (one room here)
 
 
+#: the message (``on_step``) that the step test begins, and the one that the reports are written
+STEPS_START = "7-sphere step test: stereo calibration, VTS -> SPECT mapping, 22 positions"
+REPORTS_START = "writing the QA report (drift trend and step test)"
+
+
 def injected_drift(scene, cam: str, t0: float, t1: float) -> tuple[float, float]:
     """Mean image displacement of the wall markers between t0 and t1: the truth."""
     a = {m: (u, v) for m, u, v in scene.truth(cam, t0) if m.startswith("W")}
@@ -104,15 +109,16 @@ def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 
                 rows.append(row)
                 if on_day:
                     on_day(row)
-            say("7-sphere step test: stereo calibration, VTS -> SPECT mapping, 22 positions")
+            say(STEPS_START)
             steps = run_sim_steps(out / "steps", seed, store=store, rig=rig, operator="demo",
                                   tolerances=cfg.tolerances, rig_name=cfg.rig)
-            say(f"step test: {steps.analysis.state} (run {steps.run_id}); against the truth: 3D RMS "
-                f"{steps.scores['position_rms_mm']:.3f} mm, move off by "
-                f"{steps.scores['move_rotation_error_deg']:.3f} deg / "
-                f"{steps.scores['move_translation_error_mm']:.3f} mm")
+            sc = steps.scores
+            say(steps.analysis.results())
+            say(f"against the truth: VTS 3D RMS {sc['position_rms_mm']:.3f} mm (goal <= 0.15), 6-DOF move "
+                f"rotation {sc['move_rotation_error_deg']:.4f} deg (goal <= 0.05), translation "
+                f"{sc['move_translation_error_mm']:.3f} mm (goal <= 0.1)")
             now = clock.now()
-            say("writing the QA report (drift trend and step test)")
+            say(REPORTS_START)
             html = out / "drift-report.html"
             pdf = out / "drift-report.pdf"
             build_drift_report(store, html, now=now, rig=cfg.rig)

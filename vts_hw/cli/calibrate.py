@@ -13,7 +13,8 @@ import click
 
 from vts_hw.errors import DataError
 from vts_hw.cli import cli
-from vts_hw.cli.common import config_option, echo_json, json_option, rig_if_any, say_stored, store_qa_result
+from vts_hw.cli.common import (config_option, echo_json, json_option, positive, rig_if_any, say_stored,
+                               store_qa_result)
 from vts_hw.procedures.mapping_inputs import read_points  # noqa: F401  (the points file, as `--vts` reads it)
 
 
@@ -36,7 +37,7 @@ def _board_options(f):
                      help="Seed of the simulated rig, poses and noise."),
         click.option("--pattern", default="9x6", show_default=True, callback=_pattern,
                      help="Inner corners of the board, COLSxROWS."),
-        click.option("--square", type=click.FloatRange(min=0, min_open=True), default=None,
+        click.option("--square", type=positive("a length"), default=None,
                      help="Side of a square (default: the simulated board's 50 mm with --sim, else 1 square)."),
         click.option("--unit", type=click.Choice(["mm", "squares"]), default=None,
                      help="Unit of --square (default: mm when --square or --sim is given, else squares)."),

@@ -19,13 +19,29 @@ config_option = click.option(
 json_option = click.option("--json", "as_json", is_flag=True, help="Machine-readable JSON on stdout.")
 
 
-class PositiveSeconds(click.ParamType):
-    """A finite number greater than zero (refuses nan, inf, 0 and negatives with one sentence)."""
+class FiniteFloat(click.FloatRange):
+    """The type of every float option: a finite number, optionally within ``min``/``max``
+    (``min_open``/``max_open`` leave the end out). ``nan``, ``inf``, ``1e309`` and numbers out of
+    range are refused as bad input: click's one sentence naming the option, exit 2.
+    tests/test_cli_numbers.py walks the command tree: no float option has another type."""
 
-    name = "seconds"
+    name = "number"
 
-    def __init__(self, what: str = "a duration in seconds"):
+    def __init__(self, min: float | None = None, max: float | None = None, min_open: bool = False,
+                 max_open: bool = False, what: str = "a number"):
+        super().__init__(min, max, min_open=min_open, max_open=max_open, clamp=False)
         self.what = what
+
+    def _expected(self) -> str:
+        """``a duration in seconds greater than 0``, ``a number from 0 to 3600``."""
+        parts = []
+        if self.min is not None:
+            parts.append(f"{'greater than' if self.min_open else 'at least'} {self.min:g}")
+        if self.max is not None:
+            parts.append(f"{'less than' if self.max_open else 'at most'} {self.max:g}")
+        if len(parts) == 2 and not self.min_open and not self.max_open:
+            return f"{self.what} from {self.min:g} to {self.max:g}"
+        return " ".join([self.what, " and ".join(parts)]).strip()
 
     def convert(self, value, param, ctx):
         if isinstance(value, (int, float)) and not isinstance(value, bool):
@@ -34,10 +50,49 @@ class PositiveSeconds(click.ParamType):
             try:
                 v = float(str(value).strip())
             except ValueError:
-                self.fail(f"{value!r} is not a number (expected {self.what} greater than 0)", param, ctx)
-        if not math.isfinite(v) or v <= 0:
-            self.fail(f"{value!r} is not {self.what} greater than 0", param, ctx)
+                self.fail(f"{value!r} is not a number (expected {self._expected()})", param, ctx)
+        if not math.isfinite(v):
+            self.fail(f"{value!r} is not a finite number (expected {self._expected()})", param, ctx)
+        if (self.min is not None and (v < self.min or (self.min_open and v == self.min))) or \
+                (self.max is not None and (v > self.max or (self.max_open and v == self.max))):
+            self.fail(f"{value!r} is out of range (expected {self._expected()})", param, ctx)
         return v
+
+
+def positive(what: str = "a number", max: float | None = None) -> FiniteFloat:
+    """A finite number greater than 0 (and at most ``max``)."""
+    return FiniteFloat(0, max, min_open=True, what=what)
+
+
+class PositiveSeconds(FiniteFloat):
+    """A finite duration greater than zero (refuses nan, inf, 0 and negatives with one sentence)."""
+
+    name = "seconds"
+
+    def __init__(self, what: str = "a duration in seconds", max: float | None = None):
+        super().__init__(0, max, min_open=True, what=what)
+
+
+def listmode_options(f):
+    """The list-mode options of every command that takes a scan's SPECT list-mode (`vts sync
+    analyze`, `vts motion analyze`), one rule for all (docs/decisions/0025-which-listmode.md):
+    `--listmode FILE` (repeatable) and further files after the session, so the shell's
+    expansion of `--listmode sim/spect/scan-*.vtslm` parses as it reads; the one whose
+    acquisition belongs to the session is taken (`--clock-slack`). The command gets ``more``,
+    ``listmode`` and ``clock_slack``; :func:`listmode_candidates` joins them."""
+    f = click.option("--clock-slack", type=FiniteFloat(0, 3600, what="seconds"), default=None, metavar="SECONDS",
+                     help="How far the SPECT's wall clock may be off the host's when matching a list-mode to "
+                          "the session (default: 10 s).")(f)
+    f = click.option("--listmode", "listmode", type=click.Path(), multiple=True, metavar="FILE",
+                     help="The SPECT list-mode file of the same scan. Several files may follow it (a shell "
+                          "glob such as sim/spect/scan-*.vtslm): the one whose acquisition started on the "
+                          "session's start pulse (or overlaps it) is taken; none or two is refused (exit 3).")(f)
+    return click.argument("more", nargs=-1, type=click.Path(), metavar="[LISTMODE]...")(f)
+
+
+def listmode_candidates(listmode, more) -> list[str]:
+    """The list-mode files given to a command of :func:`listmode_options`, in order."""
+    return [*listmode, *more]
 
 
 def with_rig(f):

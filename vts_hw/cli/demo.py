@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from vts_hw.cli import cli
+from vts_hw.cli.common import FiniteFloat, PositiveSeconds
 
 
 @cli.command()
@@ -14,16 +15,19 @@ from vts_hw.cli import cli
               help="Folder for what the demo writes (its results store is made afresh).")
 @click.option("--days", type=click.IntRange(1, 730), default=60, show_default=True,
               help="Simulated days of daily QA.")
-@click.option("--seconds", type=float, default=3.0, show_default=True, help="Length of the camera recording.")
+@click.option("--seconds", type=PositiveSeconds(max=600), default=3.0, show_default=True,
+              help="Length of the camera recording.")
 @click.option("--frames", type=click.IntRange(1, 50), default=5, show_default=True,
               help="LED-on snapshots per camera and day.")
-@click.option("--scan-seconds", type=click.FloatRange(0, 600), default=20.0, show_default=True,
+@click.option("--scan-seconds", type=FiniteFloat(0, 600, what="seconds"), default=20.0, show_default=True,
               help="Length of the simulated scan (0: no scan).")
-@click.option("--patient-seconds", type=click.FloatRange(0, 600), default=30.0, show_default=True,
+@click.option("--patient-seconds", type=FiniteFloat(0, 600, what="seconds"), default=30.0, show_default=True,
               help="Length of the simulated patient scan (0: none; else at least 24).")
 def demo(out: str, days: int, seconds: float, frames: int, scan_seconds: float, patient_seconds: float) -> None:
-    """The simulated rig, end to end.
+    """The simulated rig, end to end, in six numbered sections (those skipped by --scan-seconds 0
+    or --patient-seconds 0 leave the numbering consecutive):
 
+    \b
     1. The cameras: a simulated rig of two Axis cameras on 127.0.0.1; device info, clock offset,
        LED on and off snapshots, and a short recording of both through the real driver.
     2. The daily QA: baseline on day 0, then the daily set once per simulated day for --days
@@ -44,16 +48,28 @@ def demo(out: str, days: int, seconds: float, frames: int, scan_seconds: float, 
         raise click.BadParameter("a patient scan needs at least 24 s (or 0: none)", param_hint="--patient-seconds")
     out_dir = Path(out)
     out_dir.mkdir(parents=True, exist_ok=True)
-    click.echo("== 1. the cameras")
+    section = _Sections()
+    section("the cameras")
     _cameras(out_dir, seconds)
-    click.echo(f"\n== 2. the daily QA, {days} simulated days")
-    _daily(out_dir, days, frames)
+    section(f"the daily QA, {days} simulated days")
+    _daily(out_dir, days, frames, section)
     if scan_seconds > 0:
-        click.echo(f"\n== 5. a scan of {scan_seconds:g} s and the sync check")
+        section(f"a scan of {scan_seconds:g} s and the sync check")
         _scan(out_dir, scan_seconds)
     if patient_seconds > 0:
-        click.echo(f"\n== 6. a patient scan of {patient_seconds:g} s: breathing, a body move, the live alert")
+        section(f"a patient scan of {patient_seconds:g} s: breathing, a body move, the live alert")
         _patient(out_dir, patient_seconds)
+
+
+class _Sections:
+    """``== N. title`` headers numbered in the order they are shown."""
+
+    def __init__(self):
+        self.n = 0
+
+    def __call__(self, title: str) -> None:
+        self.n += 1
+        click.echo(f"{'' if self.n == 1 else chr(10)}== {self.n}. {title}")
 
 
 def _cameras(out_dir: Path, seconds: float) -> None:
@@ -71,12 +87,16 @@ def _cameras(out_dir: Path, seconds: float) -> None:
     click.echo(f"  {tour.recording / 'manifest.json'}: status {tour.manifest['status']}")
 
 
-def _daily(out_dir: Path, days: int, frames: int) -> None:
-    from vts_hw.sim_devices.scenarios.demo_days import run_demo
+def _daily(out_dir: Path, days: int, frames: int, section) -> None:
+    """Sections: the daily QA (its rows as they come, then how far from the truth), the step test
+    and the reports, each header printed when its part starts."""
+    from vts_hw.sim_devices.scenarios.demo_days import REPORTS_START, STEPS_START, run_demo
 
     cams: list[str] = []
+    rows = []
 
     def on_day(row):
+        rows.append(row)
         if not cams:
             cams.extend(row.cameras)
             head = "  day  state     " + "".join(f"{c + ' dx, dy px (truth)':<40}" for c in cams)
@@ -94,20 +114,34 @@ def _daily(out_dir: Path, days: int, frames: int) -> None:
                     cells.append(f"{v.get('state', '?')}")
             click.echo(f"  {row.day:>3}  {row.state:<9} " + "".join(f"{x:<40}" for x in cells))
 
-    res = run_demo(out_dir, days=days, frames=frames, on_day=on_day, on_step=lambda m: click.echo(m))
-    click.echo("\nmeasured drift minus injected drift, largest over all days (goal <= 0.05 px):")
-    for cam, (ex, ey) in res.max_error_px.items():
-        click.echo(f"  {cam}: x {ex:.4f} px, y {ey:.4f} px  {'OK' if max(ex, ey) <= 0.05 else 'OVER'}")
-    states = [r.state for r in res.rows]
-    click.echo(f"\n{len(states)} daily runs: {states.count('OK')} OK, {states.count('TOLERANCE')} TOLERANCE, "
-               f"{states.count('ACTION')} ACTION")
-    if res.steps is not None:
-        click.echo("\n== 3. the 7-sphere step test (after the daily QA, same rig)")
-        click.echo(res.steps.analysis.results())
-        sc = res.steps.scores
-        click.echo(f"against the truth: VTS 3D RMS {sc['position_rms_mm']:.3f} mm (goal <= 0.15), 6-DOF move "
-                   f"rotation {sc['move_rotation_error_deg']:.4f} deg (goal <= 0.05), translation "
-                   f"{sc['move_translation_error_mm']:.3f} mm (goal <= 0.1)")
+    def daily_summary():
+        err: dict[str, tuple[float, float]] = {}
+        for r in rows:
+            for cam, v in r.cameras.items():
+                if "dx" in v:
+                    px, py = err.get(cam, (0.0, 0.0))
+                    err[cam] = (max(px, abs(v["dx"] - v["truth_dx"])), max(py, abs(v["dy"] - v["truth_dy"])))
+        click.echo("\nmeasured drift minus injected drift, largest over all days (goal <= 0.05 px):")
+        for cam, (ex, ey) in err.items():
+            click.echo(f"  {cam}: x {ex:.4f} px, y {ey:.4f} px  {'OK' if max(ex, ey) <= 0.05 else 'OVER'}")
+        states = [r.state for r in rows]
+        click.echo(f"\n{len(states)} daily runs: {states.count('OK')} OK, {states.count('TOLERANCE')} TOLERANCE, "
+                   f"{states.count('ACTION')} ACTION")
+
+    summarised = []
+
+    def on_step(message: str) -> None:
+        if message == STEPS_START:
+            daily_summary()
+            summarised.append(True)
+            section("the 7-sphere step test (after the daily QA, same rig)")
+        elif message == REPORTS_START:
+            section("the QA reports: drift trend and step test, and the rooms page")
+        click.echo(message)
+
+    res = run_demo(out_dir, days=days, frames=frames, on_day=on_day, on_step=on_step)
+    if not summarised:
+        daily_summary()
     click.echo(f"results store: {res.store_path}")
     click.echo(f"report:        {res.report_html}")
     click.echo(f"               {res.report_pdf}")

@@ -5,7 +5,8 @@ from __future__ import annotations
 import click
 
 from vts_hw.cli import cli
-from vts_hw.cli.common import FramesProgress, calibration_files, config_option, finish_analysis, json_option
+from vts_hw.cli.common import (FramesProgress, calibration_files, config_option, finish_analysis, json_option,
+                               listmode_candidates, listmode_options)
 
 
 @cli.group()
@@ -15,9 +16,7 @@ def motion() -> None:
 
 @motion.command()
 @click.argument("session", type=click.Path())
-@click.option("--listmode", type=click.Path(dir_okay=False), default=None, metavar="FILE",
-              help="The SPECT list-mode of the same scan: times become list-mode seconds (through the sync "
-                   "analysis; the session then needs its trigger.csv). Without it: host time.")
+@listmode_options
 @click.option("--calibration", type=click.Path(dir_okay=False), default=None,
               help="Camera calibration file (default: the rig config's calibration.stereo).")
 @click.option("--mapping", type=click.Path(dir_okay=False), default=None,
@@ -35,13 +34,16 @@ def motion() -> None:
 @click.option("--workers", type=click.IntRange(1, 256), default=None, help="Processes for the recording (default: every core).")
 @json_option
 @config_option
-def analyze(session, listmode, calibration, mapping, out, plot_path, export_dir, bins, workers, as_json,
+def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plot_path, export_dir, bins, workers, as_json,
             config_path) -> None:
     """Breathing, body 6-DOF pose, motion events and motion states of a scan SESSION.
 
     The patient's markers are found by behaviour (they breathe or move); breathing is taken out
     of the body pose; a motion state is an interval of pose within the rig's motion.state_mm and
-    motion.state_deg. Exit status like the QA procedures: 0 OK, 10 TOLERANCE, 20 ACTION
+    motion.state_deg. With the scan's list-mode (--listmode, as `vts sync analyze` takes it: a
+    glob of several picks the session's own) the session goes through the sync analysis and
+    every time is list-mode seconds (the session then needs its trigger.csv); without it, host
+    time. Exit status like the QA procedures: 0 OK, 10 TOLERANCE, 20 ACTION
     (windows motion_body_max_mm, motion_body_max_deg, motion_pose_coverage); 2 bad input; 3 a
     file could not be read or written, or the run could not be stored (its figures then go
     to a file that `vts qa import` stores later).
@@ -50,8 +52,9 @@ def analyze(session, listmode, calibration, mapping, out, plot_path, export_dir,
     from vts_hw.report.motion_html import write_motion_html
 
     cal, mp, rig = calibration_files(config_path, calibration, mapping)
-    a = MotionAnalysis(session, listmode, cal, mp, motion_config=rig.motion if rig is not None else None,
-                       workers=workers, progress=FramesProgress())
+    candidates = listmode_candidates(listmode, more)
+    a = MotionAnalysis(session, candidates or None, cal, mp, motion_config=rig.motion if rig is not None else None,
+                       workers=workers, progress=FramesProgress(), clock_slack_s=clock_slack)
     a.analyze(tolerances=rig.tolerances if rig is not None else None)
     data = a.results_data()
     png = a.plot(plot_path) if (out or plot_path) else None

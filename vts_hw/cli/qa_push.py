@@ -55,7 +55,7 @@ def push(rig, runs, pending, dry_run, as_json) -> None:
     qcfg = qatrack_config(rig)
     if not dry_run:
         qcfg.credentials()   # an unset variable: one sentence before anything is touched
-    with open_store(rig) as store:
+    with open_store(rig, mode="read") as store:
         chosen = select_runs(store, qcfg, rig.rig, runs, pending=pending)
         if dry_run:
             rows = plan(store, qcfg, chosen)
@@ -145,7 +145,7 @@ def push_after_qa(rig, run_id, as_json: bool, store_url: str | None = None) -> N
     qcfg = qatrack_config(rig)
     try:
         from vts_hw.cli.common import store_target
-        with ResultsStore(store_target(rig, store_url)) as store:
+        with ResultsStore(store_target(rig, store_url), mode="read") as store:
             outcomes = push_runs(store, qcfg, [store.run(run_id)])
     except (VtsError, OSError, KeyError) as exc:   # the QA is done and stored; a push problem is one line, not its exit code
         click.echo(f"vts: --push: run {run_id} was not pushed to QATrack+: {exc}", err=True)

@@ -11,12 +11,14 @@ import click
 from vts_hw.cli.common import echo_json, fmt_time
 
 
-def open_store(rig):
+def open_store(rig, mode: str = "create"):
     """The results store: `vts --store`, $VTS_STORE, the config's store section, else a per-user
-    SQLite file (cli.common.store_target)."""
+    SQLite file (cli.common.store_target). ``mode`` (vts_hw.store.identity): ``read`` for a
+    command that only reads (or updates) an existing store, ``create`` for one that writes
+    results (a new file becomes a store); a database that is not a vts-hw store is never used."""
     from vts_hw.cli.common import store_target
     from vts_hw.store import ResultsStore
-    return ResultsStore(store_target(rig))
+    return ResultsStore(store_target(rig), mode=mode)
 
 
 def artifacts_dir(store) -> Path:

@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 
 from vts_hw.tolerance import State
-from vts_hw.cli.common import config_option, echo_json, json_option
+from vts_hw.cli.common import FiniteFloat, config_option, echo_json, json_option
 from vts_hw.cli.qa import qa
 
 
@@ -53,7 +53,7 @@ def _print(analysis, extra_lines, as_json, data_extra=None) -> None:
 @click.option("--vertical", type=click.IntRange(0, 50), default=10, show_default=True,
               help="Vertical steps.")
 @click.option("--axial", type=click.IntRange(0, 50), default=10, show_default=True, help="Axial steps.")
-@click.option("--step-mm", type=click.FloatRange(1.0, 100.0), default=10.0, show_default=True,
+@click.option("--step-mm", type=FiniteFloat(1.0, 100.0, what="a step in mm"), default=10.0, show_default=True,
               help="Nominal step (what the operator is asked to move).")
 @click.option("--store", "store_url", default=None,
               help="Results store URL or SQLite file (default: the config's; with --sim "

@@ -59,7 +59,7 @@ def drift(since: str, out: str, rig_name: str | None, as_json: bool, config_path
         from vts_hw.errors import UsageError
         raise UsageError("no rig config (--config, $VTS_CONFIG or ./rig.yaml), so give --rig NAME or --rig all")
     name = rig.rig if rig_name is None else rig_name
-    with open_store(rig) as store:
+    with open_store(rig, mode="read") as store:
         if name == ALL_RIGS:
             reps = build_drift_report_rooms(store, out, since=start)
         else:
@@ -119,7 +119,7 @@ def rooms(since: str, out: str, rig_name: str | None, as_json: bool, config_path
     report_format(out)
     start = parse_since(since)
     rig = rig_if_any(config_path)
-    with open_store(rig) as store:
+    with open_store(rig, mode="read") as store:
         rigs = None
         if rig_name not in (None, ALL_RIGS):
             _known_rig(store, rig_name, rig_name)
@@ -129,6 +129,6 @@ def rooms(since: str, out: str, rig_name: str | None, as_json: bool, config_path
     if as_json:
         echo_json(rep.results_data())
     else:
-        no_daily = [r.label for r in rep.rooms if r.state is None]
+        no_daily = [r.label for r in rep.rooms if not r.has_daily]
         click.echo(f"wrote {out} ({len(rep.rooms)} room(s)"
                    + (f"; no daily QA in the period: {', '.join(no_daily)}" if no_daily else "") + ")")

@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from vts_hw.cli import cli
+from vts_hw.cli.common import FiniteFloat, positive
 
 
 @cli.group()
@@ -30,8 +31,9 @@ def sim() -> None:
 @click.option("--https", is_flag=True,
               help="HTTPS cameras with basic authentication and a self-signed certificate (written to "
                    "--dir and named in rig.yaml as ca_cert).")
-@click.option("--rate", type=float, default=1.0, show_default=True,
-              help="Speed of the simulated clock (e.g. 86400: a day per second, for drift).")
+@click.option("--rate", type=positive("a speed", max=1e6), default=1.0, show_default=True,
+              help="Speed of the simulated clock, greater than 0 and at most 1e6 (e.g. 86400: a day per "
+                   "second, for drift).")
 @click.option("--trigger", type=click.Choice(["none", "triggerbox", "visa"]), default="none", show_default=True,
               help="A simulated trigger generator: our firmware in the emulator behind a pty, or a "
                    "Keysight 33522B function generator on a TCP socket on 127.0.0.1 (reached through VISA "
@@ -49,16 +51,20 @@ def sim() -> None:
 @click.option("--patient-seed", type=int, default=None, help="Seed of the patient (default: --seed).")
 @click.option("--patient-moves", type=click.IntRange(0, 50), default=None,
               help="How many sudden body moves over the plan [default: 2].")
-@click.option("--patient-minutes", type=click.FloatRange(0.1, 240.0), default=None,
+@click.option("--patient-minutes", type=FiniteFloat(0.1, 240.0, what="minutes"), default=None,
               help="How long the patient's plan lasts (moves are spread over it; after it the patient "
                    "lies still and no longer breathes) [default: 10].")
 @click.option("--no-breathing", is_flag=True, help="The patient does not breathe (body moves only).")
+@click.option("--qatrack", is_flag=True,
+              help="A simulated QATrack+ beside the rig (127.0.0.1, one unit, the test lists of the daily QA "
+                   "and the step test), named in rig.yaml's qatrack: section (its token only in sim.env), so "
+                   "that `vts qa push` can be tried. It keeps what it is sent in memory, until the rig stops.")
 @click.option("--detach", is_flag=True, help="Run in the background (needs --dir).")
 @click.option("--dir", "folder", type=click.Path(file_okay=False), default=None,
               help="Where to write rig.yaml and sim.env (and sim.pid, sim.log when detached).")
 def up(n_cameras: int, gantry: bool, seed: int, vapix: str, model: str | None, https: bool, rate: float,
        trigger: str, spect: bool, patient: bool, patient_seed: int | None, patient_moves: int | None,
-       patient_minutes: float | None, no_breathing: bool, detach: bool, folder: str | None) -> None:
+       patient_minutes: float | None, no_breathing: bool, qatrack: bool, detach: bool, folder: str | None) -> None:
     """Run the simulated rig (foreground: Ctrl-C stops it).
 
     With --dir DIR it writes DIR/rig.yaml pointing at the simulated cameras and DIR/sim.env
@@ -78,8 +84,10 @@ def up(n_cameras: int, gantry: bool, seed: int, vapix: str, model: str | None, h
         if not folder:
             raise click.UsageError("--detach needs --dir DIR (where rig.yaml and sim.env go)")
         pid = simrig.start_detached(folder, n_cameras, seed, fw, rate, trigger=trigger, spect=spect, https=https,
-                                    gantry=gantry, patient=person)
+                                    gantry=gantry, patient=person, qatrack=qatrack)
         _describe(Path(folder))
+        if qatrack:
+            click.echo(f"simulated QATrack+: {_qatrack_url(Path(folder))} (rig.yaml's qatrack:; its token in sim.env)")
         if person is not None:
             click.echo(f"simulated patient: its truth in {Path(folder) / 'truth'}")
         click.echo(f"simulated rig running in the background (pid {pid}); stop it with: vts sim down --dir {folder}")
@@ -92,6 +100,9 @@ def up(n_cameras: int, gantry: bool, seed: int, vapix: str, model: str | None, h
             click.echo(f"trigger box: {rig.trigger_box.port} (firmware in the emulator)")
         if rig.function_generator is not None:
             click.echo(f"function generator: {rig.function_generator.resource} (a simulated Keysight 33522B)")
+        if rig.qatrack_site is not None:
+            click.echo(f"simulated QATrack+: {rig.qatrack_site.url} (unit {rig.config().qatrack.unit!r}"
+                       + ("; rig.yaml's qatrack:, its token in sim.env)" if folder else ")"))
         if folder:
             _describe(Path(folder))
         if spect:
@@ -101,7 +112,7 @@ def up(n_cameras: int, gantry: bool, seed: int, vapix: str, model: str | None, h
         click.echo("simulated rig up; Ctrl-C stops it")
 
     simrig.serve(folder, n_cameras, seed, fw, rate, on_ready=ready, trigger=trigger, spect=spect, https=https,
-                 gantry=gantry, patient=person)
+                 gantry=gantry, patient=person, qatrack=qatrack)
     click.echo("simulated rig stopped")
 
 
@@ -131,6 +142,12 @@ def _patient_line(patient, folder) -> str:
     where = f"; truth in {Path(folder) / 'truth'}" if folder else ""
     return (f"simulated patient: breathing {'on' if patient.breathing.enabled else 'off'}, body moves at "
             f"{moves} after the start, plan {patient.breathing.duration_s / 60:g} min{where}")
+
+
+def _qatrack_url(folder: Path) -> str:
+    from vts_hw.config import load_rig
+    rig = load_rig(folder / "rig.yaml")
+    return rig.qatrack.url if rig.qatrack is not None else "?"
 
 
 def _describe(folder: Path) -> None:

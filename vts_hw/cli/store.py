@@ -21,17 +21,15 @@ def store() -> None:
     """
 
 
-def _open(url, password_env, what: str, must_exist: bool = False):
+def _open(url, password_env, what: str, mode: str):
     from vts_hw.store import ResultsStore
-    from vts_hw.store.paths import sqlite_file, to_url
     from vts_hw.store.target import checked
 
     target = checked(url, password_env, what, f"{what}-password-env")
-    if must_exist:
-        path = sqlite_file(to_url(target))
-        if path is not None and not path.is_file():
-            raise DataError(f"{what}: {path} does not exist (nothing to copy)")
-    return ResultsStore(target)
+    try:
+        return ResultsStore(target, mode=mode)
+    except DataError as exc:
+        raise type(exc)(f"{what}: {exc}") from None
 
 
 @store.command()
@@ -41,15 +39,17 @@ def info(config_path, as_json) -> None:
     """Where the store is (its URL, password masked), its schema version and its rows per table.
 
     The store is the one every command uses: `vts --store URL`, else $VTS_STORE, else
-    rig.yaml's store.url, else the per-user SQLite file. Opening it creates or upgrades it.
+    rig.yaml's store.url, else the per-user SQLite file. An older schema is upgraded; nothing
+    is created: a store that does not exist yet, an empty database or one that is not a vts-hw
+    results store is refused in one sentence and left as it was (`vts store init` makes one).
 
-    Exit status: 0; 2 a bad URL or config; 3 the store cannot be opened or read.
+    Exit status: 0; 2 a bad URL or config; 3 the store cannot be opened or read, or is not one.
     """
     from vts_hw.store import ResultsStore
     from vts_hw.store.copy import table_counts
 
     target = store_target(rig_if_any(config_path))
-    with ResultsStore(target) as s:
+    with ResultsStore(target, mode="read") as s:
         counts = table_counts(s)
         data = {"url": s.url, "from": target.source, "schema_version": s.schema_version, "rows": counts}
     if as_json:
@@ -63,9 +63,10 @@ def info(config_path, as_json) -> None:
 
 @store.command()
 @click.option("--from", "src", required=True, metavar="URL",
-              help="The store to copy from (URL or SQLite file; it must exist).")
+              help="The store to copy from (URL or SQLite file; it must be a vts-hw results store).")
 @click.option("--to", "dst", required=True, metavar="URL",
-              help="The store to copy into (created when new; may already hold other rooms' runs).")
+              help="The store to copy into: a vts-hw results store (it may hold other rooms' runs), a new "
+                   "SQLite file, or an empty PostgreSQL database.")
 @click.option("--from-password-env", metavar="NAME", default=None,
               help="Environment variable holding the source database's password.")
 @click.option("--to-password-env", metavar="NAME", default=None,
@@ -85,14 +86,18 @@ def migrate(src, dst, from_password_env, to_password_env, as_json) -> None:
     The check, per table: how many of the source's rows the target holds, and a checksum of
     those rows on each side (expressed without local ids). Progress goes to stderr.
 
+    A database that is not a vts-hw results store (other tables, not SQLite at all) is never
+    written, whichever side it is named on; an empty one is refused as --from.
+
     Exit status: 0 copied and verified; 2 a bad URL (or one holding a password), the same
     store twice; 3 a store that cannot be opened, read or written, a source that does not
-    exist, or a copy that does not match its source (the table is named).
+    exist or is not a vts-hw results store, a target that is not one, or a copy that does not
+    match its source (the table is named).
     """
     from vts_hw.store.copy import copy_store
 
-    with _open(src, from_password_env, "--from", must_exist=True) as source, \
-            _open(dst, to_password_env, "--to") as target:
+    with _open(src, from_password_env, "--from", mode="read") as source, \
+            _open(dst, to_password_env, "--to", mode="create") as target:
         if source.url == target.url:
             raise UsageError(f"--from and --to are the same store ({source.url})")
 
@@ -131,3 +136,33 @@ def migrate(src, dst, from_password_env, to_password_env, as_json) -> None:
         click.echo(f"vts: the copy does not match its source in table(s) {', '.join(rep.mismatched)} "
                    "(rows of the source missing or different in the target)", err=True)
         sys.exit(3)
+
+
+@store.command()
+@click.argument("url", metavar="URL")
+@click.option("--password-env", metavar="NAME", default=None,
+              help="Environment variable holding the database's password.")
+@json_option
+def init(url, password_env, as_json) -> None:
+    """Make URL a results store: an SQLite file (new, or an empty database) or an empty
+    PostgreSQL database gets the vts-hw schema.
+
+    Commands that write results create a store in a new file by themselves; this is for a
+    database made beforehand (a PostgreSQL database from `createdb`, an empty SQLite file
+    made by another tool), or to create the store before the first run. A store that is
+    already one is left as it is (an older schema is upgraded). A database that holds
+    anything else is never written.
+
+    Exit status: 0 the store is ready; 2 a bad URL (or one holding a password); 3 the database
+    cannot be opened or written, or is not empty and not a vts-hw results store.
+    """
+    from vts_hw.store.copy import table_counts
+
+    with _open(url, password_env, "vts store init", mode="init") as s:
+        data = {"url": s.url, "created": s.created, "schema_version": s.schema_version, "rows": table_counts(s)}
+    if as_json:
+        echo_json(data)
+        return
+    click.echo(f"{data['url']}: " + ("results store created" if data["created"] else
+                                     f"already a results store ({data['rows'].get('runs', 0)} run(s))")
+               + f", schema version {data['schema_version']}")

@@ -5,7 +5,8 @@ from __future__ import annotations
 import click
 
 from vts_hw.cli import cli
-from vts_hw.cli.common import FramesProgress, calibration_files, config_option, finish_analysis, json_option
+from vts_hw.cli.common import (FramesProgress, calibration_files, config_option, finish_analysis, json_option,
+                               listmode_candidates, listmode_options)
 
 
 @cli.group()
@@ -15,14 +16,7 @@ def sync() -> None:
 
 @sync.command()
 @click.argument("session", type=click.Path())
-@click.argument("more", nargs=-1, type=click.Path(), metavar="[LISTMODE]...")
-@click.option("--listmode", "listmode", type=click.Path(), multiple=True, metavar="FILE",
-              help="The SPECT list-mode file of the same scan. Several files may follow it (a shell "
-                   "glob such as sim/spect/scan-*.vtslm): the one whose acquisition overlaps the "
-                   "session is taken.")
-@click.option("--clock-slack", type=click.FloatRange(0, 3600), default=None, metavar="SECONDS",
-              help="How far the SPECT's wall clock may be off the host's when matching a list-mode to "
-                   "the session (default: 10 s).")
+@listmode_options
 @click.option("--calibration", type=click.Path(dir_okay=False), default=None,
               help="Stereo calibration file (default: the rig config's calibration.stereo).")
 @click.option("--mapping", type=click.Path(dir_okay=False), default=None,
@@ -62,7 +56,7 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
     from vts_hw.procedures.sync import CLOCK_SLACK_S, SyncAnalysis, check_session, export_trajectories
     from vts_hw.report.sync_html import write_sync_html
 
-    candidates = [*listmode, *more]
+    candidates = listmode_candidates(listmode, more)
     if not candidates:
         raise click.UsageError("give the scan's list-mode: --listmode FILE")
     check_session(session)           # a bad folder says so before anything else is read

@@ -204,7 +204,7 @@ def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None)
             col = bands.patient[m]
             bands.why[col] = (f"off the rigid fit of the others in {100 * out_share[m]:.0f} % of its frames: "
                               f"not the patient's (a wrong match?)")
-            notes.append(f"marker {S.label(m)} left out: {bands.why[col]}")
+            notes.append(f"{S.label(m)} left out: {bands.why[col]}")
         keep = [m for m in range(P.shape[1]) if m not in bad]
         bands.patient = [bands.patient[m] for m in keep]
         bands.groups = [[c for c in g if c in bands.patient] for g in bands.groups]

@@ -18,7 +18,12 @@ import numpy as np
 from vts_hw.errors import DataError
 from vts_hw.motion.signal import bandpass, lowpass, sample_rate
 
-__all__ = ["Bands", "find_bands"]
+__all__ = ["Bands", "find_bands", "band_names"]
+
+#: the head end of the table in the SPECT frame: -Z (docs/design.md's room: the patient supine, head
+#: first, towards the cameras over the head end)
+HEAD_DIRECTION = np.array([0.0, 0.0, -1.0])
+NAME_MIN_MM = 50.0    # two bands are told apart when their centres are this far apart along the body
 
 
 @dataclass
@@ -92,3 +97,25 @@ def find_bands(series, *, breath_mm: float = 0.25, moved_mm: float = 1.5, min_se
         order, k = best[1], best[2]
         groups = [[patient[i] for i in order[:k]], [patient[i] for i in order[k:]]]
     return Bands(patient, groups, rms, rng, frac, why)
+
+
+def band_names(centres, frame: str) -> tuple[list[str], str]:
+    """A name per band (``centres``: each band's centre, mm, in ``frame``) and how they were
+    told apart. With two bands in the SPECT frame, the one nearer the head end
+    (:data:`HEAD_DIRECTION`) is the ``chest``, the other the ``abdomen``; where the geometry
+    does not say (the VTS frame, one band or three, bands side by side) ``band 1``, ``band 2``
+    ... in order along the body."""
+    generic = [f"band {k}" for k in range(1, len(centres) + 1)]
+    if frame != "spect":
+        return generic, ("positions in the VTS frame, where the head end is not known (with a VTS -> SPECT "
+                         "mapping the bands are named chest and abdomen)")
+    if len(centres) != 2:
+        return generic, f"{len(centres)} band(s): chest and abdomen are told apart with two"
+    along = [float(np.dot(np.asarray(c, float), HEAD_DIRECTION)) for c in centres]
+    if not all(np.isfinite(along)) or abs(along[0] - along[1]) < NAME_MIN_MM:
+        return generic, (f"the bands' centres are less than {NAME_MIN_MM:g} mm apart along the table: which is "
+                         "nearer the head is not clear")
+    chest = int(np.argmax(along))
+    return (["chest" if k == chest else "abdomen" for k in range(2)],
+            "the band nearer the head end of the table (-Z in the SPECT frame; the patient supine, head first) "
+            "is the chest")

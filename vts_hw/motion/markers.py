@@ -39,6 +39,7 @@ class MarkerSeries:
     cameras: np.ndarray | None = None
     camera_names: list = field(default_factory=list)
     camera_sets: list = field(default_factory=list)
+    numbers: list = field(default_factory=list)   # per column: the marker's number in the whole series
 
     @property
     def seen(self) -> np.ndarray:
@@ -49,10 +50,18 @@ class MarkerSeries:
         cols = list(cols)
         return MarkerSeries(self.t, self.P[:, cols], [self.ids[c] for c in cols], self.clock, self.frame,
                             None if self.cameras is None else self.cameras[:, cols], list(self.camera_names),
-                            [self.camera_sets[c] for c in cols] if self.camera_sets else [])
+                            [self.camera_sets[c] for c in cols] if self.camera_sets else [],
+                            [self.number(c) for c in cols])
+
+    def number(self, m: int) -> int:
+        """Marker m's number (1, 2, ... in the order the markers were first seen; kept by subset)."""
+        return self.numbers[m] if self.numbers else m + 1
 
     def label(self, m: int) -> str:
-        return "+".join(str(i) for i in self.ids[m])
+        """``marker 3``, or ``marker 3 (26 track pieces)`` when it was tracked in pieces (its ids
+        are in ``ids[m]``)."""
+        n = len(self.ids[m])
+        return f"marker {self.number(m)}" + (f" ({n} track pieces)" if n > 1 else "")
 
 
 def join_pieces(first, last, start_xyz, end_xyz, ids, join_mm=JOIN_MM, gap_s=JOIN_GAP_S) -> list[list]:
@@ -107,4 +116,4 @@ def marker_series(tracks, *, join_mm: float = JOIN_MM, use_spect: bool = True) -
         sel = c_of == c
         sets.append({n: int(cams[sel, k].sum()) for k, n in enumerate(names)})
     return MarkerSeries(t_frames, P, chains, "spect" if spect_clock else "host",
-                        "spect" if spect_frame else "vts", ncam, names, sets)
+                        "spect" if spect_frame else "vts", ncam, names, sets, list(range(1, M + 1)))

@@ -28,7 +28,7 @@ import numpy as np
 from vts_hw import __version__
 from vts_hw.errors import ConfigError
 from vts_hw.files import ensure_dir, write_atomic
-from vts_hw.tolerance import DEFAULT_TOLERANCES
+from vts_hw.tolerance import DEFAULT_TOLERANCES, worst
 from vts_hw.report.model import (AXES, AxisSummary, BandSegment, CameraDrift, DriftReport,
                     RunInfo, RunPoint)
 from vts_hw.report.times import parse_since  # noqa: F401  (re-exported for the CLI)
@@ -168,16 +168,17 @@ def collect(store, since: float | None = None, now: float | None = None, rig: st
             st = m.status
             if not st and m.metric in windows:
                 st = windows[m.metric].state(v, run.started)
-            if st:
-                status[(m.subject, run.id)][m.metric] = str(st)
+            if st:   # a metric measured twice in a run (reachable, then lost): its worst
+                got = status[(m.subject, run.id)]
+                got[m.metric] = str(worst([got.get(m.metric, "OK"), str(st)]))
         else:
             cam, marker = m.subject.split("/", 1)
             markers[(cam, run.id)][marker][m.metric] = v
 
     points_of: dict[str, list[RunPoint]] = defaultdict(list)
     for (cam, run_id), vals in values.items():
-        if "drift_x_px" not in vals and "drift_y_px" not in vals:
-            continue
+        # every run that measured anything of the camera is a point, also one whose drift it
+        # could not measure (the camera did not answer): its state is then ACTION, never OK
         run = drift_runs[run_id]
         points_of[cam].append(RunPoint(run_id, run.started, run.procedure, vals, status[(cam, run_id)]))
 

@@ -184,7 +184,8 @@ def _checks(report: DriftReport, cam: CameraDrift) -> str:
 _RUN_COLS = (("drift_x_px", "x px", ".3f"), ("drift_y_px", "y px", ".3f"), ("drift_x_mm", "x mm", ".2f"),
              ("drift_y_mm", "y mm", ".2f"), ("drift_sd_px", "SD px", ".3f"), ("markers_missing", "missing", "g"),
              ("stray_blobs", "stray", "g"), ("led_off_visible", "LED off seen", "g"),
-             ("clock_offset_s", "clock s", "+.2f"), ("params_changed", "params", "g"))
+             ("clock_offset_s", "clock s", "+.2f"), ("params_changed", "params", "g"),
+             ("camera_reachable", "answered", "g"))
 
 
 def _runs_table(cam: CameraDrift) -> str:

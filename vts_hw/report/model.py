@@ -27,6 +27,7 @@ CAMERA_METRICS = ("drift_x_px", "drift_y_px", "drift_x_mm", "drift_y_mm", "drift
                   "markers_missing", "stray_blobs", "led_off_visible")
 # the metrics that say whether the camera itself is healthy, beside the drift
 CHECK_METRICS = ("led_off_visible", "markers_missing", "stray_blobs")
+STATES = ("OK", "TOLERANCE", "ACTION")
 
 
 # "NoBaseline: ...", "ValueError: ...", "vts_hw.errors.DataError: ..." at the start of a note or
@@ -80,9 +81,22 @@ class RunPoint:
         return math.nan if v is None else float(v)
 
     @property
+    def drift_measured(self) -> bool:
+        """The run measured this camera's drift (a finite x or y)."""
+        return any(math.isfinite(self.value(f"drift_{a}_px")) for a in AXES)
+
+    @property
     def state(self) -> State:
-        """Worst state of this camera's measurements in this run."""
-        return worst(s for m, s in self.status.items() if m in CAMERA_METRICS)
+        """Worst state of this camera's measurements in this run, whatever the check (drift,
+        LED, reachable, parameters, clock). A run that could not measure the camera's drift (it
+        did not answer) is never OK: ACTION, as the daily QA judges a value it could not get."""
+        st = worst(State(s) for s in self.status.values() if s in STATES)
+        return st if self.drift_measured else State.ACTION
+
+    def not_ok(self) -> list[str]:
+        """The metrics of this run that were not OK (``drift not measured`` when it was not)."""
+        bad = sorted(m for m, s in self.status.items() if s != "OK")
+        return bad if self.drift_measured else bad + ["drift not measured"]
 
     def as_dict(self) -> dict:
         return {"run_id": self.run_id, "t": self.t, "date": fmt_date(self.t),
@@ -222,8 +236,7 @@ class DriftReport:
         out = []
         for c in self.cameras.values():
             if c.latest and c.state != State.OK:
-                bad = [m for m, s in c.latest.status.items() if m in CAMERA_METRICS and s != "OK"]
-                out.append((c.state.rank, f"{c.name}: {c.state} in the latest run ({', '.join(sorted(bad))})"))
+                out.append((c.state.rank, f"{c.name}: {c.state} in the latest run ({', '.join(c.latest.not_ok())})"))
             nf = c.nearest_forecast()
             if nf:
                 axis, f = nf

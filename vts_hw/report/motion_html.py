@@ -44,7 +44,7 @@ def render_motion_html(data: dict, png: bytes, title: str = "Patient motion") ->
               for k, e in enumerate(data["events"], 1)]
     states = [[str(st["state"]), f"{st['t_start']:.2f}", f"{st['t_end']:.2f}",
                " ".join(f"{x:+.2f}" for x in st["six_dof"]), str(st["frames"])] for st in data["states"]]
-    markers = [[escape(m["marker"]), "yes" if m["patient"] else "no", "" if m["band"] is None else str(m["band"] + 1),
+    markers = [[escape(m["marker"]), "yes" if m["patient"] else "no", escape(m["band"] or ""),
                 f"{100 * m['seen_fraction']:.0f} %", escape(", ".join(f"{k} {v}" for k, v in m["points_by_camera"].items())),
                 escape(m["why"])] for m in data["markers"]]
     measures = [[escape(m["metric"]), _f(m["value"], ".3g"), escape(m["unit"]),
@@ -67,7 +67,8 @@ out of the body pose; the reference is the first still period ({data['reference_
 <section class="card"><h2>Body-motion events</h2>{_table(["#", "start s", "end s", "centroid mm", "turn deg", "change tx ty tz mm, rx ry rz deg"], events)}</section>
 <section class="card"><h2>Motion states</h2>{_table(["state", "start s", "end s", "pose from the reference (tx ty tz mm, rx ry rz deg)", "frames"], states)}</section>
 <section class="card"><h2>Markers and cameras</h2>{_table(["marker", "patient", "band", "seen", "points by camera", "why"], markers)}
-<p class="muted">Frames without a body pose (fewer than 3 patient markers seen): {gaps}.</p></section>
+<p class="muted">Bands: {escape(data.get("band_naming", ""))}. Frames without a body pose (fewer than 3 patient
+markers seen): {gaps}.</p></section>
 <footer>vts-hw patient motion. Method: docs/decisions/0035-breathing-and-body-motion.md; files: docs/motion-formats.md.</footer>""")
 
 

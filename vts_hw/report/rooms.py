@@ -76,11 +76,22 @@ class Room:
     def label(self) -> str:
         return self.rig or "(no rig name)"
 
+    latest: dict = field(default_factory=dict)   # (check, subject, metric) -> its latest state (any date)
+
+    @property
+    def has_daily(self) -> bool:
+        """The period holds daily (or drift) QA of a camera."""
+        return any(c.points for c in self.drift.cameras.values())
+
     @property
     def state(self) -> State | None:
-        """The worst state of the cameras' latest daily runs in the period; None: no daily QA."""
-        cams = [c for c in self.drift.cameras.values() if c.points]
-        return worst(c.state for c in cams) if cams else None
+        """The worst of the room's latest results, whatever the check: each camera's latest
+        daily QA in the period (a camera it could not measure is ACTION), and the latest result
+        of every other check of the room (step test, calibration, mapping, sync check ...).
+        None, never OK, when the period has no daily QA and nothing else is worse than OK."""
+        cams = [c.state for c in self.drift.cameras.values() if c.points]
+        st = worst([*cams, *self.latest.values()])
+        return st if cams or st != State.OK else None
 
     def daily_missing_text(self) -> str:
         """What the page says instead of a state when the period has no daily QA."""
@@ -92,7 +103,7 @@ class Room:
         def info(r):
             return None if r is None else r.as_dict()
         return {"rig": self.rig, "state": str(self.state) if self.state else None,
-                "daily": None if self.state else self.daily_missing_text(),
+                "daily": None if self.has_daily else self.daily_missing_text(),
                 "cameras": {n: {"state": str(c.state), "latest": c.latest.as_dict() if c.latest else None}
                             for n, c in self.drift.cameras.items() if c.points},
                 "last_daily": info(self.last_daily), "last_steps": info(self.last_steps),
@@ -138,21 +149,42 @@ def _check(procedure: str) -> str:
     return LABELS.get(procedure, procedure)
 
 
-def open_items(measurements, runs) -> list[OpenItem]:
-    """The open ACTION items among ``runs`` (one rig's; see the module docstring) from their
-    ``measurements`` (any others are ignored)."""
+def _per_run(measurements, runs):
+    """The completed room-check runs among ``runs`` (by time) and per run the state of each
+    check key (check, camera or subject, metric) from ``measurements``."""
     done = {r.id: r for r in runs if str(r.status) in COMPLETED and r.procedure not in NOT_ROOM_CHECKS}
-    if not done:
-        return []
     per_run: dict[int, dict[tuple[str, str, str], str]] = defaultdict(dict)
     for m in measurements:
         run = done.get(m.run_id)
-        if run is None:
+        if run is None or str(m.status) not in COMPLETED:
             continue
         key = (_check(run.procedure), (m.subject or "").split("/")[0] or "-", m.metric)
         per_run[m.run_id][key] = str(worst([per_run[m.run_id].get(key, "OK"), str(m.status)]))
+    return sorted(done.values(), key=lambda r: (r.started, r.id)), per_run
+
+
+def latest_states(measurements, runs) -> dict[tuple[str, str, str], str]:
+    """The state of the latest completed result of each check (check, camera or subject,
+    metric) among ``runs`` (one rig's); a run without measurements counts as its own state."""
+    ordered, per_run = _per_run(measurements, runs)
+    out: dict[tuple[str, str, str], str] = {}
+    for run in ordered:
+        got = per_run.get(run.id)
+        if got:
+            out.update(got)
+        else:
+            out[(_check(run.procedure), "-", "(run)")] = str(run.status)
+    return out
+
+
+def open_items(measurements, runs) -> list[OpenItem]:
+    """The open ACTION items among ``runs`` (one rig's; see the module docstring) from their
+    ``measurements`` (any others are ignored)."""
+    ordered, per_run = _per_run(measurements, runs)
+    if not ordered:
+        return []
     open_: dict[tuple, list] = {}
-    for run in sorted(done.values(), key=lambda r: (r.started, r.id)):
+    for run in ordered:
         for key, st in per_run.get(run.id, {}).items():
             if st == "ACTION":
                 got = open_.setdefault(key, [run.started, run.id, run.started, 0])
@@ -206,7 +238,8 @@ def collect_rooms(store, since: float | None = None, now: float | None = None, r
                           last_daily=_latest(runs, DRIFT_PROCEDURES), last_steps=_latest(runs, STEPS_PROCEDURES),
                           last_calibration=_latest(runs, CALIBRATION_PROCEDURES),
                           last_mapping=_latest(runs, MAPPING_PROCEDURES),
-                          open_items=open_items(measurements, runs), drift_file=names[rig]))
+                          open_items=open_items(measurements, runs), drift_file=names[rig],
+                          latest=latest_states(measurements, runs)))
     return RoomsReport("VTS rooms — department QA overview", since, now, rooms)
 
 

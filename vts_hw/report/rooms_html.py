@@ -67,8 +67,15 @@ def sparkline_svg(cam: CameraDrift, tolerance: float | None = None, start: float
         if math.isfinite(pts[-1][i]):
             a, b = xy(pts[-1][0], pts[-1][i])
             parts.append(f'<circle cx="{a:.1f}" cy="{b:.1f}" r="2" fill="{STATE_COLOURS.get(str(last.state), "#5f6b7a")}"/>')
+    if not last.drift_measured:   # the latest run could not measure the drift: a cross, no value
+        a, b = xy(pts[-1][0], 0.0)
+        colour = STATE_COLOURS.get(str(last.state), "#5f6b7a")
+        parts.append(f'<path d="M{a - 2.5:.1f},{b - 2.5:.1f}L{a + 2.5:.1f},{b + 2.5:.1f}M{a - 2.5:.1f},{b + 2.5:.1f}'
+                     f'L{a + 2.5:.1f},{b - 2.5:.1f}" stroke="{colour}" stroke-width="1.5"/>')
+    latest = (f"latest x {pts[-1][1]:+.2f}, y {pts[-1][2]:+.2f} px" if last.drift_measured else
+              f"latest run {fmt_date(last.t)}: drift not measured ({', '.join(last.not_ok())})")
     title = (f"{cam.name}: drift x/y px over {len(pts)} runs, {fmt_date(pts[0][0])} to {fmt_date(pts[-1][0])}; "
-             f"latest x {pts[-1][1]:+.2f}, y {pts[-1][2]:+.2f} px")
+             f"{latest}")
     return (f'<svg class="spark" width="{SPARK_W}" height="{SPARK_H}" viewBox="0 0 {SPARK_W} {SPARK_H}" '
             f'role="img" aria-label="{escape(title)}"><title>{escape(title)}</title>{"".join(parts)}</svg>')
 
@@ -114,7 +121,7 @@ def _row(room: Room, now: float) -> str:
 def render_rooms_html(report: RoomsReport) -> str:
     state = report.state
     n_open = sum(len(r.open_items) for r in report.rooms)
-    no_daily = [r.label for r in report.rooms if r.state is None]
+    no_daily = [r.label for r in report.rooms if not r.has_daily]
     lines = []
     if n_open:
         lines.append(f"{n_open} open ACTION item(s) in {sum(1 for r in report.rooms if r.open_items)} room(s)")
@@ -132,10 +139,15 @@ def render_rooms_html(report: RoomsReport) -> str:
     overall = _word(state) if state else '<span class="badge none">no daily QA yet</span>'
     banner = (f'<section class="card banner {escape(str(state or "none"))}"><div class="big">Department '
               f'{overall} '
-              '<span class="meta">worst state of every camera\'s latest daily QA</span></div>'
+              '<span class="meta">worst of every room\'s latest results: each camera\'s latest daily QA, '
+              'and the latest result of every other check</span></div>'
               + (f"<ul>{items}</ul>" if items else '<p class="quiet">No open ACTION items.</p>') + "</section>")
     foot = (f"<footer><p><b>Open ACTION items.</b> {escape(OPEN_RULE)}</p>"
-            "<p><b>Cameras</b>: the state of each camera's latest daily (or drift) QA run in the period; "
+            "<p><b>State</b> of a room: the worst of its latest results, whatever the check (each camera's "
+            "latest daily QA in the period; the latest result of every step test, calibration, mapping and sync "
+            "check quantity). <b>Cameras</b>: the state of each camera's latest daily (or drift) QA run in the "
+            "period, over every check of it (reachable, parameters, clock, LED, drift); a camera that run could "
+            "not measure (it did not answer) is ACTION, its sparkline ends in a cross; "
             "the sparkline shows its drift in x (blue) and y (orange) in px since the start of the period, "
             "the dashed lines the ±tolerance level in effect now, the dot the latest run in its state's colour. "
             "A room without daily QA shows no state, never OK. <b>Step test, calibration, SPECT mapping</b>: "

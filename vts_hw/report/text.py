@@ -61,6 +61,8 @@ def latest_text(cam: CameraDrift, p: RunPoint | None, axis: str) -> str:
     """``+0.52 (+0.65)``: the latest drift in px and, in brackets, mm at the wall."""
     if p is None:
         return "–"
+    if not p.drift_measured:
+        return "not measured"
     px = p.values.get(f"drift_{axis}_px")
     mm = p.values.get(f"drift_{axis}_mm")
     return f"{fmt_num(px, '+.2f')} ({fmt_num(mm, '+.2f')})"

@@ -3,10 +3,12 @@
 The version lives in the database (``schema_migrations``: one row per version applied, the
 current version is the highest). On open, in one write transaction:
 
-* no vts-hw tables at all -> create the current schema and record SCHEMA_VERSION;
+* no tables at all -> create the current schema and record SCHEMA_VERSION (whether an empty
+  database may become a store is decided before, by identity.py and the caller's mode);
 * an older version -> apply each step after it in order, recording each;
 * a newer version -> refuse (this vts-hw does not know that layout; upgrade vts-hw);
-* vts-hw tables but no version table -> refuse (not a store we created; touch nothing).
+* anything that is not a vts-hw store (other tables, ours without the version table) -> refuse
+  (not a store we created; touch nothing).
 
 A step is a function of the dialect returning DDL (and, where a new column needs a value in
 the rows already there, a function of the connection that fills it), so the same step runs on SQLite and
@@ -38,6 +40,7 @@ from sqlalchemy.schema import CreateColumn, CreateIndex, CreateTable, DDLElement
 
 from vts_hw.store import schema
 from vts_hw.store.errors import StoreError
+from vts_hw.store.identity import EMPTY, FOREIGN, connection_kind
 
 
 @dataclass(frozen=True)
@@ -130,12 +133,10 @@ def ensure_schema(conn: Connection, where: str) -> tuple[int, int]:
 
     Returns (version found, version now); found is 0 for a fresh database. ``where`` (the
     masked URL) names the database in errors."""
-    names = set(inspect(conn).get_table_names())
-    if schema.schema_migrations.name not in names:
-        ours = sorted(names & {t.name for t in schema.TABLES})
-        if ours:
-            raise StoreError(f"{where}: has table(s) {', '.join(ours)} but no schema version; "
-                             f"it is not a vts-hw results store, so it was left untouched")
+    kind = connection_kind(conn)   # again, under the write lock
+    if kind.kind == FOREIGN:
+        raise StoreError(f"{where} is not a vts-hw results store ({kind.detail}), so it was left untouched")
+    if kind.kind == EMPTY:
         schema.metadata.create_all(conn)
         _record(conn, schema.SCHEMA_VERSION, f"created at version {schema.SCHEMA_VERSION}")
         return 0, schema.SCHEMA_VERSION

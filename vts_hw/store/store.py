@@ -25,9 +25,10 @@ from vts_hw.tolerance import Window
 from vts_hw.store.engine import WRITE_OPTION, make_engine
 from vts_hw.store.errors import StoreError
 from vts_hw.store.handle import RunHandle
+from vts_hw.store.identity import allowed, connection_kind, sqlite_file_kind
 from vts_hw.store.liveness import host_name, is_alive, process_start
 from vts_hw.store.migrations import ensure_schema, stored_version
-from vts_hw.store.paths import StoreTarget, masked, to_url
+from vts_hw.store.paths import StoreTarget, masked, sqlite_file, to_url
 from vts_hw.store.queries import (select_artifacts, select_measurements, select_rigs, select_running_runs, select_runs,
                       select_tolerance_at, select_tolerances_at)
 from vts_hw.store.records import (OUTBOX_STATES, Artifact, Measurement, OutboxItem, Run, artifact_from_row,
@@ -62,10 +63,13 @@ class ResultsStore:
 
     ``busy_timeout`` (seconds) is how long a SQLite writer waits for another writer.
     ``password_env`` (PostgreSQL) names the environment variable holding the password; a
-    StoreTarget brings its own."""
+    StoreTarget brings its own. ``mode`` says what may become a store (identity.py): ``read``
+    only an existing vts-hw store, ``create`` (the default) also a new file (or an empty
+    PostgreSQL database), ``init`` any empty database; a database that is not ours never is:
+    StoreError, and it is left byte-identical."""
 
     def __init__(self, url: str | os.PathLike | StoreTarget | None = None, *, busy_timeout: float = 30.0,
-                 password_env: str | None = None):
+                 password_env: str | None = None, mode: str = "create"):
         if isinstance(url, StoreTarget):
             password_env = password_env or url.password_env
         try:
@@ -74,11 +78,17 @@ class ResultsStore:
             raise StoreError(_BAD_URL) from None
         self._closed = False
         self._engine = None
+        backend = self._url.get_backend_name()
+        path = sqlite_file(self._url)
+        if path is not None:   # before any connection of ours: it would switch the file's journal
+            allowed(sqlite_file_kind(path, busy_timeout), mode, str(path), backend)
         try:
             self._engine = make_engine(self._url, busy_timeout, password_env)
             # the common case, an up-to-date store, needs no write lock (a reader must be able
             # to open while a writer holds a long transaction)
             with self._read() as conn:
+                if path is None and backend != "sqlite":
+                    allowed(connection_kind(conn), mode, self.url, backend)
                 found = now = stored_version(conn)
             if found != SCHEMA_VERSION:
                 with self._write() as conn:
@@ -97,6 +107,7 @@ class ResultsStore:
         except (SQLAlchemyError, OSError) as exc:
             self.close()
             raise StoreError(f"{self.url}: cannot open the results store ({_reason(exc)})") from exc
+        self.created = found == 0          # this open made the database a store
         if found == 0:
             log.info("%s: created results store (schema version %d)", self.url, now)
         elif found != now:
