@@ -255,8 +255,11 @@ class Site:
             stored = f"{stem or ext}_{_dt.date.today()}_{self.attachment_count:06x}{dot}{ext if stem else ''}"
             atts.append({"id": self.attachment_count, "filename": a["filename"], "stored": stored,
                          "size": len(a["value"])})
+        done = fields["work_completed"]
+        if done == fields["work_started"]:     # as TestListInstance.save: an end equal to the start moves 60 s on
+            done = done + _dt.timedelta(seconds=60)
         record = {"id": len(self.instances) + 1, "utc": fields["unit_test_collection"]["id"], "ti0": ti0,
-                  "work_started": fields["work_started"], "work_completed": fields["work_completed"],
+                  "work_started": fields["work_started"], "work_completed": done,
                   "user_key": fields.get("user_key"), "comment": fields.get("comment"), "tests": fields["tests"],
                   "in_progress": fields.get("in_progress", False),
                   "include_for_scheduling": fields.get("include_for_scheduling", True),

@@ -8,6 +8,7 @@ import subprocess
 import sys
 
 import pytest
+import requests
 import yaml
 
 from fake_http import Answers
@@ -160,6 +161,29 @@ def test_site_times_are_sent_as_its_wall_clock_and_read_back(env, store):
         assert [o.how for o in out] == ["posted", "posted"]
         assert sim.last_post["work_started"] == "2026-04-05 03:59:30"
         assert [i["work_started"] for i in sim.instances] == ["2026-04-02T02:59:30+11:00", "2026-04-05T03:59:30+10:00"]
+
+
+def test_a_run_within_one_second_ends_at_the_next_second_not_a_minute_later(peer, env, store):
+    """QATrack+ (TestListInstance.save) moves an end equal to the start 60 s on (the stand-in
+    does as the real server: tests/test_qatrack_real.py posts such times there); a run that
+    starts and ends within one second is sent with its end at the next second and lands there."""
+    t0 = 1790000000.0                        # 2026-09-21 14:13:20 UTC: 10:13:20 in Toronto
+    with store.begin_run("daily", rig="room1", started=t0 + 0.2) as h:
+        h.measure("cam1", "drift_x_px", 0.1, "px")
+        h.finish(finished=t0 + 0.7)
+    out = push_runs(store, rig(peer.url).qatrack, [store.run(h.run_id)])
+    assert [o.how for o in out] == ["posted"], out[0].line()
+    assert (peer.last_post["work_started"], peer.last_post["work_completed"]) == \
+        ("2026-09-21 10:13:20", "2026-09-21 10:13:21")
+    shown = peer.instances[-1]
+    assert (shown["work_started"], shown["work_completed"]) == \
+        ("2026-09-21T10:13:20-04:00", "2026-09-21T10:13:21-04:00")
+    # the site's own rule, as the real server has it: equal times sent, the end shown 60 s later
+    r = requests.post(peer.url + "api/qa/testlistinstances/", headers={"Authorization": f"Token {TOKEN}"},
+                      json={**{k: v for k, v in peer.last_post.items() if k != "user_key"},
+                            "work_completed": peer.last_post["work_started"]}, timeout=30)
+    assert r.status_code == 201, r.text
+    assert r.json()["work_completed"] == "2026-09-21T10:14:20-04:00"
 
 
 def test_a_run_in_the_repeated_hour_is_refused_in_one_sentence_before_posting(peer, env, store):

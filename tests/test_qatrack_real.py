@@ -88,7 +88,9 @@ def check_landed(site, store, run_ids):
         shown_start = _dt.datetime.fromisoformat(tli["work_started"]).timestamp()
         shown_end = _dt.datetime.fromisoformat(tli["work_completed"]).timestamp()
         assert shown_start == math.floor(run.started), (tli["work_started"], run.started)
-        assert shown_end == math.floor(run.finished if run.finished is not None else run.started)
+        # the end's second, at least the second after the start (QATrack+ moves an equal end 60 s on)
+        end = math.floor(run.finished if run.finished is not None else run.started)
+        assert shown_end == max(end, math.floor(run.started) + 1), (tli["work_completed"], run.finished)
         values = site.values(tli)
         for m in store.measurements(run_id=rid):
             macro = MACROS.get(f"{m.subject}/{m.metric}")
@@ -113,6 +115,7 @@ def test_runs_land_at_their_true_instants_in_the_sites_zone_across_its_clock_cha
             repeated += [t - 1800, t + 1200]
     with ResultsStore(tmp_path / "r.sqlite") as store:
         ids = fill(store, starts + repeated)
+        ids += fill(store, [starts[0] + 86400 + 0.1], seconds=0.5)     # a run within one second
         out = push_runs(store, rig(site, zone), select_runs(store, rig(site, zone), "room1"))
         by_id = {o.run_id: o for o in out}
         landed = [i for i in ids if store.run(i).started not in repeated]
@@ -131,6 +134,16 @@ def test_runs_land_at_their_true_instants_in_the_sites_zone_across_its_clock_cha
                       json={"unit_test_collection": site.url + "api/qc/unittestcollections/1/", "work_started": wall,
                             "work_completed": wall, "tests": {m: {"value": 0} for m in MACROS.values()}})
     assert r.status_code == 400 and "Invalid datetime for the timezone" in r.text
+    # and an end equal to the start is moved 60 s on (as the stand-in does: test_qatrack_push.py)
+    wall = _dt.datetime.fromtimestamp(starts[0] + 2 * 86400, ZoneInfo(zone)).strftime("%Y-%m-%d %H:%M:%S")
+    r = requests.post(site.url + "api/qa/testlistinstances/", timeout=30,
+                      headers={"Authorization": f"Token {site.tokens['QATRACK_TOKEN']}"},
+                      json={"unit_test_collection": site.url + "api/qc/unittestcollections/1/", "work_started": wall,
+                            "work_completed": wall, "tests": {m: {"value": 0} for m in MACROS.values()}})
+    assert r.status_code == 201, r.text
+    made = r.json()
+    assert _dt.datetime.fromisoformat(made["work_completed"]) - _dt.datetime.fromisoformat(made["work_started"]) \
+        == _dt.timedelta(seconds=60)
 
 
 def test_a_wrong_time_zone_in_rig_yaml_is_refused_before_anything_is_posted(real_qatrack, tmp_path, monkeypatch):

@@ -38,20 +38,30 @@ class RepeatedHour(NotMapped):
     """A run whose start or end falls in the hour the site's clocks repeat (refused before posting)."""
 
 
+def work_instants(run) -> tuple[int, int]:
+    """The run's start and end as whole seconds (epoch) as they are sent: the start's second,
+    and the end's second, but at least one second after the start: QATrack+ moves an end equal
+    to its start 60 s on (TestListInstance.save), so a run within one second ends at the next
+    second (less than a second after its true end). An end stored before the start (QATrack+
+    would refuse it) is sent the same way."""
+    start = int(run.started // 1)
+    end = int((run.finished if run.finished is not None else run.started) // 1)
+    return start, max(end, start + 1)
+
+
 def work_times(qcfg, run) -> tuple[str, str]:
-    """The run's start and end as the QATrack+ site's wall clock shows them (``YYYY-MM-DD
-    hh:mm:ss`` in ``qatrack.time_zone``; QATrack+ reads naive times in its own zone and accepts
-    no offset); RepeatedHour when one of them happens twice there (see vts_hw/site_time.py)."""
+    """The run's start and end (:func:`work_instants`) as the QATrack+ site's wall clock shows
+    them (``YYYY-MM-DD hh:mm:ss`` in ``qatrack.time_zone``; QATrack+ reads naive times in its own
+    zone and accepts no offset); RepeatedHour when one of them happens twice there (see
+    vts_hw/site_time.py)."""
     zone = site_zone(qcfg.time_zone)
     out = []
-    for what, t in (("start", run.started), ("end", run.finished if run.finished is not None else run.started)):
+    for what, t in zip(("start", "end"), work_instants(run)):
         try:
             out.append(wall_clock(t, zone).strftime(WALL_FORMAT))
         except RepeatedWallTime as exc:
             raise RepeatedHour(f"the run's {what} time, {exc}: QATrack+ reads times in its own zone and cannot "
                                f"be told which is meant, so it is not pushed (enter it in QATrack+ by hand)") from None
-    if out[1] < out[0]:       # a run stored with its end before its start: QATrack+ would refuse it
-        out[1] = out[0]
     return out[0], out[1]
 
 

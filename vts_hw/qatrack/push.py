@@ -24,7 +24,7 @@ from typing import Callable
 
 from vts_hw.errors import UsageError, VtsError
 from vts_hw.qatrack.client import AuthRefused, QATrackClient, Refused, Unreachable
-from vts_hw.qatrack.payload import (PUSHABLE_STATUSES, NotMapped, RepeatedHour, build_payload, run_key, tests_of,
+from vts_hw.qatrack.payload import (PUSHABLE_STATUSES, NotMapped, RepeatedHour, build_payload, work_instants, run_key, tests_of,
                                     work_times)
 from vts_hw.site_time import instant_of, site_zone, zone_disagreement
 
@@ -175,14 +175,13 @@ def push_one(store, qcfg, client: QATrackClient, run, item=None, before_post=Non
 def landed_wrong(qcfg, run, made: dict) -> str:
     """"" when QATrack+ shows the new instance's work times at the run's true instants (to the
     second); else one sentence (qatrack.time_zone is not the site's zone, or its clock rules differ)."""
-    for what, key, t in (("start", "work_started", run.started),
-                         ("end", "work_completed", run.finished if run.finished is not None else run.started)):
+    for what, key, t in zip(("start", "end"), ("work_started", "work_completed"), work_instants(run)):
         try:
             shown = instant_of(made.get(key))
         except (TypeError, ValueError):
             return f"QATrack+ answered the new instance without its {key} as a time with an offset"
-        if abs(shown - int(t // 1)) >= 1.0:
-            return (f"QATrack+ shows the run's {what} as {made.get(key)}, {shown - int(t // 1):+.0f} s from the "
+        if abs(shown - t) >= 1.0:
+            return (f"QATrack+ shows the run's {what} as {made.get(key)}, {shown - t:+.0f} s from the "
                     f"true instant: qatrack.time_zone {qcfg.time_zone} is not the site's TIME_ZONE (correct "
                     f"rig.yaml, and this instance's times in QATrack+)")
     return ""
