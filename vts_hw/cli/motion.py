@@ -40,7 +40,12 @@ def analyze(session, listmode, calibration, mapping, out, plot_path, export_dir,
 
     The patient's markers are found by behaviour (they breathe or move); breathing is taken out
     of the body pose; a motion state is an interval of pose within the rig's motion.state_mm and
-    motion.state_deg. Exit status like the QA procedures: 0 OK, 10 TOLERANCE, 20 ACTION
+    motion.state_deg. The scan's whole span is analysed (what the recording's index, manifest
+    and scan times say it covers): frames a camera skipped, a .mjpeg cut short or a camera's
+    missing files are time without a pose, counted in motion_pose_coverage (the share of the
+    scan's time with a pose) and shown as such in every output; a breath counts only when seen
+    whole, so a rate may be bounded (a range) or unknown, and a move that began in a gap has its
+    start given as a range. Exit status like the QA procedures: 0 OK, 10 TOLERANCE, 20 ACTION
     (windows motion_body_max_mm, motion_body_max_deg, motion_pose_coverage); 2 bad input; 3 a
     file could not be read or written, or the run could not be stored (its figures then go
     to a file that `vts qa import` stores later).

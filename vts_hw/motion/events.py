@@ -2,9 +2,10 @@
 
 * **Speed** (:func:`body_speed`): how fast the patient's markers move with the body (the
   largest speed of the reference markers carried by the pose; breathing is not in the pose),
-  from the poses ``half_window_s`` either side -- within the stretch of seen time the frame is
-  in (holes of a few frames are stepped over; a gap is not): no smoothing filter, so an event
-  keeps its start, and no speed is made up across time without a pose (NaN there).
+  from the poses ``half_window_s`` either side -- the whole window within the stretch of seen
+  time the frame is in (holes of a few frames are stepped over; a gap is not): no smoothing
+  filter, so an event keeps its start, and no speed is made up across time without a pose, nor
+  from the frames at a gap's edge (NaN there).
 * **Events** (:func:`find_events`): runs of speed above ``hi`` (the larger of ``min_speed``
   and ``k_hi`` times the speed's robust noise), widened while the speed stays above ``lo``;
   runs closer than ``merge_s``, or with only unknown time between them, joined; kept when the
@@ -64,9 +65,11 @@ def _mad_sigma(x):
     return float(1.4826 * np.median(np.abs(x - np.median(x))))
 
 
-def body_speed(pose, markers_ref, half_window_s: float = 0.2, min_span_s: float = 0.07):
+def body_speed(pose, markers_ref, half_window_s: float = 0.2, min_span_s: float = 0.3):
     """(F,) mm/s: the largest speed of the reference markers carried by the pose (see the
-    module); NaN without a pose or without ``min_span_s`` of seen time around the frame."""
+    module); NaN without a pose, or where the window of ``half_window_s`` either side does not
+    lie in the frame's stretch of seen time (holes of a few frames are stepped over, as long as
+    ``min_span_s`` of it is left)."""
     t = pose.t
     X = pose.points(markers_ref)                       # (F, K, 3)
     valid = pose.valid
@@ -80,9 +83,11 @@ def body_speed(pose, markers_ref, half_window_s: float = 0.2, min_span_s: float 
     prev_ok = np.maximum.accumulate(np.where(valid, idx, -1))                  # last valid <= k
     next_ok = np.minimum.accumulate(np.where(valid, idx, F)[::-1])[::-1]       # first valid >= k
     for a, b in seen_runs(valid, 1.0 / fs, MAX_HOLE_S):
-        k = np.arange(a, b)
-        lo = next_ok[np.maximum(k - h, a)]
-        hi = prev_ok[np.minimum(k + h, b - 1)]
+        k = np.arange(a + h, b - h)          # the whole window inside the stretch: a frame at a
+        if k.size == 0:                       # gap's edge (its pose fitted from fewer markers,
+            continue                          # views not time-aligned) never makes a speed
+        lo = next_ok[k - h]
+        hi = prev_ok[k + h]
         dt = t[hi] - t[lo]
         good = valid[k] & (dt >= min_span_s)
         d = np.linalg.norm(X[hi[good]] - X[lo[good]], axis=2).max(axis=1)
@@ -174,6 +179,8 @@ def find_events(pose, markers_ref, *, min_speed: float = 1.0, k_hi: float = 6.0,
         if kept or not jump:
             moving[(t >= ta) & (t <= tb)] = True
         if kept:
+            if start_b is not None and start_b[1] > tb:
+                start_b = (start_b[0], tb)         # a move starts before it ends
             return MotionEvent(ta, tb, relative_six_dof(R0, T0, R1, T1).tolist(), shift, ang, c, start_b, end_b)
         return None
 

@@ -24,6 +24,7 @@ __all__ = ["MarkerSeries", "marker_series", "join_pieces"]
 JOIN_MM = 25.0        # pieces of one marker meet within this across a gap
 JOIN_GAP_S = 10.0     # ... and follow one another within this
 COHORT_S = 0.5        # pieces starting this close together after a gap are matched as one body
+COHORT_GAP_S = 600.0  # ... after a gap of up to this (a rigid match of 3 or more does not happen by chance)
 RIGID_GATE_MM = 12.0  # ... each within this of its marker after the body's rigid motion (breathing
                       # changes the band's shape by a few mm between two breath levels)
 
@@ -106,14 +107,15 @@ def rigid_match(starts, ends, gate_mm: float = RIGID_GATE_MM, start_gate_mm: flo
 def join_pieces(first, last, start_xyz, end_xyz, ids, join_mm=JOIN_MM, gap_s=JOIN_GAP_S) -> list[list]:
     """Group track pieces into physical markers, in time order. Pieces that start together
     (within :data:`COHORT_S`) after markers were lost together -- a gap in the recording --
-    join those markers as one rigid body (:func:`rigid_match`): the patient may have moved in
-    the gap by more than ``join_mm``. Any other piece joins the chain whose end it follows in
+    join those markers as one rigid body (:func:`rigid_match`), after a gap of up to
+    :data:`COHORT_GAP_S`: the patient may have moved in the gap by more than ``join_mm``. Any
+    other piece joins the chain whose end it follows in
     time (within ``gap_s``) and meets nearest (within ``join_mm``)."""
     order = list(np.argsort(first, kind="stable"))
     chains: list[dict] = []
 
-    def open_chains(t):
-        return [c for c in chains if c["last"] < t <= c["last"] + gap_s]
+    def open_chains(t, within=gap_s):
+        return [c for c in chains if c["last"] < t <= c["last"] + within]
 
     def extend(c, k):
         c["ids"].append(ids[k])
@@ -123,7 +125,7 @@ def join_pieces(first, last, start_xyz, end_xyz, ids, join_mm=JOIN_MM, gap_s=JOI
     while j < len(order):
         cohort = [k for k in order[j:] if first[k] <= first[order[j]] + COHORT_S]
         j += len(cohort)
-        cands = [c for c in open_chains(first[cohort[0]]) if c["last"] < min(first[k] for k in cohort)]
+        cands = [c for c in open_chains(first[cohort[0]], COHORT_GAP_S) if c["last"] < min(first[k] for k in cohort)]
         taken = set()
         if len(cohort) >= 3 and len(cands) >= 3:
             for i, a in rigid_match(start_xyz[cohort], np.array([c["end"] for c in cands])):

@@ -8,7 +8,8 @@ never leave it out of the scan's duration (issue 20). :func:`recording_extent` s
 time mapped like the frames' (exposure, through each camera's clock fit):
 
 * ``first_s``/``last_s``: the first and last frame the recording should hold, any camera (its
-  index rows, with or without bytes, and the manifest's first/last camera times);
+  index rows, with or without bytes, and the manifest's first/last camera times; for a scan
+  session, from the trigger's fire to the recording's stop, ``scan.times`` of the manifest);
 * per camera: frames counted by the manifest, listed by the index, readable; first/last
   readable and expected times; the manifest's gaps and the frames they miss;
 * ``cameras_missing``: cameras of the manifest left out, and why;
@@ -60,6 +61,10 @@ def _map(fit, camera_time, receive_time):
     return np.where(np.isfinite(m), m, r)
 
 
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
 def _fin(v):
     return None if v is None or not math.isfinite(v) else float(v)
 
@@ -107,5 +112,15 @@ def recording_extent(folder, manifest: dict | None, frames, times, fits, missing
                             f"{listed - indexed} frame(s) of {cf.name} are not in the folder")
     start = min(firsts) if firsts else math.nan
     end = max(lasts) if lasts else math.nan
+    # a scan session says when the scan began (the trigger fired) and when the recording stopped:
+    # time between those and the first/last frame is scan time without frames
+    times = ((manifest or {}).get("scan") or {}).get("times") or {}
+    fire, stopped = times.get("scan_started"), times.get("stopped")
+    if _number(fire) and math.isfinite(start) and fire < start - 1.5 * period:
+        problems.append(f"no frames for the first {start - fire:.1f} s after the scan started (the trigger fired)")
+        start = float(fire)
+    if _number(stopped) and math.isfinite(end) and stopped > end + 1.5 * period:
+        problems.append(f"no frames for the last {stopped - end:.1f} s before the recording stopped")
+        end = float(stopped) - 0.5 * period
     return {"first_s": _fin(start), "last_s": _fin(end), "frame_period_s": float(period),
             "cameras": cams, "cameras_missing": dict(missing), "problems": problems}

@@ -49,6 +49,8 @@ def render_motion_html(data: dict, png: bytes, title: str = "Patient motion") ->
     rate = {"measured": _f(b["rate_per_min"], ".1f"), "none": "none"}.get(
         b["status"], "unknown" if b["rate_per_min"] is None else
         f"{b['rate_range_per_min'][0]:.1f}–{b['rate_range_per_min'][1]:.1f}")
+    amp = ("none" if b["status"] == "none" else "unknown" if s["breathing_amplitude_mm"] is None
+           else _f(s["breathing_amplitude_mm"], ".1f"))
     kpis = "".join([
         _kpi("pose known", _f(100 * s["motion_pose_coverage"], ".1f"), f"% of {s['duration_s']:.1f} s"),
         _kpi("without frames", _f(s["no_frames_s"], ".1f"), f"s in {s['no_frames_gaps']} gap(s)"),
@@ -56,8 +58,7 @@ def render_motion_html(data: dict, png: bytes, title: str = "Patient motion") ->
         _kpi("turned up to", _f(s["motion_body_max_deg"]), "deg"),
         _kpi("events / states", f"{s['events']} / {s['states']}"),
         _kpi("breathing", rate, "/min" if b["status"] in ("measured", "bounded") else ""),
-        _kpi("breath amplitude", "none" if b["status"] == "none" else _f(s["breathing_amplitude_mm"], ".1f")
-             if s["breathing_amplitude_mm"] is not None else "unknown", "mm" if s["breathing_amplitude_mm"] else ""),
+        _kpi("breath amplitude", amp, "mm" if s["breathing_amplitude_mm"] is not None else ""),
     ])
     events = [[str(k), _event_start(e), _event_end(e), f"{e['centroid_shift_mm']:.2f}",
                f"{e['rotation_deg']:.2f}", " ".join(f"{x:+.2f}" for x in e["change_6dof"])]
