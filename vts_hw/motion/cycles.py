@@ -158,9 +158,9 @@ def find_breaths(t, a, valid, period: float, min_period_s: float = 1.5, max_peri
     seg = np.full(F, -1)
     for k, (s0, s1) in enumerate(bounds):
         seg[s0:s1] = k
-    def seen(i, edge_s=EDGE_S):
+    def seen(i, edge_s=EDGE_S):                 # in a stretch (maybe on a hole of a frame or two)
         k, edge = seg[i], int(np.ceil(edge_s / period))
-        return k >= 0 and ok[i] and i - edge >= bounds[k][0] and i + edge < bounds[k][1]
+        return k >= 0 and i - edge >= bounds[k][0] and i + edge < bounds[k][1]
 
     marks = {"trough": [(float(t[i]), int(i)) for i in troughs], "peak": [(float(t[i]), int(i)) for i in peaks],
              "up": ups, "down": downs}
@@ -184,6 +184,8 @@ def find_breaths(t, a, valid, period: float, min_period_s: float = 1.5, max_peri
         out.cycles.append(Cycle(float(t[i0]), float(t[j]), float(t[i1]), float(x[j] - 0.5 * (x[i0] + x[i1]))))
         phase[i0:i1] = (t[i0:i1] - t[i0]) / per
         rate[i0:i1] = 60.0 / per
+    phase[~ok] = np.nan                         # no pose, no phase (even inside a whole breath)
+    rate[~ok] = np.nan
     return out
 
 
@@ -271,7 +273,7 @@ def breathing_figures(br: Breaths, period: float, duration_s: float, noise_mm: f
     spread = max(1.4826 * float(np.median(np.abs(per_breath - np.median(per_breath)))), SPREAD_MIN * rate)
     wb = np.bincount(group, weights=w)
     n_eff = min(float(wb.sum() ** 2 / (wb ** 2).sum()), n_ind)
-    expected = duration_s * rate / 60.0                     # breaths in the whole scan
+    expected = duration_s * rate / 60.0 - 1.0               # whole breaths in the scan (its ends cut two)
     fpc = np.sqrt(max(0.0, 1.0 - n_ind / max(expected, 1.0)))
     half = max(1.96 * 1.2533 * spread / np.sqrt(n_eff) * fpc, 0.1)
     rng = [round(rate - half, 2), round(rate + half, 2)]

@@ -14,7 +14,8 @@
   its start (end) **bounded**: the move began somewhere between the last pose seen still
   before that stretch and the first seen moving after it (``start_bounds``), and the event
   spans the whole bound. A pose that differs across a stretch without a pose, with no motion
-  seen on either side, is an event inside it: start and end bounded by the stretch.
+  seen on either side (its poses from frames not seen moving, at least 0.2 s each side), is an
+  event inside it: start and end bounded by the stretch.
 """
 
 from __future__ import annotations
@@ -132,6 +133,17 @@ def _known_after(sp, k):
     return int(k + j[0]) if j.size else -1
 
 
+def _step_over_holes(sp, period):
+    """``sp`` with each run of unknown speed of at most MAX_HOLE_S between two known ones given
+    the larger of those two (the speed cannot drop and rise again unseen in a frame or two)."""
+    sp = sp.copy()
+    known = np.isfinite(sp)
+    for a, b in runs(~known):
+        if a > 0 and b < len(sp) and (b - a) * period <= MAX_HOLE_S + 1e-9:
+            sp[a:b] = max(sp[a - 1], sp[b])
+    return sp
+
+
 def find_events(pose, markers_ref, *, min_speed: float = 1.0, k_hi: float = 6.0, k_lo: float = 2.5,
                 merge_s: float = 0.5, settle_s: float = 1.0, event_mm: float = 1.0, event_deg: float = 0.5,
                 min_duration_s: float = 0.1, half_window_s: float = 0.2):
@@ -142,6 +154,10 @@ def find_events(pose, markers_ref, *, min_speed: float = 1.0, k_hi: float = 6.0,
     med = float(np.nanmedian(sp)) if np.isfinite(sp).any() else 0.0
     hi = max(min_speed, med + k_hi * sigma)
     lo = max(0.4 * min_speed, med + k_lo * sigma)
+    F = len(t)
+    period = 1.0 / sample_rate(t)
+    measured = sp
+    sp = _step_over_holes(sp, period)             # a missing frame or two is no unknown time
     known = np.isfinite(sp)
     above = np.nan_to_num(sp, nan=0.0) > hi
     spans = []
@@ -155,19 +171,17 @@ def find_events(pose, markers_ref, *, min_speed: float = 1.0, k_hi: float = 6.0,
         else:
             spans.append((a, b))
     events = []
-    F = len(t)
     moving = np.zeros(F, bool)
     centre = pose.centre
-    period = 1.0 / sample_rate(t)
 
     def judge(i0, i1, ta, tb, start_b=None, end_b=None, jump=False):
         """An event from ``ta`` to ``tb`` when the pose up to row ``i0`` (medians over settle_s)
         and from row ``i1`` differ by event_mm or event_deg."""
         before = (t >= t[i0] - settle_s) & (t <= t[i0])
         after = (t >= t[i1]) & (t <= t[i1] + settle_s)
-        if jump:                                   # only frames seen still on either side
-            still = known & (sp <= lo) & ~moving
-            before, after = before & still, after & still
+        if jump:                                   # no frame seen moving on either side (a stretch
+            still = ~(np.nan_to_num(sp) > lo) & ~moving   # too short for a speed counts)
+            before, after = before & still & pose.valid, after & still & pose.valid
             if min(before.sum(), after.sum()) * period < 0.2:
                 return None
         R0, T0 = median_pose(pose, before)
@@ -211,12 +225,12 @@ def find_events(pose, markers_ref, *, min_speed: float = 1.0, k_hi: float = 6.0,
         if e is not None:
             events.append(e)
     # a pose that changed across time without a pose, with no motion seen at its edges
-    for a, b in runs(~known):
-        if a == 0 or b == F or touched[a - 1:b + 1].any():
-            continue
+    for a, b in runs(~pose.valid):
+        if a == 0 or b == F or (b - a) * period <= MAX_HOLE_S + 1e-9 or touched[a - 1:b + 1].any():
+            continue                               # (a move takes longer than a hole of a few frames)
         bound = (float(t[a - 1]) - h, float(t[b]) + h)
         e = judge(a - 1, b, bound[0], bound[1], bound, bound, jump=True)
         if e is not None:
             events.append(e)
     events.sort(key=lambda e: e.t_start)
-    return events, sp, moving, {"hi_mm_s": hi, "lo_mm_s": lo, "noise_mm_s": sigma}
+    return events, measured, moving, {"hi_mm_s": hi, "lo_mm_s": lo, "noise_mm_s": sigma}
