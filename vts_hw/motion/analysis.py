@@ -214,6 +214,29 @@ def _bridged(t, still, valid, X, period, bridge_s, tol_mm, settle_s=1.0):
     return out
 
 
+def _not_with_the_body(P, seen, ref, bands, bad, limit_mm: float = 5.0, share: float = 0.2) -> dict:
+    """The markers taken for the patient's because they *moved* (not because they breathe) that
+    do not move with the body: further than ``limit_mm`` from where the rigid fit of the other
+    markers carries them in more than ``share`` of their frames (a wall marker whose blob met a
+    band marker's in one camera for a while "moves" too, and after a body move it pulled the fit)."""
+    out = {}
+    for m in range(P.shape[1]):
+        if m in bad or bands.breath_rms_mm[bands.patient[m]] >= BREATH_MM or not np.isfinite(ref[m]).all():
+            continue
+        others = seen.copy()
+        others[:, m] = False
+        R, T = _pose_with_reference(P, others, ref)
+        ok = seen[:, m] & np.isfinite(T[:, 0])
+        if ok.sum() < 10:
+            continue
+        res = np.linalg.norm(P[ok, m] - (np.einsum("fij,j->fi", R[ok], ref[m]) + T[ok]), axis=1)
+        off = float(np.mean(res > limit_mm))
+        if off > share:
+            out[m] = (f"moved, but not with the body: off the rigid fit of the others by over {limit_mm:g} mm "
+                      f"in {100 * off:.0f} % of its frames: not the patient's")
+    return out
+
+
 def _inliers(P, seen, model, limit_mm):
     """``seen`` without the points further than ``limit_mm`` from the model (F, M, 3)."""
     res = np.linalg.norm(np.where(seen[..., None], P - model, 0.0), axis=2)
@@ -246,12 +269,13 @@ def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None,
     # a marker the robust fit leaves out in most frames is not one of the patient's (a wrong
     # match, a ghost made of pieces); a single point far off the fit is left out of its frame
     out_share = 1.0 - (seen & (w > 0)).sum(axis=0) / np.maximum(seen.sum(axis=0), 1)
-    bad = [m for m in range(P.shape[1]) if out_share[m] > st.max_outlier_share]
+    bad = {m: (f"off the rigid fit of the others in {100 * out_share[m]:.0f} % of its frames: not the "
+               f"patient's (a wrong match?)") for m in range(P.shape[1]) if out_share[m] > st.max_outlier_share}
+    bad.update(_not_with_the_body(P, seen, ref, bands, bad))
     if bad and P.shape[1] - len(bad) >= 3:
-        for m in bad:
+        for m, why in bad.items():
             col = bands.patient[m]
-            bands.why[col] = (f"off the rigid fit of the others in {100 * out_share[m]:.0f} % of its frames: "
-                              f"not the patient's (a wrong match?)")
+            bands.why[col] = why
             notes.append(f"marker {S.label(m)} left out: {bands.why[col]}")
         keep = [m for m in range(P.shape[1]) if m not in bad]
         bands.patient = [bands.patient[m] for m in keep]

@@ -107,7 +107,8 @@ def rigid_match(starts, ends, gate_mm: float = RIGID_GATE_MM, start_gate_mm: flo
 def join_pieces(first, last, start_xyz, end_xyz, ids, join_mm=JOIN_MM, gap_s=JOIN_GAP_S) -> list[list]:
     """Group track pieces into physical markers, in time order. Pieces that start together
     (within :data:`COHORT_S`) after markers were lost together -- a gap in the recording --
-    join those markers as one rigid body (:func:`rigid_match`), after a gap of up to
+    join those markers as one rigid body (:func:`rigid_match`; then the pieces left, as another:
+    a band that breathed between the two sides of the gap), after a gap of up to
     :data:`COHORT_GAP_S`: the patient may have moved in the gap by more than ``join_mm``. Any
     other piece joins the chain whose end it follows in
     time (within ``gap_s``) and meets nearest (within ``join_mm``)."""
@@ -127,10 +128,19 @@ def join_pieces(first, last, start_xyz, end_xyz, ids, join_mm=JOIN_MM, gap_s=JOI
         j += len(cohort)
         cands = [c for c in open_chains(first[cohort[0]], COHORT_GAP_S) if c["last"] < min(first[k] for k in cohort)]
         taken = set()
-        if len(cohort) >= 3 and len(cands) >= 3:
-            for i, a in rigid_match(start_xyz[cohort], np.array([c["end"] for c in cands])):
-                extend(cands[a], cohort[i])
-                taken.add(cohort[i])
+        # one rigid body, then what is left (the abdomen's band, say: breathing moves it up to
+        # ~25 mm between two breath levels, more than the gate, but it moves as a whole)
+        for _ in range(3):
+            left = [k for k in cohort if k not in taken]
+            if len(left) < 3 or len(cands) < 3:
+                break
+            pairs = rigid_match(start_xyz[left], np.array([c["end"] for c in cands]))
+            if not pairs:
+                break
+            for i, a in pairs:
+                extend(cands[a], left[i])
+                taken.add(left[i])
+            cands = [c for j, c in enumerate(cands) if j not in {a for _, a in pairs}]
         for k in cohort:
             if k in taken:
                 continue
