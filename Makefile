@@ -16,7 +16,7 @@ TEST_DEBS := curl openssl chromium fonts-dejavu-core poppler-utils postgresql
 
 venv: $(STAMP)
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml setup.py
 	@tools/ensure-debs python3-venv
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip

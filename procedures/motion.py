@@ -35,6 +35,7 @@ from vts_hw.errors import DataError
 from vts_hw.figures import figure_png
 from vts_hw.motion import MotionSettings, analyze_motion, marker_series
 from vts_hw.motion.exports import clock_text, coverage_json, export_motion, time_origin
+from vts_hw.spect.frame import frame_description
 from vts_hw.results import Measure, overall_state
 from vts_hw.tolerance import State, merged_tolerances
 from vts_hw.procedures.sync_inputs import load_calibration, load_mapping
@@ -85,6 +86,7 @@ class MotionAnalysis:
         self.result = None
         self.sync = None
         self.problems: list[str] = []
+        self.export_notes: list[str] = []   # what export() did not write, and why
         self.manifest: dict = {}
         self.tolerances = merged_tolerances(None)
         self.analyzed_at = None
@@ -227,7 +229,7 @@ class MotionAnalysis:
             "session": str(self.session), "listmode": None if self.listmode is None else str(
                 getattr(self.sync, "listmode_path", self.listmode)),
             "clock": clock_text(r), "time_origin": t0,
-            "frame": "SPECT frame" if S.frame == "spect" else "VTS frame (no VTS -> SPECT mapping)",
+            "frame": frame_description(S.frame, self.spect_volume()),
             "summary": summary, "measures": [m.as_dict() for m in measures],
             "windows": {m: self.tolerances[m].as_dict() for m in METRICS if m in self.tolerances},
             "reference_period_s": [r.reference_period[0] - t0, r.reference_period[1] - t0],
@@ -252,7 +254,7 @@ class MotionAnalysis:
         s = d["summary"]
         lines = [f"patient motion: {self.session} ({d['date']}, vts-hw {d['vts_hw_version']})",
                  f"  times: {d['clock']}",
-                 f"  positions: {d['frame']}",
+                 f"  positions: {d['frame']['definition']}",
                  f"  patient markers: {len([m for m in d['markers'] if m['patient']])} in {len(d['bands'])} band(s) "
                  f"({'; '.join(', '.join(b) for b in d['bands'])}); reference {d['reference_period_s'][0]:.1f}-"
                  f"{d['reference_period_s'][1]:.1f} s",
@@ -298,12 +300,23 @@ class MotionAnalysis:
     def plot(self, path=None) -> bytes:
         return figure_png(self.figure(), path)
 
+    def spect_volume(self) -> dict | None:
+        """What the VTS -> SPECT mapping kept of the volume it was made from (the volume that
+        places the SPECT frame; vts_hw.spect.frame), if it says."""
+        meta = (self.tracks.meta if self.tracks is not None else {}).get("spect_mapping")
+        volume = ((meta or {}).get("meta") or {}).get("spect_volume") if isinstance(meta, dict) else None
+        return volume if isinstance(volume, dict) else None
+
     def export(self, out, n_bins: int = 4) -> list[Path]:
         """The motion files (docs/motion-formats.md) and the marker trajectories
-        (``trajectories.csv``/``.json``, docs/trajectory-format.md) into ``out``."""
+        (``trajectories.csv``/``.json``, docs/trajectory-format.md) into ``out``;
+        :attr:`export_notes`: the files not written and why (the CASToR files need the SPECT clock
+        and a mapping that says its volume), the motion states CASToR's whole seconds merge."""
         r = self._need()
-        paths = export_motion(r, out, n_bins=n_bins, extra={"session": str(self.session),
-                                                              "vts_hw_version": __version__})
+        written = export_motion(r, out, n_bins=n_bins, volume=self.spect_volume(),
+                                extra={"session": str(self.session), "vts_hw_version": __version__})
+        self.export_notes = list(written.notes)
+        paths = list(written)
         if self.tracks is not None:
             paths += list(self.tracks.save(Path(out) / "trajectories.csv"))
         return paths

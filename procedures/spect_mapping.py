@@ -199,18 +199,21 @@ class SpectMapping:
         self.analyzed_at: str | None = None
         self.tolerances: dict | None = None
         self.vts_cameras: list[str] | None = None    # the cameras that measured the VTS side, if known
+        self.spect_volume: dict | None = None        # the volume that places the SPECT frame (spect/frame.py)
 
     @classmethod
     def from_volume(cls, vts_points, volume_path, fre_limit_mm: float = FRE_LIMIT_MM,
                     **find_kwargs) -> "SpectMapping":
         """SPECT points from a reconstructed volume (any format :func:`read_volume` knows);
         a sphere count other than the VTS count raises :class:`DataError`."""
-        from vts_hw.spect import find_spheres, read_volume
+        from vts_hw.spect import find_spheres
 
         vts = _as_points(vts_points, "VTS")
-        found = find_spheres(read_volume(volume_path), n_expected=len(vts), strict=True,
-                             **find_kwargs)
-        return cls(vts, found.centroids, fre_limit_mm)
+        volume, record = _read_volume(volume_path)
+        found = find_spheres(volume, n_expected=len(vts), strict=True, **find_kwargs)
+        mapping = cls(vts, found.centroids, fre_limit_mm)
+        mapping.spect_volume = record
+        return mapping
 
     @classmethod
     def from_stereo(cls, calibration, pts_left, pts_right, volume_path, tol_mm: float = 3.0,
@@ -221,11 +224,14 @@ class SpectMapping:
         (:func:`vts_hw.vision.body_finder.locate_body`), so nothing but the two measurements decides
         which detection is a sphere."""
         from vts_hw.vision.body_finder import locate_body
-        from vts_hw.spect import find_spheres, read_volume
+        from vts_hw.spect import find_spheres
 
-        spect = find_spheres(read_volume(volume_path), strict=True).centroids
+        volume, record = _read_volume(volume_path)
+        spect = find_spheres(volume, strict=True).centroids
         fit = locate_body(calibration.cameras(), pts_left, pts_right, spect, tol_mm=tol_mm)
-        return cls(fit.points, spect, fre_limit_mm)
+        mapping = cls(fit.points, spect, fre_limit_mm)
+        mapping.spect_volume = record
+        return mapping
 
     @classmethod
     def from_views(cls, calibration, points_px: dict, volume_path, tol_mm: float = 3.0,
@@ -234,18 +240,20 @@ class SpectMapping:
         (the calibration's, or the rig's for a file named otherwise) to its detections (px)."""
         from vts_hw.vision.body_finder import locate_body_views
         from vts_hw.vision.camera_set import named_cameras
-        from vts_hw.spect import find_spheres, read_volume
+        from vts_hw.spect import find_spheres
 
         names = list(points_px)
         cams = named_cameras(calibration, names)
         missing = [n for n in names if n not in cams]
         if missing:
             raise DataError(f"camera(s) {', '.join(missing)} not in the calibration (it has {', '.join(cams)}).")
-        spect = find_spheres(read_volume(volume_path), strict=True).centroids
+        volume, record = _read_volume(volume_path)
+        spect = find_spheres(volume, strict=True).centroids
         fit = locate_body_views([cams[n] for n in names],
                                 [np.asarray(points_px[n], float).reshape(-1, 2) for n in names], spect, tol_mm=tol_mm)
         mapping = cls(fit.points, spect, fre_limit_mm)
         mapping.vts_cameras = names
+        mapping.spect_volume = record
         return mapping
 
     # ------------------------------------------------------------------ analysis
@@ -300,7 +308,8 @@ class SpectMapping:
         }
 
     def _meta(self) -> dict:
-        return {"from_frame": "VTS", "to_frame": "SPECT", "procedure": "spect_mapping", **self._figures()}
+        return {"from_frame": "VTS", "to_frame": "SPECT", "procedure": "spect_mapping", **self._figures(),
+                **({"spect_volume": self.spect_volume} if self.spect_volume else {})}
 
     # ------------------------------------------------------------------ the QA result shape
     procedure = "spect_mapping"
@@ -352,6 +361,7 @@ class SpectMapping:
                           "euler_xyz_deg": T.as_euler_xyz_deg().tolist(),
                           "rotation_angle_deg": T.rotation_angle_deg},
             **self._figures(),
+            "spect_volume": self.spect_volume,
             "state": str(self.state),
             "measures": [m.as_dict() for m in self.measures],
         }
@@ -385,6 +395,15 @@ class SpectMapping:
         :meth:`RigidTransform.load`."""
         self._need()
         return self.transform.save(path)
+
+
+def _read_volume(path):
+    """The volume and what the mapping keeps of it (the frame it places: vts_hw.spect.frame)."""
+    from vts_hw.spect import read_volume
+    from vts_hw.spect.frame import volume_record
+
+    volume = read_volume(path)
+    return volume, volume_record(path, volume)
 
 
 def replaceable(out_path: Path, force: bool = False) -> None:

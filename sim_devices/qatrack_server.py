@@ -1,25 +1,28 @@
-"""A simulated QATrack+ on 127.0.0.1: the part of its REST API the push uses, with faults.
+"""A simulated QATrack+ 3.1 on 127.0.0.1: the part of its REST API the push uses, with faults.
 
-Modelled on QATrack+'s own code and API guide (qatrackplus/qatrackplus: qatrack/api/urls.py,
-qatrack/api/qa/{views,filters,serializers}.py, docs/api/guide.rst), with Django REST
-framework's shapes:
+As strict as the real server on everything the push sends and reads: tests/test_qatrack_peer.py
+sends the same conversation (tests/qatrack_conversation.py) to this stand-in and compares its
+answers with the real server's, recorded once into tests/data/qatrack_real_answers.json by
+``python tests/qatrack_conversation.py record`` against ``../shared/interop/qatrack/run-qatrack.sh``.
+The site's rules (work times in its zone, field errors, the list's rules) are in
+:mod:`.qatrack_site`; this module is the HTTP around them, as Django and DRF answer:
 
-- ``POST /api/get-token/`` (form or JSON username/password): ``{"token": ...}``; a wrong
-  login: 400 ``{"non_field_errors": ["Unable to log in with provided credentials."]}``;
-- every other call needs ``Authorization: Token KEY``: 401 ``{"detail": "Invalid token."}``
-  or ``{"detail": "Authentication credentials were not provided."}``;
-- ``GET /api/qa/unittestcollections/`` and ``GET /api/qa/testlistinstances/``: limit/offset
-  pages ``{count, next, previous, results}`` (10 a page), filters ``unit__name``,
-  ``unit__name__icontains``, ``test_list__name``, ``test_list__name__icontains``, ``active``;
-  ``user_key``, ``unit_test_collection`` (an id);
-- ``POST /api/qa/testlistinstances/``: 201 with the instance (``url``, ``site_url``, ``tests``
-  ...); 400 as QATrack+ words it: a required field, an unknown assignment ("Invalid hyperlink -
-  Object does not exist."), a test that is not a dictionary, "Missing data for tests: ...",
-  "Wrong value type (number/string) for tests: ...", the user key already used, attachments
-  not base64. Like QATrack+, values for macros not in the test list are ignored.
+- ``POST /api/get-token/`` (form or JSON): ``{"token": ...}``; a wrong login: 400
+  ``{"non_field_errors": ["Unable to log in with provided credentials."]}``;
+- every other API call needs ``Authorization: Token KEY`` (401 ``Invalid token.`` or
+  ``Authentication credentials were not provided.``, with ``WWW-Authenticate: Token``); a POST
+  needs the user's add permission, a PATCH its change permission (403 "You do not have
+  permission to perform this action.");
+- ``GET /api/qa/unittestcollections/`` and ``GET /api/qa/testlistinstances/`` (``qa`` or
+  ``qc``): limit/offset pages of 100 ``{count, next, previous, results}``; filters
+  ``unit__name``, ``test_list__name``, ``active``; ``user_key``; ``GET .../N/`` one of them;
+- ``POST /api/qa/testlistinstances/``: 201 with the new instance (``Location`` its url) or 400;
+- an API path without its final slash: 301 to it (Django's APPEND_SLASH); an unknown API
+  path: 404 HTML; anything outside ``/api/``: 302 to the site's login page (a wrong base URL).
 
 Faults (``server.fault``): ``None``; ``"slow"`` (every answer after ``slow_s``); ``"500"``
-(Django's plain server-error page); ``("400", message)`` (a POST refused with that message);
+(the server-error page); ``("400", message)`` (a POST refused with that message); ``"trickle"``
+(the status and headers at once, then the body one byte every ``trickle_s`` seconds);
 ``"lose_answer"`` (a POST is stored, then answered only after ``slow_s``: the client times
 out although the instance exists). ``down()`` stops listening, ``up()`` listens again on the
 same port; ``add_instance(key)`` puts an instance with that user key there (a duplicate).
@@ -27,19 +30,23 @@ same port; ``add_instance(key)`` puts an instance with that user key there (a du
 
 from __future__ import annotations
 
+import datetime as _dt
 import json
 import re
 import threading
 import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from numbers import Number
 from urllib.parse import parse_qs, urlencode, urlsplit
 
-BASE64_RE = re.compile(r"^([A-Za-z0-9+/]{4})*([A-Za-z0-9+/]{4}|[A-Za-z0-9+/]{3}=|[A-Za-z0-9+/]{2}==)$")
-PAGE = 10
-FAULTS = ("slow", "500", "400", "lose_answer", "down", "add_instance")
+from vts_hw.sim_devices.qatrack_site import NO_PERMISSION, Site
+
+PAGE = 100
+FAULTS = ("slow", "500", "400", "lose_answer", "trickle", "down", "add_instance")
 """Every fault the peer injects: the values of ``fault`` (``"400"`` as the tuple's head) and the
 methods that take it down or put a duplicate there; docs/faults.md has a row for each."""
+ERROR_PAGE = ("<!DOCTYPE html>\n<html lang=\"en-us\"><head><title>example.com: Error {code} : {what}</title></head>"
+              "<body><h1>Error {code}</h1><p>{what}</p></body></html>\n")
+ROUTE = re.compile(r"^/api/(?:(get-token)|q[ac]/(unittestcollections|testlistinstances))/(?:(\d+)/)?$")
 
 
 class _Server(ThreadingHTTPServer):
@@ -50,35 +57,39 @@ class _Server(ThreadingHTTPServer):
 
 class QATrackSim:
     """A QATrack+ site with ``units`` (unit name -> test list names assigned) and ``lists``
-    (test list name -> its test macros, all numeric)."""
+    (test list name -> its test macros, all numeric), in ``time_zone`` (its TIME_ZONE). ``token``
+    is the push user's ("vts", who may add instances); ``users`` name -> password exchange for it."""
 
     def __init__(self, lists: dict[str, list[str]], units: dict[str, list[str]], token: str = "sim-token",
-                 users: dict[str, str] | None = None, port: int = 0):
-        self.lists = {name: list(macros) for name, macros in lists.items()}
+                 users: dict[str, str] | None = None, port: int = 0, time_zone: str = "America/Toronto",
+                 admin_token: str = "sim-admin-token"):
+        self.site = Site(lists, units, time_zone)
         self.token = token
         self.users = dict(users or {})
-        self.utcs: list[dict] = []   # id, unit, test_list, active
-        for unit, names in units.items():
-            for name in names:
-                self.utcs.append({"id": len(self.utcs) + 1, "unit": unit, "test_list": name, "active": True})
-        self.instances: list[dict] = []
+        self.accounts: dict[str, dict] = {}    # token -> {name, id, perms}
+        self.add_user("admin", token=admin_token, perms=("add", "change"))
+        self.add_user("vts", token=token, perms=("add",))
         self.requests: list[tuple[str, str, str]] = []   # method, path, Authorization header
         self.posts = 0
         self.last_post: dict | None = None   # the body of the last instance created
         self.fault = None
         self.slow_s = 2.0
+        self.trickle_s = 0.5
         self._lock = threading.Lock()
         self._port = port
         self._server: _Server | None = None
-        self._thread: threading.Thread | None = None
+
+    def add_user(self, name: str, token: str, perms=("add",)) -> None:
+        """A user of the site with a token and permissions (``add``, ``change`` of instances)."""
+        ids = {a["name"]: a["id"] for a in self.accounts.values()}
+        self.accounts[token] = {"name": name, "id": ids.get(name, 2 + len(ids)), "perms": set(perms)}
 
     # -- life -------------------------------------------------------------------------------
 
     def up(self) -> "QATrackSim":
         self._server = _Server(("127.0.0.1", self._port), _handler(self))
         self._port = self._server.server_address[1]
-        self._thread = threading.Thread(target=self._server.serve_forever, args=(0.05,), daemon=True, name="qatrack-sim")
-        self._thread.start()
+        threading.Thread(target=self._server.serve_forever, args=(0.05,), daemon=True, name="qatrack-sim").start()
         return self
 
     def down(self) -> None:
@@ -99,224 +110,221 @@ class QATrackSim:
 
     # -- data -------------------------------------------------------------------------------
 
+    @property
+    def utcs(self) -> list[dict]:
+        return self.site.utcs
+
+    @property
+    def instances(self) -> list[dict]:
+        """What the site holds, one dict per instance: url, user_key, work times (as the site
+        shows them), comment, tests {macro: {value, skipped, comment}}, attachment names and bytes."""
+        z = self.site.zone
+        return [{"url": f"{self.url}api/qc/testlistinstances/{i['id']}/", "user_key": i["user_key"],
+                 "work_started": self.site_time(i["work_started"]), "work_completed": self.site_time(i["work_completed"]),
+                 "comment": i["comment"] or "", "tests": i["tests"], "zone": z.key,
+                 "attachments": [a["filename"] for a in i["attachments"]],
+                 "attachment_bytes": sum(a["size"] for a in i["attachments"])} for i in self.site.instances]
+
+    def site_time(self, value) -> str | None:
+        from vts_hw.sim_devices.qatrack_site import show_time
+        return show_time(value, self.site.zone)
+
     def add_instance(self, user_key: str, utc_id: int = 1, tests: dict | None = None) -> dict:
         with self._lock:
-            return self._store_instance(self.utcs[utc_id - 1], {"user_key": user_key, "tests": tests or {},
-                                                                 "work_started": None, "work_completed": None,
-                                                                 "comment": "", "attachments": []})
-
-    def _store_instance(self, utc: dict, data: dict) -> dict:
-        n = len(self.instances) + 1
-        tli = {"id": n, "url": f"{self.url}api/qa/testlistinstances/{n}/",
-               "site_url": f"{self.url}qa/session/details/{n}/",
-               "unit_test_collection": f"{self.url}api/qa/unittestcollections/{utc['id']}/",
-               "test_list": f"{self.url}api/qa/testlists/{list(self.lists).index(utc['test_list']) + 1}/",
-               "day": 0, "in_progress": False, "include_for_scheduling": True,
-               "work_started": data.get("work_started"), "work_completed": data.get("work_completed"),
-               "user_key": data.get("user_key"), "comment": data.get("comment") or "",
-               "tests": {m: {"value": data["tests"].get(m, {}).get("value"),
-                             "skipped": bool(data["tests"].get(m, {}).get("skipped", False)),
-                             "comment": data["tests"].get(m, {}).get("comment", "")}
-                         for m in self.lists[utc["test_list"]]},
-               "attachments": [a["filename"] for a in data.get("attachments") or []],
-               "attachment_bytes": sum(len(a["value"]) for a in data.get("attachments") or [])}
-        self.instances.append(tli)
-        return tli
-
-    def utc_json(self, u: dict) -> dict:
-        tl = f"{self.url}api/qa/testlists/{list(self.lists).index(u['test_list']) + 1}/"
-        return {"url": f"{self.url}api/qa/unittestcollections/{u['id']}/",
-                "unit": f"{self.url}api/units/units/{sorted({x['unit'] for x in self.utcs}).index(u['unit']) + 1}/",
-                "frequency": None, "assigned_to": f"{self.url}api/auth/groups/1/", "visible_to": [],
-                "tests_object": tl, "next_test_list": tl, "next_day": 0, "due_date": None,
-                "auto_schedule": False, "active": u["active"], "name": u["test_list"], "object_id": u["id"],
-                "content_type": f"{self.url}api/contenttypes/contenttypes/31/", "last_instance": None}
-
-    # -- the API ----------------------------------------------------------------------------
-
-    def validate(self, data) -> tuple[dict | None, dict | None]:
-        """(the assignment, None) or (None, a DRF-shaped 400 body)."""
-        if not isinstance(data, dict):
-            return None, {"non_field_errors": ["Invalid data. Expected a dictionary, but got list."]}
-        errors: dict[str, list[str]] = {}
-        utc = None
-        ref = data.get("unit_test_collection")
-        if ref in (None, ""):
-            errors["unit_test_collection"] = ["This field is required."]
-        else:
-            m = re.search(r"/api/qa/unittestcollections/(\d+)/$", str(ref))
-            if not m:
-                errors["unit_test_collection"] = ["Invalid hyperlink - No URL match."]
-            elif not 1 <= int(m.group(1)) <= len(self.utcs):
-                errors["unit_test_collection"] = ["Invalid hyperlink - Object does not exist."]
-            else:
-                utc = self.utcs[int(m.group(1)) - 1]
-        tests = data.get("tests")
-        if tests is None:
-            errors["tests"] = ["This field is required."]
-        elif not isinstance(tests, dict):
-            errors["tests"] = [f'Expected a dictionary of items but got type "{type(tests).__name__}".']
-        else:
-            bad = ['"%s"' % k for k, v in tests.items() if not isinstance(v, dict)]
-            if bad:
-                errors["tests"] = ["%s field(s) have errors. Test data must be a dictionary " % ", ".join(bad)]
-        key = data.get("user_key")
-        if key and any(i["user_key"] == key for i in self.instances):
-            errors["user_key"] = ["test list instance with this user key already exists."]
-        for a in data.get("attachments") or []:
-            if not isinstance(a, dict) or "filename" not in a or "value" not in a:
-                errors["attachments"] = ['`attachments` field must be list of form [{"filename": "file_name.txt", '
-                                         '"value": "<base64 encoded bytes|text>", "encoding": "<base64|text>], ...]']
-            elif a.get("encoding", "base64") == "base64" and not BASE64_RE.match(a["value"]):
-                errors["attachments"] = ["base64 encoding requested but content does not appear to be base64"]
-        if errors:
-            return None, errors
-        msgs = []
-        missing = [m for m in self.lists[utc["test_list"]] if m not in tests]
-        wrong = [m for m in self.lists[utc["test_list"]] if m in tests and not tests[m].get("skipped")
-                 and not isinstance(tests[m].get("value"), Number)]
-        if missing:
-            msgs.append("Missing data for tests: %s" % ", ".join(missing))
-        if wrong:
-            msgs.append("Wrong value type (number/string) for tests: %s\nIf these are composite tests with "
-                        "missing dependencies, they should be marked as skipped in your request (e.g. "
-                        "{'tests': {'%s': {'skipped': True}}})" % (", ".join(wrong), wrong[0]))
-        if data.get("work_started") and data.get("work_completed") and \
-                str(data["work_completed"]) < str(data["work_started"]):
-            msgs.append("work_completed date must be after work_started")
-        if msgs:
-            return None, {"non_field_errors": ["\n".join(msgs)]}
-        return utc, None
+            utc = self.site.utcs[utc_id - 1]
+            now = _dt.datetime.now(_dt.timezone.utc)
+            given = tests or {}
+            fields = {"unit_test_collection": utc, "work_started": now, "work_completed": now, "user_key": user_key,
+                      "comment": None, "attachments": [],
+                      "tests": {m: {"value": given.get(m, {}).get("value"), "skipped": m not in given, "comment": ""}
+                                for m in self.site.lists[utc["test_list"]]}}
+            self.site.add(fields, "admin", 2)
+        return self.instances[-1]
 
 
-def _page(sim: QATrackSim, path: str, items: list[dict], query: dict) -> dict:
+def _page(root: str, path: str, items: list[dict], query: dict) -> dict:
     limit = int(query.get("limit", [PAGE])[0])
     offset = int(query.get("offset", [0])[0])
     flat = {k: v[0] for k, v in query.items()}
 
     def link(off):
-        return f"{sim.url}{path.lstrip('/')}?" + urlencode({**flat, "limit": limit, "offset": off})
+        return f"{root}{path.lstrip('/')}?" + urlencode({**flat, "limit": limit, "offset": off})
     return {"count": len(items), "next": link(offset + limit) if offset + limit < len(items) else None,
             "previous": link(max(offset - limit, 0)) if offset > 0 else None,
             "results": items[offset:offset + limit]}
 
 
 def _handler(sim: QATrackSim):
+    site = sim.site
+
     class Handler(BaseHTTPRequestHandler):
         protocol_version = "HTTP/1.1"
 
         def log_message(self, *args):   # quiet
             pass
 
-        def _answer(self, code: int, body, content_type="application/json", extra=None):
-            raw = (json.dumps(body) if content_type == "application/json" else str(body)).encode()
+        def _answer(self, code: int, body=None, content_type="application/json", extra=None):
+            if content_type == "application/json":
+                raw = json.dumps(body).encode()
+            else:
+                raw = str(body or "").encode()
+                content_type = "text/html; charset=utf-8"
             self.send_response(code)
             self.send_header("Content-Type", content_type)
             self.send_header("Content-Length", str(len(raw)))
             for k, v in (extra or {}).items():
                 self.send_header(k, v)
             self.end_headers()
+            if sim.fault == "trickle":
+                try:
+                    for k in range(len(raw)):
+                        self.wfile.write(raw[k:k + 1])
+                        self.wfile.flush()
+                        time.sleep(sim.trickle_s)
+                except OSError:      # the client gave up
+                    pass
+                return
             self.wfile.write(raw)
 
-        def _body(self):
+        def _raw(self) -> bytes:
             n = int(self.headers.get("Content-Length") or 0)
-            raw = self.rfile.read(n) if n else b""
+            return self.rfile.read(n) if n else b""
+
+        def _body(self, raw: bytes):
             if (self.headers.get("Content-Type") or "").startswith("application/json"):
                 return json.loads(raw or b"null")
             return {k: v[0] for k, v in parse_qs(raw.decode()).items()}
 
-        def _authorised(self) -> bool:
+        def _account(self) -> dict | None:
+            """The caller's account, or None after answering 401."""
             auth = self.headers.get("Authorization")
-            if not auth:
+            if not auth or not auth.startswith("Token "):
                 self._answer(401, {"detail": "Authentication credentials were not provided."},
                              extra={"WWW-Authenticate": "Token"})
-                return False
-            if auth != f"Token {sim.token}":
+                return None
+            account = sim.accounts.get(auth[6:].strip())
+            if account is None:
                 self._answer(401, {"detail": "Invalid token."}, extra={"WWW-Authenticate": "Token"})
-                return False
-            return True
+            return account
 
         def _faulty(self) -> bool:
             fault = sim.fault
             if fault == "slow":
                 time.sleep(sim.slow_s)
             if fault == "500":
-                self._answer(500, "<h1>Server Error (500)</h1>", "text/html")
+                self._answer(500, ERROR_PAGE.format(code=500, what="Server Error"), "text/html")
                 return True
             return False
 
+        def _route(self, method: str):
+            """(kind, collection, id) of an API path, or None after answering as Django does."""
+            path = urlsplit(self.path).path
+            sim.requests.append((method, path, self.headers.get("Authorization") or ""))
+            if not path.startswith("/api/"):
+                self._answer(302, "", "text/html", {"Location": f"/accounts/login/?next={path}"})
+                return None
+            m = ROUTE.match(path)
+            if m is None and ROUTE.match(path + "/"):
+                self._answer(301, "", "text/html", {"Location": path + "/"})
+                return None
+            if m is None:
+                self._answer(404, ERROR_PAGE.format(code=404, what="Resource not found"), "text/html")
+                return None
+            return m.group(1) or m.group(2), (int(m.group(3)) if m.group(3) else None)
+
         def do_GET(self):
-            parts = urlsplit(self.path)
-            sim.requests.append(("GET", parts.path, self.headers.get("Authorization") or ""))
-            if self._faulty() or not self._authorised():
+            route = self._route("GET")
+            if route is None or self._faulty():
                 return
+            kind, n = route
+            if kind == "get-token":
+                self._answer(405, {"detail": 'Method "GET" not allowed.'})
+                return
+            if self._account() is None:
+                return
+            parts = urlsplit(self.path)
             q = parse_qs(parts.query)
             one = {k: v[0] for k, v in q.items()}
             with sim._lock:
-                if parts.path == "/api/qa/unittestcollections/":
-                    items = [u for u in sim.utcs if _utc_matches(u, one)]
-                    self._answer(200, _page(sim, parts.path, [sim.utc_json(u) for u in items], q))
-                elif parts.path == "/api/qa/testlistinstances/":
-                    items = [{k: v for k, v in i.items() if k not in ("id", "attachment_bytes")}
-                             for i in sim.instances if _tli_matches(i, one)]
-                    self._answer(200, _page(sim, parts.path, items, q))
+                if kind == "unittestcollections":
+                    items = [site.utc_json(sim.url, u) for u in site.utcs if n in (None, u["id"]) and _utc_matches(u, one)]
                 else:
-                    self._answer(404, {"detail": "Not found."})
+                    items = [site.instance_json(sim.url, i) for i in site.instances
+                             if n in (None, i["id"]) and ("user_key" not in one or i["user_key"] == one["user_key"])]
+            if n is not None:
+                self._answer(200, items[0]) if items else self._answer(404, {"detail": "Not found."})
+            else:
+                self._answer(200, _page(sim.url, parts.path, items, q))
+
+        def do_PATCH(self):
+            self._raw()
+            route = self._route("PATCH")
+            if route is None or self._faulty():
+                return
+            account = self._account()
+            if account is not None:
+                if "change" not in account["perms"]:
+                    self._answer(403, {"detail": NO_PERMISSION})
+                else:
+                    self._answer(405, {"detail": 'Method "PATCH" not allowed.'})
 
         def do_POST(self):
-            parts = urlsplit(self.path)
-            sim.requests.append(("POST", parts.path, self.headers.get("Authorization") or ""))
-            try:
-                data = self._body()
-            except ValueError:
-                self._answer(400, {"detail": "JSON parse error - Expecting value: line 1 column 1 (char 0)"})
+            raw = self._raw()
+            route = self._route("POST")
+            if route is None:
                 return
-            if self._faulty():
-                return
-            if parts.path == "/api/get-token/":
+            kind, n = route
+            if kind == "get-token":
+                try:
+                    data = self._body(raw)
+                except ValueError as exc:
+                    self._answer(400, {"detail": f"JSON parse error - {exc}"})
+                    return
+                if self._faulty():
+                    return
                 user, pw = (data or {}).get("username"), (data or {}).get("password")
                 if user in sim.users and sim.users[user] == pw:
                     self._answer(200, {"token": sim.token})
                 else:
                     self._answer(400, {"non_field_errors": ["Unable to log in with provided credentials."]})
                 return
-            if not self._authorised():
+            if self._faulty():
                 return
-            if parts.path != "/api/qa/testlistinstances/":
+            account = self._account()
+            if account is None:
+                return
+            if kind != "testlistinstances" or n is not None:
                 self._answer(405, {"detail": 'Method "POST" not allowed.'})
+                return
+            if "add" not in account["perms"]:
+                self._answer(403, {"detail": NO_PERMISSION})
+                return
+            try:
+                data = self._body(raw)
+            except ValueError as exc:
+                self._answer(400, {"detail": f"JSON parse error - {exc}"})
                 return
             if isinstance(sim.fault, tuple) and sim.fault[0] == "400":
                 self._answer(400, {"non_field_errors": [sim.fault[1]]})
                 return
             with sim._lock:
-                utc, errors = sim.validate(data)
+                fields, errors = site.validate(data)
                 if errors:
                     self._answer(400, errors)
                     return
-                tli = sim._store_instance(utc, data)
+                record = site.add(fields, account["name"], account["id"])
                 sim.posts += 1
                 sim.last_post = data
             if sim.fault == "lose_answer":
                 time.sleep(sim.slow_s)
-            self._answer(201, {k: v for k, v in tli.items() if k not in ("id", "attachment_bytes")},
-                         extra={"Location": tli["url"]})
+            made = site.created_json(sim.url, record)
+            self._answer(201, made, extra={"Location": made["url"]})
 
     return Handler
 
 
 def _utc_matches(u: dict, q: dict) -> bool:
     checks = [("unit__name", lambda v: u["unit"] == v),
-              ("unit__name__icontains", lambda v: v.lower() in u["unit"].lower()),
               ("test_list__name", lambda v: u["test_list"] == v),
-              ("test_list__name__icontains", lambda v: v.lower() in u["test_list"].lower()),
               ("active", lambda v: u["active"] == (v.lower() in ("true", "1")))]
     return all(test(q[k]) for k, test in checks if k in q)
-
-
-def _tli_matches(i: dict, q: dict) -> bool:
-    if "user_key" in q and i["user_key"] != q["user_key"]:
-        return False
-    if "unit_test_collection" in q and not i["unit_test_collection"].endswith(f"/{q['unit_test_collection']}/"):
-        return False
-    return True
-

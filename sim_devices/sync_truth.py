@@ -32,6 +32,10 @@ CALIBRATION_FILE = "calibration.json"
 MAPPING_FILE = "spect_mapping.json"
 CAMERAS_FILE = "cameras.json"
 NOTE = "simulated rig: the scene's true cameras (not a measured calibration)"
+# what a mapping keeps of its volume (vts_hw.spect.frame.volume_record), for the scene's world frame: the
+# SPECT frame with its origin at the FOV centre, a head-first supine patient (sim_devices/patient.py)
+SCENE_VOLUME = {"file": None, "format": "simulated scene", "shape": None, "voxel_size_mm": None,
+                "centre_mm": [0.0, 0.0, 0.0], "patient_position": "HFS", "castor_image": False}
 
 
 def _cams(scene: Scene, t: float | None, names=None):
@@ -61,7 +65,7 @@ def true_stereo_calibration(scene: Scene, t: float | None = None, names=None) ->
 def true_spect_mapping(scene: Scene, t: float | None = None, names=None) -> RigidTransform:
     """VTS frame (camera 1's) → SPECT frame (the scene's world frame), the truth."""
     c1 = _cams(scene, t, names)[0]
-    return RigidTransform(c1.R.T, -c1.R.T @ c1.t, {"note": NOTE})
+    return RigidTransform(c1.R.T, -c1.R.T @ c1.t, {"note": NOTE, "spect_volume": SCENE_VOLUME})
 
 
 def write_true_calibration(scene: Scene, folder, t: float | None = None) -> tuple[Path, Path]:

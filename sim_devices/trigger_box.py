@@ -78,7 +78,8 @@ def build(quiet: bool = True) -> tuple[Path, Path]:
     make's output if the build fails. Concurrent callers are serialised by a lock file."""
     fw = firmware_dir()
     if not (fw / "Makefile").is_file():
-        raise RuntimeError(f"trigger box firmware sources not found in {fw}")
+        raise RuntimeError(f"trigger box firmware sources not found in {fw} (an installed vts-hw has none: "
+                           "set VTS_FIRMWARE_DIR to the firmware/ folder of a checkout)")
     lock_dir = Path(tempfile.gettempdir())
     with open(lock_dir / f"vts-trigger-box-build-{os.getuid()}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)

@@ -73,3 +73,35 @@ def store_url(request, tmp_path) -> str:
     if request.param == "sqlite":
         return f"sqlite:///{tmp_path / 'data' / 'results.sqlite'}"
     return request.getfixturevalue("pg_url")
+
+
+# -- the real QATrack+ (../shared/interop/qatrack): started while the rest of the suite runs ---------
+
+_REAL_QATRACK = None
+
+
+def _real_qatrack():
+    global _REAL_QATRACK
+    if _REAL_QATRACK is None:
+        from qatrack_real import RealQATrack
+        _REAL_QATRACK = RealQATrack()
+    return _REAL_QATRACK
+
+
+def pytest_collection_modifyitems(session, config, items):
+    """Tests marked real_qatrack run last, and the real server starts installing now."""
+    real = [i for i in items if i.get_closest_marker("real_qatrack")]
+    if real:
+        items[:] = [i for i in items if not i.get_closest_marker("real_qatrack")] + real
+        _real_qatrack().start_in_background()
+
+
+def pytest_sessionfinish(session, exitstatus):
+    if _REAL_QATRACK is not None and _REAL_QATRACK.started_by_us:
+        _REAL_QATRACK.stop()
+
+
+@pytest.fixture(scope="session")
+def real_qatrack():
+    """The real QATrack+ 3.1 on 127.0.0.1 (tests/qatrack_real.py), once it is up."""
+    return _real_qatrack().wait()

@@ -59,6 +59,10 @@ def test_files_csv(tmp_path, session):
     assert "FRE (RMS fit residual)" in r.stdout and "leave-one-out TRE" in r.stdout
     T = RigidTransform.load(tmp_path / "spect_mapping.json")
     assert np.linalg.norm(T.apply(vts_pts) - truth.apply(vts_pts), axis=1).max() < 1.5
+    # the volume that places the SPECT frame is kept with the mapping (CASToR's centre: decision 0043)
+    vol = T.meta["spect_volume"]
+    assert vol["file"] == "phantom.npz" and vol["format"] == "npz" and vol["shape"] == [64, 64, 64]
+    assert np.allclose(vol["centre_mm"], 0.0, atol=1e-9)          # SimSpect centres its FOV on the origin
 
 
 def test_files_json(tmp_path, session):

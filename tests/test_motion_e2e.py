@@ -57,7 +57,7 @@ def test_motion_analyze_end_to_end(session):
     want = worst([DEFAULT_TOLERANCES["motion_body_max_mm"].state(true_mm),
                   DEFAULT_TOLERANCES["motion_body_max_deg"].state(true_deg)])
     assert data["summary"]["state"] == str(want) and out.returncode == {"OK": 0, "TOLERANCE": 10, "ACTION": 20}[str(want)]
-    assert "host clock" in data["clock"] and data["frame"] == "SPECT frame"
+    assert "host clock" in data["clock"] and data["frame"]["name"] == "SPECT frame"
     assert len(data["events"]) == 1 and abs(data["events"][0]["t_start"] - (MOVE.t_start - sim.exposure["cam1"][0])) < 0.5
     assert len(data["states"]) == 2
     truth = sim.patient.six_dof(START + 20.0)
@@ -68,7 +68,13 @@ def test_motion_analyze_end_to_end(session):
     html = (tmp / "report.html").read_text()
     assert "data:image/png;base64," in html and "TOLERANCE" in html and "host clock" in html
     names = {p.rsplit("/", 1)[-1] for p in data["export"]}
-    assert {"castor_motion.dyn", "castor_motion_rigid.txt", "motion_6dof.csv", "trajectories.csv"} <= names
+    assert {"motion_6dof.csv", "motion_6dof.json", "subsets.json", "trajectories.csv"} <= names
+    # no list-mode: host-clock seconds, which CASToR would take for list-mode seconds -- no CASToR file
+    assert not (tmp / "export" / "castor_motion.dyn").exists() and "castor_motion.dyn" not in names
+    assert len(data["export_notes"]) == 1 and data["export_notes"][0].startswith("CASToR files not written: the "
+                                                                                  "times are host-clock seconds")
+    six = json.loads((tmp / "export" / "motion_6dof.json").read_text())
+    assert "host clock" in six["clock"] and six["castor"]["written"] is False
     assert data["stored"]["run_id"] is not None
     with ResultsStore(f"sqlite:///{tmp / 'results.sqlite'}") as store:
         assert len(store.runs(procedure="motion")) == 1

@@ -1,6 +1,7 @@
 """The motion exports read back: the 6-DOF series (CSV and JSON), the respiratory trace, the
 list-mode subsets, and CASToR's two files through a reader written here from CASToR's rules
-(not from the writer): keyword lines, comma- or space-separated numbers, the first trigger 0."""
+(not from the writer): ``#`` comments dropped, keyword lines, comma-separated numbers, the first
+trigger 0. On the host clock no CASToR file is written (CASToR reads list-mode seconds)."""
 
 import csv
 import json
@@ -13,6 +14,7 @@ from scipy.spatial.transform import Rotation
 from vts_hw.motion import analyze_motion, marker_series
 from vts_hw.motion.castor import write_castor
 from vts_hw.motion.exports import export_motion
+from vts_hw.sim_devices.sync_truth import SCENE_VOLUME
 
 from motion_truth import patient_tracks
 
@@ -20,7 +22,7 @@ from motion_truth import patient_tracks
 def read_castor_keyword(path, key):
     """The values after ``key:`` in a CASToR ASCII file (one line, or the lines that follow
     when nothing follows the colon), as float rows."""
-    lines = path.read_text(encoding="ascii").splitlines()
+    lines = [ln.split("#", 1)[0] for ln in path.read_text(encoding="ascii").splitlines()]
     for i, line in enumerate(lines):
         if line.split(":", 1)[0].strip().lower() == key.lower():
             rest = line.split(":", 1)[1].strip()
@@ -35,29 +37,59 @@ def read_castor_keyword(path, key):
     raise KeyError(key)
 
 
+LEAD = 2.5          # the SPECT started 2.5 s before the first frame
+
+
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory):
+    """On the host clock (no list-mode)."""
     patient, tracks, _, t0 = patient_tracks(seed=5, duration_s=60.0, n_moves=2)
     r = analyze_motion(marker_series(tracks))
     out = tmp_path_factory.mktemp("export")
-    paths = export_motion(r, out, n_bins=4)
+    (out / "castor_motion.dyn").write_text("nb_motion_triggers: 1\ntimestamp_motion_triggers: 0\n")  # an earlier export's
+    paths = export_motion(r, out, n_bins=4, volume=SCENE_VOLUME)
     return patient, r, out, paths, t0
 
 
-def test_castor_files_have_one_trigger_and_one_line_per_state(exported):
-    _, r, out, _, _ = exported
+@pytest.fixture(scope="module")
+def synced(tmp_path_factory):
+    """The same patient with SPECT times (as the sync analysis makes them) and the scene's frame."""
+    patient, tracks, _, t0 = patient_tracks(seed=5, duration_s=60.0, n_moves=2)
+    r = analyze_motion(marker_series(tracks.with_spect(None, lambda h: np.asarray(h) - t0 + LEAD)))
+    out = tmp_path_factory.mktemp("export_synced")
+    paths = export_motion(r, out, n_bins=4, volume=SCENE_VOLUME)
+    return patient, r, out, paths, t0
+
+
+def test_no_castor_file_on_the_host_clock(exported):
+    _, r, out, paths, _ = exported
+    assert not (out / "castor_motion.dyn").exists() and not (out / "castor_motion_rigid.txt").exists()
+    assert {p.name for p in paths} == {"motion_6dof.csv", "motion_6dof.json", "respiration.csv", "subsets.json"}
+    assert len(paths.notes) == 1 and "CASToR files not written" in paths.notes[0] and "host" in paths.notes[0]
+    assert paths.notes[0].endswith("(removed castor_motion.dyn, which an earlier export left there)")
+    doc = json.loads((out / "motion_6dof.json").read_text())
+    assert doc["castor"] == {"written": False, "why": paths.notes[0]}
+    assert "host clock" in json.loads((out / "subsets.json").read_text())["clock"]
+
+
+def test_castor_files_have_whole_second_triggers_one_line_each(synced):
+    _, r, out, _, _ = synced
     dyn, rig = out / "castor_motion.dyn", out / "castor_motion_rigid.txt"
     n = int(read_castor_keyword(dyn, "nb_motion_triggers")[0][0])
+    text = [ln for ln in dyn.read_text().splitlines() if ln.startswith("timestamp_motion_triggers:")][0]
+    assert re.fullmatch(r"timestamp_motion_triggers: 0(,\d+)*", text)      # integers: what CASToR reads
     stamps = read_castor_keyword(dyn, "timestamp_motion_triggers")[0]
     params = read_castor_keyword(rig, "Transformation_parameters")
     assert n == len(r.states) == len(stamps) == len(params) == 3
-    assert stamps[0] == 0.0 and all(b > a for a, b in zip(stamps, stamps[1:]))
-    assert all(len(p) == 6 for p in params) and np.allclose(params[0], 0.0, atol=0.05)
+    assert all(b > a for a, b in zip(stamps, stamps[1:]))
+    assert params[0] == [0.0] * 6          # the state at the acquisition start: CASToR's reference
     assert rig.read_text().count("Rotation_convention: XYZ") == 1
     assert read_castor_keyword(rig, "Transformation_mode")[0] == [0.0]
-    # host clock here: triggers are seconds from the first frame; the states start at the moves
-    for s, stamp in zip(r.states, stamps):
-        assert stamp == pytest.approx(s.t_start - r.series.t[0], abs=1e-3)
+    # each state starts at the whole second nearest its start (list-mode seconds)
+    for s, stamp in zip(r.states[1:], stamps[1:]):
+        assert abs(stamp - s.t_start) <= 0.5
+    doc = json.loads((out / "motion_6dof.json").read_text())["castor"]
+    assert doc["written"] and [ln["trigger_s"] for ln in doc["lines"]] == stamps and doc["merged"] == []
 
 
 def castor_matrix_from_source_rules(p):
@@ -75,19 +107,22 @@ def castor_matrix_from_source_rules(p):
     return trs @ rot
 
 
-def test_castor_parameters_undo_the_true_pose_of_each_state(exported):
-    """CASToR pulls: an output voxel at x takes the input at M x. For the reference image to be
-    carried into a state's pose, M must take a point of that state back to the reference."""
-    patient, r, out, _, _ = exported
+def test_castor_parameters_undo_the_true_pose_of_each_state(synced):
+    """CASToR pulls: an output voxel at x takes the input at M x. For the image CASToR reconstructs
+    (the patient as at the acquisition start) to be carried into a state's pose, M must take a
+    point of that state back to where it was at the start -- in CASToR's image frame (x = SPECT X,
+    y = SPECT Y, z = -SPECT Z; the scene's SPECT origin is the FOV centre, CASToR's image centre)."""
+    patient, r, out, _, t0 = synced
     params = read_castor_keyword(out / "castor_motion_rigid.txt", "Transformation_parameters")
-    assert np.allclose(castor_matrix_from_source_rules(params[0]), np.eye(4), atol=0.05)   # the reference state
+    flip = np.diag([1.0, 1.0, -1.0])
+    R0, T0 = patient.body_transform(t0 - LEAD)            # the pose at the acquisition start
+    x_start = np.array([[0.0, 0.0, 0.0], [100.0, 50.0, -80.0], [-120.0, 80.0, 150.0]])
     for s, p in zip(r.states, params):
-        R, T = patient.body_transform(0.5 * (s.t_start + s.t_end))
-        x_ref = np.array([[0.0, 0.0, 0.0], [100.0, 50.0, -80.0], [-120.0, 80.0, 150.0]])
-        x_state = x_ref @ R.T + T
+        R, T = patient.body_transform(t0 - LEAD + 0.5 * (s.t_start + s.t_end))
+        x_state = (x_start - T0) @ R0 @ R.T + T          # the start pose undone, the state's applied
         M = castor_matrix_from_source_rules(p)
-        back = x_state @ M[:3, :3].T + M[:3, 3]
-        assert np.abs(back - x_ref).max() < 0.5, (s.index, back - x_ref)
+        back = (x_state @ flip) @ M[:3, :3].T + M[:3, 3]
+        assert np.abs(back - x_start @ flip).max() < 0.5, (s.index, back - x_start @ flip)
 
 
 def test_six_dof_csv_and_json_agree_and_quaternions_match_the_angles(exported):
@@ -96,7 +131,8 @@ def test_six_dof_csv_and_json_agree_and_quaternions_match_the_angles(exported):
         rows = list(csv.DictReader(f))
     doc = json.loads((out / "motion_6dof.json").read_text())
     assert len(rows) == len(doc["columns"]["time_s"]) == len(r.pose.t)
-    assert "host clock" in doc["clock"] and doc["frame"].startswith("SPECT frame")
+    assert "host clock" in doc["clock"] and doc["frame"]["name"] == "SPECT frame"
+    assert "X towards the patient's left" in doc["frame"]["definition"] and doc["frame"]["volume"] == SCENE_VOLUME
     ok = [k for k, row in enumerate(rows) if row["quality"] == "ok"][::50]
     assert len(ok) > 10
     for k in ok:
@@ -130,27 +166,30 @@ def test_respiration_and_subsets(exported):
     assert lo == sorted(lo) and lo[-1] > lo[0]
 
 
-def test_castor_writer_refuses_a_state_without_a_pose(tmp_path):
+def test_castor_writer_refuses_what_castor_would_misread(tmp_path):
     with pytest.raises(ValueError, match="without a pose"):
-        write_castor([0.0, 5.0], [[0] * 6, [np.nan] * 6], tmp_path)
-    p1, p2 = write_castor([3.0, 8.5], [[0] * 6, [1, 2, 3, 0.5, 0, 0]], tmp_path)
-    assert read_castor_keyword(p1, "timestamp_motion_triggers") == [[0.0, 8.5]]
+        write_castor([0, 5], [[0] * 6, [np.nan] * 6], tmp_path)
+    with pytest.raises(ValueError, match="whole seconds"):
+        write_castor([0, 8.5], [[0] * 6, [1, 2, 3, 0.5, 0, 0]], tmp_path)     # CASToR would read 8
+    with pytest.raises(ValueError, match="whole seconds"):
+        write_castor([3, 8], [[0] * 6, [1, 2, 3, 0.5, 0, 0]], tmp_path)       # CASToR refuses a first not 0
+    with pytest.raises(ValueError, match="increase"):
+        write_castor([0, 8, 8], [[0] * 6] * 3, tmp_path)                       # CASToR would skip a line
+    p1, p2 = write_castor([0, 8], [[0] * 6, [1, 2, 3, 0.5, 0, 0]], tmp_path, comment="a # note")
+    assert read_castor_keyword(p1, "timestamp_motion_triggers") == [[0.0, 8.0]]
+    assert p1.read_text().startswith("# a note\n") and p2.read_text().startswith("# a note\n")
 
 
-def test_on_the_spect_clock_times_are_list_mode_seconds(tmp_path):
+def test_on_the_spect_clock_times_are_list_mode_seconds(synced):
     """Tracks with SPECT times (as the sync analysis makes them): every time in the exports is
-    list-mode seconds, the CASToR triggers from the acquisition start (list-mode 0)."""
-    patient, tracks, _, t0 = patient_tracks(seed=5, duration_s=60.0, n_moves=2)
-    lead = 2.5                                 # the SPECT started 2.5 s before the first frame
-    synced = tracks.with_spect(None, lambda h: np.asarray(h) - t0 + lead)
-    r = analyze_motion(marker_series(synced))
-    assert r.series.clock == "spect"
-    export_motion(r, tmp_path)
-    doc = json.loads((tmp_path / "motion_6dof.json").read_text())
+    list-mode seconds, the CASToR triggers whole seconds from the acquisition start (list-mode 0)."""
+    patient, r, out, paths, t0 = synced
+    assert r.series.clock == "spect" and paths.notes == []
+    doc = json.loads((out / "motion_6dof.json").read_text())
     assert "SPECT list-mode" in doc["clock"] and doc["time_origin"] == 0.0
-    assert doc["columns"]["time_s"][0] == pytest.approx(lead, abs=1e-6)
-    stamps = read_castor_keyword(tmp_path / "castor_motion.dyn", "timestamp_motion_triggers")[0]
+    assert doc["columns"]["time_s"][0] == pytest.approx(LEAD, abs=1e-6)
+    stamps = read_castor_keyword(out / "castor_motion.dyn", "timestamp_motion_triggers")[0]
     assert stamps[0] == 0.0
     moves = sorted(m.t_start for m in patient.motion.moves)
     for stamp, true_start in zip(stamps[1:], moves):
-        assert true_start - t0 + lead - 0.5 <= stamp <= true_start - t0 + lead + 2.0
+        assert true_start - t0 + LEAD - 1.0 <= stamp <= true_start - t0 + LEAD + 2.5

@@ -4,6 +4,7 @@ it; the motion analysis goes through the sync analysis, so every time is list-mo
 
 import json
 import os
+import re
 import subprocess
 import sys
 
@@ -40,15 +41,19 @@ def test_motion_on_the_spect_clock(synced_scan):
                        env={**os.environ, "VTS_CONFIG": str(rig_yaml)}, capture_output=True, text=True, timeout=600)
     assert p.returncode in (0, 10, 20), p.stderr
     data = json.loads(p.stdout)
-    assert "SPECT list-mode" in data["clock"] and data["time_origin"] == 0.0 and data["frame"] == "SPECT frame"
+    assert "SPECT list-mode" in data["clock"] and data["time_origin"] == 0.0 and data["frame"]["name"] == "SPECT frame"
     # the move's true start, on the list-mode clock: host time minus the fire, plus nothing
     # more than the SPECT's start delay (< 0.5 s): within a second of the true start
     # (a busy machine's cameras may skip frames: a start that fell in a gap is bounded by it)
     true_list = move.t_start - run.fire_host
     starts = [(e["t_start"], e["start_bounds_s"]) for e in data["events"]]
     assert any(abs(s - true_list) < 1.0 if b is None else b[0] - 0.5 <= true_list <= b[1]
-               for s, b in starts), (starts, true_list, data["summary"]["time"])
+               for s, b in starts), (starts, true_list, data["summary"]["time"], data["problems"])
     dyn = (tmp / "export" / "castor_motion.dyn").read_text()
-    assert dyn.splitlines()[1].startswith("timestamp_motion_triggers: 0,")
+    stamps = [ln for ln in dyn.splitlines() if ln.startswith("timestamp_motion_triggers:")]
+    assert len(stamps) == 1 and re.fullmatch(r"timestamp_motion_triggers: 0(,\d+)+", stamps[0])   # whole seconds
+    triggers = [int(n) for n in stamps[0].split(": ")[1].split(",")]
+    assert len(triggers) == len(data["states"]) and data["export_notes"] == []
+    assert all(abs(n - st["t_start"]) <= 0.5 for n, st in zip(triggers[1:], data["states"][1:]))
     six = json.loads((tmp / "export" / "motion_6dof.json").read_text())
     assert "SPECT list-mode" in six["clock"]

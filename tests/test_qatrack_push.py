@@ -27,7 +27,8 @@ VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
 
 
 def qatrack_section(url, **over):
-    q = {"url": url, "unit": "SPECT 1", "token_env": "QATRACK_TOKEN", "timeout_s": 2.0, "report": "none",
+    q = {"url": url, "unit": "SPECT 1", "time_zone": "America/Toronto", "token_env": "QATRACK_TOKEN",
+         "timeout_s": 2.0, "report": "none",
          "plots": False, "lists": {"daily": {"test_list": "VTS daily", "macros": dict(MACROS),
                                              "ignore": ["*/M*/*", "*/clock_offset_s"]}}}
     q.update(over)
@@ -86,7 +87,8 @@ def test_each_run_posted_once_with_values_times_and_key(peer, env, store):
     assert tli["user_key"] == run_key(run) == f"vts-run-{run.uid}"
     assert tli["tests"]["cam1_dx"]["value"] == pytest.approx(0.1) and tli["tests"]["cam2_dy"]["skipped"]
     assert run_key(run) in tli["comment"] and "OK" in tli["comment"] and "room1" in tli["comment"]
-    assert tli["work_started"].startswith("2023-11-15T22:13:20") and tli["work_completed"]
+    # 1.7e9 + 86400 s is 2023-11-15 22:13:20 UTC: 17:13:20 on the site's clock in Toronto, shown with its offset
+    assert tli["work_started"] == "2023-11-15T17:13:20-05:00" and tli["work_completed"]
     assert store.outbox_items("qatrack", run_ids=[ids[1]])[0].remote == tli["url"]
     # a second push: nothing left to send; naming a sent run posts nothing either
     assert select_runs(store, cfg.qatrack, "room1") == []
@@ -129,6 +131,80 @@ def test_slow_qatrack_times_out_and_stays_pending(peer, env, store):
     peer.fault = None
     push_runs(store, cfg.qatrack, select_runs(store, cfg.qatrack, "room1", pending=True))
     assert states(store) == ["sent"] * 2 and peer.posts == 2
+
+
+def test_a_trickling_answer_ends_at_the_whole_request_deadline(peer, env, store):
+    """A QATrack+ that answers its headers and then one byte at a time: the request ends at
+    timeout_s as a whole (not per read), the run stays pending, and the batch stops."""
+    import time
+    cfg = rig(peer.url, timeout_s=1.0)
+    fill(store, 2)
+    peer.fault, peer.trickle_s = "trickle", 0.2
+    t0 = time.monotonic()
+    out = push_runs(store, cfg.qatrack, select_runs(store, cfg.qatrack, "room1"))
+    assert time.monotonic() - t0 < 30           # bounded, whatever the machine's load (per read it never ends)
+    assert [o.how for o in out] == ["failed", "not tried"] and "did not answer within 1 s" in out[0].message
+    assert states(store) == ["pending"] * 2 and exit_code(out) == 3
+
+
+def test_site_times_are_sent_as_its_wall_clock_and_read_back(env, store):
+    """The push sends naive wall-clock times of qatrack.time_zone (QATrack+ takes no offset) and
+    they land at the run's instant, in a zone south of the equator and across its clock change."""
+    with QATrackSim({"VTS daily": DAILY}, {"SPECT 1": ["VTS daily"]}, token=TOKEN,
+                    time_zone="Australia/Sydney") as sim:
+        cfg = rig(sim.url, time_zone="Australia/Sydney")
+        # 2026-04-04 15:59:30 UTC is 02:59:30 AEDT on the 5th; at 16:00 UTC the clocks go back from 03:00 to 02:00
+        ids = fill(store, 1, t0=1775318370.0 - 86400 * 3)  # three days before, in summer time (UTC+11)
+        ids += fill(store, 1, t0=1775318370.0 + 7200)     # 03:59:30 AEST (UTC+10): after the repeated hour
+        out = push_runs(store, cfg.qatrack, [store.run(i) for i in ids])
+        assert [o.how for o in out] == ["posted", "posted"]
+        assert sim.last_post["work_started"] == "2026-04-05 03:59:30"
+        assert [i["work_started"] for i in sim.instances] == ["2026-04-02T02:59:30+11:00", "2026-04-05T03:59:30+10:00"]
+
+
+def test_a_run_in_the_repeated_hour_is_refused_in_one_sentence_before_posting(peer, env, store):
+    cfg = rig(peer.url)
+    (rid,) = fill(store, 1, t0=1793511000.0)     # 2026-11-01 05:30 UTC: 01:30 in Toronto, an hour that happens twice
+    out = push_runs(store, cfg.qatrack, [store.run(rid)])
+    assert out[0].state == "refused" and out[0].how == "repeated hour" and exit_code(out) == 4
+    assert "2026-11-01 01:30:00 happens twice in America/Toronto" in out[0].message and "\n" not in out[0].message
+    assert peer.posts == 0
+
+
+def test_a_wrong_time_zone_stops_the_batch_before_posting(peer, env, store):
+    """The site shows its times at another offset than qatrack.time_zone gives: nothing posted."""
+    cfg = rig(peer.url, time_zone="Europe/Berlin")
+    peer.add_instance("someone-else")     # an instance of the site, shown at Toronto's offset
+    fill(store, 2)
+    out = push_runs(store, cfg.qatrack, select_runs(store, cfg.qatrack, "room1"))
+    assert [o.how for o in out] == ["wrong time zone", "not tried"] and exit_code(out) == 4
+    assert "Europe/Berlin is not the site's TIME_ZONE" in out[0].message and peer.posts == 0
+    assert states(store) == ["pending"] * 2
+
+
+def test_an_instance_shown_at_a_wrong_time_is_said_and_stops_the_batch(env, store):
+    """A fresh site (nothing there to tell its zone) in another zone than rig.yaml says: the first
+    post's answer shows the times shifted; said, exit 4, the rest not posted."""
+    with QATrackSim({"VTS daily": DAILY}, {"SPECT 1": ["VTS daily"]}, token=TOKEN, time_zone="Asia/Kolkata") as sim:
+        cfg = rig(sim.url)
+        fill(store, 2)
+        out = push_runs(store, cfg.qatrack, select_runs(store, cfg.qatrack, "room1"))
+        assert [o.how for o in out] == ["posted at a wrong time", "not tried"] and exit_code(out) == 4
+        assert "is not the site's TIME_ZONE" in out[0].message and sim.posts == 1
+
+
+def test_no_permission_and_a_wrong_base_url_are_one_clear_sentence(peer, env, store):
+    peer.add_user("vts", token=TOKEN, perms=())      # the user lost its permission to add instances
+    cfg = rig(peer.url)
+    fill(store, 1)
+    out = push_runs(store, cfg.qatrack, select_runs(store, cfg.qatrack, "room1"))
+    assert out[0].how == "credentials refused" and "qa.add_testlistinstance" in out[0].message
+    assert exit_code(out) == 4
+    peer.add_user("vts", token=TOKEN, perms=("add",))
+    wrong = rig(peer.url + "qatrack/")
+    out = push_runs(store, wrong.qatrack, select_runs(store, wrong.qatrack, "room1"))
+    assert out[0].state == "refused" and "is not the QATrack+ site's root" in out[0].message
+    assert "login page" in out[0].message and peer.posts == 0
 
 
 def test_an_answer_lost_after_the_instance_was_made_is_not_posted_twice(peer, env, store):

@@ -49,7 +49,8 @@ def test_a_detached_rig_that_fails_to_start_says_why(tmp_path):
     p = vts("sim", "up", "--detach", "--cameras", "1", "--trigger", "triggerbox", "--dir", str(d), env=env)
     assert p.returncode == 1, p.stderr
     assert p.stderr == (f"vts: the simulated rig failed to start (exit 1): RuntimeError: trigger box firmware "
-                        f"sources not found in {missing} (the whole log: {d / 'sim.log'})\n")
+                        f"sources not found in {missing} (an installed vts-hw has none: set VTS_FIRMWARE_DIR to "
+                        f"the firmware/ folder of a checkout) (the whole log: {d / 'sim.log'})\n")
     assert not (d / "rig.yaml").exists() and not (d / "sim.pid").exists()
     log = (d / "sim.log").read_text()
     assert log.startswith("an older run's line\n") and "Traceback" in log   # the details stay in the log

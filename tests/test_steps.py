@@ -111,7 +111,7 @@ def test_analyze_with_push_posts_the_step_test_to_qatrack(chain, tmp_path):
     macros = {"x/steps_slope": "x_slope", "y/steps_slope": "y_slope", "z/steps_slope": "z_slope"}
     with QATrackSim({"VTS steps": list(macros.values())}, {"SPECT 1": ["VTS steps"]}, token="t-123") as peer:
         cfg = _rig_yaml(tmp_path)
-        cfg.write_text(cfg.read_text() + f"qatrack:\n  url: {peer.url}\n  unit: SPECT 1\n  token_env: QT_TOKEN\n"
+        cfg.write_text(cfg.read_text() + f"qatrack:\n  url: {peer.url}\n  unit: SPECT 1\n  time_zone: America/Toronto\n  token_env: QT_TOKEN\n"
                        f"  report: none\n  lists:\n    sphere-steps:\n      test_list: VTS steps\n"
                        f"      macros: {json.dumps(macros)}\n      ignore: ['*']\n")
         r = vts("qa", "steps", "--config", str(cfg), "--analyze", str(chain.out_dir), "--volumes",

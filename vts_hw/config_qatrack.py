@@ -3,6 +3,7 @@
     qatrack:
       url: https://qatrack.example.org/        # the site's root; the API is under api/
       unit: SPECT room 1                        # the QATrack+ unit of this rig
+      time_zone: America/Toronto                # the site's TIME_ZONE (QATrack+ reads times in it)
       token_env: QATRACK_TOKEN                  # or user_env + password_env (then /api/get-token/)
       lists:
         daily:                                  # a procedure name as stored (daily, drift, sphere-steps ...)
@@ -27,6 +28,7 @@ from urllib.parse import urlsplit
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from vts_hw.errors import ConfigError
+from vts_hw.site_time import site_zone
 
 _ENV_RE = r"^[A-Za-z_][A-Za-z0-9_]*$"
 _MACRO_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")   # QATrack+ macro names are identifiers
@@ -69,6 +71,8 @@ class QATrackConfig(_Strict):
 
     url: str = Field(description="root of the QATrack+ site, http(s)://host[:port]/[path/]")
     unit: str = Field(min_length=1, description="the unit's name in QATrack+")
+    time_zone: str = Field(description="the site's TIME_ZONE setting (an IANA name such as America/Toronto): "
+                                       "QATrack+ reads the work times it is sent as wall-clock times of that zone")
     token_env: Optional[str] = Field(default=None, pattern=_ENV_RE,
                                      description="environment variable holding an API token")
     user_env: Optional[str] = Field(default=None, pattern=_ENV_RE,
@@ -92,6 +96,12 @@ class QATrackConfig(_Strict):
         if parts.query or parts.fragment:
             raise ValueError("the URL is the site's root, without ?query or #fragment")
         return v.strip() if v.strip().endswith("/") else v.strip() + "/"
+
+    @field_validator("time_zone")
+    @classmethod
+    def _zone(cls, v: str):
+        site_zone(v)   # ValueError naming the zone when it is not one
+        return v
 
     @field_validator("lists")
     @classmethod

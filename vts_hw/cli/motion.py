@@ -28,7 +28,8 @@ def motion() -> None:
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None, help="Also write the plot as a PNG.")
 @click.option("--export", "export_dir", type=click.Path(file_okay=False), default=None,
               help="Write the motion files to DIR (docs/motion-formats.md): motion_6dof.csv/.json, respiration.csv, "
-                   "subsets.json, castor_motion.dyn, castor_motion_rigid.txt, trajectories.csv/.json.")
+                   "subsets.json, trajectories.csv/.json, and CASToR's castor_motion.dyn and castor_motion_rigid.txt "
+                   "(only with --listmode and a mapping made from a volume: CASToR reads list-mode seconds).")
 @click.option("--bins", type=click.IntRange(2, 20), default=4, show_default=True,
               help="Respiratory bins (by amplitude and by phase) in subsets.json.")
 @click.option("--workers", type=click.IntRange(1, 256), default=None, help="Processes for the recording (default: every core).")
@@ -64,7 +65,9 @@ def analyze(session, listmode, calibration, mapping, out, plot_path, export_dir,
         data["report"] = str(out)
     if export_dir:
         data["export"] = [str(p) for p in a.export(export_dir, n_bins=bins)]
+        data["export_notes"] = list(a.export_notes)
     finish_analysis(rig, a, data, "motion analysis", as_json, notes=f"session {session}",
                     artifacts=[p for p in (plot_path,) if p],
                     lines=[*([f"report: {out}"] if out else []),
-                           *([f"exported ({data['clock']}): {', '.join(data['export'])}"] if export_dir else [])])
+                           *([f"exported ({data['clock']}): {', '.join(data['export'])}"] if export_dir else []),
+                           *(data.get("export_notes") or [])])

@@ -116,7 +116,7 @@ def _print_plan(rows, as_json: bool) -> None:
             click.echo(f"  would be refused: {r['error']}")
             continue
         click.echo(f"  to {r['qatrack']}: unit {r['unit']!r}, test list {r['test_list']!r}, "
-                   f"{r['work_started']} .. {r['work_completed']}")
+                   f"{r['work_started']} .. {r['work_completed']} ({r['time_zone']}, the site's clock)")
         for macro, value in r["values"].items():
             click.echo(f"    {macro:<20} {'skipped (not measured)' if value is None else value}")
         click.echo(f"  attachments: {', '.join(r['attachments']) or '-'}")

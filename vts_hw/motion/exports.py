@@ -7,10 +7,13 @@
 * ``subsets.json`` -- list-mode subsets: the time intervals of every motion state and of
   ``n_bins`` respiratory bins by amplitude (equal counts of frames) and by phase (equal
   widths), still frames only for the respiratory bins;
-* ``castor_motion.dyn`` and ``castor_motion_rigid.txt`` (:mod:`.castor`).
+* ``castor_motion.dyn`` and ``castor_motion_rigid.txt`` (:mod:`.castor`) -- only on the SPECT
+  clock, in the SPECT frame, with a mapping that says which volume placed that frame: else one
+  sentence says why not (``ExportedFiles.notes``, and ``castor`` in motion_6dof.json).
 
 Times are seconds from the acquisition start on the SPECT list-mode clock when the session was
-synced, else seconds from the first frame on the host clock; every file says which.
+synced, else seconds from the first frame on the host clock; every JSON says which (``clock``),
+and which frame (``frame``: its name, definition and the volume that placed it).
 """
 
 from __future__ import annotations
@@ -20,15 +23,26 @@ from pathlib import Path
 import numpy as np
 
 from vts_hw.files import ensure_dir, write_atomic, write_json_atomic
-from vts_hw.motion.castor import castor_parameters, write_castor
+from vts_hw.errors import DataError
+from vts_hw.motion.castor import CASTOR_DYNAMIC, CASTOR_RIGID, plan_castor, write_castor
+from vts_hw.spect.frame import frame_description
 
-__all__ = ["export_motion", "time_origin", "clock_text", "respiratory_bins", "state_of_frames", "frame_quality",
-           "unknown_intervals", "coverage_json",
+__all__ = ["export_motion", "ExportedFiles", "time_origin", "clock_text", "respiratory_bins", "state_of_frames",
+           "frame_quality", "unknown_intervals", "coverage_json",
            "SIXDOF_CSV", "SIXDOF_JSON", "RESP_CSV", "SUBSETS_JSON", "MOTION_FORMAT"]
 
 SIXDOF_CSV, SIXDOF_JSON = "motion_6dof.csv", "motion_6dof.json"
 RESP_CSV, SUBSETS_JSON = "respiration.csv", "subsets.json"
 MOTION_FORMAT = "vts-motion/1"
+
+
+class ExportedFiles(list):
+    """The paths written (a list), and ``notes``: sentences for the person who asked (a file not
+    written and why, motion states CASToR's whole-second triggers cannot hold)."""
+
+    def __init__(self, paths=(), notes=()):
+        super().__init__(paths)
+        self.notes = list(notes)
 
 
 def time_origin(result) -> float:
@@ -121,11 +135,33 @@ def respiratory_bins(result, n_bins: int = 4, t0: float = 0.0) -> dict:
     return out
 
 
-def export_motion(result, out, *, n_bins: int = 4, extra: dict | None = None) -> list[Path]:
-    """Write every file above into ``out``; returns their paths."""
+def _remove_stale_castor(out: Path) -> str:
+    """CASToR files an earlier export left in ``out`` would not match the files written now:
+    remove them, and say so (the other files are replaced the same way)."""
+    gone = []
+    for name in (CASTOR_DYNAMIC, CASTOR_RIGID):
+        try:
+            (out / name).unlink()
+            gone.append(name)
+        except FileNotFoundError:
+            pass
+        except OSError as e:
+            raise DataError(f"{out / name}: an earlier export's CASToR file could not be removed ({e.strerror}); "
+                            "it does not match this export") from None
+    return f" (removed {' and '.join(gone)}, which an earlier export left there)" if gone else ""
+
+
+def export_motion(result, out, *, n_bins: int = 4, extra: dict | None = None,
+                  volume: dict | None = None) -> ExportedFiles:
+    """Write every file above into ``out``; returns their paths (and notes). ``volume``: what the
+    VTS -> SPECT mapping kept of the volume it was made from (vts_hw.spect.frame.volume_record)."""
     out = ensure_dir(out, "export folder")
     t0 = time_origin(result)
     clock = clock_text(result)
+    castor = plan_castor(result.states, t0, clock=result.series.clock, frame=result.series.frame, volume=volume)
+    castor_files = (out / CASTOR_DYNAMIC, out / CASTOR_RIGID) if castor.why is None else ()
+    if castor.why is not None:
+        castor.why += _remove_stale_castor(out)
     pose = result.pose
     t = pose.t - t0
     six = pose.six_dof()
@@ -134,7 +170,7 @@ def export_motion(result, out, *, n_bins: int = 4, extra: dict | None = None) ->
     n = pose.n_markers
     quality = frame_quality(result)
     st_txt = lambda k: "" if state[k] < 0 else str(int(state[k]))  # noqa: E731
-    frame = ("SPECT frame" if result.series.frame == "spect" else "VTS frame (no VTS->SPECT mapping given)")
+    frame = frame_description(result.series.frame, volume)
     cols = ["time_s", "tx_mm", "ty_mm", "tz_mm", "rx_deg", "ry_deg", "rz_deg", "qx", "qy", "qz", "qw",
             "state", "markers", "fit_rms_mm", "quality"]
     f = lambda v, d: "" if not np.isfinite(v) else f"{v:.{d}f}"  # noqa: E731
@@ -152,7 +188,7 @@ def export_motion(result, out, *, n_bins: int = 4, extra: dict | None = None) ->
             "coverage": coverage_json(result, t0),
             "states": [s.to_json(t0) for s in result.states],
             "events": [e.to_json(t0) for e in result.events],
-            **(extra or {})}
+            "castor": castor.to_json(castor_files), **(extra or {})}
     doc = {**meta, "columns": {"time_s": nan(t), "tx_mm": nan(six[:, 0]), "ty_mm": nan(six[:, 1]),
                                "tz_mm": nan(six[:, 2]), "rx_deg": nan(six[:, 3]), "ry_deg": nan(six[:, 4]),
                                "rz_deg": nan(six[:, 5]), "qx": nan(q[:, 0]), "qy": nan(q[:, 1]),
@@ -171,7 +207,7 @@ def export_motion(result, out, *, n_bins: int = 4, extra: dict | None = None) ->
                   f"{'' if cyc[k] < 0 else cyc[k]},{quality[k]}")
     p_resp = out / RESP_CSV
     write_atomic(p_resp, "\n".join(rl) + "\n")
-    subsets = {"format": MOTION_FORMAT, "clock": clock, "time_origin": t0,
+    subsets = {"format": MOTION_FORMAT, "clock": clock, "time_origin": t0, "frame": frame,
                "motion_states": [{"state": s.index, "interval_s": [s.t_start - t0, s.t_end - t0],
                                   "intervals_s": [[a - t0, b - t0] for a, b in s.intervals],
                                   "unknown_s": s.unknown_s, "six_dof": s.six_dof} for s in result.states],
@@ -184,7 +220,11 @@ def export_motion(result, out, *, n_bins: int = 4, extra: dict | None = None) ->
                        "Respiratory bins hold still frames with a pose only, phase bins only frames inside "
                        "breaths seen whole"}
     p_sub = write_json_atomic(out / SUBSETS_JSON, subsets)
-    starts = [s.t_start - t0 for s in result.states]
-    params = [castor_parameters(s.R, s.T) if s.R is not None else [np.nan] * 6 for s in result.states]
-    p_dyn, p_rig = write_castor(starts, params, out)
-    return [p_csv, Path(p_json), p_resp, Path(p_sub), p_dyn, p_rig]
+    paths = [p_csv, Path(p_json), p_resp, Path(p_sub)]
+    if castor.why is not None:
+        return ExportedFiles(paths, [castor.why])
+    comment = ("vts-hw motion states for CASToR: triggers in whole seconds of the SPECT list-mode from the "
+               "acquisition start; parameters in CASToR's image frame (x patient left, y anterior, z head, origin "
+               "at the image centre) from the pose at the acquisition start; motion_6dof.json 'castor' says more")
+    paths += write_castor(castor.triggers, castor.params, out, comment=comment)
+    return ExportedFiles(paths, castor.merged)

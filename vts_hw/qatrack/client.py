@@ -18,11 +18,17 @@ sent: the user must fix something), ``AuthRefused`` (401/403, or get-token said 
 
 from __future__ import annotations
 
+import re
+import time
 from urllib.parse import urljoin, urlsplit
 
 import requests
 
 from vts_hw.errors import VtsError
+
+
+#: the longest answer read from QATrack+ (its pages of instances are far shorter)
+MAX_ANSWER = 32 * 2**20
 
 
 class QATrackError(VtsError):
@@ -89,6 +95,7 @@ class QATrackClient:
         self._token: str | None = self._credentials[1] if self._credentials[0] == "token" else None
         self._session = session or requests.Session()
         self._utc: dict[tuple[str, str], str] = {}
+        self._shown_times: list[str] = []
 
     def close(self) -> None:
         self._session.close()
@@ -108,13 +115,27 @@ class QATrackClient:
         return text
 
     def _send(self, method: str, url: str, *, auth: bool = True, **kw) -> requests.Response:
+        """One request, read whole within ``timeout`` seconds (a server that trickles its answer
+        is as unreachable as one that does not answer); errors as the module says."""
         where = urlsplit(url)._replace(query="").geturl()
         headers = {"Accept": "application/json"}
         if auth:
             headers["Authorization"] = f"Token {self.token()}"
+        deadline = time.monotonic() + self.timeout
         try:
             resp = self._session.request(method, url, headers=headers, timeout=self.timeout,
-                                         allow_redirects=False, **kw)
+                                         allow_redirects=False, stream=True, **kw)
+            if resp._content is False:       # not read yet (a session that answers from memory has read it)
+                with resp:
+                    body = bytearray()
+                    while chunk := resp.raw.read1(65536, decode_content=True):   # what has come, not a block
+                        body += chunk
+                        if time.monotonic() > deadline:
+                            raise requests.Timeout()
+                        if len(body) > MAX_ANSWER:
+                            raise Unreachable(f"QATrack+ answered {method} {where} with more than "
+                                              f"{MAX_ANSWER // 2**20} MiB", down=False)
+                    resp._content = bytes(body)
         except requests.Timeout:
             raise Unreachable(f"QATrack+ did not answer within {self.timeout:g} s ({method} {where})",
                               down=True) from None
@@ -129,12 +150,24 @@ class QATrackClient:
             raise Unreachable(f"QATrack+ answered {resp.status_code} {resp.reason or ''}".rstrip()
                               + f" to {method} {where}: {self._scrub(drf_words(_json(resp)))}")
         if 300 <= resp.status_code < 400:
-            raise Refused(f"QATrack+ redirected {method} {where} to {resp.headers.get('Location', '?')} "
-                          f"(is qatrack.url the site's root, with the right scheme?)",
-                          resp.status_code, "redirect")
+            target = resp.headers.get("Location", "?")
+            if "/accounts/login" in target or not urlsplit(target).path.startswith(urlsplit(self.api).path):
+                why = (f"qatrack.url {self.url} is not the QATrack+ site's root: the site sent {method} {where} "
+                       f"to {target} (its login page) instead of answering its API")
+            else:
+                why = (f"QATrack+ redirected {method} {where} to {target} (is qatrack.url the site's root, "
+                       f"with the right scheme?)")
+            raise Refused(why, resp.status_code, "redirect")
         if resp.status_code >= 400:
             words = self._scrub(drf_words(_json(resp)))
-            kind = AuthRefused if resp.status_code in (401, 403) else Refused
+            if resp.status_code == 403:
+                raise AuthRefused(f"QATrack+ does not let this user {method} {where} (403): {words} "
+                                  f"(the user of the token needs the permission qa.add_testlistinstance)",
+                                  403, words, _json(resp))
+            if resp.status_code == 404 and not isinstance(_json(resp, None), dict):
+                raise Refused(f"QATrack+ has no {where} (404: {words}): is qatrack.url the root of a "
+                              f"QATrack+ 3 site?", 404, words)
+            kind = AuthRefused if resp.status_code == 401 else Refused
             raise kind(f"QATrack+ refused {method} {where} ({resp.status_code}): {words}",
                        resp.status_code, words, _json(resp))
         return resp
@@ -197,7 +230,17 @@ class QATrackClient:
                 raise Unreachable(f"QATrack+ listed the assignment of test list {test_list!r} to unit {unit!r} "
                                   f"without its url")
             self._utc[key] = str(found[0]["url"])
+            self._shown_times += [t for t in (found[0].get("due_date"),) if isinstance(t, str)]
         return self._utc[key]
+
+    def shown_times(self) -> list[str]:
+        """Times as the site shows them, with its UTC offset (an assignment's due date, the newest
+        instances' creation): what tells whether ``qatrack.time_zone`` is the site's zone."""
+        url = self.api + "qa/testlistinstances/"
+        body = self._get_json(url, {"limit": 5, "ordering": "-created"})
+        for r in _results(body, url):
+            self._shown_times += [r[k] for k in ("created", "work_completed") if isinstance(r.get(k), str)]
+        return list(self._shown_times)
 
     def instance_with_key(self, user_key: str) -> str | None:
         """The URL of the test list instance posted with ``user_key``, None when there is none."""
@@ -221,9 +264,18 @@ def _results(body: dict, url: str) -> list[dict]:
     return results
 
 
-def _json(resp):
+_NOT_JSON = object()
+
+
+def _json(resp, fallback=_NOT_JSON):
+    """The answer's JSON; for an answer that is not JSON, ``fallback`` when given, else
+    ``{"detail": ...}`` with its HTML title or first words."""
     try:
         return resp.json()
     except (ValueError, RecursionError):   # not JSON, or nested too deeply to read
-        text = " ".join((resp.text or "").split())
+        if fallback is not _NOT_JSON:
+            return fallback
+        text = resp.text or ""
+        title = re.search(r"<title>(.*?)</title>", text, re.I | re.S)
+        text = " ".join((title.group(1) if title else text).split())
         return {"detail": text[:200] or f"HTTP {resp.status_code}"}

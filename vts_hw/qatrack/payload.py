@@ -8,13 +8,13 @@ one sentence, before anything is posted: no list goes half-filled by accident.
 from __future__ import annotations
 
 import base64
-import datetime as _dt
 import fnmatch
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from vts_hw.errors import VtsError
+from vts_hw.site_time import WALL_FORMAT, RepeatedWallTime, site_zone, wall_clock
 
 #: what QATrack+ hears about a run that was pushed: its key (QATrack+'s ``user_key``)
 KEY_PREFIX = "vts-run-"
@@ -34,10 +34,25 @@ def run_key(run) -> str:
     return KEY_PREFIX + run.uid
 
 
-def iso(t: float | None) -> str | None:
-    if t is None:
-        return None
-    return _dt.datetime.fromtimestamp(float(t), _dt.timezone.utc).isoformat(timespec="seconds")
+class RepeatedHour(NotMapped):
+    """A run whose start or end falls in the hour the site's clocks repeat (refused before posting)."""
+
+
+def work_times(qcfg, run) -> tuple[str, str]:
+    """The run's start and end as the QATrack+ site's wall clock shows them (``YYYY-MM-DD
+    hh:mm:ss`` in ``qatrack.time_zone``; QATrack+ reads naive times in its own zone and accepts
+    no offset); RepeatedHour when one of them happens twice there (see vts_hw/site_time.py)."""
+    zone = site_zone(qcfg.time_zone)
+    out = []
+    for what, t in (("start", run.started), ("end", run.finished if run.finished is not None else run.started)):
+        try:
+            out.append(wall_clock(t, zone).strftime(WALL_FORMAT))
+        except RepeatedWallTime as exc:
+            raise RepeatedHour(f"the run's {what} time, {exc}: QATrack+ reads times in its own zone and cannot "
+                               f"be told which is meant, so it is not pushed (enter it in QATrack+ by hand)") from None
+    if out[1] < out[0]:       # a run stored with its end before its start: QATrack+ would refuse it
+        out[1] = out[0]
+    return out[0], out[1]
 
 
 def measurement_name(m) -> str:
@@ -99,12 +114,13 @@ def comment_of(run) -> str:
 def build_payload(store, qcfg, run, attach: bool = True, workdir: str | Path | None = None) -> Payload:
     """The payload of ``run`` (attachments read or rendered when ``attach``; else only named)."""
     test_list, tests, values = tests_of(store, qcfg, run)
+    started, completed = work_times(qcfg, run)
     data = {
         "day": 0,
         "in_progress": False,
         "include_for_scheduling": True,
-        "work_started": iso(run.started),
-        "work_completed": iso(run.finished if run.finished is not None else run.started),
+        "work_started": started,
+        "work_completed": completed,
         "user_key": run_key(run),
         "comment": comment_of(run),
         "tests": tests,

@@ -24,11 +24,23 @@ from typing import Callable
 
 from vts_hw.errors import UsageError, VtsError
 from vts_hw.qatrack.client import AuthRefused, QATrackClient, Refused, Unreachable
-from vts_hw.qatrack.payload import PUSHABLE_STATUSES, NotMapped, build_payload, run_key, tests_of
+from vts_hw.qatrack.payload import (PUSHABLE_STATUSES, NotMapped, RepeatedHour, build_payload, run_key, tests_of,
+                                    work_times)
+from vts_hw.site_time import instant_of, site_zone, zone_disagreement
 
 TARGET = "qatrack"
+#: the outcomes that stop a batch and make the push exit 4 although nothing was refused for the run
+STOPPERS = ("credentials refused", "wrong time zone", "posted at a wrong time")
 #: exit codes of `vts qa push` (and what --push adds to nothing: the QA's own code stands)
 EXIT_SENT, EXIT_PENDING, EXIT_REFUSED = 0, 3, 4
+
+
+class ZoneMismatch(VtsError):
+    """The site shows times in another zone than qatrack.time_zone: the batch stops."""
+
+    def __init__(self, message: str, outcome=None):
+        super().__init__(message)
+        self.outcome = outcome
 
 
 @dataclass
@@ -58,10 +70,10 @@ class Outcome:
 
 
 def exit_code(outcomes: list[Outcome]) -> int:
-    """0 every run sent (or already there); 4 any refused (or credentials refused); else 3 any
-    left pending."""
+    """0 every run sent (or already there); 4 any refused (or the credentials or the site's time
+    zone wrong); else 3 any left pending."""
     states = {o.state for o in outcomes}
-    if "refused" in states or any(o.how == "credentials refused" for o in outcomes):
+    if "refused" in states or any(o.how in STOPPERS for o in outcomes):
         return EXIT_REFUSED
     if "pending" in states:
         return EXIT_PENDING
@@ -103,7 +115,7 @@ def _record(store, item, state: str, how: str, run, message: str = "", remote: s
     return Outcome(run.id, run.procedure, item.key, state, how, message, remote or "")
 
 
-def push_one(store, qcfg, client: QATrackClient, run, item=None) -> Outcome:
+def push_one(store, qcfg, client: QATrackClient, run, item=None, before_post=None) -> Outcome:
     """One attempt at one run (its outbox row ``item``, added first when not given). Unreachable
     (down) and AuthRefused propagate after the row is recorded "pending", so that the caller
     can stop the batch."""
@@ -112,7 +124,10 @@ def push_one(store, qcfg, client: QATrackClient, run, item=None) -> Outcome:
     if item.state == "sent":
         return Outcome(run.id, run.procedure, item.key, "sent", "already sent", remote=item.remote)
     try:
-        tests_of(store, qcfg, run)   # the mapping first: cheap, and before any request
+        tests_of(store, qcfg, run)   # the mapping and the times first: cheap, and before any request
+        work_times(qcfg, run)
+    except RepeatedHour as exc:
+        return _record(store, item, "refused", "repeated hour", run, str(exc))
     except NotMapped as exc:
         return _record(store, item, "refused", "not mapped", run, str(exc))
     lst = qcfg.lists[run.procedure]
@@ -121,6 +136,8 @@ def push_one(store, qcfg, client: QATrackClient, run, item=None) -> Outcome:
         there = client.instance_with_key(item.key)
         if there:
             return _record(store, item, "sent", "already there", run, remote=there)
+        if before_post is not None:
+            before_post()
         try:
             payload = build_payload(store, qcfg, run)   # the attachments are rendered only to be posted
         except (VtsError, OSError) as exc:   # e.g. no room for the report in the temporary folder
@@ -136,9 +153,15 @@ def push_one(store, qcfg, client: QATrackClient, run, item=None) -> Outcome:
         dropped = sorted(set(payload.data["tests"]) - set(made.get("tests") or payload.data["tests"]))
         note = (f"QATrack+ kept no value for {', '.join(dropped)}: not tests of its list "
                 f"{lst.test_list!r} (check the macro names)") if dropped else ""
+        wrong = landed_wrong(qcfg, run, made)
+        if wrong:
+            return _record(store, item, "sent", "posted at a wrong time", run, wrong, remote=str(made.get("url") or ""))
         return _record(store, item, "sent", "posted", run, note, remote=str(made.get("url") or ""))
     except AuthRefused as exc:
         _record(store, item, "pending", "credentials refused", run, str(exc))
+        raise
+    except ZoneMismatch as exc:
+        _record(store, item, "pending", "wrong time zone", run, str(exc))
         raise
     except Refused as exc:
         return _record(store, item, "refused", "refused", run, str(exc))
@@ -149,23 +172,69 @@ def push_one(store, qcfg, client: QATrackClient, run, item=None) -> Outcome:
         return out
 
 
+def landed_wrong(qcfg, run, made: dict) -> str:
+    """"" when QATrack+ shows the new instance's work times at the run's true instants (to the
+    second); else one sentence (qatrack.time_zone is not the site's zone, or its clock rules differ)."""
+    for what, key, t in (("start", "work_started", run.started),
+                         ("end", "work_completed", run.finished if run.finished is not None else run.started)):
+        try:
+            shown = instant_of(made.get(key))
+        except (TypeError, ValueError):
+            return f"QATrack+ answered the new instance without its {key} as a time with an offset"
+        if abs(shown - int(t // 1)) >= 1.0:
+            return (f"QATrack+ shows the run's {what} as {made.get(key)}, {shown - int(t // 1):+.0f} s from the "
+                    f"true instant: qatrack.time_zone {qcfg.time_zone} is not the site's TIME_ZONE (correct "
+                    f"rig.yaml, and this instance's times in QATrack+)")
+    return ""
+
+
+def check_zone(qcfg, client: QATrackClient) -> str:
+    """"" when the times the site shows agree with ``qatrack.time_zone``; else one sentence."""
+    differs = zone_disagreement(site_zone(qcfg.time_zone), client.shown_times())
+    return (f"qatrack.time_zone {qcfg.time_zone} is not the site's TIME_ZONE: {differs}; set qatrack.time_zone to "
+            f"the site's zone so that the work times land at their true instants") if differs else ""
+
+
 def push_runs(store, qcfg, runs: list, client: QATrackClient | None = None,
               progress: Callable[[int, int, Outcome], None] | None = None) -> list[Outcome]:
     """Push ``runs`` one by one; every run gets its outbox row before the first request.
-    Stops at the first run QATrack+ does not answer at all or whose credentials it refuses:
-    the rest stay "pending" ("not tried")."""
+    Before the first post, the times the site shows are checked against ``qatrack.time_zone``.
+    Stops at the first run QATrack+ does not answer at all or whose credentials it refuses, or
+    when the site's zone is not ``qatrack.time_zone``: the rest stay "pending" ("not tried")."""
     items = {r.id: store.outbox_add(r.id, TARGET, run_key(r)) for r in runs}
     own = client is None
     if own:
         client = QATrackClient(qcfg.url, qcfg.credentials(), timeout=qcfg.timeout_s)
     out: list[Outcome] = []
+    zone = {"checked": False}
+
+    def before_post():
+        """The site's zone against qatrack.time_zone, once a batch (again if it could not be asked)."""
+        if zone["checked"]:
+            return
+        try:
+            wrong = check_zone(qcfg, client)
+        except Unreachable as exc:
+            if exc.down:
+                raise
+            return                      # asked again before the next post; each post is checked too
+        zone["checked"] = True
+        if wrong:
+            raise ZoneMismatch(wrong)
+
     try:
         for n, run in enumerate(runs, 1):
             try:
-                o = push_one(store, qcfg, client, run, items[run.id])
-            except (Unreachable, AuthRefused) as exc:
-                why = "credentials refused" if isinstance(exc, AuthRefused) else "failed"
-                out.append(Outcome(run.id, run.procedure, items[run.id].key, "pending", why, str(exc)))
+                o = push_one(store, qcfg, client, run, items[run.id], before_post)
+                if o.how == "posted at a wrong time":
+                    raise ZoneMismatch(o.message, o)
+            except (Unreachable, AuthRefused, ZoneMismatch) as exc:
+                if isinstance(exc, ZoneMismatch) and exc.outcome is not None:
+                    out.append(exc.outcome)
+                else:
+                    why = ("credentials refused" if isinstance(exc, AuthRefused) else
+                           "wrong time zone" if isinstance(exc, ZoneMismatch) else "failed")
+                    out.append(Outcome(run.id, run.procedure, items[run.id].key, "pending", why, str(exc)))
                 if progress:
                     progress(n, len(runs), out[-1])
                 for rest in runs[n:]:
@@ -192,7 +261,8 @@ def dry_run(store, qcfg, runs: list) -> list[dict]:
     for run in runs:
         item = next(iter(store.outbox_items(TARGET, run_ids=[run.id])), None)
         row = {"run_id": run.id, "procedure": run.procedure, "key": run_key(run),
-               "outbox": item.state if item else "not in the outbox", "qatrack": qcfg.url, "unit": qcfg.unit}
+               "outbox": item.state if item else "not in the outbox", "qatrack": qcfg.url, "unit": qcfg.unit,
+               "time_zone": qcfg.time_zone}
         try:
             p = build_payload(store, qcfg, run, attach=False)
         except NotMapped as exc:

@@ -179,12 +179,14 @@ class Tracks:
                 frames[f"{name}_single"] = self.n_single[:, c].tolist()
         if has_st:
             frames["spect_time"] = [round(float(v), 6) for v in self.spect_time]
+        from vts_hw.spect.frame import SPECT_FRAME, VTS_AXES
         doc = {"format": TRACKS_FORMAT, "csv": csv_path.name, "cameras": list(self.camera_names),
                "units": {"position": "mm", "time": "s (UTC epoch)", "pixels": "px"},
                "clock": "host_time: host UTC epoch s, mapped from the camera stamps by the "
                         "camera clock model; <camera>_time: that camera's own clock; "
                         "spect_time: SPECT clock",
-               "position_frame": "x_mm..z_mm: VTS frame; x_spect_mm..: SPECT frame",
+               "position_frame": f"x_mm..z_mm: {VTS_AXES}; x_spect_mm..: {SPECT_FRAME} "
+                                 "(the volume: meta.spect_mapping.meta.spect_volume)",
                "meta": self.meta, "frames": frames,
                "unpaired": {k: [int(x) for x in v] for k, v in self.unpaired.items()}}
         from vts_hw.files import write_json_atomic

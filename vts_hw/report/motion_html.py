@@ -81,7 +81,7 @@ def render_motion_html(data: dict, png: bytes, title: str = "Patient motion") ->
     return page(title, state, meta, f"""<section class="card banner {state}">
 <div class="big"><span class="badge {state}">{state}</span></div>
 <p><b>Time:</b> {escape(s['time'])}. <b>Breathing:</b> {escape(b['why'])}.</p>
-<p class="quiet">Times: {escape(data['clock'])}. Positions: {escape(data['frame'])}. Breathing is taken
+<p class="quiet">Times: {escape(data['clock'])}. Positions: {escape(data['frame']['definition'])}. Breathing is taken
 out of the body pose; the reference is the first still period ({data['reference_period_s'][0]:.1f}–{data['reference_period_s'][1]:.1f} s).</p>
 {f"<ul>{problems}</ul>" if problems else ""}
 </section>

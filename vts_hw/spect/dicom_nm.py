@@ -9,11 +9,12 @@ Geometry, as in the DICOM NM Image IOD for ``RECON TOMO`` images:
   ``SpacingBetweenSlices`` (else ``SliceThickness``) along ``row × column`` from IPP;
 * ``RescaleSlope``/``RescaleIntercept`` are applied when present.
 
-Patient → SPECT axes (assumed; patient supine, head first): DICOM's LPS patient axes map as
-``X = x_L``, ``Y = −y_P`` (anterior is up), ``Z = −z_H`` (Z points from the head to the feet,
-into the gantry), a 180° rotation about x, with the patient-coordinate origin at the FOV centre
-on the axis of rotation. ``PATIENT_TO_SPECT`` holds it; pass another matrix to the reader and
-writer for another set-up.
+Patient → SPECT axes: DICOM's LPS patient axes map as ``X = x_L`` (the patient's left),
+``Y = −y_P`` (anterior: up for a supine patient), ``Z = −z_S`` (towards the feet: for a head-first
+patient, out of the gantry towards the foot of the table), a 180° rotation about x; both frames
+are right-handed. The origin stays DICOM's patient-coordinate origin (wherever the scanner puts
+it: not necessarily the FOV centre; ``vts_hw.spect.frame``). ``PATIENT_TO_SPECT`` holds it; pass
+another matrix to the reader and writer for another set-up.
 """
 
 from __future__ import annotations

@@ -12,6 +12,15 @@ Conventions (the writer and the reader agree on them; see docs/decisions/0014):
   origin (FOV centre), which is where a reconstruction's centre is by definition.
 * ``!data offset in bytes`` (default 0) skips a file preamble.
 
+An image **CASToR wrote** (its header has ``CASToR version``) is read in CASToR's own frame
+instead (CASToR's documentation, and ``oInterfileIO``/``oProjectionLine`` of CASToR 3.1.1): [1]
+along CASToR's x (= SPECT +X, the patient's left for a head-first supine patient), [2] along its
+y (up: SPECT **+Y**), [3] along its z (into the gantry, towards the head: SPECT **-Z**), the image
+centred on the field of view; CASToR writes its field-of-view offset (``-off``, image
+coordinates = scanner coordinates + offset) under ``first pixel offset (mm)``, not the first
+voxel's place, so the matrix centre is at minus that offset. Read as the display convention
+above, a CASToR image would have its origin on its first voxel and Y pointing down.
+
 Keys are matched case-insensitively, with the leading ``!`` and repeated blanks ignored.
 """
 
@@ -35,6 +44,7 @@ _FORMATS = {
 }
 _BYTE_ORDERS = {"littleendian": "<", "bigendian": ">"}
 _DIRECTION = np.array([[0.0, 0.0, 1.0], [0.0, -1.0, 0.0], [1.0, 0.0, 0.0]])  # [3], [2], [1]
+_CASTOR_DIRECTION = np.array([[0.0, 0.0, -1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])  # [3], [2], [1]
 
 
 def _norm(key: str) -> str:
@@ -56,6 +66,15 @@ def parse_header(path: Path) -> dict[str, str]:
             key, value = ln.split(":=", 1)
             header[_norm(key)] = value.strip()
     return header
+
+
+def _castor(header: dict[str, str]) -> bool:
+    return "castor version" in header or header.get("version of keys", "").lower().startswith("castor")
+
+
+def written_by_castor(path) -> bool:
+    """True when the header at ``path`` is one CASToR wrote (see the module)."""
+    return _castor(parse_header(Path(path)))
 
 
 def _get(header: dict[str, str], path: Path, key: str, default: str | None = None) -> str:
@@ -113,6 +132,8 @@ def read_interfile(path) -> Volume:
                         f"after the offset, the header says {expected} ({shape[0]}×{shape[1]}×"
                         f"{shape[2]} × {nbytes} bytes)")
     data = np.frombuffer(raw, dtype=dtype, offset=offset).reshape(shape[2], shape[1], shape[0])
+    if _castor(h):
+        return _castor_volume(h, path, data.astype(dtype.newbyteorder("=")), shape, size)
     centre = [(n - 1) / 2 * s for n, s in zip(shape, size)]  # default: centred on the origin
     default_xyz = (-centre[0], centre[1], -centre[2])
     xyz = [_number(h, path, f"first pixel offset (mm) [{i}]", float, repr(default_xyz[i - 1]))
@@ -122,6 +143,17 @@ def read_interfile(path) -> Volume:
     vol = Volume(data.astype(dtype.newbyteorder("=")), (size[2], size[1], size[0]), xyz,
                  _DIRECTION, path)
     return vol.canonical()
+
+
+def _castor_volume(h, path, data, shape, size) -> Volume:
+    """A CASToR image (see the module): centred on the field of view less CASToR's offset."""
+    off = [_number(h, path, f"first pixel offset (mm) [{i}]", float, "0") for i in (1, 2, 3)]
+    if not all(math.isfinite(v) for v in off):
+        raise DataError(f"{path}: 'first pixel offset (mm)' is {off}, not three finite numbers")
+    steps = _CASTOR_DIRECTION * np.array([size[2], size[1], size[0]])[:, None]  # per array axis
+    centre = _CASTOR_DIRECTION.T @ (-np.array([off[2], off[1], off[0]]))  # CASToR z, y, x -> SPECT
+    first = centre - np.array([(shape[2] - 1) / 2, (shape[1] - 1) / 2, (shape[0] - 1) / 2]) @ steps
+    return Volume(data, (size[2], size[1], size[0]), first, _CASTOR_DIRECTION, path).canonical()
 
 
 def write_interfile(volume: Volume, path, number_format: str = "float") -> Path:

@@ -1,7 +1,9 @@
 """The reconstructed SPECT volume: a data array with its place in the SPECT frame.
 
-The SPECT frame (docs/design.md): origin at the centre of the field of view on the axis of
-rotation, X lateral, Y vertical (up), Z axial; millimetres.
+The SPECT frame (docs/design.md, :mod:`vts_hw.spect.frame`): millimetres, right-handed, X
+towards the patient's left, Y anterior (up for a supine patient), Z towards the feet; its origin
+is where the volume places it (the centre of the field of view on the axis of rotation for a
+centred Interfile or CASToR image; DICOM's patient-coordinate origin for DICOM NM).
 
 A :class:`Volume` is an affine grid:
 
