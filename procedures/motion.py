@@ -12,9 +12,14 @@ with breathing taken out, body-motion events and motion states, in the one QA re
   With a VTS → SPECT mapping the positions are in the SPECT frame, else the VTS frame. Every
   output says which.
 * **Motion** (:func:`vts_hw.motion.analyze_motion`; method: docs/decisions/0035).
+* **Time** (issue 20): the scan's duration is what the recording's index and manifest say it
+  covers (``Tracks.meta["extent"]``, :mod:`vts_hw.recording.extent`), not the frames that
+  happen to be readable; time without frames or with fewer than 3 patient markers is time
+  without a pose, and every output says how much and where.
 * **Measures**: the largest displacement of the patient markers' centroid
   (``motion_body_max_mm``) and the largest turn (``motion_body_max_deg``) from the reference
-  pose, and the share of frames with a pose (``motion_pose_coverage``).
+  pose (over the time with a pose), and the share of the scan's duration with a pose
+  (``motion_pose_coverage``).
 """
 
 from __future__ import annotations
@@ -30,15 +35,30 @@ from vts_hw.errors import DataError
 from vts_hw.figures import figure_png
 from vts_hw.motion import MotionSettings, analyze_motion, marker_series
 from vts_hw.motion.bands import band_names
-from vts_hw.motion.exports import clock_text, export_motion, time_origin
+from vts_hw.motion.exports import clock_text, coverage_json, export_motion, time_origin
 from vts_hw.spect.frame import frame_description
 from vts_hw.results import Measure, overall_state
 from vts_hw.tolerance import State, merged_tolerances
 from vts_hw.procedures.sync_inputs import load_calibration, load_mapping
 
-__all__ = ["MotionAnalysis", "METRICS"]
+__all__ = ["MotionAnalysis", "METRICS", "event_time_text"]
 
 METRICS = {"motion_body_max_mm": "mm", "motion_body_max_deg": "deg", "motion_pose_coverage": "fraction"}
+
+
+def event_time_text(e: dict) -> str:
+    """An event's times as said: measured, or bounded by the time without a pose it fell in."""
+    if e.get("start_bounds_s"):
+        a, b = e["start_bounds_s"]
+        start = f"start between {a:.2f} and {b:.2f} s (in time without a pose: known only to within it)"
+    else:
+        start = f"start {e['t_start']:.2f} s"
+    if e.get("end_bounds_s"):
+        a, b = e["end_bounds_s"]
+        end = f"end between {a:.2f} and {b:.2f} s"
+    else:
+        end = f"end {e['t_end']:.2f} s"
+    return f"{start}, {end}"
 
 
 class MotionAnalysis:
@@ -101,13 +121,33 @@ class MotionAnalysis:
                                         mapping=load_mapping(self.mapping), progress=self.progress)
         self.problems += [f"processing: {w}" for w in self.tracks.meta.get("warnings", [])]
 
+    def _span(self, series) -> tuple[tuple | None, list[str]]:
+        """The scan's span on the series' clock and what the recording lacks, from the tracks'
+        ``extent`` (None: the first and last frame set, as for tracks made without a recording)."""
+        ext = (self.tracks.meta or {}).get("extent") or {}
+        first, last = ext.get("first_s"), ext.get("last_s")
+        if first is None or last is None:
+            return None, []
+        if series.clock == "spect":
+            h = np.asarray(self.tracks.host_time, float)
+            sp = np.asarray(self.tracks.spect_time, float)
+            ok = np.isfinite(h) & np.isfinite(sp)
+            if ok.sum() < 2:
+                return None, list(ext.get("problems") or [])
+            a, b = np.polyfit(h[ok] - h[ok][0], sp[ok], 1)
+            first, last = a * (first - h[ok][0]) + b, a * (last - h[ok][0]) + b
+        return (float(first), float(last)), list(ext.get("problems") or [])
+
     # ------------------------------------------------------------------ analysis
     def analyze(self, tolerances: dict | None = None) -> "MotionAnalysis":
         """``tolerances``: the rig's windows (rig.yaml ``tolerances:``) over the defaults."""
         self.tolerances = merged_tolerances(tolerances)
         self._load_tracks()
         series = marker_series(self.tracks)
-        self.result = analyze_motion(series, self.settings)
+        span, missing = self._span(series)
+        self.problems = [p for p in self.problems if p.split(": ", 1)[-1] not in missing]
+        self.problems += [f"recording: {m}" for m in missing]
+        self.result = analyze_motion(series, self.settings, span=span, missing=missing)
         self.problems += list(self.result.notes)
         for name, cam in (self.manifest.get("cameras") or {}).items():
             gaps = cam.get("gaps") or []
@@ -134,7 +174,19 @@ class MotionAnalysis:
         shift = np.linalg.norm(pose.centre_shift()[v], axis=1) if v.any() else np.array([np.nan])
         ang = pose.angle_deg()[v] if v.any() else np.array([np.nan])
         return {"motion_body_max_mm": float(np.max(shift)), "motion_body_max_deg": float(np.max(ang)),
-                "motion_pose_coverage": float(v.mean())}
+                "motion_pose_coverage": float(r.coverage["share"])}
+
+    def _time_sentence(self) -> str:
+        """"pose known 63.2 % of 90.0 s; 33.1 s without frames in 10 gaps (...); ..."."""
+        c = self._need().coverage
+        parts = [f"pose known {100 * c['share']:.1f} % of {c['duration_s']:.1f} s"]
+        if c["no_frames_s"]:
+            parts.append(f"{c['no_frames_s']:.1f} s without frames in {c['no_frames_gaps']} gap(s) "
+                         f"(longest {c['longest_gap_s']:.1f} s)")
+        if c["few_markers_s"]:
+            parts.append(f"{c['few_markers_s']:.1f} s with fewer than 3 patient markers in "
+                         f"{c['few_markers_stretches']} stretch(es)")
+        return "; ".join(parts)
 
     @property
     def measures(self) -> list[Measure]:
@@ -163,13 +215,20 @@ class MotionAnalysis:
                     "points_by_camera": S.camera_sets[m] if S.camera_sets else {}}
                    for m in range(len(S.ids))]
         resp = r.respiration
-        amp = resp.amplitude[np.isfinite(resp.amplitude)]
         measures = self.measures
+        fig = resp.figures
+        cov = r.coverage
         summary = {**self.figures(), "events": len(r.events), "states": len(r.states),
+                   "time": self._time_sentence(), "duration_s": cov["duration_s"], "pose_known_s": cov["pose_s"],
+                   "no_frames_s": cov["no_frames_s"], "no_frames_gaps": cov["no_frames_gaps"],
+                   "few_markers_s": cov["few_markers_s"],
+                   "breathing": fig.status, "breathing_why": fig.why,
                    "breathing_cycles": len(resp.cycles), "breathing_rate_per_min": resp.mean_rate_per_min,
-                   "breathing_amplitude_mm": float(np.median([c.amplitude for c in resp.cycles]))
-                   if resp.cycles else (float(np.ptp(amp)) if amp.size else None),
-                   "pose_fit_rms_mm": float(np.nanmedian(r.pose.rms_mm)),
+                   "breathing_rate_range_per_min": fig.rate_range if resp.mean_rate_per_min is not None else None,
+                   "breathing_amplitude_mm": fig.amplitude_mm if fig.status != "none" else None,
+                   "breathing_share": fig.share,
+                   "events_start_bounded": sum(e.start_bounds is not None for e in r.events),
+                   "pose_fit_rms_mm": float(np.nanmedian(r.pose.rms_mm)) if r.pose.valid.any() else None,
                    "state": str(overall_state(measures))}
         tm = self.tracks.meta if self.tracks is not None else {}
         return {
@@ -184,8 +243,10 @@ class MotionAnalysis:
             "bands": [{"band": name, "markers": [S.label(m) for m in g]} for name, g in zip(names, B.groups)],
             "band_naming": naming,
             "markers": markers,
-            "events": [{**e.to_json(), "t_start": e.t_start - t0, "t_end": e.t_end - t0} for e in r.events],
-            "states": [{**s.to_json(), "t_start": s.t_start - t0, "t_end": s.t_end - t0} for s in r.states],
+            "events": [e.to_json(t0) for e in r.events],
+            "states": [s.to_json(t0) for s in r.states],
+            "breathing": resp.figures.to_json(),
+            "coverage": coverage_json(r, t0),
             "pose_gaps_s": [[a - t0, b - t0] for a, b in r.gaps],
             "speed_thresholds_mm_s": r.thresholds,
             "cameras": {"names": list(S.camera_names),
@@ -205,20 +266,20 @@ class MotionAnalysis:
                  f"  patient markers: {len([m for m in d['markers'] if m['patient']])} in {len(d['bands'])} band(s) "
                  f"({'; '.join(b['band'] + ': ' + ', '.join(b['markers']) for b in d['bands'])}); reference {d['reference_period_s'][0]:.1f}-"
                  f"{d['reference_period_s'][1]:.1f} s",
-                 f"  breathing: {s['breathing_cycles']} cycles, "
-                 + (f"{s['breathing_rate_per_min']:.1f} /min, " if s['breathing_rate_per_min'] else "")
-                 + (f"{s['breathing_amplitude_mm']:.1f} mm" if s['breathing_amplitude_mm'] is not None else ""),
+                 f"  time: {s['time']}",
+                 f"  breathing: {self._breathing_text(d['breathing'])}",
                  f"  body: moved up to {s['motion_body_max_mm']:.2f} mm and {s['motion_body_max_deg']:.2f} deg from "
-                 f"the reference; pose in {100 * s['motion_pose_coverage']:.1f} % of the frames "
-                 f"(fit RMS {s['pose_fit_rms_mm']:.3f} mm)"]
+                 f"the reference in the time with a pose"
+                 + (f" (fit RMS {s['pose_fit_rms_mm']:.3f} mm)" if s['pose_fit_rms_mm'] is not None else "")]
         for k, e in enumerate(d["events"], 1):
             c = e["change_6dof"]
-            lines.append(f"  event {k}: {e['t_start']:.2f}-{e['t_end']:.2f} s, shift {e['centroid_shift_mm']:.1f} mm, "
+            lines.append(f"  event {k}: {event_time_text(e)}, shift {e['centroid_shift_mm']:.1f} mm, "
                          f"turn {e['rotation_deg']:.2f} deg (t {c[0]:+.1f} {c[1]:+.1f} {c[2]:+.1f} mm, "
                          f"r {c[3]:+.2f} {c[4]:+.2f} {c[5]:+.2f} deg)")
         for st in d["states"]:
             x = st["six_dof"]
-            lines.append(f"  state {st['state']}: {st['t_start']:.2f}-{st['t_end']:.2f} s, pose t {x[0]:+.2f} "
+            gap = (f" ({st['unknown_s']:.1f} s of it without a pose, in no state)" if st["unknown_s"] else "")
+            lines.append(f"  state {st['state']}: {st['t_start']:.2f}-{st['t_end']:.2f} s{gap}, pose t {x[0]:+.2f} "
                          f"{x[1]:+.2f} {x[2]:+.2f} mm, r {x[3]:+.2f} {x[4]:+.2f} {x[5]:+.2f} deg")
         for m in d["measures"]:
             lines.append(f"  {m['metric']}: {m['value']:.3g} {m['unit']} -> {m['state']}")
@@ -226,6 +287,19 @@ class MotionAnalysis:
         for p in self.problems:
             lines.append(f"  note: {p}")
         return "\n".join(lines)
+
+    @staticmethod
+    def _breathing_text(b: dict) -> str:
+        amp = (f"amplitude {b['amplitude_mm']:.1f} mm ({b['half_breaths_seen']} half breaths)"
+               if b["amplitude_mm"] is not None else "amplitude unknown")
+        if b["status"] == "measured":
+            return f"{b['rate_per_min']:.1f} /min, {amp} ({b['why']})"
+        if b["status"] == "bounded":
+            lo, hi = b["rate_range_per_min"]
+            return (f"{b['rate_per_min']:.1f} /min, known only to {lo:.1f}-{hi:.1f} /min; {amp} "
+                    f"(from breaths seen whole over {b['rate_rests_on_s']:.1f} s, "
+                    f"{100 * b['share_of_scan']:.0f} % of the scan)")
+        return b["why"] + (f"; {amp}" if b["status"] == "unknown" else "")
 
     def figure(self):
         from vts_hw.procedures.motion_plot import motion_figure

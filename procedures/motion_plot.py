@@ -1,7 +1,9 @@
-"""The motion analysis's figure: the respiratory trace; the body's translations and rotations
-with events shaded and motion-state boundaries marked; the body speed with its thresholds, the
-still frames and the reference period (the still-period check). Times as in the results
-(SPECT list-mode s, or s from the first frame on the host clock)."""
+"""The motion analysis's figure: the respiratory trace (breaths seen whole marked); the body's
+translations and rotations with events shaded (an event whose start is only bounded: its whole
+bound) and motion-state boundaries marked; the body speed with its thresholds, the still frames
+and the reference period (the still-period check). Time without a pose (no frames, fewer than 3
+markers) is hatched red on every panel and the traces break there: nothing is drawn across it.
+Times as in the results (SPECT list-mode s, or s from the first frame on the host clock)."""
 
 from __future__ import annotations
 
@@ -21,7 +23,8 @@ def motion_figure(r, data):
     for c in r.respiration.cycles:
         ax.axvline(c.t_start - t0, color="#9fb6d6", lw=0.4)
     ax.set_ylabel("breathing mm")
-    ax.set_title(f"patient motion: {data['session']} ({data['date']}, vts-hw {data['vts_hw_version']})", fontsize=9)
+    ax.set_title(f"patient motion: {data['session']} ({data['date']}, vts-hw {data['vts_hw_version']})\n"
+                 f"{data['summary']['time']}; breathing {data['breathing']['status']}", fontsize=9)
     six = r.pose.six_dof()
     for k, (name, col) in enumerate(zip(("x", "y", "z"), ("#c62828", "#2e7d32", "#1565c0"))):
         tx.plot(t, six[:, k], lw=0.8, color=col, label=f"t{name}")
@@ -38,7 +41,7 @@ def motion_figure(r, data):
             a.axvline(s.t_start - t0, color="#5b2a86", lw=0.8, ls="--")
     for a, b in r.gaps:
         for x in axes:
-            x.axvspan(a - t0, b - t0, facecolor="none", edgecolor="#c62828", hatch="//", lw=0)
+            x.axvspan(a - t0, b - t0, facecolor="#c62828", alpha=0.12, edgecolor="#c62828", hatch="//", lw=0)
     sx.plot(t, r.speed, lw=0.6, color="#444")
     sx.axhline(r.thresholds["hi_mm_s"], color="#c62828", lw=0.8, ls=":")
     sx.axhline(r.thresholds["lo_mm_s"], color="#e08a00", lw=0.8, ls=":")
@@ -49,6 +52,7 @@ def motion_figure(r, data):
     sx.set_yscale("symlog", linthresh=1.0)
     sx.set_ylabel("body speed mm/s")
     clock = "SPECT list-mode s" if r.series.clock == "spect" else "s from the first frame (host clock)"
-    sx.set_xlabel(f"time, {clock}; events shaded, states dashed, reference and still frames green")
+    sx.set_xlabel(f"time, {clock}; events shaded, states dashed, reference and still frames green, "
+                  f"no pose (no frames / < 3 markers) hatched red")
     fig.tight_layout()
     return fig

@@ -1,6 +1,8 @@
 """The motion analysis core (vts_hw/motion) against the simulated patient's truth: synthetic
 tracks made from the patient model (noise 0.05 mm, points missing), marker ids shuffled."""
 
+import json
+
 import numpy as np
 import pytest
 
@@ -88,7 +90,8 @@ def test_a_patient_who_moves_without_breathing_is_still_found():
     patient, tracks, _, _ = patient_tracks(seed=1, duration_s=50.0, breathing=False, moves=moves)
     r = analyze_motion(marker_series(tracks))
     assert len(r.events) == 1 and abs(r.events[0].t_start - 1_790_000_030.0) <= 0.5
-    assert any("flat" in n for n in r.notes)
+    assert r.respiration.figures.status == "none" and r.respiration.cycles == []
+    assert any("no breathing" in n for n in r.notes)
 
 
 def test_still_markers_alone_are_refused_in_one_sentence():
@@ -144,3 +147,41 @@ def test_a_ghost_point_does_not_drag_the_pose():
     mm, deg = pose_errors(r, patient)
     assert mm < 0.3 and deg < 0.2
     assert len(r.events) == len(true_moves(patient)) == 1
+
+
+def test_no_breathing_is_said_and_no_respiratory_figures_or_subsets_come_from_noise(tmp_path):
+    """A patient who does not breathe, with a body move whose ringing in the band-pass makes
+    every marker look as if it breathed 0.25-0.35 mm RMS (the gate of the marker search): what
+    is left is noise, and the analysis says there is no breathing -- no rate, no amplitude, no
+    phase, no respiratory subsets -- instead of fitting breaths to it (issue 20: "breathing
+    23.3 /min, 0.1 mm" on such a patient)."""
+    from vts_hw.motion.exports import export_motion
+    from vts_hw.procedures.motion import MotionAnalysis
+
+    t0 = 1_790_000_005.0
+    moves = [BodyMove(t0 + 15.0, t0 + 15.8, (0.7, -0.7, -0.4), (9.0, 4.3, 7.9))]
+    patient, tracks, _, _ = patient_tracks(seed=2, duration_s=40.0, breathing=False, moves=moves, noise_mm=0.1)
+    r = analyze_motion(marker_series(tracks))
+    assert np.all(r.bands.breath_rms_mm[r.bands.patient] >= 0.25)        # the marker gate alone would pass it
+    f = r.respiration.figures
+    assert f.status == "none" and "no breathing above the noise" in f.why
+    assert f.rate_per_min is None and f.amplitude_mm is None and r.respiration.cycles == []
+    assert np.isnan(r.respiration.phase).all() and np.nanmax(np.abs(r.respiration.amplitude)) == 0.0
+    assert len(r.events) == 1 and abs(r.events[0].t_start - moves[0].t_start) <= 0.5
+    export_motion(r, tmp_path)
+    sub = json.loads((tmp_path / "subsets.json").read_text())
+    bins = sub["respiratory_bins"]
+    assert bins["status"] == "none" and bins["amplitude"] == [] and bins["phase"] == []
+    assert sub["breathing"]["status"] == "none"
+    a = MotionAnalysis(tmp_path / "session", tracks=tracks).analyze()
+    d = a.results_data()
+    assert d["summary"]["breathing_rate_per_min"] is None and d["summary"]["breathing_amplitude_mm"] is None
+    assert "breathing: no breathing above the noise" in a.results()
+
+
+def test_a_breathing_patient_is_not_taken_for_noise():
+    """The other side of the noise test: 10 times the usual marker noise still leaves breaths
+    far above it."""
+    patient, tracks, _, _ = patient_tracks(seed=3, duration_s=40.0, n_moves=0, noise_mm=0.5)
+    f = analyze_motion(marker_series(tracks)).respiration.figures
+    assert f.status in ("measured", "bounded") and f.amplitude_mm > 10 * f.noise_mm

@@ -18,7 +18,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from vts_hw.motion.castor import plan_castor, write_castor
-from vts_hw.motion.events import MotionState
+from vts_hw.motion.states import MotionState
 from vts_hw.vision.registration import kabsch
 
 

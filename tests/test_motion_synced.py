@@ -67,9 +67,11 @@ def test_motion_on_the_spect_clock(synced_scan):
     assert "SPECT list-mode" in data["clock"] and data["time_origin"] == 0.0 and data["frame"]["name"] == "SPECT frame"
     # the move's true start, on the list-mode clock: host time minus the fire, plus nothing
     # more than the SPECT's start delay (< 0.5 s): within a second of the true start
+    # (a busy machine's cameras may skip frames: a start that fell in a gap is bounded by it)
     true_list = move.t_start - run.fire_host
-    starts = [e["t_start"] for e in data["events"]]
-    assert any(abs(s - true_list) < 1.0 for s in starts), (starts, true_list, data["problems"])
+    starts = [(e["t_start"], e["start_bounds_s"]) for e in data["events"]]
+    assert any(abs(s - true_list) < 1.0 if b is None else b[0] - 0.5 <= true_list <= b[1]
+               for s, b in starts), (starts, true_list, data["summary"]["time"], data["problems"])
     dyn = (tmp / "export" / "castor_motion.dyn").read_text()
     stamps = [ln for ln in dyn.splitlines() if ln.startswith("timestamp_motion_triggers:")]
     assert len(stamps) == 1 and re.fullmatch(r"timestamp_motion_triggers: 0(,\d+)+", stamps[0])   # whole seconds

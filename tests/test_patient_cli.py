@@ -66,7 +66,11 @@ def test_every_body_move_of_the_truth_is_found_on_the_spect_clock(analysed):
     for m in moves:
         t = float(spect.list_time(m["t_start"]))
         k = int(np.argmin(np.abs(starts - t)))
-        assert abs(starts[k] - t) < 0.5, (t, starts)
+        b = data["events"][k]["start_bounds_s"]      # a start in frames a busy machine lost: bounded
+        if b is None:
+            assert abs(starts[k] - t) < 0.5, (t, starts)
+        else:
+            assert b[0] + data["time_origin"] <= t <= b[1] + data["time_origin"], (t, b, data["summary"]["time"])
         shift = np.linalg.norm(m["translation_mm"])
         turn = np.linalg.norm(m["rotation_deg"])
         e = data["events"][k]

@@ -196,7 +196,9 @@ def _patient(out_dir: Path, seconds: float) -> None:
     else:
         click.echo("  the analysis found no body-motion event")
     rate, true_rate = res.rate_per_min
-    click.echo(f"  breathing {rate:.1f} /min (true {true_rate:.1f}); body pose against the truth in still frames: "
+    said = (f"{rate:.1f} /min" if rate == rate else d["summary"].get("breathing_why", "unknown"))
+    click.echo(f"  time: {d['summary'].get('time', '')}")
+    click.echo(f"  breathing {said} (true {true_rate:.1f} /min); body pose against the truth in still frames: "
                f"RMS {res.pose_error[0]:.3f} mm, {res.pose_error[1]:.3f} deg (goals 0.3 mm, 0.2 deg)")
     click.echo(f"  report: {res.report}; for reconstruction: {res.export}/castor_motion.dyn, castor_motion_rigid.txt, "
                "motion_6dof.csv, respiration.csv, subsets.json")

@@ -43,7 +43,12 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
     motion.state_deg. With the scan's list-mode (--listmode, as `vts sync analyze` takes it: a
     glob of several picks the session's own) the session goes through the sync analysis and
     every time is list-mode seconds (the session then needs its trigger.csv); without it, host
-    time. Exit status like the QA procedures: 0 OK, 10 TOLERANCE, 20 ACTION
+    time. The scan's whole span is analysed (what the recording's index, manifest and scan
+    times say it covers): frames a camera skipped, a .mjpeg cut short or a camera's missing
+    files are time without a pose, counted in motion_pose_coverage (the share of the scan's
+    time with a pose) and shown as such in every output; a breath counts only when seen whole,
+    so a rate may be bounded (a range) or unknown, and a move that began in a gap has its start
+    given as a range. Exit status like the QA procedures: 0 OK, 10 TOLERANCE, 20 ACTION
     (windows motion_body_max_mm, motion_body_max_deg, motion_pose_coverage); 2 bad input; 3 a
     file could not be read or written, or the run could not be stored (its figures then go
     to a file that `vts qa import` stores later).

@@ -14,7 +14,14 @@ docs/decisions/0035-breathing-and-body-motion.md).
 5. Pose and breathing together per frame (:func:`.body_pose.fit_pose_breathing`); the
    respiratory signal is now the fitted one (its slow part kept). Steps 3-5 once more with the
    still periods from the new pose.
-6. Events and motion states (:mod:`.events`); respiratory cycles, phase and rate.
+6. Events and motion states (:mod:`.events`, :mod:`.states`); breaths seen whole, their phase
+   and rate (:mod:`.cycles`).
+
+Time without frames (issue 20; docs/decisions/0046-time-without-frames.md): the series is first
+put on the scan's frame grid (:mod:`.timeline`): a row without markers for every frame time the
+recording lacks, so that every share is a share of the scan's time. A stretch without a pose of
+at most ``bridge_s``, with the same pose on both sides, may join a still period (for the
+reference and the breathing vectors); nothing is fitted in it, and no breath is counted over it.
 """
 
 from __future__ import annotations
@@ -27,12 +34,15 @@ from scipy.ndimage import uniform_filter1d
 from vts_hw.errors import DataError
 from vts_hw.motion.bands import Bands, find_bands
 from vts_hw.motion.body_pose import BodyPose, back_to_reference, fit_pose_breathing, kabsch_batch
-from vts_hw.motion.events import MotionEvent, MotionState, find_events, motion_states
+from vts_hw.motion.cycles import breathing_figures, find_breaths, signal_noise
+from vts_hw.motion.events import MotionEvent, find_events
 from vts_hw.motion.markers import MarkerSeries
-from vts_hw.motion.respiration import Respiration, breath_cycles, breathing_vectors, principal_signal
-from vts_hw.motion.signal import fill_gaps, highpass, sample_rate
+from vts_hw.motion.respiration import Respiration, breathing_vectors, principal_signal
+from vts_hw.motion.signal import fill_gaps, highpass
+from vts_hw.motion.states import BRIDGE_S, MotionState, cover_states, motion_states
+from vts_hw.motion.timeline import Timeline, on_grid, runs as _runs
 
-__all__ = ["MotionResult", "MotionSettings", "analyze_motion"]
+__all__ = ["MotionResult", "MotionSettings", "analyze_motion", "MotionEvent", "MotionState"]
 
 BREATH_MM = 0.25      # a marker breathes above this RMS at 0.08-1 Hz (bands.find_bands's default)
 
@@ -59,11 +69,13 @@ class MotionSettings:
     outlier_rigid_mm: float = 40.0
     max_outlier_share: float = 0.5
     outlier_mm: float = 3.0
+    bridge_s: float = BRIDGE_S
 
 
 @dataclass
 class MotionResult:
-    """What :func:`analyze_motion` found (times on ``series.clock``, positions in ``series.frame``)."""
+    """What :func:`analyze_motion` found (times on ``series.clock``, positions in ``series.frame``).
+    Every per-frame array has a row per frame time of the scan (``timeline``), frames or not."""
 
     series: MarkerSeries
     bands: Bands
@@ -80,19 +92,24 @@ class MotionResult:
     thresholds: dict
     settings: MotionSettings
     notes: list = field(default_factory=list)
+    timeline: Timeline | None = None
+    covered: np.ndarray | None = None     # (F,) rows some motion state covers (states.cover_states)
+    bridged: list = field(default_factory=list)
+
+    @property
+    def unknown(self) -> list[dict]:
+        """The stretches without a pose, with why (:meth:`Timeline.unknown`)."""
+        return self.timeline.unknown(self.pose.valid)
 
     @property
     def gaps(self) -> list:
-        """[start, end] times where the pose could not be fitted (fewer than 3 markers)."""
-        bad = ~self.pose.valid
-        t = self.pose.t
-        return [[float(t[a]), float(t[b - 1])] for a, b in _runs(bad)]
+        """[start, end] times without a pose (no frames, or fewer than 3 markers)."""
+        return [[u["t_start"], u["t_end"]] for u in self.unknown]
 
-
-def _runs(mask):
-    m = np.concatenate([[False], np.asarray(mask, bool), [False]])
-    d = np.diff(m.astype(int))
-    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
+    @property
+    def coverage(self) -> dict:
+        """Time with a pose against the scan's duration (:meth:`Timeline.coverage`)."""
+        return self.timeline.coverage(self.pose.valid)
 
 
 def _dilate(mask, n):
@@ -139,7 +156,7 @@ def _robust_pose(P, seen, ref, scales=(60.0, 40.0)):
     return R, T, w
 
 
-def _segment_poses(t, P, seen, ref, still, fs):
+def _segment_poses(t, P, seen, ref, still):
     """Positions in the body frame with one pose per still run (NaN elsewhere)."""
     D = np.full(P.shape, np.nan)
     for a, b in _runs(still):
@@ -154,23 +171,70 @@ def _segment_poses(t, P, seen, ref, still, fs):
 
 
 def _provisional_moving(t, pose_pts, s, settings, fs):
-    """Frames moving, from the carried markers minus their regression on the signal."""
+    """``(moving, Xc)``: frames moving, from the carried markers minus their regression on the
+    signal (``Xc``, (F, M, 3), NaN where the pose is unknown). No speed is made across time
+    without a pose: a frame whose window reaches into it is not called moving."""
     X = pose_pts.reshape(len(t), -1)
     ok = np.isfinite(X).all(axis=1) & np.isfinite(s)
     if ok.sum() < 20:
-        return np.zeros(len(t), bool)
+        return np.zeros(len(t), bool), np.full(pose_pts.shape, np.nan)
     hx = highpass(t, np.where(ok[:, None], X, np.nan), 0.1)
     hs = highpass(t, np.where(ok, s, np.nan)[:, None], 0.1)[:, 0]
     k = (hs[ok] @ hx[ok]) / max(float(hs[ok] @ hs[ok]), 1e-12)
     Xc = (X - np.outer(np.nan_to_num(s), k))
+    clean = np.where(ok[:, None], Xc, np.nan).reshape(pose_pts.shape)
     h = max(1, int(round(0.2 * fs)))
-    Xc = uniform_filter1d(fill_gaps(t, Xc), 2 * h + 1, axis=0).reshape(pose_pts.shape)   # provisional: smearing is harmless
+    Xs = uniform_filter1d(fill_gaps(t, Xc), 2 * h + 1, axis=0).reshape(pose_pts.shape)   # provisional: smearing is harmless
     sp = np.zeros(len(t))
     if len(t) > 2 * h:
-        sp[h:-h] = np.linalg.norm(Xc[2 * h:] - Xc[:-2 * h], axis=2).max(axis=1) / (t[2 * h:] - t[:-2 * h])
-    sp = np.nan_to_num(sp)
+        sp[h:-h] = np.linalg.norm(Xs[2 * h:] - Xs[:-2 * h], axis=2).max(axis=1) / (t[2 * h:] - t[:-2 * h])
+    near = uniform_filter1d((~ok).astype(float), 4 * h + 1) > 0      # within 2 h rows of unknown time
+    sp = np.where(near, 0.0, np.nan_to_num(sp))
     sig = 1.4826 * np.median(np.abs(sp - np.median(sp)))
-    return sp > max(2.0 * settings.min_speed, np.median(sp) + 6 * sig)
+    return sp > max(2.0 * settings.min_speed, np.median(sp) + 6 * sig), clean
+
+
+def _bridged(t, still, valid, X, period, bridge_s, tol_mm, settle_s=1.0):
+    """``still`` with the stretches without a pose of at most ``bridge_s`` between still frames
+    added where the markers ``X`` (F, K, 3; breathing out) agree on both sides within
+    ``tol_mm`` (medians over ``settle_s``): a still period may span them (nothing is fitted
+    in them: they have no markers)."""
+    out = still.copy()
+    F = len(t)
+    for a, b in _runs(~valid):
+        if a == 0 or b == F or (b - a) * period > bridge_s + 1e-9 or not (still[a - 1] and still[b]):
+            continue
+        before = still & (t >= t[a] - settle_s) & (t < t[a])
+        after = still & (t > t[b - 1]) & (t <= t[b - 1] + settle_s)
+        if not before.any() or not after.any():
+            continue
+        d = np.nanmedian(X[after], axis=0) - np.nanmedian(X[before], axis=0)
+        if np.nanmax(np.linalg.norm(d, axis=1)) < tol_mm:
+            out[a:b] = True
+    return out
+
+
+def _not_with_the_body(P, seen, ref, bands, bad, limit_mm: float = 5.0, share: float = 0.2) -> dict:
+    """The markers taken for the patient's because they *moved* (not because they breathe) that
+    do not move with the body: further than ``limit_mm`` from where the rigid fit of the other
+    markers carries them in more than ``share`` of their frames (a wall marker whose blob met a
+    band marker's in one camera for a while "moves" too, and after a body move it pulled the fit)."""
+    out = {}
+    for m in range(P.shape[1]):
+        if m in bad or bands.breath_rms_mm[bands.patient[m]] >= BREATH_MM or not np.isfinite(ref[m]).all():
+            continue
+        others = seen.copy()
+        others[:, m] = False
+        R, T = _pose_with_reference(P, others, ref)
+        ok = seen[:, m] & np.isfinite(T[:, 0])
+        if ok.sum() < 10:
+            continue
+        res = np.linalg.norm(P[ok, m] - (np.einsum("fij,j->fi", R[ok], ref[m]) + T[ok]), axis=1)
+        off = float(np.mean(res > limit_mm))
+        if off > share:
+            out[m] = (f"moved, but not with the body: off the rigid fit of the others by over {limit_mm:g} mm "
+                      f"in {100 * off:.0f} % of its frames: not the patient's")
+    return out
 
 
 def _inliers(P, seen, model, limit_mm):
@@ -179,18 +243,25 @@ def _inliers(P, seen, model, limit_mm):
     return seen & ~(np.nan_to_num(res, nan=np.inf) > limit_mm)
 
 
-def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None) -> MotionResult:
-    """The whole analysis (see the module). DataError when the patient's markers cannot be found
-    or no still period of ``ref_min_s`` exists for the reference."""
+def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None, *, span: tuple | None = None,
+                   missing=()) -> MotionResult:
+    """The whole analysis (see the module). ``span``: (first, last) frame time the recording
+    should hold, on the series' clock (:mod:`vts_hw.recording.extent`; None: the first and last
+    frame); ``missing``: sentences on what the recording lacks, kept with the result. DataError
+    when the patient's markers cannot be found or no still period of ``ref_min_s`` exists for the
+    reference."""
     st = settings or MotionSettings()
-    bands = find_bands(series)
+    series, timeline = on_grid(series, span, missing)
+    bands = find_bands(series, frames=timeline.frames)
     S = series.subset(bands.patient)
     t, P, seen = S.t, S.P, S.seen
     seen_all = seen.copy()
-    fs = sample_rate(t)
+    period = timeline.period
+    fs = 1.0 / period
     notes = []
     # 2. provisional reference and pose; the first respiratory signal
-    sel0 = t <= t[0] + st.ref_max_s
+    t_first = float(t[timeline.frames][0])
+    sel0 = (t >= t_first) & (t <= t_first + st.ref_max_s)
     ref = _reference(P, seen, sel0)
     R0, T0 = _pose_with_reference(P, seen, ref)
     ref = _reference(P, seen, sel0, R0, T0)
@@ -198,12 +269,13 @@ def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None)
     # a marker the robust fit leaves out in most frames is not one of the patient's (a wrong
     # match, a ghost made of pieces); a single point far off the fit is left out of its frame
     out_share = 1.0 - (seen & (w > 0)).sum(axis=0) / np.maximum(seen.sum(axis=0), 1)
-    bad = [m for m in range(P.shape[1]) if out_share[m] > st.max_outlier_share]
+    bad = {m: (f"off the rigid fit of the others in {100 * out_share[m]:.0f} % of its frames: not the "
+               f"patient's (a wrong match?)") for m in range(P.shape[1]) if out_share[m] > st.max_outlier_share}
+    bad.update(_not_with_the_body(P, seen, ref, bands, bad))
     if bad and P.shape[1] - len(bad) >= 3:
-        for m in bad:
+        for m, why in bad.items():
             col = bands.patient[m]
-            bands.why[col] = (f"off the rigid fit of the others in {100 * out_share[m]:.0f} % of its frames: "
-                              f"not the patient's (a wrong match?)")
+            bands.why[col] = why
             notes.append(f"{S.label(m)} left out: {bands.why[col]}")
         keep = [m for m in range(P.shape[1]) if m not in bad]
         bands.patient = [bands.patient[m] for m in keep]
@@ -219,25 +291,28 @@ def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None)
     D[~seen] = np.nan
     s, _, _ = principal_signal(t, D)
     pts = np.einsum("fij,mj->fmi", R0, ref) + T0[:, None]
-    moving = _provisional_moving(t, pts, s, st, fs)
+    moving, X_still = _provisional_moving(t, pts, s, st, fs)
+    tol = 2.0 * st.event_mm           # the first pose still holds some breathing
     v = np.zeros_like(ref)
     R, T = R0, T0
-    ref_period = (float(t[0]), float(t[0]))
+    ref_period = (t_first, t_first)
     for _ in range(max(1, st.iterations)):
         valid = np.isfinite(R[:, 0, 0])
         still = valid & ~_dilate(moving, int(round(st.margin_s * fs)))
-        runs = [(a, b) for a, b in _runs(still) if t[b - 1] - t[a] >= st.ref_min_s]
+        still_b = _bridged(t, still, valid, X_still, period, st.bridge_s, tol)
+        runs = [(a, b) for a, b in _runs(still_b)
+                if t[b - 1] - t[a] >= st.ref_min_s and still[a:b].sum() * period >= 0.5 * st.ref_min_s]
         if not runs:
             raise DataError(f"no still period of {st.ref_min_s:g} s for the reference: the patient moved "
                             f"all the time (or the markers were not seen)")
         a, b = runs[0]
         b = min(b, a + int(round(st.ref_max_s * fs)))
         ref_sel = np.zeros(len(t), bool)
-        ref_sel[a:b] = True
+        ref_sel[a:b] = still[a:b]
         ref_period = (float(t[a]), float(t[b - 1]))
         ref = _reference(P, seen, ref_sel, R, T)
-        Dseg = _segment_poses(t, P, seen, ref, still, fs) - ref[None]
-        v = breathing_vectors(t, Dseg, s, still)
+        Dseg = _segment_poses(t, P, seen, ref, still_b) - ref[None]
+        v = breathing_vectors(t, Dseg, s, still_b)
         R0, T0, _ = _robust_pose(P, seen, ref)
         R, T, s, rms = fit_pose_breathing(ref, v, P, seen, R0, T0, s)
         body = ref[None] + v[None] * np.nan_to_num(s)[:, None, None]
@@ -250,22 +325,30 @@ def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None)
         pose = BodyPose(t, R, T, s, rms, seen.sum(axis=1), known.mean(axis=0))
         events, speed, moving, thr = find_events(pose, known, min_speed=st.min_speed, event_mm=st.event_mm,
                                                  event_deg=st.event_deg)
+        X_still = np.where(pose.valid[:, None, None], pose.points(known), np.nan)
+        tol = st.event_mm
     # scale and sign of the respiratory signal: mm of the marker that breathes most, + = inhaled
     norms = np.linalg.norm(v, axis=1)
     scale = float(norms.max()) if norms.size else 0.0
-    breathes = bool(np.any(bands.breath_rms_mm[bands.patient] >= BREATH_MM))
-    if scale > 0 and breathes:
+    breathes = bool(np.any(bands.breath_rms_mm[bands.patient] >= BREATH_MM)) and scale > 0
+    valid = pose.valid
+    if breathes:
         up = np.array([0.0, 1.0, 0.0]) if series.frame == "spect" else np.array([0.0, -1.0, 0.0])
         sign = 1.0 if float(np.sum(v @ up)) >= 0 else -1.0
         v = v / (scale * sign)
         s = s * scale * sign
         s = s - np.nanmean(s[ref_sel])
-    else:
-        notes.append("no breathing found in the markers: the respiratory signal is flat")
-        s = np.zeros_like(s)
+    br = find_breaths(t, s, valid, period)
+    cycles, phase, rate = br.cycles, br.phase, br.rate
+    figures = breathing_figures(br, period, timeline.duration_s, signal_noise(s, valid), breathes)
+    if figures.status == "none":
+        notes.append(f"breathing: {figures.why}: no respiratory signal, phase or respiratory subsets")
+        s = np.where(valid, 0.0, np.nan)
+        cycles, phase, rate = [], np.full(len(t), np.nan), np.full(len(t), np.nan)
     pose.resp = s
-    cycles, phase, rate = breath_cycles(t, s)
-    resp = Respiration(t, s, phase, rate, cycles, v)
+    resp = Respiration(t, s, phase, rate, cycles, v, figures)
     states = motion_states(pose, events, moving, known, state_mm=st.state_mm, state_deg=st.state_deg)
+    covered, bridged = cover_states(states, pose, moving, known, period, event_mm=st.event_mm,
+                                    event_deg=st.event_deg, bridge_s=st.bridge_s)
     return MotionResult(series, bands, S, ref, ref_period, pose, resp, events, states, speed, moving,
-                        still, thr, st, notes)
+                        still, thr, st, notes, timeline, covered, bridged)

@@ -45,10 +45,13 @@ def _fs(t) -> int:
 
 
 def find_bands(series, *, breath_mm: float = 0.25, moved_mm: float = 1.5, min_seen: float = 0.3,
-               band_gap_mm: float = 60.0) -> Bands:
+               band_gap_mm: float = 60.0, frames=None) -> Bands:
+    """``frames``: (F,) the rows that had frames (a marker is seen in a share of those: time
+    without frames is no marker's fault); None: every row."""
     t, P = series.t, series.P
     seen = series.seen
-    frac = seen.mean(axis=0)
+    rows = np.ones(len(t), bool) if frames is None else np.asarray(frames, bool)
+    frac = seen[rows].mean(axis=0) if rows.any() else np.zeros(P.shape[1])
     M = P.shape[1]
     rms = np.zeros(M)
     rng = np.zeros(M)

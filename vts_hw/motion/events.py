@@ -1,30 +1,34 @@
-"""Body-motion events and motion states from the body's pose.
+"""Body-motion events from the body's pose, with time without a pose kept unknown.
 
 * **Speed** (:func:`body_speed`): how fast the patient's markers move with the body (the
   largest speed of the reference markers carried by the pose; breathing is not in the pose),
-  from differences over ``half_window_s`` either side: no smoothing filter, so an event keeps
-  its start.
+  from the poses ``half_window_s`` either side -- the whole window within the stretch of seen
+  time the frame is in (holes of a few frames are stepped over; a gap is not): no smoothing
+  filter, so an event keeps its start, and no speed is made up across time without a pose, nor
+  from the frames at a gap's edge (NaN there).
 * **Events** (:func:`find_events`): runs of speed above ``hi`` (the larger of ``min_speed``
   and ``k_hi`` times the speed's robust noise), widened while the speed stays above ``lo``;
-  runs closer than ``merge_s`` joined; kept when the pose after differs from the pose before
-  (medians over ``settle_s``) by ``event_mm`` (any reference marker) or ``event_deg``.
-* **States** (:func:`motion_states`): intervals of similar pose. A state ends at an event whose
-  change from the state's pose is over ``state_mm`` (the markers' centroid) or ``state_deg``
-  (the boundary at the event's middle), or where the pose has drifted that far for
-  ``persist_s`` (a slow creep). Each state's pose: the median over its frames that are not
-  moving.
+  runs closer than ``merge_s``, or with only unknown time between them, joined; kept when the
+  pose after differs from the pose before (medians over ``settle_s``) by ``event_mm`` (any
+  reference marker) or ``event_deg``. A run that begins (ends) where the pose is unknown has
+  its start (end) **bounded**: the move began somewhere between the last pose seen still
+  before that stretch and the first seen moving after it (``start_bounds``), and the event
+  spans the whole bound. A pose that differs across a stretch without a pose, with no motion
+  seen on either side (its poses from frames not seen moving, at least 0.2 s each side), is an
+  event inside it: start and end bounded by the stretch.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from vts_hw.motion.signal import sample_rate
+from vts_hw.motion.timeline import MAX_HOLE_S, runs, seen_runs
 
-__all__ = ["MotionEvent", "MotionState", "body_speed", "find_events", "motion_states", "relative_six_dof"]
+__all__ = ["MotionEvent", "body_speed", "find_events", "relative_six_dof", "median_pose", "compare_poses"]
 
 
 @dataclass
@@ -35,32 +39,24 @@ class MotionEvent:
     shift_mm: float         # largest displacement of a reference marker
     angle_deg: float
     centre_mm: float        # displacement of the markers' centroid
+    start_bounds: tuple | None = None    # (earliest, latest) when the start fell in unknown time
+    end_bounds: tuple | None = None
 
     @property
     def t_mid(self) -> float:
         return 0.5 * (self.t_start + self.t_end)
 
-    def to_json(self) -> dict:
-        return {"t_start": self.t_start, "t_end": self.t_end, "duration_s": self.t_end - self.t_start,
+    @property
+    def start_known(self) -> str:
+        return "measured" if self.start_bounds is None else "bounded"
+
+    def to_json(self, t0: float = 0.0) -> dict:
+        b = lambda x: None if x is None else [float(x[0]) - t0, float(x[1]) - t0]  # noqa: E731
+        return {"t_start": self.t_start - t0, "t_end": self.t_end - t0, "duration_s": self.t_end - self.t_start,
+                "start": self.start_known, "start_bounds_s": b(self.start_bounds),
+                "end": "measured" if self.end_bounds is None else "bounded", "end_bounds_s": b(self.end_bounds),
                 "change_6dof": [float(x) for x in self.change], "max_marker_shift_mm": self.shift_mm,
                 "centroid_shift_mm": self.centre_mm, "rotation_deg": self.angle_deg}
-
-
-@dataclass
-class MotionState:
-    index: int
-    t_start: float
-    t_end: float
-    six_dof: list = field(default_factory=list)    # from the reference
-    R: np.ndarray | None = None
-    T: np.ndarray | None = None
-    frames: int = 0
-    moving_frames: int = 0
-
-    def to_json(self) -> dict:
-        return {"state": self.index, "t_start": self.t_start, "t_end": self.t_end,
-                "six_dof": [float(x) for x in self.six_dof], "frames": self.frames,
-                "moving_frames": self.moving_frames}
 
 
 def _mad_sigma(x):
@@ -70,19 +66,37 @@ def _mad_sigma(x):
     return float(1.4826 * np.median(np.abs(x - np.median(x))))
 
 
-def body_speed(pose, markers_ref, half_window_s: float = 0.2):
-    """(F,) mm/s: the largest speed of the reference markers carried by the pose."""
+def body_speed(pose, markers_ref, half_window_s: float = 0.2, min_span_s: float = 0.3):
+    """(F,) mm/s: the largest speed of the reference markers carried by the pose (see the
+    module); NaN without a pose, or where the window of ``half_window_s`` either side does not
+    lie in the frame's stretch of seen time (holes of a few frames are stepped over, as long as
+    ``min_span_s`` of it is left)."""
     t = pose.t
     X = pose.points(markers_ref)                       # (F, K, 3)
-    h = max(1, int(round(half_window_s * sample_rate(t))))
-    sp = np.full(len(t), np.nan)
-    if len(t) > 2 * h:
-        d = np.linalg.norm(X[2 * h:] - X[:-2 * h], axis=2).max(axis=1)
-        sp[h:-h] = d / (t[2 * h:] - t[:-2 * h])
+    valid = pose.valid
+    F = len(t)
+    sp = np.full(F, np.nan)
+    if F < 2 or not valid.any():
+        return sp
+    fs = sample_rate(t)
+    h = max(1, int(round(half_window_s * fs)))
+    idx = np.arange(F)
+    prev_ok = np.maximum.accumulate(np.where(valid, idx, -1))                  # last valid <= k
+    next_ok = np.minimum.accumulate(np.where(valid, idx, F)[::-1])[::-1]       # first valid >= k
+    for a, b in seen_runs(valid, 1.0 / fs, MAX_HOLE_S):
+        k = np.arange(a + h, b - h)          # the whole window inside the stretch: a frame at a
+        if k.size == 0:                       # gap's edge (its pose fitted from fewer markers,
+            continue                          # views not time-aligned) never makes a speed
+        lo = next_ok[k - h]
+        hi = prev_ok[k + h]
+        dt = t[hi] - t[lo]
+        good = valid[k] & (dt >= min_span_s)
+        d = np.linalg.norm(X[hi[good]] - X[lo[good]], axis=2).max(axis=1)
+        sp[k[good]] = d / dt[good]
     return sp
 
 
-def _median_pose(pose, sel):
+def median_pose(pose, sel):
     sel = sel & pose.valid
     if not sel.any():
         return None, None
@@ -98,13 +112,36 @@ def relative_six_dof(R0, T0, R1, T1):
     return np.concatenate([T, Rotation.from_matrix(R).as_euler("xyz", degrees=True)])
 
 
-def _compare(R0, T0, R1, T1, markers_ref, centre):
+def compare_poses(R0, T0, R1, T1, markers_ref, centre):
+    """(largest marker shift mm, centroid shift mm, turn deg) from pose 0 to pose 1."""
     X0 = markers_ref @ R0.T + T0
     X1 = markers_ref @ R1.T + T1
     shift = float(np.linalg.norm(X1 - X0, axis=1).max())
     c = float(np.linalg.norm((R1 @ centre + T1) - (R0 @ centre + T0)))
     ang = float(np.degrees(Rotation.from_matrix(R1 @ R0.T).magnitude()))
     return shift, c, ang
+
+
+def _known_before(sp, k):
+    """The last index before ``k`` with a known speed (-1: none)."""
+    j = np.flatnonzero(np.isfinite(sp[:k]))
+    return int(j[-1]) if j.size else -1
+
+
+def _known_after(sp, k):
+    j = np.flatnonzero(np.isfinite(sp[k:]))
+    return int(k + j[0]) if j.size else -1
+
+
+def _step_over_holes(sp, period):
+    """``sp`` with each run of unknown speed of at most MAX_HOLE_S between two known ones given
+    the larger of those two (the speed cannot drop and rise again unseen in a frame or two)."""
+    sp = sp.copy()
+    known = np.isfinite(sp)
+    for a, b in runs(~known):
+        if a > 0 and b < len(sp) and (b - a) * period <= MAX_HOLE_S + 1e-9:
+            sp[a:b] = max(sp[a - 1], sp[b])
+    return sp
 
 
 def find_events(pose, markers_ref, *, min_speed: float = 1.0, k_hi: float = 6.0, k_lo: float = 2.5,
@@ -117,92 +154,83 @@ def find_events(pose, markers_ref, *, min_speed: float = 1.0, k_hi: float = 6.0,
     med = float(np.nanmedian(sp)) if np.isfinite(sp).any() else 0.0
     hi = max(min_speed, med + k_hi * sigma)
     lo = max(0.4 * min_speed, med + k_lo * sigma)
+    F = len(t)
+    period = 1.0 / sample_rate(t)
+    measured = sp
+    sp = _step_over_holes(sp, period)             # a missing frame or two is no unknown time
+    known = np.isfinite(sp)
     above = np.nan_to_num(sp, nan=0.0) > hi
-    runs = []
-    for a, b in _runs(above):
+    spans = []
+    for a, b in runs(above):
         while a > 0 and np.nan_to_num(sp[a - 1]) > lo:
             a -= 1
         while b < len(t) and np.nan_to_num(sp[b]) > lo:
             b += 1
-        if runs and t[a] - t[runs[-1][1] - 1] < merge_s:
-            runs[-1] = (runs[-1][0], max(b, runs[-1][1]))
+        if spans and (t[a] - t[spans[-1][1] - 1] < merge_s or not known[spans[-1][1]:a].any()):
+            spans[-1] = (spans[-1][0], max(b, spans[-1][1]))
         else:
-            runs.append((a, b))
+            spans.append((a, b))
     events = []
-    moving = np.zeros(len(t), bool)
+    moving = np.zeros(F, bool)
     centre = pose.centre
-    for a, b in runs:
-        ta, tb = float(t[a]), float(t[b - 1])
-        if tb - ta < min_duration_s:
-            continue
-        before = (t >= ta - settle_s) & (t < ta)
-        after = (t > tb) & (t <= tb + settle_s)
-        R0, T0 = _median_pose(pose, before)
-        R1, T1 = _median_pose(pose, after)
+
+    def judge(i0, i1, ta, tb, start_b=None, end_b=None, jump=False):
+        """An event from ``ta`` to ``tb`` when the pose up to row ``i0`` (medians over settle_s)
+        and from row ``i1`` differ by event_mm or event_deg."""
+        before = (t >= t[i0] - settle_s) & (t <= t[i0])
+        after = (t >= t[i1]) & (t <= t[i1] + settle_s)
+        if jump:                                   # no frame seen moving on either side (a stretch
+            still = ~(np.nan_to_num(sp) > lo) & ~moving   # too short for a speed counts)
+            before, after = before & still & pose.valid, after & still & pose.valid
+            if min(before.sum(), after.sum()) * period < 0.2:
+                return None
+        R0, T0 = median_pose(pose, before)
+        R1, T1 = median_pose(pose, after)
         if R0 is None or R1 is None:
+            return None
+        shift, c, ang = compare_poses(R0, T0, R1, T1, markers_ref, centre)
+        kept = shift >= event_mm or ang >= event_deg
+        if kept or not jump:
+            moving[(t >= ta) & (t <= tb)] = True
+        if kept:
+            if start_b is not None and start_b[1] > tb:
+                start_b = (start_b[0], tb)         # a move starts before it ends
+            return MotionEvent(ta, tb, relative_six_dof(R0, T0, R1, T1).tolist(), shift, ang, c, start_b, end_b)
+        return None
+
+    # a frame's speed spans +-half_window_s: a move may have begun that much before the last frame
+    # seen still, and the first frame seen moving may be that much early: bounds are widened so
+    h = half_window_s
+    touched = np.zeros(F, bool)
+    for a, b in spans:
+        if a == 0 or b == F:
+            continue                               # no pose before (after) it to compare with
+        start_b = end_b = None
+        i0, i1 = a - 1, b
+        if not known[a - 1]:                       # it began in time without a pose
+            i0 = _known_before(sp, a)
+            if i0 < 0:
+                continue
+            start_b = (float(t[i0]) - h, float(t[a]) + h)
+        if not known[b]:                           # it ended in time without a pose
+            i1 = _known_after(sp, b)
+            if i1 < 0:
+                continue
+            end_b = (float(t[b - 1]) - h, float(t[i1]) + h)
+        touched[i0:i1 + 1] = True
+        if t[b - 1] - t[a] < min_duration_s and start_b is None and end_b is None:
             continue
-        shift, c, ang = _compare(R0, T0, R1, T1, markers_ref, centre)
-        moving[a:b] = True
-        if shift >= event_mm or ang >= event_deg:
-            events.append(MotionEvent(ta, tb, relative_six_dof(R0, T0, R1, T1).tolist(), shift, ang, c))
-    return events, sp, moving, {"hi_mm_s": hi, "lo_mm_s": lo, "noise_mm_s": sigma}
-
-
-def _runs(mask):
-    m = np.concatenate([[False], np.asarray(mask, bool), [False]])
-    d = np.diff(m.astype(int))
-    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
-
-
-def motion_states(pose, events, moving, markers_ref, *, state_mm: float = 2.0, state_deg: float = 1.0,
-                  persist_s: float = 1.0, settle_s: float = 1.0):
-    """The motion states (see the module), in time order, covering every frame."""
-    t = pose.t
-    valid = pose.valid
-    centre = pose.centre
-    C = pose.points(centre[None])[:, 0]                      # (F, 3) the centroid carried
-    ang_ref = lambda R0, k: np.degrees(Rotation.from_matrix(pose.R[k] @ R0.T).magnitude())  # noqa: E731
-    bounds = [float(t[0])]
-    ref_R, ref_T = _median_pose(pose, (t <= t[0] + settle_s) & ~moving)
-    if ref_R is None:
-        ref_R, ref_T = np.eye(3), np.zeros(3)
-    ev_iter = iter(sorted(events, key=lambda e: e.t_start))
-    ev = next(ev_iter, None)
-    fs = sample_rate(t)
-    n_persist = max(1, int(round(persist_s * fs)))
-    over = 0
-    k = 0
-    while k < len(t):
-        if ev is not None and t[k] >= ev.t_start:
-            after = (t > ev.t_end) & (t <= ev.t_end + settle_s) & ~moving
-            R1, T1 = _median_pose(pose, after)
-            if R1 is not None:
-                _, c, ang = _compare(ref_R, ref_T, R1, T1, markers_ref, centre)
-                if c > state_mm or ang > state_deg:
-                    bounds.append(ev.t_mid)
-                    ref_R, ref_T = R1, T1
-            k = int(np.searchsorted(t, ev.t_end, side="right"))
-            ev = next(ev_iter, None)
-            over = 0
-            continue
-        if valid[k] and not moving[k]:
-            c = float(np.linalg.norm(C[k] - (ref_R @ centre + ref_T)))
-            far = c > state_mm or ang_ref(ref_R, k) > state_deg
-            over = over + 1 if far else 0
-            if over >= n_persist:
-                k0 = k - n_persist + 1
-                bounds.append(float(t[k0]))
-                R1, T1 = _median_pose(pose, (t >= t[k0]) & (t <= t[k0] + settle_s) & ~moving)
-                ref_R, ref_T = (R1, T1) if R1 is not None else (pose.R[k], pose.T[k])
-                over = 0
-        k += 1
-    bounds.append(float(t[-1]) + 0.5 / fs)
-    states = []
-    for i, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
-        sel = (t >= a) & (t < b)
-        R, T = _median_pose(pose, sel & ~moving)
-        if R is None:
-            R, T = _median_pose(pose, sel)
-        six = relative_six_dof(np.eye(3), np.zeros(3), R, T).tolist() if R is not None else [float("nan")] * 6
-        states.append(MotionState(i, a, b, six, R, T, int(sel.sum()), int((sel & moving).sum())))
-    return states
+        e = judge(i0, i1, start_b[0] if start_b else float(t[a]), end_b[1] if end_b else float(t[b - 1]),
+                  start_b, end_b)
+        if e is not None:
+            events.append(e)
+    # a pose that changed across time without a pose, with no motion seen at its edges
+    for a, b in runs(~pose.valid):
+        if a == 0 or b == F or (b - a) * period <= MAX_HOLE_S + 1e-9 or touched[a - 1:b + 1].any():
+            continue                               # (a move takes longer than a hole of a few frames)
+        bound = (float(t[a - 1]) - h, float(t[b]) + h)
+        e = judge(a - 1, b, bound[0], bound[1], bound, bound, jump=True)
+        if e is not None:
+            events.append(e)
+    events.sort(key=lambda e: e.t_start)
+    return events, measured, moving, {"hi_mm_s": hi, "lo_mm_s": lo, "noise_mm_s": sigma}

@@ -28,6 +28,7 @@ from vts_hw.motion.castor import CASTOR_DYNAMIC, CASTOR_RIGID, plan_castor, writ
 from vts_hw.spect.frame import frame_description
 
 __all__ = ["export_motion", "ExportedFiles", "time_origin", "clock_text", "respiratory_bins", "state_of_frames",
+           "frame_quality", "unknown_intervals", "coverage_json",
            "SIXDOF_CSV", "SIXDOF_JSON", "RESP_CSV", "SUBSETS_JSON", "MOTION_FORMAT"]
 
 SIXDOF_CSV, SIXDOF_JSON = "motion_6dof.csv", "motion_6dof.json"
@@ -58,11 +59,43 @@ def clock_text(result) -> str:
 
 
 def state_of_frames(result) -> np.ndarray:
+    """(F,) per row the motion state that covers it, -1 where none does (time without a pose
+    that no state may claim: docs/motion-formats.md)."""
     t = result.pose.t
     out = np.full(len(t), -1)
     for s in result.states:
         out[(t >= s.t_start) & (t < s.t_end)] = s.index
+    if result.covered is not None:
+        out[~result.covered] = -1
     return out
+
+
+def frame_quality(result) -> np.ndarray:
+    """(F,) ``no frames`` (no frame set recorded), ``no pose`` (fewer than 3 markers),
+    ``moving`` (inside a body-motion event) or ``ok``."""
+    pose = result.pose
+    frames = result.timeline.frames if result.timeline is not None else np.ones(len(pose.t), bool)
+    return np.where(~frames, "no frames", np.where(~pose.valid, "no pose", np.where(result.moving, "moving", "ok")))
+
+
+def unknown_intervals(result, t0: float = 0.0) -> list[dict]:
+    """The stretches without a pose that no state covers: ``interval_s``, ``seconds``, ``why``."""
+    covered = result.covered if result.covered is not None else result.pose.valid
+    out = []
+    for u in result.unknown:
+        a, b = u["rows"]
+        if covered[a:b].all():
+            continue
+        out.append({"interval_s": [u["t_start"] - t0, u["t_end"] - t0], "seconds": u["seconds"], "why": u["why"]})
+    return out
+
+
+def coverage_json(result, t0: float = 0.0) -> dict:
+    """The scan's time: duration, pose known, without frames, with fewer than 3 markers, what
+    the recording lacks, the stretches no state covers and those bridged."""
+    return {**result.coverage, "missing": list(result.timeline.missing),
+            "unknown_s": unknown_intervals(result, t0),
+            "bridged_s": [[a - t0, b - t0] for a, b in result.bridged]}
 
 
 def _intervals(t, mask, t0, dt):
@@ -73,9 +106,14 @@ def _intervals(t, mask, t0, dt):
 
 
 def respiratory_bins(result, n_bins: int = 4, t0: float = 0.0) -> dict:
-    """Intervals per respiratory bin by amplitude and by phase (still frames with a pose)."""
+    """Intervals per respiratory bin by amplitude (still frames with a pose) and by phase (still
+    frames inside breaths seen whole). None of either when no breathing was found: bins made
+    from noise would split the counts at random."""
     t = result.pose.t
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.04
+    fig = result.respiration.figures
+    if fig is not None and fig.status == "none":
+        return {"status": "none", "why": fig.why, "amplitude": [], "phase": []}
     a = result.respiration.amplitude
     ph = result.respiration.phase
     use = result.pose.valid & ~result.moving & np.isfinite(a)
@@ -91,7 +129,10 @@ def respiratory_bins(result, n_bins: int = 4, t0: float = 0.0) -> dict:
         lo, hi = k / n_bins, (k + 1) / n_bins
         sel = use & np.isfinite(ph) & (ph >= lo) & (ph < hi)
         phase.append({"bin": k, "phase": [lo, hi], "frames": int(sel.sum()), "intervals": _intervals(t, sel, t0, dt)})
-    return {"amplitude": amp, "phase": phase}
+    out = {"status": fig.status if fig is not None else "measured", "amplitude": amp, "phase": phase}
+    if not any(b["frames"] for b in phase):
+        out["phase_note"] = "no breath was seen whole: no phase, no phase bins"
+    return out
 
 
 def _remove_stale_castor(out: Path) -> str:
@@ -126,9 +167,9 @@ def export_motion(result, out, *, n_bins: int = 4, extra: dict | None = None,
     six = pose.six_dof()
     q = pose.quaternions()
     state = state_of_frames(result)
-    moving = result.moving
     n = pose.n_markers
-    quality = np.where(~pose.valid, "no pose", np.where(moving, "moving", "ok"))
+    quality = frame_quality(result)
+    st_txt = lambda k: "" if state[k] < 0 else str(int(state[k]))  # noqa: E731
     frame = frame_description(result.series.frame, volume)
     cols = ["time_s", "tx_mm", "ty_mm", "tz_mm", "rx_deg", "ry_deg", "rz_deg", "qx", "qy", "qz", "qw",
             "state", "markers", "fit_rms_mm", "quality"]
@@ -136,7 +177,7 @@ def export_motion(result, out, *, n_bins: int = 4, extra: dict | None = None,
     lines = [",".join(cols)]
     for k in range(len(t)):
         lines.append(",".join([f"{t[k]:.4f}"] + [f(x, 4) for x in six[k]] + [f(x, 7) for x in q[k]]
-                              + [str(int(state[k])), str(int(n[k])), f(pose.rms_mm[k], 4), str(quality[k])]))
+                              + [st_txt(k), str(int(n[k])), f(pose.rms_mm[k], 4), str(quality[k])]))
     p_csv = out / SIXDOF_CSV
     write_atomic(p_csv, "\n".join(lines) + "\n")
     nan = lambda a: [None if not np.isfinite(x) else round(float(x), 6) for x in a]  # noqa: E731
@@ -144,27 +185,40 @@ def export_motion(result, out, *, n_bins: int = 4, extra: dict | None = None,
             "transform": "reference pose -> pose at t, x -> R x + t (breathing excluded); rotations deg, "
                          "extrinsic x-y-z (scipy 'xyz'); quaternion x, y, z, w",
             "reference_period_s": [result.reference_period[0] - t0, result.reference_period[1] - t0],
-            "states": [{**s.to_json(), "t_start": s.t_start - t0, "t_end": s.t_end - t0} for s in result.states],
-            "events": [{**e.to_json(), "t_start": e.t_start - t0, "t_end": e.t_end - t0} for e in result.events],
+            "coverage": coverage_json(result, t0),
+            "states": [s.to_json(t0) for s in result.states],
+            "events": [e.to_json(t0) for e in result.events],
             "castor": castor.to_json(castor_files), **(extra or {})}
     doc = {**meta, "columns": {"time_s": nan(t), "tx_mm": nan(six[:, 0]), "ty_mm": nan(six[:, 1]),
                                "tz_mm": nan(six[:, 2]), "rx_deg": nan(six[:, 3]), "ry_deg": nan(six[:, 4]),
                                "rz_deg": nan(six[:, 5]), "qx": nan(q[:, 0]), "qy": nan(q[:, 1]),
-                               "qz": nan(q[:, 2]), "qw": nan(q[:, 3]), "state": state.tolist(),
+                               "qz": nan(q[:, 2]), "qw": nan(q[:, 3]),
+                               "state": [None if x < 0 else int(x) for x in state],
                                "markers": n.tolist(), "fit_rms_mm": nan(pose.rms_mm),
                                "quality": quality.tolist()}}
     p_json = write_json_atomic(out / SIXDOF_JSON, doc, indent=None)
     r = result.respiration
-    rl = ["time_s,amplitude_mm,phase,rate_per_min"]
+    cyc = np.full(len(t), -1)
+    for i, c in enumerate(r.cycles):
+        cyc[(pose.t >= c.t_start) & (pose.t < c.t_end)] = i
+    rl = ["time_s,amplitude_mm,phase,rate_per_min,cycle,quality"]
     for k in range(len(t)):
-        rl.append(f"{t[k]:.4f},{f(r.amplitude[k], 4)},{f(r.phase[k], 4)},{f(r.rate[k], 3)}")
+        rl.append(f"{t[k]:.4f},{f(r.amplitude[k], 4)},{f(r.phase[k], 4)},{f(r.rate[k], 3)},"
+                  f"{'' if cyc[k] < 0 else cyc[k]},{quality[k]}")
     p_resp = out / RESP_CSV
     write_atomic(p_resp, "\n".join(rl) + "\n")
     subsets = {"format": MOTION_FORMAT, "clock": clock, "time_origin": t0, "frame": frame,
                "motion_states": [{"state": s.index, "interval_s": [s.t_start - t0, s.t_end - t0],
-                                  "six_dof": s.six_dof} for s in result.states],
+                                  "intervals_s": [[a - t0, b - t0] for a, b in s.intervals],
+                                  "unknown_s": s.unknown_s, "six_dof": s.six_dof} for s in result.states],
+               "unknown_s": unknown_intervals(result, t0),
+               "coverage": {k: v for k, v in coverage_json(result, t0).items() if k != "unknown_s"},
+               "breathing": result.respiration.figures.to_json() if result.respiration.figures else None,
                "respiratory_bins": respiratory_bins(result, n_bins, t0),
-               "note": "intervals [start, end) s; respiratory bins hold still frames with a pose only"}
+               "note": "intervals [start, end) s. A state's interval_s is its span; it covers only its intervals_s "
+                       "(time without a pose is in no state unless bridged: docs/motion-formats.md). "
+                       "Respiratory bins hold still frames with a pose only, phase bins only frames inside "
+                       "breaths seen whole"}
     p_sub = write_json_atomic(out / SUBSETS_JSON, subsets)
     paths = [p_csv, Path(p_json), p_resp, Path(p_sub)]
     if castor.why is not None:

@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from vts_hw.errors import DataError
 
@@ -22,6 +23,10 @@ __all__ = ["MarkerSeries", "marker_series", "join_pieces"]
 
 JOIN_MM = 25.0        # pieces of one marker meet within this across a gap
 JOIN_GAP_S = 10.0     # ... and follow one another within this
+COHORT_S = 0.5        # pieces starting this close together after a gap are matched as one body
+COHORT_GAP_S = 600.0  # ... after a gap of up to this (a rigid match of 3 or more does not happen by chance)
+RIGID_GATE_MM = 12.0  # ... each within this of its marker after the body's rigid motion (breathing
+                      # changes the band's shape by a few mm between two breath levels)
 
 
 @dataclass
@@ -64,23 +69,95 @@ class MarkerSeries:
         return f"marker {self.number(m)}" + (f" ({n} track pieces)" if n > 1 else "")
 
 
+def _kabsch(A, B):
+    """R, T taking points A (n, 3) onto B (n, 3) in the least-squares sense."""
+    ca, cb = A.mean(axis=0), B.mean(axis=0)
+    U, _, Vt = np.linalg.svd((A - ca).T @ (B - cb))
+    d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
+    R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+    return R, cb - R @ ca
+
+
+def rigid_match(starts, ends, gate_mm: float = RIGID_GATE_MM, start_gate_mm: float = 2 * RIGID_GATE_MM):
+    """Pairs ``(i, a)`` of pieces starting at ``starts[i]`` and markers last seen at ``ends[a]``
+    that one rigid motion of the body explains (the body moved while none was seen): every
+    pairing of one start with one end proposes a translation; the one that brings most starts
+    within ``start_gate_mm`` of an end wins; then the assignment (Hungarian) and a rigid fit of
+    the pairs, twice, the gate shrinking to ``gate_mm``. Fewer than 3 pairs: none (two points
+    do not show a rigid motion)."""
+    S, E = np.asarray(starts, float), np.asarray(ends, float)
+    if len(S) < 3 or len(E) < 3:
+        return []
+    best, best_key = None, (0, np.inf)
+    for i in range(len(S)):
+        for a in range(len(E)):
+            D = np.linalg.norm(S[:, None] + (E[a] - S[i]) - E[None], axis=2)
+            m = D.min(axis=1)
+            key = (int((m < start_gate_mm).sum()), float(np.sum(np.minimum(m, start_gate_mm))))
+            if key[0] > best_key[0] or (key[0] == best_key[0] and key[1] < best_key[1]):
+                best, best_key = E[a] - S[i], key
+    moved = S + best
+    pairs = []
+    for gate in (start_gate_mm, gate_mm, gate_mm):
+        D = np.linalg.norm(moved[:, None] - E[None], axis=2)
+        r, c = linear_sum_assignment(np.minimum(D, 1e6))
+        pairs = [(int(i), int(a)) for i, a in zip(r, c) if D[i, a] < gate]
+        if len(pairs) < 3:
+            return []
+        R, T = _kabsch(S[[i for i, _ in pairs]], E[[a for _, a in pairs]])
+        moved = S @ R.T + T
+    return pairs
+
+
 def join_pieces(first, last, start_xyz, end_xyz, ids, join_mm=JOIN_MM, gap_s=JOIN_GAP_S) -> list[list]:
-    """Group track pieces into physical markers: a piece joins the chain whose end it follows
-    in time (within ``gap_s``) and meets nearest (within ``join_mm``)."""
-    order = np.argsort(first, kind="stable")
+    """Group track pieces into physical markers, in time order. Pieces that start together
+    (within :data:`COHORT_S`) after markers were lost together -- a gap in the recording --
+    join those markers as one rigid body (:func:`rigid_match`; then the pieces left, as another:
+    a band that breathed between the two sides of the gap), after a gap of up to
+    :data:`COHORT_GAP_S`: the patient may have moved in the gap by more than ``join_mm``. Any
+    other piece joins the chain whose end it follows in
+    time (within ``gap_s``) and meets nearest (within ``join_mm``)."""
+    order = list(np.argsort(first, kind="stable"))
     chains: list[dict] = []
-    for k in order:
-        best, best_d = None, join_mm
-        for c in chains:
-            if c["last"] < first[k] <= c["last"] + gap_s:
+
+    def open_chains(t, within=gap_s):
+        return [c for c in chains if c["last"] < t <= c["last"] + within]
+
+    def extend(c, k):
+        c["ids"].append(ids[k])
+        c["last"], c["end"] = last[k], end_xyz[k]
+
+    j = 0
+    while j < len(order):
+        cohort = [k for k in order[j:] if first[k] <= first[order[j]] + COHORT_S]
+        j += len(cohort)
+        cands = [c for c in open_chains(first[cohort[0]], COHORT_GAP_S) if c["last"] < min(first[k] for k in cohort)]
+        taken = set()
+        # one rigid body, then what is left (the abdomen's band, say: breathing moves it up to
+        # ~25 mm between two breath levels, more than the gate, but it moves as a whole)
+        for _ in range(3):
+            left = [k for k in cohort if k not in taken]
+            if len(left) < 3 or len(cands) < 3:
+                break
+            pairs = rigid_match(start_xyz[left], np.array([c["end"] for c in cands]))
+            if not pairs:
+                break
+            for i, a in pairs:
+                extend(cands[a], left[i])
+                taken.add(left[i])
+            cands = [c for j, c in enumerate(cands) if j not in {a for _, a in pairs}]
+        for k in cohort:
+            if k in taken:
+                continue
+            best, best_d = None, join_mm
+            for c in open_chains(first[k]):
                 d = float(np.linalg.norm(c["end"] - start_xyz[k]))
                 if d <= best_d:
                     best, best_d = c, d
-        if best is None:
-            chains.append({"ids": [ids[k]], "last": last[k], "end": end_xyz[k]})
-        else:
-            best["ids"].append(ids[k])
-            best["last"], best["end"] = last[k], end_xyz[k]
+            if best is None:
+                chains.append({"ids": [ids[k]], "last": last[k], "end": end_xyz[k]})
+            else:
+                extend(best, k)
     return [c["ids"] for c in chains]
 
 

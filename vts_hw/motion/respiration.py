@@ -7,9 +7,8 @@
 * :func:`breathing_vectors` — per marker, the displacement per unit of the signal, regressed
   over still periods only (each period detrended on its own: a body move or a slow creep does
   not leak in; a high-pass filter would ring for seconds after every move).
-* :func:`breath_cycles` — cycles from the signal: each starts at an end-of-exhalation trough
-  and ends at the next; amplitude (peak - trough), rate (60 / period); phase 0-1 from the start
-  of inhalation, linear in time within a cycle (NaN outside any cycle).
+* :class:`Respiration` — the signal, phase and rate per frame, the breaths seen whole and
+  the figures resting on them (the cycles' rules: :mod:`.cycles`).
 """
 
 from __future__ import annotations
@@ -17,11 +16,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import find_peaks
 
+from vts_hw.motion.cycles import BreathingFigures
 from vts_hw.motion.signal import bandpass, fill_gaps, sample_rate
 
-__all__ = ["principal_signal", "breathing_vectors", "Respiration", "breath_cycles", "Cycle"]
+__all__ = ["principal_signal", "breathing_vectors", "Respiration"]
 
 
 def principal_signal(t, D, lo=0.08, hi=1.0):
@@ -76,27 +75,13 @@ def _runs(mask):
 
 
 @dataclass
-class Cycle:
-    t_start: float
-    t_peak: float
-    t_end: float
-    amplitude: float
-
-    @property
-    def period_s(self) -> float:
-        return self.t_end - self.t_start
-
-    @property
-    def rate_per_min(self) -> float:
-        return 60.0 / self.period_s
-
-
-@dataclass
 class Respiration:
     """``amplitude`` (F,) mm of the marker that breathes most (0 at the reference's mean
-    breath, positive = inhaled); ``phase`` (F,) 0-1 from the start of inhalation; ``rate``
-    (F,) breaths/min of the cycle under way; ``cycles``; ``vectors`` (M, 3) mm of each marker
-    per mm of ``amplitude``."""
+    breath, positive = inhaled; NaN without a pose, 0 where no breathing was found); ``phase``
+    (F,) 0-1 from the start of inhalation and ``rate`` (F,) breaths/min, inside whole breaths
+    only; ``cycles`` the breaths seen whole; ``vectors`` (M, 3) mm of each marker per mm of
+    ``amplitude``; ``figures``: status, rate, amplitude and what they rest on
+    (:class:`~vts_hw.motion.cycles.BreathingFigures`)."""
 
     t: np.ndarray
     amplitude: np.ndarray
@@ -104,37 +89,10 @@ class Respiration:
     rate: np.ndarray
     cycles: list
     vectors: np.ndarray
+    figures: BreathingFigures | None = None
 
     @property
     def mean_rate_per_min(self) -> float | None:
-        return float(np.median([c.rate_per_min for c in self.cycles])) if self.cycles else None
-
-
-def breath_cycles(t, a, min_period_s: float = 1.5, max_period_s: float = 12.0):
-    """(cycles, phase, rate) of the signal ``a`` (see the module)."""
-    t = np.asarray(t, float)
-    F = len(t)
-    phase = np.full(F, np.nan)
-    rate = np.full(F, np.nan)
-    ok = np.isfinite(a)
-    if ok.sum() < 20:
-        return [], phase, rate
-    fs = sample_rate(t)
-    x = bandpass(t, np.where(ok, a, np.nan)[:, None], 0.05, 1.2)[:, 0]
-    amp = np.percentile(x[ok], 95) - np.percentile(x[ok], 5)
-    prom = 0.3 * amp
-    dist = max(1, int(min_period_s * fs * 0.6))
-    troughs, _ = find_peaks(-x, prominence=prom, distance=dist)
-    peaks, _ = find_peaks(x, prominence=prom, distance=dist)
-    cycles = []
-    for i0, i1 in zip(troughs[:-1], troughs[1:]):
-        per = t[i1] - t[i0]
-        inside = peaks[(peaks > i0) & (peaks < i1)]
-        if not (min_period_s <= per <= max_period_s) or inside.size == 0:
-            continue
-        k = inside[np.argmax(x[inside])]
-        c = Cycle(float(t[i0]), float(t[k]), float(t[i1]), float(x[k] - 0.5 * (x[i0] + x[i1])))
-        cycles.append(c)
-        phase[i0:i1] = (t[i0:i1] - t[i0]) / per
-        rate[i0:i1] = 60.0 / per
-    return cycles, phase, rate
+        """The rate when it is known (measured or bounded), else None."""
+        f = self.figures
+        return f.rate_per_min if f is not None and f.status in ("measured", "bounded") else None

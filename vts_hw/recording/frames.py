@@ -10,7 +10,7 @@ two cameras' frames by mapped time and :func:`group_frames` does it for any numb
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +27,9 @@ __all__ = ["CameraFrames", "load_camera_frames", "mapped_times", "pair_frames", 
 class CameraFrames:
     """One camera's indexed frames as arrays (frames past the end of the ``.mjpeg`` dropped).
 
-    ``camera_time`` NaN where a frame had no stamp; ``host_time`` is the *receive* time."""
+    ``camera_time`` NaN where a frame had no stamp; ``host_time`` is the *receive* time.
+    ``beyond_camera_time``/``beyond_host_time``: the stamps and receive times of the indexed
+    frames whose bytes are not in the ``.mjpeg`` (cut short): time the recording should hold."""
 
     name: str
     mjpeg: Path
@@ -37,6 +39,8 @@ class CameraFrames:
     camera_time: np.ndarray
     host_time: np.ndarray
     beyond_end: int = 0
+    beyond_camera_time: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    beyond_host_time: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 def load_camera_frames(folder: Path, name: str) -> CameraFrames:
@@ -51,9 +55,11 @@ def load_camera_frames(folder: Path, name: str) -> CameraFrames:
                      nan if r.host_time is None else r.host_time) for r in rows],
                    float).reshape(-1, 5)
     inside = arr[:, 1] + arr[:, 2] <= size
+    out = arr[~inside]
     arr = arr[inside]
     return CameraFrames(name, mj, arr[:, 0].astype(np.int64), arr[:, 1].astype(np.int64),
-                        arr[:, 2].astype(np.int64), arr[:, 3], arr[:, 4], int((~inside).sum()))
+                        arr[:, 2].astype(np.int64), arr[:, 3], arr[:, 4], int((~inside).sum()),
+                        out[:, 3], out[:, 4])
 
 
 def mapped_times(cf: CameraFrames, latency_s: float):

@@ -48,6 +48,7 @@ import numpy as np
 from vts_hw.errors import DataError
 from vts_hw.recording import chunks
 from vts_hw.recording.chunks import triangulate_fast
+from vts_hw.recording.extent import available_cameras, recording_extent
 from vts_hw.recording.folder import load_manifest
 from vts_hw.recording.frames import (CameraFrames, frame_period, group_frames, load_camera_frames,
                                      mapped_times, pair_frames)
@@ -104,11 +105,6 @@ def cameras_from_calibration(calib, names=("cam1", "cam2")) -> dict[str, Camera]
     return named_cameras(calib, list(names))
 
 
-def _manifest_cameras(folder: Path) -> list[str]:
-    m = load_manifest(folder, missing_ok=True)  # a bad manifest is a DataError naming it
-    names = list(m.get("cameras", {})) if m is not None else []
-    found = sorted(p.name[: -len(".index.csv")] for p in folder.glob("*.index.csv"))
-    return [n for n in names if n in found] + [n for n in found if n not in names]
 
 
 # ------------------------------------------------------------------ entry point
@@ -133,12 +129,14 @@ def process_recording(folder, cameras, workers: int | None = None, mapping=None,
     folder = Path(folder)
     if not folder.is_dir():
         raise DataError(f"{folder}: not a recording folder")
-    available = _manifest_cameras(folder)
+    manifest = load_manifest(folder, missing_ok=True)  # a bad manifest is a DataError naming it
+    available, missing = available_cameras(folder, manifest)
     cams = named_cameras(cameras, available)
     names = [n for n in cams if n in available]
     if len(names) < 2:
+        lacks = "".join(f"; {why}" for why in missing.values())
         raise DataError(f"{folder}: the recording has cameras {', '.join(available) or 'none'}, "
-                        f"but calibrated cameras are {', '.join(cams)}: two must be in both")
+                        f"but calibrated cameras are {', '.join(cams)}: two must be in both{lacks}")
     frames = [load_camera_frames(folder, n) for n in names]
     times, fits, warnings = [], {}, []
     for cf in frames:
@@ -152,6 +150,8 @@ def process_recording(folder, cameras, workers: int | None = None, mapping=None,
         times.append(t)
         fits[cf.name] = fit
     period = frame_period(times[0])
+    extent = recording_extent(folder, manifest, frames, times, fits, missing, period)
+    warnings += extent["problems"]
     sets = group_frames(times, s.pair_fraction * period)
     n_sets = len(sets)
     workers = max(1, int(workers or os.cpu_count() or 1))
@@ -185,8 +185,10 @@ def process_recording(folder, cameras, workers: int | None = None, mapping=None,
                 done += int(res[5].shape[0])
                 if progress:
                     progress(done, n_sets)
-    return _assemble(folder, names, frames, times, fits, sets, results, s, mapping,
-                     host_to_spect, period, cams, warnings)
+    tracks = _assemble(folder, names, frames, times, fits, sets, results, s, mapping,
+                       host_to_spect, period, cams, warnings)
+    tracks.meta["extent"] = extent
+    return tracks
 
 
 def _pool_context():

@@ -53,7 +53,7 @@ SPECS = (
           Figure("calibration_converged", "converged", "g", subject="set"))),
     Spec("motion", "Motion analyses (patient scans)", ("motion",),
          (Figure("motion_body_max_mm", "max shift mm", ".2f"), Figure("motion_body_max_deg", "max turn °", ".2f"),
-          Figure("motion_pose_coverage", "pose coverage", ".3f")), room_check=False),
+          Figure("motion_pose_coverage", "pose known (share of time)", ".3f")), room_check=False),
 )
 
 LABELS = {"sync": "sync check", "spect_mapping": "SPECT mapping", "calibration": "stereo calibration",
