@@ -171,6 +171,9 @@ class StreamWriter:
         faults, clock, cam = self.cam.faults, self.cam.clock, self.cam
         start = clock.now()
         g = math.ceil(start / self.period)
+        starting = getattr(cam.source, "stream_starting", None)
+        if starting is not None:          # frames made ahead of time start playing (frame_bank.py)
+            starting(g * self.period)
         stalled = False
         k = 0
         while not self.nbr or k < self.nbr:

@@ -93,6 +93,8 @@ class SimRig:
                         for name, src in self.sources.items()}
         for name, srv in self.servers.items():     # each camera's shutter time, from its model profile
             self.renderer.exposure[name] = srv.profile.exposure_ms / 1000.0
+        self.bank = None        # frames made ahead of time (prerender)
+        self._on_play: list = []
         self._started = False
 
     # -- life cycle --------------------------------------------------------------------
@@ -124,6 +126,31 @@ class SimRig:
 
     def __exit__(self, *exc) -> None:
         self.stop()
+
+    def prerender(self, seconds: float, *, quality: int | None = None, progress=None):
+        """Make ``seconds`` of every camera's frames ahead of time (sim_devices/frame_bank.py):
+        they start playing at the first stream opened after this, and the patient's plan (its
+        breathing, its moves) is moved in time to that instant; until then, and after the
+        stretch, frames are rendered when their time comes. Streams served from it stay whole
+        however busy the machine is. Returns what rendering cost (``BankStats``);
+        ``self.bank`` is the bank. ``quality``: the JPEG quality the streams will ask
+        (default: 100 - the compression the cameras' config gives)."""
+        from vts_hw.sim_devices.frame_bank import DEFAULT_QUALITY, FrameBank
+
+        bank = FrameBank(self.scene, self.renderer, self.fps, DEFAULT_QUALITY if quality is None else quality)
+        stats = bank.render(seconds, start=self.clock.now(), progress=progress)
+        bank.on_play.extend(self._on_play)
+        self.bank = bank
+        for src in self.sources.values():
+            src.bank = bank
+        return stats
+
+    def on_play(self, hook) -> None:
+        """``hook(dt)`` runs when frames made ahead start playing (the patient moved ``dt`` s
+        later), from the stream's thread: it must return at once."""
+        self._on_play.append(hook)
+        if self.bank is not None:
+            self.bank.on_play.append(hook)
 
     def ntp_sync(self, at: float | None = None) -> None:
         """The cameras' NTP sync: each clock keeps its residual offset, and its skew starts
