@@ -35,7 +35,7 @@ from typing import Callable
 from vts_hw.sim_devices.render import Renderer
 from vts_hw.sim_devices.scene import Scene
 
-__all__ = ["FrameBank", "BankStats", "DEFAULT_QUALITY"]
+__all__ = ["FrameBank", "BankStats", "DEFAULT_QUALITY", "make_ahead"]
 
 DEFAULT_QUALITY = 75        # JPEG quality of a stream at the driver's default compression (25)
 
@@ -86,6 +86,7 @@ class FrameBank:
         self.stats: BankStats | None = None
         self.served = 0
         self.missed: dict[str, int] = {}                # why frames were rendered live instead
+        self._misses: list[tuple[float, str]] = []      # (grid time, why) of each
         self.on_play: list[Callable[[float], None]] = []
         self._lock = threading.Lock()
 
@@ -115,7 +116,7 @@ class FrameBank:
         size = sum(len(b) for v in frames.values() for b in v)
         with self._lock:
             self.frames, self._keys, self.count, self.offset = frames, keys, n, None
-            self.served, self.missed = 0, {}
+            self.served, self.missed, self._misses = 0, {}, []
         self.stats = BankStats(len(self.cameras), self.fps, n / self.fps, total, time.thread_time() - cpu0,
                                time.monotonic() - wall0, size)
         return self.stats
@@ -155,20 +156,31 @@ class FrameBank:
             return None
         k = round(t * self.fps)
         if abs(t - k / self.fps) > 1e-4:
-            return self._miss("not on the frame grid")
+            return self._miss(t, "not on the frame grid")
         j = k - self.first - self.offset
         if not 0 <= j < self.count:
-            return self._miss("outside the stretch")
+            return self._miss(t, "outside the stretch")
         if not self.scene.led_on(cam, t):
-            return self._miss("LED off")
+            return self._miss(t, "LED off")
         if self._static_key(t) != self._keys[j]:
-            return self._miss("the scene changed")
+            return self._miss(t, "the scene changed")
         self.served += 1
         return self.frames[cam][j]
 
-    def _miss(self, why: str) -> None:
-        self.missed[why] = self.missed.get(why, 0) + 1
+    def _miss(self, t: float, why: str) -> None:
+        with self._lock:
+            self.missed[why] = self.missed.get(why, 0) + 1
+            self._misses.append((t, why))
         return None
+
+    def missed_between(self, t0: float, t1: float) -> dict[str, int]:
+        """Why frames captured from ``t0`` to ``t1`` (host s) were rendered live, and how many."""
+        out: dict[str, int] = {}
+        with self._lock:
+            for t, why in self._misses:
+                if t0 <= t <= t1:
+                    out[why] = out.get(why, 0) + 1
+        return out
 
     def span(self) -> tuple[float, float] | None:
         """Host times of the first and last frame the stretch covers, once playing."""
@@ -176,3 +188,20 @@ class FrameBank:
             return None
         a = (self.first + self.offset) / self.fps
         return a, a + (self.count - 1) / self.fps
+
+
+def make_ahead(rig, seconds: float, folder=None, say: Callable[[str], None] = print) -> BankStats:
+    """``vts sim up --ahead SECONDS``: the rig's frames made ahead before it serves, said in
+    one line; with a patient and a folder, its truth (``DIR/truth/``) is written again once the
+    stretch starts playing (the patient's plan moved with it)."""
+    say(f"making {seconds:g} s of every camera's frames ahead of time ...")
+    stats = rig.prerender(seconds)
+    say(f"frames made ahead: {stats.line()}; they start playing at the first stream")
+    if rig.patient is not None and folder is not None:
+        from vts_hw.sim_devices.patient_rig import write_patient_truth
+
+        def rewrite(dt: float) -> None:
+            threading.Thread(target=write_patient_truth, args=(rig.patient, folder), daemon=True,
+                             name="sim-truth").start()
+        rig.on_play(rewrite)
+    return stats

@@ -242,12 +242,13 @@ def load_env_file(path: str | Path) -> dict[str, str]:
 # -- running in the foreground or detached ----------------------------------------------------
 def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = "vapix3",
           rate: float = 1.0, on_ready=None, trigger: str = "none", spect: bool = False,
-          https: bool = False, gantry: bool = False, patient=None) -> None:
+          https: bool = False, gantry: bool = False, patient=None, ahead: float = 0.0) -> None:
     """Run a rig until SIGINT/SIGTERM. With ``folder``: write rig.yaml, sim.env and sim.pid.
     ``spect``: a simulated SPECT records every scan the trigger box starts, into
     ``folder/spect`` (:class:`~vts_hw.sim_devices.spect_follower.SpectFollower`).
     ``patient``: a :class:`~vts_hw.sim_devices.patient_rig.PatientOptions`: the simulated
-    patient on the table, its truth in ``folder/truth``; the SPECT then counts its heart."""
+    patient on the table, its truth in ``folder/truth``; the SPECT then counts its heart.
+    ``ahead``: seconds of frames made ahead of time before serving (``SimRig.prerender``)."""
     if spect and (trigger != "triggerbox" or folder is None):
         raise VtsError("the simulated SPECT needs --trigger triggerbox and --dir (it writes its "
                        "list-mode files into DIR/spect)")
@@ -283,6 +284,9 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
             sources = [heart_source(rig.patient)]
         follower = SpectFollower(rig, Path(folder) / "spect", seed=seed, sources=sources,
                                  log=lambda m: print(m, flush=True))  # the scene, before cameras serve
+    if ahead > 0:
+        from vts_hw.sim_devices.frame_bank import make_ahead
+        make_ahead(rig, ahead, folder, say=lambda m: print(m, flush=True))
     try:
         with rig:
             if follower is not None:
@@ -315,8 +319,11 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
 
 def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmware: str = "vapix3",
                    rate: float = 1.0, timeout: float = 60.0, trigger: str = "none",
-                   spect: bool = False, https: bool = False, gantry: bool = False, patient=None) -> int:
-    """Start ``serve`` in a background process; return its pid once rig.yaml is written."""
+                   spect: bool = False, https: bool = False, gantry: bool = False, patient=None,
+                   ahead: float = 0.0) -> int:
+    """Start ``serve`` in a background process; return its pid once rig.yaml is written (the
+    time allowed grows by 0.1 s per frame made ``ahead``)."""
+    timeout += 0.1 * ahead * 25.0 * n_cameras
     folder = ensure_dir(Path(folder).resolve(), FOLDER)
     if is_running(folder):
         raise VtsError(f"a simulated rig is already running in {folder} (vts sim down --dir {folder})")
@@ -331,7 +338,8 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
     log_start = log.tell()
     cmd = [sys.executable, "-m", "vts_hw.sim_devices.rig", str(folder), str(n_cameras), str(seed), firmware,
            str(rate), trigger] + (["spect"] if spect else []) + (["https"] if https else []) \
-        + (["gantry"] if gantry else []) + ([patient.to_arg()] if patient is not None else [])
+        + (["gantry"] if gantry else []) + ([patient.to_arg()] if patient is not None else []) \
+        + ([f"ahead={ahead!r}"] if ahead > 0 else [])
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=log, start_new_session=True)
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -440,8 +448,9 @@ def _main(argv: list[str]) -> int:
     try:
         from vts_hw.sim_devices.patient_rig import PatientOptions
         patient = next((PatientOptions.from_arg(a) for a in argv[6:] if a.startswith("patient=")), None)
+        ahead = next((float(a.split("=", 1)[1]) for a in argv[6:] if a.startswith("ahead=")), 0.0)
         serve(folder, int(n), int(seed), fw, float(rate), trigger=trigger, spect="spect" in argv[6:],
-              https="https" in argv[6:], gantry="gantry" in argv[6:], patient=patient)
+              https="https" in argv[6:], gantry="gantry" in argv[6:], patient=patient, ahead=ahead)
     except VtsError as e:
         print(f"{FAILED}{e}", file=sys.stderr, flush=True)
         return e.exit_code

@@ -53,12 +53,17 @@ def sim() -> None:
               help="How long the patient's plan lasts (moves are spread over it; after it the patient "
                    "lies still and no longer breathes) [default: 10].")
 @click.option("--no-breathing", is_flag=True, help="The patient does not breathe (body moves only).")
+@click.option("--ahead", type=click.FloatRange(0, 3600), default=0.0, metavar="SECONDS",
+              help="Make SECONDS of every camera's frames ahead of time, before serving: they start "
+                   "playing at the first stream (the patient's plan moved to that instant), so a scan's "
+                   "streams are whole however busy this machine is. Rendering live, a busy machine makes "
+                   "them late (sent late, up to 10 s behind; then skipped).")
 @click.option("--detach", is_flag=True, help="Run in the background (needs --dir).")
 @click.option("--dir", "folder", type=click.Path(file_okay=False), default=None,
               help="Where to write rig.yaml and sim.env (and sim.pid, sim.log when detached).")
 def up(n_cameras: int, gantry: bool, seed: int, vapix: str, model: str | None, https: bool, rate: float,
        trigger: str, spect: bool, patient: bool, patient_seed: int | None, patient_moves: int | None,
-       patient_minutes: float | None, no_breathing: bool, detach: bool, folder: str | None) -> None:
+       patient_minutes: float | None, no_breathing: bool, ahead: float, detach: bool, folder: str | None) -> None:
     """Run the simulated rig (foreground: Ctrl-C stops it).
 
     With --dir DIR it writes DIR/rig.yaml pointing at the simulated cameras and DIR/sim.env
@@ -78,10 +83,13 @@ def up(n_cameras: int, gantry: bool, seed: int, vapix: str, model: str | None, h
         if not folder:
             raise click.UsageError("--detach needs --dir DIR (where rig.yaml and sim.env go)")
         pid = simrig.start_detached(folder, n_cameras, seed, fw, rate, trigger=trigger, spect=spect, https=https,
-                                    gantry=gantry, patient=person)
+                                    gantry=gantry, patient=person, ahead=ahead)
         _describe(Path(folder))
         if person is not None:
             click.echo(f"simulated patient: its truth in {Path(folder) / 'truth'}")
+        if ahead:
+            click.echo(f"{ahead:g} s of frames made ahead of time: they start playing at the first stream "
+                       f"(what rendering cost: {Path(folder) / 'sim.log'})")
         click.echo(f"simulated rig running in the background (pid {pid}); stop it with: vts sim down --dir {folder}")
         return
 
@@ -101,7 +109,7 @@ def up(n_cameras: int, gantry: bool, seed: int, vapix: str, model: str | None, h
         click.echo("simulated rig up; Ctrl-C stops it")
 
     simrig.serve(folder, n_cameras, seed, fw, rate, on_ready=ready, trigger=trigger, spect=spect, https=https,
-                 gantry=gantry, patient=person)
+                 gantry=gantry, patient=person, ahead=ahead)
     click.echo("simulated rig stopped")
 
 
