@@ -102,14 +102,13 @@ class FrameBank:
         n = int(math.ceil(seconds * self.fps))
         total, done = n * len(self.cameras), 0
         cpu0, wall0 = time.thread_time(), time.monotonic()
-        frames = {c: [] for c in self.cameras}
+        frames: dict[str, list[bytes]] = {c: [] for c in self.cameras}
         keys = []
         for j in range(n):
             t = (self.first + j) / self.fps
             keys.append(self._static_key(t))
-            for cam in self.cameras:
-                img = self.renderer.render(cam, t, led=True)
-                frames[cam].append(self.renderer.encode(img, self.quality))
+            for cam in self.cameras:      # with the LED ring on, as a scan has it
+                frames[cam].append(self.renderer.encode(self.renderer.render(cam, t, led=True), self.quality))
                 done += 1
             if progress is not None and (j % 25 == 0 or j == n - 1):
                 progress(done, total)

@@ -27,6 +27,8 @@ DURATION_S = 12.0
 REFERENCE_S = 4.0
 MOVE_AT_S = 6.5          # after the first frame (the scan starts a moment later); the reference is learned by then
 AHEAD_S = DURATION_S + 5.0   # frames made ahead: the scan, its start and its stop
+# making the frames ahead takes minutes on a loaded machine: the timeout is a hang detector
+pytestmark = pytest.mark.timeout(600)
 # the alert command: appends its last argument (the alert's text) to a file, then fails
 COMMAND = "import sys; open(sys.argv[1], 'a').write(sys.argv[-1] + '\\n'); sys.exit(3)"
 
@@ -149,6 +151,7 @@ def test_a_failing_live_path_never_costs_the_recording(tmp_path, where):
     rig = SimRig(n_cameras=2, seed=3).start()
     try:
         rig.ntp_sync()
+        rig.prerender(7.0)          # 40 frames in 2 s however busy the machine is
         cfg = load_rig(rig.write(tmp_path / "rig")[0])
         with rig.env():
             live = _BrokenLive(where)

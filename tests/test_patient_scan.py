@@ -18,6 +18,8 @@ from vts_hw.vision.detect import detect_jpeg
 
 BAND = set(BAND_MARKERS["chest"]) | set(BAND_MARKERS["abdomen"])
 SCAN_S = 12.0
+# the scan's frames are made ahead first (minutes on a loaded machine): the timeout is a hang detector
+pytestmark = pytest.mark.timeout(600)
 
 
 @pytest.fixture(scope="module")

@@ -12,6 +12,7 @@ import threading
 import time
 
 import numpy as np
+import pytest
 
 from vts_hw.drivers.axis_stream import FrameStream, StreamGap
 from vts_hw.drivers.registry import open_camera
@@ -20,6 +21,7 @@ from vts_hw.sim_devices.rig import SimRig
 from vts_hw.vision.detect import detect_jpeg
 
 BAND = set(BAND_MARKERS["chest"]) | set(BAND_MARKERS["abdomen"])
+pytestmark = pytest.mark.timeout(300)      # a hang detector: making frames takes long on a loaded machine
 SPIN = "import signal, sys\nsignal.signal(signal.SIGTERM, lambda *a: sys.exit(0))\nwhile True:\n    pass\n"
 
 
