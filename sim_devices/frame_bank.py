@@ -12,13 +12,14 @@ host nothing. :class:`FrameBank` takes that cost out of real time:
   (multiples of the frame period, as the streams send them), with the LED rings on, as JPEGs
   at the quality the streams ask for (75: the driver's default compression 25);
 * the stretch starts playing at the first stream that opens after it was rendered
-  (:meth:`FrameBank.play_from`): the scene's moving bodies (the patient: its breathing, its
-  moves) are moved in time to that instant, so that what the cameras show and what the truth
-  says stay one, and the stretch follows on from the stream's first frame;
+  (:meth:`FrameBank.play_from`): what moves in the scene on its own (the patient: its
+  breathing, its moves; the SPECT heads' turning) is moved in time to that instant, so that
+  what the cameras show and what the truth says stay one, and the stretch follows on from the
+  stream's first frame;
 * a stream's frame at grid time ``t`` is served from the bank (:meth:`FrameBank.take`) when
   the bank holds that instant at the quality asked, the camera's LED is on and nothing else
-  in the scene (the table, a scheduled body, the gantry) is other than when it was rendered;
-  anything else is rendered live as before.
+  in the scene (the table, a scheduled body) is other than when it was rendered; anything else
+  is rendered live as before.
 
 The camera drift over the shift (about 1e-4 px a minute for the reference rig) is the only
 part of the scene not moved with it. ``docs/decisions/0047-sim-frame-loss.md`` says why.
@@ -122,10 +123,15 @@ class FrameBank:
 
     def _static_key(self, t: float) -> tuple:
         """Everything in the scene at ``t`` that the shift does not move: the table, bodies
-        whose pose is scheduled (not moved in time with the stretch), the gantry."""
+        whose pose is scheduled (not moved in time with the stretch)."""
         s = self.scene
-        key = (s.table.at(t),) + tuple((n, b.pose.at(t)) for n, b in s.bodies.items() if not hasattr(b, "shift"))
-        return key if s.gantry is None else key + (s.gantry.key(t),)
+        return (s.table.at(t),) + tuple((n, b.pose.at(t)) for n, b in s.bodies.items() if not hasattr(b, "shift"))
+
+    def _movers(self) -> list:
+        """What moves in time with the stretch: bodies and a gantry that can be ``shift``-ed."""
+        out = [b for b in self.scene.bodies.values() if hasattr(b, "shift")]
+        gantry = self.scene.gantry
+        return out + ([gantry] if gantry is not None and hasattr(gantry, "shift") else [])
 
     # -- playing -----------------------------------------------------------------------
     @property
@@ -141,10 +147,8 @@ class FrameBank:
                 return
             offset = round(t * self.fps) - self.first
             dt = offset / self.fps
-            for body in list(self.scene.bodies.values()):
-                shift = getattr(body, "shift", None)
-                if shift is not None:
-                    shift(dt)
+            for mover in self._movers():
+                mover.shift(dt)
             self.offset = offset
         for hook in list(self.on_play):
             hook(dt)
