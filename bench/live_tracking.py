@@ -3,6 +3,9 @@
 (a subprocess, live tracking on) on this machine, a breathing patient in the scene, then
 body moves; then a breathing-only scan. Figures taken in one run, printed:
 
+* what rendering the cameras' frames costs this machine: ms of CPU per frame per camera and
+  the share of a core that rendering them live would take (real cameras cost the host nothing);
+
 * frames dropped from the recording (goal 0), per camera, and frames dropped from the live path;
 * the time from a frame set's arrival (its last frame at the tap) to its markers being in the
   live estimate, p50 and p95 (goal p95 <= 10 ms), and from its first frame;
@@ -11,11 +14,16 @@ body moves; then a breathing-only scan. Figures taken in one run, printed:
   true start, and the alert minus that onset (alert_after_s of the rig, 1.0 s by default);
 * false alerts in the breathing-only scan (goal 0).
 
-The simulated cameras render in this process (the scan runs in another): the machine's two
-cores are shared by the rendering, the recording and the live path.
+The simulated cameras' frames are made ahead of time, before each scan (``SimRig.prerender``),
+and served from memory at the cameras' rate, so that the figures measure the recorder and the
+live path, as with real cameras, not the simulator: the scan's process has this machine to
+itself but for the serving. ``--render live`` renders them as they are asked for instead (the
+cameras' rendering then shares the cores with the scan, as before: the figures measure the
+simulator as much as the instrument).
 
     .venv/bin/python bench/live_tracking.py                 # moves scan 75 s, breathing scan 60 s
-    .venv/bin/python bench/live_tracking.py --moves-s 65 --breathing-s 40 --alert-after 0.7
+    .venv/bin/python bench/live_tracking.py --moves-s 40 --breathing-s 20
+    .venv/bin/python bench/live_tracking.py --moves-s 65 --breathing-s 40 --alert-after 0.7 --render live
 """
 
 from __future__ import annotations
@@ -36,24 +44,41 @@ from vts_hw.sim_devices.rig import SimRig
 from vts_hw.sim_devices.scenarios.sync_session import run_scan_cli
 
 REFERENCE_S = 10.0
-# (start after the fire, duration, rotation deg, translation mm): 4-12 mm, small turns
+AHEAD_MARGIN_S = 5.0     # frames made ahead beyond the scan: its start and stop
+# (start after the first frame, duration, rotation deg, translation mm): 4-12 mm, small turns
 MOVES = [(16.0, 0.6, (0.0, 0.8, 0.0), (0.0, 4.0, 1.0)),
          (28.0, 1.0, (1.0, 0.0, 0.5), (5.0, -2.0, 3.0)),
          (40.0, 0.4, (0.0, 0.0, 0.0), (0.0, 0.0, 8.0)),
          (52.0, 1.2, (0.0, 2.5, 0.0), (-6.0, 3.0, -9.0))]
 
 
-def run_scan(rig, rig_yaml, session: Path, duration: float, patient, moves) -> tuple[dict, list[BodyMove]]:
+def run_scan(rig, rig_yaml, session: Path, duration: float, patient, moves, ahead: bool) -> tuple[dict, list[BodyMove]]:
+    """One scan; the moves ``(start, duration, rotation, translation)`` from the first frame:
+    planned with the frames made ahead (they move in time with them), or placed when the scan
+    clock starts (frames rendered live)."""
     def place(start):
         placed = [BodyMove(start + a, start + a + d, r, t) for a, d, r, t in moves if a + d < duration - 3]
         patient.motion.moves.extend(placed)
         return placed
 
+    planned = None
+    if ahead:
+        planned = place(rig.clock.now())
+        print(f"  making {duration + AHEAD_MARGIN_S:g} s of the {len(rig.sources)} cameras' frames ahead ...", flush=True)
+        stats = rig.prerender(duration + AHEAD_MARGIN_S)
+        print(f"  rendering: {stats.ms_per_frame:.1f} ms of CPU per frame per camera; rendering the "
+              f"{stats.cameras} cameras live at {stats.fps:g} fps would take {stats.core_share:.2f} of a core "
+              f"({stats.frames} frames made in {stats.wall_s:.1f} s, {stats.bytes / 1e6:.0f} MB held)", flush=True)
     try:
         run = run_scan_cli(rig, rig_yaml, session, duration, args=("--reference", f"{REFERENCE_S:g}"), event="scan",
-                           on_fire=place, timeout=duration + 120)
+                           on_fire=None if ahead else place, timeout=duration + 120)
     except RuntimeError as exc:
         raise SystemExit(str(exc)[-2000:]) from None
+    if ahead:
+        live = sum(rig.bank.missed.values())
+        print(f"  frames served from those made ahead: {rig.bank.served}; rendered live: {live} "
+              f"{dict(rig.bank.missed) if live else ''}")
+        return json.loads((session / "manifest.json").read_text()), planned
     return json.loads((session / "manifest.json").read_text()), run.planned
 
 
@@ -91,7 +116,11 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--alert-after", type=float, default=None,
                     help="motion.alert_after_s for the run (default: the rig's default, 1.0 s)")
+    ap.add_argument("--render", choices=("ahead", "live"), default="ahead",
+                    help="the cameras' frames made ahead of time (default: the figures measure the scan), "
+                         "or rendered live as they are asked for (the rendering shares the cores)")
     a = ap.parse_args()
+    ahead = a.render == "ahead"
     load = os.getloadavg()
     with tempfile.TemporaryDirectory(prefix="vts-live-bench-") as tmp:
         tmp = Path(tmp)
@@ -106,12 +135,13 @@ def main() -> int:
             rig_yaml.write_text(yaml.safe_dump(cfg))
             print(f"live tracking bench: 4 simulated cameras at {rig.fps:g} fps, {os.cpu_count()} cores (load "
                   f"average {load[0]:.2f} before the run), "
+                  f"frames {'made ahead of time' if ahead else 'rendered live'}, "
                   f"reference {REFERENCE_S:g} s, alert {cfg.get('motion', {}).get('alert_mm', 3.0)} mm / "
                   f"{cfg.get('motion', {}).get('alert_deg', 2.0)} deg after "
                   f"{cfg.get('motion', {}).get('alert_after_s', 1.0)} s")
             patient = add_patient(rig.scene, time.time(), a.moves_s + a.breathing_s + 300, seed=a.seed, moves=[])
             centre = np.mean([m.center for m in patient.markers_at(time.time(), np.zeros(3))], axis=0)
-            m, moves = run_scan(rig, rig_yaml, tmp / "moves", a.moves_s, patient, MOVES)
+            m, moves = run_scan(rig, rig_yaml, tmp / "moves", a.moves_s, patient, MOVES, ahead)
             report_recording(f"scan with {len(moves)} body moves ({a.moves_s:g} s)", m)
             alerts = m["live_motion"]["alerts"]
             delays = []
@@ -134,7 +164,7 @@ def main() -> int:
             if delays:
                 print(f"  move start -> alert: median {np.median(delays):.3f} s, max {np.max(delays):.3f} s")
             patient.motion.moves.clear()   # the body at rest again (the reference is learned anew)
-            m2, _ = run_scan(rig, rig_yaml, tmp / "breathing", a.breathing_s, patient, [])
+            m2, _ = run_scan(rig, rig_yaml, tmp / "breathing", a.breathing_s, patient, [], ahead)
             report_recording(f"breathing-only scan ({a.breathing_s:g} s)", m2)
             print(f"  false alerts (goal 0): {len(m2['live_motion']['alerts'])}")
             print(f"load average after the run: {os.getloadavg()[0]:.2f} (other work on the machine counts)")

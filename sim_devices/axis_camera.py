@@ -101,8 +101,10 @@ class SimAxisCamera:
             self.ssl_context.load_cert_chain(*tls)
         self._lock = threading.Lock()
         self._source_lock = threading.Lock()
+        # frames_lost: not sent (the loss faults); frames_skipped: not sent because the stream fell
+        # further behind than its late limit; frames_late: sent more than a frame period late
         self._counters = dict(frames_served=0, snapshots_served=0, active_streams=0, connections=0,
-                              requests=0, auth_failures=0)
+                              requests=0, auth_failures=0, frames_lost=0, frames_skipped=0, frames_late=0)
         self._snapshot = (-1, 0)  # (faults.version seen, snapshots since)
         self._sockets: set[socket.socket] = set()
         self._stopping = threading.Event()
@@ -188,10 +190,19 @@ class SimAxisCamera:
         with self._lock:
             counters = dict(self._counters)
         return dict(name=self.source.name, firmware=self.firmware, **describe(self.profile), port=self.port,
-                    camera_time=self.source.camera_time(), led_on=bool(self.source.led_on()),
+                    camera_time=self.camera_time(), led_on=bool(self.source.led_on()),
                     faults=self.faults.active(), **counters)
 
     # --- used by the request handler ---------------------------------------------------
+    def camera_time(self, host_t: float | None = None) -> float:
+        """The camera's clock at host time ``host_t`` (default now), its jumps (fault) included."""
+        t = self.clock.now() if host_t is None else host_t
+        return self.source.camera_time(t) + self.faults.clock_offset(t)
+
+    def offline_now(self) -> bool:
+        """Off the network now (the ``offline`` fault or its stretch)."""
+        return self.faults.offline_at(self.clock.now())
+
     def count(self, name: str, delta: int = 1) -> None:
         with self._lock:
             self._counters[name] += delta
@@ -224,6 +235,7 @@ class SimAxisCamera:
         writes (its product id, its layout)."""
         with self._source_lock:
             jpeg, epoch = self.source.jpeg(quality, host_t)
+        epoch += self.faults.clock_offset(self.clock.now() if host_t is None else host_t)
         if (width, height) != (self.source.width, self.source.height):
             image = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_UNCHANGED)
             small = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)

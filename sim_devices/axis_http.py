@@ -132,7 +132,7 @@ class Handler(BaseHTTPRequestHandler):
             if not path.startswith("/axis-cgi/"):
                 self.send(404, _BODY_404, "text/html")
                 return
-            if self.cam.faults.offline:
+            if self.cam.offline_now():
                 self.hang_up()
                 return
             self.cam.count("requests")
@@ -262,7 +262,7 @@ class Handler(BaseHTTPRequestHandler):
         if request is None:
             return
         if request.get("method") == "getDateTimeInfo":
-            t = datetime.fromtimestamp(self.cam.source.camera_time(), timezone.utc)
+            t = datetime.fromtimestamp(self.cam.camera_time(), timezone.utc)
             iso = t.strftime("%Y-%m-%dT%H:%M:%S.") + f"{t.microsecond // 1000:03d}Z"
             self._json_reply(request, {"data": {"dateTime": iso, "localDateTime": iso, "dstEnabled": False,
                                                 "timeZone": "Etc/UTC", "posixTimeZone": "UTC0"}})
@@ -275,7 +275,7 @@ class Handler(BaseHTTPRequestHandler):
         if self.query.get("action") != "get":
             self.send(200, f"# Error: Unknown action '{self.query.get('action', '')}'\r\n")
             return
-        t = datetime.fromtimestamp(self.cam.source.camera_time(), timezone.utc)
+        t = datetime.fromtimestamp(self.cam.camera_time(), timezone.utc)
         self.send(200, f"{_MONTHS[t.month - 1]} {t.day:02d}, {t.year} {t:%H:%M:%S}\r\n")
 
     def _json_request(self, method: str) -> dict | None:

@@ -16,15 +16,14 @@ from typing import TYPE_CHECKING
 from vts_hw.recording.axis_jpeg import SOI, AxisProduct, AxisTime, comment_segment
 
 from vts_hw.sim_devices.axis_params import DEFAULT_FPS, MAX_FPS
+from vts_hw.sim_devices.faults import LATE_LIMIT_S
+
+__all__ = ["BOUNDARY", "LATE_LIMIT_S", "Reject", "restamp", "unstamped", "serve_snapshot", "serve_stream"]
 
 if TYPE_CHECKING:
     from vts_hw.sim_devices.axis_http import Handler
 
 BOUNDARY = "myboundary"
-# A stream that falls behind its frame grid by less than this (the host was busy) sends its
-# frames late, each captured at its grid time; further behind (a stall, a client that does not
-# read) it skips to the live frame and the frames in between are lost, as a camera's are.
-CATCH_UP_S = 1.0
 STREAM_HEADER = (
     "HTTP/1.0 200 OK\r\n"
     "Cache-Control: no-cache\r\n"
@@ -162,39 +161,53 @@ class StreamWriter:
         self.period, self.duration, self.nbr = 1.0 / fps, duration, nbrofframes
 
     def run(self) -> None:
-        faults, clock = self.cam.faults, self.cam.clock
+        """Frame ``g`` of the sensor's grid is captured at ``g * period`` (host time on the
+        camera's clock object), so that successive streams, and cameras at one rate, share one
+        grid. A frame is sent when its time comes; made late (this host was busy) it is sent
+        late, stamped with its capture time, unless the stream is further behind than its late
+        limit (``LATE_LIMIT_S``, or the ``skip_when_late_s`` fault): then it skips to the live
+        frame and the frames between are lost, as a camera's are. Lost frames (the loss
+        faults) are not sent; ``k`` counts the parts sent."""
+        faults, clock, cam = self.cam.faults, self.cam.clock, self.cam
         start = clock.now()
-        t0 = self._next_tick(start)
+        g = math.ceil(start / self.period)
+        starting = getattr(cam.source, "stream_starting", None)
+        if starting is not None:          # frames made ahead of time start playing (frame_bank.py)
+            starting(g * self.period)
         stalled = False
         k = 0
         while not self.nbr or k < self.nbr:
-            target = t0 + k * self.period
+            target = g * self.period
             if self.duration and target - start >= self.duration:
                 return
-            if not self.cam.sleep_until(target):
+            if not cam.sleep_until(target):
                 return
-            late = clock.now() - target
-            if late > CATCH_UP_S:  # a stall or a client that does not read: frames are lost, go on live
-                t0 = self._next_tick(clock.now()) - k * self.period
+            now = clock.now()
+            if now - target > faults.late_limit():   # too far behind: the frames between are lost
+                live = math.ceil(now / self.period)
+                cam.count("frames_skipped", live - g)
+                g = live
                 continue
-            if faults.offline or (faults.drop_after_frames is not None and k >= faults.drop_after_frames):
+            if cam.offline_now() or (faults.drop_after_frames is not None and k >= faults.drop_after_frames):
                 self.h.hang_up()
                 return
             if not stalled and faults.stall_after_frames is not None and k >= faults.stall_after_frames:
                 stalled = True
-                if not self.cam.sleep_until(clock.now() + faults.stall_s):
+                if not cam.sleep_until(clock.now() + faults.stall_s):
                     return
-                t0 = self._next_tick(clock.now()) - k * self.period   # the stall's frames are lost
+                g = math.ceil(clock.now() / self.period)   # the stall's frames are lost
+                continue
+            if faults.lost(cam.source.name, g, target, self.period):
+                cam.count("frames_lost")
+                g += 1
                 continue
             # captured on the sensor's grid; a little late (this host was busy), it is sent late
+            if now - target > self.period:
+                cam.count("frames_late")
             if not self._send_part(k, target):
                 return
             k += 1
-
-    def _next_tick(self, t: float) -> float:
-        """The first frame time at or after ``t`` on the sensor's grid (multiples of the
-        period), so that frames of successive streams share one time grid, as a camera's do."""
-        return math.ceil(t / self.period) * self.period
+            g += 1
 
     def _send_part(self, k: int, captured: float | None = None) -> bool:
         """Write part ``k`` (captured at host time ``captured``, default now); False when the

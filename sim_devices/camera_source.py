@@ -30,6 +30,12 @@ class SimCameraSource:
         self.width: int = model.width
         self.height: int = model.height
         self.product: AxisProduct = scene.products[cam]
+        self.bank = None        # a FrameBank (sim_devices/frame_bank.py): frames made ahead of time
+
+    def stream_starting(self, t: float) -> None:
+        """A stream's first frame is at grid time ``t``: frames made ahead start playing."""
+        if self.bank is not None:
+            self.bank.play_from(t)
 
     def camera_time(self, host_t: float | None = None) -> float:
         """This camera's clock at host time ``host_t`` (default: now)."""
@@ -54,6 +60,8 @@ class SimCameraSource:
         in the JPEG is that time truncated to 10 ms, as a camera writes it).
         """
         t = self.clock.now() if host_t is None else host_t
-        img = self.renderer.render(self.name, t)
         cam_t = self.camera_time(t)
-        return stamp_jpeg(self.renderer.encode(img, quality), cam_t, self.product), cam_t
+        made = self.bank.take(self.name, t, quality) if self.bank is not None and host_t is not None else None
+        if made is None:
+            made = self.renderer.encode(self.renderer.render(self.name, t), quality)
+        return stamp_jpeg(made, cam_t, self.product), cam_t

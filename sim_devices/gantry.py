@@ -21,6 +21,7 @@ radius -- a marker is drawn whole or not at all; a half-hidden marker counts as 
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import threading
 from dataclasses import dataclass
 
@@ -108,6 +109,12 @@ class Gantry:
             i = bisect.bisect_left([a.t0 for a in self._acq], acq.t0)
             self._acq = self._acq[:i] + [acq]
         return acq
+
+    def shift(self, dt: float) -> None:
+        """Every acquisition ``dt`` seconds later (frames made ahead of time start playing when
+        a stream opens, and the heads' turning with them: sim_devices/frame_bank.py)."""
+        with self._lock:
+            self._acq = [dataclasses.replace(a, t0=a.t0 + dt) for a in self._acq]
 
     def _current(self, t: float) -> Acquisition | None:
         with self._lock:

@@ -131,6 +131,13 @@ class Breathing:
             b += self.wander / 3 * np.sin(2 * np.pi * (self._t - self.t0) / per + ph)
         self._b, self._phase = b, phase
 
+    def shift(self, dt: float) -> None:
+        """Move the whole signal ``dt`` seconds later (the cycles with it)."""
+        self._t = self._t + dt
+        self.t0 += dt
+        for c in self.cycles:
+            c.t_start += dt
+
     def value(self, t):
         """``b(t)`` (dimensionless) at host times ``t``."""
         return np.interp(np.asarray(t, dtype=float), self._t, self._b)
@@ -203,6 +210,11 @@ class BodyMotion:
             creeps.append(Creep(t0 + still_s, t0 + duration_s, tuple(map(float, creep_mm * d / np.linalg.norm(d)))))
         return cls(moves, creeps)
 
+    def shift(self, dt: float) -> None:
+        """Every move and creep ``dt`` seconds later (the same objects: whoever holds one sees it)."""
+        for m in [*self.moves, *self.creeps]:
+            vars(m).update(t_start=m.t_start + dt, t_end=m.t_end + dt)   # both at once
+
     def pose(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """``(R, T)`` of the body at ``t``: marker at body point p (rest pose at the origin) is
         at ``R @ p + T`` relative to the body's rest placement. Moves compose in time order."""
@@ -272,6 +284,13 @@ class Patient:
             for i in ids:
                 self.breath_dir[i] = self.breath_mm[band] * w[i] / top + foot
         self.pose = _PoseKey()
+
+    def shift(self, dt: float) -> None:
+        """The patient's whole plan (breathing, moves, creep) ``dt`` seconds later: frames
+        rendered ahead of time (sim_devices/frame_bank.py) start playing when a stream opens,
+        and the patient with them."""
+        self.breathing.shift(dt)
+        self.motion.shift(dt)
 
     # ------------------------------------------------------------------ scene interface
     @property

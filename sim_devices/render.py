@@ -147,6 +147,7 @@ class Renderer:
         self._bg = {name: self._make_background(c.width, c.height, background, seed * 101 + i)
                     for i, (name, c) in enumerate(scene.cameras.items())}
         self._cache: dict[str, OrderedDict] = {name: OrderedDict() for name in scene.cameras}
+        self._static: dict[tuple, np.ndarray] = {}     # the wall markers' signal, per camera pose
         self._lock = threading.Lock()
         self._rng = random.Random(seed)
         self._pad = int(noise_pad)
@@ -175,10 +176,10 @@ class Renderer:
         return np.clip(np.rint(self._bg[cam]), 0, 255).astype(np.uint8)
 
     # ------------------------------------------------------------------ rendering
-    def render(self, cam: str, t: float, noise: bool = True) -> np.ndarray:
+    def render(self, cam: str, t: float, noise: bool = True, led: bool | None = None) -> np.ndarray:
         """The uint8 (H, W) image ``cam`` sees at host time ``t``, with sensor noise unless
-        ``noise`` is False (or ``noise_sigma`` is 0)."""
-        clean = self.clean(cam, t)
+        ``noise`` is False (or ``noise_sigma`` is 0); ``led`` overrides the LED ring's state."""
+        clean = self.clean(cam, t, led)
         if self._noise is None or not noise:
             return np.clip(np.rint(clean), 0, 255).astype(np.uint8)
         h, w = clean.shape
@@ -187,11 +188,12 @@ class Renderer:
             dy, dx = self._rng.randrange(self._pad + 1), self._rng.randrange(self._pad + 1)
         return cv2.add(clean, self._noise[k, dy:dy + h, dx:dx + w], dtype=cv2.CV_8U)
 
-    def clean(self, cam: str, t: float) -> np.ndarray:
+    def clean(self, cam: str, t: float, led: bool | None = None) -> np.ndarray:
         """The noise-free float32 image at ``t`` (not quantised), from the cache when the scene
-        looks the same. The array is shared: do not modify it."""
+        looks the same (``led``: the LED ring's state, default the scene's). The array is
+        shared: do not modify it."""
         camera, markers, uv, _ = self.scene.project_markers(cam, t)
-        led = self.scene.led_on(cam, t)
+        led = self.scene.led_on(cam, t) if led is None else bool(led)
         key = (led, tuple(np.round(uv, 3).ravel().tolist()), self.scene.pose_key(t))
         smear, ends = self._smear(cam, camera, markers, uv, t)
         if smear:
@@ -205,8 +207,10 @@ class Renderer:
                 return img
         hidden = self.scene.hidden(camera.center, markers, t)  # behind a SPECT head: not drawn
         keep = [i for i, h in enumerate(hidden) if not h]
+        n_wall = len(self.scene.wall_markers)        # first in project_markers' list; they never move
         img = self._rasterise(cam, camera, [markers[i] for i in keep], led,
-                              {k: smear[i] for k, i in enumerate(keep) if i in smear})
+                              {k: smear[i] for k, i in enumerate(keep) if i in smear},
+                              n_static=sum(1 for i in keep if i < n_wall))
         with self._lock:
             self.stats["misses"] += 1
             cache[key] = img
@@ -246,11 +250,12 @@ class Renderer:
         ends = tuple(np.round(np.hstack([uv0[keep], uv1[keep]]), 3).ravel().tolist())
         return {idx[j]: paths[idx[j]] for j in keep}, ends
 
-    def signal(self, camera, markers, smear: dict | None = None) -> np.ndarray:
+    def signal(self, camera, markers, smear: dict | None = None, into: np.ndarray | None = None) -> np.ndarray:
         """Float32 (H, W) marker brightness in 0..1 (coverage times profile), no background.
         ``smear``: for the index of a marker that moves during the exposure, the marker at each
-        sub-instant; it is drawn as the mean of those outlines."""
-        sig = np.zeros((camera.height, camera.width), dtype=np.float32)
+        sub-instant; it is drawn as the mean of those outlines. ``into``: draw onto this signal
+        (each pixel the brightest marker there) instead of a blank one."""
+        sig = np.zeros((camera.height, camera.width), dtype=np.float32) if into is None else into
         eye = camera.center
         smear = smear or {}
         drawn = [(i, m) for i, m in enumerate(markers)
@@ -284,11 +289,33 @@ class Renderer:
         region = sig[y0:y1, x0:x1]
         np.maximum(region, patch, out=region)
 
-    def _rasterise(self, cam: str, camera, markers, led: bool, smear: dict | None = None) -> np.ndarray:
+    def _rasterise(self, cam: str, camera, markers, led: bool, smear: dict | None = None,
+                   n_static: int = 0) -> np.ndarray:
+        """The image of ``markers`` (the first ``n_static`` of them fixed: the wall's, drawn
+        once per camera pose and kept, ``self._static``); a scene with a moving body redraws
+        only that body's markers each frame."""
         bg = self._bg[cam]
-        sig = self.signal(camera, markers, smear)
+        smear = smear or {}
+        fixed = [i for i in range(n_static) if i not in smear]
+        if fixed:
+            key = tuple((markers[i].id, *np.round(camera.project(markers[i].center[None])[0], 3).tolist())
+                        for i in fixed)
+            with self._lock:
+                base = self._static.get((cam, key))
+            if base is None:
+                base = self.signal(camera, [markers[i] for i in fixed])
+                base.flags.writeable = False
+                with self._lock:
+                    self._static[(cam, key)] = base
+                    while len(self._static) > 4 * len(self._bg):
+                        self._static.pop(next(iter(self._static)))
+            moving = [i for i in range(len(markers)) if i not in set(fixed)]
+            sig = self.signal(camera, [markers[i] for i in moving],
+                              {k: smear[i] for k, i in enumerate(moving) if i in smear}, into=base.copy())
+        else:
+            sig = self.signal(camera, markers, smear)
         amp = self.marker_level - self.background_level if led else self.led_off_level
-        img = bg + sig * amp
+        img = cv2.scaleAdd(sig, float(amp), bg)          # bg + sig * amp, in one pass
         img.flags.writeable = False
         return img
 

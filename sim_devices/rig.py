@@ -95,6 +95,8 @@ class SimRig:
                         for name, src in self.sources.items()}
         for name, srv in self.servers.items():     # each camera's shutter time, from its model profile
             self.renderer.exposure[name] = srv.profile.exposure_ms / 1000.0
+        self.bank = None        # frames made ahead of time (prerender)
+        self._on_play: list = []
         self._started = False
 
     # -- life cycle --------------------------------------------------------------------
@@ -132,6 +134,31 @@ class SimRig:
 
     def __exit__(self, *exc) -> None:
         self.stop()
+
+    def prerender(self, seconds: float, *, quality: int | None = None, progress=None):
+        """Make ``seconds`` of every camera's frames ahead of time (sim_devices/frame_bank.py):
+        they start playing at the first stream opened after this, and the patient's plan (its
+        breathing, its moves) is moved in time to that instant; until then, and after the
+        stretch, frames are rendered when their time comes. Streams served from it stay whole
+        however busy the machine is. Returns what rendering cost (``BankStats``);
+        ``self.bank`` is the bank. ``quality``: the JPEG quality the streams will ask
+        (default: 100 - the compression the cameras' config gives)."""
+        from vts_hw.sim_devices.frame_bank import DEFAULT_QUALITY, FrameBank
+
+        bank = FrameBank(self.scene, self.renderer, self.fps, DEFAULT_QUALITY if quality is None else quality)
+        stats = bank.render(seconds, start=self.clock.now(), progress=progress)
+        bank.on_play.extend(self._on_play)
+        self.bank = bank
+        for src in self.sources.values():
+            src.bank = bank
+        return stats
+
+    def on_play(self, hook) -> None:
+        """``hook(dt)`` runs when frames made ahead start playing (the patient moved ``dt`` s
+        later), from the stream's thread: it must return at once."""
+        self._on_play.append(hook)
+        if self.bank is not None:
+            self.bank.on_play.append(hook)
 
     def ntp_sync(self, at: float | None = None) -> None:
         """The cameras' NTP sync: each clock keeps its residual offset, and its skew starts
@@ -231,13 +258,15 @@ def load_env_file(path: str | Path) -> dict[str, str]:
 # -- running in the foreground or detached ----------------------------------------------------
 def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = "vapix3",
           rate: float = 1.0, on_ready=None, trigger: str = "none", spect: bool = False,
-          https: bool = False, gantry: bool = False, patient=None, qatrack: bool = False) -> None:
+          https: bool = False, gantry: bool = False, patient=None, qatrack: bool = False,
+          ahead: float = 0.0) -> None:
     """Run a rig until SIGINT/SIGTERM. With ``folder``: write rig.yaml, sim.env and sim.pid.
     ``qatrack``: a simulated QATrack+ beside it, named in rig.yaml (its token in sim.env).
     ``spect``: a simulated SPECT records every scan the trigger box starts, into
     ``folder/spect`` (:class:`~vts_hw.sim_devices.spect_follower.SpectFollower`).
     ``patient``: a :class:`~vts_hw.sim_devices.patient_rig.PatientOptions`: the simulated
-    patient on the table, its truth in ``folder/truth``; the SPECT then counts its heart."""
+    patient on the table, its truth in ``folder/truth``; the SPECT then counts its heart.
+    ``ahead``: seconds of frames made ahead of time before serving (``SimRig.prerender``)."""
     if spect and (trigger != "triggerbox" or folder is None):
         raise VtsError("the simulated SPECT needs --trigger triggerbox and --dir (it writes its "
                        "list-mode files into DIR/spect)")
@@ -275,6 +304,9 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
             sources = [heart_source(rig.patient)]
         follower = SpectFollower(rig, Path(folder) / "spect", seed=seed, sources=sources,
                                  log=lambda m: print(m, flush=True))  # the scene, before cameras serve
+    if ahead > 0:
+        from vts_hw.sim_devices.frame_bank import make_ahead
+        make_ahead(rig, ahead, folder, say=lambda m: print(m, flush=True))
     try:
         with rig:
             if follower is not None:
@@ -308,8 +340,10 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
 def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmware: str = "vapix3",
                    rate: float = 1.0, timeout: float = 60.0, trigger: str = "none",
                    spect: bool = False, https: bool = False, gantry: bool = False, patient=None,
-                   qatrack: bool = False) -> int:
-    """Start ``serve`` in a background process; return its pid once rig.yaml is written."""
+                   qatrack: bool = False, ahead: float = 0.0) -> int:
+    """Start ``serve`` in a background process; return its pid once rig.yaml is written (the
+    time allowed grows by 0.1 s per frame made ``ahead``)."""
+    timeout += 0.1 * ahead * 25.0 * n_cameras
     folder = ensure_dir(Path(folder).resolve(), FOLDER)
     if is_running(folder):
         raise _already_running(folder)
@@ -330,7 +364,8 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
     cmd = [sys.executable, "-m", "vts_hw.sim_devices.rig", str(folder), str(n_cameras), str(seed), firmware,
            str(rate), trigger] + (["spect"] if spect else []) + (["https"] if https else []) \
         + (["gantry"] if gantry else []) + (["qatrack"] if qatrack else []) \
-        + ([patient.to_arg()] if patient is not None else [])
+        + ([patient.to_arg()] if patient is not None else []) \
+        + ([f"ahead={ahead!r}"] if ahead > 0 else [])
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=log, start_new_session=True)
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -457,9 +492,10 @@ def _main(argv: list[str]) -> int:
     try:
         from vts_hw.sim_devices.patient_rig import PatientOptions
         patient = next((PatientOptions.from_arg(a) for a in argv[6:] if a.startswith("patient=")), None)
+        ahead = next((float(a.split("=", 1)[1]) for a in argv[6:] if a.startswith("ahead=")), 0.0)
         serve(folder, int(n), int(seed), fw, float(rate), trigger=trigger, spect="spect" in argv[6:],
               https="https" in argv[6:], gantry="gantry" in argv[6:], patient=patient,
-              qatrack="qatrack" in argv[6:])
+              qatrack="qatrack" in argv[6:], ahead=ahead)
     except VtsError as e:
         with contextlib.suppress(OSError):     # a full disk takes the log too: the exit code still tells
             print(f"{FAILED}{e}", file=sys.stderr, flush=True)

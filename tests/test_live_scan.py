@@ -1,7 +1,11 @@
 """Live motion during `vts scan start` on the simulated rig: two cameras over HTTP, a breathing
 patient in the scene, the CLI in a subprocess. A body move of 6 mm raises exactly one alert
 (stderr with the bell, the manifest, the alert command), breathing alone raises none, and the
-recording is whole either way."""
+recording is whole either way.
+
+The cameras' frames are made ahead of time (``SimRig.prerender``), so that the recording is
+whole however busy the machine is: the patient's plan, the move included, starts playing with
+the scan's first stream."""
 
 from __future__ import annotations
 
@@ -21,7 +25,10 @@ from vts_hw.sim_devices.scenarios.sync_session import run_scan_cli
 
 DURATION_S = 12.0
 REFERENCE_S = 4.0
-MOVE_AT_S = 6.5          # after the fire; the reference is learned by then
+MOVE_AT_S = 6.5          # after the first frame (the scan starts a moment later); the reference is learned by then
+AHEAD_S = DURATION_S + 5.0   # frames made ahead: the scan, its start and its stop
+# making the frames ahead takes minutes on a loaded machine: the timeout is a hang detector
+pytestmark = pytest.mark.timeout(600)
 # the alert command: appends its last argument (the alert's text) to a file, then fails
 COMMAND = "import sys; open(sys.argv[1], 'a').write(sys.argv[-1] + '\\n'); sys.exit(3)"
 
@@ -40,18 +47,18 @@ def patient_rig(tmp_path):
 
 
 def _scan(rig, rig_yaml, session, patient, move: BodyMove | None):
-    """`vts scan start` in a subprocess; ``move`` (times from the scan's start) is put on the
-    patient once the scan clock has started."""
-    def place(start):
-        if move is None:
-            return None
-        placed = BodyMove(start + move.t_start, start + move.t_end, move.rotation_deg, move.translation_mm)
+    """`vts scan start` in a subprocess, its frames made ahead; ``move`` (times from the first
+    frame) is planned with them, and moves in time with the patient when they start playing."""
+    placed = None
+    now = rig.clock.now()
+    if move is not None:
+        placed = BodyMove(now + move.t_start, now + move.t_end, move.rotation_deg, move.translation_mm)
         patient.motion.moves.append(placed)
-        return placed
-
+    rig.prerender(AHEAD_S)
     run = run_scan_cli(rig, rig_yaml, session, DURATION_S, args=("--reference", f"{REFERENCE_S:g}"), event="scan",
-                       on_fire=place, check=False)
-    return run.returncode, run.out, run.err, json.loads((session / "manifest.json").read_text()), run.planned
+                       check=False)
+    assert rig.bank.playing and rig.bank.served >= 0.9 * 2 * 25 * DURATION_S, (rig.bank.served, rig.bank.missed)
+    return run.returncode, run.out, run.err, json.loads((session / "manifest.json").read_text()), placed
 
 
 def _recording_whole(session, manifest):
@@ -146,6 +153,7 @@ def test_a_failing_live_path_never_costs_the_recording(tmp_path, where):
     rig = SimRig(n_cameras=2, seed=3).start()
     try:
         rig.ntp_sync()
+        rig.prerender(7.0)          # 40 frames in 2 s however busy the machine is
         cfg = load_rig(rig.write(tmp_path / "rig")[0])
         with rig.env():
             live = _BrokenLive(where)

@@ -16,6 +16,8 @@ from vts_hw.store import ResultsStore
 from vts_hw.tolerance import DEFAULT_TOLERANCES, worst
 from vts_hw.vision.registration import RigidTransform
 
+# rendering the recording (no real time) takes minutes on a loaded machine: the timeout is a hang detector
+pytestmark = pytest.mark.timeout(600)
 SEED = 0
 START = 1_790_000_000.0 + 1000.0 * SEED + 5.0        # simulate_recording's default start
 MOVE = BodyMove(START + 12.0, START + 12.8, (0.3, 0.2, 0.7), (1.0, 2.0, 1.0))

@@ -32,9 +32,10 @@ def vts(*args, env=None, timeout=300):
 def analysed(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("patient-cli")
     d = tmp / "sim"
-    # 36 s of plan: 15 s still, then 2 moves 8 s apart or more, inside a 34 s scan started now
+    # 36 s of plan: 15 s still, then 2 moves 8 s apart or more, inside a 34 s scan; the frames made
+    # ahead (the scan's whole on a busy machine), the plan starts playing with the scan's first stream
     p = vts("sim", "up", "--detach", "--cameras", "2", "--seed", "4", "--trigger", "triggerbox", "--spect",
-            "--patient", "--patient-moves", "2", "--patient-minutes", "0.6", "--dir", d)
+            "--patient", "--patient-moves", "2", "--patient-minutes", "0.6", "--ahead", SCAN_S + 5, "--dir", d)
     assert p.returncode == 0, p.stderr
     try:
         env = {**os.environ, **load_env_file(d / "sim.env"), "VTS_CONFIG": str(d / "rig.yaml")}

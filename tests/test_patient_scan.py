@@ -18,6 +18,8 @@ from vts_hw.vision.detect import detect_jpeg
 
 BAND = set(BAND_MARKERS["chest"]) | set(BAND_MARKERS["abdomen"])
 SCAN_S = 12.0
+# the scan's frames are made ahead first (minutes on a loaded machine): the timeout is a hang detector
+pytestmark = pytest.mark.timeout(600)
 
 
 @pytest.fixture(scope="module")
@@ -41,8 +43,8 @@ def test_the_recording_is_complete_and_the_truth_covers_it(scan):
     for name in ("cam1", "cam2"):
         rows = read_index(run.session / f"{name}.index.csv")
         assert len(rows) >= 0.9 * 25 * SCAN_S, name
-    a, b = run.window
-    assert b - a == pytest.approx(SCAN_S, abs=1.0)
+    a, b = run.window            # the recording covers the scan: from before the fire to its end
+    assert a <= run.fire_host and b >= run.fire_host + SCAN_S - 0.2 and b - a <= SCAN_S + 10.0
     t0 = run.patient.breathing.t0
     assert t0 < a and b < t0 + run.patient.breathing.duration_s          # the plan covers the scan
     (move,) = run.moves_in_window()                                      # the move happened while recording

@@ -29,6 +29,15 @@ from vts_hw.sim_devices.trigger_box import F_CPU
 
 VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
 FPS = 25.0
+HANG_S = 300.0      # a hang detector for a `vts` subprocess: minutes on a loaded machine, seconds when idle
+# a scan's frames are made ahead (SimRig.prerender): its recording is whole however busy the machine is
+pytestmark = pytest.mark.timeout(600)
+
+
+def _ahead(rig, seconds: float) -> None:
+    """The cameras' frames for the next ``seconds`` of streaming (and 6 s to start and stop) made
+    ahead of time: they start playing at the first stream."""
+    rig.prerender(seconds + 6.0)
 
 
 def _rig(trigger, tmp_path):
@@ -87,6 +96,7 @@ def _check_offsets(rig, cam_manifest, name):
 def test_session_with_the_trigger_box(box_rig, tmp_path):
     rig, cfg, rig_yaml = box_rig
     folder = tmp_path / "scan"
+    _ahead(rig, 4.0)
     m = ScanSession(cfg, folder, open_cameras(cfg.cameras), duration=4.0).run()
 
     assert m["status"] == "complete" and m["scan"]["problems"] == [] and m["scan"]["stop_reason"] == "duration"
@@ -136,6 +146,7 @@ def test_session_with_the_function_generator(tmp_path):
     rig, cfg, _ = _rig("visa", tmp_path)
     assert cfg.trigger.address == rig.function_generator.resource and not cfg.trigger.options.get("simulated", False)
     try:
+        _ahead(rig, 3.0)
         with rig.env():
             m = ScanSession(cfg, tmp_path / "scan", open_cameras(cfg.cameras), duration=3.0).run()
     finally:
@@ -164,6 +175,7 @@ def test_a_camera_off_the_network_for_5_s(plain_rig, tmp_path):
     rig, cfg, _ = plain_rig
     folder = tmp_path / "scan"
     duration = 8.0
+    _ahead(rig, duration)
     s = ScanSession(cfg, folder, open_cameras(cfg.cameras), duration=duration)
     s.start()
     threading.Timer(1.0, rig.servers["cam1"].go_offline, (5.0,)).start()
@@ -190,6 +202,7 @@ def test_a_camera_off_the_network_for_5_s(plain_rig, tmp_path):
 def test_trigger_unplugged_during_the_scan_keeps_the_recordings(box_rig, tmp_path):
     rig, cfg, _ = box_rig
     folder = tmp_path / "scan"
+    _ahead(rig, 3.0)
     s = ScanSession(cfg, folder, open_cameras(cfg.cameras), duration=3.0)
     s.start()
     time.sleep(1.0)
@@ -211,6 +224,7 @@ def test_trigger_that_fails_to_fire_keeps_the_recordings(box_rig, tmp_path):
         if step == "first frames":
             rig.trigger_box.unplug()
 
+    _ahead(rig, 2.0)
     m = ScanSession(cfg, folder, open_cameras(cfg.cameras), duration=2.0, on_step=unplug_before_the_fire).run()
     tr = m["trigger"]
     assert m["status"] == "partial" and tr["fired"] is False and tr["errors"][0].startswith("fire: ")
@@ -247,9 +261,9 @@ def test_cli_scan_with_duration(box_rig, tmp_path):
     rig, cfg, rig_yaml = box_rig
     folder = tmp_path / "scan"
     # no patient in the room: nothing to track live (with --live, exit 0 means the patient was watched)
+    _ahead(rig, 3.0)
     p = subprocess.run([*VTS, "scan", "start", "--duration", "3", "--no-live", "-o", str(folder)],
-                       env=_env(rig, rig_yaml),
-                       capture_output=True, text=True, timeout=60)
+                       env=_env(rig, rig_yaml), capture_output=True, text=True, timeout=HANG_S)
     assert p.returncode == 0, p.stderr
     assert f"{folder}: status complete (stopped: duration)" in p.stdout
     assert "cam1:" in p.stdout and "trigger: triggerbox fired at" in p.stdout
@@ -263,6 +277,7 @@ def test_cli_scan_with_duration(box_rig, tmp_path):
 def test_ctrl_c_stops_cleanly(plain_rig, tmp_path):
     rig, cfg, rig_yaml = plain_rig
     folder = tmp_path / "scan"
+    _ahead(rig, 3.0)
     # PYTHONFAULTHANDLER: a scan that does not stop is aborted and says where every thread was.
     # Started with SIGINT ignored, as a shell starts a background job (or nohup, a service):
     # Python then installs no KeyboardInterrupt, and Ctrl-C must still stop the scan.
@@ -273,11 +288,11 @@ def test_ctrl_c_stops_cleanly(plain_rig, tmp_path):
     _wait_frames(folder, 50, p)
     p.send_signal(signal.SIGINT)
     try:
-        out, err = p.communicate(timeout=90)    # a hang detector: stopping takes ~1 s when idle
+        out, err = p.communicate(timeout=HANG_S)    # a hang detector: stopping takes ~1 s when idle
     except subprocess.TimeoutExpired:
         p.send_signal(signal.SIGABRT)
         out, err = p.communicate(timeout=30)
-        raise AssertionError(f"the scan did not stop within 90 s of Ctrl-C; its threads:\n{err[-6000:]}")
+        raise AssertionError(f"the scan did not stop within {HANG_S:g} s of Ctrl-C; its threads:\n{err[-6000:]}")
     assert p.returncode == 0, err
     m = json.loads(out)
     assert m["status"] == "complete" and m["scan"]["stop_reason"] == "interrupted"
@@ -289,6 +304,7 @@ def test_ctrl_c_stops_cleanly(plain_rig, tmp_path):
 def test_kill_9_leaves_a_session_that_reindexes(box_rig, tmp_path):
     rig, cfg, rig_yaml = box_rig
     folder = tmp_path / "scan"
+    _ahead(rig, 3.0)
     p = subprocess.Popen([*VTS, "scan", "start", "--duration", "60", "-o", str(folder)], env=_env(rig, rig_yaml),
                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     _wait_frames(folder, 60, p)
@@ -296,7 +312,7 @@ def test_kill_9_leaves_a_session_that_reindexes(box_rig, tmp_path):
     p.wait(timeout=10)
     assert _manifest(folder)["status"] == "recording"
 
-    r = subprocess.run([*VTS, "recording", "reindex", str(folder)], capture_output=True, text=True, timeout=60)
+    r = subprocess.run([*VTS, "recording", "reindex", str(folder)], capture_output=True, text=True, timeout=HANG_S)
     assert r.returncode == 0, r.stderr
     print("after kill -9, vts recording reindex:", r.stdout.strip().replace("\n", "; "))
     m = _manifest(folder)
@@ -315,7 +331,7 @@ def test_dry_run_touches_nothing(box_rig, tmp_path):
     rig, cfg, rig_yaml = box_rig
     folder = tmp_path / "scan"
     p = subprocess.run([*VTS, "scan", "start", "--dry-run", "--duration", "60", "-o", str(folder)],
-                       env=_env(rig, rig_yaml), capture_output=True, text=True, timeout=60)
+                       env=_env(rig, rig_yaml), capture_output=True, text=True, timeout=HANG_S)
     assert p.returncode == 0, p.stderr
     assert "dry run" in p.stdout and "fire:" in p.stdout and "record for 60 s" in p.stdout
     assert not folder.exists()
@@ -324,7 +340,7 @@ def test_dry_run_touches_nothing(box_rig, tmp_path):
     assert rig.trigger_box.uart() == [] and rig.trigger_box.edges() == []
 
 
-def _wait_frames(folder, n, proc, timeout=30.0):
+def _wait_frames(folder, n, proc, timeout=HANG_S):
     """Until both cameras have ``n`` indexed frames and the trigger has fired (manifest)."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -344,8 +360,9 @@ def test_disk_full_during_a_scan_stops_it_and_keeps_every_whole_frame(plain_rig,
     rig, cfg, rig_yaml = plain_rig
     disk = small_disk(1536)
     folder = disk.path / "scan"
+    _ahead(rig, 6.0)
     p = subprocess.run([*VTS, "scan", "start", "--duration", "30", "-o", str(folder)], env=_env(rig, rig_yaml),
-                       capture_output=True, text=True, timeout=90)
+                       capture_output=True, text=True, timeout=HANG_S)
     assert p.returncode == 3, p.stdout + p.stderr
     assert "no space left on device" in p.stderr and "whole frame(s)" in p.stderr and "Traceback" not in p.stderr
     m = _manifest(folder)
@@ -362,6 +379,6 @@ def test_scan_refuses_durations_that_are_not(plain_rig, tmp_path):
     rig, cfg, rig_yaml = plain_rig
     for bad in ("nan", "inf", "-1", "0"):
         p = subprocess.run([*VTS, "scan", "start", "--duration", bad, "-o", str(tmp_path / "s")],
-                           env=_env(rig, rig_yaml), capture_output=True, text=True, timeout=60)
+                           env=_env(rig, rig_yaml), capture_output=True, text=True, timeout=HANG_S)
         assert p.returncode == 2 and "--duration" in p.stderr, (bad, p.stderr)
     assert not (tmp_path / "s").exists()

@@ -4,6 +4,7 @@ processed with the rig's N-camera calibration file (cameras.json)."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from vts_hw.config import load_rig
 from vts_hw.drivers.registry import open_cameras
@@ -14,12 +15,14 @@ from vts_hw.vision.camera_set import load_cameras
 from vts_hw.vision.registration import RigidTransform
 
 FPS = 25.0
+pytestmark = pytest.mark.timeout(600)     # a hang detector: making the frames ahead takes long on a loaded machine
 
 
 def test_a_four_camera_scan_is_recorded_and_tracked(tmp_path):
     rig = SimRig(n_cameras=4, seed=3, gantry=True).start()
     try:
         rig.ntp_sync()
+        rig.prerender(9.0)        # the scan's frames (the heads turning with them) made ahead
         rig_yaml, _ = rig.write(tmp_path / "rig")
         cfg = load_rig(rig_yaml)
         with rig.env():
@@ -28,6 +31,7 @@ def test_a_four_camera_scan_is_recorded_and_tracked(tmp_path):
     finally:
         rig.stop()
     assert sorted(m["cameras"]) == ["cam1", "cam2", "cam3", "cam4"]
+    assert rig.bank.served >= 4 * 0.9 * 3.0 * FPS and "the scene changed" not in rig.bank.missed
     for name, cam in m["cameras"].items():
         assert cam["frames"] >= 0.9 * 3.0 * FPS and cam["gaps"] == [], name
     # cameras.json is in camera 1's frame, like calibration.json: spect_mapping.json maps it

@@ -3,12 +3,15 @@ exports for reconstruction, each figure scored against the simulated patient's t
 
 A simulated rig of two cameras with the trigger box in the emulator and a breathing patient
 (still for ``still_s``, then one sudden body move) comes up on 127.0.0.1; `vts scan start`
-records it with the live tracking on (the scenario :func:`patient_scan`); the simulated SPECT
+records it with the live tracking on (the scenario :func:`patient_scan`, the cameras' frames made
+ahead of time so that the recording is whole however busy the machine is); the simulated SPECT
 writes the list-mode of the scan, counting the patient's heart; then `vts motion analyze
 --listmode … --export …` puts the motion on the SPECT clock and writes the CASToR files.
 :func:`demo_patient_scan` returns what `vts demo` prints: the alert's delay after the true
 start of the move, the move as found against the truth, the breathing rate against the truth,
-and the body pose error in still frames.
+and the body pose error in still frames. What could make those figures rest on less than the
+whole scan (frames the recording lacks, frames the cameras had to render live) is said plainly
+before them (:func:`recording_notes`).
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ class DemoPatientScan:
     alerts: list[dict]           # the live alerts in the manifest, with their delay after the move
     rate_per_min: tuple[float, float]       # breathing rate: measured, true
     pose_error: tuple[float, float]         # body 6-DOF RMS in still frames: mm, deg
+    notes: tuple[str, ...] = ()             # what degraded the recording, in plain words (none: whole)
 
 
 def demo_patient_scan(out_dir, seconds: float = 30.0, *, say: Callable[[str], None] = lambda m: None
@@ -61,11 +65,17 @@ def demo_patient_scan(out_dir, seconds: float = 30.0, *, say: Callable[[str], No
     rig = SimRig(n_cameras=2, seed=5, trigger="triggerbox", patient=options).start()
     try:
         rig_yaml, _ = rig.write(out_dir / "patient-rig")
+        say(f"making the cameras' frames for the scan ahead of time ({seconds:g} s, 2 cameras) ...")
         say(f"vts scan start --duration {seconds:g} -o {session}  (a breathing patient on the table, live "
             "tracking on; the body moves once)")
         run = patient_scan(rig, rig_yaml, session, seconds, truth_dir=out_dir / "patient-truth")
+        notes = recording_notes(session, rig.bank)
     finally:
         rig.stop()
+    if run.render is not None:
+        say(f"  frames made ahead: {run.render.line()}")
+    for note in notes:
+        say(f"  DEGRADED: {note}")
     report, export = out_dir / "motion-report.html", out_dir / "patient-export"
     cmd = [sys.executable, "-m", "vts_hw.cli.__main__", "motion", "analyze", str(session), "--listmode",
            str(run.listmode), "--config", str(rig_yaml), "-o", str(report), "--export", str(export), "--json"]
@@ -74,10 +84,34 @@ def demo_patient_scan(out_dir, seconds: float = 30.0, *, say: Callable[[str], No
     if p.returncode not in MOTION_EXIT_CODES:
         raise RuntimeError(f"the motion analysis failed (exit {p.returncode}): {p.stderr.strip()}")
     data = json.loads(p.stdout)
-    return _score(run, data, session, report, export)
+    return _score(run, data, session, report, export, tuple(notes))
 
 
-def _score(run, data, session, report, export) -> DemoPatientScan:
+def recording_notes(session: Path, bank=None) -> list[str]:
+    """Plain sentences for whatever makes the recording less than the whole scan: its status,
+    frames missing per camera, and frames of the scan (from its start to its stop) that the
+    simulated cameras rendered live, not ahead: on a busy machine those come late. Empty when
+    the recording is whole."""
+    m = json.loads((Path(session) / "manifest.json").read_text())
+    notes = []
+    if m.get("status") != "complete":
+        problems = "; ".join((m.get("scan") or {}).get("problems") or []) or "no reason given"
+        notes.append(f"the recording is {m.get('status')}: {problems}")
+    for name, cam in sorted((m.get("cameras") or {}).items()):
+        if cam.get("dropped_frames"):
+            notes.append(f"camera {name} lost {cam['dropped_frames']} frame(s) in {len(cam.get('gaps') or [])} "
+                         "gap(s): the figures below rest on the time it saw, not the whole scan")
+    times = (m.get("scan") or {}).get("times") or {}
+    if bank is not None:
+        live = bank.missed_between(times.get("scan_started", float("-inf")), times.get("stopped", float("inf")))
+        if live:
+            why = ", ".join(f"{k}: {v}" for k, v in sorted(live.items()))
+            notes.append(f"{sum(live.values())} frame(s) of the scan were rendered live, not ahead ({why}): "
+                         "on a busy machine they come late")
+    return notes
+
+
+def _score(run, data, session, report, export, notes=()) -> DemoPatientScan:
     spect, patient = run.spect, run.patient
     (m,) = run.moves_in_window()
     t_list = float(spect.list_time(m.t_start))
@@ -104,7 +138,7 @@ def _score(run, data, session, report, export) -> DemoPatientScan:
     true_rate = float(np.mean([60.0 / c.period_s for c in true_cycles])) if true_cycles else float("nan")
     rate = data["summary"].get("breathing_rate_per_min") or float("nan")
     return DemoPatientScan(session, report, export, data, move, found, alerts, (float(rate), true_rate),
-                           _pose_error(export / "motion_6dof.csv", spect, patient, m))
+                           _pose_error(export / "motion_6dof.csv", spect, patient, m), notes)
 
 
 def _pose_error(path: Path, spect, patient, move) -> tuple[float, float]:

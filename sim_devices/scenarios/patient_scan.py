@@ -18,6 +18,11 @@ The rig must be a running :class:`~vts_hw.sim_devices.rig.SimRig` built with ``p
 plan must cover the scan) whose ``write(folder)`` has been called. Nothing of the truth is
 written into the session (``truth_dir``, when given, must lie outside it). Host UTC epoch
 seconds throughout.
+
+The cameras' frames for the scan are made ahead of time (``SimRig.prerender``: the scan's
+duration and ``PRERENDER_MARGIN_S``), so that the recording is whole however busy the machine
+is; the patient's plan starts playing with the scan's first stream (its breathing and moves
+moved in time to it: read the truth from ``run.patient`` after the scan).
 """
 
 from __future__ import annotations
@@ -32,7 +37,11 @@ from vts_hw.sim_devices.patient_source import heart_source
 from vts_hw.sim_devices.scenarios.sync_session import SPECT_TAIL_S, run_scan_cli
 from vts_hw.sim_devices.spect_listmode import ListModeTruth, SimListModeSpect
 
-__all__ = ["PatientScan", "patient_scan"]
+__all__ = ["PatientScan", "patient_scan", "PRERENDER_MARGIN_S"]
+
+# frames made ahead beyond the scan's duration: from the recording's first frame to the scan's
+# start (every camera's first frame, the trigger fired) and the stop
+PRERENDER_MARGIN_S = 5.0
 
 
 @dataclass
@@ -46,6 +55,7 @@ class PatientScan:
     fire_host: float                    # when the trigger fired (host s)
     window: tuple[float, float]         # host s of the first and last frame recorded (any camera)
     truth_files: list[Path]             # what write_truth wrote (empty without truth_dir)
+    render: object = None               # BankStats: what making the frames ahead cost (None: live)
 
     def moves_in_window(self) -> list:
         """The body moves that start inside :attr:`window`."""
@@ -55,7 +65,7 @@ class PatientScan:
 
 def patient_scan(rig, rig_yaml, session_dir, duration_s: float, *, spect: bool = True, seed: int = 0,
                  truth_dir=None, truth_rate_hz: float = 25.0, ntp_sync: bool = True,
-                 timeout: float | None = None) -> PatientScan:
+                 timeout: float | None = None, prerender: bool = True, progress=None) -> PatientScan:
     """Run ``vts scan start --duration D -o SESSION`` in a subprocess against the running
     ``rig`` (which has a patient), wait for it, and return the session and the truth.
 
@@ -63,7 +73,10 @@ def patient_scan(rig, rig_yaml, session_dir, duration_s: float, *, spect: bool =
     the scan (``SESSION.vtslm`` beside the session, the scan less 0.6 s, counts from the
     patient's heart; ``seed`` draws its start delay, clock and counts). ``truth_dir``: also
     write the patient's truth over the recorded window (1 s margin) there, at ``truth_rate_hz``.
-    ``ntp_sync``: the cameras' clocks synced first, as a clinic's are. ValueError when the rig
+    ``ntp_sync``: the cameras' clocks synced first, as a clinic's are. ``prerender``: the
+    frames made ahead of time (``progress(done, total)`` meanwhile); False renders them live,
+    as they are asked for (on a busy machine the streams then come late or skip frames).
+    ValueError when the rig
     has no patient, its plan ends before the scan would, or ``truth_dir`` is inside the
     session; RuntimeError when the scan fails (its stderr)."""
     patient = getattr(rig, "patient", None)
@@ -78,6 +91,7 @@ def patient_scan(rig, rig_yaml, session_dir, duration_s: float, *, spect: bool =
         raise ValueError(f"{truth_dir}: the truth must not go into the session {session}")
     if ntp_sync:
         rig.ntp_sync()
+    render = rig.prerender(duration_s + PRERENDER_MARGIN_S, progress=progress) if prerender else None
     fire = run_scan_cli(rig, rig_yaml, session, duration_s, timeout=timeout or duration_s + 90.0).fire
     window = recorded_window(session)
     listmode, spect_truth = None, None
@@ -88,7 +102,7 @@ def patient_scan(rig, rig_yaml, session_dir, duration_s: float, *, spect: bool =
     files = []
     if truth_dir is not None:
         files = write_truth(patient, truth_dir, window[0] - 1.0, window[1] + 1.0, truth_rate_hz)
-    return PatientScan(session, listmode, spect_truth, patient, fire, window, files)
+    return PatientScan(session, listmode, spect_truth, patient, fire, window, files, render)
 
 
 def recorded_window(session) -> tuple[float, float]:

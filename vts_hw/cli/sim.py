@@ -59,12 +59,18 @@ def sim() -> None:
               help="A simulated QATrack+ beside the rig (127.0.0.1, one unit, the test lists of the daily QA "
                    "and the step test), named in rig.yaml's qatrack: section (its token only in sim.env), so "
                    "that `vts qa push` can be tried. It keeps what it is sent in memory, until the rig stops.")
+@click.option("--ahead", type=click.FloatRange(0, 3600), default=0.0, metavar="SECONDS",
+              help="Make SECONDS of every camera's frames ahead of time, before serving: they start "
+                   "playing at the first stream (the patient's plan moved to that instant), so a scan's "
+                   "streams are whole however busy this machine is. Rendering live, a busy machine makes "
+                   "them late (sent late, up to 10 s behind; then skipped).")
 @click.option("--detach", is_flag=True, help="Run in the background (needs --dir).")
 @click.option("--dir", "folder", type=click.Path(file_okay=False), default=None,
               help="Where to write rig.yaml and sim.env (and sim.pid, sim.log when detached).")
 def up(n_cameras: int, gantry: bool, seed: int, vapix: str, model: str | None, https: bool, rate: float,
        trigger: str, spect: bool, patient: bool, patient_seed: int | None, patient_moves: int | None,
-       patient_minutes: float | None, no_breathing: bool, qatrack: bool, detach: bool, folder: str | None) -> None:
+       patient_minutes: float | None, no_breathing: bool, qatrack: bool, ahead: float, detach: bool,
+       folder: str | None) -> None:
     """Run the simulated rig (foreground: Ctrl-C stops it).
 
     With --dir DIR it writes DIR/rig.yaml pointing at the simulated cameras and DIR/sim.env
@@ -84,12 +90,15 @@ def up(n_cameras: int, gantry: bool, seed: int, vapix: str, model: str | None, h
         if not folder:
             raise click.UsageError("--detach needs --dir DIR (where rig.yaml and sim.env go)")
         pid = simrig.start_detached(folder, n_cameras, seed, fw, rate, trigger=trigger, spect=spect, https=https,
-                                    gantry=gantry, patient=person, qatrack=qatrack)
+                                    gantry=gantry, patient=person, qatrack=qatrack, ahead=ahead)
         _describe(Path(folder))
         if qatrack:
             click.echo(f"simulated QATrack+: {_qatrack_url(Path(folder))} (rig.yaml's qatrack:; its token in sim.env)")
         if person is not None:
             click.echo(f"simulated patient: its truth in {Path(folder) / 'truth'}")
+        if ahead:
+            click.echo(f"{ahead:g} s of frames made ahead of time: they start playing at the first stream "
+                       f"(what rendering cost: {Path(folder) / 'sim.log'})")
         click.echo(f"simulated rig running in the background (pid {pid}); stop it with: vts sim down --dir {folder}")
         return
 
@@ -112,7 +121,7 @@ def up(n_cameras: int, gantry: bool, seed: int, vapix: str, model: str | None, h
         click.echo("simulated rig up; Ctrl-C stops it")
 
     simrig.serve(folder, n_cameras, seed, fw, rate, on_ready=ready, trigger=trigger, spect=spect, https=https,
-                 gantry=gantry, patient=person, qatrack=qatrack)
+                 gantry=gantry, patient=person, qatrack=qatrack, ahead=ahead)
     click.echo("simulated rig stopped")
 
 
