@@ -29,9 +29,13 @@ debs:
 demo: $(STAMP)
 	$(VENV)/bin/vts demo
 
+# two pytest-xdist workers (make test PYTEST_WORKERS=0 for one process); the real QATrack+'s
+# tests are one group, run last, against the server the controller starts (tests/conftest.py)
+PYTEST_WORKERS ?= 2
+
 test: $(STAMP) debs
 	$(MAKE) -C firmware
-	$(PY) -m pytest
+	$(PY) -m pytest $(if $(filter-out 0,$(PYTEST_WORKERS)),-n $(PYTEST_WORKERS) --dist loadgroup)
 
 bench: $(STAMP) debs
 	$(MAKE) -C firmware

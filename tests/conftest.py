@@ -76,6 +76,9 @@ def store_url(request, tmp_path) -> str:
 
 
 # -- the real QATrack+ (../shared/interop/qatrack): started while the rest of the suite runs ---------
+# One process starts it: the session's only process, or with pytest-xdist (make test runs two
+# workers) the controller, which outlives the workers; the real_qatrack tests are one xdist group
+# (one worker runs them in turn: they restart the one server in other zones) and come last.
 
 _REAL_QATRACK = None
 
@@ -88,20 +91,54 @@ def _real_qatrack():
     return _REAL_QATRACK
 
 
+def _xdist_worker(config) -> bool:
+    return hasattr(config, "workerinput")
+
+
+def _xdist_controller(config) -> bool:
+    return not _xdist_worker(config) and bool(getattr(config.option, "numprocesses", None))
+
+
+def _may_select_real_qatrack(config) -> bool:
+    """Whether the session's arguments can reach tests/test_qatrack_real.py (the controller of
+    an xdist session collects nothing, so it judges by the arguments and -m)."""
+    if "not real_qatrack" in (config.option.markexpr or ""):
+        return False
+    target = (Path(__file__).parent / "test_qatrack_real.py").resolve()
+    args = [a.split("::")[0] for a in config.args] or [str(Path(__file__).parent)]
+    for a in args:
+        p = Path(a).resolve()
+        if p == target or (p.is_dir() and target.is_relative_to(p)):
+            return True
+    return False
+
+
+def pytest_sessionstart(session):
+    if _xdist_controller(session.config) and _may_select_real_qatrack(session.config):
+        _real_qatrack().start_in_background()
+        _real_qatrack().note_when_started()
+
+
 def pytest_collection_modifyitems(session, config, items):
-    """Tests marked real_qatrack run last, and the real server starts installing now."""
+    """Tests marked real_qatrack run last (one xdist group), and the real server starts
+    installing now (unless a controller started it)."""
     real = [i for i in items if i.get_closest_marker("real_qatrack")]
     if real:
+        for i in real:
+            i.add_marker(pytest.mark.xdist_group("real_qatrack"))
         items[:] = [i for i in items if not i.get_closest_marker("real_qatrack")] + real
-        _real_qatrack().start_in_background()
+        if not _xdist_worker(config):
+            _real_qatrack().start_in_background()
 
 
 def pytest_sessionfinish(session, exitstatus):
-    if _REAL_QATRACK is not None and _REAL_QATRACK.started_by_us:
+    if _REAL_QATRACK is not None and _REAL_QATRACK.started_by_us and not _xdist_worker(session.config):
         _REAL_QATRACK.stop()
 
 
 @pytest.fixture(scope="session")
-def real_qatrack():
+def real_qatrack(request):
     """The real QATrack+ 3.1 on 127.0.0.1 (tests/qatrack_real.py), once it is up."""
+    if _xdist_worker(request.config):
+        return _real_qatrack().wait_for_other()
     return _real_qatrack().wait()

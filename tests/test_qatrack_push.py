@@ -374,6 +374,7 @@ def test_drf_error_bodies_become_one_line():
         "unit_test_collection: Invalid hyperlink - Object does not exist."
 
 
+@pytest.mark.timeout(600)          # a hang detector: several vts commands, slow on a loaded machine
 def test_cli_daily_push_then_push_pending_and_dry_run(peer, sim_rig, tmp_path):
     """End to end: `vts qa daily --push` on the simulated rig with QATrack+ down (the QA's exit
     status stands, the run waits in the outbox), `vts qa push --pending` once it is back,
