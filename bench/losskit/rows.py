@@ -18,7 +18,7 @@ import numpy as np
 
 from vts_hw.recording.folder import read_index
 
-from .truth import (MOVE_MIN, POSE_GOAL, match_moves, observed_instants, overlap, rate_figures, stretches_without,
+from losskit.truth import (MOVE_MIN, POSE_GOAL, match_moves, observed_instants, overlap, rate_figures, stretches_without,
                     true_rate)
 
 LATE_S = 0.5             # the live path's allowance (decision 0048): shorter holes are not NOT TRACKING

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .truth import POSE_GOAL, RATE_GOAL, START_GOAL
+from losskit.truth import POSE_GOAL, RATE_GOAL, START_GOAL
 
 GOAL_LOSS = 20.0          # %: up to this loss every figure must meet its goal
 
