@@ -127,6 +127,9 @@ def live(scan, moves) -> dict:
     seen = observed_instants(scan.truth.times, 2, 0.02)
     truly = stretches_without(seen, a, b, LATE_S)
     rep = [(e["start"], e["end"]) for e in lm.get("not_tracking", [])]
+    # stretches the live path was behind the frames, not without them: the host's doing
+    late = sum(e["end"] - e["start"] for e in lm.get("not_tracking", [])
+               if all(r.startswith("frames too late") for r in e.get("reasons", [])))
     unrep = [(s0, s1, (s1 - s0) - overlap(rep, s0, s1)) for s0, s1 in truly]
     for s0, s1, u in unrep:
         if u > EDGE_S:
@@ -173,7 +176,7 @@ def live(scan, moves) -> dict:
                 flagged += 1
             else:
                 bad.append(f"alert {delay:.2f} s after the move at {mv.t_start - a:.1f} s")
-    return {"reported": sum(e1 - e0 for e0, e1 in rep), "truly": sum(s1 - s0 for s0, s1 in truly),
+    return {"reported": sum(e1 - e0 for e0, e1 in rep), "late": late, "truly": sum(s1 - s0 for s0, s1 in truly),
             "stretches": (len(rep), len(truly)), "unreported": sum(max(0.0, u) for *_, u in unrep), "latency": lat,
             "after": after, "bad": bad, "flagged": flagged, "other_alerts": other, "phase": summ.get("phase"),
             "live_dropped": sum((summ.get("live_dropped") or {}).values())}

@@ -60,12 +60,13 @@ def row_line(r) -> list[str]:
     if r is None:
         return ["| case | lost % (+extra) | covered: reported / true | breathing /min (error) | truth | pose RMS mm / deg "
                 "| moves found/true, max start error | alert s after start (max) | NOT TRACKING s: reported / truly "
-                "(unreported) | unknown/ bounded | not flagged | scan + analysis s |",
+                "(unreported); of it frames too late | unknown/ bounded | not flagged | scan + analysis s |",
                 "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     lv, o = r["live"], r["offline"]
     lost = f"{100 * r['dropped']:.1f} (+{r['extra']})" + (f" {r['bank_live']} live" if r["bank_live"] else "")
     nt = ("-" if lv["reported"] is None else
-          f"{lv['reported']:.2f} / {lv['truly']:.2f} ({lv['unreported']:.2f})")
+          f"{lv['reported']:.2f} / {lv['truly']:.2f} ({lv['unreported']:.2f})"
+          + (f"; {lv['late']:.1f} late" if lv["late"] >= 0.05 else ""))
     if o is None:
         off = ["analysis failed", "-", "-", "-"]
     else:
