@@ -40,6 +40,9 @@ from vts_hw.sim_devices.recording_sim import simulate_recording
 from vts_hw.sim_devices.sync_truth import true_cameras
 from vts_hw.vision.registration import RigidTransform
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from losskit.truth import observed_instants, stretches_without  # noqa: E402
+
 MOTION = SimpleNamespace(alert_mm=3.0, alert_deg=2.0, alert_after_s=1.0, blind_alert_s=3.0)
 LATE_S = 0.5
 MONO0 = 10_000.0
@@ -111,14 +114,11 @@ def unobserved(kept, end: float, tol: float = 0.02) -> tuple[float, float, list]
     by = {}
     for rel, name, t in kept:
         by.setdefault(name, []).append(t)
-    a, b = (np.array(sorted(v)) for v in by.values())
-    j = np.clip(np.searchsorted(b, a), 1, len(b) - 1)
-    near = np.minimum(np.abs(b[j] - a), np.abs(b[j - 1] - a)) <= tol
-    both = np.concatenate([[0.0], a[near], [end]])
-    gaps = np.diff(both)
-    long = [(both[i], both[i + 1]) for i in np.flatnonzero(gaps > LATE_S)]
+    seen = observed_instants(by, 2, tol, ref=next(iter(by)))
+    long = stretches_without(seen, 0.0, end, LATE_S)
+    gaps = np.diff(np.concatenate([[0.0], seen[(seen > 0.0) & (seen < end)], [end]]))
     step = 1.0 / 25.0
-    return float(sum(g for g in gaps if g > LATE_S)), float(np.sum(np.maximum(gaps - step, 0.0))), long
+    return float(sum(b - a for a, b in long)), float(np.sum(np.maximum(gaps - step, 0.0))), long
 
 
 def main() -> int:

@@ -29,11 +29,11 @@ import sys
 import tempfile
 from pathlib import Path
 
-import numpy as np
-
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
+sys.path.insert(0, str(HERE))
 
+from losskit.truth import POSE_GOAL, match_moves, pose_rms, rate_figures, true_moves, true_rate  # noqa: E402
 from lossy_recording import bursts, camera_gone, cut_mjpeg, lossy_copy, random_frames, slots_lost  # noqa: E402
 
 from vts_hw.procedures.motion import MotionAnalysis  # noqa: E402
@@ -58,54 +58,18 @@ def score(a, sim, lost_s):
     if abs(cov["no_frames_s"] - lost_s) > 0.01 * sim.duration_s or abs(cov["duration_s"] - sim.duration_s) > 0.1:
         bad.append(f"time without frames {cov['no_frames_s']:.1f} s of {cov['duration_s']:.1f} s against "
                    f"{lost_s:.1f} s of {sim.duration_s:.1f} s")
-    six = r.pose.six_dof()
-    true = np.array([patient.six_dof(float(x)) for x in t])
-    sel = r.pose.valid & ~r.moving
-    err = six[sel] - true[sel]
-    mm = float(np.sqrt(np.mean(np.sum(err[:, :3] ** 2, axis=1))))
-    deg = float(np.sqrt(np.mean(np.sum(err[:, 3:] ** 2, axis=1))))
-    if mm > 0.3 or deg > 0.2:
+    mm, deg = pose_rms(r, patient)
+    if mm > POSE_GOAL[0] or deg > POSE_GOAL[1]:
         bad.append(f"pose {mm:.3f} mm {deg:.3f} deg")
-    b = d["breathing"]
-    cyc = [c for c in patient.breathing.cycles
-           if t[0] <= c.t_start and c.t_start + c.period_s <= t[-1] and c.kind != "pause"]
-    true_rate = float(np.median([60.0 / c.period_s for c in cyc]))
-    rate_err = None if b["rate_per_min"] is None else b["rate_per_min"] - true_rate
-    if b["status"] == "measured" and abs(rate_err) > 0.5:
-        bad.append(f"rate {b['rate_per_min']:.2f} against {true_rate:.2f} (measured)")
-    if b["status"] == "bounded" and not (b["rate_range_per_min"][0] <= true_rate <= b["rate_range_per_min"][1]):
-        bad.append(f"rate range {b['rate_range_per_min']} misses {true_rate:.2f}")
-    if b["status"] == "none":
-        bad.append("breathing reported as none")
-    moves = [m for m in patient.motion.moves
-             if np.linalg.norm(m.translation_mm) >= 2.0 or np.linalg.norm(m.rotation_deg) >= 1.0]
-    found = bounded = unseen = 0
-    used = set()
-    for m in moves:
-        ok = None
-        for k, e in enumerate(r.events):
-            if e.start_bounds is None and abs(e.t_start - m.t_start) <= 0.5:
-                ok = ("found", k)
-            elif e.start_bounds is not None and e.start_bounds[0] <= m.t_start <= e.start_bounds[1]:
-                ok = ("bounded", k)
-            if ok:
-                break
-        if ok is None:
-            if not r.pose.valid[t > m.t_start].any():
-                unseen += 1                  # no pose after it: nothing can show it (coverage says so)
-                continue
-            bad.append(f"move at {m.t_start - t[0]:.2f} s not found")
-            continue
-        used.add(ok[1])
-        found += ok[0] == "found"
-        bounded += ok[0] == "bounded"
-    false = len(r.events) - len(used)
-    if false:
-        bad.append(f"{false} event(s) that did not happen")
+    rate = rate_figures(d["breathing"], true_rate(patient, t[0], t[-1]))
+    bad += [rate["bad"]] if rate["bad"] else []
+    mv = match_moves(r, true_moves(patient))
+    bad += mv["bad"]
     return {"pose_known": cov["share"], "true_share": true_share, "no_frames_s": cov["no_frames_s"],
-            "duration": cov["duration_s"], "breathing": b["status"], "rate": b["rate_per_min"],
-            "range": b["rate_range_per_min"], "true_rate": true_rate, "rate_err": rate_err, "pose_mm": mm,
-            "pose_deg": deg, "moves": len(moves), "found": found, "bounded": bounded, "unseen": unseen, "false": false, "bad": bad}
+            "duration": cov["duration_s"], "breathing": rate["status"], "rate": rate["rate"],
+            "range": rate["range"], "true_rate": rate["truth"], "rate_err": rate["err"], "pose_mm": mm,
+            "pose_deg": deg, "moves": mv["moves"], "found": mv["found"], "bounded": mv["bounded"],
+            "unseen": mv["unseen"], "false": mv["false"], "bad": bad}
 
 
 def row(label, s):

@@ -153,6 +153,20 @@ class FrameBank:
         for hook in list(self.on_play):
             hook(dt)
 
+    def rewind(self) -> None:
+        """Back to before :meth:`play_from`: what moved in time with the stretch is moved back
+        and the next stream starts the stretch again (the same frames for another scan, as
+        ``bench/motion_under_loss.py`` runs one per loss pattern); the counts start afresh.
+        Nothing happens when the stretch is not playing."""
+        with self._lock:
+            if self.offset is None:
+                return
+            dt = self.offset / self.fps
+            for mover in self._movers():
+                mover.shift(-dt)
+            self.offset = None
+            self.served, self.missed, self._misses = 0, {}, []
+
     def take(self, cam: str, t: float, quality: int) -> bytes | None:
         """The JPEG of camera ``cam`` at grid time ``t`` from the bank, or None (render it)."""
         if self.offset is None or quality != self.quality or cam not in self.frames:

@@ -76,6 +76,37 @@ def test_frames_made_ahead_show_the_patient_where_the_truth_says(monkeypatch):
             assert np.linalg.norm(blobs - uv, axis=1).min() < 0.8, (k, t - move.t_start)
 
 
+def test_a_rewound_stretch_plays_again_from_the_next_stream_with_the_patient_moved_back(monkeypatch):
+    rig, patient = _rig_with_patient(move_in_s=1.0)
+    move = patient.motion.moves[0]
+    planned = (move.t_start, patient.breathing.t0)
+    played = []
+    rig.on_play(played.append)
+    try:
+        rig.prerender(2.0)
+        monkeypatch.setattr(os, "environ", {**os.environ, **rig.env_vars()})
+        first, _ = _stream(rig, "cam1", frames=10)
+        rig.bank.rewind()
+        assert (move.t_start, patient.breathing.t0) == pytest.approx(planned) and not rig.bank.playing
+        assert rig.bank.served == 0
+        time.sleep(0.3)
+        again, _ = _stream(rig, "cam1", frames=10)
+    finally:
+        rig.stop()
+    assert len(played) == 2 and played[1] > played[0] + 0.2        # started anew, later
+    assert move.t_start == pytest.approx(planned[0] + played[1]) and rig.bank.served == 10
+    assert rig.bank.missed == {}
+    # the second stream shows the patient where the truth (moved by the second start) says
+    clock = rig.scene.clocks["cam1"]
+    f = again[5]
+    blobs = np.array([(b.x, b.y) for b in detect_jpeg(f.jpeg).blobs])
+    t = clock.host_time(f.camera_time) + 0.005
+    truth = {k: np.array((u, v)) for k, u, v in rig.scene.truth("cam1", t) if k in BAND}
+    assert len(truth) >= 6
+    for k, uv in truth.items():
+        assert np.linalg.norm(blobs - uv, axis=1).min() < 0.8, k
+
+
 def test_frames_made_ahead_come_whole_and_on_time_while_every_core_is_busy(monkeypatch):
     rig, _ = _rig_with_patient()
     load = []
