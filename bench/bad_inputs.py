@@ -21,6 +21,9 @@ listed here. The classes of bad input, each command one case at a time:
   calibration of the simulated rig (which stores its result after its work) likewise. Each
   case has its own copy; it must be byte-identical afterwards with nothing beside it, and a
   command that opened it must refuse it (exit 3): exit 0 is a false OK.
+* ``full disk``: every command that writes, its output on a real full disk (bench/badkit/full_disk.py:
+  a small tmpfs per case; needs root or password-less sudo): exit 3 naming the file, no half file
+  left that looks whole, nothing acquired lost.
 
 Each case runs in a forked child of this process (the CLI is imported once) with a time
 limit, in a folder of its own; the child notes every store it opens. A case passes when the
