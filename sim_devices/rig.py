@@ -31,13 +31,13 @@ from vts_hw.files import WriteFailed, ensure_dir, os_reason, write_atomic
 from vts_hw.sim_devices.axis_camera import SimAxisCamera
 from vts_hw.sim_devices.camera_source import SimCameraSource
 from vts_hw.sim_devices.clock import RealClock, VirtualClock
+from vts_hw.sim_devices.rig_log import FAILED, NOTHING_LOGGED, disk_full, failure_cause, one_line
 from vts_hw.sim_devices.render import Renderer
 from vts_hw.sim_devices.scene import CameraDrift, Scene
 
 PID_FILE = "sim.pid"
 LOG_FILE = "sim.log"
 FGEN_LOG = "fgen_output.csv"     # the simulated function generator's output changes (host times)
-FAILED = "simulated rig failed: "  # how the detached process says why it stopped (last line of sim.log)
 FOLDER = "simulated rig folder"
 TRIGGERS = ("none", "triggerbox", "visa")
 _children: dict[int, subprocess.Popen] = {}  # started from this process: reaped on stop
@@ -381,7 +381,7 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
         if proc.poll() is not None:
             log.close()
             cause = failure_cause(log_path, log_start)
-            if proc.returncode == 3 and cause == NOTHING_LOGGED and _disk_full(folder):
+            if proc.returncode == 3 and cause == NOTHING_LOGGED and disk_full(folder):
                 cause = f"{folder}: no space left on device"
             err = VtsError(f"the simulated rig failed to start (exit {proc.returncode}): "
                            f"{cause} (the whole log: {log_path})")
@@ -399,47 +399,6 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
 def _already_running(folder: Path) -> UsageError:
     return UsageError(f"a simulated rig is already running in {folder}: stop it first "
                       f"(vts sim down --dir {folder}) or give another --dir")
-
-
-def failure_cause(log_path: Path, start: int = 0) -> str:
-    """Why the detached rig stopped, from what it wrote to sim.log after byte ``start``: the
-    line it writes when it fails (``FAILED``), else the last line that is not part of a
-    traceback's listing."""
-    try:
-        with open(log_path, "rb") as f:
-            f.seek(start)
-            lines = [ln.rstrip() for ln in f.read().decode("utf-8", "replace").splitlines() if ln.strip()]
-    except OSError as e:
-        return f"its log cannot be read ({os_reason(e)})"
-    for line in reversed(lines):
-        if line.startswith(FAILED):
-            return line[len(FAILED):]
-    plain = [ln for ln in lines if not ln.startswith((" ", "\t", "Traceback"))]
-    if plain:
-        return plain[-1]
-    return NOTHING_LOGGED
-
-
-NOTHING_LOGGED = "it wrote nothing to its log (was it killed, or is the disk full?)"
-
-
-def _disk_full(folder: Path) -> bool:
-    try:
-        return os.statvfs(folder).f_bavail == 0
-    except OSError:
-        return False
-
-
-def _why(exc: BaseException) -> str:
-    """An unexpected exception in one line: its type, the first line of its message and, when
-    the message goes on (a build's output), its last line."""
-    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
-    if not lines:
-        return type(exc).__name__
-    text = lines[0].rstrip(":")
-    if len(lines) > 1:
-        text += f": {lines[-1]}"
-    return f"{type(exc).__name__}: {text}"
 
 
 def _pid(folder: Path) -> int | None:
@@ -510,7 +469,7 @@ def _main(argv: list[str]) -> int:
         import traceback
         with contextlib.suppress(OSError):
             traceback.print_exc()
-            print(f"{FAILED}{_why(e)}", file=sys.stderr, flush=True)
+            print(f"{FAILED}{one_line(e)}", file=sys.stderr, flush=True)
         return 1
     return 0
 
