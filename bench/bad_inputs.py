@@ -21,6 +21,9 @@ listed here. The classes of bad input, each command one case at a time:
   calibration of the simulated rig (which stores its result after its work) likewise. Each
   case has its own copy; it must be byte-identical afterwards with nothing beside it, and a
   command that opened it must refuse it (exit 3): exit 0 is a false OK.
+* ``full disk``: every command that writes, its output on a real full disk (bench/badkit/full_disk.py:
+  a small tmpfs per case; needs root or password-less sudo): exit 3 naming the file, no half file
+  left that looks whole, nothing acquired lost.
 
 Each case runs in a forked child of this process (the CLI is imported once) with a time
 limit, in a folder of its own; the child notes every store it opens. A case passes when the
@@ -54,13 +57,14 @@ import click
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from badkit.classes import (EXIT_OK, Case, Verdict, common, float_cases, foreign_cases, number_judge,  # noqa: E402
                             plain, probe_stores, sha, store_command_cases)
+from badkit import full_disk  # noqa: E402
 
 SKIP = {("sim", "up"): "starts servers in the foreground", ("demo",): "runs the whole demo"}
 #: what a skipped command runs with in the floats class (a bad float is refused before anything starts)
 SKIPPED_BASE = {("sim", "up"): lambda wd: ["--detach", "--dir", str(wd / "sim")],
                 ("demo",): lambda wd: ["-o", str(wd / "demo"), "--days", "1"]}
 NUMBERS = ["nan", "inf", "-1", "1e309", "abc"]
-CLASSES = ("paths", "numbers", "floats", "configs", "foreign stores")
+CLASSES = ("paths", "numbers", "floats", "configs", "foreign stores", full_disk.CLASS)
 QATRACK_TOKEN_ENV = "VTS_BAD_INPUTS_QATRACK_TOKEN"
 
 
@@ -324,6 +328,8 @@ def plan(only: str | None, classes, fx: Fixtures, cli) -> list[Case]:
             todo = list(cases(cmd_path, cmd, fx))
         planned += todo
     planned += [c for c in store_command_cases(fx) if not only or c.what.startswith(only)]
+    if full_disk.CLASS in classes:
+        planned += full_disk.cases(fx.root, only)
     return [c for c in planned if c.cls in classes]
 
 
@@ -399,6 +405,7 @@ def sweep(only: str | None, timeout: float, show: bool, root: Path, jobs: int = 
                     print(f"  exit {code}: {label}\n      {last}")
     finally:
         _stop_sims(root)
+        full_disk.cleanup(root)
         os.chdir(cwd)
         os.environ.clear()
         os.environ.update(env_backup)

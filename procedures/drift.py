@@ -301,7 +301,8 @@ class DriftAnalysis:
         ax.set_ylim(img.shape[0], 0)
         fig.tight_layout()
         if path is not None:
-            fig.savefig(path)
+            from vts_hw.figures import figure_png
+            figure_png(fig, path, dpi=fig.dpi)   # whole or not at all (a full disk: WriteFailed)
             plt.close(fig)
         return fig
 

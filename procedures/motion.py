@@ -320,11 +320,15 @@ class MotionAnalysis:
         (``trajectories.csv``/``.json``, docs/trajectory-format.md) into ``out``;
         :attr:`export_notes`: the files not written and why (the CASToR files need the SPECT clock
         and a mapping that says its volume), the motion states CASToR's whole seconds merge."""
+        from vts_hw.files import WriteFailed, export_stopped
         r = self._need()
-        written = export_motion(r, out, n_bins=n_bins, volume=self.spect_volume(),
-                                extra={"session": str(self.session), "vts_hw_version": __version__})
-        self.export_notes = list(written.notes)
-        paths = list(written)
-        if self.tracks is not None:
-            paths += list(self.tracks.save(Path(out) / "trajectories.csv"))
+        try:
+            written = export_motion(r, out, n_bins=n_bins, volume=self.spect_volume(),
+                                    extra={"session": str(self.session), "vts_hw_version": __version__})
+            self.export_notes = list(written.notes)
+            paths = list(written)
+            if self.tracks is not None:
+                paths += list(self.tracks.save(Path(out) / "trajectories.csv"))
+        except WriteFailed as exc:   # each file whole or absent; say what that leaves of the export
+            raise export_stopped(exc, out) from None
         return paths

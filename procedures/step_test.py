@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from vts_hw.errors import ConfigError, DataError, UsageError
+from vts_hw.files import WriteFailed
 from vts_hw.procedures.steps import (StepPosition, StepSession, VolumeFolder, analyze_positions, load_positions,
                                      store_steps)
 from vts_hw.procedures.steps_analysis import StepAnalysis
@@ -33,8 +34,10 @@ class StepInputs:
 class StepRun:
     analysis: StepAnalysis
     run_id: int
-    plot: Path
+    plot: Path | None
     out: Path
+    #: the plot could not be written (disk full): the run is stored without it; the caller says so (exit 3)
+    plot_error: WriteFailed | None = None
 
 
 def step_test_inputs(rig, calibration_path=None, mapping_path=None, volumes=None) -> StepInputs:
@@ -81,7 +84,11 @@ def run_step_test(rig, inputs: StepInputs, out, plan: list[StepPosition], store,
         raise DataError(f"{exc} (the VTS part is kept: run `vts qa steps --analyze {out} --volumes "
                         f"{inputs.spect.folder}` when that is fixed)") from None
     png = out / "steps.png"
-    analysis.plot(png)
+    try:
+        analysis.plot(png)
+        plot_error = None
+    except WriteFailed as exc:      # a full disk costs the plot, never the analysed test
+        plot_error = exc
     run_id = store_steps(store, analysis, rig.tolerances, rig=rig.rig, operator=operator, started=started,
-                         config_digest=rig.digest, artifacts=[png])
-    return StepRun(analysis, run_id, png, out)
+                         config_digest=rig.digest, artifacts=[] if plot_error else [png])
+    return StepRun(analysis, run_id, None if plot_error else png, out, plot_error)

@@ -28,7 +28,6 @@ rest.
 from __future__ import annotations
 
 import json
-import os
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -37,6 +36,7 @@ from typing import Callable, Protocol, Sequence, runtime_checkable
 import numpy as np
 
 from vts_hw.errors import DataError
+from vts_hw.files import ensure_dir, write_atomic, write_json_atomic
 from vts_hw.procedures.steps_analysis import StepAnalysis
 
 N_SPHERES = 7
@@ -207,7 +207,7 @@ class StepSession:
     def acquire(self) -> list[SeenPosition]:
         from vts_hw.vision.detect import detect_jpeg
 
-        self.out.mkdir(parents=True, exist_ok=True)
+        ensure_dir(self.out, "step test folder")
         for cam in self.cameras:
             cam.led_on()
         time.sleep(LED_SETTLE_S)
@@ -218,7 +218,8 @@ class StepSession:
             for k, cam in enumerate(self.cameras):
                 name = getattr(cam, "name", f"cam{k + 1}")
                 snaps = [cam.snapshot(self.compression) for _ in range(self.frames)]
-                (self.out / f"{pos.label}-{name}.jpg").write_bytes(snaps[0].jpeg)
+                write_atomic(self.out / f"{pos.label}-{name}.jpg", snaps[0].jpeg,
+                             kept=self._kept())
                 pts[name] = average_centroids([detect_jpeg(s.jpeg) for s in snaps]).tolist()
             self.spect.acquired(pos)
             self.seen.append(SeenPosition(pos.label, pos.kind, self.clock(), pts))
@@ -230,9 +231,13 @@ class StepSession:
                 "cameras": [getattr(c, "name", f"cam{i + 1}") for i, c in enumerate(self.cameras)],
                 "plan": [asdict(p) for p in self.plan_],
                 "positions": [asdict(s) for s in self.seen]}
-        tmp = self.out / (POSITIONS_FILE + ".tmp")
-        tmp.write_text(json.dumps(data, indent=1))
-        os.replace(tmp, self.out / POSITIONS_FILE)
+        write_json_atomic(self.out / POSITIONS_FILE, data, indent=1, kept=self._kept(len(self.seen) - 1))
+
+    def _kept(self, n: int | None = None) -> str:
+        """What a full disk leaves of the session: positions.json as it was (``n`` positions)."""
+        n = len(self.seen) if n is None else n
+        return (f"{self.out / POSITIONS_FILE} keeps the {n} position(s) acquired before it" if n > 0
+                else "no position was saved yet")
 
     # ------------------------------------------------------------------ analysis
     def analyze(self, tolerances=None) -> StepAnalysis:

@@ -234,6 +234,7 @@ class StepAnalysis:
         fig.suptitle(f"7-sphere step test ({self.analyzed_at}, vts-hw {__version__}): {self.state}")
         fig.tight_layout()
         if path is not None:
-            fig.savefig(path, dpi=110)
+            from vts_hw.figures import figure_png
+            figure_png(fig, path, dpi=110)   # whole or not at all (a full disk: WriteFailed)
             plt.close(fig)
         return fig

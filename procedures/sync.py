@@ -44,6 +44,7 @@ from typing import Callable
 import numpy as np
 
 from vts_hw.errors import DataError
+from vts_hw.files import WriteFailed, ensure_dir, export_stopped
 from vts_hw.timing.motion_events import StepFit, find_steps, fit_step, match_events, robust_sd
 from vts_hw.recording.trigger_log import WaveInfo, wave_from_trigger_log
 from vts_hw.spect.gating import GatingResult, analyze_gating, axial_centre_of_mass
@@ -445,8 +446,7 @@ def export_trajectories(tracks, gating: GatingResult, out, mapping=None,
     if mapping is None and tracks.xyz_spect is None:
         raise DataError("no VTS -> SPECT mapping: the trajectories cannot be put in the SPECT frame "
                         "(give --mapping or set calibration.spect in rig.yaml)")
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = ensure_dir(out, "export folder")
     exported = tracks.with_spect(mapping, _HostToList(gating.clock))
     c = gating.clock
     exported.meta["sync"] = {"spect_time": "SPECT list-mode s since the acquisition start",
@@ -454,4 +454,7 @@ def export_trajectories(tracks, gating: GatingResult, out, mapping=None,
                              "t_wave_list_s": c.t_wave, "fire_host": c.fire_host,
                              "spect_start_time": gating.start_time,
                              "dead_time_list_s": np.asarray(gating.dead).tolist()}
-    return exported.save(out / f"{stem}.csv")
+    try:
+        return exported.save(out / f"{stem}.csv")
+    except WriteFailed as exc:     # each file whole or absent; say what that leaves of the export
+        raise export_stopped(exc, out) from None

@@ -351,6 +351,7 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
         with contextlib.suppress(FileNotFoundError):
             (folder / name).unlink()
     log_path = folder / LOG_FILE
+    had_log = log_path.exists()
     try:   # the first line of this start, on disk before the rig starts: a full disk stops here
         log = open(log_path, "ab")
         log_start = log.tell()
@@ -360,7 +361,12 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
     except OSError as e:
         with contextlib.suppress(OSError, UnboundLocalError):
             log.close()
-        raise WriteFailed(log_path, os_reason(e)) from None
+        with contextlib.suppress(OSError, UnboundLocalError):   # no cut line, no empty log left behind
+            if had_log:
+                os.truncate(log_path, log_start)
+            else:
+                log_path.unlink()
+        raise WriteFailed(log_path, os_reason(e), "the log is as it was" if had_log else "no log was left") from None
     cmd = [sys.executable, "-m", "vts_hw.sim_devices.rig", str(folder), str(n_cameras), str(seed), firmware,
            str(rate), trigger] + (["spect"] if spect else []) + (["https"] if https else []) \
         + (["gantry"] if gantry else []) + (["qatrack"] if qatrack else []) \

@@ -1,6 +1,6 @@
-"""Every `vts` command swept with bad paths, numbers, configs, non-finite floats and databases that
-are not a results store (bench/bad_inputs.py): no traceback, no hang, no false OK, no data
-damaged, only documented exit codes."""
+"""Every `vts` command swept with bad paths, numbers, configs, non-finite floats, databases that
+are not a results store, and (every command that writes) a full disk (bench/bad_inputs.py): no
+traceback, no hang, no false OK, no data damaged, only documented exit codes."""
 
 import json
 import subprocess
@@ -22,11 +22,12 @@ def test_every_command_answers_bad_input_in_one_sentence():
         print(f"  {cls}: {c}")
     assert r["cases"] >= 700                      # every command was swept
     per = r["classes"]
-    assert set(per) == {"paths", "numbers", "floats", "configs", "foreign stores"}
+    assert set(per) == {"paths", "numbers", "floats", "configs", "foreign stores", "full disk"}
     for cls, c in per.items():
         assert c["cases"] > 0, cls
         assert (c["tracebacks"], c["hangs"], c["false_oks"], c["damaged"], c["other"]) == (0, 0, 0, 0, 0), (cls, c)
     assert per["floats"]["cases"] >= 14 * 5       # every float option, nan/inf/-inf/1e309/NaN at least
+    assert per["full disk"]["cases"] >= 19        # every writing command on a real full disk (CI runs as root)
     # the store was reached, and refused, by the commands that open one
     assert per["foreign stores"]["opened"] >= 30
     for cmd in ("store info", "store migrate", "store init", "report drift", "report rooms", "qa daily",

@@ -108,3 +108,4 @@ def test_sim_up_onto_a_full_disk_is_exit_3_in_one_sentence(small_disk):
         err = p.stderr.strip()
         assert p.returncode == 3, (args, p.returncode, err)
         assert "\n" not in err and "Traceback" not in err and "no space left" in err and str(d) in err, err
+    assert disk.files() == {}      # no empty sim.log (or anything else) left on the full disk

@@ -114,3 +114,35 @@ def test_bad_inputs_are_one_sentence(session, tmp_path):
     assert "nowhere" in out.stderr
     out = _vts("motion", "analyze", tmp / "session", "--config", tmp / "rig.yaml")
     assert out.returncode == 2 and "calibration" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_export_onto_a_full_disk_keeps_the_analysis_and_no_cut_file(session, small_disk):
+    """Issue 21 §1: `--export DIR -o R --plot P` on a disk with room for part of the export only:
+    every export file is whole or absent (no cut trajectories.csv, no temporary file left), the
+    analysis is printed and stored all the same, and one sentence names the files (exit 3)."""
+    _, tmp = session
+    disk = small_disk(1024)
+    disk.fill(leave=300_000)                 # motion_6dof.* (~150 kB) fit, trajectories.csv (~900 kB) does not
+    with ResultsStore(f"sqlite:///{tmp / 'results.sqlite'}") as store:
+        before = len(store.runs(procedure="motion"))
+    out = _vts("motion", "analyze", tmp / "session", "--calibration", tmp / "cameras.json", "--mapping",
+               tmp / "mapping.json", "--config", tmp / "rig.yaml", "--export", disk.path / "export",
+               "-o", disk.path / "report.html", "--plot", disk.path / "plot.png", "--workers", "2")
+    err = out.stderr.strip().splitlines()[-1]
+    assert out.returncode == 3 and "Traceback" not in out.stderr, out.stderr
+    assert err.startswith("vts: ") and "trajectories.csv: could not be written (no space left on device)" in err
+    assert "is stored as run" in err and "stored: run" in out.stdout and "motion_body_max_mm" in out.stdout
+    with ResultsStore(f"sqlite:///{tmp / 'results.sqlite'}") as store:
+        runs = store.runs(procedure="motion")
+        assert len(runs) == before + 1 and "trajectories.csv" in (runs[-1].notes or "")
+    left = disk.files()
+    assert not any(".tmp" in name for name in left), left
+    assert "export/trajectories.csv" not in left and "export/trajectories.json" not in left
+    for name in ("report.html", "plot.png"):   # written whole (then not named), or absent and named
+        assert (name in left) != (f"{name}: could not be written" in err), (name, left, err)
+    if "report.html" in left:
+        assert (disk.path / "report.html").read_text().rstrip().endswith("</html>")
+    # what is there is whole: the files written before the disk filled read back
+    assert json.loads((disk.path / "export" / "motion_6dof.json").read_text())["clock"]
+    rows = (disk.path / "export" / "motion_6dof.csv").read_text().splitlines()
+    assert len(rows) > 100 and len({r.count(",") for r in rows[1:]}) == 1

@@ -154,3 +154,41 @@ def test_a_lenient_read_keeps_every_whole_row_for_a_rebuild(tmp_path, real_frame
         read_index(idx)
     rows = read_index(idx, lenient=True)
     assert [r.frame for r in rows] == [0, 1, 2, 3] and all(r.host_time for r in rows)
+
+
+def test_info_counts_what_is_readable_and_names_what_is_missing(tmp_path):
+    """Issue 21 §3: `vts recording info` on a .mjpeg cut short counts the readable frames, not the
+    index's rows; a camera of the manifest whose files are gone is listed, its files named; the
+    exit status is 3 (not whole), 0 for a whole recording."""
+    import json
+    import subprocess
+    import sys
+
+    from lossy_recording import cut_mjpeg, remove_camera
+    from vts_hw.sim_devices.recording_sim import simulate_recording
+
+    rec = tmp_path / "rec"
+    simulate_recording(rec, duration_s=2.0, seed=1, add_band=False)
+
+    def info(*extra):
+        return subprocess.run([sys.executable, "-m", "vts_hw.cli", "recording", "info", str(rec), *extra],
+                              capture_output=True, text=True, timeout=120)
+    whole = info("--json")
+    assert whole.returncode == 0, whole.stderr
+    n = {s["source"]: s["frames"] for s in json.loads(whole.stdout)}
+    assert set(n) == {"cam1", "cam2"} and all(v >= 45 for v in n.values())
+    cut_mjpeg(rec, "cam1", 0.5)
+    remove_camera(rec, "cam2")
+    p = info("--json")
+    by = {s["source"]: s for s in json.loads(p.stdout)}
+    assert p.returncode == 3 and "Traceback" not in p.stderr
+    assert by["cam1"]["promised"] == n["cam1"] and 0 < by["cam1"]["frames"] < n["cam1"] and not by["cam1"]["whole"]
+    assert by["cam2"]["frames"] == 0 and by["cam2"]["promised"] == n["cam2"]
+    assert by["cam2"]["missing_files"] == ["cam2.mjpeg", "cam2.index.csv"]
+    line = p.stderr.strip()
+    assert line.startswith("vts: ") and len(line.splitlines()) == 1 and "is not whole" in line
+    assert f"cam1: {by['cam1']['frames']} of {n['cam1']} frames promised are readable" in line
+    assert "cam2.mjpeg and cam2.index.csv missing" in line
+    text = info().stdout
+    assert f"cam1: {by['cam1']['frames']} of {n['cam1']} promised frame(s) readable" in text
+    assert "cam2: 0 of" in text and "cam2.mjpeg and cam2.index.csv missing" in text

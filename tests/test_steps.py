@@ -123,6 +123,24 @@ def test_analyze_with_push_posts_the_step_test_to_qatrack(chain, tmp_path):
         assert tli["attachments"] == ["steps.png"]
 
 
+def test_a_plot_on_a_full_disk_never_costs_the_step_test(chain, tmp_path, small_disk):
+    """Issue 21 §2: `vts qa steps --analyze S --out FULL`: the plot cannot be written, the test is
+    printed and stored all the same, one sentence names steps.png (exit 3), no cut PNG is left."""
+    disk = small_disk(64)
+    disk.fill()
+    url = f"sqlite:///{tmp_path / 'r.sqlite'}"
+    r = vts("qa", "steps", "--config", str(_rig_yaml(tmp_path)), "--analyze", str(chain.out_dir),
+            "--volumes", str(chain.out_dir / "spect"), *_files(chain), "--store", url, "--out", str(disk.path))
+    line = r.stderr.strip().splitlines()[-1]
+    assert r.returncode == 3 and "Traceback" not in r.stderr, r.stderr
+    assert line.startswith("vts: ") and "steps.png: could not be written (no space left on device)" in line
+    assert "the step test is stored as run" in line and "plot not written" in r.stdout
+    assert "slope" in r.stdout and disk.files() == {}
+    with ResultsStore(url) as store:
+        (run,) = store.runs(procedure="sphere-steps")
+        assert store.artifacts(run.id) == []
+
+
 def test_a_missing_volume_names_the_position_and_keeps_the_vts_part(chain, tmp_path):
     vols = tmp_path / "vols"
     shutil.copytree(chain.out_dir / "spect", vols)

@@ -100,3 +100,21 @@ def test_an_unsaved_run_naming_a_folder_as_its_artifact_imports_without_it(tmp_p
         run_id = import_unsaved(store, p)
         assert [a.path for a in store.artifacts(run_id=run_id)] == [str(plot)]
     assert (tmp_path / "run.json.imported").exists()
+
+
+def test_a_store_that_cannot_be_created_on_a_full_disk_leaves_no_empty_file(small_disk):
+    """A new SQLite store on a full disk: one StoreError naming it, and no 0-byte `results.sqlite`
+    (or journal) left to look like a store; an existing file is never removed."""
+    import pytest
+
+    from vts_hw.store.errors import StoreError
+    disk = small_disk(64)
+    disk.fill()
+    with pytest.raises(StoreError) as e:
+        ResultsStore(f"sqlite:///{disk.path / 'results.sqlite'}")
+    assert "results.sqlite" in str(e.value) and "full" in str(e.value)
+    assert disk.files() == {}
+    (disk.path / "other.sqlite").write_bytes(b"")        # an empty file someone made: kept
+    with pytest.raises(StoreError):
+        ResultsStore(f"sqlite:///{disk.path / 'other.sqlite'}")
+    assert disk.files() == {"other.sqlite": 0}

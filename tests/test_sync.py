@@ -211,6 +211,33 @@ def test_scan_then_sync_analyze_meets_the_goals(scan22, tmp_path):
                   "sync_events_one_system": 0, "sync_events_both": len(run.source.moves)}
 
 
+def test_a_report_on_a_full_disk_never_costs_the_check(scan22, small_disk):
+    """Issue 21 §2: `vts sync analyze -o FULL/sync.html --plot FULL/sync.png --export FULL/x` on a
+    full disk: the figures are printed and the run stored all the same; one sentence names the
+    files not written (exit 3); nothing half-written is left."""
+    run, rig_yaml, _ = scan22
+    cfg = load_rig(rig_yaml)
+    disk = small_disk(64)
+    disk.fill()
+    with ResultsStore(cfg.results.url) as store:
+        before = len(store.runs(procedure="sync"))
+    p = subprocess.run([*VTS, "sync", "analyze", str(run.session), "--listmode", str(run.listmode),
+                        "-o", str(disk.path / "sync.html"), "--plot", str(disk.path / "sync.png"),
+                        "--export", str(disk.path / "x")], env={**os.environ, "VTS_CONFIG": str(rig_yaml)},
+                       capture_output=True, text=True, timeout=300)
+    err = p.stderr.strip().splitlines()[-1]
+    assert p.returncode == 3 and "Traceback" not in p.stderr, p.stderr
+    assert err.startswith("vts: ") and "sync.html: could not be written (no space left on device)" in err, err
+    assert "sync.png: could not be written" in err and "trajectories.csv: could not be written" in err
+    assert "sync check is stored as run" in err
+    assert "SPECT start delay" in p.stdout and "state: OK" in p.stdout and "stored: run" in p.stdout
+    assert "report:" not in p.stdout
+    with ResultsStore(cfg.results.url) as store:
+        runs = store.runs(procedure="sync")
+        assert len(runs) == before + 1 and "sync.html" in (runs[-1].notes or "")
+    assert disk.files() == {}, disk.files()
+
+
 def test_without_a_mapping_and_with_a_named_marker(scan22):
     """No VTS -> SPECT mapping: the trace is the source's main direction of motion and the
     events are still found (times within 20 ms); a named wall marker has no event at all."""

@@ -98,3 +98,41 @@ def ensure_dir(folder: str | os.PathLike, what: str = "folder") -> Path:
     if not os.access(folder, os.W_OK | os.X_OK):
         raise WriteFailed(folder, f"the {what} is not writable")
     return folder
+
+
+class Outputs:
+    """The files a command writes beside its result (a report, a plot, an export), each whole or
+    not at all. One that cannot be written is noted and the work goes on, so that the result is
+    still printed and stored; the command then ends with :meth:`error` (exit 3) naming the file.
+
+    ``attempt(fn, *args)`` runs one writer: its return value, or None when it raised
+    :class:`WriteFailed` (noted in :attr:`failed`)."""
+
+    def __init__(self) -> None:
+        self.failed: list[WriteFailed] = []
+
+    def attempt(self, fn, *args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except WriteFailed as exc:
+            self.failed.append(exc)
+            return None
+
+    def __bool__(self) -> bool:          # true when every output was written
+        return not self.failed
+
+    def sentence(self) -> str:
+        """Every file not written, with its reason, in one sentence (empty when none)."""
+        return "; ".join(str(e) for e in self.failed)
+
+    def not_written(self) -> list[str]:
+        return [str(e.path) for e in self.failed]
+
+
+def export_stopped(exc: WriteFailed, out) -> WriteFailed:
+    """``exc`` from one file of an export into the folder ``out``, saying what that means for the
+    others: those before it are whole, the rest were not written (an export stops at its first
+    file that cannot be written; each file is whole or absent)."""
+    kept = (f"{exc.kept}; the export into {out} stopped there: the files written before it are whole, "
+            "the rest were not written")
+    return WriteFailed(exc.path, exc.reason, kept)

@@ -212,15 +212,23 @@ class FramesProgress:
 
 
 def finish_analysis(rig: RigConfig | None, result, data: dict, what: str, as_json: bool, *,
-                    notes: str = "", artifacts=(), lines=()) -> None:
+                    notes: str = "", artifacts=(), lines=(), outputs=None) -> None:
     """The end of every `... analyze` command: store the result the one way, print it (the
     --json data, or its text and ``lines``), say where it was stored, and exit by its state
-    (procedures.daily's codes: 0 OK, 10 TOLERANCE, 20 ACTION; 3 when the store did not take it)."""
+    (procedures.daily's codes: 0 OK, 10 TOLERANCE, 20 ACTION; 3 when the store did not take it).
+
+    ``outputs`` (vts_hw.files.Outputs): the report, plot and export files the command tried to
+    write. One that could not be written never costs the result: it is still stored (its note
+    names the file) and printed, then one sentence names the file and the exit status is 3."""
     import sys
 
     from vts_hw.procedures.daily import EXIT_CODES
     from vts_hw.tolerance import State
 
+    failed = bool(outputs is not None and outputs.failed)
+    if failed:
+        data["not_written"] = [str(e) for e in outputs.failed]
+        notes = "; ".join(x for x in (notes, f"not written: {outputs.sentence()}") if x)
     stored = store_qa_result(rig, result, data, notes=notes, artifacts=list(artifacts))
     if as_json:
         echo_json(data)
@@ -229,7 +237,13 @@ def finish_analysis(rig: RigConfig | None, result, data: dict, what: str, as_jso
         for line in lines:
             click.echo(line)
     sys.stdout.flush()
-    if say_stored(stored, result, what, as_json):
+    store_failed = say_stored(stored, result, what, as_json)
+    if failed:
+        kept = (f"the {what} is stored as run {stored.run_id} and its figures are above" if stored.ok
+                else f"the {what}'s figures are above")
+        click.echo(f"vts: {outputs.sentence()}; {kept}", err=True)
+        sys.exit(3)
+    if store_failed:
         sys.exit(3)
     code = EXIT_CODES[State(data["summary"]["state"])]
     if code:

@@ -53,6 +53,7 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
     file could not be read or written, or the run could not be stored (its figures then go
     to a file that `vts qa import` stores later).
     """
+    from vts_hw.files import Outputs, write_atomic
     from vts_hw.procedures.motion import MotionAnalysis
     from vts_hw.report.motion_html import write_motion_html
 
@@ -62,15 +63,20 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
                        workers=workers, progress=FramesProgress(), clock_slack_s=clock_slack)
     a.analyze(tolerances=rig.tolerances if rig is not None else None)
     data = a.results_data()
-    png = a.plot(plot_path) if (out or plot_path) else None
-    if out:
-        write_motion_html(data, png, out)
-        data["report"] = str(out)
-    if export_dir:
-        data["export"] = [str(p) for p in a.export(export_dir, n_bins=bins)]
+    # the report, the plot and the export are each written whole or not at all; one that cannot
+    # be written (disk full) is said at the end: the analysis is still printed and stored
+    outs = Outputs()
+    exported = outs.attempt(a.export, export_dir, n_bins=bins) if export_dir else None
+    if exported is not None:
+        data["export"] = [str(p) for p in exported]
         data["export_notes"] = list(a.export_notes)
+    png = a.plot() if (out or plot_path) else None
+    plot_ok = bool(plot_path) and outs.attempt(write_atomic, plot_path, png) is not None
+    report_ok = bool(out) and outs.attempt(write_motion_html, data, png, out) is not None
+    if report_ok:
+        data["report"] = str(out)
     finish_analysis(rig, a, data, "motion analysis", as_json, notes=f"session {session}",
-                    artifacts=[p for p in (plot_path,) if p],
-                    lines=[*([f"report: {out}"] if out else []),
-                           *([f"exported ({data['clock']}): {', '.join(data['export'])}"] if export_dir else []),
+                    artifacts=[plot_path] if plot_ok else [], outputs=outs,
+                    lines=[*([f"report: {out}"] if report_ok else []), *([f"plot: {plot_path}"] if plot_ok else []),
+                           *([f"exported ({data['clock']}): {', '.join(data['export'])}"] if exported else []),
                            *(data.get("export_notes") or [])])

@@ -103,13 +103,16 @@ def steps(sim, seed, config_path, out_dir, volumes, calibration_path, mapping_pa
             click.echo(f"{len(plan) + 4}. analyse, score against the truth, store in "
                        f"{store_url or out / 'results.sqlite'}")
             return
-        state, run_id, url = _run_sim(out, seed, frames, vertical, axial, store_url, operator, as_json)
+        state, run_id, url, not_written = _run_sim(out, seed, frames, vertical, axial, store_url, operator, as_json)
     else:
-        state, run_id, url = _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path,
+        state, run_id, url, not_written = _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path,
                                       analyze_dir, frames, store_url, dry_run, operator, as_json)
     if push_rig is not None and not (dry_run and not analyze_dir):
         from vts_hw.cli.qa_push import push_after_qa
         push_after_qa(push_rig, run_id, as_json, store_url=url)
+    if not_written:
+        click.echo(f"vts: {not_written}", err=True)
+        sys.exit(3)
     sys.exit(EXIT_CODES[state])
 
 
@@ -138,7 +141,7 @@ def _run_sim(out, seed, frames, vertical, axial, store_url, operator, as_json):
         f"run {res.run_id} stored in {url}; plot {res.artifacts[0] if res.artifacts else '-'}",
     ]
     _print(res.analysis, lines, as_json, {"sim_truth": s, "run_id": res.run_id, "out": str(out)})
-    return res.analysis.state, res.run_id, url
+    return res.analysis.state, res.run_id, url, None
 
 
 def _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path, analyze_dir, frames,
@@ -160,7 +163,7 @@ def _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path, an
         if dry_run and not analyze_dir:
             for i, step in enumerate(step_session(cameras, inputs, out, plan, frames=frames).plan(), 1):
                 click.echo(f"{i:2d}. {step}")
-            return State.OK, None, None
+            return State.OK, None, None, None
         from vts_hw.cli.common import store_target
         with _open_store(store_target(rig, store_url)) as store:
             res = run_step_test(rig, inputs, out, plan, store, cameras=cameras, analyze_dir=analyze_dir,
@@ -168,6 +171,9 @@ def _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path, an
     finally:
         for c in cameras:
             c.close()
-    _print(res.analysis, [f"run {res.run_id} stored; plot {res.plot}"], as_json,
-           {"run_id": res.run_id, "out": str(out)})
-    return res.analysis.state, res.run_id, store_url
+    _print(res.analysis, [f"run {res.run_id} stored; plot {res.plot or 'not written'}"], as_json,
+           {"run_id": res.run_id, "out": str(out), "not_written": [str(res.plot_error)] if res.plot_error else []})
+    # the test is stored and printed; a plot a full disk could not take is said at the end (exit 3)
+    lost = f"{res.plot_error}; the step test is stored as run {res.run_id} and its figures are above" \
+        if res.plot_error else None
+    return res.analysis.state, res.run_id, store_url, lost

@@ -48,16 +48,38 @@ def reindex(folder: str, as_json: bool) -> None:
 @click.argument("paths", nargs=-1, required=True, type=click.Path())
 @json_option
 def info(paths: tuple[str, ...], as_json: bool) -> None:
-    """Frames in recordings, .mjpg captures or JPEG files: count, camera times, gaps."""
-    summaries = []
+    """Frames in recordings, .mjpg captures or JPEG files: count, camera times, gaps.
+
+    The frames counted are the readable ones. For a recording folder, each camera's line also
+    says how many frames its index or the manifest promised, and a camera of the manifest whose
+    files are gone is listed with the files missing. Exit status: 0 every recording holds what
+    it promised; 3 one does not (a .mjpeg cut short, a file missing, an index shorter than the
+    manifest; said last in one sentence), or a file could not be read.
+    """
+    from vts_hw.errors import DataError
+    from vts_hw.recording.promised import shortfall
+
+    summaries, short = [], []
     for p in paths:
-        summaries += rec_mod.info(p)
+        found = rec_mod.info(p)
+        summaries += found
+        if shortfall(found):
+            short.append(f"{p} is not whole ({shortfall(found)})")
     if as_json:
         echo_json([s.as_dict() for s in summaries])
-        return
+    else:
+        _print_info(summaries)
+    if short:
+        raise DataError("; ".join(short))
+
+
+def _print_info(summaries) -> None:
     for s in summaries:
         dur = (s.last_time - s.first_time) if s.first_time is not None and s.last_time is not None else None
-        click.echo(f"{s.source}: {s.frames} frame(s), {s.with_time} with Axis time, {s.torn} torn")
+        promised = f" of {s.promised} promised" if s.promised is not None and s.promised != s.frames else ""
+        missing = f" ({' and '.join(s.missing_files)} missing)" if s.missing_files else ""
+        click.echo(f"{s.source}: {s.frames}{promised} frame(s) readable{missing}, {s.with_time} with Axis time, "
+                   f"{s.torn} torn")
         if s.first_time is not None:
             click.echo(f"  camera time {fmt_time(s.first_time)} .. {fmt_time(s.last_time)}"
                        f" ({dur:.2f} s{f', {s.fps:g} fps' if s.fps else ''})")

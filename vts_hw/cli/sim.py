@@ -59,7 +59,7 @@ def sim() -> None:
               help="A simulated QATrack+ beside the rig (127.0.0.1, one unit, the test lists of the daily QA "
                    "and the step test), named in rig.yaml's qatrack: section (its token only in sim.env), so "
                    "that `vts qa push` can be tried. It keeps what it is sent in memory, until the rig stops.")
-@click.option("--ahead", type=click.FloatRange(0, 3600), default=0.0, metavar="SECONDS",
+@click.option("--ahead", type=FiniteFloat(0, 3600, what="seconds"), default=0.0, metavar="SECONDS",
               help="Make SECONDS of every camera's frames ahead of time, before serving: they start "
                    "playing at the first stream (the patient's plan moved to that instant), so a scan's "
                    "streams are whole however busy this machine is. Rendering live, a busy machine makes "

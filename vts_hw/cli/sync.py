@@ -53,6 +53,7 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
     procedure "sync" in the results store (rig.yaml's store.url); when the store cannot take
     it, its figures go to a file that `vts qa import` stores later, and the exit status is 3.
     """
+    from vts_hw.files import Outputs, write_atomic
     from vts_hw.procedures.sync import CLOCK_SLACK_S, SyncAnalysis, check_session, export_trajectories
     from vts_hw.report.sync_html import write_sync_html
 
@@ -65,17 +66,19 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
                      clock_slack_s=CLOCK_SLACK_S if clock_slack is None else clock_slack)
     a.analyze(tolerances=rig.tolerances if rig is not None else None)
     data = a.results_data()
-    png = None
-    if out or plot_path:
-        png = a.plot(plot_path)
-    if out:
-        write_sync_html(data, png, out)
+    # the report, the plot and the export are each written whole or not at all; one that cannot
+    # be written (disk full) is said at the end: the check is still printed and stored
+    outs = Outputs()
+    png = a.plot() if (out or plot_path) else None
+    plot_ok = bool(plot_path) and outs.attempt(write_atomic, plot_path, png) is not None
+    report_ok = bool(out) and outs.attempt(write_sync_html, data, png, out) is not None
+    if report_ok:
         data["report"] = str(out)
-    if export_dir:
-        csv_path, json_path = export_trajectories(a.tracks, a.gating, export_dir, mp)
-        data["export"] = [str(csv_path), str(json_path)]
+    exported = outs.attempt(export_trajectories, a.tracks, a.gating, export_dir, mp) if export_dir else None
+    if exported is not None:
+        data["export"] = [str(p) for p in exported]
     finish_analysis(rig, a, data, "sync check", as_json, notes=f"session {session}",
-                    artifacts=[p for p in (plot_path,) if p],
-                    lines=[*([f"report: {out}"] if out else []), *([f"plot: {plot_path}"] if plot_path else []),
+                    artifacts=[plot_path] if plot_ok else [], outputs=outs,
+                    lines=[*([f"report: {out}"] if report_ok else []), *([f"plot: {plot_path}"] if plot_ok else []),
                            *([f"trajectories (SPECT frame, SPECT time): {', '.join(data['export'])}"]
-                             if export_dir else [])])
+                             if exported else [])])

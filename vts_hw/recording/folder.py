@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from vts_hw.recording.axis_jpeg import inspect_jpeg
@@ -141,9 +141,18 @@ class FramesSummary:
     fps: float | None
     gaps: list[dict]
     problems: list[str]
+    #: frames the index or the manifest promised (None: nothing promised, e.g. a loose .mjpeg)
+    promised: int | None = None
+    #: the camera's files of a recording folder that are not there
+    missing_files: list[str] = field(default_factory=list)
+
+    @property
+    def whole(self) -> bool:
+        """Everything promised is readable (and no file is missing)."""
+        return not self.missing_files and (self.promised is None or self.frames >= self.promised)
 
     def as_dict(self) -> dict:
-        return self.__dict__.copy()
+        return {**self.__dict__, "whole": self.whole}
 
 
 def summarize_times(source: str, times: list[float | None], torn: int = 0, problems=None,
@@ -180,21 +189,8 @@ def info(path: str | Path) -> list[FramesSummary]:
         mjpegs = sorted(p.glob("*.mjpeg"))
         if not indexes and not mjpegs:
             raise DataError(f"{p}: not a recording folder (no .mjpeg or .index.csv files)")
-        out = []
-        for mj in mjpegs:
-            name = mj.name[: -len(".mjpeg")]
-            idx = p / f"{name}.index.csv"
-            if idx.exists():
-                rows = read_index(idx)
-                size = mj.stat().st_size
-                end = rows[-1].offset + rows[-1].length if rows else 0
-                probs = []
-                if size > end:
-                    probs.append(f"{size - end} bytes after the last indexed frame: run 'vts recording reindex'")
-                out.append(summarize_times(name, [r.camera_time for r in rows], problems=probs))
-            else:
-                out.append(_summarize_file(mj, name, ["no index: run 'vts recording reindex'"]))
-        return out
+        from vts_hw.recording.promised import folder_summaries
+        return folder_summaries(p)
     if not p.exists():
         raise DataError(f"{p}: no such file or folder")
     return [_summarize_file(p, p.name)]

@@ -166,7 +166,8 @@ class Tracks:
                 xs, ys, zs = self.xyz_spect[p]
                 row += f",{xs:.4f},{ys:.4f},{zs:.4f}"
             lines.append(row)
-        csv_path.write_text("\n".join(lines) + "\n", encoding="ascii")
+        from vts_hw.files import write_atomic, write_json_atomic
+        write_atomic(csv_path, "\n".join(lines) + "\n", encoding="ascii")   # whole or not at all (disk full)
         fin = lambda a: [None if not np.isfinite(v) else float(v) for v in a]  # noqa: E731
         frames = {"host_time": [round(float(v), 6) for v in self.host_time]}
         for c, name in enumerate(self.camera_names):
@@ -189,7 +190,6 @@ class Tracks:
                                  "(the volume: meta.spect_mapping.meta.spect_volume)",
                "meta": self.meta, "frames": frames,
                "unpaired": {k: [int(x) for x in v] for k, v in self.unpaired.items()}}
-        from vts_hw.files import write_json_atomic
         write_json_atomic(json_path, doc)
         return csv_path, json_path
 

@@ -10,6 +10,7 @@ password masked, and is never written into the database.
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import logging
 import os
@@ -82,6 +83,7 @@ class ResultsStore:
         path = sqlite_file(self._url)
         if path is not None:   # before any connection of ours: it would switch the file's journal
             allowed(sqlite_file_kind(path, busy_timeout), mode, str(path), backend)
+        self._new_file = path if path is not None and not os.path.lexists(path) else None
         try:
             self._engine = make_engine(self._url, busy_timeout, password_env)
             # the common case, an up-to-date store, needs no write lock (a reader must be able
@@ -96,16 +98,16 @@ class ResultsStore:
                         conn.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": SCHEMA_LOCK})
                     found, now = ensure_schema(conn, self.url)  # checks again under the lock
         except StoreError:
-            self.close()
+            self._close_failed()
             raise
         except NoSuchModuleError:
-            self.close()
+            self._close_failed()
             raise StoreError(f"{self.url}: no SQLAlchemy dialect for this kind of database") from None
         except ModuleNotFoundError as exc:
-            self.close()
+            self._close_failed()
             raise StoreError(f"{self.url}: the database driver {exc.name!r} is not installed") from None
         except (SQLAlchemyError, OSError) as exc:
-            self.close()
+            self._close_failed()
             raise StoreError(f"{self.url}: cannot open the results store ({_reason(exc)})") from exc
         self.created = found == 0          # this open made the database a store
         if found == 0:
@@ -129,6 +131,16 @@ class ResultsStore:
         return f"ResultsStore({self.url!r})"
 
     __str__ = __repr__
+
+    def _close_failed(self) -> None:
+        """Closed after a failed first open: a SQLite file this open created and left empty (a
+        full disk) is removed with its journal, so that no 0-byte "store" is left behind."""
+        self.close()
+        p = self._new_file
+        if p is not None and os.path.isfile(p) and os.path.getsize(p) == 0:
+            for q in (p, f"{p}-journal", f"{p}-wal", f"{p}-shm"):
+                with contextlib.suppress(OSError):
+                    os.unlink(q)
 
     def close(self) -> None:
         self._closed = True
