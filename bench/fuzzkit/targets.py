@@ -80,7 +80,7 @@ SOURCES: dict[str, tuple[str, str | None]] = {
     "load_calibration": ("vts_hw.vision.multi_calibration_io", "load_calibration"),
     "read_listmode": ("vts_hw.spect.listmode", "read_listmode"),
     "check_session": ("vts_hw.procedures.sync", "check_session"),
-    "manifest_cameras": ("vts_hw.recording.processing", "_manifest_cameras"),
+    "available_cameras": ("vts_hw.recording.extent", "available_cameras"),
     "RigidTransform": ("vts_hw.vision.registration", "RigidTransform"),
     "read_dicom_nm": ("vts_hw.spect.dicom_nm", "read_dicom_nm"),
     "read_interfile": ("vts_hw.spect.interfile", "read_interfile"),
@@ -146,7 +146,8 @@ def _manifest(data: bytes, s: Scratch) -> None:
     s.file("manifest.json", data, s.rec)
     s.call(P["recording"].load_manifest, s.rec)
     s.call(P["check_session"], s.rec)      # `vts sync analyze`
-    s.call(P["manifest_cameras"], s.rec)   # `vts process`
+    manifest = s.call(P["recording"].load_manifest, s.rec)
+    s.call(P["available_cameras"], s.rec, manifest)   # `vts recording process` / `vts motion analyze`
 
 
 def _listmode(data: bytes, s: Scratch) -> None:
@@ -269,7 +270,7 @@ TARGETS: dict[str, Target] = {t.name: t for t in [
            tokens=(b"frame,offset,length,camera_time,host_time\n", b",", b"\n", b"\r\n", b"nan",
                    b"inf", b"-1", b"1e999", b"\x00")),
     Target("manifest", "recording.load_manifest, sync.check_session, processing",
-           _manifest, uses=("recording", "check_session", "manifest_cameras"),
+           _manifest, uses=("recording", "check_session", "available_cameras"),
            fixtures=("cam1.index.csv", "trigger.csv"), max_len=4096,
            tokens=_JSON + (b'"cameras"', b'"cam1"', b'"frames"', b'"status"', b'"gaps"')),
     Target("listmode", "listmode.read_listmode (VTSLM)", _listmode, uses=("read_listmode",), max_len=16384,
