@@ -185,3 +185,18 @@ def test_a_breathing_patient_is_not_taken_for_noise():
     patient, tracks, _, _ = patient_tracks(seed=3, duration_s=40.0, n_moves=0, noise_mm=0.5)
     f = analyze_motion(marker_series(tracks)).respiration.figures
     assert f.status in ("measured", "bounded") and f.amplitude_mm > 10 * f.noise_mm
+
+
+def test_weighted_kabsch_is_exact_on_a_rigid_body_whatever_the_weights():
+    """Uneven weights (a robust fit's) must not move the fit of points that are exactly rigid:
+    the observed points' centroid was unweighted while the reference's was weighted, which put
+    segment poses mm off and spoiled the breathing vectors (0055)."""
+    rng = np.random.default_rng(3)
+    ref = rng.normal(0, 150, (8, 3))
+    from scipy.spatial.transform import Rotation
+    Rs = Rotation.from_euler("xyz", [[1.0, -0.5, 0.8], [0.0, 0.0, 0.0]], degrees=True).as_matrix()
+    Ts = np.array([[7.5, -3.1, -0.6], [0.0, 0.0, 0.0]])
+    P = np.einsum("fij,mj->fmi", Rs, ref) + Ts[:, None]
+    w = rng.uniform(0.5, 1.0, (2, 8))
+    R, T, rms = kabsch_batch(ref, P, weights=w)
+    assert np.allclose(R, Rs, atol=1e-9) and np.allclose(T, Ts, atol=1e-6) and rms.max() < 1e-6

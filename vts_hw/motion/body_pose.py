@@ -34,12 +34,11 @@ def kabsch_batch(ref, P, seen=None, weights=None):
     n = w.sum(axis=1)
     nn = np.where(ok, n, 1.0)[:, None]
     Pz = np.where(seen[..., None], P, 0.0)
-    A = np.broadcast_to(ref, P.shape) * w[..., None]
-    ca = A.sum(axis=1) / nn
-    cb = Pz.sum(axis=1) / nn
-    a = (np.broadcast_to(ref, P.shape) - ca[:, None]) * w[..., None]
-    b = (Pz - cb[:, None]) * w[..., None]
-    H = np.einsum("fmi,fmj->fij", a, b)
+    ca = (np.broadcast_to(ref, P.shape) * w[..., None]).sum(axis=1) / nn     # both centroids weighted
+    cb = (Pz * w[..., None]).sum(axis=1) / nn                                  # alike (an unweighted one
+    a = (np.broadcast_to(ref, P.shape) - ca[:, None]) * w[..., None]           # here shifted the fit by
+    b = Pz - cb[:, None]                                                       # mm: 0055)
+    H = np.einsum("fmi,fmj->fij", a, b)                                        # sum of w a b^T
     U, _, Vt = np.linalg.svd(H)
     d = np.sign(np.linalg.det(np.einsum("fij,fjk->fik", U, Vt).transpose(0, 2, 1)))
     D = np.zeros((len(P), 3, 3))
