@@ -200,3 +200,37 @@ def test_weighted_kabsch_is_exact_on_a_rigid_body_whatever_the_weights():
     w = rng.uniform(0.5, 1.0, (2, 8))
     R, T, rms = kabsch_batch(ref, P, weights=w)
     assert np.allclose(R, Rs, atol=1e-9) and np.allclose(T, Ts, atol=1e-6) and rms.max() < 1e-6
+
+
+def test_a_band_that_breathed_deep_across_a_gap_keeps_its_markers():
+    """Seed 2 of bench/motion_under_loss.py at 20 %: the chest band was lost at the top of a deep
+    breath and came back 1.2 s later at its middle, each marker 25-28 mm away and not rigidly
+    (no rigid motion explains it within 12 mm): its 4 markers became new ones, too short to be the
+    patient's, and the pose from the abdomen alone jittered into false motion (0055). Joined now,
+    as one another's unambiguous nearest; a piece with two ends about as near stays apart."""
+    from vts_hw.motion.markers import join_pieces
+    wall = [[-222.0, 39.0, -496.8], [-222.0, 5.6, 486.2], [212.0, 19.9, -490.8], [212.0, 24.7, 492.2],
+            [-35.0, 58.1, -502.7], [-268.8, -157.9, 6.3]]
+    abd_end = [[-33.9, 93.9, -52.1], [74.5, 90.0, -15.8], [-120.5, 59.5, -80.2], [156.8, 49.4, 12.1]]
+    abd_start = [[-32.6, 85.5, -51.1], [72.4, 81.8, -14.9], [-116.0, 52.9, -78.9], [151.6, 43.2, 12.8]]
+    chest_end = [[-44.6, 117.7, 220.7], [-132.0, 89.1, 238.3], [61.3, 113.2, 199.0], [145.2, 77.1, 182.6]]
+    chest_start = [[-40.8, 91.8, 215.8], [-119.6, 67.1, 233.9], [56.0, 87.7, 193.7], [131.5, 56.4, 176.8]]
+    before = wall + abd_end + chest_end
+    after = wall + abd_start + chest_start
+    n = len(before)
+    first = np.array([0.0] * n + [48.28] * n)
+    last = np.array([47.08] * n + [52.88] * n)
+    xyz0 = np.array(before + after)            # where each piece starts (the early ones: irrelevant)
+    xyz1 = np.array(before + after)
+    chains = join_pieces(first, last, xyz0, xyz1, list(range(2 * n)))
+    assert sorted(map(sorted, chains)) == [[k, k + n] for k in range(n)]
+    # an ambiguous piece (two ends 30 and 35 mm away) is left a new marker
+    amb_end = [[0.0, 0.0, 0.0], [0.0, 65.0, 0.0]]
+    amb_start = [[0.0, 30.0, 0.0]]
+    before2, after2 = wall + amb_end, wall + amb_start
+    n0, n1 = len(before2), len(after2)
+    first = np.array([0.0] * n0 + [48.28] * n1)
+    last = np.array([47.08] * n0 + [52.88] * n1)
+    xyz = np.array(before2 + after2)
+    chains = join_pieces(first, last, xyz, xyz, list(range(n0 + n1)))
+    assert [n0 + len(wall)] in chains
