@@ -276,3 +276,27 @@ def test_pose_jitter_before_a_move_neither_starts_it_early_nor_makes_an_event(se
     assert abs(events[0].t_start - 30.0) <= 0.5 and events[0].start_bounds is None
     assert len(events) == 2 and events[1].start_bounds[0] <= 33.5 <= events[1].start_bounds[1]
     assert "too noisy" in events[1].to_json()["start_bounded_why"]
+
+
+def test_a_pose_the_model_cannot_explain_is_marked_poor_fit_not_ok():
+    """Never a wrong pose presented as measured: markers that move in a way neither the body's
+    pose nor its breathing explains (here two chest markers swaying 2 mm apart from each other, as
+    a model gone wrong leaves them) leave a residual; those frames are 'poor fit' in the exports
+    and the analysis says how much of the scan (0055). A clean patient has none."""
+    from vts_hw.motion.exports import frame_quality
+    patient, tracks, truth, t0 = patient_tracks(seed=5, duration_s=40.0, n_moves=0)
+    clean = analyze_motion(marker_series(tracks))
+    assert "ok" in set(frame_quality(clean)) and "poor fit" not in set(frame_quality(clean))
+    assert not any("degraded" in n for n in clean.notes)
+    chest = [i for i, n in truth["ids"].items() if n.startswith("C")][:2]
+    t = tracks.host_time[tracks.point_frame]
+    for sign, mid in zip((1.0, -1.0), chest):
+        sel = tracks.marker == mid
+        sway = sign * 2.0 * np.sin(2 * np.pi * 0.05 * (t[sel] - t0))
+        for xyz in (tracks.xyz, tracks.xyz_spect):
+            if xyz is not None:
+                xyz[sel, 0] += sway
+    r = analyze_motion(marker_series(tracks))
+    q = frame_quality(r)
+    assert (q == "poor fit").sum() > 0.2 * (q != "no frames").sum()
+    assert any("pose degraded" in n and "poor fit" in n for n in r.notes)
