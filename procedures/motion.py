@@ -50,7 +50,8 @@ def event_time_text(e: dict) -> str:
     """An event's times as said: measured, or bounded by the time without a pose it fell in."""
     if e.get("start_bounds_s"):
         a, b = e["start_bounds_s"]
-        start = f"start between {a:.2f} and {b:.2f} s (in time without a pose: known only to within it)"
+        why = e.get("start_bounded_why") or "in time without a pose"
+        start = f"start between {a:.2f} and {b:.2f} s ({why}: known only to within it)"
     else:
         start = f"start {e['t_start']:.2f} s"
     if e.get("end_bounds_s"):

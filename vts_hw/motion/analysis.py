@@ -33,7 +33,7 @@ from scipy.ndimage import uniform_filter1d
 
 from vts_hw.errors import DataError
 from vts_hw.motion.bands import Bands, find_bands
-from vts_hw.motion.body_pose import BodyPose, back_to_reference, fit_pose_breathing, kabsch_batch
+from vts_hw.motion.body_pose import POOR_FIT_MM, BodyPose, back_to_reference, fit_pose_breathing, kabsch_batch
 from vts_hw.motion.cycles import breathing_figures, find_breaths, signal_noise
 from vts_hw.motion.events import MotionEvent, find_events
 from vts_hw.motion.markers import MarkerSeries
@@ -347,6 +347,13 @@ def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None,
         cycles, phase, rate = [], np.full(len(t), np.nan), np.full(len(t), np.nan)
     pose.resp = s
     resp = Respiration(t, s, phase, rate, cycles, v, figures)
+    poor = pose.poor_fit & ~moving
+    still_pose = pose.valid & ~moving
+    if still_pose.any() and poor.sum() > 0.05 * still_pose.sum():
+        notes.append(f"pose degraded in {100 * poor.sum() / still_pose.sum():.0f} % of the still frames with a pose: "
+                     f"the body model leaves over {POOR_FIT_MM:g} mm of residual there (median "
+                     f"{float(np.nanmedian(pose.rms_mm[poor])):.2f} mm; a good fit leaves under 0.1 mm): those "
+                     f"frames are marked 'poor fit', their pose not measured to {POOR_FIT_MM:g} mm")
     states = motion_states(pose, events, moving, known, state_mm=st.state_mm, state_deg=st.state_deg)
     covered, bridged = cover_states(states, pose, moving, known, period, event_mm=st.event_mm,
                                     event_deg=st.event_deg, bridge_s=st.bridge_s)

@@ -17,9 +17,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["BodyPose", "kabsch_batch", "fit_pose_breathing", "back_to_reference"]
+__all__ = ["BodyPose", "kabsch_batch", "fit_pose_breathing", "back_to_reference", "POOR_FIT_MM"]
 
 MIN_MARKERS = 3
+POOR_FIT_MM = 0.3     # a frame's fit residual over this: the model does not explain its markers (a good
+                      # fit is 0.02-0.1 mm; the pose error is of the residual's order): pose degraded
 
 
 def kabsch_batch(ref, P, seen=None, weights=None):
@@ -34,12 +36,11 @@ def kabsch_batch(ref, P, seen=None, weights=None):
     n = w.sum(axis=1)
     nn = np.where(ok, n, 1.0)[:, None]
     Pz = np.where(seen[..., None], P, 0.0)
-    A = np.broadcast_to(ref, P.shape) * w[..., None]
-    ca = A.sum(axis=1) / nn
-    cb = Pz.sum(axis=1) / nn
-    a = (np.broadcast_to(ref, P.shape) - ca[:, None]) * w[..., None]
-    b = (Pz - cb[:, None]) * w[..., None]
-    H = np.einsum("fmi,fmj->fij", a, b)
+    ca = (np.broadcast_to(ref, P.shape) * w[..., None]).sum(axis=1) / nn     # both centroids weighted
+    cb = (Pz * w[..., None]).sum(axis=1) / nn                                  # alike (an unweighted one
+    a = (np.broadcast_to(ref, P.shape) - ca[:, None]) * w[..., None]           # here shifted the fit by
+    b = Pz - cb[:, None]                                                       # mm: 0055)
+    H = np.einsum("fmi,fmj->fij", a, b)                                        # sum of w a b^T
     U, _, Vt = np.linalg.svd(H)
     d = np.sign(np.linalg.det(np.einsum("fij,fjk->fik", U, Vt).transpose(0, 2, 1)))
     D = np.zeros((len(P), 3, 3))
@@ -142,6 +143,11 @@ class BodyPose:
     @property
     def valid(self) -> np.ndarray:
         return np.isfinite(self.T[:, 0])
+
+    @property
+    def poor_fit(self) -> np.ndarray:
+        """(F,) frames with a pose whose fit residual is over :data:`POOR_FIT_MM`."""
+        return self.valid & (np.nan_to_num(self.rms_mm, nan=np.inf) > POOR_FIT_MM)
 
     def six_dof(self) -> np.ndarray:
         """(F, 6): tx, ty, tz mm, rx, ry, rz deg (extrinsic x-y-z, as RigidTransform.as_euler_xyz_deg)."""

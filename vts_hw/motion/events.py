@@ -41,6 +41,7 @@ class MotionEvent:
     centre_mm: float        # displacement of the markers' centroid
     start_bounds: tuple | None = None    # (earliest, latest) when the start fell in unknown time
     end_bounds: tuple | None = None
+    start_why: str = "no pose"           # why the start is bounded: "no pose", "noisy pose"
 
     @property
     def t_mid(self) -> float:
@@ -54,6 +55,9 @@ class MotionEvent:
         b = lambda x: None if x is None else [float(x[0]) - t0, float(x[1]) - t0]  # noqa: E731
         return {"t_start": self.t_start - t0, "t_end": self.t_end - t0, "duration_s": self.t_end - self.t_start,
                 "start": self.start_known, "start_bounds_s": b(self.start_bounds),
+                "start_bounded_why": None if self.start_bounds is None else (
+                    "in time without a pose" if self.start_why == "no pose" else
+                    "the pose too noisy there to time it (its speed's jitter as high as the move's)"),
                 "end": "measured" if self.end_bounds is None else "bounded", "end_bounds_s": b(self.end_bounds),
                 "change_6dof": [float(x) for x in self.change], "max_marker_shift_mm": self.shift_mm,
                 "centroid_shift_mm": self.centre_mm, "rotation_deg": self.angle_deg}
@@ -144,9 +148,25 @@ def _step_over_holes(sp, period):
     return sp
 
 
+def _local_noise(t, sp, window_s: float, step: int = 5, least: int = 25):
+    """(median, robust sigma) of the speed known within ``window_s`` of each frame (computed
+    every ``step`` frames, held between); 0 where fewer than ``least`` speeds are known (the
+    scan's own thresholds then hold)."""
+    F = len(t)
+    med, sig = np.zeros(F), np.zeros(F)
+    ok = np.isfinite(sp)
+    for k in range(0, F, step):
+        w = ok & (np.abs(t - t[k]) <= window_s)
+        if w.sum() >= least:
+            x = sp[w]
+            m = float(np.median(x))
+            med[k:k + step], sig[k:k + step] = m, 1.4826 * float(np.median(np.abs(x - m)))
+    return med, sig
+
+
 def find_events(pose, markers_ref, *, min_speed: float = 1.0, k_hi: float = 6.0, k_lo: float = 2.5,
                 merge_s: float = 0.5, settle_s: float = 1.0, event_mm: float = 1.0, event_deg: float = 0.5,
-                min_duration_s: float = 0.1, half_window_s: float = 0.2):
+                min_duration_s: float = 0.1, half_window_s: float = 0.2, noise_window_s: float = 5.0):
     """(events, speed, moving mask, thresholds dict). See the module."""
     t = pose.t
     sp = body_speed(pose, markers_ref, half_window_s)
@@ -156,20 +176,41 @@ def find_events(pose, markers_ref, *, min_speed: float = 1.0, k_hi: float = 6.0,
     lo = max(0.4 * min_speed, med + k_lo * sigma)
     F = len(t)
     period = 1.0 / sample_rate(t)
+    # where the pose is noisier than the scan's (fewer markers, a worse fit), the thresholds
+    # rise with the speed's noise around that frame: its jitter would pass the scan's own
+    l_med, l_sig = _local_noise(t, sp, noise_window_s)
+    hi_f = np.maximum(hi, l_med + k_hi * l_sig)
+    lo_f = np.maximum(lo, l_med + k_lo * l_sig)
     measured = sp
     sp = _step_over_holes(sp, period)             # a missing frame or two is no unknown time
     known = np.isfinite(sp)
-    above = np.nan_to_num(sp, nan=0.0) > hi
-    spans = []
-    for a, b in runs(above):
-        while a > 0 and np.nan_to_num(sp[a - 1]) > lo:
-            a -= 1
-        while b < len(t) and np.nan_to_num(sp[b]) > lo:
-            b += 1
-        if spans and (t[a] - t[spans[-1][1] - 1] < merge_s or not known[spans[-1][1]:a].any()):
-            spans[-1] = (spans[-1][0], max(b, spans[-1][1]))
-        else:
-            spans.append((a, b))
+    x = np.nan_to_num(sp, nan=0.0)
+
+    def spans_of(above, low, lo_i=0, hi_i=F):
+        """Runs of ``above`` widened while the speed stays over ``low``, within [lo_i, hi_i);
+        runs closer than merge_s, or with only unknown time between, joined."""
+        out = []
+        for a, b in runs(above[lo_i:hi_i]):
+            a, b = a + lo_i, b + lo_i
+            while a > lo_i and x[a - 1] > low[a - 1]:
+                a -= 1
+            while b < hi_i and x[b] > low[b]:
+                b += 1
+            if out and (t[a] - t[out[-1][1] - 1] < merge_s or not known[out[-1][1]:a].any()):
+                out[-1] = (out[-1][0], max(b, out[-1][1]))
+            else:
+                out.append((a, b))
+        return out
+
+    # runs over the scan's thresholds; where the pose is noisier there, only the parts over the
+    # thresholds of its own noise (jitter chained by the merging put a start seconds early); a
+    # run nowhere over them stays whole, for the pose change across it to judge (a small move)
+    spans, noisy = [], set()
+    for a, b in spans_of(x > hi, np.full(F, lo)):
+        inner = spans_of(x > hi_f, lo_f, a, b)
+        spans += inner if inner else [(a, b)]
+        if not inner and (hi_f[a:b] > hi + 1e-9).any():
+            noisy.add((a, b))         # its start cannot be told from the jitter: bounded (by its peak)
     events = []
     moving = np.zeros(F, bool)
     centre = pose.centre
@@ -180,7 +221,7 @@ def find_events(pose, markers_ref, *, min_speed: float = 1.0, k_hi: float = 6.0,
         before = (t >= t[i0] - settle_s) & (t <= t[i0])
         after = (t >= t[i1]) & (t <= t[i1] + settle_s)
         if jump:                                   # no frame seen moving on either side (a stretch
-            still = ~(np.nan_to_num(sp) > lo) & ~moving   # too short for a speed counts)
+            still = ~(np.nan_to_num(sp) > lo_f) & ~moving   # too short for a speed counts)
             before, after = before & still & pose.valid, after & still & pose.valid
             if min(before.sum(), after.sum()) * period < 0.2:
                 return None
@@ -220,9 +261,13 @@ def find_events(pose, markers_ref, *, min_speed: float = 1.0, k_hi: float = 6.0,
         touched[i0:i1 + 1] = True
         if t[b - 1] - t[a] < min_duration_s and start_b is None and end_b is None:
             continue
+        why = "no pose"
+        if start_b is None and (a, b) in noisy:    # begun by its fastest frame, at the latest
+            start_b, why = (float(t[a]) - h, float(t[a + int(np.argmax(x[a:b]))]) + h), "noisy pose"
         e = judge(i0, i1, start_b[0] if start_b else float(t[a]), end_b[1] if end_b else float(t[b - 1]),
                   start_b, end_b)
         if e is not None:
+            e.start_why = why
             events.append(e)
     # a pose that changed across time without a pose, with no motion seen at its edges
     for a, b in runs(~pose.valid):
@@ -233,4 +278,7 @@ def find_events(pose, markers_ref, *, min_speed: float = 1.0, k_hi: float = 6.0,
         if e is not None:
             events.append(e)
     events.sort(key=lambda e: e.t_start)
-    return events, measured, moving, {"hi_mm_s": hi, "lo_mm_s": lo, "noise_mm_s": sigma}
+    raised = hi_f > hi + 1e-9
+    return events, measured, moving, {"hi_mm_s": hi, "lo_mm_s": lo, "noise_mm_s": sigma,
+                                      "hi_max_mm_s": float(hi_f.max()) if F else hi,
+                                      "raised_s": float(raised.sum() * period)}

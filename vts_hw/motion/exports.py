@@ -72,10 +72,12 @@ def state_of_frames(result) -> np.ndarray:
 
 def frame_quality(result) -> np.ndarray:
     """(F,) ``no frames`` (no frame set recorded), ``no pose`` (fewer than 3 markers),
-    ``moving`` (inside a body-motion event) or ``ok``."""
+    ``moving`` (inside a body-motion event), ``poor fit`` (the body model leaves more than
+    POOR_FIT_MM of residual: the pose is degraded, not measured to its goal) or ``ok``."""
     pose = result.pose
     frames = result.timeline.frames if result.timeline is not None else np.ones(len(pose.t), bool)
-    return np.where(~frames, "no frames", np.where(~pose.valid, "no pose", np.where(result.moving, "moving", "ok")))
+    return np.where(~frames, "no frames", np.where(~pose.valid, "no pose", np.where(
+        result.moving, "moving", np.where(pose.poor_fit, "poor fit", "ok"))))
 
 
 def unknown_intervals(result, t0: float = 0.0) -> list[dict]:

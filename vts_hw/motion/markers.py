@@ -27,6 +27,8 @@ COHORT_S = 0.5        # pieces starting this close together after a gap are matc
 COHORT_GAP_S = 600.0  # ... after a gap of up to this (a rigid match of 3 or more does not happen by chance)
 RIGID_GATE_MM = 12.0  # ... each within this of its marker after the body's rigid motion (breathing
                       # changes the band's shape by a few mm between two breath levels)
+BAND_GATE_MM = 50.0   # a piece and a marker no rigid motion pairs: one another's nearest within this,
+BAND_RATIO = 2.5      # ... any other this many times as far (_band_pairs)
 
 
 @dataclass
@@ -109,6 +111,27 @@ def rigid_match(starts, ends, gate_mm: float = RIGID_GATE_MM, start_gate_mm: flo
     return pairs
 
 
+def _band_pairs(starts, ends, gate_mm: float = BAND_GATE_MM, ratio: float = BAND_RATIO):
+    """Pairs ``(i, a)`` of pieces starting together after a gap and markers lost just before
+    it that no rigid motion explains -- a band seen at the top of a deep breath on one side of
+    the gap and at its middle on the other moves 25-30 mm, and not rigidly -- each start and
+    end one another's nearest, within ``gate_mm``, every other end and start at least
+    ``ratio`` times as far (the band's markers are 80 mm or more apart): no choice is made
+    where two were possible."""
+    S, E = np.asarray(starts, float).reshape(-1, 3), np.asarray(ends, float).reshape(-1, 3)
+    if len(S) == 0 or len(E) == 0:
+        return []
+    D = np.linalg.norm(S[:, None] - E[None], axis=2)
+    pairs = []
+    for i in range(len(S)):
+        a = int(np.argmin(D[i]))
+        d = D[i, a]
+        others = np.concatenate([np.delete(D[i], a), np.delete(D[:, a], i)])
+        if d < gate_mm and int(np.argmin(D[:, a])) == i and (others.size == 0 or others.min() >= ratio * d):
+            pairs.append((i, a))
+    return pairs
+
+
 def join_pieces(first, last, start_xyz, end_xyz, ids, join_mm=JOIN_MM, gap_s=JOIN_GAP_S) -> list[list]:
     """Group track pieces into physical markers, in time order. Pieces that start together
     (within :data:`COHORT_S`) after markers were lost together -- a gap in the recording --
@@ -146,6 +169,11 @@ def join_pieces(first, last, start_xyz, end_xyz, ids, join_mm=JOIN_MM, gap_s=JOI
                 extend(cands[a], left[i])
                 taken.add(left[i])
             cands = [c for j, c in enumerate(cands) if j not in {a for _, a in pairs}]
+        left = [k for k in cohort if k not in taken]
+        near = [c for c in cands if c["last"] >= first[cohort[0]] - gap_s]
+        for i, a in _band_pairs(start_xyz[left], np.array([c["end"] for c in near]).reshape(-1, 3)):
+            extend(near[a], left[i])
+            taken.add(left[i])
         for k in cohort:
             if k in taken:
                 continue
