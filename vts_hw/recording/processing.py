@@ -179,7 +179,8 @@ def process_recording(folder, cameras, workers: int | None = None, mapping=None,
             cv2.setNumThreads(before)
     else:
         with ProcessPoolExecutor(min(workers, len(tasks)), mp_context=_pool_context(),
-                                 initializer=chunks._init_worker, initargs=(state, 1)) as pool:
+                                 initializer=chunks._init_worker,
+                                 initargs=({**state, "command_pid": os.getpid()}, 1)) as pool:
             for res in pool.map(chunks._process_chunk, tasks):
                 results.append(res)
                 done += int(res[5].shape[0])
