@@ -119,3 +119,76 @@ def test_a_torn_snapshot_is_never_saved(rig, tmp_path, mode):
     import cv2
     import numpy as np
     assert cv2.imdecode(np.frombuffer(out.read_bytes(), np.uint8), cv2.IMREAD_UNCHANGED) is not None
+
+
+# -- qa daily, the function generator (VISA), PostgreSQL ---------------------------------------
+
+def test_qa_daily_with_a_trickling_camera_ends_naming_it(tmp_path):
+    """The daily QA ends on time: the trickling camera is ACTION (not reachable), with why."""
+    from test_qa_faults import _baseline, _setup
+    from vts_hw.store import ResultsStore
+    with SimRig(n_cameras=2, seed=5) as r, r.env():
+        url = f"sqlite:///{tmp_path / 'r.sqlite'}"
+        cfg, env = _setup(r, tmp_path / "a", url)
+        with ResultsStore(url) as s:
+            _baseline(cfg, s)
+        r.servers["cam2"].set_faults(trickle=True, trickle_s=0.5)
+        p = vts(env, "qa", "daily", "--frames", "2", timeout=120)
+    # a camera that cannot be read is the QA's ACTION (camera_reachable 0), its reason named
+    assert p.returncode == 20, p.stdout + p.stderr
+    assert "Traceback" not in p.stderr
+    assert "camera cam2 at" in p.stdout and "within 5 s" in p.stdout and "cam1: OK" in p.stdout
+
+
+def test_a_trickling_function_generator_ends_at_its_timeout(tmp_path):
+    """The SCPI generator answers a byte a second (pyvisa-py's read timeout is for the whole
+    read, not each byte): `vts trigger status` ends naming it, exit 4."""
+    import yaml
+    from vts_hw.sim_devices.scpi_server import SimFunctionGenerator
+    with SimFunctionGenerator() as fgen:
+        cfg = {"rig": "t", "cameras": [{"name": "cam1", "host": "127.0.0.1"}],
+               "trigger": {"backend": "visa", "address": fgen.resource}}
+        (tmp_path / "rig.yaml").write_text(yaml.safe_dump(cfg))
+        fgen.go_trickle(1.0)
+        p = vts(dict(os.environ), "trigger", "status", "--config", str(tmp_path / "rig.yaml"),
+                "--log", str(tmp_path / "t.csv"))
+    assert p.returncode == 4, p.stdout + p.stderr
+    assert p.stderr.startswith("vts: fgen: ") and "did not answer" in p.stderr and "Traceback" not in p.stderr
+    assert p.seconds < 30
+
+
+def test_a_postgresql_that_accepts_and_says_nothing_ends_at_connect_timeout(tmp_path):
+    """A listener that accepts the connection and never answers (a hung server, a firewall that
+    swallows): the store is given up on within its connect timeout, one sentence naming it."""
+    import socket
+    import threading
+    lst = socket.socket()
+    lst.bind(("127.0.0.1", 0))
+    lst.listen(8)
+    port = lst.getsockname()[1]
+    held, stop = [], threading.Event()
+
+    def accept():
+        lst.settimeout(0.2)
+        while not stop.is_set():
+            try:
+                held.append(lst.accept()[0])
+            except OSError:
+                pass
+    t = threading.Thread(target=accept, daemon=True)
+    t.start()
+    try:
+        env = dict(os.environ, PGPASSWORD="x")
+        env.pop("VTS_CONFIG", None)
+        p = vts(env, "--store", f"postgresql://vts@127.0.0.1:{port}/vts", "store", "info", timeout=60)
+    finally:
+        stop.set()
+        t.join()
+        for c in held:
+            c.close()
+        lst.close()
+    assert p.returncode == 3, p.stdout + p.stderr
+    assert held, "the command never connected"
+    last = p.stderr.strip().splitlines()[-1]
+    assert "Traceback" not in p.stderr and f"127.0.0.1:{port}" in last or "127.0.0.1" in last, p.stderr
+    assert p.seconds < 40
