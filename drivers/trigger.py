@@ -197,7 +197,10 @@ class TriggerLog:
         if self.path is not None:
             try:
                 self.path.parent.mkdir(parents=True, exist_ok=True)
-                new = not self.path.exists() or self.path.stat().st_size == 0
+                new = not self.path.exists()
+                if not new:   # a device or FIFO is refused here (opening a FIFO to append blocks)
+                    check_file(self.path, ANY_SIZE, "trigger log")
+                    new = self.path.stat().st_size == 0
                 if not new:
                     _check_is_trigger_log(self.path)
                 self._f = open(self.path, "a", newline="", encoding="utf-8")

@@ -93,6 +93,10 @@ CASES = {
                                                   d / "huge.json", "--config", d / "rig.yaml", "-o", d / "o.json"],
     "trigger status --log /dev/zero": lambda d: ["trigger", "status", "--log", d / "bad_trigger_log.csv",
                                                  "--config", d / "rig.yaml"],
+    # found by bench/bad_inputs.py --classes endless: appending to a FIFO blocked for ever
+    "trigger status --log FIFO": lambda d: ["trigger", "status", "--log", d / "fifo", "--config", d / "rig.yaml"],
+    # ... and a device as the images folder was a traceback (NotADirectoryError)
+    "calibrate cameras /dev/zero": lambda d: ["calibrate", "cameras", "/dev/zero", "--config", d / "rig.yaml"],
 }
 
 
