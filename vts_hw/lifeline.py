@@ -10,6 +10,7 @@ pid and ends the worker within a second of it going. docs/decisions/0053-slow-pe
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import sys
@@ -53,3 +54,22 @@ def die_with(command_pid: int) -> None:
             if os.getppid() != parent or not alive(command_pid):
                 os._exit(1)
     threading.Thread(target=watch, name="lifeline", daemon=True).start()
+
+
+@contextlib.contextmanager
+def interrupts_deferred():
+    """Ctrl-C held back for the block, then raised at its end: for a block that must not be cut
+    in the middle (a process pool starting its workers: one cut between the fork server's fork
+    and the pool noting the worker leaves that worker unwaited-for, and it dies with a traceback
+    when the pool's queues are gone). Outside the main thread, nothing is changed."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    got: list[int] = []
+    old = signal.signal(signal.SIGINT, lambda signum, frame: got.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+    if got and callable(old):
+        old(signal.SIGINT, None)

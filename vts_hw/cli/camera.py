@@ -57,7 +57,7 @@ def stream(name: str, seconds: float | None, fps: float | None, rig) -> None:
                    f"{off.method}); latency = receive - capture with that offset taken out", err=True)
         # without --seconds, a camera that sends nothing is given up on, not waited for for ever
         s = cam.stream(fps=fps, duration=seconds, give_up_after=None if seconds else max(10.0, 3 * getattr(cam, "timeout", 5.0)))
-        interrupted = False
+        interrupted, given_up = False, None
         click.echo(f"{'frame':>6}  {'camera time':<23}  {'host receive time':<23}  {'latency':>10}  {'size':>9}")
         try:
             for item in s:
@@ -73,8 +73,6 @@ def stream(name: str, seconds: float | None, fps: float | None, rig) -> None:
             interrupted = True
         except CameraError as exc:   # gave up: the counts first, then why
             given_up = exc
-        else:
-            given_up = None
         st = s.stats
         click.echo(f"{st.frames} frames, {st.missing} missing in {st.gaps} gap(s), {st.torn} torn, "
                    f"{st.reconnects} reconnect(s)", err=True)
