@@ -70,6 +70,9 @@ def test_the_shell_really_starts_it_with_sigint_ignored(tmp_path):
     sh = subprocess.Popen(["sh", "-c", 'sleep 30 & echo $! >&2; wait $!'], stderr=subprocess.PIPE, text=True)
     pid = int(sh.stderr.readline())
     try:
+        deadline = time.monotonic() + 10    # the shell's child ignores SIGINT before it execs sleep
+        while not _sigint_ignored(pid) and time.monotonic() < deadline:
+            time.sleep(0.05)
         assert _sigint_ignored(pid)
     finally:
         os.kill(pid, signal.SIGKILL)

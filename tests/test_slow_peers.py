@@ -141,15 +141,17 @@ def test_qa_daily_with_a_trickling_camera_ends_naming_it(tmp_path):
 
 
 def test_a_trickling_function_generator_ends_at_its_timeout(tmp_path):
-    """The SCPI generator answers a byte a second (pyvisa-py's read timeout is for the whole
-    read, not each byte): `vts trigger status` ends naming it, exit 4."""
+    """The SCPI generator answers a byte every 0.3 s. pyvisa-py looks at its timeout only when a
+    read brings nothing, so each reply was read whole however long it took (about 15 s for
+    `*IDN?`, as long for each query after it); the driver now reads the reply against one
+    deadline: `vts trigger status` ends at the generator's timeout naming it, exit 4."""
     import yaml
     from vts_hw.sim_devices.scpi_server import SimFunctionGenerator
     with SimFunctionGenerator() as fgen:
         cfg = {"rig": "t", "cameras": [{"name": "cam1", "host": "127.0.0.1"}],
                "trigger": {"backend": "visa", "address": fgen.resource}}
         (tmp_path / "rig.yaml").write_text(yaml.safe_dump(cfg))
-        fgen.go_trickle(1.0)
+        fgen.go_trickle(0.3)
         p = vts(dict(os.environ), "trigger", "status", "--config", str(tmp_path / "rig.yaml"),
                 "--log", str(tmp_path / "t.csv"))
     assert p.returncode == 4, p.stdout + p.stderr

@@ -17,7 +17,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
 
 from vts_hw.config_qatrack import QATrackConfig
-from vts_hw.bounded import TooLarge, check_file, read_bytes
+from vts_hw.bounded import ANY_SIZE, TooLarge, check_file, read_bytes
 from vts_hw.errors import ConfigError
 
 ENV_CONFIG = "VTS_CONFIG"
@@ -342,7 +342,7 @@ MAX_YAML_NODES = 100_000    # a rig.yaml has some hundred; aliases that expand b
 def _read_text(p: Path) -> str:
     """The config file's text; ConfigError naming the file when it is not UTF-8 YAML text."""
     try:
-        check_file(p, MAX_CONFIG_BYTES, "rig config")   # a FIFO would block here for ever; a device never end
+        check_file(p, ANY_SIZE, "rig config")   # a FIFO would block here for ever; a device never ends
         with open(p, "rb") as f:
             raw = f.read(MAX_CONFIG_BYTES + 1)
     except TooLarge as exc:
