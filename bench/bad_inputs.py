@@ -25,6 +25,13 @@ listed here. The classes of bad input, each command one case at a time:
   a small tmpfs per case; needs root or password-less sudo): exit 3 naming the file, no half file
   left that looks whole, nothing acquired lost.
 
+Round 2 (issue 21), each a module of ``badkit/``, swept with ``--classes all`` (or by name):
+``slow peers`` (cameras that trickle, answer 503, stall or drop; QATrack+, the function
+generator and PostgreSQL that trickle or say nothing: bounded, exit non-zero naming the peer),
+``endless files`` (``/dev/zero``, a FIFO, an 8 GiB sparse file for every file the commands read)
+and ``SIGINT and SIGKILL`` (to every long command once under way: exit 130 and ``interrupted``,
+no process left running, every indexed frame whole on disk).
+
 Each case runs in a forked child of this process (the CLI is imported once) with a time
 limit, in a folder of its own; the child notes every store it opens. A case passes when the
 command ends with a documented exit code (0, 2, 3, 4, 5, 10, 20), no Python traceback, and
@@ -34,11 +41,13 @@ and other failures (goal 0 each), and each failure.
     .venv/bin/python bench/bad_inputs.py            # every command, every class
     .venv/bin/python bench/bad_inputs.py --only camera --show
     .venv/bin/python bench/bad_inputs.py --classes floats,foreign
+    .venv/bin/python bench/bad_inputs.py --classes slow,endless,SIGINT   # round 2
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import io
 import json
 import os
@@ -58,13 +67,19 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from badkit.classes import (EXIT_OK, Case, Verdict, common, float_cases, foreign_cases, number_judge,  # noqa: E402
                             plain, probe_stores, sha, store_command_cases)
 from badkit import full_disk  # noqa: E402
+from badkit import endless_files, signals, slow_peers  # noqa: E402  (issue 21 round 2)
 
 SKIP = {("sim", "up"): "starts servers in the foreground", ("demo",): "runs the whole demo"}
 #: what a skipped command runs with in the floats class (a bad float is refused before anything starts)
 SKIPPED_BASE = {("sim", "up"): lambda wd: ["--detach", "--dir", str(wd / "sim")],
                 ("demo",): lambda wd: ["-o", str(wd / "demo"), "--days", "1"]}
 NUMBERS = ["nan", "inf", "-1", "1e309", "abc"]
-CLASSES = ("paths", "numbers", "floats", "configs", "foreign stores", full_disk.CLASS)
+CLASSES = ("paths", "numbers", "floats", "configs", "foreign stores", full_disk.CLASS, slow_peers.CLASS,
+           endless_files.CLASS, signals.CLASS)
+#: the classes that need the peers of badkit.slow_peers running
+NEED_PEERS = (slow_peers.CLASS, signals.CLASS)
+#: swept unless --classes says otherwise (the three of round 2 take minutes of peers: --classes all)
+DEFAULT_CLASSES = CLASSES[:6]
 QATRACK_TOKEN_ENV = "VTS_BAD_INPUTS_QATRACK_TOKEN"
 
 
@@ -173,6 +188,8 @@ def cases(cmd_path: tuple[str, ...], cmd: click.Command, fx: Fixtures):
                            number_judge(v))
     yield from float_cases(cmd_path, cmd, lambda wd: [*base, *cfg])
     yield from foreign_cases(cmd_path, lambda wd: base, cfg)
+    if getattr(fx, "endless", None):
+        yield from endless_files.cases(cmd_path, cmd, base, cfg, fx.endless, _replace)
 
 
 def _path_case(cmd_path, base, cfg, p: click.Parameter, opt, what: str, value: str) -> Case:
@@ -314,7 +331,7 @@ def preload() -> int:
     return n
 
 
-def plan(only: str | None, classes, fx: Fixtures, cli) -> list[Case]:
+def plan(only: str | None, classes, fx: Fixtures, cli, peers=None) -> list[Case]:
     """Every case of the chosen classes, command by command (the tree walked from the CLI)."""
     planned: list[Case] = []
     for cmd_path, cmd in walk(cli):
@@ -330,6 +347,8 @@ def plan(only: str | None, classes, fx: Fixtures, cli) -> list[Case]:
     planned += [c for c in store_command_cases(fx) if not only or c.what.startswith(only)]
     if full_disk.CLASS in classes:
         planned += full_disk.cases(fx.root, only)
+    if peers is not None:
+        planned += slow_peers.cases(fx, only, peers) + signals.cases(fx, only, peers)
     return [c for c in planned if c.cls in classes]
 
 
@@ -371,8 +390,12 @@ def sweep(only: str | None, timeout: float, show: bool, root: Path, jobs: int = 
     os.environ[QATRACK_TOKEN_ENV] = "bad-inputs-token"
     for name in ("VTS_CONFIG", "VTS_STORE", "VTS_STORE_PASSWORD_ENV"):
         os.environ.pop(name, None)
+    stack = contextlib.ExitStack()
     try:
-        planned = plan(only, classes, fx, cli)
+        if endless_files.CLASS in classes:
+            fx.endless = endless_files.make_inputs(root)
+        peers = stack.enter_context(slow_peers.Peers(root)) if set(NEED_PEERS) & set(classes) else None
+        planned = plan(only, classes, fx, cli, peers)
         argvs = []
         for k, case in enumerate(planned):   # every case's files, made here before any fork
             wd = root / "cases" / str(k)
@@ -381,7 +404,8 @@ def sweep(only: str | None, timeout: float, show: bool, root: Path, jobs: int = 
         # cases run `jobs` at a time (each a forked child in a folder of its own); the parent's
         # threads only fork, read pipes and wait
         with ThreadPoolExecutor(max(1, jobs)) as pool:
-            done = pool.map(lambda k: run_case(argvs[k], timeout, root / "cases" / str(k)), range(len(planned)))
+            done = pool.map(lambda k: planned[k].extra.get("run", run_case)(argvs[k], timeout, root / "cases" / str(k)),
+                            range(len(planned)))
             for k, (case, argv, (code, out, err)) in enumerate(zip(planned, argvs, done)):
                 wd = root / "cases" / str(k)
                 v: Verdict = case.judge(wd, code, out, err) if case.judge else common(code, err)
@@ -404,6 +428,7 @@ def sweep(only: str | None, timeout: float, show: bool, root: Path, jobs: int = 
                     last = (err.strip().splitlines() or [""])[-1][:160]
                     print(f"  exit {code}: {label}\n      {last}")
     finally:
+        stack.close()
         _stop_sims(root)
         full_disk.cleanup(root)
         os.chdir(cwd)
@@ -429,8 +454,9 @@ def table(r: dict) -> str:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--only", help="only commands starting with this (e.g. 'camera' or 'qa daily')")
-    ap.add_argument("--classes", default=",".join(CLASSES),
-                    help=f"classes to sweep, comma-separated (default: all of {', '.join(CLASSES)}; "
+    ap.add_argument("--classes", default=",".join(DEFAULT_CLASSES),
+                    help=f"classes to sweep, comma-separated, or 'all' (default: {', '.join(DEFAULT_CLASSES)}; "
+                         f"also: {', '.join(CLASSES[6:])}; "
                          "'foreign' for foreign stores)")
     ap.add_argument("--timeout", type=float, default=60.0, help="seconds per case before it counts as a hang")
     ap.add_argument("--show", action="store_true", help="print every case and its last line")
@@ -439,6 +465,7 @@ def main() -> int:
                     help="cases run at once (default: one per core)")
     a = ap.parse_args()
     wanted = [c.strip() for c in a.classes.split(",") if c.strip()]
+    wanted = list(CLASSES) if wanted == ["all"] else wanted
     classes = [c for c in CLASSES if any(c.startswith(w) for w in wanted)]
     if not classes:
         ap.error(f"--classes: none of {', '.join(CLASSES)}")

@@ -17,9 +17,10 @@ import time
 from urllib.parse import quote
 
 import requests
+import urllib3
 from requests.auth import HTTPBasicAuth, HTTPDigestAuth
 
-from vts_hw.camera import CameraError, ClockOffset, Frame
+from vts_hw.camera import CameraError, ClockOffset, Frame, check_whole
 from vts_hw.camera import Refused as ContractRefused
 from vts_hw.camera_stream import FrameStream
 from vts_hw.recording.axis_jpeg import inspect_jpeg
@@ -28,6 +29,10 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from vts_hw.config import CameraConfig
+
+
+#: the most a camera's answer (other than a stream) may hold: a 4K JPEG is a few MiB
+MAX_ANSWER = 64 * 2**20
 
 
 class AxisError(CameraError):
@@ -154,10 +159,15 @@ class AxisCamera:
         """One VAPIX request with auth and timeout; HTTP failures become typed errors."""
         url = self.base_url + path
         sess = session or self._session
+        deadline = time.monotonic() + self.timeout
         try:
-            # verify per request: requests lets REQUESTS_CA_BUNDLE override a session's verify
-            r = sess.request(method, url, params=params, json=json_body, auth=self._auth, stream=stream,
+            # verify per request: requests lets REQUESTS_CA_BUNDLE override a session's verify;
+            # the body is read here, against one deadline for the whole answer (a camera that
+            # trickles a byte at a time never trips a per-read timeout)
+            r = sess.request(method, url, params=params, json=json_body, auth=self._auth, stream=True,
                              timeout=timeout or (self.timeout, self.timeout), verify=self.verify)
+            if not stream and r.status_code < 400 and r._content is False:   # not read yet
+                self._read_whole(r, deadline, path)
         except requests.exceptions.SSLError as exc:
             raise CameraUnreachable(self.name, f"camera {self.name} at {self.base_url}: HTTPS failed "
                                                f"({_tls_reason(exc)}); if the camera has a self-signed "
@@ -168,11 +178,35 @@ class AxisCamera:
         except requests.ConnectionError as exc:
             raise CameraUnreachable(self.name, f"camera {self.name} at {self.base_url} is unreachable "
                                                f"({_reason(exc)})") from None
-        except requests.exceptions.ChunkedEncodingError:  # the body cut short of its Content-Length
+        except urllib3.exceptions.ReadTimeoutError:
+            raise CameraUnreachable(self.name, f"camera {self.name} at {self.base_url} did not answer "
+                                               f"within {self.timeout:g} s") from None
+        except (requests.exceptions.ChunkedEncodingError,    # the body cut short of its Content-Length
+                urllib3.exceptions.HTTPError):
             raise CameraUnreachable(self.name, f"camera {self.name} at {self.base_url} closed the connection "
                                                f"in the middle of its answer to {path}") from None
         self.check_status(r)
         return r
+
+    def _read_whole(self, r: requests.Response, deadline: float, path: str) -> None:
+        """The body of ``r``, whole by ``deadline`` (monotonic) and at most ``MAX_ANSWER`` bytes,
+        else a camera error naming the camera; the response then answers ``.content`` from memory."""
+        body = bytearray()
+        try:
+            while chunk := r.raw.read1(65536, decode_content=True):   # what has come, not a block
+                body += chunk
+                if time.monotonic() > deadline:
+                    raise CameraUnreachable(self.name, f"camera {self.name} at {self.base_url} did not send its "
+                                                       f"answer to {path} within {self.timeout:g} s ({len(body)} "
+                                                       f"bytes came, slowly)")
+                if len(body) > MAX_ANSWER:
+                    raise BadReply(self.name, f"camera {self.name} answered {path} with more than "
+                                              f"{MAX_ANSWER // 2**20} MiB")
+        except BaseException:
+            r.close()
+            raise
+        r._content = bytes(body)
+        r._content_consumed = True
 
     def check_status(self, r: requests.Response) -> None:
         if r.status_code == 401:
@@ -226,6 +260,7 @@ class AxisCamera:
         if not data.startswith(b"\xff\xd8"):
             raise BadReply(self.name, f"camera {self.name} sent {ctype or 'data'} instead of a JPEG")
         frame = frame_from_bytes(0, data, host_t)
+        check_whole(frame, self.name)
         return frame
 
     def make_frame(self, seq: int, jpeg: bytes, host_time: float, problems=()) -> Frame:

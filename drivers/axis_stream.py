@@ -10,6 +10,7 @@ camera is :class:`vts_hw.camera_stream.FrameStream` (re-exported here).
 from __future__ import annotations
 
 import threading
+import time
 from typing import Callable
 
 import urllib3
@@ -83,12 +84,21 @@ class MultipartConnection:
                                        f"multipart MJPEG stream")
         parser = MultipartParser(boundary_from_content_type(ctype))
         raw = resp.raw
+        # a whole frame at least every `patience` s: a camera that trickles bytes never trips the
+        # per-read stall timeout, and would hold the stream (and its caller) for ever
+        patience = max(self.stall_timeout, float(getattr(cam, "timeout", 0) or 0))
+        last_part = time.monotonic()
         while True:
             chunk = raw.read1(65536)
             if not chunk:
                 break
             host_t = cam.clock()
+            now = time.monotonic()
+            if now - last_part > patience:
+                raise CameraUnreachable(cam.name, f"camera {cam.name}: no whole frame in {patience:g} s "
+                                                  f"(data comes, too slowly)")
             for part in parser.feed(chunk):
+                last_part = now
                 # the header walk in make_frame already says whether the JPEG is whole
                 frame = self.make_frame(self.seq, part.body, host_t, part.problems)
                 if not frame.complete:

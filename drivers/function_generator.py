@@ -57,7 +57,7 @@ from vts_hw.drivers.trigger import (
     TriggerLog,
     TriggerStatus,
 )
-from vts_hw.drivers.visa import is_visa_error, open_message_resource, sim_yaml_path, visa_failure
+from vts_hw.drivers.visa import is_visa_error, open_message_resource, query_within, sim_yaml_path, visa_failure
 
 __all__ = ["FunctionGenerator", "OutOfRange", "SIM_RESOURCE", "sim_yaml_path", "scpi_number"]
 
@@ -410,7 +410,7 @@ class FunctionGenerator(TriggerBase):
     def _query(self, command: str) -> str:
         self.log.write(self.name, "cmd", command)
         try:
-            reply = self.resource.query(command).strip()
+            reply = query_within(self.resource, command).strip()   # one deadline for the reply
         except Exception as e:
             if is_visa_error(e) or isinstance(e, UnicodeDecodeError):
                 raise self._failure(e, command) from None

@@ -26,7 +26,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict
 
-from vts_hw.camera import ClockOffset, Frame, NoParameters, kind_options
+from vts_hw.camera import ClockOffset, Frame, NoParameters, check_whole, kind_options
 from vts_hw.drivers.axis import AxisCamera, BadReply
 
 
@@ -85,7 +85,9 @@ class MjpegCamera(AxisCamera):
         if not data.startswith(b"\xff\xd8"):
             ctype = r.headers.get("content-type", "")
             raise BadReply(self.name, f"camera {self.name} sent {ctype or 'data'} instead of a JPEG")
-        return receipt_frame(0, data, host_t)
+        frame = receipt_frame(0, data, host_t)
+        check_whole(frame, self.name)
+        return frame
 
     @property
     def vapix_version(self) -> int:

@@ -34,6 +34,7 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from vts_hw.bounded import TABLE, check_file
 from vts_hw.camera import ClockOffset, Frame, NoParameters, SourceEnded, kind_options
 from vts_hw.camera_stream import FrameStream
 from vts_hw.errors import ConfigError, DataError
@@ -214,6 +215,7 @@ def _first_times(folder: Path) -> list[float]:
     out = []
     for index in folder.glob("*.index.csv"):
         try:
+            check_file(index, TABLE, "recording index")   # a device has no end of line
             with open(index, encoding="ascii") as fh:
                 fh.readline()
                 parts = fh.readline().strip().split(",")

@@ -30,6 +30,7 @@ from typing import Any, Callable, Protocol, runtime_checkable
 
 from pydantic import BaseModel, ConfigDict
 
+from vts_hw.bounded import ANY_SIZE, TABLE, check_file, open_bounded
 from vts_hw.errors import DeviceError, UsageError
 from vts_hw.files import WriteFailed, os_reason
 from vts_hw.recording.trigger_log import (CLOCK as CLOCK_ROW, DEVICE_CLOCK_MAPPED, HOST_WRITE, LOG_HEADER,
@@ -167,6 +168,7 @@ def _check_is_trigger_log(path: Path) -> None:
     """A file that is not a trigger log is never appended to: UsageError (exit 2) naming it. A
     trigger log's first line is its header: ``host_time`` first, ``device``, ``kind`` and ``text``
     among the columns (LOG_HEADER, or a log of another version)."""
+    check_file(path, ANY_SIZE, "trigger log")   # a device or pipe: refused, never opened (a FIFO blocks)
     with open(path, "rb") as f:
         first = f.readline(4096).decode("utf-8", "replace").rstrip("\r\n")
     fields = next(csv.reader([first]), []) if first else []
@@ -195,7 +197,10 @@ class TriggerLog:
         if self.path is not None:
             try:
                 self.path.parent.mkdir(parents=True, exist_ok=True)
-                new = not self.path.exists() or self.path.stat().st_size == 0
+                new = not self.path.exists()
+                if not new:   # a device or FIFO is refused here (opening a FIFO to append blocks)
+                    check_file(self.path, ANY_SIZE, "trigger log")
+                    new = self.path.stat().st_size == 0
                 if not new:
                     _check_is_trigger_log(self.path)
                 self._f = open(self.path, "a", newline="", encoding="utf-8")
@@ -257,7 +262,7 @@ class TriggerLog:
 
 
 def read_log(path: str | os.PathLike) -> list[dict]:
-    with open(path, newline="", encoding="utf-8") as f:
+    with open_bounded(path, TABLE, "trigger log", newline="") as f:
         return list(csv.DictReader(f))
 
 

@@ -165,3 +165,33 @@ def _fresh_sim_devices(rm, name: str) -> None:
         lib.devices = parser.get_devices("default.yaml", True) if path == "unset" else parser.get_devices(path, False)
     except Exception as e:
         raise TriggerError(f"{name}: cannot load a fresh simulated device from {lib.library_path}: {e}") from e
+
+
+def query_within(resource, command: str) -> str:
+    """``resource.query(command)`` with one deadline (``resource.timeout`` ms) for the whole reply.
+
+    pyvisa-py looks at its timeout only when a read brings nothing, so an instrument that
+    trickles its reply a byte at a time is read for as long as it trickles (a 40-byte ``*IDN?``
+    at a byte a second: 40 s, and each query after it as long). Through pyvisa-py the reply is
+    read here a byte at a time against the deadline; a timeout is pyvisa's own VisaIOError."""
+    import time
+    import warnings
+
+    import pyvisa
+
+    timeout_ms = getattr(resource, "timeout", None)
+    lib = getattr(resource, "visalib", None)
+    if timeout_ms is None or not type(lib).__module__.startswith("pyvisa_py"):
+        return resource.query(command)
+    resource.write(command)
+    deadline = time.monotonic() + timeout_ms / 1000.0
+    term = (resource.read_termination or "\n").encode("ascii")
+    reply = bytearray()
+    with warnings.catch_warnings():   # a read of the 1 byte asked for is "max count read": no news
+        warnings.simplefilter("ignore", pyvisa.errors.VisaIOWarning)
+        while not reply.endswith(term):
+            if time.monotonic() > deadline:
+                raise pyvisa.errors.VisaIOError(pyvisa.constants.StatusCode.error_timeout)
+            chunk, _ = lib.read(resource.session, 1)
+            reply += chunk
+    return bytes(reply[:-len(term)]).decode(resource.encoding)

@@ -73,6 +73,8 @@ def camera_images(args: list[str]) -> dict[str, dict[str, Path]]:
                                 " of each camera in a folder named after it.")
             add(*cv, path)
             continue
+        if not path.is_dir():   # a device, a FIFO, a socket
+            raise DataError(f"{path}: not an image file or a folder of images.")
         subdirs = sorted(p for p in path.iterdir() if p.is_dir() and _images_in(p))
         if subdirs:
             for sub in subdirs:

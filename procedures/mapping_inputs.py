@@ -12,6 +12,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from vts_hw.bounded import SMALL, read_text
 from vts_hw.errors import ConfigError, DataError
 
 
@@ -78,7 +79,7 @@ def read_points(path) -> np.ndarray:
     if not path.is_file():
         raise DataError(f"{path}: no such file.")
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        text = read_text(path, SMALL, "points file", encoding="utf-8-sig")
     except (OSError, UnicodeDecodeError) as exc:
         raise DataError(f"{path}: cannot read the points ({exc}).") from None
     if path.suffix.lower() == ".json":

@@ -35,6 +35,7 @@ from typing import Callable, Protocol, Sequence, runtime_checkable
 
 import numpy as np
 
+from vts_hw.bounded import SMALL, read_bytes
 from vts_hw.errors import DataError
 from vts_hw.files import ensure_dir, write_atomic, write_json_atomic
 from vts_hw.procedures.steps_analysis import StepAnalysis
@@ -251,7 +252,7 @@ def load_positions(folder) -> tuple[list[SeenPosition], list[StepPosition]]:
     if not path.is_file():
         raise DataError(f"{path}: no such file; give the folder of a step session.")
     try:
-        data = json.loads(path.read_bytes().decode("utf-8"))
+        data = json.loads(read_bytes(path, SMALL, "step session").decode("utf-8"))
         plan = [StepPosition(**p) for p in data["plan"]]
         seen = [SeenPosition(**s) for s in data["positions"]]
     except OSError as exc:

@@ -25,6 +25,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+from vts_hw.bounded import SMALL, TABLE, open_bounded, read_text
 from vts_hw.errors import DataError
 from vts_hw.spect.listmode.failures import read_failure_records, utc_span
 from vts_hw.recording.folder import load_manifest
@@ -87,7 +88,7 @@ def _num(v) -> float | None:
 def _trigger_rows(folder: Path) -> list[float]:
     import csv
     try:
-        with open(folder / "trigger.csv", newline="", encoding="utf-8") as f:
+        with open_bounded(folder / "trigger.csv", TABLE, "trigger log", newline="") as f:
             return [t for t in (_num(r.get("host_time")) for r in csv.DictReader(f)) if t is not None]
     except (OSError, UnicodeDecodeError, csv.Error):
         return []
@@ -252,7 +253,7 @@ def load_calibration(calibration):
         return calibration
     from vts_hw.vision.multi_calibration_io import FORMAT, STEREO_FORMAT, load_calibration as load
     try:
-        data = json.loads(Path(calibration).read_text(encoding="utf-8"))
+        data = json.loads(read_text(calibration, SMALL, "calibration"))
     except (OSError, ValueError, RecursionError):
         data = None                                   # load() says what is wrong with the file
     if isinstance(data, dict) and data.get("format") not in (FORMAT, STEREO_FORMAT) \
@@ -274,7 +275,7 @@ def load_mapping(mapping):
         return RigidTransform.load(path)
     except DataError:
         try:
-            d = json.loads(path.read_text(encoding="utf-8"))
+            d = json.loads(read_text(path, SMALL, "mapping"))
             return RigidTransform.from_dict(d["transform"])
         except Exception:
             raise DataError(f"{path}: not a VTS -> SPECT transform file") from None

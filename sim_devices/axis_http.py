@@ -17,7 +17,7 @@ from ipaddress import ip_address
 from typing import TYPE_CHECKING
 from urllib.parse import parse_qs, parse_qsl, urlsplit
 
-from vts_hw.sim_devices.axis_streaming import Reject, serve_snapshot, serve_stream
+from vts_hw.sim_devices.axis_streaming import Reject, serve_snapshot, serve_stream, trickle
 
 if TYPE_CHECKING:
     from vts_hw.sim_devices.axis_camera import SimAxisCamera, _Server
@@ -137,6 +137,9 @@ class Handler(BaseHTTPRequestHandler):
                 return
             self.cam.count("requests")
             if not self._authorized(method):
+                return
+            if self.cam.faults.trickle:
+                trickle(self, path)
                 return
             name = ROUTES.get(path) if path in self.cam.profile.cgis else None
             if name is None:

@@ -18,7 +18,8 @@ from vts_hw.recording.axis_jpeg import SOI, AxisProduct, AxisTime, comment_segme
 from vts_hw.sim_devices.axis_params import DEFAULT_FPS, MAX_FPS
 from vts_hw.sim_devices.faults import LATE_LIMIT_S
 
-__all__ = ["BOUNDARY", "LATE_LIMIT_S", "Reject", "restamp", "unstamped", "serve_snapshot", "serve_stream"]
+__all__ = ["BOUNDARY", "LATE_LIMIT_S", "Reject", "restamp", "unstamped", "serve_snapshot", "serve_stream",
+           "trickle"]
 
 if TYPE_CHECKING:
     from vts_hw.sim_devices.axis_http import Handler
@@ -128,6 +129,36 @@ def serve_snapshot(h: "Handler") -> None:
                 f"Content-Length: {len(jpeg)}\r\nConnection: close\r\n\r\n").encode("latin-1")
         h.wfile.write(head + jpeg[: len(jpeg) // 2])
         h.hang_up()
+
+
+def trickle(h: "Handler", path: str) -> None:
+    """The ``trickle`` fault: a 200 and its headers at once, then the body a byte every
+    ``trickle_s`` seconds, until the client hangs up or the fault is cleared (then the rest at
+    once). The body is what the request would get: a JPEG, a multipart stream, or text."""
+    faults = h.cam.faults
+    jpeg = h.cam.frame(*image_args(h)[:2], 75) if "jpg" in path else b""
+    if path.endswith("mjpg/video.cgi"):
+        head, body = STREAM_HEADER, (f"--{BOUNDARY}\r\nContent-Type: image/jpeg\r\n"
+                                     f"Content-Length: {len(jpeg)}\r\n\r\n").encode("ascii") + jpeg
+    else:
+        body = jpeg or b"root.Brand.Brand=AXIS\r\n" * 64
+        ctype = "image/jpeg" if jpeg else "text/plain"
+        head = (f"HTTP/1.1 200 OK\r\nDate: {formatdate(usegmt=True)}\r\nContent-Type: {ctype}\r\n"
+                f"Content-Length: {len(body)}\r\nConnection: close\r\n\r\n").encode("latin-1")
+    h.close_connection = True
+    try:
+        h.wfile.write(head)
+        h.wfile.flush()
+        for k in range(len(body)):
+            if not faults.trickle:
+                h.wfile.write(body[k:])
+                return
+            h.wfile.write(body[k:k + 1])
+            h.wfile.flush()
+            if h.cam._stopping.wait(faults.trickle_s):   # the camera is being stopped
+                return
+    except OSError:   # the client hung up: what a client with a deadline does
+        pass
 
 
 def serve_stream(h: "Handler") -> None:

@@ -89,6 +89,11 @@ class Faults:
     """A stream further behind its frame grid than this skips to the live frame and the frames
     between are lost, as a real camera's are when it cannot keep up (about 1 s); default: they
     are sent late, up to ``LATE_LIMIT_S`` behind."""
+    trickle: bool = False
+    """Answer every VAPIX request (snapshot, stream, parameters, info, time) with its status and
+    headers at once, then its body one byte every ``trickle_s`` seconds: a sick network stack or
+    a throttling proxy. A client that only times each read waits for ever."""
+    trickle_s: float = 1.0
     version: int = field(default=0, compare=False, repr=False)
     """Bumped on every change of a fault field; not itself a fault."""
 
@@ -165,6 +170,7 @@ _FIELD_TYPES = {
     "offline_from": "time?", "offline_until": "time?", "lose_p": "probability", "lose_seed": "count",
     "lose_burst_frames": "count", "lose_burst_every_s": "seconds", "clock_jump_s": "signed seconds",
     "clock_jump_at": "time?", "clock_jump_every_s": "period?", "skip_when_late_s": "seconds?",
+    "trickle": "bool", "trickle_s": "seconds",
 }
 
 

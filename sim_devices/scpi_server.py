@@ -9,7 +9,8 @@ the OS. The instrument, and so its state, lives as long as the server: separate 
 commands see the settings the previous one left.
 
 Faults for tests: :meth:`go_silent` (the instrument reads commands but answers nothing, so a
-query times out), :meth:`stop` (the port closes: connections are cut and new ones refused).
+query times out), :meth:`go_trickle` (every reply a byte at a time), :meth:`stop` (the port
+closes: connections are cut and new ones refused).
 :meth:`log_to` appends every output change to a CSV file (host time, channel, on/off, the wave),
 for whoever needs to know when the wave ran.
 """
@@ -54,11 +55,22 @@ class _Handler(socketserver.BaseRequestHandler):
                     reply = srv.instrument.execute(text)
                     if reply is not None and not srv.silent.is_set():
                         try:
-                            sock.sendall(reply.encode("latin-1") + b"\n")
+                            _answer(srv, sock, reply.encode("latin-1") + b"\n")
                         except OSError:
                             return
         finally:
             srv._track(sock, False)
+
+
+def _answer(srv: "SimFunctionGenerator", sock: socket.socket, data: bytes) -> None:
+    """Send a reply: at once, or (:meth:`SimFunctionGenerator.go_trickle`) a byte at a time."""
+    if not srv.trickle_s:
+        sock.sendall(data)
+        return
+    for k in range(len(data)):
+        sock.sendall(data[k:k + 1])
+        if srv._stopping.wait(srv.trickle_s):
+            return
 
 
 class _Server(socketserver.ThreadingTCPServer):
@@ -73,6 +85,8 @@ class SimFunctionGenerator:
         self.instrument = instrument or Keysight33500(clock=clock)
         self.port = port
         self.silent = threading.Event()
+        self.trickle_s = 0.0
+        self._stopping = threading.Event()
         self._server: _Server | None = None
         self._thread: threading.Thread | None = None
         self._clients: set[socket.socket] = set()
@@ -86,6 +100,7 @@ class SimFunctionGenerator:
         return f"TCPIP::127.0.0.1::{self.port}::SOCKET"
 
     def start(self) -> "SimFunctionGenerator":
+        self._stopping.clear()
         self._server = _Server(("127.0.0.1", self.port), _Handler)
         self._server.owner = self  # type: ignore[attr-defined]
         self.port = self._server.server_address[1]
@@ -97,6 +112,7 @@ class SimFunctionGenerator:
     def stop(self) -> None:
         """Close the port: connected clients are cut off, new ones refused. The instrument keeps
         its state (``start()`` again serves it on the same port)."""
+        self._stopping.set()
         if self._server is not None:
             self._server.shutdown()
             self._server.server_close()
@@ -116,6 +132,11 @@ class SimFunctionGenerator:
             self.instrument.listeners.remove(self._write_event)
             self._log_file.close()
             self._log_file = None
+
+    def go_trickle(self, seconds_per_byte: float = 1.0) -> None:
+        """Every reply a byte every ``seconds_per_byte`` seconds (0: at once again): an
+        instrument behind a sick link. A client that times each read alone waits for ever."""
+        self.trickle_s = float(seconds_per_byte)
 
     def go_silent(self, silent: bool = True) -> None:
         """The instrument goes on taking commands but answers no query (a hung instrument)."""

@@ -170,6 +170,34 @@ class Camera(Protocol):
     def __exit__(self, *exc) -> None: ...
 
 
+class StreamFellShort(CameraError):
+    """A stream delivered nothing, or was lost on the way (it reconnected)."""
+
+
+class NotWhole(CameraError):
+    """The camera sent an image that is not a whole JPEG (cut short, or one that does not decode)."""
+
+
+def check_whole(frame: Frame, camera: str) -> None:
+    """Raise :class:`NotWhole`, naming ``camera``, unless ``frame`` is a whole JPEG: SOI first,
+    EOI last, and it decodes. Called on every snapshot before anyone keeps or uses it."""
+    jpeg = frame.jpeg
+    why = None
+    if not jpeg.startswith(b"\xff\xd8"):
+        why = "it does not start as a JPEG does"
+    elif not frame.complete or not jpeg.rstrip(b"\x00\r\n").endswith(b"\xff\xd9"):
+        why = "it is cut short (no end-of-image marker)"
+    else:
+        import cv2
+        import numpy as np
+        img = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_UNCHANGED)
+        if img is None or img.size == 0:
+            why = "it does not decode"
+    if why:
+        raise NotWhole(camera, f"camera {camera} sent a JPEG that is not whole ({len(jpeg)} bytes: {why}); "
+                               f"nothing was kept")
+
+
 def kind_options(cfg, model):
     """A camera entry's ``options:`` checked against a kind's pydantic ``model``; a wrong or
     unknown key is a ConfigError naming the camera, the key and what was expected."""
@@ -185,5 +213,5 @@ def kind_options(cfg, model):
             from None
 
 
-__all__ = ["Camera", "CameraError", "ClockOffset", "Connection", "Frame", "NoParameters", "Refused", "SourceEnded",
+__all__ = ["check_whole", "NotWhole", "StreamFellShort", "Camera", "CameraError", "ClockOffset", "Connection", "Frame", "NoParameters", "Refused", "SourceEnded",
            "StreamGap", "StreamStats", "TORN", "TIME_SOURCES", "kind_options"]

@@ -56,6 +56,20 @@ class FrameStream:
             except Exception:
                 pass
 
+    def shortfall(self, interrupted: bool = False) -> str | None:
+        """One sentence, naming the camera, of how the stream fell short of what was asked
+        (None when it did not): no frames at all, or frames with the stream lost on the way
+        (reconnects). A stream the user stopped (``interrupted``) is not blamed for its length."""
+        st, name = self.stats, self.camera.name
+        cause = st.last_error or "the camera ended the stream early"
+        if st.frames == 0 and not interrupted:
+            asked = f" in {self.duration:g} s" if self.duration is not None else ""
+            return f"camera {name}: no frames{asked} ({cause})"
+        if st.reconnects:
+            return (f"camera {name}: the stream was not whole: {st.reconnects} reconnect(s) after {cause}; "
+                    f"{st.frames} frame(s), {st.missing} missing")
+        return None
+
     # -- iteration -------------------------------------------------------------------
     def __iter__(self):
         cam = self.camera

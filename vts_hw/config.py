@@ -17,6 +17,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
 
 from vts_hw.config_qatrack import QATrackConfig
+from vts_hw.bounded import ANY_SIZE, TooLarge, check_file, read_bytes
 from vts_hw.errors import ConfigError
 
 ENV_CONFIG = "VTS_CONFIG"
@@ -341,8 +342,11 @@ MAX_YAML_NODES = 100_000    # a rig.yaml has some hundred; aliases that expand b
 def _read_text(p: Path) -> str:
     """The config file's text; ConfigError naming the file when it is not UTF-8 YAML text."""
     try:
+        check_file(p, ANY_SIZE, "rig config")   # a FIFO would block here for ever; a device never ends
         with open(p, "rb") as f:
             raw = f.read(MAX_CONFIG_BYTES + 1)
+    except TooLarge as exc:
+        raise ConfigError(str(exc)) from None
     except FileNotFoundError:
         raise ConfigError(f"{p}: no such config file (give --config or set {ENV_CONFIG})") from None
     except OSError as exc:
@@ -427,7 +431,7 @@ def load_rig(path: str | os.PathLike | None = None) -> RigConfig:
 
 def config_digest(path: str | os.PathLike) -> str:
     """sha256 of the config file's bytes (stored with runs and recordings)."""
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    return hashlib.sha256(read_bytes(path, MAX_CONFIG_BYTES, "rig config")).hexdigest()
 
 
 def dump_rig(cfg: RigConfig) -> str:

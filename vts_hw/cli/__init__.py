@@ -47,8 +47,18 @@ def _register() -> None:
                    sim, store, sync, trigger)
 
 
+def _interruptible() -> None:
+    """Ctrl-C (SIGINT) stops every command, as KeyboardInterrupt (exit 130, what was done kept),
+    even when it was started with SIGINT ignored: a background job of a non-interactive shell
+    is, and Python then installs no handler of its own (`kill -INT` would do nothing)."""
+    import signal
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
 def main(argv=None) -> None:
     """Entry point: user errors end in one sentence and a non-zero exit, never a traceback."""
+    _interruptible()
     _register()
     try:
         cli.main(args=argv, prog_name="vts", standalone_mode=False)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from vts_hw.camera import Camera, NoParameters, StreamGap
+from vts_hw.camera import Camera, CameraError, NoParameters, StreamFellShort, StreamGap
 from vts_hw.drivers.registry import open_camera, open_cameras
 from vts_hw.files import write_atomic
 from vts_hw.cli import cli
@@ -55,7 +55,9 @@ def stream(name: str, seconds: float | None, fps: float | None, rig) -> None:
         off = cam.clock_offset()
         click.echo(f"# clock: camera - host = {off.offset_s:+.4f} s (± {off.uncertainty_s * 1000:.0f} ms, "
                    f"{off.method}); latency = receive - capture with that offset taken out", err=True)
-        s = cam.stream(fps=fps, duration=seconds)
+        # without --seconds, a camera that sends nothing is given up on, not waited for for ever
+        s = cam.stream(fps=fps, duration=seconds, give_up_after=None if seconds else max(10.0, 3 * getattr(cam, "timeout", 5.0)))
+        interrupted, given_up = False, None
         click.echo(f"{'frame':>6}  {'camera time':<23}  {'host receive time':<23}  {'latency':>10}  {'size':>9}")
         try:
             for item in s:
@@ -68,11 +70,19 @@ def stream(name: str, seconds: float | None, fps: float | None, rig) -> None:
                            f"{lat:>10}  {len(item.jpeg):7d} B")
         except KeyboardInterrupt:
             s.stop()
+            interrupted = True
+        except CameraError as exc:   # gave up: the counts first, then why
+            given_up = exc
         st = s.stats
         click.echo(f"{st.frames} frames, {st.missing} missing in {st.gaps} gap(s), {st.torn} torn, "
                    f"{st.reconnects} reconnect(s)", err=True)
         for note in st.problems:
             click.echo(f"  note: {note}", err=True)
+    if given_up is not None:
+        raise given_up
+    short = s.shortfall(interrupted)
+    if short:
+        raise StreamFellShort(name, short)
 
 
 @camera.command()

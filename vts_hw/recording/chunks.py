@@ -10,11 +10,13 @@ docs/decisions/0018-processing.md and 0031-n-camera-tracking.md.
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import cv2
 import numpy as np
 
+from vts_hw.lifeline import die_with
 from vts_hw.vision.detect import DetectorSettings, detect
 from vts_hw.vision.multiview import ViewGeometry, match_views
 from vts_hw.vision.triangulate import Camera, fundamental_matrix, match_epipolar
@@ -92,7 +94,10 @@ _W: dict[str, Any] = {}
 
 
 def _init_worker(state: dict, threads: int | None = 1) -> None:
-    """Per worker: OpenCV single-threaded, the cameras and settings kept as globals."""
+    """Per worker: OpenCV single-threaded, the cameras and settings kept as globals; a worker
+    of a pool (``state["command_pid"]``) ends when the command does (vts_hw.lifeline)."""
+    if state.get("command_pid") and state["command_pid"] != os.getpid():
+        die_with(state["command_pid"])
     if threads is not None:
         cv2.setNumThreads(threads)
     _W.clear()

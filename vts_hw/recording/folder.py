@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from vts_hw.recording.axis_jpeg import inspect_jpeg
+from vts_hw.bounded import SMALL, TABLE, read_bytes
 from vts_hw.errors import DataError
 from vts_hw.recording.mjpeg import read_frames_file
 
@@ -35,7 +36,7 @@ def load_manifest(folder: str | Path, *, missing_ok: bool = False) -> dict | Non
     mapping of camera name to a mapping). ``missing_ok``: None when there is no manifest."""
     path = Path(folder) / MANIFEST
     try:
-        raw = path.read_bytes()
+        raw = read_bytes(path, SMALL, "recording manifest")
     except FileNotFoundError:
         if missing_ok:
             return None
@@ -85,7 +86,7 @@ def read_index(path: Path, *, lenient: bool = False) -> list[FrameRow]:
     ``lenient`` (for rebuilding an index): bad lines are skipped, every whole row is kept."""
     path = Path(path)
     try:
-        raw = path.read_bytes()
+        raw = read_bytes(path, TABLE, "recording index")
     except OSError as exc:
         raise DataError(f"{path}: cannot read the index ({exc.strerror or exc})") from None
     try:

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from vts_hw.recording.axis_jpeg import EOI, SOI
+from vts_hw.bounded import CAPTURE, read_bytes
 from vts_hw.errors import DataError
 
 _MAX_HEADER = 4096
@@ -275,7 +276,7 @@ def read_frames_file(path: str | Path) -> list[tuple[bytes, list[str]]]:
     """
     p = Path(path)
     try:
-        data = p.read_bytes()
+        data = read_bytes(p, CAPTURE, "frames file (.mjpg or JPEG)")
     except OSError as exc:
         raise DataError(f"{p}: cannot read ({exc.strerror})") from None
     head = data[:256].lstrip()

@@ -46,6 +46,7 @@ import cv2
 import numpy as np
 
 from vts_hw.errors import DataError
+from vts_hw.lifeline import interrupts_deferred
 from vts_hw.recording import chunks
 from vts_hw.recording.chunks import triangulate_fast
 from vts_hw.recording.extent import available_cameras, recording_extent
@@ -178,13 +179,21 @@ def process_recording(folder, cameras, workers: int | None = None, mapping=None,
         finally:
             cv2.setNumThreads(before)
     else:
-        with ProcessPoolExecutor(min(workers, len(tasks)), mp_context=_pool_context(),
-                                 initializer=chunks._init_worker, initargs=(state, 1)) as pool:
-            for res in pool.map(chunks._process_chunk, tasks):
+        pool = ProcessPoolExecutor(min(workers, len(tasks)), mp_context=_pool_context(),
+                                   initializer=chunks._init_worker,
+                                   initargs=({**state, "command_pid": os.getpid()}, 1))
+        try:
+            with interrupts_deferred():   # Ctrl-C while the workers are started: raised once they are
+                results_of = pool.map(chunks._process_chunk, tasks)
+            for res in results_of:
                 results.append(res)
                 done += int(res[5].shape[0])
                 if progress:
                     progress(done, n_sets)
+        except BaseException:             # Ctrl-C, an error: the chunks not started are dropped
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
+        pool.shutdown(wait=True)
     tracks = _assemble(folder, names, frames, times, fits, sets, results, s, mapping,
                        host_to_spect, period, cams, warnings)
     tracks.meta["extent"] = extent

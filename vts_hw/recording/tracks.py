@@ -16,6 +16,7 @@ from typing import Callable
 
 import numpy as np
 
+from vts_hw.bounded import SMALL, TABLE, open_bounded, read_text
 from vts_hw.errors import DataError
 
 __all__ = ["Tracks", "TRACKS_FORMAT"]
@@ -199,7 +200,7 @@ class Tracks:
         path = Path(path)
         json_path, csv_path = path.with_suffix(".json"), path.with_suffix(".csv")
         try:
-            doc = json.loads(json_path.read_text(encoding="utf-8"))
+            doc = json.loads(read_text(json_path, SMALL, "trajectory metadata"))
         except (OSError, ValueError, RecursionError) as exc:
             raise DataError(f"{json_path}: cannot read the trajectory metadata "
                             f"({str(exc)[:120] or 'nested too deeply'})") from None
@@ -229,7 +230,7 @@ class Tracks:
             n_single = np.column_stack([intm(fr[f"{c}_single"]) for c in names]).reshape(-1, C)
         spect_time = np.array(fr["spect_time"], float) if "spect_time" in fr else None
         try:
-            with open(csv_path, encoding="ascii") as f:
+            with open_bounded(csv_path, TABLE, "trajectory table", encoding="ascii") as f:
                 header = f.readline().strip().split(",")
                 body = f.read().strip()
         except OSError as exc:

@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vts_hw.bounded import TABLE, open_bounded
 from vts_hw.errors import DataError
 
 __all__ = ["WAVE_START", "WAVE_STOP", "CLOCK", "NEUTRAL_KINDS", "DEVICE_CLOCK_MAPPED", "HOST_WRITE",
@@ -149,7 +150,7 @@ def read_trigger_rows(path: str | os.PathLike) -> list[dict]:
     it is missing, unreadable or not a trigger log."""
     path = Path(path)
     try:
-        with open(path, newline="", encoding="utf-8") as f:
+        with open_bounded(path, TABLE, "trigger log", newline="") as f:
             rows = list(csv.DictReader(f))
     except FileNotFoundError:
         raise DataError(f"{path}: no such file") from None

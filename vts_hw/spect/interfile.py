@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vts_hw.bounded import LISTMODE, SMALL, read_bytes, read_text
 from vts_hw.errors import DataError
 from vts_hw.spect.volume import Volume
 
@@ -54,7 +55,7 @@ def _norm(key: str) -> str:
 def parse_header(path: Path) -> dict[str, str]:
     """``key := value`` lines to a dict of normalised keys; comments (``;``) dropped."""
     try:
-        text = path.read_text(encoding="latin-1")
+        text = read_text(path, SMALL, "Interfile header", encoding="latin-1")
     except OSError as e:
         raise DataError(f"{path}: cannot read the Interfile header ({e.strerror})") from None
     lines = [ln.split(";", 1)[0] for ln in text.splitlines()]
@@ -123,7 +124,7 @@ def read_interfile(path) -> Volume:
     try:
         if not stat.S_ISREG(data_path.stat().st_mode):  # a folder, /dev/zero, a FIFO
             raise DataError(f"{path}: the data file {shown} is not a regular file")
-        raw = data_path.read_bytes()
+        raw = read_bytes(data_path, LISTMODE, "list-mode data file")
     except OSError as e:  # missing, unreadable, a name too long
         raise DataError(f"{path}: cannot read the data file {shown} ({e.strerror})") from None
     expected = math.prod(shape) * nbytes

@@ -16,6 +16,7 @@ import socket
 import tempfile
 from pathlib import Path
 
+from vts_hw.bounded import SMALL, read_text
 from vts_hw.errors import DataError
 from vts_hw.files import WriteFailed, write_json_atomic
 from vts_hw.store.paths import default_path, sqlite_file, to_url
@@ -55,7 +56,7 @@ def save_unsaved(url: str | None, run: dict) -> tuple[Path | None, list[str]]:
 def load_unsaved(path: str | Path) -> dict:
     p = Path(path)
     try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
+        doc = json.loads(read_text(p, SMALL, "unsaved QA run"))
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise DataError(f"{p}: cannot read the unsaved run ({exc})") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT or not isinstance(doc.get("measurements"), list):

@@ -17,6 +17,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from vts_hw.bounded import SMALL, read_text
 from vts_hw.vision.calibration_uncertainty import beyond, differences, optional_keys, warning_text
 from vts_hw.errors import DataError
 from vts_hw.files import write_atomic
@@ -226,7 +227,7 @@ class StereoCalibration:
         """Read a file written by `save`; DataError (naming the file and key) if it is not one."""
         path = Path(path)
         try:
-            text = path.read_text(encoding="utf-8")
+            text = read_text(path, SMALL, "calibration")
         except (OSError, UnicodeDecodeError) as exc:
             raise DataError(f"{path}: cannot read the calibration file ({exc}).") from exc
         try:

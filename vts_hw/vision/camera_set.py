@@ -22,6 +22,7 @@ import json
 from pathlib import Path
 from typing import Any, Sequence
 
+from vts_hw.bounded import SMALL, read_text
 from vts_hw.errors import DataError
 from vts_hw.vision.triangulate import Camera, as_camera
 
@@ -85,7 +86,7 @@ def load_cameras(path) -> dict[str, Camera]:
     naming the file when it is neither."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = json.loads(read_text(path, SMALL, "calibration"))
     except (OSError, ValueError, RecursionError) as exc:
         raise DataError(f"{path}: cannot read the calibration ({str(exc)[:120] or type(exc).__name__})") from None
     from vts_hw.vision.multi_calibration_io import FORMAT, STEREO_FORMAT, load_calibration

@@ -20,6 +20,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from vts_hw.bounded import SMALL, read_text
 from vts_hw.errors import DataError
 from vts_hw.files import write_atomic
 from vts_hw.vision.calibration_io import FORMAT as STEREO_FORMAT
@@ -269,7 +270,7 @@ def load_calibration(path: str | Path) -> StereoCalibration | CameraCalibration:
     naming the file (and the key) for anything else."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = json.loads(read_text(path, SMALL, "calibration"))
     except (OSError, UnicodeDecodeError) as exc:
         raise DataError(f"{path}: cannot read the calibration file ({exc}).") from exc
     except json.JSONDecodeError as exc:

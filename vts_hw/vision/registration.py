@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from vts_hw.bounded import SMALL, read_text
 from vts_hw.errors import DataError
 
 __all__ = ["RigidTransform", "kabsch", "fre", "loo_tre", "LooTre", "difference",
@@ -142,7 +143,7 @@ class RigidTransform:
         """Read a file written by :meth:`save`; a bad file raises :class:`DataError`."""
         path = Path(path)
         try:
-            d = json.loads(path.read_text(encoding="utf-8"))
+            d = json.loads(read_text(path, SMALL, "transform file"))
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise DataError(f"cannot read transform file {path}: {exc}") from None
         except (ValueError, RecursionError) as exc:  # a 5000-digit number, arrays nested 1000 deep

@@ -16,6 +16,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from vts_hw.bounded import SMALL, read_text
 from vts_hw.files import write_json_atomic
 
 __all__ = ["FORMAT", "SUFFIX", "FailureRecord", "write_failure_record", "read_failure_records",
@@ -77,7 +78,7 @@ def read_failure_records(folder) -> list[FailureRecord]:
         return []
     for p in paths:
         try:
-            d = json.loads(p.read_text(encoding="utf-8"))
+            d = json.loads(read_text(p, SMALL, "list-mode failure note"))
             if not isinstance(d, dict) or d.get("format") != FORMAT:
                 continue
             rec = FailureRecord(by=str(d["by"]), listmode=str(d["listmode"]), reason=str(d["reason"]),

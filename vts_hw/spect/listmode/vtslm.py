@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vts_hw.bounded import LISTMODE, check_file, read_bytes
 from vts_hw.errors import DataError
 from vts_hw.spect.listmode.base import GATE_SAMPLES, ListMode
 
@@ -294,7 +295,7 @@ def read_vtslm(path) -> ListMode:
     """Read a VTSLM file into a ListMode (list-mode seconds, mm, volts)."""
     path = Path(path)
     try:
-        data = path.read_bytes()
+        data = read_bytes(path, LISTMODE, "list-mode file")
     except FileNotFoundError:
         raise DataError(f"{path}: no such file") from None
     except OSError as e:
@@ -341,6 +342,7 @@ def vtslm_span(path) -> tuple[float, float]:
     short is refused by :func:`read_vtslm`, not here). DataError naming the file."""
     path = Path(path)
     try:
+        check_file(path, LISTMODE, "list-mode file")
         with open(path, "rb") as f:
             head = f.read(PREAMBLE.size)
             length = PREAMBLE.unpack_from(head)[3] if len(head) == PREAMBLE.size else 0
