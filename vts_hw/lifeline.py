@@ -73,3 +73,5 @@ def interrupts_deferred():
         signal.signal(signal.SIGINT, old)
     if got and callable(old):
         old(signal.SIGINT, None)
+    elif got and old == signal.SIG_DFL:   # the default: end as Ctrl-C would have ended it
+        os.kill(os.getpid(), signal.SIGINT)
