@@ -29,13 +29,14 @@ debs:
 demo: $(STAMP)
 	$(VENV)/bin/vts demo
 
-# two pytest-xdist workers (make test PYTEST_WORKERS=0 for one process); the real QATrack+'s
-# tests are one group, run last, against the server the controller starts (tests/conftest.py)
+# two pytest-xdist workers, a test module to one worker (its module fixtures made once; make test
+# PYTEST_WORKERS=0 for one process); the real QATrack+'s tests are one module, run last, against
+# the server the controller starts (tests/conftest.py)
 PYTEST_WORKERS ?= 2
 
 test: $(STAMP) debs
 	$(MAKE) -C firmware
-	$(PY) -m pytest $(if $(filter-out 0,$(PYTEST_WORKERS)),-n $(PYTEST_WORKERS) --dist loadgroup)
+	$(PY) -m pytest $(if $(filter-out 0,$(PYTEST_WORKERS)),-n $(PYTEST_WORKERS) --dist loadscope)
 
 bench: $(STAMP) debs
 	$(MAKE) -C firmware

@@ -77,8 +77,9 @@ def store_url(request, tmp_path) -> str:
 
 # -- the real QATrack+ (../shared/interop/qatrack): started while the rest of the suite runs ---------
 # One process starts it: the session's only process, or with pytest-xdist (make test runs two
-# workers) the controller, which outlives the workers; the real_qatrack tests are one xdist group
-# (one worker runs them in turn: they restart the one server in other zones) and come last.
+# workers) the controller, which outlives the workers; the real_qatrack tests are one module run by
+# one worker (make test's --dist loadscope; they restart the one server in other zones) and come
+# last. (A group mark added here would come too late for --dist loadgroup: the test module marks it.)
 
 _REAL_QATRACK = None
 

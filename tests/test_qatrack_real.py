@@ -24,7 +24,7 @@ from vts_hw.config import parse_rig
 from vts_hw.qatrack import exit_code, push_runs, run_key, select_runs
 from vts_hw.store import ResultsStore
 
-pytestmark = [pytest.mark.real_qatrack, pytest.mark.timeout(900)]
+pytestmark = [pytest.mark.real_qatrack, pytest.mark.xdist_group("real_qatrack"), pytest.mark.timeout(900)]
 
 UNIT, LIST = "SPECT room 1", "VTS daily"
 MACROS = {"cam1/drift_x_px": "cam1_dx", "cam1/drift_y_px": "cam1_dy", "cam2/drift_x_px": "cam2_dx",
