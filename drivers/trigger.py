@@ -170,8 +170,11 @@ def _check_is_trigger_log(path: Path) -> None:
     among the columns (LOG_HEADER, or a log of another version)."""
     check_file(path, ANY_SIZE, "trigger log")   # a device or pipe: refused, never opened (a FIFO blocks)
     with open(path, "rb") as f:
-        first = f.readline(4096).decode("utf-8", "replace").rstrip("\r\n")
-    fields = next(csv.reader([first]), []) if first else []
+        first = (f.readline(4096).decode("utf-8", "replace").splitlines() or [""])[0]   # CR-only lines too
+    try:
+        fields = next(csv.reader([first]), []) if first else []
+    except csv.Error:          # a NUL or a quote csv cannot read: not our header
+        fields = []
     if not (fields[:1] == [LOG_HEADER[0]] and {"device", "kind", "text"} <= set(fields)):
         raise UsageError(f"{path} is not a trigger log (its first line is not a header such as "
                          f"{','.join(LOG_HEADER)!r}), so it was left as it was: name a new file or a trigger "
