@@ -192,3 +192,27 @@ def test_info_counts_what_is_readable_and_names_what_is_missing(tmp_path):
     text = info().stdout
     assert f"cam1: {by['cam1']['frames']} of {n['cam1']} promised frame(s) readable" in text
     assert "cam2: 0 of" in text and "cam2.mjpeg and cam2.index.csv missing" in text
+
+
+def test_ctrl_c_between_a_frames_two_writes_leaves_no_part_of_it(tmp_path, monkeypatch):
+    """KeyboardInterrupt after a frame's bytes reached the .mjpeg but before its index line:
+    both files are cut back to the last whole frame, as on a full disk (the index covers the
+    .mjpeg exactly; found by the SIGINT sweep of bench/bad_inputs.py)."""
+    import vts_hw.recording.writer as writer
+
+    folder = tmp_path / "rec"
+    with Recording(folder, ["cam1"], {"rig": "test"}) as rec:
+        rec.write_frame("cam1", b"\xff\xd8one\xff\xd9", 100.0, 1.0)
+        real, calls = writer._write_all, []
+
+        def interrupted(fd, data):
+            calls.append(fd)
+            if len(calls) == 2:              # the index line, after the frame's bytes
+                raise KeyboardInterrupt
+            real(fd, data)
+        monkeypatch.setattr(writer, "_write_all", interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            rec.write_frame("cam1", b"\xff\xd8two\xff\xd9", 100.04, 1.04)
+        monkeypatch.setattr(writer, "_write_all", real)
+    rows = read_index(folder / "cam1.index.csv")
+    assert len(rows) == 1 and (folder / "cam1.mjpeg").stat().st_size == rows[-1].offset + rows[-1].length

@@ -114,6 +114,9 @@ class CameraWriter:
             self._take_back()
             raise FrameNotWritten(self.mjpeg_path, os_reason(exc),
                                   f"kept {self.frames} whole frame(s) of {self.name}") from None
+        except BaseException:     # Ctrl-C between the two writes: neither file keeps a part of this frame
+            self._take_back()
+            raise
         self._index_size += len(line)
         self._offset += len(jpeg)
         self.bytes_written += len(jpeg)
