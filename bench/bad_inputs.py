@@ -48,25 +48,22 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import io
 import json
 import os
-import select
-import signal
 import socket
 import sys
 import tempfile
 import time
-import traceback
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import click
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from badkit.classes import (EXIT_OK, Case, Verdict, common, float_cases, foreign_cases, number_judge,  # noqa: E402
+from badkit.classes import (Case, Verdict, common, float_cases, foreign_cases, number_judge,  # noqa: E402
                             plain, probe_stores, sha, store_command_cases)
 from badkit import full_disk  # noqa: E402
+from badkit.forked import fork_vts  # noqa: E402
 from badkit import endless_files, signals, slow_peers  # noqa: E402  (issue 21 round 2)
 
 SKIP = {("sim", "up"): "starts servers in the foreground", ("demo",): "runs the whole demo"}
@@ -225,7 +222,6 @@ def is_output(p: click.Parameter) -> bool:
 def _replace(base: list[str], p: click.Parameter, opt: str | None, value: str) -> list[str]:
     out = list(base)
     if opt is None:  # an argument: the first base value of that position, else appended
-        idx = [q for q in p.__class__.__mro__]  # noqa: F841 (kept simple: replace the first path/number)
         for i, a in enumerate(out):
             if not a.startswith("-") and (i == 0 or not out[i - 1].startswith("-")):
                 out[i] = value
@@ -239,70 +235,11 @@ def _replace(base: list[str], p: click.Parameter, opt: str | None, value: str) -
     return out + [opt, value]
 
 
-def run_case(argv: list[str], timeout: float, workdir: Path | None = None) -> tuple[int | None, str, str]:
-    """Run `vts ARGV` in a forked child (in ``workdir``, so that default outputs of cases run at
+def run_case(argv: list[str], timeout: float, workdir: Path) -> tuple[int | None, str, str]:
+    """Run `vts ARGV` in a forked child in ``workdir`` (so that default outputs of cases run at
     once do not meet; every store it opens is noted there); (exit code or None on a hang, stdout,
     stderr)."""
-    out_r, out_w = os.pipe()
-    err_r, err_w = os.pipe()
-    pid = os.fork()
-    if pid == 0:  # the child: the CLI's own main(), as the console script runs it
-        try:
-            if workdir is not None:
-                os.makedirs(workdir, exist_ok=True)
-                os.chdir(workdir)
-            os.dup2(out_w, 1)
-            os.dup2(err_w, 2)
-            os.setsid()
-            sys.stdout = io.TextIOWrapper(os.fdopen(1, "wb", buffering=0), write_through=True)
-            sys.stderr = io.TextIOWrapper(os.fdopen(2, "wb", buffering=0), write_through=True)
-            sys.stdin = open(os.devnull)
-            probe_stores()
-            from vts_hw.cli import main
-            code = 0
-            try:
-                main(argv)
-            except SystemExit as exc:
-                code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-            except BaseException:
-                traceback.print_exc()
-                code = 99
-            sys.stdout.flush()
-            sys.stderr.flush()
-        finally:
-            os._exit(code if "code" in locals() else 98)
-    os.close(out_w)
-    os.close(err_w)
-    chunks = {out_r: [], err_r: []}
-    deadline = time.monotonic() + timeout
-    open_fds = [out_r, err_r]
-    hung = False
-    while open_fds:
-        left = deadline - time.monotonic()
-        if left <= 0:
-            hung = True
-            os.killpg(pid, signal.SIGKILL)
-            break
-        ready, _, _ = select.select(open_fds, [], [], min(left, 0.5))
-        for fd in ready:
-            data = os.read(fd, 65536)
-            if data:
-                chunks[fd].append(data)
-            else:
-                open_fds.remove(fd)
-    _, status = os.waitpid(pid, 0)
-    for fd in (out_r, err_r):
-        os.close(fd)
-    code = None if hung else (os.waitstatus_to_exitcode(status))
-    return code, b"".join(chunks[out_r]).decode(errors="replace"), b"".join(chunks[err_r]).decode(errors="replace")
-
-
-def walk(group: click.Group, path=()):
-    for name, c in sorted(group.commands.items()):
-        if isinstance(c, click.Group):
-            yield from walk(c, path + (name,))
-        else:
-            yield path + (name,), c
+    return fork_vts(argv, timeout, workdir, before=probe_stores)
 
 
 def preload() -> int:
@@ -333,8 +270,11 @@ def preload() -> int:
 
 def plan(only: str | None, classes, fx: Fixtures, cli, peers=None) -> list[Case]:
     """Every case of the chosen classes, command by command (the tree walked from the CLI)."""
+    from vts_hw.cli import command_tree
     planned: list[Case] = []
-    for cmd_path, cmd in walk(cli):
+    for cmd_path, cmd in command_tree(cli):
+        if isinstance(cmd, click.Group):
+            continue
         if only and not " ".join(cmd_path).startswith(only):
             continue
         if cmd_path in SKIP:   # their float options only (refused before anything starts), and the old two

@@ -22,7 +22,6 @@ a second for one move).
 from __future__ import annotations
 
 import argparse
-import statistics
 import sys
 import tempfile
 import time
@@ -34,9 +33,8 @@ import numpy as np
 from vts_hw.live.estimator import LiveSettings
 from vts_hw.live.tracker import LiveTracker
 from vts_hw.live.watch import Episode
-from vts_hw.recording.folder import read_index
 from vts_hw.sim_devices.patient import BodyMove
-from vts_hw.sim_devices.recording_sim import simulate_recording
+from vts_hw.sim_devices.recording_sim import received_frames, simulate_recording
 from vts_hw.sim_devices.sync_truth import true_cameras
 from vts_hw.vision.registration import RigidTransform
 
@@ -68,15 +66,7 @@ def render(folder: Path, seconds: float, seed: int, breathing: bool):
     moves = [BodyMove(start + a, start + a + 0.6, (0.0, 1.0 + 0.5 * k, 0.0), (2.0, 5.0 + k, 2.0))
              for k, a in enumerate(np.arange(17.3, seconds - 4.0, 13.7))]
     sim = simulate_recording(folder, duration_s=seconds, seed=seed, patient={"moves": moves, "breathing": breathing})
-    frames, offsets = [], {}
-    for name in sim.cameras:
-        rows = read_index(folder / f"{name}.index.csv")
-        data = (folder / f"{name}.mjpeg").read_bytes()
-        offsets[name] = statistics.median(r.camera_time - r.host_time for r in rows)
-        frames += [(r.host_time, name, SimpleNamespace(jpeg=data[r.offset:r.offset + r.length],
-                                                       camera_time=r.camera_time, host_time=r.host_time))
-                   for r in rows]
-    frames.sort(key=lambda f: f[0])
+    frames, offsets = received_frames(folder, sim.cameras)
     return sim, frames, offsets, moves, start
 
 

@@ -232,3 +232,26 @@ def simulate_recording(folder, duration_s: float = 20.0, fps: float = 25.0, seed
             f.write(half)
         out.torn_bytes[cam] = len(half)
     return out
+
+
+def received_frames(folder, cameras) -> tuple[list[tuple[float, str, object]], dict[str, float]]:
+    """A recording's frames as the live path received them: (host receipt time, camera, frame
+    with ``jpeg``, ``camera_time``, ``host_time``) in receipt order, and per camera its clock
+    minus the host clock (the median over its frames), to feed a LiveTracker without cameras."""
+    import statistics
+    from types import SimpleNamespace
+
+    from vts_hw.recording.folder import read_index
+
+    folder = Path(folder)
+    frames, offsets = [], {}
+    for name in cameras:
+        rows = read_index(folder / f"{name}.index.csv")
+        data = (folder / f"{name}.mjpeg").read_bytes()
+        offsets[name] = statistics.median(r.camera_time - r.host_time for r in rows)
+        frames += [(r.host_time, name, SimpleNamespace(jpeg=data[r.offset:r.offset + r.length],
+                                                       camera_time=r.camera_time, host_time=r.host_time))
+                   for r in rows]
+    frames.sort(key=lambda f: f[0])
+    return frames, offsets
+

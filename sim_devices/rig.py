@@ -28,6 +28,7 @@ from pathlib import Path
 from vts_hw.config import RigConfig, dump_rig, parse_rig
 from vts_hw.errors import UsageError, VtsError
 from vts_hw.files import WriteFailed, ensure_dir, os_reason, write_atomic
+from vts_hw.lifeline import alive
 from vts_hw.sim_devices.axis_camera import SimAxisCamera
 from vts_hw.sim_devices.camera_source import SimCameraSource
 from vts_hw.sim_devices.clock import RealClock, VirtualClock
@@ -410,15 +411,7 @@ def _pid(folder: Path) -> int | None:
 
 def is_running(folder: str | Path) -> bool:
     pid = _pid(Path(folder))
-    if pid is None:
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
+    return pid is not None and alive(pid)
 
 
 def stop_detached(folder: str | Path, timeout: float = 10.0) -> bool:
@@ -439,9 +432,7 @@ def stop_detached(folder: str | Path, timeout: float = 10.0) -> bool:
             child.wait()
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        try:
-            os.kill(pid, 0)
-        except ProcessLookupError:
+        if not alive(pid):
             break
         time.sleep(0.05)
     else:

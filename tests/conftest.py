@@ -79,7 +79,7 @@ def store_url(request, tmp_path) -> str:
 # One process starts it: the session's only process, or with pytest-xdist (make test runs two
 # workers) the controller, which outlives the workers; the real_qatrack tests are one module run by
 # one worker (make test's --dist loadscope; they restart the one server in other zones) and come
-# last. (A group mark added here would come too late for --dist loadgroup: the test module marks it.)
+# last. (With --dist loadgroup the module's own xdist_group mark keeps them on one worker.)
 
 _REAL_QATRACK = None
 
@@ -121,12 +121,10 @@ def pytest_sessionstart(session):
 
 
 def pytest_collection_modifyitems(session, config, items):
-    """Tests marked real_qatrack run last (one xdist group), and the real server starts
-    installing now (unless a controller started it)."""
+    """Tests marked real_qatrack run last, and the real server starts installing now (unless
+    an xdist controller started it)."""
     real = [i for i in items if i.get_closest_marker("real_qatrack")]
     if real:
-        for i in real:
-            i.add_marker(pytest.mark.xdist_group("real_qatrack"))
         items[:] = [i for i in items if not i.get_closest_marker("real_qatrack")] + real
         if not _xdist_worker(config):
             _real_qatrack().start_in_background()

@@ -16,7 +16,8 @@ from pathlib import Path
 import pytest
 
 
-def _root_cmd() -> list[str] | None:
+def root_cmd() -> list[str] | None:
+    """The prefix that runs mount and umount as root here ([] as root, else sudo -n), or None."""
     if os.geteuid() == 0:
         return []
     if shutil.which("sudo") and subprocess.run(["sudo", "-n", "true"], capture_output=True).returncode == 0:
@@ -25,7 +26,7 @@ def _root_cmd() -> list[str] | None:
 
 
 def _mount(args: list[str]) -> None:
-    pre = _root_cmd()
+    pre = root_cmd()
     if pre is None:
         pytest.skip("needs root or password-less sudo to mount a small tmpfs (CI runs as root)")
     p = subprocess.run([*pre, "mount", *args], capture_output=True, text=True)
@@ -34,7 +35,7 @@ def _mount(args: list[str]) -> None:
 
 
 def _umount(path: Path) -> None:
-    pre = _root_cmd() or []
+    pre = root_cmd() or []
     subprocess.run([*pre, "umount", "-l", str(path)], capture_output=True)
 
 

@@ -21,11 +21,14 @@ from pathlib import Path
 
 import requests
 
+from vts_hw.lifeline import alive
+
 REPO = Path(__file__).resolve().parents[1]
 SCRIPT = Path(os.environ.get("VTS_QATRACK_SCRIPT", REPO.parent / "shared" / "interop" / "qatrack" / "run-qatrack.sh"))
 QAT = Path(os.environ.get("QAT", "/tmp/qatrack-real"))
 PORT = int(os.environ.get("VTS_QATRACK_PORT", "8765"))
 START_TIMEOUT_S = 25 * 60
+SITE_ZONE = "America/Toronto"   # the zone the server is first started in (QATrack+'s own default)
 LATE_START_S = 300          # beyond the script's own 60 s for the server to answer (a loaded machine)
 
 
@@ -50,7 +53,7 @@ class RealQATrack:
             env["QATRACK_TIME_ZONE"] = zone
         return env
 
-    def start_in_background(self, zone: str = "America/Toronto") -> None:
+    def start_in_background(self, zone: str = SITE_ZONE) -> None:
         if self._starter is not None:
             return
         assert SCRIPT.is_file(), f"the real QATrack+ script is missing: {SCRIPT} (../shared beside the checkout)"
@@ -83,7 +86,7 @@ class RealQATrack:
         """The script gives the server about 60 s to answer; on a loaded machine Django can take
         longer, and the server it started goes on starting: wait for it (a hang detector)."""
         pid = self._server_pid()
-        if "did not come up" not in said or pid is None or not _alive(pid):
+        if "did not come up" not in said or pid is None or not alive(pid):
             return False
         deadline = time.monotonic() + LATE_START_S
         while time.monotonic() < deadline:
@@ -116,7 +119,7 @@ class RealQATrack:
         outcome = self.done.read_text() if self.done.exists() else f"no outcome within {START_TIMEOUT_S} s"
         assert outcome == "ok", f"the real QATrack+ did not start: {outcome} (log: {self.log})"
         assert self.answering(), f"the real QATrack+ started but does not answer (log: {self.log})"
-        self.zone = "America/Toronto"
+        self.zone = SITE_ZONE
         return self
 
     def restart(self, zone: str) -> None:
@@ -136,9 +139,9 @@ class RealQATrack:
         pid = self._server_pid()
         subprocess.run([str(SCRIPT), "stop"], env=self._env(None), capture_output=True, timeout=60)
         deadline = time.monotonic() + 60
-        while pid is not None and _alive(pid) and time.monotonic() < deadline:
+        while pid is not None and alive(pid) and time.monotonic() < deadline:
             time.sleep(0.2)
-        if pid is not None and _alive(pid):
+        if pid is not None and alive(pid):
             with contextlib.suppress(OSError):
                 os.kill(pid, signal.SIGKILL)
         while self.answering() and time.monotonic() < deadline + 10:
@@ -182,13 +185,3 @@ class RealQATrack:
                 _slugs[uti] = self.get(self.get(uti)["test"])["slug"]
             out[_slugs[uti]] = {"value": ti["value"], "skipped": ti["skipped"], "comment": ti["comment"]}
         return out
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True

@@ -1,26 +1,16 @@
 """Streams from the simulated camera: pacing, sequence, and every injected fault survived."""
 
 import threading
-import time
 
 import pytest
 
+from stream_items import collect
 from vts_hw.drivers.axis import AxisError, CameraUnauthorized, Frame
-from vts_hw.drivers.axis_stream import FrameStream, StreamGap
-
-
-def _collect(stream, limit_s=20.0):
-    frames, gaps = [], []
-    t0 = time.monotonic()
-    for item in stream:
-        (gaps if isinstance(item, StreamGap) else frames).append(item)
-        if time.monotonic() - t0 > limit_s:
-            stream.stop()
-    return frames, gaps
+from vts_hw.drivers.axis_stream import FrameStream
 
 
 def test_stream_frames_are_consecutive_and_paced(cam1):
-    frames, gaps = _collect(FrameStream(cam1, nbrofframes=30))
+    frames, gaps = collect(FrameStream(cam1, nbrofframes=30))
     assert len(frames) == 30 and gaps == []
     assert [f.seq for f in frames] == list(range(30))
     dts = [b.camera_time - a.camera_time for a, b in zip(frames, frames[1:])]
@@ -30,7 +20,7 @@ def test_stream_frames_are_consecutive_and_paced(cam1):
 
 def test_duration_ends_the_stream(cam1):
     s = FrameStream(cam1, duration=1.0)
-    frames, _ = _collect(s)
+    frames, _ = collect(s)
     assert not s.stop_event.is_set()          # it ended by itself, not by the test's limit
     assert 15 <= len(frames) <= 30
     assert frames[-1].camera_time - frames[0].camera_time <= 1.0
@@ -39,7 +29,7 @@ def test_duration_ends_the_stream(cam1):
 def test_dropped_connection_reconnects_and_reports_the_gap(sim_rig, cam1):
     sim_rig.servers["cam1"].faults.drop_after_frames = 10
     s = FrameStream(cam1, nbrofframes=25)
-    frames, gaps = _collect(s)
+    frames, gaps = collect(s)
     assert len(frames) == 25
     assert s.stats.reconnects >= 1
     assert gaps and all(g.missing >= 1 for g in gaps)
@@ -56,7 +46,7 @@ def test_stall_reconnects(sim_rig, cam1):
     sim_rig.servers["cam1"].faults.stall_after_frames = 5
     sim_rig.servers["cam1"].faults.stall_s = 30.0
     s = FrameStream(cam1, nbrofframes=12, stall_timeout=1.0)
-    frames, gaps = _collect(s, limit_s=60)
+    frames, gaps = collect(s, limit_s=60)
     assert len(frames) == 12 and not s.stop_event.is_set()
     gap = next(g for g in gaps if "stall" in g.reason)
     assert gap.seconds < 30                   # reconnected, rather than waited out the 30 s stall
@@ -65,7 +55,7 @@ def test_stall_reconnects(sim_rig, cam1):
 def test_torn_jpeg_is_counted_not_yielded(sim_rig, cam1):
     sim_rig.servers["cam1"].faults.torn_jpeg_at = 4
     s = FrameStream(cam1, nbrofframes=10)
-    frames, gaps = _collect(s)
+    frames, gaps = collect(s)
     assert len(frames) == 10 and all(f.complete for f in frames)
     assert s.stats.torn == 1
     assert sum(g.missing for g in gaps) >= 1
@@ -75,7 +65,7 @@ def test_torn_jpeg_is_counted_not_yielded(sim_rig, cam1):
 def test_framing_faults_lose_no_frame(sim_rig, cam1, fault):
     setattr(sim_rig.servers["cam1"].faults, fault, 3 if fault.endswith("_at") else True)
     s = FrameStream(cam1, nbrofframes=10)
-    frames, gaps = _collect(s)
+    frames, gaps = collect(s)
     assert len(frames) == 10 and s.stats.torn == 0 and gaps == []
     assert all(isinstance(f, Frame) and f.camera_time for f in frames)
 
@@ -86,7 +76,7 @@ def test_503_then_recovery(sim_rig, cam1):
     timer = threading.Timer(1.0, lambda: setattr(faults, "too_many_viewers", False))
     timer.start()
     s = FrameStream(cam1, nbrofframes=5)
-    frames, _ = _collect(s)
+    frames, _ = collect(s)
     assert len(frames) == 5 and s.stats.reconnects >= 1
     assert "too many viewers" in s.stats.last_error
 
@@ -94,18 +84,18 @@ def test_503_then_recovery(sim_rig, cam1):
 def test_wrong_password_stops_the_stream_at_once(sim_rig, cam1):
     sim_rig.servers["cam1"].faults.reject_auth = True
     with pytest.raises(CameraUnauthorized):
-        _collect(FrameStream(cam1, nbrofframes=5))
+        collect(FrameStream(cam1, nbrofframes=5))
 
 
 def test_give_up_after(sim_rig, cam1):
     sim_rig.servers["cam1"].faults.too_many_viewers = True
     with pytest.raises(AxisError, match="giving up"):
-        _collect(FrameStream(cam1, nbrofframes=5, give_up_after=1.5))
+        collect(FrameStream(cam1, nbrofframes=5, give_up_after=1.5))
 
 
 def test_stop_from_another_thread_is_prompt(cam1):
     s = FrameStream(cam1)
     threading.Timer(0.5, s.stop).start()
-    frames, _ = _collect(s, limit_s=60)
+    frames, _ = collect(s, limit_s=60)
     # an endless stream, ended by the stop: well before the test's own limit of 60 s
     assert frames and frames[-1].camera_time - frames[0].camera_time < 30

@@ -9,24 +9,14 @@ import re
 import click
 from click.testing import CliRunner
 
-from vts_hw.cli import _register, cli
+from vts_hw.cli import _register, cli, command_tree
 
 LIST_LINE = re.compile(r"^\s*(\d+[.)]|[-*•])\s+\S")
 
 
-def walk(group: click.Group, path=()):
-    yield path, group
-    for name, c in sorted(group.commands.items()):
-        if isinstance(c, click.Group):
-            yield from walk(c, path + (name,))
-        else:
-            yield path + (name,), c
-
-
 def test_every_help_paragraph_with_a_list_is_kept_as_written():
-    _register()
     squashed = []
-    for path, cmd in walk(cli):
+    for path, cmd in command_tree():
         for para in inspect.cleandoc(cmd.help or "").split("\n\n"):
             lines = para.splitlines()
             if sum(bool(LIST_LINE.match(ln)) for ln in lines) >= 2 and not para.startswith("\b"):

@@ -12,35 +12,16 @@ import sys
 import click
 import pytest
 
-from vts_hw.cli import _register, cli, main
+from inprocess_cli import vts
+from vts_hw.cli import command_tree
 from vts_hw.cli.common import FiniteFloat
 
 VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
 
 
-def walk(group: click.Group, path=()):
-    yield path, group
-    for name, c in sorted(group.commands.items()):
-        if isinstance(c, click.Group):
-            yield from walk(c, path + (name,))
-        else:
-            yield path + (name,), c
-
-
 def float_options():
-    _register()
-    return [(path, p) for path, cmd in walk(cli) for p in cmd.params
+    return [(path, p) for path, cmd in command_tree() for p in cmd.params
             if isinstance(p.type, click.types.FloatParamType)]
-
-
-def vts(capsys, *args) -> tuple[int, str, str]:
-    try:
-        main([str(a) for a in args])
-        code = 0
-    except SystemExit as exc:
-        code = exc.code or 0
-    got = capsys.readouterr()
-    return code, got.out, got.err
 
 
 def test_every_float_option_is_a_finite_float():

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
-import statistics
 import threading
 import time
 from types import SimpleNamespace
@@ -29,7 +28,7 @@ from vts_hw.live.tracker import LiveTracker
 from vts_hw.live.watch import NOT_TRACKING, TRACKING, Episode
 from vts_hw.recording.folder import read_index
 from vts_hw.sim_devices.patient import BodyMove
-from vts_hw.sim_devices.recording_sim import simulate_recording
+from vts_hw.sim_devices.recording_sim import received_frames, simulate_recording
 from vts_hw.sim_devices.sync_truth import true_cameras
 from vts_hw.vision.registration import RigidTransform
 
@@ -45,16 +44,7 @@ MONO0 = 10_000.0          # the made-up monotonic clock at the recording's first
 def rendered(tmp_path_factory):
     folder = tmp_path_factory.mktemp("live-loss") / "rec"
     sim = simulate_recording(folder, duration_s=DURATION, seed=SEED, patient={"moves": [MOVE]})
-    frames = []
-    offsets = {}
-    for name in sim.cameras:
-        rows = read_index(folder / f"{name}.index.csv")
-        data = (folder / f"{name}.mjpeg").read_bytes()
-        offsets[name] = statistics.median(r.camera_time - r.host_time for r in rows)
-        frames += [(r.host_time, name, SimpleNamespace(jpeg=data[r.offset:r.offset + r.length],
-                                                       camera_time=r.camera_time, host_time=r.host_time))
-                   for r in rows]
-    frames.sort(key=lambda f: f[0])
+    frames, offsets = received_frames(folder, sim.cameras)
     return sim, folder, frames, offsets
 
 

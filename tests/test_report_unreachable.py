@@ -9,17 +9,7 @@ import re
 import pytest
 import yaml
 
-from vts_hw.cli import main
-
-
-def vts(capsys, *args) -> tuple[int, str, str]:
-    try:
-        main([str(a) for a in args])
-        code = 0
-    except SystemExit as exc:
-        code = exc.code or 0
-    got = capsys.readouterr()
-    return code, got.out, got.err
+from inprocess_cli import vts
 
 
 @pytest.fixture()

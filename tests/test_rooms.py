@@ -12,7 +12,7 @@ from urllib.parse import urljoin
 import pytest
 
 from rooms_store import DAY, NOW, RIGS, T0, rooms_store
-from vts_hw.cli import main
+from inprocess_cli import vts
 from vts_hw.report.drift import collect
 from vts_hw.report.rooms import build_rooms_report, collect_rooms, open_items
 from vts_hw.store import ResultsStore
@@ -33,17 +33,6 @@ def rooms_page(store_url, tmp_path_factory):
 
 def _room(rep, rig):
     return next(r for r in rep.rooms if r.rig == rig)
-
-
-def vts(capsys, *args) -> tuple[int, str, str]:
-    """`vts ARGS` in this process: (exit code, stdout, stderr)."""
-    try:
-        main([str(a) for a in args])
-        code = 0
-    except SystemExit as exc:
-        code = exc.code or 0
-    got = capsys.readouterr()
-    return code, got.out, got.err
 
 
 def rig_yaml(folder: Path, url: str, rig: str = "room-a") -> Path:

@@ -7,28 +7,18 @@ that jumps, and a stream that falls behind: sent late by default, skipped with
 from __future__ import annotations
 
 import threading
-import time
 
 import requests
 
+from stream_items import collect
 from vts_hw.config import parse_rig
-from vts_hw.drivers.axis_stream import FrameStream, StreamGap
+from vts_hw.drivers.axis_stream import FrameStream
 from vts_hw.drivers.registry import open_camera, open_cameras
 from vts_hw.sim_devices.axis_camera import SimAxisCamera
 
 from test_sim_axis_camera import PASSWORD, FakeSource
 
 PERIOD = 1.0 / 25
-
-
-def _collect(stream, limit_s=30.0):
-    frames, gaps = [], []
-    t0 = time.monotonic()
-    for item in stream:
-        (gaps if isinstance(item, StreamGap) else frames).append(item)
-        if time.monotonic() - t0 > limit_s:
-            stream.stop()
-    return frames, gaps
 
 
 def _grid(rig, cam: str, frame) -> int:
@@ -39,7 +29,7 @@ def _grid(rig, cam: str, frame) -> int:
 def test_random_loss_is_seeded_and_exactly_the_frames_the_client_misses(sim_rig, cam1):
     server = sim_rig.servers["cam1"]
     server.set_faults(lose_p=0.25, lose_seed=7)
-    frames, gaps = _collect(FrameStream(cam1, nbrofframes=60))
+    frames, gaps = collect(FrameStream(cam1, nbrofframes=60))
     assert len(frames) == 60
     got = [_grid(sim_rig, "cam1", f) for f in frames]
     span = range(got[0], got[-1] + 1)
@@ -59,7 +49,7 @@ def test_bursts_hit_both_cameras_at_the_same_moments(sim_rig, cam1):
         server.set_faults(lose_burst_frames=5, lose_burst_every_s=1.0)
     with open_camera(sim_rig.config().camera("cam2")) as cam2:
         results = {}
-        threads = [threading.Thread(target=lambda c=c: results.__setitem__(c.name, _collect(FrameStream(c, duration=3.2))))
+        threads = [threading.Thread(target=lambda c=c: results.__setitem__(c.name, collect(FrameStream(c, duration=3.2))))
                    for c in (cam1, cam2)]
         for t in threads:
             t.start()
@@ -80,7 +70,7 @@ def test_a_camera_offline_for_a_stretch_comes_back(sim_rig, cam1):
     now = sim_rig.clock.now()
     server.set_faults(offline_from=now + 0.8, offline_until=now + 2.0)
     stream = FrameStream(cam1, duration=3.5, max_backoff=0.25)
-    frames, gaps = _collect(stream)
+    frames, gaps = collect(stream)
     hosts = [sim_rig.scene.clocks["cam1"].host_time(f.camera_time) for f in frames]
     assert not [h for h in hosts if now + 0.85 < h < now + 1.95]      # nothing from the stretch
     assert any(h < now + 0.8 for h in hosts) and any(h > now + 2.0 for h in hosts)   # before and back
@@ -96,7 +86,7 @@ def test_a_clock_that_jumps_moves_the_stamps_and_the_time_cgi(sim_rig, cam1):
     before = cam1.clock_offset(3).offset_s
     now = sim_rig.clock.now()
     server.set_faults(clock_jump_s=2.5, clock_jump_at=now + 0.6, clock_jump_every_s=0.8)
-    frames, _ = _collect(FrameStream(cam1, duration=1.6))
+    frames, _ = collect(FrameStream(cam1, duration=1.6))
     steps = [b.camera_time - a.camera_time for a, b in zip(frames, frames[1:])]
     jumps = [d for d in steps if d > 1.0]
     assert len(jumps) == 2 and all(abs(d - 2.5 - PERIOD) < 0.02 for d in jumps)   # two steps of 2.5 s
@@ -131,7 +121,7 @@ def _stream_parts(cam, seconds: float):
     cfg = parse_rig({"rig": "t", "cameras": [{"name": "cam0", "host": "127.0.0.1", "port": cam.port,
                                               "user": "root", "password_env": "VTS_TEST_CAM0_PASSWORD"}]}, "test")
     with open_camera(cfg.camera("cam0")) as client:
-        return _collect(FrameStream(client, duration=seconds))
+        return collect(FrameStream(client, duration=seconds))
 
 
 def test_a_stream_that_falls_behind_sends_late_and_skips_only_as_a_declared_fault(monkeypatch):

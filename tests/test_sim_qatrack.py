@@ -9,20 +9,10 @@ import os
 import pytest
 import yaml
 
-from vts_hw.cli import main
+from inprocess_cli import vts
 from vts_hw.config import load_rig
 from vts_hw.sim_devices.qatrack_rig import TOKEN_ENV
 from vts_hw.sim_devices.rig import SimRig, load_env_file
-
-
-def vts(capsys, *args) -> tuple[int, str, str]:
-    try:
-        main([str(a) for a in args])
-        code = 0
-    except SystemExit as exc:
-        code = exc.code or 0
-    got = capsys.readouterr()
-    return code, got.out, got.err
 
 
 def test_sim_qatrack_in_rig_yaml_and_a_push_from_the_readme(tmp_path, capsys, monkeypatch):

@@ -14,19 +14,9 @@ from pathlib import Path
 import psycopg
 import pytest
 
-from vts_hw.cli import main
+from inprocess_cli import vts
 from vts_hw.store import ResultsStore, StoreError
 from vts_hw.store.paths import to_url
-
-
-def vts(capsys, *args) -> tuple[int, str, str]:
-    try:
-        main([str(a) for a in args])
-        code = 0
-    except SystemExit as exc:
-        code = exc.code or 0
-    got = capsys.readouterr()
-    return code, got.out, got.err
 
 
 def sha(p: Path) -> str:

@@ -35,30 +35,22 @@ CLASS = "full disk"
 DISK = "disk"
 PY = sys.executable
 _TESTS = Path(__file__).resolve().parents[2] / "tests"
-
-
-def _root_cmd() -> list[str] | None:
-    if os.geteuid() == 0:
-        return []
-    if shutil.which("sudo") and subprocess.run(["sudo", "-n", "true"], capture_output=True).returncode == 0:
-        return ["sudo", "-n"]
-    return None
+sys.path.insert(0, str(_TESTS))
+from fsfaults import SmallDisk, root_cmd  # noqa: E402  (the tests' own full disk: the same mount and filler)
 
 
 def available() -> str:
     """'' when a tmpfs can be mounted here, else why not."""
-    return "" if _root_cmd() is not None else "needs root or password-less sudo to mount a small tmpfs"
+    return "" if root_cmd() is not None else "needs root or password-less sudo to mount a small tmpfs"
 
 
 def _mount(path: Path, size_kb: int) -> None:
     path.mkdir(parents=True, exist_ok=True)
-    subprocess.run([*_root_cmd(), "mount", "-t", "tmpfs", "-o", f"size={size_kb}k,mode=0777", "tmpfs", str(path)],
+    subprocess.run([*root_cmd(), "mount", "-t", "tmpfs", "-o", f"size={size_kb}k,mode=0777", "tmpfs", str(path)],
                    check=True, capture_output=True)
 
 
 def _fill(path: Path, leave: int = 0) -> None:
-    sys.path.insert(0, str(_TESTS))
-    from fsfaults import SmallDisk     # the tests' own filler: the same full disk
     SmallDisk(path, 0).fill(leave)
 
 
@@ -71,7 +63,7 @@ def cleanup(root: Path) -> None:
     for line in Path("/proc/mounts").read_text().splitlines():
         where = line.split()[1].replace("\\040", " ")
         if where.startswith(prefix):
-            subprocess.run([*(_root_cmd() or []), "umount", "-l", where], capture_output=True)
+            subprocess.run([*(root_cmd() or []), "umount", "-l", where], capture_output=True)
 
 
 # -- the inputs ------------------------------------------------------------------------------

@@ -8,97 +8,26 @@ frames on disk, its workers started, or a few seconds), it gets SIGINT: it must 
 every frame the index lists is whole in the .mjpeg (nothing recorded lost or torn), and a
 SIGINT leaves a manifest that says ``interrupted``.
 
-:func:`fork_vts` is the runner (the sweep's own, with a hook before ``main`` and a hook while
-it runs); the endless-files class uses it to cap the child's memory.
+:func:`badkit.forked.fork_vts` is the runner (the sweep's own), with its hook before ``main``
+(SIGINT ignored) and its hook while the command runs (the signal).
 """
 
 from __future__ import annotations
 
-import io
 import json
 import os
-import select
 import signal
 import sys
 import time
-import traceback
 from pathlib import Path
-from typing import Callable
 
 from badkit.classes import Case, Verdict, common
+from badkit.forked import fork_vts
 
 CLASS = "SIGINT and SIGKILL"
 AFTER_SIGNAL_S = 30.0      # how long a command may take to stop after SIGINT
 ORPHAN_WAIT_S = 10.0       # how long its processes may take to go after SIGKILL of it
 VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
-
-
-def fork_vts(argv: list[str], timeout: float, workdir: Path, before: Callable[[], None] | None = None,
-             during: Callable[[int], None] | None = None) -> tuple[int | None, str, str]:
-    """`vts ARGV` in a forked child in its own session (``before()`` run in the child first);
-    ``during(pid)`` runs in the parent while it does (it may signal it). (exit code, or None
-    when it outlived ``timeout``; stdout; stderr). A child killed by a signal gives -signum."""
-    out_r, out_w = os.pipe()
-    err_r, err_w = os.pipe()
-    pid = os.fork()
-    if pid == 0:
-        code = 98
-        try:
-            os.makedirs(workdir, exist_ok=True)
-            os.chdir(workdir)
-            os.dup2(out_w, 1)
-            os.dup2(err_w, 2)
-            os.setsid()
-            sys.stdout = io.TextIOWrapper(os.fdopen(1, "wb", buffering=0), write_through=True)
-            sys.stderr = io.TextIOWrapper(os.fdopen(2, "wb", buffering=0), write_through=True)
-            sys.stdin = open(os.devnull)
-            # a pool's workers would import this process's __main__ (the bench, by a path relative
-            # to a folder it left): as from the `vts` script, there is nothing of ours to import
-            main_mod = sys.modules.get("__main__")
-            if main_mod is not None and hasattr(main_mod, "__file__"):
-                del main_mod.__file__
-            if before:
-                before()
-            from vts_hw.cli import main
-            code = 0
-            try:
-                main(argv)
-            except SystemExit as exc:
-                code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
-            except BaseException:
-                traceback.print_exc()
-                code = 99
-            sys.stdout.flush()
-            sys.stderr.flush()
-        finally:
-            os._exit(code)
-    os.close(out_w)
-    os.close(err_w)
-    chunks = {out_r: [], err_r: []}
-    if during:
-        during(pid)
-    deadline = time.monotonic() + timeout
-    fds, hung = [out_r, err_r], False
-    while fds:
-        left = deadline - time.monotonic()
-        if left <= 0:
-            hung = True
-            try:
-                os.killpg(pid, signal.SIGKILL)
-            except OSError:
-                pass
-            break
-        for fd in select.select(fds, [], [], min(left, 0.5))[0]:
-            data = os.read(fd, 65536)
-            if data:
-                chunks[fd].append(data)
-            else:
-                fds.remove(fd)
-    _, status = os.waitpid(pid, 0)
-    for fd in (out_r, err_r):
-        os.close(fd)
-    code = None if hung else os.waitstatus_to_exitcode(status)
-    return code, b"".join(chunks[out_r]).decode(errors="replace"), b"".join(chunks[err_r]).decode(errors="replace")
 
 
 def session_members(sid: int) -> list[int]:

@@ -47,6 +47,20 @@ def _register() -> None:
                    sim, store, sync, trigger)
 
 
+def command_tree(group: click.Group | None = None, path: tuple[str, ...] = ()):
+    """Every group and command of `vts` (all registered), as (the names after ``vts``, the click
+    command), groups before their commands, in name order."""
+    if group is None:
+        _register()
+        group = cli
+    yield path, group
+    for name, c in sorted(group.commands.items()):
+        if isinstance(c, click.Group):
+            yield from command_tree(c, path + (name,))
+        else:
+            yield path + (name,), c
+
+
 def _interruptible() -> None:
     """Ctrl-C (SIGINT) stops every command, as KeyboardInterrupt (exit 130, what was done kept),
     even when it was started with SIGINT ignored: a background job of a non-interactive shell
