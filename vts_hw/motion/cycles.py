@@ -6,26 +6,32 @@ exhalation) and peaks found by prominence (30 % of the 5-95 % range), and its up
 crossings of the middle (with a hysteresis of 15 % of the range). A landmark is *seen* when it
 lies in a stretch of time with a pose (holes of up to :data:`~.timeline.MAX_HOLE_S` allowed: a
 breath cannot begin and end inside one) with :data:`EDGE_S` of it on either side, so that a
-trough is not the edge of a gap. Nothing spanning a gap counts: two breaths with the peak
-between them lost would read as one slow breath.
+trough is not the edge of a gap. Two breaths with the peak between them lost must never read as
+one slow breath: only a period of crossings may span a gap, and only one too short to hide a
+breath (below).
 
 * **Cycles** (:func:`find_breaths`): trough to trough, both seen in one stretch, a peak between
   them. Phase (0-1, linear in time) and the per-frame rate exist only inside them.
-* **Periods**: from a landmark to the next of its kind (trough-trough, peak-peak, up-up,
-  down-down) in one stretch: every way a whole breath can be seen between two gaps, so that a
-  stretch a little longer than a breath gives one whichever phase it starts at.
+* **Periods**: from a landmark to the next of its kind: trough-trough and peak-peak in one
+  stretch; up-up and down-down also across gaps too short to hide a breath.
 * **Half breaths**: a trough and the peak next to it in one stretch (the breath's depth).
 
 :func:`breathing_figures`: ``none`` when the breaths are not above the signal's noise (no
-respiratory signal is then kept and no respiratory subsets made); the rate from the periods --
-their weighted median, each weighted by the inverse of the time in which a period of its length
-fits whole into the stretches seen (short breaths fit into short stretches more often: unweighted,
-loss in bursts would favour them) and by one over the ways its breath was seen (periods from
-different landmarks of one breath count as one breath), with a 95 % range from the breaths'
-spread (at least :data:`SPREAD_MIN` of the rate: a few breaths understate it), shrunk by the
-share of the scan's breaths seen; ``unknown`` when fewer than :data:`MIN_CYCLES` breaths were,
-``measured`` when the range is within ±0.5 /min, else ``bounded`` (the range is then the figure).
-The amplitude is the median depth of the half breaths (at least :data:`MIN_CYCLES` of them).
+respiratory signal is then kept and no respiratory subsets made). The rate is the median of the
+**breaths seen whole**, each once (:func:`_single_breaths`): the trough-to-trough cycles, and for a
+breath with no cycle its up-crossing to the next -- which may span gaps shorter than
+:data:`SPAN_K` of the shortest half breath seen (such a gap cannot hide a breath: the crossings
+alternate, so the two on its sides are one breath apart); a period over :data:`DOUBLED` times
+the typical one (a pause, or a breath hidden after all) is left out. Peak-to-peak and
+down-to-down periods mix two breaths and are not used for the rate. Each breath is weighted by
+the inverse of the time in which a breath of its length can be seen whole (loss in bursts
+favours short ones). Its range: the breaths' spread (at least :data:`SPREAD_MIN` of the rate)
+over the square root of their number, shrunk by the share of the scan's breaths seen, at
+:data:`Z_RANGE`, combined with :data:`RATE_FLOOR` (the breaths' landmarks and the scan's ends);
+``unknown`` when fewer than :data:`MIN_CYCLES` breaths were seen, ``measured`` when the range
+is within ±0.5 /min, else ``bounded`` (the range is then the figure). The amplitude is the
+median depth of the half breaths (at least :data:`MIN_CYCLES` of them). Why (and the figures on
+simulated scans): docs/decisions/0059-breaths-across-short-gaps.md.
 """
 
 from __future__ import annotations
@@ -48,6 +54,11 @@ NOISE_K = 6.0           # a breath must be this many times the signal's frame no
 MIN_BREATH_MM = 0.2     # ... and at least this deep
 RATE_GOAL = 0.5         # /min: a rate whose 95 % range is wider is "bounded"
 SPREAD_MIN = 0.10       # breath-to-breath spread of the rate assumed at least (a few breaths show less)
+SPAN_K = 0.8            # a period may span gaps up to this share of the shortest half breath seen ...
+MIN_HALVES = 6          # ... when at least this many half breaths were seen in one stretch
+DOUBLED = 1.6           # a period spanning a gap this many times the typical breath held two
+RATE_FLOOR = 0.3        # /min: the median of the breaths seen whole is off the breaths' own by this much
+Z_RANGE = 2.58          # the range is 99 % (1.96 left 7 % of 150 simulated 60-s scans at 20 % loss outside)
 
 
 @dataclass
@@ -68,10 +79,12 @@ class Cycle:
 
 @dataclass
 class Breaths:
-    """What :func:`find_breaths` saw: whole ``cycles``; ``periods`` [(t0, t1, edge_s)] landmark
-    to landmark of one kind (and the seen time its landmarks needed on either side); ``halves`` depths (mm) of trough-peak pairs; ``phase``/``rate`` per
-    frame inside whole cycles; ``depth_mm``: the signal's 5-95 % range; ``stretches_s``: the
-    lengths of the stretches seen."""
+    """What :func:`find_breaths` saw: whole ``cycles``; ``periods`` [(t0, t1, edge_s, span_s)]
+    landmark to landmark of one kind (the seen time its landmarks needed on either side, and the
+    longest gap its kind of period may span); ``halves`` depths (mm) of trough-peak pairs;
+    ``phase``/``rate`` per frame inside whole cycles; ``depth_mm``: the signal's 5-95 % range;
+    ``stretches_s``: the lengths of the stretches seen (``bounds`` their rows of ``n_rows``);
+    ``span_s``: the longest gap a crossing-to-crossing period may span."""
 
     cycles: list
     periods: list
@@ -80,6 +93,9 @@ class Breaths:
     rate: np.ndarray
     depth_mm: float = 0.0
     stretches_s: list = field(default_factory=list)
+    span_s: float = 0.0
+    bounds: list = field(default_factory=list)
+    n_rows: int = 0
 
 
 @dataclass
@@ -110,31 +126,31 @@ class BreathingFigures:
 
 
 def _crossings(t, x, ok, h):
-    """(up, down): interpolated times and row indices of the middle crossings with hysteresis."""
-    up, down = [], []
+    """Every crossing of the middle with hysteresis ``h``, in order: ``[(sign, time, row)]``,
+    ``sign`` +1 up / -1 down; ``time`` interpolated between the two rows around it, or None when
+    the row before it has no pose (it happened in a gap: its kind is known, not its time). The
+    crossings alternate: none is missed unless a gap hides a whole excursion past the middle."""
+    events = []
     state = 0
     for k in np.flatnonzero(ok):
         v = x[k]
-        if v < -h:
-            if state == 1:
-                down.append(k)
-            state = -1
-        elif v > h:
-            if state == -1:
-                up.append(k)
-            state = 1
-
-    def when(ks, sign):
-        out = []
-        for k in ks:
-            j = k
-            while j > 0 and ok[j - 1] and sign * x[j - 1] > 0:
-                j -= 1                      # back to the first row past the middle
-            if j > 0 and ok[j - 1]:
-                a, b = x[j - 1], x[j]
-                out.append((float(t[j - 1] + (t[j] - t[j - 1]) * (-a / (b - a))), j))
-        return out
-    return when(up, 1), when(down, -1)
+        sign = -1 if v < -h else (1 if v > h else 0)
+        if sign == 0:
+            continue
+        if state == -sign:
+            events.append((sign, k))
+        state = sign
+    out = []
+    for sign, k in events:
+        j = k
+        while j > 0 and ok[j - 1] and sign * x[j - 1] > 0:
+            j -= 1                      # back to the first row past the middle
+        if j > 0 and ok[j - 1]:
+            a, b = x[j - 1], x[j]
+            out.append((sign, float(t[j - 1] + (t[j] - t[j - 1]) * (-a / (b - a))), j))
+        else:
+            out.append((sign, None, j))
+    return out
 
 
 def find_breaths(t, a, valid, period: float, min_period_s: float = 1.5, max_period_s: float = 12.0) -> Breaths:
@@ -154,7 +170,7 @@ def find_breaths(t, a, valid, period: float, min_period_s: float = 1.5, max_peri
     dist = max(1, int(min_period_s / period * 0.6))
     troughs, _ = find_peaks(-x, prominence=0.3 * amp, distance=dist)
     peaks, _ = find_peaks(x, prominence=0.3 * amp, distance=dist)
-    ups, downs = _crossings(t, x, ok, 0.15 * amp)
+    cross = _crossings(t, x, ok, 0.15 * amp)
     seg = np.full(F, -1)
     for k, (s0, s1) in enumerate(bounds):
         seg[s0:s1] = k
@@ -162,13 +178,17 @@ def find_breaths(t, a, valid, period: float, min_period_s: float = 1.5, max_peri
         k, edge = seg[i], int(np.ceil(edge_s / period))
         return k >= 0 and i - edge >= bounds[k][0] and i + edge < bounds[k][1]
 
-    marks = {"trough": [(float(t[i]), int(i)) for i in troughs], "peak": [(float(t[i]), int(i)) for i in peaks],
-             "up": ups, "down": downs}
-    for kind, lst in marks.items():
-        e = EDGE_S if kind in ("trough", "peak") else CROSS_EDGE_S
-        for (t0, i0), (t1, i1) in zip(lst[:-1], lst[1:]):
-            if seen(i0, e) and seen(i1, e) and seg[i0] == seg[i1] and min_period_s <= t1 - t0 <= max_period_s:
-                out.periods.append((t0, t1, e))
+    for kind, lst in (("trough", troughs), ("peak", peaks)):    # landmark to the next: in one stretch
+        for i0, i1 in zip(lst[:-1], lst[1:]):
+            t0, t1 = float(t[i0]), float(t[i1])
+            if seen(i0) and seen(i1) and seg[i0] == seg[i1] and min_period_s <= t1 - t0 <= max_period_s:
+                out.periods.append((t0, t1, EDGE_S, 0.0, kind))
+    out.span_s = _span_s(cross, seen, seg)
+    for (sign, t0, i0), (_, t1, i1) in zip(cross[:-2], cross[2:]):  # a crossing to the next of its kind
+        if t0 is None or t1 is None or not (seen(i0, CROSS_EDGE_S) and seen(i1, CROSS_EDGE_S)):
+            continue
+        if min_period_s <= t1 - t0 <= max_period_s and _longest_gap_s(bounds, seg[i0], seg[i1], period) <= out.span_s:
+            out.periods.append((t0, t1, CROSS_EDGE_S, out.span_s, "up" if sign > 0 else "down"))
     ext = sorted([(int(i), 1) for i in peaks] + [(int(i), -1) for i in troughs])
     for (i0, s0), (i1, s1) in zip(ext[:-1], ext[1:]):
         if s0 != s1 and seen(i0) and seen(i1) and seg[i0] == seg[i1]:
@@ -186,7 +206,25 @@ def find_breaths(t, a, valid, period: float, min_period_s: float = 1.5, max_peri
         rate[i0:i1] = 60.0 / per
     phase[~ok] = np.nan                         # no pose, no phase (even inside a whole breath)
     rate[~ok] = np.nan
+    out.bounds, out.n_rows = bounds, F
     return out
+
+
+def _span_s(cross, seen, seg) -> float:
+    """The longest gap a crossing-to-crossing period may span: :data:`SPAN_K` of the shortest
+    half breath (a crossing of the middle to the next, the other way) seen in one stretch -- a
+    gap shorter than any excursion past the middle cannot hide one, so the crossings on its two
+    sides are one breath apart however many are hidden; 0 when fewer than :data:`MIN_HALVES`
+    half breaths were seen (then no period spans a gap)."""
+    halves = [t1 - t0 for (_, t0, i0), (_, t1, i1) in zip(cross[:-1], cross[1:])
+              if t0 is not None and t1 is not None and seg[i0] == seg[i1]
+              and seen(i0, CROSS_EDGE_S) and seen(i1, CROSS_EDGE_S)]
+    return SPAN_K * min(halves) if len(halves) >= MIN_HALVES else 0.0
+
+
+def _longest_gap_s(bounds, k0: int, k1: int, period: float) -> float:
+    """The longest time without a pose between stretch ``k0`` and stretch ``k1`` (0 if one)."""
+    return max(((bounds[k + 1][0] - bounds[k][1]) * period for k in range(k0, k1)), default=0.0)
 
 
 def signal_noise(a, valid) -> float:
@@ -201,9 +239,23 @@ def signal_noise(a, valid) -> float:
     return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
 
 
-def _fit_length(p: float, stretches_s, edge_s: float) -> float:
-    """The time in which a period of ``p`` s can start and still be seen whole."""
-    return float(sum(max(0.0, s - p - 2 * edge_s) for s in stretches_s))
+def _fit_length(p: float, br: Breaths, period: float, edge_s: float, span_s: float) -> float:
+    """The time in which a period of ``p`` s can start and still be measured: both its ends seen
+    (``edge_s`` of pose on either side) with no gap longer than ``span_s`` between them."""
+    k = int(round(p / period))
+    if k <= 0 or k >= br.n_rows:
+        return 0.0
+    edge = int(np.ceil(edge_s / period))
+    seen = np.zeros(br.n_rows, bool)
+    joined = np.full(br.n_rows, -1)
+    group = -1
+    for j, (a, b) in enumerate(br.bounds):
+        seen[a + edge:max(a + edge, b - edge)] = True
+        if j == 0 or (a - br.bounds[j - 1][1]) * period > span_s:
+            group += 1
+        joined[a:b] = group
+    both = seen[:-k] & seen[k:] & (joined[:-k] == joined[k:])
+    return float(both.sum()) * period
 
 
 def _weighted_median(x, w) -> float:
@@ -222,21 +274,20 @@ def _union_s(intervals) -> float:
     return total
 
 
-def _breath_groups(periods) -> np.ndarray:
-    """(n,) which breath each period is: periods whose middles lie within half a (median)
-    period of each other measure one breath (from different landmarks)."""
-    if not periods:
-        return np.zeros(0, int)
-    mid = np.array([(a + b) / 2 for a, b, _ in periods])
-    p = float(np.median([b - a for a, b, _ in periods]))
-    order = np.argsort(mid)
-    group = np.zeros(len(mid), int)
-    g, start = 0, mid[order[0]]
-    for k in order:
-        if mid[k] - start > 0.5 * p:
-            g, start = g + 1, mid[k]
-        group[k] = g
-    return group
+def _single_breaths(br: Breaths) -> list:
+    """Each breath seen whole once: ``[(t0, t1, span_s)]``, the trough-to-trough cycles,
+    and for a breath with no cycle its up-crossing to the next (the crossing comes a fifth of the
+    way into the inhalation: that period is the breath's own to within a fifth of the next's
+    difference; peak-to-peak and down-to-down periods mix two breaths half and half and are not
+    used for the rate -- they shrink its spread and move the median off the breaths')."""
+    out = [(c.t_start, c.t_end, 0.0) for c in br.cycles]
+    for t0, t1, _, g, kind in br.periods:
+        if kind == "up" and not any(c.t_start <= t0 < c.t_end for c in br.cycles):
+            out.append((t0, t1, g))
+    if out:                 # a pause, or a gap that hid a shallow breath's crossings: not one breath
+        typical = float(np.median([b - a for a, b, _ in out]))
+        out = [(a, b, g) for a, b, g in out if b - a <= DOUBLED * typical]
+    return sorted(out)
 
 
 def breathing_figures(br: Breaths, period: float, duration_s: float, noise_mm: float,
@@ -244,8 +295,10 @@ def breathing_figures(br: Breaths, period: float, duration_s: float, noise_mm: f
     """The figures of the module's rules. ``breathes``: False when no marker moves at breathing
     rates at all (then ``none`` whatever the signal)."""
     noise = float(noise_mm) if np.isfinite(noise_mm) else None
-    span_s = _union_s([(a, b) for a, b, _ in br.periods])
-    base = dict(cycles=len(br.cycles), periods=len(br.periods), halves=len(br.halves), breaths_s=span_s,
+    breaths = _single_breaths(br)
+    span_s = _union_s([(a, b) for a, b, *_ in breaths])
+    n_ind = len(breaths)
+    base = dict(cycles=len(br.cycles), periods=n_ind, halves=len(br.halves), breaths_s=span_s,
                 share=span_s / duration_s if duration_s > 0 else 0.0, noise_mm=noise)
     floor = max(NOISE_K * (noise or 0.0), MIN_BREATH_MM)
     if not breathes:
@@ -256,28 +309,23 @@ def breathing_figures(br: Breaths, period: float, duration_s: float, noise_mm: f
                                         f"{floor:.2f} mm: {NOISE_K:g} x the {noise or 0:.3f} mm noise, at least "
                                         f"{MIN_BREATH_MM:g} mm)", **base)
     amp = float(np.median(br.halves)) if len(br.halves) >= MIN_CYCLES else None
-    periods = np.array([b - a for a, b, _ in br.periods])
-    edges = [e for _, _, e in br.periods]
-    group = _breath_groups(br.periods)                  # one breath seen in several ways counts once
-    n_ind = int(group.max()) + 1 if group.size else 0
     if n_ind < MIN_CYCLES:
         longest = max(br.stretches_s, default=0.0)
         return BreathingFigures("unknown", f"rate unknown: {n_ind} breath(s) seen whole, over {span_s:.1f} s of "
                                            f"{duration_s:.1f} s (the longest stretch seen {longest:.1f} s); a rate "
                                            f"needs {MIN_CYCLES}", amplitude_mm=amp, **base)
-    rates = 60.0 / periods
-    size = np.bincount(group)[group]
-    w = np.array([1.0 / max(_fit_length(p, br.stretches_s, e), period) for p, e in zip(periods, edges)]) / size
+    rates = np.array([60.0 / (b - a) for a, b, *_ in breaths])
+    # a breath is kept when seen either way, nearly always when its up-crossings are: the chance
+    # of that (a long breath's ends are less often both seen) weighs it
+    w = np.array([1.0 / max(_fit_length(b - a, br, period, CROSS_EDGE_S, br.span_s), period) for a, b, *_ in breaths])
     rate = _weighted_median(rates, w)
-    per_breath = np.array([np.mean(rates[group == g]) for g in range(n_ind)])
-    spread = max(1.4826 * float(np.median(np.abs(per_breath - np.median(per_breath)))), SPREAD_MIN * rate)
-    wb = np.bincount(group, weights=w)
-    n_eff = min(float(wb.sum() ** 2 / (wb ** 2).sum()), n_ind)
+    spread = max(1.4826 * float(np.median(np.abs(rates - np.median(rates)))), SPREAD_MIN * rate)
+    n_eff = min(float(w.sum() ** 2 / (w ** 2).sum()), n_ind)
     expected = duration_s * rate / 60.0 - 1.0               # whole breaths in the scan (its ends cut two)
     fpc = np.sqrt(max(0.0, 1.0 - n_ind / max(expected, 1.0)))
-    half = max(1.96 * 1.2533 * spread / np.sqrt(n_eff) * fpc, 0.1)
+    half = float(np.hypot(Z_RANGE * 1.2533 * spread / np.sqrt(n_eff) * fpc, RATE_FLOOR))
     rng = [round(rate - half, 2), round(rate + half, 2)]
     status = "measured" if half <= RATE_GOAL else "bounded"
-    why = (f"from breaths seen whole over {span_s:.1f} s ({100 * base['share']:.0f} % of the scan)"
+    why = (f"from {n_ind} breaths seen whole over {span_s:.1f} s ({100 * base['share']:.0f} % of the scan)"
            + ("" if status == "measured" else f": the rate is known only to {rng[0]:.1f}-{rng[1]:.1f} /min"))
     return BreathingFigures(status, why, rate, rng, amp, **base)
