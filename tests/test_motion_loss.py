@@ -211,12 +211,12 @@ def test_single_frames_lost_at_random_leave_every_breath_whole(full):
     assert r.coverage["share"] == pytest.approx(1.0 - lost_s / DURATION, abs=0.01)
     f = check_breathing_is_true_or_flagged(r, sim)
     # a missing frame hides no breath: every true breath lying whole in the scan is a cycle (but
-    # one at an end); on 30 s the median of ~7 breaths is known to about +-0.5 /min (0059)
+    # one at an end); on 30 s the median of 5-7 breaths is known to +-0.5-0.7 /min (0059)
     t = r.pose.t
     whole = [c for c in sim.patient.breathing.cycles
              if t[0] + 0.3 <= c.t_start and c.t_start + c.period_s <= t[-1] - 0.3 and c.kind != "pause"]
     assert len(r.respiration.cycles) >= max(5, len(whole) - 1), (r.respiration.cycles, whole)
-    assert f.status in ("measured", "bounded") and f.rate_range[1] - f.rate_range[0] <= 1.2, f
+    assert f.status in ("measured", "bounded") and f.rate_range[1] - f.rate_range[0] <= 1.5, f
     check_move(r)
     check_pose(r, sim)
 
