@@ -60,7 +60,7 @@ from vts_hw.timing.camera_clock import ClockFit
 from vts_hw.vision.camera_set import named_cameras
 from vts_hw.vision.detect import DEFAULT as DEFAULT_DETECTOR, DetectorSettings
 from vts_hw.vision.multiview import ViewGeometry
-from vts_hw.vision.triangulate import Camera
+from vts_hw.vision.triangulate import PinholeCamera
 
 __all__ = ["Tracks", "ProcessSettings", "process_recording", "cameras_from_calibration",
            "pair_frames", "group_frames", "triangulate_fast", "track_identities", "CameraFrames",
@@ -101,7 +101,7 @@ class ProcessSettings:
 
 
 # ------------------------------------------------------------------ inputs
-def cameras_from_calibration(calib, names=("cam1", "cam2")) -> dict[str, Camera]:
+def cameras_from_calibration(calib, names=("cam1", "cam2")) -> dict[str, PinholeCamera]:
     """The named cameras of a calibration (stereo: the VTS frame is camera 1's; T in mm)."""
     return named_cameras(calib, list(names))
 
