@@ -272,8 +272,10 @@ def load_calibration(path: str | Path) -> CameraCalibration:
         raise DataError(f"{path}: cannot read the calibration file ({exc}).") from exc
     except json.JSONDecodeError as exc:
         raise DataError(f"{path}: not a JSON calibration file ({exc.msg}, line {exc.lineno}).") from None
-    except (ValueError, RecursionError):
-        raise DataError(f"{path}: not a JSON calibration file (too deep or too long a number).") from None
+    except RecursionError:
+        raise DataError(f"{path}: not a JSON calibration file (nested too deeply).") from None
+    except ValueError as exc:   # a 5000-digit number: "Exceeds the limit (4300 digits) for integer ..."
+        raise DataError(f"{path}: not a JSON calibration file ({str(exc).split(':')[0]}).") from None
     kind = data.get("format") if isinstance(data, dict) else None
     if kind == STEREO_FORMAT:
         f = stereo_fields(path, data, UNITS)
