@@ -226,10 +226,12 @@ class CameraCalibration:
             sd = c.sd or {}
             pm = {n: (f" ± {sd[n]:.2g}" if n in sd else "") for n in ("fx", "fy", "cx", "cy", "k1")}
             pos = c.center
+            fitted = c.distortion_model.get("fitted")
             lines.append(f"  {c.name}: RMS {c.rms:.3f} px over {c.n_views} views; fx {c.K[0, 0]:.2f}{pm['fx']}"
                          f" fy {c.K[1, 1]:.2f}{pm['fy']} cx {c.K[0, 2]:.2f}{pm['cx']} cy {c.K[1, 2]:.2f}{pm['cy']}"
                          f" px, k1 {c.d[0]:+.4f}{pm['k1']}; at ({pos[0]:.4g}, {pos[1]:.4g}, {pos[2]:.4g}) {u},"
-                         f" turned {rotation_angle_deg(c.R):.3f} deg from {self.reference}")
+                         f" turned {rotation_angle_deg(c.R):.3f} deg from {self.reference}"
+                         + (f" (distortion fitted: {', '.join(fitted)})" if fitted else ""))
         if self.pair is not None:
             st = self.pair["stereo"]
             lines.append(f"  baseline {self.baseline:.4g} ± {st['baseline']:.2g} {u}, rotation between"
