@@ -121,7 +121,7 @@ class CameraCalibration:
         if len(self.camera_fits) < 2:
             raise ValueError("a camera calibration needs at least two cameras")
 
-    # ---- what the readers of stereo files use ------------------------------------------
+    # ---- its cameras; the first two as a pair (camera 2 from camera 1) ---------------------
     @property
     def names(self) -> list[str]:
         return [c.name for c in self.camera_fits]
