@@ -20,9 +20,9 @@ import time
 
 import numpy as np
 
-from vts_hw.procedures.camera_calibration import find_all_corners
+from vts_hw.procedures.calibration_images import find_all_corners
 from vts_hw.sim_devices.scenarios.calibration_views import cameras_against_truth, sim_camera_views
-from vts_hw.vision.multi_calibration import calibrate_cameras
+from vts_hw.vision.calibration import calibrate_cameras
 
 CAMERA_FIGURES = ("fx %", "cx px", "cy px", "k1", "rotation deg", "position mm")
 

@@ -42,7 +42,7 @@ def run(seed: int, compression: int) -> dict:
     out = {k: res.scores[k] for k in GOALS}
     out["r2_min"] = min(r.r2 for r in res.analysis.regressions.values())
     out["seconds"] = took
-    out["rms_stereo_px"] = res.calibration.rms_stereo
+    out["rms_stereo_px"] = res.calibration.rms
     return out
 
 

@@ -1,16 +1,18 @@
 """A checkerboard calibration as a QA result (vts_hw.results shape): its RMS reprojection
 errors per camera and of the whole set, judged by the ``calibration_rms_px`` window, so that
-`vts calibrate stereo` / `vts calibrate cameras` store a run the one way and the reports show
-the room's calibration history."""
+`vts calibrate stereo` / `vts calibrate cameras` store a run the one way, under one name, and
+the reports show the room's calibration history."""
 
 from __future__ import annotations
 
 from vts_hw.results import Measure, overall_state
 from vts_hw.tolerance import State, merged_tolerances
 
-#: the run's procedure name for each command
-STEREO_PROCEDURE = "calibration"
-CAMERAS_PROCEDURE = "calibration_cameras"
+#: the one procedure name of a calibration run, whichever command made it
+PROCEDURE = "calibration"
+#: names calibration runs were stored under before (N-camera runs until decision 0056): read as
+#: calibrations wherever the history is read, never rewritten
+OLD_PROCEDURES = ("calibration_cameras",)
 #: the subject of the whole set's figure (the cameras' own are named after the camera)
 SET_SUBJECT = "set"
 
@@ -32,7 +34,7 @@ def rms_measures(per_camera: dict[str, float], overall: float, tolerances=None,
 class CalibrationResult:
     """Mixin for the calibration runs: ``measures`` comes from :meth:`rms_figures`."""
 
-    procedure = STEREO_PROCEDURE
+    procedure = PROCEDURE
     tolerances = None     # the rig config's windows, set by the caller; None: the defaults
 
     def rms_figures(self) -> tuple[dict[str, float], float, bool | None]:

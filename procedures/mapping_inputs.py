@@ -19,7 +19,7 @@ from vts_hw.errors import ConfigError, DataError
 def camera_calibration_for(rig, calibration_path=None, what: str = "--from-cameras"):
     """The camera calibration given, else the rig config's (stereo or N cameras); ConfigError
     when there is none or the rig has fewer than two cameras (``what`` needs them)."""
-    from vts_hw.vision.multi_calibration_io import load_calibration
+    from vts_hw.vision.calibration_io import load_calibration
 
     path = calibration_path or rig.calibration.stereo
     if path is None:

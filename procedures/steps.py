@@ -166,8 +166,8 @@ class StepSession:
 
     ``cameras``: camera drivers with ``name``, ``led_on()`` and ``snapshot()`` (two: left = the
     calibration's camera 1, right = camera 2); ``calibration``: the cameras in mm, any form
-    :func:`vts_hw.vision.camera_set.named_cameras` reads (a StereoCalibration, an N-camera
-    calibration, a dict of named cameras); ``mapping``: the VTS → SPECT RigidTransform.
+    :func:`vts_hw.vision.camera_set.named_cameras` reads (a calibration of two or more cameras,
+    a dict of named cameras); ``mapping``: the VTS → SPECT RigidTransform.
     """
 
     def __init__(self, cameras: Sequence, calibration, mapping, positioner: Positioner,

@@ -138,7 +138,7 @@ def _trace_gaps(t: np.ndarray, period: float, factor: float = 3.0) -> list[list[
 class SyncAnalysis:
     """The sync check of one scan session against one list-mode file (see the module).
 
-    ``calibration``: a StereoCalibration, its file, or cameras as ``process_recording`` takes
+    ``calibration``: a calibration (CameraCalibration), its file, or cameras as ``process_recording`` takes
     them. ``mapping``: VTS → SPECT (RigidTransform, its file, or an analysed SpectMapping); the
     VTS trace is then SPECT Z, else the marker's displacement along its main direction of
     motion. ``marker``: the id to follow (default: the one with the largest axial range).

@@ -245,13 +245,13 @@ def _nothing_belongs(session: Path, span: SessionSpan | None, cands: list[_Candi
 # ----------------------------------------------------------------------------- calibration
 
 def load_calibration(calibration):
-    """A calibration (or cameras) as given, or read from a path: a stereo file (also one written
-    before N cameras) or an N-camera file (vts_hw.vision.multi_calibration_io.load_calibration),
+    """A calibration (or cameras) as given, or read from a path: a calibration file (also a stereo
+    file written before one calibration record: vts_hw.vision.calibration_io.load_calibration),
     or a plain list of named cameras (the simulator's true ``cameras.json``:
     vts_hw.vision.camera_set.load_cameras)."""
     if calibration is None or not isinstance(calibration, (str, Path)):
         return calibration
-    from vts_hw.vision.multi_calibration_io import FORMAT, STEREO_FORMAT, load_calibration as load
+    from vts_hw.vision.calibration_io import FORMAT, STEREO_FORMAT, load_calibration as load
     try:
         data = json.loads(read_text(calibration, SMALL, "calibration"))
     except (OSError, ValueError, RecursionError):

@@ -2,7 +2,7 @@
 
 The board lies in its own plane z = 0 (millimetres): inner corner (i, j) of a ``pattern``
 (cols, rows) board sits at ``(i * square, j * square, 0)``, the order of
-:func:`vts_hw.vision.calibration.board_points`. Around the inner corners are (cols + 1) x (rows + 1)
+:func:`vts_hw.vision.checkerboard.board_points`. Around the inner corners are (cols + 1) x (rows + 1)
 squares, the square at the board's (-1, -1) corner black, and around them a white margin one
 square wide.
 
@@ -121,7 +121,7 @@ def board_poses(scene: Scene, n: int = 18, seed: int = 0, pattern: tuple[int, in
 def truth_corners(scene: Scene, cam: str | CameraModel, pose: Pose,
                   pattern: tuple[int, int] = PATTERN, square_mm: float = SQUARE_MM) -> np.ndarray:
     """Pixel coordinates (N x 2) of the inner corners in camera ``cam`` (distortion included),
-    row by row as :func:`vts_hw.vision.calibration.board_points` orders them."""
+    row by row as :func:`vts_hw.vision.checkerboard.board_points` orders them."""
     cols, rows = pattern
     pts = np.zeros((cols * rows, 3))
     pts[:, :2] = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2) * square_mm

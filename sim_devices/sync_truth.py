@@ -1,7 +1,7 @@
 """What the sync check needs from the simulated rig: its true calibration files and a move plan.
 
 * :func:`true_stereo_calibration` / :func:`true_spect_mapping` — the scene's **true** cameras
-  as a :class:`~vts_hw.vision.calibration_io.StereoCalibration` (VTS frame = camera 1's frame) and
+  as a two-camera :class:`~vts_hw.vision.calibration_io.CameraCalibration` (VTS frame = camera 1's frame) and
   the true VTS → SPECT rigid transform (SPECT frame = the scene's world frame:
   ``RigidTransform(c1.R.T, −c1.R.T·c1.t)``). A perfect calibration: what the sync analysis
   measures is then timing, not calibration error. :func:`write_true_calibration` writes both
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vts_hw.vision.calibration_io import StereoCalibration
+from vts_hw.vision.calibration_io import CameraCalibration, CameraFit
 from vts_hw.vision.registration import RigidTransform
 from vts_hw.sim_devices.scene import Scene
 
@@ -44,20 +44,22 @@ def _cams(scene: Scene, t: float | None, names=None):
     return [scene.camera_at(n, t) for n in names]
 
 
-def true_stereo_calibration(scene: Scene, t: float | None = None, names=None) -> StereoCalibration:
-    """The first two cameras of ``scene`` at host time ``t`` (default its start; the drift over
-    a scan is far below a pixel) as a stereo calibration in mm: x2 = R·x1 + T."""
+def true_stereo_calibration(scene: Scene, t: float | None = None, names=None) -> CameraCalibration:
+    """The first two cameras of ``scene`` (or of ``names``) at host time ``t`` (default its start;
+    the drift over a scan is far below a pixel) as a calibration in mm in camera 1's frame,
+    named as in the scene: x2 = R·x1 + T."""
     import datetime as _dt
 
     from vts_hw import __version__
 
+    t = scene.start_epoch if t is None else float(t)
+    names = list(names or scene.camera_names)[:2]
     c1, c2 = _cams(scene, t, names)
     R = c2.R @ c1.R.T
-    T = c2.t - R @ c1.t
-    return StereoCalibration(K1=c1.K, d1=c1.dist, K2=c2.K, d2=c2.dist, R=R, T=T,
-                             image_size=(int(c1.width), int(c1.height)), pattern=(9, 6), square=1.0,
-                             unit="mm", rms_left=0.0, rms_right=0.0, rms_stereo=0.0, per_view=[],
-                             outlier_rule=NOTE, skipped={},
+    size = (int(c1.width), int(c1.height))
+    fits = [CameraFit(names[0], c1.K, c1.dist, np.eye(3), np.zeros(3), size),
+            CameraFit(names[1], c2.K, c2.dist, R, c2.t - R @ c1.t, (int(c2.width), int(c2.height)))]
+    return CameraCalibration(fits, (9, 6), 1.0, "mm", 0.0, [], NOTE, method="truth",
                              created=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
                              software=__version__)
 
@@ -83,7 +85,7 @@ def true_cameras(scene: Scene, t: float | None = None, frame: str = "world") -> 
     N-camera calibration, in the scene's world frame (= the SPECT frame) or, with
     ``frame="cam1"``, in camera 1's frame as a calibration gives it (the VTS frame, which
     :func:`true_spect_mapping` maps to the SPECT frame)."""
-    from vts_hw.vision.triangulate import Camera
+    from vts_hw.vision.triangulate import PinholeCamera
 
     t = scene.start_epoch if t is None else float(t)
     cams = {n: scene.camera_at(n, t) for n in scene.camera_names}
@@ -93,7 +95,7 @@ def true_cameras(scene: Scene, t: float | None = None, frame: str = "world") -> 
     out = {}
     for n, c in cams.items():            # x_c = R x_w + t, x_w = R1^T (x_1 - t1)
         R = c.R @ first.R.T
-        out[n] = Camera(c.K, c.dist, R, c.t - R @ first.t, n)
+        out[n] = PinholeCamera(c.K, c.dist, R, c.t - R @ first.t, n)
     return out
 
 

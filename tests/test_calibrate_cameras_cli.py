@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from vts_hw.vision.multi_calibration_io import CameraCalibration, load_calibration
+from vts_hw.vision.calibration_io import CameraCalibration, load_calibration
 
 
 def vts(*args, cwd, command="cameras"):
@@ -40,15 +40,16 @@ def test_real_pairs_equal_the_stereo_calibration(boards, stereo, tmp_path):
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
     assert d["n_cameras"] == 2 and [c["name"] for c in d["cameras"]] == ["left", "right"]
-    assert d["rms"] == pytest.approx(stereo["rms_stereo"], rel=0.01)
-    assert load_calibration(out).baseline == pytest.approx(stereo["baseline"], rel=0.005)
+    assert d["rms"] == pytest.approx(stereo["rms"], rel=0.01)
+    baseline = sum(x * x for x in stereo["cameras"][1]["t"]) ** 0.5      # camera 1 is the frame
+    assert load_calibration(out).baseline == pytest.approx(baseline, rel=0.005)
     assert d["outliers"] == ["02"] and d["view_graph"]["connected"] and "change" not in d
     # stored as a run: no rig config here, so the per-user store and an empty rig name
     from vts_hw.store import ResultsStore
     with ResultsStore(None) as store:
         run = store.run(d["stored"]["run_id"])
         got = {(m.subject, m.metric): m.value for m in store.measurements(run_id=run.id)}
-    assert (run.procedure, run.rig, run.status) == ("calibration_cameras", "", "OK")
+    assert (run.procedure, run.rig, run.status) == ("calibration", "", "OK")     # one name, as stereo's
     assert got == {("left", "calibration_rms_px"): pytest.approx(d["cameras"][0]["rms"]),
                    ("right", "calibration_rms_px"): pytest.approx(d["cameras"][1]["rms"]),
                    ("set", "calibration_rms_px"): pytest.approx(d["rms"]), ("set", "calibration_converged"): 1.0}
@@ -149,18 +150,23 @@ def test_help_says_how_images_are_named(tmp_path):
 
 
 def test_stereo_and_n_camera_files_replace_and_compare_with_each_other(boards, tmp_path):
-    from vts_hw.vision.calibration_io import StereoCalibration
+    from pathlib import Path
 
     out = tmp_path / "calibration.json"
-    assert vts(boards, "-o", out, cwd=tmp_path, command="stereo").returncode == 0
-    r = vts(boards, "-o", out, cwd=tmp_path)                    # N cameras over a stereo file
+    old = Path(__file__).parent / "data" / "calibration-stereo-v1.json"   # as `stereo` wrote it before
+    out.write_bytes(old.read_bytes())
+    r = vts(boards, "-o", out, cwd=tmp_path)                    # N cameras over an old stereo file
     assert r.returncode == 0, r.stderr
     assert "(cameras matched by order (a stereo file)):" in r.stdout
     assert isinstance(load_calibration(out), CameraCalibration)
-    r = vts(boards, "-o", out, cwd=tmp_path, command="stereo")  # and back
+    r = vts(boards, "-o", out, cwd=tmp_path, command="stereo")  # and the pair over N cameras
     assert r.returncode == 0, r.stderr
     assert f"Change from the previous calibration {out}" in r.stdout
-    assert isinstance(StereoCalibration.load(out), StereoCalibration)
+    assert "rotation between cameras changed by" in r.stdout    # judged as a pair
+    assert load_calibration(out).pair is not None
+    r = vts(boards, "-o", out, cwd=tmp_path)                    # N cameras over the pair: one kind of file
+    assert r.returncode == 0, r.stderr
+    assert "(cameras matched by name):" in r.stdout
 
 
 def test_a_fit_that_did_not_converge_is_not_saved(tmp_path, monkeypatch, capsys):

@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from vts_hw.vision.calibration_io import StereoCalibration
+from vts_hw.vision.calibration_io import load_calibration
 
 
 def vts(*args, cwd):
@@ -23,9 +23,11 @@ def test_real_pairs_from_a_directory(boards, tmp_path):
     out = tmp_path / "cal.json"
     r = vts(boards, "-o", out, cwd=tmp_path)
     assert r.returncode == 0, r.stderr
-    calib = StereoCalibration.load(out)
+    calib = load_calibration(out)
     assert calib.unit == "squares" and len(calib.per_view) + len(calib.skipped) == 13
-    assert "RMS reprojection error" in r.stdout and f"stereo {calib.rms_stereo:.3f} px" in r.stdout
+    assert calib.names == ["left", "right"] and calib.pair is not None      # the two-camera case of one record
+    assert "RMS reprojection error" in r.stdout and f"RMS reprojection error {calib.rms:.3f} px" in r.stdout
+    assert f"left: RMS {calib.camera_fits[0].rms:.3f} px" in r.stdout and "rotation between left and right" in r.stdout
     assert f"wrote {out}" in r.stdout
     assert "Change from the previous" not in r.stdout
     # a second run over the existing file reports the change from it
@@ -50,12 +52,14 @@ def test_stored_as_a_run_of_the_rig(boards, tmp_path):
     d = json.loads(r.stdout)
     with ResultsStore(url) as store:
         (run,) = store.runs()
-        got = {m.subject: (m.value, str(m.status)) for m in store.measurements(run_id=run.id)}
+        got = {m.subject: (m.value, str(m.status)) for m in store.measurements(run_id=run.id)
+               if m.metric == "calibration_rms_px"}
     assert d["stored"] == {"run_id": run.id, "unsaved_file": None}
     assert (run.procedure, run.rig, run.status) == ("calibration", "room-x", "OK")
     assert run.notes == f"saved to {tmp_path / 'cal.json'}"
-    assert got == {"left": (pytest.approx(d["rms_left"]), "OK"), "right": (pytest.approx(d["rms_right"]), "OK"),
-                   "set": (pytest.approx(d["rms_stereo"]), "OK")}
+    own = {c["name"]: c["rms"] for c in d["cameras"]}
+    assert got == {"left": (pytest.approx(own["left"]), "OK"), "right": (pytest.approx(own["right"]), "OK"),
+                   "set": (pytest.approx(d["rms"]), "OK")}
 
 
 def test_real_pairs_from_files_json_and_previous(boards, tmp_path):
@@ -68,9 +72,9 @@ def test_real_pairs_from_files_json_and_previous(boards, tmp_path):
     data = json.loads(r.stdout)
     assert data["unit"] == "mm" and data["square"] == 25.0
     assert [v["name"] for v in data["per_view"]] + list(data["skipped"]) == ["01", "03", "04", "05", "06"]
-    assert data["rms_stereo"] > 0 and "sim_truth" not in data
+    assert data["rms"] > 0 and "sim_truth" not in data
     assert data["change"]["previous"] == str(first) and data["change"]["translation"] is None
-    assert StereoCalibration.load(tmp_path / "b.json").square == 25.0
+    assert load_calibration(tmp_path / "b.json").square == 25.0
 
 
 def test_sim_recovers_the_simulated_cameras(tmp_path):
@@ -84,8 +88,9 @@ def test_sim_recovers_the_simulated_cameras(tmp_path):
     # alone is fitted. Measured (seed 0, 15 poses): stereo RMS 0.06 px, principal points within
     # 2.5 px, focal lengths within 0.1 %, k1 within 0.02, stereo rotation off by 0.03 deg (with
     # OpenCV's five terms: cx off by 9-22 px, k1 -0.20 for -0.05, rotation 0.3 deg).
-    assert data["distortion_model"]["camera1"]["fitted"] == ["k1"]
-    assert data["rms_stereo"] < 0.1
+    assert [c["name"] for c in data["cameras"]] == ["cam1", "cam2"]     # the scene's cameras
+    assert data["cameras"][0]["distortion_model"]["fitted"] == ["k1"]
+    assert data["rms"] < 0.1
     for cam in ("cam1", "cam2"):
         rows = truth["cameras"][cam]
         for key in ("fx", "fy"):
@@ -98,8 +103,8 @@ def test_sim_recovers_the_simulated_cameras(tmp_path):
     assert truth["rotation"]["error_deg"] < 0.1
     assert truth["warnings"] == [] and data["warnings"] == []
     assert {row["parameter"] for row in truth["judged"]} >= {"cx1", "fy2", "k1 of camera 1", "rotation"}
-    saved = StereoCalibration.load(tmp_path / "sim.json")
-    assert saved.unit == "mm" and saved.uncertainty["camera1"]["cx"] == data["uncertainty"]["camera1"]["cx"]
+    saved = load_calibration(tmp_path / "sim.json")
+    assert saved.unit == "mm" and saved.uncertainty["camera1"]["cx"] == data["cameras"][0]["sd"]["cx"]
 
 
 def test_sim_off_from_the_truth_is_a_warning(tmp_path):
@@ -110,7 +115,7 @@ def test_sim_off_from_the_truth_is_a_warning(tmp_path):
     assert "WARNING: cx1 differs from the truth by -18.8" in r.stdout
     assert "x its standard deviation" in r.stdout
     assert "warning(s) above; the calibration was still saved (a warning does not fail the run: exit code 0)" in r.stdout
-    assert StereoCalibration.load(tmp_path / "sim.json").distortion_model["camera1"]["fitted"][-1] == "k3"
+    assert load_calibration(tmp_path / "sim.json").camera_fits[0].distortion_model["fitted"][-1] == "k3"
 
 
 def test_sim_text_output(tmp_path):
@@ -168,7 +173,7 @@ def test_forgotten_square_over_a_calibration_in_mm_is_refused(boards, tmp_path):
     # on purpose: --force replaces it, and the change is reported without the translation
     r = vts(boards, "-o", out, "--force", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
-    assert StereoCalibration.load(out).unit == "squares"
+    assert load_calibration(out).unit == "squares"
     assert "translation not compared (different units)" in r.stdout
     # squares over squares, and mm over squares, are fine
     assert vts(boards, "-o", out, cwd=tmp_path).returncode == 0
@@ -180,7 +185,7 @@ def test_force_replaces_a_file_that_is_not_a_calibration(boards, tmp_path):
     out.write_text("{}")
     r = vts(boards, "-o", out, "--force", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
-    assert StereoCalibration.load(out).unit == "squares"
+    assert load_calibration(out).unit == "squares"
 
 
 # ---- a calibration that moved beyond its uncertainty ---------------------------------------
@@ -190,7 +195,7 @@ def test_moved_beyond_the_uncertainty_is_a_warning(boards, tmp_path):
     out = tmp_path / "calibration.json"
     assert vts(boards, "-o", out, cwd=tmp_path).returncode == 0
     data = json.loads(out.read_text())
-    data["K1"][0][2] -= 8.0
+    data["cameras"][0]["K"][0][2] -= 8.0
     out.write_text(json.dumps(data))
     r = vts(boards, "-o", out, "--json", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
@@ -201,7 +206,7 @@ def test_moved_beyond_the_uncertainty_is_a_warning(boards, tmp_path):
     assert r.stderr == d["change"]["warnings"][0] + "\n" + f"stored: run {d['stored']['run_id']} (calibration) in the results store\n"
     row = next(x for x in d["change"]["judged"] if x["parameter"] == "cx1")
     assert row["change"] == pytest.approx(8.0) and row["ratio"] > 3
-    assert StereoCalibration.load(out).K1[0, 2] == pytest.approx(data["K1"][0][2] + 8.0)
+    assert load_calibration(out).K1[0, 2] == pytest.approx(data["cameras"][0]["K"][0][2] + 8.0)
     r = vts(boards, "-o", tmp_path / "other.json", "--previous", tmp_path / "calibration.json", cwd=tmp_path)
     assert "every change is within 3 combined standard deviations" in r.stdout
 
@@ -245,7 +250,7 @@ def test_disk_full_keeps_the_previous_file_and_saves_the_new_one_here(boards, tm
     r = vts(boards, "-o", out, "--json", cwd=work)
     assert r.returncode == 3
     data = json.loads(r.stdout)                          # the figures are still given
-    assert data["rms_stereo"] > 0 and data["output"] is None
+    assert data["rms"] > 0 and data["output"] is None
     fallback = work / data["saved_to"].rsplit("/", 1)[-1]
     assert data["saved_to"] == str(fallback) and fallback.name.startswith("calibration-")
     stored, err = r.stderr.split("\n", 1)               # the run is stored all the same (stderr under --json)
@@ -253,7 +258,7 @@ def test_disk_full_keeps_the_previous_file_and_saves_the_new_one_here(boards, tm
     assert err == (f"vts: {out}: could not be written (no space left on device); the previous"
                    f" version is unchanged; the calibration was saved to {fallback} instead\n")
     assert data["write_error"] == err[5:-1]
-    assert StereoCalibration.load(fallback).results_data() == {
+    assert load_calibration(fallback).results_data() == {
         k: v for k, v in data.items() if k not in ("output", "saved_to", "write_error", "change", "warnings", "stored")}
     assert out.read_bytes() == before
     assert disk.files() == {"calibration.json": len(before)}     # no .tmp, no 0-byte file
@@ -272,12 +277,12 @@ def test_disk_full_everywhere_but_tmpdir(boards, tmp_path, small_disk):
                         "-o", "new.json"], capture_output=True, text=True, cwd=disk.path, timeout=600,
                        env={**os.environ, "TMPDIR": str(tmpdir)})
     assert r.returncode == 3
-    assert "RMS reprojection error" in r.stdout and "stereo 0.448 px" in r.stdout and "wrote" not in r.stdout
+    assert "RMS reprojection error 0.448 px" in r.stdout and "wrote" not in r.stdout
     saved = list(tmpdir.glob("new-*.json"))
     assert len(saved) == 1
     assert r.stderr == (f"vts: new.json: could not be written (no space left on device); nothing was"
                         f" written there; the calibration was saved to {saved[0]} instead\n")
-    assert StereoCalibration.load(saved[0]).rms_stereo == pytest.approx(0.448, abs=5e-4)
+    assert load_calibration(saved[0]).rms == pytest.approx(0.448, abs=5e-4)
     assert disk.files() == {}
 
 
@@ -285,6 +290,6 @@ def test_read_only_output_folder(boards, tmp_path, readonly_dir):
     r = vts(boards, "-o", readonly_dir / "cal.json", cwd=tmp_path)
     assert r.returncode == 3 and "RMS reprojection error" in r.stdout
     saved = list(tmp_path.glob("cal-*.json"))
-    assert len(saved) == 1 and StereoCalibration.load(saved[0]).unit == "squares"
+    assert len(saved) == 1 and load_calibration(saved[0]).unit == "squares"
     assert r.stderr == (f"vts: {readonly_dir / 'cal.json'}: could not be written (read-only file system);"
                         f" nothing was written there; the calibration was saved to {saved[0]} instead\n")

@@ -203,7 +203,7 @@ def test_the_cameras_a_calibration_covers(tmp_path):
     from vts_hw.config import load_rig
     from vts_hw.errors import ConfigError
     from vts_hw.procedures.mapping_inputs import calibrated_cameras
-    from vts_hw.vision.triangulate import Camera
+    from vts_hw.vision.triangulate import PinholeCamera
 
     cfg = tmp_path / "rig.yaml"
     cfg.write_text("cameras:\n" + "".join(f"  - {{name: {n}, host: 127.0.0.1, port: 9}}\n"
@@ -211,7 +211,7 @@ def test_the_cameras_a_calibration_covers(tmp_path):
     rig = load_rig(cfg)
 
     def cams(*names):
-        return [Camera(np.eye(3), np.zeros(5), np.eye(3), np.zeros(3), n) for n in names]
+        return [PinholeCamera(np.eye(3), np.zeros(5), np.eye(3), np.zeros(3), n) for n in names]
 
     names = lambda calib: [c.name for c in calibrated_cameras(rig, calib)]   # noqa: E731
     assert names(cams("foot-r", "head-l", "foot-l")) == ["head-l", "foot-l", "foot-r"]

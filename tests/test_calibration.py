@@ -1,24 +1,29 @@
-"""Stereo calibration on the 13 real checkerboard pairs (shared data, 9 × 6 inner corners)."""
+"""Stereo calibration (the two-camera case of the one calibration) on the 13 real checkerboard
+pairs (shared data, 9 × 6 inner corners), and the stereo files written before one record."""
 
+import copy
 import json
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
-from vts_hw.vision.calibration import (
-    StereoCalibration,
-    board_points,
-    calibrate_from_corners,
-    calibrate_stereo,
-    find_corners,
-    find_pairs,
-)
-from vts_hw.vision.calibration_io import rotation_angle_deg
+from vts_hw.vision.calibration import calibrate_from_corners, calibrate_stereo
+from vts_hw.vision.calibration_io import load_calibration
+from vts_hw.vision.calibration_uncertainty import compare_pair, rotation_angle_deg
+from vts_hw.vision.checkerboard import board_points, find_corners, find_pairs
 from vts_hw.errors import DataError
 
 PATTERN = (9, 6)
 NAMES = [f"{i:02d}" for i in range(1, 15) if i != 10]
+#: a stereo file as `vts calibrate stereo` wrote them before one calibration record (the real pairs)
+OLD_STEREO = Path(__file__).parent / "data" / "calibration-stereo-v1.json"
+
+
+def own_rms(cal):
+    """Each camera's RMS (its own OpenCV fit, where its intrinsics come from)."""
+    return [c.rms for c in cal.camera_fits]
 
 
 @pytest.fixture(scope="module")
@@ -98,10 +103,12 @@ def test_all_pairs_used(calib, plain_reference):
 
 
 def test_rms_within_10_percent_of_plain_opencv(calib, plain_reference):
-    assert calib.rms_left == pytest.approx(plain_reference["left"], rel=0.10)
-    assert calib.rms_right == pytest.approx(plain_reference["right"], rel=0.10)
-    assert calib.rms_stereo == pytest.approx(plain_reference["stereo"], rel=0.10)
-    assert 0 < calib.rms_stereo < 1.0
+    left, right = own_rms(calib)
+    assert calib.names == ["left", "right"]
+    assert left == pytest.approx(plain_reference["left"], rel=0.10)
+    assert right == pytest.approx(plain_reference["right"], rel=0.10)
+    assert calib.rms == pytest.approx(plain_reference["stereo"], rel=0.10)
+    assert 0 < calib.rms < 1.0
 
 
 def test_baseline_matches_plain_opencv_within_1_percent(calib, plain_reference):
@@ -110,8 +117,8 @@ def test_baseline_matches_plain_opencv_within_1_percent(calib, plain_reference):
 
 
 def test_per_view_errors_agree_with_stereo_rms(calib):
-    errs = np.array([[v.left, v.right] for v in calib.per_view])
-    assert np.sqrt(np.mean(errs**2)) == pytest.approx(calib.rms_stereo, rel=1e-6)
+    errs = np.array([[v.errors["left"], v.errors["right"]] for v in calib.per_view])
+    assert np.sqrt(np.mean(errs**2)) == pytest.approx(calib.rms, rel=1e-6)
 
 
 def test_real_outlier_view_02(calib):
@@ -136,8 +143,8 @@ def test_square_in_mm_scales_translation(corners, calib):
     left, right = corners
     mm = calibrate_from_corners(left, right, (640, 480), names=NAMES, square=25.0, unit="mm")
     assert mm.baseline == pytest.approx(25.0 * calib.baseline, rel=1e-4)
-    assert mm.rms_stereo == pytest.approx(calib.rms_stereo, rel=1e-4)
-    assert mm.compare(calib)["translation"] is None
+    assert mm.rms == pytest.approx(calib.rms, rel=1e-4)
+    assert compare_pair(mm, calib)["translation"] is None
 
 
 def test_pairs_without_board_are_skipped(pairs):
@@ -182,7 +189,7 @@ def test_shuffled_corners_flagged(corners):
 # ---- save / load / compare -----------------------------------------------------------------
 def test_save_load_round_trip(calib, tmp_path):
     path = calib.save(tmp_path / "calib.json")
-    back = StereoCalibration.load(path)
+    back = load_calibration(path)
     assert back == calib
     assert back.results_data() == calib.results_data()
     np.testing.assert_array_equal(back.R, calib.R)
@@ -195,12 +202,44 @@ def test_results_data_is_json_ready(calib):
     data = json.loads(json.dumps(calib.results_data()))
     assert data["outliers"] == ["02"]
     assert data["created"].endswith("+00:00")
-    assert len(data["K1"]) == 3 and len(data["T"]) == 3
+    assert data["format"] == "vts-hw camera calibration" and data["n_cameras"] == 2
+    assert len(data["cameras"][1]["K"]) == 3 and len(data["cameras"][1]["t"]) == 3
+    assert len(data["pair_uncertainty"]["stereo_cov"]) == 6
 
 
 def test_results_text(calib):
     text = calib.results()
-    assert "baseline 3.3" in text and "OUTLIER" in text and "stereo" in text
+    assert "baseline 3.3" in text and "OUTLIER" in text and "rotation between left and right 0.3" in text
+
+
+def test_a_stereo_file_written_before_loads_as_two_cameras():
+    """The file of tests/data as `vts calibrate stereo` wrote it before one record: two cameras
+    cam1 (the frame) and cam2 with every figure, uncertainty and lens model it held."""
+    data = json.loads(OLD_STEREO.read_text())
+    old = load_calibration(OLD_STEREO)
+    assert old.names == ["cam1", "cam2"] and old.reference == "cam1"
+    np.testing.assert_array_equal(old.K1, data["K1"])
+    np.testing.assert_array_equal(old.camera_fits[1].R, data["R"])
+    np.testing.assert_array_equal(old.T, data["T"])
+    assert [c.rms for c in old.camera_fits] == [data["rms_left"], data["rms_right"]]
+    assert old.rms == data["rms_stereo"] and old.baseline == pytest.approx(data["baseline"], rel=1e-12)
+    assert [v.errors for v in old.per_view] == [{"cam1": v["left"], "cam2": v["right"]} for v in data["per_view"]]
+    assert old.outliers == data["outliers"] == ["02"]
+    assert old.uncertainty["stereo"] == data["uncertainty"]["stereo"]
+    assert old.uncertainty["camera2"] == data["uncertainty"]["camera2"]
+    assert old.camera_fits[0].distortion_model == data["distortion_model"]["camera1"]
+    assert compare_pair(old, old)["warnings"] == []
+
+
+def test_a_stereo_file_written_before_equals_the_calibration_now(calib):
+    """The same 13 pairs calibrated now give the figures the old file holds (OpenCV's, to the
+    last digits its threads leave free)."""
+    old = load_calibration(OLD_STEREO)
+    np.testing.assert_allclose(calib.K2, old.K2, rtol=1e-9)
+    np.testing.assert_allclose(calib.T, old.T, rtol=1e-8, atol=1e-9)
+    assert calib.rms == pytest.approx(old.rms, rel=1e-9)
+    assert own_rms(calib) == pytest.approx(own_rms(old), rel=1e-9)
+    assert calib.uncertainty["stereo"]["baseline"] == pytest.approx(old.uncertainty["stereo"]["baseline"], rel=1e-6)
 
 
 @pytest.mark.parametrize(
@@ -219,43 +258,59 @@ def test_results_text(calib):
         (lambda d: d.update(distortion_model=["k1"]), "'distortion_model'"),
     ],
 )
+def test_bad_stereo_file_names_file_and_key(tmp_path, change, key):
+    """A stereo file of the old format with one key spoiled."""
+    data = json.loads(OLD_STEREO.read_text())
+    change(data)
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(DataError) as err:
+        load_calibration(path)
+    assert str(path) in str(err.value) and key in str(err.value)
+
+
+@pytest.mark.parametrize(
+    ("change", "key"),
+    [
+        (lambda d: d["cameras"][1].pop("R"), "'cameras[1].R'"),
+        (lambda d: d["cameras"][0].update(K=[[1, 2], [3, 4]]), "'cameras[0].K'"),
+        (lambda d: d.update(unit="inch"), "'unit'"),
+        (lambda d: d["pair_uncertainty"].update(stereo_cov=[[1.0]]), "'pair_uncertainty.stereo_cov'"),
+        (lambda d: d["pair_uncertainty"]["stereo"].update(rx=-1), "'pair_uncertainty.stereo'"),
+        (lambda d: d.update(format="something else"), "'format'"),
+    ],
+)
 def test_bad_file_names_file_and_key(calib, tmp_path, change, key):
     data = calib.results_data()
     change(data)
     path = tmp_path / "bad.json"
     path.write_text(json.dumps(data))
     with pytest.raises(DataError) as err:
-        StereoCalibration.load(path)
+        load_calibration(path)
     assert str(path) in str(err.value) and key in str(err.value)
 
 
 def test_missing_and_non_json_files(tmp_path):
     with pytest.raises(DataError, match="nothere.json"):
-        StereoCalibration.load(tmp_path / "nothere.json")
+        load_calibration(tmp_path / "nothere.json")
     junk = tmp_path / "junk.json"
     junk.write_text("{not json")
     with pytest.raises(DataError, match="junk.json"):
-        StereoCalibration.load(junk)
+        load_calibration(junk)
 
 
 def test_compare_reports_perturbation(calib):
-    data = calib.results_data()
-    data["R"] = (_rotate_x(0.5) @ calib.R).tolist()
-    data["T"] = (calib.T + [0.0, 0.0, 0.1]).tolist()
-    data["K1"][0][0] += 2.0
-    data["K2"][1][2] -= 1.5
-    moved = StereoCalibration(**{k: data[k] for k in ("K1", "d1", "K2", "d2", "R", "T")},
-                              image_size=calib.image_size, pattern=calib.pattern,
-                              square=calib.square, unit=calib.unit, rms_left=calib.rms_left,
-                              rms_right=calib.rms_right, rms_stereo=calib.rms_stereo,
-                              per_view=calib.per_view, outlier_rule=calib.outlier_rule)
-    diff = moved.compare(calib)
+    moved = _moved(calib, K1=(0, 0, 2.0), K2=(1, 2, -1.5))
+    moved.camera_fits[1].R = _rotate_x(0.5) @ calib.R
+    moved.camera_fits[1].t = calib.T + [0.0, 0.0, 0.1]
+    moved.pair = None
+    diff = compare_pair(moved, calib)
     assert diff["rotation_deg"] == pytest.approx(0.5, abs=1e-9)
     assert diff["translation"] == pytest.approx(0.1, abs=1e-12)
     assert diff["fx1"] == pytest.approx(2.0) and diff["cy2"] == pytest.approx(-1.5)
     assert diff["fy1"] == diff["cx1"] == diff["fx2"] == 0.0
     assert diff["unit"] == "squares"
-    same = calib.compare(calib)
+    same = compare_pair(calib, calib)
     assert same["rotation_deg"] == 0.0 and same["translation"] == 0.0
 
 
@@ -271,9 +326,9 @@ def test_board_points_unit():
 # ---- lens model and uncertainty ------------------------------------------------------------
 def test_real_pairs_keep_opencvs_five_terms(calib):
     """The wide real lens needs k2, k3 and the tangential terms: 'auto' keeps OpenCV's default."""
-    for cam in ("camera1", "camera2"):
-        assert calib.distortion_model[cam]["fitted"] == ["k1", "k2", "p1", "p2", "k3"]
-        assert "auto (BIC)" in calib.distortion_model[cam]["chosen_by"]
+    for cam in calib.camera_fits:
+        assert cam.distortion_model["fitted"] == ["k1", "k2", "p1", "p2", "k3"]
+        assert "auto (BIC)" in cam.distortion_model["chosen_by"]
 
 
 def test_uncertainty_of_intrinsics_is_opencvs(calib, pairs, corners):
@@ -314,38 +369,35 @@ def test_uncertainty_matches_the_spread_of_repeated_calibrations():
 
 
 def test_old_file_without_uncertainty_still_loads_and_compares(calib, tmp_path):
-    data = calib.results_data()
+    """A stereo file from before uncertainties (0024): no standard deviations, no lens model."""
+    data = json.loads(OLD_STEREO.read_text())
     del data["uncertainty"], data["distortion_model"]
     path = tmp_path / "old.json"
     path.write_text(json.dumps(data))
-    old = StereoCalibration.load(path)
-    assert old.uncertainty is None and old.distortion_model == {}
+    old = load_calibration(path)
+    assert old.uncertainty is None and old.camera_fits[0].distortion_model == {}
     assert "±" not in old.results()
-    diff = calib.compare(old)
+    diff = compare_pair(calib, old)
     assert diff["previous_has_uncertainty"] is False and diff["warnings"] == []
     cx1 = next(r for r in diff["judged"] if r["parameter"] == "cx1")
     assert cx1["sd"] == pytest.approx(np.sqrt(2) * calib.uncertainty["camera1"]["cx"])
-    assert old.compare(calib)["judged"] == []      # nothing to judge with: no warnings made up
+    assert compare_pair(old, calib)["judged"] == []      # nothing to judge with: no warnings made up
 
 
 def _moved(calib, **changes):
-    data = calib.results_data()
+    """A copy of ``calib`` with K1/K2 entries moved: {"K1": (row, column, delta)}."""
+    moved = copy.deepcopy(calib)
     for key, (i, j, delta) in changes.items():
-        data[key][i][j] += delta
-    mats = {k: data[k] for k in ("K1", "d1", "K2", "d2", "R", "T")}
-    return StereoCalibration(**mats, image_size=calib.image_size, pattern=calib.pattern,
-                             square=calib.square, unit=calib.unit, rms_left=calib.rms_left,
-                             rms_right=calib.rms_right, rms_stereo=calib.rms_stereo,
-                             per_view=calib.per_view, outlier_rule=calib.outlier_rule,
-                             uncertainty=calib.uncertainty)
+        moved.camera_fits[int(key[1]) - 1].K[i, j] += delta
+    return moved
 
 
 def test_a_move_beyond_the_uncertainty_is_a_warning(calib):
     sd = calib.uncertainty["camera1"]["cx"]
     combined = np.sqrt(2) * sd
-    small = _moved(calib, K1=(0, 2, 2.0 * combined)).compare(calib)
+    small = compare_pair(_moved(calib, K1=(0, 2, 2.0 * combined)), calib)
     assert small["warnings"] == []
-    big = _moved(calib, K1=(0, 2, 4.0 * combined)).compare(calib)
+    big = compare_pair(_moved(calib, K1=(0, 2, 4.0 * combined)), calib)
     assert len(big["warnings"]) == 1
     w = big["warnings"][0]
     assert w.startswith("WARNING: cx1 moved by +") and "4.0 x its combined standard deviation" in w
@@ -353,8 +405,8 @@ def test_a_move_beyond_the_uncertainty_is_a_warning(calib):
 
 def test_a_turned_camera_is_a_rotation_warning(calib):
     moved = _moved(calib)
-    moved.R = _rotate_x(1.0) @ calib.R
-    diff = moved.compare(calib)
+    moved.camera_fits[1].R = _rotate_x(1.0) @ calib.R
+    diff = compare_pair(moved, calib)
     assert diff["rotation_deg"] == pytest.approx(1.0)
     assert any(w.startswith("WARNING: rotation moved by +1 deg") for w in diff["warnings"]), diff["warnings"]
     assert not any("cx1" in w or "fx1" in w for w in diff["warnings"])
@@ -367,22 +419,27 @@ def test_json_that_the_json_module_refuses_beyond_syntax(tmp_path, text, words):
     path = tmp_path / "calibration.json"
     path.write_text(text)
     with pytest.raises(DataError) as err:
-        StereoCalibration.load(path)
+        load_calibration(path)
     assert str(err.value).startswith(f"{path}: {words}")
 
 
-@pytest.mark.parametrize("key", ["square", "K1"])
+@pytest.mark.parametrize("key", ["square", "K1", "cameras[0].K", "cameras[1].rms"])
 def test_a_number_no_float_can_hold(calib, tmp_path, key):
-    """A 401-digit JSON integer: json gives an int that float() overflows on."""
-    data = calib.results_data()
+    """A 401-digit JSON integer: json gives an int that float() overflows on (K1: a stereo file
+    of the old format, the others today's)."""
+    data = json.loads(OLD_STEREO.read_text()) if key == "K1" else calib.results_data()
     if key == "K1":
         data["K1"][0][0] = 10 ** 400
+    elif key == "cameras[0].K":
+        data["cameras"][0]["K"][0][0] = 10 ** 400
+    elif key == "cameras[1].rms":
+        data["cameras"][1]["rms"] = 10 ** 400
     else:
         data[key] = 10 ** 400
     path = tmp_path / "calibration.json"
     path.write_text(json.dumps(data))
     with pytest.raises(DataError) as err:
-        StereoCalibration.load(path)
+        load_calibration(path)
     msg = str(err.value)
     assert msg.startswith(f"{path}: key '{key}' must be") and len(msg) < len(str(path)) + 120
 

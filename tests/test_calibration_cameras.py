@@ -1,17 +1,18 @@
 """N-camera calibration: the real pairs against plain OpenCV, simulated rooms of 3 and 4 cameras
-whose views no view spans fully, refused view graphs, the N-camera file and the old stereo file."""
+whose views no view spans fully, refused view graphs, the calibration file and the files
+written before one calibration record (stereo and N-camera)."""
 
 import json
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
 from vts_hw.errors import DataError
-from vts_hw.vision.calibration import board_points, calibrate_stereo, find_corners, find_pairs
-from vts_hw.vision.calibration_io import StereoCalibration
-from vts_hw.vision.multi_calibration import calibrate_cameras
-from vts_hw.vision.multi_calibration_io import CameraCalibration, load_calibration
+from vts_hw.vision.calibration import calibrate_cameras, calibrate_stereo
+from vts_hw.vision.calibration_io import CameraCalibration, load_calibration
+from vts_hw.vision.checkerboard import board_points, find_corners, find_pairs
 from vts_hw.vision.multi_compare import compare_cameras
 from vts_hw.vision.view_graph import ViewGraph
 
@@ -62,9 +63,11 @@ def test_real_pairs_equal_plain_opencv(real_calib, plain_opencv):
 def test_stereo_is_the_two_camera_case(real, real_calib, shared_data):
     """`calibrate_stereo` runs the same steps with the intrinsics fixed: OpenCV's figures exactly."""
     st = calibrate_stereo(find_pairs(shared_data / "stereo-checkerboard"))
-    assert st.rms_stereo == pytest.approx(real_calib.initial["rms"], rel=1e-6)
+    assert st.rms == pytest.approx(real_calib.initial["rms"], rel=1e-6)
+    assert st.names == real_calib.names and st.pair is not None and real_calib.pair is None
     fixed = calibrate_cameras(real, {"left": SIZE, "right": SIZE}, intrinsics="fixed", loss="linear")
-    assert fixed.rms == pytest.approx(st.rms_stereo, rel=1e-6)
+    assert fixed.rms == pytest.approx(st.rms, rel=1e-6)
+    assert [c.rms for c in fixed.camera_fits] == pytest.approx([c.rms for c in st.camera_fits], rel=1e-9)   # own fits
     assert fixed.baseline == pytest.approx(st.baseline, rel=1e-5)
     np.testing.assert_allclose(fixed.R, st.R, atol=1e-6)
 
@@ -171,8 +174,8 @@ def test_n_camera_file_round_trip_and_readers(real_calib, tmp_path):
     assert back.baseline == pytest.approx(real_calib.baseline)
     cams = back.cameras()
     assert [c.name for c in cams] == ["left", "right"] and np.allclose(cams[0].R, np.eye(3))
-    # the readers of stereo files: K1 ... T, its first two cameras named after the recording's
-    assert np.allclose(back.stereo().T, back.T) and back.stereo().unit == "squares"
+    # its first two cameras as a pair (camera 2 from camera 1), named after the recording's
+    assert np.allclose(back.T, back.camera_fits[1].t) and back.unit == "squares"
     mm = CameraCalibration(back.camera_fits, back.pattern, 25.0, "mm", back.rms, back.per_view, back.outlier_rule)
     assert set(cameras_from_calibration(mm, ["cam1", "cam2"])) == {"cam1", "cam2"}
     assert set(cameras_from_calibration(mm, ["left", "right", "x"])) == {"left", "right"}
@@ -224,16 +227,33 @@ def test_old_two_camera_file_still_loads(tmp_path):
 
     path = tmp_path / "calibration.json"
     path.write_text(json.dumps(OLD_STEREO_FILE))
-    old = load_calibration(path)
-    assert isinstance(old, StereoCalibration) and old.baseline == pytest.approx(np.linalg.norm([-1190, 2, 120]))
-    assert isinstance(sync_load(path), StereoCalibration)
-    assert set(cameras_from_calibration(old, ["cam1", "cam2"])) == {"cam1", "cam2"}
-    two = CameraCalibration.load(path)
-    assert two.names == ["cam1", "cam2"] and np.allclose(two.T, old.T) and np.allclose(two.R, old.R)
+    two = load_calibration(path)
+    assert isinstance(two, CameraCalibration) and two.baseline == pytest.approx(np.linalg.norm([-1190, 2, 120]))
+    assert sync_load(path) == two
+    assert set(cameras_from_calibration(two, ["cam1", "cam2"])) == {"cam1", "cam2"}
+    # a stereo file's cameras have no names of their own: the rig's first two, in order
+    assert list(cameras_from_calibration(two, ["head1", "cam1", "cam2"])) == ["head1", "cam1"]
+    assert two.names == ["cam1", "cam2"] and np.allclose(two.T, OLD_STEREO_FILE["T"])
+    assert np.allclose(two.R, OLD_STEREO_FILE["R"]) and two.uncertainty is None
     assert two.per_view[0].errors == {"cam1": 0.05, "cam2": 0.07}
     # a new calibration is compared with it camera by camera
     diff = compare_cameras(two, two)
     assert diff["cameras"]["cam2"]["rotation_deg"] == 0.0 and diff["warnings"] == []
+
+
+def test_an_n_camera_file_written_before_loads_as_it_was(real_calib):
+    """The file of tests/data as `vts calibrate cameras` wrote it before one calibration record
+    (the real pairs): every figure as written, and what the same images give now."""
+    path = Path(__file__).parent / "data" / "calibration-cameras-v1.json"
+    data = json.loads(path.read_text())
+    old = load_calibration(path)
+    assert old.names == ["left", "right"] and old.pair is None and old.uncertainty is None
+    assert old.rms == data["rms"] and [c.rms for c in old.camera_fits] == [c["rms"] for c in data["cameras"]]
+    np.testing.assert_array_equal(old.camera_fits[1].t, data["cameras"][1]["t"])
+    assert old.camera_fits[1].sd == data["cameras"][1]["sd"] and old.outliers == data["outliers"]
+    assert old.adjustment == data["adjustment"] and old.view_graph == data["view_graph"]
+    assert real_calib.rms == pytest.approx(old.rms, rel=1e-6)
+    assert real_calib.baseline == pytest.approx(old.baseline, rel=1e-6)
 
 
 def test_not_a_calibration_file(tmp_path):

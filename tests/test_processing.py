@@ -279,12 +279,15 @@ def test_chunk_matching_follows_match_epipolar(processed):
 def test_stereo_calibration_and_export_in_the_spect_frame(processed):
     """With a stereo calibration the VTS frame is camera 1's; the VTS -> SPECT transform
     (here the true one) brings the tracks back onto the scene's truth, on SPECT time."""
-    from types import SimpleNamespace
+    from vts_hw.vision.calibration_io import CameraCalibration, CameraFit
 
     sim, tracks, _ = processed
     c1, c2 = (as_camera(c) for c in true_cameras(sim).values())
     R = c2.R @ c1.R.T
-    calib = SimpleNamespace(K1=c1.K, d1=c1.dist, K2=c2.K, d2=c2.dist, R=R, T=c2.t - R @ c1.t)
+    # a two-camera calibration in camera 1's frame, its cameras named after its images
+    calib = CameraCalibration([CameraFit("left", c1.K, c1.dist, np.eye(3), np.zeros(3), (640, 480)),
+                               CameraFit("right", c2.K, c2.dist, R, c2.t - R @ c1.t, (640, 480))],
+                              (9, 6), 1.0, "mm", 0.0, [], "")
     to_spect = RigidTransform(c1.R.T, -c1.R.T @ c1.t)  # camera 1's frame -> world (SPECT)
     spect_start = sim.band.start - 1.0
     out = process_recording(sim.folder, calib, workers=2, mapping=to_spect,

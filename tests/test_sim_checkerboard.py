@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from vts_hw.vision.calibration import find_corners
+from vts_hw.vision.checkerboard import find_corners
 from vts_hw.sim_devices import checkerboard as cb
 from vts_hw.sim_devices.scene import Scene
 
@@ -84,7 +84,7 @@ def test_render_is_grey_jpeg_with_board_brighter_than_background(scene, poses):
 
 
 def test_truth_corners_order_matches_board_points(scene, poses):
-    from vts_hw.vision.calibration import board_points
+    from vts_hw.vision.checkerboard import board_points
 
     R, t = poses[0]
     world = board_points((9, 6), cb.SQUARE_MM).astype(float) @ R.T + t

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from vts_hw.sim_devices.scene import DAY, CameraModel, Scene
-from vts_hw.vision.triangulate import (Camera, as_camera, epipolar_distances, match_epipolar,
+from vts_hw.vision.triangulate import (PinholeCamera, as_camera, epipolar_distances, match_epipolar,
                                 predicted_covariance, triangulate, undistort)
 
 T0 = 1_700_000_000.0
@@ -207,7 +207,7 @@ def test_reference_phantom_s4_s5_are_close_to_one_epipolar_plane(scene):
 
 
 def test_triangulate_rejects_bad_input():
-    cam = Camera(np.eye(3), np.zeros(5), np.eye(3), np.zeros(3))
+    cam = PinholeCamera(np.eye(3), np.zeros(5), np.eye(3), np.zeros(3))
     with pytest.raises(ValueError):
         triangulate([cam], [np.zeros((1, 2))])
     with pytest.raises(ValueError):

@@ -162,15 +162,14 @@ def make_seeds(out: Path, axis_frames: Path) -> dict[str, int]:
     for p in rig_dir.glob("*.json"):
         target = "mapping" if "mapping" in p.name else "calibration"
         put(target, p.name, p.read_bytes())
-        if target == "calibration":  # its square size made a 400-digit integer
+        if target == "calibration":  # the stereo form written before; its square size made a 400-digit integer
+            put(target, "stereo-v1.json", stereo_bytes(rig_dir))
             put(target, "edge-huge.json", re.sub(rb'"square": [^,]+', b'"square": 1' + b"0" * 400,
                                                  p.read_bytes()))
-    # ---- an N-camera calibration file: the stereo one as the N = 2 case, and three cameras
-    from vts_hw.vision.calibration_io import StereoCalibration
-    from vts_hw.vision.multi_calibration_io import CameraCalibration
+    # ---- a calibration file: the rig's two cameras, three cameras, and the stereo form written before
+    from vts_hw.vision.calibration_io import load_calibration
 
-    stereo = StereoCalibration.load(next(p for p in rig_dir.glob("*.json") if "mapping" not in p.name))
-    multi = CameraCalibration.from_stereo(stereo)
+    multi = load_calibration(next(p for p in rig_dir.glob("*.json") if "mapping" not in p.name))
     multi.save(work / "cameras.json")
     put("camera_calibration", "two.json", (work / "cameras.json").read_bytes())
     data = json.loads((work / "cameras.json").read_text())
@@ -185,7 +184,8 @@ def make_seeds(out: Path, axis_frames: Path) -> dict[str, int]:
 
 
 def stereo_bytes(rig_dir) -> bytes:
-    return next(p for p in rig_dir.glob("*.json") if "mapping" not in p.name).read_bytes()
+    """A stereo file as `vts calibrate stereo` wrote them before one calibration record (tests/data)."""
+    return (Path(__file__).resolve().parents[2] / "tests" / "data" / "calibration-stereo-v1.json").read_bytes()
 
 
 def edge_seeds(put) -> None:

@@ -75,9 +75,8 @@ SOURCES: dict[str, tuple[str, str | None]] = {
     "axis_jpeg": ("vts_hw.recording.axis_jpeg", None),
     "mjpeg": ("vts_hw.recording.mjpeg", None),
     "recording": ("vts_hw.recording.folder", None),
-    "StereoCalibration": ("vts_hw.vision.calibration_io", "StereoCalibration"),
     "load_cameras": ("vts_hw.vision.camera_set", "load_cameras"),
-    "load_calibration": ("vts_hw.vision.multi_calibration_io", "load_calibration"),
+    "load_calibration": ("vts_hw.vision.calibration_io", "load_calibration"),
     "read_listmode": ("vts_hw.spect.listmode", "read_listmode"),
     "check_session": ("vts_hw.procedures.sync", "check_session"),
     "available_cameras": ("vts_hw.recording.extent", "available_cameras"),
@@ -167,7 +166,7 @@ def _npz(data: bytes, s: Scratch) -> None:
 
 
 def _calibration(data: bytes, s: Scratch) -> None:
-    s.call(P["StereoCalibration"].load, s.file("calibration.json", data))
+    s.call(P["load_calibration"], s.file("calibration.json", data))
 
 
 def _camera_calibration(data: bytes, s: Scratch) -> None:
@@ -295,11 +294,11 @@ TARGETS: dict[str, Target] = {t.name: t for t in [
     Target("npz", "spect.npz.read_npz", _npz, uses=("read_npz",), max_len=8192,
            tokens=(b"PK\x03\x04", b"PK\x01\x02", b"PK\x05\x06", b"\x93NUMPY", b"data.npy",
                    b"'descr': '<f4'", b"'shape': (", b"'fortran_order': True")),
-    Target("calibration", "calibration_io.StereoCalibration.load",
-           _calibration, uses=("StereoCalibration",), max_len=8192,
+    Target("calibration", "calibration_io.load_calibration (a stereo file written before one record)",
+           _calibration, uses=("load_calibration",), max_len=8192,
            tokens=_JSON + (b'"K1"', b'"d2"', b'"R"', b'"T"', b'"per_view"', b'"skipped"',
                            b'"image_size"', b'"unit"', b'"mm"', b'"squares"')),
-    Target("camera_calibration", "multi_calibration_io.load_calibration, camera_set.load_cameras",
+    Target("camera_calibration", "calibration_io.load_calibration, camera_set.load_cameras",
            _camera_calibration, uses=("load_calibration", "load_cameras"), max_len=12000,
            tokens=_JSON + (b'"cameras"', b'"name"', b'"K"', b'"d"', b'"R"', b'"t"', b'"per_view"',
                            b'"view_graph"', b'"image_size"', b'"unit"', b'"mm"', b'"format"',

@@ -23,7 +23,7 @@ def sim_square_mm() -> float:
 
 def sim_views(seed: int, n: int, pattern=(9, 6), square_mm: float | None = None):
     """``n`` rendered stereo views of the board held before the reference rig of ``seed``:
-    (pairs, names, truth) with ``truth`` the rig's true cameras as a StereoCalibration in mm."""
+    (pairs, names, truth) with ``truth`` the rig's two true cameras (cam1, cam2) as a calibration in mm."""
     from vts_hw.sim_devices import checkerboard as cb
     from vts_hw.sim_devices.scene import Scene
     from vts_hw.sim_devices.sync_truth import true_stereo_calibration
@@ -108,7 +108,7 @@ FOV_POINTS = 400
 
 def true_cameras(scene, names=None, square_mm: float = 1.0, pattern=(9, 6)):
     """The scene's true cameras as a CameraCalibration in mm, in the first camera's frame."""
-    from vts_hw.vision.multi_calibration_io import CameraCalibration, CameraFit
+    from vts_hw.vision.calibration_io import CameraCalibration, CameraFit
 
     names = list(names or scene.camera_names)
     ref = scene.cameras[names[0]]

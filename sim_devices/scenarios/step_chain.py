@@ -106,9 +106,11 @@ def run_sim_steps(out_dir, seed: int = 0, *, frames: int = 10, n_vertical: int =
         clock = rig.clock.now
         say(f"stereo calibration from {poses} rendered checkerboard views")
         pairs, names = cb.render_pairs(scene, n=poses, seed=seed, t=clock())
-        calib = calibrate_stereo(pairs, square=cb.SQUARE_MM, unit="mm", names=names)
+        calib = calibrate_stereo(pairs, square=cb.SQUARE_MM, unit="mm", names=names,
+                                 cameras=tuple(c.name for c in cfg.cameras[:2]))
         calib.save(out / "calibration.json")
-        say(f"  RMS {calib.rms_left:.3f} / {calib.rms_right:.3f} / {calib.rms_stereo:.3f} px")
+        own = [c.rms for c in calib.camera_fits]
+        say(f"  RMS {own[0]:.3f} / {own[1]:.3f} / {calib.rms:.3f} px")
         cams = open_cameras(cfg.cameras[:2], clock=clock)
         try:
             for cam in cams:

@@ -61,24 +61,33 @@ def _board_options(f):
               show_default=True, help="Lens distortion fitted: k1 alone, OpenCV's five terms (k1, k2,"
               " p1, p2, k3), or auto: whichever the data support (BIC), per camera.")
 @click.option("--force", is_flag=True, help="Replace the -o file even if it holds a calibration in mm"
-              " and this one is in squares, or is not a calibration file.")
+              " and this one is in squares, or is not a calibration file; write a fit whose RMS is above 1 px.")
 @config_option
 @json_option
 def stereo(images: tuple[str, ...], sim: bool, sim_poses: int, sim_seed: int,
            pattern: tuple[int, int], square: float | None, unit: str | None, output: str,
            previous: str | None, distortion: str, force: bool, config_path: str | None, as_json: bool) -> None:
     """Calibrate the two cameras from IMAGES: leftNN/rightNN checkerboard pairs (files or a
-    directory), or from simulated views with --sim.
+    directory), or from simulated views with --sim. The two-camera case of `vts calibrate
+    cameras`: each camera's intrinsics from OpenCV on its own views, then the pair with those
+    intrinsics fixed, so every figure is plain OpenCV's; the file is the same kind (cameras
+    'left' and 'right', 'cam1' and 'cam2' with --sim).
 
     Prints the RMS reprojection error of each camera and of the pair with each parameter's
     standard deviation, the error of each pair with outliers flagged, the pairs skipped, and
     the change from the previous calibration; writes the calibration to -o. A parameter that
     moved by more than 3 combined standard deviations (or, with --sim, is that far from the
     truth) gets a WARNING line; warnings do not change the exit code (0). Exit 2: a usage
-    mistake (e.g. squares over a calibration in mm); 3: bad images or files, or -o could not be
-    written (the calibration is then saved in the current folder or $TMPDIR, said where).
+    mistake (e.g. squares over a calibration in mm); 3: bad images or files, a fit that cannot
+    be trusted (RMS above 1 px: a WARNING line, -o not written unless --force), or -o could not
+    be written (the calibration is then saved in the current folder or $TMPDIR, said where).
+
+    The calibration is stored as a run (procedure "calibration": the RMS of each camera and of
+    the pair, judged by the calibration_rms_px window) in the rig's results store when there is
+    a rig config (--config, $VTS_CONFIG, ./rig.yaml), else in the per-user store; a --sim
+    calibration is not stored.
     """
-    from vts_hw.procedures import stereo_calibration as proc
+    from vts_hw.procedures import calibration as proc
 
     if sim and images:
         raise click.UsageError("give either IMAGES or --sim, not both")
@@ -92,19 +101,26 @@ def stereo(images: tuple[str, ...], sim: bool, sim_poses: int, sim_seed: int,
     if unit == "squares" and square != 1.0:
         raise click.UsageError("with --unit squares the square is 1; give --unit mm with --square")
 
-    names = truth = None
-    proc.replaceable(Path(output), unit, force)  # before the work: a forgotten --square, a wrong -o
+    names = truth = score = None
+    cameras = ("left", "right")
+    proc.replaceable(Path(output), unit, force, "stereo calibration")  # before the work: a forgotten --square, a wrong -o
     if sim:
         from vts_hw.sim_devices.scenarios.calibration_views import sim_views
+        from vts_hw.vision.calibration_uncertainty import compare_with_truth
 
         square_mm = square if unit == "mm" else None  # "squares": the simulated board's size
         pairs, names, truth = sim_views(sim_seed, sim_poses, pattern, square_mm)
         truth = truth if unit == "mm" else None
+        cameras = tuple(truth.names) if truth is not None else ("cam1", "cam2")   # the scene's cameras
+        score = compare_with_truth
     else:
         pairs = proc.image_pairs(list(images))
-    run = proc.run(pairs, output=output, pattern=pattern, square=square, unit=unit, names=names,
-                   previous=previous, force=force, truth=truth, distortion=distortion)
+    run = proc.run(pairs=pairs, output=output, pattern=pattern, square=square, unit=unit, names=names,
+                   cameras=cameras, previous=previous, force=force, truth=truth, score=score,
+                   distortion=distortion, what="stereo calibration")
     _end_calibration(run, rig, sim, as_json)
+    if run.refused:
+        raise DataError(run.refused)
 
 
 @calibrate.command()
@@ -157,13 +173,14 @@ def cameras(images: tuple[str, ...], sim: bool, n_cameras: int, sim_poses: int, 
     written unless --force) — or -o could not be written (the calibration is then saved in the
     current folder or $TMPDIR, said where), or the store did not take the run.
 
-    The calibration is stored as a run (procedure "calibration_cameras": the RMS of each camera
-    and of the set, judged by the calibration_rms_px window, and whether the bundle adjustment
-    converged), a fit not written too, in the rig's results store with the rig's name when
+    The calibration is stored as a run (procedure "calibration", as `vts calibrate stereo`'s: the
+    RMS of each camera and of the set, judged by the calibration_rms_px window, and whether the
+    bundle adjustment converged; runs stored before as "calibration_cameras" are read as
+    calibrations too), a fit not written too, in the rig's results store with the rig's name when
     there is a rig config (--config, $VTS_CONFIG, ./rig.yaml), else in the per-user store with
     an empty rig name. A --sim calibration is not stored.
     """
-    from vts_hw.procedures import camera_calibration as proc
+    from vts_hw.procedures import calibration as proc
 
     if sim and images:
         raise click.UsageError("give either IMAGES or --sim, not both")
@@ -187,7 +204,7 @@ def cameras(images: tuple[str, ...], sim: bool, n_cameras: int, sim_poses: int, 
         score = functools.partial(cameras_against_truth, points=info.pop("fov_points"))
     else:
         imgs = proc.camera_images(list(images))
-    run = proc.run(imgs, output=output, pattern=pattern, square=square, unit=unit, previous=previous,
+    run = proc.run(images=imgs, output=output, pattern=pattern, square=square, unit=unit, previous=previous,
                    force=force, distortion=distortion, reference=reference, truth=truth, score=score, sim=info)
     _end_calibration(run, rig, sim, as_json)
     if run.refused:

@@ -19,13 +19,13 @@ import numpy as np
 from vts_hw.lifeline import die_with
 from vts_hw.vision.detect import DetectorSettings, detect
 from vts_hw.vision.multiview import ViewGeometry, match_views
-from vts_hw.vision.triangulate import Camera, fundamental_matrix, match_epipolar
+from vts_hw.vision.triangulate import PinholeCamera, fundamental_matrix, match_epipolar
 
 __all__ = ["triangulate_fast"]
 
 
 # ------------------------------------------------------------------ stereo triangulation
-def _project_many(cam: Camera, X: np.ndarray) -> np.ndarray:
+def _project_many(cam: PinholeCamera, X: np.ndarray) -> np.ndarray:
     uv, _ = cv2.projectPoints(np.ascontiguousarray(X, float).reshape(-1, 1, 3), cam.rvec, cam.t,
                               cam.K, cam.dist)
     return uv.reshape(-1, 2)
@@ -37,7 +37,7 @@ def _damped(N: np.ndarray) -> np.ndarray:
     return N + (1e-12 * np.trace(N, axis1=1, axis2=2))[:, None, None] * np.eye(3)
 
 
-def triangulate_fast(cam_a: Camera, cam_b: Camera, pts_a: np.ndarray, pts_b: np.ndarray,
+def triangulate_fast(cam_a: PinholeCamera, cam_b: PinholeCamera, pts_a: np.ndarray, pts_b: np.ndarray,
                      norm_a: np.ndarray | None = None, norm_b: np.ndarray | None = None,
                      iterations: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """3D points (Mx3, mm) and reprojection RMS (M, px) of M point pairs (pixels, Mx2 each),
@@ -149,7 +149,7 @@ def _detect_frames(path: str, offsets, lengths, settings: DetectorSettings):
     return out
 
 
-def _ideal(cam: Camera, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _ideal(cam: PinholeCamera, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Normalized and ideal-pixel (undistorted, K kept) coordinates of pixel points."""
     if len(pts) == 0:
         return np.zeros((0, 2)), np.zeros((0, 2))

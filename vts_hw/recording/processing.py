@@ -60,7 +60,7 @@ from vts_hw.timing.camera_clock import ClockFit
 from vts_hw.vision.camera_set import named_cameras
 from vts_hw.vision.detect import DEFAULT as DEFAULT_DETECTOR, DetectorSettings
 from vts_hw.vision.multiview import ViewGeometry
-from vts_hw.vision.triangulate import Camera
+from vts_hw.vision.triangulate import PinholeCamera
 
 __all__ = ["Tracks", "ProcessSettings", "process_recording", "cameras_from_calibration",
            "pair_frames", "group_frames", "triangulate_fast", "track_identities", "CameraFrames",
@@ -101,7 +101,7 @@ class ProcessSettings:
 
 
 # ------------------------------------------------------------------ inputs
-def cameras_from_calibration(calib, names=("cam1", "cam2")) -> dict[str, Camera]:
+def cameras_from_calibration(calib, names=("cam1", "cam2")) -> dict[str, PinholeCamera]:
     """The named cameras of a calibration (stereo: the VTS frame is camera 1's; T in mm)."""
     return named_cameras(calib, list(names))
 
@@ -118,8 +118,8 @@ def process_recording(folder, cameras, workers: int | None = None, mapping=None,
 
     ``cameras``: the calibrated cameras, any form :func:`vts_hw.vision.camera_set.named_cameras`
     takes -- a dict name → camera (K, dist, R, t), a list (named like the recording's cameras,
-    else taken in the recording's order), a ``StereoCalibration`` (the VTS frame is then
-    camera 1's) or an N-camera calibration. Every calibrated camera the recording has is used.
+    else taken in the recording's order), or a calibration (the VTS frame is then its
+    reference camera's, camera 1's). Every calibrated camera the recording has is used.
     ``workers``: processes (default ``os.cpu_count()``; 1 runs in this process).
     ``mapping``: a VTS → SPECT rigid transform (``RigidTransform`` or anything with
     ``apply``), adding SPECT-frame positions. ``host_to_spect``: host epoch s → SPECT time,

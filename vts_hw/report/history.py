@@ -47,6 +47,7 @@ SPECS = (
           Figure("sync_events_one_system", "seen by one only", "g"))),
     Spec("spect_mapping", "SPECT mappings (VTS → SPECT)", ("spect_mapping",),
          (Figure("mapping_tre_rms_mm", "TRE RMS mm", ".3f"), Figure("mapping_fre_mm", "FRE mm", ".3f"))),
+    # "calibration_cameras": the N-camera runs' name before one calibration (decision 0056), read as one
     Spec("calibration", "Camera calibrations", ("calibration", "calibration_cameras"),
          (Figure("calibration_rms_px", "RMS of the set px", ".3f", subject="set"),
           Figure("calibration_rms_px", "worst camera px", ".3f", exclude="set"),
@@ -56,7 +57,7 @@ SPECS = (
           Figure("motion_pose_coverage", "pose known (share of time)", ".3f")), room_check=False),
 )
 
-LABELS = {"sync": "sync check", "spect_mapping": "SPECT mapping", "calibration": "stereo calibration",
+LABELS = {"sync": "sync check", "spect_mapping": "SPECT mapping", "calibration": "camera calibration",
           "calibration_cameras": "camera calibration", "motion": "motion analysis", "sphere-steps": "step test",
           "daily": "daily QA", "drift": "daily QA", "drift-baseline": "drift baseline"}
 

@@ -1,13 +1,18 @@
-"""The stereo calibration record: its numbers, its text summary, its JSON file, its comparison.
+"""The calibration record and its file; one reader for every calibration file.
 
-`StereoCalibration` is what `vts_hw.vision.calibration.calibrate_stereo` returns. It is saved as JSON
-with every matrix written as nested lists, so the file can be read and diffed by hand. Loading
-checks every key; a missing or malformed one raises `DataError` naming the file and the key.
+:class:`CameraCalibration` holds N ≥ 2 cameras in one frame, the reference camera's (its R is the
+identity, its t zero), so that a two-camera calibration means what a stereo one always meant
+(the VTS frame is camera 1's). It is what :func:`vts_hw.vision.calibration.calibrate_cameras`
+returns, for `vts calibrate cameras` and for `vts calibrate stereo` (two cameras), and what both
+write (format ``vts-hw camera calibration``). ``K1, d1, K2, d2, R, T, baseline`` are its first
+two cameras as a pair (camera 2 from camera 1), which the pair's comparison and truth use.
+:func:`load_calibration` reads every calibration file ever written: the stereo files written
+before one record (format ``vts-hw stereo calibration``) load as two cameras
+(:mod:`vts_hw.vision.calibration_stereo_file`). Decision 0056.
 """
 
 from __future__ import annotations
 
-import copy
 import json
 import math
 from dataclasses import dataclass, field
@@ -18,332 +23,350 @@ import cv2
 import numpy as np
 
 from vts_hw.bounded import SMALL, read_text
-from vts_hw.vision.calibration_uncertainty import beyond, differences, optional_keys, warning_text
 from vts_hw.errors import DataError
 from vts_hw.files import write_atomic
+from vts_hw.vision.calibration_stereo_file import stereo_fields
+from vts_hw.vision.calibration_uncertainty import check_pair_uncertainty, rotation_angle_deg
 
-FORMAT = "vts-hw stereo calibration"
+FORMAT = "vts-hw camera calibration"
 FORMAT_VERSION = 1
+STEREO_FORMAT = "vts-hw stereo calibration"   # the two-camera files written before one record
 UNITS = ("squares", "mm")
 
-# (key, shape) of the matrices kept in the file; None in a shape means "any length".
-_MATRICES = {
-    "K1": (3, 3),
-    "d1": (None,),
-    "K2": (3, 3),
-    "d2": (None,),
-    "R": (3, 3),
-    "T": (3,),
-}
+
+@dataclass(eq=False)
+class CameraFit:
+    """One calibrated camera: intrinsics ``K``, distortion ``d`` (OpenCV order), pose ``R``, ``t``
+    (x_cam = R x + t, x in the calibration's frame, t in its unit), its RMS (px) over the views it saw."""
+
+    name: str
+    K: np.ndarray
+    d: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    image_size: tuple[int, int]
+    rms: float = 0.0
+    n_views: int = 0
+    distortion_model: dict[str, Any] = field(default_factory=dict)
+    sd: dict[str, float] | None = None      # standard deviations of the fitted parameters
+
+    def __post_init__(self) -> None:
+        self.K = np.asarray(self.K, float).reshape(3, 3)
+        self.d = np.asarray(self.d, float).ravel()
+        self.R = np.asarray(self.R, float).reshape(3, 3)
+        self.t = np.asarray(self.t, float).ravel()
+
+    @property
+    def dist(self) -> np.ndarray:
+        return self.d
+
+    @property
+    def center(self) -> np.ndarray:
+        return -self.R.T @ self.t
+
+    def project(self, points) -> np.ndarray:
+        """Pixels (n × 2) of points (n × 3) in the calibration's frame, distortion included."""
+        uv, _ = cv2.projectPoints(np.asarray(points, float).reshape(-1, 1, 3), cv2.Rodrigues(self.R)[0],
+                                  self.t, self.K, self.d)
+        return uv.reshape(-1, 2)
+
+    def data(self) -> dict[str, Any]:
+        out = {"name": self.name, "image_size": list(self.image_size), "K": self.K.tolist(),
+               "d": self.d.tolist(), "R": self.R.tolist(), "t": self.t.tolist(), "rms": float(self.rms),
+               "views": int(self.n_views), "distortion_model": dict(self.distortion_model)}
+        if self.sd is not None:
+            out["sd"] = dict(self.sd)
+        return out
 
 
 @dataclass(frozen=True)
-class ViewError:
-    """RMS reprojection error (px) of one stereo pair in the stereo fit, per camera."""
+class ViewFit:
+    """RMS (px) of one checkerboard view in each camera that saw it."""
 
     name: str
-    left: float
-    right: float
+    errors: dict[str, float]
     outlier: bool = False
 
     @property
     def rms(self) -> float:
-        """The pair's RMS over both images (the figure the outlier rule uses)."""
-        return math.sqrt((self.left**2 + self.right**2) / 2.0)
+        return math.sqrt(sum(e * e for e in self.errors.values()) / len(self.errors))
 
 
 @dataclass(eq=False)
-class StereoCalibration:
-    """Intrinsics, distortion and extrinsics of a stereo pair of cameras.
+class CameraCalibration:
+    """N cameras in the reference camera's frame (see the module docstring)."""
 
-    `R`, `T` take a point from camera 1's frame to camera 2's (OpenCV: x2 = R x1 + T); `T` is in
-    `unit` ("squares" when the square size is unknown, else "mm"). RMS figures are in pixels.
-    """
-
-    K1: np.ndarray
-    d1: np.ndarray
-    K2: np.ndarray
-    d2: np.ndarray
-    R: np.ndarray
-    T: np.ndarray
-    image_size: tuple[int, int]  # (width, height) in px
-    pattern: tuple[int, int]  # inner corners (columns, rows)
+    camera_fits: list[CameraFit]
+    pattern: tuple[int, int]
     square: float
     unit: str
-    rms_left: float
-    rms_right: float
-    rms_stereo: float
-    per_view: list[ViewError]
+    rms: float
+    per_view: list[ViewFit]
     outlier_rule: str
-    skipped: dict[str, str] = field(default_factory=dict)  # view name -> why it was left out
-    created: str = ""  # UTC ISO 8601
-    software: str = ""  # vts_hw.__version__
-    # camera1/camera2 -> {"fitted": [distortion terms], "chosen_by": why}; {} in older files
-    distortion_model: dict[str, Any] = field(default_factory=dict)
-    # standard deviations (vts_hw.vision.calibration_uncertainty.stereo_covariance); None in older files
-    uncertainty: dict[str, Any] | None = None
+    view_graph: dict[str, Any] = field(default_factory=dict)
+    skipped: dict[str, str] = field(default_factory=dict)
+    initial: dict[str, Any] = field(default_factory=dict)     # figures before the bundle adjustment
+    adjustment: dict[str, Any] = field(default_factory=dict)  # converged, evaluations, status
+    method: str = ""
+    created: str = ""
+    software: str = ""
+    # two cameras whose intrinsics were held fixed (the stereo case): the pair's own uncertainty,
+    # propagated through the two OpenCV fits actually run (0024) -- "stereo" (rx, ry, rz in deg,
+    # tx, ty, tz, baseline) and "stereo_cov" (6 x 6); None otherwise
+    pair: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
-        for key in _MATRICES:
-            shape = (-1,) if _MATRICES[key] == (None,) else _MATRICES[key]
-            setattr(self, key, np.asarray(getattr(self, key), dtype=float).reshape(shape))
         if self.unit not in UNITS:
             raise ValueError(f"unit must be one of {UNITS}, not {self.unit!r}")
+        if len(self.camera_fits) < 2:
+            raise ValueError("a camera calibration needs at least two cameras")
 
-    # ---- derived figures -------------------------------------------------------------
+    # ---- its cameras; the first two as a pair (camera 2 from camera 1) ---------------------
+    @property
+    def names(self) -> list[str]:
+        return [c.name for c in self.camera_fits]
+
+    @property
+    def reference(self) -> str:
+        return self.camera_fits[0].name
+
+    def camera(self, name: str) -> CameraFit:
+        for c in self.camera_fits:
+            if c.name == name:
+                return c
+        raise KeyError(name)
+
+    @property
+    def K1(self) -> np.ndarray:
+        return self.camera_fits[0].K
+
+    @property
+    def d1(self) -> np.ndarray:
+        return self.camera_fits[0].d
+
+    @property
+    def K2(self) -> np.ndarray:
+        return self.camera_fits[1].K
+
+    @property
+    def d2(self) -> np.ndarray:
+        return self.camera_fits[1].d
+
+    @property
+    def R(self) -> np.ndarray:
+        """Camera 2 from camera 1 (x2 = R x1 + T), as in a stereo file."""
+        a, b = self.camera_fits[:2]
+        return b.R @ a.R.T
+
+    @property
+    def T(self) -> np.ndarray:
+        a, b = self.camera_fits[:2]
+        return b.t - self.R @ a.t
+
     @property
     def baseline(self) -> float:
-        """Distance between the two optical centres, |T|, in `unit`."""
         return float(np.linalg.norm(self.T))
 
     @property
+    def image_size(self) -> tuple[int, int]:
+        return self.camera_fits[0].image_size
+
+    @property
+    def uncertainty(self) -> dict[str, Any] | None:
+        """The pair's uncertainty as 0024 keeps it (each camera's standard deviations as
+        ``camera1``/``camera2``, ``stereo``, ``stereo_cov``); None without :attr:`pair`."""
+        if self.pair is None:
+            return None
+        a, b = self.camera_fits[:2]
+        return {"camera1": dict(a.sd or {}), "camera2": dict(b.sd or {}), **self.pair}
+
+    @property
     def outliers(self) -> list[str]:
-        """Names of the views flagged by the outlier rule."""
         return [v.name for v in self.per_view if v.outlier]
 
-    def projection_matrices(self) -> tuple[np.ndarray, np.ndarray]:
-        """P1 = K1 [I | 0] and P2 = K2 [R | T] (3 × 4), camera 1's frame as the reference.
+    def cameras(self, names=None) -> list:
+        """Every camera as a :class:`vts_hw.vision.triangulate.PinholeCamera` in the calibration's
+        frame, named as calibrated (or by ``names``, in order)."""
+        from vts_hw.vision.triangulate import PinholeCamera
+        names = list(names) if names is not None else self.names
+        return [PinholeCamera(c.K, c.d, c.R, c.t, n) for c, n in zip(self.camera_fits, names)]
 
-        They project undistorted pixel coordinates: undistort the measured points first
-        (cv2.undistortPoints with P=K), then cv2.triangulatePoints gives points in `unit`.
-        """
+    def projection_matrices(self) -> tuple[np.ndarray, np.ndarray]:
+        """P1 = K1 [I | 0] and P2 = K2 [R | T] (3 × 4) of the first two cameras, camera 1's frame
+        as the reference; they project undistorted pixels (cv2.undistortPoints with P=K first)."""
         p1 = self.K1 @ np.hstack([np.eye(3), np.zeros((3, 1))])
         p2 = self.K2 @ np.hstack([self.R, self.T.reshape(3, 1)])
         return p1, p2
 
-    def cameras(self, names=("left", "right")) -> list:
-        """The pair as :class:`vts_hw.vision.triangulate.Camera` objects in camera 1's frame (the VTS
-        frame): camera 1 at the origin, camera 2 at ``R``, ``T`` (in ``unit``)."""
-        return stereo_cameras(self, names)
-
-    # ---- comparison ------------------------------------------------------------------
-    def compare(self, previous: StereoCalibration) -> dict[str, Any]:
-        """Change from `previous` to this calibration (this minus previous).
-
-        Focal lengths and principal points in px per camera; `rotation_deg` is the angle of
-        the rotation R · R_prevᵀ; `translation` is |T − T_prev| and `baseline` the change of
-        |T|, both in `unit` (None when the two calibrations use different units). `judged`: each
-        fitted parameter's change against its combined standard deviation, and `warnings` one
-        line for each beyond K_SIGMA of them (vts_hw.vision.calibration_uncertainty.differences).
-        """
-        out: dict[str, Any] = {}
-        for cam, (k_new, k_old) in (("1", (self.K1, previous.K1)), ("2", (self.K2, previous.K2))):
-            out[f"fx{cam}"] = float(k_new[0, 0] - k_old[0, 0])
-            out[f"fy{cam}"] = float(k_new[1, 1] - k_old[1, 1])
-            out[f"cx{cam}"] = float(k_new[0, 2] - k_old[0, 2])
-            out[f"cy{cam}"] = float(k_new[1, 2] - k_old[1, 2])
-        out["rotation_deg"] = rotation_angle_deg(self.R @ previous.R.T)
-        same_unit = self.unit == previous.unit
-        out["translation"] = float(np.linalg.norm(self.T - previous.T)) if same_unit else None
-        out["baseline"] = (self.baseline - previous.baseline) if same_unit else None
-        out["unit"] = self.unit if same_unit else None
-        rows = differences(self, previous, self.uncertainty, previous.uncertainty, same_unit)
-        out["judged"] = rows
-        out["previous_has_uncertainty"] = previous.uncertainty is not None
-        out["warnings"] = [warning_text(r, "moved") for r in beyond(rows)]
-        return out
-
-    # ---- reporting -------------------------------------------------------------------
+    # ---- reporting --------------------------------------------------------------------
     def results_data(self) -> dict[str, Any]:
-        """Everything as JSON-ready types (matrices as nested lists of floats)."""
-        data: dict[str, Any] = {"format": FORMAT, "format_version": FORMAT_VERSION}
-        for key in _MATRICES:
-            data[key] = getattr(self, key).tolist()
-        data.update(
-            image_size=list(self.image_size),
-            pattern=list(self.pattern),
-            square=float(self.square),
-            unit=self.unit,
-            baseline=self.baseline,
-            rms_left=float(self.rms_left),
-            rms_right=float(self.rms_right),
-            rms_stereo=float(self.rms_stereo),
-            per_view=[
-                {"name": v.name, "left": float(v.left), "right": float(v.right),
-                 "outlier": bool(v.outlier)}
-                for v in self.per_view
-            ],
-            outlier_rule=self.outlier_rule,
-            outliers=self.outliers,
-            skipped=dict(self.skipped),
-            created=self.created,
-            software=self.software,
-        )
-        if self.distortion_model:
-            data["distortion_model"] = copy.deepcopy(self.distortion_model)
-        if self.uncertainty is not None:
-            data["uncertainty"] = copy.deepcopy(self.uncertainty)
-        return data
+        return {
+            "format": FORMAT, "format_version": FORMAT_VERSION,
+            "frame": f"camera {self.reference}'s (x_cam = R x + t)",
+            "reference": self.reference, "n_cameras": len(self.camera_fits),
+            "pattern": list(self.pattern), "square": float(self.square), "unit": self.unit,
+            "cameras": [c.data() for c in self.camera_fits],
+            "rms": float(self.rms),
+            "per_view": [{"name": v.name, "errors": dict(v.errors), "rms": v.rms, "outlier": bool(v.outlier)}
+                         for v in self.per_view],
+            "outlier_rule": self.outlier_rule, "outliers": self.outliers,
+            "view_graph": self.view_graph, "skipped": dict(self.skipped),
+            "initial": dict(self.initial), "adjustment": dict(self.adjustment), "method": self.method,
+            "created": self.created, "software": self.software,
+        } | ({"pair_uncertainty": dict(self.pair)} if self.pair is not None else {})
 
     def results(self) -> str:
-        """A short text summary for a terminal or a log."""
         u = self.unit
-        lines = [
-            f"Stereo calibration ({len(self.per_view)} pairs, pattern {self.pattern[0]}x"
-            f"{self.pattern[1]}, square {self.square:g} {u}, image {self.image_size[0]}x"
-            f"{self.image_size[1]} px; {self.created}, vts-hw {self.software})",
-            f"  RMS reprojection error: left {self.rms_left:.3f} px, right {self.rms_right:.3f} px,"
-            f" stereo {self.rms_stereo:.3f} px",
-        ]
-        unc = self.uncertainty or {}
-        for cam, k, d in (("1", self.K1, self.d1), ("2", self.K2, self.d2)):
-            sd = unc.get(f"camera{cam}", {})
+        lines = [f"Camera calibration: {len(self.camera_fits)} cameras, {len(self.per_view)} views"
+                 f" (pattern {self.pattern[0]}x{self.pattern[1]}, square {self.square:g} {u}; frame of"
+                 f" {self.reference}; {self.created}, vts-hw {self.software})",
+                 f"  RMS reprojection error {self.rms:.3f} px over every corner"
+                 + (f" (after the pairwise start: {self.initial['rms']:.3f} px)" if "rms" in self.initial else "")]
+        for c in self.camera_fits:
+            sd = c.sd or {}
             pm = {n: (f" ± {sd[n]:.2g}" if n in sd else "") for n in ("fx", "fy", "cx", "cy", "k1")}
-            fitted = self.distortion_model.get(f"camera{cam}", {}).get("fitted")
-            lines.append(f"  camera {cam}: fx {k[0, 0]:.2f}{pm['fx']} fy {k[1, 1]:.2f}{pm['fy']}"
-                         f" cx {k[0, 2]:.2f}{pm['cx']} cy {k[1, 2]:.2f}{pm['cy']} px, k1 {d[0]:+.4f}"
-                         f"{pm['k1']}" + (f" (distortion fitted: {', '.join(fitted)})" if fitted else ""))
-        angle = rotation_angle_deg(self.R)
-        st = unc.get("stereo", {})
-        b_sd = f" ± {st['baseline']:.2g}" if "baseline" in st else ""
-        lines.append(f"  baseline {self.baseline:.4g}{b_sd} {u}, rotation between cameras {angle:.3f} deg"
-                     + (f" (± {max(st['rx'], st['ry'], st['rz']):.2g} deg about the least certain axis)"
-                        if "rx" in st else ""))
+            pos = c.center
+            fitted = c.distortion_model.get("fitted")
+            lines.append(f"  {c.name}: RMS {c.rms:.3f} px over {c.n_views} views; fx {c.K[0, 0]:.2f}{pm['fx']}"
+                         f" fy {c.K[1, 1]:.2f}{pm['fy']} cx {c.K[0, 2]:.2f}{pm['cx']} cy {c.K[1, 2]:.2f}{pm['cy']}"
+                         f" px, k1 {c.d[0]:+.4f}{pm['k1']}; at ({pos[0]:.4g}, {pos[1]:.4g}, {pos[2]:.4g}) {u},"
+                         f" turned {rotation_angle_deg(c.R):.3f} deg from {self.reference}"
+                         + (f" (distortion fitted: {', '.join(fitted)})" if fitted else ""))
+        if self.pair is not None:
+            st = self.pair["stereo"]
+            lines.append(f"  baseline {self.baseline:.4g} ± {st['baseline']:.2g} {u}, rotation between"
+                         f" {self.names[0]} and {self.names[1]} {rotation_angle_deg(self.R):.3f} deg"
+                         f" (± {max(st['rx'], st['ry'], st['rz']):.2g} deg about the least certain axis)")
         for v in self.per_view:
-            flag = "  OUTLIER" if v.outlier else ""
-            lines.append(f"    {v.name}: left {v.left:.3f} right {v.right:.3f} px{flag}")
+            errs = " ".join(f"{k} {e:.3f}" for k, e in v.errors.items())
+            lines.append(f"    view {v.name}: {errs} px" + ("  OUTLIER" if v.outlier else ""))
         lines.append(f"  outlier rule: {self.outlier_rule}")
         for name, why in self.skipped.items():
             lines.append(f"  skipped {name}: {why}")
         return "\n".join(lines)
 
     def __eq__(self, other: object) -> bool:
-        if not isinstance(other, StereoCalibration):
+        if not isinstance(other, CameraCalibration):
             return NotImplemented
         return self.results_data() == other.results_data()
 
     # ---- file ------------------------------------------------------------------------
     def text(self) -> str:
-        """The file's JSON text."""
         return json.dumps(self.results_data(), indent=2) + "\n"
 
     def save(self, path: str | Path) -> Path:
-        """Write the calibration as JSON, whole or not at all (vts_hw.files.write_atomic:
-        WriteFailed naming the file, the previous version unchanged)."""
         return write_atomic(path, self.text())
 
     @classmethod
-    def load(cls, path: str | Path) -> StereoCalibration:
-        """Read a file written by `save`; DataError (naming the file and key) if it is not one."""
-        path = Path(path)
-        try:
-            text = read_text(path, SMALL, "calibration")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise DataError(f"{path}: cannot read the calibration file ({exc}).") from exc
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise DataError(f"{path}: not a JSON calibration file ({exc.msg}, line {exc.lineno}).")
-        except (ValueError, RecursionError) as exc:  # a 5000-digit number, arrays nested 1000 deep
-            raise DataError(f"{path}: not a JSON calibration file ({_json_trouble(exc)}).") from None
-        if not isinstance(data, dict) or data.get("format") != FORMAT:
-            raise DataError(f"{path}: key 'format' is not {FORMAT!r}, so this is not a stereo"
-                            " calibration file.")
-        return _from_data(path, data)
+    def load(cls, path: str | Path) -> CameraCalibration:
+        """:func:`load_calibration`."""
+        return load_calibration(path)
 
 
-def _shown(value: Any) -> str:
-    """A value as messages quote it: its repr, cut to 40 characters."""
-    text = repr(value)
-    return text if len(text) <= 40 else text[:37] + "..."
+def load_calibration(path: str | Path) -> CameraCalibration:
+    """The calibration in ``path``: a file of this format, or a stereo file written before one
+    record (its cameras named cam1, cam2). DataError naming the file (and the key) for anything
+    else."""
+    path = Path(path)
+    try:
+        data = json.loads(read_text(path, SMALL, "calibration"))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"{path}: cannot read the calibration file ({exc}).") from exc
+    except json.JSONDecodeError as exc:
+        raise DataError(f"{path}: not a JSON calibration file ({exc.msg}, line {exc.lineno}).") from None
+    except RecursionError:
+        raise DataError(f"{path}: not a JSON calibration file (nested too deeply).") from None
+    except ValueError as exc:   # a 5000-digit number: "Exceeds the limit (4300 digits) for integer ..."
+        raise DataError(f"{path}: not a JSON calibration file ({str(exc).split(':')[0]}).") from None
+    kind = data.get("format") if isinstance(data, dict) else None
+    if kind == STEREO_FORMAT:
+        f = stereo_fields(path, data, UNITS)
+        fits = [CameraFit(**c) for c in f.pop("cameras")]
+        views = [ViewFit(*v) for v in f.pop("per_view")]
+        return CameraCalibration(fits, f.pop("pattern"), f.pop("square"), f.pop("unit"), f.pop("rms"), views,
+                                 f.pop("outlier_rule"), **f)
+    if kind != FORMAT:
+        raise DataError(f"{path}: key 'format' is neither {FORMAT!r} nor {STEREO_FORMAT!r}, so this is"
+                        " not a calibration file.")
+    return _from_data(path, data)
 
 
-def _json_trouble(exc: Exception) -> str:
-    """What json.loads found beyond a syntax error, in words."""
-    if isinstance(exc, RecursionError):
-        return "nested too deeply"
-    return str(exc).split(":")[0]  # "Exceeds the limit (4300 digits) for integer string conversion"
+def _from_data(path: Path, data: dict[str, Any]) -> CameraCalibration:
+    def need(obj, key, where=""):
+        if not isinstance(obj, dict) or key not in obj:
+            raise DataError(f"{path}: key '{where}{key}' is missing.")
+        return obj[key]
 
-
-def stereo_cameras(calib, names=("left", "right")) -> list:
-    """:meth:`StereoCalibration.cameras` of any object with ``K1, d1, K2, d2, R, T``."""
-    from vts_hw.vision.triangulate import Camera
-    a, b = names[:2]
-    return [Camera(calib.K1, calib.d1, np.eye(3), np.zeros(3), a),
-            Camera(calib.K2, calib.d2, calib.R, np.ravel(calib.T), b)]
-
-
-def rotation_angle_deg(rot: np.ndarray) -> float:
-    """Angle (degrees) of a rotation matrix, from its Rodrigues vector (precise for small angles)."""
-    vec, _ = cv2.Rodrigues(np.asarray(rot, dtype=float))
-    return float(np.degrees(np.linalg.norm(vec)))
-
-
-def _from_data(path: Path, data: dict[str, Any]) -> StereoCalibration:
-    """Build a StereoCalibration from parsed JSON, checking each key."""
-
-    def need(key: str) -> Any:
-        if key not in data:
-            raise DataError(f"{path}: key '{key}' is missing.")
-        return data[key]
-
-    def number(key: str, value: Any = None) -> float:
-        value = need(key) if value is None else value
-        # abs(v) < 1e300: also False for NaN, inf and a 400-digit JSON integer no float holds
+    def number(value, key):
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not abs(value) < 1e300:
-            raise DataError(f"{path}: key '{key}' must be a finite number (got {_shown(value)}).")
+            raise DataError(f"{path}: key '{key}' must be a finite number.")
         return float(value)
 
-    def matrix(key: str) -> np.ndarray:
-        value = need(key)
+    def matrix(value, key, shape):
         try:
             arr = np.asarray(value, dtype=float)
         except (TypeError, ValueError, OverflowError):
             raise DataError(f"{path}: key '{key}' must be a list of numbers.") from None
-        want = _MATRICES[key]
-        ok = arr.ndim == len(want) and all(w is None or w == s for w, s in zip(want, arr.shape))
-        if not ok or arr.size == 0 or not np.all(np.isfinite(arr)):
-            shape = " × ".join("n" if w is None else str(w) for w in want)
-            raise DataError(f"{path}: key '{key}' must be a {shape} list of finite numbers.")
+        if (shape is not None and arr.shape != shape) or arr.size == 0 or not np.all(np.isfinite(arr)):
+            raise DataError(f"{path}: key '{key}' must be a {' × '.join(map(str, shape or ('n',)))}"
+                            " list of finite numbers.")
         return arr
 
-    def int_pair(key: str) -> tuple[int, int]:
-        value = need(key)
+    def pair(value, key):
         if (not isinstance(value, list) or len(value) != 2
                 or not all(isinstance(x, int) and not isinstance(x, bool) and x > 0 for x in value)):
-            raise DataError(f"{path}: key '{key}' must be two positive integers (got {_shown(value)}).")
+            raise DataError(f"{path}: key '{key}' must be two positive integers.")
         return int(value[0]), int(value[1])
 
-    def text(key: str) -> str:
-        value = need(key)
-        if not isinstance(value, str):
-            raise DataError(f"{path}: key '{key}' must be a string (got {_shown(value)}).")
-        return value
-
-    mats = {key: matrix(key) for key in _MATRICES}
-    unit = text("unit")
+    unit = need(data, "unit")
     if unit not in UNITS:
         raise DataError(f"{path}: key 'unit' must be one of {', '.join(UNITS)} (got {unit!r}).")
-    views = need("per_view")
+    cams = need(data, "cameras")
+    if not isinstance(cams, list) or len(cams) < 2:
+        raise DataError(f"{path}: key 'cameras' must list at least two cameras.")
+    fits = []
+    for i, c in enumerate(cams):
+        w = f"cameras[{i}]."
+        name = need(c, "name", w)
+        if not isinstance(name, str) or not name:
+            raise DataError(f"{path}: key '{w}name' must be a camera name.")
+        sd = c.get("sd")
+        if sd is not None and (not isinstance(sd, dict) or not all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and x >= 0
+                for x in sd.values())):
+            raise DataError(f"{path}: key '{w}sd' must hold finite, non-negative standard deviations.")
+        model = c.get("distortion_model", {})
+        if not isinstance(model, dict):
+            raise DataError(f"{path}: key '{w}distortion_model' must be a mapping.")
+        fits.append(CameraFit(name, matrix(need(c, "K", w), w + "K", (3, 3)), matrix(need(c, "d", w), w + "d", None),
+                              matrix(need(c, "R", w), w + "R", (3, 3)), matrix(need(c, "t", w), w + "t", (3,)),
+                              pair(need(c, "image_size", w), w + "image_size"),
+                              number(need(c, "rms", w), w + "rms"), int(number(c.get("views", 0), w + "views")),
+                              model, sd))
+    if len({f.name for f in fits}) != len(fits):
+        raise DataError(f"{path}: key 'cameras' names a camera twice.")
+    views = need(data, "per_view")
     if not isinstance(views, list):
         raise DataError(f"{path}: key 'per_view' must be a list of views.")
     per_view = []
     for i, v in enumerate(views):
-        key = f"per_view[{i}]"
-        if not isinstance(v, dict) or not isinstance(v.get("name"), str):
-            raise DataError(f"{path}: key '{key}' must have a 'name', 'left' and 'right'.")
-        per_view.append(ViewError(
-            name=v["name"],
-            left=number(f"{key}.left", v.get("left", "missing")),
-            right=number(f"{key}.right", v.get("right", "missing")),
-            outlier=bool(v.get("outlier", False)),
-        ))
-    skipped = need("skipped")
-    if not isinstance(skipped, dict) or not all(isinstance(x, str) for x in skipped.values()):
-        raise DataError(f"{path}: key 'skipped' must map view names to reasons.")
-    return StereoCalibration(
-        **mats,
-        image_size=int_pair("image_size"),
-        pattern=int_pair("pattern"),
-        square=number("square"),
-        unit=unit,
-        rms_left=number("rms_left"),
-        rms_right=number("rms_right"),
-        rms_stereo=number("rms_stereo"),
-        per_view=per_view,
-        outlier_rule=text("outlier_rule"),
-        skipped=dict(skipped),
-        created=text("created"),
-        software=text("software"),
-        **optional_keys(path, data),
-    )
+        errs = need(v, "errors", f"per_view[{i}].")
+        if not isinstance(v.get("name"), str) or not isinstance(errs, dict) or not errs:
+            raise DataError(f"{path}: key 'per_view[{i}]' must have a 'name' and 'errors' per camera.")
+        per_view.append(ViewFit(v["name"], {k: number(e, f"per_view[{i}].errors.{k}") for k, e in errs.items()},
+                                bool(v.get("outlier", False))))
+    texts = {}
+    for key in ("outlier_rule", "created", "software"):
+        texts[key] = need(data, key)
+        if not isinstance(texts[key], str):
+            raise DataError(f"{path}: key '{key}' must be a string.")
+    skipped = data.get("skipped", {})
+    if not isinstance(skipped, dict):
+        raise DataError(f"{path}: key 'skipped' must map views to reasons.")
+    return CameraCalibration(fits, pair(need(data, "pattern"), "pattern"), number(need(data, "square"), "square"),
+                             unit, number(need(data, "rms"), "rms"), per_view, texts["outlier_rule"],
+                             view_graph=data.get("view_graph") or {}, skipped=dict(skipped),
+                             initial=data.get("initial") or {}, adjustment=a if isinstance(a := data.get("adjustment"), dict) else {},
+                             method=str(data.get("method", "")),
+                             created=texts["created"], software=texts["software"],
+                             pair=check_pair_uncertainty(path, data.get("pair_uncertainty"), "pair_uncertainty"))

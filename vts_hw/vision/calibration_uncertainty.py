@@ -1,7 +1,7 @@
 """How certain a stereo calibration is, and whether a difference is more than that.
 
 :func:`stereo_covariance` propagates the corner noise through the two steps of
-:func:`vts_hw.vision.calibration.calibrate_from_corners` (each camera's intrinsics from its own views,
+the stereo case of :func:`vts_hw.vision.calibration.calibrate_cameras` (each camera's intrinsics from its own views,
 then the stereo rotation and translation with those intrinsics fixed): to first order every
 estimate is a linear map of the corner residuals, built from the Jacobians of the reprojection
 at the solution (the board poses eliminated by their Schur complements); the residual variance
@@ -10,7 +10,7 @@ calibrateCameraExtended reports; the stereo ones include how an uncertain princi
 focal length leaks into the rotation and translation, which a fit with fixed intrinsics alone
 would not show.
 
-:func:`differences` and :func:`compare_with_truth` say which parameters moved (from a previous
+:func:`differences`, :func:`compare_pair` and :func:`compare_with_truth` say which parameters moved (from a previous
 calibration, or away from a known truth) by more than ``K_SIGMA`` combined standard deviations.
 Choices and figures: docs/decisions/0024-calibration-uncertainty.md.
 """
@@ -285,7 +285,7 @@ def warning_text(row: dict[str, Any], what: str = "moved", sd_name: str = "combi
 
 
 def compare_with_truth(calib, truth, names=("cam1", "cam2")) -> dict[str, Any]:
-    """How ``calib`` compares with the true cameras ``truth`` (both StereoCalibration-like, the
+    """How ``calib`` compares with the true cameras ``truth`` (both calibrations whose first two cameras are compared as a pair, the
     same unit): per camera fx, fy, cx, cy, k1 (estimated, true, error, sd), the stereo rotation
     and the baseline; ``judged`` every fitted parameter's error against the fit's own standard
     deviation and ``warnings`` one line for each beyond K_SIGMA of them."""
@@ -325,7 +325,65 @@ def compare_with_truth(calib, truth, names=("cam1", "cam2")) -> dict[str, Any]:
     return out
 
 
+def compare_pair(new, old) -> dict[str, Any]:
+    """Change from ``old`` to ``new`` (this minus previous) of their first two cameras as a pair
+    (anything with ``K1, d1, K2, d2, R, T, baseline, unit, uncertainty``).
+
+    Focal lengths and principal points in px per camera; ``rotation_deg`` is the angle of the
+    rotation R · R_prevᵀ; ``translation`` is |T − T_prev| and ``baseline`` the change of |T|,
+    both in ``unit`` (None when the two calibrations use different units). ``judged``: each
+    fitted parameter's change against its combined standard deviation (:func:`differences`), and
+    ``warnings`` one line for each beyond K_SIGMA of them.
+    """
+    out: dict[str, Any] = {}
+    for cam, (k_new, k_old) in (("1", (new.K1, old.K1)), ("2", (new.K2, old.K2))):
+        out[f"fx{cam}"] = float(k_new[0, 0] - k_old[0, 0])
+        out[f"fy{cam}"] = float(k_new[1, 1] - k_old[1, 1])
+        out[f"cx{cam}"] = float(k_new[0, 2] - k_old[0, 2])
+        out[f"cy{cam}"] = float(k_new[1, 2] - k_old[1, 2])
+    out["rotation_deg"] = rotation_angle_deg(np.asarray(new.R) @ np.asarray(old.R).T)
+    same_unit = new.unit == old.unit
+    out["translation"] = float(np.linalg.norm(np.ravel(new.T) - np.ravel(old.T))) if same_unit else None
+    out["baseline"] = (new.baseline - old.baseline) if same_unit else None
+    out["unit"] = new.unit if same_unit else None
+    rows = differences(new, old, new.uncertainty, old.uncertainty, same_unit)
+    out["judged"] = rows
+    out["previous_has_uncertainty"] = old.uncertainty is not None
+    out["warnings"] = [warning_text(r, "moved") for r in beyond(rows)]
+    return out
+
+
+def rotation_angle_deg(rot: np.ndarray) -> float:
+    """Angle (degrees) of a rotation matrix, from its Rodrigues vector (precise for small angles)."""
+    vec, _ = cv2.Rodrigues(np.asarray(rot, dtype=float))
+    return float(np.degrees(np.linalg.norm(vec)))
+
+
 # ------------------------------------------------------------------------- in the file
+def check_pair_uncertainty(path, unc, key: str = "uncertainty") -> dict[str, Any] | None:
+    """A pair's ``stereo`` standard deviations and ``stereo_cov`` as a file holds them under
+    ``key``, checked (None when absent); DataError naming the file and the key."""
+    if unc is None:
+        return None
+
+    def bad(sub):
+        return DataError(f"{path}: key '{key}.{sub}' must hold finite, non-negative standard deviations.")
+
+    if not isinstance(unc, dict):
+        raise bad("*")
+    sds = unc.get("stereo")
+    if not isinstance(sds, dict) or not all(_finite(v) and v >= 0 for v in sds.values()) \
+            or not {"rx", "ry", "rz", "baseline"} <= set(sds):
+        raise bad("stereo")
+    try:
+        cov = np.asarray(unc.get("stereo_cov"), dtype=float)
+    except (TypeError, ValueError):
+        raise bad("stereo_cov") from None
+    if cov.shape != (6, 6) or not np.all(np.isfinite(cov)):
+        raise bad("stereo_cov")
+    return {"stereo": dict(sds), "stereo_cov": cov.tolist()}
+
+
 def optional_keys(path, data: dict[str, Any]) -> dict[str, Any]:
     """'distortion_model' and 'uncertainty' of a calibration file, checked; files written before
     they existed load with none (the change from them is then judged with the new file's own

@@ -5,15 +5,15 @@ Tracking, processing and the QA procedures need only a list of named cameras, ea
 ``{name: Camera}`` from any of:
 
 * a dict ``name -> camera-like`` (anything with ``K, dist, R, t``: a scene ``CameraModel``, a
-  :class:`~vts_hw.vision.triangulate.Camera`, a calibration's camera);
+  :class:`~vts_hw.vision.triangulate.PinholeCamera`, a calibration's camera);
 * a list of camera-likes with names (``.name``), else named like the recording's cameras;
-* a stereo calibration (``K1, d1, K2, d2, R, T``; the world is camera 1's frame);
-* an N-camera calibration: anything with ``cameras`` -- a dict, a list of named cameras, or a
-  method returning one.
+* a calibration (:class:`~vts_hw.vision.calibration_io.CameraCalibration`, any number of cameras;
+  the world is its reference camera's frame), or anything with ``cameras`` -- a dict, a list of
+  named cameras, or a method returning one.
 
-:func:`load_cameras` reads a calibration file: the stereo form
-(:class:`~vts_hw.vision.calibration_io.StereoCalibration`) or any JSON with a ``cameras`` list
-of ``{"name", "K", "dist", "R", "t"}`` (the N-camera form; ``unit`` mm when given).
+:func:`load_cameras` reads a calibration file (every form :func:`~vts_hw.vision.calibration_io.load_calibration`
+reads, the stereo files written before one record among them) or any JSON with a ``cameras``
+list of ``{"name", "K", "dist", "R", "t"}`` (``unit`` mm when given).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from typing import Any, Sequence
 
 from vts_hw.bounded import SMALL, read_text
 from vts_hw.errors import DataError
-from vts_hw.vision.triangulate import Camera, as_camera
+from vts_hw.vision.triangulate import PinholeCamera, as_camera
 
 __all__ = ["named_cameras", "load_cameras", "covered_names"]
 
@@ -36,24 +36,21 @@ def _check_unit(obj: Any) -> None:
                         "checkerboard's square size to get positions in mm")
 
 
-def named_cameras(obj: Any, available: Sequence[str] = ()) -> dict[str, Camera]:
+def named_cameras(obj: Any, available: Sequence[str] = ()) -> dict[str, PinholeCamera]:
     """``{name: Camera}`` from any form above. ``available``: the names to give cameras that
-    have none (a stereo calibration's two, an unnamed list), in order."""
+    have none (a calibration's cameras named after its images or a stereo file's cam1, cam2 when
+    they are not the rig's; an unnamed list), in order."""
     available = list(available)
     if isinstance(obj, dict):
         return {str(k): _named(v, str(k)) for k, v in obj.items()}
-    if hasattr(obj, "camera_fits"):      # an N-camera calibration (multi_calibration_io): every camera
+    if hasattr(obj, "camera_fits"):      # a calibration (calibration_io): every camera
         _check_unit(obj)
         fits = list(obj.camera_fits)
         names = [c.name for c in fits]
-        if available and not set(names) <= set(available):   # named after its images: the recording's, in order
+        unnamed = str(getattr(obj, "method", "")).startswith("stereo calibration file")   # cam1, cam2 by position
+        if available and (unnamed or not set(names) <= set(available)):   # the recording's names, in order
             names = (available + names[len(available):])[:len(fits)]
-        return {n: Camera(c.K, c.d, c.R, c.t, n) for n, c in zip(names, fits)}
-    if hasattr(obj, "K1") and hasattr(obj, "T"):
-        _check_unit(obj)
-        from vts_hw.vision.calibration_io import stereo_cameras
-        names = (available + ["cam1", "cam2"][len(available):])[:2]
-        return {c.name: c for c in stereo_cameras(obj, names)}
+        return {n: PinholeCamera(c.K, c.d, c.R, c.t, n) for n, c in zip(names, fits)}
     if hasattr(obj, "cameras") and not isinstance(obj, (list, tuple)):
         _check_unit(obj)
         cams = obj.cameras() if callable(obj.cameras) else obj.cameras
@@ -76,12 +73,12 @@ def covered_names(calibration: Any, rig_names: Sequence[str]) -> list[str]:
     return rig_names[:len(own)]
 
 
-def _named(cam: Any, name: str) -> Camera:
+def _named(cam: Any, name: str) -> PinholeCamera:
     c = as_camera(cam)
-    return c if c.name == name else Camera(c.K, c.dist, c.R, c.t, name)
+    return c if c.name == name else PinholeCamera(c.K, c.dist, c.R, c.t, name)
 
 
-def load_cameras(path) -> dict[str, Camera]:
+def load_cameras(path) -> dict[str, PinholeCamera]:
     """The named cameras of a calibration file (stereo or N-camera); :class:`DataError`
     naming the file when it is neither."""
     path = Path(path)
@@ -89,12 +86,9 @@ def load_cameras(path) -> dict[str, Camera]:
         data = json.loads(read_text(path, SMALL, "calibration"))
     except (OSError, ValueError, RecursionError) as exc:
         raise DataError(f"{path}: cannot read the calibration ({str(exc)[:120] or type(exc).__name__})") from None
-    from vts_hw.vision.multi_calibration_io import FORMAT, STEREO_FORMAT, load_calibration
-    if isinstance(data, dict) and data.get("format") in (FORMAT, STEREO_FORMAT):   # written by vts calibrate
-        return named_cameras(load_calibration(path))
-    if isinstance(data, dict) and "K1" in data:
-        from vts_hw.vision.calibration_io import StereoCalibration
-        return named_cameras(StereoCalibration.load(path))
+    from vts_hw.vision.calibration_io import FORMAT, STEREO_FORMAT, load_calibration
+    if isinstance(data, dict) and (data.get("format") in (FORMAT, STEREO_FORMAT) or "K1" in data):
+        return named_cameras(load_calibration(path))   # written by vts calibrate (a stereo file: "K1")
     rows = data.get("cameras") if isinstance(data, dict) else None
     if not isinstance(rows, list) or len(rows) < 2:
         raise DataError(f"{path}: not a calibration (neither a stereo pair nor a list of 2 or more cameras)")
@@ -104,7 +98,7 @@ def load_cameras(path) -> dict[str, Camera]:
     for i, row in enumerate(rows):
         try:
             name = str(row.get("name") or f"cam{i + 1}")
-            out[name] = Camera(row["K"], row["dist"], row["R"], row["t"], name)
+            out[name] = PinholeCamera(row["K"], row["dist"], row["R"], row["t"], name)
         except (AttributeError, KeyError, TypeError, ValueError) as exc:
             raise DataError(f"{path}: camera {i + 1} is not whole ({type(exc).__name__}: "
                             f"{str(exc)[:80]}); each needs name, K, dist, R, t") from None

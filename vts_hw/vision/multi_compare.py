@@ -15,9 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from vts_hw.vision.calibration_io import rotation_angle_deg
-from vts_hw.vision.calibration_uncertainty import K_SIGMA
-from vts_hw.vision.multi_calibration_io import CameraCalibration
+from vts_hw.vision.calibration_io import CameraCalibration
+from vts_hw.vision.calibration_uncertainty import K_SIGMA, rotation_angle_deg
 
 JUDGED = ("fx", "fy", "cx", "cy", "k1")
 
@@ -52,8 +51,8 @@ def _warning(row: dict[str, Any], what: str, sd_name: str) -> str:
 def compare_cameras(new: CameraCalibration, old: CameraCalibration) -> dict[str, Any]:
     """This minus previous, per camera (see the module docstring)."""
     pairs, matched = _pairs(new, old)
-    if old.method == "stereo calibration file":     # named after the new cameras by from_stereo
-        matched = "order (a stereo file)"
+    if old.method.startswith("stereo calibration file"):   # its cameras have no names of their own
+        pairs, matched = list(zip(new.camera_fits, old.camera_fits)), "order (a stereo file)"
     same_unit = new.unit == old.unit
     out: dict[str, Any] = {"matched_by": matched, "unit": new.unit if same_unit else None, "cameras": {}}
     judged = []

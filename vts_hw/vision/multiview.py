@@ -39,7 +39,7 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-from vts_hw.vision.triangulate import Camera, as_camera, fundamental_matrix
+from vts_hw.vision.triangulate import PinholeCamera, as_camera, fundamental_matrix
 
 __all__ = ["MultiPoint", "Ambiguity", "ViewMatches", "ViewGeometry", "match_views",
            "triangulate_groups"]
@@ -92,7 +92,7 @@ class ViewGeometry:
     """The cameras and what matching needs of every pair, computed once (fundamental matrices)."""
 
     def __init__(self, cameras: Sequence, names: Sequence[str] | None = None):
-        self.cams: list[Camera] = [as_camera(c) for c in cameras]
+        self.cams: list[PinholeCamera] = [as_camera(c) for c in cameras]
         self.names = list(names) if names is not None else [c.name or f"cam{i + 1}"
                                                             for i, c in enumerate(self.cams)]
         if len(self.cams) < 2 or len(self.names) != len(self.cams):

@@ -3,7 +3,7 @@
 Cameras follow the OpenCV convention (world -> camera: ``x_c = R @ x_w + t``; pixel
 coordinates through ``K`` and the distortion ``dist`` = k1, k2, p1, p2[, k3...]). Any object
 with ``K``, ``dist``, ``R`` and ``t`` attributes is accepted (e.g. the simulator's
-``CameraModel``); :class:`Camera` is a minimal one.
+``CameraModel``); :class:`PinholeCamera` is a minimal one.
 
 * :func:`undistort` — pixels to normalized (ideal, z = 1) image coordinates.
 * :func:`match_epipolar` — correspondence between two cameras' detections by the epipolar
@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares, linear_sum_assignment
 
-__all__ = ["Camera", "as_camera", "undistort", "fundamental_matrix", "epipolar_distances",
+__all__ = ["PinholeCamera", "as_camera", "undistort", "fundamental_matrix", "epipolar_distances",
            "Matches", "AmbiguousPoint", "match_epipolar", "Triangulation", "triangulate",
            "reprojection_errors", "predicted_covariance"]
 
@@ -31,7 +31,7 @@ _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-
 
 
 @dataclass(frozen=True, eq=False)
-class Camera:
+class PinholeCamera:
     """A calibrated camera: intrinsics ``K`` (3x3), distortion ``dist`` (OpenCV order) and the
     world -> camera pose ``R`` (3x3), ``t`` (3,), millimetres."""
 
@@ -63,11 +63,11 @@ class Camera:
         return uv.reshape(-1, 2)
 
 
-def as_camera(obj: Any) -> Camera:
-    """A :class:`Camera` from any object with ``K``, ``dist``, ``R``, ``t`` (itself if one)."""
-    if isinstance(obj, Camera):
+def as_camera(obj: Any) -> PinholeCamera:
+    """A :class:`PinholeCamera` from any object with ``K``, ``dist``, ``R``, ``t`` (itself if one)."""
+    if isinstance(obj, PinholeCamera):
         return obj
-    return Camera(obj.K, obj.dist, obj.R, obj.t, str(getattr(obj, "name", "")))
+    return PinholeCamera(obj.K, obj.dist, obj.R, obj.t, str(getattr(obj, "name", "")))
 
 
 def _pts(pts) -> np.ndarray:
@@ -89,7 +89,7 @@ def undistort(cam, pts_px) -> np.ndarray:
     return out.reshape(-1, 2)
 
 
-def _ideal_px(cam: Camera, pts_px) -> np.ndarray:
+def _ideal_px(cam: PinholeCamera, pts_px) -> np.ndarray:
     """Undistorted pixel coordinates (distortion removed, ``K`` kept): an ideal pinhole's."""
     n = undistort(cam, pts_px)
     return n @ cam.K[:2, :2].T + cam.K[:2, 2]
@@ -267,7 +267,7 @@ class Triangulation:
         return len(self.points)
 
 
-def _project(cam: Camera, X: np.ndarray) -> np.ndarray:
+def _project(cam: PinholeCamera, X: np.ndarray) -> np.ndarray:
     uv, _ = cv2.projectPoints(np.asarray(X, float).reshape(-1, 1, 3), cam.rvec, cam.t,
                               cam.K, cam.dist)
     return uv.reshape(-1, 2)
@@ -284,7 +284,7 @@ def _rms(residuals: list[np.ndarray]) -> np.ndarray:
     return np.sqrt(np.mean(stacked ** 2, axis=(0, 2)))
 
 
-def _dlt(cams: list[Camera], norm_pts: list[np.ndarray]) -> np.ndarray:
+def _dlt(cams: list[PinholeCamera], norm_pts: list[np.ndarray]) -> np.ndarray:
     """Linear triangulation (homogeneous DLT) of normalized image points, any number of cameras.
 
     World coordinates are centred on the cameras' mean centre and scaled by their mean
