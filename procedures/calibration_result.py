@@ -5,12 +5,13 @@ the room's calibration history."""
 
 from __future__ import annotations
 
+from vts_hw import catalog
 from vts_hw.results import Measure, overall_state
 from vts_hw.tolerance import State, merged_tolerances
 
 #: the run's procedure name for each command
-STEREO_PROCEDURE = "calibration"
-CAMERAS_PROCEDURE = "calibration_cameras"
+STEREO_PROCEDURE = catalog.STEREO_CALIBRATION.name
+CAMERAS_PROCEDURE = catalog.CAMERAS_CALIBRATION.name
 #: the subject of the whole set's figure (the cameras' own are named after the camera)
 SET_SUBJECT = "set"
 

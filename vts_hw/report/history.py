@@ -14,6 +14,8 @@ import math
 from collections import defaultdict
 from dataclasses import dataclass, field
 
+from vts_hw import catalog
+from vts_hw.catalog import Figure
 from vts_hw.tolerance import DEFAULT_TOLERANCES, State, Window
 from vts_hw.report.times import fmt_date
 
@@ -22,17 +24,8 @@ LAST_N = 10                 # runs listed per procedure, newest first
 
 
 @dataclass(frozen=True)
-class Figure:
-    """A column of a history table: a metric (one subject, or the worst of all of them)."""
-    metric: str
-    label: str
-    fmt: str
-    subject: str | None = None          # None: the largest value over the subjects
-    exclude: str | None = None          # with subject None: a subject left out (the set's figure)
-
-
-@dataclass(frozen=True)
 class Spec:
+    """A section of the history: the procedures of one check (vts_hw.catalog) and their figures."""
     key: str
     title: str
     procedures: tuple[str, ...]
@@ -41,24 +34,18 @@ class Spec:
     room_check: bool = True             # judged as the room's QA ("attention"; open ACTION items)
 
 
-SPECS = (
-    Spec("sync", "Sync checks (VTS against SPECT)", ("sync",),
-         (Figure("sync_max_abs_dt_ms", "max |Δt| ms", ".1f"), Figure("sync_events_both", "events seen by both", "g"),
-          Figure("sync_events_one_system", "seen by one only", "g"))),
-    Spec("spect_mapping", "SPECT mappings (VTS → SPECT)", ("spect_mapping",),
-         (Figure("mapping_tre_rms_mm", "TRE RMS mm", ".3f"), Figure("mapping_fre_mm", "FRE mm", ".3f"))),
-    Spec("calibration", "Camera calibrations", ("calibration", "calibration_cameras"),
-         (Figure("calibration_rms_px", "RMS of the set px", ".3f", subject="set"),
-          Figure("calibration_rms_px", "worst camera px", ".3f", exclude="set"),
-          Figure("calibration_converged", "converged", "g", subject="set"))),
-    Spec("motion", "Motion analyses (patient scans)", ("motion",),
-         (Figure("motion_body_max_mm", "max shift mm", ".2f"), Figure("motion_body_max_deg", "max turn °", ".2f"),
-          Figure("motion_pose_coverage", "pose known (share of time)", ".3f")), room_check=False),
-)
+def _sections() -> tuple[Spec, ...]:
+    """One section per check of the catalog that has a history title, in the catalog's order."""
+    out: dict[str, Spec] = {}
+    for p in catalog.PROCEDURES:
+        if p.history and p.key not in out:
+            out[p.key] = Spec(p.key, p.history, catalog.family(p.key), p.figures, 0, p.judges == "room")
+    return tuple(out.values())
 
-LABELS = {"sync": "sync check", "spect_mapping": "SPECT mapping", "calibration": "stereo calibration",
-          "calibration_cameras": "camera calibration", "motion": "motion analysis", "sphere-steps": "step test",
-          "daily": "daily QA", "drift": "daily QA", "drift-baseline": "drift baseline"}
+
+SPECS = _sections()
+#: how a person calls a run of each stored procedure name (the catalog's labels)
+LABELS = {n: p.label for p in catalog.PROCEDURES for n in p.stored_as}
 
 
 @dataclass
@@ -119,7 +106,7 @@ class ProcedureHistory:
         latest = self.latest
         if not self.spec.room_check or latest is None or latest.status == "OK":
             return None
-        what = LABELS.get(latest.procedure, latest.procedure)
+        what = catalog.label(latest.procedure)
         room = f" ({latest.rig})" if latest.rig else ""
         bad = ", ".join(latest.not_ok) or "see its run"
         return (State(latest.status).rank,

@@ -21,21 +21,18 @@ from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from vts_hw import __version__
+from vts_hw import __version__, catalog
 from vts_hw.files import ensure_dir, write_atomic
 from vts_hw.tolerance import State, worst
 from vts_hw.report.drift import COMPLETED, DRIFT_PROCEDURES, collect, report_format
-from vts_hw.report.history import LABELS, SPECS
 from vts_hw.report.model import DriftReport, RunInfo
-from vts_hw.report.steps import PROCEDURE as STEPS_PROCEDURE
 from vts_hw.report.times import fmt_date
 
-_SPECS = {s.key: s for s in SPECS}
-STEPS_PROCEDURES = (STEPS_PROCEDURE,)
-CALIBRATION_PROCEDURES = _SPECS["calibration"].procedures
-MAPPING_PROCEDURES = _SPECS["spect_mapping"].procedures
+STEPS_PROCEDURES = catalog.family(catalog.STEPS.key)
+CALIBRATION_PROCEDURES = catalog.family(catalog.STEREO_CALIBRATION.key)
+MAPPING_PROCEDURES = catalog.family(catalog.MAPPING.key)
 #: never open ACTION items (see the docstring): a patient's scan, and baselines (no state)
-NOT_ROOM_CHECKS = tuple(p for s in SPECS if not s.room_check for p in s.procedures) + ("drift-baseline",)
+NOT_ROOM_CHECKS = catalog.not_room_checks()
 OPEN_RULE = ("An ACTION item is open while the latest completed result of the same check — the same "
              "procedure (daily and drift QA count as one), the same camera or subject, the same quantity — "
              "is ACTION; a later OK or TOLERANCE result of that check closes it. Motion analyses judge a "
@@ -146,7 +143,7 @@ def _latest(runs, procedures) -> RunInfo | None:
 
 
 def _check(procedure: str) -> str:
-    return LABELS.get(procedure, procedure)
+    return catalog.label(procedure)
 
 
 def _per_run(measurements, runs):
