@@ -135,6 +135,8 @@ class Recorder:
                 except StoreError:
                     pass
         self._done = True
+        if hasattr(result, "store_error"):   # a result that says whether it was stored hears it first
+            result.store_error = self.error
         record = {"procedure": self.procedure, "rig": self.rig, "operator": self.operator,
                   "config_digest": self.config_digest, "software_version": __version__, "started": self.started,
                   "finished": finished, "state": str(state), "store_error": self.error, "notes": self.notes,
