@@ -123,15 +123,22 @@ def qa_set_name(steps, all_steps) -> str:
     return QA_SET_PREFIX + "+".join(steps)
 
 
-_BY_NAME = {n: p for p in PROCEDURES for n in p.stored_as}
-if len(_BY_NAME) != sum(len(p.stored_as) for p in PROCEDURES):
-    raise RuntimeError("the catalog names one stored name twice")
+def by_name() -> dict[str, Procedure]:
+    """Every stored name (names and aliases) -> its procedure; read at each call, so that an
+    entry added to :data:`PROCEDURES` is seen everywhere. ValueError when one name is given twice."""
+    out: dict[str, Procedure] = {}
+    for p in PROCEDURES:
+        for n in p.stored_as:
+            if n in out:
+                raise ValueError(f"the catalog names the stored name {n!r} twice ({out[n].label}, {p.label})")
+            out[n] = p
+    return out
 
 
 def find(name: str) -> Procedure | None:
     """The procedure whose runs are stored as ``name`` (a name or an alias); None for a name
     the catalog does not hold (a ``qa:`` set, or a procedure of another version)."""
-    return _BY_NAME.get(name)
+    return by_name().get(name)
 
 
 def label(name: str) -> str:
@@ -153,7 +160,7 @@ def not_room_checks() -> tuple[str, ...]:
 
 def stored_name_pattern() -> str:
     """A regular expression matching every name runs are stored under (QATrack+'s ``lists:`` keys)."""
-    names = sorted(_BY_NAME, key=lambda n: (-len(n), n))
+    names = sorted(by_name(), key=lambda n: (-len(n), n))
     return "^(" + "|".join(re.escape(n) for n in names) + "|" + _QA_SET_RE + ")$"
 
 
@@ -162,5 +169,18 @@ def stored_names_text() -> str:
     return ", ".join([*(p.name for p in PROCEDURES), QA_SET_PREFIX + "STEP+STEP"])
 
 
-__all__ = ["Procedure", "Figure", "PROCEDURES", "JUDGES", "find", "label", "family", "not_room_checks",
-           "qa_set_name", "stored_name_pattern", "stored_names_text"]
+def sections() -> list[tuple[str, str, tuple[str, ...], Procedure]]:
+    """The drift report's history sections: (key, title, stored names, first procedure) per
+    check that has a history title, in the catalog's order."""
+    out: dict[str, tuple] = {}
+    for p in PROCEDURES:
+        if p.history and p.key not in out:
+            out[p.key] = (p.key, p.history, family(p.key), p)
+    return list(out.values())
+
+
+by_name()   # a catalog naming one stored name twice fails at import
+
+
+__all__ = ["Procedure", "Figure", "PROCEDURES", "JUDGES", "by_name", "find", "label", "family", "not_room_checks",
+           "qa_set_name", "sections", "stored_name_pattern", "stored_names_text"]

@@ -34,7 +34,8 @@ from vts_hw.site_time import site_zone
 _ENV_RE = r"^[A-Za-z_][A-Za-z0-9_]*$"
 _MACRO_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")   # QATrack+ macro names are identifiers
 _METRIC_RE = re.compile(r"^[A-Za-z0-9_.:-]+$")
-#: what a ``lists:`` key may be: the procedure names runs are stored under
+#: what a ``lists:`` key may be: the procedure names runs are stored under (as the catalog holds
+#: them at import; the check reads the catalog itself)
 PROCEDURE_RE = catalog.stored_name_pattern()
 
 
@@ -108,7 +109,7 @@ class QATrackConfig(_Strict):
     @classmethod
     def _procedures(cls, v: dict):
         for name in v:
-            if not re.match(PROCEDURE_RE, name):
+            if not re.match(catalog.stored_name_pattern(), name):
                 raise ValueError(f"{name!r} is not a procedure stored as runs ({catalog.stored_names_text()})")
         return v
 

@@ -34,16 +34,14 @@ class Spec:
     room_check: bool = True             # judged as the room's QA ("attention"; open ACTION items)
 
 
-def _sections() -> tuple[Spec, ...]:
-    """One section per check of the catalog that has a history title, in the catalog's order."""
-    out: dict[str, Spec] = {}
-    for p in catalog.PROCEDURES:
-        if p.history and p.key not in out:
-            out[p.key] = Spec(p.key, p.history, catalog.family(p.key), p.figures, 0, p.judges == "room")
-    return tuple(out.values())
+def specs() -> tuple[Spec, ...]:
+    """One section per check of the catalog that has a history title, in the catalog's order
+    (read at each call: a procedure added to the catalog gets its section)."""
+    return tuple(Spec(key, title, names, p.figures, 0, p.judges == "room")
+                 for key, title, names, p in catalog.sections())
 
 
-SPECS = _sections()
+SPECS = specs()      # as the catalog holds them at import (for readers; the report calls specs())
 #: how a person calls a run of each stored procedure name (the catalog's labels)
 LABELS = {n: p.label for p in catalog.PROCEDURES for n in p.stored_as}
 
@@ -130,8 +128,9 @@ def _value(f: Figure, by_subject: dict[tuple[str, str], tuple]) -> tuple[float |
 
 
 def collect_history(store, since: float | None, now: float, rig: str | None) -> list[ProcedureHistory]:
-    """The history of each procedure of :data:`SPECS` with runs in the period (rig None: all rigs)."""
-    procs = tuple(p for s in SPECS for p in s.procedures)
+    """The history of each section of the catalog (:func:`specs`) with runs in the period (rig None: all rigs)."""
+    all_specs = specs()
+    procs = tuple(p for s in all_specs for p in s.procedures)
     runs = [r for r in store.runs(procedure=procs, since=since)
             if r.started <= now and (rig is None or (r.rig or "") == rig)]
     if not runs:
@@ -143,7 +142,7 @@ def collect_history(store, since: float | None, now: float, rig: str | None) -> 
             v = None if m.value is None or (isinstance(m.value, float) and math.isnan(m.value)) else float(m.value)
             meas[m.run_id][(m.metric, m.subject)] = (v, str(m.status))
     out = []
-    for spec in SPECS:
+    for spec in all_specs:
         mine = [r for r in runs if r.procedure in spec.procedures]
         if not mine:
             continue

@@ -149,7 +149,8 @@ def _check(procedure: str) -> str:
 def _per_run(measurements, runs):
     """The completed room-check runs among ``runs`` (by time) and per run the state of each
     check key (check, camera or subject, metric) from ``measurements``."""
-    done = {r.id: r for r in runs if str(r.status) in COMPLETED and r.procedure not in NOT_ROOM_CHECKS}
+    not_room = catalog.not_room_checks()
+    done = {r.id: r for r in runs if str(r.status) in COMPLETED and r.procedure not in not_room}
     per_run: dict[int, dict[tuple[str, str, str], str]] = defaultdict(dict)
     for m in measurements:
         run = done.get(m.run_id)
@@ -226,7 +227,8 @@ def collect_rooms(store, since: float | None = None, now: float | None = None, r
     rigs = store.rigs() if rigs is None else list(rigs)
     names = drift_file_names(Path(out or "rooms.html"), rigs)
     all_runs = [r for r in store.runs() if r.started <= now]
-    checks = tuple(sorted({r.procedure for r in all_runs if r.procedure not in NOT_ROOM_CHECKS}))
+    not_room = catalog.not_room_checks()
+    checks = tuple(sorted({r.procedure for r in all_runs if r.procedure not in not_room}))
     measurements = store.measurements(procedure=checks) if checks else []
     rooms = []
     for rig in rigs:
