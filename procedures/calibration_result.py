@@ -5,14 +5,15 @@ the reports show the room's calibration history."""
 
 from __future__ import annotations
 
+from vts_hw import catalog
 from vts_hw.results import Measure, overall_state
 from vts_hw.tolerance import State, merged_tolerances
 
-#: the one procedure name of a calibration run, whichever command made it
-PROCEDURE = "calibration"
+#: the one procedure name of a calibration run, whichever command made it (the catalog's)
+PROCEDURE = catalog.CALIBRATION.name
 #: names calibration runs were stored under before (N-camera runs until decision 0056): read as
 #: calibrations wherever the history is read, never rewritten
-OLD_PROCEDURES = ("calibration_cameras",)
+OLD_PROCEDURES = catalog.CALIBRATION.aliases
 #: the subject of the whole set's figure (the cameras' own are named after the camera)
 SET_SUBJECT = "set"
 

@@ -8,9 +8,10 @@ For each camera of the rig:
 3. clock — camera clock minus host clock is within tolerance;
 4. LED and drift — the wall-marker drift procedure (``drift.py``) against the baseline.
 
-Everything measured goes into the results store as one run (written in one transaction); the
-run's state is the worst of its measurements. ``plan()`` lists the steps without touching the
-rig (``--dry-run``).
+The run's state is the worst of its measurements. The caller gives the cameras (``open_camera``)
+and the drift baselines, and records the result (vts_hw.store.recorder: the "running" row
+before the cameras are measured, then one transaction); this script never holds a store.
+``plan()`` lists the steps without touching the rig (``--dry-run``).
 """
 
 from __future__ import annotations
@@ -23,10 +24,11 @@ from typing import Callable
 from vts_hw.camera import CameraError, NoParameters, Refused
 from vts_hw.errors import UsageError, VtsError
 from vts_hw.files import ensure_dir, write_atomic
+from vts_hw.catalog import qa_set_name
 from vts_hw.results import Measure
 from vts_hw.tolerance import State, Window, merged_tolerances, worst
-from vts_hw.procedures.baseline import load_baseline
 from vts_hw.procedures.drift import DriftAnalysis
+from vts_hw.vision.wall_baseline import NoBaseline
 
 EXIT_CODES = {State.OK: 0, State.TOLERANCE: 10, State.ACTION: 20}
 STEPS = ("reachable", "params", "clock", "drift")
@@ -101,30 +103,32 @@ class QAResult:
 
 
 class QARun:
-    """One QA run over the cameras of a rig. ``steps`` chooses the checks (default: all)."""
+    """One QA run over the cameras of a rig. ``steps`` chooses the checks (default: all);
+    ``baselines`` (camera name -> Baseline) are the drift step's, read by the caller."""
 
-    def __init__(self, rig, store, *, steps=STEPS, cameras: list[str] | None = None, n_frames: int = 5,
+    def __init__(self, rig, *, baselines=None, steps=STEPS, cameras: list[str] | None = None, n_frames: int = 5,
                  clock: Callable[[], float] = time.time, artifacts_dir: str | Path | None = None,
-                 plots: bool = False, operator: str = "", config_digest: str = "",
-                 open_camera: Callable | None = None, progress: Callable[[str], None] | None = None):
+                 plots: bool = False, open_camera: Callable | None = None,
+                 progress: Callable[[str], None] | None = None):
         self.rig = rig
-        self.store = store
+        self.baselines = dict(baselines or {})
         self.steps = tuple(steps)
-        self.procedure = "daily" if set(self.steps) == set(STEPS) else "drift" if self.steps == ("drift",) \
-            else "qa:" + "+".join(self.steps)
+        self.procedure = qa_set_name(self.steps, STEPS)
         self.camera_names = cameras or [c.name for c in rig.cameras]
         self.n_frames = n_frames
         self.clock = clock
         self.artifacts_dir = Path(artifacts_dir) if artifacts_dir else None
         self.plots = plots
-        self.operator = operator
-        self.config_digest = config_digest
         # the cameras are given, not built here: open_camera(cfg) -> Camera (drivers.registry's)
         self.open_camera = open_camera
         self.progress = progress or (lambda msg: None)
         self.tolerances: dict[str, Window] = merged_tolerances(rig.tolerances)
 
-    def plan(self) -> list[str]:
+    @property
+    def needs_baselines(self) -> bool:
+        return "drift" in self.steps
+
+    def plan(self, where: str = "the results store") -> list[str]:
         """The steps this run would take, without touching the rig."""
         out = []
         for name in self.camera_names:
@@ -139,7 +143,7 @@ class QARun:
             if "drift" in self.steps:
                 out.append(f"{name}: LED on, {self.n_frames} snapshots; LED off, 1 snapshot; LED on; "
                            f"detect the wall markers and compare with the baseline")
-        out.append(f"store the run ({self.procedure}) in {getattr(self.store, 'url', 'the results store')}")
+        out.append(f"store the run ({self.procedure}) in {where}")
         return out
 
     @staticmethod
@@ -150,78 +154,28 @@ class QARun:
         values.update(getattr(cfg, "locked_params", {}) or {})
         return values
 
-    def preflight(self) -> dict:
-        """Setup mistakes end here, before the rig or the store is touched for writing: an
-        unknown camera name or an unset password variable (ConfigError, exit 2), a camera
-        without a drift baseline (NoBaseline, exit 5). Returns the baselines (drift step)."""
+    def preflight(self) -> None:
+        """Setup mistakes end here, before the rig is touched: an unknown camera name or an
+        unset password variable (ConfigError, exit 2)."""
         for name in self.camera_names:
             self.rig.camera(name).password()
-        if "drift" not in self.steps:
-            return {}
-        return {name: load_baseline(self.store, name) for name in self.camera_names}
 
-    def run(self) -> QAResult:
-        """Measure every camera, then store the run in one transaction.
-
-        The run's "running" row is written first (a run killed half-way is found and marked
-        aborted). A store that cannot be written — at the start or at the end — never costs
-        a measured figure: the cameras are measured all the same and the result carries
-        ``store_error``; the caller keeps the figures elsewhere (``unsaved_record()``)."""
-        baselines = self.preflight()
-        now = self.clock()
-        handle, store_error = None, None
-        try:
-            self.store.sync_tolerances(self.tolerances, at=now)
-            handle = self.store.begin_run(self.procedure, rig=self.rig.rig, operator=self.operator, started=now,
-                                          config_digest=self.config_digest)
-        except VtsError as exc:   # the store cannot be written: measure all the same
-            store_error = str(exc)
+    def run(self, started: float | None = None, run_id: int | None = None) -> QAResult:
+        """Measure every camera; the result for the caller to record. ``run_id``: the run the
+        caller began (its saved frames go to ``run<id>``), None when the store cannot take it.
+        A camera without a baseline (drift step) is NoBaseline (exit 5), before the rig is touched."""
+        self.preflight()
+        missing = [n for n in self.camera_names if self.needs_baselines and n not in self.baselines]
+        if missing:
+            raise NoBaseline(f"camera {missing[0]} has no drift baseline: run `vts qa drift --set-baseline` first")
+        now = self.clock() if started is None else started
         results: list[CameraResult] = []
-        try:
-            for name in self.camera_names:
-                self.progress(f"{name}: checking")
-                results.append(self._camera(name, baselines.get(name)))
-        except BaseException as exc:
-            if handle is not None:
-                handle.__exit__(type(exc), exc, exc.__traceback__)   # aborted, with the reason
-            raise
-        result = QAResult(self.procedure, None, now, results, finished=self.clock(),
-                          store_error=store_error, windows=self.tolerances)
-        result.artifacts = self._save_all_artifacts(handle.run_id if handle else None, results, result)
-        if handle is not None:
-            try:
-                self._store(handle, result)
-                result.run_id = handle.run_id
-            except VtsError as exc:
-                result.store_error = str(exc)
-                try:   # likely to fail too; else the next open marks it aborted (its process is gone)
-                    handle.abort(f"the run could not be stored ({exc}); its figures were kept elsewhere")
-                except VtsError:
-                    pass
+        for name in self.camera_names:
+            self.progress(f"{name}: checking")
+            results.append(self._camera(name, self.baselines.get(name)))
+        result = QAResult(self.procedure, None, now, results, finished=self.clock(), windows=self.tolerances)
+        result.artifacts = self._save_all_artifacts(run_id, results, result)
         return result
-
-    def _store(self, h, result: "QAResult") -> None:
-        for res in result.cameras:
-            for subject, metric, value, unit, state in res.measures:
-                # where the metric has a window of its own, the store judges it and keeps the
-                # window's id with the value; derived metrics (mm) carry the state judged here
-                own = metric in self.tolerances
-                h.measure(subject, metric, value, unit, status=None if own else str(state), at=result.started)
-        for path in result.artifacts:
-            h.artifact(path, kind="plot" if str(path).endswith(".png") else "frame")
-        h.finish(status=str(result.state), finished=result.finished)
-
-    def unsaved_record(self, result: "QAResult") -> dict:
-        """Everything needed to store ``result`` later (vts_hw.store.unsaved)."""
-        from vts_hw import __version__
-        return {"procedure": self.procedure, "rig": self.rig.rig, "operator": self.operator,
-                "config_digest": self.config_digest, "software_version": __version__,
-                "started": result.started, "finished": result.finished, "state": str(result.state),
-                "store_error": result.store_error,
-                "measurements": [{"subject": s, "metric": m, "value": v, "unit": u, "state": str(st)}
-                                 for c in result.cameras for s, m, v, u, st in c.measures],
-                "tolerances": {k: w.as_dict() for k, w in self.tolerances.items()},
-                "artifacts": list(result.artifacts), "results": result.results_data()}
 
     # -- one camera ------------------------------------------------------------------------
     def _camera(self, name: str, baseline=None) -> CameraResult:
@@ -257,7 +211,6 @@ class QARun:
                     off = cam.clock_offset()
                     add("clock_offset_s", off.offset_s, "s")
                 if "drift" in self.steps:
-                    baseline = baseline or load_baseline(self.store, name)
                     mm = getattr(cfg, "wall_mm_per_px", 1.25)
                     d = DriftAnalysis.acquire(cam, baseline, self.n_frames, mm_per_px=mm).analyze(tol)
                     out.drift = d

@@ -30,6 +30,7 @@ from typing import Callable
 
 import numpy as np
 
+from vts_hw import catalog
 from vts_hw import __version__
 from vts_hw.errors import DataError
 from vts_hw.figures import figure_png
@@ -68,7 +69,7 @@ class MotionAnalysis:
     :class:`~vts_hw.motion.MotionSettings` (``motion_config``: a rig.yaml ``motion:`` section
     whose ``state_mm``/``state_deg`` are taken)."""
 
-    procedure = "motion"
+    procedure = catalog.MOTION.name
 
     def __init__(self, session, listmode=None, calibration=None, mapping=None, *, tracks=None,
                  settings: MotionSettings | None = None, motion_config=None, workers: int | None = None,

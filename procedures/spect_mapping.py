@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from vts_hw import catalog
 from vts_hw import __version__
 from vts_hw.errors import DataError
 from vts_hw.figures import figure_png
@@ -308,11 +309,11 @@ class SpectMapping:
         }
 
     def _meta(self) -> dict:
-        return {"from_frame": "VTS", "to_frame": "SPECT", "procedure": "spect_mapping", **self._figures(),
+        return {"from_frame": "VTS", "to_frame": "SPECT", "procedure": catalog.MAPPING.name, **self._figures(),
                 **({"spect_volume": self.spect_volume} if self.spect_volume else {})}
 
     # ------------------------------------------------------------------ the QA result shape
-    procedure = "spect_mapping"
+    procedure = catalog.MAPPING.name
 
     @property
     def measures(self) -> list[Measure]:
@@ -353,7 +354,7 @@ class SpectMapping:
         self._need()
         T = self.transform
         return {
-            "procedure": "spect_mapping",
+            "procedure": catalog.MAPPING.name,
             "date": self.analyzed_at,
             "vts_hw_version": __version__,
             "ambiguous": self.match.ambiguous,

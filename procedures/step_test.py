@@ -4,7 +4,8 @@
    the folder the SPECT's reconstructions arrive in (:func:`step_test_inputs`);
 2. acquire every position with the cameras given (``StepSession``), the operator moving the
    table when asked — or, with ``analyze_dir``, the positions a session saved earlier;
-3. analyse against the SPECT volumes, plot, store the run (:func:`run_step_test`).
+3. analyse against the SPECT volumes and plot (:func:`run_step_test`); the caller records the
+   run (vts_hw.store.recorder).
 
 The cameras are opened by the caller (``drivers.registry.open_cameras``), never here.
 """
@@ -18,8 +19,7 @@ from typing import Callable, Sequence
 
 from vts_hw.errors import ConfigError, DataError, UsageError
 from vts_hw.files import WriteFailed
-from vts_hw.procedures.steps import (StepPosition, StepSession, VolumeFolder, analyze_positions, load_positions,
-                                     store_steps)
+from vts_hw.procedures.steps import StepPosition, StepSession, VolumeFolder, analyze_positions, load_positions
 from vts_hw.procedures.steps_analysis import StepAnalysis
 
 
@@ -33,11 +33,15 @@ class StepInputs:
 @dataclass
 class StepRun:
     analysis: StepAnalysis
-    run_id: int
+    started: float
     plot: Path | None
     out: Path
     #: the plot could not be written (disk full): the run is stored without it; the caller says so (exit 3)
     plot_error: WriteFailed | None = None
+
+    @property
+    def artifacts(self) -> list[Path]:
+        return [self.plot] if self.plot is not None else []
 
 
 def step_test_inputs(rig, calibration_path=None, mapping_path=None, volumes=None) -> StepInputs:
@@ -64,11 +68,11 @@ def step_session(cameras: Sequence, inputs: StepInputs, out, plan: list[StepPosi
                        out, plan=plan, frames=frames, progress=progress)
 
 
-def run_step_test(rig, inputs: StepInputs, out, plan: list[StepPosition], store, *, cameras: Sequence = (),
+def run_step_test(rig, inputs: StepInputs, out, plan: list[StepPosition], *, cameras: Sequence = (),
                   analyze_dir=None, frames: int = 10, ask: Callable[[str], object] = input,
-                  operator: str = "", progress: Callable[[str], None] | None = None,
+                  progress: Callable[[str], None] | None = None,
                   clock: Callable[[], float] = time.time) -> StepRun:
-    """Acquire with ``cameras`` (or read ``analyze_dir``), analyse, plot and store one run."""
+    """Acquire with ``cameras`` (or read ``analyze_dir``), analyse and plot; the caller records it."""
     say = progress or (lambda m: None)
     out = Path(out)
     started = clock()
@@ -89,6 +93,4 @@ def run_step_test(rig, inputs: StepInputs, out, plan: list[StepPosition], store,
         plot_error = None
     except WriteFailed as exc:      # a full disk costs the plot, never the analysed test
         plot_error = exc
-    run_id = store_steps(store, analysis, rig.tolerances, rig=rig.rig, operator=operator, started=started,
-                         config_digest=rig.digest, artifacts=[] if plot_error else [png])
-    return StepRun(analysis, run_id, None if plot_error else png, out, plot_error)
+    return StepRun(analysis, started, None if plot_error else png, out, plot_error)

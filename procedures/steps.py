@@ -36,6 +36,7 @@ from typing import Callable, Protocol, Sequence, runtime_checkable
 import numpy as np
 
 from vts_hw.bounded import SMALL, read_bytes
+from vts_hw.catalog import STEPS
 from vts_hw.errors import DataError
 from vts_hw.files import ensure_dir, write_atomic, write_json_atomic
 from vts_hw.procedures.steps_analysis import StepAnalysis
@@ -310,25 +311,4 @@ def analyze_positions(seen: list[SeenPosition], plan: list[StepPosition], calibr
     return StepAnalysis(labels, np.array(vts_all), np.array(spect_all), kinds, meta).analyze(tolerances)
 
 
-PROCEDURE = "sphere-steps"
-
-
-def store_steps(store, analysis: StepAnalysis, tolerances=None, *, rig: str = "", operator: str = "",
-                started: float | None = None, config_digest: str = "", artifacts=(),
-                clock: Callable[[], float] = time.time) -> int:
-    """Write the analysed step test as one run (one transaction); returns the run id.
-
-    The tolerance windows in use are synced into the store first, so each measurement keeps
-    the id of the window that judged it and a later change of tolerance rewrites nothing."""
-    from vts_hw.tolerance import merged_tolerances
-
-    started = clock() if started is None else started
-    store.sync_tolerances(merged_tolerances(tolerances), at=started)
-    with store.begin_run(PROCEDURE, rig=rig, operator=operator, started=started,
-                         config_digest=config_digest) as h:
-        for m in analysis.measures:
-            h.measure(m.subject, m.metric, m.value, m.unit, at=started)
-        for p in artifacts:
-            h.artifact(p, kind="plot" if str(p).endswith(".png") else "data")
-        h.finish(status=str(analysis.state), finished=clock())
-        return h.run_id
+PROCEDURE = STEPS.name

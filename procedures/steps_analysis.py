@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+from vts_hw.catalog import STEPS
 from vts_hw import __version__
 from vts_hw.errors import DataError
 from vts_hw.vision.registration import RigidTransform, kabsch
@@ -78,7 +79,7 @@ class StepAnalysis:
     free move.
     """
 
-    procedure = "sphere-steps"
+    procedure = STEPS.name
 
     def __init__(self, labels, vts, spect, kinds=None, meta: dict | None = None):
         self.labels = [str(x) for x in labels]

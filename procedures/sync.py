@@ -43,6 +43,7 @@ from typing import Callable
 
 import numpy as np
 
+from vts_hw import catalog
 from vts_hw.errors import DataError
 from vts_hw.files import WriteFailed, ensure_dir, export_stopped
 from vts_hw.timing.motion_events import StepFit, find_steps, fit_step, match_events, robust_sd
@@ -372,7 +373,7 @@ class SyncAnalysis:
         }
 
     # ------------------------------------------------------------------ the QA result shape
-    procedure = "sync"
+    procedure = catalog.SYNC.name
 
     @property
     def measures(self) -> list[Measure]:

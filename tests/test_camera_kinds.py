@@ -128,8 +128,8 @@ def test_mjpeg_kind_records_a_camera_without_stamps(sim_rig, tmp_path):
 
 
 def test_mjpeg_kind_runs_the_drift_qa(sim_rig, tmp_path):
-    from vts_hw.procedures.baseline import set_baselines
-    from vts_hw.procedures.daily import QARun
+    from qa_runs import run_qa, save_baselines
+    from vts_hw.procedures.baseline import take_baselines
     from vts_hw.store import ResultsStore
 
     for s in sim_rig.servers.values():
@@ -139,10 +139,10 @@ def test_mjpeg_kind_runs_the_drift_qa(sim_rig, tmp_path):
                 for c in cfg.cameras], results={"url": f"sqlite:///{tmp_path / 'r.sqlite'}"})
     with ResultsStore(rig.results.url) as store:
         cams = open_cameras(rig.cameras)
-        set_baselines(store, cams, frames=2)
+        save_baselines(store, take_baselines(cams, frames=2).baselines)
         for c in cams:
             c.close()
-        res = QARun(rig, store, steps=("clock", "drift"), n_frames=2, open_camera=open_camera).run()
+        res = run_qa(rig, store, steps=("clock", "drift"), n_frames=2, open_camera=open_camera)
     assert res.state == State.OK, res.results()
     for c in res.cameras:
         assert c.drift.led_off_visible == 0   # the LED is switched through the camera's port
@@ -227,18 +227,19 @@ def rig_recording(sim_rig, tmp_path):
 
 
 def test_replay_runs_the_daily_drift_qa(rig_recording, tmp_path):
-    from vts_hw.procedures.baseline import set_baselines
-    from vts_hw.procedures.daily import QARun
+    from qa_runs import run_qa, save_baselines
+    from vts_hw.procedures.baseline import take_baselines
     from vts_hw.store import ResultsStore
 
     rig = _rig(_replay_entries(rig_recording, speed=1.0), results={"url": f"sqlite:///{tmp_path / 'r.sqlite'}"})
     with ResultsStore(rig.results.url) as store:
         cams = open_cameras(rig.cameras)
-        run_id, baselines = set_baselines(store, cams, frames=3)
+        baselines = take_baselines(cams, frames=3).baselines
+        save_baselines(store, baselines)
         assert all(len(b.markers) == 5 for b in baselines)
         for c in cams:
             c.close()
-        res = QARun(rig, store, n_frames=3, open_camera=open_camera).run()   # the whole daily set
+        res = run_qa(rig, store, n_frames=3, open_camera=open_camera)   # the whole daily set
         assert res.run_id is not None and store.run(res.run_id).procedure == "daily"
     assert res.state == State.OK, res.results()
     for c in res.cameras:

@@ -1,7 +1,9 @@
 """The house keeps its layers: every import of the package read from the source.
 
 config → drivers → procedures → store → reports → qatrack: a layer imports only the layers before it
-(and the core everything builds on). The core imports no driver, procedure or simulator; only
+(and the core everything builds on). A procedure never holds a store: it returns its analysis
+and the caller records it (vts_hw.store.recorder), so procedures/ importing vts_hw.store is a
+failure, at any depth of the module (a function's own import too). The core imports no driver, procedure or simulator; only
 the CLI and the simulated scenarios import the simulator; every import is absolute; no module
 is over 500 lines. See docs/decisions/0028-structure.md.
 """
@@ -74,6 +76,33 @@ def test_imports_go_one_way():
             if dst != src and dst not in ALLOWED[src]:
                 wrong.append(f"{path.relative_to(ROOT)}:{line} ({src}) imports {target} ({dst})")
     assert wrong == []
+
+
+def test_procedures_never_hold_a_store():
+    """Procedures receive what they need (a baseline, a calibration) and return their analyses;
+    the recorder stores them. Any import of vts_hw.store from procedures/ fails this."""
+    found = [f"{p.relative_to(ROOT)}:{line} imports {target}" for p, m in modules() if layer(m) == "procedures"
+             for line, _, target in imports(p) if target == "vts_hw.store" or target.startswith("vts_hw.store.")]
+    assert found == []
+    # nor is one handed to them: no parameter and no attribute named store
+    held = []
+    for p, m in modules():
+        if layer(m) != "procedures":
+            continue
+        for node in ast.walk(ast.parse(p.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                args = node.args.posonlyargs + node.args.args + node.args.kwonlyargs
+                held += [f"{p.relative_to(ROOT)}:{node.lineno} {node.name}({a.arg})" for a in args if a.arg == "store"]
+            elif isinstance(node, ast.Attribute) and node.attr == "store" and isinstance(node.value, ast.Name):
+                held += [f"{p.relative_to(ROOT)}:{node.lineno} {node.value.id}.store"]
+    assert held == []
+
+
+def test_the_store_check_sees_an_import_of_the_store(tmp_path):
+    """The check above reads function-level imports too (where a procedure would hide one)."""
+    p = tmp_path / "sneaky.py"
+    p.write_text("def run():\n    from vts_hw.store.recorder import record\n    import vts_hw.store\n")
+    assert [t for _, _, t in imports(p)] == ["vts_hw.store.recorder", "vts_hw.store"]
 
 
 def test_every_import_is_absolute():

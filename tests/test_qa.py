@@ -13,8 +13,9 @@ import pytest
 import yaml
 
 from vts_hw.config import parse_rig
-from vts_hw.procedures.baseline import NoBaseline, load_baseline, save_baselines
-from vts_hw.procedures.daily import QARun
+from qa_runs import run_qa, save_baselines
+from vts_hw.store.baselines import load_baseline
+from vts_hw.vision.wall_baseline import NoBaseline
 from vts_hw.procedures.drift import Baseline, acquire_led_frames
 from vts_hw.drivers.registry import open_camera
 from vts_hw.store import ResultsStore
@@ -59,7 +60,7 @@ def test_daily_set_all_ok_and_stored(rig_cfg, store, tmp_path):
         load_baseline(store, "cam1")
     _baseline(rig_cfg, store)
     assert len(load_baseline(store, "cam2").markers) == 5
-    res = QARun(rig_cfg, store, open_camera=open_camera, n_frames=3, artifacts_dir=tmp_path / "art", plots=True).run()
+    res = run_qa(rig_cfg, store, open_camera=open_camera, n_frames=3, artifacts_dir=tmp_path / "art", plots=True)
     assert res.state == State.OK and res.exit_code == 0, res.results()
     run = store.run(res.run_id)
     assert run.procedure == "daily" and run.status == "OK"
@@ -82,7 +83,7 @@ def test_changed_parameter_and_dead_camera_are_actions(rig_cfg, store, sim_rig):
     _baseline(rig_cfg, store)
     sim_rig.servers["cam1"].params.update([("Image.I0.Appearance.Compression", "60")])
     sim_rig.servers["cam2"].stop()
-    res = QARun(rig_cfg, store, open_camera=open_camera, n_frames=2).run()
+    res = run_qa(rig_cfg, store, open_camera=open_camera, n_frames=2)
     by_cam = {c.camera: c for c in res.cameras}
     assert res.state == State.ACTION and res.exit_code == 20
     # the overview says which camera is in which state, and why, where a person looks
@@ -103,10 +104,10 @@ def test_changed_parameter_and_dead_camera_are_actions(rig_cfg, store, sim_rig):
 def test_tolerance_change_never_rewrites_history(rig_cfg, store):
     from vts_hw.tolerance import Window
     _baseline(rig_cfg, store)
-    first = QARun(rig_cfg, store, open_camera=open_camera, n_frames=2, steps=("drift",)).run()
+    first = run_qa(rig_cfg, store, open_camera=open_camera, n_frames=2, steps=("drift",))
     assert first.state == State.OK
     tight = rig_cfg.model_copy(update={"tolerances": {"drift_x_px": Window.symmetric(0.0, 0.0, "px")}})
-    second = QARun(tight, store, open_camera=open_camera, n_frames=2, steps=("drift",)).run()
+    second = run_qa(tight, store, open_camera=open_camera, n_frames=2, steps=("drift",))
     assert second.state == State.ACTION
     assert store.run(first.run_id).status == "OK"
     old = [m for m in store.measurements(run_id=first.run_id) if m.metric == "drift_x_px" and m.subject == "cam1"]

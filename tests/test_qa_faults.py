@@ -12,8 +12,7 @@ import yaml
 
 from vts_hw.config import parse_rig
 from vts_hw.drivers.registry import open_camera
-from vts_hw.procedures.baseline import save_baselines
-from vts_hw.procedures.daily import QARun
+from qa_runs import run_qa, save_baselines
 from vts_hw.procedures.drift import Baseline, acquire_led_frames
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.store import ResultsStore
@@ -152,7 +151,7 @@ def test_store_full_at_the_end_of_the_run(rig, tmp_path, small_disk):
             if not filled:
                 disk.fill(leave=0)
                 filled.append(msg)
-        res = QARun(cfg, s, open_camera=open_camera, n_frames=2, artifacts_dir=disk.path / "artifacts", progress=progress).run()
+        res = run_qa(cfg, s, open_camera=open_camera, n_frames=2, artifacts_dir=disk.path / "artifacts", progress=progress)
     assert filled and res.run_id is None and "cannot write" in res.store_error
     assert {c.camera for c in res.cameras} == {"cam1", "cam2"}
     assert any(m[1] == "drift_x_px" for c in res.cameras for m in c.measures)

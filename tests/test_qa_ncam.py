@@ -8,8 +8,8 @@ import pytest
 
 from vts_hw.config import parse_rig
 from vts_hw.drivers.registry import open_camera
-from vts_hw.procedures.baseline import load_baseline, save_baselines
-from vts_hw.procedures.daily import QARun
+from qa_runs import run_qa, save_baselines
+from vts_hw.store.baselines import load_baseline
 from vts_hw.procedures.drift import Baseline, acquire_led_frames
 from vts_hw.sim_devices.gantry import Gantry
 from vts_hw.sim_devices.rig import SimRig
@@ -38,12 +38,12 @@ def test_drift_qa_per_camera_with_four_cameras(rig):
     save_baselines(store, bs, rig=cfg.rig)
     for name in ("cam1", "cam2", "cam3", "cam4"):
         assert len(load_baseline(store, name).markers) == 5, name   # each sees its own wall
-    res = QARun(cfg, store, open_camera=open_camera, n_frames=2, steps=("drift",)).run()
+    res = run_qa(cfg, store, open_camera=open_camera, n_frames=2, steps=("drift",))
     assert res.state == State.OK, res.results()
     assert [c.camera for c in res.cameras] == ["cam1", "cam2", "cam3", "cam4"]
     # the heads on a body-contouring orbit at 30 deg hide wall markers from some cameras
     sim.scene.gantry.step_and_shoot(sim.clock.now() - 1.0, n_steps=0, start_deg=30.0, radius_mm=230.0)
-    hidden = QARun(cfg, store, open_camera=open_camera, n_frames=2, steps=("drift",)).run()
+    hidden = run_qa(cfg, store, open_camera=open_camera, n_frames=2, steps=("drift",))
     missing = {c.camera: v for c in hidden.cameras for subj, metric, v, _, _ in c.measures
                if metric == "markers_missing" and subj == c.camera}
     assert hidden.state == State.ACTION and sum(missing.values()) > 0, missing

@@ -118,7 +118,7 @@ def test_six_dof_of_a_pure_translation():
 
 
 def test_the_qa_report_shows_the_latest_step_test_and_refuses_a_changed_plot(tmp_path):
-    from vts_hw.procedures.steps import store_steps
+    from vts_hw.store.recorder import record
     from vts_hw.report import build_drift_report
     from vts_hw.store import ResultsStore
 
@@ -128,7 +128,7 @@ def test_the_qa_report_shows_the_latest_step_test_and_refuses_a_changed_plot(tmp
     png = tmp_path / "steps.png"
     a.plot(png)
     with ResultsStore(f"sqlite:///{tmp_path / 'r.sqlite'}") as store:
-        run_id = store_steps(store, a, rig="r", operator="me", artifacts=[png])
+        run_id = record(store, a, rig="r", operator="me", artifacts=[png]).run_id
         rep = build_drift_report(store, tmp_path / "report.html")
         html = (tmp_path / "report.html").read_text()
         assert rep.steps is not None and rep.steps.latest.id == run_id

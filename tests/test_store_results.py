@@ -1,4 +1,4 @@
-"""Every QA result is stored one way (vts_hw.store.results.store_result): a run with a
+"""Every QA result is stored one way (vts_hw.store.recorder): a run with a
 measurement per measure — and on a full disk, or a database server that is down, a file that
 `vts qa import` stores later. On both back ends (conftest.store_url)."""
 
@@ -8,7 +8,7 @@ import json
 
 from vts_hw.results import Analysis, Measure, overall_state
 from vts_hw.store import ResultsStore
-from vts_hw.store.results import store_result
+from vts_hw.store.recorder import record as store_result
 from vts_hw.store.unsaved import import_unsaved
 from vts_hw.tolerance import State, Window
 

@@ -27,14 +27,16 @@ from urllib.parse import urlsplit
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from vts_hw import catalog
 from vts_hw.errors import ConfigError
 from vts_hw.site_time import site_zone
 
 _ENV_RE = r"^[A-Za-z_][A-Za-z0-9_]*$"
 _MACRO_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")   # QATrack+ macro names are identifiers
 _METRIC_RE = re.compile(r"^[A-Za-z0-9_.:-]+$")
-#: what a ``lists:`` key may be: the procedure names runs are stored under
-PROCEDURE_RE = r"^(daily|drift|drift-baseline|sphere-steps|sync|spect_mapping|motion|calibration|calibration_cameras|qa:[a-z+]+)$"
+#: what a ``lists:`` key may be: the procedure names runs are stored under (as the catalog holds
+#: them at import; the check reads the catalog itself)
+PROCEDURE_RE = catalog.stored_name_pattern()
 
 
 class _Strict(BaseModel):
@@ -107,10 +109,8 @@ class QATrackConfig(_Strict):
     @classmethod
     def _procedures(cls, v: dict):
         for name in v:
-            if not re.match(PROCEDURE_RE, name):
-                raise ValueError(f"{name!r} is not a procedure stored as runs (daily, drift, drift-baseline, "
-                                 f"sphere-steps, sync, spect_mapping, motion, calibration, calibration_cameras, "
-                                 f"qa:STEP+STEP)")
+            if not re.match(catalog.stored_name_pattern(), name):
+                raise ValueError(f"{name!r} is not a procedure stored as runs ({catalog.stored_names_text()})")
         return v
 
     @model_validator(mode="after")

@@ -7,7 +7,7 @@
 * tracks: a synthetic patient trajectory saved by :meth:`Tracks.save` (its .csv and .json);
 * positions.json: a step session's plan and positions, as :class:`StepSession` saves them;
 * list-mode failure records: as :func:`write_failure_record` writes them;
-* unsaved runs: the record :func:`vts_hw.store.results.store_result` writes when the store
+* unsaved runs: the record the recorder (:mod:`vts_hw.store.recorder`) writes when the store
   refuses, through :func:`vts_hw.store.unsaved.save_unsaved`.
 """
 
@@ -98,7 +98,7 @@ def file_seeds(put, fixture, work: Path, rec_dir: Path) -> None:
     put("listmode_failures", "edge-huge.json", b'{"format": "vts-listmode-failure/1", "by": "x", "listmode": "a", '
         b'"reason": "r", "start": null, "end": null, "failed_at": 1' + b"0" * 400 + b"}")
 
-    # ---- an unsaved run, as store_result keeps it when the store refuses
+    # ---- an unsaved run, as the recorder keeps it when the store refuses
     from vts_hw.store.unsaved import save_unsaved
 
     record = {"procedure": "drift", "rig": "fuzz", "operator": "qa", "config_digest": "0" * 64,

@@ -58,13 +58,15 @@ def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 
              on_day: Callable[[DayRow], None] | None = None, on_step: Callable[[str], None] | None = None) -> DemoResult:
     from vts_hw.config import parse_rig
     from vts_hw.drivers.registry import open_camera
-    from vts_hw.procedures.baseline import save_baselines, take_baseline
+    from vts_hw.procedures.baseline import BaselineSet, take_baseline
     from vts_hw.procedures.daily import QARun
     from vts_hw.sim_devices.scenarios.step_chain import run_sim_steps
     from vts_hw.report import build_drift_report
     from vts_hw.sim_devices.clock import VirtualClock
     from vts_hw.sim_devices.rig import SimRig
     from vts_hw.store import ResultsStore
+    from vts_hw.store.baselines import load_baselines
+    from vts_hw.store.recorder import Recorder, record
 
     say = on_step or (lambda m: None)
     out = Path(out)
@@ -87,16 +89,22 @@ def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 
             for c in cfg.cameras:
                 with open_camera(c, clock=clock.now) as cam:
                     baselines.append(take_baseline(cam, frames, clock.now))
-            save_baselines(store, baselines, rig=cfg.rig, operator="demo", started=t_base)
+            record(store, BaselineSet(baselines), rig=cfg.rig, operator="demo", tolerances=cfg.tolerances,
+                   started=t_base, finished=t_base, clock=clock.now)
+            stored_baselines = load_baselines(store, [c.name for c in cfg.cameras])
             say(f"day 0: baseline set ({', '.join(f'{b.camera}: {len(b.markers)} markers' for b in baselines)})")
             rows: list[DayRow] = []
             for day in range(1, days + 1):
                 clock.advance(t_base + day * DAY - clock.now())  # day `day` after the baseline
                 rig.ntp_sync(clock.now() - 1800.0)  # the cameras' NTP synced their clocks half an hour ago
-                qa = QARun(cfg, store, n_frames=frames, clock=clock.now, operator="demo",
+                qa = QARun(cfg, baselines=stored_baselines, n_frames=frames, clock=clock.now,
                            open_camera=lambda c: open_camera(c, clock=clock.now),
                            artifacts_dir=out / "artifacts", plots=(day == days))
-                res = qa.run()
+                now = clock.now()
+                with Recorder(store, qa.procedure, rig=cfg.rig, operator="demo", tolerances=cfg.tolerances,
+                              started=now, clock=clock.now) as rec:
+                    res = qa.run(started=now, run_id=rec.run_id)
+                    rec.finish(res, artifacts=res.artifacts, finished=res.finished)
                 row = DayRow(day, res.started, str(res.state))
                 for c in res.cameras:
                     d = c.drift

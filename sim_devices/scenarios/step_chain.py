@@ -40,6 +40,7 @@ class SimStepsResult:
     out_dir: Path
     run_id: int | None = None
     artifacts: list[Path] = field(default_factory=list)
+    stored: object = None        # where the run went (store.recorder.Stored), when a store was given
 
 
 def score(analysis: StepAnalysis, truth: dict[str, np.ndarray], mapping_transform) -> dict:
@@ -87,8 +88,8 @@ def run_sim_steps(out_dir, seed: int = 0, *, frames: int = 10, n_vertical: int =
     from vts_hw.sim_devices.spect import SimSpect
     from vts_hw.sim_devices.step_table import SPECT_MATRIX, SimSpectSource, SimTable, sphere_centres
     from vts_hw.procedures.spect_mapping import SpectMapping
-    from vts_hw.procedures.steps import (LED_SETTLE_S, SNAPSHOT_COMPRESSION, StepSession, average_centroids, step_plan,
-                        store_steps)
+    from vts_hw.procedures.steps import LED_SETTLE_S, SNAPSHOT_COMPRESSION, StepSession, average_centroids, step_plan
+    from vts_hw.store.recorder import record
     from vts_hw.vision.detect import detect_jpeg
 
     say = progress or (lambda m: None)
@@ -145,7 +146,7 @@ def run_sim_steps(out_dir, seed: int = 0, *, frames: int = 10, n_vertical: int =
         analysis.plot(png)
         result.artifacts.append(png)
     if store is not None:
-        result.run_id = store_steps(store, analysis, tolerances, rig=rig_name or cfg.rig, operator=operator,
-                                    started=started, config_digest=cfg.digest,
-                                    artifacts=result.artifacts, clock=clock)
+        result.stored = record(store, analysis, tolerances=tolerances, rig=rig_name or cfg.rig, operator=operator,
+                               started=started, config_digest=cfg.digest, artifacts=result.artifacts, clock=clock)
+        result.run_id = result.stored.run_id
     return result

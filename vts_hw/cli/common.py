@@ -140,12 +140,14 @@ def store_target(rig: RigConfig | None = None, url: str | None = None):
 
 
 def store_qa_result(rig: RigConfig | None, result, data: dict | None = None, **kw):
-    """Store a QA result the one way (vts_hw.store.results) in the rig's store (the per-user
-    one without a rig config); ``data`` (the --json output) gets a ``stored`` key."""
-    from vts_hw.store.results import store_result
-    stored = store_result(store_target(rig), result,
-                          rig=rig.rig if rig is not None else "",
-                          config_digest=rig.digest if rig is not None else "", **kw)
+    """Record a QA result the one way (vts_hw.store.recorder) in the rig's store (the per-user
+    one without a rig config), judged by the rig's tolerance windows; ``data`` (the --json
+    output) gets a ``stored`` key."""
+    from vts_hw.store.recorder import record
+    stored = record(store_target(rig), result,
+                    rig=rig.rig if rig is not None else "",
+                    config_digest=rig.digest if rig is not None else "",
+                    tolerances=rig.tolerances if rig is not None else None, **kw)
     if data is not None:
         data["stored"] = {"run_id": stored.run_id, "unsaved_file": str(stored.unsaved) if stored.unsaved else None}
     return stored

@@ -30,30 +30,47 @@ def artifacts_dir(store) -> Path:
     return Path(base) / "vts-hw" / "artifacts"
 
 
+def record_qa(store, qa, rig, *, operator: str = "", clock=time.time):
+    """Run ``qa`` (procedures.daily.QARun) and record it the one way (store.recorder): the
+    baselines read from ``store`` (NoBaseline, exit 5, before anything is touched), the
+    "running" row, the cameras measured, one transaction — or the unsaved file when the store
+    cannot be written. Returns the QAResult (``run_id``, ``store_error``) and where it went."""
+    from vts_hw.store.baselines import load_baselines
+    from vts_hw.store.recorder import Recorder
+
+    qa.preflight()
+    if qa.needs_baselines:
+        qa.baselines = {**load_baselines(store, qa.camera_names), **qa.baselines}
+    now = clock()
+    with Recorder(store, qa.procedure, rig=rig.rig, operator=operator, config_digest=rig.digest,
+                  tolerances=rig.tolerances, started=now, clock=clock) as rec:
+        result = qa.run(started=now, run_id=rec.run_id)
+        stored = rec.finish(result, artifacts=result.artifacts, finished=result.finished)
+    result.run_id, result.store_error = stored.run_id, stored.error
+    return result, stored
+
+
 def run_qa(rig, steps, cameras, frames, plots, dry_run, operator, as_json, clock=time.time, push=False) -> int:
     from vts_hw.procedures.daily import QARun
 
     if dry_run:
-        run = QARun(rig, _DryStore(rig), steps=steps, cameras=cameras or None, n_frames=frames)
-        for i, step in enumerate(run.plan(), 1):
+        from vts_hw.cli.common import store_target
+        run = QARun(rig, steps=steps, cameras=cameras or None, n_frames=frames)
+        for i, step in enumerate(run.plan(store_target(rig).url or "the default results store"), 1):
             click.echo(f"{i:2d}. {step}")
         return 0
     from vts_hw.drivers.registry import check_camera_kinds, open_camera
 
     check_camera_kinds(rig.camera(n) for n in (cameras or [c.name for c in rig.cameras]))
     with open_store(rig) as store:
-        run = QARun(rig, store, steps=steps, cameras=cameras or None, n_frames=frames, plots=plots,
-                    artifacts_dir=artifacts_dir(store), operator=operator, config_digest=rig.digest, clock=clock,
+        run = QARun(rig, steps=steps, cameras=cameras or None, n_frames=frames, plots=plots,
+                    artifacts_dir=artifacts_dir(store), clock=clock,
                     open_camera=lambda cfg: open_camera(cfg, clock=clock),
                     progress=lambda m: click.echo(m, err=True) if not as_json else None)
-        result = run.run()
-        unsaved = None
-        if result.store_error:
-            from vts_hw.store.unsaved import save_unsaved
-            unsaved, tried = save_unsaved(store.url, run.unsaved_record(result))
+        result, stored = record_qa(store, run, rig, operator=operator, clock=clock)
     data = result.results_data()
     if result.store_error:
-        data["unsaved_file"] = str(unsaved) if unsaved else None
+        data["unsaved_file"] = str(stored.unsaved) if stored.unsaved else None
     if as_json:
         echo_json(data)
     else:
@@ -64,9 +81,10 @@ def run_qa(rig, steps, cameras, frames, plots, dry_run, operator, as_json, clock
         from vts_hw.cli.qa_push import push_after_qa
         push_after_qa(rig, None if result.store_error else result.run_id, as_json)
     if result.store_error:
+        unsaved = stored.unsaved
         where = (f"its figures are above and in {unsaved} (`vts qa import {unsaved}` stores them later)"
                  if unsaved else "its figures are above only: no fallback file could be written either ("
-                 + "; ".join(tried) + ")")
+                 + "; ".join(stored.tried) + ")")
         click.echo(f"vts: the {result.procedure} run was NOT stored: {result.store_error}; {where}", err=True)
         return 3
     return result.exit_code
@@ -80,7 +98,8 @@ def import_runs(rig, files) -> list[tuple[str, int]]:
 
 def set_baseline(rig, cameras, frames, dry_run, operator, as_json, clock=time.time) -> None:
     from vts_hw.drivers.registry import check_camera_kinds, open_camera
-    from vts_hw.procedures.baseline import set_baselines
+    from vts_hw.procedures.baseline import take_baselines
+    from vts_hw.store.recorder import record
 
     names = cameras or [c.name for c in rig.cameras]
     cfgs = [rig.camera(n) for n in names]
@@ -94,19 +113,22 @@ def set_baseline(rig, cameras, frames, dry_run, operator, as_json, clock=time.ti
     from contextlib import ExitStack
     with ExitStack() as stack, open_store(rig) as store:
         cams = [stack.enter_context(open_camera(cfg, clock=clock)) for cfg in cfgs]
-        run_id, baselines = set_baselines(store, cams, frames=frames, clock=clock, rig=rig.rig,
-                                          operator=operator, config_digest=rig.digest)
+        result = take_baselines(cams, frames=frames, clock=clock)
+        started = clock()
+        stored = record(store, result, rig=rig.rig, operator=operator, config_digest=rig.digest,
+                        tolerances=rig.tolerances, started=started, finished=started, clock=clock)
+    baselines, run_id = result.baselines, stored.run_id
     if as_json:
         echo_json({"run_id": run_id, "baselines": [{"camera": b.camera, "taken": b.taken,
-                                                    "markers": [m.__dict__ for m in b.markers]} for b in baselines]})
-        return
-    for b in baselines:
-        click.echo(f"{b.camera}: baseline of {len(b.markers)} markers set {fmt_time(b.taken)} (run {run_id})")
-        for m in b.markers:
-            click.echo(f"    {m.id}: ({m.x:.2f}, {m.y:.2f}) px")
-
-
-class _DryStore:
-    def __init__(self, rig):
-        from vts_hw.cli.common import store_target
-        self.url = store_target(rig).url or "the default results store"
+                                                    "markers": [m.__dict__ for m in b.markers]} for b in baselines],
+                   **({} if stored.ok else {"unsaved_file": str(stored.unsaved) if stored.unsaved else None})})
+    else:
+        for b in baselines:
+            click.echo(f"{b.camera}: baseline of {len(b.markers)} markers set {fmt_time(b.taken)} "
+                       + (f"(run {run_id})" if run_id is not None else "(NOT stored)"))
+            for m in b.markers:
+                click.echo(f"    {m.id}: ({m.x:.2f}, {m.y:.2f}) px")
+    if not stored.ok:
+        from vts_hw.cli.common import say_stored
+        say_stored(stored, result, "baseline", as_json)
+        raise SystemExit(3)

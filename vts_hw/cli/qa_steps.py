@@ -121,6 +121,15 @@ def _open_store(url):
     return ResultsStore(url)
 
 
+def _not_stored(stored, analysis, as_json) -> str | None:
+    """The store did not take the run: one sentence (the unsaved file's) said now, exit 3 at the end."""
+    from vts_hw.cli.common import say_stored
+    if stored is None or stored.ok:
+        return None
+    say_stored(stored, analysis, "step test", as_json)
+    return None if stored.unsaved is None else f"the step test is kept in {stored.unsaved}"
+
+
 def _run_sim(out, seed, frames, vertical, axial, store_url, operator, as_json):
     from vts_hw.sim_devices.scenarios.step_chain import run_sim_steps
 
@@ -138,10 +147,11 @@ def _run_sim(out, seed, frames, vertical, axial, store_url, operator, as_json):
         f"  6-DOF move: rotation off by {s['move_rotation_error_deg']:.4f} deg, translation by "
         f"{s['move_translation_error_mm']:.3f} mm",
         f"  SPECT centroids: RMS {s['spect_centroid_rms_mm']:.3f} mm",
-        f"run {res.run_id} stored in {url}; plot {res.artifacts[0] if res.artifacts else '-'}",
+        (f"run {res.run_id} stored in {url}" if res.run_id is not None else "NOT stored")
+        + f"; plot {res.artifacts[0] if res.artifacts else '-'}",
     ]
     _print(res.analysis, lines, as_json, {"sim_truth": s, "run_id": res.run_id, "out": str(out)})
-    return res.analysis.state, res.run_id, url, None
+    return res.analysis.state, res.run_id, url, _not_stored(res.stored, res.analysis, as_json)
 
 
 def _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path, analyze_dir, frames,
@@ -165,15 +175,23 @@ def _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path, an
                 click.echo(f"{i:2d}. {step}")
             return State.OK, None, None, None
         from vts_hw.cli.common import store_target
+        from vts_hw.store.recorder import record
+        # opened first: a store that cannot be opened stops here, before the operator's work
         with _open_store(store_target(rig, store_url)) as store:
-            res = run_step_test(rig, inputs, out, plan, store, cameras=cameras, analyze_dir=analyze_dir,
-                                frames=frames, ask=ask, operator=operator, progress=say)
+            res = run_step_test(rig, inputs, out, plan, cameras=cameras, analyze_dir=analyze_dir,
+                                frames=frames, ask=ask, progress=say)
+            stored = record(store, res.analysis, rig=rig.rig, operator=operator, config_digest=rig.digest,
+                            tolerances=rig.tolerances, started=res.started, artifacts=res.artifacts)
     finally:
         for c in cameras:
             c.close()
-    _print(res.analysis, [f"run {res.run_id} stored; plot {res.plot or 'not written'}"], as_json,
-           {"run_id": res.run_id, "out": str(out), "not_written": [str(res.plot_error)] if res.plot_error else []})
+    run_id = stored.run_id
+    _print(res.analysis, [(f"run {run_id} stored" if stored.ok else "NOT stored") + f"; plot {res.plot or 'not written'}"],
+           as_json, {"run_id": run_id, "out": str(out), "not_written": [str(res.plot_error)] if res.plot_error else [],
+                     **({} if stored.ok else {"unsaved_file": str(stored.unsaved) if stored.unsaved else None})})
     # the test is stored and printed; a plot a full disk could not take is said at the end (exit 3)
-    lost = f"{res.plot_error}; the step test is stored as run {res.run_id} and its figures are above" \
-        if res.plot_error else None
-    return res.analysis.state, res.run_id, store_url, lost
+    lost = _not_stored(stored, res.analysis, as_json)
+    if res.plot_error:
+        kept = f"stored as run {run_id}" if stored.ok else "not stored"
+        lost = f"{res.plot_error}; the step test is {kept} and its figures are above"
+    return res.analysis.state, run_id, store_url, lost

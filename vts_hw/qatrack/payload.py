@@ -13,6 +13,7 @@ import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from vts_hw import catalog
 from vts_hw.errors import VtsError
 from vts_hw.site_time import WALL_FORMAT, RepeatedWallTime, site_zone, wall_clock
 
@@ -20,7 +21,7 @@ from vts_hw.site_time import WALL_FORMAT, RepeatedWallTime, site_zone, wall_cloc
 KEY_PREFIX = "vts-run-"
 #: run statuses that are results (the others: running, aborted, error)
 PUSHABLE_STATUSES = ("OK", "TOLERANCE", "ACTION")
-DRIFT_PROCEDURES = ("drift", "daily")
+DRIFT_PROCEDURES = catalog.family(catalog.DAILY.key)
 
 
 class NotMapped(VtsError):

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vts_hw import __version__
+from vts_hw import __version__, catalog
 from vts_hw.errors import ConfigError
 from vts_hw.files import ensure_dir, write_atomic
 from vts_hw.tolerance import DEFAULT_TOLERANCES, worst
@@ -34,8 +34,8 @@ from vts_hw.report.model import (AXES, AxisSummary, BandSegment, CameraDrift, Dr
 from vts_hw.report.times import parse_since  # noqa: F401  (re-exported for the CLI)
 from vts_hw.report.trend import CONTROL_METHOD, control_limits, fit_trend, forecast
 
-DRIFT_PROCEDURES = ("drift", "daily")
-BASELINE_PROCEDURE = "drift-baseline"
+DRIFT_PROCEDURES = catalog.family(catalog.DAILY.key)      # daily and drift QA: one check
+BASELINE_PROCEDURE = catalog.BASELINE.name
 COMPLETED = {"OK", "TOLERANCE", "ACTION"}
 BAND_METRICS = {"x": "drift_x_px", "y": "drift_y_px"}
 _BISECT_RESOLUTION_S = 60.0

@@ -14,6 +14,8 @@ import math
 from collections import defaultdict
 from dataclasses import dataclass, field
 
+from vts_hw import catalog
+from vts_hw.catalog import Figure
 from vts_hw.tolerance import DEFAULT_TOLERANCES, State, Window
 from vts_hw.report.times import fmt_date
 
@@ -22,17 +24,8 @@ LAST_N = 10                 # runs listed per procedure, newest first
 
 
 @dataclass(frozen=True)
-class Figure:
-    """A column of a history table: a metric (one subject, or the worst of all of them)."""
-    metric: str
-    label: str
-    fmt: str
-    subject: str | None = None          # None: the largest value over the subjects
-    exclude: str | None = None          # with subject None: a subject left out (the set's figure)
-
-
-@dataclass(frozen=True)
 class Spec:
+    """A section of the history: the procedures of one check (vts_hw.catalog) and their figures."""
     key: str
     title: str
     procedures: tuple[str, ...]
@@ -41,25 +34,16 @@ class Spec:
     room_check: bool = True             # judged as the room's QA ("attention"; open ACTION items)
 
 
-SPECS = (
-    Spec("sync", "Sync checks (VTS against SPECT)", ("sync",),
-         (Figure("sync_max_abs_dt_ms", "max |Δt| ms", ".1f"), Figure("sync_events_both", "events seen by both", "g"),
-          Figure("sync_events_one_system", "seen by one only", "g"))),
-    Spec("spect_mapping", "SPECT mappings (VTS → SPECT)", ("spect_mapping",),
-         (Figure("mapping_tre_rms_mm", "TRE RMS mm", ".3f"), Figure("mapping_fre_mm", "FRE mm", ".3f"))),
-    # "calibration_cameras": the N-camera runs' name before one calibration (decision 0056), read as one
-    Spec("calibration", "Camera calibrations", ("calibration", "calibration_cameras"),
-         (Figure("calibration_rms_px", "RMS of the set px", ".3f", subject="set"),
-          Figure("calibration_rms_px", "worst camera px", ".3f", exclude="set"),
-          Figure("calibration_converged", "converged", "g", subject="set"))),
-    Spec("motion", "Motion analyses (patient scans)", ("motion",),
-         (Figure("motion_body_max_mm", "max shift mm", ".2f"), Figure("motion_body_max_deg", "max turn °", ".2f"),
-          Figure("motion_pose_coverage", "pose known (share of time)", ".3f")), room_check=False),
-)
+def specs() -> tuple[Spec, ...]:
+    """One section per check of the catalog that has a history title, in the catalog's order
+    (read at each call: a procedure added to the catalog gets its section)."""
+    return tuple(Spec(key, title, names, p.figures, 0, p.judges == "room")
+                 for key, title, names, p in catalog.sections())
 
-LABELS = {"sync": "sync check", "spect_mapping": "SPECT mapping", "calibration": "camera calibration",
-          "calibration_cameras": "camera calibration", "motion": "motion analysis", "sphere-steps": "step test",
-          "daily": "daily QA", "drift": "daily QA", "drift-baseline": "drift baseline"}
+
+SPECS = specs()      # as the catalog holds them at import (for readers; the report calls specs())
+#: how a person calls a run of each stored procedure name (the catalog's labels)
+LABELS = {n: p.label for p in catalog.PROCEDURES for n in p.stored_as}
 
 
 @dataclass
@@ -120,7 +104,7 @@ class ProcedureHistory:
         latest = self.latest
         if not self.spec.room_check or latest is None or latest.status == "OK":
             return None
-        what = LABELS.get(latest.procedure, latest.procedure)
+        what = catalog.label(latest.procedure)
         room = f" ({latest.rig})" if latest.rig else ""
         bad = ", ".join(latest.not_ok) or "see its run"
         return (State(latest.status).rank,
@@ -144,8 +128,9 @@ def _value(f: Figure, by_subject: dict[tuple[str, str], tuple]) -> tuple[float |
 
 
 def collect_history(store, since: float | None, now: float, rig: str | None) -> list[ProcedureHistory]:
-    """The history of each procedure of :data:`SPECS` with runs in the period (rig None: all rigs)."""
-    procs = tuple(p for s in SPECS for p in s.procedures)
+    """The history of each section of the catalog (:func:`specs`) with runs in the period (rig None: all rigs)."""
+    all_specs = specs()
+    procs = tuple(p for s in all_specs for p in s.procedures)
     runs = [r for r in store.runs(procedure=procs, since=since)
             if r.started <= now and (rig is None or (r.rig or "") == rig)]
     if not runs:
@@ -157,7 +142,7 @@ def collect_history(store, since: float | None, now: float, rig: str | None) -> 
             v = None if m.value is None or (isinstance(m.value, float) and math.isnan(m.value)) else float(m.value)
             meas[m.run_id][(m.metric, m.subject)] = (v, str(m.status))
     out = []
-    for spec in SPECS:
+    for spec in all_specs:
         mine = [r for r in runs if r.procedure in spec.procedures]
         if not mine:
             continue

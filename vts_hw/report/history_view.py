@@ -6,7 +6,8 @@ from __future__ import annotations
 import base64
 from html import escape
 
-from vts_hw.report.history import LABELS, LAST_N, ProcedureHistory
+from vts_hw import catalog
+from vts_hw.report.history import LAST_N, ProcedureHistory
 from vts_hw.report.plots import FONT, STATE_COLOURS
 from vts_hw.report.times import fmt_datetime, utc
 
@@ -67,7 +68,7 @@ def history_html(history: list[ProcedureHistory], show_rig: bool = False) -> str
             cells = "".join(f'<td class="num{" s-" + escape(s) if s and s != "OK" else ""}">{_fmt(v, f.fmt)}</td>'
                             for f, (v, s) in zip(figs, r.values))
             rows.append(f"<tr><td>{fmt_datetime(r.started)}</td>" + (f"<td>{escape(r.rig)}</td>" if show_rig else "")
-                        + f"<td>{escape(LABELS.get(r.procedure, r.procedure))}</td><td>{r.id}</td>"
+                        + f"<td>{escape(catalog.label(r.procedure))}</td><td>{r.id}</td>"
                         f'<td><span class="badge {escape(r.status)}">{escape(r.status)}</span></td>{cells}</tr>')
         more = len(h.runs) - len(h.shown)
         img = ""

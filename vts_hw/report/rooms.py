@@ -21,21 +21,18 @@ from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from vts_hw import __version__
+from vts_hw import __version__, catalog
 from vts_hw.files import ensure_dir, write_atomic
 from vts_hw.tolerance import State, worst
 from vts_hw.report.drift import COMPLETED, DRIFT_PROCEDURES, collect, report_format
-from vts_hw.report.history import LABELS, SPECS
 from vts_hw.report.model import DriftReport, RunInfo
-from vts_hw.report.steps import PROCEDURE as STEPS_PROCEDURE
 from vts_hw.report.times import fmt_date
 
-_SPECS = {s.key: s for s in SPECS}
-STEPS_PROCEDURES = (STEPS_PROCEDURE,)
-CALIBRATION_PROCEDURES = _SPECS["calibration"].procedures
-MAPPING_PROCEDURES = _SPECS["spect_mapping"].procedures
+STEPS_PROCEDURES = catalog.family(catalog.STEPS.key)
+CALIBRATION_PROCEDURES = catalog.family(catalog.CALIBRATION.key)
+MAPPING_PROCEDURES = catalog.family(catalog.MAPPING.key)
 #: never open ACTION items (see the docstring): a patient's scan, and baselines (no state)
-NOT_ROOM_CHECKS = tuple(p for s in SPECS if not s.room_check for p in s.procedures) + ("drift-baseline",)
+NOT_ROOM_CHECKS = catalog.not_room_checks()
 OPEN_RULE = ("An ACTION item is open while the latest completed result of the same check — the same "
              "procedure (daily and drift QA count as one), the same camera or subject, the same quantity — "
              "is ACTION; a later OK or TOLERANCE result of that check closes it. Motion analyses judge a "
@@ -146,13 +143,14 @@ def _latest(runs, procedures) -> RunInfo | None:
 
 
 def _check(procedure: str) -> str:
-    return LABELS.get(procedure, procedure)
+    return catalog.label(procedure)
 
 
 def _per_run(measurements, runs):
     """The completed room-check runs among ``runs`` (by time) and per run the state of each
     check key (check, camera or subject, metric) from ``measurements``."""
-    done = {r.id: r for r in runs if str(r.status) in COMPLETED and r.procedure not in NOT_ROOM_CHECKS}
+    not_room = catalog.not_room_checks()
+    done = {r.id: r for r in runs if str(r.status) in COMPLETED and r.procedure not in not_room}
     per_run: dict[int, dict[tuple[str, str, str], str]] = defaultdict(dict)
     for m in measurements:
         run = done.get(m.run_id)
@@ -229,7 +227,8 @@ def collect_rooms(store, since: float | None = None, now: float | None = None, r
     rigs = store.rigs() if rigs is None else list(rigs)
     names = drift_file_names(Path(out or "rooms.html"), rigs)
     all_runs = [r for r in store.runs() if r.started <= now]
-    checks = tuple(sorted({r.procedure for r in all_runs if r.procedure not in NOT_ROOM_CHECKS}))
+    not_room = catalog.not_room_checks()
+    checks = tuple(sorted({r.procedure for r in all_runs if r.procedure not in not_room}))
     measurements = store.measurements(procedure=checks) if checks else []
     rooms = []
     for rig in rigs:

@@ -13,22 +13,14 @@ from dataclasses import dataclass, field
 from html import escape
 from pathlib import Path
 
+from vts_hw import catalog
 from vts_hw.tolerance import State
 from vts_hw.report.times import fmt_datetime
 
-PROCEDURE = "sphere-steps"
+PROCEDURE = catalog.STEPS.name
 
-# metric -> (label, format) in the order the report lists them
-ROWS = {
-    "steps_slope": ("regression slope", ".5f"),
-    "steps_intercept_mm": ("regression intercept (mm)", "+.3f"),
-    "steps_r2": ("regression R²", ".6f"),
-    "steps_diff_max_mm": ("VTS–SPECT distance, max (mm)", ".3f"),
-    "steps_diff_mean_mm": ("VTS–SPECT distance, mean (mm)", ".3f"),
-    "steps_diff_sd_mm": ("VTS–SPECT distance, SD (mm)", ".3f"),
-    "steps_rotation_diff_deg": ("6-DOF move, rotation VTS − SPECT (°)", "+.3f"),
-    "steps_translation_diff_mm": ("6-DOF move, translation VTS − SPECT (mm)", "+.3f"),
-}
+# metric -> (label, format) in the order the report lists them (the catalog's figures)
+ROWS = {f.metric: (f.label, f.fmt) for f in catalog.STEPS.figures}
 
 
 @dataclass
@@ -77,7 +69,7 @@ class StepsSummary:
 
 def collect_steps(store, since: float | None, now: float, rig: str | None) -> StepsSummary | None:
     """The step-test runs of the period (None when there are none)."""
-    runs = [r for r in store.runs(procedure=PROCEDURE, since=since)
+    runs = [r for r in store.runs(procedure=catalog.STEPS.stored_as, since=since)
             if r.started <= now and (rig is None or (r.rig or "") == rig)]
     if not runs:
         return None

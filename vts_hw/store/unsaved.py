@@ -4,7 +4,8 @@ When a run's figures cannot be written to the results store (disk full, read-onl
 database that is down), they are written as JSON to ``unsaved/`` next to an SQLite store's
 file — else to the per-user data folder, the current folder, or the temporary folder, the
 first that takes it. The file holds everything needed to store the run later with its own
-times, states and tolerance windows (:func:`import_unsaved`); nothing is judged again.
+times, states and tolerance windows (:func:`import_unsaved`); it is written by the one
+recorder (recorder.py), whatever the procedure.
 """
 
 from __future__ import annotations
@@ -66,21 +67,33 @@ def load_unsaved(path: str | Path) -> dict:
 
 def import_unsaved(store, path: str | Path) -> int:
     """Store an unsaved run with its own start and finish times, states and notes; return
-    its run id. The file is renamed ``*.imported`` so that it is never stored twice."""
+    its run id. The tolerance windows it was judged by (when the file holds them) are synced
+    at its start, and a measure its window judged keeps that window's id, as the recorder
+    would have stored it (store.recorder). The file is renamed ``*.imported`` so that it is
+    never stored twice."""
+    from vts_hw.store.recorder import artifact_kind, judged_by_window
+    from vts_hw.tolerance import State, Window
+
     p = Path(path)
     doc = load_unsaved(p)
     try:
         procedure, started = str(doc["procedure"]), float(doc["started"])
+        windows = {str(k): Window(**w) for k, w in (doc.get("tolerances") or {}).items()}
+        if windows:
+            store.sync_tolerances(windows, at=started)
+        note = (f"imported from {p.name}: the store could not take it when it ran "
+                f"({doc.get('store_error', 'unknown reason')})")
         with store.begin_run(procedure, rig=doc.get("rig", ""), operator=doc.get("operator", ""),
                              config_digest=doc.get("config_digest", ""), started=started,
                              software_version=doc.get("software_version"),
-                             notes=f"imported from {p.name}: the store could not take it when it ran "
-                                   f"({doc.get('store_error', 'unknown reason')})") as h:
+                             notes=f"{doc['notes']}\n{note}" if doc.get("notes") else note) as h:
             for m in doc["measurements"]:
-                h.measure(m["subject"], m["metric"], m["value"], m.get("unit", ""), status=m["state"])
+                own = judged_by_window(m["metric"], m["value"], State(m["state"]), windows)
+                h.measure(m["subject"], m["metric"], m["value"], m.get("unit", ""),
+                          status=None if own else m["state"], at=started)
             for a in doc.get("artifacts", []):
                 if Path(a).is_file():   # one gone since (or a folder named instead) is left out
-                    h.artifact(a, kind="plot" if str(a).endswith(".png") else "frame")
+                    h.artifact(a, kind=artifact_kind(a))
             run = h.finish(status=doc["state"], finished=float(doc.get("finished") or started))
     except (KeyError, TypeError, ValueError) as exc:
         raise DataError(f"{p}: not an unsaved run written by vts ({exc})") from None

@@ -1,0 +1,24 @@
+"""The daily QA and the drift baselines as `vts qa` runs them, for tests that call the API:
+the procedure measures, the one recorder stores (vts_hw.cli.qa_run.record_qa)."""
+
+from __future__ import annotations
+
+import time
+
+from vts_hw.store.recorder import record
+
+
+def save_baselines(store, baselines, rig: str = "", started: float | None = None) -> int:
+    """Store ``baselines`` (procedures.drift.Baseline) as one baseline run; its id."""
+    from vts_hw.procedures.baseline import BaselineSet
+    started = time.time() if started is None else started
+    stored = record(store, BaselineSet(list(baselines)), rig=rig, started=started, finished=started)
+    assert stored.ok, stored.error
+    return stored.run_id
+
+
+def run_qa(rig, store, **kw):
+    """A QARun(rig, **kw) recorded in ``store``; the QAResult (run_id, store_error set)."""
+    from vts_hw.cli.qa_run import record_qa
+    from vts_hw.procedures.daily import QARun
+    return record_qa(store, QARun(rig, **kw), rig)[0]
