@@ -12,8 +12,8 @@ breath (below).
 
 * **Cycles** (:func:`find_breaths`): trough to trough, both seen in one stretch, a peak between
   them. Phase (0-1, linear in time) and the per-frame rate exist only inside them.
-* **Periods**: from a landmark to the next of its kind: trough-trough and peak-peak in one
-  stretch; up-up and down-down also across gaps too short to hide a breath.
+* **Periods**: from an up-crossing of the middle to the next, also across gaps too short to
+  hide a breath (the breaths with no whole cycle are measured so).
 * **Half breaths**: a trough and the peak next to it in one stretch (the breath's depth).
 
 :func:`breathing_figures`: ``none`` when the breaths are not above the signal's noise (no
@@ -79,9 +79,8 @@ class Cycle:
 
 @dataclass
 class Breaths:
-    """What :func:`find_breaths` saw: whole ``cycles``; ``periods`` [(t0, t1, edge_s, span_s)]
-    landmark to landmark of one kind (the seen time its landmarks needed on either side, and the
-    longest gap its kind of period may span); ``halves`` depths (mm) of trough-peak pairs;
+    """What :func:`find_breaths` saw: whole ``cycles``; ``periods`` [(t0, t1)] from an
+    up-crossing of the middle to the next (across gaps up to ``span_s``); ``halves`` depths (mm) of trough-peak pairs;
     ``phase``/``rate`` per frame inside whole cycles; ``depth_mm``: the signal's 5-95 % range;
     ``stretches_s``: the lengths of the stretches seen (``bounds`` their rows of ``n_rows``);
     ``span_s``: the longest gap a crossing-to-crossing period may span."""
@@ -178,17 +177,12 @@ def find_breaths(t, a, valid, period: float, min_period_s: float = 1.5, max_peri
         k, edge = seg[i], int(np.ceil(edge_s / period))
         return k >= 0 and i - edge >= bounds[k][0] and i + edge < bounds[k][1]
 
-    for kind, lst in (("trough", troughs), ("peak", peaks)):    # landmark to the next: in one stretch
-        for i0, i1 in zip(lst[:-1], lst[1:]):
-            t0, t1 = float(t[i0]), float(t[i1])
-            if seen(i0) and seen(i1) and seg[i0] == seg[i1] and min_period_s <= t1 - t0 <= max_period_s:
-                out.periods.append((t0, t1, EDGE_S, 0.0, kind))
     out.span_s = _span_s(cross, seen, seg)
-    for (sign, t0, i0), (_, t1, i1) in zip(cross[:-2], cross[2:]):  # a crossing to the next of its kind
-        if t0 is None or t1 is None or not (seen(i0, CROSS_EDGE_S) and seen(i1, CROSS_EDGE_S)):
+    for (sign, t0, i0), (_, t1, i1) in zip(cross[:-2], cross[2:]):  # an up-crossing to the next
+        if sign < 0 or t0 is None or t1 is None or not (seen(i0, CROSS_EDGE_S) and seen(i1, CROSS_EDGE_S)):
             continue
         if min_period_s <= t1 - t0 <= max_period_s and _longest_gap_s(bounds, seg[i0], seg[i1], period) <= out.span_s:
-            out.periods.append((t0, t1, CROSS_EDGE_S, out.span_s, "up" if sign > 0 else "down"))
+            out.periods.append((t0, t1))
     ext = sorted([(int(i), 1) for i in peaks] + [(int(i), -1) for i in troughs])
     for (i0, s0), (i1, s1) in zip(ext[:-1], ext[1:]):
         if s0 != s1 and seen(i0) and seen(i1) and seg[i0] == seg[i1]:
@@ -239,23 +233,25 @@ def signal_noise(a, valid) -> float:
     return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
 
 
-def _fit_length(p: float, br: Breaths, period: float, edge_s: float, span_s: float) -> float:
-    """The time in which a period of ``p`` s can start and still be measured: both its ends seen
-    (``edge_s`` of pose on either side) with no gap longer than ``span_s`` between them."""
-    k = int(round(p / period))
-    if k <= 0 or k >= br.n_rows:
-        return 0.0
-    edge = int(np.ceil(edge_s / period))
+def _fit_lengths(lengths_s, br: Breaths, period: float) -> np.ndarray:
+    """Per period length, the time in which a period of it can start and still be measured as an
+    up-crossing period is: both ends seen (:data:`CROSS_EDGE_S` of pose on either side) with no
+    gap longer than ``br.span_s`` between them."""
+    edge = int(np.ceil(CROSS_EDGE_S / period))
     seen = np.zeros(br.n_rows, bool)
     joined = np.full(br.n_rows, -1)
     group = -1
     for j, (a, b) in enumerate(br.bounds):
         seen[a + edge:max(a + edge, b - edge)] = True
-        if j == 0 or (a - br.bounds[j - 1][1]) * period > span_s:
+        if j == 0 or (a - br.bounds[j - 1][1]) * period > br.span_s:
             group += 1
         joined[a:b] = group
-    both = seen[:-k] & seen[k:] & (joined[:-k] == joined[k:])
-    return float(both.sum()) * period
+    out = []
+    for p in lengths_s:
+        k = int(round(p / period))
+        ok = 0 < k < br.n_rows
+        out.append(float((seen[:-k] & seen[k:] & (joined[:-k] == joined[k:])).sum()) * period if ok else 0.0)
+    return np.array(out)
 
 
 def _weighted_median(x, w) -> float:
@@ -275,18 +271,16 @@ def _union_s(intervals) -> float:
 
 
 def _single_breaths(br: Breaths) -> list:
-    """Each breath seen whole once: ``[(t0, t1, span_s)]``, the trough-to-trough cycles,
+    """Each breath seen whole once: ``[(t0, t1)]``, the trough-to-trough cycles,
     and for a breath with no cycle its up-crossing to the next (the crossing comes a fifth of the
     way into the inhalation: that period is the breath's own to within a fifth of the next's
     difference; peak-to-peak and down-to-down periods mix two breaths half and half and are not
     used for the rate -- they shrink its spread and move the median off the breaths')."""
-    out = [(c.t_start, c.t_end, 0.0) for c in br.cycles]
-    for t0, t1, _, g, kind in br.periods:
-        if kind == "up" and not any(c.t_start <= t0 < c.t_end for c in br.cycles):
-            out.append((t0, t1, g))
+    out = [(c.t_start, c.t_end) for c in br.cycles]
+    out += [(t0, t1) for t0, t1 in br.periods if not any(c.t_start <= t0 < c.t_end for c in br.cycles)]
     if out:                 # a pause, or a gap that hid a shallow breath's crossings: not one breath
-        typical = float(np.median([b - a for a, b, _ in out]))
-        out = [(a, b, g) for a, b, g in out if b - a <= DOUBLED * typical]
+        typical = float(np.median([b - a for a, b in out]))
+        out = [(a, b) for a, b in out if b - a <= DOUBLED * typical]
     return sorted(out)
 
 
@@ -296,7 +290,7 @@ def breathing_figures(br: Breaths, period: float, duration_s: float, noise_mm: f
     rates at all (then ``none`` whatever the signal)."""
     noise = float(noise_mm) if np.isfinite(noise_mm) else None
     breaths = _single_breaths(br)
-    span_s = _union_s([(a, b) for a, b, *_ in breaths])
+    span_s = _union_s(breaths)
     n_ind = len(breaths)
     base = dict(cycles=len(br.cycles), periods=n_ind, halves=len(br.halves), breaths_s=span_s,
                 share=span_s / duration_s if duration_s > 0 else 0.0, noise_mm=noise)
@@ -314,10 +308,11 @@ def breathing_figures(br: Breaths, period: float, duration_s: float, noise_mm: f
         return BreathingFigures("unknown", f"rate unknown: {n_ind} breath(s) seen whole, over {span_s:.1f} s of "
                                            f"{duration_s:.1f} s (the longest stretch seen {longest:.1f} s); a rate "
                                            f"needs {MIN_CYCLES}", amplitude_mm=amp, **base)
-    rates = np.array([60.0 / (b - a) for a, b, *_ in breaths])
+    lengths = np.array([b - a for a, b in breaths])
+    rates = 60.0 / lengths
     # a breath is kept when seen either way, nearly always when its up-crossings are: the chance
     # of that (a long breath's ends are less often both seen) weighs it
-    w = np.array([1.0 / max(_fit_length(b - a, br, period, CROSS_EDGE_S, br.span_s), period) for a, b, *_ in breaths])
+    w = 1.0 / np.maximum(_fit_lengths(lengths, br, period), period)
     rate = _weighted_median(rates, w)
     spread = max(1.4826 * float(np.median(np.abs(rates - np.median(rates)))), SPREAD_MIN * rate)
     n_eff = min(float(w.sum() ** 2 / (w ** 2).sum()), n_ind)

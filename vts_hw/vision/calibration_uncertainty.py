@@ -375,13 +375,18 @@ def check_pair_uncertainty(path, unc, key: str = "uncertainty") -> dict[str, Any
     if not isinstance(sds, dict) or not all(_finite(v) and v >= 0 for v in sds.values()) \
             or not {"rx", "ry", "rz", "baseline"} <= set(sds):
         raise bad("stereo")
+    return {"stereo": dict(sds), "stereo_cov": _stereo_cov(unc, bad).tolist()}
+
+
+def _stereo_cov(unc: dict, bad) -> np.ndarray:
+    """``unc['stereo_cov']`` as a finite 6 x 6 array; ``bad('stereo_cov')`` raised otherwise."""
     try:
         cov = np.asarray(unc.get("stereo_cov"), dtype=float)
     except (TypeError, ValueError):
         raise bad("stereo_cov") from None
     if cov.shape != (6, 6) or not np.all(np.isfinite(cov)):
         raise bad("stereo_cov")
-    return {"stereo": dict(sds), "stereo_cov": cov.tolist()}
+    return cov
 
 
 def optional_keys(path, data: dict[str, Any]) -> dict[str, Any]:
@@ -406,12 +411,7 @@ def optional_keys(path, data: dict[str, Any]) -> dict[str, Any]:
             sds = unc.get(key)
             if not isinstance(sds, dict) or not all(_finite(v) and v >= 0 for v in sds.values()):
                 raise bad(key)
-        try:
-            cov = np.asarray(unc.get("stereo_cov"), dtype=float)
-        except (TypeError, ValueError):
-            raise bad("stereo_cov") from None
-        if cov.shape != (6, 6) or not np.all(np.isfinite(cov)):
-            raise bad("stereo_cov")
+        _stereo_cov(unc, bad)
         out["uncertainty"] = unc
     return out
 
