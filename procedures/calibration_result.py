@@ -11,9 +11,6 @@ from vts_hw.tolerance import State, merged_tolerances
 
 #: the one procedure name of a calibration run, whichever command made it (the catalog's)
 PROCEDURE = catalog.CALIBRATION.name
-#: names calibration runs were stored under before (N-camera runs until decision 0056): read as
-#: calibrations wherever the history is read, never rewritten
-OLD_PROCEDURES = catalog.CALIBRATION.aliases
 #: the subject of the whole set's figure (the cameras' own are named after the camera)
 SET_SUBJECT = "set"
 

@@ -41,10 +41,6 @@ def specs() -> tuple[Spec, ...]:
                  for key, title, names, p in catalog.sections())
 
 
-SPECS = specs()      # as the catalog holds them at import (for readers; the report calls specs())
-#: how a person calls a run of each stored procedure name (the catalog's labels)
-LABELS = {n: p.label for p in catalog.PROCEDURES for n in p.stored_as}
-
 
 @dataclass
 class HistoryRun:
@@ -158,4 +154,4 @@ def collect_history(store, since: float | None, now: float, rig: str | None) -> 
     return out
 
 
-__all__ = ["SPECS", "LABELS", "ProcedureHistory", "HistoryRun", "collect_history"]
+__all__ = ["specs", "ProcedureHistory", "HistoryRun", "collect_history"]
