@@ -22,11 +22,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from vts_hw.live.alerts import Alert, AlertRule
-from vts_hw.live.breathing import BreathingTrace
-from vts_hw.live.marker_tracks import assign
-from vts_hw.live.model import Fit, ReferenceModel
-from vts_hw.live.reference import ReferenceCollector
+from vts_hw.tracking.live.alerts import Alert, AlertRule
+from vts_hw.tracking.live.breathing import BreathingTrace
+from vts_hw.tracking.live.marker_tracks import assign
+from vts_hw.tracking.live.model import Fit, ReferenceModel
+from vts_hw.tracking.live.reference import ReferenceCollector
 
 __all__ = ["LiveSettings", "LiveEstimator", "LiveEstimate", "BandEstimate"]
 

@@ -29,10 +29,10 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from vts_hw.live.estimator import LiveEstimate, LiveEstimator, LiveSettings
-from vts_hw.live.grouping import FrameGrouper, FrameSet, Pending
-from vts_hw.live.tap import FrameTap
-from vts_hw.live.watch import NOT_TRACKING, BlindAlert, Facts, Watch
+from vts_hw.tracking.live.estimator import LiveEstimate, LiveEstimator, LiveSettings
+from vts_hw.tracking.live.grouping import FrameGrouper, FrameSet, Pending
+from vts_hw.tracking.live.tap import FrameTap
+from vts_hw.tracking.live.watch import NOT_TRACKING, BlindAlert, Facts, Watch
 from vts_hw.vision.detect import DEFAULT as DEFAULT_DETECTOR, DetectorSettings, detect
 from vts_hw.vision.multiview import ViewGeometry, match_views
 

@@ -35,8 +35,8 @@ from collections import deque
 
 import numpy as np
 
-from vts_hw.live.marker_tracks import MarkerTracks
-from vts_hw.live.model import ReferenceModel, breathing_range, learn_reference
+from vts_hw.tracking.live.marker_tracks import MarkerTracks
+from vts_hw.tracking.live.model import ReferenceModel, breathing_range, learn_reference
 
 __all__ = ["ReferenceCollector", "observed_s"]
 
