@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from vts_hw.recording import folder as rec_mod
+from vts_hw.recording import promised as rec_mod
 from vts_hw.cli import cli
 from vts_hw.cli.common import config_option, echo_json, fmt_time, json_option
 
