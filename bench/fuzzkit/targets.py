@@ -75,6 +75,7 @@ SOURCES: dict[str, tuple[str, str | None]] = {
     "axis_jpeg": ("vts_hw.recording.axis_jpeg", None),
     "mjpeg": ("vts_hw.recording.mjpeg", None),
     "recording": ("vts_hw.recording.folder", None),
+    "recording_info": ("vts_hw.recording.promised", None),
     "StereoCalibration": ("vts_hw.vision.calibration_io", "StereoCalibration"),
     "load_cameras": ("vts_hw.vision.camera_set", "load_cameras"),
     "load_calibration": ("vts_hw.vision.multi_calibration_io", "load_calibration"),
@@ -139,7 +140,7 @@ def _index(data: bytes, s: Scratch) -> None:
     r = P["recording"]
     p = s.file("cam1.index.csv", data, s.rec)
     s.call(r.read_index, p)
-    s.call(r.info, s.rec)  # `vts recording info`: the index against its .mjpeg
+    s.call(P["recording_info"].info, s.rec)  # `vts recording info`: the index against its .mjpeg
 
 
 def _manifest(data: bytes, s: Scratch) -> None:
@@ -265,7 +266,7 @@ TARGETS: dict[str, Target] = {t.name: t for t in [
                                           b"multipart/x-mixed-replace; boundary=")),
     Target("axis_jpeg", "axis_jpeg.inspect_jpeg, axis_timestamp", _axis_jpeg, uses=("axis_jpeg",),
            max_len=12000, tokens=_JPEG),
-    Target("recording_index", "recording.read_index, recording.info", _index, uses=("recording",),
+    Target("recording_index", "recording.read_index, recording.info", _index, uses=("recording", "recording_info"),
            fixtures=("cam1.mjpeg",), max_len=4096,
            tokens=(b"frame,offset,length,camera_time,host_time\n", b",", b"\n", b"\r\n", b"nan",
                    b"inf", b"-1", b"1e999", b"\x00")),
