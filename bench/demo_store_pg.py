@@ -85,13 +85,13 @@ def main() -> int:
                 for line in lines:
                     print(f"    {line}")
             # the same "now" for both (a report's band edges are found by bisection from now)
-            from vts_hw.report.drift import build_drift_report_rooms
+            from vts_hw.report.build import build_drift_report_every_rig
             from vts_hw.store import ResultsStore
             now = time.time()
             reports = {}
             for name, url in (("sqlite", src), ("postgresql", dst)):
                 with ResultsStore(url) as store:
-                    reps = build_drift_report_rooms(store, tmp / f"drift-{name}.html", now=now)
+                    reps = build_drift_report_every_rig(store, tmp / f"drift-{name}.html", now=now)
                 data = [r.results_data() for r in reps]
                 for room in data:
                     room.pop("out", None)

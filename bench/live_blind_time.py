@@ -30,9 +30,9 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from vts_hw.live.estimator import LiveSettings
-from vts_hw.live.tracker import LiveTracker
-from vts_hw.live.watch import Episode
+from vts_hw.tracking.live.estimator import LiveSettings
+from vts_hw.tracking.live.tracker import LiveTracker
+from vts_hw.tracking.live.watch import Episode
 from vts_hw.sim_devices.patient import BodyMove
 from vts_hw.sim_devices.recording_sim import received_frames, simulate_recording
 from vts_hw.sim_devices.sync_truth import true_cameras

@@ -89,7 +89,7 @@ def rendered(seed, duration, n_cameras, n_moves, work, align=True):
     folder = Path(work) / f"rec-{seed}-{n_cameras}-{n_moves}"
     sim = simulate_recording(folder, duration_s=duration, seed=seed, scene=scene,
                              patient={"n_moves": n_moves, "still_s": 12.0})
-    from vts_hw.recording.processing import ProcessSettings, process_recording
+    from vts_hw.tracking.processing import ProcessSettings, process_recording
     from vts_hw.vision.registration import RigidTransform
     cams = {n: sim.scene.camera_at(n, scene.start_epoch + 5.0) for n in sim.cameras}
     tracks = process_recording(folder, cams, workers=2, mapping=RigidTransform.identity(),

@@ -36,7 +36,7 @@ import time
 
 import numpy as np
 
-from vts_hw.recording.processing import process_recording
+from vts_hw.tracking.processing import process_recording
 from vts_hw.sim_devices.recording_sim import BreathingBand, simulate_recording
 from vts_hw.sim_devices.scene import Scene
 

@@ -2,7 +2,7 @@
 
 Writes a simulated 2-camera recording (reference rig, 25 fps, 640x480 JPEG q75, 5 wall
 markers and a breathing 4-marker band: 9 markers per frame) to a temporary folder --
-generation is not timed -- then times :func:`vts_hw.recording.processing.process_recording` (decode,
+generation is not timed -- then times :func:`vts_hw.tracking.processing.process_recording` (decode,
 detect, match, triangulate every frame, pair by host time, identities) with every core and
 with 1 worker, so that the parallel speed-up shows. Each is the best of ``--reps`` runs (the
 machine is shared: the best run is the one least disturbed by other jobs), with the CPU time
@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-from vts_hw.recording.processing import process_recording
+from vts_hw.tracking.processing import process_recording
 from vts_hw.sim_devices.recording_sim import simulate_recording
 
 GOAL = 40.0

@@ -5,7 +5,7 @@ with breathing taken out, body-motion events and motion states, in the one QA re
 ``results()`` (text), ``results_data()`` (JSON-ready dict), ``plot(path)`` (PNG) and
 ``export(dir)`` (docs/motion-formats.md).
 
-* **Tracks.** The recording is processed (:func:`vts_hw.recording.processing.process_recording`,
+* **Tracks.** The recording is processed (:func:`vts_hw.tracking.processing.process_recording`,
   every camera the calibration covers). With a list-mode file, through the sync analysis
   (:class:`.sync.SyncAnalysis`): every time is then SPECT list-mode seconds since the
   acquisition start; without one, host time (seconds from the first frame in every output).
@@ -118,7 +118,7 @@ class MotionAnalysis:
         self.manifest = load_manifest(self.session, missing_ok=True) or {}
         if not self.manifest.get("cameras"):
             raise DataError(f"{self.session}: not a recording folder (no manifest.json with cameras)")
-        from vts_hw.recording.processing import process_recording
+        from vts_hw.tracking.processing import process_recording
         self.tracks = process_recording(self.session, load_calibration(self.calibration), workers=self.workers,
                                         mapping=load_mapping(self.mapping), progress=self.progress)
         self.problems += [f"processing: {w}" for w in self.tracks.meta.get("warnings", [])]

@@ -34,9 +34,9 @@ import time
 from typing import Callable
 
 from vts_hw.errors import VtsError
-from vts_hw.live.estimator import LiveEstimate, LiveSettings
-from vts_hw.live.tracker import LiveTracker
-from vts_hw.live.watch import TRACKING, BlindAlert, Change, Episode
+from vts_hw.tracking.live.estimator import LiveEstimate, LiveSettings
+from vts_hw.tracking.live.tracker import LiveTracker
+from vts_hw.tracking.live.watch import TRACKING, BlindAlert, Change, Episode
 from vts_hw.procedures.sync_inputs import load_calibration, load_mapping
 from vts_hw.vision.camera_set import covered_names, named_cameras
 

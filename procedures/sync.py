@@ -14,7 +14,7 @@ What it does (the reasons are in docs/decisions/0019-sync-analysis.md):
    gating voltage gives the edges on the SPECT clock. Fitted together: the SPECT start delay
    against the trigger, the SPECT clock's skew, list-mode time ↔ host time, and the dead time
    (head rotations: no events).
-2. **VTS** (:func:`vts_hw.recording.processing.process_recording`): every frame pair triangulated, each
+2. **VTS** (:func:`vts_hw.tracking.processing.process_recording`): every frame pair triangulated, each
    camera's stamps mapped to host time by its clock model (offset and skew fitted to the
    frames' stamp / receive-time pairs). The moving marker: the named one, else the one with
    the largest axial range (SPECT Z through the VTS → SPECT mapping, 2nd–98th percentile;
@@ -175,7 +175,7 @@ class SyncAnalysis:
         """``tolerances``: the rig's tolerance windows over the defaults (the ``sync_*`` ones judge)."""
         self.tolerances = tolerances
         from vts_hw.spect.listmode import read_listmode
-        from vts_hw.recording.processing import process_recording
+        from vts_hw.tracking.processing import process_recording
 
         self.manifest = check_session(self.session)
         self.listmode_path, notes = choose_listmode(self.session, self.listmode_candidates, manifest=self.manifest,

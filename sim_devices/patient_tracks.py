@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vts_hw.recording.tracks import Tracks
+from vts_hw.tracking.tracks import Tracks
 
 __all__ = ["synthetic_tracks", "WALL"]
 

@@ -1,6 +1,6 @@
 """A simulated recording folder written straight from the scene: no HTTP, no real time.
 
-For tests and benchmarks of the processing (vts_hw/recording/processing.py): each camera's frames are
+For tests and benchmarks of the processing (vts_hw/tracking/processing.py): each camera's frames are
 rendered at their exposure times (host clock), JPEG-encoded, stamped with the camera's own
 clock (truncated to 10 ms, as an Axis camera does) and written with the
 :class:`~vts_hw.recording.writer.Recording` writer, with a simulated host receive time = exposure +

@@ -165,7 +165,7 @@ def test_a_camera_in_no_shared_view_is_named():
 # ---- the file ------------------------------------------------------------------------------
 def test_n_camera_file_round_trip_and_readers(real_calib, tmp_path):
     from vts_hw.procedures.sync_inputs import load_calibration as sync_load
-    from vts_hw.recording.processing import cameras_from_calibration
+    from vts_hw.tracking.processing import cameras_from_calibration
 
     path = real_calib.save(tmp_path / "cal.json")
     back = load_calibration(path)
@@ -223,7 +223,7 @@ OLD_STEREO_FILE = {   # a stereo file as vts-hw wrote it before N cameras (and b
 
 def test_old_two_camera_file_still_loads(tmp_path):
     from vts_hw.procedures.sync_inputs import load_calibration as sync_load
-    from vts_hw.recording.processing import cameras_from_calibration
+    from vts_hw.tracking.processing import cameras_from_calibration
 
     path = tmp_path / "calibration.json"
     path.write_text(json.dumps(OLD_STEREO_FILE))

@@ -177,7 +177,7 @@ def test_replay_recorded_again_is_the_same_recording(sim_session, tmp_path):
 
 
 def test_replay_processes_as_the_original(sim_session, tmp_path):
-    from vts_hw.recording.processing import process_recording
+    from vts_hw.tracking.processing import process_recording
 
     folder, sim = sim_session
     rig = _rig(_replay_entries(folder, speed=10.0))

@@ -238,7 +238,7 @@ def from_wheel(built, requires, tmp_path_factory):
 def test_the_wheel_installs_and_imports_every_module_and_data_file(built, from_wheel):
     venv, site, env, work = from_wheel
     modules, data = expected_files(built[0])
-    assert {"vts_hw.live", "vts_hw.motion", "vts_hw.qatrack", "vts_hw.drivers",
+    assert {"vts_hw.tracking.live", "vts_hw.motion", "vts_hw.qatrack", "vts_hw.drivers",
             "vts_hw.sim_devices.scenarios"} <= modules                   # the walk of the source is whole
     out = json.loads(ok(run([venv / "bin" / "python", "-c", IMPORT_ALL], env=env, cwd=work)).stdout)
     assert Path(out["file"]).is_relative_to(site), out["file"]          # the install, not the checkout

@@ -1,7 +1,10 @@
 """The house keeps its layers: every import of the package read from the source.
 
 config → drivers → procedures → store → reports → qatrack: a layer imports only the layers before it
-(and the core everything builds on). A procedure never holds a store: it returns its analysis
+(and the core everything builds on). Tracking (vts_hw/tracking/: frame sets, matching over time,
+identities, tracks, the live path) sits on the core (vision, recording, timing) and under the
+procedures: the rest of the core (the recording format and capture among it) never imports it.
+A procedure never holds a store: it returns its analysis
 and the caller records it (vts_hw.store.recorder), so procedures/ importing vts_hw.store is a
 failure, at any depth of the module (a function's own import too). The core imports no driver, procedure or simulator; only
 the CLI and the simulated scenarios import the simulator; every import is absolute; no module
@@ -21,14 +24,15 @@ FOLDERS = {"vts_hw": "vts_hw", "drivers": "vts_hw.drivers", "procedures": "vts_h
 # what each layer may import, besides itself
 ALLOWED = {
     "core": set(),
+    "tracking": {"core"},
     "drivers": {"core"},
-    "procedures": {"core", "drivers"},
+    "procedures": {"core", "drivers", "tracking"},
     "store": {"core"},
     "report": {"core", "store"},
     "qatrack": {"core", "store", "report"},   # pushing to QATrack+ reads the store and builds reports
-    "sim": {"core"},
-    "scenarios": {"core", "drivers", "procedures", "store", "report", "sim"},
-    "cli": {"core", "drivers", "procedures", "store", "report", "qatrack", "sim", "scenarios"},
+    "sim": {"core", "tracking"},               # the simulated patient's marker tracks are Tracks
+    "scenarios": {"core", "tracking", "drivers", "procedures", "store", "report", "sim"},
+    "cli": {"core", "tracking", "drivers", "procedures", "store", "report", "qatrack", "sim", "scenarios"},
 }
 
 
@@ -37,7 +41,8 @@ def layer(module: str) -> str:
     if parts[:3] == ["vts_hw", "sim_devices", "scenarios"]:
         return "scenarios"
     return {"drivers": "drivers", "procedures": "procedures", "sim_devices": "sim", "cli": "cli",
-            "store": "store", "report": "report", "qatrack": "qatrack"}.get(parts[1] if len(parts) > 1 else "", "core")
+            "store": "store", "report": "report", "qatrack": "qatrack",
+            "tracking": "tracking"}.get(parts[1] if len(parts) > 1 else "", "core")
 
 
 def modules():
@@ -62,7 +67,8 @@ def test_the_rules_see_every_layer():
     assert seen == set(ALLOWED)
     cli_imports = {layer(t) for p, m in modules() if layer(m) == "cli"
                    for _, _, t in imports(p) if t.startswith("vts_hw.")}
-    assert cli_imports >= {"core", "drivers", "procedures", "store", "report", "qatrack", "sim", "scenarios"}
+    assert cli_imports >= {"core", "tracking", "drivers", "procedures", "store", "report", "qatrack", "sim",
+                           "scenarios"}
 
 
 def test_imports_go_one_way():
@@ -115,3 +121,16 @@ def test_no_module_over_500_lines(folder):
     long = {str(p.relative_to(ROOT)): n for p in (ROOT / folder).rglob("*.py")
             if (n := len(p.read_text().splitlines())) > 500}
     assert long == {}
+
+
+def test_tracking_is_a_room_of_its_own_between_vision_and_the_procedures():
+    """Tracking reads the recording and builds on vision; the procedures and the CLI use it; the
+    recording (its format, writer, capture, index, reindex) and vision never import it."""
+    def targets(prefix):
+        return {t for p, m in modules() if m.startswith(prefix) for _, _, t in imports(p) if t.startswith("vts_hw.")}
+    ups = targets("vts_hw.tracking")
+    assert any(t.startswith("vts_hw.vision.") for t in ups) and any(t.startswith("vts_hw.recording.") for t in ups)
+    assert any(t.startswith("vts_hw.tracking.") for t in targets("vts_hw.procedures"))
+    below = {m: sorted(t for _, _, t in imports(p) if t.startswith("vts_hw.tracking"))
+             for p, m in modules() if m.startswith(("vts_hw.recording", "vts_hw.vision"))}
+    assert len(below) > 20 and {m: t for m, t in below.items() if t} == {}

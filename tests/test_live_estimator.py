@@ -8,8 +8,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from vts_hw.live.breathing import breathing_rate
-from vts_hw.live.estimator import LiveEstimator, LiveSettings
+from vts_hw.tracking.live.breathing import breathing_rate
+from vts_hw.tracking.live.estimator import LiveEstimator, LiveSettings
 from vts_hw.sim_devices.patient import BodyMotion, BodyMove, Breathing, Patient
 
 MOTION = SimpleNamespace(alert_mm=3.0, alert_deg=2.0, alert_after_s=1.0)

@@ -10,7 +10,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from vts_hw.live.estimator import LiveEstimator, LiveSettings
+from vts_hw.tracking.live.estimator import LiveEstimator, LiveSettings
 from vts_hw.sim_devices.patient import BodyMotion, BodyMove, Breathing, Patient
 from vts_hw.sim_devices.scene import Scene
 

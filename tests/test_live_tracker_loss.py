@@ -23,9 +23,9 @@ import numpy as np
 import pytest
 
 from vts_hw.cli.live_view import live_line
-from vts_hw.live.estimator import LiveSettings
-from vts_hw.live.tracker import LiveTracker
-from vts_hw.live.watch import NOT_TRACKING, TRACKING, Episode
+from vts_hw.tracking.live.estimator import LiveSettings
+from vts_hw.tracking.live.tracker import LiveTracker
+from vts_hw.tracking.live.watch import NOT_TRACKING, TRACKING, Episode
 from vts_hw.recording.folder import read_index
 from vts_hw.sim_devices.patient import BodyMove
 from vts_hw.sim_devices.recording_sim import received_frames, simulate_recording

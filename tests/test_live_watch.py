@@ -1,4 +1,4 @@
-"""Whether the patient is watched (vts_hw/live/watch.py): TRACKING, REFERENCE or NOT TRACKING with
+"""Whether the patient is watched (vts_hw/tracking/live/watch.py): TRACKING, REFERENCE or NOT TRACKING with
 its reason, stretches timed from the last instant observed to the first observed again, and a
 NOT TRACKING alert once a stretch lasts longer than blind_alert_s. Driven with what the live
 worker publishes (Facts) on a made-up clock: no thread, no waiting."""
@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vts_hw.live.watch import NOT_TRACKING, REFERENCE, TRACKING, BlindAlert, Change, Episode, Facts, Watch
+from vts_hw.tracking.live.watch import NOT_TRACKING, REFERENCE, TRACKING, BlindAlert, Change, Episode, Facts, Watch
 
 CAMS = ("cam1", "cam2")
 LATE = 0.5

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from vts_hw.recording.tracks import Tracks
+from vts_hw.tracking.tracks import Tracks
 from vts_hw.sim_devices.patient import BodyMove
 from vts_hw.sim_devices.recording_sim import simulate_recording
 from vts_hw.store import ResultsStore

@@ -18,7 +18,7 @@ from lossy_recording import (bursts, camera_gone, cut_mjpeg, host_times, lossy_c
 from vts_hw.errors import DataError
 from vts_hw.motion.timeline import MAX_HOLE_S, runs
 from vts_hw.procedures.motion import MotionAnalysis
-from vts_hw.recording.processing import process_recording
+from vts_hw.tracking.processing import process_recording
 from vts_hw.sim_devices.patient import BodyMove
 from vts_hw.sim_devices.recording_sim import simulate_recording
 from vts_hw.sim_devices.scene import Scene

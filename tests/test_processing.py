@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from vts_hw.errors import DataError
-from vts_hw.recording.processing import (ProcessSettings, Tracks, pair_frames, process_recording,
+from vts_hw.tracking.processing import (ProcessSettings, Tracks, pair_frames, process_recording,
                                track_identities, triangulate_fast)
 from vts_hw.vision.registration import RigidTransform
 from vts_hw.sim_devices.recording_sim import BAND_LAYOUT, simulate_recording
@@ -245,7 +245,7 @@ def test_reindexed_and_recovered_recordings(tmp_path):
 def test_chunk_matching_follows_match_epipolar(processed):
     """The chunk-wide matcher gives match_epipolar's answer frame by frame, including frames
     with ambiguous points (two markers level along the baseline) and missing points."""
-    from vts_hw.recording.chunks import _ideal, _match_chunk
+    from vts_hw.tracking.chunks import _ideal, _match_chunk
     from vts_hw.vision.triangulate import fundamental_matrix, match_epipolar
 
     sim, _, _ = processed

@@ -4,9 +4,9 @@ every point from the cameras that see it, nothing invented, more located than wi
 import numpy as np
 import pytest
 
-from vts_hw.recording.frames import group_frames, pair_frames
-from vts_hw.recording.processing import process_recording
-from vts_hw.recording.tracks import Tracks
+from vts_hw.tracking.frame_sets import group_frames, pair_frames
+from vts_hw.tracking.processing import process_recording
+from vts_hw.tracking.tracks import Tracks
 from vts_hw.sim_devices.recording_sim import BreathingBand, simulate_recording
 from vts_hw.sim_devices.scene import Scene
 from vts_hw.sim_devices.sync_truth import write_true_cameras

@@ -5,7 +5,8 @@ import threading
 
 from vts_hw.drivers.registry import open_cameras
 from vts_hw.recording.capture import Recorder
-from vts_hw.recording.folder import info, read_index
+from vts_hw.recording.folder import read_index
+from vts_hw.recording.promised import info
 
 
 def _cams(rig):

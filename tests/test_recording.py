@@ -7,7 +7,8 @@ import pytest
 from vts_hw.recording.axis_jpeg import inspect_jpeg
 from vts_hw.errors import DataError
 from vts_hw.recording.mjpeg import read_frames_file
-from vts_hw.recording.folder import info, load_manifest, read_index
+from vts_hw.recording.folder import load_manifest, read_index
+from vts_hw.recording.promised import info
 from vts_hw.recording.writer import Recording
 from vts_hw.recording.reindex import reindex
 

@@ -14,7 +14,8 @@ import pytest
 from rooms_store import DAY, NOW, RIGS, T0, rooms_store
 from inprocess_cli import vts
 from vts_hw.report.drift import collect
-from vts_hw.report.rooms import build_rooms_report, collect_rooms, open_items
+from vts_hw.report.build import build_rooms_report
+from vts_hw.report.rooms import collect_rooms, open_items
 from vts_hw.store import ResultsStore
 
 

@@ -9,7 +9,7 @@ import pytest
 from vts_hw.config import load_rig
 from vts_hw.drivers.registry import open_cameras
 from vts_hw.procedures.scan import ScanSession
-from vts_hw.recording.processing import process_recording
+from vts_hw.tracking.processing import process_recording
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.vision.camera_set import load_cameras
 from vts_hw.vision.registration import RigidTransform

@@ -23,7 +23,7 @@ import pytest
 from vts_hw.store import ResultsStore
 
 from vts_hw.config import load_rig
-from vts_hw.recording.processing import Tracks
+from vts_hw.tracking.processing import Tracks
 from vts_hw.sim_devices.scenarios import sync_session as sync_sim
 from vts_hw.drivers.registry import open_cameras
 from vts_hw.procedures.scan import ScanSession

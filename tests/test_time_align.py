@@ -3,7 +3,7 @@ two cameras exposing 15 ms apart watch a marker moving at 200 mm/s."""
 
 import numpy as np
 
-from vts_hw.recording.time_align import align_views
+from vts_hw.tracking.time_align import align_views
 from vts_hw.sim_devices.scene import Scene
 from vts_hw.vision.multiview import ViewGeometry, triangulate_groups
 

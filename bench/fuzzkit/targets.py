@@ -75,6 +75,7 @@ SOURCES: dict[str, tuple[str, str | None]] = {
     "axis_jpeg": ("vts_hw.recording.axis_jpeg", None),
     "mjpeg": ("vts_hw.recording.mjpeg", None),
     "recording": ("vts_hw.recording.folder", None),
+    "recording_info": ("vts_hw.recording.promised", None),
     "load_cameras": ("vts_hw.vision.camera_set", "load_cameras"),
     "load_calibration": ("vts_hw.vision.calibration_io", "load_calibration"),
     "read_listmode": ("vts_hw.spect.listmode", "read_listmode"),
@@ -89,7 +90,7 @@ SOURCES: dict[str, tuple[str, str | None]] = {
     "trigger_box": ("vts_hw.drivers.trigger_box", None),
     "qatrack_client": ("vts_hw.qatrack.client", None),
     "trigger_log": ("vts_hw.recording.trigger_log", None),
-    "Tracks": ("vts_hw.recording.tracks", "Tracks"),
+    "Tracks": ("vts_hw.tracking.tracks", "Tracks"),
     "read_points": ("vts_hw.procedures.mapping_inputs", "read_points"),
     "load_positions": ("vts_hw.procedures.steps", "load_positions"),
     "session_span": ("vts_hw.procedures.sync_inputs", "session_span"),
@@ -138,7 +139,7 @@ def _index(data: bytes, s: Scratch) -> None:
     r = P["recording"]
     p = s.file("cam1.index.csv", data, s.rec)
     s.call(r.read_index, p)
-    s.call(r.info, s.rec)  # `vts recording info`: the index against its .mjpeg
+    s.call(P["recording_info"].info, s.rec)  # `vts recording info`: the index against its .mjpeg
 
 
 def _manifest(data: bytes, s: Scratch) -> None:
@@ -264,7 +265,7 @@ TARGETS: dict[str, Target] = {t.name: t for t in [
                                           b"multipart/x-mixed-replace; boundary=")),
     Target("axis_jpeg", "axis_jpeg.inspect_jpeg, axis_timestamp", _axis_jpeg, uses=("axis_jpeg",),
            max_len=12000, tokens=_JPEG),
-    Target("recording_index", "recording.read_index, recording.info", _index, uses=("recording",),
+    Target("recording_index", "recording.read_index, recording.info", _index, uses=("recording", "recording_info"),
            fixtures=("cam1.mjpeg",), max_len=4096,
            tokens=(b"frame,offset,length,camera_time,host_time\n", b",", b"\n", b"\r\n", b"nan",
                    b"inf", b"-1", b"1e999", b"\x00")),
@@ -344,7 +345,7 @@ TARGETS.update({t.name: t for t in [
     Target("spect_points", "procedures.mapping_inputs.read_points (CSV and JSON)",
            _points, uses=("read_points",), max_len=4096,
            tokens=_JSON + (b"x,y,z\n", b",", b"\n", b'"points"', b"\xef\xbb\xbf", b"nan", b"inf", b"1e999")),
-    Target("tracks", "recording.tracks.Tracks.load (trajectory CSV and JSON)", _tracks, uses=("Tracks",),
+    Target("tracks", "tracking.tracks.Tracks.load (trajectory CSV and JSON)", _tracks, uses=("Tracks",),
            fixtures=("json/tracks.csv", "csv/tracks.json"), max_len=8192,
            tokens=_JSON + (b'"cameras"', b'"markers"', b'"frames"', b'"unpaired"', b'"meta"', b'"format"',
                            b",", b"\n", b"nan", b"inf", b"1e999", b"marker", b"x_mm", b"frame")),

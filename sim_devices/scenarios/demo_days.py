@@ -131,7 +131,7 @@ def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 
             pdf = out / "drift-report.pdf"
             build_drift_report(store, html, now=now, rig=cfg.rig)
             build_drift_report(store, pdf, now=now, rig=cfg.rig)
-            from vts_hw.report.rooms import build_rooms_report
+            from vts_hw.report.build import build_rooms_report
             rooms = out / "rooms.html"
             build_rooms_report(store, rooms, now=now)
     err: dict[str, tuple[float, float]] = {}

@@ -41,7 +41,7 @@ class CameraTour:
     cameras: list[CameraLook]
     recording: Path
     manifest: dict
-    streams: list = field(default_factory=list)     # recording.folder.info(): per camera frames, fps, gaps
+    streams: list = field(default_factory=list)     # recording.promised.info(): per camera frames, fps, gaps
 
 
 def _record_plainly(rec, seconds: float) -> dict:
@@ -57,7 +57,7 @@ def camera_tour(out_dir, seconds: float, *, record: Callable | None = None,
     end, silently; the CLI passes its progress display)."""
     from vts_hw.drivers.registry import open_cameras
     from vts_hw.recording.capture import Recorder
-    from vts_hw.recording.folder import info
+    from vts_hw.recording.promised import info
     from vts_hw.sim_devices.rig import SimRig
 
     out_dir = Path(out_dir)

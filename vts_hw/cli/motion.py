@@ -23,7 +23,7 @@ def motion() -> None:
               help="VTS -> SPECT transform file (default: the rig config's calibration.spect); without one "
                    "poses are in the VTS frame.")
 @click.option("-o", "--output", "out", type=click.Path(dir_okay=False), default=None,
-              help="Write the HTML report here (self-contained: the plot inline).")
+              help="Write the report here: NAME.html (self-contained: the plot inline) or NAME.pdf.")
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None, help="Also write the plot as a PNG.")
 @click.option("--export", "export_dir", type=click.Path(file_okay=False), default=None,
               help="Write the motion files to DIR (docs/motion-formats.md): motion_6dof.csv/.json, respiration.csv, "
@@ -55,8 +55,10 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
     """
     from vts_hw.files import Outputs, write_atomic
     from vts_hw.procedures.motion import MotionAnalysis
-    from vts_hw.report.motion_html import write_motion_html
+    from vts_hw.report.renderers import report_format, write_report
 
+    if out:
+        report_format(out)           # -o x.txt: one sentence, exit 2, before anything is read
     cal, mp, rig = calibration_files(config_path, calibration, mapping)
     candidates = listmode_candidates(listmode, more)
     a = MotionAnalysis(session, candidates or None, cal, mp, motion_config=rig.motion if rig is not None else None,
@@ -72,7 +74,7 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
         data["export_notes"] = list(a.export_notes)
     png = a.plot() if (out or plot_path) else None
     plot_ok = bool(plot_path) and outs.attempt(write_atomic, plot_path, png) is not None
-    report_ok = bool(out) and outs.attempt(write_motion_html, data, png, out) is not None
+    report_ok = bool(out) and outs.attempt(write_report, "motion", out, data, png) is not None
     if report_ok:
         data["report"] = str(out)
     finish_analysis(rig, a, data, "motion analysis", as_json, notes=f"session {session}",

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from vts_hw.recording import folder as rec_mod
+from vts_hw.recording import promised as rec_mod
 from vts_hw.cli import cli
 from vts_hw.cli.common import config_option, echo_json, fmt_time, json_option
 
@@ -112,7 +112,7 @@ def process(session, out, calibration, mapping, workers, as_json, config_path) -
     from vts_hw.cli.common import FramesProgress, calibration_files
     from vts_hw.files import ensure_dir
     from vts_hw.procedures.sync_inputs import load_calibration, load_mapping
-    from vts_hw.recording.processing import process_recording
+    from vts_hw.tracking.processing import process_recording
 
     cal, mp, _ = calibration_files(config_path, calibration, mapping)
     tracks = process_recording(session, load_calibration(cal), workers=workers, mapping=load_mapping(mp),

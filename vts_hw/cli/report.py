@@ -49,7 +49,9 @@ def drift(since: str, out: str, rig_name: str | None, as_json: bool, config_path
     Without a rig config (a department's workstation: `vts --store URL report drift --rig
     NAME`), --rig is needed.
     """
-    from vts_hw.report.drift import build_drift_report, build_drift_report_rooms, parse_since, report_format
+    from vts_hw.report.build import build_drift_report, build_drift_report_every_rig
+    from vts_hw.report.renderers import report_format
+    from vts_hw.report.times import parse_since
     from vts_hw.cli.qa_run import open_store
 
     report_format(out)                  # ReportError: one sentence, exit 2
@@ -61,7 +63,7 @@ def drift(since: str, out: str, rig_name: str | None, as_json: bool, config_path
     name = rig.rig if rig_name is None else rig_name
     with open_store(rig, mode="read") as store:
         if name == ALL_RIGS:
-            reps = build_drift_report_rooms(store, out, since=start)
+            reps = build_drift_report_every_rig(store, out, since=start)
         else:
             _known_rig(store, name, rig_name)
             reps = [build_drift_report(store, out, since=start, rig=name)]
@@ -112,8 +114,9 @@ def rooms(since: str, out: str, rig_name: str | None, as_json: bool, config_path
     Exit status: 0 written; 2 a bad --since, -o or --rig; 3 the store or a file could not be
     read or written (a previous file is left as it was).
     """
-    from vts_hw.report.drift import parse_since, report_format
-    from vts_hw.report.rooms import build_rooms_report
+    from vts_hw.report.build import build_rooms_report
+    from vts_hw.report.renderers import report_format
+    from vts_hw.report.times import parse_since
     from vts_hw.cli.qa_run import open_store
 
     report_format(out)

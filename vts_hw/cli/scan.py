@@ -118,7 +118,7 @@ def start(out: str | None, duration: float | None, dry_run: bool, live: bool, re
 # -- live status -------------------------------------------------------------------------------------
 
 def _live_motion(rig, reference_s: float, err: Console):
-    from vts_hw.live.estimator import LiveSettings
+    from vts_hw.tracking.live.estimator import LiveSettings
     from vts_hw.procedures.scan_live import LiveMotion
 
     def alert(text: str) -> None:   # one line and the bell

@@ -22,7 +22,7 @@ def sync() -> None:
 @click.option("--mapping", type=click.Path(dir_okay=False), default=None,
               help="VTS -> SPECT transform file (default: the rig config's calibration.spect).")
 @click.option("-o", "--output", "out", type=click.Path(dir_okay=False), default=None,
-              help="Write the HTML report here (self-contained: the plot inline).")
+              help="Write the report here: NAME.html (self-contained: the plot inline) or NAME.pdf.")
 @click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None,
               help="Also write the plot as a PNG here.")
 @click.option("--export", "export_dir", type=click.Path(file_okay=False), default=None,
@@ -55,8 +55,10 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
     """
     from vts_hw.files import Outputs, write_atomic
     from vts_hw.procedures.sync import CLOCK_SLACK_S, SyncAnalysis, check_session, export_trajectories
-    from vts_hw.report.sync_html import write_sync_html
+    from vts_hw.report.renderers import report_format, write_report
 
+    if out:
+        report_format(out)           # -o x.txt: one sentence, exit 2, before anything is read
     candidates = listmode_candidates(listmode, more)
     if not candidates:
         raise click.UsageError("give the scan's list-mode: --listmode FILE")
@@ -71,7 +73,7 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
     outs = Outputs()
     png = a.plot() if (out or plot_path) else None
     plot_ok = bool(plot_path) and outs.attempt(write_atomic, plot_path, png) is not None
-    report_ok = bool(out) and outs.attempt(write_sync_html, data, png, out) is not None
+    report_ok = bool(out) and outs.attempt(write_report, "sync", out, data, png) is not None
     if report_ok:
         data["report"] = str(out)
     exported = outs.attempt(export_trajectories, a.tracks, a.gating, export_dir, mp) if export_dir else None

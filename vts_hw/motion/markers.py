@@ -1,6 +1,6 @@
 """Marker tracks as a regular table: per frame f and physical marker m, a position or NaN.
 
-:class:`~vts_hw.recording.tracks.Tracks` gives points with identities; an identity ends when a
+:class:`~vts_hw.tracking.tracks.Tracks` gives points with identities; an identity ends when a
 marker is unseen for a while (a camera gap, a SPECT head in the way) and the marker comes back
 under a new id. :func:`marker_series` re-joins such pieces (ids that follow one another in time
 and meet within ``join_mm``) and lays the points out as ``P[f, m, :]``.

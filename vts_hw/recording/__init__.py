@@ -1,1 +1,1 @@
-"""Recording folders: their format, writing, reading, capture, reindex, processing, tracks."""
+"""Recording folders: their format, writing, reading, capture, the index and reindex (tracking them is vts_hw.tracking)."""

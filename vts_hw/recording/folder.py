@@ -182,21 +182,6 @@ def summarize_times(source: str, times: list[float | None], torn: int = 0, probl
                          round(est, 3) if est else None, gaps, list(problems or []))
 
 
-def info(path: str | Path) -> list[FramesSummary]:
-    """Frames of a recording folder (per camera), an .mjpeg/.mjpg file, or a JPEG file."""
-    p = Path(path)
-    if p.is_dir():
-        indexes = sorted(p.glob("*.index.csv"))
-        mjpegs = sorted(p.glob("*.mjpeg"))
-        if not indexes and not mjpegs:
-            raise DataError(f"{p}: not a recording folder (no .mjpeg or .index.csv files)")
-        from vts_hw.recording.promised import folder_summaries
-        return folder_summaries(p)
-    if not p.exists():
-        raise DataError(f"{p}: no such file or folder")
-    return [_summarize_file(p, p.name)]
-
-
 def _summarize_file(p: Path, name: str, extra=None) -> FramesSummary:
     frames = read_frames_file(p)
     times, torn, problems = [], 0, list(extra or [])

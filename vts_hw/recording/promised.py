@@ -19,7 +19,7 @@ from vts_hw.recording.extent import available_cameras
 from vts_hw.recording.folder import FramesSummary, _summarize_file, load_manifest, read_index, summarize_times
 from vts_hw.recording.frames import load_camera_frames
 
-__all__ = ["folder_summaries", "shortfall"]
+__all__ = ["info", "folder_summaries", "shortfall"]
 
 
 def _listed(manifest: dict | None, name: str) -> int | None:
@@ -83,3 +83,17 @@ def shortfall(summaries: list[FramesSummary]) -> str:
         else:
             parts.append(f"{s.source}: {s.frames} of {s.promised} frames promised are readable")
     return "; ".join(parts)
+
+
+def info(path: str | Path) -> list[FramesSummary]:
+    """Frames of a recording folder (per camera), an .mjpeg/.mjpg file, or a JPEG file."""
+    p = Path(path)
+    if p.is_dir():
+        indexes = sorted(p.glob("*.index.csv"))
+        mjpegs = sorted(p.glob("*.mjpeg"))
+        if not indexes and not mjpegs:
+            raise DataError(f"{p}: not a recording folder (no .mjpeg or .index.csv files)")
+        return folder_summaries(p)
+    if not p.exists():
+        raise DataError(f"{p}: no such file or folder")
+    return [_summarize_file(p, p.name)]

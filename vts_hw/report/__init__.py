@@ -5,10 +5,16 @@
   (``results_data()`` gives its numbers as a JSON-ready dict).
 - ``parse_since("60d" | "8w" | "12h" | "2026-09-01")``: the start of a report period, as UTC epoch
   seconds, for ``vts report drift --since``.
+
+Every report is written by the suffix of its file, ``.html`` or ``.pdf``, through the one table
+of renderers (:mod:`vts_hw.report.renderers`); the builders that read the store are in
+:mod:`vts_hw.report.build`.
 """
 
-from vts_hw.report.drift import ReportError, build_drift_report, collect
+from vts_hw.report.build import build_drift_report
+from vts_hw.report.drift import collect
 from vts_hw.report.model import DriftReport
+from vts_hw.report.renderers import ReportError
 from vts_hw.report.times import BadSince, parse_since
 
 __all__ = ["build_drift_report", "collect", "DriftReport", "ReportError", "parse_since", "BadSince"]

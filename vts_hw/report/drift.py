@@ -1,9 +1,10 @@
-"""Build the drift trend report from the results store.
+"""The drift trend report's numbers, collected from the results store.
 
-``build_drift_report(store, "report.html")`` reads the runs of the wall-marker drift QA
-(procedures ``drift`` and ``daily``) and the baselines (``drift-baseline``), computes per camera
-and axis the control limits, the linear trend since the latest baseline and the date the trend
-reaches the action level, and writes a self-contained HTML file or a PDF.
+``collect(store)`` reads the runs of the wall-marker drift QA (procedures ``drift`` and
+``daily``) and the baselines (``drift-baseline``), and computes per camera and axis the control
+limits, the linear trend since the latest baseline and the date the trend reaches the action
+level. :func:`vts_hw.report.build.build_drift_report` writes it as a self-contained HTML file or
+a PDF (renderers by suffix: :mod:`vts_hw.report.renderers`).
 
 Reading rules:
 - a run counts when its status is OK, TOLERANCE or ACTION; the others (aborted, error,
@@ -21,13 +22,10 @@ from __future__ import annotations
 import math
 import time
 from collections import defaultdict
-from pathlib import Path
 
 import numpy as np
 
 from vts_hw import __version__, catalog
-from vts_hw.errors import ConfigError
-from vts_hw.files import ensure_dir, write_atomic
 from vts_hw.tolerance import DEFAULT_TOLERANCES, worst
 from vts_hw.report.model import (AXES, AxisSummary, BandSegment, CameraDrift, DriftReport,
                     RunInfo, RunPoint)
@@ -39,10 +37,6 @@ BASELINE_PROCEDURE = catalog.BASELINE.name
 COMPLETED = {"OK", "TOLERANCE", "ACTION"}
 BAND_METRICS = {"x": "drift_x_px", "y": "drift_y_px"}
 _BISECT_RESOLUTION_S = 60.0
-
-
-class ReportError(ConfigError):
-    """A report asked for in a format it cannot be written in (exit 2, like a usage error)."""
 
 
 def _completed(run) -> bool:
@@ -226,63 +220,4 @@ def _camera_sort_key(name: str):
     return (head, int(tail) if tail else -1, name)
 
 
-def report_format(out: str | Path) -> str:
-    """``.html`` or ``.pdf`` (from the name's suffix); ReportError (exit 2) for anything else."""
-    out = Path(out)
-    suffix = out.suffix.lower()
-    if suffix == ".htm":
-        return ".html"
-    if suffix not in (".html", ".pdf"):
-        raise ReportError(f"{out}: the report is written as .html or .pdf, not {suffix or 'a name without suffix'}: "
-                          f"give -o report.html or -o report.pdf")
-    return suffix
-
-
-def build_drift_report(store, out: str | Path, since: float | None = None, now: float | None = None,
-                       rig: str | None = None, title: str | None = None) -> DriftReport:
-    """Compute the drift report from ``store`` and write it to ``out``.
-
-    ``out`` ending in ``.html`` gives one self-contained HTML file (plots as inline PNG, no
-    external resources); ``.pdf`` gives a title page with the summary and one page per camera.
-    ``since``/``now`` bound the period shown (UTC epoch seconds; ``now`` defaults to the current
-    time, runs after it are ignored); ``rig`` keeps only that rig's runs.
-
-    The file is rendered in memory and written whole (``files.write_atomic``): on a full disk
-    or an unwritable folder nothing is half-written, a previous report stays as it was, and
-    ``WriteFailed`` (exit 3) names the file.
-    """
-    out = Path(out)
-    suffix = report_format(out)
-    report = collect(store, since=since, now=now, rig=rig, title=title)
-    report.out = out
-    _write(out, suffix, "render_pdf", "render_html", report)
-    return report
-
-
-def _write(out: Path, suffix: str, pdf: str, html: str, what) -> None:
-    """Render ``what`` with report.pdf's ``pdf`` or report.html's ``html`` function and write it whole."""
-    if suffix == ".pdf":
-        from vts_hw.report import pdf as module
-    else:
-        from vts_hw.report import html as module
-    data: bytes | str = getattr(module, pdf if suffix == ".pdf" else html)(what)
-    ensure_dir(out.parent, "report folder")
-    write_atomic(out, data)
-
-
-def build_drift_report_rooms(store, out: str | Path, since: float | None = None, now: float | None = None,
-                             rigs=None) -> list[DriftReport]:
-    """The drift report of every rig in the store (or of ``rigs``) in one file: per rig its own
-    section (HTML) or pages (PDF), numbers computed per rig (cam1 of one room is not cam1 of
-    another). Written whole, as :func:`build_drift_report`."""
-    out = Path(out)
-    suffix = report_format(out)
-    now = time.time() if now is None else float(now)
-    reports = [collect(store, since=since, now=now, rig=r) for r in (store.rigs() if rigs is None else rigs)]
-    for r in reports:
-        r.out = out
-    _write(out, suffix, "render_pdf_rooms", "render_html_rooms", reports)
-    return reports
-
-
-__all__ = ["build_drift_report", "build_drift_report_rooms", "collect", "DriftReport", "ReportError", "parse_since", "report_format"]
+__all__ = ["collect", "DriftReport", "parse_since"]

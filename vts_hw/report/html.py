@@ -282,14 +282,14 @@ def _method(report: DriftReport) -> str:
         "</ul>")
 
 
-def render_html(report: DriftReport) -> str:
+def render_drift_html(report: DriftReport) -> str:
     """The report as an HTML string."""
     state = report.state if report.cameras else None
     meta = f"{escape(period_text(report))} · generated {fmt_datetime(report.now)} · vts-hw {escape(report.software_version)}"
     return page(report.title, str(state or "none"), meta, report_body(report), plots_expected=report.plot_count)
 
 
-def render_html_rooms(reports: list[DriftReport], title: str = "VTS camera drift — all rooms") -> str:
+def render_drift_html_every_rig(reports: list[DriftReport], title: str = "VTS camera drift — all rooms") -> str:
     """Several rigs' drift reports on one page: a list of the rooms, then each room's report
     (its own banner, cameras, step test and history: numbers never mixed between rooms)."""
     states = [r.state for r in reports if r.cameras]

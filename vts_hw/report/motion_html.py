@@ -7,12 +7,10 @@ from __future__ import annotations
 
 import base64
 from html import escape
-from pathlib import Path
 
-from vts_hw.files import write_atomic
 from vts_hw.report.html import kpi as _kpi, page
 
-__all__ = ["render_motion_html", "write_motion_html"]
+__all__ = ["render_motion_html", "kpi_rows", "event_rows", "state_rows"]
 
 
 
@@ -42,30 +40,47 @@ def _event_end(e) -> str:
     return f"{e['t_end']:.2f}"
 
 
-def render_motion_html(data: dict, png: bytes, title: str = "Patient motion") -> str:
+def kpi_rows(data: dict) -> list[tuple[str, str, str]]:
+    """The summary's figures as (label, value, unit), plain text (the HTML and PDF reports')."""
     s = data["summary"]
-    state = s["state"]
     b = data["breathing"]
     rate = {"measured": _f(b["rate_per_min"], ".1f"), "none": "none"}.get(
         b["status"], "unknown" if b["rate_per_min"] is None else
         f"{b['rate_range_per_min'][0]:.1f}–{b['rate_range_per_min'][1]:.1f}")
     amp = ("none" if b["status"] == "none" else "unknown" if s["breathing_amplitude_mm"] is None
            else _f(s["breathing_amplitude_mm"], ".1f"))
-    kpis = "".join([
-        _kpi("pose known", _f(100 * s["motion_pose_coverage"], ".1f"), f"% of {s['duration_s']:.1f} s"),
-        _kpi("without frames", _f(s["no_frames_s"], ".1f"), f"s in {s['no_frames_gaps']} gap(s)"),
-        _kpi("body moved up to", _f(s["motion_body_max_mm"]), "mm"),
-        _kpi("turned up to", _f(s["motion_body_max_deg"]), "deg"),
-        _kpi("events / states", f"{s['events']} / {s['states']}"),
-        _kpi("breathing", rate, "/min" if b["status"] in ("measured", "bounded") else ""),
-        _kpi("breath amplitude", amp, "mm" if s["breathing_amplitude_mm"] is not None else ""),
-    ])
-    events = [[str(k), _event_start(e), _event_end(e), f"{e['centroid_shift_mm']:.2f}",
-               f"{e['rotation_deg']:.2f}", " ".join(f"{x:+.2f}" for x in e["change_6dof"])]
-              for k, e in enumerate(data["events"], 1)]
-    states = [[str(st["state"]), f"{st['t_start']:.2f}", f"{st['t_end']:.2f}",
-               f"{st['unknown_s']:.1f}" if st["unknown_s"] else "0",
-               " ".join(f"{x:+.2f}" for x in st["six_dof"]), str(st["frames"])] for st in data["states"]]
+    return [
+        ("pose known", _f(100 * s["motion_pose_coverage"], ".1f"), f"% of {s['duration_s']:.1f} s"),
+        ("without frames", _f(s["no_frames_s"], ".1f"), f"s in {s['no_frames_gaps']} gap(s)"),
+        ("body moved up to", _f(s["motion_body_max_mm"]), "mm"),
+        ("turned up to", _f(s["motion_body_max_deg"]), "deg"),
+        ("events / states", f"{s['events']} / {s['states']}", ""),
+        ("breathing", rate, "/min" if b["status"] in ("measured", "bounded") else ""),
+        ("breath amplitude", amp, "mm" if s["breathing_amplitude_mm"] is not None else ""),
+    ]
+
+
+def event_rows(data: dict) -> list[list[str]]:
+    """The body-motion events' table rows, plain text."""
+    return [[str(k), _event_start(e), _event_end(e), f"{e['centroid_shift_mm']:.2f}",
+             f"{e['rotation_deg']:.2f}", " ".join(f"{x:+.2f}" for x in e["change_6dof"])]
+            for k, e in enumerate(data["events"], 1)]
+
+
+def state_rows(data: dict) -> list[list[str]]:
+    """The motion states' table rows, plain text."""
+    return [[str(st["state"]), f"{st['t_start']:.2f}", f"{st['t_end']:.2f}",
+             f"{st['unknown_s']:.1f}" if st["unknown_s"] else "0",
+             " ".join(f"{x:+.2f}" for x in st["six_dof"]), str(st["frames"])] for st in data["states"]]
+
+
+def render_motion_html(data: dict, png: bytes, title: str = "Patient motion") -> str:
+    s = data["summary"]
+    state = s["state"]
+    b = data["breathing"]
+    kpis = "".join(_kpi(*k) for k in kpi_rows(data))
+    events = event_rows(data)
+    states = state_rows(data)
     cov = data["coverage"]
     unknown = [[f"{u['interval_s'][0]:.2f}", f"{u['interval_s'][1]:.2f}", f"{u['seconds']:.2f}", escape(u["why"])]
                for u in cov["unknown_s"]]
@@ -98,7 +113,3 @@ out of the body pose; the reference is the first still period ({data['reference_
 <p class="muted">Bands: {escape(data.get("band_naming", ""))}.</p></section>
 <footer>vts-hw patient motion. Method: docs/decisions/0035-breathing-and-body-motion.md; files: docs/motion-formats.md.</footer>""")
 
-
-def write_motion_html(data: dict, png: bytes, out) -> Path:
-    """Write the report whole or not at all (WriteFailed names the file)."""
-    return write_atomic(Path(out), render_motion_html(data, png))

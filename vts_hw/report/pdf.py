@@ -224,12 +224,12 @@ def pdf_bytes(figures, metadata: dict | None = None) -> bytes:
     return buf.getvalue()
 
 
-def render_pdf(report: DriftReport) -> bytes:
+def render_drift_pdf(report: DriftReport) -> bytes:
     """The title page and one page per camera with runs (and the step test), as PDF bytes."""
     return pdf_bytes(report_pages(report), _meta(report))
 
 
-def render_pdf_rooms(reports: list[DriftReport]) -> bytes:
+def render_drift_pdf_every_rig(reports: list[DriftReport]) -> bytes:
     """Several rigs' drift reports in one PDF, one after the other (each with its title page)."""
     first = reports[0] if reports else None
     meta = _meta(first) if first else {}

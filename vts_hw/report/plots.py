@@ -10,8 +10,6 @@ in a server or a test run).
 
 from __future__ import annotations
 
-import io
-
 import numpy as np
 from matplotlib import dates as mdates
 from matplotlib.figure import Figure

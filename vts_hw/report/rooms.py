@@ -1,6 +1,7 @@
 """A department's view: every rig (room) in the results store on one page.
 
-``build_rooms_report(store, "rooms.html")`` reads each rig's runs and writes, beside the page,
+``build_rooms_report(store, "rooms.html")`` (:mod:`vts_hw.report.build`) reads each rig's runs
+(:func:`collect_rooms`, here) and writes, beside the page,
 each room's full drift report (``rooms-<rig>-drift.html``, linked relatively), then the page:
 per room the latest daily state of each camera with a drift sparkline, the days since the last
 step test, calibration and SPECT mapping, and the open ACTION items.
@@ -22,9 +23,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from vts_hw import __version__, catalog
-from vts_hw.files import ensure_dir, write_atomic
 from vts_hw.tolerance import State, worst
-from vts_hw.report.drift import COMPLETED, DRIFT_PROCEDURES, collect, report_format
+from vts_hw.report.drift import COMPLETED, DRIFT_PROCEDURES, collect
 from vts_hw.report.model import DriftReport, RunInfo
 from vts_hw.report.times import fmt_date
 
@@ -242,30 +242,4 @@ def collect_rooms(store, since: float | None = None, now: float | None = None, r
     return RoomsReport("VTS rooms — department QA overview", since, now, rooms)
 
 
-def build_rooms_report(store, out: str | Path, since: float | None = None, now: float | None = None,
-                       rigs=None, progress=None) -> RoomsReport:
-    """Write each room's drift report beside ``out`` and then the rooms page (``.html`` or
-    ``.pdf``); every file is written whole (``files.write_atomic``). ``progress(text)`` hears
-    of each file written."""
-    out = Path(out)
-    suffix = report_format(out)
-    report = collect_rooms(store, since=since, now=now, rigs=rigs, out=out)
-    report.out = out
-    ensure_dir(out.parent, "report folder")
-    if suffix == ".pdf":
-        from vts_hw.report.pdf import render_pdf as render_drift
-        from vts_hw.report.rooms_pdf import render_rooms_pdf as render_rooms
-    else:
-        from vts_hw.report.html import render_html as render_drift
-        from vts_hw.report.rooms_html import render_rooms_html as render_rooms
-    for room in report.rooms:
-        path = out.parent / room.drift_file
-        room.drift.out = path
-        write_atomic(path, render_drift(room.drift))
-        if progress:
-            progress(f"wrote {path} ({room.label})")
-    write_atomic(out, render_rooms(report))
-    return report
-
-
-__all__ = ["build_rooms_report", "collect_rooms", "open_items", "RoomsReport", "Room", "OpenItem", "OPEN_RULE"]
+__all__ = ["collect_rooms", "open_items", "RoomsReport", "Room", "OpenItem", "OPEN_RULE"]

@@ -118,7 +118,7 @@ def _row(room: Room, now: float) -> str:
             f'<td><a class="drift-link" href="{escape(quote(room.drift_file))}">drift report</a></td></tr>')
 
 
-def render_rooms_html(report: RoomsReport) -> str:
+def render_department_html(report: RoomsReport) -> str:
     state = report.state
     n_open = sum(len(r.open_items) for r in report.rooms)
     no_daily = [r.label for r in report.rooms if not r.has_daily]
@@ -158,4 +158,4 @@ def render_rooms_html(report: RoomsReport) -> str:
                 plots_expected=0)
 
 
-__all__ = ["render_rooms_html", "sparkline_svg"]
+__all__ = ["render_department_html", "sparkline_svg"]

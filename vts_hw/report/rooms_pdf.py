@@ -79,7 +79,7 @@ def _new_page(report: RoomsReport, pages: list, first: bool) -> tuple[Figure, fl
     return fig, y - 0.035
 
 
-def render_rooms_pdf(report: RoomsReport) -> bytes:
+def render_department_pdf(report: RoomsReport) -> bytes:
     pages: list[Figure] = []
     with matplotlib.rc_context(FONT):
         fig, y = _new_page(report, pages, True)
@@ -117,4 +117,4 @@ def render_rooms_pdf(report: RoomsReport) -> bytes:
     return pdf_bytes(pages, meta)
 
 
-__all__ = ["render_rooms_pdf"]
+__all__ = ["render_department_pdf"]

@@ -10,9 +10,7 @@ from __future__ import annotations
 import base64
 import datetime as _dt
 from html import escape
-from pathlib import Path
 
-from vts_hw.files import write_atomic
 from vts_hw.report.html import kpi as _kpi, page
 
 
@@ -57,20 +55,26 @@ def _intervals(pairs, t0) -> str:
     return ", ".join(f"{a - t0:.2f}–{b - t0:.2f} s" for a, b in pairs)
 
 
+def kpi_rows(data: dict) -> list[tuple[str, str, str]]:
+    """The summary's figures as (label, value, unit), plain text (the HTML and PDF reports')."""
+    s = data["summary"]
+    return [
+        ("offset VTS − SPECT", _ms(s["offset_s"]), "ms (median)"),
+        ("spread", _ms(s["spread_sd_s"], ".1f"), "ms (SD)"),
+        ("largest |dt|", _ms(s["max_abs_dt_s"], ".1f"), "ms"),
+        ("events", f"{s['events_both']} / {s['events']}", "seen by both"),
+        ("SPECT start delay", _ms(s["start_delay_s"], ".1f"), f"ms (mod {s['start_delay_modulo_s']:.3f} s)"),
+        ("SPECT clock", f"{s['spect_skew_ppm']:+.1f}", "ppm"),
+    ]
+
+
 def render_sync_html(data: dict, png: bytes, title: str = "VTS–SPECT sync check") -> str:
     """The report as an HTML string."""
     s, g = data["summary"], data["gating"]
     state = s["state"]
     goal_s, limit_s = _limits(data)
     t0 = data["trigger"]["start_host"]
-    kpis = "".join([
-        _kpi("offset VTS − SPECT", _ms(s["offset_s"]), "ms (median)"),
-        _kpi("spread", _ms(s["spread_sd_s"], ".1f"), "ms (SD)"),
-        _kpi("largest |dt|", _ms(s["max_abs_dt_s"], ".1f"), "ms"),
-        _kpi("events", f"{s['events_both']} / {s['events']}", "seen by both"),
-        _kpi("SPECT start delay", _ms(s["start_delay_s"], ".1f"), f"ms (mod {s['start_delay_modulo_s']:.3f} s)"),
-        _kpi("SPECT clock", f"{s['spect_skew_ppm']:+.1f}", "ppm"),
-    ])
+    kpis = "".join(_kpi(*k) for k in kpi_rows(data))
     problems = "".join(f"<li>{escape(p)}</li>" for p in data["problems"])
     banner = (f'<p class="quiet">{escape(s["state_reason"])}.</p>'
               + (f"<ul>{problems}</ul>" if problems else ""))
@@ -115,6 +119,4 @@ gaps: {_intervals(vts['gaps_host'], t0)}</p>
 <footer>All times UTC. Host clock unless named. vts-hw sync check.</footer>""")
 
 
-def write_sync_html(data: dict, png: bytes, out) -> Path:
-    """Write the report whole or not at all (``files.write_atomic``: WriteFailed names the file)."""
-    return write_atomic(Path(out), render_sync_html(data, png))
+__all__ = ["render_sync_html", "kpi_rows"]

@@ -1,7 +1,7 @@
 """The live worker: frames from the tap decoded (grey, full resolution), detected, grouped
 across cameras by time, matched and triangulated over N views, mapped to the SPECT frame, and
 fed to the estimator -- in one thread of its own, beside the recording; and a watch thread
-that says, a few times a second, whether the patient is tracked (:mod:`vts_hw.live.watch`).
+that says, a few times a second, whether the patient is tracked (:mod:`vts_hw.tracking.live.watch`).
 
 The worker never holds up the recording: it reads only what the tap gives it (bounded
 queues, ``queue_len`` frames per camera, that drop the oldest for the live path: when it falls
@@ -29,10 +29,10 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from vts_hw.live.estimator import LiveEstimate, LiveEstimator, LiveSettings
-from vts_hw.live.grouping import FrameGrouper, FrameSet, Pending
-from vts_hw.live.tap import FrameTap
-from vts_hw.live.watch import NOT_TRACKING, BlindAlert, Facts, Watch
+from vts_hw.tracking.live.estimator import LiveEstimate, LiveEstimator, LiveSettings
+from vts_hw.tracking.live.grouping import FrameGrouper, FrameSet, Pending
+from vts_hw.tracking.live.tap import FrameTap
+from vts_hw.tracking.live.watch import NOT_TRACKING, BlindAlert, Facts, Watch
 from vts_hw.vision.detect import DEFAULT as DEFAULT_DETECTOR, DetectorSettings, detect
 from vts_hw.vision.multiview import ViewGeometry, match_views
 

@@ -2,7 +2,7 @@
 separated, and the alert state -- from 3D marker positions, one instant at a time.
 
 Phases: ``waiting`` (no markers yet), ``reference`` (learning the first still period:
-``reference_s`` of marker positions, despite gaps; :mod:`vts_hw.live.reference` finds the
+``reference_s`` of marker positions, despite gaps; :mod:`vts_hw.tracking.live.reference` finds the
 patient's markers by what they do: those that breathe inside the field of view, or with none
 breathing every marker inside it; restarted when the body did not keep still -- the model's
 residual above ``ref_max_rms_mm``, or its pose spreading by more than a fifth of the alert
@@ -11,8 +11,8 @@ mapping along the first camera's viewing direction (the cameras look along the b
 
 Each :meth:`LiveEstimator.update` says whether that instant **observed** the patient
 (``observed``: a pose while tracking; three or more points while learning) and, when not,
-why (``note``): what :mod:`vts_hw.live.watch` needs to say whether the patient is tracked.
-See :mod:`vts_hw.live.model`, 0036 and 0048.
+why (``note``): what :mod:`vts_hw.tracking.live.watch` needs to say whether the patient is tracked.
+See :mod:`vts_hw.tracking.live.model`, 0036 and 0048.
 """
 
 from __future__ import annotations
@@ -22,11 +22,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from vts_hw.live.alerts import Alert, AlertRule
-from vts_hw.live.breathing import BreathingTrace
-from vts_hw.live.marker_tracks import assign
-from vts_hw.live.model import Fit, ReferenceModel
-from vts_hw.live.reference import ReferenceCollector
+from vts_hw.tracking.live.alerts import Alert, AlertRule
+from vts_hw.tracking.live.breathing import BreathingTrace
+from vts_hw.tracking.live.marker_tracks import assign
+from vts_hw.tracking.live.model import Fit, ReferenceModel
+from vts_hw.tracking.live.reference import ReferenceCollector
 
 __all__ = ["LiveSettings", "LiveEstimator", "LiveEstimate", "BandEstimate"]
 
@@ -84,7 +84,7 @@ class LiveEstimate:
     alerts: int = 0
     note: str = ""
     stats: dict = field(default_factory=dict)
-    # whether the patient is watched now (filled in by the tracker, vts_hw/live/watch.py):
+    # whether the patient is watched now (filled in by the tracker, vts_hw/tracking/live/watch.py):
     status: str = ""             # TRACKING | REFERENCE | NOT TRACKING ("" : not known here)
     reason: str = ""             # why NOT TRACKING (or what the reference is doing)
     status_for_s: float | None = None   # how long it has been so

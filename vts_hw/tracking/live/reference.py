@@ -2,7 +2,7 @@
 while the body keeps still, despite frames lost, and whether or not they breathe.
 
 Every instant with points is kept (time, marker identities, positions). Identities come from
-:class:`~vts_hw.live.marker_tracks.MarkerTracks` with **no track end**: a marker unseen during
+:class:`~vts_hw.tracking.live.marker_tracks.MarkerTracks` with **no track end**: a marker unseen during
 a gap (frames a busy host or network dropped, a camera reconnecting) keeps its identity when
 it is seen again near where it was, so a gap never splits a marker into several that are
 each seen too rarely. "Seen often enough" counts the *instants* that have points (frame sets),
@@ -35,8 +35,8 @@ from collections import deque
 
 import numpy as np
 
-from vts_hw.live.marker_tracks import MarkerTracks
-from vts_hw.live.model import ReferenceModel, breathing_range, learn_reference
+from vts_hw.tracking.live.marker_tracks import MarkerTracks
+from vts_hw.tracking.live.model import ReferenceModel, breathing_range, learn_reference
 
 __all__ = ["ReferenceCollector", "observed_s"]
 

@@ -1,6 +1,6 @@
 """Marker identities online: each instant's 3D points joined to the tracks alive.
 
-The online form of :func:`vts_hw.recording.identities.track_identities`: nearest neighbour
+The online form of :func:`vts_hw.tracking.identities.track_identities`: nearest neighbour
 within ``gate_mm`` (Hungarian when several compete), a point left over starts a new id, a
 track unseen for ``max_gap_s`` ends. Also :func:`assign`, the one-to-one assignment of points
 to predicted positions used once the reference is known.

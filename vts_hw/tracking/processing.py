@@ -1,7 +1,7 @@
 """Process a recording folder: decode, detect, match and triangulate every frame, on every core.
 
 :func:`process_recording` turns a recording folder (vts_hw/recording/folder.py) of two or more
-calibrated cameras into :class:`~vts_hw.recording.tracks.Tracks`: marker positions (mm) over host
+calibrated cameras into :class:`~vts_hw.tracking.tracks.Tracks`: marker positions (mm) over host
 time with identities, each point with the cameras it was seen by.
 
 1. **Clocks.** Each camera's clock is fitted to host time from its index
@@ -10,10 +10,10 @@ time with identities, each point with the cameras it was seen by.
 2. **Pairing.** Each frame of the first camera is paired with the second camera's frame
    nearest in mapped host time, if within half a frame period (one-to-one, the closer wins);
    with more cameras, each further camera's frames join those sets the same way
-   (:func:`vts_hw.recording.frames.group_frames`) and a set needs two cameras. Frames left
+   (:func:`vts_hw.tracking.frame_sets.group_frames`) and a set needs two cameras. Frames left
    over are reported (``Tracks.unpaired``) and not decoded. The cameras' own clocks may
    differ by seconds: only mapped host times are compared.
-3. **Per chunk of frame sets, in worker processes** (:mod:`vts_hw.recording.chunks`) (``workers`` = every core by default): the
+3. **Per chunk of frame sets, in worker processes** (:mod:`vts_hw.tracking.chunks`) (``workers`` = every core by default): the
    JPEGs are read from the ``.mjpeg`` files by the byte offsets of the index (one read per
    camera per chunk: no JPEG bytes go through pipes), decoded at full resolution
    (``cv2.imdecode``, grey), detected (:func:`vts_hw.vision.detect.detect`); two cameras: matched by the epipolar
@@ -47,15 +47,15 @@ import numpy as np
 
 from vts_hw.errors import DataError
 from vts_hw.lifeline import interrupts_deferred
-from vts_hw.recording import chunks
-from vts_hw.recording.chunks import triangulate_fast
+from vts_hw.tracking import chunks
+from vts_hw.tracking.chunks import triangulate_fast
 from vts_hw.recording.extent import available_cameras, recording_extent
 from vts_hw.recording.folder import load_manifest
-from vts_hw.recording.frames import (CameraFrames, frame_period, group_frames, load_camera_frames,
-                                     mapped_times, pair_frames)
-from vts_hw.recording.identities import track_identities
-from vts_hw.recording.time_align import align_views
-from vts_hw.recording.tracks import TRACKS_FORMAT, Tracks
+from vts_hw.recording.frames import CameraFrames, load_camera_frames
+from vts_hw.tracking.frame_sets import frame_period, group_frames, mapped_times, pair_frames
+from vts_hw.tracking.identities import track_identities
+from vts_hw.tracking.time_align import align_views
+from vts_hw.tracking.tracks import TRACKS_FORMAT, Tracks
 from vts_hw.timing.camera_clock import ClockFit
 from vts_hw.vision.camera_set import named_cameras
 from vts_hw.vision.detect import DEFAULT as DEFAULT_DETECTOR, DetectorSettings
@@ -83,7 +83,7 @@ class ProcessSettings:
     from the best to be clearly worse (0013 advises ~3x the centroid noise; two cameras keep
     ``min_sep_px``, 0 by default, so that their figures are 0018's).
     ``align_times``: bring each camera's view of a tracked marker to the frame set's time
-    before the final triangulation (:mod:`vts_hw.recording.time_align`, decision 0037).
+    before the final triangulation (:mod:`vts_hw.tracking.time_align`, decision 0037).
     """
 
     max_px: float = 2.0

@@ -1,6 +1,6 @@
 """Marker tracks of a recording: positions (mm) over time with identities, and their files.
 
-:class:`Tracks` is what :func:`vts_hw.recording.processing.process_recording` returns; :meth:`Tracks.save`
+:class:`Tracks` is what :func:`vts_hw.tracking.processing.process_recording` returns; :meth:`Tracks.save`
 and :meth:`Tracks.load` read and write the documented trajectory format
 (docs/trajectory-format.md: a CSV of points and a JSON of the frames, cameras and metadata).
 Clocks: ``host_time`` is the host's UTC epoch seconds as mapped from the cameras' stamps;
@@ -26,7 +26,7 @@ TRACKS_FORMAT = "vts-trajectory/1"
 
 @dataclass(eq=False)
 class Tracks:
-    """Marker positions over time: the result of :func:`vts_hw.recording.processing.process_recording`.
+    """Marker positions over time: the result of :func:`vts_hw.tracking.processing.process_recording`.
 
     C cameras (``camera_names``). Per *paired frame* (frame set) f (F of them, in time
     order): ``host_time[f]`` (host UTC epoch s, the mean of its cameras' mapped exposure
