@@ -47,7 +47,7 @@ from vts_hw import catalog
 from vts_hw.errors import DataError
 from vts_hw.files import WriteFailed, ensure_dir, export_stopped
 from vts_hw.timing.motion_events import StepFit, find_steps, fit_step, match_events, robust_sd
-from vts_hw.recording.trigger_log import WaveInfo, wave_from_trigger_log
+from vts_hw.recording.trigger_wave import WaveInfo, wave_from_trigger_log
 from vts_hw.spect.gating import GatingResult, analyze_gating, axial_centre_of_mass
 from vts_hw.figures import figure_png
 from vts_hw.procedures.sync_verdict import sync_measures, sync_verdict, sync_windows

@@ -111,7 +111,7 @@ def _last_frame_times(folder: Path, manifest: dict) -> list[float]:
 
 def session_span(folder, manifest: dict | None = None) -> SessionSpan | None:
     """When the session at ``folder`` recorded, or None when nothing in it says (see module)."""
-    from vts_hw.recording.trigger_log import wave_from_trigger_log
+    from vts_hw.recording.trigger_wave import wave_from_trigger_log
 
     folder = Path(folder)
     manifest = manifest if manifest is not None else check_session(folder)

@@ -9,7 +9,7 @@ Where the trigger comes from (host UTC epoch seconds throughout):
 * any backend that emits nothing here (the pyvisa-sim function generator, NI-DAQmx behind a
   fake port): :func:`edges_from_trigger_log` rebuilds the wave from the neutral rows of the
   session's ``trigger.csv`` (start host time, period, duty, levels, stop;
-  :func:`vts_hw.recording.trigger_log.wave_from_trigger_log`, docs/trigger-log-format.md);
+  :func:`vts_hw.recording.trigger_wave.wave_from_trigger_log`, docs/trigger-log-format.md);
 * anything else: a :class:`TriggerEdges` built by hand (offline tests).
 
 What the simulated SPECT does (:func:`write_sim_listmode`, all in one pass, so a 60 s or a
@@ -52,7 +52,7 @@ from vts_hw.files import write_json_atomic
 from vts_hw.spect.listmode.vtslm import VtslmWriter
 from vts_hw.sim_devices.scene import Scene
 from vts_hw.sim_devices.source_marker import SourceMarker
-from vts_hw.recording.trigger_log import square_wave_edges, wave_from_trigger_log
+from vts_hw.recording.trigger_wave import square_wave_edges, wave_from_trigger_log
 
 __all__ = ["TriggerEdges", "Source", "SimSpectSettings", "ListModeTruth", "SimListModeSpect",
            "edges_from_trigger_box", "edges_from_trigger_log", "write_sim_listmode", "truth_path"]

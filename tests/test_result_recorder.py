@@ -14,7 +14,7 @@ from vts_hw.procedures.steps_analysis import StepAnalysis
 from vts_hw.results import Measure, overall_state
 from vts_hw.store import ResultsStore
 from vts_hw.store.recorder import Recorder, record
-from vts_hw.store.unsaved import import_unsaved
+from vts_hw.store.recorder import import_unsaved
 from vts_hw.tolerance import State, Window
 from vts_hw.vision.wall_baseline import Baseline, BaselineMarker
 

@@ -9,7 +9,7 @@ import json
 from vts_hw.results import Analysis, Measure, overall_state
 from vts_hw.store import ResultsStore
 from vts_hw.store.recorder import record as store_result
-from vts_hw.store.unsaved import import_unsaved
+from vts_hw.store.recorder import import_unsaved
 from vts_hw.tolerance import State, Window
 
 

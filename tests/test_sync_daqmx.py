@@ -18,7 +18,7 @@ from vts_hw.drivers.trigger import read_log
 from vts_hw.drivers.registry import open_cameras
 from vts_hw.procedures.scan import ScanSession
 from vts_hw.procedures.sync import SyncAnalysis
-from vts_hw.recording.trigger_log import wave_from_trigger_log
+from vts_hw.recording.trigger_wave import wave_from_trigger_log
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.sim_devices.scenarios import sync_session as sync_sim
 from vts_hw.sim_devices.spect_listmode import SimListModeSpect

@@ -22,7 +22,7 @@ from vts_hw.sim_devices.source_marker import add_source_marker
 from vts_hw.sim_devices.spect_listmode import (SimListModeSpect, SimSpectSettings, TriggerEdges,
                                                edges_from_trigger_box, write_sim_listmode)
 from vts_hw.sim_devices.trigger_box import F_CPU, SimTriggerBox
-from vts_hw.recording.trigger_log import square_wave_edges, wave_from_trigger_log
+from vts_hw.recording.trigger_wave import square_wave_edges, wave_from_trigger_log
 from vts_hw.spect.gating import (analyze_gating, axial_centre_of_mass, dead_time_from_events,
                                 find_gate_edges, fit_spect_clock)
 

@@ -620,7 +620,7 @@ def test_edges_are_logged_in_host_time_once_the_clock_is_mapped(tmp_path):
 def test_neutral_rows_of_a_fire_and_its_stop(tmp_path):
     """What the box started and stopped, in the rows every backend writes: the start at the
     first edge through the clock mapping, the end after the rising edges it counted once off."""
-    from vts_hw.recording.trigger_log import wave_from_trigger_log
+    from vts_hw.recording.trigger_wave import wave_from_trigger_log
     clock = FakeClock(1000.0)
     trips = [("TIME?", str(round((1000.0 + 0.25 * i - 990.0) * 1e6))) for i in range(4)]
     pairs = lines(*trips, ("*TRG", "OK"), ("OUTP?", "ON"), ("FREQ?", "2"), ("DUTY?", "0.25"),

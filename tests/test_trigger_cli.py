@@ -10,7 +10,7 @@ import yaml
 
 from vts_hw.drivers.function_generator import SIM_RESOURCE
 from vts_hw.drivers.trigger import read_log
-from vts_hw.recording.trigger_log import wave_from_trigger_log
+from vts_hw.recording.trigger_wave import wave_from_trigger_log
 from vts_hw.sim_devices.scpi_server import SimFunctionGenerator
 from vts_hw.sim_devices.trigger_box import F_CPU, SimTriggerBox
 

@@ -23,8 +23,8 @@ from vts_hw.drivers.trigger import (DUTY, FIRE, FREQUENCY, HOST_WRITE, LEVELS, B
 from vts_hw.errors import ConfigError, DataError
 from vts_hw.procedures.scan import ScanSession
 from vts_hw.procedures.scan_trigger import ScanError, ScanTrigger
-from vts_hw.recording.trigger_log import (parse_fields, square_wave_edges, wave_from_trigger_log,
-                                          wave_start_text, wave_stop_text)
+from vts_hw.recording.trigger_log import parse_fields, wave_start_text, wave_stop_text
+from vts_hw.recording.trigger_wave import square_wave_edges, wave_from_trigger_log
 
 HEADER = "host_time,device_time_us,device,kind,text\n"
 T0 = 1_795_000_000.0

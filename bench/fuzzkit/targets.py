@@ -90,6 +90,7 @@ SOURCES: dict[str, tuple[str, str | None]] = {
     "trigger_box": ("vts_hw.drivers.trigger_box", None),
     "qatrack_client": ("vts_hw.qatrack.client", None),
     "trigger_log": ("vts_hw.recording.trigger_log", None),
+    "trigger_wave": ("vts_hw.recording.trigger_wave", None),
     "Tracks": ("vts_hw.tracking.tracks", "Tracks"),
     "read_points": ("vts_hw.procedures.mapping_inputs", "read_points"),
     "load_positions": ("vts_hw.procedures.steps", "load_positions"),
@@ -97,7 +98,7 @@ SOURCES: dict[str, tuple[str, str | None]] = {
     "ResultsStore": ("vts_hw.store", "ResultsStore"),
     "read_failure_records": ("vts_hw.spect.listmode.failures", "read_failure_records"),
     "load_unsaved": ("vts_hw.store.unsaved", "load_unsaved"),
-    "import_unsaved": ("vts_hw.store.unsaved", "import_unsaved"),
+    "import_unsaved": ("vts_hw.store.recorder", "import_unsaved"),
 }
 
 
@@ -210,7 +211,7 @@ def _trigger_log(data: bytes, s: Scratch) -> None:
     t = P["trigger_log"]
     p = s.file("trigger.csv", data, s.rec)
     s.call(t.read_trigger_rows, p)
-    s.call(t.wave_from_trigger_log, p)
+    s.call(P["trigger_wave"].wave_from_trigger_log, p)
     s.call(P["session_span"], s.rec)   # `vts sync analyze`: which list-mode file is the session's
 
 
@@ -336,8 +337,8 @@ TARGETS.update({t.name: t for t in [
            tokens=(b"\n", b"Agilent Technologies,33522B,MY1,4.00\n", b'+0,"No error"\n',
                    b'-222,"Data out of range"\n', b"SQU\n", b"SIN\n", b"1\n", b"0\n", b"ON\n",
                    b"+1.00000000000000E+01\n", b"9.9E+37", b"nan", b"inf", b"-0", b"0", b",", b"\xff", b"\x00")),
-    Target("trigger_log", "recording.trigger_log: read_trigger_rows, wave_from_trigger_log; sync session_span",
-           _trigger_log, uses=("trigger_log", "session_span"), fixtures=("manifest.json",), max_len=4096,
+    Target("trigger_log", "recording.trigger_log: read_trigger_rows; trigger_wave: wave_from_trigger_log; sync session_span",
+           _trigger_log, uses=("trigger_log", "trigger_wave", "session_span"), fixtures=("manifest.json",), max_len=4096,
            tokens=(b"host_time,device_us,device,kind,text\r\n", b",", b"\r\n", b'"', b"wave_start",
                    b"wave_stop", b"clock", b"cmd", b"reply", b"period_s=", b"duty=", b"high_v=", b"low_v=",
                    b"rising_edges=", b"time=", b"uncertainty_s=", b"start_pulse=yes", b"drift_ppm=",
@@ -352,7 +353,7 @@ TARGETS.update({t.name: t for t in [
     Target("step_positions", "procedures.steps.load_positions (a step session's positions.json)",
            _step_positions, uses=("load_positions",), max_len=8192,
            tokens=_JSON + (b'"plan"', b'"positions"', b'"index"', b'"vertical_mm"', b'"axial_mm"')),
-    Target("unsaved", "store.unsaved.load_unsaved, import_unsaved (a run the store refused, kept as a file)",
+    Target("unsaved", "store.unsaved.load_unsaved, store.recorder.import_unsaved (a run the store refused, kept as a file)",
            _unsaved, uses=("load_unsaved", "import_unsaved", "ResultsStore"),
            max_len=8192, tokens=_JSON + (b'"format"', b'"measurements"', b'"procedure"', b'"state"')),
     Target("listmode_failures", "spect.listmode.failures.read_failure_records (*.failed.json)",

@@ -6,8 +6,6 @@
 #include <util/atomic.h>
 
 #include "clock.h"
-#include "pulse.h"
-#include "wave.h"
 
 /* Ticks (125 us each) since Timer2 started: 64 bits, so it never wraps (2^64 ticks is
  * millions of years); a 32-bit microsecond counter would wrap after 71 minutes.
@@ -96,18 +94,7 @@ uint64_t clock_cycles_of_tick(uint64_t t, uint8_t tcnt2)
 	return to_cycles(t + 1, tcnt2);
 }
 
-/*
- * The tick. Work that starts outputs comes first, so that it runs at a fixed, short
- * delay after the tick; ending pulses and counting come after.
- */
-ISR(TIMER2_COMPA_vect)
+void clock_tick_counted(void)
 {
-	uint8_t close = pulse_take_pending();   /* channels to close on this tick */
-	if (wave_start_pending())
-		wave_fire(close);                    /* square wave (+ pulses) on this tick */
-	else if (close)
-		PULSE_PORT |= close;                 /* start pulses alone */
-	pulse_tick();                            /* count down and open finished pulses */
-	pulse_arm(close);                        /* widths count from this tick */
 	ticks++;
 }

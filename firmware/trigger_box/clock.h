@@ -33,5 +33,7 @@ uint64_t clock_ticks_in_tick_isr(void);
 /* The device time, in cycles, of a TCNT2 value read in the tick ISR when
  * clock_ticks_in_tick_isr() was `ticks`. */
 uint64_t clock_cycles_of_tick(uint64_t ticks, uint8_t tcnt2);
+/* The tick ISR (tick.c), after its work: this tick is counted. */
+void clock_tick_counted(void);
 
 #endif

@@ -139,6 +139,15 @@ def store_target(rig: RigConfig | None = None, url: str | None = None):
     return resolve_target(url or g_url, g_pw, rig)
 
 
+def open_store(rig, mode: str = "create"):
+    """The results store: `vts --store`, $VTS_STORE, the config's store section, else a per-user
+    SQLite file (cli.common.store_target). ``mode`` (vts_hw.store.identity): ``read`` for a
+    command that only reads (or updates) an existing store, ``create`` for one that writes
+    results (a new file becomes a store); a database that is not a vts-hw store is never used."""
+    from vts_hw.store import ResultsStore
+    return ResultsStore(store_target(rig), mode=mode)
+
+
 def store_qa_result(rig: RigConfig | None, result, data: dict | None = None, **kw):
     """Record a QA result the one way (vts_hw.store.recorder) in the rig's store (the per-user
     one without a rig config), judged by the rig's tolerance windows; ``data`` (the --json

@@ -9,11 +9,15 @@ import click
 
 from vts_hw.cli import cli
 from vts_hw.cli.common import json_option, with_rig
+from vts_hw.cli.qa_push import check_push_config, push
 
 
 @cli.group()
 def qa() -> None:
     """QA procedures. Exit status: 0 OK, 10 TOLERANCE, 20 ACTION; 2-5 when the QA could not run."""
+
+
+qa.add_command(push)
 
 
 def _common(f):
@@ -54,7 +58,6 @@ def daily(rig, cameras, frames, plots, dry_run, operator, as_json, push_after) -
     """The daily set: each camera reachable, its parameters still locked, its clock, the LED, the drift."""
     from vts_hw.cli.qa_run import run_qa
     if push_after and not dry_run:
-        from vts_hw.cli.qa_push import check_push_config
         check_push_config(rig)
     sys.exit(run_qa(rig, ("reachable", "params", "clock", "drift"), list(cameras), frames, plots, dry_run,
                     operator, as_json, push=push_after))

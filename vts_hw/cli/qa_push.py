@@ -8,8 +8,7 @@ import time
 
 import click
 
-from vts_hw.cli.common import echo_json, json_option, with_rig
-from vts_hw.cli.qa import qa
+from vts_hw.cli.common import echo_json, json_option, open_store, with_rig
 from vts_hw.errors import ConfigError, VtsError
 
 
@@ -21,7 +20,7 @@ def qatrack_config(rig):
     return rig.qatrack
 
 
-@qa.command("push")
+@click.command("push")
 @click.argument("runs", nargs=-1, type=click.IntRange(min=1))
 @click.option("--pending", is_flag=True, help="Retry only the runs left pending (QATrack+ was down, slow "
               "or failing); refused ones wait for a push without --pending.")
@@ -47,7 +46,6 @@ def push(rig, runs, pending, dry_run, as_json) -> None:
     credentials): fix rig.yaml's qatrack: section (or QATrack+), then push again without
     --pending; 2 bad usage or config.
     """
-    from vts_hw.cli.qa_run import open_store
     from vts_hw.qatrack import dry_run as plan, push_runs, select_runs
 
     if pending and runs:

@@ -8,17 +8,7 @@ from pathlib import Path
 
 import click
 
-from vts_hw.cli.common import echo_json, fmt_time
-
-
-def open_store(rig, mode: str = "create"):
-    """The results store: `vts --store`, $VTS_STORE, the config's store section, else a per-user
-    SQLite file (cli.common.store_target). ``mode`` (vts_hw.store.identity): ``read`` for a
-    command that only reads (or updates) an existing store, ``create`` for one that writes
-    results (a new file becomes a store); a database that is not a vts-hw store is never used."""
-    from vts_hw.cli.common import store_target
-    from vts_hw.store import ResultsStore
-    return ResultsStore(store_target(rig), mode=mode)
+from vts_hw.cli.common import echo_json, fmt_time, open_store
 
 
 def artifacts_dir(store) -> Path:
@@ -91,7 +81,7 @@ def run_qa(rig, steps, cameras, frames, plots, dry_run, operator, as_json, clock
 
 
 def import_runs(rig, files) -> list[tuple[str, int]]:
-    from vts_hw.store.unsaved import import_unsaved
+    from vts_hw.store.recorder import import_unsaved
     with open_store(rig) as store:
         return [(f, import_unsaved(store, f)) for f in files]
 

@@ -52,7 +52,7 @@ def drift(since: str, out: str, rig_name: str | None, as_json: bool, config_path
     from vts_hw.report.build import build_drift_report, build_drift_report_every_rig
     from vts_hw.report.renderers import report_format
     from vts_hw.report.times import parse_since
-    from vts_hw.cli.qa_run import open_store
+    from vts_hw.cli.common import open_store
 
     report_format(out)                  # ReportError: one sentence, exit 2
     start = parse_since(since)          # BadSince: one sentence, exit 2
@@ -117,7 +117,7 @@ def rooms(since: str, out: str, rig_name: str | None, as_json: bool, config_path
     from vts_hw.report.build import build_rooms_report
     from vts_hw.report.renderers import report_format
     from vts_hw.report.times import parse_since
-    from vts_hw.cli.qa_run import open_store
+    from vts_hw.cli.common import open_store
 
     report_format(out)
     start = parse_since(since)

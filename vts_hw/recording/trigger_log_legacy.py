@@ -18,7 +18,7 @@ turned into neutral rows:
   set).
 
 An NI-DAQmx log of that time cannot be converted (it logged no start in a form the analysis
-read); :func:`~vts_hw.recording.trigger_log.wave_from_trigger_log` then says no wave was started.
+read); :func:`~vts_hw.recording.trigger_wave.wave_from_trigger_log` then says no wave was started.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ import math
 import re
 
 from vts_hw.recording.trigger_log import (CLOCK, DEVICE_CLOCK_MAPPED, HOST_WRITE, WAVE_START, WAVE_STOP,
-                                          clock_text, wave_start_text, wave_stop_text)
+                                          clock_text, finite_float, wave_start_text, wave_stop_text)
 
 __all__ = ["neutral_rows"]
 
@@ -36,14 +36,6 @@ _FG_QUERY = re.compile(r"^(?:SOUR\d:)?(FREQ|FUNC:SQU:DCYC|VOLT:HIGH|VOLT:LOW)\?$
 _FG_OUTP = re.compile(r"^OUTP\d?\s+(1|0|ON|OFF)$", re.I)
 _BOX_BYTE_S = 10 / 115200          # one 8N1 byte at 115200 baud
 _DRIFT = re.compile(r"drift ([+-]?[\d.]+) ± (\S+) ppm")
-
-
-def _float(text) -> float | None:
-    try:
-        v = float(text)
-    except (TypeError, ValueError):
-        return None
-    return v if math.isfinite(v) else None
 
 
 def _is_box(rows: list[dict], dev: str) -> bool:
@@ -61,7 +53,7 @@ def _is_box(rows: list[dict], dev: str) -> bool:
 
 
 def _fg_set(st: dict, key: str, text: str) -> None:
-    v = _float(text)
+    v = finite_float(text)
     if v is None:
         return
     st[{"FREQ": "FREQ", "FUNC:SQU:DCYC": "DUTY", "VOLT:HIGH": "HIGH", "VOLT:LOW": "LOW"}[key]] = \
@@ -84,7 +76,7 @@ def neutral_rows(rows: list[dict]) -> list[dict]:
     current: dict[str, dict | None] = {d: None for d in devices}
     for row in rows:
         dev = row.get("device")
-        h = _float(row.get("host_time"))
+        h = finite_float(row.get("host_time"))
         if dev not in box or h is None:
             continue
         kind, text = row.get("kind"), (row.get("text") or "").strip()
@@ -94,8 +86,8 @@ def neutral_rows(rows: list[dict]) -> list[dict]:
             last_cmd[dev] = up
             if box[dev]:
                 key, _, value = up.partition(" ")
-                if key in ("FREQ", "DUTY") and _float(value) is not None:
-                    st[key] = _float(value)
+                if key in ("FREQ", "DUTY") and finite_float(value) is not None:
+                    st[key] = finite_float(value)
                 elif up in ("*TRG", "OUTP ON"):
                     w = current[dev] = {"start": h + (len(text) + 1) * _BOX_BYTE_S, "mapped": False,
                                         "stop_cmd": None, "n": None, "pulse": up == "*TRG",
@@ -117,8 +109,8 @@ def neutral_rows(rows: list[dict]) -> list[dict]:
         elif kind == "reply":
             cmd = last_cmd.get(dev, "")
             if box[dev]:
-                if cmd in ("FREQ?", "DUTY?") and _float(text) is not None:
-                    st[cmd[:4]] = _float(text)
+                if cmd in ("FREQ?", "DUTY?") and finite_float(text) is not None:
+                    st[cmd[:4]] = finite_float(text)
                 elif cmd == "EDGES?" and w is not None:
                     n = text.split(",")[0]
                     if n.isdigit():
@@ -131,8 +123,8 @@ def neutral_rows(rows: list[dict]) -> list[dict]:
                 w["set"] = dict(st)
         elif kind == "event" and box[dev] and text.startswith("clock mapping:"):
             m = _DRIFT.search(text)
-            if m and _float(m.group(1)) is not None:
-                st["DRIFT"] = (h, _float(m.group(1)), _float(m.group(2)))
+            if m and finite_float(m.group(1)) is not None:
+                st["DRIFT"] = (h, finite_float(m.group(1)), finite_float(m.group(2)))
         elif kind == "edge" and box[dev] and w is not None and text.startswith("first rising edge") \
                 and "mapped from the box clock" in text:
             w["start"] = h

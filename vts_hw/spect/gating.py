@@ -27,7 +27,7 @@ acquisition start on the SPECT's clock):
 * :func:`analyze_gating` — all of the above in one result.
 
 The trigger's side (the wave's period and the host time of its first edge) comes from the
-session's ``trigger.csv``, read by :func:`vts_hw.recording.trigger_log.wave_from_trigger_log`
+session's ``trigger.csv``, read by :func:`vts_hw.recording.trigger_wave.wave_from_trigger_log`
 from the neutral rows every backend writes (docs/trigger-log-format.md).
 """
 
@@ -344,7 +344,7 @@ def analyze_gating(lm: ListMode, *, period_s: float | None = None, fire_host: fl
     """Edges, SPECT clock (start delay, skew, host mapping) and dead time of one list-mode.
 
     ``period_s`` (host s) and ``fire_host`` (host epoch s of the wave's first rising edge)
-    come from the trigger: :func:`vts_hw.recording.trigger_log.wave_from_trigger_log` reads
+    come from the trigger: :func:`vts_hw.recording.trigger_wave.wave_from_trigger_log` reads
     both from a session's ``trigger.csv``. Raises DataError (naming the file) when the gating signal has no usable
     square wave.
     """

@@ -19,7 +19,8 @@ import logging
 import math
 import os
 import time
-from typing import TYPE_CHECKING
+from contextlib import AbstractContextManager
+from typing import Protocol
 
 from sqlalchemy import insert, select, update
 
@@ -29,17 +30,28 @@ from vts_hw.store.errors import StoreError
 from vts_hw.store.records import FINISH_STATUSES, Run, run_from_row
 from vts_hw.store.schema import artifacts, measurements, runs
 
-if TYPE_CHECKING:
-    from vts_hw.store.store import ResultsStore
-
 log = logging.getLogger(__name__)
+
+
+class RunStore(Protocol):
+    """What a run handle needs of its store (vts_hw.store.store.ResultsStore is the one): its
+    URL for messages, the tolerance window in effect, one write transaction, a run's end."""
+
+    @property
+    def url(self) -> str: ...
+
+    def tolerance(self, metric: str, at: float | None = None) -> tuple[int, Window] | None: ...
+
+    def _write(self, windows: bool = False) -> AbstractContextManager: ...
+
+    def _end_run(self, run_id: int, status: str, note: str, finished: float | None) -> bool: ...
 
 
 class RunHandle:
     """A run in progress (see the module docstring). Use as a context manager:
     an exception or KeyboardInterrupt inside aborts the run; a normal exit finishes it."""
 
-    def __init__(self, store: "ResultsStore", run_id: int, started: float):
+    def __init__(self, store: RunStore, run_id: int, started: float):
         self._store = store
         self.run_id = run_id
         self.started = started

@@ -24,6 +24,7 @@ See docs/decisions/0057-one-recorder-one-catalog.md.
 from __future__ import annotations
 
 import logging
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,8 +32,9 @@ from pathlib import Path
 from vts_hw import __version__
 from vts_hw.results import Analysis, Measure
 from vts_hw.store.errors import StoreError
-from vts_hw.store.unsaved import save_unsaved
-from vts_hw.tolerance import Window, merged_tolerances
+from vts_hw.errors import DataError
+from vts_hw.store.unsaved import load_unsaved, save_unsaved
+from vts_hw.tolerance import State, Window, merged_tolerances
 
 log = logging.getLogger(__name__)
 
@@ -51,14 +53,15 @@ class Stored:
         return self.run_id is not None
 
 
-def judged_by_window(metric: str, value, state, windows: dict[str, Window]) -> bool:
-    """Whether the store judges this measure (its metric's window gives its state)."""
-    w = windows.get(metric)
-    return w is not None and w.state(value) == state
-
-
-def artifact_kind(path) -> str:
-    return "plot" if str(path).endswith(".png") else "frame"
+def _write(h, measures, artifacts, windows: dict[str, Window], *, at: float) -> None:
+    """A run's measures and artifacts onto its handle ``h``: a measure its metric's window
+    judges (the window gives its state) keeps the window's id, any other its own state."""
+    for m in measures:
+        w = windows.get(m.metric)
+        own = w is not None and w.state(m.value) == m.state
+        h.measure(m.subject, m.metric, m.value, m.unit, status=None if own else str(m.state), at=at)
+    for a in artifacts:
+        h.artifact(a, kind="plot" if str(a).endswith(".png") else "frame")
 
 
 class Recorder:
@@ -118,12 +121,7 @@ class Recorder:
         h = self._handle
         if h is not None:
             try:
-                for m in measures:
-                    own = judged_by_window(m.metric, m.value, m.state, self.windows)
-                    h.measure(m.subject, m.metric, m.value, m.unit, status=None if own else str(m.state),
-                              at=self.started)
-                for a in artifacts:
-                    h.artifact(a, kind=artifact_kind(a))
+                _write(h, measures, artifacts, self.windows, at=self.started)
                 run = h.finish(status=str(state), finished=finished, notes=notes)
                 self._done = True
                 self._close()
@@ -185,3 +183,33 @@ def record(target, result: Analysis, *, rig: str = "", operator: str = "", confi
         if not rec._done:
             rec.__exit__(type(exc), exc, exc.__traceback__)
         raise
+
+
+def import_unsaved(store, path: str | Path) -> int:
+    """Store an unsaved run with its own start and finish times, states and notes; return
+    its run id. The tolerance windows it was judged by (when the file holds them) are synced
+    at its start, and a measure its window judged keeps that window's id, as the recorder
+    would have stored it. The file is renamed ``*.imported`` so that it is
+    never stored twice."""
+    p = Path(path)
+    doc = load_unsaved(p)
+    try:
+        procedure, started = str(doc["procedure"]), float(doc["started"])
+        windows = {str(k): Window(**w) for k, w in (doc.get("tolerances") or {}).items()}
+        if windows:
+            store.sync_tolerances(windows, at=started)
+        note = (f"imported from {p.name}: the store could not take it when it ran "
+                f"({doc.get('store_error', 'unknown reason')})")
+        with store.begin_run(procedure, rig=doc.get("rig", ""), operator=doc.get("operator", ""),
+                             config_digest=doc.get("config_digest", ""), started=started,
+                             software_version=doc.get("software_version"),
+                             notes=f"{doc['notes']}\n{note}" if doc.get("notes") else note) as h:
+            measures = [Measure(m["subject"], m["metric"], m["value"], m.get("unit", ""), State(m["state"]))
+                        for m in doc["measurements"]]
+            # an artifact gone since (or a folder named instead) is left out
+            _write(h, measures, [a for a in doc.get("artifacts", []) if Path(a).is_file()], windows, at=started)
+            run = h.finish(status=doc["state"], finished=float(doc.get("finished") or started))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DataError(f"{p}: not an unsaved run written by vts ({exc})") from None
+    os.replace(p, p.with_name(p.name + ".imported"))
+    return run.id

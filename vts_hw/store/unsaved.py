@@ -4,8 +4,8 @@ When a run's figures cannot be written to the results store (disk full, read-onl
 database that is down), they are written as JSON to ``unsaved/`` next to an SQLite store's
 file — else to the per-user data folder, the current folder, or the temporary folder, the
 first that takes it. The file holds everything needed to store the run later with its own
-times, states and tolerance windows (:func:`import_unsaved`); it is written by the one
-recorder (recorder.py), whatever the procedure.
+times, states and tolerance windows (:func:`vts_hw.store.recorder.import_unsaved`); it is written
+and read back by the one recorder (recorder.py), whatever the procedure.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ def candidate_folders(url: str | None) -> list[Path]:
 
 
 def save_unsaved(url: str | None, run: dict) -> tuple[Path | None, list[str]]:
-    """Write ``run`` (see :func:`import_unsaved` for its keys) to the first place that takes
+    """Write ``run`` (see :func:`vts_hw.store.recorder.import_unsaved` for its keys) to the first place that takes
     it; return the path (None if none did) and why the places before it failed."""
     stamp = _dt.datetime.fromtimestamp(run.get("started") or 0, _dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
     name = f"{run.get('procedure', 'run')}-{stamp}-{socket.gethostname()}-{os.getpid()}.json"
@@ -63,39 +63,3 @@ def load_unsaved(path: str | Path) -> dict:
     if not isinstance(doc, dict) or doc.get("format") != FORMAT or not isinstance(doc.get("measurements"), list):
         raise DataError(f"{p}: not an unsaved run written by vts (format {FORMAT})")
     return doc
-
-
-def import_unsaved(store, path: str | Path) -> int:
-    """Store an unsaved run with its own start and finish times, states and notes; return
-    its run id. The tolerance windows it was judged by (when the file holds them) are synced
-    at its start, and a measure its window judged keeps that window's id, as the recorder
-    would have stored it (store.recorder). The file is renamed ``*.imported`` so that it is
-    never stored twice."""
-    from vts_hw.store.recorder import artifact_kind, judged_by_window
-    from vts_hw.tolerance import State, Window
-
-    p = Path(path)
-    doc = load_unsaved(p)
-    try:
-        procedure, started = str(doc["procedure"]), float(doc["started"])
-        windows = {str(k): Window(**w) for k, w in (doc.get("tolerances") or {}).items()}
-        if windows:
-            store.sync_tolerances(windows, at=started)
-        note = (f"imported from {p.name}: the store could not take it when it ran "
-                f"({doc.get('store_error', 'unknown reason')})")
-        with store.begin_run(procedure, rig=doc.get("rig", ""), operator=doc.get("operator", ""),
-                             config_digest=doc.get("config_digest", ""), started=started,
-                             software_version=doc.get("software_version"),
-                             notes=f"{doc['notes']}\n{note}" if doc.get("notes") else note) as h:
-            for m in doc["measurements"]:
-                own = judged_by_window(m["metric"], m["value"], State(m["state"]), windows)
-                h.measure(m["subject"], m["metric"], m["value"], m.get("unit", ""),
-                          status=None if own else m["state"], at=started)
-            for a in doc.get("artifacts", []):
-                if Path(a).is_file():   # one gone since (or a folder named instead) is left out
-                    h.artifact(a, kind=artifact_kind(a))
-            run = h.finish(status=doc["state"], finished=float(doc.get("finished") or started))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise DataError(f"{p}: not an unsaved run written by vts ({exc})") from None
-    os.replace(p, p.with_name(p.name + ".imported"))
-    return run.id
