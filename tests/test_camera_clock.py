@@ -123,3 +123,26 @@ def test_summary_round_trip_and_missing_stamps():
 def test_too_few_frames_is_a_data_error():
     with pytest.raises(DataError):
         fit_camera_clock([1.0, None], [2.0, 3.0])
+
+
+def test_frames_coming_later_and_later_do_not_bend_the_clock():
+    """A host (or a simulator) falling behind and never catching up: each frame arrives later
+    than the last, up to 8 s at the end of 22 s (seen in make test on a busy machine, where the
+    free envelope made a 'skew' of -300 000 ppm and put a body move 3.3 s late). No clock runs
+    that fast: the frames do not measure the rate, the fit says so and maps by the least
+    delayed frames with the host's rate, within a plausible skew's error over the span."""
+    clock = CameraClock(offset_s=1.37, skew_ppm=30.0, ref_epoch=START)
+    t, stamps, recv, _ = synthetic(clock, 22.0, outlier_rate=0.0)
+    behind = 8.0 * ((t - t[0]) / (t[-1] - t[0])) ** 1.5       # the lag grows to the end
+    recv = np.maximum.accumulate(recv + behind)
+    free_a, free_k = lower_envelope(stamps - np.median(stamps), recv - stamps)
+    assert abs(free_k) > 0.01                                   # the free fit would bend
+    fit = fit_camera_clock(stamps, recv, latency_s=FLOOR)
+    assert fit.summary()["rate_measured"] is False and fit.skew_ppm == 0.0
+    err = fit.frame_host_times() - t
+    assert np.abs(err).max() < 0.003                            # 30 ppm over 22 s, and the floor
+    assert fit.uncertainty_s >= 1e-4 * (stamps[-1] - stamps[0]) - 1e-12
+    # a clock that is truly skewed, with frames on time, is still measured
+    ok = fit_camera_clock(*synthetic(CameraClock(offset_s=1.37, skew_ppm=400.0, ref_epoch=START), 120.0)[1:3],
+                          latency_s=FLOOR)
+    assert ok.rate_measured and ok.skew_ppm == pytest.approx(400.0, abs=5.0)

@@ -147,8 +147,10 @@ def test_a_camera_switched_off_mid_scan_is_not_tracking_and_alerts(tmp_path):
     assert any(r.startswith("camera lost: cam2") for r in lost["reasons"]) and lost["alerted"], lost
     blind = lm["blind_alerts"]
     assert blind and all(b["kind"] == "not tracking" for b in blind)
-    mine = [b for b in blind if t_off <= b["raised"] <= t_off + 7.0]
-    assert mine and mine[0]["not_tracking_s"] > lm["blind_alert_s"]
+    # the alert of the stretch the camera's absence lies in (on a busy machine that stretch may
+    # have begun earlier, "frames too late", and been alerted then: one stretch, one alert)
+    mine = [b for b in blind if abs(b["since"] - lost["start"]) < 1e-3]
+    assert mine and mine[0]["not_tracking_s"] > lm["blind_alert_s"], (blind, lost)
     lines = [ln for ln in run.err.splitlines() if ln.startswith("ALERT PATIENT NOT TRACKED")]
     assert lines and all(ln.endswith("\a") for ln in lines)
     assert "PATIENT NOT TRACKED" in (tmp_path / "alerts.txt").read_text()

@@ -52,11 +52,22 @@ __all__ = ["ClockFit", "fit_camera_clock", "fit_recording_clocks", "lower_envelo
 
 TICK_S = 0.01
 LATE_S = 0.05  # a frame this much above the envelope counts as "late" in the summary
+#: the most a camera's clock runs off the host's: quartz (tens of ppm) slewed by NTP (at most
+#: 500 ppm), doubled. A steeper envelope is not a clock but frames arriving later and later (a
+#: host or a simulator falling behind, never catching up): the frames then do not measure the
+#: rate, the fit takes the host's (docs/decisions/0061-camera-clock-rate-bound.md), says so
+#: (``rate_measured`` False) and counts a plausible rate's error over the span in its uncertainty
+MAX_RATE = 1e-3
+#: the rate assumed unknown by that much when the frames do not measure it
+PRIOR_RATE = 1e-4
 
 
-def lower_envelope(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+def lower_envelope(x: np.ndarray, y: np.ndarray, max_slope: float | None = None) -> tuple[float, float]:
     """``(a, k)`` of the line ``y = a + k * x`` below every point that minimises the sum of
     the vertical gaps (an exact LP solution): the lower convex hull's edge spanning mean(x).
+    With ``max_slope``: a solution steeper than that is no clock's rate but a delay growing
+    over the recording (see MAX_RATE), and the points do not tell the rate: ``k = 0`` (the
+    host's own rate, which a quartz clock keeps to tens of ppm) through the lowest point.
 
     ``x`` should be centred near 0 for conditioning. One distinct ``x``: a flat line through
     the lowest point.
@@ -79,6 +90,8 @@ def lower_envelope(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     j = min(max(j, 0), len(hx) - 2)
     k = (hy[j + 1] - hy[j]) / (hx[j + 1] - hx[j])
     a = hy[j] - k * hx[j]
+    if max_slope is not None and abs(k) > max_slope:
+        k, a = 0.0, float(np.min(hy))
     return float(a), float(k)
 
 
@@ -143,6 +156,7 @@ class ClockFit:
     residuals_s: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     frame_camera_time: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     dequantised: bool = False
+    rate_measured: bool = True
 
     def frame_host_times(self) -> np.ndarray:
         """Mapped host time (s) of every input frame (NaN for a frame without a stamp): the
@@ -209,6 +223,7 @@ class ClockFit:
             "residual_max_s": float(r.max()) if r.size else None,
             "late_frames": int((r > LATE_S).sum()),
             "dequantised": self.dequantised,
+            "rate_measured": self.rate_measured,
         }
 
     @classmethod
@@ -217,7 +232,7 @@ class ClockFit:
         return cls(d["ref_camera_time"], d["intercept_s"], d["rate"], d.get("latency_s", 0.0),
                    d.get("tick_s", TICK_S), d.get("frames", 0), d.get("frames_used", 0),
                    _nan(d.get("first_camera_time")), _nan(d.get("last_camera_time")),
-                   _nan(d.get("uncertainty_s")))
+                   _nan(d.get("uncertainty_s")), rate_measured=d.get("rate_measured", True))
 
 
 def _nan(v) -> float:
@@ -251,6 +266,9 @@ def fit_camera_clock(camera_times, host_times, latency_s: float = 0.0, tick_s: f
     x = c - ref
     y = h - c
     a, k = lower_envelope(x, y)
+    measured = abs(k) <= MAX_RATE
+    if not measured:                  # a delay growing to the end, not a clock: see MAX_RATE
+        a, k = lower_envelope(x, y, MAX_RATE)
     res = np.full(c_all.shape, np.nan)
     res[ok] = y - (a + k * x)
     frame_c = np.full(c_all.shape, np.nan)
@@ -258,6 +276,10 @@ def fit_camera_clock(camera_times, host_times, latency_s: float = 0.0, tick_s: f
     fit = ClockFit(ref, a, k, float(latency_s), float(tick_s), int(c_all.size), int(c.size),
                    float(c.min()), float(c.max()), math.nan, res, frame_c, est is not None)
     fit.uncertainty_s = _jackknife(x, y, a, k, blocks)
+    if not measured:
+        fit.rate_measured = False
+        span_err = PRIOR_RATE * float(c.max() - c.min())
+        fit.uncertainty_s = span_err if not math.isfinite(fit.uncertainty_s) else max(fit.uncertainty_s, span_err)
     return fit
 
 
@@ -316,7 +338,7 @@ def _jackknife(x, y, a, k, blocks: int) -> float:
         keep[edges[b]:edges[b + 1]] = False
         if len(np.unique(x[keep])) < 2:
             continue
-        ab, kb = lower_envelope(x[keep], y[keep])
+        ab, kb = lower_envelope(x[keep], y[keep], MAX_RATE)
         preds.append(ab + kb * probe)
     if len(preds) < 2:
         return math.nan
