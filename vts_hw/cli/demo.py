@@ -196,7 +196,10 @@ def _patient(out_dir: Path, seconds: float) -> None:
     else:
         click.echo("  the analysis found no body-motion event")
     rate, true_rate = res.rate_per_min
-    said = (f"{rate:.1f} /min" if rate == rate else d["summary"].get("breathing_why", "unknown"))
+    sm = d["summary"]
+    rng = sm.get("breathing_rate_range_per_min")
+    said = (f"{rate:.1f} /min, {sm.get('breathing')}" + (f" {rng[0]:.1f}-{rng[1]:.1f} /min" if rng else "")
+            if rate == rate else sm.get("breathing_why", "unknown"))
     click.echo(f"  time: {d['summary'].get('time', '')}")
     click.echo(f"  breathing {said} (true {true_rate:.1f} /min); body pose against the truth in still frames: "
                f"RMS {res.pose_error[0]:.3f} mm, {res.pose_error[1]:.3f} deg (goals 0.3 mm, 0.2 deg)")
