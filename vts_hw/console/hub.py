@@ -32,6 +32,7 @@ IDLE_CLOSE_S = 5.0          # a stream nobody watches is closed after this long
 RETRY_AFTER_S = 3.0         # a reader that ended (a camera refused us for good) is tried again after this
 QUIET_MIN_S = 2.0           # no frame for max(this, QUIET_FRAMES / fps): the camera is NOT ANSWERING
 QUIET_FRAMES = 10
+SETTLE_MIN_S = 0.2          # after closing its stream for a recording, before the recording opens its own
 
 
 @dataclass(frozen=True)
@@ -161,8 +162,8 @@ class FramesHub:
 
     def attach(self, names, timeout: float = 10.0) -> None:
         """A recording of ``names`` is about to open its streams: the hub closes its own (and
-        waits until they are closed, so the camera never sees two viewers) and takes what
-        :meth:`feed` gives from now on."""
+        waits until they are closed, and a few frame intervals more for the camera to see its
+        viewer go, so it never sees two) and takes what :meth:`feed` gives from now on."""
         threads = []
         for name in names:
             f = self._feeds[name]
@@ -176,6 +177,8 @@ class FramesHub:
                 threads.append(thread)
         for t in threads:
             t.join(timeout)
+        if threads:   # a camera notices a viewer gone when it next writes to it: a frame interval or so
+            time.sleep(max(SETTLE_MIN_S, max(self._feeds[n].quiet_after / QUIET_FRAMES for n in names) * 3))
 
     def detach(self, names) -> None:
         """The recording of ``names`` ended: the hub opens its own stream again while watched."""
