@@ -247,7 +247,7 @@ class FramesHub:
                 # a reader that is up but silent says why (FrameStream keeps its last error)
                 err = f.stream.stats.last_error
                 if err and (f.latest is None or self.clock() - f.latest.arrival > f.quiet_after):
-                    f.error = f"camera {f.name}: {err}"
+                    f.error = err
         if stop is not None:
             stop.stop()
 
