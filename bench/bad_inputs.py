@@ -66,10 +66,23 @@ from badkit import full_disk  # noqa: E402
 from badkit.forked import fork_vts  # noqa: E402
 from badkit import endless_files, signals, slow_peers  # noqa: E402  (issue 21 round 2)
 
-SKIP = {("sim", "up"): "starts servers in the foreground", ("demo",): "runs the whole demo"}
+SKIP = {("sim", "up"): "starts servers in the foreground", ("demo",): "runs the whole demo",
+        ("console",): "serves the room console in the foreground (a dead rig's cameras are shown NOT ANSWERING)"}
 #: what a skipped command runs with in the floats class (a bad float is refused before anything starts)
 SKIPPED_BASE = {("sim", "up"): lambda wd: ["--detach", "--dir", str(wd / "sim")],
-                ("demo",): lambda wd: ["-o", str(wd / "demo"), "--days", "1"]}
+                ("demo",): lambda wd: ["-o", str(wd / "demo"), "--days", "1"],
+                ("console",): lambda wd: ["--port", "0"]}
+
+
+def skipped_cases(cmd_path: tuple[str, ...], fx: "Fixtures") -> list[Case]:
+    """The bad inputs a command of SKIP refuses before it starts anything."""
+    if cmd_path == ("sim", "up"):
+        return [Case("configs", "no --dir", plain([*cmd_path, "--detach"]))]
+    if cmd_path == ("console",):     # every bad config (not the dead rig: it serves it), a bad port
+        return [*(Case("configs", what, plain([*cmd_path, "--port", "0", "--config", cfg]))
+                  for what, cfg in fx.configs.items()),
+                Case("numbers", "bad port", plain([*cmd_path, "--port", "-1"]), number_judge("-1"))]
+    return [Case("numbers", "bad days", plain([*cmd_path, "--days", "-3"]), number_judge("-3"))]
 NUMBERS = ["nan", "inf", "-1", "1e309", "abc"]
 CLASSES = ("paths", "numbers", "floats", "configs", "foreign stores", full_disk.CLASS, slow_peers.CLASS,
            endless_files.CLASS, signals.CLASS)
@@ -278,9 +291,7 @@ def plan(only: str | None, classes, fx: Fixtures, cli, peers=None) -> list[Case]
         if only and not " ".join(cmd_path).startswith(only):
             continue
         if cmd_path in SKIP:   # their float options only (refused before anything starts), and the old two
-            todo = list(float_cases(cmd_path, cmd, SKIPPED_BASE[cmd_path]))
-            todo.append(Case("configs", "no --dir", plain([*cmd_path, "--detach"])) if cmd_path == ("sim", "up")
-                        else Case("numbers", "bad days", plain([*cmd_path, "--days", "-3"]), number_judge("-3")))
+            todo = list(float_cases(cmd_path, cmd, SKIPPED_BASE[cmd_path])) + skipped_cases(cmd_path, fx)
         else:
             todo = list(cases(cmd_path, cmd, fx))
         planned += todo

@@ -93,6 +93,7 @@ def test_vts_demo_command_end_to_end_with_a_scan(tmp_path):
     for heading in ("== 1. the cameras", "== 2. the daily QA", "== 3. the 7-sphere step test",
                     "== 5. a scan of 16 s and the sync check", "== 6. a patient scan of 24 s"):
         assert heading in r.stdout
+    assert "vts console" in r.stdout.splitlines()[-1]      # how to see the room live (issue 23)
     # the patient: one live alert, the move found near its true start, the pose near the truth
     patient = r.stdout.split("== 6.")[1]
     assert len(re.findall(r"live alert (\d+\.\d+) s after the move started", patient)) == 1

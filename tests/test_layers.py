@@ -32,7 +32,11 @@ ALLOWED = {
     "qatrack": {"core", "store", "report"},   # pushing to QATrack+ reads the store and builds reports
     "sim": {"core", "tracking"},               # the simulated patient's marker tracks are Tracks
     "scenarios": {"core", "tracking", "drivers", "procedures", "store", "report", "sim"},
-    "cli": {"core", "tracking", "drivers", "procedures", "store", "report", "qatrack", "sim", "scenarios"},
+    # the room console (vts_hw/console/): an application as the CLI is, beside it, never under it
+    # nor over it: it opens devices and calls procedures, the store and reports; no CLI, no simulator
+    "console": {"core", "tracking", "drivers", "procedures", "store", "report", "qatrack"},
+    "cli": {"core", "tracking", "drivers", "procedures", "store", "report", "qatrack", "sim", "scenarios",
+            "console"},
 }
 
 
@@ -42,7 +46,7 @@ def layer(module: str) -> str:
         return "scenarios"
     return {"drivers": "drivers", "procedures": "procedures", "sim_devices": "sim", "cli": "cli",
             "store": "store", "report": "report", "qatrack": "qatrack",
-            "tracking": "tracking"}.get(parts[1] if len(parts) > 1 else "", "core")
+            "tracking": "tracking", "console": "console"}.get(parts[1] if len(parts) > 1 else "", "core")
 
 
 def modules():
@@ -68,7 +72,7 @@ def test_the_rules_see_every_layer():
     cli_imports = {layer(t) for p, m in modules() if layer(m) == "cli"
                    for _, _, t in imports(p) if t.startswith("vts_hw.")}
     assert cli_imports >= {"core", "tracking", "drivers", "procedures", "store", "report", "qatrack", "sim",
-                           "scenarios"}
+                           "scenarios", "console"}
 
 
 def test_imports_go_one_way():
@@ -134,3 +138,21 @@ def test_tracking_is_a_room_of_its_own_between_vision_and_the_procedures():
     below = {m: sorted(t for _, _, t in imports(p) if t.startswith("vts_hw.tracking"))
              for p, m in modules() if m.startswith(("vts_hw.recording", "vts_hw.vision"))}
     assert len(below) > 20 and {m: t for m, t in below.items() if t} == {}
+
+
+def test_the_console_is_an_application_beside_the_cli():
+    """Nothing under the applications imports the console (the core, tracking, drivers,
+    procedures, store, reports); the console never imports the CLI nor the simulator; the
+    console imports the drivers' registry, not a driver; and `vts console` only parses, calls
+    the console's serve() and prints: the one name it takes from vts_hw.console is serve (and
+    the host check it makes before reading the rig)."""
+    users = sorted({layer(m) for p, m in modules() for _, _, t in imports(p)
+                    if t == "vts_hw.console" or t.startswith("vts_hw.console.")} - {"console"})
+    assert users == ["cli"]
+    console = {t for p, m in modules() if layer(m) == "console" for _, _, t in imports(p) if t.startswith("vts_hw.")}
+    assert console and not {t for t in console if layer(t) in ("cli", "sim", "scenarios")}
+    assert {t for t in console if layer(t) == "drivers"} == {"vts_hw.drivers.registry"}
+    cli_console = ROOT / "vts_hw" / "cli" / "console.py"
+    taken = {(n.module, a.name) for n in ast.walk(ast.parse(cli_console.read_text()))
+             if isinstance(n, ast.ImportFrom) and (n.module or "").startswith("vts_hw.console") for a in n.names}
+    assert taken == {("vts_hw.console.serve", "serve"), ("vts_hw.console.serve", "check_host")}

@@ -59,6 +59,10 @@ def demo(out: str, days: int, seconds: float, frames: int, scan_seconds: float, 
     if patient_seconds > 0:
         section(f"a patient scan of {patient_seconds:g} s: breathing, a body move, the live alert")
         _patient(out_dir, patient_seconds)
+    live = out_dir / "live"
+    click.echo(f"\nthe room live in a browser (the room console): vts sim up --dir {live} --detach; "
+               f"source {live / 'sim.env'}; vts console  -- then open the address it prints "
+               f"(Ctrl-C stops it; vts sim down --dir {live})")
 
 
 class _Sections:

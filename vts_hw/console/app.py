@@ -1,0 +1,157 @@
+"""The console's web application (Starlette): the Room page, its live events, pictures and switches.
+
+The event loop never waits on a device or the store: frames come out of the hub's slots (a
+lock held for a pointer copy), device and store calls go to threads (``asyncio.to_thread``).
+Live updates are server-sent events (``GET /events``): per camera ``frame`` (a new picture's
+``seq`` and age), ``markers`` (what detection found on a frame, in its pixels) and, every
+second, ``room`` (what each camera is doing, its LED, clock offset and daily QA). The page
+fetches a picture (``GET /frame/{camera}``: the camera's own JPEG bytes, never re-encoded) when
+it is told of one and has shown the last: one picture in flight per camera, so a slow browser
+sees fewer pictures and asks nothing more of the hub. Every POST must come from the console's
+own page: the Origin (when the browser sends one) must be this server's, and the page's token
+must be in the ``X-Console-Token`` header.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import secrets
+import time
+from pathlib import Path
+
+from starlette.applications import Starlette
+from starlette.requests import Request
+from starlette.responses import JSONResponse, Response, StreamingResponse
+from starlette.routing import Mount, Route
+from starlette.staticfiles import StaticFiles
+from starlette.templating import Jinja2Templates
+
+from vts_hw import __version__
+
+HERE = Path(__file__).resolve().parent
+EVENT_TICK_S = 0.04           # how often an event stream looks for new frames (25 Hz)
+ROOM_EVERY_S = 1.0            # ... and sends the room's state
+KEEPALIVE_S = 15.0
+
+
+class Console:
+    """What the pages need: the hub, the marker worker, the room's facts, the rig's name."""
+
+    def __init__(self, rig_name: str, hub, markers, facts, *, token: str | None = None):
+        self.rig_name = rig_name
+        self.hub = hub
+        self.markers = markers
+        self.facts = facts
+        self.token = token or secrets.token_urlsafe(24)
+        self.closing = asyncio.Event()
+
+    def room(self) -> dict:
+        cams = []
+        for name in self.hub.names:
+            cams.append({**self.hub.status(name), **self.facts.view(name)})
+        return {"rig": self.rig_name, "now": time.time(), "cameras": cams}
+
+
+def _sse(event: str, data) -> bytes:
+    return f"event: {event}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n".encode()
+
+
+def _same_origin(request: Request) -> str:
+    """'' when a POST may be served; else why not (one sentence)."""
+    origin = request.headers.get("origin")
+    host = request.headers.get("host", "")
+    if origin is not None and origin != f"{request.url.scheme}://{host}":
+        return f"refused: a request from another site ({origin})"
+    if origin is None and request.headers.get("sec-fetch-site", "same-origin") not in ("same-origin", "none"):
+        return "refused: a request from another site"
+    return ""
+
+
+def create_app(console: Console) -> Starlette:
+    templates = Jinja2Templates(directory=str(HERE / "templates"))
+
+    async def room_page(request: Request):
+        return templates.TemplateResponse(request, "room.html", {
+            "rig": console.rig_name, "cameras": console.hub.names, "token": console.token,
+            "version": __version__})
+
+    async def room_json(request: Request):
+        return JSONResponse(await asyncio.to_thread(console.room))
+
+    async def frame(request: Request):
+        name = request.path_params["camera"]
+        if name not in console.hub.names:
+            return JSONResponse({"error": f"no camera {name!r} in this rig"}, status_code=404)
+        latest = console.hub.latest(name)
+        if latest is None:
+            return JSONResponse({"error": f"camera {name}: no picture yet"}, status_code=503)
+        return Response(latest.frame.jpeg, media_type="image/jpeg",
+                        headers={"Cache-Control": "no-store", "X-Frame-Seq": str(latest.seq),
+                                 "X-Frame-Arrival": f"{latest.arrival:.3f}"})
+
+    async def events(request: Request):
+        wanted = [n for n in request.query_params.get("cameras", ",".join(console.hub.names)).split(",")
+                  if n in console.hub.names]
+
+        async def stream():
+            for n in wanted:
+                console.hub.watch(n)
+            sent_seq: dict[str, int | None] = {n: None for n in wanted}
+            sent_marks: dict[str, int | None] = {n: None for n in wanted}
+            loop = asyncio.get_running_loop()
+            next_room = last_sent = 0.0
+            try:
+                yield b"retry: 2000\n\n"
+                while not console.closing.is_set():
+                    now = loop.time()
+                    out = []
+                    if now >= next_room:
+                        next_room = now + ROOM_EVERY_S
+                        out.append(_sse("room", await asyncio.to_thread(console.room)))
+                    for n in wanted:
+                        lt = console.hub.latest(n)
+                        if lt is not None and lt.seq != sent_seq[n]:
+                            sent_seq[n] = lt.seq
+                            out.append(_sse("frame", {"camera": n, "seq": lt.seq, "arrival": lt.arrival}))
+                        found = console.markers.found(n)
+                        if found is not None and found.seq != sent_marks[n]:
+                            sent_marks[n] = found.seq
+                            out.append(_sse("markers", found.as_dict()))
+                    if not out and now - last_sent > KEEPALIVE_S:
+                        out.append(b": keep-alive\n\n")
+                    if out:
+                        last_sent = now
+                        yield b"".join(out)       # waits while the browser does not read: it then misses events
+                    await asyncio.sleep(EVENT_TICK_S)
+            finally:
+                for n in wanted:
+                    console.hub.unwatch(n)
+
+        return StreamingResponse(stream(), media_type="text/event-stream",
+                                 headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"})
+
+    async def led(request: Request):
+        why = _same_origin(request)
+        if why or not secrets.compare_digest(request.headers.get("x-console-token", ""), console.token):
+            return JSONResponse({"error": why or "refused: the request did not come from the console's page"},
+                                status_code=403)
+        name = request.path_params["camera"]
+        if name not in console.hub.names:
+            return JSONResponse({"error": f"no camera {name!r} in this rig"}, status_code=404)
+        try:
+            body = await request.json()
+        except ValueError:
+            body = None
+        if not isinstance(body, dict) or not isinstance(body.get("on"), bool):
+            return JSONResponse({"error": 'the body must be JSON {"on": true} or {"on": false}'}, status_code=400)
+        facts = await asyncio.to_thread(console.facts.switch_led, name, body["on"])
+        return JSONResponse(facts, status_code=200 if not facts["led_error"] else 502)
+
+    routes = [Route("/", room_page), Route("/api/room", room_json), Route("/frame/{camera}", frame),
+              Route("/events", events), Route("/camera/{camera}/led", led, methods=["POST"]),
+              Mount("/static", StaticFiles(directory=str(HERE / "static")), name="static")]
+    return Starlette(routes=routes)
+
+
+__all__ = ["Console", "create_app"]

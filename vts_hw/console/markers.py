@@ -1,0 +1,97 @@
+"""The markers on the live pictures: detection on each watched camera's latest frame, a few times a second.
+
+One worker thread for all cameras (detection costs a few ms to tens of ms a frame; the readers
+never wait for it): every ``1 / rate_hz`` s it takes the latest frame of each watched camera
+that it has not yet looked at and runs :func:`vts_hw.vision.detect.detect_jpeg` on it, the same
+detection the procedures use. The page gets the positions in the frame's own pixels, with the
+frame's ``seq``, and draws them over the picture (the JPEG is never decoded for the page or
+re-encoded). A frame that does not decode is said so, never shown as "no markers".
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from vts_hw.vision.detect import detect
+
+RATE_HZ = 3.0
+
+
+@dataclass(frozen=True)
+class Found:
+    """The markers found on one frame of one camera."""
+
+    camera: str
+    seq: int
+    width: int
+    height: int
+    markers: tuple[dict, ...]
+    problem: str = ""
+
+    def as_dict(self) -> dict:
+        return {"camera": self.camera, "seq": self.seq, "width": self.width, "height": self.height,
+                "markers": list(self.markers), "problem": self.problem}
+
+
+def find_markers(camera: str, seq: int, jpeg: bytes) -> Found:
+    """The blobs of one JPEG as the page draws them: number (1.. in detect's order, top to
+    bottom), centre and diameter in the frame's pixels."""
+    gray = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_GRAYSCALE)
+    if gray is None:
+        return Found(camera, seq, 0, 0, (), "the frame does not decode: markers not looked for")
+    result = detect(gray)
+    marks = tuple({"n": i + 1, "x": round(b.x, 2), "y": round(b.y, 2),
+                   "d": round(2.0 * math.sqrt(max(b.area, 1) / math.pi), 1)}
+                  for i, b in enumerate(result.blobs))
+    return Found(camera, seq, int(gray.shape[1]), int(gray.shape[0]), marks)
+
+
+class MarkerWorker:
+    """Detect markers on ``hub``'s watched cameras at ``rate_hz``; :meth:`found` is the latest
+    result of each camera."""
+
+    def __init__(self, hub, rate_hz: float = RATE_HZ):
+        self.hub = hub
+        self.period = 1.0 / float(rate_hz)
+        self._found: dict[str, Found] = {}
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self.looked = 0          # frames looked at (all cameras)
+        self._thread = threading.Thread(target=self._run, name="console-markers", daemon=True)
+        self._thread.start()
+
+    def found(self, camera: str) -> Found | None:
+        with self._lock:
+            return self._found.get(camera)
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period):
+            for name in self.hub.names:
+                if self._stop.is_set():
+                    return
+                st = self.hub.status(name)
+                if not st["viewers"]:
+                    continue
+                latest = self.hub.latest(name)
+                done = self.found(name)
+                if latest is None or (done is not None and done.seq == latest.seq):
+                    continue
+                try:
+                    got = find_markers(name, latest.seq, latest.frame.jpeg)
+                except Exception as exc:     # never let one odd frame stop the markers of every camera
+                    got = Found(name, latest.seq, 0, 0, (), f"detection failed: {type(exc).__name__}: {exc}")
+                with self._lock:
+                    self._found[name] = got
+                    self.looked += 1
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(5.0)
+
+
+__all__ = ["MarkerWorker", "Found", "find_markers"]
