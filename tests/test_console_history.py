@@ -245,7 +245,9 @@ def test_history_in_chromium(filled, tmp_path):
                 b = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
                 try:
                     pg = b.new_page(viewport={"width": 1366, "height": 768})
-                    pg.goto(url + "history")
+                    pg.goto(url)
+                    pg.click("header nav a[href='/history']")
+                    pg.wait_for_url("**/history")
                     assert pg.locator("table.runs tbody tr").count() == PAGE_SIZE
                     pg.select_option("select[name=procedure]", "sync check")
                     pg.select_option("select[name=state]", "OK")
