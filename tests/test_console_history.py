@@ -75,6 +75,23 @@ def test_store_pages_runs_newest_first_and_gives_the_windows(filled):
         assert store.windows([]) == {} and store.windows([None]) == {}
 
 
+def test_the_history_queries_compile_for_postgresql():
+    from sqlalchemy.dialects import postgresql
+
+    from vts_hw.store import queries
+    pg = postgresql.dialect()
+    lit = {"literal_binds": True}
+    sql = str(queries.select_runs_newest(("daily", "drift"), "ACTION", 10.0, 20.0, 50, 100).compile(
+        dialect=pg, compile_kwargs=lit))
+    assert "runs.procedure IN ('daily', 'drift')" in sql and "runs.status = 'ACTION'" in sql
+    assert "runs.started >= 10.0" in sql and "runs.started < 20.0" in sql
+    assert "ORDER BY runs.started DESC, runs.id DESC" in sql and "LIMIT 50 OFFSET 100" in sql
+    sql = str(queries.count_runs("sync", None, None, 5.0).compile(dialect=pg, compile_kwargs=lit))
+    assert sql.startswith("SELECT count(*)") and "runs.started < 5.0" in sql and "ORDER BY" not in sql
+    sql = str(queries.select_tolerances_by_id([3, 1]).compile(dialect=pg, compile_kwargs=lit))
+    assert "tolerances.id IN (3, 1)" in sql
+
+
 def test_catalog_labels_group_the_stored_names():
     labels = catalog.by_label()
     assert set(labels["daily QA"]) == {catalog.DAILY.name, catalog.DRIFT.name}
