@@ -147,6 +147,15 @@ def label(name: str) -> str:
     return p.label if p is not None else name
 
 
+def by_label() -> dict[str, tuple[str, ...]]:
+    """Every label -> the stored names of the runs it names, in the catalog's order (daily and
+    drift QA are both "daily QA"): what a person picks to see one kind of run."""
+    out: dict[str, tuple[str, ...]] = {}
+    for p in PROCEDURES:
+        out[p.label] = out.get(p.label, ()) + p.stored_as
+    return out
+
+
 def family(key: str) -> tuple[str, ...]:
     """Every stored name of the procedures that count as the check ``key`` (daily and drift QA
     are one check)."""
@@ -182,5 +191,5 @@ def sections() -> list[tuple[str, str, tuple[str, ...], Procedure]]:
 by_name()   # a catalog naming one stored name twice fails at import
 
 
-__all__ = ["Procedure", "Figure", "PROCEDURES", "JUDGES", "by_name", "find", "label", "family", "not_room_checks",
+__all__ = ["Procedure", "Figure", "PROCEDURES", "JUDGES", "by_name", "by_label", "find", "label", "family", "not_room_checks",
            "qa_set_name", "sections", "stored_name_pattern", "stored_names_text"]

@@ -38,8 +38,10 @@ KEEPALIVE_S = 15.0
 class Console:
     """What the pages need: the hub, the marker worker, the room's facts, the rig's name."""
 
-    def __init__(self, rig_name: str, hub, markers, facts, *, token: str | None = None):
+    def __init__(self, rig_name: str, hub, markers, facts, *, token: str | None = None, open_store=None):
         self.rig_name = rig_name
+        #: a callable giving the results store, opened read-only (None: the pages say there is none)
+        self.open_store = open_store if open_store is not None else getattr(facts, "open_store", None)
         self.hub = hub
         self.markers = markers
         self.facts = facts
@@ -69,6 +71,8 @@ def _same_origin(request: Request) -> str:
 
 
 def create_app(console: Console) -> Starlette:
+    from vts_hw.console.history import history_routes
+
     templates = Jinja2Templates(directory=str(HERE / "templates"))
 
     async def room_page(request: Request):
@@ -150,6 +154,7 @@ def create_app(console: Console) -> Starlette:
 
     routes = [Route("/", room_page), Route("/api/room", room_json), Route("/frame/{camera}", frame),
               Route("/events", events), Route("/camera/{camera}/led", led, methods=["POST"]),
+              *history_routes(console, templates),     # each page a module of its own (history.py)
               Mount("/static", StaticFiles(directory=str(HERE / "static")), name="static")]
     return Starlette(routes=routes)
 

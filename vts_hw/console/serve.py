@@ -85,7 +85,7 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, on
     hub = FramesHub(cameras, idle_close_s=IDLE_CLOSE_S if idle_close_s is None else idle_close_s)
     markers = MarkerWorker(hub, RATE_HZ if marker_hz is None else marker_hz)
     facts = RoomFacts(cameras, rig.rig, open_store)
-    console = Console(rig.rig, hub, markers, facts)
+    console = Console(rig.rig, hub, markers, facts, open_store=open_store)
     stop_facts = threading.Event()
 
     def keep_facts():

@@ -32,6 +32,35 @@ def select_runs(procedure=None, since: float | None = None, status=None) -> Sele
     return q.order_by(runs.c.started, runs.c.id)
 
 
+def _history_filter(q, procedure=None, status=None, start: float | None = None, end: float | None = None):
+    if procedure is not None:
+        q = q.where(_one_or_many(runs.c.procedure, procedure))
+    if status is not None:
+        q = q.where(_one_or_many(runs.c.status, status))
+    if start is not None:
+        q = q.where(runs.c.started >= start)
+    if end is not None:
+        q = q.where(runs.c.started < end)
+    return q
+
+
+def select_runs_newest(procedure=None, status=None, start: float | None = None, end: float | None = None,
+                       limit: int = 50, offset: int = 0) -> Select:
+    """One page of runs, newest first (by start, then id), started in [start, end) when given."""
+    q = _history_filter(select(runs), procedure, status, start, end)
+    return q.order_by(runs.c.started.desc(), runs.c.id.desc()).limit(int(limit)).offset(int(offset))
+
+
+def count_runs(procedure=None, status=None, start: float | None = None, end: float | None = None) -> Select:
+    """How many runs :func:`select_runs_newest` pages through."""
+    return _history_filter(select(func.count()).select_from(runs), procedure, status, start, end)
+
+
+def select_tolerances_by_id(ids: Iterable[int]) -> Select:
+    """The tolerance windows with these ids (the ones measurements were judged by)."""
+    return select(tolerances).where(tolerances.c.id.in_([int(i) for i in ids])).order_by(tolerances.c.id)
+
+
 def select_rigs() -> Select:
     """Every rig name that has a run, in order (an empty name too: runs stored without a rig config)."""
     return select(runs.c.rig).distinct().order_by(runs.c.rig)

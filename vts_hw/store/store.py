@@ -30,8 +30,9 @@ from vts_hw.store.identity import allowed, connection_kind, sqlite_file_kind
 from vts_hw.store.liveness import host_name, is_alive, process_start
 from vts_hw.store.migrations import ensure_schema, stored_version
 from vts_hw.store.paths import StoreTarget, masked, sqlite_file, to_url
-from vts_hw.store.queries import (select_artifacts, select_measurements, select_rigs, select_running_runs, select_runs,
-                      select_tolerance_at, select_tolerances_at)
+from vts_hw.store.queries import (count_runs, select_artifacts, select_measurements, select_rigs, select_running_runs,
+                                 select_runs, select_runs_newest, select_tolerance_at, select_tolerances_at,
+                                 select_tolerances_by_id)
 from vts_hw.store.records import (OUTBOX_STATES, Artifact, Measurement, OutboxItem, Run, artifact_from_row,
                                   measurement_from_row, outbox_from_row, run_from_row)
 from vts_hw.store.schema import SCHEMA_VERSION, outbox, runs, tolerances
@@ -303,6 +304,24 @@ class ResultsStore:
         """Runs, oldest first; procedure and status may be one value or a tuple."""
         with self._read() as conn:
             return [run_from_row(r) for r in conn.execute(select_runs(procedure, since, status))]
+
+    def runs_page(self, procedure=None, status=None, start: float | None = None, end: float | None = None,
+                  limit: int = 50, offset: int = 0) -> tuple[list[Run], int]:
+        """One page of runs, newest first, and how many runs the filters keep in all (one
+        snapshot). ``procedure``/``status``: one value or a tuple; ``start``/``end``: the runs
+        started in [start, end) (UTC epoch seconds)."""
+        with self._read() as conn:
+            total = conn.execute(count_runs(procedure, status, start, end)).scalar_one()
+            rows = conn.execute(select_runs_newest(procedure, status, start, end, limit, offset)).all()
+        return [run_from_row(r) for r in rows], int(total)
+
+    def windows(self, ids) -> dict[int, Window]:
+        """The tolerance windows with these ids (a measurement's ``tolerance_id``), by id."""
+        ids = {int(i) for i in ids if i is not None}
+        if not ids:
+            return {}
+        with self._read() as conn:
+            return {r.id: _window(r) for r in conn.execute(select_tolerances_by_id(ids))}
 
     def rigs(self) -> list[str]:
         """The rig names of the store's runs, sorted ("" for runs stored without a rig name)."""
