@@ -20,7 +20,6 @@ import subprocess
 import sys
 import threading
 import time
-from pathlib import Path
 from urllib.parse import urlparse
 
 import numpy as np
@@ -37,15 +36,7 @@ ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-f
         "--disable-background-networking", "--disable-component-update", "--disable-sync"]
 VTS = [sys.executable, "-m", "vts_hw.cli"]
 
-
-def until(check, timeout=20.0, poll=0.05):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        got = check()
-        if got:
-            return got
-        time.sleep(poll)
-    return check()
+from test_console_hub import until  # noqa: E402  (one poll-until-true for the console tests)
 
 
 def start_console(args, env, timeout=60.0):
