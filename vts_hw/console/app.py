@@ -28,6 +28,8 @@ from starlette.staticfiles import StaticFiles
 from starlette.templating import Jinja2Templates
 
 from vts_hw import __version__
+from vts_hw.console import guard
+from vts_hw.console.actions import MemoryActions
 
 HERE = Path(__file__).resolve().parent
 EVENT_TICK_S = 0.04           # how often an event stream looks for new frames (25 Hz)
@@ -38,7 +40,8 @@ KEEPALIVE_S = 15.0
 class Console:
     """What the pages need: the hub, the marker worker, the room's facts, the rig's name."""
 
-    def __init__(self, rig_name: str, hub, markers, facts, *, token: str | None = None, open_store=None):
+    def __init__(self, rig_name: str, hub, markers, facts, *, token: str | None = None, open_store=None,
+                 actions=None):
         self.rig_name = rig_name
         #: a callable giving the results store, opened read-only (None: the pages say there is none)
         self.open_store = open_store if open_store is not None else getattr(facts, "open_store", None)
@@ -47,6 +50,8 @@ class Console:
         self.facts = facts
         self.token = token or secrets.token_urlsafe(24)
         self.closing = asyncio.Event()
+        #: who did what here (actions.py): the store's log where there is one
+        self.actions = actions if actions is not None else MemoryActions()
 
     def room(self) -> dict:
         cams = []
@@ -57,17 +62,6 @@ class Console:
 
 def _sse(event: str, data) -> bytes:
     return f"event: {event}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n".encode()
-
-
-def _same_origin(request: Request) -> str:
-    """'' when a POST may be served; else why not (one sentence)."""
-    origin = request.headers.get("origin")
-    host = request.headers.get("host", "")
-    if origin is not None and origin != f"{request.url.scheme}://{host}":
-        return f"refused: a request from another site ({origin})"
-    if origin is None and request.headers.get("sec-fetch-site", "same-origin") not in ("same-origin", "none"):
-        return "refused: a request from another site"
-    return ""
 
 
 def create_app(console: Console) -> Starlette:
@@ -136,10 +130,9 @@ def create_app(console: Console) -> Starlette:
                                  headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"})
 
     async def led(request: Request):
-        why = _same_origin(request)
-        if why or not secrets.compare_digest(request.headers.get("x-console-token", ""), console.token):
-            return JSONResponse({"error": why or "refused: the request did not come from the console's page"},
-                                status_code=403)
+        refused = guard.refuse(console, request, guard.OPERATOR)
+        if refused is not None:
+            return refused
         name = request.path_params["camera"]
         if name not in console.hub.names:
             return JSONResponse({"error": f"no camera {name!r} in this rig"}, status_code=404)
@@ -150,6 +143,10 @@ def create_app(console: Console) -> Starlette:
         if not isinstance(body, dict) or not isinstance(body.get("on"), bool):
             return JSONResponse({"error": 'the body must be JSON {"on": true} or {"on": false}'}, status_code=400)
         facts = await asyncio.to_thread(console.facts.switch_led, name, body["on"])
+        if not facts["led_error"]:
+            user, _ = guard.user_of(console, request)
+            await asyncio.to_thread(console.actions.record, user, f"LED {'on' if body['on'] else 'off'}",
+                                    {"camera": name})
         return JSONResponse(facts, status_code=200 if not facts["led_error"] else 502)
 
     routes = [Route("/", room_page), Route("/api/room", room_json), Route("/frame/{camera}", frame),
