@@ -14,7 +14,10 @@ last argument (no shell, not waited for; a failure to start it or a non-zero exi
 through ``on_note`` and into the manifest, never fatal), and the event appended to the
 manifest through the session's locked, atomic rewrite. There are two kinds, acted on the same
 way: ``PATIENT MOVED`` (``live_motion.alerts``) and ``PATIENT NOT TRACKED``
-(``live_motion.blind_alerts``: NOT TRACKING for longer than ``motion.blind_alert_s``).
+(``live_motion.blind_alerts``: NOT TRACKING for longer than ``motion.blind_alert_s``). An alert
+raised more than ``LATE_SAY_S`` after the frame that raised it (a busy host: the live path behind
+its frames) says so in its line and carries ``late_s`` in the manifest: its delay after the move
+is then the computer's, and reported, never passed off as the rule's.
 
 Whether the patient is watched goes into the manifest as it changes: ``live_motion.state``
 (TRACKING, REFERENCE or NOT TRACKING with its reason, since when) and each stretch NOT
@@ -44,6 +47,15 @@ __all__ = ["LiveMotion"]
 
 COMMAND_TIMEOUT_S = 60.0
 EPISODES_KEPT = 500        # NOT TRACKING stretches listed in the manifest (the rest counted)
+
+
+#: an alert raised longer than this after the frame (or watch tick) that raised it says so: the
+#: computer was behind (a busy host), so its delay after the move is the host's, not the rule's
+LATE_SAY_S = 0.25
+
+
+def late_note(late_s: float) -> str:
+    return f" (raised {late_s:.1f} s after its frame: this computer is behind)" if late_s > LATE_SAY_S else ""
 
 
 def _iso(t: float) -> str:
@@ -210,10 +222,12 @@ class LiveMotion:
             pass
 
     def _motion_alert(self, session, alert, est: LiveEstimate) -> None:
-        text = alert.text(self.motion.alert_mm, self.motion.alert_deg)
-        self._say(text)
         raised = time.time()
-        event = {"kind": "motion", "raised": raised, "raised_utc": _iso(raised), "time": alert.time,
+        late = max(0.0, raised - alert.time)     # the host behind its frames: the alert says by how much
+        text = alert.text(self.motion.alert_mm, self.motion.alert_deg) + late_note(late)
+        self._say(text)
+        event = {"kind": "motion", "raised": raised, "raised_utc": _iso(raised), "late_s": round(late, 3),
+                 "time": alert.time,
                  "time_utc": _iso(alert.time), "onset": alert.onset, "onset_utc": _iso(alert.onset),
                  "onset_known_s": round(alert.onset_known_s, 3), "move_mm": round(alert.move_mm, 3),
                  "turn_deg": round(alert.turn_deg, 3), "frame": est.frame,
@@ -225,10 +239,12 @@ class LiveMotion:
         session.update_manifest(lambda meta: meta["live_motion"]["alerts"].append(event))
 
     def _blind_alert(self, session, alert: BlindAlert) -> None:
-        text = alert.text()
-        self._say(text)
         raised = time.time()
-        event = {"kind": "not tracking", "raised": raised, "raised_utc": _iso(raised), "since": alert.start,
+        late = max(0.0, raised - alert.raised)
+        text = alert.text() + late_note(late)
+        self._say(text)
+        event = {"kind": "not tracking", "raised": raised, "raised_utc": _iso(raised), "late_s": round(late, 3),
+                 "since": alert.start,
                  "since_utc": _iso(alert.start), "not_tracking_s": round(alert.raised - alert.start, 3),
                  "reason": alert.reason, "text": text}
         if self.motion.alert_command:
