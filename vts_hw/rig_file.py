@@ -80,6 +80,7 @@ def set_locked_params(path: str | os.PathLike, params: dict[str, dict[str, str]]
     -> value) in the rig.yaml at ``path``, keeping its comments; returns the backup's path."""
     from ruamel.yaml import YAML
     from ruamel.yaml.comments import CommentedMap
+    from ruamel.yaml.scalarstring import SingleQuotedScalarString
     from ruamel.yaml.error import YAMLError
 
     path = Path(path)
@@ -97,7 +98,8 @@ def set_locked_params(path: str | os.PathLike, params: dict[str, dict[str, str]]
     for name, values in params.items():
         if name not in entries:
             raise ConfigError(f"{path}: no camera named {name!r} in cameras")
-        entries[name]["locked_params"] = CommentedMap((k, str(v)) for k, v in values.items())
+        # quoted: a YAML 1.1 reader (PyYAML: how rig.yaml is loaded) would read no, yes, on, off as booleans
+        entries[name]["locked_params"] = CommentedMap((k, SingleQuotedScalarString(str(v))) for k, v in values.items())
     out = io.StringIO()
     rt.dump(data, out)
     new_text = out.getvalue()
