@@ -106,19 +106,25 @@ def search(timeout: float, interfaces: list[str] | None = None, *, mdns: bool = 
     return merge([a for name in ("mdns", "ssdp") for a in results.get(name, [])])
 
 
-def confirm(found: Found, user: str | None, password: str | None, timeout: float = 5.0, *,
-            password_env: str = "") -> Found:
+def confirm(found: Found, user: str | None, password_env: str | None, timeout: float = 5.0) -> Found:
     """``found`` with its model, serial number and firmware as the camera itself tells them
-    over VAPIX; ``confirmed`` is False (and ``problem`` says why) when it cannot be asked or
-    does not agree with its announcement."""
-    from vts_hw.drivers.axis import AxisCamera, CameraUnauthorized
+    over VAPIX (the password from the environment variable ``password_env``, when it is set);
+    ``confirmed`` is False (and ``problem`` says why) when it cannot be asked or does not agree
+    with its announcement."""
+    import os
 
-    url = f"{found.scheme}://{found.host}:{found.port}"
+    from vts_hw.config import CameraConfig
+    from vts_hw.drivers.axis import CameraUnauthorized
+    from vts_hw.drivers.registry import open_camera
+
+    has_password = bool(password_env) and os.environ.get(password_env) is not None
+    cfg = CameraConfig(name=found.serial or "camera", host=found.host, port=found.port, scheme=found.scheme,
+                       user=user or "root", password_env=password_env if has_password else None, timeout_s=timeout)
     try:
-        with AxisCamera(found.serial or found.address, url, user, password, timeout=timeout) as cam:
+        with open_camera(cfg) as cam:
             info = cam.device_info()
     except CameraUnauthorized as exc:
-        why = (f"it asks for a password: set {password_env} (the cameras' password)" if password is None
+        why = (f"it asks for a password: set {password_env} (the cameras' password)" if not has_password
                and password_env else str(exc))
         return replace(found, confirmed=False, problem=why)
     except CameraError as exc:

@@ -31,8 +31,8 @@ def setup(names: tuple[str, ...], all_cameras: bool, dry_run: bool, as_json: boo
     4 a camera refused a value or could not be reached (one sentence each says which and
     why; the cameras that took everything are written).
     """
-    from vts_hw.drivers.axis import AxisCamera
     from vts_hw.drivers.axis_setup import wanted
+    from vts_hw.drivers.registry import open_camera
     from vts_hw.errors import UsageError
 
     if all_cameras:
@@ -49,7 +49,7 @@ def setup(names: tuple[str, ...], all_cameras: bool, dry_run: bool, as_json: boo
         raise UsageError("the rig config was not read from a file: nowhere to write locked_params")
     if dry_run:
         for cfg in cfgs:
-            with AxisCamera.from_config(cfg) as cam:
+            with open_camera(cfg) as cam:
                 plan = wanted(cam, cfg, rig.camera_setup)
             click.echo(f"{cfg.name}: " + ", ".join(f"{k}={v}" for k, v, _ in plan))
         return
@@ -76,13 +76,13 @@ def setup(names: tuple[str, ...], all_cameras: bool, dry_run: bool, as_json: boo
 def _set_all(cfgs, setup_cfg, quiet: bool):
     """Each camera in turn: a camera that fails does not stop the others."""
     from vts_hw.camera import CameraError
-    from vts_hw.drivers.axis import AxisCamera
     from vts_hw.drivers.axis_setup import setup_camera
+    from vts_hw.drivers.registry import open_camera
 
     results, failures = [], []
     for cfg in cfgs:
         try:
-            with AxisCamera.from_config(cfg) as cam:
+            with open_camera(cfg) as cam:
                 r = setup_camera(cam, cfg, setup_cfg)
         except CameraError as exc:
             failures.append((cfg.name, str(exc)))

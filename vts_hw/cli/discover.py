@@ -60,8 +60,7 @@ def discover(output, timeout, interfaces, user, password_env, as_json) -> None:
         where = ", ".join(interfaces) if interfaces else "every interface"
         click.echo(f"listening {timeout:g} s on {where} for Axis cameras (mDNS _axis-video._tcp, SSDP) ...", err=True)
     found = search(timeout, interfaces or None)
-    password = os.environ.get(password_env)
-    found = [confirm(f, user, password, password_env=password_env) for f in found]
+    found = [confirm(f, user, password_env) for f in found]
     rows = [{"name": f"cam{i}", "host": f.host, "port": f.port, "scheme": f.scheme, "model": f.model,
              "serial": f.serial, "firmware": f.firmware, "confirmed": f.confirmed, "announced_by": list(f.sources),
              "problem": f.problem, "notes": f.notes} for i, f in enumerate(found, 1)]
