@@ -365,6 +365,11 @@ class AxisCamera:
                 info[key] = props[name]
         return info
 
+    def uptime(self):
+        """How long the camera has run since it started (drivers/axis_uptime.py)."""
+        from vts_hw.drivers.axis_uptime import read_uptime
+        return read_uptime(self)
+
     def clock_offset(self, samples: int = 5) -> ClockOffset:
         """Camera clock minus host clock.
 

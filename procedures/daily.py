@@ -2,7 +2,8 @@
 
 For each camera of the rig:
 
-1. reachable — the camera answers (device info);
+1. reachable — the camera answers (device info), and how long it has run: one started less
+   than its ``warmup_min`` ago may still drift as it warms (said, and stored as ``warming_up``);
 2. parameters — resolution, compression and frame rate (and any ``locked_params`` of the
    config, e.g. exposure) are still what the config locks them to;
 3. clock — camera clock minus host clock is within tolerance;
@@ -134,7 +135,8 @@ class QARun:
         for name in self.camera_names:
             cfg = self.rig.camera(name)
             if "reachable" in self.steps:
-                out.append(f"{name}: ask {cfg.base_url} for its device info")
+                out.append(f"{name}: ask {cfg.base_url} for its device info and uptime "
+                           f"(warm-up {getattr(cfg, 'warmup_min', 30.0):g} min)")
             if "params" in self.steps:
                 locked = ", ".join(f"{k}={v}" for k, v in self.locked(cfg).items())
                 out.append(f"{name}: check the locked parameters ({locked})")
@@ -201,6 +203,7 @@ class QARun:
                 if "reachable" in self.steps:
                     cam.device_info()
                     add("camera_reachable", 1.0, "")
+                    self._warmup(cam, cfg, out, add)
                 if "params" in self.steps:
                     try:
                         changed = self._params(cam, cfg, out)
@@ -223,6 +226,30 @@ class QARun:
                 out.problems.append(str(exc))
                 add("camera_reachable", 0.0, "")
         return out
+
+    @staticmethod
+    def _warmup(cam, cfg, out: CameraResult, add) -> None:
+        """The camera's uptime against its warm-up time (``warmup_min``): a camera started less
+        than that ago may still be drifting as it warms. Stored as ``uptime_min`` and
+        ``warming_up`` (1: its drift may not have settled), neither of which changes the state."""
+        warm = float(getattr(cfg, "warmup_min", 30.0))
+        read = getattr(cam, "uptime", None)
+        if read is None:
+            out.problems.append("uptime not known (this kind of camera does not tell it): whether its drift "
+                                "has settled is not known")
+            return
+        try:
+            up = read()
+        except CameraError as exc:
+            out.problems.append(f"uptime not known ({exc}): whether its drift has settled is not known")
+            return
+        minutes = up.seconds / 60.0
+        add("uptime_min", round(minutes, 1), "min")
+        warming = minutes < warm   # a coarse uptime (whole minutes) counts its lower end: may still be warming
+        add("warming_up", 1.0 if warming else 0.0, "")
+        if warming:
+            out.problems.append(f"started {minutes:.0f} min ago, less than its warm-up time ({warm:g} min): "
+                                f"its drift may not have settled (about {warm - minutes:.0f} min to go)")
 
     def _params(self, cam, cfg, out: CameraResult) -> int:
         changed = 0

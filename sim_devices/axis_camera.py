@@ -22,7 +22,11 @@ byte for byte where it matters:
 ``POST /axis-cgi/apidiscovery.cgi``             JSON list of the camera's APIs (current firmware)
 ``GET /axis-cgi/usergroup.cgi``                 the user's groups (current firmware)
 ``GET /axis-cgi/admin/date.cgi?action=get``     camera clock as ``Nov 21, 2026 23:59:59``
-``POST /axis-cgi/time.cgi``                     JSON ``getDateTimeInfo`` (current firmware)
+``POST /axis-cgi/time.cgi``                     JSON ``getDateTimeInfo``, ``setTimeZone`` ... (current
+                                                firmware; :mod:`.axis_time`)
+``POST /axis-cgi/systemready.cgi``              JSON: ready, and the uptime (current firmware)
+``GET /axis-cgi/admin/serverreport.cgi``        text report with the uptime (both models)
+``GET /rootdesc1.xml``                          UPnP description, once announced (:mod:`.announce`)
 ``GET|POST /sim/faults``, ``GET /sim/state``    control endpoint for tests (no auth, loopback)
 ==============================================  ==============================================
 
@@ -76,7 +80,7 @@ class SimAxisCamera:
 
     def __init__(self, source, user: str = "root", password: str = "pass", host: str = "127.0.0.1",
                  port: int = 0, model: str = DEFAULT_MODEL, clock=None, *, auth: str = "digest",
-                 tls: tuple[str, str] | None = None, firmware: str | None = None):
+                 tls: tuple[str, str] | None = None, firmware: str | None = None, uptime_s: float = 86400.0):
         if firmware is not None:  # the former name of the argument
             model = firmware
         if not ip_address(host).is_loopback:
@@ -108,6 +112,8 @@ class SimAxisCamera:
         self._snapshot = (-1, 0)  # (faults.version seen, snapshots since)
         self._sockets: set[socket.socket] = set()
         self._stopping = threading.Event()
+        self.booted_at = self.clock.now() - uptime_s   # when the camera started (sim clock): its uptime
+        self.announced = False   # announced on the network (sim_devices/announce.py): serves its UPnP description
         self._httpd: _Server | None = None
         self._thread: threading.Thread | None = None
 
@@ -177,6 +183,34 @@ class SimAxisCamera:
             self.faults.reset()
         self.faults.update(changes)
         return self.faults
+
+    def reboot(self) -> None:
+        """The camera restarts now: its uptime starts again from zero (its parameters are kept)."""
+        self.booted_at = self.clock.now()
+
+    @property
+    def serial(self) -> str:
+        return self.params.get("Properties.System.SerialNumber")
+
+    @property
+    def friendly_name(self) -> str:
+        """How the camera names itself when it announces itself: ``AXIS P1375 - ACCC8E012345``."""
+        return f"{self.params.get('Brand.ProdShortName')} - {self.serial}"
+
+    def description_xml(self, host: str = "") -> str:
+        """The UPnP device description (what an SSDP answer's LOCATION points to)."""
+        from xml.sax.saxutils import escape
+        p = self.params
+        fields = [("deviceType", "urn:schemas-upnp-org:device:Basic:1"), ("friendlyName", self.friendly_name),
+                  ("manufacturer", "AXIS"), ("manufacturerURL", "http://www.axis.com/"),
+                  ("modelDescription", p.get("Brand.ProdFullName")), ("modelName", p.get("Brand.ProdShortName")),
+                  ("modelNumber", p.get("Brand.ProdNbr")), ("serialNumber", self.serial),
+                  ("UDN", f"uuid:Upnp-BasicDevice-1_0-{self.serial}"),
+                  ("presentationURL", f"{self.scheme}://{self.host}:{self.port}/")]
+        body = "".join(f"<{k}>{escape(v)}</{k}>" for k, v in fields)
+        return ('<?xml version="1.0"?>\r\n<root xmlns="urn:schemas-upnp-org:device-1-0">'
+                "<specVersion><major>1</major><minor>0</minor></specVersion>"
+                f"<device>{body}</device></root>\r\n")
 
     def go_offline(self, seconds: float) -> threading.Timer:
         """Drop off the network for ``seconds`` (the ``offline`` fault, cleared by a timer)."""

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 from urllib.parse import parse_qs, parse_qsl, urlsplit
 
 from vts_hw.sim_devices.axis_streaming import Reject, serve_snapshot, serve_stream, trickle
+from vts_hw.sim_devices import axis_time
 
 if TYPE_CHECKING:
     from vts_hw.sim_devices.axis_camera import SimAxisCamera, _Server
@@ -38,6 +39,7 @@ _DEVICE_INFO = {  # basicdeviceinfo.cgi property -> parameter
 }
 _REASONS = {200: "OK", 400: "Bad Request", 401: "Unauthorized", 403: "Forbidden", 404: "Not Found",
             405: "Method Not Allowed", 503: "Service Unavailable"}
+DESCRIPTION_PATH = "/rootdesc1.xml"   # the UPnP device description an SSDP answer points to
 ROUTES = {  # path -> handler method; a path answers only when the model profile lists it
     "/axis-cgi/jpg/image.cgi": "snapshot",
     "/axis-cgi/mjpg/video.cgi": "stream",
@@ -53,6 +55,9 @@ ROUTES = {  # path -> handler method; a path answers only when the model profile
     "/axis-cgi/basicdeviceinfo.cgi": "device_info",
     "/axis-cgi/apidiscovery.cgi": "api_discovery",
     "/axis-cgi/usergroup.cgi": "user_group",
+    "/axis-cgi/systemready.cgi": "system_ready",
+    "/axis-cgi/serverreport.cgi": "server_report",
+    "/axis-cgi/admin/serverreport.cgi": "server_report",
 }
 
 
@@ -129,6 +134,9 @@ class Handler(BaseHTTPRequestHandler):
             if path.startswith("/sim/"):
                 self._control(method, path)
                 return
+            if path == DESCRIPTION_PATH and self.cam.announced:   # UPnP: no authentication
+                self.send(200, self.cam.description_xml(self.headers.get("Host", "")), "text/xml; charset=\"utf-8\"")
+                return
             if not path.startswith("/axis-cgi/"):
                 self.send(404, _BODY_404, "text/html")
                 return
@@ -136,7 +144,7 @@ class Handler(BaseHTTPRequestHandler):
                 self.hang_up()
                 return
             self.cam.count("requests")
-            if not self._authorized(method):
+            if not (path in axis_time.NO_AUTH and path in self.cam.profile.cgis) and not self._authorized(method):
                 return
             if self.cam.faults.trickle:
                 trickle(self, path)
@@ -261,18 +269,13 @@ class Handler(BaseHTTPRequestHandler):
         self.send(200, f"{self.cam.auth.user}\nadmin operator viewer\n")
 
     def _time_api(self, method: str) -> None:
-        request = self._json_request(method)
-        if request is None:
-            return
-        if request.get("method") == "getDateTimeInfo":
-            t = datetime.fromtimestamp(self.cam.camera_time(), timezone.utc)
-            iso = t.strftime("%Y-%m-%dT%H:%M:%S.") + f"{t.microsecond // 1000:03d}Z"
-            self._json_reply(request, {"data": {"dateTime": iso, "localDateTime": iso, "dstEnabled": False,
-                                                "timeZone": "Etc/UTC", "posixTimeZone": "UTC0"}})
-        elif request.get("method") == "getSupportedVersions":
-            self._json_reply(request, {"data": {"apiVersions": ["1.0"]}})
-        else:
-            self._json_reply(request, _unsupported(request))
+        axis_time.time_api(self, method)
+
+    def _system_ready(self, method: str) -> None:
+        axis_time.system_ready(self, method)
+
+    def _server_report(self, method: str) -> None:
+        axis_time.server_report(self, method)
 
     def _date(self, method: str) -> None:
         if self.query.get("action") != "get":

@@ -112,7 +112,7 @@ class Profile:
 class ParamStore:
     """The camera's parameter tree (``root.X.Y=Z``), in memory, safe between threads."""
 
-    READ_ONLY = ("root.Brand.", "root.Properties.")
+    READ_ONLY = ("root.Brand.", "root.Properties.", "root.Network.eth0.MACAddress")
 
     def __init__(self, values: dict[str, str], resolutions: list[str]):
         self._values = dict(values)
@@ -159,13 +159,61 @@ class ParamStore:
         return "OK\r\n"
 
     def _valid(self, full: str, value: str) -> bool:
-        if full.endswith(".Appearance.Compression"):
-            return value.isdigit() and 0 <= int(value) <= 100
-        if full.endswith(".Stream.FPS"):
-            return value.isdigit() and int(value) <= MAX_FPS
         if full.endswith(".Appearance.Resolution"):
             return value in self._resolutions
+        return valid_value(full, value)
+
+
+def _whole(low: int, high: int):
+    return lambda v: v.isdigit() and low <= int(v) <= high
+
+
+_YES_NO = ("yes", "no")
+_TZ_POSIX = re.compile(r"^[A-Za-z]{3,}[-+]?\d{1,2}(:\d{2})?([A-Za-z]{3,}([-+]?\d{1,2})?(,[-A-Za-z0-9.:/]+){0,2})?$")
+_HOST = re.compile(r"^(?=.{1,253}$)[A-Za-z0-9]([A-Za-z0-9-]{0,62})(\.[A-Za-z0-9]([A-Za-z0-9-]{0,62}))*$")
+#: what the firmware takes for a parameter (by the end of its name): a test of the value. A
+#: parameter not named here takes any text, as free-text parameters (names, descriptions) do.
+RULES = {
+    ".Appearance.Compression": _whole(0, 100),
+    ".Stream.FPS": _whole(0, MAX_FPS),            # 0: as fast as the camera can
+    ".Sensor.Exposure": lambda v: v in ("auto", "hold", "flickerfree50", "flickerfree60"),
+    ".Sensor.WhiteBalance": lambda v: v in ("auto", "hold", "fixed_indoor", "fixed_outdoor1", "fixed_outdoor2",
+                                            "fixed_fluor1", "fixed_fluor2"),
+    ".Sensor.ExposureValue": _whole(0, 100),
+    ".Sensor.ExposurePriority": _whole(0, 100),
+    ".Sensor.MaxExposureTime": _whole(100, 1_000_000),   # microseconds
+    ".Sensor.MaxGain": _whole(0, 48),                     # dB
+    ".Text.TextEnabled": lambda v: v in _YES_NO,
+    ".Text.ClockEnabled": lambda v: v in _YES_NO,
+    ".Text.DateEnabled": lambda v: v in _YES_NO,
+    ".Overlay.Enabled": lambda v: v in _YES_NO,
+    ".DST.Enabled": lambda v: v in _YES_NO,
+    ".ObtainFromDHCP": lambda v: v in _YES_NO,
+    "root.Time.SyncSource": lambda v: v in ("NTP", "None", "PC"),
+    "root.Time.NTP.Server": lambda v: v == "" or bool(_HOST.match(v)),
+    "root.Time.POSIXTimeZone": lambda v: bool(_TZ_POSIX.match(v)),
+    "root.Time.TimeZone": lambda v: valid_time_zone(v),
+}
+
+
+def valid_time_zone(value: str) -> bool:
+    """An IANA time zone name (current firmware) or a POSIX TZ string such as ``UTC0`` or
+    ``CET-1CEST,M3.5.0,M10.5.0/3`` (firmware 4.x names its zone that way)."""
+    import zoneinfo
+    if _TZ_POSIX.match(value) or value in ("GMT", "UTC"):
         return True
+    try:
+        return "/" in value and zoneinfo.ZoneInfo(value) is not None
+    except (zoneinfo.ZoneInfoNotFoundError, ValueError):
+        return False
+
+
+def valid_value(full: str, value: str) -> bool:
+    """Whether the firmware takes ``value`` for parameter ``full`` (``root.`` name)."""
+    for suffix, check in RULES.items():
+        if full == suffix or (suffix.startswith(".") and full.endswith(suffix)):
+            return bool(check(value))
+    return "\n" not in value and "\r" not in value
 
 
 def describe(profile: Profile) -> dict[str, Any]:

@@ -56,7 +56,8 @@ class SimRig:
     def __init__(self, n_cameras: int = 2, seed: int = 0, *, user: str = "root", password: str | None = None,
                  firmware: str = "vapix3", clock=None, fps: float = 25.0,
                  drift_px_per_60_days: dict[str, float] | None = None, trigger: str = "none",
-                 tls: tuple[str, str] | None = None, gantry: bool = False, patient=None, qatrack: bool = False):
+                 tls: tuple[str, str] | None = None, gantry: bool = False, patient=None, qatrack: bool = False,
+                 announce: bool = False):
         if trigger not in TRIGGERS:
             raise ValueError(f"trigger must be one of {', '.join(TRIGGERS)}, not {trigger!r}")
         self.trigger = trigger
@@ -91,9 +92,16 @@ class SimRig:
         # firmware: the camera model (p1375, axis211; vapix3/vapix2 name them too). tls=(cert, key):
         # HTTPS cameras with basic authentication, the certificate named in config() as ca_cert
         self.tls = tls
-        self.servers = {name: SimAxisCamera(src, user=user, password=self.password, model=firmware,
+        # firmware: one model for every camera, or one per camera in order (e.g. ["p1375", "axis211"])
+        models = [firmware] * len(self.sources) if isinstance(firmware, str) else list(firmware)
+        if len(models) != len(self.sources):
+            raise ValueError(f"firmware names {len(models)} models for {len(self.sources)} cameras")
+        self.servers = {name: SimAxisCamera(src, user=user, password=self.password, model=model,
                                             clock=self.clock, tls=tls, auth="basic" if tls else "digest")
-                        for name, src in self.sources.items()}
+                        for (name, src), model in zip(self.sources.items(), models)}
+        # announce: the cameras announce themselves on loopback (mDNS and SSDP, sim_devices/announce.py)
+        self.announce = announce
+        self.announcer = None
         for name, srv in self.servers.items():     # each camera's shutter time, from its model profile
             self.renderer.exposure[name] = srv.profile.exposure_ms / 1000.0
         self.bank = None        # frames made ahead of time (prerender)
@@ -113,10 +121,16 @@ class SimRig:
         if self.qatrack:
             from vts_hw.sim_devices.qatrack_rig import start_site
             self.qatrack_site = start_site(list(self.servers))
+        if self.announce:
+            from vts_hw.sim_devices.announce import Announcer
+            self.announcer = Announcer(self.servers.values()).start()
         self._started = True
         return self
 
     def stop(self) -> None:
+        if self.announcer is not None:
+            self.announcer.stop()
+            self.announcer = None
         for srv in self.servers.values():
             srv.stop()
         if self.trigger_box is not None:

@@ -87,6 +87,17 @@ class ClockOffset:
 
 
 @dataclass(frozen=True)
+class Uptime:
+    """How long the camera has been running since it started, as the camera tells it:
+    ``seconds`` within ``resolution_s`` (1 s from a count of seconds, 60 s from an ``up 2:01``
+    line); ``method`` says where it was read."""
+
+    seconds: float
+    resolution_s: float
+    method: str
+
+
+@dataclass(frozen=True)
 class StreamGap:
     """Frames missing between two received frames (or while reconnecting)."""
 
@@ -163,6 +174,9 @@ class Camera(Protocol):
     def get_params(self, group: str) -> dict[str, str]:
         """Parameters of a group; :class:`NoParameters` where the kind has none."""
 
+    # optional: ``uptime() -> Uptime`` where the kind can tell it (the daily QA's warm-up check
+    # says "not known" for a kind without it, or a camera that cannot tell)
+
     def close(self) -> None: ...
 
     def __enter__(self) -> "Camera": ...
@@ -214,4 +228,4 @@ def kind_options(cfg, model):
 
 
 __all__ = ["check_whole", "NotWhole", "StreamFellShort", "Camera", "CameraError", "ClockOffset", "Connection", "Frame", "NoParameters", "Refused", "SourceEnded",
-           "StreamGap", "StreamStats", "TORN", "TIME_SOURCES", "kind_options"]
+           "StreamGap", "StreamStats", "TORN", "TIME_SOURCES", "Uptime", "kind_options"]

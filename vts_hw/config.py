@@ -17,6 +17,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
 
 from vts_hw.config_qatrack import QATrackConfig
+from vts_hw.config_setup import CameraSetupConfig
 from vts_hw.bounded import ANY_SIZE, TooLarge, check_file, read_bytes
 from vts_hw.errors import ConfigError
 
@@ -55,6 +56,8 @@ class CameraConfig(_Strict):
         default_factory=dict, description="further VAPIX parameters the daily QA checks, e.g. exposure")
     ca_cert: Optional[Path] = Field(
         default=None, description="https: a PEM certificate to trust for this camera (e.g. its self-signed one)")
+    warmup_min: float = Field(default=30.0, ge=0, le=24 * 60,
+                              description="minutes after it starts before its drift has settled (daily QA warns)")
 
     @field_validator("ca_cert")
     @classmethod
@@ -235,6 +238,7 @@ class RigConfig(_Strict):
     store: StoreConfig = StoreConfig()
     motion: MotionConfig = MotionConfig()
     qatrack: Optional[QATrackConfig] = None   # pushing results to QATrack+ (config_qatrack.py)
+    camera_setup: CameraSetupConfig = CameraSetupConfig()   # what `vts camera setup` sets (config_setup.py)
     recordings_dir: Optional[Path] = None
     _source: Optional[Path] = PrivateAttr(default=None)   # the file it was read from
 

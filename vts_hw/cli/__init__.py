@@ -43,7 +43,7 @@ def cli(ctx: click.Context, verbose: int, store_url: str | None, store_password_
 
 
 def _register() -> None:
-    from vts_hw.cli import (calibrate, camera, console, demo, motion, qa, qa_push, qa_steps, recording, report, scan,  # noqa: F401
+    from vts_hw.cli import (calibrate, camera, camera_setup, console, demo, discover, motion, qa, qa_push, qa_steps, recording, report, scan,  # noqa: F401
                    sim, store, sync, trigger)
 
 

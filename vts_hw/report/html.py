@@ -12,7 +12,7 @@ import base64
 from html import escape
 
 from vts_hw.tolerance import worst
-from vts_hw.report.model import AXES, CameraDrift, DriftReport, RunPoint
+from vts_hw.report.model import AXES, WARMING_METRIC, CameraDrift, DriftReport, RunPoint
 from vts_hw.report.plots import STATE_COLOURS, camera_figure, figure_png
 from vts_hw.report.text import (camera_forecast_text, fmt_num, fmt_slope, forecast_detail, latest_text, led_text,
                    period_text, trend_detail)
@@ -176,6 +176,11 @@ def _checks(report: DriftReport, cam: CameraDrift) -> str:
             when = ", ".join(f"{fmt_date(p.t)} ({p.values[metric]:g})" for p in ev[-12:])
             more = f" and {len(ev) - 12} earlier" if len(ev) > 12 else ""
             items.append(f"<li><b>{escape(what)}</b>: {len(ev)} run(s) — {escape(when + more)}</li>")
+    warm = cam.events(WARMING_METRIC)
+    if warm:
+        when = ", ".join(fmt_datetime(p.t) for p in warm[-12:]) + (f" and {len(warm) - 12} earlier" if len(warm) > 12 else "")
+        items.append(f"<li><b>camera warming up</b>: {len(warm)} run(s) taken less than its warm-up time after the "
+                     f"camera started; their drift may not have settled (marked in the runs below) — {escape(when)}</li>")
     if not items:
         return '<p class="muted">LED, missing-marker and stray-blob checks passed on every run shown.</p>'
     return "<ul>" + "".join(items) + "</ul>"
@@ -185,7 +190,11 @@ _RUN_COLS = (("drift_x_px", "x px", ".3f"), ("drift_y_px", "y px", ".3f"), ("dri
              ("drift_y_mm", "y mm", ".2f"), ("drift_sd_px", "SD px", ".3f"), ("markers_missing", "missing", "g"),
              ("stray_blobs", "stray", "g"), ("led_off_visible", "LED off seen", "g"),
              ("clock_offset_s", "clock s", "+.2f"), ("params_changed", "params", "g"),
-             ("camera_reachable", "answered", "g"))
+             ("camera_reachable", "answered", "g"), ("uptime_min", "up min", ".0f"))
+
+
+WARMING_MARK = (' <span class="meta" title="taken less than the camera\'s warm-up time after it started: its drift '
+                'may not have settled">warming up</span>')
 
 
 def _runs_table(cam: CameraDrift) -> str:
@@ -195,7 +204,7 @@ def _runs_table(cam: CameraDrift) -> str:
     for p in reversed(cam.points):
         cells = "".join(_cell(fmt_num(p.values.get(m), f), p.status.get(m)) for m, _, f in cols)
         rows.append(f"<tr><td>{fmt_datetime(p.t)}</td><td>{escape(p.procedure)}</td><td>{p.run_id}</td>"
-                    f"<td>{_badge(p.state)}</td>{cells}</tr>")
+                    f"<td>{_badge(p.state)}{WARMING_MARK if p.warming_up else ''}</td>{cells}</tr>")
     return (f"<details><summary>All {len(cam.points)} runs shown (newest first)</summary><div class=scroll><table><thead><tr>"
             f"<th>Started</th><th>Procedure</th><th>Run</th><th>State</th>{head}</tr></thead><tbody>"
             + "".join(rows) + "</tbody></table></div></details>")

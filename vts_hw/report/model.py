@@ -27,6 +27,8 @@ CAMERA_METRICS = ("drift_x_px", "drift_y_px", "drift_x_mm", "drift_y_mm", "drift
                   "markers_missing", "stray_blobs", "led_off_visible")
 # the metrics that say whether the camera itself is healthy, beside the drift
 CHECK_METRICS = ("led_off_visible", "markers_missing", "stray_blobs")
+# the daily QA's warm-up check: 1 when the camera had run less than its warm-up time (drift unsettled)
+WARMING_METRIC = "warming_up"
 STATES = ("OK", "TOLERANCE", "ACTION")
 
 
@@ -79,6 +81,11 @@ class RunPoint:
     def value(self, metric: str) -> float:
         v = self.values.get(metric)
         return math.nan if v is None else float(v)
+
+    @property
+    def warming_up(self) -> bool:
+        """The camera had run less than its warm-up time: its drift may not have settled."""
+        return (self.values.get(WARMING_METRIC) or 0) > 0
 
     @property
     def drift_measured(self) -> bool:

@@ -18,7 +18,7 @@ from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
-from vts_hw.report.model import AXES, CameraDrift, DriftReport
+from vts_hw.report.model import AXES, WARMING_METRIC, CameraDrift, DriftReport
 from vts_hw.report.plots import FONT, STATE_COLOURS, ZONE_COLOURS, camera_figure
 from vts_hw.report.text import (camera_forecast_text, fmt_slope, forecast_detail, latest_text, led_text, period_text,
                    trend_detail)
@@ -211,6 +211,12 @@ def _camera_header(report: DriftReport, cam: CameraDrift) -> list[str]:
         lines.append(textwrap.fill(line, HEADER_WIDTH_CHARS, subsequent_indent="   "))
     lines.append(f"LED check: {led_text(cam)} · markers missing on {len(cam.events('markers_missing'))} run(s) · "
                  f"stray blobs on {len(cam.events('stray_blobs'))} run(s)")
+    warm = cam.events(WARMING_METRIC)
+    if warm:
+        lines.append(textwrap.fill(f"Warming up: {len(warm)} run(s) taken less than the camera's warm-up time after it "
+                                   f"started (drift may not have settled): "
+                                   + ", ".join(fmt_datetime(p.t) for p in warm[-6:]), HEADER_WIDTH_CHARS,
+                                   subsequent_indent="   "))
     return lines
 
 

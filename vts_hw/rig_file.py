@@ -1,0 +1,118 @@
+"""Writing rig.yaml: a new skeleton (`vts discover -o`), and locked_params set in place
+(`vts camera setup`), never losing the file that was there.
+
+* :func:`write_new` writes a file that must not exist yet: the text goes to a hidden temporary
+  file beside it, and is linked to its name only if that name is still free (a file that
+  appeared meanwhile is never replaced).
+* :func:`set_locked_params` reads rig.yaml with ruamel.yaml's round-trip loader (its comments,
+  key order and quoting kept), replaces the ``locked_params`` of the cameras named, checks that
+  the result is still a valid rig config, copies the old file to ``rig.yaml.bak`` and writes
+  the new one atomically (:func:`vts_hw.files.write_atomic`). A file changed by someone else
+  between the read and the write is refused, not overwritten.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import os
+import time
+from pathlib import Path
+
+import yaml
+
+from vts_hw.config import MAX_CONFIG_BYTES, _read_text, parse_rig
+from vts_hw.errors import ConfigError, UsageError
+from vts_hw.files import WriteFailed, os_reason, write_atomic
+
+BACKUP_SUFFIX = ".bak"
+
+
+def skeleton(cameras: list[dict], *, password_env: str, user: str = "root", rig: str = "vts",
+             when: float | None = None) -> str:
+    """The text of a rig.yaml for ``cameras`` (dicts: name, host, port, scheme, model, serial,
+    firmware, confirmed), with a comment per camera saying what it is; checked to load."""
+    stamp = time.strftime("%Y-%m-%d %H:%M", time.localtime(time.time() if when is None else when))
+    lines = [f"# rig.yaml written by `vts discover` on {stamp}: the Axis cameras that announced themselves.",
+             "# Check each entry (name, led_port), set the password variable, then run `vts camera setup --all`",
+             "# (it sets each camera and writes what it set as the camera's locked_params, which the daily QA checks).",
+             f"rig: {rig}", "cameras:"]
+    for c in cameras:
+        what = ", ".join(x for x in (c.get("model") or "Axis camera", f"serial {c.get('serial') or '?'}",
+                                     f"firmware {c.get('firmware') or '?'}") if x)
+        how = "confirmed over VAPIX" if c.get("confirmed") else "as announced, NOT confirmed over VAPIX"
+        lines += [f"  # {what} ({how})", f"  - name: {c['name']}", f"    host: {c['host']}"]
+        if c.get("scheme", "http") != "http":
+            lines.append(f"    scheme: {c['scheme']}")
+        lines += [f"    port: {int(c['port'])}", f"    user: {user}", f"    password_env: {password_env}"]
+    lines += ["trigger:", "  backend: none"]
+    text = "\n".join(lines) + "\n"
+    parse_rig(yaml.safe_load(text), "the rig.yaml skeleton")   # what is written loads
+    return text
+
+
+def write_new(path: str | os.PathLike, text: str) -> Path:
+    """Write ``text`` to ``path``, which must not exist (UsageError, exit 2, if it does: nothing
+    is written); WriteFailed (exit 3) when it cannot be written."""
+    path = Path(path)
+    if path.exists() or path.is_symlink():
+        raise UsageError(f"{path} already exists: a rig config is never overwritten; give -o a new file name")
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.new")
+    try:
+        write_atomic(tmp, text)
+        try:
+            os.link(tmp, path)          # fails if the name was taken meanwhile: never replaces a file
+        except FileExistsError:
+            raise UsageError(f"{path} already exists: a rig config is never overwritten; "
+                             f"give -o a new file name") from None
+        except OSError as exc:
+            raise WriteFailed(path, os_reason(exc), "nothing was written") from None
+    finally:
+        try:
+            tmp.unlink()
+        except FileNotFoundError:
+            pass
+    return path
+
+
+def set_locked_params(path: str | os.PathLike, params: dict[str, dict[str, str]]) -> Path:
+    """Set ``locked_params`` of the cameras named in ``params`` (camera name -> VAPIX parameter
+    -> value) in the rig.yaml at ``path``, keeping its comments; returns the backup's path."""
+    from ruamel.yaml import YAML
+    from ruamel.yaml.comments import CommentedMap
+    from ruamel.yaml.scalarstring import SingleQuotedScalarString
+    from ruamel.yaml.error import YAMLError
+
+    path = Path(path)
+    text = _read_text(path)
+    digest = hashlib.sha256(text.encode("utf-8")).hexdigest()
+    rt = YAML()
+    rt.preserve_quotes = True
+    rt.width = 4096
+    try:
+        data = rt.load(text)
+    except YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    cameras = data.get("cameras") if hasattr(data, "get") else None
+    entries = {c.get("name"): c for c in cameras or [] if hasattr(c, "get")}
+    for name, values in params.items():
+        if name not in entries:
+            raise ConfigError(f"{path}: no camera named {name!r} in cameras")
+        # quoted: a YAML 1.1 reader (PyYAML: how rig.yaml is loaded) would read no, yes, on, off as booleans
+        entries[name]["locked_params"] = CommentedMap((k, SingleQuotedScalarString(str(v))) for k, v in values.items())
+    out = io.StringIO()
+    rt.dump(data, out)
+    new_text = out.getvalue()
+    if len(new_text.encode("utf-8")) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{path}: the config with its locked parameters would be larger than a rig config can be")
+    parse_rig(yaml.safe_load(new_text), str(path))   # never write a file that would not load
+    if hashlib.sha256(_read_text(path).encode("utf-8")).hexdigest() != digest:
+        raise UsageError(f"{path} was changed while the cameras were being set: it is left as it is; "
+                         f"run the setup again")
+    backup = path.with_name(path.name + BACKUP_SUFFIX)
+    write_atomic(backup, text, kept=f"{path} is unchanged")
+    write_atomic(path, new_text, kept=f"{path} is unchanged; its old text is also in {backup}")
+    return backup
+
+
+__all__ = ["skeleton", "write_new", "set_locked_params", "BACKUP_SUFFIX"]
