@@ -225,10 +225,11 @@ def test_the_daily_qa_runs_from_the_page_and_the_hub_steps_aside(qa_room, qa_pag
             sampler.close()
         # the progress, as it went: which camera, which step, frames taken of needed
         seen = page.evaluate("window.seen")
-        assert any(re.fullmatch(rf"camera cam1 \(1 of 2\): LED frames for the drift, frames [1-9] of {FRAMES + 1}.*", s)
+        # (the page shows the latest state at each event: a short step may pass unseen; the drift
+        # step's first state lasts while the hub steps aside)
+        assert any(re.fullmatch(rf"camera cam1 \(1 of 2\): LED frames for the drift, frames \d of {FRAMES + 1}.*", s)
                    for s in seen), seen
         assert any(s.startswith("camera cam2 (2 of 2): ") for s in seen), seen
-        assert any("measuring its clock" in s for s in seen), seen
         assert re.match(r"\d+\.\d s since \d\d:\d\d:\d\d UTC, by local", page.inner_text("#p-elapsed"))
         # the result: each camera's state in colour and words, its figures in their windows, its plot
         run_id = int(page.get_attribute("#r-title", "data-run"))

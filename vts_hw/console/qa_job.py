@@ -44,6 +44,7 @@ class Jobs:
         self._push_lock = threading.Lock()
         self._thread: threading.Thread | None = None
         self.version = 0
+        self.ended = 0               # jobs ended since the console started (a plot drawn before is old)
         self._job: dict = {"state": "idle"}
 
     # -- what the page reads -----------------------------------------------------------------------
@@ -118,6 +119,7 @@ class Jobs:
                                                   f"{type(exc).__name__}: {exc}", "finished": self.clock()}
         finally:
             self._release(attached)
+        self.ended += 1
         self._set(**ended)
         self._record(user, f"{KINDS[self._job['kind']]} {'run' if self._job['kind'] == 'daily' else 'set'}",
                      {**detail, "cameras": names})

@@ -14,8 +14,9 @@ drift plot inside its windows, push it to QATrack+, set a drift baseline (confir
 * ``POST /qa/push`` (operator): as `vts qa push` (every finished run of the rig not yet in
   QATrack+, through the store's outbox); each run's outcome (sent / pending / refused) with
   the peer's sentence.
-* ``GET /qa/plot/{camera}.png``: the camera's drift over 60 days inside its tolerance and
-  action windows, the drift report's figure drawn from the store (in a thread).
+* ``GET /qa/plot/{camera}.png?run=N``: the camera's drift over 60 days inside its tolerance
+  and action windows as of run N, the drift report's figure drawn from the store (in a
+  thread, once per camera and run: :class:`Plots`).
 
 Every POST passes ``guard.refuse`` first; every action is logged (``console.actions``) with
 who did it. No procedure logic here: qa_job.py calls what the commands call.
@@ -25,6 +26,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import threading
 
 from starlette.requests import Request
 from starlette.responses import JSONResponse, PlainTextResponse, Response, StreamingResponse
@@ -71,11 +73,44 @@ def _refused(exc: VtsError) -> JSONResponse:
     return JSONResponse({"error": str(exc)}, status_code=status)
 
 
+class Plots:
+    """Drift plots drawn once per (camera, run): matplotlib takes seconds on a busy machine, and
+    every page open after a run asks for the same ones. A plot asked for while it is being drawn
+    waits for that drawing rather than drawing it again. Without a run in the URL: drawn anew."""
+
+    KEEP = 16
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._done: dict[tuple, bytes | None] = {}
+        self._drawing: dict[tuple, threading.Lock] = {}
+
+    def get(self, key, draw):
+        if key[1] is None:
+            return draw()
+        with self._lock:
+            if key in self._done:
+                return self._done[key]
+            lock = self._drawing.setdefault(key, threading.Lock())
+        with lock:
+            with self._lock:
+                if key in self._done:
+                    return self._done[key]
+            png = draw()
+            with self._lock:
+                self._done[key] = png
+                self._drawing.pop(key, None)
+                while len(self._done) > self.KEEP:
+                    self._done.pop(next(iter(self._done)))
+            return png
+
+
 class QAPage:
     def __init__(self, console, templates):
         self.console = console
         self.templates = templates
         self.jobs = Jobs(console)
+        self.plots = Plots()
         console.qa_jobs = self.jobs          # (the tests and a closing console can reach it)
 
     async def page(self, request: Request):
@@ -158,8 +193,11 @@ class QAPage:
             return PlainTextResponse(f"no camera {name!r} in this rig", status_code=404)
         if self.console.open_store is None:
             return PlainTextResponse("no results store is named for this console", status_code=503)
+        run = request.query_params.get("run", "")
+        key = (name, int(run) if run.isdigit() else None, self.jobs.ended)   # a new baseline: drawn anew
         try:
-            png = await asyncio.to_thread(drift_plot_png, self.console.open_store, self.console.rig_name, name)
+            png = await asyncio.to_thread(self.plots.get, key, lambda: drift_plot_png(
+                self.console.open_store, self.console.rig_name, name))
         except VtsError as exc:
             return PlainTextResponse(f"the results store could not be read: {exc}", status_code=503)
         if png is None:
