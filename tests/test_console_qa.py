@@ -241,7 +241,7 @@ def test_the_daily_qa_runs_from_the_page_and_the_hub_steps_aside(qa_room, qa_pag
             assert page.inner_text(f"{card} h3 .st") == "OK"
             assert page.eval_on_selector(f"{card} h3 .st", "e => getComputedStyle(e).backgroundColor") == "rgb(220, 252, 231)"
             row = page.inner_text(f'{card} tr[data-metric="drift_x_px"]')
-            assert "px" in row and "OK ±" in row and "ACTION beyond ±" in row, row
+            assert "px" in row and "OK within ±1" in row and "ACTION beyond ±2 px" in row, row
             page.wait_for_function("c => { const i = document.querySelector(c + ' img.drift');"
                                    " return i && i.complete && i.naturalWidth > 0; }", arg=card, timeout=30_000)
         assert page.get_attribute("#history-link", "href") == f"/history/run/{run_id}"

@@ -38,17 +38,22 @@ def value_text(v) -> str:
 
 
 def window_text(w) -> str:
-    """A tolerance window as a person reads it: ``OK ±1, ACTION beyond ±2 px``."""
-    def rng(lo, hi):
-        if lo is None and hi is None:
-            return ""
-        if lo is None:
-            return f"≤ {hi:g}"
-        if hi is None:
-            return f"≥ {lo:g}"
-        return f"±{hi:g}" if math.isclose(lo, -hi) else f"{lo:g} … {hi:g}"
-    ok, act = rng(w.tolerance_low, w.tolerance_high), rng(w.action_low, w.action_high)
-    parts = ([f"OK {ok}"] if ok else []) + ([f"ACTION beyond {act}"] if act else [])
+    """A tolerance window as a person reads it: ``OK within ±1, ACTION beyond ±2 px``,
+    ``OK ≤ 0, ACTION above 1 markers``, ``ACTION below 1``."""
+    tl, th, al, ah = w.tolerance_low, w.tolerance_high, w.action_low, w.action_high
+    parts = []
+    if tl is not None and th is not None:
+        parts.append(f"OK within ±{th:g}" if math.isclose(tl, -th) else f"OK {tl:g} … {th:g}")
+    elif th is not None:
+        parts.append(f"OK ≤ {th:g}")
+    elif tl is not None:
+        parts.append(f"OK ≥ {tl:g}")
+    if al is not None and ah is not None:
+        parts.append(f"ACTION beyond ±{ah:g}" if math.isclose(al, -ah) else f"ACTION outside {al:g} … {ah:g}")
+    elif ah is not None:
+        parts.append(f"ACTION above {ah:g}")
+    elif al is not None:
+        parts.append(f"ACTION below {al:g}")
     return (", ".join(parts) + f" {w.unit or ''}").strip()
 
 
@@ -167,7 +172,7 @@ def drift_plot_png(open_store, rig: str, camera: str, now: float | None = None) 
     cam = report.cameras.get(camera)
     if cam is None or not cam.points:
         return None
-    return figure_png(camera_figure(report, cam, figsize=(7.2, 5.4)), dpi=90)
+    return figure_png(camera_figure(report, cam), dpi=80)     # the report's own size: its titles fit
 
 
 __all__ = ["latest_view", "view_of_run", "view_of_result", "drift_plot_png", "baselines", "push_state"]
