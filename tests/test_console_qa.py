@@ -243,7 +243,7 @@ def test_the_daily_qa_runs_from_the_page_and_the_hub_steps_aside(qa_room, qa_pag
             row = page.inner_text(f'{card} tr[data-metric="drift_x_px"]')
             assert "px" in row and "OK within ±1" in row and "ACTION beyond ±2 px" in row, row
             page.wait_for_function("c => { const i = document.querySelector(c + ' img.drift');"
-                                   " return i && i.complete && i.naturalWidth > 0; }", arg=card, timeout=30_000)
+                                   " return i && i.complete && i.naturalWidth > 0; }", arg=card, timeout=120_000)
         assert page.get_attribute("#history-link", "href") == f"/history/run/{run_id}"
         with ResultsStore(db, mode="read") as store:
             stored = {(m.subject, m.metric) for m in store.measurements(run_id=run_id)}
