@@ -28,9 +28,11 @@ class NoMarkers(VtsError):
     """A camera showed no wall markers with the LED on: no baseline is set for any camera."""
 
 
-def take_baseline(cam, frames: int = 5, clock: Callable[[], float] = time.time) -> Baseline:
-    """LED on, ``frames`` snapshots of camera ``cam``, the wall markers seen in every one."""
-    on, _ = acquire_led_frames(cam, frames)
+def take_baseline(cam, frames: int = 5, clock: Callable[[], float] = time.time, on_frame=None) -> Baseline:
+    """LED on, ``frames`` snapshots of camera ``cam``, the wall markers seen in every one.
+    ``on_frame(camera, frame, taken, needed)``: as :func:`acquire_led_frames`'s, with the name."""
+    tell = None if on_frame is None else (lambda frame, led, taken, needed: on_frame(cam.name, frame, taken, needed))
+    on, _ = acquire_led_frames(cam, frames, on_frame=tell)
     b = Baseline.from_frames(cam.name, [f.jpeg for f in on], clock())
     if not b.markers:
         raise NoMarkers(f"camera {cam.name}: no wall markers found with the LED on; baseline not set")
@@ -70,7 +72,9 @@ class BaselineSet:
         raise NotImplementedError("a baseline has no plot")
 
 
-def take_baselines(cameras, *, frames: int = 5, clock: Callable[[], float] = time.time) -> BaselineSet:
+def take_baselines(cameras, *, frames: int = 5, clock: Callable[[], float] = time.time,
+                   on_frame=None) -> BaselineSet:
     """The drift baseline of each of ``cameras`` (given, opened by the caller); NoMarkers when
-    a camera shows none (then nothing is to be stored for any camera)."""
-    return BaselineSet([take_baseline(cam, frames, clock) for cam in cameras])
+    a camera shows none (then nothing is to be stored for any camera). ``on_frame``: see
+    :func:`take_baseline`."""
+    return BaselineSet([take_baseline(cam, frames, clock, on_frame) for cam in cameras])

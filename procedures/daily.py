@@ -35,6 +35,24 @@ EXIT_CODES = {State.OK: 0, State.TOLERANCE: 10, State.ACTION: 20}
 STEPS = ("reachable", "params", "clock", "drift")
 
 
+@dataclass(frozen=True)
+class QAStep:
+    """Where a run is (``QARun(on_step=...)``, a page showing its progress): camera ``camera``
+    (number ``index`` from 1 of ``cameras``), its ``step`` (``connect``, then those of STEPS the
+    run takes, then ``done`` with the camera's ``state``); in the drift step the frames
+    ``taken`` of ``needed`` and the ``frame`` just taken (first None, taken 0, before the LED
+    is switched)."""
+
+    camera: str
+    index: int
+    cameras: int
+    step: str
+    taken: int = 0
+    needed: int = 0
+    frame: object = None
+    state: str = ""
+
+
 @dataclass
 class CameraResult:
     camera: str
@@ -110,7 +128,8 @@ class QARun:
     def __init__(self, rig, *, baselines=None, steps=STEPS, cameras: list[str] | None = None, n_frames: int = 5,
                  clock: Callable[[], float] = time.time, artifacts_dir: str | Path | None = None,
                  plots: bool = False, open_camera: Callable | None = None,
-                 progress: Callable[[str], None] | None = None):
+                 progress: Callable[[str], None] | None = None,
+                 on_step: Callable[[QAStep], None] | None = None):
         self.rig = rig
         self.baselines = dict(baselines or {})
         self.steps = tuple(steps)
@@ -123,6 +142,8 @@ class QARun:
         # the cameras are given, not built here: open_camera(cfg) -> Camera (drivers.registry's)
         self.open_camera = open_camera
         self.progress = progress or (lambda msg: None)
+        #: hears of each step and drift frame as it happens (QAStep); must return at once
+        self.on_step = on_step or (lambda step: None)
         self.tolerances: dict[str, Window] = merged_tolerances(rig.tolerances)
 
     @property
@@ -172,18 +193,24 @@ class QARun:
             raise NoBaseline(f"camera {missing[0]} has no drift baseline: run `vts qa drift --set-baseline` first")
         now = self.clock() if started is None else started
         results: list[CameraResult] = []
-        for name in self.camera_names:
+        for i, name in enumerate(self.camera_names, 1):
             self.progress(f"{name}: checking")
-            results.append(self._camera(name, self.baselines.get(name)))
+            res = self._camera(name, self.baselines.get(name), i)
+            results.append(res)
+            self.on_step(QAStep(name, i, len(self.camera_names), "done", state=str(res.state)))
         result = QAResult(self.procedure, None, now, results, finished=self.clock(), windows=self.tolerances)
         result.artifacts = self._save_all_artifacts(run_id, results, result)
         return result
 
     # -- one camera ------------------------------------------------------------------------
-    def _camera(self, name: str, baseline=None) -> CameraResult:
+    def _camera(self, name: str, baseline=None, index: int = 1) -> CameraResult:
         cfg = self.rig.camera(name)
         out = CameraResult(name)
         tol = self.tolerances
+        n_cams = len(self.camera_names)
+
+        def step(what, **more):
+            self.on_step(QAStep(name, index, n_cams, what, **more))
 
         def add(metric, value, unit, window=None):
             w = tol.get(window or metric)
@@ -192,6 +219,7 @@ class QARun:
 
         if self.open_camera is None:
             raise UsageError("QARun was given no cameras (open_camera=...)")
+        step("connect")
         try:
             cam = self.open_camera(cfg)
         except CameraError as exc:  # a device that cannot be reached (setup mistakes failed preflight)
@@ -201,21 +229,28 @@ class QARun:
         with cam:
             try:
                 if "reachable" in self.steps:
+                    step("reachable")
                     cam.device_info()
                     add("camera_reachable", 1.0, "")
                     self._warmup(cam, cfg, out, add)
                 if "params" in self.steps:
+                    step("params")
                     try:
                         changed = self._params(cam, cfg, out)
                         add("params_changed", float(changed), "params")
                     except NoParameters as exc:   # e.g. a replayed recording: nothing to lock
                         out.problems.append(f"parameters not checked: {exc}")
                 if "clock" in self.steps:
+                    step("clock")
                     off = cam.clock_offset()
                     add("clock_offset_s", off.offset_s, "s")
                 if "drift" in self.steps:
                     mm = getattr(cfg, "wall_mm_per_px", 1.25)
-                    d = DriftAnalysis.acquire(cam, baseline, self.n_frames, mm_per_px=mm).analyze(tol)
+
+                    def frame_taken(frame, led_on, taken, needed):
+                        step("drift", taken=taken, needed=needed, frame=frame)
+                    d = DriftAnalysis.acquire(cam, baseline, self.n_frames, on_frame=frame_taken,
+                                              mm_per_px=mm).analyze(tol)
                     out.drift = d
                     out.measures += [(m.subject, m.metric, m.value, m.unit, m.state) for m in d.measures]
                     out.problems += [f"marker {m} not found" for m in d.missing]

@@ -76,9 +76,10 @@ class DriftAnalysis:
         return cls(camera, baseline, on, off, **kwargs)
 
     @classmethod
-    def acquire(cls, cam, baseline: Baseline, n_frames: int = 5, **kwargs) -> "DriftAnalysis":
-        """LED on, ``n_frames`` snapshots, LED off, one snapshot, LED back on."""
-        frames_on, frame_off = acquire_led_frames(cam, n_frames)
+    def acquire(cls, cam, baseline: Baseline, n_frames: int = 5, on_frame=None, **kwargs) -> "DriftAnalysis":
+        """LED on, ``n_frames`` snapshots, LED off, one snapshot, LED back on (``on_frame``:
+        as :func:`acquire_led_frames`)."""
+        frames_on, frame_off = acquire_led_frames(cam, n_frames, on_frame=on_frame)
         return cls(cam.name, baseline, frames_on, frame_off, **kwargs)
 
     # -- analyze -------------------------------------------------------------------------
@@ -256,21 +257,32 @@ class DriftAnalysis:
         return fig
 
 
-def acquire_led_frames(cam, n_frames: int = 5, settle_s: float = LED_SETTLE_S):
+def acquire_led_frames(cam, n_frames: int = 5, settle_s: float = LED_SETTLE_S, on_frame=None):
     """LED on, ``n_frames`` snapshots, LED off, one snapshot; the LED is left on.
 
     A camera whose LED calls change nothing (``led_switches`` False, e.g. a replayed
-    recording) gives no LED-off frame: the LED check is not made rather than failed."""
+    recording) gives no LED-off frame: the LED check is not made rather than failed.
+    ``on_frame(frame, led_on, taken, needed)`` hears of each frame as it is taken, and first
+    (frame None, taken 0) before the LED is switched (progress, a console that must close its
+    own stream of the camera first and then shows these frames); it must return soon."""
     import time
+    switches = getattr(cam, "led_switches", True)
+    needed = n_frames + (1 if switches else 0)
+    tell = on_frame or (lambda *a: None)
+    tell(None, True, 0, needed)
     cam.led_on()
     time.sleep(settle_s)
-    on = [cam.snapshot() for _ in range(n_frames)]
-    if not getattr(cam, "led_switches", True):
+    on = []
+    for _ in range(n_frames):
+        on.append(cam.snapshot())
+        tell(on[-1], True, len(on), needed)
+    if not switches:
         return on, None
     cam.led_off()
     time.sleep(settle_s)
     try:
         off = cam.snapshot()
+        tell(off, False, needed, needed)
     finally:
         cam.led_on()
     return on, off

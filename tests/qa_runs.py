@@ -1,5 +1,5 @@
 """The daily QA and the drift baselines as `vts qa` runs them, for tests that call the API:
-the procedure measures, the one recorder stores (vts_hw.cli.qa_run.record_qa)."""
+the procedure measures, the one recorder stores (vts_hw.store.qa_record.record_qa, as `vts qa` and the console)."""
 
 from __future__ import annotations
 
@@ -19,6 +19,6 @@ def save_baselines(store, baselines, rig: str = "", started: float | None = None
 
 def run_qa(rig, store, **kw):
     """A QARun(rig, **kw) recorded in ``store``; the QAResult (run_id, store_error set)."""
-    from vts_hw.cli.qa_run import record_qa
+    from vts_hw.store.qa_record import record_qa
     from vts_hw.procedures.daily import QARun
     return record_qa(store, QARun(rig, **kw), rig)[0]

@@ -2,42 +2,14 @@
 
 from __future__ import annotations
 
-import os
 import time
 from pathlib import Path
 
 import click
 
 from vts_hw.cli.common import echo_json, fmt_time, open_store
-
-
-def artifacts_dir(store) -> Path:
-    """Saved frames go beside an SQLite file, else into the per-user data folder."""
-    url = str(getattr(store, "url", ""))
-    if url.startswith("sqlite:///"):
-        return Path(url[len("sqlite:///"):]).parent / "artifacts"
-    base = os.environ.get("XDG_DATA_HOME") or os.path.join(os.path.expanduser("~"), ".local", "share")
-    return Path(base) / "vts-hw" / "artifacts"
-
-
-def record_qa(store, qa, rig, *, operator: str = "", clock=time.time):
-    """Run ``qa`` (procedures.daily.QARun) and record it the one way (store.recorder): the
-    baselines read from ``store`` (NoBaseline, exit 5, before anything is touched), the
-    "running" row, the cameras measured, one transaction — or the unsaved file when the store
-    cannot be written. Returns the QAResult (``run_id``, ``store_error``) and where it went."""
-    from vts_hw.store.baselines import load_baselines
-    from vts_hw.store.recorder import Recorder
-
-    qa.preflight()
-    if qa.needs_baselines:
-        qa.baselines = {**load_baselines(store, qa.camera_names), **qa.baselines}
-    now = clock()
-    with Recorder(store, qa.procedure, rig=rig.rig, operator=operator, config_digest=rig.digest,
-                  tolerances=rig.tolerances, started=now, clock=clock) as rec:
-        result = qa.run(started=now, run_id=rec.run_id)
-        stored = rec.finish(result, artifacts=result.artifacts, finished=result.finished)
-    result.run_id, result.store_error = stored.run_id, stored.error
-    return result, stored
+# the one way a QA run is recorded, shared with the console (vts_hw/console/qa_job.py)
+from vts_hw.store.qa_record import artifacts_dir, record_qa  # noqa: F401
 
 
 def run_qa(rig, steps, cameras, frames, plots, dry_run, operator, as_json, clock=time.time, push=False) -> int:

@@ -86,6 +86,7 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, on
     markers = MarkerWorker(hub, RATE_HZ if marker_hz is None else marker_hz)
     facts = RoomFacts(cameras, rig.rig, open_store)
     console = Console(rig.rig, hub, markers, facts, open_store=open_store)
+    console.rig_config = rig          # the pages that run procedures (Daily QA) run them on this rig
     stop_facts = threading.Event()
 
     def keep_facts():
