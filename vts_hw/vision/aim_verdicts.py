@@ -229,7 +229,7 @@ def aim_verdict(markers, size, focal_px: float | None, s: AimSettings, reference
                        f"zoom out or bring the markers closer together: {what} on opposite sides")
     # content right = camera turns left; content down = camera tilts up
     turn_right, turn_up = deg(left) - deg(right), deg(down) - deg(up)
-    text = f"{_turn_words(turn_right, turn_up, approx)}: {what}"
+    text = f"{_turn_words(turn_right, turn_up, approx)}: {what}{unref}"
     if approx:
         text += f" (angle from a {s.nominal_focal_px:g} px lens: no calibration)"
     return Verdict("aim", "aim", ADJUST, float(len(out)), "markers", goal, text,
