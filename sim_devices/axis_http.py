@@ -322,6 +322,8 @@ class Handler(BaseHTTPRequestHandler):
                 reply = self.cam.faults.to_dict()
             elif path == "/sim/state" and method == "GET":
                 reply = self.cam.state()
+            elif path == "/sim/optics" and hasattr(self.cam.source, "set_optics"):
+                reply = self._optics(method)     # focus and mount (sim_devices/optics.py)
             else:
                 self.send(404, json.dumps({"error": f"no {method} {path}"}), "application/json")
                 return
@@ -329,6 +331,16 @@ class Handler(BaseHTTPRequestHandler):
             self.send(400, json.dumps({"error": str(exc)}), "application/json")
             return
         self.send(200, json.dumps(reply), "application/json")
+
+    def _optics(self, method: str) -> dict:
+        """GET: the camera's focus and mount; POST a JSON object of changes (``focus_blur_px``,
+        ``yaw_deg``, ``pitch_deg``): all applied or none (400 saying why)."""
+        if method == "GET":
+            return self.cam.source.optics()
+        changes = json.loads(self.body or b"{}")
+        if not isinstance(changes, dict):
+            raise ValueError("the body must be a JSON object of optics settings")
+        return self.cam.source.set_optics(**changes)
 
 
 def _unsupported(request: dict) -> dict:

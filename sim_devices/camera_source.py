@@ -50,6 +50,17 @@ class SimCameraSource:
         """LED on now, off ``duration_s`` simulated seconds later."""
         self.scene.pulse_led(self.name, self.clock.now(), duration_s)
 
+    def set_optics(self, **changes) -> dict:
+        """Change this camera's focus and mount (``focus_blur_px``, ``yaw_deg``, ``pitch_deg``:
+        sim_devices/optics.py), now; returns all three. A bad value changes nothing (ValueError)."""
+        from vts_hw.sim_devices.optics import set_optics
+        return set_optics(self.scene, self.renderer, self.name, **changes).to_dict()
+
+    def optics(self) -> dict:
+        """This camera's focus and mount (sim_devices/optics.py)."""
+        from vts_hw.sim_devices.optics import optics_of
+        return optics_of(self.scene, self.renderer, self.name).to_dict()
+
     def led_on(self) -> bool:
         return self.scene.led_on(self.name, self.clock.now())
 

@@ -17,6 +17,9 @@ renders exactly as it would with no exposure at all and stays cached. Only bodie
 continuously (the patient) are smeared: scheduled poses and table positions change in steps,
 at an instant, and are drawn as they are at ``t``.
 
+Focus: ``focus[cam]`` is the lens's defocus, the standard deviation (px) of a Gaussian blur of
+the marker light (sim_devices/optics.py); 0 (the default) draws the markers sharp at no cost.
+
 Speed: the noise-free image (float32, not yet quantised) is cached per camera, keyed by the
 LED state, every marker's projected centre rounded to 1e-3 px, and the table/body poses, so a
 static scene is rasterised once. Noise comes from a bank of precomputed float32 frames, taken
@@ -135,6 +138,7 @@ class Renderer:
                  blur_min_px: float = 0.2):
         self.scene = scene
         self.exposure = {name: float(exposure_s) for name in scene.cameras}   # s, per camera
+        self.focus = {name: 0.0 for name in scene.cameras}   # defocus blur (px, 1 sigma), per camera
         self.blur_steps = int(blur_steps)
         self.blur_min_px = float(blur_min_px)
         self.noise_sigma = float(noise_sigma)
@@ -198,6 +202,9 @@ class Renderer:
         smear, ends = self._smear(cam, camera, markers, uv, t)
         if smear:
             key += (("blur", ends),)
+        focus = self.focus.get(cam, 0.0)
+        if focus > 0:
+            key += (("focus", focus),)
         cache = self._cache[cam]
         with self._lock:
             img = cache.get(key)
@@ -210,7 +217,7 @@ class Renderer:
         n_wall = len(self.scene.wall_markers)        # first in project_markers' list; they never move
         img = self._rasterise(cam, camera, [markers[i] for i in keep], led,
                               {k: smear[i] for k, i in enumerate(keep) if i in smear},
-                              n_static=sum(1 for i in keep if i < n_wall))
+                              n_static=sum(1 for i in keep if i < n_wall), focus=focus)
         with self._lock:
             self.stats["misses"] += 1
             cache[key] = img
@@ -290,10 +297,11 @@ class Renderer:
         np.maximum(region, patch, out=region)
 
     def _rasterise(self, cam: str, camera, markers, led: bool, smear: dict | None = None,
-                   n_static: int = 0) -> np.ndarray:
+                   n_static: int = 0, focus: float = 0.0) -> np.ndarray:
         """The image of ``markers`` (the first ``n_static`` of them fixed: the wall's, drawn
         once per camera pose and kept, ``self._static``); a scene with a moving body redraws
-        only that body's markers each frame."""
+        only that body's markers each frame. ``focus`` > 0: the marker light blurred by a
+        Gaussian of that standard deviation (px), a lens out of focus."""
         bg = self._bg[cam]
         smear = smear or {}
         fixed = [i for i in range(n_static) if i not in smear]
@@ -314,6 +322,8 @@ class Renderer:
                               {k: smear[i] for k, i in enumerate(moving) if i in smear}, into=base.copy())
         else:
             sig = self.signal(camera, markers, smear)
+        if focus > 0:
+            sig = cv2.GaussianBlur(sig, (0, 0), focus, borderType=cv2.BORDER_CONSTANT)
         amp = self.marker_level - self.background_level if led else self.led_off_level
         img = cv2.scaleAdd(sig, float(amp), bg)          # bg + sig * amp, in one pass
         img.flags.writeable = False

@@ -57,7 +57,7 @@ class SimRig:
                  firmware: str = "vapix3", clock=None, fps: float = 25.0,
                  drift_px_per_60_days: dict[str, float] | None = None, trigger: str = "none",
                  tls: tuple[str, str] | None = None, gantry: bool = False, patient=None, qatrack: bool = False,
-                 announce: bool = False):
+                 announce: bool = False, optics: dict[str, dict] | None = None):
         if trigger not in TRIGGERS:
             raise ValueError(f"trigger must be one of {', '.join(TRIGGERS)}, not {trigger!r}")
         self.trigger = trigger
@@ -84,6 +84,11 @@ class SimRig:
             self.scene.drifts[cam] = CameraDrift.reference(self.scene.cameras[cam].focal, seed * 7919 + i,
                                                            self.scene.start_epoch, px)
         self.renderer = Renderer(self.scene)
+        # optics: {camera: {focus_blur_px, yaw_deg, pitch_deg}}, a lens out of focus, a mount turned
+        # (sim_devices/optics.py; at run time: sources[name].set_optics or POST /sim/optics)
+        from vts_hw.sim_devices.optics import set_optics
+        for cam, changes in (optics or {}).items():
+            set_optics(self.scene, self.renderer, cam, **changes)
         self.user = user
         self.password = password or secrets.token_urlsafe(12)
         self.fps = fps

@@ -331,6 +331,7 @@ class Scene:
         self.bodies: dict[str, RigidBody] = {}
         self._leds = {name: Schedule(False) for name in self.cameras}
         self.gantry = None  # the SPECT heads (sim_devices/gantry.py), when the room has them
+        self.optics, self.mounts = {}, {}  # focus and mount; turned mounts' rvecs (sim_devices/optics.py)
 
     # ----------------------------------------------------------------- construction
     @classmethod
@@ -441,8 +442,10 @@ class Scene:
 
     # ----------------------------------------------------------------- ground truth
     def camera_at(self, cam: str, t: float) -> CameraModel:
-        """Camera ``cam`` at time ``t``: the base pose turned by its drift."""
-        return self.cameras[cam].rotated(self.drifts[cam].rotation_at(t))
+        """Camera ``cam`` at time ``t``: the base pose turned by its drift (and its mount)."""
+        camera = self.cameras[cam].rotated(self.drifts[cam].rotation_at(t))
+        mount = self.mounts.get(cam)
+        return camera if mount is None else camera.rotated(mount)
 
     def markers_world(self, t: float) -> list[Marker]:
         """Every marker in world coordinates at ``t`` (wall, then bodies on the table)."""

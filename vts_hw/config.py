@@ -20,6 +20,7 @@ from vts_hw.config_qatrack import QATrackConfig
 from vts_hw.config_setup import CameraSetupConfig
 from vts_hw.bounded import ANY_SIZE, TooLarge, check_file, read_bytes
 from vts_hw.errors import ConfigError
+from vts_hw.vision.aim_settings import AimSettings
 
 ENV_CONFIG = "VTS_CONFIG"
 _NAME_RE = r"^[A-Za-z0-9][A-Za-z0-9_.-]*$"
@@ -237,6 +238,7 @@ class RigConfig(_Strict):
     calibration: CalibrationPaths = CalibrationPaths()
     store: StoreConfig = StoreConfig()
     motion: MotionConfig = MotionConfig()
+    aim: AimSettings = AimSettings()          # goals of `vts camera aim` (vision/aim_settings.py)
     qatrack: Optional[QATrackConfig] = None   # pushing results to QATrack+ (config_qatrack.py)
     camera_setup: CameraSetupConfig = CameraSetupConfig()   # what `vts camera setup` sets (config_setup.py)
     recordings_dir: Optional[Path] = None

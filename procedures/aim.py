@@ -1,0 +1,79 @@
+"""Aim and focus of one camera of the rig (issue 24 §2): take its pictures, find its place in the
+room, judge (vts_hw/vision/aim.py).
+
+* :func:`room_view` -- the camera's :class:`~vts_hw.vision.aim_geometry.RoomView` from the rig's
+  calibration and VTS -> SPECT mapping (``calibration.stereo`` / ``calibration.spect`` of
+  rig.yaml), or why there is none ("no mapping", "no calibration", "camera cam3 is not in the
+  calibration ...", "the mapping ... cannot be read: ..."): a missing mapping is an item not
+  known, never an error.
+* :func:`check` -- LED on, one picture; LED off, one picture; the LED left on (as the drift QA
+  does, procedures/drift.py); the :class:`~vts_hw.vision.aim.AimReport`.
+* :func:`aim_page` -- the same for a page (the console's Room page): the verdicts as a JSON-able
+  dict and the overlay as PNG bytes.
+"""
+
+from __future__ import annotations
+
+from vts_hw.camera import check_whole
+from vts_hw.errors import VtsError
+from vts_hw.vision.aim import AimReport, assess, decode_grey
+from vts_hw.vision.aim_geometry import RoomView
+from vts_hw.vision.aim_settings import AimSettings
+
+__all__ = ["room_view", "check", "aim_page", "acquire_pictures"]
+
+
+def room_view(rig, name: str, size: tuple[int, int], settings: AimSettings | None = None
+              ) -> tuple[RoomView | None, str]:
+    """``(view, "")`` for camera ``name`` of ``rig``, or ``(None, why)``."""
+    settings = settings or rig.aim
+    cal = rig.calibration
+    if cal.spect is None:
+        return None, "no mapping"
+    if cal.stereo is None:
+        return None, "no calibration (the mapping needs one)"
+    from vts_hw.procedures.sync_inputs import load_mapping
+    from vts_hw.vision.camera_set import covered_names, load_cameras
+    try:
+        mapping = load_mapping(cal.spect)
+    except (VtsError, OSError) as exc:
+        return None, f"the mapping {cal.spect} cannot be read ({exc})"
+    try:
+        cams = load_cameras(cal.stereo)
+    except (VtsError, OSError) as exc:
+        return None, f"the calibration {cal.stereo} cannot be read ({exc})"
+    own = list(cams)
+    rig_names = covered_names(cams, [c.name for c in rig.cameras])
+    by_rig = dict(zip(rig_names, own)) if not set(own) <= set(rig_names) else {n: n for n in own}
+    if name not in by_rig:
+        return None, f"camera {name} is not in the calibration {cal.stereo}"
+    return RoomView(cams[by_rig[name]], mapping, size, settings), ""
+
+
+def acquire_pictures(cam):
+    """LED on, one picture; LED off, one picture (None when the camera cannot switch its LED);
+    the LED is left on. Both whole JPEGs (a torn one: NotWhole, naming the camera)."""
+    from vts_hw.procedures.drift import acquire_led_frames
+    on, off = acquire_led_frames(cam, n_frames=1)
+    for frame in [on[0]] + ([off] if off is not None else []):
+        check_whole(frame, cam.name)
+    return on[0].jpeg, None if off is None else off.jpeg
+
+
+def check(cam, rig, settings: AimSettings | None = None, reference=None,
+          reference_name: str = "the drift baseline") -> AimReport:
+    """The aim-and-focus check of ``cam`` (an open camera of ``rig``). ``reference``: where its
+    markers were (px; the drift baseline's wall markers), or None."""
+    settings = settings or rig.aim
+    on_jpeg, off_jpeg = acquire_pictures(cam)
+    on = decode_grey(on_jpeg, f"LED-on picture of {cam.name}")
+    off = None if off_jpeg is None else decode_grey(off_jpeg, f"LED-off picture of {cam.name}")
+    view, why = room_view(rig, cam.name, (on.shape[1], on.shape[0]), settings)
+    return assess(cam.name, on, off, view, settings, why or "no mapping", reference=reference,
+                  reference_name=reference_name)
+
+
+def aim_page(cam, rig, reference=None) -> tuple[dict, bytes]:
+    """For a page: the verdicts (JSON-able dict) and the overlay (PNG bytes) of ``cam``."""
+    report = check(cam, rig, reference=reference)
+    return report.to_dict(), report.overlay_png()
