@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import asyncio
 import functools
-from urllib.parse import quote
+from urllib.parse import parse_qs, quote
 
 from starlette.requests import Request
 from starlette.responses import JSONResponse, RedirectResponse, Response
@@ -34,6 +34,7 @@ from vts_hw.console.sessions import current
 OPEN_PATHS = ("/login",)
 OPEN_PREFIXES = ("/static/",)
 PROBE = "/session"
+FORM_MAX = 8192
 
 
 class _SessionEnded(Exception):
@@ -99,6 +100,22 @@ class SessionDoor:
             await send({"type": "http.response.body", "body": b"", "more_body": False})
 
 
+async def _form(request: Request) -> dict[str, str] | None:
+    """The login form's fields (application/x-www-form-urlencoded, as the page sends it), None for
+    anything else or a body over ``FORM_MAX`` bytes (the standard library parses it: no extra package)."""
+    if request.headers.get("content-type", "").split(";")[0].strip() != "application/x-www-form-urlencoded":
+        return None
+    body = b""
+    async for chunk in request.stream():
+        body += chunk
+        if len(body) > FORM_MAX:
+            return None
+    try:
+        return {k: v[0] for k, v in parse_qs(body.decode("utf-8"), keep_blank_values=True).items()}
+    except UnicodeDecodeError:
+        return None
+
+
 def _safe_next(value: str) -> str:
     """A path of this console to go to after login ('/' for anything else: no other site)."""
     if not value.startswith("/") or value.startswith("//") or "\\" in value or "\n" in value or "\r" in value:
@@ -123,9 +140,10 @@ def login_routes(console, templates) -> list[Route]:
         why = guard.same_origin(request)
         if why:
             return JSONResponse({"error": why}, status_code=403)
-        form = await request.form()
-        name, password = str(form.get("name", "")).strip(), str(form.get("password", ""))
-        next_ = str(form.get("next", "/"))
+        form = await _form(request)
+        if form is None:
+            return page(request, error="the login form could not be read: send it from this page", status=400)
+        name, password, next_ = form.get("name", "").strip(), form.get("password", ""), form.get("next", "/")
         locked = auth.locked_for(name)
         if locked > 0:
             return page(request, error=f"too many wrong passwords for {name}: try again in {locked:.0f} s",

@@ -40,9 +40,11 @@ def is_loopback(host: str) -> bool:
 def check_host(host: str, *, certfile: str | None = None, keyfile: str | None = None,
                behind_proxy: bool = False) -> None:
     """What can be refused from the command line alone (before the store or the rig is read):
-    --certfile without --keyfile, and serving off this machine in plain HTTP."""
+    --certfile without --keyfile, a certificate or key that is not one (check_tls), and serving
+    off this machine in plain HTTP."""
     if bool(certfile) != bool(keyfile):
         raise UsageError("--certfile and --keyfile go together: give both (the certificate and its private key)")
+    check_tls(certfile, keyfile)
     if not is_loopback(host) and not certfile and not behind_proxy:
         raise NotOnLoopback(f"refused to serve the console on {host}: off this machine it needs users and login "
                             f"over HTTPS: give --certfile and --keyfile, or serve it behind a TLS reverse proxy "

@@ -55,6 +55,8 @@ def verify_password(stored: str, password: str) -> bool:
         if not (2 <= n <= 2 ** 20 and 1 <= r <= 32 and 1 <= p <= 16):
             return False
         salt_b, want = base64.b64decode(salt, validate=True), base64.b64decode(digest, validate=True)
+        if len(want) != HASH_BYTES or len(salt_b) < 8:
+            return False
     except (ValueError, AttributeError):
         return False
     got = _scrypt(password, salt_b, n, r, p, len(want))
