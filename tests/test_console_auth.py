@@ -75,6 +75,13 @@ def test_a_password_is_kept_as_a_salted_scrypt_hash_with_its_parameters():
     assert light.split("$")[1:3] == ["4096", "4"] and verify_password(light, "another-password")
 
 
+@pytest.fixture()
+def cheap_hashes(monkeypatch):
+    """Hashes of a lower cost where the cost is not what is tested (the parameters are in each hash)."""
+    import vts_hw.console.users as users
+    monkeypatch.setattr(users, "SCRYPT_N", 2 ** 10)
+
+
 class Clock:
     def __init__(self):
         self.t = 1_000_000.0
@@ -87,7 +94,7 @@ def _user(name, role, password):
     return SimpleNamespace(name=name, role=role, password=hash_password(password))
 
 
-def test_sessions_end_when_idle_at_their_limit_on_logout_and_when_the_user_goes():
+def test_sessions_end_when_idle_at_their_limit_on_logout_and_when_the_user_goes(cheap_hashes):
     clock = Clock()
     people = [_user("ann", "operator", ANN_PW), _user("phil", "physicist", PHIL_PW)]
     auth = Auth(required=True, load_users=lambda: list(people), idle_s=60, max_s=600, clock=clock)
@@ -119,7 +126,7 @@ def test_sessions_end_when_idle_at_their_limit_on_logout_and_when_the_user_goes(
     assert auth.session("") is None and auth.session("made-up") is None
 
 
-def test_wrong_passwords_lock_the_name_for_a_while():
+def test_wrong_passwords_lock_the_name_for_a_while(cheap_hashes):
     clock = Clock()
     auth = Auth(required=True, load_users=lambda: [_user("ann", "operator", ANN_PW)], clock=clock)
     auth.refresh_users()
@@ -188,8 +195,10 @@ def _app(console):
 
 @pytest.fixture(scope="module")
 def people_store(tmp_path_factory):
+    import vts_hw.console.users as users
     db = tmp_path_factory.mktemp("people") / "results.sqlite"
-    with ResultsStore(db) as store:
+    with pytest.MonkeyPatch.context() as mp, ResultsStore(db) as store:
+        mp.setattr(users, "SCRYPT_N", 2 ** 10)            # (cheaper to check; the cost is tested above)
         add_user(store, "ann", "operator", ANN_PW)
         add_user(store, "phil", "physicist", PHIL_PW)
     return db

@@ -85,7 +85,8 @@ class PeopleMixin:
                                                   changed=now, disabled=None))
                 how = "added"
             elif row.disabled is None:
-                raise ValueError(f"user {name} already exists (a {row.role}); remove it first to replace it")
+                article = "an" if row.role[:1] in "aeiou" else "a"
+                raise ValueError(f"user {name} already exists ({article} {row.role}); remove it first to replace it")
             else:
                 conn.execute(update(users).where(users.c.id == row.id)
                              .values(role=role, password=password_hash, changed=now, disabled=None))
