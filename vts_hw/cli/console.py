@@ -54,6 +54,9 @@ def console(ctx: click.Context, config_path: str | None, host: str, port: int, l
     results store (`vts console user add`); operators run scans, the daily QA and the LEDs,
     acknowledge alerts and push; physicists also set baselines, calibrations and tolerances.
     Every action is logged in the store with who and when (History, "Who did what").
+    Refused in one sentence, exit 2, before anything starts: another --host without
+    --certfile/--keyfile or --behind-proxy, a login asked for with no user in the store, a
+    certificate or key that is not one. README: "Console users and HTTPS".
     """
     if ctx.invoked_subcommand is not None:
         return
