@@ -515,7 +515,7 @@ def test_a_version_1_database_is_upgraded_on_open_without_losing_rows(tmp_path, 
     before = _dump(db)
 
     with ResultsStore(str(db)) as store:
-        assert store.schema_version == SCHEMA_VERSION == 3
+        assert store.schema_version == SCHEMA_VERSION == 4
         after = _dump(db)
         # every old row is there with its old values; only the new columns were appended
         for table, rows in before.items():
@@ -531,7 +531,7 @@ def test_a_version_1_database_is_upgraded_on_open_without_losing_rows(tmp_path, 
         uids = [r.uid for r in store.runs()]
         assert len(set(uids)) == len(uids) == 3 and all(len(u) == 32 for u in uids)
     con = _raw(db)
-    assert [r[0] for r in con.execute("SELECT version FROM schema_migrations ORDER BY version")] == [1, 2, 3]
+    assert [r[0] for r in con.execute("SELECT version FROM schema_migrations ORDER BY version")] == [1, 2, 3, 4]
     con.close()
     _check_file(db)
     # an upgraded store has exactly the layout of a fresh one
@@ -541,6 +541,41 @@ def test_a_version_1_database_is_upgraded_on_open_without_losing_rows(tmp_path, 
     # and opening again changes nothing
     ResultsStore(str(db)).close()
     assert _dump(db)["runs"][:2] == after["runs"][:2]
+
+
+def test_a_version_3_store_gets_users_and_actions_keeping_its_runs(tmp_path):
+    """v3 -> v4: the console's users and action log are added; every run, measurement and
+    outbox row stays as it was, and the upgraded store has a fresh store's layout."""
+    db = tmp_path / "v3.sqlite"
+    with ResultsStore(str(db)) as store:
+        with store.begin_run("drift", rig="room3", operator="ak") as run:
+            run.measure("cam1", "drift_x_px", 0.4, status="OK")
+        store.outbox_add(run.run_id, "qatrack", "k1")
+    con = _raw(db)      # back to version 3 as it was: version 4 only added these
+    con.executescript("DROP TABLE actions; DROP TABLE users; UPDATE schema_migrations SET version = 3;")
+    con.close()
+    before = _dump(db)
+    assert "users" not in _layout(db)
+    with ResultsStore(str(db)) as store:
+        assert store.schema_version == 4
+        assert _dump(db) == before
+        assert store.outbox_items("qatrack")[0].key == "k1"
+        assert store.users() == [] and store.actions() == ([], 0)
+        store.put_user("ann", "operator", "scrypt$hash-made-by-the-console")
+        store.log_actions([{"at": 1.0, "user": "ann", "role": "operator", "what": "LED on",
+                            "detail": {"camera": "cam1"}, "rig": "room3"}])
+        acts, n = store.actions()
+        assert n == 1 and (acts[0].user, acts[0].what, acts[0].detail) == ("ann", "LED on", {"camera": "cam1"})
+        with pytest.raises(ValueError, match="already exists"):
+            store.put_user("ann", "physicist", "x")
+        assert store.disable_user("ann").active is False
+        assert store.put_user("ann", "physicist", "y")[1] == "enabled again"
+    con = _raw(db)
+    assert con.execute("SELECT description FROM schema_migrations WHERE version = 4").fetchone()[0].startswith("users")
+    con.close()
+    fresh = tmp_path / "fresh.sqlite"
+    ResultsStore(str(fresh)).close()
+    assert _layout(db) == _layout(fresh)
 
 
 def test_processes_opening_a_new_store_at_once_create_it_once(store_url):
@@ -698,6 +733,19 @@ def test_the_schema_and_queries_compile_for_postgresql():
             assert rendered.strip().startswith(("ALTER TABLE", "CREATE")), rendered
     assert ("ALTER TABLE runs ADD COLUMN host TEXT DEFAULT '' NOT NULL"
             in migrations.MIGRATIONS[2].statements(pg))
+    v4 = "\n".join(str(st.compile(dialect=pg)) for st in migrations.MIGRATIONS[4].statements(pg))
+    for expected in ("CREATE TABLE users", "id SERIAL NOT NULL", "CONSTRAINT uq_users_name UNIQUE (name)",
+                     "CONSTRAINT ck_users_role CHECK (role IN ('operator', 'physicist'))", "CREATE TABLE actions",
+                     "at DOUBLE PRECISION NOT NULL", "detail TEXT DEFAULT '{}' NOT NULL",
+                     "CREATE INDEX ix_actions_at ON actions (at)"):
+        assert expected in v4, v4
+    # the step makes what schema.py makes for a fresh store
+    assert str(CreateTable(schema.users).compile(dialect=pg)).strip() in v4
+    assert str(CreateTable(schema.actions).compile(dialect=pg)).strip() in v4
+    from vts_hw.store import people
+    sql = str(people.select_actions(start=T0, end=T0 + 1, user="ann", limit=5, offset=5).compile(dialect=pg))
+    assert "ORDER BY actions.at DESC, actions.id DESC" in sql and "actions.user_name = %(user_name_1)s" in sql
+    assert str(people.count_actions(T0, None, "ann").compile(dialect=pg))
 
 
 def test_a_password_in_the_url_never_shows(caplog):

@@ -38,6 +38,11 @@ def demo_store(tmp_path_factory) -> str:
             h.measure("spheres", "slope_z", 1.001)
             h.artifact(frame, kind="plot")
         s.begin_run("daily", rig="vts", notes="still going")   # left running, by a live process
+        # the console's action log (copied) and a user (not copied: its hash stays here)
+        s.log_actions([{"at": NOW - 60, "user": "ann", "role": "operator", "what": "LED on",
+                        "detail": {"camera": "cam1"}, "rig": "vts"},
+                       {"at": NOW - 30, "user": "ann", "role": "operator", "what": "scan started", "rig": "vts"}])
+        s.put_user("ann", "operator", "scrypt$32768$8$1$c2FsdA==$aGFzaA==")
     return url
 
 
@@ -50,7 +55,7 @@ def _table(stdout: str) -> dict:
     out = {}
     for line in stdout.splitlines():
         parts = line.split()
-        if len(parts) == 7 and parts[0] in ("runs", "tolerances", "measurements", "artifacts", "outbox"):
+        if len(parts) == 7 and parts[0] in ("runs", "tolerances", "measurements", "artifacts", "outbox", "actions"):
             out[parts[0]] = (int(parts[1]), int(parts[2]), int(parts[3]), parts[6])
     return out
 
@@ -58,13 +63,16 @@ def _table(stdout: str) -> dict:
 def test_sqlite_to_postgresql_and_back_whole_and_verified_twice_adds_nothing(demo_store, pg_url, tmp_path):
     with ResultsStore(demo_store) as src:
         counts = table_counts(src)
-    assert counts["runs"] == 66 and counts["artifacts"] == 1 and counts["outbox"] == 3
+    assert counts["runs"] == 66 and counts["artifacts"] == 1 and counts["outbox"] == 3 and counts["actions"] == 2
     p = _vts("store", "migrate", "--from", demo_store, "--to", pg_url)
     assert p.returncode == 0, p.stderr
     t = _table(p.stdout)
     assert t == {name: (n, n, n, "ok") for name, n in counts.items()}, p.stdout
     assert "1 run(s) still running in the source were copied as running" in p.stderr
     assert "copying runs: 66/66" in p.stderr
+    assert "the source's 1 console user(s) were not copied" in p.stderr
+    with ResultsStore(pg_url, mode="read") as t:
+        assert t.users() == [] and [a.what for a in t.actions()[0]] == ["scan started", "LED on"]
     p = _vts("store", "migrate", "--from", demo_store, "--to", pg_url)
     assert p.returncode == 0 and "0 new" in p.stdout, p.stdout + p.stderr
     assert _table(p.stdout) == {name: (n, n, 0, "ok") for name, n in counts.items()}

@@ -97,7 +97,7 @@ def test_a_version_1_store_on_postgresql_is_upgraded_without_losing_rows(pg_serv
     assert len(before["runs"]) == 2 and len(before["measurements"]) == 2
 
     with ResultsStore(url) as store:
-        assert store.schema_version == SCHEMA_VERSION == 3
+        assert store.schema_version == SCHEMA_VERSION == 4
         after = _dump(url)
         for table, rows in before.items():   # every old row with its old values; new columns appended
             assert [row[:len(rows[0])] for row in after[table]] == rows, table
@@ -110,7 +110,11 @@ def test_a_version_1_store_on_postgresql_is_upgraded_without_losing_rows(pg_serv
         assert run.run_id == 3 and store.run(3).status == "ACTION"
         uids = [r.uid for r in store.runs()]
         assert len(set(uids)) == len(uids) == 3 and all(len(u) == 32 for u in uids)
-    assert _rows(url, "SELECT version FROM schema_migrations ORDER BY version") == [(1,), (2,), (3,)]
+        # version 4: the console's users and action log
+        store.put_user("ann", "operator", "scrypt$hash")
+        store.log_actions([{"at": 1600000300.0, "user": "ann", "role": "operator", "what": "LED on"}])
+        assert [u.name for u in store.users()] == ["ann"] and store.actions()[0][0].what == "LED on"
+    assert _rows(url, "SELECT version FROM schema_migrations ORDER BY version") == [(1,), (2,), (3,), (4,)]
     # an upgraded store has exactly the layout of a fresh one
     fresh = pg_server.url(pg_server.new_database())
     ResultsStore(fresh).close()

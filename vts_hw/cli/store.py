@@ -76,6 +76,9 @@ def migrate(src, dst, from_password_env, to_password_env, as_json) -> None:
     """Copy every run, measurement, tolerance window, artifact record and outbox row of one
     store into another, then verify the copy.
 
+    The console's action log (who did what) is copied; its users are not (add them again on
+    the target with `vts console user add`, which the command reminds).
+
     Runs are the same run in both stores by their uid: a run already in the target is skipped
     with everything of it, so running the copy twice adds nothing, and several rooms' stores
     can be merged into one department store. Tolerance windows are the same by their content.
@@ -107,12 +110,13 @@ def migrate(src, dst, from_password_env, to_password_env, as_json) -> None:
         if not as_json:
             click.echo(f"copying {source.url} -> {target.url}", err=True)
         rep = copy_store(source, target, progress=progress)
+        users_left = len(source.users())      # the console's users are not copied (copy.py)
         where = (source.url, target.url)
     new_total = sum(rep.new.values())
     if as_json:
         echo_json({"from": where[0], "to": where[1], "new": rep.new, "skipped_runs": rep.skipped_runs,
                    "running_copied": rep.running_copied, "ended_runs": rep.ended_runs,
-                   "outbox_updated": rep.outbox_updated, "ok": rep.ok,
+                   "outbox_updated": rep.outbox_updated, "ok": rep.ok, "users_not_copied": users_left,
                    "tables": [{"table": c.table, "source": c.source, "in_target": c.found, "new": c.new,
                                "checksum_source": c.source_sum, "checksum_target": c.target_sum, "ok": c.ok}
                               for c in rep.checks]})
@@ -132,6 +136,9 @@ def migrate(src, dst, from_password_env, to_password_env, as_json) -> None:
         if rep.running_copied:
             click.echo(f"note: {rep.running_copied} run(s) still running in the source were copied as running; "
                        "a later copy brings their end", err=True)
+        if users_left:
+            click.echo(f"note: the source's {users_left} console user(s) were not copied (their password hashes "
+                       "stay where they were made): add them on the target with `vts console user add`", err=True)
     if not rep.ok:
         click.echo(f"vts: the copy does not match its source in table(s) {', '.join(rep.mismatched)} "
                    "(rows of the source missing or different in the target)", err=True)

@@ -1,17 +1,27 @@
 """What people did on the console: who, when, what (a scan started or stopped, an alert
-acknowledged, a baseline set, a push, the LED switched).
+acknowledged, a baseline set, a push, the LED switched, a login).
 
-``Actions`` is the one door (``record`` / ``recent``). ``MemoryActions`` keeps them for the
-console's life only; the store-backed log (the results store's ``actions`` table) replaces it
-where a store is given, so the history shows them.
+``Actions`` is the one door (``record`` / ``recent``, and ``page`` for the History page).
+``MemoryActions`` keeps them for the console's life only (a console without a results store);
+``StoreActions`` writes each to the results store's ``actions`` table (store/people.py) the
+moment it is recorded, so the History page shows them. A detail never holds a secret: keys
+that name one (password, token, cookie, session, credential, authorization) are masked and a
+URL's user and password are cut out (``clean``) before anything is kept.
 """
 
 from __future__ import annotations
 
+import logging
+import re
 import threading
 import time
 from dataclasses import asdict, dataclass, field
-from typing import Protocol
+from typing import Callable, Protocol
+
+log = logging.getLogger(__name__)
+
+SECRET_KEY = re.compile(r"pass|secret|token|cookie|session|credential|authoriz|api[_-]?key", re.I)
+URL_USERINFO = re.compile(r"([A-Za-z][A-Za-z0-9+.-]*://)[^/@\s]*@")
 
 
 @dataclass(frozen=True)
@@ -20,31 +30,111 @@ class Action:
     user: str
     what: str                      # a short verb phrase: "scan started", "alert acknowledged", ...
     detail: dict = field(default_factory=dict)   # never a password, token or camera URL
+    role: str = ""                 # the role the user had then
+    rig: str = ""
 
     def as_dict(self) -> dict:
         return asdict(self)
 
 
+def clean(value):
+    """``value`` (a detail) with secrets masked: see the module docstring."""
+    if isinstance(value, dict):
+        return {str(k): ("***" if SECRET_KEY.search(str(k)) else clean(v)) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [clean(v) for v in value]
+    if isinstance(value, str):
+        return URL_USERINFO.sub(r"\1***@", value)
+    if value is None or isinstance(value, (bool, int, float)):
+        return value
+    return clean(str(value))
+
+
 class Actions(Protocol):
-    def record(self, user: str, what: str, detail: dict | None = None) -> Action: ...
+    def record(self, user: str, what: str, detail: dict | None = None, *, role: str = "") -> Action: ...
 
     def recent(self, limit: int = 50) -> list[Action]: ...
 
 
+def _role(user: str, role: str) -> str:
+    """The role to log: the one given, else the role of the session acting (the caller's, seen
+    through sessions.current: the pages need not pass it)."""
+    if role:
+        return role
+    from vts_hw.console.sessions import current
+    s = current.get()
+    return s.role if s is not None and s.user == user else ""
+
+
+def _keep(a: Action, start, end, user) -> bool:
+    return ((start is None or a.at >= start) and (end is None or a.at < end) and (not user or a.user == user))
+
+
 class MemoryActions:
-    def __init__(self) -> None:
+    def __init__(self, rig: str = "") -> None:
+        self.rig = rig
         self._lock = threading.Lock()
         self._items: list[Action] = []
 
-    def record(self, user: str, what: str, detail: dict | None = None) -> Action:
-        act = Action(time.time(), user, what, dict(detail or {}))
+    def record(self, user: str, what: str, detail: dict | None = None, *, role: str = "") -> Action:
+        act = Action(time.time(), user, what, clean(dict(detail or {})), _role(user, role), self.rig)
         with self._lock:
             self._items.append(act)
         return act
 
-    def recent(self, limit: int = 50) -> list[Action]:
+    def page(self, start: float | None = None, end: float | None = None, user: str | None = None,
+             limit: int = 50, offset: int = 0) -> tuple[list[Action], int]:
+        """Newest first, done in [start, end), by ``user``; and how many the filters keep."""
         with self._lock:
-            return list(reversed(self._items[-limit:]))
+            kept = [a for a in reversed(self._items) if _keep(a, start, end, user)]
+        return kept[offset:offset + limit], len(kept)
+
+    def recent(self, limit: int = 50) -> list[Action]:
+        return self.page(limit=limit)[0]
 
 
-__all__ = ["Action", "Actions", "MemoryActions"]
+class StoreActions:
+    """The action log in the results store: ``open_write()`` gives the store to append to (opened
+    for each action: nothing held between them), ``open_read()`` the store to read (read-only).
+
+    An action the store cannot take (disk full, the database away) is kept in memory, said in
+    the console's log (what and who, never a secret), written with the next action that can be,
+    and listed by ``page`` meanwhile: it is never lost while the console runs."""
+
+    def __init__(self, open_write: Callable, open_read: Callable, rig: str = ""):
+        self.rig = rig
+        self._open_write = open_write
+        self._open_read = open_read
+        self._lock = threading.Lock()
+        self.pending: list[Action] = []
+
+    def record(self, user: str, what: str, detail: dict | None = None, *, role: str = "") -> Action:
+        from vts_hw.errors import VtsError
+        act = Action(time.time(), user, what, clean(dict(detail or {})), _role(user, role), self.rig)
+        with self._lock:
+            todo = [*self.pending, act]
+            try:
+                with self._open_write() as store:
+                    store.log_actions([a.as_dict() for a in todo])
+                self.pending = []
+            except VtsError as exc:
+                self.pending = todo
+                log.warning("the action %r by %s is kept in memory: the results store did not take it (%s)",
+                            what, user, exc)
+        return act
+
+    def page(self, start: float | None = None, end: float | None = None, user: str | None = None,
+             limit: int = 50, offset: int = 0) -> tuple[list[Action], int]:
+        """As MemoryActions.page, from the store (and any action waiting to be written)."""
+        with self._lock:
+            waiting = [a for a in reversed(self.pending) if _keep(a, start, end, user)]
+        with self._open_read() as store:
+            rows, total = store.actions(start, end, user, limit=limit, offset=max(0, offset - len(waiting)))
+        stored = [Action(r.at, r.user, r.what, r.detail, r.role, r.rig) for r in rows]
+        return (waiting[offset:] + stored)[:limit], total + len(waiting)
+
+    def recent(self, limit: int = 50) -> list[Action]:
+        return self.page(limit=limit)[0]
+
+
+__all__ = ["Action", "Actions", "MemoryActions", "StoreActions", "clean"]

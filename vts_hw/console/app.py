@@ -9,7 +9,8 @@ fetches a picture (``GET /frame/{camera}``: the camera's own JPEG bytes, never r
 it is told of one and has shown the last: one picture in flight per camera, so a slow browser
 sees fewer pictures and asks nothing more of the hub. Every POST must come from the console's
 own page: the Origin (when the browser sends one) must be this server's, and the page's token
-must be in the ``X-Console-Token`` header.
+must be in the ``X-Console-Token`` header (guard.py). With users (``console.auth``), every
+request but the login page's needs a session (login.py's ``SessionDoor``).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import time
 from pathlib import Path
 
 from starlette.applications import Starlette
+from starlette.middleware import Middleware
 from starlette.requests import Request
 from starlette.responses import JSONResponse, Response, StreamingResponse
 from starlette.routing import Mount, Route
@@ -30,6 +32,7 @@ from starlette.templating import Jinja2Templates
 from vts_hw import __version__
 from vts_hw.console import guard
 from vts_hw.console.actions import MemoryActions
+from vts_hw.console.sessions import current
 
 HERE = Path(__file__).resolve().parent
 EVENT_TICK_S = 0.04           # how often an event stream looks for new frames (25 Hz)
@@ -41,17 +44,26 @@ class Console:
     """What the pages need: the hub, the marker worker, the room's facts, the rig's name."""
 
     def __init__(self, rig_name: str, hub, markers, facts, *, token: str | None = None, open_store=None,
-                 actions=None):
+                 actions=None, auth=None):
         self.rig_name = rig_name
         #: a callable giving the results store, opened read-only (None: the pages say there is none)
         self.open_store = open_store if open_store is not None else getattr(facts, "open_store", None)
         self.hub = hub
         self.markers = markers
         self.facts = facts
-        self.token = token or secrets.token_urlsafe(24)
+        #: the page token of a console without users (with users each session has its own)
+        self.console_token = token or secrets.token_urlsafe(24)
         self.closing = asyncio.Event()
         #: who did what here (actions.py): the store's log where there is one
-        self.actions = actions if actions is not None else MemoryActions()
+        self.actions = actions if actions is not None else MemoryActions(rig_name)
+        #: users and sessions (sessions.Auth); None: no users, the person here is ``local``
+        self.auth = auth
+
+    @property
+    def token(self) -> str:
+        """The page token for the page being rendered: its session's (with users), else the console's."""
+        s = current.get()
+        return s.token if s is not None else self.console_token
 
     def room(self) -> dict:
         cams = []
@@ -66,6 +78,7 @@ def _sse(event: str, data) -> bytes:
 
 def create_app(console: Console) -> Starlette:
     from vts_hw.console.history import history_routes
+    from vts_hw.console.login import SessionDoor, login_routes, no_login_routes
     from vts_hw.console.qa_page import qa_routes
 
     templates = Jinja2Templates(directory=str(HERE / "templates"))
@@ -145,17 +158,19 @@ def create_app(console: Console) -> Starlette:
             return JSONResponse({"error": 'the body must be JSON {"on": true} or {"on": false}'}, status_code=400)
         facts = await asyncio.to_thread(console.facts.switch_led, name, body["on"])
         if not facts["led_error"]:
-            user, _ = guard.user_of(console, request)
-            await asyncio.to_thread(console.actions.record, user, f"LED {'on' if body['on'] else 'off'}",
-                                    {"camera": name})
+            user, role = guard.user_of(console, request)
+            await asyncio.to_thread(lambda: console.actions.record(user, f"LED {'on' if body['on'] else 'off'}",
+                                                                   {"camera": name}, role=role))
         return JSONResponse(facts, status_code=200 if not facts["led_error"] else 502)
 
     routes = [Route("/", room_page), Route("/api/room", room_json), Route("/frame/{camera}", frame),
               Route("/events", events), Route("/camera/{camera}/led", led, methods=["POST"]),
               *history_routes(console, templates),     # each page a module of its own (history.py)
               *qa_routes(console, templates),
+              *(login_routes(console, templates) if console.auth is not None and console.auth.required
+                else no_login_routes(console)),
               Mount("/static", StaticFiles(directory=str(HERE / "static")), name="static")]
-    return Starlette(routes=routes)
+    return Starlette(routes=routes, middleware=[Middleware(SessionDoor, console=console)])
 
 
 __all__ = ["Console", "create_app"]

@@ -1,13 +1,16 @@
 """Who may do what on the console: every request that changes something passes ``refuse()``.
 
-One door for the pages (docs/decisions/0060-room-console.md): a POST is served only when it
-comes from the console's own page (the Origin, when the browser sends one, is this server's,
-and the page's token is in the ``X-Console-Token`` header) and, once users exist, when the
-session's user has the role the action needs. On 127.0.0.1 without users the person at the
-console is ``local`` and may do everything (the machine's login is the check).
+One door for the pages (docs/decisions/0060-room-console.md, 0063-console-users.md): a POST
+is served only when it comes from the console's own page (the Origin, when the browser sends
+one, is this server's, and the page's token is in the ``X-Console-Token`` header) and, when the
+console has users (``console.auth.required``), when the request's session (login.py's
+middleware found it from the cookie) belongs to a user whose role the action needs. With
+users, the token is the session's own (``Console.token`` gives it to the page being rendered).
+On 127.0.0.1 without users the person at the console is ``local`` and may do everything (the
+machine's login is the check).
 
-Roles: ``operator`` (scans, daily QA, the LED, acknowledging alerts) and ``physicist`` (also
-baselines, calibration, tolerances, sign-off). ``ROLE_RANK`` orders them.
+Roles: ``operator`` (scans, daily QA, the LED, acknowledging alerts, pushing to QATrack+) and
+``physicist`` (also baselines, calibration, tolerances, sign-off). ``ROLE_RANK`` orders them.
 """
 
 from __future__ import annotations
@@ -34,21 +37,57 @@ def same_origin(request: Request) -> str:
     return ""
 
 
+def users_required(console) -> bool:
+    auth = getattr(console, "auth", None)
+    return auth is not None and auth.required
+
+
+def session_of(console, request: Request):
+    """The request's live session (login.py's middleware put it in the request's scope), or None."""
+    s = request.scope.get("state", {}).get("session")
+    if s is None or not console.auth.alive(s):
+        return None
+    return s
+
+
 def user_of(console, request: Request) -> tuple[str, str]:
-    """(user name, role) of the request: ``local`` with every right while the console has no users."""
-    return LOCAL_USER, PHYSICIST
+    """(user name, role) of the request: ``local`` with every right while the console has no
+    users; ("", "") for a request without a live session when it has."""
+    if not users_required(console):
+        return LOCAL_USER, PHYSICIST
+    s = session_of(console, request)
+    return (s.user, s.role) if s is not None else ("", "")
+
+
+def token_of(console, request: Request) -> str:
+    """The page token a POST of this request's page must carry (the session's, with users)."""
+    if users_required(console):
+        s = session_of(console, request)
+        return s.token if s is not None else ""
+    return console.console_token
+
+
+def _a(role: str) -> str:
+    return f"an {role}" if role[:1] in "aeiou" else f"a {role}"
 
 
 def refuse(console, request: Request, role: str = OPERATOR) -> Response | None:
-    """None when ``request`` may do an action needing ``role``; else the response refusing it."""
+    """None when ``request`` may do an action needing ``role``; else the response refusing it
+    (403 with a sentence; 401 when the console has users and the request no live session)."""
     why = same_origin(request)
-    if why or not secrets.compare_digest(request.headers.get("x-console-token", ""), console.token):
-        return JSONResponse({"error": why or "refused: the request did not come from the console's page"},
-                            status_code=403)
+    if why:
+        return JSONResponse({"error": why}, status_code=403)
     user, has = user_of(console, request)
+    if not user:
+        return JSONResponse({"error": "refused: log in first (no session, or it has ended)"}, status_code=401)
+    want = token_of(console, request)
+    if not want or not secrets.compare_digest(request.headers.get("x-console-token", ""), want):
+        return JSONResponse({"error": "refused: the request did not come from the console's page"},
+                            status_code=403)
     if ROLE_RANK.get(has, 0) < ROLE_RANK[role]:
-        return JSONResponse({"error": f"refused: {user} is {has}; this needs a {role}"}, status_code=403)
+        return JSONResponse({"error": f"refused: {user} is {_a(has)}; this needs {_a(role)}"}, status_code=403)
     return None
 
 
-__all__ = ["refuse", "user_of", "same_origin", "OPERATOR", "PHYSICIST", "ROLE_RANK", "LOCAL_USER"]
+__all__ = ["refuse", "user_of", "token_of", "session_of", "same_origin", "users_required", "OPERATOR",
+           "PHYSICIST", "ROLE_RANK", "LOCAL_USER"]

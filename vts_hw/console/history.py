@@ -13,6 +13,8 @@ procedure is named by its label from the catalog, never by a stored name written
 * ``GET /history/run/{id}/file/{artifact_id}``: an artifact's bytes, only for an artifact the
   store lists for that run (by its id: no path is ever taken from the URL) and whose file
   exists; 404 otherwise.
+* ``GET /history/actions?from=YYYY-MM-DD&to=YYYY-MM-DD&user=NAME&page=N``: what people did on the
+  console (``console.actions``: the store's log), newest first, the same date filter as the runs.
 * ``GET /history/drift-report``, ``GET /history/rooms/``: rendered by the reports' builders into
   a temporary folder (history_reports.py), never into the user's folders.
 """
@@ -212,6 +214,33 @@ class History:
         return FileResponse(path, media_type="application/octet-stream", filename=os.path.basename(path),
                             headers=headers)
 
+    def read_actions(self, f: Filters, user: str) -> tuple[list[dict], int]:
+        acts, total = self.console.actions.page(start=f.start, end=f.end, user=user or None, limit=PAGE_SIZE,
+                                                offset=(f.page - 1) * PAGE_SIZE)
+        return [{"at": when(a.at), "user": a.user, "role": a.role, "what": a.what, "rig": a.rig,
+                 "detail": ", ".join(f"{k}: {v}" for k, v in sorted(a.detail.items()))} for a in acts], total
+
+    async def actions(self, request: Request):
+        user = request.query_params.get("user", "").strip()
+        ctx = {"acts": [], "total": 0, "error": "", "user": user, "page_size": PAGE_SIZE}
+        params = {k: v for k, v in request.query_params.items() if k in ("from", "to", "page")}
+        try:
+            f = parse_filters(params)
+        except BadFilter as exc:
+            f = Filters(date_from=params.get("from", ""), date_to=params.get("to", ""))
+            return self._page(request, "history_actions.html", {**ctx, "f": f, "error": str(exc)}, 400)
+        try:
+            acts, total = await asyncio.to_thread(self.read_actions, f, user)
+        except VtsError as exc:
+            return self._page(request, "history_actions.html",
+                              {**ctx, "f": f, "error": f"the results store could not be read: {exc}"}, 503)
+        pages = max(1, -(-total // PAGE_SIZE))
+        query = lambda **c: urlencode({k: v for k, v in {"from": f.date_from, "to": f.date_to, "user": user,  # noqa: E731
+                                                          "page": f.page, **c}.items() if v not in ("", None, 1)})
+        return self._page(request, "history_actions.html", {**ctx, "f": f, "acts": acts, "total": total,
+                                                            "pages": pages, "query": query,
+                                                            "first": (f.page - 1) * PAGE_SIZE + 1})
+
     async def drift_report(self, request: Request):
         return await self.reports.drift(request.query_params.get("since", "60d"))
 
@@ -225,6 +254,7 @@ class History:
         return [Route("/history", self.history),
                 Route("/history/run/{run:int}", self.run_page),
                 Route("/history/run/{run:int}/file/{artifact:int}", self.artifact),
+                Route("/history/actions", self.actions),
                 Route("/history/drift-report", self.drift_report),
                 Route("/history/rooms/", self.rooms_page),
                 Route("/history/rooms/{name}", self.rooms_file)]

@@ -11,17 +11,21 @@ from __future__ import annotations
 
 import errno
 import ipaddress
+import os
 import socket
+import ssl
 import threading
+import time
 
 from vts_hw.errors import UsageError
 
 LOOPBACK_NAMES = ("localhost",)
 FACTS_TICK_S = 2.0
+HOW_TO_ADD = "add one with `vts console user add NAME --role physicist`"
 
 
 class NotOnLoopback(UsageError):
-    """Serving off this machine needs users and login, which the console does not have yet."""
+    """Serving off this machine needs users (and HTTPS) that are not there."""
 
 
 def is_loopback(host: str) -> bool:
@@ -33,11 +37,68 @@ def is_loopback(host: str) -> bool:
         return False
 
 
-def check_host(host: str) -> None:
-    if not is_loopback(host):
-        raise NotOnLoopback(f"refused to serve the console on {host}: off this machine it needs users and "
-                            f"login, which are not built yet; serve on 127.0.0.1 (reach it from elsewhere "
-                            f"through an SSH tunnel)")
+def check_host(host: str, *, certfile: str | None = None, keyfile: str | None = None,
+               behind_proxy: bool = False) -> None:
+    """What can be refused from the command line alone (before the store or the rig is read):
+    --certfile without --keyfile, a certificate or key that is not one (check_tls), and serving
+    off this machine in plain HTTP."""
+    if bool(certfile) != bool(keyfile):
+        raise UsageError("--certfile and --keyfile go together: give both (the certificate and its private key)")
+    check_tls(certfile, keyfile)
+    if not is_loopback(host) and not certfile and not behind_proxy:
+        raise NotOnLoopback(f"refused to serve the console on {host}: off this machine it needs users and login "
+                            f"over HTTPS: give --certfile and --keyfile, or serve it behind a TLS reverse proxy "
+                            f"and say --behind-proxy (README: Console users and HTTPS)")
+
+
+def login_required(host: str, login: bool = False, behind_proxy: bool = False) -> bool:
+    """Whether the pages need a login: off this machine, behind a proxy (reached from elsewhere
+    through it), or asked for with --login."""
+    return bool(login or behind_proxy or not is_loopback(host))
+
+
+def check_users(host: str, n_users: int, where: str, why_not: str = "") -> None:
+    """Refuse (exit 2) a console that needs a login when the store has no user who may log in."""
+    if n_users:
+        return
+    what = (f"the results store could not be read for its users ({why_not})" if why_not
+            else f"the results store {where} has no console user who may log in")
+    if is_loopback(host):
+        raise UsageError(f"refused to require a login (--login, --behind-proxy): {what}; {HOW_TO_ADD}")
+    raise NotOnLoopback(f"refused to serve the console on {host}: off this machine it needs users and login, "
+                        f"and {what}; {HOW_TO_ADD}")
+
+
+def check_tls(certfile: str | None, keyfile: str | None) -> bool:
+    """True when the console serves HTTPS with this certificate and key; each file is checked now
+    (readable, a PEM certificate, its private key, not encrypted): a bad one is one sentence naming it."""
+    if not certfile:
+        return False
+    for opt, f in (("--certfile", certfile), ("--keyfile", keyfile)):
+        if not os.path.isfile(f):
+            raise UsageError(f"{f}: no such file ({opt})")
+        if not os.access(f, os.R_OK):
+            raise UsageError(f"{f}: cannot be read by this user ({opt})")
+    ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+    try:
+        ctx.load_verify_locations(cafile=certfile)
+    except (ssl.SSLError, ValueError):
+        raise UsageError(f"{certfile}: not a PEM certificate (--certfile)") from None
+    asked = []
+
+    def no_passphrase():
+        asked.append(1)
+        return b""
+    try:
+        ctx.load_cert_chain(certfile, keyfile, password=no_passphrase)
+    except (ssl.SSLError, ValueError) as exc:
+        if asked:
+            raise UsageError(f"{keyfile}: the private key is encrypted: give it unencrypted, readable by this "
+                             f"user only (--keyfile)") from None
+        if "KEY_VALUES_MISMATCH" in str(exc) or "key values mismatch" in str(exc):
+            raise UsageError(f"{keyfile}: not the private key of the certificate {certfile} (--keyfile)") from None
+        raise UsageError(f"{keyfile}: not a PEM private key (--keyfile)") from None
+    return True
 
 
 def bind(host: str, port: int) -> socket.socket:
@@ -61,47 +122,95 @@ def bind(host: str, port: int) -> socket.socket:
     return sock
 
 
-def url_of(host: str, port: int) -> str:
+def url_of(host: str, port: int, tls: bool = False) -> str:
     shown = f"[{host}]" if ":" in host else host
-    return f"http://{shown}:{port}/"
+    return f"{'https' if tls else 'http'}://{shown}:{port}/"
 
 
-def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, on_ready=None,
-          idle_close_s: float | None = None, marker_hz: float | None = None) -> None:
+def _auth(host, login, behind_proxy, tls, open_store, session_idle_s, session_max_s):
+    """The console's users and sessions (None: no login, the person here is ``local``), after
+    checking that a console needing a login has users; before anything is bound or opened."""
+    from vts_hw.console.sessions import IDLE_S, MAX_S, Auth
+    from vts_hw.errors import VtsError
+    if not login_required(host, login, behind_proxy):
+        return None
+    if open_store is None:
+        check_users(host, 0, "(none named)")
+    where = ""
+
+    def load_users():
+        nonlocal where
+        with open_store() as store:
+            where = store.url
+            return store.users(active_only=True)
+    auth = Auth(required=True, secure=tls or behind_proxy, load_users=load_users,
+                idle_s=IDLE_S if session_idle_s is None else session_idle_s,
+                max_s=MAX_S if session_max_s is None else session_max_s)
+    try:
+        n = auth.refresh_users()
+    except VtsError as exc:
+        check_users(host, 0, "", why_not=str(exc))
+    check_users(host, n, where)
+    return auth
+
+
+def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, open_write_store=None,
+          on_ready=None, idle_close_s: float | None = None, marker_hz: float | None = None, login: bool = False,
+          behind_proxy: bool = False, certfile: str | None = None, keyfile: str | None = None,
+          session_idle_s: float | None = None, session_max_s: float | None = None) -> None:
     """Serve the console of ``rig`` (a RigConfig) on ``host:port`` until Ctrl-C (or SIGTERM),
     then close every stream and camera and return. ``open_store()`` gives the results store
-    (None: the page says there is none); ``on_ready(url)`` is told once it listens."""
+    read-only (None: the page says there is none), ``open_write_store()`` the same store to
+    append the action log to (None: actions kept in memory); ``on_ready(url)`` is told once it
+    listens. Off this machine (or with ``login``/``behind_proxy``) the store must hold users
+    and (off this machine) HTTPS be given (``certfile``/``keyfile``) or a proxy said: refused
+    (UsageError, exit 2) before anything is bound or opened otherwise."""
     import uvicorn
 
+    from vts_hw.console.actions import MemoryActions, StoreActions
     from vts_hw.console.app import Console, create_app
     from vts_hw.console.hub import IDLE_CLOSE_S, FramesHub
     from vts_hw.console.markers import RATE_HZ, MarkerWorker
     from vts_hw.console.room import RoomFacts
+    from vts_hw.console.sessions import USERS_EVERY_S
     from vts_hw.drivers.registry import open_cameras
 
-    check_host(host)
+    check_host(host, certfile=certfile, keyfile=keyfile, behind_proxy=behind_proxy)
+    tls = check_tls(certfile, keyfile)
+    auth = _auth(host, login, behind_proxy, tls, open_store, session_idle_s, session_max_s)
     sock = bind(host, port)
     cameras = {c.name: c for c in open_cameras(rig.cameras)}
     hub = FramesHub(cameras, idle_close_s=IDLE_CLOSE_S if idle_close_s is None else idle_close_s)
     markers = MarkerWorker(hub, RATE_HZ if marker_hz is None else marker_hz)
     facts = RoomFacts(cameras, rig.rig, open_store)
-    console = Console(rig.rig, hub, markers, facts, open_store=open_store)
+    actions = (StoreActions(open_write_store, open_store, rig.rig) if open_write_store is not None and open_store
+               else MemoryActions(rig.rig))
+    console = Console(rig.rig, hub, markers, facts, open_store=open_store, actions=actions, auth=auth)
     console.rig_config = rig          # the pages that run procedures (Daily QA) run them on this rig
     stop_facts = threading.Event()
 
     def keep_facts():
+        users_due = time.monotonic() + USERS_EVERY_S
         while not stop_facts.is_set():
             try:
                 facts.refresh_due()
             except Exception:           # the page says what it could not read; the thread goes on
                 pass
+            if auth is not None and time.monotonic() >= users_due:
+                users_due = time.monotonic() + USERS_EVERY_S
+                try:                    # a user disabled (or with another role) is logged out within USERS_EVERY_S
+                    auth.refresh_users()
+                    auth.sweep()
+                except Exception:       # the store away a moment: the users as they were
+                    pass
             stop_facts.wait(FACTS_TICK_S)
 
     facts_thread = threading.Thread(target=keep_facts, name="console-facts", daemon=True)
     facts_thread.start()
     config = uvicorn.Config(create_app(console), log_level="warning", access_log=False,
-                            timeout_graceful_shutdown=2, lifespan="off")
-    server = _Server(config, lambda: on_ready and on_ready(url_of(host, sock.getsockname()[1])),
+                            timeout_graceful_shutdown=2, lifespan="off", proxy_headers=behind_proxy,
+                            ssl_certfile=certfile if tls else None, ssl_keyfile=keyfile if tls else None)
+    server = _Server(config, lambda: on_ready and on_ready(url_of(host, sock.getsockname()[1], tls)),
                      console.closing.set)
     try:
         server.run(sockets=[sock])
@@ -142,4 +251,5 @@ class _Server:
             raise UsageError("the console did not start (see the messages above)")
 
 
-__all__ = ["serve", "check_host", "is_loopback", "NotOnLoopback", "bind", "url_of"]
+__all__ = ["serve", "check_host", "check_tls", "check_users", "login_required", "is_loopback", "NotOnLoopback",
+           "bind", "url_of"]

@@ -12,6 +12,12 @@ copied while still "running" that has ended since (its end, measurements and art
 one change a run ever has), and an outbox row whose push went on (the later ``updated`` wins;
 a row new to a run already copied is added).
 
+The console's action log is copied too (an action is its content: time, user, role, what,
+detail, rig; one already in the target is not added again): moving a room's store to the
+department's must not lose who did what. The console's users are NOT copied: their password
+hashes stay in the store they were made for, and a console on the new store has its users
+added there (docs/decisions/0063-console-users.md); ``source.users()`` says how many stayed.
+
 Runs are copied in batches, each batch one write transaction of the target (a run and its
 children are never split): an interrupted copy leaves whole runs, and the next copy goes on.
 
@@ -31,10 +37,10 @@ from typing import Callable
 
 from sqlalchemy import Connection, insert, select, update
 
-from vts_hw.store.schema import artifacts, measurements, outbox, runs, tolerances
+from vts_hw.store.schema import actions, artifacts, measurements, outbox, runs, tolerances
 
 #: the tables copied, in the order they are reported
-TABLES = ("runs", "tolerances", "measurements", "artifacts", "outbox")
+TABLES = ("runs", "tolerances", "measurements", "artifacts", "outbox", "actions")
 #: runs per write transaction of the target
 BATCH = 200
 
@@ -44,6 +50,7 @@ _RUN_COLS = tuple(c.name for c in runs.c if c.name != "id")
 _MEAS_COLS = ("subject", "metric", "value", "unit", "status")
 _ART_COLS = ("path", "sha256", "kind")
 _OUT_COLS = ("target", "key", "state", "attempts", "last_error", "created", "updated", "remote")
+_ACT_COLS = ("at", "user_name", "role", "what", "detail", "rig")
 
 
 @dataclass
@@ -159,6 +166,7 @@ def copy_store(source, target, progress: Callable[[int, int], None] | None = Non
         if progress is not None:
             progress(start + len(batch), len(todo))
     _bring_outbox(source, target, rep)
+    _bring_actions(source, target, rep)
     rep.checks = verify(source, target, rep.new)
     return rep
 
@@ -181,6 +189,29 @@ def _bring_outbox(source, target, rep: CopyReport) -> None:
             elif t is not None and float(o.updated) > float(t.updated):
                 conn.execute(update(outbox).where(outbox.c.id == t.id).values(**_pick(o, _OUT_COLS)))
                 rep.outbox_updated += 1
+
+
+def _action_key(row) -> tuple:
+    return tuple(_num(row._mapping[c]) if c == "at" else row._mapping[c] for c in _ACT_COLS)
+
+
+def _bring_actions(source, target, rep: CopyReport) -> None:
+    """The console's actions the target lacks (by content), in one write transaction."""
+    with source._read() as conn:
+        src = conn.execute(select(actions).order_by(actions.c.at, actions.c.id)).all()
+    if not src:
+        return
+    with target._write() as conn:
+        have = Counter(_action_key(r) for r in conn.execute(select(actions)))
+        new = []
+        for r in src:
+            key = _action_key(r)
+            if have[key]:
+                have[key] -= 1
+            else:
+                new.append(_pick(r, _ACT_COLS))
+        _insert_many(conn, actions, new)
+    rep.new["actions"] += len(new)
 
 
 def _snapshot(conn: Connection) -> Connection:
@@ -209,6 +240,7 @@ def _content(store, uids: set[str] | None, windows: set[tuple] | None) -> dict[s
         meas_rows = conn.execute(select(measurements)).all()
         art_rows = conn.execute(select(artifacts)).all()
         out_rows = conn.execute(select(outbox)).all()
+        act_rows = conn.execute(select(actions)).all()
     win_key = {r.id: _window_key(r) for r in win_rows}
     uid_of = {r.id: r.uid for r in run_rows}
 
@@ -225,6 +257,7 @@ def _content(store, uids: set[str] | None, windows: set[tuple] | None) -> dict[s
         "outbox": Counter((uid_of[o.run_id],) + tuple(_num(v) if k in ("created", "updated") else v
                                                       for k, v in _pick(o, _OUT_COLS).items())
                           for o in out_rows if mine(o.run_id)),
+        "actions": Counter(_action_key(a) for a in act_rows),
     }
     return out
 
@@ -245,6 +278,7 @@ def verify(source, target, new: dict[str, int] | None = None) -> list[TableCheck
     # windows are one row per content in a copy; a target holding the same window twice (its own
     # history, before any copy) still holds the source's one
     tgt["tolerances"] = tgt["tolerances"] & src["tolerances"]
+    tgt["actions"] = tgt["actions"] & src["actions"]      # the target's own actions are not the source's
     checks = []
     for t in TABLES:
         found = sum((src[t] & tgt[t]).values())
@@ -257,6 +291,6 @@ def table_counts(store) -> dict[str, int]:
     """Rows per table of a store."""
     from sqlalchemy import func
     tables = {"runs": runs, "tolerances": tolerances, "measurements": measurements,
-              "artifacts": artifacts, "outbox": outbox}
+              "artifacts": artifacts, "outbox": outbox, "actions": actions}
     with store._read() as conn:
         return {name: conn.scalar(select(func.count()).select_from(t)) for name, t in tables.items()}

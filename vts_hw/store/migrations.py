@@ -107,10 +107,38 @@ def _v3(dialect: Dialect) -> list:
     ]
 
 
+def _v4(dialect: Dialect) -> list:
+    md = MetaData(naming_convention=schema.NAMING)
+    users_v4 = Table(
+        "users", md,
+        Column("id", Integer, primary_key=True),
+        Column("name", Text, nullable=False),
+        Column("role", String(16), nullable=False),
+        Column("password", Text, nullable=False),
+        Column("created", Double, nullable=False),
+        Column("changed", Double, nullable=False),
+        Column("disabled", Double),
+        CheckConstraint(Column("role").in_(("operator", "physicist")), name="role"),
+        UniqueConstraint("name", name="uq_users_name"),
+    )
+    actions_v4 = Table(
+        "actions", md,
+        Column("id", Integer, primary_key=True),
+        Column("at", Double, nullable=False),
+        Column("user_name", Text, nullable=False),
+        Column("role", Text, nullable=False, server_default=""),
+        Column("what", Text, nullable=False),
+        Column("detail", Text, nullable=False, server_default="{}"),
+        Column("rig", Text, nullable=False, server_default=""),
+    )
+    return [CreateTable(users_v4), CreateTable(actions_v4), CreateIndex(Index("ix_actions_at", actions_v4.c.at))]
+
+
 #: version -> the step that upgrades version-1 to it (version 1 is the first layout)
 MIGRATIONS: dict[int, Migration] = {
     2: Migration(2, "runs: host, pid, process_start for dead-run detection; artifacts: kind", _v2),
     3: Migration(3, "runs: uid (identity across stores), index on rig; outbox (pushes to QATrack+)", _v3),
+    4: Migration(4, "users (the console's, salted password hashes) and actions (who did what)", _v4),
 }
 
 assert sorted(MIGRATIONS) == list(range(2, schema.SCHEMA_VERSION + 1)), "a migration step is missing"

@@ -17,6 +17,8 @@ FINISH_STATUSES = ("OK", "TOLERANCE", "ACTION", "error")
 #: the states of an outbox row: waiting (new, or failed and to be retried), done, or refused
 #: by the other system (kept for the user to fix, retried only when asked)
 OUTBOX_STATES = ("pending", "sent", "refused")
+#: the roles of the console's users, lowest first (vts_hw/console/guard.py orders them)
+ROLES = ("operator", "physicist")
 #: the statuses a measurement can have
 MEASUREMENT_STATUSES = tuple(s.value for s in State)
 
@@ -95,3 +97,31 @@ def outbox_from_row(row) -> OutboxItem:
     return OutboxItem(id=row.id, run_id=row.run_id, target=row.target, key=row.key, state=row.state,
                       attempts=row.attempts, last_error=row.last_error, created=row.created,
                       updated=row.updated, remote=row.remote)
+
+
+@dataclass(frozen=True)
+class User:
+    """A console user as stored: ``password`` is the salted hash, never the password."""
+    id: int
+    name: str
+    role: str
+    password: str
+    created: float
+    changed: float
+    disabled: float | None   # when disabled; None: may log in
+
+    @property
+    def active(self) -> bool:
+        return self.disabled is None
+
+
+@dataclass(frozen=True)
+class LoggedAction:
+    """One row of the console's action log."""
+    id: int
+    at: float
+    user: str
+    role: str
+    what: str
+    detail: dict
+    rig: str

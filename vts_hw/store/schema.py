@@ -12,13 +12,16 @@ Tables:
   tolerances         append-only history of windows per metric, each with effective_from
   artifacts          saved files (frames) of a run, by path and sha256
   outbox             results waiting to be (or already) pushed to another system (QATrack+)
+  users              the room console's users: name, role, salted password hash (version 4)
+  actions            what people did on the console: who, role, when, what, detail (version 4)
 
 Every run has a ``uid`` (32 hex digits, unique in every store): a run copied into another
 store (``vts store migrate``) keeps it, so a copy made twice, or a push to QATrack+ from
 either store, is recognised as the same run.
 
 Rows are never updated except a run's status/finished/notes when it ends (and an outbox row's
-state as its push progresses), and never deleted:
+state as its push progresses, and a console user's password, role or disabled time), and
+never deleted (a user who leaves is disabled, so the actions' names stay theirs):
 a change of tolerance is a new row, so old statuses and the windows behind them stay as
 they were.
 """
@@ -28,10 +31,10 @@ from __future__ import annotations
 from sqlalchemy import (CheckConstraint, Column, Double, ForeignKey, Index, Integer, MetaData,
                         String, Table, Text, UniqueConstraint, func)
 
-from vts_hw.store.records import MEASUREMENT_STATUSES, OUTBOX_STATES, RUN_STATUSES
+from vts_hw.store.records import MEASUREMENT_STATUSES, OUTBOX_STATES, ROLES, RUN_STATUSES
 
 #: the version a fresh database is created at; migrations.py upgrades older ones to it
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 
 NAMING = {
     "ix": "ix_%(table_name)s_%(column_0_N_name)s",
@@ -135,6 +138,35 @@ outbox = Table(
 )
 Index(None, outbox.c.state)
 
+# version 4: the room console's users (docs/decisions/0063-console-users.md). ``password`` is
+# "scrypt$N$r$p$salt$hash" (base64), never the password; ``disabled`` the time a user was
+# disabled (None: may log in)
+users = Table(
+    "users", metadata,
+    Column("id", Integer, primary_key=True),
+    Column("name", Text, nullable=False),
+    Column("role", String(16), nullable=False),
+    Column("password", Text, nullable=False),
+    Column("created", Double, nullable=False),
+    Column("changed", Double, nullable=False),
+    Column("disabled", Double),
+    CheckConstraint(Column("role").in_(ROLES), name="role"),
+    UniqueConstraint("name", name="uq_users_name"),
+)
+
+# version 4: the console's action log, append-only (who did what, with the role they had)
+actions = Table(
+    "actions", metadata,
+    Column("id", Integer, primary_key=True),
+    Column("at", Double, nullable=False),
+    Column("user_name", Text, nullable=False),
+    Column("role", Text, nullable=False, server_default=""),
+    Column("what", Text, nullable=False),
+    Column("detail", Text, nullable=False, server_default="{}"),    # JSON; never a secret
+    Column("rig", Text, nullable=False, server_default=""),
+)
+Index(None, actions.c.at)
+
 #: the tables of a vts-hw results store (a database holding some of them but no
 #: schema_migrations is not one we created, and is not touched)
-TABLES = (schema_migrations, runs, tolerances, measurements, artifacts, outbox)
+TABLES = (schema_migrations, runs, tolerances, measurements, artifacts, outbox, users, actions)

@@ -29,6 +29,7 @@ from vts_hw.store.handle import RunHandle
 from vts_hw.store.identity import allowed, connection_kind, sqlite_file_kind
 from vts_hw.store.liveness import host_name, is_alive, process_start
 from vts_hw.store.migrations import ensure_schema, stored_version
+from vts_hw.store.people import PeopleMixin
 from vts_hw.store.paths import StoreTarget, masked, sqlite_file, to_url
 from vts_hw.store.queries import (count_runs, select_artifacts, select_measurements, select_rigs, select_running_runs,
                                  select_runs, select_runs_newest, select_tolerance_at, select_tolerances_at,
@@ -60,7 +61,7 @@ def _window(row) -> Window:
     return Window(row.action_low, row.tolerance_low, row.tolerance_high, row.action_high, row.unit)
 
 
-class ResultsStore:
+class ResultsStore(PeopleMixin):
     """The results database. ``url`` None means default_url(); a plain path means a SQLite file.
 
     ``busy_timeout`` (seconds) is how long a SQLite writer waits for another writer.
@@ -68,7 +69,8 @@ class ResultsStore:
     StoreTarget brings its own. ``mode`` says what may become a store (identity.py): ``read``
     only an existing vts-hw store, ``create`` (the default) also a new file (or an empty
     PostgreSQL database), ``init`` any empty database; a database that is not ours never is:
-    StoreError, and it is left byte-identical."""
+    StoreError, and it is left byte-identical. The console's users and action log are
+    people.py's (PeopleMixin)."""
 
     def __init__(self, url: str | os.PathLike | StoreTarget | None = None, *, busy_timeout: float = 30.0,
                  password_env: str | None = None, mode: str = "create"):
