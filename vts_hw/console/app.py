@@ -47,6 +47,8 @@ class Console:
         self.open_store = open_store if open_store is not None else getattr(facts, "open_store", None)
         self.hub = hub
         self.markers = markers
+        #: what each marker is (names.MarkerNames): the Scan page names its band markers here
+        self.names = getattr(markers, "names", None)
         self.facts = facts
         self.token = token or secrets.token_urlsafe(24)
         self.closing = asyncio.Event()
@@ -143,10 +145,9 @@ def create_app(console: Console) -> Starlette:
         if not isinstance(body, dict) or not isinstance(body.get("on"), bool):
             return JSONResponse({"error": 'the body must be JSON {"on": true} or {"on": false}'}, status_code=400)
         facts = await asyncio.to_thread(console.facts.switch_led, name, body["on"])
-        if not facts["led_error"]:
-            user, _ = guard.user_of(console, request)
-            await asyncio.to_thread(console.actions.record, user, f"LED {'on' if body['on'] else 'off'}",
-                                    {"camera": name})
+        user, _ = guard.user_of(console, request)       # asked, whether it took or not (the camera says)
+        await asyncio.to_thread(console.actions.record, user, f"LED {'on' if body['on'] else 'off'}",
+                                {"camera": name, "took": not facts["led_error"], "read back": facts["led"]})
         return JSONResponse(facts, status_code=200 if not facts["led_error"] else 502)
 
     routes = [Route("/", room_page), Route("/api/room", room_json), Route("/frame/{camera}", frame),

@@ -76,6 +76,7 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, on
     from vts_hw.console.app import Console, create_app
     from vts_hw.console.hub import IDLE_CLOSE_S, FramesHub
     from vts_hw.console.markers import RATE_HZ, MarkerWorker
+    from vts_hw.console.names import MarkerNames
     from vts_hw.console.room import RoomFacts
     from vts_hw.drivers.registry import open_cameras
 
@@ -83,8 +84,9 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, on
     sock = bind(host, port)
     cameras = {c.name: c for c in open_cameras(rig.cameras)}
     hub = FramesHub(cameras, idle_close_s=IDLE_CLOSE_S if idle_close_s is None else idle_close_s)
-    markers = MarkerWorker(hub, RATE_HZ if marker_hz is None else marker_hz)
-    facts = RoomFacts(cameras, rig.rig, open_store)
+    names = MarkerNames()
+    markers = MarkerWorker(hub, RATE_HZ if marker_hz is None else marker_hz, names)
+    facts = RoomFacts(cameras, rig.rig, open_store, names=names)
     console = Console(rig.rig, hub, markers, facts, open_store=open_store)
     stop_facts = threading.Event()
 
