@@ -4,7 +4,7 @@ headless Chromium (Debian's) against the simulated cameras over HTTP and a real 
 * The LED is read back from the camera, not assumed: switched behind the console's back (as the
   daily QA does), the page follows within seconds; a switch the camera does not take (its
   ``led_held`` fault: an action rule holding the output) is said on the page, and the state
-  shown is the one the camera reports.
+  shown is the one the camera reports; a camera off the network has its LED "not known".
 * Markers named, not numbered: each of cam1's detections that lies within the drift QA's gate of
   a marker of its drift baseline in the store carries that marker's name (M1..) and the wall's
   colour; one the baseline does not hold is "unidentified" and numbered; the names the Scan page
@@ -102,6 +102,16 @@ def test_the_led_is_what_the_camera_says_and_a_switch_that_did_not_take_is_said(
     page.click('section[data-camera="cam2"] button.led-on')
     assert until(lambda: cam(page, "cam2", "e => [e.dataset.led, e.dataset.ledTook]") == ["on", "yes"], 10)
     assert cam(page, "cam2", "e => e.querySelector('.led-error').textContent") == ""
+    # a camera that does not answer: its LED is not known (never its last state), and why
+    server.faults.offline = True
+    try:
+        assert until(lambda: cam(page, "cam2", "e => e.dataset.led") == "unknown", 20)
+        said = cam(page, "cam2", "e => e.querySelector('.led').textContent")
+        assert said.startswith("not known: the camera did not say (camera cam2 at http://127.0.0.1:") and "password" \
+            not in said, said
+    finally:
+        server.faults.offline = False
+    assert until(lambda: cam(page, "cam2", "e => e.dataset.led") == "on", 20)
 
 
 def circles(page, name):
