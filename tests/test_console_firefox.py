@@ -40,15 +40,16 @@ def free_port() -> int:
 
 
 @pytest.fixture(scope="module")
-def firefox():
-    """A headless Firefox ESR under Marionette, in a profile of its own (removed after)."""
+def firefox(tmp_path_factory):
+    """A headless Firefox ESR under Marionette, in a profile of its own (removed after); its log
+    in a temporary folder (by default mozrunner writes gecko.log where it is run)."""
     assert shutil.which(FIREFOX), f"{FIREFOX} is missing: `make debs` installs firefox-esr"
     import logging
 
     from marionette_driver.marionette import Marionette
     logging.getLogger("mozversion").setLevel(logging.WARNING)
     m = Marionette(host="127.0.0.1", port=free_port(), bin=FIREFOX, headless=True, app_args=["-no-remote"],
-                   startup_timeout=120)
+                   startup_timeout=120, gecko_log=str(tmp_path_factory.mktemp("firefox-log") / "gecko.log"))
     m.start_session()
     try:
         m.set_window_rect(width=1366, height=768)
