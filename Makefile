@@ -10,7 +10,8 @@ STAMP  := $(VENV)/.installed
 # Debian packages the tests need (installed when missing, if we may)
 # (the AVR toolchain and simavr are installed by firmware/Makefile, which `make test` runs)
 # (postgresql: the tests start a throwaway server of their own, tests/pgserver.py)
-TEST_DEBS := curl openssl chromium fonts-dejavu-core poppler-utils postgresql
+# (chromium and firefox-esr: the console's pages in both browsers)
+TEST_DEBS := curl openssl chromium firefox-esr fonts-dejavu-core poppler-utils postgresql
 
 .PHONY: demo test bench venv debs firmware clean
 

@@ -1,4 +1,4 @@
-"""Axis network camera over VAPIX: snapshot, stream, parameters, LED output, info, clock.
+"""Axis network camera over VAPIX: snapshot, stream, parameters, LED output (and its state), info, clock.
 
 One :class:`AxisCamera` per camera, built on requests with digest authentication (basic only
 over HTTPS, never in clear). Every call has a timeout, and every failure is one of the typed
@@ -6,7 +6,7 @@ errors below, each with a sentence that names the camera and says what to do. Th
 held only in the auth object: it is never part of a URL, a repr, a log line or an error message.
 
 Old firmware (VAPIX 2, e.g. an AXIS 211 on 4.4x) is told apart by a 404 on ``param.cgi`` and is
-answered on its own paths: ``view/`` and ``admin/param.cgi``, ``io/output.cgi`` for the LED,
+answered on its own paths: ``view/`` and ``admin/param.cgi``, ``io/output.cgi`` for the LED (and its state),
 the Brand and Properties parameters for the device info, the JPEG stamps for the clock.
 """
 
@@ -344,6 +344,25 @@ class AxisCamera:
         if not 1 <= int(ms) <= 60000:
             raise ValueError("LED pulse must be 1 to 60000 ms")
         self._port(f"{self.led_port}:/{int(ms)}\\")
+
+    def led_state(self) -> bool | None:
+        """Whether the LED's output port is active now, as the camera says: ``port.cgi?checkactive=N``
+        answers ``portN=active`` or ``portN=inactive``; VAPIX 2's ``output.cgi?check=N``, ``outputN=1`` or 0."""
+        n = self.led_port
+        try:
+            text = self._text(self._output_cgi, {"checkactive" if self._output_cgi.endswith("port.cgi") else "check": n})
+        except NotFound:
+            if self._output_cgi == "/axis-cgi/io/output.cgi":
+                raise
+            self._output_cgi = "/axis-cgi/io/output.cgi"  # firmware before 5.00
+            text = self._text(self._output_cgi, {"check": n})
+        got = text.strip()
+        states = {f"port{n}=active": True, f"port{n}=inactive": False, f"output{n}=1": True, f"output{n}=0": False}
+        if got not in states:
+            cgi = self._output_cgi.rsplit("/", 1)[-1]
+            raise BadReply(self.name, f"camera {self.name}: {cgi} answered {got[:80]!r} when asked the state of "
+                                      f"output port {n} (the LED)")
+        return states[got]
 
     # -- device info and clock -------------------------------------------------------
     def device_info(self) -> dict[str, str]:

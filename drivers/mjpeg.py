@@ -110,6 +110,10 @@ class MjpegCamera(AxisCamera):
             raise ValueError("LED pulse must be 1 to 60000 ms")
         self._led(f"pulse {int(ms)}", lambda: AxisCamera.led_pulse(self, ms))
 
+    def led_state(self) -> bool | None:
+        """The I/O port's state (``led: vapix``); None (not known) for a camera without one."""
+        return super().led_state() if self.led_switches else None
+
     def _led(self, what: str, call) -> None:
         self.led_calls.append(what)
         if self.led_switches:

@@ -157,6 +157,10 @@ class ReplayCamera:
             raise ValueError("LED pulse must be 1 to 60000 ms")
         self.led_calls.append(f"pulse {int(ms)}")
 
+    def led_state(self) -> None:
+        """Not known: a recording keeps no LED state (its frames show what the ring lit)."""
+        return None
+
     def device_info(self) -> dict[str, str]:
         return {"Brand": "vts-hw", "ProdNbr": "replay", "SerialNumber": f"{self.folder.name}/{self.source}",
                 "Source": str(self.folder), "Camera": self.source, "Speed": f"{self.speed:g}",

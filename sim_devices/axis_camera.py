@@ -16,8 +16,9 @@ byte for byte where it matters:
                                                 in the query or a form body (VAPIX 2:
                                                 ``view/param.cgi``, ``admin/param.cgi``)
 ``GET /axis-cgi/io/port.cgi``                   ``action=1:/``, ``1:\\``, ``1:/300\\``;
-                                                ``checkactive=1`` (VAPIX 2: ``io/output.cgi``,
-                                                ``io/input.cgi?check=1``)
+                                                ``checkactive=1`` -> ``port1=active``/``inactive``
+                                                (VAPIX 2: ``io/output.cgi``, ``check=1`` ->
+                                                ``output1=1``/``0``; ``io/input.cgi?check=1``)
 ``POST /axis-cgi/basicdeviceinfo.cgi``          JSON device info (current firmware)
 ``POST /axis-cgi/apidiscovery.cgi``             JSON list of the camera's APIs (current firmware)
 ``GET /axis-cgi/usergroup.cgi``                 the user's groups (current firmware)

@@ -201,6 +201,8 @@ class Handler(BaseHTTPRequestHandler):
         port, _, command = action.partition(":")
         if port != "1":
             return f"# Error: Invalid port '{port}': this camera has one output, port 1\r\n"
+        if self.cam.faults.led_held and command and (command[0] in "/\\"):
+            return None     # answered OK, and the output stays as it was (a rule on the camera holds it)
         if command == "/":
             self.cam.source.set_led(True)
         elif command == "\\":
@@ -211,16 +213,28 @@ class Handler(BaseHTTPRequestHandler):
             return f"# Error: Invalid action '{action}'\r\n"
         return None
 
+    def _check(self, ports: str, line) -> None:
+        """Answer a state query of ``ports`` (``1`` or ``1,2``): one ``line(port)`` each, as the firmware."""
+        asked = ports.split(",")
+        bad = next((p for p in asked if p not in ("1", "2")), None)
+        if bad is not None:
+            self.send(200, f"# Error: Invalid port '{bad}'\r\n")
+            return
+        self.send(200, "".join(line(p) + "\r\n" for p in asked))
+
     def _io_port(self, method: str) -> None:
-        if "checkactive" in self.query:
-            state = "active" if self.cam.source.led_on() else "inactive"
-            self.send(200, f"port1={state}\r\n")
+        if "checkactive" in self.query:      # port 1: the LED's output; port 2: an input, open
+            self._check(self.query["checkactive"], lambda p: f"port{p}=" + (
+                "active" if p == "1" and self.cam.source.led_on() else "inactive"))
             return
         error = self._drive_output(self.query.get("action", ""))
         self.send(200, error or "OK\r\n")
 
     def _io_output(self, method: str) -> None:
         if "check" in self.query:
+            if self.query["check"] != "1":
+                self.send(200, f"# Error: Invalid output '{self.query['check']}'\r\n")
+                return
             self.send(200, f"output1={int(bool(self.cam.source.led_on()))}\r\n")
             return
         error = self._drive_output(self.query.get("action", ""))

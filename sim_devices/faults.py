@@ -94,6 +94,10 @@ class Faults:
     headers at once, then its body one byte every ``trickle_s`` seconds: a sick network stack or
     a throttling proxy. A client that only times each read waits for ever."""
     trickle_s: float = 1.0
+    led_held: bool = False
+    """The LED's output does not follow ``port.cgi``/``output.cgi`` actions: each is answered
+    ``OK`` and the output stays as it was, as when an action rule on the camera holds the port
+    (or the port is wired to something else). The state queries tell the truth."""
     version: int = field(default=0, compare=False, repr=False)
     """Bumped on every change of a fault field; not itself a fault."""
 
@@ -170,7 +174,7 @@ _FIELD_TYPES = {
     "offline_from": "time?", "offline_until": "time?", "lose_p": "probability", "lose_seed": "count",
     "lose_burst_frames": "count", "lose_burst_every_s": "seconds", "clock_jump_s": "signed seconds",
     "clock_jump_at": "time?", "clock_jump_every_s": "period?", "skip_when_late_s": "seconds?",
-    "trickle": "bool", "trickle_s": "seconds",
+    "trickle": "bool", "trickle_s": "seconds", "led_held": "bool",
 }
 
 

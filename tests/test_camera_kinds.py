@@ -162,6 +162,7 @@ def test_replay_recorded_again_is_the_same_recording(sim_session, tmp_path):
     rig = _rig(_replay_entries(folder, speed=6.0))
     cams = open_cameras(rig.cameras)
     assert all(not c.led_switches and "no-op" in c.device_info()["LED"] for c in cams)
+    assert all(c.led_state() is None for c in cams)          # a recording keeps no LED state: not known
     t0 = time.monotonic()
     rec, manifest = _record(cams, tmp_path / "again")       # until the replay ends
     elapsed = time.monotonic() - t0

@@ -6,6 +6,7 @@ import re
 import numpy as np
 import pytest
 
+from vts_hw.cli.demo import console_hint
 from vts_hw.sim_devices.scenarios.demo_days import DAY, FAST_CAMERA, run_demo
 from vts_hw.report import build_drift_report
 from vts_hw.store import ResultsStore
@@ -93,7 +94,7 @@ def test_vts_demo_command_end_to_end_with_a_scan(tmp_path):
     for heading in ("== 1. the cameras", "== 2. the daily QA", "== 3. the 7-sphere step test",
                     "== 5. a scan of 16 s and the sync check", "== 6. a patient scan of 24 s"):
         assert heading in r.stdout
-    assert "vts console" in r.stdout.splitlines()[-1]      # how to see the room live (issue 23)
+    assert r.stdout.rstrip().endswith(console_hint(out))    # how to see the room live (issue 23)
     # the patient: one live alert, the move found near its true start, the pose near the truth
     patient = r.stdout.split("== 6.")[1]
     assert len(re.findall(r"live alert (\d+\.\d+) s after the move started", patient)) == 1
@@ -114,3 +115,29 @@ def test_vts_demo_command_end_to_end_with_a_scan(tmp_path):
     assert "not found" not in r.stdout
     assert (out / "sync-report.html").stat().st_size > 20_000
     assert (out / "trajectories" / "trajectories.csv").exists()
+
+
+def test_the_demo_ends_saying_how_to_open_the_console_on_its_rig_and_store(tmp_path):
+    """(cheap: the lines the demo ends with; the end-to-end test above checks it prints them)"""
+    from click.testing import CliRunner
+
+    from vts_hw.cli import _register, cli
+    _register()                     # the commands, as `vts` registers them
+    hint = console_hint(tmp_path / "demo")
+    lines = hint.splitlines()
+    assert lines[0].startswith("the room console") and "Firefox" in lines[0]
+    # the commands, in order: the simulated rig left running, its passwords, the console on the
+    # rig it wrote with the store the demo fills (run_demo's results.sqlite), the address
+    assert lines[1].split("#")[0].split() == ["vts", "sim", "up", "--dir", str(tmp_path / "demo" / "live"), "--detach"]
+    assert lines[2].split() == ["source", str(tmp_path / "demo" / "live" / "sim.env")]
+    assert lines[3].split() == [f"VTS_STORE={tmp_path / 'demo' / 'results.sqlite'}", "vts", "console", "--config",
+                                str(tmp_path / "demo" / "live" / "rig.yaml")]
+    assert "http://127.0.0.1:8040/" in hint and "vts sim down --dir" in hint
+    # each command and option it names exists as written
+    runner = CliRunner()
+    for args in (["sim", "up", "--help"], ["console", "--help"], ["sim", "down", "--help"]):
+        got = runner.invoke(cli, args)
+        assert got.exit_code == 0, (args, got.output)
+    assert "--detach" in runner.invoke(cli, ["sim", "up", "--help"]).output
+    assert "--config" in runner.invoke(cli, ["console", "--help"]).output
+

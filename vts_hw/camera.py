@@ -142,6 +142,8 @@ class Camera(Protocol):
 
     ``led_switches`` says whether ``led_on``/``led_off`` change what the camera sees (False
     for a replay: the calls are accepted and recorded as no-ops, and ``device_info`` says so).
+    ``led_state()`` reads the LED's state back (None: not known): a switch is only known to
+    have taken when the camera says so.
     """
 
     name: str
@@ -166,6 +168,10 @@ class Camera(Protocol):
     def led_off(self) -> None: ...
 
     def led_pulse(self, ms: int) -> None: ...
+
+    def led_state(self) -> bool | None:
+        """Whether the LED ring's output is on now, read back from the camera (True/False);
+        None where the kind cannot tell (a replay, a camera without an I/O port)."""
 
     def device_info(self) -> dict[str, str]: ...
 

@@ -59,10 +59,22 @@ def demo(out: str, days: int, seconds: float, frames: int, scan_seconds: float, 
     if patient_seconds > 0:
         section(f"a patient scan of {patient_seconds:g} s: breathing, a body move, the live alert")
         _patient(out_dir, patient_seconds)
+    click.echo("\n" + console_hint(out_dir))
+
+
+def console_hint(out_dir: Path) -> str:
+    """How to see the room live in a browser after the demo (the last lines it prints): a
+    simulated rig left running, and `vts console` on it with the demo's results store, so the
+    History page holds the demo's runs."""
     live = out_dir / "live"
-    click.echo(f"\nthe room live in a browser (the room console): vts sim up --dir {live} --detach; "
-               f"source {live / 'sim.env'}; vts console  -- then open the address it prints "
-               f"(Ctrl-C stops it; vts sim down --dir {live})")
+    return "\n".join([
+        "the room console, live in a browser (Chromium or Firefox):",
+        f"  vts sim up --dir {live} --detach      # simulated cameras, left running",
+        f"  source {live / 'sim.env'}",
+        f"  VTS_STORE={out_dir / 'results.sqlite'} vts console --config {live / 'rig.yaml'}",
+        "  then open the address vts console prints (http://127.0.0.1:8040/): Room shows the cameras live,",
+        f"  History the demo's runs and reports; Ctrl-C stops vts console, vts sim down --dir {live} the cameras",
+    ])
 
 
 class _Sections:

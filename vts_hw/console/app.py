@@ -50,6 +50,8 @@ class Console:
         self.open_store = open_store if open_store is not None else getattr(facts, "open_store", None)
         self.hub = hub
         self.markers = markers
+        #: what each marker is (names.MarkerNames): the Scan page names its band markers here
+        self.names = getattr(markers, "names", None)
         self.facts = facts
         #: the page token of a console without users (with users each session has its own)
         self.console_token = token or secrets.token_urlsafe(24)
@@ -157,10 +159,10 @@ def create_app(console: Console) -> Starlette:
         if not isinstance(body, dict) or not isinstance(body.get("on"), bool):
             return JSONResponse({"error": 'the body must be JSON {"on": true} or {"on": false}'}, status_code=400)
         facts = await asyncio.to_thread(console.facts.switch_led, name, body["on"])
-        if not facts["led_error"]:
-            user, role = guard.user_of(console, request)
-            await asyncio.to_thread(lambda: console.actions.record(user, f"LED {'on' if body['on'] else 'off'}",
-                                                                   {"camera": name}, role=role))
+        user, role = guard.user_of(console, request)    # asked, whether it took or not (the camera says)
+        await asyncio.to_thread(lambda: console.actions.record(
+            user, f"LED {'on' if body['on'] else 'off'}",
+            {"camera": name, "took": not facts["led_error"], "read back": facts["led"]}, role=role))
         return JSONResponse(facts, status_code=200 if not facts["led_error"] else 502)
 
     routes = [Route("/", room_page), Route("/api/room", room_json), Route("/frame/{camera}", frame),

@@ -5,14 +5,16 @@ never wait for it): every ``1 / rate_hz`` s it takes the latest frame of each wa
 that it has not yet looked at and runs :func:`vts_hw.vision.detect.detect_jpeg` on it, the same
 detection the procedures use. The page gets the positions in the frame's own pixels, with the
 frame's ``seq``, and draws them over the picture (the JPEG is never decoded for the page or
-re-encoded). A frame that does not decode is said so, never shown as "no markers".
+re-encoded). A frame that does not decode is said so, never shown as "no markers". Each marker
+is named where that is known (a wall marker, a phantom sphere, a band marker: :mod:`.names`),
+with the legend of what named them; otherwise it is "unidentified" and numbered.
 """
 
 from __future__ import annotations
 
 import math
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -32,10 +34,11 @@ class Found:
     height: int
     markers: tuple[dict, ...]
     problem: str = ""
+    legend: tuple[dict, ...] = ()        # what named the markers (names.MarkerNames.label)
 
     def as_dict(self) -> dict:
         return {"camera": self.camera, "seq": self.seq, "width": self.width, "height": self.height,
-                "markers": list(self.markers), "problem": self.problem}
+                "markers": list(self.markers), "problem": self.problem, "legend": list(self.legend)}
 
 
 def find_markers(camera: str, seq: int, jpeg: bytes) -> Found:
@@ -53,10 +56,11 @@ def find_markers(camera: str, seq: int, jpeg: bytes) -> Found:
 
 class MarkerWorker:
     """Detect markers on ``hub``'s watched cameras at ``rate_hz``; :meth:`found` is the latest
-    result of each camera."""
+    result of each camera, its markers named by ``names`` (a :class:`~.names.MarkerNames`)."""
 
-    def __init__(self, hub, rate_hz: float = RATE_HZ):
+    def __init__(self, hub, rate_hz: float = RATE_HZ, names=None):
         self.hub = hub
+        self.names = names
         self.period = 1.0 / float(rate_hz)
         self._found: dict[str, Found] = {}
         self._lock = threading.Lock()
@@ -83,6 +87,9 @@ class MarkerWorker:
                     continue
                 try:
                     got = find_markers(name, latest.seq, latest.frame.jpeg)
+                    if self.names is not None and not got.problem:
+                        marks, legend = self.names.label(name, list(got.markers))
+                        got = replace(got, markers=tuple(marks), legend=tuple(legend))
                 except Exception as exc:     # never let one odd frame stop the markers of every camera
                     got = Found(name, latest.seq, 0, 0, (), f"detection failed: {type(exc).__name__}: {exc}")
                 with self._lock:

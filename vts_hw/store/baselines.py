@@ -13,9 +13,10 @@ from vts_hw.catalog import BASELINE
 from vts_hw.vision.wall_baseline import Baseline, BaselineMarker, NoBaseline
 
 
-def load_baseline(store, camera: str) -> Baseline:
-    """The latest baseline of ``camera``; NoBaseline (one sentence, exit 5) when there is none."""
-    runs = [r for r in store.runs(procedure=BASELINE.stored_as) if r.status == "OK"]
+def load_baseline(store, camera: str, rig: str | None = None) -> Baseline:
+    """The latest baseline of ``camera`` (of rig ``rig`` only, when given: another room's
+    ``cam1`` is another camera); NoBaseline (one sentence, exit 5) when there is none."""
+    runs = [r for r in store.runs(procedure=BASELINE.stored_as) if r.status == "OK" and rig in (None, r.rig)]
     for run in reversed(runs):
         rows = store.measurements(run_id=run.id)
         mine = [m for m in rows if m.subject.startswith(camera + "/")]

@@ -1,11 +1,16 @@
 // The Room page: live pictures (one fetch in flight per camera), markers drawn over them, the room's state.
 // A picture is shown as live only while its camera delivers and the picture is recent; otherwise it is
-// greyed with its age, and a camera that does not answer says NOT ANSWERING.
+// greyed with its age, and a camera that does not answer says NOT ANSWERING. Each marker is labelled as what
+// it is where that is known (wall marker, phantom sphere, band marker), else "unidentified" and numbered,
+// with a legend; the LED state is the one read back from the camera.
 "use strict";
 (function () {
   const token = document.querySelector('meta[name="console-token"]').content;
   const WORDS = { streaming: "LIVE", recording: "RECORDING", idle: "IDLE", off: "OFF",
                   "not answering": "NOT ANSWERING" };
+  const KIND_WORDS = { wall: ["wall marker", "wall markers"], phantom: ["phantom sphere", "phantom spheres"],
+                       band: ["band marker", "band markers"], unidentified: ["unidentified", "unidentified"] };
+  const KIND_ORDER = ["band", "phantom", "wall", "unidentified"];
   const cams = {};
   let skew = 0;               // server clock minus this browser's, s (from each room event)
   let lastEvent = 0;          // Date.now() of the last event from the console
@@ -61,20 +66,53 @@
     svg.dataset.seq = String(f.seq);
     const ns = "http://www.w3.org/2000/svg";
     const size = Math.max(12, f.height / 28);
+    const counts = {};
     for (const m of f.markers) {
+      const kind = m.kind || "unidentified";
+      counts[kind] = (counts[kind] || 0) + 1;
       const circle = document.createElementNS(ns, "circle");
       circle.setAttribute("cx", m.x); circle.setAttribute("cy", m.y);
       circle.setAttribute("r", Math.max(m.d / 2 + 4, 6));
-      circle.dataset.x = m.x; circle.dataset.y = m.y; circle.dataset.n = m.n;
+      circle.setAttribute("class", "k-" + kind);
+      circle.dataset.x = m.x; circle.dataset.y = m.y; circle.dataset.n = m.n; circle.dataset.kind = kind;
       svg.appendChild(circle);
       const label = document.createElementNS(ns, "text");
       label.setAttribute("x", m.x + m.d / 2 + 6); label.setAttribute("y", m.y - m.d / 2 - 4);
       label.setAttribute("font-size", size);
-      label.textContent = String(m.n);
+      label.setAttribute("class", "k-" + kind);
+      label.textContent = kind === "unidentified" ? `? ${m.n}` : (m.name || String(m.n));
       svg.appendChild(label);
     }
     marks.className = "marks";
-    marks.textContent = `${f.markers.length} found (picture ${f.seq})`;
+    const parts = KIND_ORDER.filter((k) => counts[k]).map((k) => `${counts[k]} ${KIND_WORDS[k][counts[k] === 1 ? 0 : 1]}`);
+    marks.textContent = `${f.markers.length} found${parts.length ? ": " + parts.join(", ") : ""} (picture ${f.seq})`;
+    legend(c, f, counts);
+  }
+
+  // -- the legend: what each colour is, and what named the markers ------------------------------------------
+  function legend(c, f, counts) {
+    const ul = c.el.querySelector(".legend");
+    ul.innerHTML = "";
+    const known = {};
+    for (const l of f.legend || []) known[l.kind] = l;
+    for (const kind of KIND_ORDER) {
+      const l = known[kind];
+      if (!l && !counts[kind]) continue;
+      const li = document.createElement("li");
+      li.dataset.kind = kind;
+      const sw = document.createElement("span");
+      sw.className = "swatch k-" + kind;
+      const what = kind === "unidentified" ? "unidentified (numbered): not a known wall marker, sphere or band marker" :
+        `${KIND_WORDS[kind][1]}: ${l.found} of ${l.known} named here, from ${l.source}`;
+      li.append(sw, " " + what);
+      ul.appendChild(li);
+    }
+    if (!ul.firstChild) {
+      const li = document.createElement("li");
+      li.className = "small";
+      li.textContent = "no names known for this camera (no drift baseline, no scan, no phantom located)";
+      ul.appendChild(li);
+    }
   }
 
   // -- live or not: the words and the veil -----------------------------------------------------------------
@@ -106,10 +144,13 @@
       s.doing === "streaming" ? "the console's own stream" : "";
     c.el.dataset.doing = s.doing;
     const led = c.el.querySelector(".led");
-    led.className = "led " + s.led + (s.led_error ? " error" : "");
-    led.textContent = s.led_error ? `unknown: ${s.led_error}` : s.led === "unknown" ?
-      "unknown (not switched from here)" : `${s.led} (switched here ${hhmmss(s.led_at)})`;
+    led.className = "led " + s.led;
+    led.textContent = s.led === "unknown" ? `not known: ${s.led_why || "not read yet"}` :
+      `${s.led.toUpperCase()} (read from the camera ${hhmmss(s.led_at)})`;
     c.el.dataset.led = s.led;
+    const ledErr = c.el.querySelector(".led-error");
+    ledErr.textContent = s.led_error ? `${s.led_error} (${hhmmss(s.led_asked_at)})` : "";
+    c.el.dataset.ledTook = s.led_asked ? (s.led_error ? "no" : "yes") : "";
     const off = c.el.querySelector(".offset");
     if (s.offset_error) { off.className = "offset error"; off.textContent = `not measured: ${s.offset_error}`; }
     else if (s.offset_s === null) { off.className = "offset"; off.textContent = "not measured yet"; }

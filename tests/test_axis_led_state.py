@@ -1,0 +1,168 @@
+"""The LED's state read back from an Axis camera (issue 23: the Room page shows the LED as the
+camera says it, not as it was last switched).
+
+* On the wire, byte for byte: what the driver sends (``GET /axis-cgi/io/port.cgi?checkactive=1``;
+  on VAPIX 2 firmware, after port.cgi's 404, ``GET /axis-cgi/io/output.cgi?check=1``) and how it
+  reads the firmware's replies (``port1=active``/``inactive``, ``output1=1``/``0``), against a
+  plain socket server that answers those exact bytes; a reply of another shape is one sentence.
+* The simulated camera of both profiles (AXIS P1375, current firmware; AXIS 211, firmware 4.47)
+  answers those requests as the firmware does, byte for byte, and the driver reads its LED
+  back through them; its ``led_held`` fault (an action rule holding the output) answers a
+  switch OK and leaves the output as it was, which the state query tells.
+"""
+
+from __future__ import annotations
+
+import socket
+import threading
+
+import pytest
+
+from test_sim_axis_camera import PASSWORD, raw_request, read_head
+from vts_hw.drivers.axis import AxisCamera, BadReply
+from vts_hw.sim_devices.rig import SimRig
+
+pytestmark = pytest.mark.timeout(60)
+
+
+class Wire:
+    """A one-camera HTTP server on 127.0.0.1 that answers each request with the next of
+    ``replies`` (whole HTTP responses, bytes) and keeps every request's bytes."""
+
+    def __init__(self, *replies: bytes):
+        self.replies = list(replies)
+        self.requests: list[bytes] = []
+        self.sock = socket.socket()
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.listen(4)
+        self.url = f"http://127.0.0.1:{self.sock.getsockname()[1]}"
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+        self.thread.start()
+
+    def _serve(self):
+        while self.replies:
+            conn, _ = self.sock.accept()
+            with conn:
+                while self.replies:
+                    data = b""
+                    while b"\r\n\r\n" not in data:
+                        chunk = conn.recv(4096)
+                        if not chunk:
+                            break
+                        data += chunk
+                    if not data:
+                        break
+                    self.requests.append(data)
+                    reply = self.replies.pop(0)
+                    conn.sendall(reply)
+                    if b"Connection: close" in reply:
+                        break
+
+    def close(self):
+        self.sock.close()
+        self.thread.join(5)
+
+
+def reply(body: bytes, status: bytes = b"200 OK", close: bool = False) -> bytes:
+    return (b"HTTP/1.1 " + status + b"\r\nContent-Type: text/plain\r\nContent-Length: " + str(len(body)).encode()
+            + b"\r\n" + (b"Connection: close\r\n" if close else b"") + b"\r\n" + body)
+
+
+def request_line(raw: bytes) -> bytes:
+    return raw.split(b"\r\n", 1)[0]
+
+
+@pytest.mark.parametrize("body, state", [(b"port1=active\r\n", True), (b"port1=inactive\r\n", False)])
+def test_the_driver_asks_port_cgi_checkactive_and_reads_the_reply(body, state):
+    wire = Wire(reply(body))
+    try:
+        cam = AxisCamera("cam1", wire.url, user=None)
+        assert cam.led_state() is state
+        assert request_line(wire.requests[0]) == b"GET /axis-cgi/io/port.cgi?checkactive=1 HTTP/1.1"
+        cam.close()
+    finally:
+        wire.close()
+
+
+def test_vapix2_firmware_is_asked_through_output_cgi_check():
+    not_found = reply(b"<HTML><BODY><H1>404 Not Found</H1></BODY></HTML>\r\n", b"404 Not Found", close=True)
+    wire = Wire(not_found, reply(b"output1=0\r\n", close=True), reply(b"output1=1\r\n", close=True))
+    try:
+        cam = AxisCamera("cam1", wire.url, user=None, led_port=1)
+        assert cam.led_state() is False
+        assert cam.led_state() is True          # remembered: output.cgi straight away
+        assert [request_line(r) for r in wire.requests] == [
+            b"GET /axis-cgi/io/port.cgi?checkactive=1 HTTP/1.1",
+            b"GET /axis-cgi/io/output.cgi?check=1 HTTP/1.1",
+            b"GET /axis-cgi/io/output.cgi?check=1 HTTP/1.1"]
+        cam.close()
+    finally:
+        wire.close()
+
+
+@pytest.mark.parametrize("body", [b"port2=active\r\n", b"port1=maybe\r\n", b"", b"OK\r\n"])
+def test_a_reply_of_another_shape_is_one_sentence(body):
+    wire = Wire(reply(body))
+    try:
+        cam = AxisCamera("cam1", wire.url, user=None)
+        with pytest.raises(BadReply) as err:
+            cam.led_state()
+        assert str(err.value).startswith("camera cam1: port.cgi answered ") and "output port 1" in str(err.value)
+        assert "\n" not in str(err.value)
+        cam.close()
+    finally:
+        wire.close()
+
+
+def test_a_refusal_of_the_query_is_one_sentence():
+    wire = Wire(reply(b"# Error: Invalid port '3'\r\n"))
+    try:
+        cam = AxisCamera("cam1", wire.url, user=None, led_port=3)
+        with pytest.raises(BadReply, match=r"^camera cam1 refused /axis-cgi/io/port.cgi: Invalid port '3'$"):
+            cam.led_state()
+        cam.close()
+    finally:
+        wire.close()
+
+
+def _body(server, path):
+    with raw_request(server, path) as (_, reader):
+        status, headers = read_head(reader)
+        return status, headers, reader.read(int(headers["content-length"]))
+
+
+def test_the_simulated_p1375_answers_the_state_as_the_firmware_and_the_driver_reads_it_back():
+    with SimRig(n_cameras=1, seed=2, password=PASSWORD) as rig, rig.env():
+        server = rig.servers["cam1"]
+        with AxisCamera.from_config(rig.config().camera("cam1")) as cam:
+            cam.led_off()
+            assert cam.led_state() is False
+            assert _body(server, "/axis-cgi/io/port.cgi?checkactive=1")[::2] == (b"HTTP/1.1 200 OK\r\n",
+                                                                               b"port1=inactive\r\n")
+            cam.led_on()
+            assert cam.led_state() is True
+            assert _body(server, "/axis-cgi/io/port.cgi?checkactive=1")[2] == b"port1=active\r\n"
+            # both ports at once (port 2 is the input), and a port the camera does not have
+            assert _body(server, "/axis-cgi/io/port.cgi?checkactive=1,2")[2] == b"port1=active\r\nport2=inactive\r\n"
+            assert _body(server, "/axis-cgi/io/port.cgi?checkactive=7")[2] == b"# Error: Invalid port '7'\r\n"
+            # an action rule holds the output: the switch is answered OK, and the state says it did not take
+            server.faults.led_held = True
+            cam.led_off()
+            assert rig.sources["cam1"].led_on() and cam.led_state() is True
+            server.faults.led_held = False
+            cam.led_off()
+            assert cam.led_state() is False
+
+
+def test_the_simulated_axis_211_answers_output_cgi_check_and_the_driver_reads_it_back():
+    with SimRig(n_cameras=1, seed=2, firmware="vapix2", password=PASSWORD) as rig, rig.env():
+        server = rig.servers["cam1"]
+        with AxisCamera.from_config(rig.config().camera("cam1")) as cam:
+            cam.led_on()
+            assert cam.led_state() is True
+            status, headers, body = _body(server, "/axis-cgi/io/output.cgi?check=1")
+            assert (status, body) == (b"HTTP/1.0 200 OK\r\n", b"output1=1\r\n")
+            cam.led_off()
+            assert cam.led_state() is False and not rig.sources["cam1"].led_on()
+            assert _body(server, "/axis-cgi/io/output.cgi?check=2")[2] == b"# Error: Invalid output '2'\r\n"
+            assert _body(server, "/axis-cgi/io/port.cgi?checkactive=1")[0] == b"HTTP/1.0 404 Not Found\r\n"

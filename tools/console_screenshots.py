@@ -1,0 +1,126 @@
+"""Screenshots of the console's pages at 1366 x 768 in Debian's Chromium, into docs/console/.
+
+    .venv/bin/python tools/console_screenshots.py [--out DIR] [--only FILE ...]
+
+One stage for every page: two simulated Axis cameras on 127.0.0.1 (their LED rings on, each
+camera's drift baseline in the store so its wall markers are named), a temporary results store
+filled as tests/history_store.py fills it (the History page's runs), and the console's app
+served in this process (tests/console_live.py: the objects `vts console` builds). Then each
+row of ``SHOTS`` is photographed: its page (a path, or a function of the stage giving it),
+once the page says it is ready (a JavaScript expression), after its own setup if it has one.
+
+A new page adds a row: ``Shot(path, file, ready=..., setup=...)``. Run by hand when a page
+changes; no test writes into docs/.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Union
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+
+
+@dataclass
+class Stage:
+    """What the pages are shown on: the simulated rig, the console in this process, the store's ids."""
+
+    rig: object
+    live: object
+    ids: dict
+
+
+@dataclass(frozen=True)
+class Shot:
+    path: Union[str, Callable[[Stage], str]]          # the page, from the console's root
+    file: str                                          # in the output folder
+    ready: str = "true"                                # a JS expression: true once the page shows what it should
+    setup: Callable[[Stage], None] | None = None      # done before the page is opened
+
+
+ROOM_READY = ("[...document.querySelectorAll('section.camera')].every(s => s.dataset.live === 'yes'"
+              " && s.querySelectorAll('svg circle').length >= 3 && s.dataset.led === 'on'"
+              " && s.querySelector('.offset').textContent.includes('ms'))")
+
+SHOTS: list[Shot] = [
+    Shot("/", "room.png", ROOM_READY),
+    Shot("/history", "history.png", "document.querySelectorAll('table.runs tbody tr').length > 0"),
+    Shot(lambda st: f"/history/run/{st.ids['sync']}", "history-run.png",
+         "(() => { const i = document.querySelector('img.plot'); return i && i.complete && i.naturalWidth > 0; })()"),
+]
+
+
+def stage(folder: Path):
+    """The stage (a context manager yielding a Stage)."""
+    import contextlib
+
+    from console_live import LiveConsole
+    from history_store import fill
+    from vts_hw.drivers.registry import open_camera
+    from vts_hw.procedures.baseline import take_baselines
+    from vts_hw.sim_devices.rig import SimRig
+    from vts_hw.store import ResultsStore
+    from vts_hw.store.recorder import record
+
+    @contextlib.contextmanager
+    def made():
+        db = folder / "results.sqlite"
+        ids = fill(db, folder)
+        with SimRig(n_cameras=2, seed=5) as rig, rig.env():
+            cams = {c.name: open_camera(c) for c in rig.config().cameras}
+            try:
+                with ResultsStore(db) as store:       # each camera's wall markers (the LED is left on)
+                    record(store, take_baselines(list(cams.values()), frames=2), rig="sim", operator="screenshots")
+                with LiveConsole(cams, "sim", lambda: ResultsStore(db, mode="read")) as live:
+                    yield Stage(rig, live, ids)
+            finally:
+                for c in cams.values():
+                    c.close()
+
+    return made()
+
+
+def main(argv=None) -> int:
+    from playwright.sync_api import sync_playwright
+
+    from test_console import ARGS, CHROMIUM
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", type=Path, default=ROOT / "docs" / "console", help="where the PNGs go")
+    ap.add_argument("--only", nargs="*", default=None, help="only these files (e.g. room.png)")
+    ap.add_argument("--timeout", type=float, default=60.0, help="seconds a page may take to be ready")
+    a = ap.parse_args(argv)
+    shots = [s for s in SHOTS if a.only is None or s.file in a.only]
+    unknown = sorted(set(a.only or ()) - {s.file for s in SHOTS})
+    if unknown:
+        print(f"console_screenshots: no page makes {', '.join(unknown)} (known: "
+              f"{', '.join(s.file for s in SHOTS)})", file=sys.stderr)
+        return 2
+    a.out.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="vts-console-shots-") as tmp, stage(Path(tmp)) as st, \
+            sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        try:
+            for shot in shots:
+                if shot.setup is not None:
+                    shot.setup(st)
+                path = shot.path(st) if callable(shot.path) else shot.path
+                page = browser.new_page(viewport={"width": 1366, "height": 768})
+                page.goto(st.live.url.rstrip("/") + path)
+                page.wait_for_function(shot.ready, timeout=a.timeout * 1000)
+                page.wait_for_timeout(500)            # the next picture and its markers drawn
+                page.screenshot(path=str(a.out / shot.file))
+                page.close()
+                print(f"wrote {a.out / shot.file} ({path})")
+        finally:
+            browser.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
