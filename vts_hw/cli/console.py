@@ -40,8 +40,9 @@ def console(ctx: click.Context, config_path: str | None, host: str, port: int, l
             keyfile: str | None, behind_proxy: bool, session_idle: float | None, session_max: float | None) -> None:
     """Serve the room console: a web page of the room's cameras, live.
 
-    The Room page shows every camera's live picture with the markers found on it (numbered),
-    what the camera is doing (LIVE, RECORDING, IDLE, NOT ANSWERING), its LED ring with a
+    The Room page shows every camera's live picture with the markers found on it (named where
+    known: wall markers from the drift baseline, the scan's band markers; else numbered), what
+    the camera is doing (LIVE, RECORDING, IDLE, NOT ANSWERING), its LED ring with a
     switch, its clock offset and its latest daily QA from the results store. A picture that is
     not live is greyed with its age. The console opens a camera's stream only while a page
     watches it, one stream per camera whatever the number of pages, and never a second one to

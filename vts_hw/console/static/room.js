@@ -175,8 +175,17 @@
     fetch(`/camera/${encodeURIComponent(name)}/led`, {
       method: "POST", headers: { "Content-Type": "application/json", "X-Console-Token": token },
       body: JSON.stringify({ on }) })
-      .then((r) => r.json())
-      .then((s) => { const c = cams[name]; showState(c, { ...c.status, ...s }); });
+      .then((r) => r.json().catch(() => ({ error: `the console answered ${r.status}` })))
+      .then((s) => {
+        const c = cams[name];
+        if (s.led === undefined) {        // refused (no session, a role too low, another site): say so
+          c.el.querySelector(".led-error").textContent = s.error || "the switch was refused";
+          c.el.dataset.ledTook = "no";
+          return;
+        }
+        showState(c, { ...c.status, ...s });
+      })
+      .catch(() => { cams[name].el.querySelector(".led-error").textContent = "the console did not answer"; });
   }
 
   // -- the events -------------------------------------------------------------------------------------------
