@@ -97,7 +97,12 @@ def test_vts_demo_command_end_to_end_with_a_scan(tmp_path):
     assert r.stdout.rstrip().endswith(console_hint(out))    # how to see the room live (issue 23)
     # the patient: one live alert, the move found near its true start, the pose near the truth
     patient = r.stdout.split("== 6.")[1]
-    assert len(re.findall(r"live alert (\d+\.\d+) s after the move started", patient)) == 1
+    # one live alert; or, on a machine so busy that the live path fell behind its frames during the
+    # move, none with the NOT TRACKING it said live (issue 20) -- never a silent or unexplained miss
+    alerts = re.findall(r"live alert (\d+\.\d+) s after the move started", patient)
+    assert len(alerts) == 1 or (not alerts and re.search(r"^  no live alert: NOT TRACKING for .*said so live$",
+                                                         patient, re.M)), patient
+    assert "NO LIVE ALERT" not in patient
     start_ms = re.search(r"found by the analysis: start ([+-]\d+) ms off the truth", patient)
     assert start_ms and abs(int(start_ms.group(1))) < 500, patient
     pose = re.search(r"RMS (\d+\.\d+) mm, (\d+\.\d+) deg", patient)
@@ -141,3 +146,18 @@ def test_the_demo_ends_saying_how_to_open_the_console_on_its_rig_and_store(tmp_p
     assert "--detach" in runner.invoke(cli, ["sim", "up", "--help"]).output
     assert "--config" in runner.invoke(cli, ["console", "--help"]).output
 
+
+
+def test_a_demo_move_without_a_live_alert_says_why():
+    """What the demo's patient step prints when there was no live alert: off, no reference, NOT
+    TRACKING while the alert was due (a busy machine), or nothing -- a real miss, said as one."""
+    from vts_hw.sim_devices.scenarios.demo_patient import unwatched_move
+
+    on = {"status": "on", "alert_after_s": 1.0, "summary": {"phase": "tracking"}}
+    assert "off (no camera calibration)" in unwatched_move({"status": "off", "off_reason": "no camera calibration"}, 10)
+    assert "never learned its reference" in unwatched_move({**on, "summary": {"phase": "reference"}}, 10)
+    late = {**on, "not_tracking": [{"start": 10.4, "end": 13.0, "reasons": ["frames too late (0.9 s)"]}]}
+    why = unwatched_move(late, 10.0)
+    assert why.startswith("NOT TRACKING for 1.1 s of the 1.5 s") and "frames too late (0.9 s)" in why
+    before = {**on, "not_tracking": [{"start": 5.0, "end": 9.0, "reasons": ["camera lost: cam2"]}]}
+    assert unwatched_move(before, 10.0) == "" and unwatched_move(on, 10.0) == ""

@@ -42,6 +42,7 @@ class DemoPatientScan:
     rate_per_min: tuple[float, float]       # breathing rate: measured, true
     pose_error: tuple[float, float]         # body 6-DOF RMS in still frames: mm, deg
     notes: tuple[str, ...] = ()             # what degraded the recording, in plain words (none: whole)
+    no_alert_why: str = ""       # with no live alert: why, from the manifest ("" : the live path watched and raised none)
 
 
 def demo_patient_scan(out_dir, seconds: float = 30.0, *, say: Callable[[str], None] = lambda m: None
@@ -138,7 +139,28 @@ def _score(run, data, session, report, export, notes=()) -> DemoPatientScan:
     true_rate = float(np.mean([60.0 / c.period_s for c in true_cycles])) if true_cycles else float("nan")
     rate = data["summary"].get("breathing_rate_per_min") or float("nan")
     return DemoPatientScan(session, report, export, data, move, found, alerts, (float(rate), true_rate),
-                           _pose_error(export / "motion_6dof.csv", spect, patient, m), notes)
+                           _pose_error(export / "motion_6dof.csv", spect, patient, m), notes,
+                           "" if alerts else unwatched_move(manifest.get("live_motion") or {}, m.t_start))
+
+
+def unwatched_move(lm: dict, t_start: float) -> str:
+    """Why the live path could not alert for a move starting at host ``t_start``, from the
+    manifest's ``live_motion``: off, no reference, or NOT TRACKING between the move's start and
+    the moment its alert was due (``alert_after_s`` + 0.5 s later). "" when it was tracking then
+    (a live alert missed: the figure that matters)."""
+    if lm.get("status") != "on":
+        return f"the live tracking was off ({lm.get('off_reason') or 'no reason given'})"
+    summ = lm.get("summary") or {}
+    if summ.get("phase") != "tracking":
+        return f"the live tracking never learned its reference ({summ.get('reference') or summ.get('note') or ''})"
+    due = t_start + float(lm.get("alert_after_s", 1.0)) + 0.5
+    blind = [e for e in lm.get("not_tracking", []) if e["start"] < due and e["end"] > t_start]
+    if blind:
+        secs = sum(min(e["end"], due) - max(e["start"], t_start) for e in blind)
+        reasons = sorted({r for e in blind for r in e.get("reasons", [])})
+        return (f"NOT TRACKING for {secs:.1f} s of the {due - t_start:.1f} s its alert was due in "
+                f"({'; '.join(reasons)}), and said so live")
+    return ""
 
 
 def _pose_error(path: Path, spect, patient, move) -> tuple[float, float]:

@@ -203,7 +203,8 @@ def _patient(out_dir: Path, seconds: float) -> None:
     for a in res.alerts:
         click.echo(f"  live alert {a['delay_s']:.2f} s after the move started: {a['text']}")
     if not res.alerts:
-        click.echo("  no live alert")
+        click.echo(f"  no live alert: {res.no_alert_why}" if res.no_alert_why else
+                   "  NO LIVE ALERT for the move although the live tracking was watching: a missed alert")
     if res.found:
         f = res.found
         click.echo(f"  found by the analysis: start {f['start_error_s'] * 1e3:+.0f} ms off the truth, 6-DOF change off "
