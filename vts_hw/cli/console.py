@@ -15,7 +15,10 @@ from vts_hw.cli.common import config_option
                    "console needs users and login, which are not built yet (refused, exit 2).")
 @click.option("--port", type=click.IntRange(0, 65535), default=8040, show_default=True,
               help="Port to serve on (0: any free one; the address is printed).")
-def console(config_path: str | None, host: str, port: int) -> None:
+@click.option("--scans-dir", type=click.Path(file_okay=False), default=".", show_default=True,
+              help="Folder the Scan page's scans go into, each a new scan-YYYYmmddTHHMMSSZ folder as `vts scan "
+                   "start` names it; the motion report and exports go into the scan's folder.")
+def console(config_path: str | None, host: str, port: int, scans_dir: str) -> None:
     """Serve the room console: a web page of the room's cameras, live.
 
     The Room page shows every camera's live picture with the markers found on it (numbered),
@@ -39,6 +42,6 @@ def console(config_path: str | None, host: str, port: int) -> None:
     def open_store():
         return ResultsStore(target, mode="read")
 
-    serve(rig, host=host, port=port, open_store=open_store,
+    serve(rig, host=host, port=port, open_store=open_store, scans_dir=scans_dir,
           on_ready=lambda url: click.echo(f"room console of rig {rig.rig}: open {url} (Ctrl-C stops it)"))
     click.echo("room console stopped")

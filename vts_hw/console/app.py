@@ -66,6 +66,7 @@ def _sse(event: str, data) -> bytes:
 
 def create_app(console: Console) -> Starlette:
     from vts_hw.console.history import history_routes
+    from vts_hw.console.scan_page import scan_routes
 
     templates = Jinja2Templates(directory=str(HERE / "templates"))
 
@@ -152,6 +153,7 @@ def create_app(console: Console) -> Starlette:
     routes = [Route("/", room_page), Route("/api/room", room_json), Route("/frame/{camera}", frame),
               Route("/events", events), Route("/camera/{camera}/led", led, methods=["POST"]),
               *history_routes(console, templates),     # each page a module of its own (history.py)
+              *scan_routes(console, templates),
               Mount("/static", StaticFiles(directory=str(HERE / "static")), name="static")]
     return Starlette(routes=routes)
 

@@ -67,10 +67,11 @@ def url_of(host: str, port: int) -> str:
 
 
 def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, on_ready=None,
-          idle_close_s: float | None = None, marker_hz: float | None = None) -> None:
+          idle_close_s: float | None = None, marker_hz: float | None = None, scans_dir=None) -> None:
     """Serve the console of ``rig`` (a RigConfig) on ``host:port`` until Ctrl-C (or SIGTERM),
     then close every stream and camera and return. ``open_store()`` gives the results store
-    (None: the page says there is none); ``on_ready(url)`` is told once it listens."""
+    (None: the page says there is none); ``on_ready(url)`` is told once it listens; ``scans_dir``:
+    the folder the Scan page's scans go into (default: the working directory, as `vts scan start`)."""
     import uvicorn
 
     from vts_hw.console.app import Console, create_app
@@ -86,6 +87,7 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, on
     markers = MarkerWorker(hub, RATE_HZ if marker_hz is None else marker_hz)
     facts = RoomFacts(cameras, rig.rig, open_store)
     console = Console(rig.rig, hub, markers, facts, open_store=open_store)
+    console.rig, console.scans_dir = rig, scans_dir      # the Scan page's (scan_page.py)
     stop_facts = threading.Event()
 
     def keep_facts():
