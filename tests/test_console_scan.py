@@ -79,6 +79,13 @@ def start(page, duration=None):
     assert until(lambda: attr(page, "#scan", "data-phase") == "running", 60), page.inner_text("#message")
 
 
+def post(page, path, body):
+    """A POST from the page (its token), as its buttons make them: [status, error]."""
+    return page.evaluate("""([path, body]) => fetch(path, {method: "POST", body: JSON.stringify(body),
+        headers: {"Content-Type": "application/json", "X-Console-Token": document.getElementById("scan").dataset.token}})
+        .then(r => r.json().then(d => [r.status, d.error]))""", [path, body])
+
+
 def trace_rate(page, band=1):
     """The breathing rate of the trace drawn on the page (its polylines: x s, y -mm)."""
     pts = page.eval_on_selector_all(f'.band[data-band="{band}"] svg polyline',
@@ -157,6 +164,12 @@ def test_a_camera_switched_off_is_not_tracking_and_the_scan_partial(desk, page):
     rig.prerender(16.0)
     start(page)
     assert until(lambda: attr(page, "#status", "data-status") == "TRACKING", 30)
+    # while it runs: a second start, a bad reference, an alert that does not exist: one sentence each
+    assert post(page, "/scan/start", {}) == [409, "a scan is already running (" + attr(page, "#scan", "data-folder")
+                                             + "): stop it first"]
+    assert post(page, "/scan/start", {"reference_s": "ten"})[0] == 400
+    assert post(page, "/scan/alert/99/ack", {}) == [404, "no alert '99' in this scan"]
+    assert post(page, "/scan/analyse", {}) == [409, "no finished scan to analyse"]
     rig.servers["cam2"].go_offline(5.0)
     seen = []
 

@@ -251,7 +251,7 @@
 
   function show(s) {
     last = s;
-    root.dataset.phase = s.phase;
+    root.dataset.phase = s.phase; root.dataset.folder = s.folder || "";
     const ph = $("phase");
     ph.className = "phase ph-" + s.phase;
     ph.textContent = (PHASES[s.phase] || s.phase) + (s.folder ? ` ${s.folder}` : "") +
