@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import asyncio
 import json
+import threading
+import time
 from pathlib import Path
 
 from starlette.requests import Request
@@ -33,7 +35,7 @@ from vts_hw.console.scan_analysis import MotionJob
 from vts_hw.console.scan_run import ScanRun
 
 STATE_EVERY_S = 0.25
-TICK_S = 0.02            # how often the event stream looks for alerts and frames
+TICK_S = 0.02            # how often an event stream looks for alerts, frames and a new view
 KEEPALIVE_S = 15.0
 MAX_REFERENCE_S = 120.0
 
@@ -46,6 +48,23 @@ class ScanDesk:
         self.console, self.rig, self.scans = console, rig, Path(scans)
         self.run: ScanRun | None = None
         self.job: MotionJob | None = None
+        # the view, made once for every viewer by a thread of its own (never on the event loop,
+        # which then only copies bytes: an alert or a frame is never behind a slow view)
+        self.published: tuple[int, bytes] = (0, b"")
+        self.viewers = 0
+        threading.Thread(target=self._publish, name="console-scan-view", daemon=True).start()
+
+    def _publish(self) -> None:
+        n = 0
+        while True:
+            if self.viewers > 0:
+                try:
+                    data = _sse("scan", self.view())
+                except Exception as exc:      # said on the page; the publisher goes on
+                    data = _sse("scan", {"phase": "failed", "error": f"the page's view failed: {exc}"})
+                n += 1
+                self.published = (n, data)
+            time.sleep(STATE_EVERY_S)
 
     def busy(self) -> bool:
         return self.run is not None and self.run.phase in ("starting", "running", "stopping")
@@ -130,32 +149,38 @@ def scan_routes(console, templates):
     async def events(request: Request):
         async def stream():
             loop = asyncio.get_running_loop()
-            next_state = last_sent = 0.0
-            sent_alerts, sent_seq = -1, {n: None for n in console.hub.names}
-            yield b"retry: 2000\n\n"
-            while not console.closing.is_set() and desk is not None:
-                now = loop.time()
-                out = []
-                run = desk.run
-                if run is not None and len(run.alerts) != sent_alerts:
-                    sent_alerts = len(run.alerts)
-                    for a in run.alerts[-3:]:
-                        out.append(_sse("alert", a))
-                if now >= next_state:
-                    next_state = now + STATE_EVERY_S
-                    out.append(_sse("scan", await asyncio.to_thread(desk.view)))
-                for n in console.hub.names:
-                    lt = console.hub.latest(n)
-                    if lt is not None and lt.seq != sent_seq[n] and console.hub.status(n)["source"] == "fed":
-                        sent_seq[n] = lt.seq
-                        out.append(_sse("frame", {"camera": n, "seq": lt.seq, "arrival": lt.arrival}))
-                if not out and now - last_sent > KEEPALIVE_S:
-                    out.append(b": keep-alive\n\n")
-                if out:
-                    last_sent = now
-                    yield b"".join(out)
-                await asyncio.sleep(TICK_S)
+            last_sent = 0.0
+            sent_alerts, sent_view, sent_seq = -1, -1, {n: None for n in console.hub.names}
+            desk.viewers += 1
+            try:
+                yield b"retry: 2000\n\n"
+                while not console.closing.is_set():
+                    now = loop.time()
+                    out = []
+                    run = desk.run
+                    if run is not None and len(run.alerts) != sent_alerts:
+                        sent_alerts = len(run.alerts)
+                        out.extend(_sse("alert", a) for a in run.alerts[-3:])
+                    n, data = desk.published
+                    if n != sent_view and data:
+                        sent_view = n
+                        out.append(data)
+                    for name in console.hub.names:
+                        lt = console.hub.latest(name)
+                        if lt is not None and lt.seq != sent_seq[name] and console.hub.status(name)["source"] == "fed":
+                            sent_seq[name] = lt.seq
+                            out.append(_sse("frame", {"camera": name, "seq": lt.seq, "arrival": lt.arrival}))
+                    if not out and now - last_sent > KEEPALIVE_S:
+                        out.append(b": keep-alive\n\n")
+                    if out:
+                        last_sent = now
+                        yield b"".join(out)
+                    await asyncio.sleep(TICK_S)
+            finally:
+                desk.viewers -= 1
 
+        if desk is None:
+            return no_desk()
         return StreamingResponse(stream(), media_type="text/event-stream",
                                  headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"})
 

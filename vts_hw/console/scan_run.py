@@ -155,7 +155,7 @@ class ScanRun:
     def _alert(self, text: str) -> None:
         """LiveMotion's ``on_alert_text`` (its own thread): kept until acknowledged."""
         with self._lock:
-            alert = {"id": len(self.alerts) + 1, "kind": "not tracking" if "NOT TRACKED" in text else "motion",
+            alert = {"id": len(self.alerts) + 1, "scan": self.folder.name, "kind": "not tracking" if "NOT TRACKED" in text else "motion",
                      "text": text, "raised": self.clock(), "acked_by": None, "acked_at": None}
             self.alerts.append(alert)
 
@@ -190,8 +190,7 @@ class ScanRun:
 
     # -- what the page shows --------------------------------------------------------------------------
     def view(self) -> dict:
-        s = self.session
-        st = s.status() if s is not None and self.phase == "running" else self._status
+        st = self._status          # the session's status as of its last tick (status() is not for two threads)
         cams = [] if st is None else [{"name": c.name, "frames": c.frames, "fps": round(c.fps, 1),
                                        "dropped": c.dropped, "reconnects": c.reconnects, "state": c.state}
                                       for c in st.cameras]

@@ -57,6 +57,7 @@
     const box = $("alerts");
     let fresh = false;
     for (const a of alerts) {
+      if (box.dataset.scan !== a.scan) { box.innerHTML = ""; box.dataset.scan = a.scan; }   // a new scan's alerts
       let el = box.querySelector(`.alert[data-alert="${a.id}"]`);
       if (!el) {
         el = document.createElement("div");
@@ -85,9 +86,12 @@
     cams[el.dataset.camera] = { name: el.dataset.camera, el, img: el.querySelector("img"), pic: el.querySelector(".pic"),
                                 want: null, shown: null, arrival: null, busy: false, url: null };
   });
+  const PICTURE_EVERY_MS = 200;   // at most 5 pictures a second per camera: a thumbnail, not the Room's view
   function pump(c) {
     if (c.busy || c.want === null || c.want === c.shown) return;
-    c.busy = true;
+    const wait = PICTURE_EVERY_MS - (Date.now() - (c.fetched || 0));
+    if (wait > 0) { if (!c.timer) c.timer = setTimeout(() => { c.timer = null; pump(c); }, wait); return; }
+    c.busy = true; c.fetched = Date.now();
     fetch(`/frame/${encodeURIComponent(c.name)}`, { cache: "no-store" })
       .then((r) => {
         if (!r.ok) throw new Error(`HTTP ${r.status}`);
@@ -259,6 +263,7 @@
     const busy = ["starting", "running", "stopping"].includes(s.phase);
     $("start").disabled = busy; $("stop").disabled = !busy;
     if (s.error) $("message").textContent = s.error;
+    if (s.folder && $("alerts").dataset.scan !== s.folder) { $("alerts").innerHTML = ""; $("alerts").dataset.scan = s.folder; }
     showStatus(s); showSix(s); showBands(s); showCams(s); showAlerts(s.alerts || []); showAfter(s);
     $("steps").innerHTML = ""; $("notes").innerHTML = "";
     for (const [n, t] of s.steps || []) { const li = document.createElement("li"); li.textContent = `${n}: ${t}`; $("steps").appendChild(li); }
