@@ -97,12 +97,17 @@ class ScanSession:
     ``cameras`` are the rig's cameras, opened by the caller (``drivers.registry.open_cameras``);
     the session checks, records and closes them. ``duration`` counts from the fire; None runs
     until :meth:`request_stop` or Ctrl-C. ``on_step(name, text)`` is told as each step is done.
+    ``on_frame(camera, frame)`` is told of each frame once written, after the live path.
     """
 
     def __init__(self, rig: RigConfig, folder: str | Path, cameras: list[Camera], *, duration: float | None = None,
                  clock=time.time, first_frame_timeout: float = FIRST_FRAME_TIMEOUT_S,
-                 on_step: Callable[[str, str], None] | None = None, live=None):
+                 on_step: Callable[[str, str], None] | None = None, live=None,
+                 on_frame: Callable[[str, object], None] | None = None):
         self.rig = rig
+        # on_frame(camera, frame): told of each recorded frame after the live path's tap (the room
+        # console's frames hub: it must return at once and is never a reason to lose a frame)
+        self.on_frame = on_frame
         # live: the live motion path (procedures/scan_live.py LiveMotion), or None: records only
         self.live = live
         self.live_error = ""
@@ -274,8 +279,7 @@ class ScanSession:
         self.phase = "recording"
         self._live_call("prepare")
         self.recorder = Recorder(self.cameras, self.folder, seconds=None, meta=meta,
-                                 max_backoff=RECONNECT_BACKOFF_MAX_S,
-                                 on_frame=None if self.live is None else self.live.on_frame)
+                                 max_backoff=RECONNECT_BACKOFF_MAX_S, on_frame=self._frame_hook())
         self.times["recording_started"] = self.recorder.recording.started
         self.trigger.attach_log(self.folder / "trigger.csv")
         self._live_call("start")
@@ -430,7 +434,22 @@ class ScanSession:
             if step != "stop":
                 self.live = None
                 if self.recorder is not None:
-                    self.recorder.on_frame = None
+                    self.recorder.on_frame = self._frame_hook()
+
+    def _frame_hook(self) -> Callable[[str, object], None] | None:
+        """The recorder's ``on_frame``: the live path's tap, then :attr:`on_frame` (even when the
+        tap raised: the recorder counts that and goes on)."""
+        live = None if self.live is None else self.live.on_frame
+        extra = self.on_frame
+        if live is None or extra is None:
+            return live or extra
+
+        def both(camera: str, frame) -> None:
+            try:
+                live(camera, frame)
+            finally:
+                extra(camera, frame)
+        return both
 
     def update_manifest(self, change: Callable[[dict], None]) -> dict | None:
         """``change(meta)`` on the manifest's top level, then the manifest rewritten whole

@@ -35,9 +35,13 @@ from vts_hw.errors import UsageError
                    "[default: 900, 15 min].")
 @click.option("--session-max", type=PositiveSeconds(), default=None,
               help="End every session this many seconds after its login [default: 43200, 12 h].")
+@click.option("--scans-dir", type=click.Path(file_okay=False), default=".", show_default=True,
+              help="Folder the Scan page's scans go into, each a new scan-YYYYmmddTHHMMSSZ folder as `vts scan "
+                   "start` names it; the motion report and exports go into the scan's folder.")
 @click.pass_context
 def console(ctx: click.Context, config_path: str | None, host: str, port: int, login: bool, certfile: str | None,
-            keyfile: str | None, behind_proxy: bool, session_idle: float | None, session_max: float | None) -> None:
+            keyfile: str | None, behind_proxy: bool, session_idle: float | None, session_max: float | None,
+            scans_dir: str) -> None:
     """Serve the room console: a web page of the room's cameras, live.
 
     The Room page shows every camera's live picture with the markers found on it (named where
@@ -77,7 +81,7 @@ def console(ctx: click.Context, config_path: str | None, host: str, port: int, l
 
     serve(rig, host=host, port=port, open_store=open_store, open_write_store=open_write_store, login=login,
           behind_proxy=behind_proxy, certfile=certfile, keyfile=keyfile, session_idle_s=session_idle,
-          session_max_s=session_max,
+          session_max_s=session_max, scans_dir=scans_dir,
           on_ready=lambda url: click.echo(f"room console of rig {rig.rig}: open {url} (Ctrl-C stops it)"))
     click.echo("room console stopped")
 

@@ -103,16 +103,11 @@ def start(out: str | None, duration: float | None, dry_run: bool, live: bool, re
         echo_json(manifest)
     else:
         _summary(folder, manifest)
-    if session.recorder is not None and session.recorder.write_failure is not None:
-        click.echo(f"vts: {session.recorder.write_failure}", err=True)
-        sys.exit(session.recorder.write_failure.exit_code)
-    if manifest and manifest.get("status") != "complete":
-        click.echo(f"vts: the session in {folder} is {manifest.get('status')}: see the problems above", err=True)
-        sys.exit(4)
-    problem = (manifest or {}).get("scan", {}).get("live_problem")
-    if problem:
-        click.echo(f"vts: the session in {folder} recorded every camera, but {problem}", err=True)
-        sys.exit(4)
+    from vts_hw.procedures.scan_summary import verdict
+    last, code = verdict(folder, manifest, session.recorder.write_failure if session.recorder is not None else None)
+    if code:
+        click.echo(f"vts: {last}", err=True)
+        sys.exit(code)
 
 
 # -- live status -------------------------------------------------------------------------------------
@@ -188,51 +183,9 @@ def _trigger_text(tr: dict) -> str:
 
 
 def _summary(folder: Path, m: dict) -> None:
-    if not m:
-        click.echo(f"{folder}: nothing recorded")
-        return
-    scan = m.get("scan", {})
-    click.echo(f"{folder}: status {m['status']} (stopped: {scan.get('stop_reason')})")
-    for name, c in m["cameras"].items():
-        before = (c.get("clock_offset_before") or {}).get("offset_s")
-        after = (c.get("clock_offset_after") or {}).get("offset_s")
-        clock = (f", clock {before:+.3f} s -> {after:+.3f} s" if before is not None and after is not None else "")
-        click.echo(f"  {name}: {c['frames']} frames, {c['dropped_frames']} dropped in {len(c['gaps'])} gap(s), "
-                   f"{c.get('reconnects', 0)} reconnect(s){clock}")
-    tr = m.get("trigger", {})
-    if tr.get("backend") == "none":
-        click.echo("  trigger: none (recording only)")
-    else:
-        fired = f"fired at {fmt_time(tr.get('fire_time'))} ({tr.get('mode')})" if tr.get("fired") else "NOT fired"
-        edges = f", {tr['edges']} rising edge(s)" if tr.get("edges") is not None else ""
-        click.echo(f"  trigger: {tr.get('backend')} {fired}{edges}; log {folder / 'trigger.csv'}")
-        if tr.get("note"):
-            click.echo(f"  note: {tr['note']}")
-    lm = m.get("live_motion") or {}
-    if lm:
-        click.echo(f"  live motion: {_live_summary(lm)}")
-    for p in scan.get("problems", []):
-        click.echo(f"  problem: {p}")
-    if scan.get("live_problem"):
-        click.echo(f"  problem: {scan['live_problem']}")
-
-
-def _live_summary(lm: dict) -> str:
-    if lm.get("status") == "off":
-        return f"off ({lm.get('off_reason', '')})"
-    s = lm.get("summary") or {}
-    tr = s.get("tracking") or {}
-    parts = [f"TRACKING {tr.get('tracking_s', 0):.1f} s, REFERENCE {tr.get('reference_s', 0):.1f} s, "
-             f"NOT TRACKING {tr.get('not_tracking_s', 0):.1f} s in {tr.get('not_tracking_stretches', 0)} stretch(es)"
-             + (f" (longest {tr['longest_not_tracking_s']:.1f} s: {tr.get('longest_reason', '')})"
-                if tr.get("longest_not_tracking_s") else "")]
-    parts.append(f"{len(lm.get('alerts', []))} motion alert(s), {len(lm.get('blind_alerts', []))} NOT TRACKING "
-                 f"alert(s)")
-    dropped = sum((s.get("live_dropped") or {}).values())
-    parts.append(f"{dropped} frame(s) dropped from the live path (never from the recording)")
-    if s.get("error"):
-        parts.append(s["error"])
-    return "; ".join(parts)
+    from vts_hw.procedures.scan_summary import summary_lines
+    for line in summary_lines(folder, m):
+        click.echo(line)
 
 
 # -- signals -----------------------------------------------------------------------------------------

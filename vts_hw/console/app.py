@@ -82,6 +82,7 @@ def create_app(console: Console) -> Starlette:
     from vts_hw.console.history import history_routes
     from vts_hw.console.login import SessionDoor, login_routes, no_login_routes
     from vts_hw.console.qa_page import qa_routes
+    from vts_hw.console.scan_page import scan_routes
 
     templates = Jinja2Templates(directory=str(HERE / "templates"))
 
@@ -171,6 +172,7 @@ def create_app(console: Console) -> Starlette:
               *qa_routes(console, templates),
               *(login_routes(console, templates) if console.auth is not None and console.auth.required
                 else no_login_routes(console)),
+              *scan_routes(console, templates),
               Mount("/static", StaticFiles(directory=str(HERE / "static")), name="static")]
     return Starlette(routes=routes, middleware=[Middleware(SessionDoor, console=console)])
 

@@ -157,14 +157,15 @@ def _auth(host, login, behind_proxy, tls, open_store, session_idle_s, session_ma
 def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, open_write_store=None,
           on_ready=None, idle_close_s: float | None = None, marker_hz: float | None = None, login: bool = False,
           behind_proxy: bool = False, certfile: str | None = None, keyfile: str | None = None,
-          session_idle_s: float | None = None, session_max_s: float | None = None) -> None:
+          session_idle_s: float | None = None, session_max_s: float | None = None, scans_dir=None) -> None:
     """Serve the console of ``rig`` (a RigConfig) on ``host:port`` until Ctrl-C (or SIGTERM),
     then close every stream and camera and return. ``open_store()`` gives the results store
     read-only (None: the page says there is none), ``open_write_store()`` the same store to
     append the action log to (None: actions kept in memory); ``on_ready(url)`` is told once it
     listens. Off this machine (or with ``login``/``behind_proxy``) the store must hold users
     and (off this machine) HTTPS be given (``certfile``/``keyfile``) or a proxy said: refused
-    (UsageError, exit 2) before anything is bound or opened otherwise."""
+    (UsageError, exit 2) before anything is bound or opened otherwise. ``scans_dir``: the folder
+    the Scan page's scans go into (default: the working directory, as `vts scan start`)."""
     import uvicorn
 
     from vts_hw.console.actions import MemoryActions, StoreActions
@@ -188,7 +189,8 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, op
     actions = (StoreActions(open_write_store, open_store, rig.rig) if open_write_store is not None and open_store
                else MemoryActions(rig.rig))
     console = Console(rig.rig, hub, markers, facts, open_store=open_store, actions=actions, auth=auth)
-    console.rig_config = rig          # the pages that run procedures (Daily QA) run them on this rig
+    console.rig_config = rig          # the pages that run procedures (Daily QA, Scan) run them on this rig
+    console.rig, console.scans_dir = rig, scans_dir      # the Scan page's (scan_page.py)
     stop_facts = threading.Event()
 
     def keep_facts():

@@ -1,0 +1,278 @@
+"""The Scan page: start and stop a patient scan (as `vts scan start --live`), watch it live,
+acknowledge its alerts, then analyse its motion (as `vts motion analyze`) in one click.
+
+* ``GET /scan``: the page. ``GET /scan/events``: its own server-sent events (never ``/events``:
+  watching the Room's cameras would open the hub's streams): ``scan`` (the scan's state every
+  ``STATE_EVERY_S``: the live status, bands, 6-DOF, frames, traces, alerts, summary,
+  analysis), ``alert`` (an alert the moment it reaches the console) and ``frame`` (a camera
+  the recording feeds has a new picture: fetched from ``/frame/{camera}`` as the Room page does).
+* ``POST /scan/start`` (``{"reference_s": 10, "duration_s": null}``), ``POST /scan/stop``,
+  ``POST /scan/alert/{id}/ack``, ``POST /scan/analyse``: each passes ``guard.refuse`` first
+  and is recorded with ``console.actions.record`` (who, what).
+* ``GET /scan/files/{scan}/{path}``: a file of a scan folder (the motion report, plot and
+  exports), only a regular file inside that folder of the console's scans folder (resolved:
+  no ``..``, no link out of it), else 404.
+
+The scan and the analysis run in worker threads (scan_run.py, scan_analysis.py); the event
+loop only reads their state. docs/decisions/0065-console-scan.md.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import threading
+import time
+from pathlib import Path
+
+from starlette.requests import Request
+from starlette.responses import FileResponse, JSONResponse, PlainTextResponse, StreamingResponse
+from starlette.routing import Route
+
+from vts_hw import __version__
+from vts_hw.console import guard
+from vts_hw.console.scan_analysis import MotionJob
+from vts_hw.console.scan_run import ScanRun
+
+STATE_EVERY_S = 0.25
+TICK_S = 0.02            # how often an event stream looks for alerts, frames and a new view
+KEEPALIVE_S = 15.0
+MAX_REFERENCE_S = 120.0
+
+
+class ScanDesk:
+    """The console's one scan at a time, and its analysis. ``rig``: the RigConfig; ``scans``:
+    the folder new scans go into (each ``scan-YYYYmmddTHHMMSSZ``, as `vts scan start` names it)."""
+
+    def __init__(self, console, rig, scans: Path):
+        self.console, self.rig, self.scans = console, rig, Path(scans)
+        self.run: ScanRun | None = None
+        self.job: MotionJob | None = None
+        # the view, made once for every viewer by a thread of its own (never on the event loop,
+        # which then only copies bytes: an alert or a frame is never behind a slow view)
+        self.published: tuple[int, bytes] = (0, b"")
+        self.viewers = 0
+        threading.Thread(target=self._publish, name="console-scan-view", daemon=True).start()
+
+    def _publish(self) -> None:
+        n = 0
+        while True:
+            if self.viewers > 0:
+                try:
+                    data = _sse("scan", self.view())
+                except Exception as exc:      # said on the page; the publisher goes on
+                    data = _sse("scan", {"phase": "failed", "error": f"the page's view failed: {exc}"})
+                n += 1
+                self.published = (n, data)
+            time.sleep(STATE_EVERY_S)
+
+    def busy(self) -> bool:
+        return self.run is not None and self.run.phase in ("starting", "running", "stopping")
+
+    def start(self, user: str, reference_s: float, duration: float | None) -> ScanRun:
+        from vts_hw.drivers.registry import open_cameras
+        from vts_hw.procedures.scan import default_folder
+
+        run = ScanRun(self.rig, default_folder(parent=self.scans), self.console.hub, open_cameras, user=user,
+                      reference_s=reference_s, duration=duration)
+        self.run, self.job = run, None
+        return run.start()
+
+    def analyse(self, user: str) -> MotionJob:
+        self.job = MotionJob(self.rig, self.run.folder, self.console.open_store or _no_store, user=user)
+        return self.job.start()
+
+    def view(self) -> dict:
+        out = {"phase": "idle", "scans": str(self.scans)} if self.run is None else self.run.view()
+        out["scans"] = str(self.scans)
+        out["analysis"] = None if self.job is None else self.job.view()
+        out["fed"] = [n for n in self.console.hub.names if self.console.hub.status(n)["source"] == "fed"]
+        out["actions"] = [] if self.run is None else self.actions(self.run.folder.name)
+        return out
+
+    def actions(self, scan: str) -> list[dict]:
+        """Who did what to this scan (console.actions), newest first."""
+        return [{"at": a.at, "user": a.user, "what": a.what, "detail": dict(a.detail)}
+                for a in self.console.actions.recent(200) if (a.detail or {}).get("scan") == scan]
+
+
+def _no_store():
+    from vts_hw.errors import StoreError
+    raise StoreError("the console was given no results store")
+
+
+def _sse(event: str, data) -> bytes:
+    return f"event: {event}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n".encode()
+
+
+async def _body(request: Request) -> dict:
+    try:
+        body = await request.json()
+    except ValueError:
+        return {}
+    return body if isinstance(body, dict) else {}
+
+
+def _seconds(value, what: str, upper: float | None = None) -> float | None:
+    if value in (None, ""):
+        return None
+    try:
+        s = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} must be a number of seconds, not {value!r}") from None
+    if not s > 0 or (upper is not None and s > upper):
+        raise ValueError(f"{what} must be more than 0 s" + (f" and at most {upper:g} s" if upper else "")
+                         + f", not {value!r}")
+    return s
+
+
+def scan_routes(console, templates):
+    """The Scan page's routes. ``console.scan_desk`` is made here when serve() gave the rig
+    (``console.rig``) and the scans folder (``console.scans_dir``)."""
+    desk = getattr(console, "scan_desk", None)
+    if desk is None and getattr(console, "rig", None) is not None:
+        desk = console.scan_desk = ScanDesk(console, console.rig, Path(getattr(console, "scans_dir", None) or "."))
+
+    def no_desk():
+        return JSONResponse({"error": "this console was started without a rig to scan with"}, status_code=503)
+
+    async def page(request: Request):
+        return templates.TemplateResponse(request, "scan.html", {
+            "rig": console.rig_name, "cameras": console.hub.names, "token": console.token, "here": "scan",
+            "version": __version__, "scans": str(desk.scans) if desk else ""})
+
+    async def state(request: Request):
+        if desk is None:
+            return no_desk()
+        return JSONResponse(await asyncio.to_thread(desk.view))
+
+    async def events(request: Request):
+        async def stream():
+            loop = asyncio.get_running_loop()
+            last_sent = 0.0
+            sent_alerts, sent_view, sent_seq = -1, -1, {n: None for n in console.hub.names}
+            desk.viewers += 1
+            try:
+                yield b"retry: 2000\n\n"
+                while not console.closing.is_set():
+                    now = loop.time()
+                    out = []
+                    run = desk.run
+                    if run is not None and len(run.alerts) != sent_alerts:
+                        sent_alerts = len(run.alerts)
+                        out.extend(_sse("alert", a) for a in run.alerts[-3:])
+                    n, data = desk.published
+                    if n != sent_view and data:
+                        sent_view = n
+                        out.append(data)
+                    for name in console.hub.names:
+                        lt = console.hub.latest(name)
+                        if lt is not None and lt.seq != sent_seq[name] and console.hub.status(name)["source"] == "fed":
+                            sent_seq[name] = lt.seq
+                            out.append(_sse("frame", {"camera": name, "seq": lt.seq, "arrival": lt.arrival}))
+                    if not out and now - last_sent > KEEPALIVE_S:
+                        out.append(b": keep-alive\n\n")
+                    if out:
+                        last_sent = now
+                        yield b"".join(out)
+                    await asyncio.sleep(TICK_S)
+            finally:
+                desk.viewers -= 1
+
+        if desk is None:
+            return no_desk()
+        return StreamingResponse(stream(), media_type="text/event-stream",
+                                 headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"})
+
+    async def start(request: Request):
+        refused = guard.refuse(console, request, guard.OPERATOR)
+        if refused is not None:
+            return refused
+        if desk is None:
+            return no_desk()
+        body = await _body(request)
+        try:
+            reference_s = _seconds(body.get("reference_s", 10.0), "the reference", MAX_REFERENCE_S) or 10.0
+            duration = _seconds(body.get("duration_s"), "the duration")
+        except ValueError as exc:
+            return JSONResponse({"error": str(exc)}, status_code=400)
+        if desk.busy():
+            return JSONResponse({"error": f"a scan is already running ({desk.run.folder.name}): stop it first"},
+                                status_code=409)
+        user, _ = guard.user_of(console, request)
+        run = desk.start(user, reference_s, duration)
+        await asyncio.to_thread(console.actions.record, user, "scan started",
+                                {"scan": run.folder.name, "reference_s": reference_s, "duration_s": duration})
+        return JSONResponse({"scan": run.folder.name, "phase": run.phase})
+
+    async def stop(request: Request):
+        refused = guard.refuse(console, request, guard.OPERATOR)
+        if refused is not None:
+            return refused
+        if desk is None or not desk.busy():
+            return JSONResponse({"error": "no scan is running"}, status_code=409)
+        user, _ = guard.user_of(console, request)
+        desk.run.request_stop()
+        await asyncio.to_thread(console.actions.record, user, "scan stopped", {"scan": desk.run.folder.name})
+        return JSONResponse({"scan": desk.run.folder.name, "phase": "stopping"})
+
+    async def ack(request: Request):
+        refused = guard.refuse(console, request, guard.OPERATOR)
+        if refused is not None:
+            return refused
+        try:
+            alert_id = int(request.path_params["alert"])
+        except ValueError:
+            alert_id = -1
+        user, _ = guard.user_of(console, request)
+        got = None if desk is None or desk.run is None else desk.run.acknowledge(alert_id, user)
+        if got is None:
+            return JSONResponse({"error": f"no alert {request.path_params['alert']!r} in this scan"}, status_code=404)
+        await asyncio.to_thread(console.actions.record, user, "alert acknowledged",
+                                {"scan": desk.run.folder.name, "alert": got["text"], "raised": got["raised"]})
+        return JSONResponse(got)
+
+    async def analyse(request: Request):
+        refused = guard.refuse(console, request, guard.OPERATOR)
+        if refused is not None:
+            return refused
+        if desk is None or desk.run is None or desk.run.phase != "stopped":
+            return JSONResponse({"error": "no finished scan to analyse"}, status_code=409)
+        if desk.job is not None and desk.job.state == "running":
+            return JSONResponse({"error": "the motion analysis is running already"}, status_code=409)
+        user, _ = guard.user_of(console, request)
+        job = desk.analyse(user)
+        await asyncio.to_thread(console.actions.record, user, "motion analysed", {"scan": desk.run.folder.name})
+        return JSONResponse(job.view())
+
+    async def file(request: Request):
+        if desk is None:
+            return no_desk()
+        path = inside(desk.scans, request.path_params["scan"], request.path_params["path"])
+        if path is None:
+            return PlainTextResponse("no such file in that scan", status_code=404)
+        return FileResponse(path, headers={"Cache-Control": "no-store"})
+
+    return [Route("/scan", page), Route("/scan/state", state), Route("/scan/events", events),
+            Route("/scan/start", start, methods=["POST"]), Route("/scan/stop", stop, methods=["POST"]),
+            Route("/scan/alert/{alert}/ack", ack, methods=["POST"]),
+            Route("/scan/analyse", analyse, methods=["POST"]),
+            Route("/scan/files/{scan}/{path:path}", file)]
+
+
+def inside(scans: Path, scan: str, rel: str) -> Path | None:
+    """The regular file ``rel`` of the scan folder ``scan`` of ``scans``; None when it is not one
+    (a name with a separator, ``..``, a link leading out of the folder, no such file)."""
+    if not scan or "/" in scan or "\\" in scan or scan in (".", ".."):
+        return None
+    try:
+        folder = (scans / scan).resolve(strict=True)
+        path = (folder / rel).resolve(strict=True)
+    except (OSError, RuntimeError):
+        return None
+    if folder.parent != scans.resolve() or not path.is_relative_to(folder) or not path.is_file():
+        return None
+    return path
+
+
+__all__ = ["scan_routes", "ScanDesk", "inside"]

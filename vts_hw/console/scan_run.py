@@ -1,0 +1,229 @@
+"""A scan started from the Scan page: the same ``ScanSession`` and ``LiveMotion`` as `vts scan
+start --live`, in a worker thread, its frames handed to the console's frames hub.
+
+:class:`ScanRun` does what the command does and nothing more: checks, records, fires, waits,
+stops (procedures/scan.py), the live path tracking the patient (procedures/scan_live.py). What
+the console adds is around it (docs/decisions/0060 and 0065):
+
+* before the session opens its streams, ``hub.attach(cameras)`` (the hub closes its own reader
+  of those cameras: a camera never sees two viewers); the session's ``on_frame`` is the live
+  path's tap then ``hub.feed`` (both only append to memory); ``hub.detach`` once it stopped;
+* a view of it for the page (:meth:`ScanRun.view`), read afresh at each call: the live
+  estimate with its status and age, each figure with whether it is known, the breathing
+  traces of the last ``TRACE_S`` seconds (sampled from the live estimate; a stretch not
+  TRACKING is a gap, never a line), the recorded and dropped frames per camera;
+* alerts (PATIENT MOVED, PATIENT NOT TRACKED): each kept with the time it reached the console,
+  until someone acknowledges it (:meth:`ScanRun.acknowledge`: who and when);
+* the end: the summary in the command's words (procedures/scan_summary.py) and its verdict.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import deque
+from pathlib import Path
+
+from vts_hw.errors import VtsError
+
+TRACE_S = 30.0          # the breathing trace shown: the last this many seconds
+SAMPLE_S = 0.1          # how often the live estimate is sampled for the traces
+NOTES_KEPT = 50
+
+__all__ = ["ScanRun", "ScanBusy", "clean"]
+
+
+class ScanBusy(VtsError):
+    """A scan is already running in this console (one at a time: one set of cameras)."""
+
+
+def clean(x):
+    """``x`` for JSON: NaN and infinities as None (not known), tuples as lists, floats rounded."""
+    if isinstance(x, float):
+        return round(x, 4) if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: clean(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [clean(v) for v in x]
+    return x
+
+
+class ScanRun:
+    """One scan of ``rig`` into ``folder``, started by ``user``. ``hub``: the console's frames
+    hub; ``open_cameras(configs)``: opens the rig's cameras (drivers.registry.open_cameras)."""
+
+    def __init__(self, rig, folder: Path, hub, open_cameras, *, user: str, reference_s: float = 10.0,
+                 duration: float | None = None, clock=time.time):
+        self.rig, self.folder, self.hub, self.user = rig, Path(folder), hub, user
+        self.open_cameras = open_cameras
+        self.reference_s, self.duration = float(reference_s), duration
+        self.clock = clock
+        self.names = [c.name for c in rig.cameras]
+        self.phase = "starting"          # starting | running | stopping | stopped | failed
+        self.error = ""
+        self.steps: list[tuple[str, str]] = []
+        self.notes: deque[str] = deque(maxlen=NOTES_KEPT)
+        self.alerts: list[dict] = []
+        self.session = None
+        self.live = None
+        self.manifest: dict | None = None
+        self.summary: dict | None = None
+        self.started_at = clock()
+        self.traces: dict[int, deque] = {}
+        self._last_t: float | None = None
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._status = None
+        self.thread = threading.Thread(target=self._run, name="console-scan", daemon=True)
+
+    # -- the worker ---------------------------------------------------------------------------------
+    def start(self) -> "ScanRun":
+        self.thread.start()
+        return self
+
+    def request_stop(self) -> None:
+        self._stop.set()
+        if self.session is not None:
+            self.session.request_stop()
+
+    def _run(self) -> None:
+        from vts_hw.drivers.registry import check_camera_kinds
+        from vts_hw.procedures.scan import ScanSession
+        from vts_hw.procedures.scan_live import LiveMotion
+        from vts_hw.tracking.live.estimator import LiveSettings
+
+        attached, cameras = False, []
+        try:
+            check_camera_kinds(self.rig.cameras)
+            cameras = self.open_cameras(self.rig.cameras)
+            self.live = LiveMotion(self.rig, settings=LiveSettings(reference_s=self.reference_s),
+                                   on_alert_text=self._alert, on_note=self.notes.append)
+            self.hub.attach(self.names)       # before the session opens its streams
+            attached = True
+            hub = self.hub
+            self.session = ScanSession(self.rig, self.folder, cameras, duration=self.duration, live=self.live,
+                                       on_step=lambda name, text: self.steps.append((name, text)),
+                                       on_frame=hub.feed)
+            if self._stop.is_set():
+                raise VtsError("the scan was stopped before it started")
+            self.session.start()
+            self.phase = "running"
+            reason = "error"
+            try:
+                reason = self.session.wait(self._tick, SAMPLE_S)
+            finally:
+                self.phase = "stopping"
+                self.manifest = self.session.stop(reason)
+            self._finish()
+        except VtsError as exc:
+            self.error = str(exc)
+            if self.session is not None and self.session.recorder is not None:
+                self.manifest = self.session.stop("error")
+                self._finish()
+            else:
+                self._close(cameras)
+        except Exception as exc:       # a bug: said on the page, what was recorded is closed and kept
+            self.error = f"the scan stopped on an unexpected error: {type(exc).__name__}: {exc}"
+            if self.session is not None and self.session.recorder is not None:
+                self.manifest = self.session.stop("error")
+                self._finish()
+            else:
+                self._close(cameras)
+        finally:
+            if attached:
+                self.hub.detach(self.names)
+
+    def _close(self, cameras) -> None:
+        """The scan did not start: its cameras closed (a session closes them itself once it checked)."""
+        for cam in cameras:
+            try:
+                cam.close()
+            except Exception:
+                pass
+        self.phase = "failed"
+
+    def _finish(self) -> None:
+        from vts_hw.procedures.scan_summary import summary_lines, verdict
+        rec = self.session.recorder
+        last, code = verdict(self.folder, self.manifest, rec.write_failure if rec is not None else None)
+        self.summary = {"status": (self.manifest or {}).get("status", "nothing recorded"),
+                        "lines": summary_lines(self.folder, self.manifest or {}), "verdict": last, "exit": code}
+        self.phase = "stopped"
+
+    # -- alerts ---------------------------------------------------------------------------------------
+    def _alert(self, text: str) -> None:
+        """LiveMotion's ``on_alert_text`` (its own thread): kept until acknowledged."""
+        with self._lock:
+            alert = {"id": len(self.alerts) + 1, "scan": self.folder.name, "kind": "not tracking" if "NOT TRACKED" in text else "motion",
+                     "text": text, "raised": self.clock(), "acked_by": None, "acked_at": None}
+            self.alerts.append(alert)
+
+    def acknowledge(self, alert_id: int, user: str) -> dict | None:
+        """``user`` acknowledged alert ``alert_id`` (now); None when there is no such alert. An
+        alert acknowledged already keeps its first acknowledgement."""
+        with self._lock:
+            for a in self.alerts:
+                if a["id"] == alert_id:
+                    if a["acked_by"] is None:
+                        a["acked_by"], a["acked_at"] = user, self.clock()
+                    return dict(a)
+        return None
+
+    # -- the traces -----------------------------------------------------------------------------------
+    def _tick(self, status) -> None:
+        """Every SAMPLE_S from the session's wait: the live estimate sampled for the traces."""
+        self._status = status
+        est = self.live.snapshot() if self.live is not None else None
+        if est is None or est.time is None or est.time == self._last_t:
+            return
+        self._last_t = est.time
+        tracked = est.status == "TRACKING"
+        for b in est.bands:
+            tr = self.traces.setdefault(b.band, deque())
+            v = b.breathing_mm if tracked and b.breathes and math.isfinite(b.breathing_mm) else None
+            if v is None and tr and tr[-1][1] is None:
+                continue                     # one gap marker per stretch not tracked
+            tr.append((est.time, v))
+            while tr and est.time - tr[0][0] > TRACE_S:
+                tr.popleft()
+
+    # -- what the page shows --------------------------------------------------------------------------
+    def view(self) -> dict:
+        st = self._status          # the session's status as of its last tick (status() is not for two threads)
+        cams = [] if st is None else [{"name": c.name, "frames": c.frames, "fps": round(c.fps, 1),
+                                       "dropped": c.dropped, "reconnects": c.reconnects, "state": c.state}
+                                      for c in st.cameras]
+        if self.manifest and self.phase == "stopped":
+            cams = [{"name": n, "frames": c["frames"], "fps": None, "dropped": c["dropped_frames"],
+                     "reconnects": c.get("reconnects", 0), "state": "closed"}
+                    for n, c in self.manifest.get("cameras", {}).items()]
+        with self._lock:
+            alerts = [dict(a) for a in self.alerts]
+        return clean({"phase": self.phase, "folder": self.folder.name, "user": self.user,
+                      "started_at": self.started_at, "error": self.error, "steps": list(self.steps),
+                      "notes": list(self.notes), "elapsed_s": None if st is None else st.elapsed_s,
+                      "duration_s": self.duration, "reference_s": self.reference_s, "cameras": cams,
+                      "live": self._live_view(), "alerts": alerts, "summary": self.summary,
+                      "traces": {str(k): list(v) for k, v in self.traces.items()}})
+
+    def _live_view(self) -> dict | None:
+        live = self.live
+        if live is None:
+            return None
+        if live.tracker is None:
+            return {"status": "OFF", "reason": live.off_reason or "live tracking not started yet"}
+        est = live.snapshot()
+        tracked = est.status == "TRACKING" and est.six_dof is not None
+        bands = [{"band": b.band, "markers": b.markers, "seen": b.seen, "breathes": b.breathes,
+                  "known": tracked and b.seen > 0 and math.isfinite(b.distance_mm),
+                  "displacement_mm": list(b.displacement_mm), "distance_mm": b.distance_mm,
+                  "breathing_mm": b.breathing_mm, "rate_per_min": b.rate_per_min} for b in est.bands]
+        return {"status": est.status, "reason": est.reason, "for_s": est.status_for_s, "age_s": est.age_s,
+                "phase": est.phase, "note": est.note, "frame": est.frame, "state": est.state,
+                "six_dof": None if est.six_dof is None else list(est.six_dof), "six_known": tracked,
+                "move_mm": est.move_mm if est.six_dof is not None else None,
+                "turn_deg": est.turn_deg if est.six_dof is not None else None,
+                "alerts": est.alerts, "bands": bands,
+                "latency_ms_p95": (est.stats or {}).get("latency_ms_p95"),
+                "live_dropped": sum(((est.stats or {}).get("live_dropped") or {}).values())}
