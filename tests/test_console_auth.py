@@ -515,7 +515,8 @@ def test_in_chromium_an_operator_logs_in_switches_the_led_and_is_in_the_history(
         pg.wait_for_selector("tr.action")
         rows = pg.eval_on_selector_all("tr.action", "rs => rs.map(r => [r.dataset.user, r.dataset.what, "
                                                      "r.querySelector('.detail').textContent])")
-        assert rows[0] == ["ann", "LED on", "camera: cam1"], rows
+        assert rows[0][:2] == ["ann", "LED on"] and rows[0][2].startswith("camera: cam1"), rows
+        assert "took: True" in rows[0][2], rows          # the camera said its LED is on (read back)
         assert ["ann", "logged in"] in [r[:2] for r in rows] and ["ann", "login refused"] in [r[:2] for r in rows]
         seen.append(pg.content())
         for path in ("api/room", "session", "history?state=OK", "history/actions?user=ann"):
