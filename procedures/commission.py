@@ -196,6 +196,8 @@ def run_sequence(ctx: Context, todo: list[str], ledger, skips: dict[str, str] | 
             ledger.failed(name, reason, started)
             raise
         out.started = out.started or started
+        if isinstance(out.result, StepCheck):      # a procedure's result said itself already
+            ctx.say(out.result.results())
         ledger.record(out)
         outcomes.append(out)
         if not out.passed:
