@@ -149,13 +149,16 @@ def aim(ctx: Context) -> Outcome:
 
 
 def _uptimes(ctx: Context) -> dict[str, float | None]:
+    """Minutes each camera has run; None when it does not tell (a camera that does not answer
+    is a device failure, raised)."""
+    from vts_hw.drivers.axis_uptime import NoUptime
     out = {}
     with _cameras(ctx.rig.cameras) as cams:
         for cam in cams:
             read = getattr(cam, "uptime", None)
             try:
                 out[cam.name] = None if read is None else read().seconds / 60.0
-            except Exception as exc:    # noqa: BLE001 -- a camera that does not tell: not known, said
+            except NoUptime as exc:      # a camera that does not tell: not known, said
                 ctx.say(f"  {cam.name}: uptime not known ({exc})")
                 out[cam.name] = None
     return out

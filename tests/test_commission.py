@@ -144,6 +144,8 @@ def _check_pdf(pdf: Path) -> None:
     info = subprocess.run(["pdfinfo", str(pdf)], capture_output=True, text=True, check=True).stdout
     pages = int(re.search(r"Pages:\s+(\d+)", info).group(1))
     assert 1 <= pages <= 6, info
+    from test_report_faults import assert_pdf_fits
+    assert_pdf_fits(pdf, overlap_pages=range(pages))          # nothing drawn over anything else
     text = subprocess.run(["pdftotext", str(pdf), "-"], capture_output=True, text=True, check=True).stdout
     assert "Signed off by A. Physicist" in text and "Devices" in text and "step test" in text
 
