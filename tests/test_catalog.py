@@ -34,7 +34,7 @@ def test_names_already_stored_still_read_everywhere():
     assert set(DRIFT_PROCEDURES) == {"drift", "daily"} and BASELINE_PROCEDURE == "drift-baseline"
     assert STEPS_NAME == "sphere-steps" and rooms.MAPPING_PROCEDURES == ("spect_mapping",)
     assert set(rooms.CALIBRATION_PROCEDURES) == {"calibration", "calibration_cameras"}
-    assert set(catalog.not_room_checks()) == {"motion", "drift-baseline"}
+    assert set(catalog.not_room_checks()) == {"motion", "drift-baseline", "commission-step", "commissioning"}
     assert [(s.key, s.procedures, s.room_check) for s in history.specs()] == [
         ("sync", ("sync",), True), ("spect_mapping", ("spect_mapping",), True),
         ("calibration", ("calibration", "calibration_cameras"), True), ("motion", ("motion",), False)]

@@ -33,7 +33,7 @@ def _text(pages) -> str:
 
 
 def test_every_report_has_a_renderer_for_every_suffix():
-    assert set(RENDERERS) == {"drift", "drift-every-rig", "department", "sync", "motion"}
+    assert set(RENDERERS) == {"drift", "drift-every-rig", "department", "sync", "motion", "commission"}
     for name, by_suffix in RENDERERS.items():
         assert tuple(by_suffix) == FORMATS, name
         assert all(callable(f) for f in by_suffix.values()), name

@@ -103,9 +103,21 @@ MOTION = Procedure("motion", "motion analysis", "patient", (
              Figure("motion_pose_coverage", "pose known (share of time)", ".3f")),
     history="Motion analyses (patient scans)")
 
+#: commissioning a room (decision 0069): each step of the sequence recorded as a run of
+#: ``commission-step`` (the step is its subject: ``commission_id`` names the commissioning,
+#: ``step_run`` the step's own run when it is a procedure of its own, ``step_passed``), and the
+#: commissioning's report as a run of ``commissioning`` (operator: who signed it off). Records,
+#: not checks of the room: the steps that measure are stored as their own procedures' runs.
+COMMISSION_STEP = Procedure("commission-step", "commissioning step", "none", (
+    ("commission_id", ""), ("step_passed", ""), ("step_run", ""), ("step_skipped", ""),
+    ("camera_confirmed", ""), ("params_locked", "params"), ("trigger_answered", ""), ("aim_adjust", "items"),
+    ("uptime_min", "min"), ("warming_up", "")))
+COMMISSIONING = Procedure("commissioning", "commissioning", "none", (
+    ("commission_id", ""), ("step_run", ""), ("signed_off", "")))
+
 #: every procedure, in the order the reports list them
 PROCEDURES: tuple[Procedure, ...] = (DAILY, DRIFT, BASELINE, STEPS, SYNC, MAPPING, CALIBRATION,
-                                     MOTION)
+                                     MOTION, COMMISSION_STEP, COMMISSIONING)
 
 #: a QA run of a chosen set of the daily checks is stored as ``qa:STEP+STEP`` (qa_set_name)
 QA_SET_PREFIX = "qa:"

@@ -46,6 +46,7 @@ def _register() -> None:
     from vts_hw.cli import (calibrate, camera, camera_setup, console, demo, discover, motion, qa, qa_push, qa_steps, recording, report, scan,  # noqa: F401
                    sim, store, sync, trigger)
     from vts_hw.cli import camera_aim  # noqa: F401  (`vts camera aim`, on the camera group)
+    from vts_hw.cli import commission  # noqa: F401  (`vts commission`)
 
 
 def command_tree(group: click.Group | None = None, path: tuple[str, ...] = ()):

@@ -10,6 +10,7 @@
 | ``department`` | a :class:`~vts_hw.report.rooms.RoomsReport` (the rooms page) | report/rooms_html.py | report/rooms_pdf.py |
 | ``sync`` | ``SyncAnalysis.results_data()`` and its plot's PNG | report/sync_html.py | report/sync_pdf.py |
 | ``motion`` | ``MotionAnalysis.results_data()`` and its plot's PNG | report/motion_html.py | report/motion_pdf.py |
+| ``commission`` | a :class:`~vts_hw.report.commission.CommissionReport` | report/commission_html.py | report/commission_pdf.py |
 
 :func:`report_format` reads the suffix (``.htm`` is ``.html``; any other is a
 :class:`ReportError`, exit 2, before anything is computed); :func:`write_report` renders in
@@ -25,6 +26,8 @@ from typing import Callable
 
 from vts_hw.errors import ConfigError
 from vts_hw.files import ensure_dir, write_atomic
+from vts_hw.report.commission_html import render_commission_html
+from vts_hw.report.commission_pdf import render_commission_pdf
 from vts_hw.report.html import render_drift_html, render_drift_html_every_rig
 from vts_hw.report.motion_html import render_motion_html
 from vts_hw.report.motion_pdf import render_motion_pdf
@@ -41,6 +44,7 @@ RENDERERS: dict[str, dict[str, Callable[..., str | bytes]]] = {
     "department": {".html": render_department_html, ".pdf": render_department_pdf},
     "sync": {".html": render_sync_html, ".pdf": render_sync_pdf},
     "motion": {".html": render_motion_html, ".pdf": render_motion_pdf},
+    "commission": {".html": render_commission_html, ".pdf": render_commission_pdf},
 }
 
 

@@ -31,6 +31,7 @@ from vts_hw.report.times import fmt_date
 STEPS_PROCEDURES = catalog.family(catalog.STEPS.key)
 CALIBRATION_PROCEDURES = catalog.family(catalog.CALIBRATION.key)
 MAPPING_PROCEDURES = catalog.family(catalog.MAPPING.key)
+COMMISSIONING_PROCEDURES = catalog.family(catalog.COMMISSIONING.key)
 #: never open ACTION items (see the docstring): a patient's scan, and baselines (no state)
 NOT_ROOM_CHECKS = catalog.not_room_checks()
 OPEN_RULE = ("An ACTION item is open while the latest completed result of the same check — the same "
@@ -68,6 +69,7 @@ class Room:
     last_mapping: RunInfo | None
     open_items: list[OpenItem] = field(default_factory=list)
     drift_file: str = ""                # the room's drift report, relative to the rooms page
+    commissioned: RunInfo | None = None  # the latest completed commissioning (its operator signed it off)
 
     @property
     def label(self) -> str:
@@ -90,6 +92,14 @@ class Room:
         st = worst([*cams, *self.latest.values()])
         return st if cams or st != State.OK else None
 
+    def commissioned_text(self) -> str:
+        """"commissioned on DATE (signed off by NAME)", "... (not signed off)", or "not commissioned"."""
+        c = self.commissioned
+        if c is None:
+            return "not commissioned"
+        who = f"signed off by {c.operator}" if c.operator else "not signed off"
+        return f"commissioned on {fmt_date(c.started)} ({who})"
+
     def daily_missing_text(self) -> str:
         """What the page says instead of a state when the period has no daily QA."""
         if self.last_daily is None:
@@ -106,6 +116,7 @@ class Room:
                 "last_daily": info(self.last_daily), "last_steps": info(self.last_steps),
                 "last_calibration": info(self.last_calibration), "last_mapping": info(self.last_mapping),
                 "open_items": [i.as_dict() for i in self.open_items], "drift_report": self.drift_file,
+                "commissioned": self.commissioned_text(),
                 "attention": self.drift.attention()}
 
 
@@ -238,6 +249,7 @@ def collect_rooms(store, since: float | None = None, now: float | None = None, r
                           last_calibration=_latest(runs, CALIBRATION_PROCEDURES),
                           last_mapping=_latest(runs, MAPPING_PROCEDURES),
                           open_items=open_items(measurements, runs), drift_file=names[rig],
+                          commissioned=_latest(runs, COMMISSIONING_PROCEDURES),
                           latest=latest_states(measurements, runs)))
     return RoomsReport("VTS rooms — department QA overview", since, now, rooms)
 

@@ -112,7 +112,8 @@ def _open_cell(room: Room) -> str:
 def _row(room: Room, now: float) -> str:
     state = str(room.state) if room.state else "none"
     return (f'<tr class="room" data-rig="{escape(room.rig)}" data-state="{escape(state)}">'
-            f'<td><b>{escape(room.label)}</b></td>{_cameras_cell(room)}'
+            f'<td><b>{escape(room.label)}</b><div class="muted commissioned">{escape(room.commissioned_text())}</div>'
+            f'</td>{_cameras_cell(room)}'
             f'{_last_cell(room.last_steps, "step test", now)}{_last_cell(room.last_calibration, "calibration", now)}'
             f'{_last_cell(room.last_mapping, "SPECT mapping", now)}{_open_cell(room)}'
             f'<td><a class="drift-link" href="{escape(quote(room.drift_file))}">drift report</a></td></tr>')

@@ -91,6 +91,8 @@ def render_department_pdf(report: RoomsReport) -> bytes:
                 fig, y = _new_page(report, pages, False)
             fig.add_artist(matplotlib.lines.Line2D([MARGIN, 1 - MARGIN], [y + 0.008] * 2, color="#dfe3e8", lw=0.6))
             fig.text(COLUMNS[0][1], y, room.label, fontsize=8.5, fontweight="bold", va="top")
+            fig.text(COLUMNS[0][1], y - 0.022, textwrap.fill(room.commissioned_text(), 24), fontsize=6, va="top",
+                     color="#5f6b7a")
             if not cams:
                 _word(fig, COLUMNS[1][1], y - 0.012, room.daily_missing_text(), None)
             tol = room.drift.window_now("x").tolerance_high

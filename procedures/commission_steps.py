@@ -1,0 +1,308 @@
+"""The steps of commissioning (procedures/commission.py), one function each, named after the
+step: each calls what its own command calls and returns an :class:`Outcome`. Cameras are
+opened here through the registry and closed before the step returns."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import time
+from pathlib import Path
+
+from vts_hw.errors import ConfigError, UsageError
+from vts_hw.files import ensure_dir, write_atomic
+from vts_hw.procedures.commission import Context, Outcome, StepCheck
+from vts_hw.results import Measure
+from vts_hw.tolerance import State
+
+OK, TOL, ACT = State.OK, State.TOLERANCE, State.ACTION
+
+
+def _json(path: Path, data) -> Path:
+    return write_atomic(path, json.dumps(data, indent=2, default=str) + "\n")
+
+
+def _need(what: str, option: str, how: str) -> UsageError:
+    return UsageError(f"the {what} needs {option}: {how}; then `vts commission --resume` with it")
+
+
+@contextlib.contextmanager
+def _cameras(cfgs, clock=None):
+    from vts_hw.drivers.registry import open_cameras
+    cams = open_cameras(cfgs, clock=clock)
+    try:
+        yield cams
+    finally:
+        for c in cams:
+            c.close()
+
+
+# ------------------------------------------------------------------ 1. cameras
+
+
+def cameras(ctx: Context) -> Outcome:
+    """`vts discover` (who announces itself) and `vts camera setup --all` (set, read back, lock
+    into rig.yaml): each rig camera confirmed over VAPIX, its model, serial, firmware and the
+    parameters locked written to devices.json for the report."""
+    from vts_hw.drivers.axis_setup import setup_camera
+    from vts_hw.drivers.discovery import search
+    from vts_hw.drivers.registry import open_camera
+    from vts_hw.rig_file import set_locked_params
+
+    rig, inp = ctx.rig, ctx.inputs
+    source = getattr(rig, "_source", None)
+    if source is None:
+        raise UsageError("commissioning needs the rig config as a file (--config rig.yaml): locked_params are "
+                         "written into it")
+    for cfg in rig.cameras:
+        if cfg.kind != "axis":
+            raise UsageError(f"camera {cfg.name} is of kind {cfg.kind}: only Axis cameras are commissioned")
+        cfg.password()
+    announced: dict[tuple[str, int], tuple[str, ...]] = {}
+    if inp.listen_s > 0:
+        ctx.say(f"  listening {inp.listen_s:g} s for cameras announcing themselves (mDNS, SSDP)")
+        for f in search(inp.listen_s, list(inp.interfaces) or None):
+            announced[(f.host, f.port)] = f.sources
+    devices, measures, lines, locked = [], [], [], {}
+    for cfg in rig.cameras:
+        with open_camera(cfg) as cam:
+            info = cam.device_info()
+            result = setup_camera(cam, cfg, rig.camera_setup)
+        locked[cfg.name] = result.locked
+        seen = announced.get((cfg.host, cfg.port))
+        dev = {"name": cfg.name, "address": f"{cfg.host}:{cfg.port}",
+               "model": info.get("ProdShortName") or info.get("ProdNbr") or info.get("Product") or "?",
+               "serial": (info.get("SerialNumber") or "?").upper(), "firmware": info.get("Version") or "?",
+               "announced": ("not listened" if inp.listen_s <= 0 else "+".join(seen) if seen else "not announced"),
+               "locked_params": result.locked, "notes": result.notes}
+        devices.append(dev)
+        measures += [Measure(cfg.name, "camera_confirmed", 1.0, "", OK),
+                     Measure(cfg.name, "params_locked", float(len(result.locked)), "params", OK)]
+        lines.append(f"  {cfg.name}: {dev['model']} serial {dev['serial']} firmware {dev['firmware']}, "
+                     f"{len(result.locked)} parameters set and locked ({len(result.changed)} changed); "
+                     f"announced: {dev['announced']}")
+    backup = set_locked_params(source, locked)
+    lines.append(f"  {source}: locked_params written (the previous file is {backup})")
+    ctx.refresh()
+    path = _json(ensure_dir(inp.out, "commissioning folder") / "devices.json", {"cameras": devices})
+    return Outcome("cameras", StepCheck("cameras", measures, lines, {"cameras": devices}), True,
+                   artifacts=[path])
+
+
+# ------------------------------------------------------------------ 2. trigger box
+
+
+def trigger(ctx: Context) -> Outcome:
+    """The trigger generator of rig.yaml asked who it is (`*IDN?`: serial and firmware version).
+    Flashing the firmware is `vts trigger flash`, not a step of commissioning."""
+    from vts_hw.drivers.registry import open_trigger
+
+    t = ctx.rig.trigger
+    if t.backend == "none":
+        raise ConfigError("the rig config has no trigger generator (trigger: backend: none): the sync check needs "
+                          "one; set it, or --skip trigger --why TEXT")
+    with open_trigger(ctx.rig) as gen:
+        ident = gen.identify() if hasattr(gen, "identify") else None
+        st = gen.status()
+    dev = {"backend": t.backend, "address": str(t.address), "device": st.device,
+           "serial": getattr(ident, "serial", "?"), "firmware": getattr(ident, "firmware", "?"),
+           "note": "firmware asked, not flashed (`vts trigger flash` uploads it)"}
+    lines = [f"  {dev['device']}: serial {dev['serial']}, firmware {dev['firmware']} ({dev['note']})"]
+    path = _json(ensure_dir(ctx.inputs.out, "commissioning folder") / "trigger.json", dev)
+    return Outcome("trigger", StepCheck("trigger", [Measure("trigger", "trigger_answered", 1.0, "", OK)], lines,
+                                        {"trigger": dev}), True, artifacts=[path])
+
+
+# ------------------------------------------------------------------ 3. aim and focus
+
+
+def aim(ctx: Context) -> Outcome:
+    """procedures/aim.py's check of every camera (no drift baseline yet: the picture's margins);
+    a camera to adjust stops the sequence with what to do."""
+    from vts_hw.procedures.aim import check
+
+    folder = ensure_dir(ctx.inputs.out / "aim", "aim folder")
+    measures, lines, advice, files, verdicts = [], [], [], [], {}
+    with _cameras(ctx.rig.cameras) as cams:
+        for cam in cams:
+            report = check(cam, ctx.rig)
+            files.append(write_atomic(folder / f"{cam.name}-aim.png", report.overlay_png()))
+            verdicts[cam.name] = report.to_dict()
+            for v in report.items:
+                st = TOL if v.state == "adjust" else OK
+                if v.value is not None:
+                    measures.append(Measure(cam.name, f"aim_{v.item}", float(v.value), v.unit, st))
+                if v.state == "adjust":
+                    advice.append(f"{cam.name} {v.label}: {v.text}")
+            measures.append(Measure(cam.name, "aim_adjust", float(sum(v.state == "adjust" for v in report.items)),
+                                    "items", TOL if report.state == "adjust" else OK))
+            unknown = f" (not known: {', '.join(report.unknown)})" if report.unknown else ""
+            lines.append(f"  {cam.name}: {report.state.upper()}{unknown}")
+    files.append(_json(folder / "aim.json", verdicts))
+    lines += [f"  ADJUST {a}" for a in advice]
+    passed = not advice
+    return Outcome("aim", StepCheck("aim", measures, lines, {"aim": verdicts}), passed,
+                   advice="; ".join(advice) + ("; then `vts commission --resume`" if advice else ""), artifacts=files)
+
+
+# ------------------------------------------------------------------ 4. warm-up
+
+
+def _uptimes(ctx: Context) -> dict[str, float | None]:
+    """Minutes each camera has run; None when it does not tell (a camera that does not answer
+    is a device failure, raised)."""
+    from vts_hw.drivers.axis_uptime import NoUptime
+    out = {}
+    with _cameras(ctx.rig.cameras) as cams:
+        for cam in cams:
+            read = getattr(cam, "uptime", None)
+            try:
+                out[cam.name] = None if read is None else read().seconds / 60.0
+            except NoUptime as exc:      # a camera that does not tell: not known, said
+                ctx.say(f"  {cam.name}: uptime not known ({exc})")
+                out[cam.name] = None
+    return out
+
+
+def warmup(ctx: Context) -> Outcome:
+    """Each camera's uptime (as the daily QA reads it) against its warmup_min: a camera warming up
+    is waited for with progress, or (``wait`` False) the step stops saying how long."""
+    warm = {c.name: float(c.warmup_min) for c in ctx.rig.cameras}
+    while True:
+        up = _uptimes(ctx)
+        left = {n: warm[n] - m for n, m in up.items() if m is not None and m < warm[n]}
+        if not left or not ctx.inputs.wait:
+            break
+        longest = max(left.values())
+        ctx.say(f"  warming up: {', '.join(f'{n} {m:.0f} min more' for n, m in left.items())}; waiting "
+                f"({longest:.1f} min; Ctrl-C stops, `vts commission --resume` continues)")
+        ctx.sleep(min(60.0, longest * 60.0 + 1.0))
+    measures, lines = [], []
+    for n, m in up.items():
+        if m is None:
+            measures.append(Measure(n, "uptime_min", None, "min", TOL))
+            lines.append(f"  {n}: uptime not known: whether its drift has settled is not known")
+            continue
+        measures += [Measure(n, "uptime_min", round(m, 1), "min", TOL if n in left else OK),
+                     Measure(n, "warming_up", 1.0 if n in left else 0.0, "", TOL if n in left else OK)]
+        lines.append(f"  {n}: running {m:.0f} min (warm-up {warm[n]:g} min)"
+                     + (f": {left[n]:.0f} min more" if n in left else ": warm"))
+    advice = ""
+    if left:
+        longest = max(left.values())
+        advice = (f"{', '.join(sorted(left))} started less than its warm-up time ago: wait {longest:.0f} min "
+                  f"(until {time.strftime('%H:%M', time.localtime(ctx.clock() + longest * 60))}), then "
+                  "`vts commission --resume`")
+    return Outcome("warmup", StepCheck("warmup", measures, lines), not left, advice=advice)
+
+
+# ------------------------------------------------------------------ 5. calibration
+
+
+def calibration(ctx: Context) -> Outcome:
+    """`vts calibrate cameras IMAGES`' procedure on the checkerboard images given."""
+    from vts_hw.procedures import calibration as proc
+
+    inp = ctx.inputs
+    if not inp.checkerboards:
+        raise _need("calibration", "--checkerboards DIR", "checkerboard images of every camera (DIR/cam1/01.png, "
+                    "... or cam1_01.png; each view seen by two cameras or more, 15-20 poses over the field of view)")
+    ensure_dir(inp.out, "commissioning folder")
+    run = proc.run(images=proc.camera_images(list(inp.checkerboards)), output=str(inp.calibration_file),
+                   pattern=inp.pattern, square=inp.square_mm, unit="mm", previous=None)
+    run.tolerances = ctx.rig.tolerances
+    ctx.say(run.results())
+    if run.saved.error is not None:
+        raise run.saved.error
+    refused = getattr(run, "refused", None)
+    passed = not refused and run.state != ACT
+    return Outcome("calibration", run, passed, advice=refused or ("calibrate again: " + "; ".join(run.warnings)
+                                                                  if not passed else ""),
+                   notes=f"saved to {inp.calibration_file}")
+
+
+# ------------------------------------------------------------------ 6. mapping
+
+
+def mapping(ctx: Context) -> Outcome:
+    """`vts calibrate spect --from-cameras --volume FILE`: the phantom's spheres seen now by the
+    calibrated cameras against the SPECT's reconstruction of it."""
+    from vts_hw.procedures.mapping_inputs import calibrated_cameras, camera_calibration_for, mapping_from_cameras
+    from vts_hw.save_or_keep import save_or_keep
+
+    inp = ctx.inputs
+    if not inp.phantom_volume:
+        raise _need("VTS → SPECT mapping", "--phantom-volume FILE", "the SPECT's reconstruction of the 7-sphere "
+                    "phantom lying where the cameras see it now")
+    calib = camera_calibration_for(ctx.rig, str(inp.calibration_file), "the mapping")
+    with _cameras(calibrated_cameras(ctx.rig, calib)) as cams:
+        m = mapping_from_cameras(cams, calib, inp.phantom_volume, inp.frames, progress=lambda t: ctx.say(f"  {t}"))
+    m.tolerances = ctx.rig.tolerances
+    saved = save_or_keep(inp.mapping_file, json.dumps(m.transform.to_dict(), indent=2) + "\n", "mapping")
+    if saved.error is not None:
+        raise saved.error
+    ctx.say(m.results())
+    return Outcome("mapping", m, m.state != ACT, advice="the mapping is in ACTION: check the phantom and its "
+                   "volume, then `vts commission --from mapping`", notes=f"saved to {inp.mapping_file}")
+
+
+# ------------------------------------------------------------------ 7. step test
+
+
+def steps(ctx: Context) -> Outcome:
+    """`vts qa steps --volumes DIR`: the operator moves the table when asked."""
+    from vts_hw.procedures.mapping_inputs import calibrated_cameras
+    from vts_hw.procedures.step_test import run_step_test, step_test_inputs
+    from vts_hw.procedures.steps import step_plan
+
+    inp = ctx.inputs
+    if not inp.step_volumes:
+        raise _need("step test", "--step-volumes DIR", "the folder the SPECT's reconstructions of the positions "
+                    "(baseline, V01 ..., A01 ..., free) are or will be exported to")
+    inputs = step_test_inputs(ctx.rig, str(inp.calibration_file), str(inp.mapping_file), inp.step_volumes)
+    with _cameras(calibrated_cameras(ctx.rig, inputs.calibration)) as cams:
+        res = run_step_test(ctx.rig, inputs, inp.out / "steps", step_plan(inp.vertical, inp.axial), cameras=cams,
+                            frames=inp.frames, ask=ctx.ask, progress=lambda t: ctx.say(f"  {t}"))
+    ctx.say(res.analysis.results())
+    if res.plot_error is not None:
+        raise res.plot_error
+    return Outcome("steps", res.analysis, res.analysis.state != ACT, started=res.started, artifacts=res.artifacts,
+                   advice="the step test is in ACTION: see its figures; `vts commission --from steps` after the fix")
+
+
+# ------------------------------------------------------------------ 8. sync check
+
+
+def sync(ctx: Context) -> Outcome:
+    """`vts sync analyze SESSION --listmode FILE` on a scan recorded during a SPECT acquisition."""
+    from vts_hw.procedures.sync import SyncAnalysis, check_session
+
+    inp = ctx.inputs
+    if not inp.sync_session or not inp.listmode:
+        raise _need("sync check", "--sync-session DIR and --listmode FILE",
+                    "record a scan with a source marker moved a few times along the table during a SPECT list-mode "
+                    "acquisition (`vts scan start --duration 30 -o DIR`)")
+    check_session(inp.sync_session)
+    a = SyncAnalysis(inp.sync_session, list(inp.listmode), inp.calibration_file, inp.mapping_file)
+    a.analyze(tolerances=ctx.rig.tolerances)
+    ctx.say(a.results())
+    return Outcome("sync", a, a.state != ACT, notes=f"session {inp.sync_session}",
+                   advice="the sync check is in ACTION: see its events; record another scan and "
+                          "`vts commission --from sync` with it")
+
+
+# ------------------------------------------------------------------ 9. drift baseline
+
+
+def baseline(ctx: Context) -> Outcome:
+    """`vts qa drift --set-baseline`: the wall markers of every camera, the room clear."""
+    from vts_hw.procedures.baseline import take_baselines
+
+    ctx.ask("Clear the table and the room (phantom and source marker away), LED rings on. Press Enter.")
+    with _cameras(ctx.rig.cameras, clock=ctx.clock) as cams:
+        result = take_baselines(cams, frames=5, clock=ctx.clock)
+    ctx.say(result.results())
+    return Outcome("baseline", result, True)
+
+
+__all__ = ["cameras", "trigger", "aim", "warmup", "calibration", "mapping", "steps", "sync", "baseline"]

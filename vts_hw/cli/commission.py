@@ -1,0 +1,144 @@
+"""`vts commission`: the guided commissioning of a room (issue 24 §3). It parses, calls
+procedures/commission.py with the store's ledger (vts_hw/store/commission.py), prints, writes the
+report through the report door and exits."""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from pathlib import Path
+
+import click
+
+from vts_hw.cli import cli
+from vts_hw.cli.common import PositiveSeconds, config_option, positive
+
+STEP_NAMES = ("cameras", "trigger", "aim", "warmup", "calibration", "mapping", "steps", "sync", "baseline")
+
+
+def _ask(text: str):
+    """The operator's answer (Enter) to a step's request."""
+    return click.prompt(text, default="", show_default=False, prompt_suffix=" ", err=True)
+
+
+def _pattern(ctx, param, value: str) -> tuple[int, int]:
+    from vts_hw.cli.calibrate import _pattern as parse
+    return parse(ctx, param, value)
+
+
+@cli.command()
+@config_option
+@click.option("--resume", is_flag=True, help="Continue the room's current commissioning after its last good step.")
+@click.option("--from", "from_step", type=click.Choice(STEP_NAMES), default=None,
+              help="Run again from this step (and every later one) in the current commissioning.")
+@click.option("--skip", "skips", type=click.Choice(STEP_NAMES), multiple=True,
+              help="Leave this step out (repeatable); needs --why. The report says so.")
+@click.option("--why", default=None, help="Why the --skip steps are left out (in the report).")
+@click.option("--sign-off", "sign_off", metavar="NAME", default=None,
+              help="Who signs the commissioning off (recorded with the time in the report).")
+@click.option("-o", "--out", "out_dir", type=click.Path(file_okay=False), default=None,
+              help="Folder for what the steps write (calibration, mapping, step test, aim pictures, the report) "
+                   "[default: commission-RIG].")
+@click.option("--checkerboards", multiple=True, type=click.Path(), help="Calibration: checkerboard images of the "
+              "cameras (folders or files, as `vts calibrate cameras` takes them; repeatable).")
+@click.option("--pattern", default="9x6", show_default=True, callback=_pattern, help="Inner corners, COLSxROWS.")
+@click.option("--square", "square_mm", type=positive("a length in mm"), default=30.0, show_default=True,
+              help="Side of a checkerboard square, mm.")
+@click.option("--phantom-volume", type=click.Path(dir_okay=False), default=None,
+              help="Mapping: the SPECT's reconstruction of the 7-sphere phantom as the cameras see it now.")
+@click.option("--step-volumes", type=click.Path(file_okay=False), default=None,
+              help="Step test: the folder of the SPECT's reconstructions of the positions.")
+@click.option("--vertical", type=click.IntRange(0, 50), default=10, show_default=True, help="Step test: vertical steps.")
+@click.option("--axial", type=click.IntRange(0, 50), default=10, show_default=True, help="Step test: axial steps.")
+@click.option("--sync-session", type=click.Path(file_okay=False), default=None,
+              help="Sync check: a scan session recorded with a moving source marker (`vts scan start`).")
+@click.option("--listmode", multiple=True, type=click.Path(dir_okay=False), help="Sync check: its SPECT list-mode.")
+@click.option("--frames", type=click.IntRange(1, 100), default=10, show_default=True,
+              help="Snapshots per camera for the mapping and each step-test position.")
+@click.option("--listen", "listen_s", type=PositiveSeconds(max=120, ), default=3.0, show_default=True,
+              help="Seconds to listen for cameras announcing themselves (mDNS, SSDP).")
+@click.option("--interface", "interfaces", multiple=True, metavar="ADDRESS",
+              help="Listen from this IPv4 address of this host only (repeatable).")
+@click.option("--no-wait", is_flag=True, help="Warm-up: do not wait for cameras still warming; say how long and stop.")
+@click.option("--operator", default=lambda: os.environ.get("USER", ""), help="Who runs it.")
+def commission(config_path, resume, from_step, skips, why, sign_off, out_dir, checkerboards, pattern, square_mm,
+               phantom_volume, step_volumes, vertical, axial, sync_session, listmode, frames, listen_s, interfaces,
+               no_wait, operator) -> None:
+    """Commission a room, step by step, each step a stored run; resumable where it stopped.
+
+    \b
+    Steps: 1 cameras (discover, set up, lock into rig.yaml) · 2 trigger (the box's version;
+    flashing is `vts trigger flash`) · 3 aim and focus · 4 warm-up · 5 calibration
+    (--checkerboards) · 6 VTS -> SPECT mapping (--phantom-volume) · 7 step test
+    (--step-volumes; the table moved when asked) · 8 sync check (--sync-session,
+    --listmode) · 9 drift baseline. A step that needs what is not given stops and says what.
+    At the end: the commissioning report (OUT/commissioning.html and .pdf), stored as a run;
+    the rooms page shows "commissioned on DATE".
+
+    \b
+    Exit status: 0 commissioned (every figure OK); 10 commissioned with a figure in TOLERANCE
+    or a step skipped, or stopped at a camera to adjust (aim) or still warming up (--no-wait);
+    20 stopped at a figure in ACTION; 4 a device failed; 2 bad input or an input a step
+    needs is missing; 3 the store or a file could not be written; 130 interrupted. After a
+    stop, fix what it says and run again with --resume (or --from STEP).
+    """
+    from vts_hw.config import load_rig
+    from vts_hw.cli.common import open_store
+    from vts_hw.errors import UsageError
+    from vts_hw.procedures import commission as proc
+    from vts_hw.procedures.daily import EXIT_CODES
+    from vts_hw.store.commission import Ledger, load_state
+
+    if bool(skips) != bool(why):
+        raise UsageError("--skip STEP needs --why TEXT (and --why a --skip): the report says why a step was left out")
+    if resume and from_step:
+        raise UsageError("give --resume or --from STEP, not both")
+    rig = load_rig(config_path)
+    source = getattr(rig, "_source", None)
+    out = Path(out_dir) if out_dir else Path(source).parent / f"commission-{rig.rig}" if source else Path(
+        f"commission-{rig.rig}")
+    inputs = proc.Inputs(out=out, checkerboards=tuple(checkerboards), pattern=pattern, square_mm=square_mm,
+                         phantom_volume=phantom_volume, step_volumes=step_volumes, vertical=vertical, axial=axial,
+                         sync_session=sync_session, listmode=tuple(listmode), frames=frames, listen_s=listen_s,
+                         interfaces=tuple(interfaces), wait=not no_wait)
+    say = lambda m: click.echo(m, err=True)  # noqa: E731
+    with open_store(rig) as store:
+        state = load_state(store, rig.rig)
+        carry = resume or from_step is not None
+        if carry and state.cid is None:
+            say("no commissioning of this room in the store yet: a new one begins")
+        if not carry and state.cid is not None and state.report_run is None:
+            say(f"a new commissioning begins (commissioning {state.cid} stopped unfinished: --resume continues it)")
+        todo = proc.plan(from_step, state.done if carry else {})
+        ledger = Ledger(store, rig, cid=state.cid if carry else None, operator=operator)
+        ctx = proc.Context(rig, inputs, say=say, ask=_ask, reload=lambda: load_rig(config_path))
+        end = proc.run_sequence(ctx, todo, ledger, {s: why for s in skips})
+        if not end.done:
+            o = end.stopped
+            click.echo(f"commissioning stopped at {proc.step(o.step).label}: {o.advice or o.state}")
+            sys.exit(EXIT_CODES[o.state] or 10)
+        report = _report(store, rig, ledger, sign_off, out)
+    click.echo(f"commissioning {report.cid} of {rig.rig}: {report.state}"
+               + ("" if report.signed_by else " (not signed off)"))
+    sys.exit(EXIT_CODES[report.state])
+
+
+def _report(store, rig, ledger, sign_off, out):
+    from vts_hw.procedures.commission import STEPS
+    from vts_hw.report.commission import build_commission_report
+    from vts_hw.report.renderers import write_report
+    from vts_hw.store.commission import load_state
+
+    state = load_state(store, rig.rig)
+    ledger.cid = state.cid
+    report = build_commission_report(store, state, [(s.name, s.label) for s in STEPS], signed_by=sign_off or "",
+                                     signed_at=time.time() if sign_off else None)
+    files = [write_report("commission", out / f"commissioning{suffix}", report) for suffix in (".html", ".pdf")]
+    notes = (f"signed off by {sign_off}" if sign_off else "not signed off") + "".join(
+        f"; skipped {label}: {why}" for label, why in report.skipped)
+    run_id = ledger.finish_report(report.state, state.steps, signed_by=sign_off or "", artifacts=files, notes=notes)
+    for f in files:
+        click.echo(f"report: {f}")
+    click.echo(f"stored: run {run_id} (commissioning)")
+    return report
