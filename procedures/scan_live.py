@@ -68,7 +68,8 @@ class LiveMotion:
 
     def __init__(self, rig, *, calibration=None, mapping=None, settings: LiveSettings | None = None,
                  on_alert_text: Callable[[str], None] | None = None,
-                 on_note: Callable[[str], None] | None = None, queue_len: int = 2):
+                 on_note: Callable[[str], None] | None = None, queue_len: int = 2,
+                 on_names: Callable | None = None):
         self.rig = rig
         self.motion = rig.motion
         self.calibration = calibration if calibration is not None else rig.calibration.stereo
@@ -77,6 +78,7 @@ class LiveMotion:
         self.on_alert_text = on_alert_text or (lambda text: None)
         self.on_note = on_note or (lambda text: None)
         self.queue_len = queue_len
+        self.on_names = on_names       # the tracker's named patient markers per camera (a page's labels)
         self.tracker: LiveTracker | None = None
         self.off_reason = ""
         self.problem = ""          # set at stop: the patient was not watched, and why
@@ -111,7 +113,7 @@ class LiveMotion:
         fps = min(session.rig.camera(n).fps for n in cams)
         self.tracker = LiveTracker(cams, self.motion, mapping=mapping, clock_offsets=offsets, fps=fps,
                                    settings=self.settings, queue_len=self.queue_len, on_alert=self._queue_alert,
-                                   on_event=self._queue_event)
+                                   on_event=self._queue_event, on_names=self.on_names)
 
     def on_frame(self, camera: str, frame) -> None:
         if self.tracker is not None:

@@ -74,7 +74,7 @@ class ScanDesk:
         from vts_hw.procedures.scan import default_folder
 
         run = ScanRun(self.rig, default_folder(parent=self.scans), self.console.hub, open_cameras, user=user,
-                      reference_s=reference_s, duration=duration)
+                      reference_s=reference_s, duration=duration, marker_names=self.console.names)
         self.run, self.job = run, None
         return run.start()
 

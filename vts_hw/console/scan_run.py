@@ -54,8 +54,10 @@ class ScanRun:
     hub; ``open_cameras(configs)``: opens the rig's cameras (drivers.registry.open_cameras)."""
 
     def __init__(self, rig, folder: Path, hub, open_cameras, *, user: str, reference_s: float = 10.0,
-                 duration: float | None = None, clock=time.time):
+                 duration: float | None = None, clock=time.time, marker_names=None):
         self.rig, self.folder, self.hub, self.user = rig, Path(folder), hub, user
+        #: the console's MarkerNames (names.py): the live tracker names the patient's band markers there
+        self.marker_names = marker_names
         self.open_cameras = open_cameras
         self.reference_s, self.duration = float(reference_s), duration
         self.clock = clock
@@ -98,7 +100,8 @@ class ScanRun:
             check_camera_kinds(self.rig.cameras)
             cameras = self.open_cameras(self.rig.cameras)
             self.live = LiveMotion(self.rig, settings=LiveSettings(reference_s=self.reference_s),
-                                   on_alert_text=self._alert, on_note=self.notes.append)
+                                   on_alert_text=self._alert, on_note=self.notes.append,
+                                   on_names=None if self.marker_names is None else self._band_names)
             self.hub.attach(self.names)       # before the session opens its streams
             attached = True
             hub = self.hub
@@ -133,6 +136,14 @@ class ScanRun:
         finally:
             if attached:
                 self.hub.detach(self.names)
+            if self.marker_names is not None:
+                for n in self.names:
+                    self.marker_names.clear(n, "band")
+
+    def _band_names(self, camera: str, points) -> None:
+        """The live tracker's names of the patient's markers on ``camera`` (a second's hold: names
+        that stop coming, because the patient is not tracked, fade rather than stay)."""
+        self.marker_names.set(camera, "band", points, source="the scan's live tracking", hold_s=1.0)
 
     def _close(self, cameras) -> None:
         """The scan did not start: its cameras closed (a session closes them itself once it checked)."""

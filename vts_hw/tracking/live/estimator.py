@@ -187,6 +187,7 @@ class LiveEstimator:
         fit = m.fit(i_m, pts[i_p], None if self.fit is None else self.fit.beta,
                     iterations=self.s.iterations_after_gap if after_gap else self.s.iterations)
         self._seen_idx, self._seen_x = i_m, pts[i_p]
+        self._seen_pts = i_p
         self.observed = fit is not None
         if fit is None:
             self.note = f"{len(i_m)} of {len(m.mean)} markers seen"
@@ -199,6 +200,18 @@ class LiveEstimator:
             if np.isfinite(fit.beta[k]) and m.band_breathes(k):
                 tr.add(t, float(fit.beta[k]))
         return self.rule.update(t, fit.R, fit.T, m.centre)
+
+    def seen_names(self) -> list[tuple[str, int]]:
+        """The patient markers of the last estimate, named by the reference model: ``(name,
+        index into that instant's points)``, the name ``B<band>.<n>`` (bands and markers counted
+        from 1, in the model's order). Empty until the reference is learned."""
+        if self.phase != "tracking" or self.model is None or getattr(self, "_seen_pts", None) is None:
+            return []
+        band = self.model.band
+        rank = {}
+        for j in range(len(band)):
+            rank[j] = int((band[:j] == band[j]).sum()) + 1
+        return [(f"B{int(band[m]) + 1}.{rank[int(m)]}", int(p)) for m, p in zip(self._seen_idx, self._seen_pts)]
 
     def six_dof(self) -> np.ndarray:
         """The body's 6-DOF now (tx, ty, tz mm; rx, ry, rz deg), from the last pose; needs one."""

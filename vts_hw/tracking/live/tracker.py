@@ -53,7 +53,8 @@ class LiveTracker:
                  fps: float = 25.0, settings: LiveSettings | None = None,
                  detector: DetectorSettings = DEFAULT_DETECTOR, queue_len: int = 2,
                  on_alert: Callable | None = None, on_event: Callable | None = None, max_px: float = 2.0,
-                 late_s: float = 0.5, publish_s: float = 0.1, clock: Callable[[], float] = time.monotonic):
+                 late_s: float = 0.5, publish_s: float = 0.1, clock: Callable[[], float] = time.monotonic,
+                 on_names: Callable | None = None, names_every_s: float = 0.25):
         self.names = list(cameras)
         self.geo = ViewGeometry([cameras[n] for n in self.names], self.names)
         self.mapping = mapping
@@ -62,6 +63,9 @@ class LiveTracker:
         self.max_px = max_px
         self.on_alert = on_alert
         self.on_event = on_event or (lambda event: None)
+        #: told, at most every ``names_every_s``, each camera's named patient markers in its pixels:
+        #: ``on_names(camera, [(name, x, y), ...])`` (a page labels its pictures with them)
+        self.on_names, self.names_every_s, self._names_at = on_names, float(names_every_s), float("-inf")
         self.clock = clock
         self.late_s, self.publish_s = float(late_s), float(publish_s)
         cam0 = self.geo.cams[0]
@@ -162,7 +166,8 @@ class LiveTracker:
     def _estimate(self, fs: FrameSet) -> None:
         pts = [np.zeros((0, 2)) if u is None else u for u in fs.uv]
         norm = [np.zeros((0, 2)) if u is None else u for u in fs.norm]
-        xyz = match_views(self.geo, pts, self.max_px, norm=norm).xyz
+        matches = match_views(self.geo, pts, self.max_px, norm=norm)
+        xyz = matches.xyz
         if self.mapping is not None and len(xyz):
             xyz = self.mapping.apply(xyz)
         est, f = self.estimator, self.facts
@@ -186,8 +191,26 @@ class LiveTracker:
         now = self.clock()
         with self._lock:
             self.latency.append((now - fs.last_arrival, now - fs.first_arrival))
+        if self.on_names is not None and now - self._names_at >= self.names_every_s:
+            self._names_at = now
+            self._tell_names(matches, pts)
         if alert is not None and self.on_alert is not None:
             self.on_alert(alert, self.snapshot())
+
+    def _tell_names(self, matches, pts) -> None:
+        """Each camera's named markers (the estimator's names, through the detections that made
+        each 3D point); a camera with none is told an empty list. Never fails the live path."""
+        try:
+            per = {n: [] for n in self.names}
+            for name, k in self.estimator.seen_names():
+                for c, d in enumerate(matches.points[k].detections):
+                    if d >= 0:
+                        x, y = pts[c][d]
+                        per[self.names[c]].append((name, float(x), float(y)))
+            for cam, named in per.items():
+                self.on_names(cam, named)
+        except Exception:          # a page's labels are never worth the live path
+            pass
 
     # -- the watch ------------------------------------------------------------------------------
     def _watch_run(self) -> None:
