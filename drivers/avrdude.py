@@ -26,14 +26,6 @@ from vts_hw.errors import DeviceError, UsageError
 
 #: the trigger box's MCU as avrdude names it (firmware/Makefile: MCU := atmega328p)
 PART = "m328p"
-#: bootloaders avrdude can talk to, and what each is (avrdude -c '?')
-PROGRAMMERS = {
-    "arduino": "Arduino bootloader (optiboot), STK500 v1: Uno, Nano (the trigger box)",
-    "stk500v1": "Atmel STK500 version 1 firmware (or an old bootloader that wants it)",
-    "urclock": "urboot bootloaders (urprotocol)",
-    "avr109": "AVR109 bootloader (Caterina: Leonardo, Micro, 32u4 boards)",
-    "wiring": "STK500 v2 bootloader (Arduino Mega 2560)",
-}
 BAR_WIDTH = 50   # avrdude's progress bar: 50 '#' from 0 to 100 %
 
 
