@@ -11,7 +11,8 @@ STAMP  := $(VENV)/.installed
 # (the AVR toolchain and simavr are installed by firmware/Makefile, which `make test` runs)
 # (postgresql: the tests start a throwaway server of their own, tests/pgserver.py)
 # (chromium and firefox-esr: the console's pages in both browsers)
-TEST_DEBS := curl openssl chromium firefox-esr fonts-dejavu-core poppler-utils postgresql
+# (avrdude: vts trigger flash uploads through the bootloader; tests/test_trigger_flash.py to a simulated board)
+TEST_DEBS := curl openssl chromium firefox-esr fonts-dejavu-core poppler-utils postgresql avrdude
 
 .PHONY: demo test bench venv debs firmware clean
 

@@ -96,11 +96,12 @@ class SimTriggerBox:
 
     def __init__(self, speed: float = 1.0, workdir: str | os.PathLike | None = None,
                  log_uart: bool = True, startup_timeout: float = 20.0,
-                 firmware: str = "trigger_box"):
+                 firmware: str = "trigger_box", elf: str | os.PathLike | None = None):
         if speed < 0:
             raise ValueError("speed must be >= 0 (0 = as fast as possible)")
         self.speed = speed
         self.firmware = firmware      # build/<firmware>.elf; "trigger_box_late" for tests
+        self.elf = Path(elf) if elf is not None else None   # any other image (a flashed one) instead
         self.log_uart = log_uart
         self.startup_timeout = startup_timeout
         self._own_dir = workdir is None
@@ -117,7 +118,7 @@ class SimTriggerBox:
     # ------------------------------------------------------------------ life cycle
     def start(self) -> "SimTriggerBox":
         harness, elf = build()
-        elf = elf.with_name(f"{self.firmware}.elf")
+        elf = self.elf or elf.with_name(f"{self.firmware}.elf")
         if not elf.is_file():
             raise RuntimeError(f"no firmware {elf}")
         if self.dir is None:

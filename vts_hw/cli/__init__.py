@@ -47,6 +47,7 @@ def _register() -> None:
                    sim, store, sync, trigger)
     from vts_hw.cli import camera_aim  # noqa: F401  (`vts camera aim`, on the camera group)
     from vts_hw.cli import commission  # noqa: F401  (`vts commission`)
+    from vts_hw.cli import trigger_flash  # noqa: F401  (`vts trigger flash`, on the trigger group)
 
 
 def command_tree(group: click.Group | None = None, path: tuple[str, ...] = ()):
