@@ -72,10 +72,25 @@ class Window:
         return asdict(self)
 
     def describe(self) -> str:
-        def f(v):
-            return "-" if v is None else f"{v:g}"
-        return (f"action < {f(self.action_low)} <= tol < {f(self.tolerance_low)} .. "
-                f"{f(self.tolerance_high)} < tol <= {f(self.action_high)} < action {self.unit}").strip()
+        """The window as a person reads it: ``OK within ±1, ACTION beyond ±2 px``, ``OK ≤ 0,
+        ACTION above 1 markers``, ``ACTION below 1``, ``OK 0.99 … 1.01, ACTION outside 0.98 …
+        1.02`` (one wording for every page and report; a missing bound is no bound, never ∞)."""
+        tl, th, al, ah = self.tolerance_low, self.tolerance_high, self.action_low, self.action_high
+        parts = []
+        if tl is not None and th is not None:
+            parts.append(f"OK within ±{th:g}" if th > 0 and math.isclose(tl, -th) else f"OK {tl:g} … {th:g}")
+        elif th is not None:
+            parts.append(f"OK ≤ {th:g}")
+        elif tl is not None:
+            parts.append(f"OK ≥ {tl:g}")
+        if al is not None and ah is not None:
+            parts.append(f"ACTION beyond ±{ah:g}" if ah > 0 and math.isclose(al, -ah)
+                         else f"ACTION outside {al:g} … {ah:g}")
+        elif ah is not None:
+            parts.append(f"ACTION above {ah:g}")
+        elif al is not None:
+            parts.append(f"ACTION below {al:g}")
+        return (", ".join(parts) + f" {self.unit or ''}").strip()
 
     @classmethod
     def symmetric(cls, tolerance: float, action: float, unit: str = "") -> "Window":

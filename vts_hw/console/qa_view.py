@@ -38,23 +38,8 @@ def value_text(v) -> str:
 
 
 def window_text(w) -> str:
-    """A tolerance window as a person reads it: ``OK within ±1, ACTION beyond ±2 px``,
-    ``OK ≤ 0, ACTION above 1 markers``, ``ACTION below 1``."""
-    tl, th, al, ah = w.tolerance_low, w.tolerance_high, w.action_low, w.action_high
-    parts = []
-    if tl is not None and th is not None:
-        parts.append(f"OK within ±{th:g}" if math.isclose(tl, -th) else f"OK {tl:g} … {th:g}")
-    elif th is not None:
-        parts.append(f"OK ≤ {th:g}")
-    elif tl is not None:
-        parts.append(f"OK ≥ {tl:g}")
-    if al is not None and ah is not None:
-        parts.append(f"ACTION beyond ±{ah:g}" if math.isclose(al, -ah) else f"ACTION outside {al:g} … {ah:g}")
-    elif ah is not None:
-        parts.append(f"ACTION above {ah:g}")
-    elif al is not None:
-        parts.append(f"ACTION below {al:g}")
-    return (", ".join(parts) + f" {w.unit or ''}").strip()
+    """A tolerance window as a person reads it (one wording everywhere: Window.describe)."""
+    return w.describe()
 
 
 def camera_view(name: str, rows: list[tuple], problems: list[str], run_id: int | None) -> dict:

@@ -86,18 +86,7 @@ def _artifact_json(store, run_id: int, name: str) -> dict | None:
 
 
 def _window_text(w) -> str:
-    if w is None:
-        return "no window (the procedure's own verdict)"
-    parts = []
-    if w.tolerance_low is not None or w.tolerance_high is not None:
-        parts.append(f"OK {_g(w.tolerance_low, '−∞')} … {_g(w.tolerance_high, '+∞')}")
-    if w.action_low is not None or w.action_high is not None:
-        parts.append(f"ACTION below {_g(w.action_low, '−∞')} or above {_g(w.action_high, '+∞')}")
-    return "; ".join(parts) + (f" {w.unit}" if w.unit else "")
-
-
-def _g(v, none: str) -> str:
-    return none if v is None else f"{v:g}"
+    return "no window (the procedure's own verdict)" if w is None else w.describe()
 
 
 def build_commission_report(store, state, steps: list[tuple[str, str]], *, signed_by: str = "",
