@@ -189,8 +189,10 @@ class LiveMotion:
                     f"({tracking.get('longest_reason', '')})")
         return ""
 
-    def snapshot(self) -> LiveEstimate | None:
-        return None if self.tracker is None else self.tracker.snapshot()
+    def snapshot(self, stats: bool = True) -> LiveEstimate | None:
+        """The tracker's latest estimate; ``stats=False`` leaves out the latency percentiles
+        (for a caller sampling it several times a second)."""
+        return None if self.tracker is None else self.tracker.snapshot(stats=stats)
 
     # -- alerts ---------------------------------------------------------------------------------
     def _queue_alert(self, alert, estimate: LiveEstimate) -> None:   # in the worker: no waiting

@@ -107,11 +107,13 @@ class StoreActions:
         self._open_read = open_read
         self._lock = threading.Lock()
         self.pending: list[Action] = []
+        self._recent: tuple[float, int, list[Action]] | None = None    # (when read, limit, actions)
 
     def record(self, user: str, what: str, detail: dict | None = None, *, role: str = "") -> Action:
         from vts_hw.errors import VtsError
         act = Action(time.time(), user, what, clean(dict(detail or {})), _role(user, role), self.rig)
         with self._lock:
+            self._recent = None
             todo = [*self.pending, act]
             try:
                 with self._open_write() as store:
@@ -134,7 +136,21 @@ class StoreActions:
         return (waiting[offset:] + stored)[:limit], total + len(waiting)
 
     def recent(self, limit: int = 50) -> list[Action]:
-        return self.page(limit=limit)[0]
+        """The newest actions; read from the store at most every ``RECENT_S`` (a page's view asks
+        several times a second: opening the store each time cost the live path, bench/console.py),
+        at once after an action recorded here."""
+        now = time.monotonic()
+        with self._lock:
+            held = self._recent
+        if held is not None and now - held[0] < RECENT_S and limit <= held[1]:
+            return held[2][:limit]
+        acts = self.page(limit=limit)[0]
+        with self._lock:
+            self._recent = (now, limit, acts)
+        return acts
+
+
+RECENT_S = 5.0       # actions of other consoles on the same store reach a page within this
 
 
 __all__ = ["Action", "Actions", "MemoryActions", "StoreActions", "clean"]

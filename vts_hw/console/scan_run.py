@@ -29,6 +29,7 @@ from vts_hw.errors import VtsError
 
 TRACE_S = 30.0          # the breathing trace shown: the last this many seconds
 SAMPLE_S = 0.1          # how often the live estimate is sampled for the traces
+STATS_S = 2.0           # how often the view's latency figures are computed
 NOTES_KEPT = 50
 
 __all__ = ["ScanRun", "ScanBusy", "clean"]
@@ -74,6 +75,7 @@ class ScanRun:
         self.started_at = clock()
         self.traces: dict[int, deque] = {}
         self._last_t: float | None = None
+        self._stats_at, self._stats = float("-inf"), {}
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._status = None
@@ -185,7 +187,7 @@ class ScanRun:
     def _tick(self, status) -> None:
         """Every SAMPLE_S from the session's wait: the live estimate sampled for the traces."""
         self._status = status
-        est = self.live.snapshot() if self.live is not None else None
+        est = self.live.snapshot(stats=False) if self.live is not None else None
         if est is None or est.time is None or est.time == self._last_t:
             return
         self._last_t = est.time
@@ -224,7 +226,11 @@ class ScanRun:
             return None
         if live.tracker is None:
             return {"status": "OFF", "reason": live.off_reason or "live tracking not started yet"}
-        est = live.snapshot()
+        now = time.monotonic()           # the latency figures (percentiles) every STATS_S, not every view
+        with_stats = now - self._stats_at >= STATS_S
+        est = live.snapshot(stats=with_stats)
+        if with_stats:
+            self._stats_at, self._stats = now, dict(est.stats or {})
         tracked = est.status == "TRACKING" and est.six_dof is not None
         bands = [{"band": b.band, "markers": b.markers, "seen": b.seen, "breathes": b.breathes,
                   "known": tracked and b.seen > 0 and math.isfinite(b.distance_mm),
@@ -236,5 +242,5 @@ class ScanRun:
                 "move_mm": est.move_mm if est.six_dof is not None else None,
                 "turn_deg": est.turn_deg if est.six_dof is not None else None,
                 "alerts": est.alerts, "bands": bands,
-                "latency_ms_p95": (est.stats or {}).get("latency_ms_p95"),
-                "live_dropped": sum(((est.stats or {}).get("live_dropped") or {}).values())}
+                "latency_ms_p95": self._stats.get("latency_ms_p95"),
+                "live_dropped": sum((self._stats.get("live_dropped") or {}).values())}
