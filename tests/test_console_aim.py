@@ -71,8 +71,9 @@ def page(browser, live):
     pg = browser.new_page(viewport={"width": 1366, "height": 768})
     pg.goto(live.url)
     yield pg
-    for name in live.console.hub.names:           # every test leaves the checks off and the optics straight
+    for name in live.console.hub.names:           # every test leaves the checks off (and ended)
         live.console.aim.switch(name, False)
+        until(lambda: not live.console.aim.view(name)["busy"], 30)
     pg.close()
 
 
@@ -99,8 +100,24 @@ def after_a_new_check(page, name, test, timeout=60):
     return until(lambda: (lambda n, v: v if n > n0 and test(v) else None)(*verdicts(page, name)), timeout, poll=0.3)
 
 
+def why(live, name):
+    """What the check of ``name`` is doing, and where its thread is (for a failure's message)."""
+    import sys
+    import traceback
+    view = {k: v for k, v in live.console.aim.view(name).items() if k != "verdicts"}
+    t = live.console.aim._thread
+    frame = sys._current_frames().get(t.ident) if t is not None else None
+    return view, "".join(traceback.format_stack(frame)[-4:]) if frame is not None else "no thread"
+
+
 def checks_done(live, name):
     return live.console.aim.view(name)["n"]
+
+
+def click_aim(page, live, name, on: bool):
+    """Click the switch and wait until the console has it (the click's POST is asynchronous)."""
+    page.click(f'section[data-camera="{name}"] button.aim-{"on" if on else "off"}')
+    assert until(lambda: live.console.aim.view(name)["on"] == on, 10), why(live, name)
 
 
 def wait_idle(live, name):
@@ -109,7 +126,7 @@ def wait_idle(live, name):
 
 
 def test_verdicts_show_and_turn_to_adjust_when_defocused_and_turned(live, page):
-    page.click('section[data-camera="cam1"] button.aim-on')
+    click_aim(page, live, "cam1", True)
     got = after_a_new_check(page, "cam1", lambda v: len(v) >= 7, 60)
     assert got, verdicts(page, "cam1")
     assert {item: state for item, (state, _, _) in got.items()} == {
@@ -156,9 +173,9 @@ def test_the_led_is_left_as_it_was_found(live, page, led_before):
     word = "on" if led_before else "off"
     assert until(lambda: cam(page, "cam2", "e => e.dataset.led") == word, 20)
     n0 = checks_done(live, "cam2")
-    page.click('section[data-camera="cam2"] button.aim-on')
-    assert until(lambda: checks_done(live, "cam2") >= n0 + 1, 60), live.console.aim.view("cam2")
-    page.click('section[data-camera="cam2"] button.aim-off')
+    click_aim(page, live, "cam2", True)
+    assert until(lambda: checks_done(live, "cam2") >= n0 + 1, 60), why(live, "cam2")
+    click_aim(page, live, "cam2", False)
     wait_idle(live, "cam2")
     view = live.console.aim.view("cam2")
     assert src.led_on() == led_before and view["led_found"] == word
@@ -186,12 +203,13 @@ def test_a_camera_a_recording_feeds_is_refused_in_one_sentence(live, page):
     finally:
         hub.detach(["cam2"])
     # switched on, then a recording takes it: the page says so, the LED untouched; back to checks after
-    page.click('section[data-camera="cam2"] button.aim-on')
-    assert until(lambda: checks_done(live, "cam2") >= 1 and not live.console.aim.view("cam2")["busy"], 60)
+    n0 = checks_done(live, "cam2")
+    click_aim(page, live, "cam2", True)
+    assert until(lambda: checks_done(live, "cam2") > n0 and not live.console.aim.view("cam2")["busy"], 60)
     led = src.led_on()
     hub.attach(["cam2"])
     try:
-        assert until(lambda: cam(page, "cam2", "e => e.dataset.aim") == "not-checked", 30)
+        assert until(lambda: cam(page, "cam2", "e => e.dataset.aim") == "not-checked", 30), why(live, "cam2")
         problem = cam(page, "cam2", "e => e.querySelector('.aim-problem').textContent")
         assert problem.startswith("not checked: cam2 is recording") and "(the verdicts below are of check" in problem
         assert cam(page, "cam2", "e => e.querySelector('.aim-side').classList.contains('old')")
@@ -202,3 +220,28 @@ def test_a_camera_a_recording_feeds_is_refused_in_one_sentence(live, page):
         hub.detach(["cam2"])
     assert until(lambda: checks_done(live, "cam2") > n, 60)
     assert until(lambda: cam(page, "cam2", "e => e.dataset.aim") in ("good", "adjust"), 20)
+
+
+def test_an_led_that_does_not_switch_or_a_camera_that_does_not_say_is_not_checked_and_said(live, page):
+    src, server = live.rig.sources["cam2"], live.rig.servers["cam2"]
+    src.set_led(True)
+    server.faults.led_held = True            # an action rule holds the output: the camera answers OK, the LED stays on
+    try:
+        click_aim(page, live, "cam2", True)
+        assert until(lambda: cam(page, "cam2", "e => e.dataset.aim") == "not-checked", 30), why(live, "cam2")
+        said = cam(page, "cam2", "e => e.querySelector('.aim-problem').textContent")
+        assert said.startswith("not checked: switched off here, but the camera says its LED output is on: "
+                               "the switch did not take"), said
+        assert src.led_on()
+    finally:
+        server.faults.led_held = False
+    server.faults.offline = True             # off the network: its LED state is not known, nothing is switched
+    try:
+        assert until(lambda: cam(page, "cam2", "e => e.querySelector('.aim-problem').textContent")
+                     .startswith("not checked: the LED state of cam2 is not known (the camera did not say"), 40), \
+            cam(page, "cam2", "e => e.querySelector('.aim-problem').textContent")
+    finally:
+        server.faults.offline = False
+    click_aim(page, live, "cam2", False)
+    wait_idle(live, "cam2")
+    assert src.led_on()

@@ -65,8 +65,8 @@
       li.className = "v-" + it.state; li.dataset.item = it.item; li.dataset.state = it.state;
       const verdict = document.createElement("span"); verdict.className = "verdict"; verdict.textContent = WORD[it.state];
       const label = document.createElement("span"); label.className = "label"; label.textContent = it.label + ": ";
-      const fig = it.value === null ? "" : ` [${it.value} ${it.unit}; goal ${it.goal}]`;
-      li.append(verdict, " ", label, it.text + fig);
+      li.title = `${it.value === null ? "not measured" : `${it.value} ${it.unit}`}; goal ${it.goal}`;
+      li.append(verdict, " ", label, it.text);
       ul.appendChild(li);
     }
     if (v) { c.want = s.n; picture(c, s.n); }
