@@ -8,8 +8,11 @@ room, judge (vts_hw/vision/aim.py).
   known, never an error.
 * :func:`check` -- LED on, one picture; LED off, one picture; the LED left on (as the drift QA
   does, procedures/drift.py); the :class:`~vts_hw.vision.aim.AimReport`.
-* :func:`aim_page` -- the same for a page (the console's Room page): the verdicts as a JSON-able
-  dict and the overlay as PNG bytes.
+* :func:`aim_page` -- the same for a page: the verdicts as a JSON-able dict and the overlay as
+  PNG bytes.
+* :func:`check_pictures` / :func:`aim_page_of` -- the same from two pictures already taken (the
+  console's Room page takes them from the frames it already receives: it never opens a second
+  stream nor a snapshot of a camera, docs/decisions/0071-console-aim.md).
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from vts_hw.vision.aim import AimReport, assess, decode_grey
 from vts_hw.vision.aim_geometry import RoomView
 from vts_hw.vision.aim_settings import AimSettings
 
-__all__ = ["room_view", "check", "aim_page", "acquire_pictures"]
+__all__ = ["room_view", "check", "check_pictures", "aim_page", "aim_page_of", "acquire_pictures"]
 
 
 def room_view(rig, name: str, size: tuple[int, int], settings: AimSettings | None = None
@@ -60,10 +63,28 @@ def acquire_pictures(cam):
     return on[0].jpeg, None if off is None else off.jpeg
 
 
+def check_pictures(name: str, rig, on_jpeg: bytes, off_jpeg: bytes | None, reference=None,
+                   reference_name: str = "the drift baseline") -> AimReport:
+    """The aim-and-focus check of camera ``name`` of ``rig`` (a RigConfig; None: the default goals
+    and no mapping) from its picture with the LED on and with it off (None: the LED could not be
+    switched). Opens nothing. ``reference``: where its markers were (px), or None."""
+    settings = rig.aim if rig is not None else None
+    on = decode_grey(on_jpeg, f"LED-on picture of {name}")
+    off = None if off_jpeg is None else decode_grey(off_jpeg, f"LED-off picture of {name}")
+    if rig is None:
+        view, why = None, "no mapping (no rig configuration given)"
+    else:
+        view, why = room_view(rig, name, (on.shape[1], on.shape[0]), settings)
+    kw = {} if settings is None else {"settings": settings}
+    return assess(name, on, off, view, no_view=why or "no mapping", reference=reference,
+                  reference_name=reference_name, **kw)
+
+
 def check(cam, rig, settings: AimSettings | None = None, reference=None,
           reference_name: str = "the drift baseline") -> AimReport:
-    """The aim-and-focus check of ``cam`` (an open camera of ``rig``). ``reference``: where its
-    markers were (px; the drift baseline's wall markers), or None."""
+    """The aim-and-focus check of ``cam`` (an open camera of ``rig``): LED on, one picture; LED
+    off, one picture (the LED left on). ``reference``: where its markers were (px; the drift
+    baseline's wall markers), or None."""
     settings = settings or rig.aim
     on_jpeg, off_jpeg = acquire_pictures(cam)
     on = decode_grey(on_jpeg, f"LED-on picture of {cam.name}")
@@ -76,4 +97,11 @@ def check(cam, rig, settings: AimSettings | None = None, reference=None,
 def aim_page(cam, rig, reference=None) -> tuple[dict, bytes]:
     """For a page: the verdicts (JSON-able dict) and the overlay (PNG bytes) of ``cam``."""
     report = check(cam, rig, reference=reference)
+    return report.to_dict(), report.overlay_png()
+
+
+def aim_page_of(name: str, rig, on_jpeg: bytes, off_jpeg: bytes | None, reference=None,
+                reference_name: str = "the drift baseline") -> tuple[dict, bytes]:
+    """:func:`aim_page` from two pictures already taken (:func:`check_pictures`): opens nothing."""
+    report = check_pictures(name, rig, on_jpeg, off_jpeg, reference, reference_name)
     return report.to_dict(), report.overlay_png()

@@ -60,6 +60,7 @@ class LiveConsole:
         self._serve.join(10)
         self._stop.set()
         self._facts.join(10)
+        self.console.aim.close()
         self.markers.close()
         self.hub.close()
         self.sock.close()

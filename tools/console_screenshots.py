@@ -33,6 +33,7 @@ class Stage:
     rig: object
     live: object
     ids: dict
+    folder: Path | None = None                         # a temporary folder of the stage's own
 
 
 @dataclass(frozen=True)
@@ -47,11 +48,28 @@ ROOM_READY = ("[...document.querySelectorAll('section.camera')].every(s => s.dat
               " && s.querySelectorAll('svg circle').length >= 3 && s.dataset.led === 'on'"
               " && s.querySelector('.offset').textContent.includes('ms'))")
 
+AIM_READY = ("[...document.querySelectorAll('section.camera')].every(s => ['good', 'adjust'].includes(s.dataset.aim)"
+             " && s.querySelector('img.aim-picture').naturalWidth > 0"
+             " && s.querySelector('img.aim-picture').dataset.check === s.dataset.aimCheck)")
+
+
+def aim_on(st: Stage) -> None:
+    """The Room page's aim & focus on both cameras, with the rig's true calibration and mapping (the
+    FOV, table and gantry drawn) and cam2's lens put out of focus (an ADJUST to show)."""
+    from vts_hw.sim_devices.sync_truth import write_true_calibration
+    cal, mp = write_true_calibration(st.rig.scene, st.folder)
+    st.live.console.rig_config = st.rig.config(calibration={"stereo": str(cal), "spect": str(mp)})
+    st.rig.sources["cam2"].set_optics(focus_blur_px=1.5)
+    for name in st.live.console.hub.names:
+        st.live.console.aim.switch(name, True, "screenshots")
+
+
 SHOTS: list[Shot] = [
     Shot("/", "room.png", ROOM_READY),
     Shot("/history", "history.png", "document.querySelectorAll('table.runs tbody tr').length > 0"),
     Shot(lambda st: f"/history/run/{st.ids['sync']}", "history-run.png",
          "(() => { const i = document.querySelector('img.plot'); return i && i.complete && i.naturalWidth > 0; })()"),
+    Shot("/", "room-aim.png", AIM_READY, setup=aim_on),    # last: it leaves the checks on and cam2 blurred
 ]
 
 
@@ -77,7 +95,7 @@ def stage(folder: Path):
                 with ResultsStore(db) as store:       # each camera's wall markers (the LED is left on)
                     record(store, take_baselines(list(cams.values()), frames=2), rig="sim", operator="screenshots")
                 with LiveConsole(cams, "sim", lambda: ResultsStore(db, mode="read")) as live:
-                    yield Stage(rig, live, ids)
+                    yield Stage(rig, live, ids, folder)
             finally:
                 for c in cams.values():
                     c.close()

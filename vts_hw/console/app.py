@@ -79,6 +79,7 @@ def _sse(event: str, data) -> bytes:
 
 
 def create_app(console: Console) -> Starlette:
+    from vts_hw.console.aim_page import aim_routes
     from vts_hw.console.history import history_routes
     from vts_hw.console.login import SessionDoor, login_routes, no_login_routes
     from vts_hw.console.qa_page import qa_routes
@@ -173,6 +174,7 @@ def create_app(console: Console) -> Starlette:
               *(login_routes(console, templates) if console.auth is not None and console.auth.required
                 else no_login_routes(console)),
               *scan_routes(console, templates),
+              *aim_routes(console, templates),         # the Room page's aim & focus (aim_checks.py)
               Mount("/static", StaticFiles(directory=str(HERE / "static")), name="static")]
     return Starlette(routes=routes, middleware=[Middleware(SessionDoor, console=console)])
 
