@@ -70,7 +70,7 @@ class AimChecks:
         self.console = console
         self.every_s = float(every_s)
         self._lock = threading.Lock()
-        self._state = {name: AimState() for name in console.hub.names}
+        self._state = {name: AimState() for name in (console.hub.names if console.hub is not None else [])}
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._wake = threading.Event()
