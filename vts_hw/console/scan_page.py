@@ -36,6 +36,10 @@ from vts_hw.console.scan_run import ScanRun
 
 STATE_EVERY_S = 0.25
 TICK_S = 0.02            # how often an event stream looks for alerts, frames and a new view
+#: a camera's "new picture" event at most this often per page: the page fetches at most 2 pictures
+#: a second (scan.js: thumbnails; the Room page is the live view), and an event per frame (100 a
+#: second for 4 cameras) cost the browsers and the live path beside them for nothing (bench/console.py)
+FRAME_EVENT_S = 0.5
 KEEPALIVE_S = 15.0
 MAX_REFERENCE_S = 120.0
 
@@ -151,6 +155,7 @@ def scan_routes(console, templates):
             loop = asyncio.get_running_loop()
             last_sent = 0.0
             sent_alerts, sent_view, sent_seq = -1, -1, {n: None for n in console.hub.names}
+            sent_at = {n: float("-inf") for n in console.hub.names}
             desk.viewers += 1
             try:
                 yield b"retry: 2000\n\n"
@@ -166,9 +171,11 @@ def scan_routes(console, templates):
                         sent_view = n
                         out.append(data)
                     for name in console.hub.names:
+                        if now - sent_at[name] < FRAME_EVENT_S:    # the page shows at most 2 a second
+                            continue
                         lt = console.hub.latest(name)
                         if lt is not None and lt.seq != sent_seq[name] and console.hub.status(name)["source"] == "fed":
-                            sent_seq[name] = lt.seq
+                            sent_seq[name], sent_at[name] = lt.seq, now
                             out.append(_sse("frame", {"camera": name, "seq": lt.seq, "arrival": lt.arrival}))
                     if not out and now - last_sent > KEEPALIVE_S:
                         out.append(b": keep-alive\n\n")

@@ -86,7 +86,7 @@
     cams[el.dataset.camera] = { name: el.dataset.camera, el, img: el.querySelector("img"), pic: el.querySelector(".pic"),
                                 want: null, shown: null, arrival: null, busy: false, url: null };
   });
-  const PICTURE_EVERY_MS = 200;   // at most 5 pictures a second per camera: a thumbnail, not the Room's view
+  const PICTURE_EVERY_MS = 500;   // at most 2 pictures a second per camera: a thumbnail, not the Room's view
   function pump(c) {
     if (c.busy || c.want === null || c.want === c.shown) return;
     const wait = PICTURE_EVERY_MS - (Date.now() - (c.fetched || 0));
