@@ -70,17 +70,17 @@ def render_commission_html(report: CommissionReport) -> str:
     body = (f"<style>{EXTRA_CSS}</style>"
             f'<section class="card banner {escape(state)}"><div class="big" id="verdict">Room {escape(report.rig)}: '
             f"{_badge(state)} {escape(verdict)}</div></section>"
-            f'<section class="card"><h2>Devices</h2>'
+            '<section class="card"><h2>Devices</h2>'
             + _table(["camera", "model", "serial", "firmware", "address", "announced", "settings locked"], cams,
                      "No camera recorded.") + trig + "</section>"
-            f'<section class="card"><h2>Steps</h2>'
+            '<section class="card"><h2>Steps</h2>'
             + _table(["step", "state", "when (UTC)", "run", "notes"], steps, "No step recorded.") + "</section>"
-            f'<section class="card"><h2>Figures against their tolerance</h2>'
+            '<section class="card"><h2>Figures against their tolerance</h2>'
             + _table(["step", "subject", "figure", "value", "tolerance window", "state"], figs, "No figure.")
             + "<p class=\"muted\">OK: within tolerance. TOLERANCE: within the action limits, to be reviewed. "
               "ACTION: outside the action limits. A figure without a window carries its procedure's own verdict.</p>"
               "</section>"
-            f'<section class="card"><h2>Skipped</h2>'
+            '<section class="card"><h2>Skipped</h2>'
             + (f"<ul id=\"skipped\">{skipped}</ul>" if skipped else '<p class="muted" id="skipped">Nothing was skipped.</p>')
             + "</section>" + sign)
     meta = (f"rig {escape(report.rig)} · commissioning {report.cid} · generated {fmt_datetime(report.now)} · "
