@@ -148,52 +148,104 @@ def aim(ctx: Context) -> Outcome:
 # ------------------------------------------------------------------ 4. warm-up
 
 
-def _uptimes(ctx: Context) -> dict[str, float | None]:
-    """Minutes each camera has run; None when it does not tell (a camera that does not answer
+def _uptime(cam, say) -> float | None:
+    """Minutes the camera has run; None when it does not tell (a camera that does not answer
     is a device failure, raised)."""
     from vts_hw.drivers.axis_uptime import NoUptime
-    out = {}
-    with _cameras(ctx.rig.cameras) as cams:
-        for cam in cams:
-            read = getattr(cam, "uptime", None)
-            try:
-                out[cam.name] = None if read is None else read().seconds / 60.0
-            except NoUptime as exc:      # a camera that does not tell: not known, said
-                ctx.say(f"  {cam.name}: uptime not known ({exc})")
-                out[cam.name] = None
-    return out
+    read = getattr(cam, "uptime", None)
+    try:
+        return None if read is None else read().seconds / 60.0
+    except NoUptime as exc:      # a camera that does not tell: not known, said
+        say(f"  {cam.name}: uptime not known ({exc})")
+        return None
+
+
+def _minutes(m: float) -> str:
+    return "a minute" if m < 1.5 else f"{m:.0f} min"
+
+
+def _rate_text(fit) -> str:
+    if fit.rate_px_min is None:
+        return "rate not known (fewer than 3 samples with wall markers)"
+    return f"{fit.rate_px_min:.3f} ± {fit.se_px_min:.3f} px/min over {fit.window_min:.1f} min"
 
 
 def warmup(ctx: Context) -> Outcome:
-    """Each camera's uptime (as the daily QA reads it) against its warmup_min: a camera warming up
-    is waited for with progress, or (``wait`` False) the step stops saying how long."""
+    """Each camera's picture settled (procedures/warmup.py): the wall markers' mean position
+    sampled every ``warmup.interval_s``, the rate fitted over the last ``warmup.samples``
+    samples against the ``warmup_rate_px_min`` window, and its uptime against its warmup_min.
+    A camera not settled is waited for with progress (a line a sample), or (``wait`` False)
+    the step stops saying how long."""
+    from vts_hw.procedures.drift import LED_SETTLE_S
+    from vts_hw.procedures.warmup import Watch, settle_wait_min
+    from vts_hw.tolerance import merged_tolerances
+
+    st = ctx.rig.warmup
+    window = merged_tolerances(ctx.rig.tolerances)["warmup_rate_px_min"]
+    limit = window.tolerance_high if window.tolerance_high is not None else window.action_high
     warm = {c.name: float(c.warmup_min) for c in ctx.rig.cameras}
-    while True:
-        up = _uptimes(ctx)
-        left = {n: warm[n] - m for n, m in up.items() if m is not None and m < warm[n]}
-        if not left or not ctx.inputs.wait:
-            break
-        longest = max(left.values())
-        ctx.say(f"  warming up: {', '.join(f'{n} {m:.0f} min more' for n, m in left.items())}; waiting "
-                f"({longest:.1f} min; Ctrl-C stops, `vts commission --resume` continues)")
-        ctx.sleep(min(60.0, longest * 60.0 + 1.0))
-    measures, lines = [], []
-    for n, m in up.items():
-        if m is None:
-            measures.append(Measure(n, "uptime_min", None, "min", TOL))
-            lines.append(f"  {n}: uptime not known: whether its drift has settled is not known")
+    ctx.say(f"  watching the wall markers settle: a sample every {st.interval_s:g} s, the rate fitted over "
+            f"{st.samples} samples ({window.describe()}); Ctrl-C stops, `vts commission --resume` continues")
+    with _cameras(ctx.rig.cameras, clock=ctx.clock) as cams:
+        watches = {c.name: Watch(c, st.frames) for c in cams}
+        for c in cams:
+            c.led_on()
+        ctx.sleep(LED_SETTLE_S)
+        k = 0
+        while True:
+            k += 1
+            for w in watches.values():
+                w.sample()
+            fits = {n: w.fit(st.samples) for n, w in watches.items()}
+            now = "; ".join(f"{n} {'?' if f.rate_px_min is None else f'{f.rate_px_min:.3f}'} px/min"
+                            for n, f in fits.items())
+            head = f"sample {k} of {st.samples}" if k <= st.samples else f"sample {k} (the last {st.samples})"
+            ctx.say(f"  {head}: rate now {now}" if k >= 3 else f"  {head}")
+            if k < st.samples:
+                ctx.sleep(st.interval_s)
+                continue
+            up = {c.name: _uptime(c, ctx.say) for c in cams}
+            unsettled = {n for n, f in fits.items()     # an uptime not known: the rate alone tells
+                         if window.state(f.rate_px_min) != OK or (up[n] is not None and up[n] < warm[n])}
+            unknown = {n for n, f in fits.items() if f.rate_px_min is None}
+            if not unsettled or not ctx.inputs.wait or unknown:
+                break
+            waits = {n: settle_wait_min(fits[n], limit, up[n], warm[n]) for n in sorted(unsettled)}
+            ctx.say("  not settled: " + "; ".join(
+                f"{n} ({_rate_text(fits[n])}): " + (f"about {_minutes(m)} more" if m is not None else why)
+                for n, (m, why) in waits.items()) + "; waiting")
+            ctx.sleep(st.interval_s)
+    measures, lines, data, advice = [], [], {}, []
+    for n, f in fits.items():
+        state = window.state(f.rate_px_min)
+        young = up[n] is not None and up[n] < warm[n]
+        measures.append(Measure(n, "warmup_rate_px_min", None if f.rate_px_min is None else round(f.rate_px_min, 4),
+                                "px/min", state))
+        measures.append(Measure(n, "uptime_min", None if up[n] is None else round(up[n], 1), "min",
+                                TOL if up[n] is None or young else OK))
+        if up[n] is not None:
+            measures.append(Measure(n, "warming_up", 1.0 if young else 0.0, "", TOL if young else OK))
+        data[n] = {"rate_px_min": f.rate_px_min, "se_px_min": f.se_px_min, "window_min": f.window_min,
+                   "samples": f.n, "tau_min": f.tau_min, "uptime_min": up[n], "warmup_min": warm[n],
+                   "samples_taken": [(s.t, s.dx, s.dy, s.markers) for s in watches[n].samples]}
+        settled = n not in unsettled
+        ran = "uptime not known (the rate alone tells)" if up[n] is None else f"running {up[n]:.0f} min (warm-up {warm[n]:g} min)"
+        lines.append(f"  {n}: {_rate_text(f)} ({window.describe()}), {ran}: " + ("settled" if settled else "NOT settled"))
+        if settled:
             continue
-        measures += [Measure(n, "uptime_min", round(m, 1), "min", TOL if n in left else OK),
-                     Measure(n, "warming_up", 1.0 if n in left else 0.0, "", TOL if n in left else OK)]
-        lines.append(f"  {n}: running {m:.0f} min (warm-up {warm[n]:g} min)"
-                     + (f": {left[n]:.0f} min more" if n in left else ": warm"))
-    advice = ""
-    if left:
-        longest = max(left.values())
-        advice = (f"{', '.join(sorted(left))} started less than its warm-up time ago: wait {longest:.0f} min "
-                  f"(until {time.strftime('%H:%M', time.localtime(ctx.clock() + longest * 60))}), then "
-                  "`vts commission --resume`")
-    return Outcome("warmup", StepCheck("warmup", measures, lines), not left, advice=advice)
+        if f.rate_px_min is None:
+            advice.append(f"{n}: no wall markers seen with the LED on: the rate is not known (check its LED ring "
+                          "and aim)")
+            continue
+        m, why = settle_wait_min(f, limit, up[n], warm[n])
+        data[n]["wait_min"] = m
+        advice.append(f"{n} not settled ({why or _rate_text(f)}): " + (
+            f"wait about {_minutes(m)} (until {time.strftime('%H:%M', time.localtime(ctx.clock() + m * 60))})"
+            if m is not None else "wait and run it again"))
+    passed = not unsettled
+    tail = "; then `vts commission --resume`" if advice else ""
+    return Outcome("warmup", StepCheck("warmup", measures, lines, {"warmup": data}), passed,
+                   advice="; ".join(advice) + tail)
 
 
 # ------------------------------------------------------------------ 5. calibration

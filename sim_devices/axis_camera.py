@@ -114,6 +114,7 @@ class SimAxisCamera:
         self._sockets: set[socket.socket] = set()
         self._stopping = threading.Event()
         self.booted_at = self.clock.now() - uptime_s   # when the camera started (sim clock): its uptime
+        self._tell_started()
         self.announced = False   # announced on the network (sim_devices/announce.py): serves its UPnP description
         self._httpd: _Server | None = None
         self._thread: threading.Thread | None = None
@@ -188,6 +189,13 @@ class SimAxisCamera:
     def reboot(self) -> None:
         """The camera restarts now: its uptime starts again from zero (its parameters are kept)."""
         self.booted_at = self.clock.now()
+        self._tell_started()
+
+    def _tell_started(self) -> None:
+        """The source hears when the camera started (its warm-up drift counts from then)."""
+        started = getattr(self.source, "started", None)
+        if started is not None:
+            started(self.booted_at)
 
     @property
     def serial(self) -> str:

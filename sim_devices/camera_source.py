@@ -42,6 +42,10 @@ class SimCameraSource:
         t = self.clock.now() if host_t is None else host_t
         return self.scene.clocks[self.name].camera_time(t)
 
+    def started(self, t: float) -> None:
+        """The camera (re)started at ``t``: a declared warm-up drift counts from then (warmup.py)."""
+        self.scene.booted[self.name] = float(t)
+
     def set_led(self, on: bool) -> None:
         """Switch the LED ring on or off, now."""
         self.scene.set_led(self.name, on, self.clock.now())

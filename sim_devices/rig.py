@@ -57,7 +57,7 @@ class SimRig:
                  firmware: str = "vapix3", clock=None, fps: float = 25.0,
                  drift_px_per_60_days: dict[str, float] | None = None, trigger: str = "none",
                  tls: tuple[str, str] | None = None, gantry: bool = False, patient=None, qatrack: bool = False,
-                 announce: bool = False, optics: dict[str, dict] | None = None):
+                 announce: bool = False, optics: dict[str, dict] | None = None, warmup_drift: bool | dict = False):
         if trigger not in TRIGGERS:
             raise ValueError(f"trigger must be one of {', '.join(TRIGGERS)}, not {trigger!r}")
         self.trigger = trigger
@@ -83,6 +83,9 @@ class SimRig:
             # a camera that drifts faster than the reference rig's (the demo's bad camera)
             self.scene.drifts[cam] = CameraDrift.reference(self.scene.cameras[cam].focal, seed * 7919 + i,
                                                            self.scene.start_epoch, px)
+        if warmup_drift:   # the picture drifts for minutes after a camera starts (sim_devices/warmup.py)
+            from vts_hw.sim_devices.warmup import declare_warmups
+            declare_warmups(self.scene, seed, warmup_drift)
         self.renderer = Renderer(self.scene)
         # optics: {camera: {focus_blur_px, yaw_deg, pitch_deg}}, a lens out of focus, a mount turned
         # (sim_devices/optics.py; at run time: sources[name].set_optics or POST /sim/optics)

@@ -7,8 +7,10 @@ y down, z forward). :meth:`Scene.reference` builds the reference rig of docs/des
 
 Time-dependent parts take ``t`` (host UTC epoch seconds):
 
-* camera drift, a slow rotation of each camera about its own centre (:class:`CameraDrift`),
-  counted from ``Scene.start_epoch``;
+* camera drift, a slow rotation of each camera about its own centre (:class:`CameraDrift`,
+  sim_devices/camera_motion.py), counted from ``Scene.start_epoch``;
+* the warm-up drift of a camera after it starts, when one is declared (``Scene.warmups``,
+  ``Scene.booted``: sim_devices/warmup.py);
 * LED on/off, table position and the poses of bodies on the table, each a
   :class:`Schedule` of changes at given instants ("the latest command wins").
 
@@ -21,15 +23,14 @@ from __future__ import annotations
 import bisect
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import cv2
 import numpy as np
 
 from vts_hw.recording.axis_jpeg import AxisProduct
-
-DAY = 86400.0
+from vts_hw.sim_devices.camera_motion import DAY, CameraClock, CameraDrift  # noqa: F401  (re-exported)
 
 # Reference rig (docs/design.md, "The room"). Millimetres, pixels.
 CAM_Y = 1100.0          # camera height above the table axis (2.1 m above a floor 1.0 m below the axis)
@@ -130,68 +131,6 @@ class CameraModel:
         Rd = rotation_matrix(rvec_camera)
         return CameraModel(self.name, self.K, self.dist, Rd @ self.R, Rd @ self.t,
                            self.width, self.height)
-
-
-@dataclass(frozen=True)
-class CameraClock:
-    """A camera's own clock: ``camera = host + offset + skew * 1e-6 * (host - ref_epoch)``."""
-
-    offset_s: float = 0.0
-    skew_ppm: float = 0.0
-    ref_epoch: float = 0.0
-
-    def camera_time(self, host_t: float) -> float:
-        return host_t + self.offset_s + self.skew_ppm * 1e-6 * (host_t - self.ref_epoch)
-
-    def host_time(self, camera_t: float) -> float:
-        """The inverse of :meth:`camera_time`."""
-        s = self.skew_ppm * 1e-6
-        return (camera_t - self.offset_s + s * self.ref_epoch) / (1.0 + s)
-
-
-@dataclass(frozen=True, eq=False)
-class CameraDrift:
-    """Slow rotation of a fixed camera: a linear trend plus a seeded random walk.
-
-    :meth:`rotation_at` gives a small rotation vector (camera coordinates, radians) to apply
-    on top of the base pose. The random walk is a table of daily steps (``days`` long, drawn
-    once from ``seed``) interpolated linearly, so any instant is evaluated deterministically
-    and in any order. Before ``ref_epoch`` the camera sits at its base pose; after the table
-    ends the walk holds its last value while the trend goes on.
-    """
-
-    trend_axis: np.ndarray
-    trend_rad_per_day: float
-    walk_sigma_rad: float
-    seed: int
-    ref_epoch: float
-    days: int = 3660
-    _walk: np.ndarray = field(init=False, repr=False)
-
-    def __post_init__(self):
-        rng = np.random.default_rng(self.seed)
-        steps = rng.normal(0.0, self.walk_sigma_rad, size=(self.days, 3))
-        walk = np.vstack([np.zeros((1, 3)), np.cumsum(steps, axis=0)])
-        object.__setattr__(self, "_walk", walk)
-        object.__setattr__(self, "trend_axis", _unit(self.trend_axis))
-
-    @classmethod
-    def reference(cls, focal_px: float, seed: int, ref_epoch: float,
-                  px_per_60_days: float = 1.0, walk_px_per_60_days: float = 0.07) -> "CameraDrift":
-        """A drift that moves the image by about ``px_per_60_days`` (trend) over 60 days, plus
-        a random walk whose 60-day standard deviation per image axis is ``walk_px_per_60_days``."""
-        rng = np.random.default_rng(seed)
-        phi = rng.uniform(0, 2 * np.pi)
-        axis = np.array([np.cos(phi), np.sin(phi), 0.1 * rng.normal()])
-        return cls(axis, px_per_60_days / focal_px / 60.0,
-                   walk_px_per_60_days / focal_px / np.sqrt(60.0), seed + 1, ref_epoch)
-
-    def rotation_at(self, t: float) -> np.ndarray:
-        d = max(0.0, (t - self.ref_epoch) / DAY)
-        i = min(int(d), self.days - 1)
-        frac = min(d - i, 1.0)
-        walk = self._walk[i] * (1.0 - frac) + self._walk[i + 1] * frac
-        return self.trend_axis * (self.trend_rad_per_day * d) + walk
 
 
 @dataclass(frozen=True, eq=False)
@@ -332,6 +271,7 @@ class Scene:
         self._leds = {name: Schedule(False) for name in self.cameras}
         self.gantry = None  # the SPECT heads (sim_devices/gantry.py), when the room has them
         self.optics, self.mounts = {}, {}  # focus and mount; turned mounts' rvecs (sim_devices/optics.py)
+        self.warmups, self.booted = {}, {}  # warm-up drift declared; when each camera started (warmup.py)
 
     # ----------------------------------------------------------------- construction
     @classmethod
@@ -442,8 +382,12 @@ class Scene:
 
     # ----------------------------------------------------------------- ground truth
     def camera_at(self, cam: str, t: float) -> CameraModel:
-        """Camera ``cam`` at time ``t``: the base pose turned by its drift (and its mount)."""
+        """Camera ``cam`` at time ``t``: the base pose turned by its drift, its warm-up drift
+        (when declared) and its mount."""
         camera = self.cameras[cam].rotated(self.drifts[cam].rotation_at(t))
+        warm = self.warmups.get(cam)
+        if warm is not None and cam in self.booted:
+            camera = camera.rotated(warm.rotation_at(t - self.booted[cam]))
         mount = self.mounts.get(cam)
         return camera if mount is None else camera.rotated(mount)
 

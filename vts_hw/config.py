@@ -18,6 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError,
 
 from vts_hw.config_qatrack import QATrackConfig
 from vts_hw.config_setup import CameraSetupConfig
+from vts_hw.config_warmup import WarmupSettings
 from vts_hw.bounded import ANY_SIZE, TooLarge, check_file, read_bytes
 from vts_hw.errors import ConfigError
 from vts_hw.vision.aim_settings import AimSettings
@@ -58,7 +59,8 @@ class CameraConfig(_Strict):
     ca_cert: Optional[Path] = Field(
         default=None, description="https: a PEM certificate to trust for this camera (e.g. its self-signed one)")
     warmup_min: float = Field(default=30.0, ge=0, le=24 * 60,
-                              description="minutes after it starts before its drift has settled (daily QA warns)")
+                              description="minutes after it starts before its drift has settled (daily QA warns; "
+                                          "commissioning waits at least this long)")
 
     @field_validator("ca_cert")
     @classmethod
@@ -241,6 +243,7 @@ class RigConfig(_Strict):
     aim: AimSettings = AimSettings()          # goals of `vts camera aim` (vision/aim_settings.py)
     qatrack: Optional[QATrackConfig] = None   # pushing results to QATrack+ (config_qatrack.py)
     camera_setup: CameraSetupConfig = CameraSetupConfig()   # what `vts camera setup` sets (config_setup.py)
+    warmup: WarmupSettings = WarmupSettings()   # how commissioning watches the pictures settle (config_warmup.py)
     recordings_dir: Optional[Path] = None
     _source: Optional[Path] = PrivateAttr(default=None)   # the file it was read from
 

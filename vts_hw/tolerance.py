@@ -150,6 +150,10 @@ DEFAULT_TOLERANCES: dict[str, Window] = {
     "motion_body_max_mm": Window(tolerance_high=3.2, action_high=6.4, unit="mm"),
     "motion_body_max_deg": Window(tolerance_high=1.0, action_high=2.0, unit="deg"),
     "motion_pose_coverage": Window(action_low=0.8, tolerance_low=0.95, unit="fraction"),
+    # commissioning's warm-up: how fast the wall markers' mean position still moves (px/min,
+    # fitted over rig.yaml's warmup: window). A warming fixed camera moves some px over its first
+    # 10-30 min; 0.05 px/min is 0.06 mm a minute at the wall, 3 px in an hour only if it never slows.
+    "warmup_rate_px_min": Window(tolerance_high=0.05, unit="px/min"),
 }
 
 
