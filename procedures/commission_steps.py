@@ -212,8 +212,9 @@ def warmup(ctx: Context) -> Outcome:
                 break
             waits = {n: settle_wait_min(fits[n], limit, up[n], warm[n]) for n in sorted(unsettled)}
             ctx.say("  not settled: " + "; ".join(
-                f"{n} ({_rate_text(fits[n])}): " + (f"about {_minutes(m)} more" if m is not None else why)
-                for n, (m, why) in waits.items()) + "; waiting")
+                f"{n} ({_rate_text(fits[n])}): "
+                + (f"{'at least' if least else 'about'} {_minutes(m)} more" if m is not None else why)
+                for n, (m, why, least) in waits.items()) + "; waiting")
             ctx.sleep(st.interval_s)
     measures, lines, data, advice = [], [], {}, []
     for n, f in fits.items():
@@ -237,10 +238,10 @@ def warmup(ctx: Context) -> Outcome:
             advice.append(f"{n}: no wall markers seen with the LED on: the rate is not known (check its LED ring "
                           "and aim)")
             continue
-        m, why = settle_wait_min(f, limit, up[n], warm[n])
-        data[n]["wait_min"] = m
+        m, why, least = settle_wait_min(f, limit, up[n], warm[n])
+        data[n]["wait_min"], data[n]["wait_at_least"] = m, least
         advice.append(f"{n} not settled ({why or _rate_text(f)}): " + (
-            f"wait about {_minutes(m)} (until {time.strftime('%H:%M', time.localtime(ctx.clock() + m * 60))})"
+            f"wait {'at least' if least else 'about'} {_minutes(m)} (until {time.strftime('%H:%M', time.localtime(ctx.clock() + m * 60))})"
             if m is not None else "wait and run it again"))
     passed = not unsettled
     tail = "; then `vts commission --resume`" if advice else ""

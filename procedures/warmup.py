@@ -93,22 +93,25 @@ def fit_rate(times_s, positions) -> RateFit:
     return RateFit(rate, se, float(np.ptp(t)), n, tau, end)
 
 
-def settle_wait_min(fit: RateFit, limit: float, uptime_min: float | None, warmup_min: float) -> tuple[float | None, str]:
-    """(minutes to wait, why) for one camera: the longer of the rest of its warm-up time and the
-    time its rate takes to fall below ``limit``; None when the rate is above it and that time is
-    not known (the minutes of the warm-up time alone would be a guess)."""
+def settle_wait_min(fit: RateFit, limit: float, uptime_min: float | None,
+                    warmup_min: float) -> tuple[float | None, str, bool]:
+    """(minutes to wait, why, at least) for one camera: the longer of the rest of its warm-up
+    time and the time its rate takes to fall below ``limit``. When the rate is above the limit
+    and does not measurably slow, that time is not known: the rest of the warm-up time is then
+    a lower bound (``at least`` True), and with none left the minutes are None (never guessed)."""
     by_uptime = None if uptime_min is None else max(0.0, warmup_min - uptime_min)
     by_rate = fit.minutes_to(limit)
     parts = []
     if by_uptime:
         parts.append(f"{by_uptime:.0f} min more of its {warmup_min:g} min warm-up time")
+    unknown = fit.rate_px_min is not None and fit.rate_px_min > limit and by_rate is None
     if fit.rate_px_min is not None and fit.rate_px_min > limit:
         parts.append(f"the rate slowing with a time constant of {fit.tau_min:.0f} min: {by_rate:.0f} min to "
                      f"{limit:g} px/min" if by_rate is not None
                      else f"the rate not slowing measurably over {fit.window_min:.1f} min: how long is not known")
-        if by_rate is None:
-            return None, "; ".join(parts)
-    return max(by_uptime or 0.0, by_rate or 0.0), "; ".join(parts)
+    if unknown:
+        return (by_uptime or None), "; ".join(parts), True
+    return max(by_uptime or 0.0, by_rate or 0.0), "; ".join(parts), False
 
 
 @dataclass

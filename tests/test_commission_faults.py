@@ -1,7 +1,7 @@
 """`vts commission`'s refusals and stops, each one sentence and its exit status (docs/faults.md):
-a --skip without --why, a camera still warming up with --no-wait (how long to wait), an input a
-step needs and was not given, a camera that does not answer; each recorded in the store as a
-step that did not pass, never as passed."""
+a --skip without --why, an input a step needs and was not given, a camera that does not answer;
+each recorded in the store as a step that did not pass, never as passed. (A camera still warming
+up with --no-wait: tests/test_commission_warmup.py.)"""
 
 from __future__ import annotations
 
@@ -39,18 +39,6 @@ def test_a_skip_needs_a_why(capsys, tmp_path):
     code, _, err = vts(capsys, "commission", "--config", tmp_path / "none.yaml", "--skip", "sync")
     assert code == 2 and err.strip() == ("vts: --skip STEP needs --why TEXT (and --why a --skip): the report says why "
                                          "a step was left out")
-
-
-def test_a_camera_warming_up_stops_with_how_long_to_wait(rig, capsys, tmp_path):
-    y, url = _yaml(rig, tmp_path)
-    rig.servers["cam1"].reboot()
-    code, out, err = vts(capsys, "commission", "--config", y, "-o", tmp_path / "c", "--from", "warmup", "--no-wait")
-    assert code == 10, err
-    assert "commissioning stopped at warm-up: cam1 started less than its warm-up time ago: wait 30 min" in out
-    assert "cam2: running 1440 min (warm-up 30 min): warm" in err
-    with ResultsStore(url) as store:
-        s = load_state(store, "room2").steps["warmup"]
-        assert not s.passed and s.status == "TOLERANCE"
 
 
 def test_an_input_not_given_stops_with_what_to_give(rig, capsys, tmp_path):
