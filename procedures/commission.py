@@ -44,7 +44,7 @@ STEPS: tuple[Step, ...] = (
     Step("cameras", "discover and set up the cameras", "vts discover; vts camera setup --all"),
     Step("trigger", "trigger box", "vts trigger status"),
     Step("aim", "aim and focus", "vts camera aim NAME"),
-    Step("warmup", "warm-up", "vts qa daily (its uptime check)"),
+    Step("warmup", "warm-up", "vts qa daily (its uptime check and drift detection)"),
     Step("calibration", "calibration", "vts calibrate cameras IMAGES", "--checkerboards"),
     Step("mapping", "VTS → SPECT mapping", "vts calibrate spect --from-cameras --volume FILE", "--phantom-volume"),
     Step("steps", "step test", "vts qa steps --volumes DIR", "--step-volumes"),
