@@ -230,8 +230,10 @@ def warmup(ctx: Context) -> Outcome:
                    "samples": f.n, "tau_min": f.tau_min, "uptime_min": up[n], "warmup_min": warm[n],
                    "samples_taken": [(s.t, s.dx, s.dy, s.markers) for s in watches[n].samples]}
         settled = n not in unsettled
-        ran = "uptime not known (the rate alone tells)" if up[n] is None else f"running {up[n]:.0f} min (warm-up {warm[n]:g} min)"
-        lines.append(f"  {n}: {_rate_text(f)} ({window.describe()}), {ran}: " + ("settled" if settled else "NOT settled"))
+        ran = ("uptime not known (the rate alone tells)" if up[n] is None
+               else f"running {up[n]:.0f} min (warm-up {warm[n]:g} min)")
+        lines.append(f"  {n}: {_rate_text(f)} ({window.describe()}), {ran}: "
+                     + ("settled" if settled else "NOT settled"))
         if settled:
             continue
         if f.rate_px_min is None:
@@ -240,8 +242,9 @@ def warmup(ctx: Context) -> Outcome:
             continue
         m, why, least = settle_wait_min(f, limit, up[n], warm[n])
         data[n]["wait_min"], data[n]["wait_at_least"] = m, least
+        until = "" if m is None else time.strftime("%H:%M", time.localtime(ctx.clock() + m * 60))
         advice.append(f"{n} not settled ({why or _rate_text(f)}): " + (
-            f"wait {'at least' if least else 'about'} {_minutes(m)} (until {time.strftime('%H:%M', time.localtime(ctx.clock() + m * 60))})"
+            f"wait {'at least' if least else 'about'} {_minutes(m)} (until {until})"
             if m is not None else "wait and run it again"))
     passed = not unsettled
     tail = "; then `vts commission --resume`" if advice else ""

@@ -78,6 +78,7 @@ def declare_warmups(scene, seed: int, cameras: dict | bool) -> dict[str, WarmupD
             raise ValueError(f"warm-up drift of {name}: unknown setting {unknown[0]!r} (amplitude_px, tau_min)")
         rng = np.random.default_rng([seed, 24, i])
         amp, tau, phi = rng.uniform(*AMPLITUDE_PX), rng.uniform(*TAU_MIN), rng.uniform(0, 2 * math.pi)
-        scene.warmups[name] = WarmupDrift(float(given.get("amplitude_px", amp)), 60.0 * float(given.get("tau_min", tau)),
+        scene.warmups[name] = WarmupDrift(float(given.get("amplitude_px", amp)),
+                                          60.0 * float(given.get("tau_min", tau)),
                                           (math.cos(phi), math.sin(phi)), scene.cameras[name].focal)
     return dict(scene.warmups)

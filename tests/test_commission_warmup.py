@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -81,8 +80,8 @@ def test_a_fresh_camera_is_not_settled_about_n_min_with_no_wait(tmp_path, capsys
         rig.stop()
     assert code == 10, err
     assert "sample 1 of 4" in err and "sample 4 of 4: rate now cam1 0." in err
-    m = re.search(r"commissioning stopped at warm-up: cam1 not settled \((.*?)\): wait (?:about|at least) (\d+) min \(until "
-                  r"\d\d:\d\d\); then `vts commission --resume`", out)
+    m = re.search(r"commissioning stopped at warm-up: cam1 not settled \((.*?)\): wait (?:about|at least) (\d+) min "
+                  r"\(until \d\d:\d\d\); then `vts commission --resume`", out)
     assert m, out
     assert "more of its 30 min warm-up time" in m.group(1)
     assert re.search(r"cam1: 0\.\d\d\d ± 0\.\d+ px/min over [\d.]+ min \(OK ≤ 0\.05 px/min\), running \d+ min "
@@ -169,3 +168,17 @@ def test_a_camera_without_wall_markers_is_not_known_and_never_waited_for(frozen,
     assert "cam2: no wall markers seen with the LED on: the rate is not known (check its LED ring and aim)" \
         in out.advice
     assert out.result.data["warmup"]["cam2"]["rate_px_min"] is None
+
+
+@pytest.mark.parametrize("section, says", [
+    ("warmup: {samples: 2}", "warmup.samples input should be greater than or equal to 3 (got 2)"),
+    ("warmup: {interval_s: 0}", "warmup.interval_s input should be greater than 0 (got 0)"),
+    ("warmup: {every: 5}", "warmup.every is not a known key"),
+    ("tolerances: {warmup_rate_px_min: {tolerance_high: 0.1, action_high: 0.05}}",
+     "tolerances.warmup_rate_px_min expected action_low <= tolerance_low <= tolerance_high <= action_high"),
+])
+def test_a_bad_warmup_setting_or_limit_is_one_sentence_naming_its_key(tmp_path, capsys, section, says):
+    y = tmp_path / "rig.yaml"
+    y.write_text(f"rig: r\ncameras: [{{name: cam1, host: 127.0.0.1}}]\n{section}\n")
+    code, out, err = vts(capsys, "commission", "--config", y, "--no-wait")
+    assert code == 2 and err.strip() == f"vts: {y}: {says}", err
