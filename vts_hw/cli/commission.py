@@ -60,7 +60,8 @@ def _pattern(ctx, param, value: str) -> tuple[int, int]:
               help="Seconds to listen for cameras announcing themselves (mDNS, SSDP).")
 @click.option("--interface", "interfaces", multiple=True, metavar="ADDRESS",
               help="Listen from this IPv4 address of this host only (repeatable).")
-@click.option("--no-wait", is_flag=True, help="Warm-up: do not wait for cameras still warming; say how long and stop.")
+@click.option("--no-wait", is_flag=True, help="Warm-up: do not wait for a camera whose picture has not settled (or that started less than its "
+                   "warmup_min ago); say how long to wait and stop.")
 @click.option("--operator", default=lambda: os.environ.get("USER", ""), help="Who runs it.")
 def commission(config_path, resume, from_step, skips, why, sign_off, out_dir, checkerboards, pattern, square_mm,
                phantom_volume, step_volumes, vertical, axial, sync_session, listmode, frames, listen_s, interfaces,
@@ -69,7 +70,8 @@ def commission(config_path, resume, from_step, skips, why, sign_off, out_dir, ch
 
     \b
     Steps: 1 cameras (discover, set up, lock into rig.yaml) · 2 trigger (the box's version;
-    flashing is `vts trigger flash`) · 3 aim and focus · 4 warm-up · 5 calibration
+    flashing is `vts trigger flash`) · 3 aim and focus · 4 warm-up (the wall markers' rate
+    settled, rig.yaml's warmup: and warmup_rate_px_min) · 5 calibration
     (--checkerboards) · 6 VTS -> SPECT mapping (--phantom-volume) · 7 step test
     (--step-volumes; the table moved when asked) · 8 sync check (--sync-session,
     --listmode) · 9 drift baseline. A step that needs what is not given stops and says what.
