@@ -23,18 +23,21 @@ STYLE = {"good": "bold green", "adjust": "bold yellow", "unknown": "dim"}
 
 def _reference(rig, name: str):
     """The drift baseline's marker positions of ``name`` from the rig's store, and its name; or
-    (None, why not) -- a rig without a store or a baseline is aimed by the picture's margins."""
-    from vts_hw.errors import VtsError
+    (None, why not) -- a rig without a store or a baseline is aimed by the picture's margins; a
+    store that is not ours or cannot be read is refused (StoreError, exit 3) before the camera."""
+    from vts_hw.cli.common import open_store
+    from vts_hw.store.baselines import NoBaseline, load_baseline
+    from vts_hw.store.errors import NoStore
     try:
-        from vts_hw.cli.common import open_store
-        from vts_hw.store.baselines import load_baseline
         store = open_store(rig, "read")
-        try:
-            base = load_baseline(store, name)
-        finally:
-            getattr(store, "close", lambda: None)()
-    except VtsError as exc:
+    except NoStore as exc:
         return None, str(exc)
+    try:
+        base = load_baseline(store, name)
+    except NoBaseline as exc:
+        return None, str(exc)
+    finally:
+        getattr(store, "close", lambda: None)()
     return [(m.x, m.y) for m in base.markers], "the drift baseline"
 
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from vts_hw.cli.common import echo_json, json_option
+from vts_hw.cli.common import FiniteFloat, echo_json, json_option
 from vts_hw.cli.trigger import trigger
 
 _PHASES = {"building": "building the firmware (make -C firmware)", "reading": "reading the firmware",
@@ -59,7 +59,7 @@ class _Progress:
               help="The bootloader's baud rate (115200: Uno optiboot; 57600: Nanos with the old bootloader).")
 @click.option("--attempts", type=click.IntRange(1, 10), default=3, show_default=True,
               help="How often avrdude tries to reach the arduino bootloader (about 5.6 s each when nothing answers).")
-@click.option("--confirm-timeout", type=click.FloatRange(1, 120), default=15, show_default=True,
+@click.option("--confirm-timeout", type=FiniteFloat(1, 120, what="seconds"), default=15, show_default=True,
               help="Seconds to wait for the flashed box to answer *IDN?.")
 @click.option("--dry-run", is_flag=True,
               help="Build (or read --hex), check avrdude and the programmer, print the command; touch no port.")

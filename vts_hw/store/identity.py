@@ -35,7 +35,7 @@ from urllib.parse import quote
 
 from sqlalchemy import Connection, inspect
 
-from vts_hw.store.errors import StoreError
+from vts_hw.store.errors import NoStore, StoreError
 
 NEW, EMPTY, OURS, FOREIGN = "new", "empty", "ours", "foreign"
 MODES = ("read", "create", "init")
@@ -127,7 +127,7 @@ def allowed(found: Found, mode: str, where: str, backend: str) -> None:
     if found.kind == NEW:
         if mode in ("create", "init"):
             return
-        raise StoreError(f"{where}: there is no results store there ({found.detail}); a QA run creates it, "
+        raise NoStore(f"{where}: there is no results store there ({found.detail}); a QA run creates it, "
                          f"or {init}")
     # EMPTY
     if mode == "init" or (mode == "create" and backend != "sqlite"):
