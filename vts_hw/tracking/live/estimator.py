@@ -119,6 +119,8 @@ class LiveEstimator:
         self._seen_idx = np.zeros(0, int)
         self._fit_t: float | None = None
         self._seen_x = np.zeros((0, 3))
+        self._seen_pts = np.zeros(0, int)        # where in that instant's points each seen marker was
+        self.marker_names: list[str] = []       # per model marker: B<band>.<n> (set with the model)
 
     # -- input ---------------------------------------------------------------------------------
     def update(self, t: float, points) -> Alert | None:
@@ -160,6 +162,11 @@ class LiveEstimator:
             self._restart(f"the body moved ({model.pose_noise_mm:.2f} mm, {model.pose_noise_deg:.2f} deg RMS)")
             return
         self.model = model
+        seen_in_band: dict[int, int] = {}
+        self.marker_names = []
+        for b in model.band.astype(int):
+            seen_in_band[b] = seen_in_band.get(b, 0) + 1
+            self.marker_names.append(f"B{b + 1}.{seen_in_band[b]}")
         self.rule = AlertRule(self.motion.alert_mm, self.motion.alert_deg, self.motion.alert_after_s,
                               self.s.onset_fraction, self.s.settle_s, model.pose_noise_mm, model.pose_noise_deg)
         self.traces = [BreathingTrace(self.s.trace_window_s) for _ in range(model.n_bands)]
@@ -186,8 +193,7 @@ class LiveEstimator:
         after_gap = self._fit_t is None or t - self._fit_t > self.s.gap_s
         fit = m.fit(i_m, pts[i_p], None if self.fit is None else self.fit.beta,
                     iterations=self.s.iterations_after_gap if after_gap else self.s.iterations)
-        self._seen_idx, self._seen_x = i_m, pts[i_p]
-        self._seen_pts = i_p
+        self._seen_idx, self._seen_x, self._seen_pts = i_m, pts[i_p], i_p
         self.observed = fit is not None
         if fit is None:
             self.note = f"{len(i_m)} of {len(m.mean)} markers seen"
@@ -205,13 +211,9 @@ class LiveEstimator:
         """The patient markers of the last estimate, named by the reference model: ``(name,
         index into that instant's points)``, the name ``B<band>.<n>`` (bands and markers counted
         from 1, in the model's order). Empty until the reference is learned."""
-        if self.phase != "tracking" or self.model is None or getattr(self, "_seen_pts", None) is None:
+        if self.phase != "tracking":
             return []
-        band = self.model.band
-        rank = {}
-        for j in range(len(band)):
-            rank[j] = int((band[:j] == band[j]).sum()) + 1
-        return [(f"B{int(band[m]) + 1}.{rank[int(m)]}", int(p)) for m, p in zip(self._seen_idx, self._seen_pts)]
+        return [(self.marker_names[int(m)], int(p)) for m, p in zip(self._seen_idx, self._seen_pts)]
 
     def six_dof(self) -> np.ndarray:
         """The body's 6-DOF now (tx, ty, tz mm; rx, ry, rz deg), from the last pose; needs one."""
