@@ -320,16 +320,21 @@ class AxisCamera:
             raise BadReply(self.name, f"camera {self.name} did not confirm the update: {text.strip()[:80]!r}")
 
     # -- LED on the I/O output port -------------------------------------------------
-    def _port(self, action: str) -> None:
-        # port.cgi (output.cgi on VAPIX 2) wants the action characters percent-encoded (/ and \)
-        query = "?action=" + quote(action, safe=":")
+    def _io(self, ask) -> str:
+        """``port.cgi``'s answer to ``ask(cgi)`` (a path and its query), else ``output.cgi``'s
+        (firmware before 5.00: port.cgi answers 404), remembered for the next call."""
         try:
-            text = self._text(self._output_cgi + query)
+            return self._text(*ask(self._output_cgi))
         except NotFound:
             if self._output_cgi == "/axis-cgi/io/output.cgi":
                 raise
-            self._output_cgi = "/axis-cgi/io/output.cgi"  # firmware before 5.00
-            text = self._text(self._output_cgi + query)
+            self._output_cgi = "/axis-cgi/io/output.cgi"
+            return self._text(*ask(self._output_cgi))
+
+    def _port(self, action: str) -> None:
+        # port.cgi (output.cgi on VAPIX 2) wants the action characters percent-encoded (/ and \)
+        query = "?action=" + quote(action, safe=":")
+        text = self._io(lambda cgi: (cgi + query,))
         if text.strip() and not text.strip().upper().startswith("OK"):
             cgi = self._output_cgi.rsplit("/", 1)[-1]
             raise BadReply(self.name, f"camera {self.name}: {cgi} answered {text.strip()[:80]!r}")
@@ -349,14 +354,7 @@ class AxisCamera:
         """Whether the LED's output port is active now, as the camera says: ``port.cgi?checkactive=N``
         answers ``portN=active`` or ``portN=inactive``; VAPIX 2's ``output.cgi?check=N``, ``outputN=1`` or 0."""
         n = self.led_port
-        try:
-            text = self._text(self._output_cgi, {"checkactive" if self._output_cgi.endswith("port.cgi") else "check": n})
-        except NotFound:
-            if self._output_cgi == "/axis-cgi/io/output.cgi":
-                raise
-            self._output_cgi = "/axis-cgi/io/output.cgi"  # firmware before 5.00
-            text = self._text(self._output_cgi, {"check": n})
-        got = text.strip()
+        got = self._io(lambda cgi: (cgi, {"checkactive" if cgi.endswith("port.cgi") else "check": n})).strip()
         states = {f"port{n}=active": True, f"port{n}=inactive": False, f"output{n}=1": True, f"output{n}=0": False}
         if got not in states:
             cgi = self._output_cgi.rsplit("/", 1)[-1]

@@ -184,14 +184,20 @@ def confirm(port: str, expected: str, timeout: float = 15.0, open_box=TriggerBox
                      f"(last: {last}); the upload was verified, but the firmware does not answer")
 
 
+def _avrdude(programmer: str) -> str:
+    """The avrdude program, which must know ``programmer`` (UsageError, exit 2, when it does not)."""
+    exe = avrdude.find()
+    if programmer not in avrdude.programmers(exe):
+        raise UsageError(f"avrdude {avrdude.version(exe)} has no programmer {programmer!r} (avrdude -c '?' lists them)")
+    return exe
+
+
 def flash(port: str, hex_path: Path | None = None, programmer: str = "arduino", baud: int = 115200,
           attempts: int | None = 3, confirm_timeout: float = 15.0,
           progress: Callable[[str, float], None] | None = None) -> Flashed:
     """Build (or take --hex), upload, verify, confirm. Each failure one sentence (see the module)."""
     say = progress or (lambda phase, fraction: None)
-    exe = avrdude.find()
-    if programmer not in avrdude.programmers(exe):
-        raise UsageError(f"avrdude {avrdude.version(exe)} has no programmer {programmer!r} (avrdude -c '?' lists them)")
+    exe = _avrdude(programmer)
     say("building" if hex_path is None else "reading", 0.0)
     fw = firmware(hex_path)
     log_path = fw.hex.with_name(fw.hex.stem + ".avrdude.log")
@@ -216,8 +222,6 @@ def dry_run(hex_path: Path | None = None, programmer: str = "arduino", baud: int
             attempts: int | None = 3) -> tuple[Firmware, list[str], str]:
     """Everything but the board: build (or read --hex), check avrdude and the programmer; the
     command that would run and avrdude's version. The port is not opened."""
-    exe = avrdude.find()
-    if programmer not in avrdude.programmers(exe):
-        raise UsageError(f"avrdude {avrdude.version(exe)} has no programmer {programmer!r} (avrdude -c '?' lists them)")
+    exe = _avrdude(programmer)
     fw = firmware(hex_path)
     return fw, avrdude.command(exe, port, fw.hex, programmer, baud, attempts), avrdude.version(exe)

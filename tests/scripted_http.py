@@ -2,7 +2,8 @@
 127.0.0.1 that is given the exact requests the driver must make, in order -- ``(method and
 target, body or None, reply)`` -- answers each with its reply, and records the first request
 that differs (answered 500, so the driver fails there too). ``assert_complete()`` fails at a
-mismatch and at any exchange never made."""
+mismatch and at any exchange never made; ``lines`` keeps every request line as sent
+(``GET /path?query HTTP/1.1``). A reply is text or bytes (200), or ``(status, body)``."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ class ScriptedHTTP:
         self.exchanges = list(exchanges)
         self.done = 0
         self.mismatch: str | None = None
-        self.seen: list[tuple[str, bytes]] = []
+        self.lines: list[str] = []
         script = self
 
         class Handler(BaseHTTPRequestHandler):
@@ -25,7 +26,7 @@ class ScriptedHTTP:
                 n = int(self.headers.get("Content-Length") or 0)
                 body = self.rfile.read(n) if n else b""
                 got = f"{self.command} {self.path}"
-                script.seen.append((got, body))
+                script.lines.append(self.requestline)
                 status, reply, ctype = script._answer(got, body)
                 data = reply.encode() if isinstance(reply, str) else reply
                 self.send_response(status)
@@ -56,7 +57,8 @@ class ScriptedHTTP:
         self.done += 1
         if isinstance(reply, tuple):
             return reply[0], reply[1], "text/html"
-        return 200, reply, "application/json" if reply.lstrip().startswith("{") else "text/plain"
+        json_like = reply.lstrip().startswith(b"{" if isinstance(reply, bytes) else "{")
+        return 200, reply, "application/json" if json_like else "text/plain"
 
     @property
     def url(self) -> str:

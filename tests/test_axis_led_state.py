@@ -4,7 +4,7 @@ camera says it, not as it was last switched).
 * On the wire, byte for byte: what the driver sends (``GET /axis-cgi/io/port.cgi?checkactive=1``;
   on VAPIX 2 firmware, after port.cgi's 404, ``GET /axis-cgi/io/output.cgi?check=1``) and how it
   reads the firmware's replies (``port1=active``/``inactive``, ``output1=1``/``0``), against a
-  plain socket server that answers those exact bytes; a reply of another shape is one sentence.
+  server given those exact exchanges (tests/scripted_http.py); a reply of another shape is one sentence.
 * The simulated camera of both profiles (AXIS P1375, current firmware; AXIS 211, firmware 4.47)
   answers those requests as the firmware does, byte for byte, and the driver reads its LED
   back through them; its ``led_held`` fault (an action rule holding the output) answers a
@@ -13,11 +13,9 @@ camera says it, not as it was last switched).
 
 from __future__ import annotations
 
-import socket
-import threading
-
 import pytest
 
+from scripted_http import ScriptedHTTP
 from test_sim_axis_camera import PASSWORD, raw_request, read_head
 from vts_hw.drivers.axis import AxisCamera, BadReply
 from vts_hw.sim_devices.rig import SimRig
@@ -25,104 +23,46 @@ from vts_hw.sim_devices.rig import SimRig
 pytestmark = pytest.mark.timeout(60)
 
 
-class Wire:
-    """A one-camera HTTP server on 127.0.0.1 that answers each request with the next of
-    ``replies`` (whole HTTP responses, bytes) and keeps every request's bytes."""
-
-    def __init__(self, *replies: bytes):
-        self.replies = list(replies)
-        self.requests: list[bytes] = []
-        self.sock = socket.socket()
-        self.sock.bind(("127.0.0.1", 0))
-        self.sock.listen(4)
-        self.url = f"http://127.0.0.1:{self.sock.getsockname()[1]}"
-        self.thread = threading.Thread(target=self._serve, daemon=True)
-        self.thread.start()
-
-    def _serve(self):
-        while self.replies:
-            conn, _ = self.sock.accept()
-            with conn:
-                while self.replies:
-                    data = b""
-                    while b"\r\n\r\n" not in data:
-                        chunk = conn.recv(4096)
-                        if not chunk:
-                            break
-                        data += chunk
-                    if not data:
-                        break
-                    self.requests.append(data)
-                    reply = self.replies.pop(0)
-                    conn.sendall(reply)
-                    if b"Connection: close" in reply:
-                        break
-
-    def close(self):
-        self.sock.close()
-        self.thread.join(5)
+PORT_CGI, OUTPUT_CGI = "GET /axis-cgi/io/port.cgi?checkactive=1", "GET /axis-cgi/io/output.cgi?check=1"
 
 
-def reply(body: bytes, status: bytes = b"200 OK", close: bool = False) -> bytes:
-    return (b"HTTP/1.1 " + status + b"\r\nContent-Type: text/plain\r\nContent-Length: " + str(len(body)).encode()
-            + b"\r\n" + (b"Connection: close\r\n" if close else b"") + b"\r\n" + body)
-
-
-def request_line(raw: bytes) -> bytes:
-    return raw.split(b"\r\n", 1)[0]
-
-
-@pytest.mark.parametrize("body, state", [(b"port1=active\r\n", True), (b"port1=inactive\r\n", False)])
+@pytest.mark.parametrize("body, state", [("port1=active\r\n", True), ("port1=inactive\r\n", False)])
 def test_the_driver_asks_port_cgi_checkactive_and_reads_the_reply(body, state):
-    wire = Wire(reply(body))
-    try:
-        cam = AxisCamera("cam1", wire.url, user=None)
+    with ScriptedHTTP([(PORT_CGI, None, body)]) as wire, AxisCamera("cam1", wire.url, user=None) as cam:
         assert cam.led_state() is state
-        assert request_line(wire.requests[0]) == b"GET /axis-cgi/io/port.cgi?checkactive=1 HTTP/1.1"
-        cam.close()
-    finally:
-        wire.close()
+        assert wire.lines[0] == "GET /axis-cgi/io/port.cgi?checkactive=1 HTTP/1.1"
+    wire.assert_complete()
 
 
 def test_vapix2_firmware_is_asked_through_output_cgi_check():
-    not_found = reply(b"<HTML><BODY><H1>404 Not Found</H1></BODY></HTML>\r\n", b"404 Not Found", close=True)
-    wire = Wire(not_found, reply(b"output1=0\r\n", close=True), reply(b"output1=1\r\n", close=True))
-    try:
-        cam = AxisCamera("cam1", wire.url, user=None, led_port=1)
+    not_found = (404, "<HTML><BODY><H1>404 Not Found</H1></BODY></HTML>\r\n")
+    script = [(PORT_CGI, None, not_found), (OUTPUT_CGI, None, "output1=0\r\n"), (OUTPUT_CGI, None, "output1=1\r\n")]
+    with ScriptedHTTP(script) as wire, AxisCamera("cam1", wire.url, user=None, led_port=1) as cam:
         assert cam.led_state() is False
         assert cam.led_state() is True          # remembered: output.cgi straight away
-        assert [request_line(r) for r in wire.requests] == [
-            b"GET /axis-cgi/io/port.cgi?checkactive=1 HTTP/1.1",
-            b"GET /axis-cgi/io/output.cgi?check=1 HTTP/1.1",
-            b"GET /axis-cgi/io/output.cgi?check=1 HTTP/1.1"]
-        cam.close()
-    finally:
-        wire.close()
+        assert wire.lines == [
+            "GET /axis-cgi/io/port.cgi?checkactive=1 HTTP/1.1",
+            "GET /axis-cgi/io/output.cgi?check=1 HTTP/1.1",
+            "GET /axis-cgi/io/output.cgi?check=1 HTTP/1.1"]
+    wire.assert_complete()
 
 
-@pytest.mark.parametrize("body", [b"port2=active\r\n", b"port1=maybe\r\n", b"", b"OK\r\n"])
+@pytest.mark.parametrize("body", ["port2=active\r\n", "port1=maybe\r\n", "", "OK\r\n"])
 def test_a_reply_of_another_shape_is_one_sentence(body):
-    wire = Wire(reply(body))
-    try:
-        cam = AxisCamera("cam1", wire.url, user=None)
+    with ScriptedHTTP([(PORT_CGI, None, body)]) as wire, AxisCamera("cam1", wire.url, user=None) as cam:
         with pytest.raises(BadReply) as err:
             cam.led_state()
         assert str(err.value).startswith("camera cam1: port.cgi answered ") and "output port 1" in str(err.value)
         assert "\n" not in str(err.value)
-        cam.close()
-    finally:
-        wire.close()
+    wire.assert_complete()
 
 
 def test_a_refusal_of_the_query_is_one_sentence():
-    wire = Wire(reply(b"# Error: Invalid port '3'\r\n"))
-    try:
-        cam = AxisCamera("cam1", wire.url, user=None, led_port=3)
+    script = [("GET /axis-cgi/io/port.cgi?checkactive=3", None, "# Error: Invalid port '3'\r\n")]
+    with ScriptedHTTP(script) as wire, AxisCamera("cam1", wire.url, user=None, led_port=3) as cam:
         with pytest.raises(BadReply, match=r"^camera cam1 refused /axis-cgi/io/port.cgi: Invalid port '3'$"):
             cam.led_state()
-        cam.close()
-    finally:
-        wire.close()
+    wire.assert_complete()
 
 
 def _body(server, path):

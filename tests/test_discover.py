@@ -21,6 +21,7 @@ import pytest
 import yaml
 
 from inprocess_cli import vts
+from scripted_http import ScriptedHTTP
 from vts_hw.config import load_rig
 from vts_hw.drivers.discovery import Announcement, merge, search
 from vts_hw.drivers.discovery.ssdp import describe, location, m_search
@@ -176,34 +177,15 @@ def test_what_is_not_an_ssdp_answer_with_a_location_is_left_out(datagram):
     assert location(datagram) is None
 
 
-def test_a_description_that_is_not_an_axis_camera_is_left_out(tmp_path):
-    import threading
-    from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-
-    bodies = {"/tv.xml": b'<root xmlns="urn:schemas-upnp-org:device-1-0"><device><manufacturer>Samsung</manufacturer>'
-                         b"<serialNumber>1</serialNumber></device></root>",
-              "/bad.xml": b"<root><device", "/bomb.xml": b"<a>" + b"x" * (300 * 1024) + b"</a>"}
-
-    class H(BaseHTTPRequestHandler):
-        def do_GET(self):
-            body = bodies[self.path]
-            self.send_response(200)
-            self.send_header("Content-Length", str(len(body)))
-            self.end_headers()
-            self.wfile.write(body)
-
-        def log_message(self, *a):
-            pass
-
-    httpd = ThreadingHTTPServer((LO, 0), H)
-    threading.Thread(target=httpd.serve_forever, daemon=True).start()
-    try:
+def test_a_description_that_is_not_an_axis_camera_is_left_out():
+    bodies = {"/tv.xml": '<root xmlns="urn:schemas-upnp-org:device-1-0"><device><manufacturer>Samsung</manufacturer>'
+                         "<serialNumber>1</serialNumber></device></root>",
+              "/bad.xml": "<root><device", "/bomb.xml": "<a>" + "x" * (300 * 1024) + "</a>"}
+    with ScriptedHTTP([(f"GET {path}", None, body) for path, body in bodies.items()]) as peer:
         for path in bodies:
-            assert describe(f"http://{LO}:{httpd.server_address[1]}{path}") is None, path
-        assert describe(f"http://{LO}:1/nothing-listens.xml", timeout=1) is None
-    finally:
-        httpd.shutdown()
-        httpd.server_close()
+            assert describe(peer.url + path) is None, path
+    peer.assert_complete()
+    assert describe(f"http://{LO}:1/nothing-listens.xml", timeout=1) is None
 
 
 def test_merge_takes_one_camera_per_serial_and_notes_a_second_address():

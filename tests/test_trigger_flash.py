@@ -22,10 +22,9 @@ from vts_hw.sim_devices.trigger_box import build, firmware_dir
 
 
 def vts(*args, env=None, timeout=120):
-    t0 = time.monotonic()
     p = subprocess.run([sys.executable, "-m", "vts_hw.cli", *map(str, args)], capture_output=True, text=True,
                        timeout=timeout, env={**os.environ, **(env or {})}, stdin=subprocess.DEVNULL)
-    return p.returncode, p.stdout, p.stderr, time.monotonic() - t0
+    return p.returncode, p.stdout, p.stderr
 
 
 @pytest.fixture(scope="module")
@@ -56,7 +55,7 @@ def _with_version(src: Path, dst: Path, old: bytes, new: bytes) -> Path:
 
 def test_flash_builds_uploads_verifies_and_the_flashed_firmware_answers(tmp_path):
     with SimArduinoBoard(workdir=tmp_path / "board") as board:
-        rc, out, err, _ = vts("trigger", "flash", "--port", board.port)
+        rc, out, err = vts("trigger", "flash", "--port", board.port)
         assert rc == 0, err
         built = firmware_dir() / "build" / "trigger_box.hex"
         want = _hex_bytes(built)
@@ -77,7 +76,7 @@ def test_flash_builds_uploads_verifies_and_the_flashed_firmware_answers(tmp_path
 
 def test_flash_of_a_given_hex_and_json(tmp_path, hex_file):
     with SimArduinoBoard(workdir=tmp_path / "board") as board:
-        rc, out, err, _ = vts("trigger", "flash", "--port", board.port, "--hex", hex_file, "--json")
+        rc, out, err = vts("trigger", "flash", "--port", board.port, "--hex", hex_file, "--json")
         assert rc == 0, err
     import json
     doc = json.loads(out)
@@ -88,7 +87,7 @@ def test_flash_of_a_given_hex_and_json(tmp_path, hex_file):
 
 def test_dry_run_checks_everything_but_touches_no_port(tmp_path, hex_file):
     with SimArduinoBoard(workdir=tmp_path / "board") as board:
-        rc, out, err, _ = vts("trigger", "flash", "--port", board.port, "--hex", hex_file, "--dry-run")
+        rc, out, err = vts("trigger", "flash", "--port", board.port, "--hex", hex_file, "--dry-run")
         time.sleep(0.2)
         assert board.commands == []
     assert rc == 0, err
@@ -98,7 +97,7 @@ def test_dry_run_checks_everything_but_touches_no_port(tmp_path, hex_file):
 
 def test_a_silent_bootloader_is_one_sentence_naming_the_port(tmp_path, hex_file):
     with SimArduinoBoard(silent=True, workdir=tmp_path / "board") as board:
-        rc, out, err, took = vts("trigger", "flash", "--port", board.port, "--hex", hex_file, "--attempts", "1")
+        rc, out, err = vts("trigger", "flash", "--port", board.port, "--hex", hex_file, "--attempts", "1")
         assert board.written == {}
     assert rc == 4, err
     last = err.strip().splitlines()[-1]
@@ -109,7 +108,7 @@ def test_a_silent_bootloader_is_one_sentence_naming_the_port(tmp_path, hex_file)
 
 def test_a_verify_mismatch_fails_and_says_so(tmp_path, hex_file):
     with SimArduinoBoard(corrupt_page=3, workdir=tmp_path / "board") as board:
-        rc, out, err, _ = vts("trigger", "flash", "--port", board.port, "--hex", hex_file)
+        rc, out, err = vts("trigger", "flash", "--port", board.port, "--hex", hex_file)
     assert rc == 4, err
     last = err.strip().splitlines()[-1]
     was = _hex_bytes(hex_file)[0x1C0]   # page 3 (0x180..0x1ff), its middle byte stored with bit 0 flipped
@@ -124,7 +123,7 @@ def test_a_box_answering_another_version_fails(tmp_path, hex_file):
     patched = _with_version(hex_file, tmp_path / "tb-1.0.9.hex", b"1.0.0", b"1.0.9")
     elf = firmware_dir() / "build" / "trigger_box.elf"
     with SimArduinoBoard(runs=elf, workdir=tmp_path / "board") as board:
-        rc, out, err, _ = vts("trigger", "flash", "--port", board.port, "--hex", patched)
+        rc, out, err = vts("trigger", "flash", "--port", board.port, "--hex", patched)
         assert board.image()[:len(_hex_bytes(patched))] == _hex_bytes(patched)   # written and verified
     assert rc == 4, err
     assert (f"vts: the box on {board.port} answers firmware version 1.0.0 after flashing, not 1.0.9 just written"
@@ -132,14 +131,14 @@ def test_a_box_answering_another_version_fails(tmp_path, hex_file):
 
 
 def test_a_missing_port_is_a_device_failure(tmp_path, hex_file):
-    rc, out, err, _ = vts("trigger", "flash", "--port", tmp_path / "ttyACM9", "--hex", hex_file)
+    rc, out, err = vts("trigger", "flash", "--port", tmp_path / "ttyACM9", "--hex", hex_file)
     assert rc == 4 and f"vts: {tmp_path / 'ttyACM9'} does not exist: is the trigger box plugged in?" in err
 
 
 def test_a_busy_port_is_named_and_nothing_is_sent(tmp_path, hex_file):
     with SimArduinoBoard(workdir=tmp_path / "board") as board:
         with serial.Serial(board.port, 115200, exclusive=True):
-            rc, out, err, _ = vts("trigger", "flash", "--port", board.port, "--hex", hex_file)
+            rc, out, err = vts("trigger", "flash", "--port", board.port, "--hex", hex_file)
         assert board.commands == []
     assert rc == 4 and f"vts: {board.port} is busy: another program has it open and locked" in err
 
@@ -148,20 +147,20 @@ def test_bad_inputs_are_one_sentence_exit_2(tmp_path, hex_file):
     # no avrdude on the PATH
     bare = tmp_path / "bin"
     bare.mkdir()
-    rc, _, err, _ = vts("trigger", "flash", "--hex", hex_file, env={"PATH": str(bare)})
+    rc, _, err = vts("trigger", "flash", "--hex", hex_file, env={"PATH": str(bare)})
     assert rc == 2 and "vts: avrdude is not installed" in err
     # an installed vts-hw: no sources, no --hex
-    rc, _, err, _ = vts("trigger", "flash", "--port", "/dev/null", env={"VTS_FIRMWARE_DIR": str(tmp_path)})
+    rc, _, err = vts("trigger", "flash", "--port", "/dev/null", env={"VTS_FIRMWARE_DIR": str(tmp_path)})
     assert rc == 2 and f"no trigger box firmware sources here ({tmp_path} has no Makefile" in err
     assert "--hex FILE" in err
     # a file that is not Intel HEX; a hex that is not the trigger box's firmware
     junk = tmp_path / "junk.hex"
     junk.write_text("hello\n")
-    rc, _, err, _ = vts("trigger", "flash", "--hex", junk)
+    rc, _, err = vts("trigger", "flash", "--hex", junk)
     assert rc == 2 and f"vts: {junk}: not a firmware to flash: cannot be read as Intel HEX" in err
     other = tmp_path / "blink.hex"
     ih = IntelHex()
     ih.frombytes(b"\x0c\x94\x34\x00" * 64, offset=0)
     ih.write_hex_file(str(other))
-    rc, _, err, _ = vts("trigger", "flash", "--hex", other)
+    rc, _, err = vts("trigger", "flash", "--hex", other)
     assert rc == 2 and f"vts: {other}: not a trigger box firmware" in err

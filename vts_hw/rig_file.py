@@ -51,20 +51,28 @@ def skeleton(cameras: list[dict], *, password_env: str, user: str = "root", rig:
     return text
 
 
+def refuse_existing(path: str | os.PathLike) -> None:
+    """UsageError (exit 2) when ``path`` exists (a dangling link too): a rig config is never overwritten."""
+    if os.path.lexists(path):
+        raise _exists(path)
+
+
+def _exists(path) -> UsageError:
+    return UsageError(f"{path} already exists: a rig config is never overwritten; give -o a new file name")
+
+
 def write_new(path: str | os.PathLike, text: str) -> Path:
     """Write ``text`` to ``path``, which must not exist (UsageError, exit 2, if it does: nothing
     is written); WriteFailed (exit 3) when it cannot be written."""
     path = Path(path)
-    if path.exists() or path.is_symlink():
-        raise UsageError(f"{path} already exists: a rig config is never overwritten; give -o a new file name")
+    refuse_existing(path)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.new")
     try:
         write_atomic(tmp, text)
         try:
             os.link(tmp, path)          # fails if the name was taken meanwhile: never replaces a file
         except FileExistsError:
-            raise UsageError(f"{path} already exists: a rig config is never overwritten; "
-                             f"give -o a new file name") from None
+            raise _exists(path) from None
         except OSError as exc:
             raise WriteFailed(path, os_reason(exc), "nothing was written") from None
     finally:
@@ -115,4 +123,4 @@ def set_locked_params(path: str | os.PathLike, params: dict[str, dict[str, str]]
     return backup
 
 
-__all__ = ["skeleton", "write_new", "set_locked_params", "BACKUP_SUFFIX"]
+__all__ = ["skeleton", "refuse_existing", "write_new", "set_locked_params", "BACKUP_SUFFIX"]

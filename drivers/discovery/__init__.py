@@ -72,8 +72,7 @@ def merge(announcements) -> list[Found]:
     return sorted(out.values(), key=lambda f: (f.host, f.port, f.serial))
 
 
-def search(timeout: float, interfaces: list[str] | None = None, *, mdns: bool = True, ssdp: bool = True,
-           ssdp_port: int | None = None) -> list[Found]:
+def search(timeout: float, interfaces: list[str] | None = None, *, mdns: bool = True, ssdp: bool = True) -> list[Found]:
     """Listen for ``timeout`` seconds on ``interfaces`` (IPv4 addresses of this host; None: all)
     with both protocols at once. A protocol that cannot run here (no such interface, port
     taken) is an :class:`~vts_hw.errors.DeviceError` naming it."""
@@ -84,8 +83,7 @@ def search(timeout: float, interfaces: list[str] | None = None, *, mdns: bool = 
     if mdns:
         jobs.append(("mdns", lambda: mdns_mod.browse(timeout, interfaces)))
     if ssdp:
-        kw = {} if ssdp_port is None else {"port": ssdp_port}
-        jobs.append(("ssdp", lambda: ssdp_mod.search(timeout, interfaces, **kw)))
+        jobs.append(("ssdp", lambda: ssdp_mod.search(timeout, interfaces)))
     results: dict[str, list[Announcement]] = {}
     errors: dict[str, BaseException] = {}
 

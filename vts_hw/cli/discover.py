@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import ipaddress
-import os
 import sys
 
 import click
@@ -49,13 +48,13 @@ def discover(output, timeout, interfaces, user, password_env, as_json) -> None:
     a camera could not be confirmed (the skeleton is still written, saying so per camera).
     """
     from vts_hw.drivers.discovery import confirm, search
-    from vts_hw.errors import DeviceError, UsageError
-    from vts_hw.rig_file import skeleton, write_new
+    from vts_hw.errors import DeviceError
+    from vts_hw.rig_file import refuse_existing, skeleton, write_new
 
     if not password_env.isidentifier():
         raise click.BadParameter(f"{password_env!r} is not an environment variable name", param_hint="--password-env")
-    if output and (os.path.exists(output) or os.path.islink(output)):
-        raise UsageError(f"{output} already exists: a rig config is never overwritten; give -o a new file name")
+    if output:
+        refuse_existing(output)
     if not as_json:
         where = ", ".join(interfaces) if interfaces else "every interface"
         click.echo(f"listening {timeout:g} s on {where} for Axis cameras (mDNS _axis-video._tcp, SSDP) ...", err=True)
