@@ -14,6 +14,8 @@
   let skew = 0;                 // server clock minus this browser's, s
   let job = null;               // the latest snapshot
   let seenVersion = null;
+  let mine = null;              // the start time of the job this page started
+  let saidFor = null;           // the start time of the job whose end was said
   let baselines = {};
 
   const el = (tag, cls, text) => { const e = document.createElement(tag); if (cls) e.className = cls; if (text !== undefined) e.textContent = text; return e; };
@@ -30,6 +32,13 @@
     return fetch(url, { method: "POST", headers: { "Content-Type": "application/json", "X-Console-Token": token },
                         body: JSON.stringify(body || {}) })
       .then((r) => r.json().catch(() => ({ error: `HTTP ${r.status}` })).then((d) => ({ ok: r.ok, status: r.status, d })));
+  }
+
+  // "started", unless the job's end was already said (its events can come before this answer)
+  function startedSay(d, text) {
+    if (saidFor === d.started) return;
+    if (job && job.started === d.started && job.state !== "running") { onJob(job); return; }
+    say(text);
   }
 
   // -- progress -----------------------------------------------------------------------------------------
@@ -85,8 +94,13 @@
     skew = s.now - Date.now() / 1000;
     showProgress(s);
     $("push").disabled = s.pushing || !root.dataset.hasRig;
-    const ended = before && before.state === "running" && s.state !== "running" && before.started === s.started;
+    // a job ended: seen running here, or started here (one that ends before this page hears it
+    // running, e.g. refused at once for want of a baseline, is said too), and said once
+    const ranHere = before && before.state === "running" && before.started === s.started;
+    const ended = s.state !== "running" && s.state !== "idle" && s.started !== saidFor &&
+      (ranHere || (mine !== null && s.started === mine));
     if (!ended) return;
+    saidFor = s.started;
     if (s.state === "failed") { say(`The ${s.what} failed: ${s.error}`, "refused"); load(); return; }
     if (s.kind === "daily") {
       if (s.result) showResult(s.result, "This daily QA");
@@ -191,7 +205,7 @@
 
   $("run").addEventListener("click", () => {
     post("/qa/run", { frames: frames() }).then(({ ok, d }) => {
-      if (ok) say(`Daily QA started (${cameras.join(", ")}, ${d.frames} frames each).`);
+      if (ok) { mine = d.started; startedSay(d, `Daily QA started (${cameras.join(", ")}, ${d.frames} frames each).`); }
       else say(d.error, "refused");
     });
   });
@@ -237,7 +251,7 @@
   dialog.addEventListener("close", () => {
     if (dialog.returnValue !== "yes") { say("Baseline not changed."); return; }
     post("/qa/baseline", { confirm: true, frames: frames() }).then(({ ok, d }) => {
-      if (ok) say(`Setting the baseline of ${cameras.join(", ")}…`);
+      if (ok) { mine = d.started; startedSay(d, `Setting the baseline of ${cameras.join(", ")}…`); }
       else say(d.error, "refused");
     });
   });
