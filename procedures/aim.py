@@ -21,7 +21,7 @@ from vts_hw.camera import check_whole
 from vts_hw.errors import VtsError
 from vts_hw.vision.aim import AimReport, assess, decode_grey
 from vts_hw.vision.aim_geometry import RoomView
-from vts_hw.vision.aim_settings import AimSettings
+from vts_hw.vision.aim_settings import DEFAULT_AIM, AimSettings
 
 __all__ = ["room_view", "check", "check_pictures", "aim_page", "aim_page_of", "acquire_pictures"]
 
@@ -64,40 +64,34 @@ def acquire_pictures(cam):
 
 
 def check_pictures(name: str, rig, on_jpeg: bytes, off_jpeg: bytes | None, reference=None,
-                   reference_name: str = "the drift baseline") -> AimReport:
+                   reference_name: str = "the drift baseline", settings: AimSettings | None = None) -> AimReport:
     """The aim-and-focus check of camera ``name`` of ``rig`` (a RigConfig; None: the default goals
     and no mapping) from its picture with the LED on and with it off (None: the LED could not be
-    switched). Opens nothing. ``reference``: where its markers were (px), or None."""
-    settings = rig.aim if rig is not None else None
+    switched). Opens nothing. ``reference``: where its markers were (px), or None; ``settings``:
+    the goals (default: the rig's ``aim:``)."""
+    settings = settings or (rig.aim if rig is not None else DEFAULT_AIM)
     on = decode_grey(on_jpeg, f"LED-on picture of {name}")
     off = None if off_jpeg is None else decode_grey(off_jpeg, f"LED-off picture of {name}")
     if rig is None:
         view, why = None, "no mapping (no rig configuration given)"
     else:
         view, why = room_view(rig, name, (on.shape[1], on.shape[0]), settings)
-    kw = {} if settings is None else {"settings": settings}
-    return assess(name, on, off, view, no_view=why or "no mapping", reference=reference,
-                  reference_name=reference_name, **kw)
+    return assess(name, on, off, view, settings, why or "no mapping", reference=reference,
+                  reference_name=reference_name)
 
 
 def check(cam, rig, settings: AimSettings | None = None, reference=None,
           reference_name: str = "the drift baseline") -> AimReport:
     """The aim-and-focus check of ``cam`` (an open camera of ``rig``): LED on, one picture; LED
-    off, one picture (the LED left on). ``reference``: where its markers were (px; the drift
-    baseline's wall markers), or None."""
-    settings = settings or rig.aim
+    off, one picture (the LED left on), judged by :func:`check_pictures`. ``reference``: where
+    its markers were (px; the drift baseline's wall markers), or None."""
     on_jpeg, off_jpeg = acquire_pictures(cam)
-    on = decode_grey(on_jpeg, f"LED-on picture of {cam.name}")
-    off = None if off_jpeg is None else decode_grey(off_jpeg, f"LED-off picture of {cam.name}")
-    view, why = room_view(rig, cam.name, (on.shape[1], on.shape[0]), settings)
-    return assess(cam.name, on, off, view, settings, why or "no mapping", reference=reference,
-                  reference_name=reference_name)
+    return check_pictures(cam.name, rig, on_jpeg, off_jpeg, reference, reference_name, settings)
 
 
 def aim_page(cam, rig, reference=None) -> tuple[dict, bytes]:
     """For a page: the verdicts (JSON-able dict) and the overlay (PNG bytes) of ``cam``."""
-    report = check(cam, rig, reference=reference)
-    return report.to_dict(), report.overlay_png()
+    return aim_page_of(cam.name, rig, *acquire_pictures(cam), reference)
 
 
 def aim_page_of(name: str, rig, on_jpeg: bytes, off_jpeg: bytes | None, reference=None,

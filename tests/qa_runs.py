@@ -17,6 +17,19 @@ def save_baselines(store, baselines, rig: str = "", started: float | None = None
     return stored.run_id
 
 
+def baselines_now(rig, store, frames: int = 2) -> int:
+    """Each camera of ``rig`` (a RigConfig) seen now, LED on, ``frames`` snapshots, stored as one
+    baseline run of the rig (as `vts qa drift --set-baseline` takes them); its id."""
+    from vts_hw.drivers.registry import open_camera
+    from vts_hw.procedures.drift import Baseline, acquire_led_frames
+    bs = []
+    for c in rig.cameras:
+        with open_camera(c) as cam:
+            on, _ = acquire_led_frames(cam, frames)
+        bs.append(Baseline.from_frames(c.name, [s.jpeg for s in on], time.time()))
+    return save_baselines(store, bs, rig=rig.rig)
+
+
 def run_qa(rig, store, **kw):
     """A QARun(rig, **kw) recorded in ``store``; the QAResult (run_id, store_error set)."""
     from vts_hw.store.qa_record import record_qa

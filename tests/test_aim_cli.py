@@ -41,6 +41,19 @@ def test_misaimed_against_the_drift_baseline_exits_10_and_says_which_way(capsys,
     assert "drift baseline" in aim["text"]
 
 
+def test_another_rooms_baseline_is_not_this_cameras(capsys, rig_yaml):
+    """A store shared by rooms: another room's cam2 is another camera; its baseline is not used."""
+    from qa_runs import baselines_now
+    from vts_hw.config import load_rig
+    from vts_hw.store import ResultsStore
+    cfg = load_rig(rig_yaml)
+    with ResultsStore(cfg.store.url) as store:
+        baselines_now(cfg.model_copy(update={"rig": "another-room"}), store, frames=1)
+    code, out, err = vts(capsys, "camera", "aim", "cam2", "--json", "--config", rig_yaml)
+    aim = {i["item"]: i for i in json.loads(out)["items"]}["aim"]
+    assert "no drift baseline to say whether markers left it" in aim["text"], aim["text"]
+
+
 def test_unknown_camera_and_a_camera_off_the_network(capsys, sim_rig, rig_yaml, tmp_path):
     code, out, err = vts(capsys, "camera", "aim", "cam9", "--once", "--config", rig_yaml)
     assert code == 2 and err.strip() == "vts: no camera named 'cam9' in the rig config (known: cam1, cam2)"

@@ -5,15 +5,13 @@ import json
 import os
 import subprocess
 import sys
-import time
 
 import pytest
 import yaml
 
 from vts_hw.config import parse_rig
 from vts_hw.drivers.registry import open_camera
-from qa_runs import run_qa, save_baselines
-from vts_hw.procedures.drift import Baseline, acquire_led_frames
+from qa_runs import baselines_now, run_qa
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.store import ResultsStore
 
@@ -42,15 +40,6 @@ def _setup(r, folder, store_url, extra=None):
     return (parse_rig(data, "test") if not extra else None), env
 
 
-def _baseline(cfg, store):
-    bs = []
-    for c in cfg.cameras:
-        with open_camera(c) as cam:
-            on, _ = acquire_led_frames(cam, 2)
-        bs.append(Baseline.from_frames(c.name, [s.jpeg for s in on], time.time()))
-    save_baselines(store, bs, rig=cfg.rig)
-
-
 def _daily_breaking_the_store(env, breaks):
     """`vts qa daily` in a subprocess; ``breaks()`` is called once the run's row is written and
     the cameras are being measured. Returns (exit status, stdout, stderr)."""
@@ -75,7 +64,7 @@ def test_setup_mistakes_are_exit_2_and_write_nothing(rig, tmp_path):
     url = f"sqlite:///{tmp_path / 'r.sqlite'}"
     cfg, env = _setup(rig, tmp_path / "a", url)
     with ResultsStore(url) as s:
-        _baseline(cfg, s)
+        baselines_now(cfg, s)
     before = _runs(url)
     unset = dict(env)
     del unset["VTS_SIM_CAM2_PASSWORD"]
@@ -109,7 +98,7 @@ def test_full_store_keeps_every_figure_and_imports_later(rig, tmp_path, small_di
     url = f"sqlite:///{disk.path / 'results.sqlite'}"
     cfg, env = _setup(rig, tmp_path / "a", url)
     with ResultsStore(url) as s:
-        _baseline(cfg, s)
+        baselines_now(cfg, s)
     # the disk fills up while the cameras are being measured (the run's row is written by then)
     code, out, stderr = _daily_breaking_the_store(env, lambda: disk.fill(leave=0))
     assert code == 3, stderr
@@ -144,7 +133,7 @@ def test_store_full_at_the_end_of_the_run(rig, tmp_path, small_disk):
     url = f"sqlite:///{disk.path / 'results.sqlite'}"
     cfg, _ = _setup(rig, tmp_path / "a", url)
     with ResultsStore(url) as s:
-        _baseline(cfg, s)
+        baselines_now(cfg, s)
         filled = []
 
         def progress(msg):
@@ -168,7 +157,7 @@ def test_postgresql_gone_during_the_run_keeps_every_figure_and_imports_later(rig
     url = pg_server.url(db)
     cfg, env = _setup(rig, tmp_path / "a", url)
     with ResultsStore(url) as s:
-        _baseline(cfg, s)
+        baselines_now(cfg, s)
     with pg_server.admin() as con:
         def shut():
             con.execute(f'ALTER DATABASE "{db}" WITH ALLOW_CONNECTIONS false')

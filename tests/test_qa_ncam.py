@@ -2,15 +2,12 @@
 room: per camera, over HTTP, each against its own wall; parked heads hide nothing, heads on
 their orbit hide wall markers and the QA says which camera lost which."""
 
-import time
-
 import pytest
 
 from vts_hw.config import parse_rig
 from vts_hw.drivers.registry import open_camera
-from qa_runs import run_qa, save_baselines
+from qa_runs import baselines_now, run_qa
 from vts_hw.store.baselines import load_baseline
-from vts_hw.procedures.drift import Baseline, acquire_led_frames
 from vts_hw.sim_devices.gantry import Gantry
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.store import ResultsStore
@@ -30,12 +27,7 @@ def rig(tmp_path):
 
 def test_drift_qa_per_camera_with_four_cameras(rig):
     sim, cfg, store = rig
-    bs = []
-    for c in cfg.cameras:
-        with open_camera(c) as cam:
-            on, _ = acquire_led_frames(cam, 3)
-        bs.append(Baseline.from_frames(c.name, [s.jpeg for s in on], time.time()))
-    save_baselines(store, bs, rig=cfg.rig)
+    baselines_now(cfg, store, frames=3)
     for name in ("cam1", "cam2", "cam3", "cam4"):
         assert len(load_baseline(store, name).markers) == 5, name   # each sees its own wall
     res = run_qa(cfg, store, open_camera=open_camera, n_frames=2, steps=("drift",))

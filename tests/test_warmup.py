@@ -5,17 +5,14 @@ report marks the run."""
 
 from __future__ import annotations
 
-import time
-
 import pytest
 
-from qa_runs import run_qa, save_baselines
+from qa_runs import baselines_now, run_qa
 from vts_hw.config import parse_rig
 from vts_hw.drivers.axis import AxisCamera
 from vts_hw.drivers.axis_uptime import NoUptime, parse_busybox_uptime
 from vts_hw.drivers.registry import open_camera
 from vts_hw.procedures.daily import QARun
-from vts_hw.procedures.drift import Baseline, acquire_led_frames
 from vts_hw.report.build import build_drift_report
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.store import ResultsStore
@@ -54,12 +51,7 @@ def test_a_camera_started_minutes_ago_is_said_stored_and_marked_in_the_drift_rep
     rig, cfg = room
     rig.servers["cam2"].booted_at = rig.clock.now() - 20 * 60      # the AXIS 211: 20 of its 45 min
     with ResultsStore(cfg.store.url) as store:
-        bs = []
-        for c in cfg.cameras:
-            with open_camera(c) as cam:
-                on, _ = acquire_led_frames(cam, 2)
-            bs.append(Baseline.from_frames(c.name, [s.jpeg for s in on], time.time()))
-        save_baselines(store, bs, rig=cfg.rig)
+        baselines_now(cfg, store)
         result = run_qa(cfg, store, n_frames=2, open_camera=open_camera)
         assert result.run_id is not None and result.store_error is None
         by_cam = {c.camera: c for c in result.cameras}

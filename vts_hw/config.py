@@ -16,6 +16,7 @@ from typing import Any, Literal, Optional, Union
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
 
+from vts_hw.config_base import Strict as _Strict
 from vts_hw.config_qatrack import QATrackConfig
 from vts_hw.config_setup import CameraSetupConfig
 from vts_hw.config_warmup import WarmupSettings
@@ -25,10 +26,6 @@ from vts_hw.vision.aim_settings import AimSettings
 
 ENV_CONFIG = "VTS_CONFIG"
 _NAME_RE = r"^[A-Za-z0-9][A-Za-z0-9_.-]*$"
-
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
 
 class CameraConfig(_Strict):

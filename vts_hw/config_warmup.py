@@ -9,12 +9,12 @@ fractions of a second.
 
 from __future__ import annotations
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
+
+from vts_hw.config_base import Strict
 
 
-class WarmupSettings(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
+class WarmupSettings(Strict):
     interval_s: float = Field(default=60.0, gt=0, le=3600,
                               description="seconds between two samples of the wall markers' position")
     samples: int = Field(default=6, ge=3, le=100,

@@ -22,23 +22,24 @@ STYLE = {"good": "bold green", "adjust": "bold yellow", "unknown": "dim"}
 
 
 def _reference(rig, name: str):
-    """The drift baseline's marker positions of ``name`` from the rig's store, and its name; or
-    (None, why not) -- a rig without a store or a baseline is aimed by the picture's margins; a
-    store that is not ours or cannot be read is refused (StoreError, exit 3) before the camera."""
+    """The drift baseline's marker positions (px) of camera ``name`` of this rig (another room's
+    ``cam1`` is another camera, as the console reads it) from the rig's store; None when there is
+    no store or no baseline (the aim is then judged by the picture's margins). A store that is not
+    ours or cannot be read is refused (StoreError, exit 3) before the camera."""
     from vts_hw.cli.common import open_store
     from vts_hw.store.baselines import NoBaseline, load_baseline
     from vts_hw.store.errors import NoStore
     try:
         store = open_store(rig, "read")
-    except NoStore as exc:
-        return None, str(exc)
+    except NoStore:
+        return None
     try:
-        base = load_baseline(store, name)
-    except NoBaseline as exc:
-        return None, str(exc)
+        base = load_baseline(store, name, rig=rig.rig)
+    except NoBaseline:
+        return None
     finally:
         getattr(store, "close", lambda: None)()
-    return [(m.x, m.y) for m in base.markers], "the drift baseline"
+    return base.points()
 
 
 def _table(report, when: str):
@@ -103,18 +104,17 @@ def aim(name: str, once: bool, out: str | None, interval: float, as_json: bool, 
     cfg = rig.camera(name)              # an unknown camera: one sentence, exit 2, before anything
     cfg.password()
     out_dir = Path(out) if out else None
-    reference, ref_name = _reference(rig, name)
-    ref_name = ref_name if reference is not None else "the drift baseline"
+    reference = _reference(rig, name)
     with open_camera(cfg) as cam:
         if once or as_json:
-            report = check(cam, rig, reference=reference, reference_name=ref_name)
+            report = check(cam, rig, reference=reference)
             written = _write(out_dir, report)
             if as_json:
                 click.echo(json.dumps(report.to_dict(), indent=2))
             else:
                 _print_once(report, written)
             sys.exit(_code(report))
-        sys.exit(_live(cam, rig, out_dir, interval, reference, ref_name))
+        sys.exit(_live(cam, rig, out_dir, interval, reference))
 
 
 def _print_once(report, written) -> None:
@@ -127,7 +127,7 @@ def _print_once(report, written) -> None:
         click.echo(f"  wrote {p}")
 
 
-def _live(cam, rig, out_dir, interval, reference, ref_name) -> int:
+def _live(cam, rig, out_dir, interval, reference) -> int:
     from rich.console import Console
     from rich.live import Live
 
@@ -137,7 +137,7 @@ def _live(cam, rig, out_dir, interval, reference, ref_name) -> int:
     try:
         with Live(console=console, refresh_per_second=4, transient=False) as live:
             while True:
-                report = check(cam, rig, reference=reference, reference_name=ref_name)
+                report = check(cam, rig, reference=reference)
                 n += 1
                 _write(out_dir, report)
                 live.update(_table(report, f"check {n}, {time.strftime('%H:%M:%S')}; Ctrl-C stops"))

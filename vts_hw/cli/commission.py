@@ -13,8 +13,7 @@ import click
 
 from vts_hw.cli import cli
 from vts_hw.cli.common import PositiveSeconds, config_option, positive
-
-STEP_NAMES = ("cameras", "trigger", "aim", "warmup", "calibration", "mapping", "steps", "sync", "baseline")
+from vts_hw.procedures.commission import NAMES as STEP_NAMES
 
 
 def _ask(text: str):

@@ -7,31 +7,19 @@ from __future__ import annotations
 from html import escape
 
 from vts_hw.report.commission import WORDS, CommissionReport
-from vts_hw.report.html import page
+from vts_hw.report.html import badge, page, table
 from vts_hw.report.times import fmt_datetime
 
 EXTRA_CSS = """
 .badge.SKIPPED, .badge.NOT { background: #9aa3ad; }
 .signoff { border: 2px solid #1d2733; padding: 10px 14px; border-radius: 6px; }
 .signoff.unsigned { border-style: dashed; color: #8a1c1c; }
-td.num { text-align: right; font-variant-numeric: tabular-nums; }
 """
 
 
-def _badge(state: str) -> str:
-    cls = state if state in ("OK", "TOLERANCE", "ACTION") else state.split()[0]
-    return f'<span class="badge {escape(cls)}">{escape(state)}</span>'
-
-
-def _table(head: list[str], rows: list[str], empty: str) -> str:
-    if not rows:
-        return f'<p class="muted">{escape(empty)}</p>'
-    th = "".join(f"<th>{escape(h)}</th>" for h in head)
-    return f'<div class="scroll"><table><thead><tr>{th}</tr></thead><tbody>{"".join(rows)}</tbody></table></div>'
-
-
 def _td(text, cls: str = "") -> str:
-    return f'<td{f" class={chr(34)}{cls}{chr(34)}" if cls else ""}>{escape(str(text))}</td>'
+    attr = f' class="{cls}"' if cls else ""
+    return f"<td{attr}>{escape(str(text))}</td>"
 
 
 def _value(v, unit: str) -> str:
@@ -55,10 +43,10 @@ def render_commission_html(report: CommissionReport) -> str:
             f"{escape(str(t.get('firmware', '?')))} at {escape(str(t.get('address', '?')))}; "
             f"{escape(str(t.get('note', '')))}</p>") if t else '<p class="muted">Trigger: not recorded.</p>'
     steps = [f'<tr class="step" data-step="{escape(s.name)}" data-state="{escape(s.state)}">' + _td(s.label)
-             + f"<td>{_badge(s.state)}</td>" + _td(fmt_datetime(s.started) if s.started else "-")
+             + f"<td>{badge(s.state)}</td>" + _td(fmt_datetime(s.started) if s.started else "-")
              + _td(s.run_id if s.run_id is not None else "-") + _td(s.notes) + "</tr>" for s in report.steps]
     figs = [f'<tr class="figure" data-state="{escape(f.state)}">' + _td(f.step) + _td(f.subject) + _td(f.metric)
-            + _td(_value(f.value, f.unit), "num") + _td(f.window) + f"<td>{_badge(f.state)}</td>" + "</tr>"
+            + _td(_value(f.value, f.unit), "num") + _td(f.window) + f"<td>{badge(f.state)}</td>" + "</tr>"
             for f in report.figures]
     skipped = "".join(f"<li><b>{escape(label)}</b>: {escape(why)}</li>" for label, why in report.skipped)
     signed = bool(report.signed_by)
@@ -69,14 +57,14 @@ def render_commission_html(report: CommissionReport) -> str:
     verdict = (f"{WORDS[state]}" if report.complete else "NOT COMMISSIONED: a step has not passed")
     body = (f"<style>{EXTRA_CSS}</style>"
             f'<section class="card banner {escape(state)}"><div class="big" id="verdict">Room {escape(report.rig)}: '
-            f"{_badge(state)} {escape(verdict)}</div></section>"
+            f"{badge(state)} {escape(verdict)}</div></section>"
             '<section class="card"><h2>Devices</h2>'
-            + _table(["camera", "model", "serial", "firmware", "address", "announced", "settings locked"], cams,
+            + table(["camera", "model", "serial", "firmware", "address", "announced", "settings locked"], cams,
                      "No camera recorded.") + trig + "</section>"
             '<section class="card"><h2>Steps</h2>'
-            + _table(["step", "state", "when (UTC)", "run", "notes"], steps, "No step recorded.") + "</section>"
+            + table(["step", "state", "when (UTC)", "run", "notes"], steps, "No step recorded.") + "</section>"
             '<section class="card"><h2>Figures against their tolerance</h2>'
-            + _table(["step", "subject", "figure", "value", "tolerance window", "state"], figs, "No figure.")
+            + table(["step", "subject", "figure", "value", "tolerance window", "state"], figs, "No figure.")
             + "<p class=\"muted\">OK: within tolerance. TOLERANCE: within the action limits, to be reviewed. "
               "ACTION: outside the action limits. A figure without a window carries its procedure's own verdict.</p>"
               "</section>"

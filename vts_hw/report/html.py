@@ -73,9 +73,23 @@ window.addEventListener('load', function () {
 """
 
 
-def _badge(state) -> str:
+def badge(state) -> str:
+    """A state as a coloured badge (its words are its classes: ``NOT RUN`` is styled by ``.NOT``);
+    no state: "no data"."""
     s = str(state) if state else "none"
     return f'<span class="badge {escape(s)}">{escape(s if state else "no data")}</span>'
+
+
+_badge = badge
+
+
+def table(head: list[str], rows: list[str], empty: str) -> str:
+    """A report's table: ``head`` the column titles (text), ``rows`` whole ``<tr>`` rows (HTML);
+    with no row, ``empty`` in muted words instead."""
+    if not rows:
+        return f'<p class="muted">{escape(empty)}</p>'
+    th = "".join(f"<th>{escape(h)}</th>" for h in head)
+    return f'<div class="scroll"><table><thead><tr>{th}</tr></thead><tbody>{"".join(rows)}</tbody></table></div>'
 
 
 def _cell(text, status=None, num=True) -> str:

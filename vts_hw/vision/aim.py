@@ -17,9 +17,9 @@ gantry      (mapping) how many markers are seen through the gantry's opening
 
 and gives each a :class:`Verdict`: ``good``, ``adjust`` (with how, in words: "turn the focus
 ring: ...", "aim 2.1° left: ..."), or ``unknown`` (and why: "not known: no mapping"). The goals
-are one :class:`~vts_hw.vision.aim_settings.AimSettings`. :func:`aim_check` is the whole of it
-as a pure function of two JPEGs: the verdicts as a JSON-able dict and the overlay as PNG bytes
-(for the console's Room page). docs/decisions/0068-aim-and-focus.md.
+are one :class:`~vts_hw.vision.aim_settings.AimSettings`. From two JPEGs with the rig's
+calibration and mapping it is procedures/aim.py's ``check_pictures`` (the console's Room page
+and `vts camera aim`). docs/decisions/0068-aim-and-focus.md.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from vts_hw.vision.aim_verdicts import (ADJUST, GOOD, UNKNOWN, Verdict, aim_verd
 from vts_hw.vision.detect import DetectorSettings, detect
 from vts_hw.vision.focus import edge_profile
 
-__all__ = ["Marker", "AimReport", "assess", "aim_check", "decode_grey", "GOOD", "ADJUST", "UNKNOWN", "Verdict"]
+__all__ = ["Marker", "AimReport", "assess", "decode_grey", "GOOD", "ADJUST", "UNKNOWN", "Verdict"]
 
 
 @dataclass(frozen=True)
@@ -165,13 +165,3 @@ def assess(camera: str, on: np.ndarray, off: np.ndarray | None, view=None,
     items.append(gantry_verdict(markers, view, settings, no_view))
     return AimReport(camera, size, items, markers, view, on, settings)
 
-
-def aim_check(camera: str, on_jpeg: bytes, off_jpeg: bytes | None, view=None,
-              settings: AimSettings = DEFAULT_AIM, no_view: str = "no mapping",
-              reference=None) -> tuple[dict, bytes]:
-    """The hook for a page: two JPEGs (LED on, LED off or None) -> the verdicts as a JSON-able
-    dict (:meth:`AimReport.to_dict`) and the overlay as PNG bytes. Pure: no device, no file."""
-    report = assess(camera, decode_grey(on_jpeg, "LED-on picture"),
-                    None if off_jpeg is None else decode_grey(off_jpeg, "LED-off picture"),
-                    view, settings, no_view, reference=reference)
-    return report.to_dict(), report.overlay_png()

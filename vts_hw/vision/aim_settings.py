@@ -10,15 +10,15 @@ docs/decisions/0068-aim-and-focus.md says why each default is what it is.
 
 from __future__ import annotations
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
+
+from vts_hw.config_base import Strict
 
 __all__ = ["AimSettings", "DEFAULT_AIM"]
 
 
-class AimSettings(BaseModel):
+class AimSettings(Strict):
     """Goals and room geometry of the aim-and-focus check (see the module docstring)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     # focus: the markers' edge, 10-90 % rise width along radial profiles (vts_hw/vision/focus.py)
     edge_width_max_px: float = Field(default=2.0, gt=0, le=20,
