@@ -91,7 +91,7 @@ def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 
                     baselines.append(take_baseline(cam, frames, clock.now))
             record(store, BaselineSet(baselines), rig=cfg.rig, operator="demo", tolerances=cfg.tolerances,
                    started=t_base, finished=t_base, clock=clock.now)
-            stored_baselines = load_baselines(store, [c.name for c in cfg.cameras])
+            stored_baselines = load_baselines(store, [c.name for c in cfg.cameras], cfg.rig)
             say(f"day 0: baseline set ({', '.join(f'{b.camera}: {len(b.markers)} markers' for b in baselines)})")
             rows: list[DayRow] = []
             for day in range(1, days + 1):

@@ -119,14 +119,15 @@ def latest_run_id(store, rig: str) -> int | None:
     return max(runs, key=lambda r: (r.started, r.id)).id if runs else None
 
 
-def baselines(store, cameras: list[str]) -> dict:
-    """Each camera's drift baseline in use: its run and when it was set (None: none yet)."""
+def baselines(store, cameras: list[str], rig: str | None = None) -> dict:
+    """Each camera's drift baseline in use (of rig ``rig``, as the daily QA reads them): its run
+    and when it was set (None: none yet)."""
     from vts_hw.store.baselines import load_baseline
     from vts_hw.vision.wall_baseline import NoBaseline
     out = {}
     for n in cameras:
         try:
-            b = load_baseline(store, n)
+            b = load_baseline(store, n, rig)
         except NoBaseline:
             out[n] = None
         else:
@@ -141,7 +142,7 @@ def latest_view(open_store, rig: str, cameras: list[str]) -> dict:
     with open_store() as store:
         rid = latest_run_id(store, rig)
         return {"latest": view_of_run(store, rid, cameras) if rid is not None else None,
-                "baselines": baselines(store, cameras)}
+                "baselines": baselines(store, cameras, rig)}
 
 
 def drift_plot_png(open_store, rig: str, camera: str, now: float | None = None) -> bytes | None:

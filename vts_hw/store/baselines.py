@@ -33,6 +33,7 @@ def load_baseline(store, camera: str, rig: str | None = None) -> Baseline:
                      f"run `vts qa drift --set-baseline` first")
 
 
-def load_baselines(store, cameras) -> dict[str, Baseline]:
-    """The latest baseline of each of ``cameras``; NoBaseline for the first that has none."""
-    return {name: load_baseline(store, name) for name in cameras}
+def load_baselines(store, cameras, rig: str | None = None) -> dict[str, Baseline]:
+    """The latest baseline of each of ``cameras`` (of rig ``rig`` only, when given); NoBaseline
+    for the first that has none."""
+    return {name: load_baseline(store, name, rig) for name in cameras}

@@ -33,7 +33,7 @@ def record_qa(store, qa, rig, *, operator: str = "", clock=time.time):
 
     qa.preflight()
     if qa.needs_baselines:
-        qa.baselines = {**load_baselines(store, qa.camera_names), **qa.baselines}
+        qa.baselines = {**load_baselines(store, qa.camera_names, rig.rig), **qa.baselines}
     now = clock()
     with Recorder(store, qa.procedure, rig=rig.rig, operator=operator, config_digest=rig.digest,
                   tolerances=rig.tolerances, started=now, clock=clock) as rec:
