@@ -163,15 +163,14 @@ class AimChecks:
         why = self.refusal(name)
         if why:
             raise NotChecked(why)
-        hub, facts = self.console.hub, self.console.facts
+        hub = self.console.hub
         hub.watch(name)
         try:
             on_jpeg, off_jpeg, at, found = self._pictures(name)
         finally:
             hub.unwatch(name)
-        reference, ref_name = self._reference(name)
         verdicts, png = aim_page_of(name, getattr(self.console, "rig_config", None), on_jpeg, off_jpeg,
-                                    reference, ref_name)
+                                    self._reference(name))
         return verdicts, png, at, found
 
     def _pictures(self, name: str):
@@ -232,12 +231,10 @@ class AimChecks:
                          + (f" ({st['why']})" if st.get("why") else ""))
 
     def _reference(self, name: str):
-        """The drift baseline's wall markers of ``name`` (the names the page holds), or (None, ...)."""
+        """The drift baseline's wall markers of ``name`` (the names the page holds), or None."""
         names = getattr(self.console, "names", None)
         wall = names.current(name).get("wall") if names is not None else None
-        if wall is None or not wall.points:
-            return None, "the drift baseline"
-        return [(x, y) for _, x, y in wall.points], "the drift baseline"
+        return [(x, y) for _, x, y in wall.points] if wall is not None and wall.points else None
 
 
 __all__ = ["AimChecks", "AimState", "NotChecked", "EVERY_S"]
