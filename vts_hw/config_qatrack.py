@@ -25,9 +25,10 @@ import re
 from typing import Literal, Optional
 from urllib.parse import urlsplit
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from vts_hw import catalog
+from vts_hw.config_base import Strict
 from vts_hw.errors import ConfigError
 from vts_hw.site_time import site_zone
 
@@ -39,11 +40,7 @@ _METRIC_RE = re.compile(r"^[A-Za-z0-9_.:-]+$")
 PROCEDURE_RE = catalog.stored_name_pattern()
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class QATrackList(_Strict):
+class QATrackList(Strict):
     """One procedure's test list in QATrack+ and its metric -> macro mapping."""
 
     test_list: str = Field(min_length=1, description="the name of the test list assigned to the unit")
@@ -68,7 +65,7 @@ class QATrackList(_Strict):
         return v
 
 
-class QATrackConfig(_Strict):
+class QATrackConfig(Strict):
     """The clinic's QATrack+: its root URL, this rig's unit, credentials from the environment."""
 
     url: str = Field(description="root of the QATrack+ site, http(s)://host[:port]/[path/]")

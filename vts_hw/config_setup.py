@@ -11,14 +11,15 @@ from __future__ import annotations
 
 from typing import Literal, Optional
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
+
+from vts_hw.config_base import Strict
 
 EXPOSURES = ("hold", "auto", "flickerfree50", "flickerfree60")
 WHITE_BALANCES = ("hold", "auto", "fixed_indoor", "fixed_outdoor1", "fixed_outdoor2", "fixed_fluor1", "fixed_fluor2")
 
 
-class CameraSetupConfig(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+class CameraSetupConfig(Strict):
 
     exposure: Literal[EXPOSURES] = Field(  # type: ignore[valid-type]
         default="hold", description="ImageSource.I0.Sensor.Exposure: hold keeps shutter and gain where they are")
