@@ -12,7 +12,6 @@ added rows.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import subprocess
 import sys

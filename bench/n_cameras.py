@@ -50,7 +50,6 @@ FLOOR = 0.004  # the simulated receive delay's floor
 def score(sim, tracks, names):
     """(located share, located count, eligible count, 3D RMS mm, max error mm, false points:
     more than 2 mm from every true marker)."""
-    C = len(names)
     located = eligible = 0
     exp = np.column_stack([np.where(tracks.camera_frame[:, c] >= 0,
                                     sim.exposure[n][np.maximum(tracks.camera_frame[:, c], 0)], np.nan)

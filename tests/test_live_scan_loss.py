@@ -14,7 +14,6 @@ import sys
 import threading
 import time
 
-import pytest
 import yaml
 
 from vts_hw.sim_devices.patient import BodyMove, add_patient

@@ -13,7 +13,6 @@ import re
 import subprocess
 import sys
 
-import numpy as np
 import pytest
 
 from vts_hw.sim_devices.patient import BodyMove, add_patient

@@ -19,7 +19,7 @@ from pydantic import Field
 from vts_hw.config import load_rig
 from vts_hw.drivers import registry
 from vts_hw.drivers.trigger import (DUTY, FIRE, FREQUENCY, HOST_WRITE, LEVELS, BackendSettings, TriggerBackend,
-                                    TriggerBase, TriggerLog, TriggerStatus, read_log)
+                                    TriggerBase, TriggerStatus, read_log)
 from vts_hw.errors import ConfigError, DataError
 from vts_hw.procedures.scan import ScanSession
 from vts_hw.procedures.scan_trigger import ScanError, ScanTrigger

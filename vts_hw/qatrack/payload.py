@@ -170,7 +170,8 @@ def attachments(store, qcfg, run, workdir=None) -> list[tuple[str, bytes]]:
     """The files to attach: the run's drift plot(s) (its stored plots, else rendered from the
     store per camera for a drift/daily run) and the drift report as of the run's end."""
     from vts_hw.report import build_drift_report, collect
-    from vts_hw.report.plots import camera_figure, figure_png
+    from vts_hw.figures import figure_png
+    from vts_hw.report.plots import camera_figure
 
     plots: list[tuple[str, bytes]] = []
     files: list[tuple[str, bytes]] = []

@@ -56,7 +56,7 @@ def history_html(history: list[ProcedureHistory], show_rig: bool = False) -> str
     """The report's "QA history" section ("" without any such runs)."""
     if not history:
         return ""
-    from vts_hw.report.plots import figure_png
+    from vts_hw.figures import figure_png
 
     parts = []
     for h in history:

@@ -13,7 +13,8 @@ from html import escape
 
 from vts_hw.tolerance import worst
 from vts_hw.report.model import AXES, WARMING_METRIC, CameraDrift, DriftReport, RunPoint
-from vts_hw.report.plots import STATE_COLOURS, camera_figure, figure_png
+from vts_hw.figures import figure_png
+from vts_hw.report.plots import STATE_COLOURS, camera_figure
 from vts_hw.report.text import (camera_forecast_text, fmt_num, fmt_slope, forecast_detail, latest_text, led_text,
                    period_text, trend_detail)
 from vts_hw.report.steps import steps_html

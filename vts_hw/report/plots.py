@@ -16,7 +16,6 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
-from vts_hw.figures import figure_png  # noqa: F401  (re-exported for the reports)
 from vts_hw.report.model import CameraDrift, DriftReport
 from vts_hw.report.times import fmt_date, utc
 from vts_hw.report.trend import CONTROL_K, CONTROL_RUNS, DAY, MIN_TREND_DAYS, MIN_TREND_RUNS
