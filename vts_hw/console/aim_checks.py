@@ -91,7 +91,7 @@ class AimChecks:
 
     def refusal(self, name: str) -> str:
         """Why camera ``name`` cannot be checked now (one sentence), or ''."""
-        src = self.console.hub.status(name)["source"]
+        src = self.console.hub.source(name)
         if src == "fed":
             return (f"not checked: {name} is recording (a scan or the daily QA has its frames and its LED); "
                     f"the check goes on when that is done")
@@ -170,7 +170,7 @@ class AimChecks:
         finally:
             hub.unwatch(name)
         reference, ref_name = self._reference(name)
-        verdicts, png = aim_page_of(name, getattr(self.console, "rig_config", None), on_jpeg, off_jpeg,
+        verdicts, png = aim_page_of(name, self.console.rig_config, on_jpeg, off_jpeg,
                                     reference, ref_name)
         return verdicts, png, at, found
 
@@ -191,7 +191,7 @@ class AimChecks:
                 raise NotChecked(f"not checked: {result['led_error']}")
             second = self._frame_after(name, time.time())
         finally:
-            if self.console.hub.status(name)["source"] != "fed":     # fed: the recording's LED now
+            if self.console.hub.source(name) != "fed":     # fed: the recording's LED now
                 back = facts.switch_led(name, found == "on")
                 if back["led_error"]:
                     raise NotChecked(f"the LED of {name} could not be put back {found}: {back['led_error']}")
