@@ -1,7 +1,7 @@
 """What people did on the console: who, when, what (a scan started or stopped, an alert
 acknowledged, a baseline set, a push, the LED switched, a login).
 
-``Actions`` is the one door (``record`` / ``recent``, and ``page`` for the History page).
+Both kinds have one door: ``record``, ``recent`` and ``page`` (for the History page).
 ``MemoryActions`` keeps them for the console's life only (a console without a results store);
 ``StoreActions`` writes each to the results store's ``actions`` table (store/people.py) the
 moment it is recorded, so the History page shows them. A detail never holds a secret: keys
@@ -16,7 +16,7 @@ import re
 import threading
 import time
 from dataclasses import asdict, dataclass, field
-from typing import Callable, Protocol
+from typing import Callable
 
 log = logging.getLogger(__name__)
 
@@ -50,20 +50,14 @@ def clean(value):
     return clean(str(value))
 
 
-class Actions(Protocol):
-    def record(self, user: str, what: str, detail: dict | None = None, *, role: str = "") -> Action: ...
-
-    def recent(self, limit: int = 50) -> list[Action]: ...
-
-
-def _role(user: str, role: str) -> str:
-    """The role to log: the one given, else the role of the session acting (the caller's, seen
-    through sessions.current: the pages need not pass it)."""
-    if role:
-        return role
-    from vts_hw.console.sessions import current
-    s = current.get()
-    return s.role if s is not None and s.user == user else ""
+def new_action(rig: str, user: str, what: str, detail: dict | None, role: str) -> Action:
+    """The action now, its detail cleaned; its role the one given, else the role of the session
+    acting (the caller's, seen through sessions.current: the pages need not pass it)."""
+    if not role:
+        from vts_hw.console.sessions import current
+        s = current.get()
+        role = s.role if s is not None and s.user == user else ""
+    return Action(time.time(), user, what, clean(dict(detail or {})), role, rig)
 
 
 def _keep(a: Action, start, end, user) -> bool:
@@ -77,7 +71,7 @@ class MemoryActions:
         self._items: list[Action] = []
 
     def record(self, user: str, what: str, detail: dict | None = None, *, role: str = "") -> Action:
-        act = Action(time.time(), user, what, clean(dict(detail or {})), _role(user, role), self.rig)
+        act = new_action(self.rig, user, what, detail, role)
         with self._lock:
             self._items.append(act)
         return act
@@ -111,7 +105,7 @@ class StoreActions:
 
     def record(self, user: str, what: str, detail: dict | None = None, *, role: str = "") -> Action:
         from vts_hw.errors import VtsError
-        act = Action(time.time(), user, what, clean(dict(detail or {})), _role(user, role), self.rig)
+        act = new_action(self.rig, user, what, detail, role)
         with self._lock:
             self._recent = None
             todo = [*self.pending, act]
@@ -153,4 +147,4 @@ class StoreActions:
 RECENT_S = 5.0       # actions of other consoles on the same store reach a page within this
 
 
-__all__ = ["Action", "Actions", "MemoryActions", "StoreActions", "clean"]
+__all__ = ["Action", "new_action", "MemoryActions", "StoreActions", "clean"]

@@ -91,7 +91,7 @@ class AimChecks:
 
     def refusal(self, name: str) -> str:
         """Why camera ``name`` cannot be checked now (one sentence), or ''."""
-        src = self.console.hub.status(name)["source"]
+        src = self.console.hub.source(name)
         if src == "fed":
             return (f"not checked: {name} is recording (a scan or the daily QA has its frames and its LED); "
                     f"the check goes on when that is done")
@@ -169,8 +169,7 @@ class AimChecks:
             on_jpeg, off_jpeg, at, found = self._pictures(name)
         finally:
             hub.unwatch(name)
-        verdicts, png = aim_page_of(name, getattr(self.console, "rig_config", None), on_jpeg, off_jpeg,
-                                    self._reference(name))
+        verdicts, png = aim_page_of(name, self.console.rig_config, on_jpeg, off_jpeg, self._reference(name))
         return verdicts, png, at, found
 
     def _pictures(self, name: str):
@@ -190,7 +189,7 @@ class AimChecks:
                 raise NotChecked(f"not checked: {result['led_error']}")
             second = self._frame_after(name, time.time())
         finally:
-            if self.console.hub.status(name)["source"] != "fed":     # fed: the recording's LED now
+            if self.console.hub.source(name) != "fed":     # fed: the recording's LED now
                 back = facts.switch_led(name, found == "on")
                 if back["led_error"]:
                     raise NotChecked(f"the LED of {name} could not be put back {found}: {back['led_error']}")

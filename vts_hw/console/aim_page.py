@@ -15,17 +15,16 @@
 from __future__ import annotations
 
 import asyncio
-import json
 
 from starlette.requests import Request
-from starlette.responses import JSONResponse, Response, StreamingResponse
+from starlette.responses import JSONResponse, Response
 from starlette.routing import Route
 
 from vts_hw.console import guard
 from vts_hw.console.aim_checks import AimChecks
+from vts_hw.console.web import event_stream, no_camera, sse, switch_asked, wanted_cameras
 
 TICK_S = 0.1
-KEEPALIVE_S = 15.0
 
 
 def aim_routes(console, templates=None) -> list:
@@ -36,31 +35,20 @@ def aim_routes(console, templates=None) -> list:
 
     def known(request: Request):
         name = request.path_params["camera"]
-        if name not in console.hub.names:
-            return name, JSONResponse({"error": f"no camera {name!r} in this rig"}, status_code=404)
-        return name, None
+        return name, no_camera(console, name)
 
     async def switch(request: Request):
-        refused = guard.refuse(console, request, guard.OPERATOR)
+        name, on, refused = await switch_asked(console, request)
         if refused is not None:
             return refused
-        name, bad = known(request)
-        if bad is not None:
-            return bad
-        try:
-            body = await request.json()
-        except ValueError:
-            body = None
-        if not isinstance(body, dict) or not isinstance(body.get("on"), bool):
-            return JSONResponse({"error": 'the body must be JSON {"on": true} or {"on": false}'}, status_code=400)
         user, role = guard.user_of(console, request)
-        if body["on"]:
+        if on:
             why = await asyncio.to_thread(checks.refusal, name)
             if why:
                 return JSONResponse({"error": why, **checks.view(name)}, status_code=409)
-        view = checks.switch(name, body["on"], user)
+        view = checks.switch(name, on, user)
         await asyncio.to_thread(lambda: console.actions.record(
-            user, f"aim check {'on' if body['on'] else 'off'}", {"camera": name}, role=role))
+            user, f"aim check {'on' if on else 'off'}", {"camera": name}, role=role))
         return JSONResponse(view)
 
     async def state(request: Request):
@@ -77,32 +65,19 @@ def aim_routes(console, templates=None) -> list:
         return Response(png, media_type="image/png", headers={"Cache-Control": "no-store", "X-Aim-Check": str(n)})
 
     async def events(request: Request):
-        wanted = [n for n in request.query_params.get("cameras", ",".join(console.hub.names)).split(",")
-                  if n in console.hub.names]
+        wanted = wanted_cameras(console, request)
+        sent: dict[str, int | None] = {n: None for n in wanted}
 
-        async def stream():
-            sent: dict[str, int | None] = {n: None for n in wanted}
-            loop = asyncio.get_running_loop()
-            last = loop.time()
-            yield b"retry: 2000\n\n"
-            while not console.closing.is_set():
-                out = []
-                for n in wanted:
-                    v = checks.version(n)
-                    if v != sent[n]:
-                        sent[n] = v
-                        out.append(f"event: aim\ndata: {json.dumps(checks.view(n), separators=(',', ':'))}\n\n"
-                                   .encode())
-                now = loop.time()
-                if not out and now - last > KEEPALIVE_S:
-                    out.append(b": keep-alive\n\n")
-                if out:
-                    last = now
-                    yield b"".join(out)
-                await asyncio.sleep(TICK_S)
+        async def poll(now: float) -> list[bytes]:
+            out = []
+            for n in wanted:
+                v = checks.version(n)
+                if v != sent[n]:
+                    sent[n] = v
+                    out.append(sse("aim", checks.view(n)))
+            return out
 
-        return StreamingResponse(stream(), media_type="text/event-stream",
-                                 headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"})
+        return event_stream(console, TICK_S, poll)
 
     return [Route("/aim/events", events), Route("/aim/{camera}", switch, methods=["POST"]),
             Route("/aim/{camera}", state), Route("/aim/{camera}/overlay.png", overlay)]

@@ -16,7 +16,6 @@ request but the login page's needs a session (login.py's ``SessionDoor``).
 from __future__ import annotations
 
 import asyncio
-import json
 import secrets
 import time
 from pathlib import Path
@@ -24,7 +23,7 @@ from pathlib import Path
 from starlette.applications import Starlette
 from starlette.middleware import Middleware
 from starlette.requests import Request
-from starlette.responses import JSONResponse, Response, StreamingResponse
+from starlette.responses import JSONResponse, Response
 from starlette.routing import Mount, Route
 from starlette.staticfiles import StaticFiles
 from starlette.templating import Jinja2Templates
@@ -33,19 +32,24 @@ from vts_hw import __version__
 from vts_hw.console import guard
 from vts_hw.console.actions import MemoryActions
 from vts_hw.console.sessions import current
+from vts_hw.console.web import event_stream, no_camera, sse, switch_asked, wanted_cameras
 
 HERE = Path(__file__).resolve().parent
 EVENT_TICK_S = 0.04           # how often an event stream looks for new frames (25 Hz)
 ROOM_EVERY_S = 1.0            # ... and sends the room's state
-KEEPALIVE_S = 15.0
 
 
 class Console:
-    """What the pages need: the hub, the marker worker, the room's facts, the rig's name."""
+    """What the pages need: the hub, the marker worker, the room's facts, the rig (its name, its config)."""
 
     def __init__(self, rig_name: str, hub, markers, facts, *, token: str | None = None, open_store=None,
-                 actions=None, auth=None):
+                 actions=None, auth=None, rig_config=None, scans_dir=None):
         self.rig_name = rig_name
+        #: the RigConfig the pages that run procedures run them on (Daily QA, Scan, aim checks);
+        #: None: those pages say the console was started without one
+        self.rig_config = rig_config
+        #: the folder the Scan page's scans go into (None: the working directory, as `vts scan start`)
+        self.scans_dir = scans_dir
         #: a callable giving the results store, opened read-only (None: the pages say there is none)
         self.open_store = open_store if open_store is not None else getattr(facts, "open_store", None)
         self.hub = hub
@@ -74,10 +78,6 @@ class Console:
         return {"rig": self.rig_name, "now": time.time(), "cameras": cams}
 
 
-def _sse(event: str, data) -> bytes:
-    return f"event: {event}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n".encode()
-
-
 def create_app(console: Console) -> Starlette:
     from vts_hw.console.aim_page import aim_routes
     from vts_hw.console.history import history_routes
@@ -97,8 +97,9 @@ def create_app(console: Console) -> Starlette:
 
     async def frame(request: Request):
         name = request.path_params["camera"]
-        if name not in console.hub.names:
-            return JSONResponse({"error": f"no camera {name!r} in this rig"}, status_code=404)
+        bad = no_camera(console, name)
+        if bad is not None:
+            return bad
         latest = console.hub.latest(name)
         if latest is None:
             return JSONResponse({"error": f"camera {name}: no picture yet"}, status_code=503)
@@ -107,63 +108,46 @@ def create_app(console: Console) -> Starlette:
                                  "X-Frame-Arrival": f"{latest.arrival:.3f}"})
 
     async def events(request: Request):
-        wanted = [n for n in request.query_params.get("cameras", ",".join(console.hub.names)).split(",")
-                  if n in console.hub.names]
+        wanted = wanted_cameras(console, request)
+        sent_seq: dict[str, int | None] = {n: None for n in wanted}
+        sent_marks: dict[str, int | None] = {n: None for n in wanted}
+        next_room = 0.0
 
-        async def stream():
+        async def poll(now: float) -> list[bytes]:
+            nonlocal next_room
+            out = []
+            if now >= next_room:
+                next_room = now + ROOM_EVERY_S
+                out.append(sse("room", await asyncio.to_thread(console.room)))
+            for n in wanted:
+                lt = console.hub.latest(n)
+                if lt is not None and lt.seq != sent_seq[n]:
+                    sent_seq[n] = lt.seq
+                    out.append(sse("frame", {"camera": n, "seq": lt.seq, "arrival": lt.arrival}))
+                found = console.markers.found(n)
+                if found is not None and found.seq != sent_marks[n]:
+                    sent_marks[n] = found.seq
+                    out.append(sse("markers", found.as_dict()))
+            return out
+
+        def opened():
             for n in wanted:
                 console.hub.watch(n)
-            sent_seq: dict[str, int | None] = {n: None for n in wanted}
-            sent_marks: dict[str, int | None] = {n: None for n in wanted}
-            loop = asyncio.get_running_loop()
-            next_room = last_sent = 0.0
-            try:
-                yield b"retry: 2000\n\n"
-                while not console.closing.is_set():
-                    now = loop.time()
-                    out = []
-                    if now >= next_room:
-                        next_room = now + ROOM_EVERY_S
-                        out.append(_sse("room", await asyncio.to_thread(console.room)))
-                    for n in wanted:
-                        lt = console.hub.latest(n)
-                        if lt is not None and lt.seq != sent_seq[n]:
-                            sent_seq[n] = lt.seq
-                            out.append(_sse("frame", {"camera": n, "seq": lt.seq, "arrival": lt.arrival}))
-                        found = console.markers.found(n)
-                        if found is not None and found.seq != sent_marks[n]:
-                            sent_marks[n] = found.seq
-                            out.append(_sse("markers", found.as_dict()))
-                    if not out and now - last_sent > KEEPALIVE_S:
-                        out.append(b": keep-alive\n\n")
-                    if out:
-                        last_sent = now
-                        yield b"".join(out)       # waits while the browser does not read: it then misses events
-                    await asyncio.sleep(EVENT_TICK_S)
-            finally:
-                for n in wanted:
-                    console.hub.unwatch(n)
 
-        return StreamingResponse(stream(), media_type="text/event-stream",
-                                 headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"})
+        def closed():
+            for n in wanted:
+                console.hub.unwatch(n)
+
+        return event_stream(console, EVENT_TICK_S, poll, opened=opened, closed=closed)
 
     async def led(request: Request):
-        refused = guard.refuse(console, request, guard.OPERATOR)
+        name, on, refused = await switch_asked(console, request)
         if refused is not None:
             return refused
-        name = request.path_params["camera"]
-        if name not in console.hub.names:
-            return JSONResponse({"error": f"no camera {name!r} in this rig"}, status_code=404)
-        try:
-            body = await request.json()
-        except ValueError:
-            body = None
-        if not isinstance(body, dict) or not isinstance(body.get("on"), bool):
-            return JSONResponse({"error": 'the body must be JSON {"on": true} or {"on": false}'}, status_code=400)
-        facts = await asyncio.to_thread(console.facts.switch_led, name, body["on"])
+        facts = await asyncio.to_thread(console.facts.switch_led, name, on)
         user, role = guard.user_of(console, request)    # asked, whether it took or not (the camera says)
         await asyncio.to_thread(lambda: console.actions.record(
-            user, f"LED {'on' if body['on'] else 'off'}",
+            user, f"LED {'on' if on else 'off'}",
             {"camera": name, "took": not facts["led_error"], "read back": facts["led"]}, role=role))
         return JSONResponse(facts, status_code=200 if not facts["led_error"] else 502)
 

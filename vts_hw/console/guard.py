@@ -38,8 +38,7 @@ def same_origin(request: Request) -> str:
 
 
 def users_required(console) -> bool:
-    auth = getattr(console, "auth", None)
-    return auth is not None and auth.required
+    return console.auth is not None and console.auth.required
 
 
 def session_of(console, request: Request):
@@ -50,21 +49,20 @@ def session_of(console, request: Request):
     return s
 
 
+def _acting(console, request: Request) -> tuple[str, str, str]:
+    """(user name, role, the page token its POSTs carry) of the request: ``local`` with every
+    right and the console's token while the console has no users; ("", "", "") for a request
+    without a live session when it has."""
+    if not users_required(console):
+        return LOCAL_USER, PHYSICIST, console.console_token
+    s = session_of(console, request)
+    return (s.user, s.role, s.token) if s is not None else ("", "", "")
+
+
 def user_of(console, request: Request) -> tuple[str, str]:
     """(user name, role) of the request: ``local`` with every right while the console has no
     users; ("", "") for a request without a live session when it has."""
-    if not users_required(console):
-        return LOCAL_USER, PHYSICIST
-    s = session_of(console, request)
-    return (s.user, s.role) if s is not None else ("", "")
-
-
-def token_of(console, request: Request) -> str:
-    """The page token a POST of this request's page must carry (the session's, with users)."""
-    if users_required(console):
-        s = session_of(console, request)
-        return s.token if s is not None else ""
-    return console.console_token
+    return _acting(console, request)[:2]
 
 
 def _a(role: str) -> str:
@@ -77,10 +75,9 @@ def refuse(console, request: Request, role: str = OPERATOR) -> Response | None:
     why = same_origin(request)
     if why:
         return JSONResponse({"error": why}, status_code=403)
-    user, has = user_of(console, request)
+    user, has, want = _acting(console, request)      # the session looked up once
     if not user:
         return JSONResponse({"error": "refused: log in first (no session, or it has ended)"}, status_code=401)
-    want = token_of(console, request)
     if not want or not secrets.compare_digest(request.headers.get("x-console-token", ""), want):
         return JSONResponse({"error": "refused: the request did not come from the console's page"},
                             status_code=403)
@@ -89,5 +86,5 @@ def refuse(console, request: Request, role: str = OPERATOR) -> Response | None:
     return None
 
 
-__all__ = ["refuse", "user_of", "token_of", "session_of", "same_origin", "users_required", "OPERATOR",
+__all__ = ["refuse", "user_of", "session_of", "same_origin", "users_required", "OPERATOR",
            "PHYSICIST", "ROLE_RANK", "LOCAL_USER"]

@@ -235,11 +235,8 @@ class History:
             return self._page(request, "history_actions.html",
                               {**ctx, "f": f, "error": f"the results store could not be read: {exc}"}, 503)
         pages = max(1, -(-total // PAGE_SIZE))
-        query = lambda **c: urlencode({k: v for k, v in {"from": f.date_from, "to": f.date_to, "user": user,  # noqa: E731
-                                                          "page": f.page, **c}.items() if v not in ("", None, 1)})
         return self._page(request, "history_actions.html", {**ctx, "f": f, "acts": acts, "total": total,
-                                                            "pages": pages, "query": query,
-                                                            "first": (f.page - 1) * PAGE_SIZE + 1})
+                                                            "pages": pages, "first": (f.page - 1) * PAGE_SIZE + 1})
 
     async def drift_report(self, request: Request):
         return await self.reports.drift(request.query_params.get("since", "60d"))

@@ -95,6 +95,13 @@ class FramesHub:
         with self._lock:
             return feed.latest
 
+    def source(self, name: str) -> str:
+        """Where the camera's frames come from now: ``stream``, ``fed`` or ``off`` (``status``'s
+        ``source``, without the rest of it: the pages ask it per event tick)."""
+        feed = self._feeds[name]
+        with self._lock:
+            return feed.source
+
     def counts(self, name: str) -> dict:
         """Frames received and skipped by the camera (own stream), and the reader's reconnects."""
         feed = self._feeds[name]

@@ -53,7 +53,7 @@ class SessionDoor:
         self.console = console
 
     async def __call__(self, scope, receive, send):
-        auth = getattr(self.console, "auth", None)
+        auth = self.console.auth
         path = scope.get("path", "")
         if (scope["type"] != "http" or auth is None or not auth.required or path in OPEN_PATHS
                 or path.startswith(OPEN_PREFIXES)):

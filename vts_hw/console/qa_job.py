@@ -60,13 +60,13 @@ class Jobs:
 
     @property
     def rig(self):
-        rig = getattr(self.console, "rig_config", None)
+        rig = self.console.rig_config
         if rig is None:
             raise ConfigError("this console was started without a rig config: the QA cannot run from it")
         return rig
 
     def cameras(self) -> list[str]:
-        rig = getattr(self.console, "rig_config", None)
+        rig = self.console.rig_config
         return [c.name for c in rig.cameras] if rig is not None else list(getattr(self.console.hub, "names", []))
 
     def _store(self):
@@ -86,7 +86,7 @@ class Jobs:
             if job["state"] == "running":
                 raise Busy(f"a {KINDS[job['kind']]} is already running (started by {job['user']} at "
                            f"{time.strftime('%H:%M:%S', time.gmtime(job['started']))} UTC): wait for it to end")
-            held = [n for n in names if hub is not None and n in hub.names and hub.status(n)["source"] == "fed"]
+            held = [n for n in names if hub is not None and n in hub.names and hub.source(n) == "fed"]
             if held:
                 raise Busy(f"camera {held[0]} is recording (a scan): the {KINDS[kind]} can run once it has ended")
             self._job = {"state": "running", "kind": kind, "what": KINDS[kind], "user": user,

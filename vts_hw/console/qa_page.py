@@ -25,26 +25,21 @@ who did it. No procedure logic here: qa_job.py calls what the commands call.
 from __future__ import annotations
 
 import asyncio
-import json
 import threading
 
 from starlette.requests import Request
-from starlette.responses import JSONResponse, PlainTextResponse, Response, StreamingResponse
+from starlette.responses import JSONResponse, PlainTextResponse, Response
 from starlette.routing import Route
 
 from vts_hw.console import guard
 from vts_hw.console.qa_job import Busy, Jobs
+from vts_hw.console.web import event_stream, json_object, sse
 from vts_hw.errors import ConfigError, UsageError, VtsError
 
 DEFAULT_FRAMES = 5            # `vts qa daily --frames`'s default
 MAX_FRAMES = 50
 TICK_S = 0.1
 RUNNING_EVERY_S = 1.0
-KEEPALIVE_S = 15.0
-
-
-def _sse(event: str, data) -> bytes:
-    return f"event: {event}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n".encode()
 
 
 def _frames(body: dict) -> int:
@@ -53,19 +48,6 @@ def _frames(body: dict) -> int:
         raise UsageError(f"frames must be a whole number from 1 to {MAX_FRAMES} (as `vts qa daily --frames`), "
                          f"not {n!r}")
     return n
-
-
-async def _body(request: Request) -> dict:
-    raw = await request.body()
-    if not raw.strip():
-        return {}
-    try:
-        body = json.loads(raw)
-    except ValueError:
-        body = None
-    if not isinstance(body, dict):
-        raise UsageError('the body must be a JSON object, e.g. {"frames": 5}')
-    return body
 
 
 def _refused(exc: VtsError) -> JSONResponse:
@@ -119,7 +101,7 @@ class QAPage:
             "rig": self.console.rig_name, "here": "qa", "token": self.console.token, "cameras": self.jobs.cameras(),
             "frames": DEFAULT_FRAMES, "max_frames": MAX_FRAMES, "user": user,
             "physicist": guard.ROLE_RANK.get(role, 0) >= guard.ROLE_RANK[guard.PHYSICIST],
-            "has_rig": getattr(self.console, "rig_config", None) is not None})
+            "has_rig": self.console.rig_config is not None})
 
     async def state(self, request: Request):
         from vts_hw.console.qa_view import latest_view
@@ -132,24 +114,18 @@ class QAPage:
         return JSONResponse(out, headers={"Cache-Control": "no-store"})
 
     async def events(self, request: Request):
-        async def stream():
-            loop = asyncio.get_running_loop()
-            sent, last = None, 0.0
-            yield b"retry: 2000\n\n"
-            while not self.console.closing.is_set():
-                now = loop.time()
-                snap = self.jobs.snapshot()
-                running = snap["state"] == "running" or snap["pushing"]
-                if snap["version"] != sent or (running and now - last >= RUNNING_EVERY_S):
-                    sent, last = snap["version"], now
-                    yield _sse("qa", snap)
-                elif now - last >= KEEPALIVE_S:
-                    last = now
-                    yield b": keep-alive\n\n"
-                await asyncio.sleep(TICK_S)
+        sent, last = None, 0.0
 
-        return StreamingResponse(stream(), media_type="text/event-stream",
-                                 headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"})
+        async def poll(now: float) -> list[bytes]:
+            nonlocal sent, last
+            snap = self.jobs.snapshot()
+            running = snap["state"] == "running" or snap["pushing"]
+            if snap["version"] != sent or (running and now - last >= RUNNING_EVERY_S):
+                sent, last = snap["version"], now
+                return [sse("qa", snap)]
+            return []
+
+        return event_stream(self.console, TICK_S, poll)
 
     async def _start(self, request: Request, kind: str, role: str):
         refused = guard.refuse(self.console, request, role)
@@ -157,7 +133,7 @@ class QAPage:
             return refused
         user, _ = guard.user_of(self.console, request)
         try:
-            body = await _body(request)
+            body = await json_object(request, '{"frames": 5}')
             frames = _frames(body)
             if kind == "baseline" and body.get("confirm") is not True:
                 raise UsageError("a baseline is set only when confirmed on the page (the body needs "

@@ -12,11 +12,11 @@ state is ACTION (procedures/daily.py), never OK.
 
 from __future__ import annotations
 
-import datetime as dt
 import math
 import time
 
 from vts_hw import catalog
+from vts_hw.console.history import when     # (the History page's wording of a time)
 from vts_hw.errors import VtsError
 
 DAILY_NAMES = catalog.by_label()[catalog.DAILY.label]     # daily and drift QA: one check
@@ -24,22 +24,11 @@ PLOT_SINCE_S = 60 * 86400.0                                  # the drift plot's 
 STATE_ORDER = {"OK": 0, "TOLERANCE": 1, "ACTION": 2}
 
 
-def when(t: float | None) -> str:
-    if t is None:
-        return ""
-    return dt.datetime.fromtimestamp(t, dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
-
-
 def value_text(v) -> str:
     if v is None or (isinstance(v, float) and math.isnan(v)):
         return "not measured"
     v = float(v)
     return f"{v:g}" if v.is_integer() else f"{v:+.3f}"
-
-
-def window_text(w) -> str:
-    """A tolerance window as a person reads it (one wording everywhere: Window.describe)."""
-    return w.describe()
 
 
 def camera_view(name: str, rows: list[tuple], problems: list[str], run_id: int | None) -> dict:
@@ -71,7 +60,7 @@ def view_of_result(result, cameras: list[str]) -> dict:
     windows = result.windows or {}
     cams = []
     for c in result.cameras:
-        rows = [(m, v, u, st, window_text(windows[m]) if m in windows else "")
+        rows = [(m, v, u, st, windows[m].describe() if m in windows else "")
                 for s, m, v, u, st in c.measures if _own(s)]
         cams.append(camera_view(c.camera, rows, c.problems, None))
     seen = {c["camera"] for c in cams}
@@ -90,7 +79,7 @@ def view_of_run(store, run_id: int, cameras: list[str], problems: dict | None = 
     by_cam: dict[str, list] = {}
     for m in ms:
         if _own(m.subject):
-            w = window_text(windows[m.tolerance_id]) if m.tolerance_id in windows else ""
+            w = windows[m.tolerance_id].describe() if m.tolerance_id in windows else ""
             by_cam.setdefault(m.subject, []).append((m.metric, m.value, m.unit, str(m.status), w))
     problems = problems or {}
     names = list(cameras) + [c for c in by_cam if c not in cameras]

@@ -20,19 +20,19 @@ loop only reads their state. docs/decisions/0065-console-scan.md.
 from __future__ import annotations
 
 import asyncio
-import json
 import threading
 import time
 from pathlib import Path
 
 from starlette.requests import Request
-from starlette.responses import FileResponse, JSONResponse, PlainTextResponse, StreamingResponse
+from starlette.responses import FileResponse, JSONResponse, PlainTextResponse
 from starlette.routing import Route
 
 from vts_hw import __version__
 from vts_hw.console import guard
 from vts_hw.console.scan_analysis import MotionJob
 from vts_hw.console.scan_run import ScanRun
+from vts_hw.console.web import event_stream, json_object, sse
 
 STATE_EVERY_S = 0.25
 TICK_S = 0.02            # how often an event stream looks for alerts, frames and a new view
@@ -40,7 +40,6 @@ TICK_S = 0.02            # how often an event stream looks for alerts, frames an
 #: a second (scan.js: thumbnails; the Room page is the live view), and an event per frame (100 a
 #: second for 4 cameras) cost the browsers and the live path beside them for nothing (bench/console.py)
 FRAME_EVENT_S = 0.5
-KEEPALIVE_S = 15.0
 MAX_REFERENCE_S = 120.0
 
 
@@ -60,12 +59,12 @@ class ScanDesk:
 
     def _publish(self) -> None:
         n = 0
-        while True:
+        while not self.console.closing.is_set():
             if self.viewers > 0:
                 try:
-                    data = _sse("scan", self.view())
+                    data = sse("scan", self.view())
                 except Exception as exc:      # said on the page; the publisher goes on
-                    data = _sse("scan", {"phase": "failed", "error": f"the page's view failed: {exc}"})
+                    data = sse("scan", {"phase": "failed", "error": f"the page's view failed: {exc}"})
                 n += 1
                 self.published = (n, data)
             time.sleep(STATE_EVERY_S)
@@ -90,7 +89,7 @@ class ScanDesk:
         out = {"phase": "idle", "scans": str(self.scans)} if self.run is None else self.run.view()
         out["scans"] = str(self.scans)
         out["analysis"] = None if self.job is None else self.job.view()
-        out["fed"] = [n for n in self.console.hub.names if self.console.hub.status(n)["source"] == "fed"]
+        out["fed"] = [n for n in self.console.hub.names if self.console.hub.source(n) == "fed"]
         out["actions"] = [] if self.run is None else self.actions(self.run.folder.name)
         return out
 
@@ -103,18 +102,6 @@ class ScanDesk:
 def _no_store():
     from vts_hw.errors import StoreError
     raise StoreError("the console was given no results store")
-
-
-def _sse(event: str, data) -> bytes:
-    return f"event: {event}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n".encode()
-
-
-async def _body(request: Request) -> dict:
-    try:
-        body = await request.json()
-    except ValueError:
-        return {}
-    return body if isinstance(body, dict) else {}
 
 
 def _seconds(value, what: str, upper: float | None = None) -> float | None:
@@ -131,11 +118,11 @@ def _seconds(value, what: str, upper: float | None = None) -> float | None:
 
 
 def scan_routes(console, templates):
-    """The Scan page's routes. ``console.scan_desk`` is made here when serve() gave the rig
-    (``console.rig``) and the scans folder (``console.scans_dir``)."""
+    """The Scan page's routes. ``console.scan_desk`` is made here when the console has a rig
+    (``console.rig_config``); its scans go into ``console.scans_dir``."""
     desk = getattr(console, "scan_desk", None)
-    if desk is None and getattr(console, "rig", None) is not None:
-        desk = console.scan_desk = ScanDesk(console, console.rig, Path(getattr(console, "scans_dir", None) or "."))
+    if desk is None and console.rig_config is not None:
+        desk = console.scan_desk = ScanDesk(console, console.rig_config, Path(console.scans_dir or "."))
 
     def no_desk():
         return JSONResponse({"error": "this console was started without a rig to scan with"}, status_code=503)
@@ -151,45 +138,38 @@ def scan_routes(console, templates):
         return JSONResponse(await asyncio.to_thread(desk.view))
 
     async def events(request: Request):
-        async def stream():
-            loop = asyncio.get_running_loop()
-            last_sent = 0.0
-            sent_alerts, sent_view, sent_seq = -1, -1, {n: None for n in console.hub.names}
-            sent_at = {n: float("-inf") for n in console.hub.names}
-            desk.viewers += 1
-            try:
-                yield b"retry: 2000\n\n"
-                while not console.closing.is_set():
-                    now = loop.time()
-                    out = []
-                    run = desk.run
-                    if run is not None and len(run.alerts) != sent_alerts:
-                        sent_alerts = len(run.alerts)
-                        out.extend(_sse("alert", a) for a in run.alerts[-3:])
-                    n, data = desk.published
-                    if n != sent_view and data:
-                        sent_view = n
-                        out.append(data)
-                    for name in console.hub.names:
-                        if now - sent_at[name] < FRAME_EVENT_S:    # the page shows at most 2 a second
-                            continue
-                        lt = console.hub.latest(name)
-                        if lt is not None and lt.seq != sent_seq[name] and console.hub.status(name)["source"] == "fed":
-                            sent_seq[name], sent_at[name] = lt.seq, now
-                            out.append(_sse("frame", {"camera": name, "seq": lt.seq, "arrival": lt.arrival}))
-                    if not out and now - last_sent > KEEPALIVE_S:
-                        out.append(b": keep-alive\n\n")
-                    if out:
-                        last_sent = now
-                        yield b"".join(out)
-                    await asyncio.sleep(TICK_S)
-            finally:
-                desk.viewers -= 1
-
         if desk is None:
             return no_desk()
-        return StreamingResponse(stream(), media_type="text/event-stream",
-                                 headers={"Cache-Control": "no-store", "X-Accel-Buffering": "no"})
+        sent_alerts, sent_view, sent_seq = -1, -1, {n: None for n in console.hub.names}
+        sent_at = {n: float("-inf") for n in console.hub.names}
+
+        async def poll(now: float) -> list[bytes]:
+            nonlocal sent_alerts, sent_view
+            out = []
+            run = desk.run
+            if run is not None and len(run.alerts) != sent_alerts:
+                sent_alerts = len(run.alerts)
+                out.extend(sse("alert", a) for a in run.alerts[-3:])
+            n, data = desk.published
+            if n != sent_view and data:
+                sent_view = n
+                out.append(data)
+            for name in sent_seq:
+                if now - sent_at[name] < FRAME_EVENT_S:    # the page shows at most 2 a second
+                    continue
+                lt = console.hub.latest(name)
+                if lt is not None and lt.seq != sent_seq[name] and console.hub.source(name) == "fed":
+                    sent_seq[name], sent_at[name] = lt.seq, now
+                    out.append(sse("frame", {"camera": name, "seq": lt.seq, "arrival": lt.arrival}))
+            return out
+
+        def opened():
+            desk.viewers += 1
+
+        def closed():
+            desk.viewers -= 1
+
+        return event_stream(console, TICK_S, poll, opened=opened, closed=closed)
 
     async def start(request: Request):
         refused = guard.refuse(console, request, guard.OPERATOR)
@@ -197,7 +177,7 @@ def scan_routes(console, templates):
             return refused
         if desk is None:
             return no_desk()
-        body = await _body(request)
+        body = await json_object(request)
         try:
             reference_s = _seconds(body.get("reference_s", 10.0), "the reference", MAX_REFERENCE_S) or 10.0
             duration = _seconds(body.get("duration_s"), "the duration")

@@ -188,9 +188,8 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, op
     facts = RoomFacts(cameras, rig.rig, open_store, names=names)
     actions = (StoreActions(open_write_store, open_store, rig.rig) if open_write_store is not None and open_store
                else MemoryActions(rig.rig))
-    console = Console(rig.rig, hub, markers, facts, open_store=open_store, actions=actions, auth=auth)
-    console.rig_config = rig          # the pages that run procedures (Daily QA, Scan) run them on this rig
-    console.rig, console.scans_dir = rig, scans_dir      # the Scan page's (scan_page.py)
+    console = Console(rig.rig, hub, markers, facts, open_store=open_store, actions=actions, auth=auth,
+                      rig_config=rig, scans_dir=scans_dir)
     stop_facts = threading.Event()
 
     def keep_facts():

@@ -87,10 +87,6 @@ class Auth:
                     del self._sessions[key]
         return len(fresh)
 
-    @property
-    def n_users(self) -> int:
-        return len(self._users)
-
     def known_names(self) -> set[str]:
         with self._lock:
             return set(self._users)

@@ -31,21 +31,8 @@ def action_from_row(row) -> LoggedAction:
                         detail if isinstance(detail, dict) else {"detail": detail}, row.rig)
 
 
-def select_actions(start: float | None = None, end: float | None = None, user: str | None = None,
-                   limit: int = 50, offset: int = 0) -> Select:
-    """Actions newest first, done in [start, end) when given, by ``user`` when given."""
-    q = select(actions)
-    if start is not None:
-        q = q.where(actions.c.at >= start)
-    if end is not None:
-        q = q.where(actions.c.at < end)
-    if user:
-        q = q.where(actions.c.user_name == user)
-    return q.order_by(actions.c.at.desc(), actions.c.id.desc()).limit(int(limit)).offset(int(offset))
-
-
-def count_actions(start: float | None = None, end: float | None = None, user: str | None = None) -> Select:
-    q = select(func.count()).select_from(actions)
+def _filtered(q: Select, start: float | None, end: float | None, user: str | None) -> Select:
+    """``q`` kept to actions done in [start, end) when given, by ``user`` when given."""
     if start is not None:
         q = q.where(actions.c.at >= start)
     if end is not None:
@@ -53,6 +40,17 @@ def count_actions(start: float | None = None, end: float | None = None, user: st
     if user:
         q = q.where(actions.c.user_name == user)
     return q
+
+
+def select_actions(start: float | None = None, end: float | None = None, user: str | None = None,
+                   limit: int = 50, offset: int = 0) -> Select:
+    """Actions newest first, done in [start, end) when given, by ``user`` when given."""
+    return (_filtered(select(actions), start, end, user)
+            .order_by(actions.c.at.desc(), actions.c.id.desc()).limit(int(limit)).offset(int(offset)))
+
+
+def count_actions(start: float | None = None, end: float | None = None, user: str | None = None) -> Select:
+    return _filtered(select(func.count()).select_from(actions), start, end, user)
 
 
 class PeopleMixin:
