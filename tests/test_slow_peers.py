@@ -125,13 +125,14 @@ def test_a_torn_snapshot_is_never_saved(rig, tmp_path, mode):
 
 def test_qa_daily_with_a_trickling_camera_ends_naming_it(tmp_path):
     """The daily QA ends on time: the trickling camera is ACTION (not reachable), with why."""
-    from test_qa_faults import _baseline, _setup
+    from qa_runs import baselines_now
+    from test_qa_faults import _setup
     from vts_hw.store import ResultsStore
     with SimRig(n_cameras=2, seed=5) as r, r.env():
         url = f"sqlite:///{tmp_path / 'r.sqlite'}"
         cfg, env = _setup(r, tmp_path / "a", url)
         with ResultsStore(url) as s:
-            _baseline(cfg, s)
+            baselines_now(cfg, s)
         r.servers["cam2"].set_faults(trickle=True, trickle_s=0.5)
         p = vts(env, "qa", "daily", "--frames", "2", timeout=120)
     # a camera that cannot be read is the QA's ACTION (camera_reachable 0), its reason named
