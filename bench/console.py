@@ -41,7 +41,7 @@ from vts_hw.sim_devices.scenarios.sync_session import run_scan_cli
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
-from test_console import ARGS, CHROMIUM, start_console, stop_console, until  # noqa: E402
+from console_live import chromium, start_console, stop_console, until  # noqa: E402
 
 REFERENCE_S = 5.0
 FIRST_MOVE_S = 10.0
@@ -81,13 +81,10 @@ def without_console(rig, rig_yaml, tmp: Path, patient, seconds: float) -> dict:
 
 
 def with_console(rig, rig_yaml, tmp: Path, patient, seconds: float, env: dict) -> tuple[dict, list, list]:
-    from playwright.sync_api import sync_playwright
-
     scans = tmp / "scans"
     p, url = start_console(["--port", "0", "--scans-dir", str(scans)], env)
     try:
-        with sync_playwright() as pw:
-            browser = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        with chromium() as browser:
             pages = []
             for _ in range(2):          # two people, two screens
                 ctx = browser.new_context(viewport={"width": 1366, "height": 768})
@@ -106,7 +103,6 @@ def with_console(rig, rig_yaml, tmp: Path, patient, seconds: float, env: dict) -
                          seconds + 180, poll=0.5):
                 raise SystemExit(f"the scan did not stop: {pages[0].inner_text('#message')}")
             got = [pg.evaluate("window.vtsScan") for pg in pages]
-            browser.close()
     finally:
         code, out, err = stop_console(p)
         if code != 0:

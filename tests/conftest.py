@@ -43,7 +43,10 @@ def cam1(sim_rig):
         yield cam
 
 
-from fsfaults import readonly_dir, small_disk  # noqa: E402,F401  (fixtures: a full disk, a read-only folder)
+from fsfaults import readonly_dir, small_disk  # noqa: E402  (fixtures: a full disk, a read-only folder)
+from console_live import browser  # noqa: E402  (fixture: Debian's Chromium, one per test module)
+
+SHARED_FIXTURES = (readonly_dir, small_disk, browser)    # every test's, though written in those modules
 
 
 # -- PostgreSQL: one throwaway server for the session, a fresh database per test ----------------

@@ -1,69 +1,176 @@
-"""A room console served in this process, for the tests and the screenshots that need its
-objects at hand (the marker names the Scan page feeds, the facts): the same objects
-`vts console` builds (console/serve.py), uvicorn on 127.0.0.1 in a thread, the facts kept
-fresh by a thread as serve() keeps them."""
+"""The room console for the tests, the screenshots and the benchmark, and the browser they look
+at it with.
+
+* ``LiveConsole``: served in this process, for those that need its objects at hand (the marker
+  names the Scan page feeds, the facts, the QA jobs): the same objects `vts console` builds
+  (console/serve.py, its ``bind`` and ``_Server``), uvicorn on 127.0.0.1 in a thread, the facts
+  kept fresh by a thread as serve() keeps them; ``qa_rig_yaml``: a simulated rig's rig.yaml for
+  the Daily QA page.
+* ``start_console``/``stop_console``: `vts console` as users run it, a subprocess; ``run_vts``:
+  any `vts` command to its end.
+* ``chromium()``/the ``browser`` fixture: Debian's /usr/bin/chromium through Playwright (never
+  `playwright install`), headless; ``cam``/``click_led``: a Room page's camera; ``until``: one
+  poll-until-true.
+"""
 
 from __future__ import annotations
 
-import socket
+import contextlib
+import selectors
+import signal
+import subprocess
+import sys
 import threading
 import time
-from types import SimpleNamespace
 
-import uvicorn
+import pytest
 
-from vts_hw.console.app import Console, create_app
-from vts_hw.console.hub import FramesHub
-from vts_hw.console.markers import MarkerWorker
-from vts_hw.console.names import MarkerNames
-from vts_hw.console.room import RoomFacts
+CHROMIUM = "/usr/bin/chromium"
+ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+VTS = [sys.executable, "-m", "vts_hw.cli"]
+
+
+def until(check, timeout=20.0, poll=0.05):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        got = check()
+        if got:
+            return got
+        time.sleep(poll)
+    return check()
 
 
 class LiveConsole:
     """``with LiveConsole(cameras, rig_name, open_store) as live:`` -> ``live.url``,
-    ``live.console``, ``live.names``, ``live.facts``."""
+    ``live.console``, ``live.hub``, ``live.names``, ``live.facts``. ``rig_config``: the rig the
+    pages that run procedures (Daily QA) run them on. On leaving, a daily QA still running is
+    waited for (30 s at most) before the hub closes."""
 
     def __init__(self, cameras: dict, rig: str, open_store=None, *, marker_hz: float = 5.0,
-                 facts_tick_s: float = 0.5):
+                 idle_close_s: float = 2.0, facts_tick_s: float = 0.5, rig_config=None):
+        from vts_hw.console.app import Console
+        from vts_hw.console.hub import FramesHub
+        from vts_hw.console.markers import MarkerWorker
+        from vts_hw.console.names import MarkerNames
+        from vts_hw.console.room import RoomFacts
+
         self.names = MarkerNames()
-        self.hub = FramesHub(cameras, idle_close_s=2.0)
+        self.hub = FramesHub(cameras, idle_close_s=idle_close_s)
         self.markers = MarkerWorker(self.hub, marker_hz, self.names)
         self.facts = RoomFacts(cameras, rig, open_store, names=self.names)
         self.console = Console(rig, self.hub, self.markers, self.facts, open_store=open_store)
+        self.console.rig_config = rig_config
         self._tick = facts_tick_s
         self._stop = threading.Event()
 
     def __enter__(self) -> "LiveConsole":
+        import uvicorn
+
+        from vts_hw.console.app import create_app
+        from vts_hw.console.serve import _Server, bind
+
         self._facts = threading.Thread(target=self._keep_facts, daemon=True)
         self._facts.start()
-        self.sock = socket.socket()
-        self.sock.bind(("127.0.0.1", 0))
+        self.sock = bind("127.0.0.1", 0)
         self.url = f"http://127.0.0.1:{self.sock.getsockname()[1]}/"
-        self.server = uvicorn.Server(uvicorn.Config(create_app(self.console), log_level="warning",
-                                                    lifespan="off", timeout_graceful_shutdown=1))
-        self._serve = threading.Thread(target=self.server.run, kwargs={"sockets": [self.sock]}, daemon=True)
+        started = threading.Event()
+        config = uvicorn.Config(create_app(self.console), log_level="warning", access_log=False,
+                                lifespan="off", timeout_graceful_shutdown=2)
+        self.server = _Server(config, started.set, self.console.closing.set)
+        self._serve = threading.Thread(target=self.server.run, args=([self.sock],), daemon=True)
         self._serve.start()
-        end = time.monotonic() + 30
-        while not self.server.started and time.monotonic() < end:
-            time.sleep(0.05)
-        assert self.server.started, "the console did not start"
+        assert started.wait(30), "the console did not start"
         return self
 
     def _keep_facts(self):
         while not self._stop.is_set():
-            self.facts.refresh_due()
+            try:
+                self.facts.refresh_due()
+            except Exception:           # as serve() does: the page says what it could not read
+                pass
             self._stop.wait(self._tick)
 
     def __exit__(self, *exc) -> None:
-        self.console.closing.set()
-        self.server.should_exit = True
-        self._serve.join(10)
+        self.server.server.should_exit = True
+        self._serve.join(15)
         self._stop.set()
         self._facts.join(10)
+        self.console.qa_jobs.wait(30)
         self.console.aim.close()
         self.markers.close()
         self.hub.close()
         self.sock.close()
 
 
-__all__ = ["LiveConsole", "SimpleNamespace"]
+def qa_rig_yaml(rig, folder):
+    """The simulated rig's rig.yaml for the Daily QA page: its store ``folder/results.sqlite``,
+    the QATrack+ push without the attached report (seconds per run, not what is shown)."""
+    import yaml
+
+    path, _ = rig.write(folder)
+    data = yaml.safe_load(path.read_text())
+    data["store"] = {"url": f"sqlite:///{folder / 'results.sqlite'}"}
+    data["qatrack"].update(report="none", plots=False)
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def start_console(args, env, timeout=60.0):
+    """`vts console ARGS` in the background; (process, url) once it printed its address."""
+    p = subprocess.Popen([*VTS, "console", *args], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         text=True)
+    sel = selectors.DefaultSelector()
+    sel.register(p.stdout, selectors.EVENT_READ)
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if sel.select(0.2):
+            line = p.stdout.readline()
+            if "open http" in line:
+                return p, line.split("open ", 1)[1].split()[0]
+            if not line:
+                break
+    p.kill()
+    raise AssertionError(f"vts console did not start: {p.stderr.read()[-2000:]}")
+
+
+def run_vts(args, env, timeout=60):
+    """`vts ARGS` to its end: the completed process (its output as text)."""
+    return subprocess.run([*VTS, *args], env=env, capture_output=True, text=True, timeout=timeout)
+
+
+def stop_console(p) -> tuple[int, str, str]:
+    p.send_signal(signal.SIGINT)
+    out, err = p.communicate(timeout=30)
+    return p.returncode, out, err
+
+
+@contextlib.contextmanager
+def chromium(*extra_args):
+    """Debian's Chromium, headless, through Playwright (closed on leaving)."""
+    from playwright.sync_api import sync_playwright
+    with sync_playwright() as pw:
+        b = pw.chromium.launch(executable_path=CHROMIUM, args=[*ARGS, *extra_args])
+        try:
+            yield b
+        finally:
+            b.close()
+
+
+@pytest.fixture(scope="module")
+def browser():
+    """One Chromium for a test module (tests/conftest.py makes it every test's)."""
+    with chromium() as b:
+        yield b
+
+
+def cam(page, name, what):
+    """``what`` (a JS function) of the Room page's section of camera ``name``."""
+    return page.eval_on_selector(f'section[data-camera="{name}"]', what)
+
+
+def click_led(page, rig, name, on: bool):
+    """The Room page's LED switch of ``name``: the simulated camera's LED and the page follow."""
+    page.click(f'section[data-camera="{name}"] button.led-{"on" if on else "off"}')
+    assert until(lambda: rig.servers[name].source.led_on() == on, 10)
+    assert until(lambda: cam(page, name, "e => e.dataset.led") == ("on" if on else "off"), 10)

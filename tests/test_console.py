@@ -13,11 +13,7 @@ use, a bad config and a host off this machine are one sentence and exit 2; Ctrl-
 from __future__ import annotations
 
 import os
-import selectors
-import signal
 import socket
-import subprocess
-import sys
 import threading
 import time
 from urllib.parse import urlparse
@@ -26,41 +22,12 @@ import numpy as np
 import pytest
 import requests
 
+from console_live import cam, click_led, run_vts, start_console, stop_console, until
 from vts_hw.camera import StreamGap
 from vts_hw.drivers.registry import open_camera
 from vts_hw.sim_devices.rig import SimRig
 
 pytestmark = pytest.mark.timeout(180)
-CHROMIUM = "/usr/bin/chromium"
-ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
-VTS = [sys.executable, "-m", "vts_hw.cli"]
-
-from test_console_hub import until  # noqa: E402  (one poll-until-true for the console tests)
-
-
-def start_console(args, env, timeout=60.0):
-    """`vts console ARGS` in the background; (process, url) once it printed its address."""
-    p = subprocess.Popen([*VTS, "console", *args], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                         text=True)
-    sel = selectors.DefaultSelector()
-    sel.register(p.stdout, selectors.EVENT_READ)
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if sel.select(0.2):
-            line = p.stdout.readline()
-            if "open http" in line:
-                return p, line.split("open ", 1)[1].split()[0]
-            if not line:
-                break
-    p.kill()
-    raise AssertionError(f"vts console did not start: {p.stderr.read()[-2000:]}")
-
-
-def stop_console(p) -> tuple[int, str, str]:
-    p.send_signal(signal.SIGINT)
-    out, err = p.communicate(timeout=30)
-    return p.returncode, out, err
 
 
 @pytest.fixture(scope="module")
@@ -80,17 +47,6 @@ def room(tmp_path_factory):
             assert code == 0 and "room console stopped" in out and "Traceback" not in err, (code, out, err)
 
 
-@pytest.fixture(scope="module")
-def browser():
-    from playwright.sync_api import sync_playwright
-    with sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
-        try:
-            yield b
-        finally:
-            b.close()
-
-
 @pytest.fixture()
 def page(browser, room):
     _, url, _ = room
@@ -98,16 +54,6 @@ def page(browser, room):
     pg.goto(url)
     yield pg
     pg.close()
-
-
-def cam(page, name, what):
-    return page.eval_on_selector(f'section[data-camera="{name}"]', what)
-
-
-def click_led(page, rig, name, on: bool):
-    page.click(f'section[data-camera="{name}"] button.led-{"on" if on else "off"}')
-    assert until(lambda: rig.servers[name].source.led_on() == on, 10)
-    assert until(lambda: cam(page, name, "e => e.dataset.led") == ("on" if on else "off"), 10)
 
 
 def test_the_pictures_update_with_the_markers_drawn_where_the_scene_has_them(room, page):
@@ -286,10 +232,6 @@ def test_a_post_from_another_site_is_refused(room, browser):
     pg.close()
     assert [s for u, s in seen if u.endswith("/camera/cam1/led")] == [403], seen
     assert not rig.servers["cam1"].source.led_on()
-
-
-def run_vts(args, env, timeout=60):
-    return subprocess.run([*VTS, *args], env=env, capture_output=True, text=True, timeout=timeout)
 
 
 def test_bad_ports_hosts_and_configs_are_one_sentence_exit_2(room, tmp_path):

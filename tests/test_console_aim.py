@@ -20,9 +20,7 @@ import json
 import pytest
 import requests
 
-from console_live import LiveConsole
-from test_console import ARGS, CHROMIUM
-from test_console_hub import until
+from console_live import LiveConsole, cam, until
 from vts_hw.drivers.registry import open_camera
 from vts_hw.procedures.baseline import take_baselines
 from vts_hw.sim_devices.rig import SimRig
@@ -55,17 +53,6 @@ def live(tmp_path_factory):
                 srv.faults.reset()
 
 
-@pytest.fixture(scope="module")
-def browser():
-    from playwright.sync_api import sync_playwright
-    with sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
-        try:
-            yield b
-        finally:
-            b.close()
-
-
 @pytest.fixture()
 def page(browser, live):
     pg = browser.new_page(viewport={"width": 1366, "height": 768})
@@ -75,10 +62,6 @@ def page(browser, live):
         live.console.aim.switch(name, False)
         until(lambda: not live.console.aim.view(name)["busy"], 30)
     pg.close()
-
-
-def cam(page, name, what):
-    return page.eval_on_selector(f'section[data-camera="{name}"]', what)
 
 
 def optics(live, name, **changes):

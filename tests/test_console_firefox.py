@@ -20,9 +20,8 @@ import socket
 
 import pytest
 
-from console_live import LiveConsole
+from console_live import LiveConsole, until
 from history_store import fill
-from test_console_hub import until
 from vts_hw.drivers.registry import open_camera
 from vts_hw.procedures.baseline import BaselineSet, take_baseline
 from vts_hw.sim_devices.rig import SimRig

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import datetime as dt
 import os
-import sys
 from pathlib import Path
 
 import pytest
@@ -24,7 +23,7 @@ from vts_hw import catalog
 from vts_hw.console.app import Console, create_app
 from vts_hw.console.history import PAGE_SIZE
 from vts_hw.store import ResultsStore
-from tests.history_store import DAY, N_DAILY, RIG, fill
+from history_store import N_DAILY, RIG, fill
 
 pytestmark = pytest.mark.timeout(120)
 N_RUNS = 1 + N_DAILY + 1 + 1 + 1 + 1 + 1 + 1    # baseline, daily, sync, motion, aborted, running, other rig, error
@@ -247,9 +246,7 @@ def test_history_in_chromium(filled, tmp_path):
     """`vts console` as users run it, its store the filled one; Chromium opens the Room page,
     follows History, filters by a procedure and a state (the URL says so), opens a run and sees
     its plot loaded and its measures."""
-    from playwright.sync_api import sync_playwright
-
-    from tests.test_console import ARGS, CHROMIUM, start_console, stop_console
+    from console_live import chromium, start_console, stop_console
     from vts_hw.sim_devices.rig import SimRig
 
     db, ids = filled
@@ -258,30 +255,26 @@ def test_history_in_chromium(filled, tmp_path):
         env = {**os.environ, **rig.env_vars(), "VTS_CONFIG": str(rig_yaml), "VTS_STORE": str(db)}
         p, url = start_console(["--port", "0"], env)
         try:
-            with sync_playwright() as pw:
-                b = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
-                try:
-                    pg = b.new_page(viewport={"width": 1366, "height": 768})
-                    pg.goto(url)
-                    pg.click("header nav a[href='/history']")
-                    pg.wait_for_url("**/history")
-                    assert pg.locator("table.runs tbody tr").count() == PAGE_SIZE
-                    pg.select_option("select[name=procedure]", "sync check")
-                    pg.select_option("select[name=state]", "OK")
-                    pg.click("form.filters button[type=submit]")
-                    pg.wait_for_url("**/history?procedure=sync+check&state=OK**")
-                    assert pg.locator("table.runs tbody tr").count() == 1
-                    assert pg.inner_text("table.runs tbody tr .st") == "OK"
-                    pg.click(f'tr[data-run="{ids["sync"]}"] td a >> nth=0')
-                    pg.wait_for_url(f"**/history/run/{ids['sync']}")
-                    pg.wait_for_function("() => { const i = document.querySelector('img.plot');"
-                                         " return i && i.complete && i.naturalWidth > 0; }", timeout=15000)
-                    assert pg.eval_on_selector("img.plot", "i => i.naturalWidth") == 240
-                    assert "12" in pg.inner_text('tr[data-metric="sync_max_abs_dt_ms"] td.num')
-                    color = pg.eval_on_selector("#run-state", "e => getComputedStyle(e).backgroundColor")
-                    assert pg.inner_text("#run-state") == "OK" and color == "rgb(220, 252, 231)"
-                finally:
-                    b.close()
+            with chromium() as b:
+                pg = b.new_page(viewport={"width": 1366, "height": 768})
+                pg.goto(url)
+                pg.click("header nav a[href='/history']")
+                pg.wait_for_url("**/history")
+                assert pg.locator("table.runs tbody tr").count() == PAGE_SIZE
+                pg.select_option("select[name=procedure]", "sync check")
+                pg.select_option("select[name=state]", "OK")
+                pg.click("form.filters button[type=submit]")
+                pg.wait_for_url("**/history?procedure=sync+check&state=OK**")
+                assert pg.locator("table.runs tbody tr").count() == 1
+                assert pg.inner_text("table.runs tbody tr .st") == "OK"
+                pg.click(f'tr[data-run="{ids["sync"]}"] td a >> nth=0')
+                pg.wait_for_url(f"**/history/run/{ids['sync']}")
+                pg.wait_for_function("() => { const i = document.querySelector('img.plot');"
+                                     " return i && i.complete && i.naturalWidth > 0; }", timeout=15000)
+                assert pg.eval_on_selector("img.plot", "i => i.naturalWidth") == 240
+                assert "12" in pg.inner_text('tr[data-metric="sync_max_abs_dt_ms"] td.num')
+                color = pg.eval_on_selector("#run-state", "e => getComputedStyle(e).backgroundColor")
+                assert pg.inner_text("#run-state") == "OK" and color == "rgb(220, 252, 231)"
         finally:
             code, out, err = stop_console(p)
             assert code == 0 and "Traceback" not in err, (code, out, err)

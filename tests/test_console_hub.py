@@ -14,6 +14,7 @@ import time
 import numpy as np
 import pytest
 
+from console_live import until
 from vts_hw.console.hub import FramesHub
 from vts_hw.console.markers import MarkerWorker
 from vts_hw.drivers.registry import open_camera
@@ -21,16 +22,6 @@ from vts_hw.recording.capture import Recorder
 from vts_hw.sim_devices.rig import SimRig
 
 pytestmark = pytest.mark.timeout(120)
-
-
-def until(check, timeout=20.0, poll=0.05):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        got = check()
-        if got:
-            return got
-        time.sleep(poll)
-    return check()
 
 
 @pytest.fixture(scope="module")

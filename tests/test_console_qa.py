@@ -1,34 +1,32 @@
 """The console's Daily QA page (issue 23 §1, §5) in Debian's Chromium (Playwright), against the
 simulated rig over HTTP (two Axis cameras and the QATrack+ stand-in), a real SQLite store.
 
-The console is served in this process as `vts console` serves it (serve.py's parts: the hub,
-the marker worker, the room's facts, uvicorn on 127.0.0.1), so that the tests can read what
-it logged and what its hub did. The page: a daily QA before any baseline fails in one
-sentence; the baseline needs the page's confirmation (a POST without it is refused) and is
-then stored; the daily QA runs from the page with its progress live (camera, step, frames
-taken of needed, elapsed), a second click is said to be refused and nothing starts twice,
-the result shows each camera's state, figures against their windows and drift plot, and is
-the run in the store; with the Room page streaming each camera and the cameras taking one
-viewer (max_viewers=1) the hub steps aside while the QA takes its frames (no frame taken
-while the hub's stream is open) and shows them (RECORDING); a camera off the network shows
-NOT MEASURED, never OK; the push shows refused with QATrack+'s sentence, then sent.
+The console is served in this process as `vts console` serves it (tests/console_live.py:
+serve.py's parts), so that the tests can read what it logged and what its hub did. The page: a
+daily QA before any baseline fails in one sentence; the baseline needs the page's confirmation
+(a POST without it is refused) and is then stored; the daily QA runs from the page with its
+progress live (camera, step, frames taken of needed, elapsed), a second click is said to be
+refused and nothing starts twice, the result shows each camera's state, figures against their
+windows and drift plot, and is the run in the store; with the Room page streaming each camera
+and the cameras taking one viewer (max_viewers=1) the hub steps aside while the QA takes its
+frames (no frame taken while the hub's stream is open) and shows them (RECORDING); a camera off
+the network shows NOT MEASURED, never OK; the push shows refused with QATrack+'s sentence, then
+sent.
 """
 
 from __future__ import annotations
 
 import os
 import re
-import socket
 import threading
 import time
 
 import pytest
 import requests
-import yaml
 
-from test_console import ARGS, CHROMIUM, start_console, stop_console
-from test_console_hub import until
+from console_live import LiveConsole, qa_rig_yaml, start_console, stop_console, until
 from vts_hw.config import load_rig
+from vts_hw.drivers.registry import open_cameras
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.store import ResultsStore
 
@@ -40,85 +38,24 @@ pytestmark = pytest.mark.timeout(3 * QA_S)
 FRAMES = 3
 
 
-def _rig_yaml(rig, folder):
-    """The simulated rig's rig.yaml, its store in ``folder``, the QATrack+ push without the
-    attached report (seconds per run, not what is tested here)."""
-    path, _ = rig.write(folder)
-    data = yaml.safe_load(path.read_text())
-    data["store"] = {"url": f"sqlite:///{folder / 'results.sqlite'}"}
-    data["qatrack"].update(report="none", plots=False)
-    path.write_text(yaml.safe_dump(data))
-    return path
-
-
-class InProcessConsole:
-    """What `vts console` serves (serve.py), in this process: the console object is at hand."""
-
-    def __init__(self, rig_cfg, db):
-        import uvicorn
-
-        from vts_hw.console.app import Console, create_app
-        from vts_hw.console.hub import FramesHub
-        from vts_hw.console.markers import MarkerWorker
-        from vts_hw.console.room import RoomFacts
-        from vts_hw.console.serve import _Server, bind
-        from vts_hw.drivers.registry import open_cameras
-
-        def open_store():
-            return ResultsStore(db, mode="read")
-
-        self.cameras = {c.name: c for c in open_cameras(rig_cfg.cameras)}
-        self.hub = FramesHub(self.cameras, idle_close_s=1.0)
-        self.markers = MarkerWorker(self.hub, 1.0)
-        facts = RoomFacts(self.cameras, rig_cfg.rig, open_store)
-        self.console = Console(rig_cfg.rig, self.hub, self.markers, facts, open_store=open_store)
-        self.console.rig_config = rig_cfg
-        self.sock = bind("127.0.0.1", 0)
-        self.url = f"http://127.0.0.1:{self.sock.getsockname()[1]}/"
-        started = threading.Event()
-        config = uvicorn.Config(create_app(self.console), log_level="warning", access_log=False,
-                                timeout_graceful_shutdown=2, lifespan="off")
-        self.server = _Server(config, started.set, self.console.closing.set)
-        self.thread = threading.Thread(target=self.server.run, args=([self.sock],), daemon=True)
-        self.thread.start()
-        assert started.wait(30)
-
-    def close(self):
-        self.server.server.should_exit = True
-        self.thread.join(15)
-        self.console.qa_jobs.wait(30)
-        self.markers.close()
-        self.hub.close()
-        for cam in self.cameras.values():
-            cam.close()
-        self.sock.close()
-
-
 @pytest.fixture(scope="module")
 def qa_room(tmp_path_factory):
     folder = tmp_path_factory.mktemp("console-qa")
     with SimRig(n_cameras=2, seed=5, qatrack=True) as rig, rig.env():
-        rig_yaml = _rig_yaml(rig, folder)
+        rig_yaml = qa_rig_yaml(rig, folder)
         db = folder / "results.sqlite"
         ResultsStore(db).close()          # the console updates a store; `vts qa` made this one
-        served = InProcessConsole(load_rig(str(rig_yaml)), db)
+        cfg = load_rig(str(rig_yaml))
+        cams = {c.name: c for c in open_cameras(cfg.cameras)}
         try:
-            yield rig, served, db
+            with LiveConsole(cams, cfg.rig, lambda: ResultsStore(db, mode="read"), marker_hz=1.0, idle_close_s=1.0,
+                             rig_config=cfg) as served:
+                yield rig, served, db
         finally:
-            served.close()
+            for c in cams.values():
+                c.close()
             for srv in rig.servers.values():
                 srv.faults.reset()
-
-
-@pytest.fixture(scope="module")
-def browser():
-    from playwright.sync_api import sync_playwright
-    with sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
-        try:
-            yield b
-        finally:
-            b.close()
 
 
 @pytest.fixture()
@@ -182,7 +119,7 @@ def test_baseline_needs_the_confirm_and_a_qa_before_it_fails_in_one_sentence(qa_
     assert act.user == "local" and act.detail["run"] == run.id and act.detail["cameras"] == ["cam1", "cam2"]
     # the dialog names the baseline it would now replace
     page.click("#baseline")
-    assert f"replaces the baseline of" in page.inner_text("#confirm-baseline")
+    assert "replaces the baseline of" in page.inner_text("#confirm-baseline")
     assert f"(run {run.id}, 5 markers)" in page.inner_text("#confirm-baseline")
     page.click("#confirm-no")
 

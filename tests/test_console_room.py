@@ -16,9 +16,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from console_live import LiveConsole
-from test_console import ARGS, CHROMIUM
-from test_console_hub import until
+from console_live import LiveConsole, cam, until
 from vts_hw.console.names import MarkerNames
 from vts_hw.drivers.registry import open_camera
 from vts_hw.procedures.baseline import BaselineSet, take_baseline
@@ -53,27 +51,12 @@ def live(tmp_path_factory):
                 srv.faults.reset()
 
 
-@pytest.fixture(scope="module")
-def browser():
-    from playwright.sync_api import sync_playwright
-    with sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
-        try:
-            yield b
-        finally:
-            b.close()
-
-
 @pytest.fixture()
 def page(browser, live):
     pg = browser.new_page(viewport={"width": 1366, "height": 768})
     pg.goto(live.url)
     yield pg
     pg.close()
-
-
-def cam(page, name, what):
-    return page.eval_on_selector(f'section[data-camera="{name}"]', what)
 
 
 def test_the_led_is_what_the_camera_says_and_a_switch_that_did_not_take_is_said(live, page):

@@ -17,7 +17,6 @@ import json
 import re
 import os
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -28,7 +27,7 @@ from vts_hw.sim_devices.patient import BodyMove, add_patient
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.tracking.live.breathing import breathing_rate
 
-from test_console import ARGS, CHROMIUM, start_console, stop_console, until
+from console_live import chromium, start_console, stop_console, until
 
 # frames are made ahead (minutes on a loaded machine at worst): the timeout is a hang detector
 pytestmark = pytest.mark.timeout(600)
@@ -59,14 +58,11 @@ def desk(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def page(desk):
-    from playwright.sync_api import sync_playwright
     _, _, url, _ = desk
-    with sync_playwright() as pw:
-        b = pw.chromium.launch(executable_path=CHROMIUM, args=[*ARGS, "--autoplay-policy=no-user-gesture-required"])
+    with chromium("--autoplay-policy=no-user-gesture-required") as b:
         pg = b.new_page(viewport={"width": 1366, "height": 768})
         pg.goto(url + "scan")
         yield pg
-        b.close()
 
 
 def attr(page, selector, name):
@@ -148,7 +144,7 @@ def test_a_scan_from_the_page_records_shows_breathing_and_alerts_on_a_move(desk,
         assert len(read_index(session / f"{name}.index.csv")) == cam["frames"] >= 0.9 * 25 * DURATION_S
     assert len(m["live_motion"]["alerts"]) == 1
     assert attr(page, "#scan", "data-recording") == "complete"
-    assert f"status complete" in page.inner_text("#summary")
+    assert "status complete" in page.inner_text("#summary")
     acts = requests.get(url + "scan/state", timeout=10).json()["actions"]
     ack = [a for a in acts if a["what"] == "alert acknowledged"]
     assert len(ack) == 1 and ack[0]["user"] == "local" and "PATIENT MOVED" in ack[0]["detail"]["alert"]
@@ -165,7 +161,7 @@ def test_a_scan_from_the_page_records_shows_breathing_and_alerts_on_a_move(desk,
     assert (session / "motion" / "export" / "motion_6dof.csv").exists()
     assert "stored: run" in page.inner_text("#analysis")
     for bad in (f"scan/files/{session.name}/../../rig/rig.yaml", f"scan/files/{session.name}/..%2F..%2Frig%2Frig.yaml",
-                f"scan/files/..%2Frig/rig.yaml", f"scan/files/{session.name}/nothing.txt"):
+                "scan/files/..%2Frig/rig.yaml", f"scan/files/{session.name}/nothing.txt"):
         assert requests.get(url + bad, timeout=10).status_code == 404, bad
 
 

@@ -3,9 +3,10 @@
     .venv/bin/python tools/scan_screenshot.py [OUT.png]
 
 A simulated rig of two cameras with a breathing patient (frames made ahead), `vts console
---scans-dir TMP` as users run it, a scan started from the page; photographed while it runs,
-after the patient moved once (the banner up, not yet acknowledged) with about 20 s of breathing
-traced. Run by hand when the page changes; no test writes into docs/.
+--scans-dir TMP` as users run it (tools/console_screenshots.py's stage has neither), a scan
+started from the page; photographed while it runs, after the patient moved once (the banner up,
+not yet acknowledged) with about 20 s of breathing traced. Run by hand when the page changes;
+no test writes into docs/.
 """
 
 from __future__ import annotations
@@ -26,9 +27,7 @@ SHOOT_AT_S = 26.0
 
 
 def main(out: Path) -> None:
-    from playwright.sync_api import sync_playwright
-
-    from test_console import ARGS, CHROMIUM, start_console, stop_console, until
+    from console_live import chromium, start_console, stop_console, until
     from vts_hw.sim_devices.patient import BodyMove, add_patient
     from vts_hw.sim_devices.rig import SimRig
 
@@ -41,8 +40,7 @@ def main(out: Path) -> None:
                "VTS_STORE": f"sqlite:///{tmp / 'results.sqlite'}"}
         p, url = start_console(["--port", "0", "--scans-dir", str(tmp / "scans")], env)
         try:
-            with sync_playwright() as pw:
-                b = pw.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+            with chromium() as b:
                 pg = b.new_page(viewport={"width": 1366, "height": 768})
                 pg.goto(url + "scan")
                 now = rig.clock.now()
@@ -58,7 +56,6 @@ def main(out: Path) -> None:
                 pg.screenshot(path=str(out))
                 pg.click("#stop")
                 until(lambda: pg.get_attribute("#scan", "data-phase") == "stopped", 60)
-                b.close()
         finally:
             stop_console(p)
     print(f"wrote {out}")
