@@ -59,8 +59,7 @@ class LiveConsole:
         self.hub = FramesHub(cameras, idle_close_s=idle_close_s)
         self.markers = MarkerWorker(self.hub, marker_hz, self.names)
         self.facts = RoomFacts(cameras, rig, open_store, names=self.names)
-        self.console = Console(rig, self.hub, self.markers, self.facts, open_store=open_store)
-        self.console.rig_config = rig_config
+        self.console = Console(rig, self.hub, self.markers, self.facts, open_store=open_store, rig_config=rig_config)
         self._tick = facts_tick_s
         self._stop = threading.Event()
 
