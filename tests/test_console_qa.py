@@ -74,6 +74,15 @@ def qa_page(browser, qa_room):
     pg.close()
 
 
+@pytest.fixture()
+def baselined(qa_room):
+    """The module is one morning told in file order (make test keeps a module's order and worker):
+    the baseline set by the first test is what the later ones measure against. Run alone, a later
+    test says so at once rather than waiting QA_S for a QA that failed for want of a baseline."""
+    assert runs(qa_room[2], "drift-baseline"), \
+        "no drift baseline in this module's store: run test_baseline_needs_the_confirm... first (the whole module)"
+
+
 def said(page, contains, timeout=QA_S * 1000):
     """The first sentence the page said (since it opened) that holds ``contains``."""
     page.wait_for_function("t => window.saids.some(s => s.includes(t))", arg=contains, timeout=timeout)
@@ -144,7 +153,7 @@ class Sampler:
         self.thread.join(5)
 
 
-def test_the_daily_qa_runs_from_the_page_and_the_hub_steps_aside(qa_room, qa_page, browser):
+def test_the_daily_qa_runs_from_the_page_and_the_hub_steps_aside(qa_room, baselined, qa_page, browser):
     rig, served, db = qa_room
     for srv in rig.servers.values():
         srv.set_faults(max_viewers=1)                  # a second viewer would be refused (503)
@@ -207,7 +216,7 @@ def test_the_daily_qa_runs_from_the_page_and_the_hub_steps_aside(qa_room, qa_pag
             srv.set_faults(max_viewers=None)
 
 
-def test_a_camera_that_does_not_answer_is_not_measured_never_ok(qa_room, qa_page):
+def test_a_camera_that_does_not_answer_is_not_measured_never_ok(qa_room, baselined, qa_page):
     rig, served, db = qa_room
     rig.servers["cam2"].faults.offline = True
     try:
@@ -230,7 +239,7 @@ def test_a_camera_that_does_not_answer_is_not_measured_never_ok(qa_room, qa_page
     assert reach == {"cam1": 1.0, "cam2": 0.0}
 
 
-def test_the_push_shows_refused_with_qatracks_sentence_then_sent(qa_room, qa_page):
+def test_the_push_shows_refused_with_qatracks_sentence_then_sent(qa_room, baselined, qa_page):
     rig, served, db = qa_room
     site = rig.qatrack_site
     daily = [r.id for r in runs(db, "daily")]
