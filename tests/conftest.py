@@ -45,8 +45,9 @@ def cam1(sim_rig):
 
 from fsfaults import readonly_dir, small_disk  # noqa: E402  (fixtures: a full disk, a read-only folder)
 from console_live import browser  # noqa: E402  (fixture: Debian's Chromium, one per test module)
+from store_kit import db, sqlite_store, store  # noqa: E402  (fixtures: a fresh results store, its SQLite file)
 
-SHARED_FIXTURES = (readonly_dir, small_disk, browser)    # every test's, though written in those modules
+SHARED_FIXTURES = (readonly_dir, small_disk, browser, db, sqlite_store, store)    # every test's, though written in those modules
 
 
 # -- PostgreSQL: one throwaway server for the session, a fresh database per test ----------------
