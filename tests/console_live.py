@@ -102,6 +102,24 @@ class LiveConsole:
         self.sock.close()
 
 
+@contextlib.contextmanager
+def served_room(rig, cams: dict, db, **kw):
+    """A LiveConsole (``live.rig``: ``rig``) on the simulated rig's open cameras ``cams`` and the
+    results store ``db`` (read-only), as `vts console` serves them; on leaving, the cameras are
+    closed and the rig's faults put back."""
+    from vts_hw.store import ResultsStore
+    name = (kw.get("rig_config") or rig.config()).rig
+    try:
+        with LiveConsole(cams, name, lambda: ResultsStore(db, mode="read"), **kw) as live:
+            live.rig = rig
+            yield live
+    finally:
+        for c in cams.values():
+            c.close()
+        for srv in rig.servers.values():
+            srv.faults.reset()
+
+
 def qa_rig_yaml(rig, folder):
     """The simulated rig's rig.yaml for the Daily QA page: its store ``folder/results.sqlite``,
     the QATrack+ push without the attached report (seconds per run, not what is shown)."""

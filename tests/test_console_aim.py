@@ -20,7 +20,7 @@ import json
 import pytest
 import requests
 
-from console_live import LiveConsole, cam, until
+from console_live import cam, served_room, until
 from vts_hw.drivers.registry import open_camera
 from vts_hw.procedures.baseline import take_baselines
 from vts_hw.sim_devices.rig import SimRig
@@ -41,16 +41,8 @@ def live(tmp_path_factory):
         cams = {c.name: open_camera(c) for c in mapped.cameras}
         with ResultsStore(db) as store:           # each camera's wall markers: the aim's reference (LED left on)
             record(store, take_baselines(list(cams.values()), frames=2), rig="sim", operator="test")
-        try:
-            with LiveConsole(cams, "sim", lambda: ResultsStore(db, mode="read")) as lc:
-                lc.console.rig_config = mapped
-                lc.rig = rig
-                yield lc
-        finally:
-            for c in cams.values():
-                c.close()
-            for srv in rig.servers.values():
-                srv.faults.reset()
+        with served_room(rig, cams, db, rig_config=mapped) as lc:
+            yield lc
 
 
 @pytest.fixture()

@@ -24,7 +24,7 @@ import time
 import pytest
 import requests
 
-from console_live import LiveConsole, qa_rig_yaml, start_console, stop_console, until
+from console_live import qa_rig_yaml, served_room, start_console, stop_console, until
 from vts_hw.config import load_rig
 from vts_hw.drivers.registry import open_cameras
 from vts_hw.sim_devices.rig import SimRig
@@ -47,15 +47,8 @@ def qa_room(tmp_path_factory):
         ResultsStore(db).close()          # the console updates a store; `vts qa` made this one
         cfg = load_rig(str(rig_yaml))
         cams = {c.name: c for c in open_cameras(cfg.cameras)}
-        try:
-            with LiveConsole(cams, cfg.rig, lambda: ResultsStore(db, mode="read"), marker_hz=1.0, idle_close_s=1.0,
-                             rig_config=cfg) as served:
-                yield rig, served, db
-        finally:
-            for c in cams.values():
-                c.close()
-            for srv in rig.servers.values():
-                srv.faults.reset()
+        with served_room(rig, cams, db, marker_hz=1.0, idle_close_s=1.0, rig_config=cfg) as served:
+            yield rig, served, db
 
 
 @pytest.fixture()

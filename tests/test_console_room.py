@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from console_live import LiveConsole, cam, until
+from console_live import cam, served_room, until
 from vts_hw.console.names import MarkerNames
 from vts_hw.drivers.registry import open_camera
 from vts_hw.procedures.baseline import BaselineSet, take_baseline
@@ -40,15 +40,9 @@ def live(tmp_path_factory):
             record(store, BaselineSet([kept]), rig="sim", operator="test")
             # another room's cam1, set later: not this room's camera, never its names
             record(store, BaselineSet([Baseline("cam1", (), full.taken)]), rig="elsewhere", operator="test")
-        try:
-            with LiveConsole(cams, "sim", lambda: ResultsStore(db, mode="read")) as lc:
-                lc.rig, lc.full, lc.kept = rig, full, kept
-                yield lc
-        finally:
-            for c in cams.values():
-                c.close()
-            for srv in rig.servers.values():
-                srv.faults.reset()
+        with served_room(rig, cams, db) as lc:
+            lc.full, lc.kept = full, kept
+            yield lc
 
 
 @pytest.fixture()
