@@ -16,7 +16,7 @@ from __future__ import annotations
 import pytest
 
 from scripted_http import ScriptedHTTP
-from test_sim_axis_camera import PASSWORD, raw_request, read_head
+from sim_axis_kit import PASSWORD, raw_request, read_head
 from vts_hw.drivers.axis import AxisCamera, BadReply
 from vts_hw.sim_devices.rig import SimRig
 

@@ -16,7 +16,7 @@ from vts_hw.drivers.axis_stream import FrameStream
 from vts_hw.drivers.registry import open_camera, open_cameras
 from vts_hw.sim_devices.axis_camera import SimAxisCamera
 
-from test_sim_axis_camera import PASSWORD, FakeSource
+from sim_axis_kit import PASSWORD, FakeSource
 
 PERIOD = 1.0 / 25
 
