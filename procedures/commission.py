@@ -98,6 +98,7 @@ class Outcome:
     artifacts: list[Path] = field(default_factory=list)
     started: float = 0.0
     notes: str = ""
+    error: Exception | None = None   # recorded as not passed, then raised (rig.yaml not written: exit 3)
 
     @property
     def state(self) -> State:
@@ -200,6 +201,8 @@ def run_sequence(ctx: Context, todo: list[str], ledger, skips: dict[str, str] | 
             ctx.say(out.result.results())
         ledger.record(out)
         outcomes.append(out)
+        if out.error is not None:          # its figures stored, then the error said (exit code) and resumable
+            raise out.error
         if not out.passed:
             return SequenceEnd(outcomes, out)
     return SequenceEnd(outcomes)

@@ -252,6 +252,39 @@ def warmup(ctx: Context) -> Outcome:
                    advice="; ".join(advice) + tail)
 
 
+# ------------------------------------------------------------------ rig.yaml's calibration paths
+
+
+def _point_rig(ctx: Context, step: str, key: str, file: Path, what: str) -> tuple[str, Exception | None]:
+    """rig.yaml's ``calibration.KEY`` set to ``file`` (the step passed and saved it), as `vts camera
+    setup` writes locked_params (vts_hw.rig_file.set_calibration): the note for the report, and
+    the error when rig.yaml could not be written (one sentence; ``file`` is kept; the step is then
+    recorded as not passed and raised; `vts commission --from STEP` runs it again)."""
+    from vts_hw.errors import VtsError
+    from vts_hw.files import WriteFailed
+    from vts_hw.rig_file import set_calibration
+
+    source = getattr(ctx.rig, "_source", None)
+    if source is None:
+        return "the rig config was not read from a file: no rig.yaml to point at it", None
+    old, name = getattr(ctx.rig.calibration, key, None), Path(source).name
+    try:
+        backup = set_calibration(source, {key: file})
+    except WriteFailed as exc:
+        err = WriteFailed(exc.path, exc.reason, f"{source} is unchanged (calibration.{key}: {old or 'none'}); the new "
+                          f"{what} is kept in {file}: `vts commission --from {step}` once {source} can be written")
+        return f"{name} not changed: it could not be written", err
+    except VtsError as exc:      # changed by someone else meanwhile; a file that no longer loads
+        return f"{name} not changed", type(exc)(f"{exc} (the new {what} is kept in {file})")
+    if backup is None:
+        note = f"{name} already points at {file} (calibration.{key})"
+    else:
+        note = f"{name} now points at {file} (calibration.{key}; the previous text is in {backup})"
+        ctx.refresh()
+    ctx.say(f"  {note}")
+    return note, None
+
+
 # ------------------------------------------------------------------ 5. calibration
 
 
@@ -272,9 +305,12 @@ def calibration(ctx: Context) -> Outcome:
         raise run.saved.error
     refused = getattr(run, "refused", None)
     passed = not refused and run.state != ACT
-    return Outcome("calibration", run, passed, advice=refused or ("calibrate again: " + "; ".join(run.warnings)
-                                                                  if not passed else ""),
-                   notes=f"saved to {inp.calibration_file}")
+    advice = refused or ("calibrate again: " + "; ".join(run.warnings) if not passed else "")
+    notes, error = f"saved to {inp.calibration_file}", None
+    if passed and run.saved.written is not None:     # only a calibration that passed is pointed at
+        note, error = _point_rig(ctx, "calibration", "stereo", run.saved.written, "calibration")
+        notes, passed, advice = f"{notes}; {note}", error is None, str(error) if error else advice
+    return Outcome("calibration", run, passed, advice=advice, notes=notes, error=error)
 
 
 # ------------------------------------------------------------------ 6. mapping
@@ -298,8 +334,14 @@ def mapping(ctx: Context) -> Outcome:
     if saved.error is not None:
         raise saved.error
     ctx.say(m.results())
-    return Outcome("mapping", m, m.state != ACT, advice="the mapping is in ACTION: check the phantom and its "
-                   "volume, then `vts commission --from mapping`", notes=f"saved to {inp.mapping_file}")
+    passed = m.state != ACT
+    advice = "" if passed else ("the mapping is in ACTION: check the phantom and its volume, then "
+                                "`vts commission --from mapping`")
+    notes, error = f"saved to {inp.mapping_file}", None
+    if passed:                                       # a mapping in ACTION leaves calibration.spect as it was
+        note, error = _point_rig(ctx, "mapping", "spect", saved.written, "VTS → SPECT mapping")
+        notes, passed, advice = f"{notes}; {note}", error is None, str(error) if error else advice
+    return Outcome("mapping", m, passed, advice=advice, notes=notes, error=error)
 
 
 # ------------------------------------------------------------------ 7. step test

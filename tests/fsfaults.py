@@ -1,4 +1,5 @@
-"""Real file-system faults for tests: a small tmpfs that fills up (ENOSPC), a read-only mount.
+"""Real file-system faults for tests: a small tmpfs that fills up (ENOSPC) or is remounted
+read-only, a read-only mount.
 
 Mounting needs root (CI runs as root) or password-less sudo. The mount is global, so a `vts`
 subprocess writing into it meets a full disk exactly as it would in the field; it is
@@ -71,6 +72,10 @@ class SmallDisk:
     def free_up(self) -> None:
         with contextlib.suppress(FileNotFoundError):
             (self.path / self.FILLER).unlink()
+
+    def read_only(self, on: bool = True) -> None:
+        """Remount it read-only (``on``) or writable again: what is on it stays, nothing more goes."""
+        _mount(["-o", f"remount,{'ro' if on else 'rw'}", str(self.path)])
 
     def files(self) -> dict[str, int]:
         """Every file under the mount (but the filler) and its size: what a fault left behind."""

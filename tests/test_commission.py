@@ -14,7 +14,7 @@ import cv2
 import pytest
 
 from inprocess_cli import vts
-from vts_hw.config import dump_rig
+from vts_hw.config import dump_rig, load_rig
 from vts_hw.sim_devices import checkerboard as cb
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.store import ResultsStore
@@ -108,6 +108,9 @@ def test_commissioning_stops_at_a_mis_aimed_camera_resumes_and_ends_with_the_rep
     assert "needs --sync-session DIR and --listmode FILE" in se and "vts scan start" in se
     assert "== discover and set up" not in se and "== aim and focus" in se    # resumed after the last good step
     assert [a[:10] for a in operator.asked] == ["[baseline]", "[V01] Rais", "[A01] Move", "[free] Tur"]
+    cal = load_rig(rig_yaml).calibration     # what the step test, scans and `vts camera aim` now read
+    assert (cal.stereo, cal.spect) == (out / "calibration.json", out / "spect_mapping.json")
+    assert rig_yaml.read_text().startswith("# room 1")
 
     # 3. the scan with a source marker moved; then resume: sync check, baseline, the report
     marker = sync_sim.prepare(rig)

@@ -1,5 +1,6 @@
 """Writing rig.yaml: a new skeleton (`vts discover -o`), and locked_params set in place
-(`vts camera setup`), never losing the file that was there.
+(`vts camera setup`), the calibration paths set in place (`vts commission`), never losing the
+file that was there.
 
 * :func:`write_new` writes a file that must not exist yet: the text goes to a hidden temporary
   file beside it, and is linked to its name only if that name is still free (a file that
@@ -9,6 +10,9 @@
   the result is still a valid rig config, copies the old file to ``rig.yaml.bak`` and writes
   the new one atomically (:func:`vts_hw.files.write_atomic`). A file changed by someone else
   between the read and the write is refused, not overwritten.
+* :func:`set_calibration` points ``calibration.stereo`` / ``calibration.spect`` at new files
+  the same way (one machinery, :func:`_rewrite`), as absolute paths; nothing is written when
+  rig.yaml names those files already.
 """
 
 from __future__ import annotations
@@ -83,12 +87,13 @@ def write_new(path: str | os.PathLike, text: str) -> Path:
     return path
 
 
-def set_locked_params(path: str | os.PathLike, params: dict[str, dict[str, str]]) -> Path:
-    """Set ``locked_params`` of the cameras named in ``params`` (camera name -> VAPIX parameter
-    -> value) in the rig.yaml at ``path``, keeping its comments; returns the backup's path."""
+def _rewrite(path: str | os.PathLike, edit, *, what: str, during: str, again: str) -> Path | None:
+    """rig.yaml at ``path`` read with ruamel.yaml's round-trip loader (comments, key order and
+    quoting kept), changed by ``edit(data)`` (False: nothing to change, nothing written, None
+    returned), checked to load as a rig config, refused when someone changed the file meanwhile
+    (``during``: while what; ``again``: what to do), the old text copied to rig.yaml.bak, the new
+    written atomically; returns the backup's path. ``what``: what the new text holds (messages)."""
     from ruamel.yaml import YAML
-    from ruamel.yaml.comments import CommentedMap
-    from ruamel.yaml.scalarstring import SingleQuotedScalarString
     from ruamel.yaml.error import YAMLError
 
     path = Path(path)
@@ -101,26 +106,93 @@ def set_locked_params(path: str | os.PathLike, params: dict[str, dict[str, str]]
         data = rt.load(text)
     except YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
-    cameras = data.get("cameras") if hasattr(data, "get") else None
-    entries = {c.get("name"): c for c in cameras or [] if hasattr(c, "get")}
-    for name, values in params.items():
-        if name not in entries:
-            raise ConfigError(f"{path}: no camera named {name!r} in cameras")
-        # quoted: a YAML 1.1 reader (PyYAML: how rig.yaml is loaded) would read no, yes, on, off as booleans
-        entries[name]["locked_params"] = CommentedMap((k, SingleQuotedScalarString(str(v))) for k, v in values.items())
+    if edit(data) is False:
+        return None
     out = io.StringIO()
     rt.dump(data, out)
     new_text = out.getvalue()
     if len(new_text.encode("utf-8")) > MAX_CONFIG_BYTES:
-        raise ConfigError(f"{path}: the config with its locked parameters would be larger than a rig config can be")
+        raise ConfigError(f"{path}: the config with its {what} would be larger than a rig config can be")
     parse_rig(yaml.safe_load(new_text), str(path))   # never write a file that would not load
     if hashlib.sha256(_read_text(path).encode("utf-8")).hexdigest() != digest:
-        raise UsageError(f"{path} was changed while the cameras were being set: it is left as it is; "
-                         f"run the setup again")
+        raise UsageError(f"{path} was changed while {during}: it is left as it is; {again}")
     backup = path.with_name(path.name + BACKUP_SUFFIX)
     write_atomic(backup, text, kept=f"{path} is unchanged")
     write_atomic(path, new_text, kept=f"{path} is unchanged; its old text is also in {backup}")
     return backup
 
 
-__all__ = ["skeleton", "refuse_existing", "write_new", "set_locked_params", "BACKUP_SUFFIX"]
+def set_locked_params(path: str | os.PathLike, params: dict[str, dict[str, str]]) -> Path:
+    """Set ``locked_params`` of the cameras named in ``params`` (camera name -> VAPIX parameter
+    -> value) in the rig.yaml at ``path``, keeping its comments; returns the backup's path."""
+    from ruamel.yaml.comments import CommentedMap
+    from ruamel.yaml.scalarstring import SingleQuotedScalarString
+
+    def edit(data):
+        cameras = data.get("cameras") if hasattr(data, "get") else None
+        entries = {c.get("name"): c for c in cameras or [] if hasattr(c, "get")}
+        for name, values in params.items():
+            if name not in entries:
+                raise ConfigError(f"{path}: no camera named {name!r} in cameras")
+            # quoted: a YAML 1.1 reader (PyYAML: how rig.yaml is loaded) would read no, yes, on, off as booleans
+            entries[name]["locked_params"] = CommentedMap((k, SingleQuotedScalarString(str(v)))
+                                                          for k, v in values.items())
+
+    return _rewrite(path, edit, what="locked parameters", during="the cameras were being set",
+                    again="run the setup again")
+
+
+CALIBRATION_KEYS = ("stereo", "spect")    # rig.yaml's calibration: entries (config.CalibrationPaths)
+
+
+def calibration_entry(path: str | os.PathLike, file: str | os.PathLike) -> str:
+    """What to write in the rig.yaml at ``path`` so that it names ``file`` for every reader: the
+    absolute path. (Readers take a relative entry from different folders: the rig.yaml's, for
+    `vts sync`, `vts motion` and the console; the working folder, for `vts camera aim`, `vts qa
+    steps` and the live scan. An absolute path is the same file for all of them.)"""
+    return os.path.abspath(file)
+
+
+def names_file(path: str | os.PathLike, entry, file: str | os.PathLike) -> bool:
+    """Whether a calibration ``entry`` of the rig.yaml at ``path`` already names ``file`` for
+    every reader (an absolute entry naming the same file; a relative one never: see
+    :func:`calibration_entry`)."""
+    if entry is None or not os.path.isabs(str(entry)):
+        return False
+    try:
+        return os.path.samefile(entry, file)
+    except OSError:
+        return os.path.normpath(str(entry)) == os.path.normpath(calibration_entry(path, file))
+
+
+def set_calibration(path: str | os.PathLike, files: dict[str, str | os.PathLike]) -> Path | None:
+    """Point rig.yaml's ``calibration:`` entries (``stereo``: the camera calibration; ``spect``:
+    the VTS -> SPECT mapping) at ``files``, in place as :func:`set_locked_params` writes (comments
+    kept, rig.yaml.bak, atomic, a file changed meanwhile refused). Returns the backup's path, or
+    None when rig.yaml names those files already (nothing written)."""
+    from ruamel.yaml.comments import CommentedMap
+
+    unknown = sorted(set(files) - set(CALIBRATION_KEYS))
+    if unknown:
+        raise ValueError(f"no calibration entry {unknown[0]!r} (known: {', '.join(CALIBRATION_KEYS)})")
+
+    def edit(data):
+        if not hasattr(data, "get"):
+            raise ConfigError(f"{path}: not a rig config (its top level is not a mapping)")
+        section = data.get("calibration")
+        todo = {k: f for k, f in files.items()
+                if not names_file(path, section.get(k) if hasattr(section, "get") else None, f)}
+        if not todo:
+            return False
+        if not isinstance(section, CommentedMap):      # absent, or `calibration:` with nothing under it
+            section = data["calibration"] = CommentedMap()
+        for key, f in todo.items():
+            section[key] = calibration_entry(path, f)
+        return True
+
+    return _rewrite(path, edit, what="calibration paths", during="its calibration paths were being set",
+                    again="run the step again (`vts commission --from STEP`)")
+
+
+__all__ = ["skeleton", "refuse_existing", "write_new", "set_locked_params", "set_calibration", "calibration_entry",
+           "names_file", "CALIBRATION_KEYS", "BACKUP_SUFFIX"]
