@@ -282,14 +282,15 @@ def load_env_file(path: str | Path) -> dict[str, str]:
 def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = "vapix3",
           rate: float = 1.0, on_ready=None, trigger: str = "none", spect: bool = False,
           https: bool = False, gantry: bool = False, patient=None, qatrack: bool = False,
-          ahead: float = 0.0) -> None:
+          ahead: float = 0.0, warmup_drift: bool = False) -> None:
     """Run a rig until SIGINT/SIGTERM. With ``folder``: write rig.yaml, sim.env and sim.pid.
     ``qatrack``: a simulated QATrack+ beside it, named in rig.yaml (its token in sim.env).
     ``spect``: a simulated SPECT records every scan the trigger box starts, into
     ``folder/spect`` (:class:`~vts_hw.sim_devices.spect_follower.SpectFollower`).
     ``patient``: a :class:`~vts_hw.sim_devices.patient_rig.PatientOptions`: the simulated
     patient on the table, its truth in ``folder/truth``; the SPECT then counts its heart.
-    ``ahead``: seconds of frames made ahead of time before serving (``SimRig.prerender``)."""
+    ``ahead``: seconds of frames made ahead of time before serving (``SimRig.prerender``).
+    ``warmup_drift``: every camera just switched on (uptime 0), its picture drifting (warmup.py)."""
     if spect and (trigger != "triggerbox" or folder is None):
         raise VtsError("the simulated SPECT needs --trigger triggerbox and --dir (it writes its "
                        "list-mode files into DIR/spect)")
@@ -317,7 +318,9 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
         from vts_hw.sim_devices.tls import self_signed
         tls = tuple(str(p) for p in self_signed(folder if folder is not None else mkdtemp(prefix="vts-sim-tls-")))
     rig = SimRig(n_cameras=n_cameras, seed=seed, firmware=firmware, clock=clock, trigger=trigger, tls=tls,
-                 gantry=gantry, patient=patient, qatrack=qatrack)
+                 gantry=gantry, patient=patient, qatrack=qatrack, warmup_drift=warmup_drift)
+    for srv in rig.servers.values() if warmup_drift else ():   # started now: the drift counts from here
+        srv.reboot()
     follower = None
     if spect:
         from vts_hw.sim_devices.spect_follower import SpectFollower
@@ -363,7 +366,7 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
 def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmware: str = "vapix3",
                    rate: float = 1.0, timeout: float = 60.0, trigger: str = "none",
                    spect: bool = False, https: bool = False, gantry: bool = False, patient=None,
-                   qatrack: bool = False, ahead: float = 0.0) -> int:
+                   qatrack: bool = False, ahead: float = 0.0, warmup_drift: bool = False) -> int:
     """Start ``serve`` in a background process; return its pid once rig.yaml is written (the
     time allowed grows by 0.1 s per frame made ``ahead``)."""
     timeout += 0.1 * ahead * 25.0 * n_cameras
@@ -394,7 +397,7 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
            str(rate), trigger] + (["spect"] if spect else []) + (["https"] if https else []) \
         + (["gantry"] if gantry else []) + (["qatrack"] if qatrack else []) \
         + ([patient.to_arg()] if patient is not None else []) \
-        + ([f"ahead={ahead!r}"] if ahead > 0 else [])
+        + ([f"ahead={ahead!r}"] if ahead > 0 else []) + (["warmup"] if warmup_drift else [])
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=log, start_new_session=True)
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -473,7 +476,7 @@ def _main(argv: list[str]) -> int:
         ahead = next((float(a.split("=", 1)[1]) for a in argv[6:] if a.startswith("ahead=")), 0.0)
         serve(folder, int(n), int(seed), fw, float(rate), trigger=trigger, spect="spect" in argv[6:],
               https="https" in argv[6:], gantry="gantry" in argv[6:], patient=patient,
-              qatrack="qatrack" in argv[6:], ahead=ahead)
+              qatrack="qatrack" in argv[6:], ahead=ahead, warmup_drift="warmup" in argv[6:])
     except VtsError as e:
         with contextlib.suppress(OSError):     # a full disk takes the log too: the exit code still tells
             print(f"{FAILED}{e}", file=sys.stderr, flush=True)

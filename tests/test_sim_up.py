@@ -81,3 +81,37 @@ def test_the_simulated_function_generator_keeps_its_state_between_commands(tmp_p
         assert [e.output for e in read_output_log(d / FGEN_LOG)] == [True, False]
     finally:
         assert vts("sim", "down", "--dir", str(d)).returncode == 0
+
+
+def test_warmup_drift_starts_the_cameras_now_and_their_pictures_drift_as_they_warm(tmp_path, monkeypatch):
+    """`vts sim up --warmup-drift`: asked over HTTP through the driver, the camera has just started
+    and its wall markers move as the declared warm-up says (simulated time 60 times real time)."""
+    import math
+    import time
+
+    from vts_hw.drivers.registry import open_camera
+    from vts_hw.procedures.warmup import Watch
+    from vts_hw.sim_devices.rig import SimRig
+
+    d = tmp_path / "sim"
+    p = vts("sim", "up", "--detach", "--cameras", "1", "--seed", "3", "--rate", "60", "--warmup-drift", "--dir", str(d))
+    assert p.returncode == 0, p.stderr
+    assert "cameras just switched on: their pictures drift for minutes as they warm" in p.stdout
+    try:
+        monkeypatch.setattr(os, "environ", {**os.environ, **load_env_file(d / "sim.env")})
+        with open_camera(load_rig(d / "rig.yaml").cameras[0]) as cam:
+            cam.led_on()
+            watch = Watch(cam, frames=2)
+            first = watch.sample()
+            age0 = cam.uptime().seconds           # a camera started a day before would say 86400 s
+            time.sleep(6.0)                       # at least 6 simulated minutes (more on a busy machine)
+            last = watch.sample()
+        assert age0 < 15 * 60, age0
+        truth = SimRig(n_cameras=1, seed=3, warmup_drift=True).scene.warmups["cam1"]   # what --seed 3 declares
+        a0, a1 = age0, age0 + (last.t - first.t)  # the uptime read just after the first sample
+        want = truth.amplitude_px * (math.exp(-a0 / truth.tau_s) - math.exp(-a1 / truth.tau_s))
+        moved = math.hypot(last.dx, last.dy)
+        assert last.markers >= 4 and want > 0.5, (last, want)
+        assert abs(moved - want) < 0.25 * want + 0.1, (moved, want, a0, a1)
+    finally:
+        vts("sim", "down", "--dir", str(d))

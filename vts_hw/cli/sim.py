@@ -10,6 +10,9 @@ from vts_hw.cli import cli
 from vts_hw.cli.common import FiniteFloat, positive
 
 
+WARMUP_LINE = "cameras just switched on: their pictures drift for minutes as they warm (--warmup-drift)"
+
+
 @cli.group()
 def sim() -> None:
     """The simulated rig: Axis cameras on 127.0.0.1 that see one simulated room."""
@@ -64,13 +67,18 @@ def sim() -> None:
                    "playing at the first stream (the patient's plan moved to that instant), so a scan's "
                    "streams are whole however busy this machine is. Rendering live, a busy machine makes "
                    "them late (sent late, up to 10 s behind; then skipped).")
+@click.option("--warmup-drift", is_flag=True,
+              help="Every camera starts as if just switched on (its uptime from 0) and its picture drifts as "
+                   "it warms: 2-4 px along a direction of its own, settling with a time constant of 8-15 min "
+                   "(seeded by --seed; decision 0072). For trying the commissioning's warm-up step (with "
+                   "--rate 60 a simulated minute passes each second).")
 @click.option("--detach", is_flag=True, help="Run in the background (needs --dir).")
 @click.option("--dir", "folder", type=click.Path(file_okay=False), default=None,
               help="Where to write rig.yaml and sim.env (and sim.pid, sim.log when detached).")
 def up(n_cameras: int, gantry: bool, seed: int, vapix: str, model: str | None, https: bool, rate: float,
        trigger: str, spect: bool, patient: bool, patient_seed: int | None, patient_moves: int | None,
-       patient_minutes: float | None, no_breathing: bool, qatrack: bool, ahead: float, detach: bool,
-       folder: str | None) -> None:
+       patient_minutes: float | None, no_breathing: bool, qatrack: bool, ahead: float, warmup_drift: bool,
+       detach: bool, folder: str | None) -> None:
     """Run the simulated rig (foreground: Ctrl-C stops it).
 
     With --dir DIR it writes DIR/rig.yaml pointing at the simulated cameras and DIR/sim.env
@@ -90,12 +98,15 @@ def up(n_cameras: int, gantry: bool, seed: int, vapix: str, model: str | None, h
         if not folder:
             raise click.UsageError("--detach needs --dir DIR (where rig.yaml and sim.env go)")
         pid = simrig.start_detached(folder, n_cameras, seed, fw, rate, trigger=trigger, spect=spect, https=https,
-                                    gantry=gantry, patient=person, qatrack=qatrack, ahead=ahead)
+                                    gantry=gantry, patient=person, qatrack=qatrack, ahead=ahead,
+                                    warmup_drift=warmup_drift)
         _describe(Path(folder))
         if qatrack:
             click.echo(f"simulated QATrack+: {_qatrack_url(Path(folder))} (rig.yaml's qatrack:; its token in sim.env)")
         if person is not None:
             click.echo(f"simulated patient: its truth in {Path(folder) / 'truth'}")
+        if warmup_drift:
+            click.echo(WARMUP_LINE)
         if ahead:
             click.echo(f"{ahead:g} s of frames made ahead of time: they start playing at the first stream "
                        f"(what rendering cost: {Path(folder) / 'sim.log'})")
@@ -118,10 +129,12 @@ def up(n_cameras: int, gantry: bool, seed: int, vapix: str, model: str | None, h
             click.echo(f"simulated SPECT: each scan's list-mode goes to {Path(folder) / 'spect'}")
         if rig.patient is not None:
             click.echo(_patient_line(rig.patient, folder))
+        if warmup_drift:
+            click.echo(WARMUP_LINE)
         click.echo("simulated rig up; Ctrl-C stops it")
 
     simrig.serve(folder, n_cameras, seed, fw, rate, on_ready=ready, trigger=trigger, spect=spect, https=https,
-                 gantry=gantry, patient=person, qatrack=qatrack, ahead=ahead)
+                 gantry=gantry, patient=person, qatrack=qatrack, ahead=ahead, warmup_drift=warmup_drift)
     click.echo("simulated rig stopped")
 
 
