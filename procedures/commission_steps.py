@@ -173,50 +173,66 @@ def _rate_text(fit) -> str:
 def warmup(ctx: Context) -> Outcome:
     """Each camera's picture settled (procedures/warmup.py): the wall markers' mean position
     sampled every ``warmup.interval_s``, the rate fitted over the last ``warmup.samples``
-    samples against the ``warmup_rate_px_min`` window, and its uptime against its warmup_min.
-    A camera not settled is waited for with progress (a line a sample), or (``wait`` False)
-    the step stops saying how long."""
+    samples against the ``warmup_rate_px_min`` window, and its uptime against its warmup_min; its
+    clock read at each sample, how fast its rate changes fitted over the same window against the
+    ``warmup_clock_change_ppm_min`` window (procedures/warmup_clock.py). A camera not settled is
+    waited for with progress (a line a sample), or (``wait`` False) the step stops saying how long."""
     from vts_hw.procedures.drift import LED_SETTLE_S
     from vts_hw.procedures.warmup import Watch, settle_wait_min
+    from vts_hw.procedures.warmup_clock import ClockWatch, judge_clock
     from vts_hw.tolerance import merged_tolerances
 
     st = ctx.rig.warmup
     window = merged_tolerances(ctx.rig.tolerances)["warmup_rate_px_min"]
     limit = window.tolerance_high if window.tolerance_high is not None else window.action_high
+    cwin = merged_tolerances(ctx.rig.tolerances)["warmup_clock_change_ppm_min"]
+    climit = cwin.tolerance_high if cwin.tolerance_high is not None else cwin.action_high
     warm = {c.name: float(c.warmup_min) for c in ctx.rig.cameras}
     ctx.say(f"  watching the wall markers settle: a sample every {st.interval_s:g} s, the rate fitted over "
-            f"{st.samples} samples ({window.describe()}); Ctrl-C stops, `vts commission --resume` continues")
+            f"{st.samples} samples ({window.describe()}), each camera's clock read with it "
+            f"({cwin.describe()} for its rate's change); Ctrl-C stops, `vts commission --resume` continues")
     with _cameras(ctx.rig.cameras, clock=ctx.clock) as cams:
         watches = {c.name: Watch(c, st.frames) for c in cams}
+        clocks = {c.name: ClockWatch(c) for c in cams}
         for c in cams:
             c.led_on()
         ctx.sleep(LED_SETTLE_S)
         k = 0
         while True:
             k += 1
-            for w in watches.values():
+            for n, w in watches.items():
                 w.sample()
+                clocks[n].read()
             fits = {n: w.fit(st.samples) for n, w in watches.items()}
+            cfits = {n: w.fits(st.samples) for n, w in clocks.items()}
+            judged = {n: judge_clock(cfits[n][1], cwin, climit, clocks[n].problem) for n in clocks}
             now = "; ".join(f"{n} {'?' if f.rate_px_min is None else f'{f.rate_px_min:.3f}'} px/min"
                             for n, f in fits.items())
             head = f"sample {k} of {st.samples}" if k <= st.samples else f"sample {k} (the last {st.samples})"
-            ctx.say(f"  {head}: rate now {now}" if k >= 3 else f"  {head}")
+            clk = "; ".join(f"{n} {f[1].rate:.2f}" for n, f in cfits.items() if f[1].rate is not None)
+            clk = f"; clock's change {clk} ppm/min" if clk else ""
+            ctx.say(f"  {head}: rate now {now}{clk}" if k >= 3 else f"  {head}")
             if k < st.samples:
                 ctx.sleep(st.interval_s)
                 continue
             up = {c.name: _uptime(c, ctx.say) for c in cams}
             unsettled = {n for n, f in fits.items()     # an uptime not known: the rate alone tells
                          if window.state(f.rate_px_min) != OK or (up[n] is not None and up[n] < warm[n])}
+            ticking = {n for n, j in judged.items() if j.known and not j.settled}   # a clock not known: said, not waited
             unknown = {n for n, f in fits.items() if f.rate_px_min is None}
-            if not unsettled or not ctx.inputs.wait or unknown:
+            if not (unsettled | ticking) or not ctx.inputs.wait or unknown:
                 break
             waits = {n: settle_wait_min(fits[n], limit, up[n], warm[n]) for n in sorted(unsettled)}
+            cwaits = {n: settle_wait_min(cfits[n][1], climit, None, 0.0, "ppm/min", "its clock's change")
+                      for n in sorted(ticking)}
             ctx.say("  not settled: " + "; ".join(
-                f"{n} ({_rate_text(fits[n])}): "
-                + (f"{'at least' if least else 'about'} {_minutes(m)} more" if m is not None else why)
-                for n, (m, why, least) in waits.items()) + "; waiting")
+                [f"{n} ({_rate_text(fits[n])}): "
+                 + (f"{'at least' if least else 'about'} {_minutes(m)} more" if m is not None else why)
+                 for n, (m, why, least) in waits.items()]
+                + [f"{n} {judged[n].why}: " + (f"about {_minutes(m)} more" if m is not None else why)
+                   for n, (m, why, least) in cwaits.items()]) + "; waiting")
             ctx.sleep(st.interval_s)
-    measures, lines, data, advice = [], [], {}, []
+    measures, lines, data, advice, later = [], [], {}, [], []
     for n, f in fits.items():
         state = window.state(f.rate_px_min)
         young = up[n] is not None and up[n] < warm[n]
@@ -229,11 +245,16 @@ def warmup(ctx: Context) -> Outcome:
         data[n] = {"rate_px_min": f.rate_px_min, "se_px_min": f.se_px_min, "window_min": f.window_min,
                    "samples": f.n, "tau_min": f.tau_min, "uptime_min": up[n], "warmup_min": warm[n],
                    "samples_taken": [(s.t, s.dx, s.dy, s.markers) for s in watches[n].samples]}
+        cm, cadvice = _clock_figures(n, cfits[n], judged[n], cwin, climit, clocks[n], data[n], ctx.clock())
+        measures += cm
         settled = n not in unsettled
         ran = ("uptime not known (the rate alone tells)" if up[n] is None
                else f"running {up[n]:.0f} min (warm-up {warm[n]:g} min)")
         lines.append(f"  {n}: {_rate_text(f)} ({window.describe()}), {ran}: "
                      + ("settled" if settled else "NOT settled"))
+        lines.append(f"  {n}: {judged[n].why}" + (f" ({cwin.describe()})" if judged[n].known else "") + ": "
+                     + ("settled" if judged[n].settled else "NOT settled" if judged[n].known else "not known"))
+        later += cadvice
         if settled:
             continue
         if f.rate_px_min is None:
@@ -246,10 +267,33 @@ def warmup(ctx: Context) -> Outcome:
         advice.append(f"{n} not settled ({why or _rate_text(f)}): " + (
             f"wait {'at least' if least else 'about'} {_minutes(m)} (until {until})"
             if m is not None else "wait and run it again"))
-    passed = not unsettled
+    advice += later                       # the clocks' waits after the pictures'
+    passed = not unsettled and not ticking
     tail = "; then `vts commission --resume`" if advice else ""
     return Outcome("warmup", StepCheck("warmup", measures, lines, {"warmup": data}), passed,
                    advice="; ".join(advice) + tail)
+
+
+def _clock_figures(n, cfit, judged, cwin, climit, watch, data, now):
+    """The clock's measures, stored figures and advice for camera ``n`` (procedures/warmup_clock.py)."""
+    from vts_hw.procedures.warmup import settle_wait_min
+    rate, change, signed = cfit
+    measures = [Measure(n, "warmup_clock_change_ppm_min", round(change.rate, 3) if judged.known else None,
+                        "ppm/min", judged.state),
+                Measure(n, "warmup_clock_rate_ppm", None if signed is None else round(signed, 2), "ppm",
+                        OK if rate.rate is not None else TOL)]
+    data["clock"] = {"change_ppm_min": change.rate, "change_se_ppm_min": change.se, "known": judged.known,
+                     "state": str(judged.state.value), "why": judged.why, "window": cwin.describe(),
+                     "rate_ppm": signed, "rate_se_ppm": rate.se, "tau_min": change.tau_min,
+                     "window_min": change.window_min, "samples": change.n,
+                     "readings": [(r.t, r.offset_s, r.uncertainty_s, r.method) for r in watch.readings]}
+    if not judged.known or judged.settled:
+        return measures, []
+    m, why, _ = settle_wait_min(change, climit, None, 0.0, "ppm/min", "its clock's change")
+    data["clock"]["wait_min"] = m
+    until = "" if m is None else time.strftime("%H:%M", time.localtime(now + m * 60))
+    return measures, [f"{n}'s clock not settled ({why}): "
+                      + (f"wait about {_minutes(m)} (until {until})" if m is not None else "wait and run it again")]
 
 
 # ------------------------------------------------------------------ rig.yaml's calibration paths

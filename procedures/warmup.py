@@ -34,59 +34,73 @@ __all__ = ["RateFit", "fit_rate", "Sample", "Watch", "settle_wait_min"]
 
 @dataclass(frozen=True)
 class RateFit:
-    """The fitted rate over a window: ``rate_px_min`` (None: fewer than 3 samples with markers),
-    its standard error, the window's length (min), and, when the rate slows measurably, the time
-    constant of its settling (``tau_min``) and the rate at the window's end."""
+    """The fitted rate over a window: ``rate`` (None: too few samples to fit it), its standard
+    error ``se``, the window's length (min), and, when the rate slows measurably, the time
+    constant of its settling (``tau_min``) and the rate at the window's end. The unit is the
+    caller's: px/min for a picture, ppm/min for the change of a clock's rate (procedures/warmup_clock.py)."""
 
-    rate_px_min: float | None
-    se_px_min: float | None = None
+    rate: float | None
+    se: float | None = None
     window_min: float = 0.0
     n: int = 0
     tau_min: float | None = None
-    rate_end_px_min: float | None = None
+    rate_end: float | None = None
+
+    @property
+    def rate_px_min(self) -> float | None:
+        return self.rate
+
+    @property
+    def se_px_min(self) -> float | None:
+        return self.se
 
     def minutes_to(self, limit: float) -> float | None:
         """Minutes from the window's end until the rate is below ``limit``; None when the fit
         cannot tell (it does not slow measurably)."""
-        if self.rate_px_min is None:
+        if self.rate is None:
             return None
-        if self.rate_px_min <= limit:
+        if self.rate <= limit:
             return 0.0
-        if self.tau_min is None or not self.rate_end_px_min:
+        if self.tau_min is None or not self.rate_end:
             return None
-        return max(0.0, self.tau_min * math.log(self.rate_end_px_min / limit))
+        return max(0.0, self.tau_min * math.log(self.rate_end / limit))
 
 
-def fit_rate(times_s, positions) -> RateFit:
-    """The rate (px/min) of positions (n x 2, px) taken at ``times_s`` (epoch s): a straight line
-    per axis (with 4 samples or more, a parabola too: the slowing along the motion, significant
-    at 3 standard errors, gives the time constant of an exponential settling)."""
+def fit_rate(times_s, positions, order: int = 1, scale: float = 1.0) -> RateFit:
+    """The rate of positions (n x k) taken at ``times_s`` (epoch s), per minute: the ``order``-th
+    time derivative of a polynomial of that degree per axis (order 1, a straight line: a picture's
+    px/min; order 2, a parabola: how fast a clock's rate changes), times ``scale``, the length of
+    its vector. With ``order + 3`` samples or more, a polynomial one degree higher too: the
+    slowing along the rate (the next derivative against it), significant at 3 standard errors,
+    gives the time constant of an exponential settling."""
     t = np.asarray(times_s, float) / 60.0
-    p = np.asarray(positions, float).reshape(-1, 2)
+    p = np.asarray(positions, float)
+    p = p.reshape(len(t), -1) if p.size else p.reshape(0, 1)
     ok = np.isfinite(p).all(axis=1) & np.isfinite(t)
-    t, p = t[ok], p[ok]
-    n = len(t)
-    if n < 3 or np.ptp(t) <= 0:
+    t, p = t[ok], p[ok] * scale
+    n, k = len(t), p.shape[1]
+    if n < order + 2 or np.ptp(t) <= 0:
         return RateFit(None, n=n, window_min=float(np.ptp(t)) if n else 0.0)
     tc = t - t.mean()
-    sxx = float((tc ** 2).sum())
-    v = (tc[:, None] * (p - p.mean(axis=0))).sum(axis=0) / sxx
-    res = p - p.mean(axis=0) - tc[:, None] * v
-    s2 = float((res ** 2).sum()) / (2 * (n - 2))            # both axes share one noise
-    rate = float(np.hypot(*v))
-    se = math.sqrt(s2 / sxx)
+
+    def poly(deg):
+        X = np.column_stack([tc ** j / math.factorial(j) for j in range(deg + 1)])
+        coef, *_ = np.linalg.lstsq(X, p, rcond=None)
+        res = p - X @ coef
+        s2 = float((res ** 2).sum()) / (k * max(1, n - deg - 1))     # every axis shares one noise
+        return coef, s2 * np.linalg.inv(X.T @ X)
+
+    coef, cov = poly(order)
+    v = coef[order]
+    rate = float(np.linalg.norm(v))
+    se = math.sqrt(max(cov[order, order], 0.0))
     fit = RateFit(rate, se, float(np.ptp(t)), n)
-    if n < 4 or rate == 0.0:
+    if n < order + 3 or rate == 0.0:
         return fit
-    X = np.column_stack([np.ones(n), tc, 0.5 * tc ** 2])
-    coef, *_ = np.linalg.lstsq(X, p, rcond=None)
-    res2 = p - X @ coef
-    q2 = float((res2 ** 2).sum()) / (2 * max(1, n - 3))
-    cov = q2 * np.linalg.inv(X.T @ X)
-    u = v / rate
-    slowing = -float(coef[2] @ u)                           # the acceleration against the motion
-    se_acc = math.sqrt(max(cov[2, 2], 0.0))
-    if slowing <= 0 or slowing < 3 * se_acc:
+    coef2, cov2 = poly(order + 1)
+    slowing = -float(coef2[order + 1] @ (v / rate))          # the next derivative against the rate
+    se_next = math.sqrt(max(cov2[order + 1, order + 1], 0.0))
+    if slowing <= 0 or slowing < 3 * se_next:
         return fit
     tau = rate / slowing
     end = rate * math.exp(-float(tc.max()) / tau)
@@ -94,7 +108,7 @@ def fit_rate(times_s, positions) -> RateFit:
 
 
 def settle_wait_min(fit: RateFit, limit: float, uptime_min: float | None,
-                    warmup_min: float) -> tuple[float | None, str, bool]:
+                    warmup_min: float, unit: str = "px/min", what: str = "the rate") -> tuple[float | None, str, bool]:
     """(minutes to wait, why, at least) for one camera: the longer of the rest of its warm-up
     time and the time its rate takes to fall below ``limit``. When the rate is above the limit
     and does not measurably slow, that time is not known: the rest of the warm-up time is then
@@ -104,11 +118,11 @@ def settle_wait_min(fit: RateFit, limit: float, uptime_min: float | None,
     parts = []
     if by_uptime:
         parts.append(f"{by_uptime:.0f} min more of its {warmup_min:g} min warm-up time")
-    unknown = fit.rate_px_min is not None and fit.rate_px_min > limit and by_rate is None
-    if fit.rate_px_min is not None and fit.rate_px_min > limit:
-        parts.append(f"the rate slowing with a time constant of {fit.tau_min:.0f} min: {by_rate:.0f} min to "
-                     f"{limit:g} px/min" if by_rate is not None
-                     else f"the rate not slowing measurably over {fit.window_min:.1f} min: how long is not known")
+    unknown = fit.rate is not None and fit.rate > limit and by_rate is None
+    if fit.rate is not None and fit.rate > limit:
+        parts.append(f"{what} slowing with a time constant of {fit.tau_min:.0f} min: {by_rate:.0f} min to "
+                     f"{limit:g} {unit}" if by_rate is not None
+                     else f"{what} not slowing measurably over {fit.window_min:.1f} min: how long is not known")
     if unknown:
         return (by_uptime or None), "; ".join(parts), True
     return max(by_uptime or 0.0, by_rate or 0.0), "; ".join(parts), False

@@ -12,6 +12,7 @@ from __future__ import annotations
 from vts_hw.recording.axis_jpeg import AxisProduct, stamp_jpeg
 
 from vts_hw.sim_devices.clock import SimClock
+from vts_hw.sim_devices.clock_warmup import warm_offset_s
 from vts_hw.sim_devices.render import Renderer
 from vts_hw.sim_devices.scene import Scene
 
@@ -40,7 +41,7 @@ class SimCameraSource:
     def camera_time(self, host_t: float | None = None) -> float:
         """This camera's clock at host time ``host_t`` (default: now)."""
         t = self.clock.now() if host_t is None else host_t
-        return self.scene.clocks[self.name].camera_time(t)
+        return self.scene.clocks[self.name].camera_time(t) + warm_offset_s(self.scene, self.name, t)
 
     def started(self, t: float) -> None:
         """The camera (re)started at ``t``: a declared warm-up drift counts from then (warmup.py)."""

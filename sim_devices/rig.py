@@ -54,7 +54,7 @@ class SimRig:
     """A running simulated rig. ``faults`` of each camera: ``rig.servers[name].faults``."""
 
     def __init__(self, n_cameras: int = 2, seed: int = 0, *, user: str = "root", password: str | None = None,
-                 firmware: str = "vapix3", clock=None, fps: float = 25.0,
+                 firmware: str = "vapix3", clock=None, fps: float = 25.0, clock_warmup: bool | dict = False,
                  drift_px_per_60_days: dict[str, float] | None = None, trigger: str = "none",
                  tls: tuple[str, str] | None = None, gantry: bool = False, patient=None, qatrack: bool = False,
                  announce: bool = False, optics: dict[str, dict] | None = None, warmup_drift: bool | dict = False):
@@ -83,9 +83,9 @@ class SimRig:
             # a camera that drifts faster than the reference rig's (the demo's bad camera)
             self.scene.drifts[cam] = CameraDrift.reference(self.scene.cameras[cam].focal, seed * 7919 + i,
                                                            self.scene.start_epoch, px)
-        if warmup_drift:   # the picture drifts for minutes after a camera starts (sim_devices/warmup.py)
-            from vts_hw.sim_devices.warmup import declare_warmups
-            declare_warmups(self.scene, seed, warmup_drift)
+        # declared, minutes after a camera starts: its picture drifts (sim_devices/warmup.py), its clock's rate departs
+        from vts_hw.sim_devices.clock_warmup import declare_warm_starts     # (clock_warmup.py); undeclared, nothing
+        declare_warm_starts(self.scene, seed, warmup_drift, clock_warmup)
         self.renderer = Renderer(self.scene)
         # optics: {camera: {focus_blur_px, yaw_deg, pitch_deg}}, a lens out of focus, a mount turned
         # (sim_devices/optics.py; at run time: sources[name].set_optics or POST /sim/optics)

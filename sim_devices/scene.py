@@ -271,7 +271,7 @@ class Scene:
         self._leds = {name: Schedule(False) for name in self.cameras}
         self.gantry = None  # the SPECT heads (sim_devices/gantry.py), when the room has them
         self.optics, self.mounts = {}, {}  # focus and mount; turned mounts' rvecs (sim_devices/optics.py)
-        self.warmups, self.booted = {}, {}  # warm-up drift declared; when each camera started (warmup.py)
+        self.warmups, self.booted, self.clock_warmups = {}, {}, {}  # warm-up declared (warmup.py, clock_warmup.py)
 
     # ----------------------------------------------------------------- construction
     @classmethod

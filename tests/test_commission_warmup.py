@@ -143,7 +143,9 @@ def test_waiting_says_each_sample_and_stops_once_the_picture_has_slowed(frozen, 
     rig, clock = frozen
     rig.servers["cam1"].reboot()
     out, said = _run(rig, clock, tmp_path, True, warmup_min=3, interval_s=60, samples=4, frames=1)
-    assert out.passed and out.state == "OK", said
+    # passed; TOLERANCE for the clocks: 4 readings of 1 ms cannot tell their rates' change (warmup_clock.py)
+    assert out.passed and out.state == "TOLERANCE", said
+    assert "cam1: clock's change not known: " in out.result.results(), out.result.results()
     assert said[1:3] == ["  sample 1 of 4", "  sample 2 of 4"] and said[3].startswith("  sample 3 of 4: rate now cam1 ")
     waits = [s for s in said if s.startswith("  not settled: cam1 (")]
     assert len(waits) >= 5 and all(s.endswith("; waiting") for s in waits)

@@ -154,6 +154,11 @@ DEFAULT_TOLERANCES: dict[str, Window] = {
     # fitted over rig.yaml's warmup: window). A warming fixed camera moves some px over its first
     # 10-30 min; 0.05 px/min is 0.06 mm a minute at the wall, 3 px in an hour only if it never slows.
     "warmup_rate_px_min": Window(tolerance_high=0.05, unit="px/min"),
+    # ... and how fast each camera's clock's rate against the host's still changes (ppm/min, over the same
+    # window; procedures/warmup_clock.py). A 30-min scan's clock line-up, one straight line, is off by up to
+    # T²/12 times it at its ends: 5 ppm/min is 22 ms there (2.5 ms for a 10-min scan), and it is what the
+    # default window tells from 1 ms clock readings (±1.6 ppm/min); a room with 12 samples tells ±0.3
+    "warmup_clock_change_ppm_min": Window(tolerance_high=5.0, unit="ppm/min"),
 }
 
 
