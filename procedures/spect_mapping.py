@@ -14,6 +14,11 @@ volume). Neither side knows which sphere is which, so:
    (TRE: each sphere predicted from a fit to the others). The fit residual alone says little
    about accuracy (docs/design.md); the TRE is the figure to watch.
 
+The saved transform keeps, besides its figures, the phantom's sphere centres as the SPECT
+measured them (``spheres_spect_mm``, SPECT frame, in the order the mapping reports its spheres:
+sphere 1 = ``S1``): the phantom's shape, which the console's Room page fits to what the cameras
+see to name the spheres (vts_hw/vision/phantom_locator.py, docs/decisions/0073-phantom-names.md).
+
 It reads like pylinac: ``SpectMapping(vts_points, spect_points).analyze()`` →
 ``results()`` / ``results_data()`` / ``save(path)``.
 
@@ -271,6 +276,7 @@ class SpectMapping:
                             f"{n_v}.")
         self.match = correspondence(self.vts_points, self.spect_points, self.fre_limit_mm)
         spect = self.spect_points[self.match.order]
+        self._spheres = spect                 # the spheres in the reported order (S1..): kept in the file
         T = kabsch(self.vts_points, spect)
         self.residuals_mm = np.linalg.norm(T.apply(self.vts_points) - spect, axis=1)
         self.tre = loo_tre(self.vts_points, spect)
@@ -310,7 +316,8 @@ class SpectMapping:
 
     def _meta(self) -> dict:
         return {"from_frame": "VTS", "to_frame": "SPECT", "procedure": catalog.MAPPING.name, **self._figures(),
-                **({"spect_volume": self.spect_volume} if self.spect_volume else {})}
+                **({"spect_volume": self.spect_volume} if self.spect_volume else {}),
+                "spheres_spect_mm": np.round(self._spheres, 3).tolist()}
 
     # ------------------------------------------------------------------ the QA result shape
     procedure = catalog.MAPPING.name

@@ -4,8 +4,11 @@
   as a two-camera :class:`~vts_hw.vision.calibration_io.CameraCalibration` (VTS frame = camera 1's frame) and
   the true VTS → SPECT rigid transform (SPECT frame = the scene's world frame:
   ``RigidTransform(c1.R.T, −c1.R.T·c1.t)``). A perfect calibration: what the sync analysis
-  measures is then timing, not calibration error. :func:`write_true_calibration` writes both
-  as ``calibration.json`` and ``spect_mapping.json``.
+  measures is then timing, not calibration error. The mapping keeps, as a measured one does
+  (procedures/spect_mapping.py), the phantom's sphere centres in the SPECT frame
+  (``spheres_spect_mm``): the true ones at the phantom's placement, S1..S7 in the scene's
+  order. :func:`write_true_calibration` writes both as ``calibration.json`` and
+  ``spect_mapping.json``.
 * :func:`plan_sync_moves` — move times for a source marker that keep clear of the simulated
   SPECT's head rotations (step-and-shoot: ``stop_s`` acquiring, then about ``rotate_s`` dead),
   so that every move is seen by the SPECT with live data on both sides.
@@ -66,8 +69,11 @@ def true_stereo_calibration(scene: Scene, t: float | None = None, names=None) ->
 
 def true_spect_mapping(scene: Scene, t: float | None = None, names=None) -> RigidTransform:
     """VTS frame (camera 1's) → SPECT frame (the scene's world frame), the truth."""
+    from vts_hw.sim_devices.spect import phantom_centres
+
     c1 = _cams(scene, t, names)[0]
-    return RigidTransform(c1.R.T, -c1.R.T @ c1.t, {"note": NOTE, "spect_volume": SCENE_VOLUME})
+    return RigidTransform(c1.R.T, -c1.R.T @ c1.t, {"note": NOTE, "spect_volume": SCENE_VOLUME,
+                                                    "spheres_spect_mm": phantom_centres().tolist()})
 
 
 def write_true_calibration(scene: Scene, folder, t: float | None = None) -> tuple[Path, Path]:

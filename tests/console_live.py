@@ -43,7 +43,7 @@ def until(check, timeout=20.0, poll=0.05):
 
 class LiveConsole:
     """``with LiveConsole(cameras, rig_name, open_store) as live:`` -> ``live.url``,
-    ``live.console``, ``live.hub``, ``live.names``, ``live.facts``. ``rig_config``: the rig the
+    ``live.console``, ``live.hub``, ``live.names``, ``live.facts``, ``live.phantom``. ``rig_config``: the rig the
     pages that run procedures (Daily QA) run them on. On leaving, a daily QA still running is
     waited for (30 s at most) before the hub closes."""
 
@@ -53,11 +53,14 @@ class LiveConsole:
         from vts_hw.console.hub import FramesHub
         from vts_hw.console.markers import MarkerWorker
         from vts_hw.console.names import MarkerNames
+        from vts_hw.console.phantom import PhantomNames
         from vts_hw.console.room import RoomFacts
 
         self.names = MarkerNames()
         self.hub = FramesHub(cameras, idle_close_s=idle_close_s)
-        self.markers = MarkerWorker(self.hub, marker_hz, self.names)
+        # the phantom's spheres named as `vts console` names them: from the rig config's calibration and mapping
+        self.phantom = PhantomNames.for_rig(self.names, rig_config)
+        self.markers = MarkerWorker(self.hub, marker_hz, self.names, phantom=self.phantom)
         self.facts = RoomFacts(cameras, rig, open_store, names=self.names)
         self.console = Console(rig, self.hub, self.markers, self.facts, open_store=open_store, rig_config=rig_config)
         self._tick = facts_tick_s

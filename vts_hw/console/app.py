@@ -110,7 +110,7 @@ def create_app(console: Console) -> Starlette:
     async def events(request: Request):
         wanted = wanted_cameras(console, request)
         sent_seq: dict[str, int | None] = {n: None for n in wanted}
-        sent_marks: dict[str, int | None] = {n: None for n in wanted}
+        sent_marks: dict[str, object] = {n: None for n in wanted}     # the Found sent (a new picture, or named again)
         next_room = 0.0
 
         async def poll(now: float) -> list[bytes]:
@@ -125,8 +125,8 @@ def create_app(console: Console) -> Starlette:
                     sent_seq[n] = lt.seq
                     out.append(sse("frame", {"camera": n, "seq": lt.seq, "arrival": lt.arrival}))
                 found = console.markers.found(n)
-                if found is not None and found.seq != sent_marks[n]:
-                    sent_marks[n] = found.seq
+                if found is not None and found is not sent_marks[n]:
+                    sent_marks[n] = found
                     out.append(sse("markers", found.as_dict()))
             return out
 

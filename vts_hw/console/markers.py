@@ -7,13 +7,18 @@ detection the procedures use. The page gets the positions in the frame's own pix
 frame's ``seq``, and draws them over the picture (the JPEG is never decoded for the page or
 re-encoded). A frame that does not decode is said so, never shown as "no markers". Each marker
 is named where that is known (a wall marker, a phantom sphere, a band marker: :mod:`.names`),
-with the legend of what named them; otherwise it is "unidentified" and numbered.
+with the legend of what named them; otherwise it is "unidentified" and numbered. About once a
+second, after a round of the cameras, the phantom is looked for in the latest detections
+(:mod:`.phantom`: the rig's calibration and the mapping's sphere centres); when its spheres are
+named, the round's results are labelled again at once. A failure there is said in the phantom's
+``why``, never here.
 """
 
 from __future__ import annotations
 
 import math
 import threading
+import time
 from dataclasses import dataclass, replace
 
 import cv2
@@ -35,6 +40,7 @@ class Found:
     markers: tuple[dict, ...]
     problem: str = ""
     legend: tuple[dict, ...] = ()        # what named the markers (names.MarkerNames.label)
+    t: float = 0.0                       # host epoch s of the detection (which frames are of one instant)
 
     def as_dict(self) -> dict:
         return {"camera": self.camera, "seq": self.seq, "width": self.width, "height": self.height,
@@ -46,21 +52,23 @@ def find_markers(camera: str, seq: int, jpeg: bytes) -> Found:
     bottom), centre and diameter in the frame's pixels."""
     gray = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_GRAYSCALE)
     if gray is None:
-        return Found(camera, seq, 0, 0, (), "the frame does not decode: markers not looked for")
+        return Found(camera, seq, 0, 0, (), "the frame does not decode: markers not looked for", t=time.time())
     result = detect(gray)
     marks = tuple({"n": i + 1, "x": round(b.x, 2), "y": round(b.y, 2),
                    "d": round(2.0 * math.sqrt(max(b.area, 1) / math.pi), 1)}
                   for i, b in enumerate(result.blobs))
-    return Found(camera, seq, int(gray.shape[1]), int(gray.shape[0]), marks)
+    return Found(camera, seq, int(gray.shape[1]), int(gray.shape[0]), marks, t=time.time())
 
 
 class MarkerWorker:
     """Detect markers on ``hub``'s watched cameras at ``rate_hz``; :meth:`found` is the latest
-    result of each camera, its markers named by ``names`` (a :class:`~.names.MarkerNames`)."""
+    result of each camera, its markers named by ``names`` (a :class:`~.names.MarkerNames`);
+    ``phantom`` (a :class:`~.phantom.PhantomNames`, optional) names the phantom's spheres."""
 
-    def __init__(self, hub, rate_hz: float = RATE_HZ, names=None):
+    def __init__(self, hub, rate_hz: float = RATE_HZ, names=None, phantom=None):
         self.hub = hub
         self.names = names
+        self.phantom = phantom
         self.period = 1.0 / float(rate_hz)
         self._found: dict[str, Found] = {}
         self._lock = threading.Lock()
@@ -75,26 +83,51 @@ class MarkerWorker:
 
     def _run(self) -> None:
         while not self._stop.wait(self.period):
-            for name in self.hub.names:
-                if self._stop.is_set():
-                    return
-                st = self.hub.status(name)
-                if not st["viewers"]:
-                    continue
-                latest = self.hub.latest(name)
-                done = self.found(name)
-                if latest is None or (done is not None and done.seq == latest.seq):
-                    continue
-                try:
-                    got = find_markers(name, latest.seq, latest.frame.jpeg)
-                    if self.names is not None and not got.problem:
-                        marks, legend = self.names.label(name, list(got.markers))
-                        got = replace(got, markers=tuple(marks), legend=tuple(legend))
-                except Exception as exc:     # never let one odd frame stop the markers of every camera
-                    got = Found(name, latest.seq, 0, 0, (), f"detection failed: {type(exc).__name__}: {exc}")
-                with self._lock:
-                    self._found[name] = got
-                    self.looked += 1
+            self._round()
+            if self.phantom is not None and self.names is not None and self.phantom.due():
+                self._look_for_phantom()
+
+    def _look_for_phantom(self) -> None:
+        with self._lock:
+            found = dict(self._found)
+        try:
+            changed = self.phantom.look(found)
+        except Exception:              # PhantomNames keeps its own errors; nothing stops the markers
+            return
+        if not changed:
+            return
+        for name, got in found.items():     # this round's pictures named now, not a round later
+            if got.problem:
+                continue
+            try:
+                marks, legend = self.names.label(name, [{k: m[k] for k in ("n", "x", "y", "d")} for m in got.markers])
+            except Exception:
+                continue
+            with self._lock:
+                if self._found.get(name) is got:
+                    self._found[name] = replace(got, markers=tuple(marks), legend=tuple(legend))
+
+    def _round(self) -> None:
+        for name in self.hub.names:
+            if self._stop.is_set():
+                return
+            st = self.hub.status(name)
+            if not st["viewers"]:
+                continue
+            latest = self.hub.latest(name)
+            done = self.found(name)
+            if latest is None or (done is not None and done.seq == latest.seq):
+                continue
+            try:
+                got = find_markers(name, latest.seq, latest.frame.jpeg)
+                if self.names is not None and not got.problem:
+                    marks, legend = self.names.label(name, list(got.markers))
+                    got = replace(got, markers=tuple(marks), legend=tuple(legend))
+            except Exception as exc:     # never let one odd frame stop the markers of every camera
+                got = Found(name, latest.seq, 0, 0, (), f"detection failed: {type(exc).__name__}: {exc}")
+            with self._lock:
+                self._found[name] = got
+                self.looked += 1
 
     def close(self) -> None:
         self._stop.set()

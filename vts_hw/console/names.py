@@ -9,8 +9,10 @@ A camera's *named points* are pixel positions with a name, of one *kind*, given 
 * ``band``: the live tracker's marker identities while a scan runs; the Scan page gives them
   (:meth:`MarkerNames.set` with ``hold_s``: a band marker moves with the breath, so a position
   given a second ago says nothing now).
-* ``phantom``: the 7-sphere phantom's spheres (``S1``..``S7``) from whatever locates them (the
-  step test's fit of the SPECT template): the same door.
+* ``phantom``: the 7-sphere phantom's spheres (``S1``..``S7``, numbered as the VTS → SPECT
+  mapping numbers them), given by the marker worker about once a second when the phantom's shape
+  (kept in the mapping file) fits what the calibrated cameras see (:mod:`.phantom`,
+  :mod:`vts_hw.vision.phantom_locator`); a look that is not confident clears them.
 
 A detection takes the name of the nearest named point of its camera within ``gate_px``, one to
 one (Hungarian on the distance: :func:`vts_hw.vision.wall_baseline.match_markers`, the drift

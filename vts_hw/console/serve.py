@@ -173,6 +173,7 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, op
     from vts_hw.console.hub import IDLE_CLOSE_S, FramesHub
     from vts_hw.console.markers import RATE_HZ, MarkerWorker
     from vts_hw.console.names import MarkerNames
+    from vts_hw.console.phantom import PhantomNames
     from vts_hw.console.room import RoomFacts
     from vts_hw.console.sessions import USERS_EVERY_S
     from vts_hw.drivers.registry import open_cameras
@@ -184,7 +185,8 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, op
     cameras = {c.name: c for c in open_cameras(rig.cameras)}
     hub = FramesHub(cameras, idle_close_s=IDLE_CLOSE_S if idle_close_s is None else idle_close_s)
     names = MarkerNames()
-    markers = MarkerWorker(hub, RATE_HZ if marker_hz is None else marker_hz, names)
+    markers = MarkerWorker(hub, RATE_HZ if marker_hz is None else marker_hz, names,
+                           phantom=PhantomNames.for_rig(names, rig))
     facts = RoomFacts(cameras, rig.rig, open_store, names=names)
     actions = (StoreActions(open_write_store, open_store, rig.rig) if open_write_store is not None and open_store
                else MemoryActions(rig.rig))
