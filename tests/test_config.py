@@ -3,6 +3,7 @@
 import textwrap
 
 import pytest
+import yaml
 
 from vts_hw.config import ConfigError, dump_rig, load_rig, parse_rig
 
@@ -161,3 +162,24 @@ def test_a_file_too_large_to_be_a_rig_config(tmp_path):
     p = _write(tmp_path, "rig: x\n" + "#" * (1 << 20) + "\n")
     with pytest.raises(ConfigError, match=r"larger than 1 MB, so not a rig config file$"):
         load_rig(p)
+
+
+def test_a_relative_calibration_path_is_the_file_beside_rig_yaml_from_any_folder(tmp_path, monkeypatch):
+    """Every command reads rig.yaml through load_rig: a relative calibration entry is the file
+    beside rig.yaml whatever the working folder (camera aim, the step test and the live scan
+    once took it from the working folder, sync, motion and the console from rig.yaml's)."""
+    room = tmp_path / "room"
+    room.mkdir()
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    absolute = tmp_path / "kept" / "spect.json"
+    p = _write(room, GOOD + f"calibration:\n  stereo: calib/cameras.json\n  spect: {absolute}\n")
+    monkeypatch.chdir(elsewhere)
+    rig = load_rig(p)
+    assert rig.calibration.stereo == room / "calib" / "cameras.json"
+    assert rig.calibration.spect == absolute
+    monkeypatch.chdir(tmp_path)            # rig.yaml named relative to the working folder
+    rig = load_rig("room/rig.yaml")
+    assert rig.calibration.stereo.resolve() == (room / "calib" / "cameras.json").resolve()
+    data = yaml.safe_load(GOOD + "calibration:\n  stereo: calib/cameras.json\n")
+    assert parse_rig(data, "x").calibration.stereo.as_posix() == "calib/cameras.json"   # not read from a file

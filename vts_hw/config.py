@@ -431,8 +431,17 @@ def load_rig(path: str | os.PathLike | None = None) -> RigConfig:
     except (ValueError, OverflowError) as exc:  # a value YAML cannot build, e.g. 2024-02-30
         raise ConfigError(f"{p}: not valid YAML (a value cannot be read: {exc})") from None
     rig = parse_rig(data, str(p))
+    # a relative calibration path is the file beside rig.yaml, for every command that reads it
+    # (they once took it from the working folder or from rig.yaml's, each its own way)
+    cal = rig.calibration
+    rig = rig.model_copy(update={"calibration": CalibrationPaths(stereo=_beside(p.parent, cal.stereo),
+                                                                  spect=_beside(p.parent, cal.spect))})
     rig._source = p
     return rig
+
+
+def _beside(base: Path, path: Path | None) -> Path | None:
+    return path if path is None or path.is_absolute() else base / path
 
 
 def config_digest(path: str | os.PathLike) -> str:

@@ -146,23 +146,21 @@ CALIBRATION_KEYS = ("stereo", "spect")    # rig.yaml's calibration: entries (con
 
 
 def calibration_entry(path: str | os.PathLike, file: str | os.PathLike) -> str:
-    """What to write in the rig.yaml at ``path`` so that it names ``file`` for every reader: the
-    absolute path. (Readers take a relative entry from different folders: the rig.yaml's, for
-    `vts sync`, `vts motion` and the console; the working folder, for `vts camera aim`, `vts qa
-    steps` and the live scan. An absolute path is the same file for all of them.)"""
+    """What to write in the rig.yaml at ``path`` so that it names ``file``: the absolute path
+    (one a reader need not resolve; a relative entry is read beside rig.yaml: config.load_rig)."""
     return os.path.abspath(file)
 
 
 def names_file(path: str | os.PathLike, entry, file: str | os.PathLike) -> bool:
-    """Whether a calibration ``entry`` of the rig.yaml at ``path`` already names ``file`` for
-    every reader (an absolute entry naming the same file; a relative one never: see
-    :func:`calibration_entry`)."""
-    if entry is None or not os.path.isabs(str(entry)):
+    """Whether a calibration ``entry`` of the rig.yaml at ``path`` already names ``file`` (a
+    relative entry is the file beside rig.yaml, as config.load_rig reads it)."""
+    if entry is None:
         return False
+    entry = os.path.join(os.path.dirname(os.path.abspath(path)), str(entry))
     try:
         return os.path.samefile(entry, file)
     except OSError:
-        return os.path.normpath(str(entry)) == os.path.normpath(calibration_entry(path, file))
+        return os.path.normpath(entry) == os.path.normpath(calibration_entry(path, file))
 
 
 def set_calibration(path: str | os.PathLike, files: dict[str, str | os.PathLike]) -> Path | None:

@@ -191,16 +191,9 @@ def calibration_files(config_path, calibration, mapping):
         why = f" (no rig config: {exc})"
     if calibration and mapping:
         return Path(calibration), Path(mapping), rig
-    base = Path(rig._source).parent if rig is not None and rig._source is not None else Path(".")
-
-    def from_rig(p):
-        if p is None:
-            return None
-        p = Path(p)
-        return p if p.is_absolute() else base / p
-
-    cal = Path(calibration) if calibration else from_rig(rig.calibration.stereo if rig else None)
-    mp = Path(mapping) if mapping else from_rig(rig.calibration.spect if rig else None)
+    # (a relative path in rig.yaml is beside it: config.load_rig)
+    cal = Path(calibration) if calibration else (rig.calibration.stereo if rig else None)
+    mp = Path(mapping) if mapping else (rig.calibration.spect if rig else None)
     if cal is None:
         raise ConfigError("no stereo calibration: give --calibration FILE or set calibration.stereo in "
                           f"rig.yaml{why}")

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -27,21 +26,13 @@ FRESH_S = 1.0           # detections older than this (host s) than the newest ar
 HOLD_S = 3.0            # names given hold this long unless a later look clears or replaces them
 
 
-def _from_rig(rig, p):
-    if p is None:
-        return None
-    p = Path(p)
-    base = Path(rig._source).parent if getattr(rig, "_source", None) else Path(".")
-    return p if p.is_absolute() else base / p
-
-
 def locator_for(rig):
     """``(PhantomLocator, "")`` from the rig config's calibration and mapping, or ``(None, why)``."""
     from vts_hw.vision.phantom_locator import PhantomLocator
 
     if rig is None:
         return None, "the console was started without a rig config"
-    cal, mapping = _from_rig(rig, rig.calibration.stereo), _from_rig(rig, rig.calibration.spect)
+    cal, mapping = rig.calibration.stereo, rig.calibration.spect
     if cal is None:
         return None, "no camera calibration (calibration.stereo in rig.yaml)"
     if mapping is None:

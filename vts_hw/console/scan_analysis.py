@@ -3,8 +3,8 @@
 folder (``motion/``), and its result stored in the results store as the command stores it.
 
 * The analysis is :class:`~vts_hw.procedures.motion.MotionAnalysis` with the rig's calibration
-  (``calibration.stereo``, ``calibration.spect``; relative paths from the rig.yaml's folder, as
-  the command reads them), its ``motion:`` section and tolerances; ``workers=1`` (in this
+  (``calibration.stereo``, ``calibration.spect``; a relative path is beside rig.yaml:
+  config.load_rig), its ``motion:`` section and tolerances; ``workers=1`` (in this
   process: a process pool forked from a threaded server can hang, and the room's cores are the
   live path's).
 * The report (``motion/motion-report.html``, the plot inline), the plot (``motion/motion.png``)
@@ -30,14 +30,6 @@ OUT_DIR = "motion"
 REPORT = "motion-report.html"
 PLOT = "motion.png"
 EXPORT = "export"
-
-
-def _from_rig(rig, p):
-    if p is None:
-        return None
-    p = Path(p)
-    base = Path(rig._source).parent if getattr(rig, "_source", None) else Path(".")
-    return p if p.is_absolute() else base / p
 
 
 class MotionJob:
@@ -74,10 +66,10 @@ class MotionJob:
 
         try:
             rig = self.rig
-            cal = _from_rig(rig, rig.calibration.stereo)
+            cal = rig.calibration.stereo
             if cal is None:
                 raise VtsError("no stereo calibration: set calibration.stereo in rig.yaml")
-            a = MotionAnalysis(self.folder, None, cal, _from_rig(rig, rig.calibration.spect),
+            a = MotionAnalysis(self.folder, None, cal, rig.calibration.spect,
                                motion_config=rig.motion, workers=1, progress=self._progress)
             a.analyze(tolerances=rig.tolerances)
             self.stage = "writing the report and the exports"
