@@ -203,6 +203,47 @@ def test_the_console_names_a_good_fit_and_clears_at_once_when_it_is_not(mapped):
     assert PhantomNames(names, None, "no calibration").due() is False
 
 
+def test_the_worker_does_not_look_for_the_phantom_while_a_recording_feeds_the_hub():
+    """A scan started from the console records in the console's process: its live path is not
+    made to share the process with the phantom's search (and a patient is on the table)."""
+    import time
+    from vts_hw.console.markers import MarkerWorker
+
+    class Hub:
+        names = ["cam1", "cam2"]
+        fed = False
+
+        def source(self, name):
+            return "fed" if self.fed else "stream"
+
+        def status(self, name):
+            return {"viewers": 0}
+
+    class Counting:
+        looks = 0
+
+        def due(self):
+            return True
+
+        def look(self, found):
+            self.looks += 1
+            return False
+
+    hub, phantom = Hub(), Counting()
+    worker = MarkerWorker(hub, 50.0, MarkerNames(), phantom)
+    try:
+        assert until(lambda: phantom.looks >= 2, 10)
+        hub.fed = True
+        time.sleep(0.1)                       # a look under way ends
+        n = phantom.looks
+        time.sleep(0.3)                       # 15 rounds at 50 Hz
+        assert phantom.looks == n
+        hub.fed = False
+        assert until(lambda: phantom.looks > n, 10)
+    finally:
+        worker.close()
+
+
 # -- the Room page --------------------------------------------------------------------------------------------
 
 

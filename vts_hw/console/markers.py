@@ -10,8 +10,9 @@ is named where that is known (a wall marker, a phantom sphere, a band marker: :m
 with the legend of what named them; otherwise it is "unidentified" and numbered. About once a
 second, after a round of the cameras, the phantom is looked for in the latest detections
 (:mod:`.phantom`: the rig's calibration and the mapping's sphere centres); when its spheres are
-named, the round's results are labelled again at once. A failure there is said in the phantom's
-``why``, never here.
+named, the round's results are labelled again at once; never while a recording feeds the hub (a
+scan's live path shares this process). A failure there is said in the phantom's ``why``, never
+here.
 """
 
 from __future__ import annotations
@@ -84,7 +85,10 @@ class MarkerWorker:
     def _run(self) -> None:
         while not self._stop.wait(self.period):
             self._round()
-            if self.phantom is not None and self.names is not None and self.phantom.due():
+            # not while a recording feeds the hub: its live path shares this process (and a
+            # patient, not the phantom, is on the table)
+            if (self.phantom is not None and self.names is not None and self.phantom.due()
+                    and not any(self.hub.source(n) == "fed" for n in self.hub.names)):
                 self._look_for_phantom()
 
     def _look_for_phantom(self) -> None:
