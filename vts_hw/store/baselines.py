@@ -15,8 +15,20 @@ from vts_hw.vision.wall_baseline import Baseline, BaselineMarker, NoBaseline
 
 def load_baseline(store, camera: str, rig: str | None = None) -> Baseline:
     """The latest baseline of ``camera`` (of rig ``rig`` only, when given: another room's
-    ``cam1`` is another camera); NoBaseline (one sentence, exit 5) when there is none."""
-    runs = [r for r in store.runs(procedure=BASELINE.stored_as) if r.status == "OK" and rig in (None, r.rig)]
+    ``cam1`` is another camera; a baseline stored without a room's name, by an older version or
+    through the API, is taken when the room has none of its own); NoBaseline (one sentence,
+    exit 5) when there is none."""
+    runs = [r for r in store.runs(procedure=BASELINE.stored_as) if r.status == "OK"]
+    passes = [runs] if rig is None else [[r for r in runs if r.rig == rig], [r for r in runs if r.rig == ""]]
+    for candidates in passes:
+        found = _latest(store, camera, candidates)
+        if found is not None:
+            return found
+    raise NoBaseline(f"camera {camera} has no drift baseline in the results store: "
+                     f"run `vts qa drift --set-baseline` first")
+
+
+def _latest(store, camera: str, runs) -> Baseline | None:
     for run in reversed(runs):
         rows = store.measurements(run_id=run.id)
         mine = [m for m in rows if m.subject.startswith(camera + "/")]
@@ -29,8 +41,7 @@ def load_baseline(store, camera: str, rig: str | None = None) -> Baseline:
                         for mid, p in sorted(pos.items(), key=lambda kv: int(kv[0][1:]) if kv[0][1:].isdigit() else 0)
                         if "baseline_x_px" in p and "baseline_y_px" in p)
         return Baseline(camera, markers, run.started, run.id)
-    raise NoBaseline(f"camera {camera} has no drift baseline in the results store: "
-                     f"run `vts qa drift --set-baseline` first")
+    return None
 
 
 def load_baselines(store, cameras, rig: str | None = None) -> dict[str, Baseline]:
