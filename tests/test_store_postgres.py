@@ -15,7 +15,8 @@ import pytest
 from sqlalchemy import create_engine, inspect, text
 
 from pgserver import PASSWORD_ENV
-from test_store import DRIFT, V1
+from test_store import DRIFT
+from test_store_schema import V1
 from vts_hw.config import parse_rig
 from vts_hw.errors import ConfigError, UsageError
 from vts_hw.store import SCHEMA_VERSION, ResultsStore, StoreError
