@@ -66,13 +66,16 @@ class RateFit:
         return max(0.0, self.tau_min * math.log(self.rate_end / limit))
 
 
-def fit_rate(times_s, positions, order: int = 1, scale: float = 1.0) -> RateFit:
+def fit_rate(times_s, positions, order: int = 1, scale: float = 1.0, sigma: float = 0.0) -> RateFit:
     """The rate of positions (n x k) taken at ``times_s`` (epoch s), per minute: the ``order``-th
     time derivative of a polynomial of that degree per axis (order 1, a straight line: a picture's
     px/min; order 2, a parabola: how fast a clock's rate changes), times ``scale``, the length of
     its vector. With ``order + 3`` samples or more, a polynomial one degree higher too: the
     slowing along the rate (the next derivative against it), significant at 3 standard errors,
-    gives the time constant of an exponential settling."""
+    gives the time constant of an exponential settling. ``sigma``: each position's own standard
+    uncertainty (its units, before ``scale``), the least noise the fit assumes: a few readings of
+    a coarse resolution can fit a polynomial exactly, and their residuals alone would then claim
+    no uncertainty at all."""
     t = np.asarray(times_s, float) / 60.0
     p = np.asarray(positions, float)
     p = p.reshape(len(t), -1) if p.size else p.reshape(0, 1)
@@ -88,6 +91,7 @@ def fit_rate(times_s, positions, order: int = 1, scale: float = 1.0) -> RateFit:
         coef, *_ = np.linalg.lstsq(X, p, rcond=None)
         res = p - X @ coef
         s2 = float((res ** 2).sum()) / (k * max(1, n - deg - 1))     # every axis shares one noise
+        s2 = max(s2, (sigma * scale) ** 2)
         return coef, s2 * np.linalg.inv(X.T @ X)
 
     coef, cov = poly(order)

@@ -37,6 +37,10 @@ __all__ = ["ClockReading", "ClockWatch", "ClockJudgement", "judge_clock", "PPM_P
 
 #: offsets in s against time in minutes: d/dt (s/min) * 1e6 / 60 is ppm; d2/dt2 (s/min2) the same is ppm/min
 PPM_PER_S_MIN = 1e6 / 60.0
+# time.cgi answers in whole milliseconds: a reading's own noise is at least that resolution's
+# (uniform: 1 ms / sqrt(12)); 4 readings can fit a parabola exactly, and a change of the rate
+# judged "0.00 ± 0.00 ppm/min" from them is not known (seen under load)
+READING_SD_S = 0.001 / math.sqrt(12.0)
 
 
 @dataclass
@@ -74,8 +78,8 @@ class ClockWatch:
         got = [r for r in self.readings[-last:] if math.isfinite(r.offset_s)]
         t = [r.t for r in got]
         o = [[r.offset_s] for r in got]
-        rate = fit_rate(t, o, order=1, scale=PPM_PER_S_MIN)
-        change = fit_rate(t, o, order=2, scale=PPM_PER_S_MIN)
+        rate = fit_rate(t, o, order=1, scale=PPM_PER_S_MIN, sigma=READING_SD_S)
+        change = fit_rate(t, o, order=2, scale=PPM_PER_S_MIN, sigma=READING_SD_S)
         signed = None
         if rate.rate is not None:
             signed = float(np.polyfit(np.asarray(t) / 60.0 - t[0] / 60.0, np.ravel(o), 1)[0] * PPM_PER_S_MIN)

@@ -9,6 +9,7 @@ HTTP; simulated time that moves only when the step sleeps (never wall time)."""
 from __future__ import annotations
 
 import re
+import time
 
 import numpy as np
 import pytest
@@ -17,7 +18,7 @@ from vts_hw.config import parse_rig
 from vts_hw.procedures import commission_steps as steps
 from vts_hw.procedures.commission import Context, Inputs
 from vts_hw.procedures.warmup import fit_rate
-from vts_hw.procedures.warmup_clock import PPM_PER_S_MIN
+from vts_hw.procedures.warmup_clock import PPM_PER_S_MIN, READING_SD_S, judge_clock
 from vts_hw.sim_devices.clock import VirtualClock
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.store import ResultsStore
@@ -63,7 +64,10 @@ def test_the_change_fit_is_the_pictures_fit_one_derivative_higher():
 
 @pytest.fixture(scope="module")
 def frozen():
-    clock = VirtualClock(rate=1e-9)
+    # from a whole second: time.cgi's millisecond truncation then falls the same way every run
+    # (started at a random fraction of a millisecond, the fresh clock's wait said moved: at 9 of
+    # 10 phases 0.0..0.9 ms it was within the goal below, at 0.2 ms 4 min for a true 1.9)
+    clock = VirtualClock(start_epoch=float(int(time.time())), rate=1e-9)
     rig = SimRig(n_cameras=2, seed=6, clock=clock, clock_warmup={"cam1": WARM, "cam2": {}}).start()
     try:
         with rig.env():
@@ -86,6 +90,21 @@ def _run(rig, clock, tmp_path, wait, **kw):
     cfg = _config(rig, tmp_path, **kw)
     ctx = Context(cfg, Inputs(out=tmp_path / "c", wait=wait), say=said.append, clock=clock.now, sleep=clock.advance)
     return steps.warmup(ctx), said, cfg
+
+
+def test_readings_that_fit_a_parabola_exactly_are_not_a_known_change():
+    """Four whole-millisecond readings (as time.cgi gives them) can lie on a parabola exactly: the
+    residuals then claim no noise, and a busy machine's run judged such a clock "0.00 ± 0.00
+    ppm/min: settled". The readings' own resolution is the least noise the fit assumes."""
+    from vts_hw.tolerance import Window
+    t = 1_700_000_000.0 + 60.0 * np.arange(4)
+    offsets = [[0.020], [0.021], [0.021], [0.020]]          # a parabola through all four
+    bare = fit_rate(t, offsets, order=2, scale=PPM_PER_S_MIN)
+    assert bare.se < 1e-6                                   # what the residuals alone say
+    floor = fit_rate(t, offsets, order=2, scale=PPM_PER_S_MIN, sigma=READING_SD_S)
+    assert floor.rate == pytest.approx(bare.rate) and floor.se > 4.0
+    judged = judge_clock(floor, Window(tolerance_high=5.0, action_high=20.0, unit="ppm/min"), 5.0)
+    assert not judged.known and "not known" in judged.why
 
 
 def test_a_fresh_clock_is_not_settled_about_n_min_an_old_one_is_and_the_figures_are_stored(frozen, tmp_path):
