@@ -43,6 +43,17 @@ def _scan(rig, rig_yaml, session, duration, on_fire):
     return run, json.loads((session / "manifest.json").read_text())
 
 
+DURATION_S = 18.0      # the camera-off scan: tracking, 5 s off, tracked again (with room on a busy machine)
+
+
+def _live_status(session) -> str | None:
+    """The live path's state in the running scan's manifest (it is written as it changes)."""
+    try:
+        return json.loads((session / "manifest.json").read_text())["live_motion"]["state"]["status"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
 def _at(when: float, fn, *args):
     t = threading.Timer(max(0.0, when - time.time()), fn, args)
     t.daemon = True
@@ -129,15 +140,29 @@ def test_a_camera_switched_off_mid_scan_is_not_tracking_and_alerts(tmp_path):
     the bell, the manifest, the alert command with its text), tracked again after it."""
     rig, rig_yaml, patient = _rig(tmp_path, breathing=True)
     off: list[float] = []
+    session = tmp_path / "scan"
+
+    def switch_off_once_tracking(start):
+        # 6 s after the start, or later: once the live path says TRACKING (its reference
+        # learned; on a busy machine that takes longer than the reference's 4 s), so that the
+        # camera's absence is a lost camera, not a reference never learned
+        deadline = start + DURATION_S - 5.0 - 3.0          # room for 5 s off and 3 s tracked again
+        while time.time() < deadline:
+            if time.time() >= start + 6.0 and _live_status(session) == "TRACKING":
+                off.append(time.time())
+                rig.servers["cam2"].go_offline(5.0)
+                return
+            time.sleep(0.1)
 
     def on_fire(start):
-        off.append(start + 6.0)
-        _at(start + 6.0, rig.servers["cam2"].go_offline, 5.0)
+        threading.Thread(target=switch_off_once_tracking, args=(start,), daemon=True).start()
 
     try:
-        run, m = _scan(rig, rig_yaml, tmp_path / "scan", 15.0, on_fire)
+        run, m = _scan(rig, rig_yaml, session, DURATION_S, on_fire)
     finally:
         rig.stop()
+    assert off, ("the live path was not TRACKING by 10 s before the end: no camera was switched off",
+                 m["live_motion"]["state"])
     t_off = off[0]
     lm = m["live_motion"]
     assert lm["summary"]["phase"] == "tracking"
