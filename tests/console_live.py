@@ -123,6 +123,27 @@ def served_room(rig, cams: dict, db, **kw):
             srv.faults.reset()
 
 
+def led_form_from_another_site(browser_or_context, url: str, on: bool) -> list[int]:
+    """A page of another site (another origin on this machine: Chromium keeps public sites off
+    loopback addresses anyway) that posts a form to the console's LED switch (JSON as
+    text/plain), opened in the browser; the statuses of the console's answers to it."""
+    other = "http://localhost:9/elsewhere"
+    pg = browser_or_context.new_page()
+    pg.route(other, lambda route: route.fulfill(content_type="text/html", body=f"""
+        <form id=f method=post action="{url}camera/cam1/led" enctype="text/plain">
+        <input name='{{"on": {str(on).lower()}, "x": "' value='"}}'></form>
+        <script>document.getElementById("f").submit()</script>"""))
+    statuses: list[int] = []
+    pg.on("response", lambda resp: statuses.append(resp.status) if resp.url.endswith("/camera/cam1/led") else None)
+    pg.goto(other)
+    for _ in range(100):                      # (Playwright tells its events while it is called)
+        if statuses:
+            break
+        pg.wait_for_timeout(200)
+    pg.close()
+    return statuses
+
+
 def qa_rig_yaml(rig, folder):
     """The simulated rig's rig.yaml for the Daily QA page: its store ``folder/results.sqlite``,
     the QATrack+ push without the attached report (seconds per run, not what is shown)."""

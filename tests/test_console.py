@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 import requests
 
-from console_live import cam, click_led, run_vts, start_console, stop_console, until
+from console_live import cam, click_led, led_form_from_another_site, run_vts, start_console, stop_console, until
 from vts_hw.camera import StreamGap
 from vts_hw.drivers.registry import open_camera
 from vts_hw.sim_devices.rig import SimRig
@@ -214,23 +214,9 @@ def test_a_post_from_another_site_is_refused(room, browser):
     assert r.status_code == 403 and "another site" in r.json()["error"]
     r = requests.post(url + "camera/cam1/led", json={"on": True}, timeout=10)
     assert r.status_code == 403
-    # a page of another site (another origin on this machine: Chromium keeps public sites off
-    # loopback addresses anyway), in the browser, posting a form to the console (JSON as text/plain)
-    other = "http://localhost:9/elsewhere"
-    pg = browser.new_page()
-    pg.route(other, lambda route: route.fulfill(content_type="text/html", body=f"""
-        <form id=f method=post action="{url}camera/cam1/led" enctype="text/plain">
-        <input name='{{"on": true, "x": "' value='"}}'></form>
-        <script>document.getElementById("f").submit()</script>"""))
-    seen = []
-    pg.on("response", lambda resp: seen.append((resp.url, resp.status)))
-    pg.goto(other)
-    for _ in range(100):                      # (Playwright tells its events while it is called)
-        if any(u.endswith("/camera/cam1/led") for u, _ in seen):
-            break
-        pg.wait_for_timeout(200)
-    pg.close()
-    assert [s for u, s in seen if u.endswith("/camera/cam1/led")] == [403], seen
+    # a page of another site, in the browser, posting a form to the console
+    statuses = led_form_from_another_site(browser, url, True)
+    assert statuses == [403], statuses
     assert not rig.servers["cam1"].source.led_on()
 
 

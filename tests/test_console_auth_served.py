@@ -17,7 +17,7 @@ import time
 import pytest
 import requests
 
-from console_live import click_led, run_vts, start_console, stop_console, until
+from console_live import click_led, led_form_from_another_site, run_vts, start_console, stop_console
 from test_console_auth import ANN_PW, PHIL_PW
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.sim_devices.tls import self_signed
@@ -109,17 +109,7 @@ def test_in_chromium_an_operator_logs_in_switches_the_led_and_is_in_the_history(
 
         # another site: its form posted in this browser carries no cookie (SameSite=Strict); a script with
         # the session's cookie but another Origin, or without the page's token, is refused
-        other = "http://localhost:9/elsewhere"
-        evil = ctx.new_page()
-        evil.route(other, lambda route: route.fulfill(content_type="text/html", body=f"""
-            <form id=f method=post action="{url}camera/cam1/led" enctype="text/plain">
-            <input name='{{"on": false, "x": "' value='"}}'></form>
-            <script>document.getElementById("f").submit()</script>"""))
-        statuses = []
-        evil.on("response", lambda resp: statuses.append(resp.status) if resp.url.endswith("/led") else None)
-        evil.goto(other)
-        assert until(lambda: statuses or evil.wait_for_timeout(100), 20)
-        evil.close()
+        statuses = led_form_from_another_site(ctx, url, False)
         assert statuses == [401], statuses
         jar = {"vts_session": cookie["value"]}
         r = requests.post(url + "camera/cam1/led", json={"on": False}, cookies=jar, timeout=10,
