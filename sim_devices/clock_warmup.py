@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vts_hw.sim_devices.warmup import declare_warmups, declared
+
 __all__ = ["ClockWarmup", "declare_clock_warmups", "declare_warm_starts", "warm_offset_s",
            "AMPLITUDE_PPM", "TAU_MIN"]
 
@@ -63,7 +65,7 @@ class ClockWarmup:
 
 def warm_offset_s(scene, cam: str, t: float) -> float:
     """What a declared clock warm-up adds to camera ``cam``'s clock at host time ``t`` (0 without one)."""
-    warm = getattr(scene, "clock_warmups", {}).get(cam)
+    warm = scene.clock_warmups.get(cam)
     if warm is None or cam not in scene.booted:
         return 0.0
     return warm.offset_s(t - scene.booted[cam])
@@ -73,19 +75,7 @@ def declare_clock_warmups(scene, seed: int, cameras: dict | bool) -> dict[str, C
     """Give cameras of ``scene`` a clock warm-up: ``True`` every camera, seeded per camera
     (amplitude in :data:`AMPLITUDE_PPM`, either sign, time constant in :data:`TAU_MIN`); or
     ``{camera: {"amplitude_ppm": .., "tau_min": ..}}`` (either key may be left out: seeded)."""
-    chosen = {name: {} for name in scene.cameras} if cameras is True else dict(cameras or {})
-    missing = sorted(set(chosen) - set(scene.cameras))
-    if missing:
-        raise ValueError(f"clock warm-up for {missing[0]}: the scene has no such camera")
-    if not hasattr(scene, "clock_warmups"):
-        scene.clock_warmups = {}
-    for i, name in enumerate(scene.cameras):
-        if name not in chosen:
-            continue
-        given = dict(chosen[name] or {})
-        unknown = sorted(set(given) - {"amplitude_ppm", "tau_min"})
-        if unknown:
-            raise ValueError(f"clock warm-up of {name}: unknown setting {unknown[0]!r} (amplitude_ppm, tau_min)")
+    for i, name, given in declared(scene, cameras, ("amplitude_ppm", "tau_min"), "clock warm-up"):
         rng = np.random.default_rng([seed, 25, i])
         amp = rng.uniform(*AMPLITUDE_PPM) * rng.choice([-1.0, 1.0])
         tau = rng.uniform(*TAU_MIN)
@@ -98,7 +88,6 @@ def declare_warm_starts(scene, seed: int, picture: dict | bool, clock: dict | bo
     """What ``SimRig(warmup_drift=..., clock_warmup=...)`` declares: the picture's drift after a
     start (sim_devices/warmup.py) and the clock's (here); each only when given."""
     if picture:
-        from vts_hw.sim_devices.warmup import declare_warmups
         declare_warmups(scene, seed, picture)
     if clock:
         declare_clock_warmups(scene, seed, clock)

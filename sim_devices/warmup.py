@@ -61,21 +61,30 @@ class WarmupDrift:
         return np.array([-dv / self.focal_px, du / self.focal_px, 0.0])
 
 
-def declare_warmups(scene, seed: int, cameras: dict | bool) -> dict[str, WarmupDrift]:
-    """Give cameras of ``scene`` a warm-up drift: ``True`` every camera, seeded per camera
-    (amplitude in :data:`AMPLITUDE_PX`, time constant in :data:`TAU_MIN`, direction at random);
-    or ``{camera: {"amplitude_px": .., "tau_min": ..}}`` (either key may be left out: seeded)."""
+def declared(scene, cameras: dict | bool, keys: tuple[str, ...], what: str):
+    """``(index, camera, its given settings)`` of each camera ``cameras`` declares a warm-up for
+    (``True``: every camera of ``scene``, nothing given); ValueError naming a camera the scene
+    has not, or a setting not among ``keys``. (The picture's drift here, the clock's in
+    clock_warmup.py: each seeds what is not given from the camera's index.)"""
     chosen = {name: {} for name in scene.cameras} if cameras is True else dict(cameras or {})
     missing = sorted(set(chosen) - set(scene.cameras))
     if missing:
-        raise ValueError(f"warm-up drift for {missing[0]}: the scene has no such camera")
+        raise ValueError(f"{what} for {missing[0]}: the scene has no such camera")
     for i, name in enumerate(scene.cameras):
         if name not in chosen:
             continue
         given = dict(chosen[name] or {})
-        unknown = sorted(set(given) - {"amplitude_px", "tau_min"})
+        unknown = sorted(set(given) - set(keys))
         if unknown:
-            raise ValueError(f"warm-up drift of {name}: unknown setting {unknown[0]!r} (amplitude_px, tau_min)")
+            raise ValueError(f"{what} of {name}: unknown setting {unknown[0]!r} ({', '.join(keys)})")
+        yield i, name, given
+
+
+def declare_warmups(scene, seed: int, cameras: dict | bool) -> dict[str, WarmupDrift]:
+    """Give cameras of ``scene`` a warm-up drift: ``True`` every camera, seeded per camera
+    (amplitude in :data:`AMPLITUDE_PX`, time constant in :data:`TAU_MIN`, direction at random);
+    or ``{camera: {"amplitude_px": .., "tau_min": ..}}`` (either key may be left out: seeded)."""
+    for i, name, given in declared(scene, cameras, ("amplitude_px", "tau_min"), "warm-up drift"):
         rng = np.random.default_rng([seed, 24, i])
         amp, tau, phi = rng.uniform(*AMPLITUDE_PX), rng.uniform(*TAU_MIN), rng.uniform(0, 2 * math.pi)
         scene.warmups[name] = WarmupDrift(float(given.get("amplitude_px", amp)),
