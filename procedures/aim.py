@@ -36,7 +36,7 @@ def room_view(rig, name: str, size: tuple[int, int], settings: AimSettings | Non
     if cal.stereo is None:
         return None, "no calibration (the mapping needs one)"
     from vts_hw.procedures.sync_inputs import load_mapping
-    from vts_hw.vision.camera_set import covered_names, load_cameras
+    from vts_hw.vision.camera_set import in_rig_names, load_cameras
     try:
         mapping = load_mapping(cal.spect)
     except (VtsError, OSError) as exc:
@@ -45,12 +45,10 @@ def room_view(rig, name: str, size: tuple[int, int], settings: AimSettings | Non
         cams = load_cameras(cal.stereo)
     except (VtsError, OSError) as exc:
         return None, f"the calibration {cal.stereo} cannot be read ({exc})"
-    own = list(cams)
-    rig_names = covered_names(cams, [c.name for c in rig.cameras])
-    by_rig = dict(zip(rig_names, own)) if not set(own) <= set(rig_names) else {n: n for n in own}
-    if name not in by_rig:
+    cams = in_rig_names(cams, [c.name for c in rig.cameras])
+    if name not in cams:
         return None, f"camera {name} is not in the calibration {cal.stereo}"
-    return RoomView(cams[by_rig[name]], mapping, size, settings), ""
+    return RoomView(cams[name], mapping, size, settings), ""
 
 
 def acquire_pictures(cam):

@@ -73,6 +73,16 @@ def covered_names(calibration: Any, rig_names: Sequence[str]) -> list[str]:
     return rig_names[:len(own)]
 
 
+def in_rig_names(cameras: dict, rig_names: Sequence[str]) -> dict[str, PinholeCamera]:
+    """``cameras`` (``{name: camera}``, e.g. :func:`load_cameras`) named as the rig's: unchanged
+    when they name only rig cameras, else the rig's first names in order (a stereo file's cam1,
+    cam2; an N-camera file named after its images), as :func:`covered_names` counts them."""
+    own = list(cameras)
+    if not rig_names or set(own) <= set(rig_names):
+        return dict(cameras)
+    return {r: _named(cameras[o], r) for r, o in zip(covered_names(cameras, rig_names), own)}
+
+
 def _named(cam: Any, name: str) -> PinholeCamera:
     c = as_camera(cam)
     return c if c.name == name else PinholeCamera(c.K, c.dist, c.R, c.t, name)

@@ -100,14 +100,9 @@ class PhantomLocator:
     def from_files(cls, calibration, mapping, rig_cameras: Sequence[str] = (), **kw) -> "PhantomLocator":
         """From the rig's calibration file (stereo or N cameras, its cameras named as the rig's:
         :func:`~vts_hw.vision.camera_set.covered_names`) and its mapping file (the template)."""
-        from vts_hw.vision.camera_set import covered_names, load_cameras
+        from vts_hw.vision.camera_set import in_rig_names, load_cameras
 
-        cams = load_cameras(calibration)
-        own = list(cams)
-        rig_names = covered_names(cams, list(rig_cameras)) if rig_cameras else own
-        if not set(own) <= set(rig_names):       # a file named otherwise: the rig's cameras by position
-            cams = {r: cams[o] for r, o in zip(rig_names, own)}
-        return cls(cams, phantom_template(mapping), **kw)
+        return cls(in_rig_names(load_cameras(calibration), list(rig_cameras)), phantom_template(mapping), **kw)
 
     def locate(self, detections: Mapping[str, np.ndarray]) -> PhantomSeen:
         """The spheres among ``detections`` (camera name -> N×2 px of about one instant; cameras
