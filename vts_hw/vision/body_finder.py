@@ -81,23 +81,14 @@ def candidate_points(cams: Sequence, pts_a, pts_b, max_px: float = 2.0) -> Hypot
     return Hypotheses(np.asarray(tri.points), np.stack([ii, jj], axis=1), np.asarray(tri.rms_px))
 
 
-def _anchor(template: np.ndarray) -> tuple[int, int, int]:
-    """The template triple with the largest triangle: the best conditioned fit from 3 points."""
-    best, area = (0, 1, 2), -1.0
-    for i, j, k in itertools.combinations(range(len(template)), 3):
-        a = 0.5 * np.linalg.norm(np.cross(template[j] - template[i], template[k] - template[i]))
-        if a > area:
-            best, area = (i, j, k), a
-    return best
-
-
 def _anchors(template: np.ndarray, spread: float = 0.2) -> list[tuple[int, int, int]]:
     """Every template triple whose triangle is at least ``spread`` of the largest one's area,
-    largest first."""
+    largest first (the first: the best conditioned fit from 3 points; equal areas in the
+    order of the points)."""
     tri = []
     for i, j, k in itertools.combinations(range(len(template)), 3):
         tri.append((0.5 * np.linalg.norm(np.cross(template[j] - template[i], template[k] - template[i])), (i, j, k)))
-    tri.sort(reverse=True)
+    tri.sort(key=lambda t: -t[0])          # stable: a tie keeps the combinations' order
     return [t for area, t in tri if area >= spread * tri[0][0]]
 
 
@@ -121,7 +112,7 @@ def find_body(points, template, tol_mm: float = DEFAULT_TOL_MM,
     if len(pts) < need:
         raise DataError(f"only {len(pts)} point(s) seen, the body has {m}.")
     # the whole body: its best-spread triple is seen; a part of it: any well-spread triple may be the one seen
-    anchors = [_anchor(tpl)] if need == m else _anchors(tpl)
+    anchors = _anchors(tpl)[:1] if need == m else _anchors(tpl)
     dist = np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=-1)
     assignments: set[tuple] = set()   # template point -> point index (-1: not found)
     tried = 0
