@@ -165,9 +165,9 @@ def _minutes(m: float) -> str:
 
 
 def _rate_text(fit) -> str:
-    if fit.rate_px_min is None:
+    if fit.rate is None:
         return "rate not known (fewer than 3 samples with wall markers)"
-    return f"{fit.rate_px_min:.3f} ± {fit.se_px_min:.3f} px/min over {fit.window_min:.1f} min"
+    return f"{fit.rate:.3f} ± {fit.se:.3f} px/min over {fit.window_min:.1f} min"
 
 
 def warmup(ctx: Context) -> Outcome:
@@ -206,7 +206,7 @@ def warmup(ctx: Context) -> Outcome:
             fits = {n: w.fit(st.samples) for n, w in watches.items()}
             cfits = {n: w.fits(st.samples) for n, w in clocks.items()}
             judged = {n: judge_clock(cfits[n][1], cwin, climit, clocks[n].problem) for n in clocks}
-            now = "; ".join(f"{n} {'?' if f.rate_px_min is None else f'{f.rate_px_min:.3f}'} px/min"
+            now = "; ".join(f"{n} {'?' if f.rate is None else f'{f.rate:.3f}'} px/min"
                             for n, f in fits.items())
             head = f"sample {k} of {st.samples}" if k <= st.samples else f"sample {k} (the last {st.samples})"
             clk = "; ".join(f"{n} {f[1].rate:.2f}" for n, f in cfits.items() if f[1].rate is not None)
@@ -217,9 +217,9 @@ def warmup(ctx: Context) -> Outcome:
                 continue
             up = {c.name: _uptime(c, ctx.say) for c in cams}
             unsettled = {n for n, f in fits.items()     # an uptime not known: the rate alone tells
-                         if window.state(f.rate_px_min) != OK or (up[n] is not None and up[n] < warm[n])}
+                         if window.state(f.rate) != OK or (up[n] is not None and up[n] < warm[n])}
             ticking = {n for n, j in judged.items() if j.known and not j.settled}   # a clock not known: said, not waited
-            unknown = {n for n, f in fits.items() if f.rate_px_min is None}
+            unknown = {n for n, f in fits.items() if f.rate is None}
             if not (unsettled | ticking) or not ctx.inputs.wait or unknown:
                 break
             waits = {n: settle_wait_min(fits[n], limit, up[n], warm[n]) for n in sorted(unsettled)}
@@ -234,15 +234,15 @@ def warmup(ctx: Context) -> Outcome:
             ctx.sleep(st.interval_s)
     measures, lines, data, advice, later = [], [], {}, [], []
     for n, f in fits.items():
-        state = window.state(f.rate_px_min)
+        state = window.state(f.rate)
         young = up[n] is not None and up[n] < warm[n]
-        measures.append(Measure(n, "warmup_rate_px_min", None if f.rate_px_min is None else round(f.rate_px_min, 4),
+        measures.append(Measure(n, "warmup_rate_px_min", None if f.rate is None else round(f.rate, 4),
                                 "px/min", state))
         measures.append(Measure(n, "uptime_min", None if up[n] is None else round(up[n], 1), "min",
                                 TOL if up[n] is None or young else OK))
         if up[n] is not None:
             measures.append(Measure(n, "warming_up", 1.0 if young else 0.0, "", TOL if young else OK))
-        data[n] = {"rate_px_min": f.rate_px_min, "se_px_min": f.se_px_min, "window_min": f.window_min,
+        data[n] = {"rate_px_min": f.rate, "se_px_min": f.se, "window_min": f.window_min,
                    "samples": f.n, "tau_min": f.tau_min, "uptime_min": up[n], "warmup_min": warm[n],
                    "samples_taken": [(s.t, s.dx, s.dy, s.markers) for s in watches[n].samples]}
         cm, cadvice = _clock_figures(n, cfits[n], judged[n], cwin, climit, clocks[n], data[n], ctx.clock())
@@ -257,7 +257,7 @@ def warmup(ctx: Context) -> Outcome:
         later += cadvice
         if settled:
             continue
-        if f.rate_px_min is None:
+        if f.rate is None:
             advice.append(f"{n}: no wall markers seen with the LED on: the rate is not known (check its LED ring "
                           "and aim)")
             continue

@@ -45,14 +45,7 @@ class RateFit:
     n: int = 0
     tau_min: float | None = None
     rate_end: float | None = None
-
-    @property
-    def rate_px_min(self) -> float | None:
-        return self.rate
-
-    @property
-    def se_px_min(self) -> float | None:
-        return self.se
+    signed: float | None = None        # one axis: the rate with its sign
 
     def minutes_to(self, limit: float) -> float | None:
         """Minutes from the window's end until the rate is below ``limit``; None when the fit
@@ -98,7 +91,8 @@ def fit_rate(times_s, positions, order: int = 1, scale: float = 1.0, sigma: floa
     v = coef[order]
     rate = float(np.linalg.norm(v))
     se = math.sqrt(max(cov[order, order], 0.0))
-    fit = RateFit(rate, se, float(np.ptp(t)), n)
+    signed = float(v[0]) if k == 1 else None
+    fit = RateFit(rate, se, float(np.ptp(t)), n, signed=signed)
     if n < order + 3 or rate == 0.0:
         return fit
     coef2, cov2 = poly(order + 1)
@@ -108,7 +102,7 @@ def fit_rate(times_s, positions, order: int = 1, scale: float = 1.0, sigma: floa
         return fit
     tau = rate / slowing
     end = rate * math.exp(-float(tc.max()) / tau)
-    return RateFit(rate, se, float(np.ptp(t)), n, tau, end)
+    return RateFit(rate, se, float(np.ptp(t)), n, tau, end, signed)
 
 
 def settle_wait_min(fit: RateFit, limit: float, uptime_min: float | None,

@@ -28,8 +28,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from vts_hw.procedures.warmup import RateFit, fit_rate
 from vts_hw.tolerance import State
 
@@ -80,10 +78,7 @@ class ClockWatch:
         o = [[r.offset_s] for r in got]
         rate = fit_rate(t, o, order=1, scale=PPM_PER_S_MIN, sigma=READING_SD_S)
         change = fit_rate(t, o, order=2, scale=PPM_PER_S_MIN, sigma=READING_SD_S)
-        signed = None
-        if rate.rate is not None:
-            signed = float(np.polyfit(np.asarray(t) / 60.0 - t[0] / 60.0, np.ravel(o), 1)[0] * PPM_PER_S_MIN)
-        return rate, change, signed
+        return rate, change, rate.signed
 
 
 @dataclass(frozen=True)
