@@ -145,12 +145,6 @@ def set_locked_params(path: str | os.PathLike, params: dict[str, dict[str, str]]
 CALIBRATION_KEYS = ("stereo", "spect")    # rig.yaml's calibration: entries (config.CalibrationPaths)
 
 
-def calibration_entry(path: str | os.PathLike, file: str | os.PathLike) -> str:
-    """What to write in the rig.yaml at ``path`` so that it names ``file``: the absolute path
-    (one a reader need not resolve; a relative entry is read beside rig.yaml: config.load_rig)."""
-    return os.path.abspath(file)
-
-
 def names_file(path: str | os.PathLike, entry, file: str | os.PathLike) -> bool:
     """Whether a calibration ``entry`` of the rig.yaml at ``path`` already names ``file`` (a
     relative entry is the file beside rig.yaml, as config.load_rig reads it)."""
@@ -160,7 +154,7 @@ def names_file(path: str | os.PathLike, entry, file: str | os.PathLike) -> bool:
     try:
         return os.path.samefile(entry, file)
     except OSError:
-        return os.path.normpath(entry) == os.path.normpath(calibration_entry(path, file))
+        return os.path.normpath(entry) == os.path.abspath(file)
 
 
 def set_calibration(path: str | os.PathLike, files: dict[str, str | os.PathLike]) -> Path | None:
@@ -185,12 +179,12 @@ def set_calibration(path: str | os.PathLike, files: dict[str, str | os.PathLike]
         if not isinstance(section, CommentedMap):      # absent, or `calibration:` with nothing under it
             section = data["calibration"] = CommentedMap()
         for key, f in todo.items():
-            section[key] = calibration_entry(path, f)
+            section[key] = os.path.abspath(f)      # one no reader need resolve
         return True
 
     return _rewrite(path, edit, what="calibration paths", during="its calibration paths were being set",
                     again="run the step again (`vts commission --from STEP`)")
 
 
-__all__ = ["skeleton", "refuse_existing", "write_new", "set_locked_params", "set_calibration", "calibration_entry",
-           "names_file", "CALIBRATION_KEYS", "BACKUP_SUFFIX"]
+__all__ = ["skeleton", "refuse_existing", "write_new", "set_locked_params", "set_calibration", "names_file",
+           "CALIBRATION_KEYS", "BACKUP_SUFFIX"]
