@@ -15,6 +15,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -170,10 +172,11 @@ def test_the_console_names_a_good_fit_and_clears_at_once_when_it_is_not(mapped):
     mapping, cameras, scene = mapped
     names = MarkerNames()
     ph = PhantomNames(names, PhantomLocator.from_files(cameras, mapping, ["cam1", "cam2"]))
-    assert ph.due()
+    assert ph.due() and ph.said() == "looking for the phantom"
     t = scene.start_epoch
     det, truth = seen(scene, t)
     assert ph.look(found_of(det, 1000.0)) and ph.why == ""
+    assert re.fullmatch(r"phantom fitted, RMS \d+\.\d mm, 7 of 7 spheres", ph.said()), ph.said()
     marks, legend = names.label("cam1", list(found_of(det, 1000.0)["cam1"].markers))
     assert sorted(m["name"] for m in marks if m["kind"] == "phantom") == [f"S{k}" for k in range(1, 8)]
     assert sum(m["kind"] == "unidentified" for m in marks) == 5
@@ -184,6 +187,7 @@ def test_the_console_names_a_good_fit_and_clears_at_once_when_it_is_not(mapped):
     stale = found_of(det, 1000.0)
     stale["cam2"] = Found("cam2", 1, 640, 480, stale["cam2"].markers, t=998.5)
     assert ph.look(stale) and names.current("cam1") == {} and "1 calibrated camera" in ph.why
+    assert ph.said() == f"phantom not named: {ph.why}"
     # good again, then the phantom taken off the table: cleared at once
     assert ph.look(found_of(det, 1001.0)) and "phantom" in names.current("cam2")
     scene.set_phantom_pose((0.0, 0.0, 0.0), (4000.0, 0.0, 0.0), t + 5.0)
@@ -201,6 +205,7 @@ def test_the_console_names_a_good_fit_and_clears_at_once_when_it_is_not(mapped):
     assert ph2.look(found_of(det, 1003.0)) is True
     assert ph2.why == "the locator failed: RuntimeError: out of memory" and names.current("cam1") == {}
     assert PhantomNames(names, None, "no calibration").due() is False
+    assert PhantomNames(names, None, "no calibration").said() == "phantom not looked for: no calibration"
 
 
 def test_the_worker_does_not_look_for_the_phantom_while_a_recording_feeds_the_hub():
@@ -221,9 +226,13 @@ def test_the_worker_does_not_look_for_the_phantom_while_a_recording_feeds_the_hu
 
     class Counting:
         looks = 0
+        locator = object()
 
         def due(self):
             return True
+
+        def said(self):
+            return "looked"
 
         def look(self, found):
             self.looks += 1
@@ -238,8 +247,10 @@ def test_the_worker_does_not_look_for_the_phantom_while_a_recording_feeds_the_hu
         n = phantom.looks
         time.sleep(0.3)                       # 15 rounds at 50 Hz
         assert phantom.looks == n
+        assert worker.phantom_said() == "phantom not looked for while a recording feeds the cameras"
         hub.fed = False
         assert until(lambda: phantom.looks > n, 10)
+        assert worker.phantom_said() == "looked"
     finally:
         worker.close()
 
@@ -290,6 +301,9 @@ def test_the_room_page_names_the_spheres_in_pink_where_they_are_and_none_once_re
             assert legend.endswith("mm, 7 of 7 spheres"), legend
             marks = cam(page, name, "e => e.querySelector('.marks').textContent")
             assert marks.startswith("12 found: 7 phantom spheres, 5 unidentified"), marks
+        said = page.locator("#phantom")
+        assert until(lambda: said.text_content().startswith("Phantom fitted, RMS "), 10, poll=0.3), said.text_content()
+        assert said.is_visible()
 
         # the phantom taken off the table: no sphere named, on either picture, and no phantom in the legend
         live.rig.scene.set_phantom_pose((0.0, 0.0, 0.0), (4000.0, 0.0, 0.0), live.rig.clock.now())
@@ -299,5 +313,7 @@ def test_the_room_page_names_the_spheres_in_pink_where_they_are_and_none_once_re
                 && !e.querySelector('.legend li[data-kind="phantom"]')"""), 30, poll=0.3), \
                 (spheres_on(page, name), live.phantom.why)
         assert live.phantom.why
+        assert until(lambda: said.text_content() == "Phantom not named: " + live.phantom.why, 10, poll=0.3), \
+            (said.text_content(), live.phantom.why)
     finally:
         page.close()

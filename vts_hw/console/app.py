@@ -75,7 +75,7 @@ class Console:
         cams = []
         for name in self.hub.names:
             cams.append({**self.hub.status(name), **self.facts.view(name)})
-        return {"rig": self.rig_name, "now": time.time(), "cameras": cams}
+        return {"rig": self.rig_name, "now": time.time(), "cameras": cams, "phantom": self.markers.phantom_said()}
 
 
 def create_app(console: Console) -> Starlette:

@@ -63,6 +63,18 @@ class PhantomNames:
         locator, why = locator_for(rig)
         return cls(names, locator, why, **kw)
 
+    def said(self) -> str:
+        """Where the phantom stands, in words for the Room page: named (the fit), not named and
+        why, not looked for and why, or not looked at yet."""
+        with self._lock:
+            if self.locator is None:
+                return f"phantom not looked for: {self.why}"
+            if self.why:
+                return f"phantom not named: {self.why}"
+            if self.last is None:
+                return "looking for the phantom"
+            return self.last.source
+
     def due(self) -> bool:
         return self.locator is not None and (self._at is None or self.clock() - self._at >= self.every_s)
 

@@ -197,6 +197,9 @@
     const room = JSON.parse(e.data);
     skew = room.now - Date.now() / 1000;
     for (const s of room.cameras) if (cams[s.camera]) { showState(cams[s.camera], s); judge(cams[s.camera]); }
+    const ph = document.getElementById("phantom");      // the phantom: named, or why not (none: not looked for)
+    ph.hidden = !room.phantom;
+    ph.textContent = room.phantom ? room.phantom.charAt(0).toUpperCase() + room.phantom.slice(1) : "";
   });
   es.addEventListener("frame", (e) => {
     heard();
