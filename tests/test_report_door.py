@@ -6,6 +6,8 @@ on its page and none over another (read back by poppler's pdftotext)."""
 from __future__ import annotations
 
 import re
+import subprocess
+import sys
 
 import matplotlib
 import pytest
@@ -36,7 +38,7 @@ def test_every_report_has_a_renderer_for_every_suffix():
     assert set(RENDERERS) == {"drift", "drift-every-rig", "department", "sync", "motion", "commission"}
     for name, by_suffix in RENDERERS.items():
         assert tuple(by_suffix) == FORMATS, name
-        assert all(callable(f) for f in by_suffix.values()), name
+        assert all(callable(f.target()) for f in by_suffix.values()), name     # each names a function
     assert [report_format(n) for n in ("a.html", "a.HTM", "b.Pdf")] == [".html", ".html", ".pdf"]
     with pytest.raises(ReportError, match=r"r\.txt: the report is written as \.html or \.pdf, not \.txt"):
         report_format("r.txt")
@@ -84,3 +86,16 @@ def test_an_analysis_report_in_another_format_is_refused_before_anything_is_read
     assert p.returncode == 2
     assert "r.txt: the report is written as .html or .pdf, not .txt" in one_sentence(p)
     assert not (tmp_path / "r.txt").exists()
+
+
+@pytest.mark.parametrize("argv, code", [(["report", "drift", "-o", "r.txt"], "2"), (["report", "rooms", "-o", "r.doc"], "2"),
+                                        (["sync", "analyze", "no-such-session", "--listmode", "x.vtslm"], "3")])
+def test_a_bad_input_is_said_before_the_plotting_and_fitting_libraries_load(tmp_path, argv, code):
+    """The renderers are imported when a report is written (renderers.Renderer) and the packages
+    give their names on first use (vts_hw.lazy): a bad -o or session is said at once."""
+    prog = ("import sys\nfrom vts_hw.cli import main\ntry:\n    main(sys.argv[1:])\nexcept SystemExit as e:\n"
+            "    heavy = sorted(m for m in ('matplotlib', 'scipy.stats', 'scipy.optimize', 'fontTools') if m in sys.modules)\n"
+            "    print(e.code, heavy)\n")
+    p = subprocess.run([sys.executable, "-c", prog, *argv], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    assert p.stdout.split(None, 1) == [code, "[]\n"], (p.stdout, p.stderr)
+    assert p.stderr.startswith("vts: ") and p.stderr.count("\n") == 1, p.stderr

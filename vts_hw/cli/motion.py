@@ -54,13 +54,13 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
     to a file that `vts qa import` stores later).
     """
     from vts_hw.files import Outputs, write_atomic
-    from vts_hw.procedures.motion import MotionAnalysis
     from vts_hw.report.renderers import report_format, write_report
 
     if out:
         report_format(out)           # -o x.txt: one sentence, exit 2, before anything is read
     cal, mp, rig = calibration_files(config_path, calibration, mapping)
     candidates = listmode_candidates(listmode, more)
+    from vts_hw.procedures.motion import MotionAnalysis    # (its libraries load once the inputs are named)
     a = MotionAnalysis(session, candidates or None, cal, mp, motion_config=rig.motion if rig is not None else None,
                        workers=workers, progress=FramesProgress(), clock_slack_s=clock_slack)
     a.analyze(tolerances=rig.tolerances if rig is not None else None)

@@ -49,13 +49,13 @@ def drift(since: str, out: str, rig_name: str | None, as_json: bool, config_path
     Without a rig config (a department's workstation: `vts --store URL report drift --rig
     NAME`), --rig is needed.
     """
-    from vts_hw.report.build import build_drift_report, build_drift_report_every_rig
     from vts_hw.report.renderers import report_format
     from vts_hw.report.times import parse_since
     from vts_hw.cli.common import open_store
 
-    report_format(out)                  # ReportError: one sentence, exit 2
+    report_format(out)                  # ReportError: one sentence, exit 2 (before the plots' libraries load)
     start = parse_since(since)          # BadSince: one sentence, exit 2
+    from vts_hw.report.build import build_drift_report, build_drift_report_every_rig
     rig = rig_if_any(config_path)
     if rig is None and rig_name is None:
         from vts_hw.errors import UsageError
@@ -114,13 +114,13 @@ def rooms(since: str, out: str, rig_name: str | None, as_json: bool, config_path
     Exit status: 0 written; 2 a bad --since, -o or --rig; 3 the store or a file could not be
     read or written (a previous file is left as it was).
     """
-    from vts_hw.report.build import build_rooms_report
     from vts_hw.report.renderers import report_format
     from vts_hw.report.times import parse_since
     from vts_hw.cli.common import open_store
 
     report_format(out)
     start = parse_since(since)
+    from vts_hw.report.build import build_rooms_report
     rig = rig_if_any(config_path)
     with open_store(rig, mode="read") as store:
         rigs = None

@@ -54,7 +54,7 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
     it, its figures go to a file that `vts qa import` stores later, and the exit status is 3.
     """
     from vts_hw.files import Outputs, write_atomic
-    from vts_hw.procedures.sync import CLOCK_SLACK_S, SyncAnalysis, check_session, export_trajectories
+    from vts_hw.procedures.sync_inputs import CLOCK_SLACK_S, check_session
     from vts_hw.report.renderers import report_format, write_report
 
     if out:
@@ -64,6 +64,7 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
         raise click.UsageError("give the scan's list-mode: --listmode FILE")
     check_session(session)           # a bad folder says so before anything else is read
     cal, mp, rig = calibration_files(config_path, calibration, mapping)
+    from vts_hw.procedures.sync import SyncAnalysis, export_trajectories    # (its libraries load now)
     a = SyncAnalysis(session, candidates, cal, mp, marker=marker, workers=workers, progress=FramesProgress(),
                      clock_slack_s=CLOCK_SLACK_S if clock_slack is None else clock_slack)
     a.analyze(tolerances=rig.tolerances if rig is not None else None)

@@ -11,10 +11,10 @@ of renderers (:mod:`vts_hw.report.renderers`); the builders that read the store 
 :mod:`vts_hw.report.build`.
 """
 
-from vts_hw.report.build import build_drift_report
-from vts_hw.report.drift import collect
-from vts_hw.report.model import DriftReport
-from vts_hw.report.renderers import ReportError
-from vts_hw.report.times import BadSince, parse_since
+from vts_hw.lazy import exports
+
+# imported when first asked for: `vts report drift -o x.txt` says no before the plots' libraries load
+__getattr__ = exports(__name__, {"build_drift_report": "build", "collect": "drift", "DriftReport": "model",
+                                 "ReportError": "renderers", "parse_since": "times", "BadSince": "times"})
 
 __all__ = ["build_drift_report", "collect", "DriftReport", "ReportError", "parse_since", "BadSince"]

@@ -1,7 +1,8 @@
 """Every report's renderers by the suffix of the file asked for: the one door reports go out by.
 
 ``RENDERERS[report][suffix]`` turns a report's content into the text (``.html``) or the bytes
-(``.pdf``) of its file; every report has a renderer for every suffix of :data:`FORMATS`.
+(``.pdf``) of its file; every report has a renderer for every suffix of :data:`FORMATS`. Each is
+named by its module and imported when it renders (:class:`Renderer`).
 
 | report | content | ``.html`` | ``.pdf`` |
 | --- | --- | --- | --- |
@@ -21,30 +22,43 @@ half-written and ``WriteFailed``, exit 3, names the file). Builders that read th
 
 from __future__ import annotations
 
+import importlib
 from pathlib import Path
-from typing import Callable
 
 from vts_hw.errors import ConfigError
 from vts_hw.files import ensure_dir, write_atomic
-from vts_hw.report.commission_html import render_commission_html
-from vts_hw.report.commission_pdf import render_commission_pdf
-from vts_hw.report.html import render_drift_html, render_drift_html_every_rig
-from vts_hw.report.motion_html import render_motion_html
-from vts_hw.report.motion_pdf import render_motion_pdf
-from vts_hw.report.pdf import render_drift_pdf, render_drift_pdf_every_rig
-from vts_hw.report.rooms_html import render_department_html
-from vts_hw.report.rooms_pdf import render_department_pdf
-from vts_hw.report.sync_html import render_sync_html
-from vts_hw.report.sync_pdf import render_sync_pdf
+
+
+class Renderer:
+    """``module.function`` of vts_hw.report, imported when a report is rendered by it: a bad
+    ``-o`` or a missing input is said before any plotting or font library is loaded, and an HTML
+    report never loads the PDF's."""
+
+    def __init__(self, module: str, function: str):
+        self.module, self.function = module, function
+
+    def target(self):
+        return getattr(importlib.import_module(f"vts_hw.report.{self.module}"), self.function)
+
+    def __call__(self, *content) -> str | bytes:
+        return self.target()(*content)
+
+    def __repr__(self) -> str:
+        return f"Renderer({self.module}.{self.function})"
+
 
 FORMATS = (".html", ".pdf")
-RENDERERS: dict[str, dict[str, Callable[..., str | bytes]]] = {
-    "drift": {".html": render_drift_html, ".pdf": render_drift_pdf},
-    "drift-every-rig": {".html": render_drift_html_every_rig, ".pdf": render_drift_pdf_every_rig},
-    "department": {".html": render_department_html, ".pdf": render_department_pdf},
-    "sync": {".html": render_sync_html, ".pdf": render_sync_pdf},
-    "motion": {".html": render_motion_html, ".pdf": render_motion_pdf},
-    "commission": {".html": render_commission_html, ".pdf": render_commission_pdf},
+RENDERERS: dict[str, dict[str, Renderer]] = {
+    "drift": {".html": Renderer("html", "render_drift_html"), ".pdf": Renderer("pdf", "render_drift_pdf")},
+    "drift-every-rig": {".html": Renderer("html", "render_drift_html_every_rig"),
+                        ".pdf": Renderer("pdf", "render_drift_pdf_every_rig")},
+    "department": {".html": Renderer("rooms_html", "render_department_html"),
+                   ".pdf": Renderer("rooms_pdf", "render_department_pdf")},
+    "sync": {".html": Renderer("sync_html", "render_sync_html"), ".pdf": Renderer("sync_pdf", "render_sync_pdf")},
+    "motion": {".html": Renderer("motion_html", "render_motion_html"),
+               ".pdf": Renderer("motion_pdf", "render_motion_pdf")},
+    "commission": {".html": Renderer("commission_html", "render_commission_html"),
+                   ".pdf": Renderer("commission_pdf", "render_commission_pdf")},
 }
 
 
@@ -77,4 +91,4 @@ def write_report(report: str, out: str | Path, *content) -> Path:
     return write_atomic(out, data)
 
 
-__all__ = ["FORMATS", "RENDERERS", "ReportError", "render", "report_format", "write_report"]
+__all__ = ["FORMATS", "RENDERERS", "Renderer", "ReportError", "render", "report_format", "write_report"]
