@@ -2,6 +2,7 @@ import os
 import tempfile
 from pathlib import Path
 
+import vts_hw  # noqa: F401  (first: one BLAS thread, decision 0075, before anything loads NumPy)
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
