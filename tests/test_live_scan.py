@@ -115,7 +115,13 @@ def test_breathing_alone_raises_no_alert(patient_rig, tmp_path):
     assert live["status"] == "on" and live["summary"]["phase"] == "tracking"
     assert live["alerts"] == [] and "ALERT" not in err
     assert not (tmp_path / "alerts.txt").exists()
-    assert live["summary"]["sets"] > 0.8 * 25 * DURATION_S
+    s = live["summary"]
+    # every frame the tap saw went into a set the tracker used or was counted as let go: a live path
+    # that falls behind on a busy machine lets frames go and says so (issue 20; 233 sets of 300 were
+    # seen under 4 busy processes on 2 cores, 301 idle); most of the scan was tracked
+    for name, n in s["tapped"].items():
+        assert n >= 0.9 * 25 * DURATION_S and s["processed"][name] + s["live_dropped"][name] + s["queued"][name] == n, s
+    assert s["sets"] > 0.5 * 25 * DURATION_S, s
     assert max(abs(v) for v in live["summary"]["six_dof_last"][:3]) < 1.0
     assert "live motion: TRACKING; still, body" in err
     assert live["summary"]["watched"] is True and live["state"]["status"] == "TRACKING"
