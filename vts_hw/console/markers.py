@@ -75,7 +75,6 @@ class MarkerWorker:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self.looked = 0          # frames looked at (all cameras)
-        self.recording = False   # a recording feeds the hub: the phantom is not looked for
         self._thread = threading.Thread(target=self._run, name="console-markers", daemon=True)
         self._thread.start()
 
@@ -88,15 +87,19 @@ class MarkerWorker:
             self._round()
             # not while a recording feeds the hub: its live path shares this process (and a
             # patient, not the phantom, is on the table)
-            self.recording = any(self.hub.source(n) == "fed" for n in self.hub.names)
-            if self.phantom is not None and self.names is not None and self.phantom.due() and not self.recording:
+            if (self.phantom is not None and self.names is not None and self.phantom.due()
+                    and not self._recording()):
                 self._look_for_phantom()
+
+    def _recording(self) -> bool:
+        """A recording feeds the hub: the phantom is not looked for."""
+        return any(self.hub.source(n) == "fed" for n in self.hub.names)
 
     def phantom_said(self) -> str | None:
         """The phantom's state in words (None: the console does not look for one)."""
         if self.phantom is None:
             return None
-        if self.recording and self.phantom.locator is not None:
+        if self.phantom.locator is not None and self._recording():
             return "phantom not looked for while a recording feeds the cameras"
         return self.phantom.said()
 
