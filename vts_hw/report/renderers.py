@@ -22,11 +22,11 @@ half-written and ``WriteFailed``, exit 3, names the file). Builders that read th
 
 from __future__ import annotations
 
-import importlib
 from pathlib import Path
 
 from vts_hw.errors import ConfigError
 from vts_hw.files import ensure_dir, write_atomic
+from vts_hw.lazy import load
 
 
 class Renderer:
@@ -38,7 +38,7 @@ class Renderer:
         self.module, self.function = module, function
 
     def target(self):
-        return getattr(importlib.import_module(f"vts_hw.report.{self.module}"), self.function)
+        return load(f"vts_hw.report.{self.module}", self.function)
 
     def __call__(self, *content) -> str | bytes:
         return self.target()(*content)
