@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 import logging
 import os
 import sys
@@ -14,8 +15,31 @@ from vts_hw.errors import VtsError
 #: ctx.meta key of the global --store/--store-password-env (read by cli.common.store_target)
 STORE_META = "vts.store"
 
+#: each command of `vts` and the modules of vts_hw.cli that define it and its subcommands,
+#: imported when the command is asked for: `vts scan start` loads what a scan needs, not the
+#: calibration's numerics (decision 0076; tests/test_cli_lazy.py checks the map is whole)
+COMMANDS: dict[str, tuple[str, ...]] = {
+    "calibrate": ("calibrate",), "camera": ("camera", "camera_aim", "camera_setup"),
+    "commission": ("commission",), "console": ("console",), "demo": ("demo",),
+    "discover": ("discover",), "motion": ("motion",), "qa": ("qa", "qa_steps"),
+    "recording": ("recording",), "report": ("report",), "scan": ("scan",), "sim": ("sim",),
+    "store": ("store",), "sync": ("sync",), "trigger": ("trigger", "trigger_flash"),
+}
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+
+class _CommandsOnDemand(click.Group):
+    """The top group: a command's modules are imported the first time it is looked up."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted(set(COMMANDS) | set(self.commands))
+
+    def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
+        for module in COMMANDS.get(name, ()) if name not in self.commands else ():
+            importlib.import_module(f"{__name__}.{module}")
+        return self.commands.get(name)
+
+
+@click.group(cls=_CommandsOnDemand, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(__version__, prog_name="vts")
 @click.option("-v", "--verbose", count=True, help="More log output (-vv for debug).")
 @click.option("--store", "store_url", metavar="URL", default=None,
@@ -43,11 +67,9 @@ def cli(ctx: click.Context, verbose: int, store_url: str | None, store_password_
 
 
 def _register() -> None:
-    from vts_hw.cli import (calibrate, camera, camera_setup, console, demo, discover, motion, qa, qa_push, qa_steps, recording, report, scan,  # noqa: F401
-                   sim, store, sync, trigger)
-    from vts_hw.cli import camera_aim  # noqa: F401  (`vts camera aim`, on the camera group)
-    from vts_hw.cli import commission  # noqa: F401  (`vts commission`)
-    from vts_hw.cli import trigger_flash  # noqa: F401  (`vts trigger flash`, on the trigger group)
+    """Every command registered (their help, the command tree); `vts` itself loads one."""
+    for name in COMMANDS:
+        cli.get_command(click.Context(cli), name)
 
 
 def command_tree(group: click.Group | None = None, path: tuple[str, ...] = ()):
@@ -76,7 +98,6 @@ def _interruptible() -> None:
 def main(argv=None) -> None:
     """Entry point: user errors end in one sentence and a non-zero exit, never a traceback."""
     _interruptible()
-    _register()
     try:
         cli.main(args=argv, prog_name="vts", standalone_mode=False)
     except VtsError as exc:
