@@ -5,6 +5,8 @@ from pathlib import Path
 import vts_hw  # noqa: F401  (first: one BLAS thread, decision 0075, before anything loads NumPy)
 import pytest
 
+from timeline import pytest_runtest_protocol  # noqa: F401  (VTS_TIMELINE=FILE: where the time goes)
+
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("VTS_SHARED_DATA", REPO.parent / "shared" / "data"))
 
