@@ -5,6 +5,7 @@ from pathlib import Path
 import vts_hw  # noqa: F401  (first: one BLAS thread, decision 0075, before anything loads NumPy)
 import pytest
 
+from module_order import longest_first
 from timeline import pytest_runtest_protocol  # noqa: F401  (VTS_TIMELINE=FILE: where the time goes)
 
 REPO = Path(__file__).resolve().parents[1]
@@ -85,8 +86,9 @@ def store_url(request, tmp_path) -> str:
 # -- the real QATrack+ (../shared/interop/qatrack): started while the rest of the suite runs ---------
 # One process starts it: the session's only process, or with pytest-xdist (make test runs two
 # workers) the controller, which outlives the workers; the real_qatrack tests are one module run by
-# one worker (make test's --dist loadscope; they restart the one server in other zones) and come
-# last. (With --dist loadgroup the module's own xdist_group mark keeps them on one worker.)
+# one worker (make test's --dist loadscope; they restart the one server in other zones), handed out
+# when half the suite's time is (tests/module_order.py). (With --dist loadgroup the module's own
+# xdist_group mark keeps them on one worker.)
 
 _REAL_QATRACK = None
 
@@ -128,13 +130,13 @@ def pytest_sessionstart(session):
 
 
 def pytest_collection_modifyitems(session, config, items):
-    """Tests marked real_qatrack run last, and the real server starts installing now (unless
-    an xdist controller started it)."""
-    real = [i for i in items if i.get_closest_marker("real_qatrack")]
-    if real:
-        items[:] = [i for i in items if not i.get_closest_marker("real_qatrack")] + real
-        if not _xdist_worker(config):
-            _real_qatrack().start_in_background()
+    """The longest modules first (tests/module_order.py), the real QATrack+'s where half the
+    time is handed out; the real server starts installing now (unless an xdist controller
+    started it)."""
+    real = {i.nodeid.split("::")[0] for i in items if i.get_closest_marker("real_qatrack")}
+    items[:] = longest_first(items, late=real)
+    if real and not _xdist_worker(config):
+        _real_qatrack().start_in_background()
 
 
 def pytest_sessionfinish(session, exitstatus):
