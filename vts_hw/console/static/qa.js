@@ -107,8 +107,9 @@
       say(s.note ? s.note : `Daily QA done: ${s.result ? s.result.state : ""} (run ${s.run}).`, s.note ? "refused" : "ok");
     } else {
       const made = s.result && s.result.baseline ? Object.entries(s.result.baseline).map(([c, k]) => `${c} ${k} markers`).join(", ") : "";
-      say(`Baseline set (run ${s.run}): ${made}.`, "ok");
-      load();
+      // said once the page has the new baseline: a dialog opened at once names it
+      const line = `Baseline set (run ${s.run}): ${made}.`;
+      load().then(() => say(line, "ok"));
     }
   }
 
