@@ -35,7 +35,7 @@ from vts_hw.drivers.trigger import (CLOCK, DEVICE_CLOCK_MAPPED, DUTY, EDGES, FIR
                                     TriggerBase, TriggerError, TriggerLog, TriggerStatus)
 # re-exported: the box's clock mapping and wire protocol, as they were importable from here
 from vts_hw.drivers.trigger_box_clock import (MAX_ROUND_TRIPS_KEPT, BoxClock, RoundTrip,  # noqa: F401
-                                              best_round_trips, clock_jumped, fit_clock, wire_skew)
+                                              best_round_trips, clock_jumped, fit_clock, wire_skew, wire_time)
 from vts_hw.drivers.trigger_box_protocol import (BAUDRATE, DEVICE, DUTY_ABS_TOLERANCE, DUTY_MAX,  # noqa: F401
                                                  DUTY_MIN, FREQ_MAX_HZ, FREQ_MIN_HZ, FREQ_REL_TOLERANCE,
                                                  MAX_ERRORS_READ, MAX_LINE, MODEL, POLL_S, PULSE_MS_MAX,

@@ -2,7 +2,8 @@
 
 A round trip is (host time just before the write, host time the reply was complete, device
 µs). The fit (:func:`fit_clock`) is weighted least squares of each round trip's midpoint
-(moved by the line's asymmetry, :func:`wire_skew`) on device time, weight 1/rtt², then once
+(moved by the line's asymmetry, :func:`wire_skew`) on device time, weight 1/rtt² (the round
+trip no shorter than the line allows, :attr:`RoundTrip.spread`), then once
 more without outliers (docs/decisions/0011-trigger-box-driver.md, "Clock mapping"). Pure
 computation, and :class:`BoxClock`, the part of the driver that samples the round trips and
 keeps the history (:meth:`~BoxClock.clock_mapping`; mixed into
@@ -19,6 +20,7 @@ from vts_hw.drivers.trigger import CLOCK, EDGES, ClockMapping, TriggerError
 from vts_hw.drivers.trigger_box_protocol import uint
 
 MAX_ROUND_TRIPS_KEPT = 2000    # clock-mapping history (about 100 calls of 20)
+OUTSIDE_SPREAD = 2.0           # a sample this many half spreads off the fitted line is dropped
 
 
 @dataclass(frozen=True)
@@ -35,10 +37,19 @@ class RoundTrip:
     host_received: float
     device_us: int
     skew: float = 0.0
+    wire: float = 0.0
 
     @property
     def rtt(self) -> float:
         return self.host_received - self.host_sent
+
+    @property
+    def spread(self) -> float:
+        """How far the midpoint may be off, doubled: the round trip, but never less than the
+        line's own time for the two lines (``wire``). A round trip shorter than the line
+        allows means the stamps are not where the bytes were (a host that stamped late, an
+        emulated box catching up): such a sample is not the most certain one."""
+        return max(self.rtt, self.wire)
 
     @property
     def host_mid(self) -> float:
@@ -53,6 +64,13 @@ def wire_skew(cmd: str, reply: str, baudrate: float | None, bits_per_byte: int =
     return (len(cmd) + 1 - (len(reply) + 1)) * bits_per_byte / baudrate / 2
 
 
+def wire_time(cmd: str, reply: str, baudrate: float | None, bits_per_byte: int = 10) -> float:
+    """The least time a round trip takes on the line: the command and the reply lines on the
+    wire (8N1: 10 bits a byte); 0 when the baud rate is unknown."""
+    if not baudrate:
+        return 0.0
+    return (len(cmd) + 1 + len(reply) + 1) * bits_per_byte / baudrate
+
 
 def clock_jumped(before: RoundTrip, after: RoundTrip) -> bool:
     """The box's clock did not advance with the host's between two samples (to 1 %, far more
@@ -63,9 +81,10 @@ def clock_jumped(before: RoundTrip, after: RoundTrip) -> bool:
 
 
 def best_round_trips(trips: Sequence[RoundTrip], keep: float = 0.5) -> list[RoundTrip]:
-    """The ``keep`` fraction (at least 2, at most all) with the shortest round trips, in time order."""
+    """The ``keep`` fraction (at least 2, at most all) with the shortest round trips (their
+    :attr:`~RoundTrip.spread`), in time order."""
     n = min(len(trips), max(2, math.ceil(keep * len(trips))))
-    best = sorted(range(len(trips)), key=lambda i: trips[i].rtt)[:n]
+    best = sorted(range(len(trips)), key=lambda i: trips[i].spread)[:n]
     return [trips[i] for i in sorted(best)]
 
 
@@ -74,7 +93,9 @@ def fit_clock(trips: Sequence[RoundTrip]) -> tuple[ClockMapping, float]:
 
     Weighted least squares, weight 1/rtt² (the midpoint of a round trip is off by at most half
     of it, so short round trips count most), then once more without samples whose residual is
-    beyond 4 robust SDs (and beyond their own half round trip). Differences are taken from the
+    beyond 4 robust SDs (and beyond their own half round trip), then, one at a time, without the
+    sample farthest outside its own half spread from the line fitted without it (more than
+    ``OUTSIDE_SPREAD`` of them). Differences are taken from the
     first sample in integers before any float arithmetic, so 64-bit device counts and epoch
     host times keep their microseconds. ``ref_device_us`` is the weighted centre of the samples
     (where the offset is best known). Returns the mapping and the drift's standard error in ppm
@@ -86,7 +107,7 @@ def fit_clock(trips: Sequence[RoundTrip]) -> tuple[ClockMapping, float]:
     h0 = trips[0].host_mid
     xs = [(t.device_us - d0) * 1e-6 for t in trips]
     ys = [t.host_mid - h0 for t in trips]
-    rtts = [max(t.rtt, 1e-7) for t in trips]
+    rtts = [max(t.spread, 1e-7) for t in trips]
     use = [True] * len(trips)
 
     def solve(mask):
@@ -110,6 +131,20 @@ def fit_clock(trips: Sequence[RoundTrip]) -> tuple[ClockMapping, float]:
         if sum(mask) >= 3 and not all(mask):
             use = mask
             w, sw, xm, ym, sxx, b, res = solve(use)
+    # the box read its clock inside each round trip: a sample whose midpoint lies well outside
+    # its own half spread from the line the others give has stamps that are not where its
+    # bytes were; drop the worst such sample and fit again (one bad sample with a short round
+    # trip at an end tilts the whole fit towards itself, so that its own residual is small)
+    while sum(use) > 3:
+        # each residual as if its sample were left out of the fit (r / (1 - leverage))
+        lev = [wi * (1.0 / sw + ((x - xm) ** 2 / sxx if sxx > 0 else 0.0)) for wi, x in zip(w, xs)]
+        z = [abs(r) / max(1.0 - h, 1e-9) / (rt / 2) if u else 0.0
+             for r, h, rt, u in zip(res, lev, rtts, use)]
+        worst = max(range(len(z)), key=z.__getitem__)
+        if z[worst] <= OUTSIDE_SPREAD:
+            break
+        use = [u and i != worst for i, u in enumerate(use)]
+        w, sw, xm, ym, sxx, b, res = solve(use)
 
     n = sum(use)
     ref_device_us = d0 + round(xm * 1e6)
@@ -199,8 +234,9 @@ class BoxClock:
             if trips and device_us < trips[-1].device_us:
                 raise TriggerError(f"{self.where}: its clock went back from {trips[-1].device_us} "
                                    f"to {device_us} us during the clock mapping (did it reboot?)")
-            trips.append(RoundTrip(sent, received, device_us,
-                                   wire_skew("TIME?", reply, self._wire_baud())))
+            baud = self._wire_baud()
+            trips.append(RoundTrip(sent, received, device_us, wire_skew("TIME?", reply, baud),
+                                   wire_time("TIME?", reply, baud)))
         kept = best_round_trips(trips, keep)
         with self._lock:
             if self._batches and clock_jumped(self._batches[-1][-1], kept[0]):
