@@ -91,11 +91,11 @@ def best_round_trips(trips: Sequence[RoundTrip], keep: float = 0.5) -> list[Roun
 def fit_clock(trips: Sequence[RoundTrip]) -> tuple[ClockMapping, float]:
     """Fit host_mid = ref_host + (device_us - ref_device_us) * 1e-6 * (1 + drift * 1e-6).
 
-    Weighted least squares, weight 1/rtt² (the midpoint of a round trip is off by at most half
-    of it, so short round trips count most), then once more without samples whose residual is
-    beyond 4 robust SDs (and beyond their own half round trip), then, one at a time, without the
-    sample farthest outside its own half spread from the line fitted without it (more than
-    ``OUTSIDE_SPREAD`` of them). Differences are taken from the
+    Weighted least squares, weight 1/spread² (a round trip, never shorter than the line allows:
+    the midpoint is off by at most half of it, so short round trips count most), then once more
+    without samples whose residual is beyond 4 robust SDs (and beyond their own half spread),
+    then, one at a time, without the sample farthest outside its own half spread from the line
+    fitted without it (more than ``OUTSIDE_SPREAD`` of them). Differences are taken from the
     first sample in integers before any float arithmetic, so 64-bit device counts and epoch
     host times keep their microseconds. ``ref_device_us`` is the weighted centre of the samples
     (where the offset is best known). Returns the mapping and the drift's standard error in ppm
@@ -107,11 +107,11 @@ def fit_clock(trips: Sequence[RoundTrip]) -> tuple[ClockMapping, float]:
     h0 = trips[0].host_mid
     xs = [(t.device_us - d0) * 1e-6 for t in trips]
     ys = [t.host_mid - h0 for t in trips]
-    rtts = [max(t.spread, 1e-7) for t in trips]
+    spreads = [max(t.spread, 1e-7) for t in trips]
     use = [True] * len(trips)
 
     def solve(mask):
-        w = [1.0 / r ** 2 if u else 0.0 for r, u in zip(rtts, mask)]
+        w = [1.0 / r ** 2 if u else 0.0 for r, u in zip(spreads, mask)]
         sw = sum(w)
         xm = sum(wi * x for wi, x in zip(w, xs)) / sw
         ym = sum(wi * y for wi, y in zip(w, ys)) / sw
@@ -127,7 +127,7 @@ def fit_clock(trips: Sequence[RoundTrip]) -> tuple[ClockMapping, float]:
     if len(trips) >= 6:
         kept = sorted(abs(r) for r in res)
         sigma = 1.4826 * kept[len(kept) // 2]
-        mask = [abs(r) <= max(4 * sigma, rt / 2) for r, rt in zip(res, rtts)]
+        mask = [abs(r) <= max(4 * sigma, sp / 2) for r, sp in zip(res, spreads)]
         if sum(mask) >= 3 and not all(mask):
             use = mask
             w, sw, xm, ym, sxx, b, res = solve(use)
@@ -138,8 +138,8 @@ def fit_clock(trips: Sequence[RoundTrip]) -> tuple[ClockMapping, float]:
     while sum(use) > 3:
         # each residual as if its sample were left out of the fit (r / (1 - leverage))
         lev = [wi * (1.0 / sw + ((x - xm) ** 2 / sxx if sxx > 0 else 0.0)) for wi, x in zip(w, xs)]
-        z = [abs(r) / max(1.0 - h, 1e-9) / (rt / 2) if u else 0.0
-             for r, h, rt, u in zip(res, lev, rtts, use)]
+        z = [abs(r) / max(1.0 - h, 1e-9) / (sp / 2) if u else 0.0
+             for r, h, sp, u in zip(res, lev, spreads, use)]
         worst = max(range(len(z)), key=z.__getitem__)
         if z[worst] <= OUTSIDE_SPREAD:
             break
@@ -159,7 +159,7 @@ def fit_clock(trips: Sequence[RoundTrip]) -> tuple[ClockMapping, float]:
         drift_se = math.inf
     mapping = ClockMapping(ref_host=ref_host, ref_device_us=ref_device_us, drift_ppm=(b - 1.0) * 1e6,
                            residual_s=residual,
-                           uncertainty_s=min(r for r, u in zip(rtts, use) if u) / 2, samples=n)
+                           uncertainty_s=min(r for r, u in zip(spreads, use) if u) / 2, samples=n)
     return mapping, drift_se
 
 
@@ -212,7 +212,7 @@ class BoxClock:
         ``keep`` fraction with the shortest round trips is used. With ``history`` the fit also
         uses the samples kept by earlier calls since the box's clock last went back (a reboot),
         so a mapping at the end of a session fits the drift over the whole session. The fit
-        (:func:`fit_clock`) weights each sample by 1/round-trip²; the result is kept in
+        (:func:`fit_clock`) weights each sample by 1/spread²; the result is kept in
         :attr:`mapping`, used for the edge lines of the log, and logged as an ``event``.
         """
         self.require(CLOCK)
