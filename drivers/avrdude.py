@@ -23,6 +23,8 @@ from pathlib import Path
 from typing import Callable
 
 from vts_hw.errors import DeviceError, UsageError
+from vts_hw.lifeline import child_options
+from vts_hw.files import open_writable
 
 #: the trigger box's MCU as avrdude names it (firmware/Makefile: MCU := atmega328p)
 PART = "m328p"
@@ -64,14 +66,14 @@ def find() -> str:
 
 def version(avrdude: str) -> str:
     """avrdude's version, as it prints it (``7.1``); ``unknown`` when it says none."""
-    out = subprocess.run([avrdude, "-?"], capture_output=True, text=True, timeout=10)
+    out = subprocess.run([avrdude, "-?"], capture_output=True, text=True, timeout=10, **child_options())
     m = re.search(r"avrdude version ([\w.+~-]+)", out.stdout + out.stderr)
     return m.group(1).rstrip(",") if m else "unknown"
 
 
 def programmers(avrdude: str) -> set[str]:
     """The programmer ids this avrdude knows (``avrdude -c '?'``)."""
-    out = subprocess.run([avrdude, "-c", "?"], capture_output=True, text=True, timeout=10)
+    out = subprocess.run([avrdude, "-c", "?"], capture_output=True, text=True, timeout=10, **child_options())
     return set(re.findall(r"^\s+(\S+)\s+=", out.stdout + out.stderr, re.M))
 
 
@@ -92,10 +94,12 @@ def run(cmd: list[str], log_path: Path, port: str, hex_path: Path,
     the file, and what went wrong; the log keeps every word avrdude said."""
     phase, hashes = None, 0
     text = bytearray()
-    with open(log_path, "wb") as log:
+    with open_writable(log_path, "wb") as log:    # never a device, FIFO or symbolic link (files.py)
         log.write(("$ " + " ".join(cmd) + "\n").encode())
         log.flush()
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+        # killed with this command, however it ends (kill -9 too): never left holding the port
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                **child_options())
         assert proc.stdout is not None
         try:
             while True:

@@ -32,7 +32,7 @@ from pydantic import BaseModel, ConfigDict
 
 from vts_hw.bounded import ANY_SIZE, TABLE, check_file, open_bounded
 from vts_hw.errors import DeviceError, UsageError
-from vts_hw.files import WriteFailed, os_reason
+from vts_hw.files import WriteFailed, check_target, open_writable, os_reason
 from vts_hw.recording.trigger_log import (CLOCK as CLOCK_ROW, DEVICE_CLOCK_MAPPED, HOST_WRITE, LOG_HEADER,
                                           WAVE_START, WAVE_STOP, clock_text, wave_start_text, wave_stop_text)
 
@@ -44,6 +44,7 @@ PULSE = "pulse"              # a start pulse on channel 1 or 2
 FIRE = "fire"                # square wave and both start pulses on the same tick
 CLOCK = "clock"              # a device clock that can be mapped to host time
 EDGES = "edges"              # reports the times of the edges it sent
+WATCHDOG = "watchdog"        # switches its output off by itself when the host falls silent
 
 CHANNELS = {1: "VTS start", 2: "SPECT start"}
 
@@ -75,6 +76,7 @@ class TriggerStatus:
     last_edge_device_us: int | None = None
     errors: tuple[str, ...] = ()
     extra: dict = field(default_factory=dict)
+    notes: tuple[str, ...] = ()              # what else the device says, one line each (its watchdog)
 
     def not_a_square_wave(self) -> str | None:
         """What in the confirmed values no square wave can have (None when they describe one):
@@ -161,7 +163,8 @@ class TriggerBase:
 
 _WHAT = {FREQUENCY: "set a frequency", DUTY: "set a duty cycle", LEVELS: "set output levels",
          PULSE: "send a start pulse", FIRE: "start the square wave and the start pulses together",
-         CLOCK: "report a device clock to map to host time", EDGES: "report edge times"}
+         CLOCK: "report a device clock to map to host time", EDGES: "report edge times",
+         WATCHDOG: "switch its output off by itself when the host falls silent"}
 
 
 def _check_is_trigger_log(path: Path) -> None:
@@ -200,13 +203,13 @@ class TriggerLog:
         if self.path is not None:
             try:
                 self.path.parent.mkdir(parents=True, exist_ok=True)
-                new = not self.path.exists()
-                if not new:   # a device or FIFO is refused here (opening a FIFO to append blocks)
-                    check_file(self.path, ANY_SIZE, "trigger log")
-                    new = self.path.stat().st_size == 0
+                # a device, FIFO (appending to it blocks), folder or symbolic link: refused, left as it is
+                old = check_target(self.path, "nothing was sent to the device")
+                new = old is None or old.st_size == 0
                 if not new:
                     _check_is_trigger_log(self.path)
-                self._f = open(self.path, "a", newline="", encoding="utf-8")
+                self._f = open_writable(self.path, "a", newline="", encoding="utf-8",
+                                        kept="nothing was sent to the device")
                 self._w = csv.writer(self._f)
                 if new:
                     self._w.writerow(LOG_HEADER)

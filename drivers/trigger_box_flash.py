@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import errno
 import fcntl
+import io
 import os
 import re
 import subprocess
@@ -25,9 +26,14 @@ from vts_hw.drivers import avrdude
 from vts_hw.drivers.trigger import TriggerError
 from vts_hw.drivers.trigger_box import TriggerBox
 from vts_hw.drivers.trigger_box_protocol import BoxGone
+from vts_hw.bounded import TooLarge, read_text
 from vts_hw.errors import DeviceError, UsageError
+from vts_hw.lifeline import child_options
+from vts_hw.files import open_fd
 
 HEX_NAME = "trigger_box.hex"
+#: an Intel HEX of the ATmega328P's 32 KiB is ~90 kB (16-byte records), ~430 kB at one byte a record
+HEX_MAX = 4 * 2 ** 20
 #: the firmware's identity in its flash: the start of its *IDN? reply, and the version string
 _IDN_MARK = b"VTS,TRIGGERBOX,"
 _VERSION = re.compile(rb",(\d+\.\d+(?:\.\d+)?(?:[-+][0-9A-Za-z.]+)?)\x00")
@@ -73,7 +79,7 @@ def build(fw: Path | None = None) -> Path:
         raise UsageError(f"no trigger box firmware sources here ({fw} has no Makefile: an installed vts-hw has "
                          f"none): give the firmware to flash with --hex FILE")
     proc = subprocess.run(["make", "-C", str(fw), "--quiet", f"build/{HEX_NAME}"], stdout=subprocess.PIPE,
-                          stderr=subprocess.STDOUT, text=True, stdin=subprocess.DEVNULL)
+                          stderr=subprocess.STDOUT, text=True, stdin=subprocess.DEVNULL, **child_options())
     if proc.returncode != 0:
         tail = " | ".join(proc.stdout.strip().splitlines()[-3:])
         raise UsageError(f"building the trigger box firmware in {fw} failed (make exit {proc.returncode}): {tail}")
@@ -85,10 +91,14 @@ def read_image(path: Path) -> tuple[bytes, int]:
     UsageError naming the file when it cannot be read or is not Intel HEX."""
     from intelhex import IntelHex, IntelHexError
     ih = IntelHex()
-    try:
-        ih.loadhex(str(path))
-    except (OSError, IntelHexError, ValueError) as e:
-        why = e.strerror if isinstance(e, OSError) and e.strerror else str(e).splitlines()[0]
+    try:     # with a bound, and never a device or FIFO (--hex /dev/zero, a pipe: they never end)
+        text = read_text(path, HEX_MAX, "firmware to flash (Intel HEX)", encoding="ascii")
+        ih.loadhex(io.StringIO(text))
+    except TooLarge as e:
+        raise UsageError(str(e)) from None
+    except (OSError, IntelHexError, ValueError) as e:   # UnicodeDecodeError is a ValueError
+        why = e.strerror if isinstance(e, OSError) and e.strerror else \
+            ("it is not ASCII text" if isinstance(e, UnicodeDecodeError) else (str(e).splitlines() or [""])[0])
         raise UsageError(f"{path}: not a firmware to flash: cannot be read as Intel HEX ({why})") from None
     if not len(ih):
         raise UsageError(f"{path}: not a firmware to flash: the Intel HEX file holds no data")
@@ -111,8 +121,8 @@ def image_version(image: bytes, path: Path) -> str:
 def source_version(fw: Path) -> str | None:
     """``FW_VERSION`` of the sources (firmware/trigger_box/config.h), if there."""
     try:
-        m = _CONFIG_VERSION.search((fw / "trigger_box" / "config.h").read_text())
-    except OSError:
+        m = _CONFIG_VERSION.search(read_text(fw / "trigger_box" / "config.h", what="firmware source"))
+    except (OSError, ValueError, TooLarge):
         return None
     return m.group(1) if m else None
 
@@ -202,7 +212,7 @@ def flash(port: str, hex_path: Path | None = None, programmer: str = "arduino", 
     fw = firmware(hex_path)
     log_path = fw.hex.with_name(fw.hex.stem + ".avrdude.log")
     try:
-        open(log_path, "ab").close()
+        os.close(open_fd(log_path))   # a device, FIFO or symbolic link of that name: refused (files.py)
     except OSError as e:
         raise UsageError(f"{log_path}: avrdude's log cannot be written beside the hex ({e.strerror}): "
                          f"copy the hex to a folder you can write and give --hex") from None

@@ -20,6 +20,7 @@ from __future__ import annotations
 import hashlib
 import io
 import os
+import secrets
 import time
 from pathlib import Path
 
@@ -27,7 +28,7 @@ import yaml
 
 from vts_hw.config import MAX_CONFIG_BYTES, _read_text, parse_rig
 from vts_hw.errors import ConfigError, UsageError
-from vts_hw.files import WriteFailed, os_reason, write_atomic
+from vts_hw.files import WriteFailed, check_target, os_reason, write_atomic
 
 BACKUP_SUFFIX = ".bak"
 
@@ -70,7 +71,7 @@ def write_new(path: str | os.PathLike, text: str) -> Path:
     is written); WriteFailed (exit 3) when it cannot be written."""
     path = Path(path)
     refuse_existing(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.new")
+    tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.new")    # a name no one had
     try:
         write_atomic(tmp, text)
         try:
@@ -87,6 +88,16 @@ def write_new(path: str | os.PathLike, text: str) -> Path:
     return path
 
 
+def check_rewritable(path: str | os.PathLike) -> None:
+    """Before any work whose result goes into the rig.yaml at ``path`` (a camera set up, a
+    calibration): rig.yaml and rig.yaml.bak must be regular files (or the backup absent); a
+    device, FIFO, folder or symbolic link is refused (files.NotReplaced, exit 3): rig.yaml is
+    replaced whole, and a symbolic link would be replaced by a file, not followed."""
+    path = Path(path)
+    check_target(path, f"{path} is unchanged")
+    check_target(path.with_name(path.name + BACKUP_SUFFIX), f"{path} is unchanged")
+
+
 def _rewrite(path: str | os.PathLike, edit, *, what: str, during: str, again: str) -> Path | None:
     """rig.yaml at ``path`` read with ruamel.yaml's round-trip loader (comments, key order and
     quoting kept), changed by ``edit(data)`` (False: nothing to change, nothing written, None
@@ -97,6 +108,7 @@ def _rewrite(path: str | os.PathLike, edit, *, what: str, during: str, again: st
     from ruamel.yaml.error import YAMLError
 
     path = Path(path)
+    check_rewritable(path)
     text = _read_text(path)
     digest = hashlib.sha256(text.encode("utf-8")).hexdigest()
     rt = YAML()
@@ -186,5 +198,5 @@ def set_calibration(path: str | os.PathLike, files: dict[str, str | os.PathLike]
                     again="run the step again (`vts commission --from STEP`)")
 
 
-__all__ = ["skeleton", "refuse_existing", "write_new", "set_locked_params", "set_calibration", "names_file",
+__all__ = ["skeleton", "refuse_existing", "check_rewritable", "write_new", "set_locked_params", "set_calibration", "names_file",
            "CALIBRATION_KEYS", "BACKUP_SUFFIX"]

@@ -47,20 +47,20 @@ def fallback_folders() -> list[Path]:
 
 
 def save_or_keep(path: str | os.PathLike, text: str, what: str = "result") -> Saved:
-    """Write ``text`` to ``path``; if impossible, to a fallback file (see the module docstring)."""
+    """Write ``text`` to ``path``; if impossible, to a fallback file (see the module docstring).
+    A ``path`` that is not a regular file (a device, FIFO, folder, symbolic link: files.NotReplaced)
+    is not written either; the result then goes to the fallback file the same way."""
     path = Path(path)
-    existed = path.exists()
     try:
         return Saved(path, written=write_atomic(path, text))
     except WriteFailed as exc:
-        reason = exc.reason
-    kept = "the previous version is unchanged" if existed else "nothing was written there"
+        reason, kept = exc.reason, exc.kept
     stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
     tried = []
     for folder in fallback_folders():
         other = folder / f"{path.stem}-{stamp}{path.suffix or '.json'}"
         n = 2
-        while other.exists():
+        while os.path.lexists(other):       # whatever is there, a link or a FIFO too, is someone else's
             other = folder / f"{path.stem}-{stamp}-{n}{path.suffix or '.json'}"
             n += 1
         try:

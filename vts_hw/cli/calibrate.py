@@ -13,8 +13,8 @@ import click
 
 from vts_hw.errors import DataError
 from vts_hw.cli import cli
-from vts_hw.cli.common import (config_option, echo_json, json_option, positive, rig_if_any, say_stored,
-                               store_qa_result)
+from vts_hw.cli.common import (OutputFile, config_option, echo_json, json_option, positive, rig_if_any,
+                               say_stored, store_qa_result)
 from vts_hw.procedures.mapping_inputs import read_points  # noqa: F401  (the points file, as `--vts` reads it)
 
 
@@ -53,7 +53,7 @@ def _board_options(f):
 @click.option("--sim-poses", type=click.IntRange(3, 200), default=20, show_default=True,
               help="Number of simulated board poses.")
 @_board_options
-@click.option("-o", "--output", type=click.Path(dir_okay=False), default="calibration.json",
+@click.option("-o", "--output", type=OutputFile(), default="calibration.json",
               show_default=True, help="Calibration file to write.")
 @click.option("--previous", type=click.Path(dir_okay=False), default=None,
               help="Calibration to compare with (default: the existing -o file, if any).")
@@ -134,7 +134,7 @@ def stereo(images: tuple[str, ...], sim: bool, sim_poses: int, sim_seed: int,
 @_board_options
 @click.option("--reference", default=None, help="The camera whose frame is the calibration's"
               " (default: the first camera by name).")
-@click.option("-o", "--output", type=click.Path(dir_okay=False), default="calibration.json",
+@click.option("-o", "--output", type=OutputFile(), default="calibration.json",
               show_default=True, help="Calibration file to write (compared with first if it exists).")
 @click.option("--previous", type=click.Path(dir_okay=False), default=None,
               help="Calibration to compare with (default: the existing -o file, if any).")
@@ -283,7 +283,7 @@ def _from_cameras(config_path, calibration_path, volume, frames: int, quiet: boo
               " and compare with the simulated truth.")
 @click.option("--sim-seed", type=int, default=0, show_default=True,
               help="Seed of the simulated rig, noise and volume.")
-@click.option("-o", "--output", type=click.Path(dir_okay=False), default="spect_mapping.json",
+@click.option("-o", "--output", type=OutputFile(), default="spect_mapping.json",
               show_default=True, help="VTS → SPECT transform file to write (an earlier mapping there is"
               " replaced; any other file is refused, exit 3, unless --force).")
 @click.option("--force", is_flag=True, help="Replace the -o file even if it is not a mapping file.")

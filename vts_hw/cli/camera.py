@@ -11,7 +11,7 @@ from vts_hw.camera import Camera, CameraError, NoParameters, StreamFellShort, St
 from vts_hw.drivers.registry import open_camera, open_cameras
 from vts_hw.files import write_atomic
 from vts_hw.cli import cli
-from vts_hw.cli.common import PositiveSeconds, echo_json, fmt_time, json_option, with_rig
+from vts_hw.cli.common import OutputFile, OutputFolder, PositiveSeconds, echo_json, fmt_time, json_option, with_rig
 
 
 @cli.group()
@@ -25,7 +25,7 @@ def _open(rig, name: str) -> Camera:
 
 @camera.command()
 @click.argument("name")
-@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="JPEG file to write.")
+@click.option("-o", "--output", type=OutputFile(), required=True, help="JPEG file to write.")
 @with_rig
 def snapshot(name: str, output: str, rig) -> None:
     """Save one JPEG from camera NAME, exactly as the camera sent it."""
@@ -143,7 +143,7 @@ EXIT_CODES = {"complete": 0, "partial": 4, "failed": 4, "interrupted": 130}
 @click.argument("names", nargs=-1)
 @click.option("--all", "all_cameras", is_flag=True, help="Record every camera of the rig.")
 @click.option("--seconds", type=PositiveSeconds(), required=True, help="How long to record.")
-@click.option("-o", "--output", "out", type=click.Path(file_okay=False), required=True,
+@click.option("-o", "--output", "out", type=OutputFolder("recording folder"), required=True,
               help="Recording folder to create.")
 @click.option("--append", is_flag=True,
               help="Add to the recording already in the folder, keeping every entry of its manifest.")

@@ -14,7 +14,7 @@ from pathlib import Path
 import click
 
 from vts_hw.cli.camera import camera
-from vts_hw.cli.common import FiniteFloat, with_rig
+from vts_hw.cli.common import FiniteFloat, OutputFolder, with_rig
 
 #: exit status: every item good (or not known); something to adjust (as a TOLERANCE)
 EXIT_GOOD, EXIT_ADJUST = 0, 10
@@ -73,7 +73,7 @@ def _code(report) -> int:
 @camera.command("aim")
 @click.argument("name")
 @click.option("--once", is_flag=True, help="Check once, print the verdicts and exit (default: live until Ctrl-C).")
-@click.option("--out", type=click.Path(file_okay=False), default=None,
+@click.option("--out", type=OutputFolder("aim output folder"), default=None,
               help="Folder for NAME-aim.png (the picture with the markers, the SPECT FOV, the table and the "
                    "gantry's opening drawn) and NAME-aim.json (the verdicts); live: rewritten each check.")
 @click.option("--interval", type=FiniteFloat(min=0.0, max=60.0), default=1.0, show_default=True,

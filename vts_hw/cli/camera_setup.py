@@ -47,6 +47,9 @@ def setup(names: tuple[str, ...], all_cameras: bool, dry_run: bool, as_json: boo
     source = getattr(rig, "_source", None)
     if source is None:
         raise UsageError("the rig config was not read from a file: nowhere to write locked_params")
+    if not dry_run:   # a rig.yaml that cannot be replaced is said before any camera is set
+        from vts_hw.rig_file import check_rewritable
+        check_rewritable(source)
     if dry_run:
         for cfg in cfgs:
             with open_camera(cfg) as cam:

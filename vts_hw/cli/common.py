@@ -11,6 +11,7 @@ from pathlib import Path
 import click
 
 from vts_hw.config import ENV_CONFIG, RigConfig, load_rig
+from vts_hw.files import check_folder, check_target
 
 config_option = click.option(
     "--config", "config_path", type=click.Path(dir_okay=False), envvar=ENV_CONFIG, default=None,
@@ -57,6 +58,35 @@ class FiniteFloat(click.FloatRange):
                 (self.max is not None and (v > self.max or (self.max_open and v == self.max))):
             self.fail(f"{value!r} is out of range (expected {self._expected()})", param, ctx)
         return v
+
+
+class OutputFile(click.Path):
+    """The type of every option naming a file a command writes (``-o``, ``--plot``, ``--log``):
+    a name that exists and is not a regular file (a device such as /dev/full, a FIFO, a socket,
+    a folder) or is a symbolic link is refused when the command line is read, before a device
+    is opened or a library loaded (vts_hw.files.check_target: one sentence, exit 3); the writer
+    checks again when it writes. docs/decisions/0081-writers-replace-only-regular-files.md."""
+
+    def __init__(self):
+        super().__init__(dir_okay=False)
+
+    def convert(self, value, param, ctx):
+        check_target(value)
+        return super().convert(value, param, ctx)
+
+
+class OutputFolder(click.Path):
+    """The type of every option naming a folder a command writes into (``recording -o DIR``,
+    ``--export``, ``sim up --dir``): a file, device, FIFO or socket of that name, or a symbolic
+    link, is refused when the command line is read (vts_hw.files.check_folder, exit 3)."""
+
+    def __init__(self, what: str = "output folder"):
+        super().__init__(file_okay=False)
+        self.what = what
+
+    def convert(self, value, param, ctx):
+        check_folder(value, self.what)
+        return super().convert(value, param, ctx)
 
 
 def positive(what: str = "a number", max: float | None = None) -> FiniteFloat:

@@ -7,11 +7,11 @@ from pathlib import Path
 import click
 
 from vts_hw.cli import cli
-from vts_hw.cli.common import FiniteFloat, PositiveSeconds
+from vts_hw.cli.common import FiniteFloat, OutputFolder, PositiveSeconds
 
 
 @cli.command()
-@click.option("-o", "--output", "out", type=click.Path(file_okay=False), default="demo-out", show_default=True,
+@click.option("-o", "--output", "out", type=OutputFolder("demo folder"), default="demo-out", show_default=True,
               help="Folder for what the demo writes (its results store is made afresh).")
 @click.option("--days", type=click.IntRange(1, 730), default=60, show_default=True,
               help="Simulated days of daily QA.")

@@ -8,7 +8,7 @@ import sys
 import click
 
 from vts_hw.cli import cli
-from vts_hw.cli.common import PositiveSeconds, echo_json, json_option
+from vts_hw.cli.common import OutputFile, PositiveSeconds, echo_json, json_option
 
 DEFAULT_PASSWORD_ENV = "VTS_CAMERA_PASSWORD"
 
@@ -23,7 +23,7 @@ def _ipv4(ctx, param, values):
 
 
 @cli.command()
-@click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
+@click.option("-o", "--output", type=OutputFile(), default=None,
               help="Write a rig.yaml skeleton for the cameras found (never over an existing file).")
 @click.option("--timeout", type=PositiveSeconds(max=120), default=5.0, show_default=True,
               help="How long to listen for announcements, in seconds.")

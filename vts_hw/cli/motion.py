@@ -5,8 +5,8 @@ from __future__ import annotations
 import click
 
 from vts_hw.cli import cli
-from vts_hw.cli.common import (FramesProgress, calibration_files, config_option, finish_analysis, json_option,
-                               listmode_candidates, listmode_options)
+from vts_hw.cli.common import (FramesProgress, OutputFile, OutputFolder, calibration_files, config_option,
+                               finish_analysis, json_option, listmode_candidates, listmode_options)
 
 
 @cli.group()
@@ -22,10 +22,10 @@ def motion() -> None:
 @click.option("--mapping", type=click.Path(dir_okay=False), default=None,
               help="VTS -> SPECT transform file (default: the rig config's calibration.spect); without one "
                    "poses are in the VTS frame.")
-@click.option("-o", "--output", "out", type=click.Path(dir_okay=False), default=None,
+@click.option("-o", "--output", "out", type=OutputFile(), default=None,
               help="Write the report here: NAME.html (self-contained: the plot inline) or NAME.pdf.")
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None, help="Also write the plot as a PNG.")
-@click.option("--export", "export_dir", type=click.Path(file_okay=False), default=None,
+@click.option("--plot", "plot_path", type=OutputFile(), default=None, help="Also write the plot as a PNG.")
+@click.option("--export", "export_dir", type=OutputFolder("export folder"), default=None,
               help="Write the motion files to DIR (docs/motion-formats.md): motion_6dof.csv/.json, respiration.csv, "
                    "subsets.json, trajectories.csv/.json, and CASToR's castor_motion.dyn and castor_motion_rigid.txt "
                    "(only with --listmode and a mapping made from a volume: CASToR reads list-mode seconds).")

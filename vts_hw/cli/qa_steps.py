@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 
 from vts_hw.tolerance import State
-from vts_hw.cli.common import FiniteFloat, config_option, echo_json, json_option
+from vts_hw.cli.common import FiniteFloat, OutputFolder, config_option, echo_json, json_option
 from vts_hw.cli.qa import qa
 
 
@@ -35,7 +35,7 @@ def _print(analysis, extra_lines, as_json, data_extra=None) -> None:
               "simulated table and SPECT; scored against the truth.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the simulated rig (--sim).")
 @config_option
-@click.option("-o", "--out", "out_dir", type=click.Path(file_okay=False), default=None,
+@click.option("-o", "--out", "out_dir", type=OutputFolder("step test folder"), default=None,
               help="Session folder: snapshots, positions.json, volumes (--sim), the plot "
                    "[default: steps-YYYYmmdd-HHMMSS].")
 @click.option("--volumes", type=click.Path(file_okay=False), default=None,

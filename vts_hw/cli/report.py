@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from vts_hw.cli import cli
-from vts_hw.cli.common import config_option, echo_json, json_option, rig_if_any
+from vts_hw.cli.common import OutputFile, config_option, echo_json, json_option, rig_if_any
 
 ALL_RIGS = "all"
 
@@ -27,7 +27,7 @@ def report() -> None:
 
 @report.command()
 @since_option
-@click.option("-o", "--output", "out", type=click.Path(dir_okay=False), default="drift-report.html",
+@click.option("-o", "--output", "out", type=OutputFile(), default="drift-report.html",
               show_default=True, help="report.html (self-contained) or report.pdf.")
 @rig_option
 @json_option
@@ -91,7 +91,7 @@ def _known_rig(store, name: str, given: str | None) -> None:
 
 @report.command()
 @since_option
-@click.option("-o", "--output", "out", type=click.Path(dir_okay=False), default="rooms.html",
+@click.option("-o", "--output", "out", type=OutputFile(), default="rooms.html",
               show_default=True, help="rooms.html (self-contained) or rooms.pdf; each room's drift report is "
                                       "written beside it as <name>-<rig>-drift.html (or .pdf) and linked.")
 @rig_option

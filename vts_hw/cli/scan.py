@@ -15,7 +15,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from vts_hw.cli import cli
-from vts_hw.cli.common import PositiveSeconds, echo_json, fmt_time, json_option, with_rig
+from vts_hw.cli.common import OutputFolder, PositiveSeconds, echo_json, fmt_time, json_option, with_rig
 from vts_hw.cli.live_view import live_line, live_table
 
 REFRESH_S = 0.5          # the live table, about twice a second
@@ -28,7 +28,7 @@ def scan() -> None:
 
 
 @scan.command()
-@click.option("-o", "--output", "out", type=click.Path(file_okay=False), default=None,
+@click.option("-o", "--output", "out", type=OutputFolder("recording folder"), default=None,
               help="Session folder to create (default: ./scan-YYYYmmddTHHMMSSZ).")
 @click.option("--duration", type=PositiveSeconds(), default=None,
               help="Stop after S seconds from the trigger (default: until Ctrl-C).")

@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from vts_hw.cli import cli
-from vts_hw.cli.common import FiniteFloat, positive
+from vts_hw.cli.common import FiniteFloat, OutputFolder, positive
 
 
 WARMUP_LINE = "cameras just switched on: their pictures drift for minutes as they warm (--warmup-drift)"
@@ -73,7 +73,7 @@ def sim() -> None:
                    "(seeded by --seed; decision 0072). For trying the commissioning's warm-up step (with "
                    "--rate 60 a simulated minute passes each second).")
 @click.option("--detach", is_flag=True, help="Run in the background (needs --dir).")
-@click.option("--dir", "folder", type=click.Path(file_okay=False), default=None,
+@click.option("--dir", "folder", type=OutputFolder("simulated rig folder"), default=None,
               help="Where to write rig.yaml and sim.env (and sim.pid, sim.log when detached).")
 def up(n_cameras: int, gantry: bool, seed: int, vapix: str, model: str | None, https: bool, rate: float,
        trigger: str, spect: bool, patient: bool, patient_seed: int | None, patient_moves: int | None,

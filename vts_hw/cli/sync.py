@@ -5,8 +5,8 @@ from __future__ import annotations
 import click
 
 from vts_hw.cli import cli
-from vts_hw.cli.common import (FramesProgress, calibration_files, config_option, finish_analysis, json_option,
-                               listmode_candidates, listmode_options)
+from vts_hw.cli.common import (FramesProgress, OutputFile, OutputFolder, calibration_files, config_option,
+                               finish_analysis, json_option, listmode_candidates, listmode_options)
 
 
 @cli.group()
@@ -21,11 +21,11 @@ def sync() -> None:
               help="Stereo calibration file (default: the rig config's calibration.stereo).")
 @click.option("--mapping", type=click.Path(dir_okay=False), default=None,
               help="VTS -> SPECT transform file (default: the rig config's calibration.spect).")
-@click.option("-o", "--output", "out", type=click.Path(dir_okay=False), default=None,
+@click.option("-o", "--output", "out", type=OutputFile(), default=None,
               help="Write the report here: NAME.html (self-contained: the plot inline) or NAME.pdf.")
-@click.option("--plot", "plot_path", type=click.Path(dir_okay=False), default=None,
+@click.option("--plot", "plot_path", type=OutputFile(), default=None,
               help="Also write the plot as a PNG here.")
-@click.option("--export", "export_dir", type=click.Path(file_okay=False), default=None,
+@click.option("--export", "export_dir", type=OutputFolder("export folder"), default=None,
               help="Export the marker trajectories in the SPECT frame on SPECT time to DIR "
                    "(trajectories.csv and .json, docs/trajectory-format.md).")
 @click.option("--marker", type=int, default=None,

@@ -7,9 +7,9 @@ import contextlib
 import click
 
 from vts_hw.cli import cli
-from vts_hw.cli.common import echo_json, json_option, with_rig
+from vts_hw.cli.common import OutputFile, echo_json, json_option, with_rig
 
-log_option = click.option("--log", "log_path", type=click.Path(dir_okay=False), default="trigger.csv",
+log_option = click.option("--log", "log_path", type=OutputFile(), default="trigger.csv",
                           show_default=True, help="trigger.csv to append every command, reply and edge to.")
 
 

@@ -25,13 +25,14 @@ from __future__ import annotations
 
 import contextlib
 import os
+import stat
 import threading
 import time
 from pathlib import Path
 
 from vts_hw import __version__
 from vts_hw.errors import DataError, UsageError
-from vts_hw.files import WriteFailed, ensure_dir, os_reason, write_json_atomic
+from vts_hw.files import WriteFailed, check_folder, ensure_dir, open_fd, os_reason, write_json_atomic
 from vts_hw.recording.folder import INDEX_HEADER, MANIFEST, load_manifest, read_index
 
 FSYNC_EVERY_S = 1.0        # write() per frame survives a killed process; fsync bounds a power cut
@@ -80,9 +81,13 @@ class CameraWriter:
                 raise DataError(f"{self.mjpeg_path}: holds {size} bytes but its index ends at byte {end}: "
                                 f"run 'vts recording reindex {folder}' before adding to it")
         self.frames_before = len(rows)
-        flags = os.O_WRONLY | os.O_CREAT | os.O_APPEND
-        self._mjpeg = os.open(self.mjpeg_path, flags, 0o644)
-        self._index = os.open(self.index_path, flags, 0o644)
+        # regular files only, never through a symbolic link; a FIFO of that name is refused, not waited on
+        self._mjpeg = open_fd(self.mjpeg_path, perms=0o644)
+        try:
+            self._index = open_fd(self.index_path, perms=0o644)
+        except BaseException:
+            os.close(self._mjpeg)
+            raise
         self._offset = os.fstat(self._mjpeg).st_size
         self._index_size = os.fstat(self._index).st_size
         if self._index_size == 0:
@@ -166,6 +171,7 @@ class Recording:
         self.meta = dict(meta or {})
         self.append = append
         self.base: dict = {}
+        check_folder(self.folder, "recording folder")   # a FIFO, device or symbolic link of that name: refused
         if holds_recording(self.folder):
             if not append:
                 raise RecordingExists(f"{self.folder} already holds a recording: record into a new folder, "
@@ -193,7 +199,8 @@ class Recording:
             self._free_reserve()
             for p in created:  # empty files of a recording that never started
                 with contextlib.suppress(OSError):
-                    if p.stat().st_size <= len(",".join(INDEX_HEADER)) + 1:
+                    st = os.lstat(p)   # ours are regular files: anything else of that name is left alone
+                    if stat.S_ISREG(st.st_mode) and st.st_size <= len(",".join(INDEX_HEADER)) + 1:
                         p.unlink()
             if isinstance(exc, WriteFailed):
                 raise WriteFailed(exc.path, exc.reason, "nothing was recorded") from None
@@ -214,7 +221,7 @@ class Recording:
         path = self.folder / RESERVE_NAME
         with contextlib.suppress(FileNotFoundError):
             path.unlink()  # left by a killed recorder
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        fd = open_fd(path, append=False, exclusive=True, perms=0o644)
         try:
             _write_all(fd, b"\0" * RESERVE_BYTES)
         finally:
