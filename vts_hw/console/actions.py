@@ -2,9 +2,11 @@
 acknowledged, a baseline set, a push, the LED switched, a login).
 
 Both kinds have one door: ``record``, ``recent`` and ``page`` (for the History page).
-``MemoryActions`` keeps them for the console's life only (a console without a results store);
 ``StoreActions`` writes each to the results store's ``actions`` table (store/people.py) the
-moment it is recorded, so the History page shows them. A detail never holds a secret: keys
+moment it is recorded, so the History page shows them; `vts console` serves only with one
+(:func:`durable_actions`: its first action, ``console started``, must reach the store, else
+the console is refused before it serves: a store that is not ours, or one it cannot write).
+``MemoryActions`` keeps them for the life of an object only (the tests' consoles). A detail never holds a secret: keys
 that name one (password, token, cookie, session, credential, authorization) are masked and a
 URL's user and password are cut out (``clean``) before anything is kept.
 """
@@ -12,11 +14,17 @@ URL's user and password are cut out (``clean``) before anything is kept.
 from __future__ import annotations
 
 import logging
+import math
 import re
 import threading
 import time
 from dataclasses import asdict, dataclass, field
 from typing import Callable
+
+from vts_hw.console.guard import LOCAL_USER
+from vts_hw.console.sessions import current
+from vts_hw.errors import UsageError, VtsError
+from vts_hw.store.errors import StoreError
 
 log = logging.getLogger(__name__)
 
@@ -45,6 +53,8 @@ def clean(value):
         return [clean(v) for v in value]
     if isinstance(value, str):
         return URL_USERINFO.sub(r"\1***@", value)
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)                  # (JSON has no inf or nan: the store's and the pages' JSON stays JSON)
     if value is None or isinstance(value, (bool, int, float)):
         return value
     return clean(str(value))
@@ -54,7 +64,6 @@ def new_action(rig: str, user: str, what: str, detail: dict | None, role: str) -
     """The action now, its detail cleaned; its role the one given, else the role of the session
     acting (the caller's, seen through sessions.current: the pages need not pass it)."""
     if not role:
-        from vts_hw.console.sessions import current
         s = current.get()
         role = s.role if s is not None and s.user == user else ""
     return Action(time.time(), user, what, clean(dict(detail or {})), role, rig)
@@ -103,8 +112,18 @@ class StoreActions:
         self.pending: list[Action] = []
         self._recent: tuple[float, int, list[Action]] | None = None    # (when read, limit, actions)
 
+    def record_now(self, user: str, what: str, detail: dict | None = None, *, role: str = "") -> Action:
+        """Record an action that must reach the store now (with any waiting): StoreError (or the
+        store's other VtsError) when it does not, and nothing is kept in memory."""
+        act = new_action(self.rig, user, what, detail, role)
+        with self._lock:
+            self._recent = None
+            with self._open_write() as store:
+                store.log_actions([a.as_dict() for a in [*self.pending, act]])
+            self.pending = []
+        return act
+
     def record(self, user: str, what: str, detail: dict | None = None, *, role: str = "") -> Action:
-        from vts_hw.errors import VtsError
         act = new_action(self.rig, user, what, detail, role)
         with self._lock:
             self._recent = None
@@ -147,4 +166,24 @@ class StoreActions:
 RECENT_S = 5.0       # actions of other consoles on the same store reach a page within this
 
 
-__all__ = ["Action", "new_action", "MemoryActions", "StoreActions", "clean"]
+def durable_actions(open_write, open_read, rig: str, address: str) -> StoreActions:
+    """The action log of a console about to serve at ``address``: the results store's, its
+    first action (``console started``, by the person at this machine) written now. A console
+    without a store (``open_write`` None) is UsageError (exit 2); a store that is not a vts-hw
+    store, or that cannot take the action (read-only, disk full, a database that refuses
+    writes), StoreError (exit 3) in one sentence naming it: the action log is never only in
+    memory, to be lost when the console stops. docs/decisions/0080-console-inputs-and-audit.md."""
+    if open_write is None or open_read is None:
+        raise UsageError("the console needs a results store to keep its action log in (who did what): none "
+                         "was given")
+    log_ = StoreActions(open_write, open_read, rig)
+    try:
+        log_.record_now(LOCAL_USER, "console started", {"address": address})
+    except VtsError as exc:
+        raise StoreError(f"refused to serve the console: its action log cannot be kept in the results store "
+                         f"({exc}); name a vts-hw results store this user can write (vts --store, $VTS_STORE, "
+                         f"rig.yaml's store:)") from None
+    return log_
+
+
+__all__ = ["Action", "new_action", "MemoryActions", "StoreActions", "durable_actions", "clean"]

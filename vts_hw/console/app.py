@@ -31,6 +31,8 @@ from starlette.templating import Jinja2Templates
 from vts_hw import __version__
 from vts_hw.console import guard
 from vts_hw.console.actions import MemoryActions
+from vts_hw.console.answers import refused_input, unexpected
+from vts_hw.console.inputs import BadInput, StrictRequests
 from vts_hw.console.sessions import current
 from vts_hw.console.web import event_stream, no_camera, sse, switch_asked, wanted_cameras
 
@@ -160,7 +162,9 @@ def create_app(console: Console) -> Starlette:
               *scan_routes(console, templates),
               *aim_routes(console, templates),         # the Room page's aim & focus (aim_checks.py)
               Mount("/static", StaticFiles(directory=str(HERE / "static")), name="static")]
-    return Starlette(routes=routes, middleware=[Middleware(SessionDoor, console=console)])
+    return Starlette(routes=routes,      # inputs.py: no parameter twice, no body too large
+                     middleware=[Middleware(SessionDoor, console=console), Middleware(StrictRequests)],
+                     exception_handlers={BadInput: refused_input, Exception: unexpected})   # answers.py
 
 
 __all__ = ["Console", "create_app"]

@@ -7,8 +7,9 @@ procedure is named by its label from the catalog, never by a stored name written
 * ``GET /history?procedure=LABEL&state=STATE&from=YYYY-MM-DD&to=YYYY-MM-DD&page=N``: the runs,
   newest first, ``PAGE_SIZE`` a page; dates are UTC days, ``to`` included. A filter value that
   is not one of the page's own (an unknown procedure or state, a date that is not a date,
-  ``from`` after ``to``, a page that is not a number) is one sentence on the page, HTTP 400.
-* ``GET /history/run/{id}``: the run, its measures (with the tolerance window that judged each,
+  ``from`` after ``to``, a page that is not a number or beyond what the store can hold, a
+  parameter given twice) is one sentence on the page, HTTP 400 (inputs.py reads them).
+* ``GET /history/run/{id}`` (an id of 1 to 2**63-1, else 400): the run, its measures (with the tolerance window that judged each,
   when the store has one) and its artifacts: PNG plots inline, other files to download.
 * ``GET /history/run/{id}/file/{artifact_id}``: an artifact's bytes, only for an artifact the
   store lists for that run (by its id: no path is ever taken from the URL) and whose file
@@ -32,6 +33,7 @@ from starlette.responses import FileResponse, PlainTextResponse
 from starlette.routing import Route
 
 from vts_hw import catalog
+from vts_hw.console.inputs import BadInput, path_id, query_page, query_text
 from vts_hw.errors import VtsError
 from vts_hw.store.records import RUN_STATUSES
 
@@ -39,7 +41,7 @@ PAGE_SIZE = 50
 DAY_S = 86400.0
 
 
-class BadFilter(ValueError):
+class BadFilter(BadInput):
     """A filter value in the URL the page does not offer (one sentence, HTTP 400)."""
 
 
@@ -67,15 +69,26 @@ class Filters:
 def _day(text: str, which: str) -> float:
     try:
         day = dt.date.fromisoformat(text)
-    except ValueError:
+    except (ValueError, OverflowError):
         raise BadFilter(f"the {which} date {text!r} is not a date: give it as YYYY-MM-DD (e.g. 2026-09-01)") from None
     return dt.datetime(day.year, day.month, day.day, tzinfo=dt.timezone.utc).timestamp()
 
 
-def parse_filters(params) -> Filters:
-    """The filters of a URL query (a mapping); BadFilter naming the first bad value."""
-    f = Filters(label=params.get("procedure", "").strip(), state=params.get("state", "").strip(),
-                date_from=params.get("from", "").strip(), date_to=params.get("to", "").strip())
+def shown_filters(request: Request) -> Filters:
+    """The filters as the URL gives them, unchecked (the form shows them again with the error)."""
+    text = {k: (request.query_params.get(k) or "")[:200] for k in ("procedure", "state", "from", "to")}
+    return Filters(label=text["procedure"], state=text["state"], date_from=text["from"], date_to=text["to"])
+
+
+def parse_filters(request: Request, keys=("procedure", "state", "from", "to", "page")) -> Filters:
+    """The filters of the request's URL query (those of ``keys``); BadFilter naming the first bad value."""
+    try:
+        given = {k: query_text(request, k) for k in keys if k != "page"}
+        page = query_page(request, PAGE_SIZE) if "page" in keys else 1
+    except BadInput as exc:
+        raise BadFilter(str(exc)) from None
+    f = Filters(label=given.get("procedure", ""), state=given.get("state", ""), date_from=given.get("from", ""),
+                date_to=given.get("to", ""), page=page)
     labels = catalog.by_label()
     if f.label:
         if f.label not in labels:
@@ -89,10 +102,6 @@ def parse_filters(params) -> Filters:
         f.end = _day(f.date_to, "to") + DAY_S
     if f.start is not None and f.end is not None and f.start >= f.end:
         raise BadFilter(f"the from date {f.date_from} is after the to date {f.date_to}: nothing can be in between")
-    page = params.get("page", "1").strip() or "1"
-    if not page.isdigit() or int(page) < 1:
-        raise BadFilter(f"page {page!r} is not a page number (1, 2, ...)")
-    f.page = int(page)
     return f
 
 
@@ -172,11 +181,9 @@ class History:
         ctx = {"labels": list(catalog.by_label()), "states": RUN_STATUSES, "runs": [], "total": 0,
                "error": "", "page_size": PAGE_SIZE}
         try:
-            f = parse_filters(request.query_params)
+            f = parse_filters(request)
         except BadFilter as exc:
-            f = Filters(label=request.query_params.get("procedure", ""), state=request.query_params.get("state", ""),
-                        date_from=request.query_params.get("from", ""), date_to=request.query_params.get("to", ""))
-            return self._page(request, "history.html", {**ctx, "f": f, "error": str(exc)}, 400)
+            return self._page(request, "history.html", {**ctx, "f": shown_filters(request), "error": str(exc)}, 400)
         try:
             runs, total = await asyncio.to_thread(self.read_page, f)
         except VtsError as exc:
@@ -187,7 +194,10 @@ class History:
                                                     "first": (f.page - 1) * PAGE_SIZE + 1})
 
     async def run_page(self, request: Request):
-        run_id = request.path_params["run"]
+        try:
+            run_id = path_id(request, "run", "run id")
+        except BadInput as exc:
+            return self._page(request, "message.html", {"message": str(exc)}, exc.status)
         try:
             got = await asyncio.to_thread(self.read_run, run_id)
         except VtsError as exc:
@@ -198,7 +208,7 @@ class History:
         return self._page(request, "history_run.html", got)
 
     async def artifact(self, request: Request):
-        run_id, aid = request.path_params["run"], request.path_params["artifact"]
+        run_id, aid = path_id(request, "run", "run id"), path_id(request, "artifact", "file id")
         try:
             path = await asyncio.to_thread(self.artifact_path, run_id, aid)
         except VtsError as exc:
@@ -221,14 +231,15 @@ class History:
                  "detail": ", ".join(f"{k}: {v}" for k, v in sorted(a.detail.items()))} for a in acts], total
 
     async def actions(self, request: Request):
-        user = request.query_params.get("user", "").strip()
-        ctx = {"acts": [], "total": 0, "error": "", "user": user, "page_size": PAGE_SIZE}
-        params = {k: v for k, v in request.query_params.items() if k in ("from", "to", "page")}
+        ctx = {"acts": [], "total": 0, "error": "", "user": (request.query_params.get("user") or "")[:200],
+               "page_size": PAGE_SIZE}
         try:
-            f = parse_filters(params)
-        except BadFilter as exc:
-            f = Filters(date_from=params.get("from", ""), date_to=params.get("to", ""))
-            return self._page(request, "history_actions.html", {**ctx, "f": f, "error": str(exc)}, 400)
+            user = query_text(request, "user")
+            f = parse_filters(request, ("from", "to", "page"))
+        except BadInput as exc:
+            return self._page(request, "history_actions.html", {**ctx, "f": shown_filters(request), "error": str(exc)},
+                              400)
+        ctx["user"] = user
         try:
             acts, total = await asyncio.to_thread(self.read_actions, f, user)
         except VtsError as exc:
@@ -239,18 +250,18 @@ class History:
                                                             "pages": pages, "first": (f.page - 1) * PAGE_SIZE + 1})
 
     async def drift_report(self, request: Request):
-        return await self.reports.drift(request.query_params.get("since", "60d"))
+        return await self.reports.drift(query_text(request, "since", "60d"))
 
     async def rooms_page(self, request: Request):
-        return await self.reports.rooms(request.query_params.get("since", "60d"))
+        return await self.reports.rooms(query_text(request, "since", "60d"))
 
     async def rooms_file(self, request: Request):
         return self.reports.rooms_file(request.path_params["name"])
 
     def routes(self) -> list[Route]:
         return [Route("/history", self.history),
-                Route("/history/run/{run:int}", self.run_page),
-                Route("/history/run/{run:int}/file/{artifact:int}", self.artifact),
+                Route("/history/run/{run}", self.run_page),
+                Route("/history/run/{run}/file/{artifact}", self.artifact),
                 Route("/history/actions", self.actions),
                 Route("/history/drift-report", self.drift_report),
                 Route("/history/rooms/", self.rooms_page),
@@ -261,5 +272,5 @@ def history_routes(console, templates) -> list[Route]:
     return History(console, templates).routes()
 
 
-__all__ = ["History", "history_routes", "parse_filters", "Filters", "BadFilter", "PAGE_SIZE"]
+__all__ = ["History", "history_routes", "parse_filters", "shown_filters", "Filters", "BadFilter", "PAGE_SIZE"]
 

@@ -14,8 +14,9 @@ by the door at its next event. Then the page's script (static/auth.js) goes to t
   a name locked after wrong passwords says for how long. The form must come from this site.
 * ``POST /logout``: the session ends, its cookie is cleared, 303 to the login page.
 * ``GET /session``: who is logged in (name, role, when the session ends), 401 without one.
-Logins, refused logins (under the name only when it is a user's: a password typed in the name
-field is never logged) and logouts go to the action log.
+Logins, refused logins, lock-outs (the wrong password that locks a name: ``locked out``) and
+each try while locked (``login refused: locked``) go to the action log, under the name only
+when it is a user's (a password typed in the name field is never logged), as do logouts.
 """
 
 from __future__ import annotations
@@ -29,7 +30,8 @@ from starlette.responses import JSONResponse, RedirectResponse, Response
 from starlette.routing import Route
 
 from vts_hw.console import guard
-from vts_hw.console.sessions import current
+from vts_hw.console.inputs import body_bytes
+from vts_hw.console.sessions import LOCK_AFTER, current
 
 OPEN_PATHS = ("/login",)
 OPEN_PREFIXES = ("/static/",)
@@ -102,18 +104,18 @@ class SessionDoor:
 
 async def _form(request: Request) -> dict[str, str] | None:
     """The login form's fields (application/x-www-form-urlencoded, as the page sends it), None for
-    anything else or a body over ``FORM_MAX`` bytes (the standard library parses it: no extra package)."""
+    anything else; a body over ``FORM_MAX`` bytes is BadInput, 413 (the standard library parses
+    it: no extra package)."""
     if request.headers.get("content-type", "").split(";")[0].strip() != "application/x-www-form-urlencoded":
         return None
-    body = b""
-    async for chunk in request.stream():
-        body += chunk
-        if len(body) > FORM_MAX:
-            return None
+    body = await body_bytes(request, FORM_MAX)     # (413 beyond it)
     try:
-        return {k: v[0] for k, v in parse_qs(body.decode("utf-8"), keep_blank_values=True).items()}
+        fields = parse_qs(body.decode("utf-8"), keep_blank_values=True)
     except UnicodeDecodeError:
         return None
+    if any(len(v) > 1 for v in fields.values()):      # a field twice: not the page's form
+        return None
+    return {k: v[0] for k, v in fields.items()}
 
 
 def _safe_next(value: str) -> str:
@@ -144,16 +146,24 @@ def login_routes(console, templates) -> list[Route]:
         if form is None:
             return page(request, error="the login form could not be read: send it from this page", status=400)
         name, password, next_ = form.get("name", "").strip(), form.get("password", ""), form.get("next", "/")
+        known = name in auth.known_names()
+        who, where = name if known else "(not a user)", {"from": request.client.host if request.client else ""}
         locked = auth.locked_for(name)
         if locked > 0:
+            await asyncio.to_thread(functools.partial(
+                console.actions.record, who, "login refused: locked", {**where, "locked_for_s": round(locked)},
+                role=""))
             return page(request, error=f"too many wrong passwords for {name}: try again in {locked:.0f} s",
                         status=429, next_=next_, name=name)
         s = await asyncio.to_thread(auth.login, name, password)
         if s is None:
-            known = name in auth.known_names()
+            locked = auth.locked_for(name)        # this wrong password locked the name
             await asyncio.to_thread(functools.partial(
-                console.actions.record, name if known else "(not a user)", "login refused",
-                {"from": request.client.host if request.client else ""}, role=""))
+                console.actions.record, who, "login refused", where, role=""))
+            if locked > 0:
+                await asyncio.to_thread(functools.partial(
+                    console.actions.record, who, "locked out",
+                    {**where, "after": f"{LOCK_AFTER} wrong passwords in a row", "for_s": round(locked)}, role=""))
             return page(request, error="wrong user name or password", status=401, next_=next_,
                         name=name if known else "")
         await asyncio.to_thread(functools.partial(

@@ -17,6 +17,9 @@
   since when; ``version`` goes up at each change (the page's event stream sends it then).
 * A job that fails says so in one sentence (``error``); what the store already holds stays
   (the recorder's one transaction, or its unsaved file when the store refused the run).
+* The action log gets the job's outcome once it has ended, never "done" for one that failed:
+  ``daily QA run`` / ``drift baseline set`` when it took, ``daily QA not stored`` when it ran
+  but the store did not take it, ``daily QA failed`` / ``drift baseline not set`` and why.
 """
 
 from __future__ import annotations
@@ -27,6 +30,8 @@ import time
 from vts_hw.errors import ConfigError, VtsError
 
 KINDS = {"daily": "daily QA", "baseline": "drift baseline"}
+#: what the action log says of a job that ended: (took, failed)
+SAID = {"daily": ("daily QA run", "daily QA failed"), "baseline": ("drift baseline set", "drift baseline not set")}
 
 
 class Busy(VtsError):
@@ -107,22 +112,24 @@ class Jobs:
 
     def _run(self, target, user, frames, names) -> None:
         attached: list[str] = []
+        kind = self._job["kind"]
+        took, failed = SAID[kind]
         try:
             detail = target(user, frames, names, attached)
             ended = {"state": "done", "step": "done", "finished": self.clock()}
+            what = "daily QA not stored" if detail.get("not_stored") else took
         except VtsError as exc:
-            detail = {"error": str(exc)}
+            detail, what = {"why": str(exc)}, failed
             ended = {"state": "failed", "error": str(exc), "finished": self.clock()}
         except Exception as exc:      # a bug must still end the job with its sentence, never hang the page
-            detail = {"error": f"{type(exc).__name__}: {exc}"}
-            ended = {"state": "failed", "error": f"the {KINDS.get(self._job.get('kind'), 'job')} stopped: "
+            detail, what = {"why": f"{type(exc).__name__}: {exc}"}, failed
+            ended = {"state": "failed", "error": f"the {KINDS.get(kind, 'job')} stopped: "
                                                   f"{type(exc).__name__}: {exc}", "finished": self.clock()}
         finally:
             self._release(attached)
         self.ended += 1
         self._set(**ended)
-        self._record(user, f"{KINDS[self._job['kind']]} {'run' if self._job['kind'] == 'daily' else 'set'}",
-                     {**detail, "cameras": names})
+        self._record(user, what, {**detail, "cameras": names})
         facts = getattr(self.console, "facts", None)
         if facts is not None and hasattr(facts, "read_daily_qa"):
             try:

@@ -26,14 +26,17 @@ from __future__ import annotations
 
 import asyncio
 import threading
+from typing import Annotated
 
+from pydantic import Field, StrictBool, StrictInt
 from starlette.requests import Request
 from starlette.responses import JSONResponse, PlainTextResponse, Response
 from starlette.routing import Route
 
 from vts_hw.console import guard
+from vts_hw.console.inputs import Body, NoBody, json_body, query_id, shown
 from vts_hw.console.qa_job import Busy, Jobs
-from vts_hw.console.web import event_stream, json_object, sse
+from vts_hw.console.web import event_stream, sse
 from vts_hw.errors import ConfigError, UsageError, VtsError
 
 DEFAULT_FRAMES = 5            # `vts qa daily --frames`'s default
@@ -42,12 +45,16 @@ TICK_S = 0.1
 RUNNING_EVERY_S = 1.0
 
 
-def _frames(body: dict) -> int:
-    n = body.get("frames", DEFAULT_FRAMES)
-    if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= MAX_FRAMES:
-        raise UsageError(f"frames must be a whole number from 1 to {MAX_FRAMES} (as `vts qa daily --frames`), "
-                         f"not {n!r}")
-    return n
+FRAMES = Field(DEFAULT_FRAMES, description=f"a whole number from 1 to {MAX_FRAMES} (as `vts qa daily --frames`)")
+
+
+class DailyBody(Body):
+    frames: Annotated[StrictInt, Field(ge=1, le=MAX_FRAMES)] = FRAMES
+
+
+class BaselineBody(DailyBody):
+    confirm: StrictBool = Field(False, description="true, once the page has asked (a baseline changes what "
+                                                   "every later daily QA is compared with)")
 
 
 def _refused(exc: VtsError) -> JSONResponse:
@@ -132,13 +139,13 @@ class QAPage:
         if refused is not None:
             return refused
         user, _ = guard.user_of(self.console, request)
+        body = await json_body(request, BaselineBody if kind == "baseline" else DailyBody,
+                               '{"confirm": true, "frames": 5}' if kind == "baseline" else '{"frames": 5}')
         try:
-            body = await json_object(request, '{"frames": 5}')
-            frames = _frames(body)
-            if kind == "baseline" and body.get("confirm") is not True:
+            if kind == "baseline" and body.confirm is not True:
                 raise UsageError("a baseline is set only when confirmed on the page (the body needs "
                                  '"confirm": true): it changes what every later daily QA is compared with')
-            job = await asyncio.to_thread(self.jobs.start, kind, user, frames)
+            job = await asyncio.to_thread(self.jobs.start, kind, user, body.frames)
         except VtsError as exc:
             return _refused(exc)
         return JSONResponse(job, status_code=202)
@@ -153,10 +160,14 @@ class QAPage:
         refused = guard.refuse(self.console, request, guard.OPERATOR)
         if refused is not None:
             return refused
+        await json_body(request, NoBody)
         user, _ = guard.user_of(self.console, request)
         try:
             got = await asyncio.to_thread(self.jobs.push, user)
+        except Busy as exc:            # not tried: another push is running
+            return _refused(exc)
         except VtsError as exc:
+            await asyncio.to_thread(self.console.actions.record, user, "push to QATrack+ failed", {"why": str(exc)})
             return _refused(exc)
         await asyncio.to_thread(self.console.actions.record, user, "push to QATrack+",
                                 {"runs": [o["run_id"] for o in got["outcomes"]], **got["counts"]})
@@ -166,11 +177,11 @@ class QAPage:
         from vts_hw.console.qa_view import drift_plot_png
         name = request.path_params["camera"]
         if name not in self.jobs.cameras():
-            return PlainTextResponse(f"no camera {name!r} in this rig", status_code=404)
+            return PlainTextResponse(f"no camera {shown(name)} in this rig", status_code=404)
+        run = query_id(request, "run", "run id")
         if self.console.open_store is None:
             return PlainTextResponse("no results store is named for this console", status_code=503)
-        run = request.query_params.get("run", "")
-        key = (name, int(run) if run.isdigit() else None, self.jobs.ended)   # a new baseline: drawn anew
+        key = (name, run, self.jobs.ended)   # a new baseline: drawn anew
         try:
             png = await asyncio.to_thread(self.plots.get, key, lambda: drift_plot_png(
                 self.console.open_store, self.console.rig_name, name))

@@ -14,6 +14,9 @@ folder (``motion/``), and its result stored in the results store as the command 
   page reads); when there is none yet, it is made where `vts motion analyze` would make it
   ($VTS_STORE, rig.yaml's ``store:``, the per-user default); a store that cannot take it: its
   figures go to the unsaved file, as the command's do, and the page says so.
+* Its outcome is said once it has ended (``on_said(what, detail)``: the action log):
+  ``motion analysed`` with its state and whether it was stored, or ``motion analysis failed``
+  and why; never as done before it is.
 """
 
 from __future__ import annotations
@@ -36,8 +39,9 @@ class MotionJob:
     """The motion analysis of the scan in ``folder`` for ``rig``; ``store_target()``: the store
     to record into (a ResultsStore or a target; raising VtsError: not stored)."""
 
-    def __init__(self, rig, folder: Path, store_target, *, user: str = ""):
+    def __init__(self, rig, folder: Path, store_target, *, user: str = "", on_said=None):
         self.rig, self.folder, self.store_target, self.user = rig, Path(folder), store_target, user
+        self.on_said = on_said
         self.state = "running"          # running | done | failed
         self.progress: tuple[int, int] | None = None
         self.stage = "reading the recording"
@@ -100,6 +104,20 @@ class MotionJob:
                 "failed"
         finally:
             self.finished = time.time()
+        self._say()
+
+    def _say(self) -> None:
+        if self.on_said is None:
+            return
+        if self.state == "done":
+            what, detail = "motion analysed", {"state": self.result_state, "stored": self.stored,
+                                               **({"not written": self.not_written} if self.not_written else {})}
+        else:
+            what, detail = "motion analysis failed", {"why": self.error}
+        try:
+            self.on_said(what, {"scan": self.folder.name, **detail})
+        except Exception:        # (the log's own failures are its to keep: actions.StoreActions)
+            pass
 
     def _store(self, a, data, artifacts, outs) -> None:
         from vts_hw.store.recorder import record

@@ -6,9 +6,13 @@ acknowledge its alerts, then analyse its motion (as `vts motion analyze`) in one
   ``STATE_EVERY_S``: the live status, bands, 6-DOF, frames, traces, alerts, summary,
   analysis), ``alert`` (an alert the moment it reaches the console) and ``frame`` (a camera
   the recording feeds has a new picture: fetched from ``/frame/{camera}`` as the Room page does).
-* ``POST /scan/start`` (``{"reference_s": 10, "duration_s": null}``), ``POST /scan/stop``,
-  ``POST /scan/alert/{id}/ack``, ``POST /scan/analyse``: each passes ``guard.refuse`` first
-  and is recorded with ``console.actions.record`` (who, what).
+* ``POST /scan/start`` (``{"reference_s": 10, "duration_s": null}``: each more than 0 s, the
+  reference at most ``MAX_REFERENCE_S``, the duration at most ``MAX_DURATION_S`` or null),
+  ``POST /scan/stop``, ``POST /scan/alert/{id}/ack``, ``POST /scan/analyse`` (no body, or
+  ``{}``): each passes ``guard.refuse`` first, its body is read by inputs.py (a bad one: 400
+  with a sentence, nothing started), and it is recorded with ``console.actions.record`` (who,
+  what). A scan's start is recorded with its outcome, by the scan's worker (scan_run.py):
+  ``scan started`` once it records, ``scan not started`` and why when it could not.
 * ``GET /scan/files/{scan}/{path}``: a file of a scan folder (the motion report, plot and
   exports), only a regular file inside that folder of the console's scans folder (resolved:
   no ``..``, no link out of it), else 404.
@@ -24,15 +28,18 @@ import threading
 import time
 from pathlib import Path
 
+from pydantic import Field
 from starlette.requests import Request
 from starlette.responses import FileResponse, JSONResponse, PlainTextResponse
 from starlette.routing import Route
 
 from vts_hw import __version__
 from vts_hw.console import guard
+from vts_hw.console.inputs import BadInput, Body, NoBody, json_body, path_id, seconds, shown
 from vts_hw.console.scan_analysis import MotionJob
-from vts_hw.console.scan_run import ScanRun
-from vts_hw.console.web import event_stream, json_object, sse
+from vts_hw.console.scan_run import ScanRun, clean
+from vts_hw.console.web import event_stream, sse
+from vts_hw.errors import VtsError
 
 STATE_EVERY_S = 0.25
 TICK_S = 0.02            # how often an event stream looks for alerts, frames and a new view
@@ -41,6 +48,16 @@ TICK_S = 0.02            # how often an event stream looks for alerts, frames an
 #: second for 4 cameras) cost the browsers and the live path beside them for nothing (bench/console.py)
 FRAME_EVENT_S = 0.5
 MAX_REFERENCE_S = 120.0
+MAX_DURATION_S = 86400.0      # a day: a scan is minutes long; more is a typing error, not a scan
+DEFAULT_REFERENCE_S = 10.0
+
+
+class StartBody(Body):
+    reference_s: seconds(MAX_REFERENCE_S) = Field(None, description=(
+        f"a number of seconds more than 0 and at most {MAX_REFERENCE_S:g} (the still period learned first), "
+        f"or null for {DEFAULT_REFERENCE_S:g}"))
+    duration_s: seconds(MAX_DURATION_S) = Field(None, description=(
+        f"a number of seconds more than 0 and at most {MAX_DURATION_S:g} (a day), or null to scan until stopped"))
 
 
 class ScanDesk:
@@ -72,17 +89,21 @@ class ScanDesk:
     def busy(self) -> bool:
         return self.run is not None and self.run.phase in ("starting", "running", "stopping")
 
-    def start(self, user: str, reference_s: float, duration: float | None) -> ScanRun:
+    def start(self, user: str, reference_s: float, duration: float | None, role: str = "") -> ScanRun:
         from vts_hw.drivers.registry import open_cameras
         from vts_hw.procedures.scan import default_folder
 
+        def said(what: str, detail: dict) -> None:       # the scan's worker: its outcome, in the action log
+            self.console.actions.record(user, what, detail, role=role)
+
         run = ScanRun(self.rig, default_folder(parent=self.scans), self.console.hub, open_cameras, user=user,
-                      reference_s=reference_s, duration=duration, marker_names=self.console.names)
+                      reference_s=reference_s, duration=duration, marker_names=self.console.names, on_said=said)
         self.run, self.job = run, None
         return run.start()
 
-    def analyse(self, user: str) -> MotionJob:
-        self.job = MotionJob(self.rig, self.run.folder, self.console.open_store or _no_store, user=user)
+    def analyse(self, user: str, role: str = "") -> MotionJob:
+        self.job = MotionJob(self.rig, self.run.folder, self.console.open_store or _no_store, user=user,
+                             on_said=lambda what, detail: self.console.actions.record(user, what, detail, role=role))
         return self.job.start()
 
     def view(self) -> dict:
@@ -90,31 +111,21 @@ class ScanDesk:
         out["scans"] = str(self.scans)
         out["analysis"] = None if self.job is None else self.job.view()
         out["fed"] = [n for n in self.console.hub.names if self.console.hub.source(n) == "fed"]
-        out["actions"] = [] if self.run is None else self.actions(self.run.folder.name)
+        try:
+            out["actions"] = [] if self.run is None else self.actions(self.run.folder.name)
+        except VtsError as exc:          # the store away (a full disk): the scan's view goes on without
+            out["actions"], out["actions_error"] = [], f"the action log could not be read: {exc}"
         return out
 
     def actions(self, scan: str) -> list[dict]:
         """Who did what to this scan (console.actions), newest first."""
-        return [{"at": a.at, "user": a.user, "what": a.what, "detail": dict(a.detail)}
+        return [clean({"at": a.at, "user": a.user, "what": a.what, "detail": dict(a.detail)})
                 for a in self.console.actions.recent(200) if (a.detail or {}).get("scan") == scan]
 
 
 def _no_store():
     from vts_hw.errors import StoreError
     raise StoreError("the console was given no results store")
-
-
-def _seconds(value, what: str, upper: float | None = None) -> float | None:
-    if value in (None, ""):
-        return None
-    try:
-        s = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{what} must be a number of seconds, not {value!r}") from None
-    if not s > 0 or (upper is not None and s > upper):
-        raise ValueError(f"{what} must be more than 0 s" + (f" and at most {upper:g} s" if upper else "")
-                         + f", not {value!r}")
-    return s
 
 
 def scan_routes(console, templates):
@@ -177,25 +188,19 @@ def scan_routes(console, templates):
             return refused
         if desk is None:
             return no_desk()
-        body = await json_object(request)
-        try:
-            reference_s = _seconds(body.get("reference_s", 10.0), "the reference", MAX_REFERENCE_S) or 10.0
-            duration = _seconds(body.get("duration_s"), "the duration")
-        except ValueError as exc:
-            return JSONResponse({"error": str(exc)}, status_code=400)
+        body = await json_body(request, StartBody, '{"reference_s": 10, "duration_s": null}')
         if desk.busy():
             return JSONResponse({"error": f"a scan is already running ({desk.run.folder.name}): stop it first"},
                                 status_code=409)
-        user, _ = guard.user_of(console, request)
-        run = desk.start(user, reference_s, duration)
-        await asyncio.to_thread(console.actions.record, user, "scan started",
-                                {"scan": run.folder.name, "reference_s": reference_s, "duration_s": duration})
+        user, role = guard.user_of(console, request)
+        run = desk.start(user, body.reference_s or DEFAULT_REFERENCE_S, body.duration_s, role)
         return JSONResponse({"scan": run.folder.name, "phase": run.phase})
 
     async def stop(request: Request):
         refused = guard.refuse(console, request, guard.OPERATOR)
         if refused is not None:
             return refused
+        await json_body(request, NoBody)
         if desk is None or not desk.busy():
             return JSONResponse({"error": "no scan is running"}, status_code=409)
         user, _ = guard.user_of(console, request)
@@ -208,13 +213,15 @@ def scan_routes(console, templates):
         if refused is not None:
             return refused
         try:
-            alert_id = int(request.path_params["alert"])
-        except ValueError:
-            alert_id = -1
+            alert_id = path_id(request, "alert", "alert")
+        except BadInput:
+            alert_id = None                  # no such alert: said as any other that is not there
+        await json_body(request, NoBody)
         user, _ = guard.user_of(console, request)
-        got = None if desk is None or desk.run is None else desk.run.acknowledge(alert_id, user)
+        got = None if desk is None or desk.run is None or alert_id is None else desk.run.acknowledge(alert_id, user)
         if got is None:
-            return JSONResponse({"error": f"no alert {request.path_params['alert']!r} in this scan"}, status_code=404)
+            return JSONResponse({"error": f"no alert {shown(request.path_params['alert'])} in this scan"},
+                                status_code=404)
         await asyncio.to_thread(console.actions.record, user, "alert acknowledged",
                                 {"scan": desk.run.folder.name, "alert": got["text"], "raised": got["raised"]})
         return JSONResponse(got)
@@ -223,13 +230,13 @@ def scan_routes(console, templates):
         refused = guard.refuse(console, request, guard.OPERATOR)
         if refused is not None:
             return refused
+        await json_body(request, NoBody)
         if desk is None or desk.run is None or desk.run.phase != "stopped":
             return JSONResponse({"error": "no finished scan to analyse"}, status_code=409)
         if desk.job is not None and desk.job.state == "running":
             return JSONResponse({"error": "the motion analysis is running already"}, status_code=409)
-        user, _ = guard.user_of(console, request)
-        job = desk.analyse(user)
-        await asyncio.to_thread(console.actions.record, user, "motion analysed", {"scan": desk.run.folder.name})
+        user, role = guard.user_of(console, request)
+        job = desk.analyse(user, role)          # its outcome is recorded when it ends (scan_analysis.py)
         return JSONResponse(job.view())
 
     async def file(request: Request):
@@ -262,4 +269,4 @@ def inside(scans: Path, scan: str, rel: str) -> Path | None:
     return path
 
 
-__all__ = ["scan_routes", "ScanDesk", "inside"]
+__all__ = ["scan_routes", "ScanDesk", "StartBody", "inside"]

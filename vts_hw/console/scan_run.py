@@ -14,12 +14,17 @@ the console adds is around it (docs/decisions/0060 and 0065):
   TRACKING is a gap, never a line), the recorded and dropped frames per camera;
 * alerts (PATIENT MOVED, PATIENT NOT TRACKED): each kept with the time it reached the console,
   until someone acknowledges it (:meth:`ScanRun.acknowledge`: who and when);
-* the end: the summary in the command's words (procedures/scan_summary.py) and its verdict.
+* the end: the summary in the command's words (procedures/scan_summary.py) and its verdict;
+* its outcome in the action log (``on_said(what, detail)``): ``scan started`` once it records,
+  ``scan ended`` with its status and verdict, or ``scan not started`` and why; a scan that did
+  not start leaves no folder holding nothing (a full disk: the folder made, nothing written).
 """
 
 from __future__ import annotations
 
+import logging
 import math
+import os
 import threading
 import time
 from collections import deque
@@ -32,7 +37,36 @@ SAMPLE_S = 0.1          # how often the live estimate is sampled for the traces
 STATS_S = 2.0           # how often the view's latency figures are computed
 NOTES_KEPT = 50
 
-__all__ = ["ScanRun", "ScanBusy", "clean"]
+log = logging.getLogger(__name__)
+
+__all__ = ["ScanRun", "ScanBusy", "clean", "drop_if_empty"]
+
+
+def drop_if_empty(folder: Path) -> bool:
+    """Remove ``folder`` when it holds nothing (no file with a byte in it): True when it is gone
+    (or was never made); False when something in it is kept."""
+    if not folder.is_dir() or folder.is_symlink():
+        return not folder.exists()
+    for root, dirs, files in os.walk(folder):
+        if any(os.path.islink(os.path.join(root, d)) for d in dirs):
+            return False
+        for f in files:
+            try:
+                if os.lstat(os.path.join(root, f)).st_size > 0:
+                    return False
+            except OSError:
+                return False
+    try:
+        for root, dirs, files in os.walk(folder, topdown=False):
+            for f in files:
+                os.unlink(os.path.join(root, f))
+            for d in dirs:
+                os.rmdir(os.path.join(root, d))
+        os.rmdir(folder)
+    except OSError as exc:
+        log.warning("%s: an empty scan folder could not be removed (%s)", folder, exc.strerror or exc)
+        return False
+    return True
 
 
 class ScanBusy(VtsError):
@@ -55,11 +89,13 @@ class ScanRun:
     hub; ``open_cameras(configs)``: opens the rig's cameras (drivers.registry.open_cameras)."""
 
     def __init__(self, rig, folder: Path, hub, open_cameras, *, user: str, reference_s: float = 10.0,
-                 duration: float | None = None, clock=time.time, marker_names=None):
+                 duration: float | None = None, clock=time.time, marker_names=None, on_said=None):
         self.rig, self.folder, self.hub, self.user = rig, Path(folder), hub, user
         #: the console's MarkerNames (names.py): the live tracker names the patient's band markers there
         self.marker_names = marker_names
         self.open_cameras = open_cameras
+        #: on_said(what, detail): the scan's outcome for the action log (None: not said)
+        self.on_said = on_said
         self.reference_s, self.duration = float(reference_s), duration
         self.clock = clock
         self.names = [c.name for c in rig.cameras]
@@ -114,6 +150,7 @@ class ScanRun:
                 raise VtsError("the scan was stopped before it started")
             self.session.start()
             self.phase = "running"
+            self._say("scan started", {"reference_s": self.reference_s, "duration_s": self.duration})
             reason = "error"
             try:
                 reason = self.session.wait(self._tick, SAMPLE_S)
@@ -141,6 +178,26 @@ class ScanRun:
             if self.marker_names is not None:
                 for n in self.names:
                     self.marker_names.clear(n, "band")
+            self._said_end()
+
+    def _said_end(self) -> None:
+        """The outcome in the action log; a folder the scan made and left empty is removed."""
+        if self.phase == "stopped" and self.manifest is not None:
+            s = self.summary or {}
+            self._say("scan ended", {"status": s.get("status"), "verdict": s.get("verdict"), "exit": s.get("exit"),
+                                     **({"error": self.error} if self.error else {})})
+            return
+        kept = not drop_if_empty(self.folder)
+        self._say("scan not started", {"why": self.error or "it stopped before recording",
+                                       "folder": "kept" if kept else "none left (nothing was written)"})
+
+    def _say(self, what: str, detail: dict) -> None:
+        if self.on_said is None:
+            return
+        try:
+            self.on_said(what, clean({"scan": self.folder.name, **detail}))
+        except Exception as exc:       # the log's failures are its own (actions.StoreActions keeps them)
+            log.warning("the scan's action %r could not be logged: %s", what, exc)
 
     def _band_names(self, camera: str, points) -> None:
         """The live tracker's names of the patient's markers on ``camera`` (a second's hold: names

@@ -1,5 +1,6 @@
-"""What every page's routes share: a server-sent event, the event stream's loop, a JSON body,
-a camera of the rig or 404, and the preamble of an on/off switch of a camera.
+"""What every page's routes share: a server-sent event, the event stream's loop, the cameras a
+stream is asked for, a camera of the rig or 404, and the preamble of an on/off switch of a camera
+(its body read by inputs.py, as every body is).
 
 An event stream (``event_stream``) sends ``retry`` once, then, every ``tick_s`` until the
 console closes, whatever its ``poll(now)`` returns (the page's own events, already made), or
@@ -13,11 +14,13 @@ import asyncio
 import json
 from typing import Awaitable, Callable
 
+from pydantic import Field, StrictBool
+
 from starlette.requests import Request
 from starlette.responses import JSONResponse, Response, StreamingResponse
 
 from vts_hw.console import guard
-from vts_hw.errors import UsageError
+from vts_hw.console.inputs import BadInput, Body, json_body, query_text, shown
 
 KEEPALIVE_S = 15.0
 STREAM_HEADERS = {"Cache-Control": "no-store", "X-Accel-Buffering": "no"}
@@ -59,47 +62,35 @@ def event_stream(console, tick_s: float, poll: Callable[[float], Awaitable[list[
 
 
 def wanted_cameras(console, request: Request) -> list[str]:
-    """The cameras of ``?cameras=a,b`` that the rig has (all of them without it)."""
+    """The cameras of ``?cameras=a,b`` (all of them without it); BadInput naming one the rig has not."""
     names = console.hub.names
-    return [n for n in request.query_params.get("cameras", ",".join(names)).split(",") if n in names]
+    asked = query_text(request, "cameras", ",".join(names), limit=4096)
+    wanted = [n for n in asked.split(",") if n]
+    unknown = [n for n in wanted if n not in names]
+    if unknown:
+        raise BadInput(f"no camera {shown(unknown[0])} in this rig (cameras: {', '.join(names)})")
+    return wanted
 
 
-async def json_object(request: Request, example: str = "") -> dict:
-    """The request's JSON object body; {} for none. A body that is not a JSON object: {}, or,
-    given an ``example`` of one, UsageError saying the body must be one like it."""
-    raw = await request.body()
-    if not raw.strip():
-        return {}
-    try:
-        body = json.loads(raw)
-    except ValueError:
-        body = None
-    if isinstance(body, dict):
-        return body
-    if example:
-        raise UsageError(f"the body must be a JSON object, e.g. {example}")
-    return {}
+class Switch(Body):
+    on: StrictBool = Field(description="true or false")
 
 
 def no_camera(console, name: str) -> Response | None:
     """404 with a sentence when the rig has no camera ``name``; else None."""
     if name not in console.hub.names:
-        return JSONResponse({"error": f"no camera {name!r} in this rig"}, status_code=404)
+        return JSONResponse({"error": f"no camera {shown(name)} in this rig"}, status_code=404)
     return None
 
 
 async def switch_asked(console, request: Request) -> tuple[str, bool, Response | None]:
     """(camera, on, None) for an operator's ``POST .../{camera}`` with ``{"on": true|false}``;
-    else (camera, False, the response refusing it: guard.refuse's, 404, or 400)."""
+    else (camera, False, the response refusing it: guard.refuse's, or 404). A bad body: BadInput."""
     name = request.path_params["camera"]
     refused = guard.refuse(console, request, guard.OPERATOR) or no_camera(console, name)
     if refused is not None:
         return name, False, refused
-    on = (await json_object(request)).get("on")
-    if not isinstance(on, bool):
-        return name, False, JSONResponse({"error": 'the body must be JSON {"on": true} or {"on": false}'},
-                                         status_code=400)
-    return name, on, None
+    return name, (await json_body(request, Switch, '{"on": true}')).on, None
 
 
-__all__ = ["sse", "event_stream", "wanted_cameras", "json_object", "no_camera", "switch_asked", "KEEPALIVE_S"]
+__all__ = ["sse", "event_stream", "wanted_cameras", "no_camera", "switch_asked", "Switch", "KEEPALIVE_S"]
