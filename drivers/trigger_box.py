@@ -27,20 +27,22 @@ from collections import deque
 from typing import Any, Callable
 
 import serial
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from vts_hw.drivers.settings import in_range, whole_in_range
 from vts_hw.drivers.trigger import (CLOCK, DEVICE_CLOCK_MAPPED, DUTY, EDGES, FIRE, FREQUENCY, HOST_WRITE,
-                                    LEVELS, PULSE, BackendSettings, ClockMapping, OutOfRange, TriggerBackend,
-                                    TriggerBase, TriggerError, TriggerLog, TriggerStatus)
+                                    LEVELS, PULSE, WATCHDOG, BackendSettings, ClockMapping, OutOfRange,
+                                    TriggerBackend, TriggerBase, TriggerError, TriggerLog, TriggerStatus)
 # re-exported: the box's clock mapping and wire protocol, as they were importable from here
 from vts_hw.drivers.trigger_box_clock import (MAX_ROUND_TRIPS_KEPT, BoxClock, RoundTrip,  # noqa: F401
                                               best_round_trips, clock_jumped, fit_clock, wire_skew, wire_time)
 from vts_hw.drivers.trigger_box_protocol import (BAUDRATE, DEVICE, DUTY_ABS_TOLERANCE, DUTY_MAX,  # noqa: F401
                                                  DUTY_MIN, FREQ_MAX_HZ, FREQ_MIN_HZ, FREQ_REL_TOLERANCE,
                                                  MAX_ERRORS_READ, MAX_LINE, MODEL, POLL_S, PULSE_MS_MAX,
-                                                 PULSE_MS_MIN, SETTINGS_CONFLICT, VENDOR, BoxGone, BoxIdentity,
-                                                 BoxRefused, BoxSetting, _pulse_ms, number_text, parse_refusal)
+                                                 PULSE_MS_MIN, SETTINGS_CONFLICT, VENDOR, WATCHDOG_DEFAULT_S, BoxGone,
+                                                 BoxIdentity, BoxRefused, BoxSetting, WatchdogState, _pulse_ms,
+                                                 number_text, parse_refusal, parse_watchdog, watchdog_seconds)
+from vts_hw.drivers.trigger_box_heartbeat import Heartbeat, heartbeat_every
 
 #: the levels of the box's TTL outputs, as the neutral log rows state them
 HIGH_V, LOW_V = 5.0, 0.0
@@ -50,7 +52,7 @@ HIGH_V, LOW_V = 5.0, 0.0
 class TriggerBox(BoxClock, TriggerBase):
     """The trigger box on a serial port, as a :class:`~vts_hw.drivers.trigger.TriggerGenerator`."""
 
-    capabilities = frozenset({FREQUENCY, DUTY, PULSE, FIRE, CLOCK, EDGES})
+    capabilities = frozenset({FREQUENCY, DUTY, PULSE, FIRE, CLOCK, EDGES, WATCHDOG})
 
     frequency_hz = BoxSetting("FREQ {}", "FREQ?",
                               in_range(FREQ_MIN_HZ, FREQ_MAX_HZ, "frequency", "Hz", DEVICE),
@@ -64,13 +66,19 @@ class TriggerBox(BoxClock, TriggerBase):
     def __init__(self, port: str, *, baudrate: int = BAUDRATE, timeout: float = 1.0,
                  log: TriggerLog | None = None, name: str = "triggerbox", clock=time.time,
                  serial_factory: Callable[..., Any] = serial.serial_for_url,
-                 sleep: Callable[[float], None] = time.sleep):
+                 sleep: Callable[[float], None] = time.sleep, watchdog_s: float = WATCHDOG_DEFAULT_S,
+                 heartbeat: bool = True, monotonic: Callable[[], float] = time.monotonic):
         """Open ``port`` (a device path or any pyserial URL). Nothing is sent until asked.
 
         ``clock`` stamps the log and the clock-mapping round trips (host epoch seconds);
         ``serial_factory(port, baudrate=, timeout=, write_timeout=)`` opens the line (the
         protocol tests pass a scripted fake); ``sleep`` paces clock-mapping samples.
+        ``watchdog_s`` is the box's watchdog time set at every start (0: off, the output then
+        outlives this program); while the output is on, a ``heartbeat`` thread keeps the box fed
+        (:mod:`~vts_hw.drivers.trigger_box_heartbeat`; without it the caller must, as the protocol
+        tests do), timed by ``monotonic``.
         """
+        self.watchdog_s = watchdog_seconds(watchdog_s)
         super().__init__(name, log)
         self.port = port
         self.baudrate = baudrate
@@ -87,6 +95,12 @@ class TriggerBox(BoxClock, TriggerBase):
         self._logged_edges: tuple[int | None, int | None] = (None, None)
         self._reported: deque[int] = deque()     # codes raised as BoxRefused, still in the box's queue
         self._wave: tuple[float, float, str, float | None] | None = None  # start host, period, time, ±
+        self._wave_first_us: int | None = None   # the device time of that start's first edge
+        self.monotonic = monotonic
+        self._last_sent = monotonic()            # when the box last heard from us (its heartbeat)
+        self._heartbeat_thread = heartbeat
+        self.heartbeat: Heartbeat | None = None  # while the output is on with the watchdog set
+        self._cuts_logged: set[int] = set()      # watchdog cuts already written to the log
         try:
             self._serial = serial_factory(port, baudrate=baudrate, timeout=timeout,
                                           write_timeout=timeout)
@@ -141,6 +155,7 @@ class TriggerBox(BoxClock, TriggerBase):
                 self._discard_stale(ser)
                 sent = self.clock()
                 ser.write((cmd + "\n").encode("ascii"))
+                self._last_sent = self.monotonic()
                 raw = ser.read_until(b"\n", MAX_LINE)
                 received = self.clock()
             except serial.SerialTimeoutException as e:  # a write that the line never took
@@ -244,6 +259,7 @@ class TriggerBox(BoxClock, TriggerBase):
         with self._lock:
             sent, received = self._command_timed("*RST")
             self._wait_off("*RST", 1.0 / FREQ_MIN_HZ)
+            self._stop_heartbeat()       # the watchdog is back at the box's default, its trip forgotten
             if self._wave is not None:   # *RST ended it on a whole period; the count is reset too
                 self._wave_stopped("*RST", sent, None)
             self._logged_edges = (None, None)
@@ -300,11 +316,14 @@ class TriggerBox(BoxClock, TriggerBase):
         return st
 
     def start(self) -> TriggerStatus:
-        """``OUTP ON``: the square wave alone, from a rising edge. Returns the box's status."""
+        """``WDOG`` (:attr:`watchdog_s`), then ``OUTP ON``: the square wave alone, from a rising edge.
+        Returns the box's status; while the output is on, the heartbeat keeps the watchdog fed."""
         with self._lock:
+            self._set_watchdog()
             sent, received = self._command_timed("OUTP ON")
             st = self.status()
             self._wave_started("OUTP ON", sent, received, st, start_pulse=False)
+            self._start_heartbeat(st)
         if not st.running:
             raise TriggerError(f"{self.where} was switched on but reports its output OFF")
         return st
@@ -324,6 +343,8 @@ class TriggerBox(BoxClock, TriggerBase):
                 st = self.status()
                 if st.running:  # pragma: no cover - it said OFF a moment ago
                     raise TriggerError(f"{self.where} was switched off but reports its output ON")
+            if not st.running:           # (still finishing its period: the heartbeat goes on until off)
+                self._stop_heartbeat()
             self._wave_stopped("OUTP OFF", sent, st)
         return st
 
@@ -341,27 +362,33 @@ class TriggerBox(BoxClock, TriggerBase):
         """``*TRG``: the square wave and both start pulses on the same timer tick.
 
         ``pulse_ms`` first sets the width of those pulses (``PULSE:WIDTH``; the box's default
-        is 100 ms and *RST restores it)."""
+        is 100 ms and *RST restores it); then ``WDOG`` as in :meth:`start`."""
         self.require(FIRE)
         with self._lock:
             if pulse_ms is not None:
                 self.fire_pulse_ms = pulse_ms
+            self._set_watchdog()
             sent, received = self._command_timed("*TRG")
             st = self.status()
             self._wave_started("*TRG", sent, received, st, start_pulse=True)
+            self._start_heartbeat(st)
         if not st.running:
             raise TriggerError(f"{self.where} was fired but reports its output OFF")
         return st
 
     def status(self) -> TriggerStatus:
-        """``OUTP?``, ``FREQ?``, ``DUTY?``, ``EDGES?`` and the error queue (read empty)."""
+        """``OUTP?``, ``FREQ?``, ``DUTY?``, ``EDGES?``, ``WDOG?`` (and ``TIME?`` after a watchdog
+        cut, to say how long ago) and the error queue (read empty)."""
         with self._lock:
             running = self._output_on()
             f = self.frequency_hz
             d = self.duty
             n, first, last = self.edges()
+            wd = self.watchdog()
+            now = self.device_time_us() if wd.state == "tripped" else None
             errors = self.read_errors()
-        extra: dict[str, Any] = {"port": self.port}
+        extra: dict[str, Any] = {"port": self.port, "watchdog": {
+            "seconds": wd.seconds, "state": wd.state, "cut_device_us": wd.cut_device_us}}
         if self.identity is not None:
             extra["idn"] = self.identity.raw
         if self.mapping is not None and n:
@@ -369,7 +396,59 @@ class TriggerBox(BoxClock, TriggerBase):
             extra["last_edge_host"] = self.mapping.to_host(last)
         return TriggerStatus(device=self.name, running=running, frequency_hz=f, duty=d,
                              edges=n, first_edge_device_us=first if n else None,
-                             last_edge_device_us=last if n else None, errors=errors, extra=extra)
+                             last_edge_device_us=last if n else None, errors=errors, extra=extra,
+                             notes=(wd.describe(now),))
+
+    # -- the host watchdog (docs/decisions/0083) -------------------------------------------------------
+
+    def watchdog(self) -> WatchdogState:
+        """``WDOG?``: the box's watchdog time, its state and when it cut the wave (a cut is logged
+        once, with a ``wave_stop`` row at its time when this driver started that wave)."""
+        with self._lock:
+            wd = self._parse("WDOG?", self.query("WDOG?"), parse_watchdog,
+                             "watchdog state ('<s>,<OFF|IDLE|ARMED|TRIPPED>,<us>')")
+            if wd.state == "tripped" and wd.cut_device_us not in self._cuts_logged:
+                self._cuts_logged.add(wd.cut_device_us)
+                self._watchdog_cut(wd)
+        return wd
+
+    def _set_watchdog(self) -> None:
+        """``WDOG <s>`` before a start: the box's watchdog as this driver wants it (0 = off)."""
+        self._command(f"WDOG {number_text(self.watchdog_s)}")
+
+    def _start_heartbeat(self, st: TriggerStatus) -> None:
+        if not st.running or self.watchdog_s == 0:
+            return
+        if self.heartbeat is not None:
+            self.heartbeat.stop()
+        self.heartbeat = Heartbeat(self, heartbeat_every(self.watchdog_s), self.monotonic)
+        if self._heartbeat_thread:
+            self.heartbeat.start()
+
+    def _stop_heartbeat(self) -> None:
+        if self.heartbeat is not None:
+            self.heartbeat.stop()
+
+    def _watchdog_cut(self, wd: WatchdogState) -> None:
+        """The box cut the wave: an event line, and the ``wave_stop`` row of a wave this driver
+        started, at the cut (through the clock mapping, else from the first edge's device time)."""
+        self._stop_heartbeat()
+        cut = wd.cut_device_us
+        self._log("event", f"the box's watchdog cut the square wave at device time {cut} us (output off "
+                           f"mid-period): it had heard nothing from this host for {wd.seconds:g} s",
+                  device_us=cut)
+        m, first = self.mapping, self._wave_first_us
+        if m is not None:
+            host, how, unc = m.to_host(cut), DEVICE_CLOCK_MAPPED, m.uncertainty_s
+        elif self._wave is not None and first is not None:
+            start, _, how, unc = self._wave
+            host = start + (cut - first) * 1e-6
+        else:   # a wave another program started, and no clock mapping: the event line says when
+            return
+        n = self.edges()[0]
+        self._wave = None
+        self.log.wave_stopped(self.name, host, rising_edges=n, time_source=how, uncertainty_s=unc,
+                              device_us=cut)
 
     def read_errors(self) -> tuple[str, ...]:
         """``SYST:ERR?`` until ``0,...``; the errors read before it, as the box wrote them.
@@ -410,13 +489,18 @@ class TriggerBox(BoxClock, TriggerBase):
             host = sent + (len(cmd) + 1) * 10 / (self._wire_baud() or BAUDRATE)
             how, unc = HOST_WRITE, received - sent
         self._wave = (host, period, how, unc)
+        self._wave_first_us = first
         self.log.wave_started(self.name, host, period_s=period, duty=st.duty, high_v=HIGH_V, low_v=LOW_V,
                               start_pulse=start_pulse, time_source=how, uncertainty_s=unc, device_us=first)
 
     def _wave_stopped(self, cmd: str, sent: float, st: TriggerStatus | None) -> None:
         """``wave_stop``: the box ends on a whole period, so the rising edges it counted (once it
         reports its output off; while the last period runs, at least the periods begun before
-        the command) place the end at start + n periods."""
+        the command) place the end at start + n periods. A wave the box's watchdog cut has had its
+        row written at the cut (:meth:`_watchdog_cut`)."""
+        if st is not None and st.extra.get("watchdog", {}).get("state") == "tripped":
+            self._wave = None
+            return
         n = st.edges if st is not None else None
         if self._wave is not None:
             start, period, how, unc = self._wave
@@ -437,6 +521,7 @@ class TriggerBox(BoxClock, TriggerBase):
 
     def close(self) -> None:
         """Close the port (the box keeps doing what it was doing) and the log."""
+        self._stop_heartbeat()   # the output stays as it is; the box's watchdog (if set) ends it
         with self._lock:
             if not self._closed:
                 self._closed = True
@@ -456,10 +541,18 @@ class BoxSettings(BackendSettings):
     port or a pyserial URL)."""
 
     timeout_s: float = Field(default=1.0, gt=0, le=60, description="how long to wait for each reply")
+    watchdog_s: float = Field(default=WATCHDOG_DEFAULT_S, description=(
+        "the box switches its output off this long after the last command it heard from us "
+        "(0 = off, else 0.1 to 3600 s)"))
+
+    @field_validator("watchdog_s")
+    @classmethod
+    def _watchdog(cls, v: float) -> float:
+        return watchdog_seconds(v)
 
 
 def _open_box(cfg, settings: BoxSettings, log: TriggerLog) -> TriggerBox:
-    return TriggerBox(cfg.address, timeout=settings.timeout_s, log=log)
+    return TriggerBox(cfg.address, timeout=settings.timeout_s, log=log, watchdog_s=settings.watchdog_s)
 
 
 BACKEND = TriggerBackend("triggerbox", "our trigger box on a serial line", BoxSettings, _open_box)

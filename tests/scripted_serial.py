@@ -149,6 +149,9 @@ def expected_protocol(pairs, **kwargs):
 
     kwargs.setdefault("clock", FakeClock())
     kwargs.setdefault("sleep", getattr(kwargs["clock"], "sleep", lambda s: None))
+    # no heartbeat thread writing at its own moments: a test calls box.heartbeat.beat_if_due()
+    kwargs.setdefault("heartbeat", False)
+    kwargs.setdefault("monotonic", FakeClock(0.0))
     box = TriggerBox(PORT, serial_factory=factory, **kwargs)
     box.fake = made["fake"]
     yield box
@@ -161,4 +164,4 @@ def lines(*pairs):
 
 
 STATUS_OFF = [("OUTP?", "OFF"), ("FREQ?", "10"), ("DUTY?", "0.25"), ("EDGES?", "0,0,0"),
-              ("SYST:ERR?", '0,"No error"')]
+              ("WDOG?", "10.000000,IDLE,0"), ("SYST:ERR?", '0,"No error"')]

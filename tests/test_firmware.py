@@ -48,22 +48,24 @@ def tb(box):
 def tb10(box10):
     link = Link(box10)
     link.reset()
+    link.ok("WDOG 0")   # periods of seconds, runs of up to 25 s without a command: the host watchdog off
     yield link
     link.close()
 
 
 # ---------------------------------------------------------------------------- identity
 def test_identity_defaults_and_forms(tb):
-    assert tb.ask("*IDN?") == "VTS,TRIGGERBOX,0000,1.0.0"
+    assert tb.ask("*IDN?") == "VTS,TRIGGERBOX,0000,1.1.0"
     assert tb.ask("FREQ?") == "1.000000000"
     assert tb.ask("DUTY?") == "0.500000"
     assert tb.ask("OUTP?") == "OFF"
     assert tb.ask("PULSE:WIDTH?") == "100"
     assert tb.ask("SYST:ERR?") == '0,"No error"'
     assert tb.ask("EDGES?").count(",") == 2
+    assert tb.ask("WDOG?") == "10.000000,IDLE,0"      # the host watchdog: on, 10 s
     # lines may end in \r\n; headers are case-insensitive; SCPI long forms
     tb.s.write(b"*idn?\r\n")
-    assert tb.line() == "VTS,TRIGGERBOX,0000,1.0.0"
+    assert tb.line() == "VTS,TRIGGERBOX,0000,1.1.0"
     tb.ok("frequency 2.5")
     assert tb.ask("Freq?") == "2.500000000"
     tb.ok("DUTY 25e-2")
@@ -290,14 +292,14 @@ def test_bad_and_garbled_input_change_nothing(tb):
     assert tb.line() == "ERR -363 Input buffer overrun"
     # empty lines are not commands: no reply at all
     tb.s.write(b"\n\r\n   \n\t\n")
-    assert tb.ask("*IDN?") == "VTS,TRIGGERBOX,0000,1.0.0"
+    assert tb.ask("*IDN?") == "VTS,TRIGGERBOX,0000,1.1.0"
     # random junk with line ends in it: every non-blank line answers ERR, none executes
     junk = bytes(os.urandom(300)).replace(b"\n", b"\r")
     junk = b"\n".join(junk[i:i + 30] for i in range(0, 300, 30))
     tb.s.write(junk + b"\n*IDN?\n")
     while True:
         r = tb.line()
-        if r == "VTS,TRIGGERBOX,0000,1.0.0":
+        if r == "VTS,TRIGGERBOX,0000,1.1.0":
             break
         assert r.startswith("ERR "), r
     # the wave never noticed

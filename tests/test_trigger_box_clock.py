@@ -19,9 +19,10 @@ def test_trigger_csv_lines(tmp_path):
     path = tmp_path / "trigger.csv"
     clock = FakeClock(1_700_000_000.0, step=0.001)
     log = TriggerLog(path, clock=clock)
-    pairs = lines(("*IDN?", "VTS,TRIGGERBOX,0042,1.0.0"), ("OUTP ON", "OK"), ("OUTP?", "ON"),
-                  ("FREQ?", "10"), ("DUTY?", "0.25"), ("EDGES?", "1,5000000,5000000"),
-                  ("SYST:ERR?", '0,"No error"'), ("EDGES?", "1,5000000,5000000"),
+    pairs = lines(("*IDN?", "VTS,TRIGGERBOX,0042,1.0.0"), ("WDOG 10", "OK"), ("OUTP ON", "OK"),
+                  ("OUTP?", "ON"), ("FREQ?", "10"), ("DUTY?", "0.25"), ("EDGES?", "1,5000000,5000000"),
+                  ("WDOG?", "10.000000,ARMED,0"), ("SYST:ERR?", '0,"No error"'),
+                  ("EDGES?", "1,5000000,5000000"),
                   ("EDGES?", "4,5000000,5300000"))
     with expected_protocol(pairs, log=log, clock=clock) as box:
         box.identify()
@@ -33,12 +34,14 @@ def test_trigger_csv_lines(tmp_path):
     assert [(r["kind"], r["text"]) for r in rows] == [
         ("event", "open /dev/ttyFAKE0 115200 baud"),
         ("cmd", "*IDN?"), ("reply", "VTS,TRIGGERBOX,0042,1.0.0"),
+        ("cmd", "WDOG 10"), ("reply", "OK"),
         ("cmd", "OUTP ON"), ("reply", "OK"),
         ("cmd", "OUTP?"), ("reply", "ON"),
         ("cmd", "FREQ?"), ("reply", "10"),
         ("cmd", "DUTY?"), ("reply", "0.25"),
         ("cmd", "EDGES?"), ("reply", "1,5000000,5000000"),
         ("edge", "first rising edge (1 of 1); host time = when reported (no clock mapping)"),
+        ("cmd", "WDOG?"), ("reply", "10.000000,ARMED,0"),
         ("cmd", "SYST:ERR?"), ("reply", '0,"No error"'),
         # the neutral row (docs/trigger-log-format.md): no clock mapping, so the host time of
         # the write plus the command's 8 bytes on the wire, ± until its reply came
@@ -99,12 +102,15 @@ def test_neutral_rows_of_a_fire_and_its_stop(tmp_path):
     from vts_hw.recording.trigger_wave import wave_from_trigger_log
     clock = FakeClock(1000.0)
     trips = [("TIME?", str(round((1000.0 + 0.25 * i - 990.0) * 1e6))) for i in range(4)]
-    pairs = lines(*trips, ("*TRG", "OK"), ("OUTP?", "ON"), ("FREQ?", "2"), ("DUTY?", "0.25"),
-                  ("EDGES?", "1,11000000,11000000"), ("SYST:ERR?", '0,"No error"'),
+    pairs = lines(*trips, ("WDOG 10", "OK"), ("*TRG", "OK"), ("OUTP?", "ON"), ("FREQ?", "2"),
+                  ("DUTY?", "0.25"), ("EDGES?", "1,11000000,11000000"), ("WDOG?", "10.000000,ARMED,0"),
+                  ("SYST:ERR?", '0,"No error"'),
                   ("OUTP OFF", "OK"), ("OUTP?", "ON"), ("FREQ?", "2"), ("DUTY?", "0.25"),
-                  ("EDGES?", "6,11000000,13500000"), ("SYST:ERR?", '0,"No error"'),
+                  ("EDGES?", "6,11000000,13500000"), ("WDOG?", "10.000000,ARMED,0"),
+                  ("SYST:ERR?", '0,"No error"'),
                   ("OUTP?", "OFF"), ("OUTP?", "OFF"), ("FREQ?", "2"), ("DUTY?", "0.25"),
-                  ("EDGES?", "7,11000000,14000000"), ("SYST:ERR?", '0,"No error"'))
+                  ("EDGES?", "7,11000000,14000000"), ("WDOG?", "10.000000,IDLE,0"),
+                  ("SYST:ERR?", '0,"No error"'))
     path = tmp_path / "trigger.csv"
     with expected_protocol(pairs, log=TriggerLog(path, clock=clock), clock=clock) as box:
         m = box.clock_mapping(samples=4, over_s=0.75, keep=1.0)

@@ -88,7 +88,7 @@ def test_configure_10_hz_25_percent_reads_back(sim, box):
     assert (box.frequency_hz, box.duty) == (st.frequency_hz, st.duty)
     # the exact lines that reached the device's UART, in order
     assert rx_bytes(sim) == (b'SYST:ERR?\nFREQ 10\nDUTY 0.25\nOUTP?\nFREQ?\nDUTY?\nEDGES?\n'
-                             b'SYST:ERR?\nFREQ?\nDUTY?\n')
+                             b'WDOG?\nSYST:ERR?\nFREQ?\nDUTY?\n')
 
 
 def test_configure_returns_the_frequency_the_timer_makes(box):

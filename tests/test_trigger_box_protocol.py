@@ -19,6 +19,7 @@ from vts_hw.drivers.trigger import (
     TriggerError,
     TriggerGenerator,
     Unsupported,
+    WATCHDOG,
 )
 from vts_hw.drivers.trigger_box import BoxGone, BoxRefused, TriggerBox, number_text
 from scripted_serial import PORT, STATUS_OFF, Fail, FakeClock, ProtocolMismatch, expected_protocol, lines
@@ -45,7 +46,7 @@ def test_open_sends_nothing_and_uses_the_line_settings():
         assert box.fake.port == PORT
         assert box.fake.kwargs == {"baudrate": 115200, "timeout": 0.5, "write_timeout": 0.5}
     assert isinstance(box, TriggerGenerator)
-    assert box.capabilities == {FREQUENCY, DUTY, PULSE, FIRE, CLOCK, EDGES}
+    assert box.capabilities == {FREQUENCY, DUTY, PULSE, FIRE, CLOCK, EDGES, WATCHDOG}
     assert LEVELS not in box.capabilities     # fixed TTL outputs
 
 
@@ -124,6 +125,7 @@ def test_validators_refuse_before_anything_is_written(attr, value):
 def test_configure_sets_reads_back_and_checks_errors():
     pairs = lines(("SYST:ERR?", '0,"No error"'), ("FREQ 10", "OK"), ("DUTY 0.25", "OK"),
                   ("OUTP?", "OFF"), ("FREQ?", "9.99998"), ("DUTY?", "0.25"), ("EDGES?", "0,0,0"),
+                  ("WDOG?", "10.000000,IDLE,0"),
                   ("SYST:ERR?", '0,"No error"'))
     with expected_protocol(pairs) as box:
         st = box.configure(10, 0.25)
@@ -136,7 +138,7 @@ def test_configure_sets_reads_back_and_checks_errors():
 def test_configure_logs_and_ignores_errors_left_from_before():
     pairs = lines(("SYST:ERR?", '-113,"Undefined header"'), ("SYST:ERR?", '0,"No error"'),
                   ("FREQ 2.5", "OK"), ("DUTY 0.5", "OK"), ("OUTP?", "OFF"), ("FREQ?", "2.5"),
-                  ("DUTY?", "0.5"), ("EDGES?", "0,0,0"), ("SYST:ERR?", '0,"No error"'))
+                  ("DUTY?", "0.5"), ("EDGES?", "0,0,0"), ("WDOG?", "10.000000,IDLE,0"), ("SYST:ERR?", '0,"No error"'))
     with expected_protocol(pairs) as box:
         st = box.configure(2.5)
     assert not st.running
@@ -146,7 +148,7 @@ def test_configure_logs_and_ignores_errors_left_from_before():
 
 def test_configure_raises_on_an_error_queued_by_the_new_settings():
     pairs = lines(("SYST:ERR?", '0,"No error"'), ("FREQ 10", "OK"), ("DUTY 0.25", "OK"),
-                  *STATUS_OFF[:4], ("SYST:ERR?", '-222,"Data out of range"'),
+                  *STATUS_OFF[:5], ("SYST:ERR?", '-222,"Data out of range"'),
                   ("SYST:ERR?", '0,"No error"'))
     with expected_protocol(pairs) as box:
         with pytest.raises(TriggerError, match='reports errors after configure: -222,"Data out of range"'):
@@ -156,6 +158,7 @@ def test_configure_raises_on_an_error_queued_by_the_new_settings():
 def test_configure_raises_when_the_box_confirms_something_else():
     pairs = lines(("SYST:ERR?", '0,"No error"'), ("FREQ 10", "OK"), ("DUTY 0.25", "OK"),
                   ("OUTP?", "OFF"), ("FREQ?", "1"), ("DUTY?", "0.25"), ("EDGES?", "0,0,0"),
+                  ("WDOG?", "10.000000,IDLE,0"),
                   ("SYST:ERR?", '0,"No error"'))
     with expected_protocol(pairs) as box:
         with pytest.raises(TriggerError, match="asked for 10 Hz but confirms 1.0 Hz"):
@@ -178,14 +181,16 @@ def test_levels_are_unsupported_and_nothing_is_written(levels):
 
 
 def test_start_stop_fire_and_status():
-    pairs = lines(("OUTP ON", "OK"), ("OUTP?", "ON"), ("FREQ?", "10"), ("DUTY?", "0.25"),
-                  ("EDGES?", "1,5000000,5000000"), ("SYST:ERR?", '0,"No error"'),
+    pairs = lines(("WDOG 10", "OK"), ("OUTP ON", "OK"), ("OUTP?", "ON"), ("FREQ?", "10"),
+                  ("DUTY?", "0.25"), ("EDGES?", "1,5000000,5000000"), ("WDOG?", "10.000000,ARMED,0"),
+                  ("SYST:ERR?", '0,"No error"'),
                   ("OUTP OFF", "OK"), ("OUTP?", "OFF"), ("FREQ?", "10"), ("DUTY?", "0.25"),
-                  ("EDGES?", "30,5000000,7900000"), ("SYST:ERR?", '0,"No error"'),
-                  ("*TRG", "OK"), ("OUTP?", "ON"), ("FREQ?", "10"), ("DUTY?", "0.25"),
-                  ("EDGES?", "1,9000125,9000125"), ("SYST:ERR?", '0,"No error"'),
-                  ("PULSE:WIDTH 20", "OK"), ("*TRG", "OK"), ("OUTP?", "ON"), ("FREQ?", "10"),
-                  ("DUTY?", "0.25"), ("EDGES?", "1,9000125,9000125"), ("SYST:ERR?", '0,"No error"'))
+                  ("EDGES?", "30,5000000,7900000"), ("WDOG?", "10.000000,IDLE,0"), ("SYST:ERR?", '0,"No error"'),
+                  ("WDOG 10", "OK"), ("*TRG", "OK"), ("OUTP?", "ON"), ("FREQ?", "10"), ("DUTY?", "0.25"),
+                  ("EDGES?", "1,9000125,9000125"), ("WDOG?", "10.000000,ARMED,0"), ("SYST:ERR?", '0,"No error"'),
+                  ("PULSE:WIDTH 20", "OK"), ("WDOG 10", "OK"), ("*TRG", "OK"), ("OUTP?", "ON"), ("FREQ?", "10"),
+                  ("DUTY?", "0.25"), ("EDGES?", "1,9000125,9000125"), ("WDOG?", "10.000000,ARMED,0"),
+                  ("SYST:ERR?", '0,"No error"'))
     with expected_protocol(pairs) as box:
         st = box.start()
         assert st.running and (st.edges, st.first_edge_device_us) == (1, 5_000_000)
@@ -199,10 +204,10 @@ def test_start_stop_fire_and_status():
 def test_stop_waits_for_the_last_period():
     # OUTP OFF finishes the period under way: OUTP? stays ON until its falling edge
     pairs = lines(("OUTP OFF", "OK"), ("OUTP?", "ON"), ("FREQ?", "2"), ("DUTY?", "0.5"),
-                  ("EDGES?", "7,5000000,8000000"), ("SYST:ERR?", '0,"No error"'),
+                  ("EDGES?", "7,5000000,8000000"), ("WDOG?", "10.000000,ARMED,0"), ("SYST:ERR?", '0,"No error"'),
                   ("OUTP?", "ON"), ("OUTP?", "ON"), ("OUTP?", "OFF"),
                   ("OUTP?", "OFF"), ("FREQ?", "2"), ("DUTY?", "0.5"),
-                  ("EDGES?", "7,5000000,8000000"), ("SYST:ERR?", '0,"No error"'))
+                  ("EDGES?", "7,5000000,8000000"), ("WDOG?", "10.000000,IDLE,0"), ("SYST:ERR?", '0,"No error"'))
     with expected_protocol(pairs) as box:
         st = box.stop()
     assert not st.running and st.edges == 7
@@ -210,7 +215,7 @@ def test_stop_waits_for_the_last_period():
 
 def test_stop_without_waiting_reports_the_last_period_running():
     pairs = lines(("OUTP OFF", "OK"), ("OUTP?", "ON"), ("FREQ?", "0.1"), ("DUTY?", "0.5"),
-                  ("EDGES?", "1,5000000,5000000"), ("SYST:ERR?", '0,"No error"'))
+                  ("EDGES?", "1,5000000,5000000"), ("WDOG?", "10.000000,ARMED,0"), ("SYST:ERR?", '0,"No error"'))
     with expected_protocol(pairs) as box:
         assert box.stop(wait=False).running
 
@@ -219,7 +224,7 @@ def test_stop_gives_up_after_one_period():
     # 4 Hz: one period 0.25 s, plus two timeouts of 0.125 s = 0.5 s; polls every 1/16 s here
     clock = FakeClock(1000.0)
     pairs = lines(("OUTP OFF", "OK"), ("OUTP?", "ON"), ("FREQ?", "4"), ("DUTY?", "0.5"),
-                  ("EDGES?", "7,5000000,6500000"), ("SYST:ERR?", '0,"No error"'),
+                  ("EDGES?", "7,5000000,6500000"), ("WDOG?", "10.000000,ARMED,0"), ("SYST:ERR?", '0,"No error"'),
                   *[("OUTP?", "ON")] * 10)
     with expected_protocol(pairs, timeout=0.125, clock=clock,
                            sleep=lambda s: setattr(clock, "t", clock.t + 0.0625)) as box:
@@ -229,14 +234,14 @@ def test_stop_gives_up_after_one_period():
 
 
 def test_start_raises_if_the_box_stays_off():
-    pairs = lines(("OUTP ON", "OK"), *STATUS_OFF)
+    pairs = lines(("WDOG 10", "OK"), ("OUTP ON", "OK"), *STATUS_OFF)
     with expected_protocol(pairs) as box:
         with pytest.raises(TriggerError, match="switched on but reports its output OFF"):
             box.start()
 
 
 def test_status_drains_the_error_queue():
-    pairs = lines(*STATUS_OFF[:4], ("SYST:ERR?", '-113,"Undefined header"'),
+    pairs = lines(*STATUS_OFF[:5], ("SYST:ERR?", '-113,"Undefined header"'),
                   ("SYST:ERR?", '-222,"Data out of range"'), ("SYST:ERR?", '0,"No error"'))
     with expected_protocol(pairs) as box:
         st = box.status()
@@ -296,7 +301,7 @@ def test_err_reply_raises_with_the_device_message():
 def test_errors_already_raised_are_not_reported_again_by_the_queue():
     # the box answers ERR and also queues the error; status() lists only errors not yet raised
     pairs = lines(("FREQ 10", "ERR -221 Settings conflict"), ("BOGUS", "ERR -113 Undefined header"),
-                  *STATUS_OFF[:4], ("SYST:ERR?", '-221,"Settings conflict"'),
+                  *STATUS_OFF[:5], ("SYST:ERR?", '-221,"Settings conflict"'),
                   ("SYST:ERR?", '-363,"Input buffer overrun"'), ("SYST:ERR?", '-113,"Undefined header"'),
                   ("SYST:ERR?", '0,"No error"'))
     with expected_protocol(pairs) as box:
@@ -396,7 +401,8 @@ def test_repr_and_thread_safety():
 
 def test_start_raises_when_the_box_confirms_no_square_wave():
     # found by bench/fuzz.py (trigger_box): a duty of 1.5 read back made the log's wave_start a ValueError
-    pairs = lines(("OUTP ON", "OK"), ("OUTP?", "ON"), ("FREQ?", "10"), ("DUTY?", "1.5"), ("EDGES?", "1,5,5"),
+    pairs = lines(("WDOG 10", "OK"), ("OUTP ON", "OK"), ("OUTP?", "ON"), ("FREQ?", "10"), ("DUTY?", "1.5"),
+                  ("EDGES?", "1,5,5"), ("WDOG?", "10.000000,ARMED,0"),
                   ("SYST:ERR?", '0,"No error"'))
     with expected_protocol(pairs) as box:
         with pytest.raises(TriggerError, match="confirms 10.0 Hz at duty 1.5: not a square wave"):

@@ -126,6 +126,8 @@ def test_fire_on_the_trigger_box_says_what_went_out(tmp_path):
         lines = p.stdout.strip().splitlines()
         assert lines[0].startswith("triggerbox: output ON, 2 Hz, duty 50 %, ") and "rising edge(s)" in lines[0]
         assert lines[1:] == [
+            "  watchdog off: the box keeps its output as it is whatever happens to its host (vts trigger stop "
+            "switches it off)",      # the wave outlives `vts trigger fire` by design
             "  square wave at the device's fixed TTL levels",
             "start pulses: channel 1 (VTS start) and channel 2 (SPECT start), 50 ms each, sent with the square "
             "wave's first rising edge (triggerbox accepted the fire; the device confirms 50 ms)"]

@@ -64,7 +64,7 @@ def test_flash_builds_uploads_verifies_and_the_flashed_firmware_answers(tmp_path
         assert got[:len(want)] == want and set(got[len(want):]) <= {0xFF}
         assert board.uploads == 1 and board.app is not None, board.app_error
         assert f"{board.port}: wrote {len(want)} bytes of trigger_box.hex and verified {len(want)}" in out
-        assert "firmware 1.0.0 confirmed, serial 0000" in out
+        assert "firmware 1.1.0 confirmed, serial 0000" in out
         # the *IDN? came to the emulated firmware running the image received (its UART saw it)
         rx = bytes(b.value for b in board.app.uart() if b.direction == "RX")
         assert b"*IDN?\n" in rx
@@ -80,7 +80,7 @@ def test_flash_of_a_given_hex_and_json(tmp_path, hex_file):
         assert rc == 0, err
     import json
     doc = json.loads(out)
-    assert doc["version"] == "1.0.0" and doc["identity"] == "VTS,TRIGGERBOX,0000,1.0.0"
+    assert doc["version"] == "1.1.0" and doc["identity"] == "VTS,TRIGGERBOX,0000,1.1.0"
     assert doc["written"] == doc["verified"] == len(_hex_bytes(hex_file))
     assert Path(doc["log"]) == hex_file.with_name("trigger_box.avrdude.log")
 
@@ -92,7 +92,7 @@ def test_dry_run_checks_everything_but_touches_no_port(tmp_path, hex_file):
         assert board.commands == []
     assert rc == 0, err
     assert f"-c arduino -P {board.port} -b 115200 -D" in out and f"flash:w:{hex_file}:i" in out
-    assert "firmware 1.0.0" in out and "nothing was sent" in out
+    assert "firmware 1.1.0" in out and "nothing was sent" in out
 
 
 def test_a_silent_bootloader_is_one_sentence_naming_the_port(tmp_path, hex_file):
@@ -119,14 +119,14 @@ def test_a_verify_mismatch_fails_and_says_so(tmp_path, hex_file):
 
 
 def test_a_box_answering_another_version_fails(tmp_path, hex_file):
-    """The hex says 1.0.9; the board runs the 1.0.0 build after the upload (not what it received)."""
-    patched = _with_version(hex_file, tmp_path / "tb-1.0.9.hex", b"1.0.0", b"1.0.9")
+    """The hex says 1.1.9; the board runs the 1.1.0 build after the upload (not what it received)."""
+    patched = _with_version(hex_file, tmp_path / "tb-1.1.9.hex", b"1.1.0", b"1.1.9")
     elf = firmware_dir() / "build" / "trigger_box.elf"
     with SimArduinoBoard(runs=elf, workdir=tmp_path / "board") as board:
         rc, out, err = vts("trigger", "flash", "--port", board.port, "--hex", patched)
         assert board.image()[:len(_hex_bytes(patched))] == _hex_bytes(patched)   # written and verified
     assert rc == 4, err
-    assert (f"vts: the box on {board.port} answers firmware version 1.0.0 after flashing, not 1.0.9 just written"
+    assert (f"vts: the box on {board.port} answers firmware version 1.1.0 after flashing, not 1.1.9 just written"
             in err)
 
 

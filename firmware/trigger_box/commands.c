@@ -14,6 +14,7 @@
 #include "numbers.h"
 #include "pulse.h"
 #include "serial.h"
+#include "watchdog.h"
 #include "wave.h"
 
 #define LINE_MAX 64
@@ -99,6 +100,8 @@ void commands_init(void)
 	duty_ppm = DEFAULT_DUTY_PPM;
 	trg_width_ms = DEFAULT_TRG_WIDTH_MS;
 	apply_plan();
+	watchdog_set_us(DEFAULT_WDOG_US);
+	watchdog_forget_trip();
 }
 
 /* wait for the tick interrupt to carry out a start (at most one tick, 125 us), so
@@ -197,6 +200,7 @@ static int16_t cmd_outp(void)
 	const char *p = params[0];
 	if (!strcmp_P(p, PSTR("ON")) || !strcmp_P(p, PSTR("1"))) {
 		if (!wave_is_on()) {
+			watchdog_forget_trip();   /* a new run */
 			wave_prepare_start();
 			cli();
 			wave_arm_start();
@@ -274,6 +278,7 @@ static int16_t cmd_trg(void)
 {
 	if (wave_is_on() || pulse_busy(PULSE_BOTH))
 		return E_SETTINGS_CONFLICT;
+	watchdog_forget_trip();   /* a new run */
 	wave_prepare_start();
 	cli();                 /* both requests for the same tick */
 	wave_arm_start();
@@ -302,6 +307,39 @@ static int16_t cmd_edges_q(void)
 	p = fmt_u64(p, first / CLOCK_CYCLES_PER_US);
 	*p++ = ',';
 	p = fmt_u64(p, last / CLOCK_CYCLES_PER_US);
+	reply_buf(buf, p);
+	return 0;
+}
+
+static int16_t cmd_wdog(void)
+{
+	uint32_t us = 0;
+	int16_t err = parse_range(params[0], 0, WDOG_MAX_US, &us);
+	if (err)
+		return err;
+	if (us && us < WDOG_MIN_US)
+		return E_OUT_OF_RANGE;
+	watchdog_set_us(us);
+	reply_ok();
+	return 0;
+}
+
+static int16_t cmd_wdog_q(void)
+{
+	static const char s_off[] PROGMEM = "OFF";
+	static const char s_idle[] PROGMEM = "IDLE";
+	static const char s_armed[] PROGMEM = "ARMED";
+	static const char s_tripped[] PROGMEM = "TRIPPED";
+	static const char *const names[] PROGMEM = {s_off, s_idle, s_armed, s_tripped};
+	char buf[48], *p = buf;
+	uint64_t cut;
+	uint8_t st = watchdog_state(&cut);
+	p = fmt_fixed(p, watchdog_us(), 6);
+	*p++ = ',';
+	strcpy_P(p, (const char *)pgm_read_word(&names[st]));
+	p += strlen(p);
+	*p++ = ',';
+	p = fmt_u64(p, cut / CLOCK_CYCLES_PER_US);
 	reply_buf(buf, p);
 	return 0;
 }
@@ -345,6 +383,10 @@ static const char n_pulse_w[] PROGMEM = "PULSE:WIDTH";
 static const char n_pulse_w_q[] PROGMEM = "PULSE:WIDTH?";
 static const char n_time_q[] PROGMEM = "TIME?";
 static const char n_edges_q[] PROGMEM = "EDGES?";
+static const char n_wdog[] PROGMEM = "WDOG";
+static const char n_watchdog[] PROGMEM = "WATCHDOG";
+static const char n_wdog_q[] PROGMEM = "WDOG?";
+static const char n_watchdog_q[] PROGMEM = "WATCHDOG?";
 static const char n_err1[] PROGMEM = "SYST:ERR?";
 static const char n_err2[] PROGMEM = "SYSTEM:ERROR?";
 static const char n_err3[] PROGMEM = "SYST:ERR:NEXT?";
@@ -370,6 +412,10 @@ static const struct command commands[] PROGMEM = {
 	{n_pulse_w_q, 0, cmd_pulse_width_q},
 	{n_time_q, 0, cmd_time_q},
 	{n_edges_q, 0, cmd_edges_q},
+	{n_wdog, 1, cmd_wdog},
+	{n_watchdog, 1, cmd_wdog},
+	{n_wdog_q, 0, cmd_wdog_q},
+	{n_watchdog_q, 0, cmd_wdog_q},
 	{n_err1, 0, cmd_err_q},
 	{n_err2, 0, cmd_err_q},
 	{n_err3, 0, cmd_err_q},
@@ -431,6 +477,7 @@ static void execute(char *text)
 		memcpy_P(&c, &commands[i], sizeof c);
 		if (strcmp_P(header, c.name))
 			continue;
+		watchdog_feed();   /* a line naming a command: the host's heartbeat, whatever follows */
 		int16_t err;
 		if (nparams > c.nparams)
 			err = E_PARAM_NOT_ALLOWED;
@@ -468,6 +515,8 @@ static void end_line(void)
 void commands_poll(void)
 {
 	int16_t c;
+	if (watchdog_take_trip())
+		error_push(E_WATCHDOG);   /* queued here, not in the interrupt that cut the wave */
 	while ((c = serial_getc()) >= 0) {
 		if (serial_take_overrun())
 			line_lost = 1;

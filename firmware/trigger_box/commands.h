@@ -3,7 +3,7 @@
  *
  * Lines end in "\n" ("\r\n" accepted), at most 64 characters; replies end in "\n".
  * Headers are case-insensitive; SCPI long forms are accepted (FREQuency, OUTPut,
- * SYSTem:ERRor[:NEXT]?). Parameters are separated by spaces or a comma.
+ * SYSTem:ERRor[:NEXT]?, WATCHDOG). Parameters are separated by spaces or a comma.
  *
  *   *IDN?              VTS,TRIGGERBOX,<serial>,<firmware version>
  *   *RST               OK    wave stops (on a whole period), pulses open, defaults
@@ -20,9 +20,18 @@
  *   *TRG               OK    wave and both pulses start on the same timer tick
  *   TIME?              device microseconds since boot (64-bit)
  *   EDGES?             <rising edges since start>,<us of the first>,<us of the last>
+ *   WDOG <s>           OK    the host watchdog: 0.1 .. 3600 s, 0 = off (10 s at power-up
+ *                            and after *RST); at any time
+ *   WDOG?              <s>,<OFF|IDLE|ARMED|TRIPPED>,<device us of the cut, 0 if none>
  *   SYST:ERR?          <code>,"<message>" for the oldest error; 0,"No error"
  *
  * A bad line answers "ERR <code> <message>", queues the error and changes nothing.
+ *
+ * The host watchdog (watchdog.h): every line naming a command above, whatever its reply, is the
+ * host's heartbeat. While the output is on and no heartbeat came for the watchdog time, the wave
+ * is cut (output low at once, mid-period if need be), OUTP? says OFF, WDOG? says TRIPPED with the
+ * device time of the cut until the next start or *RST, and SYST:ERR? gives
+ * -310,"Watchdog: host silent, output off".
  */
 #ifndef TB_COMMANDS_H
 #define TB_COMMANDS_H

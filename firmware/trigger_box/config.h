@@ -20,7 +20,7 @@
 #define F_CPU 16000000UL
 #endif
 
-#define FW_VERSION "1.0.0"
+#define FW_VERSION "1.1.0"   /* 1.1.0: the host watchdog (WDOG, docs/decisions/0083) */
 
 /* Used by *IDN? when the EEPROM holds no serial number (see commands.c). */
 #ifndef TB_SERIAL
@@ -43,10 +43,13 @@
 #define DUTY_MAX_PPM    990000UL       /* 0.99 */
 #define PULSE_MIN_MS    1UL
 #define PULSE_MAX_MS    10000UL
+#define WDOG_MIN_US     100000UL       /* the host watchdog: 0 (off) or 0.1 .. 3600 s */
+#define WDOG_MAX_US     3600000000UL
 
 /* defaults restored by *RST */
 #define DEFAULT_FREQ_UHZ      1000000UL  /* 1 Hz */
 #define DEFAULT_DUTY_PPM      500000UL   /* 0.5 */
 #define DEFAULT_TRG_WIDTH_MS  100UL      /* the start pulses *TRG sends */
+#define DEFAULT_WDOG_US       10000000UL /* the host watchdog: on, 10 s (also at power-up) */
 
 #endif

@@ -46,6 +46,7 @@ static const char m113[] PROGMEM = "Undefined header";
 static const char m221[] PROGMEM = "Settings conflict";
 static const char m222[] PROGMEM = "Data out of range";
 static const char m224[] PROGMEM = "Illegal parameter value";
+static const char m310[] PROGMEM = "Watchdog: host silent, output off";
 static const char m350[] PROGMEM = "Queue overflow";
 static const char m363[] PROGMEM = "Input buffer overrun";
 static const char mx[] PROGMEM = "Error";
@@ -63,6 +64,7 @@ const char *error_message_P(int16_t code)
 	case E_SETTINGS_CONFLICT: return m221;
 	case E_OUT_OF_RANGE: return m222;
 	case E_ILLEGAL_VALUE: return m224;
+	case E_WATCHDOG: return m310;
 	case E_QUEUE_OVERFLOW: return m350;
 	case E_INPUT_OVERRUN: return m363;
 	default: return mx;

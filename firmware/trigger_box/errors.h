@@ -11,6 +11,7 @@
  *   -221 Settings conflict      not allowed now (the wave is on, a pulse is running)
  *   -222 Data out of range
  *   -224 Illegal parameter value  a word parameter that is not one of the choices
+ *   -310 Watchdog: host silent, output off   the host watchdog cut the wave (watchdog.h)
  *   -350 Queue overflow         errors were lost (the queue holds 8)
  *   -363 Input buffer overrun   a line longer than 64 characters, or received bytes lost
  */
@@ -29,6 +30,7 @@ enum {
 	E_SETTINGS_CONFLICT = -221,
 	E_OUT_OF_RANGE = -222,
 	E_ILLEGAL_VALUE = -224,
+	E_WATCHDOG = -310,
 	E_QUEUE_OVERFLOW = -350,
 	E_INPUT_OVERRUN = -363,
 };

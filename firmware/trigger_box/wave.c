@@ -337,6 +337,34 @@ void wave_request_stop(void)
 	}
 }
 
+/*
+ * The host watchdog's cut (watchdog.c, in the tick interrupt): the output low now, mid-period if
+ * need be, and Timer1 stopped. While OC1A is connected the pin ignores PORTB1; so a high pin is
+ * first handed over to PORTB1 = 1 (no change on the pin), then PORTB1 = 0 makes the one falling
+ * edge. A rising edge the overflow or lap interrupt has not counted yet (it is pending behind
+ * this one) is counted here, so EDGES? stays exact.
+ */
+void wave_cut(void)
+{
+	if (state == WAVE_OFF)
+		return;
+	TCCR1B = 0;                  /* clock select 0: Timer1 stops, no compare match from here */
+	if (state != WAVE_STARTING) {
+		if (!run.laps) {
+			/* fast PWM: TOV1 rose at TOP; the rising edge came at BOTTOM, in the high phase */
+			if ((TIFR1 & _BV(TOV1)) && TCNT1 <= run.ocr)
+				edges++;
+		} else if ((TIFR1 & _BV(OCF1A)) && lap_edge && !lap_level) {
+			edges++;             /* a low phase's last lap ended: the pin rose */
+		}
+		if (PINB & _BV(WAVE_BIT)) {
+			WAVE_PORT |= _BV(WAVE_BIT);  /* PORTB1 = 1 while still connected: no change */
+			TCCR1A = 0;                  /* disconnected: PB1 follows PORTB1, still high */
+		}
+	}
+	stop_now();                  /* PORTB1 = 0: the pin falls; Timer1 off, state OFF */
+}
+
 uint8_t wave_cancel_stop(void)
 {
 	uint8_t resumed = 0;

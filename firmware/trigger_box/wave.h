@@ -44,6 +44,7 @@ void wave_arm_start(void);       /* ... and start on the next tick (caller: cli)
 uint8_t wave_start_pending(void);
 void wave_request_stop(void);    /* stop after the current period's falling edge */
 uint8_t wave_cancel_stop(void);  /* still finishing? then keep running (returns 1) */
+void wave_cut(void);             /* stop now, mid-period if need be: output low (caller: cli) */
 
 /* rising edges since the last start, and the device times (cycles) of the first and last */
 void wave_edges(uint32_t *count, uint64_t *first, uint64_t *last);

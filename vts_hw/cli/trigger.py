@@ -33,6 +33,8 @@ def _show(st, as_json: bool) -> None:
     if st.edges is not None:
         parts.append(f"{st.edges} rising edge(s)")
     click.echo(", ".join(parts))
+    for note in st.notes:
+        click.echo(f"  {note}")
     for e in st.errors:
         click.echo(f"  device error: {e}")
 
@@ -54,10 +56,14 @@ def _session(rig, log_path):
 
 
 def _configure(gen, t) -> None:
-    """Frequency and duty from the config, and the levels where the device has them."""
-    from vts_hw.drivers.trigger import LEVELS
+    """Frequency and duty from the config, and the levels where the device has them. The wave
+    outlives this command by design, so a device's watchdog is switched off for it (the trigger
+    box's status says so; `vts trigger stop` ends the wave)."""
+    from vts_hw.drivers.trigger import LEVELS, WATCHDOG
     levels = (t.high_v, t.low_v) if LEVELS in gen.capabilities else (None, None)
     gen.configure(t.frequency_hz, t.duty, *levels)
+    if WATCHDOG in gen.capabilities:
+        gen.watchdog_s = 0
 
 
 @trigger.command()
