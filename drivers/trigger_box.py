@@ -545,10 +545,10 @@ class BoxSettings(BackendSettings):
         "the box switches its output off this long after the last command it heard from us "
         "(0 = off, else 0.1 to 3600 s)"))
 
-    @field_validator("watchdog_s")
+    @field_validator("watchdog_s", mode="before")
     @classmethod
-    def _watchdog(cls, v: float) -> float:
-        return watchdog_seconds(v)
+    def _watchdog(cls, v: Any) -> float:
+        return watchdog_seconds(v)    # the raw value: `watchdog_s: yes` is not 1 s
 
 
 def _open_box(cfg, settings: BoxSettings, log: TriggerLog) -> TriggerBox:

@@ -434,3 +434,111 @@ def test_unplug_and_replug():
         assert link.ask("FREQ?") == "1.000000000"      # a fresh power-up ...
         assert abs(int(link.ask("TIME?")) - box.cycles_now() / US) < 0.5e6  # ... and clock
         link.close()
+
+
+# ---------------------------------------------------------------------------- host watchdog
+TICK = 125 * US          # the tick that counts the host's silence
+ISR_LATE = 16 * US       # the cut is made within the tick's interrupt, well inside 16 us
+
+
+def _heartbeat(box, u0, before, nth=-1):
+    """A command line's end (the cycle its '\n' reached the UART) and the cycle its reply's first
+    byte left: the box took the line between the two. `nth` line end before `before`."""
+    uart = box.uart()[u0:]
+    rx = [u.cycle for u in uart if u.direction == "RX" and u.value == 0x0A and u.cycle < before][nth]
+    tx = [u.cycle for u in uart if u.direction == "TX" and u.cycle > rx][0]
+    return rx, tx
+
+
+def _check_cut(tb, n0, seconds, heartbeat):
+    """The wave was cut T - 1 tick .. T (+ the interrupt's few cycles) after the box took the last
+    heartbeat; the pins agree with the cut's device time (WDOG?); returns it in cycles."""
+    box = tb.box
+    state, us = tb.ask("WDOG?").split(",")[1:]
+    assert state == "TRIPPED"
+    cut = int(us) * US
+    rx, tx = heartbeat
+    t = int(seconds * F_CPU)
+    assert rx + t - TICK < cut <= tx + t + ISR_LATE, ((cut - rx) / US, (tx - rx) / US)
+    edges = box.edges("OC1A")[n0:]
+    r, f = rises(edges), falls(edges)
+    assert edges[0].value == 1 and edges[-1].value == 0 and len(r) == len(f)
+    assert f[-1] <= cut + ISR_LATE                      # nothing after the cut ...
+    period = round(F_CPU / float(tb.ask("FREQ?")))
+    assert r[-1] + period > cut - ISR_LATE              # ... and no rising edge missing before it
+    n, first, _ = map(int, tb.ask("EDGES?").split(","))
+    assert n == len(r) and abs(first - r[0] / US) <= 1
+    return cut
+
+
+@pytest.mark.parametrize("freq,duty", [("1", "0.99"),      # fast PWM clk/256, cut in a high phase
+                                       ("0.13", "0.5"),    # CTC laps, cut in a high phase
+                                       ("1000", "0.5")])   # fast PWM clk/1, cut wherever it falls
+def test_watchdog_cuts_the_wave_when_the_host_falls_silent(tb, freq, duty):
+    box = tb.box
+    n0, u0 = len(box.edges("OC1A")), len(box.uart())
+    tb.ok("WDOG 0.5")
+    tb.ok(f"FREQ {freq}")
+    tb.ok(f"DUTY {duty}")
+    tb.ok("OUTP ON")                                  # the last heartbeat
+    box.wait_cycles(int(0.6 * F_CPU))
+    assert tb.ask("OUTP?") == "OFF"
+    cut = _check_cut(tb, n0, 0.5, _heartbeat(box, u0, box.edges("OC1A")[-1].cycle))
+    edges = box.edges("OC1A")[n0:]
+    if float(freq) < 10:                              # mid-period: the high phase cut short, at the cut
+        assert [e.value for e in edges] == [1, 0] and abs(edges[1].cycle - cut) <= ISR_LATE
+    print(f"{freq} Hz: cut {(cut - _heartbeat(box, u0, cut)[0]) / US - 500_000:+.1f} us after T from the end of "
+          f"the last command line")
+    assert tb.ask("SYST:ERR?") == '-310,"Watchdog: host silent, output off"'
+    assert tb.ask("SYST:ERR?") == '0,"No error"'      # queued once
+    assert len(box.edges("OC1A")) == n0 + len(edges), "edges after the cut"
+    assert tb.ask("WDOG?").split(",")[1] == "TRIPPED"   # kept until the next start ...
+    tb.ok("WDOG 0")
+    tb.ok("FREQ 1000")                                # (a short last period to finish)
+    tb.ok("OUTP ON")
+    assert tb.ask("WDOG?") == "0.000000,OFF,0"        # ... which forgets it
+    tb.ok("OUTP OFF")
+    tb.wait_off()
+
+
+def test_watchdog_heartbeats_are_command_lines_only(tb):
+    """Blank lines, garbage and unknown headers are not the host: the cut comes T after the last
+    line that named a command, though junk kept arriving."""
+    box = tb.box
+    n0, u0 = len(box.edges("OC1A")), len(box.uart())
+    tb.ok("WDOG 0.3")
+    tb.ok("FREQ 100")
+    tb.ok("OUTP ON")
+    tb.s.write(b"FROB\n\n  \n\x01X\nOUTP\x7f?\n" * 2)      # each non-blank line: ERR, no heartbeat
+    assert [tb.line()[:8] for _ in range(6)] == ["ERR -113", "ERR -101", "ERR -101"] * 2
+    box.wait_cycles(int(0.4 * F_CPU))
+    assert tb.ask("OUTP?") == "OFF"
+    ends = [u.cycle for u in box.uart()[u0:] if u.direction == "RX" and u.value == 0x0A]
+    cut = _check_cut(tb, n0, 0.3, _heartbeat(box, u0, ends[3]))   # OUTP ON's line (after WDOG, FREQ)
+    assert sum(ends[2] < c < cut for c in ends) == 10                # the junk came in between
+    assert tb.ask("SYST:ERR?").startswith("-113,")     # the junk's errors, then the cut's
+    while (r := tb.ask("SYST:ERR?")) != '0,"No error"':
+        last = r
+    assert last == '-310,"Watchdog: host silent, output off"'
+
+
+def test_watchdog_settings_and_silence_while_off(tb):
+    box = tb.box
+    n0 = len(box.edges("OC1A"))
+    assert tb.ask("WDOG?") == "10.000000,IDLE,0"
+    tb.ok("WATCHDOG 2.5")
+    assert tb.ask("WATCHDOG?") == "2.500000,IDLE,0"
+    tb.ok("WDOG 0")
+    assert tb.ask("WDOG?") == "0.000000,OFF,0"
+    for bad, code in (("WDOG 0.05", -222), ("WDOG 3600.001", -222), ("WDOG -1", -222), ("WDOG x", -104),
+                      ("WDOG", -109), ("WDOG 1 2", -108), ("WDOG? 1", -108)):
+        assert tb.ask(bad).startswith(f"ERR {code} "), bad
+    assert tb.ask("WDOG?") == "0.000000,OFF,0"        # refusals change nothing
+    tb.ok("*CLS")
+    tb.ok("WDOG 0.1")
+    box.wait_cycles(int(0.3 * F_CPU))                  # silent for 3 T with the output off
+    assert tb.ask("WDOG?") == "0.100000,IDLE,0"        # nothing to cut, nothing queued
+    assert tb.ask("SYST:ERR?") == '0,"No error"'
+    assert len(box.edges("OC1A")) == n0 and tb.ask("OUTP?") == "OFF"
+    tb.ok("*RST")
+    assert tb.ask("WDOG?") == "10.000000,IDLE,0"       # *RST: the default again

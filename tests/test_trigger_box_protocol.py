@@ -407,3 +407,94 @@ def test_start_raises_when_the_box_confirms_no_square_wave():
     with expected_protocol(pairs) as box:
         with pytest.raises(TriggerError, match="confirms 10.0 Hz at duty 1.5: not a square wave"):
             box.start()
+
+
+# ---- the host watchdog (docs/decisions/0083) ------------------------------------------------------------
+
+ON = [("OUTP?", "ON"), ("FREQ?", "10"), ("DUTY?", "0.25"), ("EDGES?", "1,5000000,5000000")]
+
+
+def test_the_watchdog_is_set_before_every_start():
+    pairs = lines(("WDOG 2.5", "OK"), ("OUTP ON", "OK"), *ON, ("WDOG?", "2.500000,ARMED,0"),
+                  ("SYST:ERR?", '0,"No error"'), ("OUTP OFF", "OK"), *STATUS_OFF,
+                  ("WDOG 0", "OK"), ("*TRG", "OK"), *ON, ("WDOG?", "0.000000,OFF,0"), ("SYST:ERR?", '0,"No error"'))
+    with expected_protocol(pairs, watchdog_s=2.5) as box:
+        st = box.start()
+        assert box.heartbeat is not None and box.heartbeat.every_s == 0.625   # a quarter of T
+        assert st.extra["watchdog"] == {"seconds": 2.5, "state": "armed", "cut_device_us": None}
+        assert st.notes == ("watchdog 2.5 s: the box switches its output off 2.5 s after the last command it hears",)
+        box.stop()
+        box.heartbeat = None
+        box.watchdog_s = 0                  # the wave outlives the program (vts trigger start, fire)
+        st = box.fire()
+        assert box.heartbeat is None and "watchdog off" in st.notes[0]
+
+
+@pytest.mark.parametrize("bad", [0.05, -1, 3600.5, float("nan"), "10", True])
+def test_a_watchdog_time_out_of_range_is_refused_before_anything_is_sent(bad):
+    from vts_hw.drivers.trigger import OutOfRange
+    from vts_hw.drivers.trigger_box import BoxSettings
+    with pytest.raises(OutOfRange, match="watchdog time must be 0 \\(off\\) or 0.1 to 3600 s"):
+        with expected_protocol([], watchdog_s=bad):
+            pass
+    with pytest.raises(ValueError, match="watchdog_s"):     # rig.yaml's trigger: watchdog_s
+        BoxSettings(watchdog_s=bad)
+
+
+def test_the_heartbeat_speaks_only_after_silence_and_stops_at_a_cut(tmp_path):
+    from vts_hw.drivers.trigger import TriggerLog, read_log
+    mono = FakeClock(0.0)
+    clock = FakeClock(1000.0)
+    pairs = lines(("WDOG 1", "OK"), ("OUTP ON", "OK"), *ON, ("WDOG?", "1.000000,ARMED,0"),
+                  ("SYST:ERR?", '0,"No error"'),
+                  ("WDOG?", "1.000000,ARMED,0"),                          # the first beat
+                  ("WDOG?", "1.000000,TRIPPED,7250000"), ("EDGES?", "23,5000000,7200000"))   # the host stalled
+    path = tmp_path / "trigger.csv"
+    with expected_protocol(pairs, watchdog_s=1, monotonic=mono, clock=clock,
+                           log=TriggerLog(path, clock=clock)) as box:
+        box.start()
+        hb = box.heartbeat
+        assert hb.beat_if_due() and box.fake.done == 8      # the driver spoke just now: nothing sent
+        mono.t += 0.2
+        assert hb.beat_if_due() and box.fake.done == 8      # 0.2 s of silence: not yet (every 0.25 s)
+        mono.t += 0.1
+        assert hb.beat_if_due() and box.fake.done == 9      # a beat; the box says ARMED: go on
+        mono.t += 0.3
+        assert not hb.beat_if_due()                         # the box cut the wave: no more beats
+        mono.t += 5
+        assert not hb.beat_if_due() and box.fake.done == 11  # stopped: nothing more sent
+    rows = read_log(path)
+    cut = [r for r in rows if r["kind"] == "event" and "watchdog cut" in r["text"]]
+    assert len(cut) == 1 and cut[0]["device_time_us"] == "7250000"
+    assert "heard nothing from this host for 1 s" in cut[0]["text"]
+    stop = [r for r in rows if r["kind"] == "wave_stop"]
+    start = [r for r in rows if r["kind"] == "wave_start"]
+    # no clock mapping: the cut placed from the first edge's device time, on the start's host time
+    assert len(stop) == 1 and "rising_edges=23" in stop[0]["text"] and "time=host_write" in stop[0]["text"]
+    assert float(stop[0]["host_time"]) == pytest.approx(float(start[0]["host_time"]) + 2.25, abs=1e-6)
+
+
+def test_status_after_a_cut_says_when_and_the_stop_adds_no_second_end():
+    pairs = lines(("OUTP?", "OFF"), ("FREQ?", "10"), ("DUTY?", "0.25"), ("EDGES?", "23,5000000,7200000"),
+                  ("WDOG?", "10.000000,TRIPPED,7250000"), ("TIME?", "9750000"),
+                  ("SYST:ERR?", '-310,"Watchdog: host silent, output off"'), ("SYST:ERR?", '0,"No error"'),
+                  ("OUTP OFF", "OK"), ("OUTP?", "OFF"), ("FREQ?", "10"), ("DUTY?", "0.25"),
+                  ("EDGES?", "23,5000000,7200000"), ("WDOG?", "10.000000,TRIPPED,7250000"), ("TIME?", "9760000"),
+                  ("SYST:ERR?", '0,"No error"'))
+    with expected_protocol(pairs) as box:
+        st = box.status()              # a new connection after the host died (vts trigger status)
+        assert not st.running and st.errors == ('-310,"Watchdog: host silent, output off"',)
+        assert st.extra["watchdog"] == {"seconds": 10.0, "state": "tripped", "cut_device_us": 7_250_000}
+        assert st.notes == ("watchdog TRIPPED: the box heard nothing from its host for 10 s and cut the square "
+                            "wave (output off) at device time 7.250000 s, 2.5 s ago",)
+        box.stop()
+    assert sum("watchdog cut" in r[4] for r in box.log.lines) == 1      # one event for one cut
+    assert not [r for r in box.log.lines if r[3] == "wave_stop"]      # a wave another program started
+
+
+@pytest.mark.parametrize("reply", ["10,ARMED", "10.000000,MAYBE,0", "x,OFF,0", "10.000000,TRIPPED,-1",
+                                   "4000.000000,OFF,0"])
+def test_a_malformed_watchdog_reply_is_an_error(reply):
+    with expected_protocol(lines(("WDOG?", reply))) as box:
+        with pytest.raises(TriggerError, match="answered 'WDOG\\?' with .*not a watchdog state"):
+            box.watchdog()
