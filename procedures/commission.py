@@ -6,17 +6,23 @@ version, aim and focus, the warm-up, calibration, the VTS → SPECT mapping, the
 sync check, the drift baseline. Each step calls the function its own command calls
 (:mod:`vts_hw.procedures.commission_steps`); nothing of a procedure is done again here.
 
-A procedure never holds a store: :func:`run_sequence` is handed a ``ledger`` (the caller's:
-vts_hw.store.commission.Ledger) that records each step's outcome and is asked nothing else.
+A procedure never holds a store: the sequence (procedures/commission_sequence.py) is handed a
+``ledger`` (the caller's: vts_hw.store.commission.Ledger) that records each step's outcome and is
+asked nothing else.
 A step ends in one of:
 
 * passed -- the sequence goes on (a figure in TOLERANCE passes, and is reported);
 * stopped -- a figure in ACTION, a camera to adjust, a camera still warming up with ``no_wait``:
   recorded (not passed), the sequence stops with what to do;
-* an error -- a device that failed (exit 4), an input missing (exit 2): recorded as a step that
-  did not pass, with the reason, then raised for the caller's exit code; Ctrl-C likewise.
+* an error -- a device that failed (exit 4), an input missing (exit 2), a question no one can
+  answer (no terminal): recorded as a step that did not pass, with the reason, then raised for
+  the caller's exit code; Ctrl-C and SIGTERM likewise.
 
-docs/decisions/0069-commissioning.md.
+Each step's run is begun ("running") before the step starts, so that a commissioning killed in
+it (SIGKILL) leaves a row that the store marks aborted at its next open: the newest attempt of
+each step, aborted ones included, is the commissioning's state.
+
+docs/decisions/0069-commissioning.md, 0084-commissioning-honest-state.md.
 """
 
 from __future__ import annotations
@@ -26,7 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from vts_hw.catalog import COMMISSION_STEP
+from vts_hw.catalog import COMMISSION_STEP, COMMISSION_STEPS
 from vts_hw.errors import UsageError
 from vts_hw.results import Measure, overall_state
 from vts_hw.tolerance import State
@@ -40,17 +46,19 @@ class Step:
     needs: str = ""     # what the operator must give for it (an option), "" when nothing
 
 
-STEPS: tuple[Step, ...] = (
-    Step("cameras", "discover and set up the cameras", "vts discover; vts camera setup --all"),
-    Step("trigger", "trigger box", "vts trigger status"),
-    Step("aim", "aim and focus", "vts camera aim NAME"),
-    Step("warmup", "warm-up", "vts qa daily (its uptime check and drift detection)"),
-    Step("calibration", "calibration", "vts calibrate cameras IMAGES", "--checkerboards"),
-    Step("mapping", "VTS → SPECT mapping", "vts calibrate spect --from-cameras --volume FILE", "--phantom-volume"),
-    Step("steps", "step test", "vts qa steps --volumes DIR", "--step-volumes"),
-    Step("sync", "sync check", "vts sync analyze SESSION --listmode FILE", "--sync-session, --listmode"),
-    Step("baseline", "drift baseline", "vts qa drift --set-baseline"),
-)
+#: how each step of the catalog's COMMISSION_STEPS runs on its own, and what it needs
+_HOW = {
+    "cameras": ("vts discover; vts camera setup --all", ""),
+    "trigger": ("vts trigger status", ""),
+    "aim": ("vts camera aim NAME", ""),
+    "warmup": ("vts qa daily (its uptime check and drift detection)", ""),
+    "calibration": ("vts calibrate cameras IMAGES", "--checkerboards"),
+    "mapping": ("vts calibrate spect --from-cameras --volume FILE", "--phantom-volume"),
+    "steps": ("vts qa steps --volumes DIR", "--step-volumes"),
+    "sync": ("vts sync analyze SESSION --listmode FILE", "--sync-session, --listmode"),
+    "baseline": ("vts qa drift --set-baseline", ""),
+}
+STEPS: tuple[Step, ...] = tuple(Step(name, label, *_HOW[name]) for name, label in COMMISSION_STEPS)
 NAMES = tuple(s.name for s in STEPS)
 
 
@@ -123,6 +131,7 @@ class Inputs:
     listen_s: float = 3.0
     interfaces: tuple[str, ...] = ()
     wait: bool = True
+    room_clear: bool = False      # the drift baseline's "clear the room" answered beforehand (no terminal needed)
 
     @property
     def calibration_file(self) -> Path:
@@ -150,19 +159,6 @@ class Context:
             self.rig = self.reload()
 
 
-@dataclass
-class SequenceEnd:
-    """Where the sequence ended: the outcomes of the steps run now, the step that stopped it
-    (None: every step passed or was skipped)."""
-
-    outcomes: list[Outcome]
-    stopped: Outcome | None = None
-
-    @property
-    def done(self) -> bool:
-        return self.stopped is None
-
-
 def plan(start: str | None, done: dict[str, bool]) -> list[str]:
     """The steps to run: from ``start`` (every later one too), else from the first step that has
     not passed or been skipped (``done``: step -> passed or skipped, in the current commissioning)."""
@@ -175,38 +171,4 @@ def plan(start: str | None, done: dict[str, bool]) -> list[str]:
     return []
 
 
-def run_sequence(ctx: Context, todo: list[str], ledger, skips: dict[str, str] | None = None) -> SequenceEnd:
-    """Run ``todo`` in order through ``ledger`` (``record(outcome) -> run id``, ``skip(step, why)``,
-    ``failed(step, reason)``); a step in ``skips`` is recorded skipped with its reason."""
-    from vts_hw.procedures import commission_steps as run
-
-    skips = dict(skips or {})
-    outcomes: list[Outcome] = []
-    for name in todo:
-        s = step(name)
-        if name in skips:
-            ledger.skip(name, skips[name])
-            ctx.say(f"== {s.label}: SKIPPED ({skips[name]})")
-            continue
-        ctx.say(f"== {s.label} ({s.command})")
-        started = ctx.clock()
-        try:
-            out = getattr(run, name)(ctx)
-        except BaseException as exc:      # a device that failed, an input missing, Ctrl-C: said and kept
-            reason = "interrupted" if isinstance(exc, KeyboardInterrupt) else (str(exc) or type(exc).__name__)
-            ledger.failed(name, reason, started)
-            raise
-        out.started = out.started or started
-        if isinstance(out.result, StepCheck):      # a procedure's result said itself already
-            ctx.say(out.result.results())
-        ledger.record(out)
-        outcomes.append(out)
-        if out.error is not None:          # its figures stored, then the error said (exit code) and resumable
-            raise out.error
-        if not out.passed:
-            return SequenceEnd(outcomes, out)
-    return SequenceEnd(outcomes)
-
-
-__all__ = ["STEPS", "NAMES", "Step", "StepCheck", "Outcome", "Inputs", "Context", "SequenceEnd", "plan",
-           "run_sequence", "step"]
+__all__ = ["STEPS", "NAMES", "Step", "StepCheck", "Outcome", "Inputs", "Context", "plan", "step"]

@@ -176,7 +176,10 @@ def warmup(ctx: Context) -> Outcome:
     samples against the ``warmup_rate_px_min`` window, and its uptime against its warmup_min; its
     clock read at each sample, how fast its rate changes fitted over the same window against the
     ``warmup_clock_change_ppm_min`` window (procedures/warmup_clock.py). A camera not settled is
-    waited for with progress (a line a sample), or (``wait`` False) the step stops saying how long."""
+    waited for with progress (a line a sample), or (``wait`` False) the step stops saying how long:
+    at once, before any sample, for a camera started less than its warmup_min ago (it cannot pass
+    whatever its rate); after one window (``samples`` x ``interval_s``, needed to measure a rate)
+    for the others."""
     from vts_hw.procedures.drift import LED_SETTLE_S
     from vts_hw.procedures.warmup import Watch, settle_wait_min
     from vts_hw.procedures.warmup_clock import ClockWatch, judge_clock
@@ -188,10 +191,15 @@ def warmup(ctx: Context) -> Outcome:
     cwin = merged_tolerances(ctx.rig.tolerances)["warmup_clock_change_ppm_min"]
     climit = cwin.tolerance_high if cwin.tolerance_high is not None else cwin.action_high
     warm = {c.name: float(c.warmup_min) for c in ctx.rig.cameras}
-    ctx.say(f"  watching the wall markers settle: a sample every {st.interval_s:g} s, the rate fitted over "
-            f"{st.samples} samples ({window.describe()}), each camera's clock read with it "
-            f"({cwin.describe()} for its rate's change); Ctrl-C stops, `vts commission --resume` continues")
     with _cameras(ctx.rig.cameras, clock=ctx.clock) as cams:
+        if not ctx.inputs.wait:          # no window measured for a camera that cannot have settled yet
+            up = {c.name: _uptime(c, ctx.say) for c in cams}
+            young = {n for n, m in up.items() if m is not None and m < warm[n]}
+            if young:
+                return _too_young(ctx, up, warm, young)
+        ctx.say(f"  watching the wall markers settle: a sample every {st.interval_s:g} s, the rate fitted over "
+                f"{st.samples} samples ({window.describe()}), each camera's clock read with it "
+                f"({cwin.describe()} for its rate's change); Ctrl-C stops, `vts commission --resume` continues")
         watches = {c.name: Watch(c, st.frames) for c in cams}
         clocks = {c.name: ClockWatch(c) for c in cams}
         for c in cams:
@@ -272,6 +280,31 @@ def warmup(ctx: Context) -> Outcome:
     tail = "; then `vts commission --resume`" if advice else ""
     return Outcome("warmup", StepCheck("warmup", measures, lines, {"warmup": data}), passed,
                    advice="; ".join(advice) + tail)
+
+
+def _too_young(ctx: Context, up: dict, warm: dict, young: set) -> Outcome:
+    """``--no-wait`` and a camera started less than its warmup_min ago: it cannot pass whatever its
+    rate, so no window is measured; the step stops at once with how long to wait at least."""
+    measures, lines, advice, data = [], [], [], {}
+    for n, m in up.items():
+        is_young = n in young
+        measures += [Measure(n, "uptime_min", None if m is None else round(m, 1), "min",
+                             TOL if m is None or is_young else OK)]
+        if m is not None:
+            measures.append(Measure(n, "warming_up", 1.0 if is_young else 0.0, "", TOL if is_young else OK))
+        measures.append(Measure(n, "warmup_rate_px_min", None, "px/min", TOL))
+        data[n] = {"uptime_min": m, "warmup_min": warm[n], "rate_px_min": None}
+        ran = "uptime not known" if m is None else f"running {m:.0f} min (warm-up {warm[n]:g} min)"
+        lines.append(f"  {n}: {ran}" + (": NOT settled (the rate is not measured before its warm-up time is up)"
+                                          if is_young else ""))
+        if is_young:
+            left = warm[n] - m
+            until = time.strftime("%H:%M", time.localtime(ctx.clock() + left * 60))
+            data[n]["wait_min"], data[n]["wait_at_least"] = left, True
+            advice.append(f"{n} started {m:.0f} min ago, less than its {warm[n]:g} min warm-up time: wait at least "
+                          f"{_minutes(left)} (until {until}), its picture's rate is measured then")
+    return Outcome("warmup", StepCheck("warmup", measures, lines, {"warmup": data, "measured": False}), False,
+                   advice="; ".join(advice) + "; then `vts commission --resume`")
 
 
 def _clock_figures(n, cfit, judged, cwin, climit, watch, data, now):
@@ -440,7 +473,10 @@ def baseline(ctx: Context) -> Outcome:
     """`vts qa drift --set-baseline`: the wall markers of every camera, the room clear."""
     from vts_hw.procedures.baseline import take_baselines
 
-    ctx.ask("Clear the table and the room (phantom and source marker away), LED rings on. Press Enter.")
+    if ctx.inputs.room_clear:
+        ctx.say("  the room is clear (--room-clear): the wall markers are taken now")
+    else:
+        ctx.ask("Clear the table and the room (phantom and source marker away), LED rings on. Press Enter.")
     with _cameras(ctx.rig.cameras, clock=ctx.clock) as cams:
         result = take_baselines(cams, frames=5, clock=ctx.clock)
     ctx.say(result.results())

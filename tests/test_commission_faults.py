@@ -50,8 +50,11 @@ def test_an_input_not_given_stops_with_what_to_give(rig, capsys, tmp_path):
                                 "poses over the field of view); then `vts commission --resume` with it")
     with ResultsStore(url) as store:
         runs = store.runs("commission-step")
-        assert [r.status for r in runs] == ["aborted"] and "did not finish" in runs[0].notes
-        assert load_state(store, "room2").steps == {}
+        assert [r.status for r in runs] == ["aborted"]
+        assert runs[0].notes.startswith("commissioning (new) step calibration\naborted: the calibration needs "
+                                        "--checkerboards DIR")
+        (s,) = load_state(store, "room2").steps.values()     # the newest attempt of the step: aborted, never passed
+        assert s.step == "calibration" and s.aborted and not s.passed and s.why().startswith("the calibration needs")
 
 
 def test_a_camera_that_does_not_answer_is_exit_4(rig, capsys, tmp_path):

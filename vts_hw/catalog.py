@@ -114,6 +114,12 @@ COMMISSION_STEP = Procedure("commission-step", "commissioning step", "none", (
     ("uptime_min", "min"), ("warming_up", "")))
 COMMISSIONING = Procedure("commissioning", "commissioning", "none", (
     ("commission_id", ""), ("step_run", ""), ("signed_off", "")))
+#: the steps of commissioning, in their order: (name, label); procedures/commission.py says how each
+#: runs, the store's ledger and the reports name them from here
+COMMISSION_STEPS: tuple[tuple[str, str], ...] = (
+    ("cameras", "discover and set up the cameras"), ("trigger", "trigger box"), ("aim", "aim and focus"),
+    ("warmup", "warm-up"), ("calibration", "calibration"), ("mapping", "VTS → SPECT mapping"),
+    ("steps", "step test"), ("sync", "sync check"), ("baseline", "drift baseline"))
 
 #: every procedure, in the order the reports list them
 PROCEDURES: tuple[Procedure, ...] = (DAILY, DRIFT, BASELINE, STEPS, SYNC, MAPPING, CALIBRATION,

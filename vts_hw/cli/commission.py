@@ -4,7 +4,9 @@ report through the report door and exits."""
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import sys
 import time
 from pathlib import Path
@@ -12,13 +14,49 @@ from pathlib import Path
 import click
 
 from vts_hw.cli import cli
+from vts_hw.catalog import COMMISSION_STEPS
 from vts_hw.cli.common import PositiveSeconds, config_option, positive
+from vts_hw.errors import UsageError
 from vts_hw.procedures.commission import NAMES as STEP_NAMES
+from vts_hw.procedures.commission_sequence import failure_reason, run_sequence
+
+
+class NoTerminal(UsageError):
+    """A step asks a person at the table and no one can answer (stdin is not a terminal)."""
+
+
+def _terminal() -> bool:
+    stdin = sys.stdin
+    try:
+        return stdin is not None and not stdin.closed and stdin.isatty()
+    except (ValueError, OSError):
+        return False
 
 
 def _ask(text: str):
-    """The operator's answer (Enter) to a step's request."""
-    return click.prompt(text, default="", show_default=False, prompt_suffix=" ", err=True)
+    """The operator's answer (Enter) to a step's request, at a terminal only: without one (stdin
+    closed, /dev/null, a pipe) no one is there to do what it asks (exit 2, one sentence). Ctrl-C
+    or Ctrl-D at the prompt is an interrupt (exit 130)."""
+    if not _terminal():
+        raise NoTerminal(f"commissioning asks a person at the table ({text!r}) and stdin is not a terminal: run it at "
+                         "a terminal (`vts commission --resume`), or for the drift baseline give --room-clear")
+    try:
+        return click.prompt(text, default="", show_default=False, prompt_suffix=" ", err=True)
+    except click.exceptions.Abort:
+        raise KeyboardInterrupt("interrupted at the prompt") from None
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """SIGTERM (`timeout`, a service manager, `kill`) stops the commissioning as Ctrl-C does: the
+    step under way is recorded aborted, saying so, and the exit status is 130."""
+    def handler(signum, frame):
+        raise KeyboardInterrupt(f"stopped by {signal.Signals(signum).name}")
+    old = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
 
 
 def _pattern(ctx, param, value: str) -> tuple[int, int]:
@@ -59,12 +97,18 @@ def _pattern(ctx, param, value: str) -> tuple[int, int]:
               help="Seconds to listen for cameras announcing themselves (mDNS, SSDP).")
 @click.option("--interface", "interfaces", multiple=True, metavar="ADDRESS",
               help="Listen from this IPv4 address of this host only (repeatable).")
-@click.option("--no-wait", is_flag=True, help="Warm-up: do not wait for a camera whose picture has not settled (or that started less than its "
-                   "warmup_min ago); say how long to wait and stop.")
+@click.option("--no-wait", is_flag=True,
+              help="Warm-up: do not wait for the pictures to settle. A camera started less than its warmup_min ago "
+                   "stops the step at once (no sample taken), saying how long to wait at least; else the rate is "
+                   "measured over one window (warmup.samples x warmup.interval_s, 5 min by default: a rate takes "
+                   "that long to measure) and a camera not settled stops the step, saying how long to wait.")
+@click.option("--room-clear", is_flag=True,
+              help="Drift baseline: the table and the room are clear and the LED rings on (do not ask; for a run "
+                   "without a terminal). The step test always needs a person at a terminal.")
 @click.option("--operator", default=lambda: os.environ.get("USER", ""), help="Who runs it.")
 def commission(config_path, resume, from_step, skips, why, sign_off, out_dir, checkerboards, pattern, square_mm,
                phantom_volume, step_volumes, vertical, axial, sync_session, listmode, frames, listen_s, interfaces,
-               no_wait, operator) -> None:
+               no_wait, room_clear, operator) -> None:
     """Commission a room, step by step, each step a stored run; resumable where it stopped.
 
     \b
@@ -82,13 +126,15 @@ def commission(config_path, resume, from_step, skips, why, sign_off, out_dir, ch
     \b
     Exit status: 0 commissioned (every figure OK); 10 commissioned with a figure in TOLERANCE
     or a step skipped, or stopped at a camera to adjust (aim) or still warming up (--no-wait);
-    20 stopped at a figure in ACTION; 4 a device failed; 2 bad input or an input a step
-    needs is missing; 3 the store or a file could not be written; 130 interrupted. After a
-    stop, fix what it says and run again with --resume (or --from STEP).
+    20 stopped at a figure in ACTION, or the report of a commissioning with a step that has not
+    passed; 4 a device failed; 2 bad input, an input a step needs is missing, or a question
+    for a person with no terminal to ask it at; 3 the store or a file could not be written;
+    130 interrupted (Ctrl-C, SIGTERM). After a stop, fix what it says and run again with
+    --resume (or --from STEP). Each step is recorded as it starts: a commissioning killed in
+    a step is found by the next start and said; the newest attempt of each step decides.
     """
     from vts_hw.config import load_rig
     from vts_hw.cli.common import open_store
-    from vts_hw.errors import UsageError
     from vts_hw.procedures import commission as proc
     from vts_hw.procedures.daily import EXIT_CODES
     from vts_hw.store.commission import Ledger, load_state
@@ -104,10 +150,12 @@ def commission(config_path, resume, from_step, skips, why, sign_off, out_dir, ch
     inputs = proc.Inputs(out=out, checkerboards=tuple(checkerboards), pattern=pattern, square_mm=square_mm,
                          phantom_volume=phantom_volume, step_volumes=step_volumes, vertical=vertical, axial=axial,
                          sync_session=sync_session, listmode=tuple(listmode), frames=frames, listen_s=listen_s,
-                         interfaces=tuple(interfaces), wait=not no_wait)
+                         interfaces=tuple(interfaces), wait=not no_wait, room_clear=room_clear)
     say = lambda m: click.echo(m, err=True)  # noqa: E731
-    with open_store(rig) as store:
+    with _sigterm_as_interrupt(), open_store(rig) as store:
         state = load_state(store, rig.rig)
+        for s in state.unfinished():     # killed, interrupted or failed in it: the next start says so
+            say(f"commissioning {state.cid}: its {s.label} step of {_when(s.started)} did not finish ({s.why()})")
         carry = resume or from_step is not None
         if carry and state.cid is None:
             say("no commissioning of this room in the store yet: a new one begins")
@@ -116,15 +164,37 @@ def commission(config_path, resume, from_step, skips, why, sign_off, out_dir, ch
         todo = proc.plan(from_step, state.done if carry else {})
         ledger = Ledger(store, rig, cid=state.cid if carry else None, operator=operator)
         ctx = proc.Context(rig, inputs, say=say, ask=_ask, reload=lambda: load_rig(config_path))
-        end = proc.run_sequence(ctx, todo, ledger, {s: why for s in skips})
+        try:
+            end = run_sequence(ctx, todo, ledger, {s: why for s in skips})
+        except KeyboardInterrupt as exc:
+            say(f"commissioning {ledger.cid or '(new)'} {failure_reason(exc)}: the step under way is recorded as "
+                "aborted; `vts commission --resume` runs it again")
+            raise
         if not end.done:
             o = end.stopped
             click.echo(f"commissioning stopped at {proc.step(o.step).label}: {o.advice or o.state}")
             sys.exit(EXIT_CODES[o.state] or 10)
-        report = _report(store, rig, ledger, sign_off, out)
-    click.echo(f"commissioning {report.cid} of {rig.rig}: {report.state}"
+        report, standing = _report(store, rig, ledger, sign_off, out)
+    click.echo(f"commissioning {report.cid} of {rig.rig}: {_verdict(standing)}"
                + ("" if report.signed_by else " (not signed off)"))
     sys.exit(EXIT_CODES[report.state])
+
+
+def _when(t: float) -> str:
+    return time.strftime("%Y-%m-%d %H:%M", time.localtime(t))
+
+
+def _verdict(standing) -> str:
+    """The state in words with what was skipped and what has not passed (vts_hw.store.commission.Standing)."""
+    labels = dict(COMMISSION_STEPS)
+    word = standing.word if standing.complete else "incomplete, not commissioned"
+    parts = []
+    if standing.not_passed:
+        parts.append("not passed: " + ", ".join(labels[n] for n in standing.not_passed))
+    if standing.skipped:
+        parts.append(f"{len(standing.skipped)} of {len(labels)} steps skipped: "
+                     + ", ".join(labels[n] for n in standing.skipped))
+    return word + (f" ({'; '.join(parts)})" if parts else "")
 
 
 def _report(store, rig, ledger, sign_off, out):
@@ -144,4 +214,4 @@ def _report(store, rig, ledger, sign_off, out):
     for f in files:
         click.echo(f"report: {f}")
     click.echo(f"stored: run {run_id} (commissioning)")
-    return report
+    return report, load_state(store, rig.rig).standing(store)

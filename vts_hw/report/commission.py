@@ -17,6 +17,8 @@ from vts_hw.tolerance import State, worst
 
 #: the ledger's own measures, and the per-marker positions of a baseline: not figures of the room
 NOT_FIGURES = {"commission_id", "step_passed", "step_run", "step_skipped", "baseline_x_px", "baseline_y_px"}
+#: a step's row when its newest attempt did not pass
+NOT_PASSED = ("NOT RUN", "NOT PASSED", "ABORTED")
 WORDS = {"OK": "OK: within tolerance", "TOLERANCE": "TOLERANCE: within the action limits; review it",
          "ACTION": "ACTION: outside the action limits; act before the room is used"}
 
@@ -25,7 +27,7 @@ WORDS = {"OK": "OK: within tolerance", "TOLERANCE": "TOLERANCE: within the actio
 class StepRow:
     name: str
     label: str
-    state: str            # OK / TOLERANCE / ACTION, "SKIPPED", "NOT RUN", "NOT PASSED"
+    state: str            # OK / TOLERANCE / ACTION, "SKIPPED", "NOT RUN", "NOT PASSED", "ABORTED"
     run_id: int | None
     started: float | None
     notes: str = ""
@@ -63,8 +65,9 @@ class CommissionReport:
 
     @property
     def state(self) -> State:
-        """The worst step and figure; a step skipped counts as TOLERANCE, one not passed as ACTION."""
-        got = [State.ACTION if s.state in ("NOT RUN", "NOT PASSED") else
+        """The worst step and figure; a step skipped counts as TOLERANCE, one not passed (not run,
+        stopped, aborted: its newest attempt) as ACTION."""
+        got = [State.ACTION if s.state in NOT_PASSED else
                State.TOLERANCE if s.state == "SKIPPED" else State(s.state) for s in self.steps]
         return worst(got + [State(f.state) for f in self.figures]) if got else State.ACTION
 
@@ -105,6 +108,9 @@ def build_commission_report(store, state, steps: list[tuple[str, str]], *, signe
             rows.append(StepRow(name, label, "SKIPPED", s.run_id, s.started, why))
             skipped.append((label, why))
             continue
+        if s.aborted:          # the newest attempt raised or its process died: no figures of it
+            rows.append(StepRow(name, label, "ABORTED", s.run_id, s.started, s.why()))
+            continue
         own = s.step_run or s.run_id
         word = s.status if s.passed and s.status in ("OK", "TOLERANCE") else "NOT PASSED"
         rows.append(StepRow(name, label, word, own, s.started, s.notes))
@@ -121,4 +127,4 @@ def build_commission_report(store, state, steps: list[tuple[str, str]], *, signe
                             trigger, skipped, signed_by, signed_at)
 
 
-__all__ = ["CommissionReport", "StepRow", "FigureRow", "build_commission_report", "WORDS"]
+__all__ = ["CommissionReport", "StepRow", "FigureRow", "build_commission_report", "WORDS", "NOT_PASSED"]

@@ -12,6 +12,7 @@ from vts_hw.report.times import fmt_datetime
 
 EXTRA_CSS = """
 .badge.SKIPPED, .badge.NOT { background: #9aa3ad; }
+.badge.ABORTED { background: #8a1c1c; }
 .signoff { border: 2px solid #1d2733; padding: 10px 14px; border-radius: 6px; }
 .signoff.unsigned { border-style: dashed; color: #8a1c1c; }
 """

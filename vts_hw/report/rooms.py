@@ -27,6 +27,7 @@ from vts_hw.tolerance import State, worst
 from vts_hw.report.drift import COMPLETED, DRIFT_PROCEDURES, collect
 from vts_hw.report.model import DriftReport, RunInfo
 from vts_hw.report.times import fmt_date
+from vts_hw.store.commission import LABELS as STEP_LABELS, Standing, load_state
 
 STEPS_PROCEDURES = catalog.family(catalog.STEPS.key)
 CALIBRATION_PROCEDURES = catalog.family(catalog.CALIBRATION.key)
@@ -70,6 +71,7 @@ class Room:
     open_items: list[OpenItem] = field(default_factory=list)
     drift_file: str = ""                # the room's drift report, relative to the rooms page
     commissioned: RunInfo | None = None  # the latest completed commissioning (its operator signed it off)
+    commission: Standing | None = None   # where its current commissioning stands (the newest attempt of each step)
 
     @property
     def label(self) -> str:
@@ -93,12 +95,21 @@ class Room:
         return st if cams or st != State.OK else None
 
     def commissioned_text(self) -> str:
-        """"commissioned on DATE (signed off by NAME)", "... (not signed off)", or "not commissioned"."""
-        c = self.commissioned
+        """Its commissioning's state, always with what was skipped and what did not pass:
+        "commissioned on DATE: TOLERANCE, 5 of 9 steps skipped (...) (signed off by NAME)", "commissioning
+        incomplete, not commissioned: warm-up aborted (stopped by SIGTERM) ...", or "not commissioned"."""
+        c = self.commission
         if c is None:
             return "not commissioned"
-        who = f"signed off by {c.operator}" if c.operator else "not signed off"
-        return f"commissioned on {fmt_date(c.started)} ({who})"
+        skipped = (f"{len(c.skipped)} of {len(STEP_LABELS)} steps skipped ("
+                   + ", ".join(STEP_LABELS.get(n, n) for n in c.skipped) + ")") if c.skipped else ""
+        if c.complete:
+            who = f"signed off by {c.report.operator}" if c.report.operator else "not signed off"
+            return f"commissioned on {fmt_date(c.report.started)}: {c.word}{', ' + skipped if skipped else ''} ({who})"
+        parts = c.not_passed_text() or ["every step passed, no report since (`vts commission --resume` writes it)"]
+        last = (f" (its report of {fmt_date(c.last_report.started)}, {c.last_report.status}, no longer stands)"
+                if c.last_report is not None else "")
+        return "commissioning incomplete, not commissioned: " + "; ".join(parts + ([skipped] if skipped else [])) + last
 
     def daily_missing_text(self) -> str:
         """What the page says instead of a state when the period has no daily QA."""
@@ -117,6 +128,9 @@ class Room:
                 "last_calibration": info(self.last_calibration), "last_mapping": info(self.last_mapping),
                 "open_items": [i.as_dict() for i in self.open_items], "drift_report": self.drift_file,
                 "commissioned": self.commissioned_text(),
+                "commissioning": None if self.commission is None else {
+                    "id": self.commission.cid, "state": self.commission.word, "skipped": self.commission.skipped,
+                    "not_passed": self.commission.not_passed},
                 "attention": self.drift.attention()}
 
 
@@ -250,6 +264,7 @@ def collect_rooms(store, since: float | None = None, now: float | None = None, r
                           last_mapping=_latest(runs, MAPPING_PROCEDURES),
                           open_items=open_items(measurements, runs), drift_file=names[rig],
                           commissioned=_latest(runs, COMMISSIONING_PROCEDURES),
+                          commission=load_state(store, rig).standing(store),
                           latest=latest_states(measurements, runs)))
     return RoomsReport("VTS rooms — department QA overview", since, now, rooms)
 
