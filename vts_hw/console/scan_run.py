@@ -114,6 +114,7 @@ class ScanRun:
         self._stats_at, self._stats = float("-inf"), {}
         self._lock = threading.Lock()
         self._stop = threading.Event()
+        self.stop_reason = "stopped"     # "interrupted": the console itself was stopped
         self._status = None
         self.thread = threading.Thread(target=self._run, name="console-scan", daemon=True)
 
@@ -122,10 +123,19 @@ class ScanRun:
         self.thread.start()
         return self
 
-    def request_stop(self) -> None:
+    def request_stop(self, reason: str = "stopped") -> None:
+        """Stop the scan (from any thread); ``reason`` goes into its manifest's stop_reason."""
+        self.stop_reason = reason
         self._stop.set()
         if self.session is not None:
             self.session.request_stop()
+
+    def stop_and_wait(self, reason: str, timeout: float) -> bool:
+        """Stop the scan and wait until it is closed (the console's own end: Ctrl-C, SIGTERM):
+        the wave off, the recording finalised. Whether it was, within ``timeout`` seconds."""
+        self.request_stop(reason)
+        self.thread.join(timeout)
+        return not self.thread.is_alive()
 
     def _run(self) -> None:
         from vts_hw.drivers.registry import check_camera_kinds
@@ -154,6 +164,8 @@ class ScanRun:
             reason = "error"
             try:
                 reason = self.session.wait(self._tick, SAMPLE_S)
+                if reason == "stopped":
+                    reason = self.stop_reason
             finally:
                 self.phase = "stopping"
                 self.manifest = self.session.stop(reason)
