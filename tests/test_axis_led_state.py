@@ -9,14 +9,18 @@ camera says it, not as it was last switched).
   answers those requests as the firmware does, byte for byte, and the driver reads its LED
   back through them; its ``led_held`` fault (an action rule holding the output) answers a
   switch OK and leaves the output as it was, which the state query tells.
+* `vts camera led` reads every switch back (vts_hw/camera_led.py): a switch the camera's output
+  does not show is exit 4 in one sentence, never "OK" (issue 32 §4).
 """
 
 from __future__ import annotations
 
 import pytest
 
+from inprocess_cli import vts
 from scripted_http import ScriptedHTTP
 from sim_axis_kit import PASSWORD, raw_request, read_head
+from vts_hw.config import dump_rig
 from vts_hw.drivers.axis import AxisCamera, BadReply
 from vts_hw.sim_devices.rig import SimRig
 
@@ -106,3 +110,25 @@ def test_the_simulated_axis_211_answers_output_cgi_check_and_the_driver_reads_it
             assert cam.led_state() is False and not rig.sources["cam1"].led_on()
             assert _body(server, "/axis-cgi/io/output.cgi?check=2")[2] == b"# Error: Invalid output '2'\r\n"
             assert _body(server, "/axis-cgi/io/port.cgi?checkactive=1")[0] == b"HTTP/1.0 404 Not Found\r\n"
+
+
+def test_vts_camera_led_reads_the_switch_back_and_one_that_did_not_take_is_exit_4(tmp_path, capsys):
+    with SimRig(n_cameras=1, seed=2, password=PASSWORD) as rig, rig.env():
+        y = tmp_path / "rig.yaml"
+        y.write_text(dump_rig(rig.config()))
+        led = ["camera", "led", "--config", y, "cam1"]
+        code, out, err = vts(capsys, *led, "on")
+        assert (code, out.strip()) == (0, "cam1: LED on (output port 1): read back: on"), err
+        rig.servers["cam1"].faults.led_held = True          # an action rule on the camera holds the output on
+        code, out, err = vts(capsys, *led, "off")
+        assert (code, out) == (4, ""), out
+        assert err == ("vts: camera cam1 accepted the switch off but its LED output (port 1) still reads on after 1 s: "
+                       "the switch did not take (an action rule on the camera may hold the port)\n")
+        assert rig.sources["cam1"].led_on()
+        code, out, err = vts(capsys, *led, "pulse", "200")
+        assert code == 4 and err.startswith("vts: camera cam1 accepted a pulse of 200 ms but its LED output (port 1) "
+                                            "still reads on "), err
+        rig.servers["cam1"].faults.led_held = False
+        code, out, err = vts(capsys, *led, "pulse", "200")
+        assert code == 0 and "OK" not in out and out.startswith("cam1: LED pulse 200 ms (output port 1): read back: "), out
+        assert not rig.sources["cam1"].led_on()

@@ -51,7 +51,7 @@ def test_snapshot_led_info(sim_dir, env, tmp_path):
     out = tmp_path / "a.jpg"
     p = vts("camera", "snapshot", "cam1", "-o", str(out), env=env)
     assert out.read_bytes()[:2] == b"\xff\xd8" and "camera time" in p.stdout
-    assert "OK" in vts("camera", "led", "cam2", "pulse", "200", env=env).stdout
+    assert ": read back: " in vts("camera", "led", "cam2", "pulse", "200", env=env).stdout
     info = json.loads(vts("camera", "info", "cam2", "--json", env=env).stdout)
     assert info["vapix"] == 3 and info["clock_method"] == "time.cgi"
     assert env["VTS_SIM_CAM2_PASSWORD"] not in json.dumps(info)

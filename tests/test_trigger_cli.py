@@ -1,4 +1,5 @@
-"""`vts trigger` as a user runs it (a subprocess per command): against the simulated rig's
+"""`vts trigger` as a user runs it (a subprocess per command; in-process where only the exit and
+the words are looked at): against the simulated rig's
 Keysight 33522B on a TCP socket (through pyvisa-py, as a real one on the LAN), against the
 trigger box firmware in the emulator, and with the pyvisa-sim model (`simulated: true`)."""
 
@@ -6,8 +7,10 @@ import subprocess
 import sys
 
 import pytest
+import serial
 import yaml
 
+from inprocess_cli import vts as vts_in_process
 from vts_hw.drivers.function_generator import SIM_RESOURCE
 from vts_hw.drivers.trigger import read_log
 from vts_hw.recording.trigger_wave import wave_from_trigger_log
@@ -187,3 +190,20 @@ def test_a_log_that_is_not_a_trigger_log_is_never_appended_to(tmp_path, fgen):
     empty.write_bytes(b"")
     p = vts("trigger", "start", "--config", str(rig), "--log", str(empty))
     assert p.returncode == 0 and read_log(empty)
+
+
+def test_a_box_that_reports_an_error_is_exit_4_in_one_sentence_never_a_fine_status(tmp_path, capsys):
+    """An error in the box's queue (a command someone sent it that it did not know) was printed as
+    `device error: ...` under exit 0 (issue 32 §4); `trigger status` is exit 4 now, once: the
+    queue is read off."""
+    with SimTriggerBox() as box:
+        rig = _rig(tmp_path, backend="triggerbox", address=box.port)
+        with serial.Serial(box.port, 115200, timeout=10) as line:
+            line.write(b"BOGUS\n")
+            assert line.readline() == b"ERR -113 Undefined header\n"
+        status = ["trigger", "status", "--config", rig, "--log", tmp_path / "t.csv"]
+        code, out, err = vts_in_process(capsys, *status)
+        assert code == 4 and '  device error: -113,"Undefined header"' in out.splitlines(), out
+        assert err == 'vts: triggerbox reports 1 error(s) in its queue (read off it now): -113,"Undefined header"\n'
+        code, out, err = vts_in_process(capsys, *status)
+        assert code == 0 and "device error" not in out, err

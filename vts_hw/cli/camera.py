@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from vts_hw.camera import Camera, CameraError, NoParameters, StreamFellShort, StreamGap
+from vts_hw.camera_led import pulse_led, switch_led
 from vts_hw.drivers.registry import open_camera, open_cameras
 from vts_hw.files import write_atomic
 from vts_hw.cli import cli
@@ -91,19 +92,22 @@ def stream(name: str, seconds: float | None, fps: float | None, rig) -> None:
 @click.argument("ms", type=click.IntRange(1, 60000), required=False)
 @with_rig
 def led(name: str, state: str, ms: int | None, rig) -> None:
-    """Switch the LED ring of camera NAME: on, off, or pulse MS milliseconds."""
+    """Switch the LED ring of camera NAME: on, off, or pulse MS milliseconds; then read it back
+    from the camera. Exit 4 when the camera does not show the switch (it did not take)."""
+    if state == "pulse" and ms is None:
+        raise click.UsageError("pulse needs a duration in milliseconds, e.g. `led cam1 pulse 300`")
     with _open(rig, name) as cam:
-        if state == "on":
-            cam.led_on()
-        elif state == "off":
-            cam.led_off()
-        else:
-            if ms is None:
-                raise click.UsageError("pulse needs a duration in milliseconds, e.g. `led cam1 pulse 300`")
-            cam.led_pulse(ms)
+        got = pulse_led(cam, ms) if state == "pulse" else switch_led(cam, state == "on")
     where = f"output port {cam.led_port}" if hasattr(cam, "led_port") else "no port"
     noop = "" if cam.led_switches else " (a no-op on this camera: it cannot switch an LED)"
-    click.echo(f"{name}: LED {state}{f' {ms} ms' if state == 'pulse' else ''} ({where}): OK{noop}")
+    if got.state is None:
+        said = f"sent; whether it took is {got.words()}"
+    elif state == "pulse":
+        said = (f"read back: seen on, then {got.words()}" if got.seen_on else
+                f"read back: {got.words()} after it; not seen on while it lasted (too short to read), not confirmed")
+    else:
+        said = f"read back: {got.words()}"
+    click.echo(f"{name}: LED {state}{f' {ms} ms' if state == 'pulse' else ''} ({where}): {said}{noop}")
 
 
 @camera.command()

@@ -8,6 +8,7 @@ import click
 
 from vts_hw.cli import cli
 from vts_hw.cli.common import OutputFile, echo_json, json_option, with_rig
+from vts_hw.errors import DeviceError
 
 log_option = click.option("--log", "log_path", type=OutputFile(), default="trigger.csv",
                           show_default=True, help="trigger.csv to append every command, reply and edge to.")
@@ -37,6 +38,14 @@ def _show(st, as_json: bool) -> None:
         click.echo(f"  {note}")
     for e in st.errors:
         click.echo(f"  device error: {e}")
+
+
+def _no_errors(st) -> None:
+    """A device that reports errors in its queue failed at something: exit 4 in one sentence (the
+    status printed above lists them), never a status that looks fine."""
+    if st.errors:
+        raise DeviceError(f"{st.device} reports {len(st.errors)} error(s) in its queue (read off it now): "
+                          f"{'; '.join(st.errors)}")
 
 
 def _open(rig, log_path):
@@ -74,7 +83,8 @@ def start(log_path, as_json, rig) -> None:
     """Configure the square wave from the config (frequency, duty, levels) and start it."""
     with _session(rig, log_path) as gen:
         _configure(gen, rig.trigger)
-        _show(gen.start(), as_json)
+        _show(st := gen.start(), as_json)
+    _no_errors(st)
 
 
 @trigger.command()
@@ -84,7 +94,8 @@ def start(log_path, as_json, rig) -> None:
 def stop(log_path, as_json, rig) -> None:
     """Stop the square wave (on a whole period where the device can)."""
     with _session(rig, log_path) as gen:
-        _show(gen.stop(), as_json)
+        _show(st := gen.stop(), as_json)
+    _no_errors(st)
 
 
 @trigger.command()
@@ -94,7 +105,8 @@ def stop(log_path, as_json, rig) -> None:
 def status(log_path, as_json, rig) -> None:
     """What the device says it is doing."""
     with _session(rig, log_path) as gen:
-        _show(gen.status(), as_json)
+        _show(st := gen.status(), as_json)
+    _no_errors(st)
 
 
 @trigger.command()
@@ -135,6 +147,7 @@ def fire(log_path, as_json, rig) -> None:
     pulses = {"channels": {str(c): what for c, what in CHANNELS.items()}, "width_ms": width}
     if as_json:
         echo_json({**st.__dict__, "start_pulses": pulses})
+        _no_errors(st)
         return
     _show(st, False)
     if fixed_levels:
@@ -143,3 +156,4 @@ def fire(log_path, as_json, rig) -> None:
     how = f"the device confirms {width} ms" if confirmed else f"{width} ms timed by the host"
     click.echo(f"start pulses: {both}, {width} ms each, sent with the square wave's first rising edge "
                f"({st.device} accepted the fire; {how})")
+    _no_errors(st)
