@@ -200,6 +200,8 @@ class ScanTrigger:
             st = self.gen.stop()
             self.info["stop_status"] = plain_dict(st)
             self.info["stopped_host_time"] = self.clock()
+            for e in st.errors:   # queued during the scan: e.g. the trigger box's watchdog cut the wave
+                self.error("stop", f"{self.gen.name} reports {e}")
             if st.edges is not None:
                 self.edges = st.edges
         except Exception as exc:

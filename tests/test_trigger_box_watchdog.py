@@ -93,3 +93,31 @@ def test_a_killed_host_leaves_no_wave_behind(tmp_path, capsys):
         print(alive_said)
         print(f"cut {(cut - rx) / US / 1e6 - T_S:+.6f} s after T from the end of the last command line "
               f"(its reply left {(tx - rx) / US:.0f} us after it)")
+
+
+def test_a_scan_whose_host_stalled_past_the_watchdog_is_not_complete(tmp_path):
+    """The scan's trigger (what `vts scan start` and the console run): its host goes silent for
+    longer than T mid-scan; at the stop the box's -310 becomes one of the scan's problems, and
+    trigger.csv ends the wave at the cut, through the clock mapping."""
+    from vts_hw.config import load_rig
+    from vts_hw.drivers.trigger import read_log
+    from vts_hw.procedures.scan_trigger import ScanTrigger
+    with SimTriggerBox(speed=1) as box:
+        path = tmp_path / "rig.yaml"
+        path.write_text(yaml.safe_dump({"rig": "t", "cameras": [{"name": "cam1", "host": "127.0.0.1"}],
+                                        "trigger": {"backend": "triggerbox", "address": box.port,
+                                                    "frequency_hz": FREQ_HZ, "watchdog_s": 0.5}}))
+        trig = ScanTrigger(load_rig(path))
+        trig.check()
+        trig.attach_log(tmp_path / "trigger.csv")
+        trig.fire()
+        assert trig.info["fire_status"]["extra"]["watchdog"]["state"] == "armed"
+        trig.gen.heartbeat.stop()                   # the host stalls: nothing reaches the box
+        box.wait_cycles(int(0.8 * F_CPU))
+        trig.stop()
+        trig.close()
+    assert trig.info["errors"] == ['stop: triggerbox reports -310,"Watchdog: host silent, output off"']
+    rows = read_log(tmp_path / "trigger.csv")
+    assert sum(r["kind"] == "event" and "watchdog cut" in r["text"] for r in rows) == 1
+    (stop,) = [r for r in rows if r["kind"] == "wave_stop"]
+    assert "time=device_clock_mapped" in stop["text"] and int(stop["device_time_us"]) > 0
