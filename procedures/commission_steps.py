@@ -9,6 +9,7 @@ import json
 import time
 from pathlib import Path
 
+from vts_hw.camera_led import switch_led
 from vts_hw.errors import ConfigError, UsageError
 from vts_hw.files import ensure_dir, write_atomic
 from vts_hw.procedures.commission import Context, Outcome, StepCheck
@@ -203,7 +204,7 @@ def warmup(ctx: Context) -> Outcome:
         watches = {c.name: Watch(c, st.frames) for c in cams}
         clocks = {c.name: ClockWatch(c) for c in cams}
         for c in cams:
-            c.led_on()
+            switch_led(c, True)      # read back: a ring held off is said now, not as markers missing later
         ctx.sleep(LED_SETTLE_S)
         k = 0
         while True:

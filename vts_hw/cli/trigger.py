@@ -119,7 +119,8 @@ def pulse(channel, ms, log_path, rig) -> None:
     ms = ms or rig.trigger.pulse_ms
     with _session(rig, log_path) as gen:
         gen.pulse(channel, ms)
-    click.echo(f"{gen.name}: start pulse on channel {channel} for {ms} ms: OK")
+    click.echo(f"{gen.name}: start pulse on channel {channel} for {ms} ms sent: the device accepted it (a pulse "
+               "is not read back)")
 
 
 @trigger.command()
