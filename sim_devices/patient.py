@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from vts_hw.files import write_atomic
 from vts_hw.sim_devices.scene import Marker, Scene
 
 __all__ = ["Breathing", "BodyMove", "Creep", "BodyMotion", "Patient", "add_patient", "write_truth",
@@ -385,7 +386,7 @@ def write_truth(patient: Patient, folder, t0: float, t1: float, rate_hz: float =
             "moves": [asdict(m) for m in patient.motion.moves],
             "creeps": [asdict(c) for c in patient.motion.creeps]}
     js = folder / "patient.json"
-    js.write_text(json.dumps(meta, indent=1))
+    write_atomic(js, json.dumps(meta, indent=1))
     ids = [m.id for m in patient.rest]
     cols = ["t", "tx_mm", "ty_mm", "tz_mm", "rx_deg", "ry_deg", "rz_deg", "breath", "phase"] + \
         [f"{i}_{a}" for i in ids for a in "xyz"]
@@ -407,5 +408,5 @@ def write_truth(patient: Patient, folder, t0: float, t1: float, rate_hz: float =
         table[k, 9:] = ((rest + b[k] * drift) @ R.T + patient.placement + T).ravel()
     lines = [",".join(cols)] + [f"{row[0]:.3f}," + ",".join(f"{v:.4f}" for v in row[1:]) for row in table]
     csv = folder / "patient_motion.csv"
-    csv.write_text("\n".join(lines) + "\n")
+    write_atomic(csv, "\n".join(lines) + "\n")
     return [js, csv]

@@ -22,6 +22,7 @@ from typing import Callable
 
 import numpy as np
 
+from vts_hw.files import open_writable
 from vts_hw.recording.axis_jpeg import stamp_jpeg
 from vts_hw.recording.writer import Recording
 
@@ -228,7 +229,7 @@ def simulate_recording(folder, duration_s: float = 20.0, fps: float = 25.0, seed
         jpeg = stamp_jpeg(encode(img, quality), scene.clocks[cam].camera_time(start + duration_s),
                           scene.products[cam])
         half = jpeg[: len(jpeg) // 2]
-        with open(folder / f"{cam}.mjpeg", "ab") as f:
+        with open_writable(folder / f"{cam}.mjpeg", "ab") as f:
             f.write(half)
         out.torn_bytes[cam] = len(half)
     return out

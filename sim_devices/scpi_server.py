@@ -25,6 +25,7 @@ import time
 from dataclasses import astuple, fields
 from pathlib import Path
 
+from vts_hw.files import open_writable
 from vts_hw.sim_devices.keysight_33500 import Keysight33500, OutputEvent
 
 MAX_LINE = 64 * 1024          # a longer line without a terminator is dropped (an input buffer)
@@ -154,7 +155,7 @@ class SimFunctionGenerator:
         path = Path(path)
         with self.instrument.lock:
             new = not path.exists() or path.stat().st_size == 0
-            self._log_file = open(path, "a", newline="", encoding="utf-8")
+            self._log_file = open_writable(path, "a", newline="", encoding="utf-8")   # a regular file only
             self._log_writer = csv.writer(self._log_file)
             if new:
                 self._log_writer.writerow(OUTPUT_LOG_HEADER)

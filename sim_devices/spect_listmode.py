@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vts_hw.files import write_json_atomic
+from vts_hw.files import check_target, write_json_atomic
 from vts_hw.spect.listmode.vtslm import VtslmWriter
 from vts_hw.sim_devices.scene import Scene
 from vts_hw.sim_devices.source_marker import SourceMarker
@@ -282,6 +282,7 @@ def write_sim_listmode(path, scene: Scene, sources, trigger: TriggerEdges, durat
     dead, stops = _dead_intervals(duration_s, s, rng)
     dead_arr = np.array(dead, dtype=float).reshape(-1, 2)
     path = Path(path)
+    check_target(path)   # a device, FIFO or symbolic link of that name is never replaced (files.py)
     part = path.with_name(f".{path.name}.{os.getpid()}.part")   # hidden from a glob until whole
     try:
         n_events = _write(part, s, rng, scene, srcs, trigger, duration_s, dead, dead_arr, stops, host,
@@ -298,6 +299,7 @@ def write_sim_listmode(path, scene: Scene, sources, trigger: TriggerEdges, durat
             sources=[x.to_json() if hasattr(x, "to_json") else asdict(_as_source(x)) for x in sources],
             n_events=int(n_events), seed=int(seed))
         truth.save(truth_path(path))
+        check_target(path)
         os.replace(part, path)
     except BaseException:
         with contextlib.suppress(OSError):

@@ -56,12 +56,12 @@ class NotReplaced(WriteFailed):
     a folder where a file is meant (or a file where a folder is), or a symbolic link, which no
     writer follows. It is left as it is; exit 3 like any file that could not be written."""
 
-    def __init__(self, path: str | os.PathLike, kind: str, want: str = "file", kept: str = NOTHING_WRITTEN):
+    def __init__(self, path: str | os.PathLike, kind: str, folder: bool = False, kept: str = NOTHING_WRITTEN):
         self.kind = kind
         if kind.startswith("a symbolic link"):
-            reason = f"it is {kind}, which no writer follows: name the {want} itself"
+            reason = f"it is {kind}, which no writer follows: name the {'folder' if folder else 'file'} itself"
         else:
-            reason = f"it is {kind}, not a {'regular file' if want == 'file' else want}, so it was left as it is"
+            reason = f"it is {kind}, not a {'folder' if folder else 'regular file'}, so it was left as it is"
         super().__init__(path, reason, kept)
 
 
@@ -96,7 +96,7 @@ def check_target(path: str | os.PathLike, kept: str = NOTHING_WRITTEN) -> os.sta
     st = _lstat(path)
     if st is None or stat.S_ISREG(st.st_mode):
         return st
-    raise NotReplaced(path, kind_of(path, st), "file", kept)
+    raise NotReplaced(path, kind_of(path, st), False, kept)
 
 
 def check_folder(path: str | os.PathLike, what: str = "folder") -> bool:
@@ -110,7 +110,7 @@ def check_folder(path: str | os.PathLike, what: str = "folder") -> bool:
         return True
     if stat.S_ISREG(st.st_mode):
         raise WriteFailed(path, f"a file of that name is in the way of the {what}")
-    raise NotReplaced(path, kind_of(path, st), what)
+    raise NotReplaced(path, kind_of(path, st), True)
 
 
 def os_reason(exc: BaseException) -> str:
@@ -238,12 +238,12 @@ def open_fd(path: str | os.PathLike, *, append: bool = True, exclusive: bool = F
         if exc.errno in (errno.ELOOP, errno.ENXIO, errno.EISDIR, errno.EEXIST):   # changed meanwhile
             st = _lstat(path)
             if st is not None and (exclusive or not stat.S_ISREG(st.st_mode)):
-                raise NotReplaced(path, kind_of(path, st), "file", kept) from None
+                raise NotReplaced(path, kind_of(path, st), False, kept) from None
         raise
     try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
-            raise NotReplaced(path, kind_of(path, st), "file", kept)
+            raise NotReplaced(path, kind_of(path, st), False, kept)
         fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) & ~os.O_NONBLOCK)
         if not append:
             os.ftruncate(fd, 0)

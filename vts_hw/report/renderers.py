@@ -87,7 +87,7 @@ def write_report(report: str, out: str | Path, *content) -> Path:
     """Render ``report`` by the suffix of ``out`` and write it whole; returns the path."""
     out = Path(out)
     data = render(report, out, *content)
-    ensure_dir(out.parent, "report folder")
+    ensure_dir(out.parent, "report folder", link_ok=True)   # the file's folder, as the kernel resolves it
     return write_atomic(out, data)
 
 

@@ -35,6 +35,7 @@ import numpy as np
 
 from vts_hw.bounded import LISTMODE, SMALL, read_bytes, read_text
 from vts_hw.errors import DataError
+from vts_hw.files import write_atomic
 from vts_hw.spect.volume import Volume
 
 # (number format, bytes per pixel) -> numpy kind+size; byte order added later
@@ -177,7 +178,7 @@ def write_interfile(volume: Volume, path, number_format: str = "float") -> Path:
     dz, dy, dx = v.voxel_size
     first = v.index_to_mm((0, ny - 1, 0))  # the first voxel in the file: top row of slice 0
     data_path = path.with_suffix(".img")
-    data_path.write_bytes(raw.tobytes())
+    write_atomic(data_path, raw.tobytes())   # whole or not at all; never over a device, FIFO or link
     lines = [
         "!INTERFILE :=",
         "!imaging modality := nucmed",
@@ -204,5 +205,5 @@ def write_interfile(volume: Volume, path, number_format: str = "float") -> Path:
         f"first pixel offset (mm) [3] := {float(first[2])!r}",
         "!END OF INTERFILE :=",
     ]
-    path.write_text("\n".join(lines) + "\n", encoding="ascii")
+    write_atomic(path, "\n".join(lines) + "\n", encoding="ascii")
     return path

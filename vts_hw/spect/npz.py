@@ -9,6 +9,7 @@ the canonical layout. ``origin`` is the SPECT (X, Y, Z) position of the centre o
 
 from __future__ import annotations
 
+import io
 import math
 import struct
 import zipfile
@@ -19,6 +20,7 @@ import numpy as np
 from numpy.lib import format as fmt
 
 from vts_hw.errors import DataError
+from vts_hw.files import write_atomic
 from vts_hw.spect.volume import CANONICAL_DIRECTION, Volume
 
 
@@ -82,7 +84,6 @@ def write_npz(volume: Volume, path) -> Path:
     """Write ``volume`` (canonical layout) as a compressed ``.npz``; returns the path."""
     path = Path(path)
     v = volume.canonical()
-    with open(path, "wb") as f:  # keeps the exact name (np.savez adds .npz otherwise)
-        np.savez_compressed(f, data=v.data, voxel_size=np.asarray(v.voxel_size),
-                            origin=np.asarray(v.origin))
-    return path
+    buf = io.BytesIO()   # keeps the exact name (np.savez adds .npz otherwise); written whole (files.py)
+    np.savez_compressed(buf, data=v.data, voxel_size=np.asarray(v.voxel_size), origin=np.asarray(v.origin))
+    return write_atomic(path, buf.getvalue())

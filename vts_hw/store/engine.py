@@ -1,6 +1,7 @@
 """Engines: SQLite set up for safety and concurrency, anything else left to SQLAlchemy.
 
-SQLite (file): the parent directory is created; every connection gets a busy timeout,
+SQLite (file): the parent directory is created, and the file made readable by its owner
+only (:func:`owner_only`); every connection gets a busy timeout,
 foreign keys on, ``synchronous = FULL`` and the WAL journal (readers never wait for the
 writer; a commit is one append to the WAL, so a ``kill -9`` at any moment leaves the last
 committed state). Python's sqlite3 driver does not BEGIN before DDL or SELECT (legacy
@@ -20,16 +21,21 @@ from __future__ import annotations
 
 import logging
 import os
+import stat
+from pathlib import Path
 
 from sqlalchemy import Connection, create_engine, event
 from sqlalchemy.engine import URL, Engine
 from sqlalchemy.pool import StaticPool
 
+from vts_hw.files import PRIVATE
 from vts_hw.store.errors import StoreError
 from vts_hw.store.paths import masked, sqlite_file
 
 log = logging.getLogger(__name__)
 
+#: the files SQLite keeps beside a database (WAL mode, and a rollback journal)
+SQLITE_SIDE_FILES = ("-wal", "-shm", "-journal")
 #: execution option that makes the next BEGIN on a SQLite connection a BEGIN IMMEDIATE
 WRITE_OPTION = "vts_store_write"
 
@@ -56,10 +62,33 @@ def make_engine(url: URL, busy_timeout: float, password_env: str | None = None) 
     if path is None:
         engine = create_engine(url, poolclass=StaticPool, connect_args={"check_same_thread": False})
     else:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        owner_only(path)
         engine = create_engine(url, connect_args={"timeout": busy_timeout, "check_same_thread": False})
     _sqlite_setup(engine, busy_timeout, wal=path is not None, where=masked(url))
     return engine
+
+
+def owner_only(path: Path) -> None:
+    """The SQLite store readable by its owner only (it holds the console users' password hashes):
+    its folder made 0700 when new, the file created 0600 (exclusively, never through a link)
+    before SQLite opens it, so that its -wal, -shm and -journal files, which SQLite creates with
+    the database's mode, are 0600 too. A store of ours (this user's) that others may read is
+    narrowed to 0600, with those files; one of another user keeps its mode. Decision 0081."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True, mode=0o700)
+        os.close(os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, PRIVATE))
+        return
+    except FileExistsError:
+        pass
+    except OSError as exc:
+        raise StoreError(f"{path}: cannot create the results store ({exc.strerror or exc})") from None
+    for p in (path, *(path.with_name(path.name + s) for s in SQLITE_SIDE_FILES)):
+        try:
+            st = os.lstat(p)
+            if stat.S_ISREG(st.st_mode) and st.st_uid == os.geteuid() and st.st_mode & 0o077:
+                os.chmod(p, stat.S_IMODE(st.st_mode) & PRIVATE)
+        except OSError:        # absent, or not ours to change: SQLite says what it cannot open
+            continue
 
 
 def password_from_env(url: URL, name: str) -> str:

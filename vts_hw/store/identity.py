@@ -28,13 +28,16 @@ rollback: a foreign file stays byte-identical. See docs/decisions/0050-foreign-d
 
 from __future__ import annotations
 
+import os
 import sqlite3
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import quote
 
 from sqlalchemy import Connection, inspect
 
+from vts_hw.files import kind_of
 from vts_hw.store.errors import NoStore, StoreError
 
 NEW, EMPTY, OURS, FOREIGN = "new", "empty", "ours", "foreign"
@@ -68,13 +71,16 @@ def judge_tables(tables: set[str], version_columns: set[str]) -> Found:
 def sqlite_file_kind(path: Path, busy_timeout: float = 30.0) -> Found:
     """What the SQLite file at ``path`` is, read without changing it (see the module docstring)."""
     try:
-        size = path.stat().st_size
+        st = os.lstat(path)
     except FileNotFoundError:
         return Found(NEW, "the file does not exist")
     except OSError as exc:
         raise StoreError(f"{path}: cannot read the results store ({exc.strerror or exc})") from None
-    if path.is_dir():
-        return Found(FOREIGN, "it is a folder")
+    if stat.S_ISLNK(st.st_mode):   # as every writer: a link is not followed (decision 0081)
+        return Found(FOREIGN, f"it is {kind_of(path, st)}, which is never followed: name the store file itself")
+    if not stat.S_ISREG(st.st_mode):   # a folder, or a device or FIFO SQLite would write into or wait on
+        return Found(FOREIGN, f"it is {kind_of(path, st)}, not a regular file")
+    size = st.st_size
     if size == 0:
         return Found(NEW, "the file is empty (0 bytes)")
     try:   # mode=rw: never creates the file; no journal switch, a read transaction rolled back

@@ -33,6 +33,7 @@ from vts_hw import __version__
 from vts_hw.results import Analysis, Measure
 from vts_hw.store.errors import StoreError
 from vts_hw.errors import DataError
+from vts_hw.files import check_target
 from vts_hw.store.unsaved import load_unsaved, save_unsaved
 from vts_hw.tolerance import State, Window, merged_tolerances
 
@@ -193,6 +194,8 @@ def import_unsaved(store, path: str | Path) -> int:
     never stored twice."""
     p = Path(path)
     doc = load_unsaved(p)
+    done = p.with_name(p.name + ".imported")
+    check_target(done, "nothing was stored")   # a device, FIFO or link there: refused before it is stored
     try:
         procedure, started = str(doc["procedure"]), float(doc["started"])
         windows = {str(k): Window(**w) for k, w in (doc.get("tolerances") or {}).items()}
@@ -211,5 +214,5 @@ def import_unsaved(store, path: str | Path) -> int:
             run = h.finish(status=doc["state"], finished=float(doc.get("finished") or started))
     except (KeyError, TypeError, ValueError) as exc:
         raise DataError(f"{p}: not an unsaved run written by vts ({exc})") from None
-    os.replace(p, p.with_name(p.name + ".imported"))
+    os.replace(p, done)
     return run.id

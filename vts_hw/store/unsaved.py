@@ -19,7 +19,7 @@ from pathlib import Path
 
 from vts_hw.bounded import SMALL, read_text
 from vts_hw.errors import DataError
-from vts_hw.files import WriteFailed, write_json_atomic
+from vts_hw.files import PRIVATE, WriteFailed, write_json_atomic
 from vts_hw.store.paths import default_path, sqlite_file, to_url
 
 FORMAT = "vts-unsaved-run/1"
@@ -47,8 +47,9 @@ def save_unsaved(url: str | None, run: dict) -> tuple[Path | None, list[str]]:
     tried = []
     for folder in candidate_folders(url):
         try:
-            folder.mkdir(parents=True, exist_ok=True)
-            return write_json_atomic(folder / name, doc), tried
+            folder.mkdir(parents=True, exist_ok=True, mode=0o700)
+            # owner-only, as the store it waits for (decision 0081): $TMPDIR is everyone's
+            return write_json_atomic(folder / name, doc, mode=PRIVATE), tried
         except (OSError, WriteFailed) as exc:
             tried.append(f"{folder}: {exc}")
     return None, tried

@@ -21,6 +21,7 @@ import numpy as np
 
 from vts_hw.bounded import LISTMODE, check_file, read_bytes
 from vts_hw.errors import DataError
+from vts_hw.files import open_writable
 from vts_hw.spect.listmode.base import GATE_SAMPLES, ListMode
 
 NAME = "vtslm"
@@ -104,7 +105,7 @@ class VtslmWriter:
         self.volts_per_count = header["gate_volts_per_count"]
         text = json.dumps(header, indent=1, sort_keys=True).encode("utf-8")
         text += b" " * (-(PREAMBLE.size + len(text)) % 8)
-        self._f = open(self.path, "wb")
+        self._f = open_writable(self.path, "wb")   # a regular file: never a device, FIFO or symbolic link
         self._f.write(PREAMBLE.pack(MAGIC, VERSION[0], VERSION[1], len(text)))
         self._f.write(text)
         self.closed = False
