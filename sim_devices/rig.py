@@ -27,7 +27,7 @@ from pathlib import Path
 
 from vts_hw.config import RigConfig, dump_rig, parse_rig
 from vts_hw.errors import UsageError, VtsError
-from vts_hw.files import WriteFailed, ensure_dir, os_reason, write_atomic
+from vts_hw.files import WriteFailed, ensure_dir, open_writable, os_reason, write_atomic, write_secret
 from vts_hw.lifeline import alive
 from vts_hw.sim_devices.axis_camera import SimAxisCamera
 from vts_hw.sim_devices.camera_source import SimCameraSource
@@ -247,7 +247,7 @@ class SimRig:
         ``vts_hw.vision.camera_set.load_cameras`` reads)."""
         from vts_hw.sim_devices.sync_truth import write_true_calibration, write_true_cameras
 
-        folder = ensure_dir(folder, FOLDER)
+        folder = ensure_dir(folder, FOLDER, mode=0o700)
         calibration = None
         if len(self.scene.cameras) >= 2:  # a stereo pair: the first two cameras
             cal, mp = write_true_calibration(self.scene, folder)
@@ -258,7 +258,7 @@ class SimRig:
         env = ["# source this file: the passwords of the simulated cameras (and the simulated QATrack+'s token)"]
         env += [f"export {k}='{v}'" for k, v in self.env_vars().items()]
         env.append(f"export VTS_CONFIG='{(folder / 'rig.yaml').resolve()}'")
-        write_atomic(env_path, "\n".join(env) + "\n", mode=0o600)
+        write_secret(env_path, "\n".join(env) + "\n")   # 0600, in a folder of this user's (files.py)
         rig_path = folder / "rig.yaml"   # written last: once all is up
         store = f"sqlite:///{(folder / 'results.sqlite').resolve()}"
         write_atomic(rig_path, "# the simulated rig written by `vts sim up`; calibration: the scene's true "
@@ -300,7 +300,7 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
         except ValueError as e:     # a plan that cannot be (too short for its moves)
             raise UsageError(f"simulated patient: {e}") from None
     if folder is not None:
-        folder = ensure_dir(folder, FOLDER)  # before anything starts: a folder we cannot use stops here
+        folder = ensure_dir(folder, FOLDER, mode=0o700)  # before anything starts: a folder we cannot use stops here
         if is_running(folder) and _pid(folder) != os.getpid():
             raise _already_running(folder)
     clock = RealClock() if rate == 1.0 else VirtualClock(time.time(), rate=rate)
@@ -370,7 +370,7 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
     """Start ``serve`` in a background process; return its pid once rig.yaml is written (the
     time allowed grows by 0.1 s per frame made ``ahead``)."""
     timeout += 0.1 * ahead * 25.0 * n_cameras
-    folder = ensure_dir(Path(folder).resolve(), FOLDER)
+    folder = ensure_dir(Path(folder).resolve(), FOLDER, mode=0o700)
     if is_running(folder):
         raise _already_running(folder)
     for name in (READY_FILE, PID_FILE):
@@ -379,7 +379,7 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
     log_path = folder / LOG_FILE
     had_log = log_path.exists()
     try:   # the first line of this start, on disk before the rig starts: a full disk stops here
-        log = open(log_path, "ab")
+        log = open_writable(log_path, "ab")    # never a device, FIFO or symbolic link (files.py)
         log_start = log.tell()
         log.write(f"{time.strftime('%Y-%m-%dT%H:%M:%S%z')} vts sim up: starting ({n_cameras} cameras)\n".encode())
         log.flush()

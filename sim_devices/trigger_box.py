@@ -37,6 +37,8 @@ import time
 from pathlib import Path
 from typing import NamedTuple
 
+from vts_hw.files import open_writable
+
 __all__ = ["SimTriggerBox", "Edge", "UartByte", "F_CPU", "PINS", "firmware_dir", "build"]
 
 F_CPU = 16_000_000
@@ -81,7 +83,8 @@ def build(quiet: bool = True) -> tuple[Path, Path]:
         raise RuntimeError(f"trigger box firmware sources not found in {fw} (an installed vts-hw has none: "
                            "set VTS_FIRMWARE_DIR to the firmware/ folder of a checkout)")
     lock_dir = Path(tempfile.gettempdir())
-    with open(lock_dir / f"vts-trigger-box-build-{os.getuid()}.lock", "w") as lock:
+    # in the temporary folder everyone writes: never emptied, never opened through a link (files.py)
+    with open_writable(lock_dir / f"vts-trigger-box-build-{os.getuid()}.lock", "a") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         proc = subprocess.run(["make", "-C", str(fw)] + (["--quiet"] if quiet else []),
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
@@ -136,7 +139,7 @@ class SimTriggerBox:
         if not self.log_uart:
             cmd.append("--no-uart-log")
         cmd.append(str(elf))
-        self._stdout = open(self.dir / f"{tag}.out", "w")
+        self._stdout = open_writable(self.dir / f"{tag}.out", "w")
         self.proc = subprocess.Popen(cmd, stdout=self._stdout, stderr=subprocess.STDOUT,
                                      stdin=subprocess.DEVNULL, start_new_session=True)
         deadline = time.monotonic() + self.startup_timeout

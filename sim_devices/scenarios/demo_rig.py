@@ -19,6 +19,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+from vts_hw.files import check_folder, write_atomic
+
 SYNC_EXIT_CODES = (0, 10, 20)      # OK, TOLERANCE, ACTION: the analysis ran
 
 
@@ -78,13 +80,13 @@ def camera_tour(out_dir, seconds: float, *, record: Callable | None = None,
                 time.sleep(0.05)
                 lit = cam.snapshot()
                 lit_path, dark_path = out_dir / f"{cam.name}-led-on.jpg", out_dir / f"{cam.name}-led-off.jpg"
-                dark_path.write_bytes(dark.jpeg)
-                lit_path.write_bytes(lit.jpeg)
+                write_atomic(dark_path, dark.jpeg)
+                write_atomic(lit_path, lit.jpeg)
                 looks.append(CameraLook(cam.name, dev.get("ProdNbr", "?"), dev.get("Version", "?"),
                                         str(cam.vapix_version), off.offset_s, lit_path, dark_path,
                                         bright_pixels(lit.jpeg), bright_pixels(dark.jpeg)))
             rec_dir = out_dir / "recording"
-            if rec_dir.exists():
+            if check_folder(rec_dir, "demo's recording folder"):   # a link, FIFO or device there: refused
                 shutil.rmtree(rec_dir)   # the demo's own recording from an earlier run: a recording refuses a full folder
             say(f"recording {seconds:g} s from {len(cams)} cameras into {rec_dir} ...")
             manifest = (record or _record_plainly)(Recorder(cams, rec_dir, seconds=seconds,

@@ -27,7 +27,7 @@ from pathlib import Path
 
 from vts_hw.recording.axis_jpeg import inspect_jpeg
 from vts_hw.errors import DataError
-from vts_hw.files import WriteFailed, os_reason, write_atomic, write_json_atomic
+from vts_hw.files import WriteFailed, check_target, os_reason, write_atomic, write_json_atomic
 from vts_hw.recording.mjpeg import split_jpegs
 from vts_hw.recording.folder import INDEX_HEADER, MANIFEST, FrameRow, load_manifest, read_index
 
@@ -171,6 +171,7 @@ def _mark_reindexed(folder: Path, report: ReindexReport) -> None:
         manifest = load_manifest(folder, missing_ok=True)
     except DataError as exc:
         keep = folder / UNREADABLE_MANIFEST
+        check_target(keep, f"{MANIFEST} is unchanged")    # a device, FIFO or link there is never replaced
         try:
             os.replace(mpath, keep)
         except OSError as err:
