@@ -88,7 +88,7 @@ def test_frequency_exact_real_time(tb, freq):
     assert abs(err) <= 1.0
 
 
-@pytest.mark.parametrize("freq,seconds", [("2", 2.0), ("1", 3.0), ("0.5", 4.5), ("0.1", 21.0)])
+@pytest.mark.parametrize("freq,seconds", [("2", 2.0), ("1", 3.0), ("0.5", 4.5), ("0.1", 11.0)])
 def test_frequency_exact_low(tb10, freq, seconds):
     period = round(F_CPU / float(freq))
     edges = run_wave(tb10, freq, "0.5", seconds)
@@ -104,7 +104,7 @@ def test_frequency_exact_low(tb10, freq, seconds):
 @pytest.mark.parametrize("freq,seconds,bound_ppm,box_name", [
     ("333", 1.0, 1.01, "tb"),       # 48048 cycles, fast PWM at clk/1: +1.0 ppm
     ("7", 2.0, 0.13, "tb10"),       # 2285714 cycles in CTC laps: +0.125 ppm
-    ("0.13", 16.0, 0.01, "tb10"),   # 123076923 cycles in CTC laps: +0.0006 ppm
+    ("0.13", 8.5, 0.01, "tb10"),    # 123076923 cycles in CTC laps: +0.0006 ppm
 ])
 def test_frequency_awkward(request, freq, seconds, bound_ppm, box_name):
     link = request.getfixturevalue(box_name)
@@ -128,7 +128,7 @@ def test_frequency_awkward(request, freq, seconds, bound_ppm, box_name):
 ])
 def test_duty(request, freq, duty, box_name):
     link = request.getfixturevalue(box_name)
-    seconds = max(0.5, 2.5 / float(freq))
+    seconds = max(0.5, 1.6 / float(freq))   # two rising edges at least (OUTP OFF ends the period)
     edges = run_wave(link, freq, duty, seconds)
     r, f = rises(edges), falls(edges)
     assert len(r) >= 2
@@ -472,8 +472,8 @@ def _check_cut(tb, n0, seconds, heartbeat):
 
 
 @pytest.mark.parametrize("freq,duty", [("1", "0.99"),      # fast PWM clk/256, cut in a high phase
-                                       ("0.13", "0.5"),    # CTC laps, cut in a high phase
-                                       ("1000", "0.5")])   # fast PWM clk/1, cut wherever it falls
+                                       ("0.13", "0.5")])   # CTC laps, cut in a high phase
+# (a cut wherever it falls, at 20 Hz: tests/test_trigger_box_watchdog.py)
 def test_watchdog_cuts_the_wave_when_the_host_falls_silent(tb, freq, duty):
     box = tb.box
     n0, u0 = len(box.edges("OC1A")), len(box.uart())

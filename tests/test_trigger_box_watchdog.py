@@ -45,7 +45,7 @@ def test_a_killed_host_leaves_no_wave_behind(tmp_path, capsys):
         try:
             assert host.stdout.readline() == "fired\n", host.stderr.read()
             first = rises(box.edges("OC1A"))[0]
-            box.wait_until(first + int(3 * T_S * F_CPU))          # the host alive for 3 T
+            box.wait_until(first + int(2.5 * T_S * F_CPU))        # the host alive for 2.5 T
             alive = box.edges("OC1A")
         finally:
             host.send_signal(signal.SIGKILL)
@@ -53,7 +53,7 @@ def test_a_killed_host_leaves_no_wave_behind(tmp_path, capsys):
         # while it lived: one unbroken wave, no cut, though its main thread only slept
         r = rises(alive)
         period = round(F_CPU / FREQ_HZ)
-        assert len(r) >= 3 * T_S * FREQ_HZ
+        assert len(r) >= 2.5 * T_S * FREQ_HZ
         assert all(abs(b - a - period) <= 5 for a, b in zip(r, r[1:])), "the wave broke while the host lived"
         ends = [u.cycle for u in box.uart() if u.direction == "RX" and u.value == 0x0A]
         beats = [c for c in ends if first < c < r[-1]]
@@ -61,7 +61,7 @@ def test_a_killed_host_leaves_no_wave_behind(tmp_path, capsys):
         alive_said = (f"host alive {(r[-1] - first) / F_CPU:.2f} s: {len(beats)} command lines, longest gap "
                       f"{max(gaps):.3f} s (T = {T_S:g} s)")
 
-        box.wait_cycles(int(1.5 * T_S * F_CPU))                  # dead for longer than T
+        box.wait_cycles(int(1.25 * T_S * F_CPU))                 # dead for longer than T
         # a new connection: what a user runs next, in this process
         rig = tmp_path / "rig.yaml"
         rig.write_text(yaml.safe_dump({"rig": "t", "cameras": [{"name": "cam1", "host": "127.0.0.1"}],
