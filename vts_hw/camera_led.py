@@ -81,11 +81,11 @@ def pulse_led(cam, ms: int, *, within_s: float = READ_BACK_S, sleep=time.sleep,
     seen = _read_until(cam, True, min(ms / 1000.0, within_s), sleep, clock)
     if seen is None:
         return LedReadBack(None)
-    rest = max(0.0, ms / 1000.0 - (clock() - started))
-    end = _read_until(cam, False, rest + within_s, sleep, clock)
+    sleep(max(0.0, ms / 1000.0 - (clock() - started)))        # its end, then read
+    end = _read_until(cam, False, within_s, sleep, clock)
     if end:
         raise LedNotTaken(cam.name, f"camera {cam.name} accepted a pulse of {ms} ms but {_where(cam)} still reads on "
-                                    f"{rest + within_s:.1f} s later: the pulse did not take (an action rule on the "
+                                    f"{within_s:g} s after its end: the pulse did not take (an action rule on the "
                                     f"camera may hold the port)")
     if not seen and ms >= PULSE_SEEN_MS:
         raise LedNotTaken(cam.name, f"camera {cam.name} accepted a pulse of {ms} ms but {_where(cam)} never read on "
