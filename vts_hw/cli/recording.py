@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import click
 
 from vts_hw.recording import promised as rec_mod
@@ -23,8 +25,10 @@ def reindex(folder: str, as_json: bool) -> None:
     An index is replaced only when the rebuilt one keeps every frame the old one lists;
     otherwise the old one stays and the rebuilt one is written beside it as
     NAME.index.rebuilt.csv. A manifest that is not a recording manifest is kept as
-    manifest.unreadable.json and a fresh one written. Exit status: 0 rebuilt; 3 something
-    was damaged or could not be written (said in one sentence per problem).
+    manifest.unreadable.json and a fresh one written; one left "recording" by a vts that was
+    killed is marked recovered. Exit status: 0 rebuilt; 2 a vts is recording into FOLDER right
+    now (nothing changed); 3 something was damaged or could not be written (said in one
+    sentence per problem).
     """
     from vts_hw.errors import DataError
     from vts_hw.recording.reindex import reindex as do_reindex
@@ -54,15 +58,21 @@ def info(paths: tuple[str, ...], as_json: bool) -> None:
     says how many frames its index or the manifest promised, and a camera of the manifest whose
     files are gone is listed with the files missing. Exit status: 0 every recording holds what
     it promised; 3 one does not (a .mjpeg cut short, a file missing, an index shorter than the
-    manifest; said last in one sentence), or a file could not be read.
+    manifest; said last in one sentence), or a file could not be read, or a folder's manifest
+    is gone, unreadable, or was left "recording" by a vts that was killed (an interrupted
+    recording: 'vts recording reindex' marks it recovered). A recording being made now is
+    counted as far as it goes (exit 0).
     """
     from vts_hw.errors import DataError
-    from vts_hw.recording.promised import shortfall
+    from vts_hw.recording.promised import manifest_problem, shortfall
 
     summaries, short = [], []
     for p in paths:
         found = rec_mod.info(p)
         summaries += found
+        unvouched = manifest_problem(p) if os.path.isdir(p) else ""
+        if unvouched:
+            short.append(unvouched)
         if shortfall(found):
             short.append(f"{p} is not whole ({shortfall(found)})")
     if as_json:

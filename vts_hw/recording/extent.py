@@ -13,7 +13,8 @@ time mapped like the frames' (exposure, through each camera's clock fit):
 * per camera: frames counted by the manifest, listed by the index, readable; first/last
   readable and expected times; the manifest's gaps and the frames they miss;
 * ``cameras_missing``: cameras of the manifest left out, and why;
-* ``problems``: one sentence per shortfall, for every output to carry.
+* ``problems``: one sentence per shortfall, for every output to carry (first: a recording never
+  closed, interrupted or still being recorded, as :func:`~vts_hw.recording.folder.load_manifest` says).
 
 JSON-ready (it goes into ``Tracks.meta["extent"]`` and so into trajectories.json).
 """
@@ -76,6 +77,9 @@ def recording_extent(folder, manifest: dict | None, frames, times, fits, missing
     ``missing``: :func:`available_cameras`'s sentences; ``period``: the frame period (s)."""
     mcams = (manifest or {}).get("cameras", {})
     cams, problems = {}, list(missing.values())
+    unfinished = (manifest or {}).get("unfinished")   # load_manifest's word: being recorded, or interrupted
+    if unfinished:
+        problems.insert(0, f"{unfinished}; analysed up to the last frame written")
     firsts, lasts = [], []
     for cf, t in zip(frames, times):
         fit = fits.get(cf.name)

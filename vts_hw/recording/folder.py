@@ -22,6 +22,7 @@ from vts_hw.recording.axis_jpeg import inspect_jpeg
 from vts_hw.bounded import SMALL, TABLE, read_bytes
 from vts_hw.errors import DataError
 from vts_hw.recording.mjpeg import read_frames_file
+from vts_hw.recording.unfinished import judge
 
 INDEX_HEADER = ["frame", "offset", "length", "camera_time", "host_time"]
 
@@ -33,7 +34,12 @@ MANIFEST = "manifest.json"
 def load_manifest(folder: str | Path, *, missing_ok: bool = False) -> dict | None:
     """The manifest of a recording folder, checked for its shape; DataError naming the file
     when it cannot be read or is not a recording manifest (a mapping whose ``cameras`` is a
-    mapping of camera name to a mapping). ``missing_ok``: None when there is no manifest."""
+    mapping of camera name to a mapping). ``missing_ok``: None when there is no manifest.
+
+    A manifest left ``status: recording`` is read for what it is (unfinished.py): its status
+    stays ``recording`` while its writer runs, and is ``interrupted`` once it is gone (killed,
+    the computer stopped) or cannot be asked; ``unfinished`` then says which, in one sentence.
+    On disk nothing changes (``vts recording reindex`` marks it recovered)."""
     path = Path(folder) / MANIFEST
     try:
         raw = read_bytes(path, SMALL, "recording manifest")
@@ -58,6 +64,10 @@ def load_manifest(folder: str | Path, *, missing_ok: bool = False) -> dict | Non
                 isinstance(g, dict) and _count_or_none(g.get("missing")) for g in gaps):
             raise DataError(f"{path}: not a recording manifest (cameras.{name}.gaps must be a list of "
                             f"gaps, each with a whole number of frames missing)")
+    data.pop("unfinished", None)     # said by this reader only, never taken from the file
+    state = judge(data)
+    if state is not None:
+        data["status"], data["unfinished"] = state.status, state.why
     return data
 
 

@@ -6,7 +6,9 @@ is still in the manifest. Counting the index's rows, or listing only the files t
 would call such a recording whole. Here the frames counted are the readable ones (their bytes
 in the ``.mjpeg``), ``promised`` is the most the index or the manifest says the camera recorded,
 and a camera of the manifest without its files is a summary of its own naming them
-(:mod:`vts_hw.recording.extent` measures the same shortfalls for the analyses).
+(:mod:`vts_hw.recording.extent` measures the same shortfalls for the analyses). A folder whose
+manifest is gone, unreadable, or left ``recording`` by a writer that died promises what no one
+knows: :func:`manifest_problem` says so in one sentence.
 """
 
 from __future__ import annotations
@@ -16,10 +18,10 @@ from pathlib import Path
 
 from vts_hw.errors import DataError
 from vts_hw.recording.extent import available_cameras
-from vts_hw.recording.folder import FramesSummary, _summarize_file, load_manifest, read_index, summarize_times
+from vts_hw.recording.folder import MANIFEST, FramesSummary, _summarize_file, load_manifest, read_index, summarize_times
 from vts_hw.recording.frames import load_camera_frames
 
-__all__ = ["info", "folder_summaries", "shortfall"]
+__all__ = ["info", "folder_summaries", "shortfall", "manifest_problem"]
 
 
 def _listed(manifest: dict | None, name: str) -> int | None:
@@ -36,6 +38,10 @@ def folder_summaries(folder: Path) -> list[FramesSummary]:
         manifest = load_manifest(folder, missing_ok=True)
     except DataError as exc:        # the frames are still worth counting; the manifest's promise is unknown
         manifest, note = None, [f"manifest not read: {exc}"]
+    if manifest is None and not note:
+        note = [f"no {MANIFEST}: what the recording promised is not known"]
+    elif manifest is not None and manifest.get("unfinished"):
+        note = [manifest["unfinished"]]
     names, missing = available_cameras(folder, manifest)
     out = []
     for name in names:
@@ -69,6 +75,23 @@ def folder_summaries(folder: Path) -> list[FramesSummary]:
                           + (f" (the manifest lists {s.promised} frames)" if s.promised is not None else "")]
         out.append(s)
     return out
+
+
+def manifest_problem(folder: str | Path) -> str:
+    """One sentence naming the folder when its manifest does not vouch for the recording: gone,
+    unreadable, or left ``recording`` by a writer that died (interrupted); '' when it is there
+    and closed, or being recorded now."""
+    folder = Path(folder)
+    try:
+        manifest = load_manifest(folder, missing_ok=True)
+    except DataError as exc:
+        return f"{exc} ('vts recording reindex {folder}' keeps it aside and writes a fresh one)"
+    if manifest is None:
+        return (f"{folder}: no {MANIFEST}, so what the recording promised is not known ('vts recording reindex "
+                f"{folder}' writes a fresh one from the frames)")
+    if manifest.get("unfinished") and manifest.get("status") != "recording":
+        return f"{folder}: {manifest['unfinished']} ('vts recording reindex {folder}' marks it recovered)"
+    return ""
 
 
 def shortfall(summaries: list[FramesSummary]) -> str:

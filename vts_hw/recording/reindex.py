@@ -12,7 +12,9 @@ Reindex repairs; it never makes anything worse (docs/decisions/0026-recordings-n
 * a manifest that cannot be read as a recording manifest is kept as
   ``manifest.unreadable.json`` and a fresh one is written from what the files hold;
 * every file is written whole or not at all (vts_hw/files.py): on a full disk the old index
-  and manifest are unchanged and the error names the file.
+  and manifest are unchanged and the error names the file;
+* a recording left ``recording`` is marked ``recovered`` (``interrupted`` says why it was never
+  closed); one a running vts is still recording is refused, nothing changed (unfinished.py).
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from vts_hw.recording.axis_jpeg import inspect_jpeg
-from vts_hw.errors import DataError
+from vts_hw.errors import DataError, UsageError
 from vts_hw.files import WriteFailed, check_target, os_reason, write_atomic, write_json_atomic
 from vts_hw.recording.mjpeg import split_jpegs
 from vts_hw.recording.folder import INDEX_HEADER, MANIFEST, FrameRow, load_manifest, read_index
@@ -153,6 +155,7 @@ def reindex(folder: str | Path) -> ReindexReport:
     folder = Path(folder)
     if not folder.is_dir():
         raise DataError(f"{folder}: not a recording folder")
+    _not_being_recorded(folder)
     mjpegs = sorted(folder.glob("*.mjpeg"))
     if not mjpegs:
         raise DataError(f"{folder}: no .mjpeg files to index")
@@ -163,6 +166,16 @@ def reindex(folder: str | Path) -> ReindexReport:
         (folder / RESERVE_NAME).unlink()
     _mark_reindexed(folder, report)
     return report
+
+
+def _not_being_recorded(folder: Path) -> None:
+    """UsageError (exit 2) when a running vts is recording into ``folder``: its files are not to
+    be rebuilt under it (an unreadable manifest is reindex's own to handle)."""
+    with contextlib.suppress(DataError):
+        manifest = load_manifest(folder, missing_ok=True)
+        if manifest is not None and manifest.get("status") == "recording" and manifest.get("unfinished"):
+            raise UsageError(f"{folder}: {manifest['unfinished']}: reindex it once that recording has stopped; "
+                             f"nothing was changed")
 
 
 def _mark_reindexed(folder: Path, report: ReindexReport) -> None:
@@ -181,8 +194,10 @@ def _mark_reindexed(folder: Path, report: ReindexReport) -> None:
         manifest = None
     if manifest is None:
         manifest = {"format": "vts-recording/1", "status": "recovered", "cameras": {}}
-    if manifest.get("status") == "recording":
+    unfinished = manifest.pop("unfinished", None)     # load_manifest's word, not the file's
+    if unfinished:
         manifest["status"] = "recovered"  # the recorder never closed it
+        manifest["interrupted"] = unfinished
     for c in report.cameras:
         cam = manifest.setdefault("cameras", {}).setdefault(c.name, {})
         if c.replaced:

@@ -10,7 +10,9 @@ What can go wrong, and what is kept (docs/decisions/0026-recordings-never-lose.m
 
 * a ``kill -9`` loses at most the frame in flight (both files are written with plain
   ``write()`` calls, nothing waits in a user-space buffer; ``vts recording reindex`` rebuilds
-  the index from the ``.mjpeg``);
+  the index from the ``.mjpeg``); the manifest names its writer (``writer``: host, pid, process
+  start), so that every reader takes a recording left ``recording`` by a writer that is gone
+  for interrupted (unfinished.py);
 * a frame that cannot be written whole (disk full) is taken back out of both files, so they
   always end with the last whole frame, and :class:`FrameNotWritten` says how much was kept;
 * the manifest can always be finalised, even on a full disk: a small reserve file is made
@@ -33,6 +35,7 @@ from pathlib import Path
 from vts_hw import __version__
 from vts_hw.errors import DataError, UsageError
 from vts_hw.files import WriteFailed, check_folder, ensure_dir, open_fd, os_reason, write_json_atomic
+from vts_hw.lifeline import process_record
 from vts_hw.recording.folder import INDEX_HEADER, MANIFEST, load_manifest, read_index
 
 FSYNC_EVERY_S = 1.0        # write() per frame survives a killed process; fsync bounds a power cut
@@ -184,6 +187,9 @@ class Recording:
         self.problems: list[str] = []
         self.started = time.time()
         self.status = "recording"
+        # who writes it: a reader that finds "recording" asks whether this process still runs
+        # (unfinished.py; a kill -9 leaves "recording" for ever)
+        self.writer = process_record()
         self._lock = threading.Lock()
         self.writers: dict[str, CameraWriter] = {}
         created = [] if append else [self.folder / f"{n}{ext}" for n in self.cameras
@@ -211,9 +217,12 @@ class Recording:
         if base is None:
             raise DataError(f"{self.folder}: holds recording files but no {MANIFEST}: run "
                             f"'vts recording reindex {self.folder}' before adding to it")
-        if base.get("status") == "recording":
-            raise DataError(f"{self.folder}: its recording was never closed (status 'recording'; still "
-                            f"running, or killed): run 'vts recording reindex {self.folder}' first")
+        if base.get("unfinished") and base.get("status") == "recording":   # its writer runs (unfinished.py)
+            raise RecordingExists(f"{self.folder}: {base['unfinished']}: add to it once that recording has "
+                                  f"stopped, or record into a new folder")
+        if base.get("unfinished"):
+            raise DataError(f"{self.folder}: {base['unfinished']}: run 'vts recording reindex {self.folder}' "
+                            f"before adding to it")
         return base
 
     # -- the reserve -------------------------------------------------------------------------
@@ -266,8 +275,9 @@ class Recording:
             return {"format": "vts-recording/1", "software": {"name": "vts-hw", "version": __version__},
                     "status": self.status, "started": self.started, "finished": finished,
                     **({"problems": list(self.problems)} if self.problems else {}),
-                    **self.meta, "cameras": cams}
+                    **self.meta, "writer": self.writer, "cameras": cams}
         out = dict(self.base)
+        out["writer"] = self.writer
         addition = {"started": self.started, "finished": finished, "status": self.status,
                     "software": {"name": "vts-hw", "version": __version__},
                     "frames_added": {n: w.frames_added for n, w in self.writers.items()},
