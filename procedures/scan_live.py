@@ -40,6 +40,7 @@ from vts_hw.errors import VtsError
 from vts_hw.tracking.live.estimator import LiveEstimate, LiveSettings
 from vts_hw.tracking.live.tracker import LiveTracker
 from vts_hw.tracking.live.watch import TRACKING, BlindAlert, Change, Episode
+from vts_hw.lifeline import child_options
 from vts_hw.procedures.sync_inputs import load_calibration, load_mapping
 from vts_hw.vision.camera_set import covered_names, named_cameras
 
@@ -204,7 +205,9 @@ class LiveMotion:
     def _act(self, session) -> None:
         while True:
             item = self._actions.get()
-            if item is None:
+            if item is None:        # the alert commands started here end before this thread does:
+                for w in self._waiters:    # each dies with the thread that started it (child_options)
+                    w.join()
                 return
             kind, what, est = item
             try:
@@ -282,7 +285,7 @@ class LiveMotion:
     def _run_command(self, session, argv: list[str]) -> str:
         try:
             proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                    stderr=subprocess.PIPE, shell=False, start_new_session=True)
+                                    stderr=subprocess.PIPE, shell=False, start_new_session=True, **child_options())
         except OSError as exc:
             self._command_failed(session, f"alert command {argv[0]!r} could not be started: {exc.strerror or exc}")
             return "not started"
@@ -295,9 +298,11 @@ class LiveMotion:
     def _wait_command(self, session, proc: subprocess.Popen, name: str) -> None:
         try:
             _, err = proc.communicate(timeout=COMMAND_TIMEOUT_S)
-        except subprocess.TimeoutExpired:
-            self._command_failed(session, f"alert command {name!r} still running after {COMMAND_TIMEOUT_S:g} s "
-                                          f"(left running)")
+        except subprocess.TimeoutExpired:     # no program outlives the scan's command that started it
+            proc.kill()
+            proc.wait()
+            self._command_failed(session, f"alert command {name!r} still running after {COMMAND_TIMEOUT_S:g} s: "
+                                          f"ended")
             return
         if proc.returncode != 0:
             why = (err or b"").decode(errors="replace").strip().splitlines()[-1:] or [""]

@@ -33,6 +33,8 @@ import time
 import tty
 from pathlib import Path
 
+from vts_hw.lifeline import child_options
+
 INSYNC, OK, NOSYNC, EOP = 0x14, 0x10, 0x15, 0x20
 SIGNATURE_M328P = bytes([0x1E, 0x95, 0x0F])
 FLASH_SIZE, PAGE_SIZE = 32 * 1024, 128
@@ -204,7 +206,7 @@ class SimArduinoBoard:
                 elf = self.received_hex.with_suffix(".elf")
                 subprocess.run(["avr-objcopy", "-I", "ihex", "-O", "elf32-avr", "--rename-section",
                                 ".sec1=.text,contents,alloc,load,readonly,code", str(self.received_hex), str(elf)],
-                               check=True, capture_output=True)
+                               check=True, capture_output=True, **child_options())
             self.app = SimTriggerBox(speed=self.speed, workdir=self.dir / f"app{self.uploads}", elf=elf).start()
         except Exception as e:   # the test reads it: a board whose firmware did not start answers nothing
             self.app_error = f"{type(e).__name__}: {e}"

@@ -9,7 +9,10 @@ following the start pulse and square wave the emulated box actually emitted, int
 the next scan. A scan it cannot record (a full or read-only folder, a scan too short, the rig
 stopped mid-scan) is said in sim.log and left as ``scan-<UTC time>.failed.json`` in the same
 folder (docs/listmode-format.md, "Failure records"), which `vts sync analyze` and `vts sim down`
-report. So a person can try the whole scan-time chain by hand::
+report, in one sentence each. A scan whose host died with the wave on (a ``kill -9``: the box's
+watchdog cuts the wave later, or the next scan stops it and fires again) ends with the wave's
+last edge before the next start pulse, and is recorded as the SPECT would have acquired it.
+So a person can try the whole scan-time chain by hand::
 
     vts sim up --trigger triggerbox --spect --detach --dir sim
     source sim/sim.env; export VTS_CONFIG=sim/rig.yaml
@@ -21,6 +24,7 @@ Host UTC epoch seconds throughout.
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
 import threading
 import time
@@ -30,7 +34,7 @@ from vts_hw.errors import VtsError
 from vts_hw.files import ensure_dir, os_reason
 from vts_hw.spect.listmode.failures import write_failure_record
 
-from vts_hw.sim_devices.spect_listmode import SimListModeSpect
+from vts_hw.sim_devices.spect_listmode import SimListModeSpect, TriggerEdges, edges_from_trigger_box
 from vts_hw.sim_devices.sync_truth import place_source_marker, plan_sync_moves, schedule_source_moves
 
 HORIZON_S = 600.0      # moves are planned over the first 10 minutes after a start pulse
@@ -76,7 +80,8 @@ class SpectFollower:
         return [e for e in box.edges(pin) if e.value == 1 and e.cycle > after_cycle]
 
     def _run(self) -> None:
-        seen_cycle = -1
+        box = self.rig.trigger_box      # the pulses sent before this SPECT was there are not its scans
+        seen_cycle = box.cycles_now() if box is not None and box.running() else -1
         n = 0
         while not self._stop.wait(POLL_S):
             box = self.rig.trigger_box
@@ -101,12 +106,17 @@ class SpectFollower:
                     times, steps = plan_sync_moves(fire, HORIZON_S, n=int(HORIZON_S / MOVE_EVERY_S),
                                                    seed=self.seed + n)
                     sources = [schedule_source_moves(self.rig.scene, self.marker, times, steps)]
-                last = self._wait_wave_end(start.cycle)
+                last, cut = self._wait_wave_end(start.cycle)
                 if last is None:
                     self._failed(fire, None, "the simulated rig was stopped while the scan was running")
                     return
                 seen_cycle = last
                 scan = (fire, box.host_time(last))
+                if cut:
+                    self.log(f"sim SPECT: the next scan's start pulse came before the square wave of the scan "
+                             f"started at {_iso(fire)} had been quiet for {WAVE_ENDED_S:g} s (its host killed with "
+                             f"the wave on?): that acquisition ends with the wave's last edge before the pulse, "
+                             f"{_iso(scan[1])}")
                 duration = scan[1] - fire - SPECT_TAIL_S
                 if duration <= 1.0:
                     self._failed(*scan, f"the scan was too short to record ({duration + SPECT_TAIL_S:.1f} s "
@@ -116,7 +126,7 @@ class SpectFollower:
                 out = self.folder / _listmode_name(fire)
                 ensure_dir(self.folder, "simulated SPECT folder")
                 SimListModeSpect(self.rig.scene, sources, seed=self.seed + n) \
-                    .follow_trigger_box(box, out, duration)
+                    .write(out, _scan_edges(box, start.cycle, last), duration, _known_until(box))
                 self.written.append(out)
                 self.log(f"sim SPECT: wrote {out} ({duration:.1f} s)")
             except Exception as exc:  # keep the rig up; say what happened where the user looks
@@ -125,6 +135,8 @@ class SpectFollower:
                     why = f"could not write {out.name if out else 'into ' + str(self.folder)} ({os_reason(exc)})"
                 elif isinstance(exc, VtsError):
                     why = str(exc)
+                elif isinstance(exc, ValueError):    # the simulation's own refusal, in its words
+                    why = f"the scan's trigger could not be followed: {exc}"
                 self._failed(*(scan or (None, None)), why)
 
     def _failed(self, start: float | None, end: float | None, reason: str) -> None:
@@ -143,17 +155,40 @@ class SpectFollower:
             return
         self.failures.append(rec)
 
-    def _wait_wave_end(self, start_cycle: int) -> int | None:
-        """The cycle of the wave's last edge once it has been quiet for WAVE_ENDED_S."""
+    def _wait_wave_end(self, start_cycle: int) -> tuple[int | None, bool]:
+        """``(cycle, cut)``: the cycle of the wave's last edge once it has been quiet for
+        WAVE_ENDED_S (``cut`` False); or, when the next scan's start pulse comes first (the wave
+        of a scan whose host died runs on until the next scan stops and fires it again), the
+        last edge before that pulse (``cut`` True). ``(None, False)``: the rig stopped."""
         box = self.rig.trigger_box
         last_edge, quiet_since = start_cycle, time.monotonic()
         while not self._stop.wait(POLL_S):
-            edges = [e for e in box.edges("OC1A") if e.cycle > last_edge]
+            nxt = self._rising("CH2", start_cycle)
+            edges = [e for e in box.edges("OC1A") if e.cycle > last_edge
+                     and (not nxt or e.cycle < nxt[0].cycle)]
             if edges:
                 last_edge, quiet_since = edges[-1].cycle, time.monotonic()
-            elif time.monotonic() - quiet_since > WAVE_ENDED_S:
-                return last_edge
-        return None
+            if nxt:
+                return last_edge, True
+            if not edges and time.monotonic() - quiet_since > WAVE_ENDED_S:
+                return last_edge, False
+        return None, False
+
+
+def _scan_edges(box, start_cycle: int, last_cycle: int) -> TriggerEdges:
+    """What the box sent for one scan: its start pulse (not a later scan's) and the square
+    wave up to the scan's last edge (a later scan's edges left out)."""
+    edges = edges_from_trigger_box(box)
+    until = box.host_time(last_cycle)
+    return dataclasses.replace(edges, rising=edges.rising[edges.rising <= until],
+                               falling=edges.falling[edges.falling <= until],
+                               start_pulse=box.host_time(start_cycle))
+
+
+def _known_until(box) -> float | None:
+    """The host time the emulation has reached (its pins known until then); None once stopped.
+    The status file is rewritten in place: the best of 3 reads."""
+    return box.host_time(max(box.cycles_now() for _ in range(3))) if box.running() else None
 
 
 def _listmode_name(fire: float) -> str:

@@ -100,6 +100,9 @@ CASES = {
     "trigger status --log FIFO": lambda d: ["trigger", "status", "--log", d / "fifo", "--config", d / "rig.yaml"],
     # ... and a device as the images folder was a traceback (NotADirectoryError)
     "calibrate cameras /dev/zero": lambda d: ["calibrate", "cameras", "/dev/zero", "--config", d / "rig.yaml"],
+    # issue 32 §3: the firmware to flash was read by intelhex without a bound (a FIFO: for ever)
+    "trigger flash --hex /dev/zero --dry-run": lambda d: ["trigger", "flash", "--hex", "/dev/zero", "--dry-run"],
+    "trigger flash --hex FIFO --dry-run": lambda d: ["trigger", "flash", "--hex", d / "fifo", "--dry-run"],
 }
 
 

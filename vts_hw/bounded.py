@@ -8,7 +8,8 @@ calibrations, mappings, trigger logs, JSON imports, list-mode headers) goes thro
 :func:`read_bytes` / :func:`read_text`, or :func:`open_bounded` to stream a file it reads line
 by line. A regular file is checked by its size before a byte is read, and read a chunk at a
 time up to the limit (it may grow while read); a character or block device (``/dev/zero``, a
-disk), a pipe or a socket is refused outright.
+disk), a pipe or a socket is refused outright, and never opened (:func:`open_checked`: a FIFO
+swapped in after the check does not block the open either).
 docs/decisions/0053-slow-peers-endless-files-signals.md.
 """
 
@@ -45,8 +46,12 @@ def _mib(n: int) -> str:
 
 def check_file(path: str | os.PathLike, limit: int, what: str) -> os.stat_result:
     """The file's stat, after refusing a device or socket, or a regular file over ``limit`` bytes.
-    (OSError, e.g. no such file, is the caller's to word.)"""
-    st = os.stat(path)
+    (OSError, e.g. no such file, is the caller's to word.) A caller that opens the file itself
+    afterwards had better use :func:`open_checked`: the name may be another file by then."""
+    return _check_stat(os.stat(path), path, limit, what)
+
+
+def _check_stat(st: os.stat_result, path, limit: int, what: str) -> os.stat_result:
     if stat.S_ISDIR(st.st_mode):
         raise IsADirectoryError(21, "Is a directory", str(path))
     if not stat.S_ISREG(st.st_mode):
@@ -58,11 +63,26 @@ def check_file(path: str | os.PathLike, limit: int, what: str) -> os.stat_result
     return st
 
 
+def open_checked(path: str | os.PathLike, limit: int, what: str):
+    """``path`` opened for reading (binary, unbuffered) once it is known to be a regular file of
+    at most ``limit`` bytes: checked by its name first (a device is never opened: opening a
+    serial port resets the board behind it), then opened without waiting (``O_NONBLOCK``: a FIFO
+    put in its place meanwhile does not block the open) and checked again, as opened."""
+    check_file(path, limit, what)
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
+    try:
+        _check_stat(os.fstat(fd), path, limit, what)
+        os.set_blocking(fd, True)
+        return open(fd, "rb", buffering=0)
+    except BaseException:
+        os.close(fd)
+        raise
+
+
 def read_bytes(path: str | os.PathLike, limit: int = SMALL, what: str = "file") -> bytes:
     """The whole of ``path``, at most ``limit`` bytes (see the module docstring)."""
-    check_file(path, limit, what)
     out = bytearray()
-    with open(path, "rb", buffering=0) as f:
+    with open_checked(path, limit, what) as f:
         while True:
             chunk = f.read(CHUNK)   # a chunk at a time: Ctrl-C is seen between two
             if not chunk:
@@ -106,13 +126,12 @@ def open_bounded(path: str | os.PathLike, limit: int = TABLE, what: str = "file"
                  encoding: str = "utf-8", newline: str | None = None, errors: str = "strict"):
     """``open(path, mode)`` for streaming (``"r"`` text, ``"rb"`` binary) that refuses what
     :func:`check_file` refuses and stops at ``limit`` bytes."""
-    check_file(path, limit, what)
-    raw = _Capped(open(path, "rb", buffering=0), Path(path), limit, what)
+    raw = _Capped(open_checked(path, limit, what), Path(path), limit, what)
     buffered = io.BufferedReader(raw, CHUNK)
     if mode == "rb":
         return buffered
     return io.TextIOWrapper(buffered, encoding=encoding, newline=newline, errors=errors)
 
 
-__all__ = ["read_bytes", "read_text", "open_bounded", "check_file", "TooLarge", "SMALL", "TABLE", "CAPTURE",
-           "LISTMODE", "ANY_SIZE"]
+__all__ = ["read_bytes", "read_text", "open_bounded", "open_checked", "check_file", "TooLarge", "SMALL", "TABLE",
+           "CAPTURE", "LISTMODE", "ANY_SIZE"]

@@ -27,6 +27,8 @@ from typing import Callable
 
 import numpy as np
 
+from vts_hw.lifeline import child_options
+
 MOTION_EXIT_CODES = (0, 10, 20)      # OK, TOLERANCE, ACTION: the analysis ran
 
 
@@ -81,7 +83,7 @@ def demo_patient_scan(out_dir, seconds: float = 30.0, *, say: Callable[[str], No
     cmd = [sys.executable, "-m", "vts_hw.cli.__main__", "motion", "analyze", str(session), "--listmode",
            str(run.listmode), "--config", str(rig_yaml), "-o", str(report), "--export", str(export), "--json"]
     say(f"vts motion analyze {session} --listmode {run.listmode} -o {report} --export {export}")
-    p = subprocess.run(cmd, capture_output=True, text=True)
+    p = subprocess.run(cmd, capture_output=True, text=True, **child_options())
     if p.returncode not in MOTION_EXIT_CODES:
         raise RuntimeError(f"the motion analysis failed (exit {p.returncode}): {p.stderr.strip()}")
     data = json.loads(p.stdout)

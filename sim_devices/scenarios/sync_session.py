@@ -21,6 +21,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from vts_hw.lifeline import child_options
 from vts_hw.sim_devices.spect_listmode import ListModeTruth, SimListModeSpect
 from vts_hw.sim_devices.sync_truth import place_source_marker, plan_sync_moves, schedule_source_moves
 
@@ -111,7 +112,8 @@ def run_scan_cli(rig, rig_yaml, session, duration_s: float, *, args=(), event: s
     env = {**os.environ, **rig.env_vars(), "VTS_CONFIG": str(rig_yaml)}
     cmd = [sys.executable, "-m", "vts_hw.cli.__main__", "scan", "start", "--duration", f"{duration_s:g}",
            *map(str, args), "-o", str(session)]
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            **child_options())
     out = err = ""
     try:
         fire = fire_time_of(session, 60.0, proc, event)
