@@ -168,3 +168,30 @@ def test_a_recording_refuses_a_file_name_in_its_folder_that_is_not_a_regular_fil
     with pytest.raises(WriteFailed, match="symbolic link"):
         Recording(rec, ["cam2"], append=True)
     assert (tmp_path / "theirs").read_bytes() == b"theirs\n"
+
+
+def test_a_calibration_whose_target_is_refused_at_write_time_goes_to_the_fallback_file(tmp_path, monkeypatch):
+    """save_or_keep (calibrations, mappings): the work is not lost to a target that is not a file."""
+    from vts_hw.save_or_keep import save_or_keep
+
+    monkeypatch.chdir(tmp_path)
+    os.mkfifo(tmp_path / "calibration.json")
+    saved = save_or_keep(tmp_path / "calibration.json", "{\"rms\": 0.2}\n", "calibration")
+    assert saved.written is None and saved.fallback is not None and saved.fallback.read_text() == "{\"rms\": 0.2}\n"
+    assert "named pipe" in str(saved.error) and f"saved to {saved.fallback} instead" in str(saved.error)
+    assert stat.S_ISFIFO(os.lstat(tmp_path / "calibration.json").st_mode)
+
+
+def test_camera_setup_refuses_a_rig_yaml_it_cannot_replace_before_any_camera_is_set(tmp_path, capsys, monkeypatch):
+    """rig.yaml a symbolic link (to the department's copy): said before a camera is touched (the
+    camera here is nowhere: reaching it would be exit 4)."""
+    real = tmp_path / "department" / "rig.yaml"
+    real.parent.mkdir()
+    real.write_text("rig: t\ncameras:\n  - name: cam1\n    host: 127.0.0.1\n    port: 9\n    password_env: T_PW\n")
+    (tmp_path / "rig.yaml").symlink_to(real)
+    monkeypatch.setenv("T_PW", "secret")
+    before = real.read_bytes()
+    code, out, err = vts(capsys, "camera", "setup", "--all", "--config", tmp_path / "rig.yaml")
+    assert code == 3 and "symbolic link" in err and str(tmp_path / "rig.yaml") in err, err
+    assert real.read_bytes() == before and (tmp_path / "rig.yaml").is_symlink()
+    assert not (tmp_path / "rig.yaml.bak").exists()
