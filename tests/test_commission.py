@@ -82,7 +82,7 @@ def test_commissioning_stops_at_a_mis_aimed_camera_resumes_and_ends_with_the_rep
 
     rig, rig_yaml, store_url = room
     out = tmp_path / "commission"
-    base = ["commission", "--config", rig_yaml, "-o", out, "--listen", "2", "--interface", "127.0.0.1",
+    base = ["commission", "--config", rig_yaml, "-o", out, "--listen", "1", "--interface", "127.0.0.1",
             "--frames", "2", "--vertical", "1", "--axial", "1"]
 
     # 1. cam2's mount is turned: the aim step stops the sequence with the way to turn it
