@@ -398,6 +398,8 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
         + (["gantry"] if gantry else []) + (["qatrack"] if qatrack else []) \
         + ([patient.to_arg()] if patient is not None else []) \
         + ([f"ahead={ahead!r}"] if ahead > 0 else []) + (["warmup"] if warmup_drift else [])
+    # the one program meant to outlive the command that starts it (`vts sim up --detach`: until
+    # `vts sim down`); its own children (the firmware emulator) die with it (lifeline.child_options)
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=log, start_new_session=True)
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from vts_hw.errors import VtsError
 from vts_hw.files import check_target, ensure_dir, write_atomic, write_secret
+from vts_hw.lifeline import child_options
 
 CERT_NAME, KEY_NAME = "sim-camera-cert.pem", "sim-camera-key.pem"
 
@@ -37,7 +38,7 @@ def self_signed(folder: str | Path, days: int = 30) -> tuple[Path, Path]:
                "-subj", "/O=vts-hw simulated rig/CN=127.0.0.1",
                "-addext", "subjectAltName=IP:127.0.0.1,DNS:localhost",
                "-addext", "basicConstraints=critical,CA:TRUE"]
-        done = subprocess.run(cmd, capture_output=True, text=True)
+        done = subprocess.run(cmd, capture_output=True, text=True, **child_options())
         if done.returncode != 0:
             raise VtsError(f"openssl could not make the simulated cameras' certificate: {done.stderr.strip()[-200:]}")
         write_secret(key, made_key.read_bytes())

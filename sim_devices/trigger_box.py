@@ -38,6 +38,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 from vts_hw.files import open_writable
+from vts_hw.lifeline import child_options
 
 __all__ = ["SimTriggerBox", "Edge", "UartByte", "F_CPU", "PINS", "firmware_dir", "build"]
 
@@ -87,7 +88,7 @@ def build(quiet: bool = True) -> tuple[Path, Path]:
     with open_writable(lock_dir / f"vts-trigger-box-build-{os.getuid()}.lock", "a") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         proc = subprocess.run(["make", "-C", str(fw)] + (["--quiet"] if quiet else []),
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, **child_options())
     if proc.returncode != 0:
         raise RuntimeError(f"building the trigger box firmware failed:\n{proc.stdout}")
     return fw / "build" / "tbsim", fw / "build" / "trigger_box.elf"
@@ -140,8 +141,11 @@ class SimTriggerBox:
             cmd.append("--no-uart-log")
         cmd.append(str(elf))
         self._stdout = open_writable(self.dir / f"{tag}.out", "w")
+        # ends with the thread that starts it (the rig's, or a test's), kill -9 of the rig included:
+        # SIGTERM, on which the harness flushes its log and removes its pty file
         self.proc = subprocess.Popen(cmd, stdout=self._stdout, stderr=subprocess.STDOUT,
-                                     stdin=subprocess.DEVNULL, start_new_session=True)
+                                     stdin=subprocess.DEVNULL, start_new_session=True,
+                                     **child_options(signal.SIGTERM))
         deadline = time.monotonic() + self.startup_timeout
         while not pty_file.exists():
             if self.proc.poll() is not None:

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Callable
 
 from vts_hw.files import check_folder, write_atomic
+from vts_hw.lifeline import child_options
 
 SYNC_EXIT_CODES = (0, 10, 20)      # OK, TOLERANCE, ACTION: the analysis ran
 
@@ -137,7 +138,7 @@ def demo_scan(out_dir, seconds: float, *, say: Callable[[str], None] = lambda m:
            "--listmode", str(run.listmode), "--config", str(rig_yaml), "-o", str(report),
            "--export", str(out_dir / "trajectories"), "--json"]
     say(f"vts sync analyze {run.session} --listmode {run.listmode} -o {report}")
-    p = subprocess.run(cmd, capture_output=True, text=True)
+    p = subprocess.run(cmd, capture_output=True, text=True, **child_options())
     if p.returncode not in SYNC_EXIT_CODES:
         raise RuntimeError(f"the sync analysis failed (exit {p.returncode}): {p.stderr.strip()}")
     data = json.loads(p.stdout)
