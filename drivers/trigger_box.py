@@ -40,16 +40,16 @@ from vts_hw.drivers.trigger_box_protocol import (BAUDRATE, DEVICE, DUTY_ABS_TOLE
                                                  DUTY_MIN, FREQ_MAX_HZ, FREQ_MIN_HZ, FREQ_REL_TOLERANCE,
                                                  MAX_ERRORS_READ, MAX_LINE, MODEL, POLL_S, PULSE_MS_MAX,
                                                  PULSE_MS_MIN, SETTINGS_CONFLICT, VENDOR, WATCHDOG_DEFAULT_S, BoxGone,
-                                                 BoxIdentity, BoxRefused, BoxSetting, WatchdogState, _pulse_ms,
-                                                 number_text, parse_refusal, parse_watchdog, watchdog_seconds)
-from vts_hw.drivers.trigger_box_heartbeat import Heartbeat, heartbeat_every
+                                                 BoxIdentity, BoxRefused, BoxSetting, _pulse_ms, number_text,
+                                                 parse_refusal, watchdog_seconds)
+from vts_hw.drivers.trigger_box_watchdog import BoxWatchdog
 
 #: the levels of the box's TTL outputs, as the neutral log rows state them
 HIGH_V, LOW_V = 5.0, 0.0
 
 # ---- the driver -----------------------------------------------------------------------------------
 
-class TriggerBox(BoxClock, TriggerBase):
+class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
     """The trigger box on a serial port, as a :class:`~vts_hw.drivers.trigger.TriggerGenerator`."""
 
     capabilities = frozenset({FREQUENCY, DUTY, PULSE, FIRE, CLOCK, EDGES, WATCHDOG})
@@ -73,12 +73,10 @@ class TriggerBox(BoxClock, TriggerBase):
         ``clock`` stamps the log and the clock-mapping round trips (host epoch seconds);
         ``serial_factory(port, baudrate=, timeout=, write_timeout=)`` opens the line (the
         protocol tests pass a scripted fake); ``sleep`` paces clock-mapping samples.
-        ``watchdog_s`` is the box's watchdog time set at every start (0: off, the output then
-        outlives this program); while the output is on, a ``heartbeat`` thread keeps the box fed
-        (:mod:`~vts_hw.drivers.trigger_box_heartbeat`; without it the caller must, as the protocol
-        tests do), timed by ``monotonic``.
+        ``watchdog_s``, ``heartbeat``, ``monotonic``: the box's watchdog time set at every start and
+        the heartbeat thread that feeds it (:class:`~vts_hw.drivers.trigger_box_watchdog.BoxWatchdog`).
         """
-        self.watchdog_s = watchdog_seconds(watchdog_s)
+        self._init_watchdog(watchdog_s, heartbeat, monotonic)   # a bad watchdog time: before the port
         super().__init__(name, log)
         self.port = port
         self.baudrate = baudrate
@@ -96,11 +94,6 @@ class TriggerBox(BoxClock, TriggerBase):
         self._reported: deque[int] = deque()     # codes raised as BoxRefused, still in the box's queue
         self._wave: tuple[float, float, str, float | None] | None = None  # start host, period, time, ±
         self._wave_first_us: int | None = None   # the device time of that start's first edge
-        self.monotonic = monotonic
-        self._last_sent = monotonic()            # when the box last heard from us (its heartbeat)
-        self._heartbeat_thread = heartbeat
-        self.heartbeat: Heartbeat | None = None  # while the output is on with the watchdog set
-        self._cuts_logged: set[int] = set()      # watchdog cuts already written to the log
         try:
             self._serial = serial_factory(port, baudrate=baudrate, timeout=timeout,
                                           write_timeout=timeout)
@@ -398,57 +391,6 @@ class TriggerBox(BoxClock, TriggerBase):
                              edges=n, first_edge_device_us=first if n else None,
                              last_edge_device_us=last if n else None, errors=errors, extra=extra,
                              notes=(wd.describe(now),))
-
-    # -- the host watchdog (docs/decisions/0083) -------------------------------------------------------
-
-    def watchdog(self) -> WatchdogState:
-        """``WDOG?``: the box's watchdog time, its state and when it cut the wave (a cut is logged
-        once, with a ``wave_stop`` row at its time when this driver started that wave)."""
-        with self._lock:
-            wd = self._parse("WDOG?", self.query("WDOG?"), parse_watchdog,
-                             "watchdog state ('<s>,<OFF|IDLE|ARMED|TRIPPED>,<us>')")
-            if wd.state == "tripped" and wd.cut_device_us not in self._cuts_logged:
-                self._cuts_logged.add(wd.cut_device_us)
-                self._watchdog_cut(wd)
-        return wd
-
-    def _set_watchdog(self) -> None:
-        """``WDOG <s>`` before a start: the box's watchdog as this driver wants it (0 = off)."""
-        self._command(f"WDOG {number_text(self.watchdog_s)}")
-
-    def _start_heartbeat(self, st: TriggerStatus) -> None:
-        if not st.running or self.watchdog_s == 0:
-            return
-        if self.heartbeat is not None:
-            self.heartbeat.stop()
-        self.heartbeat = Heartbeat(self, heartbeat_every(self.watchdog_s), self.monotonic)
-        if self._heartbeat_thread:
-            self.heartbeat.start()
-
-    def _stop_heartbeat(self) -> None:
-        if self.heartbeat is not None:
-            self.heartbeat.stop()
-
-    def _watchdog_cut(self, wd: WatchdogState) -> None:
-        """The box cut the wave: an event line, and the ``wave_stop`` row of a wave this driver
-        started, at the cut (through the clock mapping, else from the first edge's device time)."""
-        self._stop_heartbeat()
-        cut = wd.cut_device_us
-        self._log("event", f"the box's watchdog cut the square wave at device time {cut} us (output off "
-                           f"mid-period): it had heard nothing from this host for {wd.seconds:g} s",
-                  device_us=cut)
-        m, first = self.mapping, self._wave_first_us
-        if m is not None:
-            host, how, unc = m.to_host(cut), DEVICE_CLOCK_MAPPED, m.uncertainty_s
-        elif self._wave is not None and first is not None:
-            start, _, how, unc = self._wave
-            host = start + (cut - first) * 1e-6
-        else:   # a wave another program started, and no clock mapping: the event line says when
-            return
-        n = self.edges()[0]
-        self._wave = None
-        self.log.wave_stopped(self.name, host, rising_edges=n, time_source=how, uncertainty_s=unc,
-                              device_us=cut)
 
     def read_errors(self) -> tuple[str, ...]:
         """``SYST:ERR?`` until ``0,...``; the errors read before it, as the box wrote them.
