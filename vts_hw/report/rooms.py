@@ -95,9 +95,10 @@ class Room:
         return st if cams or st != State.OK else None
 
     def commissioned_text(self) -> str:
-        """Its commissioning's state, always with what was skipped and what did not pass:
-        "commissioned on DATE: TOLERANCE, 5 of 9 steps skipped (...) (signed off by NAME)", "commissioning
-        incomplete, not commissioned: warm-up aborted (stopped by SIGTERM) ...", or "not commissioned"."""
+        """Its commissioning's state, always with what was skipped and what did not pass (the why of each
+        is in the commissioning's report and `vts commission`'s words): "commissioned on DATE: TOLERANCE, 5
+        of 9 steps skipped (...) (signed off by NAME)", "commissioning incomplete, not commissioned:
+        warm-up aborted; ...", or "not commissioned"."""
         c = self.commission
         if c is None:
             return "not commissioned"
@@ -106,7 +107,8 @@ class Room:
         if c.complete:
             who = f"signed off by {c.report.operator}" if c.report.operator else "not signed off"
             return f"commissioned on {fmt_date(c.report.started)}: {c.word}{', ' + skipped if skipped else ''} ({who})"
-        parts = c.not_passed_text() or ["every step passed, no report since (`vts commission --resume` writes it)"]
+        parts = c.not_passed_text(why=False) or ["every step passed, no report since (`vts commission --resume` "
+                                                 "writes it)"]
         last = (f" (its report of {fmt_date(c.last_report.started)}, {c.last_report.status}, no longer stands)"
                 if c.last_report is not None else "")
         return "commissioning incomplete, not commissioned: " + "; ".join(parts + ([skipped] if skipped else [])) + last

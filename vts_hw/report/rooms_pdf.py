@@ -86,12 +86,14 @@ def render_department_pdf(report: RoomsReport) -> bytes:
         for room in report.rooms:
             cams = [c for c in room.drift.cameras.values() if c.points]
             lines = [textwrap.fill(i.text(), 34) for i in room.open_items]
-            height = max(len(cams) * CAM_ROW, 0.08, 0.018 * sum(t.count("\n") + 1 for t in lines)) + 0.015
+            commissioned = textwrap.fill(room.commissioned_text(), 24)
+            height = max(len(cams) * CAM_ROW, 0.08, 0.018 * sum(t.count("\n") + 1 for t in lines),
+                         0.022 + 0.0125 * (commissioned.count("\n") + 1)) + 0.015
             if y - height < FLOOR:
                 fig, y = _new_page(report, pages, False)
             fig.add_artist(matplotlib.lines.Line2D([MARGIN, 1 - MARGIN], [y + 0.008] * 2, color="#dfe3e8", lw=0.6))
             fig.text(COLUMNS[0][1], y, room.label, fontsize=8.5, fontweight="bold", va="top")
-            fig.text(COLUMNS[0][1], y - 0.022, textwrap.fill(room.commissioned_text(), 24), fontsize=6, va="top",
+            fig.text(COLUMNS[0][1], y - 0.022, commissioned, fontsize=6, va="top",
                      color="#5f6b7a")
             if not cams:
                 _word(fig, COLUMNS[1][1], y - 0.012, room.daily_missing_text(), None)

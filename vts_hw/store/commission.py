@@ -97,13 +97,15 @@ class StepState:
         head = self.notes.split("stopped: ", 1)
         return head[1].strip() if len(head) == 2 else f"{self.status}"
 
-    def outcome(self) -> str:
-        """This attempt in a few words: "passed", "skipped", "aborted (why)", "stopped (why)"."""
+    def outcome(self, why: bool = True) -> str:
+        """This attempt in a few words: "passed", "skipped", "aborted (why)", "stopped (why)" (without
+        the why when ``why`` is False)."""
         if self.skipped:
             return "skipped"
         if self.passed:
             return "passed"
-        return f"{'aborted' if self.aborted else 'stopped'} ({self.why()})"
+        word = "aborted" if self.aborted else "stopped"
+        return f"{word} ({self.why()})" if why else word
 
 
 @dataclass
@@ -120,9 +122,10 @@ class Standing:
     last_report: object | None     # the newest report run of this commissioning, standing or not
     attempts: dict[str, StepState] = field(default_factory=dict)   # the newest attempt of each step run
 
-    def not_passed_text(self) -> list[str]:
-        """Each step not passed in a few words: "warm-up aborted (stopped by SIGTERM)", "sync check not run"."""
-        return [f"{LABELS.get(n, n)} " + (self.attempts[n].outcome() if n in self.attempts else "not run")
+    def not_passed_text(self, why: bool = True) -> list[str]:
+        """Each step not passed in a few words: "warm-up aborted (stopped by SIGTERM)" ("warm-up aborted"
+        without the why), "sync check not run"."""
+        return [f"{LABELS.get(n, n)} " + (self.attempts[n].outcome(why) if n in self.attempts else "not run")
                 for n in self.not_passed]
 
     @property
