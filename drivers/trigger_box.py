@@ -377,11 +377,9 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
             f = self.frequency_hz
             d = self.duty
             n, first, last = self.edges()
-            wd = self.watchdog()
-            now = self.device_time_us() if wd.state == "tripped" else None
+            watchdog, said = self._status_watchdog()
             errors = self.read_errors()
-        extra: dict[str, Any] = {"port": self.port, "watchdog": {
-            "seconds": wd.seconds, "state": wd.state, "cut_device_us": wd.cut_device_us}}
+        extra: dict[str, Any] = {"port": self.port, "watchdog": watchdog}
         if self.identity is not None:
             extra["idn"] = self.identity.raw
         if self.mapping is not None and n:
@@ -390,7 +388,7 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
         return TriggerStatus(device=self.name, running=running, frequency_hz=f, duty=d,
                              edges=n, first_edge_device_us=first if n else None,
                              last_edge_device_us=last if n else None, errors=errors, extra=extra,
-                             notes=(wd.describe(now),))
+                             notes=(said,))
 
     def read_errors(self) -> tuple[str, ...]:
         """``SYST:ERR?`` until ``0,...``; the errors read before it, as the box wrote them.
@@ -440,7 +438,7 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
         reports its output off; while the last period runs, at least the periods begun before
         the command) place the end at start + n periods. A wave the box's watchdog cut has had its
         row written at the cut (:meth:`_watchdog_cut`)."""
-        if st is not None and st.extra.get("watchdog", {}).get("state") == "tripped":
+        if st is not None and (st.extra.get("watchdog") or {}).get("state") == "tripped":
             self._wave = None
             return
         n = st.edges if st is not None else None

@@ -59,6 +59,7 @@ MAX_ERRORS_READ = 16           # more than the firmware's error queue holds
 POLL_S = 0.01                  # while waiting for the last period to finish
 SETTINGS_CONFLICT = -221       # the box's code for "not while the wave is on / a pulse runs"
 WATCHDOG_CUT = -310            # the box's code for "Watchdog: host silent, output off"
+UNDEFINED_HEADER = -113        # the box's code for a command it does not know (WDOG before 1.1.0)
 WATCHDOG_MIN_S = 0.1           # the host watchdog's range (0 = off)
 WATCHDOG_MAX_S = 3600.0
 WATCHDOG_DEFAULT_S = 10.0      # the box's own default, and the driver's

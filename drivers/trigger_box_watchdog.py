@@ -24,8 +24,11 @@ import threading
 from typing import Callable
 
 from vts_hw.drivers.trigger import DEVICE_CLOCK_MAPPED, TriggerError, TriggerStatus
-from vts_hw.drivers.trigger_box_protocol import (BoxGone, WatchdogState, number_text, parse_watchdog,
-                                                 watchdog_seconds)
+from vts_hw.drivers.trigger_box_protocol import (UNDEFINED_HEADER, BoxGone, BoxRefused, WatchdogState,
+                                                 number_text, parse_watchdog, watchdog_seconds)
+
+#: what a box whose firmware has no watchdog (before 1.1.0) is said to have
+NO_WATCHDOG = "no host watchdog: its firmware predates it (1.1.0); vts trigger flash updates it"
 
 
 def heartbeat_every(watchdog_s: float) -> float:
@@ -120,9 +123,31 @@ class BoxWatchdog:
                 self._watchdog_cut(wd)
         return wd
 
+    def _status_watchdog(self) -> tuple[dict | None, str]:
+        """For a status: ``WDOG?`` (and ``TIME?`` after a cut, to say how long ago) as the entry of
+        its ``extra`` and its note; a box without a watchdog says so rather than failing the status."""
+        try:
+            wd = self.watchdog()
+        except BoxRefused as exc:
+            if exc.code != UNDEFINED_HEADER:
+                raise
+            return None, NO_WATCHDOG
+        now = self.device_time_us() if wd.state == "tripped" else None
+        return {"seconds": wd.seconds, "state": wd.state, "cut_device_us": wd.cut_device_us}, wd.describe(now)
+
     def _set_watchdog(self) -> None:
-        """``WDOG <s>`` before a start: the box's watchdog as this driver wants it (0 = off)."""
-        self._command(f"WDOG {number_text(self.watchdog_s)}")
+        """``WDOG <s>`` before a start: the box's watchdog as this driver wants it (0 = off). A box
+        without one is not switched on unless no watchdog was asked for."""
+        try:
+            self._command(f"WDOG {number_text(self.watchdog_s)}")
+        except BoxRefused as exc:
+            if exc.code != UNDEFINED_HEADER:
+                raise
+            if self.watchdog_s:              # asked for and not there (none asked for: none needed)
+                raise BoxRefused(f"{self.where} has no host watchdog (its firmware predates 1.1.0): switched on, "
+                                 f"it would drive the scanner's gating input for ever if this program died, so "
+                                 f"its output was left off; vts trigger flash updates it", exc.code,
+                                 exc.device_message) from None
 
     def _start_heartbeat(self, st: TriggerStatus) -> None:
         if not st.running or self.watchdog_s == 0:

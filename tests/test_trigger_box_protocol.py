@@ -498,3 +498,26 @@ def test_a_malformed_watchdog_reply_is_an_error(reply):
     with expected_protocol(lines(("WDOG?", reply))) as box:
         with pytest.raises(TriggerError, match="answered 'WDOG\\?' with .*not a watchdog state"):
             box.watchdog()
+
+
+def test_a_box_whose_firmware_has_no_watchdog_is_not_switched_on_and_says_why():
+    """A box still on firmware 1.0.0 (no WDOG): its status works and says so; a start that asks for
+    the watchdog sends nothing more and refuses; one that asks for none (vts trigger start) starts."""
+    old = ("ERR -113 Undefined header")
+    pairs = lines(*STATUS_OFF[:4], ("WDOG?", old), ("SYST:ERR?", '-113,"Undefined header"'),
+                  ("SYST:ERR?", '0,"No error"'),
+                  ("WDOG 10", old),
+                  ("WDOG 0", old), ("OUTP ON", "OK"), *ON, ("WDOG?", old),
+                  *[("SYST:ERR?", '-113,"Undefined header"')] * 3, ("SYST:ERR?", '0,"No error"'))
+    with expected_protocol(pairs) as box:
+        st = box.status()
+        assert st.errors == () and st.extra["watchdog"] is None
+        assert st.notes == ("no host watchdog: its firmware predates it (1.1.0); vts trigger flash updates it",)
+        with pytest.raises(BoxRefused, match=r"^trigger box on /dev/ttyFAKE0 has no host watchdog \(its firmware "
+                                             r"predates 1.1.0\): switched on, it would drive the scanner's gating "
+                                             r"input for ever if this program died, so its output was left off; "
+                                             r"vts trigger flash updates it$"):
+            box.start()
+        box.watchdog_s = 0
+        st = box.start()
+        assert st.running and box.heartbeat is None and st.errors == ()   # its refusals were said already
