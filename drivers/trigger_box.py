@@ -302,6 +302,7 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
             st = self.status()
         if st.errors:
             raise TriggerError(f"{self.where} reports errors after configure: {'; '.join(st.errors)}")
+        self._check_watchdog(st)
         if st.frequency_hz is None or not math.isclose(st.frequency_hz, f, rel_tol=FREQ_REL_TOLERANCE):
             raise TriggerError(f"{self.where} was asked for {f:g} Hz but confirms {st.frequency_hz!r} Hz")
         if st.duty is None or abs(st.duty - d) > DUTY_ABS_TOLERANCE:

@@ -135,6 +135,13 @@ class BoxWatchdog:
         now = self.device_time_us() if wd.state == "tripped" else None
         return {"seconds": wd.seconds, "state": wd.state, "cut_device_us": wd.cut_device_us}, wd.describe(now)
 
+    def _check_watchdog(self, st: TriggerStatus) -> None:
+        """After a configure: a watchdog asked for that the box has not is said now, before a scan
+        records anything, not at the start."""
+        if self.watchdog_s and st.extra.get("watchdog", {}) is None:
+            raise TriggerError(f"{self.where} has {NO_WATCHDOG}; without it a start is refused (if this program "
+                               f"died, the box would drive the scanner's gating input for ever)")
+
     def _set_watchdog(self) -> None:
         """``WDOG <s>`` before a start: the box's watchdog as this driver wants it (0 = off). A box
         without one is not switched on unless no watchdog was asked for."""

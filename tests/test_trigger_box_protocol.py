@@ -521,3 +521,16 @@ def test_a_box_whose_firmware_has_no_watchdog_is_not_switched_on_and_says_why():
         box.watchdog_s = 0
         st = box.start()
         assert st.running and box.heartbeat is None and st.errors == ()   # its refusals were said already
+
+
+def test_configure_says_before_a_scan_records_that_the_box_has_no_watchdog():
+    old = "ERR -113 Undefined header"
+    pairs = lines(("SYST:ERR?", '0,"No error"'), ("FREQ 10", "OK"), ("DUTY 0.25", "OK"), *STATUS_OFF[:4],
+                  ("WDOG?", old), ("SYST:ERR?", '-113,"Undefined header"'), ("SYST:ERR?", '0,"No error"'))
+    with expected_protocol(pairs) as box:
+        with pytest.raises(TriggerError, match=r"^trigger box on /dev/ttyFAKE0 has no host watchdog: its firmware "
+                                               r"predates it \(1.1.0\); vts trigger flash updates it; without it a "
+                                               r"start is refused"):
+            box.configure(10, 0.25)
+    with expected_protocol(pairs, watchdog_s=0) as box:    # none asked for (vts trigger start)
+        assert box.configure(10, 0.25).extra["watchdog"] is None

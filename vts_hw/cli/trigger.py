@@ -69,10 +69,10 @@ def _configure(gen, t) -> None:
     outlives this command by design, so a device's watchdog is switched off for it (the trigger
     box's status says so; `vts trigger stop` ends the wave)."""
     from vts_hw.drivers.trigger import LEVELS, WATCHDOG
-    levels = (t.high_v, t.low_v) if LEVELS in gen.capabilities else (None, None)
-    gen.configure(t.frequency_hz, t.duty, *levels)
     if WATCHDOG in gen.capabilities:
         gen.watchdog_s = 0
+    levels = (t.high_v, t.low_v) if LEVELS in gen.capabilities else (None, None)
+    gen.configure(t.frequency_hz, t.duty, *levels)
 
 
 @trigger.command()
