@@ -98,3 +98,7 @@ def test_a_replaced_file_keeps_its_owners_mode(tmp_path, umask_022):
     assert mode(p) == 0o600
     write_atomic(tmp_path / "new.json", "{}\n")
     assert mode(tmp_path / "new.json") == 0o644
+    if os.geteuid() == 0:        # root rewriting a user's file leaves it theirs, not root's
+        os.chown(p, 12345, 12345)
+        write_atomic(p, "{\"again\": 1}\n")
+        assert (os.lstat(p).st_uid, os.lstat(p).st_gid, mode(p)) == (12345, 12345, 0o600)

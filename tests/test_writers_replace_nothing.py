@@ -138,6 +138,23 @@ def test_write_atomic_refuses_a_target_that_became_a_fifo_while_it_wrote(tmp_pat
     assert sorted(p.name for p in tmp_path.iterdir()) == ["report.html"]      # no temporary file left
 
 
+def test_a_temporary_name_planted_beforehand_is_never_opened(tmp_path, monkeypatch):
+    """Another user who may write into the folder (/tmp) plants a link at the name of the
+    temporary file (it was .NAME.PID.tmp, opened with O_TRUNC: root emptied the file it points
+    to). The name is random now and created exclusively: a planted one is passed over."""
+    import secrets
+
+    victim = tmp_path / "victim"
+    victim.write_bytes(b"root's file\n")
+    target = tmp_path / "report.html"
+    for name in (f".report.html.{os.getpid()}.tmp", ".report.html.planted.tmp"):
+        (tmp_path / name).symlink_to(victim)
+    names = iter(["planted", "fresh"])
+    monkeypatch.setattr(secrets, "token_hex", lambda n=None: next(names))
+    write_atomic(target, "the report\n")
+    assert target.read_text() == "the report\n" and victim.read_bytes() == b"root's file\n"
+
+
 def test_an_appending_writer_never_opens_a_fifo_or_writes_through_a_link(tmp_path, no_hang):
     os.mkfifo(tmp_path / "trigger.csv")
     with pytest.raises(NotReplaced, match="named pipe"):
