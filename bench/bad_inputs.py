@@ -27,10 +27,22 @@ listed here. The classes of bad input, each command one case at a time:
 
 Round 2 (issue 21), each a module of ``badkit/``, swept with ``--classes all`` (or by name):
 ``slow peers`` (cameras that trickle, answer 503, stall or drop; QATrack+, the function
-generator and PostgreSQL that trickle or say nothing: bounded, exit non-zero naming the peer),
-``endless files`` (``/dev/zero``, a FIFO, an 8 GiB sparse file for every file the commands read)
-and ``SIGINT and SIGKILL`` (to every long command once under way: exit 130 and ``interrupted``,
-no process left running, every indexed frame whole on disk).
+generator and PostgreSQL that trickle or say nothing: bounded, exit non-zero naming the peer) and
+``endless files`` (``/dev/zero``, a FIFO, an 8 GiB sparse file for every file the commands read).
+
+Round 3 (issue 32), each a module of ``badkit/``, in the default sweep as a share that meets every
+command, route or action once (``--classes all``: every value, moment and identity):
+``root writes`` (badkit/root_writes.py: every output of every command onto a device node, a
+FIFO, a link to a file elsewhere, a folder: refused in one sentence, the node unchanged);
+``killed`` (badkit/signals.py: SIGINT, SIGTERM and SIGKILL of every long command and of the
+console during a Scan-page scan or a Daily QA, at several moments: what is left on disk, running,
+and switched on in the trigger box and the LEDs); ``console full disk`` (badkit/console_disk.py:
+each console action with its store or scans folder on a full disk: an honest answer and action
+log, nothing empty left); ``web`` (badkit/web.py: every console route and method as each role and
+none, with foreign Host, Origin and token, script, traversal, numbers, malformed bodies, repeated
+parameters and many clients, against `vts console` on a simulated rig with secrets planted).
+A ``security`` finding is a secret served, a request from elsewhere obeyed, a script sent back
+unescaped, a page without its security headers.
 
 Each case runs in a forked child of this process (the CLI is imported once) with a time
 limit, in a folder of its own; the child notes every store it opens. A case passes when the
@@ -65,6 +77,8 @@ from badkit.classes import (Case, Verdict, common, float_cases, foreign_cases, n
 from badkit import full_disk  # noqa: E402
 from badkit.forked import fork_vts  # noqa: E402
 from badkit import endless_files, signals, slow_peers  # noqa: E402  (issue 21 round 2)
+from badkit import console_disk, root_writes  # noqa: E402  (issue 32)
+WEB = "web"            # badkit/web.py, run in a process of its own (it uses threads; this one forks)
 
 SKIP = {("sim", "up"): "starts servers in the foreground", ("demo",): "runs the whole demo",
         ("console",): "serves the room console in the foreground (a dead rig's cameras are shown NOT ANSWERING)",
@@ -96,12 +110,14 @@ def skipped_cases(cmd_path: tuple[str, ...], fx: "Fixtures") -> list[Case]:
 #: the cases end as they did, 3 s sooner each (a --listen case of its own still replaces the value)
 QUICK = {("commission",): ["--listen", "0.2"]}
 NUMBERS = ["nan", "inf", "-1", "1e309", "abc"]
-CLASSES = ("paths", "numbers", "floats", "configs", "foreign stores", full_disk.CLASS, slow_peers.CLASS,
-           endless_files.CLASS, signals.CLASS)
+CLASSES = ("paths", "numbers", "floats", "configs", "foreign stores", full_disk.CLASS, root_writes.CLASS,
+           signals.CLASS, console_disk.CLASS, WEB, slow_peers.CLASS, endless_files.CLASS)
 #: the classes that need the peers of badkit.slow_peers running
-NEED_PEERS = (slow_peers.CLASS, signals.CLASS)
-#: swept unless --classes says otherwise (the three of round 2 take minutes of peers: --classes all)
-DEFAULT_CLASSES = CLASSES[:6]
+NEED_PEERS = (slow_peers.CLASS,)
+#: swept unless --classes says otherwise (the two of round 2 take minutes of peers: --classes all;
+#: the four of round 3 as a share meeting every command once, whole with --classes all)
+DEFAULT_CLASSES = CLASSES[:10]
+COUNTS = ("tracebacks", "hangs", "false_oks", "damaged", "security", "other")
 QATRACK_TOKEN_ENV = "VTS_BAD_INPUTS_QATRACK_TOKEN"
 
 
@@ -182,7 +198,7 @@ def base_args(cmd: click.Command, fx: Fixtures) -> list[str]:
     return args
 
 
-def cases(cmd_path: tuple[str, ...], cmd: click.Command, fx: Fixtures):
+def cases(cmd_path: tuple[str, ...], cmd: click.Command, fx: Fixtures, classes=CLASSES, full: bool = False):
     """The cases of the classes paths, numbers, configs, floats and foreign stores of one command."""
     base = base_args(cmd, fx) + QUICK.get(cmd_path, [])
     has_config = any(p.name == "config_path" for p in cmd.params)
@@ -210,6 +226,8 @@ def cases(cmd_path: tuple[str, ...], cmd: click.Command, fx: Fixtures):
                            number_judge(v))
     yield from float_cases(cmd_path, cmd, lambda wd: [*base, *cfg])
     yield from foreign_cases(cmd_path, lambda wd: base, cfg)
+    if root_writes.CLASS in classes:
+        yield from root_writes.cases(cmd_path, cmd, base + cfg, good_command(cmd_path, fx), _replace, full)
     if getattr(fx, "endless", None):
         yield from endless_files.cases(cmd_path, cmd, base, cfg, fx.endless, _replace)
 
@@ -293,8 +311,26 @@ def preload() -> int:
     return n
 
 
-def plan(only: str | None, classes, fx: Fixtures, cli, peers=None) -> list[Case]:
-    """Every case of the chosen classes, command by command (the tree walked from the CLI)."""
+def good_command(cmd_path: tuple[str, ...], fx: Fixtures):
+    """``argv(wd, D)``: a command line of badkit/full_disk's table for this command (good inputs on
+    the simulated rig, its outputs in D), or None (the root writes class then uses the sweep's base)."""
+    if getattr(fx, "writers", None) is None:
+        return None
+    words = " ".join(cmd_path)
+    for what, argv, *_ in fx.writers:
+        if what == words or what.startswith((words + " ", words + ",")):
+            return argv
+    if cmd_path in SKIPPED_BASE:
+        return lambda wd, D: [*cmd_path, *SKIPPED_BASE[cmd_path](wd)]
+    return None
+
+
+def plan(only: str | None, classes, fx: Fixtures, cli, peers=None, full: bool = False) -> list[Case]:
+    """Every case of the chosen classes, command by command (the tree walked from the CLI);
+    ``full``: the round 3 classes whole (every value, moment and identity), else their share."""
+    if {root_writes.CLASS, signals.CLASS, console_disk.CLASS} & set(classes):
+        inp = full_disk.inputs(fx.root)
+        fx.writers = full_disk.table(inp)
     from vts_hw.cli import command_tree
     planned: list[Case] = []
     for cmd_path, cmd in command_tree(cli):
@@ -304,14 +340,20 @@ def plan(only: str | None, classes, fx: Fixtures, cli, peers=None) -> list[Case]
             continue
         if cmd_path in SKIP:   # their float options only (refused before anything starts), and the old two
             todo = list(float_cases(cmd_path, cmd, SKIPPED_BASE[cmd_path])) + skipped_cases(cmd_path, fx)
+            if root_writes.CLASS in classes:
+                todo += root_writes.cases(cmd_path, cmd, [], good_command(cmd_path, fx), _replace, full)
         else:
-            todo = list(cases(cmd_path, cmd, fx))
+            todo = list(cases(cmd_path, cmd, fx, classes, full))
         planned += todo
     planned += [c for c in store_command_cases(fx) if not only or c.what.startswith(only)]
     if full_disk.CLASS in classes:
         planned += full_disk.cases(fx.root, only)
+    if signals.CLASS in classes:
+        planned += signals.cases(full_disk.inputs(fx.root), only, full)
+    if console_disk.CLASS in classes:
+        planned += console_disk.cases(fx.root, only, full)
     if peers is not None:
-        planned += slow_peers.cases(fx, only, peers) + signals.cases(fx, only, peers)
+        planned += slow_peers.cases(fx, only, peers)
     return [c for c in planned if c.cls in classes]
 
 
@@ -334,7 +376,7 @@ def _stop_sims(root: Path) -> None:
 
 
 def sweep(only: str | None, timeout: float, show: bool, root: Path, jobs: int = 1,
-          classes=CLASSES) -> dict:
+          classes=CLASSES, full: bool = False) -> dict:
     from vts_hw.cli import _register, cli
     _register()
     preload()
@@ -343,8 +385,7 @@ def sweep(only: str | None, timeout: float, show: bool, root: Path, jobs: int = 
     # mount, so make it a path under a regular FILE (ENOTDIR) -- an output that cannot be written
     fx.readonly_out = root / "empty.txt" / "out.file"
     fixtures = {p: sha(p) for p in root.iterdir() if p.is_file()}
-    per = {c: {"cases": 0, "tracebacks": 0, "hangs": 0, "false_oks": 0, "damaged": 0, "other": 0, "opened": 0}
-           for c in classes}
+    per = {c: {"cases": 0, **{k: 0 for k in COUNTS}, "opened": 0, "seconds": 0.0} for c in classes}
     results = {"cases": 0, "passed": 0, "classes": per, "failures": [], "opened_by": [],
                "tracebacks": [], "hangs": [], "bad_exit": []}
     env_backup, cwd = dict(os.environ), os.getcwd()
@@ -358,7 +399,9 @@ def sweep(only: str | None, timeout: float, show: bool, root: Path, jobs: int = 
         if endless_files.CLASS in classes:
             fx.endless = endless_files.make_inputs(root)
         peers = stack.enter_context(slow_peers.Peers(root)) if set(NEED_PEERS) & set(classes) else None
-        planned = plan(only, classes, fx, cli, peers)
+        t_plan = time.monotonic()
+        planned = plan(only, classes, fx, cli, peers, full)
+        setup_s = time.monotonic() - t_plan
         argvs = []
         for k, case in enumerate(planned):   # every case's files, made here before any fork
             wd = root / "cases" / str(k)
@@ -366,18 +409,23 @@ def sweep(only: str | None, timeout: float, show: bool, root: Path, jobs: int = 
             argvs.append(case.make(wd))
         # cases run `jobs` at a time (each a forked child in a folder of its own); the parent's
         # threads only fork, read pipes and wait
+        def timed(k):
+            t0 = time.monotonic()
+            got = planned[k].extra.get("run", run_case)(argvs[k], timeout, root / "cases" / str(k))
+            return got, time.monotonic() - t0
         with ThreadPoolExecutor(max(1, jobs)) as pool:
-            done = pool.map(lambda k: planned[k].extra.get("run", run_case)(argvs[k], timeout, root / "cases" / str(k)),
-                            range(len(planned)))
-            for k, (case, argv, (code, out, err)) in enumerate(zip(planned, argvs, done)):
+            done = pool.map(timed, range(len(planned)))
+            for k, (case, argv, ((code, out, err), dt)) in enumerate(zip(planned, argvs, done)):
                 wd = root / "cases" / str(k)
                 v: Verdict = case.judge(wd, code, out, err) if case.judge else common(code, err)
                 label = f"vts {' '.join(argv)}  [{case.cls}: {case.what}]"
                 c = per[case.cls]
                 c["cases"] += 1
+                c["seconds"] += dt
                 results["cases"] += 1
                 for key, flag in (("tracebacks", v.traceback), ("hangs", v.hang), ("false_oks", v.false_ok),
-                                  ("damaged", v.damaged), ("other", v.other), ("opened", v.opened)):
+                                  ("damaged", v.damaged), ("other", v.other), ("opened", v.opened),
+                                  ("security", v.security)):
                     c[key] += bool(flag)
                 if v.opened:
                     results["opened_by"].append(command_of(argv))
@@ -390,8 +438,14 @@ def sweep(only: str | None, timeout: float, show: bool, root: Path, jobs: int = 
                 if show:
                     last = (err.strip().splitlines() or [""])[-1][:160]
                     print(f"  exit {code}: {label}\n      {last}")
+        if WEB in classes and not only:
+            web_sweep(root, full, results, per[WEB], show)
+        results["setup_s"] = round(setup_s, 1)
     finally:
         stack.close()
+        for fd in signals._HELD:
+            os.close(fd)
+        signals._HELD.clear()
         _stop_sims(root)
         full_disk.cleanup(root)
         os.chdir(cwd)
@@ -405,12 +459,45 @@ def sweep(only: str | None, timeout: float, show: bool, root: Path, jobs: int = 
     return results
 
 
+def web_sweep(root: Path, full: bool, results: dict, c: dict, show: bool) -> None:
+    """The class web: badkit/web.py in a process of its own; its verdicts counted here."""
+    import subprocess
+    t0 = time.monotonic()
+    p = subprocess.run([sys.executable, str(Path(__file__).resolve().parent / "badkit" / "web.py"), str(root / "web"),
+                        *(["--full"] if full else [])], capture_output=True, text=True, timeout=3600)
+    c["seconds"] = time.monotonic() - t0
+    try:
+        verdicts = json.loads(p.stdout)
+    except ValueError:
+        c["cases"] += 1
+        c["other"] += 1
+        results["cases"] += 1
+        results["failures"].append(f"[web] the web sweep did not finish (exit {p.returncode}): "
+                                   f"{p.stderr.strip()[-400:]}")
+        return
+    for v in verdicts:
+        c["cases"] += 1
+        results["cases"] += 1
+        for key, flag in (("tracebacks", "traceback"), ("hangs", "hang"), ("false_oks", "false_ok"),
+                          ("damaged", "damaged"), ("other", "other"), ("security", "security")):
+            c[key] += bool(v[flag])
+        if any(v[f] for f in ("traceback", "hang", "false_ok", "damaged", "other", "security")):
+            results["failures"].append(f"{v['what']}\n      {v['why']}")
+            if v["security"]:
+                results.setdefault("security", []).append(f"{v['what']}: {v['why']}")
+        else:
+            results["passed"] += 1
+        if show:
+            print(f"  {v['what']}  {v['why']}")
+
+
 def table(r: dict) -> str:
-    head = f"{'class':<16} {'cases':>6} {'tracebacks':>10} {'hangs':>6} {'false OKs':>9} {'data damaged':>12} {'other':>6}"
+    head = (f"{'class':<18} {'cases':>6} {'tracebacks':>10} {'hangs':>6} {'false OKs':>9} {'data damaged':>12} "
+            f"{'security':>8} {'other':>6} {'seconds':>8}")
     lines = [head]
     for cls, c in r["classes"].items():
-        lines.append(f"{cls:<16} {c['cases']:>6} {c['tracebacks']:>10} {c['hangs']:>6} {c['false_oks']:>9} "
-                     f"{c['damaged']:>12} {c['other']:>6}")
+        lines.append(f"{cls:<18} {c['cases']:>6} {c['tracebacks']:>10} {c['hangs']:>6} {c['false_oks']:>9} "
+                     f"{c['damaged']:>12} {c['security']:>8} {c['other']:>6} {c['seconds']:>8.0f}")
     return "\n".join(lines)
 
 
@@ -419,8 +506,9 @@ def main() -> int:
     ap.add_argument("--only", help="only commands starting with this (e.g. 'camera' or 'qa daily')")
     ap.add_argument("--classes", default=",".join(DEFAULT_CLASSES),
                     help=f"classes to sweep, comma-separated, or 'all' (default: {', '.join(DEFAULT_CLASSES)}; "
-                         f"also: {', '.join(CLASSES[6:])}; "
-                         "'foreign' for foreign stores)")
+                         f"also: {', '.join(CLASSES[10:])}; 'foreign' for foreign stores); 'all' sweeps the "
+                         "classes of round 3 whole (every value, moment and identity), else a share meeting "
+                         "every command, route and action once")
     ap.add_argument("--timeout", type=float, default=60.0, help="seconds per case before it counts as a hang")
     ap.add_argument("--show", action="store_true", help="print every case and its last line")
     ap.add_argument("--json", action="store_true", help="the figures as JSON")
@@ -428,13 +516,14 @@ def main() -> int:
                     help="cases run at once (default: one per core)")
     a = ap.parse_args()
     wanted = [c.strip() for c in a.classes.split(",") if c.strip()]
-    wanted = list(CLASSES) if wanted == ["all"] else wanted
+    full = wanted == ["all"]
+    wanted = list(CLASSES) if full else wanted
     classes = [c for c in CLASSES if any(c.startswith(w) for w in wanted)]
     if not classes:
         ap.error(f"--classes: none of {', '.join(CLASSES)}")
     with tempfile.TemporaryDirectory(prefix="vts-bad-inputs-") as tmp:
         t0 = time.monotonic()
-        r = sweep(a.only, a.timeout, a.show, Path(tmp), a.jobs, classes)
+        r = sweep(a.only, a.timeout, a.show, Path(tmp), a.jobs, classes, full)
         dt = time.monotonic() - t0
     if a.json:
         print(json.dumps(r, indent=1))

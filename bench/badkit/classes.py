@@ -34,11 +34,12 @@ class Verdict:
     damaged: bool = False
     other: bool = False          # an undocumented exit code, or bad input not refused as such
     opened: bool = False         # the command opened the store it was given
+    security: bool = False       # a secret served, a foreign request obeyed, a script sent back unescaped
     why: str = ""
 
     @property
     def passed(self) -> bool:
-        return not (self.traceback or self.hang or self.false_ok or self.damaged or self.other)
+        return not (self.traceback or self.hang or self.false_ok or self.damaged or self.other or self.security)
 
 
 @dataclass

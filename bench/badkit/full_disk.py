@@ -119,6 +119,20 @@ class Inputs:
         self.boards = shared_data() / "stereo-checkerboard"
         self.digest = self._digest()
 
+    def baseline_store(self) -> Path:
+        """A store holding a drift baseline of the rig (made on first use): what `qa daily` needs."""
+        db = self.dir / "baseline.sqlite"
+        if not db.exists():
+            p = subprocess.run([PY, "-m", "vts_hw.cli", "--store", f"sqlite:///{db}", "qa", "drift", "--set-baseline",
+                                "--config", self.config], capture_output=True, text=True, timeout=300, env=self.env_all)
+            if p.returncode != 0:
+                raise RuntimeError(f"vts qa drift --set-baseline failed: {p.stderr.strip()[-300:]}")
+        return db
+
+    @property
+    def env_all(self) -> dict[str, str]:
+        return {**os.environ, **self.env}
+
     def _digest(self) -> dict[str, str]:
         """Every input file's sha256: no case may change one."""
         return {str(p): sha(p) for p in sorted(self.dir.rglob("*"))
@@ -264,13 +278,39 @@ def _recorded(wd, out, err):
 INPUTS: Inputs | None = None
 
 
+def inputs(root: Path) -> Inputs:
+    """The inputs of :class:`Inputs`, made once per sweep (the root writes class runs the same
+    command lines); the rig's passwords put in the environment the forked cases inherit (the
+    sweep restores it)."""
+    global INPUTS
+    if INPUTS is None or INPUTS.dir != root / "fd-inputs":
+        INPUTS = Inputs(root)
+    os.environ.update(INPUTS.env)
+    return INPUTS
+
+
 def cases(root: Path, only: str | None = None) -> list[Case]:
     """Every writing command against a full disk (empty when no tmpfs can be mounted)."""
-    global INPUTS
     if available():
         return []
-    INPUTS = inp = Inputs(root)
-    os.environ.update(inp.env)            # the rig's passwords, for the forked cases (the sweep restores env)
+    out = []
+    for what, argv, size_kb, leave, extra in table(inputs(root)):
+        if only and not what.startswith(only):
+            continue
+
+        def make(wd: Path, argv=argv, size_kb=size_kb, leave=leave) -> list[str]:
+            disk = wd / DISK
+            _mount(disk, size_kb)
+            args = argv(wd, disk)        # may put its input on the disk first (reindex)
+            _fill(disk, leave)
+            return args
+        out.append(Case(CLASS, what, make, _judge(extra)))
+    return out
+
+
+def table(inp: Inputs) -> list[tuple]:
+    """Every writing command with good inputs, its outputs in a folder D: (what, argv(wd, D),
+    size of the disk in kB, bytes left free on it, the check of what was acquired)."""
     cfg = ["--config", inp.config]
     own = lambda wd: ["--store", f"sqlite:///{wd / 'own.sqlite'}"]   # noqa: E731
     from vts_hw.store.unsaved import FORMAT
@@ -278,7 +318,7 @@ def cases(root: Path, only: str | None = None) -> list[Case]:
                           "finished": 1.8e9 + 5, "state": "OK",
                           "measurements": [{"subject": "cam1", "metric": "drift_x_px", "value": 0.1, "unit": "px",
                                             "state": "OK"}]})
-    table = [
+    return [
         # (what, argv(wd, D), size kB, bytes left free, extra check)
         ("camera snapshot", lambda wd, D: ["camera", "snapshot", "cam1", "-o", f"{D}/a.jpg", *cfg], 64, 0, None),
         ("camera record, the disk full before the first frame",
@@ -317,19 +357,6 @@ def cases(root: Path, only: str | None = None) -> list[Case]:
         ("sim up (foreground)", lambda wd, D: ["sim", "up", "--dir", f"{D}/sim"], 64, 0, None),
         ("demo", lambda wd, D: ["demo", "-o", f"{D}/demo", "--days", "1"], 64, 0, None),
     ]
-    out = []
-    for what, argv, size_kb, leave, extra in table:
-        if only and not what.startswith(only):
-            continue
-
-        def make(wd: Path, argv=argv, size_kb=size_kb, leave=leave) -> list[str]:
-            disk = wd / DISK
-            _mount(disk, size_kb)
-            args = argv(wd, disk)        # may put its input on the disk first (reindex)
-            _fill(disk, leave)
-            return args
-        out.append(Case(CLASS, what, make, _judge(extra)))
-    return out
 
 
 def _write(p: Path, text: str) -> str:
