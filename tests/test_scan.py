@@ -301,32 +301,6 @@ def test_ctrl_c_stops_cleanly(plain_rig, tmp_path):
         assert len(read_index(folder / f"{name}.index.csv")) == m["cameras"][name]["frames"] >= 50
 
 
-def test_kill_9_leaves_a_session_that_reindexes(box_rig, tmp_path):
-    rig, cfg, rig_yaml = box_rig
-    folder = tmp_path / "scan"
-    _ahead(rig, 3.0)
-    p = subprocess.Popen([*VTS, "scan", "start", "--duration", "60", "-o", str(folder)], env=_env(rig, rig_yaml),
-                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    _wait_frames(folder, 60, p)
-    p.kill()
-    p.wait(timeout=10)
-    assert _manifest(folder)["status"] == "recording"
-
-    r = subprocess.run([*VTS, "recording", "reindex", str(folder)], capture_output=True, text=True, timeout=HANG_S)
-    assert r.returncode == 0, r.stderr
-    print("after kill -9, vts recording reindex:", r.stdout.strip().replace("\n", "; "))
-    m = _manifest(folder)
-    assert m["status"] == "recovered" and m["trigger"]["fired"] and m["kind"] == "scan"
-    for name in ("cam1", "cam2"):
-        rows = _frames_decode(folder, name)
-        assert len(rows) == m["cameras"][name]["frames"] >= 60
-        assert f"{name}: {len(rows)} frames indexed" in r.stdout
-        assert all(row.camera_time is not None for row in rows)
-        # the bytes after the last indexed frame, if any, are one torn frame at most
-        size = (folder / f"{name}.mjpeg").stat().st_size
-        assert size == rows[-1].offset + rows[-1].length or m["cameras"][name]["torn_at_end"] == 1
-
-
 def test_dry_run_touches_nothing(box_rig, tmp_path):
     rig, cfg, rig_yaml = box_rig
     folder = tmp_path / "scan"
