@@ -169,6 +169,7 @@ class BoxResponder:
         self.freq, self.duty, self.width, self.on, self.us = 1.0, 0.5, 100, False, 4_000_000
         self.n, self.first, self.errors, self.lines = 0, 0, [], []
         self.refuse_freq, self._pending = refuse_freq, b""
+        self.wdog = 10.0
 
     def write(self, b: bytes) -> int:
         self._pending = self.answer(b.decode().strip()).encode() + b"\n"
@@ -198,6 +199,11 @@ class BoxResponder:
             elif head == "PULSE:WIDTH":
                 self.width = int(arg)
             return "OK"
+        if head == "WDOG" and arg:
+            self.wdog = float(arg)
+            return "OK"
+        if cmd == "WDOG?":
+            return f"{self.wdog:.6f},{'OFF' if not self.wdog else 'ARMED' if self.on else 'IDLE'},0"
         if head in ("FREQ", "DUTY") and arg:
             if self.on or (self.refuse_freq and head == "FREQ"):
                 self.errors.append(-221)
@@ -224,7 +230,7 @@ def drive_box(s, ser) -> None:
     from vts_hw.drivers.trigger_box import TriggerBox
 
     box = TriggerBox("fuzz", timeout=0.1, clock=FakeClock(), sleep=lambda _s: None,
-                     serial_factory=lambda *a, **k: ser)
+                     serial_factory=lambda *a, **k: ser, heartbeat=False)   # no thread reading the script
     s.call(box.identify)
     s.call(box.status)
     s.call(box.configure, 10.0, 0.5)

@@ -32,7 +32,7 @@ def file_seeds(put, fixture, work: Path, rec_dir: Path) -> None:
     box_log = work / "box" / "trigger.csv"
     log = TriggerLog(box_log, clock=FakeClock())
     box = TriggerBox("fuzz", clock=FakeClock(), sleep=lambda _s: None, log=log,
-                     serial_factory=lambda *a, **k: BoxResponder())
+                     serial_factory=lambda *a, **k: BoxResponder(), heartbeat=False)
     q = _Quiet()
     q.call(box.configure, 10.0, 0.5)
     q.call(box.clock_mapping, 4, over_s=0.0)
