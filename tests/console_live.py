@@ -10,7 +10,7 @@ at it with.
   any `vts` command to its end.
 * ``chromium()``/the ``browser`` fixture: Debian's /usr/bin/chromium through Playwright (never
   `playwright install`), headless; ``cam``/``click_led``: a Room page's camera; ``until``: one
-  poll-until-true.
+  poll-until-true; ``wait_js``: a page's JavaScript until true (within the console's CSP).
 """
 
 from __future__ import annotations
@@ -39,6 +39,20 @@ def until(check, timeout=20.0, poll=0.05):
             return got
         time.sleep(poll)
     return check()
+
+
+def wait_js(page, js: str, arg=None, timeout: float = 30_000):
+    """``page.wait_for_function(js, arg=arg, timeout=timeout)`` without it: Playwright's polls with
+    the page's ``eval``, which the console's Content-Security-Policy forbids (no 'unsafe-eval');
+    ``page.evaluate`` is the browser's own. What ``js`` gave once true; TimeoutError after ``timeout`` ms."""
+    end = time.monotonic() + timeout / 1000
+    while True:
+        got = page.evaluate(js, arg)
+        if got:
+            return got
+        if time.monotonic() > end:
+            raise TimeoutError(f"not true within {timeout / 1000:g} s: {js}")
+        page.wait_for_timeout(100)            # (Playwright tells its events meanwhile)
 
 
 class LiveConsole:

@@ -22,7 +22,8 @@ import numpy as np
 import pytest
 import requests
 
-from console_live import cam, click_led, led_form_from_another_site, run_vts, start_console, stop_console, until
+from console_live import (cam, click_led, led_form_from_another_site, run_vts, start_console, stop_console, until,
+                          wait_js)
 from vts_hw.camera import StreamGap
 from vts_hw.drivers.registry import open_camera
 from vts_hw.sim_devices.rig import SimRig
@@ -64,8 +65,7 @@ def test_the_pictures_update_with_the_markers_drawn_where_the_scene_has_them(roo
         assert first, name
         assert until(lambda: int(cam(page, name, "e => e.querySelector('img').dataset.seq") or 0) > int(first), 30)
         assert until(lambda: cam(page, name, "e => e.dataset.live") == "yes", 10)
-    page.wait_for_function("document.querySelectorAll('section[data-camera=\"cam1\"] circle').length >= 4",
-                           timeout=30_000)
+    wait_js(page, "document.querySelectorAll('section[data-camera=\"cam1\"] circle').length >= 4", timeout=30_000)
     drawn = cam(page, "cam1", """e => {
         const img = e.querySelector('img'), r = img.getBoundingClientRect();
         const W = img.naturalWidth, H = img.naturalHeight, s = Math.min(r.width / W, r.height / H);

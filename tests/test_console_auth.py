@@ -368,11 +368,12 @@ def test_off_this_machine_without_users_or_https_it_is_refused_before_anything_i
         assert info.value.exit_code == 2 and "\n" not in str(info.value)
         return str(info.value)
     assert "needs users and login over HTTPS" in refused(empty, host="0.0.0.0")
-    said = refused(empty, host="0.0.0.0", certfile=str(cert), keyfile=str(key))
+    said = refused(empty, host="0.0.0.0", certfile=str(cert), keyfile=str(key), server_names=("vts.example",))
     assert "has no console user who may log in" in said and "vts console user add" in said
-    assert "no console user" in refused(empty, host="192.168.1.20", behind_proxy=True)
-    assert "no console user" in refused(tmp_path / "left.sqlite", host="0.0.0.0", behind_proxy=True)   # disabled
-    assert "could not be read" in refused(gone, host="0.0.0.0", behind_proxy=True)
+    proxied = {"behind_proxy": True, "server_names": ("vts.example",)}
+    assert "no console user" in refused(empty, host="192.168.1.20", proxy="192.168.1.1", **proxied)
+    assert "no console user" in refused(tmp_path / "left.sqlite", host="127.0.0.1", **proxied)   # disabled
+    assert "could not be read" in refused(gone, host="127.0.0.1", **proxied)
     assert not gone.exists()                                             # and nothing was created
     assert refused(empty, host="127.0.0.1", login=True).startswith("refused to require a login")
     assert "go together" in refused(empty, host="0.0.0.0", certfile=str(cert))
@@ -382,7 +383,7 @@ def test_off_this_machine_without_users_or_https_it_is_refused_before_anything_i
                         "password_env: CAM1_PW}\n")
     env = {"VTS_STORE": f"sqlite:///{empty}", "VTS_CONFIG": str(rig_yaml)}
     for args, said in ((["--host", "0.0.0.0"], "needs users and login over HTTPS"),
-                       (["--host", "0.0.0.0", "--behind-proxy"], "has no console user who may log in"),
+                       (["--behind-proxy", "--server-name", "vts.example"], "has no console user who may log in"),
                        (["--login"], "refused to require a login")):
         p = _vts_here(["console", *args, "--port", "0"], env, capsys, monkeypatch)
         assert p.returncode == 2 and said in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr

@@ -42,7 +42,7 @@ def client(filled, tmp_path, monkeypatch):
     db, _ = filled
     monkeypatch.chdir(tmp_path)        # the console must write nothing here
     console = Console(RIG, None, None, None, open_store=lambda: ResultsStore(db, mode="read"))
-    with TestClient(create_app(console)) as c:
+    with TestClient(create_app(console), base_url="http://127.0.0.1:8040") as c:
         yield c
     assert list(tmp_path.iterdir()) == []
 
@@ -232,7 +232,7 @@ def test_a_store_that_cannot_be_read_is_said_so(tmp_path):
     def broken():
         return ResultsStore(tmp_path / "no-such-folder" / "results.sqlite", mode="read")
     console = Console(RIG, None, None, None, open_store=broken)
-    with TestClient(create_app(console)) as c:
+    with TestClient(create_app(console), base_url="http://127.0.0.1:8040") as c:
         r = c.get("/history")
         assert r.status_code == 503 and "the results store could not be read" in r.text and "Traceback" not in r.text
         assert c.get("/history/run/1").status_code == 503
@@ -246,7 +246,7 @@ def test_history_in_chromium(filled, tmp_path):
     """`vts console` as users run it, its store the filled one; Chromium opens the Room page,
     follows History, filters by a procedure and a state (the URL says so), opens a run and sees
     its plot loaded and its measures."""
-    from console_live import chromium, start_console, stop_console
+    from console_live import chromium, start_console, stop_console, wait_js
     from vts_hw.sim_devices.rig import SimRig
 
     db, ids = filled
@@ -269,8 +269,8 @@ def test_history_in_chromium(filled, tmp_path):
                 assert pg.inner_text("table.runs tbody tr .st") == "OK"
                 pg.click(f'tr[data-run="{ids["sync"]}"] td a >> nth=0')
                 pg.wait_for_url(f"**/history/run/{ids['sync']}")
-                pg.wait_for_function("() => { const i = document.querySelector('img.plot');"
-                                     " return i && i.complete && i.naturalWidth > 0; }", timeout=15000)
+                wait_js(pg, "() => { const i = document.querySelector('img.plot');"
+                            " return i && i.complete && i.naturalWidth > 0; }", timeout=15000)
                 assert pg.eval_on_selector("img.plot", "i => i.naturalWidth") == 240
                 assert "12" in pg.inner_text('tr[data-metric="sync_max_abs_dt_ms"] td.num')
                 color = pg.eval_on_selector("#run-state", "e => getComputedStyle(e).backgroundColor")

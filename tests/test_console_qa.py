@@ -24,7 +24,7 @@ import time
 import pytest
 import requests
 
-from console_live import qa_rig_yaml, served_room, start_console, stop_console, until
+from console_live import qa_rig_yaml, served_room, start_console, stop_console, until, wait_js
 from vts_hw.config import load_rig
 from vts_hw.drivers.registry import open_cameras
 from vts_hw.sim_devices.rig import SimRig
@@ -57,7 +57,7 @@ def qa_page(browser, qa_room):
     served.console.qa_jobs.wait(QA_S)      # a test starts with no QA running (one that timed out is not left to the next)
     pg = browser.new_page(viewport={"width": 1366, "height": 768})
     pg.goto(served.url + "qa")
-    pg.wait_for_function("document.getElementById('r-facts').textContent !== 'reading the results store…'")
+    wait_js(pg, "document.getElementById('r-facts').textContent !== 'reading the results store…'")
     # every progress line and every sentence the page shows, as it shows them
     pg.evaluate("""() => { for (const [id, name] of [['p-line', 'seen'], ['said', 'saids']]) {
         window[name] = []; const e = document.getElementById(id);
@@ -78,7 +78,7 @@ def baselined(qa_room):
 
 def said(page, contains, timeout=QA_S * 1000):
     """The first sentence the page said (since it opened) that holds ``contains``."""
-    page.wait_for_function("t => window.saids.some(s => s.includes(t))", arg=contains, timeout=timeout)
+    wait_js(page, "t => window.saids.some(s => s.includes(t))", contains, timeout)
     return page.evaluate("t => window.saids.find(s => s.includes(t))", contains)
 
 
@@ -186,8 +186,8 @@ def test_the_daily_qa_runs_from_the_page_and_the_hub_steps_aside(qa_room, baseli
             assert page.eval_on_selector(f"{card} h3 .st", "e => getComputedStyle(e).backgroundColor") == "rgb(220, 252, 231)"
             row = page.inner_text(f'{card} tr[data-metric="drift_x_px"]')
             assert "px" in row and "OK within ±1" in row and "ACTION beyond ±2 px" in row, row
-            page.wait_for_function("c => { const i = document.querySelector(c + ' img.drift');"
-                                   " return i && i.complete && i.naturalWidth > 0; }", arg=card, timeout=120_000)
+            wait_js(page, "c => { const i = document.querySelector(c + ' img.drift');"
+                          " return i && i.complete && i.naturalWidth > 0; }", card, 120_000)
         assert page.get_attribute("#history-link", "href") == f"/history/run/{run_id}"
         with ResultsStore(db, mode="read") as store:
             stored = {(m.subject, m.metric) for m in store.measurements(run_id=run_id)}
@@ -251,7 +251,7 @@ def test_the_push_shows_refused_with_qatracks_sentence_then_sent(qa_room, baseli
     page.click("#push")
     said(page, f"QATrack+: {len(daily)} of {len(daily)} sent")
     assert {r.get_attribute("data-state") for r in page.query_selector_all("#push-rows li")} == {"sent"}
-    page.wait_for_function("document.getElementById('r-push').dataset.state === 'sent'")
+    wait_js(page, "document.getElementById('r-push').dataset.state === 'sent'")
     with ResultsStore(db, mode="read") as store:
         assert {i.run_id: i.state for i in store.outbox_items("qatrack")} == {r: "sent" for r in daily}
     assert site.posts == len(daily)

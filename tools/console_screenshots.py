@@ -76,12 +76,13 @@ QA_READY = ("[...document.querySelectorAll('img.drift')].length === 2 && "
 def daily_qa(st: Stage, page) -> None:
     """The Daily QA page: the daily QA run from it (on the stage's drift baselines), then pushed to
     the QATrack+ stand-in."""
+    from console_live import wait_js
     said = "t => document.getElementById('said').textContent.includes(t)"
     page.fill("#frames", "3")
     page.click("#run")
-    page.wait_for_function(said, arg="Daily QA done", timeout=120_000)
+    wait_js(page, said, "Daily QA done", 120_000)
     page.click("#push")
-    page.wait_for_function(said, arg="QATrack+: 1 of 1", timeout=120_000)
+    wait_js(page, said, "QATrack+: 1 of 1", 120_000)
 
 
 SHOTS: list[Shot] = [
@@ -127,7 +128,7 @@ def stage(folder: Path):
 
 
 def main(argv=None) -> int:
-    from console_live import chromium
+    from console_live import chromium, wait_js
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "console", help="where the PNGs go")
@@ -151,7 +152,7 @@ def main(argv=None) -> int:
             page.goto(st.live.url.rstrip("/") + path)
             if shot.act is not None:
                 shot.act(st, page)
-            page.wait_for_function(shot.ready, timeout=a.timeout * 1000)
+            wait_js(page, shot.ready, timeout=a.timeout * 1000)
             page.wait_for_timeout(500)            # the next picture and its markers drawn
             page.screenshot(path=str(a.out / shot.file))
             page.close()

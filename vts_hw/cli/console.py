@@ -16,8 +16,8 @@ from vts_hw.errors import UsageError
 @config_option
 @click.option("--host", default="127.0.0.1", show_default=True,
               help="Address to serve on. Off this machine (not 127.0.0.1, ::1, localhost) the console needs "
-                   "users in the results store (`vts console user add`) and HTTPS: --certfile/--keyfile, or "
-                   "--behind-proxy; else it is refused (exit 2).")
+                   "users in the results store (`vts console user add`) and HTTPS: --certfile/--keyfile, or a TLS "
+                   "reverse proxy at --proxy ADDR; else it is refused (exit 2).")
 @click.option("--port", type=click.IntRange(0, 65535), default=8040, show_default=True,
               help="Port to serve on (0: any free one; the address is printed).")
 @click.option("--login", is_flag=True,
@@ -27,21 +27,32 @@ from vts_hw.errors import UsageError
 @click.option("--keyfile", type=click.Path(dir_okay=False), default=None,
               help="The certificate's PEM private key, unencrypted (with --certfile).")
 @click.option("--behind-proxy", is_flag=True,
-              help="A TLS reverse proxy (nginx, Caddy) serves the console to others: login required, the "
-                   "session cookie Secure, the proxy's X-Forwarded-Proto trusted (from 127.0.0.1, or "
-                   "$FORWARDED_ALLOW_IPS).")
+              help="A TLS reverse proxy (nginx, Caddy) on this machine serves the console to others: --host "
+                   "stays on loopback, login required, the session cookie Secure, the proxy's X-Forwarded-For/-Proto "
+                   "trusted from this machine only. Needs --server-name.")
+@click.option("--proxy", "proxy", metavar="ADDR", default=None,
+              help="The TLS reverse proxy is at IP address ADDR (another computer): the console serves plain HTTP "
+                   "to it and to this machine only (every other address refused), its X-Forwarded-* trusted from "
+                   "ADDR only. Implies --behind-proxy.")
+@click.option("--server-name", "server_names", metavar="NAME[:PORT]", multiple=True,
+              help="A name (or address) the browsers reach the console by, besides 127.0.0.1, localhost, ::1, "
+                   "--host and the certificate's names; the console answers no other (DNS rebinding). Behind a "
+                   "proxy: the proxy's name (:PORT when not 443). Repeat for more.")
 @click.option("--session-idle", type=PositiveSeconds(), default=None,
               help="End a session after this many seconds without a request from any of its pages "
                    "[default: 900, 15 min].")
 @click.option("--session-max", type=PositiveSeconds(), default=None,
               help="End every session this many seconds after its login [default: 43200, 12 h].")
-@click.option("--scans-dir", type=click.Path(file_okay=False), default=".", show_default=True,
+@click.option("--scans-dir", type=click.Path(file_okay=False), default=None,
               help="Folder the Scan page's scans go into, each a new scan-YYYYmmddTHHMMSSZ folder as `vts scan "
-                   "start` names it; the motion report and exports go into the scan's folder.")
+                   "start` names it; the motion report and exports go into the scan's folder. A folder of scans "
+                   "only: one holding anything else (a rig.yaml, a *.env, a store) is refused (exit 2); a new one "
+                   "is created 0700. [default: scans/ beside the per-user results store, "
+                   "~/.local/share/vts-hw/scans]")
 @click.pass_context
 def console(ctx: click.Context, config_path: str | None, host: str, port: int, login: bool, certfile: str | None,
-            keyfile: str | None, behind_proxy: bool, session_idle: float | None, session_max: float | None,
-            scans_dir: str) -> None:
+            keyfile: str | None, behind_proxy: bool, proxy: str | None, server_names: tuple[str, ...],
+            session_idle: float | None, session_max: float | None, scans_dir: str | None) -> None:
     """Serve the room console: a web page of the room's cameras, live.
 
     The Room page shows every camera's live picture with the markers found on it (named where
@@ -59,9 +70,13 @@ def console(ctx: click.Context, config_path: str | None, host: str, port: int, l
     results store (`vts console user add`); operators run scans, the daily QA and the LEDs,
     acknowledge alerts and push; physicists also set baselines, calibrations and tolerances.
     Every action is logged in the store with who and when (History, "Who did what").
-    Refused in one sentence, exit 2, before anything starts: another --host without
-    --certfile/--keyfile or --behind-proxy, a login asked for with no user in the store, a
-    certificate or key that is not one. README: "Console users and HTTPS".
+    Refused in one sentence, exit 2, before anything starts: another --host in plain HTTP
+    (without --certfile/--keyfile, or --proxy ADDR: a login never travels in clear off this
+    machine), --behind-proxy without --server-name, 0.0.0.0 with no name to answer to, a login
+    asked for with no user in the store, a certificate or key that is not one, a --scans-dir
+    that holds anything but scans. The console answers only the names it serves under (others:
+    HTTP 400) and takes a POST only from its own pages. README: "Console users and HTTPS";
+    docs/security.md.
     """
     if ctx.invoked_subcommand is not None:
         return
@@ -69,7 +84,8 @@ def console(ctx: click.Context, config_path: str | None, host: str, port: int, l
     from vts_hw.console.serve import check_host, serve
     from vts_hw.store import ResultsStore
 
-    check_host(host, certfile=certfile, keyfile=keyfile, behind_proxy=behind_proxy)
+    check_host(host, certfile=certfile, keyfile=keyfile, behind_proxy=behind_proxy, proxy=proxy,
+               server_names=server_names)
     rig = load_rig(config_path)
     target = store_target(rig)
 
@@ -81,7 +97,7 @@ def console(ctx: click.Context, config_path: str | None, host: str, port: int, l
 
     serve(rig, host=host, port=port, open_store=open_store, open_write_store=open_write_store, login=login,
           behind_proxy=behind_proxy, certfile=certfile, keyfile=keyfile, session_idle_s=session_idle,
-          session_max_s=session_max, scans_dir=scans_dir,
+          session_max_s=session_max, scans_dir=scans_dir, proxy=proxy, server_names=server_names,
           on_ready=lambda url: click.echo(f"room console of rig {rig.rig}: open {url} (Ctrl-C stops it)"))
     click.echo("room console stopped")
 

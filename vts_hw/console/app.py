@@ -8,9 +8,15 @@ second, ``room`` (what each camera is doing, its LED, clock offset and daily QA)
 fetches a picture (``GET /frame/{camera}``: the camera's own JPEG bytes, never re-encoded) when
 it is told of one and has shown the last: one picture in flight per camera, so a slow browser
 sees fewer pictures and asks nothing more of the hub. Every POST must come from the console's
-own page: the Origin (when the browser sends one) must be this server's, and the page's token
-must be in the ``X-Console-Token`` header (guard.py). With users (``console.auth``), every
-request but the login page's needs a session (login.py's ``SessionDoor``).
+own page: the Origin (when the browser sends one) must be one of the console's own, and the
+page's token must be in the ``X-Console-Token`` header (guard.py). With users
+(``console.auth``), every request but the login page's needs a session (login.py's
+``SessionDoor``).
+
+In front of every route (static files, event streams and the login page included), outermost
+first: the security headers (headers.py), with ``--proxy`` the peer gate and the proxy's
+X-Forwarded-* (hosts.py, uvicorn's ProxyHeadersMiddleware), the Host gate (hosts.py: only the
+names the console serves under, ``Console.reach``), then the session door.
 """
 
 from __future__ import annotations
@@ -32,6 +38,8 @@ from vts_hw import __version__
 from vts_hw.console import guard
 from vts_hw.console.actions import MemoryActions
 from vts_hw.console.answers import refused_input, unexpected
+from vts_hw.console.headers import SecurityHeaders
+from vts_hw.console.hosts import HostGate, PeerGate, Reach
 from vts_hw.console.inputs import BadInput, StrictRequests
 from vts_hw.console.sessions import current
 from vts_hw.console.web import event_stream, no_camera, sse, switch_asked, wanted_cameras
@@ -45,7 +53,7 @@ class Console:
     """What the pages need: the hub, the marker worker, the room's facts, the rig (its name, its config)."""
 
     def __init__(self, rig_name: str, hub, markers, facts, *, token: str | None = None, open_store=None,
-                 actions=None, auth=None, rig_config=None, scans_dir=None):
+                 actions=None, auth=None, rig_config=None, scans_dir=None, reach: Reach | None = None):
         self.rig_name = rig_name
         #: the RigConfig the pages that run procedures run them on (Daily QA, Scan, aim checks);
         #: None: those pages say the console was started without one
@@ -66,6 +74,8 @@ class Console:
         self.actions = actions if actions is not None else MemoryActions(rig_name)
         #: users and sessions (sessions.Auth); None: no users, the person here is ``local``
         self.auth = auth
+        #: the names the console answers to, its POSTs' origins, its proxy (hosts.py)
+        self.reach = reach if reach is not None else Reach.local()
 
     @property
     def token(self) -> str:
@@ -162,9 +172,18 @@ def create_app(console: Console) -> Starlette:
               *scan_routes(console, templates),
               *aim_routes(console, templates),         # the Room page's aim & focus (aim_checks.py)
               Mount("/static", StaticFiles(directory=str(HERE / "static")), name="static")]
-    return Starlette(routes=routes,      # inputs.py: no parameter twice, no body too large
-                     middleware=[Middleware(SessionDoor, console=console), Middleware(StrictRequests)],
-                     exception_handlers={BadInput: refused_input, Exception: unexpected})   # answers.py
+    reach = console.reach
+    middleware = [Middleware(SecurityHeaders)]
+    if reach.proxied:
+        from uvicorn.middleware.proxy_headers import ProxyHeadersMiddleware
+        middleware += [Middleware(PeerGate, reach=reach),
+                       Middleware(ProxyHeadersMiddleware, trusted_hosts=reach.trusted_proxies())]
+    middleware += [Middleware(HostGate, reach=reach), Middleware(SessionDoor, console=console),
+                   Middleware(StrictRequests)]      # inputs.py: no parameter twice, no body too large
+    app = Starlette(routes=routes, middleware=middleware,   # answers.py: one sentence, never a traceback
+                    exception_handlers={BadInput: refused_input, Exception: unexpected})
+    app.state.reach = reach             # guard.same_origin's origins
+    return app
 
 
 __all__ = ["Console", "create_app"]

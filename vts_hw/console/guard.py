@@ -2,12 +2,13 @@
 
 One door for the pages (docs/decisions/0060-room-console.md, 0063-console-users.md): a POST
 is served only when it comes from the console's own page (the Origin, when the browser sends
-one, is this server's, and the page's token is in the ``X-Console-Token`` header) and, when the
-console has users (``console.auth.required``), when the request's session (login.py's
-middleware found it from the cookie) belongs to a user whose role the action needs. With
-users, the token is the session's own (``Console.token`` gives it to the page being rendered).
-On 127.0.0.1 without users the person at the console is ``local`` and may do everything (the
-machine's login is the check).
+one, is one of the console's own: ``same_origin``, hosts.py; and the page's token is in the
+``X-Console-Token`` header) and, when the console has users (``console.auth.required``), when
+the request's session (login.py's middleware found it from the cookie) belongs to a user whose
+role the action needs. With users, the token is the session's own (``Console.token`` gives it
+to the page being rendered). On 127.0.0.1 without users the person at the console is ``local``
+and may do everything (the machine's login is the check: on a computer shared with other
+people, start it with --login; docs/security.md).
 
 Roles: ``operator`` (scans, daily QA, the LED, acknowledging alerts, pushing to QATrack+) and
 ``physicist`` (also baselines, calibration, tolerances, sign-off). ``ROLE_RANK`` orders them.
@@ -16,9 +17,12 @@ Roles: ``operator`` (scans, daily QA, the LED, acknowledging alerts, pushing to 
 from __future__ import annotations
 
 import secrets
+from urllib.parse import urlsplit
 
 from starlette.requests import Request
 from starlette.responses import JSONResponse, Response
+
+from vts_hw.console.hosts import Reach
 
 OPERATOR = "operator"
 PHYSICIST = "physicist"
@@ -27,13 +31,32 @@ LOCAL_USER = "local"
 
 
 def same_origin(request: Request) -> str:
-    """'' when a POST may be served; else why not (one sentence)."""
+    """'' when a POST may be served; else why not (one sentence). The Origin must be one of the
+    console's own (hosts.Reach.origin_ok: its names, the port the request came in on, or a
+    --server-name's through the proxy), never just the request's own Host (which whoever makes
+    the request sets); without an Origin, the Referer's origin the same, and a Sec-Fetch-Site
+    other than same-origin is refused. A request with none of these (not a browser's) passes on
+    to the token check."""
+    reach = getattr(request.app.state, "reach", None) if "app" in request.scope else None
+    reach = reach if reach is not None else Reach.local()
+    port = (request.scope.get("server") or (None, None))[1]
     origin = request.headers.get("origin")
-    host = request.headers.get("host", "")
-    if origin is not None and origin != f"{request.url.scheme}://{host}":
-        return f"refused: a request from another site ({origin})"
-    if origin is None and request.headers.get("sec-fetch-site", "same-origin") not in ("same-origin", "none"):
+    if origin is not None:
+        if not reach.origin_ok(origin, port):
+            return f"refused: a request from another site ({origin[:80]})"
+        return ""
+    site = request.headers.get("sec-fetch-site")
+    if site is not None and site not in ("same-origin", "none"):
         return "refused: a request from another site"
+    referer = request.headers.get("referer")
+    if referer is not None:
+        try:
+            parts = urlsplit(referer)
+            from_ = f"{parts.scheme}://{parts.netloc}"
+        except ValueError:
+            from_ = ""
+        if not reach.origin_ok(from_, port):
+            return "refused: a request from another site (its Referer)"
     return ""
 
 

@@ -13,9 +13,11 @@ acknowledge its alerts, then analyse its motion (as `vts motion analyze`) in one
   with a sentence, nothing started), and it is recorded with ``console.actions.record`` (who,
   what). A scan's start is recorded with its outcome, by the scan's worker (scan_run.py):
   ``scan started`` once it records, ``scan not started`` and why when it could not.
-* ``GET /scan/files/{scan}/{path}``: a file of a scan folder (the motion report, plot and
-  exports), only a regular file inside that folder of the console's scans folder (resolved:
-  no ``..``, no link out of it), else 404.
+* ``GET /scan/files/{scan}/{n}``: output number ``n`` of the motion analysis of the scan
+  ``scan`` (the report, the plot, the exports: the files the analysis wrote and listed, as the
+  page lists them), by number: no path is ever taken from the URL; only while that scan is the
+  page's, and only a regular file inside the scan's folder (resolved: no link out of it),
+  else 404. docs/decisions/0079-console-network.md.
 
 The scan and the analysis run in worker threads (scan_run.py, scan_analysis.py); the event
 loop only reads their state. docs/decisions/0065-console-scan.md.
@@ -242,29 +244,32 @@ def scan_routes(console, templates):
     async def file(request: Request):
         if desk is None:
             return no_desk()
-        path = inside(desk.scans, request.path_params["scan"], request.path_params["path"])
+        run, job, n = desk.run, desk.job, request.path_params["n"]
+        path = None
+        if run is not None and job is not None and run.folder.name == request.path_params["scan"] \
+                and job.state == "done" and n < len(job.files) and not run.folder.is_symlink():
+            path = inside(run.folder, job.files[n])
         if path is None:
             return PlainTextResponse("no such file in that scan", status_code=404)
-        return FileResponse(path, headers={"Cache-Control": "no-store"})
+        return FileResponse(path, filename=path.name, content_disposition_type="inline")
 
     return [Route("/scan", page), Route("/scan/state", state), Route("/scan/events", events),
             Route("/scan/start", start, methods=["POST"]), Route("/scan/stop", stop, methods=["POST"]),
             Route("/scan/alert/{alert}/ack", ack, methods=["POST"]),
             Route("/scan/analyse", analyse, methods=["POST"]),
-            Route("/scan/files/{scan}/{path:path}", file)]
+            Route("/scan/files/{scan}/{n:int}", file)]
 
 
-def inside(scans: Path, scan: str, rel: str) -> Path | None:
-    """The regular file ``rel`` of the scan folder ``scan`` of ``scans``; None when it is not one
-    (a name with a separator, ``..``, a link leading out of the folder, no such file)."""
-    if not scan or "/" in scan or "\\" in scan or scan in (".", ".."):
-        return None
+def inside(folder: Path, rel: str) -> Path | None:
+    """The regular file ``rel`` (a path the console wrote, relative to ``folder``) inside
+    ``folder``; None when it is not one (no such file, not a regular file, ``..`` or a link
+    leading out of the folder)."""
     try:
-        folder = (scans / scan).resolve(strict=True)
-        path = (folder / rel).resolve(strict=True)
-    except (OSError, RuntimeError):
+        root = Path(folder).resolve(strict=True)
+        path = (root / rel).resolve(strict=True)
+    except (OSError, RuntimeError, ValueError):
         return None
-    if folder.parent != scans.resolve() or not path.is_relative_to(folder) or not path.is_file():
+    if not path.is_relative_to(root) or not path.is_file():
         return None
     return path
 

@@ -17,6 +17,8 @@ import ssl
 import threading
 import time
 
+from vts_hw.console.hosts import WILDCARD_HOSTS, Reach
+from vts_hw.console.scans_folder import scans_folder
 from vts_hw.errors import UsageError
 
 LOOPBACK_NAMES = ("localhost",)
@@ -38,22 +40,37 @@ def is_loopback(host: str) -> bool:
 
 
 def check_host(host: str, *, certfile: str | None = None, keyfile: str | None = None,
-               behind_proxy: bool = False) -> None:
-    """What can be refused from the command line alone (before the store or the rig is read):
-    --certfile without --keyfile, a certificate or key that is not one (check_tls), and serving
-    off this machine in plain HTTP."""
+               behind_proxy: bool = False, proxy: str | None = None, server_names=()) -> Reach:
+    """What can be refused from the command line alone (before the store or the rig is read), in
+    one sentence each (exit 2): --certfile without --keyfile, a certificate or key that is not one
+    (check_tls); plain HTTP anywhere but on this machine and to the proxy (a login never travels
+    in clear: off this machine HTTPS, or a TLS proxy on this machine, or --proxy ADDR, the only
+    other computer served); a bad --proxy or --server-name; behind a proxy without the name the
+    browsers reach it under; on every address (0.0.0.0) without any name to answer to. The names
+    and origins the console then answers to (hosts.Reach)."""
     if bool(certfile) != bool(keyfile):
         raise UsageError("--certfile and --keyfile go together: give both (the certificate and its private key)")
-    check_tls(certfile, keyfile)
-    if not is_loopback(host) and not certfile and not behind_proxy:
-        raise NotOnLoopback(f"refused to serve the console on {host}: off this machine it needs users and login "
-                            f"over HTTPS: give --certfile and --keyfile, or serve it behind a TLS reverse proxy "
-                            f"and say --behind-proxy (README: Console users and HTTPS)")
+    tls = check_tls(certfile, keyfile)
+    reach = Reach.build(host, certfile=certfile if tls else None, server_names=server_names,
+                        behind_proxy=behind_proxy, proxy=proxy)
+    if not is_loopback(host) and not tls and reach.proxy is None:
+        raise NotOnLoopback(f"refused to serve the console on {host} in plain HTTP: off this machine it needs users "
+                            f"and login over HTTPS: give --certfile and --keyfile, or serve it behind a TLS reverse "
+                            f"proxy on this machine (a loopback --host and --behind-proxy) or at --proxy ADDR "
+                            f"(README: Console users and HTTPS)")
+    if reach.proxied and not reach.served_as:
+        raise UsageError("refused: behind a proxy the console needs the name the browsers reach the proxy under: "
+                         "give --server-name NAME (NAME:PORT when not 443)")
+    if host in WILDCARD_HOSTS and not reach.off_loopback_names():
+        raise NotOnLoopback(f"refused to serve the console on every address ({host}) with no name to answer to from "
+                            f"other computers: give --server-name NAME (the name or address they reach this one "
+                            f"by), or a certificate naming it")
+    return reach
 
 
 def login_required(host: str, login: bool = False, behind_proxy: bool = False) -> bool:
     """Whether the pages need a login: off this machine, behind a proxy (reached from elsewhere
-    through it), or asked for with --login."""
+    through it; --proxy counts as --behind-proxy), or asked for with --login."""
     return bool(login or behind_proxy or not is_loopback(host))
 
 
@@ -157,15 +174,18 @@ def _auth(host, login, behind_proxy, tls, open_store, session_idle_s, session_ma
 def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, open_write_store=None,
           on_ready=None, idle_close_s: float | None = None, marker_hz: float | None = None, login: bool = False,
           behind_proxy: bool = False, certfile: str | None = None, keyfile: str | None = None,
-          session_idle_s: float | None = None, session_max_s: float | None = None, scans_dir=None) -> None:
+          session_idle_s: float | None = None, session_max_s: float | None = None, scans_dir=None,
+          proxy: str | None = None, server_names=()) -> None:
     """Serve the console of ``rig`` (a RigConfig) on ``host:port`` until Ctrl-C (or SIGTERM),
     then close every stream and camera and return. ``open_store()`` gives the results store
     read-only (None: the page says there is none), ``open_write_store()`` the same store to
     append the action log to (None: actions kept in memory); ``on_ready(url)`` is told once it
     listens. Off this machine (or with ``login``/``behind_proxy``) the store must hold users
     and (off this machine) HTTPS be given (``certfile``/``keyfile``) or a proxy said: refused
-    (UsageError, exit 2) before anything is bound or opened otherwise. ``scans_dir``: the folder
-    the Scan page's scans go into (default: the working directory, as `vts scan start`)."""
+    (UsageError, exit 2) before anything is bound or opened otherwise (check_host: plain HTTP only
+    on this machine or to the ``proxy``; ``server_names``: names answered besides the loopback
+    ones, ``host`` and the certificate's). ``scans_dir``: the folder the Scan page's scans go
+    into, a folder of scans only (scans_folder.py; default: ``scans/`` beside the per-user store)."""
     import uvicorn
 
     from vts_hw.console.actions import MemoryActions, StoreActions
@@ -178,9 +198,11 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, op
     from vts_hw.console.sessions import USERS_EVERY_S
     from vts_hw.drivers.registry import open_cameras
 
-    check_host(host, certfile=certfile, keyfile=keyfile, behind_proxy=behind_proxy)
-    tls = check_tls(certfile, keyfile)
-    auth = _auth(host, login, behind_proxy, tls, open_store, session_idle_s, session_max_s)
+    reach = check_host(host, certfile=certfile, keyfile=keyfile, behind_proxy=behind_proxy, proxy=proxy,
+                       server_names=server_names)
+    tls = reach.tls
+    auth = _auth(host, login, reach.proxied, tls, open_store, session_idle_s, session_max_s)
+    scans = scans_folder(scans_dir)
     sock = bind(host, port)
     cameras = {c.name: c for c in open_cameras(rig.cameras)}
     hub = FramesHub(cameras, idle_close_s=IDLE_CLOSE_S if idle_close_s is None else idle_close_s)
@@ -191,7 +213,7 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, op
     actions = (StoreActions(open_write_store, open_store, rig.rig) if open_write_store is not None and open_store
                else MemoryActions(rig.rig))
     console = Console(rig.rig, hub, markers, facts, open_store=open_store, actions=actions, auth=auth,
-                      rig_config=rig, scans_dir=scans_dir)
+                      rig_config=rig, scans_dir=scans, reach=reach)
     stop_facts = threading.Event()
 
     def keep_facts():
@@ -212,8 +234,10 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, op
 
     facts_thread = threading.Thread(target=keep_facts, name="console-facts", daemon=True)
     facts_thread.start()
+    # the proxy's X-Forwarded-* are taken by the app (create_app: from the proxy only), never by uvicorn
+    # ($FORWARDED_ALLOW_IPS would widen it); no Server header
     config = uvicorn.Config(create_app(console), log_level="warning", access_log=False,
-                            timeout_graceful_shutdown=2, lifespan="off", proxy_headers=behind_proxy,
+                            timeout_graceful_shutdown=2, lifespan="off", proxy_headers=False, server_header=False,
                             ssl_certfile=certfile if tls else None, ssl_keyfile=keyfile if tls else None)
     server = _Server(config, lambda: on_ready and on_ready(url_of(host, sock.getsockname()[1], tls)),
                      console.closing.set)

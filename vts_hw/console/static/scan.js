@@ -244,12 +244,12 @@
     const base = `/scan/files/${encodeURIComponent(s.folder)}/`;
     box.innerHTML = `<p><span class="st st-${a.result_state}">${a.result_state}</span> <span class="stored"></span></p><ul class="files"></ul><pre></pre>`;
     box.querySelector(".stored").textContent = a.stored + (a.not_written ? `; not written: ${a.not_written}` : "");
-    for (const f of a.files) {
+    a.files.forEach((f, i) => {       // each file by its number in the list (scan_page.py: no path in the URL)
       const li = document.createElement("li"), link = document.createElement("a");
-      link.href = base + f.split("/").map(encodeURIComponent).join("/"); link.textContent = f; link.target = "_blank";
+      link.href = base + i; link.textContent = f; link.target = "_blank";
       if (f.endsWith(".html")) link.id = "report";
       li.appendChild(link); box.querySelector(".files").appendChild(li);
-    }
+    });
     box.querySelector("pre").textContent = a.text + (a.notes.length ? "\n" + a.notes.join("\n") : "");
   }
 
