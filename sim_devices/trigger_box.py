@@ -9,7 +9,7 @@ real box (115200 baud 8N1)::
     with SimTriggerBox() as box:
         with serial.Serial(box.port, 115200, timeout=1) as s:
             s.write(b"*IDN?\\n")
-            print(s.readline())            # b'VTS,TRIGGERBOX,0000,1.0.0\\n'
+            print(s.readline())            # b'VTS,TRIGGERBOX,0000,1.1.0\\n'
         print(box.edges("OC1A")[:4])       # what the output pins did, in emulated cycles
 
 The emulator runs in real time (``speed=1``): emulated cycles are kept in step with the
