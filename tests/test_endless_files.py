@@ -63,6 +63,10 @@ def files(tmp_path_factory):
         (rec / "cam1.mjpeg").write_bytes(b"")
         (rec / "cam1.index.csv").write_text("frame,offset,length,camera_time,host_time\n")
         (rec / "manifest.json").symlink_to(target)
+    rec = d / "fifo_mjpeg"
+    rec.mkdir()
+    (rec / "cam1.index.csv").write_text("frame,offset,length,camera_time,host_time\n")
+    (rec / "cam1.mjpeg").symlink_to(fifo)
     rec = d / "zero_index"
     rec.mkdir()
     (rec / "cam1.mjpeg").write_bytes(b"")
@@ -103,6 +107,8 @@ CASES = {
     # issue 32 §3: the firmware to flash was read by intelhex without a bound (a FIFO: for ever)
     "trigger flash --hex /dev/zero --dry-run": lambda d: ["trigger", "flash", "--hex", "/dev/zero", "--dry-run"],
     "trigger flash --hex FIFO --dry-run": lambda d: ["trigger", "flash", "--hex", d / "fifo", "--dry-run"],
+    # ... and reindex opened a recording's .mjpeg that is a FIFO, and waited for ever
+    "recording reindex, .mjpeg FIFO": lambda d: ["recording", "reindex", d / "fifo_mjpeg"],
 }
 
 

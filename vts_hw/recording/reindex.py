@@ -27,6 +27,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from vts_hw.bounded import ANY_SIZE, TABLE, open_checked, read_bytes
 from vts_hw.recording.axis_jpeg import inspect_jpeg
 from vts_hw.errors import DataError, UsageError
 from vts_hw.files import WriteFailed, check_target, os_reason, write_atomic, write_json_atomic
@@ -73,8 +74,8 @@ class ReindexReport:
 
 def _read_mjpeg(path: Path):
     """The file's bytes as a read-only map (no copy of a recording of gigabytes in memory)."""
-    try:
-        with open(path, "rb") as f:
+    try:        # a regular file only: a FIFO of that name would block the open for ever (bounded.py)
+        with open_checked(path, ANY_SIZE, "recording's .mjpeg") as f:
             if os.fstat(f.fileno()).st_size == 0:
                 return b""
             return mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
@@ -141,7 +142,7 @@ def reindex_camera(folder: Path, mjpeg: Path) -> CameraReindex:
     note = ""
     if old_problem:   # a damaged index is replaced, and kept beside for whoever wants to look
         damaged = folder / f"{name}{DAMAGED_SUFFIX}"
-        write_atomic(damaged, index_path.read_bytes(), kept="the old index is unchanged")
+        write_atomic(damaged, read_bytes(index_path, TABLE, "recording index"), kept="the old index is unchanged")
         note = f"the old index was damaged ({old_problem}); it is kept as {damaged.name}"
     write_atomic(index_path, text, encoding="ascii",
                  kept="the old index is unchanged" if index_path.exists() else "no index was written")
