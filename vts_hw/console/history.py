@@ -9,8 +9,9 @@ procedure is named by its label from the catalog, never by a stored name written
   is not one of the page's own (an unknown procedure or state, a date that is not a date,
   ``from`` after ``to``, a page that is not a number or beyond what the store can hold, a
   parameter given twice) is one sentence on the page, HTTP 400 (inputs.py reads them).
-* ``GET /history/run/{id}`` (an id of 1 to 2**63-1, else 400): the run, its measures (with the tolerance window that judged each,
-  when the store has one) and its artifacts: PNG plots inline, other files to download.
+* ``GET /history/run/{id}`` (an id of 1 to 2**63-1, else 400): the run, its measures (with
+  the tolerance window that judged each, when the store has one) and its artifacts: PNG plots
+  inline, other files to download.
 * ``GET /history/run/{id}/file/{artifact_id}``: an artifact's bytes, only for an artifact the
   store lists for that run (by its id: no path is ever taken from the URL) and whose file
   exists; 404 otherwise.

@@ -179,16 +179,17 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, op
     """Serve the console of ``rig`` (a RigConfig) on ``host:port`` until Ctrl-C (or SIGTERM),
     then close every stream and camera and return. ``open_store()`` gives the results store
     read-only (None: the page says there is none), ``open_write_store()`` the same store to
-    append the action log to (None: actions kept in memory); ``on_ready(url)`` is told once it
-    listens. Off this machine (or with ``login``/``behind_proxy``) the store must hold users
-    and (off this machine) HTTPS be given (``certfile``/``keyfile``) or a proxy said: refused
+    append the action log to (both needed: its first action, ``console started``, is written
+    before any camera is opened, else refused: actions.durable_actions); ``on_ready(url)`` is
+    told once it listens. Off this machine (or with ``login``/``behind_proxy``) the store must
+    hold users and (off this machine) HTTPS be given (``certfile``/``keyfile``) or a proxy said: refused
     (UsageError, exit 2) before anything is bound or opened otherwise (check_host: plain HTTP only
     on this machine or to the ``proxy``; ``server_names``: names answered besides the loopback
     ones, ``host`` and the certificate's). ``scans_dir``: the folder the Scan page's scans go
     into, a folder of scans only (scans_folder.py; default: ``scans/`` beside the per-user store)."""
     import uvicorn
 
-    from vts_hw.console.actions import MemoryActions, StoreActions
+    from vts_hw.console.actions import durable_actions
     from vts_hw.console.app import Console, create_app
     from vts_hw.console.hub import IDLE_CLOSE_S, FramesHub
     from vts_hw.console.markers import RATE_HZ, MarkerWorker
@@ -204,14 +205,17 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, op
     auth = _auth(host, login, reach.proxied, tls, open_store, session_idle_s, session_max_s)
     scans = scans_folder(scans_dir)
     sock = bind(host, port)
+    try:        # the action log is the store's, its first action written now, before any camera opens (actions.py)
+        actions = durable_actions(open_write_store, open_store, rig.rig, url_of(host, sock.getsockname()[1], tls))
+    except BaseException:
+        sock.close()
+        raise
     cameras = {c.name: c for c in open_cameras(rig.cameras)}
     hub = FramesHub(cameras, idle_close_s=IDLE_CLOSE_S if idle_close_s is None else idle_close_s)
     names = MarkerNames()
     markers = MarkerWorker(hub, RATE_HZ if marker_hz is None else marker_hz, names,
                            phantom=PhantomNames.for_rig(names, rig))
     facts = RoomFacts(cameras, rig.rig, open_store, names=names)
-    actions = (StoreActions(open_write_store, open_store, rig.rig) if open_write_store is not None and open_store
-               else MemoryActions(rig.rig))
     console = Console(rig.rig, hub, markers, facts, open_store=open_store, actions=actions, auth=auth,
                       rig_config=rig, scans_dir=scans, reach=reach)
     stop_facts = threading.Event()
