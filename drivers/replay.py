@@ -34,7 +34,7 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from vts_hw.bounded import TABLE, check_file
+from vts_hw.bounded import ANY_SIZE, TABLE, open_bounded, open_checked
 from vts_hw.camera import ClockOffset, Frame, NoParameters, SourceEnded, kind_options
 from vts_hw.camera_stream import FrameStream
 from vts_hw.errors import ConfigError, DataError
@@ -82,7 +82,7 @@ class ReplayCamera:
         self.fps = float(fps or ((len(rows) - 1) / span if span > 0 else 25.0))
         self._t0: float | None = None   # monotonic time playback started
         self._lock = threading.Lock()
-        self._fh = open(self._mjpeg, "rb")
+        self._fh = open_checked(self._mjpeg, ANY_SIZE, "recording's .mjpeg")   # a FIFO would block the open
 
     @classmethod
     def from_config(cls, cfg, clock=time.time) -> "ReplayCamera":
@@ -219,8 +219,7 @@ def _first_times(folder: Path) -> list[float]:
     out = []
     for index in folder.glob("*.index.csv"):
         try:
-            check_file(index, TABLE, "recording index")   # a device has no end of line
-            with open(index, encoding="ascii") as fh:
+            with open_bounded(index, TABLE, "recording index", encoding="ascii") as fh:   # no device, no FIFO
                 fh.readline()
                 parts = fh.readline().strip().split(",")
             t = parts[4] or parts[3]

@@ -156,3 +156,15 @@ def test_recording_info_still_reads_a_real_capture(axis_frames):
     p = vts("recording", "info", axis_frames / "t.mjpg", "--json")
     assert p.returncode == 0, p.stderr
     assert json.loads(p.stdout)[0]["frames"] > 0
+
+
+def test_a_replay_camera_over_a_fifo_mjpeg_is_refused_not_waited_on(files, tmp_path):
+    """A recording replayed as a camera (kind replay) whose .mjpeg is a FIFO: refused in one
+    sentence (its open blocked for ever)."""
+    from vts_hw.drivers.replay import ReplayCamera
+    rec = tmp_path / "rec"
+    rec.mkdir()
+    (rec / "cam1.index.csv").write_text("frame,offset,length,camera_time,host_time\n0,0,10,1.00,1000.000000\n")
+    (rec / "cam1.mjpeg").symlink_to(files / "fifo")
+    with pytest.raises(TooLarge, match="cam1.mjpeg: not a regular file but a device, pipe or socket"):
+        ReplayCamera("cam1", rec)
