@@ -9,6 +9,7 @@ pool. Nothing a browser does can make a reader wait.
 
 from __future__ import annotations
 
+import asyncio
 import errno
 import ipaddress
 import os
@@ -23,6 +24,7 @@ from vts_hw.errors import UsageError
 
 LOOPBACK_NAMES = ("localhost",)
 FACTS_TICK_S = 2.0
+SCAN_STOP_S = 120.0     # a scan running when the console stops: closed within this (docs/decisions/0082)
 HOW_TO_ADD = "add one with `vts console user add NAME --role physicist`"
 
 
@@ -243,8 +245,18 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, op
     config = uvicorn.Config(create_app(console), log_level="warning", access_log=False,
                             timeout_graceful_shutdown=2, lifespan="off", proxy_headers=False, server_header=False,
                             ssl_certfile=certfile if tls else None, ssl_keyfile=keyfile if tls else None)
+
+    def finish_scan() -> None:
+        """A Scan-page scan still running when the console stops (Ctrl-C, SIGTERM): stopped as
+        interrupted, its wave off and its recording closed, before the server closes (uvicorn
+        raises SIGTERM again once closed, which ends the process at once)."""
+        desk = getattr(console, "scan_desk", None)
+        run = desk.run if desk is not None else None
+        if run is not None and run.thread.is_alive():
+            run.stop_and_wait("interrupted", SCAN_STOP_S)
+
     server = _Server(config, lambda: on_ready and on_ready(url_of(host, sock.getsockname()[1], tls)),
-                     console.closing.set)
+                     console.closing.set, finish_scan)
     try:
         server.run(sockets=[sock])
     except KeyboardInterrupt:          # uvicorn stops on Ctrl-C, then raises it again: stopping is the way out
@@ -262,9 +274,11 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, op
 
 class _Server:
     """uvicorn's server, telling ``ready()`` once it listens and ``stopping()`` when it begins to
-    stop (the event streams then end, rather than being cut after the grace period)."""
+    stop (the event streams then end, rather than being cut after the grace period), then waiting
+    for ``finish()`` (in a worker thread: a second Ctrl-C meanwhile is only noted by uvicorn)
+    before it closes."""
 
-    def __init__(self, config, ready, stopping):
+    def __init__(self, config, ready, stopping, finish=lambda: None):
         import uvicorn
 
         class Server(uvicorn.Server):
@@ -275,6 +289,7 @@ class _Server:
 
             async def shutdown(self, sockets=None):
                 stopping()
+                await asyncio.to_thread(finish)
                 await super().shutdown(sockets)
 
         self.server = Server(config)
