@@ -226,8 +226,7 @@ def test_bad_ports_hosts_and_configs_are_one_sentence_exit_2(room, tmp_path):
     p = run_vts(["console", "--port", str(taken)], env)
     assert p.returncode == 2 and p.stderr.strip() == (f"vts: port {taken} on 127.0.0.1 is in use by another "
                                                        f"program: give another with --port"), p.stderr
-    p = run_vts(["console", "--host", "0.0.0.0", "--port", "0"], env)
-    assert p.returncode == 2 and "login" in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
+    # (another --host: tests/test_console_network.py::test_the_command_refuses_plain_http_off_this_machine_...)
     bad = tmp_path / "rig.yaml"
     bad.write_text("rig: r\ncameras: []\n")
     p = run_vts(["console", "--config", bad, "--port", "0"], env)

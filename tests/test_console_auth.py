@@ -389,7 +389,7 @@ def test_off_this_machine_without_users_or_https_it_is_refused_before_anything_i
         assert p.returncode == 2 and said in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
 
 
-def test_a_bad_certificate_or_key_is_one_sentence_naming_the_file(tmp_path):
+def test_a_bad_certificate_or_key_is_one_sentence_naming_the_file(tmp_path, capsys, monkeypatch):
     from vts_hw.console.serve import check_tls
     cert, key = self_signed(tmp_path / "a")
     cert2, key2 = self_signed(tmp_path / "b")
@@ -409,6 +409,6 @@ def test_a_bad_certificate_or_key_is_one_sentence_naming_the_file(tmp_path):
         with pytest.raises(UsageError) as info:
             check_tls(str(c), str(k))
         assert str(info.value).startswith(said), str(info.value)
-    p = run_vts(["console", "--certfile", str(cert), "--keyfile", str(key2), "--port", "0"], dict(os.environ))
+    p = _vts_here(["console", "--certfile", str(cert), "--keyfile", str(key2), "--port", "0"], {}, capsys, monkeypatch)
     assert p.returncode == 2 and p.stderr.startswith(f"vts: {key2}: not the private key") and \
         len(p.stderr.strip().splitlines()) == 1, p.stderr
