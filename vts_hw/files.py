@@ -237,7 +237,7 @@ def open_fd(path: str | os.PathLike, *, append: bool = True, exclusive: bool = F
     except OSError as exc:
         if exc.errno in (errno.ELOOP, errno.ENXIO, errno.EISDIR, errno.EEXIST):   # changed meanwhile
             st = _lstat(path)
-            if st is not None and (exclusive or not stat.S_ISREG(st.st_mode)):
+            if st is not None and not stat.S_ISREG(st.st_mode):
                 raise NotReplaced(path, kind_of(path, st), False, kept) from None
         raise
     try:
