@@ -12,7 +12,11 @@ import stat
 
 import pytest
 
-from vts_hw.files import write_atomic
+from vts_hw.files import WriteFailed, write_atomic
+from vts_hw.sim_devices.rig import SimRig
+from vts_hw.sim_devices.tls import self_signed
+from vts_hw.store import ResultsStore
+from vts_hw.store.unsaved import save_unsaved
 
 
 def mode(path) -> int:
@@ -27,8 +31,6 @@ def umask_022():
 
 
 def test_a_new_store_its_wal_and_shm_and_its_folder_are_the_owners_only(tmp_path, umask_022):
-    from vts_hw.store import ResultsStore
-
     db = tmp_path / "vts-hw" / "results.sqlite"
     with ResultsStore(db) as store:
         store.put_user("alice", "physicist", "scrypt$a-password-hash")   # what makes it a secret
@@ -39,8 +41,6 @@ def test_a_new_store_its_wal_and_shm_and_its_folder_are_the_owners_only(tmp_path
 
 
 def test_a_store_of_ours_that_others_could_read_is_narrowed_when_opened(tmp_path, umask_022):
-    from vts_hw.store import ResultsStore
-
     db = tmp_path / "results.sqlite"
     ResultsStore(db).close()
     os.chmod(db, 0o644)                     # as vts-hw made them before
@@ -49,16 +49,12 @@ def test_a_store_of_ours_that_others_could_read_is_narrowed_when_opened(tmp_path
 
 
 def test_an_unsaved_run_is_the_owners_only(tmp_path, umask_022):
-    from vts_hw.store.unsaved import save_unsaved
-
     path, _ = save_unsaved(f"sqlite:///{tmp_path / 'store' / 'results.sqlite'}",
                            {"procedure": "drift", "started": 1.0, "measurements": []})
     assert path is not None and path.parent == tmp_path / "store" / "unsaved" and mode(path) == 0o600
 
 
 def test_sim_env_is_the_owners_only_and_an_old_wide_one_is_narrowed(tmp_path, umask_022):
-    from vts_hw.sim_devices.rig import SimRig
-
     with SimRig(n_cameras=1, seed=1) as rig:
         folder = tmp_path / "sim"
         rig.write(folder)
@@ -69,9 +65,6 @@ def test_sim_env_is_the_owners_only_and_an_old_wide_one_is_narrowed(tmp_path, um
 
 
 def test_sim_env_goes_into_no_folder_another_may_write(tmp_path, umask_022):
-    from vts_hw.files import WriteFailed
-    from vts_hw.sim_devices.rig import SimRig
-
     folder = tmp_path / "shared"
     folder.mkdir()
     os.chmod(folder, 0o777)                 # anyone may rename sim.env away and put theirs there
@@ -82,8 +75,6 @@ def test_sim_env_goes_into_no_folder_another_may_write(tmp_path, umask_022):
 
 @pytest.mark.skipif(shutil.which("openssl") is None, reason="the simulated HTTPS cameras' key is made by openssl")
 def test_the_simulated_cameras_tls_key_is_the_owners_only(tmp_path, umask_022):
-    from vts_hw.sim_devices.tls import self_signed
-
     cert, key = self_signed(tmp_path / "sim")
     assert mode(key) == 0o600 and mode(cert) == 0o644
     assert sorted(p.name for p in (tmp_path / "sim").iterdir()) == sorted([cert.name, key.name])   # no temporary copy

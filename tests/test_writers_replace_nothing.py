@@ -12,6 +12,7 @@ to write would block: every case runs under an alarm, so a hang is a failure, no
 from __future__ import annotations
 
 import os
+import secrets
 import signal
 import stat
 from pathlib import Path
@@ -20,7 +21,9 @@ import pytest
 
 from inprocess_cli import vts
 from vts_hw.errors import DataError
-from vts_hw.files import NotReplaced, open_fd, write_atomic
+from vts_hw.files import NotReplaced, WriteFailed, open_fd, write_atomic
+from vts_hw.recording.writer import Recording
+from vts_hw.save_or_keep import save_or_keep
 
 #: commands that write one file: (name, its arguments with the file T)
 FILE_WRITERS = {
@@ -142,8 +145,6 @@ def test_a_temporary_name_planted_beforehand_is_never_opened(tmp_path, monkeypat
     """Another user who may write into the folder (/tmp) plants a link at the name of the
     temporary file (it was .NAME.PID.tmp, opened with O_TRUNC: root emptied the file it points
     to). The name is random now and created exclusively: a planted one is passed over."""
-    import secrets
-
     victim = tmp_path / "victim"
     victim.write_bytes(b"root's file\n")
     target = tmp_path / "report.html"
@@ -169,9 +170,6 @@ def test_an_appending_writer_never_opens_a_fifo_or_writes_through_a_link(tmp_pat
 def test_a_recording_refuses_a_file_name_in_its_folder_that_is_not_a_regular_file(tmp_path, no_hang):
     """An appended recording whose new camera's .mjpeg is a FIFO (the append blocked on it) or a
     symbolic link (the frames went into the file it points to)."""
-    from vts_hw.files import WriteFailed
-    from vts_hw.recording.writer import Recording
-
     rec = tmp_path / "rec"
     with Recording(rec, ["cam1"]) as r:
         r.write_frame("cam1", b"\xff\xd8frame\xff\xd9", 1.0, 1.0)
@@ -189,8 +187,6 @@ def test_a_recording_refuses_a_file_name_in_its_folder_that_is_not_a_regular_fil
 
 def test_a_calibration_whose_target_is_refused_at_write_time_goes_to_the_fallback_file(tmp_path, monkeypatch):
     """save_or_keep (calibrations, mappings): the work is not lost to a target that is not a file."""
-    from vts_hw.save_or_keep import save_or_keep
-
     monkeypatch.chdir(tmp_path)
     os.mkfifo(tmp_path / "calibration.json")
     saved = save_or_keep(tmp_path / "calibration.json", "{\"rms\": 0.2}\n", "calibration")

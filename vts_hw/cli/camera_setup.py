@@ -8,6 +8,7 @@ import click
 
 from vts_hw.cli.camera import camera
 from vts_hw.cli.common import echo_json, json_option, with_rig
+from vts_hw.rig_file import check_rewritable
 
 
 @camera.command("setup")
@@ -48,7 +49,6 @@ def setup(names: tuple[str, ...], all_cameras: bool, dry_run: bool, as_json: boo
     if source is None:
         raise UsageError("the rig config was not read from a file: nowhere to write locked_params")
     if not dry_run:   # a rig.yaml that cannot be replaced is said before any camera is set
-        from vts_hw.rig_file import check_rewritable
         check_rewritable(source)
     if dry_run:
         for cfg in cfgs:
