@@ -51,6 +51,7 @@ FOLDER_WRITERS = {
     "sim up --dir": lambda t: ["sim", "up", "--dir", t],
     "motion analyze --export": lambda t: ["motion", "analyze", "session", "--export", t],
     "sync analyze --export": lambda t: ["sync", "analyze", "session", "--export", t],
+    "commission -o": lambda t: ["commission", "-o", t],
 }
 KINDS = ("char device", "FIFO", "symlink", "wrong kind")    # wrong kind: a folder for a file, a file for a folder
 AS_ROOT = os.geteuid() == 0

@@ -15,8 +15,10 @@ import click
 
 from vts_hw.cli import cli
 from vts_hw.catalog import COMMISSION_STEPS
-from vts_hw.cli.common import PositiveSeconds, config_option, positive
+from vts_hw.cli.common import OutputFolder, PositiveSeconds, config_option, positive
 from vts_hw.errors import UsageError
+from vts_hw.files import check_folder
+from vts_hw.rig_file import check_rewritable
 from vts_hw.procedures.commission import NAMES as STEP_NAMES
 from vts_hw.procedures.commission_sequence import failure_reason, run_sequence
 
@@ -74,7 +76,7 @@ def _pattern(ctx, param, value: str) -> tuple[int, int]:
 @click.option("--why", default=None, help="Why the --skip steps are left out (in the report).")
 @click.option("--sign-off", "sign_off", metavar="NAME", default=None,
               help="Who signs the commissioning off (recorded with the time in the report).")
-@click.option("-o", "--out", "out_dir", type=click.Path(file_okay=False), default=None,
+@click.option("-o", "--out", "out_dir", type=OutputFolder("commissioning folder"), default=None,
               help="Folder for what the steps write (calibration, mapping, step test, aim pictures, the report) "
                    "[default: commission-RIG].")
 @click.option("--checkerboards", multiple=True, type=click.Path(), help="Calibration: checkerboard images of the "
@@ -147,6 +149,9 @@ def commission(config_path, resume, from_step, skips, why, sign_off, out_dir, ch
     source = getattr(rig, "_source", None)
     out = Path(out_dir) if out_dir else Path(source).parent / f"commission-{rig.rig}" if source else Path(
         f"commission-{rig.rig}")
+    check_folder(out, "commissioning folder")     # the default too, before any step (decision 0081)
+    if source:
+        check_rewritable(source)                   # the steps write their results into rig.yaml
     inputs = proc.Inputs(out=out, checkerboards=tuple(checkerboards), pattern=pattern, square_mm=square_mm,
                          phantom_volume=phantom_volume, step_volumes=step_volumes, vertical=vertical, axial=axial,
                          sync_session=sync_session, listmode=tuple(listmode), frames=frames, listen_s=listen_s,
