@@ -219,6 +219,31 @@ def test_sigterm_of_a_scan_closes_it_with_the_wave_off(box_rig, tmp_path):
     _wave_stays_off(rig.trigger_box)
 
 
+def test_sigterm_of_any_command_is_ctrl_c_a_recording_closed_as_interrupted(box_rig, tmp_path):
+    """SIGTERM is Ctrl-C for every command (vts_hw/cli: `timeout`, `kill`, a service manager):
+    `vts camera record` left its manifest at 'recording' before; now it closes it, exit 130."""
+    rig, cfg, env, _ = box_rig
+    folder = tmp_path / "rec"
+    rig.prerender(8.0)
+    p = subprocess.Popen([*VTS, "camera", "record", "--all", "--seconds", "60", "-o", str(folder)], env=env,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        _until(lambda: p.poll() is not None or (folder / "manifest.json").exists() and all(
+            len(read_index(folder / f"{n}.index.csv")) >= 10 for n in ("cam1", "cam2")
+            if (folder / f"{n}.index.csv").exists()) and (folder / "cam2.index.csv").exists(), "10 frames recorded")
+        p.send_signal(signal.SIGTERM)
+        out, err = p.communicate(timeout=HANG_S)
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+    assert p.returncode == 130 and "Traceback" not in err, err[-2000:]
+    assert err.strip().splitlines()[-1] == f"vts: interrupted; what was recorded is kept in {folder}", err
+    m = load_manifest(folder)
+    assert m["status"] == "interrupted" and "unfinished" not in m      # closed by its writer, not judged dead
+    assert m["finished"] is not None
+
+
 # -- Ctrl-C (or SIGTERM) of the console during a Scan-page scan -----------------------------------
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_the_console_stopped_during_a_scan_closes_it_with_the_wave_off(box_rig, tmp_path, sig):

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import logging
 import os
+import signal
 import sys
+import threading
 
 import click
 
@@ -86,20 +89,39 @@ def command_tree(group: click.Group | None = None, path: tuple[str, ...] = ()):
             yield path + (name,), c
 
 
-def _interruptible() -> None:
-    """Ctrl-C (SIGINT) stops every command, as KeyboardInterrupt (exit 130, what was done kept),
-    even when it was started with SIGINT ignored: a background job of a non-interactive shell
-    is, and Python then installs no handler of its own (`kill -INT` would do nothing)."""
-    import signal
-    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+def _stop_on_sigterm(signum, frame):
+    raise KeyboardInterrupt(f"stopped by {signal.Signals(signum).name}")
+
+
+@contextlib.contextmanager
+def _interruptible():
+    """Ctrl-C (SIGINT) and SIGTERM (`timeout`, `kill`, a service manager) stop every command
+    alike, as KeyboardInterrupt (exit 130, what was done kept and said interrupted, the
+    hardware switched off: docs/security.md "Killed commands"), even when it was started with
+    SIGINT ignored: a background job of a non-interactive shell is, and Python then installs no
+    handler of its own (`kill -INT` would do nothing). A command may still install its own
+    (uvicorn does while it serves); the handlers are as they were once the command ends."""
+    if threading.current_thread() is not threading.main_thread():   # (signals are the main thread's)
+        yield
+        return
+    old_int, old_term = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    if old_int is signal.SIG_IGN:
         signal.signal(signal.SIGINT, signal.default_int_handler)
+    if old_term in (signal.SIG_DFL, None):
+        signal.signal(signal.SIGTERM, _stop_on_sigterm)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old_int)
+        if old_term is not None:
+            signal.signal(signal.SIGTERM, old_term)
 
 
 def main(argv=None) -> None:
     """Entry point: user errors end in one sentence and a non-zero exit, never a traceback."""
-    _interruptible()
     try:
-        cli.main(args=argv, prog_name="vts", standalone_mode=False)
+        with _interruptible():
+            cli.main(args=argv, prog_name="vts", standalone_mode=False)
     except VtsError as exc:
         click.echo(f"vts: {exc}", err=True)
         sys.exit(exc.exit_code)

@@ -4,9 +4,7 @@ report through the report door and exits."""
 
 from __future__ import annotations
 
-import contextlib
 import os
-import signal
 import sys
 import time
 from pathlib import Path
@@ -46,19 +44,6 @@ def _ask(text: str):
         return click.prompt(text, default="", show_default=False, prompt_suffix=" ", err=True)
     except click.exceptions.Abort:
         raise KeyboardInterrupt("interrupted at the prompt") from None
-
-
-@contextlib.contextmanager
-def _sigterm_as_interrupt():
-    """SIGTERM (`timeout`, a service manager, `kill`) stops the commissioning as Ctrl-C does: the
-    step under way is recorded aborted, saying so, and the exit status is 130."""
-    def handler(signum, frame):
-        raise KeyboardInterrupt(f"stopped by {signal.Signals(signum).name}")
-    old = signal.signal(signal.SIGTERM, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, old)
 
 
 def _pattern(ctx, param, value: str) -> tuple[int, int]:
@@ -157,7 +142,7 @@ def commission(config_path, resume, from_step, skips, why, sign_off, out_dir, ch
                          sync_session=sync_session, listmode=tuple(listmode), frames=frames, listen_s=listen_s,
                          interfaces=tuple(interfaces), wait=not no_wait, room_clear=room_clear)
     say = lambda m: click.echo(m, err=True)  # noqa: E731
-    with _sigterm_as_interrupt(), open_store(rig) as store:
+    with open_store(rig) as store:
         state = load_state(store, rig.rig)
         for s in state.unfinished():     # killed, interrupted or failed in it: the next start says so
             say(f"commissioning {state.cid}: its {s.label} step of {_when(s.started)} did not finish ({s.why()})")

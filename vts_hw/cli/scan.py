@@ -81,24 +81,23 @@ def start(out: str | None, duration: float | None, dry_run: bool, live: bool, re
             for i, s in enumerate(steps, 1):
                 click.echo(f"  {i}. {s.name}: {s.text}")
         return
-    with _sigterm_as_interrupt():
-        try:
-            session.start()
-        except KeyboardInterrupt:
-            with _no_interrupts():
-                session.stop("interrupted")
-            click.echo(f"vts: interrupted before the scan started"
-                       f"{f'; what was recorded is in {folder}' if session.recorder else ''}", err=True)
-            sys.exit(130)
-        reason = "error"
-        try:
-            reason = _live(session, err)
-        except KeyboardInterrupt:
-            reason = "interrupted"
-        finally:
-            with _no_interrupts():
-                err.print(f"stopping ({reason}) ...")
-                manifest = session.stop(reason)
+    try:
+        session.start()
+    except KeyboardInterrupt:
+        with _no_interrupts():
+            session.stop("interrupted")
+        click.echo(f"vts: interrupted before the scan started"
+                   f"{f'; what was recorded is in {folder}' if session.recorder else ''}", err=True)
+        sys.exit(130)
+    reason = "error"
+    try:
+        reason = _live(session, err)
+    except KeyboardInterrupt:
+        reason = "interrupted"
+    finally:
+        with _no_interrupts():
+            err.print(f"stopping ({reason}) ...")
+            manifest = session.stop(reason)
     if as_json:
         echo_json(manifest)
     else:
@@ -189,22 +188,6 @@ def _summary(folder: Path, m: dict) -> None:
 
 
 # -- signals -----------------------------------------------------------------------------------------
-
-@contextlib.contextmanager
-def _sigterm_as_interrupt():
-    """SIGTERM stops the scan as cleanly as Ctrl-C does; and Ctrl-C (SIGINT) always does, even
-    when the scan was started from a shell that left SIGINT ignored (a background job, nohup,
-    a service manager): Python then installs no KeyboardInterrupt of its own."""
-    def handler(signum, frame):
-        raise KeyboardInterrupt
-    old_term = signal.signal(signal.SIGTERM, handler)
-    old_int = signal.signal(signal.SIGINT, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, old_term)
-        signal.signal(signal.SIGINT, old_int)
-
 
 @contextlib.contextmanager
 def _no_interrupts():
