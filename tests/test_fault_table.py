@@ -66,3 +66,39 @@ def test_every_fault_the_simulated_qatrack_injects_has_a_row():
     text = _table_text()
     missing = [k for k in FAULTS if not re.search(rf"sim `[^`]*\b{re.escape(k)}\b", text)]
     assert not missing, f"docs/faults.md has no row for the QATrack+ fault(s) {missing}"
+
+
+def test_every_test_the_threat_model_names_exists():
+    """docs/security.md: each threat's test exists (``file.py::name``, ``**abbr**::name`` for a file
+    it abbreviates as "`file.py` (**abbr**)", and ``::name`` for another test of the file named
+    just before it in the same cell)."""
+    text = (REPO / "docs" / "security.md").read_text()
+    abbr = dict((a, f) for f, a in re.findall(r"`(test_\w+\.py)` \(\*\*(\w+)\*\*\)", text))
+    defined: dict[str, set[str]] = {}
+    named, header = 0, None
+    for line in text.splitlines():
+        m = ROW.match(line)
+        if not m:
+            header = None            # a table ended
+            continue
+        if set(line) <= set("|-: "):
+            continue
+        cells = [c.strip() for c in m.group(1).split("|")]
+        if header is None:
+            header = cells[0]
+            continue
+        if header != "threat":       # (the roles' table)
+            continue
+        assert len(cells) == 3, cells
+        last = None
+        for f, a, name in re.findall(r"(?:(test_\w+\.py)|\*\*(\w+)\*\*)?::(\w+)", cells[2]):
+            path = f or abbr.get(a) or last
+            assert path, f"{cells[0]}: ::{name} names no file"
+            last = path
+            if path not in defined:
+                tree = ast.parse((REPO / "tests" / path).read_text())
+                defined[path] = {n.name for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)}
+            assert name in defined[path], f"{cells[0]}: {path}::{name} does not exist"
+            named += 1
+        assert "test_" in cells[2] or "::" in cells[2], f"a threat without a test: {cells[0]}"
+    assert named >= 40, named
