@@ -60,37 +60,42 @@ def page(browser, room):
 def test_the_pictures_update_with_the_markers_drawn_where_the_scene_has_them(room, page):
     rig, url, _ = room
     click_led(page, rig, "cam1", True)         # the markers shine with the LED ring on
-    for name in ("cam1", "cam2"):
-        first = until(lambda: cam(page, name, "e => e.querySelector('img').dataset.seq"), 30)
-        assert first, name
-        assert until(lambda: int(cam(page, name, "e => e.querySelector('img').dataset.seq") or 0) > int(first), 30)
-        assert until(lambda: cam(page, name, "e => e.dataset.live") == "yes", 10)
-    wait_js(page, "document.querySelectorAll('section[data-camera=\"cam1\"] circle').length >= 4", timeout=30_000)
-    drawn = cam(page, "cam1", """e => {
-        const img = e.querySelector('img'), r = img.getBoundingClientRect();
-        const W = img.naturalWidth, H = img.naturalHeight, s = Math.min(r.width / W, r.height / H);
-        return [...e.querySelectorAll('circle')].map(c => {
-            const b = c.getBoundingClientRect();
-            return {x: +c.dataset.x, y: +c.dataset.y,
-                    // where the circle is on the screen, in the picture's pixels (object-fit: contain)
-                    sx: (b.left + b.width / 2 - r.left - (r.width - W * s) / 2) / s,
-                    sy: (b.top + b.height / 2 - r.top - (r.height - H * s) / 2) / s};
-        });
-    }""")
-    _, _, uv, visible = rig.scene.project_markers("cam1", rig.clock.now())
-    truth = uv[visible]
-    got = np.array([[d["x"], d["y"]] for d in drawn])
-    on_screen = np.array([[d["sx"], d["sy"]] for d in drawn])
-    assert len(got) == len(truth)
-    assert np.linalg.norm(got[:, None] - truth[None], axis=2).min(axis=1).max() < 1.0
-    assert np.abs(on_screen - got).max() < 1.5          # drawn over the picture where they are in it
-    labels = cam(page, "cam1", "e => [...e.querySelectorAll('svg circle')].map(c => [c.dataset.kind, c.dataset.n, "
-                               "c.nextElementSibling.textContent])")
-    assert [n for _, n, _ in labels] == [str(i + 1) for i in range(len(truth))]
-    # numbered where not known to be a wall marker, a sphere or a band's (tests/test_console_room.py names them)
-    assert all(text == f"? {n}" for kind, n, text in labels if kind == "unidentified")
-    assert "found" in cam(page, "cam1", "e => e.querySelector('.marks').textContent")
-    click_led(page, rig, "cam1", False)
+    try:
+        for name in ("cam1", "cam2"):
+            first = until(lambda: cam(page, name, "e => e.querySelector('img').dataset.seq"), 30)
+            assert first, name
+            assert until(lambda: int(cam(page, name, "e => e.querySelector('img').dataset.seq") or 0) > int(first), 30)
+            assert until(lambda: cam(page, name, "e => e.dataset.live") == "yes", 10)
+        wait_js(page, "document.querySelectorAll('section[data-camera=\"cam1\"] circle').length >= 4", timeout=30_000)
+        # (read once a picture is in place: while the next one loads, its natural size is 0)
+        drawn = until(lambda: cam(page, "cam1", """e => {
+            const img = e.querySelector('img'), r = img.getBoundingClientRect();
+            if (!img.complete || !img.naturalWidth || !img.naturalHeight) return null;
+            const W = img.naturalWidth, H = img.naturalHeight, s = Math.min(r.width / W, r.height / H);
+            return [...e.querySelectorAll('circle')].map(c => {
+                const b = c.getBoundingClientRect();
+                return {x: +c.dataset.x, y: +c.dataset.y,
+                        // where the circle is on the screen, in the picture's pixels (object-fit: contain)
+                        sx: (b.left + b.width / 2 - r.left - (r.width - W * s) / 2) / s,
+                        sy: (b.top + b.height / 2 - r.top - (r.height - H * s) / 2) / s};
+            });
+        }"""), 30)
+        assert drawn, "no picture of cam1 in place with its markers"
+        _, _, uv, visible = rig.scene.project_markers("cam1", rig.clock.now())
+        truth = uv[visible]
+        got = np.array([[d["x"], d["y"]] for d in drawn])
+        on_screen = np.array([[d["sx"], d["sy"]] for d in drawn])
+        assert len(got) == len(truth)
+        assert np.linalg.norm(got[:, None] - truth[None], axis=2).min(axis=1).max() < 1.0
+        assert np.abs(on_screen - got).max() < 1.5          # drawn over the picture where they are in it
+        labels = cam(page, "cam1", "e => [...e.querySelectorAll('svg circle')].map(c => [c.dataset.kind, c.dataset.n, "
+                                   "c.nextElementSibling.textContent])")
+        assert [n for _, n, _ in labels] == [str(i + 1) for i in range(len(truth))]
+        # numbered where not known to be a wall marker, a sphere or a band's (tests/test_console_room.py names them)
+        assert all(text == f"? {n}" for kind, n, text in labels if kind == "unidentified")
+        assert "found" in cam(page, "cam1", "e => e.querySelector('.marks').textContent")
+    finally:                                   # (the next tests expect it off)
+        click_led(page, rig, "cam1", False)
 
 
 def test_the_led_switch_switches_the_cameras_led_and_the_page_says_so(room, page):
