@@ -158,7 +158,8 @@ def cases(app):
                 yield "GET", f"{route.path}/{bad}", {}
             continue
         methods = sorted((route.methods or {"GET"}) - {"HEAD"})
-        urls = [_filled(route)] + [_filled(route, {p: v}) for p in route.param_convertors for v in NUMBERS + NAMES]
+        urls = [_filled(route)] + [_filled(route, {p: v}) for p in route.param_convertors
+                                   for v in NUMBERS + NAMES if v]     # ("": another route, e.g. /history/rooms/)
         for method in methods:
             for url in urls[1:]:
                 yield method, url, {}
@@ -250,7 +251,7 @@ def test_every_route_and_method_without_users_answers_every_bad_input_in_a_sente
 def test_every_route_and_method_with_users_answers_every_bad_input_in_a_sentence(with_users, rig):
     console, app, clients = with_users
     n = _walk(app, clients, only={"phil": "POST", "nobody": "first"})
-    assert sum(n.values()) > 1500 and n["ann", 400] > 800 and n["phil", 400] > 300      # read, not stopped at the door
+    assert sum(n.values()) > 1500 and n["ann", 400] > 600 and n["phil", 400] > 300      # read, not stopped at the door
     assert n["ann", 403] > 50 and not n["phil", 403]           # (an operator may not set a baseline)
     assert n["nobody", 401] + n["nobody", 303] >= 10 and not n["nobody", 200], n
     _nothing_started(console, rig)
@@ -267,8 +268,8 @@ def test_the_reported_inputs_are_each_one_sentence_and_start_nothing(local, rig)
     assert r.status_code == 400 and "page '99999999999999999999999' is not a page number" in html.unescape(r.text)
     assert '<form class="filters"' in r.text                          # the page, to put it right
     r = client.get("/history/run/99999999999999999999", headers=page)
-    assert r.status_code == 400 and "run id '99999999999999999999' is not a whole number from 1 to" in \
-        html.unescape(r.text)
+    assert r.status_code == 404 and ("no run '99999999999999999999': run ids are whole numbers from 1 to "
+                                     "9223372036854775807") in html.unescape(r.text)
     r = client.get("/history/run/9223372036854775807", headers=page)      # the largest id the store holds
     assert r.status_code == 404 and "there is no run 9223372036854775807" in r.text
     r = client.get("/history?state=OK&state=ACTION")

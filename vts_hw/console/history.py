@@ -9,7 +9,7 @@ procedure is named by its label from the catalog, never by a stored name written
   is not one of the page's own (an unknown procedure or state, a date that is not a date,
   ``from`` after ``to``, a page that is not a number or beyond what the store can hold, a
   parameter given twice) is one sentence on the page, HTTP 400 (inputs.py reads them).
-* ``GET /history/run/{id}`` (an id of 1 to 2**63-1, else 400): the run, its measures (with
+* ``GET /history/run/{id}`` (an id of 1 to 2**63-1, else 404): the run, its measures (with
   the tolerance window that judged each, when the store has one) and its artifacts: PNG plots
   inline, other files to download.
 * ``GET /history/run/{id}/file/{artifact_id}``: an artifact's bytes, only for an artifact the
@@ -196,7 +196,7 @@ class History:
 
     async def run_page(self, request: Request):
         try:
-            run_id = path_id(request, "run", "run id")
+            run_id = path_id(request, "run", "run")
         except BadInput as exc:
             return self._page(request, "message.html", {"message": str(exc)}, exc.status)
         try:
@@ -209,7 +209,7 @@ class History:
         return self._page(request, "history_run.html", got)
 
     async def artifact(self, request: Request):
-        run_id, aid = path_id(request, "run", "run id"), path_id(request, "artifact", "file id")
+        run_id, aid = path_id(request, "run", "run"), path_id(request, "artifact", "file")
         try:
             path = await asyncio.to_thread(self.artifact_path, run_id, aid)
         except VtsError as exc:

@@ -1,8 +1,8 @@
 """What a request brings to the console, read strictly: the one door of every route's inputs.
 
 A value a route cannot mean is a :class:`BadInput`: one sentence naming the parameter, key or
-path part, and its HTTP status (400; 413 a body too large; 414 a query too long; 415 a body
-that is not JSON), answered by answers.py (HTML for a page, else JSON). Never a 500.
+path part, and its HTTP status (400; 404 a path id that is not one; 413 a body too large; 414 a
+query too long; 415 a body that is not JSON), answered by answers.py (HTML for a page, else JSON). Never a 500.
 
 * **Every request** (:class:`StrictRequests`, ASGI middleware): each query parameter at most
   once (repeated: 400 naming it, never "the last one wins"), the query at most ``MAX_QUERY``
@@ -10,8 +10,9 @@ that is not JSON), answered by answers.py (HTML for a page, else JSON). Never a 
 * **Query values** (:func:`query_text`, :func:`query_id`, :func:`query_page`): text of bounded
   length without control characters; whole numbers of ASCII digits within what the store
   holds (SQLite and PostgreSQL: 64-bit, ``INT_MAX``) and what the page can mean.
-* **Path parts** (:func:`path_id`): ids the same way (a run, an artifact, an alert). Names (a
-  camera, a report) are checked against what exists by the route (404 with a sentence).
+* **Path parts** (:func:`path_id`): ids the same way (a run, an artifact, an alert), any other
+  text 404 (it names nothing there). Names (a camera, a report) are checked against what
+  exists by the route (404 with a sentence).
 * **JSON bodies** (:func:`json_body`): at most ``MAX_BODY`` bytes, sent as
   ``application/json``, UTF-8, no NaN/Infinity, no key twice, a JSON object, then the route's
   :class:`Body` model (pydantic): unknown keys named, types strict, numbers finite and within
@@ -129,8 +130,12 @@ def query_page(request: Request, page_size: int, name: str = "page") -> int:
 
 
 def path_id(request: Request, name: str, what: str) -> int:
-    """The id in path part ``name`` (a run, an artifact, an alert): 1 to ``INT_MAX``."""
-    return whole(str(request.path_params[name]), what)
+    """The id in path part ``name`` (a run, an artifact, an alert): 1 to ``INT_MAX``; any other
+    text names nothing there: 404, saying what an id is."""
+    text = str(request.path_params[name])
+    if not _DIGITS.fullmatch(text) or not 1 <= int(text) <= INT_MAX:
+        raise BadInput(f"no {what} {shown(text)}: {what} ids are whole numbers from 1 to {INT_MAX}", 404)
+    return int(text)
 
 
 # -- JSON bodies ----------------------------------------------------------------------------------------
