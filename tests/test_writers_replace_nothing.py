@@ -17,9 +17,12 @@ import signal
 import stat
 from pathlib import Path
 
+import click
 import pytest
 
 from inprocess_cli import vts
+from vts_hw.cli import cli
+from vts_hw.cli.common import OutputFile, OutputFolder
 from vts_hw.errors import DataError
 from vts_hw.files import NotReplaced, WriteFailed, open_fd, write_atomic
 from vts_hw.recording.writer import Recording
@@ -52,6 +55,7 @@ FOLDER_WRITERS = {
     "motion analyze --export": lambda t: ["motion", "analyze", "session", "--export", t],
     "sync analyze --export": lambda t: ["sync", "analyze", "session", "--export", t],
     "commission -o": lambda t: ["commission", "-o", t],
+    "recording process -o": lambda t: ["recording", "process", "session", "-o", t],
 }
 KINDS = ("char device", "FIFO", "symlink", "wrong kind")    # wrong kind: a folder for a file, a file for a folder
 AS_ROOT = os.geteuid() == 0
@@ -119,6 +123,37 @@ def test_a_writer_refuses_a_target_that_is_not_its_kind_and_leaves_it_as_it_was(
     assert len(lines) == 1 and lines[0].startswith("vts: ") and str(target) in lines[0], err
     assert "Traceback" not in err and out == ""
     assert state() == before               # the node, the link and what it points to, byte for byte
+
+
+#: the names of the options (and arguments) that name what a command writes
+OUTPUT_NAMES = {"-o", "--out", "--output", "--plot", "--log", "--export", "--dir"}
+#: a --dir that names what a command reads, not what it writes
+READS = {("sim", "down"): "--dir"}
+
+
+def _commands(cmd, path=()):
+    if isinstance(cmd, click.Group):
+        ctx = click.Context(cmd)
+        for name in cmd.list_commands(ctx):
+            yield from _commands(cmd.get_command(ctx, name), (*path, name))
+    else:
+        yield path, cmd
+
+
+def test_every_output_of_every_command_is_checked_when_the_command_line_is_read():
+    """The class, not the instances above: an option naming what a command writes is an
+    OutputFile or an OutputFolder (a new command's -o cannot slip past the check)."""
+    seen, plain = 0, []
+    for path, cmd in _commands(cli):
+        for p in cmd.params:
+            if not OUTPUT_NAMES & set(p.opts) or READS.get(path) in p.opts:
+                continue
+            seen += 1
+            if not isinstance(p.type, (OutputFile, OutputFolder)):
+                plain.append(f"vts {' '.join(path)} {'/'.join(p.opts)}")
+    assert seen >= 25 and plain == [], plain
+    named = {c.split(" -")[0] for c in [*FILE_WRITERS, *FOLDER_WRITERS]}
+    assert len(named) >= 18, named
 
 
 # -- the writers themselves: checked again when they write (the target may change meanwhile) --

@@ -8,7 +8,7 @@ import click
 
 from vts_hw.recording import promised as rec_mod
 from vts_hw.cli import cli
-from vts_hw.cli.common import config_option, echo_json, fmt_time, json_option
+from vts_hw.cli.common import OutputFolder, config_option, echo_json, fmt_time, json_option
 
 
 @cli.group()
@@ -104,7 +104,7 @@ def _print_info(summaries) -> None:
 
 @recording.command()
 @click.argument("session", type=click.Path(file_okay=False))
-@click.option("-o", "--output", "out", type=click.Path(file_okay=False), required=True,
+@click.option("-o", "--output", "out", type=OutputFolder("output folder"), required=True,
               help="Folder for trajectories.csv and trajectories.json (docs/trajectory-format.md).")
 @click.option("--calibration", type=click.Path(dir_okay=False), default=None,
               help="Camera calibration file (default: the rig config's calibration.stereo).")
