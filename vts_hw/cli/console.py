@@ -69,7 +69,10 @@ def console(ctx: click.Context, config_path: str | None, host: str, port: int, l
     --behind-proxy or another --host, every page needs a login as one of the users of the
     results store (`vts console user add`); operators run scans, the daily QA and the LEDs,
     acknowledge alerts and push; physicists also set baselines, calibrations and tolerances.
-    Every action is logged in the store with who and when (History, "Who did what").
+    Every action is logged in the store with who and when (History, "Who did what"), refused
+    logins and lock-outs too; a store that is not a vts-hw store, or that this user cannot
+    write, is refused in one sentence, exit 3, before a camera is opened (the log is never kept
+    only in memory).
     Refused in one sentence, exit 2, before anything starts: another --host in plain HTTP
     (without --certfile/--keyfile, or --proxy ADDR: a login never travels in clear off this
     machine), --behind-proxy without --server-name, 0.0.0.0 with no name to answer to, a login
