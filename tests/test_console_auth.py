@@ -312,12 +312,17 @@ def test_user_add_list_and_remove_with_the_password_never_on_the_command_line(tm
     p = run_vts(["console", "user", "add", "ann", "--role", "operator", "--password-env", "ANN_PW"],
                 {**os.environ, **env})          # as users run it, once
     assert p.returncode == 0 and p.stdout.startswith("user ann (operator) added in sqlite:///"), p.stderr
-    # from the prompt, asked twice without echo
-    from vts_hw.cli import _register, cli
+    # from the prompt, asked twice without echo, at a terminal (CliRunner's input stands for one)
+    from vts_hw.cli import _register, cli, common
     _register()
-    r = CliRunner().invoke(cli, ["--store", f"sqlite:///{db}", "console", "user", "add", "phil", "--role", "physicist"],
-                           input=f"{PHIL_PW}\n{PHIL_PW}\n")
+    with monkeypatch.context() as m:
+        m.setattr(common, "_terminal", lambda: True)
+        r = CliRunner().invoke(cli, ["--store", f"sqlite:///{db}", "console", "user", "add", "phil", "--role",
+                                     "physicist"], input=f"{PHIL_PW}\n{PHIL_PW}\n")
     assert r.exit_code == 0 and "user phil (physicist) added" in r.output and PHIL_PW not in r.output, r.output
+    # no terminal (a script, a pipe, /dev/null): one sentence naming --password-env, never "interrupted"
+    p = _vts_here(["console", "user", "add", "bob", "--role", "operator"], env, capsys, monkeypatch)
+    assert p.returncode == 2 and "--password-env" in p.stderr and "interrupted" not in p.stderr, p.stderr
     for args, said in ((["add", "ann", "--role", "physicist", "--password-env", "ANN_PW"], "already exists"),
                        (["add", "bob", "--role", "operator", "--password-env", "SHORT_PW"], "too short"),
                        (["add", "bob", "--role", "operator", "--password-env", "UNSET_PW"], "UNSET_PW"),

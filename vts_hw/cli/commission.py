@@ -13,7 +13,7 @@ import click
 
 from vts_hw.cli import cli
 from vts_hw.catalog import COMMISSION_STEPS
-from vts_hw.cli.common import OutputFolder, PositiveSeconds, config_option, positive
+from vts_hw.cli.common import OutputFolder, PositiveSeconds, ask_a_person, config_option, positive
 from vts_hw.errors import UsageError
 from vts_hw.files import check_folder
 from vts_hw.rig_file import check_rewritable
@@ -21,29 +21,9 @@ from vts_hw.procedures.commission import NAMES as STEP_NAMES
 from vts_hw.procedures.commission_sequence import failure_reason, run_sequence
 
 
-class NoTerminal(UsageError):
-    """A step asks a person at the table and no one can answer (stdin is not a terminal)."""
-
-
-def _terminal() -> bool:
-    stdin = sys.stdin
-    try:
-        return stdin is not None and not stdin.closed and stdin.isatty()
-    except (ValueError, OSError):
-        return False
-
-
 def _ask(text: str):
-    """The operator's answer (Enter) to a step's request, at a terminal only: without one (stdin
-    closed, /dev/null, a pipe) no one is there to do what it asks (exit 2, one sentence). Ctrl-C
-    or Ctrl-D at the prompt is an interrupt (exit 130)."""
-    if not _terminal():
-        raise NoTerminal(f"commissioning asks a person at the table ({text!r}) and stdin is not a terminal: run it at "
-                         "a terminal (`vts commission --resume`), or for the drift baseline give --room-clear")
-    try:
-        return click.prompt(text, default="", show_default=False, prompt_suffix=" ", err=True)
-    except click.exceptions.Abort:
-        raise KeyboardInterrupt("interrupted at the prompt") from None
+    return ask_a_person(text, "commissioning", "run it at a terminal (`vts commission --resume`), or for the drift "
+                                               "baseline give --room-clear")
 
 
 def _pattern(ctx, param, value: str) -> tuple[int, int]:

@@ -5,12 +5,14 @@ from __future__ import annotations
 import functools
 import json
 import math
+import sys
 import time
 from pathlib import Path
 
 import click
 
 from vts_hw.config import ENV_CONFIG, RigConfig, load_rig
+from vts_hw.errors import UsageError
 from vts_hw.files import check_folder, check_target
 
 config_option = click.option(
@@ -282,3 +284,40 @@ def finish_analysis(rig: RigConfig | None, result, data: dict, what: str, as_jso
     code = EXIT_CODES[State(data["summary"]["state"])]
     if code:
         sys.exit(code)
+
+
+class NoTerminal(UsageError):
+    """A step asks a person at the table and no one can answer (stdin is not a terminal)."""
+
+
+def _terminal() -> bool:
+    stdin = sys.stdin
+    try:
+        return stdin is not None and not stdin.closed and stdin.isatty()
+    except (ValueError, OSError):
+        return False
+
+
+def ask_a_person(text: str, who: str, instead: str) -> str:
+    """The operator's answer (Enter) to a request of ``who`` (a command: "commissioning", "the step
+    test") at a terminal only: without one (stdin closed, /dev/null, a pipe) no one is there to do
+    what it asks: NoTerminal (exit 2, one sentence saying ``instead``), never an "interrupted" that
+    looks like Ctrl-C. Ctrl-C or Ctrl-D at the prompt is an interrupt (exit 130)."""
+    if not _terminal():
+        raise NoTerminal(f"{who} asks a person at the table ({text!r}) and stdin is not a terminal: {instead}")
+    try:
+        return click.prompt(text, default="", show_default=False, prompt_suffix=" ", err=True)
+    except click.exceptions.Abort:
+        raise KeyboardInterrupt("interrupted at the prompt") from None
+
+
+def ask_password(text: str, instead: str) -> str:
+    """A password typed twice at a terminal, not shown; without a terminal, NoTerminal saying
+    ``instead`` (exit 2), never an "interrupted" that looks like Ctrl-C."""
+    if not _terminal():
+        raise NoTerminal(f"the password is asked for at a terminal and stdin is not one: {instead}")
+    try:
+        return click.prompt(text, hide_input=True, confirmation_prompt=True, err=True)
+    except click.exceptions.Abort:
+        raise KeyboardInterrupt("interrupted at the prompt") from None
+

@@ -8,7 +8,8 @@ import os
 import click
 
 from vts_hw.cli import cli
-from vts_hw.cli.common import PositiveSeconds, config_option, echo_json, json_option, rig_if_any, store_target
+from vts_hw.cli.common import (PositiveSeconds, ask_password, config_option, echo_json, json_option, rig_if_any,
+                              store_target)
 from vts_hw.errors import UsageError
 
 
@@ -140,7 +141,8 @@ def user_add(config_path: str | None, name: str, role: str, password_env: str | 
         if not password:
             raise UsageError(f"the environment variable {password_env} (--password-env) is not set")
     else:
-        password = click.prompt(f"password for {name}", hide_input=True, confirmation_prompt=True, err=True)
+        password = ask_password(f"password for {name}", "give --password-env NAME, the environment variable "
+                                                          "that holds it")
     with _store(config_path, "create") as store:
         click.echo(add_user(store, name, role, password))
 

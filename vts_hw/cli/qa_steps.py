@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 
 from vts_hw.tolerance import State
-from vts_hw.cli.common import FiniteFloat, OutputFolder, config_option, echo_json, json_option
+from vts_hw.cli.common import FiniteFloat, OutputFolder, ask_a_person, config_option, echo_json, json_option
 from vts_hw.cli.qa import qa
 
 
@@ -166,7 +166,8 @@ def _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path, an
     say = (lambda m: None) if as_json else (lambda m: click.echo(m, err=True))
 
     def ask(text):
-        return click.prompt(text, default="", show_default=False, prompt_suffix=" ", err=True)
+        return ask_a_person(text, "the step test", "run it at a terminal, or analyse steps already recorded "
+                                                   "with --analyze DIR")
 
     cameras = [] if analyze_dir else open_cameras(calibrated_cameras(rig, inputs.calibration))
     try:
