@@ -30,7 +30,7 @@ from typing import Any, Callable, Protocol, runtime_checkable
 
 from pydantic import BaseModel, ConfigDict
 
-from vts_hw.bounded import ANY_SIZE, TABLE, check_file, open_bounded
+from vts_hw.bounded import ANY_SIZE, TABLE, open_bounded, open_checked
 from vts_hw.errors import DeviceError, UsageError
 from vts_hw.files import WriteFailed, check_target, open_writable, os_reason
 from vts_hw.recording.trigger_log import (CLOCK as CLOCK_ROW, DEVICE_CLOCK_MAPPED, HOST_WRITE, LOG_HEADER,
@@ -171,8 +171,7 @@ def _check_is_trigger_log(path: Path) -> None:
     """A file that is not a trigger log is never appended to: UsageError (exit 2) naming it. A
     trigger log's first line is its header: ``host_time`` first, ``device``, ``kind`` and ``text``
     among the columns (LOG_HEADER, or a log of another version)."""
-    check_file(path, ANY_SIZE, "trigger log")   # a device or pipe: refused, never opened (a FIFO blocks)
-    with open(path, "rb") as f:
+    with open_checked(path, ANY_SIZE, "trigger log") as f:   # a device or pipe: refused, never waited on
         first = (f.readline(4096).decode("utf-8", "replace").splitlines() or [""])[0]   # CR-only lines too
     try:
         fields = next(csv.reader([first]), []) if first else []

@@ -168,3 +168,14 @@ def test_a_replay_camera_over_a_fifo_mjpeg_is_refused_not_waited_on(files, tmp_p
     (rec / "cam1.mjpeg").symlink_to(files / "fifo")
     with pytest.raises(TooLarge, match="cam1.mjpeg: not a regular file but a device, pipe or socket"):
         ReplayCamera("cam1", rec)
+
+
+def test_no_reader_checks_a_name_then_opens_it_again():
+    """The class behind the FIFO hangs: a reader that checks a path (bounded.check_file) and then
+    opens it by name may open another file, a FIFO swapped in meanwhile blocking it for ever. Every
+    reader opens through bounded.open_checked (checked, opened without waiting, checked again)."""
+    repo = Path(__file__).resolve().parents[1]
+    found = [f"{p.relative_to(repo)}:{n}" for folder in ("vts_hw", "drivers", "procedures", "sim_devices")
+             for p in (repo / folder).rglob("*.py") if p.name != "bounded.py"
+             for n, line in enumerate(p.read_text().splitlines(), 1) if "check_file(" in line]
+    assert found == []

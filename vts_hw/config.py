@@ -20,7 +20,7 @@ from vts_hw.config_base import Strict as _Strict
 from vts_hw.config_qatrack import QATrackConfig
 from vts_hw.config_setup import CameraSetupConfig
 from vts_hw.config_warmup import WarmupSettings
-from vts_hw.bounded import ANY_SIZE, TooLarge, check_file, read_bytes
+from vts_hw.bounded import ANY_SIZE, TooLarge, open_checked, read_bytes
 from vts_hw.errors import ConfigError
 from vts_hw.vision.aim_settings import AimSettings
 
@@ -348,8 +348,7 @@ MAX_YAML_NODES = 100_000    # a rig.yaml has some hundred; aliases that expand b
 def _read_text(p: Path) -> str:
     """The config file's text; ConfigError naming the file when it is not UTF-8 YAML text."""
     try:
-        check_file(p, ANY_SIZE, "rig config")   # a FIFO would block here for ever; a device never ends
-        with open(p, "rb") as f:
+        with open_checked(p, ANY_SIZE, "rig config") as f:   # a FIFO would block for ever; a device never ends
             raw = f.read(MAX_CONFIG_BYTES + 1)
     except TooLarge as exc:
         raise ConfigError(str(exc)) from None

@@ -12,7 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Generic, TypeVar
 
-from vts_hw.bounded import ANY_SIZE, check_file
+from vts_hw.bounded import ANY_SIZE, open_checked
 from vts_hw.errors import DataError
 
 R = TypeVar("R")
@@ -51,8 +51,7 @@ class FormatRegistry(Generic[R]):
 
     def head(self, path: Path) -> bytes:
         try:
-            check_file(path, ANY_SIZE, "list-mode file")   # a FIFO would block; a device never ends
-            with open(path, "rb") as f:
+            with open_checked(path, ANY_SIZE, "list-mode file") as f:   # a FIFO would block; a device never ends
                 return f.read(self.sniff_bytes)
         except OSError as e:
             raise DataError(f"{path}: cannot read ({e.strerror})") from None

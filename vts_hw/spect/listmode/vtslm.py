@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vts_hw.bounded import LISTMODE, check_file, read_bytes
+from vts_hw.bounded import LISTMODE, open_checked, read_bytes
 from vts_hw.errors import DataError
 from vts_hw.files import open_writable
 from vts_hw.spect.listmode.base import GATE_SAMPLES, ListMode
@@ -343,8 +343,7 @@ def vtslm_span(path) -> tuple[float, float]:
     short is refused by :func:`read_vtslm`, not here). DataError naming the file."""
     path = Path(path)
     try:
-        check_file(path, LISTMODE, "list-mode file")
-        with open(path, "rb") as f:
+        with open_checked(path, LISTMODE, "list-mode file") as f:
             head = f.read(PREAMBLE.size)
             length = PREAMBLE.unpack_from(head)[3] if len(head) == PREAMBLE.size else 0
             data = head + f.read(length)
