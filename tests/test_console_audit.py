@@ -201,3 +201,15 @@ def test_a_store_that_is_not_ours_or_cannot_be_written_refuses_the_console(tmp_p
     assert (act.user, act.what, act.detail) == ("local", "console started", {"address": "http://127.0.0.1:8040/"})
     assert log.pending == []
     shutil.rmtree(tmp_path / "s", ignore_errors=True)
+
+
+def test_a_spray_of_names_keeps_the_lock_outs_and_bounded_memory(monkeypatch):
+    import vts_hw.console.sessions as sessions
+    monkeypatch.setattr(sessions, "FAILS_KEPT", 20)
+    monkeypatch.setattr(sessions, "dummy_check", lambda password: False)     # (no user: the cost is not tested here)
+    auth = Auth(required=True, load_users=lambda: [])
+    for _ in range(LOCK_AFTER):
+        auth.login("ann", "guess")
+    for i in range(200):
+        auth.login(f"sprayed-{i}", "guess")
+    assert len(auth._fails) <= 21 and auth.locked_for("ann") > 0

@@ -13,7 +13,8 @@ it is not logged, not stored, not put in a page. Each session has its own page t
   or the console stops (sessions are not kept across restarts).
 
 Five wrong passwords in a row for one name lock that name out for ``LOCK_S`` (the login page
-says so), whether or not the name exists. docs/decisions/0063-console-users.md.
+says so), whether or not the name exists; past ``FAILS_KEPT`` names tried, the counts of those
+not locked are forgotten (a spray of names cannot fill the console's memory). docs/decisions/0063-console-users.md.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ MAX_S = 12 * 3600.0
 USERS_EVERY_S = 10.0          # how often serve() reads the users again (a disabled user is out within it)
 LOCK_AFTER = 5
 LOCK_S = 60.0
+FAILS_KEPT = 10_000           # names with wrong passwords remembered; beyond, those not locked are forgotten
 
 #: the session of the request being served (set by the login middleware; None without users):
 #: it lets ``Console.token`` give each session's page its own token
@@ -112,6 +114,8 @@ class Auth:
                 n, _ = self._fails.get(name, (0, 0.0))
                 n += 1
                 self._fails[name] = (0, now + LOCK_S) if n >= LOCK_AFTER else (n, 0.0)
+                if len(self._fails) > FAILS_KEPT:       # many names tried (a spray): memory stays bounded
+                    self._fails = {k: v for k, v in self._fails.items() if v[1] > now}
                 return None
             self._fails.pop(name, None)
             s = Session(secrets.token_urlsafe(32), user.name, user.role, secrets.token_urlsafe(24), now, now)
