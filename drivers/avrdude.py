@@ -29,10 +29,15 @@ from vts_hw.files import open_writable
 #: the trigger box's MCU as avrdude names it (firmware/Makefile: MCU := atmega328p)
 PART = "m328p"
 BAR_WIDTH = 50   # avrdude's progress bar: 50 '#' from 0 to 100 %
+ASK_S = 10.0     # how long avrdude may take to say its version or its programmers
 
 
 class AvrdudeMissing(UsageError):
     """avrdude is not installed (exit 2: the machine is not set up)."""
+
+
+class AvrdudeBroken(UsageError):
+    """avrdude is there but does not answer a question it answers at once (exit 2: the machine is not set up)."""
 
 
 class UploadFailed(DeviceError):
@@ -64,17 +69,28 @@ def find() -> str:
     return path
 
 
+def _ask(avrdude: str, *args: str) -> str:
+    """What ``avrdude ARGS`` prints (it answers such questions at once); AvrdudeBroken (one
+    sentence, exit 2) when it hangs or cannot be started."""
+    try:
+        out = subprocess.run([avrdude, *args], capture_output=True, text=True, timeout=ASK_S, **child_options())
+    except subprocess.TimeoutExpired:
+        raise AvrdudeBroken(f"{avrdude} {' '.join(args)} did not answer within {ASK_S:g} s: is this avrdude "
+                            "working (Debian: apt-get install --reinstall avrdude)?") from None
+    except OSError as exc:
+        raise AvrdudeBroken(f"{avrdude} could not be started ({exc.strerror or exc})") from None
+    return out.stdout + out.stderr
+
+
 def version(avrdude: str) -> str:
     """avrdude's version, as it prints it (``7.1``); ``unknown`` when it says none."""
-    out = subprocess.run([avrdude, "-?"], capture_output=True, text=True, timeout=10, **child_options())
-    m = re.search(r"avrdude version ([\w.+~-]+)", out.stdout + out.stderr)
+    m = re.search(r"avrdude version ([\w.+~-]+)", _ask(avrdude, "-?"))
     return m.group(1).rstrip(",") if m else "unknown"
 
 
 def programmers(avrdude: str) -> set[str]:
     """The programmer ids this avrdude knows (``avrdude -c '?'``)."""
-    out = subprocess.run([avrdude, "-c", "?"], capture_output=True, text=True, timeout=10, **child_options())
-    return set(re.findall(r"^\s+(\S+)\s+=", out.stdout + out.stderr, re.M))
+    return set(re.findall(r"^\s+(\S+)\s+=", _ask(avrdude, "-c", "?"), re.M))
 
 
 def command(avrdude: str, port: str, hex_path: Path, programmer: str, baud: int,

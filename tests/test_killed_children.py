@@ -20,6 +20,7 @@ from pathlib import Path
 
 import pytest
 
+from vts_hw.drivers import avrdude
 from vts_hw.drivers.trigger_box_flash import check_port
 from vts_hw.lifeline import alive
 from vts_hw.sim_devices.trigger_box import build, firmware_dir
@@ -161,3 +162,19 @@ def test_the_check_sees_a_start_without_child_options(tmp_path, monkeypatch):
                                              "subprocess.run(['true'], **child_options())\n")
     monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
     assert _starts_without_child_options() == ["vts_hw/x.py:2"]
+
+
+@pytest.mark.parametrize("ask", ["version", "programmers"])
+def test_an_avrdude_that_hangs_when_asked_is_one_sentence_and_leaves_nothing_running(tmp_path, monkeypatch, ask):
+    """avrdude's version and programmers are asked before a flash: a broken one that never
+    answered was a TimeoutExpired traceback; now exit 2 in one sentence, the program ended."""
+    pidfile = tmp_path / "pid"
+    fake = tmp_path / "avrdude"
+    fake.write_text(f"#!/bin/sh\necho $$ > {pidfile}\nexec sleep 600\n")
+    fake.chmod(0o755)
+    monkeypatch.setattr(avrdude, "ASK_S", 0.5)
+    with pytest.raises(avrdude.AvrdudeBroken) as got:
+        getattr(avrdude, ask)(str(fake))
+    assert got.value.exit_code == 2 and "did not answer within 0.5 s" in str(got.value)
+    pid = int(pidfile.read_text())
+    assert _until(lambda: not alive(pid), 30), "the hung avrdude is still running"
