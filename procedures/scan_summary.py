@@ -36,8 +36,9 @@ def summary_lines(folder: Path, m: dict) -> list[str]:
         fired = f"fired at {fmt_time(tr.get('fire_time'))} ({tr.get('mode')})" if tr.get("fired") else "NOT fired"
         edges = f", {tr['edges']} rising edge(s)" if tr.get("edges") is not None else ""
         out.append(f"  trigger: {tr.get('backend')} {fired}{edges}; log {folder / 'trigger.csv'}")
-        if tr.get("note"):
-            out.append(f"  note: {tr['note']}")
+        for key in ("note", "no_watchdog"):
+            if tr.get(key):
+                out.append(f"  note: {tr[key]}")
     lm = m.get("live_motion") or {}
     if lm:
         out.append(f"  live motion: {live_summary(lm)}")

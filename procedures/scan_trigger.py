@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 from vts_hw.config import RigConfig
-from vts_hw.drivers.trigger import CLOCK, EDGES, FIRE, LEVELS, TriggerError, TriggerLog
+from vts_hw.drivers.trigger import CLOCK, EDGES, FIRE, LEVELS, WATCHDOG, TriggerError, TriggerLog
 from vts_hw.errors import DeviceError, VtsError
 
 STATUS_EVERY = 5               # a backend without edge counts: its full status every 5 polls
@@ -107,6 +107,10 @@ class ScanTrigger:
             self.info["confirmed"] = plain_dict(self.gen.configure(self.cfg.frequency_hz, self.cfg.duty, *levels))
             self.info["device"] = self.gen.name
             self.info["capabilities"] = sorted(self.caps())
+            if WATCHDOG not in self.caps():   # said before the scan, kept in the manifest (decision 0083)
+                self.info["no_watchdog"] = (f"the {self.cfg.backend} trigger cannot switch its square wave off by itself: "
+                                     "if this computer stops during the scan (killed, crashed), the wave stays on "
+                                     "until `vts trigger stop`")
         except Exception as exc:
             self.close()
             where = f"{self.cfg.backend} trigger at {self.cfg.address}"

@@ -120,6 +120,7 @@ def test_session_with_the_trigger_box(box_rig, tmp_path):
               f"before {before * 1e3:+.2f} ms, after {after * 1e3:+.2f} ms "
               f"(uncertainty {c['clock_offset_before']['uncertainty_s'] * 1e3:.2f} ms)")
 
+    assert "no_watchdog" not in tr          # the box stops its own wave if this computer dies
     # what the box really emitted: both start pulses on the square wave's first rising edge
     sim = rig.trigger_box
     up = [e.cycle for e in sim.edges("OC1A") if e.value == 1]
@@ -161,6 +162,8 @@ def test_session_with_the_function_generator(tmp_path):
     assert run.stop is not None and run.stop <= tr["stopped_host_time"] and run.stop - run.start >= 3.0
     assert m["status"] == "complete" and tr["fired"]
     assert tr["mode"] == "square wave only" and tr["start_pulses"] is False and "start pulses" in tr["note"]
+    # a 33500 has no watchdog: the scan says so before it starts, and keeps it (decision 0083)
+    assert "cannot switch its square wave off by itself" in tr["no_watchdog"] and "vts trigger stop" in tr["no_watchdog"]
     assert tr["confirmed"]["high_v"] == 2.5 and tr["confirmed"]["low_v"] == 0.0
     assert tr["fire_status"]["running"] and not tr["stop_status"]["running"]
     assert "clock_mapping_before" not in tr  # a 33500 has no clock to map

@@ -89,6 +89,8 @@ def start(out: str | None, duration: float | None, dry_run: bool, live: bool, re
         click.echo(f"vts: interrupted before the scan started"
                    f"{f'; what was recorded is in {folder}' if session.recorder else ''}", err=True)
         sys.exit(130)
+    if session.trigger.info.get("no_watchdog"):      # a trigger that cannot stop its wave by itself
+        click.echo(f"vts: note: {session.trigger.info['no_watchdog']}", err=True)
     reason = "error"
     try:
         reason = _live(session, err)
