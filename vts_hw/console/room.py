@@ -6,7 +6,7 @@ are made one at a time (a lock per camera); the picture's stream is a connection
 
 * LED: read back from the camera (``camera.led_state()``: the output port's state, VAPIX
   ``port.cgi?checkactive``) every ``LED_EVERY_S`` and right after a switch; a switch the camera
-  does not show within ``LED_SETTLE_S`` "did not take" and the page says so. A kind that cannot
+  does not show within ``camera_led.READ_BACK_S`` "did not take" and the page says so. A kind that cannot
   tell (a replay) is "not known", never "off".
 * Marker names: the wall markers of each camera's drift baseline (the store), read with the
   daily QA and handed to the marker names (:mod:`.names`).
@@ -24,12 +24,12 @@ import threading
 import time
 from dataclasses import dataclass, field
 
+from vts_hw.camera_led import READ_BACK_S, LedNotTaken, switch_led
 from vts_hw.errors import VtsError
 
 OFFSET_EVERY_S = 300.0
 QA_EVERY_S = 30.0
 LED_EVERY_S = 5.0
-LED_SETTLE_S = 1.0            # a switch the camera's output shows within this long has taken
 OFFSET_SAMPLES = 3
 
 
@@ -92,24 +92,21 @@ class RoomFacts:
         with facts.lock:
             self._read_led(cam, facts)
 
-    def switch_led(self, name: str, on: bool, settle_s: float = LED_SETTLE_S) -> dict:
-        """Switch the LED ring of ``name`` and read its state back; returns its facts. A device
-        that fails, or a switch the camera does not show within ``settle_s``, is said in
-        ``led_error``; the state shown is always the one read."""
+    def switch_led(self, name: str, on: bool, settle_s: float = READ_BACK_S) -> dict:
+        """Switch the LED ring of ``name`` and read its state back (camera_led.switch_led, as `vts
+        camera led` does); returns its facts. A device that fails, or a switch the camera does not
+        show within ``settle_s``, is said in ``led_error``; the state shown is always the one read."""
         cam, facts = self.cameras[name], self.facts[name]
         want = "on" if on else "off"
         with facts.lock:
             facts.led_asked, facts.led_asked_at, facts.led_error = want, self.clock(), ""
             try:
-                cam.led_on() if on else cam.led_off()
+                switch_led(cam, on, within_s=settle_s)
+            except LedNotTaken:
+                facts.led_error = ""      # worded below from the state read
             except VtsError as exc:
                 facts.led_error = f"switching it {want} failed: {exc}"
-            end = time.monotonic() + settle_s
-            while True:
-                self._read_led(cam, facts)
-                if facts.led == want or facts.led == "unknown" or time.monotonic() >= end:
-                    break
-                time.sleep(0.1)
+            self._read_led(cam, facts)
             if not facts.led_error and facts.led not in (want, "unknown"):
                 facts.led_error = (f"switched {want} here, but the camera says its LED output is {facts.led}: "
                                    f"the switch did not take")
