@@ -314,6 +314,9 @@ def test_an_error_no_route_expected_is_one_sentence_500_and_logged(rig, caplog):
             assert r.status_code == 500 and "an unexpected error" in r.text and "hunter2" not in r.text
             assert "Traceback" not in r.text and "RuntimeError" not in r.text
             assert client.get("/test/fine").json() == {"ok": True}          # and the console goes on
+        said = [r.getMessage() for r in caplog.records if r.name == "vts_hw.console"]
+        assert len(said) == 2 and said[0].startswith("the console could not answer GET /test/broken: RuntimeError at ")
+        assert "test_console_inputs.py" in said[0] and "hunter2" not in " ".join(said)
     finally:
         console.aim.close()
 

@@ -5,17 +5,21 @@
 * :func:`refused_input` -- Starlette's handler of a refused input (inputs.BadInput: its
   sentence and status, 400, 413, 414 or 415).
 * :func:`unexpected` -- Starlette's handler of any other exception: one sentence, HTTP 500,
-  never a traceback or the exception's words in the answer; the server logs it with its
-  traceback. The aim is that no input reaches it (tests/test_console_inputs.py walks every
+  never a traceback or the exception's words in the answer; logged (where, and the server's
+  traceback). The aim is that no input reaches it (tests/test_console_inputs.py walks every
   route with bad inputs): it is the floor, not the door.
 """
 
 from __future__ import annotations
 
 import html
+import logging
+import traceback
 
 from starlette.requests import Request
 from starlette.responses import HTMLResponse, JSONResponse, Response
+
+log = logging.getLogger("vts_hw.console")
 
 UNEXPECTED = ("the console could not answer this request: an unexpected error (what it was is in the "
               "console's log, not here)")
@@ -43,8 +47,12 @@ async def refused_input(request: Request, exc: Exception) -> Response:
 
 async def unexpected(request: Request, exc: Exception) -> Response:
     """Starlette's handler of any other exception (its ServerErrorMiddleware, outermost): the
-    sentence ``UNEXPECTED``, HTTP 500; the exception goes on to the server, which logs it with
-    its traceback (the console's log, never the answer)."""
+    sentence ``UNEXPECTED``, HTTP 500. The console's log gets one line: the request, the
+    exception's type and where it was raised (never its words: they might hold what the request
+    carried); the exception goes on to the server, which logs its traceback."""
+    where = traceback.extract_tb(exc.__traceback__)[-1] if exc.__traceback__ is not None else None
+    log.error("the console could not answer %s %s: %s at %s", request.method, request.url.path[:200],
+              type(exc).__name__, f"{where.filename}:{where.lineno}" if where else "?")
     return answer(request, UNEXPECTED, 500)
 
 
