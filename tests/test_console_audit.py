@@ -140,8 +140,13 @@ def test_each_lock_out_and_each_try_while_locked_is_in_the_action_log(tmp_path, 
     console = Console("room3", None, None, None, open_store=read, auth=auth,
                       actions=StoreActions(lambda: ResultsStore(db), read, "room3"))
     with TestClient(create_app(console), base_url=BASE) as client:
-        def login(name, password):
-            return client.post("/login", data={"name": name, "password": password}, follow_redirects=False)
+        def login(name, password, next_="/"):
+            return client.post("/login", data={"name": name, "password": password, "next": next_},
+                               follow_redirects=False)
+        for sly in ("/\t/evil.example", "/\n/evil.example", "/ /evil.example", "//evil.example", "/\\evil.example"):
+            r = login("ann", "ann-password-1", sly)                # a browser drops a tab: //evil.example
+            assert r.status_code == 303 and r.headers["location"] == "/", (sly, r.headers["location"])
+        assert login("ann", "ann-password-1", "/history?page=2").headers["location"] == "/history?page=2"
         for _ in range(LOCK_AFTER):
             assert login("ann", "wrong-password").status_code == 401
             assert login("mallory-ann-password-1", "x").status_code == 401    # a password typed as a name
@@ -151,6 +156,7 @@ def test_each_lock_out_and_each_try_while_locked_is_in_the_action_log(tmp_path, 
     with ResultsStore(db, mode="read") as store:
         acts = [(a.user, a.what) for a in reversed(store.actions(limit=100)[0])]
         detail = {a.what: a.detail for a in store.actions(limit=100)[0]}
+    assert acts.count(("ann", "logged in")) == 6
     assert acts.count(("ann", "login refused")) == LOCK_AFTER and acts.count(("ann", "locked out")) == 1
     assert acts.index(("ann", "locked out")) == acts.index(("ann", "login refused")) + 2 * LOCK_AFTER - 1
     assert acts.count(("ann", "login refused: locked")) == 2

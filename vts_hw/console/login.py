@@ -119,8 +119,11 @@ async def _form(request: Request) -> dict[str, str] | None:
 
 
 def _safe_next(value: str) -> str:
-    """A path of this console to go to after login ('/' for anything else: no other site)."""
-    if not value.startswith("/") or value.startswith("//") or "\\" in value or "\n" in value or "\r" in value:
+    """A path of this console to go to after login ('/' for anything else: no other site). A
+    control character or a space is refused too: a browser drops tabs and newlines from a URL,
+    so ``/<TAB>/evil.example`` would lead to ``//evil.example``, another site."""
+    if (not value.startswith("/") or value.startswith("//") or "\\" in value
+            or any(c <= " " or c == "\x7f" for c in value)):
         return "/"
     return value
 
