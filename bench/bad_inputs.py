@@ -395,10 +395,13 @@ def sweep(only: str | None, timeout: float, show: bool, root: Path, jobs: int = 
     for name in ("VTS_CONFIG", "VTS_STORE", "VTS_STORE_PASSWORD_ENV"):
         os.environ.pop(name, None)
     stack = contextlib.ExitStack()
+    web = None
     try:
         if endless_files.CLASS in classes:
             fx.endless = endless_files.make_inputs(root)
         peers = stack.enter_context(slow_peers.Peers(root)) if set(NEED_PEERS) & set(classes) else None
+        # the class web runs in a process of its own from now, beside the forked cases
+        web = web_start(root, full) if WEB in classes and not only else None
         t_plan = time.monotonic()
         planned = plan(only, classes, fx, cli, peers, full)
         setup_s = time.monotonic() - t_plan
@@ -438,10 +441,14 @@ def sweep(only: str | None, timeout: float, show: bool, root: Path, jobs: int = 
                 if show:
                     last = (err.strip().splitlines() or [""])[-1][:160]
                     print(f"  exit {code}: {label}\n      {last}")
-        if WEB in classes and not only:
-            web_sweep(root, full, results, per[WEB], show)
+        if web is not None:
+            web_sweep(web, results, per[WEB], show)
+            web = None
         results["setup_s"] = round(setup_s, 1)
     finally:
+        if web is not None:
+            web[0].kill()
+            web[0].wait()
         stack.close()
         for fd in signals._HELD:
             os.close(fd)
@@ -459,25 +466,47 @@ def sweep(only: str | None, timeout: float, show: bool, root: Path, jobs: int = 
     return results
 
 
-def web_sweep(root: Path, full: bool, results: dict, c: dict, show: bool) -> None:
-    """The class web: badkit/web.py in a process of its own; its verdicts counted here."""
+def web_start(root: Path, full: bool):
+    """The class web started: badkit/web.py in a process of its own (it uses threads; this one forks),
+    its output in files; (the process, its stdout file, its stderr file, when it started)."""
     import subprocess
-    t0 = time.monotonic()
-    p = subprocess.run([sys.executable, str(Path(__file__).resolve().parent / "badkit" / "web.py"), str(root / "web"),
-                        *(["--full"] if full else [])], capture_output=True, text=True, timeout=3600)
-    c["seconds"] = time.monotonic() - t0
+    (root / "web").mkdir(parents=True, exist_ok=True)
+    out, err = open(root / "web.json", "w+"), open(root / "web.err", "w+")
+    proc = subprocess.Popen([sys.executable, str(Path(__file__).resolve().parent / "badkit" / "web.py"),
+                             str(root / "web"), *(["--full"] if full else [])], stdout=out, stderr=err,
+                            stdin=subprocess.DEVNULL)
+    return proc, out, err, time.monotonic()
+
+
+def web_sweep(web, results: dict, c: dict, show: bool) -> None:
+    """The class web's verdicts (its process waited for), counted here."""
+    proc, out, err, t0 = web
     try:
-        verdicts = json.loads(p.stdout)
+        proc.wait(3600)
+    except Exception:            # noqa: BLE001 -- a sweep that does not end is one failure, said below
+        proc.kill()
+        proc.wait()
+    c["seconds"] = time.monotonic() - t0
+    out.seek(0)
+    err.seek(0)
+    stdout, stderr = out.read(), err.read()
+    out.close()
+    err.close()
+    try:
+        verdicts = json.loads(stdout)
     except ValueError:
         c["cases"] += 1
         c["other"] += 1
         results["cases"] += 1
-        results["failures"].append(f"[web] the web sweep did not finish (exit {p.returncode}): "
-                                   f"{p.stderr.strip()[-400:]}")
+        results["failures"].append(f"[web] the web sweep did not finish (exit {proc.returncode}): "
+                                   f"{stderr.strip()[-400:]}")
         return
+    fams = c.setdefault("families", {})
     for v in verdicts:
         c["cases"] += 1
         results["cases"] += 1
+        fam = v["what"].split("]", 1)[0].lstrip("[")
+        fams[fam] = fams.get(fam, 0) + 1
         for key, flag in (("tracebacks", "traceback"), ("hangs", "hang"), ("false_oks", "false_ok"),
                           ("damaged", "damaged"), ("other", "other"), ("security", "security")):
             c[key] += bool(v[flag])

@@ -1,7 +1,8 @@
 """The class "console on a full disk" of bench/bad_inputs.py (issue 32 §1 and §5): each action of
 the console's pages (a Scan-page scan, a drift baseline set, a Daily QA, a push to QATrack+, an
 LED switched) while what it writes is on a full disk: the scans folder, or the results store (a
-small tmpfs of the case's own, badkit/full_disk.py's, filled once the console has started).
+small tmpfs of the case's own, badkit/full_disk.py's, filled once the console serves its page, as
+a disk fills up while it runs).
 
 The case's command is `vts console` (forked as every case is, on badkit/full_disk's simulated rig,
 with SIGINT left as it is: Ctrl-C stops it); while it runs, the person at the console asks for
@@ -20,6 +21,7 @@ back), then presses Ctrl-C. Judged afterwards:
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 import signal
@@ -29,15 +31,16 @@ from pathlib import Path
 from badkit import full_disk
 from badkit.classes import Case, Verdict, common
 from badkit.forked import fork_vts
-from badkit.signals import _free_port, _http
+from badkit.signals import _http, listening_port
 
 CLASS = "console full disk"
-DONE_WORDS = ("baseline set", "daily qa run", "scan started", "pushed", "push to qatrack")
+#: what an entry of the action log says was done
+DONE_WORDS = ("baseline set", "scan started", "pushed", "push to qatrack")
 FAILED = re.compile(r"no space|disk (is )?full|could not|cannot|failed|error|refused|not (stored|written|saved)", re.I)
 
 
-def _token(port: int, deadline: float) -> str:
-    while time.monotonic() < deadline:
+def _token(port: int, deadline: float, pid: int) -> str:
+    while time.monotonic() < deadline and not _gone(pid):
         try:
             status, body = _http(port, "GET", "/")
             m = re.search(rb'name="console-token" content="([^"]+)"', body)
@@ -77,6 +80,20 @@ ACTIONS = {
     "LED off": ("/camera/cam1/led", b'{"on": false}', "/api/room", lambda s: False, "store"),
 }
 SUBSET = ("Scan-page scan", "drift baseline set")
+#: bytes left free: SQLite can still open the store to read (its 32 kB -shm) but not keep what it is given
+LEAVE = 40_000
+
+
+def _whats(page: str) -> list[str]:
+    """The "What" of each row of the History page's "Who did what" (lower case)."""
+    import html
+    out = []
+    for row in re.findall(r"<tr.*?</tr>", page, re.S):
+        cells = [html.unescape(re.sub(r"<[^>]+>", " ", c)).strip().lower()
+                 for c in re.findall(r"<td.*?</td>", row, re.S)]
+        if len(cells) >= 4:
+            out.append(" ".join(cells[3].split()))
+    return out
 
 
 def _gone(pid: int) -> bool:
@@ -90,13 +107,14 @@ def _during(holder: dict, action: str):
     path, body, state_path, busy, _ = ACTIONS[action]
 
     def during(pid: int) -> None:
-        port = holder["port"]
-        token = _token(port, time.monotonic() + 120)
+        port = listening_port(pid, time.monotonic() + 120) or 0
+        token = _token(port, time.monotonic() + 120, pid) if port else ""
         if not token:
             holder["said"] = "the console never served its page"
             holder["ended"] = _gone(pid)
         else:
             try:
+                full_disk._fill(holder["disk"], LEAVE)
                 holder["answer"] = _http(port, "POST", path, body, token)
                 time.sleep(0.5)
                 holder["state"] = _job_end(port, state_path, busy, time.monotonic() + 180)
@@ -105,7 +123,6 @@ def _during(holder: dict, action: str):
             except OSError as exc:
                 holder["said"] = f"the console stopped answering: {exc}"
         try:
-            import os
             os.kill(pid, signal.SIGINT)
         except OSError:
             pass
@@ -114,6 +131,10 @@ def _during(holder: dict, action: str):
 
 def _judge(holder: dict, action: str):
     def judge(wd: Path, code, out, err) -> Verdict:
+        if os.environ.get("BAD_INPUTS_DEBUG"):
+            Path(os.environ["BAD_INPUTS_DEBUG"], f"console-disk-{action}.json").write_text(json.dumps(
+                {**{k: (v if not isinstance(v, (bytes, tuple, Path)) else repr(v)) for k, v in holder.items()},
+                 "code": code, "err": err[-3000:]}))
         v = common(code, err)
         disk = wd / full_disk.DISK
         if v.hang or v.traceback:
@@ -129,13 +150,15 @@ def _judge(holder: dict, action: str):
             return Verdict(traceback=True, why=f"HTTP 500: {body[:160]!r}")
         if 200 <= status < 300 and not FAILED.search(text):
             v.false_ok, v.why = True, f"HTTP {status} and the job ended {json.dumps(state)[:200]} on a full disk"
-        actions = holder.get("actions", "").lower()
-        told = [w for w in DONE_WORDS if w in actions]
-        if told and not (200 <= status < 300 and not FAILED.search(text)) and not FAILED.search(actions):
-            v.false_ok, v.why = True, f"the action log says {told} for an action that failed"
+        failed = not (200 <= status < 300) or bool(FAILED.search(json.dumps(state)))
+        told = [w for w in _whats(holder.get("actions", "")) if any(d in w for d in DONE_WORDS)
+                and not re.search(r"\bnot\b|failed|refused", w)]
+        if told and failed:
+            v.false_ok, v.why = True, f"the action log says {told} for an action that failed: {json.dumps(state)[:160]}"
         (disk / ".filler").unlink(missing_ok=True)     # (room to read the store: SQLite opens its -shm)
         half = [h for h in full_disk.half_files(disk) if not h.split(":")[0].endswith(("-wal", "-shm", "-journal"))]
-        empty = [str(p.relative_to(disk)) for p in disk.rglob("*") if p.is_dir() and not any(p.iterdir())]
+        empty = [str(p.relative_to(disk)) for p in disk.rglob("*")
+                 if p.is_dir() and p.name != "scans" and not any(p.iterdir())]     # (the scans folder: ours)
         if half or empty:
             v.damaged, v.why = True, "; ".join(half + [f"{e}: an empty folder left" for e in empty])
         if code != 0 and v.passed:
@@ -159,13 +182,12 @@ def cases(root: Path, only: str | None = None, full: bool = False) -> list[Case]
         def make(wd: Path, holder=holder, where=where) -> list[str]:
             disk = wd / full_disk.DISK
             full_disk._mount(disk, 256 + inp.baseline_store().stat().st_size // 1024)
-            holder["port"] = port = _free_port()
             scans = disk / "scans" if where == "scans" else wd / "scans"
-            scans.mkdir(parents=True, exist_ok=True)
+            scans.mkdir(mode=0o700, parents=True, exist_ok=True)
             store = disk / "results.sqlite" if where == "store" else wd / "results.sqlite"
             shutil.copy(inp.baseline_store(), store)
-            full_disk._fill(disk)
-            return ["--store", f"sqlite:///{store}", "console", "--config", str(inp.config), "--port", str(port),
+            holder["disk"] = disk                  # filled once the console serves (as a disk fills up in use)
+            return ["--store", f"sqlite:///{store}", "console", "--config", str(inp.config), "--port", "0",
                     "--scans-dir", str(scans)]
 
         def run(argv, timeout, wd, holder=holder, action=action):

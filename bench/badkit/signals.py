@@ -426,12 +426,17 @@ def _verdict(wd, code, err, kind, s: _Signaller, ends) -> Verdict:
     if kind == "SIGKILL":
         v = Verdict() if code == -signal.SIGKILL else common(code, err)
     else:
-        v = common(code, err) if code != -signal.SIGTERM else Verdict()
         allowed = set(ends) | ({130, 143, -signal.SIGTERM} if kind == "SIGTERM" else set())
-        if v.passed and code not in allowed:
-            v.other, v.why = True, f"exit {code} after {kind}, not {' or '.join(map(str, sorted(allowed)))}: {last}"
-        elif v.passed and code == 130 and "interrupted" not in err:
-            v.other, v.why = True, f"exit 130 after {kind} without saying 'interrupted'"
+        v = common(code, err)
+        if v.hang or v.traceback:
+            pass
+        elif code not in allowed:
+            v = Verdict(other=True, why=f"exit {code} after {kind}, not {' or '.join(map(str, sorted(allowed)))}: "
+                                        f"{last}")
+        else:
+            v = Verdict()           # (130 is no exit of common()'s: here it is the one expected)
+            if code == 130 and "interrupted" not in err:
+                v.other, v.why = True, f"exit 130 after {kind} without saying 'interrupted'"
     if s.left:
         v.other, v.why = True, f"{len(s.left)} process(es) left running after {kind} of the command: {s.left[:4]}"
     return v
@@ -482,10 +487,28 @@ def _case(what: str, argv_of, kind: str, moment: str, ready, wait_s: float, *, e
 
 # -- the console and its pages' jobs ----------------------------------------------------------------
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+def listening_port(pid: int, deadline: float) -> int | None:
+    """The TCP port process ``pid`` listens on (a console started with --port 0: no port picked ahead
+    for it that another process could take meanwhile), read from /proc; None if it never listens."""
+    while time.monotonic() < deadline and _state(pid) not in ("Z", "X"):
+        inodes = set()
+        try:
+            for fd in os.listdir(f"/proc/{pid}/fd"):
+                try:
+                    link = os.readlink(f"/proc/{pid}/fd/{fd}")
+                except OSError:
+                    continue
+                if link.startswith("socket:["):
+                    inodes.add(link[8:-1])
+            for table in ("tcp", "tcp6"):
+                for line in Path(f"/proc/{pid}/net/{table}").read_text().splitlines()[1:]:
+                    f = line.split()
+                    if f[3] == "0A" and f[9] in inodes:          # LISTEN
+                        return int(f[1].rsplit(":", 1)[1], 16)
+        except OSError:
+            pass
+        time.sleep(0.2)
+    return None
 
 
 def _http(port: int, method: str, path: str, body: bytes = b"", token: str = "") -> tuple[int, bytes]:
@@ -506,7 +529,8 @@ def _console_job(job: str):
     scan, a Daily QA) from its page as the person at the console would, then the signaller (whose
     readiness is the job under way)."""
     def during(wd: Path, pid: int, signaller: _Signaller) -> None:
-        port = int((wd / ".port").read_text())
+        port = listening_port(pid, time.monotonic() + 120) or 0
+        (wd / ".port").write_text(str(port))
         end = time.monotonic() + 120
         token = ""
         while time.monotonic() < end and _state(pid) not in ("Z", "X"):
@@ -566,11 +590,9 @@ def cases(inp, only: str | None = None, full: bool = False) -> list[Case]:
 
     def console_argv(job):
         def argv(wd: Path, c) -> list[str]:
-            port = _free_port()
-            (wd / ".port").write_text(str(port))
-            (wd / "scans").mkdir(exist_ok=True)
-            return [*with_baseline(wd), "console", "--config", str(c), "--port", str(port),
-                    "--scans-dir", str(wd / "scans")]
+            (wd / ".port").write_text("0")           # (its port, once it listens: during())
+            (wd / "scans").mkdir(mode=0o700, exist_ok=True)
+            return [*with_baseline(wd), "console", "--config", str(c), "--port", "0", "--scans-dir", str(wd / "scans")]
         return argv
 
     # name: (argv(wd, config), when it is under way, how long to wait for that, the exits a SIGINT may

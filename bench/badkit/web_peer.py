@@ -65,7 +65,8 @@ class Room:
         if p.returncode != 0:
             raise RuntimeError(f"vts sim up failed: {p.stderr.strip()[-300:]}")
         from vts_hw.sim_devices.rig import load_env_file
-        self.env = {**os.environ, **load_env_file(self.sim / "sim.env")}
+        # (the console's default scans folder is beside the per-user store: this sweep's own)
+        self.env = {**os.environ, **load_env_file(self.sim / "sim.env"), "XDG_DATA_HOME": str(root / "xdg")}
         self.rig_yaml = self.sim / "rig.yaml"
         import yaml
         rig = yaml.safe_load(self.rig_yaml.read_text())
@@ -73,15 +74,20 @@ class Room:
         self.store = self.sim / "results.sqlite"
         self._users_and_a_run()
         self.scans = root / "scans"
-        self.scans.mkdir()
-        for folder in (self.scans, self.sim):
-            self._plant(folder)
-        for folder in (self.scans / SCAN, self.sim / SCAN):
-            folder.mkdir()
-            (folder / "manifest.json").write_text(json.dumps({"status": "finalised", "cameras": ["cam1"]}))
-            self._plant(folder)
-            (folder / "link.env").symlink_to(self.sim / "sim.env")
+        self.scans.mkdir(mode=0o700)
+        self.plant(self.sim)            # the store's folder (and the folder the console is started in)
         self.secrets = self._secrets()
+
+    def plant(self, folder: Path) -> None:
+        """Secrets in ``folder`` and in a scan folder there (beside its manifest, and a link to sim.env):
+        done once the console has started (it may refuse to start on a scans folder holding them)."""
+        self._plant(folder)
+        scan = folder / SCAN
+        scan.mkdir(exist_ok=True)
+        (scan / "manifest.json").write_text(json.dumps({"status": "finalised", "cameras": ["cam1"]}))
+        self._plant(scan)
+        if not (scan / "link.env").is_symlink():
+            (scan / "link.env").symlink_to(self.sim / "sim.env")
 
     def _users_and_a_run(self) -> None:
         """The users (as `vts console user add` adds them) and a daily run with a plot."""
@@ -207,6 +213,14 @@ class Console:
         self.host = f"127.0.0.1:{self.port}"
         self.origin = f"http://{self.host}"
         self._seen = 0
+        if "--scans-dir" not in args:    # its default: as its Scan page says
+            a = self.send("GET", "/scan/state")
+            try:
+                self.scans_dir = Path(json.loads(a.body)["scans"])
+            except (AttributeError, ValueError, KeyError, TypeError):
+                pass
+        self.scans_dir.mkdir(parents=True, exist_ok=True)
+        room.plant(self.scans_dir)
 
     def new_errors(self) -> str:
         """What the console wrote on stderr since the last call."""
