@@ -219,3 +219,48 @@ def test_a_spray_of_names_keeps_the_lock_outs_and_bounded_memory(monkeypatch):
     for i in range(200):
         auth.login(f"sprayed-{i}", "guess")
     assert len(auth._fails) <= 21 and auth.locked_for("ann") > 0
+
+
+def test_every_refused_action_is_in_the_log_and_a_flood_of_them_is_counted_not_copied(tmp_path, monkeypatch):
+    """A POST refused by the door or the guard (another site's, no session, without the page's
+    token, a role too low) is an action refused: in the log with why and what was asked; a page
+    sending hundreds is one line per kind every refusals.EVERY_S, with how many were held back."""
+    import vts_hw.console.users as users
+    from vts_hw.console import refusals
+    monkeypatch.setattr(users, "SCRYPT_N", 2 ** 10)
+    now = [1000.0]
+    db = tmp_path / "results.sqlite"
+    with ResultsStore(db) as store:
+        add_user(store, "olga", "operator", "olga-password-1")
+
+    def load():
+        with ResultsStore(db, mode="read") as store:
+            return store.users(active_only=True)
+    auth = Auth(required=True, load_users=load)
+    auth.refresh_users()
+    read = lambda: ResultsStore(db, mode="read")       # noqa: E731
+    console = Console("room3", SimpleNamespace(names=["cam1"]), None, None, open_store=read, auth=auth,
+                      actions=StoreActions(lambda: ResultsStore(db), read, "room3"))
+    console.refusals = refusals.Refusals(console.actions, clock=lambda: now[0])
+    with TestClient(create_app(console), base_url=BASE) as client:
+        for _ in range(200):                                   # no session: the door refuses
+            assert client.post("/camera/cam1/led", json={"on": False}).status_code == 401
+        r = client.post("/login", data={"name": "olga", "password": "olga-password-1", "next": "/"},
+                        follow_redirects=False)
+        assert r.status_code == 303
+        assert client.post("/camera/cam1/led", json={"on": False}).status_code == 403          # no token
+        assert client.post("/camera/cam1/led", json={"on": False},
+                           headers={"Origin": "http://evil.example"}).status_code == 403      # another site
+        now[0] += refusals.EVERY_S + 1
+        client.cookies.clear()
+        assert client.post("/scan/stop", json={}).status_code == 401    # after EVERY_S: a line, with the count
+    with ResultsStore(db, mode="read") as store:
+        refused = [a for a in reversed(store.actions(limit=100)[0]) if a.what == refusals.WHAT]
+    kinds = [(a.user, a.detail["kind"]) for a in refused]
+    assert kinds[0] == ("(no session)", refusals.NO_SESSION) and refused[0].detail["asked"] == "POST /camera/cam1/led"
+    assert ("olga", refusals.NOT_THE_PAGE) in kinds and ("(no session)", refusals.ANOTHER_SITE) in kinds
+    last = refused[-1]
+    assert last.detail["kind"] == refusals.NO_SESSION and last.detail["asked"] == "POST /scan/stop"
+    assert last.detail["held back since the last"] == 199        # the flood: counted, not copied
+    assert len(refused) <= 5 and "evil.example" in next(a.detail["why"] for a in refused
+                                                         if a.detail["kind"] == refusals.ANOTHER_SITE)

@@ -41,6 +41,7 @@ from vts_hw.console.answers import refused_input, unexpected
 from vts_hw.console.headers import SecurityHeaders
 from vts_hw.console.hosts import HostGate, PeerGate, Reach
 from vts_hw.console.inputs import BadInput, StrictRequests
+from vts_hw.console.refusals import Refusals
 from vts_hw.console.sessions import current
 from vts_hw.console.web import event_stream, no_camera, sse, switch_asked, wanted_cameras
 
@@ -74,6 +75,8 @@ class Console:
         self.actions = actions if actions is not None else MemoryActions(rig_name)
         #: users and sessions (sessions.Auth); None: no users, the person here is ``local``
         self.auth = auth
+        #: refused POSTs into the action log, a line per kind every few seconds (refusals.py)
+        self.refusals = Refusals(self.actions)
         #: the names the console answers to, its POSTs' origins, its proxy (hosts.py)
         self.reach = reach if reach is not None else Reach.local()
 

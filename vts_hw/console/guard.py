@@ -23,6 +23,7 @@ from starlette.requests import Request
 from starlette.responses import JSONResponse, Response
 
 from vts_hw.console.hosts import Reach
+from vts_hw.console.refusals import ANOTHER_SITE, NO_SESSION, NOT_THE_PAGE, ROLE
 
 OPERATOR = "operator"
 PHYSICIST = "physicist"
@@ -92,20 +93,29 @@ def _a(role: str) -> str:
     return f"an {role}" if role[:1] in "aeiou" else f"a {role}"
 
 
+def _refused(console, request: Request, kind: str, why: str, status: int, user: str = "") -> Response:
+    """The answer refusing ``request`` (``why``, one sentence), its refusal recorded in the
+    action log after it is sent (refusals.py: at most one line per kind every few seconds)."""
+    refusals = getattr(console, "refusals", None)
+    task = refusals.note(kind, request, why, user) if refusals is not None else None
+    return JSONResponse({"error": why}, status_code=status, background=task)
+
+
 def refuse(console, request: Request, role: str = OPERATOR) -> Response | None:
     """None when ``request`` may do an action needing ``role``; else the response refusing it
-    (403 with a sentence; 401 when the console has users and the request no live session)."""
+    (403 with a sentence; 401 when the console has users and the request no live session),
+    the refusal recorded in the action log (refusals.py)."""
     why = same_origin(request)
     if why:
-        return JSONResponse({"error": why}, status_code=403)
+        return _refused(console, request, ANOTHER_SITE, why, 403)
     user, has, want = _acting(console, request)      # the session looked up once
     if not user:
-        return JSONResponse({"error": "refused: log in first (no session, or it has ended)"}, status_code=401)
+        return _refused(console, request, NO_SESSION, "refused: log in first (no session, or it has ended)", 401)
     if not want or not secrets.compare_digest(request.headers.get("x-console-token", ""), want):
-        return JSONResponse({"error": "refused: the request did not come from the console's page"},
-                            status_code=403)
+        return _refused(console, request, NOT_THE_PAGE, "refused: the request did not come from the console's page",
+                        403, user)
     if ROLE_RANK.get(has, 0) < ROLE_RANK[role]:
-        return JSONResponse({"error": f"refused: {user} is {_a(has)}; this needs {_a(role)}"}, status_code=403)
+        return _refused(console, request, ROLE, f"refused: {user} is {_a(has)}; this needs {_a(role)}", 403, user)
     return None
 
 

@@ -31,6 +31,7 @@ from starlette.routing import Route
 
 from vts_hw.console import guard
 from vts_hw.console.inputs import body_bytes
+from vts_hw.console.refusals import NO_SESSION
 from vts_hw.console.sessions import LOCK_AFTER, current
 
 OPEN_PATHS = ("/login",)
@@ -68,8 +69,10 @@ class SessionDoor:
                 here = path + (f"?{scope['query_string'].decode('latin-1')}" if scope.get("query_string") else "")
                 resp: Response = RedirectResponse(f"/login?next={quote(here, safe='')}", status_code=303)
             else:
-                resp = JSONResponse({"error": "refused: log in first (no session, or it has ended)"},
-                                    status_code=401)
+                why = "refused: log in first (no session, or it has ended)"
+                # a POST is an action: its refusal recorded (refusals.py); a read is only refused
+                task = self.console.refusals.note(NO_SESSION, request, why) if request.method == "POST" else None
+                resp = JSONResponse({"error": why}, status_code=401, background=task)
             await resp(scope, receive, send)
             return
         if path != PROBE:
