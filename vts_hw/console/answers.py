@@ -6,7 +6,7 @@
   sentence and status, 400, 413, 414 or 415).
 * :func:`unexpected` -- Starlette's handler of any other exception: one sentence, HTTP 500,
   never a traceback or the exception's words in the answer; logged (where, and the server's
-  traceback). The aim is that no input reaches it (tests/test_console_inputs.py walks every
+  traceback, by app.py: never the exception's words). The aim is that no input reaches it (tests/test_console_inputs.py walks every
   route with bad inputs): it is the floor, not the door.
 """
 
@@ -49,11 +49,19 @@ async def unexpected(request: Request, exc: Exception) -> Response:
     """Starlette's handler of any other exception (its ServerErrorMiddleware, outermost): the
     sentence ``UNEXPECTED``, HTTP 500. The console's log gets one line: the request, the
     exception's type and where it was raised (never its words: they might hold what the request
-    carried); the exception goes on to the server, which logs its traceback."""
+    carried); the exception then ends in app.py (after_answer), never in the server's traceback."""
     where = traceback.extract_tb(exc.__traceback__)[-1] if exc.__traceback__ is not None else None
     log.error("the console could not answer %s %s: %s at %s", request.method, request.url.path[:200],
               type(exc).__name__, f"{where.filename}:{where.lineno}" if where else "?")
     return answer(request, UNEXPECTED, 500)
 
 
-__all__ = ["answer", "refused_input", "unexpected", "wants_page", "UNEXPECTED"]
+def after_answer(exc: BaseException) -> None:
+    """An unexpected exception already answered by :func:`unexpected`: its frames (files, lines,
+    functions; never its words) to the debug log, in place of the server's traceback."""
+    frames = traceback.extract_tb(exc.__traceback__) if exc.__traceback__ is not None else []
+    log.debug("%s raised through: %s", type(exc).__name__,
+              " <- ".join(f"{f.filename}:{f.lineno} {f.name}" for f in reversed(frames)) or "?")
+
+
+__all__ = ["answer", "refused_input", "unexpected", "after_answer", "wants_page", "UNEXPECTED"]

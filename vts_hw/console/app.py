@@ -37,7 +37,7 @@ from starlette.templating import Jinja2Templates
 from vts_hw import __version__
 from vts_hw.console import guard
 from vts_hw.console.actions import MemoryActions
-from vts_hw.console.answers import refused_input, unexpected
+from vts_hw.console.answers import after_answer, refused_input, unexpected
 from vts_hw.console.headers import SecurityHeaders
 from vts_hw.console.hosts import HostGate, PeerGate, Reach
 from vts_hw.console.inputs import BadInput, StrictRequests
@@ -91,6 +91,21 @@ class Console:
         for name in self.hub.names:
             cams.append({**self.hub.status(name), **self.facts.view(name)})
         return {"rig": self.rig_name, "now": time.time(), "cameras": cams, "phantom": self.markers.phantom_said()}
+
+
+class _ConsoleApp(Starlette):
+    """Starlette, whose error middleware answers an unexpected exception (answers.unexpected: one
+    sentence, 500, a log line without the exception's words) and then raises it again for the
+    server to log with its traceback and words, which might hold what the request carried. Here
+    it ends once answered: its frames go to the debug log (answers.after_answer), never its words."""
+
+    async def __call__(self, scope, receive, send) -> None:
+        try:
+            await super().__call__(scope, receive, send)
+        except Exception as exc:
+            if scope.get("type") != "http":
+                raise
+            after_answer(exc)
 
 
 def create_app(console: Console) -> Starlette:
@@ -183,8 +198,8 @@ def create_app(console: Console) -> Starlette:
                        Middleware(ProxyHeadersMiddleware, trusted_hosts=reach.trusted_proxies())]
     middleware += [Middleware(HostGate, reach=reach), Middleware(SessionDoor, console=console),
                    Middleware(StrictRequests)]      # inputs.py: no parameter twice, no body too large
-    app = Starlette(routes=routes, middleware=middleware,   # answers.py: one sentence, never a traceback
-                    exception_handlers={BadInput: refused_input, Exception: unexpected})
+    app = _ConsoleApp(routes=routes, middleware=middleware,   # answers.py: one sentence, never a traceback
+                      exception_handlers={BadInput: refused_input, Exception: unexpected})
     app.state.reach = reach             # guard.same_origin's origins
     return app
 
