@@ -134,7 +134,7 @@ class History:
         from vts_hw.console.history_reports import Reports
         self.console = console
         self.templates = templates
-        self.reports = Reports(console)
+        self.reports = console.reports = Reports(console)   # (closed with the console: serve.py)
 
     # -- reading the store (in a thread) ------------------------------------------------------------
     def _store(self):

@@ -264,6 +264,7 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, op
     finally:
         stop_facts.set()
         console.aim.close()             # the aim checks (aim_page.py) end before the hub and cameras
+        console.reports.close()         # the rooms report's temporary folder (history_reports.py)
         markers.close()
         hub.close()
         for cam in cameras.values():
