@@ -24,6 +24,7 @@ from types import SimpleNamespace
 import pytest
 from starlette.testclient import TestClient
 
+from vts_hw.console import refusals, users
 from vts_hw.console.actions import StoreActions, durable_actions
 from vts_hw.console.app import Console, create_app
 from vts_hw.console.hub import FramesHub
@@ -124,12 +125,11 @@ def test_a_baseline_whose_store_is_on_a_full_disk_is_recorded_as_not_set(sim, sm
     console.aim.close()
 
 
-def test_each_lock_out_and_each_try_while_locked_is_in_the_action_log(tmp_path, monkeypatch):
-    import vts_hw.console.users as users
+def _with_users(db, user: str, password: str, monkeypatch, hub=None) -> Console:
+    """A console of room3 whose store ``db`` holds one operator, ``user`` (scrypt made cheap)."""
     monkeypatch.setattr(users, "SCRYPT_N", 2 ** 10)
-    db = tmp_path / "results.sqlite"
     with ResultsStore(db) as store:
-        add_user(store, "ann", "operator", "ann-password-1")
+        add_user(store, user, "operator", password)
 
     def load():
         with ResultsStore(db, mode="read") as store:
@@ -137,8 +137,13 @@ def test_each_lock_out_and_each_try_while_locked_is_in_the_action_log(tmp_path, 
     auth = Auth(required=True, load_users=load)
     auth.refresh_users()
     read = lambda: ResultsStore(db, mode="read")       # noqa: E731
-    console = Console("room3", None, None, None, open_store=read, auth=auth,
-                      actions=StoreActions(lambda: ResultsStore(db), read, "room3"))
+    return Console("room3", hub, None, None, open_store=read, auth=auth,
+                   actions=StoreActions(lambda: ResultsStore(db), read, "room3"))
+
+
+def test_each_lock_out_and_each_try_while_locked_is_in_the_action_log(tmp_path, monkeypatch):
+    db = tmp_path / "results.sqlite"
+    console = _with_users(db, "ann", "ann-password-1", monkeypatch)
     with TestClient(create_app(console), base_url=BASE) as client:
         def login(name, password, next_="/"):
             return client.post("/login", data={"name": name, "password": password, "next": next_},
@@ -225,22 +230,9 @@ def test_every_refused_action_is_in_the_log_and_a_flood_of_them_is_counted_not_c
     """A POST refused by the door or the guard (another site's, no session, without the page's
     token, a role too low) is an action refused: in the log with why and what was asked; a page
     sending hundreds is one line per kind every refusals.EVERY_S, with how many were held back."""
-    import vts_hw.console.users as users
-    from vts_hw.console import refusals
-    monkeypatch.setattr(users, "SCRYPT_N", 2 ** 10)
     now = [1000.0]
     db = tmp_path / "results.sqlite"
-    with ResultsStore(db) as store:
-        add_user(store, "olga", "operator", "olga-password-1")
-
-    def load():
-        with ResultsStore(db, mode="read") as store:
-            return store.users(active_only=True)
-    auth = Auth(required=True, load_users=load)
-    auth.refresh_users()
-    read = lambda: ResultsStore(db, mode="read")       # noqa: E731
-    console = Console("room3", SimpleNamespace(names=["cam1"]), None, None, open_store=read, auth=auth,
-                      actions=StoreActions(lambda: ResultsStore(db), read, "room3"))
+    console = _with_users(db, "olga", "olga-password-1", monkeypatch, hub=SimpleNamespace(names=["cam1"]))
     console.refusals = refusals.Refusals(console.actions, clock=lambda: now[0])
     with TestClient(create_app(console), base_url=BASE) as client:
         for _ in range(200):                                   # no session: the door refuses
