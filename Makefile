@@ -13,6 +13,8 @@ STAMP  := $(VENV)/.installed
 # (chromium and firefox-esr: the console's pages in both browsers)
 # (avrdude: vts trigger flash uploads through the bootloader; tests/test_trigger_flash.py to a simulated board)
 TEST_DEBS := curl openssl chromium firefox-esr fonts-dejavu-core poppler-utils postgresql avrdude
+# (wapiti: bench/web_scan.py, a web scanner written by others against the console)
+BENCH_DEBS := wapiti
 
 .PHONY: demo test bench venv debs firmware clean
 
@@ -41,6 +43,7 @@ test: $(STAMP) debs
 	$(PY) -m pytest $(if $(filter-out 0,$(PYTEST_WORKERS)),-n $(PYTEST_WORKERS) --dist loadscope)
 
 bench: $(STAMP) debs
+	@tools/ensure-debs $(BENCH_DEBS)
 	$(MAKE) -C firmware
 	$(PY) bench/run_all.py
 

@@ -135,7 +135,7 @@ def _static_file() -> str:
 
 def default(ep: Endpoint, slot: str, kind: str) -> str:
     """A harmless good value for a path slot (an id of the store's run, a camera of the rig)."""
-    if kind == "int":
+    if kind == "int" or slot in ("run", "artifact", "n", "id"):
         return "1"
     if slot == "camera":
         return "cam1"
