@@ -15,7 +15,8 @@ are no links a crawler finds); its modules that need nothing from outside this m
 not ``brute_login_form``: it would lock the users out).
 
 Printed: per scan, the findings of each module (vulnerabilities and anomalies, each with its
-path and parameter), and the count; the exit status is 0 when there are none. Takes minutes:
+path and parameter; a module that does not end in its time is one), and the count; the exit
+status is 0 when there are none. Wapiti crawls once; each module then runs on what was crawled. Takes minutes:
 not in make test (tests/test_bad_inputs.py sweeps the same surface in seconds).
 
     .venv/bin/python bench/web_scan.py                 # both scans
@@ -57,43 +58,57 @@ MODULES = ["backup", "blindsql", "buster", "cookieflags", "crlf", "csp", "csrf",
 
 
 def scan(console: Console, who: Who | None, work: Path, minutes: float, label: str) -> dict:
-    """One wapiti run against ``console`` (as ``who``, when it has a session); its JSON report."""
+    """Wapiti against ``console`` (as ``who``, when it has a session): one crawl, then each module in a
+    run of its own on what was crawled (``--skip-crawl``), so that a module that does not end in its
+    time is one finding and the others still report. {module: its JSON report, or None}."""
     base = f"http://{console.host}/"
-    report = work / f"wapiti-{label}.json"
-    attack_s = int(max(20, minutes * 60 / len(MODULES)))      # each module's share (wapiti's own limit)
     starts = sorted({build(e) for e in surface()["users" if who and who.cookie else "no users"]
                      if e.method == "GET" and not e.stream})
-    cmd = [*WAPITI, "-u", base, "--scope", "folder", "-m", ",".join(MODULES), "--flush-session",
-           "--store-session", str(work / f"session-{label}"), "--store-config", str(work / f"config-{label}"),
-           "-f", "json", "-o", str(report), "--max-scan-time", str(int(minutes * 60)),
-           "--max-attack-time", str(attack_s), "--no-bugreport", "-t", "30",
-           "-x", f"{base}logout", "-x", f"{base}events", "-x", f"{base}qa/events", "-x", f"{base}scan/events",
-           "-x", f"{base}aim/events", "--verify-ssl", "0"]
-    for s in starts:
-        cmd += ["-s", base + s.lstrip("/")]
+    attack_s = int(max(20, minutes * 60 / len(MODULES)))      # each module's share (wapiti's own limit)
+    common = [*WAPITI, "-u", base, "--scope", "folder", "--store-session", str(work / f"session-{label}"),
+              "--store-config", str(work / f"config-{label}"), "-f", "json", "--no-bugreport", "-t", "30",
+              "--verify-ssl", "0", "-v", "1",
+              # never the logout (the session is the scan's), never an event stream (it has no end)
+              "-x", f"{base}logout*", "-x", f"{base}events*", "-x", f"{base}*/events*"]
     if who is not None and who.token:
-        cmd += ["-H", f"X-Console-Token: {who.token}"]
+        common += ["-H", f"X-Console-Token: {who.token}"]
     if who is not None and who.cookie:
         cookies = work / f"cookies-{label}.json"
         cookies.write_text(json.dumps({"127.0.0.1": {"/": {"vts_session": {
             "value": who.cookie, "version": 0, "expires": None, "secure": False, "port": None}}}}))
-        cmd += ["-c", str(cookies)]
+        common += ["-c", str(cookies)]
+    out: dict = {"label": label, "modules": {}, "seconds": 0}
     t0 = time.monotonic()
-    # (wapiti's limits are its crawl's and each module's: its report comes at the end, so wait them out)
-    p = subprocess.run(cmd, capture_output=True, text=True, timeout=minutes * 60 + 2 * attack_s * len(MODULES) + 300,
-                       cwd=work)
-    took = time.monotonic() - t0
-    (work / f"wapiti-{label}.log").write_text(p.stdout + p.stderr)
-    if not report.exists():
-        raise RuntimeError(f"wapiti wrote no report (exit {p.returncode}; its output: {work}/wapiti-{label}.log): "
-                           f"{(p.stderr or p.stdout)[-300:]}")
-    r = json.loads(report.read_text())
-    return {"label": label, "seconds": round(took), "report": r, "exit": p.returncode}
+    for i, mod in enumerate(MODULES):
+        report = work / f"wapiti-{label}-{mod}.json"
+        cmd = [*common, "-m", mod, "-o", str(report), "--max-attack-time", str(attack_s)]
+        if i == 0:          # the crawl, once: from the console's page and every GET route
+            cmd += ["--flush-session", "--max-scan-time", str(int(minutes * 60))]
+            for st in starts:
+                cmd += ["-s", base + st.lstrip("/")]
+        else:
+            cmd += ["--skip-crawl", "--flush-attacks"]
+        log = open(work / f"wapiti-{label}-{mod}.log", "w")
+        try:
+            p = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT, text=True, cwd=work,
+                               timeout=(minutes * 60 if i == 0 else 0) + 4 * attack_s + 120)
+            out["modules"][mod] = json.loads(report.read_text()) if report.exists() else \
+                {"error": f"no report (exit {p.returncode})"}
+        except subprocess.TimeoutExpired:
+            limit = (minutes * 60 if i == 0 else 0) + 4 * attack_s + 120
+            out["modules"][mod] = {"error": f"did not end within {limit} s"}
+        finally:
+            log.close()
+    out["seconds"] = round(time.monotonic() - t0)
+    return out
 
 
 def findings(r: dict) -> dict[str, list[str]]:
-    """Each category of wapiti's report with its findings (vulnerabilities and anomalies)."""
+    """Each category of one module's report with its findings (vulnerabilities and anomalies); a
+    module that did not end, or wrote no report, is one finding."""
     out: dict[str, list[str]] = {}
+    if "error" in r:
+        return {"anomaly: the module itself": [r["error"]]}
     for kind in ("vulnerabilities", "anomalies"):
         for cat, items in (r.get(kind) or {}).items():
             for it in items or []:
@@ -118,7 +133,7 @@ def main() -> int:
     try:
         for label, args in (("no users", []), ("users", ["--login", "--scans-dir", str(room.scans)])):
             c = Console(room, args, room.sim, label)
-            res: dict = {"label": label, "seconds": 0, "report": {}}
+            res: dict = {"label": label, "seconds": 0, "modules": {}}
             try:
                 if args:
                     who = Who("phil", password=PASSWORDS["phil"][1])
@@ -137,10 +152,10 @@ def main() -> int:
     total = 0
     out = []
     for res in results:
-        f = findings(res["report"])
-        n = sum(len(v) for v in f.values())
+        per = {mod: findings(r) for mod, r in res.get("modules", {}).items()}
+        n = sum(len(v) for f in per.values() for v in f.values())
         total += n
-        out.append({"scan": res["label"], "seconds": res["seconds"], "findings": f, "count": n,
+        out.append({"scan": res["label"], "seconds": res["seconds"], "modules": per, "count": n,
                     "console": res.get("console")})
     if a.json:
         print(json.dumps(out, indent=1))
@@ -149,11 +164,11 @@ def main() -> int:
             print(f"wapiti against vts console ({o['scan']}): {o['count']} finding(s) in {o['seconds']} s; "
                   f"the console after it: exit {o['console']['exit']} on Ctrl-C, "
                   f"{'a traceback' if o['console']['traceback'] else 'no traceback'} on its stderr")
-            print(f"  modules run: {', '.join(MODULES)}")
-            for k, v in sorted(o["findings"].items()):      # a category: what one module reports
-                print(f"  {k}: {len(v)}")
-                for x in v:
-                    print(f"    {x}")
+            for mod, f in o["modules"].items():
+                print(f"  {mod:<14} {sum(len(v) for v in f.values())}")
+                for k, v in sorted(f.items()):
+                    for x in v:
+                        print(f"    {k}: {x}")
         print(f"total: {total} finding(s)")
     if a.keep:
         print(f"(reports in {work})", file=sys.stderr)

@@ -37,8 +37,9 @@ KINDS = ("device", "FIFO", "symlink", "directory")
 WRITTEN = {"out", "output", "export_dir", "plot_path", "folder", "out_dir", "log_path"}
 #: commands whose parameter of such a name is only read (`sim down --dir` reads the pid file there)
 READ_ONLY = {("sim", "down")}
-#: folder outputs given an existing folder run their whole job (the demo: minutes): not that kind
-WHOLE_JOB = {("demo",)}
+#: folder outputs given an existing folder run their whole job (the demo: minutes; sim up: a rig left
+#: running in the background): not that kind
+WHOLE_JOB = {("demo",), ("sim", "up")}
 NULL_DEV = os.makedev(1, 3)      # the numbers of /dev/null: a twin made in the case's folder
 TARGET_TEXT = b"the file a link points at: not the command's\n"
 KEEP_TEXT = b"a file of the folder's own\n"

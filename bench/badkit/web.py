@@ -77,7 +77,8 @@ BODIES = [("{", "application/json"), ("[]", "application/json"), ('"on"', "appli
           ("{" + '"k":1,' * 300_000 + '"z":1}', "application/json"), ("\xff\xfe\x00junk", "application/json"),
           ('{"on": true, "frames": 5, "confirm": true}', "text/plain"),
           ('{"on": true, "frames": 5}', "application/x-www-form-urlencoded"),
-          ("--b\r\nContent-Disposition: form-data; name=\"on\"\r\n\r\ntrue\r\n--b--\r\n", "multipart/form-data; boundary=b")]
+          ("--b\r\nContent-Disposition: form-data; name=\"on\"\r\n\r\ntrue\r\n--b--\r\n",
+           "multipart/form-data; boundary=b")]
 REPEAT_CANDIDATES = ["1", "2", "OK", "ACTION", "TOLERANCE", "cam1", "cam2", "2026-01-01", "2026-01-02", "30d", "60d",
                      "/", "/history", "daily", "ann", "phil", "0"]
 OPEN = ("/login", "/static/")
@@ -122,7 +123,8 @@ class Case:
 
     @property
     def what(self) -> str:
-        return f"[{self.family}] {self.ep.method} {self.path[:120]} as {self.who.name}" + (f" ({self.note})" if self.note else "")
+        return (f"[{self.family}] {self.ep.method} {self.path[:120]} as {self.who.name}"
+                + (f" ({self.note})" if self.note else ""))
 
 
 # -- building requests ---------------------------------------------------------------------------
@@ -292,13 +294,15 @@ class Judge:
             if x.cookie and x.cookie.encode() in ans.body:
                 v.flag("security", f"the answer holds {x.name}'s session key")
         loc = ans.header("location")
-        if loc and (loc.startswith("//") or ("://" in loc and not loc.split("://", 1)[1].startswith(self.console.host))):
+        off_site = "://" in loc and not loc.split("://", 1)[1].startswith(self.console.host)
+        if loc and (loc.startswith("//") or off_site):
             v.flag("security", f"redirected off the console: {loc}")
         if case.script and any(r.encode() in ans.body for r in RAW_SCRIPT):
             ctype = ans.header("content-type")
-            if "html" in ctype or "nosniff" not in ans.header("x-content-type-options").lower():
+            sniff = "nosniff" not in ans.header("x-content-type-options").lower()
+            if "html" in ctype or sniff:
                 v.flag("security", f"the script came back unescaped ({ctype or 'no content type'}, "
-                                   f"{'nosniff' if 'nosniff' in ans.header('x-content-type-options') else 'no nosniff'})")
+                                   f"{'no nosniff' if sniff else 'nosniff'})")
         ok = 200 <= ans.status < 300 or (300 <= ans.status < 400 and "/login" not in loc)
         if case.must_refuse and ok:
             kind = "security" if case.foreign else "false_ok"
@@ -468,7 +472,8 @@ def many_clients(judge: Judge, eps: list[Endpoint], who: Who) -> Verdict:
         t.start()
     for t in threads:
         t.join()
-    bad = [(gets[i % len(gets)].path, a.status if a else None) for i, a in enumerate(answers) if a is None or a.status == 500]
+    bad = [(gets[i % len(gets)].path, a.status if a else None) for i, a in enumerate(answers)
+           if a is None or a.status == 500]
     if bad:
         v.flag("hang" if any(s is None for _, s in bad) else "traceback",
                f"{len(bad)} of {CLIENTS} requests unanswered or failed while {len(held)} streams were open: {bad[:3]}")
