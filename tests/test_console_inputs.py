@@ -382,7 +382,8 @@ def test_a_scan_start_is_answered_at_once_and_recorded_with_its_outcome(local, r
     desk.rig = cfg.model_copy(update={"cameras": [cfg.cameras[0].model_copy(update={"port": 9})]})
     try:
         r = client.post("/scan/start", json={"reference_s": 2, "duration_s": "3"}, headers={"X-Console-Token": token})
-        assert r.status_code == 200 and r.json()["phase"] == "starting"
+        # (answered before the scan is under way; a camera refusing at once may have failed it already)
+        assert r.status_code == 200 and r.json()["phase"] in ("starting", "failed"), r.json()
         scan = r.json()["scan"]
         end = time.monotonic() + 60
         while desk.busy() and time.monotonic() < end:

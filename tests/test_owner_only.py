@@ -54,6 +54,20 @@ def test_an_unsaved_run_is_the_owners_only(tmp_path, umask_022):
     assert path is not None and path.parent == tmp_path / "store" / "unsaved" and mode(path) == 0o600
 
 
+def test_an_unsaved_run_that_the_full_disk_refused_leaves_no_empty_folder(tmp_path, small_disk, monkeypatch):
+    """Found by the sweep's console full disk class: a run the store on a full disk did not take
+    went elsewhere, and left an empty unsaved/ beside the store, a folder where runs seem to wait."""
+    disk = small_disk(64)
+    (disk.path / "store").mkdir()
+    disk.fill()
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))
+    path, tried = save_unsaved(f"sqlite:///{disk.path / 'store' / 'results.sqlite'}",
+                               {"procedure": "drift", "started": 1.0, "measurements": []})
+    assert path is not None and path.parent == tmp_path / "data" / "vts-hw" / "unsaved", (path, tried)
+    assert tried and str(disk.path / "store" / "unsaved") in tried[0]
+    assert not (disk.path / "store" / "unsaved").exists()
+
+
 def test_sim_env_is_the_owners_only_and_an_old_wide_one_is_narrowed(tmp_path, umask_022):
     with SimRig(n_cameras=1, seed=1) as rig:
         folder = tmp_path / "sim"

@@ -32,7 +32,7 @@ from vts_hw.errors import UsageError
 
 LOOPBACK_NAMES = frozenset({"localhost", "127.0.0.1", "::1"})
 #: the "every address" hosts, recognised to ask for a name to answer to (nothing is bound here)
-WILDCARD_HOSTS = frozenset({"0.0.0.0", "::", ""})  # nosec B104
+WILDCARD_HOSTS = frozenset({"0.0.0.0", "::", ""})  # nosec B104: names to recognise, nothing binds to them
 DEFAULT_PORTS = {"http": 80, "https": 443}
 _LABEL = re.compile(r"(?!-)[a-z0-9-]{1,63}(?<!-)")
 SHOWN_MAX = 80

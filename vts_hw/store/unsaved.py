@@ -10,6 +10,7 @@ and read back by the one recorder (recorder.py), whatever the procedure.
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import json
 import os
@@ -46,12 +47,16 @@ def save_unsaved(url: str | None, run: dict) -> tuple[Path | None, list[str]]:
     doc = {"format": FORMAT, **run}
     tried = []
     for folder in candidate_folders(url):
+        made = not folder.exists()
         try:
             folder.mkdir(parents=True, exist_ok=True, mode=0o700)
             # owner-only, as the store it waits for (decision 0081): $TMPDIR is everyone's
             return write_json_atomic(folder / name, doc, mode=PRIVATE), tried
         except (OSError, WriteFailed) as exc:
             tried.append(f"{folder}: {exc}")
+            if made:                 # an empty unsaved/ made here would look like a place runs wait in
+                with contextlib.suppress(OSError):
+                    folder.rmdir()
     return None, tried
 
 
