@@ -113,7 +113,7 @@ def findings(r: dict) -> dict[str, list[str]]:
         for cat, items in (r.get(kind) or {}).items():
             for it in items or []:
                 where = f"{it.get('method', '')} {it.get('path', '')}"
-                out.setdefault(f"{kind[:-3] if kind == 'vulnerabilities' else 'anomaly'}: {cat}", []).append(
+                out.setdefault(f"{'vulnerability' if kind == 'vulnerabilities' else 'anomaly'}: {cat}", []).append(
                     f"{where} {it.get('parameter', '')}: {it.get('info', '')}".strip())
     return out
 

@@ -20,7 +20,8 @@ way`` (its first frames on disk, its workers or avrdude started, the console's j
   in the emulator) has the square wave off once the host is gone (the box's output pin stops
   toggling: read from the emulator's log of pin edges, and confirmed by asking it ``OUTP?``,
   within :data:`WAVE_OFF_S`), and each camera's LED as it was before the case (read from the
-  simulated camera; on the rig the other cases share, others switch them);
+  simulated camera; on the rig the other cases share, others switch them) where the command's
+  own end leaves it so (a scan leaves the LED ring on: the markers are retro-reflective);
 * **exit**: SIGINT: 130 saying ``interrupted`` (or 0 where Ctrl-C is the way a command ends);
   SIGTERM: 130 or 143, or killed by it; no traceback.
 
@@ -128,10 +129,13 @@ class _Signaller:
     """``during``: wait for the moment (``ready(wd, pid)``, then ``extra_s``; or ``wait_s``), send
     ``signum``; then note what of it is left running once it has ended."""
 
-    def __init__(self, wd: Path, signum: int, ready, wait_s: float, extra_s: float, tag: str):
+    def __init__(self, wd: Path, signum: int, ready, wait_s: float, extra_s: float, tag: str, moment: str = "",
+                 job_ended=None):
         self.wd, self.signum, self.ready, self.wait_s, self.extra_s, self.tag = wd, signum, ready, wait_s, extra_s, tag
+        self.moment, self._job_ended = moment, job_ended
         self.sent_after: float | None = None
         self.ended_first = False
+        self.job_ended = False      # (a console's job ended before the signal: what it stored is its own)
         self.left: list[str] = []
 
     def __call__(self, pid: int) -> None:
@@ -150,6 +154,7 @@ class _Signaller:
             self.ended_first = True
             return
         self.sent_after = time.monotonic() - t0
+        self.job_ended = bool(self._job_ended and self._job_ended(self.wd, pid))
         try:
             os.kill(pid, self.signum)
         except ProcessLookupError:
@@ -343,7 +348,7 @@ def _read_as_users_do(folder: Path, kind: str) -> str:
 VERDICTS = ("OK", "TOLERANCE", "ACTION")
 
 
-def _store_after(wd: Path, procedure: str, must_have_row: bool) -> str:
+def _store_after(wd: Path, procedure: str, must_have_row: bool, judge_verdicts: bool) -> str:
     """'' when the case's store holds no verdict of a run it was killed in and, ``must_have_row``,
     the run it began is there."""
     db = wd / "own.sqlite"
@@ -353,15 +358,17 @@ def _store_after(wd: Path, procedure: str, must_have_row: bool) -> str:
     con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
     try:
         rows = con.execute("SELECT procedure, status FROM runs WHERE procedure LIKE ?", (f"%{procedure}%",)).fetchall()
-    except sqlite3.Error as exc:
-        return f"the store could not be read ({exc})"
+    except sqlite3.OperationalError as exc:
+        if "no such table" not in str(exc):
+            return f"the store could not be read ({exc})"
+        rows = []                       # killed before the store had its tables: nothing claimed
     finally:
         con.close()
     ours = [r for r in rows if r not in _BASE_ROWS.get(str(db), [])]
     if must_have_row and not ours:
         return f"the store holds no row of the {procedure} run it was killed in"
     verdicts = [r[1] for r in ours if r[1] in VERDICTS]
-    if verdicts and not must_have_row:        # (a commissioning's steps done before the kill keep theirs)
+    if verdicts and judge_verdicts:
         return f"the store holds a verdict ({', '.join(verdicts)}) of the {procedure} run it was killed in"
     return ""
 
@@ -371,31 +378,36 @@ _BASE_ROWS: dict[str, list] = {}
 
 # -- the judge ----------------------------------------------------------------------------------------
 
-def _judge(kind: str, holder: dict, ends, procedure: str | None, must_have_row: bool, what: str = ""):
+def _judge(kind: str, holder: dict, ends, procedure: str | None, must_have_row: bool, what: str = "",
+           leds_kept: bool = True):
     def judge(wd: Path, code, out, err) -> Verdict:
         signaller: _Signaller = holder["signaller"]
         box: Box | None = holder.get("box")
         try:
             v = _verdict(wd, code, err, kind, signaller, ends)
             if not signaller.ended_first:
+                orderly = kind == "SIGINT" or (kind == "SIGTERM" and code in (0, 130, 143))
                 for folder in _recordings(wd):
                     wrong = _recording_whole(folder)
                     if wrong:
                         v.damaged, v.why = True, wrong
-                    said = _read_as_users_do(folder, kind)
+                    said = _read_as_users_do(folder, "SIGINT" if orderly else kind)
                     if said:
                         v.false_ok, v.why = True, said
                     manifest = folder / "manifest.json"
-                    if kind == "SIGINT" and manifest.exists():
+                    if orderly and manifest.exists():
                         try:
                             m = json.loads(manifest.read_text())
                         except ValueError:
                             m = {}
                         told = {m.get("status"), (m.get("scan") or {}).get("stop_reason"), m.get("stop_reason")}
                         if "interrupted" not in told:
-                            v.other, v.why = True, f"the manifest says {m.get('status')!r} after SIGINT"
+                            v.other, v.why = True, f"the manifest says {m.get('status')!r} after {kind} (exit {code})"
                 if procedure:
-                    wrong = _store_after(wd, procedure, must_have_row and kind != "SIGINT")
+                    # a run begun is there once under way (not half a second in); a commissioning's steps
+                    # done before the kill keep their verdicts; a job that had ended before it, too
+                    wrong = _store_after(wd, procedure, must_have_row and kind != "SIGINT" and signaller.moment
+                                         != "starting", not must_have_row and not signaller.job_ended)
                     if wrong:
                         v.false_ok, v.why = True, wrong
             if box is not None:
@@ -406,7 +418,7 @@ def _judge(kind: str, holder: dict, ends, procedure: str | None, must_have_row: 
                         f"{[round(e.cycle / 16e6, 3) for e in box.box.edges()][-30:]} {box.box.edges()[-3:]}\n")
                 if on:
                     v.other, v.why = True, on
-            if "leds" in holder:
+            if "leds" in holder and leds_kept:
                 now = leds(holder["config"])
                 if now != holder["leds"]:
                     v.other, v.why = True, f"the LEDs were {holder['leds']}, now {now}"
@@ -444,7 +456,7 @@ def _verdict(wd, code, err, kind, s: _Signaller, ends) -> Verdict:
 
 def _case(what: str, argv_of, kind: str, moment: str, ready, wait_s: float, *, ends=frozenset({130}),
           box: bool = False, procedure: str | None = None, must_have_row: bool = False, config=None,
-          during=None) -> Case:
+          during=None, job_ended=None, leds_kept: bool = True) -> Case:
     signum = getattr(signal, kind)
     holder: dict = {}
     tag = f"{os.getpid()}-{abs(hash((what, kind, moment))) % 10 ** 9}"
@@ -452,7 +464,7 @@ def _case(what: str, argv_of, kind: str, moment: str, ready, wait_s: float, *, e
     def make(wd: Path) -> list[str]:
         rd = ready() if moment != "starting" else (lambda wd, pid: True)
         extra = {"starting": 0.5, "under way": 0.0, "later": 3.0}[moment]
-        holder["signaller"] = _Signaller(wd, signum, rd, wait_s, extra, tag)
+        holder["signaller"] = _Signaller(wd, signum, rd, wait_s, extra, tag, moment, job_ended)
         cfg = config
         if box:
             holder["box"] = b = Box(wd)
@@ -481,7 +493,7 @@ def _case(what: str, argv_of, kind: str, moment: str, ready, wait_s: float, *, e
     def judge(wd, code, out, err):
         if os.environ.get("BAD_INPUTS_DEBUG"):
             Path(os.environ["BAD_INPUTS_DEBUG"], f"{kind}-{what}.err").write_text(err)
-        return _judge(kind, holder, ends, procedure, must_have_row, what)(wd, code, out, err)
+        return _judge(kind, holder, ends, procedure, must_have_row, what, leds_kept)(wd, code, out, err)
     return Case(CLASS, f"{kind} {moment}: {what}", make, judge, extra={"run": run})
 
 
@@ -555,6 +567,17 @@ def _console_job(job: str):
     return during
 
 
+def _qa_ended(wd: Path, pid: int) -> bool:
+    """The console's Daily QA job is over (done or failed), as /qa/state says."""
+    try:
+        status, body = _http(int((wd / ".port").read_text()), "GET", "/qa/state")
+        job = json.loads(body)
+        job = job.get("job", job)
+        return status == 200 and job.get("state") not in ("running", None)
+    except (OSError, ValueError, IndexError, AttributeError):
+        return False
+
+
 def _qa_running(wd: Path, pid: int) -> bool:
     try:
         port = int((wd / ".port").read_text())
@@ -600,7 +623,7 @@ def cases(inp, only: str | None = None, full: bool = False) -> list[Case]:
     long = {
         "scan start": (lambda wd, c: ["scan", "start", "--no-live", "--duration", "60", "-o", str(wd / "scan"),
                                       "--config", str(c)],
-                       _always(_frames_on_disk), 60, {0, 130}, dict(box=True)),
+                       _always(_frames_on_disk), 60, {0, 130}, dict(box=True, leds_kept=False)),
         "camera record": (lambda wd, c: ["camera", "record", "cam1", "cam2", "--seconds", "60", "-o", str(wd / "rec"),
                                          "--config", str(c)], _always(_frames_on_disk), 60, {130}, {}),
         "camera stream": (lambda wd, c: ["camera", "stream", "cam1", "--config", str(c)], _after(3), 30, {0, 130}, {}),
@@ -623,9 +646,10 @@ def cases(inp, only: str | None = None, full: bool = False) -> list[Case]:
         "sim up": (lambda wd, c: ["sim", "up", "--dir", str(wd / "sim"), "--trigger", "triggerbox"],
                    _always(_file("sim/rig.yaml")), 90, {0, 130}, dict(config=None)),
         "console, a Scan-page scan": (console_argv("scan"), _always(_frames_on_disk), 90, {0, 130},
-                                      dict(box=True, during=_console_job("scan"))),
+                                      dict(box=True, during=_console_job("scan"), leds_kept=False)),
         "console, a Daily QA": (console_argv("qa"), _always(_qa_running), 90, {0, 130},
-                                dict(procedure="daily", during=_console_job("qa"))),
+                                dict(procedure="daily", during=_console_job("qa"),
+                                     job_ended=_qa_ended)),
     }
     out = []
     for i, (name, (argv_of, ready, wait_s, ends, opts)) in enumerate(long.items()):
