@@ -161,20 +161,24 @@ def child_options(sig: int = signal.SIGKILL) -> dict:
 
 @contextlib.contextmanager
 def interrupts_deferred():
-    """Ctrl-C held back for the block, then raised at its end: for a block that must not be cut
-    in the middle (a process pool starting its workers: one cut between the fork server's fork
-    and the pool noting the worker leaves that worker unwaited-for, and it dies with a traceback
-    when the pool's queues are gone). Outside the main thread, nothing is changed."""
+    """Ctrl-C and SIGTERM (which the CLI makes an interrupt too) held back for the block, then
+    delivered at its end: for a block that must not be cut in the middle (a process pool
+    starting its workers: one cut between the fork server's fork and the pool noting the worker
+    leaves that worker unwaited-for, and it dies with a traceback when the pool's queues are
+    gone). Outside the main thread, nothing is changed."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
     got: list[int] = []
-    old = signal.signal(signal.SIGINT, lambda signum, frame: got.append(signum))
+    held = (signal.SIGINT, signal.SIGTERM)
+    old = {s: signal.signal(s, lambda signum, frame: got.append(signum)) for s in held}
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, old)
-    if got and callable(old):
-        old(signal.SIGINT, None)
-    elif got and old == signal.SIG_DFL:   # the default: end as Ctrl-C would have ended it
-        os.kill(os.getpid(), signal.SIGINT)
+        for s in held:
+            signal.signal(s, old[s])
+    for s in dict.fromkeys(got):          # each signal held back, once, as it would have come
+        if callable(old[s]):
+            old[s](s, None)
+        elif old[s] == signal.SIG_DFL:    # the default: end as the signal would have ended it
+            os.kill(os.getpid(), s)
