@@ -107,8 +107,8 @@ def findings(r: dict) -> dict[str, list[str]]:
     """Each category of one module's report with its findings (vulnerabilities and anomalies); a
     module that did not end, or wrote no report, is one finding."""
     out: dict[str, list[str]] = {}
-    if "error" in r:
-        return {"anomaly: the module itself": [r["error"]]}
+    if "error" in r:      # the scanner's own trouble (a module past its time), said apart from the console's
+        return {"scanner": [r["error"]]}
     for kind in ("vulnerabilities", "anomalies"):
         for cat, items in (r.get(kind) or {}).items():
             for it in items or []:
@@ -153,7 +153,7 @@ def main() -> int:
     out = []
     for res in results:
         per = {mod: findings(r) for mod, r in res.get("modules", {}).items()}
-        n = sum(len(v) for f in per.values() for v in f.values())
+        n = sum(len(v) for f in per.values() for k, v in f.items() if k != "scanner")
         total += n
         out.append({"scan": res["label"], "seconds": res["seconds"], "modules": per, "count": n,
                     "console": res.get("console")})
@@ -161,7 +161,10 @@ def main() -> int:
         print(json.dumps(out, indent=1))
     else:
         for o in out:
-            print(f"wapiti against vts console ({o['scan']}): {o['count']} finding(s) in {o['seconds']} s; "
+            unfinished = [m for m, f in o["modules"].items() if "scanner" in f]
+            print(f"wapiti against vts console ({o['scan']}): {o['count']} finding(s) in {o['seconds']} s"
+                  + (f" (modules that did not end in their time: {', '.join(unfinished)})" if unfinished else "")
+                  + "; "
                   f"the console after it: exit {o['console']['exit']} on Ctrl-C, "
                   f"{'a traceback' if o['console']['traceback'] else 'no traceback'} on its stderr")
             for mod, f in o["modules"].items():
