@@ -246,13 +246,17 @@ def _slot_case(family, ep, who, where, slot, value, script=False, number=False) 
 class Judge:
     """Sends cases to one console and judges them (see the module docstring)."""
 
-    def __init__(self, room: Room, console: Console, who_all: list[Who], settle_as: Who):
+    def __init__(self, room: Room, console: Console, who_all: list[Who], settle_as: Who, reader: Who | None = None):
         self.room, self.console, self.all, self.settle_as = room, console, who_all, settle_as
+        #: who reads the state: a session no case sends with (a case may end the others')
+        self.reader = reader or settle_as
         self.cams = list(room.cameras)
         self.scans_dir = console.scans_dir
 
     def state(self) -> dict:
-        c, w = self.console, self.settle_as
+        c, w = self.console, self.reader
+        if w.cookie and (c.send("GET", "/session", who=w) or Answer(0, {}, b"")).status != 200:
+            login(c, w)
         out = {"led": {n: self.room.led(n) for n in self.cams}}
         for key, path, fields in (("scan", "/scan/state", ("phase", "folder")),
                                   ("qa", "/qa/state", ("state", "version", "pushing"))):
@@ -346,6 +350,9 @@ class Judge:
         """Undo what a case changed (so the next is judged on the same room): a scan stopped, a QA
         job waited for, LEDs and aim checks switched back, sessions logged in again."""
         c, w = self.console, self.settle_as
+        for x in self.all:
+            if x.cookie and after["sessions"].get(x.name) != 200:
+                login(c, x)
         if after["scan"].get("phase") not in (None, "idle", "stopped", before["scan"].get("phase")):
             c.send("POST", "/scan/stop", who=w)
             _until(lambda: self.state()["scan"].get("phase") in ("idle", "stopped", None), 120)
@@ -356,9 +363,6 @@ class Judge:
                 c.send("POST", f"/camera/{n}/led", who=w, body=json.dumps({"on": before["led"][n]}).encode())
             if after.get(f"aim {n}") and not before.get(f"aim {n}"):
                 c.send("POST", f"/aim/{n}", who=w, body=b'{"on": false}')
-        for x in self.all:
-            if x.cookie and after["sessions"].get(x.name) != 200:
-                login(c, x)
 
 
 def _until(check, timeout: float) -> bool:
@@ -553,11 +557,12 @@ def _one_console(room: Room, c: Console, eps: list[Endpoint], users: bool, full:
         whos[1].extra["other_token"], whos[2].extra["other_token"] = whos[2].token, whos[1].token
         settle_as = whos[2]
         carl = Who("carl", password=PASSWORDS["carl"][1])
+        login(c, carl)              # the state's reader
     else:
         local = Who("local")
         local.token = page_token(c, local)
         whos, settle_as = [local], local
-    judge = Judge(room, c, whos, settle_as)
+    judge = Judge(room, c, whos, settle_as, carl if users else None)
     out, spent = [], {}
     for i, ep in enumerate(eps):
         ids = whos if full else [whos[0], whos[1 + i % (len(whos) - 1)]] if users else whos
@@ -582,7 +587,7 @@ def _one_console(room: Room, c: Console, eps: list[Endpoint], users: bool, full:
     out += header_cases(judge, eps, active[-1])
     if users:
         out += header_cases(judge, [e for e in eps if e.path.startswith("/login")], Who("anon"))
-        login(c, carl)          # the login form's own user is sound afterwards
+        login(c, Who("carl", password=PASSWORDS["carl"][1]))   # the login form's own user is sound afterwards
     t0 = time.monotonic()
     out.append(many_clients(judge, eps, active[0]))
     log(f"-- many clients: {time.monotonic() - t0:.1f} s")

@@ -22,7 +22,8 @@ from starlette.routing import Mount, Route
 QUERY_RECEIVERS = {"params", "query", "query_params", "qs"}
 BODY_RECEIVERS = {"body", "data", "payload", "asked"}
 FORM_RECEIVERS = {"form", "fields"}
-BODY_READERS = ("json_object", ".json(", ".body(", ".form(", "switch_asked", "_form(", "model_validate")
+BODY_READERS = ("json_object", "json_body", "body_bytes", ".json(", ".body(", ".form(", "switch_asked", "_form(",
+                "model_validate")
 
 
 @dataclass
@@ -96,14 +97,100 @@ def _receiver(node: ast.AST) -> str:
     return ast.unparse(node)
 
 
+def _fn_node(tree: ast.AST):
+    return next((n for n in ast.walk(tree) if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef))), None)
+
+
+def _tuple_strings(tree: ast.AST) -> list[str]:
+    """The strings of every tuple or list literal of strings in ``tree`` (the keys a loop reads)."""
+    out = []
+    for n in ast.walk(tree):
+        if isinstance(n, (ast.Tuple, ast.List)) and n.elts and all(
+                isinstance(e, ast.Constant) and isinstance(e.value, str) for e in n.elts):
+            out += [e.value for e in n.elts]
+    return out
+
+
+def _query_readers(fns) -> dict[str, tuple[str, int, object]]:
+    """The helpers among ``fns`` that read the query parameter a parameter of theirs names
+    (``query_params.get(name)``): {function name: (that parameter, its position, its default)}."""
+    out = {}
+    for fn in fns:
+        tree = _source(fn)
+        node = _fn_node(tree) if tree is not None else None
+        if node is None:
+            continue
+        params = [a.arg for a in node.args.args]
+        defaults = dict(zip(params[len(params) - len(node.args.defaults):], node.args.defaults))
+        for n in ast.walk(node):
+            if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and n.func.attr in ("get", "getlist") \
+                    and "query_params" in ast.unparse(n.func.value) and n.args and isinstance(n.args[0], ast.Name) \
+                    and n.args[0].id in params:
+                name = n.args[0].id
+                d = defaults.get(name)
+                out[node.name] = (name, params.index(name), d.value if isinstance(d, ast.Constant) else None)
+    # a helper handing a parameter of its own to a reader as the name it reads is one too (query_id)
+    changed = True
+    while changed:
+        changed = False
+        for fn in fns:
+            tree = _source(fn)
+            node = _fn_node(tree) if tree is not None else None
+            if node is None or node.name in out:
+                continue
+            params = [a.arg for a in node.args.args]
+            defaults = dict(zip(params[len(params) - len(node.args.defaults):], node.args.defaults))
+            for n in ast.walk(node):
+                callee = n.func.id if isinstance(n, ast.Call) and isinstance(n.func, ast.Name) else ""
+                if callee in out and callee != node.name:
+                    pname, pos, _ = out[callee]
+                    given = next((k.value for k in n.keywords if k.arg == pname),
+                                 n.args[pos] if len(n.args) > pos else None)
+                    if isinstance(given, ast.Name) and given.id in params:
+                        d = defaults.get(given.id)
+                        out[node.name] = (given.id, params.index(given.id),
+                                          d.value if isinstance(d, ast.Constant) else None)
+                        changed = True
+                        break
+    return out
+
+
+def _models(fn) -> list:
+    """The pydantic models a function names (a body validated as one: its fields are body keys)."""
+    try:
+        cv = inspect.getclosurevars(getattr(fn, "__func__", fn))
+    except (TypeError, ValueError):
+        return []
+    return [v for v in {**cv.globals, **cv.nonlocals}.values()
+            if inspect.isclass(v) and isinstance(getattr(v, "model_fields", None), dict)]
+
+
 def _keys(fns) -> tuple[list[str], list[str], list[str], bool, bool]:
     """(query keys, body keys, form keys, reads a body, answers an event stream) of these functions."""
     query, body, form = [], [], []
     reads, stream = False, False
+    readers = _query_readers(fns)
     for fn in fns:
         tree = _source(fn)
         if tree is None:
             continue
+        for m in _models(fn):                       # a body read as a model: its fields
+            body += list(m.model_fields)
+        for n in ast.walk(tree):                    # a helper reading the query parameter it is named
+            if not isinstance(n, ast.Call):
+                continue
+            callee = n.func.id if isinstance(n.func, ast.Name) else n.func.attr if isinstance(n.func, ast.Attribute) \
+                else ""
+            if callee not in readers:
+                continue
+            pname, pos, default = readers[callee]
+            given = next((k.value for k in n.keywords if k.arg == pname), n.args[pos] if len(n.args) > pos else None)
+            if given is None:
+                query += [default] if isinstance(default, str) else []
+            elif isinstance(given, ast.Constant) and isinstance(given.value, str):
+                query.append(given.value)
+            else:                                   # a key from a loop: the keys of the tuples it loops over
+                query += _tuple_strings(tree)
         text = ast.unparse(tree)
         reads = reads or any(r in text for r in BODY_READERS)
         stream = stream or "event_stream(" in text or "text/event-stream" in text
@@ -122,10 +209,17 @@ def _keys(fns) -> tuple[list[str], list[str], list[str], bool, bool]:
             last = r.rsplit(".", 1)[-1]
             if "query_params" in r or last in QUERY_RECEIVERS:
                 query.append(key)
+            elif "query_params" in r:
+                pass
             elif "json_object" in r or ".json(" in r or last in BODY_RECEIVERS:
                 body.append(key)
             elif last in FORM_RECEIVERS:
                 form.append(key)
+        for n in ast.walk(tree):                    # query_params.get(k), k from a loop over a tuple
+            if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and n.func.attr in ("get", "getlist") \
+                    and "query_params" in ast.unparse(n.func.value) and n.args and isinstance(n.args[0], ast.Name) \
+                    and fn.__name__ not in readers:
+                query += _tuple_strings(tree)
         # a pydantic model a handler validates its body with: its fields are body keys
         for node in ast.walk(tree):
             if isinstance(node, ast.Attribute) and node.attr in ("model_validate", "model_validate_json") \
