@@ -16,6 +16,7 @@ at it with.
 from __future__ import annotations
 
 import contextlib
+import re
 import selectors
 import signal
 import subprocess
@@ -169,6 +170,28 @@ def qa_rig_yaml(rig, folder):
     data["qatrack"].update(report="none", plots=False)
     path.write_text(yaml.safe_dump(data))
     return path
+
+
+FORM_TOKEN = re.compile(r'name="form_token" value="([^"]+)"')
+
+
+def log_in(client, name: str, password: str, next_: str = "/", **kw):
+    """POST the login form as a browser does (Starlette's TestClient ``client``): the form shown
+    first, its token (and the cookie that goes with it) sent back with the fields."""
+    shown = client.get("/login")
+    m = FORM_TOKEN.search(shown.text)
+    assert m, (shown.status_code, shown.text[:200])
+    return client.post("/login", data={"name": name, "password": password, "next": next_,
+                                       "form_token": m.group(1)}, follow_redirects=False, **kw)
+
+
+def log_in_over_http(session, url: str, name: str, password: str, **kw):
+    """The same over the network (a ``requests.Session`` ``session``, the console at ``url``)."""
+    shown = session.get(url + "login", timeout=30, **kw)
+    m = FORM_TOKEN.search(shown.text)
+    assert m, (shown.status_code, shown.text[:200])
+    return session.post(url + "login", data={"name": name, "password": password, "form_token": m.group(1)},
+                        timeout=30, **kw)
 
 
 def start_console(args, env, timeout=60.0):

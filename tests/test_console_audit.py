@@ -24,6 +24,7 @@ from types import SimpleNamespace
 import pytest
 from starlette.testclient import TestClient
 
+from console_live import log_in
 from vts_hw.console import refusals, users
 from vts_hw.console.actions import StoreActions, durable_actions
 from vts_hw.console.app import Console, create_app
@@ -146,8 +147,7 @@ def test_each_lock_out_and_each_try_while_locked_is_in_the_action_log(tmp_path, 
     console = _with_users(db, "ann", "ann-password-1", monkeypatch)
     with TestClient(create_app(console), base_url=BASE) as client:
         def login(name, password, next_="/"):
-            return client.post("/login", data={"name": name, "password": password, "next": next_},
-                               follow_redirects=False)
+            return log_in(client, name, password, next_)
         for sly in ("/\t/evil.example", "/\n/evil.example", "/ /evil.example", "//evil.example", "/\\evil.example"):
             r = login("ann", "ann-password-1", sly)                # a browser drops a tab: //evil.example
             assert r.status_code == 303 and r.headers["location"] == "/", (sly, r.headers["location"])
@@ -237,8 +237,7 @@ def test_every_refused_action_is_in_the_log_and_a_flood_of_them_is_counted_not_c
     with TestClient(create_app(console), base_url=BASE) as client:
         for _ in range(200):                                   # no session: the door refuses
             assert client.post("/camera/cam1/led", json={"on": False}).status_code == 401
-        r = client.post("/login", data={"name": "olga", "password": "olga-password-1", "next": "/"},
-                        follow_redirects=False)
+        r = log_in(client, "olga", "olga-password-1")
         assert r.status_code == 303
         assert client.post("/camera/cam1/led", json={"on": False}).status_code == 403          # no token
         assert client.post("/camera/cam1/led", json={"on": False},

@@ -36,7 +36,7 @@ from vts_hw.errors import UsageError
 from vts_hw.sim_devices.tls import self_signed
 from vts_hw.store import ResultsStore, StoreError
 
-from console_live import run_vts
+from console_live import log_in, run_vts
 
 pytestmark = pytest.mark.timeout(180)
 ANN_PW, PHIL_PW = "ann-runs-the-scans-7", "phil-sets-baselines-9"
@@ -211,7 +211,7 @@ def with_users(people_store):
 
 
 def _login(client, name, password, next_="/history"):
-    return client.post("/login", data={"name": name, "password": password, "next": next_}, follow_redirects=False)
+    return log_in(client, name, password, next_)
 
 
 def test_without_users_on_this_machine_the_person_is_local_and_may_do_everything():
@@ -235,7 +235,8 @@ def test_with_users_a_page_needs_a_session_and_an_action_its_role(with_users):
     assert login.status_code == 200 and 'name="password"' in login.text and 'value="/history"' in login.text
 
     r = _login(client, "ann", "not-her-password")
-    assert r.status_code == 401 and "wrong user name or password" in r.text and "set-cookie" not in r.headers
+    assert r.status_code == 401 and "wrong user name or password" in r.text
+    assert "vts_session" not in r.headers.get("set-cookie", "")    # (only a new form's token)
     r = _login(client, "nobody", ANN_PW)
     assert r.status_code == 401 and "wrong user name or password" in r.text
     r = client.post("/login", data={"name": "ann", "password": ANN_PW}, headers={"Origin": "http://evil.example"})
@@ -268,7 +269,10 @@ def test_with_users_a_page_needs_a_session_and_an_action_its_role(with_users):
     assert ("ann", "logged in", "operator") in acts and ("phil", "logged in", "physicist") in acts
     assert ("ann", "login refused", "") in acts and ("(not a user)", "login refused", "") in acts
 
-    assert client.post("/logout", follow_redirects=False).status_code == 303
+    # logging out is an action of the page too: without its token (a stray form of this site) it is refused
+    assert client.post("/logout", follow_redirects=False).status_code == 403
+    assert client.get("/session").json()["user"] == "ann"
+    assert client.post("/logout", follow_redirects=False, headers={"X-Console-Token": ann.token}).status_code == 303
     assert client.get("/session").status_code == 401 and ("ann", "logged out", "operator") in [
         (a.user, a.what, a.role) for a in console.actions.recent()]
 
@@ -417,3 +421,26 @@ def test_a_bad_certificate_or_key_is_one_sentence_naming_the_file(tmp_path, caps
     p = _vts_here(["console", "--certfile", str(cert), "--keyfile", str(key2), "--port", "0"], {}, capsys, monkeypatch)
     assert p.returncode == 2 and p.stderr.startswith(f"vts: {key2}: not the private key") and \
         len(p.stderr.strip().splitlines()) == 1, p.stderr
+
+
+def test_a_login_is_taken_only_from_the_form_the_console_showed(with_users):
+    """Login CSRF: another page may post the login form (an Origin it cannot forge is checked
+    first); the form must also bring back the token of a form this console showed, kept in a
+    cookie only /login is sent. A token of any bytes is a refusal, never a 500."""
+    client, console, _ = with_users
+    for form_token in (None, "", "not-the-one", "\u00e9t\u00e9"):
+        data = {"name": "ann", "password": ANN_PW, "next": "/"}
+        if form_token is not None:
+            data["form_token"] = form_token
+        client.get("/login")                                   # a form shown (its cookie set)
+        r = client.post("/login", data=data, follow_redirects=False)
+        assert r.status_code == 400 and "not one the console gave" in r.text, (form_token, r.status_code)
+        assert "vts_session" not in r.headers.get("set-cookie", "") and not console.auth._sessions
+    assert log_in(client, "ann", ANN_PW).status_code == 303          # the form as shown: in
+    ann = next(iter(console.auth._sessions.values()))
+    for token in (b"\xe9\xe9", b"\xff" * 40, ann.token.encode() + b"\x80"):   # any bytes in the page token
+        r = client.post("/test/sign-off", headers={"X-Console-Token": token})
+        assert r.status_code == 403 and "did not come from the console's page" in r.json()["error"]
+        r = client.post("/logout", headers={"X-Console-Token": token}, follow_redirects=False)
+        assert r.status_code == 403
+    assert client.get("/session").json()["user"] == "ann"

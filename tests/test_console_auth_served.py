@@ -17,7 +17,8 @@ import time
 import pytest
 import requests
 
-from console_live import click_led, led_form_from_another_site, run_vts, start_console, stop_console
+from console_live import (click_led, led_form_from_another_site, log_in_over_http, run_vts, start_console,
+                          stop_console)
 from test_console_auth import ANN_PW, PHIL_PW
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.sim_devices.tls import self_signed
@@ -54,8 +55,7 @@ def test_https_with_the_given_certificate_checked_against_it(login_rig, tmp_path
         assert r.status_code == 200 and "Log in to the room console" in r.text
         with pytest.raises(requests.exceptions.SSLError):
             requests.get(url + "login", timeout=10)        # not trusted without the certificate
-        r = requests.post(url + "login", data={"name": "ann", "password": ANN_PW}, verify=str(cert), timeout=30,
-                          allow_redirects=False)
+        r = log_in_over_http(requests.Session(), url, "ann", ANN_PW, verify=str(cert), allow_redirects=False)
         assert r.status_code == 303
         cookie = r.headers["set-cookie"]
         assert cookie.startswith("__Host-vts_session=") and "; Secure" in cookie and "HttpOnly" in cookie
@@ -146,7 +146,7 @@ def test_in_chromium_a_session_ends_when_idle_and_at_its_limit(login_rig, browse
     p, url = start_console(["--login", "--port", "0", "--session-idle", "5", "--session-max", "16"], env)
     try:
         s = requests.Session()                  # logged in, then nothing for longer than the idle limit
-        assert s.post(url + "login", data={"name": "phil", "password": PHIL_PW}, timeout=30).status_code == 200
+        assert log_in_over_http(s, url, "phil", PHIL_PW).status_code == 200
         assert s.get(url + "session", timeout=10).json()["user"] == "phil"
         time.sleep(6.5)
         assert s.get(url + "session", timeout=10).status_code == 401

@@ -42,6 +42,8 @@ from vts_hw.drivers.registry import open_camera
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.store import ResultsStore
 
+from console_live import log_in
+
 pytestmark = pytest.mark.timeout(300)
 BASE = "http://127.0.0.1:8040"
 TOKEN = "page-token-of-the-test"
@@ -127,8 +129,7 @@ def with_users(rig, monkeypatch):
     with TestClient(app, base_url=BASE) as ann, TestClient(app, base_url=BASE) as phil, \
             TestClient(app, base_url=BASE) as nobody:
         for name, client in (("ann", ann), ("phil", phil)):
-            r = client.post("/login", data={"name": name, "password": PASSWORDS[name], "next": "/"},
-                            follow_redirects=False)
+            r = log_in(client, name, PASSWORDS[name])
             assert r.status_code == 303, r.text
             s = next(s for s in auth._sessions.values() if s.user == name)
             clients[name] = (client, s.token)

@@ -38,7 +38,7 @@ from starlette.testclient import TestClient
 
 import vts_hw.console.users as users
 import vts_hw.drivers.registry as registry
-from console_live import LiveConsole, chromium, until
+from console_live import FORM_TOKEN, LiveConsole, chromium, until
 from inprocess_cli import vts
 from vts_hw.console import serve as srv
 from vts_hw.console.app import Console, create_app
@@ -392,10 +392,14 @@ class _Raw:
 def _login(live, name, password) -> tuple[str, str]:
     """(cookie header, page token) of a new session of ``name``."""
     port = int(live.url.rsplit(":", 1)[1].strip("/"))
-    body = f"name={name}&password={password}&next=/".encode()
     conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
+    conn.request("GET", "/login")                  # the form first, as a browser: its token and cookie
+    shown = conn.getresponse()
+    form_token = FORM_TOKEN.search(shown.read().decode()).group(1)
+    form_cookie = shown.getheader("set-cookie").split(";", 1)[0]
+    body = f"name={name}&password={password}&next=/&form_token={form_token}".encode()
     conn.request("POST", "/login", body=body, headers={"Content-Type": "application/x-www-form-urlencoded",
-                                                       "Origin": live.url.rstrip("/")})
+                                                       "Origin": live.url.rstrip("/"), "Cookie": form_cookie})
     r = conn.getresponse()
     r.read()
     conn.close()

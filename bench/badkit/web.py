@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import sys
 import threading
 import time
@@ -207,6 +208,7 @@ def _families(ep: Endpoint, who: Who, users: bool, full: bool, port: int):
             yield Case("origin", ep, who, build(ep), headers=hs, foreign=True, must_refuse=True,
                        note=", ".join(f"{k}: {v}" for k, v in hs.items()))
         for what, tok in pick([("no token", None), ("a wrong token", "not-the-token"),
+                               ("a token of bytes beyond ASCII", "\xe9t\xe9\xff"),   # (a TypeError, a 500, once)
                                ("another session's token", who.extra.get("other_token"))]):
             if what.startswith("another") and not tok:
                 continue
@@ -376,8 +378,14 @@ def _until(check, timeout: float) -> bool:
 
 def login(console: Console, who: Who) -> None:
     """Log ``who`` in through the form, as a browser does; its cookie and its pages' token."""
-    a = console.send("POST", "/login", body=f"name={who.name}&password={quote(who.password)}&next=/".encode(),
-                     ctype="application/x-www-form-urlencoded")
+    shown = console.send("GET", "/login")        # the form first, as a browser: its token and its cookie
+    m = re.search(rb'name="form_token" value="([^"]+)"', shown.body if shown is not None else b"")
+    if not m:
+        raise RuntimeError(f"no login form for {who.name}: {None if shown is None else shown.status}")
+    form_cookie = shown.header("set-cookie").split(";", 1)[0]
+    a = console.send("POST", "/login", body=f"name={who.name}&password={quote(who.password)}&next=/"
+                                            f"&form_token={m.group(1).decode()}".encode(),
+                     ctype="application/x-www-form-urlencoded", headers={"Cookie": form_cookie})
     if a is None or a.status != 303 or "vts_session=" not in a.header("set-cookie"):
         raise RuntimeError(f"{who.name} could not log in: {None if a is None else (a.status, a.body[:200])}")
     who.cookie = a.header("set-cookie").split("vts_session=", 1)[1].split(";", 1)[0]
@@ -386,7 +394,6 @@ def login(console: Console, who: Who) -> None:
 
 def page_token(console: Console, who: Who) -> str:
     a = console.send("GET", "/", who=who)
-    import re
     m = re.search(rb'name="console-token" content="([^"]+)"', a.body if a is not None else b"")
     if not m:
         raise RuntimeError(f"no page token on the Room page for {who.name}: {None if a is None else a.status}")

@@ -111,7 +111,8 @@ def refuse(console, request: Request, role: str = OPERATOR) -> Response | None:
     user, has, want = _acting(console, request)      # the session looked up once
     if not user:
         return _refused(console, request, NO_SESSION, "refused: log in first (no session, or it has ended)", 401)
-    if not want or not secrets.compare_digest(request.headers.get("x-console-token", ""), want):
+    # (as bytes: a header may carry any byte, and str compare_digest refuses non-ASCII with a TypeError)
+    if not want or not secrets.compare_digest(request.headers.get("x-console-token", "").encode(), want.encode()):
         return _refused(console, request, NOT_THE_PAGE, "refused: the request did not come from the console's page",
                         403, user)
     if ROLE_RANK.get(has, 0) < ROLE_RANK[role]:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import asyncio
 import functools
+import secrets
 from urllib.parse import parse_qs, quote
 
 from starlette.requests import Request
@@ -38,6 +39,7 @@ OPEN_PATHS = ("/login",)
 OPEN_PREFIXES = ("/static/",)
 PROBE = "/session"
 FORM_MAX = 8192
+FORM_COOKIE = "vts_login_form"     # the login form's own token (login CSRF), sent to /login only
 
 
 class _SessionEnded(Exception):
@@ -137,9 +139,12 @@ def login_routes(console, templates) -> list[Route]:
     def page(request: Request, *, error: str = "", status: int = 200, next_: str = "/", name: str = ""):
         ended = request.query_params.get("ended") == "1"
         note = "" if error else ("your session has ended: log in again" if ended else "")
-        return templates.TemplateResponse(request, "login.html", {
-            "rig": console.rig_name, "error": error, "note": note, "next": _safe_next(next_), "name": name},
-            status_code=status, headers={"Cache-Control": "no-store"})
+        form_token = secrets.token_urlsafe(24)      # each form shown its own: the POST must bring it back
+        resp = templates.TemplateResponse(request, "login.html", {
+            "rig": console.rig_name, "error": error, "note": note, "next": _safe_next(next_), "name": name,
+            "form_token": form_token}, status_code=status, headers={"Cache-Control": "no-store"})
+        resp.set_cookie(FORM_COOKIE, form_token, httponly=True, samesite="strict", secure=auth.secure, path="/login")
+        return resp
 
     async def login_page(request: Request):
         return page(request, next_=request.query_params.get("next", "/"))
@@ -151,6 +156,12 @@ def login_routes(console, templates) -> list[Route]:
         form = await _form(request)
         if form is None:
             return page(request, error="the login form could not be read: send it from this page", status=400)
+        # the form this console showed (its token, also in a cookie only this site's pages send
+        # back): a login from anywhere else is not taken, whatever its Origin says (login CSRF)
+        if not secrets.compare_digest(form.get("form_token", "").encode(),
+                                      (request.cookies.get(FORM_COOKIE) or "\0").encode()):
+            return page(request, error="this login form is not one the console gave (or it is old): log in "
+                                       "from the form shown here", status=400, next_=form.get("next", "/"))
         name, password, next_ = form.get("name", "").strip(), form.get("password", ""), form.get("next", "/")
         known = name in auth.known_names()
         who, where = name if known else "(not a user)", {"from": request.client.host if request.client else ""}
@@ -184,6 +195,10 @@ def login_routes(console, templates) -> list[Route]:
         if why:
             return JSONResponse({"error": why}, status_code=403)
         s = guard.session_of(console, request)
+        if s is not None and not secrets.compare_digest(request.headers.get("x-console-token", "").encode(),
+                                                        s.token.encode()):
+            return JSONResponse({"error": "refused: the request did not come from the console's page"},
+                                status_code=403)
         if s is not None:
             auth.logout(s.key)
             await asyncio.to_thread(functools.partial(console.actions.record, s.user, "logged out", {},
@@ -197,7 +212,7 @@ def login_routes(console, templates) -> list[Route]:
         if s is None:
             return JSONResponse({"error": "refused: log in first (no session, or it has ended)"}, status_code=401)
         return JSONResponse({"required": True, "user": s.user, "role": s.role, "ends": auth.ends(s),
-                             "idle_s": auth.idle_s}, headers={"Cache-Control": "no-store"})
+                             "idle_s": auth.idle_s, "token": s.token}, headers={"Cache-Control": "no-store"})
 
     return [Route("/login", login_page, methods=["GET"]), Route("/login", login_post, methods=["POST"]),
             Route("/logout", logout, methods=["POST"]), Route(PROBE, session)]

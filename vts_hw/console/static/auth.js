@@ -24,7 +24,9 @@
     const out = document.createElement("button");
     out.type = "button"; out.id = "logout"; out.textContent = "Log out";
     out.addEventListener("click", () => {
-      fetch("/logout", { method: "POST", credentials: "same-origin" }).finally(() => location.assign("/login"));
+      // (the session's page token, as every action of the page carries it)
+      fetch("/logout", { method: "POST", credentials: "same-origin", headers: { "X-Console-Token": s.token } })
+        .finally(() => location.assign("/login"));
     });
     who.append(name, role, out);
     const header = document.querySelector("header");
