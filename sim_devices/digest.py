@@ -128,7 +128,7 @@ class DigestAuth:
         if len(parts) != 3:
             return "bad"
         stamp, rand, sig = parts
-        if not hmac.compare_digest(sig, self._sign(stamp, rand)):
+        if not hmac.compare_digest(sig.encode(), self._sign(stamp, rand).encode()):   # (bytes: any client text)
             return "bad"
         try:
             age = self.now() - int(stamp, 16) / 1000.0
