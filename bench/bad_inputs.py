@@ -75,7 +75,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from badkit.classes import (Case, Verdict, common, float_cases, foreign_cases, number_judge,  # noqa: E402
                             plain, probe_stores, sha, store_command_cases)
 from badkit import full_disk  # noqa: E402
-from badkit.forked import fork_vts  # noqa: E402
+from badkit.forked import FORK_LOCK, fork_vts  # noqa: E402
 from badkit import endless_files, signals, slow_peers  # noqa: E402  (issue 21 round 2)
 from badkit import console_disk, root_writes  # noqa: E402  (issue 32)
 WEB = "web"            # badkit/web.py, run in a process of its own (it uses threads; this one forks)
@@ -420,7 +420,8 @@ def sweep(only: str | None, timeout: float, show: bool, root: Path, jobs: int = 
             done = pool.map(timed, range(len(planned)))
             for k, (case, argv, ((code, out, err), dt)) in enumerate(zip(planned, argvs, done)):
                 wd = root / "cases" / str(k)
-                v: Verdict = case.judge(wd, code, out, err) if case.judge else common(code, err)
+                with FORK_LOCK:      # a judge reads stores (SQLite): never while a case is forked
+                    v: Verdict = case.judge(wd, code, out, err) if case.judge else common(code, err)
                 label = f"vts {' '.join(argv)}  [{case.cls}: {case.what}]"
                 c = per[case.cls]
                 c["cases"] += 1

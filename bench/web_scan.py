@@ -5,10 +5,12 @@ planted where a careless server would serve them (bench/badkit/web_peer.py's Roo
 passwords and QATrack+ token in ``sim.env``, the users' hashes in ``results.sqlite``, marker files
 in the scans folder, a scan folder and the store's folder).
 
-The console is scanned twice: as the person at the machine (no users: the console a page in the
-operator's browser can reach, and DNS rebinding aims at), and with users, logged in as a
+The console is scanned three times: as the person at the machine (no users: the console a page in
+the operator's browser can reach, and DNS rebinding aims at); with users, logged in as a
 physicist (its session cookie and page token given to wapiti, the logout left out so the scan
-keeps its session). Wapiti crawls the pages and forms it finds and starts from every GET route of
+keeps its session); and the same over HTTPS (a self-signed certificate), as it serves a LAN:
+there its HSTS and its Secure, __Host- cookie are seen (on plain HTTP on 127.0.0.1 neither can
+be: a browser ignores HSTS over HTTP, and the cookie must come back over it). Wapiti crawls the pages and forms it finds and starts from every GET route of
 the console (read from its code, bench/badkit/web_surface.py: the routes the pages' scripts call
 are no links a crawler finds); its modules that need nothing from outside this machine run (not
 ``ssrf``: it calls an endpoint on the internet; not ``nikto``/``wapp``: they download databases;
@@ -19,7 +21,7 @@ path and parameter; a module that does not end in its time is one), and the coun
 status is 0 when there are none. Wapiti crawls once; each module then runs on what was crawled. Takes minutes:
 not in make test (tests/test_bad_inputs.py sweeps the same surface in seconds).
 
-    .venv/bin/python bench/web_scan.py                 # both scans
+    .venv/bin/python bench/web_scan.py                 # the three scans
     .venv/bin/python bench/web_scan.py --minutes 3     # each scan's time limit
     .venv/bin/python bench/web_scan.py --json          # the figures as JSON
 """
@@ -39,6 +41,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from badkit.web import build, login, page_token  # noqa: E402
 from badkit.web_peer import PASSWORDS, Console, Room, Who  # noqa: E402
 from badkit.web_surface import surface  # noqa: E402
+from vts_hw.sim_devices.tls import self_signed  # noqa: E402
 
 #: wapiti 3.0.4 (bookworm) compiles each -x pattern as 'PATTERN\Z(?ms)', which Python 3.11 refuses (global
 #: flags not at the start): run it with that one function mended, flags first (same meaning), through
@@ -61,7 +64,7 @@ def scan(console: Console, who: Who | None, work: Path, minutes: float, label: s
     """Wapiti against ``console`` (as ``who``, when it has a session): one crawl, then each module in a
     run of its own on what was crawled (``--skip-crawl``), so that a module that does not end in its
     time is one finding and the others still report. {module: its JSON report, or None}."""
-    base = f"http://{console.host}/"
+    base = f"{console.scheme}://{console.host}/"
     starts = sorted({build(e) for e in surface()["users" if who and who.cookie else "no users"]
                      if e.method == "GET" and not e.stream})
     attack_s = int(max(20, minutes * 60 / len(MODULES)))      # each module's share (wapiti's own limit)
@@ -74,8 +77,9 @@ def scan(console: Console, who: Who | None, work: Path, minutes: float, label: s
         common += ["-H", f"X-Console-Token: {who.token}"]
     if who is not None and who.cookie:
         cookies = work / f"cookies-{label}.json"
-        cookies.write_text(json.dumps({"127.0.0.1": {"/": {"vts_session": {
-            "value": who.cookie, "version": 0, "expires": None, "secure": False, "port": None}}}}))
+        cookies.write_text(json.dumps({"127.0.0.1": {"/": {console.cookie_name: {
+            "value": who.cookie, "version": 0, "expires": None, "secure": console.scheme == "https",
+            "port": None}}}}))
         common += ["-c", str(cookies)]
     out: dict = {"label": label, "modules": {}, "seconds": 0}
     t0 = time.monotonic()
@@ -131,7 +135,10 @@ def main() -> int:
     results = []
     room = Room(work / "room")
     try:
-        for label, args in (("no users", []), ("users", ["--login", "--scans-dir", str(room.scans)])):
+        cert, key = self_signed(work)          # the console over HTTPS, as on a LAN (its HSTS, its Secure cookie)
+        for label, args in (("no users", []), ("users", ["--login", "--scans-dir", str(room.scans)]),
+                            ("users over HTTPS", ["--login", "--scans-dir", str(room.scans), "--certfile", str(cert),
+                                                  "--keyfile", str(key)])):
             c = Console(room, args, room.sim, label)
             res: dict = {"label": label, "seconds": 0, "modules": {}}
             try:

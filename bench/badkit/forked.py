@@ -10,10 +10,18 @@ import os
 import select
 import signal
 import sys
+import threading
 import time
 import traceback
 from pathlib import Path
 from typing import Callable
+
+
+#: Held around each fork, and by this process's threads while they call into a C library that has
+#: locks of its own (SQLite: a judge reading a case's store, a readiness check): a child forked
+#: while another thread held SQLite's mutex inherits it held, and its first store call waits for
+#: ever (found: `store init` and `report rooms` on a full disk "hung" in 1 sweep of 3, never alone).
+FORK_LOCK = threading.Lock()
 
 
 def fork_vts(argv: list[str], timeout: float, workdir: Path, before: Callable[[], None] | None = None,
@@ -23,7 +31,8 @@ def fork_vts(argv: list[str], timeout: float, workdir: Path, before: Callable[[]
     when it outlived ``timeout``; stdout; stderr). A child killed by a signal gives -signum."""
     out_r, out_w = os.pipe()
     err_r, err_w = os.pipe()
-    pid = os.fork()
+    with FORK_LOCK:                  # (no thread of ours is inside SQLite meanwhile)
+        pid = os.fork()
     if pid == 0:
         code = 98
         try:

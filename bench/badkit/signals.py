@@ -42,7 +42,7 @@ import time
 from pathlib import Path
 
 from badkit.classes import Case, Verdict, common
-from badkit.forked import fork_vts
+from badkit.forked import FORK_LOCK, fork_vts
 
 CLASS = "killed"
 KINDS = ("SIGINT", "SIGTERM", "SIGKILL")
@@ -141,8 +141,9 @@ class _Signaller:
     def __call__(self, pid: int) -> None:
         t0 = time.monotonic()
         while time.monotonic() - t0 < self.wait_s:
-            if self.ready(self.wd, pid):
-                break
+            with FORK_LOCK:          # a readiness check may read a store (SQLite): never across a fork
+                if self.ready(self.wd, pid):
+                    break
             if not Path(f"/proc/{pid}").exists() or _state(pid) == "Z":
                 self.ended_first = True
                 return

@@ -386,9 +386,9 @@ def login(console: Console, who: Who) -> None:
     a = console.send("POST", "/login", body=f"name={who.name}&password={quote(who.password)}&next=/"
                                             f"&form_token={m.group(1).decode()}".encode(),
                      ctype="application/x-www-form-urlencoded", headers={"Cookie": form_cookie})
-    if a is None or a.status != 303 or "vts_session=" not in a.header("set-cookie"):
+    if a is None or a.status != 303 or f"{console.cookie_name}=" not in a.header("set-cookie"):
         raise RuntimeError(f"{who.name} could not log in: {None if a is None else (a.status, a.body[:200])}")
-    who.cookie = a.header("set-cookie").split("vts_session=", 1)[1].split(";", 1)[0]
+    who.cookie = a.header("set-cookie").split(f"{console.cookie_name}=", 1)[1].split(";", 1)[0]
     who.token = page_token(console, who)
 
 
@@ -469,7 +469,7 @@ def many_clients(judge: Judge, eps: list[Endpoint], who: Who) -> Verdict:
         try:
             s = socket.create_connection(("127.0.0.1", c.port), timeout=60)
             s.sendall((f"GET {build(ep)} HTTP/1.1\r\nHost: {c.host}\r\nAccept: text/event-stream\r\n"
-                       + (f"Cookie: vts_session={who.cookie}\r\n" if who.cookie else "") + "\r\n").encode())
+                       + (f"Cookie: {c.cookie_name}={who.cookie}\r\n" if who.cookie else "") + "\r\n").encode())
             held.append(s)
         except OSError as exc:
             v.flag("other", f"stream {i} not opened: {exc}")

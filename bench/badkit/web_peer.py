@@ -25,6 +25,7 @@ import os
 import re
 import socket
 import sqlite3
+import ssl
 import subprocess
 import sys
 import time
@@ -204,14 +205,17 @@ class Console:
                                       "--port", "0", *args], cwd=cwd, env=room.env, stdout=subprocess.PIPE,
                                      stderr=self._err, stdin=subprocess.DEVNULL)
         line = self.proc.stdout.readline().decode(errors="replace")
-        m = re.search(r"http://127\.0\.0\.1:(\d+)/", line)
+        m = re.search(r"(https?)://127\.0\.0\.1:(\d+)/", line)
         if not m:
             self.proc.wait(30)
             raise RuntimeError(f"vts console {' '.join(args)} did not start: {line.strip()} "
                                f"{self.log.read_text(errors='replace')[-400:]}")
-        self.port = int(m.group(1))
+        self.scheme, self.port = m.group(1), int(m.group(2))
         self.host = f"127.0.0.1:{self.port}"
-        self.origin = f"http://{self.host}"
+        self.origin = f"{self.scheme}://{self.host}"
+        #: over HTTPS the session cookie is __Host- prefixed (login.py); its certificate is the test's own
+        self.cookie_name = "__Host-vts_session" if self.scheme == "https" else "vts_session"
+        self._tls = ssl._create_unverified_context() if self.scheme == "https" else None  # nosec B323: a test's own
         self._seen = 0
         if "--scans-dir" not in args:    # its default: as its Scan page says
             a = self.send("GET", "/scan/state")
@@ -241,6 +245,10 @@ class Console:
         self._err.close()
         return code, self.log.read_text(errors="replace")[-400:]
 
+    def _connect(self, timeout: float):
+        s = socket.create_connection(("127.0.0.1", self.port), timeout=timeout)
+        return self._tls.wrap_socket(s, server_hostname="127.0.0.1") if self._tls is not None else s
+
     # -- one request -----------------------------------------------------------------------
     def send(self, method: str, path: str, *, who: Who | None = None, headers: dict | None = None,
              body: bytes | None = None, ctype: str | None = None, stream: bool = False,
@@ -251,7 +259,7 @@ class Console:
         hs: dict[str, str | None] = {"Host": self.host, "Accept": "text/html,application/json;q=0.9,*/*;q=0.8",
                                      "Connection": "close"}
         if who is not None and who.cookie:
-            hs["Cookie"] = f"vts_session={who.cookie}"
+            hs["Cookie"] = f"{self.cookie_name}={who.cookie}"
         if method != "GET":
             hs["Origin"] = self.origin
             if who is not None and who.token:
@@ -267,7 +275,7 @@ class Console:
         head = f"{method} {path} HTTP/1.1\r\n" + "".join(f"{k}: {v}\r\n" for k, v in hs.items() if v is not None)
         end = time.monotonic() + deadline
         try:
-            with socket.create_connection(("127.0.0.1", self.port), timeout=deadline) as s:
+            with self._connect(deadline) as s:
                 data = b""
                 try:
                     s.sendall(head.encode("latin-1", errors="replace") + b"\r\n" + (body or b""))
