@@ -21,7 +21,7 @@ from typing import Callable
 #: locks of its own (SQLite: a judge reading a case's store, a readiness check): a child forked
 #: while another thread held SQLite's mutex inherits it held, and its first store call waits for
 #: ever (found: `store init` and `report rooms` on a full disk "hung" in 1 sweep of 3, never alone).
-FORK_LOCK = threading.Lock()
+FORK_LOCK = threading.RLock()      # (a judge may itself fork a reader: `vts recording info`)
 
 
 def fork_vts(argv: list[str], timeout: float, workdir: Path, before: Callable[[], None] | None = None,
