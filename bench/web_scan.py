@@ -137,7 +137,9 @@ def main() -> int:
     try:
         cert, key = self_signed(work)          # the console over HTTPS, as on a LAN (its HSTS, its Secure cookie)
         for label, args in (("no users", []), ("users", ["--login", "--scans-dir", str(room.scans)]),
-                            ("users over HTTPS", ["--login", "--scans-dir", str(room.scans), "--certfile", str(cert),
+                            # (a scans folder of its own: the scans before planted secrets in theirs, refused now)
+                            ("users over HTTPS", ["--login", "--scans-dir", str(room.root / "scans-https"),
+                                                  "--certfile", str(cert),
                                                   "--keyfile", str(key)])):
             c = Console(room, args, room.sim, label)
             res: dict = {"label": label, "seconds": 0, "modules": {}}
