@@ -172,7 +172,7 @@ def qa_rig_yaml(rig, folder):
     return path
 
 
-FORM_TOKEN = re.compile(r'name="form_token" value="([^"]+)"')
+FORM_TOKEN = re.compile(r'name="csrf_token" value="([^"]+)"')
 
 
 def log_in(client, name: str, password: str, next_: str = "/", **kw):
@@ -182,7 +182,7 @@ def log_in(client, name: str, password: str, next_: str = "/", **kw):
     m = FORM_TOKEN.search(shown.text)
     assert m, (shown.status_code, shown.text[:200])
     return client.post("/login", data={"name": name, "password": password, "next": next_,
-                                       "form_token": m.group(1)}, follow_redirects=False, **kw)
+                                       "csrf_token": m.group(1)}, follow_redirects=False, **kw)
 
 
 def log_in_over_http(session, url: str, name: str, password: str, **kw):
@@ -190,7 +190,7 @@ def log_in_over_http(session, url: str, name: str, password: str, **kw):
     shown = session.get(url + "login", timeout=30, **kw)
     m = FORM_TOKEN.search(shown.text)
     assert m, (shown.status_code, shown.text[:200])
-    return session.post(url + "login", data={"name": name, "password": password, "form_token": m.group(1)},
+    return session.post(url + "login", data={"name": name, "password": password, "csrf_token": m.group(1)},
                         timeout=30, **kw)
 
 

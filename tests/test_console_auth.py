@@ -428,13 +428,13 @@ def test_a_login_is_taken_only_from_the_form_the_console_showed(with_users):
     first); the form must also bring back the token of a form this console showed, kept in a
     cookie only /login is sent. A token of any bytes is a refusal, never a 500."""
     client, console, _ = with_users
-    for form_token in (None, "", "not-the-one", "\u00e9t\u00e9"):
+    for csrf_token in (None, "", "not-the-one", "\u00e9t\u00e9"):
         data = {"name": "ann", "password": ANN_PW, "next": "/"}
-        if form_token is not None:
-            data["form_token"] = form_token
+        if csrf_token is not None:
+            data["csrf_token"] = csrf_token
         client.get("/login")                                   # a form shown (its cookie set)
         r = client.post("/login", data=data, follow_redirects=False)
-        assert r.status_code == 400 and "not one the console gave" in r.text, (form_token, r.status_code)
+        assert r.status_code == 400 and "not one the console gave" in r.text, (csrf_token, r.status_code)
         assert "vts_session" not in r.headers.get("set-cookie", "") and not console.auth._sessions
     assert log_in(client, "ann", ANN_PW).status_code == 303          # the form as shown: in
     ann = next(iter(console.auth._sessions.values()))

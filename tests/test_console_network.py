@@ -395,9 +395,9 @@ def _login(live, name, password) -> tuple[str, str]:
     conn = http.client.HTTPConnection("127.0.0.1", port, timeout=30)
     conn.request("GET", "/login")                  # the form first, as a browser: its token and cookie
     shown = conn.getresponse()
-    form_token = FORM_TOKEN.search(shown.read().decode()).group(1)
+    csrf_token = FORM_TOKEN.search(shown.read().decode()).group(1)
     form_cookie = shown.getheader("set-cookie").split(";", 1)[0]
-    body = f"name={name}&password={password}&next=/&form_token={form_token}".encode()
+    body = f"name={name}&password={password}&next=/&csrf_token={csrf_token}".encode()
     conn.request("POST", "/login", body=body, headers={"Content-Type": "application/x-www-form-urlencoded",
                                                        "Origin": live.url.rstrip("/"), "Cookie": form_cookie})
     r = conn.getresponse()

@@ -379,12 +379,12 @@ def _until(check, timeout: float) -> bool:
 def login(console: Console, who: Who) -> None:
     """Log ``who`` in through the form, as a browser does; its cookie and its pages' token."""
     shown = console.send("GET", "/login")        # the form first, as a browser: its token and its cookie
-    m = re.search(rb'name="form_token" value="([^"]+)"', shown.body if shown is not None else b"")
+    m = re.search(rb'name="csrf_token" value="([^"]+)"', shown.body if shown is not None else b"")
     if not m:
         raise RuntimeError(f"no login form for {who.name}: {None if shown is None else shown.status}")
     form_cookie = shown.header("set-cookie").split(";", 1)[0]
     a = console.send("POST", "/login", body=f"name={who.name}&password={quote(who.password)}&next=/"
-                                            f"&form_token={m.group(1).decode()}".encode(),
+                                            f"&csrf_token={m.group(1).decode()}".encode(),
                      ctype="application/x-www-form-urlencoded", headers={"Cookie": form_cookie})
     if a is None or a.status != 303 or f"{console.cookie_name}=" not in a.header("set-cookie"):
         raise RuntimeError(f"{who.name} could not log in: {None if a is None else (a.status, a.body[:200])}")

@@ -12,8 +12,9 @@ of the Host and peer gates, 404s, static files and event streams carry them too)
   same-origin`` (not ``no-referrer``: with it a browser sends ``Origin: null`` on the login
   form's POST, which guard.py must refuse), ``Cross-Origin-Opener-Policy`` and
   ``Cross-Origin-Resource-Policy: same-origin`` (no other site embeds a camera's picture),
-  ``X-XSS-Protection: 0`` (the old browsers' XSS auditor off, as OWASP advises: it could be
-  made to hide parts of a page; the CSP is the defence).
+  ``X-XSS-Protection: 1; mode=block`` (browsers of today ignore it and the CSP is the defence;
+  an old one with the XSS auditor blocks the whole page rather than filter parts of it, the
+  filtering being what could be abused; web scanners such as wapiti ask for it).
 * ``Strict-Transport-Security`` over HTTPS only (the scheme the request came with, through
   the proxy's X-Forwarded-Proto where it is trusted).
 * ``Cache-Control: no-store`` on everything but ``/static/`` unless the route set its own: the
@@ -33,7 +34,7 @@ HSTS = "max-age=31536000"
 
 _ALWAYS = ((b"x-frame-options", b"DENY"), (b"x-content-type-options", b"nosniff"),
            (b"referrer-policy", b"same-origin"), (b"cross-origin-opener-policy", b"same-origin"),
-           (b"cross-origin-resource-policy", b"same-origin"), (b"x-xss-protection", b"0"),
+           (b"cross-origin-resource-policy", b"same-origin"), (b"x-xss-protection", b"1; mode=block"),
            (b"permissions-policy", b"camera=(), microphone=(), geolocation=(), usb=(), serial=()"))
 
 

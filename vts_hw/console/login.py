@@ -139,11 +139,11 @@ def login_routes(console, templates) -> list[Route]:
     def page(request: Request, *, error: str = "", status: int = 200, next_: str = "/", name: str = ""):
         ended = request.query_params.get("ended") == "1"
         note = "" if error else ("your session has ended: log in again" if ended else "")
-        form_token = secrets.token_urlsafe(24)      # each form shown its own: the POST must bring it back
+        csrf_token = secrets.token_urlsafe(24)      # each form shown its own: the POST must bring it back
         resp = templates.TemplateResponse(request, "login.html", {
             "rig": console.rig_name, "error": error, "note": note, "next": _safe_next(next_), "name": name,
-            "form_token": form_token}, status_code=status, headers={"Cache-Control": "no-store"})
-        resp.set_cookie(FORM_COOKIE, form_token, httponly=True, samesite="strict", secure=auth.secure, path="/login")
+            "csrf_token": csrf_token}, status_code=status, headers={"Cache-Control": "no-store"})
+        resp.set_cookie(FORM_COOKIE, csrf_token, httponly=True, samesite="strict", secure=auth.secure, path="/login")
         return resp
 
     async def login_page(request: Request):
@@ -158,7 +158,7 @@ def login_routes(console, templates) -> list[Route]:
             return page(request, error="the login form could not be read: send it from this page", status=400)
         # the form this console showed (its token, also in a cookie only this site's pages send
         # back): a login from anywhere else is not taken, whatever its Origin says (login CSRF)
-        if not secrets.compare_digest(form.get("form_token", "").encode(),
+        if not secrets.compare_digest(form.get("csrf_token", "").encode(),
                                       (request.cookies.get(FORM_COOKIE) or "\0").encode()):
             return page(request, error="this login form is not one the console gave (or it is old): log in "
                                        "from the form shown here", status=400, next_=form.get("next", "/"))
