@@ -90,6 +90,18 @@ def _scan(env, folder, seconds=60):
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
+def _signalled(p: subprocess.Popen, sig: int, ready, what: str) -> str:
+    """Send ``sig`` to ``p`` once ``ready()`` (or once it ended by itself); its stderr once it ended."""
+    try:
+        _until(lambda: p.poll() is not None or ready(), what)
+        p.send_signal(sig)
+        return p.communicate(timeout=HANG_S)[1]
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+
+
 def _wave_stays_off(box) -> None:
     """The emulated box's square wave is low and stays so (a second of emulated time on)."""
     before = box.edges("OC1A")
@@ -204,14 +216,7 @@ def test_sigterm_of_a_scan_closes_it_with_the_wave_off(box_rig, tmp_path):
     folder = tmp_path / "scan"
     rig.prerender(8.0)
     p = _scan(env, folder)
-    try:
-        _until(lambda: _recorded(folder, 25) or p.poll() is not None, "25 frames recorded")
-        p.send_signal(signal.SIGTERM)
-        out, err = p.communicate(timeout=HANG_S)
-    finally:
-        if p.poll() is None:
-            p.kill()
-            p.wait()
+    err = _signalled(p, signal.SIGTERM, lambda: _recorded(folder, 25), "25 frames recorded")
     assert p.returncode == 0 and "Traceback" not in err, err[-2000:]
     m = load_manifest(folder)
     assert m["status"] == "complete" and m["scan"]["stop_reason"] == "interrupted" and "unfinished" not in m
@@ -227,16 +232,9 @@ def test_sigterm_of_any_command_is_ctrl_c_a_recording_closed_as_interrupted(box_
     rig.prerender(8.0)
     p = subprocess.Popen([*VTS, "camera", "record", "--all", "--seconds", "60", "-o", str(folder)], env=env,
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        _until(lambda: p.poll() is not None or (folder / "manifest.json").exists() and all(
-            len(read_index(folder / f"{n}.index.csv")) >= 10 for n in ("cam1", "cam2")
-            if (folder / f"{n}.index.csv").exists()) and (folder / "cam2.index.csv").exists(), "10 frames recorded")
-        p.send_signal(signal.SIGTERM)
-        out, err = p.communicate(timeout=HANG_S)
-    finally:
-        if p.poll() is None:
-            p.kill()
-            p.wait()
+    indexed = [folder / f"{n}.index.csv" for n in ("cam1", "cam2")]
+    err = _signalled(p, signal.SIGTERM, lambda: all(i.exists() and len(read_index(i)) >= 10 for i in indexed),
+                     "10 frames recorded")
     assert p.returncode == 130 and "Traceback" not in err, err[-2000:]
     assert err.strip().splitlines()[-1] == f"vts: interrupted; what was recorded is kept in {folder}", err
     m = load_manifest(folder)
