@@ -24,7 +24,7 @@ from typing import Callable
 
 from vts_hw.camera import CameraError, NoParameters, Refused
 from vts_hw.errors import UsageError, VtsError
-from vts_hw.files import ensure_dir, write_atomic
+from vts_hw.files import filled_folder, write_atomic
 from vts_hw.catalog import qa_set_name
 from vts_hw.results import Measure
 from vts_hw.tolerance import State, Window, merged_tolerances, worst
@@ -314,8 +314,8 @@ class QARun:
         if self.plots and self.artifacts_dir is not None and result is not None and results:
             d = self.artifacts_dir / (f"run{run_id:06d}" if run_id is not None else f"unsaved-{int(self.clock())}")
             try:
-                ensure_dir(d, "artifacts folder")
-                result.plot(d / f"{self.procedure.replace(':', '-')}.png")
+                with filled_folder(d, "artifacts folder"):
+                    result.plot(d / f"{self.procedure.replace(':', '-')}.png")
                 out.append(str(d / f"{self.procedure.replace(':', '-')}.png"))
             except (VtsError, OSError) as exc:
                 results[0].problems.append(f"overview plot not saved: {exc}")
@@ -326,12 +326,12 @@ class QARun:
             return []
         d = self.artifacts_dir / (f"run{run_id:06d}" if run_id is not None else
                                   f"unsaved-{int(self.clock())}-{res.camera}")
-        ensure_dir(d, "artifacts folder")
-        paths = [write_atomic(d / f"{res.camera}-led-on.jpg", res.drift.frames_on[0].jpeg)]
-        if res.drift.frame_off is not None:
-            paths.append(write_atomic(d / f"{res.camera}-led-off.jpg", res.drift.frame_off.jpeg))
-        if self.plots:
-            png = d / f"{res.camera}-drift.png"
-            res.drift.plot(png)
-            paths.append(png)
+        with filled_folder(d, "artifacts folder"):      # (none left empty by a full disk)
+            paths = [write_atomic(d / f"{res.camera}-led-on.jpg", res.drift.frames_on[0].jpeg)]
+            if res.drift.frame_off is not None:
+                paths.append(write_atomic(d / f"{res.camera}-led-off.jpg", res.drift.frame_off.jpeg))
+            if self.plots:
+                png = d / f"{res.camera}-drift.png"
+                res.drift.plot(png)
+                paths.append(png)
         return paths

@@ -3,7 +3,7 @@
 import pytest
 
 from vts_hw.errors import DataError
-from vts_hw.files import WriteFailed, ensure_dir, write_atomic, write_json_atomic
+from vts_hw.files import WriteFailed, ensure_dir, filled_folder, write_atomic, write_json_atomic
 
 
 def test_write_atomic_replaces_whole(tmp_path):
@@ -47,3 +47,25 @@ def test_ensure_dir_file_in_the_way(tmp_path):
     (tmp_path / "f").write_text("x")
     with pytest.raises(WriteFailed, match="a file of that name is in the way"):
         ensure_dir(tmp_path / "f")
+
+
+def test_a_folder_made_for_a_write_that_failed_is_not_left_empty(tmp_path):
+    """Found by the sweep's console full disk class: the daily QA's artifacts folder made for a
+    run on a full disk was left empty (`unsaved-T-cam1/`), a folder that looks like a result."""
+    made = tmp_path / "unsaved-1-cam1"
+    with pytest.raises(WriteFailed):
+        with filled_folder(made, "artifacts folder"):
+            raise WriteFailed(made / "cam1-led-on.jpg", "no space left on device")
+    assert not made.exists()
+    there = tmp_path / "run000001"                 # a folder that was there stays, and so does what was written
+    there.mkdir()
+    with pytest.raises(OSError):
+        with filled_folder(there):
+            raise OSError(28, "No space left on device")
+    assert there.is_dir()
+    part = tmp_path / "unsaved-2-cam2"
+    with pytest.raises(WriteFailed):
+        with filled_folder(part) as d:
+            write_atomic(d / "cam2-led-on.jpg", b"\xff\xd8")
+            raise WriteFailed(d / "cam2-drift.png", "no space left on device")
+    assert (part / "cam2-led-on.jpg").read_bytes() == b"\xff\xd8"

@@ -293,6 +293,23 @@ def ensure_dir(folder: str | os.PathLike, what: str = "folder", *, link_ok: bool
     return folder
 
 
+@contextlib.contextmanager
+def filled_folder(folder: str | os.PathLike, what: str = "folder"):
+    """``ensure_dir(folder)`` for a block that writes into it: a folder made here that the block
+    left empty because it failed (a full disk) is removed again, so that no empty folder is left
+    to be taken for a result (an empty ``unsaved-...`` artifacts folder looks like a run's)."""
+    folder = Path(folder)
+    made = not os.path.lexists(folder)
+    ensure_dir(folder, what)
+    try:
+        yield folder
+    except BaseException:
+        if made:
+            with contextlib.suppress(OSError):
+                folder.rmdir()          # (only when empty: what was written is kept)
+        raise
+
+
 class Outputs:
     """The files a command writes beside its result (a report, a plot, an export), each whole or
     not at all. One that cannot be written is noted and the work goes on, so that the result is
