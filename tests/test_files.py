@@ -52,11 +52,11 @@ def test_ensure_dir_file_in_the_way(tmp_path):
 def test_a_folder_made_for_a_write_that_failed_is_not_left_empty(tmp_path):
     """Found by the sweep's console full disk class: the daily QA's artifacts folder made for a
     run on a full disk was left empty (`unsaved-T-cam1/`), a folder that looks like a result."""
-    made = tmp_path / "unsaved-1-cam1"
+    made = tmp_path / "artifacts" / "unsaved-1-cam1"     # (its parent made for it too)
     with pytest.raises(WriteFailed):
         with filled_folder(made, "artifacts folder"):
             raise WriteFailed(made / "cam1-led-on.jpg", "no space left on device")
-    assert not made.exists()
+    assert not (tmp_path / "artifacts").exists()
     there = tmp_path / "run000001"                 # a folder that was there stays, and so does what was written
     there.mkdir()
     with pytest.raises(OSError):

@@ -295,18 +295,25 @@ def ensure_dir(folder: str | os.PathLike, what: str = "folder", *, link_ok: bool
 
 @contextlib.contextmanager
 def filled_folder(folder: str | os.PathLike, what: str = "folder"):
-    """``ensure_dir(folder)`` for a block that writes into it: a folder made here that the block
-    left empty because it failed (a full disk) is removed again, so that no empty folder is left
-    to be taken for a result (an empty ``unsaved-...`` artifacts folder looks like a run's)."""
+    """``ensure_dir(folder)`` for a block that writes into it: the folders made here (it and its
+    new parents) that the block left empty because it failed (a full disk) are removed again, so
+    that no empty folder is left to be taken for a result (an empty ``unsaved-...`` artifacts
+    folder looks like a run's)."""
     folder = Path(folder)
-    made = not os.path.lexists(folder)
+    made = []                            # the folders ensure_dir makes, deepest first
+    for f in (folder, *folder.parents):
+        if os.path.lexists(f):
+            break
+        made.append(f)
     ensure_dir(folder, what)
     try:
         yield folder
     except BaseException:
-        if made:
-            with contextlib.suppress(OSError):
-                folder.rmdir()          # (only when empty: what was written is kept)
+        for f in made:
+            try:
+                f.rmdir()                # only when empty: what was written is kept
+            except OSError:
+                break
         raise
 
 
