@@ -4,6 +4,7 @@ list-mode subsets, and CASToR's two files through a reader written here from CAS
 trigger 0. On the host clock no CASToR file is written (CASToR reads list-mode seconds)."""
 
 import csv
+import os
 import json
 import re
 
@@ -47,6 +48,7 @@ def exported(tmp_path_factory):
     r = analyze_motion(marker_series(tracks))
     out = tmp_path_factory.mktemp("export")
     (out / "castor_motion.dyn").write_text("nb_motion_triggers: 1\ntimestamp_motion_triggers: 0\n")  # an earlier export's
+    (out / "yrtpet_lor_motion.csv").write_text("0,1,0,0,0,0,1,0,0,0,0,1,0,0\n")                         # ... too
     paths = export_motion(r, out, n_bins=4, volume=SCENE_VOLUME)
     return patient, r, out, paths, t0
 
@@ -65,10 +67,14 @@ def test_no_castor_file_on_the_host_clock(exported):
     _, r, out, paths, _ = exported
     assert not (out / "castor_motion.dyn").exists() and not (out / "castor_motion_rigid.txt").exists()
     assert {p.name for p in paths} == {"motion_6dof.csv", "motion_6dof.json", "respiration.csv", "subsets.json"}
-    assert len(paths.notes) == 1 and "CASToR files not written" in paths.notes[0] and "host" in paths.notes[0]
+    assert len(paths.notes) == 2 and "CASToR files not written" in paths.notes[0] and "host" in paths.notes[0]
     assert paths.notes[0].endswith("(removed castor_motion.dyn, which an earlier export left there)")
+    assert paths.notes[1].startswith("YRT-PET LOR motion file not written: the times are host-clock seconds")
+    assert paths.notes[1].endswith("(removed yrtpet_lor_motion.csv, which an earlier export left there)")
+    assert not (out / "yrtpet_lor_motion.csv").exists()
     doc = json.loads((out / "motion_6dof.json").read_text())
     assert doc["castor"] == {"written": False, "why": paths.notes[0]}
+    assert doc["yrtpet"] == {"written": False, "why": paths.notes[1]}
     assert "host clock" in json.loads((out / "subsets.json").read_text())["clock"]
 
 
@@ -184,7 +190,7 @@ def test_on_the_spect_clock_times_are_list_mode_seconds(synced):
     """Tracks with SPECT times (as the sync analysis makes them): every time in the exports is
     list-mode seconds, the CASToR triggers whole seconds from the acquisition start (list-mode 0)."""
     patient, r, out, paths, t0 = synced
-    assert r.series.clock == "spect" and paths.notes == []
+    assert r.series.clock == "spect" and paths.notes == [] and (out / "yrtpet_lor_motion.csv") in paths
     doc = json.loads((out / "motion_6dof.json").read_text())
     assert "SPECT list-mode" in doc["clock"] and doc["time_origin"] == 0.0
     assert doc["columns"]["time_s"][0] == pytest.approx(LEAD, abs=1e-6)
@@ -193,3 +199,103 @@ def test_on_the_spect_clock_times_are_list_mode_seconds(synced):
     moves = sorted(m.t_start for m in patient.motion.moves)
     for stamp, true_start in zip(stamps[1:], moves):
         assert true_start - t0 + LEAD - 1.0 <= stamp <= true_start - t0 + LEAD + 2.5
+
+
+def read_lor_motion_by_yrtpet_rules(path):
+    """YRT-PET's LORMotion::readFromFile (commit ec8cf3b), written here from its source, not from our
+    writer: per non-empty line an unsigned 32-bit integer (from_chars: no sign, no fraction), then 12
+    floats and the error, each after any run of ',' or ' '; anything after the error: the line is
+    skipped. Returns (ms, (N, 3, 4), error) and the lines it would skip."""
+    ms, mats, errs, skipped = [], [], [], []
+    num = re.compile(r"[+-]?(\d+\.?\d*([eE][+-]?\d+)?|\.\d+([eE][+-]?\d+)?|inf|nan)", re.I)
+    for k, line in enumerate(path.read_text(encoding="ascii").split("\n"), 1):
+        if not line:
+            continue
+        m = re.match(r"\d+", line)
+        if m is None or int(m.group()) > 2 ** 32 - 1 or line[m.end():m.end() + 1] not in (",", " ", ""):
+            skipped.append(k)                          # (a '.' after the digits would shift the columns)
+            continue
+        pos, vals = m.end(), []
+        for _ in range(13):
+            while pos < len(line) and line[pos] in ", ":
+                pos += 1
+            f = num.match(line, pos)
+            if f is None or f.group().startswith("+"):
+                break
+            vals.append(float(f.group()))
+            pos = f.end()
+        if len(vals) != 13 or line[pos:].strip():
+            skipped.append(k)
+            continue
+        ms.append(int(m.group()))
+        mats.append(np.array(vals[:12]).reshape(3, 4))
+        errs.append(vals[12])
+    return np.array(ms), np.array(mats), np.array(errs), skipped
+
+
+def test_yrtpet_lor_motion_undoes_the_true_pose_on_the_list_mode_clock(synced):
+    """YRT-PET moves each event's LOR by its frame's [R|t] (p -> R p + t) so that the events land where
+    they were in the reference pose. Carry points from motion_6dof's reference pose (the first still
+    period) into the true body pose of a line's time; the line's matrix must bring them back."""
+    patient, r, out, _, t0 = synced
+    ms, M, e, skipped = read_lor_motion_by_yrtpet_rules(out / "yrtpet_lor_motion.csv")
+    assert skipped == [] and not (out / "yrtpet_lor_motion.csv").read_text().startswith(("t", "#"))
+    assert ms[0] == 0 and np.all(np.diff(ms) > 0) and ms[1] == round(LEAD * 1000)     # list-mode ms
+    assert e[0] == 1.0 and np.all((e >= 0) & (e <= 1))       # no frame before 2.5 s: no pose there
+    doc = json.loads((out / "motion_6dof.json").read_text())
+    conf = np.array(doc["columns"]["confidence"])
+    assert e[1:] == pytest.approx(1 - conf, abs=6e-5) and doc["yrtpet"]["lines"] == len(ms)
+    a, b = r.reference_period
+    R0, T0 = patient.body_transform(0.5 * (a + b) + t0 - LEAD)     # the reference pose (truth)
+    x_ref = np.array([[0.0, 0.0, 0.0], [100.0, 50.0, -80.0], [-120.0, 80.0, 150.0]])
+    worst = 0.0
+    for k in range(1, len(ms), 37):
+        R, T = patient.body_transform(ms[k] / 1000.0 + t0 - LEAD)
+        x_now = (x_ref - T0) @ R0 @ R.T + T                    # the reference pose undone, this one applied
+        back = x_now @ M[k][:, :3].T + M[k][:, 3]
+        worst = max(worst, float(np.abs(back - x_ref).max()))
+    assert worst < 0.5, worst
+    assert np.allclose(np.einsum("kij,kil->kjl", M[:, :, :3], M[:, :, :3]), np.eye(3), atol=1e-6)   # rotations
+
+
+def test_every_pose_says_how_sure_it_is_in_the_exports(synced):
+    _, r, out, _, _ = synced
+    with open(out / "motion_6dof.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert {row["health"] for row in rows} <= {"known", "bounded", "not known"}
+    for row in rows:
+        c = float(row["confidence"])
+        assert 0.0 <= c <= 1.0
+        assert (row["health"] == "not known") == (c == 0.0) == (row["quality"] in ("no pose", "no frames"))
+        assert (row["health_why"] == "") == (row["health"] == "known")
+    sub = json.loads((out / "subsets.json").read_text())
+    for s in sub["motion_states"]:
+        h = s["health"]
+        assert sum(h["rows"].values()) > 0 and 0 < h["confidence_min"] <= h["confidence_mean"] <= 1
+    assert all(b["confidence_mean"] > 0 for b in sub["respiratory_bins"]["amplitude"])
+    assert sub["health"]["rows"]["known"] == sum(row["health"] == "known" for row in rows)
+
+
+def test_yrtpet_writer_refuses_what_yrtpet_would_misread_and_targets_not_files(tmp_path):
+    from vts_hw.files import NotReplaced
+    from vts_hw.motion.yrtpet import LorMotionPlan, lor_motion_text, write_lor_motion
+    eye = [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0]
+    with pytest.raises(ValueError, match="unsigned 32-bit"):
+        lor_motion_text(np.array([-40, 0]), [eye, eye], [0, 0])
+    with pytest.raises(ValueError, match="unsigned 32-bit"):
+        lor_motion_text(np.array([0.0, 40.5]), [eye, eye], [0, 0])
+    with pytest.raises(ValueError, match="increase"):
+        lor_motion_text(np.array([0, 40, 40]), [eye] * 3, [0] * 3)
+    with pytest.raises(ValueError, match="without a pose"):
+        lor_motion_text(np.array([0, 40]), [eye, [np.nan] * 12], [0, 1])
+    with pytest.raises(ValueError, match="between 0 and 1"):
+        lor_motion_text(np.array([0]), [eye], [1.5])
+    plan = LorMotionPlan(None, np.array([0, 40]), np.array([eye, eye], float), np.array([1.0, 0.25]))
+    for kind in ("dir", "fifo"):
+        node = tmp_path / kind / "yrtpet_lor_motion.csv"
+        node.parent.mkdir()
+        node.mkdir() if kind == "dir" else os.mkfifo(node)
+        with pytest.raises(NotReplaced, match="yrtpet_lor_motion.csv"):
+            write_lor_motion(node, plan)
+    p = write_lor_motion(tmp_path / "ok.csv", plan)
+    assert p.read_text().splitlines()[1] == "40," + ",".join(f"{v:.9f}" for v in eye) + ",0.250000000"

@@ -54,7 +54,7 @@ import numpy as np
 from vts_hw.files import ensure_dir, write_atomic
 
 __all__ = ["write_castor", "castor_parameters", "castor_matrix", "castor_backward_matrix",
-           "castor_schedule", "castor_frame", "to_castor_frame", "plan_castor", "CastorPlan",
+           "castor_schedule", "castor_frame", "fov_centre", "to_castor_frame", "plan_castor", "CastorPlan",
            "CASTOR_DYNAMIC", "CASTOR_RIGID", "CASTOR_FRAME", "CASTOR_FROM_SPECT"]
 
 CASTOR_DYNAMIC = "castor_motion.dyn"
@@ -110,22 +110,29 @@ def castor_backward_matrix(params) -> np.ndarray:
     return M
 
 
-def castor_frame(volume: dict | None) -> tuple[np.ndarray, np.ndarray]:
-    """``(A, c)``: a SPECT-frame point ``X`` is ``A (X - c)`` in CASToR's image frame (see the
-    module). ``volume``: what the mapping kept of its volume (vts_hw.spect.frame.volume_record).
-    ValueError with one sentence when the conversion is not known."""
+def fov_centre(volume: dict | None, program: str = "CASToR's image") -> np.ndarray:
+    """The SPECT-frame centre of the volume the mapping was made from (where a reconstruction's
+    field of view is centred), for a head-first supine patient; ValueError with one sentence
+    naming ``program``'s frame when it is not known (also for vts_hw.motion.yrtpet)."""
     if not volume or volume.get("centre_mm") is None:
         raise ValueError("the VTS -> SPECT mapping does not say which SPECT volume it was made from (it was "
-                         "made before mappings recorded it), so the centre of CASToR's image is not known in "
+                         f"made before mappings recorded it), so the centre of {program} is not known in "
                          "its frame: make the mapping again with `vts calibrate spect`")
     position = volume.get("patient_position")
     if position not in (None, "HFS"):
         raise ValueError(f"the mapping volume {volume.get('file')} says PatientPosition {position}; the turn "
-                         "into CASToR's image frame is known here for head-first supine (HFS) only")
+                         f"into {program} frame is known here for head-first supine (HFS) only")
     c = np.asarray(volume["centre_mm"], float).reshape(3)
     if not np.all(np.isfinite(c)):
         raise ValueError(f"the mapping volume's centre {volume['centre_mm']} is not three finite numbers")
-    return CASTOR_FROM_SPECT.copy(), c
+    return c
+
+
+def castor_frame(volume: dict | None) -> tuple[np.ndarray, np.ndarray]:
+    """``(A, c)``: a SPECT-frame point ``X`` is ``A (X - c)`` in CASToR's image frame (see the
+    module). ``volume``: what the mapping kept of its volume (vts_hw.spect.frame.volume_record).
+    ValueError with one sentence when the conversion is not known."""
+    return CASTOR_FROM_SPECT.copy(), fov_centre(volume, "CASToR's image")
 
 
 def to_castor_frame(R, T, A, c) -> tuple[np.ndarray, np.ndarray]:

@@ -9,7 +9,13 @@
   widths), still frames only for the respiratory bins;
 * ``castor_motion.dyn`` and ``castor_motion_rigid.txt`` (:mod:`.castor`) -- only on the SPECT
   clock, in the SPECT frame, with a mapping that says which volume placed that frame: else one
-  sentence says why not (``ExportedFiles.notes``, and ``castor`` in motion_6dof.json).
+  sentence says why not (``ExportedFiles.notes``, and ``castor`` in motion_6dof.json);
+* ``yrtpet_lor_motion.csv`` (:mod:`.yrtpet`) -- YRT-PET's per-frame [R|t] with each pose's error,
+  on the same conditions (``yrtpet`` in motion_6dof.json).
+
+Every pose says how sure it is (:mod:`vts_hw.pose_health`, :mod:`.health`): per row its health
+(``known``, ``bounded``, ``not known``), why, and a confidence in [0, 1], in the 6-DOF series; per
+motion state and respiratory bin in subsets.json; as the error in YRT-PET's file.
 
 Times are seconds from the acquisition start on the SPECT list-mode clock when the session was
 synced, else seconds from the first frame on the host clock; every JSON says which (``clock``),
@@ -25,10 +31,13 @@ import numpy as np
 from vts_hw.files import ensure_dir, write_atomic, write_json_atomic
 from vts_hw.errors import DataError
 from vts_hw.motion.castor import CASTOR_DYNAMIC, CASTOR_RIGID, plan_castor, write_castor
+from vts_hw.motion.health import result_health
+from vts_hw.motion.yrtpet import LOR_MOTION_CSV, plan_lor_motion, write_lor_motion
+from vts_hw.pose_health import HealthSeries
 from vts_hw.spect.frame import frame_description
 
 __all__ = ["export_motion", "ExportedFiles", "time_origin", "clock_text", "respiratory_bins", "state_of_frames",
-           "frame_quality", "unknown_intervals", "coverage_json",
+           "frame_quality", "unknown_intervals", "coverage_json", "health_summary",
            "SIXDOF_CSV", "SIXDOF_JSON", "RESP_CSV", "SUBSETS_JSON", "MOTION_FORMAT"]
 
 SIXDOF_CSV, SIXDOF_JSON = "motion_6dof.csv", "motion_6dof.json"
@@ -107,10 +116,23 @@ def _intervals(t, mask, t0, dt):
             for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1))]
 
 
-def respiratory_bins(result, n_bins: int = 4, t0: float = 0.0) -> dict:
+def _confidence(conf, sel) -> float | None:
+    return None if conf is None or not np.any(sel) else round(float(np.mean(conf[sel])), 4)
+
+
+def health_summary(health: HealthSeries, sel=None) -> dict:
+    """Rows per health state and the confidence (mean, least) over the rows ``sel`` (all: None)."""
+    sel = np.ones(len(health), bool) if sel is None else np.asarray(sel, bool)
+    h = HealthSeries(health.state[sel], health.why[sel], health.confidence[sel])
+    c = h.confidence
+    return {"rows": h.counts(), "confidence_mean": round(float(c.mean()), 4) if len(c) else None,
+            "confidence_min": round(float(c.min()), 4) if len(c) else None}
+
+
+def respiratory_bins(result, n_bins: int = 4, t0: float = 0.0, confidence=None) -> dict:
     """Intervals per respiratory bin by amplitude (still frames with a pose) and by phase (still
     frames inside breaths seen whole). None of either when no breathing was found: bins made
-    from noise would split the counts at random."""
+    from noise would split the counts at random. ``confidence`` (F,): each bin's mean is given."""
     t = result.pose.t
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.04
     fig = result.respiration.figures
@@ -125,30 +147,32 @@ def respiratory_bins(result, n_bins: int = 4, t0: float = 0.0) -> dict:
         hi_ok = a <= edges[k + 1] if k == n_bins - 1 else a < edges[k + 1]
         sel = use & (a >= edges[k]) & hi_ok
         amp.append({"bin": k, "amplitude_mm": [float(edges[k]), float(edges[k + 1])],
-                    "frames": int(sel.sum()), "intervals": _intervals(t, sel, t0, dt)})
+                    "frames": int(sel.sum()), "confidence_mean": _confidence(confidence, sel),
+                    "intervals": _intervals(t, sel, t0, dt)})
     phase = []
     for k in range(n_bins):
         lo, hi = k / n_bins, (k + 1) / n_bins
         sel = use & np.isfinite(ph) & (ph >= lo) & (ph < hi)
-        phase.append({"bin": k, "phase": [lo, hi], "frames": int(sel.sum()), "intervals": _intervals(t, sel, t0, dt)})
+        phase.append({"bin": k, "phase": [lo, hi], "frames": int(sel.sum()),
+                      "confidence_mean": _confidence(confidence, sel), "intervals": _intervals(t, sel, t0, dt)})
     out = {"status": fig.status if fig is not None else "measured", "amplitude": amp, "phase": phase}
     if not any(b["frames"] for b in phase):
         out["phase_note"] = "no breath was seen whole: no phase, no phase bins"
     return out
 
 
-def _remove_stale_castor(out: Path) -> str:
-    """CASToR files an earlier export left in ``out`` would not match the files written now:
-    remove them, and say so (the other files are replaced the same way)."""
+def _remove_stale(out: Path, names=(CASTOR_DYNAMIC, CASTOR_RIGID)) -> str:
+    """Files for another program an earlier export left in ``out`` would not match the files
+    written now: remove them, and say so (the other files are replaced the same way)."""
     gone = []
-    for name in (CASTOR_DYNAMIC, CASTOR_RIGID):
+    for name in names:
         try:
             (out / name).unlink()
             gone.append(name)
         except FileNotFoundError:
             pass
         except OSError as e:
-            raise DataError(f"{out / name}: an earlier export's CASToR file could not be removed ({e.strerror}); "
+            raise DataError(f"{out / name}: an earlier export's file could not be removed ({e.strerror}); "
                             "it does not match this export") from None
     return f" (removed {' and '.join(gone)}, which an earlier export left there)" if gone else ""
 
@@ -163,8 +187,13 @@ def export_motion(result, out, *, n_bins: int = 4, extra: dict | None = None,
     castor = plan_castor(result.states, t0, clock=result.series.clock, frame=result.series.frame, volume=volume)
     castor_files = (out / CASTOR_DYNAMIC, out / CASTOR_RIGID) if castor.why is None else ()
     if castor.why is not None:
-        castor.why += _remove_stale_castor(out)
+        castor.why += _remove_stale(out)
     pose = result.pose
+    health = result_health(result)
+    lor = plan_lor_motion(pose.t - t0, pose.R, pose.T, health.confidence, clock=result.series.clock,
+                          frame=result.series.frame, volume=volume)
+    if lor.why is not None:
+        lor.why += _remove_stale(out, (LOR_MOTION_CSV,))
     t = pose.t - t0
     six = pose.six_dof()
     q = pose.quaternions()
@@ -174,14 +203,18 @@ def export_motion(result, out, *, n_bins: int = 4, extra: dict | None = None,
     st_txt = lambda k: "" if state[k] < 0 else str(int(state[k]))  # noqa: E731
     frame = frame_description(result.series.frame, volume)
     cols = ["time_s", "tx_mm", "ty_mm", "tz_mm", "rx_deg", "ry_deg", "rz_deg", "qx", "qy", "qz", "qw",
-            "state", "markers", "fit_rms_mm", "quality"]
+            "state", "markers", "fit_rms_mm", "quality", "health", "confidence", "health_why"]
     f = lambda v, d: "" if not np.isfinite(v) else f"{v:.{d}f}"  # noqa: E731
     lines = [",".join(cols)]
     for k in range(len(t)):
         lines.append(",".join([f"{t[k]:.4f}"] + [f(x, 4) for x in six[k]] + [f(x, 7) for x in q[k]]
-                              + [st_txt(k), str(int(n[k])), f(pose.rms_mm[k], 4), str(quality[k])]))
+                              + [st_txt(k), str(int(n[k])), f(pose.rms_mm[k], 4), str(quality[k]),
+                                 str(health.state[k]), f"{health.confidence[k]:.4f}",
+                                 str(health.why[k]).replace(",", ";")]))
     p_csv = out / SIXDOF_CSV
     write_atomic(p_csv, "\n".join(lines) + "\n")
+    p_lor = Path(write_lor_motion(out / LOR_MOTION_CSV, lor)) if lor.why is None else None   # before the
+    # JSON that says it was written
     nan = lambda a: [None if not np.isfinite(x) else round(float(x), 6) for x in a]  # noqa: E731
     meta = {"format": MOTION_FORMAT, "clock": clock, "time_origin": t0, "frame": frame,
             "transform": "reference pose -> pose at t, x -> R x + t (breathing excluded); rotations deg, "
@@ -190,14 +223,18 @@ def export_motion(result, out, *, n_bins: int = 4, extra: dict | None = None,
             "coverage": coverage_json(result, t0),
             "states": [s.to_json(t0) for s in result.states],
             "events": [e.to_json(t0) for e in result.events],
-            "castor": castor.to_json(castor_files), **(extra or {})}
+            "castor": castor.to_json(castor_files), "yrtpet": lor.to_json(True),
+            "health": {**health_summary(health), "rule": "vts_hw.pose_health; docs/decisions/0091"},
+            **(extra or {})}
     doc = {**meta, "columns": {"time_s": nan(t), "tx_mm": nan(six[:, 0]), "ty_mm": nan(six[:, 1]),
                                "tz_mm": nan(six[:, 2]), "rx_deg": nan(six[:, 3]), "ry_deg": nan(six[:, 4]),
                                "rz_deg": nan(six[:, 5]), "qx": nan(q[:, 0]), "qy": nan(q[:, 1]),
                                "qz": nan(q[:, 2]), "qw": nan(q[:, 3]),
                                "state": [None if x < 0 else int(x) for x in state],
                                "markers": n.tolist(), "fit_rms_mm": nan(pose.rms_mm),
-                               "quality": quality.tolist()}}
+                               "quality": quality.tolist(), "health": health.state.tolist(),
+                               "confidence": [round(float(x), 4) for x in health.confidence],
+                               "health_why": health.why.tolist()}}
     p_json = write_json_atomic(out / SIXDOF_JSON, doc, indent=None)
     r = result.respiration
     cyc = np.full(len(t), -1)
@@ -212,21 +249,26 @@ def export_motion(result, out, *, n_bins: int = 4, extra: dict | None = None,
     subsets = {"format": MOTION_FORMAT, "clock": clock, "time_origin": t0, "frame": frame,
                "motion_states": [{"state": s.index, "interval_s": [s.t_start - t0, s.t_end - t0],
                                   "intervals_s": [[a - t0, b - t0] for a, b in s.intervals],
-                                  "unknown_s": s.unknown_s, "six_dof": s.six_dof} for s in result.states],
+                                  "unknown_s": s.unknown_s, "six_dof": s.six_dof,
+                                  "health": health_summary(health, state == s.index)} for s in result.states],
                "unknown_s": unknown_intervals(result, t0),
                "coverage": {k: v for k, v in coverage_json(result, t0).items() if k != "unknown_s"},
                "breathing": result.respiration.figures.to_json() if result.respiration.figures else None,
-               "respiratory_bins": respiratory_bins(result, n_bins, t0),
+               "respiratory_bins": respiratory_bins(result, n_bins, t0, health.confidence),
+               "health": health_summary(health),
                "note": "intervals [start, end) s. A state's interval_s is its span; it covers only its intervals_s "
                        "(time without a pose is in no state unless bridged: docs/motion-formats.md). "
                        "Respiratory bins hold still frames with a pose only, phase bins only frames inside "
                        "breaths seen whole"}
     p_sub = write_json_atomic(out / SUBSETS_JSON, subsets)
     paths = [p_csv, Path(p_json), p_resp, Path(p_sub)]
+    notes = [lor.why] if lor.why is not None else []
+    if lor.why is None:
+        paths.append(p_lor)
     if castor.why is not None:
-        return ExportedFiles(paths, [castor.why])
+        return ExportedFiles(paths, [castor.why] + notes)
     comment = ("vts-hw motion states for CASToR: triggers in whole seconds of the SPECT list-mode from the "
                "acquisition start; parameters in CASToR's image frame (x patient left, y anterior, z head, origin "
                "at the image centre) from the pose at the acquisition start; motion_6dof.json 'castor' says more")
     paths += write_castor(castor.triggers, castor.params, out, comment=comment)
-    return ExportedFiles(paths, castor.merged)
+    return ExportedFiles(paths, castor.merged + notes)
