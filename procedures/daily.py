@@ -29,6 +29,7 @@ from vts_hw.catalog import qa_set_name
 from vts_hw.results import Measure
 from vts_hw.tolerance import State, Window, merged_tolerances, worst
 from vts_hw.procedures.drift import DriftAnalysis
+from vts_hw.procedures.marker_room import room_of_rig
 from vts_hw.vision.wall_baseline import NoBaseline
 
 EXIT_CODES = {State.OK: 0, State.TOLERANCE: 10, State.ACTION: 20}
@@ -59,6 +60,7 @@ class CameraResult:
     measures: list[Measure] = field(default_factory=list)
     problems: list[str] = field(default_factory=list)
     drift: DriftAnalysis | None = None
+    drift_at: tuple = ()      # where the drift's measures and problems start (they are made again by place)
 
     @property
     def state(self) -> State:
@@ -75,6 +77,7 @@ class QAResult:
     finished: float | None = None
     store_error: str | None = None   # the store could not take the run: its figures are here only
     windows: dict = field(default_factory=dict)   # the tolerance windows the run was judged by
+    room_why: str = ""   # why the still markers not in a baseline were not placed in the room ("" when they were)
 
     @property
     def state(self) -> State:
@@ -99,6 +102,7 @@ class QAResult:
                         for c in self.cameras],
             "artifacts": self.artifacts,
             **({"store_error": self.store_error} if self.store_error else {}),
+            **({"markers_not_placed": self.room_why} if self.room_why else {}),
         }
 
     def plot(self, path=None) -> bytes:
@@ -118,6 +122,11 @@ class QAResult:
                 lines.append(f"      {m:<17} {val:>9} {u}{flag}")
             for p in c.problems:
                 lines.append(f"      ! {p}")
+            d = c.drift
+            for x, y, r in (d.others if d is not None and d.analyzed else []):
+                lines.append(f"      not a wall marker at ({x:.0f}, {y:.0f}) px: {r.role}, {r.reason}")
+        if self.room_why:
+            lines.append(f"  still markers not in a baseline were not placed: {self.room_why}")
         return "\n".join(lines)
 
 
@@ -198,7 +207,13 @@ class QARun:
             res = self._camera(name, self.baselines.get(name), i)
             results.append(res)
             self.on_step(QAStep(name, i, len(self.camera_names), "done", state=str(res.state)))
-        result = QAResult(self.procedure, None, now, results, finished=self.clock(), windows=self.tolerances)
+        before = [str(r.state) for r in results]
+        room_why = place_others(results, self.rig) if "drift" in self.steps else ""
+        for i, (res, was) in enumerate(zip(results, before), 1):
+            if str(res.state) != was:      # a stray found on the table: the camera's state, said again
+                self.on_step(QAStep(res.camera, i, len(self.camera_names), "done", state=str(res.state)))
+        result = QAResult(self.procedure, None, now, results, finished=self.clock(), windows=self.tolerances,
+                          room_why=room_why)
         result.artifacts = self._save_all_artifacts(run_id, results, result)
         return result
 
@@ -251,12 +266,10 @@ class QARun:
                         step("drift", taken=taken, needed=needed, frame=frame)
                     d = DriftAnalysis.acquire(cam, baseline, self.n_frames, on_frame=frame_taken,
                                               mm_per_px=mm).analyze(tol)
+                    d.look_longer(cam, on_frame=frame_taken)   # strays: a breath's frames more
                     out.drift = d
-                    out.measures += [(m.subject, m.metric, m.value, m.unit, m.state) for m in d.measures]
-                    out.problems += [f"marker {m} not found" for m in d.missing]
-                    out.problems += [f"stray bright blob at ({x:.0f}, {y:.0f}) px" for x, y in d.strays]
-                    if d.led_off_visible:
-                        out.problems.append(f"{d.led_off_visible} marker(s) still bright with the LED off")
+                    out.drift_at = (len(out.measures), len(out.problems))
+                    _drift_into(out, d)
             except CameraError as exc:
                 out.problems.append(str(exc))
                 add("camera_reachable", 0.0, "")
@@ -335,3 +348,33 @@ class QARun:
                 res.drift.plot(png)
                 paths.append(png)
         return paths
+
+
+def _drift_into(out: CameraResult, d: DriftAnalysis) -> None:
+    """The drift's measures and problems into the camera's result, in place of any it had (the
+    drift is the camera's last step: everything from ``drift_at`` on is the drift's)."""
+    m0, p0 = out.drift_at
+    new = [f"marker {m} not found" for m in d.missing]
+    new += [f"stray bright blob at ({x:.0f}, {y:.0f}) px" for x, y in d.strays]
+    if d.led_off_visible:
+        new.append(f"{d.led_off_visible} marker(s) still bright with the LED off")
+    out.measures[m0:] = [(m.subject, m.metric, m.value, m.unit, m.state) for m in d.measures]
+    out.problems[p0:] = new
+
+
+def place_others(results: list[CameraResult], rig) -> str:
+    """Rule 2 of vts_hw/vision/marker_roles.py across the cameras measured: each camera's still
+    markers that are not its baseline's placed in the room (the rig's calibration and mapping);
+    one on the table (the phantom, a patient holding still) is no stray. Returns why they were not
+    placed ("" when they were)."""
+    drifts = {r.camera: r for r in results if r.drift is not None and r.drift.analyzed}
+    if not any(r.drift.candidates for r in drifts.values()):
+        return ""
+    room, why = room_of_rig(rig)
+    if room is None:
+        return why
+    placed = room.place({n: r.drift.candidates for n, r in drifts.items()})
+    for n, r in drifts.items():
+        r.drift.place(placed.get(n, []))
+        _drift_into(r, r.drift)
+    return ""

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import math
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -25,12 +26,14 @@ import numpy as np
 from vts_hw import __version__
 from vts_hw.camera import Frame
 from vts_hw.vision.detect import DetectorSettings, detect_jpeg
+from vts_hw.vision.marker_roles import MOVE_FLOOR_PX, PATIENT, Role, follow, roles_of_tracks
 from vts_hw.vision.wall_baseline import GATE_PX, Baseline, BaselineMarker, match_markers as _match  # noqa: F401
 from vts_hw.catalog import DRIFT
 from vts_hw.results import Measure
 from vts_hw.tolerance import DEFAULT_TOLERANCES, State, Window, worst
 
 LED_SETTLE_S = 0.1      # time for the LED ring to switch before the next frame is taken
+SPAN_S = 3.0            # frames spread over this see a breathing marker move: half a slow breath (3-6 s)
 _STRAY_REASONS = ("roundness", "border", "crowded", "truncated", "too many")
 
 
@@ -89,7 +92,9 @@ class DriftAnalysis:
         self.tolerances = tol
         ref = self.baseline.points()
         self.markers = [MarkerDrift(m.id, (m.x, m.y), 0) for m in self.baseline.markers]
-        strays: list[tuple[float, float]] = []
+        self.moved_near: list[str] = []
+        rejected: list[tuple[float, float]] = []
+        unmatched: list[np.ndarray] = []
         self.detections = []
         for snap in self.frames_on:
             res = detect_jpeg(snap.jpeg, self.settings)
@@ -102,19 +107,78 @@ class DriftAnalysis:
                 md.found += 1
                 md.dx.append(float(pts[j][0] - ref[i][0]))
                 md.dy.append(float(pts[j][1] - ref[i][1]))
-            strays += [tuple(pts[j]) for j in range(len(pts)) if j not in matched]
+            unmatched.append(pts[[j for j in range(len(pts)) if j not in matched]])
             # rejected candidates that are real bright things (not specks of noise) are strays too
-            strays += [(b.x, b.y) for b, why in res.rejected
-                       if why in _STRAY_REASONS or (why == "area" and b.area > self.settings.max_area)]
+            rejected += [(b.x, b.y) for b, why in res.rejected
+                         if why in _STRAY_REASONS or (why == "area" and b.area > self.settings.max_area)]
         n = len(self.frames_on)
+        # the markers that are not the baseline's, each known by what it is (vision/marker_roles.py):
+        # one that moved over the frames is the patient's, never a stray; a still one is a stray
+        # unless place() (the daily QA, every camera measured) finds it on the table
+        need = max(1, (n + 1) // 2)
+        self.others: list[tuple[float, float, Role]] = []
+        # every marker not the baseline's, for place() to match across the cameras (a marker still
+        # here may have moved in another camera's frames: both views are needed to place it)
+        self.candidates: list[tuple[float, float]] = []
+        strays: list[tuple[float, float]] = []
+        tracks = follow(unmatched)
+        for t, role in zip(tracks, roles_of_tracks(tracks)):
+            if role is not None and role.role == PATIENT:
+                self.others.append((t.x, t.y, role))
+                self.candidates.append((t.x, t.y))
+            elif t.seen >= need:
+                strays.append((t.x, t.y))
+                self.candidates.append((t.x, t.y))
         # a stray counts if it is there in at least half the frames (not a flicker of noise)
-        self.strays = _persistent(strays, n)
+        self.strays = strays + _persistent(rejected, n)
+        # a baseline marker whose match moved over the frames is not that wall marker (a patient's
+        # marker passing near where it was, the wall marker hidden): not found
+        for md in self.markers:
+            if len(md.dx) >= 2 and math.hypot(np.ptp(md.dx), np.ptp(md.dy)) > MOVE_FLOOR_PX:
+                self.moved_near.append(md.id)
+                md.found, md.dx, md.dy = 0, [], []
         # LED off: how many baseline markers are still bright
         self.led_off_visible = None
         if self.frame_off is not None:
             res = detect_jpeg(self.frame_off.jpeg, self.settings)
             pts = np.array([(b.x, b.y) for b in res.blobs]).reshape(-1, 2)
             self.led_off_visible = len(_match(ref, pts, GATE_PX))
+        self._measure()
+        self.analyzed_at = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+        self.analyzed = True
+        return self
+
+    def look_longer(self, cam, frames: int = 4, span_s: float = SPAN_S, on_frame=None) -> "DriftAnalysis":
+        """When markers neither the baseline's nor seen moving are in view (:attr:`strays`):
+        ``frames`` more LED-on snapshots over ``span_s`` (the LED was left on), and the analysis
+        made again over every frame: a patient's marker still over a few quick frames moves over
+        half a breath (rule 1 of vision/marker_roles.py). Nothing more is taken without strays."""
+        self._need()
+        if not self.strays or frames < 1:
+            return self
+        time.sleep(LED_SETTLE_S)
+        for k in range(frames):
+            time.sleep(span_s / frames)
+            self.frames_on.append(cam.snapshot())
+            if on_frame is not None:
+                on_frame(self.frames_on[-1], True, k + 1, frames)
+        return self.analyze(self.tolerances)
+
+    def place(self, roles) -> "DriftAnalysis":
+        """Rule 2 for the markers that are not the baseline's (:attr:`candidates`, in order;
+        ``roles`` from :meth:`vts_hw.vision.marker_roles.Room.place`): one on the table (the
+        phantom, a patient holding still) is no stray (one that moved is already the patient's);
+        the measures are made again."""
+        self._need()
+        for (x, y), role in zip(list(self.candidates), roles):
+            if role is not None and not role.is_wall and (x, y) in self.strays:
+                self.others.append((x, y, role))
+                self.strays = [p for p in self.strays if p != (x, y)]
+        self._measure()
+        return self
+
+    def _measure(self) -> None:
+        n = len(self.frames_on)
         self.missing = [m.id for m in self.markers if m.found < max(1, (n + 1) // 2)]
         good = [m for m in self.markers if m.id not in self.missing]
         self.measures: list[Measure] = []
@@ -147,9 +211,6 @@ class DriftAnalysis:
             add(subj, "drift_y_px", my if state_ok else None, "px")
             add(subj, "drift_sd_px", max(sx, sy) if state_ok else None, "px")
         self.state = worst(m.state for m in self.measures if "/" not in m.subject)
-        self.analyzed_at = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-        self.analyzed = True
-        return self
 
     def _add(self, subject, metric, value, unit, window=None, scale=1.0):
         w = self.tolerances.get(window or metric)
@@ -183,6 +244,8 @@ class DriftAnalysis:
                         for m in self.markers],
             "missing": self.missing,
             "strays": [{"x": _r(x), "y": _r(y)} for x, y in self.strays],
+            "not_wall": [{"x": _r(x), "y": _r(y), **r.to_dict()} for x, y, r in self.others],
+            "moved_near": self.moved_near,
             "led_off_visible": self.led_off_visible,
             "measurements": [{"subject": m.subject, "metric": m.metric, "value": _r(m.value), "unit": m.unit,
                               "state": str(m.state)} for m in self.measures],
@@ -203,6 +266,10 @@ class DriftAnalysis:
             lines.append(f"  MISSING markers: {', '.join(self.missing)}")
         for s in d["strays"]:
             lines.append(f"  STRAY bright blob at ({s['x']:.1f}, {s['y']:.1f}) px")
+        for s in d["not_wall"]:
+            lines.append(f"  not a wall marker at ({s['x']:.0f}, {s['y']:.0f}) px: {s['role']}: {s['reason']}")
+        for mid in self.moved_near:
+            lines.append(f"  {mid}: what was found there moved over the frames (not the wall marker): not found")
         if self.led_off_visible is not None:
             lines.append("  LED check: " + ("markers vanish with the LED off (OK)" if self.led_off_visible == 0 else
                                            f"{self.led_off_visible} marker(s) still bright with the LED off"))
@@ -257,15 +324,16 @@ class DriftAnalysis:
         return fig
 
 
-def acquire_led_frames(cam, n_frames: int = 5, settle_s: float = LED_SETTLE_S, on_frame=None):
-    """LED on, ``n_frames`` snapshots, LED off, one snapshot; the LED is left on.
+def acquire_led_frames(cam, n_frames: int = 5, settle_s: float = LED_SETTLE_S, on_frame=None,
+                       every_s: float = 0.0):
+    """LED on, ``n_frames`` snapshots (``every_s`` apart at least: the baseline spreads them over
+    a breath), LED off, one snapshot; the LED is left on.
 
     A camera whose LED calls change nothing (``led_switches`` False, e.g. a replayed
     recording) gives no LED-off frame: the LED check is not made rather than failed.
     ``on_frame(frame, led_on, taken, needed)`` hears of each frame as it is taken, and first
     (frame None, taken 0) before the LED is switched (progress, a console that must close its
     own stream of the camera first and then shows these frames); it must return soon."""
-    import time
     switches = getattr(cam, "led_switches", True)
     needed = n_frames + (1 if switches else 0)
     tell = on_frame or (lambda *a: None)
@@ -273,7 +341,9 @@ def acquire_led_frames(cam, n_frames: int = 5, settle_s: float = LED_SETTLE_S, o
     cam.led_on()
     time.sleep(settle_s)
     on = []
-    for _ in range(n_frames):
+    for k in range(n_frames):
+        if k and every_s > 0:
+            time.sleep(every_s)
         on.append(cam.snapshot())
         tell(on[-1], True, len(on), needed)
     if not switches:

@@ -75,7 +75,7 @@ def set_baseline(rig, cameras, frames, dry_run, operator, as_json, clock=time.ti
     from contextlib import ExitStack
     with ExitStack() as stack, open_store(rig) as store:
         cams = [stack.enter_context(open_camera(cfg, clock=clock)) for cfg in cfgs]
-        result = take_baselines(cams, frames=frames, clock=clock)
+        result = take_baselines(cams, frames=frames, clock=clock, rig=rig)
         started = clock()
         stored = record(store, result, rig=rig.rig, operator=operator, config_digest=rig.digest,
                         tolerances=rig.tolerances, started=started, finished=started, clock=clock)
@@ -83,6 +83,8 @@ def set_baseline(rig, cameras, frames, dry_run, operator, as_json, clock=time.ti
     if as_json:
         echo_json({"run_id": run_id, "baselines": [{"camera": b.camera, "taken": b.taken,
                                                     "markers": [m.__dict__ for m in b.markers]} for b in baselines],
+                   "not_wall": {b.camera: [{"x": x, "y": y, **r.to_dict()} for x, y, r in b.others]
+                                for b in baselines}, "room": result.room_why or "placed",
                    **({} if stored.ok else {"unsaved_file": str(stored.unsaved) if stored.unsaved else None})})
     else:
         for b in baselines:
@@ -90,6 +92,10 @@ def set_baseline(rig, cameras, frames, dry_run, operator, as_json, clock=time.ti
                        + (f"(run {run_id})" if run_id is not None else "(NOT stored)"))
             for m in b.markers:
                 click.echo(f"    {m.id}: ({m.x:.2f}, {m.y:.2f}) px")
+            for x, y, r in b.others:
+                click.echo(f"    not a wall marker at ({x:.0f}, {y:.0f}) px: {r.role}: {r.reason}")
+        if result.room_why:
+            click.echo(f"  where the still markers lie was not checked: {result.room_why}")
     if not stored.ok:
         from vts_hw.cli.common import say_stored
         say_stored(stored, result, "baseline", as_json)

@@ -233,7 +233,7 @@ class Jobs:
 
         with ExitStack() as stack, self._store() as store:
             cams = [stack.enter_context(open_camera(cfg, clock=self.clock)) for cfg in cfgs]
-            result = take_baselines(cams, frames=frames, clock=self.clock, on_frame=on_frame)
+            result = take_baselines(cams, frames=frames, clock=self.clock, on_frame=on_frame, rig=rig)
             self._release(attached)
             started = self.clock()
             stored = record(store, result, rig=rig.rig, operator=user, config_digest=rig.digest,

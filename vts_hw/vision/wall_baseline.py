@@ -9,12 +9,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from vts_hw.errors import VtsError
 from vts_hw.vision.detect import DetectorSettings, detect_jpeg
-
-GATE_PX = 12.0          # a marker further than this from its baseline position is not that marker
+from vts_hw.vision.marker_roles import GATE_PX, follow, match_markers, roles_of_tracks  # noqa: F401  (re-exported)
 
 
 class NoBaseline(VtsError):
@@ -38,37 +36,43 @@ class Baseline:
     markers: tuple[BaselineMarker, ...]
     taken: float
     run_id: int | None = None
+    #: the markers seen that are not wall markers: ``((x, y, Role), ...)`` (vision/marker_roles.py);
+    #: not stored (a baseline run keeps its wall markers only), said when it is set
+    others: tuple = ()
+
+    @classmethod
+    def of_points(cls, camera: str, points, taken: float, others: tuple = ()) -> "Baseline":
+        """The wall markers at ``points`` (N x 2 px), IDs M1.. in reading order (rows, then columns)."""
+        pts = np.asarray(points, float).reshape(-1, 2)
+        order = sorted(range(len(pts)), key=lambda k: (round(pts[k][1] / 40), pts[k][0]))
+        return cls(camera, tuple(BaselineMarker(f"M{n + 1}", float(pts[k][0]), float(pts[k][1]))
+                                 for n, k in enumerate(order)), taken, None, tuple(others))
 
     @classmethod
     def from_frames(cls, camera: str, jpegs: list[bytes], taken: float,
                     settings: DetectorSettings | None = None) -> "Baseline":
-        """Markers seen in every frame, averaged; IDs M1.. in reading order (rows, then columns)."""
-        per_frame = [detect_jpeg(j, settings or DetectorSettings()).blobs for j in jpegs]
-        if not per_frame or not per_frame[0]:
-            return cls(camera, (), taken)
-        ref = np.array([(b.x, b.y) for b in per_frame[0]])
-        sums = np.zeros_like(ref)
-        counts = np.zeros(len(ref))
-        for blobs in per_frame:
-            pts = np.array([(b.x, b.y) for b in blobs]).reshape(-1, 2)
-            for i, j in match_markers(ref, pts, GATE_PX):
-                sums[i] += pts[j]
-                counts[i] += 1
-        keep = counts == len(per_frame)
-        mean = sums[keep] / counts[keep, None]
-        order = sorted(range(len(mean)), key=lambda k: (round(mean[k][1] / 40), mean[k][0]))
-        markers = tuple(BaselineMarker(f"M{n + 1}", float(mean[k][0]), float(mean[k][1]))
-                        for n, k in enumerate(order))
-        return cls(camera, markers, taken)
+        """One camera's wall markers by motion alone (vision/marker_roles.py, rule 1): the markers
+        seen still in every frame, averaged; those that moved or came and went are ``others``.
+        Where they lie (rule 2) needs the other cameras: procedures/baseline.py."""
+        return cls.of_tracks(camera, follow(frame_points(jpegs, settings)), taken)
+
+    @classmethod
+    def of_tracks(cls, camera: str, tracks, taken: float, placed=None) -> "Baseline":
+        """The wall markers among one camera's ``tracks`` (marker_roles.follow): rule 1, then
+        ``placed`` (rule 2, a Role or None per track, :meth:`Room.place`'s order: the still ones)."""
+        roles = roles_of_tracks(tracks)
+        still = [k for k, r in enumerate(roles) if r is None]
+        for k, r in zip(still, placed if placed is not None else [None] * len(still)):
+            roles[k] = r
+        wall = [t for t, r in zip(tracks, roles) if r is None or r.is_wall]
+        others = tuple((round(t.x, 2), round(t.y, 2), r) for t, r in zip(tracks, roles) if r is not None and not r.is_wall)
+        return cls.of_points(camera, [(t.x, t.y) for t in wall], taken, others)
 
     def points(self) -> np.ndarray:
         return np.array([(m.x, m.y) for m in self.markers]).reshape(-1, 2)
 
 
-def match_markers(ref: np.ndarray, pts: np.ndarray, gate: float) -> list[tuple[int, int]]:
-    """One-to-one nearest matching (Hungarian on distance), pairs further than ``gate`` dropped."""
-    if len(ref) == 0 or len(pts) == 0:
-        return []
-    d = np.linalg.norm(ref[:, None, :] - pts[None, :, :], axis=2)
-    rows, cols = linear_sum_assignment(np.minimum(d, 10 * gate))
-    return [(int(i), int(j)) for i, j in zip(rows, cols) if d[i, j] <= gate]
+def frame_points(jpegs: list[bytes], settings: DetectorSettings | None = None) -> list[np.ndarray]:
+    """Each frame's marker centres (N x 2 px), as the drift QA detects them."""
+    return [np.array([(b.x, b.y) for b in detect_jpeg(j, settings or DetectorSettings()).blobs]).reshape(-1, 2)
+            for j in jpegs]

@@ -1,0 +1,43 @@
+"""The rig's room for telling markers apart (vts_hw/vision/marker_roles.py, rule 2): its calibrated
+cameras (``calibration.stereo``), its VTS -> SPECT mapping (``calibration.spect``), the
+table-and-gantry volume from rig.yaml's ``aim:`` room geometry, and the phantom's shape when the
+mapping keeps it. Without a mapping or a calibration there is no room, and the reason says so:
+the markers are then told apart by motion alone (docs/decisions/0086-marker-roles.md).
+"""
+
+from __future__ import annotations
+
+from vts_hw.errors import VtsError
+from vts_hw.procedures.sync_inputs import load_mapping
+from vts_hw.vision.camera_set import in_rig_names, load_cameras
+from vts_hw.vision.marker_roles import Room, TableSpace
+from vts_hw.vision.phantom_locator import PhantomLocator, phantom_template
+
+__all__ = ["room_of_rig", "NO_ROOM"]
+
+NO_ROOM = "judged by motion alone"
+
+
+def room_of_rig(rig) -> tuple[Room | None, str]:
+    """``(Room, "")`` for ``rig`` (a RigConfig), or ``(None, why)``: no mapping, no calibration,
+    a file that cannot be read (said, never raised: the QA still runs, by motion alone)."""
+    if rig is None:
+        return None, f"no rig configuration: {NO_ROOM}"
+    cal = rig.calibration
+    if cal.spect is None:
+        return None, f"no VTS -> SPECT mapping (calibration.spect in rig.yaml): {NO_ROOM}"
+    if cal.stereo is None:
+        return None, f"no camera calibration (calibration.stereo in rig.yaml): {NO_ROOM}"
+    try:
+        mapping = load_mapping(cal.spect)
+    except (VtsError, OSError) as exc:
+        return None, f"the mapping {cal.spect} cannot be read ({exc}): {NO_ROOM}"
+    try:
+        cams = in_rig_names(load_cameras(cal.stereo), [c.name for c in rig.cameras])
+    except (VtsError, OSError) as exc:
+        return None, f"the calibration {cal.stereo} cannot be read ({exc}): {NO_ROOM}"
+    try:
+        locator = PhantomLocator(cams, phantom_template(mapping))
+    except VtsError:          # a mapping made before it kept the spheres: still a room, no sphere named
+        locator = None
+    return Room(cams, mapping, TableSpace.from_settings(rig.aim, mapping), locator), ""
