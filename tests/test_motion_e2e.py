@@ -73,8 +73,9 @@ def test_motion_analyze_end_to_end(session):
     assert {"motion_6dof.csv", "motion_6dof.json", "subsets.json", "trajectories.csv"} <= names
     # no list-mode: host-clock seconds, which CASToR would take for list-mode seconds -- no CASToR file
     assert not (tmp / "export" / "castor_motion.dyn").exists() and "castor_motion.dyn" not in names
-    assert len(data["export_notes"]) == 1 and data["export_notes"][0].startswith("CASToR files not written: the "
+    assert len(data["export_notes"]) == 2 and data["export_notes"][0].startswith("CASToR files not written: the "
                                                                                   "times are host-clock seconds")
+    assert data["export_notes"][1].startswith("YRT-PET LOR motion file not written: the times are host-clock")
     six = json.loads((tmp / "export" / "motion_6dof.json").read_text())
     assert "host clock" in six["clock"] and six["castor"]["written"] is False
     assert data["stored"]["run_id"] is not None

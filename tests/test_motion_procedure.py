@@ -38,8 +38,8 @@ def test_result_shape_measures_and_states(tmp_path):
     # host-clock times (no list-mode): no CASToR file, and one sentence says why
     assert names == sorted(["motion_6dof.csv", "motion_6dof.json", "respiration.csv", "subsets.json",
                             "trajectories.csv", "trajectories.json"])
-    assert len(a.export_notes) == 1 and a.export_notes[0].startswith("CASToR files not written") \
-        and "--listmode" in a.export_notes[0]
+    assert len(a.export_notes) == 2 and a.export_notes[0].startswith("CASToR files not written") \
+        and "--listmode" in a.export_notes[0] and a.export_notes[1].startswith("YRT-PET LOR motion file not written")
 
 
 def test_breathing_only_is_ok_and_the_rig_windows_judge(tmp_path):

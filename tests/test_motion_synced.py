@@ -79,3 +79,7 @@ def test_motion_on_the_spect_clock(synced_scan):
     assert all(abs(n - st["t_start"]) <= 0.5 for n, st in zip(triggers[1:], data["states"][1:]))
     six = json.loads((tmp / "export" / "motion_6dof.json").read_text())
     assert "SPECT list-mode" in six["clock"]
+    # YRT-PET's LOR motion file through the command: a line per frame time from list-mode 0 ms
+    lor = (tmp / "export" / "yrtpet_lor_motion.csv").read_text().splitlines()
+    assert six["yrtpet"]["written"] and len(lor) == six["yrtpet"]["lines"] and lor[0].startswith("0,")
+    assert all(len(ln.split(",")) == 14 for ln in lor)
