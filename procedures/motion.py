@@ -320,8 +320,9 @@ class MotionAnalysis:
     def export(self, out, n_bins: int = 4) -> list[Path]:
         """The motion files (docs/motion-formats.md) and the marker trajectories
         (``trajectories.csv``/``.json``, docs/trajectory-format.md) into ``out``;
-        :attr:`export_notes`: the files not written and why (the CASToR files need the SPECT clock
-        and a mapping that says its volume), the motion states CASToR's whole seconds merge."""
+        :attr:`export_notes`: the files not written and why (the CASToR files and YRT-PET's LOR motion
+        file need the SPECT clock and a mapping that says its volume), the motion states CASToR's
+        whole seconds merge."""
         from vts_hw.files import WriteFailed, export_stopped
         r = self._need()
         try:

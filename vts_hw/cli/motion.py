@@ -27,8 +27,9 @@ def motion() -> None:
 @click.option("--plot", "plot_path", type=OutputFile(), default=None, help="Also write the plot as a PNG.")
 @click.option("--export", "export_dir", type=OutputFolder("export folder"), default=None,
               help="Write the motion files to DIR (docs/motion-formats.md): motion_6dof.csv/.json, respiration.csv, "
-                   "subsets.json, trajectories.csv/.json, and CASToR's castor_motion.dyn and castor_motion_rigid.txt "
-                   "(only with --listmode and a mapping made from a volume: CASToR reads list-mode seconds).")
+                   "subsets.json, trajectories.csv/.json, CASToR's castor_motion.dyn and castor_motion_rigid.txt "
+                   "and YRT-PET's yrtpet_lor_motion.csv (these three only with --listmode and a mapping made from a "
+                   "volume: they are read on the list-mode clock); every pose with its health and confidence.")
 @click.option("--bins", type=click.IntRange(2, 20), default=4, show_default=True,
               help="Respiratory bins (by amplitude and by phase) in subsets.json.")
 @click.option("--workers", type=click.IntRange(1, 256), default=None, help="Processes for the recording (default: every core).")
