@@ -299,3 +299,22 @@ def test_yrtpet_writer_refuses_what_yrtpet_would_misread_and_targets_not_files(t
             write_lor_motion(node, plan)
     p = write_lor_motion(tmp_path / "ok.csv", plan)
     assert p.read_text().splitlines()[1] == "40," + ",".join(f"{v:.9f}" for v in eye) + ",0.250000000"
+
+
+def test_a_fifo_or_folder_named_as_yrtpets_file_is_left_as_it_is(exported, synced, tmp_path):
+    """A writer replaces only a regular file: on the host clock (no file to write) the FIFO is no
+    earlier export's and is not removed; on the SPECT clock the export stops there in one sentence
+    (exit 3 through the CLI), the FIFO kept, the files before it whole."""
+    from vts_hw.files import NotReplaced
+    host, spect = tmp_path / "host", tmp_path / "spect"
+    for d in (host, spect):
+        d.mkdir()
+        os.mkfifo(d / "yrtpet_lor_motion.csv")
+    paths = export_motion(exported[1], host, volume=SCENE_VOLUME)
+    assert paths.notes[1].endswith("(yrtpet_lor_motion.csv there is a named pipe (FIFO), no earlier export's "
+                                   "file: left as it is)")
+    with pytest.raises(NotReplaced, match=r"yrtpet_lor_motion.csv: could not be written \(it is a named pipe"):
+        export_motion(synced[1], spect, volume=SCENE_VOLUME)
+    for d in (host, spect):
+        assert (d / "yrtpet_lor_motion.csv").is_fifo()
+    assert sorted(p.name for p in spect.iterdir()) == ["motion_6dof.csv", "yrtpet_lor_motion.csv"]

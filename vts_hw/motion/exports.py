@@ -24,11 +24,13 @@ and which frame (``frame``: its name, definition and the volume that placed it).
 
 from __future__ import annotations
 
+import os
+import stat
 from pathlib import Path
 
 import numpy as np
 
-from vts_hw.files import ensure_dir, write_atomic, write_json_atomic
+from vts_hw.files import ensure_dir, kind_of, write_atomic, write_json_atomic
 from vts_hw.errors import DataError
 from vts_hw.motion.castor import CASTOR_DYNAMIC, CASTOR_RIGID, plan_castor, write_castor
 from vts_hw.motion.health import result_health
@@ -163,10 +165,16 @@ def respiratory_bins(result, n_bins: int = 4, t0: float = 0.0, confidence=None) 
 
 def _remove_stale(out: Path, names=(CASTOR_DYNAMIC, CASTOR_RIGID)) -> str:
     """Files for another program an earlier export left in ``out`` would not match the files
-    written now: remove them, and say so (the other files are replaced the same way)."""
-    gone = []
+    written now: remove them, and say so (the other files are replaced the same way). Only a
+    regular file is removed: anything else of that name (a folder, a FIFO, a device, a link) is no
+    earlier export's and is left as it is, and said."""
+    gone, left = [], []
     for name in names:
         try:
+            st = os.lstat(out / name)
+            if not stat.S_ISREG(st.st_mode):
+                left.append(f"{name} there is {kind_of(out / name, st)}, no earlier export's file: left as it is")
+                continue
             (out / name).unlink()
             gone.append(name)
         except FileNotFoundError:
@@ -174,7 +182,8 @@ def _remove_stale(out: Path, names=(CASTOR_DYNAMIC, CASTOR_RIGID)) -> str:
         except OSError as e:
             raise DataError(f"{out / name}: an earlier export's file could not be removed ({e.strerror}); "
                             "it does not match this export") from None
-    return f" (removed {' and '.join(gone)}, which an earlier export left there)" if gone else ""
+    said = [f"removed {' and '.join(gone)}, which an earlier export left there"] if gone else []
+    return f" ({'; '.join(said + left)})" if said or left else ""
 
 
 def export_motion(result, out, *, n_bins: int = 4, extra: dict | None = None,
