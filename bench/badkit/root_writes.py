@@ -14,6 +14,11 @@ Each command runs with good inputs where badkit/full_disk.py's table has a comma
 (the simulated rig, a recording, a store with runs: it gets as far as writing), else with the
 sweep's harmless base (it may stop before writing: then only the node's fate is judged).
 
+Files a command writes *inside* a folder it is given by name (``INSIDE``: `motion analyze --export`'s
+YRT-PET and CASToR files, which an export also removes when an earlier one left them) get the same
+nodes at their names in that folder (the whole sweep only: a motion analysis each): the command must
+leave the node as it is and say so (it has nothing to write there without a list-mode).
+
 A case passes when the command ends (no hang) without a traceback, with a documented exit, and:
 the node is what it was (a device with the same numbers, a FIFO, the folder with its file, the
 link still a link to the same place); a device, FIFO or folder-for-a-file is refused (not exit 0:
@@ -40,6 +45,8 @@ READ_ONLY = {("sim", "down")}
 #: folder outputs given an existing folder run their whole job (the demo: minutes; sim up: a rig left
 #: running in the background): not that kind
 WHOLE_JOB = {("demo",), ("sim", "up")}
+#: files a command writes inside a folder output, by name (issue 33 §2): (the folder's parameter, names)
+INSIDE = {("motion", "analyze"): ("export_dir", ("yrtpet_lor_motion.csv", "castor_motion.dyn"))}
 NULL_DEV = os.makedev(1, 3)      # the numbers of /dev/null: a twin made in the case's folder
 TARGET_TEXT = b"the file a link points at: not the command's\n"
 KEEP_TEXT = b"a file of the folder's own\n"
@@ -164,7 +171,42 @@ def cases(cmd_path: tuple[str, ...], cmd: click.Command, base: list[str], good, 
                 return _put(argv, p, opt, str(node), replace)
             out.append(Case(CLASS, f"{' '.join(cmd_path)} {opt or p.name}: {kind}", make,
                             _judge(kind, folder, opt or p.name)))
+    if full and good is not None and cmd_path in INSIDE:
+        out += _inside_cases(cmd_path, cmd, good, replace)
     return out
+
+
+def _inside_cases(cmd_path, cmd, good, replace) -> list[Case]:
+    """The nodes at the names of :data:`INSIDE` in the command's folder output (the good command
+    line writes nothing there: no list-mode): each must be left as it is, and said."""
+    pname, names = INSIDE[cmd_path]
+    p = next(q for q in cmd.params if q.name == pname)
+    opt = p.opts[-1]
+    out = []
+    for name in names:
+        for kind in KINDS:
+            def make(wd: Path, name=name, kind=kind) -> list[str]:
+                D = wd / "D"
+                D.mkdir(exist_ok=True)
+                node = make_node(wd, kind, name)          # wd/target/<name>: wd/target is the folder
+                (wd / ".node").write_text(str(node))
+                return _put(good(wd, D), p, opt, str(node.parent), replace)
+            out.append(Case(CLASS, f"{' '.join(cmd_path)} {opt} holding {name}: {kind}", make,
+                            _judge_inside(kind, name)))
+    return out
+
+
+def _judge_inside(kind: str, name: str):
+    def judge(wd: Path, code, out, err) -> Verdict:
+        v = common(code, err)
+        node = Path((wd / ".node").read_text())
+        fate = node_fate(wd, kind, node)
+        if fate:
+            return Verdict(damaged=True, why=f"{fate} ({name} in the export folder)")
+        if v.passed and code in (0, 10, 20) and f"{name} there is" not in out + err:
+            return Verdict(other=True, why=f"exit {code}, {name} in the export folder ({kind}) left unsaid")
+        return v
+    return judge
 
 
 def _suffix(argv: list[str], p: click.Parameter) -> str:
