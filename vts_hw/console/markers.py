@@ -137,6 +137,7 @@ class MarkerWorker:
             try:
                 got = find_markers(name, latest.seq, latest.frame.jpeg)
                 if self.names is not None and not got.problem:
+                    self.names.seen(name, [(m["x"], m["y"]) for m in got.markers])
                     marks, legend = self.names.label(name, list(got.markers))
                     got = replace(got, markers=tuple(marks), legend=tuple(legend))
             except Exception as exc:     # never let one odd frame stop the markers of every camera

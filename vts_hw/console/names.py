@@ -18,20 +18,29 @@ A detection takes the name of the nearest named point of its camera within ``gat
 one (Hungarian on the distance: :func:`vts_hw.vision.wall_baseline.match_markers`, the drift
 QA's own matching and gate), the live kinds first (band, phantom), then the wall. docs/decisions/
 0066-room-led-and-names.md says why.
+
+A detection none of them names, that moved over the camera's last :data:`HISTORY` pictures
+(:meth:`MarkerNames.seen`), is the patient's as the daily QA and the baseline call it (rule 1 of
+:mod:`vts_hw.vision.marker_roles`, the same rule and floor): kind ``band``, name ``patient``.
+docs/decisions/0086-marker-roles.md.
 """
 
 from __future__ import annotations
 
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
 
+from vts_hw.vision.marker_roles import PATIENT, follow, roles_of_tracks
 from vts_hw.vision.wall_baseline import GATE_PX, match_markers
 
 KINDS = ("band", "phantom", "wall")          # the order detections are matched in
 UNIDENTIFIED = "unidentified"
+HISTORY = 9        # pictures a camera's markers are followed over: about 3 s at the marker worker's 3 a second
+MOVED = "moved over the camera's last pictures: breathing or a body (as the daily QA tells them)"
 
 
 @dataclass(frozen=True)
@@ -56,6 +65,27 @@ class MarkerNames:
         self.clock = clock
         self._lock = threading.Lock()
         self._named: dict[str, dict[str, NamedPoints]] = {}
+        self._seen: dict[str, deque] = {}
+
+    def seen(self, camera: str, points) -> None:
+        """The centres (px) of every marker of ``camera``'s latest picture, for telling which move."""
+        pts = np.asarray([(float(x), float(y)) for x, y in points], float).reshape(-1, 2)
+        with self._lock:
+            self._seen.setdefault(camera, deque(maxlen=HISTORY)).append(pts)
+
+    def _moving(self, camera: str, pts: np.ndarray) -> list[bool]:
+        """Whether each of ``pts`` (the latest picture's) moved over the pictures seen."""
+        with self._lock:
+            history = list(self._seen.get(camera, ()))
+        out = [False] * len(pts)
+        if len(history) < 2 or not len(pts):
+            return out
+        tracks = follow(history)
+        moved = np.array([t.points[-1] for t, r in zip(tracks, roles_of_tracks(tracks))
+                          if r is not None and r.role == PATIENT and len(t.points) >= 2]).reshape(-1, 2)
+        for i, p in enumerate(pts):
+            out[i] = bool(len(moved)) and float(np.min(np.hypot(*(moved - p).T))) < 0.5
+        return out
 
     def set(self, camera: str, kind: str, points, *, source: str, hold_s: float | None = None) -> None:
         """Name ``points`` (``(name, x_px, y_px)`` each) on ``camera`` as ``kind`` (one of
@@ -103,6 +133,19 @@ class MarkerNames:
                     found += 1
                 free = [i for i in free if i not in taken]
             legend.append({"kind": kind, "source": named.source, "known": len(named.points), "found": found})
+        if free:
+            moving = self._moving(camera, np.array([(out[i]["x"], out[i]["y"]) for i in free]))
+            n_moved = sum(moving)
+            for i, m in zip(free, moving):
+                if m:
+                    out[i].update(kind="band", name=PATIENT)
+            if n_moved:
+                band = next((e for e in legend if e["kind"] == "band"), None)
+                if band is None:
+                    legend.insert(0, {"kind": "band", "source": MOVED, "known": n_moved, "found": n_moved})
+                else:
+                    band.update(known=band["known"] + n_moved, found=band["found"] + n_moved,
+                                source=f"{band['source']}; {n_moved} more {MOVED}")
         return out, legend
 
 
