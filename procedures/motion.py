@@ -41,6 +41,8 @@ from vts_hw.spect.frame import frame_description
 from vts_hw.results import Measure, overall_state
 from vts_hw.tolerance import State, merged_tolerances
 from vts_hw.procedures.sync_inputs import load_calibration, load_mapping
+from vts_hw.procedures.motion_live import agreement, read_live
+from vts_hw.recording.folder import load_manifest
 
 __all__ = ["MotionAnalysis", "METRICS", "event_time_text"]
 
@@ -92,6 +94,8 @@ class MotionAnalysis:
         self.problems: list[str] = []
         self.export_notes: list[str] = []   # what export() did not write, and why
         self.manifest: dict = {}
+        self.live = None                # the scan's live path read back (procedures/motion_live.py)
+        self.live_agreement = None      # its poses against the offline ones (vts_hw/motion/agreement.py)
         self.tolerances = merged_tolerances(None)
         self.analyzed_at = None
 
@@ -99,7 +103,6 @@ class MotionAnalysis:
     def _load_tracks(self) -> None:
         if self.tracks is not None:
             return
-        from vts_hw.recording.folder import load_manifest
         if not self.session.is_dir():
             raise DataError(f"{self.session}: no such session folder")
         if self.calibration is None:
@@ -149,8 +152,24 @@ class MotionAnalysis:
         span, missing = self._span(series)
         self.problems = [p for p in self.problems if p.split(": ", 1)[-1] not in missing]
         self.problems += [f"recording: {m}" for m in missing]
-        self.result = analyze_motion(series, self.settings, span=span, missing=missing)
+        if not self.manifest and self.session.is_dir():
+            self.manifest = load_manifest(self.session, missing_ok=True) or {}
+        self.live = read_live(self.session, self.manifest)
+        self.problems += self.live.problems
+        model = self.live.model
+        if model is not None and model.frame != series.frame:
+            self.problems.append(f"live model not used: it is in the {model.frame.upper()} frame, the tracks in the "
+                                 f"{series.frame.upper()} frame (give the mapping the scan used)")
+            model = None
+        self.result = analyze_motion(series, self.settings, span=span, missing=missing, model=model)
         self.problems += list(self.result.notes)
+        if model is not None:
+            lm = self.manifest.get("live_motion") or {}
+            try:
+                self.live_agreement = agreement(self.live, self.result, self.tracks, float(lm.get("alert_mm", 3.0)),
+                                                float(lm.get("alert_deg", 2.0)))
+            except DataError as exc:
+                self.problems.append(f"live poses not compared: {exc}")
         for name, cam in (self.manifest.get("cameras") or {}).items():
             gaps = cam.get("gaps") or []
             if gaps:
@@ -256,6 +275,7 @@ class MotionAnalysis:
                         "unpaired_frames": tm.get("unpaired_frames"),
                         "single_camera_detections": tm.get("single_camera_detections")},
             "settings": dict(vars(self.settings)) if hasattr(self.settings, "__dict__") else {},
+            "live": None if self.live_agreement is None else self.live_agreement.to_json(t0),
             "problems": list(self.problems),
         }
 
@@ -285,6 +305,12 @@ class MotionAnalysis:
                          f"{x[1]:+.2f} {x[2]:+.2f} mm, r {x[3]:+.2f} {x[4]:+.2f} {x[5]:+.2f} deg")
         for m in d["measures"]:
             lines.append(f"  {m['metric']}: {m['value']:.3g} {m['unit']} -> {m['state']}")
+        if self.live_agreement is not None:
+            la = self.live_agreement
+            lines.append(f"  live: {la.text()}")
+            for k, a in enumerate(d["live"]["alerts"], 1):
+                lines.append(f"  live alert {k} (onset {a['onset']:.2f} s): "
+                             + (f"explained by {a['by']}" if a["explained"] else f"NOT explained offline: {a['why']}"))
         lines.append(f"  state: {s['state']}")
         for p in self.problems:
             lines.append(f"  note: {p}")

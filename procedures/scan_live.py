@@ -38,6 +38,7 @@ from typing import Callable
 
 from vts_hw.errors import VtsError
 from vts_hw.tracking.live.estimator import LiveEstimate, LiveSettings
+from vts_hw.tracking.live.pose_log import MODEL_FILE, POSES_FILE, PoseLog, save_model
 from vts_hw.tracking.live.tracker import LiveTracker
 from vts_hw.tracking.live.watch import TRACKING, BlindAlert, Change, Episode
 from vts_hw.lifeline import child_options
@@ -47,6 +48,7 @@ from vts_hw.vision.camera_set import covered_names, named_cameras
 __all__ = ["LiveMotion"]
 
 COMMAND_TIMEOUT_S = 60.0
+KEEP_EVERY_S = 1.0         # the live poses appended to the scan's folder this often (a kill -9 loses at most this)
 EPISODES_KEPT = 500        # NOT TRACKING stretches listed in the manifest (the rest counted)
 
 
@@ -90,6 +92,10 @@ class LiveMotion:
         self._thread: threading.Thread | None = None
         self._waiters: list[threading.Thread] = []
         self._tracked_once = False
+        self._log: PoseLog | None = None        # the live poses, kept in the scan's folder
+        self._kept = 0                          # poses written there so far
+        self._model_saved = False
+        self.keep_problem = ""                  # why the live poses or model could not be kept
 
     # -- set-up ---------------------------------------------------------------------------------
     def prepare(self, session) -> None:
@@ -144,6 +150,9 @@ class LiveMotion:
         self._actions.put(None)
         if self._thread is not None:
             self._thread.join(10)
+        self._keep(session)
+        if self._log is not None:
+            self._log.close()
         snap = self.tracker.snapshot()
         st = self.tracker.stats(last=None)
         summary = {k: st.get(k) for k in ("sets", "live_dropped", "tapped", "processed", "queued",
@@ -153,7 +162,8 @@ class LiveMotion:
         rule = self.tracker.estimator.rule
         if rule is not None:
             summary.update(onset_mm=round(rule.onset_mm, 3), onset_deg=round(rule.onset_deg, 3))
-        summary.update(phase=snap.phase, reference=self.tracker.estimator.reference_note, note=snap.note,
+        summary.update(poses_kept=self._kept, phase=snap.phase, reference=self.tracker.estimator.reference_note,
+                       note=snap.note,
                        six_dof_last=snap.six_dof,
                        **({"error": st["error"]} if st.get("error") else {}))
         summary["tracking"] = tracking = self._tracking_summary()
@@ -202,9 +212,36 @@ class LiveMotion:
     def _queue_event(self, event) -> None:    # in the watch thread: no waiting
         self._actions.put(("event", event, None))
 
+    def _keep(self, session) -> None:
+        """The model once learned, and the poses estimated since the last call, into the scan's
+        folder (never fatal: a failure to write is said once, in the notes and the manifest)."""
+        if self.tracker is None or self.keep_problem:
+            return
+        est = self.tracker.estimator
+        try:
+            if est.model is not None and not self._model_saved:
+                save_model(session.folder, est.model)
+                self._model_saved = True
+                session.update_manifest(lambda meta: meta["live_motion"].update(model_file=MODEL_FILE))
+            n = len(est.poses)
+            if n > self._kept:
+                if self._log is None:
+                    self._log = PoseLog(session.folder)
+                    session.update_manifest(lambda meta: meta["live_motion"].update(poses_file=POSES_FILE))
+                self._kept += self._log.write(est.poses[self._kept:n])
+        except (OSError, VtsError) as exc:
+            self.keep_problem = f"the live poses could not be kept in {session.folder}: {exc}"
+            self.on_note(f"live motion: {self.keep_problem}")
+            problem = self.keep_problem
+            session.update_manifest(lambda meta: meta["live_motion"].update(keep_problem=problem))
+
     def _act(self, session) -> None:
         while True:
-            item = self._actions.get()
+            try:
+                item = self._actions.get(timeout=KEEP_EVERY_S)
+            except queue.Empty:
+                self._keep(session)
+                continue
             if item is None:        # the alert commands started here end before this thread does:
                 for w in self._waiters:    # each dies with the thread that started it (child_options)
                     w.join()

@@ -117,7 +117,7 @@ def test_a_still_patient_through_bursts_of_lost_frames(tmp_path):
     lm = m["live_motion"]
     s = lm["summary"]
     assert s["phase"] == "tracking", s
-    assert s["reference"].startswith("reference: 8 markers in 2 band(s) (band 1, 2: no breathing seen")
+    assert s["reference"].startswith("reference: 8 markers in 2 band(s) (no breathing seen: fitted rigidly)")
     assert len(lm["alerts"]) >= 1 and lm["alerts"][0]["kind"] == "motion"
     a = lm["alerts"][0]
     assert a["move_mm"] > 3.0 and a["onset"] <= move.t_start + 0.6 <= a["raised"]

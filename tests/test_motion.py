@@ -8,7 +8,7 @@ import pytest
 
 from vts_hw.errors import DataError
 from vts_hw.motion import MotionSettings, analyze_motion, marker_series
-from vts_hw.motion.body_pose import kabsch_batch
+from vts_hw.vision.registration import kabsch_batch
 from vts_hw.sim_devices.patient import BodyMove
 
 from motion_truth import patient_tracks, pose_errors, true_moves

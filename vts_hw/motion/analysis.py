@@ -11,7 +11,7 @@ docs/decisions/0035-breathing-and-body-motion.md).
 4. Breathing vectors per marker: displacement per unit of the signal, regressed over the still
    periods (each run detrended on its own, its pose held fixed: the rigid part of breathing is
    in the vectors, so it leaves the pose).
-5. Pose and breathing together per frame (:func:`.body_pose.fit_pose_breathing`); the
+5. Pose and breathing together per frame (:meth:`.patient_model.PatientModel.fit`); the
    respiratory signal is now the fitted one (its slow part kept). Steps 3-5 once more with the
    still periods from the new pose.
 6. Events and motion states (:mod:`.events`, :mod:`.states`); breaths seen whole, their phase
@@ -33,7 +33,8 @@ from scipy.ndimage import uniform_filter1d
 
 from vts_hw.errors import DataError
 from vts_hw.motion.bands import Bands, find_bands
-from vts_hw.motion.body_pose import POOR_FIT_MM, BodyPose, back_to_reference, fit_pose_breathing, kabsch_batch
+from vts_hw.motion.body_pose import POOR_FIT_MM, BodyPose
+from vts_hw.motion.patient_model import PatientModel, back_to_reference, model_columns, orient, rigid_poses
 from vts_hw.motion.cycles import breathing_figures, find_breaths, signal_noise
 from vts_hw.motion.events import MotionEvent, find_events
 from vts_hw.motion.markers import MarkerSeries
@@ -95,6 +96,7 @@ class MotionResult:
     timeline: Timeline | None = None
     covered: np.ndarray | None = None     # (F,) rows some motion state covers (states.cover_states)
     bridged: list = field(default_factory=list)
+    model: PatientModel | None = None     # the patient model the poses were fitted with (learned here or given)
 
     @property
     def unknown(self) -> list[dict]:
@@ -137,23 +139,13 @@ def _reference(P, seen, sel, R=None, T=None):
 
 
 def _pose_with_reference(P, seen, ref, weights=None):
-    has = np.isfinite(ref[:, 0])
-    use = seen & has[None]
-    R, T, _ = kabsch_batch(np.where(has[:, None], ref, 0.0), P, use, weights)
+    R, T, _ = rigid_poses(P, seen, ref, (), weights)
     return R, T
 
 
 def _robust_pose(P, seen, ref, scales=(60.0, 40.0)):
-    """A rigid fit per frame that a wrong point does not drag: Tukey-weighted Kabsch, its
-    scale shrinking (mm). Returns R, T and the weights (F, M)."""
-    w = seen.astype(float)
-    for c in scales:
-        R, T = _pose_with_reference(P, seen, ref, w)
-        res = np.linalg.norm(np.where(seen[..., None], P - (np.einsum("fij,mj->fmi", R, np.nan_to_num(ref))
-                                                           + T[:, None]), 0.0), axis=2)
-        u = np.clip(np.nan_to_num(res, nan=np.inf) / c, 0.0, 1.0)
-        w = np.where(seen, (1 - u ** 2) ** 2, 0.0)
-    return R, T, w
+    """A rigid fit per frame that a wrong point does not drag (:func:`.patient_model.rigid_poses`)."""
+    return rigid_poses(P, seen, ref, scales)
 
 
 def _segment_poses(t, P, seen, ref, still):
@@ -244,14 +236,17 @@ def _inliers(P, seen, model, limit_mm):
 
 
 def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None, *, span: tuple | None = None,
-                   missing=()) -> MotionResult:
+                   missing=(), model: PatientModel | None = None) -> MotionResult:
     """The whole analysis (see the module). ``span``: (first, last) frame time the recording
     should hold, on the series' clock (:mod:`vts_hw.recording.extent`; None: the first and last
     frame); ``missing``: sentences on what the recording lacks, kept with the result. DataError
     when the patient's markers cannot be found or no still period of ``ref_min_s`` exists for the
-    reference."""
+    reference. ``model``: the patient model to fit (the one the scan's live path learned,
+    :func:`with_model`) instead of one learned here."""
     st = settings or MotionSettings()
     series, timeline = on_grid(series, span, missing)
+    if model is not None:
+        return with_model(series, timeline, model, st)
     bands = find_bands(series, frames=timeline.frames)
     S = series.subset(bands.patient)
     t, P, seen = S.t, S.P, S.seen
@@ -314,13 +309,12 @@ def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None,
         Dseg = _segment_poses(t, P, seen, ref, still_b) - ref[None]
         v = breathing_vectors(t, Dseg, s, still_b)
         R0, T0, _ = _robust_pose(P, seen, ref)
-        R, T, s, rms = fit_pose_breathing(ref, v, P, seen, R0, T0, s)
-        body = ref[None] + v[None] * np.nan_to_num(s)[:, None, None]
-        model = np.einsum("fij,fmj->fmi", R, body) + T[:, None]
-        seen_in = _inliers(P, seen_all, model, st.outlier_mm)
+        model = PatientModel(ref, v, series.frame)
+        R, T, s, rms, _ = model.fit(P, seen, R0, T0, s)
+        seen_in = _inliers(P, seen_all, model.positions(R, T, s), st.outlier_mm)
         if (seen_in != seen).any():
             seen = seen_in
-            R, T, s, rms = fit_pose_breathing(ref, v, P, seen, R0, T0, s)
+            R, T, s, rms, _ = model.fit(P, seen, R0, T0, s)
         known = ref[np.isfinite(ref).all(axis=1)]
         pose = BodyPose(t, R, T, s, rms, seen.sum(axis=1), known.mean(axis=0))
         events, speed, moving, thr = find_events(pose, known, min_speed=st.min_speed, event_mm=st.event_mm,
@@ -328,19 +322,77 @@ def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None,
         X_still = np.where(pose.valid[:, None, None], pose.points(known), np.nan)
         tol = st.event_mm
     # scale and sign of the respiratory signal: mm of the marker that breathes most, + = inhaled
-    norms = np.linalg.norm(v, axis=1)
-    scale = float(norms.max()) if norms.size else 0.0
-    breathes = bool(np.any(bands.breath_rms_mm[bands.patient] >= BREATH_MM)) and scale > 0
-    valid = pose.valid
+    breathes = bool(np.any(bands.breath_rms_mm[bands.patient] >= BREATH_MM)) and bool(np.any(v))
     if breathes:
-        up = np.array([0.0, 1.0, 0.0]) if series.frame == "spect" else np.array([0.0, -1.0, 0.0])
-        sign = 1.0 if float(np.sum(v @ up)) >= 0 else -1.0
-        v = v / (scale * sign)
-        s = s * scale * sign
-        s = s - np.nanmean(s[ref_sel])
+        v, s, _ = orient(v, s, series.frame)
+        mean_s = float(np.nanmean(s[ref_sel]))
+        s = s - mean_s
+        ref = ref + v * mean_s          # the model's reference: the period's mean breath (s = 0)
+    model = PatientModel(ref, v, series.frame, [[bands.patient.index(c) for c in g] for g in bands.groups],
+                         [], ref_period, series.clock, breathes=breathes)
+    return _finish(series, timeline, bands, S, model, pose, s, events, speed, moving, still, thr, st, notes)
+
+
+def with_model(series, timeline, model: PatientModel, st: MotionSettings) -> MotionResult:
+    """The analysis with a patient model given (learned live during the scan): its markers found
+    among the series' columns (:func:`.patient_model.model_columns`), every frame fitted with it,
+    then the events, breaths and states as when the model is learned here."""
+    if model.frame != series.frame:
+        raise DataError(f"the patient model is in the {model.frame.upper()} frame and the marker tracks in the "
+                        f"{series.frame.upper()} frame: they cannot be fitted together")
+    t, F = series.t, len(series.t)
+    cols = model_columns(t, series.P, model)
+    matched = [m for m, cs in enumerate(cols) if cs]
+    if len(matched) < 3:
+        raise DataError(f"only {len(matched)} of the patient model's {model.n_markers} markers were found in the "
+                        f"recording's tracks (3 needed): the model does not belong to this recording?")
+    P = np.full((F, model.n_markers, 3), np.nan)
+    for m, cs in enumerate(cols):
+        for c in cs:
+            fill = np.isfinite(series.P[:, c, 0]) & ~np.isfinite(P[:, m, 0])
+            P[fill, m] = series.P[fill, c]
+    seen = np.isfinite(P[..., 0])
+    R0, T0, _ = rigid_poses(P, seen, model.reference)
+    R, T, s, rms, used = model.fit(P, seen, R0, T0)
+    seen_in = _inliers(P, seen, model.positions(R, T, s), st.outlier_mm)
+    if (seen_in != seen).any():
+        R, T, s, rms, used = model.fit(P, seen_in, R0, T0, s)
+    known = model.reference[model.known]
+    pose = BodyPose(t, R, T, s, rms, used.sum(axis=1), model.centre)
+    events, speed, moving, thr = find_events(pose, known, min_speed=st.min_speed, event_mm=st.event_mm,
+                                             event_deg=st.event_deg)
+    still = pose.valid & ~_dilate(moving, int(round(st.margin_s / timeline.period)))
+    first = [cs[0] if cs else None for cs in cols]
+    n = series.P.shape[1]
+    why = [f"not one of the patient model's markers" for _ in range(n)]
+    for m, cs in enumerate(cols):
+        for c in cs:
+            why[c] = f"the patient model's marker {m + 1}"
+    bands = Bands([c for c in first if c is not None],
+                  [[first[m] for m in g if first[m] is not None] for g in model.bands],
+                  np.zeros(n), np.zeros(n), series.seen[timeline.frames].mean(axis=0) if n else np.zeros(0), why)
+    S = MarkerSeries(t, P, [[i for c in cs for i in series.ids[c]] for cs in cols], series.clock, series.frame,
+                     None, list(series.camera_names), [], [series.number(cs[0]) if cs else 0 for cs in cols])
+    if series.cameras is not None:
+        S.cameras = np.zeros((F, model.n_markers), int)
+        for m, cs in enumerate(cols):
+            for c in cs:
+                S.cameras[:, m] = np.maximum(S.cameras[:, m], series.cameras[:, c])
+    notes = [f"poses fitted with the patient model learned live during the scan ({len(matched)} of its "
+             f"{model.n_markers} markers found in the tracks)"]
+    return _finish(series, timeline, bands, S, model, pose, s, events, speed, moving, still, thr, st, notes)
+
+
+def _finish(series, timeline, bands, S, model, pose, s, events, speed, moving, still, thr, st, notes):
+    """What every analysis ends with, whichever way its model came: the breaths, the figures,
+    the motion states (steps 6)."""
+    t, period = S.t, timeline.period
+    known = model.reference[model.known]
+    valid = pose.valid
+    v = model.vectors
     br = find_breaths(t, s, valid, period)
     cycles, phase, rate = br.cycles, br.phase, br.rate
-    figures = breathing_figures(br, period, timeline.duration_s, signal_noise(s, valid), breathes)
+    figures = breathing_figures(br, period, timeline.duration_s, signal_noise(s, valid), model.breathes)
     if figures.status == "none":
         notes.append(f"breathing: {figures.why}: no respiratory signal, phase or respiratory subsets")
         s = np.where(valid, 0.0, np.nan)
@@ -357,5 +409,5 @@ def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None,
     states = motion_states(pose, events, moving, known, state_mm=st.state_mm, state_deg=st.state_deg)
     covered, bridged = cover_states(states, pose, moving, known, period, event_mm=st.event_mm,
                                     event_deg=st.event_deg, bridge_s=st.bridge_s)
-    return MotionResult(series, bands, S, ref, ref_period, pose, resp, events, states, speed, moving,
-                        still, thr, st, notes, timeline, covered, bridged)
+    return MotionResult(series, bands, S, model.reference, model.period, pose, resp, events, states, speed, moving,
+                        still, thr, st, notes, timeline, covered, bridged, model)

@@ -18,7 +18,7 @@ import numpy as np
 from vts_hw.errors import DataError
 from vts_hw.motion.signal import bandpass, lowpass, sample_rate
 
-__all__ = ["Bands", "find_bands", "band_names"]
+__all__ = ["Bands", "find_bands", "band_names", "split_bands"]
 
 #: the head end of the table in the SPECT frame: -Z (docs/design.md's room: the patient supine, head
 #: first, towards the cameras over the head end)
@@ -84,8 +84,20 @@ def find_bands(series, *, breath_mm: float = 0.25, moved_mm: float = 1.5, min_se
                         f"at least 3 seen in {100 * min_seen:.0f} % of the frames (markers: "
                         + "; ".join(f"{series.label(m)} {why[m]}" for m in range(M)) + ")")
     mean = np.array([np.nanmedian(P[:, m], axis=0) for m in patient])
+    groups = [[patient[i] for i in g] for g in split_bands(mean, band_gap_mm)]
+    return Bands(patient, groups, rms, rng, frac, why)
+
+
+def split_bands(mean, band_gap_mm: float = 60.0) -> list[list[int]]:
+    """The bands of markers at ``mean`` (K, 3): indices, one band or two split at the largest gap
+    (over ``band_gap_mm``, two or more markers each side) along any direction in the markers'
+    main plane, in order along that direction. The one band finder of the live path and the
+    offline analysis (issue 33)."""
+    mean = np.asarray(mean, float).reshape(-1, 3)
+    K = len(mean)
+    if K < 4:
+        return [list(range(K))]
     c = mean - mean.mean(axis=0)
-    groups = [list(patient)]
     best = (0.0, None, None)
     vt = np.linalg.svd(c, full_matrices=False)[2]
     ang = np.radians(np.arange(0.0, 180.0, 2.0))
@@ -96,10 +108,10 @@ def find_bands(series, *, breath_mm: float = 0.25, moved_mm: float = 1.5, min_se
         gaps = np.diff(pos[order])
         if gaps.size and gaps.max() > best[0]:
             best = (float(gaps.max()), order, int(gaps.argmax()) + 1)
-    if best[0] > band_gap_mm and min(best[2], len(patient) - best[2]) >= 2:
+    if best[0] > band_gap_mm and min(best[2], K - best[2]) >= 2:
         order, k = best[1], best[2]
-        groups = [[patient[i] for i in order[:k]], [patient[i] for i in order[k:]]]
-    return Bands(patient, groups, rms, rng, frac, why)
+        return [[int(i) for i in order[:k]], [int(i) for i in order[k:]]]
+    return [list(range(K))]
 
 
 def band_names(centres, frame: str) -> tuple[list[str], str]:

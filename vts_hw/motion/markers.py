@@ -18,6 +18,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from vts_hw.errors import DataError
+from vts_hw.vision.registration import kabsch
 
 __all__ = ["MarkerSeries", "marker_series", "join_pieces"]
 
@@ -71,15 +72,6 @@ class MarkerSeries:
         return f"marker {self.number(m)}" + (f" ({n} track pieces)" if n > 1 else "")
 
 
-def _kabsch(A, B):
-    """R, T taking points A (n, 3) onto B (n, 3) in the least-squares sense."""
-    ca, cb = A.mean(axis=0), B.mean(axis=0)
-    U, _, Vt = np.linalg.svd((A - ca).T @ (B - cb))
-    d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
-    R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
-    return R, cb - R @ ca
-
-
 def rigid_match(starts, ends, gate_mm: float = RIGID_GATE_MM, start_gate_mm: float = 2 * RIGID_GATE_MM):
     """Pairs ``(i, a)`` of pieces starting at ``starts[i]`` and markers last seen at ``ends[a]``
     that one rigid motion of the body explains (the body moved while none was seen): every
@@ -106,8 +98,11 @@ def rigid_match(starts, ends, gate_mm: float = RIGID_GATE_MM, start_gate_mm: flo
         pairs = [(int(i), int(a)) for i, a in zip(r, c) if D[i, a] < gate]
         if len(pairs) < 3:
             return []
-        R, T = _kabsch(S[[i for i, _ in pairs]], E[[a for _, a in pairs]])
-        moved = S @ R.T + T
+        try:
+            tr = kabsch(S[[i for i, _ in pairs]], E[[a for _, a in pairs]])
+        except ValueError:      # the pairs on one line: no turn can be told
+            return []
+        moved = tr.apply(S)
     return pairs
 
 

@@ -1,7 +1,9 @@
 """Rigid registration of corresponding 3D point sets (e.g. VTS → SPECT with the 7-sphere phantom).
 
 * :class:`RigidTransform` — ``x -> R @ x + t`` (mm); Euler angles, inverse, composition, JSON.
-* :func:`kabsch` — least-squares rigid fit by SVD with the reflection fix.
+* :func:`kabsch` — least-squares rigid fit by SVD with the reflection fix; :func:`kabsch_batch`
+  the same fit for many frames at once (weighted, markers unseen left out): the one Kabsch of
+  the project (issue 33).
 * :func:`fre` / :func:`loo_tre` — fiducial registration error and leave-one-out target
   registration error (the fit residual alone says little about accuracy: docs/design.md).
 * :func:`difference` — how far apart two transforms are (rotation in degrees, translation in mm).
@@ -24,7 +26,7 @@ from scipy.spatial.transform import Rotation
 from vts_hw.bounded import SMALL, read_text
 from vts_hw.errors import DataError
 
-__all__ = ["RigidTransform", "kabsch", "fre", "loo_tre", "LooTre", "difference",
+__all__ = ["RigidTransform", "kabsch", "kabsch_batch", "fre", "loo_tre", "LooTre", "difference",
            "TransformDifference", "EULER_CONVENTION"]
 
 EULER_CONVENTION = "extrinsic x-y-z (scipy Rotation.as_euler('xyz')), degrees"
@@ -168,15 +170,45 @@ def kabsch(A, B) -> RigidTransform:
         raise ValueError(f"A and B must have the same shape, got {A.shape} and {B.shape}")
     if len(A) < 3:
         raise ValueError("kabsch needs at least 3 point pairs")
-    ca, cb = A.mean(axis=0), B.mean(axis=0)
-    H = (A - ca).T @ (B - cb)
-    U, s, Vt = np.linalg.svd(H)
-    if s[1] <= 1e-12 * max(s[0], 1e-300):
+    sv = np.linalg.svd(A - A.mean(axis=0), compute_uv=False)
+    if sv[1] <= 1e-12 * max(sv[0], 1e-300):
         raise ValueError("kabsch: the points are collinear "
                          "(the rotation about their line is undefined)")
-    d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
-    R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
-    return RigidTransform(R, cb - R @ ca)
+    R, t, _ = kabsch_batch(A, B[None])
+    return RigidTransform(R[0], t[0])
+
+
+def kabsch_batch(ref, P, seen=None, weights=None):
+    """Per frame, the rigid ``(R, T)`` taking ``ref`` (M, 3) onto ``P[f]`` (M, 3) over the
+    markers ``seen[f]`` (``weights`` (F, M): a weighted fit). Returns R (F,3,3), T (F,3),
+    rms (F,) mm; NaN where < 3 markers."""
+    P = np.asarray(P, float)
+    seen = np.isfinite(P[..., 0]) if seen is None else seen
+    w = seen.astype(float) if weights is None else np.where(seen, weights, 0.0)
+    seen = w > 0
+    ok = seen.sum(axis=1) >= 3
+    n = w.sum(axis=1)
+    nn = np.where(ok, n, 1.0)[:, None]
+    Pz = np.where(seen[..., None], P, 0.0)
+    ca = (np.broadcast_to(ref, P.shape) * w[..., None]).sum(axis=1) / nn     # both centroids weighted
+    cb = (Pz * w[..., None]).sum(axis=1) / nn                                  # alike (an unweighted one
+    a = (np.broadcast_to(ref, P.shape) - ca[:, None]) * w[..., None]           # here shifted the fit by
+    b = Pz - cb[:, None]                                                       # mm: 0055)
+    H = np.einsum("fmi,fmj->fij", a, b)                                        # sum of w a b^T
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(np.einsum("fij,fjk->fik", U, Vt).transpose(0, 2, 1)))
+    D = np.zeros((len(P), 3, 3))
+    D[:, 0, 0] = 1.0
+    D[:, 1, 1] = 1.0
+    D[:, 2, 2] = np.where(d == 0, 1.0, d)
+    R = np.einsum("fji,fjk,fkl->fil", Vt, D, U.transpose(0, 2, 1))
+    T = cb - np.einsum("fij,fj->fi", R, ca)
+    res = np.where(seen[..., None], P - np.einsum("fij,mj->fmi", R, ref) - T[:, None], 0.0)
+    rms = np.sqrt(np.sum(res ** 2, axis=(1, 2)) / np.maximum(seen.sum(axis=1), 1))
+    R[~ok] = np.nan
+    T[~ok] = np.nan
+    rms[~ok] = np.nan
+    return R, T, rms
 
 
 def fre(A, B, T: RigidTransform) -> float:

@@ -12,7 +12,11 @@ mapping along the first camera's viewing direction (the cameras look along the b
 Each :meth:`LiveEstimator.update` says whether that instant **observed** the patient
 (``observed``: a pose while tracking; three or more points while learning) and, when not,
 why (``note``): what :mod:`vts_hw.tracking.live.watch` needs to say whether the patient is tracked.
-See :mod:`vts_hw.tracking.live.model`, 0036 and 0048.
+The model is the one patient model of :mod:`vts_hw.motion.patient_model`, learned from the
+reference and fitted one instant at a time (:meth:`~vts_hw.motion.patient_model.PatientModel.fit_instant`):
+the offline analysis of the scan fits the same model over the recording (0092). Every pose is
+kept (:attr:`LiveEstimator.poses`): what the technologist was shown can be read afterwards.
+See 0036, 0048 and 0092.
 """
 
 from __future__ import annotations
@@ -25,10 +29,32 @@ from scipy.spatial.transform import Rotation
 from vts_hw.tracking.live.alerts import Alert, AlertRule
 from vts_hw.tracking.live.breathing import BreathingTrace
 from vts_hw.tracking.live.marker_tracks import assign
-from vts_hw.tracking.live.model import Fit, ReferenceModel
+from vts_hw.motion.patient_model import InstantPose, PatientModel
+from vts_hw.pose_health import pose_health
 from vts_hw.tracking.live.reference import ReferenceCollector
 
-__all__ = ["LiveSettings", "LiveEstimator", "LiveEstimate", "BandEstimate"]
+__all__ = ["LiveSettings", "LiveEstimator", "LiveEstimate", "BandEstimate", "LivePose"]
+
+
+@dataclass(frozen=True)
+class LivePose:
+    """One live pose as the technologist was shown it: host ``time`` of its frame set, the pose
+    ``R``, ``T`` (reference -> now) and breathing ``s`` of the patient model, the fit's residual,
+    the markers used, the cameras in the set, the alert rule's state, the move and turn it
+    measured (from the alert reference pose)."""
+
+    time: float
+    R: np.ndarray
+    T: np.ndarray
+    s: float
+    rms_mm: float
+    n_markers: int
+    cameras: float
+    state: str
+    move_mm: float
+    turn_deg: float
+    health: str = ""
+    confidence: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -89,6 +115,11 @@ class LiveEstimate:
     reason: str = ""             # why NOT TRACKING (or what the reference is doing)
     status_for_s: float | None = None   # how long it has been so
     age_s: float | None = None   # how old the figures shown are (from the capture of their frames)
+    # how sure the pose is (vts_hw/pose_health.py; the tracker renews it with the age when read)
+    health: str = ""             # known | bounded | not known ("": no pose yet)
+    health_why: str = ""
+    confidence: float | None = None
+    fit_figures: tuple | None = None   # (markers used, model's markers, residual mm, cameras per marker or None)
 
 
 class LiveEstimator:
@@ -107,9 +138,10 @@ class LiveEstimator:
         self.phase = "waiting"
         self.note = ""
         self.reference_note = ""
-        self.model: ReferenceModel | None = None
+        self.model: PatientModel | None = None
         self.rule: AlertRule | None = None
-        self.fit: Fit | None = None
+        self.fit: InstantPose | None = None
+        self.poses: list[LivePose] = []         # every pose, in time order (read by the session)
         self.time: float | None = None
         self.traces: list[BreathingTrace] = []
         self.observed = False          # whether the last update observed the patient
@@ -121,17 +153,19 @@ class LiveEstimator:
         self._seen_x = np.zeros((0, 3))
         self._seen_pts = np.zeros(0, int)        # where in that instant's points each seen marker was
         self.marker_names: list[str] = []       # per model marker: B<band>.<n> (set with the model)
+        self._cameras = float("nan")             # cameras per marker used in the last pose (mean)
 
     # -- input ---------------------------------------------------------------------------------
-    def update(self, t: float, points) -> Alert | None:
-        """One instant's points (N, 3). Returns an alert when this estimate raised one."""
+    def update(self, t: float, points, cameras=None) -> Alert | None:
+        """One instant's points (N, 3) (``cameras``: per point the cameras that saw it, or one
+        number for all; None: not known). Returns an alert when this estimate raised one."""
         pts = np.asarray(points, float).reshape(-1, 3)
         self.time = t
         if self.phase != "tracking":
             self._collect(t, pts)
             if self.phase != "tracking":
                 return None
-        return self._track(t, pts)          # (the instant that completed the reference too)
+        return self._track(t, pts, cameras)          # (the instant that completed the reference too)
 
     def _collect(self, t: float, pts: np.ndarray) -> None:
         self.observed = len(pts) >= 3
@@ -162,50 +196,69 @@ class LiveEstimator:
             self._restart(f"the body moved ({model.pose_noise_mm:.2f} mm, {model.pose_noise_deg:.2f} deg RMS)")
             return
         self.model = model
-        seen_in_band: dict[int, int] = {}
-        self.marker_names = []
-        for b in model.band.astype(int):
-            seen_in_band[b] = seen_in_band.get(b, 0) + 1
-            self.marker_names.append(f"B{b + 1}.{seen_in_band[b]}")
+        self.marker_names = [""] * model.n_markers
+        for k, g in enumerate(model.bands):
+            for n, i in enumerate(g):
+                self.marker_names[i] = f"B{k + 1}.{n + 1}"
         self.rule = AlertRule(self.motion.alert_mm, self.motion.alert_deg, self.motion.alert_after_s,
                               self.s.onset_fraction, self.s.settle_s, model.pose_noise_mm, model.pose_noise_deg)
-        self.traces = [BreathingTrace(self.s.trace_window_s) for _ in range(model.n_bands)]
+        self.traces = [BreathingTrace(self.s.trace_window_s) for _ in model.bands]
         self.phase = "tracking"
-        still = [k + 1 for k in range(model.n_bands) if not model.band_breathes(k)]
         self.reference_note = self.note = (
-            f"reference: {model.mean.shape[0]} markers in {model.n_bands} band(s)"
-            + (f" (band {', '.join(map(str, still))}: no breathing seen, fitted rigidly)" if still else "")
+            f"reference: {model.n_markers} markers in {len(model.bands)} band(s)"
+            + ("" if model.breathes else " (no breathing seen: fitted rigidly)")
             + f", {self._ref.observed():.1f} s of frames over {t - self._ref.t0:.1f} s, model residual "
               f"{model.noise_mm:.2f} mm, still pose noise {model.pose_noise_mm:.2f} mm {model.pose_noise_deg:.3f} deg")
         self.learned_at = t
         self._ref = None
 
     def _predicted(self) -> np.ndarray:
-        m = self.model
-        if self.fit is None:
-            return m.mean
-        beta = np.nan_to_num(self.fit.beta)
-        return (m.mean + beta[m.band, None] * m.gain[:, None] * m.direction) @ self.fit.R.T + self.fit.T
+        m, f = self.model, self.fit
+        if f is None:
+            return m.reference
+        return m.positions(f.R[None], f.T[None], np.array([f.s]))[0]
 
-    def _track(self, t: float, pts: np.ndarray) -> Alert | None:
+    def _band_mm(self, k: int) -> float:
+        """mm of band ``k``'s breathing per unit of the signal (its markers' mean vector length)."""
+        g = self.model.bands[k]
+        return float(np.mean(np.linalg.norm(self.model.vectors[g], axis=1))) if g else 0.0
+
+    def _track(self, t: float, pts: np.ndarray, cameras=None) -> Alert | None:
         m = self.model
         i_m, i_p = assign(self._predicted(), pts, self.s.gate_mm)
         after_gap = self._fit_t is None or t - self._fit_t > self.s.gap_s
-        fit = m.fit(i_m, pts[i_p], None if self.fit is None else self.fit.beta,
-                    iterations=self.s.iterations_after_gap if after_gap else self.s.iterations)
+        fit = m.fit_instant(i_m, pts[i_p], self.fit,
+                            iterations=self.s.iterations_after_gap if after_gap else self.s.iterations)
         self._seen_idx, self._seen_x, self._seen_pts = i_m, pts[i_p], i_p
         self.observed = fit is not None
         if fit is None:
-            self.note = f"{len(i_m)} of {len(m.mean)} markers seen"
+            self.note = f"{len(i_m)} of {m.n_markers} markers seen"
             return None
         self.note = ""
         self._fit_t = t
-        beta = fit.beta if self.fit is None else np.where(np.isfinite(fit.beta), fit.beta, self.fit.beta)
-        self.fit = Fit(fit.R, fit.T, beta, fit.rms_mm, fit.n_markers)
-        for k, tr in enumerate(self.traces):
-            if np.isfinite(fit.beta[k]) and m.band_breathes(k):
-                tr.add(t, float(fit.beta[k]))
-        return self.rule.update(t, fit.R, fit.T, m.centre)
+        self.fit = fit
+        if m.breathes:
+            for k, tr in enumerate(self.traces):
+                tr.add(t, fit.s * self._band_mm(k))
+        alert = self.rule.update(t, fit.R, fit.T, m.centre)
+        r = self.rule
+        cams = float("nan")
+        if cameras is not None:
+            c = np.broadcast_to(np.asarray(cameras, float), (len(pts),))[i_p]
+            cams = float(c.mean()) if len(c) else float("nan")
+        self._cameras = cams
+        h = pose_health(fit.n_markers, m.n_markers, fit.rms_mm, None if np.isnan(cams) else cams)
+        self.poses.append(LivePose(t, fit.R, fit.T, fit.s, fit.rms_mm, fit.n_markers, cams, r.state,
+                                   r.move_mm, r.turn_deg, h.state, h.confidence))
+        return alert
+
+    def health(self, age_s: float = 0.0):
+        """The last pose's health with its frames ``age_s`` old (None: no pose yet)."""
+        f = self.fit
+        if f is None or self.model is None:
+            return None
+        cams = self._cameras
+        return pose_health(f.n_markers, self.model.n_markers, f.rms_mm, None if np.isnan(cams) else cams, age_s)
 
     def seen_names(self) -> list[tuple[str, int]]:
         """The patient markers of the last estimate, named by the reference model: ``(name,
@@ -230,18 +283,22 @@ class LiveEstimator:
                         + (f" ({self.note})" if self.note else ""))
             return LiveEstimate(self.phase, self.frame, self.time, note=note, stats=dict(stats or {}))
         m, bands = self.model, []
-        for k in range(m.n_bands):
-            sel = m.band[self._seen_idx] == k
+        band = m.band_of()
+        for k, g in enumerate(m.bands):
+            sel = band[self._seen_idx] == k
             idx = self._seen_idx[sel]
-            disp = (self._seen_x[sel].mean(axis=0) - m.mean[idx].mean(axis=0)) if len(idx) else np.full(3, np.nan)
+            disp = (self._seen_x[sel].mean(axis=0) - m.reference[idx].mean(axis=0)) if len(idx) else np.full(3, np.nan)
             tr = self.traces[k]
             _, v = tr.values()
-            bands.append(BandEstimate(k + 1, int((m.band == k).sum()), int(len(idx)),
+            bands.append(BandEstimate(k + 1, len(g), int(len(idx)),
                                       tuple(float(x) for x in disp), float(v[-1]) if len(v) else float("nan"),
-                                      tr.rate_per_min(), tuple(tr.recent()), m.band_breathes(k)))
+                                      tr.rate_per_min(), tuple(tr.recent()), m.breathes))
         r, f, c = self.rule, self.fit, m.centre
         move = float(np.linalg.norm(f.R @ c + f.T - c))
         turn = float(np.degrees(np.linalg.norm(Rotation.from_matrix(f.R).as_rotvec())))
+        h, cams = self.health(), self._cameras
+        figures = (f.n_markers, m.n_markers, f.rms_mm, None if np.isnan(cams) else cams)
         return LiveEstimate(self.phase, self.frame, self.time, tuple(bands),
                             tuple(float(x) for x in self.six_dof()), move, turn, r.state,
-                            len(r.alerts), self.note, dict(stats or {}))
+                            len(r.alerts), self.note, dict(stats or {}), health=h.state, health_why=h.why,
+                            confidence=h.confidence, fit_figures=figures)

@@ -35,10 +35,27 @@ from collections import deque
 
 import numpy as np
 
+from vts_hw.errors import DataError
+from vts_hw.motion.bands import band_names, split_bands
+from vts_hw.motion.patient_model import PatientModel, learn_model
 from vts_hw.tracking.live.marker_tracks import MarkerTracks
-from vts_hw.tracking.live.model import ReferenceModel, breathing_range, learn_reference
 
-__all__ = ["ReferenceCollector", "observed_s"]
+__all__ = ["ReferenceCollector", "observed_s", "breathing_range"]
+
+
+def breathing_range(samples: np.ndarray) -> np.ndarray:
+    """Per marker of ``samples`` (S, M, 3; NaN: not seen) the range (5th to 95th percentile, mm)
+    of its positions along their first principal direction."""
+    out = np.zeros(samples.shape[1])
+    for i in range(samples.shape[1]):
+        p = samples[:, i]
+        p = p[np.isfinite(p).all(axis=1)]
+        if len(p) < 3:
+            continue
+        p = p - p.mean(axis=0)
+        proj = p @ np.linalg.svd(p, full_matrices=False)[2][0]
+        out[i] = np.percentile(proj, 95) - np.percentile(proj, 5)
+    return out
 
 
 def observed_s(times, step_s: float) -> float:
@@ -79,7 +96,7 @@ class ReferenceCollector:
         while self.instants and self.instants[0][0] <= last - self.s.reference_s / 2:
             self.instants.popleft()
 
-    def learn(self, t: float) -> tuple[ReferenceModel | None, str]:
+    def learn(self, t: float) -> tuple[PatientModel | None, str]:
         """``(model, why not)``: the model of the patient's markers, or why there is none yet
         (the reference goes on collecting; whether the body kept still is the caller's check)."""
         self._next_try = t + 1.0
@@ -110,9 +127,21 @@ class ReferenceCollector:
         else:
             return None, (f"fewer than three markers breathe ({int(breathes.sum())}); without a SPECT mapping "
                           f"(calibration.spect) still markers cannot be told from the wall's")
-        model = learn_reference(samples[:, patient], self.axis, self.toward, self.s.band_gap_mm,
-                                breathes=breathes[patient])
+        mine = samples[:, patient]
+        mean = np.nanmean(mine, axis=0)
+        bands = split_bands(mean, self.s.band_gap_mm)
+        # bands in order along the body's axis (the table), as the offline analysis names them
+        bands.sort(key=lambda g: float(np.mean(mean[g] @ self.axis)))
+        names, _ = band_names([mean[g].mean(axis=0) for g in bands], self.frame)
+        try:
+            model = learn_model(self._times(), mine, frame=self.frame, bands=bands, band_names=names,
+                                min_breath_mm=self.s.min_breath_mm)
+        except DataError as exc:
+            return None, str(exc)
         return model, ""
+
+    def _times(self) -> np.ndarray:
+        return np.array([i[0] for i in self.instants], float)
 
     def _samples(self) -> np.ndarray:
         """(S, M, 3): the markers seen in at least ``min_seen_fraction`` of the instants."""

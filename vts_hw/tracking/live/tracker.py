@@ -30,7 +30,8 @@ import cv2
 import numpy as np
 
 from vts_hw.tracking.live.estimator import LiveEstimate, LiveEstimator, LiveSettings
-from vts_hw.tracking.live.grouping import FrameGrouper, FrameSet, Pending
+from vts_hw.tracking.frame_sets import FrameGrouper, FrameSet, Pending
+from vts_hw.pose_health import pose_health
 from vts_hw.tracking.live.tap import FrameTap
 from vts_hw.tracking.live.watch import NOT_TRACKING, BlindAlert, Facts, Watch
 from vts_hw.vision.detect import DEFAULT as DEFAULT_DETECTOR, DetectorSettings, detect
@@ -172,7 +173,8 @@ class LiveTracker:
             xyz = self.mapping.apply(xyz)
         est, f = self.estimator, self.facts
         phase = est.phase
-        alert = est.update(fs.time, xyz)
+        cams = np.array([np.count_nonzero(np.asarray(p.detections) >= 0) for p in matches.points], float)
+        alert = est.update(fs.time, xyz, cams if len(cams) == len(xyz) else fs.n_cameras)
         seen, resumed, broke, seen_arrival = f.seen, f.resumed, f.broke, f.seen_arrival
         if est.observed:
             if seen is None or fs.capture - seen > self.late_s:
@@ -273,6 +275,12 @@ class LiveTracker:
         if self.error:
             status, reason = NOT_TRACKING, self.error
         cap = self._published_capture
-        return dataclasses.replace(self.published, status=status, reason=reason, status_for_s=max(0.0, now - since),
-                                   age_s=None if cap is None else max(0.0, now - cap),
-                                   stats=self.stats() if stats else {})
+        age = None if cap is None else max(0.0, now - cap)
+        snap = self.published
+        health = {}
+        if snap.fit_figures and age is not None:      # the pose shown, as sure as its age lets it be
+            n, model_n, rms, cams = snap.fit_figures
+            h = pose_health(n, model_n, rms, cams, age)
+            health = {"health": h.state, "health_why": h.why, "confidence": h.confidence}
+        return dataclasses.replace(snap, status=status, reason=reason, status_for_s=max(0.0, now - since),
+                                   age_s=age, stats=self.stats() if stats else {}, **health)
