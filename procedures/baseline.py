@@ -42,7 +42,7 @@ def take_baseline(cam, frames: int = 5, clock: Callable[[], float] = time.time, 
     """LED on, ``frames`` snapshots of camera ``cam`` over ``span_s``, its wall markers (by
     motion alone: ``room`` needs other cameras, :func:`take_baselines`).
     ``on_frame(camera, frame, taken, needed)``: as :func:`acquire_led_frames`'s, with the name."""
-    return take_baselines([cam], frames=frames, clock=clock, on_frame=on_frame, room=None,
+    return take_baselines([cam], frames=frames, clock=clock, on_frame=on_frame,
                           span_s=span_s).baselines[0]
 
 
