@@ -201,26 +201,16 @@ class SimRig:
         data = {"rig": rig_name, "cameras": cams, "trigger": self.trigger_config()}
         if calibration:
             data["calibration"] = calibration
-            data["aim"] = {"table_z_mm": self.table_z_mm()}   # the room the mapping places markers in
+            # the table stops 50 mm short of the scene's walls (nearer than a real room's): decision 0086
+            z = [float(m.center[2]) for m in self.scene.wall_markers]
+            data["aim"] = {"table_z_mm": [max([-1200.0] + [v + 50 for v in z if v < 0]),
+                                          min([900.0] + [v - 50 for v in z if v > 0])]}
         if results_url:
             data["store"] = {"url": results_url}
         if self.qatrack_site is not None:
             from vts_hw.sim_devices.qatrack_rig import section
             data["qatrack"] = section(self.qatrack_site, list(self.servers))
         return parse_rig(data, "simulated rig")
-
-    def table_z_mm(self) -> list[float]:
-        """The table's extent along Z in this room: it stops 50 mm short of the wall at either end
-        (the scene's walls stand at about 380-490 mm from the FOV centre, nearer than a real
-        room's; rig.yaml's default table would pass through them). Decision 0086."""
-        head, foot = -1200.0, 900.0
-        for m in self.scene.wall_markers:
-            z = float(m.center[2])
-            if z > 0:
-                foot = min(foot, z - 50.0)
-            else:
-                head = max(head, z + 50.0)
-        return [round(head, 1), round(foot, 1)]
 
     def trigger_config(self) -> dict:
         """The rig config's trigger section for the simulated trigger generator."""

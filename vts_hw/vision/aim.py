@@ -25,14 +25,15 @@ and `vts camera aim`). docs/decisions/0068-aim-and-focus.md.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import cv2
 import numpy as np
 
 from vts_hw.vision.aim_settings import DEFAULT_AIM, AimSettings
 from vts_hw.vision.aim_verdicts import (ADJUST, GOOD, UNKNOWN, Verdict, aim_verdict, fov_verdict,
-                                        gantry_verdict, level_verdicts, marker_verdicts)
+                                        gantry_verdict, level_verdicts, marker_verdicts, picture_shift)
+from vts_hw.vision.marker_roles import roles_by_reference
 from vts_hw.vision.detect import DetectorSettings, detect
 from vts_hw.vision.focus import edge_profile
 
@@ -54,6 +55,7 @@ class Marker:
     contrast_off: float | None
     through_gantry: bool | None = None
     cut: bool = False
+    role: str = ""          # vision/marker_roles.py against the reference ("": no reference, not known)
 
 
 @dataclass
@@ -156,6 +158,10 @@ def assess(camera: str, on: np.ndarray, off: np.ndarray | None, view=None,
                          f"and {off.shape[1]}x{off.shape[0]})")
     size = (int(on.shape[1]), int(on.shape[0]))
     markers, background = measure_markers(on, off, view, detector)
+    if reference is not None and len(np.asarray(reference, float).reshape(-1, 2)) and markers:
+        shift = picture_shift(reference, markers)
+        roles = roles_by_reference(reference, [(m.x, m.y) for m in markers], shift[:2] if shift else (0.0, 0.0))
+        markers = [replace(m, role=r.role) for m, r in zip(markers, roles)]
     whole = [m for m in markers if not m.cut]
     focal = view.focal_px if view is not None else None
     items = marker_verdicts(whole, settings)

@@ -260,7 +260,9 @@ def gantry_verdict(markers, view, s: AimSettings, no_view: str) -> Verdict:
     goal = f"≥ {s.min_wall_markers} markers through the gantry's opening"
     if view is None:
         return _unknown("gantry", "through the gantry", "markers", goal, no_view)
-    seen = [mk for mk in markers if mk.through_gantry and not mk.cut]
+    # with a reference, only the wall markers count (vision/marker_roles.py): a patient's or the
+    # phantom's markers are seen through the opening too
+    seen = [mk for mk in markers if mk.through_gantry and not mk.cut and getattr(mk, "role", "") in ("", "wall")]
     n, hidden = len(seen), sum(1 for mk in markers if mk.through_gantry is False and not mk.cut)
     beside = f"; {hidden} beside it (hidden by the gantry's housing)" if hidden else ""
     if n < s.min_wall_markers:

@@ -35,7 +35,8 @@ from vts_hw.vision.aim_geometry import fov_centre
 from vts_hw.vision.aim_settings import DEFAULT_AIM, AimSettings
 
 __all__ = ["WALL", "PHANTOM", "CHEST", "ABDOMEN", "PATIENT", "UNKNOWN", "ROLES", "Role", "Track",
-           "TableSpace", "Room", "follow", "roles_of_tracks", "roles_of_positions", "match_markers",
+           "TableSpace", "Room", "follow", "roles_of_tracks", "roles_of_positions", "roles_by_reference",
+           "match_markers",
            "GATE_PX", "MOVE_FLOOR_PX", "MOVE_FLOOR_MM", "BAND_GAP_MM", "BODY_HEIGHT_MM"]
 
 WALL, PHANTOM, CHEST, ABDOMEN, PATIENT, UNKNOWN = "wall", "phantom", "chest", "abdomen", "patient", "unknown"
@@ -108,6 +109,19 @@ def follow(per_frame: Sequence, gate: float = GATE_PX) -> list[Track]:
         t.seen = len(p)
         t.range_px = float(np.hypot(*np.ptp(p, axis=0)))
     return tracks
+
+
+def roles_by_reference(reference, pts, shift=(0.0, 0.0), gate: float = GATE_PX) -> list[Role]:
+    """One picture's markers (``pts``, N x 2 px) against where the drift baseline's wall markers
+    were (``reference``, moved by ``shift``, px: a camera turned since): a wall marker where one
+    was, within ``gate``; unknown otherwise (one picture shows no motion: never taken for a wall
+    marker)."""
+    ref = np.asarray(reference, float).reshape(-1, 2) + np.asarray(shift, float)
+    p = np.asarray(pts, float).reshape(-1, 2)
+    out = [Role(UNKNOWN, "not where a drift baseline's wall marker is") for _ in range(len(p))]
+    for i, j in match_markers(ref, p, gate):
+        out[j] = Role(WALL, "where the drift baseline's wall marker was", f"M{i + 1}")
+    return out
 
 
 def roles_of_tracks(tracks: Sequence[Track], floor_px: float = MOVE_FLOOR_PX) -> list[Role | None]:
