@@ -105,12 +105,13 @@ def test_the_live_view_prints_what_the_estimator_says():
 
     from vts_hw.cli.live_view import live_line, live_table, sparkline
 
-    p = _patient(20.0, seed=2)
+    p = _patient(30.0, seed=2)     # 20 s after the reference: the 3 breaths seen whole a rate needs
     est = LiveEstimator(MOTION, LiveSettings(reference_s=10.0))
     for t in np.arange(0.0, 5.0, 0.04):
         est.update(float(t), np.array([m.center for m in p.markers_at(float(t), np.zeros(3))]))
     assert "learning the reference: 5.0 of 10 s" in live_line(est.snapshot())
-    est, _, _ = _run(p, 20.0)
+    est, _, _ = _run(p, 30.0)
+    assert np.isfinite(est.snapshot().bands[1].rate_per_min)
     snap = est.snapshot({"sets": 500, "live_dropped": {"cam1": 2}, "latency_ms_p50": 1.5, "latency_ms_p95": 3.25})
     line = live_line(snap)
     assert f"band 2 4/4 markers {snap.bands[1].distance_mm:.1f} mm" in line

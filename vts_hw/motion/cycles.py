@@ -18,20 +18,23 @@ breath (below).
 
 :func:`breathing_figures`: ``none`` when the breaths are not above the signal's noise (no
 respiratory signal is then kept and no respiratory subsets made). The rate is the median of the
-**breaths seen whole**, each once (:func:`_single_breaths`): the trough-to-trough cycles, and for a
-breath with no cycle its up-crossing to the next -- which may span gaps shorter than
-:data:`SPAN_K` of the shortest half breath seen (such a gap cannot hide a breath: the crossings
-alternate, so the two on its sides are one breath apart); a period over :data:`DOUBLED` times
-the typical one (a pause, or a breath hidden after all) is left out. Peak-to-peak and
-down-to-down periods mix two breaths and are not used for the rate. Each breath is weighted by
-the inverse of the time in which a breath of its length can be seen whole (loss in bursts
-favours short ones). Its range: the breaths' spread (at least :data:`SPREAD_MIN` of the rate)
-over the square root of their number, shrunk by the share of the scan's breaths seen, at
-:data:`Z_RANGE`, combined with :data:`RATE_FLOOR` (the breaths' landmarks and the scan's ends);
-``unknown`` when fewer than :data:`MIN_CYCLES` breaths were seen, ``measured`` when the range
-is within ±0.5 /min, else ``bounded`` (the range is then the figure). The amplitude is the
-median depth of the half breaths (at least :data:`MIN_CYCLES` of them). Why (and the figures on
-simulated scans): docs/decisions/0059-breaths-across-short-gaps.md.
+**breaths seen whole**, each once (:func:`_breath_bounds`): in a chain of stretches joined across
+gaps shorter than :data:`SPAN_K` of the shortest half breath seen (such a gap cannot hide a
+breath: the crossings alternate, so every crossing is there, hidden or not), each breath's start
+and end (the troughs before its inhalation and the next) are fitted by least squares to every
+landmark of it that was seen -- its troughs (to :data:`TROUGH_S`), and its up and down crossings
+of the middle, placed in the breath at the share at which they come in this scan's breaths seen
+whole. A breath across a gap is so measured from what is seen on both sides of it; one whose
+length is not known to :data:`KEEP_S`, or whose landmarks do not fit one breath (a pause, a deep
+breath: :data:`OUTLIER_K`), or over :data:`DOUBLED` times the typical one, is left out. Its range:
+the breaths' spread (at least :data:`SPREAD_MIN` of the rate) over the square root of their
+number, shrunk by the share of the scan's breaths measured, and the breaths' own errors, at
+:data:`Z_RANGE`, combined with :data:`RATE_FLOOR` (the scan's ends); ``unknown`` when fewer than
+:data:`MIN_CYCLES` breaths were measured, ``measured`` when the range is within ±0.5 /min, else
+``bounded`` (the range is then the figure). The amplitude is the median depth of the half breaths
+(at least :data:`MIN_CYCLES` of them). The live trace's rate is this one, of its last seconds
+(:mod:`vts_hw.tracking.live.breathing`). Why (and the figures on simulated scans):
+docs/decisions/0059-breaths-across-short-gaps.md, 0089-one-rate-estimator.md.
 """
 
 from __future__ import annotations
@@ -55,9 +58,9 @@ MIN_BREATH_MM = 0.2     # ... and at least this deep
 RATE_GOAL = 0.5         # /min: a rate whose 95 % range is wider is "bounded"
 SPREAD_MIN = 0.10       # breath-to-breath spread of the rate assumed at least (a few breaths show less)
 SPAN_K = 0.8            # a period may span gaps up to this share of the shortest half breath seen ...
-MIN_HALVES = 6          # ... when at least this many half breaths were seen in one stretch
+MIN_HALVES = 3          # ... when at least this many half breaths were seen in one stretch (0059: 6)
 DOUBLED = 1.6           # a period spanning a gap this many times the typical breath held two
-RATE_FLOOR = 0.3        # /min: the median of the breaths seen whole is off the breaths' own by this much
+RATE_FLOOR = 0.2        # /min: the scan's first and last breaths, counted by the truth, not always seen
 Z_RANGE = 2.58          # the range is 99 % (1.96 left 7 % of 150 simulated 60-s scans at 20 % loss outside)
 
 
@@ -83,7 +86,9 @@ class Breaths:
     up-crossing of the middle to the next (across gaps up to ``span_s``); ``halves`` depths (mm) of trough-peak pairs;
     ``phase``/``rate`` per frame inside whole cycles; ``depth_mm``: the signal's 5-95 % range;
     ``stretches_s``: the lengths of the stretches seen (``bounds`` their rows of ``n_rows``);
-    ``span_s``: the longest gap a crossing-to-crossing period may span."""
+    ``span_s``: the longest gap a crossing-to-crossing period may span; ``breaths``
+    [(t0, t1, sigma_s)]: each breath measured, start, end and the error of its length
+    (:func:`_breath_bounds`)."""
 
     cycles: list
     periods: list
@@ -95,6 +100,7 @@ class Breaths:
     span_s: float = 0.0
     bounds: list = field(default_factory=list)
     n_rows: int = 0
+    breaths: list = field(default_factory=list)
 
 
 @dataclass
@@ -201,7 +207,27 @@ def find_breaths(t, a, valid, period: float, min_period_s: float = 1.5, max_peri
     phase[~ok] = np.nan                         # no pose, no phase (even inside a whole breath)
     rate[~ok] = np.nan
     out.bounds, out.n_rows = bounds, F
+    out.breaths = _with_cycles(_breath_bounds(t, x, cross, troughs, seen, seg, bounds, out.span_s, period),
+                               out.cycles)
     return out
+
+
+def _with_cycles(fitted: list, cycles: list) -> list:
+    """The breaths fitted, checked against the cycles seen whole (trough to trough in one
+    stretch, a peak between): a fitted breath overlapping a cycle without being it (a shallow
+    breath that never crossed the middle merged into its neighbour) is left out, and every cycle
+    no fitted breath is stands as a breath of its own."""
+    whole = [(c.t_start, c.t_end, TROUGH_S * np.sqrt(2.0)) for c in cycles]
+
+    def same(a, b):
+        return abs(a[0] - b[0]) <= SAME_S and abs(a[1] - b[1]) <= SAME_S
+
+    def clash(a, b):
+        return min(a[1], b[1]) - max(a[0], b[0]) > SAME_S and not same(a, b)
+
+    kept = [b for b in fitted if not any(clash(b, c) for c in whole)]
+    kept += [c for c in whole if not any(same(c, b) for b in kept) and not any(clash(c, b) for b in kept)]
+    return sorted(kept)
 
 
 def _span_s(cross, seen, seg) -> float:
@@ -233,34 +259,6 @@ def signal_noise(a, valid) -> float:
     return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
 
 
-def _fit_lengths(lengths_s, br: Breaths, period: float) -> np.ndarray:
-    """Per period length, the time in which a period of it can start and still be measured as an
-    up-crossing period is: both ends seen (:data:`CROSS_EDGE_S` of pose on either side) with no
-    gap longer than ``br.span_s`` between them."""
-    edge = int(np.ceil(CROSS_EDGE_S / period))
-    seen = np.zeros(br.n_rows, bool)
-    joined = np.full(br.n_rows, -1)
-    group = -1
-    for j, (a, b) in enumerate(br.bounds):
-        seen[a + edge:max(a + edge, b - edge)] = True
-        if j == 0 or (a - br.bounds[j - 1][1]) * period > br.span_s:
-            group += 1
-        joined[a:b] = group
-    out = []
-    for p in lengths_s:
-        k = int(round(p / period))
-        ok = 0 < k < br.n_rows
-        out.append(float((seen[:-k] & seen[k:] & (joined[:-k] == joined[k:])).sum()) * period if ok else 0.0)
-    return np.array(out)
-
-
-def _weighted_median(x, w) -> float:
-    o = np.argsort(x)
-    x, w = np.asarray(x)[o], np.asarray(w)[o]
-    c = np.cumsum(w)
-    return float(x[np.searchsorted(c, 0.5 * c[-1])])
-
-
 def _union_s(intervals) -> float:
     total, end = 0.0, -np.inf
     for a, b in sorted(intervals):
@@ -270,26 +268,17 @@ def _union_s(intervals) -> float:
     return total
 
 
-def _single_breaths(br: Breaths) -> list:
-    """Each breath seen whole once: ``[(t0, t1)]``, the trough-to-trough cycles,
-    and for a breath with no cycle its up-crossing to the next (the crossing comes a fifth of the
-    way into the inhalation: that period is the breath's own to within a fifth of the next's
-    difference; peak-to-peak and down-to-down periods mix two breaths half and half and are not
-    used for the rate -- they shrink its spread and move the median off the breaths')."""
-    out = [(c.t_start, c.t_end) for c in br.cycles]
-    out += [(t0, t1) for t0, t1 in br.periods if not any(c.t_start <= t0 < c.t_end for c in br.cycles)]
-    if out:                 # a pause, or a gap that hid a shallow breath's crossings: not one breath
-        typical = float(np.median([b - a for a, b in out]))
-        out = [(a, b) for a, b in out if b - a <= DOUBLED * typical]
-    return sorted(out)
-
-
 def breathing_figures(br: Breaths, period: float, duration_s: float, noise_mm: float,
                       breathes: bool = True) -> BreathingFigures:
     """The figures of the module's rules. ``breathes``: False when no marker moves at breathing
     rates at all (then ``none`` whatever the signal)."""
     noise = float(noise_mm) if np.isfinite(noise_mm) else None
-    breaths = _single_breaths(br)
+    breaths = [(a, b) for a, b, _ in br.breaths]
+    sig = np.array([s for *_, s in br.breaths])
+    if breaths:             # a pause, or two breaths after all: not one breath
+        typical = float(np.median([b - a for a, b in breaths]))
+        keep = [k for k, (a, b) in enumerate(breaths) if b - a <= DOUBLED * typical]
+        breaths, sig = [breaths[k] for k in keep], sig[keep]
     span_s = _union_s(breaths)
     n_ind = len(breaths)
     base = dict(cycles=len(br.cycles), periods=n_ind, halves=len(br.halves), breaths_s=span_s,
@@ -310,17 +299,136 @@ def breathing_figures(br: Breaths, period: float, duration_s: float, noise_mm: f
                                            f"needs {MIN_CYCLES}", amplitude_mm=amp, **base)
     lengths = np.array([b - a for a, b in breaths])
     rates = 60.0 / lengths
-    # a breath is kept when seen either way, nearly always when its up-crossings are: the chance
-    # of that (a long breath's ends are less often both seen) weighs it
-    w = 1.0 / np.maximum(_fit_lengths(lengths, br, period), period)
-    rate = _weighted_median(rates, w)
-    spread = max(1.4826 * float(np.median(np.abs(rates - np.median(rates)))), SPREAD_MIN * rate)
-    n_eff = min(float(w.sum() ** 2 / (w ** 2).sum()), n_ind)
+    rate = float(np.median(rates))
+    spread = max(1.4826 * float(np.median(np.abs(rates - rate))), SPREAD_MIN * rate)
     expected = duration_s * rate / 60.0 - 1.0               # whole breaths in the scan (its ends cut two)
     fpc = np.sqrt(max(0.0, 1.0 - n_ind / max(expected, 1.0)))
-    half = float(np.hypot(Z_RANGE * 1.2533 * spread / np.sqrt(n_eff) * fpc, RATE_FLOOR))
+    meas = 1.2533 * float(np.sqrt(np.mean((60.0 * sig / lengths ** 2) ** 2))) / np.sqrt(n_ind)
+    half = float(np.hypot(Z_RANGE * np.hypot(1.2533 * spread / np.sqrt(n_ind) * fpc, meas), RATE_FLOOR))
     rng = [round(rate - half, 2), round(rate + half, 2)]
     status = "measured" if half <= RATE_GOAL else "bounded"
     why = (f"from {n_ind} breaths seen whole over {span_s:.1f} s ({100 * base['share']:.0f} % of the scan)"
            + ("" if status == "measured" else f": the rate is known only to {rng[0]:.1f}-{rng[1]:.1f} /min"))
     return BreathingFigures(status, why, rate, rng, amp, **base)
+
+TROUGH_S = 0.06         # s: a trough's time (the flat end of an exhalation) is known to this, 1 sigma
+CROSS_S = 0.03          # s: a crossing of the middle (steep) at least this
+PRIOR_K = 0.35          # a breath with nothing seen of it: its length the typical one to this share, 1 sigma
+OUTLIER_K = 4.0         # a landmark this many sigma off the breaths' fit is not of a normal breath
+SAME_S = 0.4           # s: a fitted breath and a cycle seen whole whose ends are this close are one
+KEEP_S = 0.30           # s: a breath whose length is known to worse than this (1 sigma) is not used
+
+
+def _breath_bounds(t, x, cross, troughs, seen, seg, bounds, span_s: float, period: float) -> list:
+    """Each breath in a chain of stretches (joined across gaps shorter than ``span_s``, which
+    cannot hide a breath: its crossings are all there, hidden or not) as ``(t0, t1, sigma_s)``:
+    its start and end (the troughs before its inhalation and the next) from every landmark of it
+    seen -- the troughs, and its up and down crossings of the middle, placed in the breath by the
+    share of it at which they come in the breaths seen whole -- by least squares; ``sigma_s``
+    the 1-sigma error of its length. Breaths whose length is not known to ``KEEP_S``, or whose
+    landmarks do not fit one breath (a pause, a deep breath), are left out."""
+    if not cross:
+        return []
+    chain = np.full(len(bounds), -1)
+    g = -1
+    for k in range(len(bounds)):
+        if k == 0 or (bounds[k][0] - bounds[k - 1][1]) * period > span_s:
+            g += 1
+        chain[k] = g
+    lows = np.asarray(troughs, int)
+    slots = []                       # per chain: [[trough time|None, up time|None, down time|None], ...]
+    for c in range(g + 1):
+        cs = [(s, tt, j) for s, tt, j in cross if seg[j] >= 0 and chain[seg[j]] == c]
+        if not cs:
+            continue
+        rows = [r for k in np.flatnonzero(chain == c) for r in range(*bounds[k])]
+        lo_row, hi_row = rows[0], rows[-1]
+        breaths = []                 # one per up-crossing: [trough before it, up, down after it]
+        prev_row = lo_row
+        for i, (s, tt, j) in enumerate(cs):
+            if s > 0:
+                tr = lows[(lows > prev_row) & (lows < j)]
+                tr_t = None
+                if tr.size:
+                    r = int(tr[np.argmin(x[tr])])
+                    tr_t = float(t[r]) if seen(r) else None
+                up = tt if tt is not None and seen(j, CROSS_EDGE_S) else None
+                breaths.append([tr_t, up, None])
+            else:
+                if breaths:
+                    breaths[-1][2] = tt if tt is not None and seen(j, CROSS_EDGE_S) else None
+            prev_row = j
+        if cs[-1][0] < 0 and breaths:            # the trough after the last down-crossing
+            tr = lows[(lows > prev_row) & (lows <= hi_row)]
+            end_t = None
+            if tr.size:
+                r = int(tr[np.argmin(x[tr])])
+                end_t = float(t[r]) if seen(r) else None
+            breaths.append([end_t, None, None])
+        slots.append(breaths)
+    # the shares of a breath at which its crossings come, from the breaths seen whole
+    typ, a_s, d_s = [], [], []
+    for br in slots:
+        for (t0, u, d), (t1, _, _) in zip(br[:-1], br[1:]):
+            if t0 is not None and t1 is not None and t1 > t0:
+                typ.append(t1 - t0)
+                if u is not None and t0 < u < t1:
+                    a_s.append((u - t0) / (t1 - t0))
+                if d is not None and t0 < d < t1:
+                    d_s.append((d - t0) / (t1 - t0))
+    if not typ:
+        return []
+    L = float(np.median(typ))
+    use_cross = min(len(a_s), len(d_s)) >= MIN_CYCLES
+    if use_cross:
+        fa, fd = float(np.median(a_s)), float(np.median(d_s))
+        sa = max(1.4826 * float(np.median(np.abs(np.array(a_s) - fa))) * L, CROSS_S)
+        sd = max(1.4826 * float(np.median(np.abs(np.array(d_s) - fd))) * L, CROSS_S)
+    out = []
+    for br in slots:
+        n = len(br)                  # boundaries B_0 .. B_{n-1}; breath i from B_i to B_{i+1}
+        if n < 2:
+            continue
+        A, y, w, own = [], [], [], []
+
+        def obs(coef, value, sigma, tag):   # one landmark: sum(coef[k] * B_k) = value, to sigma
+            A.append([coef.get(k, 0.0) for k in range(n)])
+            y.append(value)
+            w.append(1.0 / sigma)
+            own.append(tag)
+
+        for i, (tr_t, u, d) in enumerate(br):
+            if tr_t is not None:
+                obs({i: 1.0}, tr_t, TROUGH_S, ("b", i))
+            if use_cross and i + 1 < n:
+                if u is not None:
+                    obs({i: 1.0 - fa, i + 1: fa}, u, sa, ("c", i))
+                if d is not None:
+                    obs({i: 1.0 - fd, i + 1: fd}, d, sd, ("c", i))
+        if not A:
+            continue
+        for i in range(n - 1):       # a weak prior: a breath is about the typical length
+            obs({i: -1.0, i + 1: 1.0}, L, PRIOR_K * L, None)
+        # the chain's place, when only the prior speaks of a boundary: keeps the fit solvable
+        obs({0: 1.0}, float(next(v for b in br for v in b if v is not None)), 1e6, None)
+        A, y, w = np.array(A), np.array(y), np.array(w)
+        use = np.ones(len(y), bool)
+        bad = set()
+        for _ in range(len(y)):         # the landmark furthest off one breath's shape out, until all fit
+            Aw = A[use] * w[use, None]
+            cov = np.linalg.pinv(Aw.T @ Aw)
+            B = cov @ (Aw.T @ (y[use] * w[use]))
+            res = np.where(use, (y - A @ B) * w, 0.0)
+            k = int(np.argmax(np.abs(res)))
+            if abs(res[k]) <= OUTLIER_K:
+                break
+            use[k] = False
+            bad.add(own[k])
+        for i in range(n - 1):
+            var = cov[i, i] + cov[i + 1, i + 1] - 2 * cov[i, i + 1]
+            s = float(np.sqrt(max(var, 0.0)))
+            if s > KEEP_S or {("b", i), ("b", i + 1), ("c", i)} & bad:
+                continue
+            out.append((float(B[i]), float(B[i + 1]), s))
+    return out
+
