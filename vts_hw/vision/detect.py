@@ -124,32 +124,42 @@ def _threshold(img: np.ndarray, stride: int, s: DetectorSettings) -> tuple[float
     # A radix sort (numpy's stable sort of 8-bit data) is cheaper here than a partition.
     ranked = img[stride // 2::stride, stride // 2::stride].flatten()
     ranked.sort(kind="stable")
-    n = ranked.size
-    median, p16 = float(ranked[(n - 1) // 2]), float(ranked[(n - 1) * 16 // 100])
-    thr = median + max(s.k_sigma * max(median - p16, 1.0), s.min_contrast)
+    n = ranked.size - 1
+    median = ranked.item(n // 2)  # Python ints: no numpy scalar arithmetic below
+    thr = median + max(s.k_sigma * max(median - ranked.item(n * 16 // 100), 1), s.min_contrast)
+    median = float(median)
     return float(min(math.floor(thr), s.max_threshold)), median
 
 
 # ---------------------------------------------------------------- entry points
 def detect(gray: np.ndarray, settings: DetectorSettings = DEFAULT) -> DetectionResult:
     """Find the bright round blobs of a uint8 (H, W) image (see the module docstring)."""
-    if not isinstance(gray, np.ndarray) or gray.dtype != np.uint8 or gray.ndim != 2:
+    if not isinstance(gray, np.ndarray) or gray.dtype.char != "B" or gray.ndim != 2:
         raise ValueError("detect needs a grey uint8 image (H x W), got "
                          f"{getattr(gray, 'dtype', type(gray).__name__)} "
                          f"{getattr(gray, 'shape', '')}")
+    thr, median, boxes = candidate_boxes(gray, settings)
+    result = DetectionResult([], thr, median)
+    if boxes:
+        _measure(gray, boxes, thr, settings, result)
+        result.blobs.sort(key=_BY_Y_X)
+    return result
+
+
+def candidate_boxes(gray: np.ndarray, settings: DetectorSettings = DEFAULT
+                    ) -> tuple[float, float, list[tuple[int, int, int, int]]]:
+    """Steps 1 and 2 of :func:`detect` alone: ``(threshold, median, boxes)``, ``boxes`` the
+    bounding boxes ``(x, y, w, h)`` of the above-threshold regions of the decimated view, in
+    its samples. (bench/detect_speed.py times it: the floor under any measuring step.)"""
     step = settings.step
     small = gray[::step, ::step].copy()  # contiguous, for OpenCV
     # The threshold's sample: about 300 pixels, taken from the decimated view.
     thr, median = _threshold(small, max(1, int(math.sqrt(small.size / 300.0))), settings)
     if settings.threshold is not None:
         thr = float(settings.threshold)
-    result = DetectionResult([], thr, median)
     binary = cv2.threshold(small, thr, 255, cv2.THRESH_BINARY)[1]
     contours = cv2.findContours(binary, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)[0]
-    if contours:
-        _measure(gray, [cv2.boundingRect(c) for c in contours], thr, settings, result)
-        result.blobs.sort(key=_BY_Y_X)
-    return result
+    return thr, median, list(map(cv2.boundingRect, contours))
 
 
 def detect_jpeg(jpeg: bytes, settings: DetectorSettings = DEFAULT) -> DetectionResult:
@@ -211,11 +221,9 @@ def _crowded(rois, near) -> set[int]:
     ``near`` in both x and y (a candidate's extent lies at least roi_margin + 1 px inside its
     ROI, so farther ROIs cannot reach it). A sweep in x."""
     out = set()
-    order = sorted(range(len(rois)), key=rois.__getitem__)
-    for a, i in enumerate(order):
-        rx, ry = rois[i]
-        for j in order[a + 1:]:
-            qx, qy = rois[j]
+    order = sorted([(x, y, i) for i, (x, y) in enumerate(rois)])
+    for a, (rx, ry, i) in enumerate(order):
+        for qx, qy, j in order[a + 1:]:
             if qx - rx > near:
                 break
             if -near <= qy - ry <= near:
