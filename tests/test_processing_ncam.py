@@ -4,7 +4,10 @@ every point from the cameras that see it, nothing invented, more located than wi
 import numpy as np
 import pytest
 
-from vts_hw.tracking.frame_sets import group_frames, pair_frames
+from vts_hw.tracking.frame_sets import FrameGrouper, Pending, group_frames, mapped_times
+from vts_hw.tracking.identities import MarkerTracks
+from vts_hw.tracking.live.tracker import GROUP_WAIT_S
+from vts_hw.recording.frames import load_camera_frames
 from vts_hw.tracking.processing import process_recording
 from vts_hw.tracking.tracks import Tracks
 from vts_hw.sim_devices.recording_sim import BreathingBand, simulate_recording
@@ -86,7 +89,8 @@ def test_a_camera_that_drops_out_leaves_the_others_tracking(recorded):
     assert sum(four.meta["unpaired_frames"].values()) + int((four.camera_frame >= 0).sum()) == \
         sum(len(v) for v in sim.exposure.values())
     missing = four.camera_frame[:, 2] < 0
-    assert 10 <= missing.sum() <= 16 and len(four) == n      # 0.6 s of cam3 lost: 15 frames
+    assert 10 <= missing.sum() <= 16                         # 0.6 s of cam3 lost: 15 frames
+    assert (four.camera_frame[:, 0] >= 0).sum() == n           # every frame of cam1 in a set
     assert (four.n_blobs[missing, 2] == -1).all()
     assert not four.point_cameras[np.isin(four.point_frame, np.flatnonzero(missing)), 2].any()
 
@@ -116,11 +120,49 @@ def test_one_worker_gives_the_same_four_camera_tracks(recorded):
 def test_group_frames_of_three_cameras():
     t = np.arange(10) * 0.04
     sets = group_frames([t, t + 0.013, np.delete(t + 0.026, [3, 4])], 0.02)
+    # 26 ms after the first frame, but 19.5 ms from the set's mean time: the third joins
     assert sets.shape == (10, 3) and (sets[:, 0] == np.arange(10)).all()
     assert list(sets[3:5, 2]) == [-1, -1] and (sets[:, 1] == np.arange(10)).all()
-    # two cameras: exactly the pairs of pair_frames
-    ia, ib = pair_frames(t, t[::2] + 0.001, 0.02)
-    assert np.array_equal(group_frames([t, t[::2] + 0.001], 0.02), np.column_stack([ia, ib]))
+    # two cameras: each frame of the second joins the first camera's frame 1 ms before it
+    two = group_frames([t, t[::2] + 0.001], 0.02)
+    assert two.tolist() == [[2 * k, k] for k in range(5)]
     # a set needs two cameras: a frame alone is left out
     lone = group_frames([t[:5], t[:5] + 0.01, np.array([5.0])], 0.02)
     assert len(lone) == 5 and (lone[:, 2] == -1).all()
+
+
+def live_sets(folder, names, tolerance_s):
+    """The live path's frame sets of a recording: its frames fed to the grouper as the live
+    tracker builds it, one at a time in the order they were received (a frame's receipt its
+    arrival), asking for the sets ready after each; then time passes. The frames' times are the
+    processing's (how each path maps a camera's clock is not the grouper's). Per set, each
+    camera's frame number (-1: none)."""
+    frames = [load_camera_frames(folder, n) for n in names]
+    times = [mapped_times(cf, 0.0)[0] for cf in frames]
+    grouper = FrameGrouper(len(names), tolerance_s, max(1.5 * 0.04, GROUP_WAIT_S))
+    arrivals = sorted((cf.host_time[i], c, i) for c, cf in enumerate(frames) for i in range(len(cf.frame)))
+    sets = []
+    for arrival, c, i in arrivals:
+        grouper.add(Pending(c, float(times[c][i]), float(arrival), np.zeros((0, 2)), index=i))
+        sets += grouper.ready(float(arrival))
+    sets += grouper.ready(arrivals[-1][0] + 10.0)
+    return np.array([[-1 if i < 0 else int(frames[c].frame[i]) for c, i in enumerate(fs.index)]
+                     for fs in sets]).reshape(-1, len(names))
+
+
+def test_the_live_path_groups_and_names_as_the_processing_does(recorded):
+    """One grouper and one identity tracker on both paths (decision 0090): the recording's
+    frames, fed one by one to the live path's grouper in the order they arrived -- cam3 lost
+    0.6 s of frames, and a frame now and then arrived 50-300 ms late -- make exactly the frame
+    sets the processing made, with four cameras and with two; and the live path's identity
+    tracker, given those sets' points in order, names every point as the processing did."""
+    sim, four, two, _ = recorded
+    for tracks in (four, two):
+        live = live_sets(sim.folder, tracks.camera_names, tracks.meta["pair_tolerance_s"])
+        assert np.array_equal(live, tracks.camera_frame)
+    assert (four.camera_frame[:, 2] < 0).sum() >= 10          # the loss is in it
+    assert (four.camera_frame >= 0).sum(axis=1).min() == 2 and (four.camera_frame >= 0).all(axis=1).any()
+    ids = MarkerTracks(four.meta["settings"]["gate_mm"], four.meta["settings"]["max_gap_s"])
+    live_ids = np.concatenate([ids.update(four.host_time[f], four.xyz[four.point_frame == f])
+                               for f in range(len(four))])
+    assert np.array_equal(live_ids, four.marker) and four.marker.max() > 5

@@ -1,13 +1,39 @@
-"""A recording's frames mapped to host time and grouped into frame sets across cameras.
+"""Frame sets across cameras: one grouping rule, run live or over a recording.
 
-:func:`mapped_times` maps each frame's stamp (:class:`~vts_hw.recording.frames.CameraFrames`) to
-host time through the camera's clock fit (:mod:`vts_hw.timing.camera_clock`); :func:`pair_frames`
-pairs two cameras' frames by mapped time and :func:`group_frames` does it for any number of
-cameras (docs/decisions/0018-processing.md, "Pairing"; 0031 for N cameras); :func:`frame_period`
-is a camera's frame interval.
+A camera's frame time is its stamp mapped to host time: offline by the camera's clock fit
+(:func:`mapped_times`, :mod:`vts_hw.timing.camera_clock`), live by the clock offset measured when
+the scan started (:mod:`vts_hw.tracking.live.tracker`); a frame with no stamp has its receipt
+time. Only these host times are compared (the cameras' own clocks may differ by seconds).
+
+**The rule** (:class:`FrameGrouper`, docs/decisions/0090). Each camera's frames are taken in the
+order it sent them. The oldest first-pending frame of any camera opens a set; the other cameras'
+first pending frames, nearest in time first, join it while each is within ``tolerance_s`` of the
+mean time of the frames already in it (half a frame period: a frame never joins its partner's
+neighbour). The set is decided once every camera has a frame pending -- one that joined, or a
+later one that did not -- or is not waited for (below); a set of two cameras or more goes out,
+in time order; a frame alone goes into no set and is counted (``unmatched``).
+
+**Waiting** (live only: the live path cannot see the frames still on their way). A camera with
+nothing pending may still send a frame for the set: it is waited for while it is not quiet (a
+frame from it within ``wait_s``; a camera that has sent nothing yet, within ``wait_s`` of the
+first frame of any: the cameras do not all start at once), and by a set of one camera even when quiet (after a gap, one
+camera's first frames may come back later than the other's), but never for longer than
+``wait_s`` after the set's first frame arrived; then the set goes with the cameras it has.
+``wait_s`` is longer than a frame period: on a busy host one camera's frames may arrive a few
+hundred milliseconds after the other's, and a set given up too soon is two frames lost
+(docs/decisions/0048).
+
+**Offline** (:func:`group_frames`): a recording's frames run through the same object, every
+frame there from the start and the recording's end deciding the last sets: the same frames
+give the same sets on both paths, whenever the live path did not give up waiting.
+:func:`frame_period` is a camera's frame interval.
 """
 
 from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -15,7 +41,9 @@ from vts_hw.errors import DataError
 from vts_hw.recording.frames import CameraFrames
 from vts_hw.timing.camera_clock import fit_camera_clock
 
-__all__ = ["mapped_times", "pair_frames", "group_frames", "frame_period"]
+__all__ = ["mapped_times", "Pending", "FrameSet", "FrameGrouper", "group_frames", "frame_period"]
+
+_NO_UV = np.zeros((0, 2))
 
 
 def mapped_times(cf: CameraFrames, latency_s: float):
@@ -45,65 +73,113 @@ def mapped_times(cf: CameraFrames, latency_s: float):
     return t, fit, []
 
 
-def pair_frames(t_a: np.ndarray, t_b: np.ndarray, tolerance_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """Index pairs ``(ia, ib)`` of frames whose times (s) differ by at most ``tolerance_s``:
-    each frame of a with b's nearest, one-to-one (when two frames of a want the same frame
-    of b the closer wins). Sorted by ``ia``. Frames with NaN times never pair."""
-    t_a, t_b = np.asarray(t_a, float), np.asarray(t_b, float)
-    ok_b = np.flatnonzero(np.isfinite(t_b))
-    if len(t_a) == 0 or ok_b.size == 0:
-        return np.zeros(0, int), np.zeros(0, int)
-    order = ok_b[np.argsort(t_b[ok_b], kind="stable")]
-    tb = t_b[order]
-    j = np.searchsorted(tb, t_a)
-    lo, hi = np.clip(j - 1, 0, len(tb) - 1), np.clip(j, 0, len(tb) - 1)
-    with np.errstate(invalid="ignore"):
-        pick = np.where(np.abs(t_a - tb[lo]) <= np.abs(t_a - tb[hi]), lo, hi)
-        dt = np.abs(t_a - tb[pick])
-        ok = dt <= tolerance_s
-    ia = np.flatnonzero(ok)
-    ib = order[pick[ok]]
-    # one-to-one: for each b keep the closest a
-    by = np.lexsort((dt[ia], ib))
-    keep = np.ones(len(by), bool)
-    keep[1:] = ib[by][1:] != ib[by][:-1]
-    sel = np.sort(by[keep])
-    return ia[sel], ib[sel]
+@dataclass(slots=True)
+class Pending:
+    """One camera's frame waiting for its set."""
+    camera: int
+    time: float              # host s
+    arrival: float           # monotonic s it arrived at the tap (offline: unused, 0)
+    uv: np.ndarray           # (k, 2) detections (px)
+    norm: np.ndarray | None = None   # their normalized (undistorted) coordinates
+    capture: float | None = None     # monotonic s it was captured (arrival less its extra delay)
+    index: int = -1                  # its place in its camera's frames (offline)
+
+
+@dataclass(slots=True)
+class FrameSet:
+    time: float                      # mean host s of its frames
+    uv: list[np.ndarray | None]      # per camera its detections, None: not in the set
+    norm: list[np.ndarray | None]    # and their normalized coordinates
+    first_arrival: float
+    last_arrival: float
+    capture: float = 0.0             # monotonic s its frames were captured (mean; see Pending)
+    index: list = field(default_factory=list)   # per camera its frame's ``Pending.index``, -1: none
+
+    @property
+    def n_cameras(self) -> int:
+        return sum(u is not None for u in self.uv)
+
+
+class FrameGrouper:
+    """The grouping rule (module docstring), online: :meth:`add` each camera's frames in the
+    order the camera sent them, :meth:`ready` gives the sets decided; ``unmatched`` counts the
+    frames that went into no set."""
+
+    def __init__(self, n_cameras: int, tolerance_s: float, wait_s: float, min_cameras: int = 2):
+        self.n = n_cameras
+        self.tolerance_s, self.wait_s = float(tolerance_s), float(wait_s)
+        self.min_cameras = int(min_cameras)
+        self.pending: list[deque[Pending]] = [deque() for _ in range(n_cameras)]
+        self.last_arrival: list[float | None] = [None] * n_cameras
+        self.started: float | None = None    # the first frame's arrival (a camera that has sent
+        self.unmatched = 0                   # nothing is quiet from then on)
+
+    def add(self, p: Pending) -> None:
+        self.pending[p.camera].append(p)
+        self.last_arrival[p.camera] = p.arrival
+        if self.started is None:
+            self.started = p.arrival
+
+    def ready(self, now: float, final: bool = False) -> list[FrameSet]:
+        """The sets decided at monotonic ``now``, oldest first. ``final``: no camera sends
+        another frame (the end of a recording): every set is decided."""
+        out = []
+        pending, n, tol, least = self.pending, self.n, self.tolerance_s, self.min_cameras
+        while True:
+            heads = [(q[0].time, c) for c, q in enumerate(pending) if q]
+            if not heads:
+                return out
+            heads.sort()
+            t0, c0 = heads[0]
+            members: list[Pending | None] = [None] * n
+            got = [pending[c0][0]]
+            members[c0] = got[0]
+            total, k = t0, 1
+            for t, c in heads[1:]:
+                if t - total / k > tol:      # later heads are further still
+                    break
+                members[c] = p = pending[c][0]
+                got.append(p)
+                total += t
+                k += 1
+            if len(heads) < n and not final and self._waits(now, got, k < least):
+                return out
+            for p in got:
+                pending[p.camera].popleft()
+            if k < least:
+                self.unmatched += k
+                continue
+            arrival = [p.arrival for p in got]
+            capture = [p.arrival if p.capture is None else p.capture for p in got]
+            out.append(FrameSet(total / k, [None if p is None else p.uv for p in members],
+                                [None if p is None else p.norm for p in members],
+                                min(arrival), max(arrival), sum(capture) / k,
+                                [-1 if p is None else p.index for p in members]))
+
+    def _waits(self, now: float, got: list[Pending], alone: bool) -> bool:
+        """Whether the set of ``got`` waits for a camera with nothing pending: one not quiet
+        (a frame from it within ``wait_s``; one that has sent none: within ``wait_s`` of the
+        first frame of any), or any when the set is ``alone`` (fewer cameras than it needs), at
+        most ``wait_s`` after its first frame arrived."""
+        if now - min(p.arrival for p in got) >= self.wait_s:
+            return False
+        last, started = self.last_arrival, self.started
+        return any(not q and (alone or now - (started if last[c] is None else last[c]) < self.wait_s)
+                   for c, q in enumerate(self.pending))
 
 
 def group_frames(times: list[np.ndarray], tolerance_s: float, min_cameras: int = 2) -> np.ndarray:
-    """Frame sets of N cameras: (S, N) frame indices (-1: that camera has no frame in the set),
-    in time order. Camera 0's frames start the sets; each further camera's frames join the set
-    nearest in time (its mean mapped time so far) within ``tolerance_s``, one-to-one
-    (:func:`pair_frames`), and a frame that joins none starts a set of its own. Sets with fewer
-    than ``min_cameras`` frames are left out. With two cameras the sets are exactly
-    ``pair_frames(times[0], times[1], tolerance_s)``."""
-    n_cams = len(times)
-    if n_cams == 2 and min_cameras == 2:
-        return np.column_stack(pair_frames(times[0], times[1], tolerance_s)).reshape(-1, 2)
-    t0 = np.asarray(times[0], float)
-    sets = np.full((len(t0), n_cams), -1, int)
-    sets[:, 0] = np.arange(len(t0))
-    tsum, tcount = np.where(np.isfinite(t0), t0, 0.0), np.isfinite(t0).astype(float)
-    for c in range(1, n_cams):
-        tc = np.asarray(times[c], float)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            mean = np.where(tcount > 0, tsum / np.maximum(tcount, 1), np.nan)
-        i_set, i_c = pair_frames(mean, tc, tolerance_s)
-        sets[i_set, c] = i_c
-        tsum[i_set] += tc[i_c]
-        tcount[i_set] += 1
-        alone = np.setdiff1d(np.flatnonzero(np.isfinite(tc)), i_c)
-        if alone.size:
-            extra = np.full((alone.size, n_cams), -1, int)
-            extra[:, c] = alone
-            sets = np.vstack([sets, extra])
-            tsum = np.concatenate([tsum, tc[alone]])
-            tcount = np.concatenate([tcount, np.ones(alone.size)])
-    keep = (sets >= 0).sum(axis=1) >= min_cameras
-    sets, tsum, tcount = sets[keep], tsum[keep], tcount[keep]
-    order = np.argsort(tsum / np.maximum(tcount, 1), kind="stable")
-    return sets[order]
+    """Frame sets of N cameras over a whole recording: (S, N) frame indices (-1: that camera
+    has no frame in the set), in time order. The batch form of :class:`FrameGrouper`: each
+    camera's frames with a time, in their order, run through the same rule as the live path
+    (the recording's end decides the last sets); frames with NaN times join no set."""
+    g = FrameGrouper(len(times), tolerance_s, math.inf, min_cameras)
+    for c, t in enumerate(times):
+        t = np.asarray(t, float)
+        for i, ti in zip(np.flatnonzero(np.isfinite(t)).tolist(), t[np.isfinite(t)].tolist()):
+            g.add(Pending(c, ti, 0.0, _NO_UV, None, None, i))
+    sets = g.ready(0.0, final=True)
+    return np.array([fs.index for fs in sets], int).reshape(-1, len(times))
 
 
 def frame_period(t: np.ndarray) -> float:

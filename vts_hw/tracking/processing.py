@@ -7,12 +7,12 @@ time with identities, each point with the cameras it was seen by.
 1. **Clocks.** Each camera's clock is fitted to host time from its index
    (:mod:`vts_hw.timing.camera_clock`); every frame gets a *mapped host time* from its JPEG stamp
    (a frame without a stamp: its receive time minus the median delay).
-2. **Pairing.** Each frame of the first camera is paired with the second camera's frame
-   nearest in mapped host time, if within half a frame period (one-to-one, the closer wins);
-   with more cameras, each further camera's frames join those sets the same way
-   (:func:`vts_hw.tracking.frame_sets.group_frames`) and a set needs two cameras. Frames left
-   over are reported (``Tracks.unpaired``) and not decoded. The cameras' own clocks may
-   differ by seconds: only mapped host times are compared.
+2. **Frame sets.** The frames of every camera are grouped by mapped host time with the live
+   path's own rule (:class:`vts_hw.tracking.frame_sets.FrameGrouper`, run over the recording
+   by :func:`~vts_hw.tracking.frame_sets.group_frames`): the oldest frame opens a set, the
+   other cameras' next frames join it while within half a frame period of its mean time, and a
+   set needs two cameras. Frames left over are reported (``Tracks.unpaired``) and not decoded.
+   The cameras' own clocks may differ by seconds: only mapped host times are compared.
 3. **Per chunk of frame sets, in worker processes** (:mod:`vts_hw.tracking.chunks`) (``workers`` = every core by default): the
    JPEGs are read from the ``.mjpeg`` files by the byte offsets of the index (one read per
    camera per chunk: no JPEG bytes go through pipes), decoded at full resolution
@@ -24,8 +24,10 @@ time with identities, each point with the cameras it was seen by.
    or more cameras: :func:`vts_hw.vision.multiview.match_views` per frame set (every pair of
    cameras, ambiguities withheld, each point triangulated from every camera that sees it).
    OpenCV's own threads are set to 1 in the workers (no oversubscription).
-4. **Identities** (main process, in time order): nearest-neighbour assignment (Hungarian) of
-   each pair's points to the tracks alive, within ``gate_mm``; a point left over starts a new
+4. **Identities** (main process, in time order): the live path's identity tracker
+   (:class:`vts_hw.tracking.identities.MarkerTracks`, run over the frame sets by
+   :func:`~vts_hw.tracking.identities.track_identities`): each set's points joined to the tracks
+   alive within ``gate_mm`` (Hungarian when several compete); a point left over starts a new
    marker id; a track unseen for ``max_gap_s`` ends.
 
 Clocks: every ``host_time`` here is the host's UTC epoch seconds as mapped from the cameras'
@@ -52,7 +54,7 @@ from vts_hw.tracking.chunks import triangulate_fast
 from vts_hw.recording.extent import available_cameras, recording_extent
 from vts_hw.recording.folder import load_manifest
 from vts_hw.recording.frames import CameraFrames, load_camera_frames
-from vts_hw.tracking.frame_sets import frame_period, group_frames, mapped_times, pair_frames
+from vts_hw.tracking.frame_sets import frame_period, group_frames, mapped_times
 from vts_hw.tracking.identities import track_identities
 from vts_hw.tracking.time_align import align_views
 from vts_hw.tracking.tracks import TRACKS_FORMAT, Tracks
@@ -63,7 +65,7 @@ from vts_hw.vision.multiview import ViewGeometry
 from vts_hw.vision.triangulate import PinholeCamera
 
 __all__ = ["Tracks", "ProcessSettings", "process_recording", "cameras_from_calibration",
-           "pair_frames", "group_frames", "triangulate_fast", "track_identities", "CameraFrames",
+           "group_frames", "triangulate_fast", "track_identities", "CameraFrames",
            "load_camera_frames", "TRACKS_FORMAT"]
 
 
@@ -72,8 +74,8 @@ class ProcessSettings:
     """Parameters of :func:`process_recording`.
 
     ``max_px``, ``ratio``, ``min_sep_px``: epipolar matching (see ``match_epipolar``).
-    ``pair_fraction``: frames pair when their mapped host times differ by at most this
-    fraction of the frame period. ``gate_mm``: tracking gate (mm) from a track's last
+    ``pair_fraction``: a frame joins a set when its mapped host time is within this fraction
+    of the frame period of the set's mean time (:class:`~vts_hw.tracking.frame_sets.FrameGrouper`). ``gate_mm``: tracking gate (mm) from a track's last
     position. ``max_gap_s``: a track not seen for this long ends (a later point gets a new id).
     ``latency_s``: known minimum exposure-to-receipt delay, subtracted from mapped times.
     ``chunk_pairs``: pairs per worker task (None: chosen from the pair count and workers).
