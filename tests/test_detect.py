@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from vts_hw.vision.detect import (Blob, DetectionResult, DetectorSettings, auto_threshold, detect,
-                           detect_jpeg)
+from vts_hw.vision.detect import (Blob, DetectionResult, DetectorSettings, auto_threshold,
+                                  candidate_boxes, detect, detect_jpeg)
 from vts_hw.sim_devices.render import Renderer, encode, polygon_centroid, polygon_coverage
 from vts_hw.sim_devices.scene import Scene
 
@@ -201,6 +201,23 @@ def test_detect_jpeg_decodes_then_detects():
     assert detect_jpeg(data) == direct
     with pytest.raises(ValueError):
         detect_jpeg(b"not a jpeg")
+
+
+def test_candidate_boxes_hold_every_marker_and_nothing_else():
+    """The first stage alone (what bench/detect_speed.py times as the floor): one box per
+    marker, each holding its marker's centre, the same threshold as detect's."""
+    scene, r, t = rig(phantom=True)
+    img = jpeg_frame(r, "cam1", t)
+    thr, median, boxes = candidate_boxes(img)
+    assert (thr, median) == auto_threshold(img) == (detect(img).threshold, detect(img).background)
+    truth = scene.truth("cam1", t)
+    assert len(boxes) == len(truth) == 12
+    step = DetectorSettings().step
+    for _, u, v in truth:  # inside exactly one box's extent at full resolution (0006)
+        assert sum((x - 1) * step < u < (x + w) * step and (y - 1) * step < v < (y + h) * step
+                   for x, y, w, h in boxes) == 1
+    with pytest.raises(ValueError, match="uint8"):
+        candidate_boxes(np.zeros((480, 640), np.float32))
 
 
 def test_bad_input_is_refused():

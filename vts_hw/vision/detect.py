@@ -134,10 +134,6 @@ def _threshold(img: np.ndarray, stride: int, s: DetectorSettings) -> tuple[float
 # ---------------------------------------------------------------- entry points
 def detect(gray: np.ndarray, settings: DetectorSettings = DEFAULT) -> DetectionResult:
     """Find the bright round blobs of a uint8 (H, W) image (see the module docstring)."""
-    if not isinstance(gray, np.ndarray) or gray.dtype.char != "B" or gray.ndim != 2:
-        raise ValueError("detect needs a grey uint8 image (H x W), got "
-                         f"{getattr(gray, 'dtype', type(gray).__name__)} "
-                         f"{getattr(gray, 'shape', '')}")
     thr, median, boxes = candidate_boxes(gray, settings)
     result = DetectionResult([], thr, median)
     if boxes:
@@ -151,6 +147,10 @@ def candidate_boxes(gray: np.ndarray, settings: DetectorSettings = DEFAULT
     """Steps 1 and 2 of :func:`detect` alone: ``(threshold, median, boxes)``, ``boxes`` the
     bounding boxes ``(x, y, w, h)`` of the above-threshold regions of the decimated view, in
     its samples. (bench/detect_speed.py times it: the floor under any measuring step.)"""
+    if not isinstance(gray, np.ndarray) or gray.dtype.char != "B" or gray.ndim != 2:
+        raise ValueError("detect needs a grey uint8 image (H x W), got "
+                         f"{getattr(gray, 'dtype', type(gray).__name__)} "
+                         f"{getattr(gray, 'shape', '')}")
     step = settings.step
     small = gray[::step, ::step].copy()  # contiguous, for OpenCV
     # The threshold's sample: about 300 pixels, taken from the decimated view.
