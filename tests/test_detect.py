@@ -185,13 +185,22 @@ def test_roundness_of_an_ellipse():
 def test_phantom_spheres_found(cam):
     scene, r, t = rig(phantom=True)
     truth = scene.truth(cam, t)
-    res = detect(jpeg_frame(r, cam, t))
+    img = jpeg_frame(r, cam, t)
+    res = detect(img)
     assert len(truth) == 12
     assert len(res.blobs) == 12 and res.rejected == []
     found = match(res.blobs, truth, 0.1)
     assert set(found) == {m for m, _, _ in truth}
     for m in ("S1", "S2", "S3", "S4", "S5", "S6", "S7"):  # 13 mm spheres, about 12 px
         assert 70 < found[m].area < 160 and found[m].roundness > 0.85
+    # The first stage alone (what bench/detect_speed.py times as the floor): detect's threshold,
+    # one box per marker, each marker's centre inside its box's extent at full resolution (0006).
+    thr, median, boxes = candidate_boxes(img)
+    assert (thr, median) == (res.threshold, res.background) and len(boxes) == 12
+    step = DetectorSettings().step
+    for _, u, v in truth:
+        assert sum((x - 1) * step < u < (x + w) * step and (y - 1) * step < v < (y + h) * step
+                   for x, y, w, h in boxes) == 1
 
 
 def test_detect_jpeg_decodes_then_detects():
@@ -203,28 +212,13 @@ def test_detect_jpeg_decodes_then_detects():
         detect_jpeg(b"not a jpeg")
 
 
-def test_candidate_boxes_hold_every_marker_and_nothing_else():
-    """The first stage alone (what bench/detect_speed.py times as the floor): one box per
-    marker, each holding its marker's centre, the same threshold as detect's."""
-    scene, r, t = rig(phantom=True)
-    img = jpeg_frame(r, "cam1", t)
-    thr, median, boxes = candidate_boxes(img)
-    assert (thr, median) == auto_threshold(img) == (detect(img).threshold, detect(img).background)
-    truth = scene.truth("cam1", t)
-    assert len(boxes) == len(truth) == 12
-    step = DetectorSettings().step
-    for _, u, v in truth:  # inside exactly one box's extent at full resolution (0006)
-        assert sum((x - 1) * step < u < (x + w) * step and (y - 1) * step < v < (y + h) * step
-                   for x, y, w, h in boxes) == 1
-    with pytest.raises(ValueError, match="uint8"):
-        candidate_boxes(np.zeros((480, 640), np.float32))
-
-
 def test_bad_input_is_refused():
     with pytest.raises(ValueError):
         detect(np.zeros((480, 640), np.float32))
     with pytest.raises(ValueError):
         detect(np.zeros((480, 640, 3), np.uint8))
+    with pytest.raises(ValueError, match="uint8"):
+        candidate_boxes(np.zeros((480, 640), np.float32))
     with pytest.raises(ValueError):
         DetectorSettings(step=0)
 
