@@ -75,6 +75,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from badkit.classes import (Case, Verdict, common, float_cases, foreign_cases, number_judge,  # noqa: E402
                             plain, probe_stores, sha, store_command_cases)
 from badkit import full_disk  # noqa: E402
+from badkit import session_files  # noqa: E402
 from badkit.forked import FORK_LOCK, fork_vts  # noqa: E402
 from badkit import endless_files, signals, slow_peers  # noqa: E402  (issue 21 round 2)
 from badkit import console_disk, root_writes  # noqa: E402  (issue 32)
@@ -111,7 +112,7 @@ def skipped_cases(cmd_path: tuple[str, ...], fx: "Fixtures") -> list[Case]:
 QUICK = {("commission",): ["--listen", "0.2"]}
 NUMBERS = ["nan", "inf", "-1", "1e309", "abc"]
 CLASSES = ("paths", "numbers", "floats", "configs", "foreign stores", full_disk.CLASS, root_writes.CLASS,
-           signals.CLASS, console_disk.CLASS, WEB, slow_peers.CLASS, endless_files.CLASS)
+           signals.CLASS, console_disk.CLASS, WEB, slow_peers.CLASS, endless_files.CLASS, session_files.CLASS)
 #: the classes that need the peers of badkit.slow_peers running
 NEED_PEERS = (slow_peers.CLASS,)
 #: swept unless --classes says otherwise (the two of round 2 take minutes of peers: --classes all;
@@ -352,6 +353,8 @@ def plan(only: str | None, classes, fx: Fixtures, cli, peers=None, full: bool = 
         planned += signals.cases(full_disk.inputs(fx.root), only, full)
     if console_disk.CLASS in classes:
         planned += console_disk.cases(fx.root, only, full)
+    if session_files.CLASS in classes:
+        planned += session_files.cases(full_disk.inputs(fx.root), only)
     if peers is not None:
         planned += slow_peers.cases(fx, only, peers)
     return [c for c in planned if c.cls in classes]

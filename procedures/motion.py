@@ -161,7 +161,14 @@ class MotionAnalysis:
             self.problems.append(f"live model not used: it is in the {model.frame.upper()} frame, the tracks in the "
                                  f"{series.frame.upper()} frame (give the mapping the scan used)")
             model = None
-        self.result = analyze_motion(series, self.settings, span=span, missing=missing, model=model)
+        if model is not None:
+            try:
+                self.result = analyze_motion(series, self.settings, span=span, missing=missing, model=model)
+            except DataError as exc:          # the model is not this recording's: learn one from it
+                self.problems.append(f"live model not used: {exc}")
+                model = None
+        if model is None:
+            self.result = analyze_motion(series, self.settings, span=span, missing=missing)
         self.problems += list(self.result.notes)
         if model is not None:
             lm = self.manifest.get("live_motion") or {}

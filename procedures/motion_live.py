@@ -16,6 +16,7 @@ import numpy as np
 
 from vts_hw.errors import DataError
 from vts_hw.motion.agreement import Agreement, compare_live, explain_alerts
+from vts_hw.motion.exports import time_origin
 from vts_hw.motion.patient_model import PatientModel
 from vts_hw.tracking.live.pose_log import LivePoses, load_model, read_poses
 
@@ -88,5 +89,5 @@ def agreement(live: LiveRecord, result, tracks, alert_mm: float, alert_deg: floa
                          PAIR_FRACTION * period)
     alerts = [{"onset": float(to_series(a["onset"])), "time": float(to_series(a["time"]))} for a in live.alerts]
     agree.alerts = explain_alerts(alerts, result.events, pose.t, pose.R, pose.T, result.model.centre,
-                                  alert_mm, alert_deg)
+                                  alert_mm, alert_deg, t0=time_origin(result))
     return agree

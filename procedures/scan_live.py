@@ -44,6 +44,7 @@ from vts_hw.tracking.live.watch import TRACKING, BlindAlert, Change, Episode
 from vts_hw.lifeline import child_options
 from vts_hw.procedures.sync_inputs import load_calibration, load_mapping
 from vts_hw.vision.camera_set import covered_names, named_cameras
+from vts_hw.vision.marker_roles import TableSpace
 
 __all__ = ["LiveMotion"]
 
@@ -118,9 +119,10 @@ class LiveMotion:
         offsets = {n: (session.cam_notes.get(n, {}).get("clock_offset_before") or {}).get("offset_s", 0.0)
                    for n in cams}
         fps = min(session.rig.camera(n).fps for n in cams)
+        space = TableSpace.from_settings(self.rig.aim, mapping) if mapping is not None else None
         self.tracker = LiveTracker(cams, self.motion, mapping=mapping, clock_offsets=offsets, fps=fps,
                                    settings=self.settings, queue_len=self.queue_len, on_alert=self._queue_alert,
-                                   on_event=self._queue_event, on_names=self.on_names)
+                                   on_event=self._queue_event, on_names=self.on_names, space=space)
 
     def on_frame(self, camera: str, frame) -> None:
         if self.tracker is not None:

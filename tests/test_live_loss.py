@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 
 from vts_hw.tracking.live.estimator import LiveEstimator, LiveSettings
+from vts_hw.vision.aim_settings import AimSettings
+from vts_hw.vision.marker_roles import TableSpace
 from vts_hw.sim_devices.patient import BodyMotion, BodyMove, Breathing, Patient
 from vts_hw.sim_devices.scene import Scene
 
@@ -18,6 +20,9 @@ MOTION = SimpleNamespace(alert_mm=3.0, alert_deg=2.0, alert_after_s=1.0)
 # the reference room's wall markers: behind the gantry, 0.38-0.49 m from the FOV centre along
 # the axis, inside the field of view's box as the cameras see it -- still, like a still patient
 WALL = np.array([m.center for m in Scene.reference(seed=1).wall_markers])
+# the room's table-and-gantry volume as the simulated rig writes it: the table stops 50 mm short of
+# those walls (nearer the FOV than a real room's; decision 0086)
+SPACE = TableSpace.from_settings(AimSettings(table_z_mm=(-1200.0, float(WALL[:, 2].min()) - 50.0)))
 RATE = 25.0
 
 
@@ -28,7 +33,7 @@ def bursts(t: float, every: float = 3.0, length: float = 1.04, phase: float = 0.
 
 def _run(patient, duration, lost=lambda t: False, frame="spect", seed=0, drop=0.0):
     rng = np.random.default_rng(seed)
-    est = LiveEstimator(MOTION, LiveSettings(reference_s=10.0), frame=frame)
+    est = LiveEstimator(MOTION, LiveSettings(reference_s=10.0), frame=frame, space=SPACE)
     alerts, errors, learned = [], [], None
     for t in np.arange(0.0, duration, 1.0 / RATE):
         t = float(t)
@@ -74,13 +79,13 @@ def test_breathing_through_bursts_never_alerts():
 
 def test_a_patient_who_does_not_breathe_is_tracked_rigidly_and_alerted_for():
     """Markers that do not breathe (held breath, markers on the head): the reference is every
-    marker inside the bore (the still wall behind the gantry is left out), fitted rigidly; the
+    still marker inside the table-and-gantry volume (the still wall behind the gantry is left out), fitted rigidly; the
     bands say no breathing was seen; a 10.7 mm move alerts."""
     move = BodyMove(20.0, 20.8, (1.0, 0.0, 1.5), (6.0, 8.0, 3.0))
     p = Patient(Breathing(0.0, 60.0, 2, enabled=False), BodyMotion([move]), 2)
     est, alerts, err, learned = _run(p, 30.0, bursts)
     assert est.phase == "tracking" and learned < 12.0, est.note
-    assert est.model.mean.shape[0] == 8                                  # the patient's, not the wall's
+    assert est.model.n_markers == 8                                      # the patient's, not the wall's
     snap = est.snapshot()
     assert [b.breathes for b in snap.bands] == [False, False]
     assert all(np.isnan(b.rate_per_min) for b in snap.bands) and "no breathing seen" in est.reference_note

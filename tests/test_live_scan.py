@@ -23,6 +23,8 @@ from vts_hw.sim_devices.patient import BodyMove, add_patient
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.sim_devices.scenarios.sync_session import run_scan_cli
 
+from inprocess_cli import vts
+
 DURATION_S = 12.0
 REFERENCE_S = 4.0
 MOVE_AT_S = 6.5          # after the first frame (the scan starts a moment later); the reference is learned by then
@@ -80,7 +82,7 @@ def _recording_whole(session, manifest):
             assert img is not None and img.shape == (480, 640)
 
 
-def test_a_body_move_raises_one_alert(patient_rig, tmp_path):
+def test_a_body_move_raises_one_alert(patient_rig, tmp_path, capsys):
     rig, rig_yaml, patient = patient_rig
     session = tmp_path / "scan"
     rc, out, err, m, move = _scan(rig, rig_yaml, session, patient,
@@ -103,6 +105,15 @@ def test_a_body_move_raises_one_alert(patient_rig, tmp_path):
     assert (tmp_path / "alerts.txt").read_text().splitlines() == [a["text"]]
     assert "alert command" in err and "failed (exit 3)" in err
     assert any("failed (exit 3)" in p for p in live["command_problems"])
+    # one model (issue 33): the session keeps the live model and poses; the offline analysis fits
+    # that model, its poses agree with the live ones, and it explains the alert
+    assert live["model_file"] == "live_model.json" and live["summary"]["poses_kept"] > 0
+    code, out, _ = vts(capsys, "motion", "analyze", session, "--config", rig_yaml, "--json", "--workers", "1")
+    assert code in (0, 10, 20), out
+    agree = json.loads(out)["live"]
+    assert agree["compared"] >= 0.9 * live["summary"]["poses_kept"] and agree["unpaired"] == 0
+    assert agree["rms_mm"] <= 0.1 and agree["rms_deg"] <= 0.05, agree
+    assert [x["explained"] for x in agree["alerts"]] == [True], agree["alerts"]
 
 
 def test_breathing_alone_raises_no_alert(patient_rig, tmp_path):

@@ -5,6 +5,7 @@ kept in a session and read back, and the live/offline comparison (issue 33 §1).
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -117,3 +118,39 @@ def test_the_comparison_measures_the_difference_and_explains_alerts():
                          margin_s=0.2)
     assert out[0]["explained"] and "5.0 mm" in out[0]["by"]
     assert not out[1]["explained"] and "at most 0.00 mm" in out[1]["why"]
+
+
+def test_the_analysis_fits_the_sessions_live_model_and_a_bad_one_never_stops_it(tmp_path):
+    """A session holding a live model and poses: the offline analysis fits that model (the same
+    poses where the live path had the same points) and compares; a model of another patient, or
+    one that cannot be read, is said and the analysis learns its own."""
+    from motion_truth import patient_tracks
+
+    from vts_hw.procedures.motion import MotionAnalysis
+    _, tracks, _, _ = patient_tracks(seed=5, duration_s=30.0, n_moves=1)
+    first = MotionAnalysis(tmp_path / "none", tracks=tracks).analyze()
+    session = tmp_path / "session"
+    session.mkdir()
+    save_model(session, first.result.model)
+    pose = first.result.pose
+    rows = np.flatnonzero(pose.valid)[::7]
+    log = PoseLog(session)
+    log.write([LivePose(float(pose.t[k]) + 0.002, pose.R[k], pose.T[k], float(pose.resp[k]), float(pose.rms_mm[k]),
+                        int(pose.n_markers[k]), 2.0, "still", 0.0, 0.0, "known", 0.8) for k in rows])
+    log.close()
+    a = MotionAnalysis(session, tracks=tracks).analyze()
+    assert any("learned live" in p for p in a.problems)
+    live = a.results_data()["live"]
+    assert live["compared"] == len(rows) and live["rms_mm"] < 0.01 and live["rms_deg"] < 0.005, live
+    assert "live: live and offline poses agree to" in a.results()
+    (session / MODEL_FILE).write_text(json.dumps({**first.result.model.to_dict(),
+                                                  "reference_mm": [[5000.0 + k, 0.0, 0.0] for k in range(8)],
+                                                  "breathing_vectors": [[0.0, 1.0, 0.0]] * 8,
+                                                  "bands": [list(range(8))]}))
+    b = MotionAnalysis(session, tracks=tracks).analyze()
+    assert any(p.startswith("live model not used: only") for p in b.problems), b.problems
+    assert b.live_agreement is None and b.result.pose.valid.sum() == first.result.pose.valid.sum()
+    (session / MODEL_FILE).unlink()
+    os.mkfifo(session / MODEL_FILE)
+    c = MotionAnalysis(session, tracks=tracks).analyze()
+    assert any(p.startswith("live model not used:") and "not a regular file" in p for p in c.problems), c.problems

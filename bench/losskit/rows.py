@@ -209,6 +209,7 @@ def score(scan, loss: float, load: bool, seed: int, bank_live: int) -> dict:
            "status": scan.manifest.get("status"),
            "watched": ((scan.manifest.get("live_motion") or {}).get("summary") or {}).get("watched")}
     row["live"] = live(scan, moves)
+    row["agree"] = (scan.analysis or {}).get("live")       # live poses against offline ones (issue 33)
     if scan.analysis is None:
         row["offline"] = None
         row["bad"] = row["live"]["bad"] + [scan.analysis_error or "no analysis"]

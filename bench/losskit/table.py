@@ -5,6 +5,7 @@ from __future__ import annotations
 from losskit.truth import POSE_GOAL, RATE_GOAL, START_GOAL
 
 GOAL_LOSS = 20.0          # %: up to this loss every figure must meet its goal
+AGREE_GOAL = (0.1, 0.05)  # mm, deg RMS: the live poses against the offline ones of the same model (issue 33)
 
 
 def header(a, cores: int, load) -> str:
@@ -56,12 +57,22 @@ def _alerts(lv) -> str:
     return s + (f" {none} none" if none else "") + (f" +{lv['other_alerts']} other" if lv["other_alerts"] else "")
 
 
+def _agree(a) -> str:
+    """The live poses against the offline ones (the analysis' ``live``), and the alerts explained."""
+    if not a or not a.get("compared"):
+        return "-" if not a else f"none compared of {a['live_poses']}"
+    al = a.get("alerts") or []
+    return (f"{a['rms_mm']:.3f} ({a['worst_mm']:.3f}) / {a['rms_deg']:.4f} ({a['worst_deg']:.4f}); "
+            f"{sum(x['explained'] for x in al)}/{len(al)}")
+
+
 def row_line(r) -> list[str]:
     if r is None:
         return ["| case | lost % (+extra) | covered: reported / true | breathing /min (error) | truth | pose RMS mm / deg "
                 "| moves found/true, max start error | alert s after start (max) | NOT TRACKING s: reported / truly "
-                "(unreported); of it frames too late | unknown/ bounded | not flagged | scan + analysis s |",
-                "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                "(unreported); of it frames too late | live vs offline pose RMS (worst) mm / deg; alerts explained "
+                "| unknown/ bounded | not flagged | scan + analysis s |",
+                "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     lv, o = r["live"], r["offline"]
     lost = f"{100 * r['dropped']:.1f} (+{r['extra']})" + (f" {r['bank_live']} live" if r["bank_live"] else "")
     nt = ("-" if lv["reported"] is None else
@@ -73,7 +84,8 @@ def row_line(r) -> list[str]:
         off = [f"{100 * o['covered']:.1f} / {100 * o['true_covered']:.1f} %", _rate(o), f"{o['rate']['truth']:.2f}",
                f"{o['pose'][0]:.3f} / {o['pose'][1]:.3f}"]
     line = (f"| {_case(r)} | {lost} | {off[0]} | {off[1]} | {off[2]} | {off[3]} | "
-            f"{'-' if o is None else _moves(o)} | {_alerts(lv)} | {nt} | {r['flagged']} | {len(r['bad'])} | "
+            f"{'-' if o is None else _moves(o)} | {_alerts(lv)} | {nt} | {_agree(r.get('agree'))} | {r['flagged']} | "
+            f"{len(r['bad'])} | "
             f"{r['wall_s']:.0f} + {r['analysis_s']:.0f} |")
     return [line] + [f"|   ^ not flagged: {b} |" for b in r["bad"]]
 
@@ -114,6 +126,13 @@ def verdicts(rows) -> tuple[list[str], bool]:
          [r for r in upto if not moves_ok(r)])
     line(f"up to {GOAL_LOSS:g} % lost: every move alerted <= alert_after_s + 0.5 s after its start, no other alert",
          upto, [r for r in upto if not alert_ok(r)])
+    def agree_ok(r):
+        a = r.get("agree")
+        return bool(a and a.get("compared") and a["rms_mm"] <= AGREE_GOAL[0] and a["rms_deg"] <= AGREE_GOAL[1]
+                    and all(x["explained"] for x in a.get("alerts") or []))
+
+    line(f"up to {GOAL_LOSS:g} % lost: live and offline poses agree <= {AGREE_GOAL[0]} mm / {AGREE_GOAL[1]} deg RMS, "
+         f"every live alert explained offline", upto, [r for r in upto if not agree_ok(r)])
     line("any loss: no figure outside its goal that is not flagged unknown or bounded", rows,
          [r for r in rows if r["bad"]])
     line("any loss: no blind time unreported (each stretch > 0.5 s without frames NOT TRACKING in the manifest)",

@@ -104,10 +104,10 @@ def compare_live(t_live, R_live, T_live, t_off, R_off, T_off, centre, tolerance_
 
 
 def explain_alerts(alerts, events, t_off, R_off, T_off, centre, alert_mm: float, alert_deg: float,
-                   margin_s: float = 1.0) -> list[dict]:
-    """Per live alert (``onset``, ``time``: on the offline clock; ``t_onset``/``t_alert`` kept
-    for the report), whether the offline poses explain it: ``explained`` True with ``by`` (the
-    event's start and size, or the offline move), else False with ``why``."""
+                   margin_s: float = 1.0, t0: float = 0.0) -> list[dict]:
+    """Per live alert (``onset``, ``time``: on the offline clock), whether the offline poses
+    explain it: ``explained`` True with ``by`` (the event's start and size, or the offline move),
+    else False with ``why`` (times in the sentences from ``t0``)."""
     out = []
     for a in alerts:
         onset, at = float(a["onset"]), float(a["time"])
@@ -115,7 +115,7 @@ def explain_alerts(alerts, events, t_off, R_off, T_off, centre, alert_mm: float,
         ev = [e for e in events if e.t_end >= onset - margin_s and e.t_start <= at + margin_s]
         if ev:
             e = max(ev, key=lambda e: e.centre_mm)
-            entry.update(explained=True, by=(f"the offline body move from {e.t_start:.2f} to {e.t_end:.2f} s: "
+            entry.update(explained=True, by=(f"the offline body move from {e.t_start - t0:.2f} to {e.t_end - t0:.2f} s: "
                                              f"{e.centre_mm:.1f} mm at the centre, {e.angle_deg:.1f} deg"),
                          event_start=e.t_start)
             out.append(entry)

@@ -1,10 +1,11 @@
 """Which tracked markers are the patient's, and in which band.
 
-Marker ids are whatever the tracker gave, so the patient's markers are found by behaviour: a
-marker that **breathes** (its band-passed 0.08-1 Hz motion above ``breath_mm`` RMS) or that
-**moved** with the others (a range of its slow motion above ``moved_mm``) and is seen in at
-least ``min_seen`` of the frames. Wall markers and anything else still are left out, and every
-marker's reason is kept. The patient's markers are then grouped into bands by geometry: sorted
+Marker ids are whatever the tracker gave, so the patient's markers are found by behaviour, by
+the one identity of every marker in view (:func:`vts_hw.vision.marker_roles.roles_of_positions`,
+the same the live path, the daily QA and the console use): a marker seen in at least
+``min_seen`` of the frames whose position (low-passed at 1 Hz) **moved** -- breathing or a body
+move -- is the patient's. Wall markers, the table's and anything else still are left out, and
+every marker's reason is kept (with its breathing RMS at 0.08-1 Hz and its slow range). The patient's markers are then grouped into bands by geometry: sorted
 along the line they spread most on, split at the largest gap when it is over ``band_gap_mm``
 (the chest and abdomen bands are ~20 cm apart, the markers of one band ~5-15 cm).
 """
@@ -17,12 +18,15 @@ import numpy as np
 
 from vts_hw.errors import DataError
 from vts_hw.motion.signal import bandpass, lowpass, sample_rate
+from vts_hw.vision.marker_roles import ABDOMEN, CHEST, PATIENT, roles_of_positions
 
 __all__ = ["Bands", "find_bands", "band_names", "split_bands"]
 
 #: the head end of the table in the SPECT frame: -Z (docs/design.md's room: the patient supine, head
 #: first, towards the cameras over the head end)
 HEAD_DIRECTION = np.array([0.0, 0.0, -1.0])
+PATIENT_ROLES = (PATIENT, CHEST, ABDOMEN)
+SMOOTH_HZ = 1.0       # positions low-passed at this before the identity is asked (breathing is under 1 Hz)
 NAME_MIN_MM = 50.0    # two bands are told apart when their centres are this far apart along the body
 
 
@@ -44,7 +48,7 @@ def _fs(t) -> int:
     return max(1, int(round(sample_rate(t))))
 
 
-def find_bands(series, *, breath_mm: float = 0.25, moved_mm: float = 1.5, min_seen: float = 0.3,
+def find_bands(series, *, breath_mm: float = 0.25, min_seen: float = 0.3,
                band_gap_mm: float = 60.0, frames=None) -> Bands:
     """``frames``: (F,) the rows that had frames (a marker is seen in a share of those: time
     without frames is no marker's fault); None: every row."""
@@ -55,11 +59,12 @@ def find_bands(series, *, breath_mm: float = 0.25, moved_mm: float = 1.5, min_se
     M = P.shape[1]
     rms = np.zeros(M)
     rng = np.zeros(M)
-    why = []
-    patient = []
+    why = [""] * M
+    patient, candidates = [], []
+    X = np.full(P.shape, np.nan)
     for m in range(M):
         if frac[m] < min_seen:
-            why.append(f"seen in {100 * frac[m]:.0f} % of the frames (< {100 * min_seen:.0f} %)")
+            why[m] = f"seen in {100 * frac[m]:.0f} % of the frames (< {100 * min_seen:.0f} %)"
             continue
         ok = seen[:, m]
         first, last = np.flatnonzero(ok)[[0, -1]]
@@ -71,14 +76,19 @@ def find_bands(series, *, breath_mm: float = 0.25, moved_mm: float = 1.5, min_se
         rms[m] = float(np.sqrt(np.nanmedian([np.nanmean(w) for w in win if np.isfinite(w).sum() > 10] or [0.0])))
         slow = lowpass(t[sl], P[sl, m], 0.1)[ok[sl]]
         rng[m] = float(np.max(np.linalg.norm(slow - np.median(slow, axis=0), axis=1)))
-        if rms[m] >= breath_mm:
+        X[sl, m] = np.where(ok[sl, None], lowpass(t[sl], P[sl, m], SMOOTH_HZ), np.nan)
+        candidates.append(m)
+    # what each marker is: the one identity (vision.marker_roles), on positions smoothed at 1 Hz
+    # (breathing and moves kept, a far marker's triangulation jitter not taken for motion)
+    roles = roles_of_positions(X, frame=series.frame) if candidates else []
+    for m in candidates:
+        r = roles[m]
+        if r.role in PATIENT_ROLES:
             patient.append(m)
-            why.append(f"breathes ({rms[m]:.2f} mm RMS at 0.08-1 Hz)")
-        elif rng[m] >= moved_mm:
-            patient.append(m)
-            why.append(f"moved ({rng[m]:.1f} mm) without breathing")
+            why[m] = (f"breathes ({rms[m]:.2f} mm RMS at 0.08-1 Hz)" if rms[m] >= breath_mm else
+                      f"moved ({rng[m]:.1f} mm) without breathing") + f": {r.reason}"
         else:
-            why.append(f"still (breathing {rms[m]:.2f} mm RMS, moved {rng[m]:.1f} mm): not the patient's")
+            why[m] = f"{r.role}: {r.reason}: not the patient's"
     if len(patient) < 3:
         raise DataError(f"only {len(patient)} marker(s) breathe or move: the patient's band markers need "
                         f"at least 3 seen in {100 * min_seen:.0f} % of the frames (markers: "

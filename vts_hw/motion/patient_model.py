@@ -37,6 +37,11 @@ __all__ = ["PatientModel", "InstantPose", "learn_model", "rigid_poses", "back_to
 MIN_MARKERS = 3
 MODEL_FORMAT = "vts-hw patient model v1"
 ROBUST_MM = (10.0, 5.0, 3.0)     # Tukey scales of the fit's iterations (the last from then on)
+#: a frame's fit stops, at the last robust scale, once its step is below these: rad of the turn,
+#: mm of the shift and of the breathing signal (docs/decisions/0093)
+CONVERGED = (1e-10, 1e-8)
+MAX_MM = 1e5          # a model read back: positions further than this from the origin are not a room's
+MAX_VECTOR = 100.0    # ... nor breathing vectors longer than this (they are scaled to the largest: 1)
 MIN_BREATH_MM = 0.6   # the marker that breathes most moves at least this (5th to 95th percentile) in
                       # the reference period, or the model has no breathing term (a still patient)
 
@@ -66,12 +71,25 @@ def rigid_poses(P, seen, ref, scales=(60.0, 40.0), weights=None):
     return R, T, w
 
 
+_EYE3 = np.eye(3)
+_EYE7 = np.eye(7)
+_DIAG7 = np.arange(7)
+
+
+def _rotation(w):
+    """(F, 3) rotation vectors -> (F, 3, 3) matrices (Rodrigues)."""
+    t = np.sqrt(np.sum(w * w, axis=1))[:, None, None] / np.pi
+    K = _skew(w)
+    # I + sin(t)/t [w]x + (1 - cos t)/t^2 [w]x^2, the factors as sinc (no loss of digits near 0)
+    return _EYE3 + np.sinc(t) * K + (0.5 * np.sinc(0.5 * t) ** 2) * (K @ K)
+
+
 def _skew(q):
     """(..., 3) -> (..., 3, 3) cross-product matrices."""
-    z = np.zeros(q.shape[:-1])
-    return np.stack([np.stack([z, -q[..., 2], q[..., 1]], -1),
-                     np.stack([q[..., 2], z, -q[..., 0]], -1),
-                     np.stack([-q[..., 1], q[..., 0], z], -1)], -2)
+    out = np.zeros(q.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -q[..., 2], q[..., 1], -q[..., 0]
+    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = q[..., 2], -q[..., 1], q[..., 0]
+    return out
 
 
 @dataclass(frozen=True)
@@ -144,7 +162,9 @@ class PatientModel:
         """Per frame, ``(R, T, s)`` minimising ``sum_i |P_i - R (r_i + v_i s) - T|^2`` over the
         markers seen (Gauss-Newton from ``R0, T0, s0``; without them from a robust rigid fit),
         each point weighted by Tukey's biweight of its residual at the scale ``robust_mm[k]`` in
-        iteration k. Returns R (F,3,3), T (F,3), s (F,), rms (F,) mm over the points with
+        iteration k; at most ``iterations``, a frame stopping once, at the last scale, its step
+        is below :data:`CONVERGED` (the same frame stops at the same step however many frames are
+        fitted with it). Returns R (F,3,3), T (F,3), s (F,), rms (F,) mm over the points with
         weight, and used (F, M): the points that kept a weight; NaN poses with fewer than three."""
         P = np.asarray(P, float)
         seen = np.isfinite(P[..., 0]) if seen is None else np.asarray(seen, bool)
@@ -161,39 +181,47 @@ class PatientModel:
         s = np.zeros(F) if s0 is None else np.where(np.isfinite(s0), s0, 0.0)
         breathing = self.breathes and bool(np.any(np.abs(v) > 0))
         Pz = np.where(seen[..., None], P, 0.0)
-        wm = seen.astype(float)
-        eye7 = np.eye(7)
+        seen_f = seen.astype(float)
+        wm = seen_f
+        active = ok.copy()                   # frames still iterating
+        last_scale = max(len(robust_mm) - 1, 0) if robust_mm else 0
+        J = np.zeros((F, M, 3, 7))
+        J[..., 3:6] = _EYE3
         for it in range(iterations):
-            body = ref[None] + v[None] * s[:, None, None]                 # (F, M, 3)
-            q = np.einsum("fij,fmj->fmi", R, body)
+            Rt = R.transpose(0, 2, 1)
+            q = (ref[None] + v[None] * s[:, None, None]) @ Rt               # (F, M, 3): R (r + v s)
             e = Pz - q - T[:, None]
             c = robust_mm[min(it, len(robust_mm) - 1)] if robust_mm else np.inf
-            u = np.clip(np.linalg.norm(e, axis=2) / c, 0.0, 1.0)
-            wm = np.where(seen, (1 - u ** 2) ** 2, 0.0)
-            enough = (wm > 0).sum(axis=1) >= MIN_MARKERS
-            wm = np.where(enough[:, None], wm, seen.astype(float))       # too few left: unweighted
-            w = wm[..., None]
-            e = e * w
-            J = np.zeros((F, M, 3, 7))
-            J[..., :3] = -_skew(q)
-            J[..., 3:6] = np.eye(3)
-            J[..., 6] = np.einsum("fij,mj->fmi", R, v)
-            J *= w[..., None]
-            N = np.einsum("fmki,fmkj->fij", J, J)
-            g = np.einsum("fmki,fmk->fi", J, e)
-            scale = np.trace(N, axis1=1, axis2=2)[:, None] / 7.0 + 1e-9
-            N += eye7[None] * 1e-9 * scale[:, :, None]
+            w = np.where(seen, (1.0 - np.minimum(np.sum(e * e, axis=2) / (c * c), 1.0)) ** 2, 0.0)
+            enough = np.count_nonzero(w, axis=1) >= MIN_MARKERS
+            w = np.where(enough[:, None], w, seen_f)                      # too few left: unweighted
+            wm = np.where(active[:, None], w, wm)                         # a frame stopped keeps its own
+            # J = [-[q]x, I, R v] per point, its rows weighted by w
+            J[..., 0, 1], J[..., 0, 2], J[..., 1, 2] = q[..., 2], -q[..., 1], q[..., 0]
+            J[..., 1, 0], J[..., 2, 0], J[..., 2, 1] = -q[..., 2], q[..., 1], -q[..., 0]
+            J[..., 6] = v @ Rt
+            Jw = (J * w[..., None, None]).reshape(F, 3 * M, 7)
+            Jt = Jw.transpose(0, 2, 1)
+            N = Jt @ Jw
+            g = (Jt @ (e * w[..., None]).reshape(F, 3 * M, 1))[..., 0]
+            scale = np.trace(N, axis1=1, axis2=2) / 7.0 + 1e-9
+            N[:, _DIAG7, _DIAG7] += 1e-9 * scale[:, None]
             if not breathing:
                 N[:, 6, :] = 0.0
                 N[:, :, 6] = 0.0
                 N[:, 6, 6] = 1.0
                 g[:, 6] = 0.0
-            N[~ok] = eye7
-            g[~ok] = 0.0
+            N[~active] = _EYE7
+            g[~active] = 0.0
             dx = np.linalg.solve(N, g[..., None])[..., 0]
-            R = np.einsum("fij,fjk->fik", Rotation.from_rotvec(dx[:, :3]).as_matrix(), R)
+            R = _rotation(dx[:, :3]) @ R
             T = T + dx[:, 3:6]
             s = s + dx[:, 6]
+            if it >= last_scale:
+                active &= ~((np.abs(dx[:, :3]).max(axis=1) < CONVERGED[0])
+                            & (np.abs(dx[:, 3:]).max(axis=1) < CONVERGED[1]))
+                if not active.any():
+                    break
         body = ref[None] + v[None] * s[:, None, None]
         used = seen & (wm > 0)
         res = np.where(used[..., None], P - np.einsum("fij,fmj->fmi", R, body) - T[:, None], 0.0)
@@ -244,6 +272,10 @@ class PatientModel:
                            float)
             if ref.ndim != 2 or ref.shape[1:] != (3,) or vec.shape != ref.shape or len(ref) < MIN_MARKERS:
                 raise ValueError("reference_mm and breathing_vectors must be the same list of 3 or more [x, y, z]")
+            if np.isfinite(ref).all(axis=1).sum() < MIN_MARKERS or not (np.abs(ref[np.isfinite(ref)]) <= MAX_MM).all():
+                raise ValueError(f"reference_mm needs 3 or more finite positions within {MAX_MM:g} mm of the origin")
+            if not np.isfinite(vec).all() or not (np.abs(vec) <= MAX_VECTOR).all():
+                raise ValueError(f"breathing_vectors must be finite, each part within {MAX_VECTOR:g}")
             bands = [[int(i) for i in g] for g in d["bands"]]
             if any(i < 0 or i >= len(ref) for g in bands for i in g):
                 raise ValueError("a band names a marker the model does not have")

@@ -35,7 +35,7 @@ from vts_hw.vision.aim_geometry import fov_centre
 from vts_hw.vision.aim_settings import DEFAULT_AIM, AimSettings
 
 __all__ = ["WALL", "PHANTOM", "CHEST", "ABDOMEN", "PATIENT", "UNKNOWN", "ROLES", "Role", "Track",
-           "TableSpace", "Room", "follow", "roles_of_tracks", "roles_of_positions", "roles_by_reference",
+           "TableSpace", "Room", "follow", "motion_range", "roles_of_tracks", "roles_of_positions", "roles_by_reference",
            "match_markers",
            "GATE_PX", "MOVE_FLOOR_PX", "MOVE_FLOOR_MM", "BAND_GAP_MM", "BODY_HEIGHT_MM"]
 
@@ -239,6 +239,18 @@ class Room:
         return out
 
 
+def motion_range(p) -> float:
+    """How far a marker's 3D centre ranged (mm): with 10 samples or more the 5th to 95th
+    percentile of its positions along their main direction (a still marker's triangulation noise
+    and the odd wrong match do not make it move; breathing does), else the extent of the box."""
+    p = np.asarray(p, float).reshape(-1, 3)
+    if len(p) < 10:
+        return float(np.linalg.norm(np.ptp(p, axis=0))) if len(p) else 0.0
+    c = p - p.mean(axis=0)
+    proj = c @ np.linalg.svd(c, full_matrices=False)[2][0]
+    return float(np.percentile(proj, 95) - np.percentile(proj, 5))
+
+
 def roles_of_positions(xyz, *, frame: str = "spect", mapping=None, space: TableSpace | None = None,
                        floor_mm: float = MOVE_FLOOR_MM, head_end_low_z: bool = True) -> list[Role]:
     """Rules 1 and 2 on 3D tracks, for the live path and the offline analysis: ``xyz`` is
@@ -246,7 +258,7 @@ def roles_of_positions(xyz, *, frame: str = "spect", mapping=None, space: TableS
     (``frame="spect"``) or the VTS frame (``frame="vts"``: ``mapping`` VTS -> SPECT needed for
     rule 2; without it the reason says so and motion alone decides). ``space``: the
     table-and-gantry volume (default: rig.yaml's default room). A marker that moved more than
-    ``floor_mm`` is the patient's; the patient's markers split into two bands along Z where a
+    ``floor_mm`` (:func:`motion_range`) is the patient's; the patient's markers split into two bands along Z where a
     gap of :data:`BAND_GAP_MM` parts them, the chest at the head end (smaller Z: head first,
     ``head_end_low_z``). Returns one Role per marker."""
     X = np.asarray(xyz, float)
@@ -268,7 +280,7 @@ def roles_of_positions(xyz, *, frame: str = "spect", mapping=None, space: TableS
         if not len(p):
             out.append(Role(UNKNOWN, "never seen"))
             continue
-        rng = float(np.linalg.norm(np.ptp(p, axis=0)))
+        rng = motion_range(p)
         mean = p.mean(axis=0)
         if len(p) >= 2 and rng > floor_mm:
             out.append(Role(PATIENT, f"moved {rng:.1f} mm over {len(p)} samples: breathing or a body"))

@@ -68,11 +68,8 @@ class LiveSettings:
     step_s: float = 0.5                # instants further apart than this: the time between is not observed
     ref_max_rms_mm: float = 1.0
     ref_max_move_fraction: float = 0.2   # the pose's RMS spread over the reference: at most this of the thresholds
-    fov_radius_mm: float = 450.0
-    fov_half_length_mm: float = 700.0
-    min_breath_mm: float = 0.6     # a patient marker's breathing range (5th to 95th percentile) at least
-    bore_radius_mm: float = 300.0       # markers that do not breathe: inside the heads' orbit ...
-    bore_half_length_mm: float = 300.0  # ... and the heads' face (400 mm) with a margin, along the axis
+    min_breath_mm: float = 0.6     # the model's most breathing marker ranges this much (5th to 95th percentile),
+                                   # or the model has no breathing term (the patient's markers: vision.marker_roles)
     onset_fraction: float = 0.15
     settle_s: float = 2.0
     trace_window_s: float = 30.0
@@ -125,11 +122,13 @@ class LiveEstimate:
 class LiveEstimator:
     """Feed :meth:`update` with each instant's 3D points (mm, in ``frame``); read
     :meth:`snapshot`. ``motion``: anything with ``alert_mm``, ``alert_deg``, ``alert_after_s``
-    (the rig's ``motion:`` section). ``axis``: the body's long axis; ``toward``: the first
+    (the rig's ``motion:`` section). ``space``: the table-and-gantry volume (a
+    :class:`~vts_hw.vision.marker_roles.TableSpace`; default the default room's) where a still
+    patient's markers lie. ``axis``: the body's long axis; ``toward``: the first
     camera's centre, in the same frame."""
 
     def __init__(self, motion, settings: LiveSettings | None = None, *, frame: str = "spect",
-                 axis=(0.0, 0.0, 1.0), toward=(0.0, 1500.0, -3500.0)):
+                 axis=(0.0, 0.0, 1.0), toward=(0.0, 1500.0, -3500.0), space=None):
         self.motion = motion
         self.s = settings or LiveSettings()
         self.frame = frame
@@ -147,7 +146,7 @@ class LiveEstimator:
         self.observed = False          # whether the last update observed the patient
         self.learned_at: float | None = None   # host s the reference was learned
         self.restarts = 0
-        self._ref = ReferenceCollector(self.s, frame, self.axis, self.toward)
+        self._ref = ReferenceCollector(self.s, frame, self.axis, self.toward, space)
         self._seen_idx = np.zeros(0, int)
         self._fit_t: float | None = None
         self._seen_x = np.zeros((0, 3))
@@ -284,6 +283,9 @@ class LiveEstimator:
             return LiveEstimate(self.phase, self.frame, self.time, note=note, stats=dict(stats or {}))
         m, bands = self.model, []
         band = m.band_of()
+        # one respiratory signal: its rate worked out once, on the band that breathes most
+        lead = int(np.argmax([self._band_mm(k) for k in range(len(m.bands))])) if m.bands else 0
+        rate = self.traces[lead].rate_per_min() if self.traces else float("nan")
         for k, g in enumerate(m.bands):
             sel = band[self._seen_idx] == k
             idx = self._seen_idx[sel]
@@ -292,7 +294,7 @@ class LiveEstimator:
             _, v = tr.values()
             bands.append(BandEstimate(k + 1, len(g), int(len(idx)),
                                       tuple(float(x) for x in disp), float(v[-1]) if len(v) else float("nan"),
-                                      tr.rate_per_min(), tuple(tr.recent()), m.breathes))
+                                      rate, tuple(tr.recent()), m.breathes))
         r, f, c = self.rule, self.fit, m.centre
         move = float(np.linalg.norm(f.R @ c + f.T - c))
         turn = float(np.degrees(np.linalg.norm(Rotation.from_matrix(f.R).as_rotvec())))

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vts_hw.bounded import SMALL, TABLE, read_text
+from vts_hw.bounded import SMALL, read_text
 from vts_hw.errors import DataError
 from vts_hw.files import open_writable, write_json_atomic
 from vts_hw.motion.patient_model import PatientModel
@@ -100,7 +100,10 @@ def read_poses(folder) -> LivePoses | None:
     path = Path(folder) / POSES_FILE
     if not path.exists():
         return None
-    text = read_text(path, TABLE, "live pose file")
+    try:
+        text = read_text(path, SMALL, "live pose file")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"{path}: cannot be read as a live pose file ({_why(exc)})") from None
     rows = csv.reader(io.StringIO(text))
     header = next(rows, None)
     if header != COLUMNS:
@@ -126,6 +129,12 @@ def read_poses(folder) -> LivePoses | None:
                      a[:, 19], skipped)
 
 
+def _why(exc: BaseException) -> str:
+    if isinstance(exc, UnicodeDecodeError):
+        return "not UTF-8 text"
+    return exc.strerror or str(exc) if isinstance(exc, OSError) else str(exc)
+
+
 def save_model(folder, model: PatientModel) -> Path:
     """``folder/live_model.json``, written whole (a temporary file and a rename)."""
     return write_json_atomic(Path(folder) / MODEL_FILE, model.to_dict())
@@ -138,6 +147,8 @@ def load_model(folder) -> PatientModel | None:
         return None
     try:
         return PatientModel.from_dict(json.loads(read_text(path, SMALL, "live patient model")))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"{path}: cannot be read as a live patient model ({_why(exc)})") from None
     except json.JSONDecodeError as exc:
         raise DataError(f"{path}: not JSON ({exc.msg}, line {exc.lineno})") from None
     except DataError as exc:

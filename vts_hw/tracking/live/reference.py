@@ -13,18 +13,13 @@ The reference is tried once it spans ``reference_s`` and its instants cover at l
 covered); until then it keeps collecting, over at most ``max_span`` times ``reference_s``
 (older instants are let go).
 
-The patient's markers, from what they do over the reference:
-
-* markers that **breathe** (a range of at least ``min_breath_mm`` along their main direction)
-  and, in the SPECT frame, lie inside the field of view: the wall, the table and a phantom are
-  still and left out -- as long as three or more breathe;
-* otherwise, in the SPECT frame, **every marker inside the bore** (a patient who holds still,
-  markers on the head): within ``bore_radius_mm`` of the axis and ``bore_half_length_mm`` of
-  the FOV centre along it, the space the detector heads turn around, where nothing but the
-  patient (and the table) is during a scan -- the wall behind the gantry is not (in the
-  reference room its markers are 0.38 m or more behind the FOV centre, the patient's within
-  0.25 m of it); they are fitted rigidly, with no breathing term;
-* otherwise (no SPECT mapping: still markers cannot be told from the wall's) no reference.
+The patient's markers are those the one identity of every marker in view
+(:func:`vts_hw.vision.marker_roles.roles_of_positions`, the same the daily QA, the drift baseline,
+aim and the console use) calls the patient's: they **moved** over the reference (breathing) --
+the wall, the table and a phantom are still and left out -- as long as three or more did;
+otherwise, in the SPECT frame, every still marker **inside the table-and-gantry volume** (a
+patient who holds still, markers on the head), fitted rigidly, with no breathing term; otherwise
+(no SPECT mapping: still markers cannot be told from the wall's) no reference.
 
 See docs/decisions/0036-live-motion.md and 0048-live-tracking-when-frames-are-lost.md.
 """
@@ -39,23 +34,11 @@ from vts_hw.errors import DataError
 from vts_hw.motion.bands import band_names, split_bands
 from vts_hw.motion.patient_model import PatientModel, learn_model
 from vts_hw.tracking.live.marker_tracks import MarkerTracks
+from vts_hw.vision.marker_roles import ABDOMEN, CHEST, PATIENT, TableSpace, roles_of_positions
 
-__all__ = ["ReferenceCollector", "observed_s", "breathing_range"]
+PATIENT_ROLES = (PATIENT, CHEST, ABDOMEN)
 
-
-def breathing_range(samples: np.ndarray) -> np.ndarray:
-    """Per marker of ``samples`` (S, M, 3; NaN: not seen) the range (5th to 95th percentile, mm)
-    of its positions along their first principal direction."""
-    out = np.zeros(samples.shape[1])
-    for i in range(samples.shape[1]):
-        p = samples[:, i]
-        p = p[np.isfinite(p).all(axis=1)]
-        if len(p) < 3:
-            continue
-        p = p - p.mean(axis=0)
-        proj = p @ np.linalg.svd(p, full_matrices=False)[2][0]
-        out[i] = np.percentile(proj, 95) - np.percentile(proj, 5)
-    return out
+__all__ = ["ReferenceCollector", "observed_s"]
 
 
 def observed_s(times, step_s: float) -> float:
@@ -66,9 +49,11 @@ def observed_s(times, step_s: float) -> float:
 
 
 class ReferenceCollector:
-    def __init__(self, settings, frame: str, axis, toward):
+    def __init__(self, settings, frame: str, axis, toward, space: TableSpace | None = None):
         self.s = settings
         self.frame = frame
+        self.space = space or TableSpace.from_settings()
+        self.roles = []             # what each marker of the last try was (vision.marker_roles)
         self.axis, self.toward = axis, toward
         self.instants: deque[tuple[float, np.ndarray, np.ndarray]] = deque()
         self._tracks = MarkerTracks(settings.gate_mm, float("inf"))
@@ -107,26 +92,22 @@ class ReferenceCollector:
         samples = self._samples()
         if samples.shape[1] == 0:
             return None, "no marker seen often enough"
-        breathes = breathing_range(samples) >= self.s.min_breath_mm
-        inside = np.ones(samples.shape[1], bool)
+        roles = roles_of_positions(samples, frame=self.frame, space=self.space)
+        patient = np.array([r.role in PATIENT_ROLES for r in roles])
+        still_in = np.zeros(len(roles), bool)
         if self.frame == "spect":
-            mean = np.nanmean(samples, axis=0)
-            inside = ((np.linalg.norm(mean[:, :2], axis=1) <= self.s.fov_radius_mm)
-                      & (np.abs(mean[:, 2]) <= self.s.fov_half_length_mm))
-        bore = np.zeros(samples.shape[1], bool)
-        if self.frame == "spect":
-            bore = ((np.linalg.norm(mean[:, :2], axis=1) <= self.s.bore_radius_mm)
-                    & (np.abs(mean[:, 2]) <= self.s.bore_half_length_mm))
-        if (breathes & inside).sum() >= 3:
-            patient = breathes & inside
-        elif bore.sum() >= 3:
-            patient = bore                   # a patient holding still, markers on the head
+            still_in = ~patient & self.space.inside(np.nanmean(samples, axis=0))
+        if patient.sum() >= 3:
+            pass
+        elif still_in.sum() >= 3:
+            patient = still_in               # a patient holding still (markers on the head): on the table
         elif self.frame == "spect":
-            return None, (f"fewer than three markers breathe ({int((breathes & inside).sum())}) and fewer than "
-                          f"three are still inside the bore ({int(bore.sum())})")
+            return None, (f"fewer than three markers move ({int(patient.sum())}) and fewer than three are still "
+                          f"inside the table-and-gantry volume ({int(still_in.sum())})")
         else:
-            return None, (f"fewer than three markers breathe ({int(breathes.sum())}); without a SPECT mapping "
+            return None, (f"fewer than three markers move ({int(patient.sum())}); without a SPECT mapping "
                           f"(calibration.spect) still markers cannot be told from the wall's")
+        self.roles = roles
         mine = samples[:, patient]
         mean = np.nanmean(mine, axis=0)
         bands = split_bands(mean, self.s.band_gap_mm)

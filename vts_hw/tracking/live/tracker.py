@@ -20,6 +20,7 @@ ends the live path with its reason in :meth:`LiveTracker.snapshot`; the recordin
 from __future__ import annotations
 
 import dataclasses
+import math
 import threading
 import time
 import traceback
@@ -40,6 +41,12 @@ from vts_hw.vision.multiview import ViewGeometry, match_views
 __all__ = ["LiveTracker"]
 
 LATENCY_KEEP = 200_000
+DETECTED_KEEP = 64       # frames whose detection times are kept until their set (their set's last frame)
+#: the parts of a frame set's latency (s each; their sum is the latency from its last frame):
+#: that frame waiting for the worker, its decode and detection, the set waiting for its other
+#: cameras (and their frames' detection), matching across the views, the estimator's update (the
+#: model's fit among it), the published estimate
+PARTS = ("queued", "detect", "grouping", "match", "fit", "publish")
 GROUP_WAIT_S = 1.0      # a frame set waits this long at most for a camera that is not quiet (0048)
 
 
@@ -48,14 +55,15 @@ class LiveTracker:
     ignored); ``motion``: the rig's ``motion:`` section; ``mapping``: VTS → SPECT (anything
     with ``apply``) or None (positions stay in the calibration's frame); ``clock_offsets``:
     per camera its clock minus host clock (s); ``fps``: the cameras' frame rate; ``late_s``:
-    how long without a pose is still TRACKING; ``clock``: monotonic seconds."""
+    how long without a pose is still TRACKING; ``clock``: monotonic seconds; ``space``: the
+    table-and-gantry volume in the SPECT frame (:class:`~vts_hw.vision.marker_roles.TableSpace`)."""
 
     def __init__(self, cameras: dict, motion, *, mapping=None, clock_offsets: dict | None = None,
                  fps: float = 25.0, settings: LiveSettings | None = None,
                  detector: DetectorSettings = DEFAULT_DETECTOR, queue_len: int = 2,
                  on_alert: Callable | None = None, on_event: Callable | None = None, max_px: float = 2.0,
                  late_s: float = 0.5, publish_s: float = 0.1, clock: Callable[[], float] = time.monotonic,
-                 on_names: Callable | None = None, names_every_s: float = 0.25):
+                 on_names: Callable | None = None, names_every_s: float = 0.25, space=None):
         self.names = list(cameras)
         self.geo = ViewGeometry([cameras[n] for n in self.names], self.names)
         self.mapping = mapping
@@ -72,7 +80,7 @@ class LiveTracker:
         cam0 = self.geo.cams[0]
         if mapping is not None:
             est = LiveEstimator(motion, settings, frame="spect", axis=(0.0, 0.0, 1.0),
-                                toward=mapping.apply(cam0.center))
+                                toward=mapping.apply(cam0.center), space=space)
         else:
             est = LiveEstimator(motion, settings, frame="vts", axis=cam0.R.T @ np.array([0.0, 0.0, 1.0]),
                                 toward=cam0.center)
@@ -87,6 +95,8 @@ class LiveTracker:
         self._published_capture: float | None = None
         self.blind_alerts: list[BlindAlert] = []
         self.latency: deque[tuple[float, float]] = deque(maxlen=LATENCY_KEEP)  # (from last, from first) s
+        self.parts: deque[tuple[float, ...]] = deque(maxlen=LATENCY_KEEP)    # per set, s of each of PARTS
+        self._detected: dict[float, tuple[float, float]] = {}   # a frame's arrival -> its detection's start, end
         self.sets = 0
         self.processed = {n: 0 for n in self.names}
         self.undecodable = 0
@@ -141,10 +151,15 @@ class LiveTracker:
         """One round of the worker: what the tap holds detected, the sets ready estimated."""
         items = self.tap.take(timeout)
         for name, arrival, frame in items:
+            t0 = self.clock()
             p = self._detect(name, arrival, frame)
             self.processed[name] += 1
             if p is not None:
                 self.grouper.add(p)
+                self._detected[arrival] = (t0, self.clock())
+        if len(self._detected) > 4 * DETECTED_KEEP:       # frames that went into no set, or not last
+            for k in list(self._detected)[:-DETECTED_KEEP]:
+                del self._detected[k]
         for fs in self.grouper.ready(self.clock() if now is None else now):
             self._estimate(fs)
 
@@ -165,9 +180,11 @@ class LiveTracker:
         return Pending(c, t, arrival, uv, self.geo.normalize(c, uv), arrival - (delay - floor))
 
     def _estimate(self, fs: FrameSet) -> None:
+        t_start = self.clock()
         pts = [np.zeros((0, 2)) if u is None else u for u in fs.uv]
         norm = [np.zeros((0, 2)) if u is None else u for u in fs.norm]
         matches = match_views(self.geo, pts, self.max_px, norm=norm)
+        t_matched = self.clock()
         xyz = matches.xyz
         if self.mapping is not None and len(xyz):
             xyz = self.mapping.apply(xyz)
@@ -175,6 +192,7 @@ class LiveTracker:
         phase = est.phase
         cams = np.array([np.count_nonzero(np.asarray(p.detections) >= 0) for p in matches.points], float)
         alert = est.update(fs.time, xyz, cams if len(cams) == len(xyz) else fs.n_cameras)
+        t_fitted = self.clock()
         seen, resumed, broke, seen_arrival = f.seen, f.resumed, f.broke, f.seen_arrival
         if est.observed:
             if seen is None or fs.capture - seen > self.late_s:
@@ -191,8 +209,12 @@ class LiveTracker:
                            "" if est.observed else est.note, learned, seen_arrival, broke)
         self.sets += 1
         now = self.clock()
+        d0, d1 = self._detected.pop(fs.last_arrival, (math.nan, math.nan))
+        parts = (d0 - fs.last_arrival, d1 - d0, t_start - (fs.last_arrival if math.isnan(d1) else d1),
+                 t_matched - t_start, t_fitted - t_matched, now - t_fitted)
         with self._lock:
             self.latency.append((now - fs.last_arrival, now - fs.first_arrival))
+            self.parts.append(parts)
         if self.on_names is not None and now - self._names_at >= self.names_every_s:
             self._names_at = now
             self._tell_names(matches, pts)
@@ -260,6 +282,21 @@ class LiveTracker:
                 "latency_ms_p50": pct(0, 50), "latency_ms_p95": pct(0, 95),
                 "latency_from_first_frame_ms_p50": pct(1, 50), "latency_from_first_frame_ms_p95": pct(1, 95),
                 "error": self.error}
+
+    def latency_parts(self, last: int | None = 500) -> dict:
+        """Per part of the latency (:data:`PARTS`) its p50 and p95 in ms over the ``last`` sets
+        (None: all kept); a part not measured for a set (its last frame's detection not kept)
+        is left out of that part's figures."""
+        with self._lock:
+            rows = list(self.parts) if last is None else \
+                [self.parts[i] for i in range(max(0, len(self.parts) - last), len(self.parts))]
+        a = np.array(rows, float).reshape(-1, len(PARTS))
+        out = {}
+        for k, name in enumerate(PARTS):
+            col = a[:, k][np.isfinite(a[:, k])]
+            out[name] = (round(float(np.percentile(col, 50)) * 1e3, 3), round(float(np.percentile(col, 95)) * 1e3, 3)) \
+                if len(col) else (None, None)
+        return out
 
     def snapshot(self, now: float | None = None, stats: bool = True) -> LiveEstimate:
         """The last published estimate, with whether the patient is tracked *now* and the age
