@@ -52,8 +52,9 @@ class Alert:
     onset: float         # host s the move started: the body left its pose (found looking back)
     move_mm: float
     turn_deg: float
-    onset_known_s: float = 0.0   # no pose between onset and onset + this (the frame period when none
-    #                              was lost); longer than GAP_S: the move started unseen in that stretch
+    onset_known_s: float = 0.0   # the poses around the onset this far apart (the frame period when none
+    #                              was lost); longer than GAP_S: no pose in that stretch, the onset the last
+    #                              before it, and the move started between onset and onset + this
 
     def text(self, alert_mm: float, alert_deg: float) -> str:
         gap = (f"; it started during {self.onset_known_s:.1f} s without a pose" if self.onset_known_s > GAP_S else "")
