@@ -158,13 +158,13 @@ def triangulate_groups(geo: ViewGeometry, obs: np.ndarray, norm: np.ndarray, mas
         return np.zeros((0, 3)), np.zeros((0, len(geo.cams)))
     X = _linear(geo, norm, mask)
     h = 1e-3
+    steps = np.vstack([np.zeros(3), h * np.eye(3)])[:, None, :]          # X, then X moved along x, y, z
+    obs4, mask4 = np.tile(obs, (4, 1, 1)), np.tile(mask, (4, 1))
     for _ in range(iterations):
-        r0 = _residuals(geo, X, obs, mask).reshape(m, -1)         # (M, 2C)
-        J = np.empty((m, r0.shape[1], 3))
-        for k in range(3):
-            dX = np.zeros(3)
-            dX[k] = h
-            J[:, :, k] = (_residuals(geo, X + dX, obs, mask).reshape(m, -1) - r0) / h
+        # the residuals at X and at its three moves in one projection per camera
+        r = _residuals(geo, (X[None] + steps).reshape(-1, 3), obs4, mask4).reshape(4, m, -1)
+        r0 = r[0]                                                 # (M, 2C)
+        J = ((r[1:] - r0) / h).transpose(1, 2, 0)                 # (M, 2C, 3)
         JT = J.transpose(0, 2, 1)
         N = JT @ J
         N = N + (1e-12 * np.trace(N, axis1=1, axis2=2) + 1e-300)[:, None, None] * np.eye(3)
@@ -187,24 +187,24 @@ def match_views(geo: ViewGeometry, pts: Sequence, max_px: float = 2.0, ratio: fl
         [np.asarray(n, float).reshape(-1, 2) for n in norm]
     ideal = [n @ geo.cams[c].K[:2, :2].T + geo.cams[c].K[:2, 2] for c, n in enumerate(norm)]
     out = ViewMatches(list(geo.names))
+    hom = [np.column_stack([u, np.ones(len(u))]) for u in ideal]
     # 1. candidate pairs over every pair of cameras
     seeds = []
     for a, b in geo.pairs:
         if len(pts[a]) == 0 or len(pts[b]) == 0:
             continue
         F = geo.F[(a, b)]
-        ha = np.column_stack([ideal[a], np.ones(len(ideal[a]))])
-        hb = np.column_stack([ideal[b], np.ones(len(ideal[b]))])
+        ha, hb = hom[a], hom[b]
         la, lb = ha @ F.T, hb @ F
         d_b = np.abs(la @ hb.T) / np.hypot(la[:, 0], la[:, 1])[:, None]
         d_a = (np.abs(lb @ ha.T) / np.hypot(lb[:, 0], lb[:, 1])[:, None]).T
         ii, jj = np.nonzero(np.maximum(d_a, d_b) <= max_px)
-        for i, j in zip(ii.tolist(), jj.tolist()):
-            row = [-1] * C
-            row[a], row[b] = i, j
-            seeds.append(row)
+        if len(ii):
+            rows = np.full((len(ii), C), -1)
+            rows[:, a], rows[:, b] = ii, jj
+            seeds.append(rows)
     if seeds:
-        groups = _grow(geo, pts, norm, np.array(seeds, int), max_px)
+        groups = _grow(geo, pts, norm, np.vstack(seeds), max_px)
         _select(geo, pts, norm, groups, max_px, ratio, min_sep_px, max_rms_px, out)
     used = [set() for _ in range(C)]
     for p in out.points:
@@ -218,6 +218,17 @@ def match_views(geo: ViewGeometry, pts: Sequence, max_px: float = 2.0, ratio: fl
                     used[c].add(d)
     out.single = {geo.names[c]: [i for i in range(len(pts[c])) if i not in used[c]] for c in range(C)}
     return out
+
+
+def _unique_rows(groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(groups, axis=0, return_index=True)`` (rows in lexicographic order, each with
+    its first occurrence) through one integer per row: detection indices are small."""
+    base = int(groups.max(initial=-1)) + 2
+    key = np.zeros(len(groups), np.int64)
+    for c in range(groups.shape[1]):              # the first camera the most significant digit
+        key = key * base + (groups[:, c] + 1)
+    _, first = np.unique(key, return_index=True)
+    return groups[first], first
 
 
 def _gather(pts, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -251,7 +262,7 @@ def _grow(geo, pts, norm, seeds: np.ndarray, max_px: float) -> np.ndarray:
         one = inside.sum(axis=1) == 1
         rows = np.flatnonzero(free)[one]
         groups[rows, c] = np.argmax(inside[one], axis=1)
-    groups = np.unique(groups, axis=0)
+    groups = _unique_rows(groups)[0]
     g = groups[:, None, :]
     h = groups[None, :, :]
     inside_other = np.all((g < 0) | (g == h), axis=2) & ~np.all(g == h, axis=2)
@@ -276,45 +287,38 @@ def _select(geo, pts, norm, groups: np.ndarray, max_px, ratio, min_sep_px, max_r
         X[bad], res[bad] = Xb, rb
     fits = np.nanmax(np.where(mask, res, 0.0), axis=1) <= max_px
     groups, X, res, mask = groups[fits], X[fits], res[fits], mask[fits]
-    groups, first = np.unique(groups, axis=0, return_index=True)   # the same group twice is one
+    groups, first = _unique_rows(groups)                           # the same group twice is one
     X, res, mask = X[first], res[first], mask[first]
     n = mask.sum(axis=1)
     rms = np.sqrt(np.nansum(np.where(mask, res, 0.0) ** 2, axis=1) / np.maximum(n, 1))
     fits = rms <= max_rms_px
     groups, X, res, mask, n, rms = groups[fits], X[fits], res[fits], mask[fits], n[fits], rms[fits]
     order = np.lexsort((rms, -n))
-    taken = [set() for _ in range(C)]
+    # for every two groups: whether they share a detection; j a rival of k: as many cameras, a
+    # detection shared, not clearly worse than k
+    share = np.any((groups[:, None, :] >= 0) & (groups[:, None, :] == groups[None, :, :]), axis=2)
+    worse = (rms[None, :] > ratio * rms[:, None]) & (rms[None, :] - rms[:, None] >= min_sep_px)
+    rival = share & (n[:, None] == n[None, :]) & ~worse
+    np.fill_diagonal(rival, False)
     dropped = np.zeros(len(groups), bool)
-
-    def shares(i, j):
-        return bool(np.any((groups[i] >= 0) & (groups[i] == groups[j])))
-
-    def free(j):
-        return not any(d >= 0 and d in taken[c] for c, d in enumerate(groups[j].tolist()))
-
+    blocked = np.zeros(len(groups), bool)      # a detection of it is in a point or an ambiguity already
     for k in order.tolist():
         if dropped[k]:
             continue
-        if not free(k):
+        if blocked[k]:
             dropped[k] = True
             continue
-        # a rival: as many cameras, none of its detections in a point already, not clearly worse
-        rivals = [j for j in order.tolist() if j != k and not dropped[j] and n[j] == n[k] and free(j)
-                  and shares(k, j) and not (rms[j] > ratio * rms[k] and rms[j] - rms[k] >= min_sep_px)]
-        if rivals:
-            members = [k] + rivals
+        # a rival: none of its detections in a point already
+        cand = rival[k] & ~dropped & ~blocked
+        if cand.any():
+            members = [k] + order[cand[order]].tolist()
             out.ambiguous.append(Ambiguity(tuple(tuple(groups[j].tolist()) for j in members),
                                            tuple(float(rms[j]) for j in members)))
-            for j in members:
-                dropped[j] = True
-                for c, d in enumerate(groups[j].tolist()):
-                    if d >= 0:
-                        taken[c].add(d)
+            dropped[members] = True
+            blocked |= share[members].any(axis=0)
             continue
         dropped[k] = True
-        for c, d in enumerate(groups[k].tolist()):
-            if d >= 0:
-                taken[c].add(d)
+        blocked |= share[k]
         cams = tuple(geo.names[c] for c in range(C) if mask[k, c])
         out.points.append(MultiPoint(X[k].copy(), tuple(groups[k].tolist()), cams, float(rms[k]),
                                      tuple(float(v) for v in res[k])))
