@@ -34,7 +34,10 @@ __all__ = ["BaselineSet", "NoBaseline", "NoMarkers", "take_baseline", "take_base
 
 
 class NoMarkers(VtsError):
-    """A camera showed no wall markers with the LED on: no baseline is set for any camera."""
+    """A camera showed no wall markers with the LED on: no baseline is set for any camera (exit
+    4: the camera, its LED ring or its view of the wall is not as a baseline needs it)."""
+
+    exit_code = 4
 
 
 def take_baseline(cam, frames: int = 5, clock: Callable[[], float] = time.time, on_frame=None,

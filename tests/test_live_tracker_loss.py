@@ -143,12 +143,12 @@ def test_under_cpu_load_the_live_path_drops_its_own_oldest_frames_never_a_record
     hold, held = threading.Event(), threading.Event()
     update = tr.estimator.update
 
-    def held_update(t, pts):          # the worker held up inside an estimate (as a busy host would)
+    def held_update(t, pts, *more):   # the worker held up inside an estimate (as a busy host would)
         if hold.is_set():
             held.set()
             while hold.is_set():
                 time.sleep(0.01)
-        return update(t, pts)
+        return update(t, pts, *more)
     tr.estimator.update = held_update
     seen: list = []
     done = threading.Event()

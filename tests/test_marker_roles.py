@@ -10,7 +10,7 @@ import pytest
 from vts_hw.console.names import MarkerNames, wall_points
 from vts_hw.console.markers import find_markers
 from vts_hw.drivers.registry import open_camera
-from vts_hw.procedures.baseline import take_baselines
+from vts_hw.procedures.baseline import NoMarkers, take_baselines
 from vts_hw.procedures.daily import QARun
 from vts_hw.sim_devices.patient_rig import PatientOptions
 from vts_hw.sim_devices.rig import SimRig
@@ -69,6 +69,20 @@ def test_baseline_with_the_patient_breathing_keeps_the_wall_markers_and_the_qa_i
         assert abs(c.drift.drift_px[0]) < 0.1 and abs(c.drift.drift_px[1]) < 0.1 and not c.drift.strays
         assert any(r.role == PATIENT for _, _, r in c.drift.others)
     _console_agrees(res, baselines)       # (4) the console names the same markers the same way
+
+
+def test_a_camera_whose_markers_are_all_the_patients_sets_no_baseline(breathing):
+    """The wall hidden (its markers gone from the scene), the patient breathing in view: every
+    marker moves, none is a wall marker: no baseline, one sentence naming the camera, exit 4."""
+    rig, cfg, _ = breathing
+    walls = rig.scene.wall_markers
+    rig.scene.wall_markers = []
+    try:
+        with pytest.raises(NoMarkers, match=r"camera cam\d: no wall markers found with the LED on") as e:
+            _baselines(cfg)
+    finally:
+        rig.scene.wall_markers = walls
+    assert e.value.exit_code == 4
 
 
 def test_a_wall_drift_of_1_px_is_found_with_the_patient_breathing(breathing):

@@ -154,3 +154,28 @@ def test_the_analysis_fits_the_sessions_live_model_and_a_bad_one_never_stops_it(
     os.mkfifo(session / MODEL_FILE)
     c = MotionAnalysis(session, tracks=tracks).analyze()
     assert any(p.startswith("live model not used:") and "not a regular file" in p for p in c.problems), c.problems
+
+
+def test_live_poses_that_cannot_be_kept_are_said_once_and_the_scan_goes_on(learned, tmp_path):
+    """The scan's folder unwritable (here not a folder at all): the model and poses are not kept,
+    one note and one manifest entry say so, and the live path's keeping never raises."""
+    from types import SimpleNamespace
+
+    from vts_hw.procedures.scan_live import LiveMotion
+    _, m = learned
+    pose = LivePose(1.0, np.eye(3), np.zeros(3), 0.0, 0.05, 8, 2.0, "still", 0.0, 0.0, "known", 0.8)
+    lm = LiveMotion.__new__(LiveMotion)
+    notes, meta = [], {"live_motion": {}}
+    lm.tracker = SimpleNamespace(estimator=SimpleNamespace(model=m, poses=[pose, pose]))
+    lm._log, lm._kept, lm._model_saved, lm.keep_problem, lm.on_note = None, 0, False, "", notes.append
+    (tmp_path / "not-a-folder").write_text("x")
+    session = SimpleNamespace(folder=tmp_path / "not-a-folder", update_manifest=lambda change: change(meta))
+    lm._keep(session)
+    lm._keep(session)
+    assert len(notes) == 1 and "could not be kept" in notes[0]
+    assert meta["live_motion"]["keep_problem"] == lm.keep_problem and lm._kept == 0
+    good = SimpleNamespace(folder=tmp_path, update_manifest=lambda change: change(meta))
+    lm.keep_problem = ""
+    lm._keep(good)
+    assert lm._kept == 2 and len(read_poses(tmp_path)) == 2 and load_model(tmp_path) is not None
+    assert meta["live_motion"]["model_file"] == MODEL_FILE and meta["live_motion"]["poses_file"] == POSES_FILE
