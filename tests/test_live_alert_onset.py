@@ -1,7 +1,7 @@
 """The alert rule's onset (decision 0088): the instant the body started to leave its pose,
 looked back for, so that the hold of ``after_s`` counts from the move's true start and the
 alert comes at its end. Fed with synthetic poses as the estimator gives them: the simulated
-patient's body moves (minimum-jerk, ``BodyMotion``) with the still pose's noise (measured on
+patient's body moves (minimum-jerk, composed as ``BodyMotion.pose`` does) with the still pose's noise (measured on
 the live path: ~0.05 mm per axis, ~0.02 deg) and a slow wander breathing leaves in the pose."""
 
 from __future__ import annotations
@@ -98,5 +98,5 @@ def test_a_move_unseen_in_a_stretch_without_poses_is_bounded_by_it():
 def test_a_slow_creep_alerts_as_it_crosses_the_threshold():
     """4 mm over 20 s: the onset levels are left long before the threshold is reached; the
     alert comes as it is crossed (beyond the pose's history the onset is where it left them)."""
-    rule, (a,) = _feed([(12.0, 20.0, (0.0, 0.0, 0.0), (4.0, 0.0, 0.0))], 34.0)
+    _, (a,) = _feed([(12.0, 20.0, (0.0, 0.0, 0.0), (4.0, 0.0, 0.0))], 34.0)
     assert 3.0 < a.move_mm < 3.2 and a.time - a.onset > 5.0

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["AlertRule", "Alert", "find_onset"]
+__all__ = ["Alert", "AlertRule", "find_onset"]
 
 NOISE_FACTOR = 4.0   # onset levels at least this many times the still pose's RMS noise
 # the onset looked back for (decision 0088)
