@@ -10,8 +10,10 @@ times, 25 fps, the cameras 13 ms apart, a few ms of network delay and 1 % of fra
 late). Each case feeds them to a fresh :class:`~vts_hw.tracking.live.tracker.LiveTracker` in
 this process through its tap (``on_frame``, as the recorder does), each frame at its receipt
 time in real time, with the tracker's own worker and watch threads; the simulator costs
-nothing while a case runs. The cases: ``idle`` (the machine as it is: other work on it counts,
-the load average is printed) and ``busy`` (``--per-core`` spinning processes per core, 2 by
+nothing while a case runs. The cases: ``cpu`` (what the path costs: the frames fed one at a
+time, no threads, the tracker's clock the CPU time of the thread: the same figures whatever
+else the machine runs, to compare one version with another), ``idle`` (the machine as it is:
+other work on it counts, the load average is printed) and ``busy`` (``--per-core`` spinning processes per core, 2 by
 default, that the bench starts and stops at the end, on Ctrl-C too). The figures are over the
 sets after the reference was learned (the set that learns it is a one-off: left out).
 
@@ -84,6 +86,10 @@ def run_case(scene, frames, offsets, reference_s: float) -> dict:
         tr.stop()
     if tr.error:
         raise SystemExit(f"the live path stopped: {tr.error}")
+    return _figures(tr, first_tracked, late)
+
+
+def _figures(tr: LiveTracker, first_tracked: int | None, late: list) -> dict:
     if first_tracked is None:
         raise SystemExit(f"the reference was never learned: {tr.estimator.note}; more --seconds?")
     n = len(tr.latency) - first_tracked
@@ -93,6 +99,20 @@ def run_case(scene, frames, offsets, reference_s: float) -> dict:
             "unmatched": tr.grouper.unmatched, "feeder_late_ms": 1e3 * float(np.percentile(late, 95)) if late else 0.0}
 
 
+def cpu_case(scene, frames, offsets, reference_s: float) -> dict:
+    """What the path costs in CPU, whatever else the machine runs: the frames fed one at a time
+    in this thread (``step`` after each), the tracker's clock this thread's CPU time."""
+    tr = LiveTracker(true_cameras(scene, scene.start_epoch), MOTION, mapping=RigidTransform.identity(),
+                     clock_offsets=offsets, settings=LiveSettings(reference_s=reference_s), clock=time.thread_time)
+    first_tracked = None
+    for _, name, frame in frames:
+        tr.tap.put(name, frame, arrival=time.thread_time())
+        tr.step(0.0)
+        if first_tracked is None and tr.estimator.phase == "tracking":
+            first_tracked = len(tr.latency)
+    return _figures(tr, first_tracked, [])
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=20.0, help="seconds measured per case, after the reference")
@@ -100,7 +120,7 @@ def main() -> int:
     ap.add_argument("--cameras", type=int, default=4)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--per-core", type=int, default=2, help="spinning processes per core in the busy case")
-    ap.add_argument("--cases", nargs="+", choices=("idle", "busy"), default=["idle", "busy"])
+    ap.add_argument("--cases", nargs="+", choices=("cpu", "idle", "busy"), default=["cpu", "idle", "busy"])
     a = ap.parse_args()
     if a.seconds < 2 or a.reference_s < 2 or a.cameras < 2 or a.per_core < 1:
         ap.error("--seconds and --reference-s must be 2 or more, --cameras 2 or more, --per-core 1 or more")
@@ -121,9 +141,12 @@ def main() -> int:
                         time.sleep(1.0)                           # the spinners running
                         r = run_case(scene, frames, offsets, a.reference_s)
                     what = f"+{len(pids)} spinning"
-                else:
+                elif case == "idle":
                     r = run_case(scene, frames, offsets, a.reference_s)
                     what = "as it is"
+                else:
+                    r = cpu_case(scene, frames, offsets, a.reference_s)
+                    what = "CPU ms"
                 rows.append((case, what, load, r))
                 print(f"  {case}: done ({r['sets']} sets)", flush=True)
     except KeyboardInterrupt:

@@ -13,6 +13,7 @@ one body move; ``simulate_recording``), with frames lost as a busy host or a cam
 
 from __future__ import annotations
 
+import itertools
 import multiprocessing as mp
 import os
 import threading
@@ -24,7 +25,7 @@ import pytest
 
 from vts_hw.cli.live_view import live_line
 from vts_hw.tracking.live.estimator import LiveSettings
-from vts_hw.tracking.live.tracker import LiveTracker
+from vts_hw.tracking.live.tracker import PARTS, LiveTracker
 from vts_hw.tracking.live.watch import NOT_TRACKING, TRACKING, Episode
 from vts_hw.recording.folder import read_index
 from vts_hw.sim_devices.patient import BodyMove
@@ -118,6 +119,29 @@ def test_not_tracking_stretches_are_the_time_without_frames_with_their_reasons(r
     (a,) = alerts
     assert MOVE.t_start - 0.1 <= a.onset <= MOVE.t_start + 0.5 and a.time < MOVE.t_end + 1.2
     assert tr.snapshot(now=end).status == TRACKING
+
+
+def test_each_set_latency_is_told_in_its_parts(rendered):
+    """The latency the live path reports (a set's last frame at the tap to its markers in the
+    estimate) is the sum of its parts (tracker.PARTS: waiting for the worker, decode and
+    detection, the set waiting for its cameras, matching, the estimator's update, publishing),
+    every one measured for every set; on a clock that moves 1 ms at each reading (no real time)."""
+    sim, _, frames, offsets = rendered
+    ticks = itertools.count()
+    clock = (lambda: MONO0 + 0.001 * next(ticks))
+    tr = _tracker(sim, offsets, clock=clock)
+    for host, name, frame in frames:
+        if host - frames[0][0] > 7.0:
+            break
+        tr.tap.put(name, frame, arrival=clock())
+        tr.step(0.0)
+    assert tr.estimator.phase == "tracking" and tr.sets > 100, tr.estimator.note
+    lat, parts = np.array([x[0] for x in tr.latency]), np.array(tr.parts)
+    assert parts.shape == (tr.sets, len(PARTS)) and np.isfinite(parts).all() and (parts > 0).all()
+    assert np.allclose(parts.sum(axis=1), lat, rtol=0, atol=1e-9)
+    figures = tr.latency_parts(None)
+    assert list(figures) == list(PARTS) and all(0 < p50 <= p95 for p50, p95 in figures.values())
+    assert tr.stats(None)["latency_ms_p95"] == pytest.approx(np.percentile(lat, 95) * 1e3, abs=1e-3)
 
 
 def _spin(stop):

@@ -179,3 +179,29 @@ def test_live_poses_that_cannot_be_kept_are_said_once_and_the_scan_goes_on(learn
     lm._keep(good)
     assert lm._kept == 2 and len(read_poses(tmp_path)) == 2 and load_model(tmp_path) is not None
     assert meta["live_motion"]["model_file"] == MODEL_FILE and meta["live_motion"]["poses_file"] == POSES_FILE
+
+
+def test_the_fit_stops_once_converged_at_the_pose_it_would_reach(learned, monkeypatch):
+    """A frame stops iterating once its step is below CONVERGED at the last robust scale (the
+    live path's fit after a gap asks for 30 iterations): far fewer steps, the same pose to 1e-9
+    as iterating to the end; the same frame stops at the same step alone or in a recording."""
+    import vts_hw.motion.patient_model as pm
+    p, m = learned
+    P = _markers(p, np.arange(30.0, 32.0, 0.04), seed=5)
+    idx = np.arange(m.n_markers)
+    start = m.fit_instant(idx, P[0])
+    solves = []
+    real_solve = np.linalg.solve
+    monkeypatch.setattr(pm.np.linalg, "solve", lambda N, g: solves.append(len(N)) or real_solve(N, g))
+    quick = [m.fit_instant(idx, P[f], start, iterations=30) for f in range(1, 6)]
+    assert len(solves) <= 5 * 10                       # at most 10 steps a frame, not 30
+    R, T, s, _, _ = m.fit(P[1:6], None, np.repeat(start.R[None], 5, 0), np.repeat(start.T[None], 5, 0),
+                          np.full(5, start.s), iterations=30)
+    monkeypatch.setattr(pm, "_TOL7", np.zeros(7))      # never converged: every iteration
+    solves.clear()
+    full = [m.fit_instant(idx, P[f], start, iterations=30) for f in range(1, 6)]
+    assert len(solves) == 5 * 30
+    for k, (a, b) in enumerate(zip(quick, full)):
+        assert np.abs(a.R - b.R).max() < 1e-10 and np.abs(a.T - b.T).max() < 1e-8 and abs(a.s - b.s) < 1e-8
+        assert np.allclose(a.R, R[k], rtol=0, atol=1e-12) and np.allclose(a.T, T[k], rtol=0, atol=1e-9)
+        assert a.s == pytest.approx(s[k], abs=1e-9)

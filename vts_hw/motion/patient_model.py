@@ -73,23 +73,25 @@ def rigid_poses(P, seen, ref, scales=(60.0, 40.0), weights=None):
 
 _EYE3 = np.eye(3)
 _EYE7 = np.eye(7)
-_DIAG7 = np.arange(7)
+_TOL7 = np.array([CONVERGED[0]] * 3 + [CONVERGED[1]] * 4)
+_CROSS = np.zeros((3, 9))            # q @ _CROSS: [q]x row by row
+_CROSS[2, 1] = _CROSS[0, 5] = _CROSS[1, 6] = -1.0
+_CROSS[1, 2] = _CROSS[2, 3] = _CROSS[0, 7] = 1.0
 
 
 def _rotation(w):
     """(F, 3) rotation vectors -> (F, 3, 3) matrices (Rodrigues)."""
-    t = np.sqrt(np.sum(w * w, axis=1))[:, None, None] / np.pi
+    t = np.sqrt(np.sum(w * w, axis=1))
+    t = np.where(t > 0, t, 1e-300)[:, None, None]
+    h = 0.5 * t
     K = _skew(w)
-    # I + sin(t)/t [w]x + (1 - cos t)/t^2 [w]x^2, the factors as sinc (no loss of digits near 0)
-    return _EYE3 + np.sinc(t) * K + (0.5 * np.sinc(0.5 * t) ** 2) * (K @ K)
+    # I + sin(t)/t [w]x + (1 - cos t)/t^2 [w]x^2, the last as 2 sin^2(t/2)/t^2 (no loss of digits near 0)
+    return _EYE3 + (np.sin(t) / t) * K + (0.5 * (np.sin(h) / h) ** 2) * (K @ K)
 
 
 def _skew(q):
-    """(..., 3) -> (..., 3, 3) cross-product matrices."""
-    out = np.zeros(q.shape[:-1] + (3, 3))
-    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -q[..., 2], q[..., 1], -q[..., 0]
-    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = q[..., 2], -q[..., 1], q[..., 0]
-    return out
+    """(..., 3) -> (..., 3, 3) cross-product matrices (of finite vectors)."""
+    return (q @ _CROSS).reshape(q.shape[:-1] + (3, 3))
 
 
 @dataclass(frozen=True)
@@ -197,38 +199,37 @@ class PatientModel:
             w = np.where(enough[:, None], w, seen_f)                      # too few left: unweighted
             wm = np.where(active[:, None], w, wm)                         # a frame stopped keeps its own
             # J = [-[q]x, I, R v] per point, its rows weighted by w
-            J[..., 0, 1], J[..., 0, 2], J[..., 1, 2] = q[..., 2], -q[..., 1], q[..., 0]
-            J[..., 1, 0], J[..., 2, 0], J[..., 2, 1] = -q[..., 2], q[..., 1], -q[..., 0]
+            J[..., :3] = -_skew(q)
             J[..., 6] = v @ Rt
             Jw = (J * w[..., None, None]).reshape(F, 3 * M, 7)
             Jt = Jw.transpose(0, 2, 1)
             N = Jt @ Jw
             g = (Jt @ (e * w[..., None]).reshape(F, 3 * M, 1))[..., 0]
-            scale = np.trace(N, axis1=1, axis2=2) / 7.0 + 1e-9
-            N[:, _DIAG7, _DIAG7] += 1e-9 * scale[:, None]
+            N += (1e-9 * (np.trace(N, axis1=1, axis2=2) / 7.0 + 1e-9))[:, None, None] * _EYE7
             if not breathing:
                 N[:, 6, :] = 0.0
                 N[:, :, 6] = 0.0
                 N[:, 6, 6] = 1.0
                 g[:, 6] = 0.0
-            N[~active] = _EYE7
-            g[~active] = 0.0
+            if not active.all():
+                N[~active] = _EYE7
+                g[~active] = 0.0
             dx = np.linalg.solve(N, g[..., None])[..., 0]
             R = _rotation(dx[:, :3]) @ R
             T = T + dx[:, 3:6]
             s = s + dx[:, 6]
             if it >= last_scale:
-                active &= ~((np.abs(dx[:, :3]).max(axis=1) < CONVERGED[0])
-                            & (np.abs(dx[:, 3:]).max(axis=1) < CONVERGED[1]))
+                active &= ~(np.abs(dx) < _TOL7).all(axis=1)
                 if not active.any():
                     break
-        body = ref[None] + v[None] * s[:, None, None]
         used = seen & (wm > 0)
-        res = np.where(used[..., None], P - np.einsum("fij,fmj->fmi", R, body) - T[:, None], 0.0)
+        res = np.where(used[..., None], P - (ref[None] + v[None] * s[:, None, None]) @ R.transpose(0, 2, 1)
+                       - T[:, None], 0.0)
         rms = np.sqrt(np.sum(res ** 2, axis=(1, 2)) / np.maximum(used.sum(axis=1), 1))
-        R, T, s, rms = R.copy(), T.copy(), s.copy(), rms.copy()
-        R[~ok], T[~ok], s[~ok], rms[~ok] = np.nan, np.nan, np.nan, np.nan
-        used[~ok] = False
+        if not ok.all():                      # (R, T, s, rms are this call's own arrays)
+            R, T, s = R.copy(), T.copy(), s.copy()
+            R[~ok], T[~ok], s[~ok], rms[~ok] = np.nan, np.nan, np.nan, np.nan
+            used[~ok] = False
         return R, T, s, rms, used
 
     def fit_instant(self, idx, x, last: InstantPose | None = None, iterations: int = 6) -> InstantPose | None:

@@ -300,25 +300,31 @@ def _select(geo, pts, norm, groups: np.ndarray, max_px, ratio, min_sep_px, max_r
     worse = (rms[None, :] > ratio * rms[:, None]) & (rms[None, :] - rms[:, None] >= min_sep_px)
     rival = share & (n[:, None] == n[None, :]) & ~worse
     np.fill_diagonal(rival, False)
-    dropped = np.zeros(len(groups), bool)
-    blocked = np.zeros(len(groups), bool)      # a detection of it is in a point or an ambiguity already
-    for k in order.tolist():
+    has_rival = rival.any(axis=1).tolist()
+    # the groups each group blocks when taken (those sharing a detection with it, itself included)
+    blocks = [np.flatnonzero(row).tolist() if more else [] for row, more in zip(share, share.sum(axis=1) > 1)]
+    order_l = order.tolist()
+    dropped = [False] * len(groups)
+    blocked = [False] * len(groups)            # a detection of it is in a point or an ambiguity already
+    gl, rl, resl, ml = groups.tolist(), rms.tolist(), res.tolist(), mask.tolist()
+    for k in order_l:
         if dropped[k]:
             continue
         if blocked[k]:
             dropped[k] = True
             continue
         # a rival: none of its detections in a point already
-        cand = rival[k] & ~dropped & ~blocked
-        if cand.any():
-            members = [k] + order[cand[order]].tolist()
-            out.ambiguous.append(Ambiguity(tuple(tuple(groups[j].tolist()) for j in members),
-                                           tuple(float(rms[j]) for j in members)))
-            dropped[members] = True
-            blocked |= share[members].any(axis=0)
+        rivals = [j for j in order_l if rival[k, j] and not dropped[j] and not blocked[j]] if has_rival[k] else []
+        if rivals:
+            members = [k] + rivals
+            out.ambiguous.append(Ambiguity(tuple(tuple(gl[j]) for j in members), tuple(rl[j] for j in members)))
+            for j in members:
+                dropped[j] = True
+                for i in blocks[j]:
+                    blocked[i] = True
             continue
         dropped[k] = True
-        blocked |= share[k]
-        cams = tuple(geo.names[c] for c in range(C) if mask[k, c])
-        out.points.append(MultiPoint(X[k].copy(), tuple(groups[k].tolist()), cams, float(rms[k]),
-                                     tuple(float(v) for v in res[k])))
+        for i in blocks[k]:
+            blocked[i] = True
+        cams = tuple(name for name, m in zip(geo.names, ml[k]) if m)
+        out.points.append(MultiPoint(X[k].copy(), tuple(gl[k]), cams, rl[k], tuple(resl[k])))
