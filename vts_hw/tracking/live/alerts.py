@@ -96,7 +96,7 @@ def find_onset(ts, centres, rotations, still_until: float, left: float, alert_mm
     is taken from the mean pose over BASELINE_S ending BACK_S before ``still_until`` and
     projected on the direction the body has gone since; the poses from that baseline to the
     first at RISE_SHARE of the deviation now are fitted with ``b + a (t - t0)^p`` for each
-    trial onset ``t0`` (every STEP_S from BACK_S before ``still_until`` to ``left``) and each
+    trial onset ``t0`` (every STEP_S from BACK_S before ``still_until`` to just before ``left``) and each
     shape ``p`` of POWERS; the onset is the ``t0`` of the least squares."""
     ts = np.asarray(ts, float)
     i_left = int(np.searchsorted(ts, left))
@@ -118,7 +118,7 @@ def find_onset(ts, centres, rotations, still_until: float, left: float, alert_mm
     end = min(int(beyond[0]) if len(beyond) else len(ts), int(np.searchsorted(ts, still_until + RISE_MAX_S)))
     end = max(end, i_left + 1)                    # the first pose beyond the onset levels at least
     tt, rr = ts[base[0]:end], r[base[0]:end]
-    trial = np.arange(still_until - BACK_S, ts[i_left] + STEP_S / 2, STEP_S)
+    trial = np.arange(still_until - BACK_S, ts[i_left] - STEP_S / 2, STEP_S)   # before it was seen gone
     best, onset = np.inf, None
     n, sy = len(tt), rr.sum()
     for p in powers:
