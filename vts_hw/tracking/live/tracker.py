@@ -148,7 +148,9 @@ class LiveTracker:
             self.error_trace = traceback.format_exc()
 
     def step(self, timeout: float, now: float | None = None) -> None:
-        """One round of the worker: what the tap holds detected, the sets ready estimated."""
+        """One round of the worker: what the tap holds detected, frame by frame in the order they
+        arrived, each set estimated as soon as it is ready (before the next frame's detection:
+        a frame of the next set that came meanwhile does not hold this one up)."""
         items = self.tap.take(timeout)
         for name, arrival, frame in items:
             t0 = self.clock()
@@ -157,6 +159,8 @@ class LiveTracker:
             if p is not None:
                 self.grouper.add(p)
                 self._detected[arrival] = (t0, self.clock())
+                for fs in self.grouper.ready(self.clock() if now is None else now):
+                    self._estimate(fs)
         if len(self._detected) > 4 * DETECTED_KEEP:       # frames that went into no set, or not last
             for k in list(self._detected)[:-DETECTED_KEEP]:
                 del self._detected[k]
