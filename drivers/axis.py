@@ -2,8 +2,9 @@
 
 One :class:`AxisCamera` per camera, built on requests with digest authentication (basic only
 over HTTPS, never in clear). Every call has a timeout, and every failure is one of the typed
-errors below, each with a sentence that names the camera and says what to do. The password is
-held only in the auth object: it is never part of a URL, a repr, a log line or an error message.
+errors of :mod:`.axis_errors` (re-exported here), each with a sentence that names the camera and
+says what to do. The password is held only in the auth object: it is never part of a URL, a
+repr, a log line or an error message.
 
 Old firmware (VAPIX 2, e.g. an AXIS 211 on 4.4x) is told apart by a 404 on ``param.cgi`` and is
 answered on its own paths: ``view/`` and ``admin/param.cgi``, ``io/output.cgi`` for the LED (and its state),
@@ -14,18 +15,21 @@ from __future__ import annotations
 
 import statistics
 import time
+from datetime import datetime, timezone
+from typing import TYPE_CHECKING
 from urllib.parse import quote
 
 import requests
 import urllib3
 from requests.auth import HTTPBasicAuth, HTTPDigestAuth
 
-from vts_hw.camera import CameraError, ClockOffset, Frame, check_whole
-from vts_hw.camera import Refused as ContractRefused
+from vts_hw.camera import ClockOffset, Frame, check_whole
 from vts_hw.camera_stream import FrameStream
+from vts_hw.drivers.axis_errors import (NOT_THE_JSON, AxisError, BadReply, CameraUnauthorized, CameraUnreachable,
+                                        NotFound, Refused, TooManyViewers)
+from vts_hw.drivers.axis_stream import MultipartConnection, num
+from vts_hw.drivers.axis_uptime import read_uptime
 from vts_hw.recording.axis_jpeg import inspect_jpeg
-
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from vts_hw.config import CameraConfig
@@ -33,36 +37,6 @@ if TYPE_CHECKING:
 
 #: the most a camera's answer (other than a stream) may hold: a 4K JPEG is a few MiB
 MAX_ANSWER = 64 * 2**20
-
-
-class AxisError(CameraError):
-    """An Axis camera failed; ``camera`` names it."""
-
-
-class CameraUnreachable(AxisError):
-    """No connection, or a connection that timed out or was dropped."""
-
-
-class CameraUnauthorized(AxisError):
-    """The camera refused the credentials (HTTP 401 after answering the challenge)."""
-
-    retry = False  # reconnecting with the same password cannot help
-
-
-class TooManyViewers(AxisError):
-    """HTTP 503: the camera is serving as many streams as it can."""
-
-
-class BadReply(AxisError):
-    """The camera answered, but not with what was asked for."""
-
-
-class NotFound(BadReply):
-    """HTTP 404: this firmware does not have that CGI (how VAPIX 2 and 3 are told apart)."""
-
-
-class Refused(BadReply, ContractRefused):
-    """HTTP 200 with a ``# Error:`` body: the camera refused the request (unknown group...)."""
 
 
 class _AxisAuth(HTTPDigestAuth):
@@ -271,7 +245,6 @@ class AxisCamera:
                     first_seq: int = 0, stall_timeout: float = 2.0):
         """One connection of ``mjpg/video.cgi`` (the camera ends it after ``duration`` s or
         ``nbrofframes`` frames when asked)."""
-        from vts_hw.drivers.axis_stream import MultipartConnection, num
         params: dict[str, object] = {"resolution": self.resolution, "fps": num(fps),
                                      "compression": self.compression}
         if duration is not None:
@@ -372,7 +345,7 @@ class AxisCamera:
             return {k: str(v) for k, v in props.items()}
         except NotFound:
             pass
-        except _NOT_THE_JSON:
+        except NOT_THE_JSON:
             raise BadReply(self.name, f"camera {self.name} sent device info that is not the expected JSON") \
                 from None
         info = {k.removeprefix("Brand."): v for k, v in self.get_params("Brand").items()}
@@ -384,7 +357,6 @@ class AxisCamera:
 
     def uptime(self):
         """How long the camera has run since it started (drivers/axis_uptime.py)."""
-        from vts_hw.drivers.axis_uptime import read_uptime
         return read_uptime(self)
 
     def clock_offset(self, samples: int = 5) -> ClockOffset:
@@ -409,7 +381,7 @@ class AxisCamera:
             return ClockOffset(best[0], best[1] / 2 + 0.001, best[2], "time.cgi", samples)
         except NotFound:
             pass
-        except _NOT_THE_JSON:
+        except NOT_THE_JSON:
             raise BadReply(self.name, f"camera {self.name} sent time.cgi JSON without a readable data.dateTime") \
                 from None
         offsets, rtts = [], []
@@ -422,9 +394,6 @@ class AxisCamera:
             rtts.append(f.host_time - t0)
         return ClockOffset(statistics.median(offsets), max(rtts) + 0.01, self.clock(), "snapshot", samples)
 
-
-#: what reading a JSON reply that is not the expected shape raises (RecursionError: nested too deeply)
-_NOT_THE_JSON = (ValueError, KeyError, TypeError, AttributeError, OverflowError, RecursionError)
 
 _DEVICE_INFO_PARAMS = {  # basicdeviceinfo.cgi property -> parameter, for firmware without it
     "Version": "Properties.Firmware.Version", "BuildDate": "Properties.Firmware.BuildDate",
@@ -445,7 +414,6 @@ def _tls_reason(exc: Exception) -> str:
 
 
 def _parse_iso(s: str) -> float:
-    from datetime import datetime, timezone
     s = s.strip().replace("Z", "+00:00")
     dt = datetime.fromisoformat(s)
     if dt.tzinfo is None:

@@ -29,7 +29,8 @@ import re
 from dataclasses import dataclass, field
 
 from vts_hw.camera import Refused as ContractRefused
-from vts_hw.drivers.axis import AxisCamera, AxisError, NotFound, Refused, _NOT_THE_JSON
+from vts_hw.drivers.axis import AxisCamera
+from vts_hw.drivers.axis_errors import NOT_THE_JSON, AxisError, NotFound, Refused
 
 TIME_API = "/axis-cgi/time.cgi"
 _ERROR_PARAM = re.compile(r"'(?:root\.)?([A-Za-z0-9_.]+)'")
@@ -156,7 +157,7 @@ def _time_zone(cam: AxisCamera, zone: str, result: SetupResult, before: str | No
     except NotFound:
         raise SetupRefused(cam.name, f"camera {cam.name} has no Time API (time.cgi): its time zone cannot be "
                                      f"set to {zone}") from None
-    except _NOT_THE_JSON:
+    except NOT_THE_JSON:
         raise SetupRefused(cam.name, f"camera {cam.name} answered the Time API with JSON of another shape") from None
     if got != zone:
         raise SetupRefused(cam.name, f"camera {cam.name} took time zone {zone} but its Time API reads back {got!r}")

@@ -17,7 +17,7 @@ import urllib3
 
 from vts_hw.camera import TORN, Frame, StreamGap
 from vts_hw.camera_stream import FrameStream
-from vts_hw.drivers.axis import BadReply, CameraUnreachable
+from vts_hw.drivers.axis_errors import BadReply, CameraUnreachable
 from vts_hw.recording.mjpeg import MultipartParser, boundary_from_content_type
 
 

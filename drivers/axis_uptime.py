@@ -11,9 +11,13 @@
 from __future__ import annotations
 
 import re
+from typing import TYPE_CHECKING
 
 from vts_hw.camera import Uptime
-from vts_hw.drivers.axis import AxisCamera, BadReply, NotFound, _NOT_THE_JSON
+from vts_hw.drivers.axis_errors import NOT_THE_JSON, BadReply, NotFound
+
+if TYPE_CHECKING:
+    from vts_hw.drivers.axis import AxisCamera
 
 _UP = re.compile(r"\bup\s+(?:(\d+)\s+days?,\s*)?(?:(\d+):(\d{2})|(\d+)\s+min)")
 
@@ -24,13 +28,13 @@ class NoUptime(BadReply):
     retry = False
 
 
-def read_uptime(cam: AxisCamera) -> Uptime:
+def read_uptime(cam: "AxisCamera") -> Uptime:
     try:
         r = cam.request("POST", "/axis-cgi/systemready.cgi",
                         json_body={"apiVersion": "1.0", "method": "systemready"})
         try:
             return Uptime(float(int(r.json()["data"]["uptime"])), 1.0, "systemready.cgi")
-        except _NOT_THE_JSON:
+        except NOT_THE_JSON:
             raise BadReply(cam.name, f"camera {cam.name} answered systemready.cgi without a readable "
                                      f"data.uptime") from None
     except NotFound:

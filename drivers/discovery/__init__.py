@@ -10,23 +10,18 @@ skeleton is :mod:`vts_hw.rig_file`'s.
 
 from __future__ import annotations
 
+import os
 import threading
 from dataclasses import dataclass, field, replace
 from typing import Callable
 
 from vts_hw.camera import CameraError
-
-
-@dataclass(frozen=True)
-class Announcement:
-    """One camera as one announcement told of it (``source``: ``mdns`` or ``ssdp``)."""
-
-    source: str
-    host: str
-    port: int
-    serial: str
-    model: str = ""
-    scheme: str = "http"
+from vts_hw.config import CameraConfig
+from vts_hw.drivers.axis import CameraUnauthorized
+from vts_hw.drivers.discovery import mdns as mdns_mod
+from vts_hw.drivers.discovery import ssdp as ssdp_mod
+from vts_hw.drivers.discovery.announcement import Announcement, DiscoveryFailed
+from vts_hw.drivers.registry import open_camera
 
 
 @dataclass
@@ -76,9 +71,6 @@ def search(timeout: float, interfaces: list[str] | None = None, *, mdns: bool = 
     """Listen for ``timeout`` seconds on ``interfaces`` (IPv4 addresses of this host; None: all)
     with both protocols at once. A protocol that cannot run here (no such interface, port
     taken) is an :class:`~vts_hw.errors.DeviceError` naming it."""
-    from vts_hw.drivers.discovery import mdns as mdns_mod
-    from vts_hw.drivers.discovery import ssdp as ssdp_mod
-
     jobs: list[tuple[str, Callable[[], list[Announcement]]]] = []
     if mdns:
         jobs.append(("mdns", lambda: mdns_mod.browse(timeout, interfaces)))
@@ -109,12 +101,6 @@ def confirm(found: Found, user: str | None, password_env: str | None, timeout: f
     over VAPIX (the password from the environment variable ``password_env``, when it is set);
     ``confirmed`` is False (and ``problem`` says why) when it cannot be asked or does not agree
     with its announcement."""
-    import os
-
-    from vts_hw.config import CameraConfig
-    from vts_hw.drivers.axis import CameraUnauthorized
-    from vts_hw.drivers.registry import open_camera
-
     has_password = bool(password_env) and os.environ.get(password_env) is not None
     cfg = CameraConfig(name=found.serial or "camera", host=found.host, port=found.port, scheme=found.scheme,
                        user=user or "root", password_env=password_env if has_password else None, timeout_s=timeout)
@@ -138,4 +124,4 @@ def confirm(found: Found, user: str | None, password_env: str | None, timeout: f
                    problem="")
 
 
-__all__ = ["Announcement", "Found", "merge", "search", "confirm"]
+__all__ = ["Announcement", "DiscoveryFailed", "Found", "merge", "search", "confirm"]

@@ -8,21 +8,16 @@ interfaces (all of them when none are given), then resolves every instance it he
 
 from __future__ import annotations
 
-from vts_hw.drivers.discovery import Announcement
-from vts_hw.errors import DeviceError
+import threading
+
+from vts_hw.drivers.discovery.announcement import Announcement, DiscoveryFailed
 
 SERVICE = "_axis-video._tcp.local."
 RESOLVE_MS = 2000
 
 
-class DiscoveryFailed(DeviceError):
-    """A search could not run on this host (no such interface, socket refused)."""
-
-
 def browse(timeout: float, interfaces: list[str] | None = None) -> list[Announcement]:
     """Every ``_axis-video._tcp`` instance heard within ``timeout`` seconds."""
-    import threading
-
     from zeroconf import (DNSQuestionType, InterfaceChoice, IPVersion, ServiceBrowser, ServiceInfo, ServiceStateChange,
                           Zeroconf)
 

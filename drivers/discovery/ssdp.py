@@ -12,12 +12,13 @@ from __future__ import annotations
 import select
 import socket
 import time
+import xml.etree.ElementTree as ET
 from urllib.parse import urlsplit
 
+import requests
 from ssdp.messages import SSDPRequest, SSDPResponse
 
-from vts_hw.drivers.discovery import Announcement
-from vts_hw.drivers.discovery.mdns import DiscoveryFailed
+from vts_hw.drivers.discovery.announcement import Announcement, DiscoveryFailed
 
 GROUP, PORT = "239.255.255.250", 1900
 SEARCH_TARGET = "ssdp:all"
@@ -97,10 +98,6 @@ def _reply(datagram: bytes) -> SSDPResponse | None:
 
 def describe(loc: str, timeout: float = 3.0) -> Announcement | None:
     """The camera a UPnP description tells of (None: not an Axis camera, or unreadable)."""
-    import xml.etree.ElementTree as ET
-
-    import requests
-
     try:
         with requests.get(loc, timeout=timeout, stream=True) as r:
             if r.status_code != 200:
