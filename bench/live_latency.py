@@ -6,8 +6,9 @@ busy processes per core) -- and its parts, on the machine as it is and busy, in 
 
 The frames are made ahead: a breathing patient in the reference room seen by 4 simulated
 cameras (``simulate_recording``: the frames as JPEGs with their camera stamps and receipt
-times, 25 fps, the cameras 13 ms apart, a few ms of network delay and 1 % of frames 50-300 ms
-late). Each case feeds them to a fresh :class:`~vts_hw.tracking.live.tracker.LiveTracker` in
+times, 25 fps, the cameras 13 ms apart, 4 ms + a few ms of network delay; ``--late-share``
+of the frames 50-300 ms late besides, 0 by default: the sets behind a late frame wait for it by
+the grouping rule, so that figure measures the network and that rule, not the path's speed). Each case feeds them to a fresh :class:`~vts_hw.tracking.live.tracker.LiveTracker` in
 this process through its tap (``on_frame``, as the recorder does), each frame at its receipt
 time in real time, with the tracker's own worker and watch threads; the simulator costs
 nothing while a case runs. The cases: ``cpu`` (what the path costs: the frames fed one at a
@@ -54,11 +55,12 @@ GOAL_P95_MS = 10.0
 MOTION = SimpleNamespace(alert_mm=3.0, alert_deg=2.0, alert_after_s=1.0, blind_alert_s=3.0)
 
 
-def make_frames(folder: Path, cameras: int, seconds: float, seed: int):
+def make_frames(folder: Path, cameras: int, seconds: float, seed: int, late_share: float):
     """The scene, and every camera's frames as received: (receipt s from the first, camera, frame)."""
     scene = Scene.reference(seed=seed, n_cameras=cameras, start_epoch=1_790_000_000.0 + 1000.0 * seed)
     t0 = time.monotonic()
-    simulate_recording(folder, duration_s=seconds, seed=seed, scene=scene, patient={"moves": []})
+    simulate_recording(folder, duration_s=seconds, seed=seed, scene=scene, patient={"moves": []},
+                       outlier_rate=late_share)
     frames, offsets = received_frames(folder, scene.camera_names)
     first = frames[0][0]
     return scene, [(host - first, name, frame) for host, name, frame in frames], offsets, time.monotonic() - t0
@@ -120,18 +122,23 @@ def main() -> int:
     ap.add_argument("--cameras", type=int, default=4)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--per-core", type=int, default=2, help="spinning processes per core in the busy case")
+    ap.add_argument("--late-share", type=float, default=0.0,
+                    help="share of frames 50-300 ms late (a congested network; default 0): the sets "
+                         "behind such a frame wait for it, by the grouping rule (decision 0048)")
     ap.add_argument("--cases", nargs="+", choices=("cpu", "idle", "busy"), default=["cpu", "idle", "busy"])
     a = ap.parse_args()
-    if a.seconds < 2 or a.reference_s < 2 or a.cameras < 2 or a.per_core < 1:
-        ap.error("--seconds and --reference-s must be 2 or more, --cameras 2 or more, --per-core 1 or more")
+    if a.seconds < 2 or a.reference_s < 2 or a.cameras < 2 or a.per_core < 1 or not 0 <= a.late_share < 1:
+        ap.error("--seconds and --reference-s must be 2 or more, --cameras 2 or more, --per-core 1 or more, "
+                 "--late-share from 0 to below 1")
     cores = os.cpu_count() or 1
     total = a.reference_s * 1.5 + a.seconds + 1.0          # the reference may take longer than its seconds
-    print(f"live path latency: {a.cameras} simulated cameras at 25 fps, frames made ahead; {cores} cores; "
-          f"reference {a.reference_s:g} s, then {a.seconds:g} s measured per case", flush=True)
+    print(f"live path latency: {a.cameras} simulated cameras at 25 fps, frames made ahead ({a.late_share:.0%} "
+          f"of them 50-300 ms late); {cores} cores; reference {a.reference_s:g} s, then {a.seconds:g} s measured "
+          f"per case", flush=True)
     try:
         with tempfile.TemporaryDirectory(prefix="vts-live-latency-") as tmp:
             print(f"  making {total:g} s of frames ahead ...", flush=True)
-            scene, frames, offsets, took = make_frames(Path(tmp) / "rec", a.cameras, total, a.seed)
+            scene, frames, offsets, took = make_frames(Path(tmp) / "rec", a.cameras, total, a.seed, a.late_share)
             print(f"  {len(frames)} frames made in {took:.0f} s", flush=True)
             rows = []
             for case in a.cases:
