@@ -28,7 +28,7 @@ class NoUptime(BadReply):
     retry = False
 
 
-def read_uptime(cam: "AxisCamera") -> Uptime:
+def read_uptime(cam: AxisCamera) -> Uptime:
     try:
         r = cam.request("POST", "/axis-cgi/systemready.cgi",
                         json_body={"apiVersion": "1.0", "method": "systemready"})
