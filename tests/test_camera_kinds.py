@@ -235,7 +235,8 @@ def test_replay_runs_the_daily_drift_qa(rig_recording, tmp_path):
     rig = _rig(_replay_entries(rig_recording, speed=1.0), results={"url": f"sqlite:///{tmp_path / 'r.sqlite'}"})
     with ResultsStore(rig.results.url) as store:
         cams = open_cameras(rig.cameras)
-        baselines = take_baselines(cams, frames=3).baselines
+        # frames spread over 0.5 s, not the baseline's 3 s: the recording replayed lasts 2 s
+        baselines = take_baselines(cams, frames=3, span_s=0.5).baselines
         save_baselines(store, baselines)
         assert all(len(b.markers) == 5 for b in baselines)
         for c in cams:
