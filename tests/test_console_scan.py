@@ -114,13 +114,13 @@ def test_a_scan_from_the_page_records_shows_breathing_and_alerts_on_a_move(desk,
     # the recording's pictures reach the page (fed by the recording: no second stream)
     assert until(lambda: attr(page, 'figure[data-camera="cam1"] img', "data-seq"), 10)
     assert rig.servers["cam1"].state()["active_streams"] == 1
-    # the Room page, meanwhile, names the patient's markers as the live tracker does (B<band>.<n>)
+    # the Room page, meanwhile, names the patient's markers as the live tracker does (chest 1 ...)
     room = page.context.browser.new_page(viewport={"width": 1366, "height": 768})
     room.goto(url)
     band_labels = lambda: room.eval_on_selector_all(  # noqa: E731
         'section[data-camera="cam1"] svg text.k-band', "ts => ts.map(t => t.textContent)")
     assert until(lambda: len(band_labels()) >= 3, 30), band_labels()
-    assert all(re.fullmatch(r"B\d\.\d+", t) for t in band_labels()), band_labels()
+    assert all(re.fullmatch(r"(chest|abdomen) \d+", t) for t in band_labels()), band_labels()
     assert rig.servers["cam1"].state()["active_streams"] == 1          # still the recording's one stream
     room.close()
 

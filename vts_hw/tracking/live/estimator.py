@@ -31,6 +31,7 @@ from vts_hw.tracking.live.breathing import BreathingTrace
 from vts_hw.tracking.live.marker_tracks import assign
 from vts_hw.motion.patient_model import InstantPose, PatientModel
 from vts_hw.pose_health import pose_health
+from vts_hw.vision.marker_roles import ABDOMEN, CHEST
 from vts_hw.tracking.live.reference import ReferenceCollector
 
 __all__ = ["LiveSettings", "LiveEstimator", "LiveEstimate", "BandEstimate", "LivePose"]
@@ -151,7 +152,7 @@ class LiveEstimator:
         self._fit_t: float | None = None
         self._seen_x = np.zeros((0, 3))
         self._seen_pts = np.zeros(0, int)        # where in that instant's points each seen marker was
-        self.marker_names: list[str] = []       # per model marker: B<band>.<n> (set with the model)
+        self.marker_names: list[str] = []       # per model marker: "<band name> <n>" (set with the model)
         self._cameras = float("nan")             # cameras per marker used in the last pose (mean)
 
     # -- input ---------------------------------------------------------------------------------
@@ -196,9 +197,10 @@ class LiveEstimator:
             return
         self.model = model
         self.marker_names = [""] * model.n_markers
-        for k, g in enumerate(model.bands):
+        for k, g in enumerate(model.bands):       # chest 1, abdomen 2: the roles' words (B1.1 where not told)
+            name = model.band_names[k] if k < len(model.band_names) else ""
             for n, i in enumerate(g):
-                self.marker_names[i] = f"B{k + 1}.{n + 1}"
+                self.marker_names[i] = f"{name} {n + 1}" if name in (CHEST, ABDOMEN) else f"B{k + 1}.{n + 1}"
         self.rule = AlertRule(self.motion.alert_mm, self.motion.alert_deg, self.motion.alert_after_s,
                               self.s.onset_fraction, self.s.settle_s, model.pose_noise_mm, model.pose_noise_deg)
         self.traces = [BreathingTrace(self.s.trace_window_s) for _ in model.bands]
@@ -261,8 +263,10 @@ class LiveEstimator:
 
     def seen_names(self) -> list[tuple[str, int]]:
         """The patient markers of the last estimate, named by the reference model: ``(name,
-        index into that instant's points)``, the name ``B<band>.<n>`` (bands and markers counted
-        from 1, in the model's order). Empty until the reference is learned."""
+        index into that instant's points)``, the name ``chest <n>`` / ``abdomen <n>`` as the
+        markers' identity names the bands (:mod:`vts_hw.vision.marker_roles`), ``B<band>.<n>`` where
+        the bands are not told apart (markers counted from 1, in the model's order). Empty until
+        the reference is learned."""
         if self.phase != "tracking":
             return []
         return [(self.marker_names[int(m)], int(p)) for m, p in zip(self._seen_idx, self._seen_pts)]
