@@ -72,8 +72,10 @@ def test_over_sixty_patients_a_rate_is_within_its_claim(loss):
         assert statuses.count("measured") >= 25, statuses  # with no loss most patients are measured
     if loss == 0.2:
         # each breath across a short gap measured from its landmarks on both sides (0089): most
-        # patients have a rate (0059's rule: 44 of 60, none measured), some to within 0.5 /min
-        assert statuses.count("bounded") + statuses.count("measured") >= 48, statuses
+        # patients have a rate (0059's rule: 44 of 60, none measured), some to within 0.5 /min; a
+        # chain of stretches needs 6 half breaths seen in one of them (with 3, 48 had a rate here,
+        # but a held-out scan with body moves read a wrong range: 0089)
+        assert statuses.count("bounded") + statuses.count("measured") >= 40, statuses
         assert statuses.count("measured") >= 6, statuses
 
 
