@@ -65,7 +65,7 @@ def test_the_onset_is_the_moves_start_and_the_alert_comes_as_the_hold_ends():
             assert AFTER_S < a.time - a.onset <= AFTER_S + 1.0 / RATE + 1e-6, (start, a)
             assert a.onset_known_s <= 1.5 / RATE and "without a pose" not in a.text(ALERT_MM, ALERT_DEG)
     assert -0.05 <= min(errors) and max(errors) <= 0.25, np.round(errors, 3)
-    assert np.median(errors) <= 0.05 and np.mean(np.abs(errors) <= 0.1) >= 0.8, np.round(errors, 3)
+    assert np.median(errors) <= 0.07 and np.mean(np.abs(errors) <= 0.1) >= 0.8, np.round(errors, 3)
 
 
 def _twitch(start, out_s, hold_s, back_s, size_mm):
