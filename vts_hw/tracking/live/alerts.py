@@ -42,8 +42,8 @@ RISE_SHARE = 0.15    # the first part of the rise fitted: up to this share of th
 RISE_MAX_S = 2.0     # ... and at most this long after the last instant within the onset levels
 RISE_MIN_POSES = 5   # ... and at least this many poses beyond the onset levels (a slow ramp
 #                      reaches them in a few poses: fewer let the noise tilt it)
-POWERS = (1.0, 2.0)  # its shapes: a ramp, a steady acceleration (a smooth start fitted either way
-#                      is found late, never early: the choice that keeps a twitch from alerting)
+POWERS = (1.0, 2.0)  # its shapes: a ramp, a steady acceleration (a start smoother than that is
+#                      found late rather than early: an early onset would shorten a twitch's hold)
 STEP_S = 0.005       # the onsets tried
 GAP_S = 0.25         # poses further apart than this: a stretch without a pose
 
@@ -172,7 +172,8 @@ class AlertRule:
         return "still" if self.move_mm <= self.onset_mm and self.turn_deg <= self.onset_deg else "off pose"
 
     def _look_back(self) -> None:
-        ts, cs, rs = zip(*self._poses)
+        since = self.still_until - BACK_S - BASELINE_S
+        ts, cs, rs = zip(*(p for p in self._poses if p[0] >= since))
         found = find_onset(ts, cs, rs, self.still_until, self.left, self.alert_mm, self.alert_deg)
         self.onset, self.onset_known_s = found or (self.still_until, self.left - self.still_until)
 
