@@ -41,7 +41,9 @@ BACK_S = 0.4         # ... ending this long before the last instant within the o
 RISE_SHARE = 0.15    # the first part of the rise fitted: up to this share of the deviation now
 RISE_MAX_S = 2.0     # ... and at most this long after the last instant within the onset levels
 RISE_MIN_POSES = 5   # ... and at least this many poses beyond the onset levels (a slow ramp
-#                      reaches them in a few poses: fewer let the noise tilt it)
+#                      reaches them in a few poses: fewer let the noise tilt it) ...
+RISE_CAP = 0.5       # ... unless the deviation passed this share of now before them (a sudden
+#                      move: past its half the rise bends over, and the fit would find it late)
 POWERS = (1.0, 2.0)  # its shapes: a ramp, a steady acceleration (a start smoother than that is
 #                      found late rather than early: an early onset would shorten a twitch's hold)
 STEP_S = 0.005       # the onsets tried
@@ -97,8 +99,8 @@ def find_onset(ts, centres, rotations, still_until: float, left: float, alert_mm
     The deviation, in units of the thresholds (mm / alert_mm, deg / alert_deg, six values),
     is taken from the mean pose over BASELINE_S ending BACK_S before ``still_until`` and
     projected on the direction the body has gone since; the poses from that baseline to the
-    first at RISE_SHARE of the deviation now (RISE_MIN_POSES beyond ``left`` at least) are
-    fitted with ``b + a (t - t0)^p`` for each
+    first at RISE_SHARE of the deviation now (RISE_MIN_POSES beyond ``left`` at least, short of
+    RISE_CAP of it) are fitted with ``b + a (t - t0)^p`` for each
     trial onset ``t0`` (every STEP_S from BACK_S before ``still_until`` to just before ``left``) and each
     shape ``p`` of POWERS; the onset is the ``t0`` of the least squares."""
     ts = np.asarray(ts, float)
@@ -119,7 +121,8 @@ def find_onset(ts, centres, rotations, still_until: float, left: float, alert_mm
     r = (v - v[base].mean(axis=0)) @ (d / size)
     beyond = np.flatnonzero((r > RISE_SHARE * r[-1]) & (ts >= left))
     end = min(int(beyond[0]) if len(beyond) else len(ts), int(np.searchsorted(ts, still_until + RISE_MAX_S)))
-    end = max(end, i_left + RISE_MIN_POSES)       # a few poses beyond the onset levels at least
+    half = np.flatnonzero((r > RISE_CAP * r[-1]) & (ts >= left))   # a few poses beyond the levels at least,
+    end = max(end, min(i_left + RISE_MIN_POSES, int(half[0]) if len(half) else len(ts)))   # not past half
     tt, rr = ts[base[0]:end], r[base[0]:end]
     trial = np.arange(still_until - BACK_S, ts[i_left] - STEP_S / 2, STEP_S)   # before it was seen gone
     best, onset = np.inf, None
