@@ -19,6 +19,7 @@ import pytest
 import yaml
 
 from vts_hw.recording.folder import read_index
+from vts_hw.tracking.live.pose_log import read_poses
 from vts_hw.sim_devices.patient import BodyMove, add_patient
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.sim_devices.scenarios.sync_session import run_scan_cli
@@ -108,6 +109,13 @@ def test_a_body_move_raises_one_alert(patient_rig, tmp_path, capsys):
     # one model (issue 33): the session keeps the live model and poses; the offline analysis fits
     # that model, its poses agree with the live ones, and it explains the alert
     assert live["model_file"] == "live_model.json" and live["summary"]["poses_kept"] > 0
+    poses = read_poses(session)          # each pose names the recorded frames it was made from
+    rows = {name: read_index(session / f"{name}.index.csv") for name in live["cameras"]}
+    offset = {name: m["cameras"][name]["clock_offset_before"]["offset_s"] for name in live["cameras"]}
+    for t, used in zip(poses.t[::20], poses.frames[::20]):   # a set's frames within half a period of it
+        for name, k in zip(live["cameras"], used):
+            assert k == -1 or abs(rows[name][k].camera_time - offset[name] - t) < 0.025, (name, k, t)
+    assert sum(k >= 0 for used in poses.frames for k in used) >= len(poses) * 2
     code, out, _ = vts(capsys, "motion", "analyze", session, "--config", rig_yaml, "--json", "--workers", "1")
     assert code in (0, 10, 20), out
     agree = json.loads(out)["live"]

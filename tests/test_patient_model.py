@@ -79,7 +79,7 @@ def test_the_model_goes_through_the_session_and_bad_copies_are_refused(learned, 
 
 def test_live_poses_are_appended_and_a_torn_last_row_is_skipped(tmp_path):
     poses = [LivePose(1000.0 + k, Rotation.from_rotvec([0, 0.01 * k, 0]).as_matrix(), np.array([k, 0.0, 1.0]),
-                      0.5, 0.05, 8, 2.0 if k else float("nan"), "still", 0.1, 0.01, "known", 0.8)
+                      0.5, 0.05, 8, 2.0 if k else float("nan"), "still", 0.1, 0.01, "known", 0.8, (k, -1, k + 1))
              for k in range(5)]
     log = PoseLog(tmp_path)
     log.write(poses[:3])
@@ -92,6 +92,7 @@ def test_live_poses_are_appended_and_a_torn_last_row_is_skipped(tmp_path):
     assert np.allclose(back.R[4], poses[4].R, atol=1e-8) and back.T[3, 0] == 3.0 and back.state[0] == "still"
     assert np.isnan(back.cameras[0]) and back.cameras[1] == 2.0                # cameras not known: kept so
     assert back.health[2] == "known" and back.confidence[2] == pytest.approx(0.8)
+    assert back.frames[3] == (3, -1, 4)                                        # the frames it was made from
     (tmp_path / POSES_FILE).write_text("time,x\n1,2\n")
     with pytest.raises(DataError, match="not a live pose file"):
         read_poses(tmp_path)

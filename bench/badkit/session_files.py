@@ -23,7 +23,7 @@ from badkit.classes import Case, Verdict, common
 CLASS = "session files"
 MODEL, POSES = "live_model.json", "live_poses.csv"
 HEADER = ("time,r11,r12,r13,r21,r22,r23,r31,r32,r33,tx,ty,tz,s_mm,rms_mm,markers,cameras,state,move_mm,turn_deg,"
-          "health,confidence")
+          "health,confidence,frames")
 
 
 def _model(**change) -> str:
@@ -79,7 +79,7 @@ KINDS = [
     ("poses a folder", "live poses not compared", _folder(POSES)),
     ("poses binary", "live poses not compared", _write(POSES, b"\xff\xfe" + bytes(range(256)) * 8)),
     ("poses another header", "live poses not compared", _write(POSES, "t,x,y\n1,2,3\n")),
-    ("poses NaN rows and a torn row", "live poses:", _write(POSES, HEADER + "\n" + ",".join(["nan"] * 22) + "\n"
+    ("poses NaN rows and a torn row", "live poses:", _write(POSES, HEADER + "\n" + ",".join(["nan"] * 23) + "\n"
                                                         + "1790000010.0,1,0,0")),
 ]
 

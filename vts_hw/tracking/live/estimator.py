@@ -28,7 +28,7 @@ from scipy.spatial.transform import Rotation
 
 from vts_hw.tracking.live.alerts import Alert, AlertRule
 from vts_hw.tracking.live.breathing import BreathingTrace
-from vts_hw.tracking.live.marker_tracks import assign
+from vts_hw.tracking.identities import assign
 from vts_hw.motion.patient_model import InstantPose, PatientModel
 from vts_hw.pose_health import pose_health
 from vts_hw.vision.marker_roles import ABDOMEN, CHEST
@@ -56,6 +56,7 @@ class LivePose:
     turn_deg: float
     health: str = ""
     confidence: float = float("nan")
+    frames: tuple = ()          # per camera (the tracker's order) the number of its frame in the set, -1: none
 
 
 @dataclass(frozen=True)
@@ -156,16 +157,17 @@ class LiveEstimator:
         self._cameras = float("nan")             # cameras per marker used in the last pose (mean)
 
     # -- input ---------------------------------------------------------------------------------
-    def update(self, t: float, points, cameras=None) -> Alert | None:
+    def update(self, t: float, points, cameras=None, frames: tuple = ()) -> Alert | None:
         """One instant's points (N, 3) (``cameras``: per point the cameras that saw it, or one
-        number for all; None: not known). Returns an alert when this estimate raised one."""
+        number for all; None: not known; ``frames``: the frames they came from, per camera its
+        number, -1 none). Returns an alert when this estimate raised one."""
         pts = np.asarray(points, float).reshape(-1, 3)
         self.time = t
         if self.phase != "tracking":
             self._collect(t, pts)
             if self.phase != "tracking":
                 return None
-        return self._track(t, pts, cameras)          # (the instant that completed the reference too)
+        return self._track(t, pts, cameras, frames)          # (the instant that completed the reference too)
 
     def _collect(self, t: float, pts: np.ndarray) -> None:
         self.observed = len(pts) >= 3
@@ -224,7 +226,7 @@ class LiveEstimator:
         g = self.model.bands[k]
         return float(np.mean(np.linalg.norm(self.model.vectors[g], axis=1))) if g else 0.0
 
-    def _track(self, t: float, pts: np.ndarray, cameras=None) -> Alert | None:
+    def _track(self, t: float, pts: np.ndarray, cameras=None, frames: tuple = ()) -> Alert | None:
         m = self.model
         i_m, i_p = assign(self._predicted(), pts, self.s.gate_mm)
         after_gap = self._fit_t is None or t - self._fit_t > self.s.gap_s
@@ -250,7 +252,7 @@ class LiveEstimator:
         self._cameras = cams
         h = pose_health(fit.n_markers, m.n_markers, fit.rms_mm, None if np.isnan(cams) else cams)
         self.poses.append(LivePose(t, fit.R, fit.T, fit.s, fit.rms_mm, fit.n_markers, cams, r.state,
-                                   r.move_mm, r.turn_deg, h.state, h.confidence))
+                                   r.move_mm, r.turn_deg, h.state, h.confidence, tuple(int(i) for i in frames)))
         return alert
 
     def health(self, age_s: float = 0.0):

@@ -10,7 +10,9 @@ rotation, row-major) and ``tx, ty, tz`` (mm) of the pose reference -> now in the
 ``s_mm`` (the respiratory signal), ``rms_mm`` (the fit's residual), ``markers`` (used),
 ``cameras`` (per marker used, mean), ``state`` (the alert rule's: still, off pose, moving,
 ALERT), ``move_mm``/``turn_deg`` (from the alert reference pose), ``health`` (known, bounded,
-not known) and ``confidence`` (0 to 1) when it was made (:mod:`vts_hw.pose_health`).
+not known) and ``confidence`` (0 to 1) when it was made (:mod:`vts_hw.pose_health`), ``frames``
+(the frames it was made from: per camera of the manifest's ``live_motion.cameras``, in that
+order, the frame's number in that camera's recording, ``-1`` none; separated by ``;``).
 """
 
 from __future__ import annotations
@@ -33,10 +35,10 @@ __all__ = ["POSES_FILE", "MODEL_FILE", "PoseLog", "LivePoses", "read_poses", "sa
 POSES_FILE = "live_poses.csv"
 MODEL_FILE = "live_model.json"
 COLUMNS = (["time"] + [f"r{i}{j}" for i in range(1, 4) for j in range(1, 4)] + ["tx", "ty", "tz", "s_mm", "rms_mm",
-           "markers", "cameras", "state", "move_mm", "turn_deg", "health", "confidence"])
+           "markers", "cameras", "state", "move_mm", "turn_deg", "health", "confidence", "frames"])
 STATES = ("still", "off pose", "moving", "ALERT")
 HEALTH = ("known", "bounded", "not known")
-TEXT = (COLUMNS.index("state"), COLUMNS.index("health"))
+TEXT = (COLUMNS.index("state"), COLUMNS.index("health"), COLUMNS.index("frames"))
 
 
 class PoseLog:
@@ -58,7 +60,8 @@ class PoseLog:
             row = ([f"{p.time:.6f}"] + [f"{x:.9f}" for x in np.asarray(p.R).ravel()]
                    + [f"{x:.5f}" for x in np.asarray(p.T)] + [f"{p.s:.5f}", f"{p.rms_mm:.5f}", str(p.n_markers),
                                                               f"{p.cameras:.3f}", p.state, f"{p.move_mm:.4f}",
-                                                              f"{p.turn_deg:.5f}", p.health, f"{p.confidence:.4f}"])
+                                                              f"{p.turn_deg:.5f}", p.health, f"{p.confidence:.4f}",
+                                                              ";".join(str(int(i)) for i in p.frames)])
             buf.write(",".join(row) + "\n")
         if buf.tell():
             self._f.write(buf.getvalue())
@@ -74,7 +77,8 @@ class PoseLog:
 class LivePoses:
     """The live pose series of a scan, read back: ``t`` (F,) host s, ``R`` (F,3,3), ``T`` (F,3)
     mm, ``s`` (F,), ``rms_mm``, ``markers``, ``cameras`` (F,), ``state`` (F,) str, ``move_mm``,
-    ``turn_deg``, ``health`` (F,) str, ``confidence`` (F,); ``skipped``: rows that could not be read (a torn last row)."""
+    ``turn_deg``, ``health`` (F,) str, ``confidence`` (F,), ``frames`` (F tuples: per camera its
+    frame's number, -1 none); ``skipped``: rows that could not be read (a torn last row)."""
 
     t: np.ndarray
     R: np.ndarray
@@ -88,6 +92,7 @@ class LivePoses:
     turn_deg: np.ndarray
     health: np.ndarray
     confidence: np.ndarray
+    frames: list
     skipped: int = 0
 
     def __len__(self) -> int:
@@ -109,10 +114,13 @@ def read_poses(folder) -> LivePoses | None:
     if header != COLUMNS:
         raise DataError(f"{path}: not a live pose file (its first line is not the header "
                         f"{','.join(COLUMNS[:3])},...)")
-    num, state, health, skipped = [], [], [], 0
+    num, state, health, frames, skipped = [], [], [], [], 0
     for row in rows:
         try:
             if len(row) != len(COLUMNS) or row[TEXT[0]] not in STATES or row[TEXT[1]] not in HEALTH:
+                raise ValueError
+            used = tuple(int(i) for i in row[TEXT[2]].split(";")) if row[TEXT[2]] else ()
+            if len(used) > 64 or any(i < -1 for i in used):
                 raise ValueError
             vals = [float(x) for i, x in enumerate(row) if i not in TEXT]
             if not all(np.isfinite(vals[:16] + vals[17:19])):   # cameras and confidence may be nan (not known)
@@ -123,10 +131,11 @@ def read_poses(folder) -> LivePoses | None:
         num.append(vals)
         state.append(row[TEXT[0]])
         health.append(row[TEXT[1]])
-    a = np.array(num, float).reshape(-1, len(COLUMNS) - 2)
+        frames.append(used)
+    a = np.array(num, float).reshape(-1, len(COLUMNS) - 3)
     return LivePoses(a[:, 0], a[:, 1:10].reshape(-1, 3, 3), a[:, 10:13], a[:, 13], a[:, 14], a[:, 15].astype(int),
                      a[:, 16], np.array(state, dtype=object), a[:, 17], a[:, 18], np.array(health, dtype=object),
-                     a[:, 19], skipped)
+                     a[:, 19], frames, skipped)
 
 
 def _why(exc: BaseException) -> str:

@@ -2,7 +2,7 @@
 while the body keeps still, despite frames lost, and whether or not they breathe.
 
 Every instant with points is kept (time, marker identities, positions). Identities come from
-:class:`~vts_hw.tracking.live.marker_tracks.MarkerTracks` with **no track end**: a marker unseen during
+:class:`~vts_hw.tracking.identities.MarkerTracks` with **no track end**: a marker unseen during
 a gap (frames a busy host or network dropped, a camera reconnecting) keeps its identity when
 it is seen again near where it was, so a gap never splits a marker into several that are
 each seen too rarely. "Seen often enough" counts the *instants* that have points (frame sets),
@@ -33,7 +33,7 @@ import numpy as np
 from vts_hw.errors import DataError
 from vts_hw.motion.bands import band_names, split_bands
 from vts_hw.motion.patient_model import PatientModel, learn_model
-from vts_hw.tracking.live.marker_tracks import MarkerTracks
+from vts_hw.tracking.identities import MarkerTracks
 from vts_hw.vision.marker_roles import ABDOMEN, CHEST, PATIENT, TableSpace, roles_of_positions
 
 PATIENT_ROLES = (PATIENT, CHEST, ABDOMEN)

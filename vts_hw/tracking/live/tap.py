@@ -4,7 +4,8 @@ The recorder hands each frame to :meth:`FrameTap.put` *after* writing it; ``put`
 lock for a deque append (no I/O, no wait for the consumer) and never fails the caller. When
 the live worker falls behind, the oldest frame of that camera is dropped from the live path
 (and counted) -- never from the recording. Each camera's last arrival tells the live path
-which camera has gone quiet.
+which camera has gone quiet. Each frame carries its number in its camera's recording (0, 1, ...:
+the order the recorder wrote them, dropped ones counted): what a live pose says it was made from.
 """
 
 from __future__ import annotations
@@ -33,8 +34,8 @@ class FrameTap:
         q = self._q.get(name)
         if q is None:
             return
-        item = (name, time.monotonic() if arrival is None else arrival, frame)
         with self._lock:
+            item = (name, time.monotonic() if arrival is None else arrival, frame, self.received[name])
             self.last[name] = item[1]
             if self.first is None:
                 self.first = item[1]
@@ -46,8 +47,8 @@ class FrameTap:
         self._ready.set()
 
     def take(self, timeout: float) -> list:
-        """Every queued ``(camera, arrival monotonic s, frame)``, oldest arrival first; waits at
-        most ``timeout`` for one."""
+        """Every queued ``(camera, arrival monotonic s, frame, its number in the camera's
+        recording)``, oldest arrival first; waits at most ``timeout`` for one."""
         self._ready.wait(timeout)
         with self._lock:
             self._ready.clear()

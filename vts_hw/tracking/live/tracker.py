@@ -152,9 +152,9 @@ class LiveTracker:
         arrived, each set estimated as soon as it is ready (before the next frame's detection:
         a frame of the next set that came meanwhile does not hold this one up)."""
         items = self.tap.take(timeout)
-        for name, arrival, frame in items:
+        for name, arrival, frame, number in items:
             t0 = self.clock()
-            p = self._detect(name, arrival, frame)
+            p = self._detect(name, arrival, frame, number)
             self.processed[name] += 1
             if p is not None:
                 self.grouper.add(p)
@@ -167,7 +167,7 @@ class LiveTracker:
         for fs in self.grouper.ready(self.clock() if now is None else now):
             self._estimate(fs)
 
-    def _detect(self, name: str, arrival: float, frame) -> Pending | None:
+    def _detect(self, name: str, arrival: float, frame, number: int = -1) -> Pending | None:
         gray = cv2.imdecode(np.frombuffer(frame.jpeg, np.uint8), cv2.IMREAD_GRAYSCALE)
         if gray is None:
             self.undecodable += 1
@@ -181,7 +181,7 @@ class LiveTracker:
         delay = self.host_of(arrival) - t
         floor = self._delay_floor[name] = min(self._delay_floor.get(name, delay), delay)
         # undistorted now, while the set may still wait for other cameras: off the set's path
-        return Pending(c, t, arrival, uv, self.geo.normalize(c, uv), arrival - (delay - floor))
+        return Pending(c, t, arrival, uv, self.geo.normalize(c, uv), arrival - (delay - floor), number)
 
     def _estimate(self, fs: FrameSet) -> None:
         t_start = self.clock()
@@ -195,7 +195,7 @@ class LiveTracker:
         est, f = self.estimator, self.facts
         phase = est.phase
         cams = np.array([np.count_nonzero(np.asarray(p.detections) >= 0) for p in matches.points], float)
-        alert = est.update(fs.time, xyz, cams if len(cams) == len(xyz) else fs.n_cameras)
+        alert = est.update(fs.time, xyz, cams if len(cams) == len(xyz) else fs.n_cameras, tuple(fs.index))
         t_fitted = self.clock()
         seen, resumed, broke, seen_arrival = f.seen, f.resumed, f.broke, f.seen_arrival
         if est.observed:
