@@ -16,7 +16,9 @@ body moves; then a breathing-only scan. Figures taken in one run, printed:
   parts: the onset's error, the rule's wait for the first estimate after the hold, and the
   alert raised after its frame's capture (transfer, live path, alert thread); then p50 and
   p95 of both over the moves, the goals beside (decision 0088);
-* false alerts in the breathing-only scan (goal 0), over the seconds it was tracked.
+* false alerts in the breathing-only scan (goal 0), over the seconds it was tracked;
+* per scan, the live poses against the offline ones of `vts motion analyze` (which fits the model the
+  live path learned: goal <= 0.1 mm and 0.05 deg RMS) and each live alert explained offline.
 
 The simulated cameras' frames are made ahead of time, before each scan (``SimRig.prerender``),
 and served from memory at the cameras' rate, so that the figures measure the recorder and the
@@ -35,6 +37,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -154,6 +157,29 @@ def report_recording(label: str, m: dict) -> None:
           f"alerts {len(m['live_motion'].get('blind_alerts', []))}" + (f"; {live['problem']}" if live.get("problem") else ""))
 
 
+def report_agreement(session: Path, rig_yaml: Path) -> None:
+    """`vts motion analyze SESSION --json` (the offline analysis, fitting the model the live path
+    learned): the live poses against the offline ones, and each live alert explained or not."""
+    p = subprocess.run([sys.executable, "-m", "vts_hw.cli", "motion", "analyze", str(session), "--config", str(rig_yaml),
+                        "--json", "--workers", "1"], capture_output=True, text=True, timeout=1800)
+    try:
+        live = json.loads(p.stdout).get("live")
+    except ValueError:
+        print(f"  live vs offline: NOT MEASURED (vts motion analyze exit {p.returncode}: {p.stderr.strip()[-200:]})")
+        return
+    if not live or not live.get("compared"):
+        print(f"  live vs offline: NOT MEASURED ({'no live poses' if not live else 'none compared'})")
+        return
+    al = live.get("alerts") or []
+    print(f"  live vs offline poses (goal <= 0.1 mm and 0.05 deg RMS): {live['rms_mm']:.3f} mm RMS (worst "
+          f"{live['worst_mm']:.3f}), {live['rms_deg']:.4f} deg RMS (worst {live['worst_deg']:.4f}) over "
+          f"{live['compared']} of {live['live_poses']} live poses; alerts explained offline "
+          f"{sum(a['explained'] for a in al)}/{len(al)}")
+    for a in al:
+        if not a["explained"]:
+            print(f"    alert at {a['time']:.2f} s NOT explained: {a['why']}")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--moves-s", type=float, default=75.0)
@@ -190,6 +216,7 @@ def main() -> int:
             report_recording(f"scan with {len(moves)} body moves ({a.moves_s:g} s)", m)
             after_s = float(cfg.get("motion", {}).get("alert_after_s", 1.0))
             report_moves(patient, moves, centre, m["live_motion"]["alerts"], after_s)
+            report_agreement(tmp / "moves", rig_yaml)
             patient.motion.moves.clear()   # the body at rest again (the reference is learned anew)
             m2, _ = run_scan(rig, rig_yaml, tmp / "breathing", a.breathing_s, patient, [], ahead)
             report_recording(f"breathing-only scan ({a.breathing_s:g} s)", m2)
@@ -197,6 +224,7 @@ def main() -> int:
             print(f"  false alerts (goal 0): {len(m2['live_motion']['alerts'])} in {tracked:.1f} s tracked"
                   + ("" if tracked > 0.5 * a.breathing_s else " (NOT MEASURED: the patient was tracked for less than "
                      "half the scan)"))
+            report_agreement(tmp / "breathing", rig_yaml)
             print(f"load average after the run: {os.getloadavg()[0]:.2f} (other work on the machine counts)")
         finally:
             rig.stop()
