@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
@@ -28,11 +30,17 @@ def fill_gaps(t, x):
     return flat.reshape(x.shape)
 
 
+@lru_cache(maxsize=64)
+def _design(order: int, wn: tuple, btype: str) -> np.ndarray:
+    """The Butterworth sections (designing them is half a live rate's cost: the keys repeat)."""
+    return butter(order, wn[0] if len(wn) == 1 else list(wn), btype=btype, output="sos")
+
+
 def _filt(t, x, btype, cut, order=2):
     fs = sample_rate(t)
     nyq = fs / 2.0
-    wn = np.clip(np.asarray(cut, float) / nyq, 1e-4, 0.99)
-    sos = butter(order, wn, btype=btype, output="sos")
+    wn = np.clip(np.atleast_1d(np.asarray(cut, float)) / nyq, 1e-4, 0.99)
+    sos = _design(order, tuple(float(w) for w in wn), btype).copy()     # (the filter wants its own)
     x = fill_gaps(t, x)
     if len(x) < 15:
         return x - x.mean(axis=0) if btype != "lowpass" else x
