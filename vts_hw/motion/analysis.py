@@ -364,7 +364,7 @@ def with_model(series, timeline, model: PatientModel, st: MotionSettings) -> Mot
     still = pose.valid & ~_dilate(moving, int(round(st.margin_s / timeline.period)))
     first = [cs[0] if cs else None for cs in cols]
     n = series.P.shape[1]
-    why = [f"not one of the patient model's markers" for _ in range(n)]
+    why = ["not one of the patient model's markers" for _ in range(n)]
     for m, cs in enumerate(cols):
         for c in cs:
             why[c] = f"the patient model's marker {m + 1}"
