@@ -25,6 +25,12 @@ TRACKING once it ends (``live_motion.not_tracking``). At the end the summary giv
 each status, and :attr:`LiveMotion.problem` says when the patient was not watched: no
 reference learned, or NOT TRACKING for more than ``motion.blind_max_share`` of the live time
 (the scan then exits 4). See docs/decisions/0048-live-tracking-when-frames-are-lost.md.
+
+What the technologist was shown is kept in the scan's folder (docs/decisions/0092): the patient
+model once learned (``live_model.json``) and every live pose, appended each second from the
+alerts' thread (``live_poses.csv``: time, pose, breathing, residual, markers, cameras, alert state,
+health, the frames it came from). `vts motion analyze` fits that model and compares. A folder
+that cannot take them is said once (``live_motion.keep_problem``); the scan goes on.
 """
 
 from __future__ import annotations
