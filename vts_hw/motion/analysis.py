@@ -390,7 +390,7 @@ def _finish(series, timeline, bands, S, model, pose, s, events, speed, moving, s
     known = model.reference[model.known]
     valid = pose.valid
     v = model.vectors
-    br = find_breaths(t, s, valid, period)
+    br = find_breaths(t, s, valid, period, moving=moving)     # no breath chained through a move (0089)
     cycles, phase, rate = br.cycles, br.phase, br.rate
     figures = breathing_figures(br, period, timeline.duration_s, signal_noise(s, valid), model.breathes)
     if figures.status == "none":

@@ -58,8 +58,8 @@ MIN_BREATH_MM = 0.2     # ... and at least this deep
 RATE_GOAL = 0.5         # /min: a rate whose 95 % range is wider is "bounded"
 SPREAD_MIN = 0.10       # breath-to-breath spread of the rate assumed at least (a few breaths show less)
 SPAN_K = 0.8            # a period may span gaps up to this share of the shortest half breath seen ...
-MIN_HALVES = 6          # ... when at least this many half breaths were seen in one stretch (3 let a held-out scan
-                        # with body moves read 10.8 [8.4, 13.3] /min for 14.2: 0089)
+MIN_HALVES = 3          # ... when at least this many half breaths were seen in one stretch (0059: 6; no chain
+                        # through a body move: 0089)
 DOUBLED = 1.6           # a period spanning a gap this many times the typical breath held two
 RATE_FLOOR = 0.2        # /min: the scan's first and last breaths, counted by the truth, not always seen
 Z_RANGE = 2.58          # the range is 99 % (1.96 left 7 % of 150 simulated 60-s scans at 20 % loss outside)
@@ -159,8 +159,13 @@ def _crossings(t, x, ok, h):
     return out
 
 
-def find_breaths(t, a, valid, period: float, min_period_s: float = 1.5, max_period_s: float = 12.0) -> Breaths:
-    """Cycles, periods and half breaths of the signal ``a`` where ``valid`` (see the module)."""
+def find_breaths(t, a, valid, period: float, min_period_s: float = 1.5, max_period_s: float = 12.0,
+                 moving=None) -> Breaths:
+    """Cycles, periods and half breaths of the signal ``a`` where ``valid`` (see the module).
+    ``moving`` (F,): frames where the body moves. A breath seen whole (trough to trough in one
+    stretch) stands then too, but no period or fitted breath is chained across a gap through
+    them: the fitted signal takes up part of a move, and its crossings there are not the
+    breath's (decision 0089)."""
     t = np.asarray(t, float)
     F = len(t)
     phase = np.full(F, np.nan)
@@ -184,11 +189,24 @@ def find_breaths(t, a, valid, period: float, min_period_s: float = 1.5, max_peri
         k, edge = seg[i], int(np.ceil(edge_s / period))
         return k >= 0 and i - edge >= bounds[k][0] and i + edge < bounds[k][1]
 
-    out.span_s = _span_s(cross, seen, seg)
+    # the chains across gaps: the stretches without the moving frames
+    if moving is None or not np.any(moving):
+        c_bounds, c_seg, c_seen = bounds, seg, seen
+    else:
+        c_bounds = seen_runs(ok & ~np.asarray(moving, bool), period)
+        c_seg = np.full(F, -1)
+        for k, (s0, s1) in enumerate(c_bounds):
+            c_seg[s0:s1] = k
+
+        def c_seen(i, edge_s=EDGE_S):
+            k, edge = c_seg[i], int(np.ceil(edge_s / period))
+            return k >= 0 and i - edge >= c_bounds[k][0] and i + edge < c_bounds[k][1]
+    out.span_s = _span_s(cross, c_seen, c_seg)
     for (sign, t0, i0), (_, t1, i1) in zip(cross[:-2], cross[2:]):  # an up-crossing to the next
-        if sign < 0 or t0 is None or t1 is None or not (seen(i0, CROSS_EDGE_S) and seen(i1, CROSS_EDGE_S)):
+        if sign < 0 or t0 is None or t1 is None or not (c_seen(i0, CROSS_EDGE_S) and c_seen(i1, CROSS_EDGE_S)):
             continue
-        if min_period_s <= t1 - t0 <= max_period_s and _longest_gap_s(bounds, seg[i0], seg[i1], period) <= out.span_s:
+        if (min_period_s <= t1 - t0 <= max_period_s
+                and _longest_gap_s(c_bounds, c_seg[i0], c_seg[i1], period) <= out.span_s):
             out.periods.append((t0, t1))
     ext = sorted([(int(i), 1) for i in peaks] + [(int(i), -1) for i in troughs])
     for (i0, s0), (i1, s1) in zip(ext[:-1], ext[1:]):
@@ -208,7 +226,7 @@ def find_breaths(t, a, valid, period: float, min_period_s: float = 1.5, max_peri
     phase[~ok] = np.nan                         # no pose, no phase (even inside a whole breath)
     rate[~ok] = np.nan
     out.bounds, out.n_rows = bounds, F
-    out.breaths = _with_cycles(_breath_bounds(t, x, cross, troughs, seen, seg, bounds, out.span_s, period),
+    out.breaths = _with_cycles(_breath_bounds(t, x, cross, troughs, c_seen, c_seg, c_bounds, out.span_s, period),
                                out.cycles)
     return out
 
