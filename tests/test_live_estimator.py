@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from types import SimpleNamespace
 
 import numpy as np
@@ -130,3 +131,23 @@ def test_a_move_during_the_reference_restarts_it_and_raises_no_alert():
     est, alerts, _ = _run(_patient(40.0, [move], seed=6), 40.0)
     assert est.phase == "tracking" and alerts == []
     assert abs(est.snapshot().six_dof[1]) < 0.5          # 0 from the settled pose, not 5 mm
+
+
+def test_a_rate_only_bounded_is_shown_with_its_range_never_as_a_plain_figure():
+    """The live rate is the offline figures of its window: when the breaths seen do not pin it
+    to 0.5 /min it is bounded, and the view says between what (a plain number would claim more)."""
+    from vts_hw.cli.live_view import live_line
+
+    p = _patient(30.0, seed=2)
+    est, _, _ = _run(p, 30.0)
+    fig = est.traces[0].figures()
+    snap = est.snapshot()
+    b = snap.bands[0]
+    if fig.status == "bounded":
+        assert b.rate_range == tuple(fig.rate_range)
+        assert f"/min ({b.rate_range[0]:.1f}-{b.rate_range[1]:.1f})" in live_line(snap)
+    else:
+        assert b.rate_range is None
+    bounded = dataclasses.replace(snap, bands=tuple(dataclasses.replace(x, rate_range=(12.04, 16.31))
+                                                    for x in snap.bands))
+    assert "/min (12.0-16.3)" in live_line(bounded)

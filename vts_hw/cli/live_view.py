@@ -95,8 +95,14 @@ def live_table(est) -> Table:
         t.title += f"\nthe bands as of {est.age_s:.1f} s ago:"
     for b in est.bands:
         t.add_row(str(b.band), f"{b.seen}/{b.markers}", _num(b.distance_mm), _breathing(b),
-                  _num(b.breathing_mm), _num(b.rate_per_min), style="dim" if old else None)
+                  _num(b.breathing_mm), _num(b.rate_per_min) + _bounds(b), style="dim" if old else None)
     return t
+
+
+def _bounds(b) -> str:
+    """`` (12.1-16.3)`` after a rate that is only bounded: the breaths seen do not pin it to 0.5 /min."""
+    r = getattr(b, "rate_range", None)
+    return f" ({r[0]:.1f}-{r[1]:.1f})" if r else ""
 
 
 def live_line(est) -> str:
@@ -107,7 +113,8 @@ def live_line(est) -> str:
     if est.phase != "tracking" or est.six_dof is None:
         return f"live motion: {_status(est, False)}" + (f" ({est.note})" if est.note else "") + age
     bands = "; ".join(f"band {b.band} {b.seen}/{b.markers} markers {_num(b.distance_mm)} mm, breathing "
-                      + (f"{_num(b.breathing_mm)} mm {_num(b.rate_per_min)}/min" if b.breathes else "none seen")
+                      + (f"{_num(b.breathing_mm)} mm {_num(b.rate_per_min)}/min{_bounds(b)}" if b.breathes
+                         else "none seen")
                       for b in est.bands)
     status = f"{_status(est, False)}; " if est.status else ""
     return (f"live motion: {status}{_pose(est)}, alerts {est.alerts}{age}; {bands}; {_six(est)}; "

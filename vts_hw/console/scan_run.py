@@ -304,7 +304,8 @@ class ScanRun:
         bands = [{"band": b.band, "markers": b.markers, "seen": b.seen, "breathes": b.breathes,
                   "known": tracked and b.seen > 0 and math.isfinite(b.distance_mm),
                   "displacement_mm": list(b.displacement_mm), "distance_mm": b.distance_mm,
-                  "breathing_mm": b.breathing_mm, "rate_per_min": b.rate_per_min} for b in est.bands]
+                  "breathing_mm": b.breathing_mm, "rate_per_min": b.rate_per_min,
+                  "rate_range_per_min": None if b.rate_range is None else list(b.rate_range)} for b in est.bands]
         return {"status": est.status, "reason": est.reason, "for_s": est.status_for_s, "age_s": est.age_s,
                 "phase": est.phase, "note": est.note, "frame": est.frame, "state": est.state,
                 "six_dof": None if est.six_dof is None else list(est.six_dof), "six_known": tracked,

@@ -197,7 +197,7 @@
         known ? `displacement ${num(b.distance_mm)} mm (${d.map((x) => num(x)).join(", ")})` :
           '<span class="unknown">displacement NOT KNOWN now</span>' + (b.distance_mm !== null ? ` (last ${num(b.distance_mm)} mm, ${num(live.age_s)} s ago)` : ""),
         !b.breathes ? "breathing: none seen (fitted rigidly)" :
-          known ? `breathing ${num(b.breathing_mm)} mm, ${b.rate_per_min === null ? "rate not known yet (fewer than two breaths)" : num(b.rate_per_min) + " /min"}` :
+          known ? `breathing ${num(b.breathing_mm)} mm, ${b.rate_per_min === null ? "rate not known yet (fewer than two breaths)" : num(b.rate_per_min) + " /min" + (b.rate_range_per_min ? ` (only known to ${num(b.rate_range_per_min[0])}-${num(b.rate_range_per_min[1])})` : "")}` :
             '<span class="unknown">breathing NOT KNOWN now</span>'];
       el.querySelector(".figs").innerHTML = lines.join("<br>");
       trace((s.traces || {})[String(b.band)] || [], el.querySelector("svg"));

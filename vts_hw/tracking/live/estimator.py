@@ -90,6 +90,7 @@ class BandEstimate:
     rate_per_min: float
     trace: tuple[float, ...]     # the last seconds of breathing (for a sparkline)
     breathes: bool = True        # False: no breathing seen in the reference (fitted rigidly)
+    rate_range: tuple | None = None   # (low, high) /min when the rate is only bounded (not known to 0.5 /min)
 
     @property
     def distance_mm(self) -> float:
@@ -291,7 +292,11 @@ class LiveEstimator:
         band = m.band_of()
         # one respiratory signal: its rate worked out once, on the band that breathes most
         lead = int(np.argmax([self._band_mm(k) for k in range(len(m.bands))])) if m.bands else 0
-        rate = self.traces[lead].rate_per_min() if self.traces else float("nan")
+        fig = self.traces[lead].figures() if self.traces else None
+        known = fig is not None and fig.status in ("measured", "bounded") and fig.rate_per_min is not None
+        rate = float(fig.rate_per_min) if known else float("nan")
+        rate_range = tuple(float(x) for x in fig.rate_range) if known and fig.status == "bounded" \
+            and fig.rate_range is not None else None
         for k, g in enumerate(m.bands):
             sel = band[self._seen_idx] == k
             idx = self._seen_idx[sel]
@@ -300,7 +305,7 @@ class LiveEstimator:
             _, v = tr.values()
             bands.append(BandEstimate(k + 1, len(g), int(len(idx)),
                                       tuple(float(x) for x in disp), float(v[-1]) if len(v) else float("nan"),
-                                      rate, tuple(tr.recent()), m.breathes))
+                                      rate, tuple(tr.recent()), m.breathes, rate_range))
         r, f, c = self.rule, self.fit, m.centre
         move = float(np.linalg.norm(f.R @ c + f.T - c))
         turn = float(np.degrees(np.linalg.norm(Rotation.from_matrix(f.R).as_rotvec())))
