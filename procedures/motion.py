@@ -41,7 +41,7 @@ from vts_hw.spect.frame import frame_description
 from vts_hw.results import Measure, overall_state
 from vts_hw.tolerance import State, merged_tolerances
 from vts_hw.procedures.sync_inputs import load_calibration, load_mapping
-from vts_hw.procedures.motion_live import agreement, read_live
+from vts_hw.procedures.motion_live import agreement, host_to_series, read_live
 from vts_hw.recording.folder import load_manifest
 
 __all__ = ["MotionAnalysis", "METRICS", "event_time_text"]
@@ -133,15 +133,10 @@ class MotionAnalysis:
         first, last = ext.get("first_s"), ext.get("last_s")
         if first is None or last is None:
             return None, []
-        if series.clock == "spect":
-            h = np.asarray(self.tracks.host_time, float)
-            sp = np.asarray(self.tracks.spect_time, float)
-            ok = np.isfinite(h) & np.isfinite(sp)
-            if ok.sum() < 2:
-                return None, list(ext.get("problems") or [])
-            a, b = np.polyfit(h[ok] - h[ok][0], sp[ok], 1)
-            first, last = a * (first - h[ok][0]) + b, a * (last - h[ok][0]) + b
-        return (float(first), float(last)), list(ext.get("problems") or [])
+        to_series = host_to_series(self.tracks, series.clock)
+        if to_series is None:
+            return None, list(ext.get("problems") or [])
+        return (float(to_series(first)), float(to_series(last))), list(ext.get("problems") or [])
 
     # ------------------------------------------------------------------ analysis
     def analyze(self, tolerances: dict | None = None) -> "MotionAnalysis":

@@ -167,7 +167,8 @@ def test_live_poses_that_cannot_be_kept_are_said_once_and_the_scan_goes_on(learn
     pose = LivePose(1.0, np.eye(3), np.zeros(3), 0.0, 0.05, 8, 2.0, "still", 0.0, 0.0, "known", 0.8)
     lm = LiveMotion.__new__(LiveMotion)
     notes, meta = [], {"live_motion": {}}
-    lm.tracker = SimpleNamespace(estimator=SimpleNamespace(model=m, poses=[pose, pose]))
+    unjudged = LivePose(2.0, np.eye(3), np.zeros(3), 0.0, 0.05, 3, 2.0, "still", 0.0, 0.0, model_markers=8)
+    lm.tracker = SimpleNamespace(estimator=SimpleNamespace(model=m, poses=[pose, unjudged]))
     lm._log, lm._kept, lm._model_saved, lm.keep_problem, lm.on_note = None, 0, False, "", notes.append
     (tmp_path / "not-a-folder").write_text("x")
     session = SimpleNamespace(folder=tmp_path / "not-a-folder", update_manifest=lambda change: change(meta))
@@ -178,7 +179,10 @@ def test_live_poses_that_cannot_be_kept_are_said_once_and_the_scan_goes_on(learn
     good = SimpleNamespace(folder=tmp_path, update_manifest=lambda change: change(meta))
     lm.keep_problem = ""
     lm._keep(good)
-    assert lm._kept == 2 and len(read_poses(tmp_path)) == 2 and load_model(tmp_path) is not None
+    kept = read_poses(tmp_path)
+    assert lm._kept == 2 and len(kept) == 2 and load_model(tmp_path) is not None
+    # the live path leaves a pose's health to the log (off its worker): 3 markers of 8 is bounded
+    assert list(kept.health) == ["known", "bounded"] and 0.0 < kept.confidence[1] < 0.8
     assert meta["live_motion"]["model_file"] == MODEL_FILE and meta["live_motion"]["poses_file"] == POSES_FILE
 
 

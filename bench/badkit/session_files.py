@@ -19,11 +19,10 @@ import os
 from pathlib import Path
 
 from badkit.classes import Case, Verdict, common
+from vts_hw.tracking.live.pose_log import COLUMNS, MODEL_FILE as MODEL, POSES_FILE as POSES
 
 CLASS = "session files"
-MODEL, POSES = "live_model.json", "live_poses.csv"
-HEADER = ("time,r11,r12,r13,r21,r22,r23,r31,r32,r33,tx,ty,tz,s_mm,rms_mm,markers,cameras,state,move_mm,turn_deg,"
-          "health,confidence,frames")
+HEADER = ",".join(COLUMNS)
 
 
 def _model(**change) -> str:
@@ -79,7 +78,7 @@ KINDS = [
     ("poses a folder", "live poses not compared", _folder(POSES)),
     ("poses binary", "live poses not compared", _write(POSES, b"\xff\xfe" + bytes(range(256)) * 8)),
     ("poses another header", "live poses not compared", _write(POSES, "t,x,y\n1,2,3\n")),
-    ("poses NaN rows and a torn row", "live poses:", _write(POSES, HEADER + "\n" + ",".join(["nan"] * 23) + "\n"
+    ("poses NaN rows and a torn row", "live poses:", _write(POSES, HEADER + "\n" + ",".join(["nan"] * len(COLUMNS)) + "\n"
                                                         + "1790000010.0,1,0,0")),
 ]
 

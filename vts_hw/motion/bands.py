@@ -18,14 +18,13 @@ import numpy as np
 
 from vts_hw.errors import DataError
 from vts_hw.motion.signal import bandpass, lowpass, sample_rate
-from vts_hw.vision.marker_roles import ABDOMEN, CHEST, PATIENT, roles_of_positions
+from vts_hw.vision.marker_roles import PATIENT_ROLES, roles_of_positions
 
 __all__ = ["Bands", "find_bands", "band_names", "split_bands"]
 
 #: the head end of the table in the SPECT frame: -Z (docs/design.md's room: the patient supine, head
 #: first, towards the cameras over the head end)
 HEAD_DIRECTION = np.array([0.0, 0.0, -1.0])
-PATIENT_ROLES = (PATIENT, CHEST, ABDOMEN)
 SMOOTH_HZ = 1.0       # positions low-passed at this before the identity is asked (breathing is under 1 Hz)
 NAME_MIN_MM = 50.0    # two bands are told apart when their centres are this far apart along the body
 

@@ -201,16 +201,26 @@ class CastorPlan:
                 "merged": list(self.merged)}
 
 
+def not_on_the_scanner(what: str, clock: str, frame: str, takes: str, its_frame: str) -> str:
+    """Why a reconstruction program's file (``what``) is not written: its times not on the SPECT
+    list-mode clock (the program ``takes`` them so), or its poses not in the SPECT frame (not
+    ``its_frame``); "" when both are. The one rule of CASToR's files and YRT-PET's."""
+    if clock != "spect":
+        return (f"{what} not written: the times are host-clock seconds (no --listmode), and {takes}; give the "
+                f"scan's list-mode")
+    if frame != "spect":
+        return f"{what} not written: no VTS -> SPECT mapping, so the poses are in the VTS frame, not {its_frame}"
+    return ""
+
+
 def plan_castor(states, t0: float, *, clock: str, frame: str, volume: dict | None) -> CastorPlan:
     """Decide the CASToR files for ``states`` (MotionState, times on ``clock``; ``t0`` the
     acquisition start on it): the whole-second schedule, each line's parameters in CASToR's
     image frame from the pose at the acquisition start; or why none are written."""
-    if clock != "spect":
-        return CastorPlan(why="CASToR files not written: the times are host-clock seconds (no --listmode), and "
-                              "CASToR takes its triggers as SPECT list-mode seconds; give the scan's list-mode")
-    if frame != "spect":
-        return CastorPlan(why="CASToR files not written: no VTS -> SPECT mapping, so the poses are in the VTS "
-                              "frame, not CASToR's image frame")
+    why = not_on_the_scanner("CASToR files", clock, frame, "CASToR takes its triggers as SPECT list-mode seconds",
+                             "CASToR's image frame")
+    if why:
+        return CastorPlan(why=why)
     try:
         A, c = castor_frame(volume)
     except ValueError as e:

@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vts_hw.files import write_atomic
-from vts_hw.motion.castor import fov_centre
+from vts_hw.motion.castor import fov_centre, not_on_the_scanner
 
 __all__ = ["LOR_MOTION_CSV", "YRTPET_FRAME", "LorMotionPlan", "plan_lor_motion", "lor_motion_text",
            "write_lor_motion", "UINT32_MAX"]
@@ -80,12 +80,10 @@ def plan_lor_motion(t, R, T, confidence, *, clock: str, frame: str, volume: dict
     """The lines for the pose ``R`` (F,3,3), ``T`` (F,3) (reference -> now, SPECT frame, NaN without
     a pose) at ``t`` (F,) list-mode s from the acquisition start, each with its ``confidence``; or why
     none are written."""
-    if clock != "spect":
-        return LorMotionPlan(why="YRT-PET LOR motion file not written: the times are host-clock seconds (no "
-                                 "--listmode), and YRT-PET takes list-mode milliseconds; give the scan's list-mode")
-    if frame != "spect":
-        return LorMotionPlan(why="YRT-PET LOR motion file not written: no VTS -> SPECT mapping, so the poses are in "
-                                 "the VTS frame, not the scanner's")
+    why = not_on_the_scanner("YRT-PET LOR motion file", clock, frame, "YRT-PET takes list-mode milliseconds",
+                             "the scanner's")
+    if why:
+        return LorMotionPlan(why=why)
     try:
         c = fov_centre(volume, "YRT-PET's scanner")
     except ValueError as e:

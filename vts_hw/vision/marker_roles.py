@@ -34,13 +34,14 @@ from scipy.optimize import linear_sum_assignment
 from vts_hw.vision.aim_geometry import fov_centre
 from vts_hw.vision.aim_settings import DEFAULT_AIM, AimSettings
 
-__all__ = ["WALL", "PHANTOM", "CHEST", "ABDOMEN", "PATIENT", "UNKNOWN", "ROLES", "Role", "Track",
+__all__ = ["WALL", "PHANTOM", "CHEST", "ABDOMEN", "PATIENT", "UNKNOWN", "ROLES", "PATIENT_ROLES", "Role", "Track",
            "TableSpace", "Room", "follow", "motion_range", "roles_of_tracks", "roles_of_positions", "roles_by_reference",
            "match_markers",
            "GATE_PX", "MOVE_FLOOR_PX", "MOVE_FLOOR_MM", "BAND_GAP_MM", "BODY_HEIGHT_MM"]
 
 WALL, PHANTOM, CHEST, ABDOMEN, PATIENT, UNKNOWN = "wall", "phantom", "chest", "abdomen", "patient", "unknown"
 ROLES = (WALL, PHANTOM, CHEST, ABDOMEN, PATIENT, UNKNOWN)
+PATIENT_ROLES = (PATIENT, CHEST, ABDOMEN)    # the roles of a patient's marker
 
 GATE_PX = 12.0          # a marker further than this from where it was is not that marker
 MOVE_FLOOR_PX = 0.3     # a still marker's centre ranges ~0.1 px over a few frames (sensor noise, JPEG)

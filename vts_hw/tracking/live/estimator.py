@@ -41,8 +41,10 @@ __all__ = ["LiveSettings", "LiveEstimator", "LiveEstimate", "BandEstimate", "Liv
 class LivePose:
     """One live pose as the technologist was shown it: host ``time`` of its frame set, the pose
     ``R``, ``T`` (reference -> now) and breathing ``s`` of the patient model, the fit's residual,
-    the markers used, the cameras in the set, the alert rule's state, the move and turn it
-    measured (from the alert reference pose)."""
+    the markers used, the cameras per marker used, the alert rule's state, the move and turn it
+    measured (from the alert reference pose), the frames it was made from (each camera's frame
+    number in its recording), and its health when made (:mod:`vts_hw.pose_health`; "" until the
+    pose log works it out from these figures, off the worker's path)."""
 
     time: float
     R: np.ndarray
@@ -57,6 +59,7 @@ class LivePose:
     health: str = ""
     confidence: float = float("nan")
     frames: tuple = ()          # per camera (the tracker's order) the number of its frame in the set, -1: none
+    model_markers: int = 0      # the model's markers (what its health is judged against)
 
 
 @dataclass(frozen=True)
@@ -127,16 +130,14 @@ class LiveEstimator:
     :meth:`snapshot`. ``motion``: anything with ``alert_mm``, ``alert_deg``, ``alert_after_s``
     (the rig's ``motion:`` section). ``space``: the table-and-gantry volume (a
     :class:`~vts_hw.vision.marker_roles.TableSpace`; default the default room's) where a still
-    patient's markers lie. ``axis``: the body's long axis; ``toward``: the first
-    camera's centre, in the same frame."""
+    patient's markers lie. ``axis``: the body's long axis (bands are ordered along it), in ``frame``."""
 
     def __init__(self, motion, settings: LiveSettings | None = None, *, frame: str = "spect",
-                 axis=(0.0, 0.0, 1.0), toward=(0.0, 1500.0, -3500.0), space=None):
+                 axis=(0.0, 0.0, 1.0), space=None):
         self.motion = motion
         self.s = settings or LiveSettings()
         self.frame = frame
         self.axis = np.asarray(axis, float)
-        self.toward = np.asarray(toward, float)
         self.phase = "waiting"
         self.note = ""
         self.reference_note = ""
@@ -149,7 +150,7 @@ class LiveEstimator:
         self.observed = False          # whether the last update observed the patient
         self.learned_at: float | None = None   # host s the reference was learned
         self.restarts = 0
-        self._ref = ReferenceCollector(self.s, frame, self.axis, self.toward, space)
+        self._ref = ReferenceCollector(self.s, frame, self.axis, space)
         self._seen_idx = np.zeros(0, int)
         self._fit_t: float | None = None
         self._seen_x = np.zeros((0, 3))
@@ -251,9 +252,9 @@ class LiveEstimator:
             c = np.broadcast_to(np.asarray(cameras, float), (len(pts),))[i_p]
             cams = float(c.mean()) if len(c) else float("nan")
         self._cameras = cams
-        h = pose_health(fit.n_markers, m.n_markers, fit.rms_mm, None if np.isnan(cams) else cams)
         self.poses.append(LivePose(t, fit.R, fit.T, fit.s, fit.rms_mm, fit.n_markers, cams, r.state,
-                                   r.move_mm, r.turn_deg, h.state, h.confidence, tuple(int(i) for i in frames)))
+                                   r.move_mm, r.turn_deg, frames=tuple(int(i) for i in frames),
+                                   model_markers=m.n_markers))     # its health: worked out when kept (pose_log)
         return alert
 
     def health(self, age_s: float = 0.0):

@@ -18,6 +18,7 @@ order, the frame's number in that camera's recording, ``-1`` none; separated by 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import json
 from dataclasses import dataclass
@@ -27,8 +28,9 @@ import numpy as np
 
 from vts_hw.bounded import SMALL, read_text
 from vts_hw.errors import DataError
-from vts_hw.files import open_writable, write_json_atomic
+from vts_hw.files import open_writable, os_reason, write_json_atomic
 from vts_hw.motion.patient_model import PatientModel
+from vts_hw.pose_health import pose_health
 
 __all__ = ["POSES_FILE", "MODEL_FILE", "PoseLog", "LivePoses", "read_poses", "save_model", "load_model"]
 
@@ -57,6 +59,9 @@ class PoseLog:
         """Append ``poses``; returns how many were written."""
         buf = io.StringIO()
         for p in poses:
+            if not p.health and p.model_markers:     # its health, from what its fit saw (age 0: when made)
+                h = pose_health(p.n_markers, p.model_markers, p.rms_mm, None if np.isnan(p.cameras) else p.cameras)
+                p = dataclasses.replace(p, health=h.state, confidence=h.confidence)
             row = ([f"{p.time:.6f}"] + [f"{x:.9f}" for x in np.asarray(p.R).ravel()]
                    + [f"{x:.5f}" for x in np.asarray(p.T)] + [f"{p.s:.5f}", f"{p.rms_mm:.5f}", str(p.n_markers),
                                                               f"{p.cameras:.3f}", p.state, f"{p.move_mm:.4f}",
@@ -108,7 +113,7 @@ def read_poses(folder) -> LivePoses | None:
     try:
         text = read_text(path, SMALL, "live pose file")
     except (OSError, UnicodeDecodeError) as exc:
-        raise DataError(f"{path}: cannot be read as a live pose file ({_why(exc)})") from None
+        raise DataError(f"{path}: cannot be read as a live pose file ({_reason(exc)})") from None
     rows = csv.reader(io.StringIO(text))
     header = next(rows, None)
     if header != COLUMNS:
@@ -138,10 +143,8 @@ def read_poses(folder) -> LivePoses | None:
                      a[:, 19], frames, skipped)
 
 
-def _why(exc: BaseException) -> str:
-    if isinstance(exc, UnicodeDecodeError):
-        return "not UTF-8 text"
-    return exc.strerror or str(exc) if isinstance(exc, OSError) else str(exc)
+def _reason(exc: BaseException) -> str:
+    return "not UTF-8 text" if isinstance(exc, UnicodeDecodeError) else os_reason(exc)
 
 
 def save_model(folder, model: PatientModel) -> Path:
@@ -157,7 +160,7 @@ def load_model(folder) -> PatientModel | None:
     try:
         return PatientModel.from_dict(json.loads(read_text(path, SMALL, "live patient model")))
     except (OSError, UnicodeDecodeError) as exc:
-        raise DataError(f"{path}: cannot be read as a live patient model ({_why(exc)})") from None
+        raise DataError(f"{path}: cannot be read as a live patient model ({_reason(exc)})") from None
     except json.JSONDecodeError as exc:
         raise DataError(f"{path}: not JSON ({exc.msg}, line {exc.lineno})") from None
     except DataError as exc:

@@ -34,9 +34,8 @@ from vts_hw.errors import DataError
 from vts_hw.motion.bands import band_names, split_bands
 from vts_hw.motion.patient_model import PatientModel, learn_model
 from vts_hw.tracking.identities import MarkerTracks
-from vts_hw.vision.marker_roles import ABDOMEN, CHEST, PATIENT, TableSpace, roles_of_positions
+from vts_hw.vision.marker_roles import PATIENT_ROLES, TableSpace, roles_of_positions
 
-PATIENT_ROLES = (PATIENT, CHEST, ABDOMEN)
 
 __all__ = ["ReferenceCollector", "observed_s"]
 
@@ -49,12 +48,12 @@ def observed_s(times, step_s: float) -> float:
 
 
 class ReferenceCollector:
-    def __init__(self, settings, frame: str, axis, toward, space: TableSpace | None = None):
+    def __init__(self, settings, frame: str, axis, space: TableSpace | None = None):
         self.s = settings
         self.frame = frame
         self.space = space or TableSpace.from_settings()
         self.roles = []             # what each marker of the last try was (vision.marker_roles)
-        self.axis, self.toward = axis, toward
+        self.axis = axis
         self.instants: deque[tuple[float, np.ndarray, np.ndarray]] = deque()
         self._tracks = MarkerTracks(settings.gate_mm, float("inf"))
         self._next_try = -np.inf

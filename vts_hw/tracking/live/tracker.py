@@ -79,11 +79,9 @@ class LiveTracker:
         self.late_s, self.publish_s = float(late_s), float(publish_s)
         cam0 = self.geo.cams[0]
         if mapping is not None:
-            est = LiveEstimator(motion, settings, frame="spect", axis=(0.0, 0.0, 1.0),
-                                toward=mapping.apply(cam0.center), space=space)
+            est = LiveEstimator(motion, settings, frame="spect", axis=(0.0, 0.0, 1.0), space=space)
         else:
-            est = LiveEstimator(motion, settings, frame="vts", axis=cam0.R.T @ np.array([0.0, 0.0, 1.0]),
-                                toward=cam0.center)
+            est = LiveEstimator(motion, settings, frame="vts", axis=cam0.R.T @ np.array([0.0, 0.0, 1.0]))
         self.estimator = est
         self.tap = FrameTap(self.names, queue_len)
         self.grouper = FrameGrouper(len(self.names), 0.5 / fps, max(1.5 / fps, GROUP_WAIT_S))
