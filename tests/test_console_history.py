@@ -205,8 +205,12 @@ def test_only_the_runs_own_listed_files_are_served(client, filled):
         assert b"root:" not in r.content and b"SQLite format" not in r.content
 
 
-def test_the_reports_are_rendered_from_the_store_into_a_temporary_folder(client, filled):
+def test_the_reports_are_rendered_from_the_store_into_a_temporary_folder(client, filled, tmp_path_factory,
+                                                                         monkeypatch):
     import tempfile
+    # a temporary folder of this test's own: another worker's console renders its rooms into /tmp too
+    private = tmp_path_factory.mktemp("own-tmp")
+    monkeypatch.setattr(tempfile, "tempdir", str(private))
     before = set(os.listdir(tempfile.gettempdir()))
     r = client.get("/history/drift-report")
     assert r.status_code == 200 and r.headers["content-type"].startswith("text/html")
