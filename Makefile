@@ -2,6 +2,7 @@
 #   make demo   the main job on the simulated rig
 #   make test   the whole test suite
 #   make bench  the benchmarks (ratios measured in one run)
+#   make docs   the documentation site, built into site/ (mkdocs.yml; .venv/bin/mkdocs serve to read it live)
 
 PYTHON ?= python3
 VENV   := .venv
@@ -16,7 +17,7 @@ TEST_DEBS := curl openssl chromium firefox-esr fonts-dejavu-core poppler-utils p
 # (wapiti: bench/web_scan.py, a web scanner written by others against the console)
 BENCH_DEBS := wapiti
 
-.PHONY: demo test bench venv debs firmware clean
+.PHONY: demo test bench docs venv debs firmware clean
 
 venv: $(STAMP)
 
@@ -47,9 +48,13 @@ bench: $(STAMP) debs
 	$(MAKE) -C firmware
 	$(PY) bench/run_all.py
 
+# the documentation site: --strict, so a broken link or a missing page stops it (as in make test)
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --site-dir site
+
 # the trigger box firmware (avr-gcc) and its emulator harness (libsimavr)
 firmware:
 	$(MAKE) -C firmware
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis
+	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis site

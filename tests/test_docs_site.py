@@ -1,0 +1,103 @@
+"""The documentation site builds with --strict (a broken link or a missing page fails), and its
+generated pages say what the code holds: every command, every exit code, every rig.yaml key,
+every decision note (mkdocs.yml, tools/docs_site.py; docs/decisions/0097-docs-by-reader.md).
+
+`mkdocs build` runs as a user runs it (`make docs`): a subprocess, once for the module."""
+
+from __future__ import annotations
+
+import html
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from vts_hw.cli import COMMANDS, command_tree
+from vts_hw.config import RigConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+#: the exit codes every command keeps (README, vts_hw/errors.py and the QA results' codes)
+EXIT_CODES = (0, 2, 3, 4, 5, 10, 20, 130)
+
+
+def _build(config: Path, site: Path) -> subprocess.CompletedProcess:
+    env = {**os.environ, "NO_MKDOCS_2_WARNING": "1"}
+    return subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--config-file", str(config),
+                           "--site-dir", str(site)], cwd=ROOT, env=env, capture_output=True, text=True,
+                          timeout=240)
+
+
+def _text(page: Path) -> str:
+    """The page's words, without its tags."""
+    return html.unescape(re.sub(r"<[^>]+>", "", page.read_text()))
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("site")
+    done = _build(ROOT / "mkdocs.yml", out)
+    assert done.returncode == 0, done.stdout + done.stderr
+    return out
+
+
+def test_the_site_builds_strict_with_a_page_per_reader(site):
+    for section in ("operate", "commission", "physics", "reference", "develop", "decisions"):
+        assert (site / section / "index.html").is_file(), section
+    assert (site / "index.html").is_file()
+    # the files that stayed where they were are in the site too
+    for page in ("faults", "security", "design", "listmode-format"):
+        assert (site / page / "index.html").is_file(), page
+    # the README's sync session, which the tests cite, is on the sync page with its glob
+    sync = _text(site / "physics" / "sync" / "index.html")
+    assert "vts sync analyze scan1 --listmode sim/spect/scan-*.vtslm -o sync.html" in sync
+
+
+def test_every_command_is_on_the_commands_page(site):
+    text = _text(site / "reference" / "commands" / "index.html")
+    for name in COMMANDS:
+        assert f"vts {name}" in text, name
+    for path, command in command_tree():
+        assert " ".join(("vts", *path)) in text, path
+        for param in command.params:
+            for opt in param.opts:
+                if opt.startswith("-") and not getattr(param, "hidden", False):
+                    assert opt in text, (path, opt)
+
+
+def test_every_exit_code_and_rig_yaml_key_and_decision(site):
+    codes = _text(site / "reference" / "exit-codes" / "index.html")
+    for code in EXIT_CODES:
+        assert re.search(rf"^\s*{code}\s*$", codes, re.M), code
+    assert "DataError" in codes and "NoBaseline" in codes
+    keys = _text(site / "reference" / "rig-yaml" / "index.html")
+    for key in RigConfig.model_fields:
+        assert key in keys, key
+    for key in ("cameras[].password_env", "trigger.watchdog_s", "motion.alert_mm", "drift_x_px"):
+        assert key in keys, key
+    decisions = _text(site / "decisions" / "index.html")
+    notes = sorted((ROOT / "docs" / "decisions").glob("[0-9][0-9][0-9][0-9]-*.md"))
+    assert len(notes) > 90
+    for note in notes:
+        assert (site / "decisions" / note.stem / "index.html").is_file(), note.name
+        assert note.name[:4] in decisions, note.name
+
+
+def test_a_link_to_a_missing_page_fails_the_build(tmp_path):
+    """The same config and pages, one page given a link to a page that is not there: the build
+    stops (exit 1) naming the link."""
+    docs = tmp_path / "docs"
+    shutil.copytree(ROOT / "docs", docs)
+    page = docs / "operate" / "index.md"
+    page.write_text(page.read_text() + "\nSee [the missing page](no-such-page.md).\n")
+    config = yaml.safe_load((ROOT / "mkdocs.yml").read_text())
+    config["docs_dir"] = str(docs)
+    config["hooks"] = [str(ROOT / h) for h in config["hooks"]]
+    (tmp_path / "mkdocs.yml").write_text(yaml.safe_dump(config, allow_unicode=True))
+    done = _build(tmp_path / "mkdocs.yml", tmp_path / "site")
+    assert done.returncode != 0
+    assert "no-such-page.md" in done.stdout + done.stderr
