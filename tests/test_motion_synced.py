@@ -1,8 +1,8 @@
 """`vts motion analyze --listmode` on the simulated rig: a patient on the table (breathing, one
 body move), a scan session with the trigger box in the emulator, the simulated SPECT following
 it; the motion analysis goes through the sync analysis, so every time is list-mode seconds.
-The list-mode is given as the README's glob over two scans' files, as `vts sync analyze` takes
-it: the session's own is picked (issue 21)."""
+The list-mode is given as the sync page's glob (docs/physics/sync.md) over two scans' files, as
+`vts sync analyze` takes it: the session's own is picked (issue 21)."""
 
 import dataclasses
 import shutil

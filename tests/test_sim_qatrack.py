@@ -1,6 +1,6 @@
 """`vts sim up --qatrack`: the simulated QATrack+ beside the simulated rig, named in the rig.yaml it
 writes (url, unit, time_zone, lists; the token only in sim.env), so that `vts qa push` can be
-tried from the README (issue 21, part A 5)."""
+tried from the QATrack+ page of the documentation (docs/operate/qatrack.md; issue 21, part A 5)."""
 
 from __future__ import annotations
 

@@ -1,8 +1,9 @@
 """The simulated SPECT beside a running rig (`vts sim up --trigger triggerbox --spect`), run
-the way the README's "The sync check (scan time)" says: `vts sim up --detach`, `vts scan start`
-twice, then `vts sync analyze scan1 --listmode sim/spect/scan-*.vtslm` through a real shell (the
-glob then matches both scans' list-modes), and `vts sim down`. It notices the start pulse the
-emulated trigger box sends, moves its source marker, writes each scan's list-mode when the
+the way the documentation's "The sync check (scan time)" page says (docs/physics/sync.md):
+`vts sim up --detach`, `vts scan start` twice, then
+`vts sync analyze scan1 --listmode sim/spect/scan-*.vtslm` through a real shell (the glob then
+matches both scans' list-modes), and `vts sim down`. It notices the start pulse the emulated
+trigger box sends, moves its source marker, writes each scan's list-mode when the
 square wave stops; the analysis takes the list-mode of its own session, refuses another scan's,
 and says so when the SPECT could not record a scan (a real full disk under sim/spect)."""
 
@@ -40,7 +41,7 @@ def _shell(cwd, env, line, timeout=180):
 
 
 def _sim_up(cwd) -> dict:
-    """`vts sim up --trigger triggerbox --spect --detach --dir sim`; the environment the README's
+    """`vts sim up --trigger triggerbox --spect --detach --dir sim`; the environment the sync page's
     `set -a; . sim/sim.env; export VTS_CONFIG=sim/rig.yaml` gives."""
     r = _vts(cwd, dict(os.environ), "sim", "up", "--trigger", "triggerbox", "--spect", "--detach", "--dir", "sim")
     assert r.returncode == 0, r.stderr
@@ -61,9 +62,9 @@ def _wait_for(folder: Path, pattern: str, n: int, timeout: float = 90.0) -> list
 
 @pytest.fixture(scope="module")
 def two_scans(tmp_path_factory):
-    """The README's session: a detached simulated rig with its SPECT, a 20 s and a 12 s scan,
-    each recorded by the SPECT, then `vts sim down`. Returns (folder, env, [list-mode 1, 2],
-    the output of `vts sim down`)."""
+    """The sync page's session (docs/physics/sync.md): a detached simulated rig with its SPECT,
+    a 20 s and a 12 s scan, each recorded by the SPECT, then `vts sim down`. Returns (folder, env,
+    [list-mode 1, 2], the output of `vts sim down`)."""
     cwd = tmp_path_factory.mktemp("readme")
     env = _sim_up(cwd)
     try:
@@ -95,7 +96,7 @@ def test_a_scan_is_recorded_by_the_simulated_spect_and_lines_up(two_scans):
 
 
 def test_the_readme_glob_takes_each_sessions_own_listmode(two_scans):
-    """After two scans the README's glob gives two files: each session takes its own."""
+    """After two scans the sync page's glob gives two files: each session takes its own."""
     cwd, env, lms, _ = two_scans
     for k, lm in enumerate(lms, 1):
         r = _shell(cwd, env, f"vts sync analyze scan{k} --listmode sim/spect/scan-*.vtslm --json --workers 1")
@@ -165,9 +166,9 @@ def test_a_failure_record_beside_other_scans_listmodes_is_the_answer(two_scans, 
 
 
 def test_a_spect_that_cannot_record_says_so_where_the_user_looks(tmp_path, small_disk):
-    """The README's commands with sim/spect on a 256 kB disk: the 8 s list-mode does not fit.
+    """The sync page's commands with sim/spect on a 256 kB disk: the 8 s list-mode does not fit.
     The simulated SPECT leaves a failure record (and nothing half-written); `vts sync analyze`
-    with the README's glob, which then matches nothing, says the SPECT failed to record this
+    with the sync page's glob, which then matches nothing, says the SPECT failed to record this
     scan and why; `vts sim down` lists it."""
     (tmp_path / "sim").mkdir()
     disk = small_disk(256, name="sim/spect")

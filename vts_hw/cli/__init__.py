@@ -57,8 +57,9 @@ class _CommandsOnDemand(click.Group):
 def cli(ctx: click.Context, verbose: int, store_url: str | None, store_password_env: str | None) -> None:
     """Control and QA of the stereo Visual Tracking System (VTS) used with SPECT.
 
-    Every command that talks to the rig reads the room from --config FILE, else from the
-    file named by $VTS_CONFIG, else ./rig.yaml. `vts sim up` brings up a simulated rig.
+    Every command that talks to the rig reads the room from its --config FILE (given after
+    the command's name: vts qa daily --config FILE), else from the file named by $VTS_CONFIG,
+    else ./rig.yaml. `vts sim up` brings up a simulated rig.
     Results go to the store named by --store, else $VTS_STORE, else rig.yaml's store.url.
     """
     ctx.meta[STORE_META] = (store_url, store_password_env)

@@ -91,7 +91,7 @@ def aim(name: str, once: bool, out: str | None, interval: float, as_json: bool, 
     a VTS -> SPECT mapping and calibration in rig.yaml: the SPECT FOV's centre and the markers
     seen through the gantry's opening (without: "not known: no mapping"). Each check takes a
     picture with the LED on and one with it off; the LED is left on. Goals: rig.yaml's aim:
-    section (README, "Aim and focus").
+    section (docs/commission/aim-focus.md).
 
     \b
     Exit status: 0 every item good (items not known do not count); 10 something to adjust;

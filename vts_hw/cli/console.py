@@ -79,8 +79,8 @@ def console(ctx: click.Context, config_path: str | None, host: str, port: int, l
     machine), --behind-proxy without --server-name, 0.0.0.0 with no name to answer to, a login
     asked for with no user in the store, a certificate or key that is not one, a --scans-dir
     that holds anything but scans. The console answers only the names it serves under (others:
-    HTTP 400) and takes a POST only from its own pages. README: "Console users and HTTPS";
-    docs/security.md.
+    HTTP 400) and takes a POST only from its own pages. docs/operate/console.md, "Console users and
+    HTTPS"; docs/security.md.
     """
     if ctx.invoked_subcommand is not None:
         return

@@ -16,7 +16,7 @@ def qatrack_config(rig):
     if rig.qatrack is None:
         src = rig._source or "rig.yaml"
         raise ConfigError(f"{src}: no qatrack: section (url, unit, token_env or user_env/password_env, "
-                          f"lists); see the README's QATrack+ section")
+                          f"lists); see docs/operate/qatrack.md")
     return rig.qatrack
 
 
