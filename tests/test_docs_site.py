@@ -7,6 +7,7 @@ every decision note (mkdocs.yml, tools/docs_site.py; docs/decisions/0097-docs-by
 from __future__ import annotations
 
 import html
+import importlib.util
 import os
 import re
 import shutil
@@ -16,6 +17,9 @@ from pathlib import Path
 
 import pytest
 import yaml
+from mkdocs.config import load_config
+from mkdocs.exceptions import PluginError
+from mkdocs.structure.files import File, Files
 
 from vts_hw.cli import COMMANDS, command_tree
 from vts_hw.config import RigConfig
@@ -23,6 +27,14 @@ from vts_hw.config import RigConfig
 ROOT = Path(__file__).resolve().parents[1]
 #: the exit codes every command keeps (README, vts_hw/errors.py and the QA results' codes)
 EXIT_CODES = (0, 2, 3, 4, 5, 10, 20, 130)
+
+
+def _generator():
+    """tools/docs_site.py, the site's hook, as mkdocs loads it (a file, not a package)."""
+    spec = importlib.util.spec_from_file_location("docs_site", ROOT / "tools" / "docs_site.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def _build(config: Path, site: Path) -> subprocess.CompletedProcess:
@@ -101,3 +113,24 @@ def test_a_link_to_a_missing_page_fails_the_build(tmp_path):
     done = _build(tmp_path / "mkdocs.yml", tmp_path / "site")
     assert done.returncode != 0
     assert "no-such-page.md" in done.stdout + done.stderr
+
+
+def test_a_page_written_by_hand_over_a_made_one_stops_the_build(tmp_path):
+    """docs/reference/commands.md written by hand would hide the page made from the code: the hook
+    refuses it, naming the file."""
+    gen = _generator()
+    config = load_config(str(ROOT / "mkdocs.yml"))
+    hand = tmp_path / "commands.md"
+    hand.write_text("# Commands\n")
+    files = Files([File("reference/commands.md", str(tmp_path), str(tmp_path / "site"), False)])
+    with pytest.raises(PluginError, match="docs/reference/commands.md exists, but it is a generated page"):
+        gen.on_files(files, config)
+
+
+def test_an_exit_code_without_a_meaning_stops_the_build(monkeypatch):
+    """A code the code sets (5: NoBaseline) that the page cannot explain stops the build, naming it
+    and where it is set."""
+    gen = _generator()
+    monkeypatch.delitem(gen.EXIT_MEANINGS, 5)
+    with pytest.raises(PluginError, match=r"exit code 5 is set by the code \(`NoBaseline`"):
+        gen.exit_codes_page()
