@@ -134,3 +134,17 @@ def test_an_exit_code_without_a_meaning_stops_the_build(monkeypatch):
     monkeypatch.delitem(gen.EXIT_MEANINGS, 5)
     with pytest.raises(PluginError, match=r"exit code 5 is set by the code \(`NoBaseline`"):
         gen.exit_codes_page()
+
+
+def test_the_made_pages_into_a_folder_that_cannot_be_one_is_one_sentence(tmp_path, capsys):
+    """`python tools/docs_site.py OUTDIR` with a file as OUTDIR: one sentence naming it, exit 3,
+    the file as it was."""
+    gen = _generator()
+    taken = tmp_path / "taken"
+    taken.write_text("mine\n")
+    assert gen.main([str(taken)]) == 3
+    err = capsys.readouterr().err
+    assert err.startswith(f"docs_site: {taken}/reference: could not be written") and "Traceback" not in err
+    assert taken.read_text() == "mine\n"
+    assert gen.main([str(tmp_path / "made")]) == 0
+    assert "vts qa daily" in (tmp_path / "made" / "reference" / "commands.md").read_text()

@@ -35,6 +35,8 @@ from vts_hw import tolerance
 from vts_hw.cli import COMMANDS, cli, command_tree
 from vts_hw.config import RigConfig, TriggerConfig
 from vts_hw.drivers import registry
+from vts_hw.errors import VtsError
+from vts_hw.files import ensure_dir, write_atomic
 
 ROOT = Path(__file__).resolve().parents[1]
 #: the folders whose modules the exit codes are read from, and their package names
@@ -344,11 +346,23 @@ def on_files(files, config):
     return files
 
 
+def main(argv: list[str]) -> int:
+    """``python tools/docs_site.py OUTDIR``: the made pages written into OUTDIR (each whole, through
+    vts_hw.files); a folder or file that cannot be written is one sentence and exit 3."""
+    if len(argv) != 1:
+        print("usage: python tools/docs_site.py OUTDIR", file=sys.stderr)
+        return 2
+    try:
+        for uri, make in PAGES.items():
+            target = Path(argv[0]) / uri
+            ensure_dir(target.parent, "folder of the made pages")
+            write_atomic(target, make())
+            print(target)
+    except VtsError as exc:
+        print(f"docs_site: {exc}", file=sys.stderr)
+        return exc.exit_code
+    return 0
+
+
 if __name__ == "__main__":
-    if len(sys.argv) != 2:
-        sys.exit("usage: python tools/docs_site.py OUTDIR")
-    for uri, make in PAGES.items():
-        target = Path(sys.argv[1]) / uri
-        target.parent.mkdir(parents=True, exist_ok=True)
-        target.write_text(make())
-        print(target)
+    sys.exit(main(sys.argv[1:]))
