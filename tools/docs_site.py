@@ -120,7 +120,7 @@ def _default(field) -> str:
 
 
 def _cell(text: str) -> str:
-    return " ".join(str(text).split()).replace("|", "\\|")
+    return " ".join(str(text).split()).replace("|", "\\|").replace("``", "`")
 
 
 def _nested(annotation: Any) -> tuple[str, type[BaseModel]] | None:
@@ -143,10 +143,14 @@ def _model_table(model: type[BaseModel], prefix: str, out: list[str], sections: 
     for name, field in model.model_fields.items():
         key = f"{prefix}{name}"
         nested = _nested(field.annotation)
+        what = field.description or ""
         if nested is not None:
             sections.append((key + nested[0], nested[1]))
+            doc = (nested[1].__doc__ or "").strip() if nested[1].__module__.startswith("vts_hw") else ""
+            first = re.split(r"(?<=\.)\s", " ".join(doc.split("\n\n")[0].split()), maxsplit=1)[0] if doc else ""
+            what = what or (first + " " if len(first) <= 160 else "") + "(its keys below)"
         out.append(f"| `{key}` | {_cell(_type_name(field.annotation))} | {_cell(_default(field))} | "
-                   f"{_cell(_limits(field))} | {_cell(field.description or '')} |")
+                   f"{_cell(_limits(field))} | {_cell(what)} |")
     out.append("")
 
 
@@ -167,7 +171,7 @@ def rig_yaml_page() -> str:
         out += [f"## {title}", ""]
         doc = (model.__doc__ or "").strip()
         if doc and model.__module__.startswith("vts_hw") and not doc.startswith("Usage docs"):
-            out += [" ".join(doc.split("\n\n")[0].split()), ""]
+            out += [_cell(doc.split("\n\n")[0]), ""]
         sub: list = []
         _model_table(model, f"{prefix}." if prefix else "", out, sub)
         sections[0:0] = sub
