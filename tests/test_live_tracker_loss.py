@@ -144,6 +144,45 @@ def test_each_set_latency_is_told_in_its_parts(rendered):
     assert tr.stats(None)["latency_ms_p95"] == pytest.approx(np.percentile(lat, 95) * 1e3, abs=1e-3)
 
 
+def test_the_breathing_figures_are_worked_out_after_a_sets_latency_never_inside_it(rendered, monkeypatch):
+    """Once a second of trace the breathing figures are worked out again (a few ms): after the
+    set's markers are in the published estimate and its latency taken, never inside the
+    published snapshot (which is within the latency); the next snapshot shows them."""
+    from vts_hw.tracking.live import breathing
+    sim, _, frames, offsets = rendered
+    ticks = itertools.count()
+    clock = (lambda: MONO0 + 0.001 * next(ticks))
+    tr = _tracker(sim, offsets, clock=clock)
+    est, inside, calls = tr.estimator, [False], []
+    figures_of, snapshot = breathing.figures_of, est.snapshot
+
+    def counted(t, v):
+        calls.append((inside[0], len(tr.latency), tr.sets))
+        return figures_of(t, v)
+
+    def published(*a, **kw):
+        inside[0] = True
+        try:
+            return snapshot(*a, **kw)
+        finally:
+            inside[0] = False
+    monkeypatch.setattr(breathing, "figures_of", counted)
+    monkeypatch.setattr(est, "snapshot", published)
+    for host, name, frame in frames:
+        if host - frames[0][0] > 12.0:
+            break
+        tr.tap.put(name, frame, arrival=clock())
+        tr.step(0.0)
+    assert est.phase == "tracking" and len(calls) >= 4, (est.note, calls)
+    assert not any(during for during, _, _ in calls), calls          # never within a published snapshot
+    assert all(n == sets for _, n, sets in calls), calls             # each after its set's latency was taken
+    fig = est.traces[est._lead()].figures(fresh=False)               # the last worked out ...
+    assert fig is not None and len(calls) == len({sets for _, _, sets in calls})
+    shown = est.snapshot(fresh=False).bands[0].rate_per_min          # ... is what a snapshot shows
+    known = fig.status in ("measured", "bounded") and fig.rate_per_min is not None
+    assert shown == pytest.approx(fig.rate_per_min) if known else np.isnan(shown)
+
+
 def _spin(stop):
     while not stop.is_set():
         pass

@@ -84,13 +84,29 @@ class BreathingTrace:
         a = np.array(self.samples, float)
         return a[:, 0], a[:, 1]
 
-    def figures(self) -> BreathingFigures:
-        """The window's breathing figures (worked out again once ``every_s`` of samples came)."""
+    def due(self) -> bool:
+        """Whether the figures are to be worked out again: none yet, or ``every_s`` of samples
+        came since (or the clock went back)."""
         last = self.samples[-1][0] if self.samples else None
-        if self._figures is None or last is None or self._at is None or last - self._at >= self.every_s \
-                or last < self._at:
-            self._figures, self._at = figures_of(*self.values()), last
+        return self._figures is None or last is None or self._at is None or last - self._at >= self.every_s \
+            or last < self._at
+
+    def refresh(self) -> None:
+        """Work the figures out again, if :meth:`due`."""
+        if self.due():
+            self._figures, self._at = figures_of(*self.values()), (self.samples[-1][0] if self.samples else None)
+
+    def figures(self, fresh: bool = True) -> BreathingFigures | None:
+        """The window's breathing figures (worked out again once ``every_s`` of samples came).
+        ``fresh=False``: the last worked out, as they are (None before the first): for the live
+        path, which refreshes them after a frame set's estimate, off that set's latency."""
+        if fresh:
+            self.refresh()
         return self._figures
+
+    def last(self) -> float:
+        """The newest value (NaN when none)."""
+        return self.samples[-1][1] if self.samples else float("nan")
 
     def rate_per_min(self) -> float:
         f = self.figures()
@@ -98,9 +114,16 @@ class BreathingTrace:
 
     def recent(self, n: int = 40, span_s: float = 10.0) -> list[float]:
         """``n`` values evenly over the last ``span_s`` (for a sparkline); NaN where none."""
-        t, v = self.values()
-        if len(t) == 0:
+        if not self.samples:
             return []
+        end = self.samples[-1][0] - span_s
+        tail = []                       # the samples of the span (and the one before it), newest first
+        for sample in reversed(self.samples):
+            tail.append(sample)
+            if sample[0] < end:
+                break
+        a = np.array(tail[::-1], float)
+        t, v = a[:, 0], a[:, 1]
         grid = np.linspace(t[-1] - span_s, t[-1], n)
         out = np.interp(grid, t, v)
         out[grid < t[0]] = np.nan

@@ -275,13 +275,30 @@ class LiveEstimator:
             return []
         return [(self.marker_names[int(m)], int(p)) for m, p in zip(self._seen_idx, self._seen_pts)]
 
-    def six_dof(self) -> np.ndarray:
-        """The body's 6-DOF now (tx, ty, tz mm; rx, ry, rz deg), from the last pose; needs one."""
+    def six_dof(self, rot: Rotation | None = None) -> np.ndarray:
+        """The body's 6-DOF now (tx, ty, tz mm; rx, ry, rz deg), from the last pose; needs one
+        (``rot``: its rotation, when the caller has it already)."""
         f = self.fit
-        return np.concatenate([f.T, Rotation.from_matrix(f.R).as_euler("xyz", degrees=True)])
+        rot = Rotation.from_matrix(f.R) if rot is None else rot
+        return np.concatenate([f.T, rot.as_euler("xyz", degrees=True)])
 
     # -- output --------------------------------------------------------------------------------
-    def snapshot(self, stats: dict | None = None) -> LiveEstimate:
+    def refresh(self) -> None:
+        """Work the breathing figures out again where due (:meth:`BreathingTrace.refresh`): what
+        :meth:`snapshot` does itself unless told ``fresh=False``; the live tracker calls it after
+        a frame set's estimate is published, so that the once-a-second figures (a few ms) never
+        hold up a set's markers."""
+        if self.traces and self.model is not None and self.model.bands:
+            self.traces[self._lead()].refresh()
+
+    def _lead(self) -> int:
+        """The band whose breathing is largest: the one respiratory signal's rate is its."""
+        m = self.model
+        return int(np.argmax([self._band_mm(k) for k in range(len(m.bands))])) if m.bands else 0
+
+    def snapshot(self, stats: dict | None = None, fresh: bool = True) -> LiveEstimate:
+        """The estimate now. ``fresh=False``: with the breathing figures last worked out
+        (:meth:`refresh`), not worked out again here."""
         if self.phase != "tracking" or self.fit is None:
             note = self.note
             if self.phase == "reference" and self._ref is not None and self._ref.t0 is not None \
@@ -292,8 +309,7 @@ class LiveEstimator:
         m, bands = self.model, []
         band = m.band_of()
         # one respiratory signal: its rate worked out once, on the band that breathes most
-        lead = int(np.argmax([self._band_mm(k) for k in range(len(m.bands))])) if m.bands else 0
-        fig = self.traces[lead].figures() if self.traces else None
+        fig = self.traces[self._lead()].figures(fresh) if self.traces else None
         known = fig is not None and fig.status in ("measured", "bounded") and fig.rate_per_min is not None
         rate = float(fig.rate_per_min) if known else float("nan")
         rate_range = tuple(float(x) for x in fig.rate_range) if known and fig.status == "bounded" \
@@ -303,16 +319,16 @@ class LiveEstimator:
             idx = self._seen_idx[sel]
             disp = (self._seen_x[sel].mean(axis=0) - m.reference[idx].mean(axis=0)) if len(idx) else np.full(3, np.nan)
             tr = self.traces[k]
-            _, v = tr.values()
             bands.append(BandEstimate(k + 1, len(g), int(len(idx)),
-                                      tuple(float(x) for x in disp), float(v[-1]) if len(v) else float("nan"),
+                                      tuple(float(x) for x in disp), float(tr.last()),
                                       rate, tuple(tr.recent()), m.breathes, rate_range))
         r, f, c = self.rule, self.fit, m.centre
         move = float(np.linalg.norm(f.R @ c + f.T - c))
-        turn = float(np.degrees(np.linalg.norm(Rotation.from_matrix(f.R).as_rotvec())))
+        rot = Rotation.from_matrix(f.R)
+        turn = float(np.degrees(np.linalg.norm(rot.as_rotvec())))
         h, cams = self.health(), self._cameras
         figures = (f.n_markers, m.n_markers, f.rms_mm, None if np.isnan(cams) else cams)
         return LiveEstimate(self.phase, self.frame, self.time, tuple(bands),
-                            tuple(float(x) for x in self.six_dof()), move, turn, r.state,
+                            tuple(float(x) for x in self.six_dof(rot)), move, turn, r.state,
                             len(r.alerts), self.note, dict(stats or {}), health=h.state, health_why=h.why,
                             confidence=h.confidence, fit_figures=figures)

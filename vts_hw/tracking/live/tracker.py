@@ -205,7 +205,8 @@ class LiveTracker:
         # between sees old facts with new figures (never TRACKING on old figures)
         if alert is not None or est.phase != phase or self._published_capture is None \
                 or fs.capture - self._published_capture >= self.publish_s:
-            self.published = est.snapshot()      # then its capture: a reader in between overstates its age
+            # the breathing figures as last worked out: refreshed below, after this set's latency
+            self.published = est.snapshot(fresh=False)   # then its capture: a reader in between overstates its age
             self._published_capture = fs.capture
         self.facts = Facts(est.phase, self.tap.first, seen, resumed, fs.capture,
                            "" if est.observed else est.note, learned, seen_arrival, broke)
@@ -217,6 +218,10 @@ class LiveTracker:
         with self._lock:
             self.latency.append((now - fs.last_arrival, now - fs.first_arrival))
             self.parts.append(parts)
+        # once a second of trace, the breathing figures (a few ms): after the set's markers are in
+        # the estimate, so they hold up no set's markers; the next frames that came meanwhile
+        # wait (their sets' `queued`, which the latency counts)
+        est.refresh()
         if self.on_names is not None and now - self._names_at >= self.names_every_s:
             self._names_at = now
             self._tell_names(matches, pts)
