@@ -69,7 +69,7 @@ def commands_page() -> str:
     for path, command in command_tree():
         parent = contexts.get(path[:-1]) if path else None
         ctx = click.Context(command, info_name=path[-1] if path else "vts", parent=parent,
-                            max_content_width=100, terminal_width=100)
+                            max_content_width=80, terminal_width=80)
         contexts[path] = ctx
         name = " ".join(("vts", *path))
         level = "#" * min(2 + max(len(path) - 1, 0), 4)
