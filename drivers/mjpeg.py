@@ -28,6 +28,7 @@ from pydantic import BaseModel, ConfigDict
 
 from vts_hw.camera import ClockOffset, Frame, NoParameters, check_whole, kind_options
 from vts_hw.drivers.axis import AxisCamera, BadReply
+from vts_hw.errors import ConfigError
 
 
 class MjpegOptions(BaseModel):
@@ -60,7 +61,6 @@ class MjpegCamera(AxisCamera):
 
     @classmethod
     def from_config(cls, cfg, clock=time.time) -> "MjpegCamera":
-        from vts_hw.errors import ConfigError
         opts = kind_options(cfg, MjpegOptions)
         if not cfg.host:
             raise ConfigError(f"camera {cfg.name!r} (kind mjpeg): host is required")

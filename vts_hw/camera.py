@@ -18,7 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Callable, Iterator, Protocol, runtime_checkable
 
-from vts_hw.errors import DeviceError
+from vts_hw.errors import ConfigError, DeviceError
 
 TORN = "torn"   # what a connection yields for a frame that arrived cut short (never a Frame)
 TIME_SOURCES = ("camera", "receipt", "recording")
@@ -223,7 +223,6 @@ def kind_options(cfg, model):
     unknown key is a ConfigError naming the camera, the key and what was expected."""
     from pydantic import ValidationError
 
-    from vts_hw.errors import ConfigError
     try:
         return model.model_validate(dict(cfg.options))
     except ValidationError as exc:

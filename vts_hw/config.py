@@ -22,6 +22,7 @@ from vts_hw.config_setup import CameraSetupConfig
 from vts_hw.config_warmup import WarmupSettings
 from vts_hw.bounded import ANY_SIZE, TooLarge, open_checked, read_bytes
 from vts_hw.errors import ConfigError
+from vts_hw.tolerance import DEFAULT_TOLERANCES
 from vts_hw.vision.aim_settings import AimSettings
 
 ENV_CONFIG = "VTS_CONFIG"
@@ -269,7 +270,6 @@ class RigConfig(_Strict):
     @field_validator("tolerances")
     @classmethod
     def _known_metrics(cls, v: dict):
-        from vts_hw.tolerance import DEFAULT_TOLERANCES
         unknown = sorted(set(v) - set(DEFAULT_TOLERANCES))
         if unknown:
             raise ValueError(f"names {unknown[0]!r}, which is not a metric with a tolerance window "

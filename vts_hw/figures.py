@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import io
 
+from vts_hw.files import write_atomic
+
 
 def figure_png(fig, path=None, dpi: int = 110) -> bytes:
     """PNG bytes of a matplotlib figure (no metadata beyond the image); also written to
@@ -15,6 +17,5 @@ def figure_png(fig, path=None, dpi: int = 110) -> bytes:
     fig.savefig(buf, format="png", dpi=dpi, metadata={"Software": None})
     png = buf.getvalue()
     if path is not None:
-        from vts_hw.files import write_atomic
         write_atomic(path, png)
     return png

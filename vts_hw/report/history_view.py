@@ -10,6 +10,7 @@ from vts_hw import catalog
 from vts_hw.report.history import LAST_N, ProcedureHistory
 from vts_hw.report.plots import FONT, STATE_COLOURS
 from vts_hw.report.times import fmt_datetime, utc
+from vts_hw.figures import figure_png
 
 
 def _fmt(v, spec: str) -> str:
@@ -56,7 +57,6 @@ def history_html(history: list[ProcedureHistory], show_rig: bool = False) -> str
     """The report's "QA history" section ("" without any such runs)."""
     if not history:
         return ""
-    from vts_hw.figures import figure_png
 
     parts = []
     for h in history:

@@ -24,6 +24,8 @@ from vts_hw.report.text import (camera_forecast_text, fmt_slope, forecast_detail
                    trend_detail)
 from vts_hw.report.times import fmt_date, fmt_datetime, utc
 from vts_hw.report.trend import CONTROL_RUNS, TREND_RULE
+from vts_hw.report.history_view import history_figure
+from vts_hw.report.steps import steps_figure
 
 A4_LANDSCAPE = (11.69, 8.27)
 MARGIN = 0.05                      # left and right, as a fraction of the page width
@@ -259,8 +261,6 @@ def report_pages(report: DriftReport):
         if cam.points:
             yield camera_figure(report, cam, figsize=A4_LANDSCAPE, header=_camera_header(report, cam))
     if report.steps is not None:
-        from vts_hw.report.steps import steps_figure
         yield steps_figure(report.steps, figsize=A4_LANDSCAPE)
     if report.history:
-        from vts_hw.report.history_view import history_figure
         yield history_figure(report.history, figsize=A4_LANDSCAPE)

@@ -27,6 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
+from vts_hw.spect.interfile import written_by_castor
+from vts_hw.spect.readers import reader_for
+
 __all__ = ["SPECT_FRAME", "VTS_FRAME", "VTS_AXES", "volume_record", "frame_description"]
 
 SPECT_FRAME = ("SPECT frame: mm, right-handed; X towards the patient's left, Y towards the patient's "
@@ -45,7 +48,6 @@ def volume_record(path, volume, fmt: str | None = None) -> dict:
     has it (else None)."""
     path = Path(path)
     if fmt is None:
-        from vts_hw.spect.readers import reader_for
         fmt = reader_for(path).name
     centre = volume.index_to_mm((np.asarray(volume.data.shape, float) - 1) / 2)
     rec = {"file": path.name, "format": fmt, "shape": [int(n) for n in volume.data.shape],
@@ -55,7 +57,6 @@ def volume_record(path, volume, fmt: str | None = None) -> dict:
     if fmt == "dicom":
         rec["patient_position"] = _dicom_patient_position(path)
     elif fmt == "interfile":
-        from vts_hw.spect.interfile import written_by_castor
         rec["castor_image"] = written_by_castor(path)
     return rec
 

@@ -36,6 +36,7 @@ from vts_hw.errors import DataError
 from vts_hw.files import check_target
 from vts_hw.store.unsaved import load_unsaved, save_unsaved
 from vts_hw.tolerance import State, Window, merged_tolerances
+from vts_hw.store.store import ResultsStore
 
 log = logging.getLogger(__name__)
 
@@ -94,7 +95,6 @@ class Recorder:
     def begin(self) -> "Recorder":
         """Sync the windows and commit the "running" row; a store that cannot take them is
         remembered (``error``), never raised: the figures go to the unsaved file at the end."""
-        from vts_hw.store.store import ResultsStore
         try:
             if isinstance(self.target, ResultsStore):
                 self._store = self.target

@@ -22,6 +22,7 @@ from contextlib import contextmanager
 from sqlalchemy import Connection, insert, select, text, update
 from sqlalchemy.exc import ArgumentError, DBAPIError, NoSuchModuleError, SQLAlchemyError
 
+from vts_hw import __version__
 from vts_hw.tolerance import Window
 from vts_hw.store.engine import WRITE_OPTION, make_engine
 from vts_hw.store.errors import StoreError
@@ -259,7 +260,7 @@ class ResultsStore(PeopleMixin):
         if not isinstance(procedure, str) or not procedure:
             raise ValueError("a run needs a procedure name")
         if software_version is None:
-            from vts_hw import __version__ as software_version
+            software_version = __version__
         when = time.time() if started is None else float(started)
         with self._write() as conn:
             new = conn.execute(insert(runs).values(

@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from vts_hw.errors import DataError
+from vts_hw.recording.folder import read_index
 
 __all__ = ["ClockFit", "fit_camera_clock", "fit_recording_clocks", "lower_envelope", "dequantise"]
 
@@ -350,7 +351,6 @@ def _jackknife(x, y, a, k, blocks: int) -> float:
 
 def fit_recording_clocks(folder, latency_s: float = 0.0) -> dict[str, ClockFit]:
     """:func:`fit_camera_clock` for every camera of a recording folder (from its indexes)."""
-    from vts_hw.recording.folder import read_index
 
     folder = Path(folder)
     out = {}

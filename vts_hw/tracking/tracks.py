@@ -18,6 +18,8 @@ import numpy as np
 
 from vts_hw.bounded import SMALL, TABLE, open_bounded, read_text
 from vts_hw.errors import DataError
+from vts_hw.files import write_atomic, write_json_atomic
+from vts_hw.spect.frame import SPECT_FRAME, VTS_AXES
 
 __all__ = ["Tracks", "TRACKS_FORMAT"]
 
@@ -167,7 +169,6 @@ class Tracks:
                 xs, ys, zs = self.xyz_spect[p]
                 row += f",{xs:.4f},{ys:.4f},{zs:.4f}"
             lines.append(row)
-        from vts_hw.files import write_atomic, write_json_atomic
         write_atomic(csv_path, "\n".join(lines) + "\n", encoding="ascii")   # whole or not at all (disk full)
         fin = lambda a: [None if not np.isfinite(v) else float(v) for v in a]  # noqa: E731
         frames = {"host_time": [round(float(v), 6) for v in self.host_time]}
@@ -181,7 +182,6 @@ class Tracks:
                 frames[f"{name}_single"] = self.n_single[:, c].tolist()
         if has_st:
             frames["spect_time"] = [round(float(v), 6) for v in self.spect_time]
-        from vts_hw.spect.frame import SPECT_FRAME, VTS_AXES
         doc = {"format": TRACKS_FORMAT, "csv": csv_path.name, "cameras": list(self.camera_names),
                "units": {"position": "mm", "time": "s (UTC epoch)", "pixels": "px"},
                "clock": "host_time: host UTC epoch s, mapped from the camera stamps by the "

@@ -30,6 +30,7 @@ from dataclasses import asdict, dataclass, field, replace
 import cv2
 import numpy as np
 
+from vts_hw.vision import aim_overlay
 from vts_hw.vision.aim_settings import DEFAULT_AIM, AimSettings
 from vts_hw.vision.aim_verdicts import (ADJUST, GOOD, UNKNOWN, Verdict, aim_verdict, fov_verdict,
                                         gantry_verdict, level_verdicts, marker_verdicts, picture_shift)
@@ -93,8 +94,7 @@ class AimReport:
 
     def overlay_png(self) -> bytes:
         """The LED-on picture with the markers, the FOV, the table and the gantry's opening drawn."""
-        from vts_hw.vision.aim_overlay import overlay_png
-        return overlay_png(self)
+        return aim_overlay.overlay_png(self)
 
 
 def decode_grey(jpeg: bytes, what: str = "picture") -> np.ndarray:

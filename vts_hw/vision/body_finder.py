@@ -30,6 +30,7 @@ import numpy as np
 from vts_hw.errors import DataError
 from vts_hw.vision.registration import RigidTransform, kabsch
 from vts_hw.vision.triangulate import epipolar_distances, triangulate
+from vts_hw.vision.multiview import ViewGeometry, match_views
 
 __all__ = ["Hypotheses", "BodyFit", "candidate_points", "find_body", "locate_body", "locate_body_views"]
 
@@ -197,7 +198,6 @@ def locate_body_views(cams: Sequence, pts: Sequence, template, tol_mm: float = D
     used twice."""
     if len(cams) == 2:
         return locate_body(cams, pts[0], pts[1], template, tol_mm, max_px, min_points)
-    from vts_hw.vision.multiview import ViewGeometry, match_views
 
     m = match_views(ViewGeometry(cams), [np.asarray(p, float).reshape(-1, 2) for p in pts], max_px)
     det = np.array([p.detections for p in m.points], int).reshape(-1, len(cams))

@@ -25,6 +25,7 @@ from typing import Any, Sequence
 from vts_hw.bounded import SMALL, read_text
 from vts_hw.errors import DataError
 from vts_hw.vision.triangulate import PinholeCamera, as_camera
+from vts_hw.vision.calibration_io import FORMAT, STEREO_FORMAT, load_calibration
 
 __all__ = ["named_cameras", "load_cameras", "covered_names"]
 
@@ -96,7 +97,6 @@ def load_cameras(path) -> dict[str, PinholeCamera]:
         data = json.loads(read_text(path, SMALL, "calibration"))
     except (OSError, ValueError, RecursionError) as exc:
         raise DataError(f"{path}: cannot read the calibration ({str(exc)[:120] or type(exc).__name__})") from None
-    from vts_hw.vision.calibration_io import FORMAT, STEREO_FORMAT, load_calibration
     if isinstance(data, dict) and (data.get("format") in (FORMAT, STEREO_FORMAT) or "K1" in data):
         return named_cameras(load_calibration(path))   # written by vts calibrate (a stereo file: "K1")
     rows = data.get("cameras") if isinstance(data, dict) else None

@@ -33,6 +33,8 @@ from scipy.optimize import linear_sum_assignment
 
 from vts_hw.vision.aim_geometry import fov_centre
 from vts_hw.vision.aim_settings import DEFAULT_AIM, AimSettings
+from vts_hw.vision.camera_set import named_cameras
+from vts_hw.vision.multiview import ViewGeometry, match_views
 
 __all__ = ["WALL", "PHANTOM", "CHEST", "ABDOMEN", "PATIENT", "UNKNOWN", "ROLES", "PATIENT_ROLES", "Role", "Track",
            "TableSpace", "Room", "follow", "motion_range", "roles_of_tracks", "roles_of_positions", "roles_by_reference",
@@ -182,7 +184,6 @@ class Room:
     ``locator`` (a :class:`~vts_hw.vision.phantom_locator.PhantomLocator`) to name its spheres."""
 
     def __init__(self, cameras: Mapping, mapping, space: TableSpace, locator=None):
-        from vts_hw.vision.camera_set import named_cameras
 
         self.cameras = named_cameras(dict(cameras))
         self.mapping = mapping
@@ -194,7 +195,6 @@ class Room:
         a :class:`Role` for each that another camera confirms (wall, phantom, or unknown on the
         table), None for one seen by one camera only or not calibrated (rule 3: the caller keeps
         its motion-only role and says why)."""
-        from vts_hw.vision.multiview import ViewGeometry, match_views
 
         out: dict[str, list[Role | None]] = {n: [None] * len(np.asarray(p).reshape(-1, 2)) for n, p in still.items()}
         names = [n for n, p in still.items() if n in self.cameras and len(np.asarray(p).reshape(-1, 2))]

@@ -23,8 +23,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from vts_hw import __version__
 from vts_hw.bounded import SMALL, read_text
 from vts_hw.errors import DataError
+from vts_hw.files import write_json_atomic
 
 __all__ = ["RigidTransform", "kabsch", "kabsch_batch", "fre", "loo_tre", "LooTre", "difference",
            "TransformDifference", "EULER_CONVENTION"]
@@ -104,7 +106,6 @@ class RigidTransform:
     def to_dict(self) -> dict:
         """JSON-able dict: R, t, the Euler angles (for people; ignored on load), the
         convention, creation time (UTC ISO 8601) and ``vts_hw.__version__``."""
-        from vts_hw import __version__
 
         return {
             "format": _FORMAT,
@@ -137,7 +138,6 @@ class RigidTransform:
 
     def save(self, path) -> Path:
         """Write :meth:`to_dict` as JSON, whole or not at all (vts_hw/files.py)."""
-        from vts_hw.files import write_json_atomic
         return write_json_atomic(path, self.to_dict())
 
     @classmethod
