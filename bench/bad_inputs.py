@@ -14,7 +14,9 @@ listed here. The classes of bad input, each command one case at a time:
   be positive): refused as bad input naming the option (exit 2), else a false OK (exit 0) or not
   refused;
 * ``configs``: ``--config`` naming a missing, empty, binary or ``[]`` rig.yaml, one with an
-  unknown key, and a good one whose cameras, trigger and QATrack+ do not answer;
+  unknown key, and a good one whose cameras, trigger and QATrack+ do not answer; the bad ones
+  also as ``vts --config FILE qa daily``, and ``vts --config`` before ``sim up`` (which reads no
+  rig.yaml: refused), ``--only vts`` for these alone;
 * ``foreign stores``: ``--store`` naming an SQLite database of another program, a file that is
   not SQLite and an empty SQLite database, for every command; ``store migrate --from/--to``,
   ``store init``, ``qa drift --set-baseline``, ``qa import`` of a good run file and a
@@ -199,6 +201,25 @@ def base_args(cmd: click.Command, fx: Fixtures) -> list[str]:
     return args
 
 
+def _refused(wd: Path, code: int | None, out: str, err: str) -> Verdict:
+    """A bad input that must be refused: exit 0 is a false OK."""
+    v = common(code, err)
+    if code == 0:
+        return Verdict(false_ok=True, why="accepted")
+    return v
+
+
+def global_config_cases(fx: Fixtures) -> list[Case]:
+    """`vts --config FILE COMMAND` (the room's file before the command's name): every bad config,
+    and a command that reads no rig.yaml, which refuses it (issue 34 §4)."""
+    out = [Case("configs", f"vts --config: {what}", plain(["--config", cfg, "qa", "daily"]), _refused)
+           for what, cfg in fx.configs.items()]
+    out.append(Case("configs", "vts --config before a command that reads no rig.yaml",
+                    lambda wd: ["--config", fx.dead_config, "sim", "up", "--detach", "--dir", str(wd / "sim")],
+                    _refused))
+    return out
+
+
 def cases(cmd_path: tuple[str, ...], cmd: click.Command, fx: Fixtures, classes=CLASSES, full: bool = False):
     """The cases of the classes paths, numbers, configs, floats and foreign stores of one command."""
     base = base_args(cmd, fx) + QUICK.get(cmd_path, [])
@@ -347,6 +368,7 @@ def plan(only: str | None, classes, fx: Fixtures, cli, peers=None, full: bool = 
             todo = list(cases(cmd_path, cmd, fx, classes, full))
         planned += todo
     planned += [c for c in store_command_cases(fx) if not only or c.what.startswith(only)]
+    planned += [c for c in global_config_cases(fx) if not only or only == "vts"]
     if full_disk.CLASS in classes:
         planned += full_disk.cases(fx.root, only)
     if signals.CLASS in classes:

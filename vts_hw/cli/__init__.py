@@ -13,10 +13,12 @@ import threading
 import click
 
 from vts_hw import __version__
-from vts_hw.errors import VtsError
+from vts_hw.errors import UsageError, VtsError
 
 #: ctx.meta key of the global --store/--store-password-env (read by cli.common.store_target)
 STORE_META = "vts.store"
+#: ctx.meta key of the global --config (read by cli.common.config_option's callback)
+CONFIG_META = "vts.config"
 
 #: each command of `vts` and the modules of vts_hw.cli that define it and its subcommands,
 #: imported when the command is asked for: `vts scan start` loads what a scan needs, not the
@@ -45,6 +47,9 @@ class _CommandsOnDemand(click.Group):
 @click.group(cls=_CommandsOnDemand, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(__version__, prog_name="vts")
 @click.option("-v", "--verbose", count=True, help="More log output (-vv for debug).")
+@click.option("--config", "config_path", metavar="FILE", type=click.Path(dir_okay=False), default=None,
+              help="rig.yaml of the room, for a command that reads one (its own --config wins; default: "
+                   "$VTS_CONFIG, then ./rig.yaml). A command that reads no rig.yaml refuses it (exit 2).")
 @click.option("--store", "store_url", metavar="URL", default=None,
               help="Results store for every command: sqlite:////path/results.sqlite or "
                    "postgresql://user@host[:port]/db (default: $VTS_STORE, then rig.yaml's store.url, then "
@@ -54,14 +59,18 @@ class _CommandsOnDemand(click.Group):
                    "$VTS_STORE_PASSWORD_ENV with --store/$VTS_STORE, else rig.yaml's store.password_env; "
                    "else libpq's PGPASSWORD or ~/.pgpass).")
 @click.pass_context
-def cli(ctx: click.Context, verbose: int, store_url: str | None, store_password_env: str | None) -> None:
+def cli(ctx: click.Context, verbose: int, config_path: str | None, store_url: str | None,
+        store_password_env: str | None) -> None:
     """Control and QA of the stereo Visual Tracking System (VTS) used with SPECT.
 
-    Every command that talks to the rig reads the room from its --config FILE (given after
-    the command's name: vts qa daily --config FILE), else from the file named by $VTS_CONFIG,
-    else ./rig.yaml. `vts sim up` brings up a simulated rig.
+    Every command that talks to the rig reads the room from --config FILE (the command's own,
+    `vts qa daily --config FILE`, or `vts --config FILE qa daily`), else from the file named by
+    $VTS_CONFIG, else ./rig.yaml. `vts sim up` brings up a simulated rig.
     Results go to the store named by --store, else $VTS_STORE, else rig.yaml's store.url.
     """
+    if config_path is not None and ctx.invoked_subcommand is not None:
+        _check_reads_a_rig(ctx.invoked_subcommand)
+    ctx.meta[CONFIG_META] = config_path
     ctx.meta[STORE_META] = (store_url, store_password_env)
     if store_url or store_password_env or os.environ.get("VTS_STORE"):
         from vts_hw.store.target import resolve_target
@@ -76,6 +85,16 @@ def _register() -> None:
         cli.get_command(click.Context(cli), name)
 
 
+def _check_reads_a_rig(name: str) -> None:
+    """`vts --config FILE NAME ...` where no command of NAME reads a rig.yaml (`vts sim up`,
+    `vts store ...`): UsageError (exit 2) rather than a --config silently not used."""
+    top = cli.commands.get(name)
+    if top is None:
+        return
+    if not any(p.name == "config_path" for _, c in command_tree(top, (name,)) for p in c.params):
+        raise UsageError(f"vts --config: `vts {name}` reads no rig.yaml; leave --config out")
+
+
 def command_tree(group: click.Group | None = None, path: tuple[str, ...] = ()):
     """Every group and command of `vts` (all registered), as (the names after ``vts``, the click
     command), groups before their commands, in name order."""
@@ -83,7 +102,7 @@ def command_tree(group: click.Group | None = None, path: tuple[str, ...] = ()):
         _register()
         group = cli
     yield path, group
-    for name, c in sorted(group.commands.items()):
+    for name, c in sorted(getattr(group, "commands", {}).items()):
         if isinstance(c, click.Group):
             yield from command_tree(c, path + (name,))
         else:

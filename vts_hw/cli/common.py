@@ -10,14 +10,25 @@ import time
 from pathlib import Path
 
 import click
+from click.core import ParameterSource
 
+from vts_hw.cli import CONFIG_META
 from vts_hw.config import ENV_CONFIG, RigConfig, load_rig
 from vts_hw.errors import UsageError
 from vts_hw.files import check_folder, check_target
 
+def _config_or_global(ctx: click.Context, param: click.Parameter, value):
+    """A command's --config, else `vts --config` (before the command's name), else
+    $VTS_CONFIG (None: ./rig.yaml)."""
+    given = ctx.meta.get(CONFIG_META)
+    if given is not None and ctx.get_parameter_source(param.name) is not ParameterSource.COMMANDLINE:
+        return given
+    return value
+
+
 config_option = click.option(
     "--config", "config_path", type=click.Path(dir_okay=False), envvar=ENV_CONFIG, default=None,
-    help=f"rig.yaml of the room (default: ${ENV_CONFIG}, then ./rig.yaml).")
+    callback=_config_or_global, help=f"rig.yaml of the room (default: vts --config, ${ENV_CONFIG}, then ./rig.yaml).")
 
 json_option = click.option("--json", "as_json", is_flag=True, help="Machine-readable JSON on stdout.")
 
