@@ -34,6 +34,7 @@ import tty
 from pathlib import Path
 
 from vts_hw.lifeline import child_options
+from vts_hw.sim_devices.trigger_box import SimTriggerBox
 
 INSYNC, OK, NOSYNC, EOP = 0x14, 0x10, 0x15, 0x20
 SIGNATURE_M328P = bytes([0x1E, 0x95, 0x0F])
@@ -195,7 +196,6 @@ class SimArduinoBoard:
     def _start_app(self) -> None:
         from intelhex import IntelHex
 
-        from vts_hw.sim_devices.trigger_box import SimTriggerBox
         try:
             ih = IntelHex()
             ih.frombytes(self.image(), offset=0)

@@ -15,6 +15,7 @@ from vts_hw.sim_devices.clock import SimClock
 from vts_hw.sim_devices.clock_warmup import warm_offset_s
 from vts_hw.sim_devices.render import Renderer
 from vts_hw.sim_devices.scene import Scene
+from vts_hw.sim_devices.optics import optics_of, set_optics
 
 
 class SimCameraSource:
@@ -58,12 +59,10 @@ class SimCameraSource:
     def set_optics(self, **changes) -> dict:
         """Change this camera's focus and mount (``focus_blur_px``, ``yaw_deg``, ``pitch_deg``:
         sim_devices/optics.py), now; returns all three. A bad value changes nothing (ValueError)."""
-        from vts_hw.sim_devices.optics import set_optics
         return set_optics(self.scene, self.renderer, self.name, **changes).to_dict()
 
     def optics(self) -> dict:
         """This camera's focus and mount (sim_devices/optics.py)."""
-        from vts_hw.sim_devices.optics import optics_of
         return optics_of(self.scene, self.renderer, self.name).to_dict()
 
     def led_on(self) -> bool:

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import secrets
 
+from vts_hw.sim_devices.qatrack_server import QATrackSim
+
 UNIT = "SPECT room (simulated)"
 TOKEN_ENV = "VTS_SIM_QATRACK_TOKEN"
 TIME_ZONE = "UTC"
@@ -39,7 +41,6 @@ def lists(cameras: list[str]) -> dict:
 
 def start_site(cameras: list[str]):
     """A running simulated QATrack+ for these cameras (``.down()`` stops it)."""
-    from vts_hw.sim_devices.qatrack_server import QATrackSim
 
     cfg = lists(cameras)
     site_lists = {DAILY_LIST: sorted(cfg["daily"]["macros"].values()), STEPS_LIST: sorted(STEPS_MACROS.values())}

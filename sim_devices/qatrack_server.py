@@ -38,7 +38,7 @@ import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from urllib.parse import parse_qs, urlencode, urlsplit
 
-from vts_hw.sim_devices.qatrack_site import NO_PERMISSION, Site
+from vts_hw.sim_devices.qatrack_site import NO_PERMISSION, Site, show_time
 
 PAGE = 100
 FAULTS = ("slow", "500", "400", "lose_answer", "trickle", "down", "add_instance")
@@ -126,7 +126,6 @@ class QATrackSim:
                  "attachment_bytes": sum(a["size"] for a in i["attachments"])} for i in self.site.instances]
 
     def site_time(self, value) -> str | None:
-        from vts_hw.sim_devices.qatrack_site import show_time
         return show_time(value, self.site.zone)
 
     def add_instance(self, user_key: str, utc_id: int = 1, tests: dict | None = None) -> dict:

@@ -26,8 +26,9 @@ from vts_hw.files import open_writable
 from vts_hw.recording.axis_jpeg import stamp_jpeg
 from vts_hw.recording.writer import Recording
 
+from vts_hw.recording.folder import read_index
 from vts_hw.sim_devices.render import Renderer, encode
-from vts_hw.sim_devices.scene import Marker, RigidBody, Scene
+from vts_hw.sim_devices.scene import CameraClock, Marker, RigidBody, Scene
 
 __all__ = ["BAND_LAYOUT", "BreathingBand", "SimRecording", "simulate_recording"]
 
@@ -154,7 +155,6 @@ def simulate_recording(folder, duration_s: float = 20.0, fps: float = 25.0, seed
     if scene is None:
         scene = Scene.reference(seed=seed, start_epoch=1_790_000_000.0 + 1000.0 * seed)
     if clock_offsets_s:
-        from vts_hw.sim_devices.scene import CameraClock
         for name, off in clock_offsets_s.items():
             old = scene.clocks[name]
             scene.clocks[name] = CameraClock(float(off), old.skew_ppm, old.ref_epoch)
@@ -241,8 +241,6 @@ def received_frames(folder, cameras) -> tuple[list[tuple[float, str, object]], d
     minus the host clock (the median over its frames), to feed a LiveTracker without cameras."""
     import statistics
     from types import SimpleNamespace
-
-    from vts_hw.recording.folder import read_index
 
     folder = Path(folder)
     frames, offsets = [], {}

@@ -9,7 +9,8 @@ From Python (tests)::
 
 From the shell: ``vts sim up`` (foreground, Ctrl-C stops) or ``vts sim up --detach --dir DIR``
 which writes ``DIR/rig.yaml`` and ``DIR/sim.env`` and runs this module in the background;
-``vts sim down --dir DIR`` stops it.
+``vts sim down --dir DIR`` stops it (both through :mod:`vts_hw.sim_devices.rig_detached`, which
+loads none of the scene and its devices).
 """
 
 from __future__ import annotations
@@ -19,7 +20,6 @@ import dataclasses
 import os
 import secrets
 import signal
-import subprocess
 import sys
 import threading
 import time
@@ -27,22 +27,31 @@ from pathlib import Path
 
 from vts_hw.config import RigConfig, dump_rig, parse_rig
 from vts_hw.errors import UsageError, VtsError
-from vts_hw.files import WriteFailed, ensure_dir, open_writable, os_reason, write_atomic, write_secret
-from vts_hw.lifeline import alive
+from vts_hw.files import WriteFailed, ensure_dir, os_reason, write_atomic, write_secret
 from vts_hw.sim_devices.axis_camera import SimAxisCamera
 from vts_hw.sim_devices.camera_source import SimCameraSource
 from vts_hw.sim_devices.clock import RealClock, VirtualClock
-from vts_hw.sim_devices.rig_log import FAILED, NOTHING_LOGGED, disk_full, failure_cause, one_line
+from vts_hw.sim_devices.announce import Announcer
+from vts_hw.sim_devices.clock_warmup import declare_warm_starts
+from vts_hw.sim_devices.frame_bank import DEFAULT_QUALITY, FrameBank, make_ahead
+from vts_hw.sim_devices.optics import set_optics
+from vts_hw.sim_devices.patient_rig import TRUTH_DIR, PatientOptions, put_patient, write_patient_truth
+from vts_hw.sim_devices.patient_source import heart_source
+from vts_hw.sim_devices.qatrack_rig import TOKEN_ENV, section, start_site
 from vts_hw.sim_devices.render import Renderer
+# the rig run detached (rig_detached.py); load_env_file, start_detached and stop_detached are re-exported
+from vts_hw.sim_devices.rig_detached import (FOLDER, PID_FILE, already_running, is_running, load_env_file,  # noqa: F401
+                                            pid_of, start_detached, stop_detached)
+from vts_hw.sim_devices.rig_log import FAILED, one_line
 from vts_hw.sim_devices.scene import CameraDrift, Scene
+from vts_hw.sim_devices.scpi_server import SimFunctionGenerator
+from vts_hw.sim_devices.spect_follower import SpectFollower
+from vts_hw.sim_devices.sync_truth import write_true_calibration, write_true_cameras
+from vts_hw.sim_devices.tls import self_signed
+from vts_hw.sim_devices.trigger_box import SimTriggerBox
 
-PID_FILE = "sim.pid"
-LOG_FILE = "sim.log"
 FGEN_LOG = "fgen_output.csv"     # the simulated function generator's output changes (host times)
-FOLDER = "simulated rig folder"
 TRIGGERS = ("none", "triggerbox", "visa")
-_children: dict[int, subprocess.Popen] = {}  # started from this process: reaped on stop
-READY_FILE = "rig.yaml"
 GANTRY_DWELL_S, GANTRY_MOVE_S, GANTRY_STEPS = 2.0, 1.0, 1_000_000  # turning for ~35 days
 
 
@@ -77,19 +86,16 @@ class SimRig:
         # from now, before any camera serves; rig.patient is its truth (None without one)
         self.patient = None
         if patient is not None:
-            from vts_hw.sim_devices.patient_rig import put_patient
             self.patient = put_patient(self.scene, patient, self.scene.start_epoch)
         for i, (cam, px) in enumerate(sorted((drift_px_per_60_days or {}).items())):
             # a camera that drifts faster than the reference rig's (the demo's bad camera)
             self.scene.drifts[cam] = CameraDrift.reference(self.scene.cameras[cam].focal, seed * 7919 + i,
                                                            self.scene.start_epoch, px)
         # declared, minutes after a camera starts: its picture drifts (sim_devices/warmup.py), its clock's rate departs
-        from vts_hw.sim_devices.clock_warmup import declare_warm_starts     # (clock_warmup.py); undeclared, nothing
         declare_warm_starts(self.scene, seed, warmup_drift, clock_warmup)
         self.renderer = Renderer(self.scene)
         # optics: {camera: {focus_blur_px, yaw_deg, pitch_deg}}, a lens out of focus, a mount turned
         # (sim_devices/optics.py; at run time: sources[name].set_optics or POST /sim/optics)
-        from vts_hw.sim_devices.optics import set_optics
         for cam, changes in (optics or {}).items():
             set_optics(self.scene, self.renderer, cam, **changes)
         self.user = user
@@ -121,16 +127,12 @@ class SimRig:
         for srv in self.servers.values():
             srv.start()
         if self.trigger == "triggerbox":
-            from vts_hw.sim_devices.trigger_box import SimTriggerBox
             self.trigger_box = SimTriggerBox().start()
         if self.trigger == "visa":
-            from vts_hw.sim_devices.scpi_server import SimFunctionGenerator
             self.function_generator = SimFunctionGenerator(clock=self.clock.now).start()
         if self.qatrack:
-            from vts_hw.sim_devices.qatrack_rig import start_site
             self.qatrack_site = start_site(list(self.servers))
         if self.announce:
-            from vts_hw.sim_devices.announce import Announcer
             self.announcer = Announcer(self.servers.values()).start()
         self._started = True
         return self
@@ -166,8 +168,6 @@ class SimRig:
         however busy the machine is. Returns what rendering cost (``BankStats``);
         ``self.bank`` is the bank. ``quality``: the JPEG quality the streams will ask
         (default: 100 - the compression the cameras' config gives)."""
-        from vts_hw.sim_devices.frame_bank import DEFAULT_QUALITY, FrameBank
-
         bank = FrameBank(self.scene, self.renderer, self.fps, DEFAULT_QUALITY if quality is None else quality)
         stats = bank.render(seconds, start=self.clock.now(), progress=progress)
         bank.on_play.extend(self._on_play)
@@ -208,7 +208,6 @@ class SimRig:
         if results_url:
             data["store"] = {"url": results_url}
         if self.qatrack_site is not None:
-            from vts_hw.sim_devices.qatrack_rig import section
             data["qatrack"] = section(self.qatrack_site, list(self.servers))
         return parse_rig(data, "simulated rig")
 
@@ -225,7 +224,6 @@ class SimRig:
         """The variables rig.yaml names: each camera's password (and the simulated QATrack+'s token)."""
         out = {password_var(name): self.password for name in self.servers}
         if self.qatrack_site is not None:
-            from vts_hw.sim_devices.qatrack_rig import TOKEN_ENV
             out[TOKEN_ENV] = self.qatrack_site.token
         return out
 
@@ -249,8 +247,6 @@ class SimRig:
         two cameras or more), named in rig.yaml's ``calibration:`` section (absolute paths), and
         with three or more ``cameras.json``: every true camera (the N-camera form
         ``vts_hw.vision.camera_set.load_cameras`` reads)."""
-        from vts_hw.sim_devices.sync_truth import write_true_calibration, write_true_cameras
-
         folder = ensure_dir(folder, FOLDER, mode=0o700)
         calibration = None
         if len(self.scene.cameras) >= 2:  # a stereo pair: the first two cameras
@@ -269,17 +265,6 @@ class SimRig:
                      "cameras; results: its own store, never the user's\n"
                      + dump_rig(self.config(calibration=calibration, results_url=store)))
         return rig_path, env_path
-
-
-def load_env_file(path: str | Path) -> dict[str, str]:
-    """The variables of a sim.env file."""
-    out = {}
-    for line in Path(path).read_text().splitlines():
-        line = line.strip()
-        if line.startswith("export ") and "=" in line:
-            k, v = line[len("export "):].split("=", 1)
-            out[k.strip()] = v.strip().strip("'\"")
-    return out
 
 
 # -- running in the foreground or detached ----------------------------------------------------
@@ -305,8 +290,8 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
             raise UsageError(f"simulated patient: {e}") from None
     if folder is not None:
         folder = ensure_dir(folder, FOLDER, mode=0o700)  # before anything starts: a folder we cannot use stops here
-        if is_running(folder) and _pid(folder) != os.getpid():
-            raise _already_running(folder)
+        if is_running(folder) and pid_of(folder) != os.getpid():
+            raise already_running(folder)
     clock = RealClock() if rate == 1.0 else VirtualClock(time.time(), rate=rate)
     stop = threading.Event()
 
@@ -319,7 +304,6 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
     if https:  # a self-signed certificate beside rig.yaml (or in a folder of its own)
         from tempfile import mkdtemp
 
-        from vts_hw.sim_devices.tls import self_signed
         tls = tuple(str(p) for p in self_signed(folder if folder is not None else mkdtemp(prefix="vts-sim-tls-")))
     rig = SimRig(n_cameras=n_cameras, seed=seed, firmware=firmware, clock=clock, trigger=trigger, tls=tls,
                  gantry=gantry, patient=patient, qatrack=qatrack, warmup_drift=warmup_drift)
@@ -327,15 +311,12 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
         srv.reboot()
     follower = None
     if spect:
-        from vts_hw.sim_devices.spect_follower import SpectFollower
         sources = None
         if rig.patient is not None:
-            from vts_hw.sim_devices.patient_source import heart_source
             sources = [heart_source(rig.patient)]
         follower = SpectFollower(rig, Path(folder) / "spect", seed=seed, sources=sources,
                                  log=lambda m: print(m, flush=True))  # the scene, before cameras serve
     if ahead > 0:
-        from vts_hw.sim_devices.frame_bank import make_ahead
         make_ahead(rig, ahead, folder, say=lambda m: print(m, flush=True))
     try:
         with rig:
@@ -349,7 +330,6 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
                     except OSError as e:
                         raise WriteFailed(folder / FGEN_LOG, os_reason(e)) from None
                 if rig.patient is not None:
-                    from vts_hw.sim_devices.patient_rig import TRUTH_DIR, write_patient_truth
                     try:
                         write_patient_truth(rig.patient, folder)
                     except OSError as e:
@@ -367,117 +347,10 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
                 (folder / PID_FILE).unlink()
 
 
-def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmware: str = "vapix3",
-                   rate: float = 1.0, timeout: float = 60.0, trigger: str = "none",
-                   spect: bool = False, https: bool = False, gantry: bool = False, patient=None,
-                   qatrack: bool = False, ahead: float = 0.0, warmup_drift: bool = False) -> int:
-    """Start ``serve`` in a background process; return its pid once rig.yaml is written (the
-    time allowed grows by 0.1 s per frame made ``ahead``)."""
-    timeout += 0.1 * ahead * 25.0 * n_cameras
-    folder = ensure_dir(Path(folder).resolve(), FOLDER, mode=0o700)
-    if is_running(folder):
-        raise _already_running(folder)
-    for name in (READY_FILE, PID_FILE):
-        with contextlib.suppress(FileNotFoundError):
-            (folder / name).unlink()
-    log_path = folder / LOG_FILE
-    had_log = log_path.exists()
-    try:   # the first line of this start, on disk before the rig starts: a full disk stops here
-        log = open_writable(log_path, "ab")    # never a device, FIFO or symbolic link (files.py)
-        log_start = log.tell()
-        log.write(f"{time.strftime('%Y-%m-%dT%H:%M:%S%z')} vts sim up: starting ({n_cameras} cameras)\n".encode())
-        log.flush()
-        os.fsync(log.fileno())
-    except OSError as e:
-        with contextlib.suppress(OSError, UnboundLocalError):
-            log.close()
-        with contextlib.suppress(OSError, UnboundLocalError):   # no cut line, no empty log left behind
-            if had_log:
-                os.truncate(log_path, log_start)
-            else:
-                log_path.unlink()
-        raise WriteFailed(log_path, os_reason(e), "the log is as it was" if had_log else "no log was left") from None
-    cmd = [sys.executable, "-m", "vts_hw.sim_devices.rig", str(folder), str(n_cameras), str(seed), firmware,
-           str(rate), trigger] + (["spect"] if spect else []) + (["https"] if https else []) \
-        + (["gantry"] if gantry else []) + (["qatrack"] if qatrack else []) \
-        + ([patient.to_arg()] if patient is not None else []) \
-        + ([f"ahead={ahead!r}"] if ahead > 0 else []) + (["warmup"] if warmup_drift else [])
-    # the one program meant to outlive the command that starts it (`vts sim up --detach`: until
-    # `vts sim down`); its own children (the firmware emulator) die with it (lifeline.child_options)
-    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=log, start_new_session=True)
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if (folder / READY_FILE).exists():
-            _children[proc.pid] = proc
-            return proc.pid
-        if proc.poll() is not None:
-            log.close()
-            cause = failure_cause(log_path, log_start)
-            if proc.returncode == 3 and cause == NOTHING_LOGGED and disk_full(folder):
-                cause = f"{folder}: no space left on device"
-            err = VtsError(f"the simulated rig failed to start (exit {proc.returncode}): "
-                           f"{cause} (the whole log: {log_path})")
-            if proc.returncode in (2, 3, 4):  # the cause was one of ours: keep its exit code
-                err.exit_code = proc.returncode
-            raise err
-        time.sleep(0.05)
-    proc.kill()
-    proc.wait()
-    log.close()
-    raise VtsError(f"the simulated rig did not come up within {timeout:g} s; its log {log_path} ends: "
-                   f"{failure_cause(log_path, log_start)}")
-
-
-def _already_running(folder: Path) -> UsageError:
-    return UsageError(f"a simulated rig is already running in {folder}: stop it first "
-                      f"(vts sim down --dir {folder}) or give another --dir")
-
-
-def _pid(folder: Path) -> int | None:
-    try:
-        return int((folder / PID_FILE).read_text().strip())
-    except (OSError, ValueError):
-        return None
-
-
-def is_running(folder: str | Path) -> bool:
-    pid = _pid(Path(folder))
-    return pid is not None and alive(pid)
-
-
-def stop_detached(folder: str | Path, timeout: float = 10.0) -> bool:
-    """Stop the rig started in ``folder``; False when none was running."""
-    folder = Path(folder)
-    pid = _pid(folder)
-    if pid is None or not is_running(folder):
-        with contextlib.suppress(OSError):   # absent, or DIR is not a folder at all
-            (folder / PID_FILE).unlink()
-        return False
-    os.kill(pid, signal.SIGTERM)
-    child = _children.pop(pid, None)
-    if child is not None:
-        try:
-            child.wait(timeout)
-        except subprocess.TimeoutExpired:
-            child.kill()
-            child.wait()
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if not alive(pid):
-            break
-        time.sleep(0.05)
-    else:
-        os.kill(pid, signal.SIGKILL)
-    with contextlib.suppress(FileNotFoundError):
-        (folder / PID_FILE).unlink()
-    return True
-
-
 def _main(argv: list[str]) -> int:
     """The detached process: serve until stopped; on failure, one last line saying why."""
     folder, n, seed, fw, rate, trigger = argv[:6]
     try:
-        from vts_hw.sim_devices.patient_rig import PatientOptions
         patient = next((PatientOptions.from_arg(a) for a in argv[6:] if a.startswith("patient=")), None)
         ahead = next((float(a.split("=", 1)[1]) for a in argv[6:] if a.startswith("ahead=")), 0.0)
         serve(folder, int(n), int(seed), fw, float(rate), trigger=trigger, spect="spect" in argv[6:],

@@ -31,6 +31,7 @@ import numpy as np
 
 from vts_hw.recording.axis_jpeg import AxisProduct
 from vts_hw.sim_devices.camera_motion import DAY, CameraClock, CameraDrift  # noqa: F401  (re-exported)
+from vts_hw.sim_devices.gantry import Gantry
 
 # Reference rig (docs/design.md, "The room"). Millimetres, pixels.
 CAM_Y = 1100.0          # camera height above the table axis (2.1 m above a floor 1.0 m below the axis)
@@ -319,7 +320,6 @@ class Scene:
                                      for k, (u, v) in WALL_LAYOUT.items()})
         scene = cls(cameras, clocks, drifts, products, wall, start)
         if gantry:
-            from vts_hw.sim_devices.gantry import Gantry
             scene.gantry = gantry if isinstance(gantry, Gantry) else Gantry()
         return scene
 

@@ -17,6 +17,7 @@ from typing import Callable
 
 import numpy as np
 
+from vts_hw.errors import DataError
 from vts_hw.sim_devices.scene import PHANTOM_PLACEMENT, Scene
 from vts_hw.sim_devices.spect import SimSpect
 
@@ -112,7 +113,6 @@ class SimSpectSource:
         self.paths[pos.label] = spect.write(self.folder / f"{pos.label}{self.fmt}", centres)
 
     def volume(self, pos) -> Path:
-        from vts_hw.errors import DataError
         try:
             return self.paths[pos.label]
         except KeyError:

@@ -22,9 +22,14 @@ from pathlib import Path
 
 import numpy as np
 
+from vts_hw import __version__
+from vts_hw.files import write_json_atomic
+from vts_hw.sim_devices.scene import Scene
+from vts_hw.sim_devices.source_marker import add_source_marker
+from vts_hw.sim_devices.spect import phantom_centres
 from vts_hw.vision.calibration_io import CameraCalibration, CameraFit
 from vts_hw.vision.registration import RigidTransform
-from vts_hw.sim_devices.scene import Scene
+from vts_hw.vision.triangulate import PinholeCamera
 
 __all__ = ["true_stereo_calibration", "true_spect_mapping", "write_true_calibration", "place_source_marker",
            "schedule_source_moves",
@@ -53,8 +58,6 @@ def true_stereo_calibration(scene: Scene, t: float | None = None, names=None) ->
     named as in the scene: x2 = R·x1 + T."""
     import datetime as _dt
 
-    from vts_hw import __version__
-
     t = scene.start_epoch if t is None else float(t)
     names = list(names or scene.camera_names)[:2]
     c1, c2 = _cams(scene, t, names)
@@ -69,8 +72,6 @@ def true_stereo_calibration(scene: Scene, t: float | None = None, names=None) ->
 
 def true_spect_mapping(scene: Scene, t: float | None = None, names=None) -> RigidTransform:
     """VTS frame (camera 1's) → SPECT frame (the scene's world frame), the truth."""
-    from vts_hw.sim_devices.spect import phantom_centres
-
     c1 = _cams(scene, t, names)[0]
     return RigidTransform(c1.R.T, -c1.R.T @ c1.t, {"note": NOTE, "spect_volume": SCENE_VOLUME,
                                                     "spheres_spect_mm": phantom_centres().tolist()})
@@ -91,8 +92,6 @@ def true_cameras(scene: Scene, t: float | None = None, frame: str = "world") -> 
     N-camera calibration, in the scene's world frame (= the SPECT frame) or, with
     ``frame="cam1"``, in camera 1's frame as a calibration gives it (the VTS frame, which
     :func:`true_spect_mapping` maps to the SPECT frame)."""
-    from vts_hw.vision.triangulate import PinholeCamera
-
     t = scene.start_epoch if t is None else float(t)
     cams = {n: scene.camera_at(n, t) for n in scene.camera_names}
     if frame == "world":
@@ -109,7 +108,6 @@ def write_true_cameras(scene: Scene, folder, t: float | None = None, frame: str 
     """``cameras.json``: every true camera (name, K, dist, R, t; mm), the N-camera form
     :func:`vts_hw.vision.camera_set.load_cameras` reads; by default in camera 1's frame, like
     ``calibration.json``, so that ``spect_mapping.json`` maps either to the SPECT frame."""
-    from vts_hw.files import write_json_atomic
 
     Path(folder).mkdir(parents=True, exist_ok=True)
     path = Path(folder) / CAMERAS_FILE
@@ -170,7 +168,6 @@ def place_source_marker(scene: Scene, *, name: str = "source", marker_id: str = 
     """Put a source marker at rest into a running scene (before a scan starts: adding a body
     while cameras render is not safe). Its moves come later, from :func:`schedule_source_moves`.
     Returns the truth so far (no moves)."""
-    from vts_hw.sim_devices.source_marker import add_source_marker
     return add_source_marker(scene, [], [], name=name, marker_id=marker_id, position=position,
                              rate_cps=rate_cps)
 
@@ -180,7 +177,6 @@ def schedule_source_moves(scene: Scene, marker, move_times, steps_mm, move_s: fl
     time is known: the moves are built on a scratch scene by
     :func:`~.source_marker.add_source_marker` and its pose schedule replaces the body's in one
     assignment (the rendering threads see either the old or the new one). Returns the truth."""
-    from vts_hw.sim_devices.source_marker import add_source_marker
     scratch = Scene([], {}, {}, {}, [], scene.start_epoch)
     truth = add_source_marker(scratch, move_times, steps_mm, name=marker.body, marker_id=marker.marker_id,
                               position=marker.position, move_s=move_s, rate_cps=marker.rate_cps)
