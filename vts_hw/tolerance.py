@@ -6,7 +6,7 @@ missing limit is no limit. A run's state is the worst of its measurements' state
 
 The defaults below are what a physicist would accept for the reference rig (1.25 mm per
 pixel at the wall, about 1.11 mm per pixel at the FOV centre); a rig.yaml ``tolerances:``
-section overrides them per metric. The README lists them.
+section overrides them per metric. docs/operate/daily-qa.md ("Tolerances") lists them.
 """
 
 from __future__ import annotations
