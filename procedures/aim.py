@@ -19,9 +19,12 @@ from __future__ import annotations
 
 from vts_hw.camera import check_whole
 from vts_hw.errors import VtsError
+from vts_hw.procedures.drift import acquire_led_frames
+from vts_hw.procedures.sync_inputs import load_mapping
 from vts_hw.vision.aim import AimReport, assess, decode_grey
 from vts_hw.vision.aim_geometry import RoomView
 from vts_hw.vision.aim_settings import DEFAULT_AIM, AimSettings
+from vts_hw.vision.camera_set import in_rig_names, load_cameras
 
 __all__ = ["room_view", "check", "check_pictures", "aim_page", "aim_page_of", "acquire_pictures"]
 
@@ -35,8 +38,6 @@ def room_view(rig, name: str, size: tuple[int, int], settings: AimSettings | Non
         return None, "no mapping"
     if cal.stereo is None:
         return None, "no calibration (the mapping needs one)"
-    from vts_hw.procedures.sync_inputs import load_mapping
-    from vts_hw.vision.camera_set import in_rig_names, load_cameras
     try:
         mapping = load_mapping(cal.spect)
     except (VtsError, OSError) as exc:
@@ -54,7 +55,6 @@ def room_view(rig, name: str, size: tuple[int, int], settings: AimSettings | Non
 def acquire_pictures(cam):
     """LED on, one picture; LED off, one picture (None when the camera cannot switch its LED);
     the LED is left on. Both whole JPEGs (a torn one: NotWhole, naming the camera)."""
-    from vts_hw.procedures.drift import acquire_led_frames
     on, off = acquire_led_frames(cam, n_frames=1)
     for frame in [on[0]] + ([off] if off is not None else []):
         check_whole(frame, cam.name)

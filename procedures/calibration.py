@@ -24,6 +24,7 @@ from typing import Any
 from vts_hw.errors import DataError, UsageError
 from vts_hw.procedures.calibration_images import camera_images, find_all_corners, image_pairs  # noqa: F401
 from vts_hw.procedures.calibration_result import PROCEDURE, CalibrationResult
+from vts_hw.procedures.calibration_text import run_text
 from vts_hw.save_or_keep import Saved, save_or_keep
 from vts_hw.vision.calibration import calibrate_cameras, calibrate_stereo
 from vts_hw.vision.calibration_io import CameraCalibration, load_calibration
@@ -120,7 +121,6 @@ class CalibrationRun(CalibrationResult):
         return data
 
     def results(self) -> str:
-        from vts_hw.procedures.calibration_text import run_text
         return run_text(self)
 
 

@@ -6,6 +6,7 @@ the reports show the room's calibration history."""
 from __future__ import annotations
 
 from vts_hw import catalog
+from vts_hw.figures import figure_png
 from vts_hw.results import Measure, overall_state
 from vts_hw.tolerance import State, merged_tolerances
 
@@ -51,7 +52,6 @@ class CalibrationResult:
         """The RMS per camera and of the set as bars, with the tolerance and action levels."""
         from matplotlib.figure import Figure
 
-        from vts_hw.figures import figure_png
 
         w = merged_tolerances(self.tolerances)["calibration_rms_px"]
         ms = [m for m in self.measures if m.metric == "calibration_rms_px"]

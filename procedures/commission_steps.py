@@ -10,11 +10,27 @@ import time
 from pathlib import Path
 
 from vts_hw.camera_led import switch_led
-from vts_hw.errors import ConfigError, UsageError
-from vts_hw.files import ensure_dir, write_atomic
+from vts_hw.drivers.axis_setup import setup_camera
+from vts_hw.drivers.axis_uptime import NoUptime
+from vts_hw.drivers.discovery import search
+from vts_hw.drivers.registry import open_camera, open_cameras, open_trigger
+from vts_hw.errors import ConfigError, UsageError, VtsError
+from vts_hw.files import WriteFailed, ensure_dir, write_atomic
+from vts_hw.procedures import calibration as calibration_procedure
+from vts_hw.procedures.aim import check as aim_check
+from vts_hw.procedures.baseline import take_baselines
 from vts_hw.procedures.commission import Context, Outcome, StepCheck
+from vts_hw.procedures.drift import LED_SETTLE_S
+from vts_hw.procedures.mapping_inputs import calibrated_cameras, camera_calibration_for, mapping_from_cameras
+from vts_hw.procedures.step_test import run_step_test, step_test_inputs
+from vts_hw.procedures.steps import step_plan
+from vts_hw.procedures.sync import SyncAnalysis, check_session
+from vts_hw.procedures.warmup import Watch, settle_wait_min
+from vts_hw.procedures.warmup_clock import ClockWatch, judge_clock
 from vts_hw.results import Measure
-from vts_hw.tolerance import State
+from vts_hw.rig_file import set_calibration, set_locked_params
+from vts_hw.save_or_keep import save_or_keep
+from vts_hw.tolerance import State, merged_tolerances
 
 OK, TOL, ACT = State.OK, State.TOLERANCE, State.ACTION
 
@@ -29,7 +45,6 @@ def _need(what: str, option: str, how: str) -> UsageError:
 
 @contextlib.contextmanager
 def _cameras(cfgs, clock=None):
-    from vts_hw.drivers.registry import open_cameras
     cams = open_cameras(cfgs, clock=clock)
     try:
         yield cams
@@ -45,11 +60,6 @@ def cameras(ctx: Context) -> Outcome:
     """`vts discover` (who announces itself) and `vts camera setup --all` (set, read back, lock
     into rig.yaml): each rig camera confirmed over VAPIX, its model, serial, firmware and the
     parameters locked written to devices.json for the report."""
-    from vts_hw.drivers.axis_setup import setup_camera
-    from vts_hw.drivers.discovery import search
-    from vts_hw.drivers.registry import open_camera
-    from vts_hw.rig_file import set_locked_params
-
     rig, inp = ctx.rig, ctx.inputs
     source = getattr(rig, "_source", None)
     if source is None:
@@ -96,8 +106,6 @@ def cameras(ctx: Context) -> Outcome:
 def trigger(ctx: Context) -> Outcome:
     """The trigger generator of rig.yaml asked who it is (`*IDN?`: serial and firmware version).
     Flashing the firmware is `vts trigger flash`, not a step of commissioning."""
-    from vts_hw.drivers.registry import open_trigger
-
     t = ctx.rig.trigger
     if t.backend == "none":
         raise ConfigError("the rig config has no trigger generator (trigger: backend: none): the sync check needs "
@@ -120,13 +128,11 @@ def trigger(ctx: Context) -> Outcome:
 def aim(ctx: Context) -> Outcome:
     """procedures/aim.py's check of every camera (no drift baseline yet: the picture's margins);
     a camera to adjust stops the sequence with what to do."""
-    from vts_hw.procedures.aim import check
-
     folder = ensure_dir(ctx.inputs.out / "aim", "aim folder")
     measures, lines, advice, files, verdicts = [], [], [], [], {}
     with _cameras(ctx.rig.cameras) as cams:
         for cam in cams:
-            report = check(cam, ctx.rig)
+            report = aim_check(cam, ctx.rig)
             files.append(write_atomic(folder / f"{cam.name}-aim.png", report.overlay_png()))
             verdicts[cam.name] = report.to_dict()
             for v in report.items:
@@ -152,7 +158,6 @@ def aim(ctx: Context) -> Outcome:
 def _uptime(cam, say) -> float | None:
     """Minutes the camera has run; None when it does not tell (a camera that does not answer
     is a device failure, raised)."""
-    from vts_hw.drivers.axis_uptime import NoUptime
     read = getattr(cam, "uptime", None)
     try:
         return None if read is None else read().seconds / 60.0
@@ -181,11 +186,6 @@ def warmup(ctx: Context) -> Outcome:
     at once, before any sample, for a camera started less than its warmup_min ago (it cannot pass
     whatever its rate); after one window (``samples`` x ``interval_s``, needed to measure a rate)
     for the others."""
-    from vts_hw.procedures.drift import LED_SETTLE_S
-    from vts_hw.procedures.warmup import Watch, settle_wait_min
-    from vts_hw.procedures.warmup_clock import ClockWatch, judge_clock
-    from vts_hw.tolerance import merged_tolerances
-
     st = ctx.rig.warmup
     window = merged_tolerances(ctx.rig.tolerances)["warmup_rate_px_min"]
     limit = window.tolerance_high if window.tolerance_high is not None else window.action_high
@@ -310,7 +310,6 @@ def _too_young(ctx: Context, up: dict, warm: dict, young: set) -> Outcome:
 
 def _clock_figures(n, cfit, judged, cwin, climit, watch, data, now):
     """The clock's measures, stored figures and advice for camera ``n`` (procedures/warmup_clock.py)."""
-    from vts_hw.procedures.warmup import settle_wait_min
     rate, change, signed = cfit
     measures = [Measure(n, "warmup_clock_change_ppm_min", round(change.rate, 3) if judged.known else None,
                         "ppm/min", judged.state),
@@ -338,10 +337,6 @@ def _point_rig(ctx: Context, step: str, key: str, file: Path, what: str) -> tupl
     setup` writes locked_params (vts_hw.rig_file.set_calibration): the note for the report, and
     the error when rig.yaml could not be written (one sentence; ``file`` is kept; the step is then
     recorded as not passed and raised; `vts commission --from STEP` runs it again)."""
-    from vts_hw.errors import VtsError
-    from vts_hw.files import WriteFailed
-    from vts_hw.rig_file import set_calibration
-
     source = getattr(ctx.rig, "_source", None)
     if source is None:
         return "the rig config was not read from a file: no rig.yaml to point at it", None
@@ -368,15 +363,14 @@ def _point_rig(ctx: Context, step: str, key: str, file: Path, what: str) -> tupl
 
 def calibration(ctx: Context) -> Outcome:
     """`vts calibrate cameras IMAGES`' procedure on the checkerboard images given."""
-    from vts_hw.procedures import calibration as proc
-
     inp = ctx.inputs
     if not inp.checkerboards:
         raise _need("calibration", "--checkerboards DIR", "checkerboard images of every camera (DIR/cam1/01.png, "
                     "... or cam1_01.png; each view seen by two cameras or more, 15-20 poses over the field of view)")
     ensure_dir(inp.out, "commissioning folder")
-    run = proc.run(images=proc.camera_images(list(inp.checkerboards)), output=str(inp.calibration_file),
-                   pattern=inp.pattern, square=inp.square_mm, unit="mm", previous=None)
+    run = calibration_procedure.run(images=calibration_procedure.camera_images(list(inp.checkerboards)),
+                                    output=str(inp.calibration_file), pattern=inp.pattern, square=inp.square_mm,
+                                    unit="mm", previous=None)
     run.tolerances = ctx.rig.tolerances
     ctx.say(run.results())
     if run.saved.error is not None:
@@ -397,9 +391,6 @@ def calibration(ctx: Context) -> Outcome:
 def mapping(ctx: Context) -> Outcome:
     """`vts calibrate spect --from-cameras --volume FILE`: the phantom's spheres seen now by the
     calibrated cameras against the SPECT's reconstruction of it."""
-    from vts_hw.procedures.mapping_inputs import calibrated_cameras, camera_calibration_for, mapping_from_cameras
-    from vts_hw.save_or_keep import save_or_keep
-
     inp = ctx.inputs
     if not inp.phantom_volume:
         raise _need("VTS → SPECT mapping", "--phantom-volume FILE", "the SPECT's reconstruction of the 7-sphere "
@@ -427,10 +418,6 @@ def mapping(ctx: Context) -> Outcome:
 
 def steps(ctx: Context) -> Outcome:
     """`vts qa steps --volumes DIR`: the operator moves the table when asked."""
-    from vts_hw.procedures.mapping_inputs import calibrated_cameras
-    from vts_hw.procedures.step_test import run_step_test, step_test_inputs
-    from vts_hw.procedures.steps import step_plan
-
     inp = ctx.inputs
     if not inp.step_volumes:
         raise _need("step test", "--step-volumes DIR", "the folder the SPECT's reconstructions of the positions "
@@ -451,8 +438,6 @@ def steps(ctx: Context) -> Outcome:
 
 def sync(ctx: Context) -> Outcome:
     """`vts sync analyze SESSION --listmode FILE` on a scan recorded during a SPECT acquisition."""
-    from vts_hw.procedures.sync import SyncAnalysis, check_session
-
     inp = ctx.inputs
     if not inp.sync_session or not inp.listmode:
         raise _need("sync check", "--sync-session DIR and --listmode FILE",
@@ -472,8 +457,6 @@ def sync(ctx: Context) -> Outcome:
 
 def baseline(ctx: Context) -> Outcome:
     """`vts qa drift --set-baseline`: the wall markers of every camera, the room clear."""
-    from vts_hw.procedures.baseline import take_baselines
-
     if ctx.inputs.room_clear:
         ctx.say("  the room is clear (--room-clear): the wall markers are taken now")
     else:

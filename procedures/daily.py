@@ -26,6 +26,7 @@ from vts_hw.camera import CameraError, NoParameters, Refused
 from vts_hw.errors import UsageError, VtsError
 from vts_hw.files import filled_folder, write_atomic
 from vts_hw.catalog import qa_set_name
+from vts_hw.procedures.daily_plot import daily_png
 from vts_hw.results import Measure
 from vts_hw.tolerance import State, Window, merged_tolerances, worst
 from vts_hw.procedures.drift import DriftAnalysis
@@ -107,7 +108,6 @@ class QAResult:
 
     def plot(self, path=None) -> bytes:
         """PNG: per camera, the drift inside its windows and the other checks' states."""
-        from vts_hw.procedures.daily_plot import daily_png
         return daily_png(self, self.windows, path)
 
     def results(self) -> str:

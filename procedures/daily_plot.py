@@ -7,6 +7,7 @@ import math
 
 from vts_hw import __version__
 from vts_hw.figures import figure_png
+from vts_hw.files import write_atomic
 from vts_hw.tolerance import State, worst
 
 STATE_COLOURS = {State.OK: "#2e7d32", State.TOLERANCE: "#ef6c00", State.ACTION: "#c62828"}
@@ -75,6 +76,5 @@ def _value(v) -> str:
 def daily_png(result, windows: dict, path=None) -> bytes:
     png = figure_png(daily_figure(result, windows))
     if path is not None:
-        from vts_hw.files import write_atomic
         write_atomic(path, png)
     return png

@@ -25,6 +25,7 @@ import numpy as np
 
 from vts_hw import __version__
 from vts_hw.camera import Frame
+from vts_hw.figures import figure_png
 from vts_hw.vision.detect import DetectorSettings, detect_jpeg
 from vts_hw.vision.marker_roles import MOVE_FLOOR_PX, PATIENT, Role, follow, roles_of_tracks
 from vts_hw.vision.wall_baseline import GATE_PX, Baseline, BaselineMarker, match_markers as _match  # noqa: F401
@@ -318,7 +319,6 @@ class DriftAnalysis:
         ax.set_ylim(img.shape[0], 0)
         fig.tight_layout()
         if path is not None:
-            from vts_hw.figures import figure_png
             figure_png(fig, path, dpi=fig.dpi)   # whole or not at all (a full disk: WriteFailed)
             plt.close(fig)
         return fig

@@ -34,15 +34,19 @@ from vts_hw import catalog
 from vts_hw import __version__
 from vts_hw.errors import DataError
 from vts_hw.figures import figure_png
+from vts_hw.files import WriteFailed, export_stopped
 from vts_hw.motion import MotionSettings, analyze_motion, marker_series
 from vts_hw.motion.bands import band_names
 from vts_hw.motion.exports import clock_text, coverage_json, export_motion, time_origin
+from vts_hw.procedures.motion_plot import motion_figure
+from vts_hw.procedures.sync import SyncAnalysis
 from vts_hw.spect.frame import frame_description
 from vts_hw.results import Measure, overall_state
 from vts_hw.tolerance import State, merged_tolerances
-from vts_hw.procedures.sync_inputs import load_calibration, load_mapping
+from vts_hw.procedures.sync_inputs import CLOCK_SLACK_S, load_calibration, load_mapping
 from vts_hw.procedures.motion_live import agreement, host_to_series, read_live
 from vts_hw.recording.folder import load_manifest
+from vts_hw.tracking.processing import process_recording
 
 __all__ = ["MotionAnalysis", "METRICS", "event_time_text"]
 
@@ -108,8 +112,6 @@ class MotionAnalysis:
         if self.calibration is None:
             raise DataError(f"{self.session}: no calibration given: the markers cannot be triangulated")
         if self.listmode is not None:
-            from vts_hw.procedures.sync import SyncAnalysis
-            from vts_hw.procedures.sync_inputs import CLOCK_SLACK_S
             self.sync = SyncAnalysis(self.session, self.listmode, self.calibration, self.mapping,
                                      workers=self.workers, progress=self.progress,
                                      clock_slack_s=CLOCK_SLACK_S if self.clock_slack_s is None else self.clock_slack_s)
@@ -121,7 +123,6 @@ class MotionAnalysis:
         self.manifest = load_manifest(self.session, missing_ok=True) or {}
         if not self.manifest.get("cameras"):
             raise DataError(f"{self.session}: not a recording folder (no manifest.json with cameras)")
-        from vts_hw.tracking.processing import process_recording
         self.tracks = process_recording(self.session, load_calibration(self.calibration), workers=self.workers,
                                         mapping=load_mapping(self.mapping), progress=self.progress)
         self.problems += [f"processing: {w}" for w in self.tracks.meta.get("warnings", [])]
@@ -332,7 +333,6 @@ class MotionAnalysis:
         return b["why"] + (f"; {amp}" if b["status"] == "unknown" else "")
 
     def figure(self):
-        from vts_hw.procedures.motion_plot import motion_figure
         return motion_figure(self._need(), self.results_data())
 
     def plot(self, path=None) -> bytes:
@@ -351,7 +351,6 @@ class MotionAnalysis:
         :attr:`export_notes`: the files not written and why (the CASToR files and YRT-PET's LOR motion
         file need the SPECT clock and a mapping that says its volume), the motion states CASToR's
         whole seconds merge."""
-        from vts_hw.files import WriteFailed, export_stopped
         r = self._need()
         try:
             written = export_motion(r, out, n_bins=n_bins, volume=self.spect_volume(),

@@ -35,6 +35,7 @@ from typing import Callable
 
 from vts_hw.config import RigConfig
 from vts_hw.camera import Camera, NoParameters
+from vts_hw.drivers.registry import trigger_backend
 from vts_hw.errors import UsageError, VtsError
 from vts_hw.recording.capture import Recorder
 from vts_hw.procedures.scan_trigger import ScanError, ScanTrigger, plain_dict
@@ -147,7 +148,6 @@ class ScanSession:
         if t.backend == "none":
             steps.append(Step("check trigger", "no trigger generator (trigger backend none): recording only"))
         else:
-            from vts_hw.drivers.registry import trigger_backend
             backend = trigger_backend(t, str(getattr(r, "_source", None) or "rig.yaml"))
             levels = f", levels {t.low_v:g}..{t.high_v:g} V" if backend.levels else ""
             steps += [Step("check trigger", f"check the {t.backend} trigger, {backend.what}, at {t.address}: "

@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 from vts_hw.config import RigConfig
+from vts_hw.drivers.registry import open_trigger
 from vts_hw.drivers.trigger import CLOCK, EDGES, FIRE, LEVELS, WATCHDOG, TriggerError, TriggerLog
 from vts_hw.errors import DeviceError, VtsError
 
@@ -90,7 +91,6 @@ class ScanTrigger:
         The log is kept in memory until :meth:`attach_log` (no file before the scan starts)."""
         if not self.present:
             return
-        from vts_hw.drivers.registry import open_trigger
         try:
             self.gen = open_trigger(self.rig, None, clock=self.clock)
             self.log = self.gen.log

@@ -47,7 +47,11 @@ from vts_hw import __version__
 from vts_hw.errors import DataError
 from vts_hw.figures import figure_png
 from vts_hw.results import Measure, overall_state
+from vts_hw.spect import find_spheres, read_volume
+from vts_hw.spect.frame import volume_record
 from vts_hw.tolerance import State, merged_tolerances
+from vts_hw.vision.body_finder import locate_body, locate_body_views
+from vts_hw.vision.camera_set import named_cameras
 from vts_hw.vision.registration import LooTre, RigidTransform, fre, kabsch, loo_tre
 
 __all__ = ["correspond", "Correspondence", "SpectMapping", "FRE_LIMIT_MM",
@@ -212,8 +216,6 @@ class SpectMapping:
                     **find_kwargs) -> "SpectMapping":
         """SPECT points from a reconstructed volume (any format :func:`read_volume` knows);
         a sphere count other than the VTS count raises :class:`DataError`."""
-        from vts_hw.spect import find_spheres
-
         vts = _as_points(vts_points, "VTS")
         volume, record = _read_volume(volume_path)
         found = find_spheres(volume, n_expected=len(vts), strict=True, **find_kwargs)
@@ -229,9 +231,6 @@ class SpectMapping:
         stereo hypotheses by the shape of the SPECT's centroids
         (:func:`vts_hw.vision.body_finder.locate_body`), so nothing but the two measurements decides
         which detection is a sphere."""
-        from vts_hw.vision.body_finder import locate_body
-        from vts_hw.spect import find_spheres
-
         volume, record = _read_volume(volume_path)
         spect = find_spheres(volume, strict=True).centroids
         fit = locate_body(calibration.cameras(), pts_left, pts_right, spect, tol_mm=tol_mm)
@@ -244,10 +243,6 @@ class SpectMapping:
                    fre_limit_mm: float = FRE_LIMIT_MM) -> "SpectMapping":
         """As :meth:`from_stereo`, from any number of cameras: ``points_px`` maps a camera name
         (the calibration's, or the rig's for a file named otherwise) to its detections (px)."""
-        from vts_hw.vision.body_finder import locate_body_views
-        from vts_hw.vision.camera_set import named_cameras
-        from vts_hw.spect import find_spheres
-
         names = list(points_px)
         cams = named_cameras(calibration, names)
         missing = [n for n in names if n not in cams]
@@ -407,9 +402,6 @@ class SpectMapping:
 
 def _read_volume(path):
     """The volume and what the mapping keeps of it (the frame it places: vts_hw.spect.frame)."""
-    from vts_hw.spect import read_volume
-    from vts_hw.spect.frame import volume_record
-
     volume = read_volume(path)
     return volume, volume_record(path, volume)
 

@@ -19,8 +19,11 @@ from typing import Callable, Sequence
 
 from vts_hw.errors import ConfigError, DataError, UsageError
 from vts_hw.files import WriteFailed
-from vts_hw.procedures.steps import StepPosition, StepSession, VolumeFolder, analyze_positions, load_positions
+from vts_hw.procedures.mapping_inputs import camera_calibration_for
+from vts_hw.procedures.steps import (OperatorPositioner, StepPosition, StepSession, VolumeFolder, analyze_positions,
+                                     load_positions)
 from vts_hw.procedures.steps_analysis import StepAnalysis
+from vts_hw.vision.registration import RigidTransform
 
 
 @dataclass
@@ -46,9 +49,6 @@ class StepRun:
 
 def step_test_inputs(rig, calibration_path=None, mapping_path=None, volumes=None) -> StepInputs:
     """Calibration, mapping and SPECT volume folder; ConfigError (exit 2) naming what is missing."""
-    from vts_hw.procedures.mapping_inputs import camera_calibration_for
-    from vts_hw.vision.registration import RigidTransform
-
     calibration = camera_calibration_for(rig, calibration_path, "the step test")
     map_path = mapping_path or rig.calibration.spect
     if map_path is None:
@@ -63,7 +63,6 @@ def step_test_inputs(rig, calibration_path=None, mapping_path=None, volumes=None
 def step_session(cameras: Sequence, inputs: StepInputs, out, plan: list[StepPosition], *, frames: int = 10,
                  ask: Callable[[str], object] = input, progress=None) -> StepSession:
     """The acquisition on the given stereo pair, the operator answering ``ask`` at each position."""
-    from vts_hw.procedures.steps import OperatorPositioner
     return StepSession(cameras, inputs.calibration, inputs.mapping, OperatorPositioner(ask), inputs.spect,
                        out, plan=plan, frames=frames, progress=progress)
 

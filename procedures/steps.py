@@ -39,7 +39,12 @@ from vts_hw.bounded import SMALL, read_bytes
 from vts_hw.catalog import STEPS
 from vts_hw.errors import DataError
 from vts_hw.files import ensure_dir, write_atomic, write_json_atomic
+from vts_hw.procedures.spect_mapping import correspond
 from vts_hw.procedures.steps_analysis import StepAnalysis
+from vts_hw.spect import find_spheres, read_volume
+from vts_hw.vision.body_finder import locate_body_views
+from vts_hw.vision.camera_set import named_cameras
+from vts_hw.vision.detect import detect_jpeg
 
 N_SPHERES = 7
 LED_SETTLE_S = 0.2
@@ -207,8 +212,6 @@ class StepSession:
 
     # ------------------------------------------------------------------ acquisition
     def acquire(self) -> list[SeenPosition]:
-        from vts_hw.vision.detect import detect_jpeg
-
         ensure_dir(self.out, "step test folder")
         for cam in self.cameras:
             cam.led_on()
@@ -267,11 +270,6 @@ def analyze_positions(seen: list[SeenPosition], plan: list[StepPosition], calibr
                       spect: SpectSource, tolerances=None, tol_mm: float = 3.0,
                       progress: Callable[[str], None] | None = None) -> StepAnalysis:
     """SPECT centroids and VTS spheres per position, then :class:`StepAnalysis`."""
-    from vts_hw.vision.body_finder import locate_body_views
-    from vts_hw.vision.camera_set import named_cameras
-    from vts_hw.spect import find_spheres, read_volume
-    from vts_hw.procedures.spect_mapping import correspond
-
     say = progress or (lambda m: None)
     if len(seen) < 2:
         raise DataError(f"only {len(seen)} position(s) acquired; the step test needs the baseline "

@@ -28,6 +28,7 @@ from scipy import stats
 from vts_hw.catalog import STEPS
 from vts_hw import __version__
 from vts_hw.errors import DataError
+from vts_hw.figures import figure_png
 from vts_hw.vision.registration import RigidTransform, kabsch
 from vts_hw.results import Measure
 from vts_hw.tolerance import State, Window, merged_tolerances, worst
@@ -235,7 +236,6 @@ class StepAnalysis:
         fig.suptitle(f"7-sphere step test ({self.analyzed_at}, vts-hw {__version__}): {self.state}")
         fig.tight_layout()
         if path is not None:
-            from vts_hw.figures import figure_png
             figure_png(fig, path, dpi=110)   # whole or not at all (a full disk: WriteFailed)
             plt.close(fig)
         return fig

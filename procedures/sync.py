@@ -46,6 +46,8 @@ import numpy as np
 from vts_hw import catalog
 from vts_hw.errors import DataError
 from vts_hw.files import WriteFailed, ensure_dir, export_stopped
+from vts_hw.procedures.sync_plot import sync_figure
+from vts_hw.spect.listmode import read_listmode
 from vts_hw.timing.motion_events import StepFit, find_steps, fit_step, match_events, robust_sd
 from vts_hw.recording.trigger_wave import WaveInfo, wave_from_trigger_log
 from vts_hw.spect.gating import GatingResult, analyze_gating, axial_centre_of_mass
@@ -54,6 +56,7 @@ from vts_hw.procedures.sync_verdict import sync_measures, sync_verdict, sync_win
 from vts_hw.results import Measure
 from vts_hw.tolerance import State
 from vts_hw.procedures.sync_inputs import CLOCK_SLACK_S, check_session, choose_listmode, load_calibration, load_mapping
+from vts_hw.tracking.processing import process_recording
 
 __all__ = ["SyncAnalysis", "SyncEvent", "export_trajectories", "load_calibration", "load_mapping",
            "check_session", "choose_listmode"]
@@ -174,8 +177,6 @@ class SyncAnalysis:
                 min_step_mm: float = 4.0, tolerances: dict | None = None) -> "SyncAnalysis":
         """``tolerances``: the rig's tolerance windows over the defaults (the ``sync_*`` ones judge)."""
         self.tolerances = tolerances
-        from vts_hw.spect.listmode import read_listmode
-        from vts_hw.tracking.processing import process_recording
 
         self.manifest = check_session(self.session)
         self.listmode_path, notes = choose_listmode(self.session, self.listmode_candidates, manifest=self.manifest,
@@ -422,7 +423,6 @@ class SyncAnalysis:
         """Both traces on one time axis, dead time shaded, VTS gaps hatched, events marked;
         below, dt per event (:func:`.sync_plot.sync_figure`)."""
         self._need()
-        from vts_hw.procedures.sync_plot import sync_figure
         return sync_figure(self)
 
     def plot(self, path=None) -> bytes:

@@ -27,8 +27,13 @@ from pathlib import Path
 
 from vts_hw.bounded import SMALL, TABLE, open_bounded, read_text
 from vts_hw.errors import DataError
+from vts_hw.recording.trigger_wave import wave_from_trigger_log
+from vts_hw.spect.listmode import read_listmode_span
 from vts_hw.spect.listmode.failures import read_failure_records, utc_span
-from vts_hw.recording.folder import load_manifest
+from vts_hw.recording.folder import load_manifest, read_index
+from vts_hw.vision import calibration_io
+from vts_hw.vision.camera_set import load_cameras
+from vts_hw.vision.registration import RigidTransform
 
 __all__ = ["CLOCK_SLACK_S", "SessionSpan", "check_session", "session_span", "choose_listmode",
            "load_calibration", "load_mapping"]
@@ -96,7 +101,6 @@ def _trigger_rows(folder: Path) -> list[float]:
 
 def _last_frame_times(folder: Path, manifest: dict) -> list[float]:
     """The last host receive time in each camera's index (a session that never finished)."""
-    from vts_hw.recording.folder import read_index
     out = []
     for name in manifest.get("cameras", {}):
         try:
@@ -111,8 +115,6 @@ def _last_frame_times(folder: Path, manifest: dict) -> list[float]:
 
 def session_span(folder, manifest: dict | None = None) -> SessionSpan | None:
     """When the session at ``folder`` recorded, or None when nothing in it says (see module)."""
-    from vts_hw.recording.trigger_wave import wave_from_trigger_log
-
     folder = Path(folder)
     manifest = manifest if manifest is not None else check_session(folder)
     times = ((manifest.get("scan") or {}).get("times") or {})
@@ -175,8 +177,6 @@ def choose_listmode(session, candidates, *, manifest: dict | None = None,
                     slack_s: float = CLOCK_SLACK_S) -> tuple[Path, list[str]]:
     """The list-mode of ``candidates`` (paths; a shell pattern that matched nothing arrives as
     itself) that belongs to the session, and notes on the choice. DataError otherwise (module)."""
-    from vts_hw.spect.listmode import read_listmode_span
-
     session = Path(session)
     paths = list(dict.fromkeys(Path(c) for c in candidates))
     if not paths:
@@ -251,16 +251,14 @@ def load_calibration(calibration):
     vts_hw.vision.camera_set.load_cameras)."""
     if calibration is None or not isinstance(calibration, (str, Path)):
         return calibration
-    from vts_hw.vision.calibration_io import FORMAT, STEREO_FORMAT, load_calibration as load
     try:
         data = json.loads(read_text(calibration, SMALL, "calibration"))
     except (OSError, ValueError, RecursionError):
-        data = None                                   # load() says what is wrong with the file
-    if isinstance(data, dict) and data.get("format") not in (FORMAT, STEREO_FORMAT) \
+        data = None                                   # load_calibration() says what is wrong with the file
+    if isinstance(data, dict) and data.get("format") not in (calibration_io.FORMAT, calibration_io.STEREO_FORMAT) \
             and isinstance(data.get("cameras"), list):
-        from vts_hw.vision.camera_set import load_cameras
         return load_cameras(calibration)
-    return load(calibration)
+    return calibration_io.load_calibration(calibration)
 
 
 def load_mapping(mapping):
@@ -269,7 +267,6 @@ def load_mapping(mapping):
     if mapping is None or not isinstance(mapping, (str, Path)):
         return getattr(mapping, "transform", mapping) if mapping is not None and not hasattr(mapping, "apply") \
             else mapping
-    from vts_hw.vision.registration import RigidTransform
     path = Path(mapping)
     try:
         return RigidTransform.load(path)

@@ -189,7 +189,7 @@ def test_disk_full_keeps_the_mapping(tmp_path, session, small_disk):
 
 @pytest.mark.parametrize("doc", ["[" * 5000, "[[1, 2, " + "9" * 400 + "]]", "[[1, 2, 1" + "0" * 5000 + "]]"])
 def test_a_points_file_json_beyond_syntax_is_a_data_error(tmp_path, doc):
-    from vts_hw.procedures.mapping_inputs import read_points
+    from vts_hw.procedures.mapping_points import read_points
     from vts_hw.errors import DataError
     p = tmp_path / "pts.json"
     p.write_text(doc)

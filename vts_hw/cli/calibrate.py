@@ -15,7 +15,7 @@ from vts_hw.errors import DataError
 from vts_hw.cli import cli
 from vts_hw.cli.common import (OutputFile, config_option, echo_json, json_option, positive, rig_if_any,
                                say_stored, store_qa_result)
-from vts_hw.procedures.mapping_inputs import read_points  # noqa: F401  (the points file, as `--vts` reads it)
+from vts_hw.procedures.mapping_points import read_points  # noqa: F401  (the points file, as `--vts` reads it)
 
 
 @cli.group()

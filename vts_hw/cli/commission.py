@@ -18,7 +18,6 @@ from vts_hw.errors import UsageError
 from vts_hw.files import check_folder
 from vts_hw.rig_file import check_rewritable
 from vts_hw.procedures.commission import NAMES as STEP_NAMES
-from vts_hw.procedures.commission_sequence import failure_reason, run_sequence
 
 
 def _ask(text: str):
@@ -103,6 +102,7 @@ def commission(config_path, resume, from_step, skips, why, sign_off, out_dir, ch
     from vts_hw.config import load_rig
     from vts_hw.cli.common import open_store
     from vts_hw.procedures import commission as proc
+    from vts_hw.procedures.commission_sequence import failure_reason, run_sequence  # the steps: numpy, scipy, cv2
     from vts_hw.procedures.daily import EXIT_CODES
     from vts_hw.store.commission import Ledger, load_state
 
