@@ -30,7 +30,9 @@ import threading
 import time
 from dataclasses import dataclass
 
+from vts_hw.camera import NotWhole, check_whole
 from vts_hw.errors import VtsError
+from vts_hw.procedures.aim import aim_page_of
 
 EVERY_S = 2.0             # pause between two rounds of checks
 FRAME_WAIT_S = 6.0        # a camera that gives no new frame for this long: not checked, and why
@@ -159,7 +161,6 @@ class AimChecks:
 
     def check(self, name: str):
         """One aim check of ``name`` (see the module docstring): (verdicts, overlay PNG, when, LED found)."""
-        from vts_hw.procedures.aim import aim_page_of
         why = self.refusal(name)
         if why:
             raise NotChecked(why)
@@ -201,7 +202,6 @@ class AimChecks:
         stamp through the measured clock offset when both are known, else arrived ``AFTER_S``
         after ``t`` with ``FRESH_FRAMES`` frames since. NotChecked when a recording takes the
         camera or no such frame comes within ``FRAME_WAIT_S``."""
-        from vts_hw.camera import NotWhole, check_whole
         hub = self.console.hub
         offset = self.console.facts.facts[name].offset_s
         start = hub.latest(name)

@@ -37,11 +37,16 @@ from starlette.templating import Jinja2Templates
 from vts_hw import __version__
 from vts_hw.console import guard
 from vts_hw.console.actions import MemoryActions
+from vts_hw.console.aim_page import aim_routes
 from vts_hw.console.answers import after_answer, refused_input, unexpected
 from vts_hw.console.headers import SecurityHeaders
+from vts_hw.console.history import history_routes
 from vts_hw.console.hosts import HostGate, PeerGate, Reach
 from vts_hw.console.inputs import BadInput, StrictRequests
+from vts_hw.console.login import SessionDoor, login_routes, no_login_routes
+from vts_hw.console.qa_page import qa_routes
 from vts_hw.console.refusals import Refusals
+from vts_hw.console.scan_page import scan_routes
 from vts_hw.console.sessions import current
 from vts_hw.console.web import event_stream, no_camera, sse, switch_asked, wanted_cameras
 
@@ -109,12 +114,6 @@ class _ConsoleApp(Starlette):
 
 
 def create_app(console: Console) -> Starlette:
-    from vts_hw.console.aim_page import aim_routes
-    from vts_hw.console.history import history_routes
-    from vts_hw.console.login import SessionDoor, login_routes, no_login_routes
-    from vts_hw.console.qa_page import qa_routes
-    from vts_hw.console.scan_page import scan_routes
-
     templates = Jinja2Templates(directory=str(HERE / "templates"))
 
     async def room_page(request: Request):

@@ -34,6 +34,7 @@ from starlette.responses import FileResponse, PlainTextResponse
 from starlette.routing import Route
 
 from vts_hw import catalog
+from vts_hw.console.history_reports import Reports
 from vts_hw.console.inputs import BadInput, path_id, query_page, query_text
 from vts_hw.errors import VtsError
 from vts_hw.store.records import RUN_STATUSES
@@ -131,7 +132,6 @@ class History:
     """The History routes of ``console`` (its ``open_store`` and ``rig_name``), with ``templates``."""
 
     def __init__(self, console, templates):
-        from vts_hw.console.history_reports import Reports
         self.console = console
         self.templates = templates
         self.reports = console.reports = Reports(console)   # (closed with the console: serve.py)

@@ -22,6 +22,8 @@ from pathlib import Path
 from starlette.responses import HTMLResponse, PlainTextResponse
 
 from vts_hw.errors import VtsError
+from vts_hw.report.build import build_drift_report, build_rooms_report
+from vts_hw.report.times import parse_since
 
 DRIFT_NAME = "drift-report.html"
 ROOMS_NAME = "rooms.html"
@@ -42,7 +44,6 @@ class Reports:
         self._rooms_files: set[str] = set()
 
     def _since(self, text: str) -> float | None:
-        from vts_hw.report.times import parse_since
         return parse_since(text)
 
     def _open(self):
@@ -52,14 +53,12 @@ class Reports:
 
     # -- in a thread -----------------------------------------------------------------------------------
     def render_drift(self, since: float | None) -> str:
-        from vts_hw.report.build import build_drift_report
         with tempfile.TemporaryDirectory(prefix="vts-console-") as tmp, self._open() as store:
             out = Path(tmp) / DRIFT_NAME
             build_drift_report(store, out, since=since, rig=self.console.rig_name)
             return out.read_text(encoding="utf-8")
 
     def render_rooms(self, since: float | None) -> str:
-        from vts_hw.report.build import build_rooms_report
         tmp = tempfile.TemporaryDirectory(prefix="vts-console-rooms-")
         try:
             out = Path(tmp.name) / ROOMS_NAME

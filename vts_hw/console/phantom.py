@@ -20,6 +20,7 @@ import time
 import numpy as np
 
 from vts_hw.errors import VtsError
+from vts_hw.vision.phantom_locator import PhantomLocator
 
 EVERY_S = 1.0           # one look a second at most (the shape search costs a few ms to tens of ms)
 FRESH_S = 1.0           # detections older than this (host s) than the newest are left out
@@ -28,8 +29,6 @@ HOLD_S = 3.0            # names given hold this long unless a later look clears 
 
 def locator_for(rig):
     """``(PhantomLocator, "")`` from the rig config's calibration and mapping, or ``(None, why)``."""
-    from vts_hw.vision.phantom_locator import PhantomLocator
-
     if rig is None:
         return None, "the console was started without a rig config"
     cal, mapping = rig.calibration.stereo, rig.calibration.spect

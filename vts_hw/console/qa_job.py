@@ -27,7 +27,14 @@ from __future__ import annotations
 import threading
 import time
 
+from vts_hw.console.qa_view import view_of_result, view_of_run
+from vts_hw.drivers.registry import check_camera_kinds, open_camera
 from vts_hw.errors import ConfigError, VtsError
+from vts_hw.procedures.baseline import take_baselines
+from vts_hw.procedures.daily import STEPS, QARun
+from vts_hw.qatrack import exit_code, push_runs, select_runs
+from vts_hw.store.qa_record import artifacts_dir, record_qa
+from vts_hw.store.recorder import record
 
 KINDS = {"daily": "daily QA", "baseline": "drift baseline"}
 #: what the action log says of a job that ended: (took, failed)
@@ -168,12 +175,6 @@ class Jobs:
 
     # -- the daily QA: `vts qa daily` ---------------------------------------------------------------
     def _daily(self, user, frames, names, attached) -> dict:
-        from vts_hw.drivers.registry import check_camera_kinds, open_camera
-        from vts_hw.procedures.daily import STEPS, QARun
-        from vts_hw.store.qa_record import artifacts_dir, record_qa
-
-        from vts_hw.console.qa_view import view_of_result, view_of_run
-
         rig = self.rig
         check_camera_kinds(rig.camera(n) for n in names)
 
@@ -212,10 +213,6 @@ class Jobs:
     def _baseline(self, user, frames, names, attached) -> dict:
         from contextlib import ExitStack
 
-        from vts_hw.drivers.registry import check_camera_kinds, open_camera
-        from vts_hw.procedures.baseline import take_baselines
-        from vts_hw.store.recorder import record
-
         rig = self.rig
         cfgs = [rig.camera(n) for n in names]
         for cfg in cfgs:      # unset password variables: before anything is touched
@@ -250,8 +247,6 @@ class Jobs:
     def push(self, user: str) -> dict:
         """Every finished run of this rig not yet in QATrack+ (as `vts qa push`), through the
         outbox; in the calling thread (the page's request runs it in one). Busy while a push runs."""
-        from vts_hw.qatrack import exit_code, push_runs, select_runs
-
         if not self._push_lock.acquire(blocking=False):
             raise Busy("a push to QATrack+ is already running: wait for it to end")
         try:

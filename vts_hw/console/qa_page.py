@@ -36,6 +36,7 @@ from starlette.routing import Route
 from vts_hw.console import guard
 from vts_hw.console.inputs import Body, NoBody, json_body, query_id, shown
 from vts_hw.console.qa_job import Busy, Jobs
+from vts_hw.console.qa_view import drift_plot_png, latest_view
 from vts_hw.console.web import event_stream, sse
 from vts_hw.errors import ConfigError, UsageError, VtsError
 
@@ -111,7 +112,6 @@ class QAPage:
             "has_rig": self.console.rig_config is not None})
 
     async def state(self, request: Request):
-        from vts_hw.console.qa_view import latest_view
         out = {"job": self.jobs.snapshot()}
         try:
             out.update(await asyncio.to_thread(latest_view, self.console.open_store, self.console.rig_name,
@@ -174,7 +174,6 @@ class QAPage:
         return JSONResponse(got)
 
     async def plot(self, request: Request):
-        from vts_hw.console.qa_view import drift_plot_png
         name = request.path_params["camera"]
         if name not in self.jobs.cameras():
             return PlainTextResponse(f"no camera {shown(name)} in this rig", status_code=404)

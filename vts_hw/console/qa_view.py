@@ -18,6 +18,12 @@ import time
 from vts_hw import catalog
 from vts_hw.console.history import when     # (the History page's wording of a time)
 from vts_hw.errors import VtsError
+from vts_hw.figures import figure_png
+from vts_hw.qatrack import TARGET
+from vts_hw.report.drift import collect
+from vts_hw.report.plots import camera_figure
+from vts_hw.store.baselines import load_baseline
+from vts_hw.vision.wall_baseline import NoBaseline
 
 DAILY_NAMES = catalog.by_label()[catalog.DAILY.label]     # daily and drift QA: one check
 PLOT_SINCE_S = 60 * 86400.0                                  # the drift plot's period, as the History page's report
@@ -95,7 +101,6 @@ def view_of_run(store, run_id: int, cameras: list[str], problems: dict | None = 
 
 def push_state(store, run_id: int) -> dict | None:
     """The run's QATrack+ outbox row: sent / pending / refused with the peer's last sentence."""
-    from vts_hw.qatrack import TARGET
     items = store.outbox_items(TARGET, run_ids=[run_id])
     if not items:
         return None
@@ -111,8 +116,6 @@ def latest_run_id(store, rig: str) -> int | None:
 def baselines(store, cameras: list[str], rig: str | None = None) -> dict:
     """Each camera's drift baseline in use (of rig ``rig``, as the daily QA reads them): its run
     and when it was set (None: none yet)."""
-    from vts_hw.store.baselines import load_baseline
-    from vts_hw.vision.wall_baseline import NoBaseline
     out = {}
     for n in cameras:
         try:
@@ -137,10 +140,6 @@ def latest_view(open_store, rig: str, cameras: list[str]) -> dict:
 def drift_plot_png(open_store, rig: str, camera: str, now: float | None = None) -> bytes | None:
     """PNG of ``camera``'s drift over the last 60 days inside its tolerance and action windows
     (the drift report's figure, read from the store); None when the store has no drift of it."""
-    from vts_hw.figures import figure_png
-    from vts_hw.report.drift import collect
-    from vts_hw.report.plots import camera_figure
-
     now = time.time() if now is None else now
     with open_store() as store:
         report = collect(store, since=now - PLOT_SINCE_S, now=now + 1.0, rig=rig)

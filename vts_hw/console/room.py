@@ -25,7 +25,11 @@ import time
 from dataclasses import dataclass, field
 
 from vts_hw.camera_led import READ_BACK_S, LedNotTaken, switch_led
+from vts_hw.console.names import wall_points
 from vts_hw.errors import VtsError
+from vts_hw.report.drift import collect
+from vts_hw.store.baselines import load_baseline
+from vts_hw.vision.wall_baseline import NoBaseline
 
 OFFSET_EVERY_S = 300.0
 QA_EVERY_S = 30.0
@@ -130,7 +134,6 @@ class RoomFacts:
     # -- daily QA -------------------------------------------------------------------------------------
     def read_daily_qa(self) -> None:
         """Each camera's latest daily QA state of this rig, from the store."""
-        from vts_hw.report.drift import collect
         if self.open_store is None:
             self.qa_note = "no results store named"
             return
@@ -159,9 +162,6 @@ class RoomFacts:
 
     def _read_walls(self, store) -> None:
         """Each camera's drift baseline as its wall markers' names (none: no wall names)."""
-        from vts_hw.console.names import wall_points
-        from vts_hw.store.baselines import load_baseline
-        from vts_hw.vision.wall_baseline import NoBaseline
         if self.names is None:
             return
         for name in self.cameras:

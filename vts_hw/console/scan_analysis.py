@@ -26,6 +26,11 @@ import time
 from pathlib import Path
 
 from vts_hw.errors import VtsError
+from vts_hw.files import Outputs, write_atomic
+from vts_hw.procedures.motion import MotionAnalysis
+from vts_hw.report.renderers import write_report
+from vts_hw.store.recorder import record
+from vts_hw.store.target import resolve_target
 
 __all__ = ["MotionJob", "OUT_DIR", "REPORT", "PLOT", "EXPORT"]
 
@@ -64,10 +69,6 @@ class MotionJob:
         self.progress = (int(done), int(total))
 
     def _run(self) -> None:
-        from vts_hw.files import Outputs, write_atomic
-        from vts_hw.procedures.motion import MotionAnalysis
-        from vts_hw.report.renderers import write_report
-
         try:
             rig = self.rig
             cal = rig.calibration.stereo
@@ -120,12 +121,10 @@ class MotionJob:
             pass
 
     def _store(self, a, data, artifacts, outs) -> None:
-        from vts_hw.store.recorder import record
         notes = f"session {self.folder}" + (f"; not written: {outs.sentence()}" if outs.failed else "")
         try:
             store = self.store_target()
         except VtsError:        # none yet: made where the command would make it ($VTS_STORE, rig.yaml, per-user)
-            from vts_hw.store.target import resolve_target
             store = resolve_target(None, None, self.rig)
         try:
             stored = record(store, a, rig=self.rig.rig, operator=self.user, config_digest=self.rig.digest,

@@ -41,7 +41,10 @@ from vts_hw.console.inputs import BadInput, Body, NoBody, json_body, path_id, se
 from vts_hw.console.scan_analysis import MotionJob
 from vts_hw.console.scan_run import ScanRun, clean
 from vts_hw.console.web import event_stream, sse
+import vts_hw.drivers.registry as registry     # looked up when used: a test's stand-in is seen
 from vts_hw.errors import VtsError
+from vts_hw.procedures.scan import default_folder
+from vts_hw.store.errors import StoreError
 
 STATE_EVERY_S = 0.25
 TICK_S = 0.02            # how often an event stream looks for alerts, frames and a new view
@@ -92,13 +95,10 @@ class ScanDesk:
         return self.run is not None and self.run.phase in ("starting", "running", "stopping")
 
     def start(self, user: str, reference_s: float, duration: float | None, role: str = "") -> ScanRun:
-        from vts_hw.drivers.registry import open_cameras
-        from vts_hw.procedures.scan import default_folder
-
         def said(what: str, detail: dict) -> None:       # the scan's worker: its outcome, in the action log
             self.console.actions.record(user, what, detail, role=role)
 
-        run = ScanRun(self.rig, default_folder(parent=self.scans), self.console.hub, open_cameras, user=user,
+        run = ScanRun(self.rig, default_folder(parent=self.scans), self.console.hub, registry.open_cameras, user=user,
                       reference_s=reference_s, duration=duration, marker_names=self.console.names, on_said=said)
         self.run, self.job = run, None
         return run.start()
@@ -126,7 +126,6 @@ class ScanDesk:
 
 
 def _no_store():
-    from vts_hw.errors import StoreError
     raise StoreError("the console was given no results store")
 
 

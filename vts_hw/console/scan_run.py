@@ -30,7 +30,12 @@ import time
 from collections import deque
 from pathlib import Path
 
+from vts_hw.drivers.registry import check_camera_kinds
 from vts_hw.errors import VtsError
+from vts_hw.procedures.scan import ScanSession
+from vts_hw.procedures.scan_live import LiveMotion
+from vts_hw.procedures.scan_summary import summary_lines, verdict
+from vts_hw.tracking.live.estimator import LiveSettings
 
 TRACE_S = 30.0          # the breathing trace shown: the last this many seconds
 SAMPLE_S = 0.1          # how often the live estimate is sampled for the traces
@@ -138,11 +143,6 @@ class ScanRun:
         return not self.thread.is_alive()
 
     def _run(self) -> None:
-        from vts_hw.drivers.registry import check_camera_kinds
-        from vts_hw.procedures.scan import ScanSession
-        from vts_hw.procedures.scan_live import LiveMotion
-        from vts_hw.tracking.live.estimator import LiveSettings
-
         attached, cameras = False, []
         try:
             check_camera_kinds(self.rig.cameras)
@@ -226,7 +226,6 @@ class ScanRun:
         self.phase = "failed"
 
     def _finish(self) -> None:
-        from vts_hw.procedures.scan_summary import summary_lines, verdict
         rec = self.session.recorder
         last, code = verdict(self.folder, self.manifest, rec.write_failure if rec is not None else None)
         self.summary = {"status": (self.manifest or {}).get("status", "nothing recorded"),

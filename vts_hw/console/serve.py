@@ -18,9 +18,18 @@ import ssl
 import threading
 import time
 
+from vts_hw.console.actions import durable_actions
+from vts_hw.console.app import Console, create_app
 from vts_hw.console.hosts import WILDCARD_HOSTS, Reach
+from vts_hw.console.hub import IDLE_CLOSE_S, FramesHub
+from vts_hw.console.markers import RATE_HZ, MarkerWorker
+from vts_hw.console.names import MarkerNames
+from vts_hw.console.phantom import PhantomNames
+from vts_hw.console.room import RoomFacts
 from vts_hw.console.scans_folder import scans_folder
-from vts_hw.errors import UsageError
+from vts_hw.console.sessions import IDLE_S, MAX_S, USERS_EVERY_S, Auth
+import vts_hw.drivers.registry as registry     # looked up when used: a test's stand-in is seen
+from vts_hw.errors import UsageError, VtsError
 
 LOOPBACK_NAMES = ("localhost",)
 FACTS_TICK_S = 2.0
@@ -149,8 +158,6 @@ def url_of(host: str, port: int, tls: bool = False) -> str:
 def _auth(host, login, behind_proxy, tls, open_store, session_idle_s, session_max_s):
     """The console's users and sessions (None: no login, the person here is ``local``), after
     checking that a console needing a login has users; before anything is bound or opened."""
-    from vts_hw.console.sessions import IDLE_S, MAX_S, Auth
-    from vts_hw.errors import VtsError
     if not login_required(host, login, behind_proxy):
         return None
     if open_store is None:
@@ -191,15 +198,6 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, op
     into, a folder of scans only (scans_folder.py; default: ``scans/`` beside the per-user store)."""
     import uvicorn
 
-    from vts_hw.console.actions import durable_actions
-    from vts_hw.console.app import Console, create_app
-    from vts_hw.console.hub import IDLE_CLOSE_S, FramesHub
-    from vts_hw.console.markers import RATE_HZ, MarkerWorker
-    from vts_hw.console.names import MarkerNames
-    from vts_hw.console.phantom import PhantomNames
-    from vts_hw.console.room import RoomFacts
-    from vts_hw.console.sessions import USERS_EVERY_S
-    from vts_hw.drivers.registry import open_cameras
 
     reach = check_host(host, certfile=certfile, keyfile=keyfile, behind_proxy=behind_proxy, proxy=proxy,
                        server_names=server_names)
@@ -212,7 +210,7 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, op
     except BaseException:
         sock.close()
         raise
-    cameras = {c.name: c for c in open_cameras(rig.cameras)}
+    cameras = {c.name: c for c in registry.open_cameras(rig.cameras)}
     hub = FramesHub(cameras, idle_close_s=IDLE_CLOSE_S if idle_close_s is None else idle_close_s)
     names = MarkerNames()
     markers = MarkerWorker(hub, RATE_HZ if marker_hz is None else marker_hz, names,

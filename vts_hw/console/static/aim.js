@@ -7,7 +7,7 @@
 (function () {
   const token = document.querySelector('meta[name="console-token"]').content;
   const WORD = { good: "GOOD", adjust: "ADJUST", unknown: "NOT KNOWN" };
-  const hhmmss = (t) => new Date(t * 1000).toLocaleTimeString([], { hour12: false });
+  const hhmmss = window.vtsClock.time;
   const cams = {};
   document.querySelectorAll("section.camera").forEach((el) => {
     const name = el.dataset.camera;

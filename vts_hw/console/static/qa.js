@@ -20,7 +20,7 @@
 
   const el = (tag, cls, text) => { const e = document.createElement(tag); if (cls) e.className = cls; if (text !== undefined) e.textContent = text; return e; };
   const badge = (word, cls) => el("span", "st st-" + (cls || word).replace(/ /g, ""), word);
-  const hhmmss = (t) => new Date(t * 1000).toISOString().slice(11, 19) + " UTC";
+  const hhmmss = window.vtsClock.time;
 
   function say(text, kind) {
     const s = $("said");

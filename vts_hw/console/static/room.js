@@ -26,7 +26,7 @@
 
   const serverNow = () => Date.now() / 1000 + skew;
   const fmtAge = (s) => s < 90 ? `${s.toFixed(0)} s` : s < 5400 ? `${(s / 60).toFixed(0)} min` : `${(s / 3600).toFixed(1)} h`;
-  const hhmmss = (t) => new Date(t * 1000).toLocaleTimeString([], { hour12: false });
+  const hhmmss = window.vtsClock.time;
 
   // -- pictures: ask for the latest when told of a new one and the last one is shown --------------------
   function pump(c) {
@@ -164,7 +164,7 @@
     const badge = document.createElement("span");
     if (s.qa_state) {
       badge.className = "qa-" + s.qa_state; badge.textContent = s.qa_state;
-      qa.append(badge, ` run ${s.qa_run}, ${new Date(s.qa_at * 1000).toLocaleString([], { hour12: false })}`);
+      qa.append(badge, ` run ${s.qa_run}, ${window.vtsClock.stamp(s.qa_at)}`);
     } else {
       badge.className = "qa-none"; badge.textContent = s.qa_note || "no daily QA"; qa.append(badge);
     }
@@ -218,8 +218,8 @@
     const lost = Date.now() - lastEvent > 4000;
     contact.className = "contact " + (lastEvent === 0 ? "wait" : lost ? "lost" : "ok");
     contact.textContent = lastEvent === 0 ? "connecting…" : lost ?
-      `NO CONTACT since ${new Date(lastEvent).toLocaleTimeString([], { hour12: false })}` : "connected";
-    document.getElementById("clock").textContent = new Date().toLocaleTimeString([], { hour12: false });
+      `NO CONTACT since ${window.vtsClock.time(lastEvent / 1000)}` : "connected";
+    document.getElementById("clock").textContent = window.vtsClock.time(Date.now() / 1000);
     Object.values(cams).forEach(judge);
   }, 250);
 })();

@@ -10,7 +10,7 @@
                   OFF: "NOT TRACKING" };
   const PHASES = { idle: "NO SCAN", starting: "STARTING", running: "RECORDING", stopping: "STOPPING",
                    stopped: "STOPPED", failed: "NOT STARTED" };
-  const hhmmss = (t) => new Date(t * 1000).toLocaleTimeString([], { hour12: false });
+  const hhmmss = window.vtsClock.time;
   const num = (v, d = 1) => (v === null || v === undefined ? "–" : v.toFixed(d));
   let last = null;            // the last scan state
   let lastEvent = 0;
