@@ -91,6 +91,27 @@ def test_the_led_is_what_the_camera_says_and_a_switch_that_did_not_take_is_said(
     assert until(lambda: cam(page, "cam2", "e => e.dataset.led") == "on", 20)
 
 
+def test_times_are_iso_and_utc_whatever_the_browsers_locale_and_zone(browser, live):
+    """The pages say times as every file and report does (ISO 8601, UTC), not in the browser's
+    locale and zone: opened as a browser in New York with the en-US locale (11/29/2026, 9:03 AM)."""
+    import datetime
+    import re
+    ctx = browser.new_context(locale="en-US", timezone_id="America/New_York")
+    try:
+        pg = ctx.new_page()
+        pg.goto(live.url)
+        assert until(lambda: re.fullmatch(r"\d\d:\d\d:\d\d UTC", pg.inner_text("#clock") or ""), 10), \
+            pg.inner_text("#clock")
+        shown = datetime.datetime.strptime(pg.inner_text("#clock")[:8], "%H:%M:%S").time()
+        now = datetime.datetime.now(datetime.timezone.utc)
+        gap = abs((now.hour * 3600 + now.minute * 60 + now.second)
+                  - (shown.hour * 3600 + shown.minute * 60 + shown.second)) % 86400
+        assert min(gap, 86400 - gap) < 120, (shown, now)           # UTC, not New York's hour
+        assert pg.evaluate("window.vtsClock.stamp(1764406987)") == "2025-11-29 09:03:07 UTC"
+    finally:
+        ctx.close()
+
+
 def circles(page, name):
     return cam(page, name, """e => [...e.querySelectorAll('svg circle')].map(c => {
         const t = c.nextElementSibling;
