@@ -254,7 +254,7 @@ class Jobs:
             rig = self.rig
             if rig.qatrack is None:
                 raise ConfigError(f"{rig._source or 'rig.yaml'}: no qatrack: section (url, unit, token_env or "
-                                  f"user_env/password_env, lists); see the README's QATrack+ section")
+                                  f"user_env/password_env, lists); see docs/operate/qatrack.md")
             rig.qatrack.credentials()     # an unset variable: one sentence before anything is sent
             with self._store() as store:
                 chosen = select_runs(store, rig.qatrack, rig.rig, ())

@@ -68,7 +68,7 @@ def check_host(host: str, *, certfile: str | None = None, keyfile: str | None = 
         raise NotOnLoopback(f"refused to serve the console on {host} in plain HTTP: off this machine it needs users "
                             f"and login over HTTPS: give --certfile and --keyfile, or serve it behind a TLS reverse "
                             f"proxy on this machine (a loopback --host and --behind-proxy) or at --proxy ADDR "
-                            f"(README: Console users and HTTPS)")
+                            f"(docs/operate/console.md: Console users and HTTPS)")
     if reach.proxied and not reach.served_as:
         raise UsageError("refused: behind a proxy the console needs the name the browsers reach the proxy under: "
                          "give --server-name NAME (NAME:PORT when not 443)")
