@@ -33,6 +33,7 @@ import time
 from dataclasses import dataclass
 from typing import Callable
 
+from vts_hw.sim_devices.patient_rig import write_patient_truth
 from vts_hw.sim_devices.render import Renderer
 from vts_hw.sim_devices.scene import Scene
 
@@ -215,8 +216,6 @@ def make_ahead(rig, seconds: float, folder=None, say: Callable[[str], None] = pr
     stats = rig.prerender(seconds)
     say(f"frames made ahead: {stats.line()}; they start playing at the first stream")
     if rig.patient is not None and folder is not None:
-        from vts_hw.sim_devices.patient_rig import write_patient_truth
-
         def rewrite(dt: float) -> None:
             threading.Thread(target=write_patient_truth, args=(rig.patient, folder), daemon=True,
                              name="sim-truth").start()

@@ -27,6 +27,7 @@ from vts_hw.recording.axis_jpeg import stamp_jpeg
 from vts_hw.recording.writer import Recording
 
 from vts_hw.recording.folder import read_index
+from vts_hw.sim_devices.patient import add_patient
 from vts_hw.sim_devices.render import Renderer, encode
 from vts_hw.sim_devices.scene import CameraClock, Marker, RigidBody, Scene
 
@@ -163,7 +164,6 @@ def simulate_recording(folder, duration_s: float = 20.0, fps: float = 25.0, seed
         band = BreathingBand(start)
     the_patient = None
     if patient is not None:
-        from vts_hw.sim_devices.patient import add_patient
         the_patient = add_patient(scene, start, duration_s, seed, **patient)
         add_band = False
     if add_band and "band" not in scene.bodies:

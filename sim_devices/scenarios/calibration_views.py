@@ -12,22 +12,32 @@ from pathlib import Path
 
 import numpy as np
 
+from vts_hw.procedures.steps import average_centroids
+from vts_hw.sim_devices import checkerboard as cb
+from vts_hw.sim_devices.board_plan import plan_views
+from vts_hw.sim_devices.render import Renderer
+from vts_hw.sim_devices.scene import Scene
+from vts_hw.sim_devices.spect import SimSpect
+from vts_hw.sim_devices.step_table import sphere_centres
+from vts_hw.sim_devices.sync_truth import true_spect_mapping, true_stereo_calibration
+from vts_hw.spect import find_spheres, read_volume
+from vts_hw.vision.body_finder import locate_body
+from vts_hw.vision.calibration_io import CameraCalibration, CameraFit
+from vts_hw.vision.detect import detect
+from vts_hw.vision.multi_compare import against_truth
+from vts_hw.vision.registration import difference
+
 SIM_FRAMES = 5          # noisy frames averaged per camera in `vts calibrate spect --sim`
 
 
 def sim_square_mm() -> float:
     """Side of a square of the simulated board (mm)."""
-    from vts_hw.sim_devices.checkerboard import SQUARE_MM
-    return SQUARE_MM
+    return cb.SQUARE_MM
 
 
 def sim_views(seed: int, n: int, pattern=(9, 6), square_mm: float | None = None):
     """``n`` rendered stereo views of the board held before the reference rig of ``seed``:
     (pairs, names, truth) with ``truth`` the rig's two true cameras (cam1, cam2) as a calibration in mm."""
-    from vts_hw.sim_devices import checkerboard as cb
-    from vts_hw.sim_devices.scene import Scene
-    from vts_hw.sim_devices.sync_truth import true_stereo_calibration
-
     scene = Scene.reference(seed, start_epoch=0.0)
     pairs, names = cb.render_pairs(scene, n=n, seed=seed, pattern=pattern,
                                    square_mm=cb.SQUARE_MM if square_mm is None else square_mm)
@@ -43,16 +53,6 @@ def sim_spect_inputs(seed: int, workdir: Path) -> tuple[np.ndarray, Path, dict]:
     (:func:`vts_hw.vision.body_finder.locate_body`); the truth is used only to score.
     Returns the VTS points, the volume path and a dict of what the sim did and its truth.
     """
-    from vts_hw.vision.body_finder import locate_body
-    from vts_hw.vision.detect import detect
-    from vts_hw.sim_devices.render import Renderer
-    from vts_hw.sim_devices.scene import Scene
-    from vts_hw.sim_devices.spect import SimSpect
-    from vts_hw.sim_devices.step_table import sphere_centres
-    from vts_hw.sim_devices.sync_truth import true_spect_mapping, true_stereo_calibration
-    from vts_hw.spect import find_spheres, read_volume
-    from vts_hw.procedures.steps import average_centroids
-
     scene = Scene.reference(seed, start_epoch=0.0)
     scene.add_phantom()
     t = 10.0
@@ -89,8 +89,6 @@ def sim_spect_inputs(seed: int, workdir: Path) -> tuple[np.ndarray, Path, dict]:
 
 def compare_mapping_with_truth(mapping, info: dict) -> dict:
     """How the recovered VTS → SPECT transform compares with the simulated truth."""
-    from vts_hw.vision.registration import difference
-
     truth, est = info["truth"], mapping.transform
     d = difference(truth, est)
     centre_vts = truth.inverse().apply(info["phantom_centre_spect_mm"])
@@ -108,8 +106,6 @@ FOV_POINTS = 400
 
 def true_cameras(scene, names=None, square_mm: float = 1.0, pattern=(9, 6)):
     """The scene's true cameras as a CameraCalibration in mm, in the first camera's frame."""
-    from vts_hw.vision.calibration_io import CameraCalibration, CameraFit
-
     names = list(names or scene.camera_names)
     ref = scene.cameras[names[0]]
     fits = []
@@ -137,10 +133,6 @@ def sim_camera_views(seed: int, n_cameras: int, per_pair: int, pattern=(9, 6), s
     :func:`vts_hw.sim_devices.board_plan.plan_views` chooses, rendered (JPEG, noise) in those
     two cameras. Returns (images: camera → view → grey image, truth: the true cameras,
     info: the plan and the FOV points to score against)."""
-    from vts_hw.sim_devices import checkerboard as cb
-    from vts_hw.sim_devices.board_plan import plan_views
-    from vts_hw.sim_devices.scene import Scene
-
     square_mm = cb.SQUARE_MM if square_mm is None else square_mm
     scene = scene or Scene.reference(seed, n_cameras=n_cameras, start_epoch=0.0)
     names = list(scene.camera_names)
@@ -163,8 +155,6 @@ def sim_camera_views(seed: int, n_cameras: int, per_pair: int, pattern=(9, 6), s
 def cameras_against_truth(calib, truth, points) -> dict:
     """The calibration's errors against the simulated truth (:func:`vts_hw.vision.multi_compare.against_truth`
     on the FOV points ``info["fov_points"]`` of :func:`sim_camera_views`), with what the points were."""
-    from vts_hw.vision.multi_compare import against_truth
-
     out = against_truth(calib, truth, points)
     out["points_3d"]["where"] = (f"{FOV_POINTS} points uniform in ±{FOV_BOX_MM[0]:g} x ±{FOV_BOX_MM[1]:g} x"
                                  f" ±{FOV_BOX_MM[2]:g} mm about the FOV centre, projected exactly by the true"

@@ -17,6 +17,19 @@ from typing import Callable
 
 import numpy as np
 
+from vts_hw.config import parse_rig
+from vts_hw.drivers.registry import open_camera
+from vts_hw.procedures.baseline import BaselineSet, take_baseline
+from vts_hw.procedures.daily import QARun
+from vts_hw.report import build_drift_report
+from vts_hw.report.build import build_rooms_report
+from vts_hw.sim_devices.clock import VirtualClock
+from vts_hw.sim_devices.rig import SimRig
+from vts_hw.sim_devices.scenarios.step_chain import run_sim_steps
+from vts_hw.store import ResultsStore
+from vts_hw.store.baselines import load_baselines
+from vts_hw.store.recorder import Recorder, record
+
 DAY = 86400.0
 FAST_CAMERA = "cam2"
 FAST_DRIFT_PX_PER_60_DAYS = 2.4
@@ -56,18 +69,6 @@ def injected_drift(scene, cam: str, t0: float, t1: float) -> tuple[float, float]
 
 def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 5, seed: int = 0,
              on_day: Callable[[DayRow], None] | None = None, on_step: Callable[[str], None] | None = None) -> DemoResult:
-    from vts_hw.config import parse_rig
-    from vts_hw.drivers.registry import open_camera
-    from vts_hw.procedures.baseline import BaselineSet, take_baseline
-    from vts_hw.procedures.daily import QARun
-    from vts_hw.sim_devices.scenarios.step_chain import run_sim_steps
-    from vts_hw.report import build_drift_report
-    from vts_hw.sim_devices.clock import VirtualClock
-    from vts_hw.sim_devices.rig import SimRig
-    from vts_hw.store import ResultsStore
-    from vts_hw.store.baselines import load_baselines
-    from vts_hw.store.recorder import Recorder, record
-
     say = on_step or (lambda m: None)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -131,7 +132,6 @@ def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 
             pdf = out / "drift-report.pdf"
             build_drift_report(store, html, now=now, rig=cfg.rig)
             build_drift_report(store, pdf, now=now, rig=cfg.rig)
-            from vts_hw.report.build import build_rooms_report
             rooms = out / "rooms.html"
             build_rooms_report(store, rooms, now=now)
     err: dict[str, tuple[float, float]] = {}

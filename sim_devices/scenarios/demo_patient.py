@@ -28,6 +28,9 @@ from typing import Callable
 import numpy as np
 
 from vts_hw.lifeline import child_options
+from vts_hw.sim_devices.patient_rig import PatientOptions
+from vts_hw.sim_devices.rig import SimRig
+from vts_hw.sim_devices.scenarios.patient_scan import patient_scan
 
 MOTION_EXIT_CODES = (0, 10, 20)      # OK, TOLERANCE, ACTION: the analysis ran
 
@@ -51,10 +54,6 @@ def demo_patient_scan(out_dir, seconds: float = 30.0, *, say: Callable[[str], No
                       ) -> DemoPatientScan:
     """The patient scan of ``seconds`` (at least 24), its analysis, scored against the truth.
     RuntimeError with the command's own message when a step fails."""
-    from vts_hw.sim_devices.patient_rig import PatientOptions
-    from vts_hw.sim_devices.rig import SimRig
-    from vts_hw.sim_devices.scenarios.patient_scan import patient_scan
-
     out_dir = Path(out_dir)
     session = out_dir / "patient-scan"
     for old in (session, out_dir / "patient-scan.vtslm", out_dir / "patient-export"):

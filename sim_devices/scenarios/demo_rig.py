@@ -19,8 +19,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+from vts_hw.drivers.registry import open_cameras
 from vts_hw.files import check_folder, write_atomic
 from vts_hw.lifeline import child_options
+from vts_hw.recording.capture import Recorder
+from vts_hw.recording.promised import info
+from vts_hw.sim_devices.rig import SimRig
+from vts_hw.sim_devices.scenarios import sync_session as sync_sim
 
 SYNC_EXIT_CODES = (0, 10, 20)      # OK, TOLERANCE, ACTION: the analysis ran
 
@@ -58,11 +63,6 @@ def camera_tour(out_dir, seconds: float, *, record: Callable | None = None,
     """Two simulated cameras through the real driver: info, clock, LED snapshots, a recording of
     ``seconds``. ``record(recorder, seconds) -> manifest`` runs the recording (default: to its
     end, silently; the CLI passes its progress display)."""
-    from vts_hw.drivers.registry import open_cameras
-    from vts_hw.recording.capture import Recorder
-    from vts_hw.recording.promised import info
-    from vts_hw.sim_devices.rig import SimRig
-
     out_dir = Path(out_dir)
     looks = []
     with SimRig(n_cameras=2) as rig, rig.env():
@@ -117,9 +117,6 @@ class DemoScan:
 def demo_scan(out_dir, seconds: float, *, say: Callable[[str], None] = lambda m: None) -> DemoScan:
     """A scan of ``seconds`` with three moves of a source marker, then the sync check.
     RuntimeError with the analysis's own message when it did not run."""
-    from vts_hw.sim_devices.rig import SimRig
-    from vts_hw.sim_devices.scenarios import sync_session as sync_sim
-
     out_dir = Path(out_dir)
     scan_dir = out_dir / "scan"
     if scan_dir.exists():

@@ -26,8 +26,18 @@ from typing import Callable
 
 import numpy as np
 
-from vts_hw.vision.registration import kabsch
+from vts_hw.drivers.registry import open_cameras
+from vts_hw.procedures.spect_mapping import SpectMapping
+from vts_hw.procedures.steps import LED_SETTLE_S, SNAPSHOT_COMPRESSION, StepSession, average_centroids, step_plan
 from vts_hw.procedures.steps_analysis import StepAnalysis, six_dof
+from vts_hw.sim_devices import checkerboard as cb
+from vts_hw.sim_devices.rig import SimRig
+from vts_hw.sim_devices.spect import SimSpect
+from vts_hw.sim_devices.step_table import SPECT_MATRIX, SimSpectSource, SimTable, sphere_centres
+from vts_hw.store.recorder import record
+from vts_hw.vision.calibration import calibrate_stereo
+from vts_hw.vision.detect import detect_jpeg
+from vts_hw.vision.registration import kabsch
 
 
 @dataclass
@@ -80,17 +90,6 @@ def run_sim_steps(out_dir, seed: int = 0, *, frames: int = 10, n_vertical: int =
     one of its own); score it."""
     import contextlib
     import time
-
-    from vts_hw.vision.calibration import calibrate_stereo
-    from vts_hw.drivers.registry import open_cameras
-    from vts_hw.sim_devices import checkerboard as cb
-    from vts_hw.sim_devices.rig import SimRig
-    from vts_hw.sim_devices.spect import SimSpect
-    from vts_hw.sim_devices.step_table import SPECT_MATRIX, SimSpectSource, SimTable, sphere_centres
-    from vts_hw.procedures.spect_mapping import SpectMapping
-    from vts_hw.procedures.steps import LED_SETTLE_S, SNAPSHOT_COMPRESSION, StepSession, average_centroids, step_plan
-    from vts_hw.store.recorder import record
-    from vts_hw.vision.detect import detect_jpeg
 
     say = progress or (lambda m: None)
     compression = SNAPSHOT_COMPRESSION if compression is None else compression
