@@ -148,3 +148,36 @@ def test_the_made_pages_into_a_folder_that_cannot_be_one_is_one_sentence(tmp_pat
     assert taken.read_text() == "mine\n"
     assert gen.main([str(tmp_path / "made")]) == 0
     assert "vts qa daily" in (tmp_path / "made" / "reference" / "commands.md").read_text()
+
+
+def _messages_naming_pages(root: Path, folders) -> list[tuple[str, int, str]]:
+    """(file, line, page) of every page of this project (`docs/...md`, `README...`) a string of
+    the code names: its messages and help, not its docstrings (which may cite other projects')."""
+    import ast
+    out = []
+    for folder in folders:
+        for path in sorted((root / folder).rglob("*.py")):
+            tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+            docs = {id(n.body[0].value) for n in ast.walk(tree)
+                    if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+                    and n.body and isinstance(n.body[0], ast.Expr) and isinstance(n.body[0].value, ast.Constant)}
+            for node in ast.walk(tree):
+                if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docs:
+                    for page in re.findall(r"docs/[\w/.-]+\.md|README[^\s\"')]*", node.value):
+                        out.append((str(path.relative_to(root)), node.lineno, page))
+    return out
+
+
+def test_every_page_a_message_names_exists(tmp_path):
+    """A message or help text that sends the reader to a page names one that is there (the README's
+    sections moved to the site: a message still saying "see the README's QATrack+ section" sent the
+    reader nowhere). Planted: a message naming a page that is not there is found."""
+    named = _messages_naming_pages(ROOT, ("vts_hw", "drivers", "procedures", "sim_devices"))
+    assert named, "no message names a page: the scan reads nothing"
+    missing = [(f, line, page) for f, line, page in named
+               if page.startswith("README") or not (ROOT / page.split("#")[0]).is_file()]
+    assert missing == [], missing
+    planted = tmp_path / "planted"
+    planted.mkdir()
+    (planted / "m.py").write_text('def f():\n    raise SystemExit("see docs/operate/nowhere.md")\n')
+    assert _messages_naming_pages(tmp_path, ("planted",)) == [("planted/m.py", 2, "docs/operate/nowhere.md")]
