@@ -14,7 +14,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from vts_hw import catalog
+from vts_hw import report as reports   # its builders and plots load when first used (vts_hw/report/__init__.py)
 from vts_hw.errors import VtsError
+from vts_hw.figures import figure_png
 from vts_hw.site_time import WALL_FORMAT, RepeatedWallTime, site_zone, wall_clock
 
 #: what QATrack+ hears about a run that was pushed: its key (QATrack+'s ``user_key``)
@@ -168,11 +170,9 @@ def planned_attachments(store, qcfg, run) -> list[str]:
 
 def attachments(store, qcfg, run, workdir=None) -> list[tuple[str, bytes]]:
     """The files to attach: the run's drift plot(s) (its stored plots, else rendered from the
-    store per camera for a drift/daily run) and the drift report as of the run's end."""
-    from vts_hw.report import build_drift_report, collect
-    from vts_hw.figures import figure_png
-    from vts_hw.report.plots import camera_figure
-
+    store per camera for a drift/daily run) and the drift report as of the run's end. The
+    report's builders and plotting libraries load here, on the first push that posts: a dry run,
+    or a run refused before posting, never loads them."""
     plots: list[tuple[str, bytes]] = []
     files: list[tuple[str, bytes]] = []
     now = run.finished if run.finished is not None else run.started
@@ -180,16 +180,16 @@ def attachments(store, qcfg, run, workdir=None) -> list[tuple[str, bytes]]:
     if qcfg.report != "none":
         with tempfile.TemporaryDirectory(prefix="vts-qatrack-", dir=workdir) as tmp:
             path = Path(tmp) / f"vts-report-run{run.id}.{qcfg.report}"
-            report = build_drift_report(store, path, now=now, rig=run.rig or None)
+            report = reports.build_drift_report(store, path, now=now, rig=run.rig or None)
             files.append((path.name, path.read_bytes()))
     if qcfg.plots:
         stored = _stored_plots(store, run)
         if stored:
             plots += [(p.name, p.read_bytes()) for p in stored]
         elif run.procedure in DRIFT_PROCEDURES:
-            report = report or collect(store, now=now, rig=run.rig or None)
+            report = report or reports.collect(store, now=now, rig=run.rig or None)
             cams = {m.subject for m in store.measurements(run_id=run.id) if m.subject and "/" not in m.subject}
             for name, cam in sorted(report.cameras.items()):
                 if name in cams and cam.points:
-                    plots.append((f"vts-drift-run{run.id}-{name}.png", figure_png(camera_figure(report, cam))))
+                    plots.append((f"vts-drift-run{run.id}-{name}.png", figure_png(reports.camera_figure(report, cam))))
     return plots + files

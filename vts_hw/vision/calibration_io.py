@@ -27,6 +27,7 @@ from vts_hw.errors import DataError
 from vts_hw.files import write_atomic
 from vts_hw.vision.calibration_stereo_file import stereo_fields
 from vts_hw.vision.calibration_uncertainty import check_pair_uncertainty, rotation_angle_deg
+from vts_hw.vision.triangulate import PinholeCamera
 
 FORMAT = "vts-hw camera calibration"
 FORMAT_VERSION = 1
@@ -187,7 +188,6 @@ class CameraCalibration:
     def cameras(self, names=None) -> list:
         """Every camera as a :class:`vts_hw.vision.triangulate.PinholeCamera` in the calibration's
         frame, named as calibrated (or by ``names``, in order)."""
-        from vts_hw.vision.triangulate import PinholeCamera
         names = list(names) if names is not None else self.names
         return [PinholeCamera(c.K, c.d, c.R, c.t, n) for c, n in zip(self.camera_fits, names)]
 

@@ -17,6 +17,8 @@ import numpy as np
 
 from vts_hw.vision.calibration_io import CameraCalibration
 from vts_hw.vision.calibration_uncertainty import K_SIGMA, rotation_angle_deg
+from vts_hw.vision.registration import kabsch
+from vts_hw.vision.triangulate import triangulate
 
 JUDGED = ("fx", "fy", "cx", "cy", "k1")
 
@@ -84,9 +86,6 @@ def against_truth(calib: CameraCalibration, truth: CameraCalibration, points: np
     """Errors of ``calib`` against the true cameras ``truth`` (the same frame: the reference camera's,
     the same unit), and the 3D error of ``points`` (n × 3 in that frame) seen by two or more true
     cameras: projected exactly by them, triangulated with the calibrated cameras (all that see each)."""
-    from vts_hw.vision.registration import kabsch
-    from vts_hw.vision.triangulate import triangulate
-
     out: dict[str, Any] = {"cameras": {}}
     judged = []
     for c in calib.camera_fits:

@@ -28,6 +28,9 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from vts_hw.errors import DataError, VtsError
+from vts_hw.vision.body_finder import locate_body_views
+from vts_hw.vision.camera_set import in_rig_names, load_cameras, named_cameras
+from vts_hw.vision.registration import RigidTransform
 
 __all__ = ["PhantomLocator", "PhantomSeen", "phantom_template", "RMS_LIMIT_MM", "MIN_SPHERES",
            "MAX_DETECTIONS", "TEMPLATE_KEY"]
@@ -42,8 +45,6 @@ TOL_MM = 3.0             # the step test's shape tolerance (body_finder.DEFAULT_
 def phantom_template(mapping) -> np.ndarray:
     """The phantom's sphere centres (M×3, mm) kept in a VTS → SPECT mapping (a path or a loaded
     :class:`~vts_hw.vision.registration.RigidTransform`); DataError naming the file when it keeps none."""
-    from vts_hw.vision.registration import RigidTransform
-
     t = mapping if isinstance(mapping, RigidTransform) else RigidTransform.load(mapping)
     raw = (t.meta or {}).get(TEMPLATE_KEY)
     where = "the mapping" if isinstance(mapping, RigidTransform) else f"the mapping {mapping}"
@@ -86,8 +87,6 @@ class PhantomLocator:
     def __init__(self, cameras: Mapping, template, *, rms_limit_mm: float = RMS_LIMIT_MM,
                  min_spheres: int = MIN_SPHERES, tol_mm: float = TOL_MM, max_px: float = 2.0,
                  max_detections: int = MAX_DETECTIONS):
-        from vts_hw.vision.camera_set import named_cameras
-
         self.cameras = named_cameras(dict(cameras))
         self.template = np.asarray(template, float).reshape(-1, 3)
         self.rms_limit_mm = float(rms_limit_mm)
@@ -100,15 +99,11 @@ class PhantomLocator:
     def from_files(cls, calibration, mapping, rig_cameras: Sequence[str] = (), **kw) -> "PhantomLocator":
         """From the rig's calibration file (stereo or N cameras, its cameras named as the rig's:
         :func:`~vts_hw.vision.camera_set.covered_names`) and its mapping file (the template)."""
-        from vts_hw.vision.camera_set import in_rig_names, load_cameras
-
         return cls(in_rig_names(load_cameras(calibration), list(rig_cameras)), phantom_template(mapping), **kw)
 
     def locate(self, detections: Mapping[str, np.ndarray]) -> PhantomSeen:
         """The spheres among ``detections`` (camera name -> N×2 px of about one instant; cameras
         the calibration does not hold are left out), or why not."""
-        from vts_hw.vision.body_finder import locate_body_views
-
         m = len(self.template)
         views = {n: np.asarray(p, float).reshape(-1, 2) for n, p in detections.items()
                  if n in self.cameras and len(p)}
