@@ -115,3 +115,15 @@ def test_warmup_drift_starts_the_cameras_now_and_their_pictures_drift_as_they_wa
         assert abs(moved - want) < 0.25 * want + 0.1, (moved, want, a0, a1)
     finally:
         vts("sim", "down", "--dir", str(d))
+
+
+def test_stopping_a_detached_rig_loads_none_of_the_scene(tmp_path):
+    """Finding and stopping a detached rig (sim_devices/rig_detached.py) needs its pid file, not
+    the scene, the renderer or the devices that rig.py imports (numpy, cv2, scipy): decision 0095."""
+    code = ("import json, sys\nfrom vts_hw.sim_devices.rig_detached import stop_detached\n"
+            f"stopped = stop_detached({str(tmp_path)!r})\n"
+            "print(json.dumps([stopped, sorted(m for m in sys.modules if m.startswith('vts_hw.sim_devices.')"
+            " or m in ('numpy', 'cv2', 'scipy'))]))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout) == [False, ["vts_hw.sim_devices.rig_detached", "vts_hw.sim_devices.rig_log"]]
