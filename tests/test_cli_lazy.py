@@ -61,3 +61,16 @@ def test_help_of_vts_lists_every_command_and_an_unknown_one_is_refused():
     assert all(name in listed for name in COMMANDS), r.stdout
     r = subprocess.run([sys.executable, "-m", "vts_hw.cli", "scna"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "No such command 'scna'" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_a_refused_console_loads_none_of_its_pages():
+    """`vts console` refuses what the command line alone says is wrong (serve_checks.py) before
+    the console's server and pages are imported: a refusal is one sentence, not a start-up."""
+    code = SEEN.replace('"cli": sorted(m for m in sys.modules if m.startswith("vts_hw.cli."))',
+                        '"cli": sorted(m for m in sys.modules if m.startswith("vts_hw.console"))')
+    r = subprocess.run([sys.executable, "-c", code, "console", "--host", "0.0.0.0", "--port", "0"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "refused to serve the console on 0.0.0.0" in r.stderr, r.stderr[-2000:]
+    loaded = set(json.loads(r.stdout.strip().splitlines()[-1])["cli"])
+    assert "vts_hw.console.serve_checks" in loaded
+    assert not {"vts_hw.console.serve", "vts_hw.console.app", "vts_hw.console.qa_page"} & loaded, sorted(loaded)

@@ -399,7 +399,7 @@ def test_off_this_machine_without_users_or_https_it_is_refused_before_anything_i
 
 
 def test_a_bad_certificate_or_key_is_one_sentence_naming_the_file(tmp_path, capsys, monkeypatch):
-    from vts_hw.console.serve import check_tls
+    from vts_hw.console.serve_checks import check_tls
     cert, key = self_signed(tmp_path / "a")
     cert2, key2 = self_signed(tmp_path / "b")
     text = tmp_path / "notes.txt"

@@ -346,7 +346,8 @@ def test_the_console_is_an_application_beside_the_cli():
     procedures, store, reports); the console never imports the CLI nor the simulator; the
     console imports the drivers' registry, not a driver; and `vts console` only parses, calls
     the console's serve() and prints: the one name it takes from vts_hw.console is serve (and
-    the host check it makes before reading the rig), and the user functions of `vts console user`."""
+    the host check it makes before reading the rig, from serve_checks: a refusal loads no page),
+    and the user functions of `vts console user`."""
     users = sorted({layer(m) for p, m in modules() for _, _, t in imports(p)
                     if t == "vts_hw.console" or t.startswith("vts_hw.console.")} - {"console"})
     assert users == ["cli"]
@@ -356,6 +357,6 @@ def test_the_console_is_an_application_beside_the_cli():
     cli_console = ROOT / "vts_hw" / "cli" / "console.py"
     taken = {(n.module, a.name) for n in ast.walk(ast.parse(cli_console.read_text()))
              if isinstance(n, ast.ImportFrom) and (n.module or "").startswith("vts_hw.console") for a in n.names}
-    assert taken == {("vts_hw.console.serve", "serve"), ("vts_hw.console.serve", "check_host"),
+    assert taken == {("vts_hw.console.serve", "serve"), ("vts_hw.console.serve_checks", "check_host"),
                      # `vts console user ...`: the console's users (hashing lives beside the login)
                      *(("vts_hw.console.users", n) for n in ("add_user", "check_name", "list_users", "remove_user"))}

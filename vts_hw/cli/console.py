@@ -85,11 +85,12 @@ def console(ctx: click.Context, config_path: str | None, host: str, port: int, l
     if ctx.invoked_subcommand is not None:
         return
     from vts_hw.config import load_rig
-    from vts_hw.console.serve import check_host, serve
+    from vts_hw.console.serve_checks import check_host
     from vts_hw.store import ResultsStore
 
     check_host(host, certfile=certfile, keyfile=keyfile, behind_proxy=behind_proxy, proxy=proxy,
                server_names=server_names)
+    from vts_hw.console.serve import serve      # the console's pages: loaded once nothing is refused
     rig = load_rig(config_path)
     target = store_target(rig)
 
