@@ -106,7 +106,7 @@ def cert_names(certfile: str) -> set[str]:
         with open(certfile, "rb") as f:
             cert = x509.load_pem_x509_certificate(f.read())
         san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
-    except (OSError, ValueError, x509.ExtensionNotFound):     # (serve.check_tls has said what is wrong with it)
+    except (OSError, ValueError, x509.ExtensionNotFound):     # (serve_checks.check_tls has said what is wrong)
         return set()
     names = {n.lower() for n in san.get_values_for_type(x509.DNSName) if "*" not in n}
     return names | {str(ip) for ip in san.get_values_for_type(x509.IPAddress)}
