@@ -126,7 +126,7 @@ class QATrackConfig(Strict):
     def credentials(self) -> tuple[str, ...]:
         """``("token", TOKEN)`` or ``("login", USER, PASSWORD)`` from the environment;
         ConfigError naming the variable (never its value) when one is not set."""
-        names = [self.token_env] if self.token_env else [self.user_env, self.password_env]
+        names = [self.token_env] if self.token_env else [self.user_env or "", self.password_env or ""]
         values = []
         for name in names:
             value = os.environ.get(name)

@@ -65,7 +65,7 @@ class NotReplaced(WriteFailed):
         super().__init__(path, reason, kept)
 
 
-def kind_of(path: str | os.PathLike, st: os.stat_result) -> str:
+def kind_of(path: str | os.PathLike[str], st: os.stat_result) -> str:
     """What a file that is not a regular file is, in words (``st``: its ``lstat``)."""
     m = st.st_mode
     if stat.S_ISLNK(m):
@@ -183,8 +183,9 @@ def write_atomic(path: str | os.PathLike, data: bytes | str, *, encoding: str = 
         check_target(path, NOTHING_WRITTEN if kept is None else kept)   # it may have changed meanwhile
         os.replace(tmp, path)
     except NotReplaced:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                tmp.unlink()
         raise
     except OSError as exc:
         if tmp is not None:

@@ -10,12 +10,28 @@ of the same name replaces the earlier one. Every failure is a :class:`DataError`
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Generic, TypeVar
+from typing import Any, Generic, Protocol, TypeVar
 
 from vts_hw.bounded import ANY_SIZE, open_checked
 from vts_hw.errors import DataError
 
-R = TypeVar("R")
+
+
+class Reader(Protocol):
+    """What every reader of a registry has (each kind's reader says what its ``read`` returns)."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def extensions(self) -> tuple[str, ...]: ...
+
+    def sniff(self, head: bytes, /) -> bool: ...
+
+    def read(self, path: Path, /) -> Any: ...
+
+
+R = TypeVar("R", bound=Reader)
 SNIFF_BYTES = 512
 
 

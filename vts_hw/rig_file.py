@@ -150,8 +150,10 @@ def set_locked_params(path: str | os.PathLike, params: dict[str, dict[str, str]]
             entries[name]["locked_params"] = CommentedMap((k, SingleQuotedScalarString(str(v)))
                                                           for k, v in values.items())
 
-    return _rewrite(path, edit, what="locked parameters", during="the cameras were being set",
-                    again="run the setup again")
+    backup = _rewrite(path, edit, what="locked parameters", during="the cameras were being set",
+                      again="run the setup again")
+    assert backup is not None, "edit never returns False: the parameters are always written"
+    return backup
 
 
 CALIBRATION_KEYS = ("stereo", "spect")    # rig.yaml's calibration: entries (config.CalibrationPaths)

@@ -39,7 +39,7 @@ class Saved:
 
 def fallback_folders() -> list[Path]:
     """Where a result that could not be written goes: the current folder, then $TMPDIR."""
-    out = []
+    out: list[Path] = []
     for folder in (Path.cwd(), Path(tempfile.gettempdir())):
         if folder.resolve() not in [f.resolve() for f in out]:
             out.append(folder)

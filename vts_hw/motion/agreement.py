@@ -111,7 +111,7 @@ def explain_alerts(alerts, events, t_off, R_off, T_off, centre, alert_mm: float,
     out = []
     for a in alerts:
         onset, at = float(a["onset"]), float(a["time"])
-        entry = {"onset": onset, "time": at}
+        entry: dict[str, object] = {"onset": onset, "time": at}
         ev = [e for e in events if e.t_end >= onset - margin_s and e.t_start <= at + margin_s]
         if ev:
             e = max(ev, key=lambda e: e.centre_mm)

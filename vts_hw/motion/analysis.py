@@ -101,7 +101,7 @@ class MotionResult:
     @property
     def unknown(self) -> list[dict]:
         """The stretches without a pose, with why (:meth:`Timeline.unknown`)."""
-        return self.timeline.unknown(self.pose.valid)
+        return self._timeline().unknown(self.pose.valid)
 
     @property
     def gaps(self) -> list:
@@ -111,7 +111,12 @@ class MotionResult:
     @property
     def coverage(self) -> dict:
         """Time with a pose against the scan's duration (:meth:`Timeline.coverage`)."""
-        return self.timeline.coverage(self.pose.valid)
+        return self._timeline().coverage(self.pose.valid)
+
+    def _timeline(self) -> Timeline:
+        if self.timeline is None:     # analyze_motion always gives one
+            raise ValueError("this motion result was made without its timeline")
+        return self.timeline
 
 
 def _dilate(mask, n):

@@ -72,7 +72,7 @@ def find_bands(series, *, breath_mm: float = 0.25, min_seen: float = 0.3,
         e2 = np.where(ok[sl], np.sum(bp ** 2, axis=1), np.nan)
         # the median over 10 s windows: a body move rings in the filter for a few seconds only
         win = [e2[k:k + 10 * _fs(t)] for k in range(0, len(e2), 10 * _fs(t))]
-        rms[m] = float(np.sqrt(np.nanmedian([np.nanmean(w) for w in win if np.isfinite(w).sum() > 10] or [0.0])))
+        rms[m] = float(np.sqrt(np.nanmedian([float(np.nanmean(w)) for w in win if np.isfinite(w).sum() > 10] or [0.0])))
         slow = lowpass(t[sl], P[sl, m], 0.1)[ok[sl]]
         rng[m] = float(np.max(np.linalg.norm(slow - np.median(slow, axis=0), axis=1)))
         X[sl, m] = np.where(ok[sl, None], lowpass(t[sl], P[sl, m], SMOOTH_HZ), np.nan)
@@ -107,7 +107,7 @@ def split_bands(mean, band_gap_mm: float = 60.0) -> list[list[int]]:
     if K < 4:
         return [list(range(K))]
     c = mean - mean.mean(axis=0)
-    best = (0.0, None, None)
+    best: tuple[float, np.ndarray, int] = (0.0, np.zeros(0, int), 0)
     vt = np.linalg.svd(c, full_matrices=False)[2]
     ang = np.radians(np.arange(0.0, 180.0, 2.0))
     dirs = np.concatenate([vt, np.cos(ang)[:, None] * vt[0] + np.sin(ang)[:, None] * vt[1]])

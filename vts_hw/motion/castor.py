@@ -189,6 +189,8 @@ class CastorPlan:
     def to_json(self, files=()) -> dict:
         if self.why:
             return {"written": False, "why": self.why}
+        if self.A is None or self.c is None:     # set whenever there is no why
+            raise ValueError("a CASToR motion without its frame to write")
         nxt = self.triggers[1:] + [None]
         return {"written": True, "files": [str(Path(f).name) for f in files], "frame": CASTOR_FRAME,
                 "from_spect": {"axes": self.A.tolist(), "centre_mm": self.c.tolist(),

@@ -40,6 +40,7 @@ docs/decisions/0059-breaths-across-short-gaps.md, 0089-one-rate-estimator.md.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.signal import find_peaks
@@ -300,7 +301,7 @@ def breathing_figures(br: Breaths, period: float, duration_s: float, noise_mm: f
         breaths, sig = [breaths[k] for k in keep], sig[keep]
     span_s = _union_s(breaths)
     n_ind = len(breaths)
-    base = dict(cycles=len(br.cycles), periods=n_ind, halves=len(br.halves), breaths_s=span_s,
+    base: dict[str, Any] = dict(cycles=len(br.cycles), periods=n_ind, halves=len(br.halves), breaths_s=span_s,
                 share=span_s / duration_s if duration_s > 0 else 0.0, noise_mm=noise)
     floor = max(NOISE_K * (noise or 0.0), MIN_BREATH_MM)
     if not breathes:
@@ -408,12 +409,15 @@ def _breath_bounds(t, x, cross, troughs, seen, seg, bounds, span_s: float, perio
         n = len(br)                  # boundaries B_0 .. B_{n-1}; breath i from B_i to B_{i+1}
         if n < 2:
             continue
-        A, y, w, own = [], [], [], []
+        coefs: list[list[float]] = []
+        values: list[float] = []
+        weights: list[float] = []
+        own: list = []
 
         def obs(coef, value, sigma, tag):   # one landmark: sum(coef[k] * B_k) = value, to sigma
-            A.append([coef.get(k, 0.0) for k in range(n)])
-            y.append(value)
-            w.append(1.0 / sigma)
+            coefs.append([coef.get(k, 0.0) for k in range(n)])
+            values.append(value)
+            weights.append(1.0 / sigma)
             own.append(tag)
 
         for i, (tr_t, u, d) in enumerate(br):
@@ -424,13 +428,13 @@ def _breath_bounds(t, x, cross, troughs, seen, seg, bounds, span_s: float, perio
                     obs({i: 1.0 - fa, i + 1: fa}, u, sa, ("c", i))
                 if d is not None:
                     obs({i: 1.0 - fd, i + 1: fd}, d, sd, ("c", i))
-        if not A:
+        if not coefs:
             continue
         for i in range(n - 1):       # a weak prior: a breath is about the typical length
             obs({i: -1.0, i + 1: 1.0}, L, PRIOR_K * L, None)
         # the chain's place, when only the prior speaks of a boundary: keeps the fit solvable
         obs({0: 1.0}, float(next(v for b in br for v in b if v is not None)), 1e6, None)
-        A, y, w = np.array(A), np.array(y), np.array(w)
+        A, y, w = np.array(coefs), np.array(values), np.array(weights)
         use = np.ones(len(y), bool)
         bad = set()
         for _ in range(len(y)):         # the landmark furthest off one breath's shape out, until all fit

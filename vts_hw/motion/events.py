@@ -205,7 +205,8 @@ def find_events(pose, markers_ref, *, min_speed: float = 1.0, k_hi: float = 6.0,
     # runs over the scan's thresholds; where the pose is noisier there, only the parts over the
     # thresholds of its own noise (jitter chained by the merging put a start seconds early); a
     # run nowhere over them stays whole, for the pose change across it to judge (a small move)
-    spans, noisy = [], set()
+    spans: list = []
+    noisy: set = set()
     for a, b in spans_of(x > hi, np.full(F, lo)):
         inner = spans_of(x > hi_f, lo_f, a, b)
         spans += inner if inner else [(a, b)]

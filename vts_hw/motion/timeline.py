@@ -39,7 +39,7 @@ def seen_runs(valid, period: float, max_hole_s: float = MAX_HOLE_S) -> list[tupl
     """Runs of ``valid`` rows joined across holes of at most ``max_hole_s`` (a frame or a few
     missing): the stretches of time seen, each starting and ending on a valid row."""
     valid = np.asarray(valid, bool)
-    out = []
+    out: list[tuple[int, int]] = []
     for a, b in runs(valid):
         if out and (a - out[-1][1]) * period <= max_hole_s + 1e-9:
             out[-1] = (out[-1][0], b)

@@ -67,6 +67,8 @@ class LorMotionPlan:
     def to_json(self, written: bool) -> dict:
         if self.why:
             return {"written": False, "why": self.why}
+        if self.centre is None:                  # set whenever there is no why
+            raise ValueError("a YRT-PET motion without its centre")
         return {"written": written, "file": LOR_MOTION_CSV, "reader": "YRT-PET (lor_motion)", "frame": YRTPET_FRAME,
                 "centre_mm": [float(v) for v in self.centre],
                 "transform": "per line the inverse of the body pose about the FOV centre: each LOR's detector "

@@ -170,7 +170,7 @@ def summarize_times(source: str, times: list[float | None], torn: int = 0, probl
                     fps: float | None = None) -> FramesSummary:
     """Count, first/last camera time, frame rate and gaps (an interval over 1.5 × the median)."""
     ts = [t for t in times if t is not None]
-    gaps = []
+    gaps: list[dict] = []
     est = fps
     if len(ts) >= 2:
         diffs = [b - a for a, b in zip(ts, ts[1:])]

@@ -131,14 +131,15 @@ def reindex_camera(folder: Path, mjpeg: Path) -> CameraReindex:
     finally:
         if isinstance(data, mmap.mmap):
             data.close()
-    lost = [r for r in old_rows or [] if (r.offset, r.length) not in found]
+    listed = old_rows or []
+    lost = [r for r in listed if (r.offset, r.length) not in found]
     rebuilt = folder / f"{name}{REBUILT_SUFFIX}"
     if lost and not old_problem:
         write_atomic(rebuilt, text, encoding="ascii")
-        note = (f"the rebuilt index would lose {len(lost)} of the {len(old_rows)} frame(s) the old one lists "
+        note = (f"the rebuilt index would lose {len(lost)} of the {len(listed)} frame(s) the old one lists "
                 f"({mjpeg.name} holds {n} whole frame(s)): the old index is kept as it was and the rebuilt "
                 f"one is beside it as {rebuilt.name}")
-        return CameraReindex(name, n, kept, torn, len(old_rows), False, note)
+        return CameraReindex(name, n, kept, torn, len(listed), False, note)
     note = ""
     if old_problem:   # a damaged index is replaced, and kept beside for whoever wants to look
         damaged = folder / f"{name}{DAMAGED_SUFFIX}"

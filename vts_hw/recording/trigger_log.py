@@ -125,7 +125,7 @@ def clock_text(*, drift_ppm: float, drift_se_ppm: float | None, residual_s: floa
 
 # ---------------------------------------------------------------------------------- reading
 
-def parse_fields(text: str) -> dict[str, str]:
+def parse_fields(text: str | None) -> dict[str, str]:
     """``key=value key=value`` -> dict (values as text); a token without ``=`` is skipped."""
     out = {}
     for token in (text or "").split():

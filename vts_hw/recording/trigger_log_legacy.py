@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 import re
+from typing import Any
 
 from vts_hw.recording.trigger_log import (CLOCK, DEVICE_CLOCK_MAPPED, HOST_WRITE, WAVE_START, WAVE_STOP,
                                           clock_text, finite_float, wave_start_text, wave_stop_text)
@@ -38,7 +39,7 @@ _BOX_BYTE_S = 10 / 115200          # one 8N1 byte at 115200 baud
 _DRIFT = re.compile(r"drift ([+-]?[\d.]+) ± (\S+) ppm")
 
 
-def _is_box(rows: list[dict], dev: str) -> bool:
+def _is_box(rows: list[dict], dev: str | None) -> bool:
     """A trigger box (our firmware) rather than a SCPI function generator."""
     for row in rows:
         if row.get("device") != dev:
@@ -52,7 +53,7 @@ def _is_box(rows: list[dict], dev: str) -> bool:
     return False
 
 
-def _fg_set(st: dict, key: str, text: str) -> None:
+def _fg_set(st: dict[str, Any], key: str, text: str) -> None:
     v = finite_float(text)
     if v is None:
         return
@@ -60,7 +61,7 @@ def _fg_set(st: dict, key: str, text: str) -> None:
         v / 100.0 if key == "FUNC:SQU:DCYC" else v
 
 
-def _row(host: float, device: str, kind: str, text: str) -> dict:
+def _row(host: float, device: str | None, kind: str, text: str) -> dict:
     return {"host_time": repr(float(host)), "device_time_us": "", "device": device, "kind": kind, "text": text}
 
 
@@ -70,10 +71,12 @@ def neutral_rows(rows: list[dict]) -> list[dict]:
     logged (an earlier one's is left out)."""
     devices = list(dict.fromkeys(r.get("device") for r in rows))
     box = {d: _is_box(rows, d) for d in devices}
-    settings = {d: {"FREQ": None, "DUTY": 0.5, "HIGH": None, "LOW": None} for d in devices}
-    last_cmd: dict[str, str] = {}
+    # (a row without a device, a short CSV line, is the device None's: as the log has it)
+    settings: dict[str | None, dict[str, Any]] = {
+        d: {"FREQ": None, "DUTY": 0.5, "HIGH": None, "LOW": None} for d in devices}
+    last_cmd: dict[str | None, str] = {}
     waves: list[dict] = []
-    current: dict[str, dict | None] = {d: None for d in devices}
+    current: dict[str | None, dict | None] = {d: None for d in devices}
     for row in rows:
         dev = row.get("device")
         h = finite_float(row.get("host_time"))
@@ -129,7 +132,7 @@ def neutral_rows(rows: list[dict]) -> list[dict]:
                 and "mapped from the box clock" in text:
             w["start"] = h
             w["mapped"] = True
-    out = []
+    out: list[dict] = []
     for dev in devices:
         if "DRIFT" in settings[dev]:
             h, drift, se = settings[dev]["DRIFT"]

@@ -21,7 +21,7 @@ from vts_hw.recording.trigger_log_legacy import neutral_rows
 class WaveInfo:
     """The square wave a trigger log says was sent (host UTC epoch s, volts)."""
 
-    device: str
+    device: str | None            # None: the log's row names none (a short line)
     start_host: float             # the first rising edge
     period_s: float
     duty: float

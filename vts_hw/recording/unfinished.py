@@ -44,9 +44,10 @@ def judge(manifest: dict) -> Unfinished | None:
     if not isinstance(w, dict):
         return Unfinished(INTERRUPTED, "its recording was never closed (status 'recording') and names no "
                                        "writer to ask whether it still runs: read as interrupted")
-    pid = w.get("pid") if isinstance(w.get("pid"), int) and not isinstance(w.get("pid"), bool) else None
-    host = w.get("host") if isinstance(w.get("host"), str) else None
-    token = w.get("process") if isinstance(w.get("process"), str) else ""
+    pid, host, token = w.get("pid"), w.get("host"), w.get("process")
+    pid = pid if isinstance(pid, int) and not isinstance(pid, bool) else None
+    host = host if isinstance(host, str) else None
+    token = token if isinstance(token, str) else ""
     if host != host_name():
         shown = "".join(c for c in host or "" if c.isprintable())[:80] or "another computer"
         return Unfinished(INTERRUPTED, f"its recording was never closed, and it was written on {shown}, which "
