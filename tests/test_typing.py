@@ -23,8 +23,10 @@ REPO = Path(__file__).resolve().parents[1]
 
 CLEAN = (
     "vts_hw/*.py",
+    "vts_hw/cli",
     "vts_hw/motion",
     "vts_hw/recording",
+    "vts_hw/tracking/live",
 )
 NOT_YET = {
     "vts_hw/config.py": "not this part's (its imports are being moved)",
@@ -33,6 +35,17 @@ NOT_YET = {
     # Camera.stream() is typed Iterator[Frame | StreamGap] in vts_hw/camera.py; both drivers return
     # a FrameStream, whose stop(), stats and shortfall() these use
     "vts_hw/recording/capture.py": "waits on Camera.stream() -> FrameStream (vts_hw/camera.py)",
+    "vts_hw/cli/camera.py": "waits on Camera.stream() -> FrameStream (vts_hw/camera.py)",
+    # open_camera() gives a Camera; the setup's functions take an AxisCamera (the command refuses
+    # any other kind before): the camera roles of issue 34 §2 (drivers/) are where that is said
+    "vts_hw/cli/camera_setup.py": "waits on open_camera()'s type for an Axis camera (drivers/)",
+    # store.record() takes an Analysis whose `measures` is a settable attribute; BaselineSet's is a
+    # property: the protocol (vts_hw/store/) should ask for it read-only
+    "vts_hw/cli/qa_run.py": "waits on the store's Analysis protocol (vts_hw/store/)",
+    # SequenceEnd.stopped is Outcome | None though it is set whenever done is False
+    "vts_hw/cli/commission.py": "waits on SequenceEnd's type (procedures/commission_sequence.py)",
+    # SpectMapping.transform is RigidTransform | None though analyze() sets it
+    "vts_hw/cli/calibrate.py": "waits on SpectMapping.transform's type (procedures/spect_mapping.py)",
 }
 
 
@@ -98,5 +111,7 @@ def test_the_link_tree_maps_each_folder_where_the_package_has_it(typecheck, tree
     assert (root / "vts_hw" / "procedures").resolve() == REPO / "procedures"
     assert (root / "vts_hw" / "errors.py").resolve() == REPO / "vts_hw" / "errors.py"
     assert typecheck.in_tree("drivers/axis.py", prefixes) == "vts_hw/drivers/axis.py"
+    with pytest.raises(ValueError, match="tests/test_typing.py: not in the package's folders"):
+        typecheck.in_tree("tests/test_typing.py", prefixes)
     assert typecheck.back_to_checkout("vts_hw/drivers/axis.py:3: error: x\nvts_hw/cli/qa.py:1: note: y",
                                       prefixes) == "drivers/axis.py:3: error: x\nvts_hw/cli/qa.py:1: note: y"

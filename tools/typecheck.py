@@ -12,7 +12,7 @@ PATH: folders or modules of the checkout to check (default: the whole package, e
 PACKAGE_DIR). The modules they import are read but, with --follow-imports=silent (the default
 here), their errors are not reported: a part can be clean before the whole is.
 --tree DIR keeps the link tree (and mypy's cache under it) for the next run; exit: mypy's own
-(0 clean, 1 errors, 2 bad use).
+(0 clean, 1 errors, 2 bad use); 2 also for a PATH outside the package's folders (one sentence).
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ def package_dir(setup_py: Path = REPO / "setup.py") -> dict[str, str]:
         if isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "PACKAGE_DIR"
                                                 for t in node.targets):
             return dict(ast.literal_eval(node.value))
-    raise SystemExit(f"{setup_py}: no PACKAGE_DIR assignment to read the package's folders from")
+    raise ValueError(f"{setup_py}: no PACKAGE_DIR assignment to read the package's folders from")
 
 
 def link_tree(tree: Path, repo: Path = REPO) -> dict[str, Path]:
@@ -71,7 +71,7 @@ def in_tree(path: str, prefixes: dict[str, Path], repo: Path = REPO) -> str:
     for prefix, folder in prefixes.items():
         if real == folder or folder in real.parents:
             return (Path(prefix) / real.relative_to(folder)).as_posix()
-    raise SystemExit(f"{path}: not in the package's folders ({', '.join(str(f.relative_to(repo)) for f in prefixes.values())})")
+    raise ValueError(f"{path}: not in the package's folders ({', '.join(str(f.relative_to(repo)) for f in prefixes.values())})")
 
 
 def back_to_checkout(text: str, prefixes: dict[str, Path], repo: Path = REPO) -> str:
@@ -109,11 +109,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("paths", nargs="*", help="folders or modules of the checkout (default: the whole package)")
     ap.add_argument("--tree", type=Path, help="keep the link tree and mypy's cache here for the next run")
     args, extra = ap.parse_known_args(argv)
-    if args.tree:
-        p = run(args.paths, args.tree.resolve(), extra)
-    else:
-        with tempfile.TemporaryDirectory(prefix="vts-typecheck-") as tmp:
-            p = run(args.paths, Path(tmp), extra)
+    try:
+        if args.tree:
+            p = run(args.paths, args.tree.resolve(), extra)
+        else:
+            with tempfile.TemporaryDirectory(prefix="vts-typecheck-") as tmp:
+                p = run(args.paths, Path(tmp), extra)
+    except ValueError as exc:
+        print(f"typecheck: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"typecheck: --tree {args.tree}: cannot make the tree of links there ({exc.strerror})", file=sys.stderr)
+        return 2
     sys.stdout.write(p.stdout)
     sys.stderr.write(p.stderr)
     return p.returncode

@@ -95,9 +95,9 @@ def _check_reads_a_rig(name: str) -> None:
         raise UsageError(f"vts --config: `vts {name}` reads no rig.yaml; leave --config out")
 
 
-def command_tree(group: click.Group | None = None, path: tuple[str, ...] = ()):
+def command_tree(group: click.Command | None = None, path: tuple[str, ...] = ()):
     """Every group and command of `vts` (all registered), as (the names after ``vts``, the click
-    command), groups before their commands, in name order."""
+    command), groups before their commands, in name order (``group``: a command alone gives itself)."""
     if group is None:
         _register()
         group = cli

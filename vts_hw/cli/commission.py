@@ -129,7 +129,8 @@ def commission(config_path, resume, from_step, skips, why, sign_off, out_dir, ch
         carry = resume or from_step is not None
         if carry and state.cid is None:
             say("no commissioning of this room in the store yet: a new one begins")
-        if not carry and state.cid is not None and not state.standing(store).complete:
+        before = None if carry else state.standing(store)     # None: no commissioning yet
+        if before is not None and not before.complete:
             say(f"a new commissioning begins (commissioning {state.cid} stopped unfinished: --resume continues it)")
         todo = proc.plan(from_step, state.done if carry else {})
         ledger = Ledger(store, rig, cid=state.cid if carry else None, operator=operator)

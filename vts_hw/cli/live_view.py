@@ -85,14 +85,14 @@ def live_table(est) -> Table:
         pose = "[bold red]ALERT[/] " + pose
     title = "  ".join(x for x in (f"live motion: {_status(est, True)}", pose, f"alerts {est.alerts}",
                                   _age(est)) if x)
+    old = est.status not in ("", "TRACKING")      # the last pose's rows, dimmed and said to be old
+    if old and est.bands and est.age_s is not None:
+        title += f"\nthe bands as of {est.age_s:.1f} s ago:"
     t = Table(title=title, title_justify="left",
               caption=" · ".join(escape(x) for x in (_six(est), est.note, _stats(est.stats)) if x),
               caption_justify="left")
     for col in ("band", "markers", "displacement mm", "breathing", "mm", "rate /min"):
         t.add_column(col, justify="left" if col in ("band", "breathing") else "right")
-    old = est.status not in ("", "TRACKING")      # the last pose's rows, dimmed and said to be old
-    if old and est.bands and est.age_s is not None:
-        t.title += f"\nthe bands as of {est.age_s:.1f} s ago:"
     for b in est.bands:
         t.add_row(str(b.band), f"{b.seen}/{b.markers}", _num(b.distance_mm), _breathing(b),
                   _num(b.breathing_mm), _num(b.rate_per_min) + _bounds(b), style="dim" if old else None)

@@ -57,10 +57,13 @@ def drift(since: str, out: str, rig_name: str | None, as_json: bool, config_path
     start = parse_since(since)          # BadSince: one sentence, exit 2
     from vts_hw.report.build import build_drift_report, build_drift_report_every_rig
     rig = rig_if_any(config_path)
-    if rig is None and rig_name is None:
+    if rig_name is not None:
+        name = rig_name
+    elif rig is not None:
+        name = rig.rig
+    else:
         from vts_hw.errors import UsageError
         raise UsageError("no rig config (--config, $VTS_CONFIG or ./rig.yaml), so give --rig NAME or --rig all")
-    name = rig.rig if rig_name is None else rig_name
     with open_store(rig, mode="read") as store:
         if name == ALL_RIGS:
             reps = build_drift_report_every_rig(store, out, since=start)

@@ -21,7 +21,7 @@ class _Progress:
     def __init__(self, quiet: bool):
         self.quiet = quiet
         self.tty = sys.stderr.isatty()
-        self.phase = None
+        self.phase: str | None = None
         self.shown = -1
 
     def __call__(self, phase: str, fraction: float) -> None:

@@ -174,11 +174,13 @@ class AlertRule:
             return "moving"
         return "still" if self.move_mm <= self.onset_mm and self.turn_deg <= self.onset_deg else "off pose"
 
-    def _look_back(self) -> None:
-        since = self.still_until - BACK_S - BASELINE_S
+    def _look_back(self, still_until: float, left: float) -> float:
+        """The excursion's onset (kept in ``onset``, with ``onset_known_s``)."""
+        since = still_until - BACK_S - BASELINE_S
         ts, cs, rs = zip(*(p for p in self._poses if p[0] >= since))
-        found = find_onset(ts, cs, rs, self.still_until, self.left, self.alert_mm, self.alert_deg)
-        self.onset, self.onset_known_s = found or (self.still_until, self.left - self.still_until)
+        found = find_onset(ts, cs, rs, still_until, left, self.alert_mm, self.alert_deg)
+        self.onset, self.onset_known_s = found or (still_until, left - still_until)
+        return self.onset
 
     def update(self, t: float, R: np.ndarray, T: np.ndarray, centre: np.ndarray) -> Alert | None:
         """One estimate: the body's pose ``x -> R x + T`` from the reference, at host ``t``;
@@ -208,9 +210,9 @@ class AlertRule:
         # beyond the thresholds: the onset matters once the excursion may have lasted after_s
         if t - (self.still_until - BACK_S) <= self.after_s:
             return None
-        self._look_back()              # (at each estimate until it alerts: the move seen further)
-        if t - self.onset > self.after_s:
-            a = Alert(t, self.onset, self.move_mm, self.turn_deg, self.onset_known_s)
+        onset = self._look_back(self.still_until, self.left)   # (at each estimate until it alerts:
+        if t - onset > self.after_s:                             # the move seen further)
+            a = Alert(t, onset, self.move_mm, self.turn_deg, self.onset_known_s)
             self.alerts.append(a)
             self.alerted_at = t
             return a

@@ -110,7 +110,7 @@ class BreathingTrace:
 
     def rate_per_min(self) -> float:
         f = self.figures()
-        return float(f.rate_per_min) if f.rate_per_min is not None else float("nan")
+        return float(f.rate_per_min) if f is not None and f.rate_per_min is not None else float("nan")
 
     def recent(self, n: int = 40, span_s: float = 10.0) -> list[float]:
         """``n`` values evenly over the last ``span_s`` (for a sparkline); NaN where none."""

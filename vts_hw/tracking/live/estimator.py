@@ -150,7 +150,8 @@ class LiveEstimator:
         self.observed = False          # whether the last update observed the patient
         self.learned_at: float | None = None   # host s the reference was learned
         self.restarts = 0
-        self._ref = ReferenceCollector(self.s, frame, self.axis, space)
+        # the reference's collector, until the reference is learned (then model, rule and traces)
+        self._ref: ReferenceCollector | None = ReferenceCollector(self.s, frame, self.axis, space)
         self._seen_idx = np.zeros(0, int)
         self._fit_t: float | None = None
         self._seen_x = np.zeros((0, 3))
@@ -177,17 +178,31 @@ class LiveEstimator:
             return
         if self.phase == "waiting":
             self.phase = "reference"
-        self._ref.add(t, pts)
-        if self._ref.due(t):
+        ref = self._collector()
+        ref.add(t, pts)
+        if ref.due(t):
             self._learn(t)
+
+    def _collector(self) -> ReferenceCollector:
+        """The reference's collector (there until the reference is learned)."""
+        if self._ref is None:
+            raise RuntimeError("the reference is learned already: nothing collects it")
+        return self._ref
+
+    def _tracked(self) -> tuple[PatientModel, AlertRule]:
+        """The reference's model and the alert rule, set together when it is learned."""
+        if self.model is None or self.rule is None:
+            raise RuntimeError("no reference learned yet: nothing to track against")
+        return self.model, self.rule
 
     def _restart(self, why: str) -> None:
         self.note = f"reference restarted: {why}"
         self.restarts += 1
-        self._ref.restart()
+        self._collector().restart()
 
     def _learn(self, t: float) -> None:
-        model, why = self._ref.learn(t)
+        ref = self._collector()
+        model, why = ref.learn(t)
         if model is None:
             self.note = f"reference not learned yet: {why}"
             return
@@ -212,24 +227,25 @@ class LiveEstimator:
         self.reference_note = self.note = (
             f"reference: {model.n_markers} markers in {len(model.bands)} band(s)"
             + ("" if model.breathes else " (no breathing seen: fitted rigidly)")
-            + f", {self._ref.observed():.1f} s of frames over {t - self._ref.t0:.1f} s, model residual "
+            + f", {ref.observed():.1f} s of frames over {t - (t if ref.t0 is None else ref.t0):.1f} s, model residual "
               f"{model.noise_mm:.2f} mm, still pose noise {model.pose_noise_mm:.2f} mm {model.pose_noise_deg:.3f} deg")
         self.learned_at = t
         self._ref = None
 
     def _predicted(self) -> np.ndarray:
-        m, f = self.model, self.fit
+        m, f = self._tracked()[0], self.fit
         if f is None:
             return m.reference
         return m.positions(f.R[None], f.T[None], np.array([f.s]))[0]
 
     def _band_mm(self, k: int) -> float:
         """mm of band ``k``'s breathing per unit of the signal (its markers' mean vector length)."""
-        g = self.model.bands[k]
-        return float(np.mean(np.linalg.norm(self.model.vectors[g], axis=1))) if g else 0.0
+        m = self._tracked()[0]
+        g = m.bands[k]
+        return float(np.mean(np.linalg.norm(m.vectors[g], axis=1))) if g else 0.0
 
     def _track(self, t: float, pts: np.ndarray, cameras=None, frames: tuple = ()) -> Alert | None:
-        m = self.model
+        m, r = self._tracked()
         i_m, i_p = assign(self._predicted(), pts, self.s.gate_mm)
         after_gap = self._fit_t is None or t - self._fit_t > self.s.gap_s
         fit = m.fit_instant(i_m, pts[i_p], self.fit,
@@ -245,8 +261,7 @@ class LiveEstimator:
         if m.breathes:
             for k, tr in enumerate(self.traces):
                 tr.add(t, fit.s * self._band_mm(k))
-        alert = self.rule.update(t, fit.R, fit.T, m.centre)
-        r = self.rule
+        alert = r.update(t, fit.R, fit.T, m.centre)
         cams = float("nan")
         if cameras is not None:
             c = np.broadcast_to(np.asarray(cameras, float), (len(pts),))[i_p]
@@ -279,6 +294,8 @@ class LiveEstimator:
         """The body's 6-DOF now (tx, ty, tz mm; rx, ry, rz deg), from the last pose; needs one
         (``rot``: its rotation, when the caller has it already)."""
         f = self.fit
+        if f is None:
+            raise RuntimeError("no pose yet: no 6-DOF")
         rot = Rotation.from_matrix(f.R) if rot is None else rot
         return np.concatenate([f.T, rot.as_euler("xyz", degrees=True)])
 
@@ -293,7 +310,7 @@ class LiveEstimator:
 
     def _lead(self) -> int:
         """The band whose breathing is largest: the one respiratory signal's rate is its."""
-        m = self.model
+        m = self._tracked()[0]
         return int(np.argmax([self._band_mm(k) for k in range(len(m.bands))])) if m.bands else 0
 
     def snapshot(self, stats: dict | None = None, fresh: bool = True) -> LiveEstimate:
@@ -306,23 +323,25 @@ class LiveEstimator:
                 note = (f"learning the reference: {self.time - self._ref.t0:.1f} of {self.s.reference_s:g} s"
                         + (f" ({self.note})" if self.note else ""))
             return LiveEstimate(self.phase, self.frame, self.time, note=note, stats=dict(stats or {}))
-        m, bands = self.model, []
+        (m, r), f = self._tracked(), self.fit
+        bands = []
         band = m.band_of()
         # one respiratory signal: its rate worked out once, on the band that breathes most
         fig = self.traces[self._lead()].figures(fresh) if self.traces else None
-        known = fig is not None and fig.status in ("measured", "bounded") and fig.rate_per_min is not None
-        rate = float(fig.rate_per_min) if known else float("nan")
-        rate_range = tuple(float(x) for x in fig.rate_range) if known and fig.status == "bounded" \
-            and fig.rate_range is not None else None
+        rate, rate_range = float("nan"), None
+        if fig is not None and fig.status in ("measured", "bounded") and fig.rate_per_min is not None:
+            rate = float(fig.rate_per_min)
+            if fig.status == "bounded" and fig.rate_range is not None:
+                rate_range = tuple(float(x) for x in fig.rate_range)
         for k, g in enumerate(m.bands):
             sel = band[self._seen_idx] == k
             idx = self._seen_idx[sel]
             disp = (self._seen_x[sel].mean(axis=0) - m.reference[idx].mean(axis=0)) if len(idx) else np.full(3, np.nan)
             tr = self.traces[k]
             bands.append(BandEstimate(k + 1, len(g), int(len(idx)),
-                                      tuple(float(x) for x in disp), float(tr.last()),
+                                      (float(disp[0]), float(disp[1]), float(disp[2])), float(tr.last()),
                                       rate, tuple(tr.recent()), m.breathes, rate_range))
-        r, f, c = self.rule, self.fit, m.centre
+        c = m.centre
         move = float(np.linalg.norm(f.R @ c + f.T - c))
         rot = Rotation.from_matrix(f.R)
         turn = float(np.degrees(np.linalg.norm(rot.as_rotvec())))

@@ -52,7 +52,7 @@ class ReferenceCollector:
         self.s = settings
         self.frame = frame
         self.space = space or TableSpace.from_settings()
-        self.roles = []             # what each marker of the last try was (vision.marker_roles)
+        self.roles: list = []       # what each marker of the last try was (vision.marker_roles)
         self.axis = axis
         self.instants: deque[tuple[float, np.ndarray, np.ndarray]] = deque()
         self._tracks = MarkerTracks(settings.gate_mm, float("inf"))

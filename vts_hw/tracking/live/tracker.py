@@ -25,7 +25,7 @@ import threading
 import time
 import traceback
 from collections import deque
-from typing import Callable
+from typing import Any, Callable
 
 import cv2
 import numpy as np
@@ -231,8 +231,10 @@ class LiveTracker:
     def _tell_names(self, matches, pts) -> None:
         """Each camera's named markers (the estimator's names, through the detections that made
         each 3D point); a camera with none is told an empty list. Never fails the live path."""
+        if self.on_names is None:
+            return
         try:
-            per = {n: [] for n in self.names}
+            per: dict[str, list] = {n: [] for n in self.names}
             for name, k in self.estimator.seen_names():
                 for c, d in enumerate(matches.points[k].detections):
                     if d >= 0:
@@ -277,9 +279,9 @@ class LiveTracker:
         its first) to its markers being in the estimate: p50, p95 in ms over the ``last`` sets
         (None: all kept)."""
         with self._lock:   # the worker appends to it
-            lat = list(self.latency) if last is None else \
+            kept = list(self.latency) if last is None else \
                 [self.latency[i] for i in range(max(0, len(self.latency) - last), len(self.latency))]
-        lat = np.array(lat, float).reshape(-1, 2)
+        lat = np.array(kept, float).reshape(-1, 2)
 
         def pct(col, q):
             return round(float(np.percentile(lat[:, col], q) * 1e3), 3) if len(lat) else None
@@ -321,7 +323,7 @@ class LiveTracker:
         cap = self._published_capture
         age = None if cap is None else max(0.0, now - cap)
         snap = self.published
-        health = {}
+        health: dict[str, Any] = {}
         if snap.fit_figures and age is not None:      # the pose shown, as sure as its age lets it be
             n, model_n, rms, cams = snap.fit_figures
             h = pose_health(n, model_n, rms, cams, age)

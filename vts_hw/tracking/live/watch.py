@@ -107,7 +107,7 @@ class Watch:
         self.host_of = host_of
         self.status: str | None = None
         self.reason = ""
-        self.since: float | None = None
+        self.since: float | None = None        # (None while status is: set together)
         self.episodes: list[Episode] = []
         self._spent = {TRACKING: 0.0, REFERENCE: 0.0, NOT_TRACKING: 0.0}
         self._end: float | None = None
@@ -159,7 +159,7 @@ class Watch:
             return []
         status, reason = self.classify(now, f, silent)
         out: list = []
-        if self.status is None:
+        if self.status is None or self.since is None:
             self._enter(status, reason, f.started, out)
         elif status != self.status:
             if status == NOT_TRACKING:
@@ -198,6 +198,8 @@ class Watch:
     def _short_break(self, f: Facts, out: list) -> None:
         """A break in the poses longer than late_s that ended before the watch looked (the
         ticks are a tenth of a second apart; on a busy host, more): a stretch all the same."""
+        if self.status is None or self.since is None:
+            return
         if f.resumed is None or f.broke is None or f.resumed == self._resumed or f.broke < self.since:
             return
         ep = Episode(f.broke, [f"no pose: {f.resumed - f.broke:.2f} s without one (shorter than the live view "
@@ -209,7 +211,7 @@ class Watch:
         out.append(ep)
 
     def _enter(self, status: str, reason: str, at: float, out: list) -> None:
-        if self.status is not None:
+        if self.status is not None and self.since is not None:
             self._spent[self.status] += at - self.since
             if self.status == NOT_TRACKING:
                 self.episodes[-1].end = at
@@ -222,7 +224,7 @@ class Watch:
     def finish(self, now: float) -> list:
         """The live path stopped at ``now``: the last status's time counted; a stretch NOT
         TRACKING still open ends here (and is returned)."""
-        if self.status is None or self._end is not None:
+        if self.status is None or self.since is None or self._end is not None:
             return []
         self._spent[self.status] += max(0.0, now - self.since)
         self._end = now
@@ -234,7 +236,7 @@ class Watch:
     def totals(self, now: float | None = None) -> dict:
         """Seconds per status (the current one counted to ``now``), and the NOT TRACKING share."""
         spent = dict(self._spent)
-        if self.status is not None and self._end is None and now is not None:
+        if self.status is not None and self.since is not None and self._end is None and now is not None:
             spent[self.status] += max(0.0, now - self.since)
         total = sum(spent.values())
         return {"tracking_s": spent[TRACKING], "reference_s": spent[REFERENCE],
