@@ -271,8 +271,10 @@ class SimRig:
 def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = "vapix3",
           rate: float = 1.0, on_ready=None, trigger: str = "none", spect: bool = False,
           https: bool = False, gantry: bool = False, patient=None, qatrack: bool = False,
-          ahead: float = 0.0, warmup_drift: bool = False) -> None:
+          ahead: float = 0.0, warmup_drift: bool = False, announce: bool = False) -> None:
     """Run a rig until SIGINT/SIGTERM. With ``folder``: write rig.yaml, sim.env and sim.pid.
+    ``announce``: the cameras announce themselves on loopback as Axis cameras do (mDNS and SSDP:
+    ``vts discover --interface 127.0.0.1`` finds them).
     ``qatrack``: a simulated QATrack+ beside it, named in rig.yaml (its token in sim.env).
     ``spect``: a simulated SPECT records every scan the trigger box starts, into
     ``folder/spect`` (:class:`~vts_hw.sim_devices.spect_follower.SpectFollower`).
@@ -306,7 +308,7 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
 
         tls = tuple(str(p) for p in self_signed(folder if folder is not None else mkdtemp(prefix="vts-sim-tls-")))
     rig = SimRig(n_cameras=n_cameras, seed=seed, firmware=firmware, clock=clock, trigger=trigger, tls=tls,
-                 gantry=gantry, patient=patient, qatrack=qatrack, warmup_drift=warmup_drift)
+                 gantry=gantry, patient=patient, qatrack=qatrack, warmup_drift=warmup_drift, announce=announce)
     for srv in rig.servers.values() if warmup_drift else ():   # started now: the drift counts from here
         srv.reboot()
     follower = None
@@ -355,7 +357,8 @@ def _main(argv: list[str]) -> int:
         ahead = next((float(a.split("=", 1)[1]) for a in argv[6:] if a.startswith("ahead=")), 0.0)
         serve(folder, int(n), int(seed), fw, float(rate), trigger=trigger, spect="spect" in argv[6:],
               https="https" in argv[6:], gantry="gantry" in argv[6:], patient=patient,
-              qatrack="qatrack" in argv[6:], ahead=ahead, warmup_drift="warmup" in argv[6:])
+              qatrack="qatrack" in argv[6:], ahead=ahead, warmup_drift="warmup" in argv[6:],
+              announce="announce" in argv[6:])
     except VtsError as e:
         with contextlib.suppress(OSError):     # a full disk takes the log too: the exit code still tells
             print(f"{FAILED}{e}", file=sys.stderr, flush=True)

@@ -31,7 +31,8 @@ _children: dict[int, subprocess.Popen] = {}  # started from this process: reaped
 def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmware: str = "vapix3",
                    rate: float = 1.0, timeout: float = 60.0, trigger: str = "none",
                    spect: bool = False, https: bool = False, gantry: bool = False, patient=None,
-                   qatrack: bool = False, ahead: float = 0.0, warmup_drift: bool = False) -> int:
+                   qatrack: bool = False, ahead: float = 0.0, warmup_drift: bool = False,
+                   announce: bool = False) -> int:
     """Start ``serve`` in a background process; return its pid once rig.yaml is written (the
     time allowed grows by 0.1 s per frame made ``ahead``)."""
     timeout += 0.1 * ahead * 25.0 * n_cameras
@@ -62,7 +63,8 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
            str(rate), trigger] + (["spect"] if spect else []) + (["https"] if https else []) \
         + (["gantry"] if gantry else []) + (["qatrack"] if qatrack else []) \
         + ([patient.to_arg()] if patient is not None else []) \
-        + ([f"ahead={ahead!r}"] if ahead > 0 else []) + (["warmup"] if warmup_drift else [])
+        + ([f"ahead={ahead!r}"] if ahead > 0 else []) + (["warmup"] if warmup_drift else []) \
+        + (["announce"] if announce else [])
     # the one program meant to outlive the command that starts it (`vts sim up --detach`: until
     # `vts sim down`); its own children (the firmware emulator) die with it (lifeline.child_options)
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=log, start_new_session=True)

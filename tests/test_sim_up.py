@@ -127,3 +127,28 @@ def test_stopping_a_detached_rig_loads_none_of_the_scene(tmp_path):
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout) == [False, ["vts_hw.sim_devices.rig_detached", "vts_hw.sim_devices.rig_log"]]
+
+
+def test_the_simulated_cameras_announce_themselves_and_vts_discover_finds_them(tmp_path):
+    """`vts sim up --announce` (issue 34 §4: a newcomer could not try `vts discover` on the
+    simulated rig): the detached rig's cameras announce themselves on loopback as Axis cameras
+    do, and `vts discover` -- a separate process, as a user runs it -- finds each of rig.yaml's
+    cameras and confirms it with sim.env's password."""
+    folder = tmp_path / "sim"
+    up = vts("sim", "up", "--cameras", "2", "--seed", "9", "--announce", "--detach", "--dir", str(folder))
+    assert up.returncode == 0, up.stderr
+    assert "cameras announced on loopback" in up.stdout and "--password-env VTS_SIM_CAM1_PASSWORD" in up.stdout
+    try:
+        env = {**os.environ, **load_env_file(folder / "sim.env")}
+        rig = load_rig(folder / "rig.yaml")
+        found = vts("discover", "--interface", "127.0.0.1", "--timeout", "3", "--password-env", "VTS_SIM_CAM1_PASSWORD",
+                    "--json", env=env)                       # as the line of `sim up` says
+        assert found.returncode == 0, found.stderr
+        rows = {r["port"]: r for r in json.loads(found.stdout)["cameras"] if r["host"] == "127.0.0.1"}
+        for cam in rig.cameras:
+            row = rows.get(cam.port)
+            assert row is not None and row["confirmed"] is True, (cam.name, cam.port, sorted(rows))
+            assert sorted(row["announced_by"]) == ["mdns", "ssdp"], row
+    finally:
+        down = vts("sim", "down", "--dir", str(folder))
+    assert down.returncode == 0 and "stopped" in down.stdout, down.stderr

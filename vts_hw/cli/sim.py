@@ -11,6 +11,9 @@ from vts_hw.cli.common import FiniteFloat, OutputFolder, positive
 
 
 WARMUP_LINE = "cameras just switched on: their pictures drift for minutes as they warm (--warmup-drift)"
+# the simulated cameras share one password (each camera's variable in sim.env holds it)
+ANNOUNCE_LINE = ("cameras announced on loopback (mDNS and SSDP): after `source DIR/sim.env`, "
+                 "vts discover --interface 127.0.0.1 --password-env VTS_SIM_CAM1_PASSWORD finds and confirms them")
 
 
 @cli.group()
@@ -72,13 +75,16 @@ def sim() -> None:
                    "it warms: 2-4 px along a direction of its own, settling with a time constant of 8-15 min "
                    "(seeded by --seed; decision 0072). For trying the commissioning's warm-up step (with "
                    "--rate 60 a simulated minute passes each second).")
+@click.option("--announce", is_flag=True,
+              help="The cameras announce themselves on loopback as Axis cameras do (mDNS and SSDP), so that "
+                   "`vts discover --interface 127.0.0.1` and `vts commission` find them.")
 @click.option("--detach", is_flag=True, help="Run in the background (needs --dir).")
 @click.option("--dir", "folder", type=OutputFolder("simulated rig folder"), default=None,
               help="Where to write rig.yaml and sim.env (and sim.pid, sim.log when detached).")
 def up(n_cameras: int, gantry: bool, seed: int, vapix: str, model: str | None, https: bool, rate: float,
        trigger: str, spect: bool, patient: bool, patient_seed: int | None, patient_moves: int | None,
        patient_minutes: float | None, no_breathing: bool, qatrack: bool, ahead: float, warmup_drift: bool,
-       detach: bool, folder: str | None) -> None:
+       announce: bool, detach: bool, folder: str | None) -> None:
     """Run the simulated rig (foreground: Ctrl-C stops it).
 
     With --dir DIR it writes DIR/rig.yaml pointing at the simulated cameras and DIR/sim.env
@@ -87,8 +93,6 @@ def up(n_cameras: int, gantry: bool, seed: int, vapix: str, model: str | None, h
     command before anything starts (exit 3); a detached rig that fails to start says why (the
     last line of DIR/sim.log).
     """
-    from vts_hw.sim_devices import rig as simrig  # imports the scene only when asked
-
     fw = model or ("vapix3" if vapix == "3" else "vapix2")
     person = _patient(patient, seed if patient_seed is None else patient_seed, patient_moves, patient_minutes,
                       no_breathing, patient_seed is not None)
@@ -97,9 +101,11 @@ def up(n_cameras: int, gantry: bool, seed: int, vapix: str, model: str | None, h
     if detach:
         if not folder:
             raise click.UsageError("--detach needs --dir DIR (where rig.yaml and sim.env go)")
-        pid = simrig.start_detached(folder, n_cameras, seed, fw, rate, trigger=trigger, spect=spect, https=https,
-                                    gantry=gantry, patient=person, qatrack=qatrack, ahead=ahead,
-                                    warmup_drift=warmup_drift)
+        from vts_hw.sim_devices.rig_detached import start_detached   # starts a process: none of the scene here
+
+        pid = start_detached(folder, n_cameras, seed, fw, rate, trigger=trigger, spect=spect, https=https,
+                             gantry=gantry, patient=person, qatrack=qatrack, ahead=ahead,
+                             warmup_drift=warmup_drift, announce=announce)
         _describe(Path(folder))
         if qatrack:
             click.echo(f"simulated QATrack+: {_qatrack_url(Path(folder))} (rig.yaml's qatrack:; its token in sim.env)")
@@ -107,6 +113,8 @@ def up(n_cameras: int, gantry: bool, seed: int, vapix: str, model: str | None, h
             click.echo(f"simulated patient: its truth in {Path(folder) / 'truth'}")
         if warmup_drift:
             click.echo(WARMUP_LINE)
+        if announce:
+            click.echo(ANNOUNCE_LINE)
         if ahead:
             click.echo(f"{ahead:g} s of frames made ahead of time: they start playing at the first stream "
                        f"(what rendering cost: {Path(folder) / 'sim.log'})")
@@ -131,10 +139,15 @@ def up(n_cameras: int, gantry: bool, seed: int, vapix: str, model: str | None, h
             click.echo(_patient_line(rig.patient, folder))
         if warmup_drift:
             click.echo(WARMUP_LINE)
+        if announce:
+            click.echo(ANNOUNCE_LINE)
         click.echo("simulated rig up; Ctrl-C stops it")
 
+    from vts_hw.sim_devices import rig as simrig  # imports the scene only when asked
+
     simrig.serve(folder, n_cameras, seed, fw, rate, on_ready=ready, trigger=trigger, spect=spect, https=https,
-                 gantry=gantry, patient=person, qatrack=qatrack, ahead=ahead, warmup_drift=warmup_drift)
+                 gantry=gantry, patient=person, qatrack=qatrack, ahead=ahead, warmup_drift=warmup_drift,
+                 announce=announce)
     click.echo("simulated rig stopped")
 
 
@@ -182,9 +195,9 @@ def _describe(folder: Path) -> None:
               help="The folder given to `vts sim up --detach`.")
 def down(folder: str) -> None:
     """Stop the simulated rig running in the background for DIR."""
-    from vts_hw.sim_devices import rig as simrig
+    from vts_hw.sim_devices.rig_detached import stop_detached   # stops a process: none of the scene here
 
-    if simrig.stop_detached(folder):
+    if stop_detached(folder):
         click.echo(f"simulated rig in {folder} stopped")
     else:
         click.echo(f"no simulated rig was running in {folder}")
