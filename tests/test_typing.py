@@ -39,9 +39,6 @@ NOT_YET = {
     # open_camera() gives a Camera; the setup's functions take an AxisCamera (the command refuses
     # any other kind before): the camera roles of issue 34 §2 (drivers/) are where that is said
     "vts_hw/cli/camera_setup.py": "waits on open_camera()'s type for an Axis camera (drivers/)",
-    # store.record() takes an Analysis whose `measures` is a settable attribute; BaselineSet's is a
-    # property: the protocol (vts_hw/store/) should ask for it read-only
-    "vts_hw/cli/qa_run.py": "waits on the store's Analysis protocol (vts_hw/store/)",
     # SequenceEnd.stopped is Outcome | None though it is set whenever done is False
     "vts_hw/cli/commission.py": "waits on SequenceEnd's type (procedures/commission_sequence.py)",
     # SpectMapping.transform is RigidTransform | None though analyze() sets it

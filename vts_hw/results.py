@@ -50,7 +50,9 @@ class Analysis(Protocol):
     JSON-ready dicts, and a plot."""
 
     procedure: str
-    measures: list[Measure]
+
+    @property        # read only: a procedure may work its measures out when asked (BaselineSet)
+    def measures(self) -> list[Measure]: ...
 
     @property
     def state(self) -> State: ...
