@@ -120,7 +120,7 @@ def test_kill_9_of_trigger_flash_takes_its_avrdude_and_frees_the_port(hex_file):
 # -- every program the product starts ------------------------------------------------------------
 STARTS = {"Popen", "run", "call", "check_call", "check_output"}
 #: the one program meant to outlive the command that starts it (`vts sim up --detach`)
-MEANT_TO_OUTLIVE = {("sim_devices/rig.py", "start_detached")}
+MEANT_TO_OUTLIVE = {("sim_devices/rig_detached.py", "start_detached")}
 
 
 def _starts_without_child_options():
