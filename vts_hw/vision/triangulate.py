@@ -21,7 +21,8 @@ from typing import Any, Sequence
 
 import cv2
 import numpy as np
-from scipy.optimize import least_squares, linear_sum_assignment
+# scipy.optimize (0.3 s to load) where it is used: a command that only reads a calibration file
+# (calibration_io's PinholeCamera) says a bad input before it loads (tests/test_report_door.py)
 
 __all__ = ["PinholeCamera", "as_camera", "undistort", "fundamental_matrix", "epipolar_distances",
            "Matches", "AmbiguousPoint", "match_epipolar", "Triangulation", "triangulate",
@@ -234,6 +235,8 @@ def match_epipolar(cam_a, pts_a, cam_b, pts_b, max_px: float = 2.0, ratio: float
         sub = D[np.ix_(free_a, free_b)]
         big = max_px * 1e6 + 1.0
         cost = np.where(sub <= max_px, sub, big)
+        from scipy.optimize import linear_sum_assignment
+
         rows, cols = linear_sum_assignment(cost)
         for r, c in sorted(zip(rows, cols)):
             if cost[r, c] <= max_px:
@@ -333,6 +336,8 @@ def triangulate(cams: Sequence, pts: Sequence, refine: bool = True) -> Triangula
     lin_res = reprojection_errors(cams, pts, linear)
     refined = linear.copy()
     if refine:
+        from scipy.optimize import least_squares
+
         for k in range(n):
             obs = [p[k] for p in pts]
 
