@@ -74,3 +74,13 @@ def test_a_refused_console_loads_none_of_its_pages():
     loaded = set(json.loads(r.stdout.strip().splitlines()[-1])["cli"])
     assert "vts_hw.console.serve_checks" in loaded
     assert not {"vts_hw.console.serve", "vts_hw.console.app", "vts_hw.console.qa_page"} & loaded, sorted(loaded)
+
+
+def test_the_consoles_pages_load_no_plotting_library_until_a_plot_is_drawn():
+    """The console's server and every page import without matplotlib (0.6 s of every console
+    start): the QA page's drift plot takes the report package's name, loaded when first drawn."""
+    code = ("import json, sys\nimport vts_hw.console.app, vts_hw.console.serve\n"
+            "print(json.dumps(sorted(m for m in ('matplotlib', 'vts_hw.report.plots') if m in sys.modules)))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert json.loads(r.stdout.strip().splitlines()[-1]) == []

@@ -282,3 +282,13 @@ def test_history_in_chromium(filled, tmp_path):
         finally:
             code, out, err = stop_console(p)
             assert code == 0 and "Traceback" not in err, (code, out, err)
+
+
+def test_the_qa_pages_drift_plot_is_drawn_through_the_report_packages_name(filled):
+    """The QA page's drift plot (qa_view.drift_plot_png) takes the plot through the report
+    package's name loaded when first asked for (the console starts without matplotlib): drawn, a PNG."""
+    from vts_hw.console.qa_view import drift_plot_png
+    db, _ = filled
+    png = drift_plot_png(lambda: ResultsStore(db, mode="read"), RIG, "cam1")
+    assert png is not None and png.startswith(b"\x89PNG\r\n\x1a\n") and len(png) > 10_000
+    assert drift_plot_png(lambda: ResultsStore(db, mode="read"), RIG, "no-such-camera") is None

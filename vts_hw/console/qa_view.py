@@ -16,12 +16,12 @@ import math
 import time
 
 from vts_hw import catalog
+from vts_hw import report as reports      # the package: its names load when first asked for (vts_hw.lazy)
 from vts_hw.console.history import when     # (the History page's wording of a time)
 from vts_hw.errors import VtsError
 from vts_hw.figures import figure_png
 from vts_hw.qatrack import TARGET
 from vts_hw.report.drift import collect
-from vts_hw.report.plots import camera_figure
 from vts_hw.store.baselines import load_baseline
 from vts_hw.vision.wall_baseline import NoBaseline
 
@@ -146,7 +146,8 @@ def drift_plot_png(open_store, rig: str, camera: str, now: float | None = None) 
     cam = report.cameras.get(camera)
     if cam is None or not cam.points:
         return None
-    return figure_png(camera_figure(report, cam), dpi=80)     # the report's own size: its titles fit
+    # through the report package's name loaded when first asked for: the console starts without matplotlib
+    return figure_png(reports.camera_figure(report, cam), dpi=80)     # the report's own size: its titles fit
 
 
 __all__ = ["latest_view", "view_of_run", "view_of_result", "drift_plot_png", "baselines", "push_state"]
