@@ -27,7 +27,8 @@ from vts_hw.tolerance import State
 from vts_hw.procedures.drift import SPAN_S, acquire_led_frames
 from vts_hw.procedures.marker_room import room_of_rig
 from vts_hw.vision.marker_roles import follow, roles_of_tracks
-from vts_hw.vision.wall_baseline import Baseline, NoBaseline, frame_points
+from vts_hw.vision.wall_baseline import Baseline, NoBaseline
+from vts_hw.vision.wall_markers import baseline_of_tracks, frame_points
 
 PROCEDURE = BASELINE.name
 __all__ = ["BaselineSet", "NoBaseline", "NoMarkers", "take_baseline", "take_baselines", "PROCEDURE", "SPAN_S"]
@@ -114,7 +115,7 @@ def take_baselines(cameras, *, frames: int = 5, clock: Callable[[], float] = tim
     out = []
     for n, ts in tracks.items():
         still = [r for r, rule1 in zip(placed.get(n, [None] * len(ts)), roles_of_tracks(ts)) if rule1 is None]
-        b = Baseline.of_tracks(n, ts, clock(), still)
+        b = baseline_of_tracks(n, ts, clock(), still)
         if not b.markers:
             left = f" ({len(b.others)} seen, none a wall marker: {b.others[0][2].reason})" if b.others else ""
             raise NoMarkers(f"camera {n}: no wall markers found with the LED on{left}; baseline not set")

@@ -28,7 +28,8 @@ from vts_hw.camera import Frame
 from vts_hw.figures import figure_png
 from vts_hw.vision.detect import DetectorSettings, detect_jpeg
 from vts_hw.vision.marker_roles import MOVE_FLOOR_PX, PATIENT, Role, follow, roles_of_tracks
-from vts_hw.vision.wall_baseline import GATE_PX, Baseline, BaselineMarker, match_markers as _match  # noqa: F401
+from vts_hw.vision.marker_roles import GATE_PX, match_markers as _match  # noqa: F401
+from vts_hw.vision.wall_baseline import Baseline, BaselineMarker  # noqa: F401
 from vts_hw.catalog import DRIFT
 from vts_hw.results import Measure
 from vts_hw.tolerance import DEFAULT_TOLERANCES, State, Window, worst

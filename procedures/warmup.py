@@ -28,6 +28,7 @@ import numpy as np
 
 from vts_hw.procedures.drift import DriftAnalysis
 from vts_hw.vision.wall_baseline import Baseline
+from vts_hw.vision.wall_markers import baseline_from_frames
 
 __all__ = ["RateFit", "fit_rate", "Sample", "Watch", "settle_wait_min"]
 
@@ -148,7 +149,7 @@ class Watch:
         t = float(np.mean([f.camera_time if f.camera_time is not None else f.host_time for f in snaps]))
         jpegs = [f.jpeg for f in snaps]
         if self.reference is None or not self.reference.markers:
-            self.reference = Baseline.from_frames(self.cam.name, jpegs, t)
+            self.reference = baseline_from_frames(self.cam.name, jpegs, t)
         if not self.reference.markers:
             s = Sample(t, math.nan, math.nan, 0)
         else:

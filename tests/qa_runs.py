@@ -21,12 +21,13 @@ def baselines_now(rig, store, frames: int = 2) -> int:
     """Each camera of ``rig`` (a RigConfig) seen now, LED on, ``frames`` snapshots, stored as one
     baseline run of the rig (as `vts qa drift --set-baseline` takes them); its id."""
     from vts_hw.drivers.registry import open_camera
-    from vts_hw.procedures.drift import Baseline, acquire_led_frames
+    from vts_hw.procedures.drift import acquire_led_frames
+    from vts_hw.vision.wall_markers import baseline_from_frames
     bs = []
     for c in rig.cameras:
         with open_camera(c) as cam:
             on, _ = acquire_led_frames(cam, frames)
-        bs.append(Baseline.from_frames(c.name, [s.jpeg for s in on], time.time()))
+        bs.append(baseline_from_frames(c.name, [s.jpeg for s in on], time.time()))
     return save_baselines(store, bs, rig=rig.rig)
 
 

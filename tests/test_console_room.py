@@ -23,7 +23,8 @@ from vts_hw.procedures.baseline import BaselineSet, take_baseline
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.store import ResultsStore
 from vts_hw.store.recorder import record
-from vts_hw.vision.wall_baseline import GATE_PX, Baseline
+from vts_hw.vision.marker_roles import GATE_PX
+from vts_hw.vision.wall_baseline import Baseline
 
 pytestmark = pytest.mark.timeout(180)
 

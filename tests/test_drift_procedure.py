@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from vts_hw.procedures.drift import Baseline, DriftAnalysis
+from vts_hw.vision.wall_markers import baseline_from_frames
 from vts_hw.sim_devices.render import Renderer, encode
 from vts_hw.sim_devices.scene import Scene
 from vts_hw.tolerance import State
@@ -44,7 +45,7 @@ def _truth_shift(scene, cam, t0, t1):
 def test_measured_drift_matches_the_injected_drift(world, cam):
     scene, r = world
     t0 = scene.start_epoch + 10.0
-    base = Baseline.from_frames(cam, _jpegs(r, cam, t0, 5), t0)
+    base = baseline_from_frames(cam, _jpegs(r, cam, t0, 5), t0)
     assert len(base.markers) == 5 and [m.id for m in base.markers] == [f"M{i}" for i in range(1, 6)]
     for days in (20, 45, 90):
         t1 = t0 + days * DAY
@@ -59,7 +60,7 @@ def test_measured_drift_matches_the_injected_drift(world, cam):
 def test_missing_marker_stray_blob_and_stuck_led(world):
     scene, r = world
     cam, t0 = "cam1", scene.start_epoch + 5.0
-    base = Baseline.from_frames(cam, _jpegs(r, cam, t0, 3), t0)
+    base = baseline_from_frames(cam, _jpegs(r, cam, t0, 3), t0)
     hide = base.markers[2]
 
     def edit(img):
@@ -86,7 +87,7 @@ def test_tolerances_from_config_change_the_state(world):
     from vts_hw.tolerance import Window
     scene, r = world
     cam, t0 = "cam2", scene.start_epoch + 5.0
-    base = Baseline.from_frames(cam, _jpegs(r, cam, t0, 3), t0)
+    base = baseline_from_frames(cam, _jpegs(r, cam, t0, 3), t0)
     on = _jpegs(r, cam, t0 + 60 * DAY, 3)
     off = _jpegs(r, cam, t0 + 60 * DAY + 1, 1, led=False)[0]
     loose = DriftAnalysis.from_frames(cam, base, on, off).analyze()
@@ -98,7 +99,7 @@ def test_tolerances_from_config_change_the_state(world):
 def test_results_data_and_plot(world, tmp_path):
     scene, r = world
     cam, t0 = "cam1", scene.start_epoch + 5.0
-    base = Baseline.from_frames(cam, _jpegs(r, cam, t0, 3), t0)
+    base = baseline_from_frames(cam, _jpegs(r, cam, t0, 3), t0)
     d = DriftAnalysis.from_frames(cam, base, _jpegs(r, cam, t0 + 30 * DAY, 3),
                                   _jpegs(r, cam, t0 + 30 * DAY + 1, 1, led=False)[0]).analyze()
     data = json.loads(json.dumps(d.results_data()))

@@ -184,11 +184,7 @@ def test_the_guide_check_sees_a_long_module_and_a_name_gone(tmp_path):
 
 #: own imports inside a function, outside vts_hw/cli/, that stay for now: (file, module imported) ->
 #: why. Each entry needs its reason; an entry no longer found fails (the list only shrinks).
-INSIDE_ALLOWED: dict[tuple[str, str], str] = {
-    ("vts_hw/store/qa_record.py", "vts_hw.store.baselines"):
-        "the baselines' module takes one from frames too (the detector: cv2 and scipy, 0.45 s) that "
-        "`vts qa import` never needs; to go once a baseline's record and its taking are split (decision 0095)",
-}
+INSIDE_ALLOWED: dict[tuple[str, str], str] = {}
 
 
 def _type_only(node) -> bool:

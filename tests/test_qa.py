@@ -16,6 +16,7 @@ from vts_hw.config import parse_rig
 from qa_runs import run_qa, save_baselines
 from vts_hw.store.baselines import load_baseline
 from vts_hw.vision.wall_baseline import NoBaseline
+from vts_hw.vision.wall_markers import baseline_from_frames
 from vts_hw.procedures.drift import Baseline, acquire_led_frames
 from vts_hw.drivers.registry import open_camera
 from vts_hw.store import ResultsStore
@@ -51,7 +52,7 @@ def _baseline(rig_cfg, store):
     for c in rig_cfg.cameras:
         with open_camera(c) as cam:
             on, _ = acquire_led_frames(cam, 3)
-        bs.append(Baseline.from_frames(c.name, [s.jpeg for s in on], time.time()))
+        bs.append(baseline_from_frames(c.name, [s.jpeg for s in on], time.time()))
     return save_baselines(store, bs, rig=rig_cfg.rig)
 
 

@@ -15,7 +15,7 @@ A camera's *named points* are pixel positions with a name, of one *kind*, given 
   :mod:`vts_hw.vision.phantom_locator`); a look that is not confident clears them.
 
 A detection takes the name of the nearest named point of its camera within ``gate_px``, one to
-one (Hungarian on the distance: :func:`vts_hw.vision.wall_baseline.match_markers`, the drift
+one (Hungarian on the distance: :func:`vts_hw.vision.marker_roles.match_markers`, the drift
 QA's own matching and gate), the live kinds first (band, phantom), then the wall. docs/decisions/
 0066-room-led-and-names.md says why.
 
@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from vts_hw.vision.marker_roles import PATIENT, follow, roles_of_tracks
-from vts_hw.vision.wall_baseline import GATE_PX, match_markers
+from vts_hw.vision.marker_roles import GATE_PX, match_markers
 
 KINDS = ("band", "phantom", "wall")          # the order detections are matched in
 UNIDENTIFIED = "unidentified"

@@ -13,6 +13,7 @@ import os
 import time
 from pathlib import Path
 
+from vts_hw.store.baselines import load_baselines
 from vts_hw.store.recorder import Recorder
 
 
@@ -30,10 +31,6 @@ def record_qa(store, qa, rig, *, operator: str = "", clock=time.time):
     baselines read from ``store`` (NoBaseline, exit 5, before anything is touched), the
     "running" row, the cameras measured, one transaction — or the unsaved file when the store
     cannot be written. Returns the QAResult (``run_id``, ``store_error``) and where it went."""
-    # here, not at the top: a baseline is the vision layer's record, whose module also takes one from
-    # frames (the detector, cv2 and scipy: 0.45 s) that `vts qa import` never needs (decision 0095)
-    from vts_hw.store.baselines import load_baselines
-
     qa.preflight()
     if qa.needs_baselines:
         qa.baselines = {**load_baselines(store, qa.camera_names, rig.rig), **qa.baselines}
