@@ -25,7 +25,7 @@ from vts_hw.config import load_rig
 from vts_hw.drivers.registry import open_cameras
 from vts_hw.recording.capture import Recorder
 from vts_hw.recording.promised import info
-from vts_hw.sim_devices.rig import load_env_file, start_detached, stop_detached
+from vts_hw.sim_devices.rig_detached import load_env_file, start_detached, stop_detached
 
 
 def run(n: int, seconds: float, work: Path, ahead: bool = True) -> list[dict]:

@@ -39,9 +39,9 @@ from vts_hw.sim_devices.patient_rig import TRUTH_DIR, PatientOptions, put_patien
 from vts_hw.sim_devices.patient_source import heart_source
 from vts_hw.sim_devices.qatrack_rig import TOKEN_ENV, section, start_site
 from vts_hw.sim_devices.render import Renderer
-# the rig run detached (rig_detached.py); load_env_file, start_detached and stop_detached are re-exported
+# the rig run detached (rig_detached.py); load_env_file is re-exported for the callers of before
 from vts_hw.sim_devices.rig_detached import (FOLDER, PID_FILE, already_running, is_running, load_env_file,  # noqa: F401
-                                            pid_of, start_detached, stop_detached)
+                                            pid_of)
 from vts_hw.sim_devices.rig_log import FAILED, one_line
 from vts_hw.sim_devices.scene import CameraDrift, Scene
 from vts_hw.sim_devices.scpi_server import SimFunctionGenerator

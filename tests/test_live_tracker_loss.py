@@ -176,7 +176,7 @@ def test_the_breathing_figures_are_worked_out_after_a_sets_latency_never_inside_
     assert est.phase == "tracking" and len(calls) >= 4, (est.note, calls)
     assert not any(during for during, _, _ in calls), calls          # never within a published snapshot
     assert all(n == sets for _, n, sets in calls), calls             # each after its set's latency was taken
-    fig = est.traces[est._lead()].figures(fresh=False)               # the last worked out ...
+    fig = est.traces[est.lead].figures(fresh=False)               # the last worked out ...
     assert fig is not None and len(calls) == len({sets for _, _, sets in calls})
     shown = est.snapshot(fresh=False).bands[0].rate_per_min          # ... is what a snapshot shows
     known = fig.status in ("measured", "bounded") and fig.rate_per_min is not None

@@ -147,6 +147,7 @@ class LiveEstimator:
         self.poses: list[LivePose] = []         # every pose, in time order (read by the session)
         self.time: float | None = None
         self.traces: list[BreathingTrace] = []
+        self.lead = 0                  # the band whose rate is the one respiratory signal's (set with the model)
         self.observed = False          # whether the last update observed the patient
         self.learned_at: float | None = None   # host s the reference was learned
         self.restarts = 0
@@ -223,6 +224,8 @@ class LiveEstimator:
         self.rule = AlertRule(self.motion.alert_mm, self.motion.alert_deg, self.motion.alert_after_s,
                               self.s.onset_fraction, self.s.settle_s, model.pose_noise_mm, model.pose_noise_deg)
         self.traces = [BreathingTrace(self.s.trace_window_s) for _ in model.bands]
+        # one respiratory signal: its rate worked out on the band that breathes most (the model's: fixed)
+        self.lead = int(np.argmax([self._band_mm(k) for k in range(len(model.bands))])) if model.bands else 0
         self.phase = "tracking"
         self.reference_note = self.note = (
             f"reference: {model.n_markers} markers in {len(model.bands)} band(s)"
@@ -305,13 +308,8 @@ class LiveEstimator:
         :meth:`snapshot` does itself unless told ``fresh=False``; the live tracker calls it after
         a frame set's estimate is published, so that the once-a-second figures (a few ms) never
         hold up a set's markers."""
-        if self.traces and self.model is not None and self.model.bands:
-            self.traces[self._lead()].refresh()
-
-    def _lead(self) -> int:
-        """The band whose breathing is largest: the one respiratory signal's rate is its."""
-        m = self._tracked()[0]
-        return int(np.argmax([self._band_mm(k) for k in range(len(m.bands))])) if m.bands else 0
+        if self.traces:
+            self.traces[self.lead].refresh()
 
     def snapshot(self, stats: dict | None = None, fresh: bool = True) -> LiveEstimate:
         """The estimate now. ``fresh=False``: with the breathing figures last worked out
@@ -327,7 +325,7 @@ class LiveEstimator:
         bands = []
         band = m.band_of()
         # one respiratory signal: its rate worked out once, on the band that breathes most
-        fig = self.traces[self._lead()].figures(fresh) if self.traces else None
+        fig = self.traces[self.lead].figures(fresh) if self.traces else None
         rate, rate_range = float("nan"), None
         if fig is not None and fig.status in ("measured", "bounded") and fig.rate_per_min is not None:
             rate = float(fig.rate_per_min)
