@@ -395,7 +395,7 @@ def command_of(argv: list[str]) -> str:
 
 def _stop_sims(root: Path) -> None:
     """A detached simulated rig a case started (a float not refused would start one): stopped."""
-    from vts_hw.sim_devices.rig import stop_detached
+    from vts_hw.sim_devices.rig_detached import stop_detached
     for pid_file in root.glob("cases/*/**/sim.pid"):     # (a root writes case may start one in its target)
         stop_detached(pid_file.parent)
 
