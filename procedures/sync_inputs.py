@@ -13,27 +13,26 @@ and *which* list-mode belongs to it.
   writer left a failure record for this scan beside them (docs/listmode-format.md, "Failure
   records"), why it was not recorded. Several → one sentence asking to name one. The reasons:
   docs/decisions/0025-which-listmode.md.
-* :func:`load_calibration`, :func:`load_mapping` — the stereo calibration and VTS → SPECT
-  transform, as given or from their files.
+* :func:`load_calibration`, :func:`load_mapping` — the camera calibration and VTS → SPECT
+  transform, as given or from their files: the core's one loaders
+  (vts_hw.vision.calibration_io.read_calibration, vts_hw.vision.registration.read_mapping).
 """
 
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from vts_hw.bounded import SMALL, TABLE, open_bounded, read_text
+from vts_hw.bounded import TABLE, open_bounded
 from vts_hw.errors import DataError
 from vts_hw.recording.trigger_wave import wave_from_trigger_log
 from vts_hw.spect.listmode import read_listmode_span
 from vts_hw.spect.listmode.failures import read_failure_records, utc_span
 from vts_hw.recording.folder import load_manifest, read_index
-from vts_hw.vision import calibration_io
-from vts_hw.vision.camera_set import load_cameras
-from vts_hw.vision.registration import RigidTransform
+from vts_hw.vision.calibration_io import read_calibration
+from vts_hw.vision.registration import read_mapping
 
 __all__ = ["CLOCK_SLACK_S", "SessionSpan", "check_session", "session_span", "choose_listmode",
            "load_calibration", "load_mapping"]
@@ -243,36 +242,7 @@ def _nothing_belongs(session: Path, span: SessionSpan | None, cands: list[_Candi
 
 
 # ----------------------------------------------------------------------------- calibration
-
-def load_calibration(calibration):
-    """A calibration (or cameras) as given, or read from a path: a calibration file (also a stereo
-    file written before one calibration record: vts_hw.vision.calibration_io.load_calibration),
-    or a plain list of named cameras (the simulator's true ``cameras.json``:
-    vts_hw.vision.camera_set.load_cameras)."""
-    if calibration is None or not isinstance(calibration, (str, Path)):
-        return calibration
-    try:
-        data = json.loads(read_text(calibration, SMALL, "calibration"))
-    except (OSError, ValueError, RecursionError):
-        data = None                                   # load_calibration() says what is wrong with the file
-    if isinstance(data, dict) and data.get("format") not in (calibration_io.FORMAT, calibration_io.STEREO_FORMAT) \
-            and isinstance(data.get("cameras"), list):
-        return load_cameras(calibration)
-    return calibration_io.load_calibration(calibration)
-
-
-def load_mapping(mapping):
-    """A VTS → SPECT mapping: RigidTransform/SpectMapping as given, or read from a path (a
-    RigidTransform file, or a saved SpectMapping whose ``transform`` it holds)."""
-    if mapping is None or not isinstance(mapping, (str, Path)):
-        return getattr(mapping, "transform", mapping) if mapping is not None and not hasattr(mapping, "apply") \
-            else mapping
-    path = Path(mapping)
-    try:
-        return RigidTransform.load(path)
-    except DataError:
-        try:
-            d = json.loads(read_text(path, SMALL, "mapping"))
-            return RigidTransform.from_dict(d["transform"])
-        except Exception:
-            raise DataError(f"{path}: not a VTS -> SPECT transform file") from None
+# The sync check, the motion analysis and the live scan read their calibration and mapping
+# through the core's one loaders (issue 34 §1, decision 0099); the names stay here for them.
+load_calibration = read_calibration
+load_mapping = read_mapping

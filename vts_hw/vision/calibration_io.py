@@ -8,13 +8,16 @@ write (format ``vts-hw camera calibration``). ``K1, d1, K2, d2, R, T, baseline``
 two cameras as a pair (camera 2 from camera 1), which the pair's comparison and truth use.
 :func:`load_calibration` reads every calibration file ever written: the stereo files written
 before one record (format ``vts-hw stereo calibration``) load as two cameras
-(:mod:`vts_hw.vision.calibration_stereo_file`). Decision 0056.
+(:mod:`vts_hw.vision.calibration_stereo_file`). Decision 0056. :func:`read_calibration` is the
+one loader every reader goes through (the room, tracking, the sync check, the named cameras of
+:mod:`vts_hw.vision.camera_set`): it also reads a plain list of named cameras (decision 0099).
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -263,13 +266,33 @@ class CameraCalibration:
         return load_calibration(path)
 
 
+def read_calibration(source):
+    """THE calibration loader (issue 34 §1: every reader of a calibration goes through it): a
+    calibration (or cameras) given as an object comes back as it is; a path is read once, as a
+    calibration file of this format, a stereo file written before one record, or a plain list of
+    named cameras (the simulator's true ``cameras.json``: ``{name: PinholeCamera}``). DataError
+    naming the file (and the key) for anything else."""
+    if source is None or not isinstance(source, (str, os.PathLike)):
+        return source
+    path = Path(source)
+    data = _read_json(path)
+    if isinstance(data, dict) and data.get("format") not in (FORMAT, STEREO_FORMAT) \
+            and isinstance(data.get("cameras"), list):
+        return _camera_list(path, data)
+    return _calibration(path, data)
+
+
 def load_calibration(path: str | Path) -> CameraCalibration:
     """The calibration in ``path``: a file of this format, or a stereo file written before one
     record (its cameras named cam1, cam2). DataError naming the file (and the key) for anything
-    else."""
+    else (a plain list of cameras among them: :func:`read_calibration` reads that too)."""
     path = Path(path)
+    return _calibration(path, _read_json(path))
+
+
+def _read_json(path: Path):
     try:
-        data = json.loads(read_text(path, SMALL, "calibration"))
+        return json.loads(read_text(path, SMALL, "calibration"))
     except (OSError, UnicodeDecodeError) as exc:
         raise DataError(f"{path}: cannot read the calibration file ({exc}).") from exc
     except json.JSONDecodeError as exc:
@@ -278,6 +301,27 @@ def load_calibration(path: str | Path) -> CameraCalibration:
         raise DataError(f"{path}: not a JSON calibration file (nested too deeply).") from None
     except ValueError as exc:   # a 5000-digit number: "Exceeds the limit (4300 digits) for integer ..."
         raise DataError(f"{path}: not a JSON calibration file ({str(exc).split(':')[0]}).") from None
+
+
+def _camera_list(path: Path, data: dict) -> dict[str, PinholeCamera]:
+    """A plain list of named cameras ``{"cameras": [{"name", "K", "dist", "R", "t"}], "unit"}``."""
+    rows = data["cameras"]
+    if len(rows) < 2:
+        raise DataError(f"{path}: not a calibration (neither a stereo pair nor a list of 2 or more cameras)")
+    if data.get("unit", "mm") != "mm":
+        raise DataError(f"{path}: the cameras' translations are in {data.get('unit')!r}, not mm")
+    out = {}
+    for i, row in enumerate(rows):
+        try:
+            name = str(row.get("name") or f"cam{i + 1}")
+            out[name] = PinholeCamera(row["K"], row["dist"], row["R"], row["t"], name)
+        except (AttributeError, KeyError, TypeError, ValueError) as exc:
+            raise DataError(f"{path}: camera {i + 1} is not whole ({type(exc).__name__}: "
+                            f"{str(exc)[:80]}); each needs name, K, dist, R, t") from None
+    return out
+
+
+def _calibration(path: Path, data) -> CameraCalibration:
     kind = data.get("format") if isinstance(data, dict) else None
     if kind == STEREO_FORMAT:
         f = stereo_fields(path, data, UNITS)

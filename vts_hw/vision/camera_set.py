@@ -11,21 +11,19 @@ Tracking, processing and the QA procedures need only a list of named cameras, ea
   the world is its reference camera's frame), or anything with ``cameras`` -- a dict, a list of
   named cameras, or a method returning one.
 
-:func:`load_cameras` reads a calibration file (every form :func:`~vts_hw.vision.calibration_io.load_calibration`
-reads, the stereo files written before one record among them) or any JSON with a ``cameras``
-list of ``{"name", "K", "dist", "R", "t"}`` (``unit`` mm when given).
+:func:`load_cameras` reads a calibration file through the one loader
+(:func:`~vts_hw.vision.calibration_io.read_calibration`: every calibration file ever written, or
+any JSON with a ``cameras`` list of ``{"name", "K", "dist", "R", "t"}``, ``unit`` mm when given).
 """
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any, Sequence
 
-from vts_hw.bounded import SMALL, read_text
 from vts_hw.errors import DataError
 from vts_hw.vision.triangulate import PinholeCamera, as_camera
-from vts_hw.vision.calibration_io import FORMAT, STEREO_FORMAT, load_calibration
+from vts_hw.vision.calibration_io import read_calibration
 
 __all__ = ["named_cameras", "load_cameras", "covered_names"]
 
@@ -90,26 +88,7 @@ def _named(cam: Any, name: str) -> PinholeCamera:
 
 
 def load_cameras(path) -> dict[str, PinholeCamera]:
-    """The named cameras of a calibration file (stereo or N-camera); :class:`DataError`
-    naming the file when it is neither."""
-    path = Path(path)
-    try:
-        data = json.loads(read_text(path, SMALL, "calibration"))
-    except (OSError, ValueError, RecursionError) as exc:
-        raise DataError(f"{path}: cannot read the calibration ({str(exc)[:120] or type(exc).__name__})") from None
-    if isinstance(data, dict) and (data.get("format") in (FORMAT, STEREO_FORMAT) or "K1" in data):
-        return named_cameras(load_calibration(path))   # written by vts calibrate (a stereo file: "K1")
-    rows = data.get("cameras") if isinstance(data, dict) else None
-    if not isinstance(rows, list) or len(rows) < 2:
-        raise DataError(f"{path}: not a calibration (neither a stereo pair nor a list of 2 or more cameras)")
-    if data.get("unit", "mm") != "mm":
-        raise DataError(f"{path}: the cameras' translations are in {data.get('unit')!r}, not mm")
-    out = {}
-    for i, row in enumerate(rows):
-        try:
-            name = str(row.get("name") or f"cam{i + 1}")
-            out[name] = PinholeCamera(row["K"], row["dist"], row["R"], row["t"], name)
-        except (AttributeError, KeyError, TypeError, ValueError) as exc:
-            raise DataError(f"{path}: camera {i + 1} is not whole ({type(exc).__name__}: "
-                            f"{str(exc)[:80]}); each needs name, K, dist, R, t") from None
-    return out
+    """The named cameras of a calibration file (stereo, N-camera, or a plain list of cameras),
+    read by the one loader (:func:`~vts_hw.vision.calibration_io.read_calibration`);
+    :class:`DataError` naming the file when it is none of them."""
+    return named_cameras(read_calibration(Path(path)))

@@ -7,6 +7,8 @@
 * :func:`fre` / :func:`loo_tre` — fiducial registration error and leave-one-out target
   registration error (the fit residual alone says little about accuracy: docs/design.md).
 * :func:`difference` — how far apart two transforms are (rotation in degrees, translation in mm).
+* :func:`read_mapping` — the VTS → SPECT mapping's one loader (a transform file, or a saved
+  mapping that holds one; the room and every analysis read it so).
 
 Euler convention everywhere: **extrinsic x-y-z** (rotate about the fixed x axis, then the fixed
 y, then the fixed z: ``R = Rz(γ) @ Ry(β) @ Rx(α)``), i.e. scipy ``Rotation.as_euler("xyz")``,
@@ -17,6 +19,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -29,7 +32,7 @@ from vts_hw.errors import DataError
 from vts_hw.files import write_json_atomic
 
 __all__ = ["RigidTransform", "kabsch", "kabsch_batch", "fre", "loo_tre", "LooTre", "difference",
-           "TransformDifference", "EULER_CONVENTION"]
+           "TransformDifference", "EULER_CONVENTION", "read_mapping"]
 
 EULER_CONVENTION = "extrinsic x-y-z (scipy Rotation.as_euler('xyz')), degrees"
 _FORMAT = "vts-hw rigid transform v1"
@@ -270,3 +273,21 @@ def difference(T1: RigidTransform, T2: RigidTransform) -> TransformDifference:
     dt = T2.t - T1.t
     return TransformDifference(rel.rotation_angle_deg, rel.as_euler_xyz_deg(), diff, dt,
                                float(np.linalg.norm(dt)))
+
+
+def read_mapping(mapping):
+    """THE VTS → SPECT mapping loader: a RigidTransform as given (a SpectMapping: its
+    ``transform``), or read from a path (a RigidTransform file, or a saved SpectMapping whose
+    ``transform`` it holds); DataError naming the file for anything else."""
+    if mapping is None or not isinstance(mapping, (str, os.PathLike)):
+        return getattr(mapping, "transform", mapping) if mapping is not None and not hasattr(mapping, "apply") \
+            else mapping
+    path = Path(mapping)
+    try:
+        return RigidTransform.load(path)
+    except DataError:
+        try:
+            d = json.loads(read_text(path, SMALL, "mapping"))
+            return RigidTransform.from_dict(d["transform"])
+        except Exception:
+            raise DataError(f"{path}: not a VTS -> SPECT transform file") from None
