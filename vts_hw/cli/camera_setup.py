@@ -70,7 +70,7 @@ def setup(names: tuple[str, ...], all_cameras: bool, dry_run: bool, as_json: boo
     elif written:
         click.echo(f"{written}: locked_params of {', '.join(r.camera for r in results)} written "
                    f"(the previous file is {backup})")
-    for name, error in failures:
+    for _name, error in failures:
         click.echo(f"vts: {error}", err=True)
     if failures:
         sys.exit(4)

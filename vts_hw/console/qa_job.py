@@ -90,7 +90,7 @@ class Jobs:
     def start(self, kind: str, user: str, frames: int, cameras: list[str] | None = None) -> dict:
         """Start job ``kind`` (daily / baseline) for ``user``; Busy when one is running or a
         camera is held by a recording of the console."""
-        self.rig          # none: ConfigError (400) before anything starts
+        _ = self.rig      # none: ConfigError (400) before anything starts
         names = list(cameras or self.cameras())
         hub = self.console.hub
         with self._lock:

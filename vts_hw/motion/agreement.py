@@ -47,7 +47,9 @@ class Agreement:
     alerts: list = field(default_factory=list)
 
     def to_json(self, t0: float = 0.0) -> dict:
-        f = (lambda x, n: None if x is None or not np.isfinite(x) else round(float(x), n))
+        def f(x, n):
+            return None if x is None or not np.isfinite(x) else round(float(x), n)
+
         return {"compared": self.compared, "live_poses": self.live, "unpaired": self.unpaired,
                 "no_offline_pose": self.no_offline_pose, "rms_mm": f(self.rms_mm, 4), "worst_mm": f(self.worst_mm, 4),
                 "rms_deg": f(self.rms_deg, 5), "worst_deg": f(self.worst_deg, 5),

@@ -365,7 +365,7 @@ def _breath_bounds(t, x, cross, troughs, seen, seg, bounds, span_s: float, perio
         lo_row, hi_row = rows[0], rows[-1]
         breaths = []                 # one per up-crossing: [trough before it, up, down after it]
         prev_row = lo_row
-        for i, (s, tt, j) in enumerate(cs):
+        for s, tt, j in cs:
             if s > 0:
                 tr = lows[(lows > prev_row) & (lows < j)]
                 tr_t = None
@@ -414,7 +414,8 @@ def _breath_bounds(t, x, cross, troughs, seen, seg, bounds, span_s: float, perio
         weights: list[float] = []
         own: list = []
 
-        def obs(coef, value, sigma, tag):   # one landmark: sum(coef[k] * B_k) = value, to sigma
+        def obs(coef, value, sigma, tag,    # one landmark: sum(coef[k] * B_k) = value, to sigma
+                n=n, coefs=coefs, values=values, weights=weights, own=own):
             coefs.append([coef.get(k, 0.0) for k in range(n)])
             values.append(value)
             weights.append(1.0 / sigma)

@@ -200,7 +200,10 @@ def marker_series(tracks, *, join_mm: float = JOIN_MM, use_spect: bool = True) -
     for m in uniq:
         sel = np.flatnonzero(mk == m)
         o = sel[np.argsort(pt[sel], kind="stable")]
-        first.append(pt[o[0]]); last.append(pt[o[-1]]); p0.append(xyz[o[0]]); p1.append(xyz[o[-1]])
+        first.append(pt[o[0]])
+        last.append(pt[o[-1]])
+        p0.append(xyz[o[0]])
+        p1.append(xyz[o[-1]])
     chains = join_pieces(np.array(first), np.array(last), np.array(p0), np.array(p1), uniq, join_mm)
     col = {i: c for c, ch in enumerate(chains) for i in ch}
     F, M = len(t_frames), len(chains)

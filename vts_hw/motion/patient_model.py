@@ -253,8 +253,12 @@ class PatientModel:
 
     # -- the session's copy ----------------------------------------------------------------------
     def to_dict(self) -> dict:
-        r = (lambda a: [[None if not np.isfinite(x) else round(float(x), 6) for x in row] for row in a])
-        f = (lambda x: None if x is None or not np.isfinite(x) else round(float(x), 6))
+        def r(a):
+            return [[None if not np.isfinite(x) else round(float(x), 6) for x in row] for row in a]
+
+        def f(x):
+            return None if x is None or not np.isfinite(x) else round(float(x), 6)
+
         return {"format": MODEL_FORMAT, "frame": self.frame, "clock": self.clock,
                 "reference_mm": r(self.reference), "breathing_vectors": r(self.vectors),
                 "bands": [list(map(int, g)) for g in self.bands], "band_names": list(self.band_names),
@@ -280,7 +284,9 @@ class PatientModel:
             bands = [[int(i) for i in g] for g in d["bands"]]
             if any(i < 0 or i >= len(ref) for g in bands for i in g):
                 raise ValueError("a band names a marker the model does not have")
-            num = (lambda x: float("nan") if x is None else float(x))
+            def num(x):
+                return float("nan") if x is None else float(x)
+
             period = tuple(num(x) for x in d["period"])
             if len(period) != 2:
                 raise ValueError("period must be [start, end]")
@@ -383,7 +389,9 @@ def learn_model(t, P, seen=None, *, frame: str = "spect", bands=None, band_names
     c = model.centre
     moves = np.linalg.norm(np.einsum("fij,j->fi", R[ok], c) + T[ok] - c, axis=1)
     turns = np.degrees(Rotation.from_matrix(R[ok]).magnitude()) if ok.any() else np.zeros(0)
-    q = (lambda x: float(np.sqrt(np.mean(np.square(x)))) if len(x) else float("nan"))
+    def q(x):
+        return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float("nan")
+
     model.noise_mm, model.pose_noise_mm, model.pose_noise_deg = q(rms[ok]), q(moves), q(turns)
     return model
 

@@ -61,7 +61,8 @@ class AxisProduct:
 
     @property
     def firmware_str(self) -> str:
-        return "%d.%d.%d" % self.firmware
+        major, minor, patch = self.firmware
+        return f"{major:d}.{minor:d}.{patch:d}"
 
     @property
     def mac_str(self) -> str:

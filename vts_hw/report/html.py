@@ -61,7 +61,7 @@ img.plot { width: 100%%; height: auto; display: block; border: 1px solid var(--l
 details { margin-top: 10px; } summary { cursor: pointer; color: var(--muted); }
 footer { color: var(--muted); font-size: 12px; margin-top: 24px; }
 @media print { body { background: #fff; } section.card { break-inside: avoid; border: none; } details { display: none; } }
-""" % STATE_COLOURS
+""" % STATE_COLOURS   # noqa: UP031 (CSS: str.format would need each of its braces doubled)
 
 SCRIPT = """
 window.addEventListener('load', function () {

@@ -219,8 +219,10 @@ def _assemble(folder, names, frames, times, fits, sets, results, s, mapping, hos
               period, cams, warnings) -> Tracks:
     n_sets, C = sets.shape[0], len(names)
     results.sort(key=lambda r: r[0])
-    cat = (lambda i, shape: np.concatenate([r[i] for r in results])
-           if results else np.zeros(shape))
+
+    def cat(i, shape):
+        return np.concatenate([r[i] for r in results]) if results else np.zeros(shape)
+
     pair = cat(1, (0,)).astype(int)
     X = cat(2, (0, 3))
     rms = cat(3, (0,))

@@ -57,13 +57,13 @@ def stereo_covariance(obj, left, right, cam1, cam2, R, T, rvecs, tvecs) -> dict[
         for i in range(n_v):
             v0 = np.r_[np.ravel(fit[3][i]), np.ravel(fit[4][i])]
 
-            def resid(th, v, i=i):
+            def resid(th, v, i=i, c=c, ci=ci):
                 K, d = c.matrices(th)
                 return cv2.projectPoints(obj[i], v[:3], v[3:], K, d)[0].ravel() - uv[ci][i]
 
             r0 = resid(c.params, v0)
-            blocks.append((r0, _jacobian(lambda th: resid(th, v0), c.params, c.steps()),
-                           _jacobian(lambda v: resid(c.params, v), v0, _pose_steps(v0))))
+            blocks.append((r0, _jacobian(lambda th, v0=v0: resid(th, v0), c.params, c.steps()),
+                           _jacobian(lambda v, c=c: resid(c.params, v), v0, _pose_steps(v0))))
         infl, rss = _influence(blocks)
         dof = sum(r.size for r, _, _ in blocks) - c.n - 6 * n_v
         if dof <= 0:
@@ -90,9 +90,9 @@ def stereo_covariance(obj, left, right, cam1, cam2, R, T, rvecs, tvecs) -> dict[
 
         st0 = np.r_[np.zeros(3), T]
         r0 = resid(th0, st0, v0)
-        blocks.append((r0, _jacobian(lambda st: resid(th0, st, v0), st0, _stereo_steps(T)),
-                       _jacobian(lambda v: resid(th0, st0, v), v0, _pose_steps(v0))))
-        J_th[offs[i]:offs[i + 1]] = _jacobian(lambda th: resid(th, st0, v0), th0,
+        blocks.append((r0, _jacobian(lambda st, v0=v0: resid(th0, st, v0), st0, _stereo_steps(T)),
+                       _jacobian(lambda v, st0=st0: resid(th0, st0, v), v0, _pose_steps(v0))))
+        J_th[offs[i]:offs[i + 1]] = _jacobian(lambda th, st0=st0, v0=v0: resid(th, st0, v0), th0,
                                               np.r_[cams[0].steps(), cams[1].steps()])
     E = np.hstack(_influence(blocks)[0])
     M = E - (E @ J_th) @ A
