@@ -31,6 +31,7 @@ from vts_hw.catalog import COMMISSION_STEP, COMMISSION_STEPS, COMMISSIONING
 from vts_hw.results import Measure, overall_state
 from vts_hw.store.errors import StoreError
 from vts_hw.store.recorder import Recorder, record
+from vts_hw.store.records import Measurement
 from vts_hw.tolerance import State
 
 KEYS = ("commission_id", "step_passed", "step_run", "step_skipped")
@@ -168,7 +169,7 @@ def load_state(store, rig: str) -> CommissionState:
     attempt of each of its steps (passed, stopped, skipped or aborted) and its newest report."""
     names = (COMMISSION_STEP.name, COMMISSIONING.name)
     runs = {r.id: r for r in store.runs(procedure=names) if (r.rig or "") == rig and r.status != "running"}
-    keyed: dict[int, dict[str, object]] = defaultdict(dict)
+    keyed: dict[int, dict[str, Measurement]] = defaultdict(dict)
     for m in store.measurements(procedure=names, metric=KEYS):
         if m.run_id in runs:
             keyed[m.run_id][m.metric] = m
@@ -176,8 +177,9 @@ def load_state(store, rig: str) -> CommissionState:
     entries: list[tuple[int, int, str]] = []
     for rid in sorted(runs):
         k, run = keyed[rid], runs[rid]
-        if "commission_id" in k:
-            entries.append((rid, int(k["commission_id"].value), k["commission_id"].subject))
+        cid = k["commission_id"].value if "commission_id" in k else None    # always a number as the ledger writes it
+        if cid is not None:
+            entries.append((rid, int(cid), k["commission_id"].subject))
         elif run.procedure == COMMISSION_STEP.name and run.status == "aborted":
             m = _MARK.match(run.notes or "")
             if m:
@@ -225,14 +227,20 @@ class Ledger:
         self._open[step] = rec
         return rec.run_id
 
+    def _known_cid(self) -> int:
+        """The commissioning's id: its first step's run, set by begin()."""
+        if self.cid is None:
+            raise RuntimeError(f"no step of this commissioning of {self.rig.rig} has begun: it has no id yet")
+        return self.cid
+
     def _write(self, step: str, measures: list, notes: str, artifacts=(), started=None) -> int:
         rec = self._open.pop(step, None)
         if rec is None:
             self.begin(step, started)
             rec = self._open.pop(step)
-        ms = [Measure(step, "commission_id", float(self.cid), "", State.OK), *measures]
+        ms = [Measure(step, "commission_id", float(self._known_cid()), "", State.OK), *measures]
         stored = rec.finish(_Entry(COMMISSION_STEP.name, ms), artifacts=[str(a) for a in artifacts], notes=notes)
-        if not stored.ok:
+        if stored.run_id is None:
             raise StoreError(f"the commissioning step {step} was not stored ({stored.error}); "
                              f"its figures are in {stored.unsaved}")
         return stored.run_id
@@ -250,7 +258,7 @@ class Ledger:
             return self._write(step, ms, notes, outcome.artifacts, outcome.started)
         stored = record(self.store, res, notes=outcome.notes, artifacts=[str(a) for a in outcome.artifacts],
                         **self._kw(outcome.started))
-        if not stored.ok:
+        if stored.run_id is None:
             raise StoreError(f"the {res.procedure} run of commissioning step {step} was not stored "
                              f"({stored.error}); its figures are in {stored.unsaved}")
         ms = [Measure(step, "step_passed", 1.0 if passed else 0.0, "", flag),
@@ -277,7 +285,7 @@ class Ledger:
     def finish_report(self, state: State, steps: dict[str, StepState], *, signed_by: str, artifacts, notes: str
                       ) -> int | None:
         """The commissioning's report as a run of ``commissioning`` (operator: who signed it off)."""
-        ms = [Measure("commissioning", "commission_id", float(self.cid), "", State.OK),
+        ms = [Measure("commissioning", "commission_id", float(self._known_cid()), "", State.OK),
               Measure("commissioning", "signed_off", 1.0 if signed_by else 0.0, "", State.OK)]
         for name, s in steps.items():
             st = State.TOLERANCE if s.skipped else State(s.status) if s.status in State.__members__ else State.ACTION
@@ -286,7 +294,7 @@ class Ledger:
         kw = self._kw()
         kw["operator"] = signed_by
         stored = record(self.store, entry, notes=notes, artifacts=[str(a) for a in artifacts], **kw)
-        if not stored.ok:
+        if stored.run_id is None:
             raise StoreError(f"the commissioning report was written but not stored ({stored.error}); "
                              f"its record is in {stored.unsaved}")
         return stored.run_id

@@ -20,7 +20,7 @@ import math
 import os
 import time
 from contextlib import AbstractContextManager
-from typing import Protocol
+from typing import Literal, Protocol
 
 from sqlalchemy import insert, select, update
 
@@ -164,7 +164,7 @@ class RunHandle:
     def __enter__(self) -> "RunHandle":
         return self
 
-    def __exit__(self, exc_type, exc, tb) -> bool:
+    def __exit__(self, exc_type, exc, tb) -> Literal[False]:
         if self._done:
             return False
         if exc_type is None:

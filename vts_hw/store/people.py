@@ -11,8 +11,10 @@ from __future__ import annotations
 
 import json
 import time
+from contextlib import AbstractContextManager
+from typing import TYPE_CHECKING
 
-from sqlalchemy import Select, func, insert, select, update
+from sqlalchemy import Connection, Select, func, insert, select, update
 
 from vts_hw.store.records import ROLES, LoggedAction, User
 from vts_hw.store.schema import actions, users
@@ -55,6 +57,11 @@ def count_actions(start: float | None = None, end: float | None = None, user: st
 
 class PeopleMixin:
     """Users and actions; needs the store's ``_read``/``_write`` and ``url``."""
+
+    if TYPE_CHECKING:    # ResultsStore's own (store.py), said here for the type checker
+        def _read(self) -> AbstractContextManager[Connection]: ...
+
+        def _write(self, windows: bool = False) -> AbstractContextManager[Connection]: ...
 
     # -- users -------------------------------------------------------------------------------------
     def users(self, active_only: bool = False) -> list[User]:

@@ -28,6 +28,7 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 from vts_hw import __version__
 from vts_hw.results import Analysis, Measure
@@ -36,6 +37,7 @@ from vts_hw.errors import DataError
 from vts_hw.files import check_target
 from vts_hw.store.unsaved import load_unsaved, save_unsaved
 from vts_hw.tolerance import State, Window, merged_tolerances
+from vts_hw.store.handle import RunHandle
 from vts_hw.store.store import ResultsStore
 
 log = logging.getLogger(__name__)
@@ -79,9 +81,9 @@ class Recorder:
         self.clock = clock
         self.started = clock() if started is None else float(started)
         self.error: str | None = None      # why the store could not be written (then: unsaved)
-        self._store = None
+        self._store: ResultsStore | None = None
         self._own_store = False
-        self._handle = None
+        self._handle: RunHandle | None = None
         self._done = False
 
     @property
@@ -161,7 +163,7 @@ class Recorder:
     def __enter__(self) -> "Recorder":
         return self.begin()
 
-    def __exit__(self, exc_type, exc, tb) -> bool:
+    def __exit__(self, exc_type, exc, tb) -> Literal[False]:
         if not self._done:
             if exc_type is None:
                 self.abort("the procedure ended without a result to store")

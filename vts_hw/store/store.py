@@ -19,7 +19,7 @@ import uuid
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-from sqlalchemy import Connection, insert, select, text, update
+from sqlalchemy import Connection, CursorResult, insert, select, text, update
 from sqlalchemy.exc import ArgumentError, DBAPIError, NoSuchModuleError, SQLAlchemyError
 
 from vts_hw import __version__
@@ -56,6 +56,14 @@ def _reason(exc: BaseException) -> str:
     if isinstance(exc, OSError):
         return exc.strerror or str(exc)
     return str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+
+
+def _new_id(result: CursorResult) -> int:
+    """The id of the one row an insert() just added (SQLAlchemy gives None when there is none)."""
+    key = result.inserted_primary_key
+    if key is None:
+        raise StoreError("the results store gave no id for the row just added")
+    return int(key[0])
 
 
 def _window(row) -> Window:
@@ -211,7 +219,7 @@ class ResultsStore(PeopleMixin):
             metric=metric, action_low=window.action_low, tolerance_low=window.tolerance_low,
             tolerance_high=window.tolerance_high, action_high=window.action_high, unit=window.unit,
             effective_from=effective_from, recorded=time.time(), note=note))
-        return new.inserted_primary_key[0], True
+        return _new_id(new), True
 
     def set_tolerance(self, metric: str, window: Window, effective_from: float | None = None,
                       note: str = "") -> int:
@@ -268,7 +276,7 @@ class ResultsStore(PeopleMixin):
                 software_version=software_version, config_digest=config_digest, operator=operator,
                 notes=notes, host=host_name(), pid=os.getpid(), process_start=process_start(),
                 uid=uuid.uuid4().hex))
-            run_id = new.inserted_primary_key[0]
+            run_id = _new_id(new)
         return RunHandle(self, run_id, when)
 
     def _end_run(self, run_id: int, status: str, note: str, finished: float | None) -> bool:

@@ -45,7 +45,7 @@ def save_unsaved(url: str | None, run: dict) -> tuple[Path | None, list[str]]:
     stamp = _dt.datetime.fromtimestamp(run.get("started") or 0, _dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
     name = f"{run.get('procedure', 'run')}-{stamp}-{socket.gethostname()}-{os.getpid()}.json"
     doc = {"format": FORMAT, **run}
-    tried = []
+    tried: list[str] = []
     for folder in candidate_folders(url):
         made = not folder.exists()
         try:
