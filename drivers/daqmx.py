@@ -35,7 +35,6 @@ from typing import Any, Callable, Iterator, Optional, Protocol, Sequence, runtim
 from pydantic import Field
 
 from vts_hw.drivers.trigger import (
-    HOST_WRITE,
     BackendSettings,
     TriggerBackend,
     CHANNELS,
@@ -50,6 +49,7 @@ from vts_hw.drivers.trigger import (
     TriggerLog,
     TriggerStatus,
 )
+from vts_hw.recording.trigger_log import HOST_WRITE
 
 INSTALL_HINT = "pip install vts-hw[daqmx]"
 

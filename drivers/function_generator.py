@@ -41,7 +41,6 @@ from pydantic import Field
 
 from vts_hw.drivers.settings import Setting, in_range
 from vts_hw.drivers.trigger import (
-    HOST_WRITE,
     BackendSettings,
     TriggerBackend,
     CLOCK,
@@ -58,6 +57,7 @@ from vts_hw.drivers.trigger import (
     TriggerStatus,
 )
 from vts_hw.drivers.visa import is_visa_error, open_message_resource, query_within, sim_yaml_path, visa_failure
+from vts_hw.recording.trigger_log import HOST_WRITE
 
 __all__ = ["FunctionGenerator", "OutOfRange", "SIM_RESOURCE", "sim_yaml_path", "scpi_number"]
 

@@ -33,8 +33,8 @@ from pydantic import BaseModel, ConfigDict
 from vts_hw.bounded import ANY_SIZE, TABLE, open_bounded, open_checked
 from vts_hw.errors import DeviceError, UsageError
 from vts_hw.files import WriteFailed, check_target, open_writable, os_reason
-from vts_hw.recording.trigger_log import (CLOCK as CLOCK_ROW, DEVICE_CLOCK_MAPPED, HOST_WRITE, LOG_HEADER,
-                                          WAVE_START, WAVE_STOP, clock_text, wave_start_text, wave_stop_text)
+from vts_hw.recording.trigger_log import (CLOCK as CLOCK_ROW, LOG_HEADER, WAVE_START, WAVE_STOP, clock_text,
+                                          wave_start_text, wave_stop_text)
 
 # what a backend can do
 FREQUENCY = "frequency"      # set the square wave's frequency

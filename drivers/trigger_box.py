@@ -30,9 +30,9 @@ import serial
 from pydantic import Field, field_validator
 
 from vts_hw.drivers.settings import in_range, whole_in_range
-from vts_hw.drivers.trigger import (CLOCK, DEVICE_CLOCK_MAPPED, DUTY, EDGES, FIRE, FREQUENCY, HOST_WRITE,
-                                    LEVELS, PULSE, WATCHDOG, BackendSettings, ClockMapping, OutOfRange,
-                                    TriggerBackend, TriggerBase, TriggerError, TriggerLog, TriggerStatus)
+from vts_hw.drivers.trigger import (CLOCK, DUTY, EDGES, FIRE, FREQUENCY, LEVELS, PULSE, WATCHDOG, BackendSettings,
+                                    ClockMapping, OutOfRange, TriggerBackend, TriggerBase, TriggerError, TriggerLog,
+                                    TriggerStatus)
 # re-exported: the box's clock mapping and wire protocol, as they were importable from here
 from vts_hw.drivers.trigger_box_clock import (MAX_ROUND_TRIPS_KEPT, BoxClock, RoundTrip,  # noqa: F401
                                               best_round_trips, clock_jumped, fit_clock, wire_skew, wire_time)
@@ -43,6 +43,7 @@ from vts_hw.drivers.trigger_box_protocol import (BAUDRATE, DEVICE, DUTY_ABS_TOLE
                                                  BoxIdentity, BoxRefused, BoxSetting, _pulse_ms, number_text,
                                                  parse_refusal, watchdog_seconds)
 from vts_hw.drivers.trigger_box_watchdog import BoxWatchdog
+from vts_hw.recording.trigger_log import DEVICE_CLOCK_MAPPED, HOST_WRITE
 
 #: the levels of the box's TTL outputs, as the neutral log rows state them
 HIGH_V, LOW_V = 5.0, 0.0

@@ -23,9 +23,10 @@ from __future__ import annotations
 import threading
 from typing import Callable
 
-from vts_hw.drivers.trigger import DEVICE_CLOCK_MAPPED, TriggerError, TriggerStatus
+from vts_hw.drivers.trigger import TriggerError, TriggerStatus
 from vts_hw.drivers.trigger_box_protocol import (UNDEFINED_HEADER, BoxGone, BoxRefused, WatchdogState,
                                                  number_text, parse_watchdog, watchdog_seconds)
+from vts_hw.recording.trigger_log import DEVICE_CLOCK_MAPPED
 
 #: what a box whose firmware has no watchdog (before 1.1.0) is said to have
 NO_WATCHDOG = "no host watchdog: its firmware predates it (1.1.0); vts trigger flash updates it"

@@ -18,12 +18,12 @@ from pydantic import Field
 
 from vts_hw.config import load_rig
 from vts_hw.drivers import registry
-from vts_hw.drivers.trigger import (DUTY, FIRE, FREQUENCY, HOST_WRITE, LEVELS, BackendSettings, TriggerBackend,
-                                    TriggerBase, TriggerStatus, read_log)
+from vts_hw.drivers.trigger import (DUTY, FIRE, FREQUENCY, LEVELS, BackendSettings, TriggerBackend, TriggerBase,
+                                    TriggerStatus, read_log)
 from vts_hw.errors import ConfigError, DataError
 from vts_hw.procedures.scan import ScanSession
 from vts_hw.procedures.scan_trigger import ScanError, ScanTrigger
-from vts_hw.recording.trigger_log import parse_fields, wave_start_text, wave_stop_text
+from vts_hw.recording.trigger_log import HOST_WRITE, parse_fields, wave_start_text, wave_stop_text
 from vts_hw.recording.trigger_wave import square_wave_edges, wave_from_trigger_log
 
 HEADER = "host_time,device_time_us,device,kind,text\n"
