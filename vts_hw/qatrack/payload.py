@@ -138,13 +138,13 @@ def build_payload(store, qcfg, run, attach: bool = True, workdir: str | Path | N
         "comment": comment_of(run),
         "tests": tests,
     }
-    files = attachments(store, qcfg, run, workdir) if attach else planned_attachments(store, qcfg, run)
     if attach:
+        files = attachments(store, qcfg, run, workdir)
         data["attachments"] = [{"filename": name, "value": base64.b64encode(blob).decode("ascii"),
                                 "encoding": "base64"} for name, blob in files]
         names = [name for name, _ in files]
     else:
-        names = list(files)
+        names = list(planned_attachments(store, qcfg, run))
     return Payload(run.id, run_key(run), test_list, data, values, names)
 
 

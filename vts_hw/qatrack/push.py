@@ -177,7 +177,7 @@ def landed_wrong(qcfg, run, made: dict) -> str:
     second); else one sentence (qatrack.time_zone is not the site's zone, or its clock rules differ)."""
     for what, key, t in zip(("start", "end"), ("work_started", "work_completed"), work_instants(run)):
         try:
-            shown = instant_of(made.get(key))
+            shown = instant_of(str(made.get(key)))     # "None" when missing: a ValueError
         except (TypeError, ValueError):
             return f"QATrack+ answered the new instance without its {key} as a time with an offset"
         if abs(shown - t) >= 1.0:
@@ -202,8 +202,7 @@ def push_runs(store, qcfg, runs: list, client: QATrackClient | None = None,
     when the site's zone is not ``qatrack.time_zone``: the rest stay "pending" ("not tried")."""
     items = {r.id: store.outbox_add(r.id, TARGET, run_key(r)) for r in runs}
     own = client is None
-    if own:
-        client = QATrackClient(qcfg.url, qcfg.credentials(), timeout=qcfg.timeout_s)
+    site = QATrackClient(qcfg.url, qcfg.credentials(), timeout=qcfg.timeout_s) if client is None else client
     out: list[Outcome] = []
     zone = {"checked": False}
 
@@ -212,7 +211,7 @@ def push_runs(store, qcfg, runs: list, client: QATrackClient | None = None,
         if zone["checked"]:
             return
         try:
-            wrong = check_zone(qcfg, client)
+            wrong = check_zone(qcfg, site)
         except Unreachable as exc:
             if exc.down:
                 raise
@@ -224,7 +223,7 @@ def push_runs(store, qcfg, runs: list, client: QATrackClient | None = None,
     try:
         for n, run in enumerate(runs, 1):
             try:
-                o = push_one(store, qcfg, client, run, items[run.id], before_post)
+                o = push_one(store, qcfg, site, run, items[run.id], before_post)
                 if o.how == "posted at a wrong time":
                     raise ZoneMismatch(o.message, o)
             except (Unreachable, AuthRefused, ZoneMismatch) as exc:
@@ -250,7 +249,7 @@ def push_runs(store, qcfg, runs: list, client: QATrackClient | None = None,
                 progress(n, len(runs), o)
     finally:
         if own:
-            client.close()
+            site.close()
     return out
 
 

@@ -154,7 +154,7 @@ def write_dicom_nm(volume: Volume, path, patient_to_spect=PATIENT_TO_SPECT) -> P
     from pydicom.dataset import Dataset, FileMetaDataset
     from pydicom.sequence import Sequence
     from pydicom.tag import Tag
-    from pydicom.uid import ExplicitVRLittleEndian, generate_uid
+    from pydicom.uid import UID, ExplicitVRLittleEndian, generate_uid
 
     path = Path(path)
     m = np.asarray(patient_to_spect, dtype=float)
@@ -187,7 +187,7 @@ def write_dicom_nm(volume: Volume, path, patient_to_spect=PATIENT_TO_SPECT) -> P
 
     sop_uid = generate_uid()
     meta = FileMetaDataset()
-    meta.MediaStorageSOPClassUID = NM_IMAGE_STORAGE
+    meta.MediaStorageSOPClassUID = UID(NM_IMAGE_STORAGE)
     meta.MediaStorageSOPInstanceUID = sop_uid
     meta.TransferSyntaxUID = ExplicitVRLittleEndian
     ds = Dataset()

@@ -36,7 +36,7 @@ import numpy as np
 from vts_hw.bounded import LISTMODE, SMALL, read_bytes, read_text
 from vts_hw.errors import DataError
 from vts_hw.files import write_atomic
-from vts_hw.spect.volume import Volume
+from vts_hw.spect.volume import Volume, triple
 
 # (number format, bytes per pixel) -> numpy kind+size; byte order added later
 _FORMATS = {
@@ -142,7 +142,7 @@ def read_interfile(path) -> Volume:
            for i in (1, 2, 3)]
     if not all(math.isfinite(v) for v in xyz):
         raise DataError(f"{path}: 'first pixel offset (mm)' is {xyz}, not three finite numbers")
-    vol = Volume(data.astype(dtype.newbyteorder("=")), (size[2], size[1], size[0]), xyz,
+    vol = Volume(data.astype(dtype.newbyteorder("=")), (size[2], size[1], size[0]), triple(xyz),
                  _DIRECTION, path)
     return vol.canonical()
 

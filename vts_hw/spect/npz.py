@@ -21,7 +21,7 @@ from numpy.lib import format as fmt
 
 from vts_hw.errors import DataError
 from vts_hw.files import write_atomic
-from vts_hw.spect.volume import CANONICAL_DIRECTION, Volume
+from vts_hw.spect.volume import CANONICAL_DIRECTION, Volume, triple
 
 
 KEYS = ("data", "voxel_size", "origin", "direction")
@@ -75,7 +75,7 @@ def read_npz(path) -> Volume:
             raise DataError(f"{path}: '{key}' must be 3 numbers, got {arrays[key]!r}")
     direction = arrays.get("direction", CANONICAL_DIRECTION)
     try:
-        return Volume(data, arrays["voxel_size"], arrays["origin"], direction, path).canonical()
+        return Volume(data, triple(arrays["voxel_size"]), triple(arrays["origin"]), direction, path).canonical()
     except ValueError as e:
         raise DataError(f"{path}: {e}") from None
 

@@ -105,14 +105,14 @@ def find_spheres(volume: Volume, n_expected: int = 7, settings: SphereSettings |
     peak_vals = [float(smooth[p]) for p in peaks_at]
     n_blobs = len(keep_labels)
     chosen = np.argsort(peak_vals)[::-1][:n_expected]
-    cents, sums, peaks = [], [], []
+    cent_list, sum_list, peak_list = [], [], []
     for k in chosen:
         c, total = _centroid(data, vox, np.asarray(peaks_at[k]), s)
-        cents.append(volume.index_to_mm(c))
-        sums.append(total)
-        peaks.append(peak_vals[k])
-    cents = np.asarray(cents, dtype=float).reshape(-1, 3)
-    sums, peaks = np.asarray(sums), np.asarray(peaks)
+        cent_list.append(volume.index_to_mm(c))
+        sum_list.append(total)
+        peak_list.append(peak_vals[k])
+    cents = np.asarray(cent_list, dtype=float).reshape(-1, 3)
+    sums, peaks = np.asarray(sum_list), np.asarray(peak_list)
 
     problem = None
     where = volume.source or "volume"

@@ -29,6 +29,13 @@ import numpy as np
 CANONICAL_DIRECTION = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
 
 
+def triple(values) -> tuple[float, float, float]:
+    """Three numbers (a list, a tuple, an array of 3) as the tuple a Volume keeps; ValueError
+    for another count."""
+    x, y, z = (float(v) for v in np.asarray(values, dtype=float).reshape(3))
+    return x, y, z
+
+
 @dataclass(frozen=True)
 class Volume:
     """A 3-D image placed in the SPECT frame (see the module docstring for the conventions)."""
@@ -43,10 +50,10 @@ class Volume:
         data = np.asarray(self.data)
         if data.ndim != 3:
             raise ValueError(f"a Volume needs a 3-D array, got shape {data.shape}")
-        vs = tuple(float(v) for v in np.asarray(self.voxel_size, dtype=float).reshape(3))
+        vs = triple(self.voxel_size)
         if not all(np.isfinite(v) and v > 0 for v in vs):
             raise ValueError(f"voxel sizes must be positive, got {vs}")
-        org = tuple(float(v) for v in np.asarray(self.origin, dtype=float).reshape(3))
+        org = triple(self.origin)
         d = np.asarray(self.direction, dtype=float).reshape(3, 3)
         if not np.allclose(d @ d.T, np.eye(3), atol=1e-6):
             raise ValueError(f"direction rows must be orthonormal, got {d.tolist()}")
@@ -82,12 +89,12 @@ class Volume:
         # array axis that runs along SPECT Z, Y, X:
         order = [int(np.flatnonzero(d[:, c])[0]) for c in (2, 1, 0)]
         data = np.transpose(self.data, order)
-        vs = tuple(self.voxel_size[a] for a in order)
+        vs = triple([self.voxel_size[a] for a in order])
         first = np.zeros(3)
         for new_axis, a in enumerate(order):
             if d[a].sum() < 0:  # this axis runs backwards: flip it
                 data = np.flip(data, axis=new_axis)
                 first[a] = self.data.shape[a] - 1
         origin = self.index_to_mm(first)
-        return Volume(np.ascontiguousarray(data), vs, origin, CANONICAL_DIRECTION.copy(),
+        return Volume(np.ascontiguousarray(data), vs, triple(origin), CANONICAL_DIRECTION.copy(),
                       self.source)

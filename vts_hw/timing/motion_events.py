@@ -216,7 +216,9 @@ def match_events(t_a, step_a, t_b, step_b, max_dt_s: float = 0.5) -> list[tuple[
             d = abs(t_a[i] - t_b[j])
             if d <= max_dt_s and np.sign(step_a[i]) == np.sign(step_b[j]):
                 cand.append((d, i, j))
-    used_a, used_b, pairs = set(), set(), []
+    used_a: set[int] = set()
+    used_b: set[int] = set()
+    pairs: list[tuple[int | None, int | None]] = []
     for _, i, j in sorted(cand):
         if i not in used_a and j not in used_b:
             used_a.add(i)

@@ -109,7 +109,7 @@ def _init_worker(state: dict, threads: int | None = 1) -> None:
         _W["geo"] = ViewGeometry(cams, state["names"])
 
 
-def _read_span(path: str, offsets: np.ndarray, lengths: np.ndarray) -> list:
+def _read_span(path: str, offsets: np.ndarray, lengths: np.ndarray) -> list[np.ndarray | None]:
     """The JPEGs at ``offsets`` (one read of the span they cover); None for bytes missing;
     an empty array where the offset is negative (no frame of this camera in the set)."""
     if len(offsets) == 0:
@@ -123,7 +123,7 @@ def _read_span(path: str, offsets: np.ndarray, lengths: np.ndarray) -> list:
         f.seek(start)
         data = f.read(end - start)
     buf = np.frombuffer(data, np.uint8)
-    out = []
+    out: list[np.ndarray | None] = []
     for o, n in zip(offsets.tolist(), lengths.tolist()):
         if o < 0:
             out.append(np.zeros(0, np.uint8))
@@ -135,7 +135,7 @@ def _read_span(path: str, offsets: np.ndarray, lengths: np.ndarray) -> list:
 
 def _detect_frames(path: str, offsets, lengths, settings: DetectorSettings):
     """Per frame the blob centroids (k x 2 float array), or None when undecodable."""
-    out = []
+    out: list[np.ndarray | None] = []
     for jpeg in _read_span(path, offsets, lengths):
         if jpeg is not None and len(jpeg) == 0:
             out.append(np.zeros((0, 2)))   # this camera has no frame in the set

@@ -123,7 +123,7 @@ class FrameGrouper:
     def ready(self, now: float, final: bool = False) -> list[FrameSet]:
         """The sets decided at monotonic ``now``, oldest first. ``final``: no camera sends
         another frame (the end of a recording): every set is decided."""
-        out = []
+        out: list[FrameSet] = []
         pending, n, tol, least = self.pending, self.n, self.tolerance_s, self.min_cameras
         while True:
             heads = [(q[0].time, c) for c, q in enumerate(pending) if q]
@@ -161,11 +161,12 @@ class FrameGrouper:
         (a frame from it within ``wait_s``; one that has sent none: within ``wait_s`` of the
         first frame of any), or any when the set is ``alone`` (fewer cameras than it needs), at
         most ``wait_s`` after its first frame arrived."""
-        if now - min(p.arrival for p in got) >= self.wait_s:
+        first = min(p.arrival for p in got)
+        if now - first >= self.wait_s:
             return False
-        last, started = self.last_arrival, self.started
-        return any(not q and (alone or now - (started if last[c] is None else last[c]) < self.wait_s)
-                   for c, q in enumerate(self.pending))
+        started = first if self.started is None else self.started     # None only before any frame came
+        return any(not q and (alone or now - (started if last is None else last) < self.wait_s)
+                   for q, last in zip(self.pending, self.last_arrival))
 
 
 def group_frames(times: list[np.ndarray], tolerance_s: float, min_cameras: int = 2) -> np.ndarray:

@@ -155,23 +155,29 @@ class Tracks:
         frame_txt = [f"{f},{self.host_time[f]:.6f}," + ",".join(f"{cf[f, c]},{ct[f, c]}" for c in range(C))
                      for f in range(len(self.host_time))]
         lines = [",".join(self._columns())]
-        has_st, has_sp = self.spect_time is not None, self.xyz_spect is not None
-        num = lambda v: "" if not np.isfinite(v) else f"{v:.4f}"  # noqa: E731
+        spect_time, xyz_spect = self.spect_time, self.xyz_spect
+
+        def num(v):
+            return "" if not np.isfinite(v) else f"{v:.4f}"
+
         for p in range(len(pf)):
             f = pf[p]
             row = frame_txt[f]
-            if has_st:
-                row += f",{self.spect_time[f]:.6f}"
+            if spect_time is not None:
+                row += f",{spect_time[f]:.6f}"
             x, y, z = self.xyz[p]
             row += (f",{self.marker[p]},{x:.4f},{y:.4f},{z:.4f},{self.reproj_px[p]:.4f},"
                     + ",".join(num(v) for v in self.uv[p]))
-            if has_sp:
-                xs, ys, zs = self.xyz_spect[p]
+            if xyz_spect is not None:
+                xs, ys, zs = xyz_spect[p]
                 row += f",{xs:.4f},{ys:.4f},{zs:.4f}"
             lines.append(row)
         write_atomic(csv_path, "\n".join(lines) + "\n", encoding="ascii")   # whole or not at all (disk full)
-        fin = lambda a: [None if not np.isfinite(v) else float(v) for v in a]  # noqa: E731
-        frames = {"host_time": [round(float(v), 6) for v in self.host_time]}
+
+        def fin(a):
+            return [None if not np.isfinite(v) else float(v) for v in a]
+
+        frames: dict[str, list[float | None]] = {"host_time": [round(float(v), 6) for v in self.host_time]}
         for c, name in enumerate(self.camera_names):
             frames[f"{name}_frame"] = [None if v < 0 else int(v) for v in self.camera_frame[:, c]]
             frames[f"{name}_time"] = fin(self.camera_time[:, c])
@@ -180,8 +186,8 @@ class Tracks:
         if self.n_single is not None:
             for c, name in enumerate(self.camera_names):
                 frames[f"{name}_single"] = self.n_single[:, c].tolist()
-        if has_st:
-            frames["spect_time"] = [round(float(v), 6) for v in self.spect_time]
+        if spect_time is not None:
+            frames["spect_time"] = [round(float(v), 6) for v in spect_time]
         doc = {"format": TRACKS_FORMAT, "csv": csv_path.name, "cameras": list(self.camera_names),
                "units": {"position": "mm", "time": "s (UTC epoch)", "pixels": "px"},
                "clock": "host_time: host UTC epoch s, mapped from the camera stamps by the "
@@ -219,8 +225,13 @@ class Tracks:
             raise ValueError("fewer than two cameras")
         C = len(names)
         fr = doc["frames"]
-        nanf = lambda a: np.array([np.nan if v is None else v for v in a], float)  # noqa: E731
-        intm = lambda a: np.array([-1 if v is None else v for v in a]).astype(int)  # noqa: E731
+
+        def nanf(a):
+            return np.array([np.nan if v is None else v for v in a], float)
+
+        def intm(a):
+            return np.array([-1 if v is None else v for v in a]).astype(int)
+
         host = np.array(fr["host_time"], float)
         camera_time = np.column_stack([nanf(fr[f"{c}_time"]) for c in names]).reshape(-1, C)
         camera_frame = np.column_stack([intm(fr[f"{c}_frame"]) for c in names]).reshape(-1, C)
@@ -240,9 +251,13 @@ class Tracks:
             if need not in col:
                 raise DataError(f"{csv_path}: no column {need!r}")
         rows = [r.split(",") for r in body.split("\n")] if body else []
-        get = lambda name, typ=float: np.array([typ(r[col[name]]) for r in rows], typ)  # noqa: E731
-        opt = lambda name: np.array([float(r[col[name]]) if r[col[name]] else np.nan  # noqa: E731
-                                     for r in rows], float)
+
+        def get(name, typ=float):
+            return np.array([typ(r[col[name]]) for r in rows], typ)
+
+        def opt(name):
+            return np.array([float(r[col[name]]) if r[col[name]] else np.nan for r in rows], float)
+
         xyz = np.column_stack([get("x_mm"), get("y_mm"), get("z_mm")]).reshape(-1, 3)
         uv = np.column_stack([opt(f"{c}_{a}") for c in names for a in "uv"]).reshape(-1, 2 * C)
         xyz_spect = None

@@ -83,7 +83,7 @@ def read_failure_records(folder) -> list[FailureRecord]:
                 continue
             rec = FailureRecord(by=str(d["by"]), listmode=str(d["listmode"]), reason=str(d["reason"]),
                                 start=_num(d.get("start")), end=_num(d.get("end")),
-                                failed_at=_num(d["failed_at"], required=True), log=d.get("log"), path=p)
+                                failed_at=_time(d["failed_at"]), log=d.get("log"), path=p)
         except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError, OverflowError, RecursionError):
             continue
         out.append(rec)
@@ -91,11 +91,14 @@ def read_failure_records(folder) -> list[FailureRecord]:
     return out
 
 
-def _num(v, required: bool = False) -> float | None:
-    """A time of a record: None, or a UTC epoch a date can be made of (else ValueError,
-    OverflowError or TypeError: the file is not a record vts wrote)."""
-    if v is None and not required:
-        return None
+def _num(v) -> float | None:
+    """A time of a record that may be absent: None, or :func:`_time`'s."""
+    return None if v is None else _time(v)
+
+
+def _time(v) -> float:
+    """A time of a record: a UTC epoch a date can be made of (else ValueError, OverflowError or
+    TypeError: the file is not a record vts wrote)."""
     t = float(v)
     _dt.datetime.fromtimestamp(t, _dt.timezone.utc)
     return t

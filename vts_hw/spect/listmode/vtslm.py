@@ -367,7 +367,7 @@ class VtslmReader:
     """The registry entry for VTSLM."""
 
     name = NAME
-    extensions = EXTENSIONS
+    extensions: tuple[str, ...] = EXTENSIONS
 
     @staticmethod
     def sniff(head: bytes) -> bool:
