@@ -1,19 +1,14 @@
 """One catalog of procedures (vts_hw/catalog.py): every reader names procedures through it,
 names stored by older versions still read, and a new procedure that is stored, reported and
-pushed is its module, one catalog entry and its command — shown with a small one below."""
+pushed is its module, one catalog entry and its command (tests/test_checklists.py shows it)."""
 
 from __future__ import annotations
 
-import click
 import pytest
-from click.testing import CliRunner
 
 from vts_hw import catalog
-from vts_hw.config import parse_rig
 from vts_hw.config_qatrack import QATrackConfig
-from vts_hw.results import Measure, overall_state
-from vts_hw.store import ResultsStore
-from vts_hw.tolerance import DEFAULT_TOLERANCES, State, Window
+from vts_hw.tolerance import DEFAULT_TOLERANCES, Window
 
 #: every procedure name runs were stored under before the catalog (they are in stores: they must read)
 STORED_BEFORE = ("daily", "drift", "drift-baseline", "sphere-steps", "sync", "spect_mapping", "motion",
@@ -65,98 +60,27 @@ def test_the_procedures_measure_what_the_catalog_says():
         assert {f.metric for f in p.figures} <= {m for m, _ in p.measures}, p.name
 
 
-# ---------------------------------------------------------------- the closing note's demonstration
-# A new QA procedure: the LED ring's brightness, LED on against LED off, per camera. What it
-# takes: (1) its module — the class below; (2) one catalog entry — LED_CHECK; (3) its command —
-# `led` below. Nothing else: the recorder stores it, the drift report's history and the rooms
-# page show it, and `vts qa push` maps it, all by reading the catalog.
-
-LED_WINDOW = Window(action_low=0.5, tolerance_low=0.8)
-
-
-class LedCheck:                                                    # (1) the module
-    procedure = "led-check"
-
-    def __init__(self, ratios: dict[str, float]):
-        self.ratios = ratios
-
-    @property
-    def measures(self):
-        return [Measure.judged(cam, "led_level_ratio", r, "", LED_WINDOW) for cam, r in self.ratios.items()]
-
-    @property
-    def state(self):
-        return overall_state(self.measures)
-
-    def results(self):
-        return "\n".join(f"{m.subject}: LED level {m.value:.2f} ({m.state})" for m in self.measures)
-
-    def results_data(self):
-        return {"summary": {"state": str(self.state)}, "measures": [m.as_dict() for m in self.measures]}
-
-    def plot(self, path=None):
-        return b""
+def test_an_entrys_own_windows_are_every_readers_defaults_and_a_second_one_is_refused(monkeypatch):
+    """``windows()``: the tolerance table's and the entries' own, the rig's on top; an entry may
+    not give a window to a metric it does not measure, nor a second one to a metric that has one."""
+    assert catalog.windows() == DEFAULT_TOLERANCES
+    own = catalog.Procedure("led-check", "LED check", "room", (("led_level_ratio", ""),),
+                            windows=(("led_level_ratio", Window(action_low=0.5)),))
+    monkeypatch.setattr(catalog, "PROCEDURES", (*catalog.PROCEDURES, own))
+    assert catalog.windows()["led_level_ratio"] == Window(action_low=0.5)
+    assert catalog.windows({"led_level_ratio": {"action_low": 0.2}})["led_level_ratio"] == Window(action_low=0.2)
+    with pytest.raises(ValueError, match="a window for 'led_level', which it does not measure"):
+        catalog.Procedure("led-check", "LED check", "room", (("led_level_ratio", ""),),
+                          windows=(("led_level", Window(action_low=0.5)),))
+    again = catalog.Procedure("steps-again", "step test", "room", catalog.STEPS.measures,
+                              windows=(("steps_r2", Window(action_low=0.9)),))
+    monkeypatch.setattr(catalog, "PROCEDURES", (*catalog.PROCEDURES, again))
+    with pytest.raises(ValueError, match="gives 'steps_r2' a second default window"):
+        catalog.windows()
 
 
-LED_CHECK = catalog.Procedure(                                     # (2) one catalog entry
-    "led-check", "LED check", "room", (("led_level_ratio", ""),),
-    figures=(catalog.Figure("led_level_ratio", "LED level (worst camera)", ".2f"),), history="LED checks")
-
-
-@click.command()                                                   # (3) its command
-@click.argument("ratios", nargs=-1)
-@click.option("--config", "config_path")
-def led(ratios, config_path):
-    """The LED ring's brightness per camera, CAM=RATIO."""
-    from vts_hw.cli.common import finish_analysis, rig_if_any
-    rig = rig_if_any(config_path)
-    result = LedCheck({c: float(r) for c, r in (x.split("=") for x in ratios)})
-    finish_analysis(rig, result, result.results_data(), "LED check", False)
-
-
-def test_a_new_procedure_is_its_module_one_catalog_entry_and_its_command(monkeypatch, tmp_path):
-    import yaml
-
-    from vts_hw.qatrack import push_runs, select_runs
-    from vts_hw.report import build_drift_report
-    from vts_hw.report.rooms import collect_rooms
-    from vts_hw.sim_devices.qatrack_server import QATrackSim
-
-    monkeypatch.setattr(catalog, "PROCEDURES", (*catalog.PROCEDURES, LED_CHECK))
-    url = f"sqlite:///{tmp_path / 'results.sqlite'}"
-    token = "tok-led-1"
-    monkeypatch.setenv("QATRACK_TOKEN", token)
-    with QATrackSim({"VTS LED": ["cam1_led", "cam2_led"]}, {"SPECT 1": ["VTS LED"]}, token=token) as peer:
-        cfg = {"rig": "room1", "cameras": [{"name": "cam1", "host": "127.0.0.1"}], "store": {"url": url},
-               "qatrack": {"url": peer.url, "unit": "SPECT 1", "time_zone": "America/Toronto",
-                           "token_env": "QATRACK_TOKEN", "report": "none", "plots": False, "timeout_s": 5.0,
-                           "lists": {"led-check": {"test_list": "VTS LED", "macros": {
-                               "cam1/led_level_ratio": "cam1_led", "cam2/led_level_ratio": "cam2_led"}}}}}
-        (tmp_path / "rig.yaml").write_text(yaml.safe_dump(cfg))
-        # stored: the command's exit status is the result's (20 ACTION), its run in the store
-        got = CliRunner().invoke(led, ["cam1=0.95", "cam2=0.42", "--config", str(tmp_path / "rig.yaml")])
-        assert got.exit_code == 20, got.output
-        assert "stored: run" in got.output
-        with ResultsStore(url) as store:
-            (run,) = store.runs(procedure="led-check")
-            assert (run.rig, run.status) == ("room1", "ACTION")
-            rows = {m.subject: (m.value, m.status) for m in store.measurements(run_id=run.id)}
-            assert rows == {"cam1": (0.95, State.OK), "cam2": (0.42, State.ACTION)}
-            # reported: its history section and an "attention" line; the rooms page's open item
-            report = build_drift_report(store, tmp_path / "report.html", rig="room1")
-            section = [h for h in report.history if h.spec.key == "led-check"]
-            assert section and section[0].title == "LED checks" and section[0].latest.values[0] == (0.95, "OK")
-            assert any(a.startswith("LED check (room1): ACTION in run") for a in report.attention())
-            assert "LED checks" in (tmp_path / "report.html").read_text()
-            (room,) = collect_rooms(store).rooms
-            assert [(i.check, i.subject) for i in room.open_items] == [("LED check", "cam2")]
-            # pushed: the rig's qatrack list is keyed by its stored name; the values reach QATrack+
-            qcfg = parse_rig(cfg, "rig.yaml").qatrack
-            out = push_runs(store, qcfg, select_runs(store, qcfg, "room1"))
-            assert [o.how for o in out] == ["posted"]
-        (inst,) = peer.instances
-        assert inst["tests"]["cam1_led"]["value"] == pytest.approx(0.95)
-        assert inst["tests"]["cam2_led"]["value"] == pytest.approx(0.42)
+# A new procedure that is stored, reported, listed and pushed with its module, one catalog entry
+# and its command: tests/test_checklists.py::test_a_qa_procedure_is_its_module_one_catalog_entry_and_its_command
 
 
 def test_without_its_catalog_entry_the_new_procedure_cannot_be_mapped():

@@ -31,7 +31,7 @@ from mkdocs.structure.files import File
 from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
-from vts_hw import tolerance
+from vts_hw import catalog
 from vts_hw.cli import COMMANDS, cli, command_tree
 from vts_hw.config import RigConfig, TriggerConfig
 from vts_hw.drivers import registry
@@ -192,11 +192,11 @@ def rig_yaml_page() -> str:
             "| kind | driver |", "| --- | --- |"]
     out += [f"| `{k}` | `{v}` |" for k, v in sorted(registry.CAMERA_KINDS.items())]
     out += ["", "## Metrics with a tolerance window", "",
-            "`tolerances:` takes these names (`vts_hw/tolerance.py`, `DEFAULT_TOLERANCES`), each with its "
-            "default window:", "",
+            "`tolerances:` takes these names (`vts_hw/tolerance.py`'s `DEFAULT_TOLERANCES` and the "
+            "`windows` of the entries of `vts_hw/catalog.py`), each with its default window:", "",
             "| metric | action low | tolerance low | tolerance high | action high | unit |",
             "| --- | --- | --- | --- | --- | --- |"]
-    for metric, window in tolerance.DEFAULT_TOLERANCES.items():
+    for metric, window in catalog.windows().items():
         cells = [getattr(window, k) for k in ("action_low", "tolerance_low", "tolerance_high", "action_high")]
         out.append(f"| `{metric}` | " + " | ".join("" if c is None else str(c) for c in cells) +
                    f" | {window.unit} |")

@@ -15,6 +15,8 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
+from vts_hw.tolerance import DEFAULT_TOLERANCES, Window, merged_tolerances
+
 #: what a procedure's runs judge: the room's QA ("attention", open ACTION items on the rooms
 #: page), a patient's scan (never the room's state), or nothing (a record without a state)
 JUDGES = ("room", "patient", "none")
@@ -41,10 +43,15 @@ class Procedure:
     family: str = ""                        # procedures that count as one check share it ("" : its name)
     history: str = ""                       # the title of its section in the drift report's history
     aliases: tuple[str, ...] = ()           # spellings stored earlier that read as this procedure
+    windows: tuple[tuple[str, Window], ...] = ()   # (metric, default window) of a metric of its own
 
     def __post_init__(self):
         if self.judges not in JUDGES:
             raise ValueError(f"{self.name}: judges is one of {JUDGES}, not {self.judges!r}")
+        measured = {m for m, _ in self.measures}
+        for metric, _ in self.windows:
+            if metric not in measured:
+                raise ValueError(f"{self.name}: a window for {metric!r}, which it does not measure")
 
     @property
     def key(self) -> str:
@@ -185,6 +192,21 @@ def not_room_checks() -> tuple[str, ...]:
     return tuple(n for p in PROCEDURES if p.judges != "room" for n in p.stored_as)
 
 
+def windows(overrides: dict | None = None) -> dict[str, Window]:
+    """Every metric's default tolerance window: the table of vts_hw/tolerance.py and the windows
+    the catalog's entries bring for metrics of their own, with the rig's ``tolerances:``
+    (``overrides``: Windows or objects with their fields) on top. Read at each call, so that an
+    entry added to :data:`PROCEDURES` is judged, stored and overridden in rig.yaml like the rest.
+    ValueError when an entry's window names a metric that already has one."""
+    out = dict(DEFAULT_TOLERANCES)
+    for p in PROCEDURES:
+        for metric, w in p.windows:
+            if metric in out and out[metric] != w:
+                raise ValueError(f"the catalog gives {metric!r} a second default window ({p.label})")
+            out[metric] = w
+    return merged_tolerances(overrides, out)
+
+
 def stored_name_pattern() -> str:
     """A regular expression matching every name runs are stored under (QATrack+'s ``lists:`` keys)."""
     names = sorted(by_name(), key=lambda n: (-len(n), n))
@@ -207,7 +229,8 @@ def sections() -> list[tuple[str, str, tuple[str, ...], Procedure]]:
 
 
 by_name()   # a catalog naming one stored name twice fails at import
+windows()   # ... and so does one giving a metric a second default window
 
 
 __all__ = ["Procedure", "Figure", "PROCEDURES", "JUDGES", "by_name", "by_label", "find", "label", "family", "not_room_checks",
-           "qa_set_name", "sections", "stored_name_pattern", "stored_names_text"]
+           "qa_set_name", "sections", "stored_name_pattern", "stored_names_text", "windows"]

@@ -22,7 +22,7 @@ from vts_hw.config_setup import CameraSetupConfig
 from vts_hw.config_warmup import WarmupSettings
 from vts_hw.bounded import ANY_SIZE, TooLarge, open_checked, read_bytes
 from vts_hw.errors import ConfigError
-from vts_hw.tolerance import DEFAULT_TOLERANCES
+from vts_hw.catalog import windows as default_windows
 from vts_hw.vision.aim_settings import AimSettings
 
 ENV_CONFIG = "VTS_CONFIG"
@@ -270,10 +270,11 @@ class RigConfig(_Strict):
     @field_validator("tolerances")
     @classmethod
     def _known_metrics(cls, v: dict):
-        unknown = sorted(set(v) - set(DEFAULT_TOLERANCES))
+        known = default_windows()      # the tolerance table's and the catalog entries' own
+        unknown = sorted(set(v) - set(known))
         if unknown:
             raise ValueError(f"names {unknown[0]!r}, which is not a metric with a tolerance window "
-                             f"(known: {', '.join(DEFAULT_TOLERANCES)})")
+                             f"(known: {', '.join(known)})")
         return v
 
     @model_validator(mode="after")

@@ -162,9 +162,10 @@ DEFAULT_TOLERANCES: dict[str, Window] = {
 }
 
 
-def merged_tolerances(overrides: dict | None) -> dict[str, Window]:
-    """Defaults, with the rig config's windows (objects with the same fields) on top."""
-    out = dict(DEFAULT_TOLERANCES)
+def merged_tolerances(overrides: dict | None, defaults: dict[str, Window] | None = None) -> dict[str, Window]:
+    """Defaults (``DEFAULT_TOLERANCES`` unless given; the catalog's ``windows()`` gives them with
+    its entries' own), with the rig config's windows (objects with the same fields) on top."""
+    out = dict(DEFAULT_TOLERANCES if defaults is None else defaults)
     for metric, w in (overrides or {}).items():
         if isinstance(w, Window):
             out[metric] = w

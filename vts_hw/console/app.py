@@ -24,6 +24,8 @@ from __future__ import annotations
 import asyncio
 import secrets
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 from starlette.applications import Starlette
@@ -98,6 +100,32 @@ class Console:
         return {"rig": self.rig_name, "now": time.time(), "cameras": cams, "phantom": self.markers.phantom_said()}
 
 
+@dataclass(frozen=True)
+class Page:
+    """A page of the console after the Room page: ``routes(console, templates)`` gives its Starlette
+    routes (from its module), ``nav`` its link's text in the nav bar and ``href`` where it goes
+    (none: a part of another page), ``here`` what its templates set ``here`` to (its link marked)."""
+    routes: Callable[["Console", Jinja2Templates], list]
+    here: str = ""
+    nav: str = ""
+    href: str = ""
+
+
+#: the console's pages, in the nav bar's order: a new page is its module (+ its template) and one
+#: line here (docs/develop/checklists.md "A console page"); the Room page is this module's own
+PAGES: list[Page] = [
+    Page(scan_routes, "scan", "Scan", "/scan"),
+    Page(qa_routes, "qa", "Daily QA", "/qa"),
+    Page(history_routes, "history", "History", "/history"),
+    Page(aim_routes),                           # the Room page's aim & focus (aim_checks.py)
+]
+
+
+def nav_pages() -> list[tuple[str, str, str]]:
+    """The nav bar's links, (here, href, text): the Room page, then each page of PAGES with one."""
+    return [("room", "/", "Room"), *((p.here, p.href, p.nav) for p in PAGES if p.nav)]
+
+
 class _ConsoleApp(Starlette):
     """Starlette, whose error middleware answers an unexpected exception (answers.unexpected: one
     sentence, 500, a log line without the exception's words) and then raises it again for the
@@ -115,6 +143,7 @@ class _ConsoleApp(Starlette):
 
 def create_app(console: Console) -> Starlette:
     templates = Jinja2Templates(directory=str(HERE / "templates"))
+    templates.env.globals["nav_pages"] = nav_pages()
 
     async def room_page(request: Request):
         return templates.TemplateResponse(request, "room.html", {
@@ -182,12 +211,9 @@ def create_app(console: Console) -> Starlette:
 
     routes = [Route("/", room_page), Route("/api/room", room_json), Route("/frame/{camera}", frame),
               Route("/events", events), Route("/camera/{camera}/led", led, methods=["POST"]),
-              *history_routes(console, templates),     # each page a module of its own (history.py)
-              *qa_routes(console, templates),
               *(login_routes(console, templates) if console.auth is not None and console.auth.required
                 else no_login_routes(console)),
-              *scan_routes(console, templates),
-              *aim_routes(console, templates),         # the Room page's aim & focus (aim_checks.py)
+              *(r for page in PAGES for r in page.routes(console, templates)),   # each a module of its own
               Mount("/static", StaticFiles(directory=str(HERE / "static")), name="static")]
     reach = console.reach
     middleware = [Middleware(SecurityHeaders)]
@@ -203,4 +229,4 @@ def create_app(console: Console) -> Starlette:
     return app
 
 
-__all__ = ["Console", "create_app"]
+__all__ = ["Console", "Page", "PAGES", "create_app", "nav_pages"]

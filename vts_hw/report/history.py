@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 from vts_hw import catalog
 from vts_hw.catalog import Figure
-from vts_hw.tolerance import DEFAULT_TOLERANCES, State, Window
+from vts_hw.tolerance import State, Window
 from vts_hw.report.times import fmt_date
 
 COMPLETED = ("OK", "TOLERANCE", "ACTION")
@@ -150,7 +150,7 @@ def collect_history(store, since: float | None, now: float, rig: str | None) -> 
                                    sorted(f"{m} ({s})" for (m, s), (_, st) in by.items() if st != "OK")))
         metric = spec.figures[spec.trend].metric
         got = store.tolerance(metric, at=now)
-        out.append(ProcedureHistory(spec, hist, got[1] if got is not None else DEFAULT_TOLERANCES.get(metric)))
+        out.append(ProcedureHistory(spec, hist, got[1] if got is not None else catalog.windows().get(metric)))
     return out
 
 

@@ -30,13 +30,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-from vts_hw import __version__
+from vts_hw import __version__, catalog
 from vts_hw.results import Analysis, Measure
 from vts_hw.store.errors import StoreError
 from vts_hw.errors import DataError
 from vts_hw.files import check_target
 from vts_hw.store.unsaved import load_unsaved, save_unsaved
-from vts_hw.tolerance import State, Window, merged_tolerances
+from vts_hw.tolerance import State, Window
 from vts_hw.store.handle import RunHandle
 from vts_hw.store.store import ResultsStore
 
@@ -77,7 +77,7 @@ class Recorder:
         self.target = target
         self.procedure = procedure
         self.rig, self.operator, self.config_digest, self.notes = rig, operator, config_digest, notes
-        self.windows: dict[str, Window] = merged_tolerances(tolerances)
+        self.windows: dict[str, Window] = catalog.windows(tolerances)   # the catalog's, the rig's on top
         self.clock = clock
         self.started = clock() if started is None else float(started)
         self.error: str | None = None      # why the store could not be written (then: unsaved)
