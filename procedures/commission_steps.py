@@ -380,7 +380,7 @@ def calibration(ctx: Context) -> Outcome:
     advice = refused or ("calibrate again: " + "; ".join(run.warnings) if not passed else "")
     notes, error = f"saved to {inp.calibration_file}", None
     if passed and run.saved.written is not None:     # only a calibration that passed is pointed at
-        note, error = _point_rig(ctx, "calibration", "stereo", run.saved.written, "calibration")
+        note, error = _point_rig(ctx, "calibration", "cameras", run.saved.written, "calibration")
         notes, passed, advice = f"{notes}; {note}", error is None, str(error) if error else advice
     return Outcome("calibration", run, passed, advice=advice, notes=notes, error=error)
 
@@ -408,7 +408,7 @@ def mapping(ctx: Context) -> Outcome:
                                 "`vts commission --from mapping`")
     notes, error = f"saved to {inp.mapping_file}", None
     if passed:                                       # a mapping in ACTION leaves calibration.spect as it was
-        note, error = _point_rig(ctx, "mapping", "spect", saved.written, "VTS → SPECT mapping")
+        note, error = _point_rig(ctx, "mapping", "mapping", saved.written, "VTS → SPECT mapping")
         notes, passed, advice = f"{notes}; {note}", error is None, str(error) if error else advice
     return Outcome("mapping", m, passed, advice=advice, notes=notes, error=error)
 

@@ -251,7 +251,7 @@ class SimRig:
         calibration = None
         if len(self.scene.cameras) >= 2:  # a stereo pair: the first two cameras
             cal, mp = write_true_calibration(self.scene, folder)
-            calibration = {"stereo": str(cal.resolve()), "spect": str(mp.resolve())}
+            calibration = {"cameras": str(cal.resolve()), "mapping": str(mp.resolve())}
         if len(self.scene.cameras) >= 3:
             write_true_cameras(self.scene, folder)
         env_path = folder / "sim.env"

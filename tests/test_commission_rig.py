@@ -77,7 +77,7 @@ def _fov(capsys, config: Path) -> dict:
 
 
 def _without_paths(text: str) -> list[str]:
-    return [ln for ln in text.splitlines() if not ln.lstrip().startswith(("stereo:", "spect:"))]
+    return [ln for ln in text.splitlines() if not ln.lstrip().startswith(("cameras:", "mapping:", "stereo:", "spect:"))]
 
 
 def test_a_commissioning_points_rig_yaml_at_its_calibration_and_mapping(room, tmp_path, capsys):
@@ -89,8 +89,8 @@ def test_a_commissioning_points_rig_yaml_at_its_calibration_and_mapping(room, tm
 
     code, so, se = _commission(capsys, y, out, boards, phantom, "--from", "calibration")
     assert code == 2 and "the step test needs --step-volumes DIR" in se, se     # stopped after the mapping
-    assert f"rig.yaml now points at {cal} (calibration.stereo; the previous text is in {y}.bak)" in se
-    assert f"rig.yaml now points at {mp} (calibration.spect; the previous text is in {y}.bak)" in se
+    assert f"rig.yaml now points at {cal} (calibration.cameras; the previous text is in {y}.bak)" in se
+    assert f"rig.yaml now points at {mp} (calibration.mapping; the previous text is in {y}.bak)" in se
     now = load_rig(y).calibration
     assert (now.stereo, now.spect) == (cal, mp) and cal.is_file() and mp.is_file()
     text = y.read_text()
@@ -117,7 +117,7 @@ def test_a_commissioning_points_rig_yaml_at_its_calibration_and_mapping(room, tm
     # the mapping again: rig.yaml names that file already, so nothing is written
     stamp, bak_text = y.stat().st_mtime_ns, bak.read_text()
     code, so, se = _commission(capsys, y, out, boards, phantom, "--from", "mapping")
-    assert code == 2 and f"rig.yaml already points at {mp} (calibration.spect)" in se, se
+    assert code == 2 and f"rig.yaml already points at {mp} (calibration.mapping)" in se, se
     assert y.stat().st_mtime_ns == stamp and y.read_text() == text and bak.read_text() == bak_text
 
 
@@ -151,7 +151,7 @@ def test_rig_yaml_on_a_read_only_folder_is_one_sentence_keeps_the_calibration_an
     last = se.strip().splitlines()[-1]
     assert code == 3, se
     assert last == (f"vts: {y}.bak: could not be written (read-only file system); {y} is unchanged "
-                    f"(calibration.stereo: {old_cal}); the new calibration is kept in {cal}: "
+                    f"(calibration.cameras: {old_cal}); the new calibration is kept in {cal}: "
                     f"`vts commission --from calibration` once {y} can be written"), se
     assert "Traceback" not in se and y.read_text() == before and not Path(f"{y}.bak").exists()
     assert json.loads(cal.read_text())                     # the calibration kept, whole
@@ -192,5 +192,5 @@ def test_set_calibration_on_a_full_disk_or_a_file_changed_meanwhile_writes_nothi
     assert "calibration" not in y.read_text() and sorted(disk.files()) == ["rig.yaml"]
     monkeypatch.undo()            # a relative file name: written as the absolute path (every reader's same file)
     monkeypatch.chdir(tmp_path)
-    set_calibration(y, {"spect": "m.json"})
-    assert load_rig(y).calibration.spect == tmp_path / "m.json" and f"spect: {tmp_path / 'm.json'}" in y.read_text()
+    set_calibration(y, {"spect": "m.json"})     # the old name taken; the new one written
+    assert load_rig(y).calibration.mapping == tmp_path / "m.json" and f"mapping: {tmp_path / 'm.json'}" in y.read_text()

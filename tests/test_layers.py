@@ -4,6 +4,10 @@ config → drivers → procedures → store → reports → qatrack: a layer imp
 (and the core everything builds on). Tracking (vts_hw/tracking/: frame sets, matching over time,
 identities, tracks, the live path) sits on the core (vision, recording, timing) and under the
 procedures: the rest of the core (the recording format and capture among it) never imports it.
+The room (vts_hw/room/: Room.open(config), the rig's cameras, trigger, calibration, mapping and
+store, each opened when first used) sits on the drivers and the store: the applications (the CLI,
+the console) and the simulated scenarios open it; a procedure never does: it is given the room's
+parts, as bluesky plans are given devices (docs/decisions/0099-the-room.md).
 A procedure never holds a store: it returns its analysis
 and the caller records it (vts_hw.store.recorder), so procedures/ importing vts_hw.store is a
 failure, at any depth of the module (a function's own import too). The core imports no driver, procedure or simulator; only
@@ -38,12 +42,14 @@ ALLOWED = {
     "report": {"core", "store"},
     "qatrack": {"core", "store", "report"},   # pushing to QATrack+ reads the store and builds reports
     "sim": {"core", "tracking"},               # the simulated patient's marker tracks are Tracks
-    "scenarios": {"core", "tracking", "drivers", "procedures", "store", "report", "sim"},
+    # the room with its devices (vts_hw/room/): it opens drivers and the store; procedures get its parts
+    "room": {"core", "tracking", "drivers", "store"},
+    "scenarios": {"core", "tracking", "drivers", "procedures", "store", "report", "sim", "room"},
     # the room console (vts_hw/console/): an application as the CLI is, beside it, never under it
     # nor over it: it opens devices and calls procedures, the store and reports; no CLI, no simulator
-    "console": {"core", "tracking", "drivers", "procedures", "store", "report", "qatrack"},
+    "console": {"core", "tracking", "drivers", "procedures", "store", "report", "qatrack", "room"},
     "cli": {"core", "tracking", "drivers", "procedures", "store", "report", "qatrack", "sim", "scenarios",
-            "console"},
+            "console", "room"},
 }
 
 
@@ -53,7 +59,7 @@ def layer(module: str) -> str:
         return "scenarios"
     return {"drivers": "drivers", "procedures": "procedures", "sim_devices": "sim", "cli": "cli",
             "store": "store", "report": "report", "qatrack": "qatrack",
-            "tracking": "tracking", "console": "console"}.get(parts[1] if len(parts) > 1 else "", "core")
+            "tracking": "tracking", "console": "console", "room": "room"}.get(parts[1] if len(parts) > 1 else "", "core")
 
 
 def modules():
@@ -85,7 +91,7 @@ def test_the_rules_see_every_layer():
     cli_imports = {layer(t) for p, m in modules() if layer(m) == "cli"
                    for _, _, t in imports(p) if t.startswith("vts_hw.")}
     assert cli_imports >= {"core", "tracking", "drivers", "procedures", "store", "report", "qatrack", "sim",
-                           "scenarios", "console"}
+                           "scenarios", "console", "room"}
 
 
 def test_imports_go_one_way():

@@ -163,9 +163,43 @@ class ToleranceWindow(_Strict):
         return self
 
 
+#: rig.yaml's calibration entries renamed for what they hold (issue 34 §1): old name -> new name
+OLD_CALIBRATION_KEYS = {"stereo": "cameras", "spect": "mapping"}
+
+
 class CalibrationPaths(_Strict):
-    stereo: Optional[Path] = None
-    spect: Optional[Path] = None
+    """rig.yaml's ``calibration:``, the files of the room's current calibration (a relative path
+    is the file beside rig.yaml). The old names ``stereo`` and ``spect`` are still read (both
+    names of one entry at once is an error); ``dump_rig`` writes the new ones."""
+
+    cameras: Optional[Path] = Field(
+        default=None, description="the camera calibration file (any number of cameras; old name: stereo)")
+    mapping: Optional[Path] = Field(
+        default=None, description="the VTS -> SPECT mapping file (old name: spect)")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _old_names(cls, data):
+        """``stereo``/``spect`` are the old names of ``cameras``/``mapping``: read as those."""
+        if not isinstance(data, dict):
+            return data
+        for old, new in OLD_CALIBRATION_KEYS.items():
+            if old in data:
+                if data.get(new) is not None and data[old] is not None:
+                    raise ValueError(f"has both {new} and {old} (the old name of {new}); keep only {new}")
+                value = data[old] if data.get(new) is None else data[new]
+                data = {k: v for k, v in data.items() if k not in (old, new)} | {new: value}
+        return data
+
+    @property
+    def stereo(self) -> Optional[Path]:
+        """The camera calibration by its old name (``rig.calibration.stereo``)."""
+        return self.cameras
+
+    @property
+    def spect(self) -> Optional[Path]:
+        """The VTS -> SPECT mapping by its old name (``rig.calibration.spect``)."""
+        return self.mapping
 
 
 class StoreConfig(_Strict):
@@ -434,8 +468,8 @@ def load_rig(path: str | os.PathLike | None = None) -> RigConfig:
     # a relative calibration path is the file beside rig.yaml, for every command that reads it
     # (they once took it from the working folder or from rig.yaml's, each its own way)
     cal = rig.calibration
-    rig = rig.model_copy(update={"calibration": CalibrationPaths(stereo=_beside(p.parent, cal.stereo),
-                                                                  spect=_beside(p.parent, cal.spect))})
+    rig = rig.model_copy(update={"calibration": CalibrationPaths(cameras=_beside(p.parent, cal.cameras),
+                                                                  mapping=_beside(p.parent, cal.mapping))})
     rig._source = p
     return rig
 

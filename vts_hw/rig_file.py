@@ -10,7 +10,7 @@ file that was there.
   the result is still a valid rig config, copies the old file to ``rig.yaml.bak`` and writes
   the new one atomically (:func:`vts_hw.files.write_atomic`). A file changed by someone else
   between the read and the write is refused, not overwritten.
-* :func:`set_calibration` points ``calibration.stereo`` / ``calibration.spect`` at new files
+* :func:`set_calibration` points ``calibration.cameras`` / ``calibration.mapping`` at new files
   the same way (one machinery, :func:`_rewrite`), as absolute paths; nothing is written when
   rig.yaml names those files already.
 """
@@ -26,7 +26,7 @@ from pathlib import Path
 
 import yaml
 
-from vts_hw.config import MAX_CONFIG_BYTES, _read_text, parse_rig
+from vts_hw.config import MAX_CONFIG_BYTES, OLD_CALIBRATION_KEYS, _read_text, parse_rig
 from vts_hw.errors import ConfigError, UsageError
 from vts_hw.files import WriteFailed, check_target, os_reason, write_atomic
 
@@ -156,7 +156,7 @@ def set_locked_params(path: str | os.PathLike, params: dict[str, dict[str, str]]
     return backup
 
 
-CALIBRATION_KEYS = ("stereo", "spect")    # rig.yaml's calibration: entries (config.CalibrationPaths)
+CALIBRATION_KEYS = ("cameras", "mapping")    # rig.yaml's calibration: entries (config.CalibrationPaths)
 
 
 def names_file(path: str | os.PathLike, entry, file: str | os.PathLike) -> bool:
@@ -172,12 +172,13 @@ def names_file(path: str | os.PathLike, entry, file: str | os.PathLike) -> bool:
 
 
 def set_calibration(path: str | os.PathLike, files: dict[str, str | os.PathLike]) -> Path | None:
-    """Point rig.yaml's ``calibration:`` entries (``stereo``: the camera calibration; ``spect``:
-    the VTS -> SPECT mapping) at ``files``, in place as :func:`set_locked_params` writes (comments
+    """Point rig.yaml's ``calibration:`` entries (``cameras``: the camera calibration; ``mapping``:
+    the VTS -> SPECT mapping; their old names ``stereo``, ``spect`` taken too) at ``files``, in place as :func:`set_locked_params` writes (comments
     kept, rig.yaml.bak, atomic, a file changed meanwhile refused). Returns the backup's path, or
     None when rig.yaml names those files already (nothing written)."""
     from ruamel.yaml.comments import CommentedMap
 
+    files = {OLD_CALIBRATION_KEYS.get(k, k): f for k, f in files.items()}
     unknown = sorted(set(files) - set(CALIBRATION_KEYS))
     if unknown:
         raise ValueError(f"no calibration entry {unknown[0]!r} (known: {', '.join(CALIBRATION_KEYS)})")
@@ -186,14 +187,17 @@ def set_calibration(path: str | os.PathLike, files: dict[str, str | os.PathLike]
         if not hasattr(data, "get"):
             raise ConfigError(f"{path}: not a rig config (its top level is not a mapping)")
         section = data.get("calibration")
+        old_name = {new: old for old, new in OLD_CALIBRATION_KEYS.items()}
+        # the file's own name of each entry: an old rig.yaml keeps its old key (not both at once)
+        written = {k: old_name[k] if hasattr(section, "get") and old_name[k] in section else k for k in files}
         todo = {k: f for k, f in files.items()
-                if not names_file(path, section.get(k) if hasattr(section, "get") else None, f)}
+                if not names_file(path, section.get(written[k]) if hasattr(section, "get") else None, f)}
         if not todo:
             return False
         if not isinstance(section, CommentedMap):      # absent, or `calibration:` with nothing under it
             section = data["calibration"] = CommentedMap()
         for key, f in todo.items():
-            section[key] = os.path.abspath(f)      # one no reader need resolve
+            section[written[key]] = os.path.abspath(f)      # one no reader need resolve
         return True
 
     return _rewrite(path, edit, what="calibration paths", during="its calibration paths were being set",

@@ -248,19 +248,17 @@ def _sim_square_mm() -> float:
 
 def _from_cameras(config_path, calibration_path, volume, frames: int, quiet: bool):
     """The mapping with the VTS side measured now by every camera the calibration covers."""
-    from vts_hw.config import load_rig
-    from vts_hw.drivers.registry import open_cameras
+    from vts_hw.drivers.registry import check_camera_kinds
     from vts_hw.procedures.mapping_inputs import calibrated_cameras, mapping_from_cameras, camera_calibration_for
+    from vts_hw.room import Room
 
-    rig = load_rig(config_path)
-    calib = camera_calibration_for(rig, calibration_path)
-    cams = open_cameras(calibrated_cameras(rig, calib))
-    try:
+    with Room.open(config_path) as room:     # the cameras it opens are closed with it
+        calib = camera_calibration_for(room.rig, calibration_path or room.calibration_file)
+        cfgs = calibrated_cameras(room.rig, calib)
+        check_camera_kinds(cfgs)
+        cams = [room.camera(c.name) for c in cfgs]
         return mapping_from_cameras(cams, calib, volume, frames,
                                     progress=None if quiet else (lambda m: click.echo(m, err=True)))
-    finally:
-        for cam in cams:
-            cam.close()
 
 
 @calibrate.command()
@@ -275,7 +273,7 @@ def _from_cameras(config_path, calibration_path, volume, frames: int, quiet: boo
                    " shape of the SPECT's. Needs --volume.")
 @click.option("--calibration", "calibration_path", type=click.Path(dir_okay=False), default=None,
               help="Camera calibration (stereo or N cameras) for --from-cameras (default: the config's"
-                   " calibration.stereo).")
+                   " calibration.cameras).")
 @click.option("--frames", type=click.IntRange(1, 100), default=10, show_default=True,
               help="Snapshots per camera with --from-cameras.")
 @config_option
