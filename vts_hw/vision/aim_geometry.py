@@ -107,9 +107,9 @@ class RoomView:
             inside += int(np.sum(front & (uv[:, 0] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= h - 1)))
             # a line is drawn only through points in front of the camera
             for run in np.split(np.arange(len(uv)), np.nonzero(~front)[0]):
-                run = [i for i in run if front[i]]
-                if len(run) >= 2:
-                    lines.append(uv[run])
+                seen = [i for i in run if front[i]]
+                if len(seen) >= 2:
+                    lines.append(uv[seen])
         return Outline(name, tuple(lines), inside / total if total else 0.0)
 
     def fov(self) -> Outline:

@@ -162,7 +162,8 @@ def start(corners: Mapping[str, Mapping[str, np.ndarray]], image_sizes: Mapping[
                   "pose": {v: (np.ravel(r), np.ravel(t)) for v, r, t in zip(views, rvecs, tvecs)},
                   "rvecs": rvecs, "tvecs": tvecs}
     pose = {names[0]: (np.eye(3), np.zeros(3))}
-    edges, board_in = [], {}
+    edges: list[dict[str, Any]] = []
+    board_in: dict[str, tuple[str, np.ndarray, np.ndarray]] = {}
     for a, b in graph.spanning_tree(names[0]):
         shared = graph.shared(a, b)
         rms, R, T, _, rvecs, tvecs = pair_pose([obj1] * len(shared), [pts[a][v] for v in shared],
@@ -193,7 +194,7 @@ def adjust(st: Start, intrinsics: str = "refine", loss: str = bundle.LOSS):
         Rw = Rc.T @ cv2.Rodrigues(r_bc)[0]
         vpose[i] = np.r_[cv2.Rodrigues(Rw)[0].ravel(), Rc.T @ (t_bc - tc)]
     obs = [(ci, vi) for vi, v in enumerate(views) for ci, c in enumerate(names) if v in st.pts[c]]
-    problem = bundle.Problem(st.board, [o[0] for o in obs], [o[1] for o in obs],
+    problem = bundle.Problem(st.board, np.array([o[0] for o in obs], int), np.array([o[1] for o in obs], int),
                              np.stack([st.pts[names[ci]][views[vi]].reshape(-1, 2) for ci, vi in obs]),
                              len(names), len(views), [st.own[c]["model"]["fitted"] for c in names],
                              reference=0, fix_intrinsics=intrinsics == "fixed")
@@ -275,9 +276,9 @@ def _pair_uncertainty(st: Start, cpose: np.ndarray, vpose: np.ndarray):
     rot, t = cv2.Rodrigues(cpose[1, :3])[0], cpose[1, 3:].reshape(3, 1)
     rvecs = [v[:3].reshape(3, 1) for v in vpose]      # board poses in camera 1 = the frame
     tvecs = [v[3:].reshape(3, 1) for v in vpose]
-    cams = [(st.own[c]["K"], st.own[c]["d"], st.own[c]["model"]["fitted"], st.own[c]["rvecs"], st.own[c]["tvecs"])
-            for c in (a, b)]
-    unc = stereo_covariance(obj, [st.pts[a][v] for v in views], [st.pts[b][v] for v in views], *cams,
+    cam_a, cam_b = ((st.own[c]["K"], st.own[c]["d"], st.own[c]["model"]["fitted"], st.own[c]["rvecs"],
+                     st.own[c]["tvecs"]) for c in (a, b))
+    unc = stereo_covariance(obj, [st.pts[a][v] for v in views], [st.pts[b][v] for v in views], cam_a, cam_b,
                             rot, t, rvecs, tvecs)
     return {0: unc["camera1"], 1: unc["camera2"]}, {"stereo": unc["stereo"], "stereo_cov": unc["stereo_cov"]}
 

@@ -85,14 +85,14 @@ def stereo_covariance(obj, left, right, cam1, cam2, R, T, rvecs, tvecs) -> dict[
         u = np.r_[uv[0][i], uv[1][i]]
         v0 = np.r_[np.ravel(rvecs[i]), np.ravel(tvecs[i])]
 
-        def resid(th, st, v, i=i, u=u):
+        def pair_resid(th, st, v, i=i, u=u):
             return _project_pair(cams, obj[i], th, st, v, R) - u
 
         st0 = np.r_[np.zeros(3), T]
-        r0 = resid(th0, st0, v0)
-        blocks.append((r0, _jacobian(lambda st, v0=v0: resid(th0, st, v0), st0, _stereo_steps(T)),
-                       _jacobian(lambda v, st0=st0: resid(th0, st0, v), v0, _pose_steps(v0))))
-        J_th[offs[i]:offs[i + 1]] = _jacobian(lambda th, st0=st0, v0=v0: resid(th, st0, v0), th0,
+        r0 = pair_resid(th0, st0, v0)
+        blocks.append((r0, _jacobian(lambda st, v0=v0: pair_resid(th0, st, v0), st0, _stereo_steps(T)),
+                       _jacobian(lambda v, st0=st0: pair_resid(th0, st0, v), v0, _pose_steps(v0))))
+        J_th[offs[i]:offs[i + 1]] = _jacobian(lambda th, st0=st0, v0=v0: pair_resid(th, st0, v0), th0,
                                               np.r_[cams[0].steps(), cams[1].steps()])
     E = np.hstack(_influence(blocks)[0])
     M = E - (E @ J_th) @ A

@@ -33,6 +33,7 @@ background), ``"roundness"``, ``"too many"``.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 from operator import attrgetter
@@ -143,7 +144,7 @@ def detect(gray: np.ndarray, settings: DetectorSettings = DEFAULT) -> DetectionR
 
 
 def candidate_boxes(gray: np.ndarray, settings: DetectorSettings = DEFAULT
-                    ) -> tuple[float, float, list[tuple[int, int, int, int]]]:
+                    ) -> tuple[float, float, list[Sequence[int]]]:
     """Steps 1 and 2 of :func:`detect` alone: ``(threshold, median, boxes)``, ``boxes`` the
     bounding boxes ``(x, y, w, h)`` of the above-threshold regions of the decimated view, in
     its samples. (bench/detect_speed.py times it: the floor under any measuring step.)"""
@@ -296,15 +297,15 @@ def _shape(n, sx, sy, sxx, sxy, syy) -> tuple[float, float]:
     return math.sqrt(max(0.5 * (a + c) - root, 0.0) / lmax), lmax
 
 
-def _reason(area, total, roundness, s: DetectorSettings) -> str | None:
-    """Why a measured, complete candidate is not a marker, or None."""
+def _reason(area, total, roundness, s: DetectorSettings) -> str:
+    """Why a measured, complete candidate is not a marker, or "" (it is one)."""
     if area < s.min_area or area > s.max_area:
         return "area"
     if not total > 0:
         return "contrast"
     if roundness < s.min_roundness:
         return "roundness"
-    return None
+    return ""
 
 
 def _measure_batch(gray, rois, size, thr, s: DetectorSettings, result: DetectionResult) -> None:

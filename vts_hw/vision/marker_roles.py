@@ -162,10 +162,11 @@ class TableSpace:
     @classmethod
     def from_settings(cls, settings: AimSettings = DEFAULT_AIM, mapping=None,
                       body_height: float = BODY_HEIGHT_MM) -> "TableSpace":
-        c = fov_centre(mapping) if mapping is not None else np.zeros(3)
-        return cls(tuple(float(v) for v in c), settings.bore_diameter_mm / 2, settings.bore_depth_mm / 2,
+        x, y, z = (float(v) for v in (fov_centre(mapping) if mapping is not None else np.zeros(3)))
+        z0, z1 = settings.table_z_mm
+        return cls((x, y, z), settings.bore_diameter_mm / 2, settings.bore_depth_mm / 2,
                    settings.table_width_mm / 2, settings.table_top_y_mm, float(body_height),
-                   tuple(float(z) for z in settings.table_z_mm))
+                   (float(z0), float(z1)))
 
     def inside(self, pts_spect) -> np.ndarray:
         """Whether each SPECT-frame point (N x 3, mm) lies in the volume."""

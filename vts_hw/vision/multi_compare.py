@@ -60,12 +60,12 @@ def compare_cameras(new: CameraCalibration, old: CameraCalibration) -> dict[str,
     judged = []
     for a, b in pairs:
         va, vb = _values(a), _values(b)
-        row = {k: float(va[k] - vb[k]) for k in JUDGED}
-        row["rotation_deg"] = rotation_angle_deg(a.R @ b.R.T)
+        change = {k: float(va[k] - vb[k]) for k in JUDGED}
+        row: dict[str, float | None] = {**change, "rotation_deg": rotation_angle_deg(a.R @ b.R.T)}
         row["position"] = float(np.linalg.norm(a.center - b.center)) if same_unit else None
         out["cameras"][a.name] = row
         for k in JUDGED:
-            j = _judge(a.name, k, row[k], (a.sd or {}).get(k), (b.sd or {}).get(k), False)
+            j = _judge(a.name, k, change[k], (a.sd or {}).get(k), (b.sd or {}).get(k), False)
             if j:
                 judged.append(j)
     out["judged"] = judged
@@ -90,10 +90,10 @@ def against_truth(calib: CameraCalibration, truth: CameraCalibration, points: np
     judged = []
     for c in calib.camera_fits:
         t = truth.camera(c.name)
-        est, true = _values(c), _values(t)
+        fitted, true = _values(c), _values(t)
         rows: dict[str, Any] = {}
         for k in JUDGED:
-            rows[k] = {"estimated": float(est[k]), "true": float(true[k]), "error": float(est[k] - true[k]),
+            rows[k] = {"estimated": float(fitted[k]), "true": float(true[k]), "error": float(fitted[k] - true[k]),
                        "sd": (c.sd or {}).get(k)}
             j = _judge(c.name, k, rows[k]["error"], rows[k]["sd"], None, True)
             if j:

@@ -206,7 +206,7 @@ def match_views(geo: ViewGeometry, pts: Sequence, max_px: float = 2.0, ratio: fl
     if seeds:
         groups = _grow(geo, pts, norm, np.vstack(seeds), max_px)
         _select(geo, pts, norm, groups, max_px, ratio, min_sep_px, max_rms_px, out)
-    used = [set() for _ in range(C)]
+    used: list[set[int]] = [set() for _ in range(C)]
     for p in out.points:
         for c, d in enumerate(p.detections):
             if d >= 0:

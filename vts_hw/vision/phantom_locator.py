@@ -122,10 +122,13 @@ class PhantomLocator:
         if fit.rms_mm > self.rms_limit_mm:
             return PhantomSeen(rms_mm=fit.rms_mm, found=fit.found, spheres=m,
                                why=f"the best fit's RMS {fit.rms_mm:.1f} mm is above {self.rms_limit_mm:g} mm")
+        seen_by = fit.detections
+        if seen_by is None:      # locate_body_views gives them always
+            raise RuntimeError("the phantom's fit came without the detections that made it")
         out: dict[str, list[tuple[str, float, float]]] = {n: [] for n in names}
         for i in range(m):
             for c, n in enumerate(names):
-                d = int(fit.detections[i, c])
+                d = int(seen_by[i, c])
                 if d >= 0:
                     x, y = views[n][d]
                     out[n].append((f"S{i + 1}", float(x), float(y)))
