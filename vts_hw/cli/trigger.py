@@ -9,6 +9,7 @@ import click
 from vts_hw.cli import cli
 from vts_hw.cli.common import OutputFile, echo_json, json_option, with_rig
 from vts_hw.errors import DeviceError
+from vts_hw.room import Room
 
 log_option = click.option("--log", "log_path", type=OutputFile(), default="trigger.csv",
                           show_default=True, help="trigger.csv to append every command, reply and edge to.")
@@ -48,17 +49,12 @@ def _no_errors(st) -> None:
                           f"{'; '.join(st.errors)}")
 
 
-def _open(rig, log_path):
-    from vts_hw.drivers.registry import open_trigger
-    return open_trigger(rig, log_path)
-
-
 @contextlib.contextmanager
 def _session(rig, log_path):
-    """The device for one command; a trigger.csv that stopped taking lines is said at the end
-    (exit 3): the device did what was printed, the log file is short."""
-    gen = _open(rig, log_path)
-    with gen:
+    """The room's trigger for one command (closed with the room); a trigger.csv that stopped
+    taking lines is said at the end (exit 3): the device did what was printed, the log file is short."""
+    with Room(rig, trigger_log=log_path) as room:
+        gen = room.trigger
         yield gen
     if gen.log.write_error is not None:
         raise gen.log.write_error

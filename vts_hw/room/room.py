@@ -28,29 +28,36 @@ from __future__ import annotations
 import os
 import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 from vts_hw.camera import Camera
 from vts_hw.config import RigConfig, load_rig
 from vts_hw.drivers.registry import check_camera_kinds, open_camera, open_trigger
 from vts_hw.drivers.trigger import TriggerGenerator
 from vts_hw.errors import ConfigError
-from vts_hw.store import ResultsStore
-from vts_hw.store.paths import StoreTarget
-from vts_hw.store.target import resolve_target
 from vts_hw.lazy import load
+
+if TYPE_CHECKING:
+    from vts_hw.store import ResultsStore
+    from vts_hw.store.paths import StoreTarget
 
 __all__ = ["Room"]
 
 
-# the one loaders of the calibration and the mapping (with OpenCV and SciPy behind them) are loaded
-# when a calibration is first asked for: opening a room for the trigger alone loads neither
+# the one loaders of the calibration and the mapping (with OpenCV and SciPy behind them) and the
+# store (SQLAlchemy) are loaded when first asked for: opening a room for the trigger loads none
 def _READ_CALIBRATION():
     return load("vts_hw.vision.calibration_io", "read_calibration")
 
 
 def _READ_MAPPING():
     return load("vts_hw.vision.registration", "read_mapping")
+
+
+def _STORE(rig: RigConfig, target, mode: str) -> ResultsStore:
+    if target is None:     # as every command resolves it: $VTS_STORE, rig.yaml's store:, the per-user file
+        target = load("vts_hw.store.target", "resolve_target")(None, None, rig)
+    return load("vts_hw.store", "ResultsStore")(target, mode=mode)
 
 
 class Room:
@@ -137,10 +144,7 @@ class Room:
     @property
     def store(self) -> ResultsStore:
         """The results store (see the class), opened on first use."""
-        target = self._store_target
-        if target is None:
-            target = resolve_target(None, None, self.rig)
-        return self._part("store", lambda: ResultsStore(target, mode=self._store_mode))
+        return self._part("store", lambda: _STORE(self.rig, self._store_target, self._store_mode))
 
     def opened(self) -> list[str]:
         """What is open now, in opening order ("camera cam1", "trigger", "store", ...)."""
