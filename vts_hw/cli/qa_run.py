@@ -7,7 +7,8 @@ from pathlib import Path
 
 import click
 
-from vts_hw.cli.common import echo_json, fmt_time, open_store
+from vts_hw.cli.common import echo_json, fmt_time, open_store, store_target
+from vts_hw.room import Room
 # the one way a QA run is recorded, shared with the console (vts_hw/console/qa_job.py)
 from vts_hw.store.qa_record import artifacts_dir, record_qa  # noqa: F401
 
@@ -16,18 +17,18 @@ def run_qa(rig, steps, cameras, frames, plots, dry_run, operator, as_json, clock
     from vts_hw.procedures.daily import QARun
 
     if dry_run:
-        from vts_hw.cli.common import store_target
         run = QARun(rig, steps=steps, cameras=cameras or None, n_frames=frames)
         for i, step in enumerate(run.plan(store_target(rig).url or "the default results store"), 1):
             click.echo(f"{i:2d}. {step}")
         return 0
-    from vts_hw.drivers.registry import check_camera_kinds, open_camera
+    from vts_hw.drivers.registry import check_camera_kinds
 
     check_camera_kinds(rig.camera(n) for n in (cameras or [c.name for c in rig.cameras]))
-    with open_store(rig) as store:
+    with Room(rig, clock=clock, store=store_target(rig)) as room:   # the store first; each camera when its turn comes
+        store = room.store
         run = QARun(rig, steps=steps, cameras=cameras or None, n_frames=frames, plots=plots,
                     artifacts_dir=artifacts_dir(store), clock=clock,
-                    open_camera=lambda cfg: open_camera(cfg, clock=clock),
+                    open_camera=lambda cfg: room.camera(cfg.name),
                     progress=lambda m: click.echo(m, err=True) if not as_json else None)
         result, stored = record_qa(store, run, rig, operator=operator, clock=clock)
     data = result.results_data()
@@ -59,7 +60,7 @@ def import_runs(rig, files) -> list[tuple[str, int]]:
 
 
 def set_baseline(rig, cameras, frames, dry_run, operator, as_json, clock=time.time) -> None:
-    from vts_hw.drivers.registry import check_camera_kinds, open_camera
+    from vts_hw.drivers.registry import check_camera_kinds
     from vts_hw.procedures.baseline import take_baselines
     from vts_hw.store.recorder import record
 
@@ -72,9 +73,9 @@ def set_baseline(rig, cameras, frames, dry_run, operator, as_json, clock=time.ti
         for n in names:
             click.echo(f"{n}: LED on, {frames} snapshots, detect the wall markers, store them as the baseline")
         return
-    from contextlib import ExitStack
-    with ExitStack() as stack, open_store(rig) as store:
-        cams = [stack.enter_context(open_camera(cfg, clock=clock)) for cfg in cfgs]
+    with Room(rig, clock=clock, store=store_target(rig)) as room:   # the store first, then the cameras
+        store = room.store
+        cams = [room.camera(cfg.name) for cfg in cfgs]
         result = take_baselines(cams, frames=frames, clock=clock, rig=rig)
         started = clock()
         stored = record(store, result, rig=rig.rig, operator=operator, config_digest=rig.digest,
