@@ -87,7 +87,7 @@ class _Windows:
             out.append(BandSegment(t0, t1, wid, win))
         return out
 
-    def state(self, value: float, t: float) -> str:
+    def state(self, value: float | None, t: float) -> str:
         return str(self.at(t)[1].state(value))
 
 
@@ -136,14 +136,14 @@ def collect(store, since: float | None = None, now: float | None = None, rig: st
     all_cam_baselines = [r.started for r in baseline_runs if reset[r.id] is None]
 
     def baselines_of(cam: str) -> list[float]:
-        return sorted(r.started for r in baseline_runs if reset[r.id] is None or cam in reset[r.id])
+        return sorted(r.started for r in baseline_runs if (only := reset[r.id]) is None or cam in only)
 
     # fetch from the earliest "latest baseline" so the trend can reach back before `since`
     fetch_since = since
     if since is not None and baseline_runs:
         named = {c for s in reset.values() if s for c in s}
-        latest = [_latest_before(all_cam_baselines, now)] + [_latest_before(baselines_of(c), now) for c in named]
-        latest = [t for t in latest if t is not None]
+        latest_of = [_latest_before(all_cam_baselines, now)] + [_latest_before(baselines_of(c), now) for c in named]
+        latest = [t for t in latest_of if t is not None]
         if latest:
             fetch_since = min(since, min(latest))
 
@@ -191,17 +191,18 @@ def collect(store, since: float | None = None, now: float | None = None, rig: st
         axes = {}
         for a in AXES:
             t = np.array([p.t for p in fit_pts])
-            v = np.array([p.value(f"drift_{a}_px") for p in fit_pts])
-            trend = fit_trend(t, v)
+            drift = np.array([p.value(f"drift_{a}_px") for p in fit_pts])
+            trend = fit_trend(t, drift)
             w = bands[a][-1].window
-            axes[a] = AxisSummary(control_limits(t, v), trend,
+            axes[a] = AxisSummary(control_limits(t, drift), trend,
                                   forecast(trend, w.action_low, w.action_high, now))
         latest_id = shown[-1].run_id if shown else None
         cameras[cam] = CameraDrift(
             name=cam, points=shown,
             baselines=[b for b in baselines_of(cam) if (since is None or b >= since) and b <= now],
             baseline_t=bl, axes=axes, mm_per_px={a: _mm_per_px(pts, a) for a in AXES},
-            markers={k: dict(v) for k, v in sorted(markers.get((cam, latest_id), {}).items())})
+            markers={k: dict(v) for k, v in sorted(markers.get((cam, latest_id), {}).items())} if latest_id is not None
+            else {})
 
     return DriftReport(
         title=title or ("VTS camera drift" + (f" — {rig}" if rig else "")),

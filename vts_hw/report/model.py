@@ -169,8 +169,12 @@ class CameraDrift:
 
     def nearest_forecast(self) -> tuple[str, Forecast] | None:
         """The axis whose forecast comes first, among those within a year."""
-        hits = [(a, s.forecast) for a, s in self.axes.items() if s.forecast.within_year]
-        return min(hits, key=lambda h: h[1].t) if hits else None
+        hits = [(s.forecast.t, a, s.forecast) for a, s in self.axes.items()
+                if s.forecast.within_year and s.forecast.t is not None]     # a date or reached: t is set
+        if not hits:
+            return None
+        _, axis, first = min(hits, key=lambda h: h[0])
+        return axis, first
 
     def as_dict(self) -> dict:
         return {"name": self.name, "state": str(self.state),
@@ -254,10 +258,12 @@ class DriftReport:
             led = c.events("led_off_visible")
             if led:
                 out.append((1, f"{c.name}: LED check failed on {len(led)} run(s), last {fmt_date(led[-1].t)}"))
-        if self.steps is not None and self.steps.state not in (None, State.OK):
-            bad = sorted({f"{m.metric} ({m.subject})" for m in self.steps.measures if str(m.status) != "OK"})
-            out.append((self.steps.state.rank, f"7-sphere step test: {self.steps.state} in run "
-                                               f"{self.steps.latest.id} ({', '.join(bad)})"))
+        steps = self.steps
+        if steps is not None and steps.latest is not None and steps.state not in (None, State.OK):
+            bad = sorted({f"{m.metric} ({m.subject})" for m in steps.measures if str(m.status) != "OK"})
+            step_state = State(steps.latest.status)
+            out.append((step_state.rank, f"7-sphere step test: {step_state} in run "
+                                         f"{steps.latest.id} ({', '.join(bad)})"))
         out += [a for a in (h.attention() for h in self.history) if a is not None]
         if not self.has_baseline:   # an empty store too: the first thing to do
             out.append((1, "no drift baseline is recorded: set one with `vts qa drift --set-baseline`"))

@@ -198,14 +198,15 @@ def title_pages(report: DriftReport) -> list[Figure]:
 
 
 def _camera_header(report: DriftReport, cam: CameraDrift) -> list[str]:
-    p = cam.latest
+    p = cam.points[-1]      # a camera with runs shown (report_pages)
     base = fmt_date(cam.baseline_t) if cam.baseline_t else "none recorded (the trend uses every run)"
     lines = [f"{cam.name} — {cam.state}",
              f"latest run {fmt_datetime(p.t)} · {len(cam.points)} runs shown · baseline {base}"]
     for a in AXES:
         s = cam.axes[a]
         c = s.control
-        ctrl = (f"control {c.mean:+.3f} ± {3 * c.sd:.3f}" if not c.pending else f"control pending ({c.n}/{CONTROL_RUNS})")
+        ctrl = (f"control {c.mean:+.3f} ± {3 * c.sd:.3f}" if c.mean is not None and c.sd is not None
+                else f"control pending ({c.n}/{CONTROL_RUNS})")
         trend = (f"trend {fmt_slope(s.trend)} px/30 d ({trend_detail(s.trend)})" if s.trend.ok
                  else f"no trend yet: {trend_detail(s.trend)}")
         line = (f"{a}: latest {latest_text(cam, p, a)} px (mm) · {ctrl} · {trend} · "

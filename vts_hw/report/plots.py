@@ -10,11 +10,14 @@ in a server or a test run).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from matplotlib import dates as mdates
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
+from matplotlib.typing import RcKeyType
 
 from vts_hw.report.model import CameraDrift, DriftReport
 from vts_hw.report.times import fmt_date, utc
@@ -27,7 +30,7 @@ ZONE_COLOURS = {"OK": "#e6f4e7", "TOLERANCE": "#fff0d6", "ACTION": "#fde4e4"}
 CONTROL_COLOUR = "#1f5fa8"
 TREND_COLOUR = "#5b2a86"
 BASELINE_COLOUR = "#6b6b6b"
-FONT = {"font.size": 9, "axes.titlesize": 10, "axes.labelsize": 9, "legend.fontsize": 8,
+FONT: dict[RcKeyType, Any] = {"font.size": 9, "axes.titlesize": 10, "axes.labelsize": 9, "legend.fontsize": 8,
         "xtick.labelsize": 8, "ytick.labelsize": 8}
 
 
@@ -50,8 +53,9 @@ def time_range(report: DriftReport, cam: CameraDrift) -> tuple[float, float]:
     span = max(end - start, MIN_SPAN_S)
     ext = 0.03 * span
     nf = cam.nearest_forecast()
-    if nf and nf[1].status == "date" and nf[1].t - end <= max(span, 60 * DAY):
-        ext = max(ext, nf[1].t - end + 0.05 * span)
+    crossing = nf[1].t if nf and nf[1].status == "date" else None
+    if crossing is not None and crossing - end <= max(span, 60 * DAY):
+        ext = max(ext, crossing - end + 0.05 * span)
     return start - 0.03 * span, end + ext
 
 
@@ -221,7 +225,7 @@ def camera_figure(report: DriftReport, cam: CameraDrift, figsize=(10.0, 7.6),
         body = fig
         if header:
             hh = header_height_in(header)
-            top, body = fig.subfigures(2, 1, height_ratios=[hh, figsize[1] - hh])
+            top, body = fig.subfigures(2, 1, squeeze=False, height_ratios=[hh, figsize[1] - hh])[:, 0]
             top.text(0.035, 1 - 6 / 72 / hh, header[0], fontsize=HEADER_TITLE_PT, fontweight="bold", va="top")
             top.text(0.035, 1 - (6 + HEADER_TITLE_PT * 1.6) / 72 / hh, "\n".join(header[1:]),
                      fontsize=HEADER_LINE_PT, va="top", family="monospace", linespacing=HEADER_LINESPACING)

@@ -104,7 +104,7 @@ class Room:
             return "not commissioned"
         skipped = (f"{len(c.skipped)} of {len(STEP_LABELS)} steps skipped ("
                    + ", ".join(STEP_LABELS.get(n, n) for n in c.skipped) + ")") if c.skipped else ""
-        if c.complete:
+        if c.complete and c.report is not None:     # complete: a report stands
             who = f"signed off by {c.report.operator}" if c.report.operator else "not signed off"
             return f"commissioned on {fmt_date(c.report.started)}: {c.word}{', ' + skipped if skipped else ''} ({who})"
         parts = c.not_passed_text(why=False) or ["every step passed, no report since (`vts commission --resume` "

@@ -91,7 +91,7 @@ def _cameras_cell(room: Room) -> str:
     for c in cams:
         out.append(f'<div class="cam" data-camera="{escape(c.name)}" data-state="{escape(str(c.state))}">'
                    f'<b>{escape(c.name)}</b> {_word(c.state)}{sparkline_svg(c, tol, start, rep.now)}'
-                   f'<span class="muted">{fmt_date(c.latest.t)}</span></div>')
+                   f'<span class="muted">{fmt_date(c.points[-1].t)}</span></div>')
     return "<td>" + "".join(out) + "</td>"
 
 

@@ -104,7 +104,7 @@ def render_department_pdf(report: RoomsReport) -> bytes:
                 fig.text(COLUMNS[1][1], cy, c.name, fontsize=7.5, va="center", fontweight="bold")
                 _word(fig, COLUMNS[1][1] + 0.045, cy, c.state, c.state)
                 _spark(fig, COLUMNS[1][1] + 0.12, cy, c, tol, start, report.now)
-                fig.text(COLUMNS[1][1] + 0.22, cy, fmt_date(c.latest.t), fontsize=6.5, color="#5f6b7a", va="center")
+                fig.text(COLUMNS[1][1] + 0.22, cy, fmt_date(c.points[-1].t), fontsize=6.5, color="#5f6b7a", va="center")
             _last(fig, COLUMNS[2][1], y, room.last_steps, "step test", report.now)
             _last(fig, COLUMNS[3][1], y, room.last_calibration, "calibration", report.now)
             _last(fig, COLUMNS[4][1], y, room.last_mapping, "SPECT mapping", report.now)

@@ -33,12 +33,13 @@ def fmt_slope(trend: Trend, html: bool = False) -> str:
 
 def trend_detail(trend: Trend) -> str:
     """The fit in words: runs, dates, 95 % CI and p-value; or why there is no trend."""
-    if not trend.ok:
+    p_value, slope, ci = trend.p_value, trend.slope_per_30d, trend.ci95_per_30d    # set together by fit_trend
+    if p_value is None or slope is None or ci is None:
         return trend.reason
-    p = "p < 0.001" if trend.p_value < 0.001 else f"p = {trend.p_value:.3f}"
+    p = "p < 0.001" if p_value < 0.001 else f"p = {p_value:.3f}"
     sig = "" if trend.significant else f", not significant (p ≥ {SIGNIFICANCE:g})"
     return (f"{trend.n} runs, {fmt_date(trend.t0)} – {fmt_date(trend.t_end)} ({trend.span_days:.1f} days); "
-            f"95 % CI {trend.slope_per_30d - trend.ci95_per_30d:+.3f} … {trend.slope_per_30d + trend.ci95_per_30d:+.3f}"
+            f"95 % CI {slope - ci:+.3f} … {slope + ci:+.3f}"
             f" px/30 d, {p}{sig}; residual SD {trend.residual_sd:.3f} px")
 
 

@@ -214,19 +214,19 @@ def forecast(trend: Trend, action_low: float | None, action_high: float | None, 
     """When the fitted line meets the action level in the direction of its slope.
 
     No date unless the trend exists and its slope is significant."""
-    if not trend.ok:
+    b, t0, intercept = trend.slope_per_day, trend.t0, trend.intercept    # set together by fit_trend
+    if b is None or t0 is None or intercept is None:
         return Forecast("no fit", reason=trend.reason)
     if not trend.significant:
         return Forecast("not significant", reason=(
             f"the slope {trend.slope_per_30d:+.3f} ± {trend.slope_se_per_30d:.3f} px/30 d is not "
             f"significant (p = {trend.p_value:.2f}, needs < {SIGNIFICANCE:g})"))
-    b = trend.slope_per_day
     if b == 0:
         return Forecast("away", reason="the slope is zero")
     level = action_high if b > 0 else action_low
     if level is None:
         return Forecast("no limit", reason=f"no action level {'above' if b > 0 else 'below'}")
-    t_cross = trend.t0 + (level - trend.intercept) / b * DAY
+    t_cross = t0 + (level - intercept) / b * DAY
     if t_cross <= now:
         # moving towards this level, the line has met it already (possibly before the fit began)
         return Forecast("reached", t=float(t_cross), level=level)

@@ -31,7 +31,7 @@ from vts_hw.catalog import COMMISSION_STEP, COMMISSION_STEPS, COMMISSIONING
 from vts_hw.results import Measure, overall_state
 from vts_hw.store.errors import StoreError
 from vts_hw.store.recorder import Recorder, record
-from vts_hw.store.records import Measurement
+from vts_hw.store.records import Measurement, Run
 from vts_hw.tolerance import State
 
 KEYS = ("commission_id", "step_passed", "step_run", "step_skipped")
@@ -119,8 +119,8 @@ class Standing:
     word: str
     skipped: list[str]
     not_passed: list[str]
-    report: object | None          # the report run (vts_hw.store.records.Run) that stands, else None
-    last_report: object | None     # the newest report run of this commissioning, standing or not
+    report: Run | None             # the report run that stands, else None
+    last_report: Run | None        # the newest report run of this commissioning, standing or not
     attempts: dict[str, StepState] = field(default_factory=dict)   # the newest attempt of each step run
 
     def not_passed_text(self, why: bool = True) -> list[str]:
