@@ -1,4 +1,5 @@
 import os
+import re
 import tempfile
 from pathlib import Path
 
@@ -112,8 +113,9 @@ def _xdist_controller(config) -> bool:
 def _may_select_real_qatrack(config) -> bool:
     """Whether the session's arguments can reach tests/test_qatrack_real.py (the controller of
     an xdist session collects nothing, so it judges by the arguments and -m)."""
-    if "not real_qatrack" in (config.option.markexpr or ""):
-        return False
+    expr = config.option.markexpr or ""
+    if "not real_qatrack" in expr or (expr and not re.search(r"(?<!not )\b(real_qatrack|interop)\b", expr)):
+        return False                 # (-m unit, -m console, ...: a kind the real QATrack+'s is not)
     target = (Path(__file__).parent / "test_qatrack_real.py").resolve()
     args = [a.split("::")[0] for a in config.args] or [str(Path(__file__).parent)]
     for a in args:
@@ -123,12 +125,23 @@ def _may_select_real_qatrack(config) -> bool:
     return False
 
 
+def pytest_itemcollected(item):
+    """Each test marked with its kind, the folder it is in (tests/unit/, tests/console/, ...: the
+    markers pyproject.toml describes as "kind:"), so that `pytest -m console` runs the console's
+    tests (tools/sort-tests put the modules there; decision 0105)."""
+    kinds = {m.split(":")[0] for m in item.config.getini("markers") if m.split(":")[1:2] == [" kind"]}
+    folder = item.path.parent
+    if folder.parent == REPO / "tests" and folder.name in kinds:
+        item.add_marker(folder.name)
+
+
 def pytest_sessionstart(session):
     if _xdist_controller(session.config) and _may_select_real_qatrack(session.config):
         _real_qatrack().start_in_background()
         _real_qatrack().note_when_started()
 
 
+@pytest.hookimpl(trylast=True)      # after -m has deselected (pytest -m unit starts no QATrack+)
 def pytest_collection_modifyitems(session, config, items):
     """The longest modules first (tests/module_order.py), the real QATrack+'s where half the
     time is handed out; the real server starts installing now (unless an xdist controller
