@@ -155,6 +155,11 @@ class Fixtures:
         import yaml
         (root / "dead.yaml").write_text(yaml.safe_dump(dead))
         (root / "unknown_key.yaml").write_text(yaml.safe_dump({**dead, "camerass": []}))
+        # camera entries that do not fit their kind (its settings model, its roles): refused
+        for name, cam in (("hostless", {"name": "cam1"}),
+                          ("axis_options", {"name": "cam1", "host": "127.0.0.1", "port": port, "options": {"speed": 2}}),
+                          ("replay", {"name": "cam1", "kind": "replay", "options": {"folder": str(root / "emptydir")}})):
+            (root / f"{name}.yaml").write_text(yaml.safe_dump({"rig": name, "cameras": [cam]}))
         self.configs = {"missing config": str(root / "nope.yaml"), "empty config": str(root / "empty.txt"),
                         "binary config": str(root / "binary.bin"), "[] config": str(root / "list.json"),
                         "unknown key": str(root / "unknown_key.yaml")}
@@ -218,6 +223,20 @@ def global_config_cases(fx: Fixtures) -> list[Case]:
                     lambda wd: ["--config", fx.dead_config, "sim", "up", "--detach", "--dir", str(wd / "sim")],
                     _refused))
     return out
+
+
+def camera_kind_cases(fx: Fixtures) -> list[Case]:
+    """A camera entry that does not fit its kind's settings model, and `camera setup` of a kind
+    without the parameters role: refused in one sentence (docs/decisions/0100-camera-roles.md)."""
+    def config(name: str) -> str:
+        return str(fx.root / f"{name}.yaml")
+    return [Case("configs", "camera kind: an Axis camera without a host",
+                 lambda wd: ["camera", "snapshot", "cam1", "-o", str(wd / "a.jpg"), "--config", config("hostless")],
+                 _refused),
+            Case("configs", "camera kind: options on an Axis camera",
+                 plain(["camera", "info", "cam1", "--config", config("axis_options")]), _refused),
+            Case("configs", "camera kind: setup of a kind without parameters",
+                 plain(["camera", "setup", "cam1", "--config", config("replay")]), _refused)]
 
 
 def cases(cmd_path: tuple[str, ...], cmd: click.Command, fx: Fixtures, classes=CLASSES, full: bool = False):
@@ -369,6 +388,7 @@ def plan(only: str | None, classes, fx: Fixtures, cli, peers=None, full: bool = 
         planned += todo
     planned += [c for c in store_command_cases(fx) if not only or c.what.startswith(only)]
     planned += [c for c in global_config_cases(fx) if not only or only == "vts"]
+    planned += [c for c in camera_kind_cases(fx) if not only or only in ("vts", "camera")]
     if full_disk.CLASS in classes:
         planned += full_disk.cases(fx.root, only)
     if signals.CLASS in classes:

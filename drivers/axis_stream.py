@@ -114,8 +114,39 @@ class MultipartConnection:
             yield frame if frame.complete else TORN
 
 
+class MultipartStream:
+    """The streaming half of the :class:`~vts_hw.camera.Frames` role of an HTTP camera
+    (mixed into an :class:`~vts_hw.drivers.axis_client.AxisClient`): ``GET stream_path`` as one
+    connection, and the reconnecting stream over it; each JPEG is made a Frame by the kind's
+    ``make_frame`` (timed by its Axis stamp, or by its receipt)."""
+
+    stream_path = "/axis-cgi/mjpg/video.cgi"
+    resolution: str
+    compression: int
+
+    def make_frame(self, seq: int, jpeg: bytes, host_time: float, problems=()) -> Frame:
+        raise NotImplementedError
+
+    def open_stream(self, *, fps: float, duration: float | None = None, nbrofframes: int | None = None,
+                    first_seq: int = 0, stall_timeout: float = 2.0):
+        """One connection of ``mjpg/video.cgi`` (the camera ends it after ``duration`` s or
+        ``nbrofframes`` frames when asked)."""
+        params: dict[str, object] = {"resolution": self.resolution, "fps": num(fps),
+                                     "compression": self.compression}
+        if duration is not None:
+            params["duration"] = max(1, int(duration + 0.999))
+        if nbrofframes is not None:
+            params["nbrofframes"] = nbrofframes
+        return MultipartConnection(self, self.stream_path, params, stall_timeout=stall_timeout,
+                                   first_seq=first_seq, make_frame=self.make_frame)
+
+    def stream(self, **kwargs) -> FrameStream:
+        """Frames that reconnect on drops and stalls, with gaps (vts_hw.camera_stream)."""
+        return FrameStream(self, **kwargs)
+
+
 def num(x: float) -> str:
     return str(int(x)) if float(x).is_integer() else f"{x:g}"
 
 
-__all__ = ["FrameStream", "MultipartConnection", "NotAStream", "StreamGap", "num"]
+__all__ = ["FrameStream", "MultipartConnection", "MultipartStream", "NotAStream", "StreamGap", "num"]

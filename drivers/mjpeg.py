@@ -13,10 +13,12 @@ rig.yaml::
       host: 192.0.2.30
       options: {stream_path: /video.mjpg, snapshot_path: /snapshot.jpg, led: none}
 
-HTTP, authentication, timeouts and the typed errors are the Axis driver's (the same
-``requests`` session and digest handling); the paths default to the VAPIX ones, which many
-cameras also answer. ``led: vapix`` switches an LED on the camera's I/O port as an Axis
-camera does; ``led: none`` (the default) accepts the calls as no-ops and ``device_info`` says so.
+HTTP, authentication, timeouts and the typed errors are the Axis driver's client
+(:mod:`.axis_client`), and the stream its multipart connection; the paths default to the VAPIX
+ones, which many cameras also answer. Its roles (:mod:`vts_hw.camera`): frames, device
+information and the clock, always; ``led: vapix`` adds the LED on the camera's I/O port as an
+Axis camera has it (:class:`MjpegLedCamera`, the :class:`~vts_hw.camera.Illumination` role);
+``led: none`` (the default) has no LED role at all. It has no parameters and tells no uptime.
 """
 
 from __future__ import annotations
@@ -24,18 +26,30 @@ from __future__ import annotations
 import time
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, Field
 
-from vts_hw.camera import ClockOffset, Frame, NoParameters, check_whole, kind_options
-from vts_hw.drivers.axis import AxisCamera, BadReply
-from vts_hw.errors import ConfigError
+from vts_hw.camera import ClockOffset, Frame, check_whole, kind_settings
+from vts_hw.drivers.axis import HTTP_KEYS
+from vts_hw.drivers.axis_client import AxisClient
+from vts_hw.drivers.axis_errors import BadReply
+from vts_hw.drivers.axis_io import AxisIOPort
+from vts_hw.drivers.axis_stream import MultipartStream
 
 
 class MjpegOptions(BaseModel):
+    """The ``mjpeg`` kind's own keys (``options:``)."""
+
     model_config = ConfigDict(extra="forbid")
-    stream_path: str = "/axis-cgi/mjpg/video.cgi"
-    snapshot_path: str = "/axis-cgi/jpg/image.cgi"
-    led: Literal["none", "vapix"] = "none"
+    stream_path: str = Field(default="/axis-cgi/mjpg/video.cgi", description="the path of its MJPEG stream")
+    snapshot_path: str = Field(default="/axis-cgi/jpg/image.cgi", description="the path of one JPEG")
+    led: Literal["none", "vapix"] = Field(default="none", description="vapix: its LED ring hangs on a VAPIX I/O "
+                                                                       "port (`led_port`); none: it has no LED to switch")
+
+
+MjpegSettings = kind_settings(
+    "MjpegSettings", "Any MJPEG-over-HTTP camera that stamps nothing (frames timed by their receipt): its "
+    "address and credentials as an Axis camera's, and under `options:` the paths of its stream and snapshot "
+    "and whether its LED hangs on a VAPIX I/O port.", HTTP_KEYS, required=("host",), options=MjpegOptions)
 
 
 def receipt_frame(seq: int, jpeg: bytes, host_time: float, problems=()) -> Frame:
@@ -48,28 +62,36 @@ def receipt_frame(seq: int, jpeg: bytes, host_time: float, problems=()) -> Frame
     return Frame(seq, jpeg, None, host_time, tuple(probs), time_source="receipt")
 
 
-class MjpegCamera(AxisCamera):
-    """An MJPEG camera over HTTP, timed by receipt."""
+class MjpegCamera(AxisClient, MultipartStream):
+    """An MJPEG camera over HTTP, timed by receipt: frames, device information, the clock."""
 
-    def __init__(self, *args, options: MjpegOptions | None = None, **kwargs):
-        super().__init__(*args, **kwargs)
+    settings = MjpegSettings
+
+    def __init__(self, name: str, base_url: str, user: str | None = "root", password: str | None = None,
+                 *, timeout: float = 5.0, led_port: int = 1, resolution: str = "640x480", fps: float = 25.0,
+                 compression: int = 25, clock=time.time, verify: bool | str = True,
+                 options: MjpegOptions | None = None):
+        super().__init__(name, base_url, user, password, timeout=timeout, clock=clock, verify=verify)
+        self.led_port = led_port
+        self.resolution = resolution
+        self.fps = fps
+        self.compression = compression
         self.options = options or MjpegOptions()
         self.stream_path = self.options.stream_path
-        self.led_switches = self.options.led == "vapix"
-        self.led_calls: list[str] = []
         self._worst_rtt = 0.0
 
     @classmethod
     def from_config(cls, cfg, clock=time.time) -> "MjpegCamera":
-        opts = kind_options(cfg, MjpegOptions)
-        if not cfg.host:
-            raise ConfigError(f"camera {cfg.name!r} (kind mjpeg): host is required")
-        return cls(cfg.name, cfg.base_url, cfg.user, cfg.password(), timeout=cfg.timeout_s,
-                   led_port=cfg.led_port, resolution=cfg.resolution_str, fps=cfg.fps,
-                   compression=cfg.compression, clock=clock, verify=cfg.ca_cert or True, options=opts)
+        """The camera of an entry: :class:`MjpegLedCamera` when its LED hangs on an I/O port."""
+        s = cls.settings.from_entry(cfg)
+        opts = MjpegOptions.model_validate(cfg.options)
+        kind = MjpegLedCamera if opts.led == "vapix" else MjpegCamera
+        return kind(cfg.name, cfg.base_url, s.user, cfg.password(), timeout=s.timeout_s,
+                    led_port=s.led_port, resolution=cfg.resolution_str, fps=s.fps,
+                    compression=s.compression, clock=clock, verify=s.ca_cert or True, options=opts)
 
     def __repr__(self) -> str:
-        return f"MjpegCamera({self.name!r}, {self.base_url!r}, user={self.user!r})"
+        return f"{type(self).__name__}({self.name!r}, {self.base_url!r}, user={self.user!r})"
 
     def make_frame(self, seq: int, jpeg: bytes, host_time: float, problems=()) -> Frame:
         return receipt_frame(seq, jpeg, host_time, problems)
@@ -89,40 +111,10 @@ class MjpegCamera(AxisCamera):
         check_whole(frame, self.name)
         return frame
 
-    @property
-    def vapix_version(self) -> int:
-        return 0
-
-    def get_params(self, group: str) -> dict[str, str]:
-        raise NoParameters(self.name, f"camera {self.name} (kind mjpeg) has no parameters to read")
-
-    def set_params(self, values) -> None:
-        raise NoParameters(self.name, f"camera {self.name} (kind mjpeg) has no parameters to set")
-
-    def led_on(self) -> None:
-        self._led("on", super().led_on)
-
-    def led_off(self) -> None:
-        self._led("off", super().led_off)
-
-    def led_pulse(self, ms: int) -> None:
-        if not 1 <= int(ms) <= 60000:
-            raise ValueError("LED pulse must be 1 to 60000 ms")
-        self._led(f"pulse {int(ms)}", lambda: AxisCamera.led_pulse(self, ms))
-
-    def led_state(self) -> bool | None:
-        """The I/O port's state (``led: vapix``); None (not known) for a camera without one."""
-        return super().led_state() if self.led_switches else None
-
-    def _led(self, what: str, call) -> None:
-        self.led_calls.append(what)
-        if self.led_switches:
-            call()
-
     def device_info(self) -> dict[str, str]:
         return {"Brand": "MJPEG over HTTP", "ProdNbr": "mjpeg", "URL": self.base_url,
                 "Stream": self.stream_path, "Clock": "none in the frames: times are host receipt times",
-                "LED": "I/O port (VAPIX)" if self.led_switches else "no-op: calls accepted and recorded only"}
+                "LED": "I/O port (VAPIX)" if isinstance(self, AxisIOPort) else "none: this camera cannot switch one (an LED switch is a no-op)"}
 
     def clock_offset(self, samples: int = 5) -> ClockOffset:
         """No camera clock: offset 0 by definition, uncertain by the longest round trip of
@@ -130,3 +122,11 @@ class MjpegCamera(AxisCamera):
         for _ in range(max(1, samples)):
             self.snapshot()
         return ClockOffset(0.0, self._worst_rtt, self.clock(), "receipt", samples, source="receipt")
+
+
+class MjpegLedCamera(AxisIOPort, MjpegCamera):
+    """An MJPEG camera whose LED ring hangs on a VAPIX I/O port (``led: vapix``): the
+    :class:`~vts_hw.camera.Illumination` role besides."""
+
+
+__all__ = ["MjpegCamera", "MjpegLedCamera", "MjpegOptions", "MjpegSettings", "receipt_frame"]

@@ -76,8 +76,9 @@ def open_trigger(cfg: TriggerConfig | RigConfig, log_path: str | Path | None = N
 
 
 # -- cameras -----------------------------------------------------------------------------
-# kind (rig.yaml cameras[].kind) -> "module:class"; the class has from_config(cfg, clock=...)
-# and implements vts_hw.camera.Camera. A new kind is one module in drivers/ and one line here.
+# kind (rig.yaml cameras[].kind) -> "module:class"; the class has ``settings`` (its
+# vts_hw.camera.kind_settings model) and from_config(cfg, clock=...), and implements
+# vts_hw.camera.Camera and the roles it has. A new kind is one module in drivers/ and one line here.
 
 CAMERA_KINDS = {
     "axis": "vts_hw.drivers.axis:AxisCamera",
@@ -92,6 +93,12 @@ def camera_class(kind: str, camera: str = "?"):
         raise ConfigError(f"camera {camera!r}: unknown kind {kind!r} (known: {', '.join(sorted(CAMERA_KINDS))})")
     module, cls = CAMERA_KINDS[kind].split(":")
     return getattr(importlib.import_module(module), cls)
+
+
+def kind_has(cfg: CameraConfig, role: type) -> bool:
+    """Whether the cameras of an entry's kind have ``role`` (one of vts_hw.camera's roles that a
+    kind has whatever its options: Parameters, RunningTime), asked before anything is opened."""
+    return issubclass(camera_class(cfg.kind, cfg.name), role)
 
 
 def open_camera(cfg: CameraConfig, clock=None) -> Camera:
@@ -116,8 +123,14 @@ def open_cameras(cfgs, clock=None) -> list[Camera]:
     return out
 
 
+def camera_settings(cfg: CameraConfig):
+    """A camera entry's settings, checked by its kind's own model (ConfigError naming the camera,
+    the kind and the key, exit 2)."""
+    return camera_class(cfg.kind, cfg.name).settings.from_entry(cfg)
+
+
 def check_camera_kinds(cameras) -> None:
-    """Every camera entry names a known kind (ConfigError, exit 2, before anything is touched)."""
+    """Every camera entry names a known kind and fits its kind's settings (ConfigError, exit 2,
+    before anything is touched)."""
     for cfg in cameras:
-        if cfg.kind not in CAMERA_KINDS:
-            camera_class(cfg.kind, cfg.name)
+        camera_settings(cfg)

@@ -19,9 +19,9 @@ it faster than real time (1 = as recorded).
   recording's (median camera − host time).
 * ``snapshot()`` is the frame at the current playback time; a stream yields each frame when
   its time comes and ends (:class:`~vts_hw.camera.SourceEnded`) at the end of the recording.
-* The LED cannot be switched in a recording: ``led_on``/``led_off``/``led_pulse`` are
-  accepted and recorded as no-ops (``led_calls``), ``led_switches`` is False, and
-  ``device_info()`` says so. There are no parameters (:class:`~vts_hw.camera.NoParameters`).
+* Its roles (:mod:`vts_hw.camera`): frames, device information and the clock. A recording
+  cannot switch its LED, has no parameters and no uptime: it has none of those roles (callers
+  ask, and say "not known" or "not checked"), and ``device_info()`` says so.
 """
 
 from __future__ import annotations
@@ -31,27 +31,36 @@ import statistics
 import threading
 import time
 from pathlib import Path
+from typing import Optional
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from vts_hw.bounded import ANY_SIZE, TABLE, open_bounded, open_checked
-from vts_hw.camera import ClockOffset, Frame, NoParameters, SourceEnded, kind_options
+from vts_hw.camera import ClockOffset, Frame, SourceEnded, kind_settings
 from vts_hw.camera_stream import FrameStream
 from vts_hw.errors import ConfigError, DataError
 from vts_hw.recording.folder import load_manifest, read_index
 
 
 class ReplayOptions(BaseModel):
+    """The ``replay`` kind's own keys (``options:``)."""
+
     model_config = ConfigDict(extra="forbid")
-    folder: Path
-    camera: str | None = None
-    speed: float = Field(default=1.0, gt=0, le=1000)
+    folder: Path = Field(description="the recording folder to play back")
+    camera: Optional[str] = Field(default=None, description="the camera's name in the recording (default: "
+                                                         "this entry's name)")
+    speed: float = Field(default=1.0, gt=0, le=1000, description="1 plays it as recorded; 4, four times faster")
+
+
+ReplaySettings = kind_settings(
+    "ReplaySettings", "A recording folder played back as a live camera: under `options:` the folder, the camera "
+    "in it and the speed; no address.", ("resolution",), options=ReplayOptions)
 
 
 class ReplayCamera:
     """One camera of a recording folder, played back."""
 
-    led_switches = False
+    settings = ReplaySettings
 
     def __init__(self, name: str, folder: str | Path, source: str | None = None, *, speed: float = 1.0,
                  fps: float | None = None, resolution: str = "640x480", clock=time.time):
@@ -61,7 +70,6 @@ class ReplayCamera:
         self.speed = float(speed)
         self.clock = clock
         self.resolution = resolution
-        self.led_calls: list[str] = []
         load_manifest(self.folder, missing_ok=True)   # a folder with a broken manifest is named here
         index = self.folder / f"{self.source}.index.csv"
         if not index.is_file():
@@ -86,7 +94,7 @@ class ReplayCamera:
 
     @classmethod
     def from_config(cls, cfg, clock=time.time) -> "ReplayCamera":
-        opts = kind_options(cfg, ReplayOptions)
+        opts = cls.settings.from_entry(cfg)
         if not opts.folder.is_dir():
             raise ConfigError(f"camera {cfg.name!r} (kind replay): options.folder: no such folder {opts.folder}")
         return cls(cfg.name, opts.folder, opts.camera, speed=opts.speed,
@@ -131,7 +139,7 @@ class ReplayCamera:
         return SourceEnded(self.name, f"camera {self.name}: the replay of {self.folder} ({self.source}) "
                                       f"reached its end")
 
-    # -- the camera contract ---------------------------------------------------------------
+    # -- its roles: frames, device information, the clock ---------------------------------------------------------------
     def snapshot(self, compression: int | None = None) -> Frame:
         """The frame at the current playback time."""
         i = self._index_at(self._position())
@@ -146,26 +154,11 @@ class ReplayCamera:
     def stream(self, **kwargs) -> FrameStream:
         return FrameStream(self, **kwargs)
 
-    def led_on(self) -> None:
-        self.led_calls.append("on")
-
-    def led_off(self) -> None:
-        self.led_calls.append("off")
-
-    def led_pulse(self, ms: int) -> None:
-        if not 1 <= int(ms) <= 60000:
-            raise ValueError("LED pulse must be 1 to 60000 ms")
-        self.led_calls.append(f"pulse {int(ms)}")
-
-    def led_state(self) -> None:
-        """Not known: a recording keeps no LED state (its frames show what the ring lit)."""
-        return None
-
     def device_info(self) -> dict[str, str]:
         return {"Brand": "vts-hw", "ProdNbr": "replay", "SerialNumber": f"{self.folder.name}/{self.source}",
                 "Source": str(self.folder), "Camera": self.source, "Speed": f"{self.speed:g}",
                 "Frames": str(len(self._rows)),
-                "LED": "no-op: a recording cannot switch its LED (calls accepted and recorded only)"}
+                "LED": "none: a recording cannot switch its LED (an LED switch is a no-op)"}
 
     def clock_offset(self, samples: int = 5) -> ClockOffset:
         """The recording's own offset: median camera − host time of its frames."""
@@ -176,9 +169,6 @@ class ReplayCamera:
         med = statistics.median(d)
         spread = max(abs(x - med) for x in d)
         return ClockOffset(med, spread, self._times[0], "recording", len(d), source="recording")
-
-    def get_params(self, group: str) -> dict[str, str]:
-        raise NoParameters(self.name, f"camera {self.name} is a replay of {self.folder}: it has no parameters")
 
 
 class _ReplayConnection:

@@ -9,11 +9,12 @@ import json
 import time
 from pathlib import Path
 
+from vts_hw.camera import Parameters, RunningTime
 from vts_hw.camera_led import switch_led
 from vts_hw.drivers.axis_setup import setup_camera
 from vts_hw.drivers.axis_uptime import NoUptime
 from vts_hw.drivers.discovery import search
-from vts_hw.drivers.registry import open_camera, open_cameras, open_trigger
+from vts_hw.drivers.registry import kind_has, open_camera, open_cameras, open_trigger
 from vts_hw.errors import ConfigError, UsageError, VtsError
 from vts_hw.files import WriteFailed, ensure_dir, write_atomic
 from vts_hw.procedures import calibration as calibration_procedure
@@ -66,8 +67,9 @@ def cameras(ctx: Context) -> Outcome:
         raise UsageError("commissioning needs the rig config as a file (--config rig.yaml): locked_params are "
                          "written into it")
     for cfg in rig.cameras:
-        if cfg.kind != "axis":
-            raise UsageError(f"camera {cfg.name} is of kind {cfg.kind}: only Axis cameras are commissioned")
+        if not kind_has(cfg, Parameters):
+            raise UsageError(f"camera {cfg.name} is of kind {cfg.kind}, which has no parameters: only Axis cameras "
+                             f"are commissioned")
         cfg.password()
     announced: dict[tuple[str, int], tuple[str, ...]] = {}
     if inp.listen_s > 0:
@@ -158,9 +160,8 @@ def aim(ctx: Context) -> Outcome:
 def _uptime(cam, say) -> float | None:
     """Minutes the camera has run; None when it does not tell (a camera that does not answer
     is a device failure, raised)."""
-    read = getattr(cam, "uptime", None)
     try:
-        return None if read is None else read().seconds / 60.0
+        return cam.uptime().seconds / 60.0 if isinstance(cam, RunningTime) else None
     except NoUptime as exc:      # a camera that does not tell: not known, said
         say(f"  {cam.name}: uptime not known ({exc})")
         return None

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from vts_hw.camera import CameraError, NoParameters, Refused
+from vts_hw.camera import CameraError, Parameters, Refused, RunningTime
 from vts_hw.errors import UsageError, VtsError
 from vts_hw.files import filled_folder, write_atomic
 from vts_hw.catalog import qa_set_name
@@ -250,11 +250,12 @@ class QARun:
                     self._warmup(cam, cfg, out, add)
                 if "params" in self.steps:
                     step("params")
-                    try:
+                    if not isinstance(cam, Parameters):   # e.g. a replayed recording: nothing to lock
+                        out.problems.append(f"parameters not checked: camera {cfg.name} (kind {cfg.kind}) "
+                                            f"has no parameters")
+                    else:
                         changed = self._params(cam, cfg, out)
                         add("params_changed", float(changed), "params")
-                    except NoParameters as exc:   # e.g. a replayed recording: nothing to lock
-                        out.problems.append(f"parameters not checked: {exc}")
                 if "clock" in self.steps:
                     step("clock")
                     off = cam.clock_offset()
@@ -281,13 +282,12 @@ class QARun:
         than that ago may still be drifting as it warms. Stored as ``uptime_min`` and
         ``warming_up`` (1: its drift may not have settled), neither of which changes the state."""
         warm = float(getattr(cfg, "warmup_min", 30.0))
-        read = getattr(cam, "uptime", None)
-        if read is None:
+        if not isinstance(cam, RunningTime):
             out.problems.append("uptime not known (this kind of camera does not tell it): whether its drift "
                                 "has settled is not known")
             return
         try:
-            up = read()
+            up = cam.uptime()
         except CameraError as exc:
             out.problems.append(f"uptime not known ({exc}): whether its drift has settled is not known")
             return

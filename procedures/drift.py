@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vts_hw import __version__
-from vts_hw.camera import Frame
+from vts_hw.camera import Frame, Illumination
 from vts_hw.figures import figure_png
 from vts_hw.vision.detect import DetectorSettings, detect_jpeg
 from vts_hw.vision.marker_roles import MOVE_FLOOR_PX, PATIENT, Role, follow, roles_of_tracks
@@ -330,16 +330,17 @@ def acquire_led_frames(cam, n_frames: int = 5, settle_s: float = LED_SETTLE_S, o
     """LED on, ``n_frames`` snapshots (``every_s`` apart at least: the baseline spreads them over
     a breath), LED off, one snapshot; the LED is left on.
 
-    A camera whose LED calls change nothing (``led_switches`` False, e.g. a replayed
+    A camera without an LED to switch (not :class:`~vts_hw.camera.Illumination`, e.g. a replayed
     recording) gives no LED-off frame: the LED check is not made rather than failed.
     ``on_frame(frame, led_on, taken, needed)`` hears of each frame as it is taken, and first
     (frame None, taken 0) before the LED is switched (progress, a console that must close its
     own stream of the camera first and then shows these frames); it must return soon."""
-    switches = getattr(cam, "led_switches", True)
+    switches = isinstance(cam, Illumination)
     needed = n_frames + (1 if switches else 0)
     tell = on_frame or (lambda *a: None)
     tell(None, True, 0, needed)
-    cam.led_on()
+    if switches:
+        cam.led_on()
     time.sleep(settle_s)
     on = []
     for k in range(n_frames):

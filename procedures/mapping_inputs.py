@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 from typing import Callable, Sequence
 
+from vts_hw.camera import Illumination
 from vts_hw.errors import ConfigError, DataError
 from vts_hw.procedures.spect_mapping import SpectMapping
 from vts_hw.procedures.steps import LED_SETTLE_S, SNAPSHOT_COMPRESSION, average_centroids
@@ -52,8 +53,9 @@ def mapping_from_cameras(cameras: Sequence, calibration, volume, frames: int = 1
         raise DataError(f"{volume}: no such file or directory.")
     pts = {}
     for k, cam in enumerate(cameras):
-        cam.led_on()
-        time.sleep(LED_SETTLE_S)
+        if isinstance(cam, Illumination):   # a camera without an LED (a replay) shows its frames as they are
+            cam.led_on()
+            time.sleep(LED_SETTLE_S)
         if progress:
             progress(f"{cam.name}: {frames} snapshots")
         pts[getattr(cam, "name", None) or f"cam{k + 1}"] = average_centroids(

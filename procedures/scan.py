@@ -34,7 +34,7 @@ from pathlib import Path
 from typing import Callable
 
 from vts_hw.config import RigConfig
-from vts_hw.camera import Camera, NoParameters
+from vts_hw.camera import Camera, Illumination, Parameters
 from vts_hw.drivers.registry import trigger_backend
 from vts_hw.errors import UsageError, VtsError
 from vts_hw.recording.capture import Recorder
@@ -239,8 +239,11 @@ class ScanSession:
                     url=cfg.base_url, resolution=cfg.resolution_str, fps_asked=cfg.fps,
                     device={k: info.get(k) for k in ("ProdNbr", "SerialNumber", "Version") if k in info})
                 self._check_image(cam, cfg)
-                cam.led_on()  # the markers are retro-reflective: bright only with the LED ring on
-                self.cam_notes[cfg.name]["led"] = "on"
+                if isinstance(cam, Illumination):
+                    cam.led_on()  # the markers are retro-reflective: bright only with the LED ring on
+                    self.cam_notes[cfg.name]["led"] = "on"
+                else:
+                    self.cam_notes[cfg.name]["led"] = "none (this kind of camera cannot switch an LED)"
             except VtsError as exc:
                 failures.append(exc)
         if failures:
@@ -248,11 +251,11 @@ class ScanSession:
                             failures[0].exit_code)
 
     def _check_image(self, cam: Camera, cfg) -> None:
-        try:
-            offered = cam.get_params("Properties.Image").get("Properties.Image.Resolution", "")
-        except NoParameters:
+        if not isinstance(cam, Parameters):
             self.cam_notes[cfg.name]["parameters"] = "none (this kind of camera has no parameters)"
             return
+        try:
+            offered = cam.get_params("Properties.Image").get("Properties.Image.Resolution", "")
         except VtsError:
             offered = ""  # older firmware does not list them: the stream request will tell
         sizes = [s.strip().lower() for s in offered.split(",") if s.strip()]

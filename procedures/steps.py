@@ -36,6 +36,7 @@ from typing import Callable, Protocol, Sequence, runtime_checkable
 import numpy as np
 
 from vts_hw.bounded import SMALL, read_bytes
+from vts_hw.camera import Illumination
 from vts_hw.catalog import STEPS
 from vts_hw.errors import DataError
 from vts_hw.files import ensure_dir, write_atomic, write_json_atomic
@@ -170,7 +171,7 @@ class SeenPosition:
 class StepSession:
     """Acquire the step test on two or more cameras and analyse it.
 
-    ``cameras``: camera drivers with ``name``, ``led_on()`` and ``snapshot()`` (two: left = the
+    ``cameras``: cameras (their LED rings switched on where they have one) (two: left = the
     calibration's camera 1, right = camera 2); ``calibration``: the cameras in mm, any form
     :func:`vts_hw.vision.camera_set.named_cameras` reads (a calibration of two or more cameras,
     a dict of named cameras); ``mapping``: the VTS → SPECT RigidTransform.
@@ -214,7 +215,8 @@ class StepSession:
     def acquire(self) -> list[SeenPosition]:
         ensure_dir(self.out, "step test folder")
         for cam in self.cameras:
-            cam.led_on()
+            if isinstance(cam, Illumination):   # a camera without an LED (a replay) shows its frames as they are
+                cam.led_on()
         time.sleep(LED_SETTLE_S)
         for i, pos in enumerate(self.plan_, 1):
             self.positioner.move_to(pos)

@@ -187,10 +187,18 @@ def rig_yaml_page() -> str:
         else:
             out += ["No keys of its own.", ""]
     out += ["## Camera kinds", "",
-            "`cameras[].kind` names the driver of a camera (`drivers/registry.py`, `CAMERA_KINDS`); its "
-            "`options:` are checked by that driver.", "",
-            "| kind | driver |", "| --- | --- |"]
-    out += [f"| `{k}` | `{v}` |" for k, v in sorted(registry.CAMERA_KINDS.items())]
+            "`cameras[].kind` names the driver of a camera (`drivers/registry.py`, `CAMERA_KINDS`). Each "
+            "kind has its own settings model: the keys of the entry (above) it uses, and its own keys under "
+            "`options:`, checked when the camera is opened (and before a QA run or a scan touches anything).",
+            ""]
+    for kind in sorted(registry.CAMERA_KINDS):
+        model = registry.camera_class(kind).settings
+        out += [f"### `kind: {kind}`", "", f"`{registry.CAMERA_KINDS[kind]}`. {_cell(model.__doc__ or '')}", ""]
+        rows: list[str] = []
+        _model_table(model, "cameras[].", rows, [])
+        own = {k for k in model.model_fields if k not in model.entry_keys}
+        out += [re.sub(r"^\| `cameras\[\]\.(\w+)`", lambda m: f"| `cameras[].options.{m.group(1)}`"
+                       if m.group(1) in own else m.group(0), row) for row in rows]
     out += ["", "## Metrics with a tolerance window", "",
             "`tolerances:` takes these names (`vts_hw/tolerance.py`'s `DEFAULT_TOLERANCES` and the "
             "`windows` of the entries of `vts_hw/catalog.py`), each with its default window:", "",

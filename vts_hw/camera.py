@@ -1,7 +1,12 @@
 """The camera contract: what procedures, the recorder and the CLI may ask of any camera.
 
-A camera kind (``drivers/axis.py``, ``drivers/mjpeg.py``, ``drivers/replay.py``...) is one
-module that implements :class:`Camera`; ``vts_hw.drivers.registry.open_camera(cfg)`` picks it
+The contract is cut by role, as ophyd-async composes a detector: :class:`Frames` (snapshot,
+stream), :class:`DeviceInformation`, :class:`CameraClock` (the clock offset) — which every kind
+has, and :class:`Camera` composes — and :class:`Illumination` (the LED ring),
+:class:`Parameters` (what ``vts camera setup`` sets) and :class:`RunningTime` (uptime), which a
+kind implements only when it has them: callers ask ``isinstance(cam, Illumination)``, no kind
+fakes a role it lacks. A camera kind (``drivers/axis.py``, ``drivers/mjpeg.py``,
+``drivers/replay.py``...) is one module; ``vts_hw.drivers.registry.open_camera(cfg)`` picks it
 from the ``kind:`` of a rig.yaml camera entry. Nothing above the drivers knows which kind it
 holds. The types every kind shares live here: the one :class:`Frame`, the
 :class:`ClockOffset`, a :class:`StreamGap`, and :class:`CameraError`, the error procedures
@@ -15,9 +20,14 @@ Where a frame's time comes from is part of the frame (``time_source``) and of th
 
 from __future__ import annotations
 
+from copy import copy
 from dataclasses import dataclass, field
-from typing import Callable, Iterator, Protocol, runtime_checkable
+from typing import Callable, ClassVar, Iterator, Protocol, Self, Union, get_args, get_origin, runtime_checkable
 
+from pydantic import BaseModel, ConfigDict, ValidationError, create_model
+from pydantic_core import PydanticUndefined
+
+from vts_hw.config import CameraConfig
 from vts_hw.errors import ConfigError, DeviceError
 
 TORN = "torn"   # what a connection yields for a frame that arrived cut short (never a Frame)
@@ -33,12 +43,6 @@ class CameraError(DeviceError):
     def __init__(self, camera: str, message: str):
         super().__init__(message)
         self.camera = camera
-
-
-class NoParameters(CameraError):
-    """This kind of camera has no parameters to read or lock (e.g. a replayed recording)."""
-
-    retry = False
 
 
 class Refused(CameraError):
@@ -136,21 +140,16 @@ class Connection(Protocol):
     def close(self) -> None: ...
 
 
-@runtime_checkable
-class Camera(Protocol):
-    """What a camera of any kind offers.
+# -- the roles: a camera kind implements the ones it has (docs/decisions/0100-camera-roles.md) ----------
 
-    ``led_switches`` says whether ``led_on``/``led_off`` change what the camera sees (False
-    for a replay: the calls are accepted and recorded as no-ops, and ``device_info`` says so).
-    ``led_state()`` reads the LED's state back (None: not known): a switch is only known to
-    have taken when the camera says so.
-    """
+@runtime_checkable
+class Frames(Protocol):
+    """Frames: one now, or a stream. Every camera has this role."""
 
     name: str
     fps: float
     resolution: str
     clock: Callable[[], float]
-    led_switches: bool
 
     def snapshot(self, compression: int | None = None) -> Frame:
         """One frame, now. ``compression`` (0-100) is a hint for this request only; a kind
@@ -163,31 +162,79 @@ class Camera(Protocol):
     def stream(self, **kwargs) -> "Iterator[Frame | StreamGap]":
         """A reconnecting stream (``vts_hw.camera_stream.FrameStream``) over this camera."""
 
+
+@runtime_checkable
+class DeviceInformation(Protocol):
+    """What the camera says it is (brand, product, serial, firmware, or what a kind can tell)."""
+
+    def device_info(self) -> dict[str, str]: ...
+
+
+@runtime_checkable
+class CameraClock(Protocol):
+    """The camera's clock against the host's (``source`` says where it comes from: its own
+    stamps, the frames' receipt, a recording)."""
+
+    def clock_offset(self, samples: int = 5) -> ClockOffset: ...
+
+
+@runtime_checkable
+class Illumination(Protocol):
+    """An LED ring (or other illumination) the camera switches, and reads back.
+
+    A kind that has it switches what the camera sees; a kind without it (a replay, an MJPEG
+    camera without an I/O port) does not implement it, and callers ask
+    ``isinstance(cam, Illumination)``. ``led_state()`` reads the LED's state back (None: this
+    camera cannot tell): a switch is only known to have taken when the camera says so."""
+
     def led_on(self) -> None: ...
 
     def led_off(self) -> None: ...
 
     def led_pulse(self, ms: int) -> None: ...
 
-    def led_state(self) -> bool | None:
-        """Whether the LED ring's output is on now, read back from the camera (True/False);
-        None where the kind cannot tell (a replay, a camera without an I/O port)."""
+    def led_state(self) -> bool | None: ...
 
-    def device_info(self) -> dict[str, str]: ...
 
-    def clock_offset(self, samples: int = 5) -> ClockOffset: ...
+@runtime_checkable
+class Parameters(Protocol):
+    """Named parameters in groups, read and set (what ``vts camera setup`` sets and locks, and
+    what the daily QA checks)."""
 
-    def get_params(self, group: str) -> dict[str, str]:
-        """Parameters of a group; :class:`NoParameters` where the kind has none."""
+    def get_params(self, group: str) -> dict[str, str]: ...
 
-    # optional: ``uptime() -> Uptime`` where the kind can tell it (the daily QA's warm-up check
-    # says "not known" for a kind without it, or a camera that cannot tell)
+    def set_params(self, values: dict[str, object]) -> None: ...
+
+
+@runtime_checkable
+class RunningTime(Protocol):
+    """How long the camera has run since it started (the warm-up check); ``uptime()`` raises a
+    :class:`CameraError` when this camera cannot tell after all (e.g. old firmware)."""
+
+    def uptime(self) -> Uptime: ...
+
+
+@runtime_checkable
+class Camera(Frames, DeviceInformation, CameraClock, Protocol):
+    """What every camera kind offers: frames, what it is, its clock; and ``close()`` (a context
+    manager). The roles some kinds have are asked for with ``isinstance``:
+    :class:`Illumination`, :class:`Parameters`, :class:`RunningTime`."""
 
     def close(self) -> None: ...
 
     def __enter__(self) -> "Camera": ...
 
     def __exit__(self, *exc) -> None: ...
+
+
+#: the roles, by the name a report or a test gives them
+ROLES: dict[str, type] = {"frames": Frames, "device information": DeviceInformation, "clock": CameraClock,
+                          "illumination": Illumination, "parameters": Parameters, "running time": RunningTime}
+
+
+def roles_of(cam) -> tuple[str, ...]:
+    """The names of the roles a camera implements, in :data:`ROLES`' order."""
+    return tuple(name for name, role in ROLES.items() if isinstance(cam, role))
 
 
 class StreamFellShort(CameraError):
@@ -218,19 +265,63 @@ def check_whole(frame: Frame, camera: str) -> None:
                                f"nothing was kept")
 
 
-def kind_options(cfg, model):
-    """A camera entry's ``options:`` checked against a kind's pydantic ``model``; a wrong or
-    unknown key is a ConfigError naming the camera, the key and what was expected."""
-    from pydantic import ValidationError
+class KindSettings(BaseModel):
+    """A camera kind's settings: the keys of a rig.yaml camera entry it uses (``entry_keys``,
+    defined once, by :class:`~vts_hw.config.CameraConfig`) and its own keys under ``options:``."""
 
-    try:
-        return model.model_validate(dict(cfg.options))
-    except ValidationError as exc:
-        err = exc.errors()[0]
-        key = ".".join(str(x) for x in err.get("loc", ())) or "options"
-        raise ConfigError(f"camera {cfg.name!r} (kind {cfg.kind}): options.{key}: {err.get('msg', 'invalid')}") \
-            from None
+    model_config = ConfigDict(extra="forbid")
+    entry_keys: ClassVar[tuple[str, ...]] = ()
+
+    @classmethod
+    def from_entry(cls, cfg: CameraConfig) -> Self:
+        """The settings of a camera entry; a missing, wrong or unknown key is a ConfigError naming
+        the camera, the kind and the key (``options.X`` for the kind's own keys), exit 2."""
+        where = f"camera {cfg.name!r} (kind {cfg.kind})"
+        opts = dict(cfg.options)
+        for key in opts:
+            if key in cls.entry_keys:
+                raise ConfigError(f"{where}: options.{key}: {key} is a key of the camera entry itself, "
+                                  f"not of its options")
+        data = {k: getattr(cfg, k) for k in cls.entry_keys if getattr(cfg, k) is not None}
+        try:
+            return cls.model_validate({**data, **opts})
+        except ValidationError as exc:
+            err = exc.errors()[0]
+            loc = [str(x) for x in err.get("loc", ())]
+            msg = err.get("msg", "invalid")
+            if loc and loc[0] in cls.entry_keys:
+                if err.get("type") == "missing":
+                    what = cls.model_fields[loc[0]].description
+                    raise ConfigError(f"{where} needs a {loc[0]}" + (f" ({what})" if what else "")) from None
+                raise ConfigError(f"{where}: {'.'.join(loc)}: {msg}") from None
+            raise ConfigError(f"{where}: options.{'.'.join(loc) or 'options'}: {msg}") from None
 
 
-__all__ = ["check_whole", "NotWhole", "StreamFellShort", "Camera", "CameraError", "ClockOffset", "Connection", "Frame", "NoParameters", "Refused", "SourceEnded",
-           "StreamGap", "StreamStats", "TORN", "TIME_SOURCES", "Uptime", "kind_options"]
+def kind_settings(name: str, doc: str, entry_keys: tuple[str, ...] = (), *, required: tuple[str, ...] = (),
+                  options: type[BaseModel] | None = None) -> type[KindSettings]:
+    """A camera kind's settings model (its driver's ``settings``): the entry keys it uses, as
+    :class:`~vts_hw.config.CameraConfig` defines them (those in ``required`` must be given), and
+    the fields of ``options``, its own keys under ``options:``. The rig.yaml reference page shows it."""
+    fields: dict = {}
+    for key in entry_keys:
+        info = copy(CameraConfig.model_fields[key])
+        if key in required:
+            info.default = PydanticUndefined
+            info.annotation = _not_none(info.annotation)
+        fields[key] = (info.annotation, info)
+    for key, info in (options.model_fields.items() if options is not None else ()):
+        fields[key] = (info.annotation, info)
+    model = create_model(name, __base__=KindSettings, __doc__=doc, __module__=options.__module__ if options
+                         else __name__, **fields)
+    model.entry_keys = tuple(entry_keys)
+    return model
+
+
+def _not_none(annotation):
+    args = [a for a in get_args(annotation) if a is not type(None)]
+    return args[0] if get_origin(annotation) is Union and len(args) == 1 else annotation
+
+
+__all__ = ["Frames", "DeviceInformation", "CameraClock", "Illumination", "Parameters",
+           "RunningTime", "ROLES", "roles_of", "check_whole", "NotWhole", "StreamFellShort", "Camera", "CameraError", "ClockOffset", "Connection", "Frame", "Refused", "SourceEnded",
+           "StreamGap", "StreamStats", "TORN", "TIME_SOURCES", "Uptime", "KindSettings", "kind_settings"]

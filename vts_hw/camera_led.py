@@ -4,9 +4,9 @@ A camera may answer a switch "OK" and leave its output as it was (an action rule
 holding the port, the port wired to something else: the simulated camera's ``led_held``
 fault). So after each switch the state is read back (``Camera.led_state()``) until the camera
 says what was asked, or :data:`READ_BACK_S` has passed: then the switch did not take
-(:class:`LedNotTaken`, a device failure: exit 4). A kind that cannot tell its LED's state
-(``led_state()`` None: a replay, an MJPEG camera without an I/O port) is said to be not known,
-never OK. A pulse is confirmed when its end is read back (the output off again) and, for a
+(:class:`LedNotTaken`, a device failure: exit 4). A camera that cannot tell its LED's state
+(``led_state()`` None), or has no LED to switch (not :class:`~vts_hw.camera.Illumination`: a
+replay, an MJPEG camera without an I/O port; nothing is sent), is said to be not known, never OK. A pulse is confirmed when its end is read back (the output off again) and, for a
 pulse long enough to be read during it (:data:`PULSE_SEEN_MS`), when it was seen on.
 docs/decisions/0084-commissioning-honest-state.md.
 """
@@ -17,7 +17,7 @@ import time
 from dataclasses import dataclass
 from typing import Callable
 
-from vts_hw.camera import CameraError
+from vts_hw.camera import CameraError, Illumination
 
 READ_BACK_S = 1.0        # a switch the camera's output shows within this long has taken
 PULSE_SEEN_MS = 1000     # a pulse at least this long must be seen on while it lasts
@@ -61,7 +61,9 @@ def _where(cam) -> str:
 def switch_led(cam, on: bool, *, within_s: float = READ_BACK_S, sleep=time.sleep,
                clock=time.monotonic) -> LedReadBack:
     """Switch ``cam``'s LED ring on or off and read it back; :class:`LedNotTaken` when the camera
-    still says otherwise after ``within_s``."""
+    still says otherwise after ``within_s``; not known (nothing sent) for a camera without an LED."""
+    if not isinstance(cam, Illumination):
+        return LedReadBack(None)
     cam.led_on() if on else cam.led_off()
     state = _read_until(cam, on, within_s, sleep, clock)
     want = "on" if on else "off"
@@ -75,7 +77,10 @@ def switch_led(cam, on: bool, *, within_s: float = READ_BACK_S, sleep=time.sleep
 def pulse_led(cam, ms: int, *, within_s: float = READ_BACK_S, sleep=time.sleep,
               clock=time.monotonic) -> LedReadBack:
     """Pulse ``cam``'s LED ring for ``ms`` and read it back: seen on while it lasts (required for
-    a pulse of :data:`PULSE_SEEN_MS` or more), off once it has ended; :class:`LedNotTaken` else."""
+    a pulse of :data:`PULSE_SEEN_MS` or more), off once it has ended; :class:`LedNotTaken` else;
+    not known (nothing sent) for a camera without an LED."""
+    if not isinstance(cam, Illumination):
+        return LedReadBack(None)
     started = clock()
     cam.led_pulse(ms)
     seen = _read_until(cam, True, min(ms / 1000.0, within_s), sleep, clock)

@@ -71,8 +71,6 @@ class CameraConfig(_Strict):
     def _cert_needs_https(self):
         if self.ca_cert is not None and self.scheme != "https":
             raise ValueError("ca_cert needs scheme: https")
-        if self.kind == "axis" and not self.host:
-            raise ValueError("an Axis camera (kind axis, the default) needs a host")
         return self
 
     @field_validator("resolution", mode="before")

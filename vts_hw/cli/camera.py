@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from vts_hw.camera import Camera, CameraError, NoParameters, StreamFellShort, StreamGap
+from vts_hw.camera import Camera, CameraError, Illumination, Parameters, StreamFellShort, StreamGap
 from vts_hw.camera_led import pulse_led, switch_led
 from vts_hw.drivers.registry import open_camera, open_cameras
 from vts_hw.files import write_atomic
@@ -99,7 +99,7 @@ def led(name: str, state: str, ms: int | None, rig) -> None:
     with _open(rig, name) as cam:
         got = pulse_led(cam, ms) if state == "pulse" else switch_led(cam, state == "on")
     where = f"output port {cam.led_port}" if hasattr(cam, "led_port") else "no port"
-    noop = "" if cam.led_switches else " (a no-op on this camera: it cannot switch an LED)"
+    noop = "" if isinstance(cam, Illumination) else " (a no-op on this camera: it cannot switch an LED)"
     if got.state is None:
         said = f"sent; whether it took is {got.words()}"
     elif state == "pulse":
@@ -120,10 +120,7 @@ def info(name: str, as_json: bool, rig) -> None:
     with _open(rig, name) as cam:
         dev = cam.device_info()
         vapix = getattr(cam, "vapix_version", None) or None
-        try:
-            image = cam.get_params("Image.I0")
-        except NoParameters:
-            image = {}
+        image = cam.get_params("Image.I0") if isinstance(cam, Parameters) else {}
         off = cam.clock_offset()
     data = {"camera": name, "kind": cfg.kind, "url": cfg.base_url, "vapix": vapix, "device": dev, "image": image,
             "clock_offset_s": round(off.offset_s, 4), "clock_offset_uncertainty_s": round(off.uncertainty_s, 4),

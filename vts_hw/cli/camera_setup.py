@@ -32,8 +32,9 @@ def setup(names: tuple[str, ...], all_cameras: bool, dry_run: bool, as_json: boo
     4 a camera refused a value or could not be reached (one sentence each says which and
     why; the cameras that took everything are written).
     """
+    from vts_hw.camera import Parameters
     from vts_hw.drivers.axis_setup import wanted
-    from vts_hw.drivers.registry import open_camera
+    from vts_hw.drivers.registry import kind_has, open_camera
     from vts_hw.errors import UsageError
 
     if all_cameras:
@@ -42,8 +43,9 @@ def setup(names: tuple[str, ...], all_cameras: bool, dry_run: bool, as_json: boo
         raise click.UsageError("name at least one camera, or give --all")
     cfgs = [rig.camera(n) for n in names]
     for cfg in cfgs:
-        if cfg.kind != "axis":
-            raise UsageError(f"camera {cfg.name} is of kind {cfg.kind}: only Axis cameras are set up")
+        if not kind_has(cfg, Parameters):
+            raise UsageError(f"camera {cfg.name} is of kind {cfg.kind}, which has no parameters: only Axis cameras "
+                             f"are set up")
         cfg.password()
     source = getattr(rig, "_source", None)
     if source is None:

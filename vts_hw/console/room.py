@@ -24,6 +24,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 
+from vts_hw.camera import Illumination
 from vts_hw.camera_led import READ_BACK_S, LedNotTaken, switch_led
 from vts_hw.console.names import wall_points
 from vts_hw.errors import VtsError
@@ -79,7 +80,7 @@ class RoomFacts:
     def _read_led(self, cam, facts: CameraFacts) -> None:
         """The LED's state as the camera says it (under ``facts.lock``)."""
         try:
-            state = cam.led_state()
+            state = cam.led_state() if isinstance(cam, Illumination) else None   # no LED: cannot tell
         except VtsError as exc:
             facts.led, facts.led_at, facts.led_why = "unknown", self.clock(), f"the camera did not say ({exc})"
             return
