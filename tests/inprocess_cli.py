@@ -1,7 +1,18 @@
-"""`vts ARGS` run in the test's own process (the CLI's main(), as the console script runs it),
-for tests that read what it printed with pytest's capsys."""
+"""`vts ARGS` run in the test's own process (the CLI's main(), as the console script runs it).
+
+``vts(capsys, ...)`` for tests that read what it printed with pytest's capsys; ``run(...)`` in
+place of ``subprocess.run([sys.executable, "-m", "vts_hw.cli.__main__", ...])`` where the
+process itself is not what the test is about (a bad input's sentence and exit code, a report
+written): the same exit code, stdout and stderr, without a Python start and the imports of a
+command each time (about a second each). Tests of the real process (signals, kill -9, the
+installed command, what a command loads) keep their subprocess."""
 
 from __future__ import annotations
+
+import contextlib
+import io
+import os
+import subprocess
 
 from vts_hw.cli import main
 
@@ -15,3 +26,49 @@ def vts(capsys, *args) -> tuple[int, str, str]:
         code = exc.code or 0
     got = capsys.readouterr()
     return code, got.out, got.err
+
+
+@contextlib.contextmanager
+def _environment(env: dict | None, cwd=None):
+    """os.environ as ``env`` (the whole of it, as subprocess's env= gives a child) and the
+    working folder ``cwd`` while the command runs; both as they were afterwards."""
+    saved, here = dict(os.environ), os.getcwd()
+    try:
+        if env is not None:
+            os.environ.clear()
+            os.environ.update(env)
+        if cwd is not None:
+            os.chdir(cwd)
+        yield
+    finally:
+        os.chdir(here)
+        os.environ.clear()
+        os.environ.update(saved)
+
+
+def _stream() -> io.TextIOWrapper:
+    """A text stream with a byte buffer under it, as a pipe's is (not a terminal)."""
+    return io.TextIOWrapper(io.BytesIO(), encoding="utf-8", errors="replace", write_through=True)
+
+
+def _text(stream: io.TextIOWrapper) -> str:
+    stream.flush()
+    return stream.buffer.getvalue().decode("utf-8", errors="replace")
+
+
+def run(*args, env: dict | None = None, cwd=None) -> subprocess.CompletedProcess:
+    """`vts ARGS` in this process with ``env`` and ``cwd`` as a child would have them: a
+    CompletedProcess with its returncode, stdout and stderr (text), as subprocess.run's
+    capture_output=True, text=True gives. An exception main() does not turn into an exit is
+    raised here (in a subprocess it would be a traceback on stderr, which the tests refuse)."""
+    argv = [str(a) for a in args]
+    out, err = _stream(), _stream()
+    with _environment(env, cwd), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            main(argv)
+            code = 0
+        except SystemExit as exc:
+            code = exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 1
+            if isinstance(exc.code, str):
+                print(exc.code, file=err)       # as Python prints a message exit
+    return subprocess.CompletedProcess(["vts", *argv], code, _text(out), _text(err))

@@ -6,12 +6,14 @@ import sys
 
 import pytest
 
+from inprocess_cli import run
 from vts_hw.vision.calibration_io import load_calibration
 
 
 def vts(*args, cwd):
-    return subprocess.run([sys.executable, "-m", "vts_hw.cli.__main__", "calibrate", "stereo", *map(str, args)],
-                          capture_output=True, text=True, cwd=cwd, timeout=600)
+    """`vts calibrate stereo ARGS` in this process (tests/inprocess_cli.py), from the folder
+    ``cwd``; the test that moves $TMPDIR runs it as its own process (tempfile reads it once)."""
+    return run("calibrate", "stereo", *args, cwd=cwd)
 
 
 @pytest.fixture(scope="module")

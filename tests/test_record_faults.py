@@ -1,35 +1,48 @@
 """`vts camera record|snapshot|stream` and `vts recording reindex` as a user runs them, when
 things go wrong: nothing recorded is lost or changed, and nothing says "complete" when it is not.
 
-The simulated rig runs in this process (its faults switched directly); `vts` runs as a
-subprocess with the rig.yaml and password variables the rig writes.
+The simulated rig runs in this process (its faults switched directly); `vts` runs in this
+process too (tests/inprocess_cli.py, as the console script runs it) with the rig.yaml and password
+variables the rig writes. The reindex tests start from copies of one recording made once.
 """
 
 import json
 import os
-import subprocess
-import sys
+import shutil
 
 import pytest
 
+from inprocess_cli import run
 from vts_hw.recording.mjpeg import split_jpegs
 from vts_hw.recording.folder import read_index
 from vts_hw.sim_devices.rig import SimRig
 
-VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
+
+def vts(env, *args):
+    return run(*args, env=env)
 
 
-def vts(env, *args, timeout=90):
-    return subprocess.run([*VTS, *args], capture_output=True, text=True, env=env, timeout=timeout)
+def _rig(folder):
+    with SimRig(n_cameras=2, seed=3) as r:
+        cfg_dir = folder / "sim"
+        r.write(cfg_dir)
+        env = dict(os.environ, **r.env_vars(), VTS_CONFIG=str(cfg_dir / "rig.yaml"))
+        yield r, env
 
 
 @pytest.fixture()
 def rig(tmp_path):
-    with SimRig(n_cameras=2, seed=3) as r:
-        cfg_dir = tmp_path / "sim"
-        r.write(cfg_dir)
-        env = dict(os.environ, **r.env_vars(), VTS_CONFIG=str(cfg_dir / "rig.yaml"))
-        yield r, env
+    yield from _rig(tmp_path)
+
+
+@pytest.fixture(scope="module")
+def one_second(tmp_path_factory):
+    """`vts camera record cam1 --seconds 1`, once for the module: what the reindex tests damage
+    (each a copy of its own)."""
+    folder = tmp_path_factory.mktemp("one-second")
+    for _, env in _rig(folder):
+        assert vts(env, "camera", "record", "cam1", "--seconds", "1", "-o", str(folder / "rec")).returncode == 0
+    return folder / "rec"
 
 
 def _consistent(folder, cam):
@@ -198,15 +211,16 @@ def test_disk_full_snapshot_leaves_no_empty_jpeg(rig, small_disk):
 
 
 # -- reindex ---------------------------------------------------------------------------------
-def _recorded(env, folder):
-    assert vts(env, "camera", "record", "cam1", "--seconds", "1", "-o", str(folder)).returncode == 0
+def _recorded(one_second, folder):
+    """A copy of the module's one-second recording of cam1 at ``folder``: its index."""
+    shutil.copytree(one_second, folder)
     return (folder / "cam1.index.csv").read_bytes()
 
 
-def test_reindex_never_makes_an_index_worse(rig, tmp_path):
-    _, env = rig
+def test_reindex_never_makes_an_index_worse(one_second, tmp_path):
+    env = dict(os.environ)      # (reindex reads the folder alone)
     out = tmp_path / "rec"
-    index = _recorded(env, out)
+    index = _recorded(one_second, out)
     (out / "cam1.mjpeg").write_bytes(b"\0" * 5000)     # no readable frame any more
     p = vts(env, "recording", "reindex", str(out))
     assert p.returncode == 3 and "old index is kept" in p.stderr and "cam1.index.rebuilt.csv" in p.stderr
@@ -215,10 +229,10 @@ def test_reindex_never_makes_an_index_worse(rig, tmp_path):
 
 
 @pytest.mark.parametrize("manifest", ["[]", '{"cameras": []}', '{"cameras": {"cam1": 3}}', "\xff\xfe"])
-def test_reindex_of_a_manifest_of_the_wrong_shape(rig, tmp_path, manifest):
-    _, env = rig
+def test_reindex_of_a_manifest_of_the_wrong_shape(one_second, tmp_path, manifest):
+    env = dict(os.environ)      # (reindex reads the folder alone)
     out = tmp_path / "rec"
-    _recorded(env, out)
+    _recorded(one_second, out)
     (out / "manifest.json").write_bytes(manifest.encode("latin-1"))
     p = vts(env, "recording", "reindex", str(out))
     assert p.returncode == 3 and "Traceback" not in p.stderr
@@ -229,11 +243,11 @@ def test_reindex_of_a_manifest_of_the_wrong_shape(rig, tmp_path, manifest):
     assert vts(env, "recording", "info", str(out)).returncode == 0
 
 
-def test_disk_full_during_reindex_changes_nothing(rig, small_disk):
-    _, env = rig
+def test_disk_full_during_reindex_changes_nothing(one_second, small_disk):
+    env = dict(os.environ)      # (reindex reads the folder alone)
     disk = small_disk(1024)
     out = disk.path / "rec"
-    _recorded(env, out)
+    _recorded(one_second, out)
     (out / "cam1.index.csv").write_text("frame,offset,length,camera_time,host_time\n")  # lost by a crash
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     disk.fill(leave=0)
@@ -242,10 +256,10 @@ def test_disk_full_during_reindex_changes_nothing(rig, small_disk):
     assert {q.name: q.read_bytes() for q in out.iterdir()} == before
 
 
-def test_reindex_replaces_a_damaged_index_and_keeps_it_beside(rig, tmp_path):
-    _, env = rig
+def test_reindex_replaces_a_damaged_index_and_keeps_it_beside(one_second, tmp_path):
+    env = dict(os.environ)      # (reindex reads the folder alone)
     out = tmp_path / "rec"
-    index = _recorded(env, out)
+    index = _recorded(one_second, out)
     lines = index.decode().splitlines()
     lines[5] = "garbage,in,the,middle"                 # a bad line before the last
     damaged = ("\n".join(lines) + "\n").encode()

@@ -1,7 +1,7 @@
 """The drift report never overstates, and `vts report drift` fails in one sentence.
 
-- A simulated rig as a user drives it (`vts sim up --detach`, `vts qa drift`, `vts report
-  drift` as subprocesses): runs without a baseline, then a baseline and two runs minutes apart:
+- A simulated rig as a user drives it (`vts sim up --detach` as a subprocess, `vts qa drift`,
+  `vts report drift` in this process as the console script runs them): runs without a baseline, then a baseline and two runs minutes apart:
   no trend, no forecast, the reason in words, axes scaled to the runs and the bands.
 - The PDF's words, read back by poppler's pdftotext, all lie on the page and never overlap.
 - A real full disk (a small tmpfs): the report is not half-written, the previous one stays.
@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from inprocess_cli import run
 from test_report import NOW, populate
 from vts_hw.report import build_drift_report, collect
 from vts_hw.report.plots import camera_figure
@@ -35,8 +36,15 @@ OLD_NOTE = ("NoBaseline: camera cam1 has no drift baseline in the results store:
             "run `vts qa drift --set-baseline` first")
 
 
-def vts(*args, env=None, timeout=120) -> subprocess.CompletedProcess:
-    return subprocess.run([*VTS, *args], capture_output=True, text=True, env=env, timeout=timeout)
+def vts(*args, env=None) -> subprocess.CompletedProcess:
+    """`vts ARGS` in this process (tests/inprocess_cli.py): what is checked is what it says,
+    writes and stores, and its exit code."""
+    return run(*args, env=env)
+
+
+def vts_process(*args) -> subprocess.CompletedProcess:
+    """`vts ARGS` as its own process: `vts sim up --detach` leaves its rig running after it."""
+    return subprocess.run([*VTS, *args], capture_output=True, text=True, timeout=120)
 
 
 def one_sentence(p: subprocess.CompletedProcess) -> str:
@@ -89,14 +97,14 @@ def rig_yaml(folder: Path, store: Path) -> Path:
 @pytest.fixture(scope="module")
 def sim(tmp_path_factory):
     d = tmp_path_factory.mktemp("sim")
-    p = vts("sim", "up", "--detach", "--dir", str(d))
+    p = vts_process("sim", "up", "--detach", "--dir", str(d))
     assert p.returncode == 0, p.stderr
     with open(d / "rig.yaml", "a") as f:
         f.write(f"store:\n  url: sqlite:///{d / 'results.sqlite'}\n")   # (sim up wrote one: the last wins)
     env = dict(os.environ)
     env.update(load_env_file(d / "sim.env"))
     yield d, env
-    vts("sim", "down", "--dir", str(d))
+    vts_process("sim", "down", "--dir", str(d))
 
 
 def _report_json(d: Path, env, out: Path) -> dict:
