@@ -36,6 +36,7 @@ from typing import Callable
 from vts_hw.config import RigConfig
 from vts_hw.camera import Camera, Illumination, Parameters
 from vts_hw.drivers.registry import trigger_backend
+from vts_hw.drivers.trigger import TriggerGenerator
 from vts_hw.errors import UsageError, VtsError
 from vts_hw.recording.capture import Recorder
 from vts_hw.procedures.scan_trigger import ScanError, ScanTrigger, plain_dict
@@ -95,8 +96,10 @@ def _iso(t: float) -> str:
 class ScanSession:
     """One scan: ``start()`` (steps 1–7), ``wait()`` (8), ``stop()`` (9) — or ``run()``.
 
-    ``cameras`` are the rig's cameras, opened by the caller (``drivers.registry.open_cameras``);
-    the session checks, records and closes them. ``duration`` counts from the fire; None runs
+    ``cameras`` are the rig's cameras, opened by the caller (the room's: ``room.cameras``);
+    the session checks, records and closes them. ``trigger`` gives the trigger generator when the
+    session's check first needs it (the room's: ``lambda: room.trigger``; without it the session
+    opens the rig's itself). ``duration`` counts from the fire; None runs
     until :meth:`request_stop` or Ctrl-C. ``on_step(name, text)`` is told as each step is done.
     ``on_frame(camera, frame)`` is told of each frame once written, after the live path.
     """
@@ -104,7 +107,8 @@ class ScanSession:
     def __init__(self, rig: RigConfig, folder: str | Path, cameras: list[Camera], *, duration: float | None = None,
                  clock=time.time, first_frame_timeout: float = FIRST_FRAME_TIMEOUT_S,
                  on_step: Callable[[str, str], None] | None = None, live=None,
-                 on_frame: Callable[[str, object], None] | None = None):
+                 on_frame: Callable[[str, object], None] | None = None,
+                 trigger: Callable[[], TriggerGenerator] | None = None):
         self.rig = rig
         # on_frame(camera, frame): told of each recorded frame after the live path's tap (the room
         # console's frames hub: it must return at once and is never a reason to lose a frame)
@@ -120,7 +124,7 @@ class ScanSession:
         self.on_step = on_step or (lambda name, text: None)
         self.cameras: list[Camera] = list(cameras)
         self._configs = {c.name: c for c in rig.cameras}
-        self.trigger = ScanTrigger(rig, clock)
+        self.trigger = ScanTrigger(rig, clock, trigger)
         self.recorder: Recorder | None = None
         self.phase = "planned"
         self.times: dict[str, float | None] = {}

@@ -12,10 +12,11 @@ import inspect
 import threading
 import time
 from pathlib import Path
+from typing import Callable
 
 from vts_hw.config import RigConfig
 from vts_hw.drivers.registry import open_trigger
-from vts_hw.drivers.trigger import CLOCK, EDGES, FIRE, LEVELS, WATCHDOG, TriggerError, TriggerLog
+from vts_hw.drivers.trigger import CLOCK, EDGES, FIRE, LEVELS, WATCHDOG, TriggerError, TriggerGenerator, TriggerLog
 from vts_hw.errors import DeviceError, VtsError
 
 STATUS_EVERY = 5               # a backend without edge counts: its full status every 5 polls
@@ -51,8 +52,11 @@ class ScanTrigger:
     :attr:`info` (``errors``) and the scan goes on recording.
     """
 
-    def __init__(self, rig: RigConfig, clock=time.time):
+    def __init__(self, rig: RigConfig, clock=time.time, trigger: Callable[[], TriggerGenerator] | None = None):
+        """``trigger``: gives the generator when the check first needs it (the room's:
+        ``lambda: room.trigger``, which the room closes); without it the rig's is opened here."""
         self.rig = rig
+        self._given = trigger
         self.cfg = rig.trigger
         self.clock = clock
         self.gen = None
@@ -92,7 +96,7 @@ class ScanTrigger:
         if not self.present:
             return
         try:
-            self.gen = open_trigger(self.rig, None, clock=self.clock)
+            self.gen = self._given() if self._given is not None else open_trigger(self.rig, None, clock=self.clock)
             self.log = self.gen.log
             if hasattr(self.gen, "identify"):
                 self.info["idn"] = self._identify()

@@ -17,6 +17,7 @@ from rich.table import Table
 from vts_hw.cli import cli
 from vts_hw.cli.common import OutputFolder, PositiveSeconds, echo_json, fmt_time, json_option, with_rig
 from vts_hw.cli.live_view import live_line, live_table
+from vts_hw.room import Room
 
 REFRESH_S = 0.5          # the live table, about twice a second
 PLAIN_EVERY_S = 2.0      # a status line this often when stderr is not a terminal
@@ -61,15 +62,24 @@ def start(out: str | None, duration: float | None, dry_run: bool, live: bool, re
     be written (disk full: the recording stops, every whole frame is kept); 2 bad input or a
     non-empty folder; 130 interrupted before the scan started.
     """
-    from vts_hw.drivers.registry import check_camera_kinds, open_cameras
-    from vts_hw.procedures.scan import ScanSession, default_folder
+    from vts_hw.drivers.registry import check_camera_kinds
+    from vts_hw.procedures.scan import default_folder
 
     folder = Path(out) if out else default_folder()
-    err = Console(stderr=True, highlight=False)
     check_camera_kinds(rig.cameras)
-    cameras = [] if dry_run else open_cameras(rig.cameras)   # a dry run touches nothing
+    with Room(rig) as room:       # the cameras and the trigger the session uses: closed with it, whatever happens
+        _start(room, folder, duration, dry_run, live, reference_s, as_json)
+
+
+def _start(room, folder: Path, duration: float | None, dry_run: bool, live: bool, reference_s: float,
+           as_json: bool) -> None:
+    from vts_hw.procedures.scan import ScanSession
+
+    rig = room.rig
+    err = Console(stderr=True, highlight=False)
+    cameras = [] if dry_run else room.cameras   # a dry run touches nothing
     motion = None if dry_run or not live else _live_motion(rig, reference_s, err)
-    session = ScanSession(rig, folder, cameras, duration=duration, live=motion,
+    session = ScanSession(rig, folder, cameras, duration=duration, live=motion, trigger=lambda: room.trigger,
                           on_step=lambda name, text: err.print(f"[green]ok[/]  {escape(name)}: {escape(text)}",
                                                               soft_wrap=True))
     if dry_run:
