@@ -102,7 +102,7 @@ def unobserved(kept, end: float, tol: float = 0.02) -> tuple[float, float, list]
     """Instants both cameras saw (frames within ``tol`` of each other); the time between them
     in stretches longer than LATE_S, all of it, and those stretches."""
     by = {}
-    for rel, name, t in kept:
+    for _rel, name, t in kept:
         by.setdefault(name, []).append(t)
     seen = observed_instants(by, 2, tol, ref=next(iter(by)))
     long = stretches_without(seen, 0.0, end, LATE_S)

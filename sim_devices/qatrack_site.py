@@ -178,9 +178,9 @@ class Site:
         def tests(v):
             if not isinstance(v, dict):
                 raise FieldError(f'Expected a dictionary of items but got type "{type(v).__name__}".')
-            bad = ['"%s"' % k for k, t in v.items() if not isinstance(t, dict)]
+            bad = [f'"{k}"' for k, t in v.items() if not isinstance(t, dict)]
             if bad:
-                raise FieldError("%s field(s) have errors. Test data must be a dictionary " % ", ".join(bad))
+                raise FieldError(f"{', '.join(bad)} field(s) have errors. Test data must be a dictionary ")
             return v
 
         def attachments(v):
@@ -231,11 +231,11 @@ class Site:
                  and not isinstance(given[m].get("value"), Number)]
         msgs = []
         if missing:
-            msgs.append("Missing data for tests: %s" % ", ".join(missing))
+            msgs.append(f"Missing data for tests: {', '.join(missing)}")
         if wrong:
-            msgs.append("Wrong value type (number/string) for tests: %s\nIf these are composite tests with "
-                        "missing dependencies, they should be marked as skipped in your request (e.g. "
-                        "{'tests': {'%s': {'skipped': True}}})" % (", ".join(wrong), wrong[0]))
+            msgs.append(f"Wrong value type (number/string) for tests: {', '.join(wrong)}\nIf these are composite "
+                        "tests with missing dependencies, they should be marked as skipped in your request (e.g. "
+                        f"{{'tests': {{'{wrong[0]}': {{'skipped': True}}}}}})")
         if out["work_completed"] < out["work_started"]:
             msgs.append("work_completed date must be after work_started")
         if msgs:

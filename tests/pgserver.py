@@ -92,7 +92,7 @@ class PgServer:
                              capture_output=True, text=True, cwd=self.dir, **self._as)
         if out.returncode != 0:
             raise RuntimeError(f"initdb failed: {out.stderr.strip()}")
-        for attempt in range(5):
+        for _attempt in range(5):
             self.port = _free_port()
             log = open(self.dir / "server.log", "ab")
             self.proc = subprocess.Popen(

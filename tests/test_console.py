@@ -62,10 +62,10 @@ def test_the_pictures_update_with_the_markers_drawn_where_the_scene_has_them(roo
     click_led(page, rig, "cam1", True)         # the markers shine with the LED ring on
     try:
         for name in ("cam1", "cam2"):
-            first = until(lambda: cam(page, name, "e => e.querySelector('img').dataset.seq"), 30)
+            first = until(lambda name=name: cam(page, name, "e => e.querySelector('img').dataset.seq"), 30)
             assert first, name
-            assert until(lambda: int(cam(page, name, "e => e.querySelector('img').dataset.seq") or 0) > int(first), 30)
-            assert until(lambda: cam(page, name, "e => e.dataset.live") == "yes", 10)
+            assert until(lambda first=first, name=name: int(cam(page, name, "e => e.querySelector('img').dataset.seq") or 0) > int(first), 30)
+            assert until(lambda name=name: cam(page, name, "e => e.dataset.live") == "yes", 10)
         wait_js(page, "document.querySelectorAll('section[data-camera=\"cam1\"] circle').length >= 4", timeout=30_000)
         # (read once a picture is in place: while the next one loads, its natural size is 0)
         drawn = until(lambda: cam(page, "cam1", """e => {

@@ -52,7 +52,7 @@ def page(browser, live):
     yield pg
     for name in live.console.hub.names:           # every test leaves the checks off (and ended)
         live.console.aim.switch(name, False)
-        until(lambda: not live.console.aim.view(name)["busy"], 30)
+        until(lambda name=name: not live.console.aim.view(name)["busy"], 30)
     pg.close()
 
 

@@ -86,10 +86,10 @@ def test_the_room_page_in_firefox(firefox, live):
     assert js(m, "return [window.innerWidth <= 1366, document.title]")[1].startswith("Room sim")
     seq = "return document.querySelector('section[data-camera=\"' + arguments[0] + '\"] img').dataset.seq || null"
     for name in ("cam1", "cam2"):
-        first = until(lambda: js(m, seq, name), 60)
+        first = until(lambda name=name: js(m, seq, name), 60)
         assert first, name
-        assert until(lambda: int(js(m, seq, name) or 0) > int(first), 30), name
-        assert until(lambda: js(m, "return document.querySelector('section[data-camera=\"' + arguments[0] + "
+        assert until(lambda first=first, name=name: int(js(m, seq, name) or 0) > int(first), 30), name
+        assert until(lambda name=name: js(m, "return document.querySelector('section[data-camera=\"' + arguments[0] + "
                                    "'\"]').dataset.live", name) == "yes", 20)
     kinds = "return [...document.querySelectorAll('section[data-camera=\"cam1\"] svg circle')].map(c => c.dataset.kind)"
     assert until(lambda: (js(m, kinds) or []).count("wall") >= 3, 30), js(m, kinds)

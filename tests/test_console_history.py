@@ -160,12 +160,12 @@ def test_a_run_page_shows_its_figures_windows_and_files(client, filled):
     r = client.get(f"/history/run/{ids['sync']}")
     assert r.status_code == 200
     t = r.text
-    assert "Run %d: sync check" % ids["sync"] in t and "physicist" in t and "after the gantry service" in t
+    assert f"Run {ids['sync']:d}: sync check" in t and "physicist" in t and "after the gantry service" in t
     assert "room-h" in t and "vts-hw " in t and " UTC" in t
     assert '<tr data-metric="sync_max_abs_dt_ms">' in t and "<td class=\"num\">12</td>" in t
     assert "OK ≤ 20, ACTION above 100 ms" in t             # the window that judged it, in words
     assert "none stored: judged by its procedure" in t      # sync_offset_ms has no window
-    assert 'class="plot" src="/history/run/%d/file/' % ids["sync"] in t
+    assert f'class="plot" src="/history/run/{ids["sync"]:d}/file/' in t
     assert "sync.csv</a>" in t and "gone.csv: file no longer there" in t
     daily = client.get(f"/history/run/{ids['daily'][-1]}").text
     assert '<span class="st st-ACTION">ACTION</span>' in daily and "daily QA" in daily

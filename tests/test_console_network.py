@@ -334,7 +334,7 @@ def _paths(app, folder: Path, scans: Path) -> list[tuple[str, list[str]]]:
         for i, combo in enumerate(itertools.product(*heads, last)):
             path = route.path
             for value in combo:
-                path = re.sub(r"{[^}]+}", lambda _: value, path, count=1)
+                path = re.sub(r"{[^}]+}", lambda _, value=value: value, path, count=1)
             # HEAD and a method the route has not: once per route
             out.append((path, methods if i == 0 else [m for m in methods if m not in ("HEAD", "PUT")]))
         if "path" in params or route.path.startswith("/scan/files/"):      # several segments

@@ -289,7 +289,7 @@ def test_the_room_page_names_the_spheres_in_pink_where_they_are_and_none_once_re
     try:
         page.goto(live.url)
         for name in ("cam1", "cam2"):
-            got = until(lambda: (lambda s: s if len(s) == 7 else None)(spheres_on(page, name)), 60, poll=0.3)
+            got = until(lambda name=name: (lambda s: s if len(s) == 7 else None)(spheres_on(page, name)), 60, poll=0.3)
             assert got, (spheres_on(page, name), live.phantom.why)
             assert sorted(label for label, _, _, _ in got) == [f"S{k}" for k in range(1, 8)]
             assert {colour for _, _, _, colour in got} == {PINK}
@@ -308,7 +308,7 @@ def test_the_room_page_names_the_spheres_in_pink_where_they_are_and_none_once_re
         # the phantom taken off the table: no sphere named, on either picture, and no phantom in the legend
         live.rig.scene.set_phantom_pose((0.0, 0.0, 0.0), (4000.0, 0.0, 0.0), live.rig.clock.now())
         for name in ("cam1", "cam2"):
-            assert until(lambda: cam(page, name, """e => e.querySelectorAll('svg circle').length === 5
+            assert until(lambda name=name: cam(page, name, """e => e.querySelectorAll('svg circle').length === 5
                 && !e.querySelector('svg circle[data-kind="phantom"]')
                 && !e.querySelector('.legend li[data-kind="phantom"]')"""), 30, poll=0.3), \
                 (spheres_on(page, name), live.phantom.why)

@@ -154,7 +154,7 @@ def test_the_daily_qa_runs_from_the_page_and_the_hub_steps_aside(qa_room, baseli
     room.goto(served.url)                              # the Room page streams both cameras
     try:
         for name in ("cam1", "cam2"):
-            assert until(lambda: room.eval_on_selector(f'section[data-camera="{name}"]', "e => e.dataset.live") == "yes",
+            assert until(lambda name=name: room.eval_on_selector(f'section[data-camera="{name}"]', "e => e.dataset.live") == "yes",
                          30), name
             assert rig.servers[name].counter("active_streams") == 1
         page = qa_page
@@ -201,7 +201,7 @@ def test_the_daily_qa_runs_from_the_page_and_the_hub_steps_aside(qa_room, baseli
             assert pairs, name
             assert all(a[1] == 0 or b[1] == 0 for a, b in pairs), [p for p in pairs if p[0][1] and p[1][1]]
             assert any(r[name][2] == "recording" for r in sampler.rows), name
-            assert until(lambda: rig.servers[name].counter("active_streams") == 1
+            assert until(lambda name=name: rig.servers[name].counter("active_streams") == 1
                          and served.hub.status(name)["doing"] == "streaming", 20), name
     finally:
         room.close()

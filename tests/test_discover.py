@@ -48,7 +48,7 @@ def test_discover_finds_the_four_cameras_and_writes_a_rig_that_vts_loads(rig4, t
     out = tmp_path / "rig.yaml"
     code, stdout, err = vts(capsys, "discover", "--interface", LO, "--timeout", "3", "-o", out)
     assert code == 0, err
-    for name, srv in rig4.servers.items():   # the table: every camera, its serial, model and firmware
+    for srv in rig4.servers.values():   # the table: every camera, its serial, model and firmware
         line = next(x for x in stdout.splitlines() if srv.serial in x)
         assert f"{LO}:{srv.port}" in line and "confirmed" in line and "NOT" not in line, line
         assert ("AXIS 211" in line and "4.47" in line) if srv.model == "axis211" else \

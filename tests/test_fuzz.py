@@ -47,6 +47,6 @@ def test_the_hypothesis_fallback_runs_the_same_targets(tmp_path, axis_frames):
                    "--frames", str(axis_frames))
     assert "engine hypothesis" in p.stdout
     assert sorted(rows) == ["manifest", "rig_yaml"], p.stdout + p.stderr
-    for name, (inputs, typed, sites, crashes) in rows.items():
+    for inputs, typed, sites, crashes in rows.values():
         assert inputs >= 300 and typed > 0 and (sites, crashes) == (0, 0), p.stdout
     assert p.returncode == 0

@@ -59,7 +59,7 @@ def test_bands_breathing_and_rate():
     snap = est.snapshot()
     assert [b.markers for b in snap.bands] == [4, 4]
     assert all(b.seen == 4 for b in snap.bands)
-    for band, tr in zip(snap.bands, est.traces):
+    for _band, tr in zip(snap.bands, est.traces):
         t, v = tr.values()
         truth = p.breathing.value(t)
         assert np.corrcoef(v, truth)[0, 1] > 0.98

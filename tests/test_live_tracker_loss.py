@@ -128,7 +128,10 @@ def test_each_set_latency_is_told_in_its_parts(rendered):
     every one measured for every set; on a clock that moves 1 ms at each reading (no real time)."""
     sim, _, frames, offsets = rendered
     ticks = itertools.count()
-    clock = (lambda: MONO0 + 0.001 * next(ticks))
+
+    def clock():
+        return MONO0 + 0.001 * next(ticks)
+
     tr = _tracker(sim, offsets, clock=clock)
     for host, name, frame in frames:
         if host - frames[0][0] > 7.0:
@@ -151,7 +154,10 @@ def test_the_breathing_figures_are_worked_out_after_a_sets_latency_never_inside_
     from vts_hw.tracking.live import breathing
     sim, _, frames, offsets = rendered
     ticks = itertools.count()
-    clock = (lambda: MONO0 + 0.001 * next(ticks))
+
+    def clock():
+        return MONO0 + 0.001 * next(ticks)
+
     tr = _tracker(sim, offsets, clock=clock)
     est, inside, calls = tr.estimator, [False], []
     figures_of, snapshot = breathing.figures_of, est.snapshot

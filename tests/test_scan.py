@@ -295,7 +295,7 @@ def test_ctrl_c_stops_cleanly(plain_rig, tmp_path):
     except subprocess.TimeoutExpired:
         p.send_signal(signal.SIGABRT)
         out, err = p.communicate(timeout=30)
-        raise AssertionError(f"the scan did not stop within {HANG_S:g} s of Ctrl-C; its threads:\n{err[-6000:]}")
+        raise AssertionError(f"the scan did not stop within {HANG_S:g} s of Ctrl-C; its threads:\n{err[-6000:]}") from None
     assert p.returncode == 0, err
     m = json.loads(out)
     assert m["status"] == "complete" and m["scan"]["stop_reason"] == "interrupted"

@@ -56,7 +56,7 @@ def test_bursts_hit_both_cameras_at_the_same_moments(sim_rig, cam1):
         for t in threads:
             t.join()
     seen = {}
-    for name, (frames, gaps) in results.items():
+    for name, (_frames, gaps) in results.items():
         assert len(gaps) >= 2 and all(g.missing == 5 for g in gaps), (name, [g.missing for g in gaps])
         # each gap: the first 5 frames of a second of the clock
         starts = [round(sim_rig.scene.clocks[name].host_time(g.camera_t1) + 0.005 - 5 * PERIOD, 2) for g in gaps]

@@ -22,11 +22,11 @@ import pytest
 from vts_hw.store import SCHEMA_VERSION, ResultsStore, RunHandle, default_url
 from vts_hw.tolerance import State, Window
 
+from store_kit import _check_file, _is_pg, _raw, _sql
+
 DRIFT = Window.symmetric(1.0, 2.0, "px")          # |x| <= 1 OK, <= 2 TOLERANCE, else ACTION
 MISSING = Window(tolerance_high=0, action_high=1, unit="markers")
 T0 = 1_700_000_000.0                              # a fixed epoch for reproducible histories
-
-from store_kit import _check_file, _is_pg, _raw, _sql
 
 
 # -- round trip -----------------------------------------------------------------------------

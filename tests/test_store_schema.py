@@ -18,10 +18,10 @@ from vts_hw.store import SCHEMA_VERSION, ResultsStore, StoreError
 from vts_hw.store import migrations, queries, schema
 from vts_hw.tolerance import State, Window
 
+from store_kit import _check_file, _raw, _sql
+
 DRIFT = Window.symmetric(1.0, 2.0, "px")          # the v1 window of the V1 store below
 T0 = 1_700_000_000.0                              # a fixed epoch for reproducible histories
-
-from store_kit import _check_file, _raw, _sql
 
 
 # -- schema version and upgrades --------------------------------------------------------------
@@ -232,7 +232,7 @@ def test_the_schema_and_queries_compile_for_postgresql():
         assert str(q.compile(dialect=pg))
 
     # every migration step renders for PostgreSQL too
-    for version, step in migrations.MIGRATIONS.items():
+    for step in migrations.MIGRATIONS.values():
         for stmt in step.statements(pg):
             if callable(stmt) and not hasattr(stmt, "compile"):
                 continue   # a fill of a new column: runs on a real server (tests/test_store_postgres.py)

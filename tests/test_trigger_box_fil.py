@@ -261,7 +261,7 @@ def test_64_bit_device_time_past_2_to_the_32_us():
             st = box.stop()
             up = rising(sim, "OC1A")[sum(r[1] for r in runs):]
             runs.append((st, len(up), up[0]))
-        for st, n, first_cycle in runs:
+        for st, n, _first_cycle in runs:
             assert st.edges == n and st.first_edge_device_us > 2**32
             assert st.last_edge_device_us - st.first_edge_device_us == (n - 1) * 10_000
         # device time = emulated cycles / 16 + where the build started its clock, in both runs

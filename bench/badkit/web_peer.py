@@ -151,7 +151,7 @@ class Room:
     def streams(self) -> int:
         """The simulated cameras' open streams, all together."""
         total = 0
-        for cam, port in self.cameras.items():
+        for port in self.cameras.values():
             try:
                 with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
                     s.sendall(b"GET /sim/state HTTP/1.0\r\nHost: 127.0.0.1\r\n\r\n")

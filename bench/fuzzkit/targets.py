@@ -123,7 +123,7 @@ def _mjpeg(data: bytes, s: Scratch) -> None:
     step = 1 + len(data) % 509  # the stream arrives in pieces of any size
     for i in range(0, len(data), step):
         for part in parser.feed(data[i:i + step]):
-            part.complete
+            _ = part.complete
     parser.flush()
     s.call(m.boundary_from_content_type, data[:200].decode("latin-1"))
 
@@ -132,7 +132,7 @@ def _axis_jpeg(data: bytes, s: Scratch) -> None:
     a = P["axis_jpeg"]
     info = s.call(a.inspect_jpeg, data)
     if info is not None:
-        info.timestamp
+        _ = info.timestamp
     a.axis_timestamp(data)
 
 
@@ -227,7 +227,7 @@ def _tracks(data: bytes, s: Scratch) -> None:
         s.file(name, data, d)
         t = s.call(tracks.load, d / name)
         if t is not None:              # what `vts motion` then asks of a loaded trajectory
-            s.call(lambda: [t.trajectory(m) for m in t.marker_ids()] + [t.marker_summary()])
+            s.call(lambda t=t: [t.trajectory(m) for m in t.marker_ids()] + [t.marker_summary()])
 
 
 def _step_positions(data: bytes, s: Scratch) -> None:

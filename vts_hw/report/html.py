@@ -22,7 +22,8 @@ from vts_hw.report.history_view import history_html
 from vts_hw.report.times import fmt_date, fmt_datetime
 from vts_hw.report.trend import CONTROL_RUNS, HORIZON_DAYS, MIN_TREND_DAYS, MIN_TREND_RUNS, SIGNIFICANCE
 
-CSS = """
+# the page's CSS, its state colours filled in by %: str.format would need each of its braces doubled
+_CSS_TEMPLATE = """
 :root { --ok: %(OK)s; --tol: %(TOLERANCE)s; --act: %(ACTION)s; --ink: #1d2733; --muted: #5f6b7a;
         --line: #dfe3e8; --bg: #f5f7fa; }
 * { box-sizing: border-box; }
@@ -61,7 +62,8 @@ img.plot { width: 100%%; height: auto; display: block; border: 1px solid var(--l
 details { margin-top: 10px; } summary { cursor: pointer; color: var(--muted); }
 footer { color: var(--muted); font-size: 12px; margin-top: 24px; }
 @media print { body { background: #fff; } section.card { break-inside: avoid; border: none; } details { display: none; } }
-""" % STATE_COLOURS   # noqa: UP031 (CSS: str.format would need each of its braces doubled)
+"""
+CSS = _CSS_TEMPLATE % STATE_COLOURS
 
 SCRIPT = """
 window.addEventListener('load', function () {
