@@ -34,7 +34,8 @@ from pathlib import Path
 from typing import Callable
 
 from vts_hw.config import RigConfig
-from vts_hw.camera import Camera, Illumination, Parameters
+from vts_hw.camera import Camera, Parameters
+from vts_hw.camera_led import light
 from vts_hw.drivers.registry import trigger_backend
 from vts_hw.drivers.trigger import TriggerGenerator
 from vts_hw.errors import UsageError, VtsError
@@ -243,11 +244,7 @@ class ScanSession:
                     url=cfg.base_url, resolution=cfg.resolution_str, fps_asked=cfg.fps,
                     device={k: info.get(k) for k in ("ProdNbr", "SerialNumber", "Version") if k in info})
                 self._check_image(cam, cfg)
-                if isinstance(cam, Illumination):
-                    cam.led_on()  # the markers are retro-reflective: bright only with the LED ring on
-                    self.cam_notes[cfg.name]["led"] = "on"
-                else:
-                    self.cam_notes[cfg.name]["led"] = "none (this kind of camera cannot switch an LED)"
+                self.cam_notes[cfg.name]["led"] = light(cam)   # on: the markers are bright only with it on
             except VtsError as exc:
                 failures.append(exc)
         if failures:

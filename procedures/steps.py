@@ -36,7 +36,7 @@ from typing import Callable, Protocol, Sequence, runtime_checkable
 import numpy as np
 
 from vts_hw.bounded import SMALL, read_bytes
-from vts_hw.camera import Illumination
+from vts_hw.camera_led import light
 from vts_hw.catalog import STEPS
 from vts_hw.errors import DataError
 from vts_hw.files import ensure_dir, write_atomic, write_json_atomic
@@ -215,8 +215,7 @@ class StepSession:
     def acquire(self) -> list[SeenPosition]:
         ensure_dir(self.out, "step test folder")
         for cam in self.cameras:
-            if isinstance(cam, Illumination):   # a camera without an LED (a replay) shows its frames as they are
-                cam.led_on()
+            light(cam)   # a camera without an LED (a replay) shows its frames as they are
         time.sleep(LED_SETTLE_S)
         for i, pos in enumerate(self.plan_, 1):
             self.positioner.move_to(pos)

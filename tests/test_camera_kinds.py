@@ -257,6 +257,7 @@ def test_replay_runs_a_scan_session(rig_recording, tmp_path):
         assert m["cameras"][name]["frames"] >= 10
         assert m["cameras"][name]["clock_offset_before"]["source"] == "recording"
         assert "no parameters" in m["cameras"][name]["parameters"]
+        assert m["cameras"][name]["led"] == "none (this kind of camera cannot switch an LED)"   # not "on"
     assert load_manifest(tmp_path / "scan")["status"] == "complete"
 
 

@@ -74,6 +74,16 @@ def switch_led(cam, on: bool, *, within_s: float = READ_BACK_S, sleep=time.sleep
     return LedReadBack(state)
 
 
+def light(cam) -> str:
+    """Switch ``cam``'s LED ring on where it has one (the markers are retro-reflective: bright only
+    with it on); what was done, in words: ``on``, or ``none (...)`` for a camera without an LED
+    (not :class:`~vts_hw.camera.Illumination`: a replay), which is left as it is."""
+    if not isinstance(cam, Illumination):
+        return "none (this kind of camera cannot switch an LED)"
+    cam.led_on()
+    return "on"
+
+
 def pulse_led(cam, ms: int, *, within_s: float = READ_BACK_S, sleep=time.sleep,
               clock=time.monotonic) -> LedReadBack:
     """Pulse ``cam``'s LED ring for ``ms`` and read it back: seen on while it lasts (required for
@@ -99,4 +109,4 @@ def pulse_led(cam, ms: int, *, within_s: float = READ_BACK_S, sleep=time.sleep,
     return LedReadBack(end, seen)
 
 
-__all__ = ["LedNotTaken", "LedReadBack", "switch_led", "pulse_led", "READ_BACK_S", "PULSE_SEEN_MS"]
+__all__ = ["LedNotTaken", "LedReadBack", "light", "switch_led", "pulse_led", "READ_BACK_S", "PULSE_SEEN_MS"]

@@ -331,7 +331,7 @@ def device_seeds(put) -> None:
     for model in ("vapix3", "vapix2"):
         with SimRig(n_cameras=1, firmware=model, password="fuzz-seed") as rig:
             cfg = rig.config().cameras[0]
-            from vts_hw.drivers.axis import _AxisAuth
+            from vts_hw.drivers.axis_client import _AxisAuth
             rec = RecordingHTTP(_Rebase(requests.Session(), cfg.base_url, _AxisAuth(cfg.user, "fuzz-seed")))
             drive_axis(_Quiet(), rec)
             put("axis_vapix", f"{model}.txt", rec.transcript())
