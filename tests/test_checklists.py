@@ -23,6 +23,8 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import click
+import cv2
+import numpy as np
 import pytest
 import yaml
 from starlette.testclient import TestClient
@@ -503,3 +505,148 @@ def test_a_console_page_without_its_line_is_neither_served_nor_linked(monkeypatc
     with _console_client() as client:
         assert client.get("/procedures").status_code == 404
         assert "/procedures" not in client.get("/history").text
+
+
+# ================================================================ a camera kind
+# A camera that makes its own pictures (a grey field, its level an option of its own): frames,
+# device information and a clock, the roles every camera has, and no LED or parameters.
+
+TOY_CAMERA = Change("drivers/pattern.py", new=True, text='''
+    """A camera that makes its own pictures: a grey field of one level (the toy camera kind of
+    tests/test_checklists.py). No LED, no parameters: it has the roles every camera has."""
+
+    from __future__ import annotations
+
+    import threading
+    import time
+
+    import cv2
+    import numpy as np
+    from pydantic import BaseModel, ConfigDict, Field
+
+    from vts_hw.camera import ClockOffset, Frame, kind_settings
+    from vts_hw.camera_stream import FrameStream
+
+
+    class PatternOptions(BaseModel):
+        model_config = ConfigDict(extra="forbid")
+        level: int = Field(default=128, ge=0, le=255, description="the grey level of every picture")
+
+
+    PatternSettings = kind_settings("PatternSettings", "A camera that makes its own grey pictures; no address.",
+                                    ("resolution", "fps"), options=PatternOptions)
+
+
+    class PatternCamera:
+        settings = PatternSettings
+
+        def __init__(self, name: str, level: int, resolution: str, fps: float, clock=time.time):
+            self.name, self.level, self.resolution, self.fps, self.clock = name, level, resolution, fps, clock
+            self.seq = 0
+
+        @classmethod
+        def from_config(cls, cfg, clock=time.time) -> "PatternCamera":
+            s = cls.settings.from_entry(cfg)
+            return cls(cfg.name, s.level, cfg.resolution_str, cfg.fps, clock=clock)
+
+        def _frame(self, seq: int) -> Frame:
+            w, h = (int(x) for x in self.resolution.split("x"))
+            ok, jpeg = cv2.imencode(".jpg", np.full((h, w), self.level, np.uint8))
+            return Frame(seq, jpeg.tobytes(), None, self.clock(), time_source="receipt")
+
+        def snapshot(self, compression: int | None = None) -> Frame:
+            self.seq += 1
+            return self._frame(self.seq)
+
+        def open_stream(self, *, fps=None, duration=None, nbrofframes=None, first_seq=0, stall_timeout=2.0):
+            return _Pictures(self, first_seq, nbrofframes, 1 / (fps or self.fps))
+
+        def stream(self, **kwargs) -> FrameStream:
+            return FrameStream(self, **kwargs)
+
+        def device_info(self) -> dict[str, str]:
+            return {"Brand": "vts-hw", "ProdNbr": "pattern", "Level": str(self.level)}
+
+        def clock_offset(self, samples: int = 5) -> ClockOffset:
+            return ClockOffset(0.0, 0.0, self.clock(), "receipt (no camera clock)", 0, source="receipt")
+
+        def close(self) -> None:
+            pass
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.close()
+
+
+    class _Pictures:
+        def __init__(self, cam: PatternCamera, seq: int, left: int | None, period: float):
+            self.cam, self.seq, self.left, self.period = cam, seq, left, period
+            self._closed = threading.Event()
+
+        def close(self) -> None:
+            self._closed.set()
+
+        def __iter__(self):
+            while not self._closed.wait(self.period) and self.left != 0:
+                yield self.cam._frame(self.seq)
+                self.seq += 1
+                self.left = None if self.left is None else self.left - 1
+''')
+
+TOY_CAMERA_LINE = Change("drivers/registry.py", text='''
+    CAMERA_KINDS["pattern"] = "vts_hw.drivers.pattern:PatternCamera"
+''')
+
+CAMERA_KIND = (TOY_CAMERA, TOY_CAMERA_LINE)
+
+
+def _camera_rig(tmp_path, **options) -> Path:
+    path = tmp_path / "rig.yaml"
+    path.write_text(yaml.safe_dump({"rig": "t", "cameras": [{"name": "cam1", "kind": "pattern", "resolution": [64, 48],
+                                                             "options": options}]}))
+    return path
+
+
+def test_the_camera_kind_checklist_names_its_two_files():
+    assert_files(CAMERA_KIND, "A camera kind")
+
+
+def test_a_camera_kind_is_its_module_and_one_registry_line(monkeypatch, tmp_path, capsys):
+    from vts_hw.camera import Camera, roles_of
+    from vts_hw.drivers.registry import open_cameras
+    apply(CAMERA_KIND, monkeypatch, tmp_path)
+    rig_yaml = _camera_rig(tmp_path, level=200)
+    (cam,) = open_cameras(parse_rig(yaml.safe_load(rig_yaml.read_text()), "rig.yaml").cameras)
+    with cam:
+        assert isinstance(cam, Camera) and roles_of(cam) == ("frames", "device information", "clock")
+        frames = list(cam.stream(nbrofframes=2, fps=50))
+        assert [f.seq for f in frames] == [0, 1] and frames[0].time_source == "receipt"
+    # the commands of any camera: a snapshot (the JPEG as it made it), its information
+    code, out, err = vts(capsys, "camera", "snapshot", "cam1", "-o", tmp_path / "a.jpg", "--config", rig_yaml)
+    assert code == 0, err
+    img = cv2.imdecode(np.frombuffer((tmp_path / "a.jpg").read_bytes(), np.uint8), cv2.IMREAD_GRAYSCALE)
+    assert img.shape == (48, 64) and abs(int(np.median(img)) - 200) <= 2
+    code, out, err = vts(capsys, "camera", "info", "cam1", "--config", rig_yaml)
+    assert code == 0 and "  ProdNbr: pattern" in out and "no camera clock" in out, err
+    # its own key checked by its own model: one sentence naming the camera, the kind and the key
+    code, out, err = vts(capsys, "camera", "info", "cam1", "--config", _camera_rig(tmp_path, level=300))
+    assert code == 2 and err.startswith("vts: camera 'cam1' (kind pattern): options.level: ") and \
+        len(err.strip().splitlines()) == 1, err
+    # listed with its keys in the rig.yaml reference, from its settings model
+    page = _docs_site().rig_yaml_page()
+    assert "### `kind: pattern`" in page and "`cameras[].options.level`" in page and "`cameras[].fps`" in page
+
+
+def test_a_camera_kind_without_its_module_is_not_opened(monkeypatch, tmp_path):
+    from vts_hw.drivers.registry import open_cameras
+    apply((TOY_CAMERA_LINE,), monkeypatch, tmp_path)
+    with pytest.raises(ModuleNotFoundError, match="vts_hw.drivers.pattern"):
+        open_cameras(parse_rig(yaml.safe_load(_camera_rig(tmp_path).read_text()), "rig.yaml").cameras)
+
+
+def test_a_camera_kind_without_its_registry_line_is_refused(monkeypatch, tmp_path, capsys):
+    apply((TOY_CAMERA,), monkeypatch, tmp_path)
+    code, out, err = vts(capsys, "camera", "info", "cam1", "--config", _camera_rig(tmp_path))
+    assert code == 2 and "camera 'cam1': unknown kind 'pattern'" in err, err
