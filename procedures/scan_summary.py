@@ -67,7 +67,7 @@ def live_summary(lm: dict) -> str:
     return "; ".join(parts)
 
 
-def verdict(folder: Path, m: dict, write_failure=None) -> tuple[str, int]:
+def verdict(folder: Path, m: dict | None, write_failure=None) -> tuple[str, int]:
     """(the last word, the exit status of `vts scan start`): 0 and "" when the session is
     complete and the patient was watched; else the sentence it prints and its status."""
     if write_failure is not None:

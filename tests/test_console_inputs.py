@@ -333,12 +333,10 @@ def test_the_strict_reader_refuses_each_class_in_one_sentence():
     """inputs.py alone: the sentences name the parameter or key (no app needed)."""
     import asyncio
 
-    from pydantic import Field
-
-    from vts_hw.console.inputs import BadInput, Body, json_body, seconds, whole
+    from vts_hw.console.inputs import BadInput, Body, Seconds, json_body, seconds, whole
 
     class Start(Body):
-        duration_s: seconds(60) = Field(None, description="a number of seconds, at most 60")
+        duration_s: Seconds = seconds(60, "a number of seconds, at most 60")
 
     class Req:
         def __init__(self, body: bytes, ctype="application/json"):

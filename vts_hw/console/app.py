@@ -39,10 +39,12 @@ from starlette.templating import Jinja2Templates
 from vts_hw import __version__
 from vts_hw.console import guard
 from vts_hw.console.actions import MemoryActions
+from vts_hw.console.aim_checks import AimChecks
 from vts_hw.console.aim_page import aim_routes
 from vts_hw.console.answers import after_answer, refused_input, unexpected
 from vts_hw.console.headers import SecurityHeaders
 from vts_hw.console.history import history_routes
+from vts_hw.console.history_reports import Reports
 from vts_hw.console.hosts import HostGate, PeerGate, Reach
 from vts_hw.console.inputs import BadInput, StrictRequests
 from vts_hw.console.login import SessionDoor, login_routes, no_login_routes
@@ -59,6 +61,9 @@ ROOM_EVERY_S = 1.0            # ... and sends the room's state
 
 class Console:
     """What the pages need: the hub, the marker worker, the room's facts, the rig (its name, its config)."""
+
+    aim: AimChecks          # made by the aim checks' routes (aim_page.py), closed by whoever serves the console
+    reports: Reports        # made by the History page's routes (history.py), closed likewise
 
     def __init__(self, rig_name: str, hub, markers, facts, *, token: str | None = None, open_store=None,
                  actions=None, auth=None, rig_config=None, scans_dir=None, reach: Reach | None = None):

@@ -25,7 +25,7 @@ from __future__ import annotations
 import json
 import re
 from collections import Counter
-from typing import Annotated, Optional, TypeVar
+from typing import Annotated, Any, Optional, TypeVar
 from urllib.parse import parse_qsl
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError
@@ -165,10 +165,13 @@ def _not_bool(value):
     return value
 
 
-def seconds(high: float):
-    """The type of a body's optional number of seconds: finite, more than 0, at most ``high``."""
-    return Annotated[Optional[Annotated[float, Field(gt=0, le=high, allow_inf_nan=False, strict=False)]],
-                     BeforeValidator(_not_bool)]
+#: a body's optional number of seconds (a JSON number or a form field's text; its bounds: seconds())
+Seconds = Annotated[Optional[float], BeforeValidator(_not_bool)]
+
+
+def seconds(high: float, description: str) -> Any:
+    """The field of a :data:`Seconds`: finite, more than 0, at most ``high``, None when not given."""
+    return Field(None, gt=0, le=high, allow_inf_nan=False, strict=False, description=description)
 
 
 async def body_bytes(request: Request, limit: int = MAX_BODY) -> bytes:
@@ -233,5 +236,5 @@ async def json_body(request: Request, model: type[B], example: str = "{}") -> B:
         raise BadInput(_sentence(exc, model)) from None
 
 
-__all__ = ["BadInput", "StrictRequests", "Body", "NoBody", "seconds", "json_body", "body_bytes", "query_text",
+__all__ = ["BadInput", "StrictRequests", "Body", "NoBody", "Seconds", "seconds", "json_body", "body_bytes", "query_text",
            "query_id", "query_page", "path_id", "whole", "shown", "MAX_BODY", "MAX_QUERY", "INT_MAX"]

@@ -31,6 +31,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -117,7 +118,7 @@ class MarkerNames:
         held = self.current(camera)
         out = [dict(m, kind=UNIDENTIFIED, name=str(m["n"])) for m in marks]
         free = list(range(len(out)))
-        legend = []
+        legend: list[dict[str, Any]] = []
         for kind in KINDS:
             named = held.get(kind)
             if named is None:

@@ -142,7 +142,7 @@ class QAPage:
         body = await json_body(request, BaselineBody if kind == "baseline" else DailyBody,
                                '{"confirm": true, "frames": 5}' if kind == "baseline" else '{"frames": 5}')
         try:
-            if kind == "baseline" and body.confirm is not True:
+            if kind == "baseline" and not (isinstance(body, BaselineBody) and body.confirm is True):
                 raise UsageError("a baseline is set only when confirmed on the page (the body needs "
                                  '"confirm": true): it changes what every later daily QA is compared with')
             job = await asyncio.to_thread(self.jobs.start, kind, user, body.frames)

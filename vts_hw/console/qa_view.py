@@ -116,7 +116,7 @@ def latest_run_id(store, rig: str) -> int | None:
 def baselines(store, cameras: list[str], rig: str | None = None) -> dict:
     """Each camera's drift baseline in use (of rig ``rig``, as the daily QA reads them): its run
     and when it was set (None: none yet)."""
-    out = {}
+    out: dict[str, dict | None] = {}
     for n in cameras:
         try:
             b = load_baseline(store, n, rig)

@@ -46,7 +46,7 @@ class Refusals:
                 return None
             self._next[kind] = now + EVERY_S
             held = self._held.pop(kind, 0)
-        detail = {"asked": f"{request.method} {request.url.path}"[:200], "why": why[:200], "kind": kind,
+        detail: dict[str, str | int] = {"asked": f"{request.method} {request.url.path}"[:200], "why": why[:200], "kind": kind,
                   "from": request.client.host if request.client else ""}
         if held:
             detail["held back since the last"] = held

@@ -52,7 +52,7 @@ class MotionJob:
         self.stage = "reading the recording"
         self.error = ""
         self.text = ""                  # the analysis's own words (what the command prints)
-        self.result_state = None        # OK / TOLERANCE / ACTION
+        self.result_state: str | None = None        # OK / TOLERANCE / ACTION
         self.files: list[str] = []      # written, relative to the scan folder
         self.not_written = ""
         self.notes: list[str] = []

@@ -30,14 +30,13 @@ import threading
 import time
 from pathlib import Path
 
-from pydantic import Field
 from starlette.requests import Request
 from starlette.responses import FileResponse, JSONResponse, PlainTextResponse
 from starlette.routing import Route
 
 from vts_hw import __version__
 from vts_hw.console import guard
-from vts_hw.console.inputs import BadInput, Body, NoBody, json_body, path_id, seconds, shown
+from vts_hw.console.inputs import BadInput, Body, NoBody, Seconds, json_body, path_id, seconds, shown
 from vts_hw.console.scan_analysis import MotionJob
 from vts_hw.console.scan_run import ScanRun, clean
 from vts_hw.console.web import event_stream, sse
@@ -58,10 +57,10 @@ DEFAULT_REFERENCE_S = 10.0
 
 
 class StartBody(Body):
-    reference_s: seconds(MAX_REFERENCE_S) = Field(None, description=(
+    reference_s: Seconds = seconds(MAX_REFERENCE_S, (
         f"a number of seconds more than 0 and at most {MAX_REFERENCE_S:g} (the still period learned first), "
         f"or null for {DEFAULT_REFERENCE_S:g}"))
-    duration_s: seconds(MAX_DURATION_S) = Field(None, description=(
+    duration_s: Seconds = seconds(MAX_DURATION_S, (
         f"a number of seconds more than 0 and at most {MAX_DURATION_S:g} (a day), or null to scan until stopped"))
 
 
@@ -104,6 +103,8 @@ class ScanDesk:
         return run.start()
 
     def analyse(self, user: str, role: str = "") -> MotionJob:
+        if self.run is None:          # the page refuses it before (409)
+            raise RuntimeError("no scan to analyse")
         self.job = MotionJob(self.rig, self.run.folder, self.console.open_store or _no_store, user=user,
                              on_said=lambda what, detail: self.console.actions.record(user, what, detail, role=role))
         return self.job.start()
@@ -157,7 +158,7 @@ def scan_routes(console, templates):
 
         async def poll(now: float) -> list[bytes]:
             nonlocal sent_alerts, sent_view
-            out = []
+            out: list[bytes] = []
             run = desk.run
             if run is not None and len(run.alerts) != sent_alerts:
                 sent_alerts = len(run.alerts)

@@ -29,10 +29,11 @@ import threading
 import time
 from collections import deque
 from pathlib import Path
+from typing import Any
 
 from vts_hw.drivers.registry import check_camera_kinds
 from vts_hw.errors import VtsError
-from vts_hw.procedures.scan import ScanSession
+from vts_hw.procedures.scan import ScanSession, ScanStatus
 from vts_hw.procedures.scan_live import LiveMotion
 from vts_hw.procedures.scan_summary import summary_lines, verdict
 from vts_hw.tracking.live.estimator import LiveSettings
@@ -109,18 +110,19 @@ class ScanRun:
         self.steps: list[tuple[str, str]] = []
         self.notes: deque[str] = deque(maxlen=NOTES_KEPT)
         self.alerts: list[dict] = []
-        self.session = None
-        self.live = None
+        self.session: ScanSession | None = None
+        self.live: LiveMotion | None = None
         self.manifest: dict | None = None
         self.summary: dict | None = None
         self.started_at = clock()
         self.traces: dict[int, deque] = {}
         self._last_t: float | None = None
-        self._stats_at, self._stats = float("-inf"), {}
+        self._stats_at = float("-inf")
+        self._stats: dict[str, Any] = {}
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self.stop_reason = "stopped"     # "interrupted": the console itself was stopped
-        self._status = None
+        self._status: ScanStatus | None = None
         self.thread = threading.Thread(target=self._run, name="console-scan", daemon=True)
 
     # -- the worker ---------------------------------------------------------------------------------
@@ -226,7 +228,7 @@ class ScanRun:
         self.phase = "failed"
 
     def _finish(self) -> None:
-        rec = self.session.recorder
+        rec = self.session.recorder if self.session is not None else None
         last, code = verdict(self.folder, self.manifest, rec.write_failure if rec is not None else None)
         self.summary = {"status": (self.manifest or {}).get("status", "nothing recorded"),
                         "lines": summary_lines(self.folder, self.manifest or {}), "verdict": last, "exit": code}
@@ -292,11 +294,11 @@ class ScanRun:
         live = self.live
         if live is None:
             return None
-        if live.tracker is None:
-            return {"status": "OFF", "reason": live.off_reason or "live tracking not started yet"}
         now = time.monotonic()           # the latency figures (percentiles) every STATS_S, not every view
         with_stats = now - self._stats_at >= STATS_S
         est = live.snapshot(stats=with_stats)
+        if est is None:                  # no tracker yet
+            return {"status": "OFF", "reason": live.off_reason or "live tracking not started yet"}
         if with_stats:
             self._stats_at, self._stats = now, dict(est.stats or {})
         tracked = est.status == "TRACKING" and est.six_dof is not None

@@ -39,8 +39,6 @@ def check_host(host: str, *, certfile: str | None = None, keyfile: str | None = 
     other computer served); a bad --proxy or --server-name; behind a proxy without the name the
     browsers reach it under; on every address (0.0.0.0) without any name to answer to. The names
     and origins the console then answers to (hosts.Reach)."""
-    if bool(certfile) != bool(keyfile):
-        raise UsageError("--certfile and --keyfile go together: give both (the certificate and its private key)")
     tls = check_tls(certfile, keyfile)
     reach = Reach.build(host, certfile=certfile if tls else None, server_names=server_names,
                         behind_proxy=behind_proxy, proxy=proxy)
@@ -80,8 +78,10 @@ def check_users(host: str, n_users: int, where: str, why_not: str = "") -> None:
 def check_tls(certfile: str | None, keyfile: str | None) -> bool:
     """True when the console serves HTTPS with this certificate and key; each file is checked now
     (readable, a PEM certificate, its private key, not encrypted): a bad one is one sentence naming it."""
-    if not certfile:
+    if not certfile and not keyfile:
         return False
+    if not certfile or not keyfile:
+        raise UsageError("--certfile and --keyfile go together: give both (the certificate and its private key)")
     for opt, f in (("--certfile", certfile), ("--keyfile", keyfile)):
         if not os.path.isfile(f):
             raise UsageError(f"{f}: no such file ({opt})")

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from vts_hw.console.users import dummy_check, verify_password
+from vts_hw.store.records import User
 
 IDLE_S = 15 * 60.0
 MAX_S = 12 * 3600.0
@@ -57,7 +58,7 @@ class Auth:
     ``secure``: the console is reached over HTTPS (the cookie is then Secure);
     ``load_users()``: the store's active users (blocking: call from a thread)."""
 
-    def __init__(self, *, required: bool, secure: bool = False, load_users: Callable[[], list] | None = None,
+    def __init__(self, *, required: bool, secure: bool = False, load_users: Callable[[], list[User]] | None = None,
                  idle_s: float = IDLE_S, max_s: float = MAX_S, clock: Callable[[], float] = time.time):
         self.required = required
         self.secure = secure
@@ -66,7 +67,7 @@ class Auth:
         self._load = load_users
         self._clock = clock
         self._lock = threading.Lock()
-        self._users: dict[str, object] = {}
+        self._users: dict[str, User] = {}
         self._sessions: dict[str, Session] = {}
         self._fails: dict[str, tuple[int, float]] = {}     # name -> (wrong in a row, locked until)
 
@@ -110,7 +111,7 @@ class Auth:
         ok = verify_password(user.password, password) if user is not None else dummy_check(password)
         now = self._clock()
         with self._lock:
-            if not ok:
+            if not ok or user is None:        # no user: dummy_check said no
                 n, _ = self._fails.get(name, (0, 0.0))
                 n += 1
                 self._fails[name] = (0, now + LOCK_S) if n >= LOCK_AFTER else (n, 0.0)

@@ -48,10 +48,10 @@ def verify_password(stored: str, password: str) -> bool:
     """True when ``password`` is the one ``stored`` was made from (constant-time compare); False
     for a wrong one and for a stored value that is not one of our hashes."""
     try:
-        kind, n, r, p, salt, digest = stored.split("$")
+        kind, n_text, r_text, p_text, salt, digest = stored.split("$")
         if kind != "scrypt":
             return False
-        n, r, p = int(n), int(r), int(p)
+        n, r, p = int(n_text), int(r_text), int(p_text)
         if not (2 <= n <= 2 ** 20 and 1 <= r <= 32 and 1 <= p <= 16):
             return False
         salt_b, want = base64.b64decode(salt, validate=True), base64.b64decode(digest, validate=True)
