@@ -97,10 +97,9 @@ def _iso(t: float) -> str:
 class ScanSession:
     """One scan: ``start()`` (steps 1–7), ``wait()`` (8), ``stop()`` (9) — or ``run()``.
 
-    ``cameras`` are the rig's cameras, opened by the caller (the room's: ``room.cameras``);
-    the session checks, records and closes them. ``trigger`` gives the trigger generator when the
-    session's check first needs it (the room's: ``lambda: room.trigger``; without it the session
-    opens the rig's itself). ``duration`` counts from the fire; None runs
+    ``cameras`` are the rig's cameras, opened by the caller (``room.cameras``); the session checks,
+    records and closes them. ``trigger()`` gives the trigger when the check needs it (``lambda:
+    room.trigger``; None: the session opens the rig's). ``duration`` counts from the fire; None runs
     until :meth:`request_stop` or Ctrl-C. ``on_step(name, text)`` is told as each step is done.
     ``on_frame(camera, frame)`` is told of each frame once written, after the live path.
     """
