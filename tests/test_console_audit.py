@@ -172,8 +172,8 @@ def test_each_lock_out_and_each_try_while_locked_is_in_the_action_log(tmp_path, 
 
 def test_a_store_that_is_not_ours_or_cannot_be_written_refuses_the_console(tmp_path, small_disk, monkeypatch):
     from vts_hw.console import serve as srv
-    import vts_hw.drivers.registry as registry
-    monkeypatch.setattr(registry, "open_cameras", lambda *a: pytest.fail("opened the cameras before refusing"))
+    from vts_hw.room import Room
+    monkeypatch.setattr(Room, "cameras", property(lambda self: pytest.fail("opened the cameras before refusing")))
     rig = SimpleNamespace(rig="room3", cameras=[])
     foreign = tmp_path / "notes.sqlite"
     with sqlite3.connect(foreign) as conn:

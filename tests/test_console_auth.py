@@ -359,9 +359,9 @@ def test_user_add_list_and_remove_with_the_password_never_on_the_command_line(tm
 def test_off_this_machine_without_users_or_https_it_is_refused_before_anything_is_bound(tmp_path, monkeypatch,
                                                                                           capsys):
     from vts_hw.console import serve as srv
-    import vts_hw.drivers.registry as registry
+    from vts_hw.room import Room
     monkeypatch.setattr(srv, "bind", lambda *a: pytest.fail("bound a socket before refusing"))
-    monkeypatch.setattr(registry, "open_cameras", lambda *a: pytest.fail("opened the cameras before refusing"))
+    monkeypatch.setattr(Room, "cameras", property(lambda self: pytest.fail("opened the cameras before refusing")))
     cert, key = self_signed(tmp_path / "tls")
     empty = tmp_path / "empty.sqlite"
     ResultsStore(empty).close()

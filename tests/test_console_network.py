@@ -37,7 +37,7 @@ from starlette.routing import Mount, Route
 from starlette.testclient import TestClient
 
 import vts_hw.console.users as users
-import vts_hw.drivers.registry as registry
+from vts_hw.room import Room
 from console_live import FORM_TOKEN, LiveConsole, chromium, until
 from inprocess_cli import vts
 from vts_hw.console import serve as srv
@@ -163,7 +163,7 @@ def test_hsts_over_https_only_and_the_proxy_believed_from_its_address_only():
 def test_plain_http_off_this_machine_and_a_scans_folder_of_anything_else_are_refused_before_binding(
         tmp_path, monkeypatch):
     monkeypatch.setattr(srv, "bind", lambda *a: pytest.fail("bound a socket before refusing"))
-    monkeypatch.setattr(registry, "open_cameras", lambda *a: pytest.fail("opened the cameras before refusing"))
+    monkeypatch.setattr(Room, "cameras", property(lambda self: pytest.fail("opened the cameras before refusing")))
     rig = SimpleNamespace(rig="room3", cameras=[])
 
     def refused(**kw):

@@ -7,8 +7,8 @@
 * **The same functions as the commands**: ``procedures.daily.QARun`` recorded by
   ``store.qa_record.record_qa`` (`vts qa daily`); ``procedures.baseline.take_baselines`` and
   ``store.recorder.record`` (`vts qa drift --set-baseline`); ``qatrack.select_runs`` and
-  ``push_runs`` through the store's outbox (`vts qa push`). Cameras are opened by the drivers'
-  registry as the commands open them; the rig is the console's (``console.rig_config``).
+  ``push_runs`` through the store's outbox (`vts qa push`). Cameras are opened from the room
+  (``vts_hw.room.Room``) as the commands open them; the rig is the console's (``console.rig_config``).
 * **No second stream to a camera the hub streams**: just before a camera's LED frames the hub
   steps aside for it (``hub.attach``: its own stream closed and waited for), the frames the
   procedure takes are fed to the hub (``hub.feed``: the Room page shows them, RECORDING), and
@@ -28,11 +28,12 @@ import threading
 import time
 
 from vts_hw.console.qa_view import view_of_result, view_of_run
-from vts_hw.drivers.registry import check_camera_kinds, open_camera
+from vts_hw.drivers.registry import check_camera_kinds
 from vts_hw.errors import ConfigError, VtsError
 from vts_hw.procedures.baseline import take_baselines
 from vts_hw.procedures.daily import STEPS, QARun
 from vts_hw.qatrack import exit_code, push_runs, select_runs
+from vts_hw.room import Room
 from vts_hw.store.qa_record import artifacts_dir, record_qa
 from vts_hw.store.recorder import record
 
@@ -188,9 +189,9 @@ class Jobs:
                     self._job["done"] = {**self._job["done"], st.camera: st.state}
             self._set(camera=st.camera, index=st.index, step=st.step, taken=0, needed=0)
 
-        with self._store() as store:
+        with self._store() as store, Room(rig, clock=self.clock) as room:   # each camera when its turn comes
             run = QARun(rig, steps=STEPS, cameras=names, n_frames=frames, artifacts_dir=artifacts_dir(store),
-                        open_camera=lambda cfg: open_camera(cfg, clock=self.clock), clock=self.clock,
+                        open_camera=lambda cfg: room.camera(cfg.name), clock=self.clock,
                         on_step=on_step)
             self._set(step="reading the baselines")
             result, stored = record_qa(store, run, rig, operator=user, clock=self.clock)
@@ -211,8 +212,6 @@ class Jobs:
 
     # -- a drift baseline: `vts qa drift --set-baseline` --------------------------------------------
     def _baseline(self, user, frames, names, attached) -> dict:
-        from contextlib import ExitStack
-
         rig = self.rig
         cfgs = [rig.camera(n) for n in names]
         for cfg in cfgs:      # unset password variables: before anything is touched
@@ -228,8 +227,8 @@ class Jobs:
                 self._set(index=len(done))
             self._frame(name, frame, taken, needed, attached)
 
-        with ExitStack() as stack, self._store() as store:
-            cams = [stack.enter_context(open_camera(cfg, clock=self.clock)) for cfg in cfgs]
+        with self._store() as store, Room(rig, clock=self.clock) as room:
+            cams = [room.camera(cfg.name) for cfg in cfgs]
             result = take_baselines(cams, frames=frames, clock=self.clock, on_frame=on_frame, rig=rig)
             self._release(attached)
             started = self.clock()

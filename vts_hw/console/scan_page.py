@@ -40,9 +40,9 @@ from vts_hw.console.inputs import BadInput, Body, NoBody, Seconds, json_body, pa
 from vts_hw.console.scan_analysis import MotionJob
 from vts_hw.console.scan_run import ScanRun, clean
 from vts_hw.console.web import event_stream, sse
-import vts_hw.drivers.registry as registry     # looked up when used: a test's stand-in is seen
 from vts_hw.errors import VtsError
 from vts_hw.procedures.scan import default_folder
+from vts_hw.room import Room
 from vts_hw.store.errors import StoreError
 
 STATE_EVERY_S = 0.25
@@ -97,7 +97,7 @@ class ScanDesk:
         def said(what: str, detail: dict) -> None:       # the scan's worker: its outcome, in the action log
             self.console.actions.record(user, what, detail, role=role)
 
-        run = ScanRun(self.rig, default_folder(parent=self.scans), self.console.hub, registry.open_cameras, user=user,
+        run = ScanRun(self.rig, default_folder(parent=self.scans), self.console.hub, lambda: Room(self.rig), user=user,
                       reference_s=reference_s, duration=duration, marker_names=self.console.names, on_said=said)
         self.run, self.job = run, None
         return run.start()

@@ -29,13 +29,14 @@ import threading
 import time
 from collections import deque
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from vts_hw.drivers.registry import check_camera_kinds
 from vts_hw.errors import VtsError
 from vts_hw.procedures.scan import ScanSession, ScanStatus
 from vts_hw.procedures.scan_live import LiveMotion
 from vts_hw.procedures.scan_summary import summary_lines, verdict
+from vts_hw.room import Room
 from vts_hw.tracking.live.estimator import LiveSettings
 
 TRACE_S = 30.0          # the breathing trace shown: the last this many seconds
@@ -92,14 +93,15 @@ def clean(x):
 
 class ScanRun:
     """One scan of ``rig`` into ``folder``, started by ``user``. ``hub``: the console's frames
-    hub; ``open_cameras(configs)``: opens the rig's cameras (drivers.registry.open_cameras)."""
+    hub; ``open_room()``: the scan's room (``Room(rig)``: its cameras and trigger, opened for the
+    scan and closed when it ends)."""
 
-    def __init__(self, rig, folder: Path, hub, open_cameras, *, user: str, reference_s: float = 10.0,
+    def __init__(self, rig, folder: Path, hub, open_room: Callable[[], Room], *, user: str, reference_s: float = 10.0,
                  duration: float | None = None, clock=time.time, marker_names=None, on_said=None):
         self.rig, self.folder, self.hub, self.user = rig, Path(folder), hub, user
         #: the console's MarkerNames (names.py): the live tracker names the patient's band markers there
         self.marker_names = marker_names
-        self.open_cameras = open_cameras
+        self.open_room = open_room
         #: on_said(what, detail): the scan's outcome for the action log (None: not said)
         self.on_said = on_said
         self.reference_s, self.duration = float(reference_s), duration
@@ -145,19 +147,21 @@ class ScanRun:
         return not self.thread.is_alive()
 
     def _run(self) -> None:
-        attached, cameras = False, []
+        attached, cameras, room = False, [], None
         try:
             check_camera_kinds(self.rig.cameras)
-            cameras = self.open_cameras(self.rig.cameras)
+            room = self.open_room()
+            cameras = room.cameras
             self.live = LiveMotion(self.rig, settings=LiveSettings(reference_s=self.reference_s),
                                    on_alert_text=self._alert, on_note=self.notes.append,
                                    on_names=None if self.marker_names is None else self._band_names)
             self.hub.attach(self.names)       # before the session opens its streams
             attached = True
             hub = self.hub
+            scan_room = room
             self.session = ScanSession(self.rig, self.folder, cameras, duration=self.duration, live=self.live,
                                        on_step=lambda name, text: self.steps.append((name, text)),
-                                       on_frame=hub.feed)
+                                       on_frame=hub.feed, trigger=lambda: scan_room.trigger)
             if self._stop.is_set():
                 raise VtsError("the scan was stopped before it started")
             self.session.start()
@@ -187,6 +191,11 @@ class ScanRun:
             else:
                 self._close(cameras)
         finally:
+            if room is not None:
+                try:
+                    room.close()          # what the session did not close already (a scan that did not start)
+                except Exception as exc:
+                    self.notes.append(f"closing the scan's devices: {exc}")
             if attached:
                 self.hub.detach(self.names)
             if self.marker_names is not None:

@@ -26,8 +26,8 @@ from vts_hw.console.room import RoomFacts
 from vts_hw.console.scans_folder import scans_folder
 from vts_hw.console.serve_checks import check_host, check_users, login_required
 from vts_hw.console.sessions import IDLE_S, MAX_S, USERS_EVERY_S, Auth
-import vts_hw.drivers.registry as registry     # looked up when used: a test's stand-in is seen
 from vts_hw.errors import UsageError, VtsError
+from vts_hw.room import Room
 
 FACTS_TICK_S = 2.0
 SCAN_STOP_S = 120.0     # a scan running when the console stops: closed within this (docs/decisions/0082)
@@ -114,7 +114,13 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, op
     except BaseException:
         sock.close()
         raise
-    cameras = {c.name: c for c in registry.open_cameras(rig.cameras)}
+    room = Room(rig)            # the room's cameras, closed with it when the console stops
+    try:
+        cameras = {c.name: c for c in room.cameras}
+    except BaseException as exc:
+        room.__exit__(type(exc), exc, exc.__traceback__)     # what was opened closed; this error goes on
+        sock.close()
+        raise
     hub = FramesHub(cameras, idle_close_s=IDLE_CLOSE_S if idle_close_s is None else idle_close_s)
     names = MarkerNames()
     markers = MarkerWorker(hub, RATE_HZ if marker_hz is None else marker_hz, names,
@@ -169,9 +175,10 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, op
         console.reports.close()         # the rooms report's temporary folder (history_reports.py)
         markers.close()
         hub.close()
-        for cam in cameras.values():
-            cam.close()
-        sock.close()
+        try:
+            room.close()
+        finally:
+            sock.close()
         facts_thread.join(FACTS_TICK_S + 1)   # (a daemon: a camera call it waits on cannot hold the exit)
 
 
