@@ -197,7 +197,7 @@ def rig_yaml_page() -> str:
         rows: list[str] = []
         _model_table(model, "cameras[].", rows, [])
         own = {k for k in model.model_fields if k not in model.entry_keys}
-        out += [re.sub(r"^\| `cameras\[\]\.(\w+)`", lambda m: f"| `cameras[].options.{m.group(1)}`"
+        out += [re.sub(r"^\| `cameras\[\]\.(\w+)`", lambda m, own=own: f"| `cameras[].options.{m.group(1)}`"
                        if m.group(1) in own else m.group(0), row) for row in rows]
     out += ["", "## Metrics with a tolerance window", "",
             "`tolerances:` takes these names (`vts_hw/tolerance.py`'s `DEFAULT_TOLERANCES` and the "
@@ -214,7 +214,7 @@ def rig_yaml_page() -> str:
 # ---- exit codes ----------------------------------------------------------------------------------
 
 def _modules():
-    for folder, package in PACKAGES.items():
+    for folder in PACKAGES:
         for path in sorted((ROOT / folder).rglob("*.py")):
             yield path, path.relative_to(ROOT).as_posix()
 
