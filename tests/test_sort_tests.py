@@ -24,6 +24,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).parent / "data" / "x.json"
+AS_TEXT = "Path(__file__).resolve().parents[1]"     # code held as text: left as it is
 
 
 def test_alpha():
@@ -89,7 +90,9 @@ def test_the_modules_move_to_their_kind_and_every_reference_follows(checkout):
     alpha = (tests / "unit" / "test_alpha.py").read_text()
     assert "(the end to end case: tests/integration/test_beta.py)" in alpha          # a docstring's bare name
     assert 'said = "see test_beta.py"' in alpha and 'assert "test_beta.py" in said' in alpha   # code left alone
-    assert "parents[2]" in alpha and 'Path(__file__).parents[1] / "data"' in alpha  # one folder deeper
+    assert "REPO = Path(__file__).resolve().parents[2]" in alpha                       # one folder deeper
+    assert 'Path(__file__).parents[1] / "data"' in alpha
+    assert 'AS_TEXT = "Path(__file__).resolve().parents[1]"' in alpha
     assert 'Path(__file__).parent / "integration" / "test_beta.py"' in (tests / "conftest.py").read_text()
     assert "# a helper: stays (tests/unit/test_alpha.py uses it)" in (tests / "helper.py").read_text()
     assert json.loads((tests / "durations.json").read_text()) == {"tests/unit/test_alpha.py": 1.0,
