@@ -17,12 +17,10 @@ import time
 from typing import TYPE_CHECKING
 
 from vts_hw.camera import ClockOffset, Frame, check_whole, kind_settings
-from vts_hw.drivers.axis_client import AxisClient
 from vts_hw.drivers.axis_clock import AxisClock
 from vts_hw.drivers.axis_errors import (NOT_THE_JSON, AxisError, BadReply, CameraUnauthorized, CameraUnreachable,
                                         NotFound, Refused, TooManyViewers)
 from vts_hw.drivers.axis_io import AxisIOPort
-from vts_hw.drivers.axis_params import AxisParameters
 from vts_hw.drivers.axis_stream import MultipartStream
 from vts_hw.recording.axis_jpeg import inspect_jpeg
 
@@ -52,8 +50,9 @@ def frame_from_bytes(seq: int, jpeg: bytes, host_time: float, problems=()) -> Fr
     return Frame(seq, jpeg, cam_t, host_time, tuple(probs))
 
 
-class AxisCamera(AxisClient, MultipartStream, AxisParameters, AxisIOPort, AxisClock):
-    """One Axis camera: the ``axis`` kind, with every role of :mod:`vts_hw.camera`.
+class AxisCamera(MultipartStream, AxisClock, AxisIOPort):
+    """One Axis camera: the ``axis`` kind, with every role of :mod:`vts_hw.camera` (the HTTP client,
+    its parameters, clock and I/O port are the mixins' common base and parts).
 
     ``AxisCamera.from_config(cfg)`` takes a rig.yaml camera entry and its password from the
     environment variable that entry names (``vts_hw.drivers.registry.open_camera`` calls it).
@@ -99,10 +98,6 @@ class AxisCamera(AxisClient, MultipartStream, AxisParameters, AxisIOPort, AxisCl
         frame = frame_from_bytes(0, data, host_t)
         check_whole(frame, self.name)
         return frame
-
-    def make_frame(self, seq: int, jpeg: bytes, host_time: float, problems=()) -> Frame:
-        """A received JPEG as a Frame, timed by its Axis stamp."""
-        return frame_from_bytes(seq, jpeg, host_time, problems)
 
     def make_frame(self, seq: int, jpeg: bytes, host_time: float, problems=()) -> Frame:
         """A received JPEG as a Frame, timed by its Axis stamp."""

@@ -3,21 +3,26 @@
 The offset comes from ``time.cgi`` where the firmware has it, else from the 10 ms stamps of
 snapshots; the uptime from :mod:`.axis_uptime`. :class:`AxisClock` is the
 :class:`~vts_hw.camera.CameraClock` and :class:`~vts_hw.camera.RunningTime` roles of an Axis
-camera (mixed into an :class:`~vts_hw.drivers.axis_client.AxisClient` with frames).
+camera (over its parameters, with its frames).
 """
 
 from __future__ import annotations
 
 import statistics
 from datetime import datetime, timezone
+from typing import Callable
 
-from vts_hw.camera import ClockOffset, Uptime
+from vts_hw.camera import ClockOffset, Frame, Uptime
 from vts_hw.drivers.axis_errors import NOT_THE_JSON, BadReply, NotFound
+from vts_hw.drivers.axis_params import AxisParameters
 from vts_hw.drivers.axis_uptime import read_uptime
 
 
-class AxisClock:
-    """``clock_offset()`` and ``uptime()``."""
+class AxisClock(AxisParameters):
+    """``clock_offset()`` and ``uptime()``, over the camera's parameters (the VAPIX version tells
+    where its server report is) and its snapshots (the stamps, on firmware without ``time.cgi``)."""
+
+    snapshot: Callable[[], Frame]      # the camera's own (AxisCamera.snapshot)
 
     def uptime(self) -> Uptime:
         """How long the camera has run since it started (drivers/axis_uptime.py)."""

@@ -12,11 +12,12 @@ from __future__ import annotations
 
 from urllib.parse import quote
 
+from vts_hw.drivers.axis_client import AxisClient
 from vts_hw.drivers.axis_errors import BadReply, NotFound
 
 
-class AxisIOPort:
-    """The LED on the camera's I/O output port ``led_port`` (1-based); mixed into an AxisClient."""
+class AxisIOPort(AxisClient):
+    """The LED on the camera's I/O output port ``led_port`` (1-based), over the HTTP client."""
 
     led_port: int
     _output_cgi = "/axis-cgi/io/port.cgi"  # io/output.cgi on VAPIX 2 firmware, once found out

@@ -3,17 +3,18 @@
 Current firmware (VAPIX 3) answers ``/axis-cgi/param.cgi`` for both; older firmware (VAPIX 2,
 told apart by a 404 there) reads on ``view/param.cgi`` and writes on ``admin/param.cgi``.
 :class:`AxisParameters` is the :class:`~vts_hw.camera.Parameters` role of an Axis camera
-(mixed into an :class:`~vts_hw.drivers.axis_client.AxisClient`); what ``vts camera setup`` sets
+(over its :class:`~vts_hw.drivers.axis_client.AxisClient`); what ``vts camera setup`` sets
 through it is :mod:`.axis_setup`.
 """
 
 from __future__ import annotations
 
+from vts_hw.drivers.axis_client import AxisClient
 from vts_hw.drivers.axis_errors import BadReply, NotFound
 
 
-class AxisParameters:
-    """``get_params``/``set_params`` and the VAPIX version they are asked by."""
+class AxisParameters(AxisClient):
+    """``get_params``/``set_params`` and the VAPIX version they are asked by, over the HTTP client."""
 
     _vapix: int | None = None
 

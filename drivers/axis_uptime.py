@@ -17,7 +17,7 @@ from vts_hw.camera import Uptime
 from vts_hw.drivers.axis_errors import NOT_THE_JSON, BadReply, NotFound
 
 if TYPE_CHECKING:
-    from vts_hw.drivers.axis import AxisCamera
+    from vts_hw.drivers.axis_clock import AxisClock
 
 _UP = re.compile(r"\bup\s+(?:(\d+)\s+days?,\s*)?(?:(\d+):(\d{2})|(\d+)\s+min)")
 
@@ -28,7 +28,7 @@ class NoUptime(BadReply):
     retry = False
 
 
-def read_uptime(cam: AxisCamera) -> Uptime:
+def read_uptime(cam: AxisClock) -> Uptime:
     try:
         r = cam.request("POST", "/axis-cgi/systemready.cgi",
                         json_body={"apiVersion": "1.0", "method": "systemready"})

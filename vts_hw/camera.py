@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from copy import copy
 from dataclasses import dataclass, field
-from typing import Callable, ClassVar, Iterator, Protocol, Self, Union, get_args, get_origin, runtime_checkable
+from typing import Any, Callable, ClassVar, Iterator, Protocol, Self, Union, get_args, get_origin, runtime_checkable
 
 from pydantic import BaseModel, ConfigDict, ValidationError, create_model
 from pydantic_core import PydanticUndefined
@@ -298,10 +298,11 @@ class KindSettings(BaseModel):
 
 
 def kind_settings(name: str, doc: str, entry_keys: tuple[str, ...] = (), *, required: tuple[str, ...] = (),
-                  options: type[BaseModel] | None = None) -> type[KindSettings]:
+                  options: type[BaseModel] | None = None) -> Any:
     """A camera kind's settings model (its driver's ``settings``): the entry keys it uses, as
     :class:`~vts_hw.config.CameraConfig` defines them (those in ``required`` must be given), and
-    the fields of ``options``, its own keys under ``options:``. The rig.yaml reference page shows it."""
+    the fields of ``options``, its own keys under ``options:``. The rig.yaml reference page shows it.
+    A :class:`KindSettings` made at run time: typed ``Any``, its fields being the kind's."""
     fields: dict = {}
     for key in entry_keys:
         info = copy(CameraConfig.model_fields[key])

@@ -17,7 +17,7 @@ import time
 from dataclasses import dataclass
 from typing import Callable
 
-from vts_hw.camera import CameraError, Illumination
+from vts_hw.camera import Camera, CameraError, Illumination
 
 READ_BACK_S = 1.0        # a switch the camera's output shows within this long has taken
 PULSE_SEEN_MS = 1000     # a pulse at least this long must be seen on while it lasts
@@ -43,7 +43,7 @@ class LedReadBack:
             ("on" if self.state else "off")
 
 
-def _read_until(cam, want: bool, within_s: float, sleep: Callable[[float], None],
+def _read_until(cam: Illumination, want: bool, within_s: float, sleep: Callable[[float], None],
                 clock: Callable[[], float]) -> bool | None:
     end = clock() + within_s
     while True:
@@ -58,7 +58,7 @@ def _where(cam) -> str:
     return f"its LED output (port {port})" if port is not None else "its LED output"
 
 
-def switch_led(cam, on: bool, *, within_s: float = READ_BACK_S, sleep=time.sleep,
+def switch_led(cam: Camera, on: bool, *, within_s: float = READ_BACK_S, sleep=time.sleep,
                clock=time.monotonic) -> LedReadBack:
     """Switch ``cam``'s LED ring on or off and read it back; :class:`LedNotTaken` when the camera
     still says otherwise after ``within_s``; not known (nothing sent) for a camera without an LED."""
@@ -74,7 +74,7 @@ def switch_led(cam, on: bool, *, within_s: float = READ_BACK_S, sleep=time.sleep
     return LedReadBack(state)
 
 
-def light(cam) -> str:
+def light(cam: Camera) -> str:
     """Switch ``cam``'s LED ring on where it has one (the markers are retro-reflective: bright only
     with it on); what was done, in words: ``on``, or ``none (...)`` for a camera without an LED
     (not :class:`~vts_hw.camera.Illumination`: a replay), which is left as it is."""
@@ -84,7 +84,7 @@ def light(cam) -> str:
     return "on"
 
 
-def pulse_led(cam, ms: int, *, within_s: float = READ_BACK_S, sleep=time.sleep,
+def pulse_led(cam: Camera, ms: int, *, within_s: float = READ_BACK_S, sleep=time.sleep,
               clock=time.monotonic) -> LedReadBack:
     """Pulse ``cam``'s LED ring for ``ms`` and read it back: seen on while it lasts (required for
     a pulse of :data:`PULSE_SEEN_MS` or more), off once it has ended; :class:`LedNotTaken` else;
