@@ -2,17 +2,16 @@
 room against its truth, view graphs refused in one sentence."""
 
 import json
-import subprocess
-import sys
 
 import pytest
 
+from inprocess_cli import run
 from vts_hw.vision.calibration_io import CameraCalibration, load_calibration
 
 
 def vts(*args, cwd, command="cameras"):
-    return subprocess.run([sys.executable, "-m", "vts_hw.cli.__main__", "calibrate", command, *map(str, args)],
-                          capture_output=True, text=True, cwd=cwd, timeout=900)
+    """`vts calibrate COMMAND ARGS` in this process (tests/inprocess_cli.py), from the folder ``cwd``."""
+    return run("calibrate", command, *args, cwd=cwd)
 
 
 @pytest.fixture(scope="module")

@@ -1,19 +1,18 @@
 """`vts calibrate spect`: the simulated session against the truth, files, bad inputs."""
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
+from inprocess_cli import run
 from vts_hw.vision.registration import RigidTransform
 from vts_hw.sim_devices.spect import SimSpect, phantom_centres
 
 
 def vts(*args, cwd):
-    return subprocess.run([sys.executable, "-m", "vts_hw.cli.__main__", "calibrate", "spect",
-                           *map(str, args)], capture_output=True, text=True, cwd=cwd, timeout=600)
+    """`vts calibrate spect ARGS` in this process (tests/inprocess_cli.py), from the folder ``cwd``."""
+    return run("calibrate", "spect", *args, cwd=cwd)
 
 
 def test_sim_json_against_truth(tmp_path):
@@ -132,8 +131,7 @@ def test_from_cameras_on_a_live_simulated_rig(tmp_path, n_cameras, calibrate):
     from vts_hw.sim_devices.step_table import sphere_centres
 
     cal = tmp_path / "cal.json"
-    r = subprocess.run([sys.executable, "-m", "vts_hw.cli.__main__", "calibrate", *calibrate, "--sim",
-                        "--sim-seed", "2", "-o", str(cal)], capture_output=True, text=True, timeout=600)
+    r = run("calibrate", *calibrate, "--sim", "--sim-seed", "2", "-o", cal)
     assert r.returncode == 0, r.stderr
     with SimRig(n_cameras=n_cameras, seed=2) as rig:
         rig.scene.add_phantom()
@@ -141,10 +139,8 @@ def test_from_cameras_on_a_live_simulated_rig(tmp_path, n_cameras, calibrate):
         vol = SimSpect(seed=2).write(tmp_path / "phantom.npz", sphere_centres(rig.scene, rig.clock.now()))
         out = tmp_path / "map.json"
         env = {**os.environ, **rig.env_vars()}
-        r = subprocess.run([sys.executable, "-m", "vts_hw.cli.__main__", "calibrate", "spect",
-                            "--from-cameras", "--volume", str(vol), "--calibration", str(cal),
-                            "--config", str(cfg), "--frames", "4", "--json", "-o", str(out)],
-                           capture_output=True, text=True, timeout=300, env=env)
+        r = run("calibrate", "spect", "--from-cameras", "--volume", vol, "--calibration", cal, "--config", cfg,
+                "--frames", "4", "--json", "-o", out, env=env)
         assert r.returncode == 0, r.stderr
         c1 = rig.scene.camera_at("cam1", rig.clock.now())
     d = json.loads(r.stdout)

@@ -20,6 +20,7 @@ import time
 import numpy as np
 import pytest
 
+from inprocess_cli import run as vts_run
 from vts_hw.store import ResultsStore
 
 from vts_hw.config import load_rig
@@ -221,10 +222,8 @@ def test_a_report_on_a_full_disk_never_costs_the_check(scan22, small_disk):
     disk.fill()
     with ResultsStore(cfg.results.url) as store:
         before = len(store.runs(procedure="sync"))
-    p = subprocess.run([*VTS, "sync", "analyze", str(run.session), "--listmode", str(run.listmode),
-                        "-o", str(disk.path / "sync.html"), "--plot", str(disk.path / "sync.png"),
-                        "--export", str(disk.path / "x")], env={**os.environ, "VTS_CONFIG": str(rig_yaml)},
-                       capture_output=True, text=True, timeout=300)
+    p = vts_run("sync", "analyze", run.session, "--listmode", run.listmode, "-o", disk.path / "sync.html",
+            "--plot", disk.path / "sync.png", "--export", disk.path / "x", env={**os.environ, "VTS_CONFIG": str(rig_yaml)})
     err = p.stderr.strip().splitlines()[-1]
     assert p.returncode == 3 and "Traceback" not in p.stderr, p.stderr
     assert err.startswith("vts: ") and "sync.html: could not be written (no space left on device)" in err, err
@@ -259,9 +258,8 @@ def test_without_a_mapping_and_with_a_named_marker(scan22):
     assert d["vts"]["markers"] == [wall] and d["summary"]["events_both"] == 0
     assert d["summary"]["state"] == "ACTION" and "no motion event seen by both" in b.results()
     assert {e["seen_by"] for e in d["events"]} == {"SPECT only"}
-    p = subprocess.run([*VTS, "sync", "analyze", str(run.session), "--listmode", str(run.listmode),
-                        "--config", str(rig_yaml), "--marker", str(wall), "--workers", "1"],
-                       capture_output=True, text=True, timeout=120)
+    p = vts_run("sync", "analyze", run.session, "--listmode", run.listmode, "--config", rig_yaml, "--marker", wall,
+            "--workers", "1")
     assert p.returncode == 20 and "state: ACTION" in p.stdout and "Traceback" not in p.stderr
     png = b.plot(None)
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
@@ -313,8 +311,7 @@ def test_kill_9_of_the_scan_leaves_a_session_that_reindexes_and_analyses(box_rig
     run = sync_sim.cli_scan(rig, rig_yaml, tmp_path / "scan", 60.0, marker, times_rel=[2.5, 6.0],
                             steps=[15.0, -20.0], kill_after_s=9.0)
     assert json.loads((run.session / "manifest.json").read_text())["status"] == "recording"
-    r = subprocess.run([*VTS, "recording", "reindex", str(run.session)], capture_output=True, text=True,
-                       timeout=60)
+    r = vts_run("recording", "reindex", run.session)
     assert r.returncode == 0, r.stderr
     assert json.loads((run.session / "manifest.json").read_text())["status"] == "recovered"
 
@@ -355,8 +352,7 @@ def test_bad_inputs_end_in_one_sentence(tmp_path):
          "none.vtslm: no such file"),
     ]
     for args, code, text in cases:
-        p = subprocess.run([*VTS, "sync", "analyze", *args], env=env, cwd=tmp_path, capture_output=True,
-                           text=True, timeout=60)
+        p = vts_run("sync", "analyze", *args, env=env, cwd=tmp_path)
         assert p.returncode == code and text in p.stderr, (args, p.stderr)
         one_line = len(p.stderr.strip().splitlines()) == 1
         assert "Traceback" not in p.stderr and (one_line or p.stderr.startswith("Usage:"))   # click's usage
@@ -384,7 +380,6 @@ def test_a_manifest_of_the_wrong_shape_is_one_sentence(tmp_path, manifest, words
     (session / "manifest.json").write_text(manifest)
     (session / "trigger.csv").write_text("host_time,device_time_us,device,kind,text\n")
     env = {k: v for k, v in os.environ.items() if k != "VTS_CONFIG"}
-    p = subprocess.run([*VTS, "sync", "analyze", str(session), "--listmode", str(tmp_path / "x.vtslm")],
-                       env=env, cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    p = vts_run("sync", "analyze", session, "--listmode", tmp_path / "x.vtslm", env=env, cwd=tmp_path)
     assert p.returncode == 3, p.stderr
     assert p.stderr.strip() == f"vts: {session / 'manifest.json'}: {words}"
