@@ -4,15 +4,13 @@ and run through the live pipeline: the recorder, processing, the daily drift QA,
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 import time
 
 import numpy as np
 import pytest
 import yaml
 
+from inprocess_cli import vts
 from vts_hw.camera import Camera, Illumination, Parameters, RunningTime
 from vts_hw.config import parse_rig
 from vts_hw.drivers.registry import CAMERA_KINDS, open_camera, open_cameras
@@ -61,7 +59,7 @@ def test_every_kind_implements_the_contract(sim_rig, tmp_path):
     assert kinds == {"axis": "AxisCamera", "mjpeg": "MjpegCamera", "replay": "ReplayCamera"}
 
 
-def test_kind_defaults_to_axis_and_an_unknown_kind_is_named(tmp_path, sim_rig):
+def test_kind_defaults_to_axis_and_an_unknown_kind_is_named(tmp_path, sim_rig, capsys):
     cfg = sim_rig.config()
     assert cfg.cameras[0].kind == "axis"
     bad = _rig([{"name": "cam9", "kind": "webcam", "host": "127.0.0.1"}])
@@ -72,10 +70,9 @@ def test_kind_defaults_to_axis_and_an_unknown_kind_is_named(tmp_path, sim_rig):
     # on the command line: one sentence, exit 2, no traceback
     path = tmp_path / "rig.yaml"
     path.write_text(yaml.safe_dump({"rig": "x", "cameras": [{"name": "cam9", "kind": "webcam", "host": "h"}]}))
-    r = subprocess.run([sys.executable, "-m", "vts_hw.cli", "camera", "snapshot", "cam9", "-o",
-                        str(tmp_path / "a.jpg"), "--config", str(path)], capture_output=True, text=True)
-    assert r.returncode == 2, r.stderr
-    assert "unknown kind 'webcam'" in r.stderr and "Traceback" not in r.stderr
+    code, out, err = vts(capsys, "camera", "snapshot", "cam9", "-o", tmp_path / "a.jpg", "--config", path)
+    assert code == 2, err
+    assert "unknown kind 'webcam'" in err and "Traceback" not in err
 
 
 def test_kind_options_are_checked_by_the_kind(tmp_path):
@@ -261,19 +258,16 @@ def test_replay_runs_a_scan_session(rig_recording, tmp_path):
     assert load_manifest(tmp_path / "scan")["status"] == "complete"
 
 
-def test_replay_from_the_command_line(rig_recording, tmp_path):
+def test_replay_from_the_command_line(rig_recording, tmp_path, capsys):
     path = tmp_path / "rig.yaml"
     path.write_text(yaml.safe_dump({"rig": "replayed", "cameras": _replay_entries(rig_recording, ("cam1",))}))
-    env = dict(os.environ, VTS_CONFIG=str(path))
-    r = subprocess.run([sys.executable, "-m", "vts_hw.cli", "camera", "info", "cam1", "--json"],
-                       capture_output=True, text=True, env=env)
-    assert r.returncode == 0, r.stderr
-    assert '"kind": "replay"' in r.stdout and "no-op" in r.stdout
-    out = tmp_path / "snap.jpg"
-    r = subprocess.run([sys.executable, "-m", "vts_hw.cli", "camera", "snapshot", "cam1", "-o", str(out)],
-                       capture_output=True, text=True, env=env)
-    assert r.returncode == 0, r.stderr
-    assert out.read_bytes()[:2] == b"\xff\xd8"
+    code, out, err = vts(capsys, "camera", "info", "cam1", "--json", "--config", path)
+    assert code == 0, err
+    assert '"kind": "replay"' in out and "no-op" in out
+    snap = tmp_path / "snap.jpg"
+    code, out, err = vts(capsys, "camera", "snapshot", "cam1", "-o", snap, "--config", path)
+    assert code == 0, err
+    assert snap.read_bytes()[:2] == b"\xff\xd8"
 
 
 def test_only_the_registry_builds_cameras():
