@@ -2,17 +2,20 @@
 
 from __future__ import annotations
 
+import contextlib
 import sys
 from pathlib import Path
+from typing import Iterator
 
 import click
 
 from vts_hw.camera import Camera, CameraError, Illumination, Parameters, StreamFellShort, StreamGap
 from vts_hw.camera_led import pulse_led, switch_led
-from vts_hw.drivers.registry import open_camera, open_cameras
+from vts_hw.drivers.registry import check_camera_kinds
 from vts_hw.files import write_atomic
 from vts_hw.cli import cli
 from vts_hw.cli.common import OutputFile, OutputFolder, PositiveSeconds, echo_json, fmt_time, json_option, with_rig
+from vts_hw.room import Room
 
 
 @cli.group()
@@ -20,8 +23,11 @@ def camera() -> None:
     """Talk to one camera of the rig (or several, for `record`)."""
 
 
-def _open(rig, name: str) -> Camera:
-    return open_camera(rig.camera(name))
+@contextlib.contextmanager
+def _open(rig, name: str) -> Iterator[Camera]:
+    """Camera NAME of the rig's room, closed with the room."""
+    with Room(rig) as room:
+        yield room.camera(name)
 
 
 @camera.command()
@@ -172,10 +178,11 @@ def record(names: tuple[str, ...], all_cameras: bool, seconds: float, out: str, 
     cfgs = [rig.camera(n) for n in names]           # unknown names and unset passwords: before any file
     for cfg in cfgs:
         cfg.password()
-    cams = open_cameras(cfgs)
+    check_camera_kinds(cfgs)
     meta = {"rig": rig.rig, "seconds_asked": seconds, "rig_digest": rig.digest}
-    rec = Recorder(cams, out, seconds=seconds, meta=meta, append=append)
-    manifest = record_with_progress(rec, seconds)
+    with Room(rig) as room:          # the cameras closed with it, however the recording ends
+        rec = Recorder([room.camera(c.name) for c in cfgs], out, seconds=seconds, meta=meta, append=append)
+        manifest = record_with_progress(rec, seconds)
     status = manifest["status"]
     click.echo(f"{out}: status {status}" + (" (added to the recording already there)" if append else ""))
     for name in names:

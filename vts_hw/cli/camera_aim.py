@@ -98,14 +98,15 @@ def aim(name: str, once: bool, out: str | None, interval: float, as_json: bool, 
     2 bad input (unknown camera, bad config); 3 --out not writable; 4 the camera failed.
     Live (without --once): Ctrl-C stops, with the status of the last check.
     """
-    from vts_hw.drivers.registry import open_camera
     from vts_hw.procedures.aim import check
+    from vts_hw.room import Room
 
     cfg = rig.camera(name)              # an unknown camera: one sentence, exit 2, before anything
     cfg.password()
     out_dir = Path(out) if out else None
     reference = _reference(rig, name)
-    with open_camera(cfg) as cam:
+    with Room(rig) as room:
+        cam = room.camera(name)
         if once or as_json:
             report = check(cam, rig, reference=reference)
             written = _write(out_dir, report)

@@ -34,8 +34,9 @@ def setup(names: tuple[str, ...], all_cameras: bool, dry_run: bool, as_json: boo
     """
     from vts_hw.camera import Parameters
     from vts_hw.drivers.axis_setup import wanted
-    from vts_hw.drivers.registry import kind_has, open_camera
+    from vts_hw.drivers.registry import kind_has
     from vts_hw.errors import UsageError
+    from vts_hw.room import Room
 
     if all_cameras:
         names = tuple(c.name for c in rig.cameras)
@@ -53,12 +54,13 @@ def setup(names: tuple[str, ...], all_cameras: bool, dry_run: bool, as_json: boo
     if not dry_run:   # a rig.yaml that cannot be replaced is said before any camera is set
         check_rewritable(source)
     if dry_run:
-        for cfg in cfgs:
-            with open_camera(cfg) as cam:
-                plan = wanted(cam, cfg, rig.camera_setup)
-            click.echo(f"{cfg.name}: " + ", ".join(f"{k}={v}" for k, v, _ in plan))
+        with Room(rig) as room:
+            for cfg in cfgs:
+                plan = wanted(room.camera(cfg.name), cfg, rig.camera_setup)
+                click.echo(f"{cfg.name}: " + ", ".join(f"{k}={v}" for k, v, _ in plan))
         return
-    results, failures = _set_all(cfgs, rig.camera_setup, as_json)
+    with Room(rig) as room:
+        results, failures = _set_all(room, cfgs, rig.camera_setup, as_json)
     written = backup = None
     if results:
         from vts_hw.rig_file import set_locked_params
@@ -78,17 +80,15 @@ def setup(names: tuple[str, ...], all_cameras: bool, dry_run: bool, as_json: boo
         sys.exit(4)
 
 
-def _set_all(cfgs, setup_cfg, quiet: bool):
-    """Each camera in turn: a camera that fails does not stop the others."""
+def _set_all(room, cfgs, setup_cfg, quiet: bool):
+    """Each camera of the room in turn: a camera that fails does not stop the others."""
     from vts_hw.camera import CameraError
     from vts_hw.drivers.axis_setup import setup_camera
-    from vts_hw.drivers.registry import open_camera
 
     results, failures = [], []
     for cfg in cfgs:
         try:
-            with open_camera(cfg) as cam:
-                r = setup_camera(cam, cfg, setup_cfg)
+            r = setup_camera(room.camera(cfg.name), cfg, setup_cfg)
         except CameraError as exc:
             failures.append((cfg.name, str(exc)))
             continue

@@ -157,8 +157,9 @@ def _run_sim(out, seed, frames, vertical, axial, store_url, operator, as_json):
 def _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path, analyze_dir, frames,
              store_url, dry_run, operator, as_json):
     from vts_hw.config import load_rig
-    from vts_hw.drivers.registry import open_cameras
+    from vts_hw.drivers.registry import check_camera_kinds
     from vts_hw.procedures.mapping_inputs import calibrated_cameras
+    from vts_hw.room import Room
     from vts_hw.procedures.step_test import run_step_test, step_session, step_test_inputs
 
     rig = load_rig(config_path)
@@ -169,8 +170,10 @@ def _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path, an
         return ask_a_person(text, "the step test", "run it at a terminal, or analyse steps already recorded "
                                                    "with --analyze DIR")
 
-    cameras = [] if analyze_dir else open_cameras(calibrated_cameras(rig, inputs.calibration))
-    try:
+    with Room(rig) as room:           # the cameras it opens are closed with it
+        cfgs = [] if analyze_dir else calibrated_cameras(rig, inputs.calibration)
+        check_camera_kinds(cfgs)
+        cameras = [room.camera(c.name) for c in cfgs]
         if dry_run and not analyze_dir:
             for i, step in enumerate(step_session(cameras, inputs, out, plan, frames=frames).plan(), 1):
                 click.echo(f"{i:2d}. {step}")
@@ -183,9 +186,6 @@ def _run_rig(config_path, out, plan, volumes, calibration_path, mapping_path, an
                                 frames=frames, ask=ask, progress=say)
             stored = record(store, res.analysis, rig=rig.rig, operator=operator, config_digest=rig.digest,
                             tolerances=rig.tolerances, started=res.started, artifacts=res.artifacts)
-    finally:
-        for c in cameras:
-            c.close()
     run_id = stored.run_id
     _print(res.analysis, [(f"run {run_id} stored" if stored.ok else "NOT stored") + f"; plot {res.plot or 'not written'}"],
            as_json, {"run_id": run_id, "out": str(out), "not_written": [str(res.plot_error)] if res.plot_error else [],
