@@ -5,6 +5,9 @@ again it does nothing; a module the table does not know stops it before anything
 
 from __future__ import annotations
 
+import errno
+import importlib.machinery
+import importlib.util
 import json
 import shutil
 import subprocess
@@ -128,3 +131,45 @@ def test_a_module_the_table_does_not_know_stops_it_before_anything_changes(check
     assert "Traceback" not in p.stderr
     assert _git(checkout, "status", "--short") == before
     assert (checkout / "tests" / "test_alpha.py").read_text() == ALPHA
+
+
+@pytest.mark.parametrize("table, said", [
+    ('unit = ["test_alpha.py"]\nsmoke = ["test_beta.py"]\n', "tools/test-kinds.toml: unknown kind 'smoke' (one of unit, "),
+    ('unit = ["test_alpha.py", "test_beta.py"]\nhouse = ["test_beta.py"]\n', "test_beta.py is under both unit and house"),
+    ('unit = ["alpha.py"]\n', "'alpha.py' under unit is not a test module's name (test_x.py)"),
+    ('unit = ["test_alpha.py"\n', "tools/test-kinds.toml: cannot read the table of kinds ("),
+])
+def test_a_table_it_cannot_use_is_one_sentence_and_exit_2(checkout, table, said):
+    (checkout / "tools" / "test-kinds.toml").write_text(table)
+    p = _sort(checkout)
+    assert p.returncode == 2 and p.stderr.startswith("sort-tests: nothing changed: ") and said in p.stderr, p.stderr
+    assert "Traceback" not in p.stderr and p.stderr.count("\n") == 1
+
+
+def test_changes_not_committed_in_a_file_it_would_touch_stop_it(checkout):
+    (checkout / "docs" / "faults.md").write_text(DOC + "| b | a row being written |\n")
+    p = _sort(checkout)
+    assert p.returncode == 2 and "docs/faults.md: has changes not committed; commit them first" in p.stderr, p.stderr
+    assert (checkout / "tests" / "test_alpha.py").exists() and not (checkout / "tests" / "unit").exists()
+
+
+def test_stopped_half_way_it_puts_the_checkout_back(checkout, monkeypatch, capsys):
+    """A rewrite that fails after the modules moved (a full disk): every file as committed again."""
+    path = str(checkout / "tools" / "sort-tests")
+    spec = importlib.util.spec_from_file_location("sort_tests_copy", path,
+                                                  loader=importlib.machinery.SourceFileLoader("sort_tests_copy", path))
+    script = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, spec.name, script)       # (its dataclass looks itself up there)
+    spec.loader.exec_module(script)
+    write = Path.write_text
+
+    def full_disk(self, *args, **kwargs):
+        if self.name == "faults.md":
+            raise OSError(errno.ENOSPC, "No space left on device", str(self))
+        return write(self, *args, **kwargs)
+    monkeypatch.setattr(Path, "write_text", full_disk)
+    assert script.main([]) == 3
+    said = capsys.readouterr().err
+    assert "stopped half-way ([Errno 28] No space left on device" in said and "the checkout is back as it was" in said
+    assert _git(checkout, "status", "--porcelain") == ""
+    assert (checkout / "tests" / "test_alpha.py").read_text() == ALPHA and not (checkout / "tests" / "unit").exists()
