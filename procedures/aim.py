@@ -89,7 +89,8 @@ def check(cam, rig, settings: AimSettings | None = None, reference=None,
 
 def aim_page(cam, rig, reference=None) -> tuple[dict, bytes]:
     """For a page: the verdicts (JSON-able dict) and the overlay (PNG bytes) of ``cam``."""
-    return aim_page_of(cam.name, rig, *acquire_pictures(cam), reference)
+    on_jpeg, off_jpeg = acquire_pictures(cam)
+    return aim_page_of(cam.name, rig, on_jpeg, off_jpeg, reference)
 
 
 def aim_page_of(name: str, rig, on_jpeg: bytes, off_jpeg: bytes | None, reference=None,

@@ -70,10 +70,10 @@ def camera_images(args: list[str]) -> dict[str, dict[str, Path]]:
                     add(sub.name, img.stem, img)
             continue
         images = _images_in(path)
-        named = [(img, _camera_and_view(img)) for img in images]
-        if images and all(cv is not None for _, cv in named):
-            for img, cv in named:
-                add(*cv, img)
+        named = [(img, cv) for img in images if (cv := _camera_and_view(img)) is not None]
+        if images and len(named) == len(images):
+            for img, (camera, view) in named:
+                add(camera, view, img)
         else:
             for img in images:
                 add(path.name, img.stem, img)

@@ -34,7 +34,7 @@ from typing import Callable
 
 from vts_hw.catalog import COMMISSION_STEP, COMMISSION_STEPS
 from vts_hw.errors import UsageError
-from vts_hw.results import Measure, overall_state
+from vts_hw.results import Analysis, Measure, overall_state
 from vts_hw.tolerance import State
 
 
@@ -100,7 +100,7 @@ class Outcome:
     on, what to do when it does not, the files it wrote (artifacts), when it started."""
 
     step: str
-    result: object
+    result: Analysis
     passed: bool
     advice: str = ""
     artifacts: list[Path] = field(default_factory=list)

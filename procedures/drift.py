@@ -31,6 +31,7 @@ from vts_hw.vision.marker_roles import MOVE_FLOOR_PX, PATIENT, Role, follow, rol
 from vts_hw.vision.marker_roles import GATE_PX, match_markers as _match  # noqa: F401
 from vts_hw.vision.wall_baseline import Baseline, BaselineMarker  # noqa: F401
 from vts_hw.catalog import DRIFT
+from vts_hw.errors import DataError
 from vts_hw.results import Measure
 from vts_hw.tolerance import DEFAULT_TOLERANCES, State, Window, worst
 
@@ -292,6 +293,8 @@ class DriftAnalysis:
 
         self._need()
         img = cv2.imdecode(np.frombuffer(self.frames_on[0].jpeg, np.uint8), cv2.IMREAD_GRAYSCALE)
+        if img is None:
+            raise DataError(f"camera {self.camera}: its first LED-on frame is not a picture OpenCV can read: no plot")
         fig, ax = plt.subplots(figsize=(8, 6.4), dpi=100)
         ax.imshow(img, cmap="gray", vmin=0, vmax=255)
         for m in self.markers:

@@ -35,7 +35,8 @@ from vts_hw import __version__
 from vts_hw.errors import DataError
 from vts_hw.figures import figure_png
 from vts_hw.files import WriteFailed, export_stopped
-from vts_hw.motion import MotionSettings, analyze_motion, marker_series
+from vts_hw.motion import MotionResult, MotionSettings, analyze_motion, marker_series
+from vts_hw.motion.agreement import Agreement
 from vts_hw.motion.bands import band_names
 from vts_hw.motion.exports import clock_text, coverage_json, export_motion, time_origin
 from vts_hw.procedures.motion_plot import motion_figure
@@ -44,7 +45,7 @@ from vts_hw.spect.frame import frame_description
 from vts_hw.results import Measure, overall_state
 from vts_hw.tolerance import State, merged_tolerances
 from vts_hw.procedures.sync_inputs import CLOCK_SLACK_S, load_calibration, load_mapping
-from vts_hw.procedures.motion_live import agreement, host_to_series, read_live
+from vts_hw.procedures.motion_live import LiveRecord, agreement, host_to_series, read_live
 from vts_hw.recording.folder import load_manifest
 from vts_hw.tracking.processing import process_recording
 
@@ -93,15 +94,15 @@ class MotionAnalysis:
         self.settings = settings
         self.workers = workers
         self.progress = progress
-        self.result = None
-        self.sync = None
+        self.result: MotionResult | None = None
+        self.sync: SyncAnalysis | None = None
         self.problems: list[str] = []
         self.export_notes: list[str] = []   # what export() did not write, and why
         self.manifest: dict = {}
-        self.live = None                # the scan's live path read back (procedures/motion_live.py)
-        self.live_agreement = None      # its poses against the offline ones (vts_hw/motion/agreement.py)
+        self.live: LiveRecord | None = None    # the scan's live path read back (procedures/motion_live.py)
+        self.live_agreement: Agreement | None = None   # its poses against the offline ones (vts_hw/motion/agreement.py)
         self.tolerances = merged_tolerances(None)
-        self.analyzed_at = None
+        self.analyzed_at: str | None = None
 
     # ------------------------------------------------------------------ load
     def _load_tracks(self) -> None:
@@ -112,13 +113,14 @@ class MotionAnalysis:
         if self.calibration is None:
             raise DataError(f"{self.session}: no calibration given: the markers cannot be triangulated")
         if self.listmode is not None:
-            self.sync = SyncAnalysis(self.session, self.listmode, self.calibration, self.mapping,
-                                     workers=self.workers, progress=self.progress,
-                                     clock_slack_s=CLOCK_SLACK_S if self.clock_slack_s is None else self.clock_slack_s)
-            self.sync.analyze()
-            self.tracks = self.sync.tracks
-            self.manifest = self.sync.manifest or {}
-            self.problems += [f"sync: {p}" for p in self.sync.problems]
+            self.sync = sync = SyncAnalysis(self.session, self.listmode, self.calibration, self.mapping,
+                                            workers=self.workers, progress=self.progress,
+                                            clock_slack_s=CLOCK_SLACK_S if self.clock_slack_s is None
+                                            else self.clock_slack_s)
+            sync.analyze()
+            self.tracks = sync.tracks
+            self.manifest = sync.manifest or {}
+            self.problems += [f"sync: {p}" for p in sync.problems]
             return
         self.manifest = load_manifest(self.session, missing_ok=True) or {}
         if not self.manifest.get("cameras"):
@@ -150,26 +152,28 @@ class MotionAnalysis:
         self.problems += [f"recording: {m}" for m in missing]
         if not self.manifest and self.session.is_dir():
             self.manifest = load_manifest(self.session, missing_ok=True) or {}
-        self.live = read_live(self.session, self.manifest)
-        self.problems += self.live.problems
-        model = self.live.model
+        self.live = live = read_live(self.session, self.manifest)
+        self.problems += live.problems
+        model = live.model
         if model is not None and model.frame != series.frame:
             self.problems.append(f"live model not used: it is in the {model.frame.upper()} frame, the tracks in the "
                                  f"{series.frame.upper()} frame (give the mapping the scan used)")
             model = None
+        result = None
         if model is not None:
             try:
-                self.result = analyze_motion(series, self.settings, span=span, missing=missing, model=model)
+                result = analyze_motion(series, self.settings, span=span, missing=missing, model=model)
             except DataError as exc:          # the model is not this recording's: learn one from it
                 self.problems.append(f"live model not used: {exc}")
                 model = None
-        if model is None:
-            self.result = analyze_motion(series, self.settings, span=span, missing=missing)
-        self.problems += list(self.result.notes)
+        if result is None:
+            result = analyze_motion(series, self.settings, span=span, missing=missing)
+        self.result = result
+        self.problems += list(result.notes)
         if model is not None:
             lm = self.manifest.get("live_motion") or {}
             try:
-                self.live_agreement = agreement(self.live, self.result, self.tracks, float(lm.get("alert_mm", 3.0)),
+                self.live_agreement = agreement(live, result, self.tracks, float(lm.get("alert_mm", 3.0)),
                                                 float(lm.get("alert_deg", 2.0)))
             except DataError as exc:
                 self.problems.append(f"live poses not compared: {exc}")

@@ -38,6 +38,7 @@ from __future__ import annotations
 import datetime as _dt
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -191,6 +192,14 @@ def correspondence(a, b, fre_limit_mm: float = FRE_LIMIT_MM) -> Correspondence:
     return _match(a, b, float(fre_limit_mm))
 
 
+class _Fitted(NamedTuple):
+    """What SpectMapping.analyze() found, all of it."""
+    match: Correspondence
+    transform: RigidTransform
+    residuals_mm: np.ndarray
+    tre: LooTre
+
+
 class SpectMapping:
     """The VTS → SPECT rigid mapping from the 7-sphere phantom seen by both systems.
 
@@ -279,33 +288,37 @@ class SpectMapping:
         self.analyzed_at = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
         return self
 
-    def _need(self) -> None:
-        if self.transform is None:
+    def _need(self) -> _Fitted:
+        """What analyze() found; RuntimeError before it."""
+        if self.match is None or self.transform is None or self.residuals_mm is None or self.tre is None:
             raise RuntimeError("call analyze() first")
+        return _Fitted(self.match, self.transform, self.residuals_mm, self.tre)
 
     @property
     def correspondence(self) -> list[int]:
         """``correspondence[i]``: the index in ``spect_points`` of VTS point ``i``."""
-        self._need()
-        return list(self.match.order)
+        return list(self._need().match.order)
 
     @property
     def fre_mm(self) -> float:
-        self._need()
-        return self.match.fre_mm
+        return self._need().match.fre_mm
 
     def _figures(self) -> dict:
-        """Correspondence, FRE and TRE: kept with the saved transform and in the results."""
+        """Correspondence, FRE and TRE: kept with the saved transform and in the results (made
+        by analyze() before the transform, whose meta they are)."""
+        match, residuals, tre = self.match, self.residuals_mm, self.tre
+        if match is None or residuals is None or tre is None:
+            raise RuntimeError("call analyze() first")
         return {
             "n_spheres": len(self.vts_points),
-            "correspondence": list(self.match.order),
-            "fre_mm": self.match.fre_mm,
+            "correspondence": list(match.order),
+            "fre_mm": match.fre_mm,
             "fre_limit_mm": self.fre_limit_mm,
-            "runner_up_fre_mm": self.match.runner_up_fre_mm,
-            "residuals_mm": self.residuals_mm.tolist(),
-            "tre_rms_mm": self.tre.rms,
-            "tre_max_mm": self.tre.max,
-            "tre_per_sphere_mm": self.tre.per_point.tolist(),
+            "runner_up_fre_mm": match.runner_up_fre_mm,
+            "residuals_mm": residuals.tolist(),
+            "tre_rms_mm": tre.rms,
+            "tre_max_mm": tre.max,
+            "tre_per_sphere_mm": tre.per_point.tolist(),
             **({"vts_cameras": list(self.vts_cameras)} if self.vts_cameras else {}),
         }
 
@@ -320,10 +333,10 @@ class SpectMapping:
     @property
     def measures(self) -> list[Measure]:
         """FRE and leave-one-out TRE RMS, judged by the tolerance table (subject: the phantom)."""
-        self._need()
+        fit = self._need()
         tol = merged_tolerances(self.tolerances)
-        return [Measure.judged("phantom", "mapping_fre_mm", self.match.fre_mm, "mm", tol["mapping_fre_mm"]),
-                Measure.judged("phantom", "mapping_tre_rms_mm", self.tre.rms, "mm", tol["mapping_tre_rms_mm"])]
+        return [Measure.judged("phantom", "mapping_fre_mm", fit.match.fre_mm, "mm", tol["mapping_fre_mm"]),
+                Measure.judged("phantom", "mapping_tre_rms_mm", fit.tre.rms, "mm", tol["mapping_tre_rms_mm"])]
 
     @property
     def state(self) -> State:
@@ -333,33 +346,33 @@ class SpectMapping:
         """Per sphere: the fit's residual and the leave-one-out TRE (mm), the limits marked."""
         from matplotlib.figure import Figure
 
-        self._need()
+        fit = self._need()
         tol = merged_tolerances(self.tolerances)
         fig = Figure(figsize=(7, 3.6))
         ax = fig.add_subplot()
-        k = np.arange(len(self.residuals_mm))
-        ax.bar(k - 0.2, self.residuals_mm, 0.4, label="residual of the fit")
-        ax.bar(k + 0.2, self.tre.per_point, 0.4, label="leave-one-out TRE")
+        k = np.arange(len(fit.residuals_mm))
+        ax.bar(k - 0.2, fit.residuals_mm, 0.4, label="residual of the fit")
+        ax.bar(k + 0.2, fit.tre.per_point, 0.4, label="leave-one-out TRE")
         for w, style in ((tol["mapping_tre_rms_mm"].tolerance_high, ":"), (tol["mapping_tre_rms_mm"].action_high, "--")):
             if w is not None:
                 ax.axhline(w, color="0.4", ls=style, lw=1)
         ax.set_xticks(k, [f"S{i + 1}" for i in k])
         ax.set_ylabel("mm")
         ax.set_title(f"VTS → SPECT mapping ({self.analyzed_at}, vts-hw {__version__}): FRE "
-                     f"{self.match.fre_mm:.2f} mm, TRE RMS {self.tre.rms:.2f} mm — {self.state}", fontsize=9)
+                     f"{fit.match.fre_mm:.2f} mm, TRE RMS {fit.tre.rms:.2f} mm — {self.state}", fontsize=9)
         ax.legend(fontsize=8, frameon=False)
         return figure_png(fig, path)
 
     # ------------------------------------------------------------------ output
     def results_data(self) -> dict:
         """JSON-ready results: date, software version, transform, FRE and TRE (mm)."""
-        self._need()
-        T = self.transform
+        fit = self._need()
+        T = fit.transform
         return {
             "procedure": catalog.MAPPING.name,
             "date": self.analyzed_at,
             "vts_hw_version": __version__,
-            "ambiguous": self.match.ambiguous,
+            "ambiguous": fit.match.ambiguous,
             "transform": {"R": T.R.tolist(), "t_mm": T.t.tolist(),
                           "euler_xyz_deg": T.as_euler_xyz_deg().tolist(),
                           "rotation_angle_deg": T.rotation_angle_deg},
@@ -396,8 +409,7 @@ class SpectMapping:
     def save(self, path) -> Path:
         """Write the VTS → SPECT transform file (FRE and TRE in its meta); read it back with
         :meth:`RigidTransform.load`."""
-        self._need()
-        return self.transform.save(path)
+        return self._need().transform.save(path)
 
 
 def _read_volume(path):

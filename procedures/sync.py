@@ -39,7 +39,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -47,7 +47,7 @@ from vts_hw import catalog
 from vts_hw.errors import DataError
 from vts_hw.files import WriteFailed, ensure_dir, export_stopped
 from vts_hw.procedures.sync_plot import sync_figure
-from vts_hw.spect.listmode import read_listmode
+from vts_hw.spect.listmode import ListMode, read_listmode
 from vts_hw.timing.motion_events import StepFit, find_steps, fit_step, match_events, robust_sd
 from vts_hw.recording.trigger_wave import WaveInfo, wave_from_trigger_log
 from vts_hw.spect.gating import GatingResult, analyze_gating, axial_centre_of_mass
@@ -57,6 +57,7 @@ from vts_hw.results import Measure
 from vts_hw.tolerance import State
 from vts_hw.procedures.sync_inputs import CLOCK_SLACK_S, check_session, choose_listmode, load_calibration, load_mapping
 from vts_hw.tracking.processing import process_recording
+from vts_hw.tracking.tracks import Tracks
 
 __all__ = ["SyncAnalysis", "SyncEvent", "export_trajectories", "load_calibration", "load_mapping",
            "check_session", "choose_listmode"]
@@ -88,7 +89,10 @@ class SyncEvent:
 
     @property
     def t(self) -> float:
-        return self.spect.t_mid if self.spect else self.vts.t_mid
+        fit = self.spect or self.vts
+        if fit is None:
+            raise ValueError("a motion event seen by neither system")
+        return fit.t_mid
 
 
 class _HostToList:
@@ -165,8 +169,8 @@ class SyncAnalysis:
         self.manifest: dict | None = None
         self.wave: WaveInfo | None = None
         self.gating: GatingResult | None = None
-        self.lm = None
-        self.tracks = None
+        self.lm: ListMode | None = None
+        self.tracks: Tracks | None = None
         self.events: list[SyncEvent] = []
         self.problems: list[str] = []
         self.tolerances: dict | None = None
@@ -181,10 +185,10 @@ class SyncAnalysis:
         self.manifest = check_session(self.session)
         self.listmode_path, notes = choose_listmode(self.session, self.listmode_candidates, manifest=self.manifest,
                                                     slack_s=self.clock_slack_s)
-        self.lm = read_listmode(self.listmode_path)
-        self.wave = wave_from_trigger_log(self.session / "trigger.csv")
-        self.gating = analyze_gating(self.lm, period_s=self.wave.host_period_s, fire_host=self.wave.start_host)
-        self.problems = notes + list(self.gating.problems)
+        self.lm = lm = read_listmode(self.listmode_path)
+        self.wave = wave = wave_from_trigger_log(self.session / "trigger.csv")
+        self.gating = gating = analyze_gating(lm, period_s=wave.host_period_s, fire_host=wave.start_host)
+        self.problems = notes + list(gating.problems)
         if self.calibration is None:
             raise DataError(f"{self.session}: no stereo calibration given: the marker cannot be triangulated")
         cams = load_calibration(self.calibration)
@@ -196,36 +200,36 @@ class SyncAnalysis:
             "note": "; ".join(dict.fromkeys(n for n in (getattr(cams, "outlier_rule", ""),
                                                         (getattr(mapping, "meta", None) or {}).get("note", ""))
                                             if str(n).startswith("simulated rig")))}
-        self.tracks = process_recording(self.session, cams, workers=self.workers, mapping=mapping,
-                                        host_to_spect=_HostToList(self.gating.clock), progress=self.progress)
-        self.tracks.meta.setdefault("warnings", [])
-        self.problems += [f"processing: {w}" for w in self.tracks.meta.get("warnings", [])]
+        self.tracks = tracks = process_recording(self.session, cams, workers=self.workers, mapping=mapping,
+                                                 host_to_spect=_HostToList(gating.clock), progress=self.progress)
+        tracks.meta.setdefault("warnings", [])
+        self.problems += [f"processing: {w}" for w in tracks.meta.get("warnings", [])]
         for name, cam in self.manifest["cameras"].items():
             gaps = cam.get("gaps") or []
             if gaps:
                 self.problems.append(f"camera {name}: {sum(g.get('missing', 0) for g in gaps)} frame(s) "
                                      f"missing in {len(gaps)} gap(s) (manifest); events there are seen "
                                      f"by the SPECT only")
-        self._vts_trace(join_mm)
-        self._spect_trace(bin_s)
+        self._vts_trace(tracks, join_mm)
+        self._spect_trace(gating, lm, bin_s)
         self._events(match_s, min_step_mm)
         self._done = True
         return self
 
-    def _vts_trace(self, join_mm: float) -> None:
-        tr = self.tracks
+    def _vts_trace(self, tr: Tracks, join_mm: float) -> None:
         if not tr.marker_ids():
             raise DataError(f"{self.session}: no marker was triangulated in the recording (LEDs off? "
                             f"wrong calibration?)")
         chains = _chains(tr, join_mm)
-        axial = tr.xyz_spect is not None
+        xyz_spect = tr.xyz_spect
+        axial = xyz_spect is not None
 
         def values(ids):
             sel = np.isin(tr.marker, ids)
             t = tr.point_time[sel]
             order = np.argsort(t, kind="stable")
-            if axial:
-                return t[order], tr.xyz_spect[sel][order, 2]
+            if xyz_spect is not None:
+                return t[order], xyz_spect[sel][order, 2]
             xyz = tr.xyz[sel][order]
             c = xyz - np.median(xyz, axis=0)
             _, _, vt = np.linalg.svd(c, full_matrices=False)
@@ -258,8 +262,7 @@ class SyncAnalysis:
             self.problems.append("no VTS -> SPECT mapping: the VTS trace is the marker's displacement along "
                                  "its main direction of motion, not SPECT Z (sign not comparable)")
 
-    def _spect_trace(self, bin_s: float) -> None:
-        g, lm = self.gating, self.lm
+    def _spect_trace(self, g: GatingResult, lm: ListMode, bin_s: float) -> None:
         t_list, z = axial_centre_of_mass(lm, bin_s=bin_s, dead=g.dead)
         self.spect_bin_s = bin_s
         self.spect_t = np.asarray(g.clock.to_host(t_list))
@@ -305,6 +308,8 @@ class SyncAnalysis:
 
     # ------------------------------------------------------------------ figures
     def _rel(self, t):
+        if self.wave is None:
+            raise RuntimeError("call analyze() first")
         return np.asarray(t, float) - self.wave.start_host
 
     @property
@@ -319,8 +324,7 @@ class SyncAnalysis:
 
     def results_data(self) -> dict:
         """Everything as a JSON-ready dict (host UTC epoch s; see the module for the clocks)."""
-        self._need()
-        g = self.gating
+        wave, g, lm, tracks = self._parts()
         d = self.dts
         off = self.offset_s
         events = []
@@ -333,7 +337,7 @@ class SyncAnalysis:
                 "step_spect_mm": e.spect.step_mm if e.spect else None,
                 "vts_fit": e.vts.to_json() if e.vts else None,
                 "spect_fit": e.spect.to_json() if e.spect else None})
-        summary = {
+        summary: dict[str, Any] = {
             "events": len(self.events), "events_both": int(d.size),
             "events_spect_only": sum(e.seen_by == "SPECT only" for e in self.events),
             "events_vts_only": sum(e.seen_by == "VTS only" for e in self.events),
@@ -349,7 +353,7 @@ class SyncAnalysis:
         windows = sync_windows(self.tolerances)
         state, reason = sync_verdict(summary, windows, self.problems)
         summary["state"], summary["state_reason"] = state.value, reason
-        clock_fits = self.tracks.meta.get("clock_fits", {})
+        clock_fits = tracks.meta.get("clock_fits", {})
         return {
             "procedure": "sync check", "session": str(self.session), "listmode": str(self.listmode_path),
             "listmode_given": [str(c) for c in self.listmode_candidates],
@@ -357,18 +361,18 @@ class SyncAnalysis:
                       "start, *_rel_s s since the trigger's first edge",
             "summary": summary, "events": events,
             "windows": {m: w.as_dict() for m, w in windows.items()},
-            "trigger": {"device": self.wave.device, "start_host": self.wave.start_host,
-                        "period_s": self.wave.period_s, "host_period_s": self.wave.host_period_s,
-                        "duty": self.wave.duty, "start_pulse": self.wave.start_pulse, "how": self.wave.how,
-                        "time_source": self.wave.time_source, "uncertainty_s": self.wave.uncertainty_s,
-                        "converted_from_old_log": self.wave.converted},
+            "trigger": {"device": wave.device, "start_host": wave.start_host,
+                        "period_s": wave.period_s, "host_period_s": wave.host_period_s,
+                        "duty": wave.duty, "start_pulse": wave.start_pulse, "how": wave.how,
+                        "time_source": wave.time_source, "uncertainty_s": wave.uncertainty_s,
+                        "converted_from_old_log": wave.converted},
             "gating": g.to_json(),
             "dead_time_host": self.dead_host.tolist(),
             "vts": {"markers": self.marker_ids, "trace": "SPECT Z" if self.vts_axial else "main direction of motion",
                     "samples": int(self.vts_t.size), "frame_period_s": self.vts_period,
                     "gaps_host": self.vts_gaps, "clock_fits": clock_fits,
-                    "marker_summary": self.tracks.marker_summary()},
-            "spect": {"bin_s": self.spect_bin_s, "events": int(self.lm.n_events), "duration_s": self.lm.duration_s},
+                    "marker_summary": tracks.marker_summary()},
+            "spect": {"bin_s": self.spect_bin_s, "events": int(lm.n_events), "duration_s": lm.duration_s},
             "calibration": dict(self.calibration_info),
             "problems": list(self.problems),
         }
@@ -432,6 +436,13 @@ class SyncAnalysis:
     def _need(self) -> None:
         if not self._done:
             raise RuntimeError("call analyze() first")
+
+    def _parts(self) -> tuple[WaveInfo, GatingResult, ListMode, Tracks]:
+        """What analyze() read: the trigger's wave, the gating, the list-mode, the tracks."""
+        self._need()
+        if self.wave is None or self.gating is None or self.lm is None or self.tracks is None:
+            raise RuntimeError("call analyze() first")       # set together by analyze()
+        return self.wave, self.gating, self.lm, self.tracks
 
 
 # ----------------------------------------------------------------------------- export

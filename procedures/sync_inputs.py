@@ -148,27 +148,34 @@ class _Candidate:
     end: float | None = None
     error: str | None = None
 
+    @property
+    def times(self) -> tuple[float, float]:
+        """(start, end) of a file that could be read (its error None: both are set)."""
+        if self.start is None or self.end is None:
+            raise ValueError(f"{self.path.name}: its acquisition times were not read ({self.error})")
+        return self.start, self.end
+
     def text(self) -> str:
         if self.error is not None:
             return f"{self.path.name} ({self.error})"
-        return f"{self.path.name} acquired {utc_span(self.start, self.end)} (SPECT clock)"
+        return f"{self.path.name} acquired {utc_span(*self.times)} (SPECT clock)"
 
 
 def _overlaps(span: SessionSpan, start: float, end: float, slack: float) -> bool:
     return start <= span.end + slack and end >= span.start - slack
 
 
-def _started_by_pulse(span: SessionSpan, start: float, slack: float) -> bool:
-    """Started by this session's start pulse: within the slack of it (the start delay is under
-    a period of the wave, docs/decisions/0017)."""
-    return span.fire - slack <= start <= span.fire + (span.period_s or 0.0) + slack
+def _started_by_pulse(span: SessionSpan, fire: float, start: float, slack: float) -> bool:
+    """Started by this session's start pulse (sent at ``fire``): within the slack of it (the start
+    delay is under a period of the wave, docs/decisions/0017)."""
+    return fire - slack <= start <= fire + (span.period_s or 0.0) + slack
 
 
 def _fits(span: SessionSpan, start: float, end: float, slack: float) -> bool:
     """An acquisition of this session: started by its start pulse when the session sent one
     (the SPECT starts on it), else overlapping its recording (a SPECT started by hand)."""
     if span.start_pulse and span.fire is not None:
-        return _started_by_pulse(span, start, slack)
+        return _started_by_pulse(span, span.fire, start, slack)
     return _overlaps(span, start, end, slack)
 
 
@@ -203,7 +210,7 @@ def choose_listmode(session, candidates, *, manifest: dict | None = None,
             raise DataError(f"{session}: its manifest has no recording times to tell which of "
                             f"{len(readable)} list-mode files belongs to it: name one with --listmode")
     else:
-        match = [c for c in readable if _fits(span, c.start, c.end, slack_s)]
+        match = [c for c in readable if _fits(span, *c.times, slack_s)]
         if len(match) == 1:
             notes = skipped
             if len(cands) + len(patterns) > 1:
@@ -236,7 +243,7 @@ def _nothing_belongs(session: Path, span: SessionSpan | None, cands: list[_Candi
     if len(cands) == 1 and span is not None and cands[0].error is None:
         c = cands[0]
         return (f"{c.path} and {session} do not belong together: the list-mode was acquired "
-                f"{utc_span(c.start, c.end)} (SPECT clock), the session {span.text()}{slack}")
+                f"{utc_span(*c.times)} (SPECT clock), the session {span.text()}{slack}")
     return (f"none of the {len(cands)} list-mode files given belongs to {session}{when}: "
             + "; ".join(c.text() for c in cands) + (slack if span is not None else ""))
 

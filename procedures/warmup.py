@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vts_hw.camera import Camera
 from vts_hw.procedures.drift import DriftAnalysis
 from vts_hw.vision.wall_baseline import Baseline
 from vts_hw.vision.wall_markers import baseline_from_frames
@@ -139,7 +140,7 @@ class Sample:
 class Watch:
     """The samples of one camera (opened by the caller); the first one is the reference."""
 
-    cam: object
+    cam: Camera
     frames: int = 3
     reference: Baseline | None = None
     samples: list[Sample] = field(default_factory=list)

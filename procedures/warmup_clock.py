@@ -100,7 +100,7 @@ def judge_clock(change: RateFit, window, limit: float, problem: str | None = Non
     """The clock's state: its change against ``window`` where the window can tell it (see the module)."""
     if problem:
         return ClockJudgement(State.TOLERANCE, False, f"clock not known: {problem}")
-    if change.rate is None:
+    if change.rate is None or change.se is None:        # set together
         return ClockJudgement(State.TOLERANCE, False, f"clock's change not known: {change.n} reading(s) in the "
                                                       f"window, a parabola needs 4 or more")
     if not change.se <= limit / 2:

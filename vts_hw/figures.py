@@ -7,7 +7,7 @@ import io
 from vts_hw.files import write_atomic
 
 
-def figure_png(fig, path=None, dpi: int = 110) -> bytes:
+def figure_png(fig, path=None, dpi: float = 110) -> bytes:
     """PNG bytes of a matplotlib figure (no metadata beyond the image); also written to
     ``path`` when given (what every result's ``plot(path)`` does), whole or not at all
     (:func:`vts_hw.files.write_atomic`: on a full disk WriteFailed names the file, no cut PNG)."""

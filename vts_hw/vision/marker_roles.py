@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.optimize import linear_sum_assignment
 
 from vts_hw.vision.aim_geometry import fov_centre
@@ -191,7 +192,7 @@ class Room:
         self.space = space
         self.locator = locator
 
-    def place(self, still: Mapping[str, np.ndarray]) -> dict[str, list[Role | None]]:
+    def place(self, still: Mapping[str, ArrayLike]) -> dict[str, list[Role | None]]:
         """Each camera's still markers (``{camera: N x 2 px}``, each seen in every frame) placed:
         a :class:`Role` for each that another camera confirms (wall, phantom, or unknown on the
         table), None for one seen by one camera only or not calibrated (rule 3: the caller keeps
