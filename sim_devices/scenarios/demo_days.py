@@ -18,7 +18,7 @@ from typing import Callable
 import numpy as np
 
 from vts_hw.config import parse_rig
-from vts_hw.drivers.registry import open_camera
+from vts_hw.room import Room
 from vts_hw.procedures.baseline import BaselineSet, take_baseline
 from vts_hw.procedures.daily import QARun
 from vts_hw.report import build_drift_report
@@ -87,9 +87,9 @@ def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 
             # day 0: the baseline
             t_base = clock.now()
             baselines = []
-            for c in cfg.cameras:
-                with open_camera(c, clock=clock.now) as cam:
-                    baselines.append(take_baseline(cam, frames, clock.now))
+            with Room(cfg, clock=clock.now) as room:
+                for c in cfg.cameras:
+                    baselines.append(take_baseline(room.camera(c.name), frames, clock.now))
             record(store, BaselineSet(baselines), rig=cfg.rig, operator="demo", tolerances=cfg.tolerances,
                    started=t_base, finished=t_base, clock=clock.now)
             stored_baselines = load_baselines(store, [c.name for c in cfg.cameras], cfg.rig)
@@ -98,12 +98,13 @@ def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 
             for day in range(1, days + 1):
                 clock.advance(t_base + day * DAY - clock.now())  # day `day` after the baseline
                 rig.ntp_sync(clock.now() - 1800.0)  # the cameras' NTP synced their clocks half an hour ago
+                day_room = Room(cfg, clock=clock.now)       # the day's cameras, closed with it
                 qa = QARun(cfg, baselines=stored_baselines, n_frames=frames, clock=clock.now,
-                           open_camera=lambda c: open_camera(c, clock=clock.now),
+                           open_camera=lambda c, room=day_room: room.camera(c.name),
                            artifacts_dir=out / "artifacts", plots=(day == days))
                 now = clock.now()
-                with Recorder(store, qa.procedure, rig=cfg.rig, operator="demo", tolerances=cfg.tolerances,
-                              started=now, clock=clock.now) as rec:
+                with day_room, Recorder(store, qa.procedure, rig=cfg.rig, operator="demo", tolerances=cfg.tolerances,
+                                        started=now, clock=clock.now) as rec:
                     res = qa.run(started=now, run_id=rec.run_id)
                     rec.finish(res, artifacts=res.artifacts, finished=res.finished)
                 row = DayRow(day, res.started, str(res.state))

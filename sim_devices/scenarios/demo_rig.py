@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from vts_hw.drivers.registry import open_cameras
+from vts_hw.room import Room
 from vts_hw.files import check_folder, write_atomic
 from vts_hw.lifeline import child_options
 from vts_hw.recording.capture import Recorder
@@ -70,8 +70,8 @@ def camera_tour(out_dir, seconds: float, *, record: Callable | None = None,
         cfg = rig.config()
         urls = {c.name: c.base_url for c in cfg.cameras}
         say(f"simulated rig up: {', '.join(f'{n} at {u}' for n, u in urls.items())}")
-        cams = open_cameras(cfg.cameras)
-        try:
+        with Room(cfg) as room:                        # its cameras closed with it
+            cams = room.cameras
             for cam in cams:
                 dev = cam.device_info()
                 off = cam.clock_offset()
@@ -92,9 +92,6 @@ def camera_tour(out_dir, seconds: float, *, record: Callable | None = None,
             say(f"recording {seconds:g} s from {len(cams)} cameras into {rec_dir} ...")
             manifest = (record or _record_plainly)(Recorder(cams, rec_dir, seconds=seconds,
                                                             meta={"rig": cfg.rig}), seconds)
-        finally:
-            for cam in cams:
-                cam.close()
     return CameraTour(urls, looks, rec_dir, manifest, list(info(rec_dir)))
 
 

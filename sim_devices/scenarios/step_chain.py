@@ -26,7 +26,7 @@ from typing import Callable
 
 import numpy as np
 
-from vts_hw.drivers.registry import open_cameras
+from vts_hw.room import Room
 from vts_hw.procedures.spect_mapping import SpectMapping
 from vts_hw.procedures.steps import LED_SETTLE_S, SNAPSHOT_COMPRESSION, StepSession, average_centroids, step_plan
 from vts_hw.procedures.steps_analysis import StepAnalysis, six_dof
@@ -111,8 +111,8 @@ def run_sim_steps(out_dir, seed: int = 0, *, frames: int = 10, n_vertical: int =
         calib.save(out / "calibration.json")
         own = [c.rms for c in calib.camera_fits]
         say(f"  RMS {own[0]:.3f} / {own[1]:.3f} / {calib.rms:.3f} px")
-        cams = open_cameras(cfg.cameras[:2], clock=clock)
-        try:
+        with Room(cfg, clock=clock) as room:          # its cameras closed with it
+            cams = [room.camera(c.name) for c in cfg.cameras[:2]]
             for cam in cams:
                 cam.led_on()
             time.sleep(LED_SETTLE_S)
@@ -134,9 +134,6 @@ def run_sim_steps(out_dir, seed: int = 0, *, frames: int = 10, n_vertical: int =
                                   plan=step_plan(n_vertical, n_axial), frames=frames, progress=say,
                                   clock=clock, compression=compression)
             session.acquire()
-        finally:
-            for cam in cams:
-                cam.close()
     analysis = session.analyze(tolerances)
     result = SimStepsResult(analysis, calib, mapping, dict(table.truth),
                             score(analysis, spect.truth, mapping.transform), out)
