@@ -87,7 +87,7 @@ def test_all_cameras_and_the_store(tmp_path, peers, env):
         assert room.store.runs() == [] and room.opened() == ["camera cam1", "camera cam2", "store"]
         store = room.store
     assert (tmp_path / "r.sqlite").exists()
-    with pytest.raises(Exception):
+    with pytest.raises(RuntimeError, match="is closed"):
         store.runs()                                              # closed with the room
 
 
