@@ -272,11 +272,11 @@ class DaqmxTrigger(TriggerBase):
 
     def start(self) -> TriggerStatus:
         """The square wave alone (a software start of the counter task)."""
-        self._need_configured()
+        asked = self._need_configured()
         if self.port.pulse_train_running():
             raise TriggerError(f"{self.name}: the square wave is already running")
         if self._trigger_in_task is not None:         # left armed by fire(): start without it
-            self._configure_train(*self._asked, None)
+            self._configure_train(*asked, None)
         self._cmd(f"CO {self.counter} start")
         t0 = self.log.clock()
         self.port.start_pulse_train()
@@ -322,11 +322,10 @@ class DaqmxTrigger(TriggerBase):
     def fire(self) -> TriggerStatus:
         """Square wave and both start pulses together (hardware start trigger if ``fire_trigger``)."""
         self.require(FIRE)
-        self._need_configured()
+        f, d = self._need_configured()
         if self.port.pulse_train_running():
             raise TriggerError(f"{self.name}: the square wave is already running; stop() before fire()")
         self._set_lines([False, False])                 # so that there is a rising edge
-        f, d = self._asked
         if self.fire_trigger is not None:
             self._configure_train(f, d, self.fire_trigger)
             self._cmd(f"CO {self.counter} start (armed: starts on the rising edge of {self.fire_trigger})")
@@ -367,6 +366,8 @@ class DaqmxTrigger(TriggerBase):
     def _wave_started(self, h0: float, h1: float, start_pulse: bool) -> None:
         """``wave_start``: the counter starts during the call (or the line write that triggers
         it) between host times ``h0`` and ``h1``; DAQmx reports no edge times."""
+        if self._actual is None:       # set with _asked by configure()
+            raise TriggerError(f"{self.name}: no square wave configured: call configure() first")
         f, d = self._actual
         self._started = h0
         self.log.wave_started(self.name, h0, period_s=1.0 / f, duty=d, high_v=TTL_HIGH_V, low_v=TTL_LOW_V,
@@ -429,9 +430,11 @@ class DaqmxTrigger(TriggerBase):
                              f"not {ms!r}; nothing was sent")
         return ms
 
-    def _need_configured(self) -> None:
+    def _need_configured(self) -> tuple[float, float]:
+        """The frequency and duty asked for by configure() (TriggerError before it)."""
         if self._asked is None:
             raise TriggerError(f"{self.name}: no square wave configured: call configure() first")
+        return self._asked
 
     # -- the port, logged ---------------------------------------------------------------------------
 

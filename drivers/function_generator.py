@@ -262,12 +262,14 @@ class FunctionGenerator(TriggerBase):
         if not st.running:
             raise TriggerError(f"{self.name} was switched on but reports its output off")
         wrong = st.not_a_square_wave()
-        if wrong:
-            raise TriggerError(f"{self.name} was switched on but confirms {wrong}: not a square wave")
+        f, duty, high, low = st.frequency_hz, st.duty, st.high_v, st.low_v    # status() reads them all
+        if wrong or f is None or duty is None or high is None or low is None:
+            raise TriggerError(f"{self.name} was switched on but confirms {wrong or f'levels {low!r}..{high!r} V'}: "
+                               "not a square wave")
         # a rising edge when the output switched on, between the write and the read-back
         self._started = sent
-        self.log.wave_started(self.name, sent, period_s=1.0 / st.frequency_hz, duty=st.duty, high_v=st.high_v,
-                              low_v=st.low_v, start_pulse=False, time_source=HOST_WRITE,
+        self.log.wave_started(self.name, sent, period_s=1.0 / f, duty=duty, high_v=high,
+                              low_v=low, start_pulse=False, time_source=HOST_WRITE,
                               uncertainty_s=self.log.clock() - sent)
         return st
 
@@ -425,7 +427,7 @@ class FunctionGenerator(TriggerBase):
 
     def _read_errors(self) -> tuple[str, ...]:
         """SYST:ERR? until +0,"No error"; the messages read before it."""
-        errors = []
+        errors: list[str] = []
         for _ in range(MAX_ERRORS_READ):
             reply = self._query("SYST:ERR?")
             code, _, _message = reply.partition(",")

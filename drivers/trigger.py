@@ -224,7 +224,7 @@ class TriggerLog:
                "" if device_us is None else f"{device_us:.0f}", device, kind, text]
         with self._lock:
             self.lines.append(row)
-            if self._f is not None and not self._f.closed and self.write_error is None:
+            if self._f is not None and self.path is not None and not self._f.closed and self.write_error is None:
                 try:
                     self._w.writerow(row)
                     self._f.flush()
@@ -259,7 +259,7 @@ class TriggerLog:
 
     def close(self) -> None:
         with self._lock:
-            if self._f is not None and not self._f.closed:
+            if self._f is not None and self.path is not None and not self._f.closed:   # a file has its path
                 try:
                     self._f.close()
                 except OSError as exc:   # the last buffered line could not be written

@@ -244,7 +244,8 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
         if len(parts) != 4 or parts[0] != VENDOR or parts[1] != MODEL:
             raise TriggerError(f"{self.where} answers *IDN? with {raw!r}, not "
                                f"'{VENDOR},{MODEL},<serial>,<firmware>': is it a trigger box?")
-        self.identity = BoxIdentity(*parts, raw=raw)
+        vendor, model, serial_no, firmware = parts
+        self.identity = BoxIdentity(vendor, model, serial_no, firmware, raw=raw)
         return self.identity
 
     def reset(self) -> None:
@@ -398,7 +399,7 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
         The box also queues every error it answered with ``ERR``; those were raised already
         (BoxRefused), so they are logged and left out here, and what is returned is news.
         """
-        errors = []
+        errors: list[str] = []
         with self._lock:
             for _ in range(MAX_ERRORS_READ):
                 reply = self.query("SYST:ERR?")
@@ -422,9 +423,10 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
         if not st.running:
             return
         wrong = st.not_a_square_wave()
-        if wrong:  # nothing to time the scan by: say so rather than log it
+        frequency, duty = st.frequency_hz, st.duty      # both set when it is a square wave
+        if wrong or frequency is None or duty is None:  # nothing to time the scan by: say so rather than log it
             raise TriggerError(f"{self.where} answered {cmd!r} but confirms {wrong}: not a square wave")
-        period, first, m = 1.0 / st.frequency_hz, st.first_edge_device_us, self.mapping
+        period, first, m = 1.0 / frequency, st.first_edge_device_us, self.mapping
         if m is not None and first is not None:
             host, how, unc = m.to_host(first), DEVICE_CLOCK_MAPPED, m.uncertainty_s
         else:
@@ -432,7 +434,7 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
             how, unc = HOST_WRITE, received - sent
         self._wave = (host, period, how, unc)
         self._wave_first_us = first
-        self.log.wave_started(self.name, host, period_s=period, duty=st.duty, high_v=HIGH_V, low_v=LOW_V,
+        self.log.wave_started(self.name, host, period_s=period, duty=duty, high_v=HIGH_V, low_v=LOW_V,
                               start_pulse=start_pulse, time_source=how, uncertainty_s=unc, device_us=first)
 
     def _wave_stopped(self, cmd: str, sent: float, st: TriggerStatus | None) -> None:
@@ -446,7 +448,7 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
         n = st.edges if st is not None else None
         if self._wave is not None:
             start, period, how, unc = self._wave
-            if n is None or st.running:
+            if st is None or n is None or st.running:       # (no status: no count either)
                 n = max(n or 0, math.ceil((sent - start) / period - 1e-9))
             host = start + n * period
         elif st is not None and st.frequency_hz and st.last_edge_device_us is not None:

@@ -13,10 +13,12 @@ keeps the history (:meth:`~BoxClock.clock_mapping`; mixed into
 from __future__ import annotations
 
 import math
+import threading
+from abc import abstractmethod
 from dataclasses import dataclass
-from typing import Sequence
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
-from vts_hw.drivers.trigger import CLOCK, EDGES, ClockMapping, TriggerError
+from vts_hw.drivers.trigger import CLOCK, EDGES, ClockMapping, TriggerBase, TriggerError
 from vts_hw.drivers.trigger_box_protocol import uint
 
 MAX_ROUND_TRIPS_KEPT = 2000    # clock-mapping history (about 100 calls of 20)
@@ -163,7 +165,55 @@ def fit_clock(trips: Sequence[RoundTrip]) -> tuple[ClockMapping, float]:
     return mapping, drift_se
 
 
-class BoxClock:
+if TYPE_CHECKING:
+    class TriggerBoxParts(TriggerBase):
+        """What :class:`~vts_hw.drivers.trigger_box.TriggerBox` gives its mixins (BoxClock, BoxWatchdog),
+        said once for the type checker, which alone sees it as their base."""
+
+        port: str
+        baudrate: int
+        clock: Callable[[], float]
+        sleep: Callable[[float], None]
+        mapping: ClockMapping | None
+        drift_se_ppm: float | None
+        _lock: threading.RLock
+        _serial: Any
+        _batches: list[list[RoundTrip]]
+        _logged_edges: tuple[int | None, int | None]
+        _wave: tuple[float, float, str, float | None] | None
+        _wave_first_us: int | None
+
+        @property
+        @abstractmethod
+        def where(self) -> str: ...
+
+        @abstractmethod
+        def query(self, cmd: str) -> str: ...
+
+        @abstractmethod
+        def _exchange(self, cmd: str) -> tuple[str, float, float]: ...
+
+        @abstractmethod
+        def _command(self, cmd: str) -> None: ...
+
+        @abstractmethod
+        def _parse(self, cmd: str, reply: str, parse: Callable[[str], Any], what: str) -> Any: ...
+
+        @abstractmethod
+        def _log(self, kind: str, text: str, device_us: int | None = None, host_time: float | None = None) -> None: ...
+
+        @abstractmethod
+        def device_time_us(self) -> int: ...
+
+        @abstractmethod
+        def edges(self) -> tuple[int, int, int]: ...
+
+    _Parts = TriggerBoxParts
+else:
+    _Parts = object
+
+
+class BoxClock(_Parts):
     """The trigger box driver's clock: ``TIME?``, ``EDGES?`` and their mapping to host time (a
     mixin of :class:`~vts_hw.drivers.trigger_box.TriggerBox`, which provides ``query``,
     ``_exchange``, ``_parse``, ``_lock``, ``_log``, ``clock``, ``sleep``, ``where``, ``_serial``,

@@ -131,7 +131,7 @@ def firmware(hex_path: Path | None) -> Firmware:
     """The image to flash: --hex FILE, else built from the sources."""
     built = hex_path is None
     fw = firmware_dir()
-    path = build(fw) if built else hex_path
+    path = build(fw) if hex_path is None else hex_path
     image, size = read_image(path)
     version = image_version(image, path)
     if built and (src := source_version(fw)) is not None and src != version:

@@ -130,8 +130,9 @@ class WatchdogState:
             ago = ""
             if now_device_us is not None and self.cut_device_us is not None and now_device_us >= self.cut_device_us:
                 ago = f", {(now_device_us - self.cut_device_us) * 1e-6:.1f} s ago"
+            at = f" at device time {self.cut_device_us * 1e-6:.6f} s" if self.cut_device_us is not None else ""
             return (f"watchdog TRIPPED: the box heard nothing from its host for {t} and cut the square wave "
-                    f"(output off) at device time {self.cut_device_us * 1e-6:.6f} s{ago}")
+                    f"(output off){at}{ago}")
         if self.state == "off":
             return ("watchdog off: the box keeps its output as it is whatever happens to its host "
                     "(vts trigger stop switches it off)")

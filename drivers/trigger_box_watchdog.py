@@ -21,12 +21,17 @@ start, ``WDOG?``, the heartbeat started and stopped, and a cut logged once (an e
 from __future__ import annotations
 
 import threading
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 from vts_hw.drivers.trigger import TriggerError, TriggerStatus
 from vts_hw.drivers.trigger_box_protocol import (UNDEFINED_HEADER, BoxGone, BoxRefused, WatchdogState,
                                                  number_text, parse_watchdog, watchdog_seconds)
 from vts_hw.recording.trigger_log import DEVICE_CLOCK_MAPPED
+
+if TYPE_CHECKING:
+    from vts_hw.drivers.trigger_box_clock import TriggerBoxParts as _Parts
+else:
+    _Parts = object
 
 #: what a box whose firmware has no watchdog (before 1.1.0) is said to have
 NO_WATCHDOG = "no host watchdog: its firmware predates it (1.1.0); vts trigger flash updates it"
@@ -97,7 +102,7 @@ class Heartbeat:
         return wd.state == "armed"
 
 
-class BoxWatchdog:
+class BoxWatchdog(_Parts):
     """The trigger box driver's watchdog (a mixin of :class:`~vts_hw.drivers.trigger_box.TriggerBox`,
     which provides ``query``, ``_command``, ``_parse``, ``_lock``, ``_log``, ``log``, ``name``,
     ``edges``, ``mapping``, ``_wave`` and ``_wave_first_us``)."""
@@ -175,10 +180,13 @@ class BoxWatchdog:
         started, at the cut (through the clock mapping, else from the first edge's device time)."""
         self._stop_heartbeat()
         cut = wd.cut_device_us
+        if cut is None:        # a tripped watchdog says when it cut (WDOG?)
+            raise TriggerError(f"{self.where}: its watchdog tripped without saying when it cut the wave")
         self._log("event", f"the box's watchdog cut the square wave at device time {cut} us (output off "
                            f"mid-period): it had heard nothing from this host for {wd.seconds:g} s",
                   device_us=cut)
         m, first = self.mapping, self._wave_first_us
+        unc: float | None
         if m is not None:
             host, how, unc = m.to_host(cut), DEVICE_CLOCK_MAPPED, m.uncertainty_s
         elif self._wave is not None and first is not None:

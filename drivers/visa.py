@@ -20,6 +20,7 @@ import errno
 import importlib.resources
 import socket
 from pathlib import Path
+from typing import Any
 
 from vts_hw.drivers.trigger import TriggerError
 
@@ -59,6 +60,9 @@ def visa_failure(e: BaseException, name: str, address: str, command: str | None,
     during = f" {command!r}" if command else ""
     where = f"{name}: the instrument at {address}"
     code = getattr(e, "error_code", None)
+    tmo: object
+    lost: object
+    refused_codes: tuple[object, ...]
     try:
         from pyvisa import constants
         tmo, lost = constants.StatusCode.error_timeout, constants.StatusCode.error_connection_lost
@@ -101,7 +105,8 @@ def open_message_resource(address: str, library: str, timeout_ms: int, name: str
     if type(rm.visalib).__module__.startswith("pyvisa_sim"):
         _fresh_sim_devices(rm, name)
         # pyvisa-sim "opens" any address and then never answers: say what is wrong instead
-        known = rm.visalib.devices.list_resources()
+        sim: Any = rm.visalib        # pyvisa-sim's library (no types): its simulated devices
+        known = sim.devices.list_resources()
         try:
             canonical = pyvisa.rname.to_canonical_name(address)
         except Exception:
@@ -181,7 +186,7 @@ def query_within(resource, command: str) -> str:
 
     timeout_ms = getattr(resource, "timeout", None)
     lib = getattr(resource, "visalib", None)
-    if timeout_ms is None or not type(lib).__module__.startswith("pyvisa_py"):
+    if timeout_ms is None or lib is None or not type(lib).__module__.startswith("pyvisa_py"):
         return resource.query(command)
     resource.write(command)
     deadline = time.monotonic() + timeout_ms / 1000.0

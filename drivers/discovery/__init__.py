@@ -13,7 +13,7 @@ from __future__ import annotations
 import os
 import threading
 from dataclasses import dataclass, field, replace
-from typing import Callable
+from typing import Callable, Literal
 
 from vts_hw.camera import CameraError
 from vts_hw.config import CameraConfig
@@ -33,7 +33,7 @@ class Found:
     port: int
     serial: str
     model: str = ""
-    scheme: str = "http"
+    scheme: Literal["http", "https"] = "http"
     sources: tuple[str, ...] = ()
     firmware: str = ""
     confirmed: bool = False
@@ -101,7 +101,7 @@ def confirm(found: Found, user: str | None, password_env: str | None, timeout: f
     over VAPIX (the password from the environment variable ``password_env``, when it is set);
     ``confirmed`` is False (and ``problem`` says why) when it cannot be asked or does not agree
     with its announcement."""
-    has_password = bool(password_env) and os.environ.get(password_env) is not None
+    has_password = bool(password_env and os.environ.get(password_env) is not None)
     cfg = CameraConfig(name=found.serial or "camera", host=found.host, port=found.port, scheme=found.scheme,
                        user=user or "root", password_env=password_env if has_password else None, timeout_s=timeout)
     try:

@@ -8,6 +8,7 @@ The two searches (:mod:`.mdns`, :mod:`.ssdp`) make them and the package (:func:`
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 from vts_hw.errors import DeviceError
 
@@ -21,7 +22,7 @@ class Announcement:
     port: int
     serial: str
     model: str = ""
-    scheme: str = "http"
+    scheme: Literal["http", "https"] = "http"
 
 
 class DiscoveryFailed(DeviceError):

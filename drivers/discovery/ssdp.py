@@ -13,6 +13,7 @@ import select
 import socket
 import time
 import xml.etree.ElementTree as ET
+from typing import Literal
 from urllib.parse import urlsplit
 
 import requests
@@ -121,7 +122,7 @@ def describe(loc: str, timeout: float = 3.0) -> Announcement | None:
         return None
     serial = "".join(ch for ch in text("serialNumber") if ch.isalnum()).upper()
     where = urlsplit(text("presentationURL") or loc)
-    scheme = where.scheme if where.scheme in ("http", "https") else "http"
+    scheme: Literal["http", "https"] = "https" if where.scheme == "https" else "http"
     try:
         port = where.port or (443 if scheme == "https" else 80)
     except ValueError:
