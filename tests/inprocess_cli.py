@@ -13,6 +13,7 @@ import contextlib
 import io
 import os
 import subprocess
+import sys
 
 from vts_hw.cli import main
 
@@ -46,6 +47,16 @@ def _environment(env: dict | None, cwd=None):
         os.environ.update(saved)
 
 
+@contextlib.contextmanager
+def _stdin(stream):
+    saved = sys.stdin
+    sys.stdin = stream
+    try:
+        yield
+    finally:
+        sys.stdin = saved
+
+
 def _stream() -> io.TextIOWrapper:
     """A text stream with a byte buffer under it, as a pipe's is (not a terminal)."""
     return io.TextIOWrapper(io.BytesIO(), encoding="utf-8", errors="replace", write_through=True)
@@ -56,14 +67,15 @@ def _text(stream: io.TextIOWrapper) -> str:
     return stream.buffer.getvalue().decode("utf-8", errors="replace")
 
 
-def run(*args, env: dict | None = None, cwd=None) -> subprocess.CompletedProcess:
-    """`vts ARGS` in this process with ``env`` and ``cwd`` as a child would have them: a
-    CompletedProcess with its returncode, stdout and stderr (text), as subprocess.run's
+def run(*args, env: dict | None = None, cwd=None, input: str | None = None) -> subprocess.CompletedProcess:
+    """`vts ARGS` in this process with ``env`` and ``cwd`` as a child would have them and
+    ``input`` as what it reads from its standard input (none: an empty one): a CompletedProcess with its returncode, stdout and stderr (text), as subprocess.run's
     capture_output=True, text=True gives. An exception main() does not turn into an exit is
     raised here (in a subprocess it would be a traceback on stderr, which the tests refuse)."""
     argv = [str(a) for a in args]
     out, err = _stream(), _stream()
-    with _environment(env, cwd), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+    stdin = io.TextIOWrapper(io.BytesIO((input or "").encode()), encoding="utf-8")
+    with _environment(env, cwd), _stdin(stdin), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         try:
             main(argv)
             code = 0

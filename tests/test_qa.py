@@ -12,6 +12,7 @@ import time
 import pytest
 import yaml
 
+from inprocess_cli import run
 from vts_hw.config import parse_rig
 from qa_runs import run_qa, save_baselines
 from vts_hw.store.baselines import load_baseline
@@ -128,7 +129,7 @@ def test_cli_baseline_daily_report_and_exit_codes(sim_rig, sqlite_rig_cfg, tmp_p
     env = _cli_env(sim_rig, rig_cfg, tmp_path)
 
     def vts(*a):
-        return subprocess.run([*VTS, *a], env=env, capture_output=True, text=True, timeout=120)
+        return run(*a, env=env)         # in this process (tests/inprocess_cli.py)
 
     p = vts("qa", "daily", "--dry-run")
     assert p.returncode == 0 and "LED on" in p.stdout and not (tmp_path / "results.sqlite").exists()

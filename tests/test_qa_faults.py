@@ -9,6 +9,7 @@ import sys
 import pytest
 import yaml
 
+from inprocess_cli import run
 from vts_hw.config import parse_rig
 from vts_hw.drivers.registry import open_camera
 from qa_runs import baselines_now, run_qa
@@ -18,8 +19,9 @@ from vts_hw.store import ResultsStore
 VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
 
 
-def vts(env, *args, timeout=120):
-    return subprocess.run([*VTS, *args], capture_output=True, text=True, env=env, timeout=timeout)
+def vts(env, *args):
+    """`vts ARGS` in this process (tests/inprocess_cli.py) with the environment ``env``."""
+    return run(*args, env=env)
 
 
 @pytest.fixture()

@@ -4,14 +4,13 @@ an answer lost after the instance was made. Never twice, never lost, no secret a
 
 import json
 import os
-import subprocess
-import sys
 
 import pytest
 import requests
 import yaml
 
 from fake_http import Answers
+from inprocess_cli import run
 from vts_hw.config import parse_rig
 from vts_hw.errors import ConfigError
 from vts_hw.qatrack import exit_code, push_runs, run_key, select_runs
@@ -24,7 +23,6 @@ PASSWORD = "pw-Zq8!secret-77"
 DAILY = ["cam1_dx", "cam1_dy", "cam2_dx", "cam2_dy"]
 MACROS = {"cam1/drift_x_px": "cam1_dx", "cam1/drift_y_px": "cam1_dy",
           "cam2/drift_x_px": "cam2_dx", "cam2/drift_y_px": "cam2_dy"}
-VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
 
 
 def qatrack_section(url, **over):
@@ -388,7 +386,7 @@ def test_cli_daily_push_then_push_pending_and_dry_run(peer, sim_rig, tmp_path):
     env = dict(os.environ, VTS_CONFIG=str(tmp_path / "rig.yaml"), QATRACK_TOKEN=TOKEN, **sim_rig.env_vars())
 
     def vts(*a):
-        p = subprocess.run([*VTS, *a], env=env, capture_output=True, text=True, timeout=120)
+        p = run(*a, env=env)            # in this process (tests/inprocess_cli.py)
         assert TOKEN not in p.stdout + p.stderr and "Traceback" not in p.stderr
         return p
 

@@ -5,12 +5,11 @@ the simulated SPECT's volumes; scored against the truth, stored, re-analysed fro
 import json
 import os
 import shutil
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 
+from inprocess_cli import run
 from vts_hw.errors import DataError
 from vts_hw.procedures.steps import (OperatorPositioner, VolumeFolder, load_positions, step_plan)
 from vts_hw.sim_devices.scenarios.step_chain import run_sim_steps
@@ -28,8 +27,8 @@ def chain(tmp_path_factory):
 
 
 def vts(*args, env=None, input=None):
-    return subprocess.run([sys.executable, "-m", "vts_hw.cli", *args], capture_output=True, text=True,
-                          env={**os.environ, **(env or {})}, input=input, timeout=300)
+    """`vts ARGS` in this process (tests/inprocess_cli.py) with the variables ``env`` added."""
+    return run(*args, env={**os.environ, **(env or {})}, input=input)
 
 
 def test_regression_r2_at_least_0999_and_the_chain_meets_its_accuracy_goals(chain):
