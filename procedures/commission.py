@@ -30,7 +30,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 from vts_hw.catalog import COMMISSION_STEP, COMMISSION_STEPS
 from vts_hw.errors import UsageError
@@ -153,6 +153,10 @@ class Context:
     clock: Callable[[], float] = time.time
     sleep: Callable[[float], None] = time.sleep
     reload: Callable[[], object] | None = None    # the rig config read again (after rig.yaml changed)
+    # the room's parts, given by the application that opened it (`vts commission`: the room's
+    # camera(cfg) and trigger(), which the room closes); None: a step opens and closes its own
+    camera: Callable[[Any], Any] | None = None
+    trigger: Callable[[], Any] | None = None
 
     def refresh(self) -> None:
         if self.reload is not None:

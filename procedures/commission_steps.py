@@ -14,7 +14,7 @@ from vts_hw.camera_led import switch_led
 from vts_hw.drivers.axis_setup import setup_camera
 from vts_hw.drivers.axis_uptime import NoUptime
 from vts_hw.drivers.discovery import search
-from vts_hw.drivers.registry import kind_has, open_camera, open_cameras, open_trigger
+from vts_hw.drivers.registry import check_camera_kinds, kind_has, open_cameras, open_trigger
 from vts_hw.errors import ConfigError, UsageError, VtsError
 from vts_hw.files import WriteFailed, ensure_dir, write_atomic
 from vts_hw.procedures import calibration as calibration_procedure
@@ -45,13 +45,29 @@ def _need(what: str, option: str, how: str) -> UsageError:
 
 
 @contextlib.contextmanager
-def _cameras(cfgs, clock=None):
+def _cameras(ctx: Context, cfgs, clock=None):
+    """The cameras of ``cfgs``: the room's when the application gave them (``ctx.camera``: the
+    room closes them), else opened here and closed after the step."""
+    if ctx.camera is not None:
+        check_camera_kinds(cfgs)
+        yield [ctx.camera(cfg) for cfg in cfgs]
+        return
     cams = open_cameras(cfgs, clock=clock)
     try:
         yield cams
     finally:
         for c in cams:
             c.close()
+
+
+@contextlib.contextmanager
+def _trigger(ctx: Context):
+    """The rig's trigger generator: the room's (``ctx.trigger``), else opened and closed here."""
+    if ctx.trigger is not None:
+        yield ctx.trigger()
+        return
+    with open_trigger(ctx.rig) as gen:
+        yield gen
 
 
 # ------------------------------------------------------------------ 1. cameras
@@ -78,7 +94,7 @@ def cameras(ctx: Context) -> Outcome:
             announced[(f.host, f.port)] = f.sources
     devices, measures, lines, locked = [], [], [], {}
     for cfg in rig.cameras:
-        with open_camera(cfg) as cam:
+        with _cameras(ctx, [cfg]) as (cam,):
             info = cam.device_info()
             result = setup_camera(cam, cfg, rig.camera_setup)
         locked[cfg.name] = result.locked
@@ -112,7 +128,7 @@ def trigger(ctx: Context) -> Outcome:
     if t.backend == "none":
         raise ConfigError("the rig config has no trigger generator (trigger: backend: none): the sync check needs "
                           "one; set it, or --skip trigger --why TEXT")
-    with open_trigger(ctx.rig) as gen:
+    with _trigger(ctx) as gen:
         ident = gen.identify() if hasattr(gen, "identify") else None
         st = gen.status()
     dev = {"backend": t.backend, "address": str(t.address), "device": st.device,
@@ -132,7 +148,7 @@ def aim(ctx: Context) -> Outcome:
     a camera to adjust stops the sequence with what to do."""
     folder = ensure_dir(ctx.inputs.out / "aim", "aim folder")
     measures, lines, advice, files, verdicts = [], [], [], [], {}
-    with _cameras(ctx.rig.cameras) as cams:
+    with _cameras(ctx, ctx.rig.cameras) as cams:
         for cam in cams:
             report = aim_check(cam, ctx.rig)
             files.append(write_atomic(folder / f"{cam.name}-aim.png", report.overlay_png()))
@@ -193,7 +209,7 @@ def warmup(ctx: Context) -> Outcome:
     cwin = merged_tolerances(ctx.rig.tolerances)["warmup_clock_change_ppm_min"]
     climit = cwin.tolerance_high if cwin.tolerance_high is not None else cwin.action_high
     warm = {c.name: float(c.warmup_min) for c in ctx.rig.cameras}
-    with _cameras(ctx.rig.cameras, clock=ctx.clock) as cams:
+    with _cameras(ctx, ctx.rig.cameras, clock=ctx.clock) as cams:
         if not ctx.inputs.wait:          # no window measured for a camera that cannot have settled yet
             up = {c.name: _uptime(c, ctx.say) for c in cams}
             young = {n for n, m in up.items() if m is not None and m < warm[n]}
@@ -397,7 +413,7 @@ def mapping(ctx: Context) -> Outcome:
         raise _need("VTS → SPECT mapping", "--phantom-volume FILE", "the SPECT's reconstruction of the 7-sphere "
                     "phantom lying where the cameras see it now")
     calib = camera_calibration_for(ctx.rig, str(inp.calibration_file), "the mapping")
-    with _cameras(calibrated_cameras(ctx.rig, calib)) as cams:
+    with _cameras(ctx, calibrated_cameras(ctx.rig, calib)) as cams:
         m = mapping_from_cameras(cams, calib, inp.phantom_volume, inp.frames, progress=lambda t: ctx.say(f"  {t}"))
     m.tolerances = ctx.rig.tolerances
     saved = save_or_keep(inp.mapping_file, json.dumps(m.transform.to_dict(), indent=2) + "\n", "mapping")
@@ -424,7 +440,7 @@ def steps(ctx: Context) -> Outcome:
         raise _need("step test", "--step-volumes DIR", "the folder the SPECT's reconstructions of the positions "
                     "(baseline, V01 ..., A01 ..., free) are or will be exported to")
     inputs = step_test_inputs(ctx.rig, str(inp.calibration_file), str(inp.mapping_file), inp.step_volumes)
-    with _cameras(calibrated_cameras(ctx.rig, inputs.calibration)) as cams:
+    with _cameras(ctx, calibrated_cameras(ctx.rig, inputs.calibration)) as cams:
         res = run_step_test(ctx.rig, inputs, inp.out / "steps", step_plan(inp.vertical, inp.axial), cameras=cams,
                             frames=inp.frames, ask=ctx.ask, progress=lambda t: ctx.say(f"  {t}"))
     ctx.say(res.analysis.results())
@@ -462,7 +478,7 @@ def baseline(ctx: Context) -> Outcome:
         ctx.say("  the room is clear (--room-clear): the wall markers are taken now")
     else:
         ctx.ask("Clear the table and the room (phantom and source marker away), LED rings on. Press Enter.")
-    with _cameras(ctx.rig.cameras, clock=ctx.clock) as cams:
+    with _cameras(ctx, ctx.rig.cameras, clock=ctx.clock) as cams:
         result = take_baselines(cams, frames=5, clock=ctx.clock)
     ctx.say(result.results())
     return Outcome("baseline", result, True)

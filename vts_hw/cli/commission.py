@@ -104,6 +104,7 @@ def commission(config_path, resume, from_step, skips, why, sign_off, out_dir, ch
     from vts_hw.procedures import commission as proc
     from vts_hw.procedures.commission_sequence import failure_reason, run_sequence  # the steps: numpy, scipy, cv2
     from vts_hw.procedures.daily import EXIT_CODES
+    from vts_hw.room import Room
     from vts_hw.store.commission import Ledger, load_state
 
     if bool(skips) != bool(why):
@@ -122,7 +123,7 @@ def commission(config_path, resume, from_step, skips, why, sign_off, out_dir, ch
                          sync_session=sync_session, listmode=tuple(listmode), frames=frames, listen_s=listen_s,
                          interfaces=tuple(interfaces), wait=not no_wait, room_clear=room_clear)
     say = lambda m: click.echo(m, err=True)  # noqa: E731
-    with open_store(rig) as store:
+    with open_store(rig) as store, Room(rig) as room:   # the room's devices closed with it, however it ends
         state = load_state(store, rig.rig)
         for s in state.unfinished():     # killed, interrupted or failed in it: the next start says so
             say(f"commissioning {state.cid}: its {s.label} step of {_when(s.started)} did not finish ({s.why()})")
@@ -134,7 +135,8 @@ def commission(config_path, resume, from_step, skips, why, sign_off, out_dir, ch
             say(f"a new commissioning begins (commissioning {state.cid} stopped unfinished: --resume continues it)")
         todo = proc.plan(from_step, state.done if carry else {})
         ledger = Ledger(store, rig, cid=state.cid if carry else None, operator=operator)
-        ctx = proc.Context(rig, inputs, say=say, ask=_ask, reload=lambda: load_rig(config_path))
+        ctx = proc.Context(rig, inputs, say=say, ask=_ask, reload=lambda: load_rig(config_path),
+                           camera=lambda cfg: room.camera(cfg.name), trigger=lambda: room.trigger)
         try:
             end = run_sequence(ctx, todo, ledger, {s: why for s in skips})
         except KeyboardInterrupt as exc:
