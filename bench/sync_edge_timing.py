@@ -17,7 +17,7 @@ import argparse
 import numpy as np
 
 from vts_hw.sim_devices.source_marker import min_jerk
-from vts_hw.timing.motion_events import fit_step, mid_crossing
+from vts_hw.timing.marker_steps import fit_step, mid_crossing
 
 
 def main() -> None:

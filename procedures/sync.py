@@ -23,7 +23,7 @@ What it does (the reasons are in docs/decisions/0019-sync-analysis.md):
    that follow each other in time and meet within ``join_mm``).
 3. **SPECT**: the axial centre of mass of the counts in ``bin_s`` bins (for the plot and to
    find the steps), list-mode time mapped to host time through the gating clock.
-4. **Events** (:mod:`vts_hw.timing.motion_events`): steps found in both traces, each timed by fitting a
+4. **Events** (:mod:`vts_hw.timing.marker_steps`): steps found in both traces, each timed by fitting a
    smooth step to the raw samples (VTS: the marker's z per frame; SPECT: every event's z) —
    the mid-crossing, in host time. Matched by time; per event ``dt = t_vts − t_spect``; the
    overall offset is the median of dt, its spread the SD and the largest deviation. An event
@@ -48,7 +48,7 @@ from vts_hw.errors import DataError
 from vts_hw.files import WriteFailed, ensure_dir, export_stopped
 from vts_hw.procedures.sync_plot import sync_figure
 from vts_hw.spect.listmode import ListMode, read_listmode
-from vts_hw.timing.motion_events import StepFit, find_steps, fit_step, match_events, robust_sd
+from vts_hw.timing.marker_steps import StepFit, find_steps, fit_step, match_events, robust_sd
 from vts_hw.recording.trigger_wave import WaveInfo, wave_from_trigger_log
 from vts_hw.spect.gating import GatingResult, analyze_gating, axial_centre_of_mass
 from vts_hw.figures import figure_png

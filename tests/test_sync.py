@@ -33,7 +33,7 @@ from vts_hw.vision.registration import RigidTransform
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.sim_devices.source_marker import min_jerk
 from vts_hw.sim_devices.sync_truth import plan_sync_moves
-from vts_hw.timing.motion_events import find_steps, fit_step, match_events
+from vts_hw.timing.marker_steps import find_steps, fit_step, match_events
 
 VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
 EVENT_GOAL_S = 0.020

@@ -1,4 +1,5 @@
-"""Motion events in a position trace: find the steps, time each one's mid-crossing precisely.
+"""The source marker's steps in a position trace (the sync check's moves; not the patient's motion
+events, vts_hw/motion/): find the steps, time each one's mid-crossing precisely.
 
 The sync check moves a source marker a few times along the table axis; both systems see each
 move as a step in the axial position (VTS: the marker's z at 25 fps; SPECT: the z of the
