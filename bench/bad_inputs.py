@@ -16,7 +16,8 @@ listed here. The classes of bad input, each command one case at a time:
 * ``configs``: ``--config`` naming a missing, empty, binary or ``[]`` rig.yaml, one with an
   unknown key, and a good one whose cameras, trigger and QATrack+ do not answer; the bad ones
   also as ``vts --config FILE qa daily``, and ``vts --config`` before ``sim up`` (which reads no
-  rig.yaml: refused), ``--only vts`` for these alone;
+  rig.yaml: refused), a calibration entry under both its names and a calibration file named that
+  is not there (decision 0099), ``--only vts`` for these alone;
 * ``foreign stores``: ``--store`` naming an SQLite database of another program, a file that is
   not SQLite and an empty SQLite database, for every command; ``store migrate --from/--to``,
   ``store init``, ``qa drift --set-baseline``, ``qa import`` of a good run file and a
@@ -160,6 +161,11 @@ class Fixtures:
                           ("axis_options", {"name": "cam1", "host": "127.0.0.1", "port": port, "options": {"speed": 2}}),
                           ("replay", {"name": "cam1", "kind": "replay", "options": {"folder": str(root / "emptydir")}})):
             (root / f"{name}.yaml").write_text(yaml.safe_dump({"rig": name, "cameras": [cam]}))
+        # rig.yaml's calibration entries (decision 0099): one under its new and its old name; a
+        # calibration file named that is not there (the room says so before any camera is opened)
+        for name, section in (("both_names", {"cameras": "a.json", "stereo": "b.json"}),
+                              ("no_calibration_file", {"cameras": str(root / "gone.json")})):
+            (root / f"{name}.yaml").write_text(yaml.safe_dump({**dead, "calibration": section}))
         self.configs = {"missing config": str(root / "nope.yaml"), "empty config": str(root / "empty.txt"),
                         "binary config": str(root / "binary.bin"), "[] config": str(root / "list.json"),
                         "unknown key": str(root / "unknown_key.yaml")}
@@ -237,6 +243,17 @@ def camera_kind_cases(fx: Fixtures) -> list[Case]:
                  plain(["camera", "info", "cam1", "--config", config("axis_options")]), _refused),
             Case("configs", "camera kind: setup of a kind without parameters",
                  plain(["camera", "setup", "cam1", "--config", config("replay")]), _refused)]
+
+
+def calibration_key_cases(fx: Fixtures) -> list[Case]:
+    """rig.yaml's calibration entries: one under both its names, and a calibration file named that
+    is not there (`calibrate spect --from-cameras` opens the room's calibration): refused, exit 2."""
+    both, gone = str(fx.root / "both_names.yaml"), str(fx.root / "no_calibration_file.yaml")
+    return [Case("configs", "calibration: cameras and stereo (its old name) both given",
+                 plain(["trigger", "status", "--config", both]), _refused),
+            Case("configs", "calibration.cameras names no file",
+                 lambda wd: ["calibrate", "spect", "--from-cameras", "--volume", fx.paths["binary file"],
+                             "-o", str(wd / "m.json"), "--config", gone], _refused)]
 
 
 def cases(cmd_path: tuple[str, ...], cmd: click.Command, fx: Fixtures, classes=CLASSES, full: bool = False):
@@ -389,6 +406,7 @@ def plan(only: str | None, classes, fx: Fixtures, cli, peers=None, full: bool = 
     planned += [c for c in store_command_cases(fx) if not only or c.what.startswith(only)]
     planned += [c for c in global_config_cases(fx) if not only or only == "vts"]
     planned += [c for c in camera_kind_cases(fx) if not only or only in ("vts", "camera")]
+    planned += [c for c in calibration_key_cases(fx) if not only or only in ("vts", "trigger", "calibrate")]
     if full_disk.CLASS in classes:
         planned += full_disk.cases(fx.root, only)
     if signals.CLASS in classes:
