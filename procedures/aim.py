@@ -2,7 +2,7 @@
 room, judge (vts_hw/vision/aim.py).
 
 * :func:`room_view` -- the camera's :class:`~vts_hw.vision.aim_geometry.RoomView` from the rig's
-  calibration and VTS -> SPECT mapping (``calibration.stereo`` / ``calibration.spect`` of
+  calibration and VTS -> SPECT mapping (``calibration.cameras`` / ``calibration.mapping`` of
   rig.yaml), or why there is none ("no mapping", "no calibration", "camera cam3 is not in the
   calibration ...", "the mapping ... cannot be read: ..."): a missing mapping is an item not
   known, never an error.

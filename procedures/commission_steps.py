@@ -424,7 +424,7 @@ def mapping(ctx: Context) -> Outcome:
     advice = "" if passed else ("the mapping is in ACTION: check the phantom and its volume, then "
                                 "`vts commission --from mapping`")
     notes, error = f"saved to {inp.mapping_file}", None
-    if passed:                                       # a mapping in ACTION leaves calibration.spect as it was
+    if passed:                                       # a mapping in ACTION leaves calibration.mapping as it was
         note, error = _point_rig(ctx, "mapping", "mapping", saved.written, "VTS → SPECT mapping")
         notes, passed, advice = f"{notes}; {note}", error is None, str(error) if error else advice
     return Outcome("mapping", m, passed, advice=advice, notes=notes, error=error)

@@ -25,7 +25,7 @@ def camera_calibration_for(rig, calibration_path=None, what: str = "--from-camer
     when there is none or the rig has fewer than two cameras (``what`` needs them)."""
     path = calibration_path or rig.calibration.stereo
     if path is None:
-        raise ConfigError("no camera calibration: give --calibration or set calibration.stereo in the "
+        raise ConfigError("no camera calibration: give --calibration or set calibration.cameras in the "
                           "rig config (`vts calibrate stereo` or `vts calibrate cameras`).")
     if len(rig.cameras) < 2:
         raise ConfigError(f"{what} needs two cameras in the rig config.")

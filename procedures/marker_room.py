@@ -1,5 +1,5 @@
 """The rig's room for telling markers apart (vts_hw/vision/marker_roles.py, rule 2): its calibrated
-cameras (``calibration.stereo``), its VTS -> SPECT mapping (``calibration.spect``), the
+cameras (``calibration.cameras``), its VTS -> SPECT mapping (``calibration.mapping``), the
 table-and-gantry volume from rig.yaml's ``aim:`` room geometry, and the phantom's shape when the
 mapping keeps it. Without a mapping or a calibration there is no room, and the reason says so:
 the markers are then told apart by motion alone (docs/decisions/0086-marker-roles.md).
@@ -25,9 +25,9 @@ def room_of_rig(rig) -> tuple[Room | None, str]:
         return None, f"no rig configuration: {NO_ROOM}"
     cal = rig.calibration
     if cal.spect is None:
-        return None, f"no VTS -> SPECT mapping (calibration.spect in rig.yaml): {NO_ROOM}"
+        return None, f"no VTS -> SPECT mapping (calibration.mapping in rig.yaml): {NO_ROOM}"
     if cal.stereo is None:
-        return None, f"no camera calibration (calibration.stereo in rig.yaml): {NO_ROOM}"
+        return None, f"no camera calibration (calibration.cameras in rig.yaml): {NO_ROOM}"
     try:
         mapping = load_mapping(cal.spect)
     except (VtsError, OSError) as exc:

@@ -73,8 +73,8 @@ def _iso(t: float) -> str:
 
 
 class LiveMotion:
-    """``calibration``/``mapping``: a path or object (default: the rig's ``calibration.stereo``
-    and ``calibration.spect``); ``settings``: the estimator's (default reference 10 s)."""
+    """``calibration``/``mapping``: a path or object (default: the rig's ``calibration.cameras``
+    and ``calibration.mapping``); ``settings``: the estimator's (default reference 10 s)."""
 
     def __init__(self, rig, *, calibration=None, mapping=None, settings: LiveSettings | None = None,
                  on_alert_text: Callable[[str], None] | None = None,
@@ -111,7 +111,7 @@ class LiveMotion:
         names = [c.name for c in session.cameras]
         try:
             if self.calibration is None:
-                raise VtsError("no camera calibration (calibration.stereo in rig.yaml)")
+                raise VtsError("no camera calibration (calibration.cameras in rig.yaml)")
             cal = load_calibration(self.calibration)
             cams = named_cameras(cal, covered_names(cal, [c.name for c in self.rig.cameras]))
             cams = {n: cams[n] for n in names if n in cams}

@@ -52,7 +52,7 @@ def step_test_inputs(rig, calibration_path=None, mapping_path=None, volumes=None
     calibration = camera_calibration_for(rig, calibration_path, "the step test")
     map_path = mapping_path or rig.calibration.spect
     if map_path is None:
-        raise ConfigError("no VTS -> SPECT mapping: give --mapping or set calibration.spect in the rig "
+        raise ConfigError("no VTS -> SPECT mapping: give --mapping or set calibration.mapping in the rig "
                           "config (`vts calibrate spect`).")
     if not volumes:
         raise UsageError("give --volumes DIR: the folder the SPECT's reconstructions of the positions are "

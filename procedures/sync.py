@@ -457,7 +457,7 @@ def export_trajectories(tracks, gating: GatingResult, out, mapping=None,
     mapping = load_mapping(mapping)
     if mapping is None and tracks.xyz_spect is None:
         raise DataError("no VTS -> SPECT mapping: the trajectories cannot be put in the SPECT frame "
-                        "(give --mapping or set calibration.spect in rig.yaml)")
+                        "(give --mapping or set calibration.mapping in rig.yaml)")
     out = ensure_dir(out, "export folder")
     exported = tracks.with_spect(mapping, _HostToList(gating.clock))
     c = gating.clock

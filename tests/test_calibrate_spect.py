@@ -157,7 +157,7 @@ def test_from_cameras_needs_a_calibration(tmp_path):
     cfg.write_text("cameras:\n  - {name: cam1, host: 127.0.0.1, port: 9}\n  - {name: cam2, host: 127.0.0.1, port: 9}\n")
     vol = SimSpect(seed=0).write(tmp_path / "v.npz", phantom_centres())
     r = vts("--from-cameras", "--volume", vol, "--config", cfg, cwd=tmp_path)
-    assert r.returncode == 2 and "calibration.stereo" in r.stderr and "Traceback" not in r.stderr
+    assert r.returncode == 2 and "calibration.cameras" in r.stderr and "Traceback" not in r.stderr
 
 
 def test_disk_full_keeps_the_mapping(tmp_path, session, small_disk):

@@ -155,7 +155,7 @@ def test_not_confident_names_nothing_and_says_why(mapped, tmp_path):
             self.calibration = type("C", (), {"stereo": stereo, "spect": spect})()
             self.cameras = [type("K", (), {"name": n})() for n in ("cam1", "cam2")]
     assert locator_for(Rig(cameras, old_path))[1].startswith(f"the mapping {old_path} keeps no sphere centres")
-    assert locator_for(Rig(cameras, None)) == (None, "no VTS → SPECT mapping (calibration.spect in rig.yaml): "
+    assert locator_for(Rig(cameras, None)) == (None, "no VTS → SPECT mapping (calibration.mapping in rig.yaml): "
                                                      "it keeps the phantom's shape")
     assert locator_for(None)[1] == "the console was started without a rig config"
 

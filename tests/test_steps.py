@@ -154,7 +154,7 @@ def test_a_missing_volume_names_the_position_and_keeps_the_vts_part(chain, tmp_p
 
 def test_real_rig_without_a_calibration_is_a_config_error(tmp_path):
     r = vts("qa", "steps", "--config", str(_rig_yaml(tmp_path)), "--volumes", str(tmp_path))
-    assert r.returncode == 2 and "calibration.stereo" in r.stderr
+    assert r.returncode == 2 and "calibration.cameras" in r.stderr
 
 
 def test_real_rig_dry_run_lists_the_plan_and_touches_nothing(chain, tmp_path):

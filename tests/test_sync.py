@@ -345,7 +345,7 @@ def test_bad_inputs_end_in_one_sentence(tmp_path):
          f"vts: {tmp_path / 'untriggered'}: no trigger.csv: the session has no trigger log to time the SPECT "
          f"against (was it recorded with trigger backend none?)"),
         ([str(tmp_path / "session")], 2, "give the scan's list-mode: --listmode FILE"),
-        ([str(tmp_path / "session"), "--listmode", str(junk)], 2, "no stereo calibration: give --calibration"),
+        ([str(tmp_path / "session"), "--listmode", str(junk)], 2, "no camera calibration: give --calibration"),
         ([str(tmp_path / "session"), "--listmode", str(junk), "--calibration", str(cal)], 3,
          f"{junk}: "),
         ([str(tmp_path / "session"), "--listmode", str(tmp_path / "none.vtslm"), "--calibration", str(cal)], 3,

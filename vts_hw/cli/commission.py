@@ -82,7 +82,7 @@ def commission(config_path, resume, from_step, skips, why, sign_off, out_dir, ch
     flashing is `vts trigger flash`) · 3 aim and focus · 4 warm-up (the wall markers' rate
     settled, rig.yaml's warmup: and warmup_rate_px_min) · 5 calibration
     (--checkerboards) · 6 VTS -> SPECT mapping (--phantom-volume); each, once passed, is
-    pointed at in rig.yaml (calibration.stereo, calibration.spect; the previous text in
+    pointed at in rig.yaml (calibration.cameras, calibration.mapping; the previous text in
     rig.yaml.bak) · 7 step test
     (--step-volumes; the table moved when asked) · 8 sync check (--sync-session,
     --listmode) · 9 drift baseline. A step that needs what is not given stops and says what.

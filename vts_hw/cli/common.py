@@ -238,7 +238,7 @@ def calibration_files(config_path, calibration, mapping):
     cal = Path(calibration) if calibration else (rig.calibration.stereo if rig else None)
     mp = Path(mapping) if mapping else (rig.calibration.spect if rig else None)
     if cal is None:
-        raise ConfigError("no stereo calibration: give --calibration FILE or set calibration.stereo in "
+        raise ConfigError("no camera calibration: give --calibration FILE or set calibration.cameras in "
                           f"rig.yaml{why}")
     return cal, mp, rig
 

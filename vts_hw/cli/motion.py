@@ -18,9 +18,9 @@ def motion() -> None:
 @click.argument("session", type=click.Path())
 @listmode_options
 @click.option("--calibration", type=click.Path(dir_okay=False), default=None,
-              help="Camera calibration file (default: the rig config's calibration.stereo).")
+              help="Camera calibration file (default: the rig config's calibration.cameras).")
 @click.option("--mapping", type=click.Path(dir_okay=False), default=None,
-              help="VTS -> SPECT transform file (default: the rig config's calibration.spect); without one "
+              help="VTS -> SPECT transform file (default: the rig config's calibration.mapping); without one "
                    "poses are in the VTS frame.")
 @click.option("-o", "--output", "out", type=OutputFile(), default=None,
               help="Write the report here: NAME.html (self-contained: the plot inline) or NAME.pdf.")

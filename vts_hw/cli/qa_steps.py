@@ -42,9 +42,9 @@ def _print(analysis, extra_lines, as_json, data_extra=None) -> None:
               help="Folder of the SPECT's reconstructed volumes, one per position named after it "
                    "(baseline.*, V01.*, ..., A01.*, ..., free.*). Real rig only.")
 @click.option("--calibration", "calibration_path", type=click.Path(dir_okay=False), default=None,
-              help="Stereo calibration file (default: the config's calibration.stereo).")
+              help="Camera calibration file (default: the config's calibration.cameras).")
 @click.option("--mapping", "mapping_path", type=click.Path(dir_okay=False), default=None,
-              help="VTS -> SPECT transform file (default: the config's calibration.spect).")
+              help="VTS -> SPECT transform file (default: the config's calibration.mapping).")
 @click.option("--analyze", "analyze_dir", type=click.Path(file_okay=False), default=None,
               help="Do not acquire: analyse the positions a session saved in this folder (with "
                    "--volumes), e.g. when the reconstructions arrive after the VTS part.")

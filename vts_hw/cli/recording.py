@@ -107,9 +107,9 @@ def _print_info(summaries) -> None:
 @click.option("-o", "--output", "out", type=OutputFolder("output folder"), required=True,
               help="Folder for trajectories.csv and trajectories.json (docs/trajectory-format.md).")
 @click.option("--calibration", type=click.Path(dir_okay=False), default=None,
-              help="Camera calibration file (default: the rig config's calibration.stereo).")
+              help="Camera calibration file (default: the rig config's calibration.cameras).")
 @click.option("--mapping", type=click.Path(dir_okay=False), default=None,
-              help="VTS -> SPECT transform file (default: the rig config's calibration.spect): adds SPECT-frame "
+              help="VTS -> SPECT transform file (default: the rig config's calibration.mapping): adds SPECT-frame "
                    "positions.")
 @click.option("--workers", type=click.IntRange(1, 256), default=None, help="Processes (default: every core).")
 @json_option

@@ -18,9 +18,9 @@ def sync() -> None:
 @click.argument("session", type=click.Path())
 @listmode_options
 @click.option("--calibration", type=click.Path(dir_okay=False), default=None,
-              help="Stereo calibration file (default: the rig config's calibration.stereo).")
+              help="Camera calibration file (default: the rig config's calibration.cameras).")
 @click.option("--mapping", type=click.Path(dir_okay=False), default=None,
-              help="VTS -> SPECT transform file (default: the rig config's calibration.spect).")
+              help="VTS -> SPECT transform file (default: the rig config's calibration.mapping).")
 @click.option("-o", "--output", "out", type=OutputFile(), default=None,
               help="Write the report here: NAME.html (self-contained: the plot inline) or NAME.pdf.")
 @click.option("--plot", "plot_path", type=OutputFile(), default=None,

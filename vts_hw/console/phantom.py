@@ -2,7 +2,7 @@
 phantom locator (:mod:`vts_hw.vision.phantom_locator`) about once a second, its names given to
 the marker names (:mod:`.names`, kind ``phantom``, ``S1``..``S7``).
 
-The locator is built once from the rig config (``calibration.stereo`` and ``calibration.spect``,
+The locator is built once from the rig config (``calibration.cameras`` and ``calibration.mapping``,
 relative paths from the rig.yaml's folder); without them, or with a mapping that keeps no sphere
 centres, nothing is located and :attr:`PhantomNames.why` says why. Each look takes the latest
 detections of every camera made within :data:`FRESH_S` of each other (a phantom on the table is
@@ -33,9 +33,9 @@ def locator_for(rig):
         return None, "the console was started without a rig config"
     cal, mapping = rig.calibration.stereo, rig.calibration.spect
     if cal is None:
-        return None, "no camera calibration (calibration.stereo in rig.yaml)"
+        return None, "no camera calibration (calibration.cameras in rig.yaml)"
     if mapping is None:
-        return None, "no VTS → SPECT mapping (calibration.spect in rig.yaml): it keeps the phantom's shape"
+        return None, "no VTS → SPECT mapping (calibration.mapping in rig.yaml): it keeps the phantom's shape"
     try:
         return PhantomLocator.from_files(cal, mapping, [c.name for c in rig.cameras]), ""
     except (VtsError, OSError) as exc:

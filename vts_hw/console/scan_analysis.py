@@ -3,7 +3,7 @@
 folder (``motion/``), and its result stored in the results store as the command stores it.
 
 * The analysis is :class:`~vts_hw.procedures.motion.MotionAnalysis` with the rig's calibration
-  (``calibration.stereo``, ``calibration.spect``; a relative path is beside rig.yaml:
+  (``calibration.cameras``, ``calibration.mapping``; a relative path is beside rig.yaml:
   config.load_rig), its ``motion:`` section and tolerances; ``workers=1`` (in this
   process: a process pool forked from a threaded server can hang, and the room's cores are the
   live path's).
@@ -73,7 +73,7 @@ class MotionJob:
             rig = self.rig
             cal = rig.calibration.stereo
             if cal is None:
-                raise VtsError("no stereo calibration: set calibration.stereo in rig.yaml")
+                raise VtsError("no camera calibration: set calibration.cameras in rig.yaml")
             a = MotionAnalysis(self.folder, None, cal, rig.calibration.spect,
                                motion_config=rig.motion, workers=1, progress=self._progress)
             a.analyze(tolerances=rig.tolerances)

@@ -272,7 +272,7 @@ def roles_of_positions(xyz, *, frame: str = "spect", mapping=None, space: TableS
     why_not = ""
     if frame == "vts":
         if mapping is None:
-            why_not = "no VTS -> SPECT mapping (calibration.spect): where it lies is not known, motion alone decides"
+            why_not = "no VTS -> SPECT mapping (calibration.mapping): where it lies is not known, motion alone decides"
         else:
             X = mapping.apply(X.reshape(-1, 3)).reshape(X.shape)
     space = space or TableSpace.from_settings(DEFAULT_AIM, mapping)

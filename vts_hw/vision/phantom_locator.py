@@ -5,7 +5,7 @@ file keeps the SPECT's sphere centres (``spheres_spect_mm`` in its meta, SPECT f
 first: procedures/spect_mapping.py), and a rigid body's shape is the same in every frame. So:
 
 1. each camera's detections (pixels) of about one instant, two cameras or more of the rig's
-   calibration (``calibration.stereo``);
+   calibration (``calibration.cameras``);
 2. the phantom found among them by its shape, as the step test and the mapping find it
    (:func:`vts_hw.vision.body_finder.locate_body_views`: every epipolar-allowed pairing with two
    cameras, the multi-view matches with more; a detection used by two spheres, or a second fit

@@ -105,7 +105,7 @@ class ReferenceCollector:
                           f"inside the table-and-gantry volume ({int(still_in.sum())})")
         else:
             return None, (f"fewer than three markers move ({int(patient.sum())}); without a SPECT mapping "
-                          f"(calibration.spect) still markers cannot be told from the wall's")
+                          f"(calibration.mapping) still markers cannot be told from the wall's")
         self.roles = roles
         mine = samples[:, patient]
         mean = np.nanmean(mine, axis=0)
