@@ -9,7 +9,7 @@ For each camera of the rig:
 3. clock — camera clock minus host clock is within tolerance;
 4. LED and drift — the wall-marker drift procedure (``drift.py``) against the baseline.
 
-The run's state is the worst of its measurements. The caller gives the cameras (``open_camera``)
+The run's state is the worst of its measurements. The caller gives the cameras (``open_camera``: the room's ``room.camera``)
 and the drift baselines, and records the result (vts_hw.store.recorder: the "running" row
 before the cameras are measured, then one transaction); this script never holds a store.
 ``plan()`` lists the steps without touching the rig (``--dry-run``).

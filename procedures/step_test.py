@@ -7,7 +7,7 @@
 3. analyse against the SPECT volumes and plot (:func:`run_step_test`); the caller records the
    run (vts_hw.store.recorder).
 
-The cameras are opened by the caller (``drivers.registry.open_cameras``), never here.
+The cameras are opened by the caller (the room's: ``room.camera(name)``), never here.
 """
 
 from __future__ import annotations

@@ -5,7 +5,8 @@ From Python (tests)::
     with SimRig(n_cameras=2) as rig:
         cfg = rig.config()            # a RigConfig pointing at the simulated cameras
         with rig.env():               # the password variables it names, set for the block
-            cam = open_camera(cfg.cameras[0])   # vts_hw.drivers.registry
+            with Room.open(cfg) as room:   # vts_hw.room
+                cam = room.camera("cam1")
 
 From the shell: ``vts sim up`` (foreground, Ctrl-C stops) or ``vts sim up --detach --dir DIR``
 which writes ``DIR/rig.yaml`` and ``DIR/sim.env`` and runs this module in the background;
