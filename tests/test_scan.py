@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 import pytest
 
+from inprocess_cli import run as vts_run
 from vts_hw import __version__
 from vts_hw.config import load_rig
 from vts_hw.drivers.trigger import read_log
@@ -307,8 +308,7 @@ def test_ctrl_c_stops_cleanly(plain_rig, tmp_path):
 def test_dry_run_touches_nothing(box_rig, tmp_path):
     rig, cfg, rig_yaml = box_rig
     folder = tmp_path / "scan"
-    p = subprocess.run([*VTS, "scan", "start", "--dry-run", "--duration", "60", "-o", str(folder)],
-                       env=_env(rig, rig_yaml), capture_output=True, text=True, timeout=HANG_S)
+    p = vts_run("scan", "start", "--dry-run", "--duration", "60", "-o", folder, env=_env(rig, rig_yaml))   # (in this process)
     assert p.returncode == 0, p.stderr
     assert "dry run" in p.stdout and "fire:" in p.stdout and "record for 60 s" in p.stdout
     assert not folder.exists()
@@ -355,7 +355,6 @@ def test_disk_full_during_a_scan_stops_it_and_keeps_every_whole_frame(plain_rig,
 def test_scan_refuses_durations_that_are_not(plain_rig, tmp_path):
     rig, cfg, rig_yaml = plain_rig
     for bad in ("nan", "inf", "-1", "0"):
-        p = subprocess.run([*VTS, "scan", "start", "--duration", bad, "-o", str(tmp_path / "s")],
-                           env=_env(rig, rig_yaml), capture_output=True, text=True, timeout=HANG_S)
+        p = vts_run("scan", "start", "--duration", bad, "-o", tmp_path / "s", env=_env(rig, rig_yaml))   # (in this process)
         assert p.returncode == 2 and "--duration" in p.stderr, (bad, p.stderr)
     assert not (tmp_path / "s").exists()

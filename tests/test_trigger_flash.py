@@ -6,8 +6,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -15,15 +13,17 @@ import pytest
 import serial
 from intelhex import IntelHex
 
+from inprocess_cli import run as vts_run
 from vts_hw.sim_devices.arduino_bootloader import SimArduinoBoard
 from vts_hw.sim_devices.trigger_box import build, firmware_dir
 
 # no skip without avrdude: `make test` installs it (Makefile TEST_DEBS); without it these fail saying so
 
 
-def vts(*args, env=None, timeout=120):
-    p = subprocess.run([sys.executable, "-m", "vts_hw.cli", *map(str, args)], capture_output=True, text=True,
-                       timeout=timeout, env={**os.environ, **(env or {})}, stdin=subprocess.DEVNULL)
+def vts(*args, env=None):
+    """`vts ARGS` in this process (tests/inprocess_cli.py), the variables ``env`` added, nothing
+    to read on its standard input: (exit code, stdout, stderr)."""
+    p = vts_run(*args, env={**os.environ, **(env or {})})
     return p.returncode, p.stdout, p.stderr
 
 
