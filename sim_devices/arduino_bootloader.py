@@ -64,7 +64,7 @@ class SimArduinoBoard:
         self.commands: list[int] = []          # every command byte received, in order
         self.uploads = 0                       # LEAVE_PROGMODE after at least one page
         self.received_hex: Path | None = None
-        self.app = None                        # the SimTriggerBox running the flashed image
+        self.app: SimTriggerBox | None = None  # the SimTriggerBox running the flashed image
         self.app_error: str | None = None
         self._master = self._slave = -1
         self._stop = threading.Event()

@@ -21,7 +21,7 @@ import re
 import threading
 from dataclasses import dataclass
 from importlib import resources
-from typing import Any
+from typing import Any, Sequence
 
 import yaml
 
@@ -77,7 +77,7 @@ class Profile:
         if data["jpeg_layout"] not in JPEG_LAYOUTS:
             raise ValueError(f"{MODELS[model]}: jpeg_layout must be one of {JPEG_LAYOUTS}")
         oui = data.get("oui")
-        return cls(model=model, vapix=int(data["vapix"]), firmware=fw,  # type: ignore[arg-type]
+        return cls(model=model, vapix=int(data["vapix"]), firmware=fw,
                    firmware_str=str(data.get("firmware_version", data["firmware"])),
                    hardware_id=int(data["hardware_id"]), oui=bytes.fromhex(oui) if oui else None,
                    jpeg_layout=data["jpeg_layout"], time_extra_zero=bool(data.get("time_extra_zero", False)),
@@ -146,7 +146,7 @@ class ParamStore:
                     out.append(f"# Error: Error -1 getting param in group '{group.strip()}'")
         return "".join(line + "\r\n" for line in out)
 
-    def update(self, changes: list[tuple[str, str]]) -> str:
+    def update(self, changes: Sequence[tuple[str, str]]) -> str:
         """The body of ``action=update``: ``OK`` or the first error; nothing changes on error."""
         checked: list[tuple[str, str]] = []
         with self._lock:

@@ -204,12 +204,11 @@ def render_pairs(scene: Scene, n: int = 18, seed: int = 0, pattern: tuple[int, i
     """``n`` stereo views of the board as an operator would hold it (:func:`board_poses`):
     a list of (left, right) grey images and their names ``sim01``…, each image with its own
     noise. With ``t`` the cameras are as they are at ``t`` (drift included), else as mounted."""
-    if t is not None:
-        cams = tuple(scene.camera_at(c, t) for c in cams)
+    seen_by: tuple[str | CameraModel, ...] = tuple(scene.camera_at(c, t) for c in cams) if t is not None else cams
     pairs, names = [], []
     for k, pose in enumerate(board_poses(scene, n=n, seed=seed, pattern=pattern, square_mm=square_mm)):
         pairs.append(tuple(decode(render_board(scene, cam, pose, pattern, square_mm,
                                                seed=seed * 10007 + 2 * k + i))
-                           for i, cam in enumerate(cams)))
+                           for i, cam in enumerate(seen_by)))
         names.append(f"sim{k + 1:02d}")
     return pairs, names

@@ -173,15 +173,14 @@ class FrameBank:
         if self.offset is None or quality != self.quality or cam not in self.frames:
             return None
         k = round(t * self.fps)
-        if abs(t - k / self.fps) > 1e-4:
-            return self._miss(t, "not on the frame grid")
         j = k - self.first - self.offset
-        if not 0 <= j < self.count:
-            return self._miss(t, "outside the stretch")
-        if not self.scene.led_on(cam, t):
-            return self._miss(t, "LED off")
-        if self._static_key(t) != self._keys[j]:
-            return self._miss(t, "the scene changed")
+        why = ("not on the frame grid" if abs(t - k / self.fps) > 1e-4 else
+               "outside the stretch" if not 0 <= j < self.count else
+               "LED off" if not self.scene.led_on(cam, t) else
+               "the scene changed" if self._static_key(t) != self._keys[j] else "")
+        if why:
+            self._miss(t, why)
+            return None
         self.served += 1
         return self.frames[cam][j]
 
@@ -189,7 +188,6 @@ class FrameBank:
         with self._lock:
             self.missed[why] = self.missed.get(why, 0) + 1
             self._misses.append((t, why))
-        return None
 
     def missed_between(self, t0: float, t1: float) -> dict[str, int]:
         """Why frames captured from ``t0`` to ``t1`` (host s) were rendered live, and how many."""

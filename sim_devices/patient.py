@@ -157,6 +157,12 @@ class Breathing:
 
 # ------------------------------------------------------------------------------ body motion
 
+def _three(v) -> tuple[float, float, float]:
+    """Three numbers (a vector of 3) as a tuple of floats."""
+    x, y, z = (float(c) for c in v)
+    return x, y, z
+
+
 @dataclass
 class BodyMove:
     """A sudden shift and turn of the whole body over [t_start, t_end]: a rotation (deg, a
@@ -204,16 +210,17 @@ class BodyMotion:
             trans = size_mm * d / np.linalg.norm(d)
             dur = rng.uniform(0.4, 1.5)
             t = t0 + still_s + float(ts)
-            moves.append(BodyMove(t, t + dur, tuple(map(float, rot)), tuple(map(float, trans))))
+            moves.append(BodyMove(t, t + dur, _three(rot), _three(trans)))
         creeps = []
         if creep_mm:
             d = np.array([rng.normal(0, 0.3), rng.normal(0, 0.3), 1.0])
-            creeps.append(Creep(t0 + still_s, t0 + duration_s, tuple(map(float, creep_mm * d / np.linalg.norm(d)))))
+            creeps.append(Creep(t0 + still_s, t0 + duration_s, _three(creep_mm * d / np.linalg.norm(d))))
         return cls(moves, creeps)
 
     def shift(self, dt: float) -> None:
         """Every move and creep ``dt`` seconds later (the same objects: whoever holds one sees it)."""
-        for m in [*self.moves, *self.creeps]:
+        shifted: list[BodyMove | Creep] = [*self.moves, *self.creeps]
+        for m in shifted:
             vars(m).update(t_start=m.t_start + dt, t_end=m.t_end + dt)   # both at once
 
     def pose(self, t: float) -> tuple[np.ndarray, np.ndarray]:

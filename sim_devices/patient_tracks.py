@@ -40,14 +40,14 @@ def synthetic_tracks(patient, t0: float, duration_s: float, *, fps: float = 25.0
             a = rng.uniform(t[0], t[-1] - dropout_s)
             keep[:, m] &= ~((t >= a) & (t < a + dropout_s))
     ids = rng.permutation(M) + 1
-    pf, mk, xyz = [], [], []
+    pf, mk, points = [], [], []
     for f in range(F):
-        for m in np.flatnonzero(keep[f]):
+        for j in np.flatnonzero(keep[f]):
             pf.append(f)
-            mk.append(ids[m])
-            xyz.append(pos[f, m])
+            mk.append(ids[j])
+            points.append(pos[f, j])
     N = len(pf)
-    xyz = np.array(xyz).reshape(-1, 3)
+    xyz = np.array(points).reshape(-1, 3)
     tr = Tracks(host_time=t, camera_names=["cam1", "cam2"], camera_time=np.column_stack([t, t]),
                 camera_frame=np.column_stack([np.arange(F), np.arange(F)]), n_blobs=np.full((F, 2), M),
                 point_frame=np.array(pf, int), marker=np.array(mk, int), xyz=xyz, reproj_px=np.zeros(N),

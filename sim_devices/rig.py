@@ -71,8 +71,8 @@ class SimRig:
         if trigger not in TRIGGERS:
             raise ValueError(f"trigger must be one of {', '.join(TRIGGERS)}, not {trigger!r}")
         self.trigger = trigger
-        self.trigger_box = None  # the firmware in the emulator, when trigger == "triggerbox"
-        self.function_generator = None  # a 33522B on a TCP socket, when trigger == "visa"
+        self.trigger_box: SimTriggerBox | None = None  # the firmware in the emulator, when trigger == "triggerbox"
+        self.function_generator: SimFunctionGenerator | None = None  # a 33522B on a TCP socket, when trigger == "visa"
         self.qatrack = qatrack          # a simulated QATrack+ beside the rig (qatrack_rig.py)
         self.qatrack_site = None
         self.clock = clock or RealClock()
@@ -80,7 +80,7 @@ class SimRig:
         # a stop of GANTRY_DWELL_S) and on for as long as the rig runs; without it there are none
         self.scene = Scene.reference(seed=seed, n_cameras=n_cameras, start_epoch=self.clock.now(),
                                      gantry=gantry)
-        if gantry:
+        if self.scene.gantry is not None:      # (given gantry)
             self.scene.gantry.step_and_shoot(self.scene.start_epoch, 3.0, GANTRY_STEPS, GANTRY_DWELL_S,
                                              GANTRY_MOVE_S, start_deg=0.0)
         # patient: a PatientOptions (sim_devices/patient_rig.py): the simulated patient on the table
@@ -116,10 +116,10 @@ class SimRig:
                         for (name, src), model in zip(self.sources.items(), models)}
         # announce: the cameras announce themselves on loopback (mDNS and SSDP, sim_devices/announce.py)
         self.announce = announce
-        self.announcer = None
+        self.announcer: Announcer | None = None
         for name, srv in self.servers.items():     # each camera's shutter time, from its model profile
             self.renderer.exposure[name] = srv.profile.exposure_ms / 1000.0
-        self.bank = None        # frames made ahead of time (prerender)
+        self.bank: FrameBank | None = None        # frames made ahead of time (prerender)
         self._on_play: list = []
         self._started = False
 
@@ -303,17 +303,18 @@ def serve(folder: str | Path | None, n_cameras: int, seed: int, firmware: str = 
 
     signal.signal(signal.SIGTERM, _stop)
     signal.signal(signal.SIGINT, _stop)
-    tls = None
+    tls: tuple[str, str] | None = None
     if https:  # a self-signed certificate beside rig.yaml (or in a folder of its own)
         from tempfile import mkdtemp
 
-        tls = tuple(str(p) for p in self_signed(folder if folder is not None else mkdtemp(prefix="vts-sim-tls-")))
+        cert, key = self_signed(folder if folder is not None else mkdtemp(prefix="vts-sim-tls-"))
+        tls = (str(cert), str(key))
     rig = SimRig(n_cameras=n_cameras, seed=seed, firmware=firmware, clock=clock, trigger=trigger, tls=tls,
                  gantry=gantry, patient=patient, qatrack=qatrack, warmup_drift=warmup_drift, announce=announce)
     for srv in rig.servers.values() if warmup_drift else ():   # started now: the drift counts from here
         srv.reboot()
     follower = None
-    if spect:
+    if spect and folder is not None:       # (a SPECT without a folder was refused above)
         sources = None
         if rig.patient is not None:
             sources = [heart_source(rig.patient)]

@@ -24,7 +24,7 @@ import bisect
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import cv2
 import numpy as np
@@ -32,6 +32,11 @@ import numpy as np
 from vts_hw.recording.axis_jpeg import AxisProduct
 from vts_hw.sim_devices.camera_motion import DAY, CameraClock, CameraDrift  # noqa: F401  (re-exported)
 from vts_hw.sim_devices.gantry import Gantry
+
+if TYPE_CHECKING:       # they read and fill the scene's tables (each imports this module)
+    from vts_hw.sim_devices.clock_warmup import ClockWarmup
+    from vts_hw.sim_devices.optics import Optics
+    from vts_hw.sim_devices.warmup import WarmupDrift
 
 # Reference rig (docs/design.md, "The room"). Millimetres, pixels.
 CAM_Y = 1100.0          # camera height above the table axis (2.1 m above a floor 1.0 m below the axis)
@@ -233,7 +238,9 @@ class RigidBody:
 
 
 def _pose(rvec, translation) -> Pose:
-    return (tuple(float(x) for x in np.ravel(rvec)), tuple(float(x) for x in np.ravel(translation)))
+    rx, ry, rz = (float(x) for x in np.ravel(rvec))
+    tx, ty, tz = (float(x) for x in np.ravel(translation))
+    return (rx, ry, rz), (tx, ty, tz)
 
 
 def camera_positions(n_cameras: int) -> list[tuple[float, float, float]]:
@@ -270,9 +277,14 @@ class Scene:
         self.table = Schedule((0.0, 0.0))  # (y, z) offsets of the table, mm
         self.bodies: dict[str, RigidBody] = {}
         self._leds = {name: Schedule(False) for name in self.cameras}
-        self.gantry = None  # the SPECT heads (sim_devices/gantry.py), when the room has them
-        self.optics, self.mounts = {}, {}  # focus and mount; turned mounts' rvecs (sim_devices/optics.py)
-        self.warmups, self.booted, self.clock_warmups = {}, {}, {}  # warm-up declared (warmup.py, clock_warmup.py)
+        self.gantry: Gantry | None = None  # the SPECT heads (sim_devices/gantry.py), when the room has them
+        # focus and mount; turned mounts' rvecs (sim_devices/optics.py)
+        self.optics: dict[str, Optics] = {}
+        self.mounts: dict[str, np.ndarray] = {}
+        # warm-up declared (warmup.py, clock_warmup.py), and when each camera booted
+        self.warmups: dict[str, WarmupDrift] = {}
+        self.booted: dict[str, float] = {}
+        self.clock_warmups: dict[str, ClockWarmup] = {}
 
     # ----------------------------------------------------------------- construction
     @classmethod

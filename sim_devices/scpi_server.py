@@ -24,6 +24,7 @@ import threading
 import time
 from dataclasses import astuple, fields
 from pathlib import Path
+from typing import TextIO
 
 from vts_hw.files import open_writable
 from vts_hw.sim_devices.keysight_33500 import Keysight33500, OutputEvent
@@ -92,7 +93,7 @@ class SimFunctionGenerator:
         self._thread: threading.Thread | None = None
         self._clients: set[socket.socket] = set()
         self._lock = threading.Lock()
-        self._log_file = None
+        self._log_file: TextIO | None = None
         self._log_error: str | None = None
 
     @property

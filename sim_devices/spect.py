@@ -25,7 +25,7 @@ from vts_hw.sim_devices.scene import (PHANTOM_LAYOUT, PHANTOM_PLACEMENT, SPHERE_
 from vts_hw.spect.dicom_nm import write_dicom_nm
 from vts_hw.spect.interfile import write_interfile
 from vts_hw.spect.npz import write_npz
-from vts_hw.spect.volume import Volume
+from vts_hw.spect.volume import Volume, triple
 
 FWHM_TO_SIGMA = 1.0 / (2.0 * np.sqrt(2.0 * np.log(2.0)))
 
@@ -67,8 +67,8 @@ class SimSpect:
     def _grid(self) -> Volume:
         n = np.asarray(self.matrix)
         origin_zyx = -(n - 1) / 2.0 * self.voxel_size  # FOV centred on the SPECT origin
-        return Volume(np.zeros(self.matrix, np.float32), (self.voxel_size,) * 3,
-                      origin_zyx[::-1])
+        return Volume(np.zeros(self.matrix, np.float32), triple((self.voxel_size,) * 3),
+                      triple(origin_zyx[::-1]))
 
     def expected(self, centres, diameter: float = SPHERE_DIAMETER, rng=None) -> Volume:
         """The noise-free volume (mean counts per voxel)."""

@@ -87,7 +87,8 @@ class SpectFollower:
             box = self.rig.trigger_box
             if box is None or not box.running():
                 continue
-            scan, out = None, None        # (fire, end) host s of the scan being followed; its file
+            scan: tuple[float, float | None] | None = None    # (fire, end) host s of the scan being followed
+            out: Path | None = None                     # its file
             try:
                 starts = self._rising("CH2", seen_cycle)
                 if not starts:
@@ -111,15 +112,16 @@ class SpectFollower:
                     self._failed(fire, None, "the simulated rig was stopped while the scan was running")
                     return
                 seen_cycle = last
-                scan = (fire, box.host_time(last))
+                end = box.host_time(last)
+                scan = (fire, end)
                 if cut:
                     self.log(f"sim SPECT: the next scan's start pulse came before the square wave of the scan "
                              f"started at {_iso(fire)} had been quiet for {WAVE_ENDED_S:g} s (its host killed with "
                              f"the wave on?): that acquisition ends with the wave's last edge before the pulse, "
-                             f"{_iso(scan[1])}")
-                duration = scan[1] - fire - SPECT_TAIL_S
+                             f"{_iso(end)}")
+                duration = end - fire - SPECT_TAIL_S
                 if duration <= 1.0:
-                    self._failed(*scan, f"the scan was too short to record ({duration + SPECT_TAIL_S:.1f} s "
+                    self._failed(fire, end, f"the scan was too short to record ({duration + SPECT_TAIL_S:.1f} s "
                                         f"of square wave; more than {1.0 + SPECT_TAIL_S:g} s needed)")
                     continue
                 n += 1
@@ -137,7 +139,8 @@ class SpectFollower:
                     why = str(exc)
                 elif isinstance(exc, ValueError):    # the simulation's own refusal, in its words
                     why = f"the scan's trigger could not be followed: {exc}"
-                self._failed(*(scan or (None, None)), why)
+                started, ended = scan if scan is not None else (None, None)
+                self._failed(started, ended, why)
 
     def _failed(self, start: float | None, end: float | None, reason: str) -> None:
         """Say it in sim.log and leave a failure record where the list-mode would have gone

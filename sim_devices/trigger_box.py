@@ -177,6 +177,8 @@ class SimTriggerBox:
         their defaults) on a new pty. Returns the new :attr:`port`."""
         self._terminate()
         self.start()
+        if self.port is None:       # start() makes it (or raises)
+            raise RuntimeError("the simulated trigger box started without a port")
         return self.port
 
     def running(self) -> bool:
