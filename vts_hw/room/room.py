@@ -72,7 +72,7 @@ class Room:
 
     def __init__(self, rig: RigConfig, *, clock: Callable[[], float] | None = None,
                  store: str | os.PathLike | StoreTarget | None = None, store_mode: str = "create",
-                 trigger_log: str | os.PathLike | None = None):
+                 trigger_log: str | Path | None = None):
         self.rig = rig
         self.clock = clock or time.time
         self._store_target = store
