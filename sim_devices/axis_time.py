@@ -33,7 +33,8 @@ def time_api(h: "Handler", method: str) -> None:
     if request is None:
         return
     name = request.get("method")
-    params = request.get("params") if isinstance(request.get("params"), dict) else {}
+    given = request.get("params")
+    params = given if isinstance(given, dict) else {}
     store = h.cam.params
     if name == "getDateTimeInfo":
         t = datetime.fromtimestamp(h.cam.camera_time(), timezone.utc)

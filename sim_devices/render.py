@@ -38,11 +38,12 @@ from __future__ import annotations
 import random
 import threading
 from collections import OrderedDict
+from typing import Any
 
 import cv2
 import numpy as np
 
-from vts_hw.sim_devices.scene import Scene, Schedule
+from vts_hw.sim_devices.scene import Marker, Scene, Schedule
 
 # Sphere brightness profile: (scale of the outline, weight); weights sum to 1, so the centre
 # is at full level and the rim at 0.35 of it.
@@ -198,7 +199,7 @@ class Renderer:
         shared: do not modify it."""
         camera, markers, uv, _ = self.scene.project_markers(cam, t)
         led = self.scene.led_on(cam, t) if led is None else bool(led)
-        key = (led, tuple(np.round(uv, 3).ravel().tolist()), self.scene.pose_key(t))
+        key: tuple[Any, ...] = (led, tuple(np.round(uv, 3).ravel().tolist()), self.scene.pose_key(t))
         smear, ends = self._smear(cam, camera, markers, uv, t)
         if smear:
             key += (("blur", ends),)
@@ -237,7 +238,8 @@ class Renderer:
         times = t + exposure * ((np.arange(n) + 0.5) / n - 0.5)
         y, z = self.scene.table.at(t)
         offset = np.array([0.0, y, z])
-        paths, k = {}, len(self.scene.wall_markers)
+        paths: dict[int, list[Marker]] = {}
+        k = len(self.scene.wall_markers)
         for body in list(self.scene.bodies.values()):
             count = len(body.markers)
             if not isinstance(body.pose, Schedule):
