@@ -22,8 +22,12 @@ import logging
 import socket
 import struct
 import threading
+from typing import TYPE_CHECKING
 
 from ssdp.messages import SSDPRequest, SSDPResponse
+
+if TYPE_CHECKING:
+    from zeroconf import Zeroconf
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +45,7 @@ class Announcer:
     def __init__(self, cameras, *, mdns: bool = True, ssdp: bool = True, ssdp_port: int = SSDP_PORT):
         self.cameras = list(cameras)
         self.mdns, self.ssdp, self.ssdp_port = mdns, ssdp, ssdp_port
-        self._zc = None
+        self._zc: Zeroconf | None = None
         self._infos: list = []
         self._sock: socket.socket | None = None
         self._thread: threading.Thread | None = None
@@ -84,13 +88,13 @@ class Announcer:
     def _start_mdns(self) -> None:
         from zeroconf import IPVersion, ServiceInfo, Zeroconf
 
-        self._zc = Zeroconf(interfaces=[LOOPBACK], ip_version=IPVersion.V4Only)
+        self._zc = zc = Zeroconf(interfaces=[LOOPBACK], ip_version=IPVersion.V4Only)
         for cam in self.cameras:
             info = ServiceInfo(MDNS_TYPE, f"{cam.friendly_name}.{MDNS_TYPE}", port=cam.port,
                                properties={"macaddress": cam.serial},
                                server=f"axis-{cam.serial.lower()}.local.", parsed_addresses=[LOOPBACK])
             # the serial is in the name: a name already taken is another camera's (never renamed)
-            self._zc.register_service(info, allow_name_change=False)
+            zc.register_service(info, allow_name_change=False)
             self._infos.append(info)
 
     # -- SSDP ---------------------------------------------------------------------------------
@@ -105,13 +109,13 @@ class Announcer:
         sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton(LOOPBACK))
         sock.settimeout(0.2)
         self._sock = sock
-        self._thread = threading.Thread(target=self._serve, name="sim-ssdp", daemon=True)
+        self._thread = threading.Thread(target=self._serve, args=(sock,), name="sim-ssdp", daemon=True)
         self._thread.start()
 
-    def _serve(self) -> None:
+    def _serve(self, sock: socket.socket) -> None:
         while not self._stop.is_set():
             try:
-                data, addr = self._sock.recvfrom(8192)
+                data, addr = sock.recvfrom(8192)
             except socket.timeout:
                 continue
             except OSError:
@@ -130,9 +134,9 @@ class Announcer:
                 continue
             self.searches += 1
             for cam in self.cameras:
-                self._answer(cam, target, addr)
+                self._answer(sock, cam, target, addr)
 
-    def _answer(self, cam, target: str, addr) -> None:
+    def _answer(self, sock: socket.socket, cam, target: str, addr) -> None:
         st = AXIS_ST if target == "ssdp:all" else target
         usn = f"uuid:Upnp-BasicDevice-1_0-{cam.serial}" + ("" if st.startswith("uuid:") else f"::{st}")
         reply = SSDPResponse(200, "OK", headers=[
@@ -141,6 +145,6 @@ class Announcer:
             ("SERVER", "Linux/4.9, UPnP/1.0, Portable SDK for UPnP devices/1.6.18"),
             ("ST", st), ("USN", usn)])
         try:
-            self._sock.sendto(bytes(reply), addr)
+            sock.sendto(bytes(reply), addr)
         except OSError as exc:
             log.debug("SSDP answer to %s not sent: %s", addr, exc)

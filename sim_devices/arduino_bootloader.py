@@ -213,7 +213,7 @@ class SimArduinoBoard:
 
     def _bridge(self) -> None:
         """Copy bytes both ways between our pty and the emulator's until stopped."""
-        if self.app is None:
+        if self.app is None or self.app.port is None:
             while not self._stop.wait(0.1):   # nothing runs: input is dropped, as a dead board would
                 self._read(4096, 0)
             return

@@ -47,7 +47,7 @@ import sys
 import threading
 from http.server import ThreadingHTTPServer
 from ipaddress import ip_address
-from typing import Any
+from typing import Any, Self
 
 import cv2
 import numpy as np
@@ -281,6 +281,8 @@ class SimAxisCamera:
         epoch += self.faults.clock_offset(self.clock.now() if host_t is None else host_t)
         if (width, height) != (self.source.width, self.source.height):
             image = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_UNCHANGED)
+            if image is None:        # the scene's own JPEG: always decodable
+                raise RuntimeError("the simulated camera's source gave a JPEG OpenCV cannot read")
             small = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
             _, enc = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, quality])
             jpeg = enc.tobytes()
@@ -304,7 +306,7 @@ class _Server(ThreadingHTTPServer):
     camera: SimAxisCamera
     ssl_context: ssl.SSLContext | None = None
 
-    def finish_request(self, request, client_address) -> None:
+    def finish_request(self: Self, request, client_address) -> None:
         """HTTPS: the TLS handshake happens here, in the connection's own thread, so that a
         slow or broken client never holds up the others."""
         if self.ssl_context is None:
