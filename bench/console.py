@@ -165,7 +165,7 @@ def main() -> int:
             rig.ntp_sync()
             rig_yaml, _ = rig.write(tmp / "rig")
             cfg = yaml.safe_load(rig_yaml.read_text())
-            cfg["calibration"]["stereo"] = str(tmp / "rig" / "cameras.json")   # all four cameras
+            cfg["calibration"]["cameras"] = str(tmp / "rig" / "cameras.json")   # all four cameras
             rig_yaml.write_text(yaml.safe_dump(cfg))
             env = {**os.environ, **rig.env_vars(), "VTS_CONFIG": str(rig_yaml),
                    "VTS_STORE": f"sqlite:///{tmp / 'results.sqlite'}"}

@@ -200,7 +200,7 @@ def main() -> int:
             rig.ntp_sync()
             rig_yaml, _ = rig.write(tmp / "rig")
             cfg = yaml.safe_load(rig_yaml.read_text())
-            cfg["calibration"]["stereo"] = str(tmp / "rig" / "cameras.json")   # all four cameras
+            cfg["calibration"]["cameras"] = str(tmp / "rig" / "cameras.json")   # all four cameras
             if a.alert_after is not None:
                 cfg["motion"] = {"alert_after_s": a.alert_after}
             rig_yaml.write_text(yaml.safe_dump(cfg))

@@ -201,7 +201,7 @@ def test_a_scan_that_learned_no_reference_says_so_and_exits_4(tmp_path):
     never `complete` and 0 with nobody watching."""
     rig, rig_yaml, _ = _rig(tmp_path, breathing=False)
     cfg = yaml.safe_load(rig_yaml.read_text())
-    cfg["calibration"]["spect"] = None
+    cfg["calibration"]["mapping"] = None
     rig_yaml.write_text(yaml.safe_dump(cfg))
     try:
         run, m = _scan(rig, rig_yaml, tmp_path / "scan", 12.0, None)

@@ -124,7 +124,7 @@ class PatientRig:
             self.yamls = {}
             for n in self.cameras:
                 c = dict(cfg, cameras=cfg["cameras"][:n])
-                c["calibration"] = dict(cfg["calibration"], stereo=str(self.work / "rig" / (
+                c["calibration"] = dict(cfg["calibration"], cameras=str(self.work / "rig" / (
                     "calibration.json" if n == 2 else "cameras.json")))
                 self.yamls[n] = self.work / f"rig-{n}cams.yaml"
                 self.yamls[n].write_text(yaml.safe_dump(c))
