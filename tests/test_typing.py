@@ -25,6 +25,7 @@ REPO = Path(__file__).resolve().parents[1]
 CLEAN = (
     "drivers",
     "procedures",
+    "sim_devices",
     "vts_hw/*.py",
     "vts_hw/cli",
     "vts_hw/console",
@@ -51,6 +52,16 @@ NOT_YET = {
     "procedures/scan.py": "waits on the room (issue 34 §1)",
     "procedures/scan_live.py": "waits on the room (issue 34 §1)",
     "procedures/scan_trigger.py": "waits on the room (issue 34 §1): its trigger is typed None until opened",
+    # the scenarios open their rooms (issue 34 §1, under way)
+    "sim_devices/scenarios/demo_days.py": "waits on the room (issue 34 §1)",
+    "sim_devices/scenarios/demo_patient.py": "waits on the room (issue 34 §1)",
+    "sim_devices/scenarios/demo_rig.py": "waits on the room (issue 34 §1)",
+    "sim_devices/scenarios/patient_scan.py": "waits on the room (issue 34 §1)",
+    "sim_devices/scenarios/step_chain.py": "waits on the room (issue 34 §1)",
+    # Scene.bodies holds RigidBody; a Patient is duck-typed as one: a body protocol is the fix
+    "sim_devices/patient.py": "a Patient is duck-typed as a RigidBody (Scene.add_body): wants a body protocol",
+    # a recording's index rows have optional times; the simulated one always has both
+    "sim_devices/recording_sim.py": "an index row's times are optional: the reader's narrowing to come",
     # Camera.stream() is typed Iterator[Frame | StreamGap] in vts_hw/camera.py; both drivers return
     # a FrameStream, whose stop(), stats and shortfall() these use
     "vts_hw/recording/capture.py": "waits on Camera.stream() -> FrameStream (vts_hw/camera.py)",
