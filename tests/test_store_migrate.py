@@ -11,14 +11,12 @@ import sys
 import pytest
 from sqlalchemy import create_engine, text
 
+from inprocess_cli import run
 from test_report import NOW, populate
 from vts_hw.report import build_drift_report
 from vts_hw.store import ResultsStore
 from vts_hw.store.copy import copy_store, table_counts, verify
 from vts_hw.store.paths import to_url
-
-VTS = [sys.executable, "-m", "vts_hw.cli"]
-
 
 @pytest.fixture(scope="module")
 def demo_store(tmp_path_factory) -> str:
@@ -47,7 +45,8 @@ def demo_store(tmp_path_factory) -> str:
 
 
 def _vts(*args, env=None):
-    return subprocess.run([*VTS, *args], capture_output=True, text=True, timeout=120, env=env)
+    """`vts ARGS` in this process (tests/inprocess_cli.py)."""
+    return run(*args, env=env)
 
 
 def _table(stdout: str) -> dict:
