@@ -182,7 +182,7 @@ def simulate_recording(folder, duration_s: float = 20.0, fps: float = 25.0, seed
     out.patient = the_patient
     n = int(round(duration_s * fps))
     # Frame times per camera, then rendered in time order (the band's pose is set per frame).
-    plan = []
+    plan: list[tuple[float, str, int]] = []
     for cam in names:
         t = start + phases[cam] + np.arange(n) / fps
         keep = np.ones(n, bool)
@@ -191,7 +191,8 @@ def simulate_recording(folder, duration_s: float = 20.0, fps: float = 25.0, seed
         t = t[keep]
         lat = latency_floor_s + rng.exponential(jitter_s, t.size)
         late = rng.random(t.size) < outlier_rate
-        lat[late] += rng.uniform(*outlier_s, late.sum())
+        low, high = outlier_s
+        lat[late] += rng.uniform(low, high, late.sum())
         recv = np.maximum.accumulate(t + lat)
         recv[1:] = np.maximum(recv[1:], recv[:-1] + 1e-4)
         clock = scene.clocks[cam]
@@ -214,11 +215,11 @@ def simulate_recording(folder, duration_s: float = 20.0, fps: float = 25.0, seed
                                   "reason": "simulated: connection lost",
                                   "host_time": start + t1})
         trans = band.translation(np.array([p[0] for p in plan]))
-        for (t, cam, i), tr in zip(plan, trans):
+        for (at, cam, i), tr in zip(plan, trans):
             if add_band:
                 scene.set_body_pose("band", (0.0, 0.0, 0.0), tr)
-            img = renderer.render(cam, t)
-            jpeg = stamp_jpeg(encode(img, quality), scene.clocks[cam].camera_time(t),
+            img = renderer.render(cam, at)
+            jpeg = stamp_jpeg(encode(img, quality), scene.clocks[cam].camera_time(at),
                               scene.products[cam])
             rec.write_frame(cam, jpeg, float(out.camera_time[cam][i]), float(out.host_time[cam][i]))
             done += 1
@@ -243,14 +244,16 @@ def received_frames(folder, cameras) -> tuple[list[tuple[float, str, object]], d
     from types import SimpleNamespace
 
     folder = Path(folder)
-    frames, offsets = [], {}
+    frames: list[tuple[float, str, object]] = []
+    offsets: dict[str, float] = {}
     for name in cameras:
         rows = read_index(folder / f"{name}.index.csv")
         data = (folder / f"{name}.mjpeg").read_bytes()
-        offsets[name] = statistics.median(r.camera_time - r.host_time for r in rows)
-        frames += [(r.host_time, name, SimpleNamespace(jpeg=data[r.offset:r.offset + r.length],
-                                                       camera_time=r.camera_time, host_time=r.host_time))
-                   for r in rows]
+        # a simulated recording stamps every frame with both times
+        timed = [(r, r.camera_time, r.host_time) for r in rows if r.camera_time is not None and r.host_time is not None]
+        offsets[name] = statistics.median(c - h for _, c, h in timed)
+        frames += [(h, name, SimpleNamespace(jpeg=data[r.offset:r.offset + r.length], camera_time=c, host_time=h))
+                   for r, c, h in timed]
     frames.sort(key=lambda f: f[0])
     return frames, offsets
 

@@ -60,8 +60,6 @@ NOT_YET = {
     "sim_devices/scenarios/step_chain.py": "waits on the room (issue 34 §1)",
     # Scene.bodies holds RigidBody; a Patient is duck-typed as one: a body protocol is the fix
     "sim_devices/patient.py": "a Patient is duck-typed as a RigidBody (Scene.add_body): wants a body protocol",
-    # a recording's index rows have optional times; the simulated one always has both
-    "sim_devices/recording_sim.py": "an index row's times are optional: the reader's narrowing to come",
     # Camera.stream() is typed Iterator[Frame | StreamGap] in vts_hw/camera.py; both drivers return
     # a FrameStream, whose stop(), stats and shortfall() these use
     "vts_hw/recording/capture.py": "waits on Camera.stream() -> FrameStream (vts_hw/camera.py)",
@@ -73,7 +71,6 @@ NOT_YET = {
     "vts_hw/cli/commission.py": "waits on SequenceEnd's type (procedures/commission_sequence.py)",
     # SpectMapping.transform is RigidTransform | None though analyze() sets it
     "vts_hw/cli/calibrate.py": "waits on SpectMapping.transform's type (procedures/spect_mapping.py)",
-    "vts_hw/report/html.py": "two narrowings wait on the lint edit under way in it (issue 34 §5)",
     "vts_hw/console/hub.py": "waits on Camera.stream() -> FrameStream (vts_hw/camera.py)",
 }
 

@@ -172,7 +172,7 @@ def _axis_table(report: DriftReport, cam: CameraDrift) -> str:
         s = cam.axes[a]
         c = s.control
         ctrl = (f"{c.mean:+.3f} ± {3 * c.sd:.3f} ({fmt_num(c.lower, '+.3f')} … {fmt_num(c.upper, '+.3f')})"
-                if not c.pending else f"pending ({c.n}/{CONTROL_RUNS} runs)")
+                if c.mean is not None and c.sd is not None else f"pending ({c.n}/{CONTROL_RUNS} runs)")
         w = report.window_now(a)
         fit = trend_detail(s.trend)
         action = fmt_num(w.action_low, "+g") + " / " + fmt_num(w.action_high, "+g")
@@ -239,7 +239,7 @@ def _markers_table(cam: CameraDrift) -> str:
 
 
 def _camera_section(report: DriftReport, cam: CameraDrift, prefix: str = "") -> str:
-    p = cam.latest
+    p = cam.points[-1]      # a camera with runs shown (the page's sections)
     png = base64.b64encode(figure_png(camera_figure(report, cam))).decode("ascii")
     kpis = "".join((
         _kpi("latest drift x", escape(latest_text(cam, p, "x")), "px (mm)"),
