@@ -1,0 +1,27 @@
+"""The kinds as markers (decision 0105): -m decides whether a session can reach the real
+QATrack+'s module, so that `pytest -n 2 -m unit` starts no QATrack+ install in the background
+while `-m "not slow"` (which does reach it) still does (tests/conftest.py)."""
+
+from __future__ import annotations
+
+import pytest
+
+from conftest import REAL_QATRACK_MARKS, _selects
+
+
+@pytest.mark.parametrize("expr, reaches", [
+    ("", True),
+    ("interop", True),
+    ("real_qatrack", True),
+    ("not slow", True),
+    ("unit or interop", True),
+    ("not (unit or console)", True),
+    ("unit", False),
+    ("console", False),
+    ("(unit or house) and not slow", False),
+    ("not real_qatrack", False),
+    ("interop and not real_qatrack", False),
+    ("unit and", True),                      # not an expression it reads: as if it could
+])
+def test_the_mark_expression_is_read_for_the_real_qatrack_module(expr, reaches):
+    assert _selects(expr, REAL_QATRACK_MARKS) is reaches
