@@ -65,3 +65,16 @@ def test_a_camera_that_does_not_answer_is_exit_4(rig, capsys, tmp_path):
     code, _, err = vts(capsys, "commission", "--config", y, "-o", tmp_path / "c", "--from", "warmup")
     last = err.strip().splitlines()[-1]
     assert code == 4 and last == f"vts: camera cam1 at http://127.0.0.1:{free} is unreachable (connection refused)", err
+
+
+def test_a_ledger_run_with_no_commissioning_id_is_no_step_of_one(tmp_path):
+    """A ``commission_id`` stored without a value (a store edited by hand: the ledger always
+    writes one) is not taken for a step of a commissioning, and reading the state never fails."""
+    from vts_hw.catalog import COMMISSION_STEP
+
+    with ResultsStore(f"sqlite:///{tmp_path / 'r.sqlite'}") as store:
+        with store.begin_run(COMMISSION_STEP.name, rig="room2") as h:
+            h.measure("calibration", "commission_id", None, status="OK")
+            h.measure("calibration", "step_passed", 1.0, status="OK")
+        state = load_state(store, "room2")
+    assert state.cid is None and state.steps == {}

@@ -418,6 +418,9 @@ def test_a_bad_certificate_or_key_is_one_sentence_naming_the_file(tmp_path, caps
         with pytest.raises(UsageError) as info:
             check_tls(str(c), str(k))
         assert str(info.value).startswith(said), str(info.value)
+    for c, k in ((str(cert), None), (None, str(key))):     # one without the other: said by check_tls itself
+        with pytest.raises(UsageError, match="^--certfile and --keyfile go together"):
+            check_tls(c, k)
     p = _vts_here(["console", "--certfile", str(cert), "--keyfile", str(key2), "--port", "0"], {}, capsys, monkeypatch)
     assert p.returncode == 2 and p.stderr.startswith(f"vts: {key2}: not the private key") and \
         len(p.stderr.strip().splitlines()) == 1, p.stderr
