@@ -46,15 +46,15 @@ __all__ = ["Room"]
 
 # the one loaders of the calibration and the mapping (with OpenCV and SciPy behind them) and the
 # store (SQLAlchemy) are loaded when first asked for: opening a room for the trigger loads none
-def _READ_CALIBRATION():
+def _read_calibration():
     return load("vts_hw.vision.calibration_io", "read_calibration")
 
 
-def _READ_MAPPING():
+def _read_mapping():
     return load("vts_hw.vision.registration", "read_mapping")
 
 
-def _STORE(rig: RigConfig, target, mode: str) -> ResultsStore:
+def _open_store(rig: RigConfig, target, mode: str) -> ResultsStore:
     if target is None:     # as every command resolves it: $VTS_STORE, rig.yaml's store:, the per-user file
         target = load("vts_hw.store.target", "resolve_target")(None, None, rig)
     return load("vts_hw.store", "ResultsStore")(target, mode=mode)
@@ -124,7 +124,7 @@ class Room:
         """The camera calibration rig.yaml's ``calibration.cameras`` names, read by the one loader
         (a CameraCalibration, or named cameras for a plain list); None when none is named."""
         path = self.calibration_file
-        return None if path is None else self._part("calibration", lambda: _READ_CALIBRATION()(path), closes=False)
+        return None if path is None else self._part("calibration", lambda: _read_calibration()(path), closes=False)
 
     @property
     def calibration_file(self) -> Path | None:
@@ -138,13 +138,13 @@ class Room:
         """The VTS -> SPECT mapping rig.yaml's ``calibration.mapping`` names (a RigidTransform);
         None when none is named."""
         path = self.rig.calibration.mapping
-        return None if path is None else self._part("mapping", lambda: _READ_MAPPING()(
+        return None if path is None else self._part("mapping", lambda: _read_mapping()(
             self._named_file(path, "calibration.mapping")), closes=False)
 
     @property
     def store(self) -> ResultsStore:
         """The results store (see the class), opened on first use."""
-        return self._part("store", lambda: _STORE(self.rig, self._store_target, self._store_mode))
+        return self._part("store", lambda: _open_store(self.rig, self._store_target, self._store_mode))
 
     def opened(self) -> list[str]:
         """What is open now, in opening order ("camera cam1", "trigger", "store", ...)."""
