@@ -244,8 +244,7 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
         if len(parts) != 4 or parts[0] != VENDOR or parts[1] != MODEL:
             raise TriggerError(f"{self.where} answers *IDN? with {raw!r}, not "
                                f"'{VENDOR},{MODEL},<serial>,<firmware>': is it a trigger box?")
-        vendor, model, serial_no, firmware = parts
-        self.identity = BoxIdentity(vendor, model, serial_no, firmware, raw=raw)
+        self.identity = BoxIdentity(parts[0], parts[1], parts[2], parts[3], raw=raw)
         return self.identity
 
     def reset(self) -> None:
@@ -423,8 +422,7 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
         if not st.running:
             return
         wrong = st.not_a_square_wave()
-        frequency, duty = st.frequency_hz, st.duty      # both set when it is a square wave
-        if wrong or frequency is None or duty is None:  # nothing to time the scan by: say so rather than log it
+        if wrong or (frequency := st.frequency_hz) is None or (duty := st.duty) is None:   # nothing to time by
             raise TriggerError(f"{self.where} answered {cmd!r} but confirms {wrong}: not a square wave")
         period, first, m = 1.0 / frequency, st.first_edge_device_us, self.mapping
         if m is not None and first is not None:
