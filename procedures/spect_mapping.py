@@ -192,7 +192,7 @@ def correspondence(a, b, fre_limit_mm: float = FRE_LIMIT_MM) -> Correspondence:
     return _match(a, b, float(fre_limit_mm))
 
 
-class _Fitted(NamedTuple):
+class Fitted(NamedTuple):
     """What SpectMapping.analyze() found, all of it."""
     match: Correspondence
     transform: RigidTransform
@@ -288,20 +288,21 @@ class SpectMapping:
         self.analyzed_at = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
         return self
 
-    def _need(self) -> _Fitted:
-        """What analyze() found; RuntimeError before it."""
+    def fitted(self) -> Fitted:
+        """What analyze() found (the correspondence, the transform, its residuals and TRE);
+        RuntimeError before it."""
         if self.match is None or self.transform is None or self.residuals_mm is None or self.tre is None:
             raise RuntimeError("call analyze() first")
-        return _Fitted(self.match, self.transform, self.residuals_mm, self.tre)
+        return Fitted(self.match, self.transform, self.residuals_mm, self.tre)
 
     @property
     def correspondence(self) -> list[int]:
         """``correspondence[i]``: the index in ``spect_points`` of VTS point ``i``."""
-        return list(self._need().match.order)
+        return list(self.fitted().match.order)
 
     @property
     def fre_mm(self) -> float:
-        return self._need().match.fre_mm
+        return self.fitted().match.fre_mm
 
     def _figures(self) -> dict:
         """Correspondence, FRE and TRE: kept with the saved transform and in the results (made
@@ -333,7 +334,7 @@ class SpectMapping:
     @property
     def measures(self) -> list[Measure]:
         """FRE and leave-one-out TRE RMS, judged by the tolerance table (subject: the phantom)."""
-        fit = self._need()
+        fit = self.fitted()
         tol = merged_tolerances(self.tolerances)
         return [Measure.judged("phantom", "mapping_fre_mm", fit.match.fre_mm, "mm", tol["mapping_fre_mm"]),
                 Measure.judged("phantom", "mapping_tre_rms_mm", fit.tre.rms, "mm", tol["mapping_tre_rms_mm"])]
@@ -346,7 +347,7 @@ class SpectMapping:
         """Per sphere: the fit's residual and the leave-one-out TRE (mm), the limits marked."""
         from matplotlib.figure import Figure
 
-        fit = self._need()
+        fit = self.fitted()
         tol = merged_tolerances(self.tolerances)
         fig = Figure(figsize=(7, 3.6))
         ax = fig.add_subplot()
@@ -366,7 +367,7 @@ class SpectMapping:
     # ------------------------------------------------------------------ output
     def results_data(self) -> dict:
         """JSON-ready results: date, software version, transform, FRE and TRE (mm)."""
-        fit = self._need()
+        fit = self.fitted()
         T = fit.transform
         return {
             "procedure": catalog.MAPPING.name,
@@ -409,7 +410,7 @@ class SpectMapping:
     def save(self, path) -> Path:
         """Write the VTS → SPECT transform file (FRE and TRE in its meta); read it back with
         :meth:`RigidTransform.load`."""
-        return self._need().transform.save(path)
+        return self.fitted().transform.save(path)
 
 
 def _read_volume(path):
