@@ -33,6 +33,7 @@ CLEAN = (
     "vts_hw/qatrack",
     "vts_hw/recording",
     "vts_hw/report",
+    "vts_hw/room",
     "vts_hw/spect",
     "vts_hw/store",
     "vts_hw/timing",
