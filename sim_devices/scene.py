@@ -24,7 +24,7 @@ import bisect
 import threading
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 import cv2
 import numpy as np
@@ -218,6 +218,22 @@ class Schedule:
 Pose = tuple[tuple[float, float, float], tuple[float, float, float]]  # (rotvec, translation)
 
 
+class Body(Protocol):
+    """What the scene asks of a body on its table: a :class:`RigidBody`, or the simulated patient
+    (sim_devices/patient.py), whose markers breathe and move."""
+
+    name: str
+    pose: Any            # RigidBody's: a Schedule of poses (set_body_pose); a patient's: a key for caches
+
+    @property
+    def markers(self) -> list[Marker]: ...
+
+    def markers_at(self, t: float, table_offset: np.ndarray) -> list[Marker]: ...
+
+
+B = TypeVar("B", bound=Body)
+
+
 class RigidBody:
     """Markers fixed to one body carried by the table (the phantom, a patient band).
 
@@ -275,7 +291,7 @@ class Scene:
         self.wall_markers = list(wall_markers)
         self.start_epoch = float(start_epoch)
         self.table = Schedule((0.0, 0.0))  # (y, z) offsets of the table, mm
-        self.bodies: dict[str, RigidBody] = {}
+        self.bodies: dict[str, Body] = {}
         self._leds = {name: Schedule(False) for name in self.cameras}
         self.gantry: Gantry | None = None  # the SPECT heads (sim_devices/gantry.py), when the room has them
         # focus and mount; turned mounts' rvecs (sim_devices/optics.py)
@@ -347,7 +363,7 @@ class Scene:
         return [Marker(marker_id, centre + u * e_u + v * e_v, normal, WALL_DIAMETER, "disk")
                 for marker_id, (u, v) in layout.items()]
 
-    def add_body(self, body: RigidBody) -> RigidBody:
+    def add_body(self, body: B) -> B:
         self.bodies[body.name] = body
         return body
 

@@ -59,8 +59,6 @@ NOT_YET = {
     "sim_devices/scenarios/demo_rig.py": "waits on the room (issue 34 §1)",
     "sim_devices/scenarios/patient_scan.py": "waits on the room (issue 34 §1)",
     "sim_devices/scenarios/step_chain.py": "waits on the room (issue 34 §1)",
-    # Scene.bodies holds RigidBody; a Patient is duck-typed as one: a body protocol is the fix
-    "sim_devices/patient.py": "a Patient is duck-typed as a RigidBody (Scene.add_body): wants a body protocol",
     # Camera.stream() is typed Iterator[Frame | StreamGap] in vts_hw/camera.py; both drivers return
     # a FrameStream, whose stop(), stats and shortfall() these use
     "vts_hw/recording/capture.py": "waits on Camera.stream() -> FrameStream (vts_hw/camera.py)",
