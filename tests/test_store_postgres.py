@@ -8,12 +8,11 @@ from __future__ import annotations
 import json
 import logging
 import os
-import subprocess
-import sys
 
 import pytest
 from sqlalchemy import create_engine, inspect, text
 
+from inprocess_cli import run
 from pgserver import PASSWORD_ENV
 from test_store import DRIFT
 from test_store_schema import V1
@@ -24,7 +23,6 @@ from vts_hw.store.paths import to_url
 from vts_hw.store.target import ENV_STORE, ENV_STORE_PASSWORD_ENV, resolve_target
 from vts_hw.tolerance import State
 
-VTS = [sys.executable, "-m", "vts_hw.cli"]
 
 # version 1 as vts-hw created it on PostgreSQL (SERIAL keys, named constraints), with the rows
 # of the SQLite version-1 test; the sequences continue after the ids given explicitly
@@ -188,19 +186,16 @@ def test_rig_yaml_store_section_with_password_env_through_the_cli(pg_server, tmp
                    f"store:\n  url: {url}\n  password_env: ROOM7_DB_PW\n")
     env = {k: v for k, v in os.environ.items() if k not in (ENV_STORE, ENV_STORE_PASSWORD_ENV)}
     env["VTS_CONFIG"] = str(cfg)
-    p = subprocess.run([*VTS, "store", "info"], env=dict(env, ROOM7_DB_PW=pg_server.password),
-                       capture_output=True, text=True, timeout=60)
+    p = run("store", "info", env=dict(env, ROOM7_DB_PW=pg_server.password))
     assert p.returncode == 3 and "is an empty database" in p.stderr     # reading makes no store (`store init` does)
-    p = subprocess.run([*VTS, "store", "init", url, "--password-env", "ROOM7_DB_PW"],
-                       env=dict(env, ROOM7_DB_PW=pg_server.password), capture_output=True, text=True, timeout=60)
+    p = run("store", "init", url, "--password-env", "ROOM7_DB_PW", env=dict(env, ROOM7_DB_PW=pg_server.password))
     assert p.returncode == 0 and "results store created" in p.stdout, p.stderr
-    p = subprocess.run([*VTS, "store", "info", "--json"], env=dict(env, ROOM7_DB_PW=pg_server.password),
-                       capture_output=True, text=True, timeout=60)
+    p = run("store", "info", "--json", env=dict(env, ROOM7_DB_PW=pg_server.password))
     assert p.returncode == 0, p.stderr
     info = json.loads(p.stdout)
     assert info["schema_version"] == SCHEMA_VERSION and info["from"] == "rig.yaml store.url"
     assert info["url"].endswith(url.split("://")[1]) and pg_server.password not in p.stdout
-    p = subprocess.run([*VTS, "store", "info"], env=env, capture_output=True, text=True, timeout=60)
+    p = run("store", "info", env=env)
     assert p.returncode == 3 and "ROOM7_DB_PW" in p.stderr and "Traceback" not in p.stderr
     assert len(p.stderr.strip().splitlines()) == 1
 
@@ -254,7 +249,7 @@ def test_vts_store_option_and_env_pick_the_store(tmp_path):
     cfg.write_text(f"rig: r\ncameras:\n  - name: cam1\n    host: 127.0.0.1\nresults:\n  url: sqlite:///{tmp_path}/rig.sqlite\n")
 
     def info(*args, **extra):
-        p = subprocess.run([*VTS, *args], env=dict(env, **extra), capture_output=True, text=True, timeout=60)
+        p = run(*args, env=dict(env, **extra))
         return p.returncode, (json.loads(p.stdout) if p.returncode == 0 else p.stderr)
     for name in ("rig", "env", "cli"):   # `store info` reads: the stores exist
         ResultsStore(tmp_path / f"{name}.sqlite").close()
@@ -284,9 +279,8 @@ def test_vts_store_takes_a_report_from_postgresql_with_the_password_from_its_var
     env = {k: v for k, v in os.environ.items() if k not in (ENV_STORE, ENV_STORE_PASSWORD_ENV, PASSWORD_ENV)}
     env.update(VTS_CONFIG=str(cfg), DEPT_DB_PW=pg_server.password)
     out = tmp_path / "drift.html"
-    p = subprocess.run([*VTS, "--store", url, "--store-password-env", "DEPT_DB_PW", "report", "drift",
-                        "--since", "all", "-o", str(out), "--json"], env=env, capture_output=True, text=True,
-                       timeout=120)
+    p = run("--store", url, "--store-password-env", "DEPT_DB_PW", "report", "drift", "--since", "all", "-o", out,
+            "--json", env=env)
     assert p.returncode == 0, p.stderr
     data = json.loads(p.stdout)
     assert set(data["cameras"]) == {"cam1", "cam2"} and not (tmp_path / "room.sqlite").exists()
