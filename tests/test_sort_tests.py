@@ -70,6 +70,7 @@ def checkout(tmp_path) -> Path:
     (root / "tests" / "data" / "x.json").write_text("{}")
     (root / "tests" / "durations.json").write_text(json.dumps({"tests/test_alpha.py": 1.0, "tests/test_beta.py": 2.0}))
     (root / "docs" / "faults.md").write_text(DOC)
+    (root / "docs" / "crlf.md").write_bytes(b"see tests/test_alpha.py\r\nend\r\n")
     _git(root, "init", "-q")
     _git(root, "add", ".")
     _git(root, "-c", "user.name=t", "-c", "user.email=t@example.invalid", "commit", "-q", "-m", "start")
@@ -104,6 +105,7 @@ def test_the_modules_move_to_their_kind_and_every_reference_follows(checkout):
     doc = (checkout / "docs" / "faults.md").read_text()
     assert "Run `tests/unit/test_alpha.py`" in doc and "`tests/*/test_store*.py`" in doc
     assert "tests/integration/test_beta.py (**b**)" in doc and "| tests/integration/test_beta.py::test_beta |" in doc
+    assert (checkout / "docs" / "crlf.md").read_bytes() == b"see tests/unit/test_alpha.py\r\nend\r\n"   # line ends kept
 
     # the moved modules find the repository, tests/data and each other's helpers
     env_path = f"{tests / 'unit'}:{tests / 'integration'}"
@@ -161,13 +163,13 @@ def test_stopped_half_way_it_puts_the_checkout_back(checkout, monkeypatch, capsy
     script = importlib.util.module_from_spec(spec)
     monkeypatch.setitem(sys.modules, spec.name, script)       # (its dataclass looks itself up there)
     spec.loader.exec_module(script)
-    write = Path.write_text
+    write = Path.write_bytes
 
     def full_disk(self, *args, **kwargs):
         if self.name == "faults.md":
             raise OSError(errno.ENOSPC, "No space left on device", str(self))
         return write(self, *args, **kwargs)
-    monkeypatch.setattr(Path, "write_text", full_disk)
+    monkeypatch.setattr(Path, "write_bytes", full_disk)
     assert script.main([]) == 3
     said = capsys.readouterr().err
     assert "stopped half-way ([Errno 28] No space left on device" in said and "the checkout is back as it was" in said
