@@ -66,7 +66,7 @@ def open_trigger(cfg: TriggerConfig | RigConfig, log_path: str | Path | None = N
     """The backend the config names (the rig's, or its ``trigger`` section), logging to
     ``log_path`` (trigger.csv) when given."""
     rig = cfg if isinstance(cfg, RigConfig) else None
-    t = rig.trigger if rig is not None else cfg
+    t = cfg.trigger if isinstance(cfg, RigConfig) else cfg
     where = source or _source(rig)
     if t.backend == "none":
         raise ConfigError("the rig config has no trigger generator (trigger: backend: none)")

@@ -82,8 +82,9 @@ class ReplayCamera:
         self._rows = rows
         self._mjpeg = self.folder / f"{self.source}.mjpeg"
         # the timeline: host receive times of the recording (common to its cameras)
-        self._times = [r.host_time if r.host_time is not None else r.camera_time for r in rows]
-        if any(t is None for t in self._times):
+        times = [r.host_time if r.host_time is not None else r.camera_time for r in rows]
+        self._times = [t for t in times if t is not None]
+        if len(self._times) != len(times):
             raise DataError(f"{index}: a frame has neither a camera nor a host time; cannot replay it")
         self._origin = min([self._times[0], *_first_times(self.folder)])
         span = self._times[-1] - self._times[0]

@@ -116,6 +116,7 @@ class TriggerGenerator(Protocol):
 
     name: str
     capabilities: frozenset[str]
+    log: TriggerLog                 # trigger.csv's lines (TriggerBase gives every backend one)
 
     def configure(self, frequency_hz: float, duty: float = 0.5, high_v: float | None = None,
                   low_v: float | None = None) -> TriggerStatus: ...

@@ -358,7 +358,7 @@ def _drift_into(out: CameraResult, d: DriftAnalysis) -> None:
     new += [f"stray bright blob at ({x:.0f}, {y:.0f}) px" for x, y in d.strays]
     if d.led_off_visible:
         new.append(f"{d.led_off_visible} marker(s) still bright with the LED off")
-    out.measures[m0:] = [(m.subject, m.metric, m.value, m.unit, m.state) for m in d.measures]
+    out.measures[m0:] = list(d.measures)
     out.problems[p0:] = new
 
 
@@ -367,14 +367,14 @@ def place_others(results: list[CameraResult], rig) -> str:
     markers that are not its baseline's placed in the room (the rig's calibration and mapping);
     one on the table (the phantom, a patient holding still) is no stray. Returns why they were not
     placed ("" when they were)."""
-    drifts = {r.camera: r for r in results if r.drift is not None and r.drift.analyzed}
-    if not any(r.drift.candidates for r in drifts.values()):
+    drifts = {r.camera: (r, r.drift) for r in results if r.drift is not None and r.drift.analyzed}
+    if not any(d.candidates for _, d in drifts.values()):
         return ""
     room, why = room_of_rig(rig)
     if room is None:
         return why
-    placed = room.place({n: r.drift.candidates for n, r in drifts.items()})
-    for n, r in drifts.items():
-        r.drift.place(placed.get(n, []))
-        _drift_into(r, r.drift)
+    placed = room.place({n: d.candidates for n, (_, d) in drifts.items()})
+    for n, (r, d) in drifts.items():
+        d.place(placed.get(n, []))
+        _drift_into(r, d)
     return ""

@@ -12,7 +12,7 @@ import inspect
 import threading
 import time
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable, Protocol, runtime_checkable
 
 from vts_hw.config import RigConfig
 from vts_hw.drivers.registry import open_trigger
@@ -45,6 +45,13 @@ def why(exc: BaseException) -> str:
     return str(exc) if isinstance(exc, VtsError) else f"{type(exc).__name__}: {exc}"
 
 
+@runtime_checkable
+class _Identifies(Protocol):
+    """A generator that says what it is (the trigger box's ``*IDN?``)."""
+
+    def identify(self) -> Any: ...
+
+
 class ScanTrigger:
     """The session's trigger generator: checked, fired, watched and stopped.
 
@@ -59,9 +66,9 @@ class ScanTrigger:
         self._given = trigger
         self.cfg = rig.trigger
         self.clock = clock
-        self.gen = None
+        self.gen: TriggerGenerator | None = None
         self.log: TriggerLog | None = None
-        self.fired = False
+        self.fired: bool | None = False     # None: not known (a fire that raised)
         self.edges: int | None = None
         self._polls = 0
         self.lost = False          # the device failed during the scan: no more polling
@@ -96,20 +103,21 @@ class ScanTrigger:
         if not self.present:
             return
         try:
-            self.gen = self._given() if self._given is not None else open_trigger(self.rig, None, clock=self.clock)
-            self.log = self.gen.log
-            if hasattr(self.gen, "identify"):
-                self.info["idn"] = self._identify()
-            st = self.gen.status()
+            self.gen = gen = self._given() if self._given is not None else open_trigger(self.rig, None,
+                                                                                      clock=self.clock)
+            self.log = gen.log
+            if isinstance(gen, _Identifies):
+                self.info["idn"] = self._identify(gen)
+            st = gen.status()
             if st.running:
                 self.info["was_running"] = True
-                self.gen.stop()
+                gen.stop()
             levels = (self.cfg.high_v, self.cfg.low_v) if LEVELS in self.caps() else (None, None)
             if LEVELS not in self.caps():  # fixed TTL levels: nothing to ask
                 for key in ("high_v", "low_v"):
                     self.info["asked"].pop(key)
-            self.info["confirmed"] = plain_dict(self.gen.configure(self.cfg.frequency_hz, self.cfg.duty, *levels))
-            self.info["device"] = self.gen.name
+            self.info["confirmed"] = plain_dict(gen.configure(self.cfg.frequency_hz, self.cfg.duty, *levels))
+            self.info["device"] = gen.name
             self.info["capabilities"] = sorted(self.caps())
             if WATCHDOG not in self.caps():   # said before the scan, kept in the manifest (decision 0083)
                 self.info["no_watchdog"] = (f"the {self.cfg.backend} trigger cannot switch its square wave off by itself: "
@@ -123,16 +131,16 @@ class ScanTrigger:
                             getattr(exc, "exit_code", None)) from None
         self.map_clock("clock_mapping_before")
 
-    def _identify(self) -> str:
+    def _identify(self, gen: _Identifies) -> str:
         """``*IDN?``, once more after a pause if it timed out: opening a real Uno's port resets
         the board, and its bootloader holds the line for about 1.5 s (docs/decisions/0011)."""
         try:
-            return self.gen.identify().raw
+            return gen.identify().raw
         except TriggerError as exc:
             if type(exc) is not TriggerError:  # refused or gone: not a board still booting
                 raise
             time.sleep(BOOT_WAIT_S)
-            return self.gen.identify().raw
+            return gen.identify().raw
 
     def map_clock(self, key: str) -> None:
         if self.gen is None or CLOCK not in self.caps():

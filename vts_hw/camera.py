@@ -22,13 +22,16 @@ from __future__ import annotations
 
 from copy import copy
 from dataclasses import dataclass, field
-from typing import Any, Callable, ClassVar, Iterator, Protocol, Self, Union, get_args, get_origin, runtime_checkable
+from typing import TYPE_CHECKING, Any, Callable, ClassVar, Iterator, Protocol, Self, Union, get_args, get_origin, runtime_checkable
 
 from pydantic import BaseModel, ConfigDict, ValidationError, create_model
 from pydantic_core import PydanticUndefined
 
 from vts_hw.config import CameraConfig
 from vts_hw.errors import ConfigError, DeviceError
+
+if TYPE_CHECKING:       # camera_stream.py builds on this module's Frame and StreamGap
+    from vts_hw.camera_stream import FrameStream
 
 TORN = "torn"   # what a connection yields for a frame that arrived cut short (never a Frame)
 TIME_SOURCES = ("camera", "receipt", "recording")
@@ -159,7 +162,7 @@ class Frames(Protocol):
                     first_seq: int, stall_timeout: float) -> Connection:
         """One connection of the camera's stream (the reconnecting stream is built on it)."""
 
-    def stream(self, **kwargs) -> "Iterator[Frame | StreamGap]":
+    def stream(self, **kwargs) -> FrameStream:
         """A reconnecting stream (``vts_hw.camera_stream.FrameStream``) over this camera."""
 
 

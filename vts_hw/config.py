@@ -15,6 +15,7 @@ from typing import Any, Literal, Optional, Union
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
+from pydantic_core import ErrorDetails
 
 from vts_hw.config_base import Strict as _Strict
 from vts_hw.config_qatrack import QATrackConfig
@@ -335,7 +336,7 @@ def _loc(loc: tuple) -> str:
     return out or "(top level)"
 
 
-def _describe(err: dict) -> str:
+def _describe(err: ErrorDetails) -> str:
     typ = err.get("type", "")
     if typ == "missing":
         return "is required but missing"
@@ -409,8 +410,8 @@ def _check_depth(text: str, p: Path) -> None:
         if isinstance(ev, yaml.CollectionStartEvent):
             depth += 1
             if depth > MAX_YAML_DEPTH:
-                raise ConfigError(f"{p}: nested more than {MAX_YAML_DEPTH} levels deep at line "
-                                  f"{ev.start_mark.line + 1}, so not a rig config")
+                at = f" at line {ev.start_mark.line + 1}" if ev.start_mark is not None else ""
+                raise ConfigError(f"{p}: nested more than {MAX_YAML_DEPTH} levels deep{at}, so not a rig config")
         elif isinstance(ev, yaml.CollectionEndEvent):
             depth -= 1
 

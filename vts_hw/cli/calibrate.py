@@ -337,7 +337,7 @@ def spect(vts_path: str | None, volume: str | None, from_cameras: bool, calibrat
     rig = None if sim else rig_if_any(config_path)
     mapping.tolerances = rig.tolerances if rig is not None else None   # the rig's windows judge it
     # the transform file as RigidTransform.save writes it, but kept if -o cannot be written
-    saved = save_or_keep(out_path, json.dumps(mapping.transform.to_dict(), indent=2) + "\n", "mapping")
+    saved = save_or_keep(out_path, json.dumps(mapping.fitted().transform.to_dict(), indent=2) + "\n", "mapping")
 
     data = mapping.results_data()
     stored = None

@@ -103,7 +103,7 @@ def led(name: str, state: str, ms: int | None, rig) -> None:
     if state == "pulse" and ms is None:
         raise click.UsageError("pulse needs a duration in milliseconds, e.g. `led cam1 pulse 300`")
     with _open(rig, name) as cam:
-        got = pulse_led(cam, ms) if state == "pulse" else switch_led(cam, state == "on")
+        got = pulse_led(cam, ms) if state == "pulse" and ms is not None else switch_led(cam, state == "on")
     where = f"output port {cam.led_port}" if hasattr(cam, "led_port") else "no port"
     noop = "" if isinstance(cam, Illumination) else " (a no-op on this camera: it cannot switch an LED)"
     if got.state is None:

@@ -143,8 +143,8 @@ def commission(config_path, resume, from_step, skips, why, sign_off, out_dir, ch
             say(f"commissioning {ledger.cid or '(new)'} {failure_reason(exc)}: the step under way is recorded as "
                 "aborted; `vts commission --resume` runs it again")
             raise
-        if not end.done:
-            o = end.stopped
+        o = end.stopped
+        if o is not None:            # (not done)
             click.echo(f"commissioning stopped at {proc.step(o.step).label}: {o.advice or o.state}")
             sys.exit(EXIT_CODES[o.state] or 10)
         report, standing = _report(store, rig, ledger, sign_off, out)

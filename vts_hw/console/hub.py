@@ -24,7 +24,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-from vts_hw.camera import Frame, StreamGap
+from vts_hw.camera import Camera, Frame, StreamGap
 from vts_hw.camera_stream import FrameStream
 
 SOURCES = ("stream", "fed", "off")
@@ -48,7 +48,7 @@ class Latest:
 @dataclass
 class CameraFeed:
     name: str
-    camera: object | None
+    camera: Camera | None
     fps: float
     source: str = "stream"
     latest: Latest | None = None
@@ -228,9 +228,9 @@ class FramesHub:
                     f.stream, f.reader_ended = None, time.monotonic()
                     f.thread = None
 
-    def _start(self, f: CameraFeed) -> None:
+    def _start(self, f: CameraFeed, camera: Camera) -> None:
         opts = {"max_backoff": 1.0, **self.stream_options}
-        stream = f.camera.stream(**opts)
+        stream = camera.stream(**opts)
         t = threading.Thread(target=self._read, args=(f, stream), name=f"console-{f.name}", daemon=True)
         f.stream, f.thread = stream, t
         if f.reader_ended is None:      # a retry after a reader that failed keeps its first start
@@ -247,7 +247,7 @@ class FramesHub:
             if f.source == "stream" and f.camera is not None:
                 if f.viewers and f.thread is None:
                     if f.reader_ended is None or now - f.reader_ended >= RETRY_AFTER_S:
-                        self._start(f)
+                        self._start(f, f.camera)
                 elif not f.viewers and f.stream is not None and now - f.unwatched_since >= self.idle_close_s:
                     stop, f.stream, f.thread = f.stream, None, None
             if f.stream is not None:
