@@ -47,7 +47,8 @@ class AxisClock(AxisParameters):
                 rtt = t1 - t0
                 if best is None or rtt < best[1]:
                     best = (cam - (t0 + t1) / 2, rtt, (t0 + t1) / 2)
-            return ClockOffset(best[0], best[1] / 2 + 0.001, best[2], "time.cgi", samples)
+            if best is not None:      # (no sample asked: the snapshots' stamps below)
+                return ClockOffset(best[0], best[1] / 2 + 0.001, best[2], "time.cgi", samples)
         except NotFound:
             pass
         except NOT_THE_JSON:

@@ -9,6 +9,8 @@ through it is :mod:`.axis_setup`.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 from vts_hw.drivers.axis_client import AxisClient
 from vts_hw.drivers.axis_errors import BadReply, NotFound
 
@@ -43,7 +45,7 @@ class AxisParameters(AxisClient):
             raise BadReply(self.name, f"camera {self.name} listed no parameters in group {group!r}")
         return out
 
-    def set_params(self, values: dict[str, object]) -> None:
+    def set_params(self, values: Mapping[str, object]) -> None:
         path = "/axis-cgi/param.cgi" if self.vapix_version == 3 else "/axis-cgi/admin/param.cgi"
         params = {"action": "update"}
         params.update({k: str(v) for k, v in values.items()})

@@ -41,9 +41,6 @@ CLEAN = (
     "vts_hw/vision",
 )
 NOT_YET = {
-    # the camera roles (issue 34 §2) reshaped these drivers: their types follow
-    "drivers/axis_clock.py": "waits on the camera roles (issue 34 §2): a clock read with no sample",
-    "drivers/axis_setup.py": "waits on the camera roles (issue 34 §2): the parameters it sends typed as sent",
     # the room (issue 34 §1) changed how these open the rig's devices
     "procedures/commission_steps.py": "waits on the room (issue 34 §1): a step's rig is typed object",
     "procedures/scan.py": "waits on the room (issue 34 §1): the session's recorder is None until it starts",

@@ -20,6 +20,7 @@ Where a frame's time comes from is part of the frame (``time_source``) and of th
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from copy import copy
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, ClassVar, Iterator, Protocol, Self, Union, get_args, get_origin, runtime_checkable
@@ -206,7 +207,7 @@ class Parameters(Protocol):
 
     def get_params(self, group: str) -> dict[str, str]: ...
 
-    def set_params(self, values: dict[str, object]) -> None: ...
+    def set_params(self, values: Mapping[str, object]) -> None: ...
 
 
 @runtime_checkable
