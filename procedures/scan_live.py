@@ -152,51 +152,52 @@ class LiveMotion:
 
     def stop(self, session) -> None:
         """The tracker stopped, pending alerts acted on, the summary into the manifest."""
-        if self.tracker is None:
+        tracker = self.tracker
+        if tracker is None:
             return
-        self.tracker.stop()
+        tracker.stop()
         self._actions.put(None)
         if self._thread is not None:
             self._thread.join(10)
         self._keep(session)
         if self._log is not None:
             self._log.close()
-        snap = self.tracker.snapshot()
-        st = self.tracker.stats(last=None)
+        snap = tracker.snapshot()
+        st = tracker.stats(last=None)
         summary = {k: st.get(k) for k in ("sets", "live_dropped", "tapped", "processed", "queued",
                                           "unmatched_frames", "undecodable",
                                           "latency_ms_p50", "latency_ms_p95", "latency_from_first_frame_ms_p50",
                                           "latency_from_first_frame_ms_p95")}
-        rule = self.tracker.estimator.rule
+        rule = tracker.estimator.rule
         if rule is not None:
             summary.update(onset_mm=round(rule.onset_mm, 3), onset_deg=round(rule.onset_deg, 3))
-        summary.update(poses_kept=self._kept, phase=snap.phase, reference=self.tracker.estimator.reference_note,
+        summary.update(poses_kept=self._kept, phase=snap.phase, reference=tracker.estimator.reference_note,
                        note=snap.note,
                        six_dof_last=snap.six_dof,
                        **({"error": st["error"]} if st.get("error") else {}))
-        summary["tracking"] = tracking = self._tracking_summary()
-        self.problem = self._verdict(tracking, snap)
+        summary["tracking"] = tracking = self._tracking_summary(tracker)
+        self.problem = self._verdict(tracker, tracking, snap)
         summary["watched"] = not self.problem
         if self.problem:
             summary["problem"] = self.problem
         session.update_manifest(lambda meta: meta["live_motion"].update(summary=summary))
 
-    def _tracking_summary(self) -> dict:
-        w = self.tracker.watch
+    def _tracking_summary(self, tracker: LiveTracker) -> dict:
+        w = tracker.watch
         tot = w.totals()
         eps = w.episodes
         longest = max(eps, key=lambda e: e.duration(e.start), default=None)
         out = {k: (round(v, 3) if isinstance(v, float) else v) for k, v in tot.items()}
-        out.update(not_tracking_stretches=len(eps), blind_alerts=len(self.tracker.blind_alerts),
-                   late_s=self.tracker.late_s)
+        out.update(not_tracking_stretches=len(eps), blind_alerts=len(tracker.blind_alerts),
+                   late_s=tracker.late_s)
         if longest is not None:
             out.update(longest_not_tracking_s=round(longest.duration(longest.start), 3),
                        longest_reason="; ".join(longest.reasons[:3]))
         return out
 
-    def _verdict(self, tracking: dict, snap: LiveEstimate) -> str:
+    def _verdict(self, tracker: LiveTracker, tracking: dict, snap: LiveEstimate) -> str:
         """Why the patient was not watched ("" when they were)."""
-        est = self.tracker.estimator
+        est = tracker.estimator
         if est.phase != "tracking":
             why = est.note or "no patient markers seen"
             return f"the patient was not watched: no reference was learned ({why})"
@@ -308,16 +309,20 @@ class LiveMotion:
         state = {"status": c.status, "since": c.at, "since_utc": _iso(c.at), **({"reason": c.reason} if c.reason else {})}
         if c.status == TRACKING and not self._tracked_once:
             self._tracked_once = True
-            self.on_note(f"live motion: TRACKING ({self.tracker.estimator.reference_note})")
+            note = self.tracker.estimator.reference_note if self.tracker is not None else ""
+            self.on_note(f"live motion: TRACKING ({note})")
         session.update_manifest(lambda meta: meta["live_motion"].update(state=state))
 
     def _episode(self, session, e: Episode) -> None:
+        end = e.end
+        if self.tracker is None or end is None:     # an episode is sent once it has ended
+            return
         host = self.tracker.host_of
-        entry = {"start": host(e.start), "start_utc": _iso(host(e.start)), "end": host(e.end),
-                 "end_utc": _iso(host(e.end)), "duration_s": round(e.end - e.start, 3), "reasons": e.reasons,
+        entry = {"start": host(e.start), "start_utc": _iso(host(e.start)), "end": host(end),
+                 "end_utc": _iso(host(end)), "duration_s": round(end - e.start, 3), "reasons": e.reasons,
                  "alerted": e.alerted}
         if e.alerted:
-            self.on_note(f"live motion: tracked again after {e.end - e.start:.1f} s NOT TRACKING ({e.reasons[0]})")
+            self.on_note(f"live motion: tracked again after {end - e.start:.1f} s NOT TRACKING ({e.reasons[0]})")
 
         def add(meta):
             lm = meta["live_motion"]

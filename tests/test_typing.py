@@ -44,7 +44,6 @@ NOT_YET = {
     # the room (issue 34 §1) changed how these open the rig's devices
     "procedures/commission_steps.py": "waits on the room (issue 34 §1): a step's rig is typed object",
     "procedures/scan.py": "waits on the room (issue 34 §1): the session's recorder is None until it starts",
-    "procedures/scan_live.py": "waits on the room (issue 34 §1): the live tracker is None until it starts",
     # the scenarios open their rooms (issue 34 §1)
     "sim_devices/scenarios/demo_days.py": "waits on the room (issue 34 §1)",
     "sim_devices/scenarios/demo_patient.py": "waits on the room (issue 34 §1)",
