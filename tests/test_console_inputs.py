@@ -36,8 +36,10 @@ from vts_hw.console.hub import FramesHub
 from vts_hw.console.markers import MarkerWorker
 from vts_hw.console.names import MarkerNames
 from vts_hw.console.room import RoomFacts
+from vts_hw.console.scan_run import ScanRun
 from vts_hw.console.sessions import Auth
 from vts_hw.console.users import add_user
+from vts_hw.errors import DeviceError
 from vts_hw.drivers.registry import open_camera
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.store import ResultsStore
@@ -394,3 +396,19 @@ def test_a_scan_start_is_answered_at_once_and_recorded_with_its_outcome(local, r
         assert client.get("/scan/state").json()["actions"][0]["what"] == "scan not started"
     finally:
         desk.rig, desk.run = cfg, None
+
+
+def test_a_scans_end_is_published_only_once_its_outcome_is_said(rig, tmp_path):
+    """Whoever sees the phase end (the page, a waiting test) sees the whole end: the outcome is in
+    the action log and the devices closed before the phase is ``failed`` (it was set before the
+    room was closed and the outcome said: a reader of the log right after could find nothing)."""
+    seen = []
+
+    def refused():
+        raise DeviceError("camera cam0 refused the connection")
+
+    run = ScanRun(rig[0], tmp_path / "scan-x", hub=None, open_room=refused, user="alice",
+                  on_said=lambda what, detail: seen.append((what, run.phase)))
+    run.start().thread.join(30)
+    assert seen == [("scan not started", "starting")]      # said while the scan still counted as busy
+    assert run.phase == "failed" and "refused" in run.error

@@ -108,6 +108,9 @@ class ScanRun:
         self.clock = clock
         self.names = [c.name for c in rig.cameras]
         self.phase = "starting"          # starting | running | stopping | stopped | failed
+        # the end (stopped or failed) is published as the phase only once the scan's devices are
+        # closed and its outcome is in the action log: whoever sees it sees the whole end
+        self._end_phase = "failed"
         self.error = ""
         self.steps: list[tuple[str, str]] = []
         self.notes: deque[str] = deque(maxlen=NOTES_KEPT)
@@ -202,10 +205,11 @@ class ScanRun:
                 for n in self.names:
                     self.marker_names.clear(n, "band")
             self._said_end()
+            self.phase = self._end_phase
 
     def _said_end(self) -> None:
         """The outcome in the action log; a folder the scan made and left empty is removed."""
-        if self.phase == "stopped" and self.manifest is not None:
+        if self._end_phase == "stopped" and self.manifest is not None:
             s = self.summary or {}
             self._say("scan ended", {"status": s.get("status"), "verdict": s.get("verdict"), "exit": s.get("exit"),
                                      **({"error": self.error} if self.error else {})})
@@ -234,14 +238,14 @@ class ScanRun:
                 cam.close()
             except Exception:
                 pass
-        self.phase = "failed"
+        self._end_phase = "failed"
 
     def _finish(self) -> None:
         rec = self.session.recorder if self.session is not None else None
         last, code = verdict(self.folder, self.manifest, rec.write_failure if rec is not None else None)
         self.summary = {"status": (self.manifest or {}).get("status", "nothing recorded"),
                         "lines": summary_lines(self.folder, self.manifest or {}), "verdict": last, "exit": code}
-        self.phase = "stopped"
+        self._end_phase = "stopped"
 
     # -- alerts ---------------------------------------------------------------------------------------
     def _alert(self, text: str) -> None:
