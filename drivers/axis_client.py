@@ -31,7 +31,7 @@ class _AxisAuth(HTTPDigestAuth):
         if "digest" in challenge.lower():
             return super().handle_401(r, **kwargs)
         if "basic" in challenge.lower() and r.url.lower().startswith("https://"):
-            r.content
+            _ = r.content  # the 401 read whole, so its connection can be used again
             r.close()
             prep = r.request.copy()
             HTTPBasicAuth(self.username, self.password)(prep)
