@@ -5,9 +5,16 @@ Everything else (metadata, dependencies, package data) is in pyproject.toml."""
 
 from setuptools import find_packages, setup
 
-PACKAGE_DIR = {"vts_hw": "vts_hw", "vts_hw.drivers": "drivers", "vts_hw.procedures": "procedures",
-               "vts_hw.sim_devices": "sim_devices"}
+PACKAGE_DIR = {
+    "vts_hw": "vts_hw",
+    "vts_hw.drivers": "drivers",
+    "vts_hw.procedures": "procedures",
+    "vts_hw.sim_devices": "sim_devices",
+}
 
-setup(package_dir=PACKAGE_DIR,
-      packages=[f"{name}.{sub}" if sub else name
-                for name, folder in PACKAGE_DIR.items() for sub in ["", *find_packages(folder)]])
+setup(
+    package_dir=PACKAGE_DIR,
+    packages=[
+        f"{name}.{sub}" if sub else name for name, folder in PACKAGE_DIR.items() for sub in ["", *find_packages(folder)]
+    ],
+)

@@ -75,36 +75,67 @@ from pathlib import Path
 import click
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from badkit.classes import (Case, Verdict, common, float_cases, foreign_cases, number_judge,  # noqa: E402
-                            plain, probe_stores, sha, store_command_cases)
-from badkit import full_disk  # noqa: E402
-from badkit import session_files  # noqa: E402
+from badkit import (  # noqa: E402  (issue 21 round 2)  # noqa: E402  (issue 32)
+    console_disk,
+    endless_files,
+    full_disk,  # noqa: E402
+    root_writes,
+    session_files,  # noqa: E402
+    signals,
+    slow_peers,
+)
+from badkit.classes import (  # noqa: E402
+    Case,
+    Verdict,
+    common,
+    float_cases,
+    foreign_cases,
+    number_judge,
+    plain,
+    probe_stores,
+    sha,
+    store_command_cases,
+)
 from badkit.forked import FORK_LOCK, fork_vts  # noqa: E402
-from badkit import endless_files, signals, slow_peers  # noqa: E402  (issue 21 round 2)
-from badkit import console_disk, root_writes  # noqa: E402  (issue 32)
-WEB = "web"            # badkit/web.py, run in a process of its own (it uses threads; this one forks)
 
-SKIP = {("sim", "up"): "starts servers in the foreground", ("demo",): "runs the whole demo",
-        ("console",): "serves the room console in the foreground (a dead rig's cameras are shown NOT ANSWERING)",
-        ("discover",): "searches the network: swept on loopback only, never from every interface"}
+WEB = "web"  # badkit/web.py, run in a process of its own (it uses threads; this one forks)
+
+SKIP = {
+    ("sim", "up"): "starts servers in the foreground",
+    ("demo",): "runs the whole demo",
+    ("console",): "serves the room console in the foreground (a dead rig's cameras are shown NOT ANSWERING)",
+    ("discover",): "searches the network: swept on loopback only, never from every interface",
+}
 #: what a skipped command runs with in the floats class (a bad float is refused before anything starts)
-SKIPPED_BASE = {("sim", "up"): lambda wd: ["--detach", "--dir", str(wd / "sim")],
-                ("demo",): lambda wd: ["-o", str(wd / "demo"), "--days", "1"],
-                ("console",): lambda wd: ["--port", "0"],
-                ("discover",): lambda wd: ["--interface", "127.0.0.1", "--timeout", "1", "-o", str(wd / "found.yaml")]}
+SKIPPED_BASE = {
+    ("sim", "up"): lambda wd: ["--detach", "--dir", str(wd / "sim")],
+    ("demo",): lambda wd: ["-o", str(wd / "demo"), "--days", "1"],
+    ("console",): lambda wd: ["--port", "0"],
+    ("discover",): lambda wd: ["--interface", "127.0.0.1", "--timeout", "1", "-o", str(wd / "found.yaml")],
+}
 
 
-def skipped_cases(cmd_path: tuple[str, ...], fx: "Fixtures") -> list[Case]:
+def skipped_cases(cmd_path: tuple[str, ...], fx: Fixtures) -> list[Case]:
     """The bad inputs a command of SKIP refuses before it starts anything."""
     if cmd_path == ("sim", "up"):
         return [Case("configs", "no --dir", plain([*cmd_path, "--detach"]))]
-    if cmd_path == ("console",):     # every bad config (not the dead rig: it serves it), a bad port
-        return [*(Case("configs", what, plain([*cmd_path, "--port", "0", "--config", cfg]))
-                  for what, cfg in fx.configs.items()),
-                Case("numbers", "bad port", plain([*cmd_path, "--port", "-1"]), number_judge("-1"))]
-    if cmd_path == ("discover",):   # a bad timeout, refused before anything is searched
-        return [Case("numbers", "bad timeout", plain([*cmd_path, "--interface", "127.0.0.1", "--timeout", "-3"]),
-                     number_judge("-3"))]
+    if cmd_path == ("console",):  # every bad config (not the dead rig: it serves it), a bad port
+        return [
+            *(
+                Case("configs", what, plain([*cmd_path, "--port", "0", "--config", cfg]))
+                for what, cfg in fx.configs.items()
+            ),
+            Case("numbers", "bad port", plain([*cmd_path, "--port", "-1"]), number_judge("-1")),
+        ]
+    if cmd_path == ("discover",):  # a bad timeout, refused before anything is searched
+        return [
+            Case(
+                "numbers",
+                "bad timeout",
+                plain([*cmd_path, "--interface", "127.0.0.1", "--timeout", "-3"]),
+                number_judge("-3"),
+            )
+        ]
     return [Case("numbers", "bad days", plain([*cmd_path, "--days", "-3"]), number_judge("-3"))]
 
 
@@ -114,8 +145,21 @@ def skipped_cases(cmd_path: tuple[str, ...], fx: "Fixtures") -> list[Case]:
 #: the cases end as they did, 3 s sooner each (a --listen case of its own still replaces the value)
 QUICK = {("commission",): ["--listen", "0.2"]}
 NUMBERS = ["nan", "inf", "-1", "1e309", "abc"]
-CLASSES = ("paths", "numbers", "floats", "configs", "foreign stores", full_disk.CLASS, root_writes.CLASS,
-           signals.CLASS, console_disk.CLASS, WEB, slow_peers.CLASS, endless_files.CLASS, session_files.CLASS)
+CLASSES = (
+    "paths",
+    "numbers",
+    "floats",
+    "configs",
+    "foreign stores",
+    full_disk.CLASS,
+    root_writes.CLASS,
+    signals.CLASS,
+    console_disk.CLASS,
+    WEB,
+    slow_peers.CLASS,
+    endless_files.CLASS,
+    session_files.CLASS,
+)
 #: the classes that need the peers of badkit.slow_peers running
 NEED_PEERS = (slow_peers.CLASS,)
 #: swept unless --classes says otherwise (the two of round 2 take minutes of peers: --classes all;
@@ -144,35 +188,56 @@ class Fixtures:
         ro.mkdir()
         self.readonly_out = ro / "out.file"
         port = free_port()
-        dead = {"rig": "dead", "cameras": [{"name": "cam1", "host": "127.0.0.1", "port": port, "timeout_s": 1},
-                                           {"name": "cam2", "host": "127.0.0.1", "port": free_port(),
-                                            "timeout_s": 1}],
-                "trigger": {"backend": "visa", "address": f"TCPIP::127.0.0.1::{free_port()}::SOCKET"},
-                "results": {"url": f"sqlite:///{root / 'store' / 'results.sqlite'}"},
-                "qatrack": {"url": f"http://127.0.0.1:{free_port()}/", "unit": "SPECT 1", "time_zone": "UTC",
-                            "token_env": QATRACK_TOKEN_ENV, "timeout_s": 2,
-                            "lists": {"daily": {"test_list": "VTS daily", "macros": {"cam1/drift_x_px": "dx"},
-                                                "ignore": ["*"]}}}}
+        dead = {
+            "rig": "dead",
+            "cameras": [
+                {"name": "cam1", "host": "127.0.0.1", "port": port, "timeout_s": 1},
+                {"name": "cam2", "host": "127.0.0.1", "port": free_port(), "timeout_s": 1},
+            ],
+            "trigger": {"backend": "visa", "address": f"TCPIP::127.0.0.1::{free_port()}::SOCKET"},
+            "results": {"url": f"sqlite:///{root / 'store' / 'results.sqlite'}"},
+            "qatrack": {
+                "url": f"http://127.0.0.1:{free_port()}/",
+                "unit": "SPECT 1",
+                "time_zone": "UTC",
+                "token_env": QATRACK_TOKEN_ENV,
+                "timeout_s": 2,
+                "lists": {"daily": {"test_list": "VTS daily", "macros": {"cam1/drift_x_px": "dx"}, "ignore": ["*"]}},
+            },
+        }
         import yaml
+
         (root / "dead.yaml").write_text(yaml.safe_dump(dead))
         (root / "unknown_key.yaml").write_text(yaml.safe_dump({**dead, "camerass": []}))
         # camera entries that do not fit their kind (its settings model, its roles): refused
-        for name, cam in (("hostless", {"name": "cam1"}),
-                          ("axis_options", {"name": "cam1", "host": "127.0.0.1", "port": port, "options": {"speed": 2}}),
-                          ("replay", {"name": "cam1", "kind": "replay", "options": {"folder": str(root / "emptydir")}})):
+        for name, cam in (
+            ("hostless", {"name": "cam1"}),
+            ("axis_options", {"name": "cam1", "host": "127.0.0.1", "port": port, "options": {"speed": 2}}),
+            ("replay", {"name": "cam1", "kind": "replay", "options": {"folder": str(root / "emptydir")}}),
+        ):
             (root / f"{name}.yaml").write_text(yaml.safe_dump({"rig": name, "cameras": [cam]}))
         # rig.yaml's calibration entries (decision 0099): one under its new and its old name; a
         # calibration file named that is not there (the room says so before any camera is opened)
-        for name, section in (("both_names", {"cameras": "a.json", "stereo": "b.json"}),
-                              ("no_calibration_file", {"cameras": str(root / "gone.json")})):
+        for name, section in (
+            ("both_names", {"cameras": "a.json", "stereo": "b.json"}),
+            ("no_calibration_file", {"cameras": str(root / "gone.json")}),
+        ):
             (root / f"{name}.yaml").write_text(yaml.safe_dump({**dead, "calibration": section}))
-        self.configs = {"missing config": str(root / "nope.yaml"), "empty config": str(root / "empty.txt"),
-                        "binary config": str(root / "binary.bin"), "[] config": str(root / "list.json"),
-                        "unknown key": str(root / "unknown_key.yaml")}
+        self.configs = {
+            "missing config": str(root / "nope.yaml"),
+            "empty config": str(root / "empty.txt"),
+            "binary config": str(root / "binary.bin"),
+            "[] config": str(root / "list.json"),
+            "unknown key": str(root / "unknown_key.yaml"),
+        }
         self.dead_config = str(root / "dead.yaml")
-        self.paths = {"missing path": str(root / "does-not-exist"), "empty file": str(root / "empty.txt"),
-                      "binary file": str(root / "binary.bin"), "[] json": str(root / "list.json"),
-                      "empty folder": str(root / "emptydir")}
+        self.paths = {
+            "missing path": str(root / "does-not-exist"),
+            "empty file": str(root / "empty.txt"),
+            "binary file": str(root / "binary.bin"),
+            "[] json": str(root / "list.json"),
+            "empty folder": str(root / "emptydir"),
+        }
 
 
 def is_path(p: click.Parameter) -> bool:
@@ -180,8 +245,9 @@ def is_path(p: click.Parameter) -> bool:
 
 
 def is_number(p: click.Parameter) -> bool:
-    return isinstance(p.type, (click.types.FloatParamType, click.types.IntParamType, click.FloatRange,
-                               click.IntRange)) or getattr(p.type, "name", "") in ("seconds",)
+    return isinstance(
+        p.type, (click.types.FloatParamType, click.types.IntParamType, click.FloatRange, click.IntRange)
+    ) or getattr(p.type, "name", "") in ("seconds",)
 
 
 def is_float(p: click.Parameter) -> bool:
@@ -223,37 +289,78 @@ def _refused(wd: Path, code: int | None, out: str, err: str) -> Verdict:
 def global_config_cases(fx: Fixtures) -> list[Case]:
     """`vts --config FILE COMMAND` (the room's file before the command's name): every bad config,
     and a command that reads no rig.yaml, which refuses it (issue 34 §4)."""
-    out = [Case("configs", f"vts --config: {what}", plain(["--config", cfg, "qa", "daily"]), _refused)
-           for what, cfg in fx.configs.items()]
-    out.append(Case("configs", "vts --config before a command that reads no rig.yaml",
-                    lambda wd: ["--config", fx.dead_config, "sim", "up", "--detach", "--dir", str(wd / "sim")],
-                    _refused))
+    out = [
+        Case("configs", f"vts --config: {what}", plain(["--config", cfg, "qa", "daily"]), _refused)
+        for what, cfg in fx.configs.items()
+    ]
+    out.append(
+        Case(
+            "configs",
+            "vts --config before a command that reads no rig.yaml",
+            lambda wd: ["--config", fx.dead_config, "sim", "up", "--detach", "--dir", str(wd / "sim")],
+            _refused,
+        )
+    )
     return out
 
 
 def camera_kind_cases(fx: Fixtures) -> list[Case]:
     """A camera entry that does not fit its kind's settings model, and `camera setup` of a kind
     without the parameters role: refused in one sentence (docs/decisions/0100-camera-roles.md)."""
+
     def config(name: str) -> str:
         return str(fx.root / f"{name}.yaml")
-    return [Case("configs", "camera kind: an Axis camera without a host",
-                 lambda wd: ["camera", "snapshot", "cam1", "-o", str(wd / "a.jpg"), "--config", config("hostless")],
-                 _refused),
-            Case("configs", "camera kind: options on an Axis camera",
-                 plain(["camera", "info", "cam1", "--config", config("axis_options")]), _refused),
-            Case("configs", "camera kind: setup of a kind without parameters",
-                 plain(["camera", "setup", "cam1", "--config", config("replay")]), _refused)]
+
+    return [
+        Case(
+            "configs",
+            "camera kind: an Axis camera without a host",
+            lambda wd: ["camera", "snapshot", "cam1", "-o", str(wd / "a.jpg"), "--config", config("hostless")],
+            _refused,
+        ),
+        Case(
+            "configs",
+            "camera kind: options on an Axis camera",
+            plain(["camera", "info", "cam1", "--config", config("axis_options")]),
+            _refused,
+        ),
+        Case(
+            "configs",
+            "camera kind: setup of a kind without parameters",
+            plain(["camera", "setup", "cam1", "--config", config("replay")]),
+            _refused,
+        ),
+    ]
 
 
 def calibration_key_cases(fx: Fixtures) -> list[Case]:
     """rig.yaml's calibration entries: one under both its names, and a calibration file named that
     is not there (`calibrate spect --from-cameras` opens the room's calibration): refused, exit 2."""
     both, gone = str(fx.root / "both_names.yaml"), str(fx.root / "no_calibration_file.yaml")
-    return [Case("configs", "calibration: cameras and stereo (its old name) both given",
-                 plain(["trigger", "status", "--config", both]), _refused),
-            Case("configs", "calibration.cameras names no file",
-                 lambda wd: ["calibrate", "spect", "--from-cameras", "--volume", fx.paths["binary file"],
-                             "-o", str(wd / "m.json"), "--config", gone], _refused)]
+    return [
+        Case(
+            "configs",
+            "calibration: cameras and stereo (its old name) both given",
+            plain(["trigger", "status", "--config", both]),
+            _refused,
+        ),
+        Case(
+            "configs",
+            "calibration.cameras names no file",
+            lambda wd: [
+                "calibrate",
+                "spect",
+                "--from-cameras",
+                "--volume",
+                fx.paths["binary file"],
+                "-o",
+                str(wd / "m.json"),
+                "--config",
+                gone,
+            ],
+            _refused,
+        ),
+    ]
 
 
 def cases(cmd_path: tuple[str, ...], cmd: click.Command, fx: Fixtures, classes=CLASSES, full: bool = False):
@@ -280,8 +387,9 @@ def cases(cmd_path: tuple[str, ...], cmd: click.Command, fx: Fixtures, classes=C
                 yield _path_case(cmd_path, base, cfg, p, opt, what, v)
         elif is_number(p) and not is_float(p):
             for v in NUMBERS:
-                yield Case("numbers", f"{p.name}: {v}", plain([*cmd_path, *_replace(base, p, opt, v), *cfg]),
-                           number_judge(v))
+                yield Case(
+                    "numbers", f"{p.name}: {v}", plain([*cmd_path, *_replace(base, p, opt, v), *cfg]), number_judge(v)
+                )
     yield from float_cases(cmd_path, cmd, lambda wd: [*base, *cfg])
     yield from foreign_cases(cmd_path, lambda wd: base, cfg)
     if root_writes.CLASS in classes:
@@ -309,6 +417,7 @@ def _path_case(cmd_path, base, cfg, p: click.Parameter, opt, what: str, value: s
         if src.stat().st_size and sha(wd / src.name) != (wd / ".input.sha256").read_text() and not is_output(p):
             v.damaged, v.why = True, f"{src.name}, given as {p.name}, was changed"
         return v
+
     return Case("paths", f"{p.name}: {what}", make, judge)
 
 
@@ -354,8 +463,10 @@ def preload() -> int:
     import threading
 
     import matplotlib
+
     matplotlib.use("Agg")
     import vts_hw
+
     n = 0
     for m in pkgutil.walk_packages(vts_hw.__path__, "vts_hw."):
         if m.name.endswith("__main__"):
@@ -363,7 +474,7 @@ def preload() -> int:
         try:
             importlib.import_module(m.name)
             n += 1
-        except Exception:   # noqa: BLE001 -- its cases report it, with the user's view of it
+        except Exception:  # noqa: BLE001 -- its cases report it, with the user's view of it
             pass
     assert threading.active_count() == 1, "an import started a thread: forking after it is unsafe"
     return n
@@ -390,13 +501,14 @@ def plan(only: str | None, classes, fx: Fixtures, cli, peers=None, full: bool = 
         inp = full_disk.inputs(fx.root)
         fx.writers = full_disk.table(inp)
     from vts_hw.cli import command_tree
+
     planned: list[Case] = []
     for cmd_path, cmd in command_tree(cli):
         if isinstance(cmd, click.Group):
             continue
         if only and not " ".join(cmd_path).startswith(only):
             continue
-        if cmd_path in SKIP:   # their float options only (refused before anything starts), and the old two
+        if cmd_path in SKIP:  # their float options only (refused before anything starts), and the old two
             todo = list(float_cases(cmd_path, cmd, SKIPPED_BASE[cmd_path])) + skipped_cases(cmd_path, fx)
             if root_writes.CLASS in classes:
                 todo += root_writes.cases(cmd_path, cmd, [], good_command(cmd_path, fx), _replace, full)
@@ -434,13 +546,16 @@ def command_of(argv: list[str]) -> str:
 def _stop_sims(root: Path) -> None:
     """A detached simulated rig a case started (a float not refused would start one): stopped."""
     from vts_hw.sim_devices.rig_detached import stop_detached
-    for pid_file in root.glob("cases/*/**/sim.pid"):     # (a root writes case may start one in its target)
+
+    for pid_file in root.glob("cases/*/**/sim.pid"):  # (a root writes case may start one in its target)
         stop_detached(pid_file.parent)
 
 
-def sweep(only: str | None, timeout: float, show: bool, root: Path, jobs: int = 1,
-          classes=CLASSES, full: bool = False) -> dict:
+def sweep(
+    only: str | None, timeout: float, show: bool, root: Path, jobs: int = 1, classes=CLASSES, full: bool = False
+) -> dict:
     from vts_hw.cli import _register, cli
+
     _register()
     preload()
     fx = Fixtures(root)
@@ -449,10 +564,18 @@ def sweep(only: str | None, timeout: float, show: bool, root: Path, jobs: int = 
     fx.readonly_out = root / "empty.txt" / "out.file"
     fixtures = {p: sha(p) for p in root.iterdir() if p.is_file()}
     per = {c: {"cases": 0, **{k: 0 for k in COUNTS}, "opened": 0, "seconds": 0.0} for c in classes}
-    results = {"cases": 0, "passed": 0, "classes": per, "failures": [], "opened_by": [],
-               "tracebacks": [], "hangs": [], "bad_exit": []}
+    results = {
+        "cases": 0,
+        "passed": 0,
+        "classes": per,
+        "failures": [],
+        "opened_by": [],
+        "tracebacks": [],
+        "hangs": [],
+        "bad_exit": [],
+    }
     env_backup, cwd = dict(os.environ), os.getcwd()
-    os.chdir(root)   # default outputs (trigger.csv, drift-report.html) land in the sandbox
+    os.chdir(root)  # default outputs (trigger.csv, drift-report.html) land in the sandbox
     os.environ["XDG_DATA_HOME"] = str(root / "xdg")
     os.environ[QATRACK_TOKEN_ENV] = "bad-inputs-token"
     for name in ("VTS_CONFIG", "VTS_STORE", "VTS_STORE_PASSWORD_ENV"):
@@ -469,30 +592,38 @@ def sweep(only: str | None, timeout: float, show: bool, root: Path, jobs: int = 
         planned = plan(only, classes, fx, cli, peers, full)
         setup_s = time.monotonic() - t_plan
         argvs = []
-        for k, case in enumerate(planned):   # every case's files, made here before any fork
+        for k, case in enumerate(planned):  # every case's files, made here before any fork
             wd = root / "cases" / str(k)
             wd.mkdir(parents=True)
             argvs.append(case.make(wd))
+
         # cases run `jobs` at a time (each a forked child in a folder of its own); the parent's
         # threads only fork, read pipes and wait
         def timed(k):
             t0 = time.monotonic()
             got = planned[k].extra.get("run", run_case)(argvs[k], timeout, root / "cases" / str(k))
             return got, time.monotonic() - t0
+
         with ThreadPoolExecutor(max(1, jobs)) as pool:
             done = pool.map(timed, range(len(planned)))
             for k, (case, argv, ((code, out, err), dt)) in enumerate(zip(planned, argvs, done)):
                 wd = root / "cases" / str(k)
-                with FORK_LOCK:      # a judge reads stores (SQLite): never while a case is forked
+                with FORK_LOCK:  # a judge reads stores (SQLite): never while a case is forked
                     v: Verdict = case.judge(wd, code, out, err) if case.judge else common(code, err)
                 label = f"vts {' '.join(argv)}  [{case.cls}: {case.what}]"
                 c = per[case.cls]
                 c["cases"] += 1
                 c["seconds"] += dt
                 results["cases"] += 1
-                for key, flag in (("tracebacks", v.traceback), ("hangs", v.hang), ("false_oks", v.false_ok),
-                                  ("damaged", v.damaged), ("other", v.other), ("opened", v.opened),
-                                  ("security", v.security)):
+                for key, flag in (
+                    ("tracebacks", v.traceback),
+                    ("hangs", v.hang),
+                    ("false_oks", v.false_ok),
+                    ("damaged", v.damaged),
+                    ("other", v.other),
+                    ("opened", v.opened),
+                    ("security", v.security),
+                ):
                     c[key] += bool(flag)
                 if v.opened:
                     results["opened_by"].append(command_of(argv))
@@ -523,7 +654,7 @@ def sweep(only: str | None, timeout: float, show: bool, root: Path, jobs: int = 
         os.environ.clear()
         os.environ.update(env_backup)
     changed = [str(p.name) for p, h in fixtures.items() if sha(p) != h]
-    if changed and "configs" in per:     # the configs every case shares: never written
+    if changed and "configs" in per:  # the configs every case shares: never written
         per["configs"]["damaged"] += len(changed)
         results["failures"].append(f"fixture(s) changed by some case: {', '.join(changed)}")
     results["opened_by"] = sorted(set(results["opened_by"]))
@@ -534,11 +665,20 @@ def web_start(root: Path, full: bool):
     """The class web started: badkit/web.py in a process of its own (it uses threads; this one forks),
     its output in files; (the process, its stdout file, its stderr file, when it started)."""
     import subprocess
+
     (root / "web").mkdir(parents=True, exist_ok=True)
     out, err = open(root / "web.json", "w+"), open(root / "web.err", "w+")
-    proc = subprocess.Popen([sys.executable, str(Path(__file__).resolve().parent / "badkit" / "web.py"),
-                             str(root / "web"), *(["--full"] if full else [])], stdout=out, stderr=err,
-                            stdin=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            str(Path(__file__).resolve().parent / "badkit" / "web.py"),
+            str(root / "web"),
+            *(["--full"] if full else []),
+        ],
+        stdout=out,
+        stderr=err,
+        stdin=subprocess.DEVNULL,
+    )
     return proc, out, err, time.monotonic()
 
 
@@ -547,7 +687,7 @@ def web_sweep(web, results: dict, c: dict, show: bool) -> None:
     proc, out, err, t0 = web
     try:
         proc.wait(3600)
-    except Exception:            # noqa: BLE001 -- a sweep that does not end is one failure, said below
+    except Exception:  # noqa: BLE001 -- a sweep that does not end is one failure, said below
         proc.kill()
         proc.wait()
     c["seconds"] = time.monotonic() - t0
@@ -562,8 +702,9 @@ def web_sweep(web, results: dict, c: dict, show: bool) -> None:
         c["cases"] += 1
         c["other"] += 1
         results["cases"] += 1
-        results["failures"].append(f"[web] the web sweep did not finish (exit {proc.returncode}): "
-                                   f"{stderr.strip()[-400:]}")
+        results["failures"].append(
+            f"[web] the web sweep did not finish (exit {proc.returncode}): {stderr.strip()[-400:]}"
+        )
         return
     fams = c.setdefault("families", {})
     for v in verdicts:
@@ -571,8 +712,14 @@ def web_sweep(web, results: dict, c: dict, show: bool) -> None:
         results["cases"] += 1
         fam = v["what"].split("]", 1)[0].lstrip("[")
         fams[fam] = fams.get(fam, 0) + 1
-        for key, flag in (("tracebacks", "traceback"), ("hangs", "hang"), ("false_oks", "false_ok"),
-                          ("damaged", "damaged"), ("other", "other"), ("security", "security")):
+        for key, flag in (
+            ("tracebacks", "traceback"),
+            ("hangs", "hang"),
+            ("false_oks", "false_ok"),
+            ("damaged", "damaged"),
+            ("other", "other"),
+            ("security", "security"),
+        ):
             c[key] += bool(v[flag])
         if any(v[f] for f in ("traceback", "hang", "false_ok", "damaged", "other", "security")):
             results["failures"].append(f"{v['what']}\n      {v['why']}")
@@ -585,28 +732,34 @@ def web_sweep(web, results: dict, c: dict, show: bool) -> None:
 
 
 def table(r: dict) -> str:
-    head = (f"{'class':<18} {'cases':>6} {'tracebacks':>10} {'hangs':>6} {'false OKs':>9} {'data damaged':>12} "
-            f"{'security':>8} {'other':>6} {'seconds':>8}")
+    head = (
+        f"{'class':<18} {'cases':>6} {'tracebacks':>10} {'hangs':>6} {'false OKs':>9} {'data damaged':>12} "
+        f"{'security':>8} {'other':>6} {'seconds':>8}"
+    )
     lines = [head]
     for cls, c in r["classes"].items():
-        lines.append(f"{cls:<18} {c['cases']:>6} {c['tracebacks']:>10} {c['hangs']:>6} {c['false_oks']:>9} "
-                     f"{c['damaged']:>12} {c['security']:>8} {c['other']:>6} {c['seconds']:>8.0f}")
+        lines.append(
+            f"{cls:<18} {c['cases']:>6} {c['tracebacks']:>10} {c['hangs']:>6} {c['false_oks']:>9} "
+            f"{c['damaged']:>12} {c['security']:>8} {c['other']:>6} {c['seconds']:>8.0f}"
+        )
     return "\n".join(lines)
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--only", help="only commands starting with this (e.g. 'camera' or 'qa daily')")
-    ap.add_argument("--classes", default=",".join(DEFAULT_CLASSES),
-                    help=f"classes to sweep, comma-separated, or 'all' (default: {', '.join(DEFAULT_CLASSES)}; "
-                         f"also: {', '.join(CLASSES[10:])}; 'foreign' for foreign stores); 'all' sweeps the "
-                         "classes of round 3 whole (every value, moment and identity), else a share meeting "
-                         "every command, route and action once")
+    ap.add_argument(
+        "--classes",
+        default=",".join(DEFAULT_CLASSES),
+        help=f"classes to sweep, comma-separated, or 'all' (default: {', '.join(DEFAULT_CLASSES)}; "
+        f"also: {', '.join(CLASSES[10:])}; 'foreign' for foreign stores); 'all' sweeps the "
+        "classes of round 3 whole (every value, moment and identity), else a share meeting "
+        "every command, route and action once",
+    )
     ap.add_argument("--timeout", type=float, default=60.0, help="seconds per case before it counts as a hang")
     ap.add_argument("--show", action="store_true", help="print every case and its last line")
     ap.add_argument("--json", action="store_true", help="the figures as JSON")
-    ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
-                    help="cases run at once (default: one per core)")
+    ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="cases run at once (default: one per core)")
     a = ap.parse_args()
     wanted = [c.strip() for c in a.classes.split(",") if c.strip()]
     full = wanted == ["all"]
@@ -621,13 +774,17 @@ def main() -> int:
     if a.json:
         print(json.dumps(r, indent=1))
     else:
-        print(f"bad inputs: {r['cases']} cases over every command in {dt:.0f} s: {r['passed']} passed "
-              f"(one sentence, a documented exit code, refused where the class says so)")
+        print(
+            f"bad inputs: {r['cases']} cases over every command in {dt:.0f} s: {r['passed']} passed "
+            f"(one sentence, a documented exit code, refused where the class says so)"
+        )
         print(table(r))
         fs = r["classes"].get("foreign stores")
         if fs:
-            print(f"foreign stores: {fs['opened']} case(s) reached the store ({', '.join(r['opened_by'])}); "
-                  "every other command never opens one")
+            print(
+                f"foreign stores: {fs['opened']} case(s) reached the store ({', '.join(r['opened_by'])}); "
+                "every other command never opens one"
+            )
         for x in r["failures"]:
             print(f"  FAILED {x}")
     return 0 if not r["failures"] else 1

@@ -18,11 +18,11 @@ import argparse
 
 import numpy as np
 
+from vts_hw.sim_devices.scenarios.calibration_views import sim_views
+from vts_hw.sim_devices.scene import Scene
 from vts_hw.vision.calibration import calibrate_stereo
 from vts_hw.vision.calibration_uncertainty import compare_with_truth
-from vts_hw.sim_devices.scenarios.calibration_views import sim_views
 from vts_hw.vision.registration import kabsch
-from vts_hw.sim_devices.scene import Scene
 from vts_hw.vision.triangulate import triangulate
 
 FIGURES = ("cx px", "cy px", "fx px", "k1", "rotation deg", "3D RMS mm", "3D RMS rigid mm")
@@ -65,8 +65,10 @@ def main() -> None:
     print(f"{'figure':18s} {'five terms':>20s} {'auto':>20s} {'ratio of max':>13s}")
     for k in FIGURES:
         a, b = np.array(res["opencv"][k]), np.array(res["auto"][k])
-        print(f"{k:18s} {np.median(a):9.4g} / {a.max():8.4g} {np.median(b):9.4g} / {b.max():8.4g}"
-              f" {b.max() / a.max():13.2f}")
+        print(
+            f"{k:18s} {np.median(a):9.4g} / {a.max():8.4g} {np.median(b):9.4g} / {b.max():8.4g}"
+            f" {b.max() / a.max():13.2f}"
+        )
     for model in ("opencv", "auto"):
         print(f"largest error / its standard deviation ({model}): {max(res[model]['sigmas']):.2f}")
 

@@ -45,9 +45,8 @@ from vts_hw.sim_devices.scenarios.sync_session import run_scan_cli
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
-from console_live import chromium, start_console, stop_console, until  # noqa: E402
-
 from console_clients import PageClient, start_scan, wait_stopped  # noqa: E402  (bench/, beside this file)
+from console_live import chromium, start_console, stop_console, until  # noqa: E402
 
 REFERENCE_S = 5.0
 FIRST_MOVE_S = 10.0
@@ -82,8 +81,9 @@ def without_console(rig, rig_yaml, tmp: Path, patient, seconds: float, which: in
     print(f"scan {which}: `vts scan start --duration {seconds:g}` alone, {n} moves planned", flush=True)
     prerender(rig, seconds)
     out = tmp / f"alone{which}"
-    run_scan_cli(rig, rig_yaml, out, seconds, args=("--reference", f"{REFERENCE_S:g}"), event="scan",
-                 timeout=seconds + 180)
+    run_scan_cli(
+        rig, rig_yaml, out, seconds, args=("--reference", f"{REFERENCE_S:g}"), event="scan", timeout=seconds + 180
+    )
     return json.loads((out / "manifest.json").read_text())
 
 
@@ -93,21 +93,23 @@ def with_console(rig, rig_yaml, tmp: Path, patient, seconds: float, env: dict) -
     try:
         with chromium() as browser:
             pages = []
-            for _ in range(2):          # two people, two screens
+            for _ in range(2):  # two people, two screens
                 ctx = browser.new_context(viewport={"width": 1366, "height": 768})
                 pg = ctx.new_page()
                 pg.goto(url + "scan")
                 pages.append(pg)
             patient.motion.moves.clear()
             n = plan_moves(patient, rig, seconds)
-            print(f"scan 3: started from the console's Scan page, two browsers watching, {n} moves planned",
-                  flush=True)
+            print(f"scan 3: started from the console's Scan page, two browsers watching, {n} moves planned", flush=True)
             prerender(rig, seconds)
             pages[0].fill("#reference", f"{REFERENCE_S:g}")
             pages[0].fill("#duration", f"{seconds:g}")
             pages[0].click("#start")
-            if not until(lambda: all(pg.get_attribute("#scan", "data-phase") == "stopped" for pg in pages),
-                         seconds + 180, poll=0.5):
+            if not until(
+                lambda: all(pg.get_attribute("#scan", "data-phase") == "stopped" for pg in pages),
+                seconds + 180,
+                poll=0.5,
+            ):
                 raise SystemExit(f"the scan did not stop: {pages[0].inner_text('#message')}")
             got = [pg.evaluate("window.vtsScan") for pg in pages]
     finally:
@@ -130,8 +132,10 @@ def with_console_clients(rig, rig_yaml, tmp: Path, patient, seconds: float, env:
         clients = [PageClient(url) for _ in range(2)]
         patient.motion.moves.clear()
         n = plan_moves(patient, rig, seconds)
-        print(f"scan 2: started from the console, two Scan pages' requests without a browser, {n} moves planned",
-              flush=True)
+        print(
+            f"scan 2: started from the console, two Scan pages' requests without a browser, {n} moves planned",
+            flush=True,
+        )
         prerender(rig, seconds)
         start_scan(url, REFERENCE_S, seconds)
         wait_stopped(url, seconds + 180)
@@ -165,17 +169,24 @@ def main() -> int:
             rig.ntp_sync()
             rig_yaml, _ = rig.write(tmp / "rig")
             cfg = yaml.safe_load(rig_yaml.read_text())
-            cfg["calibration"]["cameras"] = str(tmp / "rig" / "cameras.json")   # all four cameras
+            cfg["calibration"]["cameras"] = str(tmp / "rig" / "cameras.json")  # all four cameras
             rig_yaml.write_text(yaml.safe_dump(cfg))
-            env = {**os.environ, **rig.env_vars(), "VTS_CONFIG": str(rig_yaml),
-                   "VTS_STORE": f"sqlite:///{tmp / 'results.sqlite'}"}
+            env = {
+                **os.environ,
+                **rig.env_vars(),
+                "VTS_CONFIG": str(rig_yaml),
+                "VTS_STORE": f"sqlite:///{tmp / 'results.sqlite'}",
+            }
             patient = add_patient(rig.scene, time.time(), 3 * a.seconds + 600, seed=a.seed, moves=[])
-            print(f"console bench: 4 simulated cameras at {rig.fps:g} fps, {os.cpu_count()} cores (load average "
-                  f"{load[0]:.2f} before the run), scans of {a.seconds:g} s, reference {REFERENCE_S:g} s", flush=True)
+            print(
+                f"console bench: 4 simulated cameras at {rig.fps:g} fps, {os.cpu_count()} cores (load average "
+                f"{load[0]:.2f} before the run), scans of {a.seconds:g} s, reference {REFERENCE_S:g} s",
+                flush=True,
+            )
             m1 = without_console(rig, rig_yaml, tmp, patient, a.seconds)
             mc, pictures = with_console_clients(rig, rig_yaml, tmp, patient, a.seconds, env)
             m2, frames, alerts = with_console(rig, rig_yaml, tmp, patient, a.seconds, env)
-            m4 = without_console(rig, rig_yaml, tmp, patient, a.seconds, which=4)   # the noise: alone again
+            m4 = without_console(rig, rig_yaml, tmp, patient, a.seconds, which=4)  # the noise: alone again
     l1, lc, l2 = m1["live_motion"]["summary"], mc["live_motion"]["summary"], m2["live_motion"]["summary"]
     l4 = m4["live_motion"]["summary"]
     fc, dc = recorded(mc)
@@ -187,26 +198,51 @@ def main() -> int:
     f2, d2 = recorded(m2)
     n_alerts = len(m2["live_motion"]["alerts"])
     rows = [
-        ("recorded frames dropped, with the console", f"{d2} of {f2 + d2} (alone: {d1} of {f1 + d1}; "
-         f"clients: {dc} of {fc + dc})", "0", d2 == 0 and dc == 0),
-        ("live path p95 latency, ms: alone (first, last) / console serving 2 pages' requests",
-         f"{a1:.1f}, {a4:.1f} / {c:.1f} (p50 {l1['latency_ms_p50']:.1f}, {l4['latency_ms_p50']:.1f} / "
-         f"{lc['latency_ms_p50']:.1f}; {pictures} pictures served)",
-         f"within {min(a1, a4) - spread:.1f}..{max(a1, a4) + spread:.1f}", within),
-        ("live path p95 latency, ms: ... / console and 2 Chromiums on this host",
-         f"{l2['latency_ms_p95']:.1f} (p50 {l2['latency_ms_p50']:.1f})", "-", None),
-        ("live path frames dropped (not the recording's): alone / clients / browsers",
-         f"{sum(l1['live_dropped'].values())} / {sum(lc['live_dropped'].values())} / "
-         f"{sum(l2['live_dropped'].values())}", "-", None),
-        ("frame arrival -> picture in the browser, p95 ms",
-         f"{1e3 * p95(frames):.0f} (p50 {1e3 * float(np.median(frames)) if frames else float('nan'):.0f}, "
-         f"{len(frames)} pictures in 2 browsers)", "<= 250", p95(frames) <= 0.25),
-        ("motion alert -> banner in the browser, p95 ms",
-         f"{1e3 * p95(alerts):.0f} (max {1e3 * max(alerts) if alerts else float('nan'):.0f}; {len(alerts)} banners "
-         f"in 2 browsers of {n_alerts} alerts)", "<= 200", p95(alerts) <= 0.2),
+        (
+            "recorded frames dropped, with the console",
+            f"{d2} of {f2 + d2} (alone: {d1} of {f1 + d1}; clients: {dc} of {fc + dc})",
+            "0",
+            d2 == 0 and dc == 0,
+        ),
+        (
+            "live path p95 latency, ms: alone (first, last) / console serving 2 pages' requests",
+            f"{a1:.1f}, {a4:.1f} / {c:.1f} (p50 {l1['latency_ms_p50']:.1f}, {l4['latency_ms_p50']:.1f} / "
+            f"{lc['latency_ms_p50']:.1f}; {pictures} pictures served)",
+            f"within {min(a1, a4) - spread:.1f}..{max(a1, a4) + spread:.1f}",
+            within,
+        ),
+        (
+            "live path p95 latency, ms: ... / console and 2 Chromiums on this host",
+            f"{l2['latency_ms_p95']:.1f} (p50 {l2['latency_ms_p50']:.1f})",
+            "-",
+            None,
+        ),
+        (
+            "live path frames dropped (not the recording's): alone / clients / browsers",
+            f"{sum(l1['live_dropped'].values())} / {sum(lc['live_dropped'].values())} / "
+            f"{sum(l2['live_dropped'].values())}",
+            "-",
+            None,
+        ),
+        (
+            "frame arrival -> picture in the browser, p95 ms",
+            f"{1e3 * p95(frames):.0f} (p50 {1e3 * float(np.median(frames)) if frames else float('nan'):.0f}, "
+            f"{len(frames)} pictures in 2 browsers)",
+            "<= 250",
+            p95(frames) <= 0.25,
+        ),
+        (
+            "motion alert -> banner in the browser, p95 ms",
+            f"{1e3 * p95(alerts):.0f} (max {1e3 * max(alerts) if alerts else float('nan'):.0f}; {len(alerts)} banners "
+            f"in 2 browsers of {n_alerts} alerts)",
+            "<= 200",
+            p95(alerts) <= 0.2,
+        ),
     ]
-    print(f"\nconsole bench, one run ({m2['status']} recording with the console, {m1['status']} alone); "
-          f"load average after: {os.getloadavg()[0]:.2f}")
+    print(
+        f"\nconsole bench, one run ({m2['status']} recording with the console, {m1['status']} alone); "
+        f"load average after: {os.getloadavg()[0]:.2f}"
+    )
     w = max(len(r[0]) for r in rows)
     print(f"{'figure':<{w}}  {'measured':<58}  {'goal':<22}  met")
     for name, value, goal, met in rows:

@@ -16,7 +16,7 @@ import time
 
 import requests
 
-PICTURE_EVERY_S = 0.5          # scan.js: PICTURE_EVERY_MS
+PICTURE_EVERY_S = 0.5  # scan.js: PICTURE_EVERY_MS
 
 
 class PageClient:
@@ -31,8 +31,10 @@ class PageClient:
         self._want: dict[str, int] = {}
         self._cond = threading.Condition()
         self._session = requests.Session()
-        self._threads = [threading.Thread(target=self._events, daemon=True),
-                         threading.Thread(target=self._fetch, daemon=True)]
+        self._threads = [
+            threading.Thread(target=self._events, daemon=True),
+            threading.Thread(target=self._fetch, daemon=True),
+        ]
         for t in self._threads:
             t.start()
 
@@ -90,8 +92,12 @@ def start_scan(url: str, reference_s: float, duration_s: float) -> str:
     """POST /scan/start as the page does (its token from the page); the scan's folder name."""
     page = requests.get(url + "scan", timeout=10).text
     token = re.search(r'data-token="([^"]+)"', page).group(1)
-    r = requests.post(url + "scan/start", json={"reference_s": reference_s, "duration_s": duration_s},
-                      headers={"X-Console-Token": token, "Origin": url.rstrip("/")}, timeout=10)
+    r = requests.post(
+        url + "scan/start",
+        json={"reference_s": reference_s, "duration_s": duration_s},
+        headers={"X-Console-Token": token, "Origin": url.rstrip("/")},
+        timeout=10,
+    )
     if not r.ok:
         raise SystemExit(f"the console refused the scan: {r.text}")
     return r.json()["scan"]

@@ -61,6 +61,7 @@ def main() -> int:
         tmp = Path(tmp)
         if args.store is None:
             from vts_hw.sim_devices.scenarios.demo_days import run_demo
+
             t0 = time.monotonic()
             res = run_demo(tmp / "demo", days=args.days, frames=3)
             db = res.store_path
@@ -86,6 +87,7 @@ def main() -> int:
             # the same "now" for both (a report's band edges are found by bisection from now)
             from vts_hw.report.build import build_drift_report_every_rig
             from vts_hw.store import ResultsStore
+
             now = time.time()
             reports = {}
             for name, url in (("sqlite", src), ("postgresql", dst)):
@@ -98,8 +100,10 @@ def main() -> int:
         finally:
             pg.stop()
         diff = differences(reports["sqlite"], reports["postgresql"])
-        print(f"drift report (every rig, all runs): {count_numbers(reports['sqlite'])} numbers from SQLite, "
-              f"{len(diff)} differ in the PostgreSQL copy's report")
+        print(
+            f"drift report (every rig, all runs): {count_numbers(reports['sqlite'])} numbers from SQLite, "
+            f"{len(diff)} differ in the PostgreSQL copy's report"
+        )
         for d in diff[:10]:
             print(f"    {d}")
         second = copies[1][2][-1] if copies[1][2] else ""

@@ -18,9 +18,9 @@ import math
 import cv2
 import numpy as np
 
-from vts_hw.vision.detect import Blob, DetectorSettings, detect
 from vts_hw.sim_devices.render import Renderer, encode
 from vts_hw.sim_devices.scene import Scene
+from vts_hw.vision.detect import Blob, DetectorSettings, detect
 
 GOAL = 0.05
 
@@ -29,8 +29,7 @@ def frames(scene: Scene, cam: str, t: float, n: int, seed: int):
     """``n`` noisy JPEG q75 frames of ``cam`` at the fixed instant ``t``, decoded to grey."""
     r = Renderer(scene, seed=seed)
     for _ in range(n):
-        yield cv2.imdecode(np.frombuffer(encode(r.render(cam, t), 75), np.uint8),
-                           cv2.IMREAD_GRAYSCALE)
+        yield cv2.imdecode(np.frombuffer(encode(r.render(cam, t), 75), np.uint8), cv2.IMREAD_GRAYSCALE)
 
 
 def reference_centroid(img: np.ndarray, b: Blob, clip: bool, pad: float) -> tuple[float, float]:
@@ -39,8 +38,8 @@ def reference_centroid(img: np.ndarray, b: Blob, clip: bool, pad: float) -> tupl
     r = math.sqrt(b.area / math.pi) + pad
     h = int(r) + 4
     x0, y0 = int(round(b.x)) - h, int(round(b.y)) - h
-    roi = img[y0:y0 + 2 * h + 1, x0:x0 + 2 * h + 1].astype(float)
-    yy, xx = np.mgrid[y0:y0 + 2 * h + 1, x0:x0 + 2 * h + 1].astype(float)
+    roi = img[y0 : y0 + 2 * h + 1, x0 : x0 + 2 * h + 1].astype(float)
+    yy, xx = np.mgrid[y0 : y0 + 2 * h + 1, x0 : x0 + 2 * h + 1].astype(float)
     ring = (xx == x0) | (xx == x0 + 2 * h) | (yy == y0) | (yy == y0 + 2 * h)
     A = np.stack([np.ones(ring.sum()), xx[ring], yy[ring]], axis=1)
     a, bx, by = np.linalg.lstsq(A, roi[ring], rcond=None)[0]
@@ -111,15 +110,18 @@ def main(argv=None) -> None:
 
     ph, _ = measure(1, args.frames, phantom=True)
     sd, err = summary(ph)
-    print(f"\n7-sphere phantom (13 mm spheres, info), seed 0: max SD {sd:.4f} px, "
-          f"max |error of the mean| {err:.4f} px over {len(ph)} spheres")
+    print(
+        f"\n7-sphere phantom (13 mm spheres, info), seed 0: max SD {sd:.4f} px, "
+        f"max |error of the mean| {err:.4f} px over {len(ph)} spheres"
+    )
 
     print("\nbelow-background values, plain per-pixel reference (wall markers):")
     for k, label in (("keep", "kept   "), ("clip", "clipped")):
         sd, err = summary(extra[k])
         rms = math.sqrt(np.mean([r[5] ** 2 + r[6] ** 2 for r in extra[k]]) / 2)
-        print(f"  {label}: max SD {sd:.4f} px, max |error of the mean| {err:.4f} px, "
-              f"RMS error of the mean {rms:.4f} px")
+        print(
+            f"  {label}: max SD {sd:.4f} px, max |error of the mean| {err:.4f} px, RMS error of the mean {rms:.4f} px"
+        )
 
 
 if __name__ == "__main__":

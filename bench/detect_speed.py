@@ -23,9 +23,9 @@ import time
 import cv2
 import numpy as np
 
-from vts_hw.vision.detect import DEFAULT, candidate_boxes, detect_jpeg
 from vts_hw.sim_devices.render import Renderer, encode
 from vts_hw.sim_devices.scene import Scene
+from vts_hw.vision.detect import DEFAULT, candidate_boxes, detect_jpeg
 
 GOALS = {False: 1.15, True: 1.25}  # (decode + detect) / decode; key: phantom in view
 NOISE = (1.5, 2.0, 2.5)
@@ -78,17 +78,19 @@ def main(argv=None) -> None:
     ap.add_argument("--frames", type=int, default=50)
     ap.add_argument("--reps", type=int, default=40)
     args = ap.parse_args(argv)
-    for phantom, label in ((False, "reference rig, wall markers"),
-                           (True, "with the 7-sphere phantom")):
+    for phantom, label in ((False, "reference rig, wall markers"), (True, "with the 7-sphere phantom")):
         frames = make_frames(args.frames, phantom)
         time_frames(frames[:5], 5)  # warm-up (caches of the detector and the allocator)
         dec, both, cand, blobs = time_frames(frames, args.reps)
         ratio, goal = both / dec, GOALS[phantom]
         size = sum(map(len, frames)) / len(frames) / 1000
-        print(f"{label}: {args.frames} frames x {args.reps} reps, {blobs:.1f} blobs/frame, "
-              f"JPEG {size:.1f} kB on average")
-        print(f"  decode {dec * 1e3:.3f} ms   decode+detect {both * 1e3:.3f} ms   "
-              f"detect {(both - dec) * 1e6:.0f} us (the goal allows {(goal - 1) * dec * 1e6:.0f} us)")
+        print(
+            f"{label}: {args.frames} frames x {args.reps} reps, {blobs:.1f} blobs/frame, JPEG {size:.1f} kB on average"
+        )
+        print(
+            f"  decode {dec * 1e3:.3f} ms   decode+detect {both * 1e3:.3f} ms   "
+            f"detect {(both - dec) * 1e6:.0f} us (the goal allows {(goal - 1) * dec * 1e6:.0f} us)"
+        )
         print(f"  ratio {ratio:.3f}   goal <= {goal}: {'met' if ratio <= goal else 'not met'}")
         print(f"  candidate search alone {(cand - dec) * 1e6:.0f} us, ratio {cand / dec:.3f}")
 

@@ -50,6 +50,7 @@ OURS = ("vts_hw/", "drivers/", "procedures/", "sim_devices/")
 
 # ------------------------------------------------------------------------------ the child
 
+
 class Recorder:
     """Runs one input through a target and keeps the counts where the parent can read them,
     also when libFuzzer ends the process without returning (it does, after -runs)."""
@@ -60,8 +61,7 @@ class Recorder:
         self.runs, self.keep = runs, keep
         self.crash_dir = crashes / name
         self.sites_path = work / f"{name}.sites.json"
-        self.sites: dict[str, dict] = json.loads(self.sites_path.read_text()) \
-            if self.sites_path.exists() else {}
+        self.sites: dict[str, dict] = json.loads(self.sites_path.read_text()) if self.sites_path.exists() else {}
         self.fd = os.open(work / f"{name}.stats", os.O_RDWR | os.O_CREAT | os.O_TRUNC, 0o644)
         self.n = self.handled = self.crashes = 0
         self.saved = sum(min(s["count"], keep) for s in self.sites.values())
@@ -87,15 +87,18 @@ class Recorder:
         s = self.sites.get(site)
         new = s is None
         if new:
-            s = self.sites[site] = {"count": 0, "message": f"{type(exc).__name__}: {exc}"[:300],
-                                    "where": where, "inputs": []}
+            s = self.sites[site] = {
+                "count": 0,
+                "message": f"{type(exc).__name__}: {exc}"[:300],
+                "where": where,
+                "inputs": [],
+            }
         s["count"] += 1
         if len(s["inputs"]) < self.keep and self.saved < 10 * self.keep:
             self.crash_dir.mkdir(parents=True, exist_ok=True)
             stem = f"{hashlib.sha1(site.encode()).hexdigest()[:8]}-{len(s['inputs'])}"
             (self.crash_dir / f"{stem}.bin").write_bytes(data)
-            (self.crash_dir / f"{stem}.txt").write_text(
-                f"{site}\n\n" + "".join(traceback.format_exception(exc)))
+            (self.crash_dir / f"{stem}.txt").write_text(f"{site}\n\n" + "".join(traceback.format_exception(exc)))
             s["inputs"].append(str(self.crash_dir / f"{stem}.bin"))
             self.saved += 1
         if new:
@@ -123,7 +126,7 @@ def _short(filename: str) -> str:
     for o in OURS:
         i = p.rfind("/" + o)
         if i >= 0:
-            return p[i + 1:]
+            return p[i + 1 :]
     return p.rsplit("site-packages/", 1)[-1]
 
 
@@ -144,11 +147,17 @@ def child(args) -> None:
         art = work / "artifacts" / name
         art.mkdir(parents=True, exist_ok=True)
         dict_path = work / f"{name}.dict"
-        dict_path.write_text("".join('"' + "".join(f"\\x{b:02x}" for b in tok) + '"\n'
-                                     for tok in target.tokens))
-        flags = [f"-runs={args.runs}", f"-seed={args.seed}", f"-max_len={target.max_len}",
-                 f"-timeout={args.timeout}", "-rss_limit_mb=3072", f"-artifact_prefix={art}/",
-                 "-use_value_profile=1", "-print_final_stats=1"]
+        dict_path.write_text("".join('"' + "".join(f"\\x{b:02x}" for b in tok) + '"\n' for tok in target.tokens))
+        flags = [
+            f"-runs={args.runs}",
+            f"-seed={args.seed}",
+            f"-max_len={target.max_len}",
+            f"-timeout={args.timeout}",
+            "-rss_limit_mb=3072",
+            f"-artifact_prefix={art}/",
+            "-use_value_profile=1",
+            "-print_final_stats=1",
+        ]
         if target.tokens:
             flags.append(f"-dict={dict_path}")
         atheris.Setup([sys.argv[0], *flags, str(live), str(work / "seeds" / name)], rec)
@@ -157,11 +166,13 @@ def child(args) -> None:
         import_parsers(target.uses)
         rec = Recorder(name, work, Path(args.crashes), args.runs, args.keep)
         from fuzzkit.mutate import run_hypothesis
+
         run_hypothesis(rec, work / "seeds" / name, target, args.runs, args.seed, args.timeout)
         rec.flush()
 
 
 # ------------------------------------------------------------------------------ the parent
+
 
 def fuzz_target(name: str, args, work: Path, crashes: Path) -> dict:
     """Fuzz one target with ``args.runs`` inputs, over as many child processes as it takes."""
@@ -178,23 +189,43 @@ def fuzz_target(name: str, args, work: Path, crashes: Path) -> dict:
     t0 = time.monotonic()
     with open(log, "w") as logf:
         while done < args.runs:
-            cmd = [sys.executable, str(Path(__file__).resolve()), "--child", name,
-                   "--runs", str(args.runs - done), "--work", str(work), "--crashes", str(crashes),
-                   "--engine", args.engine, "--seed", str(args.seed + done), "--keep", str(args.keep),
-                   "--timeout", str(args.timeout)]
+            cmd = [
+                sys.executable,
+                str(Path(__file__).resolve()),
+                "--child",
+                name,
+                "--runs",
+                str(args.runs - done),
+                "--work",
+                str(work),
+                "--crashes",
+                str(crashes),
+                "--engine",
+                args.engine,
+                "--seed",
+                str(args.seed + done),
+                "--keep",
+                str(args.keep),
+                "--timeout",
+                str(args.timeout),
+            ]
             logf.write(f"$ {' '.join(cmd)}\n")
             logf.flush()
             rc = subprocess.call(cmd, stdout=logf, stderr=logf, cwd=work)
-            n, h, c = STATS.unpack(stats.read_bytes()[:STATS.size]) if stats.exists() \
-                and stats.stat().st_size >= STATS.size else (0, 0, 0)
+            n, h, c = (
+                STATS.unpack(stats.read_bytes()[: STATS.size])
+                if stats.exists() and stats.stat().st_size >= STATS.size
+                else (0, 0, 0)
+            )
             done, handled, crashed = done + n, handled + h, crashed + c
             if rc == 0 and n > 0:
                 continue
             if rc != 0:  # a hang, out of memory or a fatal signal: libFuzzer saved the input
                 kind = _fatal_kind(art, rc)
-                s = fatal.setdefault(f"{kind} (the fuzzing process ended)",
-                                     {"count": 0, "message": f"exit status {rc}; see {log}",
-                                      "where": "", "inputs": []})
+                s = fatal.setdefault(
+                    f"{kind} (the fuzzing process ended)",
+                    {"count": 0, "message": f"exit status {rc}; see {log}", "where": "", "inputs": []},
+                )
                 s["count"] += 1
                 crashed += 1
                 for a in sorted(art.glob("*")):
@@ -205,11 +236,16 @@ def fuzz_target(name: str, args, work: Path, crashes: Path) -> dict:
             stalls = stalls + 1 if n == 0 else 0
             if stalls >= 3:
                 raise SystemExit(f"fuzz.py: the {name} fuzzer does not run (see {log})")
-    sites = json.loads((work / f"{name}.sites.json").read_text()) \
-        if (work / f"{name}.sites.json").exists() else {}
+    sites = json.loads((work / f"{name}.sites.json").read_text()) if (work / f"{name}.sites.json").exists() else {}
     sites.update(fatal)
-    return {"target": name, "inputs": done, "handled": handled, "crashes": crashed,
-            "sites": sites, "seconds": round(time.monotonic() - t0, 1)}
+    return {
+        "target": name,
+        "inputs": done,
+        "handled": handled,
+        "crashes": crashed,
+        "sites": sites,
+        "seconds": round(time.monotonic() - t0, 1),
+    }
 
 
 def _fatal_kind(art: Path, rc: int) -> str:
@@ -221,20 +257,26 @@ def _fatal_kind(art: Path, rc: int) -> str:
 
 
 def print_table(results: list[dict], engine: str, runs: int) -> None:
-    print(f"\nfuzz.py: {engine}, {runs:,} inputs per parser; a typed error (VtsError) is handled, "
-          "any other exception a crash")
+    print(
+        f"\nfuzz.py: {engine}, {runs:,} inputs per parser; a typed error (VtsError) is handled, "
+        "any other exception a crash"
+    )
     w = max([16, *(len(r["target"]) for r in results)])
     head = f"{'parser':<{w}} {'inputs':>9} {'typed errors':>12} {'crash sites':>11} {'crashes':>8} {'seconds':>8}"
     print(head)
     print("-" * len(head))
     for r in results:
-        print(f"{r['target']:<{w}} {r['inputs']:>9} {r['handled']:>12} {len(r['sites']):>11} "
-              f"{r['crashes']:>8} {r['seconds']:>8.1f}")
+        print(
+            f"{r['target']:<{w}} {r['inputs']:>9} {r['handled']:>12} {len(r['sites']):>11} "
+            f"{r['crashes']:>8} {r['seconds']:>8.1f}"
+        )
     total = sum(r["crashes"] for r in results)
     print("-" * len(head))
-    print(f"{'total':<{w}} {sum(r['inputs'] for r in results):>9} "
-          f"{sum(r['handled'] for r in results):>12} {sum(len(r['sites']) for r in results):>11} "
-          f"{total:>8} {sum(r['seconds'] for r in results):>8.1f}")
+    print(
+        f"{'total':<{w}} {sum(r['inputs'] for r in results):>9} "
+        f"{sum(r['handled'] for r in results):>12} {sum(len(r['sites']) for r in results):>11} "
+        f"{total:>8} {sum(r['seconds'] for r in results):>8.1f}"
+    )
     for r in results:
         for site, s in sorted(r["sites"].items(), key=lambda kv: -kv[1]["count"]):
             print(f"\n[{r['target']}] {site}: {s['count']} input(s)\n    {s['message']}")
@@ -250,14 +292,21 @@ def main(argv=None) -> int:
     ap.add_argument("--only", default="", help=f"comma-separated targets: {', '.join(TARGETS)}")
     ap.add_argument("--crashes", default="crashes", help="folder for crashing inputs (./crashes)")
     ap.add_argument("--work", default=None, help="working folder (default: a temporary one)")
-    ap.add_argument("--engine", choices=("atheris", "hypothesis"), default=None,
-                    help="default: atheris when it can be imported, else hypothesis")
+    ap.add_argument(
+        "--engine",
+        choices=("atheris", "hypothesis"),
+        default=None,
+        help="default: atheris when it can be imported, else hypothesis",
+    )
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--timeout", type=int, default=10, help="seconds one input may take")
     ap.add_argument("--keep", type=int, default=3, help="crashing inputs saved per crash site")
     shared = Path(os.environ.get("VTS_SHARED_DATA", ROOT.parent / "shared" / "data"))
-    ap.add_argument("--frames", default=str(shared / "axis-frames"),
-                    help="the real Axis frames (../shared/data/axis-frames, or $VTS_SHARED_DATA)")
+    ap.add_argument(
+        "--frames",
+        default=str(shared / "axis-frames"),
+        help="the real Axis frames (../shared/data/axis-frames, or $VTS_SHARED_DATA)",
+    )
     ap.add_argument("--json", default=None, help="also write the figures to this JSON file")
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -267,6 +316,7 @@ def main(argv=None) -> int:
     if args.engine is None:
         try:
             import atheris  # noqa: F401
+
             args.engine = "atheris"
         except ImportError:
             args.engine = "hypothesis"
@@ -281,8 +331,7 @@ def main(argv=None) -> int:
     from fuzzkit.seeds import make_seeds
 
     counts = make_seeds(work, Path(args.frames))
-    print(f"seeds: {', '.join(f'{k} {v}' for k, v in counts.items())}; engine {args.engine}",
-          flush=True)
+    print(f"seeds: {', '.join(f'{k} {v}' for k, v in counts.items())}; engine {args.engine}", flush=True)
     results = []
     for name in names:
         r = fuzz_target(name, args, work, crashes)

@@ -30,12 +30,12 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from vts_hw.tracking.live.estimator import LiveSettings
-from vts_hw.tracking.live.tracker import LiveTracker
-from vts_hw.tracking.live.watch import Episode
 from vts_hw.sim_devices.patient import BodyMove
 from vts_hw.sim_devices.recording_sim import received_frames, simulate_recording
 from vts_hw.sim_devices.sync_truth import true_cameras
+from vts_hw.tracking.live.estimator import LiveSettings
+from vts_hw.tracking.live.tracker import LiveTracker
+from vts_hw.tracking.live.watch import Episode
 from vts_hw.vision.registration import RigidTransform
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -53,6 +53,7 @@ def patterns(rng: np.random.Generator):
 
     def random_loss(table, p):
         return lambda cam, t: table.setdefault((cam, round(t, 3)), rng.random() < p)
+
     yield "none", lambda cam, t: False
     yield "5 % single frames, each camera", random_loss(drop5, 0.05)
     yield "20 % single frames, each camera", random_loss(drop20, 0.20)
@@ -62,9 +63,11 @@ def patterns(rng: np.random.Generator):
 
 
 def render(folder: Path, seconds: float, seed: int, breathing: bool):
-    start = 1_790_000_000.0 + 1000.0 * seed + 5.0            # simulate_recording's default start
-    moves = [BodyMove(start + a, start + a + 0.6, (0.0, 1.0 + 0.5 * k, 0.0), (2.0, 5.0 + k, 2.0))
-             for k, a in enumerate(np.arange(17.3, seconds - 4.0, 13.7))]
+    start = 1_790_000_000.0 + 1000.0 * seed + 5.0  # simulate_recording's default start
+    moves = [
+        BodyMove(start + a, start + a + 0.6, (0.0, 1.0 + 0.5 * k, 0.0), (2.0, 5.0 + k, 2.0))
+        for k, a in enumerate(np.arange(17.3, seconds - 4.0, 13.7))
+    ]
     sim = simulate_recording(folder, duration_s=seconds, seed=seed, patient={"moves": moves, "breathing": breathing})
     frames, offsets = received_frames(folder, sim.cameras)
     return sim, frames, offsets, moves, start
@@ -74,9 +77,16 @@ def run(sim, frames, offsets, lost, start):
     """Feed the kept frames on the made-up clock; returns the tracker, events, motion alerts and
     the kept frames' (s from the first, camera, exposure s from the first)."""
     events, alerts = [], []
-    tr = LiveTracker(true_cameras(sim.scene, start), MOTION, mapping=RigidTransform.identity(), clock_offsets=offsets,
-                     settings=LiveSettings(reference_s=10.0), on_event=events.append,
-                     on_alert=lambda a, est: alerts.append(a), late_s=LATE_S)
+    tr = LiveTracker(
+        true_cameras(sim.scene, start),
+        MOTION,
+        mapping=RigidTransform.identity(),
+        clock_offsets=offsets,
+        settings=LiveSettings(reference_s=10.0),
+        on_event=events.append,
+        on_alert=lambda a, est: alerts.append(a),
+        late_s=LATE_S,
+    )
     t_first = frames[0][0]
     kept = []
     tick = 0.0
@@ -121,10 +131,12 @@ def main() -> int:
         t0 = time.monotonic()
         sim, frames, offsets, moves, start = render(Path(tmp) / "rec", a.seconds, a.seed, not a.no_breathing)
         t_first = frames[0][0]
-        print(f"live path under loss: simulated patient ({'not ' if a.no_breathing else ''}breathing), 2 cameras at "
-              f"25 fps, {a.seconds:g} s, seed {a.seed}, {len(moves)} body moves; rendered ahead in "
-              f"{time.monotonic() - t0:.0f} s; reference 10 s, late_s {LATE_S} s, blind_alert_s "
-              f"{MOTION.blind_alert_s} s; times are frame times (the made-up clock)")
+        print(
+            f"live path under loss: simulated patient ({'not ' if a.no_breathing else ''}breathing), 2 cameras at "
+            f"25 fps, {a.seconds:g} s, seed {a.seed}, {len(moves)} body moves; rendered ahead in "
+            f"{time.monotonic() - t0:.0f} s; reference 10 s, late_s {LATE_S} s, blind_alert_s "
+            f"{MOTION.blind_alert_s} s; times are frame times (the made-up clock)"
+        )
         rng = np.random.default_rng(a.seed)
         for name, lost in patterns(rng):
             tr, events, alerts, kept, end = run(sim, frames, offsets, lost, start)
@@ -133,21 +145,25 @@ def main() -> int:
             eps = [e for e in events if isinstance(e, Episode)]
             rep = sum(e.end - e.start for e in eps)
             diffs = []
-            for s0, s1 in long:     # each stretch without frames against the NOT TRACKING that covers it
+            for s0, s1 in long:  # each stretch without frames against the NOT TRACKING that covers it
                 cover = [e for e in eps if e.start - MONO0 < s1 and e.end - MONO0 > s0]
                 diffs.append(sum(e.end - e.start for e in cover) - (s1 - s0) if cover else -(s1 - s0))
             expected_blind = sum(1 for s0, s1 in long if s1 - s0 > MOTION.blind_alert_s)
             learned = "never" if tr.facts.learned is None else f"{tr.facts.learned - MONO0:.1f} s"
             print(f"\n{name}: {lost_share:.1%} of frames lost; reference learned at {learned}")
-            print(f"  time truly without a pose (stretches > {LATE_S} s) {truly:.2f} s in {len(long)}; all time "
-                  f"between frame sets {between:.2f} s; reported NOT TRACKING {rep:.2f} s in {len(eps)} stretch(es); "
-                  f"per stretch reported - true: "
-                  + (f"{min(diffs):+.2f} .. {max(diffs):+.2f} s" if diffs else "-"))
-            print(f"  NOT TRACKING alerts {len(tr.blind_alerts)} (stretches longer than {MOTION.blind_alert_s:g} s: "
-                  f"{expected_blind}); reasons: "
-                  + ", ".join(sorted({r.split(' (')[0] for e in eps for r in e.reasons})) or "-")
+            print(
+                f"  time truly without a pose (stretches > {LATE_S} s) {truly:.2f} s in {len(long)}; all time "
+                f"between frame sets {between:.2f} s; reported NOT TRACKING {rep:.2f} s in {len(eps)} stretch(es); "
+                f"per stretch reported - true: " + (f"{min(diffs):+.2f} .. {max(diffs):+.2f} s" if diffs else "-")
+            )
+            print(
+                f"  NOT TRACKING alerts {len(tr.blind_alerts)} (stretches longer than {MOTION.blind_alert_s:g} s: "
+                f"{expected_blind}); reasons: "
+                + ", ".join(sorted({r.split(" (")[0] for e in eps for r in e.reasons}))
+                or "-"
+            )
             firsts, extra = {}, []
-            for x in alerts:           # each alert to the latest move that started before it
+            for x in alerts:  # each alert to the latest move that started before it
                 before = [k for k, mv in enumerate(moves) if mv.t_start - 0.5 <= x.time]
                 if before and before[-1] not in firsts:
                     firsts[before[-1]] = x
@@ -158,9 +174,11 @@ def main() -> int:
                 if x is None:
                     print(f"  move at {mv.t_start - t_first:5.1f} s: NO ALERT")
                     continue
-                print(f"  move at {mv.t_start - t_first:5.1f} s: alert {x.time - mv.t_start:.2f} s after its start, "
-                      f"onset {x.onset - mv.t_start:+.2f} s, start known within {x.onset_known_s:.2f} s; "
-                      f"{x.move_mm:.1f} mm {x.turn_deg:.1f} deg")
+                print(
+                    f"  move at {mv.t_start - t_first:5.1f} s: alert {x.time - mv.t_start:.2f} s after its start, "
+                    f"onset {x.onset - mv.t_start:+.2f} s, start known within {x.onset_known_s:.2f} s; "
+                    f"{x.move_mm:.1f} mm {x.turn_deg:.1f} deg"
+                )
             print(f"  other alerts: {len(extra)}; live frames dropped {sum(tr.tap.dropped.values())}")
     return 0
 

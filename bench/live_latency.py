@@ -34,7 +34,6 @@ import argparse
 import os
 import sys
 import tempfile
-import threading
 import time
 from pathlib import Path
 from types import SimpleNamespace
@@ -59,8 +58,9 @@ def make_frames(folder: Path, cameras: int, seconds: float, seed: int, late_shar
     """The scene, and every camera's frames as received: (receipt s from the first, camera, frame)."""
     scene = Scene.reference(seed=seed, n_cameras=cameras, start_epoch=1_790_000_000.0 + 1000.0 * seed)
     t0 = time.monotonic()
-    simulate_recording(folder, duration_s=seconds, seed=seed, scene=scene, patient={"moves": []},
-                       outlier_rate=late_share)
+    simulate_recording(
+        folder, duration_s=seconds, seed=seed, scene=scene, patient={"moves": []}, outlier_rate=late_share
+    )
     frames, offsets = received_frames(folder, scene.camera_names)
     first = frames[0][0]
     return scene, [(host - first, name, frame) for host, name, frame in frames], offsets, time.monotonic() - t0
@@ -68,10 +68,15 @@ def make_frames(folder: Path, cameras: int, seconds: float, seed: int, late_shar
 
 def run_case(scene, frames, offsets, reference_s: float) -> dict:
     """The frames fed in real time to a fresh tracker; its figures over the sets after its reference."""
-    tr = LiveTracker(true_cameras(scene, scene.start_epoch), MOTION, mapping=RigidTransform.identity(),
-                     clock_offsets=offsets, settings=LiveSettings(reference_s=reference_s)).start()
+    tr = LiveTracker(
+        true_cameras(scene, scene.start_epoch),
+        MOTION,
+        mapping=RigidTransform.identity(),
+        clock_offsets=offsets,
+        settings=LiveSettings(reference_s=reference_s),
+    ).start()
     first_tracked = None
-    late = []                              # how late the feeder put frames (s): the feeder's own delay
+    late = []  # how late the feeder put frames (s): the feeder's own delay
     try:
         start = time.monotonic()
         for rel, name, frame in frames:
@@ -82,8 +87,8 @@ def run_case(scene, frames, offsets, reference_s: float) -> dict:
                 late.append(-wait)
             tr.on_frame(name, frame)
             if first_tracked is None and tr.estimator.phase == "tracking":
-                first_tracked = len(tr.latency) + 1          # after the set that learned the reference
-        time.sleep(0.3)                                   # the last sets decided
+                first_tracked = len(tr.latency) + 1  # after the set that learned the reference
+        time.sleep(0.3)  # the last sets decided
     finally:
         tr.stop()
     if tr.error:
@@ -96,16 +101,29 @@ def _figures(tr: LiveTracker, first_tracked: int | None, late: list) -> dict:
         raise SystemExit(f"the reference was never learned: {tr.estimator.note}; more --seconds?")
     n = len(tr.latency) - first_tracked
     lat = np.array([x[0] for x in list(tr.latency)[first_tracked:]]) * 1e3
-    return {"sets": n, "p50": float(np.percentile(lat, 50)), "p95": float(np.percentile(lat, 95)),
-            "max": float(lat.max()), "parts": tr.latency_parts(n), "dropped": sum(tr.tap.dropped.values()),
-            "unmatched": tr.grouper.unmatched, "feeder_late_ms": 1e3 * float(np.percentile(late, 95)) if late else 0.0}
+    return {
+        "sets": n,
+        "p50": float(np.percentile(lat, 50)),
+        "p95": float(np.percentile(lat, 95)),
+        "max": float(lat.max()),
+        "parts": tr.latency_parts(n),
+        "dropped": sum(tr.tap.dropped.values()),
+        "unmatched": tr.grouper.unmatched,
+        "feeder_late_ms": 1e3 * float(np.percentile(late, 95)) if late else 0.0,
+    }
 
 
 def cpu_case(scene, frames, offsets, reference_s: float) -> dict:
     """What the path costs in CPU, whatever else the machine runs: the frames fed one at a time
     in this thread (``step`` after each), the tracker's clock this thread's CPU time."""
-    tr = LiveTracker(true_cameras(scene, scene.start_epoch), MOTION, mapping=RigidTransform.identity(),
-                     clock_offsets=offsets, settings=LiveSettings(reference_s=reference_s), clock=time.thread_time)
+    tr = LiveTracker(
+        true_cameras(scene, scene.start_epoch),
+        MOTION,
+        mapping=RigidTransform.identity(),
+        clock_offsets=offsets,
+        settings=LiveSettings(reference_s=reference_s),
+        clock=time.thread_time,
+    )
     first_tracked = None
     for _, name, frame in frames:
         tr.tap.put(name, frame, arrival=time.thread_time())
@@ -122,19 +140,28 @@ def main() -> int:
     ap.add_argument("--cameras", type=int, default=4)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--per-core", type=int, default=2, help="spinning processes per core in the busy case")
-    ap.add_argument("--late-share", type=float, default=0.0,
-                    help="share of frames 50-300 ms late (a congested network; default 0): the sets "
-                         "behind such a frame wait for it, by the grouping rule (decision 0048)")
+    ap.add_argument(
+        "--late-share",
+        type=float,
+        default=0.0,
+        help="share of frames 50-300 ms late (a congested network; default 0): the sets "
+        "behind such a frame wait for it, by the grouping rule (decision 0048)",
+    )
     ap.add_argument("--cases", nargs="+", choices=("cpu", "idle", "busy"), default=["cpu", "idle", "busy"])
     a = ap.parse_args()
     if a.seconds < 2 or a.reference_s < 2 or a.cameras < 2 or a.per_core < 1 or not 0 <= a.late_share < 1:
-        ap.error("--seconds and --reference-s must be 2 or more, --cameras 2 or more, --per-core 1 or more, "
-                 "--late-share from 0 to below 1")
+        ap.error(
+            "--seconds and --reference-s must be 2 or more, --cameras 2 or more, --per-core 1 or more, "
+            "--late-share from 0 to below 1"
+        )
     cores = os.cpu_count() or 1
-    total = a.reference_s * 1.5 + a.seconds + 1.0          # the reference may take longer than its seconds
-    print(f"live path latency: {a.cameras} simulated cameras at 25 fps, frames made ahead ({a.late_share:.0%} "
-          f"of them 50-300 ms late); {cores} cores; reference {a.reference_s:g} s, then {a.seconds:g} s measured "
-          f"per case", flush=True)
+    total = a.reference_s * 1.5 + a.seconds + 1.0  # the reference may take longer than its seconds
+    print(
+        f"live path latency: {a.cameras} simulated cameras at 25 fps, frames made ahead ({a.late_share:.0%} "
+        f"of them 50-300 ms late); {cores} cores; reference {a.reference_s:g} s, then {a.seconds:g} s measured "
+        f"per case",
+        flush=True,
+    )
     try:
         with tempfile.TemporaryDirectory(prefix="vts-live-latency-") as tmp:
             print(f"  making {total:g} s of frames ahead ...", flush=True)
@@ -145,7 +172,7 @@ def main() -> int:
                 load = os.getloadavg()[0]
                 if case == "busy":
                     with cpu_load(a.per_core * cores) as pids:
-                        time.sleep(1.0)                           # the spinners running
+                        time.sleep(1.0)  # the spinners running
                         r = run_case(scene, frames, offsets, a.reference_s)
                     what = f"+{len(pids)} spinning"
                 elif case == "idle":
@@ -160,17 +187,23 @@ def main() -> int:
         print("interrupted: the CPU load is stopped", file=sys.stderr)
         return 130
     head = f"{'case':5} {'machine':12} {'load':>5} {'sets':>5} {'p50':>6} {'p95':>6} {'max':>7}  goal p95 <= {GOAL_P95_MS:g}"
-    print("\nms from a set's last frame at the tap to its markers in the live estimate (load: 1-min "
-          "average when the case began)")
+    print(
+        "\nms from a set's last frame at the tap to its markers in the live estimate (load: 1-min "
+        "average when the case began)"
+    )
     print(head + "  | parts p50/p95: " + "  ".join(PARTS))
     for case, what, load, r in rows:
         verdict = "met" if r["p95"] <= GOAL_P95_MS else "NOT met"
         parts = "  ".join(f"{p50:.2f}/{p95:.2f}" for p50, p95 in (r["parts"][p] for p in PARTS))
-        print(f"{case:5} {what:12} {load:5.1f} {r['sets']:5d} {r['p50']:6.2f} {r['p95']:6.2f} {r['max']:7.1f}  "
-              f"{verdict:7}          | {parts}")
+        print(
+            f"{case:5} {what:12} {load:5.1f} {r['sets']:5d} {r['p50']:6.2f} {r['p95']:6.2f} {r['max']:7.1f}  "
+            f"{verdict:7}          | {parts}"
+        )
     for case, _, _, r in rows:
-        print(f"  {case}: frames dropped from the live path {r['dropped']}, frames in no set {r['unmatched']}, "
-              f"the feeder itself late by up to {r['feeder_late_ms']:.1f} ms (p95)")
+        print(
+            f"  {case}: frames dropped from the live path {r['dropped']}, frames in no set {r['unmatched']}, "
+            f"the feeder itself late by up to {r['feeder_late_ms']:.1f} ms (p95)"
+        )
     return 0
 
 

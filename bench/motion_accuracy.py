@@ -51,8 +51,11 @@ def score(r, patient, label):
     err = six[sel] - true[sel]
     mm = float(np.sqrt(np.mean(np.sum(err[:, :3] ** 2, axis=1))))
     deg = float(np.sqrt(np.mean(np.sum(err[:, 3:] ** 2, axis=1))))
-    moves = [m for m in patient.motion.moves
-             if np.linalg.norm(m.translation_mm) >= 2.0 or np.linalg.norm(m.rotation_deg) >= 1.0]
+    moves = [
+        m
+        for m in patient.motion.moves
+        if np.linalg.norm(m.translation_mm) >= 2.0 or np.linalg.norm(m.rotation_deg) >= 1.0
+    ]
     moves = [m for m in moves if t[0] <= m.t_start <= t[-1]]
     found, starts = 0, []
     for m in moves:
@@ -66,12 +69,23 @@ def score(r, patient, label):
     ok = r.pose.valid & np.isfinite(r.respiration.amplitude)
     b = patient.breathing.value(t)
     corr = float(np.corrcoef(r.respiration.amplitude[ok], b[ok])[0, 1]) if patient.breathing.enabled else float("nan")
-    rates = [abs(c.rate_per_min - patient.breathing.rate_per_min(0.5 * (c.t_start + c.t_end)))
-             for c in r.respiration.cycles]
+    rates = [
+        abs(c.rate_per_min - patient.breathing.rate_per_min(0.5 * (c.t_start + c.t_end))) for c in r.respiration.cycles
+    ]
     rate = float(np.nanmedian(rates)) if rates else float("nan")
-    return {"run": label, "pose_mm": mm, "pose_deg": deg, "moves": len(moves), "found": found,
-            "start_s": max((abs(s) for s in starts), default=0.0), "false": false, "corr": corr, "rate": rate,
-            "cycles": len(r.respiration.cycles), "states": len(r.states)}
+    return {
+        "run": label,
+        "pose_mm": mm,
+        "pose_deg": deg,
+        "moves": len(moves),
+        "found": found,
+        "start_s": max((abs(s) for s in starts), default=0.0),
+        "false": false,
+        "corr": corr,
+        "rate": rate,
+        "cycles": len(r.respiration.cycles),
+        "states": len(r.states),
+    }
 
 
 def synthetic(seed, duration, n_moves):
@@ -87,13 +101,16 @@ def synthetic(seed, duration, n_moves):
 def rendered(seed, duration, n_cameras, n_moves, work, align=True):
     scene = Scene.reference(seed=seed, n_cameras=n_cameras, start_epoch=1_790_000_000.0 + 1000.0 * seed)
     folder = Path(work) / f"rec-{seed}-{n_cameras}-{n_moves}"
-    sim = simulate_recording(folder, duration_s=duration, seed=seed, scene=scene,
-                             patient={"n_moves": n_moves, "still_s": 12.0})
+    sim = simulate_recording(
+        folder, duration_s=duration, seed=seed, scene=scene, patient={"n_moves": n_moves, "still_s": 12.0}
+    )
     from vts_hw.tracking.processing import ProcessSettings, process_recording
     from vts_hw.vision.registration import RigidTransform
+
     cams = {n: sim.scene.camera_at(n, scene.start_epoch + 5.0) for n in sim.cameras}
-    tracks = process_recording(folder, cams, workers=2, mapping=RigidTransform.identity(),
-                               settings=ProcessSettings(align_times=align))
+    tracks = process_recording(
+        folder, cams, workers=2, mapping=RigidTransform.identity(), settings=ProcessSettings(align_times=align)
+    )
     r = analyze_motion(marker_series(tracks))
     # marker 3D error: each point against the nearest true patient marker at its time, during moves
     pt = tracks.point_time
@@ -111,15 +128,25 @@ def rendered(seed, duration, n_cameras, n_moves, work, align=True):
             speeds.append(float(np.linalg.norm(later[j] - truth[j])) / 0.01)
     errs, speeds = np.array(errs), np.array(speeds)
     rms = lambda sel: float(np.sqrt(np.mean(errs[sel] ** 2))) if sel.any() else float("nan")  # noqa: E731
-    split = {"slow": rms(speeds < 5.0), "fast": rms(speeds >= 5.0), "n_slow": int((speeds < 5.0).sum()),
-             "n_fast": int((speeds >= 5.0).sum())} if errs.size else {}
+    split = (
+        {
+            "slow": rms(speeds < 5.0),
+            "fast": rms(speeds >= 5.0),
+            "n_slow": int((speeds < 5.0).sum()),
+            "n_fast": int((speeds >= 5.0).sum()),
+        }
+        if errs.size
+        else {}
+    )
     return r, sim.patient, (float(np.sqrt(np.mean(np.square(errs)))) if errs.size else float("nan")), len(errs), split
 
 
 def line(s, extra=""):
-    return (f"{s['run']:<28} pose {s['pose_mm']:.3f} mm {s['pose_deg']:.3f} deg | moves {s['found']}/{s['moves']} "
-            f"(worst start {s['start_s']:.2f} s) false {s['false']} | resp corr {s['corr']:.4f} rate err "
-            f"{s['rate']:.2f} /min ({s['cycles']} cycles) | states {s['states']}{extra}")
+    return (
+        f"{s['run']:<28} pose {s['pose_mm']:.3f} mm {s['pose_deg']:.3f} deg | moves {s['found']}/{s['moves']} "
+        f"(worst start {s['start_s']:.2f} s) false {s['false']} | resp corr {s['corr']:.4f} rate err "
+        f"{s['rate']:.2f} /min ({s['cycles']} cycles) | states {s['states']}{extra}"
+    )
 
 
 def main() -> int:
@@ -129,9 +156,12 @@ def main() -> int:
     ap.add_argument("--render-duration", type=float, default=40.0, help="rendered runs (s)")
     ap.add_argument("--cameras", type=int, nargs="+", default=[4, 2])
     ap.add_argument("--no-render", action="store_true")
-    ap.add_argument("--no-align", action="store_true",
-                    help="triangulate each frame set's views as recorded, not brought to one instant "
-                         "(the processing before decision 0037, for comparison)")
+    ap.add_argument(
+        "--no-align",
+        action="store_true",
+        help="triangulate each frame set's views as recorded, not brought to one instant "
+        "(the processing before decision 0037, for comparison)",
+    )
     args = ap.parse_args()
     rows, marker_rms = [], []
     with tempfile.TemporaryDirectory() as work:
@@ -145,13 +175,20 @@ def main() -> int:
                 continue
             for nc in args.cameras:
                 for n_moves, kind in ((1, "move"), (0, "breathing only")):
-                    r, p, mrms, n, split = rendered(seed, args.render_duration, nc, n_moves, work,
-                                                             align=not args.no_align)
+                    r, p, mrms, n, split = rendered(
+                        seed, args.render_duration, nc, n_moves, work, align=not args.no_align
+                    )
                     s = score(r, p, f"seed {seed} rendered {nc} cam {kind}")
                     rows.append(s)
-                    extra = (f" | marker 3D RMS during moves {mrms:.3f} mm ({n} points; below 5 mm/s "
-                             f"{split['slow']:.3f} mm ({split['n_slow']}), faster {split['fast']:.3f} mm "
-                             f"({split['n_fast']}))") if n else ""
+                    extra = (
+                        (
+                            f" | marker 3D RMS during moves {mrms:.3f} mm ({n} points; below 5 mm/s "
+                            f"{split['slow']:.3f} mm ({split['n_slow']}), faster {split['fast']:.3f} mm "
+                            f"({split['n_fast']}))"
+                        )
+                        if n
+                        else ""
+                    )
                     if n:
                         marker_rms.append(mrms)
                     print(line(s, extra), flush=True)
@@ -165,12 +202,21 @@ def main() -> int:
     print(f"\nworst body 6-DOF RMS in still frames: {pm:.3f} mm, {pd:.3f} deg (goal <= 0.3 mm, 0.2 deg)")
     print(f"body moves found with start within 0.5 s: {found}/{moves} (goal all)")
     print(f"false events in breathing-only runs: {false} (goal 0)")
-    print(f"respiratory correlation, lowest: {corr:.4f} (goal >= 0.98); rate error, worst run median: "
-          f"{rate:.2f} /min (goal <= 0.5)")
+    print(
+        f"respiratory correlation, lowest: {corr:.4f} (goal >= 0.98); rate error, worst run median: "
+        f"{rate:.2f} /min (goal <= 0.5)"
+    )
     if marker_rms:
         print(f"marker 3D RMS during body moves, worst run: {max(marker_rms):.3f} mm (goal <= 0.10)")
-    missed = (pm > GOALS["pose_mm"] or pd > GOALS["pose_deg"] or found < moves or false > 0
-              or corr < GOALS["corr"] or rate > GOALS["rate"] or (marker_rms and max(marker_rms) > GOALS["marker_mm"]))
+    missed = (
+        pm > GOALS["pose_mm"]
+        or pd > GOALS["pose_deg"]
+        or found < moves
+        or false > 0
+        or corr < GOALS["corr"]
+        or rate > GOALS["rate"]
+        or (marker_rms and max(marker_rms) > GOALS["marker_mm"])
+    )
     print("goals: " + ("MISSED" if missed else "met"))
     return 1 if missed else 0
 

@@ -35,7 +35,6 @@ sys.path.insert(0, str(HERE))
 
 from losskit.truth import POSE_GOAL, match_moves, pose_rms, rate_figures, true_moves, true_rate  # noqa: E402
 from lossy_recording import bursts, camera_gone, cut_mjpeg, lossy_copy, random_frames, slots_lost  # noqa: E402
-
 from vts_hw.procedures.motion import MotionAnalysis  # noqa: E402
 from vts_hw.sim_devices.recording_sim import simulate_recording  # noqa: E402
 
@@ -56,8 +55,10 @@ def score(a, sim, lost_s):
     cov = r.coverage
     true_share = 1.0 - lost_s / sim.duration_s
     if abs(cov["no_frames_s"] - lost_s) > 0.01 * sim.duration_s or abs(cov["duration_s"] - sim.duration_s) > 0.1:
-        bad.append(f"time without frames {cov['no_frames_s']:.1f} s of {cov['duration_s']:.1f} s against "
-                   f"{lost_s:.1f} s of {sim.duration_s:.1f} s")
+        bad.append(
+            f"time without frames {cov['no_frames_s']:.1f} s of {cov['duration_s']:.1f} s against "
+            f"{lost_s:.1f} s of {sim.duration_s:.1f} s"
+        )
     mm, deg = pose_rms(r, patient)
     if mm > POSE_GOAL[0] or deg > POSE_GOAL[1]:
         bad.append(f"pose {mm:.3f} mm {deg:.3f} deg")
@@ -65,27 +66,47 @@ def score(a, sim, lost_s):
     bad += [rate["bad"]] if rate["bad"] else []
     mv = match_moves(r, true_moves(patient))
     bad += mv["bad"]
-    return {"pose_known": cov["share"], "true_share": true_share, "no_frames_s": cov["no_frames_s"],
-            "duration": cov["duration_s"], "breathing": rate["status"], "rate": rate["rate"],
-            "range": rate["range"], "true_rate": rate["truth"], "rate_err": rate["err"], "pose_mm": mm,
-            "pose_deg": deg, "moves": mv["moves"], "found": mv["found"], "bounded": mv["bounded"],
-            "unseen": mv["unseen"], "false": mv["false"], "bad": bad}
+    return {
+        "pose_known": cov["share"],
+        "true_share": true_share,
+        "no_frames_s": cov["no_frames_s"],
+        "duration": cov["duration_s"],
+        "breathing": rate["status"],
+        "rate": rate["rate"],
+        "range": rate["range"],
+        "true_rate": rate["truth"],
+        "rate_err": rate["err"],
+        "pose_mm": mm,
+        "pose_deg": deg,
+        "moves": mv["moves"],
+        "found": mv["found"],
+        "bounded": mv["bounded"],
+        "unseen": mv["unseen"],
+        "false": mv["false"],
+        "bad": bad,
+    }
 
 
 def row(label, s):
     rate = ("–" if s["rate"] is None else f"{s['rate']:.2f}") + (
-        f" ({s['range'][0]:.1f}-{s['range'][1]:.1f})" if s["breathing"] == "bounded" else "")
+        f" ({s['range'][0]:.1f}-{s['range'][1]:.1f})" if s["breathing"] == "bounded" else ""
+    )
     err = "" if s["rate_err"] is None else f"{s['rate_err']:+.2f}"
-    return (f"| {label:<22} | {100 * (1 - s['true_share']):5.1f} % | {100 * s['pose_known']:5.1f} % of "
-            f"{s['duration']:.1f} s | {s['breathing']:<8} {rate:<18} | {s['true_rate']:.2f} | {err:>6} | "
-            f"{s['pose_mm']:.3f} / {s['pose_deg']:.3f} | {s['found']}+{s['bounded']}b"
-            + (f" ({s['unseen']} after the last pose)" if s["unseen"] else "") + f" / {s['moves']} | "
-            f"{s['false']} | {len(s['bad'])} |")
+    return (
+        f"| {label:<22} | {100 * (1 - s['true_share']):5.1f} % | {100 * s['pose_known']:5.1f} % of "
+        f"{s['duration']:.1f} s | {s['breathing']:<8} {rate:<18} | {s['true_rate']:.2f} | {err:>6} | "
+        f"{s['pose_mm']:.3f} / {s['pose_deg']:.3f} | {s['found']}+{s['bounded']}b"
+        + (f" ({s['unseen']} after the last pose)" if s["unseen"] else "")
+        + f" / {s['moves']} | "
+        f"{s['false']} | {len(s['bad'])} |"
+    )
 
 
-HEADER = ("| run                    | lost    | pose known (reported) | breathing (reported) /min   | true  |"
-          " error  | pose mm / deg | moves found+bounded / true | false | not flagged |\n"
-          "|---|---|---|---|---|---|---|---|---|---|")
+HEADER = (
+    "| run                    | lost    | pose known (reported) | breathing (reported) /min   | true  |"
+    " error  | pose mm / deg | moves found+bounded / true | false | not flagged |\n"
+    "|---|---|---|---|---|---|---|---|---|---|"
+)
 
 
 def main() -> int:

@@ -50,8 +50,7 @@ from losskit.rows import score, slot_truth  # noqa: E402
 from losskit.scans import REFERENCE_S, PatientRig, analyze, burst_faults, cpu_load  # noqa: E402
 from losskit.table import header, row_line, verdicts  # noqa: E402
 
-
-ANALYSES = 2         # `vts motion analyze` runs at once (niced, beside the scans; then the tail on both cores)
+ANALYSES = 2  # `vts motion analyze` runs at once (niced, beside the scans; then the tail on both cores)
 
 
 def _interrupt(*_):
@@ -59,9 +58,11 @@ def _interrupt(*_):
 
 
 def parse(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                 epilog="Exit status: 0 every figure within its goal or flagged; 1 a figure outside its "
-                                        "goal not flagged, or blind time unreported; 2 bad arguments; 130 interrupted.")
+    ap = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        epilog="Exit status: 0 every figure within its goal or flagged; 1 a figure outside its "
+        "goal not flagged, or blind time unreported; 2 bad arguments; 130 interrupted.",
+    )
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2], help="patients (and loss layouts): default 1 2")
     ap.add_argument("--cameras", type=int, nargs="+", default=[2, 4], choices=(2, 3, 4), help="default 2 4")
     ap.add_argument("--losses", type=float, nargs="+", default=[0, 5, 20, 35], help="%% of the time lost in bursts")
@@ -70,13 +71,17 @@ def parse(argv=None):
     ap.add_argument("--no-load", action="store_true", help="no case under CPU load")
     ap.add_argument("--per-core", type=int, default=1, help="spinning processes per core in the load case (default 1)")
     ap.add_argument("--quick", action="store_true", help="smoke run: seed 1, 2 cameras, 20 %%, 30 s, no load case")
-    ap.add_argument("--keep", type=Path, default=None, help="work in DIR and keep the sessions (default: a temporary folder)")
+    ap.add_argument(
+        "--keep", type=Path, default=None, help="work in DIR and keep the sessions (default: a temporary folder)"
+    )
     a = ap.parse_args(argv)
     if a.quick:
         a.seeds, a.cameras, a.losses, a.seconds, a.no_load = [1], [2], [20.0], 30.0, True
     if a.seconds < REFERENCE_S + 15 or any(not 0 <= x < 100 for x in [*a.losses, a.load_loss]) or a.per_core < 1:
-        ap.error(f"--seconds must be at least {REFERENCE_S + 15:g} (the reference, then a move), losses 0 to <100 %, "
-                 "--per-core at least 1")
+        ap.error(
+            f"--seconds must be at least {REFERENCE_S + 15:g} (the reference, then a move), losses 0 to <100 %, "
+            "--per-core at least 1"
+        )
     return a
 
 
@@ -97,7 +102,9 @@ def main(argv=None) -> int:
                 t0 = time.monotonic()
                 st = prig.prerender()
                 _say(f"seed {seed}: {st.line()} (wall {time.monotonic() - t0:.0f} s)")
-                slots = [(x, False) for x in a.losses] + ([(a.load_loss, True)] if not a.no_load and seed == a.seeds[0] else [])
+                slots = [(x, False) for x in a.losses] + (
+                    [(a.load_loss, True)] if not a.no_load and seed == a.seeds[0] else []
+                )
                 for loss, load in slots:
                     faults = burst_faults(loss / 100.0, seed)
                     label = f"s{seed}-{loss:g}pc" + ("-load" if load else "")
@@ -109,9 +116,11 @@ def main(argv=None) -> int:
                     for s in scans:
                         s.truth = slot_truth(prig, s)
                         jobs.append((s, loss, load, seed, bank_live, pool.submit(analyze, s, prig.env, 10, running)))
-                    _say(f"  seed {seed}, {loss:g} % lost{' under load' if load else ''} ({faults}): "
-                         + "; ".join(f"{s.cameras} cameras exit {s.returncode} in {s.wall_s:.0f} s" for s in scans)
-                         + f"; frames rendered live {bank_live}")
+                    _say(
+                        f"  seed {seed}, {loss:g} % lost{' under load' if load else ''} ({faults}): "
+                        + "; ".join(f"{s.cameras} cameras exit {s.returncode} in {s.wall_s:.0f} s" for s in scans)
+                        + f"; frames rendered live {bank_live}"
+                    )
             finally:
                 prig.stop()
         _say(f"scans done in {time.monotonic() - t_all:.0f} s; waiting for the analyses ...")
@@ -138,9 +147,11 @@ def main(argv=None) -> int:
     lines, failed = verdicts(rows)
     for line in lines:
         print(line)
-    print(f"\nrun time {time.monotonic() - t_all:.0f} s; load average at the end {os.getloadavg()[0]:.2f} "
-          f"{os.getloadavg()[1]:.2f} {os.getloadavg()[2]:.2f} ({cores} cores)"
-          + (f"; sessions kept in {work}" if a.keep else ""))
+    print(
+        f"\nrun time {time.monotonic() - t_all:.0f} s; load average at the end {os.getloadavg()[0]:.2f} "
+        f"{os.getloadavg()[1]:.2f} {os.getloadavg()[2]:.2f} ({cores} cores)"
+        + (f"; sessions kept in {work}" if a.keep else "")
+    )
     return 1 if failed else 0
 
 

@@ -64,8 +64,10 @@ def main() -> None:
             for k, v in one(seed, n, args.poses).items():
                 acc.setdefault(k, []).extend(v)
         res[n] = acc
-    print(f"simulated room, {args.seeds} seed(s), {args.poses} poses per pair of cameras:"
-          " median / largest over cameras and seeds")
+    print(
+        f"simulated room, {args.seeds} seed(s), {args.poses} poses per pair of cameras:"
+        " median / largest over cameras and seeds"
+    )
     print(f"{'figure':18s} {'2 cameras':>22s} {'4 cameras':>22s}")
     for k in ("views", "rms px", "3D RMS mm", "3D RMS rigid mm", *CAMERA_FIGURES, "seconds"):
         cells = []
@@ -73,8 +75,10 @@ def main() -> None:
             a = np.array(res[n][k])
             cells.append(f"{np.median(a):10.4g} / {a.max():9.4g}")
         print(f"{k:18s} {cells[0]:>22s} {cells[1]:>22s}")
-    print("3D RMS: 400 points in ±250 x ±150 x ±250 mm about the FOV centre, in camera 1's frame;"
-          " seconds: corners to calibration")
+    print(
+        "3D RMS: 400 points in ±250 x ±150 x ±250 mm about the FOV centre, in camera 1's frame;"
+        " seconds: corners to calibration"
+    )
 
 
 if __name__ == "__main__":

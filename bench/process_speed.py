@@ -25,8 +25,8 @@ import time
 
 import numpy as np
 
-from vts_hw.tracking.processing import process_recording
 from vts_hw.sim_devices.recording_sim import simulate_recording
+from vts_hw.tracking.processing import process_recording
 
 GOAL = 40.0
 
@@ -35,7 +35,7 @@ def truth_rms(sim, tracks) -> float:
     """3D RMS (mm) of every tracked point against the nearest true marker at its time."""
     _, truth = sim.marker_positions(tracks.point_time)
     d = np.linalg.norm(truth - tracks.xyz[:, None, :], axis=2).min(axis=1)
-    return float(np.sqrt(np.mean(d ** 2)))
+    return float(np.sqrt(np.mean(d**2)))
 
 
 def _spin(n: int) -> int:
@@ -96,9 +96,11 @@ def main(argv=None) -> int:
         cams = {c: sim.scene.camera_at(c, t_mid) for c in sim.cameras}
         frames = sum(len(v) for v in sim.exposure.values())
         size = sum(os.path.getsize(os.path.join(tmp, f"{c}.mjpeg")) for c in sim.cameras)
-        print(f"recording: {len(sim.cameras)} cameras, {args.duration:.0f} s at {args.fps:g} fps, "
-              f"{frames} frames, {size / frames / 1000:.1f} kB/frame (generated in {gen:.1f} s, "
-              "not timed)")
+        print(
+            f"recording: {len(sim.cameras)} cameras, {args.duration:.0f} s at {args.fps:g} fps, "
+            f"{frames} frames, {size / frames / 1000:.1f} kB/frame (generated in {gen:.1f} s, "
+            "not timed)"
+        )
         process_recording(tmp, cams, workers=1)  # warm-up: page cache, imports, caches
         load = os.getloadavg()[0]
         free_before = machine_speedup(workers)
@@ -107,17 +109,23 @@ def main(argv=None) -> int:
         free_after = machine_speedup(workers)
         rms = truth_rms(sim, tracks)
     r_par, r_one = args.duration / t_par, args.duration / t_one
-    print(f"tracks: {len(tracks)} paired frames, {len(tracks.xyz)} points, "
-          f"{tracks.meta['markers']} marker ids, 3D RMS vs truth {rms:.3f} mm")
+    print(
+        f"tracks: {len(tracks)} paired frames, {len(tracks.xyz)} points, "
+        f"{tracks.meta['markers']} marker ids, 3D RMS vs truth {rms:.3f} mm"
+    )
     print(f"  {workers} workers ({cores} cores): {t_par:.3f} s   ratio {r_par:.1f}")
     print(f"  1 worker:            {t_one:.3f} s   ratio {r_one:.1f}")
-    print(f"  parallel speed-up {t_one / t_par:.2f}x   "
-          f"per frame {t_par / frames * 1e3:.3f} ms wall, {t_one / frames * 1e3:.3f} ms one core")
-    print(f"  CPU time {cpu_par:.3f} s with {workers} workers, {cpu_one:.3f} s with 1 "
-          f"({cpu_one / frames * 1e3:.3f} ms per frame); load average before the runs "
-          f"{load:.2f}; a pure CPU loop got a {free_before:.2f}x speed-up from {workers} "
-          f"processes before the runs, {free_after:.2f}x after (other jobs on the {cores} cores slow the wall time, not the CPU "
-          "time)")
+    print(
+        f"  parallel speed-up {t_one / t_par:.2f}x   "
+        f"per frame {t_par / frames * 1e3:.3f} ms wall, {t_one / frames * 1e3:.3f} ms one core"
+    )
+    print(
+        f"  CPU time {cpu_par:.3f} s with {workers} workers, {cpu_one:.3f} s with 1 "
+        f"({cpu_one / frames * 1e3:.3f} ms per frame); load average before the runs "
+        f"{load:.2f}; a pure CPU loop got a {free_before:.2f}x speed-up from {workers} "
+        f"processes before the runs, {free_after:.2f}x after (other jobs on the {cores} cores slow the wall time, not the CPU "
+        "time)"
+    )
     print(f"  goal ratio >= {GOAL:g}: {'met' if r_par >= GOAL else 'not met'}")
     return 0
 

@@ -44,14 +44,32 @@ from vts_hw.store import ResultsStore
 RIG = "sim-demo"
 UNIT = "SPECT room 1"
 REAL_LISTS = {
-    "daily": {"test_list": "VTS daily", "ignore": ["*/M*/*", "cam?/*"],
-              "macros": {"cam1/drift_x_px": "cam1_dx", "cam1/drift_y_px": "cam1_dy", "cam2/drift_x_px": "cam2_dx",
-                         "cam2/drift_y_px": "cam2_dy", "cam1/drift_sd_px": "cam1_sd", "cam2/drift_sd_px": "cam2_sd",
-                         "cam1/markers_missing": "cam1_missing", "cam2/markers_missing": "cam2_missing",
-                         "cam3/drift_x_px": "cam3_dx"}},
-    "sphere-steps": {"test_list": "VTS step test", "ignore": ["*"],
-                     "macros": {"x/steps_slope": "x_slope", "y/steps_slope": "y_slope", "z/steps_slope": "z_slope",
-                                "all/steps_diff_max_mm": "diff_max"}}}
+    "daily": {
+        "test_list": "VTS daily",
+        "ignore": ["*/M*/*", "cam?/*"],
+        "macros": {
+            "cam1/drift_x_px": "cam1_dx",
+            "cam1/drift_y_px": "cam1_dy",
+            "cam2/drift_x_px": "cam2_dx",
+            "cam2/drift_y_px": "cam2_dy",
+            "cam1/drift_sd_px": "cam1_sd",
+            "cam2/drift_sd_px": "cam2_sd",
+            "cam1/markers_missing": "cam1_missing",
+            "cam2/markers_missing": "cam2_missing",
+            "cam3/drift_x_px": "cam3_dx",
+        },
+    },
+    "sphere-steps": {
+        "test_list": "VTS step test",
+        "ignore": ["*"],
+        "macros": {
+            "x/steps_slope": "x_slope",
+            "y/steps_slope": "y_slope",
+            "z/steps_slope": "z_slope",
+            "all/steps_diff_max_mm": "diff_max",
+        },
+    },
+}
 
 
 def macro(name: str) -> str:
@@ -64,8 +82,14 @@ def mapping(store) -> dict:
     lists = {}
     for proc, title in (("daily", "VTS daily"), ("sphere-steps", "VTS step test")):
         runs = store.runs(procedure=proc)
-        names = sorted({f"{m.subject}/{m.metric}" for r in runs[-1:] for m in store.measurements(run_id=r.id)
-                        if m.subject.count("/") == 0})
+        names = sorted(
+            {
+                f"{m.subject}/{m.metric}"
+                for r in runs[-1:]
+                for m in store.measurements(run_id=r.id)
+                if m.subject.count("/") == 0
+            }
+        )
         lists[proc] = {"test_list": title, "macros": {n: macro(n) for n in names}, "ignore": ["*/M*/*"]}
     return lists
 
@@ -75,6 +99,7 @@ class SimPeer:
 
     def __init__(self, store_path: Path):
         from vts_hw.sim_devices.qatrack_server import QATrackSim
+
         with ResultsStore(store_path) as store:
             self.lists = mapping(store)
         qlists = {v["test_list"]: sorted(v["macros"].values()) for v in self.lists.values()}
@@ -98,6 +123,7 @@ class RealPeer:
     def __init__(self, zone: str):
         sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
         from qatrack_real import RealQATrack
+
         self.site = RealQATrack()
         t = time.monotonic()
         self.site.restart(zone) if self.site.answering() else (self.site.start_in_background(zone), self.site.wait())
@@ -117,8 +143,13 @@ class RealPeer:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--days", type=int, default=60)
-    ap.add_argument("--from", dest="from_dir", type=Path, default=None,
-                    help="use DIR/results.sqlite of an earlier `vts demo -o DIR`")
+    ap.add_argument(
+        "--from",
+        dest="from_dir",
+        type=Path,
+        default=None,
+        help="use DIR/results.sqlite of an earlier `vts demo -o DIR`",
+    )
     ap.add_argument("--no-attachments", action="store_true", help="no plot and report attachments")
     ap.add_argument("--real", action="store_true", help="push into the real QATrack+ of ../shared/interop")
     ap.add_argument("--zone", default="America/Toronto", help="--real: the site's TIME_ZONE (default America/Toronto)")
@@ -133,6 +164,7 @@ def main() -> int:
             print(f"store: a copy of {args.from_dir / 'results.sqlite'}")
         else:
             from vts_hw.sim_devices.scenarios.demo_days import run_demo
+
             res = run_demo(tmp / "demo", days=args.days)
             shutil.copy(res.store_path, db)
             print(f"store: the demo's {args.days} days ({time.monotonic() - t:.0f} s to simulate)")
@@ -140,11 +172,23 @@ def main() -> int:
         shutil.copy(db, copy)
         peer = RealPeer(args.zone) if args.real else SimPeer(db)
         os.environ["BENCH_QATRACK_TOKEN"] = peer.token
-        cfg = parse_rig({"rig": RIG, "cameras": [{"name": "cam1", "host": "127.0.0.1"}],
-                         "qatrack": {"url": peer.url, "unit": UNIT, "time_zone": peer.zone,
-                                     "token_env": "BENCH_QATRACK_TOKEN", "timeout_s": 60,
-                                     "report": "none" if args.no_attachments else "html",
-                                     "plots": not args.no_attachments, "lists": peer.lists}}, "bench").qatrack
+        cfg = parse_rig(
+            {
+                "rig": RIG,
+                "cameras": [{"name": "cam1", "host": "127.0.0.1"}],
+                "qatrack": {
+                    "url": peer.url,
+                    "unit": UNIT,
+                    "time_zone": peer.zone,
+                    "token_env": "BENCH_QATRACK_TOKEN",
+                    "timeout_s": 60,
+                    "report": "none" if args.no_attachments else "html",
+                    "plots": not args.no_attachments,
+                    "lists": peer.lists,
+                },
+            },
+            "bench",
+        ).qatrack
         start = peer.count()
         with ResultsStore(db) as store:
             runs = select_runs(store, cfg, RIG)
@@ -153,9 +197,11 @@ def main() -> int:
             first_s = time.monotonic() - t0
             sent = sum(o.state == "sent" for o in out)
             made = peer.count() - start
-            print(f"first push: {len(runs)} runs ({sum(r.procedure == 'daily' for r in runs)} daily, "
-                  f"{sum(r.procedure == 'sphere-steps' for r in runs)} step test), {sent} sent, "
-                  f"{made} instances created in {first_s:.1f} s ({first_s / max(len(runs), 1):.2f} s a run)")
+            print(
+                f"first push: {len(runs)} runs ({sum(r.procedure == 'daily' for r in runs)} daily, "
+                f"{sum(r.procedure == 'sphere-steps' for r in runs)} step test), {sent} sent, "
+                f"{made} instances created in {first_s:.1f} s ({first_s / max(len(runs), 1):.2f} s a run)"
+            )
             bad = [o.line() for o in out if o.state != "sent"]
             for line in bad[:5]:
                 print("  not sent:", line)
@@ -164,8 +210,10 @@ def main() -> int:
                 shown = peer.shown_start(run_key(run))
                 if len(shown) != 1 or _dt.datetime.fromisoformat(shown[0]).timestamp() != math.floor(run.started):
                     wrong_time += 1
-            print(f"work start as QATrack+ shows it: {len(runs) - wrong_time} of {len(runs)} at the run's instant "
-                  f"(to the second, site zone {peer.zone})")
+            print(
+                f"work start as QATrack+ shows it: {len(runs) - wrong_time} of {len(runs)} at the run's instant "
+                f"(to the second, site zone {peer.zone})"
+            )
             t0 = time.monotonic()
             again = push_runs(store, cfg, select_runs(store, cfg, RIG))
             second_new = peer.count() - start - made
@@ -176,8 +224,10 @@ def main() -> int:
             out3 = push_runs(store, cfg, select_runs(store, cfg, RIG))
             copy_new = peer.count() - before
             there = sum(o.how == "already there" for o in out3)
-            print(f"copy's push: {copy_new} new, {there} of {len(out3)} found in QATrack+ by their key "
-                  f"({time.monotonic() - t0:.1f} s)")
+            print(
+                f"copy's push: {copy_new} new, {there} of {len(out3)} found in QATrack+ by their key "
+                f"({time.monotonic() - t0:.1f} s)"
+            )
         ok = not bad and made == len(runs) and second_new == 0 and copy_new == 0 and wrong_time == 0
         print("goals met" if ok else "GOAL MISSED")
         return 0 if ok else 1

@@ -29,9 +29,11 @@ from vts_hw.procedures.steps import SNAPSHOT_COMPRESSION
 from vts_hw.sim_devices.scenarios.step_chain import run_sim_steps
 
 GOALS = {"position_rms_mm": 0.15, "move_rotation_error_deg": 0.05, "move_translation_error_mm": 0.1}
-LABELS = {"position_rms_mm": "3D position RMS error (mm)",
-          "move_rotation_error_deg": "6-DOF move rotation error (deg)",
-          "move_translation_error_mm": "6-DOF move translation error (mm)"}
+LABELS = {
+    "position_rms_mm": "3D position RMS error (mm)",
+    "move_rotation_error_deg": "6-DOF move rotation error (deg)",
+    "move_translation_error_mm": "6-DOF move translation error (mm)",
+}
 
 
 def run(seed: int, compression: int) -> dict:
@@ -48,15 +50,23 @@ def run(seed: int, compression: int) -> dict:
 
 def report(rows: dict[int, dict], compression: int) -> dict:
     print(f"\n-- VAPIX compression {compression} --")
-    print(f"{'seed':>4}  " + "  ".join(f"{LABELS[k]:>34}" for k in GOALS) + f"  {'min R²':>9}  {'calib px':>8}  {'s':>5}")
+    print(
+        f"{'seed':>4}  " + "  ".join(f"{LABELS[k]:>34}" for k in GOALS) + f"  {'min R²':>9}  {'calib px':>8}  {'s':>5}"
+    )
     for seed, r in rows.items():
         cells = [f"{r[k]:>10.4f} (ratio {r[k] / GOALS[k]:.2f})" for k in GOALS]
-        print(f"{seed:>4}  " + "  ".join(f"{c:>34}" for c in cells)
-              + f"  {r['r2_min']:>9.6f}  {r['rms_stereo_px']:>8.3f}  {r['seconds']:>5.1f}")
+        print(
+            f"{seed:>4}  "
+            + "  ".join(f"{c:>34}" for c in cells)
+            + f"  {r['r2_min']:>9.6f}  {r['rms_stereo_px']:>8.3f}  {r['seconds']:>5.1f}"
+        )
     worst = {k: max(r[k] for r in rows.values()) for k in GOALS}
     worst_r2 = min(r["r2_min"] for r in rows.values())
-    print("worst " + "  ".join(f"{LABELS[k]} {worst[k]:.4f} (ratio {worst[k] / GOALS[k]:.2f})" for k in GOALS)
-          + f"  min R² {worst_r2:.6f}")
+    print(
+        "worst "
+        + "  ".join(f"{LABELS[k]} {worst[k]:.4f} (ratio {worst[k] / GOALS[k]:.2f})" for k in GOALS)
+        + f"  min R² {worst_r2:.6f}"
+    )
     return worst
 
 
@@ -71,8 +81,10 @@ def main() -> int:
         rows = {seed: run(seed, comp) for seed in range(args.seeds)}
         worst[comp] = report(rows, comp)
     ok = all(worst[SNAPSHOT_COMPRESSION][k] <= GOALS[k] for k in GOALS)
-    print(f"\ngoals {'met' if ok else 'NOT met'} at the procedure's compression {SNAPSHOT_COMPRESSION} "
-          f"(worst of {args.seeds} seeds)")
+    print(
+        f"\ngoals {'met' if ok else 'NOT met'} at the procedure's compression {SNAPSHOT_COMPRESSION} "
+        f"(worst of {args.seeds} seeds)"
+    )
     return 0
 
 

@@ -36,23 +36,29 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=1)
     args = ap.parse_args()
     bad = 0
-    print(f"{'back end':<11} {'round':<10} {'finished':>8} {'runs/s':>7} {'p50 ms':>7} {'p95 ms':>7} "
-          f"{'lost':>4} {'dup':>4} {'half':>4} {'kills':>5} {'dead':>4}")
+    print(
+        f"{'back end':<11} {'round':<10} {'finished':>8} {'runs/s':>7} {'p50 ms':>7} {'p95 ms':>7} "
+        f"{'lost':>4} {'dup':>4} {'half':>4} {'kills':>5} {'dead':>4}"
+    )
     with tempfile.TemporaryDirectory(prefix="vts-bench-writers-") as tmp:
         server = PgServer(durable=True).start()
         try:
             for backend in ("sqlite", "postgresql"):
                 for label, kills in (("at once", 0), ("kill -9", args.kills)):
                     folder = Path(tmp) / f"{backend}-{kills}"
-                    url = (f"sqlite:///{folder / 'results.sqlite'}" if backend == "sqlite"
-                           else server.url(server.new_database()))
-                    out = run_writers(url, folder, n_procs=args.procs, per_proc=args.runs, kills=kills,
-                                      seed=args.seed)
+                    url = (
+                        f"sqlite:///{folder / 'results.sqlite'}"
+                        if backend == "sqlite"
+                        else server.url(server.new_database())
+                    )
+                    out = run_writers(url, folder, n_procs=args.procs, per_proc=args.runs, kills=kills, seed=args.seed)
                     bad += out.lost + out.duplicated + out.half_written + len(out.problems)
-                    print(f"{backend:<11} {label:<10} {out.finished_reported:>8} {out.runs_per_s:>7.0f} "
-                          f"{1e3 * out.percentile(0.5):>7.2f} {1e3 * out.percentile(0.95):>7.2f} "
-                          f"{out.lost:>4} {out.duplicated:>4} {out.half_written:>4} {out.kills:>5} {out.dead:>4}",
-                          flush=True)
+                    print(
+                        f"{backend:<11} {label:<10} {out.finished_reported:>8} {out.runs_per_s:>7.0f} "
+                        f"{1e3 * out.percentile(0.5):>7.2f} {1e3 * out.percentile(0.95):>7.2f} "
+                        f"{out.lost:>4} {out.duplicated:>4} {out.half_written:>4} {out.kills:>5} {out.dead:>4}",
+                        flush=True,
+                    )
                     for p in out.problems[:5]:
                         print(f"    {p}")
         finally:

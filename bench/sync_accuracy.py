@@ -25,8 +25,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from vts_hw.sim_devices.scenarios import sync_session as sync_sim
 from vts_hw.sim_devices.rig import SimRig
+from vts_hw.sim_devices.scenarios import sync_session as sync_sim
 
 EVENT_GOAL_S = 0.020
 DELAY_GOAL_S = 0.010
@@ -52,17 +52,31 @@ def main() -> int:
     finally:
         rig.stop()
     t0 = time.monotonic()
-    cmd = [sys.executable, "-m", "vts_hw.cli.__main__", "sync", "analyze", str(run.session),
-           "--listmode", str(run.listmode), "--config", str(rig_yaml), "--json",
-           "-o", str(work / "sync_report.html")]
+    cmd = [
+        sys.executable,
+        "-m",
+        "vts_hw.cli.__main__",
+        "sync",
+        "analyze",
+        str(run.session),
+        "--listmode",
+        str(run.listmode),
+        "--config",
+        str(rig_yaml),
+        "--json",
+        "-o",
+        str(work / "sync_report.html"),
+    ]
     p = subprocess.run(cmd, capture_output=True, text=True)
     analyze_s = time.monotonic() - t0
     if p.returncode != 0:
         print(p.stderr, file=sys.stderr)
         return 2
     data = json.loads(p.stdout)
-    print(f"scan {args.duration:g} s ({scan_s:.1f} s wall), analysis {analyze_s:.1f} s wall; "
-          f"{len(run.source.moves)} moves; command: {' '.join(cmd[3:])}")
+    print(
+        f"scan {args.duration:g} s ({scan_s:.1f} s wall), analysis {analyze_s:.1f} s wall; "
+        f"{len(run.source.moves)} moves; command: {' '.join(cmd[3:])}"
+    )
     ok = True
     events = data["events"]
     f = lambda v: "   -   " if v is None else f"{v * 1e3:+7.2f}"  # noqa: E731
@@ -72,19 +86,29 @@ def main() -> int:
             print(f"{head}: NOT FOUND")
             ok = False
             continue
-        print(f"{head}: VTS {f(row['vts_err_s'])} ms, SPECT {f(row['spect_err_s'])} ms, "
-              f"VTS-SPECT {f(row['dt_s'])} ms (seen by {row['seen_by']})")
-        ok &= row["seen_by"] == "both" and max(abs(row["vts_err_s"]), abs(row["spect_err_s"]),
-                                               abs(row["dt_s"])) <= EVENT_GOAL_S
+        print(
+            f"{head}: VTS {f(row['vts_err_s'])} ms, SPECT {f(row['spect_err_s'])} ms, "
+            f"VTS-SPECT {f(row['dt_s'])} ms (seen by {row['seen_by']})"
+        )
+        ok &= (
+            row["seen_by"] == "both"
+            and max(abs(row["vts_err_s"]), abs(row["spect_err_s"]), abs(row["dt_s"])) <= EVENT_GOAL_S
+        )
     extra = len(events) - len(run.source.moves)
     delay_err = data["summary"]["start_delay_s"] - run.spect.start_delay_s
-    print(f"  events reported {len(events)} (extra {extra}); offset VTS-SPECT (median) "
-          f"{data['summary']['offset_s'] * 1e3:+.2f} ms, SD {(data['summary']['spread_sd_s'] or 0) * 1e3:.2f} ms")
-    print(f"  SPECT start delay: measured {data['summary']['start_delay_s'] * 1e3:.2f} ms, true "
-          f"{run.spect.start_delay_s * 1e3:.2f} ms, error {delay_err * 1e3:+.3f} ms")
+    print(
+        f"  events reported {len(events)} (extra {extra}); offset VTS-SPECT (median) "
+        f"{data['summary']['offset_s'] * 1e3:+.2f} ms, SD {(data['summary']['spread_sd_s'] or 0) * 1e3:.2f} ms"
+    )
+    print(
+        f"  SPECT start delay: measured {data['summary']['start_delay_s'] * 1e3:.2f} ms, true "
+        f"{run.spect.start_delay_s * 1e3:.2f} ms, error {delay_err * 1e3:+.3f} ms"
+    )
     ok &= extra == 0 and abs(delay_err) <= DELAY_GOAL_S
-    print(f"goals (every event within {EVENT_GOAL_S * 1e3:.0f} ms, start delay within {DELAY_GOAL_S * 1e3:.0f} ms): "
-          f"{'met' if ok else 'MISSED'}; report state {data['summary']['state']}")
+    print(
+        f"goals (every event within {EVENT_GOAL_S * 1e3:.0f} ms, start delay within {DELAY_GOAL_S * 1e3:.0f} ms): "
+        f"{'met' if ok else 'MISSED'}; report state {data['summary']['state']}"
+    )
     if tmp:
         tmp.cleanup()
     return 0 if ok else 1

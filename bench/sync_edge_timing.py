@@ -40,8 +40,10 @@ def main() -> None:
                 zb = np.bincount(idx, weights=z, minlength=n) / np.maximum(c, 1)
                 tb = (np.arange(n) + 0.5) * b
                 err[f"interpolated, {b * 1e3:.0f} ms bins"].append(mid_crossing(tb, zb, tm, 0.0, 15.0) - tm)
-        parts = [f"{k}: RMS {1e3 * np.sqrt(np.nanmean(np.square(v))):.1f} ms, max {1e3 * np.nanmax(np.abs(v)):.1f} ms"
-                 for k, v in err.items()]
+        parts = [
+            f"{k}: RMS {1e3 * np.sqrt(np.nanmean(np.square(v))):.1f} ms, max {1e3 * np.nanmax(np.abs(v)):.1f} ms"
+            for k, v in err.items()
+        ]
         print(f"{rate:5d} counts/s, {args.trials} moves: " + "; ".join(parts))
 
 

@@ -57,9 +57,13 @@ def main() -> None:
             return steps.warmup(ctx)
 
         o = run(False)
-        print(f"--no-wait after a {args.samples - 1}-minute window (limit {LIMIT} px/min; clock {CLOCK_LIMIT} ppm/min):")
-        print(f"{'camera':8}{'amp px':>8}{'tau min':>9}{'rate px/min':>13}{'says min':>10}{'true min':>10}"
-              f"{'clk ppm':>9}{'tau min':>9}{'chg ppm/min':>13}{'says min':>10}{'true min':>10}")
+        print(
+            f"--no-wait after a {args.samples - 1}-minute window (limit {LIMIT} px/min; clock {CLOCK_LIMIT} ppm/min):"
+        )
+        print(
+            f"{'camera':8}{'amp px':>8}{'tau min':>9}{'rate px/min':>13}{'says min':>10}{'true min':>10}"
+            f"{'clk ppm':>9}{'tau min':>9}{'chg ppm/min':>13}{'says min':>10}{'true min':>10}"
+        )
         for name, d in o.result.data["warmup"].items():
             w = rig.scene.warmups[name]
             age = clock.now() - rig.servers[name].booted_at
@@ -69,20 +73,26 @@ def main() -> None:
             ctrue = max(0.0, (cw.settled_after_s(CLOCK_LIMIT) - age) / 60)
             csays = ("-" if c["state"] == "OK" else "?") if c.get("wait_min") is None else f"{c['wait_min']:.1f}"
             chg = "not known" if not c["known"] else f"{c['change_ppm_min']:.2f}±{c['change_se_ppm_min']:.2f}"
-            print(f"{name:8}{w.amplitude_px:8.2f}{w.tau_s / 60:9.1f}{d['rate_px_min']:13.3f}{says:>10}{true:10.1f}"
-                  f"{cw.amplitude_ppm:9.0f}{cw.tau_s / 60:9.1f}{chg:>13}{csays:>10}{ctrue:10.1f}")
+            print(
+                f"{name:8}{w.amplitude_px:8.2f}{w.tau_s / 60:9.1f}{d['rate_px_min']:13.3f}{says:>10}{true:10.1f}"
+                f"{cw.amplitude_ppm:9.0f}{cw.tau_s / 60:9.1f}{chg:>13}{csays:>10}{ctrue:10.1f}"
+            )
         t0 = clock.now()
         o = run(True)
-        print(f"waiting from the start: settled after {(clock.now() - t0) / 60:.0f} simulated min "
-              f"({'passed' if o.passed else 'NOT passed'})")
+        print(
+            f"waiting from the start: settled after {(clock.now() - t0) / 60:.0f} simulated min "
+            f"({'passed' if o.passed else 'NOT passed'})"
+        )
         for name in rig.scene.warmups:
             w = rig.scene.warmups[name]
             cw = rig.scene.clock_warmups[name]
             age = clock.now() - rig.servers[name].booted_at
-            print(f"  {name}: its true rate fell below {LIMIT} px/min {w.settled_after_s(LIMIT) / 60:.1f} min after "
-                  f"the start; now {w.rate_px_min(age):.3f} px/min; its clock's change below {CLOCK_LIMIT} ppm/min "
-                  f"{cw.settled_after_s(CLOCK_LIMIT) / 60:.1f} min after, now {cw.change_ppm_min(age):.2f} ppm/min "
-                  f"({o.result.data['warmup'][name]['clock']['why']})")
+            print(
+                f"  {name}: its true rate fell below {LIMIT} px/min {w.settled_after_s(LIMIT) / 60:.1f} min after "
+                f"the start; now {w.rate_px_min(age):.3f} px/min; its clock's change below {CLOCK_LIMIT} ppm/min "
+                f"{cw.settled_after_s(CLOCK_LIMIT) / 60:.1f} min after, now {cw.change_ppm_min(age):.2f} ppm/min "
+                f"({o.result.data['warmup'][name]['clock']['why']})"
+            )
         said = re.findall(r"rate not slowing", o.advice)
         if said:
             print(f"  ({len(said)} camera(s) whose slowing was not measurable)")

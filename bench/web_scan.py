@@ -46,7 +46,10 @@ from vts_hw.sim_devices.tls import self_signed  # noqa: E402
 #: wapiti 3.0.4 (bookworm) compiles each -x pattern as 'PATTERN\Z(?ms)', which Python 3.11 refuses (global
 #: flags not at the start): run it with that one function mended, flags first (same meaning), through
 #: the system's Python, whose package it is
-WAPITI = ["/usr/bin/python3", "-c", """
+WAPITI = [
+    "/usr/bin/python3",
+    "-c",
+    """
 import re, sys
 import wapitiCore.net.crawler as crawler
 def wildcard_translate(pattern):
@@ -55,9 +58,28 @@ crawler.wildcard_translate = wildcard_translate
 from wapitiCore.main.wapiti import wapiti_main
 sys.argv[0] = "wapiti"
 sys.exit(wapiti_main())
-"""]
-MODULES = ["backup", "blindsql", "buster", "cookieflags", "crlf", "csp", "csrf", "exec", "file", "htaccess",
-           "http_headers", "methods", "permanentxss", "redirect", "shellshock", "sql", "xss", "xxe"]
+""",
+]
+MODULES = [
+    "backup",
+    "blindsql",
+    "buster",
+    "cookieflags",
+    "crlf",
+    "csp",
+    "csrf",
+    "exec",
+    "file",
+    "htaccess",
+    "http_headers",
+    "methods",
+    "permanentxss",
+    "redirect",
+    "shellshock",
+    "sql",
+    "xss",
+    "xxe",
+]
 
 
 def scan(console: Console, who: Who | None, work: Path, minutes: float, label: str) -> dict:
@@ -65,28 +87,69 @@ def scan(console: Console, who: Who | None, work: Path, minutes: float, label: s
     run of its own on what was crawled (``--skip-crawl``), so that a module that does not end in its
     time is one finding and the others still report. {module: its JSON report, or None}."""
     base = f"{console.scheme}://{console.host}/"
-    starts = sorted({build(e) for e in surface()["users" if who and who.cookie else "no users"]
-                     if e.method == "GET" and not e.stream})
-    attack_s = int(max(20, minutes * 60 / len(MODULES)))      # each module's share (wapiti's own limit)
-    common = [*WAPITI, "-u", base, "--scope", "folder", "--store-session", str(work / f"session-{label}"),
-              "--store-config", str(work / f"config-{label}"), "-f", "json", "--no-bugreport", "-t", "30",
-              "--verify-ssl", "0", "-v", "1",
-              # never the logout (the session is the scan's), never an event stream (it has no end)
-              "-x", f"{base}logout*", "-x", f"{base}events*", "-x", f"{base}*/events*"]
+    starts = sorted(
+        {
+            build(e)
+            for e in surface()["users" if who and who.cookie else "no users"]
+            if e.method == "GET" and not e.stream
+        }
+    )
+    attack_s = int(max(20, minutes * 60 / len(MODULES)))  # each module's share (wapiti's own limit)
+    common = [
+        *WAPITI,
+        "-u",
+        base,
+        "--scope",
+        "folder",
+        "--store-session",
+        str(work / f"session-{label}"),
+        "--store-config",
+        str(work / f"config-{label}"),
+        "-f",
+        "json",
+        "--no-bugreport",
+        "-t",
+        "30",
+        "--verify-ssl",
+        "0",
+        "-v",
+        "1",
+        # never the logout (the session is the scan's), never an event stream (it has no end)
+        "-x",
+        f"{base}logout*",
+        "-x",
+        f"{base}events*",
+        "-x",
+        f"{base}*/events*",
+    ]
     if who is not None and who.token:
         common += ["-H", f"X-Console-Token: {who.token}"]
     if who is not None and who.cookie:
         cookies = work / f"cookies-{label}.json"
-        cookies.write_text(json.dumps({"127.0.0.1": {"/": {console.cookie_name: {
-            "value": who.cookie, "version": 0, "expires": None, "secure": console.scheme == "https",
-            "port": None}}}}))
+        cookies.write_text(
+            json.dumps(
+                {
+                    "127.0.0.1": {
+                        "/": {
+                            console.cookie_name: {
+                                "value": who.cookie,
+                                "version": 0,
+                                "expires": None,
+                                "secure": console.scheme == "https",
+                                "port": None,
+                            }
+                        }
+                    }
+                }
+            )
+        )
         common += ["-c", str(cookies)]
     out: dict = {"label": label, "modules": {}, "seconds": 0}
     t0 = time.monotonic()
     for i, mod in enumerate(MODULES):
         report = work / f"wapiti-{label}-{mod}.json"
         cmd = [*common, "-m", mod, "-o", str(report), "--max-attack-time", str(attack_s)]
-        if i == 0:          # the crawl, once: from the console's page and every GET route
+        if i == 0:  # the crawl, once: from the console's page and every GET route
             cmd += ["--flush-session", "--max-scan-time", str(int(minutes * 60))]
             for st in starts:
                 cmd += ["-s", base + st.lstrip("/")]
@@ -94,10 +157,17 @@ def scan(console: Console, who: Who | None, work: Path, minutes: float, label: s
             cmd += ["--skip-crawl", "--flush-attacks"]
         log = open(work / f"wapiti-{label}-{mod}.log", "w")
         try:
-            p = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT, text=True, cwd=work,
-                               timeout=(minutes * 60 if i == 0 else 0) + 4 * attack_s + 120)
-            out["modules"][mod] = json.loads(report.read_text()) if report.exists() else \
-                {"error": f"no report (exit {p.returncode})"}
+            p = subprocess.run(
+                cmd,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                text=True,
+                cwd=work,
+                timeout=(minutes * 60 if i == 0 else 0) + 4 * attack_s + 120,
+            )
+            out["modules"][mod] = (
+                json.loads(report.read_text()) if report.exists() else {"error": f"no report (exit {p.returncode})"}
+            )
         except subprocess.TimeoutExpired:
             limit = (minutes * 60 if i == 0 else 0) + 4 * attack_s + 120
             out["modules"][mod] = {"error": f"did not end within {limit} s"}
@@ -111,14 +181,15 @@ def findings(r: dict) -> dict[str, list[str]]:
     """Each category of one module's report with its findings (vulnerabilities and anomalies); a
     module that did not end, or wrote no report, is one finding."""
     out: dict[str, list[str]] = {}
-    if "error" in r:      # the scanner's own trouble (a module past its time), said apart from the console's
+    if "error" in r:  # the scanner's own trouble (a module past its time), said apart from the console's
         return {"scanner": [r["error"]]}
     for kind in ("vulnerabilities", "anomalies"):
         for cat, items in (r.get(kind) or {}).items():
             for it in items or []:
                 where = f"{it.get('method', '')} {it.get('path', '')}"
                 out.setdefault(f"{'vulnerability' if kind == 'vulnerabilities' else 'anomaly'}: {cat}", []).append(
-                    f"{where} {it.get('parameter', '')}: {it.get('info', '')}".strip())
+                    f"{where} {it.get('parameter', '')}: {it.get('info', '')}".strip()
+                )
     return out
 
 
@@ -135,12 +206,24 @@ def main() -> int:
     results = []
     room = Room(work / "room")
     try:
-        cert, key = self_signed(work)          # the console over HTTPS, as on a LAN (its HSTS, its Secure cookie)
-        for label, args in (("no users", []), ("users", ["--login", "--scans-dir", str(room.scans)]),
-                            # (a scans folder of its own: the scans before planted secrets in theirs, refused now)
-                            ("users over HTTPS", ["--login", "--scans-dir", str(room.root / "scans-https"),
-                                                  "--certfile", str(cert),
-                                                  "--keyfile", str(key)])):
+        cert, key = self_signed(work)  # the console over HTTPS, as on a LAN (its HSTS, its Secure cookie)
+        for label, args in (
+            ("no users", []),
+            ("users", ["--login", "--scans-dir", str(room.scans)]),
+            # (a scans folder of its own: the scans before planted secrets in theirs, refused now)
+            (
+                "users over HTTPS",
+                [
+                    "--login",
+                    "--scans-dir",
+                    str(room.root / "scans-https"),
+                    "--certfile",
+                    str(cert),
+                    "--keyfile",
+                    str(key),
+                ],
+            ),
+        ):
             c = Console(room, args, room.sim, label)
             res: dict = {"label": label, "seconds": 0, "modules": {}}
             try:
@@ -153,8 +236,10 @@ def main() -> int:
                 res = scan(c, who, work, a.minutes, label.replace(" ", "-"))
             finally:
                 code, _ = c.stop()
-                res["console"] = {"exit": code,
-                                  "traceback": "Traceback (most recent call last)" in c.log.read_text(errors="replace")}
+                res["console"] = {
+                    "exit": code,
+                    "traceback": "Traceback (most recent call last)" in c.log.read_text(errors="replace"),
+                }
                 results.append(res)
     finally:
         room.close()
@@ -164,18 +249,21 @@ def main() -> int:
         per = {mod: findings(r) for mod, r in res.get("modules", {}).items()}
         n = sum(len(v) for f in per.values() for k, v in f.items() if k != "scanner")
         total += n
-        out.append({"scan": res["label"], "seconds": res["seconds"], "modules": per, "count": n,
-                    "console": res.get("console")})
+        out.append(
+            {"scan": res["label"], "seconds": res["seconds"], "modules": per, "count": n, "console": res.get("console")}
+        )
     if a.json:
         print(json.dumps(out, indent=1))
     else:
         for o in out:
             unfinished = [m for m, f in o["modules"].items() if "scanner" in f]
-            print(f"wapiti against vts console ({o['scan']}): {o['count']} finding(s) in {o['seconds']} s"
-                  + (f" (modules that did not end in their time: {', '.join(unfinished)})" if unfinished else "")
-                  + "; "
-                  f"the console after it: exit {o['console']['exit']} on Ctrl-C, "
-                  f"{'a traceback' if o['console']['traceback'] else 'no traceback'} on its stderr")
+            print(
+                f"wapiti against vts console ({o['scan']}): {o['count']} finding(s) in {o['seconds']} s"
+                + (f" (modules that did not end in their time: {', '.join(unfinished)})" if unfinished else "")
+                + "; "
+                f"the console after it: exit {o['console']['exit']} on Ctrl-C, "
+                f"{'a traceback' if o['console']['traceback'] else 'no traceback'} on its stderr"
+            )
             for mod, f in o["modules"].items():
                 print(f"  {mod:<14} {sum(len(v) for v in f.values())}")
                 for k, v in sorted(f.items()):

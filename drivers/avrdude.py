@@ -18,18 +18,18 @@ import os
 import re
 import shutil
 import subprocess
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 from vts_hw.errors import DeviceError, UsageError
-from vts_hw.lifeline import child_options
 from vts_hw.files import open_writable
+from vts_hw.lifeline import child_options
 
 #: the trigger box's MCU as avrdude names it (firmware/Makefile: MCU := atmega328p)
 PART = "m328p"
-BAR_WIDTH = 50   # avrdude's progress bar: 50 '#' from 0 to 100 %
-ASK_S = 10.0     # how long avrdude may take to say its version or its programmers
+BAR_WIDTH = 50  # avrdude's progress bar: 50 '#' from 0 to 100 %
+ASK_S = 10.0  # how long avrdude may take to say its version or its programmers
 
 
 class AvrdudeMissing(UsageError):
@@ -64,8 +64,10 @@ def find() -> str:
     """The avrdude program; AvrdudeMissing (one sentence) when it is not installed."""
     path = shutil.which("avrdude")
     if path is None:
-        raise AvrdudeMissing("avrdude is not installed (Debian: apt-get install avrdude; `make test` installs "
-                             "it): it uploads the firmware through the board's bootloader")
+        raise AvrdudeMissing(
+            "avrdude is not installed (Debian: apt-get install avrdude; `make test` installs "
+            "it): it uploads the firmware through the board's bootloader"
+        )
     return path
 
 
@@ -75,8 +77,10 @@ def _ask(avrdude: str, *args: str) -> str:
     try:
         out = subprocess.run([avrdude, *args], capture_output=True, text=True, timeout=ASK_S, **child_options())
     except subprocess.TimeoutExpired:
-        raise AvrdudeBroken(f"{avrdude} {' '.join(args)} did not answer within {ASK_S:g} s: is this avrdude "
-                            "working (Debian: apt-get install --reinstall avrdude)?") from None
+        raise AvrdudeBroken(
+            f"{avrdude} {' '.join(args)} did not answer within {ASK_S:g} s: is this avrdude "
+            "working (Debian: apt-get install --reinstall avrdude)?"
+        ) from None
     except OSError as exc:
         raise AvrdudeBroken(f"{avrdude} could not be started ({exc.strerror or exc})") from None
     return out.stdout + out.stderr
@@ -93,8 +97,9 @@ def programmers(avrdude: str) -> set[str]:
     return set(re.findall(r"^\s+(\S+)\s+=", _ask(avrdude, "-c", "?"), re.M))
 
 
-def command(avrdude: str, port: str, hex_path: Path, programmer: str, baud: int,
-            attempts: int | None = None) -> list[str]:
+def command(
+    avrdude: str, port: str, hex_path: Path, programmer: str, baud: int, attempts: int | None = None
+) -> list[str]:
     """The upload: write the flash from ``hex_path`` (Intel HEX), verify it (avrdude's default).
     ``-D``: no chip erase first (a bootloader cannot erase the chip: it erases each page it writes)."""
     cmd = [avrdude, "-p", PART, "-c", programmer, "-P", port, "-b", str(baud), "-D"]
@@ -103,19 +108,26 @@ def command(avrdude: str, port: str, hex_path: Path, programmer: str, baud: int,
     return cmd + ["-U", f"flash:w:{hex_path}:i"]
 
 
-def run(cmd: list[str], log_path: Path, port: str, hex_path: Path,
-        progress: Callable[[str, float], None] | None = None, timeout: float = 300.0) -> Upload:
+def run(
+    cmd: list[str],
+    log_path: Path,
+    port: str,
+    hex_path: Path,
+    progress: Callable[[str, float], None] | None = None,
+    timeout: float = 300.0,
+) -> Upload:
     """Run the upload, its whole output into ``log_path``; ``progress(phase, fraction)`` with
     phase ``writing`` or ``verifying`` as avrdude draws its bars. UploadFailed names the port or
     the file, and what went wrong; the log keeps every word avrdude said."""
     phase, hashes = None, 0
     text = bytearray()
-    with open_writable(log_path, "wb") as log:    # never a device, FIFO or symbolic link (files.py)
+    with open_writable(log_path, "wb") as log:  # never a device, FIFO or symbolic link (files.py)
         log.write(("$ " + " ".join(cmd) + "\n").encode())
         log.flush()
         # killed with this command, however it ends (kill -9 too): never left holding the port
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                **child_options())
+        proc = subprocess.Popen(
+            cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, **child_options()
+        )
         assert proc.stdout is not None
         try:
             while True:
@@ -145,9 +157,10 @@ def run(cmd: list[str], log_path: Path, port: str, hex_path: Path,
         raise classify(out, rc, port, hex_path, log_path)
     written = _count(out, r"(\d+) bytes of flash written")
     verified = _count(out, r"(\d+) bytes of flash verified")
-    if verified is None:   # never "verified" unless avrdude said so
-        raise UploadFailed(f"avrdude wrote {hex_path.name} to {port} but did not say it verified it "
-                           f"(see {log_path})", "verify", out)
+    if verified is None:  # never "verified" unless avrdude said so
+        raise UploadFailed(
+            f"avrdude wrote {hex_path.name} to {port} but did not say it verified it (see {log_path})", "verify", out
+        )
     return Upload(tuple(cmd), written, verified, log_path, version(cmd[0]))
 
 
@@ -163,23 +176,42 @@ def classify(out: str, rc: int, port: str, hex_path: Path, log_path: Path) -> Up
         # avrdude 7: "device 0x62 != input 0x63 at addr 0x01c0"; 6: "first mismatch at byte 0x01c0"
         m = re.search(r"device (0x[0-9a-fA-F]+) != input (0x[0-9a-fA-F]+) at addr (0x[0-9a-fA-F]+)", out)
         m6 = re.search(r"first mismatch at byte (0x[0-9a-fA-F]+)", out)
-        at = (f" at byte 0x{int(m.group(3), 16):04x} (the box holds {m.group(1)}, the file {m.group(2)})" if m
-              else f" at byte 0x{int(m6.group(1), 16):04x}" if m6 else "")
-        return UploadFailed(f"verify failed: the flash of the box on {port} differs from {hex_path}{at} after "
-                            f"writing it; the box holds a damaged firmware now: flash again ({see})", "verify", out)
+        at = (
+            f" at byte 0x{int(m.group(3), 16):04x} (the box holds {m.group(1)}, the file {m.group(2)})"
+            if m
+            else f" at byte 0x{int(m6.group(1), 16):04x}"
+            if m6
+            else ""
+        )
+        return UploadFailed(
+            f"verify failed: the flash of the box on {port} differs from {hex_path}{at} after "
+            f"writing it; the box holds a damaged firmware now: flash again ({see})",
+            "verify",
+            out,
+        )
     if re.search(r"can't open device|cannot open port|ser_open\(\)|No such file or directory", out):
         return UploadFailed(f"avrdude could not open {port} ({see})", "port", out)
     if re.search(r"not in sync|programmer is not responding|unable to open programmer", out):
         tries = re.findall(r"attempt \d+ of (\d+)", out)
         n = f" to {tries[-1]} sync attempt(s)" if tries else ""
-        return UploadFailed(f"the bootloader on {port} did not answer{n} (is it the trigger box, and its "
-                            f"bootloader's baud rate: 115200 for an Uno's optiboot, 57600 for an older Nano's?): "
-                            f"nothing was written ({see})", "silent", out)
-    if re.search(r"[Ss]ignature", out) and re.search(r"expected signature|[Dd]evice signature.*(?:invalid|mismatch)", out):
-        return UploadFailed(f"the board on {port} is not an ATmega328P (its signature differs): nothing was "
-                            f"written ({see})", "signature", out)
+        return UploadFailed(
+            f"the bootloader on {port} did not answer{n} (is it the trigger box, and its "
+            f"bootloader's baud rate: 115200 for an Uno's optiboot, 57600 for an older Nano's?): "
+            f"nothing was written ({see})",
+            "silent",
+            out,
+        )
+    if re.search(r"[Ss]ignature", out) and re.search(
+        r"expected signature|[Dd]evice signature.*(?:invalid|mismatch)", out
+    ):
+        return UploadFailed(
+            f"the board on {port} is not an ATmega328P (its signature differs): nothing was written ({see})",
+            "signature",
+            out,
+        )
     if re.search(r"(?:can't|cannot|unable to) (?:open|read).*" + re.escape(hex_path.name), out):
         return UploadFailed(f"avrdude could not read {hex_path} ({see})", "file", out)
     last = [ln.strip() for ln in out.splitlines() if "error" in ln.lower()]
-    return UploadFailed(f"avrdude failed on {port} (exit {rc}: {last[-1] if last else 'no error line'}; {see})",
-                        "other", out)
+    return UploadFailed(
+        f"avrdude failed on {port} (exit {rc}: {last[-1] if last else 'no error line'}; {see})", "other", out
+    )

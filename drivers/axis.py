@@ -18,8 +18,16 @@ from typing import TYPE_CHECKING
 
 from vts_hw.camera import ClockOffset, Frame, check_whole, kind_settings
 from vts_hw.drivers.axis_clock import AxisClock
-from vts_hw.drivers.axis_errors import (NOT_THE_JSON, AxisError, BadReply, CameraUnauthorized, CameraUnreachable,
-                                        NotFound, Refused, TooManyViewers)
+from vts_hw.drivers.axis_errors import (
+    NOT_THE_JSON,
+    AxisError,
+    BadReply,
+    CameraUnauthorized,
+    CameraUnreachable,
+    NotFound,
+    Refused,
+    TooManyViewers,
+)
 from vts_hw.drivers.axis_io import AxisIOPort
 from vts_hw.drivers.axis_stream import MultipartStream
 from vts_hw.recording.axis_jpeg import inspect_jpeg
@@ -28,13 +36,28 @@ if TYPE_CHECKING:
     from vts_hw.config import CameraConfig
 
 #: the keys of a camera entry an HTTP camera (this kind, and ``mjpeg``) uses; the host must be given
-HTTP_KEYS = ("host", "port", "scheme", "user", "password_env", "ca_cert", "timeout_s", "led_port", "resolution",
-             "fps", "compression")
+HTTP_KEYS = (
+    "host",
+    "port",
+    "scheme",
+    "user",
+    "password_env",
+    "ca_cert",
+    "timeout_s",
+    "led_port",
+    "resolution",
+    "fps",
+    "compression",
+)
 
 AxisSettings = kind_settings(
-    "AxisSettings", "An Axis camera over VAPIX (the default kind): its address, credentials (the password "
+    "AxisSettings",
+    "An Axis camera over VAPIX (the default kind): its address, credentials (the password "
     "from the environment variable `password_env` names), the I/O port of its LED ring, its image; no "
-    "`options:`.", HTTP_KEYS, required=("host",))
+    "`options:`.",
+    HTTP_KEYS,
+    required=("host",),
+)
 
 
 def frame_from_bytes(seq: int, jpeg: bytes, host_time: float, problems=()) -> Frame:
@@ -58,9 +81,21 @@ class AxisCamera(MultipartStream, AxisClock, AxisIOPort):
     environment variable that entry names (``vts_hw.drivers.registry.open_camera`` calls it).
     """
 
-    def __init__(self, name: str, base_url: str, user: str | None = "root", password: str | None = None,
-                 *, timeout: float = 5.0, led_port: int = 1, resolution: str = "640x480",
-                 fps: float = 25.0, compression: int = 25, clock=time.time, verify: bool | str = True):
+    def __init__(
+        self,
+        name: str,
+        base_url: str,
+        user: str | None = "root",
+        password: str | None = None,
+        *,
+        timeout: float = 5.0,
+        led_port: int = 1,
+        resolution: str = "640x480",
+        fps: float = 25.0,
+        compression: int = 25,
+        clock=time.time,
+        verify: bool | str = True,
+    ):
         super().__init__(name, base_url, user, password, timeout=timeout, clock=clock, verify=verify)
         self.led_port = led_port
         self.resolution = resolution
@@ -70,11 +105,21 @@ class AxisCamera(MultipartStream, AxisClock, AxisIOPort):
     settings = AxisSettings
 
     @classmethod
-    def from_config(cls, cfg: "CameraConfig", clock=time.time) -> "AxisCamera":
+    def from_config(cls, cfg: CameraConfig, clock=time.time) -> AxisCamera:
         s = cls.settings.from_entry(cfg)
-        return cls(cfg.name, cfg.base_url, s.user, cfg.password(), timeout=s.timeout_s,
-                   led_port=s.led_port, resolution=cfg.resolution_str, fps=s.fps,
-                   compression=s.compression, clock=clock, verify=s.ca_cert or True)
+        return cls(
+            cfg.name,
+            cfg.base_url,
+            s.user,
+            cfg.password(),
+            timeout=s.timeout_s,
+            led_port=s.led_port,
+            resolution=cfg.resolution_str,
+            fps=s.fps,
+            compression=s.compression,
+            clock=clock,
+            verify=s.ca_cert or True,
+        )
 
     def __repr__(self) -> str:
         return f"AxisCamera({self.name!r}, {self.base_url!r}, user={self.user!r})"
@@ -88,8 +133,7 @@ class AxisCamera(MultipartStream, AxisClock, AxisIOPort):
         comp = self.compression if compression is None else int(compression)
         if not 0 <= comp <= 100:
             raise ValueError(f"compression must be 0-100, not {comp}")
-        r = self.request("GET", "/axis-cgi/jpg/image.cgi",
-                         params={"resolution": self.resolution, "compression": comp})
+        r = self.request("GET", "/axis-cgi/jpg/image.cgi", params={"resolution": self.resolution, "compression": comp})
         data = r.content
         host_t = self.clock()
         ctype = r.headers.get("content-type", "")
@@ -107,15 +151,15 @@ class AxisCamera(MultipartStream, AxisClock, AxisIOPort):
     def device_info(self) -> dict[str, str]:
         """Brand, product, serial number and firmware: basicdeviceinfo.cgi, else param groups."""
         try:
-            r = self.request("POST", "/axis-cgi/basicdeviceinfo.cgi",
-                             json_body={"apiVersion": "1.0", "method": "getAllProperties"})
+            r = self.request(
+                "POST", "/axis-cgi/basicdeviceinfo.cgi", json_body={"apiVersion": "1.0", "method": "getAllProperties"}
+            )
             props = r.json()["data"]["propertyList"]
             return {k: str(v) for k, v in props.items()}
         except NotFound:
             pass
         except NOT_THE_JSON:
-            raise BadReply(self.name, f"camera {self.name} sent device info that is not the expected JSON") \
-                from None
+            raise BadReply(self.name, f"camera {self.name} sent device info that is not the expected JSON") from None
         info = {k.removeprefix("Brand."): v for k, v in self.get_params("Brand").items()}
         props = self.get_params("Properties")
         for key, name in _DEVICE_INFO_PARAMS.items():
@@ -125,12 +169,27 @@ class AxisCamera(MultipartStream, AxisClock, AxisIOPort):
 
 
 _DEVICE_INFO_PARAMS = {  # basicdeviceinfo.cgi property -> parameter, for firmware without it
-    "Version": "Properties.Firmware.Version", "BuildDate": "Properties.Firmware.BuildDate",
-    "SerialNumber": "Properties.System.SerialNumber", "HardwareID": "Properties.System.HardwareID",
-    "Architecture": "Properties.System.Architecture", "Soc": "Properties.System.Soc",
+    "Version": "Properties.Firmware.Version",
+    "BuildDate": "Properties.Firmware.BuildDate",
+    "SerialNumber": "Properties.System.SerialNumber",
+    "HardwareID": "Properties.System.HardwareID",
+    "Architecture": "Properties.System.Architecture",
+    "Soc": "Properties.System.Soc",
 }
 
 
-
-__all__ = ["AxisCamera", "AxisSettings", "HTTP_KEYS", "AxisError", "CameraUnreachable", "CameraUnauthorized", "TooManyViewers",
-           "BadReply", "NotFound", "Refused", "Frame", "ClockOffset", "frame_from_bytes"]
+__all__ = [
+    "AxisCamera",
+    "AxisSettings",
+    "HTTP_KEYS",
+    "AxisError",
+    "CameraUnreachable",
+    "CameraUnauthorized",
+    "TooManyViewers",
+    "BadReply",
+    "NotFound",
+    "Refused",
+    "Frame",
+    "ClockOffset",
+    "frame_from_bytes",
+]

@@ -16,8 +16,15 @@ import requests
 import urllib3
 from requests.auth import HTTPBasicAuth, HTTPDigestAuth
 
-from vts_hw.drivers.axis_errors import (AxisError, BadReply, CameraUnauthorized, CameraUnreachable, NotFound,
-                                        Refused, TooManyViewers)
+from vts_hw.drivers.axis_errors import (
+    AxisError,
+    BadReply,
+    CameraUnauthorized,
+    CameraUnreachable,
+    NotFound,
+    Refused,
+    TooManyViewers,
+)
 
 #: the most a camera's answer (other than a stream) may hold: a 4K JPEG is a few MiB
 MAX_ANSWER = 64 * 2**20
@@ -49,10 +56,19 @@ class AxisClient:
     """The HTTP side of one camera: ``request()`` and ``_text()`` with auth, timeouts and typed
     errors; ``close()`` (a context manager)."""
 
-    error_class = AxisError   # what its reconnecting stream raises when it gives up
+    error_class = AxisError  # what its reconnecting stream raises when it gives up
 
-    def __init__(self, name: str, base_url: str, user: str | None = "root", password: str | None = None,
-                 *, timeout: float = 5.0, clock=time.time, verify: bool | str = True):
+    def __init__(
+        self,
+        name: str,
+        base_url: str,
+        user: str | None = "root",
+        password: str | None = None,
+        *,
+        timeout: float = 5.0,
+        clock=time.time,
+        verify: bool | str = True,
+    ):
         self.name = name
         self.verify = verify if isinstance(verify, bool) else str(verify)  # HTTPS: the system's CAs, or a PEM file
         self.clock = clock  # host clock (UTC epoch s); a simulation on a virtual clock passes its own
@@ -78,8 +94,17 @@ class AxisClient:
         session.verify = self.verify
         return session
 
-    def request(self, method: str, path: str, *, params=None, json_body=None, stream: bool = False,
-                session: requests.Session | None = None, timeout=None) -> requests.Response:
+    def request(
+        self,
+        method: str,
+        path: str,
+        *,
+        params=None,
+        json_body=None,
+        stream: bool = False,
+        session: requests.Session | None = None,
+        timeout=None,
+    ) -> requests.Response:
         """One VAPIX request with auth and timeout; HTTP failures become typed errors."""
         url = self.base_url + path
         sess = session or self._session
@@ -88,27 +113,45 @@ class AxisClient:
             # verify per request: requests lets REQUESTS_CA_BUNDLE override a session's verify;
             # the body is read here, against one deadline for the whole answer (a camera that
             # trickles a byte at a time never trips a per-read timeout)
-            r = sess.request(method, url, params=params, json=json_body, auth=self._auth, stream=True,
-                             timeout=timeout or (self.timeout, self.timeout), verify=self.verify)
-            if not stream and r.status_code < 400 and r._content is False:   # not read yet
+            r = sess.request(
+                method,
+                url,
+                params=params,
+                json=json_body,
+                auth=self._auth,
+                stream=True,
+                timeout=timeout or (self.timeout, self.timeout),
+                verify=self.verify,
+            )
+            if not stream and r.status_code < 400 and r._content is False:  # not read yet
                 self._read_whole(r, deadline, path)
         except requests.exceptions.SSLError as exc:
-            raise CameraUnreachable(self.name, f"camera {self.name} at {self.base_url}: HTTPS failed "
-                                               f"({_tls_reason(exc)}); if the camera has a self-signed "
-                                               f"certificate, name it in rig.yaml (ca_cert:)") from None
+            raise CameraUnreachable(
+                self.name,
+                f"camera {self.name} at {self.base_url}: HTTPS failed "
+                f"({_tls_reason(exc)}); if the camera has a self-signed "
+                f"certificate, name it in rig.yaml (ca_cert:)",
+            ) from None
         except requests.Timeout:
-            raise CameraUnreachable(self.name, f"camera {self.name} at {self.base_url} did not answer "
-                                               f"within {self.timeout:g} s") from None
+            raise CameraUnreachable(
+                self.name, f"camera {self.name} at {self.base_url} did not answer within {self.timeout:g} s"
+            ) from None
         except requests.ConnectionError as exc:
-            raise CameraUnreachable(self.name, f"camera {self.name} at {self.base_url} is unreachable "
-                                               f"({_reason(exc)})") from None
+            raise CameraUnreachable(
+                self.name, f"camera {self.name} at {self.base_url} is unreachable ({_reason(exc)})"
+            ) from None
         except urllib3.exceptions.ReadTimeoutError:
-            raise CameraUnreachable(self.name, f"camera {self.name} at {self.base_url} did not answer "
-                                               f"within {self.timeout:g} s") from None
-        except (requests.exceptions.ChunkedEncodingError,    # the body cut short of its Content-Length
-                urllib3.exceptions.HTTPError):
-            raise CameraUnreachable(self.name, f"camera {self.name} at {self.base_url} closed the connection "
-                                               f"in the middle of its answer to {path}") from None
+            raise CameraUnreachable(
+                self.name, f"camera {self.name} at {self.base_url} did not answer within {self.timeout:g} s"
+            ) from None
+        except (
+            requests.exceptions.ChunkedEncodingError,  # the body cut short of its Content-Length
+            urllib3.exceptions.HTTPError,
+        ):
+            raise CameraUnreachable(
+                self.name,
+                f"camera {self.name} at {self.base_url} closed the connection in the middle of its answer to {path}",
+            ) from None
         self.check_status(r)
         return r
 
@@ -117,15 +160,19 @@ class AxisClient:
         else a camera error naming the camera; the response then answers ``.content`` from memory."""
         body = bytearray()
         try:
-            while chunk := r.raw.read1(65536, decode_content=True):   # what has come, not a block
+            while chunk := r.raw.read1(65536, decode_content=True):  # what has come, not a block
                 body += chunk
                 if time.monotonic() > deadline:
-                    raise CameraUnreachable(self.name, f"camera {self.name} at {self.base_url} did not send its "
-                                                       f"answer to {path} within {self.timeout:g} s ({len(body)} "
-                                                       f"bytes came, slowly)")
+                    raise CameraUnreachable(
+                        self.name,
+                        f"camera {self.name} at {self.base_url} did not send its "
+                        f"answer to {path} within {self.timeout:g} s ({len(body)} "
+                        f"bytes came, slowly)",
+                    )
                 if len(body) > MAX_ANSWER:
-                    raise BadReply(self.name, f"camera {self.name} answered {path} with more than "
-                                              f"{MAX_ANSWER // 2**20} MiB")
+                    raise BadReply(
+                        self.name, f"camera {self.name} answered {path} with more than {MAX_ANSWER // 2**20} MiB"
+                    )
         except BaseException:
             r.close()
             raise
@@ -137,26 +184,33 @@ class AxisClient:
             r.close()
             challenge = r.headers.get("www-authenticate", "").lower()
             if challenge.startswith("basic") and not r.url.lower().startswith("https://"):
-                raise CameraUnauthorized(self.name, f"camera {self.name} asks for basic authentication over "
-                                                    f"plain http, which would send the password in clear: "
-                                                    f"use scheme: https (or digest on the camera)")
+                raise CameraUnauthorized(
+                    self.name,
+                    f"camera {self.name} asks for basic authentication over "
+                    f"plain http, which would send the password in clear: "
+                    f"use scheme: https (or digest on the camera)",
+                )
             if self._auth is None:
-                raise CameraUnauthorized(self.name, f"camera {self.name} asks for a password and the "
-                                                    f"rig config gives none (set password_env)")
-            raise CameraUnauthorized(self.name, f"camera {self.name} refused user {self.user!r} (HTTP 401): "
-                                                f"check the password")
+                raise CameraUnauthorized(
+                    self.name,
+                    f"camera {self.name} asks for a password and the rig config gives none (set password_env)",
+                )
+            raise CameraUnauthorized(
+                self.name, f"camera {self.name} refused user {self.user!r} (HTTP 401): check the password"
+            )
         if r.status_code == 503:
             r.close()
-            raise TooManyViewers(self.name, f"camera {self.name} has too many viewers (HTTP 503): "
-                                            f"close other streams and try again")
+            raise TooManyViewers(
+                self.name, f"camera {self.name} has too many viewers (HTTP 503): close other streams and try again"
+            )
         if r.status_code == 404:
             r.close()
-            raise NotFound(self.name, f"camera {self.name} does not know {r.request.path_url.split('?')[0]} "
-                                      f"(HTTP 404)")
+            raise NotFound(self.name, f"camera {self.name} does not know {r.request.path_url.split('?')[0]} (HTTP 404)")
         if r.status_code >= 400:
             r.close()
-            raise BadReply(self.name, f"camera {self.name} answered HTTP {r.status_code} to "
-                                      f"{r.request.path_url.split('?')[0]}")
+            raise BadReply(
+                self.name, f"camera {self.name} answered HTTP {r.status_code} to {r.request.path_url.split('?')[0]}"
+            )
 
     def _text(self, path: str, params=None) -> str:
         r = self.request("GET", path, params=params)
@@ -170,10 +224,12 @@ class AxisClient:
 
 def _tls_reason(exc: Exception) -> str:
     text = str(exc)
-    for key, words in (("CERTIFICATE_VERIFY_FAILED", "the camera's certificate could not be verified"),
-                       ("WRONG_VERSION_NUMBER", "the camera does not speak HTTPS on that port"),
-                       ("Hostname mismatch", "the certificate is for another host"),
-                       ("doesn't match", "the certificate is for another host")):
+    for key, words in (
+        ("CERTIFICATE_VERIFY_FAILED", "the camera's certificate could not be verified"),
+        ("WRONG_VERSION_NUMBER", "the camera does not speak HTTPS on that port"),
+        ("Hostname mismatch", "the certificate is for another host"),
+        ("doesn't match", "the certificate is for another host"),
+    ):
         if key in text:
             return words
     return "TLS error"
@@ -181,11 +237,13 @@ def _tls_reason(exc: Exception) -> str:
 
 def _reason(exc: Exception) -> str:
     text = str(exc)
-    for key, words in (("Connection refused", "connection refused"),
-                       ("Name or service not known", "unknown host"),
-                       ("timed out", "timed out"),
-                       ("reset by peer", "connection reset"),
-                       ("RemoteDisconnected", "connection closed by the camera")):
+    for key, words in (
+        ("Connection refused", "connection refused"),
+        ("Name or service not known", "unknown host"),
+        ("timed out", "timed out"),
+        ("reset by peer", "connection reset"),
+        ("RemoteDisconnected", "connection closed by the camera"),
+    ):
         if key in text:
             return words
     return type(exc).__name__

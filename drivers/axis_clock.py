@@ -9,8 +9,8 @@ camera (over its parameters, with its frames).
 from __future__ import annotations
 
 import statistics
-from datetime import datetime, timezone
-from typing import Callable
+from collections.abc import Callable
+from datetime import UTC, datetime
 
 from vts_hw.camera import ClockOffset, Frame, Uptime
 from vts_hw.drivers.axis_errors import NOT_THE_JSON, BadReply, NotFound
@@ -22,7 +22,7 @@ class AxisClock(AxisParameters):
     """``clock_offset()`` and ``uptime()``, over the camera's parameters (the VAPIX version tells
     where its server report is) and its snapshots (the stamps, on firmware without ``time.cgi``)."""
 
-    snapshot: Callable[[], Frame]      # the camera's own (AxisCamera.snapshot)
+    snapshot: Callable[[], Frame]  # the camera's own (AxisCamera.snapshot)
 
     def uptime(self) -> Uptime:
         """How long the camera has run since it started (drivers/axis_uptime.py)."""
@@ -40,20 +40,22 @@ class AxisClock(AxisParameters):
         try:
             for _ in range(samples):
                 t0 = self.clock()
-                r = self.request("POST", "/axis-cgi/time.cgi",
-                                 json_body={"apiVersion": "1.0", "method": "getDateTimeInfo"})
+                r = self.request(
+                    "POST", "/axis-cgi/time.cgi", json_body={"apiVersion": "1.0", "method": "getDateTimeInfo"}
+                )
                 t1 = self.clock()
                 cam = _parse_iso(r.json()["data"]["dateTime"])
                 rtt = t1 - t0
                 if best is None or rtt < best[1]:
                     best = (cam - (t0 + t1) / 2, rtt, (t0 + t1) / 2)
-            if best is not None:      # (no sample asked: the snapshots' stamps below)
+            if best is not None:  # (no sample asked: the snapshots' stamps below)
                 return ClockOffset(best[0], best[1] / 2 + 0.001, best[2], "time.cgi", samples)
         except NotFound:
             pass
         except NOT_THE_JSON:
-            raise BadReply(self.name, f"camera {self.name} sent time.cgi JSON without a readable data.dateTime") \
-                from None
+            raise BadReply(
+                self.name, f"camera {self.name} sent time.cgi JSON without a readable data.dateTime"
+            ) from None
         offsets, rtts = [], []
         for _ in range(samples):
             t0 = self.clock()
@@ -69,7 +71,7 @@ def _parse_iso(s: str) -> float:
     s = s.strip().replace("Z", "+00:00")
     dt = datetime.fromisoformat(s)
     if dt.tzinfo is None:
-        dt = dt.replace(tzinfo=timezone.utc)
+        dt = dt.replace(tzinfo=UTC)
     return dt.timestamp()
 
 

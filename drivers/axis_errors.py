@@ -47,5 +47,13 @@ class Refused(BadReply, ContractRefused):
 NOT_THE_JSON = (ValueError, KeyError, TypeError, AttributeError, OverflowError, RecursionError)
 
 
-__all__ = ["AxisError", "CameraUnreachable", "CameraUnauthorized", "TooManyViewers", "BadReply", "NotFound",
-           "Refused", "NOT_THE_JSON"]
+__all__ = [
+    "AxisError",
+    "CameraUnreachable",
+    "CameraUnauthorized",
+    "TooManyViewers",
+    "BadReply",
+    "NotFound",
+    "Refused",
+    "NOT_THE_JSON",
+]

@@ -60,8 +60,10 @@ class AxisIOPort(AxisClient):
         states = {f"port{n}=active": True, f"port{n}=inactive": False, f"output{n}=1": True, f"output{n}=0": False}
         if got not in states:
             cgi = self._output_cgi.rsplit("/", 1)[-1]
-            raise BadReply(self.name, f"camera {self.name}: {cgi} answered {got[:80]!r} when asked the state of "
-                                      f"output port {n} (the LED)")
+            raise BadReply(
+                self.name,
+                f"camera {self.name}: {cgi} answered {got[:80]!r} when asked the state of output port {n} (the LED)",
+            )
         return states[got]
 
 

@@ -56,16 +56,18 @@ def wanted(cam: AxisCamera, cfg, setup) -> list[tuple[str, str, bool]]:
     """(parameter, value, required) to send, in order; ``cfg`` the camera entry, ``setup`` the
     rig's ``camera_setup``. A required parameter the firmware lacks is refused."""
     fps = cfg.fps
-    out = [("Image.I0.Appearance.Resolution", cfg.resolution_str, True),
-           ("Image.I0.Stream.FPS", f"{fps:g}", True),
-           ("Image.I0.Appearance.Compression", str(cfg.compression), True),
-           ("ImageSource.I0.Sensor.Exposure", setup.exposure, True),
-           ("ImageSource.I0.Sensor.WhiteBalance", setup.white_balance, True),
-           ("Image.I0.Text.TextEnabled", "no", True),
-           ("Image.I0.Text.ClockEnabled", "no", True),
-           ("Image.I0.Text.DateEnabled", "no", True),
-           ("Image.I0.Overlay.Enabled", "no", False),
-           ("Time.SyncSource", "NTP", True)]
+    out = [
+        ("Image.I0.Appearance.Resolution", cfg.resolution_str, True),
+        ("Image.I0.Stream.FPS", f"{fps:g}", True),
+        ("Image.I0.Appearance.Compression", str(cfg.compression), True),
+        ("ImageSource.I0.Sensor.Exposure", setup.exposure, True),
+        ("ImageSource.I0.Sensor.WhiteBalance", setup.white_balance, True),
+        ("Image.I0.Text.TextEnabled", "no", True),
+        ("Image.I0.Text.ClockEnabled", "no", True),
+        ("Image.I0.Text.DateEnabled", "no", True),
+        ("Image.I0.Overlay.Enabled", "no", False),
+        ("Time.SyncSource", "NTP", True),
+    ]
     if setup.max_exposure_us is not None:
         out.append(("ImageSource.I0.Sensor.MaxExposureTime", str(setup.max_exposure_us), True))
     if setup.max_gain_db is not None:
@@ -90,8 +92,11 @@ def setup_camera(cam: AxisCamera, cfg, setup) -> SetupResult:
     for name, value, required in wanted(cam, cfg, setup):
         if name not in before:
             if required:
-                raise SetupRefused(cam.name, f"camera {cam.name} has no parameter {name}: its firmware "
-                                             f"({_firmware(cam)}) cannot be set to {name.rsplit('.', 1)[-1]}={value}")
+                raise SetupRefused(
+                    cam.name,
+                    f"camera {cam.name} has no parameter {name}: its firmware "
+                    f"({_firmware(cam)}) cannot be set to {name.rsplit('.', 1)[-1]}={value}",
+                )
             result.notes.append(f"{name}: not on this firmware, nothing to switch off")
             continue
         send[name] = value
@@ -120,7 +125,7 @@ def _tree(cam: AxisCamera, groups) -> dict[str, str]:
     for g in groups:
         try:
             out.update(cam.get_params(g))
-        except Refused:   # a group this firmware lacks: its parameters are missing, said per parameter
+        except Refused:  # a group this firmware lacks: its parameters are missing, said per parameter
             pass
     return out
 
@@ -140,33 +145,36 @@ def _refusal(camera: str, sent: dict[str, str], words: str) -> str:
     said = words.split(": ", 2)[-1].strip().rstrip("!") or "no reason given"
     if name is None:
         return f"camera {camera} refused the setup ({said})"
-    why = ("it is not a value this firmware takes" if "setting" in words.lower() else "see the camera's words")
+    why = "it is not a value this firmware takes" if "setting" in words.lower() else "see the camera's words"
     return f"camera {camera} refused {name}={sent[name]}: {why} (the camera said: {said})"
 
 
 def _time_zone(cam: AxisCamera, zone: str, result: SetupResult, before: str | None) -> None:
     """Current firmware: the IANA zone through the Time API, read back with getDateTimeInfo."""
     try:
-        reply = cam.request("POST", TIME_API, json_body={"apiVersion": "1.0", "method": "setTimeZone",
-                                                           "params": {"timeZone": zone}}).json()
+        reply = cam.request(
+            "POST", TIME_API, json_body={"apiVersion": "1.0", "method": "setTimeZone", "params": {"timeZone": zone}}
+        ).json()
         if "error" in reply:
             msg = reply["error"].get("message") or f"error {reply['error'].get('code')}"
             raise SetupRefused(cam.name, f"camera {cam.name} refused time zone {zone} through the Time API: {msg}")
         info = cam.request("POST", TIME_API, json_body={"apiVersion": "1.0", "method": "getDateTimeInfo"}).json()
         got = info["data"]["timeZone"]
     except NotFound:
-        raise SetupRefused(cam.name, f"camera {cam.name} has no Time API (time.cgi): its time zone cannot be "
-                                     f"set to {zone}") from None
+        raise SetupRefused(
+            cam.name, f"camera {cam.name} has no Time API (time.cgi): its time zone cannot be set to {zone}"
+        ) from None
     except NOT_THE_JSON:
         raise SetupRefused(cam.name, f"camera {cam.name} answered the Time API with JSON of another shape") from None
     if got != zone:
         raise SetupRefused(cam.name, f"camera {cam.name} took time zone {zone} but its Time API reads back {got!r}")
     params = _tree(cam, ("Time",))
-    if params.get("Time.TimeZone") == zone:   # the parameter the daily QA can read back
+    if params.get("Time.TimeZone") == zone:  # the parameter the daily QA can read back
         result.locked["Time.TimeZone"] = zone
     else:
-        result.notes.append(f"time zone {zone} set through the Time API; param.cgi does not show it, so the "
-                            f"daily QA cannot check it")
+        result.notes.append(
+            f"time zone {zone} set through the Time API; param.cgi does not show it, so the daily QA cannot check it"
+        )
     if before != zone:
         result.changed.append("Time.TimeZone")
 

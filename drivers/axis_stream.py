@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import threading
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import urllib3
 
@@ -30,8 +30,16 @@ class NotAStream(BadReply):
 class MultipartConnection:
     """``GET path?params`` as a multipart stream; iterate for frames, ``close()`` from any thread."""
 
-    def __init__(self, cam, path: str, params: dict, *, stall_timeout: float, first_seq: int,
-                 make_frame: Callable[[int, bytes, float, tuple], Frame]):
+    def __init__(
+        self,
+        cam,
+        path: str,
+        params: dict,
+        *,
+        stall_timeout: float,
+        first_seq: int,
+        make_frame: Callable[[int, bytes, float, tuple], Frame],
+    ):
         self.cam = cam
         self.path = path
         self.params = params
@@ -41,7 +49,7 @@ class MultipartConnection:
         self._lock = threading.Lock()
         self._resp = None
         self._closed = False
-        self._session = cam.new_session()   # a stream in a thread must not share connections
+        self._session = cam.new_session()  # a stream in a thread must not share connections
 
     def close(self) -> None:
         with self._lock:
@@ -56,8 +64,14 @@ class MultipartConnection:
     def __iter__(self):
         cam = self.cam
         try:
-            resp = cam.request("GET", self.path, params=self.params, stream=True, session=self._session,
-                               timeout=(cam.timeout, self.stall_timeout))
+            resp = cam.request(
+                "GET",
+                self.path,
+                params=self.params,
+                stream=True,
+                session=self._session,
+                timeout=(cam.timeout, self.stall_timeout),
+            )
             with self._lock:
                 self._resp = resp
                 closed = self._closed
@@ -80,8 +94,9 @@ class MultipartConnection:
         cam = self.cam
         ctype = resp.headers.get("content-type", "")
         if "multipart" not in ctype.lower():
-            raise NotAStream(cam.name, f"camera {cam.name} sent {ctype or 'no content type'} instead of a "
-                                       f"multipart MJPEG stream")
+            raise NotAStream(
+                cam.name, f"camera {cam.name} sent {ctype or 'no content type'} instead of a multipart MJPEG stream"
+            )
         parser = MultipartParser(boundary_from_content_type(ctype))
         raw = resp.raw
         # a whole frame at least every `patience` s: a camera that trickles bytes never trips the
@@ -95,8 +110,9 @@ class MultipartConnection:
             host_t = cam.clock()
             now = time.monotonic()
             if now - last_part > patience:
-                raise CameraUnreachable(cam.name, f"camera {cam.name}: no whole frame in {patience:g} s "
-                                                  f"(data comes, too slowly)")
+                raise CameraUnreachable(
+                    cam.name, f"camera {cam.name}: no whole frame in {patience:g} s (data comes, too slowly)"
+                )
             for part in parser.feed(chunk):
                 last_part = now
                 # the header walk in make_frame already says whether the JPEG is whole
@@ -127,18 +143,25 @@ class MultipartStream:
     def make_frame(self, seq: int, jpeg: bytes, host_time: float, problems=()) -> Frame:
         raise NotImplementedError
 
-    def open_stream(self, *, fps: float, duration: float | None = None, nbrofframes: int | None = None,
-                    first_seq: int = 0, stall_timeout: float = 2.0):
+    def open_stream(
+        self,
+        *,
+        fps: float,
+        duration: float | None = None,
+        nbrofframes: int | None = None,
+        first_seq: int = 0,
+        stall_timeout: float = 2.0,
+    ):
         """One connection of ``mjpg/video.cgi`` (the camera ends it after ``duration`` s or
         ``nbrofframes`` frames when asked)."""
-        params: dict[str, object] = {"resolution": self.resolution, "fps": num(fps),
-                                     "compression": self.compression}
+        params: dict[str, object] = {"resolution": self.resolution, "fps": num(fps), "compression": self.compression}
         if duration is not None:
             params["duration"] = max(1, int(duration + 0.999))
         if nbrofframes is not None:
             params["nbrofframes"] = nbrofframes
-        return MultipartConnection(self, self.stream_path, params, stall_timeout=stall_timeout,
-                                   first_seq=first_seq, make_frame=self.make_frame)
+        return MultipartConnection(
+            self, self.stream_path, params, stall_timeout=stall_timeout, first_seq=first_seq, make_frame=self.make_frame
+        )
 
     def stream(self, **kwargs) -> FrameStream:
         """Frames that reconnect on drops and stalls, with gaps (vts_hw.camera_stream)."""

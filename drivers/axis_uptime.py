@@ -30,21 +30,22 @@ class NoUptime(BadReply):
 
 def read_uptime(cam: AxisClock) -> Uptime:
     try:
-        r = cam.request("POST", "/axis-cgi/systemready.cgi",
-                        json_body={"apiVersion": "1.0", "method": "systemready"})
+        r = cam.request("POST", "/axis-cgi/systemready.cgi", json_body={"apiVersion": "1.0", "method": "systemready"})
         try:
             return Uptime(float(int(r.json()["data"]["uptime"])), 1.0, "systemready.cgi")
         except NOT_THE_JSON:
-            raise BadReply(cam.name, f"camera {cam.name} answered systemready.cgi without a readable "
-                                     f"data.uptime") from None
+            raise BadReply(
+                cam.name, f"camera {cam.name} answered systemready.cgi without a readable data.uptime"
+            ) from None
     except NotFound:
         pass
     path = "/axis-cgi/admin/serverreport.cgi" if cam.vapix_version == 2 else "/axis-cgi/serverreport.cgi"
     try:
         text = cam._text(path)
     except NotFound:
-        raise NoUptime(cam.name, f"camera {cam.name} tells no uptime (neither systemready.cgi nor "
-                                 f"serverreport.cgi)") from None
+        raise NoUptime(
+            cam.name, f"camera {cam.name} tells no uptime (neither systemready.cgi nor serverreport.cgi)"
+        ) from None
     seconds = parse_busybox_uptime(text)
     if seconds is None:
         raise NoUptime(cam.name, f"camera {cam.name}'s server report has no uptime line")

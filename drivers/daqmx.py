@@ -29,21 +29,22 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from typing import Any, Callable, Iterator, Optional, Protocol, Sequence, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 from pydantic import Field
 
 from vts_hw.drivers.trigger import (
-    BackendSettings,
-    TriggerBackend,
     CHANNELS,
     DUTY,
     FIRE,
     FREQUENCY,
     LEVELS,
     PULSE,
+    BackendSettings,
     OutOfRange,
+    TriggerBackend,
     TriggerBase,
     TriggerError,
     TriggerLog,
@@ -56,22 +57,23 @@ INSTALL_HINT = "pip install vts-hw[daqmx]"
 # Ranges common to NI M- and X-series counters (the device's own limits may be wider; DAQmx
 # refuses or coerces what the device cannot do, and that comes back as TriggerError or as the
 # actual values).
-FREQ_MIN_HZ = 0.01            # 100 s period: fits a 24-bit counter on the 100 kHz timebase
+FREQ_MIN_HZ = 0.01  # 100 s period: fits a 24-bit counter on the 100 kHz timebase
 FREQ_MAX_HZ = 5e6
 DUTY_MIN = 1e-4
 DUTY_MAX = 1.0 - 1e-4
-MIN_PULSE_S = 100e-9          # high and low time: 2 ticks of a 20 MHz timebase
+MIN_PULSE_S = 100e-9  # high and low time: 2 ticks of a 20 MHz timebase
 PULSE_MS_MIN = 1
 PULSE_MS_MAX = 10_000
-TTL_HIGH_V, TTL_LOW_V = 5.0, 0.0    # nominal TTL levels, as the neutral log rows state them
+TTL_HIGH_V, TTL_LOW_V = 5.0, 0.0  # nominal TTL levels, as the neutral log rows state them
 
 
 @runtime_checkable
 class DaqmxPort(Protocol):
     """The hardware under :class:`DaqmxTrigger`: one counter output, one set of digital lines."""
 
-    def configure_pulse_train(self, counter: str, frequency_hz: float, duty: float,
-                              start_trigger: str | None = None) -> tuple[float, float]:
+    def configure_pulse_train(
+        self, counter: str, frequency_hz: float, duty: float, start_trigger: str | None = None
+    ) -> tuple[float, float]:
         """Set up (not start) a continuous pulse train on ``counter``, idle low; with
         ``start_trigger`` it waits, once started, for a rising edge on that terminal.
         Returns (frequency, duty) as the device will generate them."""
@@ -94,8 +96,9 @@ class DaqmxPort(Protocol):
 
 def no_driver_errors(nidaqmx) -> tuple[type[BaseException], ...]:
     """The nidaqmx exceptions that mean "no NI-DAQmx driver here" (by nidaqmx version)."""
-    return tuple(getattr(nidaqmx.errors, n) for n in ("DaqNotFoundError", "DaqNotSupportedError")
-                 if hasattr(nidaqmx.errors, n))
+    return tuple(
+        getattr(nidaqmx.errors, n) for n in ("DaqNotFoundError", "DaqNotSupportedError") if hasattr(nidaqmx.errors, n)
+    )
 
 
 class NidaqmxPort:
@@ -108,21 +111,21 @@ class NidaqmxPort:
             import nidaqmx.errors
             import nidaqmx.system
         except ImportError as e:
-            raise TriggerError(f"the NI-DAQmx backend needs the nidaqmx package: {INSTALL_HINT} "
-                               f"({e})") from e
+            raise TriggerError(f"the NI-DAQmx backend needs the nidaqmx package: {INSTALL_HINT} ({e})") from e
         self._nidaqmx = nidaqmx
         self._const = nidaqmx.constants
         self._errors = nidaqmx.errors
         try:
             self.driver_version = str(nidaqmx.system.System.local().driver_version)
         except no_driver_errors(nidaqmx) as e:
-            raise TriggerError(f"no NI-DAQmx driver (libnidaqmx) on this machine: install NI-DAQmx "
-                               f"from NI, then {INSTALL_HINT} ({e})") from e
+            raise TriggerError(
+                f"no NI-DAQmx driver (libnidaqmx) on this machine: install NI-DAQmx from NI, then {INSTALL_HINT} ({e})"
+            ) from e
         except nidaqmx.errors.Error as e:
             raise TriggerError(f"NI-DAQmx is installed but does not answer: {e}") from e
-        self._co = None          # the counter-output task
+        self._co = None  # the counter-output task
         self._co_started = False
-        self._do: dict[str, Any] = {}   # lines -> started static digital-output task
+        self._do: dict[str, Any] = {}  # lines -> started static digital-output task
 
     @contextmanager
     def _daq(self, what: str) -> Iterator[None]:
@@ -138,13 +141,12 @@ class NidaqmxPort:
             task = self._nidaqmx.Task()
             try:
                 ch = task.co_channels.add_co_pulse_chan_freq(
-                    counter, idle_state=c.Level.LOW, initial_delay=0.0, freq=frequency_hz,
-                    duty_cycle=duty)
+                    counter, idle_state=c.Level.LOW, initial_delay=0.0, freq=frequency_hz, duty_cycle=duty
+                )
                 task.timing.cfg_implicit_timing(sample_mode=c.AcquisitionType.CONTINUOUS)
                 if start_trigger:
-                    task.triggers.start_trigger.cfg_dig_edge_start_trig(
-                        start_trigger, trigger_edge=c.Edge.RISING)
-                task.control(c.TaskMode.TASK_COMMIT)     # DAQmx coerces to its timebase here
+                    task.triggers.start_trigger.cfg_dig_edge_start_trig(start_trigger, trigger_edge=c.Edge.RISING)
+                task.control(c.TaskMode.TASK_COMMIT)  # DAQmx coerces to its timebase here
                 actual = (float(ch.co_pulse_freq), float(ch.co_pulse_duty_cyc))
             except BaseException:
                 task.close()
@@ -177,8 +179,7 @@ class NidaqmxPort:
             if task is None:
                 task = self._nidaqmx.Task()
                 try:
-                    task.do_channels.add_do_chan(
-                        lines, line_grouping=self._const.LineGrouping.CHAN_PER_LINE)
+                    task.do_channels.add_do_chan(lines, line_grouping=self._const.LineGrouping.CHAN_PER_LINE)
                     task.start()
                 except BaseException:
                     task.close()
@@ -217,20 +218,33 @@ class DaqmxTrigger(TriggerBase):
     listens to in :meth:`fire` (see the module text); ``None`` means a software start.
     """
 
-    def __init__(self, counter: str, *, lines: tuple[str, str] | None = None,
-                 fire_trigger: str | None = None, fire_pulse_ms: int = 100,
-                 port: DaqmxPort | None = None, name: str = "daqmx", log: TriggerLog | None = None,
-                 sleep: Callable[[float], None] = time.sleep,
-                 clock: Callable[[], float] = time.perf_counter):
+    def __init__(
+        self,
+        counter: str,
+        *,
+        lines: tuple[str, str] | None = None,
+        fire_trigger: str | None = None,
+        fire_pulse_ms: int = 100,
+        port: DaqmxPort | None = None,
+        name: str = "daqmx",
+        log: TriggerLog | None = None,
+        sleep: Callable[[float], None] = time.sleep,
+        clock: Callable[[], float] = time.perf_counter,
+    ):
         super().__init__(name, log)
         if not isinstance(counter, str) or not counter.strip():
             raise ValueError(f"counter must be a physical counter name such as 'Dev1/ctr0', not {counter!r}")
         if lines is not None:
-            if (not isinstance(lines, (tuple, list)) or len(lines) != 2
-                    or not all(isinstance(x, str) and x.strip() and "," not in x for x in lines)
-                    or lines[0] == lines[1]):
-                raise ValueError("lines must be two different digital lines, one for channel 1 (VTS "
-                                 f"start) and one for channel 2 (SPECT start), not {lines!r}")
+            if (
+                not isinstance(lines, (tuple, list))
+                or len(lines) != 2
+                or not all(isinstance(x, str) and x.strip() and "," not in x for x in lines)
+                or lines[0] == lines[1]
+            ):
+                raise ValueError(
+                    "lines must be two different digital lines, one for channel 1 (VTS "
+                    f"start) and one for channel 2 (SPECT start), not {lines!r}"
+                )
             lines = (lines[0], lines[1])
         if fire_trigger is not None and lines is None:
             raise ValueError("fire_trigger needs the start-pulse lines (lines=...)")
@@ -246,24 +260,28 @@ class DaqmxTrigger(TriggerBase):
         self._trigger_in_task: str | None = None
         self._line_state = [False, False]
         self._last_fire: dict[str, Any] = {}
-        self._started: float | None = None     # host time of the wave's start, while it runs
+        self._started: float | None = None  # host time of the wave's start, while it runs
         self._closed = False
         self.port: DaqmxPort = port if port is not None else NidaqmxPort()
-        self.log.write(name, "event", f"open NI-DAQmx counter {counter}"
-                       + (f", start-pulse lines {lines[0]} (1), {lines[1]} (2)" if lines else ""))
+        self.log.write(
+            name,
+            "event",
+            f"open NI-DAQmx counter {counter}"
+            + (f", start-pulse lines {lines[0]} (1), {lines[1]} (2)" if lines else ""),
+        )
 
     def __repr__(self) -> str:
         return f"<DaqmxTrigger {self.name} {self.counter} lines={self.lines}>"
 
     # -- the trigger contract --------------------------------------------------------------------
 
-    def configure(self, frequency_hz: float, duty: float = 0.5, high_v: float | None = None,
-                  low_v: float | None = None) -> TriggerStatus:
+    def configure(
+        self, frequency_hz: float, duty: float = 0.5, high_v: float | None = None, low_v: float | None = None
+    ) -> TriggerStatus:
         self.require(FREQUENCY)
         self.require(DUTY)
         if high_v is not None or low_v is not None:
-            self.require(LEVELS, "set output levels: NI counter and digital outputs have fixed "
-                                 "TTL levels")
+            self.require(LEVELS, "set output levels: NI counter and digital outputs have fixed TTL levels")
         f, d = self._check_wave(frequency_hz, duty)
         if self.port.pulse_train_running():
             raise TriggerError(f"{self.name}: the square wave is running; stop() before configuring it again")
@@ -275,7 +293,7 @@ class DaqmxTrigger(TriggerBase):
         asked = self._need_configured()
         if self.port.pulse_train_running():
             raise TriggerError(f"{self.name}: the square wave is already running")
-        if self._trigger_in_task is not None:         # left armed by fire(): start without it
+        if self._trigger_in_task is not None:  # left armed by fire(): start without it
             self._configure_train(*asked, None)
         self._cmd(f"CO {self.counter} start")
         t0 = self.log.clock()
@@ -293,7 +311,7 @@ class DaqmxTrigger(TriggerBase):
         t0 = self.log.clock()
         self.port.stop_pulse_train()
         t1 = self.log.clock()
-        if self._started is not None:     # the output idles at once: the wave is cut there
+        if self._started is not None:  # the output idles at once: the wave is cut there
             self._started = None
             self.log.wave_stopped(self.name, t0, rising_edges=None, time_source=HOST_WRITE, uncertainty_s=t1 - t0)
         st = self.status()
@@ -316,8 +334,12 @@ class DaqmxTrigger(TriggerBase):
             off = list(self._line_state)
             off[i] = False
             t_off = self._set_lines(off)
-        self.log.write(self.name, "event", f"pulse channel {channel} ({CHANNELS[channel]}) {ms} ms: "
-                                           f"{(t_off - t_on) * 1e3:.3f} ms between the writes (host clock)")
+        self.log.write(
+            self.name,
+            "event",
+            f"pulse channel {channel} ({CHANNELS[channel]}) {ms} ms: "
+            f"{(t_off - t_on) * 1e3:.3f} ms between the writes (host clock)",
+        )
 
     def fire(self) -> TriggerStatus:
         """Square wave and both start pulses together (hardware start trigger if ``fire_trigger``)."""
@@ -325,13 +347,13 @@ class DaqmxTrigger(TriggerBase):
         f, d = self._need_configured()
         if self.port.pulse_train_running():
             raise TriggerError(f"{self.name}: the square wave is already running; stop() before fire()")
-        self._set_lines([False, False])                 # so that there is a rising edge
+        self._set_lines([False, False])  # so that there is a rising edge
         if self.fire_trigger is not None:
             self._configure_train(f, d, self.fire_trigger)
             self._cmd(f"CO {self.counter} start (armed: starts on the rising edge of {self.fire_trigger})")
             self.port.start_pulse_train()
             h0 = self.log.clock()
-            t_on = self._set_lines([True, True])          # the counter starts on this edge
+            t_on = self._set_lines([True, True])  # the counter starts on this edge
             h1 = self.log.clock()
             self._last_fire = {"fire": f"hardware start trigger on {self.fire_trigger}"}
         else:
@@ -349,14 +371,22 @@ class DaqmxTrigger(TriggerBase):
             h1 = self.log.clock()
             skew = self._clock() - t0
             self._last_fire = {"fire": "software start", "fire_skew_bound_s": skew}
-            self.log.write(self.name, "event", f"fire: software start, counter started within "
-                                               f"{skew * 1e3:.3f} ms of the start-pulse write (host clock)")
+            self.log.write(
+                self.name,
+                "event",
+                f"fire: software start, counter started within "
+                f"{skew * 1e3:.3f} ms of the start-pulse write (host clock)",
+            )
         try:
             self._sleep(self.fire_pulse_ms / 1000.0)
         finally:
             t_off = self._set_lines([False, False])
-        self.log.write(self.name, "event", f"fire: start pulses {self.fire_pulse_ms} ms: "
-                                           f"{(t_off - t_on) * 1e3:.3f} ms between the writes (host clock)")
+        self.log.write(
+            self.name,
+            "event",
+            f"fire: start pulses {self.fire_pulse_ms} ms: "
+            f"{(t_off - t_on) * 1e3:.3f} ms between the writes (host clock)",
+        )
         st = self.status()
         if not st.running:
             raise TriggerError(f"{self.name}: fire() started the counter task but it reports done")
@@ -366,12 +396,21 @@ class DaqmxTrigger(TriggerBase):
     def _wave_started(self, h0: float, h1: float, start_pulse: bool) -> None:
         """``wave_start``: the counter starts during the call (or the line write that triggers
         it) between host times ``h0`` and ``h1``; DAQmx reports no edge times."""
-        if self._actual is None:       # set with _asked by configure()
+        if self._actual is None:  # set with _asked by configure()
             raise TriggerError(f"{self.name}: no square wave configured: call configure() first")
         f, d = self._actual
         self._started = h0
-        self.log.wave_started(self.name, h0, period_s=1.0 / f, duty=d, high_v=TTL_HIGH_V, low_v=TTL_LOW_V,
-                              start_pulse=start_pulse, time_source=HOST_WRITE, uncertainty_s=h1 - h0)
+        self.log.wave_started(
+            self.name,
+            h0,
+            period_s=1.0 / f,
+            duty=d,
+            high_v=TTL_HIGH_V,
+            low_v=TTL_LOW_V,
+            start_pulse=start_pulse,
+            time_source=HOST_WRITE,
+            uncertainty_s=h1 - h0,
+        )
 
     def status(self) -> TriggerStatus:
         running = bool(self.port.pulse_train_running())
@@ -406,13 +445,13 @@ class DaqmxTrigger(TriggerBase):
         f = self._number(frequency_hz, "frequency", "Hz")
         d = self._number(duty, "duty", "(fraction)")
         if not FREQ_MIN_HZ <= f <= FREQ_MAX_HZ:
-            raise OutOfRange(f"{self.name}: frequency {f:g} Hz is outside {FREQ_MIN_HZ:g} to "
-                             f"{FREQ_MAX_HZ:g} Hz; nothing was sent")
+            raise OutOfRange(
+                f"{self.name}: frequency {f:g} Hz is outside {FREQ_MIN_HZ:g} to {FREQ_MAX_HZ:g} Hz; nothing was sent"
+            )
         low = max(DUTY_MIN, MIN_PULSE_S * f)
         high = min(DUTY_MAX, 1.0 - MIN_PULSE_S * f)
         if not low <= d <= high:
-            raise OutOfRange(f"{self.name}: duty {d:g} is outside {low:g} to {high:g} at {f:g} Hz; "
-                             f"nothing was sent")
+            raise OutOfRange(f"{self.name}: duty {d:g} is outside {low:g} to {high:g} at {f:g} Hz; nothing was sent")
         return f, d
 
     def _number(self, value: Any, what: str, unit: str) -> float:
@@ -426,8 +465,9 @@ class DaqmxTrigger(TriggerBase):
 
     def _check_ms(self, ms: Any) -> int:
         if isinstance(ms, bool) or not isinstance(ms, int) or not PULSE_MS_MIN <= ms <= PULSE_MS_MAX:
-            raise OutOfRange(f"{self.name}: a start pulse is {PULSE_MS_MIN} to {PULSE_MS_MAX} whole ms, "
-                             f"not {ms!r}; nothing was sent")
+            raise OutOfRange(
+                f"{self.name}: a start pulse is {PULSE_MS_MIN} to {PULSE_MS_MAX} whole ms, not {ms!r}; nothing was sent"
+            )
         return ms
 
     def _need_configured(self) -> tuple[float, float]:
@@ -442,8 +482,10 @@ class DaqmxTrigger(TriggerBase):
         self.log.write(self.name, "cmd", text)
 
     def _configure_train(self, f: float, d: float, trigger: str | None) -> None:
-        self._cmd(f"CO {self.counter} pulse train freq={f!r} Hz duty={d!r} continuous idle low"
-                  + (f" start trigger rising edge {trigger}" if trigger else ""))
+        self._cmd(
+            f"CO {self.counter} pulse train freq={f!r} Hz duty={d!r} continuous idle low"
+            + (f" start trigger rising edge {trigger}" if trigger else "")
+        )
         af, ad = self.port.configure_pulse_train(self.counter, f, d, trigger)
         self.log.write(self.name, "reply", f"CO {self.counter} actual freq={af!r} Hz duty={ad!r}")
         self._asked = (f, d)
@@ -463,19 +505,23 @@ class DaqmxTrigger(TriggerBase):
 
 # ---- the backend (vts_hw.drivers.registry.TRIGGER_BACKENDS["daqmx"]) ----------------------------------
 
+
 class DaqmxSettings(BackendSettings):
     """NI-DAQmx's own keys in rig.yaml's ``trigger:`` section (``address``: the counter, e.g.
     ``Dev1/ctr0``)."""
 
-    lines: Optional[tuple[str, str]] = Field(
-        default=None, description="digital lines of start channels 1 and 2, e.g. Dev1/port0/line0")
-    fire_trigger: Optional[str] = Field(
-        default=None, description="terminal that starts the counter with the start pulses, e.g. /Dev1/PFI0")
+    lines: tuple[str, str] | None = Field(
+        default=None, description="digital lines of start channels 1 and 2, e.g. Dev1/port0/line0"
+    )
+    fire_trigger: str | None = Field(
+        default=None, description="terminal that starts the counter with the start pulses, e.g. /Dev1/PFI0"
+    )
 
 
 def _open_daqmx(cfg, settings: DaqmxSettings, log) -> DaqmxTrigger:
-    return DaqmxTrigger(cfg.address, lines=settings.lines, fire_trigger=settings.fire_trigger,
-                        fire_pulse_ms=cfg.pulse_ms, log=log)
+    return DaqmxTrigger(
+        cfg.address, lines=settings.lines, fire_trigger=settings.fire_trigger, fire_pulse_ms=cfg.pulse_ms, log=log
+    )
 
 
 BACKEND = TriggerBackend("daqmx", "an NI-DAQmx counter and digital lines", DaqmxSettings, _open_daqmx)

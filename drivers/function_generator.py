@@ -35,22 +35,23 @@ from __future__ import annotations
 
 import math
 import re
-from typing import Any, Callable, Literal
+from collections.abc import Callable
+from typing import Any, Literal
 
 from pydantic import Field
 
 from vts_hw.drivers.settings import Setting, in_range
 from vts_hw.drivers.trigger import (
-    BackendSettings,
-    TriggerBackend,
     CLOCK,
     DUTY,
     FIRE,
     FREQUENCY,
     LEVELS,
     PULSE,
-    OutOfRange,
+    BackendSettings,
     ClockMapping,
+    OutOfRange,
+    TriggerBackend,
     TriggerBase,
     TriggerError,
     TriggerLog,
@@ -66,26 +67,28 @@ DEVICE = "the instrument"
 SIM_RESOURCE = "TCPIP0::127.0.0.1::inst0::INSTR"
 
 # The instrument's ranges (33500B family, square wave, output termination 50 ohm = *RST default).
-FREQ_MIN_HZ = 1e-6            # 1 uHz on every 33500 model
-FREQ_MAX_HZ = 20e6            # square wave on the 20 MHz models; the 30 MHz models go further
-DUTY_MIN_PCT = 0.01           # square duty cycle at low frequencies ...
+FREQ_MIN_HZ = 1e-6  # 1 uHz on every 33500 model
+FREQ_MAX_HZ = 20e6  # square wave on the 20 MHz models; the 30 MHz models go further
+DUTY_MIN_PCT = 0.01  # square duty cycle at low frequencies ...
 DUTY_MAX_PCT = 99.99
-MIN_PULSE_S = 16e-9           # ... narrowed at high frequency by the 16 ns minimum pulse width
-LEVEL_LIMIT_V = 5.0           # |VOLT:HIGH|, |VOLT:LOW| into the 50 ohm setting (10 V with LOAD INF)
-MIN_AMPLITUDE_V = 1e-3        # VOLT:HIGH - VOLT:LOW, 1 mVpp into 50 ohm
+MIN_PULSE_S = 16e-9  # ... narrowed at high frequency by the 16 ns minimum pulse width
+LEVEL_LIMIT_V = 5.0  # |VOLT:HIGH|, |VOLT:LOW| into the 50 ohm setting (10 V with LOAD INF)
+MIN_AMPLITUDE_V = 1e-3  # VOLT:HIGH - VOLT:LOW, 1 mVpp into 50 ohm
 FUNCTIONS = ("SIN", "SQU", "TRI", "RAMP", "PULS", "PRBS", "NOIS", "ARB", "DC")
-MAX_ERRORS_READ = 32          # more than the instrument's error queue holds
+MAX_ERRORS_READ = 32  # more than the instrument's error queue holds
 
 # what a confirmed value may differ from the asked one by (instrument resolution)
-_TOLERANCE = {"frequency_hz": (1e-9, 1e-6), "duty_percent": (0.0, 1e-3),
-              "high_v": (0.0, 1e-3), "low_v": (0.0, 1e-3)}
+_TOLERANCE = {"frequency_hz": (1e-9, 1e-6), "duty_percent": (0.0, 1e-3), "high_v": (0.0, 1e-3), "low_v": (0.0, 1e-3)}
 
 _MODEL = re.compile(r"^335\d\d[AB]$")
-_NO_PULSE = ("a Keysight 33500 has no contact-closure outputs; send the start pulses from the "
-             "trigger box or an NI-DAQmx digital line (backend daqmx)")
+_NO_PULSE = (
+    "a Keysight 33500 has no contact-closure outputs; send the start pulses from the "
+    "trigger box or an NI-DAQmx digital line (backend daqmx)"
+)
 
 
 # ---- declared settings (PyMeasure-style) -------------------------------------------------------
+
 
 def one_of(*choices: str, what: str) -> Callable[[Any], str]:
     def check(value: Any) -> str:
@@ -133,31 +136,52 @@ class ScpiSetting(Setting):
 
 # ---- the driver ----------------------------------------------------------------------------------
 
+
 class FunctionGenerator(TriggerBase):
     """A Keysight/Agilent 33500-series channel as the square-wave source of the trigger contract."""
 
     capabilities = frozenset({FREQUENCY, DUTY, LEVELS})
 
-    function = ScpiSetting("{src}FUNC {value}", "{src}FUNC?", one_of(*FUNCTIONS, what="function"),
-                       parse=str, fmt=str, doc="waveform")
-    frequency_hz = ScpiSetting("{src}FREQ {value}", "{src}FREQ?",
-                               in_range(FREQ_MIN_HZ, FREQ_MAX_HZ, "frequency", "Hz", DEVICE),
-                           doc="frequency in Hz")
-    duty_percent = ScpiSetting("{src}FUNC:SQU:DCYC {value}", "{src}FUNC:SQU:DCYC?",
-                           in_range(DUTY_MIN_PCT, DUTY_MAX_PCT, "square duty cycle", "%", DEVICE),
-                           doc="square-wave duty cycle in percent")
-    high_v = ScpiSetting("{src}VOLT:HIGH {value}", "{src}VOLT:HIGH?",
-                     in_range(-LEVEL_LIMIT_V, LEVEL_LIMIT_V, "high level", "V", DEVICE),
-                     doc="high level in volts (as the instrument's 50 ohm termination setting states it)")
-    low_v = ScpiSetting("{src}VOLT:LOW {value}", "{src}VOLT:LOW?",
-                    in_range(-LEVEL_LIMIT_V, LEVEL_LIMIT_V, "low level", "V", DEVICE),
-                    doc="low level in volts (as the instrument's 50 ohm termination setting states it)")
-    output = ScpiSetting("OUTP{ch} {value}", "OUTP{ch}?", boolean, parse=_parse_bool, fmt=_scpi_bool,
-                     doc="output on")
+    function = ScpiSetting(
+        "{src}FUNC {value}", "{src}FUNC?", one_of(*FUNCTIONS, what="function"), parse=str, fmt=str, doc="waveform"
+    )
+    frequency_hz = ScpiSetting(
+        "{src}FREQ {value}",
+        "{src}FREQ?",
+        in_range(FREQ_MIN_HZ, FREQ_MAX_HZ, "frequency", "Hz", DEVICE),
+        doc="frequency in Hz",
+    )
+    duty_percent = ScpiSetting(
+        "{src}FUNC:SQU:DCYC {value}",
+        "{src}FUNC:SQU:DCYC?",
+        in_range(DUTY_MIN_PCT, DUTY_MAX_PCT, "square duty cycle", "%", DEVICE),
+        doc="square-wave duty cycle in percent",
+    )
+    high_v = ScpiSetting(
+        "{src}VOLT:HIGH {value}",
+        "{src}VOLT:HIGH?",
+        in_range(-LEVEL_LIMIT_V, LEVEL_LIMIT_V, "high level", "V", DEVICE),
+        doc="high level in volts (as the instrument's 50 ohm termination setting states it)",
+    )
+    low_v = ScpiSetting(
+        "{src}VOLT:LOW {value}",
+        "{src}VOLT:LOW?",
+        in_range(-LEVEL_LIMIT_V, LEVEL_LIMIT_V, "low level", "V", DEVICE),
+        doc="low level in volts (as the instrument's 50 ohm termination setting states it)",
+    )
+    output = ScpiSetting("OUTP{ch} {value}", "OUTP{ch}?", boolean, parse=_parse_bool, fmt=_scpi_bool, doc="output on")
 
-    def __init__(self, resource: str | Any, *, sim: bool = False, visa_library: str | None = None,
-                 log: TriggerLog | None = None, name: str = "fgen", timeout_ms: int = 2000,
-                 channel: int = 1):
+    def __init__(
+        self,
+        resource: str | Any,
+        *,
+        sim: bool = False,
+        visa_library: str | None = None,
+        log: TriggerLog | None = None,
+        name: str = "fgen",
+        timeout_ms: int = 2000,
+        channel: int = 1,
+    ):
         """Open ``resource`` (a VISA address) and identify the instrument.
 
         ``sim=True`` uses the shipped pyvisa-sim model (a fresh simulated device per instance);
@@ -173,8 +197,8 @@ class FunctionGenerator(TriggerBase):
         self.channel = channel
         self._src = "" if channel == 1 else f"SOUR{channel}:"
         self._ch = "" if channel == 1 else str(channel)
-        self._known: dict[str, Any] = {}        # last values the instrument confirmed or accepted
-        self._started: float | None = None      # host time this instance switched the output on
+        self._known: dict[str, Any] = {}  # last values the instrument confirmed or accepted
+        self._started: float | None = None  # host time this instance switched the output on
         self._closed = False
         self.idn = ""
         self.stale_errors: tuple[str, ...] = ()
@@ -197,8 +221,9 @@ class FunctionGenerator(TriggerBase):
 
     # -- the trigger contract --------------------------------------------------------------------
 
-    def configure(self, frequency_hz: float, duty: float = 0.5, high_v: float | None = None,
-                  low_v: float | None = None) -> TriggerStatus:
+    def configure(
+        self, frequency_hz: float, duty: float = 0.5, high_v: float | None = None, low_v: float | None = None
+    ) -> TriggerStatus:
         """A square wave of ``frequency_hz`` and ``duty`` (a fraction), levels if given (both).
 
         Every value is checked before anything is sent; then FUNC SQU, FREQ, DCYC and the levels
@@ -208,8 +233,10 @@ class FunctionGenerator(TriggerBase):
         self.require(FREQUENCY)
         self.require(DUTY)
         if (high_v is None) != (low_v is None):
-            raise OutOfRange(f"{self.name}: give both high_v and low_v, or neither "
-                             f"(got high_v={high_v!r}, low_v={low_v!r}); nothing was sent")
+            raise OutOfRange(
+                f"{self.name}: give both high_v and low_v, or neither "
+                f"(got high_v={high_v!r}, low_v={low_v!r}); nothing was sent"
+            )
         levels = high_v is not None
         if levels:
             self.require(LEVELS)
@@ -242,8 +269,12 @@ class FunctionGenerator(TriggerBase):
         self._raise_on_errors("configure", st.errors)
         if st.extra.get("function") != "SQU":
             raise TriggerError(f"{self.name} was set to a square wave but confirms {st.extra.get('function')!r}")
-        got = {"frequency_hz": st.frequency_hz, "duty_percent": st.extra["duty_percent"],
-               "high_v": st.high_v, "low_v": st.low_v}
+        got = {
+            "frequency_hz": st.frequency_hz,
+            "duty_percent": st.extra["duty_percent"],
+            "high_v": st.high_v,
+            "low_v": st.low_v,
+        }
         for key, want in asked.items():
             rel, abs_ = _TOLERANCE[key]
             if got[key] is None or not math.isclose(got[key], want, rel_tol=rel, abs_tol=abs_):
@@ -262,15 +293,24 @@ class FunctionGenerator(TriggerBase):
         if not st.running:
             raise TriggerError(f"{self.name} was switched on but reports its output off")
         wrong = st.not_a_square_wave()
-        f, duty, high, low = st.frequency_hz, st.duty, st.high_v, st.low_v    # status() reads them all
+        f, duty, high, low = st.frequency_hz, st.duty, st.high_v, st.low_v  # status() reads them all
         if wrong or f is None or duty is None or high is None or low is None:
-            raise TriggerError(f"{self.name} was switched on but confirms {wrong or f'levels {low!r}..{high!r} V'}: "
-                               "not a square wave")
+            raise TriggerError(
+                f"{self.name} was switched on but confirms {wrong or f'levels {low!r}..{high!r} V'}: not a square wave"
+            )
         # a rising edge when the output switched on, between the write and the read-back
         self._started = sent
-        self.log.wave_started(self.name, sent, period_s=1.0 / f, duty=duty, high_v=high,
-                              low_v=low, start_pulse=False, time_source=HOST_WRITE,
-                              uncertainty_s=self.log.clock() - sent)
+        self.log.wave_started(
+            self.name,
+            sent,
+            period_s=1.0 / f,
+            duty=duty,
+            high_v=high,
+            low_v=low,
+            start_pulse=False,
+            time_source=HOST_WRITE,
+            uncertainty_s=self.log.clock() - sent,
+        )
         return st
 
     def stop(self) -> TriggerStatus:
@@ -289,8 +329,9 @@ class FunctionGenerator(TriggerBase):
         need be): on stop(), and on reset() when this instance started the wave or the
         instrument said its output was on (a stop with no start before it is ignored by readers)."""
         if always or self._started is not None or self._known.get("output"):
-            self.log.wave_stopped(self.name, sent, rising_edges=None, time_source=HOST_WRITE,
-                                  uncertainty_s=self.log.clock() - sent)
+            self.log.wave_stopped(
+                self.name, sent, rising_edges=None, time_source=HOST_WRITE, uncertainty_s=self.log.clock() - sent
+            )
         self._started = None
 
     def pulse(self, channel: int, ms: int) -> None:
@@ -298,15 +339,21 @@ class FunctionGenerator(TriggerBase):
         raise AssertionError("unreachable")  # pragma: no cover
 
     def fire(self) -> TriggerStatus:
-        self.require(FIRE, f"start the square wave and the start pulses together: {_NO_PULSE}; nothing "
-                           f"was sent, so no start pulses went out and the square wave was not started "
-                           f"(the square wave alone: vts trigger start)")
+        self.require(
+            FIRE,
+            f"start the square wave and the start pulses together: {_NO_PULSE}; nothing "
+            f"was sent, so no start pulses went out and the square wave was not started "
+            f"(the square wave alone: vts trigger start)",
+        )
         raise AssertionError("unreachable")  # pragma: no cover
 
     def clock_mapping(self, samples: int = 20) -> ClockMapping:
-        self.require(CLOCK, "report a device clock to map to host time: a 33500 has no clock "
-                            "readable over SCPI that times its output; time the edges from the "
-                            "SPECT list-mode gating signal instead")
+        self.require(
+            CLOCK,
+            "report a device clock to map to host time: a 33500 has no clock "
+            "readable over SCPI that times its output; time the edges from the "
+            "SPECT list-mode gating signal instead",
+        )
         raise AssertionError("unreachable")  # pragma: no cover
 
     def status(self) -> TriggerStatus:
@@ -318,10 +365,16 @@ class FunctionGenerator(TriggerBase):
         lo = self.low_v
         on = self.output
         errors = self._read_errors()
-        return TriggerStatus(device=self.name, running=on, frequency_hz=f, duty=pct / 100.0,
-                             high_v=hi, low_v=lo, errors=errors,
-                             extra={"function": fn, "duty_percent": pct, "channel": self.channel,
-                                    "idn": self.idn})
+        return TriggerStatus(
+            device=self.name,
+            running=on,
+            frequency_hz=f,
+            duty=pct / 100.0,
+            high_v=hi,
+            low_v=lo,
+            errors=errors,
+            extra={"function": fn, "duty_percent": pct, "channel": self.channel, "idn": self.idn},
+        )
 
     def reset(self) -> None:
         """``*RST``: the instrument's defaults (sine 1 kHz, output off). Not simulated by pyvisa-sim."""
@@ -359,18 +412,22 @@ class FunctionGenerator(TriggerBase):
                     low = max(DUTY_MIN_PCT, 100.0 * MIN_PULSE_S * f)
                     high = min(DUTY_MAX_PCT, 100.0 * (1.0 - MIN_PULSE_S * f))
                     if not low <= v <= high:
-                        raise OutOfRange(f"square duty cycle {v:g} % is outside the instrument's "
-                                         f"range {low:g} to {high:g} % at {f:g} Hz")
+                        raise OutOfRange(
+                            f"square duty cycle {v:g} % is outside the instrument's "
+                            f"range {low:g} to {high:g} % at {f:g} Hz"
+                        )
             elif setting is FunctionGenerator.high_v:
                 lo = context["low_v"] if "low_v" in context else self._known.get("low_v")
                 if lo is not None and v - lo < MIN_AMPLITUDE_V:
-                    raise OutOfRange(f"high level {v:g} V must be at least {MIN_AMPLITUDE_V * 1e3:g} mV "
-                                     f"above the low level {lo:g} V")
+                    raise OutOfRange(
+                        f"high level {v:g} V must be at least {MIN_AMPLITUDE_V * 1e3:g} mV above the low level {lo:g} V"
+                    )
             elif setting is FunctionGenerator.low_v:
                 hi = context["high_v"] if "high_v" in context else self._known.get("high_v")
                 if hi is not None and hi - v < MIN_AMPLITUDE_V:
-                    raise OutOfRange(f"low level {v:g} V must be at least {MIN_AMPLITUDE_V * 1e3:g} mV "
-                                     f"below the high level {hi:g} V")
+                    raise OutOfRange(
+                        f"low level {v:g} V must be at least {MIN_AMPLITUDE_V * 1e3:g} mV below the high level {hi:g} V"
+                    )
         except OutOfRange as e:
             raise OutOfRange(f"{self.name}: {e}; nothing was sent") from None
         return v
@@ -390,8 +447,7 @@ class FunctionGenerator(TriggerBase):
         try:
             value = setting.parse(reply)
         except ValueError:
-            raise TriggerError(f"{self.name} answered {query!r} with {reply!r}, not a "
-                               f"{setting.name} value") from None
+            raise TriggerError(f"{self.name} answered {query!r} with {reply!r}, not a {setting.name} value") from None
         self._known[setting.name] = value
         return value
 
@@ -412,7 +468,7 @@ class FunctionGenerator(TriggerBase):
     def _query(self, command: str) -> str:
         self.log.write(self.name, "cmd", command)
         try:
-            reply = query_within(self.resource, command).strip()   # one deadline for the reply
+            reply = query_within(self.resource, command).strip()  # one deadline for the reply
         except Exception as e:
             if is_visa_error(e) or isinstance(e, UnicodeDecodeError):
                 raise self._failure(e, command) from None
@@ -438,8 +494,9 @@ class FunctionGenerator(TriggerBase):
             if n == 0:
                 return tuple(errors)
             errors.append(reply)
-        raise TriggerError(f"{self.name} still reports errors after {MAX_ERRORS_READ} reads of "
-                           f"SYST:ERR?: {'; '.join(errors[:3])} ...")
+        raise TriggerError(
+            f"{self.name} still reports errors after {MAX_ERRORS_READ} reads of SYST:ERR?: {'; '.join(errors[:3])} ..."
+        )
 
     def _raise_on_errors(self, what: str, errors: tuple[str, ...]) -> None:
         if errors:
@@ -450,8 +507,10 @@ class FunctionGenerator(TriggerBase):
         parts = [p.strip() for p in self.idn.split(",")]
         model = parts[1] if len(parts) >= 2 else ""
         if not _MODEL.match(model):
-            raise TriggerError(f"{self.name} at {self.address} answers *IDN? with {self.idn!r}, "
-                               f"not a Keysight/Agilent 33500-series generator")
+            raise TriggerError(
+                f"{self.name} at {self.address} answers *IDN? with {self.idn!r}, "
+                f"not a Keysight/Agilent 33500-series generator"
+            )
         if self.channel == 2 and model[4] != "2":  # 335x2: the two-channel models
             raise TriggerError(f"{self.name}: the {model} at {self.address} has one channel, not 2")
         self.model = model
@@ -469,6 +528,7 @@ class FunctionGenerator(TriggerBase):
 
 # ---- helpers -----------------------------------------------------------------------------------------
 
+
 def _finite_or_none(value: Any) -> float | None:
     try:
         v = float(value)
@@ -478,6 +538,7 @@ def _finite_or_none(value: Any) -> float | None:
 
 
 # ---- the backend (vts_hw.drivers.registry.TRIGGER_BACKENDS["visa"]) -----------------------------------
+
 
 class VisaSettings(BackendSettings):
     """The function generator's own keys in rig.yaml's ``trigger:`` section (``address``: its
@@ -489,8 +550,9 @@ class VisaSettings(BackendSettings):
 
 
 def _open_visa(cfg, settings: VisaSettings, log) -> FunctionGenerator:
-    return FunctionGenerator(cfg.address, sim=settings.simulated, log=log, channel=settings.channel,
-                             timeout_ms=settings.timeout_ms)
+    return FunctionGenerator(
+        cfg.address, sim=settings.simulated, log=log, channel=settings.channel, timeout_ms=settings.timeout_ms
+    )
 
 
 BACKEND = TriggerBackend("visa", "a SCPI function generator over VISA", VisaSettings, _open_visa, levels=True)

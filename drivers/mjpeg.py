@@ -42,14 +42,21 @@ class MjpegOptions(BaseModel):
     model_config = ConfigDict(extra="forbid")
     stream_path: str = Field(default="/axis-cgi/mjpg/video.cgi", description="the path of its MJPEG stream")
     snapshot_path: str = Field(default="/axis-cgi/jpg/image.cgi", description="the path of one JPEG")
-    led: Literal["none", "vapix"] = Field(default="none", description="vapix: its LED ring hangs on a VAPIX I/O "
-                                                                       "port (`led_port`); none: it has no LED to switch")
+    led: Literal["none", "vapix"] = Field(
+        default="none",
+        description="vapix: its LED ring hangs on a VAPIX I/O port (`led_port`); none: it has no LED to switch",
+    )
 
 
 MjpegSettings = kind_settings(
-    "MjpegSettings", "Any MJPEG-over-HTTP camera that stamps nothing (frames timed by their receipt): its "
+    "MjpegSettings",
+    "Any MJPEG-over-HTTP camera that stamps nothing (frames timed by their receipt): its "
     "address and credentials as an Axis camera's, and under `options:` the paths of its stream and snapshot "
-    "and whether its LED hangs on a VAPIX I/O port.", HTTP_KEYS, required=("host",), options=MjpegOptions)
+    "and whether its LED hangs on a VAPIX I/O port.",
+    HTTP_KEYS,
+    required=("host",),
+    options=MjpegOptions,
+)
 
 
 def receipt_frame(seq: int, jpeg: bytes, host_time: float, problems=()) -> Frame:
@@ -67,10 +74,22 @@ class MjpegCamera(AxisClient, MultipartStream):
 
     settings = MjpegSettings
 
-    def __init__(self, name: str, base_url: str, user: str | None = "root", password: str | None = None,
-                 *, timeout: float = 5.0, led_port: int = 1, resolution: str = "640x480", fps: float = 25.0,
-                 compression: int = 25, clock=time.time, verify: bool | str = True,
-                 options: MjpegOptions | None = None):
+    def __init__(
+        self,
+        name: str,
+        base_url: str,
+        user: str | None = "root",
+        password: str | None = None,
+        *,
+        timeout: float = 5.0,
+        led_port: int = 1,
+        resolution: str = "640x480",
+        fps: float = 25.0,
+        compression: int = 25,
+        clock=time.time,
+        verify: bool | str = True,
+        options: MjpegOptions | None = None,
+    ):
         super().__init__(name, base_url, user, password, timeout=timeout, clock=clock, verify=verify)
         self.led_port = led_port
         self.resolution = resolution
@@ -81,14 +100,25 @@ class MjpegCamera(AxisClient, MultipartStream):
         self._worst_rtt = 0.0
 
     @classmethod
-    def from_config(cls, cfg, clock=time.time) -> "MjpegCamera":
+    def from_config(cls, cfg, clock=time.time) -> MjpegCamera:
         """The camera of an entry: :class:`MjpegLedCamera` when its LED hangs on an I/O port."""
         s = cls.settings.from_entry(cfg)
         opts = MjpegOptions.model_validate(cfg.options)
         kind = MjpegLedCamera if opts.led == "vapix" else MjpegCamera
-        return kind(cfg.name, cfg.base_url, s.user, cfg.password(), timeout=s.timeout_s,
-                    led_port=s.led_port, resolution=cfg.resolution_str, fps=s.fps,
-                    compression=s.compression, clock=clock, verify=s.ca_cert or True, options=opts)
+        return kind(
+            cfg.name,
+            cfg.base_url,
+            s.user,
+            cfg.password(),
+            timeout=s.timeout_s,
+            led_port=s.led_port,
+            resolution=cfg.resolution_str,
+            fps=s.fps,
+            compression=s.compression,
+            clock=clock,
+            verify=s.ca_cert or True,
+            options=opts,
+        )
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.name!r}, {self.base_url!r}, user={self.user!r})"
@@ -98,9 +128,14 @@ class MjpegCamera(AxisClient, MultipartStream):
 
     def snapshot(self, compression: int | None = None) -> Frame:
         t0 = self.clock()
-        r = self.request("GET", self.options.snapshot_path,
-                         params={"resolution": self.resolution, "compression": self.compression
-                                 if compression is None else int(compression)})
+        r = self.request(
+            "GET",
+            self.options.snapshot_path,
+            params={
+                "resolution": self.resolution,
+                "compression": self.compression if compression is None else int(compression),
+            },
+        )
         data = r.content
         host_t = self.clock()
         self._worst_rtt = max(self._worst_rtt, host_t - t0)
@@ -112,9 +147,16 @@ class MjpegCamera(AxisClient, MultipartStream):
         return frame
 
     def device_info(self) -> dict[str, str]:
-        return {"Brand": "MJPEG over HTTP", "ProdNbr": "mjpeg", "URL": self.base_url,
-                "Stream": self.stream_path, "Clock": "none in the frames: times are host receipt times",
-                "LED": "I/O port (VAPIX)" if isinstance(self, AxisIOPort) else "none: this camera cannot switch one (an LED switch is a no-op)"}
+        return {
+            "Brand": "MJPEG over HTTP",
+            "ProdNbr": "mjpeg",
+            "URL": self.base_url,
+            "Stream": self.stream_path,
+            "Clock": "none in the frames: times are host receipt times",
+            "LED": "I/O port (VAPIX)"
+            if isinstance(self, AxisIOPort)
+            else "none: this camera cannot switch one (an LED switch is a no-op)",
+        }
 
     def clock_offset(self, samples: int = 5) -> ClockOffset:
         """No camera clock: offset 0 by definition, uncertain by the longest round trip of

@@ -52,8 +52,9 @@ def trigger_settings(cfg: TriggerConfig, source: str = "rig.yaml"):
     backend = trigger_backend(cfg, source)
     if backend is None:
         if cfg.options:
-            raise ConfigError(f"{source}: trigger.{sorted(cfg.options)[0]} is not a known key "
-                              f"(trigger backend none has no settings)")
+            raise ConfigError(
+                f"{source}: trigger.{sorted(cfg.options)[0]} is not a known key (trigger backend none has no settings)"
+            )
         return None, None
     try:
         return backend, backend.settings.model_validate(cfg.options)
@@ -61,8 +62,9 @@ def trigger_settings(cfg: TriggerConfig, source: str = "rig.yaml"):
         raise ConfigError(validation_message(source, exc, ("trigger",))) from None
 
 
-def open_trigger(cfg: TriggerConfig | RigConfig, log_path: str | Path | None = None, clock=None,
-                 *, source: str | None = None) -> TriggerGenerator:
+def open_trigger(
+    cfg: TriggerConfig | RigConfig, log_path: str | Path | None = None, clock=None, *, source: str | None = None
+) -> TriggerGenerator:
     """The backend the config names (the rig's, or its ``trigger`` section), logging to
     ``log_path`` (trigger.csv) when given."""
     rig = cfg if isinstance(cfg, RigConfig) else None

@@ -31,7 +31,6 @@ import statistics
 import threading
 import time
 from pathlib import Path
-from typing import Optional
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -47,14 +46,19 @@ class ReplayOptions(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     folder: Path = Field(description="the recording folder to play back")
-    camera: Optional[str] = Field(default=None, description="the camera's name in the recording (default: "
-                                                         "this entry's name)")
+    camera: str | None = Field(
+        default=None, description="the camera's name in the recording (default: this entry's name)"
+    )
     speed: float = Field(default=1.0, gt=0, le=1000, description="1 plays it as recorded; 4, four times faster")
 
 
 ReplaySettings = kind_settings(
-    "ReplaySettings", "A recording folder played back as a live camera: under `options:` the folder, the camera "
-    "in it and the speed; no address.", ("resolution",), options=ReplayOptions)
+    "ReplaySettings",
+    "A recording folder played back as a live camera: under `options:` the folder, the camera "
+    "in it and the speed; no address.",
+    ("resolution",),
+    options=ReplayOptions,
+)
 
 
 class ReplayCamera:
@@ -62,20 +66,31 @@ class ReplayCamera:
 
     settings = ReplaySettings
 
-    def __init__(self, name: str, folder: str | Path, source: str | None = None, *, speed: float = 1.0,
-                 fps: float | None = None, resolution: str = "640x480", clock=time.time):
+    def __init__(
+        self,
+        name: str,
+        folder: str | Path,
+        source: str | None = None,
+        *,
+        speed: float = 1.0,
+        fps: float | None = None,
+        resolution: str = "640x480",
+        clock=time.time,
+    ):
         self.name = name
         self.folder = Path(folder)
         self.source = source or name
         self.speed = float(speed)
         self.clock = clock
         self.resolution = resolution
-        load_manifest(self.folder, missing_ok=True)   # a folder with a broken manifest is named here
+        load_manifest(self.folder, missing_ok=True)  # a folder with a broken manifest is named here
         index = self.folder / f"{self.source}.index.csv"
         if not index.is_file():
             have = sorted(p.name[: -len(".index.csv")] for p in self.folder.glob("*.index.csv"))
-            raise DataError(f"{self.folder}: no camera {self.source!r} in this recording"
-                            + (f" (it has {', '.join(have)})" if have else " (no .index.csv files)"))
+            raise DataError(
+                f"{self.folder}: no camera {self.source!r} in this recording"
+                + (f" (it has {', '.join(have)})" if have else " (no .index.csv files)")
+            )
         rows = read_index(index)
         if not rows:
             raise DataError(f"{index}: no frames to replay")
@@ -89,17 +104,16 @@ class ReplayCamera:
         self._origin = min([self._times[0], *_first_times(self.folder)])
         span = self._times[-1] - self._times[0]
         self.fps = float(fps or ((len(rows) - 1) / span if span > 0 else 25.0))
-        self._t0: float | None = None   # monotonic time playback started
+        self._t0: float | None = None  # monotonic time playback started
         self._lock = threading.Lock()
-        self._fh = open_checked(self._mjpeg, ANY_SIZE, "recording's .mjpeg")   # a FIFO would block the open
+        self._fh = open_checked(self._mjpeg, ANY_SIZE, "recording's .mjpeg")  # a FIFO would block the open
 
     @classmethod
-    def from_config(cls, cfg, clock=time.time) -> "ReplayCamera":
+    def from_config(cls, cfg, clock=time.time) -> ReplayCamera:
         opts = cls.settings.from_entry(cfg)
         if not opts.folder.is_dir():
             raise ConfigError(f"camera {cfg.name!r} (kind replay): options.folder: no such folder {opts.folder}")
-        return cls(cfg.name, opts.folder, opts.camera, speed=opts.speed,
-                   resolution=cfg.resolution_str, clock=clock)
+        return cls(cfg.name, opts.folder, opts.camera, speed=opts.speed, resolution=cfg.resolution_str, clock=clock)
 
     def __repr__(self) -> str:
         return f"ReplayCamera({self.name!r}, {str(self.folder)!r}, source={self.source!r}, speed={self.speed:g})"
@@ -137,8 +151,9 @@ class ReplayCamera:
         return Frame(seq, jpeg, row.camera_time, self._times[i], problems, time_source="recording")
 
     def _ended(self) -> SourceEnded:
-        return SourceEnded(self.name, f"camera {self.name}: the replay of {self.folder} ({self.source}) "
-                                      f"reached its end")
+        return SourceEnded(
+            self.name, f"camera {self.name}: the replay of {self.folder} ({self.source}) reached its end"
+        )
 
     # -- its roles: frames, device information, the clock ---------------------------------------------------------------
     def snapshot(self, compression: int | None = None) -> Frame:
@@ -148,23 +163,35 @@ class ReplayCamera:
             raise self._ended()
         return self._frame(i, self._rows[i].frame)
 
-    def open_stream(self, *, fps: float | None = None, duration: float | None = None,
-                    nbrofframes: int | None = None, first_seq: int = 0, stall_timeout: float = 2.0):
+    def open_stream(
+        self,
+        *,
+        fps: float | None = None,
+        duration: float | None = None,
+        nbrofframes: int | None = None,
+        first_seq: int = 0,
+        stall_timeout: float = 2.0,
+    ):
         return _ReplayConnection(self, first_seq, nbrofframes)
 
     def stream(self, **kwargs) -> FrameStream:
         return FrameStream(self, **kwargs)
 
     def device_info(self) -> dict[str, str]:
-        return {"Brand": "vts-hw", "ProdNbr": "replay", "SerialNumber": f"{self.folder.name}/{self.source}",
-                "Source": str(self.folder), "Camera": self.source, "Speed": f"{self.speed:g}",
-                "Frames": str(len(self._rows)),
-                "LED": "none: a recording cannot switch its LED (an LED switch is a no-op)"}
+        return {
+            "Brand": "vts-hw",
+            "ProdNbr": "replay",
+            "SerialNumber": f"{self.folder.name}/{self.source}",
+            "Source": str(self.folder),
+            "Camera": self.source,
+            "Speed": f"{self.speed:g}",
+            "Frames": str(len(self._rows)),
+            "LED": "none: a recording cannot switch its LED (an LED switch is a no-op)",
+        }
 
     def clock_offset(self, samples: int = 5) -> ClockOffset:
         """The recording's own offset: median camera − host time of its frames."""
-        d = [r.camera_time - r.host_time for r in self._rows
-             if r.camera_time is not None and r.host_time is not None]
+        d = [r.camera_time - r.host_time for r in self._rows if r.camera_time is not None and r.host_time is not None]
         if not d:
             return ClockOffset(0.0, 0.0, self.clock(), "recording (no camera stamps)", 0, source="receipt")
         med = statistics.median(d)
@@ -210,11 +237,11 @@ def _first_times(folder: Path) -> list[float]:
     out = []
     for index in folder.glob("*.index.csv"):
         try:
-            with open_bounded(index, TABLE, "recording index", encoding="ascii") as fh:   # no device, no FIFO
+            with open_bounded(index, TABLE, "recording index", encoding="ascii") as fh:  # no device, no FIFO
                 fh.readline()
                 parts = fh.readline().strip().split(",")
             t = parts[4] or parts[3]
             out.append(float(t))
         except (OSError, ValueError, IndexError, UnicodeDecodeError):
-            continue   # a camera of the folder that cannot be read does not move the timeline
+            continue  # a camera of the folder that cannot be read does not move the timeline
     return out

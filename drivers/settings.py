@@ -9,13 +9,13 @@ is sent.
 from __future__ import annotations
 
 import math
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from vts_hw.drivers.trigger import OutOfRange
 
 
-def in_range(low: float, high: float, what: str, unit: str = "",
-             device: str = "the device") -> Callable[[Any], float]:
+def in_range(low: float, high: float, what: str, unit: str = "", device: str = "the device") -> Callable[[Any], float]:
     """A validator: a finite real number (not a bool) within [low, high]."""
     unit_s = f" {unit}" if unit else ""
 
@@ -24,8 +24,7 @@ def in_range(low: float, high: float, what: str, unit: str = "",
             raise OutOfRange(f"{what} must be a number{' of' + unit_s if unit else ''}, not {value!r}")
         v = float(value)
         if not math.isfinite(v) or not low <= v <= high:
-            raise OutOfRange(f"{what} {value!r}{unit_s} is outside {device}'s range "
-                             f"{low:g} to {high:g}{unit_s}")
+            raise OutOfRange(f"{what} {value!r}{unit_s} is outside {device}'s range {low:g} to {high:g}{unit_s}")
         return v
 
     check.__doc__ = f"{what}: {low:g} to {high:g}{unit_s}"
@@ -36,10 +35,14 @@ def whole_in_range(low: int, high: int, what: str, unit: str) -> Callable[[Any],
     """A validator: a whole number within [low, high] (5.0 is 5; 5.5 and True are refused)."""
 
     def check(value: Any) -> int:
-        if (isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value)
-                or value != int(value) or not low <= value <= high):
-            raise OutOfRange(f"{what} must be a whole number of {unit} from {low} to {high}, "
-                             f"not {value!r}")
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, (int, float))
+            or not math.isfinite(value)
+            or value != int(value)
+            or not low <= value <= high
+        ):
+            raise OutOfRange(f"{what} must be a whole number of {unit} from {low} to {high}, not {value!r}")
         return int(value)
 
     check.__doc__ = f"{what}: whole {unit} from {low} to {high}"
@@ -51,9 +54,16 @@ class Setting:
 
     default_fmt: Callable[[Any], str] = staticmethod(str)
 
-    def __init__(self, command: str, query: str, validator: Callable[[Any], Any], *,
-                 parse: Callable[[str], Any] = float, fmt: Callable[[Any], str] | None = None,
-                 doc: str = ""):
+    def __init__(
+        self,
+        command: str,
+        query: str,
+        validator: Callable[[Any], Any],
+        *,
+        parse: Callable[[str], Any] = float,
+        fmt: Callable[[Any], str] | None = None,
+        doc: str = "",
+    ):
         self.command = command
         self.query = query
         self.validator = validator

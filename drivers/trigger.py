@@ -24,27 +24,28 @@ import math
 import os
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 from pydantic import BaseModel, ConfigDict
 
 from vts_hw.bounded import ANY_SIZE, TABLE, open_bounded, open_checked
 from vts_hw.errors import DeviceError, UsageError
 from vts_hw.files import WriteFailed, check_target, open_writable, os_reason
-from vts_hw.recording.trigger_log import (CLOCK as CLOCK_ROW, LOG_HEADER, WAVE_START, WAVE_STOP, clock_text,
-                                          wave_start_text, wave_stop_text)
+from vts_hw.recording.trigger_log import CLOCK as CLOCK_ROW
+from vts_hw.recording.trigger_log import LOG_HEADER, WAVE_START, WAVE_STOP, clock_text, wave_start_text, wave_stop_text
 
 # what a backend can do
-FREQUENCY = "frequency"      # set the square wave's frequency
-DUTY = "duty"                # set its duty cycle
-LEVELS = "levels"            # set its high and low voltages
-PULSE = "pulse"              # a start pulse on channel 1 or 2
-FIRE = "fire"                # square wave and both start pulses on the same tick
-CLOCK = "clock"              # a device clock that can be mapped to host time
-EDGES = "edges"              # reports the times of the edges it sent
-WATCHDOG = "watchdog"        # switches its output off by itself when the host falls silent
+FREQUENCY = "frequency"  # set the square wave's frequency
+DUTY = "duty"  # set its duty cycle
+LEVELS = "levels"  # set its high and low voltages
+PULSE = "pulse"  # a start pulse on channel 1 or 2
+FIRE = "fire"  # square wave and both start pulses on the same tick
+CLOCK = "clock"  # a device clock that can be mapped to host time
+EDGES = "edges"  # reports the times of the edges it sent
+WATCHDOG = "watchdog"  # switches its output off by itself when the host falls silent
 
 CHANNELS = {1: "VTS start", 2: "SPECT start"}
 
@@ -71,12 +72,12 @@ class TriggerStatus:
     duty: float | None = None
     high_v: float | None = None
     low_v: float | None = None
-    edges: int | None = None                 # rising edges since the last start
+    edges: int | None = None  # rising edges since the last start
     first_edge_device_us: int | None = None
     last_edge_device_us: int | None = None
     errors: tuple[str, ...] = ()
     extra: dict = field(default_factory=dict)
-    notes: tuple[str, ...] = ()              # what else the device says, one line each (its watchdog)
+    notes: tuple[str, ...] = ()  # what else the device says, one line each (its watchdog)
 
     def not_a_square_wave(self) -> str | None:
         """What in the confirmed values no square wave can have (None when they describe one):
@@ -116,14 +117,15 @@ class TriggerGenerator(Protocol):
 
     name: str
     capabilities: frozenset[str]
-    log: TriggerLog                 # trigger.csv's lines (TriggerBase gives every backend one)
+    log: TriggerLog  # trigger.csv's lines (TriggerBase gives every backend one)
 
-    def configure(self, frequency_hz: float, duty: float = 0.5, high_v: float | None = None,
-                  low_v: float | None = None) -> TriggerStatus: ...
-    def start(self) -> TriggerStatus: ...           # the square wave alone
-    def stop(self) -> TriggerStatus: ...            # ends on a whole period where the device can
+    def configure(
+        self, frequency_hz: float, duty: float = 0.5, high_v: float | None = None, low_v: float | None = None
+    ) -> TriggerStatus: ...
+    def start(self) -> TriggerStatus: ...  # the square wave alone
+    def stop(self) -> TriggerStatus: ...  # ends on a whole period where the device can
     def pulse(self, channel: int, ms: int) -> None: ...
-    def fire(self) -> TriggerStatus: ...            # square wave and both start pulses together
+    def fire(self) -> TriggerStatus: ...  # square wave and both start pulses together
     def status(self) -> TriggerStatus: ...
     def clock_mapping(self, samples: int = 20) -> ClockMapping: ...
     def close(self) -> None: ...
@@ -135,7 +137,7 @@ class TriggerBase:
     name: str = "trigger"
     capabilities: frozenset[str] = frozenset()
 
-    def __init__(self, name: str, log: "TriggerLog | None" = None):
+    def __init__(self, name: str, log: TriggerLog | None = None):
         self.name = name
         self.log = log or TriggerLog(None)
 
@@ -162,26 +164,34 @@ class TriggerBase:
         self.log.close()
 
 
-_WHAT = {FREQUENCY: "set a frequency", DUTY: "set a duty cycle", LEVELS: "set output levels",
-         PULSE: "send a start pulse", FIRE: "start the square wave and the start pulses together",
-         CLOCK: "report a device clock to map to host time", EDGES: "report edge times",
-         WATCHDOG: "switch its output off by itself when the host falls silent"}
+_WHAT = {
+    FREQUENCY: "set a frequency",
+    DUTY: "set a duty cycle",
+    LEVELS: "set output levels",
+    PULSE: "send a start pulse",
+    FIRE: "start the square wave and the start pulses together",
+    CLOCK: "report a device clock to map to host time",
+    EDGES: "report edge times",
+    WATCHDOG: "switch its output off by itself when the host falls silent",
+}
 
 
 def _check_is_trigger_log(path: Path) -> None:
     """A file that is not a trigger log is never appended to: UsageError (exit 2) naming it. A
     trigger log's first line is its header: ``host_time`` first, ``device``, ``kind`` and ``text``
     among the columns (LOG_HEADER, or a log of another version)."""
-    with open_checked(path, ANY_SIZE, "trigger log") as f:   # a device or pipe: refused, never waited on
-        first = (f.readline(4096).decode("utf-8", "replace").splitlines() or [""])[0]   # CR-only lines too
+    with open_checked(path, ANY_SIZE, "trigger log") as f:  # a device or pipe: refused, never waited on
+        first = (f.readline(4096).decode("utf-8", "replace").splitlines() or [""])[0]  # CR-only lines too
     try:
         fields = next(csv.reader([first]), []) if first else []
-    except csv.Error:          # a NUL or a quote csv cannot read: not our header
+    except csv.Error:  # a NUL or a quote csv cannot read: not our header
         fields = []
     if not (fields[:1] == [LOG_HEADER[0]] and {"device", "kind", "text"} <= set(fields)):
-        raise UsageError(f"{path} is not a trigger log (its first line is not a header such as "
-                         f"{','.join(LOG_HEADER)!r}), so it was left as it was: name a new file or a trigger "
-                         "log with --log")
+        raise UsageError(
+            f"{path} is not a trigger log (its first line is not a header such as "
+            f"{','.join(LOG_HEADER)!r}), so it was left as it was: name a new file or a trigger "
+            "log with --log"
+        )
 
 
 class TriggerLog:
@@ -197,7 +207,7 @@ class TriggerLog:
         self.path = Path(path) if path is not None else None
         self.clock = clock
         self.lines: list[list[str]] = []
-        self.write_error: WriteFailed | None = None   # the file stopped taking lines (kept in ``lines``)
+        self.write_error: WriteFailed | None = None  # the file stopped taking lines (kept in ``lines``)
         self._lock = threading.Lock()
         self._f = None
         if self.path is not None:
@@ -208,8 +218,9 @@ class TriggerLog:
                 new = old is None or old.st_size == 0
                 if not new:
                     _check_is_trigger_log(self.path)
-                self._f = open_writable(self.path, "a", newline="", encoding="utf-8",
-                                        kept="nothing was sent to the device")
+                self._f = open_writable(
+                    self.path, "a", newline="", encoding="utf-8", kept="nothing was sent to the device"
+                )
                 self._w = csv.writer(self._f)
                 if new:
                     self._w.writerow(LOG_HEADER)
@@ -217,12 +228,18 @@ class TriggerLog:
             except OSError as exc:
                 raise WriteFailed(self.path, os_reason(exc), "nothing was sent to the device") from None
 
-    def write(self, device: str, kind: str, text: str, device_us: int | float | None = None,
-              host_time: float | None = None) -> None:
+    def write(
+        self, device: str, kind: str, text: str, device_us: int | float | None = None, host_time: float | None = None
+    ) -> None:
         """Log one line. A file that stops taking lines (disk full) never stops the device: the
         line is kept in memory and ``write_error`` says from which line on the file is short."""
-        row = [f"{self.clock() if host_time is None else host_time:.6f}",
-               "" if device_us is None else f"{device_us:.0f}", device, kind, text]
+        row = [
+            f"{self.clock() if host_time is None else host_time:.6f}",
+            "" if device_us is None else f"{device_us:.0f}",
+            device,
+            kind,
+            text,
+        ]
         with self._lock:
             self.lines.append(row)
             if self._f is not None and self.path is not None and not self._f.closed and self.write_error is None:
@@ -230,40 +247,85 @@ class TriggerLog:
                     self._w.writerow(row)
                     self._f.flush()
                 except OSError as exc:
-                    self.write_error = WriteFailed(self.path, os_reason(exc),
-                                                   f"it holds the first {len(self.lines) - 1} line(s) of this run")
+                    self.write_error = WriteFailed(
+                        self.path, os_reason(exc), f"it holds the first {len(self.lines) - 1} line(s) of this run"
+                    )
 
     # -- the neutral rows (docs/trigger-log-format.md) ------------------------------------------
 
-    def wave_started(self, device: str, host_time: float, *, period_s: float, duty: float, high_v: float,
-                     low_v: float, start_pulse: bool, time_source: str, uncertainty_s: float | None,
-                     device_us: int | None = None) -> None:
+    def wave_started(
+        self,
+        device: str,
+        host_time: float,
+        *,
+        period_s: float,
+        duty: float,
+        high_v: float,
+        low_v: float,
+        start_pulse: bool,
+        time_source: str,
+        uncertainty_s: float | None,
+        device_us: int | None = None,
+    ) -> None:
         """A ``wave_start`` row: the square wave's first rising edge at ``host_time``."""
-        self.write(device, WAVE_START, wave_start_text(
-            period_s=period_s, duty=duty, high_v=high_v, low_v=low_v, start_pulse=start_pulse,
-            time_source=time_source, uncertainty_s=uncertainty_s), device_us=device_us, host_time=host_time)
+        self.write(
+            device,
+            WAVE_START,
+            wave_start_text(
+                period_s=period_s,
+                duty=duty,
+                high_v=high_v,
+                low_v=low_v,
+                start_pulse=start_pulse,
+                time_source=time_source,
+                uncertainty_s=uncertainty_s,
+            ),
+            device_us=device_us,
+            host_time=host_time,
+        )
 
-    def wave_stopped(self, device: str, host_time: float, *, rising_edges: int | None, time_source: str,
-                     uncertainty_s: float | None, device_us: int | None = None) -> None:
+    def wave_stopped(
+        self,
+        device: str,
+        host_time: float,
+        *,
+        rising_edges: int | None,
+        time_source: str,
+        uncertainty_s: float | None,
+        device_us: int | None = None,
+    ) -> None:
         """A ``wave_stop`` row: the output idle from ``host_time`` (after ``rising_edges`` whole
         periods where the device counts them)."""
-        self.write(device, WAVE_STOP, wave_stop_text(rising_edges=rising_edges, time_source=time_source,
-                                                     uncertainty_s=uncertainty_s),
-                   device_us=device_us, host_time=host_time)
+        self.write(
+            device,
+            WAVE_STOP,
+            wave_stop_text(rising_edges=rising_edges, time_source=time_source, uncertainty_s=uncertainty_s),
+            device_us=device_us,
+            host_time=host_time,
+        )
 
-    def clock_mapped(self, device: str, mapping: "ClockMapping", drift_se_ppm: float | None) -> None:
+    def clock_mapped(self, device: str, mapping: ClockMapping, drift_se_ppm: float | None) -> None:
         """A ``clock`` row: the device clock's mapping to host time (its reference pair)."""
-        self.write(device, CLOCK_ROW, clock_text(drift_ppm=mapping.drift_ppm, drift_se_ppm=drift_se_ppm,
-                                                 residual_s=mapping.residual_s,
-                                                 uncertainty_s=mapping.uncertainty_s, samples=mapping.samples),
-                   device_us=mapping.ref_device_us, host_time=mapping.ref_host)
+        self.write(
+            device,
+            CLOCK_ROW,
+            clock_text(
+                drift_ppm=mapping.drift_ppm,
+                drift_se_ppm=drift_se_ppm,
+                residual_s=mapping.residual_s,
+                uncertainty_s=mapping.uncertainty_s,
+                samples=mapping.samples,
+            ),
+            device_us=mapping.ref_device_us,
+            host_time=mapping.ref_host,
+        )
 
     def close(self) -> None:
         with self._lock:
-            if self._f is not None and self.path is not None and not self._f.closed:   # a file has its path
+            if self._f is not None and self.path is not None and not self._f.closed:  # a file has its path
                 try:
                     self._f.close()
-                except OSError as exc:   # the last buffered line could not be written
+                except OSError as exc:  # the last buffered line could not be written
                     self.write_error = self.write_error or WriteFailed(self.path, os_reason(exc))
 
 
@@ -273,6 +335,7 @@ def read_log(path: str | os.PathLike) -> list[dict]:
 
 
 # ---- backends, registered by name (vts_hw.drivers.registry.TRIGGER_BACKENDS) ----------------------
+
 
 class BackendSettings(BaseModel):
     """A backend's own keys in rig.yaml's ``trigger:`` section (beside the common ones:
@@ -288,7 +351,7 @@ class TriggerBackend:
     trigger config (``vts_hw.config.TriggerConfig``) and its validated ``settings``."""
 
     name: str
-    what: str                                   # in words, for plans and messages
+    what: str  # in words, for plans and messages
     settings: type[BackendSettings]
-    open: Callable[[Any, Any, "TriggerLog"], TriggerGenerator]
-    levels: bool = False                        # it sets output levels (LEVELS)
+    open: Callable[[Any, Any, TriggerLog], TriggerGenerator]
+    levels: bool = False  # it sets output levels (LEVELS)

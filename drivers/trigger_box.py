@@ -24,24 +24,70 @@ import math
 import threading
 import time
 from collections import deque
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import serial
 from pydantic import Field, field_validator
 
 from vts_hw.drivers.settings import in_range, whole_in_range
-from vts_hw.drivers.trigger import (CLOCK, DUTY, EDGES, FIRE, FREQUENCY, LEVELS, PULSE, WATCHDOG, BackendSettings,
-                                    ClockMapping, OutOfRange, TriggerBackend, TriggerBase, TriggerError, TriggerLog,
-                                    TriggerStatus)
+from vts_hw.drivers.trigger import (
+    CLOCK,
+    DUTY,
+    EDGES,
+    FIRE,
+    FREQUENCY,
+    LEVELS,
+    PULSE,
+    WATCHDOG,
+    BackendSettings,
+    ClockMapping,
+    OutOfRange,
+    TriggerBackend,
+    TriggerBase,
+    TriggerError,
+    TriggerLog,
+    TriggerStatus,
+)
+
 # re-exported: the box's clock mapping and wire protocol, as they were importable from here
-from vts_hw.drivers.trigger_box_clock import (MAX_ROUND_TRIPS_KEPT, BoxClock, RoundTrip,  # noqa: F401
-                                              best_round_trips, clock_jumped, fit_clock, wire_skew, wire_time)
-from vts_hw.drivers.trigger_box_protocol import (BAUDRATE, DEVICE, DUTY_ABS_TOLERANCE, DUTY_MAX,  # noqa: F401
-                                                 DUTY_MIN, FREQ_MAX_HZ, FREQ_MIN_HZ, FREQ_REL_TOLERANCE,
-                                                 MAX_ERRORS_READ, MAX_LINE, MODEL, POLL_S, PULSE_MS_MAX,
-                                                 PULSE_MS_MIN, SETTINGS_CONFLICT, VENDOR, WATCHDOG_DEFAULT_S, BoxGone,
-                                                 BoxIdentity, BoxRefused, BoxSetting, _pulse_ms, number_text,
-                                                 parse_refusal, watchdog_seconds)
+from vts_hw.drivers.trigger_box_clock import (  # noqa: F401
+    MAX_ROUND_TRIPS_KEPT,
+    BoxClock,
+    RoundTrip,
+    best_round_trips,
+    clock_jumped,
+    fit_clock,
+    wire_skew,
+    wire_time,
+)
+from vts_hw.drivers.trigger_box_protocol import (  # noqa: F401
+    BAUDRATE,
+    DEVICE,
+    DUTY_ABS_TOLERANCE,
+    DUTY_MAX,
+    DUTY_MIN,
+    FREQ_MAX_HZ,
+    FREQ_MIN_HZ,
+    FREQ_REL_TOLERANCE,
+    MAX_ERRORS_READ,
+    MAX_LINE,
+    MODEL,
+    POLL_S,
+    PULSE_MS_MAX,
+    PULSE_MS_MIN,
+    SETTINGS_CONFLICT,
+    VENDOR,
+    WATCHDOG_DEFAULT_S,
+    BoxGone,
+    BoxIdentity,
+    BoxRefused,
+    BoxSetting,
+    _pulse_ms,
+    number_text,
+    parse_refusal,
+    watchdog_seconds,
+)
 from vts_hw.drivers.trigger_box_watchdog import BoxWatchdog
 from vts_hw.recording.trigger_log import DEVICE_CLOCK_MAPPED, HOST_WRITE
 
@@ -50,25 +96,48 @@ HIGH_V, LOW_V = 5.0, 0.0
 
 # ---- the driver -----------------------------------------------------------------------------------
 
+
 class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
     """The trigger box on a serial port, as a :class:`~vts_hw.drivers.trigger.TriggerGenerator`."""
 
     capabilities = frozenset({FREQUENCY, DUTY, PULSE, FIRE, CLOCK, EDGES, WATCHDOG})
 
-    frequency_hz = BoxSetting("FREQ {}", "FREQ?",
-                              in_range(FREQ_MIN_HZ, FREQ_MAX_HZ, "frequency", "Hz", DEVICE),
-                              doc="square-wave frequency in Hz; reads back what the timer makes")
-    duty = BoxSetting("DUTY {}", "DUTY?", in_range(DUTY_MIN, DUTY_MAX, "duty cycle", "", DEVICE),
-                      doc="square-wave duty cycle, a fraction")
-    fire_pulse_ms = BoxSetting("PULSE:WIDTH {}", "PULSE:WIDTH?",
-                               whole_in_range(PULSE_MS_MIN, PULSE_MS_MAX, "start pulse width", "ms"),
-                               fmt=str, parse=int, doc="width of the start pulses *TRG sends")
+    frequency_hz = BoxSetting(
+        "FREQ {}",
+        "FREQ?",
+        in_range(FREQ_MIN_HZ, FREQ_MAX_HZ, "frequency", "Hz", DEVICE),
+        doc="square-wave frequency in Hz; reads back what the timer makes",
+    )
+    duty = BoxSetting(
+        "DUTY {}",
+        "DUTY?",
+        in_range(DUTY_MIN, DUTY_MAX, "duty cycle", "", DEVICE),
+        doc="square-wave duty cycle, a fraction",
+    )
+    fire_pulse_ms = BoxSetting(
+        "PULSE:WIDTH {}",
+        "PULSE:WIDTH?",
+        whole_in_range(PULSE_MS_MIN, PULSE_MS_MAX, "start pulse width", "ms"),
+        fmt=str,
+        parse=int,
+        doc="width of the start pulses *TRG sends",
+    )
 
-    def __init__(self, port: str, *, baudrate: int = BAUDRATE, timeout: float = 1.0,
-                 log: TriggerLog | None = None, name: str = "triggerbox", clock=time.time,
-                 serial_factory: Callable[..., Any] = serial.serial_for_url,
-                 sleep: Callable[[float], None] = time.sleep, watchdog_s: float = WATCHDOG_DEFAULT_S,
-                 heartbeat: bool = True, monotonic: Callable[[], float] = time.monotonic):
+    def __init__(
+        self,
+        port: str,
+        *,
+        baudrate: int = BAUDRATE,
+        timeout: float = 1.0,
+        log: TriggerLog | None = None,
+        name: str = "triggerbox",
+        clock=time.time,
+        serial_factory: Callable[..., Any] = serial.serial_for_url,
+        sleep: Callable[[float], None] = time.sleep,
+        watchdog_s: float = WATCHDOG_DEFAULT_S,
+        heartbeat: bool = True,
+        monotonic: Callable[[], float] = time.monotonic,
+    ):
         """Open ``port`` (a device path or any pyserial URL). Nothing is sent until asked.
 
         ``clock`` stamps the log and the clock-mapping round trips (host epoch seconds);
@@ -77,7 +146,7 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
         ``watchdog_s``, ``heartbeat``, ``monotonic``: the box's watchdog time set at every start and
         the heartbeat thread that feeds it (:class:`~vts_hw.drivers.trigger_box_watchdog.BoxWatchdog`).
         """
-        self._init_watchdog(watchdog_s, heartbeat, monotonic)   # a bad watchdog time: before the port
+        self._init_watchdog(watchdog_s, heartbeat, monotonic)  # a bad watchdog time: before the port
         super().__init__(name, log)
         self.port = port
         self.baudrate = baudrate
@@ -86,27 +155,26 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
         self.sleep = sleep
         self.identity: BoxIdentity | None = None
         self.mapping: ClockMapping | None = None
-        self.drift_se_ppm: float | None = None   # the standard error of mapping.drift_ppm
+        self.drift_se_ppm: float | None = None  # the standard error of mapping.drift_ppm
         self._lock = threading.RLock()
-        self._gone: str | None = None          # the reason, once the port has vanished
+        self._gone: str | None = None  # the reason, once the port has vanished
         self._closed = False
-        self._batches: list[list[RoundTrip]] = []   # kept TIME? round trips, per clock_mapping call
+        self._batches: list[list[RoundTrip]] = []  # kept TIME? round trips, per clock_mapping call
         self._logged_edges: tuple[int | None, int | None] = (None, None)
-        self._reported: deque[int] = deque()     # codes raised as BoxRefused, still in the box's queue
+        self._reported: deque[int] = deque()  # codes raised as BoxRefused, still in the box's queue
         self._wave: tuple[float, float, str, float | None] | None = None  # start host, period, time, ±
-        self._wave_first_us: int | None = None   # the device time of that start's first edge
+        self._wave_first_us: int | None = None  # the device time of that start's first edge
         try:
-            self._serial = serial_factory(port, baudrate=baudrate, timeout=timeout,
-                                          write_timeout=timeout)
+            self._serial = serial_factory(port, baudrate=baudrate, timeout=timeout, write_timeout=timeout)
         except (serial.SerialException, OSError, ValueError) as e:
             raise TriggerError(f"cannot open the trigger box on {port}: {e}") from e
         self._log("event", f"open {port} {baudrate} baud")
 
-    def _log(self, kind: str, text: str, device_us: int | None = None,
-             host_time: float | None = None) -> None:
+    def _log(self, kind: str, text: str, device_us: int | None = None, host_time: float | None = None) -> None:
         """A trigger.csv line, stamped with this driver's clock unless a host time is given."""
-        self.log.write(self.name, kind, text, device_us=device_us,
-                       host_time=self.clock() if host_time is None else host_time)
+        self.log.write(
+            self.name, kind, text, device_us=device_us, host_time=self.clock() if host_time is None else host_time
+        )
 
     @property
     def where(self) -> str:
@@ -117,8 +185,11 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
 
     def __repr__(self) -> str:
         state = "gone" if self._gone else "closed" if self._closed else "open"
-        who = (f", {self.identity.model} serial {self.identity.serial} firmware {self.identity.firmware}"
-               if self.identity else "")
+        who = (
+            f", {self.identity.model} serial {self.identity.serial} firmware {self.identity.firmware}"
+            if self.identity
+            else ""
+        )
         clock = ""
         if self.mapping is not None:
             m = self.mapping
@@ -154,21 +225,26 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
                 received = self.clock()
             except serial.SerialTimeoutException as e:  # a write that the line never took
                 self._log("cmd", cmd)
-                raise TriggerError(f"{self.where} did not take {cmd!r} within {self.timeout:g} s "
-                                   f"({e})") from e
+                raise TriggerError(f"{self.where} did not take {cmd!r} within {self.timeout:g} s ({e})") from e
             except (serial.SerialException, OSError) as e:
                 self._log("cmd", cmd)
                 raise self._vanished(cmd, e) from e
             self._log("cmd", cmd, host_time=sent)
             if not raw.endswith(b"\n"):
                 if raw:
-                    self._log("event", f"partial reply to {cmd} without end of line: "
-                                       f"{raw.decode('ascii', 'replace')!r}", host_time=received)
+                    self._log(
+                        "event",
+                        f"partial reply to {cmd} without end of line: {raw.decode('ascii', 'replace')!r}",
+                        host_time=received,
+                    )
                     if len(raw) >= MAX_LINE:
-                        raise TriggerError(f"{self.where} answered {cmd!r} with {len(raw)} bytes and "
-                                           f"no end of line: {raw[:40]!r}...")
-                raise TriggerError(f"{self.where} did not answer {cmd!r} within {self.timeout:g} s"
-                                   + (f" (only {raw.decode('ascii', 'replace')!r} came)" if raw else ""))
+                        raise TriggerError(
+                            f"{self.where} answered {cmd!r} with {len(raw)} bytes and no end of line: {raw[:40]!r}..."
+                        )
+                raise TriggerError(
+                    f"{self.where} did not answer {cmd!r} within {self.timeout:g} s"
+                    + (f" (only {raw.decode('ascii', 'replace')!r} came)" if raw else "")
+                )
             reply = raw.decode("ascii", "replace").strip("\r\n")
             self._log("reply", reply, host_time=received)
             if reply == "ERR" or reply.startswith("ERR "):
@@ -242,8 +318,10 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
         raw = self.query("*IDN?")
         parts = [p.strip() for p in raw.split(",")]
         if len(parts) != 4 or parts[0] != VENDOR or parts[1] != MODEL:
-            raise TriggerError(f"{self.where} answers *IDN? with {raw!r}, not "
-                               f"'{VENDOR},{MODEL},<serial>,<firmware>': is it a trigger box?")
+            raise TriggerError(
+                f"{self.where} answers *IDN? with {raw!r}, not "
+                f"'{VENDOR},{MODEL},<serial>,<firmware>': is it a trigger box?"
+            )
         self.identity = BoxIdentity(parts[0], parts[1], parts[2], parts[3], raw=raw)
         return self.identity
 
@@ -253,8 +331,8 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
         with self._lock:
             sent, received = self._command_timed("*RST")
             self._wait_off("*RST", 1.0 / FREQ_MIN_HZ)
-            self._stop_heartbeat()       # the watchdog is back at the box's default, its trip forgotten
-            if self._wave is not None:   # *RST ended it on a whole period; the count is reset too
+            self._stop_heartbeat()  # the watchdog is back at the box's default, its trip forgotten
+            if self._wave is not None:  # *RST ended it on a whole period; the count is reset too
                 self._wave_stopped("*RST", sent, None)
             self._logged_edges = (None, None)
 
@@ -275,14 +353,16 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
         deadline = self.clock() + period_s + 2 * self.timeout
         while self._output_on():
             if self.clock() > deadline:
-                raise TriggerError(f"{self.where} still reports its output ON {period_s:g} s "
-                                   f"(one period) after {what!r}")
+                raise TriggerError(
+                    f"{self.where} still reports its output ON {period_s:g} s (one period) after {what!r}"
+                )
             self.sleep(POLL_S)
 
     # -- the trigger contract ---------------------------------------------------------------------------
 
-    def configure(self, frequency_hz: float, duty: float = 0.5, high_v: float | None = None,
-                  low_v: float | None = None) -> TriggerStatus:
+    def configure(
+        self, frequency_hz: float, duty: float = 0.5, high_v: float | None = None, low_v: float | None = None
+    ) -> TriggerStatus:
         """Set frequency and duty; return what the box confirms (its actual frequency).
 
         Everything is checked before a byte is sent. Errors already queued in the box are read
@@ -338,7 +418,7 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
                 st = self.status()
                 if st.running:  # pragma: no cover - it said OFF a moment ago
                     raise TriggerError(f"{self.where} was switched off but reports its output ON")
-            if not st.running:           # (still finishing its period: the heartbeat goes on until off)
+            if not st.running:  # (still finishing its period: the heartbeat goes on until off)
                 self._stop_heartbeat()
             self._wave_stopped("OUTP OFF", sent, st)
         return st
@@ -387,10 +467,18 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
         if self.mapping is not None and n:
             extra["first_edge_host"] = self.mapping.to_host(first)
             extra["last_edge_host"] = self.mapping.to_host(last)
-        return TriggerStatus(device=self.name, running=running, frequency_hz=f, duty=d,
-                             edges=n, first_edge_device_us=first if n else None,
-                             last_edge_device_us=last if n else None, errors=errors, extra=extra,
-                             notes=(said,))
+        return TriggerStatus(
+            device=self.name,
+            running=running,
+            frequency_hz=f,
+            duty=d,
+            edges=n,
+            first_edge_device_us=first if n else None,
+            last_edge_device_us=last if n else None,
+            errors=errors,
+            extra=extra,
+            notes=(said,),
+        )
 
     def read_errors(self) -> tuple[str, ...]:
         """``SYST:ERR?`` until ``0,...``; the errors read before it, as the box wrote them.
@@ -411,8 +499,9 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
                     self._log("event", f"queued error already raised: {reply}")
                     continue
                 errors.append(reply)
-        raise TriggerError(f"{self.where} still reports errors after {MAX_ERRORS_READ} reads of "
-                           f"SYST:ERR?: {'; '.join(errors[:3])} ...")
+        raise TriggerError(
+            f"{self.where} still reports errors after {MAX_ERRORS_READ} reads of SYST:ERR?: {'; '.join(errors[:3])} ..."
+        )
 
     # -- the neutral rows of trigger.csv (docs/trigger-log-format.md) ---------------------------------
 
@@ -422,7 +511,7 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
         if not st.running:
             return
         wrong = st.not_a_square_wave()
-        if wrong or (frequency := st.frequency_hz) is None or (duty := st.duty) is None:   # nothing to time by
+        if wrong or (frequency := st.frequency_hz) is None or (duty := st.duty) is None:  # nothing to time by
             raise TriggerError(f"{self.where} answered {cmd!r} but confirms {wrong}: not a square wave")
         period, first, m = 1.0 / frequency, st.first_edge_device_us, self.mapping
         if m is not None and first is not None:
@@ -432,8 +521,18 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
             how, unc = HOST_WRITE, received - sent
         self._wave = (host, period, how, unc)
         self._wave_first_us = first
-        self.log.wave_started(self.name, host, period_s=period, duty=duty, high_v=HIGH_V, low_v=LOW_V,
-                              start_pulse=start_pulse, time_source=how, uncertainty_s=unc, device_us=first)
+        self.log.wave_started(
+            self.name,
+            host,
+            period_s=period,
+            duty=duty,
+            high_v=HIGH_V,
+            low_v=LOW_V,
+            start_pulse=start_pulse,
+            time_source=how,
+            uncertainty_s=unc,
+            device_us=first,
+        )
 
     def _wave_stopped(self, cmd: str, sent: float, st: TriggerStatus | None) -> None:
         """``wave_stop``: the box ends on a whole period, so the rising edges it counted (once it
@@ -446,11 +545,11 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
         n = st.edges if st is not None else None
         if self._wave is not None:
             start, period, how, unc = self._wave
-            if st is None or n is None or st.running:       # (no status: no count either)
+            if st is None or n is None or st.running:  # (no status: no count either)
                 n = max(n or 0, math.ceil((sent - start) / period - 1e-9))
             host = start + n * period
         elif st is not None and st.frequency_hz and st.last_edge_device_us is not None:
-            period = 1.0 / st.frequency_hz      # started by another program: end of the last period
+            period = 1.0 / st.frequency_hz  # started by another program: end of the last period
             m = self.mapping
             host = (m.to_host(st.last_edge_device_us) if m else sent) + period
             how, unc = (DEVICE_CLOCK_MAPPED, m.uncertainty_s) if m else (HOST_WRITE, period)
@@ -463,7 +562,7 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
 
     def close(self) -> None:
         """Close the port (the box keeps doing what it was doing) and the log."""
-        self._stop_heartbeat()   # the output stays as it is; the box's watchdog (if set) ends it
+        self._stop_heartbeat()  # the output stays as it is; the box's watchdog (if set) ends it
         with self._lock:
             if not self._closed:
                 self._closed = True
@@ -478,19 +577,24 @@ class TriggerBox(BoxClock, BoxWatchdog, TriggerBase):
 
 # ---- the backend (vts_hw.drivers.registry.TRIGGER_BACKENDS["triggerbox"]) -------------------------------
 
+
 class BoxSettings(BackendSettings):
     """The trigger box's own keys in rig.yaml's ``trigger:`` section (``address``: its serial
     port or a pyserial URL)."""
 
     timeout_s: float = Field(default=1.0, gt=0, le=60, description="how long to wait for each reply")
-    watchdog_s: float = Field(default=WATCHDOG_DEFAULT_S, description=(
-        "the box switches its output off this long after the last command it heard from us "
-        "(0 = off, else 0.1 to 3600 s)"))
+    watchdog_s: float = Field(
+        default=WATCHDOG_DEFAULT_S,
+        description=(
+            "the box switches its output off this long after the last command it heard from us "
+            "(0 = off, else 0.1 to 3600 s)"
+        ),
+    )
 
     @field_validator("watchdog_s", mode="before")
     @classmethod
     def _watchdog(cls, v: Any) -> float:
-        return watchdog_seconds(v)    # the raw value: `watchdog_s: yes` is not 1 s
+        return watchdog_seconds(v)  # the raw value: `watchdog_s: yes` is not 1 s
 
 
 def _open_box(cfg, settings: BoxSettings, log: TriggerLog) -> TriggerBox:

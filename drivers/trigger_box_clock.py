@@ -15,14 +15,15 @@ from __future__ import annotations
 import math
 import threading
 from abc import abstractmethod
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any
 
 from vts_hw.drivers.trigger import CLOCK, EDGES, ClockMapping, TriggerBase, TriggerError
 from vts_hw.drivers.trigger_box_protocol import uint
 
-MAX_ROUND_TRIPS_KEPT = 2000    # clock-mapping history (about 100 calls of 20)
-OUTSIDE_SPREAD = 2.0           # a sample this many half spreads off the fitted line is dropped
+MAX_ROUND_TRIPS_KEPT = 2000  # clock-mapping history (about 100 calls of 20)
+OUTSIDE_SPREAD = 2.0  # a sample this many half spreads off the fitted line is dropped
 
 
 @dataclass(frozen=True)
@@ -113,7 +114,7 @@ def fit_clock(trips: Sequence[RoundTrip]) -> tuple[ClockMapping, float]:
     use = [True] * len(trips)
 
     def solve(mask):
-        w = [1.0 / r ** 2 if u else 0.0 for r, u in zip(spreads, mask)]
+        w = [1.0 / r**2 if u else 0.0 for r, u in zip(spreads, mask)]
         sw = sum(w)
         xm = sum(wi * x for wi, x in zip(w, xs)) / sw
         ym = sum(wi * y for wi, y in zip(w, ys)) / sw
@@ -140,8 +141,7 @@ def fit_clock(trips: Sequence[RoundTrip]) -> tuple[ClockMapping, float]:
     while sum(use) > 3:
         # each residual as if its sample were left out of the fit (r / (1 - leverage))
         lev = [wi * (1.0 / sw + ((x - xm) ** 2 / sxx if sxx > 0 else 0.0)) for wi, x in zip(w, xs)]
-        z = [abs(r) / max(1.0 - h, 1e-9) / (sp / 2) if u else 0.0
-             for r, h, sp, u in zip(res, lev, spreads, use)]
+        z = [abs(r) / max(1.0 - h, 1e-9) / (sp / 2) if u else 0.0 for r, h, sp, u in zip(res, lev, spreads, use)]
         worst = max(range(len(z)), key=z.__getitem__)
         if z[worst] <= OUTSIDE_SPREAD:
             break
@@ -159,13 +159,19 @@ def fit_clock(trips: Sequence[RoundTrip]) -> tuple[ClockMapping, float]:
         drift_se = math.sqrt(chi / sxx) * 1e6
     else:
         drift_se = math.inf
-    mapping = ClockMapping(ref_host=ref_host, ref_device_us=ref_device_us, drift_ppm=(b - 1.0) * 1e6,
-                           residual_s=residual,
-                           uncertainty_s=min(r for r, u in zip(spreads, use) if u) / 2, samples=n)
+    mapping = ClockMapping(
+        ref_host=ref_host,
+        ref_device_us=ref_device_us,
+        drift_ppm=(b - 1.0) * 1e6,
+        residual_s=residual,
+        uncertainty_s=min(r for r, u in zip(spreads, use) if u) / 2,
+        samples=n,
+    )
     return mapping, drift_se
 
 
 if TYPE_CHECKING:
+
     class TriggerBoxParts(TriggerBase):
         """What :class:`~vts_hw.drivers.trigger_box.TriggerBox` gives its mixins (BoxClock, BoxWatchdog),
         said once for the type checker, which alone sees it as their base."""
@@ -235,8 +241,7 @@ class BoxClock(_Parts):
             reply = self.query("EDGES?")
             parts = reply.split(",")
             if len(parts) != 3:
-                raise TriggerError(f"{self.where} answered 'EDGES?' with {reply!r}, "
-                                   f"not '<count>,<first us>,<last us>'")
+                raise TriggerError(f"{self.where} answered 'EDGES?' with {reply!r}, not '<count>,<first us>,<last us>'")
             n, first, last = (self._parse("EDGES?", p.strip(), uint, "count or time") for p in parts)
             if n:
                 self._log_edges(n, first, last)
@@ -247,15 +252,24 @@ class BoxClock(_Parts):
         m = self.mapping
         how = "host time mapped from the box clock" if m else "host time = when reported (no clock mapping)"
         if first != logged_first:
-            self._log("edge", f"first rising edge (1 of {n}); {how}", device_us=first,
-                      host_time=m.to_host(first) if m else None)
+            self._log(
+                "edge",
+                f"first rising edge (1 of {n}); {how}",
+                device_us=first,
+                host_time=m.to_host(first) if m else None,
+            )
         if last != logged_last and last != first:
-            self._log("edge", f"last rising edge ({n} of {n}); {how}", device_us=last,
-                      host_time=m.to_host(last) if m else None)
+            self._log(
+                "edge",
+                f"last rising edge ({n} of {n}); {how}",
+                device_us=last,
+                host_time=m.to_host(last) if m else None,
+            )
         self._logged_edges = (first, last)
 
-    def clock_mapping(self, samples: int = 20, *, over_s: float = 1.0, keep: float = 0.5,
-                      history: bool = True) -> ClockMapping:
+    def clock_mapping(
+        self, samples: int = 20, *, over_s: float = 1.0, keep: float = 0.5, history: bool = True
+    ) -> ClockMapping:
         """Map the box's microseconds to host time from ``samples`` ``TIME?`` round trips.
 
         The samples are spread evenly over ``over_s`` seconds; of each call's samples the
@@ -269,8 +283,7 @@ class BoxClock(_Parts):
         if isinstance(samples, bool) or not isinstance(samples, int) or samples < 2:
             raise ValueError(f"clock_mapping needs at least 2 samples, not {samples!r}")
         if not over_s >= 0 or not 0 < keep <= 1:
-            raise ValueError(f"clock_mapping: over_s must be >= 0 and keep in (0, 1] "
-                             f"(got {over_s!r}, {keep!r})")
+            raise ValueError(f"clock_mapping: over_s must be >= 0 and keep in (0, 1] (got {over_s!r}, {keep!r})")
         gap = over_s / (samples - 1)
         trips: list[RoundTrip] = []
         t_begin = self.clock()
@@ -282,16 +295,18 @@ class BoxClock(_Parts):
             reply, sent, received = self._exchange("TIME?")
             device_us = self._parse("TIME?", reply, uint, "count of microseconds")
             if trips and device_us < trips[-1].device_us:
-                raise TriggerError(f"{self.where}: its clock went back from {trips[-1].device_us} "
-                                   f"to {device_us} us during the clock mapping (did it reboot?)")
+                raise TriggerError(
+                    f"{self.where}: its clock went back from {trips[-1].device_us} "
+                    f"to {device_us} us during the clock mapping (did it reboot?)"
+                )
             baud = self._wire_baud()
-            trips.append(RoundTrip(sent, received, device_us, wire_skew("TIME?", reply, baud),
-                                   wire_time("TIME?", reply, baud)))
+            trips.append(
+                RoundTrip(sent, received, device_us, wire_skew("TIME?", reply, baud), wire_time("TIME?", reply, baud))
+            )
         kept = best_round_trips(trips, keep)
         with self._lock:
             if self._batches and clock_jumped(self._batches[-1][-1], kept[0]):
-                self._log("event", "box clock jumped since the last clock mapping (reboot?): "
-                                   "earlier samples dropped")
+                self._log("event", "box clock jumped since the last clock mapping (reboot?): earlier samples dropped")
                 self._batches.clear()
             if not history:
                 self._batches.clear()
@@ -303,13 +318,16 @@ class BoxClock(_Parts):
             self.mapping = mapping
             self.drift_se_ppm = drift_se
             span = (used[-1].device_us - used[0].device_us) * 1e-6
-            self._log("event",
-                      f"clock mapping: host = {mapping.ref_host:.6f} + (device_us - "
-                      f"{mapping.ref_device_us}) * 1e-6 * (1 + {mapping.drift_ppm:.3f}e-6); "
-                      f"drift {mapping.drift_ppm:+.3f} ± {drift_se:.3f} ppm, residual "
-                      f"{mapping.residual_s * 1e6:.1f} us, uncertainty {mapping.uncertainty_s * 1e6:.1f} us, "
-                      f"{mapping.samples} samples over {span:.3f} s ({len(kept)} of {len(trips)} kept now)",
-                      device_us=mapping.ref_device_us, host_time=mapping.ref_host)
+            self._log(
+                "event",
+                f"clock mapping: host = {mapping.ref_host:.6f} + (device_us - "
+                f"{mapping.ref_device_us}) * 1e-6 * (1 + {mapping.drift_ppm:.3f}e-6); "
+                f"drift {mapping.drift_ppm:+.3f} ± {drift_se:.3f} ppm, residual "
+                f"{mapping.residual_s * 1e6:.1f} us, uncertainty {mapping.uncertainty_s * 1e6:.1f} us, "
+                f"{mapping.samples} samples over {span:.3f} s ({len(kept)} of {len(trips)} kept now)",
+                device_us=mapping.ref_device_us,
+                host_time=mapping.ref_host,
+            )
             self.log.clock_mapped(self.name, mapping, drift_se)
         return mapping
 

@@ -18,22 +18,22 @@ import os
 import re
 import subprocess
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
+from vts_hw.bounded import TooLarge, read_text
 from vts_hw.drivers import avrdude
 from vts_hw.drivers.trigger import TriggerError
 from vts_hw.drivers.trigger_box import TriggerBox
 from vts_hw.drivers.trigger_box_protocol import BoxGone
-from vts_hw.bounded import TooLarge, read_text
 from vts_hw.errors import DeviceError, UsageError
-from vts_hw.lifeline import child_options
 from vts_hw.files import open_fd
+from vts_hw.lifeline import child_options
 
 HEX_NAME = "trigger_box.hex"
 #: an Intel HEX of the ATmega328P's 32 KiB is ~90 kB (16-byte records), ~430 kB at one byte a record
-HEX_MAX = 4 * 2 ** 20
+HEX_MAX = 4 * 2**20
 #: the firmware's identity in its flash: the start of its *IDN? reply, and the version string
 _IDN_MARK = b"VTS,TRIGGERBOX,"
 _VERSION = re.compile(rb",(\d+\.\d+(?:\.\d+)?(?:[-+][0-9A-Za-z.]+)?)\x00")
@@ -51,7 +51,7 @@ class Firmware:
     hex: Path
     version: str
     size: int
-    built: bool          # built here from the sources (else given with --hex)
+    built: bool  # built here from the sources (else given with --hex)
 
 
 @dataclass(frozen=True)
@@ -60,9 +60,9 @@ class Flashed:
 
     firmware: Firmware
     upload: avrdude.Upload
-    identity: str        # the box's *IDN? reply
+    identity: str  # the box's *IDN? reply
     serial: str
-    confirm_s: float     # how long the box took to answer after the upload
+    confirm_s: float  # how long the box took to answer after the upload
 
 
 def firmware_dir() -> Path:
@@ -76,10 +76,18 @@ def build(fw: Path | None = None) -> Path:
     sources (then --hex is needed) or the build fails (make's last lines in the sentence)."""
     fw = fw or firmware_dir()
     if not (fw / "Makefile").is_file():
-        raise UsageError(f"no trigger box firmware sources here ({fw} has no Makefile: an installed vts-hw has "
-                         f"none): give the firmware to flash with --hex FILE")
-    proc = subprocess.run(["make", "-C", str(fw), "--quiet", f"build/{HEX_NAME}"], stdout=subprocess.PIPE,
-                          stderr=subprocess.STDOUT, text=True, stdin=subprocess.DEVNULL, **child_options())
+        raise UsageError(
+            f"no trigger box firmware sources here ({fw} has no Makefile: an installed vts-hw has "
+            f"none): give the firmware to flash with --hex FILE"
+        )
+    proc = subprocess.run(
+        ["make", "-C", str(fw), "--quiet", f"build/{HEX_NAME}"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        stdin=subprocess.DEVNULL,
+        **child_options(),
+    )
     if proc.returncode != 0:
         tail = " | ".join(proc.stdout.strip().splitlines()[-3:])
         raise UsageError(f"building the trigger box firmware in {fw} failed (make exit {proc.returncode}): {tail}")
@@ -90,21 +98,27 @@ def read_image(path: Path) -> tuple[bytes, int]:
     """The flash image of an Intel HEX file (from address 0, gaps 0xFF) and its byte count.
     UsageError naming the file when it cannot be read or is not Intel HEX."""
     from intelhex import IntelHex, IntelHexError
+
     ih = IntelHex()
-    try:     # with a bound, and never a device or FIFO (--hex /dev/zero, a pipe: they never end)
+    try:  # with a bound, and never a device or FIFO (--hex /dev/zero, a pipe: they never end)
         text = read_text(path, HEX_MAX, "firmware to flash (Intel HEX)", encoding="ascii")
         ih.loadhex(io.StringIO(text))
     except TooLarge as e:
         raise UsageError(str(e)) from None
-    except (OSError, IntelHexError, ValueError) as e:   # UnicodeDecodeError is a ValueError
-        why = e.strerror if isinstance(e, OSError) and e.strerror else \
-            ("it is not ASCII text" if isinstance(e, UnicodeDecodeError) else (str(e).splitlines() or [""])[0])
+    except (OSError, IntelHexError, ValueError) as e:  # UnicodeDecodeError is a ValueError
+        why = (
+            e.strerror
+            if isinstance(e, OSError) and e.strerror
+            else ("it is not ASCII text" if isinstance(e, UnicodeDecodeError) else (str(e).splitlines() or [""])[0])
+        )
         raise UsageError(f"{path}: not a firmware to flash: cannot be read as Intel HEX ({why})") from None
     if not len(ih):
         raise UsageError(f"{path}: not a firmware to flash: the Intel HEX file holds no data")
     if ih.minaddr() < 0 or ih.maxaddr() >= 32 * 1024:
-        raise UsageError(f"{path}: not a firmware to flash: it spans 0x{ih.minaddr():x}..0x{ih.maxaddr():x}, "
-                         f"outside the ATmega328P's 32 KiB of flash")
+        raise UsageError(
+            f"{path}: not a firmware to flash: it spans 0x{ih.minaddr():x}..0x{ih.maxaddr():x}, "
+            f"outside the ATmega328P's 32 KiB of flash"
+        )
     return ih.tobinstr(start=0), len(ih)
 
 
@@ -113,8 +127,10 @@ def image_version(image: bytes, path: Path) -> str:
     found = {m.group(1).decode() for m in _VERSION.finditer(image)}
     if _IDN_MARK not in image or len(found) != 1:
         what = "no" if not found else f"{len(found)} candidate ({', '.join(sorted(found))})"
-        raise UsageError(f"{path}: not a trigger box firmware: it holds {what} *IDN? version string"
-                         + ("" if _IDN_MARK in image else " and no 'VTS,TRIGGERBOX,' reply"))
+        raise UsageError(
+            f"{path}: not a trigger box firmware: it holds {what} *IDN? version string"
+            + ("" if _IDN_MARK in image else " and no 'VTS,TRIGGERBOX,' reply")
+        )
     return found.pop()
 
 
@@ -135,8 +151,10 @@ def firmware(hex_path: Path | None) -> Firmware:
     image, size = read_image(path)
     version = image_version(image, path)
     if built and (src := source_version(fw)) is not None and src != version:
-        raise UsageError(f"{path}: holds version {version}, but {fw}/trigger_box/config.h says {src}: "
-                         f"the build is stale (make -C {fw} clean)")
+        raise UsageError(
+            f"{path}: holds version {version}, but {fw}/trigger_box/config.h says {src}: "
+            f"the build is stale (make -C {fw} clean)"
+        )
     return Firmware(path, version, size, built)
 
 
@@ -150,15 +168,19 @@ def check_port(port: str) -> int:
         fd = os.open(port, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
     except OSError as e:
         if e.errno == errno.EBUSY:
-            raise FlashError(f"{port} is busy: another program holds it (a serial terminal, the console, "
-                             f"ModemManager): close it and flash again") from None
+            raise FlashError(
+                f"{port} is busy: another program holds it (a serial terminal, the console, "
+                f"ModemManager): close it and flash again"
+            ) from None
         raise FlashError(f"{port} cannot be opened: {e.strerror}") from None
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:
         os.close(fd)
-        raise FlashError(f"{port} is busy: another program has it open and locked (a vts command, a serial "
-                         f"terminal): close it and flash again") from None
+        raise FlashError(
+            f"{port} is busy: another program has it open and locked (a vts command, a serial "
+            f"terminal): close it and flash again"
+        ) from None
     return fd
 
 
@@ -181,17 +203,21 @@ def confirm(port: str, expected: str, timeout: float = 15.0, open_box=TriggerBox
                 except BoxGone as e:
                     last = str(e)
                     break
-                except TriggerError as e:   # no answer yet, or the bootloader's bytes
+                except TriggerError as e:  # no answer yet, or the bootloader's bytes
                     last = str(e)
                     continue
                 if ident.firmware != expected:
-                    raise FlashError(f"the box on {port} answers firmware version {ident.firmware} after flashing, "
-                                     f"not {expected} just written: it is not running what was flashed")
+                    raise FlashError(
+                        f"the box on {port} answers firmware version {ident.firmware} after flashing, "
+                        f"not {expected} just written: it is not running what was flashed"
+                    )
                 return ident.raw, ident.serial, time.monotonic() - t0
         finally:
             box.close()
-    raise FlashError(f"the box on {port} did not answer *IDN? within {timeout:g} s after flashing "
-                     f"(last: {last}); the upload was verified, but the firmware does not answer")
+    raise FlashError(
+        f"the box on {port} did not answer *IDN? within {timeout:g} s after flashing "
+        f"(last: {last}); the upload was verified, but the firmware does not answer"
+    )
 
 
 def _avrdude(programmer: str) -> str:
@@ -202,9 +228,15 @@ def _avrdude(programmer: str) -> str:
     return exe
 
 
-def flash(port: str, hex_path: Path | None = None, programmer: str = "arduino", baud: int = 115200,
-          attempts: int | None = 3, confirm_timeout: float = 15.0,
-          progress: Callable[[str, float], None] | None = None) -> Flashed:
+def flash(
+    port: str,
+    hex_path: Path | None = None,
+    programmer: str = "arduino",
+    baud: int = 115200,
+    attempts: int | None = 3,
+    confirm_timeout: float = 15.0,
+    progress: Callable[[str, float], None] | None = None,
+) -> Flashed:
     """Build (or take --hex), upload, verify, confirm. Each failure one sentence (see the module)."""
     say = progress or (lambda phase, fraction: None)
     exe = _avrdude(programmer)
@@ -212,10 +244,12 @@ def flash(port: str, hex_path: Path | None = None, programmer: str = "arduino", 
     fw = firmware(hex_path)
     log_path = fw.hex.with_name(fw.hex.stem + ".avrdude.log")
     try:
-        os.close(open_fd(log_path))   # a device, FIFO or symbolic link of that name: refused (files.py)
+        os.close(open_fd(log_path))  # a device, FIFO or symbolic link of that name: refused (files.py)
     except OSError as e:
-        raise UsageError(f"{log_path}: avrdude's log cannot be written beside the hex ({e.strerror}): "
-                         f"copy the hex to a folder you can write and give --hex") from None
+        raise UsageError(
+            f"{log_path}: avrdude's log cannot be written beside the hex ({e.strerror}): "
+            f"copy the hex to a folder you can write and give --hex"
+        ) from None
     lock = check_port(port)
     try:
         say("uploading", 0.0)
@@ -228,8 +262,13 @@ def flash(port: str, hex_path: Path | None = None, programmer: str = "arduino", 
     return Flashed(fw, up, reply, serial, took)
 
 
-def dry_run(hex_path: Path | None = None, programmer: str = "arduino", baud: int = 115200, port: str = "PORT",
-            attempts: int | None = 3) -> tuple[Firmware, list[str], str]:
+def dry_run(
+    hex_path: Path | None = None,
+    programmer: str = "arduino",
+    baud: int = 115200,
+    port: str = "PORT",
+    attempts: int | None = 3,
+) -> tuple[Firmware, list[str], str]:
     """Everything but the board: build (or read --hex), check avrdude and the programmer; the
     command that would run and avrdude's version. The port is not opened."""
     exe = _avrdude(programmer)

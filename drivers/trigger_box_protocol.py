@@ -54,15 +54,15 @@ MODEL = "TRIGGERBOX"
 #: how far a confirmed value may be from the asked one (the timer's resolution is far finer)
 FREQ_REL_TOLERANCE = 1e-3
 DUTY_ABS_TOLERANCE = 1e-3
-MAX_LINE = 256                 # bytes; a longer "line" is noise, not a reply
-MAX_ERRORS_READ = 16           # more than the firmware's error queue holds
-POLL_S = 0.01                  # while waiting for the last period to finish
-SETTINGS_CONFLICT = -221       # the box's code for "not while the wave is on / a pulse runs"
-WATCHDOG_CUT = -310            # the box's code for "Watchdog: host silent, output off"
-UNDEFINED_HEADER = -113        # the box's code for a command it does not know (WDOG before 1.1.0)
-WATCHDOG_MIN_S = 0.1           # the host watchdog's range (0 = off)
+MAX_LINE = 256  # bytes; a longer "line" is noise, not a reply
+MAX_ERRORS_READ = 16  # more than the firmware's error queue holds
+POLL_S = 0.01  # while waiting for the last period to finish
+SETTINGS_CONFLICT = -221  # the box's code for "not while the wave is on / a pulse runs"
+WATCHDOG_CUT = -310  # the box's code for "Watchdog: host silent, output off"
+UNDEFINED_HEADER = -113  # the box's code for a command it does not know (WDOG before 1.1.0)
+WATCHDOG_MIN_S = 0.1  # the host watchdog's range (0 = off)
 WATCHDOG_MAX_S = 3600.0
-WATCHDOG_DEFAULT_S = 10.0      # the box's own default, and the driver's
+WATCHDOG_DEFAULT_S = 10.0  # the box's own default, and the driver's
 WATCHDOG_STATES = ("OFF", "IDLE", "ARMED", "TRIPPED")
 
 
@@ -102,6 +102,7 @@ class BoxSetting(Setting):
 
 # ---- what the box reports -------------------------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class BoxIdentity:
     """``*IDN?`` parsed: ``VTS,TRIGGERBOX,<serial>,<firmware>``."""
@@ -113,15 +114,13 @@ class BoxIdentity:
     raw: str
 
 
-
-
 @dataclass(frozen=True)
 class WatchdogState:
     """``WDOG?`` parsed: the watchdog time (0 = off), its state and the device time of the cut."""
 
     seconds: float
-    state: str                    # off, idle (output off), armed (output on), tripped (the last run was cut)
-    cut_device_us: int | None     # when the box cut the wave (tripped only)
+    state: str  # off, idle (output off), armed (output on), tripped (the last run was cut)
+    cut_device_us: int | None  # when the box cut the wave (tripped only)
 
     def describe(self, now_device_us: int | None = None) -> str:
         """One line for a person: what the watchdog does now, or what it did."""
@@ -131,11 +130,15 @@ class WatchdogState:
             if now_device_us is not None and self.cut_device_us is not None and now_device_us >= self.cut_device_us:
                 ago = f", {(now_device_us - self.cut_device_us) * 1e-6:.1f} s ago"
             at = f" at device time {self.cut_device_us * 1e-6:.6f} s" if self.cut_device_us is not None else ""
-            return (f"watchdog TRIPPED: the box heard nothing from its host for {t} and cut the square wave "
-                    f"(output off){at}{ago}")
+            return (
+                f"watchdog TRIPPED: the box heard nothing from its host for {t} and cut the square wave "
+                f"(output off){at}{ago}"
+            )
         if self.state == "off":
-            return ("watchdog off: the box keeps its output as it is whatever happens to its host "
-                    "(vts trigger stop switches it off)")
+            return (
+                "watchdog off: the box keeps its output as it is whatever happens to its host "
+                "(vts trigger stop switches it off)"
+            )
         if self.state == "armed":
             return f"watchdog {t}: the box switches its output off {t} after the last command it hears"
         return f"watchdog {t} (armed while the output is on)"
@@ -156,10 +159,16 @@ def parse_watchdog(reply: str) -> WatchdogState:
 
 def watchdog_seconds(value) -> float:
     """The watchdog time a driver may ask for: 0 (off) or 0.1..3600 s; OutOfRange otherwise."""
-    if (isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value)
-            or not (value == 0 or WATCHDOG_MIN_S <= value <= WATCHDOG_MAX_S)):
-        raise OutOfRange(f"the trigger box's watchdog time must be 0 (off) or {WATCHDOG_MIN_S:g} to "
-                         f"{WATCHDOG_MAX_S:g} s, not {value!r}")
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float))
+        or not math.isfinite(value)
+        or not (value == 0 or WATCHDOG_MIN_S <= value <= WATCHDOG_MAX_S)
+    ):
+        raise OutOfRange(
+            f"the trigger box's watchdog time must be 0 (off) or {WATCHDOG_MIN_S:g} to "
+            f"{WATCHDOG_MAX_S:g} s, not {value!r}"
+        )
     return float(value)
 
 

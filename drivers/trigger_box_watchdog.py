@@ -21,11 +21,19 @@ start, ``WDOG?``, the heartbeat started and stopped, and a cut logged once (an e
 from __future__ import annotations
 
 import threading
-from typing import TYPE_CHECKING, Callable
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from vts_hw.drivers.trigger import TriggerError, TriggerStatus
-from vts_hw.drivers.trigger_box_protocol import (UNDEFINED_HEADER, BoxGone, BoxRefused, WatchdogState,
-                                                 number_text, parse_watchdog, watchdog_seconds)
+from vts_hw.drivers.trigger_box_protocol import (
+    UNDEFINED_HEADER,
+    BoxGone,
+    BoxRefused,
+    WatchdogState,
+    number_text,
+    parse_watchdog,
+    watchdog_seconds,
+)
 from vts_hw.recording.trigger_log import DEVICE_CLOCK_MAPPED
 
 if TYPE_CHECKING:
@@ -66,9 +74,10 @@ class Heartbeat:
     def start(self) -> None:
         if self.running:
             return
-        self._stop = threading.Event()      # its own: a thread stopped earlier never sees it cleared
-        self._thread = threading.Thread(target=self._run, args=(self._stop,), name=f"{self.box.name}-heartbeat",
-                                        daemon=True)
+        self._stop = threading.Event()  # its own: a thread stopped earlier never sees it cleared
+        self._thread = threading.Thread(
+            target=self._run, args=(self._stop,), name=f"{self.box.name}-heartbeat", daemon=True
+        )
         self._thread.start()
 
     def stop(self) -> None:
@@ -95,7 +104,7 @@ class Heartbeat:
                 wd = box.watchdog()
             except BoxGone:
                 return False
-            except TriggerError as exc:   # a beat missed: said, and the next one tried
+            except TriggerError as exc:  # a beat missed: said, and the next one tried
                 box._log("event", f"heartbeat failed: {exc}")
                 return True
             self.beats += 1
@@ -113,17 +122,18 @@ class BoxWatchdog(_Parts):
         is on (without it the caller must, as the protocol tests do); ``monotonic`` times it."""
         self.watchdog_s = watchdog_seconds(watchdog_s)
         self.monotonic = monotonic
-        self._last_sent = monotonic()            # when the box last heard from us (its heartbeat)
+        self._last_sent = monotonic()  # when the box last heard from us (its heartbeat)
         self._heartbeat_thread = heartbeat
         self.heartbeat: Heartbeat | None = None  # while the output is on with the watchdog set
-        self._cuts_logged: set[int] = set()      # watchdog cuts already written to the log
+        self._cuts_logged: set[int] = set()  # watchdog cuts already written to the log
 
     def watchdog(self) -> WatchdogState:
         """``WDOG?``: the box's watchdog time, its state and when it cut the wave (a cut is logged
         once, with a ``wave_stop`` row at its time when this driver started that wave)."""
         with self._lock:
-            wd = self._parse("WDOG?", self.query("WDOG?"), parse_watchdog,
-                             "watchdog state ('<s>,<OFF|IDLE|ARMED|TRIPPED>,<us>')")
+            wd = self._parse(
+                "WDOG?", self.query("WDOG?"), parse_watchdog, "watchdog state ('<s>,<OFF|IDLE|ARMED|TRIPPED>,<us>')"
+            )
             if wd.state == "tripped" and wd.cut_device_us not in self._cuts_logged:
                 self._cuts_logged.add(wd.cut_device_us)
                 self._watchdog_cut(wd)
@@ -145,8 +155,10 @@ class BoxWatchdog(_Parts):
         """After a configure: a watchdog asked for that the box has not is said now, before a scan
         records anything, not at the start."""
         if self.watchdog_s and st.extra.get("watchdog", {}) is None:
-            raise TriggerError(f"{self.where} has {NO_WATCHDOG}; without it a start is refused (if this program "
-                               f"died, the box would drive the scanner's gating input for ever)")
+            raise TriggerError(
+                f"{self.where} has {NO_WATCHDOG}; without it a start is refused (if this program "
+                f"died, the box would drive the scanner's gating input for ever)"
+            )
 
     def _set_watchdog(self) -> None:
         """``WDOG <s>`` before a start: the box's watchdog as this driver wants it (0 = off). A box
@@ -156,11 +168,14 @@ class BoxWatchdog(_Parts):
         except BoxRefused as exc:
             if exc.code != UNDEFINED_HEADER:
                 raise
-            if self.watchdog_s:              # asked for and not there (none asked for: none needed)
-                raise BoxRefused(f"{self.where} has no host watchdog (its firmware predates 1.1.0): switched on, "
-                                 f"it would drive the scanner's gating input for ever if this program died, so "
-                                 f"its output was left off; vts trigger flash updates it", exc.code,
-                                 exc.device_message) from None
+            if self.watchdog_s:  # asked for and not there (none asked for: none needed)
+                raise BoxRefused(
+                    f"{self.where} has no host watchdog (its firmware predates 1.1.0): switched on, "
+                    f"it would drive the scanner's gating input for ever if this program died, so "
+                    f"its output was left off; vts trigger flash updates it",
+                    exc.code,
+                    exc.device_message,
+                ) from None
 
     def _start_heartbeat(self, st: TriggerStatus) -> None:
         if not st.running or self.watchdog_s == 0:
@@ -180,11 +195,14 @@ class BoxWatchdog(_Parts):
         started, at the cut (through the clock mapping, else from the first edge's device time)."""
         self._stop_heartbeat()
         cut = wd.cut_device_us
-        if cut is None:        # a tripped watchdog says when it cut (WDOG?)
+        if cut is None:  # a tripped watchdog says when it cut (WDOG?)
             raise TriggerError(f"{self.where}: its watchdog tripped without saying when it cut the wave")
-        self._log("event", f"the box's watchdog cut the square wave at device time {cut} us (output off "
-                           f"mid-period): it had heard nothing from this host for {wd.seconds:g} s",
-                  device_us=cut)
+        self._log(
+            "event",
+            f"the box's watchdog cut the square wave at device time {cut} us (output off "
+            f"mid-period): it had heard nothing from this host for {wd.seconds:g} s",
+            device_us=cut,
+        )
         m, first = self.mapping, self._wave_first_us
         unc: float | None
         if m is not None:
@@ -192,9 +210,8 @@ class BoxWatchdog(_Parts):
         elif self._wave is not None and first is not None:
             start, _, how, unc = self._wave
             host = start + (cut - first) * 1e-6
-        else:   # a wave another program started, and no clock mapping: the event line says when
+        else:  # a wave another program started, and no clock mapping: the event line says when
             return
         n = self.edges()[0]
         self._wave = None
-        self.log.wave_stopped(self.name, host, rising_edges=n, time_source=how, uncertainty_s=unc,
-                              device_us=cut)
+        self.log.wave_stopped(self.name, host, rising_edges=n, time_source=how, uncertainty_s=unc, device_us=cut)

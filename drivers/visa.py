@@ -54,8 +54,9 @@ def _connect_failure(e: BaseException) -> bool:
     return type(e) is Exception and str(e).startswith("could not connect")
 
 
-def visa_failure(e: BaseException, name: str, address: str, command: str | None,
-                 timeout_ms: float | None) -> TriggerError:
+def visa_failure(
+    e: BaseException, name: str, address: str, command: str | None, timeout_ms: float | None
+) -> TriggerError:
     """``e`` as one sentence: ``name`` at ``address``, what happened, during which command."""
     during = f" {command!r}" if command else ""
     where = f"{name}: the instrument at {address}"
@@ -65,15 +66,21 @@ def visa_failure(e: BaseException, name: str, address: str, command: str | None,
     refused_codes: tuple[object, ...]
     try:
         from pyvisa import constants
+
         tmo, lost = constants.StatusCode.error_timeout, constants.StatusCode.error_connection_lost
         refused_codes = (constants.StatusCode.error_resource_not_found,)
     except ImportError:  # pragma: no cover
         tmo = lost = object()
         refused_codes = ()
-    if isinstance(e, ConnectionRefusedError) or getattr(e, "errno", None) == errno.ECONNREFUSED \
-            or code in refused_codes:
-        text = (f"{where} refused the connection (nothing listens there: is it switched on, "
-                f"and are the address and port right?)")
+    if (
+        isinstance(e, ConnectionRefusedError)
+        or getattr(e, "errno", None) == errno.ECONNREFUSED
+        or code in refused_codes
+    ):
+        text = (
+            f"{where} refused the connection (nothing listens there: is it switched on, "
+            f"and are the address and port right?)"
+        )
     elif code == tmo or isinstance(e, (TimeoutError, socket.timeout)):
         secs = f" within {timeout_ms / 1000:g} s" if timeout_ms else ""
         text = f"{where} did not answer{during}{secs}"
@@ -100,25 +107,29 @@ def open_message_resource(address: str, library: str, timeout_ms: int, name: str
     try:
         rm = pyvisa.ResourceManager(library)
     except Exception as e:
-        raise TriggerError(f"{name}: cannot load the VISA library {library or '(default)'!r} "
-                           f"to reach {address}: {e}") from e
+        raise TriggerError(
+            f"{name}: cannot load the VISA library {library or '(default)'!r} to reach {address}: {e}"
+        ) from e
     if type(rm.visalib).__module__.startswith("pyvisa_sim"):
         _fresh_sim_devices(rm, name)
         # pyvisa-sim "opens" any address and then never answers: say what is wrong instead
-        sim: Any = rm.visalib        # pyvisa-sim's library (no types): its simulated devices
+        sim: Any = rm.visalib  # pyvisa-sim's library (no types): its simulated devices
         known = sim.devices.list_resources()
         try:
             canonical = pyvisa.rname.to_canonical_name(address)
         except Exception:
             canonical = address
         if canonical not in known:
-            raise TriggerError(f"{name}: cannot open {address}: the simulated model at "
-                               f"{rm.visalib.library_path} has only {', '.join(known)}")
+            raise TriggerError(
+                f"{name}: cannot open {address}: the simulated model at "
+                f"{rm.visalib.library_path} has only {', '.join(known)}"
+            )
     else:
         _check_address(address, name)
     try:
-        return rm.open_resource(address, read_termination="\n", write_termination="\n",
-                                timeout=timeout_ms, open_timeout=timeout_ms)
+        return rm.open_resource(
+            address, read_termination="\n", write_termination="\n", timeout=timeout_ms, open_timeout=timeout_ms
+        )
     except pyvisa.errors.VisaIOError as e:
         if e.error_code == pyvisa.constants.StatusCode.error_invalid_resource_name:
             raise _not_an_address(address, name) from None
@@ -126,13 +137,14 @@ def open_message_resource(address: str, library: str, timeout_ms: int, name: str
     except Exception as e:
         if is_visa_error(e):
             raise visa_failure(e, name, address, None, timeout_ms) from None
-        raise TriggerError(f"{name}: cannot open {address} through "
-                           f"{library or 'the default VISA'}: {e}") from e
+        raise TriggerError(f"{name}: cannot open {address} through {library or 'the default VISA'}: {e}") from e
 
 
 def _not_an_address(address: str, name: str) -> TriggerError:
-    return TriggerError(f"{name}: {address!r} is not a VISA address (e.g. "
-                        f"TCPIP::192.168.1.20::5025::SOCKET or TCPIP::192.168.1.20::INSTR)")
+    return TriggerError(
+        f"{name}: {address!r} is not a VISA address (e.g. "
+        f"TCPIP::192.168.1.20::5025::SOCKET or TCPIP::192.168.1.20::INSTR)"
+    )
 
 
 def _check_address(address: str, name: str) -> None:
@@ -149,8 +161,9 @@ def _check_address(address: str, name: str) -> None:
         try:
             socket.getaddrinfo(host, None)
         except (socket.gaierror, UnicodeError):
-            raise TriggerError(f"{name}: cannot reach {address}: no host is called {host!r} "
-                               f"(check the trigger address in rig.yaml)") from None
+            raise TriggerError(
+                f"{name}: cannot reach {address}: no host is called {host!r} (check the trigger address in rig.yaml)"
+            ) from None
 
 
 def _fresh_sim_devices(rm, name: str) -> None:
@@ -192,11 +205,11 @@ def query_within(resource, command: str) -> str:
     deadline = time.monotonic() + timeout_ms / 1000.0
     term = (resource.read_termination or "\n").encode("ascii")
     reply = bytearray()
-    with warnings.catch_warnings():   # a read of the 1 byte asked for is "max count read": no news
+    with warnings.catch_warnings():  # a read of the 1 byte asked for is "max count read": no news
         warnings.simplefilter("ignore", pyvisa.errors.VisaIOWarning)
         while not reply.endswith(term):
             if time.monotonic() > deadline:
                 raise pyvisa.errors.VisaIOError(pyvisa.constants.StatusCode.error_timeout)
             chunk, _ = lib.read(resource.session, 1)
             reply += chunk
-    return bytes(reply[:-len(term)]).decode(resource.encoding)
+    return bytes(reply[: -len(term)]).decode(resource.encoding)

@@ -29,8 +29,9 @@ from vts_hw.vision.camera_set import in_rig_names, load_cameras
 __all__ = ["room_view", "check", "check_pictures", "aim_page", "aim_page_of", "acquire_pictures"]
 
 
-def room_view(rig, name: str, size: tuple[int, int], settings: AimSettings | None = None
-              ) -> tuple[RoomView | None, str]:
+def room_view(
+    rig, name: str, size: tuple[int, int], settings: AimSettings | None = None
+) -> tuple[RoomView | None, str]:
     """``(view, "")`` for camera ``name`` of ``rig``, or ``(None, why)``."""
     settings = settings or rig.aim
     cal = rig.calibration
@@ -61,8 +62,15 @@ def acquire_pictures(cam):
     return on[0].jpeg, None if off is None else off.jpeg
 
 
-def check_pictures(name: str, rig, on_jpeg: bytes, off_jpeg: bytes | None, reference=None,
-                   reference_name: str = "the drift baseline", settings: AimSettings | None = None) -> AimReport:
+def check_pictures(
+    name: str,
+    rig,
+    on_jpeg: bytes,
+    off_jpeg: bytes | None,
+    reference=None,
+    reference_name: str = "the drift baseline",
+    settings: AimSettings | None = None,
+) -> AimReport:
     """The aim-and-focus check of camera ``name`` of ``rig`` (a RigConfig; None: the default goals
     and no mapping) from its picture with the LED on and with it off (None: the LED could not be
     switched). Opens nothing. ``reference``: where its markers were (px), or None; ``settings``:
@@ -74,12 +82,14 @@ def check_pictures(name: str, rig, on_jpeg: bytes, off_jpeg: bytes | None, refer
         view, why = None, "no mapping (no rig configuration given)"
     else:
         view, why = room_view(rig, name, (on.shape[1], on.shape[0]), settings)
-    return assess(name, on, off, view, settings, why or "no mapping", reference=reference,
-                  reference_name=reference_name)
+    return assess(
+        name, on, off, view, settings, why or "no mapping", reference=reference, reference_name=reference_name
+    )
 
 
-def check(cam, rig, settings: AimSettings | None = None, reference=None,
-          reference_name: str = "the drift baseline") -> AimReport:
+def check(
+    cam, rig, settings: AimSettings | None = None, reference=None, reference_name: str = "the drift baseline"
+) -> AimReport:
     """The aim-and-focus check of ``cam`` (an open camera of ``rig``): LED on, one picture; LED
     off, one picture (the LED left on), judged by :func:`check_pictures`. ``reference``: where
     its markers were (px; the drift baseline's wall markers), or None."""
@@ -93,8 +103,9 @@ def aim_page(cam, rig, reference=None) -> tuple[dict, bytes]:
     return aim_page_of(cam.name, rig, on_jpeg, off_jpeg, reference)
 
 
-def aim_page_of(name: str, rig, on_jpeg: bytes, off_jpeg: bytes | None, reference=None,
-                reference_name: str = "the drift baseline") -> tuple[dict, bytes]:
+def aim_page_of(
+    name: str, rig, on_jpeg: bytes, off_jpeg: bytes | None, reference=None, reference_name: str = "the drift baseline"
+) -> tuple[dict, bytes]:
     """:func:`aim_page` from two pictures already taken (:func:`check_pictures`): opens nothing."""
     report = check_pictures(name, rig, on_jpeg, off_jpeg, reference, reference_name)
     return report.to_dict(), report.overlay_png()

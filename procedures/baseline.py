@@ -17,15 +17,15 @@ otherwise the one older versions wrote and read (docs/decisions/0086-marker-role
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 from vts_hw.catalog import BASELINE
 from vts_hw.errors import VtsError
-from vts_hw.results import Measure
-from vts_hw.tolerance import State
 from vts_hw.procedures.drift import SPAN_S, acquire_led_frames
 from vts_hw.procedures.marker_room import room_of_rig
+from vts_hw.results import Measure
+from vts_hw.tolerance import State
 from vts_hw.vision.marker_roles import follow, roles_of_tracks
 from vts_hw.vision.wall_baseline import Baseline, NoBaseline
 from vts_hw.vision.wall_markers import baseline_of_tracks, frame_points
@@ -41,13 +41,13 @@ class NoMarkers(VtsError):
     exit_code = 4
 
 
-def take_baseline(cam, frames: int = 5, clock: Callable[[], float] = time.time, on_frame=None,
-                  span_s: float = SPAN_S) -> Baseline:
+def take_baseline(
+    cam, frames: int = 5, clock: Callable[[], float] = time.time, on_frame=None, span_s: float = SPAN_S
+) -> Baseline:
     """LED on, ``frames`` snapshots of camera ``cam`` over ``span_s``, its wall markers (by
     motion alone: ``room`` needs other cameras, :func:`take_baselines`).
     ``on_frame(camera, frame, taken, needed)``: as :func:`acquire_led_frames`'s, with the name."""
-    return take_baselines([cam], frames=frames, clock=clock, on_frame=on_frame,
-                          span_s=span_s).baselines[0]
+    return take_baselines([cam], frames=frames, clock=clock, on_frame=on_frame, span_s=span_s).baselines[0]
 
 
 def _frames(cam, frames: int, on_frame, span_s: float):
@@ -63,7 +63,7 @@ class BaselineSet:
 
     baselines: list[Baseline]
     procedure: str = PROCEDURE
-    room_why: str = ""     # why the markers were not placed in the room (no mapping...): "" when they were
+    room_why: str = ""  # why the markers were not placed in the room (no mapping...): "" when they were
 
     @property
     def measures(self) -> list[Measure]:
@@ -90,24 +90,37 @@ class BaselineSet:
         return "\n".join(lines)
 
     def results_data(self) -> dict:
-        return {"procedure": self.procedure, "room": self.room_why or "placed",
-                "baselines": [{"camera": b.camera, "taken": b.taken, "markers": [m.__dict__ for m in b.markers],
-                                "not_wall": [{"x": x, "y": y, **r.to_dict()} for x, y, r in b.others]}
-                              for b in self.baselines]}
+        return {
+            "procedure": self.procedure,
+            "room": self.room_why or "placed",
+            "baselines": [
+                {
+                    "camera": b.camera,
+                    "taken": b.taken,
+                    "markers": [m.__dict__ for m in b.markers],
+                    "not_wall": [{"x": x, "y": y, **r.to_dict()} for x, y, r in b.others],
+                }
+                for b in self.baselines
+            ],
+        }
 
     def plot(self, path=None) -> bytes:
         raise NotImplementedError("a baseline has no plot")
 
 
-def take_baselines(cameras, *, frames: int = 5, clock: Callable[[], float] = time.time,
-                   on_frame=None, rig=None, span_s: float = SPAN_S) -> BaselineSet:
+def take_baselines(
+    cameras, *, frames: int = 5, clock: Callable[[], float] = time.time, on_frame=None, rig=None, span_s: float = SPAN_S
+) -> BaselineSet:
     """The drift baseline of each of ``cameras`` (given, opened by the caller): each camera's
     frames spread over ``span_s``, its markers followed; those that moved left out; the still
     ones placed in the room of ``rig`` (its calibration and mapping: procedures/marker_room.py;
     None or no mapping: motion alone, said in ``room_why``) and those on the table left out. NoMarkers when a camera keeps no wall marker (then
     nothing is to be stored for any camera). ``on_frame``: see :func:`take_baseline`."""
-    room, why = room_of_rig(rig) if len(cameras) > 1 else (None, "one camera: where a marker lies is not known, "
-                                                                  "judged by motion alone")
+    room, why = (
+        room_of_rig(rig)
+        if len(cameras) > 1
+        else (None, "one camera: where a marker lies is not known, judged by motion alone")
+    )
     tracks = {cam.name: _frames(cam, frames, on_frame, span_s) for cam in cameras}
     # every marker goes to the room (one still here may have moved in another camera's frames);
     # only the still ones take its answer

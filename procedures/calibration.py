@@ -31,7 +31,7 @@ from vts_hw.vision.calibration_io import CameraCalibration, load_calibration
 from vts_hw.vision.calibration_uncertainty import compare_pair
 from vts_hw.vision.multi_compare import compare_cameras
 
-MAX_RMS_PX = 1.0   # a checkerboard fit above this overall RMS is not trusted (corner noise: 0.05-0.5 px)
+MAX_RMS_PX = 1.0  # a checkerboard fit above this overall RMS is not trusted (corner noise: 0.05-0.5 px)
 
 
 def replaceable(out_path: Path, unit: str, force: bool = False, what: str = "calibration"):
@@ -47,12 +47,15 @@ def replaceable(out_path: Path, unit: str, force: bool = False, what: str = "cal
     except DataError:
         if force:
             return None
-        raise DataError(f"{out_path} exists and is not a {what} file; give another -o, move it"
-                        " away, or give --force to replace it.") from None
+        raise DataError(
+            f"{out_path} exists and is not a {what} file; give another -o, move it away, or give --force to replace it."
+        ) from None
     if old.unit == "mm" and unit == "squares" and not force:
-        raise UsageError(f"{out_path} holds a calibration in mm (squares of {old.square:g} mm) and this one"
-                         " would be in squares because --square was not given: give --square with the side"
-                         " of a square in mm, another -o, or --force to replace it.")
+        raise UsageError(
+            f"{out_path} holds a calibration in mm (squares of {old.square:g} mm) and this one"
+            " would be in squares because --square was not given: give --square with the side"
+            " of a square in mm, another -o, or --force to replace it."
+        )
     return old
 
 
@@ -62,11 +65,15 @@ def fit_warnings(calib: CameraCalibration) -> list[str]:
     out = []
     adj = calib.adjustment
     if adj and not adj.get("converged", True):
-        out.append(f"WARNING: the bundle adjustment did not converge ({adj.get('evaluations')} evaluations:"
-                   f" {adj.get('status')}).")
+        out.append(
+            f"WARNING: the bundle adjustment did not converge ({adj.get('evaluations')} evaluations:"
+            f" {adj.get('status')})."
+        )
     if calib.rms > MAX_RMS_PX:
-        out.append(f"WARNING: RMS reprojection error {calib.rms:.3f} px is above the {MAX_RMS_PX:g} px a"
-                   " checkerboard calibration reaches: views that do not fit, or too few views per camera.")
+        out.append(
+            f"WARNING: RMS reprojection error {calib.rms:.3f} px is above the {MAX_RMS_PX:g} px a"
+            " checkerboard calibration reaches: views that do not fit, or too few views per camera."
+        )
     return out
 
 
@@ -87,8 +94,7 @@ class CalibrationRun(CalibrationResult):
 
     def rms_figures(self):
         c = self.calib
-        return ({f.name: f.rms for f in c.camera_fits}, c.rms,
-                bool((c.adjustment or {}).get("converged", True)))
+        return ({f.name: f.rms for f in c.camera_fits}, c.rms, bool((c.adjustment or {}).get("converged", True)))
 
     @property
     def untrusted(self) -> list[str]:
@@ -97,8 +103,11 @@ class CalibrationRun(CalibrationResult):
 
     @property
     def warnings(self) -> list[str]:
-        return self.untrusted + (list(self.truth["warnings"]) if self.truth else []) + (
-            list(self.change["warnings"]) if self.change else [])
+        return (
+            self.untrusted
+            + (list(self.truth["warnings"]) if self.truth else [])
+            + (list(self.change["warnings"]) if self.change else [])
+        )
 
     @property
     def refused(self) -> str | None:
@@ -124,10 +133,25 @@ class CalibrationRun(CalibrationResult):
         return run_text(self)
 
 
-def run(images=None, *, output, pairs=None, pattern=(9, 6), square: float = 1.0, unit: str = "squares",
-        previous=None, force: bool = False, distortion: str = "auto", reference: str | None = None,
-        names=None, cameras=("left", "right"), truth=None, score=None, sim: dict | None = None,
-        what: str = "calibration") -> CalibrationRun:
+def run(
+    images=None,
+    *,
+    output,
+    pairs=None,
+    pattern=(9, 6),
+    square: float = 1.0,
+    unit: str = "squares",
+    previous=None,
+    force: bool = False,
+    distortion: str = "auto",
+    reference: str | None = None,
+    names=None,
+    cameras=("left", "right"),
+    truth=None,
+    score=None,
+    sim: dict | None = None,
+    what: str = "calibration",
+) -> CalibrationRun:
     """Calibrate and save to ``output``: the cameras of ``images`` (camera → view → path or grey
     image), or the stereo pair of ``pairs`` ((left, right) images; ``names`` the views',
     ``cameras`` the two cameras' names). ``previous``: the file to compare with (default the one
@@ -145,17 +169,26 @@ def run(images=None, *, output, pairs=None, pattern=(9, 6), square: float = 1.0,
     elif current is not None:
         prev_path, prev = out_path, current
     if pairs is not None:
-        calib = calibrate_stereo(pairs, pattern=pattern, square=square, unit=unit, names=names,
-                                 distortion=distortion, cameras=cameras)
+        calib = calibrate_stereo(
+            pairs, pattern=pattern, square=square, unit=unit, names=names, distortion=distortion, cameras=cameras
+        )
     else:
         corners, sizes, skipped = find_all_corners(images, pattern)
-        calib = calibrate_cameras(corners, sizes, pattern=pattern, square=square, unit=unit, distortion=distortion,
-                                  reference=reference, skipped=skipped)
+        calib = calibrate_cameras(
+            corners,
+            sizes,
+            pattern=pattern,
+            square=square,
+            unit=unit,
+            distortion=distortion,
+            reference=reference,
+            skipped=skipped,
+        )
     change = None
-    if prev is not None:   # a pair fitted as OpenCV's stereo fit is judged as a pair (0024), N cameras one by one
+    if prev is not None:  # a pair fitted as OpenCV's stereo fit is judged as a pair (0024), N cameras one by one
         change = compare_pair(calib, prev) if calib.pair is not None else compare_cameras(calib, prev)
     judged = score(calib, truth) if score is not None and truth is not None else None
-    if fit_warnings(calib) and not force:     # an untrusted fit does not replace the file
+    if fit_warnings(calib) and not force:  # an untrusted fit does not replace the file
         saved = Saved(out_path)
     else:
         saved = save_or_keep(out_path, calib.text(), "calibration")

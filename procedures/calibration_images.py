@@ -57,11 +57,13 @@ def camera_images(args: list[str]) -> dict[str, dict[str, Path]]:
         if path.is_file():
             cv = _camera_and_view(path)
             if cv is None or path.suffix.lower() not in IMAGE_SUFFIXES:
-                raise DataError(f"{path}: image names must be <camera>_<view>.jpg (or .png), or the images"
-                                " of each camera in a folder named after it.")
+                raise DataError(
+                    f"{path}: image names must be <camera>_<view>.jpg (or .png), or the images"
+                    " of each camera in a folder named after it."
+                )
             add(*cv, path)
             continue
-        if not path.is_dir():   # a device, a FIFO, a socket
+        if not path.is_dir():  # a device, a FIFO, a socket
             raise DataError(f"{path}: not an image file or a folder of images.")
         subdirs = sorted(p for p in path.iterdir() if p.is_dir() and _images_in(p))
         if subdirs:
@@ -94,9 +96,11 @@ def find_all_corners(images, pattern) -> tuple[dict, dict, dict]:
             gray = load_gray(src)
             size = (gray.shape[1], gray.shape[0])
             if sizes.setdefault(cam, size) != size:
-                raise DataError(f"{src if isinstance(src, (str, Path)) else f'camera {cam}, view {view}'} is"
-                                f" {size[0]}x{size[1]} px, the other images of camera {cam} are"
-                                f" {sizes[cam][0]}x{sizes[cam][1]} px.")
+                raise DataError(
+                    f"{src if isinstance(src, (str, Path)) else f'camera {cam}, view {view}'} is"
+                    f" {size[0]}x{size[1]} px, the other images of camera {cam} are"
+                    f" {sizes[cam][0]}x{sizes[cam][1]} px."
+                )
             found = find_corners(gray, pattern)
             if found is None:
                 skipped[f"{cam}/{view}"] = f"no {pattern[0]}x{pattern[1]} board found"
@@ -126,8 +130,9 @@ def image_pairs(args: list[str]) -> list[tuple[Path, Path]]:
             raise DataError(f"{path}: no such file or directory.")
         m = _IMAGE.match(path.name)
         if not m:
-            raise DataError(f"{path}: image names must be leftNN.jpg / rightNN.jpg (or .png) so"
-                            " that left and right can be paired.")
+            raise DataError(
+                f"{path}: image names must be leftNN.jpg / rightNN.jpg (or .png) so that left and right can be paired."
+            )
         side, key = m.group(1).lower(), m.group(2).lower()
         if key in files[side]:
             raise DataError(f"{path} and {files[side][key]} are both {side} image {key!r}.")

@@ -16,8 +16,9 @@ PROCEDURE = catalog.CALIBRATION.name
 SET_SUBJECT = "set"
 
 
-def rms_measures(per_camera: dict[str, float], overall: float, tolerances=None,
-                 converged: bool | None = None) -> list[Measure]:
+def rms_measures(
+    per_camera: dict[str, float], overall: float, tolerances=None, converged: bool | None = None
+) -> list[Measure]:
     """One ``calibration_rms_px`` measure per camera and one for the set (``SET_SUBJECT``);
     with ``converged`` given, a ``calibration_converged`` measure (1 or 0) too."""
     tol = merged_tolerances(tolerances)
@@ -25,8 +26,11 @@ def rms_measures(per_camera: dict[str, float], overall: float, tolerances=None,
     out = [Measure.judged(name, "calibration_rms_px", rms, "px", w) for name, rms in per_camera.items()]
     out.append(Measure.judged(SET_SUBJECT, "calibration_rms_px", overall, "px", w))
     if converged is not None:
-        out.append(Measure.judged(SET_SUBJECT, "calibration_converged", 1.0 if converged else 0.0, "",
-                                  tol["calibration_converged"]))
+        out.append(
+            Measure.judged(
+                SET_SUBJECT, "calibration_converged", 1.0 if converged else 0.0, "", tol["calibration_converged"]
+            )
+        )
     return out
 
 
@@ -34,7 +38,7 @@ class CalibrationResult:
     """Mixin for the calibration runs: ``measures`` comes from :meth:`rms_figures`."""
 
     procedure = PROCEDURE
-    tolerances = None     # the rig config's windows, set by the caller; None: the defaults
+    tolerances = None  # the rig config's windows, set by the caller; None: the defaults
 
     def rms_figures(self) -> tuple[dict[str, float], float, bool | None]:
         raise NotImplementedError
@@ -51,7 +55,6 @@ class CalibrationResult:
     def plot(self, path=None) -> bytes:
         """The RMS per camera and of the set as bars, with the tolerance and action levels."""
         from matplotlib.figure import Figure
-
 
         w = merged_tolerances(self.tolerances)["calibration_rms_px"]
         ms = [m for m in self.measures if m.metric == "calibration_rms_px"]

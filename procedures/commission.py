@@ -28,9 +28,10 @@ docs/decisions/0069-commissioning.md, 0084-commissioning-honest-state.md.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from vts_hw.catalog import COMMISSION_STEP, COMMISSION_STEPS
 from vts_hw.errors import UsageError
@@ -42,8 +43,8 @@ from vts_hw.tolerance import State
 class Step:
     name: str
     label: str
-    command: str        # the command that runs it on its own
-    needs: str = ""     # what the operator must give for it (an option), "" when nothing
+    command: str  # the command that runs it on its own
+    needs: str = ""  # what the operator must give for it (an option), "" when nothing
 
 
 #: how each step of the catalog's COMMISSION_STEPS runs on its own, and what it needs
@@ -106,7 +107,7 @@ class Outcome:
     artifacts: list[Path] = field(default_factory=list)
     started: float = 0.0
     notes: str = ""
-    error: Exception | None = None   # recorded as not passed, then raised (rig.yaml not written: exit 3)
+    error: Exception | None = None  # recorded as not passed, then raised (rig.yaml not written: exit 3)
 
     @property
     def state(self) -> State:
@@ -131,7 +132,7 @@ class Inputs:
     listen_s: float = 3.0
     interfaces: tuple[str, ...] = ()
     wait: bool = True
-    room_clear: bool = False      # the drift baseline's "clear the room" answered beforehand (no terminal needed)
+    room_clear: bool = False  # the drift baseline's "clear the room" answered beforehand (no terminal needed)
 
     @property
     def calibration_file(self) -> Path:
@@ -152,7 +153,7 @@ class Context:
     ask: Callable[[str], object] = input
     clock: Callable[[], float] = time.time
     sleep: Callable[[float], None] = time.sleep
-    reload: Callable[[], object] | None = None    # the rig config read again (after rig.yaml changed)
+    reload: Callable[[], object] | None = None  # the rig config read again (after rig.yaml changed)
     # the room's parts, given by the application that opened it (`vts commission`: the room's
     # camera(cfg) and trigger(), which the room closes); None: a step opens and closes its own
     camera: Callable[[Any], Any] | None = None
@@ -168,7 +169,7 @@ def plan(start: str | None, done: dict[str, bool]) -> list[str]:
     not passed or been skipped (``done``: step -> passed or skipped, in the current commissioning)."""
     if start is not None:
         step(start)
-        return list(NAMES[NAMES.index(start):])
+        return list(NAMES[NAMES.index(start) :])
     for i, name in enumerate(NAMES):
         if not done.get(name):
             return list(NAMES[i:])

@@ -49,15 +49,15 @@ def run_sequence(ctx: Context, todo: list[str], ledger, skips: dict[str, str] | 
         ledger.begin(name, started)
         try:
             out = getattr(run, name)(ctx)
-        except BaseException as exc:      # a device that failed, an input missing, Ctrl-C, SIGTERM: said and kept
+        except BaseException as exc:  # a device that failed, an input missing, Ctrl-C, SIGTERM: said and kept
             ledger.failed(name, failure_reason(exc), started)
             raise
         out.started = out.started or started
-        if isinstance(out.result, StepCheck):      # a procedure's result said itself already
+        if isinstance(out.result, StepCheck):  # a procedure's result said itself already
             ctx.say(out.result.results())
         ledger.record(out)
         outcomes.append(out)
-        if out.error is not None:          # its figures stored, then the error said (exit code) and resumable
+        if out.error is not None:  # its figures stored, then the error said (exit code) and resumable
             raise out.error
         if not out.passed:
             return SequenceEnd(outcomes, out)

@@ -80,12 +80,14 @@ def cameras(ctx: Context) -> Outcome:
     rig, inp = ctx.rig, ctx.inputs
     source = getattr(rig, "_source", None)
     if source is None:
-        raise UsageError("commissioning needs the rig config as a file (--config rig.yaml): locked_params are "
-                         "written into it")
+        raise UsageError(
+            "commissioning needs the rig config as a file (--config rig.yaml): locked_params are written into it"
+        )
     for cfg in rig.cameras:
         if not kind_has(cfg, Parameters):
-            raise UsageError(f"camera {cfg.name} is of kind {cfg.kind}, which has no parameters: only Axis cameras "
-                             f"are commissioned")
+            raise UsageError(
+                f"camera {cfg.name} is of kind {cfg.kind}, which has no parameters: only Axis cameras are commissioned"
+            )
         cfg.password()
     announced: dict[tuple[str, int], tuple[str, ...]] = {}
     if inp.listen_s > 0:
@@ -99,23 +101,31 @@ def cameras(ctx: Context) -> Outcome:
             result = setup_camera(cam, cfg, rig.camera_setup)
         locked[cfg.name] = result.locked
         seen = announced.get((cfg.host, cfg.port))
-        dev = {"name": cfg.name, "address": f"{cfg.host}:{cfg.port}",
-               "model": info.get("ProdShortName") or info.get("ProdNbr") or info.get("Product") or "?",
-               "serial": (info.get("SerialNumber") or "?").upper(), "firmware": info.get("Version") or "?",
-               "announced": ("not listened" if inp.listen_s <= 0 else "+".join(seen) if seen else "not announced"),
-               "locked_params": result.locked, "notes": result.notes}
+        dev = {
+            "name": cfg.name,
+            "address": f"{cfg.host}:{cfg.port}",
+            "model": info.get("ProdShortName") or info.get("ProdNbr") or info.get("Product") or "?",
+            "serial": (info.get("SerialNumber") or "?").upper(),
+            "firmware": info.get("Version") or "?",
+            "announced": ("not listened" if inp.listen_s <= 0 else "+".join(seen) if seen else "not announced"),
+            "locked_params": result.locked,
+            "notes": result.notes,
+        }
         devices.append(dev)
-        measures += [Measure(cfg.name, "camera_confirmed", 1.0, "", OK),
-                     Measure(cfg.name, "params_locked", float(len(result.locked)), "params", OK)]
-        lines.append(f"  {cfg.name}: {dev['model']} serial {dev['serial']} firmware {dev['firmware']}, "
-                     f"{len(result.locked)} parameters set and locked ({len(result.changed)} changed); "
-                     f"announced: {dev['announced']}")
+        measures += [
+            Measure(cfg.name, "camera_confirmed", 1.0, "", OK),
+            Measure(cfg.name, "params_locked", float(len(result.locked)), "params", OK),
+        ]
+        lines.append(
+            f"  {cfg.name}: {dev['model']} serial {dev['serial']} firmware {dev['firmware']}, "
+            f"{len(result.locked)} parameters set and locked ({len(result.changed)} changed); "
+            f"announced: {dev['announced']}"
+        )
     backup = set_locked_params(source, locked)
     lines.append(f"  {source}: locked_params written (the previous file is {backup})")
     ctx.refresh()
     path = _json(ensure_dir(inp.out, "commissioning folder") / "devices.json", {"cameras": devices})
-    return Outcome("cameras", StepCheck("cameras", measures, lines, {"cameras": devices}), True,
-                   artifacts=[path])
+    return Outcome("cameras", StepCheck("cameras", measures, lines, {"cameras": devices}), True, artifacts=[path])
 
 
 # ------------------------------------------------------------------ 2. trigger box
@@ -126,18 +136,29 @@ def trigger(ctx: Context) -> Outcome:
     Flashing the firmware is `vts trigger flash`, not a step of commissioning."""
     t = ctx.rig.trigger
     if t.backend == "none":
-        raise ConfigError("the rig config has no trigger generator (trigger: backend: none): the sync check needs "
-                          "one; set it, or --skip trigger --why TEXT")
+        raise ConfigError(
+            "the rig config has no trigger generator (trigger: backend: none): the sync check needs "
+            "one; set it, or --skip trigger --why TEXT"
+        )
     with _trigger(ctx) as gen:
         ident = gen.identify() if hasattr(gen, "identify") else None
         st = gen.status()
-    dev = {"backend": t.backend, "address": str(t.address), "device": st.device,
-           "serial": getattr(ident, "serial", "?"), "firmware": getattr(ident, "firmware", "?"),
-           "note": "firmware asked, not flashed (`vts trigger flash` uploads it)"}
+    dev = {
+        "backend": t.backend,
+        "address": str(t.address),
+        "device": st.device,
+        "serial": getattr(ident, "serial", "?"),
+        "firmware": getattr(ident, "firmware", "?"),
+        "note": "firmware asked, not flashed (`vts trigger flash` uploads it)",
+    }
     lines = [f"  {dev['device']}: serial {dev['serial']}, firmware {dev['firmware']} ({dev['note']})"]
     path = _json(ensure_dir(ctx.inputs.out, "commissioning folder") / "trigger.json", dev)
-    return Outcome("trigger", StepCheck("trigger", [Measure("trigger", "trigger_answered", 1.0, "", OK)], lines,
-                                        {"trigger": dev}), True, artifacts=[path])
+    return Outcome(
+        "trigger",
+        StepCheck("trigger", [Measure("trigger", "trigger_answered", 1.0, "", OK)], lines, {"trigger": dev}),
+        True,
+        artifacts=[path],
+    )
 
 
 # ------------------------------------------------------------------ 3. aim and focus
@@ -159,15 +180,27 @@ def aim(ctx: Context) -> Outcome:
                     measures.append(Measure(cam.name, f"aim_{v.item}", float(v.value), v.unit, st))
                 if v.state == "adjust":
                     advice.append(f"{cam.name} {v.label}: {v.text}")
-            measures.append(Measure(cam.name, "aim_adjust", float(sum(v.state == "adjust" for v in report.items)),
-                                    "items", TOL if report.state == "adjust" else OK))
+            measures.append(
+                Measure(
+                    cam.name,
+                    "aim_adjust",
+                    float(sum(v.state == "adjust" for v in report.items)),
+                    "items",
+                    TOL if report.state == "adjust" else OK,
+                )
+            )
             unknown = f" (not known: {', '.join(report.unknown)})" if report.unknown else ""
             lines.append(f"  {cam.name}: {report.state.upper()}{unknown}")
     files.append(_json(folder / "aim.json", verdicts))
     lines += [f"  ADJUST {a}" for a in advice]
     passed = not advice
-    return Outcome("aim", StepCheck("aim", measures, lines, {"aim": verdicts}), passed,
-                   advice="; ".join(advice) + ("; then `vts commission --resume`" if advice else ""), artifacts=files)
+    return Outcome(
+        "aim",
+        StepCheck("aim", measures, lines, {"aim": verdicts}),
+        passed,
+        advice="; ".join(advice) + ("; then `vts commission --resume`" if advice else ""),
+        artifacts=files,
+    )
 
 
 # ------------------------------------------------------------------ 4. warm-up
@@ -178,7 +211,7 @@ def _uptime(cam, say) -> float | None:
     is a device failure, raised)."""
     try:
         return cam.uptime().seconds / 60.0 if isinstance(cam, RunningTime) else None
-    except NoUptime as exc:      # a camera that does not tell: not known, said
+    except NoUptime as exc:  # a camera that does not tell: not known, said
         say(f"  {cam.name}: uptime not known ({exc})")
         return None
 
@@ -210,18 +243,20 @@ def warmup(ctx: Context) -> Outcome:
     climit = cwin.tolerance_high if cwin.tolerance_high is not None else cwin.action_high
     warm = {c.name: float(c.warmup_min) for c in ctx.rig.cameras}
     with _cameras(ctx, ctx.rig.cameras, clock=ctx.clock) as cams:
-        if not ctx.inputs.wait:          # no window measured for a camera that cannot have settled yet
+        if not ctx.inputs.wait:  # no window measured for a camera that cannot have settled yet
             up = {c.name: _uptime(c, ctx.say) for c in cams}
             young = {n for n, m in up.items() if m is not None and m < warm[n]}
             if young:
                 return _too_young(ctx, up, warm, young)
-        ctx.say(f"  watching the wall markers settle: a sample every {st.interval_s:g} s, the rate fitted over "
-                f"{st.samples} samples ({window.describe()}), each camera's clock read with it "
-                f"({cwin.describe()} for its rate's change); Ctrl-C stops, `vts commission --resume` continues")
+        ctx.say(
+            f"  watching the wall markers settle: a sample every {st.interval_s:g} s, the rate fitted over "
+            f"{st.samples} samples ({window.describe()}), each camera's clock read with it "
+            f"({cwin.describe()} for its rate's change); Ctrl-C stops, `vts commission --resume` continues"
+        )
         watches = {c.name: Watch(c, st.frames) for c in cams}
         clocks = {c.name: ClockWatch(c) for c in cams}
         for c in cams:
-            switch_led(c, True)      # read back: a ring held off is said now, not as markers missing later
+            switch_led(c, True)  # read back: a ring held off is said now, not as markers missing later
         ctx.sleep(LED_SETTLE_S)
         k = 0
         while True:
@@ -232,8 +267,7 @@ def warmup(ctx: Context) -> Outcome:
             fits = {n: w.fit(st.samples) for n, w in watches.items()}
             cfits = {n: w.fits(st.samples) for n, w in clocks.items()}
             judged = {n: judge_clock(cfits[n][1], cwin, climit, clocks[n].problem) for n in clocks}
-            now = "; ".join(f"{n} {'?' if f.rate is None else f'{f.rate:.3f}'} px/min"
-                            for n, f in fits.items())
+            now = "; ".join(f"{n} {'?' if f.rate is None else f'{f.rate:.3f}'} px/min" for n, f in fits.items())
             head = f"sample {k} of {st.samples}" if k <= st.samples else f"sample {k} (the last {st.samples})"
             clk = "; ".join(f"{n} {f[1].rate:.2f}" for n, f in cfits.items() if f[1].rate is not None)
             clk = f"; clock's change {clk} ppm/min" if clk else ""
@@ -242,62 +276,104 @@ def warmup(ctx: Context) -> Outcome:
                 ctx.sleep(st.interval_s)
                 continue
             up = {c.name: _uptime(c, ctx.say) for c in cams}
-            unsettled = {n for n, f in fits.items()     # an uptime not known: the rate alone tells
-                         if window.state(f.rate) != OK or (up[n] is not None and up[n] < warm[n])}
-            ticking = {n for n, j in judged.items() if j.known and not j.settled}   # a clock not known: said, not waited
+            unsettled = {
+                n
+                for n, f in fits.items()  # an uptime not known: the rate alone tells
+                if window.state(f.rate) != OK or (up[n] is not None and up[n] < warm[n])
+            }
+            ticking = {n for n, j in judged.items() if j.known and not j.settled}  # a clock not known: said, not waited
             unknown = {n for n, f in fits.items() if f.rate is None}
             if not (unsettled | ticking) or not ctx.inputs.wait or unknown:
                 break
             waits = {n: settle_wait_min(fits[n], limit, up[n], warm[n]) for n in sorted(unsettled)}
-            cwaits = {n: settle_wait_min(cfits[n][1], climit, None, 0.0, "ppm/min", "its clock's change")
-                      for n in sorted(ticking)}
-            ctx.say("  not settled: " + "; ".join(
-                [f"{n} ({_rate_text(fits[n])}): "
-                 + (f"{'at least' if least else 'about'} {_minutes(m)} more" if m is not None else why)
-                 for n, (m, why, least) in waits.items()]
-                + [f"{n} {judged[n].why}: " + (f"about {_minutes(m)} more" if m is not None else why)
-                   for n, (m, why, least) in cwaits.items()]) + "; waiting")
+            cwaits = {
+                n: settle_wait_min(cfits[n][1], climit, None, 0.0, "ppm/min", "its clock's change")
+                for n in sorted(ticking)
+            }
+            ctx.say(
+                "  not settled: "
+                + "; ".join(
+                    [
+                        f"{n} ({_rate_text(fits[n])}): "
+                        + (f"{'at least' if least else 'about'} {_minutes(m)} more" if m is not None else why)
+                        for n, (m, why, least) in waits.items()
+                    ]
+                    + [
+                        f"{n} {judged[n].why}: " + (f"about {_minutes(m)} more" if m is not None else why)
+                        for n, (m, why, least) in cwaits.items()
+                    ]
+                )
+                + "; waiting"
+            )
             ctx.sleep(st.interval_s)
     measures, lines, data, advice, later = [], [], {}, [], []
     for n, f in fits.items():
         state = window.state(f.rate)
         young = up[n] is not None and up[n] < warm[n]
-        measures.append(Measure(n, "warmup_rate_px_min", None if f.rate is None else round(f.rate, 4),
-                                "px/min", state))
-        measures.append(Measure(n, "uptime_min", None if up[n] is None else round(up[n], 1), "min",
-                                TOL if up[n] is None or young else OK))
+        measures.append(Measure(n, "warmup_rate_px_min", None if f.rate is None else round(f.rate, 4), "px/min", state))
+        measures.append(
+            Measure(
+                n,
+                "uptime_min",
+                None if up[n] is None else round(up[n], 1),
+                "min",
+                TOL if up[n] is None or young else OK,
+            )
+        )
         if up[n] is not None:
             measures.append(Measure(n, "warming_up", 1.0 if young else 0.0, "", TOL if young else OK))
-        data[n] = {"rate_px_min": f.rate, "se_px_min": f.se, "window_min": f.window_min,
-                   "samples": f.n, "tau_min": f.tau_min, "uptime_min": up[n], "warmup_min": warm[n],
-                   "samples_taken": [(s.t, s.dx, s.dy, s.markers) for s in watches[n].samples]}
+        data[n] = {
+            "rate_px_min": f.rate,
+            "se_px_min": f.se,
+            "window_min": f.window_min,
+            "samples": f.n,
+            "tau_min": f.tau_min,
+            "uptime_min": up[n],
+            "warmup_min": warm[n],
+            "samples_taken": [(s.t, s.dx, s.dy, s.markers) for s in watches[n].samples],
+        }
         cm, cadvice = _clock_figures(n, cfits[n], judged[n], cwin, climit, clocks[n], data[n], ctx.clock())
         measures += cm
         settled = n not in unsettled
-        ran = ("uptime not known (the rate alone tells)" if up[n] is None
-               else f"running {up[n]:.0f} min (warm-up {warm[n]:g} min)")
-        lines.append(f"  {n}: {_rate_text(f)} ({window.describe()}), {ran}: "
-                     + ("settled" if settled else "NOT settled"))
-        lines.append(f"  {n}: {judged[n].why}" + (f" ({cwin.describe()})" if judged[n].known else "") + ": "
-                     + ("settled" if judged[n].settled else "NOT settled" if judged[n].known else "not known"))
+        ran = (
+            "uptime not known (the rate alone tells)"
+            if up[n] is None
+            else f"running {up[n]:.0f} min (warm-up {warm[n]:g} min)"
+        )
+        lines.append(
+            f"  {n}: {_rate_text(f)} ({window.describe()}), {ran}: " + ("settled" if settled else "NOT settled")
+        )
+        lines.append(
+            f"  {n}: {judged[n].why}"
+            + (f" ({cwin.describe()})" if judged[n].known else "")
+            + ": "
+            + ("settled" if judged[n].settled else "NOT settled" if judged[n].known else "not known")
+        )
         later += cadvice
         if settled:
             continue
         if f.rate is None:
-            advice.append(f"{n}: no wall markers seen with the LED on: the rate is not known (check its LED ring "
-                          "and aim)")
+            advice.append(
+                f"{n}: no wall markers seen with the LED on: the rate is not known (check its LED ring and aim)"
+            )
             continue
         m, why, least = settle_wait_min(f, limit, up[n], warm[n])
         data[n]["wait_min"], data[n]["wait_at_least"] = m, least
         until = "" if m is None else time.strftime("%H:%M", time.localtime(ctx.clock() + m * 60))
-        advice.append(f"{n} not settled ({why or _rate_text(f)}): " + (
-            f"wait {'at least' if least else 'about'} {_minutes(m)} (until {until})"
-            if m is not None else "wait and run it again"))
-    advice += later                       # the clocks' waits after the pictures'
+        advice.append(
+            f"{n} not settled ({why or _rate_text(f)}): "
+            + (
+                f"wait {'at least' if least else 'about'} {_minutes(m)} (until {until})"
+                if m is not None
+                else "wait and run it again"
+            )
+        )
+    advice += later  # the clocks' waits after the pictures'
     passed = not unsettled and not ticking
     tail = "; then `vts commission --resume`" if advice else ""
-    return Outcome("warmup", StepCheck("warmup", measures, lines, {"warmup": data}), passed,
-                   advice="; ".join(advice) + tail)
+    return Outcome(
+        "warmup", StepCheck("warmup", measures, lines, {"warmup": data}), passed, advice="; ".join(advice) + tail
+    )
 
 
 def _too_young(ctx: Context, up: dict, warm: dict, young: set) -> Outcome:
@@ -306,44 +382,72 @@ def _too_young(ctx: Context, up: dict, warm: dict, young: set) -> Outcome:
     measures, lines, advice, data = [], [], [], {}
     for n, m in up.items():
         is_young = n in young
-        measures += [Measure(n, "uptime_min", None if m is None else round(m, 1), "min",
-                             TOL if m is None or is_young else OK)]
+        measures += [
+            Measure(n, "uptime_min", None if m is None else round(m, 1), "min", TOL if m is None or is_young else OK)
+        ]
         if m is not None:
             measures.append(Measure(n, "warming_up", 1.0 if is_young else 0.0, "", TOL if is_young else OK))
         measures.append(Measure(n, "warmup_rate_px_min", None, "px/min", TOL))
         data[n] = {"uptime_min": m, "warmup_min": warm[n], "rate_px_min": None}
         ran = "uptime not known" if m is None else f"running {m:.0f} min (warm-up {warm[n]:g} min)"
-        lines.append(f"  {n}: {ran}" + (": NOT settled (the rate is not measured before its warm-up time is up)"
-                                          if is_young else ""))
+        lines.append(
+            f"  {n}: {ran}"
+            + (": NOT settled (the rate is not measured before its warm-up time is up)" if is_young else "")
+        )
         if is_young:
             left = warm[n] - m
             until = time.strftime("%H:%M", time.localtime(ctx.clock() + left * 60))
             data[n]["wait_min"], data[n]["wait_at_least"] = left, True
-            advice.append(f"{n} started {m:.0f} min ago, less than its {warm[n]:g} min warm-up time: wait at least "
-                          f"{_minutes(left)} (until {until}), its picture's rate is measured then")
-    return Outcome("warmup", StepCheck("warmup", measures, lines, {"warmup": data, "measured": False}), False,
-                   advice="; ".join(advice) + "; then `vts commission --resume`")
+            advice.append(
+                f"{n} started {m:.0f} min ago, less than its {warm[n]:g} min warm-up time: wait at least "
+                f"{_minutes(left)} (until {until}), its picture's rate is measured then"
+            )
+    return Outcome(
+        "warmup",
+        StepCheck("warmup", measures, lines, {"warmup": data, "measured": False}),
+        False,
+        advice="; ".join(advice) + "; then `vts commission --resume`",
+    )
 
 
 def _clock_figures(n, cfit, judged, cwin, climit, watch, data, now):
     """The clock's measures, stored figures and advice for camera ``n`` (procedures/warmup_clock.py)."""
     rate, change, signed = cfit
-    measures = [Measure(n, "warmup_clock_change_ppm_min", round(change.rate, 3) if judged.known else None,
-                        "ppm/min", judged.state),
-                Measure(n, "warmup_clock_rate_ppm", None if signed is None else round(signed, 2), "ppm",
-                        OK if rate.rate is not None else TOL)]
-    data["clock"] = {"change_ppm_min": change.rate, "change_se_ppm_min": change.se, "known": judged.known,
-                     "state": str(judged.state.value), "why": judged.why, "window": cwin.describe(),
-                     "rate_ppm": signed, "rate_se_ppm": rate.se, "tau_min": change.tau_min,
-                     "window_min": change.window_min, "samples": change.n,
-                     "readings": [(r.t, r.offset_s, r.uncertainty_s, r.method) for r in watch.readings]}
+    measures = [
+        Measure(
+            n, "warmup_clock_change_ppm_min", round(change.rate, 3) if judged.known else None, "ppm/min", judged.state
+        ),
+        Measure(
+            n,
+            "warmup_clock_rate_ppm",
+            None if signed is None else round(signed, 2),
+            "ppm",
+            OK if rate.rate is not None else TOL,
+        ),
+    ]
+    data["clock"] = {
+        "change_ppm_min": change.rate,
+        "change_se_ppm_min": change.se,
+        "known": judged.known,
+        "state": str(judged.state.value),
+        "why": judged.why,
+        "window": cwin.describe(),
+        "rate_ppm": signed,
+        "rate_se_ppm": rate.se,
+        "tau_min": change.tau_min,
+        "window_min": change.window_min,
+        "samples": change.n,
+        "readings": [(r.t, r.offset_s, r.uncertainty_s, r.method) for r in watch.readings],
+    }
     if not judged.known or judged.settled:
         return measures, []
     m, why, _ = settle_wait_min(change, climit, None, 0.0, "ppm/min", "its clock's change")
     data["clock"]["wait_min"] = m
     until = "" if m is None else time.strftime("%H:%M", time.localtime(now + m * 60))
-    return measures, [f"{n}'s clock not settled ({why}): "
-                      + (f"wait about {_minutes(m)} (until {until})" if m is not None else "wait and run it again")]
+    return measures, [
+        f"{n}'s clock not settled ({why}): "
+        + (f"wait about {_minutes(m)} (until {until})" if m is not None else "wait and run it again")
+    ]
 
 
 # ------------------------------------------------------------------ rig.yaml's calibration paths
@@ -361,10 +465,14 @@ def _point_rig(ctx: Context, step: str, key: str, file: Path, what: str) -> tupl
     try:
         backup = set_calibration(source, {key: file})
     except WriteFailed as exc:
-        err = WriteFailed(exc.path, exc.reason, f"{source} is unchanged (calibration.{key}: {old or 'none'}); the new "
-                          f"{what} is kept in {file}: `vts commission --from {step}` once {source} can be written")
+        err = WriteFailed(
+            exc.path,
+            exc.reason,
+            f"{source} is unchanged (calibration.{key}: {old or 'none'}); the new "
+            f"{what} is kept in {file}: `vts commission --from {step}` once {source} can be written",
+        )
         return f"{name} not changed: it could not be written", err
-    except VtsError as exc:      # changed by someone else meanwhile; a file that no longer loads
+    except VtsError as exc:  # changed by someone else meanwhile; a file that no longer loads
         return f"{name} not changed", type(exc)(f"{exc} (the new {what} is kept in {file})")
     if backup is None:
         note = f"{name} already points at {file} (calibration.{key})"
@@ -382,12 +490,21 @@ def calibration(ctx: Context) -> Outcome:
     """`vts calibrate cameras IMAGES`' procedure on the checkerboard images given."""
     inp = ctx.inputs
     if not inp.checkerboards:
-        raise _need("calibration", "--checkerboards DIR", "checkerboard images of every camera (DIR/cam1/01.png, "
-                    "... or cam1_01.png; each view seen by two cameras or more, 15-20 poses over the field of view)")
+        raise _need(
+            "calibration",
+            "--checkerboards DIR",
+            "checkerboard images of every camera (DIR/cam1/01.png, "
+            "... or cam1_01.png; each view seen by two cameras or more, 15-20 poses over the field of view)",
+        )
     ensure_dir(inp.out, "commissioning folder")
-    run = calibration_procedure.run(images=calibration_procedure.camera_images(list(inp.checkerboards)),
-                                    output=str(inp.calibration_file), pattern=inp.pattern, square=inp.square_mm,
-                                    unit="mm", previous=None)
+    run = calibration_procedure.run(
+        images=calibration_procedure.camera_images(list(inp.checkerboards)),
+        output=str(inp.calibration_file),
+        pattern=inp.pattern,
+        square=inp.square_mm,
+        unit="mm",
+        previous=None,
+    )
     run.tolerances = ctx.rig.tolerances
     ctx.say(run.results())
     if run.saved.error is not None:
@@ -396,7 +513,7 @@ def calibration(ctx: Context) -> Outcome:
     passed = not refused and run.state != ACT
     advice = refused or ("calibrate again: " + "; ".join(run.warnings) if not passed else "")
     notes, error = f"saved to {inp.calibration_file}", None
-    if passed and run.saved.written is not None:     # only a calibration that passed is pointed at
+    if passed and run.saved.written is not None:  # only a calibration that passed is pointed at
         note, error = _point_rig(ctx, "calibration", "cameras", run.saved.written, "calibration")
         notes, passed, advice = f"{notes}; {note}", error is None, str(error) if error else advice
     return Outcome("calibration", run, passed, advice=advice, notes=notes, error=error)
@@ -410,8 +527,11 @@ def mapping(ctx: Context) -> Outcome:
     calibrated cameras against the SPECT's reconstruction of it."""
     inp = ctx.inputs
     if not inp.phantom_volume:
-        raise _need("VTS → SPECT mapping", "--phantom-volume FILE", "the SPECT's reconstruction of the 7-sphere "
-                    "phantom lying where the cameras see it now")
+        raise _need(
+            "VTS → SPECT mapping",
+            "--phantom-volume FILE",
+            "the SPECT's reconstruction of the 7-sphere phantom lying where the cameras see it now",
+        )
     calib = camera_calibration_for(ctx.rig, str(inp.calibration_file), "the mapping")
     with _cameras(ctx, calibrated_cameras(ctx.rig, calib)) as cams:
         m = mapping_from_cameras(cams, calib, inp.phantom_volume, inp.frames, progress=lambda t: ctx.say(f"  {t}"))
@@ -421,10 +541,13 @@ def mapping(ctx: Context) -> Outcome:
         raise saved.error
     ctx.say(m.results())
     passed = m.state != ACT
-    advice = "" if passed else ("the mapping is in ACTION: check the phantom and its volume, then "
-                                "`vts commission --from mapping`")
+    advice = (
+        ""
+        if passed
+        else ("the mapping is in ACTION: check the phantom and its volume, then `vts commission --from mapping`")
+    )
     notes, error = f"saved to {inp.mapping_file}", None
-    if passed:                                       # a mapping in ACTION leaves calibration.mapping as it was
+    if passed:  # a mapping in ACTION leaves calibration.mapping as it was
         note, error = _point_rig(ctx, "mapping", "mapping", saved.written, "VTS → SPECT mapping")
         notes, passed, advice = f"{notes}; {note}", error is None, str(error) if error else advice
     return Outcome("mapping", m, passed, advice=advice, notes=notes, error=error)
@@ -437,17 +560,35 @@ def steps(ctx: Context) -> Outcome:
     """`vts qa steps --volumes DIR`: the operator moves the table when asked."""
     inp = ctx.inputs
     if not inp.step_volumes:
-        raise _need("step test", "--step-volumes DIR", "the folder the SPECT's reconstructions of the positions "
-                    "(baseline, V01 ..., A01 ..., free) are or will be exported to")
+        raise _need(
+            "step test",
+            "--step-volumes DIR",
+            "the folder the SPECT's reconstructions of the positions "
+            "(baseline, V01 ..., A01 ..., free) are or will be exported to",
+        )
     inputs = step_test_inputs(ctx.rig, str(inp.calibration_file), str(inp.mapping_file), inp.step_volumes)
     with _cameras(ctx, calibrated_cameras(ctx.rig, inputs.calibration)) as cams:
-        res = run_step_test(ctx.rig, inputs, inp.out / "steps", step_plan(inp.vertical, inp.axial), cameras=cams,
-                            frames=inp.frames, ask=ctx.ask, progress=lambda t: ctx.say(f"  {t}"))
+        res = run_step_test(
+            ctx.rig,
+            inputs,
+            inp.out / "steps",
+            step_plan(inp.vertical, inp.axial),
+            cameras=cams,
+            frames=inp.frames,
+            ask=ctx.ask,
+            progress=lambda t: ctx.say(f"  {t}"),
+        )
     ctx.say(res.analysis.results())
     if res.plot_error is not None:
         raise res.plot_error
-    return Outcome("steps", res.analysis, res.analysis.state != ACT, started=res.started, artifacts=res.artifacts,
-                   advice="the step test is in ACTION: see its figures; `vts commission --from steps` after the fix")
+    return Outcome(
+        "steps",
+        res.analysis,
+        res.analysis.state != ACT,
+        started=res.started,
+        artifacts=res.artifacts,
+        advice="the step test is in ACTION: see its figures; `vts commission --from steps` after the fix",
+    )
 
 
 # ------------------------------------------------------------------ 8. sync check
@@ -457,16 +598,24 @@ def sync(ctx: Context) -> Outcome:
     """`vts sync analyze SESSION --listmode FILE` on a scan recorded during a SPECT acquisition."""
     inp = ctx.inputs
     if not inp.sync_session or not inp.listmode:
-        raise _need("sync check", "--sync-session DIR and --listmode FILE",
-                    "record a scan with a source marker moved a few times along the table during a SPECT list-mode "
-                    "acquisition (`vts scan start --duration 30 -o DIR`)")
+        raise _need(
+            "sync check",
+            "--sync-session DIR and --listmode FILE",
+            "record a scan with a source marker moved a few times along the table during a SPECT list-mode "
+            "acquisition (`vts scan start --duration 30 -o DIR`)",
+        )
     check_session(inp.sync_session)
     a = SyncAnalysis(inp.sync_session, list(inp.listmode), inp.calibration_file, inp.mapping_file)
     a.analyze(tolerances=ctx.rig.tolerances)
     ctx.say(a.results())
-    return Outcome("sync", a, a.state != ACT, notes=f"session {inp.sync_session}",
-                   advice="the sync check is in ACTION: see its events; record another scan and "
-                          "`vts commission --from sync` with it")
+    return Outcome(
+        "sync",
+        a,
+        a.state != ACT,
+        notes=f"session {inp.sync_session}",
+        advice="the sync check is in ACTION: see its events; record another scan and "
+        "`vts commission --from sync` with it",
+    )
 
 
 # ------------------------------------------------------------------ 9. drift baseline

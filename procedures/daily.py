@@ -18,19 +18,19 @@ before the cameras are measured, then one transaction); this script never holds 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 from vts_hw.camera import CameraError, Parameters, Refused, RunningTime
+from vts_hw.catalog import qa_set_name
 from vts_hw.errors import UsageError, VtsError
 from vts_hw.files import filled_folder, write_atomic
-from vts_hw.catalog import qa_set_name
 from vts_hw.procedures.daily_plot import daily_png
-from vts_hw.results import Measure
-from vts_hw.tolerance import State, Window, merged_tolerances, worst
 from vts_hw.procedures.drift import DriftAnalysis
 from vts_hw.procedures.marker_room import room_of_rig
+from vts_hw.results import Measure
+from vts_hw.tolerance import State, Window, merged_tolerances, worst
 from vts_hw.vision.wall_baseline import NoBaseline
 
 EXIT_CODES = {State.OK: 0, State.TOLERANCE: 10, State.ACTION: 20}
@@ -61,7 +61,7 @@ class CameraResult:
     measures: list[Measure] = field(default_factory=list)
     problems: list[str] = field(default_factory=list)
     drift: DriftAnalysis | None = None
-    drift_at: tuple = ()      # where the drift's measures and problems start (they are made again by place)
+    drift_at: tuple = ()  # where the drift's measures and problems start (they are made again by place)
 
     @property
     def state(self) -> State:
@@ -76,9 +76,9 @@ class QAResult:
     cameras: list[CameraResult]
     artifacts: list[str] = field(default_factory=list)
     finished: float | None = None
-    store_error: str | None = None   # the store could not take the run: its figures are here only
-    windows: dict = field(default_factory=dict)   # the tolerance windows the run was judged by
-    room_why: str = ""   # why the still markers not in a baseline were not placed in the room ("" when they were)
+    store_error: str | None = None  # the store could not take the run: its figures are here only
+    windows: dict = field(default_factory=dict)  # the tolerance windows the run was judged by
+    room_why: str = ""  # why the still markers not in a baseline were not placed in the room ("" when they were)
 
     @property
     def state(self) -> State:
@@ -95,12 +95,24 @@ class QAResult:
 
     def results_data(self) -> dict:
         return {
-            "procedure": self.procedure, "run_id": self.run_id, "started": self.started, "state": str(self.state),
-            "cameras": [{"camera": c.camera, "state": str(c.state), "problems": c.problems,
-                         "measurements": [{"subject": s, "metric": m, "value": v, "unit": u, "state": str(st)}
-                                          for s, m, v, u, st in c.measures if "/" not in s],
-                         "drift": c.drift.results_data() if c.drift is not None and c.drift.analyzed else None}
-                        for c in self.cameras],
+            "procedure": self.procedure,
+            "run_id": self.run_id,
+            "started": self.started,
+            "state": str(self.state),
+            "cameras": [
+                {
+                    "camera": c.camera,
+                    "state": str(c.state),
+                    "problems": c.problems,
+                    "measurements": [
+                        {"subject": s, "metric": m, "value": v, "unit": u, "state": str(st)}
+                        for s, m, v, u, st in c.measures
+                        if "/" not in s
+                    ],
+                    "drift": c.drift.results_data() if c.drift is not None and c.drift.analyzed else None,
+                }
+                for c in self.cameras
+            ],
             "artifacts": self.artifacts,
             **({"store_error": self.store_error} if self.store_error else {}),
             **({"markers_not_placed": self.room_why} if self.room_why else {}),
@@ -123,7 +135,7 @@ class QAResult:
             for p in c.problems:
                 lines.append(f"      ! {p}")
             d = c.drift
-            for x, y, r in (d.others if d is not None and d.analyzed else []):
+            for x, y, r in d.others if d is not None and d.analyzed else []:
                 lines.append(f"      not a wall marker at ({x:.0f}, {y:.0f}) px: {r.role}, {r.reason}")
         if self.room_why:
             lines.append(f"  still markers not in a baseline were not placed: {self.room_why}")
@@ -134,11 +146,21 @@ class QARun:
     """One QA run over the cameras of a rig. ``steps`` chooses the checks (default: all);
     ``baselines`` (camera name -> Baseline) are the drift step's, read by the caller."""
 
-    def __init__(self, rig, *, baselines=None, steps=STEPS, cameras: list[str] | None = None, n_frames: int = 5,
-                 clock: Callable[[], float] = time.time, artifacts_dir: str | Path | None = None,
-                 plots: bool = False, open_camera: Callable | None = None,
-                 progress: Callable[[str], None] | None = None,
-                 on_step: Callable[[QAStep], None] | None = None):
+    def __init__(
+        self,
+        rig,
+        *,
+        baselines=None,
+        steps=STEPS,
+        cameras: list[str] | None = None,
+        n_frames: int = 5,
+        clock: Callable[[], float] = time.time,
+        artifacts_dir: str | Path | None = None,
+        plots: bool = False,
+        open_camera: Callable | None = None,
+        progress: Callable[[str], None] | None = None,
+        on_step: Callable[[QAStep], None] | None = None,
+    ):
         self.rig = rig
         self.baselines = dict(baselines or {})
         self.steps = tuple(steps)
@@ -165,24 +187,30 @@ class QARun:
         for name in self.camera_names:
             cfg = self.rig.camera(name)
             if "reachable" in self.steps:
-                out.append(f"{name}: ask {cfg.base_url} for its device info and uptime "
-                           f"(warm-up {getattr(cfg, 'warmup_min', 30.0):g} min)")
+                out.append(
+                    f"{name}: ask {cfg.base_url} for its device info and uptime "
+                    f"(warm-up {getattr(cfg, 'warmup_min', 30.0):g} min)"
+                )
             if "params" in self.steps:
                 locked = ", ".join(f"{k}={v}" for k, v in self.locked(cfg).items())
                 out.append(f"{name}: check the locked parameters ({locked})")
             if "clock" in self.steps:
                 out.append(f"{name}: measure its clock against this host")
             if "drift" in self.steps:
-                out.append(f"{name}: LED on, {self.n_frames} snapshots; LED off, 1 snapshot; LED on; "
-                           f"detect the wall markers and compare with the baseline")
+                out.append(
+                    f"{name}: LED on, {self.n_frames} snapshots; LED off, 1 snapshot; LED on; "
+                    f"detect the wall markers and compare with the baseline"
+                )
         out.append(f"store the run ({self.procedure}) in {where}")
         return out
 
     @staticmethod
     def locked(cfg) -> dict[str, str]:
-        values = {"Image.I0.Appearance.Resolution": cfg.resolution_str,
-                  "Image.I0.Appearance.Compression": str(cfg.compression),
-                  "Image.I0.Stream.FPS": f"{cfg.fps:g}"}
+        values = {
+            "Image.I0.Appearance.Resolution": cfg.resolution_str,
+            "Image.I0.Appearance.Compression": str(cfg.compression),
+            "Image.I0.Stream.FPS": f"{cfg.fps:g}",
+        }
         values.update(getattr(cfg, "locked_params", {}) or {})
         return values
 
@@ -210,10 +238,11 @@ class QARun:
         before = [str(r.state) for r in results]
         room_why = place_others(results, self.rig) if "drift" in self.steps else ""
         for i, (res, was) in enumerate(zip(results, before), 1):
-            if str(res.state) != was:      # a stray found on the table: the camera's state, said again
+            if str(res.state) != was:  # a stray found on the table: the camera's state, said again
                 self.on_step(QAStep(res.camera, i, len(self.camera_names), "done", state=str(res.state)))
-        result = QAResult(self.procedure, None, now, results, finished=self.clock(), windows=self.tolerances,
-                          room_why=room_why)
+        result = QAResult(
+            self.procedure, None, now, results, finished=self.clock(), windows=self.tolerances, room_why=room_why
+        )
         result.artifacts = self._save_all_artifacts(run_id, results, result)
         return result
 
@@ -250,9 +279,10 @@ class QARun:
                     self._warmup(cam, cfg, out, add)
                 if "params" in self.steps:
                     step("params")
-                    if not isinstance(cam, Parameters):   # e.g. a replayed recording: nothing to lock
-                        out.problems.append(f"parameters not checked: camera {cfg.name} (kind {cfg.kind}) "
-                                            f"has no parameters")
+                    if not isinstance(cam, Parameters):  # e.g. a replayed recording: nothing to lock
+                        out.problems.append(
+                            f"parameters not checked: camera {cfg.name} (kind {cfg.kind}) has no parameters"
+                        )
                     else:
                         changed = self._params(cam, cfg, out)
                         add("params_changed", float(changed), "params")
@@ -265,9 +295,11 @@ class QARun:
 
                     def frame_taken(frame, led_on, taken, needed):
                         step("drift", taken=taken, needed=needed, frame=frame)
-                    d = DriftAnalysis.acquire(cam, baseline, self.n_frames, on_frame=frame_taken,
-                                              mm_per_px=mm).analyze(tol)
-                    d.look_longer(cam, on_frame=frame_taken)   # strays: a breath's frames more
+
+                    d = DriftAnalysis.acquire(cam, baseline, self.n_frames, on_frame=frame_taken, mm_per_px=mm).analyze(
+                        tol
+                    )
+                    d.look_longer(cam, on_frame=frame_taken)  # strays: a breath's frames more
                     out.drift = d
                     out.drift_at = (len(out.measures), len(out.problems))
                     _drift_into(out, d)
@@ -283,8 +315,9 @@ class QARun:
         ``warming_up`` (1: its drift may not have settled), neither of which changes the state."""
         warm = float(getattr(cfg, "warmup_min", 30.0))
         if not isinstance(cam, RunningTime):
-            out.problems.append("uptime not known (this kind of camera does not tell it): whether its drift "
-                                "has settled is not known")
+            out.problems.append(
+                "uptime not known (this kind of camera does not tell it): whether its drift has settled is not known"
+            )
             return
         try:
             up = cam.uptime()
@@ -293,11 +326,13 @@ class QARun:
             return
         minutes = up.seconds / 60.0
         add("uptime_min", round(minutes, 1), "min")
-        warming = minutes < warm   # a coarse uptime (whole minutes) counts its lower end: may still be warming
+        warming = minutes < warm  # a coarse uptime (whole minutes) counts its lower end: may still be warming
         add("warming_up", 1.0 if warming else 0.0, "")
         if warming:
-            out.problems.append(f"started {minutes:.0f} min ago, less than its warm-up time ({warm:g} min): "
-                                f"its drift may not have settled (about {warm - minutes:.0f} min to go)")
+            out.problems.append(
+                f"started {minutes:.0f} min ago, less than its warm-up time ({warm:g} min): "
+                f"its drift may not have settled (about {warm - minutes:.0f} min to go)"
+            )
 
     def _params(self, cam, cfg, out: CameraResult) -> int:
         changed = 0
@@ -337,9 +372,10 @@ class QARun:
     def _save_artifacts(self, run_id: int | None, res: CameraResult) -> list[Path]:
         if self.artifacts_dir is None or res.drift is None:
             return []
-        d = self.artifacts_dir / (f"run{run_id:06d}" if run_id is not None else
-                                  f"unsaved-{int(self.clock())}-{res.camera}")
-        with filled_folder(d, "artifacts folder"):      # (none left empty by a full disk)
+        d = self.artifacts_dir / (
+            f"run{run_id:06d}" if run_id is not None else f"unsaved-{int(self.clock())}-{res.camera}"
+        )
+        with filled_folder(d, "artifacts folder"):  # (none left empty by a full disk)
             paths = [write_atomic(d / f"{res.camera}-led-on.jpg", res.drift.frames_on[0].jpeg)]
             if res.drift.frame_off is not None:
                 paths.append(write_atomic(d / f"{res.camera}-led-off.jpg", res.drift.frame_off.jpeg))

@@ -35,7 +35,7 @@ def daily_figure(result, windows: dict):
             _box(ax, wx.tolerance_low, wx.tolerance_high, "--", "tolerance")
             _box(ax, wx.action_low, wx.action_high, ":", "action")
         colour = STATE_COLOURS.get(c.state, "k")
-        own = [(m, v, u, st) for s, m, v, u, st in c.measures if "/" not in s]   # per marker rows skipped
+        own = [(m, v, u, st) for s, m, v, u, st in c.measures if "/" not in s]  # per marker rows skipped
         values = {m: v for m, v, _, _ in own}
         dx, dy = values.get("drift_x_px"), values.get("drift_y_px")
         if dx is not None and dy is not None and not (math.isnan(dx) or math.isnan(dy)):
@@ -46,7 +46,7 @@ def daily_figure(result, windows: dict):
         else:
             ax.text(0, 0, "no drift\nmeasured", ha="center", va="center", fontsize=8, color=colour)
         ax.set_xlim(-reach, reach)
-        ax.set_ylim(reach, -reach)        # image rows grow downwards
+        ax.set_ylim(reach, -reach)  # image rows grow downwards
         ax.set_aspect("equal")
         ax.axhline(0, color="0.85", lw=0.6, zorder=0)
         ax.axvline(0, color="0.85", lw=0.6, zorder=0)
@@ -55,12 +55,19 @@ def daily_figure(result, windows: dict):
             ax.set_ylabel("drift y (px)")
             ax.legend(fontsize=7, loc="lower left", frameon=False)
         ax.set_title(f"{c.camera}: {c.state}", color=colour, fontsize=10)
-        checks = [f"{m} {_value(v)} {u}".rstrip() + ("" if st == State.OK else f"  {st}")
-                  for m, v, u, st in own if not m.startswith("drift_")]
+        checks = [
+            f"{m} {_value(v)} {u}".rstrip() + ("" if st == State.OK else f"  {st}")
+            for m, v, u, st in own
+            if not m.startswith("drift_")
+        ]
         checks += [f"! {p}" for p in c.problems]
         ax.text(0.0, -0.22, "\n".join(checks[:8]), transform=ax.transAxes, va="top", fontsize=7, family="monospace")
-    fig.suptitle(f"{result.procedure} QA: {result.state}" + (f" (run {result.run_id})" if result.run_id else "")
-                 + f", vts-hw {__version__}", fontsize=10)
+    fig.suptitle(
+        f"{result.procedure} QA: {result.state}"
+        + (f" (run {result.run_id})" if result.run_id else "")
+        + f", vts-hw {__version__}",
+        fontsize=10,
+    )
     fig.subplots_adjust(bottom=0.36, top=0.86, wspace=0.35)
     return fig
 

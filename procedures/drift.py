@@ -25,18 +25,18 @@ import numpy as np
 
 from vts_hw import __version__
 from vts_hw.camera import Frame, Illumination
-from vts_hw.figures import figure_png
-from vts_hw.vision.detect import DetectorSettings, detect_jpeg
-from vts_hw.vision.marker_roles import MOVE_FLOOR_PX, PATIENT, Role, follow, roles_of_tracks
-from vts_hw.vision.marker_roles import GATE_PX, match_markers as _match  # noqa: F401
-from vts_hw.vision.wall_baseline import Baseline, BaselineMarker  # noqa: F401
 from vts_hw.catalog import DRIFT
 from vts_hw.errors import DataError
+from vts_hw.figures import figure_png
 from vts_hw.results import Measure
 from vts_hw.tolerance import DEFAULT_TOLERANCES, State, Window, worst
+from vts_hw.vision.detect import DetectorSettings, detect_jpeg
+from vts_hw.vision.marker_roles import GATE_PX, MOVE_FLOOR_PX, PATIENT, Role, follow, roles_of_tracks  # noqa: F401
+from vts_hw.vision.marker_roles import match_markers as _match
+from vts_hw.vision.wall_baseline import Baseline, BaselineMarker  # noqa: F401
 
-LED_SETTLE_S = 0.1      # time for the LED ring to switch before the next frame is taken
-SPAN_S = 3.0            # frames spread over this see a breathing marker move: half a slow breath (3-6 s)
+LED_SETTLE_S = 0.1  # time for the LED ring to switch before the next frame is taken
+SPAN_S = 3.0  # frames spread over this see a breathing marker move: half a slow breath (3-6 s)
 _STRAY_REASONS = ("roundness", "border", "crowded", "truncated", "too many")
 
 
@@ -57,14 +57,20 @@ class MarkerDrift:
         return float(dx.mean()), float(dy.mean()), sdx, sdy
 
 
-
 class DriftAnalysis:
     """Drift of one camera against its baseline, from LED-on frames and an LED-off frame."""
 
     procedure = DRIFT.name
 
-    def __init__(self, camera: str, baseline: Baseline, frames_on: list[Frame], frame_off: Frame | None,
-                 mm_per_px: float = 1.25, settings: DetectorSettings | None = None):
+    def __init__(
+        self,
+        camera: str,
+        baseline: Baseline,
+        frames_on: list[Frame],
+        frame_off: Frame | None,
+        mm_per_px: float = 1.25,
+        settings: DetectorSettings | None = None,
+    ):
         self.camera = camera
         self.baseline = baseline
         self.frames_on = frames_on
@@ -75,21 +81,22 @@ class DriftAnalysis:
 
     # -- load ----------------------------------------------------------------------------
     @classmethod
-    def from_frames(cls, camera: str, baseline: Baseline, jpegs_on: list[bytes], jpeg_off: bytes | None,
-                    **kwargs) -> "DriftAnalysis":
+    def from_frames(
+        cls, camera: str, baseline: Baseline, jpegs_on: list[bytes], jpeg_off: bytes | None, **kwargs
+    ) -> DriftAnalysis:
         on = [Frame(i, j, None, 0.0) for i, j in enumerate(jpegs_on)]
         off = Frame(0, jpeg_off, None, 0.0) if jpeg_off is not None else None
         return cls(camera, baseline, on, off, **kwargs)
 
     @classmethod
-    def acquire(cls, cam, baseline: Baseline, n_frames: int = 5, on_frame=None, **kwargs) -> "DriftAnalysis":
+    def acquire(cls, cam, baseline: Baseline, n_frames: int = 5, on_frame=None, **kwargs) -> DriftAnalysis:
         """LED on, ``n_frames`` snapshots, LED off, one snapshot, LED back on (``on_frame``:
         as :func:`acquire_led_frames`)."""
         frames_on, frame_off = acquire_led_frames(cam, n_frames, on_frame=on_frame)
         return cls(cam.name, baseline, frames_on, frame_off, **kwargs)
 
     # -- analyze -------------------------------------------------------------------------
-    def analyze(self, tolerances: dict[str, Window] | None = None) -> "DriftAnalysis":
+    def analyze(self, tolerances: dict[str, Window] | None = None) -> DriftAnalysis:
         tol = dict(DEFAULT_TOLERANCES)
         tol.update(tolerances or {})
         self.tolerances = tol
@@ -112,8 +119,11 @@ class DriftAnalysis:
                 md.dy.append(float(pts[j][1] - ref[i][1]))
             unmatched.append(pts[[j for j in range(len(pts)) if j not in matched]])
             # rejected candidates that are real bright things (not specks of noise) are strays too
-            rejected += [(b.x, b.y) for b, why in res.rejected
-                         if why in _STRAY_REASONS or (why == "area" and b.area > self.settings.max_area)]
+            rejected += [
+                (b.x, b.y)
+                for b, why in res.rejected
+                if why in _STRAY_REASONS or (why == "area" and b.area > self.settings.max_area)
+            ]
         n = len(self.frames_on)
         # the markers that are not the baseline's, each known by what it is (vision/marker_roles.py):
         # one that moved over the frames is the patient's, never a stray; a still one is a stray
@@ -147,11 +157,11 @@ class DriftAnalysis:
             pts = np.array([(b.x, b.y) for b in res.blobs]).reshape(-1, 2)
             self.led_off_visible = len(_match(ref, pts, GATE_PX))
         self._measure()
-        self.analyzed_at = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+        self.analyzed_at = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
         self.analyzed = True
         return self
 
-    def look_longer(self, cam, frames: int = 4, span_s: float = SPAN_S, on_frame=None) -> "DriftAnalysis":
+    def look_longer(self, cam, frames: int = 4, span_s: float = SPAN_S, on_frame=None) -> DriftAnalysis:
         """When markers neither the baseline's nor seen moving are in view (:attr:`strays`):
         ``frames`` more LED-on snapshots over ``span_s`` (the LED was left on), and the analysis
         made again over every frame: a patient's marker still over a few quick frames moves over
@@ -167,7 +177,7 @@ class DriftAnalysis:
                 on_frame(self.frames_on[-1], True, k + 1, frames)
         return self.analyze(self.tolerances)
 
-    def place(self, roles) -> "DriftAnalysis":
+    def place(self, roles) -> DriftAnalysis:
         """Rule 2 for the markers that are not the baseline's (:attr:`candidates`, in order;
         ``roles`` from :meth:`vts_hw.vision.marker_roles.Room.place`): one on the table (the
         phantom, a patient holding still) is no stray (one that moved is already the patient's);
@@ -234,37 +244,55 @@ class DriftAnalysis:
     def results_data(self) -> dict:
         self._need()
         return {
-            "procedure": self.procedure, "camera": self.camera, "state": str(self.state),
-            "software_version": __version__, "analyzed": self.analyzed_at,
-            "baseline": {"taken": self.baseline.taken, "run_id": self.baseline.run_id,
-                         "markers": [m.__dict__ for m in self.baseline.markers]},
-            "frames": len(self.frames_on), "mm_per_px": self.mm_per_px,
+            "procedure": self.procedure,
+            "camera": self.camera,
+            "state": str(self.state),
+            "software_version": __version__,
+            "analyzed": self.analyzed_at,
+            "baseline": {
+                "taken": self.baseline.taken,
+                "run_id": self.baseline.run_id,
+                "markers": [m.__dict__ for m in self.baseline.markers],
+            },
+            "frames": len(self.frames_on),
+            "mm_per_px": self.mm_per_px,
             "drift_px": {"x": _r(self.drift_px[0]), "y": _r(self.drift_px[1])},
             "drift_mm": {"x": _r(self.drift_px[0] * self.mm_per_px), "y": _r(self.drift_px[1] * self.mm_per_px)},
             "spread_between_markers_px": {"x": _r(self.spread_px[0]), "y": _r(self.spread_px[1])},
-            "markers": [{"id": m.id, "found": m.found, **dict(zip(("dx_px", "dy_px", "sd_x_px", "sd_y_px"),
-                                                                 map(_r, m.stats())))}
-                        for m in self.markers],
+            "markers": [
+                {
+                    "id": m.id,
+                    "found": m.found,
+                    **dict(zip(("dx_px", "dy_px", "sd_x_px", "sd_y_px"), map(_r, m.stats()))),
+                }
+                for m in self.markers
+            ],
             "missing": self.missing,
             "strays": [{"x": _r(x), "y": _r(y)} for x, y in self.strays],
             "not_wall": [{"x": _r(x), "y": _r(y), **r.to_dict()} for x, y, r in self.others],
             "moved_near": self.moved_near,
             "led_off_visible": self.led_off_visible,
-            "measurements": [{"subject": m.subject, "metric": m.metric, "value": _r(m.value), "unit": m.unit,
-                              "state": str(m.state)} for m in self.measures],
+            "measurements": [
+                {"subject": m.subject, "metric": m.metric, "value": _r(m.value), "unit": m.unit, "state": str(m.state)}
+                for m in self.measures
+            ],
         }
 
     def results(self) -> str:
         self._need()
         d = self.results_data()
-        lines = [f"Wall-marker drift, camera {self.camera}: {self.state}",
-                 f"  {len(self.frames_on)} frames against the baseline of "
-                 f"{_date(self.baseline.taken)} ({len(self.baseline.markers)} markers)",
-                 f"  drift x {_f(self.drift_px[0])} px ({_f(d['drift_mm']['x'])} mm at the wall), "
-                 f"y {_f(self.drift_px[1])} px ({_f(d['drift_mm']['y'])} mm)"]
+        lines = [
+            f"Wall-marker drift, camera {self.camera}: {self.state}",
+            f"  {len(self.frames_on)} frames against the baseline of "
+            f"{_date(self.baseline.taken)} ({len(self.baseline.markers)} markers)",
+            f"  drift x {_f(self.drift_px[0])} px ({_f(d['drift_mm']['x'])} mm at the wall), "
+            f"y {_f(self.drift_px[1])} px ({_f(d['drift_mm']['y'])} mm)",
+        ]
         for m in d["markers"]:
-            lines.append(f"    {m['id']}: dx {_f(m['dx_px'])} ± {_f(m['sd_x_px'])} px, dy {_f(m['dy_px'])} ± "
-                         f"{_f(m['sd_y_px'])} px, found in {m['found']}/{len(self.frames_on)} frames")
+            lines.append(
+                f"    {m['id']}: dx {_f(m['dx_px'])} ± {_f(m['sd_x_px'])} px, dy {_f(m['dy_px'])} ± "
+                f"{_f(m['sd_y_px'])} px, found in {m['found']}/{len(self.frames_on)} frames"
+            )
         if self.missing:
             lines.append(f"  MISSING markers: {', '.join(self.missing)}")
         for s in d["strays"]:
@@ -274,8 +302,14 @@ class DriftAnalysis:
         for mid in self.moved_near:
             lines.append(f"  {mid}: what was found there moved over the frames (not the wall marker): not found")
         if self.led_off_visible is not None:
-            lines.append("  LED check: " + ("markers vanish with the LED off (OK)" if self.led_off_visible == 0 else
-                                           f"{self.led_off_visible} marker(s) still bright with the LED off"))
+            lines.append(
+                "  LED check: "
+                + (
+                    "markers vanish with the LED off (OK)"
+                    if self.led_off_visible == 0
+                    else f"{self.led_off_visible} marker(s) still bright with the LED off"
+                )
+            )
         else:
             lines.append("  LED check: not made (no LED-off frame; e.g. a camera that cannot switch its LED)")
         for m in self.measures:
@@ -288,6 +322,7 @@ class DriftAnalysis:
         from baseline to current, ``arrow_scale`` times longer than the drift."""
         import cv2
         import matplotlib
+
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
@@ -304,32 +339,43 @@ class DriftAnalysis:
             mx, my, _, _ = m.stats()
             if not math.isnan(mx):
                 ax.plot(bx + mx, by + my, "x", color="#ffb74d", ms=9, mew=1.5)
-                ax.annotate("", xy=(bx + arrow_scale * mx, by + arrow_scale * my), xytext=(bx, by),
-                            arrowprops=dict(arrowstyle="->", color="#ffb74d", lw=1.5))
+                ax.annotate(
+                    "",
+                    xy=(bx + arrow_scale * mx, by + arrow_scale * my),
+                    xytext=(bx, by),
+                    arrowprops=dict(arrowstyle="->", color="#ffb74d", lw=1.5),
+                )
             else:
                 ax.plot(bx, by, "o", mfc="none", mec="red", ms=18)
         for x, y in self.strays:
             ax.plot(x, y, "s", mfc="none", mec="red", ms=14)
         from matplotlib.lines import Line2D
-        ax.legend(handles=[Line2D([], [], ls="", marker="+", color="#4fc3f7", ms=10, label="baseline"),
-                           Line2D([], [], ls="", marker="x", color="#ffb74d", ms=8, label="today"),
-                           Line2D([], [], color="#ffb74d", label=f"drift ×{arrow_scale:g}"),
-                           Line2D([], [], ls="", marker="o", mfc="none", mec="red", ms=10,
-                                  label="missing / stray")],
-                  loc="lower right", fontsize=8, framealpha=0.8)
-        ax.set_title(f"{self.camera}: drift x {_f(self.drift_px[0])} px, y {_f(self.drift_px[1])} px "
-                     f"({self.state}); arrows ×{arrow_scale:g}")
+
+        ax.legend(
+            handles=[
+                Line2D([], [], ls="", marker="+", color="#4fc3f7", ms=10, label="baseline"),
+                Line2D([], [], ls="", marker="x", color="#ffb74d", ms=8, label="today"),
+                Line2D([], [], color="#ffb74d", label=f"drift ×{arrow_scale:g}"),
+                Line2D([], [], ls="", marker="o", mfc="none", mec="red", ms=10, label="missing / stray"),
+            ],
+            loc="lower right",
+            fontsize=8,
+            framealpha=0.8,
+        )
+        ax.set_title(
+            f"{self.camera}: drift x {_f(self.drift_px[0])} px, y {_f(self.drift_px[1])} px "
+            f"({self.state}); arrows ×{arrow_scale:g}"
+        )
         ax.set_xlim(0, img.shape[1])
         ax.set_ylim(img.shape[0], 0)
         fig.tight_layout()
         if path is not None:
-            figure_png(fig, path, dpi=fig.dpi)   # whole or not at all (a full disk: WriteFailed)
+            figure_png(fig, path, dpi=fig.dpi)  # whole or not at all (a full disk: WriteFailed)
             plt.close(fig)
         return fig
 
 
-def acquire_led_frames(cam, n_frames: int = 5, settle_s: float = LED_SETTLE_S, on_frame=None,
-                       every_s: float = 0.0):
+def acquire_led_frames(cam, n_frames: int = 5, settle_s: float = LED_SETTLE_S, on_frame=None, every_s: float = 0.0):
     """LED on, ``n_frames`` snapshots (``every_s`` apart at least: the baseline spreads them over
     a breath), LED off, one snapshot; the LED is left on.
 
@@ -388,4 +434,4 @@ def _f(v) -> str:
 
 
 def _date(t: float) -> str:
-    return _dt.datetime.fromtimestamp(t, _dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    return _dt.datetime.fromtimestamp(t, _dt.UTC).strftime("%Y-%m-%d %H:%M UTC")

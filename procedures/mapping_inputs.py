@@ -8,8 +8,8 @@ What `vts calibrate spect --from-cameras` runs; a script calls the same.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Callable, Sequence
 
 from vts_hw.camera import Illumination
 from vts_hw.errors import ConfigError, DataError
@@ -25,8 +25,10 @@ def camera_calibration_for(rig, calibration_path=None, what: str = "--from-camer
     when there is none or the rig has fewer than two cameras (``what`` needs them)."""
     path = calibration_path or rig.calibration.stereo
     if path is None:
-        raise ConfigError("no camera calibration: give --calibration or set calibration.cameras in the "
-                          "rig config (`vts calibrate stereo` or `vts calibrate cameras`).")
+        raise ConfigError(
+            "no camera calibration: give --calibration or set calibration.cameras in the "
+            "rig config (`vts calibrate stereo` or `vts calibrate cameras`)."
+        )
     if len(rig.cameras) < 2:
         raise ConfigError(f"{what} needs two cameras in the rig config.")
     return load_calibration(path)
@@ -42,8 +44,9 @@ def calibrated_cameras(rig, calibration) -> list:
     return [c for c in rig.cameras if c.name in names]
 
 
-def mapping_from_cameras(cameras: Sequence, calibration, volume, frames: int = 10,
-                         progress: Callable[[str], None] | None = None):
+def mapping_from_cameras(
+    cameras: Sequence, calibration, volume, frames: int = 10, progress: Callable[[str], None] | None = None
+):
     """The analysed mapping, its VTS side measured now: per camera LED on, ``frames``
     snapshots, centroids averaged; the spheres picked out by the shape of the SPECT's, seen
     by every camera given (two or more, named as in the calibration or the rig)."""
@@ -53,11 +56,12 @@ def mapping_from_cameras(cameras: Sequence, calibration, volume, frames: int = 1
         raise DataError(f"{volume}: no such file or directory.")
     pts = {}
     for k, cam in enumerate(cameras):
-        if isinstance(cam, Illumination):   # a camera without an LED (a replay) shows its frames as they are
+        if isinstance(cam, Illumination):  # a camera without an LED (a replay) shows its frames as they are
             cam.led_on()
             time.sleep(LED_SETTLE_S)
         if progress:
             progress(f"{cam.name}: {frames} snapshots")
         pts[getattr(cam, "name", None) or f"cam{k + 1}"] = average_centroids(
-            [detect_jpeg(cam.snapshot(SNAPSHOT_COMPRESSION).jpeg) for _ in range(frames)])
+            [detect_jpeg(cam.snapshot(SNAPSHOT_COMPRESSION).jpeg) for _ in range(frames)]
+        )
     return SpectMapping.from_views(calibration, pts, volume).analyze()

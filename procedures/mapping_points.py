@@ -38,9 +38,11 @@ def read_points(path) -> np.ndarray:
         if isinstance(data, dict) and "points" in data:
             data = data["points"]
         if not isinstance(data, list) or not all(
-                isinstance(p, list) and len(p) == 3
-                and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in p)
-                for p in data):
+            isinstance(p, list)
+            and len(p) == 3
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in p)
+            for p in data
+        ):
             raise DataError(f"{path}: expected a JSON list of [x, y, z] points in mm.")
         try:
             pts = np.array(data, dtype=float).reshape(-1, 3)
@@ -53,21 +55,19 @@ def read_points(path) -> np.ndarray:
         header = [c.strip().lower() for c in rows[0]]
         missing = [k for k in ("x", "y", "z") if k not in header]
         if missing:
-            raise DataError(f"{path}: the header {','.join(rows[0])!r} lacks column(s) "
-                            f"{','.join(missing)}; expected x,y,z (mm).")
+            raise DataError(
+                f"{path}: the header {','.join(rows[0])!r} lacks column(s) {','.join(missing)}; expected x,y,z (mm)."
+            )
         cols = [header.index(k) for k in ("x", "y", "z")]
         pts_list = []
         for n, row in enumerate(rows[1:], start=2):
             try:
                 pts_list.append([float(row[c]) for c in cols])
             except (IndexError, ValueError):
-                raise DataError(f"{path}, line {n}: {','.join(row)!r} is not three numbers "
-                                "x,y,z.") from None
+                raise DataError(f"{path}, line {n}: {','.join(row)!r} is not three numbers x,y,z.") from None
         pts = np.array(pts_list, dtype=float).reshape(-1, 3)
     if len(pts) == 0:
         raise DataError(f"{path}: no points.")
     if not np.all(np.isfinite(pts)):
         raise DataError(f"{path}: non-finite coordinates.")
     return pts
-
-

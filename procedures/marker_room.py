@@ -38,6 +38,6 @@ def room_of_rig(rig) -> tuple[Room | None, str]:
         return None, f"the calibration {cal.stereo} cannot be read ({exc}): {NO_ROOM}"
     try:
         locator = PhantomLocator(cams, phantom_template(mapping))
-    except VtsError:          # a mapping made before it kept the spheres: still a room, no sphere named
+    except VtsError:  # a mapping made before it kept the spheres: still a room, no sphere named
         locator = None
     return Room(cams, mapping, TableSpace.from_settings(rig.aim, mapping), locator), ""

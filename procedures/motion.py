@@ -25,13 +25,12 @@ with breathing taken out, body-motion events and motion states, in the one QA re
 from __future__ import annotations
 
 import datetime as _dt
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
-from vts_hw import catalog
-from vts_hw import __version__
+from vts_hw import __version__, catalog
 from vts_hw.errors import DataError
 from vts_hw.figures import figure_png
 from vts_hw.files import WriteFailed, export_stopped
@@ -39,14 +38,14 @@ from vts_hw.motion import MotionResult, MotionSettings, analyze_motion, marker_s
 from vts_hw.motion.agreement import Agreement
 from vts_hw.motion.bands import band_names
 from vts_hw.motion.exports import clock_text, coverage_json, export_motion, time_origin
+from vts_hw.procedures.motion_live import LiveRecord, agreement, host_to_series, read_live
 from vts_hw.procedures.motion_plot import motion_figure
 from vts_hw.procedures.sync import SyncAnalysis
-from vts_hw.spect.frame import frame_description
-from vts_hw.results import Measure, overall_state
-from vts_hw.tolerance import State, merged_tolerances
 from vts_hw.procedures.sync_inputs import CLOCK_SLACK_S, load_calibration, load_mapping
-from vts_hw.procedures.motion_live import LiveRecord, agreement, host_to_series, read_live
 from vts_hw.recording.folder import load_manifest
+from vts_hw.results import Measure, overall_state
+from vts_hw.spect.frame import frame_description
+from vts_hw.tolerance import State, merged_tolerances
 from vts_hw.tracking.processing import process_recording
 
 __all__ = ["MotionAnalysis", "METRICS", "event_time_text"]
@@ -78,11 +77,22 @@ class MotionAnalysis:
 
     procedure = catalog.MOTION.name
 
-    def __init__(self, session, listmode=None, calibration=None, mapping=None, *, tracks=None,
-                 settings: MotionSettings | None = None, motion_config=None, workers: int | None = None,
-                 progress: Callable[[int, int], None] | None = None, clock_slack_s: float | None = None):
+    def __init__(
+        self,
+        session,
+        listmode=None,
+        calibration=None,
+        mapping=None,
+        *,
+        tracks=None,
+        settings: MotionSettings | None = None,
+        motion_config=None,
+        workers: int | None = None,
+        progress: Callable[[int, int], None] | None = None,
+        clock_slack_s: float | None = None,
+    ):
         self.session = Path(session)
-        self.listmode = listmode        # a file, or several: the sync analysis takes the session's own
+        self.listmode = listmode  # a file, or several: the sync analysis takes the session's own
         self.clock_slack_s = clock_slack_s
         self.calibration = calibration
         self.mapping = mapping
@@ -97,10 +107,10 @@ class MotionAnalysis:
         self.result: MotionResult | None = None
         self.sync: SyncAnalysis | None = None
         self.problems: list[str] = []
-        self.export_notes: list[str] = []   # what export() did not write, and why
+        self.export_notes: list[str] = []  # what export() did not write, and why
         self.manifest: dict = {}
-        self.live: LiveRecord | None = None    # the scan's live path read back (procedures/motion_live.py)
-        self.live_agreement: Agreement | None = None   # its poses against the offline ones (vts_hw/motion/agreement.py)
+        self.live: LiveRecord | None = None  # the scan's live path read back (procedures/motion_live.py)
+        self.live_agreement: Agreement | None = None  # its poses against the offline ones (vts_hw/motion/agreement.py)
         self.tolerances = merged_tolerances(None)
         self.analyzed_at: str | None = None
 
@@ -113,10 +123,15 @@ class MotionAnalysis:
         if self.calibration is None:
             raise DataError(f"{self.session}: no calibration given: the markers cannot be triangulated")
         if self.listmode is not None:
-            self.sync = sync = SyncAnalysis(self.session, self.listmode, self.calibration, self.mapping,
-                                            workers=self.workers, progress=self.progress,
-                                            clock_slack_s=CLOCK_SLACK_S if self.clock_slack_s is None
-                                            else self.clock_slack_s)
+            self.sync = sync = SyncAnalysis(
+                self.session,
+                self.listmode,
+                self.calibration,
+                self.mapping,
+                workers=self.workers,
+                progress=self.progress,
+                clock_slack_s=CLOCK_SLACK_S if self.clock_slack_s is None else self.clock_slack_s,
+            )
             sync.analyze()
             self.tracks = sync.tracks
             self.manifest = sync.manifest or {}
@@ -125,8 +140,13 @@ class MotionAnalysis:
         self.manifest = load_manifest(self.session, missing_ok=True) or {}
         if not self.manifest.get("cameras"):
             raise DataError(f"{self.session}: not a recording folder (no manifest.json with cameras)")
-        self.tracks = process_recording(self.session, load_calibration(self.calibration), workers=self.workers,
-                                        mapping=load_mapping(self.mapping), progress=self.progress)
+        self.tracks = process_recording(
+            self.session,
+            load_calibration(self.calibration),
+            workers=self.workers,
+            mapping=load_mapping(self.mapping),
+            progress=self.progress,
+        )
         self.problems += [f"processing: {w}" for w in self.tracks.meta.get("warnings", [])]
 
     def _span(self, series) -> tuple[tuple | None, list[str]]:
@@ -142,7 +162,7 @@ class MotionAnalysis:
         return (float(to_series(first)), float(to_series(last))), list(ext.get("problems") or [])
 
     # ------------------------------------------------------------------ analysis
-    def analyze(self, tolerances: dict | None = None) -> "MotionAnalysis":
+    def analyze(self, tolerances: dict | None = None) -> MotionAnalysis:
         """``tolerances``: the rig's windows (rig.yaml ``tolerances:``) over the defaults."""
         self.tolerances = merged_tolerances(tolerances)
         self._load_tracks()
@@ -156,14 +176,16 @@ class MotionAnalysis:
         self.problems += live.problems
         model = live.model
         if model is not None and model.frame != series.frame:
-            self.problems.append(f"live model not used: it is in the {model.frame.upper()} frame, the tracks in the "
-                                 f"{series.frame.upper()} frame (give the mapping the scan used)")
+            self.problems.append(
+                f"live model not used: it is in the {model.frame.upper()} frame, the tracks in the "
+                f"{series.frame.upper()} frame (give the mapping the scan used)"
+            )
             model = None
         result = None
         if model is not None:
             try:
                 result = analyze_motion(series, self.settings, span=span, missing=missing, model=model)
-            except DataError as exc:          # the model is not this recording's: learn one from it
+            except DataError as exc:  # the model is not this recording's: learn one from it
                 self.problems.append(f"live model not used: {exc}")
                 model = None
         if result is None:
@@ -173,20 +195,23 @@ class MotionAnalysis:
         if model is not None:
             lm = self.manifest.get("live_motion") or {}
             try:
-                self.live_agreement = agreement(live, result, self.tracks, float(lm.get("alert_mm", 3.0)),
-                                                float(lm.get("alert_deg", 2.0)))
+                self.live_agreement = agreement(
+                    live, result, self.tracks, float(lm.get("alert_mm", 3.0)), float(lm.get("alert_deg", 2.0))
+                )
             except DataError as exc:
                 self.problems.append(f"live poses not compared: {exc}")
         for name, cam in (self.manifest.get("cameras") or {}).items():
             gaps = cam.get("gaps") or []
             if gaps:
-                self.problems.append(f"camera {name}: {sum(g.get('missing', 0) for g in gaps)} frame(s) missing "
-                                     f"in {len(gaps)} gap(s) (manifest)")
+                self.problems.append(
+                    f"camera {name}: {sum(g.get('missing', 0) for g in gaps)} frame(s) missing "
+                    f"in {len(gaps)} gap(s) (manifest)"
+                )
         if series.frame != "spect":
             self.problems.append("no VTS -> SPECT mapping: poses are in the VTS frame (camera 1's)")
         if series.clock != "spect":
             self.problems.append("no list-mode: times are on the host clock, not the SPECT's")
-        self.analyzed_at = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+        self.analyzed_at = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
         return self
 
     def _need(self):
@@ -201,19 +226,26 @@ class MotionAnalysis:
         v = pose.valid
         shift = np.linalg.norm(pose.centre_shift()[v], axis=1) if v.any() else np.array([np.nan])
         ang = pose.angle_deg()[v] if v.any() else np.array([np.nan])
-        return {"motion_body_max_mm": float(np.max(shift)), "motion_body_max_deg": float(np.max(ang)),
-                "motion_pose_coverage": float(r.coverage["share"])}
+        return {
+            "motion_body_max_mm": float(np.max(shift)),
+            "motion_body_max_deg": float(np.max(ang)),
+            "motion_pose_coverage": float(r.coverage["share"]),
+        }
 
     def _time_sentence(self) -> str:
-        """"pose known 63.2 % of 90.0 s; 33.1 s without frames in 10 gaps (...); ..."."""
+        """ "pose known 63.2 % of 90.0 s; 33.1 s without frames in 10 gaps (...); ..."."""
         c = self._need().coverage
         parts = [f"pose known {100 * c['share']:.1f} % of {c['duration_s']:.1f} s"]
         if c["no_frames_s"]:
-            parts.append(f"{c['no_frames_s']:.1f} s without frames in {c['no_frames_gaps']} gap(s) "
-                         f"(longest {c['longest_gap_s']:.1f} s)")
+            parts.append(
+                f"{c['no_frames_s']:.1f} s without frames in {c['no_frames_gaps']} gap(s) "
+                f"(longest {c['longest_gap_s']:.1f} s)"
+            )
         if c["few_markers_s"]:
-            parts.append(f"{c['few_markers_s']:.1f} s with fewer than 3 patient markers in "
-                         f"{c['few_markers_stretches']} stretch(es)")
+            parts.append(
+                f"{c['few_markers_s']:.1f} s with fewer than 3 patient markers in "
+                f"{c['few_markers_stretches']} stretch(es)"
+            )
         return "; ".join(parts)
 
     @property
@@ -237,35 +269,57 @@ class MotionAnalysis:
         centres = [np.nanmedian(S.P[:, g].reshape(-1, 3), axis=0) for g in B.groups]
         names, naming = band_names(centres, S.frame)
         band_of = {m: names[k] for k, g in enumerate(B.groups) for m in g}
-        markers = [{"marker": S.label(m), "number": S.number(m), "track_ids": [int(i) for i in S.ids[m]],
-                    "patient": m in B.patient, "band": band_of.get(m), "why": B.why[m],
-                    "seen_fraction": float(B.seen_fraction[m]), "breathing_rms_mm": float(B.breath_rms_mm[m]),
-                    "points_by_camera": S.camera_sets[m] if S.camera_sets else {}}
-                   for m in range(len(S.ids))]
+        markers = [
+            {
+                "marker": S.label(m),
+                "number": S.number(m),
+                "track_ids": [int(i) for i in S.ids[m]],
+                "patient": m in B.patient,
+                "band": band_of.get(m),
+                "why": B.why[m],
+                "seen_fraction": float(B.seen_fraction[m]),
+                "breathing_rms_mm": float(B.breath_rms_mm[m]),
+                "points_by_camera": S.camera_sets[m] if S.camera_sets else {},
+            }
+            for m in range(len(S.ids))
+        ]
         resp = r.respiration
         measures = self.measures
         fig = resp.figures
         cov = r.coverage
-        summary = {**self.figures(), "events": len(r.events), "states": len(r.states),
-                   "time": self._time_sentence(), "duration_s": cov["duration_s"], "pose_known_s": cov["pose_s"],
-                   "no_frames_s": cov["no_frames_s"], "no_frames_gaps": cov["no_frames_gaps"],
-                   "few_markers_s": cov["few_markers_s"],
-                   "breathing": fig.status, "breathing_why": fig.why,
-                   "breathing_cycles": len(resp.cycles), "breathing_rate_per_min": resp.mean_rate_per_min,
-                   "breathing_rate_range_per_min": fig.rate_range if resp.mean_rate_per_min is not None else None,
-                   "breathing_amplitude_mm": fig.amplitude_mm if fig.status != "none" else None,
-                   "breathing_share": fig.share,
-                   "events_start_bounded": sum(e.start_bounds is not None for e in r.events),
-                   "pose_fit_rms_mm": float(np.nanmedian(r.pose.rms_mm)) if r.pose.valid.any() else None,
-                   "state": str(overall_state(measures))}
+        summary = {
+            **self.figures(),
+            "events": len(r.events),
+            "states": len(r.states),
+            "time": self._time_sentence(),
+            "duration_s": cov["duration_s"],
+            "pose_known_s": cov["pose_s"],
+            "no_frames_s": cov["no_frames_s"],
+            "no_frames_gaps": cov["no_frames_gaps"],
+            "few_markers_s": cov["few_markers_s"],
+            "breathing": fig.status,
+            "breathing_why": fig.why,
+            "breathing_cycles": len(resp.cycles),
+            "breathing_rate_per_min": resp.mean_rate_per_min,
+            "breathing_rate_range_per_min": fig.rate_range if resp.mean_rate_per_min is not None else None,
+            "breathing_amplitude_mm": fig.amplitude_mm if fig.status != "none" else None,
+            "breathing_share": fig.share,
+            "events_start_bounded": sum(e.start_bounds is not None for e in r.events),
+            "pose_fit_rms_mm": float(np.nanmedian(r.pose.rms_mm)) if r.pose.valid.any() else None,
+            "state": str(overall_state(measures)),
+        }
         tm = self.tracks.meta if self.tracks is not None else {}
         return {
-            "procedure": self.procedure, "date": self.analyzed_at, "vts_hw_version": __version__,
-            "session": str(self.session), "listmode": None if self.listmode is None else str(
-                getattr(self.sync, "listmode_path", self.listmode)),
-            "clock": clock_text(r), "time_origin": t0,
+            "procedure": self.procedure,
+            "date": self.analyzed_at,
+            "vts_hw_version": __version__,
+            "session": str(self.session),
+            "listmode": None if self.listmode is None else str(getattr(self.sync, "listmode_path", self.listmode)),
+            "clock": clock_text(r),
+            "time_origin": t0,
             "frame": frame_description(S.frame, self.spect_volume()),
-            "summary": summary, "measures": [m.as_dict() for m in measures],
+            "summary": summary,
+            "measures": [m.as_dict() for m in measures],
             "windows": {m: self.tolerances[m].as_dict() for m in METRICS if m in self.tolerances},
             "reference_period_s": [r.reference_period[0] - t0, r.reference_period[1] - t0],
             "bands": [{"band": name, "markers": [S.label(m) for m in g]} for name, g in zip(names, B.groups)],
@@ -277,10 +331,12 @@ class MotionAnalysis:
             "coverage": coverage_json(r, t0),
             "pose_gaps_s": [[a - t0, b - t0] for a, b in r.gaps],
             "speed_thresholds_mm_s": r.thresholds,
-            "cameras": {"names": list(S.camera_names),
-                        "points_by_cameras_seen": tm.get("points_by_cameras_seen"),
-                        "unpaired_frames": tm.get("unpaired_frames"),
-                        "single_camera_detections": tm.get("single_camera_detections")},
+            "cameras": {
+                "names": list(S.camera_names),
+                "points_by_cameras_seen": tm.get("points_by_cameras_seen"),
+                "unpaired_frames": tm.get("unpaired_frames"),
+                "single_camera_detections": tm.get("single_camera_detections"),
+            },
             "settings": dict(vars(self.settings)) if hasattr(self.settings, "__dict__") else {},
             "live": None if self.live_agreement is None else self.live_agreement.to_json(t0),
             "problems": list(self.problems),
@@ -289,35 +345,43 @@ class MotionAnalysis:
     def results(self) -> str:
         d = self.results_data()
         s = d["summary"]
-        lines = [f"patient motion: {self.session} ({d['date']}, vts-hw {d['vts_hw_version']})",
-                 f"  times: {d['clock']}",
-                 f"  positions: {d['frame']['definition']}",
-                 f"  patient markers: {len([m for m in d['markers'] if m['patient']])} in {len(d['bands'])} band(s) "
-                 f"({'; '.join(b['band'] + ': ' + ', '.join(b['markers']) for b in d['bands'])}); reference {d['reference_period_s'][0]:.1f}-"
-                 f"{d['reference_period_s'][1]:.1f} s",
-                 f"  time: {s['time']}",
-                 f"  breathing: {self._breathing_text(d['breathing'])}",
-                 f"  body: moved up to {s['motion_body_max_mm']:.2f} mm and {s['motion_body_max_deg']:.2f} deg from "
-                 f"the reference in the time with a pose"
-                 + (f" (fit RMS {s['pose_fit_rms_mm']:.3f} mm)" if s['pose_fit_rms_mm'] is not None else "")]
+        lines = [
+            f"patient motion: {self.session} ({d['date']}, vts-hw {d['vts_hw_version']})",
+            f"  times: {d['clock']}",
+            f"  positions: {d['frame']['definition']}",
+            f"  patient markers: {len([m for m in d['markers'] if m['patient']])} in {len(d['bands'])} band(s) "
+            f"({'; '.join(b['band'] + ': ' + ', '.join(b['markers']) for b in d['bands'])}); reference {d['reference_period_s'][0]:.1f}-"
+            f"{d['reference_period_s'][1]:.1f} s",
+            f"  time: {s['time']}",
+            f"  breathing: {self._breathing_text(d['breathing'])}",
+            f"  body: moved up to {s['motion_body_max_mm']:.2f} mm and {s['motion_body_max_deg']:.2f} deg from "
+            f"the reference in the time with a pose"
+            + (f" (fit RMS {s['pose_fit_rms_mm']:.3f} mm)" if s["pose_fit_rms_mm"] is not None else ""),
+        ]
         for k, e in enumerate(d["events"], 1):
             c = e["change_6dof"]
-            lines.append(f"  event {k}: {event_time_text(e)}, shift {e['centroid_shift_mm']:.1f} mm, "
-                         f"turn {e['rotation_deg']:.2f} deg (t {c[0]:+.1f} {c[1]:+.1f} {c[2]:+.1f} mm, "
-                         f"r {c[3]:+.2f} {c[4]:+.2f} {c[5]:+.2f} deg)")
+            lines.append(
+                f"  event {k}: {event_time_text(e)}, shift {e['centroid_shift_mm']:.1f} mm, "
+                f"turn {e['rotation_deg']:.2f} deg (t {c[0]:+.1f} {c[1]:+.1f} {c[2]:+.1f} mm, "
+                f"r {c[3]:+.2f} {c[4]:+.2f} {c[5]:+.2f} deg)"
+            )
         for st in d["states"]:
             x = st["six_dof"]
-            gap = (f" ({st['unknown_s']:.1f} s of it without a pose, in no state)" if st["unknown_s"] else "")
-            lines.append(f"  state {st['state']}: {st['t_start']:.2f}-{st['t_end']:.2f} s{gap}, pose t {x[0]:+.2f} "
-                         f"{x[1]:+.2f} {x[2]:+.2f} mm, r {x[3]:+.2f} {x[4]:+.2f} {x[5]:+.2f} deg")
+            gap = f" ({st['unknown_s']:.1f} s of it without a pose, in no state)" if st["unknown_s"] else ""
+            lines.append(
+                f"  state {st['state']}: {st['t_start']:.2f}-{st['t_end']:.2f} s{gap}, pose t {x[0]:+.2f} "
+                f"{x[1]:+.2f} {x[2]:+.2f} mm, r {x[3]:+.2f} {x[4]:+.2f} {x[5]:+.2f} deg"
+            )
         for m in d["measures"]:
             lines.append(f"  {m['metric']}: {m['value']:.3g} {m['unit']} -> {m['state']}")
         if self.live_agreement is not None:
             la = self.live_agreement
             lines.append(f"  live: {la.text()}")
             for k, a in enumerate(d["live"]["alerts"], 1):
-                lines.append(f"  live alert {k} (onset {a['onset']:.2f} s): "
-                             + (f"explained by {a['by']}" if a["explained"] else f"NOT explained offline: {a['why']}"))
+                lines.append(
+                    f"  live alert {k} (onset {a['onset']:.2f} s): "
+                    + (f"explained by {a['by']}" if a["explained"] else f"NOT explained offline: {a['why']}")
+                )
         lines.append(f"  state: {s['state']}")
         for p in self.problems:
             lines.append(f"  note: {p}")
@@ -325,15 +389,20 @@ class MotionAnalysis:
 
     @staticmethod
     def _breathing_text(b: dict) -> str:
-        amp = (f"amplitude {b['amplitude_mm']:.1f} mm ({b['half_breaths_seen']} half breaths)"
-               if b["amplitude_mm"] is not None else "amplitude unknown")
+        amp = (
+            f"amplitude {b['amplitude_mm']:.1f} mm ({b['half_breaths_seen']} half breaths)"
+            if b["amplitude_mm"] is not None
+            else "amplitude unknown"
+        )
         if b["status"] == "measured":
             return f"{b['rate_per_min']:.1f} /min, {amp} ({b['why']})"
         if b["status"] == "bounded":
             lo, hi = b["rate_range_per_min"]
-            return (f"{b['rate_per_min']:.1f} /min, known only to {lo:.1f}-{hi:.1f} /min; {amp} "
-                    f"(from breaths seen whole over {b['rate_rests_on_s']:.1f} s, "
-                    f"{100 * b['share_of_scan']:.0f} % of the scan)")
+            return (
+                f"{b['rate_per_min']:.1f} /min, known only to {lo:.1f}-{hi:.1f} /min; {amp} "
+                f"(from breaths seen whole over {b['rate_rests_on_s']:.1f} s, "
+                f"{100 * b['share_of_scan']:.0f} % of the scan)"
+            )
         return b["why"] + (f"; {amp}" if b["status"] == "unknown" else "")
 
     def figure(self):
@@ -357,12 +426,17 @@ class MotionAnalysis:
         whole seconds merge."""
         r = self._need()
         try:
-            written = export_motion(r, out, n_bins=n_bins, volume=self.spect_volume(),
-                                    extra={"session": str(self.session), "vts_hw_version": __version__})
+            written = export_motion(
+                r,
+                out,
+                n_bins=n_bins,
+                volume=self.spect_volume(),
+                extra={"session": str(self.session), "vts_hw_version": __version__},
+            )
             self.export_notes = list(written.notes)
             paths = list(written)
             if self.tracks is not None:
                 paths += list(self.tracks.save(Path(out) / "trajectories.csv"))
-        except WriteFailed as exc:   # each file whole or absent; say what that leaves of the export
+        except WriteFailed as exc:  # each file whole or absent; say what that leaves of the export
             raise export_stopped(exc, out) from None
         return paths

@@ -22,7 +22,7 @@ from vts_hw.tracking.live.pose_log import LivePoses, load_model, read_poses
 
 __all__ = ["LiveRecord", "read_live", "host_to_series", "agreement"]
 
-PAIR_FRACTION = 0.4      # a live pose and an offline frame are the same frame set within this many periods
+PAIR_FRACTION = 0.4  # a live pose and an offline frame are the same frame set within this many periods
 
 
 @dataclass
@@ -51,8 +51,10 @@ def read_live(folder, manifest: dict | None) -> LiveRecord:
         except DataError as exc:
             problems.append(f"live poses not compared: {exc}")
     if poses is not None and poses.skipped:
-        problems.append(f"live poses: {poses.skipped} row(s) could not be read (a row torn when the scan "
-                        f"was stopped?) and were left out")
+        problems.append(
+            f"live poses: {poses.skipped} row(s) could not be read (a row torn when the scan "
+            f"was stopped?) and were left out"
+        )
     if lm.get("keep_problem"):
         problems.append(f"live poses: {lm['keep_problem']}")
     alerts = [a for a in lm.get("alerts") or [] if isinstance(a, dict) and "onset" in a and "time" in a]
@@ -81,13 +83,14 @@ def agreement(live: LiveRecord, result, tracks, alert_mm: float, alert_deg: floa
         return None
     to_series = host_to_series(tracks, result.series.clock)
     if to_series is None:
-        raise DataError("the live poses' host times cannot be put on the list-mode clock (fewer than two frame "
-                        "sets with both)")
+        raise DataError(
+            "the live poses' host times cannot be put on the list-mode clock (fewer than two frame sets with both)"
+        )
     pose, period = result.pose, result.timeline.period
     p = live.poses
-    agree = compare_live(to_series(p.t), p.R, p.T, pose.t, pose.R, pose.T, result.model.centre,
-                         PAIR_FRACTION * period)
+    agree = compare_live(to_series(p.t), p.R, p.T, pose.t, pose.R, pose.T, result.model.centre, PAIR_FRACTION * period)
     alerts = [{"onset": float(to_series(a["onset"])), "time": float(to_series(a["time"]))} for a in live.alerts]
-    agree.alerts = explain_alerts(alerts, result.events, pose.t, pose.R, pose.T, result.model.centre,
-                                  alert_mm, alert_deg, t0=time_origin(result))
+    agree.alerts = explain_alerts(
+        alerts, result.events, pose.t, pose.R, pose.T, result.model.centre, alert_mm, alert_deg, t0=time_origin(result)
+    )
     return agree

@@ -14,6 +14,7 @@ __all__ = ["motion_figure"]
 
 def motion_figure(r, data):
     from matplotlib.figure import Figure
+
     t0 = data["time_origin"]
     t = r.pose.t - t0
     fig = Figure(figsize=(10, 9))
@@ -23,8 +24,11 @@ def motion_figure(r, data):
     for c in r.respiration.cycles:
         ax.axvline(c.t_start - t0, color="#9fb6d6", lw=0.4)
     ax.set_ylabel("breathing mm")
-    ax.set_title(f"patient motion: {data['session']} ({data['date']}, vts-hw {data['vts_hw_version']})\n"
-                 f"{data['summary']['time']}; breathing {data['breathing']['status']}", fontsize=9)
+    ax.set_title(
+        f"patient motion: {data['session']} ({data['date']}, vts-hw {data['vts_hw_version']})\n"
+        f"{data['summary']['time']}; breathing {data['breathing']['status']}",
+        fontsize=9,
+    )
     six = r.pose.six_dof()
     for k, (name, col) in enumerate(zip(("x", "y", "z"), ("#c62828", "#2e7d32", "#1565c0"))):
         tx.plot(t, six[:, k], lw=0.8, color=col, label=f"t{name}")
@@ -52,7 +56,9 @@ def motion_figure(r, data):
     sx.set_yscale("symlog", linthresh=1.0)
     sx.set_ylabel("body speed mm/s")
     clock = "SPECT list-mode s" if r.series.clock == "spect" else "s from the first frame (host clock)"
-    sx.set_xlabel(f"time, {clock}; events shaded, states dashed, reference and still frames green, "
-                  f"no pose (no frames / < 3 markers) hatched red")
+    sx.set_xlabel(
+        f"time, {clock}; events shaded, states dashed, reference and still frames green, "
+        f"no pose (no frames / < 3 markers) hatched red"
+    )
     fig.tight_layout()
     return fig

@@ -29,21 +29,21 @@ import datetime as _dt
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
-from vts_hw.config import RigConfig
 from vts_hw.camera import Camera, Parameters
 from vts_hw.camera_led import light
+from vts_hw.config import RigConfig
 from vts_hw.drivers.registry import trigger_backend
 from vts_hw.drivers.trigger import TriggerGenerator
 from vts_hw.errors import UsageError, VtsError
-from vts_hw.recording.capture import Recorder
 from vts_hw.procedures.scan_trigger import ScanError, ScanTrigger, plain_dict
+from vts_hw.recording.capture import Recorder
 
-FIRST_FRAME_TIMEOUT_S = 10.0   # a camera silent this long after the recording started: no fire
-TRIGGER_POLL_S = 1.0           # how often the trigger's edges are read during the scan
+FIRST_FRAME_TIMEOUT_S = 10.0  # a camera silent this long after the recording started: no fire
+TRIGGER_POLL_S = 1.0  # how often the trigger's edges are read during the scan
 RECONNECT_BACKOFF_MAX_S = 1.0  # a camera that comes back is recording again within a second
 OFFSET_SAMPLES = 5
 
@@ -86,12 +86,12 @@ class ScanStatus:
 
 def default_folder(now: float | None = None, parent: str | Path = ".") -> Path:
     """``./scan-YYYYmmddTHHMMSSZ``: a new folder per scan, named by its UTC start."""
-    t = _dt.datetime.fromtimestamp(time.time() if now is None else now, _dt.timezone.utc)
+    t = _dt.datetime.fromtimestamp(time.time() if now is None else now, _dt.UTC)
     return Path(parent) / f"scan-{t:%Y%m%dT%H%M%SZ}"
 
 
 def _iso(t: float) -> str:
-    return _dt.datetime.fromtimestamp(t, _dt.timezone.utc).strftime("%H:%M:%S.%f")[:-3] + "Z"
+    return _dt.datetime.fromtimestamp(t, _dt.UTC).strftime("%H:%M:%S.%f")[:-3] + "Z"
 
 
 class ScanSession:
@@ -104,11 +104,20 @@ class ScanSession:
     ``on_frame(camera, frame)`` is told of each frame once written, after the live path.
     """
 
-    def __init__(self, rig: RigConfig, folder: str | Path, cameras: list[Camera], *, duration: float | None = None,
-                 clock=time.time, first_frame_timeout: float = FIRST_FRAME_TIMEOUT_S,
-                 on_step: Callable[[str, str], None] | None = None, live=None,
-                 on_frame: Callable[[str, object], None] | None = None,
-                 trigger: Callable[[], TriggerGenerator] | None = None):
+    def __init__(
+        self,
+        rig: RigConfig,
+        folder: str | Path,
+        cameras: list[Camera],
+        *,
+        duration: float | None = None,
+        clock=time.time,
+        first_frame_timeout: float = FIRST_FRAME_TIMEOUT_S,
+        on_step: Callable[[str, str], None] | None = None,
+        live=None,
+        on_frame: Callable[[str, object], None] | None = None,
+        trigger: Callable[[], TriggerGenerator] | None = None,
+    ):
         self.rig = rig
         # on_frame(camera, frame): told of each recorded frame after the live path's tap (the room
         # console's frames hub: it must return at once and is never a reason to lose a frame)
@@ -116,7 +125,7 @@ class ScanSession:
         # live: the live motion path (procedures/scan_live.py LiveMotion), or None: records only
         self.live = live
         self.live_error = ""
-        self.live_problem = ""    # the live path's word at the end: the patient was not watched, and why
+        self.live_problem = ""  # the live path's word at the end: the patient was not watched, and why
         self.folder = Path(folder)
         self.duration = duration
         self.clock = clock
@@ -131,10 +140,10 @@ class ScanSession:
         self.cam_notes: dict[str, dict] = {c.name: {} for c in self.cameras}
         self.stop_reason: str | None = None
         self.manifest: dict | None = None
-        self._scan_t0: float | None = None      # monotonic time the scan clock started (the fire)
+        self._scan_t0: float | None = None  # monotonic time the scan clock started (the fire)
         self._stop = threading.Event()
         self._stop_lock = threading.Lock()
-        self._manifest_lock = threading.RLock()   # the session's thread and the live path's alerts
+        self._manifest_lock = threading.RLock()  # the session's thread and the live path's alerts
         self._last_problems: list[str] = []
         self._monitor: threading.Thread | None = None
         self._rates: dict[str, deque] = {c.name: deque(maxlen=16) for c in self.cameras}
@@ -147,34 +156,56 @@ class ScanSession:
         cams = ", ".join(f"{c.name} ({c.base_url})" for c in cfgs)
         res = sorted({c.resolution_str for c in cfgs})
         fps = sorted({f"{c.fps:g}" for c in cfgs})
-        steps = [Step("check cameras", f"check {len(cfgs)} camera(s) {cams}: reachable, password accepted, "
-                                       f"{'/'.join(res)} offered, {'/'.join(fps)} fps asked; LED ring on")]
+        steps = [
+            Step(
+                "check cameras",
+                f"check {len(cfgs)} camera(s) {cams}: reachable, password accepted, "
+                f"{'/'.join(res)} offered, {'/'.join(fps)} fps asked; LED ring on",
+            )
+        ]
         if t.backend == "none":
             steps.append(Step("check trigger", "no trigger generator (trigger backend none): recording only"))
         else:
             backend = trigger_backend(t, str(getattr(r, "_source", None) or "rig.yaml"))
             levels = f", levels {t.low_v:g}..{t.high_v:g} V" if backend.levels else ""
-            steps += [Step("check trigger", f"check the {t.backend} trigger, {backend.what}, at {t.address}: "
-                                            f"status, stop a square wave "
-                                            f"left running, configure {t.frequency_hz:g} Hz, duty {t.duty:g}{levels}"),
-                      Step("map trigger clock", "map the trigger's device clock to host time (where it has one)")]
+            steps += [
+                Step(
+                    "check trigger",
+                    f"check the {t.backend} trigger, {backend.what}, at {t.address}: "
+                    f"status, stop a square wave "
+                    f"left running, configure {t.frequency_hz:g} Hz, duty {t.duty:g}{levels}",
+                ),
+                Step("map trigger clock", "map the trigger's device clock to host time (where it has one)"),
+            ]
         steps += [
             Step("measure offsets", f"measure each camera's clock offset (camera - host, {OFFSET_SAMPLES} samples)"),
-            Step("start recording", f"record every camera into {self.folder}/ (<camera>.mjpeg, "
-                                    f"<camera>.index.csv, manifest.json)"),
-            Step("first frames", f"wait for the first frame of every camera (at most {self.first_frame_timeout:g} s; "
-                                 f"else stop without firing)"),
+            Step(
+                "start recording",
+                f"record every camera into {self.folder}/ (<camera>.mjpeg, <camera>.index.csv, manifest.json)",
+            ),
+            Step(
+                "first frames",
+                f"wait for the first frame of every camera (at most {self.first_frame_timeout:g} s; "
+                f"else stop without firing)",
+            ),
         ]
         if t.backend == "none":
             steps.append(Step("fire", "nothing to fire: the scan clock starts when every camera is recording"))
         else:
-            steps.append(Step("fire", f"start pulses ({t.pulse_ms} ms, channels 1 VTS and 2 SPECT) and the "
-                                      f"square wave together, or the square wave alone where the device has no "
-                                      f"start pulses; log to {self.folder}/trigger.csv"))
+            steps.append(
+                Step(
+                    "fire",
+                    f"start pulses ({t.pulse_ms} ms, channels 1 VTS and 2 SPECT) and the "
+                    f"square wave together, or the square wave alone where the device has no "
+                    f"start pulses; log to {self.folder}/trigger.csv",
+                )
+            )
         steps += [
             Step("run", f"record for {self.duration:g} s" if self.duration else "record until Ctrl-C"),
-            Step("stop", "stop the square wave, close the recordings, measure the clock offsets again, "
-                         "write the manifest"),
+            Step(
+                "stop",
+                "stop the square wave, close the recordings, measure the clock offsets again, write the manifest",
+            ),
         ]
         return steps
 
@@ -208,11 +239,14 @@ class ScanSession:
         self.trigger.check()
         if self.trigger.present:
             st = self.trigger.info.get("confirmed") or {}
-            self.on_step("check trigger", f"{self.trigger.gen.name}: {st.get('frequency_hz')} Hz, "
-                                          f"duty {st.get('duty')}")
+            self.on_step(
+                "check trigger", f"{self.trigger.gen.name}: {st.get('frequency_hz')} Hz, duty {st.get('duty')}"
+            )
         self._measure_offsets("clock_offset_before", strict=True)
-        self.on_step("measure offsets", ", ".join(
-            f"{n} {d['clock_offset_before']['offset_s']:+.3f} s" for n, d in self.cam_notes.items()))
+        self.on_step(
+            "measure offsets",
+            ", ".join(f"{n} {d['clock_offset_before']['offset_s']:+.3f} s" for n, d in self.cam_notes.items()),
+        )
 
     def _record_and_fire(self) -> None:
         self.on_step("start recording", str(self.folder))
@@ -228,8 +262,12 @@ class ScanSession:
             self._monitor.start()
         self._write_manifest()
         t = self.trigger.info
-        self.on_step("fire", "recording only" if not self.trigger.present else
-                     (f"{t['mode']} at {_iso(t['fire_time'])}" if t.get("fired") else f"FAILED: {t['errors'][-1]}"))
+        self.on_step(
+            "fire",
+            "recording only"
+            if not self.trigger.present
+            else (f"{t['mode']} at {_iso(t['fire_time'])}" if t.get("fired") else f"FAILED: {t['errors'][-1]}"),
+        )
 
     def _check_cameras(self) -> None:
         failures: list[VtsError] = []
@@ -240,15 +278,17 @@ class ScanSession:
                 cfg = self.rig.camera(cam.name)
                 info = cam.device_info()
                 self.cam_notes[cfg.name].update(
-                    url=cfg.base_url, resolution=cfg.resolution_str, fps_asked=cfg.fps,
-                    device={k: info.get(k) for k in ("ProdNbr", "SerialNumber", "Version") if k in info})
+                    url=cfg.base_url,
+                    resolution=cfg.resolution_str,
+                    fps_asked=cfg.fps,
+                    device={k: info.get(k) for k in ("ProdNbr", "SerialNumber", "Version") if k in info},
+                )
                 self._check_image(cam, cfg)
-                self.cam_notes[cfg.name]["led"] = light(cam)   # on: the markers are bright only with it on
+                self.cam_notes[cfg.name]["led"] = light(cam)  # on: the markers are bright only with it on
             except VtsError as exc:
                 failures.append(exc)
         if failures:
-            raise ScanError("cannot start the scan: " + "; ".join(str(e) for e in failures),
-                            failures[0].exit_code)
+            raise ScanError("cannot start the scan: " + "; ".join(str(e) for e in failures), failures[0].exit_code)
 
     def _check_image(self, cam: Camera, cfg) -> None:
         if not isinstance(cam, Parameters):
@@ -277,12 +317,17 @@ class ScanSession:
             raise ScanError("cannot start the scan: " + "; ".join(str(e) for e in failures))
 
     def _start_recording(self) -> None:
-        meta = {"kind": "scan", "rig": self.rig.rig, "rig_digest": self.rig.digest,
-                "duration_asked": self.duration}
+        meta = {"kind": "scan", "rig": self.rig.rig, "rig_digest": self.rig.digest, "duration_asked": self.duration}
         self.phase = "recording"
         self._live_call("prepare")
-        self.recorder = Recorder(self.cameras, self.folder, seconds=None, meta=meta,
-                                 max_backoff=RECONNECT_BACKOFF_MAX_S, on_frame=self._frame_hook())
+        self.recorder = Recorder(
+            self.cameras,
+            self.folder,
+            seconds=None,
+            meta=meta,
+            max_backoff=RECONNECT_BACKOFF_MAX_S,
+            on_frame=self._frame_hook(),
+        )
         self.times["recording_started"] = self.recorder.recording.started
         self.trigger.attach_log(self.folder / "trigger.csv")
         self._live_call("start")
@@ -301,8 +346,10 @@ class ScanSession:
                 self.times["first_frames"] = self.clock()
                 return
             if time.monotonic() > deadline:
-                why = ", ".join(f"camera {p.name}" for p in prog if not p.frames) + \
-                    f" delivered no frame within {self.first_frame_timeout:g} s"
+                why = (
+                    ", ".join(f"camera {p.name}" for p in prog if not p.frames)
+                    + f" delivered no frame within {self.first_frame_timeout:g} s"
+                )
                 break
             time.sleep(0.02)
         self.trigger.error("not fired", why)
@@ -370,7 +417,7 @@ class ScanSession:
             if self._monitor is not None:
                 self._monitor.join(timeout=10)
             self.trigger.stop()
-            self._live_call("stop")   # its alerts in the manifest before the recording closes
+            self._live_call("stop")  # its alerts in the manifest before the recording closes
             self.live_problem = str(getattr(self.live, "problem", "") or "")
             if self.recorder is None:
                 self.trigger.finish()
@@ -402,10 +449,17 @@ class ScanSession:
             silent = stop_mono - p.last_frame
             if silent > max(1.0, 3.0 / cam.fps):
                 w = rec.writers[cam.name]
-                rec.add_gap(cam.name, {"after_frame": w.frames - 1, "camera_t0": w.last_camera_time,
-                                       "camera_t1": None, "missing": int(round(silent * cam.fps)),
-                                       "reason": f"no frames for the last {silent:.1f} s of the scan",
-                                       "host_time": self.times["stopped"]})
+                rec.add_gap(
+                    cam.name,
+                    {
+                        "after_frame": w.frames - 1,
+                        "camera_t0": w.last_camera_time,
+                        "camera_t1": None,
+                        "missing": int(round(silent * cam.fps)),
+                        "reason": f"no frames for the last {silent:.1f} s of the scan",
+                        "host_time": self.times["stopped"],
+                    },
+                )
 
     def _problems(self) -> list[str]:
         out = []
@@ -416,8 +470,9 @@ class ScanSession:
                 out.append(p.error if p.error.startswith(f"camera {name}") else f"camera {name}: {p.error}")
             if gaps:
                 missing = sum(g.get("missing", 0) for g in gaps)
-                out.append(f"camera {name}: {missing} frame(s) missing in {len(gaps)} gap(s), "
-                           f"{p.reconnects} reconnect(s)")
+                out.append(
+                    f"camera {name}: {missing} frame(s) missing in {len(gaps)} gap(s), {p.reconnects} reconnect(s)"
+                )
             if "error" in (self.cam_notes[name].get("clock_offset_after") or {}):
                 out.append(f"camera {name}: clock offset after the scan not measured")
         out += [f"trigger: {e}" for e in self.trigger.info["errors"]]
@@ -452,6 +507,7 @@ class ScanSession:
                 live(camera, frame)
             finally:
                 extra(camera, frame)
+
         return both
 
     def update_manifest(self, change: Callable[[dict], None]) -> dict | None:
@@ -470,11 +526,15 @@ class ScanSession:
             self._last_problems = list(problems or [])
             for name, notes in self.cam_notes.items():
                 rec.notes[name].update(notes)
-            rec.meta["scan"] = {"times": dict(self.times), "duration_asked": self.duration,
-                                "stop_reason": self.stop_reason, "problems": problems or [],
-                                "steps": [s.name for s in self.plan()],
-                                **({"live_error": self.live_error} if self.live_error else {}),
-                                **({"live_problem": self.live_problem} if self.live_problem else {})}
+            rec.meta["scan"] = {
+                "times": dict(self.times),
+                "duration_asked": self.duration,
+                "stop_reason": self.stop_reason,
+                "problems": problems or [],
+                "steps": [s.name for s in self.plan()],
+                **({"live_error": self.live_error} if self.live_error else {}),
+                **({"live_problem": self.live_problem} if self.live_problem else {}),
+            }
             rec.meta["trigger"] = self.trigger.info
             for attempt in range(3):  # a camera thread may be adding its notes at this very moment
                 try:

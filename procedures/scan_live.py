@@ -40,23 +40,23 @@ import queue
 import subprocess
 import threading
 import time
-from typing import Callable
+from collections.abc import Callable
 
 from vts_hw.errors import VtsError
+from vts_hw.lifeline import child_options
+from vts_hw.procedures.sync_inputs import load_calibration, load_mapping
 from vts_hw.tracking.live.estimator import LiveEstimate, LiveSettings
 from vts_hw.tracking.live.pose_log import MODEL_FILE, POSES_FILE, PoseLog, save_model
 from vts_hw.tracking.live.tracker import LiveTracker
 from vts_hw.tracking.live.watch import TRACKING, BlindAlert, Change, Episode
-from vts_hw.lifeline import child_options
-from vts_hw.procedures.sync_inputs import load_calibration, load_mapping
 from vts_hw.vision.camera_set import covered_names, named_cameras
 from vts_hw.vision.marker_roles import TableSpace
 
 __all__ = ["LiveMotion"]
 
 COMMAND_TIMEOUT_S = 60.0
-KEEP_EVERY_S = 1.0         # the live poses appended to the scan's folder this often (a kill -9 loses at most this)
-EPISODES_KEPT = 500        # NOT TRACKING stretches listed in the manifest (the rest counted)
+KEEP_EVERY_S = 1.0  # the live poses appended to the scan's folder this often (a kill -9 loses at most this)
+EPISODES_KEPT = 500  # NOT TRACKING stretches listed in the manifest (the rest counted)
 
 
 #: an alert raised longer than this after the frame (or watch tick) that raised it says so: the
@@ -69,17 +69,25 @@ def late_note(late_s: float) -> str:
 
 
 def _iso(t: float) -> str:
-    return _dt.datetime.fromtimestamp(t, _dt.timezone.utc).isoformat(timespec="milliseconds")
+    return _dt.datetime.fromtimestamp(t, _dt.UTC).isoformat(timespec="milliseconds")
 
 
 class LiveMotion:
     """``calibration``/``mapping``: a path or object (default: the rig's ``calibration.cameras``
     and ``calibration.mapping``); ``settings``: the estimator's (default reference 10 s)."""
 
-    def __init__(self, rig, *, calibration=None, mapping=None, settings: LiveSettings | None = None,
-                 on_alert_text: Callable[[str], None] | None = None,
-                 on_note: Callable[[str], None] | None = None, queue_len: int = 2,
-                 on_names: Callable | None = None):
+    def __init__(
+        self,
+        rig,
+        *,
+        calibration=None,
+        mapping=None,
+        settings: LiveSettings | None = None,
+        on_alert_text: Callable[[str], None] | None = None,
+        on_note: Callable[[str], None] | None = None,
+        queue_len: int = 2,
+        on_names: Callable | None = None,
+    ):
         self.rig = rig
         self.motion = rig.motion
         self.calibration = calibration if calibration is not None else rig.calibration.stereo
@@ -88,10 +96,10 @@ class LiveMotion:
         self.on_alert_text = on_alert_text or (lambda text: None)
         self.on_note = on_note or (lambda text: None)
         self.queue_len = queue_len
-        self.on_names = on_names       # the tracker's named patient markers per camera (a page's labels)
+        self.on_names = on_names  # the tracker's named patient markers per camera (a page's labels)
         self.tracker: LiveTracker | None = None
         self.off_reason = ""
-        self.problem = ""          # set at stop: the patient was not watched, and why
+        self.problem = ""  # set at stop: the patient was not watched, and why
         self.alerts: list[dict] = []
         self.blind_alerts: list[dict] = []
         self.commands: list[subprocess.Popen] = []
@@ -99,10 +107,10 @@ class LiveMotion:
         self._thread: threading.Thread | None = None
         self._waiters: list[threading.Thread] = []
         self._tracked_once = False
-        self._log: PoseLog | None = None        # the live poses, kept in the scan's folder
-        self._kept = 0                          # poses written there so far
+        self._log: PoseLog | None = None  # the live poses, kept in the scan's folder
+        self._kept = 0  # poses written there so far
         self._model_saved = False
-        self.keep_problem = ""                  # why the live poses or model could not be kept
+        self.keep_problem = ""  # why the live poses or model could not be kept
 
     # -- set-up ---------------------------------------------------------------------------------
     def prepare(self, session) -> None:
@@ -122,13 +130,24 @@ class LiveMotion:
             self.off_reason = str(exc)
             self.on_note(f"live tracking off: {exc}")
             return
-        offsets = {n: (session.cam_notes.get(n, {}).get("clock_offset_before") or {}).get("offset_s", 0.0)
-                   for n in cams}
+        offsets = {
+            n: (session.cam_notes.get(n, {}).get("clock_offset_before") or {}).get("offset_s", 0.0) for n in cams
+        }
         fps = min(session.rig.camera(n).fps for n in cams)
         space = TableSpace.from_settings(self.rig.aim, mapping) if mapping is not None else None
-        self.tracker = LiveTracker(cams, self.motion, mapping=mapping, clock_offsets=offsets, fps=fps,
-                                   settings=self.settings, queue_len=self.queue_len, on_alert=self._queue_alert,
-                                   on_event=self._queue_event, on_names=self.on_names, space=space)
+        self.tracker = LiveTracker(
+            cams,
+            self.motion,
+            mapping=mapping,
+            clock_offsets=offsets,
+            fps=fps,
+            settings=self.settings,
+            queue_len=self.queue_len,
+            on_alert=self._queue_alert,
+            on_event=self._queue_event,
+            on_names=self.on_names,
+            space=space,
+        )
 
     def on_frame(self, camera: str, frame) -> None:
         if self.tracker is not None:
@@ -136,13 +155,29 @@ class LiveMotion:
 
     def start(self, session) -> None:
         m = self.motion
-        entry = {"status": "off" if self.tracker is None else "on", "alerts": [],
-                 "alert_mm": m.alert_mm, "alert_deg": m.alert_deg, "alert_after_s": m.alert_after_s,
-                 "blind_alert_s": m.blind_alert_s, "blind_max_share": m.blind_max_share,
-                 **({} if self.tracker is None else {"state": {"status": "NOT TRACKING", "reason": "no frames yet"},
-                                                     "blind_alerts": [], "not_tracking": []}),
-                 **({"off_reason": self.off_reason} if self.tracker is None else
-                    {"frame": self.tracker.estimator.frame, "cameras": self.tracker.names})}
+        entry = {
+            "status": "off" if self.tracker is None else "on",
+            "alerts": [],
+            "alert_mm": m.alert_mm,
+            "alert_deg": m.alert_deg,
+            "alert_after_s": m.alert_after_s,
+            "blind_alert_s": m.blind_alert_s,
+            "blind_max_share": m.blind_max_share,
+            **(
+                {}
+                if self.tracker is None
+                else {
+                    "state": {"status": "NOT TRACKING", "reason": "no frames yet"},
+                    "blind_alerts": [],
+                    "not_tracking": [],
+                }
+            ),
+            **(
+                {"off_reason": self.off_reason}
+                if self.tracker is None
+                else {"frame": self.tracker.estimator.frame, "cameras": self.tracker.names}
+            ),
+        }
         session.recorder.recording.meta["live_motion"] = entry
         if self.tracker is None:
             return
@@ -164,17 +199,33 @@ class LiveMotion:
             self._log.close()
         snap = tracker.snapshot()
         st = tracker.stats(last=None)
-        summary = {k: st.get(k) for k in ("sets", "live_dropped", "tapped", "processed", "queued",
-                                          "unmatched_frames", "undecodable",
-                                          "latency_ms_p50", "latency_ms_p95", "latency_from_first_frame_ms_p50",
-                                          "latency_from_first_frame_ms_p95")}
+        summary = {
+            k: st.get(k)
+            for k in (
+                "sets",
+                "live_dropped",
+                "tapped",
+                "processed",
+                "queued",
+                "unmatched_frames",
+                "undecodable",
+                "latency_ms_p50",
+                "latency_ms_p95",
+                "latency_from_first_frame_ms_p50",
+                "latency_from_first_frame_ms_p95",
+            )
+        }
         rule = tracker.estimator.rule
         if rule is not None:
             summary.update(onset_mm=round(rule.onset_mm, 3), onset_deg=round(rule.onset_deg, 3))
-        summary.update(poses_kept=self._kept, phase=snap.phase, reference=tracker.estimator.reference_note,
-                       note=snap.note,
-                       six_dof_last=snap.six_dof,
-                       **({"error": st["error"]} if st.get("error") else {}))
+        summary.update(
+            poses_kept=self._kept,
+            phase=snap.phase,
+            reference=tracker.estimator.reference_note,
+            note=snap.note,
+            six_dof_last=snap.six_dof,
+            **({"error": st["error"]} if st.get("error") else {}),
+        )
         summary["tracking"] = tracking = self._tracking_summary(tracker)
         self.problem = self._verdict(tracker, tracking, snap)
         summary["watched"] = not self.problem
@@ -188,11 +239,12 @@ class LiveMotion:
         eps = w.episodes
         longest = max(eps, key=lambda e: e.duration(e.start), default=None)
         out = {k: (round(v, 3) if isinstance(v, float) else v) for k, v in tot.items()}
-        out.update(not_tracking_stretches=len(eps), blind_alerts=len(tracker.blind_alerts),
-                   late_s=tracker.late_s)
+        out.update(not_tracking_stretches=len(eps), blind_alerts=len(tracker.blind_alerts), late_s=tracker.late_s)
         if longest is not None:
-            out.update(longest_not_tracking_s=round(longest.duration(longest.start), 3),
-                       longest_reason="; ".join(longest.reasons[:3]))
+            out.update(
+                longest_not_tracking_s=round(longest.duration(longest.start), 3),
+                longest_reason="; ".join(longest.reasons[:3]),
+            )
         return out
 
     def _verdict(self, tracker: LiveTracker, tracking: dict, snap: LiveEstimate) -> str:
@@ -203,10 +255,12 @@ class LiveMotion:
             return f"the patient was not watched: no reference was learned ({why})"
         share, limit = tracking.get("not_tracking_share"), self.motion.blind_max_share
         if share is not None and share > limit:
-            return (f"the patient was not tracked for {share:.0%} of the live time (limit {limit:.0%}): "
-                    f"{tracking['not_tracking_s']:.1f} s in {tracking['not_tracking_stretches']} stretch(es), "
-                    f"the longest {tracking.get('longest_not_tracking_s', 0):.1f} s "
-                    f"({tracking.get('longest_reason', '')})")
+            return (
+                f"the patient was not tracked for {share:.0%} of the live time (limit {limit:.0%}): "
+                f"{tracking['not_tracking_s']:.1f} s in {tracking['not_tracking_stretches']} stretch(es), "
+                f"the longest {tracking.get('longest_not_tracking_s', 0):.1f} s "
+                f"({tracking.get('longest_reason', '')})"
+            )
         return ""
 
     def snapshot(self, stats: bool = True) -> LiveEstimate | None:
@@ -215,10 +269,10 @@ class LiveMotion:
         return None if self.tracker is None else self.tracker.snapshot(stats=stats)
 
     # -- alerts ---------------------------------------------------------------------------------
-    def _queue_alert(self, alert, estimate: LiveEstimate) -> None:   # in the worker: no waiting
+    def _queue_alert(self, alert, estimate: LiveEstimate) -> None:  # in the worker: no waiting
         self._actions.put(("motion", alert, estimate))
 
-    def _queue_event(self, event) -> None:    # in the watch thread: no waiting
+    def _queue_event(self, event) -> None:  # in the watch thread: no waiting
         self._actions.put(("event", event, None))
 
     def _keep(self, session) -> None:
@@ -237,7 +291,7 @@ class LiveMotion:
                 if self._log is None:
                     self._log = PoseLog(session.folder)
                     session.update_manifest(lambda meta: meta["live_motion"].update(poses_file=POSES_FILE))
-                self._kept += self._log.write(est.poses[self._kept:n])
+                self._kept += self._log.write(est.poses[self._kept : n])
         except (OSError, VtsError) as exc:
             self.keep_problem = f"the live poses could not be kept in {session.folder}: {exc}"
             self.on_note(f"live motion: {self.keep_problem}")
@@ -251,8 +305,8 @@ class LiveMotion:
             except queue.Empty:
                 self._keep(session)
                 continue
-            if item is None:        # the alert commands started here end before this thread does:
-                for w in self._waiters:    # each dies with the thread that started it (child_options)
+            if item is None:  # the alert commands started here end before this thread does:
+                for w in self._waiters:  # each dies with the thread that started it (child_options)
                     w.join()
                 return
             kind, what, est = item
@@ -265,7 +319,7 @@ class LiveMotion:
                     self._change(session, what)
                 elif isinstance(what, Episode):
                     self._episode(session, what)
-            except Exception as exc:     # a note, never the end of acting on alerts
+            except Exception as exc:  # a note, never the end of acting on alerts
                 self.on_note(f"live motion: {type(exc).__name__}: {exc}")
 
     def _say(self, text: str) -> None:
@@ -276,16 +330,25 @@ class LiveMotion:
 
     def _motion_alert(self, session, alert, est: LiveEstimate) -> None:
         raised = time.time()
-        late = max(0.0, raised - alert.time)     # the host behind its frames: the alert says by how much
+        late = max(0.0, raised - alert.time)  # the host behind its frames: the alert says by how much
         text = alert.text(self.motion.alert_mm, self.motion.alert_deg) + late_note(late)
         self._say(text)
-        event = {"kind": "motion", "raised": raised, "raised_utc": _iso(raised), "late_s": round(late, 3),
-                 "time": alert.time,
-                 "time_utc": _iso(alert.time), "onset": alert.onset, "onset_utc": _iso(alert.onset),
-                 "onset_known_s": round(alert.onset_known_s, 3), "move_mm": round(alert.move_mm, 3),
-                 "turn_deg": round(alert.turn_deg, 3), "frame": est.frame,
-                 "six_dof": None if est.six_dof is None else [round(v, 3) for v in est.six_dof],
-                 "text": text}
+        event = {
+            "kind": "motion",
+            "raised": raised,
+            "raised_utc": _iso(raised),
+            "late_s": round(late, 3),
+            "time": alert.time,
+            "time_utc": _iso(alert.time),
+            "onset": alert.onset,
+            "onset_utc": _iso(alert.onset),
+            "onset_known_s": round(alert.onset_known_s, 3),
+            "move_mm": round(alert.move_mm, 3),
+            "turn_deg": round(alert.turn_deg, 3),
+            "frame": est.frame,
+            "six_dof": None if est.six_dof is None else [round(v, 3) for v in est.six_dof],
+            "text": text,
+        }
         if self.motion.alert_command:
             event["command"] = self._run_command(session, list(self.motion.alert_command) + [text])
         self.alerts.append(event)
@@ -296,17 +359,29 @@ class LiveMotion:
         late = max(0.0, raised - alert.raised)
         text = alert.text() + late_note(late)
         self._say(text)
-        event = {"kind": "not tracking", "raised": raised, "raised_utc": _iso(raised), "late_s": round(late, 3),
-                 "since": alert.start,
-                 "since_utc": _iso(alert.start), "not_tracking_s": round(alert.raised - alert.start, 3),
-                 "reason": alert.reason, "text": text}
+        event = {
+            "kind": "not tracking",
+            "raised": raised,
+            "raised_utc": _iso(raised),
+            "late_s": round(late, 3),
+            "since": alert.start,
+            "since_utc": _iso(alert.start),
+            "not_tracking_s": round(alert.raised - alert.start, 3),
+            "reason": alert.reason,
+            "text": text,
+        }
         if self.motion.alert_command:
             event["command"] = self._run_command(session, list(self.motion.alert_command) + [text])
         self.blind_alerts.append(event)
         session.update_manifest(lambda meta: meta["live_motion"]["blind_alerts"].append(event))
 
     def _change(self, session, c: Change) -> None:
-        state = {"status": c.status, "since": c.at, "since_utc": _iso(c.at), **({"reason": c.reason} if c.reason else {})}
+        state = {
+            "status": c.status,
+            "since": c.at,
+            "since_utc": _iso(c.at),
+            **({"reason": c.reason} if c.reason else {}),
+        }
         if c.status == TRACKING and not self._tracked_once:
             self._tracked_once = True
             note = self.tracker.estimator.reference_note if self.tracker is not None else ""
@@ -315,12 +390,18 @@ class LiveMotion:
 
     def _episode(self, session, e: Episode) -> None:
         end = e.end
-        if self.tracker is None or end is None:     # an episode is sent once it has ended
+        if self.tracker is None or end is None:  # an episode is sent once it has ended
             return
         host = self.tracker.host_of
-        entry = {"start": host(e.start), "start_utc": _iso(host(e.start)), "end": host(end),
-                 "end_utc": _iso(host(end)), "duration_s": round(end - e.start, 3), "reasons": e.reasons,
-                 "alerted": e.alerted}
+        entry = {
+            "start": host(e.start),
+            "start_utc": _iso(host(e.start)),
+            "end": host(end),
+            "end_utc": _iso(host(end)),
+            "duration_s": round(end - e.start, 3),
+            "reasons": e.reasons,
+            "alerted": e.alerted,
+        }
         if e.alerted:
             self.on_note(f"live motion: tracked again after {end - e.start:.1f} s NOT TRACKING ({e.reasons[0]})")
 
@@ -330,12 +411,20 @@ class LiveMotion:
                 lm["not_tracking"].append(entry)
             else:
                 lm["not_tracking_more"] = lm.get("not_tracking_more", 0) + 1
+
         session.update_manifest(add)
 
     def _run_command(self, session, argv: list[str]) -> str:
         try:
-            proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                    stderr=subprocess.PIPE, shell=False, start_new_session=True, **child_options())
+            proc = subprocess.Popen(
+                argv,
+                stdin=subprocess.DEVNULL,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.PIPE,
+                shell=False,
+                start_new_session=True,
+                **child_options(),
+            )
         except OSError as exc:
             self._command_failed(session, f"alert command {argv[0]!r} could not be started: {exc.strerror or exc}")
             return "not started"
@@ -348,16 +437,17 @@ class LiveMotion:
     def _wait_command(self, session, proc: subprocess.Popen, name: str) -> None:
         try:
             _, err = proc.communicate(timeout=COMMAND_TIMEOUT_S)
-        except subprocess.TimeoutExpired:     # no program outlives the scan's command that started it
+        except subprocess.TimeoutExpired:  # no program outlives the scan's command that started it
             proc.kill()
             proc.wait()
-            self._command_failed(session, f"alert command {name!r} still running after {COMMAND_TIMEOUT_S:g} s: "
-                                          f"ended")
+            self._command_failed(session, f"alert command {name!r} still running after {COMMAND_TIMEOUT_S:g} s: ended")
             return
         if proc.returncode != 0:
             why = (err or b"").decode(errors="replace").strip().splitlines()[-1:] or [""]
-            self._command_failed(session, f"alert command {name!r} failed (exit {proc.returncode})"
-                                          + (f": {why[0][:200]}" if why[0] else ""))
+            self._command_failed(
+                session,
+                f"alert command {name!r} failed (exit {proc.returncode})" + (f": {why[0][:200]}" if why[0] else ""),
+            )
 
     def _command_failed(self, session, text: str) -> None:
         self.on_note(text)

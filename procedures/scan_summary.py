@@ -14,7 +14,7 @@ __all__ = ["summary_lines", "live_summary", "verdict", "fmt_time"]
 def fmt_time(t: float | None) -> str:
     if t is None:
         return "-"
-    return _dt.datetime.fromtimestamp(t, _dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S.%f")[:-4] + "Z"
+    return _dt.datetime.fromtimestamp(t, _dt.UTC).strftime("%Y-%m-%d %H:%M:%S.%f")[:-4] + "Z"
 
 
 def summary_lines(folder: Path, m: dict) -> list[str]:
@@ -26,9 +26,11 @@ def summary_lines(folder: Path, m: dict) -> list[str]:
     for name, c in m["cameras"].items():
         before = (c.get("clock_offset_before") or {}).get("offset_s")
         after = (c.get("clock_offset_after") or {}).get("offset_s")
-        clock = (f", clock {before:+.3f} s -> {after:+.3f} s" if before is not None and after is not None else "")
-        out.append(f"  {name}: {c['frames']} frames, {c['dropped_frames']} dropped in {len(c['gaps'])} gap(s), "
-                   f"{c.get('reconnects', 0)} reconnect(s){clock}")
+        clock = f", clock {before:+.3f} s -> {after:+.3f} s" if before is not None and after is not None else ""
+        out.append(
+            f"  {name}: {c['frames']} frames, {c['dropped_frames']} dropped in {len(c['gaps'])} gap(s), "
+            f"{c.get('reconnects', 0)} reconnect(s){clock}"
+        )
     tr = m.get("trigger", {})
     if tr.get("backend") == "none":
         out.append("  trigger: none (recording only)")
@@ -54,12 +56,18 @@ def live_summary(lm: dict) -> str:
         return f"off ({lm.get('off_reason', '')})"
     s = lm.get("summary") or {}
     tr = s.get("tracking") or {}
-    parts = [f"TRACKING {tr.get('tracking_s', 0):.1f} s, REFERENCE {tr.get('reference_s', 0):.1f} s, "
-             f"NOT TRACKING {tr.get('not_tracking_s', 0):.1f} s in {tr.get('not_tracking_stretches', 0)} stretch(es)"
-             + (f" (longest {tr['longest_not_tracking_s']:.1f} s: {tr.get('longest_reason', '')})"
-                if tr.get("longest_not_tracking_s") else "")]
-    parts.append(f"{len(lm.get('alerts', []))} motion alert(s), {len(lm.get('blind_alerts', []))} NOT TRACKING "
-                 f"alert(s)")
+    parts = [
+        f"TRACKING {tr.get('tracking_s', 0):.1f} s, REFERENCE {tr.get('reference_s', 0):.1f} s, "
+        f"NOT TRACKING {tr.get('not_tracking_s', 0):.1f} s in {tr.get('not_tracking_stretches', 0)} stretch(es)"
+        + (
+            f" (longest {tr['longest_not_tracking_s']:.1f} s: {tr.get('longest_reason', '')})"
+            if tr.get("longest_not_tracking_s")
+            else ""
+        )
+    ]
+    parts.append(
+        f"{len(lm.get('alerts', []))} motion alert(s), {len(lm.get('blind_alerts', []))} NOT TRACKING alert(s)"
+    )
     dropped = sum((s.get("live_dropped") or {}).values())
     parts.append(f"{dropped} frame(s) dropped from the live path (never from the recording)")
     if s.get("error"):

@@ -11,16 +11,17 @@ import dataclasses
 import inspect
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable, Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 from vts_hw.config import RigConfig
 from vts_hw.drivers.registry import open_trigger
 from vts_hw.drivers.trigger import CLOCK, EDGES, FIRE, LEVELS, WATCHDOG, TriggerError, TriggerGenerator, TriggerLog
 from vts_hw.errors import DeviceError, VtsError
 
-STATUS_EVERY = 5               # a backend without edge counts: its full status every 5 polls
-BOOT_WAIT_S = 2.0              # a trigger box reset by the opening of its port is answering by then
+STATUS_EVERY = 5  # a backend without edge counts: its full status every 5 polls
+BOOT_WAIT_S = 2.0  # a trigger box reset by the opening of its port is answering by then
 
 
 class ScanError(DeviceError):
@@ -68,10 +69,10 @@ class ScanTrigger:
         self.clock = clock
         self.gen: TriggerGenerator | None = None
         self.log: TriggerLog | None = None
-        self.fired: bool | None = False     # None: not known (a fire that raised)
+        self.fired: bool | None = False  # None: not known (a fire that raised)
         self.edges: int | None = None
         self._polls = 0
-        self.lost = False          # the device failed during the scan: no more polling
+        self.lost = False  # the device failed during the scan: no more polling
         self._closed = False
         self._lock = threading.Lock()
         c = self.cfg
@@ -79,8 +80,13 @@ class ScanTrigger:
         if c.backend == "none":
             self.info.update(mode="none", note="no trigger generator (trigger backend none): recording only")
         else:
-            self.info["asked"] = {"frequency_hz": c.frequency_hz, "duty": c.duty, "high_v": c.high_v,
-                                  "low_v": c.low_v, "pulse_ms": c.pulse_ms}
+            self.info["asked"] = {
+                "frequency_hz": c.frequency_hz,
+                "duty": c.duty,
+                "high_v": c.high_v,
+                "low_v": c.low_v,
+                "pulse_ms": c.pulse_ms,
+            }
 
     @property
     def present(self) -> bool:
@@ -103,8 +109,9 @@ class ScanTrigger:
         if not self.present:
             return
         try:
-            self.gen = gen = self._given() if self._given is not None else open_trigger(self.rig, None,
-                                                                                      clock=self.clock)
+            self.gen = gen = (
+                self._given() if self._given is not None else open_trigger(self.rig, None, clock=self.clock)
+            )
             self.log = gen.log
             if isinstance(gen, _Identifies):
                 self.info["idn"] = self._identify(gen)
@@ -119,16 +126,21 @@ class ScanTrigger:
             self.info["confirmed"] = plain_dict(gen.configure(self.cfg.frequency_hz, self.cfg.duty, *levels))
             self.info["device"] = gen.name
             self.info["capabilities"] = sorted(self.caps())
-            if WATCHDOG not in self.caps():   # said before the scan, kept in the manifest (decision 0083)
-                self.info["no_watchdog"] = (f"the {self.cfg.backend} trigger cannot switch its square wave off by itself: "
-                                     "if this computer stops during the scan (killed, crashed), the wave stays on "
-                                     "until `vts trigger stop`")
+            if WATCHDOG not in self.caps():  # said before the scan, kept in the manifest (decision 0083)
+                self.info["no_watchdog"] = (
+                    f"the {self.cfg.backend} trigger cannot switch its square wave off by itself: "
+                    "if this computer stops during the scan (killed, crashed), the wave stays on "
+                    "until `vts trigger stop`"
+                )
         except Exception as exc:
             self.close()
             where = f"{self.cfg.backend} trigger at {self.cfg.address}"
-            raise ScanError(f"cannot start the scan: {why(exc)}" if isinstance(exc, VtsError)
-                            else f"cannot start the scan: the {where} failed ({why(exc)})",
-                            getattr(exc, "exit_code", None)) from None
+            raise ScanError(
+                f"cannot start the scan: {why(exc)}"
+                if isinstance(exc, VtsError)
+                else f"cannot start the scan: the {where} failed ({why(exc)})",
+                getattr(exc, "exit_code", None),
+            ) from None
         self.map_clock("clock_mapping_before")
 
     def _identify(self, gen: _Identifies) -> str:
@@ -168,15 +180,19 @@ class ScanTrigger:
         sent = self.clock()
         try:
             if FIRE in self.caps():
-                kw = {"pulse_ms": self.cfg.pulse_ms} if "pulse_ms" in inspect.signature(self.gen.fire).parameters \
-                    else {}
+                kw = (
+                    {"pulse_ms": self.cfg.pulse_ms} if "pulse_ms" in inspect.signature(self.gen.fire).parameters else {}
+                )
                 st = self.gen.fire(**kw)
                 self.info.update(mode="start pulses and square wave", start_pulses=True)
             else:
                 st = self.gen.start()
-                self.info.update(mode="square wave only", start_pulses=False,
-                                 note=f"{self.gen.name} cannot send start pulses: the square wave was started "
-                                      f"alone; the SPECT is started by hand")
+                self.info.update(
+                    mode="square wave only",
+                    start_pulses=False,
+                    note=f"{self.gen.name} cannot send start pulses: the square wave was started "
+                    f"alone; the SPECT is started by hand",
+                )
         except Exception as exc:
             self.info["fire_sent_host_time"] = sent
             self.error("fire", exc)
@@ -184,11 +200,18 @@ class ScanTrigger:
             return
         self.fired = True
         first = st.extra.get("first_edge_host")
-        self.info.update(fired=True, fire_sent_host_time=sent, fire_confirmed_host_time=self.clock(),
-                         fire_time=first if first is not None else sent,
-                         fire_time_source=("first rising edge, device clock mapped to host" if first is not None
-                                           else "host time when the command was sent"),
-                         fire_status=plain_dict(st))
+        self.info.update(
+            fired=True,
+            fire_sent_host_time=sent,
+            fire_confirmed_host_time=self.clock(),
+            fire_time=first if first is not None else sent,
+            fire_time_source=(
+                "first rising edge, device clock mapped to host"
+                if first is not None
+                else "host time when the command was sent"
+            ),
+            fire_status=plain_dict(st),
+        )
         self.edges = st.edges
 
     def poll(self) -> None:
@@ -216,7 +239,7 @@ class ScanTrigger:
             st = self.gen.stop()
             self.info["stop_status"] = plain_dict(st)
             self.info["stopped_host_time"] = self.clock()
-            for e in st.errors:   # queued during the scan: e.g. the trigger box's watchdog cut the wave
+            for e in st.errors:  # queued during the scan: e.g. the trigger box's watchdog cut the wave
                 self.error("stop", f"{self.gen.name} reports {e}")
             if st.edges is not None:
                 self.edges = st.edges
@@ -244,8 +267,14 @@ class ScanTrigger:
     def live(self) -> dict:
         with self._lock:
             errors = list(self.info["errors"])
-        return {"backend": self.cfg.backend, "mode": self.info.get("mode"), "fired": self.fired,
-                "edges": self.edges, "fire_time": self.info.get("fire_time"), "errors": errors}
+        return {
+            "backend": self.cfg.backend,
+            "mode": self.info.get("mode"),
+            "fired": self.fired,
+            "edges": self.edges,
+            "fire_time": self.info.get("fire_time"),
+            "errors": errors,
+        }
 
 
 # ---- the session -------------------------------------------------------------------------------

@@ -43,8 +43,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from vts_hw import catalog
-from vts_hw import __version__
+from vts_hw import __version__, catalog
 from vts_hw.errors import DataError
 from vts_hw.figures import figure_png
 from vts_hw.results import Measure, overall_state
@@ -55,13 +54,12 @@ from vts_hw.vision.body_finder import locate_body, locate_body_views
 from vts_hw.vision.camera_set import named_cameras
 from vts_hw.vision.registration import LooTre, RigidTransform, fre, kabsch, loo_tre
 
-__all__ = ["correspond", "Correspondence", "SpectMapping", "FRE_LIMIT_MM",
-           "SIGNATURE_MARGIN_MM", "MAX_PERMUTATIONS"]
+__all__ = ["correspond", "Correspondence", "SpectMapping", "FRE_LIMIT_MM", "SIGNATURE_MARGIN_MM", "MAX_PERMUTATIONS"]
 
 FRE_LIMIT_MM = 2.0
 SIGNATURE_MARGIN_MM = 5.0
-WIDE_MARGIN_MM = 40.0      # second pass when the signature-best assignment fits badly
-MAX_PERMUTATIONS = 5040    # 7!: every permutation of the 7-sphere phantom at most
+WIDE_MARGIN_MM = 40.0  # second pass when the signature-best assignment fits badly
+MAX_PERMUTATIONS = 5040  # 7!: every permutation of the 7-sphere phantom at most
 
 
 @dataclass(frozen=True)
@@ -69,9 +67,9 @@ class Correspondence:
     """The outcome of :func:`correspond`: ``order[i]`` is the index in ``b`` of ``a[i]``."""
 
     order: list[int]
-    fre_mm: float                   # Kabsch FRE of the chosen order
+    fre_mm: float  # Kabsch FRE of the chosen order
     runner_up_fre_mm: float | None  # best FRE of any other order tried (None: none tried)
-    tried: int                      # permutations scored by Kabsch
+    tried: int  # permutations scored by Kabsch
 
     @property
     def ambiguous(self) -> bool:
@@ -158,8 +156,7 @@ def _match(a: np.ndarray, b: np.ndarray, fre_limit: float) -> Correspondence:
     best, best_fre = ranked[0]
     runner = ranked[1][1] if len(ranked) > 1 else None
     if not np.isfinite(best_fre):
-        raise DataError(f"the {n} points are collinear, so no rigid correspondence can be "
-                        "fitted.")
+        raise DataError(f"the {n} points are collinear, so no rigid correspondence can be fitted.")
     if best_fre > fre_limit:
         residuals = np.linalg.norm(kabsch(a, b[list(best)]).apply(a) - b[list(best)], axis=1)
         worst = int(np.argmax(residuals))
@@ -167,7 +164,8 @@ def _match(a: np.ndarray, b: np.ndarray, fre_limit: float) -> Correspondence:
             f"no consistent correspondence between the two sets of {n} points: the best rigid "
             f"match leaves an FRE of {best_fre:.1f} mm (limit {fre_limit:.1f} mm, worst at "
             f"point {worst + 1}, {residuals[worst]:.1f} mm), so a sphere is missing, extra or "
-            "out of place in one of them.")
+            "out of place in one of them."
+        )
     return Correspondence(list(best), float(best_fre), runner, len(scores))
 
 
@@ -185,8 +183,7 @@ def correspondence(a, b, fre_limit_mm: float = FRE_LIMIT_MM) -> Correspondence:
     """:func:`correspond` with the FRE of the chosen order and of the runner-up."""
     a, b = _as_points(a, "first"), _as_points(b, "second")
     if len(a) != len(b):
-        raise DataError(f"cannot match {len(a)} points to {len(b)} points: both sets must hold "
-                        "the same spheres.")
+        raise DataError(f"cannot match {len(a)} points to {len(b)} points: both sets must hold the same spheres.")
     if len(a) < 3:
         raise DataError(f"cannot match {len(a)} points: at least 3 are needed for a rigid fit.")
     return _match(a, b, float(fre_limit_mm))
@@ -194,6 +191,7 @@ def correspondence(a, b, fre_limit_mm: float = FRE_LIMIT_MM) -> Correspondence:
 
 class Fitted(NamedTuple):
     """What SpectMapping.analyze() found, all of it."""
+
     match: Correspondence
     transform: RigidTransform
     residuals_mm: np.ndarray
@@ -217,12 +215,11 @@ class SpectMapping:
         self.tre: LooTre | None = None
         self.analyzed_at: str | None = None
         self.tolerances: dict | None = None
-        self.vts_cameras: list[str] | None = None    # the cameras that measured the VTS side, if known
-        self.spect_volume: dict | None = None        # the volume that places the SPECT frame (spect/frame.py)
+        self.vts_cameras: list[str] | None = None  # the cameras that measured the VTS side, if known
+        self.spect_volume: dict | None = None  # the volume that places the SPECT frame (spect/frame.py)
 
     @classmethod
-    def from_volume(cls, vts_points, volume_path, fre_limit_mm: float = FRE_LIMIT_MM,
-                    **find_kwargs) -> "SpectMapping":
+    def from_volume(cls, vts_points, volume_path, fre_limit_mm: float = FRE_LIMIT_MM, **find_kwargs) -> SpectMapping:
         """SPECT points from a reconstructed volume (any format :func:`read_volume` knows);
         a sphere count other than the VTS count raises :class:`DataError`."""
         vts = _as_points(vts_points, "VTS")
@@ -233,8 +230,9 @@ class SpectMapping:
         return mapping
 
     @classmethod
-    def from_stereo(cls, calibration, pts_left, pts_right, volume_path, tol_mm: float = 3.0,
-                    fre_limit_mm: float = FRE_LIMIT_MM) -> "SpectMapping":
+    def from_stereo(
+        cls, calibration, pts_left, pts_right, volume_path, tol_mm: float = 3.0, fre_limit_mm: float = FRE_LIMIT_MM
+    ) -> SpectMapping:
         """The phantom seen by the stereo VTS (marker detections in px, left and right, wall
         markers and all) and by the SPECT (a volume): the spheres are picked out of the VTS's
         stereo hypotheses by the shape of the SPECT's centroids
@@ -248,8 +246,9 @@ class SpectMapping:
         return mapping
 
     @classmethod
-    def from_views(cls, calibration, points_px: dict, volume_path, tol_mm: float = 3.0,
-                   fre_limit_mm: float = FRE_LIMIT_MM) -> "SpectMapping":
+    def from_views(
+        cls, calibration, points_px: dict, volume_path, tol_mm: float = 3.0, fre_limit_mm: float = FRE_LIMIT_MM
+    ) -> SpectMapping:
         """As :meth:`from_stereo`, from any number of cameras: ``points_px`` maps a camera name
         (the calibration's, or the rig's for a file named otherwise) to its detections (px)."""
         names = list(points_px)
@@ -259,33 +258,37 @@ class SpectMapping:
             raise DataError(f"camera(s) {', '.join(missing)} not in the calibration (it has {', '.join(cams)}).")
         volume, record = _read_volume(volume_path)
         spect = find_spheres(volume, strict=True).centroids
-        fit = locate_body_views([cams[n] for n in names],
-                                [np.asarray(points_px[n], float).reshape(-1, 2) for n in names], spect, tol_mm=tol_mm)
+        fit = locate_body_views(
+            [cams[n] for n in names],
+            [np.asarray(points_px[n], float).reshape(-1, 2) for n in names],
+            spect,
+            tol_mm=tol_mm,
+        )
         mapping = cls(fit.points, spect, fre_limit_mm)
         mapping.vts_cameras = names
         mapping.spect_volume = record
         return mapping
 
     # ------------------------------------------------------------------ analysis
-    def analyze(self, tolerances: dict | None = None) -> "SpectMapping":
+    def analyze(self, tolerances: dict | None = None) -> SpectMapping:
         """Correspondence, Kabsch fit, FRE and leave-one-out TRE; ``tolerances``: the rig's
         windows over the defaults (``mapping_fre_mm``, ``mapping_tre_rms_mm`` judge)."""
         self.tolerances = tolerances
         n_v, n_s = len(self.vts_points), len(self.spect_points)
         if n_v != n_s:
-            raise DataError(f"the VTS sees {n_v} spheres but the SPECT volume gives {n_s}: both "
-                            "must see the same spheres.")
+            raise DataError(
+                f"the VTS sees {n_v} spheres but the SPECT volume gives {n_s}: both must see the same spheres."
+            )
         if n_v < 4:
-            raise DataError(f"the mapping needs at least 4 spheres (leave-one-out TRE), got "
-                            f"{n_v}.")
+            raise DataError(f"the mapping needs at least 4 spheres (leave-one-out TRE), got {n_v}.")
         self.match = correspondence(self.vts_points, self.spect_points, self.fre_limit_mm)
         spect = self.spect_points[self.match.order]
-        self._spheres = spect                 # the spheres in the reported order (S1..): kept in the file
+        self._spheres = spect  # the spheres in the reported order (S1..): kept in the file
         T = kabsch(self.vts_points, spect)
         self.residuals_mm = np.linalg.norm(T.apply(self.vts_points) - spect, axis=1)
         self.tre = loo_tre(self.vts_points, spect)
         self.transform = RigidTransform(T.R, T.t, self._meta())
-        self.analyzed_at = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+        self.analyzed_at = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
         return self
 
     def fitted(self) -> Fitted:
@@ -324,9 +327,14 @@ class SpectMapping:
         }
 
     def _meta(self) -> dict:
-        return {"from_frame": "VTS", "to_frame": "SPECT", "procedure": catalog.MAPPING.name, **self._figures(),
-                **({"spect_volume": self.spect_volume} if self.spect_volume else {}),
-                "spheres_spect_mm": np.round(self._spheres, 3).tolist()}
+        return {
+            "from_frame": "VTS",
+            "to_frame": "SPECT",
+            "procedure": catalog.MAPPING.name,
+            **self._figures(),
+            **({"spect_volume": self.spect_volume} if self.spect_volume else {}),
+            "spheres_spect_mm": np.round(self._spheres, 3).tolist(),
+        }
 
     # ------------------------------------------------------------------ the QA result shape
     procedure = catalog.MAPPING.name
@@ -336,8 +344,10 @@ class SpectMapping:
         """FRE and leave-one-out TRE RMS, judged by the tolerance table (subject: the phantom)."""
         fit = self.fitted()
         tol = merged_tolerances(self.tolerances)
-        return [Measure.judged("phantom", "mapping_fre_mm", fit.match.fre_mm, "mm", tol["mapping_fre_mm"]),
-                Measure.judged("phantom", "mapping_tre_rms_mm", fit.tre.rms, "mm", tol["mapping_tre_rms_mm"])]
+        return [
+            Measure.judged("phantom", "mapping_fre_mm", fit.match.fre_mm, "mm", tol["mapping_fre_mm"]),
+            Measure.judged("phantom", "mapping_tre_rms_mm", fit.tre.rms, "mm", tol["mapping_tre_rms_mm"]),
+        ]
 
     @property
     def state(self) -> State:
@@ -354,13 +364,19 @@ class SpectMapping:
         k = np.arange(len(fit.residuals_mm))
         ax.bar(k - 0.2, fit.residuals_mm, 0.4, label="residual of the fit")
         ax.bar(k + 0.2, fit.tre.per_point, 0.4, label="leave-one-out TRE")
-        for w, style in ((tol["mapping_tre_rms_mm"].tolerance_high, ":"), (tol["mapping_tre_rms_mm"].action_high, "--")):
+        for w, style in (
+            (tol["mapping_tre_rms_mm"].tolerance_high, ":"),
+            (tol["mapping_tre_rms_mm"].action_high, "--"),
+        ):
             if w is not None:
                 ax.axhline(w, color="0.4", ls=style, lw=1)
         ax.set_xticks(k, [f"S{i + 1}" for i in k])
         ax.set_ylabel("mm")
-        ax.set_title(f"VTS → SPECT mapping ({self.analyzed_at}, vts-hw {__version__}): FRE "
-                     f"{fit.match.fre_mm:.2f} mm, TRE RMS {fit.tre.rms:.2f} mm — {self.state}", fontsize=9)
+        ax.set_title(
+            f"VTS → SPECT mapping ({self.analyzed_at}, vts-hw {__version__}): FRE "
+            f"{fit.match.fre_mm:.2f} mm, TRE RMS {fit.tre.rms:.2f} mm — {self.state}",
+            fontsize=9,
+        )
         ax.legend(fontsize=8, frameon=False)
         return figure_png(fig, path)
 
@@ -374,9 +390,12 @@ class SpectMapping:
             "date": self.analyzed_at,
             "vts_hw_version": __version__,
             "ambiguous": fit.match.ambiguous,
-            "transform": {"R": T.R.tolist(), "t_mm": T.t.tolist(),
-                          "euler_xyz_deg": T.as_euler_xyz_deg().tolist(),
-                          "rotation_angle_deg": T.rotation_angle_deg},
+            "transform": {
+                "R": T.R.tolist(),
+                "t_mm": T.t.tolist(),
+                "euler_xyz_deg": T.as_euler_xyz_deg().tolist(),
+                "rotation_angle_deg": T.rotation_angle_deg,
+            },
             **self._figures(),
             "spect_volume": self.spect_volume,
             "state": str(self.state),
@@ -389,8 +408,7 @@ class SpectMapping:
         rx, ry, rz = d["transform"]["euler_xyz_deg"]
         tx, ty, tz = d["transform"]["t_mm"]
         lines = [
-            f"VTS → SPECT mapping ({d['n_spheres']} spheres), {d['date']}, "
-            f"vts-hw {d['vts_hw_version']}",
+            f"VTS → SPECT mapping ({d['n_spheres']} spheres), {d['date']}, vts-hw {d['vts_hw_version']}",
             f"  rotation about x, y, z: {rx:.2f}°, {ry:.2f}°, {rz:.2f}° "
             f"(angle {d['transform']['rotation_angle_deg']:.2f}°)",
             f"  translation: {tx:.2f}, {ty:.2f}, {tz:.2f} mm",
@@ -398,13 +416,14 @@ class SpectMapping:
             f"  leave-one-out TRE: RMS {d['tre_rms_mm']:.2f} mm, max {d['tre_max_mm']:.2f} mm",
             "  sphere  SPECT#  residual mm  TRE mm",
         ]
-        for i, (j, r, e) in enumerate(zip(d["correspondence"], d["residuals_mm"],
-                                          d["tre_per_sphere_mm"])):
+        for i, (j, r, e) in enumerate(zip(d["correspondence"], d["residuals_mm"], d["tre_per_sphere_mm"])):
             lines.append(f"  {i + 1:>6}  {j + 1:>6}  {r:>11.2f}  {e:>6.2f}")
         if d["ambiguous"]:
-            lines.append(f"  WARNING: another sphere order also fits (FRE "
-                         f"{d['runner_up_fre_mm']:.2f} mm): the phantom looks symmetric; check "
-                         "the correspondence.")
+            lines.append(
+                f"  WARNING: another sphere order also fits (FRE "
+                f"{d['runner_up_fre_mm']:.2f} mm): the phantom looks symmetric; check "
+                "the correspondence."
+            )
         return "\n".join(lines)
 
     def save(self, path) -> Path:
@@ -428,5 +447,7 @@ def replaceable(out_path: Path, force: bool = False) -> None:
     try:
         RigidTransform.load(out_path)
     except DataError:
-        raise DataError(f"{out_path} exists and is not a VTS → SPECT mapping file; give another -o,"
-                        " move it away, or give --force to replace it.") from None
+        raise DataError(
+            f"{out_path} exists and is not a VTS → SPECT mapping file; give another -o,"
+            " move it away, or give --force to replace it."
+        ) from None

@@ -13,15 +13,21 @@ The cameras are opened by the caller (the room's: ``room.camera(name)``), never 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence
 
 from vts_hw.errors import ConfigError, DataError, UsageError
 from vts_hw.files import WriteFailed
 from vts_hw.procedures.mapping_inputs import camera_calibration_for
-from vts_hw.procedures.steps import (OperatorPositioner, StepPosition, StepSession, VolumeFolder, analyze_positions,
-                                     load_positions)
+from vts_hw.procedures.steps import (
+    OperatorPositioner,
+    StepPosition,
+    StepSession,
+    VolumeFolder,
+    analyze_positions,
+    load_positions,
+)
 from vts_hw.procedures.steps_analysis import StepAnalysis
 from vts_hw.vision.registration import RigidTransform
 
@@ -52,25 +58,54 @@ def step_test_inputs(rig, calibration_path=None, mapping_path=None, volumes=None
     calibration = camera_calibration_for(rig, calibration_path, "the step test")
     map_path = mapping_path or rig.calibration.spect
     if map_path is None:
-        raise ConfigError("no VTS -> SPECT mapping: give --mapping or set calibration.mapping in the rig "
-                          "config (`vts calibrate spect`).")
+        raise ConfigError(
+            "no VTS -> SPECT mapping: give --mapping or set calibration.mapping in the rig "
+            "config (`vts calibrate spect`)."
+        )
     if not volumes:
-        raise UsageError("give --volumes DIR: the folder the SPECT's reconstructions of the positions are "
-                         "(or will be) exported to")
+        raise UsageError(
+            "give --volumes DIR: the folder the SPECT's reconstructions of the positions are (or will be) exported to"
+        )
     return StepInputs(calibration, RigidTransform.load(map_path), VolumeFolder(volumes))
 
 
-def step_session(cameras: Sequence, inputs: StepInputs, out, plan: list[StepPosition], *, frames: int = 10,
-                 ask: Callable[[str], object] = input, progress=None) -> StepSession:
+def step_session(
+    cameras: Sequence,
+    inputs: StepInputs,
+    out,
+    plan: list[StepPosition],
+    *,
+    frames: int = 10,
+    ask: Callable[[str], object] = input,
+    progress=None,
+) -> StepSession:
     """The acquisition on the given stereo pair, the operator answering ``ask`` at each position."""
-    return StepSession(cameras, inputs.calibration, inputs.mapping, OperatorPositioner(ask), inputs.spect,
-                       out, plan=plan, frames=frames, progress=progress)
+    return StepSession(
+        cameras,
+        inputs.calibration,
+        inputs.mapping,
+        OperatorPositioner(ask),
+        inputs.spect,
+        out,
+        plan=plan,
+        frames=frames,
+        progress=progress,
+    )
 
 
-def run_step_test(rig, inputs: StepInputs, out, plan: list[StepPosition], *, cameras: Sequence = (),
-                  analyze_dir=None, frames: int = 10, ask: Callable[[str], object] = input,
-                  progress: Callable[[str], None] | None = None,
-                  clock: Callable[[], float] = time.time) -> StepRun:
+def run_step_test(
+    rig,
+    inputs: StepInputs,
+    out,
+    plan: list[StepPosition],
+    *,
+    cameras: Sequence = (),
+    analyze_dir=None,
+    frames: int = 10,
+    ask: Callable[[str], object] = input,
+    progress: Callable[[str], None] | None = None,
+    clock: Callable[[], float] = time.time,
+) -> StepRun:
     """Acquire with ``cameras`` (or read ``analyze_dir``), analyse and plot; the caller records it."""
     say = progress or (lambda m: None)
     out = Path(out)
@@ -81,15 +116,18 @@ def run_step_test(rig, inputs: StepInputs, out, plan: list[StepPosition], *, cam
         seen = step_session(cameras, inputs, out, plan, frames=frames, ask=ask, progress=say).acquire()
         say(f"the VTS part is saved in {out / 'positions.json'}")
     try:
-        analysis = analyze_positions(seen, plan, inputs.calibration, inputs.mapping, inputs.spect,
-                                     rig.tolerances, progress=say)
+        analysis = analyze_positions(
+            seen, plan, inputs.calibration, inputs.mapping, inputs.spect, rig.tolerances, progress=say
+        )
     except DataError as exc:
-        raise DataError(f"{exc} (the VTS part is kept: run `vts qa steps --analyze {out} --volumes "
-                        f"{inputs.spect.folder}` when that is fixed)") from None
+        raise DataError(
+            f"{exc} (the VTS part is kept: run `vts qa steps --analyze {out} --volumes "
+            f"{inputs.spect.folder}` when that is fixed)"
+        ) from None
     png = out / "steps.png"
     try:
         analysis.plot(png)
         plot_error = None
-    except WriteFailed as exc:      # a full disk costs the plot, never the analysed test
+    except WriteFailed as exc:  # a full disk costs the plot, never the analysed test
         plot_error = exc
     return StepRun(analysis, started, None if plot_error else png, out, plot_error)

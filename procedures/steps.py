@@ -29,9 +29,10 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable, Protocol, Sequence, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -63,7 +64,7 @@ class StepPosition:
     the baseline (the real step is what the SPECT measures, not this)."""
 
     label: str
-    kind: str            # baseline | vertical | axial | free
+    kind: str  # baseline | vertical | axial | free
     table_y_mm: float
     table_z_mm: float
     instruction: str
@@ -71,21 +72,44 @@ class StepPosition:
 
 def step_plan(n_vertical: int = 10, n_axial: int = 10, step_mm: float = 10.0) -> list[StepPosition]:
     """The positions in order: baseline, Vnn (up), Ann (along the table), then ``free``."""
-    out = [StepPosition("baseline", "baseline", 0.0, 0.0,
-                        "Place the 7-sphere phantom at the centre of the field of view, LED ring on.")]
+    out = [
+        StepPosition(
+            "baseline",
+            "baseline",
+            0.0,
+            0.0,
+            "Place the 7-sphere phantom at the centre of the field of view, LED ring on.",
+        )
+    ]
     y = z = 0.0
     for i in range(1, n_vertical + 1):
         y += step_mm
-        out.append(StepPosition(f"V{i:02d}", "vertical", y, z,
-                                f"Raise the table {step_mm:g} mm (vertical step {i} of {n_vertical})."))
+        out.append(
+            StepPosition(
+                f"V{i:02d}", "vertical", y, z, f"Raise the table {step_mm:g} mm (vertical step {i} of {n_vertical})."
+            )
+        )
     for i in range(1, n_axial + 1):
         z += step_mm
-        out.append(StepPosition(f"A{i:02d}", "axial", y, z,
-                                f"Move the table {step_mm:g} mm into the gantry (axial step {i} of "
-                                f"{n_axial})."))
-    out.append(StepPosition("free", "free", y, z,
-                            "Turn the phantom by hand (a few degrees about any axis) and shift it by a "
-                            "few centimetres; keep every sphere in view."))
+        out.append(
+            StepPosition(
+                f"A{i:02d}",
+                "axial",
+                y,
+                z,
+                f"Move the table {step_mm:g} mm into the gantry (axial step {i} of {n_axial}).",
+            )
+        )
+    out.append(
+        StepPosition(
+            "free",
+            "free",
+            y,
+            z,
+            "Turn the phantom by hand (a few degrees about any axis) and shift it by a "
+            "few centimetres; keep every sphere in view.",
+        )
+    )
     return out
 
 
@@ -100,8 +124,8 @@ class Positioner(Protocol):
 class SpectSource(Protocol):
     """Where the SPECT's reconstructed volume of each position comes from."""
 
-    def acquired(self, pos: StepPosition) -> None: ...      # the VTS has seen this position
-    def volume(self, pos: StepPosition) -> Path: ...        # its volume (DataError if none)
+    def acquired(self, pos: StepPosition) -> None: ...  # the VTS has seen this position
+    def volume(self, pos: StepPosition) -> Path: ...  # its volume (DataError if none)
 
 
 class OperatorPositioner:
@@ -119,7 +143,7 @@ class VolumeFolder:
     the position: ``baseline.*``, ``V01.*``, ... (any format ``read_volume`` reads; an
     Interfile's ``.h33`` header is the file to name)."""
 
-    SKIP = (".img", ".raw", ".v")   # Interfile data files: the header is the volume
+    SKIP = (".img", ".raw", ".v")  # Interfile data files: the header is the volume
 
     def __init__(self, folder):
         self.folder = Path(folder)
@@ -130,11 +154,15 @@ class VolumeFolder:
     def volume(self, pos: StepPosition) -> Path:
         if not self.folder.is_dir():
             raise DataError(f"{self.folder}: no such folder of SPECT volumes.")
-        hits = sorted(p for p in self.folder.iterdir()
-                      if p.stem.lower() == pos.label.lower() and p.suffix.lower() not in self.SKIP)
+        hits = sorted(
+            p
+            for p in self.folder.iterdir()
+            if p.stem.lower() == pos.label.lower() and p.suffix.lower() not in self.SKIP
+        )
         if not hits:
-            raise DataError(f"{self.folder}: no SPECT volume for position {pos.label} (expected "
-                            f"{pos.label}.dcm, .h33 or .npz).")
+            raise DataError(
+                f"{self.folder}: no SPECT volume for position {pos.label} (expected {pos.label}.dcm, .h33 or .npz)."
+            )
         return hits[0]
 
 
@@ -177,15 +205,28 @@ class StepSession:
     a dict of named cameras); ``mapping``: the VTS → SPECT RigidTransform.
     """
 
-    def __init__(self, cameras: Sequence, calibration, mapping, positioner: Positioner,
-                 spect: SpectSource, out_dir, plan: list[StepPosition] | None = None,
-                 frames: int = 10, tol_mm: float = 3.0, progress: Callable[[str], None] | None = None,
-                 clock: Callable[[], float] = time.time, compression: int | None = SNAPSHOT_COMPRESSION):
+    def __init__(
+        self,
+        cameras: Sequence,
+        calibration,
+        mapping,
+        positioner: Positioner,
+        spect: SpectSource,
+        out_dir,
+        plan: list[StepPosition] | None = None,
+        frames: int = 10,
+        tol_mm: float = 3.0,
+        progress: Callable[[str], None] | None = None,
+        clock: Callable[[], float] = time.time,
+        compression: int | None = SNAPSHOT_COMPRESSION,
+    ):
         if len(cameras) < 2:
             raise DataError(f"the step test needs two cameras or more, got {len(cameras)}.")
         if getattr(calibration, "unit", "mm") != "mm":
-            raise DataError("the stereo calibration is in squares: calibrate with the square size "
-                            "in mm (--square) so that the VTS measures millimetres.")
+            raise DataError(
+                "the stereo calibration is in squares: calibrate with the square size "
+                "in mm (--square) so that the VTS measures millimetres."
+            )
         self.cameras = list(cameras)
         self.calibration = calibration
         self.mapping = mapping
@@ -204,18 +245,22 @@ class StepSession:
         names = [getattr(c, "name", f"camera {i + 1}") for i, c in enumerate(self.cameras)]
         out = [f"LED on: {', '.join(names)}"]
         for p in self.plan_:
-            out.append(f"{p.label}: {p.instruction} Then {self.frames} snapshots per camera (compression "
-                       f"{self.compression}); the SPECT acquires and reconstructs this position")
+            out.append(
+                f"{p.label}: {p.instruction} Then {self.frames} snapshots per camera (compression "
+                f"{self.compression}); the SPECT acquires and reconstructs this position"
+            )
         out.append(f"save what the VTS saw to {self.out / POSITIONS_FILE} after each position")
-        out.append("per position: SPECT sphere centroids, the same spheres in the VTS (stereo), mapped "
-                   "to the SPECT frame; regression, differences, 6-DOF move; store the run")
+        out.append(
+            "per position: SPECT sphere centroids, the same spheres in the VTS (stereo), mapped "
+            "to the SPECT frame; regression, differences, 6-DOF move; store the run"
+        )
         return out
 
     # ------------------------------------------------------------------ acquisition
     def acquire(self) -> list[SeenPosition]:
         ensure_dir(self.out, "step test folder")
         for cam in self.cameras:
-            light(cam)   # a camera without an LED (a replay) shows its frames as they are
+            light(cam)  # a camera without an LED (a replay) shows its frames as they are
         time.sleep(LED_SETTLE_S)
         for i, pos in enumerate(self.plan_, 1):
             self.positioner.move_to(pos)
@@ -224,8 +269,7 @@ class StepSession:
             for k, cam in enumerate(self.cameras):
                 name = getattr(cam, "name", f"cam{k + 1}")
                 snaps = [cam.snapshot(self.compression) for _ in range(self.frames)]
-                write_atomic(self.out / f"{pos.label}-{name}.jpg", snaps[0].jpeg,
-                             kept=self._kept())
+                write_atomic(self.out / f"{pos.label}-{name}.jpg", snaps[0].jpeg, kept=self._kept())
                 pts[name] = average_centroids([detect_jpeg(s.jpeg) for s in snaps]).tolist()
             self.spect.acquired(pos)
             self.seen.append(SeenPosition(pos.label, pos.kind, self.clock(), pts))
@@ -233,22 +277,29 @@ class StepSession:
         return self.seen
 
     def _save(self) -> None:
-        data = {"format": "vts-hw steps positions", "format_version": 1,
-                "cameras": [getattr(c, "name", f"cam{i + 1}") for i, c in enumerate(self.cameras)],
-                "plan": [asdict(p) for p in self.plan_],
-                "positions": [asdict(s) for s in self.seen]}
+        data = {
+            "format": "vts-hw steps positions",
+            "format_version": 1,
+            "cameras": [getattr(c, "name", f"cam{i + 1}") for i, c in enumerate(self.cameras)],
+            "plan": [asdict(p) for p in self.plan_],
+            "positions": [asdict(s) for s in self.seen],
+        }
         write_json_atomic(self.out / POSITIONS_FILE, data, indent=1, kept=self._kept(len(self.seen) - 1))
 
     def _kept(self, n: int | None = None) -> str:
         """What a full disk leaves of the session: positions.json as it was (``n`` positions)."""
         n = len(self.seen) if n is None else n
-        return (f"{self.out / POSITIONS_FILE} keeps the {n} position(s) acquired before it" if n > 0
-                else "no position was saved yet")
+        return (
+            f"{self.out / POSITIONS_FILE} keeps the {n} position(s) acquired before it"
+            if n > 0
+            else "no position was saved yet"
+        )
 
     # ------------------------------------------------------------------ analysis
     def analyze(self, tolerances=None) -> StepAnalysis:
-        return analyze_positions(self.seen, self.plan_, self.calibration, self.mapping, self.spect,
-                                 tolerances, self.tol_mm, self.progress)
+        return analyze_positions(
+            self.seen, self.plan_, self.calibration, self.mapping, self.spect, tolerances, self.tol_mm, self.progress
+        )
 
 
 def load_positions(folder) -> tuple[list[SeenPosition], list[StepPosition]]:
@@ -262,19 +313,27 @@ def load_positions(folder) -> tuple[list[SeenPosition], list[StepPosition]]:
         seen = [SeenPosition(**s) for s in data["positions"]]
     except OSError as exc:
         raise DataError(f"{path}: cannot read ({exc.strerror or exc}).") from None
-    except (ValueError, KeyError, TypeError, RecursionError) as exc:   # JSON, UTF-8, shape
+    except (ValueError, KeyError, TypeError, RecursionError) as exc:  # JSON, UTF-8, shape
         raise DataError(f"{path}: not a step-session file ({str(exc)[:120] or type(exc).__name__}).") from None
     return seen, plan
 
 
-def analyze_positions(seen: list[SeenPosition], plan: list[StepPosition], calibration, mapping,
-                      spect: SpectSource, tolerances=None, tol_mm: float = 3.0,
-                      progress: Callable[[str], None] | None = None) -> StepAnalysis:
+def analyze_positions(
+    seen: list[SeenPosition],
+    plan: list[StepPosition],
+    calibration,
+    mapping,
+    spect: SpectSource,
+    tolerances=None,
+    tol_mm: float = 3.0,
+    progress: Callable[[str], None] | None = None,
+) -> StepAnalysis:
     """SPECT centroids and VTS spheres per position, then :class:`StepAnalysis`."""
     say = progress or (lambda m: None)
     if len(seen) < 2:
-        raise DataError(f"only {len(seen)} position(s) acquired; the step test needs the baseline "
-                        "and at least one more.")
+        raise DataError(
+            f"only {len(seen)} position(s) acquired; the step test needs the baseline and at least one more."
+        )
     by_label = {p.label: p for p in plan}
     vts_all, spect_all, labels, kinds = [], [], [], []
     reference = None
@@ -288,14 +347,16 @@ def analyze_positions(seen: list[SeenPosition], plan: list[StepPosition], calibr
         else:
             cents = cents[correspond(reference, cents)]
         names = list(s.points_px)
-        cams = named_cameras(calibration, names)    # a stereo pair takes the names seen
+        cams = named_cameras(calibration, names)  # a stereo pair takes the names seen
         missing = [n for n in names if n not in cams]
         if missing:
-            raise DataError(f"position {s.label}: camera(s) {', '.join(missing)} not in the calibration "
-                            f"(it has {', '.join(cams)}).")
+            raise DataError(
+                f"position {s.label}: camera(s) {', '.join(missing)} not in the calibration (it has {', '.join(cams)})."
+            )
         try:
-            fit = locate_body_views([cams[n] for n in names], [np.array(s.points_px[n]).reshape(-1, 2)
-                                                               for n in names], cents, tol_mm=tol_mm)
+            fit = locate_body_views(
+                [cams[n] for n in names], [np.array(s.points_px[n]).reshape(-1, 2) for n in names], cents, tol_mm=tol_mm
+            )
         except DataError as exc:
             raise DataError(f"position {s.label}: {exc}") from None
         vts_all.append(mapping.apply(fit.points))
@@ -304,9 +365,11 @@ def analyze_positions(seen: list[SeenPosition], plan: list[StepPosition], calibr
         kinds.append(s.kind)
         say(f"{s.label}: spheres found (shape RMS {fit.rms_mm:.2f} mm)")
     kept = ("fre_mm", "tre_rms_mm", "tre_max_mm")
-    meta = {"calibration_created": getattr(calibration, "created", ""),
-            "mapping": {k: v for k, v in (getattr(mapping, "meta", None) or {}).items() if k in kept},
-            "volumes": [s.volume for s in seen]}
+    meta = {
+        "calibration_created": getattr(calibration, "created", ""),
+        "mapping": {k: v for k, v in (getattr(mapping, "meta", None) or {}).items() if k in kept},
+        "volumes": [s.volume for s in seen],
+    }
     return StepAnalysis(labels, np.array(vts_all), np.array(spect_all), kinds, meta).analyze(tolerances)
 
 

@@ -25,22 +25,28 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from vts_hw.catalog import STEPS
 from vts_hw import __version__
+from vts_hw.catalog import STEPS
 from vts_hw.errors import DataError
 from vts_hw.figures import figure_png
-from vts_hw.vision.registration import RigidTransform, kabsch
 from vts_hw.results import Measure
 from vts_hw.tolerance import State, Window, merged_tolerances, worst
+from vts_hw.vision.registration import RigidTransform, kabsch
 
 AXES = ("x", "y", "z")
 AXIS_NAMES = {"x": "lateral", "y": "vertical", "z": "axial"}
 
 # metric -> (subject, unit) of what the analysis measures and judges
-METRICS = ("steps_slope", "steps_intercept_mm", "steps_r2", "steps_diff_max_mm",
-           "steps_diff_mean_mm", "steps_diff_sd_mm", "steps_rotation_diff_deg",
-           "steps_translation_diff_mm")
-
+METRICS = (
+    "steps_slope",
+    "steps_intercept_mm",
+    "steps_r2",
+    "steps_diff_max_mm",
+    "steps_diff_mean_mm",
+    "steps_diff_sd_mm",
+    "steps_rotation_diff_deg",
+    "steps_translation_diff_mm",
+)
 
 
 @dataclass(frozen=True)
@@ -56,13 +62,12 @@ class Regression:
 class Move:
     """A 6-DOF move as one system saw it."""
 
-    rotation_xyz_deg: np.ndarray    # about x, y, z
-    translation_mm: np.ndarray      # of the phantom's centre
+    rotation_xyz_deg: np.ndarray  # about x, y, z
+    translation_mm: np.ndarray  # of the phantom's centre
     transform: RigidTransform
 
     def as_dict(self) -> dict:
-        return {"rotation_xyz_deg": self.rotation_xyz_deg.tolist(),
-                "translation_mm": self.translation_mm.tolist()}
+        return {"rotation_xyz_deg": self.rotation_xyz_deg.tolist(), "translation_mm": self.translation_mm.tolist()}
 
 
 def six_dof(before: np.ndarray, after: np.ndarray) -> Move:
@@ -89,8 +94,9 @@ class StepAnalysis:
         self.kinds = list(kinds) if kinds is not None else ["step"] * len(self.labels)
         self.meta = dict(meta or {})
         if self.vts.shape != self.spect.shape or self.vts.ndim != 3 or self.vts.shape[2] != 3:
-            raise DataError(f"VTS {self.vts.shape} and SPECT {self.spect.shape} sphere arrays must "
-                            "both be positions × spheres × 3.")
+            raise DataError(
+                f"VTS {self.vts.shape} and SPECT {self.spect.shape} sphere arrays must both be positions × spheres × 3."
+            )
         if len(self.labels) != self.vts.shape[0]:
             raise DataError(f"{len(self.labels)} labels for {self.vts.shape[0]} positions.")
         if self.vts.shape[0] < 2:
@@ -101,15 +107,14 @@ class StepAnalysis:
         self.measures: list[Measure] = []
 
     # ------------------------------------------------------------------ analysis
-    def analyze(self, tolerances: dict | None = None) -> "StepAnalysis":
+    def analyze(self, tolerances: dict | None = None) -> StepAnalysis:
         tol: dict[str, Window] = merged_tolerances(tolerances)
         v = self.vts.reshape(-1, 3)
         s = self.spect.reshape(-1, 3)
         self.regressions = {}
         for k, ax in enumerate(AXES):
             fit = stats.linregress(s[:, k], v[:, k])
-            self.regressions[ax] = Regression(ax, float(fit.slope), float(fit.intercept),
-                                              float(fit.rvalue ** 2), len(s))
+            self.regressions[ax] = Regression(ax, float(fit.slope), float(fit.intercept), float(fit.rvalue**2), len(s))
         self.diffs = np.linalg.norm(self.vts - self.spect, axis=2)  # P×M
         self.move_vts = six_dof(self.vts[0], self.vts[-1])
         self.move_spect = six_dof(self.spect[0], self.spect[-1])
@@ -120,8 +125,7 @@ class StepAnalysis:
 
         def add(subject, metric, value, unit):
             w = tol.get(metric)
-            out.append(Measure(subject, metric, float(value), unit,
-                               w.state(float(value)) if w else State.OK))
+            out.append(Measure(subject, metric, float(value), unit, w.state(float(value)) if w else State.OK))
 
         for ax, r in self.regressions.items():
             add(ax, "steps_slope", r.slope, "")
@@ -134,7 +138,7 @@ class StepAnalysis:
             add(f"move_{ax}", "steps_rotation_diff_deg", self.rotation_diff_deg[k], "deg")
             add(f"move_{ax}", "steps_translation_diff_mm", self.translation_diff_mm[k], "mm")
         self.measures = out
-        self.analyzed_at = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+        self.analyzed_at = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
         return self
 
     def _need(self) -> None:
@@ -154,19 +158,39 @@ class StepAnalysis:
             "date": self.analyzed_at,
             "vts_hw_version": __version__,
             "state": str(self.state),
-            "positions": [{"label": lab, "kind": kind, "vts_mm": self.vts[i].tolist(),
-                           "spect_mm": self.spect[i].tolist(), "diff_mm": self.diffs[i].tolist()}
-                          for i, (lab, kind) in enumerate(zip(self.labels, self.kinds))],
-            "regression": {ax: {"slope": r.slope, "intercept_mm": r.intercept_mm, "r2": r.r2,
-                                "n": r.n} for ax, r in self.regressions.items()},
-            "differences_mm": {"max": float(self.diffs.max()), "mean": float(self.diffs.mean()),
-                               "sd": float(self.diffs.std(ddof=1)) if self.diffs.size > 1 else 0.0},
-            "move": {"vts": self.move_vts.as_dict(), "spect": self.move_spect.as_dict(),
-                     "difference": {"rotation_xyz_deg": self.rotation_diff_deg.tolist(),
-                                    "translation_mm": self.translation_diff_mm.tolist()},
-                     "from": self.labels[0], "to": self.labels[-1]},
-            "measurements": [{"subject": m.subject, "metric": m.metric, "value": m.value,
-                              "unit": m.unit, "state": str(m.state)} for m in self.measures],
+            "positions": [
+                {
+                    "label": lab,
+                    "kind": kind,
+                    "vts_mm": self.vts[i].tolist(),
+                    "spect_mm": self.spect[i].tolist(),
+                    "diff_mm": self.diffs[i].tolist(),
+                }
+                for i, (lab, kind) in enumerate(zip(self.labels, self.kinds))
+            ],
+            "regression": {
+                ax: {"slope": r.slope, "intercept_mm": r.intercept_mm, "r2": r.r2, "n": r.n}
+                for ax, r in self.regressions.items()
+            },
+            "differences_mm": {
+                "max": float(self.diffs.max()),
+                "mean": float(self.diffs.mean()),
+                "sd": float(self.diffs.std(ddof=1)) if self.diffs.size > 1 else 0.0,
+            },
+            "move": {
+                "vts": self.move_vts.as_dict(),
+                "spect": self.move_spect.as_dict(),
+                "difference": {
+                    "rotation_xyz_deg": self.rotation_diff_deg.tolist(),
+                    "translation_mm": self.translation_diff_mm.tolist(),
+                },
+                "from": self.labels[0],
+                "to": self.labels[-1],
+            },
+            "measurements": [
+                {"subject": m.subject, "metric": m.metric, "value": m.value, "unit": m.unit, "state": str(m.state)}
+                for m in self.measures
+            ],
             "meta": self.meta,
         }
 
@@ -178,27 +202,43 @@ class StepAnalysis:
             st = bad.get((subject, metric))
             return f"  <- {st}" if st else ""
 
-        lines = [f"7-sphere step test: {d['state']}  ({len(self.labels)} positions × "
-                 f"{self.vts.shape[1]} spheres; {d['date']}, vts-hw {__version__})",
-                 "  regression of VTS against SPECT position:"]
+        lines = [
+            f"7-sphere step test: {d['state']}  ({len(self.labels)} positions × "
+            f"{self.vts.shape[1]} spheres; {d['date']}, vts-hw {__version__})",
+            "  regression of VTS against SPECT position:",
+        ]
         for ax, r in self.regressions.items():
-            lines.append(f"    {ax} ({AXIS_NAMES[ax]:<8}) slope {r.slope:.5f}{flag(ax, 'steps_slope')}"
-                         f"  intercept {r.intercept_mm:+.3f} mm{flag(ax, 'steps_intercept_mm')}"
-                         f"  R² {r.r2:.6f}{flag(ax, 'steps_r2')}")
+            lines.append(
+                f"    {ax} ({AXIS_NAMES[ax]:<8}) slope {r.slope:.5f}{flag(ax, 'steps_slope')}"
+                f"  intercept {r.intercept_mm:+.3f} mm{flag(ax, 'steps_intercept_mm')}"
+                f"  R² {r.r2:.6f}{flag(ax, 'steps_r2')}"
+            )
         df = d["differences_mm"]
-        lines.append(f"  VTS–SPECT distance: max {df['max']:.2f} mm{flag('all', 'steps_diff_max_mm')},"
-                     f" mean {df['mean']:.2f} mm{flag('all', 'steps_diff_mean_mm')},"
-                     f" SD {df['sd']:.2f} mm{flag('all', 'steps_diff_sd_mm')}")
-        lines.append(f"  6-DOF move {self.labels[0]} → {self.labels[-1]}:"
-                     "        rx°      ry°      rz°     tx mm    ty mm    tz mm")
+        lines.append(
+            f"  VTS–SPECT distance: max {df['max']:.2f} mm{flag('all', 'steps_diff_max_mm')},"
+            f" mean {df['mean']:.2f} mm{flag('all', 'steps_diff_mean_mm')},"
+            f" SD {df['sd']:.2f} mm{flag('all', 'steps_diff_sd_mm')}"
+        )
+        lines.append(
+            f"  6-DOF move {self.labels[0]} → {self.labels[-1]}:"
+            "        rx°      ry°      rz°     tx mm    ty mm    tz mm"
+        )
         for name, mv in (("VTS", self.move_vts), ("SPECT", self.move_spect)):
-            lines.append(f"    {name:<27}" + "".join(f"{a:9.3f}" for a in mv.rotation_xyz_deg)
-                         + "".join(f"{t:9.2f}" for t in mv.translation_mm))
-        lines.append("    difference (VTS − SPECT)   " + "".join(f"{a:+9.3f}" for a in self.rotation_diff_deg)
-                     + "".join(f"{t:+9.2f}" for t in self.translation_diff_mm))
-        flagged = [f"{m.subject} {m.metric} {m.value:+.3f} {m.unit} {m.state}" for m in self.measures
-                   if m.state != State.OK and m.metric in ("steps_rotation_diff_deg",
-                                                            "steps_translation_diff_mm")]
+            lines.append(
+                f"    {name:<27}"
+                + "".join(f"{a:9.3f}" for a in mv.rotation_xyz_deg)
+                + "".join(f"{t:9.2f}" for t in mv.translation_mm)
+            )
+        lines.append(
+            "    difference (VTS − SPECT)   "
+            + "".join(f"{a:+9.3f}" for a in self.rotation_diff_deg)
+            + "".join(f"{t:+9.2f}" for t in self.translation_diff_mm)
+        )
+        flagged = [
+            f"{m.subject} {m.metric} {m.value:+.3f} {m.unit} {m.state}"
+            for m in self.measures
+            if m.state != State.OK and m.metric in ("steps_rotation_diff_deg", "steps_translation_diff_mm")
+        ]
         lines += [f"    <- {f}" for f in flagged]
         return "\n".join(lines)
 
@@ -206,6 +246,7 @@ class StepAnalysis:
         """Three regression panels (VTS vs SPECT per axis) and the differences per position."""
         self._need()
         import matplotlib
+
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
@@ -236,6 +277,6 @@ class StepAnalysis:
         fig.suptitle(f"7-sphere step test ({self.analyzed_at}, vts-hw {__version__}): {self.state}")
         fig.tight_layout()
         if path is not None:
-            figure_png(fig, path, dpi=110)   # whole or not at all (a full disk: WriteFailed)
+            figure_png(fig, path, dpi=110)  # whole or not at all (a full disk: WriteFailed)
             plt.close(fig)
         return fig

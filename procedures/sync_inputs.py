@@ -27,15 +27,22 @@ from pathlib import Path
 
 from vts_hw.bounded import TABLE, open_bounded
 from vts_hw.errors import DataError
+from vts_hw.recording.folder import load_manifest, read_index
 from vts_hw.recording.trigger_wave import wave_from_trigger_log
 from vts_hw.spect.listmode import read_listmode_span
 from vts_hw.spect.listmode.failures import read_failure_records, utc_span
-from vts_hw.recording.folder import load_manifest, read_index
 from vts_hw.vision.calibration_io import read_calibration
 from vts_hw.vision.registration import read_mapping
 
-__all__ = ["CLOCK_SLACK_S", "SessionSpan", "check_session", "session_span", "choose_listmode",
-           "load_calibration", "load_mapping"]
+__all__ = [
+    "CLOCK_SLACK_S",
+    "SessionSpan",
+    "check_session",
+    "session_span",
+    "choose_listmode",
+    "load_calibration",
+    "load_mapping",
+]
 
 # How far the SPECT's wall clock (the list-mode header's start_time) may be off the host's when
 # matching a list-mode to a session: the format allows seconds (the simulated SPECT: ±3 s);
@@ -46,6 +53,7 @@ _GLOB = set("*?[")
 
 
 # ----------------------------------------------------------------------------- the session
+
 
 def check_session(folder) -> dict:
     """The session's manifest; DataError naming the folder when it is not a scan session."""
@@ -58,8 +66,10 @@ def check_session(folder) -> dict:
     if not manifest.get("cameras"):
         raise DataError(f"{folder / 'manifest.json'}: not a recording manifest (no cameras)")
     if not (folder / "trigger.csv").exists():
-        raise DataError(f"{folder}: no trigger.csv: the session has no trigger log to time the "
-                        f"SPECT against (was it recorded with trigger backend none?)")
+        raise DataError(
+            f"{folder}: no trigger.csv: the session has no trigger log to time the "
+            f"SPECT against (was it recorded with trigger backend none?)"
+        )
     return manifest
 
 
@@ -76,8 +86,7 @@ class SessionSpan:
 
     def text(self) -> str:
         what = "its start pulse" if self.start_pulse else "the trigger"
-        fired = "" if self.fire is None else \
-            f", {what} at {_dt.datetime.fromtimestamp(self.fire, _dt.timezone.utc):%H:%M:%S}"
+        fired = "" if self.fire is None else f", {what} at {_dt.datetime.fromtimestamp(self.fire, _dt.UTC):%H:%M:%S}"
         return f"recorded {utc_span(self.start, self.end)}{fired}"
 
 
@@ -91,6 +100,7 @@ def _num(v) -> float | None:
 
 def _trigger_rows(folder: Path) -> list[float]:
     import csv
+
     try:
         with open_bounded(folder / "trigger.csv", TABLE, "trigger log", newline="") as f:
             return [t for t in (_num(r.get("host_time")) for r in csv.DictReader(f)) if t is not None]
@@ -116,7 +126,7 @@ def session_span(folder, manifest: dict | None = None) -> SessionSpan | None:
     """When the session at ``folder`` recorded, or None when nothing in it says (see module)."""
     folder = Path(folder)
     manifest = manifest if manifest is not None else check_session(folder)
-    times = ((manifest.get("scan") or {}).get("times") or {})
+    times = (manifest.get("scan") or {}).get("times") or {}
     trig = manifest.get("trigger") or {}
     fire, pulse, period = _num(trig.get("fire_time")) if trig.get("fired") else None, False, None
     try:
@@ -125,13 +135,13 @@ def session_span(folder, manifest: dict | None = None) -> SessionSpan | None:
     except DataError:
         pass
     rows = _trigger_rows(folder)
-    start = next((t for t in (_num(manifest.get("started")), _num(times.get("recording_started")))
-                  if t is not None), None)
+    start = next(
+        (t for t in (_num(manifest.get("started")), _num(times.get("recording_started"))) if t is not None), None
+    )
     if start is None:
         start = fire if fire is not None else (min(rows) if rows else None)
-    end = next((t for t in (_num(manifest.get("finished")), _num(times.get("finished")))
-                if t is not None), None)
-    if end is None:                  # killed, recovered, or still recording: what it holds
+    end = next((t for t in (_num(manifest.get("finished")), _num(times.get("finished"))) if t is not None), None)
+    if end is None:  # killed, recovered, or still recording: what it holds
         last = rows + _last_frame_times(folder, manifest) + ([fire] if fire is not None else [])
         end = max(last) if last else None
     if start is None or end is None:
@@ -141,10 +151,11 @@ def session_span(folder, manifest: dict | None = None) -> SessionSpan | None:
 
 # ----------------------------------------------------------------------------- the list-mode
 
+
 @dataclass
 class _Candidate:
     path: Path
-    start: float | None = None       # SPECT wall clock, UTC epoch s
+    start: float | None = None  # SPECT wall clock, UTC epoch s
     end: float | None = None
     error: str | None = None
 
@@ -179,8 +190,9 @@ def _fits(span: SessionSpan, start: float, end: float, slack: float) -> bool:
     return _overlaps(span, start, end, slack)
 
 
-def choose_listmode(session, candidates, *, manifest: dict | None = None,
-                    slack_s: float = CLOCK_SLACK_S) -> tuple[Path, list[str]]:
+def choose_listmode(
+    session, candidates, *, manifest: dict | None = None, slack_s: float = CLOCK_SLACK_S
+) -> tuple[Path, list[str]]:
     """The list-mode of ``candidates`` (paths; a shell pattern that matched nothing arrives as
     itself) that belongs to the session, and notes on the choice. DataError otherwise (module)."""
     session = Path(session)
@@ -191,7 +203,7 @@ def choose_listmode(session, candidates, *, manifest: dict | None = None,
     cands, patterns = [], []
     for p in paths:
         if not p.exists() and _GLOB & set(str(p)):
-            patterns.append(p)        # a glob that matched nothing: the shell passed it on
+            patterns.append(p)  # a glob that matched nothing: the shell passed it on
             continue
         try:
             start, dur = read_listmode_span(p)
@@ -204,48 +216,66 @@ def choose_listmode(session, candidates, *, manifest: dict | None = None,
     skipped = [f"{c.path}: {c.error}" for c in cands if c.error is not None]
     if span is None:
         if len(readable) == 1 and len(cands) == 1:
-            return readable[0].path, [f"{session}: no recording times in the manifest: "
-                                      f"{readable[0].path.name} was not checked against the session"]
+            return readable[0].path, [
+                f"{session}: no recording times in the manifest: "
+                f"{readable[0].path.name} was not checked against the session"
+            ]
         if readable:
-            raise DataError(f"{session}: its manifest has no recording times to tell which of "
-                            f"{len(readable)} list-mode files belongs to it: name one with --listmode")
+            raise DataError(
+                f"{session}: its manifest has no recording times to tell which of "
+                f"{len(readable)} list-mode files belongs to it: name one with --listmode"
+            )
     else:
         match = [c for c in readable if _fits(span, *c.times, slack_s)]
         if len(match) == 1:
             notes = skipped
             if len(cands) + len(patterns) > 1:
-                notes = [f"list-mode {match[0].path.name} chosen of {len(cands)} given: the only one "
-                         + ("this session's start pulse started" if span.start_pulse and span.fire is not None
-                            else "whose acquisition overlaps the session")] + skipped
+                notes = [
+                    f"list-mode {match[0].path.name} chosen of {len(cands)} given: the only one "
+                    + (
+                        "this session's start pulse started"
+                        if span.start_pulse and span.fire is not None
+                        else "whose acquisition overlaps the session"
+                    )
+                ] + skipped
             return match[0].path, notes
         if match:
-            raise DataError(f"{len(match)} list-mode files fit {session} ({span.text()}): "
-                            + "; ".join(c.text() for c in match)
-                            + ": name the one of this scan with --listmode")
+            raise DataError(
+                f"{len(match)} list-mode files fit {session} ({span.text()}): "
+                + "; ".join(c.text() for c in match)
+                + ": name the one of this scan with --listmode"
+            )
     raise DataError(_nothing_belongs(session, span, cands, patterns, slack_s))
 
 
-def _nothing_belongs(session: Path, span: SessionSpan | None, cands: list[_Candidate],
-                     patterns: list[Path], slack_s: float) -> str:
+def _nothing_belongs(
+    session: Path, span: SessionSpan | None, cands: list[_Candidate], patterns: list[Path], slack_s: float
+) -> str:
     """The sentence for: no list-mode given belongs to the session (a failure record that
     covers it, if its writer left one beside them, says why)."""
-    folders = dict.fromkeys(p.parent for p in [c.path for c in cands] + patterns
-                            if not (_GLOB & set(str(p.parent))))
+    folders = dict.fromkeys(p.parent for p in [c.path for c in cands] + patterns if not (_GLOB & set(str(p.parent))))
     if span is not None:
         records = [r for f in folders for r in read_failure_records(f)]
         for r in [r for r in records if _fits(span, *r.span, slack_s)][-1:]:
             return f"{r.describe('this scan')} (record {r.path}" + (f", log {r.log})" if r.log else ")")
     when = f" ({span.text()})" if span is not None else ""
     if not cands:
-        return (f"{', '.join(str(p) for p in patterns)}: no list-mode file matches, and no failure "
-                f"record there covers {session}{when}: was its list-mode written or copied there?")
+        return (
+            f"{', '.join(str(p) for p in patterns)}: no list-mode file matches, and no failure "
+            f"record there covers {session}{when}: was its list-mode written or copied there?"
+        )
     slack = f" (allowing the SPECT's clock {slack_s:g} s off the host's: --clock-slack)"
     if len(cands) == 1 and span is not None and cands[0].error is None:
         c = cands[0]
-        return (f"{c.path} and {session} do not belong together: the list-mode was acquired "
-                f"{utc_span(*c.times)} (SPECT clock), the session {span.text()}{slack}")
-    return (f"none of the {len(cands)} list-mode files given belongs to {session}{when}: "
-            + "; ".join(c.text() for c in cands) + (slack if span is not None else ""))
+        return (
+            f"{c.path} and {session} do not belong together: the list-mode was acquired "
+            f"{utc_span(*c.times)} (SPECT clock), the session {span.text()}{slack}"
+        )
+    return (
+        f"none of the {len(cands)} list-mode files given belongs to {session}{when}: "
+        + "; ".join(c.text() for c in cands)
+        + (slack if span is not None else "")
+    )
 
 
 # ----------------------------------------------------------------------------- calibration

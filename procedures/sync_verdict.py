@@ -21,13 +21,14 @@ def sync_windows(overrides: dict | None = None) -> dict[str, Window]:
 def sync_measures(summary: dict) -> dict[str, float | None]:
     """The three figures the windows judge, from a sync summary."""
     worst_s = summary.get("max_abs_dt_s")
-    return {"sync_max_abs_dt_ms": None if worst_s is None else worst_s * 1e3,
-            "sync_events_one_system": (summary.get("events_spect_only") or 0) + (summary.get("events_vts_only") or 0),
-            "sync_events_both": summary.get("events_both") or 0}
+    return {
+        "sync_max_abs_dt_ms": None if worst_s is None else worst_s * 1e3,
+        "sync_events_one_system": (summary.get("events_spect_only") or 0) + (summary.get("events_vts_only") or 0),
+        "sync_events_both": summary.get("events_both") or 0,
+    }
 
 
-def sync_verdict(summary: dict, windows: dict[str, Window] | None = None,
-                 problems=()) -> tuple[State, str]:
+def sync_verdict(summary: dict, windows: dict[str, Window] | None = None, problems=()) -> tuple[State, str]:
     """(state, reason) of a sync summary; ``windows`` from :func:`sync_windows`."""
     w = windows or sync_windows()
     values = sync_measures(summary)

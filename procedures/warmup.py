@@ -47,7 +47,7 @@ class RateFit:
     n: int = 0
     tau_min: float | None = None
     rate_end: float | None = None
-    signed: float | None = None        # one axis: the rate with its sign
+    signed: float | None = None  # one axis: the rate with its sign
 
     def minutes_to(self, limit: float) -> float | None:
         """Minutes from the window's end until the rate is below ``limit``; None when the fit
@@ -82,10 +82,10 @@ def fit_rate(times_s, positions, order: int = 1, scale: float = 1.0, sigma: floa
     tc = t - t.mean()
 
     def poly(deg):
-        X = np.column_stack([tc ** j / math.factorial(j) for j in range(deg + 1)])
+        X = np.column_stack([tc**j / math.factorial(j) for j in range(deg + 1)])
         coef, *_ = np.linalg.lstsq(X, p, rcond=None)
         res = p - X @ coef
-        s2 = float((res ** 2).sum()) / (k * max(1, n - deg - 1))     # every axis shares one noise
+        s2 = float((res**2).sum()) / (k * max(1, n - deg - 1))  # every axis shares one noise
         s2 = max(s2, (sigma * scale) ** 2)
         return coef, s2 * np.linalg.inv(X.T @ X)
 
@@ -98,7 +98,7 @@ def fit_rate(times_s, positions, order: int = 1, scale: float = 1.0, sigma: floa
     if n < order + 3 or rate == 0.0:
         return fit
     coef2, cov2 = poly(order + 1)
-    slowing = -float(coef2[order + 1] @ (v / rate))          # the next derivative against the rate
+    slowing = -float(coef2[order + 1] @ (v / rate))  # the next derivative against the rate
     se_next = math.sqrt(max(cov2[order + 1, order + 1], 0.0))
     if slowing <= 0 or slowing < 3 * se_next:
         return fit
@@ -107,8 +107,14 @@ def fit_rate(times_s, positions, order: int = 1, scale: float = 1.0, sigma: floa
     return RateFit(rate, se, float(np.ptp(t)), n, tau, end, signed)
 
 
-def settle_wait_min(fit: RateFit, limit: float, uptime_min: float | None,
-                    warmup_min: float, unit: str = "px/min", what: str = "the rate") -> tuple[float | None, str, bool]:
+def settle_wait_min(
+    fit: RateFit,
+    limit: float,
+    uptime_min: float | None,
+    warmup_min: float,
+    unit: str = "px/min",
+    what: str = "the rate",
+) -> tuple[float | None, str, bool]:
     """(minutes to wait, why, at least) for one camera: the longer of the rest of its warm-up
     time and the time its rate takes to fall below ``limit``. When the rate is above the limit
     and does not measurably slow, that time is not known: the rest of the warm-up time is then
@@ -120,9 +126,11 @@ def settle_wait_min(fit: RateFit, limit: float, uptime_min: float | None,
         parts.append(f"{by_uptime:.0f} min more of its {warmup_min:g} min warm-up time")
     unknown = fit.rate is not None and fit.rate > limit and by_rate is None
     if fit.rate is not None and fit.rate > limit:
-        parts.append(f"{what} slowing with a time constant of {fit.tau_min:.0f} min: {by_rate:.0f} min to "
-                     f"{limit:g} {unit}" if by_rate is not None
-                     else f"{what} not slowing measurably over {fit.window_min:.1f} min: how long is not known")
+        parts.append(
+            f"{what} slowing with a time constant of {fit.tau_min:.0f} min: {by_rate:.0f} min to {limit:g} {unit}"
+            if by_rate is not None
+            else f"{what} not slowing measurably over {fit.window_min:.1f} min: how long is not known"
+        )
     if unknown:
         return (by_uptime or None), "; ".join(parts), True
     return max(by_uptime or 0.0, by_rate or 0.0), "; ".join(parts), False
@@ -130,7 +138,7 @@ def settle_wait_min(fit: RateFit, limit: float, uptime_min: float | None,
 
 @dataclass
 class Sample:
-    t: float                      # the picture's time (camera clock; host receive time without one)
+    t: float  # the picture's time (camera clock; host receive time without one)
     dx: float
     dy: float
     markers: int

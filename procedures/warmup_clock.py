@@ -43,8 +43,8 @@ READING_SD_S = 0.001 / math.sqrt(12.0)
 
 @dataclass
 class ClockReading:
-    t: float                      # host time of the reading (epoch s)
-    offset_s: float               # camera minus host (NaN: not read)
+    t: float  # host time of the reading (epoch s)
+    offset_s: float  # camera minus host (NaN: not read)
     uncertainty_s: float
     method: str
 
@@ -55,7 +55,7 @@ class ClockWatch:
 
     cam: object
     readings: list[ClockReading] = field(default_factory=list)
-    problem: str | None = None     # why there is no clock to read (said once)
+    problem: str | None = None  # why there is no clock to read (said once)
 
     def read(self) -> ClockReading:
         off = None
@@ -66,8 +66,11 @@ class ClockWatch:
                 self.problem, off = f"its frames carry no clock of its own ({off.method})", None
         elif read is None:
             self.problem = "it does not tell its clock"
-        r = (ClockReading(off.host_time, off.offset_s, off.uncertainty_s, off.method) if off is not None
-             else ClockReading(math.nan, math.nan, math.nan, "none"))
+        r = (
+            ClockReading(off.host_time, off.offset_s, off.uncertainty_s, off.method)
+            if off is not None
+            else ClockReading(math.nan, math.nan, math.nan, "none")
+        )
         self.readings.append(r)
         return r
 
@@ -85,7 +88,7 @@ class ClockWatch:
 class ClockJudgement:
     state: State
     known: bool
-    why: str                     # what is said: the figures, or why not known
+    why: str  # what is said: the figures, or why not known
 
     @property
     def settled(self) -> bool:
@@ -100,11 +103,18 @@ def judge_clock(change: RateFit, window, limit: float, problem: str | None = Non
     """The clock's state: its change against ``window`` where the window can tell it (see the module)."""
     if problem:
         return ClockJudgement(State.TOLERANCE, False, f"clock not known: {problem}")
-    if change.rate is None or change.se is None:        # set together
-        return ClockJudgement(State.TOLERANCE, False, f"clock's change not known: {change.n} reading(s) in the "
-                                                      f"window, a parabola needs 4 or more")
+    if change.rate is None or change.se is None:  # set together
+        return ClockJudgement(
+            State.TOLERANCE,
+            False,
+            f"clock's change not known: {change.n} reading(s) in the window, a parabola needs 4 or more",
+        )
     if not change.se <= limit / 2:
-        return ClockJudgement(State.TOLERANCE, False, f"clock's change not known: {change_text(change)}, the window "
-                                                      f"cannot tell it from {limit:g} ppm/min (more samples, or a "
-                                                      f"longer interval, tell it)")
+        return ClockJudgement(
+            State.TOLERANCE,
+            False,
+            f"clock's change not known: {change_text(change)}, the window "
+            f"cannot tell it from {limit:g} ppm/min (more samples, or a "
+            f"longer interval, tell it)",
+        )
     return ClockJudgement(window.state(change.rate), True, f"clock's rate changing {change_text(change)}")

@@ -50,9 +50,9 @@ class Announcer:
         self._sock: socket.socket | None = None
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
-        self.searches = 0   # M-SEARCH requests answered (tests)
+        self.searches = 0  # M-SEARCH requests answered (tests)
 
-    def start(self) -> "Announcer":
+    def start(self) -> Announcer:
         for cam in self.cameras:
             cam.announced = True
         if self.mdns:
@@ -78,7 +78,7 @@ class Announcer:
         for cam in self.cameras:
             cam.announced = False
 
-    def __enter__(self) -> "Announcer":
+    def __enter__(self) -> Announcer:
         return self.start()
 
     def __exit__(self, *exc) -> None:
@@ -90,9 +90,14 @@ class Announcer:
 
         self._zc = zc = Zeroconf(interfaces=[LOOPBACK], ip_version=IPVersion.V4Only)
         for cam in self.cameras:
-            info = ServiceInfo(MDNS_TYPE, f"{cam.friendly_name}.{MDNS_TYPE}", port=cam.port,
-                               properties={"macaddress": cam.serial},
-                               server=f"axis-{cam.serial.lower()}.local.", parsed_addresses=[LOOPBACK])
+            info = ServiceInfo(
+                MDNS_TYPE,
+                f"{cam.friendly_name}.{MDNS_TYPE}",
+                port=cam.port,
+                properties={"macaddress": cam.serial},
+                server=f"axis-{cam.serial.lower()}.local.",
+                parsed_addresses=[LOOPBACK],
+            )
             # the serial is in the name: a name already taken is another camera's (never renamed)
             zc.register_service(info, allow_name_change=False)
             self._infos.append(info)
@@ -103,9 +108,12 @@ class Announcer:
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         if hasattr(socket, "SO_REUSEPORT"):
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
-        sock.bind((SSDP_GROUP, self.ssdp_port))   # hears datagrams to the group only
-        sock.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP,
-                        struct.pack("4s4s", socket.inet_aton(SSDP_GROUP), socket.inet_aton(LOOPBACK)))
+        sock.bind((SSDP_GROUP, self.ssdp_port))  # hears datagrams to the group only
+        sock.setsockopt(
+            socket.IPPROTO_IP,
+            socket.IP_ADD_MEMBERSHIP,
+            struct.pack("4s4s", socket.inet_aton(SSDP_GROUP), socket.inet_aton(LOOPBACK)),
+        )
         sock.setsockopt(socket.IPPROTO_IP, socket.IP_MULTICAST_IF, socket.inet_aton(LOOPBACK))
         sock.settimeout(0.2)
         self._sock = sock
@@ -116,16 +124,16 @@ class Announcer:
         while not self._stop.is_set():
             try:
                 data, addr = sock.recvfrom(8192)
-            except socket.timeout:
+            except TimeoutError:
                 continue
             except OSError:
-                return   # closed by stop()
+                return  # closed by stop()
             if not addr[0].startswith("127."):
-                continue   # loopback only (the membership is on lo; this is belt and braces)
+                continue  # loopback only (the membership is on lo; this is belt and braces)
             try:
                 request = SSDPRequest.parse(data.decode("utf-8", "replace"))
             except ValueError:
-                continue   # not an SSDP request: a real camera ignores it too
+                continue  # not an SSDP request: a real camera ignores it too
             headers = {k.upper(): v.strip() for k, v in request.headers}
             if request.method != "M-SEARCH" or headers.get("MAN", "").strip('"') != "ssdp:discover":
                 continue
@@ -139,11 +147,18 @@ class Announcer:
     def _answer(self, sock: socket.socket, cam, target: str, addr) -> None:
         st = AXIS_ST if target == "ssdp:all" else target
         usn = f"uuid:Upnp-BasicDevice-1_0-{cam.serial}" + ("" if st.startswith("uuid:") else f"::{st}")
-        reply = SSDPResponse(200, "OK", headers=[
-            ("CACHE-CONTROL", "max-age=1800"), ("EXT", ""),
-            ("LOCATION", f"{cam.scheme}://{LOOPBACK}:{cam.port}/rootdesc1.xml"),
-            ("SERVER", "Linux/4.9, UPnP/1.0, Portable SDK for UPnP devices/1.6.18"),
-            ("ST", st), ("USN", usn)])
+        reply = SSDPResponse(
+            200,
+            "OK",
+            headers=[
+                ("CACHE-CONTROL", "max-age=1800"),
+                ("EXT", ""),
+                ("LOCATION", f"{cam.scheme}://{LOOPBACK}:{cam.port}/rootdesc1.xml"),
+                ("SERVER", "Linux/4.9, UPnP/1.0, Portable SDK for UPnP devices/1.6.18"),
+                ("ST", st),
+                ("USN", usn),
+            ],
+        )
         try:
             sock.sendto(bytes(reply), addr)
         except OSError as exc:

@@ -40,19 +40,49 @@ INSYNC, OK, NOSYNC, EOP = 0x14, 0x10, 0x15, 0x20
 SIGNATURE_M328P = bytes([0x1E, 0x95, 0x0F])
 FLASH_SIZE, PAGE_SIZE = 32 * 1024, 128
 #: bytes of arguments after the command byte, before EOP (AVR061)
-ARGS = {0x30: 0, 0x31: 0, 0x40: 2, 0x41: 1, 0x42: 20, 0x50: 0, 0x51: 0, 0x52: 0, 0x53: 0, 0x55: 2,
-        0x56: 4, 0x60: 2, 0x61: 3, 0x62: 2, 0x63: 1, 0x65: 3, 0x70: 0, 0x71: 0, 0x72: 0, 0x73: 0, 0x75: 0,
-        0x76: 0, 0x77: 0, 0x78: 1}
+ARGS = {
+    0x30: 0,
+    0x31: 0,
+    0x40: 2,
+    0x41: 1,
+    0x42: 20,
+    0x50: 0,
+    0x51: 0,
+    0x52: 0,
+    0x53: 0,
+    0x55: 2,
+    0x56: 4,
+    0x60: 2,
+    0x61: 3,
+    0x62: 2,
+    0x63: 1,
+    0x65: 3,
+    0x70: 0,
+    0x71: 0,
+    0x72: 0,
+    0x73: 0,
+    0x75: 0,
+    0x76: 0,
+    0x77: 0,
+    0x78: 1,
+}
 #: what a read command answers with, before OK
-PARAMETERS = {0x80: 0x02, 0x81: 0x08, 0x82: 0x00}   # HW_VER, SW_MAJOR, SW_MINOR (optiboot 8.0)
+PARAMETERS = {0x80: 0x02, 0x81: 0x08, 0x82: 0x00}  # HW_VER, SW_MAJOR, SW_MINOR (optiboot 8.0)
 FUSES = {(0x50, 0x00): 0xFF, (0x58, 0x08): 0xDE, (0x50, 0x08): 0xFD, (0x58, 0x00): 0xCF}  # lfuse hfuse efuse lock
 
 
 class SimArduinoBoard:
     """The bootloader on a pty, then the flashed firmware in the emulator. A context manager."""
 
-    def __init__(self, *, silent: bool = False, corrupt_page: int | None = None, runs: str | os.PathLike | None = None,
-                 workdir: str | os.PathLike | None = None, speed: float = 1.0):
+    def __init__(
+        self,
+        *,
+        silent: bool = False,
+        corrupt_page: int | None = None,
+        runs: str | os.PathLike | None = None,
+        workdir: str | os.PathLike | None = None,
+        speed: float = 1.0,
+    ):
         self.silent = silent
         self.corrupt_page = corrupt_page
         self.runs = Path(runs) if runs is not None else None
@@ -60,9 +90,9 @@ class SimArduinoBoard:
         self.dir = Path(workdir or tempfile.mkdtemp(prefix="vts-arduino-"))
         self.dir.mkdir(parents=True, exist_ok=True)
         self.flash = bytearray(b"\xff" * FLASH_SIZE)
-        self.written: dict[int, int] = {}      # byte address -> length, every page written
-        self.commands: list[int] = []          # every command byte received, in order
-        self.uploads = 0                       # LEAVE_PROGMODE after at least one page
+        self.written: dict[int, int] = {}  # byte address -> length, every page written
+        self.commands: list[int] = []  # every command byte received, in order
+        self.uploads = 0  # LEAVE_PROGMODE after at least one page
         self.received_hex: Path | None = None
         self.app: SimTriggerBox | None = None  # the SimTriggerBox running the flashed image
         self.app_error: str | None = None
@@ -73,10 +103,10 @@ class SimArduinoBoard:
         self._buf = bytearray()
 
     # -- life cycle ---------------------------------------------------------------------------
-    def start(self) -> "SimArduinoBoard":
+    def start(self) -> SimArduinoBoard:
         self._master, self._slave = pty.openpty()
-        tty.setraw(self._slave)   # the line is raw until the program that opens it sets its own mode
-        self.port = os.ttyname(self._slave)   # kept open here: the master never sees EIO between openers
+        tty.setraw(self._slave)  # the line is raw until the program that opens it sets its own mode
+        self.port = os.ttyname(self._slave)  # kept open here: the master never sees EIO between openers
         self._thread = threading.Thread(target=self._serve, name="sim-arduino", daemon=True)
         self._thread.start()
         return self
@@ -92,7 +122,7 @@ class SimArduinoBoard:
                 os.close(fd)
         self._master = self._slave = -1
 
-    def __enter__(self) -> "SimArduinoBoard":
+    def __enter__(self) -> SimArduinoBoard:
         return self.start()
 
     def __exit__(self, *exc) -> None:
@@ -127,7 +157,7 @@ class SimArduinoBoard:
 
     def _command(self, cmd: int) -> None:
         self.commands.append(cmd)
-        if cmd in (0x64, 0x74):              # PROG_PAGE / READ_PAGE: size (big-endian), memory type
+        if cmd in (0x64, 0x74):  # PROG_PAGE / READ_PAGE: size (big-endian), memory type
             args = self._read(3)
             if args is None:
                 return
@@ -138,12 +168,12 @@ class SimArduinoBoard:
                 return
             self._page(cmd, size, chr(args[2]), data)
             return
-        if cmd == 0x45:                      # SET_DEVICE_EXT: a length byte counts itself
+        if cmd == 0x45:  # SET_DEVICE_EXT: a length byte counts itself
             n = self._read(1)
             args = n + (self._read(max(n[0] - 1, 0)) or b"") if n else None
         elif cmd in ARGS:
             args = self._read(ARGS[cmd])
-        else:                                # not a command: the real bootloader would reset
+        else:  # not a command: the real bootloader would reset
             self._send(bytes([NOSYNC]))
             return
         if args is None or self._read(1) != bytes([EOP]):
@@ -155,7 +185,7 @@ class SimArduinoBoard:
         elif cmd == 0x41:
             reply = bytes([PARAMETERS.get(args[0], 0x03)])
         elif cmd == 0x55:
-            self._addr = (args[0] | args[1] << 8) * 2     # words to bytes (flash)
+            self._addr = (args[0] | args[1] << 8) * 2  # words to bytes (flash)
         elif cmd == 0x56:
             reply = bytes([FUSES.get((args[0], args[1]), 0x00)])
         elif cmd == 0x75:
@@ -167,24 +197,24 @@ class SimArduinoBoard:
         elif cmd == 0x77:
             reply = b"\x00\x00\x00"
         self._send(bytes([INSYNC]) + reply + bytes([OK]))
-        if cmd == 0x51 and self.written:      # LEAVE_PROGMODE after an upload: the new firmware starts
+        if cmd == 0x51 and self.written:  # LEAVE_PROGMODE after an upload: the new firmware starts
             self.uploads += 1
             self._start_app()
 
     def _page(self, cmd: int, size: int, memory: str, data: bytes) -> None:
         addr = self._addr
-        if memory != "F" or addr + size > FLASH_SIZE:   # only the flash is kept (nothing writes EEPROM here)
+        if memory != "F" or addr + size > FLASH_SIZE:  # only the flash is kept (nothing writes EEPROM here)
             self._send(bytes([INSYNC]) + (b"\xff" * size if cmd == 0x74 else b"") + bytes([OK]))
             return
         if cmd == 0x64:
             page = bytearray(data)
             if self.corrupt_page is not None and len(self.written) == self.corrupt_page and page:
                 page[len(page) // 2] ^= 0x01
-            self.flash[addr:addr + size] = page
+            self.flash[addr : addr + size] = page
             self.written[addr] = size
             self._send(bytes([INSYNC, OK]))
         else:
-            self._send(bytes([INSYNC]) + bytes(self.flash[addr:addr + size]) + bytes([OK]))
+            self._send(bytes([INSYNC]) + bytes(self.flash[addr : addr + size]) + bytes([OK]))
         self._addr = addr + size
 
     # -- after the upload: the firmware runs ----------------------------------------------------
@@ -204,22 +234,35 @@ class SimArduinoBoard:
             elf = self.runs
             if elf is None:
                 elf = self.received_hex.with_suffix(".elf")
-                subprocess.run(["avr-objcopy", "-I", "ihex", "-O", "elf32-avr", "--rename-section",
-                                ".sec1=.text,contents,alloc,load,readonly,code", str(self.received_hex), str(elf)],
-                               check=True, capture_output=True, **child_options())
+                subprocess.run(
+                    [
+                        "avr-objcopy",
+                        "-I",
+                        "ihex",
+                        "-O",
+                        "elf32-avr",
+                        "--rename-section",
+                        ".sec1=.text,contents,alloc,load,readonly,code",
+                        str(self.received_hex),
+                        str(elf),
+                    ],
+                    check=True,
+                    capture_output=True,
+                    **child_options(),
+                )
             self.app = SimTriggerBox(speed=self.speed, workdir=self.dir / f"app{self.uploads}", elf=elf).start()
-        except Exception as e:   # the test reads it: a board whose firmware did not start answers nothing
+        except Exception as e:  # the test reads it: a board whose firmware did not start answers nothing
             self.app_error = f"{type(e).__name__}: {e}"
 
     def _bridge(self) -> None:
         """Copy bytes both ways between our pty and the emulator's until stopped."""
         if self.app is None or self.app.port is None:
-            while not self._stop.wait(0.1):   # nothing runs: input is dropped, as a dead board would
+            while not self._stop.wait(0.1):  # nothing runs: input is dropped, as a dead board would
                 self._read(4096, 0)
             return
         app = os.open(self.app.port, os.O_RDWR | os.O_NOCTTY)
         tty.setraw(app)
-        self._buf.clear()   # what came while the firmware was starting went to the bootloader
+        self._buf.clear()  # what came while the firmware was starting went to the bootloader
         try:
             while not self._stop.is_set():
                 r, _, _ = select.select([self._master, app], [], [], 0.1)
@@ -228,7 +271,7 @@ class SimArduinoBoard:
                 if app in r:
                     try:
                         data = os.read(app, 4096)
-                    except OSError:   # the emulator went away
+                    except OSError:  # the emulator went away
                         return
                     os.write(self._master, data)
         finally:

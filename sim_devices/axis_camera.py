@@ -79,9 +79,21 @@ class SimAxisCamera:
     :attr:`faults` at any time. ``start()``/``stop()`` or use it as a context manager.
     """
 
-    def __init__(self, source, user: str = "root", password: str = "pass", host: str = "127.0.0.1",
-                 port: int = 0, model: str = DEFAULT_MODEL, clock=None, *, auth: str = "digest",
-                 tls: tuple[str, str] | None = None, firmware: str | None = None, uptime_s: float = 86400.0):
+    def __init__(
+        self,
+        source,
+        user: str = "root",
+        password: str = "pass",
+        host: str = "127.0.0.1",
+        port: int = 0,
+        model: str = DEFAULT_MODEL,
+        clock=None,
+        *,
+        auth: str = "digest",
+        tls: tuple[str, str] | None = None,
+        firmware: str | None = None,
+        uptime_s: float = 86400.0,
+    ):
         if firmware is not None:  # the former name of the argument
             model = firmware
         if not ip_address(host).is_loopback:
@@ -96,8 +108,7 @@ class SimAxisCamera:
         self.faults = Faults()
         self.product = self.profile.product(source.product)
         self.resolutions = [f"{source.width // d}x{source.height // d}" for d in (1, 2, 4)]
-        self.params = ParamStore(self.profile.params(self.product, source.name, self.resolutions),
-                                 self.resolutions)
+        self.params = ParamStore(self.profile.params(self.product, source.name, self.resolutions), self.resolutions)
         realm = f"AXIS_{self.product.mac.hex().upper()}"
         self.auth = DigestAuth(realm, user, password) if auth == "digest" else BasicAuth(realm, user, password)
         self.ssl_context = None
@@ -108,14 +119,23 @@ class SimAxisCamera:
         self._source_lock = threading.Lock()
         # frames_lost: not sent (the loss faults); frames_skipped: not sent because the stream fell
         # further behind than its late limit; frames_late: sent more than a frame period late
-        self._counters = dict(frames_served=0, snapshots_served=0, active_streams=0, connections=0,
-                              requests=0, auth_failures=0, frames_lost=0, frames_skipped=0, frames_late=0)
+        self._counters = dict(
+            frames_served=0,
+            snapshots_served=0,
+            active_streams=0,
+            connections=0,
+            requests=0,
+            auth_failures=0,
+            frames_lost=0,
+            frames_skipped=0,
+            frames_late=0,
+        )
         self._snapshot = (-1, 0)  # (faults.version seen, snapshots since)
         self._sockets: set[socket.socket] = set()
         self._stopping = threading.Event()
-        self.booted_at = self.clock.now() - uptime_s   # when the camera started (sim clock): its uptime
+        self.booted_at = self.clock.now() - uptime_s  # when the camera started (sim clock): its uptime
         self._tell_started()
-        self.announced = False   # announced on the network (sim_devices/announce.py): serves its UPnP description
+        self.announced = False  # announced on the network (sim_devices/announce.py): serves its UPnP description
         self._httpd: _Server | None = None
         self._thread: threading.Thread | None = None
 
@@ -129,15 +149,19 @@ class SimAxisCamera:
         return f"vapix{self.profile.vapix}"
 
     # --- life cycle --------------------------------------------------------------------
-    def start(self) -> "SimAxisCamera":
+    def start(self) -> SimAxisCamera:
         if self._httpd is not None:
             return self
         self._stopping.clear()
         self._httpd = _Server((self.host, self._requested_port), Handler)
         self._httpd.camera = self
         self._httpd.ssl_context = self.ssl_context
-        self._thread = threading.Thread(target=self._httpd.serve_forever, kwargs={"poll_interval": 0.1},
-                                        name=f"sim-axis-{self.source.name}", daemon=True)
+        self._thread = threading.Thread(
+            target=self._httpd.serve_forever,
+            kwargs={"poll_interval": 0.1},
+            name=f"sim-axis-{self.source.name}",
+            daemon=True,
+        )
         self._thread.start()
         return self
 
@@ -158,7 +182,7 @@ class SimAxisCamera:
             self._thread.join(timeout=5)
         self._httpd = self._thread = None
 
-    def __enter__(self) -> "SimAxisCamera":
+    def __enter__(self) -> SimAxisCamera:
         return self.start()
 
     def __exit__(self, *exc) -> None:
@@ -209,17 +233,26 @@ class SimAxisCamera:
     def description_xml(self, host: str = "") -> str:
         """The UPnP device description (what an SSDP answer's LOCATION points to)."""
         from xml.sax.saxutils import escape
+
         p = self.params
-        fields = [("deviceType", "urn:schemas-upnp-org:device:Basic:1"), ("friendlyName", self.friendly_name),
-                  ("manufacturer", "AXIS"), ("manufacturerURL", "http://www.axis.com/"),
-                  ("modelDescription", p.get("Brand.ProdFullName")), ("modelName", p.get("Brand.ProdShortName")),
-                  ("modelNumber", p.get("Brand.ProdNbr")), ("serialNumber", self.serial),
-                  ("UDN", f"uuid:Upnp-BasicDevice-1_0-{self.serial}"),
-                  ("presentationURL", f"{self.scheme}://{self.host}:{self.port}/")]
+        fields = [
+            ("deviceType", "urn:schemas-upnp-org:device:Basic:1"),
+            ("friendlyName", self.friendly_name),
+            ("manufacturer", "AXIS"),
+            ("manufacturerURL", "http://www.axis.com/"),
+            ("modelDescription", p.get("Brand.ProdFullName")),
+            ("modelName", p.get("Brand.ProdShortName")),
+            ("modelNumber", p.get("Brand.ProdNbr")),
+            ("serialNumber", self.serial),
+            ("UDN", f"uuid:Upnp-BasicDevice-1_0-{self.serial}"),
+            ("presentationURL", f"{self.scheme}://{self.host}:{self.port}/"),
+        ]
         body = "".join(f"<{k}>{escape(v)}</{k}>" for k, v in fields)
-        return ('<?xml version="1.0"?>\r\n<root xmlns="urn:schemas-upnp-org:device-1-0">'
-                "<specVersion><major>1</major><minor>0</minor></specVersion>"
-                f"<device>{body}</device></root>\r\n")
+        return (
+            '<?xml version="1.0"?>\r\n<root xmlns="urn:schemas-upnp-org:device-1-0">'
+            "<specVersion><major>1</major><minor>0</minor></specVersion>"
+            f"<device>{body}</device></root>\r\n"
+        )
 
     def go_offline(self, seconds: float) -> threading.Timer:
         """Drop off the network for ``seconds`` (the ``offline`` fault, cleared by a timer)."""
@@ -232,9 +265,16 @@ class SimAxisCamera:
     def state(self) -> dict[str, Any]:
         with self._lock:
             counters = dict(self._counters)
-        return dict(name=self.source.name, firmware=self.firmware, **describe(self.profile), port=self.port,
-                    camera_time=self.camera_time(), led_on=bool(self.source.led_on()),
-                    faults=self.faults.active(), **counters)
+        return dict(
+            name=self.source.name,
+            firmware=self.firmware,
+            **describe(self.profile),
+            port=self.port,
+            camera_time=self.camera_time(),
+            led_on=bool(self.source.led_on()),
+            faults=self.faults.active(),
+            **counters,
+        )
 
     # --- used by the request handler ---------------------------------------------------
     def camera_time(self, host_t: float | None = None) -> float:
@@ -281,7 +321,7 @@ class SimAxisCamera:
         epoch += self.faults.clock_offset(self.clock.now() if host_t is None else host_t)
         if (width, height) != (self.source.width, self.source.height):
             image = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_UNCHANGED)
-            if image is None:        # the scene's own JPEG: always decodable
+            if image is None:  # the scene's own JPEG: always decodable
                 raise RuntimeError("the simulated camera's source gave a JPEG OpenCV cannot read")
             small = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
             _, enc = cv2.imencode(".jpg", small, [cv2.IMWRITE_JPEG_QUALITY, quality])

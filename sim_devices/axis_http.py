@@ -10,36 +10,53 @@ from __future__ import annotations
 import hashlib
 import json
 import socket
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from email.utils import formatdate
 from http.server import BaseHTTPRequestHandler
 from ipaddress import ip_address
 from typing import TYPE_CHECKING
 from urllib.parse import parse_qs, parse_qsl, urlsplit
 
-from vts_hw.sim_devices.axis_streaming import Reject, serve_snapshot, serve_stream, trickle
 from vts_hw.sim_devices import axis_time
+from vts_hw.sim_devices.axis_streaming import Reject, serve_snapshot, serve_stream, trickle
 
 if TYPE_CHECKING:
     from vts_hw.sim_devices.axis_camera import SimAxisCamera, _Server
 
 _MONTHS = ("Jan", "Feb", "Mar", "Apr", "May", "Jun", "Jul", "Aug", "Sep", "Oct", "Nov", "Dec")
-_HTML = ("<HTML><HEAD><TITLE>{code} {reason}</TITLE></HEAD>\r\n"
-         "<BODY><H1>{code} {reason}</H1>\r\n{text}\r\n</BODY></HTML>\r\n")
-_BODY_401 = _HTML.format(code=401, reason="Unauthorized",
-                         text="Your client does not have permission to get this URL from this server.")
+_HTML = (
+    "<HTML><HEAD><TITLE>{code} {reason}</TITLE></HEAD>\r\n"
+    "<BODY><H1>{code} {reason}</H1>\r\n{text}\r\n</BODY></HTML>\r\n"
+)
+_BODY_401 = _HTML.format(
+    code=401, reason="Unauthorized", text="Your client does not have permission to get this URL from this server."
+)
 _BODY_404 = _HTML.format(code=404, reason="Not Found", text="The requested URL was not found on this server.")
 _DEVICE_INFO = {  # basicdeviceinfo.cgi property -> parameter
-    "Architecture": "Properties.System.Architecture", "Brand": "Brand.Brand",
-    "BuildDate": "Properties.Firmware.BuildDate", "HardwareID": "Properties.System.HardwareID",
-    "ProdFullName": "Brand.ProdFullName", "ProdNbr": "Brand.ProdNbr", "ProdShortName": "Brand.ProdShortName",
-    "ProdType": "Brand.ProdType", "ProdVariant": "Brand.ProdVariant",
-    "SerialNumber": "Properties.System.SerialNumber", "Soc": "Properties.System.Soc",
-    "Version": "Properties.Firmware.Version", "WebURL": "Brand.WebURL",
+    "Architecture": "Properties.System.Architecture",
+    "Brand": "Brand.Brand",
+    "BuildDate": "Properties.Firmware.BuildDate",
+    "HardwareID": "Properties.System.HardwareID",
+    "ProdFullName": "Brand.ProdFullName",
+    "ProdNbr": "Brand.ProdNbr",
+    "ProdShortName": "Brand.ProdShortName",
+    "ProdType": "Brand.ProdType",
+    "ProdVariant": "Brand.ProdVariant",
+    "SerialNumber": "Properties.System.SerialNumber",
+    "Soc": "Properties.System.Soc",
+    "Version": "Properties.Firmware.Version",
+    "WebURL": "Brand.WebURL",
 }
-_REASONS = {200: "OK", 400: "Bad Request", 401: "Unauthorized", 403: "Forbidden", 404: "Not Found",
-            405: "Method Not Allowed", 503: "Service Unavailable"}
-DESCRIPTION_PATH = "/rootdesc1.xml"   # the UPnP device description an SSDP answer points to
+_REASONS = {
+    200: "OK",
+    400: "Bad Request",
+    401: "Unauthorized",
+    403: "Forbidden",
+    404: "Not Found",
+    405: "Method Not Allowed",
+    503: "Service Unavailable",
+}
+DESCRIPTION_PATH = "/rootdesc1.xml"  # the UPnP device description an SSDP answer points to
 ROUTES = {  # path -> handler method; a path answers only when the model profile lists it
     "/axis-cgi/jpg/image.cgi": "snapshot",
     "/axis-cgi/mjpg/video.cgi": "stream",
@@ -64,14 +81,14 @@ ROUTES = {  # path -> handler method; a path answers only when the model profile
 class Handler(BaseHTTPRequestHandler):
     protocol_version = "HTTP/1.1"
     timeout = 60
-    server: "_Server"
+    server: _Server
     query: dict[str, str]
     query_pairs: list[tuple[str, str]]
     body: bytes
 
     # --- plumbing ---------------------------------------------------------------------
     @property
-    def cam(self) -> "SimAxisCamera":
+    def cam(self) -> SimAxisCamera:
         return self.server.camera
 
     def setup(self) -> None:
@@ -93,16 +110,21 @@ class Handler(BaseHTTPRequestHandler):
     def do_POST(self) -> None:
         self._dispatch("POST")
 
-    def send(self, status: int, body: bytes | str, content_type: str = "text/plain",
-             headers: tuple[str, ...] = ()) -> None:
+    def send(
+        self, status: int, body: bytes | str, content_type: str = "text/plain", headers: tuple[str, ...] = ()
+    ) -> None:
         """Write a whole response; an old web server (profile or fault) answers HTTP/1.0 and closes."""
         if isinstance(body, str):
             body = body.encode("utf-8")
         old = self.cam.faults.close_after_response or self.cam.profile.close_after_response
         close = self.close_connection or old
-        lines = [f"{'HTTP/1.0' if old else 'HTTP/1.1'} {status} {_REASONS.get(status, '')}",
-                 f"Date: {formatdate(usegmt=True)}", f"Content-Type: {content_type}",
-                 f"Content-Length: {len(body)}", *headers]
+        lines = [
+            f"{'HTTP/1.0' if old else 'HTTP/1.1'} {status} {_REASONS.get(status, '')}",
+            f"Date: {formatdate(usegmt=True)}",
+            f"Content-Type: {content_type}",
+            f"Content-Length: {len(body)}",
+            *headers,
+        ]
         if close:
             lines.append("Connection: close")
         self.wfile.write(("\r\n".join(lines) + "\r\n\r\n").encode("latin-1") + body)
@@ -134,8 +156,8 @@ class Handler(BaseHTTPRequestHandler):
             if path.startswith("/sim/"):
                 self._control(method, path)
                 return
-            if path == DESCRIPTION_PATH and self.cam.announced:   # UPnP: no authentication
-                self.send(200, self.cam.description_xml(self.headers.get("Host", "")), "text/xml; charset=\"utf-8\"")
+            if path == DESCRIPTION_PATH and self.cam.announced:  # UPnP: no authentication
+                self.send(200, self.cam.description_xml(self.headers.get("Host", "")), 'text/xml; charset="utf-8"')
                 return
             if not path.startswith("/axis-cgi/"):
                 self.send(404, _BODY_404, "text/html")
@@ -202,7 +224,7 @@ class Handler(BaseHTTPRequestHandler):
         if port != "1":
             return f"# Error: Invalid port '{port}': this camera has one output, port 1\r\n"
         if self.cam.faults.led_held and command and (command[0] in "/\\"):
-            return None     # answered OK, and the output stays as it was (a rule on the camera holds it)
+            return None  # answered OK, and the output stays as it was (a rule on the camera holds it)
         if command == "/":
             self.cam.source.set_led(True)
         elif command == "\\":
@@ -223,9 +245,11 @@ class Handler(BaseHTTPRequestHandler):
         self.send(200, "".join(line(p) + "\r\n" for p in asked))
 
     def _io_port(self, method: str) -> None:
-        if "checkactive" in self.query:      # port 1: the LED's output; port 2: an input, open
-            self._check(self.query["checkactive"], lambda p: f"port{p}=" + (
-                "active" if p == "1" and self.cam.source.led_on() else "inactive"))
+        if "checkactive" in self.query:  # port 1: the LED's output; port 2: an input, open
+            self._check(
+                self.query["checkactive"],
+                lambda p: f"port{p}=" + ("active" if p == "1" and self.cam.source.led_on() else "inactive"),
+            )
             return
         error = self._drive_output(self.query.get("action", ""))
         self.send(200, error or "OK\r\n")
@@ -255,7 +279,7 @@ class Handler(BaseHTTPRequestHandler):
         props = {key: p.find(name) or "" for key, name in _DEVICE_INFO.items()}
         serial = props["SerialNumber"]
         soc_serial = hashlib.sha256(serial.encode()).hexdigest()[:32].upper()
-        props["SocSerialNumber"] = "-".join(soc_serial[i:i + 8] for i in range(0, 32, 8))
+        props["SocSerialNumber"] = "-".join(soc_serial[i : i + 8] for i in range(0, 32, 8))
         method_name = request.get("method")
         if method_name in ("getAllProperties", "getAllUnrestrictedProperties"):
             self._json_reply(request, {"data": {"propertyList": props}})
@@ -295,7 +319,7 @@ class Handler(BaseHTTPRequestHandler):
         if self.query.get("action") != "get":
             self.send(200, f"# Error: Unknown action '{self.query.get('action', '')}'\r\n")
             return
-        t = datetime.fromtimestamp(self.cam.camera_time(), timezone.utc)
+        t = datetime.fromtimestamp(self.cam.camera_time(), UTC)
         self.send(200, f"{_MONTHS[t.month - 1]} {t.day:02d}, {t.year} {t:%H:%M:%S}\r\n")
 
     def _json_request(self, method: str) -> dict | None:
@@ -307,8 +331,11 @@ class Handler(BaseHTTPRequestHandler):
             if not isinstance(request, dict):
                 raise ValueError("not an object")
         except ValueError:
-            self.send(200, json.dumps({"apiVersion": "1.0", "error": {"code": 4000, "message": "Invalid JSON"}}),
-                      "application/json")
+            self.send(
+                200,
+                json.dumps({"apiVersion": "1.0", "error": {"code": 4000, "message": "Invalid JSON"}}),
+                "application/json",
+            )
             return None
         return request
 
@@ -337,7 +364,7 @@ class Handler(BaseHTTPRequestHandler):
             elif path == "/sim/state" and method == "GET":
                 reply = self.cam.state()
             elif path == "/sim/optics" and hasattr(self.cam.source, "set_optics"):
-                reply = self._optics(method)     # focus and mount (sim_devices/optics.py)
+                reply = self._optics(method)  # focus and mount (sim_devices/optics.py)
             else:
                 self.send(404, json.dumps({"error": f"no {method} {path}"}), "application/json")
                 return

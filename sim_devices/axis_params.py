@@ -19,9 +19,10 @@ from __future__ import annotations
 
 import re
 import threading
+from collections.abc import Sequence
 from dataclasses import dataclass
 from importlib import resources
-from typing import Any, Sequence
+from typing import Any
 
 import yaml
 
@@ -31,8 +32,10 @@ DEFAULT_FPS = 25
 MAX_FPS = 30
 DEFAULT_COMPRESSION = 25
 DEFAULT_MODEL = "p1375"
-MODELS = {"p1375": "axis_p1375.yaml",   # AXIS P1375, AXIS OS 10.12: current firmware
-          "axis211": "axis_211.yaml"}    # AXIS 211, firmware 4.47: the reference system's camera
+MODELS = {
+    "p1375": "axis_p1375.yaml",  # AXIS P1375, AXIS OS 10.12: current firmware
+    "axis211": "axis_211.yaml",
+}  # AXIS 211, firmware 4.47: the reference system's camera
 LEGACY_ALIASES = {"vapix3": DEFAULT_MODEL, "vapix2": "axis211"}  # the former firmware= names
 JPEG_LAYOUTS = ("after_app0", "after_tables")
 
@@ -66,7 +69,7 @@ class Profile:
     """How long the sensor exposes each frame (the simulated image's motion blur)."""
 
     @classmethod
-    def load(cls, model: str) -> "Profile":
+    def load(cls, model: str) -> Profile:
         model = LEGACY_ALIASES.get(model, model)
         if model not in MODELS:
             raise ValueError(f"no simulated Axis model {model!r}; known: {', '.join(MODELS)}")
@@ -77,13 +80,21 @@ class Profile:
         if data["jpeg_layout"] not in JPEG_LAYOUTS:
             raise ValueError(f"{MODELS[model]}: jpeg_layout must be one of {JPEG_LAYOUTS}")
         oui = data.get("oui")
-        return cls(model=model, vapix=int(data["vapix"]), firmware=fw,
-                   firmware_str=str(data.get("firmware_version", data["firmware"])),
-                   hardware_id=int(data["hardware_id"]), oui=bytes.fromhex(oui) if oui else None,
-                   jpeg_layout=data["jpeg_layout"], time_extra_zero=bool(data.get("time_extra_zero", False)),
-                   close_after_response=bool(data.get("close_after_response", False)),
-                   cgis=frozenset(data["cgis"]), apis=tuple(data.get("apis") or ()),
-                   params_text=data["params"], exposure_ms=float(data.get("exposure_ms", 8.0)))
+        return cls(
+            model=model,
+            vapix=int(data["vapix"]),
+            firmware=fw,
+            firmware_str=str(data.get("firmware_version", data["firmware"])),
+            hardware_id=int(data["hardware_id"]),
+            oui=bytes.fromhex(oui) if oui else None,
+            jpeg_layout=data["jpeg_layout"],
+            time_extra_zero=bool(data.get("time_extra_zero", False)),
+            close_after_response=bool(data.get("close_after_response", False)),
+            cgis=frozenset(data["cgis"]),
+            apis=tuple(data.get("apis") or ()),
+            params_text=data["params"],
+            exposure_ms=float(data.get("exposure_ms", 8.0)),
+        )
 
     def product(self, source_product: AxisProduct) -> AxisProduct:
         """The product segment this camera writes: this model's hardware id and firmware, the
@@ -93,10 +104,17 @@ class Profile:
 
     def params(self, product: AxisProduct, name: str, resolutions: list[str]) -> dict[str, str]:
         """The parameter tree (``root.X=Y``) with this camera's values filled in."""
-        values = {"serial": product.mac.hex().upper(), "mac": product.mac_str, "name": name,
-                  "resolution": resolutions[0], "resolutions": ",".join(resolutions),
-                  "firmware": self.firmware_str, "hardware_id": format(product.hardware_id, "X"),
-                  "fps": str(DEFAULT_FPS), "compression": str(DEFAULT_COMPRESSION)}
+        values = {
+            "serial": product.mac.hex().upper(),
+            "mac": product.mac_str,
+            "name": name,
+            "resolution": resolutions[0],
+            "resolutions": ",".join(resolutions),
+            "firmware": self.firmware_str,
+            "hardware_id": format(product.hardware_id, "X"),
+            "fps": str(DEFAULT_FPS),
+            "compression": str(DEFAULT_COMPRESSION),
+        }
         tree: dict[str, str] = {}
         for line in self.params_text.splitlines():
             line = line.strip()
@@ -175,14 +193,15 @@ _HOST = re.compile(r"^(?=.{1,253}$)[A-Za-z0-9]([A-Za-z0-9-]{0,62})(\.[A-Za-z0-9]
 #: parameter not named here takes any text, as free-text parameters (names, descriptions) do.
 RULES = {
     ".Appearance.Compression": _whole(0, 100),
-    ".Stream.FPS": _whole(0, MAX_FPS),            # 0: as fast as the camera can
+    ".Stream.FPS": _whole(0, MAX_FPS),  # 0: as fast as the camera can
     ".Sensor.Exposure": lambda v: v in ("auto", "hold", "flickerfree50", "flickerfree60"),
-    ".Sensor.WhiteBalance": lambda v: v in ("auto", "hold", "fixed_indoor", "fixed_outdoor1", "fixed_outdoor2",
-                                            "fixed_fluor1", "fixed_fluor2"),
+    ".Sensor.WhiteBalance": lambda v: (
+        v in ("auto", "hold", "fixed_indoor", "fixed_outdoor1", "fixed_outdoor2", "fixed_fluor1", "fixed_fluor2")
+    ),
     ".Sensor.ExposureValue": _whole(0, 100),
     ".Sensor.ExposurePriority": _whole(0, 100),
-    ".Sensor.MaxExposureTime": _whole(100, 1_000_000),   # microseconds
-    ".Sensor.MaxGain": _whole(0, 48),                     # dB
+    ".Sensor.MaxExposureTime": _whole(100, 1_000_000),  # microseconds
+    ".Sensor.MaxGain": _whole(0, 48),  # dB
     ".Text.TextEnabled": lambda v: v in _YES_NO,
     ".Text.ClockEnabled": lambda v: v in _YES_NO,
     ".Text.DateEnabled": lambda v: v in _YES_NO,
@@ -200,6 +219,7 @@ def valid_time_zone(value: str) -> bool:
     """An IANA time zone name (current firmware) or a POSIX TZ string such as ``UTC0`` or
     ``CET-1CEST,M3.5.0,M10.5.0/3`` (firmware 4.x names its zone that way)."""
     import zoneinfo
+
     if _TZ_POSIX.match(value) or value in ("GMT", "UTC"):
         return True
     try:

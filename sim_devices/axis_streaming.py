@@ -14,12 +14,10 @@ from email.utils import formatdate
 from typing import TYPE_CHECKING
 
 from vts_hw.recording.axis_jpeg import SOI, AxisProduct, AxisTime, comment_segment
-
 from vts_hw.sim_devices.axis_params import DEFAULT_FPS, MAX_FPS
 from vts_hw.sim_devices.faults import LATE_LIMIT_S
 
-__all__ = ["BOUNDARY", "LATE_LIMIT_S", "Reject", "restamp", "unstamped", "serve_snapshot", "serve_stream",
-           "trickle"]
+__all__ = ["BOUNDARY", "LATE_LIMIT_S", "Reject", "restamp", "unstamped", "serve_snapshot", "serve_stream", "trickle"]
 
 if TYPE_CHECKING:
     from vts_hw.sim_devices.axis_http import Handler
@@ -34,10 +32,13 @@ STREAM_HEADER = (
     f"Content-Type: multipart/x-mixed-replace; boundary={BOUNDARY}\r\n"
     "\r\n"
 ).encode("ascii")
-_HTML = ("<HTML><HEAD><TITLE>{code} {reason}</TITLE></HEAD>\r\n"
-         "<BODY><H1>{code} {reason}</H1>\r\n{text}\r\n</BODY></HTML>\r\n")
-BODY_503 = _HTML.format(code=503, reason="Service Unavailable",
-                        text="Too many viewers: the maximum number of clients is already connected.")
+_HTML = (
+    "<HTML><HEAD><TITLE>{code} {reason}</TITLE></HEAD>\r\n"
+    "<BODY><H1>{code} {reason}</H1>\r\n{text}\r\n</BODY></HTML>\r\n"
+)
+BODY_503 = _HTML.format(
+    code=503, reason="Service Unavailable", text="Too many viewers: the maximum number of clients is already connected."
+)
 _SOF = frozenset(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}  # start-of-frame markers (not DHT, JPG, DAC)
 
 
@@ -45,8 +46,9 @@ class Reject(Exception):
     """A request argument the camera refuses (answered 400 with ``Error: <message>``)."""
 
 
-def restamp(jpeg: bytes, epoch: float, product: AxisProduct, layout: str = "after_app0",
-            time_extra_zero: bool = False) -> bytes:
+def restamp(
+    jpeg: bytes, epoch: float, product: AxisProduct, layout: str = "after_app0", time_extra_zero: bool = False
+) -> bytes:
     """``jpeg`` with its Axis comment segments replaced by those of ``epoch`` and ``product``.
 
     ``after_app0`` (firmware 5 and later): after the JFIF APP0 segment, time then product.
@@ -66,8 +68,8 @@ def restamp(jpeg: bytes, epoch: float, product: AxisProduct, layout: str = "afte
         marker = jpeg[i + 1]
         if marker == 0xDA:  # start of scan: the rest is image data
             break
-        (length,) = struct.unpack(">H", jpeg[i + 2:i + 4])
-        seg = jpeg[i:i + 2 + length]
+        (length,) = struct.unpack(">H", jpeg[i + 2 : i + 4])
+        seg = jpeg[i : i + 2 + length]
         is_axis = marker == 0xFE and length == 15 and seg[4:6] in (b"\x0a\x00", b"\x0a\x01")
         if layout == "after_tables" and marker in _SOF and insert_at is None:
             insert_at = len(kept)
@@ -89,15 +91,15 @@ def unstamped(jpeg: bytes) -> bytes:
         raise ValueError("unstamped: not a JPEG")
     kept, i, n = [SOI], 2, len(jpeg)
     while i + 4 <= n and jpeg[i] == 0xFF and jpeg[i + 1] != 0xDA:
-        (length,) = struct.unpack(">H", jpeg[i + 2:i + 4])
-        seg = jpeg[i:i + 2 + length]
+        (length,) = struct.unpack(">H", jpeg[i + 2 : i + 4])
+        seg = jpeg[i : i + 2 + length]
         if not (jpeg[i + 1] == 0xFE and length == 15 and seg[4:6] in (b"\x0a\x00", b"\x0a\x01")):
             kept.append(seg)
         i += 2 + length
     return b"".join(kept) + jpeg[i:]
 
 
-def image_args(h: "Handler") -> tuple[int, int, int]:
+def image_args(h: Handler) -> tuple[int, int, int]:
     """(width, height, JPEG quality) from resolution= and compression=."""
     cam = h.cam
     res = h.query.get("resolution") or cam.params.get("Image.I0.Appearance.Resolution")
@@ -110,7 +112,7 @@ def image_args(h: "Handler") -> tuple[int, int, int]:
     return width, height, 100 - int(comp)
 
 
-def serve_snapshot(h: "Handler") -> None:
+def serve_snapshot(h: Handler) -> None:
     width, height, quality = image_args(h)
     faults = h.cam.faults
     if faults.too_many_viewers:
@@ -125,26 +127,32 @@ def serve_snapshot(h: "Handler") -> None:
     elif faults.torn_mode == "short":
         h.send(200, jpeg[: len(jpeg) // 2], "image/jpeg")
     else:  # cut: announce the whole JPEG, send half, die
-        head = (f"HTTP/1.1 200 OK\r\nDate: {formatdate(usegmt=True)}\r\nContent-Type: image/jpeg\r\n"
-                f"Content-Length: {len(jpeg)}\r\nConnection: close\r\n\r\n").encode("latin-1")
+        head = (
+            f"HTTP/1.1 200 OK\r\nDate: {formatdate(usegmt=True)}\r\nContent-Type: image/jpeg\r\n"
+            f"Content-Length: {len(jpeg)}\r\nConnection: close\r\n\r\n"
+        ).encode("latin-1")
         h.wfile.write(head + jpeg[: len(jpeg) // 2])
         h.hang_up()
 
 
-def trickle(h: "Handler", path: str) -> None:
+def trickle(h: Handler, path: str) -> None:
     """The ``trickle`` fault: a 200 and its headers at once, then the body a byte every
     ``trickle_s`` seconds, until the client hangs up or the fault is cleared (then the rest at
     once). The body is what the request would get: a JPEG, a multipart stream, or text."""
     faults = h.cam.faults
     jpeg = h.cam.frame(*image_args(h)[:2], 75) if "jpg" in path else b""
     if path.endswith("mjpg/video.cgi"):
-        head, body = STREAM_HEADER, (f"--{BOUNDARY}\r\nContent-Type: image/jpeg\r\n"
-                                     f"Content-Length: {len(jpeg)}\r\n\r\n").encode("ascii") + jpeg
+        head, body = (
+            STREAM_HEADER,
+            (f"--{BOUNDARY}\r\nContent-Type: image/jpeg\r\nContent-Length: {len(jpeg)}\r\n\r\n").encode("ascii") + jpeg,
+        )
     else:
         body = jpeg or b"root.Brand.Brand=AXIS\r\n" * 64
         ctype = "image/jpeg" if jpeg else "text/plain"
-        head = (f"HTTP/1.1 200 OK\r\nDate: {formatdate(usegmt=True)}\r\nContent-Type: {ctype}\r\n"
-                f"Content-Length: {len(body)}\r\nConnection: close\r\n\r\n").encode("latin-1")
+        head = (
+            f"HTTP/1.1 200 OK\r\nDate: {formatdate(usegmt=True)}\r\nContent-Type: {ctype}\r\n"
+            f"Content-Length: {len(body)}\r\nConnection: close\r\n\r\n"
+        ).encode("latin-1")
     h.close_connection = True
     try:
         h.wfile.write(head)
@@ -153,15 +161,15 @@ def trickle(h: "Handler", path: str) -> None:
             if not faults.trickle:
                 h.wfile.write(body[k:])
                 return
-            h.wfile.write(body[k:k + 1])
+            h.wfile.write(body[k : k + 1])
             h.wfile.flush()
-            if h.cam._stopping.wait(faults.trickle_s):   # the camera is being stopped
+            if h.cam._stopping.wait(faults.trickle_s):  # the camera is being stopped
                 return
-    except OSError:   # the client hung up: what a client with a deadline does
+    except OSError:  # the client hung up: what a client with a deadline does
         pass
 
 
-def serve_stream(h: "Handler") -> None:
+def serve_stream(h: Handler) -> None:
     width, height, quality = image_args(h)
     cam = h.cam
     fps = _number(h.query.get("fps") or cam.params.get("Image.I0.Stream.FPS"), "fps")
@@ -169,8 +177,9 @@ def serve_stream(h: "Handler") -> None:
     duration = _number(h.query.get("duration", "0"), "duration")
     nbr = _number(h.query.get("nbrofframes", "0"), "nbrofframes")
     faults = cam.faults
-    if faults.too_many_viewers or (faults.max_viewers is not None
-                                   and cam.counter("active_streams") >= faults.max_viewers):
+    if faults.too_many_viewers or (
+        faults.max_viewers is not None and cam.counter("active_streams") >= faults.max_viewers
+    ):
         h.send(503, BODY_503, "text/html")
         return
     cam.count("active_streams")
@@ -185,8 +194,9 @@ def serve_stream(h: "Handler") -> None:
 class StreamWriter:
     """Sends the parts of one MJPEG stream, paced on the camera clock, applying the faults."""
 
-    def __init__(self, handler: "Handler", width: int, height: int, quality: int, fps: float,
-                 duration: float, nbrofframes: int):
+    def __init__(
+        self, handler: Handler, width: int, height: int, quality: int, fps: float, duration: float, nbrofframes: int
+    ):
         self.h, self.cam = handler, handler.cam
         self.size, self.quality = (width, height), quality
         self.period, self.duration, self.nbr = 1.0 / fps, duration, nbrofframes
@@ -203,7 +213,7 @@ class StreamWriter:
         start = clock.now()
         g = math.ceil(start / self.period)
         starting = getattr(cam.source, "stream_starting", None)
-        if starting is not None:          # frames made ahead of time start playing (frame_bank.py)
+        if starting is not None:  # frames made ahead of time start playing (frame_bank.py)
             starting(g * self.period)
         stalled = False
         k = 0
@@ -214,7 +224,7 @@ class StreamWriter:
             if not cam.sleep_until(target):
                 return
             now = clock.now()
-            if now - target > faults.late_limit():   # too far behind: the frames between are lost
+            if now - target > faults.late_limit():  # too far behind: the frames between are lost
                 live = math.ceil(now / self.period)
                 cam.count("frames_skipped", live - g)
                 g = live
@@ -226,7 +236,7 @@ class StreamWriter:
                 stalled = True
                 if not cam.sleep_until(clock.now() + faults.stall_s):
                     return
-                g = math.ceil(clock.now() / self.period)   # the stall's frames are lost
+                g = math.ceil(clock.now() / self.period)  # the stall's frames are lost
                 continue
             if faults.lost(cam.source.name, g, target, self.period):
                 cam.count("frames_lost")

@@ -17,7 +17,7 @@ unless ``uptime_s`` says otherwise; ``reboot()`` starts it now).
 from __future__ import annotations
 
 import uuid
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from typing import TYPE_CHECKING
 
 from vts_hw.sim_devices.axis_params import _TZ_POSIX, valid_time_zone
@@ -25,10 +25,10 @@ from vts_hw.sim_devices.axis_params import _TZ_POSIX, valid_time_zone
 if TYPE_CHECKING:
     from vts_hw.sim_devices.axis_http import Handler
 
-NO_AUTH = frozenset({"/axis-cgi/systemready.cgi"})   # answered without credentials, as the firmware does
+NO_AUTH = frozenset({"/axis-cgi/systemready.cgi"})  # answered without credentials, as the firmware does
 
 
-def time_api(h: "Handler", method: str) -> None:
+def time_api(h: Handler, method: str) -> None:
     request = h._json_request(method)
     if request is None:
         return
@@ -37,12 +37,20 @@ def time_api(h: "Handler", method: str) -> None:
     params = given if isinstance(given, dict) else {}
     store = h.cam.params
     if name == "getDateTimeInfo":
-        t = datetime.fromtimestamp(h.cam.camera_time(), timezone.utc)
+        t = datetime.fromtimestamp(h.cam.camera_time(), UTC)
         iso = t.strftime("%Y-%m-%dT%H:%M:%S.") + f"{t.microsecond // 1000:03d}Z"
-        h._json_reply(request, {"data": {"dateTime": iso, "localDateTime": iso,
-                                         "dstEnabled": store.find("Time.DST.Enabled") == "yes",
-                                         "timeZone": store.find("Time.TimeZone") or "Etc/UTC",
-                                         "posixTimeZone": store.find("Time.POSIXTimeZone") or "UTC0"}})
+        h._json_reply(
+            request,
+            {
+                "data": {
+                    "dateTime": iso,
+                    "localDateTime": iso,
+                    "dstEnabled": store.find("Time.DST.Enabled") == "yes",
+                    "timeZone": store.find("Time.TimeZone") or "Etc/UTC",
+                    "posixTimeZone": store.find("Time.POSIXTimeZone") or "UTC0",
+                }
+            },
+        )
     elif name == "setTimeZone":
         zone = params.get("timeZone")
         if not isinstance(zone, str) or "/" not in zone and zone != "UTC" or not valid_time_zone(zone):
@@ -64,35 +72,46 @@ def time_api(h: "Handler", method: str) -> None:
         h._json_reply(request, _error(2004, f"Method not supported: {name}"))
 
 
-def system_ready(h: "Handler", method: str) -> None:
+def system_ready(h: Handler, method: str) -> None:
     request = h._json_request(method)
     if request is None:
         return
     if request.get("method") == "systemready":
-        h._json_reply(request, {"data": {"systemready": "yes", "needsetup": "no", "uptime": str(int(uptime_s(h))),
-                                         "bootid": str(uuid.UUID(int=int(h.cam.booted_at * 1000) & (2**128 - 1)))}})
+        h._json_reply(
+            request,
+            {
+                "data": {
+                    "systemready": "yes",
+                    "needsetup": "no",
+                    "uptime": str(int(uptime_s(h))),
+                    "bootid": str(uuid.UUID(int=int(h.cam.booted_at * 1000) & (2**128 - 1))),
+                }
+            },
+        )
     elif request.get("method") == "getSupportedVersions":
         h._json_reply(request, {"data": {"apiVersions": ["1.4"]}})
     else:
         h._json_reply(request, _error(2004, f"Method not supported: {request.get('method')}"))
 
 
-def server_report(h: "Handler", method: str) -> None:
+def server_report(h: Handler, method: str) -> None:
     p = h.cam.params
-    now = datetime.fromtimestamp(h.cam.camera_time(), timezone.utc)
-    lines = ["----- Server Report Start -----",
-             f"Product: {p.find('Brand.ProdFullName')}",
-             f"Firmware version: {p.find('Properties.Firmware.Version')}",
-             f"Serial number: {p.find('Properties.System.SerialNumber')}",
-             "",
-             "----- Uptime -----",
-             f" {now:%H:%M:%S} up {busybox_uptime(uptime_s(h))}, load average: 0.08, 0.03, 0.01",
-             "",
-             "----- Server Report End -----"]
+    now = datetime.fromtimestamp(h.cam.camera_time(), UTC)
+    lines = [
+        "----- Server Report Start -----",
+        f"Product: {p.find('Brand.ProdFullName')}",
+        f"Firmware version: {p.find('Properties.Firmware.Version')}",
+        f"Serial number: {p.find('Properties.System.SerialNumber')}",
+        "",
+        "----- Uptime -----",
+        f" {now:%H:%M:%S} up {busybox_uptime(uptime_s(h))}, load average: 0.08, 0.03, 0.01",
+        "",
+        "----- Server Report End -----",
+    ]
     h.send(200, "\r\n".join(lines) + "\r\n")
 
 
-def uptime_s(h: "Handler") -> float:
+def uptime_s(h: Handler) -> float:
     return max(0.0, h.cam.clock.now() - h.cam.booted_at)
 
 

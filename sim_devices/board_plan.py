@@ -20,11 +20,19 @@ import itertools
 
 import numpy as np
 
-from vts_hw.sim_devices.checkerboard import (IMAGE_MARGIN_PX, PATTERN, SQUARE_MM, EDGE_SEGMENTS, Pose,
-                                             _edge_points, _to_world, board_outline)
+from vts_hw.sim_devices.checkerboard import (
+    EDGE_SEGMENTS,
+    IMAGE_MARGIN_PX,
+    PATTERN,
+    SQUARE_MM,
+    Pose,
+    _edge_points,
+    _to_world,
+    board_outline,
+)
 from vts_hw.sim_devices.scene import Scene, rotation_matrix
 
-MAX_OBLIQUITY_DEG = 78.0   # a 9 x 6 board is still found at this angle (cos 0.21)
+MAX_OBLIQUITY_DEG = 78.0  # a 9 x 6 board is still found at this angle (cos 0.21)
 TRIES = 600
 
 
@@ -37,11 +45,11 @@ def meeting_point(scene: Scene, a: str, b: str) -> np.ndarray:
     """The mid-point of the shortest segment between the two cameras' optical axes."""
     ca, cb = scene.cameras[a], scene.cameras[b]
     pa, pb = ca.center, cb.center
-    da, db = ca.R[2], cb.R[2]          # optical axes in the world
+    da, db = ca.R[2], cb.R[2]  # optical axes in the world
     w = pa - pb
     A, B, C, D, E = da @ da, da @ db, db @ db, da @ w, db @ w
     den = A * C - B * B
-    if den < 1e-9:                    # parallel axes: in front of both, at the mean distance
+    if den < 1e-9:  # parallel axes: in front of both, at the mean distance
         return (pa + pb) / 2 + da * float(np.linalg.norm(pa))
     s, t = (B * E - C * D) / den, (A * E - B * D) / den
     return (pa + s * da + pb + t * db) / 2
@@ -54,13 +62,20 @@ def pair_angle_deg(scene: Scene, a: str, b: str) -> float:
     return float(np.degrees(np.arccos(np.clip(u @ v, -1, 1))))
 
 
-def sees_board(scene: Scene, cam: str, pose: Pose, pattern=PATTERN, square_mm=SQUARE_MM,
-               margin_px: float = IMAGE_MARGIN_PX, max_obliquity_deg: float = MAX_OBLIQUITY_DEG) -> bool:
+def sees_board(
+    scene: Scene,
+    cam: str,
+    pose: Pose,
+    pattern=PATTERN,
+    square_mm=SQUARE_MM,
+    margin_px: float = IMAGE_MARGIN_PX,
+    max_obliquity_deg: float = MAX_OBLIQUITY_DEG,
+) -> bool:
     """The whole board (margin included) is in camera ``cam``'s image, facing it at no more than
     ``max_obliquity_deg`` from square on."""
     camera = scene.cameras[cam]
     R, t = pose
-    front = -np.asarray(R)[:, 2]                      # the printed side faces -z of the board
+    front = -np.asarray(R)[:, 2]  # the printed side faces -z of the board
     centre = _to_world(pose, np.array([[(pattern[0] - 1) / 2 * square_mm, (pattern[1] - 1) / 2 * square_mm, 0]]))[0]
     if float(front @ _unit(camera.center - centre)) < np.cos(np.radians(max_obliquity_deg)):
         return False
@@ -68,18 +83,21 @@ def sees_board(scene: Scene, cam: str, pose: Pose, pattern=PATTERN, square_mm=SQ
     if np.any(camera.to_camera(world)[:, 2] <= 0):
         return False
     uv = camera.project(world)
-    return bool(uv.min() >= margin_px and np.all(uv[:, 0] <= camera.width - 1 - margin_px)
-                and np.all(uv[:, 1] <= camera.height - 1 - margin_px))
+    return bool(
+        uv.min() >= margin_px
+        and np.all(uv[:, 0] <= camera.width - 1 - margin_px)
+        and np.all(uv[:, 1] <= camera.height - 1 - margin_px)
+    )
 
 
-WIDE_PAIR_DEG = 90.0     # cameras further apart than this (seen from the board) face each other
+WIDE_PAIR_DEG = 90.0  # cameras further apart than this (seen from the board) face each other
 WIDE_GOOD_OBLIQUITY_DEG = 72.5  # such a pair sees a board lying about flat at 70-73 deg each: its corners
-WIDE_MAX_OBLIQUITY_DEG = 73.5   # are found well (< 0.2 px) only up to about 73.5 deg, and only with the
-                                # board turned 45 deg in its plane (squares seen edge-on shrink to 13 px
-                                # and the corner finder's window takes the neighbours in); poses up to
-                                # the max are kept only where too few are found within the good limit
-WIDE_TILT_DEG = 12.0     # how far such a board is tilted from the bisector either way
-WIDE_CANDIDATES = 4      # poses found per pose kept for such a pair, the best spread kept
+WIDE_MAX_OBLIQUITY_DEG = 73.5  # are found well (< 0.2 px) only up to about 73.5 deg, and only with the
+# board turned 45 deg in its plane (squares seen edge-on shrink to 13 px
+# and the corner finder's window takes the neighbours in); poses up to
+# the max are kept only where too few are found within the good limit
+WIDE_TILT_DEG = 12.0  # how far such a board is tilted from the bisector either way
+WIDE_CANDIDATES = 4  # poses found per pose kept for such a pair, the best spread kept
 WIDE_TRIES = 40000
 
 
@@ -116,13 +134,20 @@ def _wide_pair_poses(scene: Scene, a: str, b: str, n: int, rng, base, p, centre_
     for _ in range(WIDE_TRIES):
         if sum(w <= WIDE_GOOD_OBLIQUITY_DEG for w, _ in found) >= want:
             break
-        ang = [rng.uniform(-1.0, 1.0) * WIDE_TILT_DEG, rng.uniform(-1.0, 1.0) * WIDE_TILT_DEG,
-               rng.choice([-45.0, 45.0]) + rng.uniform(-10.0, 10.0)]
+        ang = [
+            rng.uniform(-1.0, 1.0) * WIDE_TILT_DEG,
+            rng.uniform(-1.0, 1.0) * WIDE_TILT_DEG,
+            rng.choice([-45.0, 45.0]) + rng.uniform(-10.0, 10.0),
+        ]
         R = base @ rotation_matrix(np.deg2rad(ang))
-        t = p + base @ np.array([rng.uniform(-100.0, 100.0), rng.uniform(-100.0, 100.0),
-                                 rng.uniform(-150.0, 150.0)]) - R @ centre_b
-        if all(sees_board(scene, c, (R, t), pattern, square_mm, max_obliquity_deg=WIDE_MAX_OBLIQUITY_DEG)
-               for c in (a, b)):
+        t = (
+            p
+            + base @ np.array([rng.uniform(-100.0, 100.0), rng.uniform(-100.0, 100.0), rng.uniform(-150.0, 150.0)])
+            - R @ centre_b
+        )
+        if all(
+            sees_board(scene, c, (R, t), pattern, square_mm, max_obliquity_deg=WIDE_MAX_OBLIQUITY_DEG) for c in (a, b)
+        ):
             found.append((max(obliquity_deg(scene, c, (R, t), pattern, square_mm) for c in (a, b)), (R, t)))
     if len(found) < 3:
         return []
@@ -131,9 +156,19 @@ def _wide_pair_poses(scene: Scene, a: str, b: str, n: int, rng, base, p, centre_
     return [pool[k] for k in _spread(normals, min(n, len(pool)))]
 
 
-def pair_poses(scene: Scene, a: str, b: str, n: int, seed: int = 0, pattern=PATTERN,
-               square_mm: float = SQUARE_MM, max_tilt_deg: float = 25.0, max_roll_deg: float = 10.0,
-               shift_mm: float = 120.0, depth_mm: float = 150.0) -> list[Pose]:
+def pair_poses(
+    scene: Scene,
+    a: str,
+    b: str,
+    n: int,
+    seed: int = 0,
+    pattern=PATTERN,
+    square_mm: float = SQUARE_MM,
+    max_tilt_deg: float = 25.0,
+    max_roll_deg: float = 10.0,
+    shift_mm: float = 120.0,
+    depth_mm: float = 150.0,
+) -> list[Pose]:
     """``n`` board poses (board → world) that cameras ``a`` and ``b`` both see whole (fewer if
     the pair cannot see the board together: an empty list then). Cameras more than
     ``WIDE_PAIR_DEG`` apart (a head and a foot camera facing each other) get boards lying about
@@ -141,11 +176,11 @@ def pair_poses(scene: Scene, a: str, b: str, n: int, seed: int = 0, pattern=PATT
     rng = np.random.default_rng(seed)
     p = meeting_point(scene, a, b)
     ua, ub = _unit(scene.cameras[a].center - p), _unit(scene.cameras[b].center - p)
-    z = -_unit(ua + ub)                         # board z points away from both cameras
+    z = -_unit(ua + ub)  # board z points away from both cameras
     across = scene.cameras[b].center - scene.cameras[a].center
     x = across - (across @ z) * z
     x = _unit(x if np.linalg.norm(x) > 1e-6 else np.cross(z, [0.0, 1.0, 0.0]))
-    if x[0] < 0:                                # keep the board's rows running left to right
+    if x[0] < 0:  # keep the board's rows running left to right
         x = -x
     base = np.column_stack([x, np.cross(z, x), z])
     centre_b = np.array([(pattern[0] - 1) / 2.0, (pattern[1] - 1) / 2.0, 0.0]) * square_mm
@@ -156,24 +191,38 @@ def pair_poses(scene: Scene, a: str, b: str, n: int, seed: int = 0, pattern=PATT
     max_tilt_deg = min(max_tilt_deg, max(2.0, MAX_OBLIQUITY_DEG - 2.0 - half))
     quadrants = [(1, 1), (-1, 1), (-1, -1), (1, -1)]
     poses: list[Pose] = []
-    for k in range(2 * n):                      # a turn no pose is found for is passed over
+    for k in range(2 * n):  # a turn no pose is found for is passed over
         if len(poses) == n:
             break
         sx, sy = quadrants[k % 4]
         for _ in range(TRIES):
-            ang = [sx * rng.uniform(0.2, 1.0) * max_tilt_deg, sy * rng.uniform(0.2, 1.0) * max_tilt_deg,
-                   rng.uniform(-1.0, 1.0) * max_roll_deg]
+            ang = [
+                sx * rng.uniform(0.2, 1.0) * max_tilt_deg,
+                sy * rng.uniform(0.2, 1.0) * max_tilt_deg,
+                rng.uniform(-1.0, 1.0) * max_roll_deg,
+            ]
             R = base @ rotation_matrix(np.deg2rad(ang))
-            t = p + base @ np.array([rng.uniform(-shift_mm, shift_mm), rng.uniform(-shift_mm, shift_mm),
-                                     rng.uniform(-depth_mm, depth_mm)]) - R @ centre_b
+            t = (
+                p
+                + base
+                @ np.array(
+                    [
+                        rng.uniform(-shift_mm, shift_mm),
+                        rng.uniform(-shift_mm, shift_mm),
+                        rng.uniform(-depth_mm, depth_mm),
+                    ]
+                )
+                - R @ centre_b
+            )
             if all(sees_board(scene, c, (R, t), pattern, square_mm) for c in (a, b)):
                 poses.append((R, t))
                 break
     return poses if len(poses) >= 3 else []
 
 
-def plan_views(scene: Scene, per_pair: int, seed: int = 0, cameras=None, pattern=PATTERN,
-               square_mm: float = SQUARE_MM) -> list[tuple[tuple[str, str], list[Pose]]]:
+def plan_views(
+    scene: Scene, per_pair: int, seed: int = 0, cameras=None, pattern=PATTERN, square_mm: float = SQUARE_MM
+) -> list[tuple[tuple[str, str], list[Pose]]]:
     """The pairs of cameras to hold the board towards, each with its ``per_pair`` poses: first
     each camera's easiest pair (so that every camera has views turned every way for its
     intrinsics: its neighbour at the same end where it has one), then the easiest pairs that join
@@ -202,19 +251,19 @@ def plan_views(scene: Scene, per_pair: int, seed: int = 0, cameras=None, pattern
         chosen.append((ab, tried[ab]))
         group[root(ab[0])] = root(ab[1])
 
-    for c in cams:                                  # each camera's easiest pair
+    for c in cams:  # each camera's easiest pair
         if any(c in ab for ab, _ in chosen):
             continue
         for k, ab in enumerate(order):
             if c in ab and poses_of(k, ab):
                 take(ab)
                 break
-    for k, (a, b) in enumerate(order):              # a spanning tree of the easiest pairs
+    for k, (a, b) in enumerate(order):  # a spanning tree of the easiest pairs
         if root(a) != root(b) and poses_of(k, (a, b)):
             take((a, b))
     degree = {c: sum(c in p for p, _ in chosen) for c in cams}
     done = {ab for ab, _ in chosen}
-    for k, (a, b) in enumerate(order):              # then a second pair where a camera has one
+    for k, (a, b) in enumerate(order):  # then a second pair where a camera has one
         if len(cams) > 2 and (a, b) not in done and (degree[a] < 2 or degree[b] < 2) and poses_of(k, (a, b)):
             take((a, b))
             done.add((a, b))

@@ -65,15 +65,22 @@ class CameraDrift:
         object.__setattr__(self, "trend_axis", _unit(self.trend_axis))
 
     @classmethod
-    def reference(cls, focal_px: float, seed: int, ref_epoch: float,
-                  px_per_60_days: float = 1.0, walk_px_per_60_days: float = 0.07) -> "CameraDrift":
+    def reference(
+        cls,
+        focal_px: float,
+        seed: int,
+        ref_epoch: float,
+        px_per_60_days: float = 1.0,
+        walk_px_per_60_days: float = 0.07,
+    ) -> CameraDrift:
         """A drift that moves the image by about ``px_per_60_days`` (trend) over 60 days, plus
         a random walk whose 60-day standard deviation per image axis is ``walk_px_per_60_days``."""
         rng = np.random.default_rng(seed)
         phi = rng.uniform(0, 2 * np.pi)
         axis = np.array([np.cos(phi), np.sin(phi), 0.1 * rng.normal()])
-        return cls(axis, px_per_60_days / focal_px / 60.0,
-                   walk_px_per_60_days / focal_px / np.sqrt(60.0), seed + 1, ref_epoch)
+        return cls(
+            axis, px_per_60_days / focal_px / 60.0, walk_px_per_60_days / focal_px / np.sqrt(60.0), seed + 1, ref_epoch
+        )
 
     def rotation_at(self, t: float) -> np.ndarray:
         d = max(0.0, (t - self.ref_epoch) / DAY)

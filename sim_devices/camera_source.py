@@ -10,13 +10,12 @@ schedules and the renderer lock what they share, and nothing here keeps mutable 
 from __future__ import annotations
 
 from vts_hw.recording.axis_jpeg import AxisProduct, stamp_jpeg
-
 from vts_hw.sim_devices.clock import SimClock
 from vts_hw.sim_devices.clock_warmup import warm_offset_s
 from vts_hw.sim_devices.frame_bank import FrameBank
+from vts_hw.sim_devices.optics import optics_of, set_optics
 from vts_hw.sim_devices.render import Renderer
 from vts_hw.sim_devices.scene import Scene
-from vts_hw.sim_devices.optics import optics_of, set_optics
 
 
 class SimCameraSource:
@@ -33,7 +32,7 @@ class SimCameraSource:
         self.width: int = model.width
         self.height: int = model.height
         self.product: AxisProduct = scene.products[cam]
-        self.bank: FrameBank | None = None        # frames made ahead of time (sim_devices/frame_bank.py)
+        self.bank: FrameBank | None = None  # frames made ahead of time (sim_devices/frame_bank.py)
 
     def stream_starting(self, t: float) -> None:
         """A stream's first frame is at grid time ``t``: frames made ahead start playing."""

@@ -23,12 +23,12 @@ from vts_hw.sim_devices.render import Renderer, encode, polygon_coverage
 from vts_hw.sim_devices.scene import CameraModel, Scene, rotation_matrix
 
 PATTERN = (9, 6)
-SQUARE_MM = 50.0         # a 9 x 6 board of 50 mm squares (about 550 x 400 mm): see docs/decisions/0015
-BOARD_WHITE = 200.0      # grey level of the white paper under the LEDs' and room light
-BOARD_BLACK = 35.0       # grey level of the printed black squares
-BACKGROUND = 20.0        # the dim room behind the board (as in render.Renderer)
-EDGE_SEGMENTS = 8        # segments per square edge (distortion bends the projected edges)
-IMAGE_MARGIN_PX = 10.0   # every part of the board stays this far inside both images
+SQUARE_MM = 50.0  # a 9 x 6 board of 50 mm squares (about 550 x 400 mm): see docs/decisions/0015
+BOARD_WHITE = 200.0  # grey level of the white paper under the LEDs' and room light
+BOARD_BLACK = 35.0  # grey level of the printed black squares
+BACKGROUND = 20.0  # the dim room behind the board (as in render.Renderer)
+EDGE_SEGMENTS = 8  # segments per square edge (distortion bends the projected edges)
+IMAGE_MARGIN_PX = 10.0  # every part of the board stays this far inside both images
 
 Pose = tuple[np.ndarray, np.ndarray]  # (R 3x3, t 3) board -> world
 
@@ -61,8 +61,13 @@ def _base_rotation(scene: Scene) -> np.ndarray:
     return np.column_stack([x, y, z])
 
 
-def fully_visible(scene: Scene, pose: Pose, pattern: tuple[int, int] = PATTERN,
-                  square_mm: float = SQUARE_MM, margin_px: float = IMAGE_MARGIN_PX) -> bool:
+def fully_visible(
+    scene: Scene,
+    pose: Pose,
+    pattern: tuple[int, int] = PATTERN,
+    square_mm: float = SQUARE_MM,
+    margin_px: float = IMAGE_MARGIN_PX,
+) -> bool:
     """Whether the whole board (white margin included) is in front of every camera and at
     least ``margin_px`` inside its image."""
     outline = _edge_points(board_outline(pattern, square_mm), 4 * EDGE_SEGMENTS)
@@ -71,16 +76,26 @@ def fully_visible(scene: Scene, pose: Pose, pattern: tuple[int, int] = PATTERN,
         if np.any(camera.to_camera(world)[:, 2] <= 0):
             return False
         uv = camera.project(world)
-        if (uv.min() < margin_px or np.any(uv[:, 0] > camera.width - 1 - margin_px)
-                or np.any(uv[:, 1] > camera.height - 1 - margin_px)):
+        if (
+            uv.min() < margin_px
+            or np.any(uv[:, 0] > camera.width - 1 - margin_px)
+            or np.any(uv[:, 1] > camera.height - 1 - margin_px)
+        ):
             return False
     return True
 
 
-def board_poses(scene: Scene, n: int = 18, seed: int = 0, pattern: tuple[int, int] = PATTERN,
-                square_mm: float = SQUARE_MM, max_tilt_deg: float = 30.0,
-                max_roll_deg: float = 10.0, depth_mm: float = 200.0,
-                margin_px: float = IMAGE_MARGIN_PX) -> list[Pose]:
+def board_poses(
+    scene: Scene,
+    n: int = 18,
+    seed: int = 0,
+    pattern: tuple[int, int] = PATTERN,
+    square_mm: float = SQUARE_MM,
+    max_tilt_deg: float = 30.0,
+    max_roll_deg: float = 10.0,
+    depth_mm: float = 200.0,
+    margin_px: float = IMAGE_MARGIN_PX,
+) -> list[Pose]:
     """``n`` board poses (R, t board -> world) spread over the common field of view.
 
     Each pose turns the board from facing the cameras by up to ``max_tilt_deg`` about its two
@@ -107,8 +122,7 @@ def board_poses(scene: Scene, n: int = 18, seed: int = 0, pattern: tuple[int, in
             az = rng.uniform(-1.0, 1.0) * max_roll_deg
             R = base @ rotation_matrix(np.deg2rad([ax, ay, az]))
             # Position: across the field (in the board-facing plane) and along the view.
-            shift = base @ np.array([rng.uniform(-180, 180), rng.uniform(-130, 130),
-                                     rng.uniform(-depth_mm, depth_mm)])
+            shift = base @ np.array([rng.uniform(-180, 180), rng.uniform(-130, 130), rng.uniform(-depth_mm, depth_mm)])
             t = shift - R @ centre_b
             if fully_visible(scene, (R, t), pattern, square_mm, margin_px):
                 poses.append((R, t))
@@ -118,8 +132,9 @@ def board_poses(scene: Scene, n: int = 18, seed: int = 0, pattern: tuple[int, in
     return poses
 
 
-def truth_corners(scene: Scene, cam: str | CameraModel, pose: Pose,
-                  pattern: tuple[int, int] = PATTERN, square_mm: float = SQUARE_MM) -> np.ndarray:
+def truth_corners(
+    scene: Scene, cam: str | CameraModel, pose: Pose, pattern: tuple[int, int] = PATTERN, square_mm: float = SQUARE_MM
+) -> np.ndarray:
     """Pixel coordinates (N x 2) of the inner corners in camera ``cam`` (distortion included),
     row by row as :func:`vts_hw.vision.checkerboard.board_points` orders them."""
     cols, rows = pattern
@@ -146,10 +161,18 @@ def _add_polygon(img: np.ndarray, poly: np.ndarray, amount: float, supersample: 
     img[y0:y1, x0:x1] += amount * cover
 
 
-def render_clean(scene: Scene, cam: str | CameraModel, pose: Pose,
-                 pattern: tuple[int, int] = PATTERN, square_mm: float = SQUARE_MM,
-                 supersample: int = 8, white: float = BOARD_WHITE, black: float = BOARD_BLACK,
-                 background: float = BACKGROUND, seed: int = 0) -> np.ndarray:
+def render_clean(
+    scene: Scene,
+    cam: str | CameraModel,
+    pose: Pose,
+    pattern: tuple[int, int] = PATTERN,
+    square_mm: float = SQUARE_MM,
+    supersample: int = 8,
+    white: float = BOARD_WHITE,
+    black: float = BOARD_BLACK,
+    background: float = BACKGROUND,
+    seed: int = 0,
+) -> np.ndarray:
     """The noise-free float32 (H, W) image of the board in camera ``cam`` (not quantised)."""
     camera = _camera(scene, cam)
     names = list(scene.cameras)
@@ -157,8 +180,7 @@ def render_clean(scene: Scene, cam: str | CameraModel, pose: Pose,
     img = Renderer._make_background(camera.width, camera.height, background, bg_seed).copy()
     # Make room for the paper, then lay the black squares on it (their coverages only add up:
     # neighbouring squares touch at their corners).
-    outline = camera.project(_to_world(pose, _edge_points(board_outline(pattern, square_mm),
-                                                          4 * EDGE_SEGMENTS)))
+    outline = camera.project(_to_world(pose, _edge_points(board_outline(pattern, square_mm), 4 * EDGE_SEGMENTS)))
     paper = np.zeros_like(img)
     _add_polygon(paper, outline, 1.0, supersample)
     img += paper * (white - img)
@@ -169,8 +191,7 @@ def render_clean(scene: Scene, cam: str | CameraModel, pose: Pose,
         for i in range(-1, cols):
             if (i + j) % 2 == 0:  # the square at (-1, -1) is black
                 x, y = i * s, j * s
-                squares.append(np.array([[x, y, 0.0], [x + s, y, 0.0], [x + s, y + s, 0.0],
-                                         [x, y + s, 0.0]]))
+                squares.append(np.array([[x, y, 0.0], [x + s, y, 0.0], [x + s, y + s, 0.0], [x, y + s, 0.0]]))
     pts = np.vstack([_edge_points(q, EDGE_SEGMENTS) for q in squares])
     uv = camera.project(_to_world(pose, pts)).reshape(len(squares), -1, 2)
     for poly in uv:
@@ -178,9 +199,16 @@ def render_clean(scene: Scene, cam: str | CameraModel, pose: Pose,
     return img
 
 
-def render_board(scene: Scene, cam: str | CameraModel, pose: Pose,
-                 pattern: tuple[int, int] = PATTERN, square_mm: float = SQUARE_MM,
-                 noise_sigma: float = 2.0, quality: int = 75, seed: int = 0) -> bytes:
+def render_board(
+    scene: Scene,
+    cam: str | CameraModel,
+    pose: Pose,
+    pattern: tuple[int, int] = PATTERN,
+    square_mm: float = SQUARE_MM,
+    noise_sigma: float = 2.0,
+    quality: int = 75,
+    seed: int = 0,
+) -> bytes:
     """JPEG bytes (grey, ``quality``) of what camera ``cam`` sees of the board at ``pose``,
     with Gaussian sensor noise of ``noise_sigma`` grey levels (0: none) drawn from ``seed``,
     added before the image is rounded to 8 bits."""
@@ -198,17 +226,26 @@ def decode(jpeg: bytes) -> np.ndarray:
     return img
 
 
-def render_pairs(scene: Scene, n: int = 18, seed: int = 0, pattern: tuple[int, int] = PATTERN,
-                 square_mm: float = SQUARE_MM, cams: tuple[str, str] = ("cam1", "cam2"),
-                 t: float | None = None):
+def render_pairs(
+    scene: Scene,
+    n: int = 18,
+    seed: int = 0,
+    pattern: tuple[int, int] = PATTERN,
+    square_mm: float = SQUARE_MM,
+    cams: tuple[str, str] = ("cam1", "cam2"),
+    t: float | None = None,
+):
     """``n`` stereo views of the board as an operator would hold it (:func:`board_poses`):
     a list of (left, right) grey images and their names ``sim01``…, each image with its own
     noise. With ``t`` the cameras are as they are at ``t`` (drift included), else as mounted."""
     seen_by: tuple[str | CameraModel, ...] = tuple(scene.camera_at(c, t) for c in cams) if t is not None else cams
     pairs, names = [], []
     for k, pose in enumerate(board_poses(scene, n=n, seed=seed, pattern=pattern, square_mm=square_mm)):
-        pairs.append(tuple(decode(render_board(scene, cam, pose, pattern, square_mm,
-                                               seed=seed * 10007 + 2 * k + i))
-                           for i, cam in enumerate(seen_by)))
+        pairs.append(
+            tuple(
+                decode(render_board(scene, cam, pose, pattern, square_mm, seed=seed * 10007 + 2 * k + i))
+                for i, cam in enumerate(seen_by)
+            )
+        )
         names.append(f"sim{k + 1:02d}")
     return pairs, names

@@ -9,7 +9,6 @@ by days or months at once (to let camera drift accumulate) without anybody waiti
 from __future__ import annotations
 
 import math
-
 import threading
 import time
 
@@ -46,7 +45,7 @@ class VirtualClock(SimClock):
     """
 
     def __init__(self, start_epoch: float | None = None, rate: float = 1.0):
-        if not (math.isfinite(rate) and rate > 0):   # nan and inf too: every time would be nan
+        if not (math.isfinite(rate) and rate > 0):  # nan and inf too: every time would be nan
             raise ValueError(f"VirtualClock rate must be a finite number greater than 0, not {rate!r}")
         self._start = time.time() if start_epoch is None else float(start_epoch)
         self._rate = float(rate)

@@ -25,18 +25,17 @@ import numpy as np
 
 from vts_hw.sim_devices.warmup import declare_warmups, declared
 
-__all__ = ["ClockWarmup", "declare_clock_warmups", "declare_warm_starts", "warm_offset_s",
-           "AMPLITUDE_PPM", "TAU_MIN"]
+__all__ = ["ClockWarmup", "declare_clock_warmups", "declare_warm_starts", "warm_offset_s", "AMPLITUDE_PPM", "TAU_MIN"]
 
-AMPLITUDE_PPM = (100.0, 300.0)   # seeded per camera: how far the rate is off right after the start
-TAU_MIN = (5.0, 12.0)            # ... and the time constant of its settling, minutes
+AMPLITUDE_PPM = (100.0, 300.0)  # seeded per camera: how far the rate is off right after the start
+TAU_MIN = (5.0, 12.0)  # ... and the time constant of its settling, minutes
 
 
 @dataclass(frozen=True)
 class ClockWarmup:
     """How a camera's clock departs from its settled line ``age`` seconds after it started."""
 
-    amplitude_ppm: float          # the rate's departure at the start (signed)
+    amplitude_ppm: float  # the rate's departure at the start (signed)
     tau_s: float
 
     def __post_init__(self):
@@ -79,8 +78,9 @@ def declare_clock_warmups(scene, seed: int, cameras: dict | bool) -> dict[str, C
         rng = np.random.default_rng([seed, 25, i])
         amp = rng.uniform(*AMPLITUDE_PPM) * rng.choice([-1.0, 1.0])
         tau = rng.uniform(*TAU_MIN)
-        scene.clock_warmups[name] = ClockWarmup(float(given.get("amplitude_ppm", amp)),
-                                                60.0 * float(given.get("tau_min", tau)))
+        scene.clock_warmups[name] = ClockWarmup(
+            float(given.get("amplitude_ppm", amp)), 60.0 * float(given.get("tau_min", tau))
+        )
     return dict(scene.clock_warmups)
 
 

@@ -29,8 +29,8 @@ import hashlib
 import hmac
 import secrets
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 from urllib.parse import urlsplit
 
 __all__ = ["DigestAuth", "BasicAuth", "AuthResult", "parse_auth_params", "digest_response"]
@@ -51,8 +51,17 @@ def _md5(text: str) -> str:
     return hashlib.md5(text.encode("utf-8"), usedforsecurity=False).hexdigest()
 
 
-def digest_response(user: str, realm: str, password: str, method: str, uri: str, nonce: str,
-                    nc: str | None = None, cnonce: str | None = None, qop: str | None = None) -> str:
+def digest_response(
+    user: str,
+    realm: str,
+    password: str,
+    method: str,
+    uri: str,
+    nonce: str,
+    nc: str | None = None,
+    cnonce: str | None = None,
+    qop: str | None = None,
+) -> str:
     """The ``response`` value a client must send (MD5; with qop, or RFC 2069 style without)."""
     ha1 = _md5(f"{user}:{realm}:{password}")
     ha2 = _md5(f"{method}:{uri}")
@@ -103,8 +112,14 @@ class DigestAuth:
     ``now`` is the time source for nonce ages (monotonic seconds); tests may replace it.
     """
 
-    def __init__(self, realm: str, user: str, password: str, nonce_ttl_s: float = 300.0,
-                 now: Callable[[], float] = time.monotonic):
+    def __init__(
+        self,
+        realm: str,
+        user: str,
+        password: str,
+        nonce_ttl_s: float = 300.0,
+        now: Callable[[], float] = time.monotonic,
+    ):
         self.realm = realm
         self.user = user
         self.password = password
@@ -128,7 +143,7 @@ class DigestAuth:
         if len(parts) != 3:
             return "bad"
         stamp, rand, sig = parts
-        if not hmac.compare_digest(sig.encode(), self._sign(stamp, rand).encode()):   # (bytes: any client text)
+        if not hmac.compare_digest(sig.encode(), self._sign(stamp, rand).encode()):  # (bytes: any client text)
             return "bad"
         try:
             age = self.now() - int(stamp, 16) / 1000.0
@@ -139,8 +154,10 @@ class DigestAuth:
     # --- the two halves of the exchange ------------------------------------------------
     def challenge(self, stale: bool = False) -> str:
         """The value of a ``WWW-Authenticate`` header."""
-        value = (f'Digest realm="{self.realm}", nonce="{self.new_nonce()}", '
-                 f'algorithm=MD5, qop="auth", opaque="{self.opaque}"')
+        value = (
+            f'Digest realm="{self.realm}", nonce="{self.new_nonce()}", '
+            f'algorithm=MD5, qop="auth", opaque="{self.opaque}"'
+        )
         return value + (", stale=true" if stale else "")
 
     def check(self, method: str, header: str | None, request_target: str) -> AuthResult:
@@ -171,10 +188,12 @@ class DigestAuth:
         state = self._nonce_state(p["nonce"])
         if state == "bad":
             return AuthResult(False, reason="unknown nonce")
-        expected = digest_response(self.user, self.realm, self.password, method, p["uri"],
-                                   p["nonce"], p.get("nc"), p.get("cnonce"), qop)
+        expected = digest_response(
+            self.user, self.realm, self.password, method, p["uri"], p["nonce"], p.get("nc"), p.get("cnonce"), qop
+        )
         good = hmac.compare_digest(p["username"].encode(), self.user.encode()) & hmac.compare_digest(
-            p["response"].lower().encode(), expected.encode())
+            p["response"].lower().encode(), expected.encode()
+        )
         if not good:
             return AuthResult(False, reason="wrong user name or password")
         if state == "stale":
@@ -223,5 +242,6 @@ class BasicAuth:
         except (ValueError, UnicodeDecodeError):
             return AuthResult(False, reason="malformed basic credentials")
         good = sep and hmac.compare_digest(user.encode(), self.user.encode()) & hmac.compare_digest(
-            password.encode(), self.password.encode())
+            password.encode(), self.password.encode()
+        )
         return AuthResult(True) if good else AuthResult(False, reason="wrong user name or password")

@@ -142,7 +142,7 @@ class Faults:
         """Whether the frame at grid time ``t`` (``grid_index`` periods since the epoch) of
         ``camera`` is lost: in a burst, or drawn with probability ``lose_p``."""
         n, every = self.lose_burst_frames, self.lose_burst_every_s
-        if n and every > 0 and math.fmod(t + period / 2, every) < n * period:   # a frame's slot, centred
+        if n and every > 0 and math.fmod(t + period / 2, every) < n * period:  # a frame's slot, centred
             return True
         p = self.lose_p
         return p > 0 and (p >= 1 or random.Random(f"{self.lose_seed}:{camera}:{grid_index}").random() < p)
@@ -166,15 +166,33 @@ class Faults:
 
 
 _FIELD_TYPES = {
-    "drop_after_frames": "count?", "stall_after_frames": "count?", "stall_s": "seconds",
-    "too_many_viewers": "bool", "max_viewers": "count?", "reject_auth": "bool",
-    "torn_jpeg_at": "count?", "torn_mode": "mode", "wrong_content_length_at": "count?",
-    "wrong_content_length_extra": "count", "missing_content_length": "bool",
-    "close_after_response": "bool", "offline": "bool", "no_axis_stamps": "bool",
-    "offline_from": "time?", "offline_until": "time?", "lose_p": "probability", "lose_seed": "count",
-    "lose_burst_frames": "count", "lose_burst_every_s": "seconds", "clock_jump_s": "signed seconds",
-    "clock_jump_at": "time?", "clock_jump_every_s": "period?", "skip_when_late_s": "seconds?",
-    "trickle": "bool", "trickle_s": "seconds", "led_held": "bool",
+    "drop_after_frames": "count?",
+    "stall_after_frames": "count?",
+    "stall_s": "seconds",
+    "too_many_viewers": "bool",
+    "max_viewers": "count?",
+    "reject_auth": "bool",
+    "torn_jpeg_at": "count?",
+    "torn_mode": "mode",
+    "wrong_content_length_at": "count?",
+    "wrong_content_length_extra": "count",
+    "missing_content_length": "bool",
+    "close_after_response": "bool",
+    "offline": "bool",
+    "no_axis_stamps": "bool",
+    "offline_from": "time?",
+    "offline_until": "time?",
+    "lose_p": "probability",
+    "lose_seed": "count",
+    "lose_burst_frames": "count",
+    "lose_burst_every_s": "seconds",
+    "clock_jump_s": "signed seconds",
+    "clock_jump_at": "time?",
+    "clock_jump_every_s": "period?",
+    "skip_when_late_s": "seconds?",
+    "trickle": "bool",
+    "trickle_s": "seconds",
+    "led_held": "bool",
 }
 
 
@@ -201,8 +219,13 @@ def _coerce(name: str, value: Any) -> Any:
         return value
     if base in _NUMBERS:
         what, low, open_low = _NUMBERS[base]
-        ok = not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value) \
-            and (value > low if open_low else value >= low) and (base != "probability" or value <= 1)
+        ok = (
+            not isinstance(value, bool)
+            and isinstance(value, (int, float))
+            and math.isfinite(value)
+            and (value > low if open_low else value >= low)
+            and (base != "probability" or value <= 1)
+        )
         if not ok:
             raise ValueError(f"fault {name} must be {what}{also}, not {value!r}")
         return float(value)

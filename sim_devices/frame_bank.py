@@ -30,8 +30,8 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 from vts_hw.sim_devices.patient_rig import write_patient_truth
 from vts_hw.sim_devices.render import Renderer
@@ -39,7 +39,7 @@ from vts_hw.sim_devices.scene import Scene
 
 __all__ = ["FrameBank", "BankStats", "DEFAULT_QUALITY", "make_ahead"]
 
-DEFAULT_QUALITY = 75        # JPEG quality of a stream at the driver's default compression (25)
+DEFAULT_QUALITY = 75  # JPEG quality of a stream at the driver's default compression (25)
 
 
 @dataclass(frozen=True)
@@ -66,9 +66,11 @@ class BankStats:
         return self.ms_per_frame * self.fps * self.cameras / 1000.0
 
     def line(self) -> str:
-        return (f"{self.frames} frames ({self.cameras} camera(s) x {self.seconds:g} s at {self.fps:g} fps) "
-                f"rendered ahead in {self.wall_s:.1f} s: {self.ms_per_frame:.1f} ms of CPU per frame per camera, "
-                f"{self.core_share:.2f} of a core to render them live; {self.bytes / 1e6:.0f} MB held")
+        return (
+            f"{self.frames} frames ({self.cameras} camera(s) x {self.seconds:g} s at {self.fps:g} fps) "
+            f"rendered ahead in {self.wall_s:.1f} s: {self.ms_per_frame:.1f} ms of CPU per frame per camera, "
+            f"{self.core_share:.2f} of a core to render them live; {self.bytes / 1e6:.0f} MB held"
+        )
 
 
 class FrameBank:
@@ -80,21 +82,22 @@ class FrameBank:
         self.scene, self.renderer = scene, renderer
         self.fps, self.period, self.quality = float(fps), 1.0 / float(fps), int(quality)
         self.cameras = list(scene.cameras)
-        self.first = 0                                  # grid index of the stretch's first frame
+        self.first = 0  # grid index of the stretch's first frame
         self.count = 0
         self.frames: dict[str, list[bytes]] = {c: [] for c in self.cameras}
-        self._keys: list[tuple] = []                    # what else was in the scene, per frame
-        self.offset: int | None = None                  # grid periods the stretch was moved by
+        self._keys: list[tuple] = []  # what else was in the scene, per frame
+        self.offset: int | None = None  # grid periods the stretch was moved by
         self.stats: BankStats | None = None
         self.served = 0
-        self.missed: dict[str, int] = {}                # why frames were rendered live instead
-        self._misses: list[tuple[float, str]] = []      # (grid time, why) of each
+        self.missed: dict[str, int] = {}  # why frames were rendered live instead
+        self._misses: list[tuple[float, str]] = []  # (grid time, why) of each
         self.on_play: list[Callable[[float], None]] = []
         self._lock = threading.Lock()
 
     # -- making ------------------------------------------------------------------------
-    def render(self, seconds: float, start: float | None = None,
-               progress: Callable[[int, int], None] | None = None) -> BankStats:
+    def render(
+        self, seconds: float, start: float | None = None, progress: Callable[[int, int], None] | None = None
+    ) -> BankStats:
         """Render ``seconds`` of frames from ``start`` (host s on the scene's time; default
         now, as ``time.time()``) on the grid; ``progress(done, total)`` now and then."""
         if not seconds > 0:
@@ -109,7 +112,7 @@ class FrameBank:
         for j in range(n):
             t = (self.first + j) / self.fps
             keys.append(self._static_key(t))
-            for cam in self.cameras:      # with the LED ring on, as a scan has it
+            for cam in self.cameras:  # with the LED ring on, as a scan has it
                 frames[cam].append(self.renderer.encode(self.renderer.render(cam, t, led=True), self.quality))
                 done += 1
             if progress is not None and (j % 25 == 0 or j == n - 1):
@@ -118,8 +121,9 @@ class FrameBank:
         with self._lock:
             self.frames, self._keys, self.count, self.offset = frames, keys, n, None
             self.served, self.missed, self._misses = 0, {}, []
-        self.stats = BankStats(len(self.cameras), self.fps, n / self.fps, total, time.thread_time() - cpu0,
-                               time.monotonic() - wall0, size)
+        self.stats = BankStats(
+            len(self.cameras), self.fps, n / self.fps, total, time.thread_time() - cpu0, time.monotonic() - wall0, size
+        )
         return self.stats
 
     def _static_key(self, t: float) -> tuple:
@@ -174,10 +178,17 @@ class FrameBank:
             return None
         k = round(t * self.fps)
         j = k - self.first - self.offset
-        why = ("not on the frame grid" if abs(t - k / self.fps) > 1e-4 else
-               "outside the stretch" if not 0 <= j < self.count else
-               "LED off" if not self.scene.led_on(cam, t) else
-               "the scene changed" if self._static_key(t) != self._keys[j] else "")
+        why = (
+            "not on the frame grid"
+            if abs(t - k / self.fps) > 1e-4
+            else "outside the stretch"
+            if not 0 <= j < self.count
+            else "LED off"
+            if not self.scene.led_on(cam, t)
+            else "the scene changed"
+            if self._static_key(t) != self._keys[j]
+            else ""
+        )
         if why:
             self._miss(t, why)
             return None
@@ -214,8 +225,11 @@ def make_ahead(rig, seconds: float, folder=None, say: Callable[[str], None] = pr
     stats = rig.prerender(seconds)
     say(f"frames made ahead: {stats.line()}; they start playing at the first stream")
     if rig.patient is not None and folder is not None:
+
         def rewrite(dt: float) -> None:
-            threading.Thread(target=write_patient_truth, args=(rig.patient, folder), daemon=True,
-                             name="sim-truth").start()
+            threading.Thread(
+                target=write_patient_truth, args=(rig.patient, folder), daemon=True, name="sim-truth"
+            ).start()
+
         rig.on_play(rewrite)
     return stats

@@ -29,11 +29,11 @@ import numpy as np
 
 __all__ = ["Gantry", "Acquisition"]
 
-FACE_MM = (540.0, 400.0)        # transaxial x axial
+FACE_MM = (540.0, 400.0)  # transaxial x axial
 THICKNESS_MM = 200.0
-RADIUS_MM = 260.0               # body-contouring orbits run 20-30 cm from the axis
-PARK_DEG = 0.0                  # parked: heads above and below the table,
-PARK_RADIUS_MM = 400.0          # drawn back (no wall marker hidden from any reference camera)
+RADIUS_MM = 260.0  # body-contouring orbits run 20-30 cm from the axis
+PARK_DEG = 0.0  # parked: heads above and below the table,
+PARK_RADIUS_MM = 400.0  # drawn back (no wall marker hidden from any reference camera)
 
 
 @dataclass(frozen=True)
@@ -74,10 +74,17 @@ class Acquisition:
 class Gantry:
     """Two (or more) detector heads about the world Z axis; their angle over host time."""
 
-    def __init__(self, radius_mm: float = RADIUS_MM, face_mm=FACE_MM, thickness_mm: float = THICKNESS_MM,
-                 z_mm: float = 0.0, offsets_deg=(0.0, 180.0), park_deg: float = PARK_DEG,
-                 park_radius_mm: float = PARK_RADIUS_MM):
-        self.radius_mm = float(radius_mm)          # the orbit of acquisitions
+    def __init__(
+        self,
+        radius_mm: float = RADIUS_MM,
+        face_mm=FACE_MM,
+        thickness_mm: float = THICKNESS_MM,
+        z_mm: float = 0.0,
+        offsets_deg=(0.0, 180.0),
+        park_deg: float = PARK_DEG,
+        park_radius_mm: float = PARK_RADIUS_MM,
+    ):
+        self.radius_mm = float(radius_mm)  # the orbit of acquisitions
         self.park_radius_mm = float(park_radius_mm)
         self.face_mm = (float(face_mm[0]), float(face_mm[1]))
         self.thickness_mm = float(thickness_mm)
@@ -96,15 +103,28 @@ class Gantry:
             self.park_radius_mm = self.park_radius_mm if radius_mm is None else float(radius_mm)
             self._acq = []
 
-    def step_and_shoot(self, t0: float, step_deg: float = 3.0, n_steps: int = 60, dwell_s: float = 1.0,
-                       move_s: float = 0.5, start_deg: float | None = None,
-                       radius_mm: float | None = None) -> Acquisition:
+    def step_and_shoot(
+        self,
+        t0: float,
+        step_deg: float = 3.0,
+        n_steps: int = 60,
+        dwell_s: float = 1.0,
+        move_s: float = 0.5,
+        start_deg: float | None = None,
+        radius_mm: float | None = None,
+    ) -> Acquisition:
         """Schedule an acquisition from ``t0`` (host s) on an orbit of ``radius_mm`` (default
         ``self.radius_mm``); returns it. The heads stay at its last angle and radius
         afterwards, until the next acquisition or :meth:`park`."""
-        acq = Acquisition(float(t0), self.park_deg if start_deg is None else float(start_deg),
-                          float(step_deg), int(n_steps), float(dwell_s), float(move_s),
-                          self.radius_mm if radius_mm is None else float(radius_mm))
+        acq = Acquisition(
+            float(t0),
+            self.park_deg if start_deg is None else float(start_deg),
+            float(step_deg),
+            int(n_steps),
+            float(dwell_s),
+            float(move_s),
+            self.radius_mm if radius_mm is None else float(radius_mm),
+        )
         with self._lock:
             i = bisect.bisect_left([a.t0 for a in self._acq], acq.t0)
             self._acq = self._acq[:i] + [acq]
@@ -163,8 +183,8 @@ class Gantry:
         grow = np.broadcast_to(np.asarray(grow_mm, float), (len(pts),))[:, None]
         hidden = np.zeros(len(pts), bool)
         for centre, axes, half in self.boxes(t):
-            o = axes @ (eye - centre)                 # the eye in box coordinates
-            d = (pts - eye) @ axes.T                  # segment directions, box coordinates
+            o = axes @ (eye - centre)  # the eye in box coordinates
+            d = (pts - eye) @ axes.T  # segment directions, box coordinates
             h = half[None, :] + grow
             with np.errstate(divide="ignore", invalid="ignore"):
                 t1 = (-h - o) / d

@@ -42,21 +42,39 @@ import re
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Callable
 
 IDN = "Keysight Technologies,33522B,MY00000000,3.05-1.19-2.00-52-00"
 CHANNELS = 2
 QUEUE_SIZE = 20
-LEVEL_LIMIT_V = 5.0            # |high|, |low| into the 50 ohm setting (the *RST default)
+LEVEL_LIMIT_V = 5.0  # |high|, |low| into the 50 ohm setting (the *RST default)
 MIN_AMPLITUDE_V = 1e-3
 FREQ_MIN_HZ = 1e-6
-FREQ_MAX_HZ = {"SIN": 30e6, "SQU": 30e6, "PULS": 30e6, "RAMP": 200e3, "TRI": 200e3,
-               "PRBS": 30e6, "NOIS": 30e6, "ARB": 30e6, "DC": 30e6}   # a 33522B (30 MHz)
+FREQ_MAX_HZ = {
+    "SIN": 30e6,
+    "SQU": 30e6,
+    "PULS": 30e6,
+    "RAMP": 200e3,
+    "TRI": 200e3,
+    "PRBS": 30e6,
+    "NOIS": 30e6,
+    "ARB": 30e6,
+    "DC": 30e6,
+}  # a 33522B (30 MHz)
 DUTY_MIN_PCT, DUTY_MAX_PCT = 0.01, 99.99
 MIN_PULSE_S = 16e-9
-FUNCTIONS = {"SIN": "SINUSOID", "SQU": "SQUARE", "TRI": "TRIANGLE", "RAMP": "RAMP", "PULS": "PULSE",
-             "PRBS": "PRBS", "NOIS": "NOISE", "ARB": "ARB", "DC": "DC"}
+FUNCTIONS = {
+    "SIN": "SINUSOID",
+    "SQU": "SQUARE",
+    "TRI": "TRIANGLE",
+    "RAMP": "RAMP",
+    "PULS": "PULSE",
+    "PRBS": "PRBS",
+    "NOIS": "NOISE",
+    "ARB": "ARB",
+    "DC": "DC",
+}
 
 # SCPI error numbers and texts (SCPI 1999 / IEEE 488.2; the part after ';' as the 33500 adds it)
 NO_ERROR = (0, "No error")
@@ -121,6 +139,7 @@ class WaveRun:
 
 # ---- headers ------------------------------------------------------------------------------------
 
+
 def _header_regex(pattern: str) -> re.Pattern:
     """``[SOURce#:]FREQuency`` -> a regex over an upper-case header: each mnemonic in its short
     (upper-case part) or long form, ``[...]`` optional, ``#`` an optional numeric suffix."""
@@ -133,8 +152,9 @@ def _header_regex(pattern: str) -> re.Pattern:
                 j += 1
             word = pattern[i:j]
             short = "".join(ch for ch in word if ch.isupper())
-            out.append(f"(?:{re.escape(word.upper())}|{re.escape(short)})" if short != word.upper()
-                       else re.escape(word))
+            out.append(
+                f"(?:{re.escape(word.upper())}|{re.escape(short)})" if short != word.upper() else re.escape(word)
+            )
             i = j
             continue
         out.append({"[": "(?:", "]": ")?", "#": r"(?P<ch>\d+)?"}.get(c, re.escape(c)))
@@ -145,31 +165,36 @@ def _header_regex(pattern: str) -> re.Pattern:
 @dataclass(frozen=True)
 class _Cmd:
     regex: re.Pattern
-    handler: str                 # the Keysight33500 method: _x(ch, args, query)
+    handler: str  # the Keysight33500 method: _x(ch, args, query)
     set_ok: bool = True
     query_ok: bool = True
 
 
-_COMMANDS = [_Cmd(_header_regex(p), h, s, q) for p, h, s, q in [
-    ("*IDN", "_idn", False, True),
-    ("*RST", "_rst", True, False),
-    ("*CLS", "_cls", True, False),
-    ("*OPC", "_opc", True, True),
-    ("*WAI", "_opc", True, False),
-    ("SYSTem:ERRor[:NEXT]", "_error", False, True),
-    ("SYSTem:VERSion", "_version", False, True),
-    ("[SOURce#:]FUNCtion:SQUare:DCYCle", "_duty", True, True),
-    ("[SOURce#:]FUNCtion", "_function", True, True),
-    ("[SOURce#:]FREQuency", "_frequency", True, True),
-    ("[SOURce#:]VOLTage:HIGH", "_high", True, True),
-    ("[SOURce#:]VOLTage:LOW", "_low", True, True),
-    ("OUTPut#", "_output", True, True),
-]]
+_COMMANDS = [
+    _Cmd(_header_regex(p), h, s, q)
+    for p, h, s, q in [
+        ("*IDN", "_idn", False, True),
+        ("*RST", "_rst", True, False),
+        ("*CLS", "_cls", True, False),
+        ("*OPC", "_opc", True, True),
+        ("*WAI", "_opc", True, False),
+        ("SYSTem:ERRor[:NEXT]", "_error", False, True),
+        ("SYSTem:VERSion", "_version", False, True),
+        ("[SOURce#:]FUNCtion:SQUare:DCYCle", "_duty", True, True),
+        ("[SOURce#:]FUNCtion", "_function", True, True),
+        ("[SOURce#:]FREQuency", "_frequency", True, True),
+        ("[SOURce#:]VOLTage:HIGH", "_high", True, True),
+        ("[SOURce#:]VOLTage:LOW", "_low", True, True),
+        ("OUTPut#", "_output", True, True),
+    ]
+]
 
 _NUMBER = re.compile(r"^([+-]?(?:\d+\.?\d*|\.\d+)(?:E[+-]?\d+)?)\s*([A-Z]*)$")
-_SUFFIXES = {"HZ": {"": 1.0, "HZ": 1.0, "KHZ": 1e3, "MHZ": 1e6},   # SCPI: MHZ is megahertz
-             "V": {"": 1.0, "V": 1.0, "MV": 1e-3},
-             "PCT": {"": 1.0}}
+_SUFFIXES = {
+    "HZ": {"": 1.0, "HZ": 1.0, "KHZ": 1e3, "MHZ": 1e6},  # SCPI: MHZ is megahertz
+    "V": {"": 1.0, "V": 1.0, "MV": 1e-3},
+    "PCT": {"": 1.0},
+}
 
 
 def _fmt(value: float) -> str:
@@ -177,6 +202,7 @@ def _fmt(value: float) -> str:
 
 
 # ---- the instrument -------------------------------------------------------------------------------
+
 
 class Keysight33500:
     """The instrument: :meth:`execute` takes one program message (a line without its terminator)
@@ -318,7 +344,7 @@ class Keysight33500:
             return _fmt(_limit_query(args, c.high_v, -LEVEL_LIMIT_V + MIN_AMPLITUDE_V, LEVEL_LIMIT_V))
         v = self._number(args, "V", -LEVEL_LIMIT_V + MIN_AMPLITUDE_V, LEVEL_LIMIT_V, 0.05)
         low = c.low_v
-        if v - low < MIN_AMPLITUDE_V - 1e-12:      # the low level gives way, 1 mV below
+        if v - low < MIN_AMPLITUDE_V - 1e-12:  # the low level gives way, 1 mV below
             low = v - MIN_AMPLITUDE_V
             self._queue((-221, "Settings conflict;low level changed due to high level"))
         self._change(ch, high_v=v, low_v=low)
@@ -329,7 +355,7 @@ class Keysight33500:
             return _fmt(_limit_query(args, c.low_v, -LEVEL_LIMIT_V, LEVEL_LIMIT_V - MIN_AMPLITUDE_V))
         v = self._number(args, "V", -LEVEL_LIMIT_V, LEVEL_LIMIT_V - MIN_AMPLITUDE_V, -0.05)
         high = c.high_v
-        if high - v < MIN_AMPLITUDE_V - 1e-12:     # the high level gives way, 1 mV above
+        if high - v < MIN_AMPLITUDE_V - 1e-12:  # the high level gives way, 1 mV above
             high = v + MIN_AMPLITUDE_V
             self._queue((-221, "Settings conflict;high level changed due to low level"))
         self._change(ch, high_v=high, low_v=v)
@@ -347,7 +373,7 @@ class Keysight33500:
                 raise ScpiError(ILLEGAL_VALUE)
             if m.group(2):
                 raise ScpiError(INVALID_SUFFIX)
-            on = round(float(m.group(1))) != 0       # IEEE 488.2 boolean: a number, rounded
+            on = round(float(m.group(1))) != 0  # IEEE 488.2 boolean: a number, rounded
         self._change(ch, output=on)
 
     # -- values and state -----------------------------------------------------------------------------------
@@ -384,8 +410,16 @@ class Keysight33500:
             return
         self.channels[ch] = after
         if before.output or after.output:
-            ev = OutputEvent(self.clock(), ch, after.output, after.function, after.frequency_hz,
-                             after.duty_percent, after.high_v, after.low_v)
+            ev = OutputEvent(
+                self.clock(),
+                ch,
+                after.output,
+                after.function,
+                after.frequency_hz,
+                after.duty_percent,
+                after.high_v,
+                after.low_v,
+            )
             self.events.append(ev)
             for listener in list(self.listeners):
                 listener(ev)
@@ -399,8 +433,11 @@ class Keysight33500:
             if out and out[-1].stop is None:
                 out[-1] = replace(out[-1], stop=ev.host_time)
             if ev.output:
-                out.append(WaveRun(channel, ev.host_time, None, ev.function, ev.frequency_hz,
-                                   ev.duty_percent, ev.high_v, ev.low_v))
+                out.append(
+                    WaveRun(
+                        channel, ev.host_time, None, ev.function, ev.frequency_hz, ev.duty_percent, ev.high_v, ev.low_v
+                    )
+                )
         return out
 
 

@@ -48,7 +48,7 @@ class Optics:
             if abs(getattr(self, name)) > MAX_TURN_DEG:
                 raise ValueError(f"{name} must be within ±{MAX_TURN_DEG:g}°, not {getattr(self, name):g}")
 
-    def changed(self, changes: dict) -> "Optics":
+    def changed(self, changes: dict) -> Optics:
         """A copy with ``changes`` (names of :data:`FIELDS`); an unknown name is a ValueError."""
         unknown = sorted(set(changes) - set(FIELDS))
         if unknown:
@@ -65,6 +65,7 @@ def mount_rotation(optics: Optics) -> np.ndarray | None:
     if optics.yaw_deg == 0.0 and optics.pitch_deg == 0.0:
         return None
     import cv2
+
     pan = cv2.Rodrigues(np.array([0.0, -math.radians(optics.yaw_deg), 0.0]))[0]
     tilt = cv2.Rodrigues(np.array([-math.radians(optics.pitch_deg), 0.0, 0.0]))[0]
     return cv2.Rodrigues(tilt @ pan)[0].ravel()
@@ -72,8 +73,11 @@ def mount_rotation(optics: Optics) -> np.ndarray | None:
 
 def optics_of(scene, renderer, cam: str) -> Optics:
     """Camera ``cam``'s optics as the scene and renderer hold them."""
-    return scene.optics.get(cam, Optics()) if renderer is None else \
-        replace(scene.optics.get(cam, Optics()), focus_blur_px=float(renderer.focus.get(cam, 0.0)))
+    return (
+        scene.optics.get(cam, Optics())
+        if renderer is None
+        else replace(scene.optics.get(cam, Optics()), focus_blur_px=float(renderer.focus.get(cam, 0.0)))
+    )
 
 
 def set_optics(scene, renderer, cam: str, **changes) -> Optics:

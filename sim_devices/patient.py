@@ -41,15 +41,14 @@ from scipy.spatial.transform import Rotation
 from vts_hw.files import write_atomic
 from vts_hw.sim_devices.scene import Marker, Scene
 
-__all__ = ["Breathing", "BodyMove", "Creep", "BodyMotion", "Patient", "add_patient", "write_truth",
-           "BAND_MARKERS"]
+__all__ = ["Breathing", "BodyMove", "Creep", "BodyMotion", "Patient", "add_patient", "write_truth", "BAND_MARKERS"]
 
-TORSO_HALF_WIDTH = 170.0          # mm, lateral
-TORSO_HALF_DEPTH = 110.0          # mm, anterior-posterior
-TORSO_HALF_LENGTH = 330.0         # mm, shoulders to hips
-PLACEMENT = (0.0, -30.0, 60.0)    # body origin in table coordinates: the heart near the FOV centre
+TORSO_HALF_WIDTH = 170.0  # mm, lateral
+TORSO_HALF_DEPTH = 110.0  # mm, anterior-posterior
+TORSO_HALF_LENGTH = 330.0  # mm, shoulders to hips
+PLACEMENT = (0.0, -30.0, 60.0)  # body origin in table coordinates: the heart near the FOV centre
 CHEST_Z, ABDOMEN_Z = -90.0, 150.0  # band positions along the body
-BAND_ANGLES_DEG = (-48.0, -16.0, 19.0, 51.0)   # chest markers, from straight up, towards +X
+BAND_ANGLES_DEG = (-48.0, -16.0, 19.0, 51.0)  # chest markers, from straight up, towards +X
 # the abdomen's closer together: further from the cameras over the head, they are seen higher in
 # the image, where the flanks' would come near the wall markers. At rest, in every camera of the
 # 4-camera reference rig (seeds 0-7), each band marker is >= 35 px from every wall marker and
@@ -65,22 +64,23 @@ BAND_ANGLES = {"chest": BAND_ANGLES_DEG, "abdomen": (-42.0, -14.0, 17.0, 45.0)}
 BAND_TILT = {"chest": 0.3, "abdomen": -0.3}
 MARKER_DIAMETER = 15.0
 BAND_MARKERS = {"chest": ("C1", "C2", "C3", "C4"), "abdomen": ("A1", "A2", "A3", "A4")}
-GRID_S = 0.01                     # the breathing signal is tabulated every 10 ms
+GRID_S = 0.01  # the breathing signal is tabulated every 10 ms
 
 
 def min_jerk(s):
     s = np.clip(np.asarray(s, dtype=float), 0.0, 1.0)
-    return s ** 3 * (10.0 - 15.0 * s + 6.0 * s * s)
+    return s**3 * (10.0 - 15.0 * s + 6.0 * s * s)
 
 
 # ------------------------------------------------------------------------------ breathing
 
+
 @dataclass
 class Cycle:
-    t_start: float          # host s
+    t_start: float  # host s
     period_s: float
-    amplitude: float        # top of the breath (1: a normal breath)
-    kind: str = "normal"    # normal | deep | pause (a pause holds the end of exhalation)
+    amplitude: float  # top of the breath (1: a normal breath)
+    kind: str = "normal"  # normal | deep | pause (a pause holds the end of exhalation)
 
 
 @dataclass
@@ -92,9 +92,9 @@ class Breathing:
     duration_s: float
     seed: int = 0
     mean_period_s: float = 4.2
-    deep_every: float = 0.05          # chance that a cycle is a deep breath
-    pause_every: float = 0.03         # chance that a pause follows a cycle
-    wander: float = 0.12              # baseline wander (fraction of a normal breath)
+    deep_every: float = 0.05  # chance that a cycle is a deep breath
+    pause_every: float = 0.03  # chance that a pause follows a cycle
+    wander: float = 0.12  # baseline wander (fraction of a normal breath)
     enabled: bool = True
     cycles: list[Cycle] = field(default_factory=list)
 
@@ -157,6 +157,7 @@ class Breathing:
 
 # ------------------------------------------------------------------------------ body motion
 
+
 def _three(v) -> tuple[float, float, float]:
     """Three numbers (a vector of 3) as a tuple of floats."""
     x, y, z = (float(c) for c in v)
@@ -190,8 +191,9 @@ class BodyMotion:
     creeps: list[Creep] = field(default_factory=list)
 
     @classmethod
-    def plan(cls, t0: float, duration_s: float, seed: int = 0, n_moves: int = 2,
-             creep_mm: float = 0.0, still_s: float = 15.0) -> "BodyMotion":
+    def plan(
+        cls, t0: float, duration_s: float, seed: int = 0, n_moves: int = 2, creep_mm: float = 0.0, still_s: float = 15.0
+    ) -> BodyMotion:
         """``n_moves`` sudden moves spread over the scan after a still period of ``still_s``
         (the reference), each 2-20 mm and 1-5 deg in random directions, at least 8 s apart;
         ``creep_mm``: a slow drift of that size over the whole scan (mostly along the table)."""
@@ -221,7 +223,7 @@ class BodyMotion:
         """Every move and creep ``dt`` seconds later (the same objects: whoever holds one sees it)."""
         shifted: list[BodyMove | Creep] = [*self.moves, *self.creeps]
         for m in shifted:
-            vars(m).update(t_start=m.t_start + dt, t_end=m.t_end + dt)   # both at once
+            vars(m).update(t_start=m.t_start + dt, t_end=m.t_end + dt)  # both at once
 
     def pose(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """``(R, T)`` of the body at ``t``: marker at body point p (rest pose at the origin) is
@@ -233,8 +235,8 @@ class BodyMotion:
                 break
             s = float(min_jerk((t - m.t_start) / (m.t_end - m.t_start)))
             dR = Rotation.from_rotvec(np.deg2rad(np.array(m.rotation_deg)) * s).as_matrix()
-            R = dR @ R                       # turned about the body's origin where it is now:
-            T = T + s * np.asarray(m.translation_mm, float)   # the origin only translates
+            R = dR @ R  # turned about the body's origin where it is now:
+            T = T + s * np.asarray(m.translation_mm, float)  # the origin only translates
         for c in self.creeps:
             s = float(np.clip((t - c.t_start) / (c.t_end - c.t_start), 0.0, 1.0))
             T = T + s * np.asarray(c.translation_mm, float)
@@ -242,6 +244,7 @@ class BodyMotion:
 
 
 # ------------------------------------------------------------------------------ the body
+
 
 def _band_markers() -> tuple[list[Marker], dict[str, np.ndarray]]:
     """The 8 markers at rest (body coordinates) and each one's unit breathing direction."""
@@ -252,7 +255,7 @@ def _band_markers() -> tuple[list[Marker], dict[str, np.ndarray]]:
             surface = np.array([x, TORSO_HALF_DEPTH * np.cos(a), z + BAND_TILT[band] * x])
             n = np.array([np.sin(a) / TORSO_HALF_WIDTH, np.cos(a) / TORSO_HALF_DEPTH, 0.0])
             n /= np.linalg.norm(n)
-            centre = surface + n * (MARKER_DIAMETER / 2 + 3.0)     # a sphere on a band over clothing
+            centre = surface + n * (MARKER_DIAMETER / 2 + 3.0)  # a sphere on a band over clothing
             markers.append(Marker(mid, centre, n, MARKER_DIAMETER, "sphere"))
             outward[mid] = n
     return markers, outward
@@ -270,17 +273,18 @@ class Patient:
     """The patient as a body on the scene's table (duck-typed like a ``RigidBody``): markers
     at ``t`` with breathing and body motion, the torso as an occluder, and the truth."""
 
-    def __init__(self, breathing: Breathing, motion: BodyMotion, seed: int = 0, name: str = "patient",
-                 placement=PLACEMENT):
+    def __init__(
+        self, breathing: Breathing, motion: BodyMotion, seed: int = 0, name: str = "patient", placement=PLACEMENT
+    ):
         rng = np.random.default_rng([seed, 43])
         self.name = name
         self.breathing = breathing
         self.motion = motion
         self.placement = np.asarray(placement, float)
         self.rest, outward = _band_markers()
-        chest_ap = rng.uniform(2.0, 5.0)          # mm of a normal breath, anterior-posterior
+        chest_ap = rng.uniform(2.0, 5.0)  # mm of a normal breath, anterior-posterior
         abd_ap = rng.uniform(5.0, 15.0)
-        hf = rng.uniform(0.15, 0.3)               # head-foot part, as a share of the AP amplitude
+        hf = rng.uniform(0.15, 0.3)  # head-foot part, as a share of the AP amplitude
         self.breath_mm = {"chest": float(chest_ap), "abdomen": float(abd_ap)}
         self.breath_dir: dict[str, np.ndarray] = {}
         for band, ids in BAND_MARKERS.items():
@@ -328,12 +332,12 @@ class Patient:
         grow = np.broadcast_to(np.asarray(grow_mm, float), (len(pts),))
         a, c = TORSO_HALF_WIDTH - 1.0, TORSO_HALF_DEPTH - 1.0
         # inside the elliptic cylinder where A s^2 + B s + C < 0 along eye + s d
-        A = d[:, 0] ** 2 / a ** 2 + d[:, 1] ** 2 / c ** 2
-        B = 2 * (e[0] * d[:, 0] / a ** 2 + e[1] * d[:, 1] / c ** 2)
-        C = e[0] ** 2 / a ** 2 + e[1] ** 2 / c ** 2 - 1.0
+        A = d[:, 0] ** 2 / a**2 + d[:, 1] ** 2 / c**2
+        B = 2 * (e[0] * d[:, 0] / a**2 + e[1] * d[:, 1] / c**2)
+        C = e[0] ** 2 / a**2 + e[1] ** 2 / c**2 - 1.0
         disc = B * B - 4 * A * C
         sq = np.sqrt(np.maximum(disc, 0.0))
-        along = A <= 1e-12                       # parallel to the axis: inside all along, or never
+        along = A <= 1e-12  # parallel to the axis: inside all along, or never
         A_ = np.where(along, 1.0, A)
         lo = np.where(along, np.where(C < 0, -np.inf, np.inf), (-B - sq) / (2 * A_))
         hi = np.where(along, np.where(C < 0, np.inf, -np.inf), (-B + sq) / (2 * A_))
@@ -364,14 +368,26 @@ class Patient:
         return {m.id: m.center for m in self.markers_at(t, np.asarray(table_offset, float))}
 
 
-def add_patient(scene: Scene, t0: float, duration_s: float, seed: int = 0, *, n_moves: int = 2,
-                creep_mm: float = 0.0, breathing: bool = True, still_s: float = 15.0,
-                moves: list[BodyMove] | None = None) -> Patient:
+def add_patient(
+    scene: Scene,
+    t0: float,
+    duration_s: float,
+    seed: int = 0,
+    *,
+    n_moves: int = 2,
+    creep_mm: float = 0.0,
+    breathing: bool = True,
+    still_s: float = 15.0,
+    moves: list[BodyMove] | None = None,
+) -> Patient:
     """Put a breathing (``breathing``) patient on the scene's table from ``t0`` for
     ``duration_s``: ``n_moves`` random body moves after ``still_s`` still (or the ``moves``
     given) and a creep of ``creep_mm``. Returns the patient (its truth)."""
-    motion = BodyMotion(list(moves)) if moves is not None else \
-        BodyMotion.plan(t0, duration_s, seed, n_moves=n_moves, creep_mm=creep_mm, still_s=still_s)
+    motion = (
+        BodyMotion(list(moves))
+        if moves is not None
+        else BodyMotion.plan(t0, duration_s, seed, n_moves=n_moves, creep_mm=creep_mm, still_s=still_s)
+    )
     if moves is not None and creep_mm:
         motion.creeps = BodyMotion.plan(t0, duration_s, seed, n_moves=0, creep_mm=creep_mm, still_s=still_s).creeps
     patient = Patient(Breathing(t0, duration_s, seed, enabled=breathing), motion, seed)
@@ -385,18 +401,23 @@ def write_truth(patient: Patient, folder, t0: float, t1: float, rate_hz: float =
     ``rate_hz``: time, the body's 6-DOF, breathing value and phase, every marker's position."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    meta = {"format": "vts-hw sim patient truth", "format_version": 1,
-            "frame": "SPECT frame, table at rest, mm; rotations deg, extrinsic x-y-z",
-            "bands": {k: list(v) for k, v in BAND_MARKERS.items()},
-            "breath_mm": patient.breath_mm, "placement_mm": patient.placement.tolist(),
-            "cycles": [asdict(c) for c in patient.breathing.cycles if t0 - 10 <= c.t_start <= t1],
-            "moves": [asdict(m) for m in patient.motion.moves],
-            "creeps": [asdict(c) for c in patient.motion.creeps]}
+    meta = {
+        "format": "vts-hw sim patient truth",
+        "format_version": 1,
+        "frame": "SPECT frame, table at rest, mm; rotations deg, extrinsic x-y-z",
+        "bands": {k: list(v) for k, v in BAND_MARKERS.items()},
+        "breath_mm": patient.breath_mm,
+        "placement_mm": patient.placement.tolist(),
+        "cycles": [asdict(c) for c in patient.breathing.cycles if t0 - 10 <= c.t_start <= t1],
+        "moves": [asdict(m) for m in patient.motion.moves],
+        "creeps": [asdict(c) for c in patient.motion.creeps],
+    }
     js = folder / "patient.json"
     write_atomic(js, json.dumps(meta, indent=1))
     ids = [m.id for m in patient.rest]
-    cols = ["t", "tx_mm", "ty_mm", "tz_mm", "rx_deg", "ry_deg", "rz_deg", "breath", "phase"] + \
-        [f"{i}_{a}" for i in ids for a in "xyz"]
+    cols = ["t", "tx_mm", "ty_mm", "tz_mm", "rx_deg", "ry_deg", "rz_deg", "breath", "phase"] + [
+        f"{i}_{a}" for i in ids for a in "xyz"
+    ]
     # t0 + k / rate, not np.arange(t0, t1, step): at epoch seconds the step itself is off by
     # ~1e-7 s and the error grows along the file
     ts = t0 + np.arange(int(np.ceil((t1 - t0) * rate_hz - 1e-9))) / rate_hz
@@ -406,7 +427,7 @@ def write_truth(patient: Patient, folder, t0: float, t1: float, rate_hz: float =
     rest = np.array([m.center for m in patient.rest])
     drift = np.array([patient.breath_dir[i] for i in ids])
     last_R, euler = None, None
-    for k, t in enumerate(ts):        # as six_dof and marker_truth, the rotation's angles once per pose
+    for k, t in enumerate(ts):  # as six_dof and marker_truth, the rotation's angles once per pose
         R, T = patient.motion.pose(float(t))
         if last_R is None or not np.array_equal(R, last_R):
             last_R, euler = R, Rotation.from_matrix(R).as_euler("xyz", degrees=True)

@@ -22,7 +22,7 @@ from vts_hw.sim_devices.patient import BodyMotion, BodyMove, Patient, add_patien
 __all__ = ["PatientOptions", "put_patient", "write_patient_truth", "TRUTH_DIR", "TRUTH_RATE_HZ"]
 
 TRUTH_DIR = "truth"
-TRUTH_RATE_HZ = 25.0      # a camera's frame rate: 10 minutes are 15 000 rows (about 4 MB)
+TRUTH_RATE_HZ = 25.0  # a camera's frame rate: 10 minutes are 15 000 rows (about 4 MB)
 
 
 @dataclass(frozen=True)
@@ -51,27 +51,44 @@ class PatientOptions:
             at = list(self.move_at_s)
             if len(at) != self.moves:
                 raise ValueError(f"give one start time per body move ({self.moves}), not {len(at)}")
-            if at != sorted(at) or at[0] < 0 or any(b - a < 2.0 for a, b in zip(at, at[1:])) \
-                    or at[-1] + 2.0 > self.minutes * 60.0:
-                raise ValueError(f"body moves at {at} s: in order, at least 2 s apart, inside the "
-                                 f"{self.minutes:g} minutes of the plan")
+            if (
+                at != sorted(at)
+                or at[0] < 0
+                or any(b - a < 2.0 for a, b in zip(at, at[1:]))
+                or at[-1] + 2.0 > self.minutes * 60.0
+            ):
+                raise ValueError(
+                    f"body moves at {at} s: in order, at least 2 s apart, inside the "
+                    f"{self.minutes:g} minutes of the plan"
+                )
             return
         need_s = self.still_s + 5.0 + 8.0 * self.moves
         if self.moves and self.minutes * 60.0 < need_s:
-            raise ValueError(f"{self.minutes:g} minutes are too short for {self.moves} body moves "
-                             f"(they need {need_s / 60.0:.2f} minutes or more: {self.still_s:g} s still, "
-                             f"then 8 s between moves)")
+            raise ValueError(
+                f"{self.minutes:g} minutes are too short for {self.moves} body moves "
+                f"(they need {need_s / 60.0:.2f} minutes or more: {self.still_s:g} s still, "
+                f"then 8 s between moves)"
+            )
 
     # the detached rig gets its options on its command line
     def to_arg(self) -> str:
-        return (f"patient={self.seed}:{self.moves}:{self.minutes!r}:{int(self.breathing)}:"
-                f"{self.still_s!r}:{self.creep_mm!r}:{','.join(repr(float(x)) for x in self.move_at_s)}")
+        return (
+            f"patient={self.seed}:{self.moves}:{self.minutes!r}:{int(self.breathing)}:"
+            f"{self.still_s!r}:{self.creep_mm!r}:{','.join(repr(float(x)) for x in self.move_at_s)}"
+        )
 
     @classmethod
-    def from_arg(cls, arg: str) -> "PatientOptions":
+    def from_arg(cls, arg: str) -> PatientOptions:
         seed, moves, minutes, breathing, still, creep, at = arg.split("=", 1)[1].split(":")
-        return cls(int(seed), int(moves), float(minutes), breathing == "1", float(still), float(creep),
-                   tuple(float(x) for x in at.split(",") if x))
+        return cls(
+            int(seed),
+            int(moves),
+            float(minutes),
+            breathing == "1",
+            float(still),
+            float(creep),
+            tuple(float(x) for x in at.split(",") if x),
+        )
 
 
 def put_patient(scene, options: PatientOptions, t0: float) -> Patient:
@@ -79,15 +96,29 @@ def put_patient(scene, options: PatientOptions, t0: float) -> Patient:
     options.check()
     duration = options.minutes * 60.0
     moves = None
-    if options.move_at_s:     # the planned sizes and directions (a plan long enough for them), at these times
-        drawn = BodyMotion.plan(t0, max(duration, options.still_s + 5.0 + 8.0 * options.moves), options.seed,
-                                n_moves=options.moves, still_s=options.still_s).moves
+    if options.move_at_s:  # the planned sizes and directions (a plan long enough for them), at these times
+        drawn = BodyMotion.plan(
+            t0,
+            max(duration, options.still_s + 5.0 + 8.0 * options.moves),
+            options.seed,
+            n_moves=options.moves,
+            still_s=options.still_s,
+        ).moves
         moves = []
         for m, at in zip(drawn, options.move_at_s):
             length = min(m.t_end - m.t_start, 1.5)
             moves.append(BodyMove(t0 + at, t0 + at + length, m.rotation_deg, m.translation_mm))
-    return add_patient(scene, t0, duration, options.seed, n_moves=options.moves, creep_mm=options.creep_mm,
-                       breathing=options.breathing, still_s=options.still_s, moves=moves)
+    return add_patient(
+        scene,
+        t0,
+        duration,
+        options.seed,
+        n_moves=options.moves,
+        creep_mm=options.creep_mm,
+        breathing=options.breathing,
+        still_s=options.still_s,
+        moves=moves,
+    )
 
 
 def write_patient_truth(patient: Patient, folder, rate_hz: float = TRUTH_RATE_HZ) -> list[Path]:

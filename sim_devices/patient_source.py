@@ -19,9 +19,9 @@ from vts_hw.sim_devices.patient import Patient
 
 __all__ = ["HEART_MM", "PatientSource", "heart_source"]
 
-HEART_MM = (20.0, 30.0, -60.0)   # body coordinates (X lateral, Y anterior, Z towards the feet): at rest
-                                 # (20, 0, 0) in the SPECT frame
-POSE_GRID_S = 0.01               # the body's pose is evaluated this often and interpolated
+HEART_MM = (20.0, 30.0, -60.0)  # body coordinates (X lateral, Y anterior, Z towards the feet): at rest
+# (20, 0, 0) in the SPECT frame
+POSE_GRID_S = 0.01  # the body's pose is evaluated this often and interpolated
 
 
 @dataclass(frozen=True, eq=False)
@@ -64,11 +64,23 @@ class PatientSource:
 
     def to_json(self) -> dict:
         """What the list-mode truth file says of this source."""
-        return {"body": self.body, "marker": self.marker_id, "kind": "patient point source",
-                "point_mm": list(self.point_mm), "breath_mm": list(self.breath_mm),
-                "rate_cps": self.rate_cps,
-                "moves": [{"t_start": m.t_start, "t_end": m.t_end, "rotation_deg": list(m.rotation_deg),
-                           "translation_mm": list(m.translation_mm)} for m in self.patient.motion.moves]}
+        return {
+            "body": self.body,
+            "marker": self.marker_id,
+            "kind": "patient point source",
+            "point_mm": list(self.point_mm),
+            "breath_mm": list(self.breath_mm),
+            "rate_cps": self.rate_cps,
+            "moves": [
+                {
+                    "t_start": m.t_start,
+                    "t_end": m.t_end,
+                    "rotation_deg": list(m.rotation_deg),
+                    "translation_mm": list(m.translation_mm),
+                }
+                for m in self.patient.motion.moves
+            ],
+        }
 
 
 def heart_source(patient: Patient, rate_cps: float = 3000.0) -> PatientSource:

@@ -17,12 +17,21 @@ from vts_hw.tracking.tracks import Tracks
 
 __all__ = ["synthetic_tracks", "WALL"]
 
-WALL = np.array([[-400.0, 300.0, 1500.0], [-150.0, 420.0, 1500.0], [200.0, 380.0, 1500.0],
-                 [450.0, 250.0, 1500.0]])
+WALL = np.array([[-400.0, 300.0, 1500.0], [-150.0, 420.0, 1500.0], [200.0, 380.0, 1500.0], [450.0, 250.0, 1500.0]])
 
 
-def synthetic_tracks(patient, t0: float, duration_s: float, *, fps: float = 25.0, noise_mm: float = 0.05,
-                     drop: float = 0.01, dropout_s: float = 0.0, seed: int = 0, wall: bool = True) -> tuple:
+def synthetic_tracks(
+    patient,
+    t0: float,
+    duration_s: float,
+    *,
+    fps: float = 25.0,
+    noise_mm: float = 0.05,
+    drop: float = 0.01,
+    dropout_s: float = 0.0,
+    seed: int = 0,
+    wall: bool = True,
+) -> tuple:
     """``(tracks, truth)``: the :class:`Tracks` and a dict ``{"t": times, "ids": {track id:
     marker name}}``."""
     rng = np.random.default_rng([seed, 5])
@@ -48,9 +57,18 @@ def synthetic_tracks(patient, t0: float, duration_s: float, *, fps: float = 25.0
             points.append(pos[f, j])
     N = len(pf)
     xyz = np.array(points).reshape(-1, 3)
-    tr = Tracks(host_time=t, camera_names=["cam1", "cam2"], camera_time=np.column_stack([t, t]),
-                camera_frame=np.column_stack([np.arange(F), np.arange(F)]), n_blobs=np.full((F, 2), M),
-                point_frame=np.array(pf, int), marker=np.array(mk, int), xyz=xyz, reproj_px=np.zeros(N),
-                uv=np.zeros((N, 4)), meta={"synthetic": True, "frame_period_s": 1.0 / fps},
-                xyz_spect=xyz.copy())
+    tr = Tracks(
+        host_time=t,
+        camera_names=["cam1", "cam2"],
+        camera_time=np.column_stack([t, t]),
+        camera_frame=np.column_stack([np.arange(F), np.arange(F)]),
+        n_blobs=np.full((F, 2), M),
+        point_frame=np.array(pf, int),
+        marker=np.array(mk, int),
+        xyz=xyz,
+        reproj_px=np.zeros(N),
+        uv=np.zeros((N, 4)),
+        meta={"synthetic": True, "frame_period_s": 1.0 / fps},
+        xyz_spect=xyz.copy(),
+    )
     return tr, {"t": t, "ids": {int(ids[m]): names[m] for m in range(M)}}

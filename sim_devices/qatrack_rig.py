@@ -21,8 +21,12 @@ TIME_ZONE = "UTC"
 DAILY_LIST, STEPS_LIST = "VTS daily", "VTS step test"
 #: per camera: metric -> the macro's suffix
 CAMERA_MACROS = {"drift_x_px": "dx", "drift_y_px": "dy", "drift_sd_px": "sd", "markers_missing": "missing"}
-STEPS_MACROS = {"x/steps_slope": "x_slope", "y/steps_slope": "y_slope", "z/steps_slope": "z_slope",
-                "all/steps_diff_max_mm": "diff_max"}
+STEPS_MACROS = {
+    "x/steps_slope": "x_slope",
+    "y/steps_slope": "y_slope",
+    "z/steps_slope": "z_slope",
+    "all/steps_diff_max_mm": "diff_max",
+}
 
 
 def _macro(camera: str, suffix: str) -> str:
@@ -35,8 +39,11 @@ def lists(cameras: list[str]) -> dict:
     # deliberately not sent: the per-marker values and the other checks (the run's state, in the
     # instance's comment, says how they went)
     qa = {"test_list": DAILY_LIST, "macros": daily, "ignore": ["*"]}
-    return {"daily": qa, "drift": qa,
-            "sphere-steps": {"test_list": STEPS_LIST, "macros": dict(STEPS_MACROS), "ignore": ["*"]}}
+    return {
+        "daily": qa,
+        "drift": qa,
+        "sphere-steps": {"test_list": STEPS_LIST, "macros": dict(STEPS_MACROS), "ignore": ["*"]},
+    }
 
 
 def start_site(cameras: list[str]):
@@ -49,8 +56,14 @@ def start_site(cameras: list[str]):
 
 def section(site, cameras: list[str]) -> dict:
     """rig.yaml's ``qatrack:`` section for the running ``site`` (the token stays in the environment)."""
-    return {"url": site.url, "unit": UNIT, "time_zone": TIME_ZONE, "token_env": TOKEN_ENV,
-            "timeout_s": 10.0, "lists": lists(cameras)}
+    return {
+        "url": site.url,
+        "unit": UNIT,
+        "time_zone": TIME_ZONE,
+        "token_env": TOKEN_ENV,
+        "timeout_s": 10.0,
+        "lists": lists(cameras),
+    }
 
 
 __all__ = ["start_site", "section", "lists", "UNIT", "TOKEN_ENV", "TIME_ZONE"]

@@ -44,8 +44,10 @@ PAGE = 100
 FAULTS = ("slow", "500", "400", "lose_answer", "trickle", "down", "add_instance")
 """Every fault the peer injects: the values of ``fault`` (``"400"`` as the tuple's head) and the
 methods that take it down or put a duplicate there; docs/faults.md has a row for each."""
-ERROR_PAGE = ("<!DOCTYPE html>\n<html lang=\"en-us\"><head><title>example.com: Error {code} : {what}</title></head>"
-              "<body><h1>Error {code}</h1><p>{what}</p></body></html>\n")
+ERROR_PAGE = (
+    '<!DOCTYPE html>\n<html lang="en-us"><head><title>example.com: Error {code} : {what}</title></head>'
+    "<body><h1>Error {code}</h1><p>{what}</p></body></html>\n"
+)
 ROUTE = re.compile(r"^/api/(?:(get-token)|q[ac]/(unittestcollections|testlistinstances))/(?:(\d+)/)?$")
 
 
@@ -60,18 +62,25 @@ class QATrackSim:
     (test list name -> its test macros, all numeric), in ``time_zone`` (its TIME_ZONE). ``token``
     is the push user's ("vts", who may add instances); ``users`` name -> password exchange for it."""
 
-    def __init__(self, lists: dict[str, list[str]], units: dict[str, list[str]], token: str = "sim-token",
-                 users: dict[str, str] | None = None, port: int = 0, time_zone: str = "America/Toronto",
-                 admin_token: str = "sim-admin-token"):
+    def __init__(
+        self,
+        lists: dict[str, list[str]],
+        units: dict[str, list[str]],
+        token: str = "sim-token",
+        users: dict[str, str] | None = None,
+        port: int = 0,
+        time_zone: str = "America/Toronto",
+        admin_token: str = "sim-admin-token",
+    ):
         self.site = Site(lists, units, time_zone)
         self.token = token
         self.users = dict(users or {})
-        self.accounts: dict[str, dict] = {}    # token -> {name, id, perms}
+        self.accounts: dict[str, dict] = {}  # token -> {name, id, perms}
         self.add_user("admin", token=admin_token, perms=("add", "change"))
         self.add_user("vts", token=token, perms=("add",))
-        self.requests: list[tuple[str, str, str]] = []   # method, path, Authorization header
+        self.requests: list[tuple[str, str, str]] = []  # method, path, Authorization header
         self.posts = 0
-        self.last_post: dict | None = None   # the body of the last instance created
+        self.last_post: dict | None = None  # the body of the last instance created
         self.fault = None
         self.slow_s = 2.0
         self.trickle_s = 0.5
@@ -86,7 +95,7 @@ class QATrackSim:
 
     # -- life -------------------------------------------------------------------------------
 
-    def up(self) -> "QATrackSim":
+    def up(self) -> QATrackSim:
         self._server = _Server(("127.0.0.1", self._port), _handler(self))
         self._port = self._server.server_address[1]
         threading.Thread(target=self._server.serve_forever, args=(0.05,), daemon=True, name="qatrack-sim").start()
@@ -98,7 +107,7 @@ class QATrackSim:
             self._server.server_close()
             self._server = None
 
-    def __enter__(self) -> "QATrackSim":
+    def __enter__(self) -> QATrackSim:
         return self.up() if self._server is None else self
 
     def __exit__(self, *exc) -> None:
@@ -119,11 +128,20 @@ class QATrackSim:
         """What the site holds, one dict per instance: url, user_key, work times (as the site
         shows them), comment, tests {macro: {value, skipped, comment}}, attachment names and bytes."""
         z = self.site.zone
-        return [{"url": f"{self.url}api/qc/testlistinstances/{i['id']}/", "user_key": i["user_key"],
-                 "work_started": self.site_time(i["work_started"]), "work_completed": self.site_time(i["work_completed"]),
-                 "comment": i["comment"] or "", "tests": i["tests"], "zone": z.key,
-                 "attachments": [a["filename"] for a in i["attachments"]],
-                 "attachment_bytes": sum(a["size"] for a in i["attachments"])} for i in self.site.instances]
+        return [
+            {
+                "url": f"{self.url}api/qc/testlistinstances/{i['id']}/",
+                "user_key": i["user_key"],
+                "work_started": self.site_time(i["work_started"]),
+                "work_completed": self.site_time(i["work_completed"]),
+                "comment": i["comment"] or "",
+                "tests": i["tests"],
+                "zone": z.key,
+                "attachments": [a["filename"] for a in i["attachments"]],
+                "attachment_bytes": sum(a["size"] for a in i["attachments"]),
+            }
+            for i in self.site.instances
+        ]
 
     def site_time(self, value) -> str | None:
         return show_time(value, self.site.zone)
@@ -131,12 +149,20 @@ class QATrackSim:
     def add_instance(self, user_key: str, utc_id: int = 1, tests: dict | None = None) -> dict:
         with self._lock:
             utc = self.site.utcs[utc_id - 1]
-            now = _dt.datetime.now(_dt.timezone.utc)
+            now = _dt.datetime.now(_dt.UTC)
             given = tests or {}
-            fields = {"unit_test_collection": utc, "work_started": now, "work_completed": now, "user_key": user_key,
-                      "comment": None, "attachments": [],
-                      "tests": {m: {"value": given.get(m, {}).get("value"), "skipped": m not in given, "comment": ""}
-                                for m in self.site.lists[utc["test_list"]]}}
+            fields = {
+                "unit_test_collection": utc,
+                "work_started": now,
+                "work_completed": now,
+                "user_key": user_key,
+                "comment": None,
+                "attachments": [],
+                "tests": {
+                    m: {"value": given.get(m, {}).get("value"), "skipped": m not in given, "comment": ""}
+                    for m in self.site.lists[utc["test_list"]]
+                },
+            }
             self.site.add(fields, "admin", 2)
         return self.instances[-1]
 
@@ -148,9 +174,13 @@ def _page(root: str, path: str, items: list[dict], query: dict) -> dict:
 
     def link(off):
         return f"{root}{path.lstrip('/')}?" + urlencode({**flat, "limit": limit, "offset": off})
-    return {"count": len(items), "next": link(offset + limit) if offset + limit < len(items) else None,
-            "previous": link(max(offset - limit, 0)) if offset > 0 else None,
-            "results": items[offset:offset + limit]}
+
+    return {
+        "count": len(items),
+        "next": link(offset + limit) if offset + limit < len(items) else None,
+        "previous": link(max(offset - limit, 0)) if offset > 0 else None,
+        "results": items[offset : offset + limit],
+    }
 
 
 def _handler(sim: QATrackSim):
@@ -159,7 +189,7 @@ def _handler(sim: QATrackSim):
     class Handler(BaseHTTPRequestHandler):
         protocol_version = "HTTP/1.1"
 
-        def log_message(self, *args):   # quiet
+        def log_message(self, *args):  # quiet
             pass
 
         def _answer(self, code: int, body=None, content_type="application/json", extra=None):
@@ -177,10 +207,10 @@ def _handler(sim: QATrackSim):
             if sim.fault == "trickle":
                 try:
                     for k in range(len(raw)):
-                        self.wfile.write(raw[k:k + 1])
+                        self.wfile.write(raw[k : k + 1])
                         self.wfile.flush()
                         time.sleep(sim.trickle_s)
-                except OSError:      # the client gave up
+                except OSError:  # the client gave up
                     pass
                 return
             self.wfile.write(raw)
@@ -198,8 +228,11 @@ def _handler(sim: QATrackSim):
             """The caller's account, or None after answering 401."""
             auth = self.headers.get("Authorization")
             if not auth or not auth.startswith("Token "):
-                self._answer(401, {"detail": "Authentication credentials were not provided."},
-                             extra={"WWW-Authenticate": "Token"})
+                self._answer(
+                    401,
+                    {"detail": "Authentication credentials were not provided."},
+                    extra={"WWW-Authenticate": "Token"},
+                )
                 return None
             account = sim.accounts.get(auth[6:].strip())
             if account is None:
@@ -246,10 +279,15 @@ def _handler(sim: QATrackSim):
             one = {k: v[0] for k, v in q.items()}
             with sim._lock:
                 if kind == "unittestcollections":
-                    items = [site.utc_json(sim.url, u) for u in site.utcs if n in (None, u["id"]) and _utc_matches(u, one)]
+                    items = [
+                        site.utc_json(sim.url, u) for u in site.utcs if n in (None, u["id"]) and _utc_matches(u, one)
+                    ]
                 else:
-                    items = [site.instance_json(sim.url, i) for i in site.instances
-                             if n in (None, i["id"]) and ("user_key" not in one or i["user_key"] == one["user_key"])]
+                    items = [
+                        site.instance_json(sim.url, i)
+                        for i in site.instances
+                        if n in (None, i["id"]) and ("user_key" not in one or i["user_key"] == one["user_key"])
+                    ]
             if n is not None:
                 self._answer(200, items[0]) if items else self._answer(404, {"detail": "Not found."})
             else:
@@ -323,7 +361,9 @@ def _handler(sim: QATrackSim):
 
 
 def _utc_matches(u: dict, q: dict) -> bool:
-    checks = [("unit__name", lambda v: u["unit"] == v),
-              ("test_list__name", lambda v: u["test_list"] == v),
-              ("active", lambda v: u["active"] == (v.lower() in ("true", "1")))]
+    checks = [
+        ("unit__name", lambda v: u["unit"] == v),
+        ("test_list__name", lambda v: u["test_list"] == v),
+        ("active", lambda v: u["active"] == (v.lower() in ("true", "1"))),
+    ]
     return all(test(q[k]) for k, test in checks if k in q)

@@ -16,17 +16,16 @@ written into the folder.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 from vts_hw.files import open_writable
 from vts_hw.recording.axis_jpeg import stamp_jpeg
-from vts_hw.recording.writer import Recording
-
 from vts_hw.recording.folder import read_index
+from vts_hw.recording.writer import Recording
 from vts_hw.sim_devices.patient import add_patient
 from vts_hw.sim_devices.render import Renderer, encode
 from vts_hw.sim_devices.scene import CameraClock, Marker, RigidBody, Scene
@@ -37,8 +36,12 @@ __all__ = ["BAND_LAYOUT", "BreathingBand", "SimRecording", "simulate_recording"]
 # heights and axial positions chosen (by a search over seeds 0-2 of the reference rig) so that
 # no two markers, wall markers included, come within 15 px of each other's epipolar line over
 # the default motion: markers level with each other along the baseline would be ambiguous.
-BAND_LAYOUT = {"B1": (-150.0, -13.0, 51.0), "B2": (-50.0, 30.0, 15.0), "B3": (50.0, -6.0, -46.0),
-               "B4": (150.0, -33.0, -46.0)}
+BAND_LAYOUT = {
+    "B1": (-150.0, -13.0, 51.0),
+    "B2": (-50.0, 30.0, 15.0),
+    "B3": (50.0, -6.0, -46.0),
+    "B4": (150.0, -33.0, -46.0),
+}
 BAND_DIAMETER = 13.0
 BAND_PLACEMENT = (0.0, 60.0, -40.0)
 
@@ -119,23 +122,44 @@ class SimRecording:
         walls = list(self.scene.wall_markers)
         faces = np.array([m.faces(camera.center) for m in walls] + [True] * (len(ids) - len(walls)))
         uv = camera.project(pos)
-        inside = ((uv[:, 0] >= 0) & (uv[:, 0] <= camera.width - 1) & (uv[:, 1] >= 0)
-                  & (uv[:, 1] <= camera.height - 1) & (camera.to_camera(pos)[:, 2] > 0))
+        inside = (
+            (uv[:, 0] >= 0)
+            & (uv[:, 0] <= camera.width - 1)
+            & (uv[:, 1] >= 0)
+            & (uv[:, 1] <= camera.height - 1)
+            & (camera.to_camera(pos)[:, 2] > 0)
+        )
         radius = np.array([m.diameter_mm / 2 for m in walls] + [BAND_DIAMETER / 2] * (len(ids) - len(walls)))
-        hidden = (self.scene.gantry.hides(camera.center, pos, float(t), radius)
-                  if self.scene.gantry is not None else np.zeros(len(ids), bool))
+        hidden = (
+            self.scene.gantry.hides(camera.center, pos, float(t), radius)
+            if self.scene.gantry is not None
+            else np.zeros(len(ids), bool)
+        )
         return faces & inside & ~hidden
 
 
-def simulate_recording(folder, duration_s: float = 20.0, fps: float = 25.0, seed: int = 0,
-                       scene: Scene | None = None, band: BreathingBand | None = None,
-                       phases_s: dict | None = None, latency_floor_s: float = 0.004,
-                       jitter_s: float = 0.003, outlier_rate: float = 0.01,
-                       outlier_s: tuple = (0.05, 0.3), quality: int = 75,
-                       noise_sigma: float = 2.0, gaps: dict | None = None,
-                       torn_tail: tuple = (), clock_offsets_s: dict | None = None,
-                       start: float | None = None, add_band: bool = True, patient: dict | None = None,
-                       progress: Callable[[int, int], None] | None = None) -> SimRecording:
+def simulate_recording(
+    folder,
+    duration_s: float = 20.0,
+    fps: float = 25.0,
+    seed: int = 0,
+    scene: Scene | None = None,
+    band: BreathingBand | None = None,
+    phases_s: dict | None = None,
+    latency_floor_s: float = 0.004,
+    jitter_s: float = 0.003,
+    outlier_rate: float = 0.01,
+    outlier_s: tuple = (0.05, 0.3),
+    quality: int = 75,
+    noise_sigma: float = 2.0,
+    gaps: dict | None = None,
+    torn_tail: tuple = (),
+    clock_offsets_s: dict | None = None,
+    start: float | None = None,
+    add_band: bool = True,
+    patient: dict | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> SimRecording:
     """Write a recording folder of every camera of ``scene`` (default: the reference rig with
     ``seed``, 2 cameras, LEDs on, a :class:`BreathingBand`) over ``duration_s`` seconds.
 
@@ -167,8 +191,9 @@ def simulate_recording(folder, duration_s: float = 20.0, fps: float = 25.0, seed
         the_patient = add_patient(scene, start, duration_s, seed, **patient)
         add_band = False
     if add_band and "band" not in scene.bodies:
-        markers = [Marker(k, np.array(v), np.array([0.0, 1.0, 0.0]), BAND_DIAMETER, "sphere")
-                   for k, v in BAND_LAYOUT.items()]
+        markers = [
+            Marker(k, np.array(v), np.array([0.0, 1.0, 0.0]), BAND_DIAMETER, "sphere") for k, v in BAND_LAYOUT.items()
+        ]
         scene.add_body(RigidBody("band", markers))
     names = scene.camera_names
     for cam in names:
@@ -208,27 +233,30 @@ def simulate_recording(folder, duration_s: float = 20.0, fps: float = 25.0, seed
             clock = scene.clocks[cam]
             for t0, t1 in gaps.get(cam, ()):  # in the recorder's form (vts_hw/recording/capture.py)
                 before = int(np.searchsorted(out.exposure[cam], start + t0)) - 1
-                rec.add_gap(cam, {"after_frame": before,
-                                  "camera_t0": clock.camera_time(start + t0),
-                                  "camera_t1": clock.camera_time(start + t1),
-                                  "missing": int(round((t1 - t0) * fps)),
-                                  "reason": "simulated: connection lost",
-                                  "host_time": start + t1})
+                rec.add_gap(
+                    cam,
+                    {
+                        "after_frame": before,
+                        "camera_t0": clock.camera_time(start + t0),
+                        "camera_t1": clock.camera_time(start + t1),
+                        "missing": int(round((t1 - t0) * fps)),
+                        "reason": "simulated: connection lost",
+                        "host_time": start + t1,
+                    },
+                )
         trans = band.translation(np.array([p[0] for p in plan]))
         for (at, cam, i), tr in zip(plan, trans):
             if add_band:
                 scene.set_body_pose("band", (0.0, 0.0, 0.0), tr)
             img = renderer.render(cam, at)
-            jpeg = stamp_jpeg(encode(img, quality), scene.clocks[cam].camera_time(at),
-                              scene.products[cam])
+            jpeg = stamp_jpeg(encode(img, quality), scene.clocks[cam].camera_time(at), scene.products[cam])
             rec.write_frame(cam, jpeg, float(out.camera_time[cam][i]), float(out.host_time[cam][i]))
             done += 1
             if progress and done % 100 == 0:
                 progress(done, len(plan))
     for cam in torn_tail:
         img = renderer.render(cam, start + duration_s)
-        jpeg = stamp_jpeg(encode(img, quality), scene.clocks[cam].camera_time(start + duration_s),
-                          scene.products[cam])
+        jpeg = stamp_jpeg(encode(img, quality), scene.clocks[cam].camera_time(start + duration_s), scene.products[cam])
         half = jpeg[: len(jpeg) // 2]
         with open_writable(folder / f"{cam}.mjpeg", "ab") as f:
             f.write(half)
@@ -252,8 +280,9 @@ def received_frames(folder, cameras) -> tuple[list[tuple[float, str, object]], d
         # a simulated recording stamps every frame with both times
         timed = [(r, r.camera_time, r.host_time) for r in rows if r.camera_time is not None and r.host_time is not None]
         offsets[name] = statistics.median(c - h for _, c, h in timed)
-        frames += [(h, name, SimpleNamespace(jpeg=data[r.offset:r.offset + r.length], camera_time=c, host_time=h))
-                   for r, c, h in timed]
+        frames += [
+            (h, name, SimpleNamespace(jpeg=data[r.offset : r.offset + r.length], camera_time=c, host_time=h))
+            for r, c, h in timed
+        ]
     frames.sort(key=lambda f: f[0])
     return frames, offsets
-

@@ -60,8 +60,9 @@ def polygon_centroid(poly: np.ndarray) -> np.ndarray:
     return np.array([((x + x1) * cross).sum(), ((y + y1) * cross).sum()]) / (6.0 * area)
 
 
-def polygon_coverage(poly: np.ndarray, x0: int, y0: int, w: int, h: int,
-                     supersample: int = 8, rings=DISK_RINGS) -> np.ndarray:
+def polygon_coverage(
+    poly: np.ndarray, x0: int, y0: int, w: int, h: int, supersample: int = 8, rings=DISK_RINGS
+) -> np.ndarray:
     """Brightness (0..1) of the patch ``[y0, y0+h) x [x0, x0+w)`` covered by a convex polygon
     (Nx2, pixel coordinates, pixel centres at integers). Float32 (h, w).
 
@@ -80,7 +81,7 @@ def polygon_coverage(poly: np.ndarray, x0: int, y0: int, w: int, h: int,
     lo = int(np.argmin(poly[:, 1]))
     ring = np.concatenate([poly[lo:], poly[:lo]])
     hi = int(np.argmax(ring[:, 1]))
-    chain_a = ring[:hi + 1]
+    chain_a = ring[: hi + 1]
     chain_b = np.concatenate([ring[hi:], ring[:1]])[::-1]
     xa = np.interp(q, chain_a[:, 1], chain_a[:, 0], left=np.nan, right=np.nan)
     xb = np.interp(q, chain_b[:, 1], chain_b[:, 0], left=np.nan, right=np.nan)
@@ -132,14 +133,26 @@ class Renderer:
     noise-free images). ``stats`` counts cache hits and misses.
     """
 
-    def __init__(self, scene: Scene, noise_sigma: float = 2.0, background: float = 20.0,
-                 marker_level: float = 220.0, led_off_level: float = 5.0, supersample: int = 8,
-                 outline_points: int = 96, noise_frames: int = 8, noise_pad: int = 32,
-                 seed: int = 0, cache_size: int = 4, exposure_s: float = 0.008, blur_steps: int = 5,
-                 blur_min_px: float = 0.2):
+    def __init__(
+        self,
+        scene: Scene,
+        noise_sigma: float = 2.0,
+        background: float = 20.0,
+        marker_level: float = 220.0,
+        led_off_level: float = 5.0,
+        supersample: int = 8,
+        outline_points: int = 96,
+        noise_frames: int = 8,
+        noise_pad: int = 32,
+        seed: int = 0,
+        cache_size: int = 4,
+        exposure_s: float = 0.008,
+        blur_steps: int = 5,
+        blur_min_px: float = 0.2,
+    ):
         self.scene = scene
-        self.exposure = {name: float(exposure_s) for name in scene.cameras}   # s, per camera
-        self.focus = {name: 0.0 for name in scene.cameras}   # defocus blur (px, 1 sigma), per camera
+        self.exposure = {name: float(exposure_s) for name in scene.cameras}  # s, per camera
+        self.focus = {name: 0.0 for name in scene.cameras}  # defocus blur (px, 1 sigma), per camera
         self.blur_steps = int(blur_steps)
         self.blur_min_px = float(blur_min_px)
         self.noise_sigma = float(noise_sigma)
@@ -149,10 +162,12 @@ class Renderer:
         self.supersample = int(supersample)
         self.outline_points = int(outline_points)
         self.cache_size = int(cache_size)
-        self._bg = {name: self._make_background(c.width, c.height, background, seed * 101 + i)
-                    for i, (name, c) in enumerate(scene.cameras.items())}
+        self._bg = {
+            name: self._make_background(c.width, c.height, background, seed * 101 + i)
+            for i, (name, c) in enumerate(scene.cameras.items())
+        }
         self._cache: dict[str, OrderedDict] = {name: OrderedDict() for name in scene.cameras}
-        self._static: dict[tuple, np.ndarray] = {}     # the wall markers' signal, per camera pose
+        self._static: dict[tuple, np.ndarray] = {}  # the wall markers' signal, per camera pose
         self._lock = threading.Lock()
         self._rng = random.Random(seed)
         self._pad = int(noise_pad)
@@ -160,8 +175,9 @@ class Renderer:
         if self.noise_sigma > 0:
             w = max(c.width for c in scene.cameras.values()) + self._pad
             h = max(c.height for c in scene.cameras.values()) + self._pad
-            self._noise = np.random.default_rng(seed).normal(
-                0.0, self.noise_sigma, (noise_frames, h, w)).astype(np.float32)
+            self._noise = (
+                np.random.default_rng(seed).normal(0.0, self.noise_sigma, (noise_frames, h, w)).astype(np.float32)
+            )
         self.stats = {"hits": 0, "misses": 0}
 
     @staticmethod
@@ -173,7 +189,7 @@ class Renderer:
         for amp in (2.5, 1.5):
             fx, fy = rng.uniform(0.3, 1.2, 2)
             bg += amp * np.cos(np.pi * (fx * xx + fy * yy) + rng.uniform(0, 2 * np.pi))
-        bg -= 3.0 * (xx ** 2 + yy ** 2) / 2.0 - 1.0
+        bg -= 3.0 * (xx**2 + yy**2) / 2.0 - 1.0
         return bg.astype(np.float32)
 
     def background(self, cam: str) -> np.ndarray:
@@ -191,7 +207,7 @@ class Renderer:
         with self._lock:
             k = self._rng.randrange(len(self._noise))
             dy, dx = self._rng.randrange(self._pad + 1), self._rng.randrange(self._pad + 1)
-        return cv2.add(clean, self._noise[k, dy:dy + h, dx:dx + w], dtype=cv2.CV_8U)
+        return cv2.add(clean, self._noise[k, dy : dy + h, dx : dx + w], dtype=cv2.CV_8U)
 
     def clean(self, cam: str, t: float, led: bool | None = None) -> np.ndarray:
         """The noise-free float32 image at ``t`` (not quantised), from the cache when the scene
@@ -215,10 +231,16 @@ class Renderer:
                 return img
         hidden = self.scene.hidden(camera.center, markers, t)  # behind a SPECT head: not drawn
         keep = [i for i, h in enumerate(hidden) if not h]
-        n_wall = len(self.scene.wall_markers)        # first in project_markers' list; they never move
-        img = self._rasterise(cam, camera, [markers[i] for i in keep], led,
-                              {k: smear[i] for k, i in enumerate(keep) if i in smear},
-                              n_static=sum(1 for i in keep if i < n_wall), focus=focus)
+        n_wall = len(self.scene.wall_markers)  # first in project_markers' list; they never move
+        img = self._rasterise(
+            cam,
+            camera,
+            [markers[i] for i in keep],
+            led,
+            {k: smear[i] for k, i in enumerate(keep) if i in smear},
+            n_static=sum(1 for i in keep if i < n_wall),
+            focus=focus,
+        )
         with self._lock:
             self.stats["misses"] += 1
             cache[key] = img
@@ -267,8 +289,11 @@ class Renderer:
         sig = np.zeros((camera.height, camera.width), dtype=np.float32) if into is None else into
         eye = camera.center
         smear = smear or {}
-        drawn = [(i, m) for i, m in enumerate(markers)
-                 if m.faces(eye) and camera.to_camera(m.center[None])[0, 2] > m.diameter_mm]
+        drawn = [
+            (i, m)
+            for i, m in enumerate(markers)
+            if m.faces(eye) and camera.to_camera(m.center[None])[0, 2] > m.diameter_mm
+        ]
         if not drawn:
             return sig
         n = self.outline_points
@@ -298,8 +323,9 @@ class Renderer:
         region = sig[y0:y1, x0:x1]
         np.maximum(region, patch, out=region)
 
-    def _rasterise(self, cam: str, camera, markers, led: bool, smear: dict | None = None,
-                   n_static: int = 0, focus: float = 0.0) -> np.ndarray:
+    def _rasterise(
+        self, cam: str, camera, markers, led: bool, smear: dict | None = None, n_static: int = 0, focus: float = 0.0
+    ) -> np.ndarray:
         """The image of ``markers`` (the first ``n_static`` of them fixed: the wall's, drawn
         once per camera pose and kept, ``self._static``); a scene with a moving body redraws
         only that body's markers each frame. ``focus`` > 0: the marker light blurred by a
@@ -308,8 +334,9 @@ class Renderer:
         smear = smear or {}
         fixed = [i for i in range(n_static) if i not in smear]
         if fixed:
-            key = tuple((markers[i].id, *np.round(camera.project(markers[i].center[None])[0], 3).tolist())
-                        for i in fixed)
+            key = tuple(
+                (markers[i].id, *np.round(camera.project(markers[i].center[None])[0], 3).tolist()) for i in fixed
+            )
             with self._lock:
                 base = self._static.get((cam, key))
             if base is None:
@@ -320,14 +347,18 @@ class Renderer:
                     while len(self._static) > 4 * len(self._bg):
                         self._static.pop(next(iter(self._static)))
             moving = [i for i in range(len(markers)) if i not in set(fixed)]
-            sig = self.signal(camera, [markers[i] for i in moving],
-                              {k: smear[i] for k, i in enumerate(moving) if i in smear}, into=base.copy())
+            sig = self.signal(
+                camera,
+                [markers[i] for i in moving],
+                {k: smear[i] for k, i in enumerate(moving) if i in smear},
+                into=base.copy(),
+            )
         else:
             sig = self.signal(camera, markers, smear)
         if focus > 0:
             sig = cv2.GaussianBlur(sig, (0, 0), focus, borderType=cv2.BORDER_CONSTANT)
         amp = self.marker_level - self.background_level if led else self.led_off_level
-        img = cv2.scaleAdd(sig, float(amp), bg)          # bg + sig * amp, in one pass
+        img = cv2.scaleAdd(sig, float(amp), bg)  # bg + sig * amp, in one pass
         img.flags.writeable = False
         return img
 

@@ -28,11 +28,23 @@ FOLDER = "simulated rig folder"
 _children: dict[int, subprocess.Popen] = {}  # started from this process: reaped on stop
 
 
-def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmware: str = "vapix3",
-                   rate: float = 1.0, timeout: float = 60.0, trigger: str = "none",
-                   spect: bool = False, https: bool = False, gantry: bool = False, patient=None,
-                   qatrack: bool = False, ahead: float = 0.0, warmup_drift: bool = False,
-                   announce: bool = False) -> int:
+def start_detached(
+    folder: str | Path,
+    n_cameras: int = 2,
+    seed: int = 0,
+    firmware: str = "vapix3",
+    rate: float = 1.0,
+    timeout: float = 60.0,
+    trigger: str = "none",
+    spect: bool = False,
+    https: bool = False,
+    gantry: bool = False,
+    patient=None,
+    qatrack: bool = False,
+    ahead: float = 0.0,
+    warmup_drift: bool = False,
+    announce: bool = False,
+) -> int:
     """Start ``serve`` in a background process; return its pid once rig.yaml is written (the
     time allowed grows by 0.1 s per frame made ``ahead``)."""
     timeout += 0.1 * ahead * 25.0 * n_cameras
@@ -44,8 +56,8 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
             (folder / name).unlink()
     log_path = folder / LOG_FILE
     had_log = log_path.exists()
-    try:   # the first line of this start, on disk before the rig starts: a full disk stops here
-        log = open_writable(log_path, "ab")    # never a device, FIFO or symbolic link (files.py)
+    try:  # the first line of this start, on disk before the rig starts: a full disk stops here
+        log = open_writable(log_path, "ab")  # never a device, FIFO or symbolic link (files.py)
         log_start = log.tell()
         log.write(f"{time.strftime('%Y-%m-%dT%H:%M:%S%z')} vts sim up: starting ({n_cameras} cameras)\n".encode())
         log.flush()
@@ -53,18 +65,33 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
     except OSError as e:
         with contextlib.suppress(OSError, UnboundLocalError):
             log.close()
-        with contextlib.suppress(OSError, UnboundLocalError):   # no cut line, no empty log left behind
+        with contextlib.suppress(OSError, UnboundLocalError):  # no cut line, no empty log left behind
             if had_log:
                 os.truncate(log_path, log_start)
             else:
                 log_path.unlink()
         raise WriteFailed(log_path, os_reason(e), "the log is as it was" if had_log else "no log was left") from None
-    cmd = [sys.executable, "-m", "vts_hw.sim_devices.rig", str(folder), str(n_cameras), str(seed), firmware,
-           str(rate), trigger] + (["spect"] if spect else []) + (["https"] if https else []) \
-        + (["gantry"] if gantry else []) + (["qatrack"] if qatrack else []) \
-        + ([patient.to_arg()] if patient is not None else []) \
-        + ([f"ahead={ahead!r}"] if ahead > 0 else []) + (["warmup"] if warmup_drift else []) \
+    cmd = (
+        [
+            sys.executable,
+            "-m",
+            "vts_hw.sim_devices.rig",
+            str(folder),
+            str(n_cameras),
+            str(seed),
+            firmware,
+            str(rate),
+            trigger,
+        ]
+        + (["spect"] if spect else [])
+        + (["https"] if https else [])
+        + (["gantry"] if gantry else [])
+        + (["qatrack"] if qatrack else [])
+        + ([patient.to_arg()] if patient is not None else [])
+        + ([f"ahead={ahead!r}"] if ahead > 0 else [])
+        + (["warmup"] if warmup_drift else [])
         + (["announce"] if announce else [])
+    )
     # the one program meant to outlive the command that starts it (`vts sim up --detach`: until
     # `vts sim down`); its own children (the firmware emulator) die with it (lifeline.child_options)
     proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=log, start_new_session=True)
@@ -78,8 +105,9 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
             cause = failure_cause(log_path, log_start)
             if proc.returncode == 3 and cause == NOTHING_LOGGED and disk_full(folder):
                 cause = f"{folder}: no space left on device"
-            err = VtsError(f"the simulated rig failed to start (exit {proc.returncode}): "
-                           f"{cause} (the whole log: {log_path})")
+            err = VtsError(
+                f"the simulated rig failed to start (exit {proc.returncode}): {cause} (the whole log: {log_path})"
+            )
             if proc.returncode in (2, 3, 4):  # the cause was one of ours: keep its exit code
                 err.exit_code = proc.returncode
             raise err
@@ -87,13 +115,17 @@ def start_detached(folder: str | Path, n_cameras: int = 2, seed: int = 0, firmwa
     proc.kill()
     proc.wait()
     log.close()
-    raise VtsError(f"the simulated rig did not come up within {timeout:g} s; its log {log_path} ends: "
-                   f"{failure_cause(log_path, log_start)}")
+    raise VtsError(
+        f"the simulated rig did not come up within {timeout:g} s; its log {log_path} ends: "
+        f"{failure_cause(log_path, log_start)}"
+    )
 
 
 def already_running(folder: Path) -> UsageError:
-    return UsageError(f"a simulated rig is already running in {folder}: stop it first "
-                      f"(vts sim down --dir {folder}) or give another --dir")
+    return UsageError(
+        f"a simulated rig is already running in {folder}: stop it first "
+        f"(vts sim down --dir {folder}) or give another --dir"
+    )
 
 
 def pid_of(folder: Path) -> int | None:
@@ -113,7 +145,7 @@ def stop_detached(folder: str | Path, timeout: float = 10.0) -> bool:
     folder = Path(folder)
     pid = pid_of(folder)
     if pid is None or not is_running(folder):
-        with contextlib.suppress(OSError):   # absent, or DIR is not a folder at all
+        with contextlib.suppress(OSError):  # absent, or DIR is not a folder at all
             (folder / PID_FILE).unlink()
         return False
     os.kill(pid, signal.SIGTERM)
@@ -142,10 +174,20 @@ def load_env_file(path: str | Path) -> dict[str, str]:
     for line in Path(path).read_text().splitlines():
         line = line.strip()
         if line.startswith("export ") and "=" in line:
-            k, v = line[len("export "):].split("=", 1)
+            k, v = line[len("export ") :].split("=", 1)
             out[k.strip()] = v.strip().strip("'\"")
     return out
 
 
-__all__ = ["PID_FILE", "LOG_FILE", "READY_FILE", "FOLDER", "start_detached", "stop_detached", "is_running",
-           "pid_of", "already_running", "load_env_file"]
+__all__ = [
+    "PID_FILE",
+    "LOG_FILE",
+    "READY_FILE",
+    "FOLDER",
+    "start_detached",
+    "stop_detached",
+    "is_running",
+    "pid_of",
+    "already_running",
+    "load_env_file",
+]

@@ -10,6 +10,7 @@ from vts_hw.files import os_reason
 
 FAILED = "simulated rig failed: "  # how the detached process says why it stopped (last line of sim.log)
 
+
 def failure_cause(log_path: Path, start: int = 0) -> str:
     """Why the detached rig stopped, from what it wrote to sim.log after byte ``start``: the
     line it writes when it fails (``FAILED``), else the last line that is not part of a
@@ -22,7 +23,7 @@ def failure_cause(log_path: Path, start: int = 0) -> str:
         return f"its log cannot be read ({os_reason(e)})"
     for line in reversed(lines):
         if line.startswith(FAILED):
-            return line[len(FAILED):]
+            return line[len(FAILED) :]
     plain = [ln for ln in lines if not ln.startswith((" ", "\t", "Traceback"))]
     if plain:
         return plain[-1]

@@ -33,29 +33,40 @@ from vts_hw.recording.axis_jpeg import AxisProduct
 from vts_hw.sim_devices.camera_motion import DAY, CameraClock, CameraDrift  # noqa: F401  (re-exported)
 from vts_hw.sim_devices.gantry import Gantry
 
-if TYPE_CHECKING:       # they read and fill the scene's tables (each imports this module)
+if TYPE_CHECKING:  # they read and fill the scene's tables (each imports this module)
     from vts_hw.sim_devices.clock_warmup import ClockWarmup
     from vts_hw.sim_devices.optics import Optics
     from vts_hw.sim_devices.warmup import WarmupDrift
 
 # Reference rig (docs/design.md, "The room"). Millimetres, pixels.
-CAM_Y = 1100.0          # camera height above the table axis (2.1 m above a floor 1.0 m below the axis)
-CAM_Z = -3530.0         # cameras over the patient's head, 3.7 m from the FOV centre
-BASELINE = 1200.0       # X spread of the cameras
-FOCAL_PX = 3370.0       # 3.75 m / 3370 px = about 1.11 mm/px at the FOV centre
+CAM_Y = 1100.0  # camera height above the table axis (2.1 m above a floor 1.0 m below the axis)
+CAM_Z = -3530.0  # cameras over the patient's head, 3.7 m from the FOV centre
+BASELINE = 1200.0  # X spread of the cameras
+FOCAL_PX = 3370.0  # 3.75 m / 3370 px = about 1.11 mm/px at the FOV centre
 K1 = -0.05
 WALL_DISTANCE = 4160.0  # from the cameras' mid-point to the wall: about 1.25 mm/px
 WALL_DIAMETER = 25.0
 # Wall markers in the wall plane (mm; u along world X, v "up" in the plane), kept off the image
 # centre where the phantom is seen, and asymmetric so that they can be told apart.
-WALL_LAYOUT = {"W1": (-222.0, 150.0), "W2": (212.0, 170.0), "W3": (-232.0, -165.0),
-               "W4": (202.0, -185.0), "W5": (15.0, -205.0)}
+WALL_LAYOUT = {
+    "W1": (-222.0, 150.0),
+    "W2": (212.0, 170.0),
+    "W3": (-232.0, -165.0),
+    "W4": (202.0, -185.0),
+    "W5": (15.0, -205.0),
+}
 SPHERE_DIAMETER = 13.0
 # 7-sphere phantom: sphere centres relative to the base centre (mm, Y up): rods of different
 # heights, spread over about 15 cm, not coplanar.
-PHANTOM_LAYOUT = {"S1": (-54.0, 39.0, -72.0), "S2": (0.0, 30.0, -20.0), "S3": (58.0, 84.0, -71.0),
-                  "S4": (21.0, 122.0, -18.0), "S5": (75.0, 130.0, -47.0), "S6": (-58.0, 57.0, 35.0),
-                  "S7": (-40.0, 88.0, 73.0)}  # chosen so no two overlap in the reference images
+PHANTOM_LAYOUT = {
+    "S1": (-54.0, 39.0, -72.0),
+    "S2": (0.0, 30.0, -20.0),
+    "S3": (58.0, 84.0, -71.0),
+    "S4": (21.0, 122.0, -18.0),
+    "S5": (75.0, 130.0, -47.0),
+    "S6": (-58.0, 57.0, 35.0),
+    "S7": (-40.0, 88.0, 73.0),
+}  # chosen so no two overlap in the reference images
 PHANTOM_PLACEMENT = (0.0, -80.0, 0.0)  # base centre on the table: the spheres straddle the FOV centre
 AXIS_OUI = bytes.fromhex("ACCC8E")
 
@@ -88,21 +99,28 @@ class CameraModel:
     height: int = 480
 
     @classmethod
-    def from_rvec(cls, name, K, dist, rvec, tvec, width=640, height=480) -> "CameraModel":
-        return cls(name, np.asarray(K, float), np.asarray(dist, float).ravel(),
-                   rotation_matrix(rvec), np.asarray(tvec, float).ravel(), width, height)
+    def from_rvec(cls, name, K, dist, rvec, tvec, width=640, height=480) -> CameraModel:
+        return cls(
+            name,
+            np.asarray(K, float),
+            np.asarray(dist, float).ravel(),
+            rotation_matrix(rvec),
+            np.asarray(tvec, float).ravel(),
+            width,
+            height,
+        )
 
     @classmethod
-    def look_at(cls, name, center, target, K, dist, roll_rad=0.0, up=(0.0, 1.0, 0.0),
-                width=640, height=480) -> "CameraModel":
+    def look_at(
+        cls, name, center, target, K, dist, roll_rad=0.0, up=(0.0, 1.0, 0.0), width=640, height=480
+    ) -> CameraModel:
         """A camera at ``center`` whose optical axis passes through ``target``, image "up" ~ ``up``."""
         center = np.asarray(center, float)
         z = _unit(np.asarray(target, float) - center)
         x = _unit(_cross(z, up))
         y = _cross(z, x)
         R = rotation_matrix([0.0, 0.0, roll_rad]) @ np.vstack([x, y, z])
-        return cls(name, np.asarray(K, float), np.asarray(dist, float).ravel(), R, -R @ center,
-                   width, height)
+        return cls(name, np.asarray(K, float), np.asarray(dist, float).ravel(), R, -R @ center, width, height)
 
     @property
     def rvec(self) -> np.ndarray:
@@ -132,11 +150,10 @@ class CameraModel:
         uv, _ = cv2.projectPoints(pts, self.rvec, self.t, self.K, self.dist)
         return uv.reshape(-1, 2)
 
-    def rotated(self, rvec_camera) -> "CameraModel":
+    def rotated(self, rvec_camera) -> CameraModel:
         """This camera turned about its own centre by a rotation given in camera coordinates."""
         Rd = rotation_matrix(rvec_camera)
-        return CameraModel(self.name, self.K, self.dist, Rd @ self.R, Rd @ self.t,
-                           self.width, self.height)
+        return CameraModel(self.name, self.K, self.dist, Rd @ self.R, Rd @ self.t, self.width, self.height)
 
 
 @dataclass(frozen=True, eq=False)
@@ -150,7 +167,7 @@ class Marker:
     diameter_mm: float
     kind: str = "disk"
 
-    def moved(self, R: np.ndarray, t: np.ndarray) -> "Marker":
+    def moved(self, R: np.ndarray, t: np.ndarray) -> Marker:
         return Marker(self.id, R @ self.center + t, R @ self.normal, self.diameter_mm, self.kind)
 
     def faces(self, eye) -> bool:
@@ -223,7 +240,7 @@ class Body(Protocol):
     (sim_devices/patient.py), whose markers breathe and move."""
 
     name: str
-    pose: Any            # RigidBody's: a Schedule of poses (set_body_pose); a patient's: a key for caches
+    pose: Any  # RigidBody's: a Schedule of poses (set_body_pose); a patient's: a key for caches
 
     @property
     def markers(self) -> list[Marker]: ...
@@ -269,7 +286,7 @@ def camera_positions(n_cameras: int) -> list[tuple[float, float, float]]:
     out = []
     for i in range(n_cameras):
         pair, side = divmod(i, 2)
-        end = -1.0 if pair % 2 == 0 else 1.0      # head end first
+        end = -1.0 if pair % 2 == 0 else 1.0  # head end first
         half = BASELINE / 2 / 2 ** (pair // 2)
         alone = side == 0 and i == n_cameras - 1
         x = 0.0 if alone else (-half if side == 0 else half) * (-end)  # seen from its end, cam1 left
@@ -281,9 +298,15 @@ class Scene:
     """Cameras (base pose, clock, drift, product id), wall markers, the table and its bodies,
     and each camera's LED. Build the reference rig with :meth:`reference`."""
 
-    def __init__(self, cameras: list[CameraModel], clocks: dict[str, CameraClock],
-                 drifts: dict[str, CameraDrift], products: dict[str, AxisProduct],
-                 wall_markers: list[Marker], start_epoch: float):
+    def __init__(
+        self,
+        cameras: list[CameraModel],
+        clocks: dict[str, CameraClock],
+        drifts: dict[str, CameraDrift],
+        products: dict[str, AxisProduct],
+        wall_markers: list[Marker],
+        start_epoch: float,
+    ):
         self.cameras = {c.name: c for c in cameras}
         self.clocks = dict(clocks)
         self.drifts = dict(drifts)
@@ -304,9 +327,14 @@ class Scene:
 
     # ----------------------------------------------------------------- construction
     @classmethod
-    def reference(cls, seed: int = 0, n_cameras: int = 2, start_epoch: float | None = None,
-                  drift_px_per_60_days: tuple[float, float] = (0.9, 1.3),
-                  gantry=None) -> "Scene":
+    def reference(
+        cls,
+        seed: int = 0,
+        n_cameras: int = 2,
+        start_epoch: float | None = None,
+        drift_px_per_60_days: tuple[float, float] = (0.9, 1.3),
+        gantry=None,
+    ) -> Scene:
         """The reference rig: ``n_cameras`` cameras in pairs at the head and foot ends.
 
         Pair 1 (cam1, cam2) looks over the patient's head, as the 2-camera rig of
@@ -344,8 +372,9 @@ class Scene:
         foot = [c for c in cameras if c.center[2] > 0]
         wall = cls._wall(head, WALL_LAYOUT) if head else []
         if foot:  # mirrored (about the layout's middle): each end's cameras see the same arrangement
-            wall += cls._wall(foot, {f"W{int(k[1:]) + len(WALL_LAYOUT)}": (-u - 20.0, v)
-                                     for k, (u, v) in WALL_LAYOUT.items()})
+            wall += cls._wall(
+                foot, {f"W{int(k[1:]) + len(WALL_LAYOUT)}": (-u - 20.0, v) for k, (u, v) in WALL_LAYOUT.items()}
+            )
         scene = cls(cameras, clocks, drifts, products, wall, start)
         if gantry:
             scene.gantry = gantry if isinstance(gantry, Gantry) else Gantry()
@@ -360,8 +389,10 @@ class Scene:
         normal = -view
         e_u = _unit(np.array([1.0, 0, 0]) - normal[0] * normal)
         e_v = _cross(e_u, normal)
-        return [Marker(marker_id, centre + u * e_u + v * e_v, normal, WALL_DIAMETER, "disk")
-                for marker_id, (u, v) in layout.items()]
+        return [
+            Marker(marker_id, centre + u * e_u + v * e_v, normal, WALL_DIAMETER, "disk")
+            for marker_id, (u, v) in layout.items()
+        ]
 
     def add_body(self, body: B) -> B:
         self.bodies[body.name] = body
@@ -369,8 +400,10 @@ class Scene:
 
     def add_phantom(self, placement=PHANTOM_PLACEMENT, rvec=(0.0, 0.0, 0.0)) -> RigidBody:
         """Put the 7-sphere phantom (S1..S7, 13 mm spheres) on the table, base at ``placement``."""
-        spheres = [Marker(k, np.array(v), np.array([0.0, 1.0, 0.0]), SPHERE_DIAMETER, "sphere")
-                   for k, v in PHANTOM_LAYOUT.items()]
+        spheres = [
+            Marker(k, np.array(v), np.array([0.0, 1.0, 0.0]), SPHERE_DIAMETER, "sphere")
+            for k, v in PHANTOM_LAYOUT.items()
+        ]
         return self.add_body(RigidBody("phantom", spheres, (rvec, placement)))
 
     # ----------------------------------------------------------------- state over time
@@ -437,8 +470,7 @@ class Scene:
         uv = camera.project(centres)
         eye = camera.center
         depth = camera.to_camera(centres)[:, 2]
-        inside = ((uv[:, 0] >= 0) & (uv[:, 0] <= camera.width - 1)
-                  & (uv[:, 1] >= 0) & (uv[:, 1] <= camera.height - 1))
+        inside = (uv[:, 0] >= 0) & (uv[:, 0] <= camera.width - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= camera.height - 1)
         visible = inside & (depth > 0) & np.array([m.faces(eye) for m in markers])
         return camera, markers, uv, visible & ~self.hidden(eye, markers, t)
 

@@ -29,7 +29,7 @@ from typing import TextIO
 from vts_hw.files import open_writable
 from vts_hw.sim_devices.keysight_33500 import Keysight33500, OutputEvent
 
-MAX_LINE = 64 * 1024          # a longer line without a terminator is dropped (an input buffer)
+MAX_LINE = 64 * 1024  # a longer line without a terminator is dropped (an input buffer)
 OUTPUT_LOG_HEADER = [f.name for f in fields(OutputEvent)]
 
 
@@ -64,13 +64,13 @@ class _Handler(socketserver.BaseRequestHandler):
             srv._track(sock, False)
 
 
-def _answer(srv: "SimFunctionGenerator", sock: socket.socket, data: bytes) -> None:
+def _answer(srv: SimFunctionGenerator, sock: socket.socket, data: bytes) -> None:
     """Send a reply: at once, or (:meth:`SimFunctionGenerator.go_trickle`) a byte at a time."""
     if not srv.trickle_s:
         sock.sendall(data)
         return
     for k in range(len(data)):
-        sock.sendall(data[k:k + 1])
+        sock.sendall(data[k : k + 1])
         if srv._stopping.wait(srv.trickle_s):
             return
 
@@ -101,13 +101,14 @@ class SimFunctionGenerator:
         """The VISA address a client opens."""
         return f"TCPIP::127.0.0.1::{self.port}::SOCKET"
 
-    def start(self) -> "SimFunctionGenerator":
+    def start(self) -> SimFunctionGenerator:
         self._stopping.clear()
         self._server = _Server(("127.0.0.1", self.port), _Handler)
         self._server.owner = self  # type: ignore[attr-defined]
         self.port = self._server.server_address[1]
-        self._thread = threading.Thread(target=self._server.serve_forever, args=(0.05,), name=f"sim-33500-{self.port}",
-                                        daemon=True)
+        self._thread = threading.Thread(
+            target=self._server.serve_forever, args=(0.05,), name=f"sim-33500-{self.port}", daemon=True
+        )
         self._thread.start()
         return self
 
@@ -156,7 +157,7 @@ class SimFunctionGenerator:
         path = Path(path)
         with self.instrument.lock:
             new = not path.exists() or path.stat().st_size == 0
-            self._log_file = open_writable(path, "a", newline="", encoding="utf-8")   # a regular file only
+            self._log_file = open_writable(path, "a", newline="", encoding="utf-8")  # a regular file only
             self._log_writer = csv.writer(self._log_file)
             if new:
                 self._log_writer.writerow(OUTPUT_LOG_HEADER)
@@ -181,7 +182,7 @@ class SimFunctionGenerator:
         with self._lock:
             (self._clients.add if add else self._clients.discard)(sock)
 
-    def __enter__(self) -> "SimFunctionGenerator":
+    def __enter__(self) -> SimFunctionGenerator:
         return self.start()
 
     def __exit__(self, *exc) -> None:
@@ -191,7 +192,16 @@ class SimFunctionGenerator:
 def read_output_log(path: str | Path) -> list[OutputEvent]:
     """The events a :meth:`SimFunctionGenerator.log_to` file holds."""
     with open(path, newline="", encoding="utf-8") as f:
-        return [OutputEvent(float(r["host_time"]), int(r["channel"]), r["output"] == "1", r["function"],
-                            float(r["frequency_hz"]), float(r["duty_percent"]), float(r["high_v"]),
-                            float(r["low_v"]))
-                for r in csv.DictReader(f)]
+        return [
+            OutputEvent(
+                float(r["host_time"]),
+                int(r["channel"]),
+                r["output"] == "1",
+                r["function"],
+                float(r["frequency_hz"]),
+                float(r["duty_percent"]),
+                float(r["high_v"]),
+                float(r["low_v"]),
+            )
+            for r in csv.DictReader(f)
+        ]

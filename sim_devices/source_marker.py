@@ -46,8 +46,8 @@ class SourceMarker:
 
     body: str
     marker_id: str
-    position: tuple[float, float, float]     # start position, table coordinates, mm
-    rate_cps: float                          # detected counts per second
+    position: tuple[float, float, float]  # start position, table coordinates, mm
+    rate_cps: float  # detected counts per second
     moves: list[Move] = field(default_factory=list)
 
     def z_at(self, t) -> np.ndarray:
@@ -60,10 +60,16 @@ class SourceMarker:
         return z
 
     def to_json(self) -> dict:
-        return {"body": self.body, "marker": self.marker_id, "position_mm": list(self.position),
-                "rate_cps": self.rate_cps,
-                "moves": [{"t_start": m.t_start, "t_mid": m.t_mid, "t_end": m.t_end,
-                           "z_from_mm": m.z_from, "z_to_mm": m.z_to} for m in self.moves]}
+        return {
+            "body": self.body,
+            "marker": self.marker_id,
+            "position_mm": list(self.position),
+            "rate_cps": self.rate_cps,
+            "moves": [
+                {"t_start": m.t_start, "t_mid": m.t_mid, "t_end": m.t_end, "z_from_mm": m.z_from, "z_to_mm": m.z_to}
+                for m in self.moves
+            ],
+        }
 
 
 def source_marker_from_json(scene: Scene, data: dict) -> SourceMarker:
@@ -71,22 +77,37 @@ def source_marker_from_json(scene: Scene, data: dict) -> SourceMarker:
     file) into another scene with the same moves, so that another process can rebuild it."""
     moves = data["moves"]
     move_s = moves[0]["t_end"] - moves[0]["t_start"] if moves else 0.3
-    return add_source_marker(scene, [m["t_start"] for m in moves],
-                             [m["z_to_mm"] - m["z_from_mm"] for m in moves], name=data["body"],
-                             marker_id=data["marker"], position=tuple(data["position_mm"]),
-                             move_s=move_s, rate_cps=data["rate_cps"])
+    return add_source_marker(
+        scene,
+        [m["t_start"] for m in moves],
+        [m["z_to_mm"] - m["z_from_mm"] for m in moves],
+        name=data["body"],
+        marker_id=data["marker"],
+        position=tuple(data["position_mm"]),
+        move_s=move_s,
+        rate_cps=data["rate_cps"],
+    )
 
 
 def min_jerk(s):
     """The minimum-jerk profile 10s³ − 15s⁴ + 6s⁵ on [0, 1] (0 → 1, symmetric about ½)."""
     s = np.asarray(s, dtype=float)
-    return s ** 3 * (10.0 - 15.0 * s + 6.0 * s * s)
+    return s**3 * (10.0 - 15.0 * s + 6.0 * s * s)
 
 
-def add_source_marker(scene: Scene, move_times, steps_mm, *, name: str = "source",
-                      marker_id: str = "SRC", position=(0.0, 0.0, 0.0), move_s: float = 0.3,
-                      step_s: float = 0.005, rate_cps: float = 3000.0,
-                      diameter_mm: float = SPHERE_DIAMETER) -> SourceMarker:
+def add_source_marker(
+    scene: Scene,
+    move_times,
+    steps_mm,
+    *,
+    name: str = "source",
+    marker_id: str = "SRC",
+    position=(0.0, 0.0, 0.0),
+    move_s: float = 0.3,
+    step_s: float = 0.005,
+    rate_cps: float = 3000.0,
+    diameter_mm: float = SPHERE_DIAMETER,
+) -> SourceMarker:
     """Add a source-carrying sphere at ``position`` (table coordinates, mm) and move it by
     ``steps_mm[i]`` along Z starting at host time ``move_times[i]``, each move taking
     ``move_s``. Returns the truth. Moves must not overlap."""
@@ -97,24 +118,33 @@ def add_source_marker(scene: Scene, move_times, steps_mm, *, name: str = "source
     if any(b < a + move_s for a, b in zip(move_times, move_times[1:])):
         raise ValueError("moves must be in time order and must not overlap")
     x, y, z = (float(v) for v in position)
-    body = RigidBody(name, [Marker(marker_id, np.zeros(3), np.array([0.0, 1.0, 0.0]),
-                                   diameter_mm, "sphere")], ((0.0, 0.0, 0.0), (x, y, z)))
+    body = RigidBody(
+        name,
+        [Marker(marker_id, np.zeros(3), np.array([0.0, 1.0, 0.0]), diameter_mm, "sphere")],
+        ((0.0, 0.0, 0.0), (x, y, z)),
+    )
     scene.add_body(body)
     truth = SourceMarker(name, marker_id, (x, y, z), float(rate_cps))
     n = max(1, int(round(move_s / step_s)))
     for t0, dz in zip(move_times, steps_mm):
         for k in range(n):
             s_mid = (k + 0.5) / n
-            scene.set_body_pose(name, (0.0, 0.0, 0.0), (x, y, z + dz * float(min_jerk(s_mid))),
-                                t0 + k * move_s / n)
+            scene.set_body_pose(name, (0.0, 0.0, 0.0), (x, y, z + dz * float(min_jerk(s_mid))), t0 + k * move_s / n)
         scene.set_body_pose(name, (0.0, 0.0, 0.0), (x, y, z + dz), t0 + move_s)
         truth.moves.append(Move(t0, t0 + move_s, z, z + dz))
         z += dz
     return truth
 
 
-def plan_moves(t_start: float, duration_s: float, n: int = 4, seed: int = 0,
-               min_mm: float = 10.0, max_mm: float = 30.0, margin_s: float = 2.0):
+def plan_moves(
+    t_start: float,
+    duration_s: float,
+    n: int = 4,
+    seed: int = 0,
+    min_mm: float = 10.0,
+    max_mm: float = 30.0,
+    margin_s: float = 2.0,
+):
     """``n`` move times spread over [t_start + margin, t_start + duration − margin] (jittered,
     at least 2 s apart) and steps of ``min_mm``–``max_mm`` with alternating sign, so the
     source stays near where it started. Returns (times, steps)."""

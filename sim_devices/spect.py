@@ -20,8 +20,7 @@ from pathlib import Path
 import numpy as np
 from scipy.special import erf
 
-from vts_hw.sim_devices.scene import (PHANTOM_LAYOUT, PHANTOM_PLACEMENT, SPHERE_DIAMETER,
-                                      rotation_matrix)
+from vts_hw.sim_devices.scene import PHANTOM_LAYOUT, PHANTOM_PLACEMENT, SPHERE_DIAMETER, rotation_matrix
 from vts_hw.spect.dicom_nm import write_dicom_nm
 from vts_hw.spect.interfile import write_interfile
 from vts_hw.spect.npz import write_npz
@@ -46,8 +45,7 @@ def blurred_ball(r: np.ndarray, radius: float, sigma: float) -> np.ndarray:
     r = np.maximum(np.asarray(r, dtype=float), 1e-6 * sigma)
     s2 = sigma * np.sqrt(2.0)
     term = 0.5 * (erf((radius + r) / s2) + erf((radius - r) / s2))
-    gauss = (np.exp(-((r - radius) ** 2) / (2 * sigma**2))
-             - np.exp(-((r + radius) ** 2) / (2 * sigma**2)))
+    gauss = np.exp(-((r - radius) ** 2) / (2 * sigma**2)) - np.exp(-((r + radius) ** 2) / (2 * sigma**2))
     return term - sigma / (r * np.sqrt(2 * np.pi)) * gauss
 
 
@@ -67,8 +65,7 @@ class SimSpect:
     def _grid(self) -> Volume:
         n = np.asarray(self.matrix)
         origin_zyx = -(n - 1) / 2.0 * self.voxel_size  # FOV centred on the SPECT origin
-        return Volume(np.zeros(self.matrix, np.float32), triple((self.voxel_size,) * 3),
-                      triple(origin_zyx[::-1]))
+        return Volume(np.zeros(self.matrix, np.float32), triple((self.voxel_size,) * 3), triple(origin_zyx[::-1]))
 
     def expected(self, centres, diameter: float = SPHERE_DIAMETER, rng=None) -> Volume:
         """The noise-free volume (mean counts per voxel)."""
@@ -82,23 +79,21 @@ class SimSpect:
         ball_volume = 4.0 / 3.0 * np.pi * radius**3
         reach = radius + 5.0 * sigma
         for c in np.atleast_2d(np.asarray(centres, dtype=float)):
-            scale = self.counts_per_sphere * rng.uniform(1 - self.activity_spread,
-                                                        1 + self.activity_spread)
+            scale = self.counts_per_sphere * rng.uniform(1 - self.activity_spread, 1 + self.activity_spread)
             density = scale / ball_volume * self.voxel_size**3  # counts per voxel at unit value
             ci = grid.mm_to_index(c)
             lo = np.maximum(np.floor(ci - reach / self.voxel_size).astype(int), 0)
             hi = np.minimum(np.ceil(ci + reach / self.voxel_size).astype(int) + 1, self.matrix)
             if np.any(hi <= lo):
                 continue
-            idx = np.stack(np.meshgrid(*[np.arange(a, b) for a, b in zip(lo, hi)],
-                                       indexing="ij"), -1).astype(float)
+            idx = np.stack(np.meshgrid(*[np.arange(a, b) for a, b in zip(lo, hi)], indexing="ij"), -1).astype(float)
             acc = np.zeros(idx.shape[:3])
             for dz in sub:
                 for dy in sub:
                     for dx in sub:
                         p = grid.index_to_mm(idx + (dz, dy, dx))
                         acc += blurred_ball(np.linalg.norm(p - c, axis=-1), radius, sigma)
-            out[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]] += density * acc / ss**3
+            out[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]] += density * acc / ss**3
         return Volume(out.astype(np.float32), grid.voxel_size, grid.origin)
 
     def volume(self, centres, diameter: float = SPHERE_DIAMETER) -> Volume:

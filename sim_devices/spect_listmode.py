@@ -49,13 +49,22 @@ from pathlib import Path
 import numpy as np
 
 from vts_hw.files import check_target, write_json_atomic
-from vts_hw.spect.listmode.vtslm import VtslmWriter
+from vts_hw.recording.trigger_wave import square_wave_edges, wave_from_trigger_log
 from vts_hw.sim_devices.scene import Scene
 from vts_hw.sim_devices.source_marker import SourceMarker
-from vts_hw.recording.trigger_wave import square_wave_edges, wave_from_trigger_log
+from vts_hw.spect.listmode.vtslm import VtslmWriter
 
-__all__ = ["TriggerEdges", "Source", "SimSpectSettings", "ListModeTruth", "SimListModeSpect",
-           "edges_from_trigger_box", "edges_from_trigger_log", "write_sim_listmode", "truth_path"]
+__all__ = [
+    "TriggerEdges",
+    "Source",
+    "SimSpectSettings",
+    "ListModeTruth",
+    "SimListModeSpect",
+    "edges_from_trigger_box",
+    "edges_from_trigger_log",
+    "write_sim_listmode",
+    "truth_path",
+]
 
 
 @dataclass
@@ -64,7 +73,7 @@ class TriggerEdges:
 
     rising: np.ndarray
     falling: np.ndarray
-    start_pulse: float | None = None      # the SPECT start pulse's closing edge
+    start_pulse: float | None = None  # the SPECT start pulse's closing edge
     high_v: float = 5.0
     low_v: float = 0.0
     source: str = ""
@@ -87,29 +96,29 @@ class Source:
 class SimSpectSettings:
     """The simulated SPECT. ``None`` means drawn from the seed (range in the comment)."""
 
-    start_delay_s: float | None = None      # 0.05–0.4 s after the start pulse
-    clock_offset_s: float | None = None     # its wall clock − host: −3..3 s
-    clock_skew_ppm: float | None = None     # −50..50 ppm
-    blur_mm: float = 4.0                    # intrinsic resolution, SD
-    background_cps: float = 0.0             # uniform over the FOV
-    fov_z_mm: tuple[float, float] = (-200.0, 200.0)   # axial field of view: no counts beyond
+    start_delay_s: float | None = None  # 0.05–0.4 s after the start pulse
+    clock_offset_s: float | None = None  # its wall clock − host: −3..3 s
+    clock_skew_ppm: float | None = None  # −50..50 ppm
+    blur_mm: float = 4.0  # intrinsic resolution, SD
+    background_cps: float = 0.0  # uniform over the FOV
+    fov_z_mm: tuple[float, float] = (-200.0, 200.0)  # axial field of view: no counts beyond
     fov_u_mm: tuple[float, float] = (-270.0, 270.0)
-    heads: int = 2                          # spaced evenly around the axis
-    stop_s: float = 20.0                    # step-and-shoot: acquiring ...
-    rotate_s: float = 2.0                   # ... then rotating (±10 % per step)
+    heads: int = 2  # spaced evenly around the axis
+    stop_s: float = 20.0  # step-and-shoot: acquiring ...
+    rotate_s: float = 2.0  # ... then rotating (±10 % per step)
     step_deg: float = 6.0
     start_angle_deg: float = 0.0
     record_dead_time: bool = True
     timing_mark_s: float = 0.01
     frame_s: float = 0.1
     gate_rate_hz: float = 2000.0
-    gate_gain: float = 1.0                  # recorded volts per volt sent (0.5: 0/2.5 V)
+    gate_gain: float = 1.0  # recorded volts per volt sent (0.5: 0/2.5 V)
     gate_offset_v: float = 0.0
     gate_noise_v: float = 0.02
-    gate_tau_s: float = 0.0002              # the gating input's low-pass time constant
+    gate_tau_s: float = 0.0002  # the gating input's low-pass time constant
     gate_volts_per_count: float = 10.0 / 32768
-    pose_grid_s: float = 0.001              # source positions are evaluated this often
-    chunk_s: float = 2.0                    # events are made and written in chunks
+    pose_grid_s: float = 0.001  # source positions are evaluated this often
+    chunk_s: float = 2.0  # events are made and written in chunks
 
 
 def truth_path(listmode_path) -> Path:
@@ -125,16 +134,16 @@ class ListModeTruth:
     listmode: str
     acquisition_start_host: float
     start_pulse_host: float | None
-    wave_start_host: float | None           # the square wave's first rising edge
-    start_delay_s: float                    # acquisition start − start pulse (else − wave start)
-    start_delay_from_wave_s: float | None   # acquisition start − the wave's first rising edge
-    clock_offset_s: float                   # SPECT wall clock − host, at the acquisition start
+    wave_start_host: float | None  # the square wave's first rising edge
+    start_delay_s: float  # acquisition start − start pulse (else − wave start)
+    start_delay_from_wave_s: float | None  # acquisition start − the wave's first rising edge
+    clock_offset_s: float  # SPECT wall clock − host, at the acquisition start
     clock_skew_ppm: float
-    spect_start_time: float                 # the header's start_time
-    duration_s: float                       # list-mode s
-    dead: list[list[float]]                 # [start, end) list-mode s
+    spect_start_time: float  # the header's start_time
+    duration_s: float  # list-mode s
+    dead: list[list[float]]  # [start, end) list-mode s
     period_s: float | None
-    rising_edges_recorded: int              # rising edges inside the acquisition
+    rising_edges_recorded: int  # rising edges inside the acquisition
     trigger: str
     sources: list[dict] = field(default_factory=list)
     n_events: int = 0
@@ -156,11 +165,12 @@ class ListModeTruth:
         return write_json_atomic(path, asdict(self), indent=1)
 
     @classmethod
-    def load(cls, path) -> "ListModeTruth":
+    def load(cls, path) -> ListModeTruth:
         return cls(**json.loads(Path(path).read_text()))
 
 
 # ------------------------------------------------------------------------ following triggers
+
 
 def edges_from_trigger_box(box, pulse_channel: str = "CH2") -> TriggerEdges:
     """The square wave (OC1A) and the last SPECT start pulse (CH2) the emulated box sent so
@@ -169,8 +179,7 @@ def edges_from_trigger_box(box, pulse_channel: str = "CH2") -> TriggerEdges:
     rising = np.array([box.host_time(e.cycle) for e in oc if e.value == 1])
     falling = np.array([box.host_time(e.cycle) for e in oc if e.value == 0])
     pulses = [box.host_time(e.cycle) for e in box.edges(pulse_channel) if e.value == 1]
-    return TriggerEdges(rising, falling, pulses[-1] if pulses else None, 5.0, 0.0,
-                        source="trigger box emulator")
+    return TriggerEdges(rising, falling, pulses[-1] if pulses else None, 5.0, 0.0, source="trigger box emulator")
 
 
 def edges_from_trigger_log(path, device: str | None = None, until: float | None = None) -> TriggerEdges:
@@ -180,14 +189,21 @@ def edges_from_trigger_log(path, device: str | None = None, until: float | None 
     the row says ``start_pulse=yes``."""
     wave = wave_from_trigger_log(path, device)
     rising, falling = square_wave_edges(wave, until)
-    return TriggerEdges(rising, falling, wave.start_host if wave.start_pulse else None,
-                        wave.high_v, wave.low_v, source=f"trigger log {path} ({wave.device})")
+    return TriggerEdges(
+        rising,
+        falling,
+        wave.start_host if wave.start_pulse else None,
+        wave.high_v,
+        wave.low_v,
+        source=f"trigger log {path} ({wave.device})",
+    )
 
 
 # ------------------------------------------------------------------------------ simulation
 
+
 def _as_source(s) -> Source:
-    if isinstance(s, Source) or hasattr(s, "positions"):   # a source that knows where it is (the patient's)
+    if isinstance(s, Source) or hasattr(s, "positions"):  # a source that knows where it is (the patient's)
         return s
     if isinstance(s, SourceMarker):
         return Source(s.body, s.marker_id, s.rate_cps)
@@ -249,9 +265,16 @@ def _gate_volts(tg_host: np.ndarray, trig: TriggerEdges, s: SimSpectSettings, rn
     return s.gate_offset_v + s.gate_gain * volts + rng.normal(0.0, s.gate_noise_v, tg_host.size)
 
 
-def write_sim_listmode(path, scene: Scene, sources, trigger: TriggerEdges, duration_s: float,
-                       settings: SimSpectSettings | None = None, seed: int = 0,
-                       known_until: float | None = None) -> ListModeTruth:
+def write_sim_listmode(
+    path,
+    scene: Scene,
+    sources,
+    trigger: TriggerEdges,
+    duration_s: float,
+    settings: SimSpectSettings | None = None,
+    seed: int = 0,
+    known_until: float | None = None,
+) -> ListModeTruth:
     """Simulate one acquisition of ``duration_s`` (list-mode s) following ``trigger`` (host
     time) and write it as VTSLM to ``path``; the truth goes to :func:`truth_path` and is
     returned. ``sources``: :class:`~.source_marker.SourceMarker`, :class:`Source` or
@@ -271,8 +294,10 @@ def write_sim_listmode(path, scene: Scene, sources, trigger: TriggerEdges, durat
         raise ValueError("the trigger sent neither a start pulse nor a square wave: nothing to start on")
     h_start = ref + delay
     if known_until is not None and h_start + duration_s / (1.0 + skew) > known_until:
-        raise ValueError(f"the trigger is known until {known_until - h_start:.3f} s into the "
-                         f"acquisition, not for all of its {duration_s} s: let it run longer")
+        raise ValueError(
+            f"the trigger is known until {known_until - h_start:.3f} s into the "
+            f"acquisition, not for all of its {duration_s} s: let it run longer"
+        )
     spect_start_time = h_start + offset
     srcs = [_as_source(x) for x in sources]
 
@@ -282,22 +307,32 @@ def write_sim_listmode(path, scene: Scene, sources, trigger: TriggerEdges, durat
     dead, stops = _dead_intervals(duration_s, s, rng)
     dead_arr = np.array(dead, dtype=float).reshape(-1, 2)
     path = Path(path)
-    check_target(path)   # a device, FIFO or symbolic link of that name is never replaced (files.py)
-    part = path.with_name(f".{path.name}.{os.getpid()}.part")   # hidden from a glob until whole
+    check_target(path)  # a device, FIFO or symbolic link of that name is never replaced (files.py)
+    part = path.with_name(f".{path.name}.{os.getpid()}.part")  # hidden from a glob until whole
     try:
-        n_events = _write(part, s, rng, scene, srcs, trigger, duration_s, dead, dead_arr, stops, host,
-                          spect_start_time, skew)
+        n_events = _write(
+            part, s, rng, scene, srcs, trigger, duration_s, dead, dead_arr, stops, host, spect_start_time, skew
+        )
         rising_in = trigger.rising[(trigger.rising >= h_start) & (trigger.rising < host(duration_s))]
         truth = ListModeTruth(
-            listmode=path.name, acquisition_start_host=h_start, start_pulse_host=trigger.start_pulse,
-            wave_start_host=wave_start, start_delay_s=delay,
+            listmode=path.name,
+            acquisition_start_host=h_start,
+            start_pulse_host=trigger.start_pulse,
+            wave_start_host=wave_start,
+            start_delay_s=delay,
             start_delay_from_wave_s=None if wave_start is None else h_start - wave_start,
-            clock_offset_s=offset, clock_skew_ppm=skew_ppm, spect_start_time=spect_start_time,
-            duration_s=float(duration_s), dead=[list(map(float, d)) for d in dead],
-            period_s=trigger.period_s, rising_edges_recorded=int(rising_in.size),
+            clock_offset_s=offset,
+            clock_skew_ppm=skew_ppm,
+            spect_start_time=spect_start_time,
+            duration_s=float(duration_s),
+            dead=[list(map(float, d)) for d in dead],
+            period_s=trigger.period_s,
+            rising_edges_recorded=int(rising_in.size),
             trigger=trigger.source,
             sources=[x.to_json() if hasattr(x, "to_json") else asdict(_as_source(x)) for x in sources],
-            n_events=int(n_events), seed=int(seed))
+            n_events=int(n_events),
+            seed=int(seed),
+        )
         truth.save(truth_path(path))
         check_target(path)
         os.replace(part, path)
@@ -308,16 +343,38 @@ def write_sim_listmode(path, scene: Scene, sources, trigger: TriggerEdges, durat
     return truth
 
 
-def _write(path: Path, s: SimSpectSettings, rng, scene, srcs, trigger, duration_s, dead, dead_arr, stops, host,
-           spect_start_time, skew) -> int:
+def _write(
+    path: Path,
+    s: SimSpectSettings,
+    rng,
+    scene,
+    srcs,
+    trigger,
+    duration_s,
+    dead,
+    dead_arr,
+    stops,
+    host,
+    spect_start_time,
+    skew,
+) -> int:
     """The VTSLM file itself; returns the number of events."""
     n_events = 0
-    with VtslmWriter(path, start_time=spect_start_time, duration_s=duration_s,
-                     gate_rate_hz=s.gate_rate_hz, gate_volts_per_count=s.gate_volts_per_count,
-                     timing_mark_s=s.timing_mark_s, frame_s=s.frame_s, heads=s.heads,
-                     dead_time_recorded=s.record_dead_time, scanner="VTS simulated SPECT",
-                     isotope="Tc-99m", acquisition="step-and-shoot",
-                     created_by="vts_hw.sim_devices.spect_listmode") as w:
+    with VtslmWriter(
+        path,
+        start_time=spect_start_time,
+        duration_s=duration_s,
+        gate_rate_hz=s.gate_rate_hz,
+        gate_volts_per_count=s.gate_volts_per_count,
+        timing_mark_s=s.timing_mark_s,
+        frame_s=s.frame_s,
+        heads=s.heads,
+        dead_time_recorded=s.record_dead_time,
+        scanner="VTS simulated SPECT",
+        isotope="Tc-99m",
+        acquisition="step-and-shoot",
+        created_by="vts_hw.sim_devices.spect_listmode",
+    ) as w:
         if s.record_dead_time and len(dead):
             w.dead(dead_arr[:, 0], dead_arr[:, 1])
         w.timing_marks(np.arange(0.0, duration_s, s.timing_mark_s))
@@ -325,7 +382,7 @@ def _write(path: Path, s: SimSpectSettings, rng, scene, srcs, trigger, duration_
         w.frames(f_t, np.arange(f_t.size), _frame_angles(f_t, dead, stops, s.step_deg))
         n_gate = int(math.floor(duration_s * s.gate_rate_hz))
         step = max(1, int(s.chunk_s * s.gate_rate_hz))
-        for i0 in range(0, n_gate, step):                # gating samples on the SPECT clock
+        for i0 in range(0, n_gate, step):  # gating samples on the SPECT clock
             tg = np.arange(i0, min(n_gate, i0 + step)) / s.gate_rate_hz
             w.gate(_gate_volts(host(tg), trigger, s, rng))
         for c0 in np.arange(0.0, duration_s, s.chunk_s):  # events, only while live
@@ -343,14 +400,13 @@ def _frame_angles(f_t: np.ndarray, dead: list, stops: list, step_deg: float) -> 
     stop_t = np.array([a for a, _ in stops])
     stop_angle = np.array([b for _, b in stops])
     angle = stop_angle[np.searchsorted(stop_t, f_t, side="right") - 1].copy()
-    for (d0, d1), a in zip(dead, stop_angle):            # dead[k] follows stop k
+    for (d0, d1), a in zip(dead, stop_angle):  # dead[k] follows stop k
         inside = (f_t >= d0) & (f_t < d1)
         angle[inside] = a + step_deg * (f_t[inside] - d0) / (d1 - d0)
     return angle
 
 
-def _events(scene: Scene, srcs: list[Source], live: list, host, stops: list,
-            s: SimSpectSettings, rng, skew: float):
+def _events(scene: Scene, srcs: list[Source], live: list, host, stops: list, s: SimSpectSettings, rng, skew: float):
     """Events in the live segments of one chunk (list-mode s): (t, z, u, head), time-sorted.
 
     Each source: Poisson arrivals at its rate (host counts/s), a random head, the source's
@@ -364,12 +420,11 @@ def _events(scene: Scene, srcs: list[Source], live: list, host, stops: list,
     parts = []
     for src in srcs + ([None] if s.background_cps > 0 else []):
         rate = s.background_cps if src is None else src.rate_cps
-        t = _poisson_times(rng, rate / (1.0 + skew), live)        # per list-mode second
+        t = _poisson_times(rng, rate / (1.0 + skew), live)  # per list-mode second
         if t.size == 0:
             continue
         head = rng.integers(0, s.heads, t.size)
-        theta = np.deg2rad(stop_angle[np.searchsorted(stop_t, t, side="right") - 1]
-                           + head * 360.0 / s.heads)
+        theta = np.deg2rad(stop_angle[np.searchsorted(stop_t, t, side="right") - 1] + head * 360.0 / s.heads)
         if src is None:
             z = rng.uniform(*s.fov_z_mm, t.size)
             u = rng.uniform(*s.fov_u_mm, t.size)
@@ -378,7 +433,7 @@ def _events(scene: Scene, srcs: list[Source], live: list, host, stops: list,
             p = grid[np.clip(((host(t) - h0) / s.pose_grid_s).astype(np.int64), 0, n_grid - 1)]
             z = p[:, 2] + rng.normal(0.0, s.blur_mm, t.size)
             u = p[:, 0] * np.cos(theta) + p[:, 1] * np.sin(theta) + rng.normal(0.0, s.blur_mm, t.size)
-            seen = (z >= s.fov_z_mm[0]) & (z <= s.fov_z_mm[1])     # the detectors' axial extent
+            seen = (z >= s.fov_z_mm[0]) & (z <= s.fov_z_mm[1])  # the detectors' axial extent
             t, z, u, head = t[seen], z[seen], u[seen], head[seen]
         parts.append((t, z, u, head))
     if not parts:
@@ -423,10 +478,10 @@ class SimListModeSpect:
         self.settings = settings or SimSpectSettings()
         self.seed = seed
 
-    def write(self, path, trigger: TriggerEdges, duration_s: float,
-              known_until: float | None = None) -> ListModeTruth:
-        return write_sim_listmode(path, self.scene, self.sources, trigger, duration_s,
-                                  self.settings, self.seed, known_until)
+    def write(self, path, trigger: TriggerEdges, duration_s: float, known_until: float | None = None) -> ListModeTruth:
+        return write_sim_listmode(
+            path, self.scene, self.sources, trigger, duration_s, self.settings, self.seed, known_until
+        )
 
     def follow_trigger_box(self, box, path, duration_s: float) -> ListModeTruth:
         """Follow what the emulated trigger box sent (its pins as logged so far). While the
@@ -434,11 +489,12 @@ class SimListModeSpect:
         otherwise: wait, or stop the wave first and let it finish)."""
         edges = edges_from_trigger_box(box)
         known = None
-        if box.running():       # the status file is rewritten in place: take the best of 3 reads
+        if box.running():  # the status file is rewritten in place: take the best of 3 reads
             known = box.host_time(max(box.cycles_now() for _ in range(3)))
         return self.write(path, edges, duration_s, known)
 
-    def follow_trigger_log(self, log_path, path, duration_s: float, device: str | None = None,
-                           until: float | None = None) -> ListModeTruth:
+    def follow_trigger_log(
+        self, log_path, path, duration_s: float, device: str | None = None, until: float | None = None
+    ) -> ListModeTruth:
         """Follow the wave a trigger log describes, from its neutral rows (any backend)."""
         return self.write(path, edges_from_trigger_log(log_path, device, until), duration_s)

@@ -12,8 +12,8 @@ scene's world frame — apart from anything the procedure reads.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -24,9 +24,9 @@ from vts_hw.sim_devices.spect import SimSpect
 STEP_RANGE_MM = (9.5, 10.5)
 FREE_ANGLE_DEG = (3.0, 8.0)
 FREE_SHIFT_MM = (10.0, 30.0)
-CLEAR_PX = 25.0           # a sphere's image is ~12 px across: keep blobs well apart
+CLEAR_PX = 25.0  # a sphere's image is ~12 px across: keep blobs well apart
 # A SPECT field of view long and tall enough for the phantom over 10 cm of steps each way.
-SPECT_MATRIX = (96, 96, 64)   # (nz, ny, nx) of 4.4 mm voxels: 422 × 422 × 282 mm
+SPECT_MATRIX = (96, 96, 64)  # (nz, ny, nx) of 4.4 mm voxels: 422 × 422 × 282 mm
 
 
 def sphere_centres(scene: Scene, t: float) -> np.ndarray:
@@ -38,8 +38,9 @@ def sphere_centres(scene: Scene, t: float) -> np.ndarray:
 class SimTable:
     """Moves the simulated table (and, for ``free``, the phantom on it)."""
 
-    def __init__(self, scene: Scene, clock: Callable[[], float], seed: int = 0,
-                 settle: Callable[[], None] | None = None):
+    def __init__(
+        self, scene: Scene, clock: Callable[[], float], seed: int = 0, settle: Callable[[], None] | None = None
+    ):
         self.scene = scene
         self.clock = clock
         self.rng = np.random.default_rng(seed)
@@ -60,7 +61,6 @@ class SimTable:
             self.scene.move_table(self.y, self.z, now)
         self.settle()
         self.truth[pos.label] = sphere_centres(self.scene, self.clock())
-
 
     def _free_move(self, now: float) -> None:
         """A hand's turn and shift, drawn again until every sphere stays in view and clear of
@@ -95,8 +95,7 @@ def all_spheres_clear(scene: Scene, t: float, min_px: float = CLEAR_PX) -> bool:
 class SimSpectSource:
     """Writes a SimSpect volume of the spheres where they are when the VTS has seen them."""
 
-    def __init__(self, scene: Scene, clock: Callable[[], float], folder, seed: int = 0,
-                 fmt: str = ".npz"):
+    def __init__(self, scene: Scene, clock: Callable[[], float], folder, seed: int = 0, fmt: str = ".npz"):
         self.scene = scene
         self.clock = clock
         self.folder = Path(folder)

@@ -31,10 +31,19 @@ from vts_hw.vision.calibration_io import CameraCalibration, CameraFit
 from vts_hw.vision.registration import RigidTransform
 from vts_hw.vision.triangulate import PinholeCamera
 
-__all__ = ["true_stereo_calibration", "true_spect_mapping", "write_true_calibration", "place_source_marker",
-           "schedule_source_moves",
-           "plan_sync_moves", "true_cameras", "write_true_cameras", "CALIBRATION_FILE", "MAPPING_FILE",
-           "CAMERAS_FILE"]
+__all__ = [
+    "true_stereo_calibration",
+    "true_spect_mapping",
+    "write_true_calibration",
+    "place_source_marker",
+    "schedule_source_moves",
+    "plan_sync_moves",
+    "true_cameras",
+    "write_true_cameras",
+    "CALIBRATION_FILE",
+    "MAPPING_FILE",
+    "CAMERAS_FILE",
+]
 
 CALIBRATION_FILE = "calibration.json"
 MAPPING_FILE = "spect_mapping.json"
@@ -42,8 +51,15 @@ CAMERAS_FILE = "cameras.json"
 NOTE = "simulated rig: the scene's true cameras (not a measured calibration)"
 # what a mapping keeps of its volume (vts_hw.spect.frame.volume_record), for the scene's world frame: the
 # SPECT frame with its origin at the FOV centre, a head-first supine patient (sim_devices/patient.py)
-SCENE_VOLUME = {"file": None, "format": "simulated scene", "shape": None, "voxel_size_mm": None,
-                "centre_mm": [0.0, 0.0, 0.0], "patient_position": "HFS", "castor_image": False}
+SCENE_VOLUME = {
+    "file": None,
+    "format": "simulated scene",
+    "shape": None,
+    "voxel_size_mm": None,
+    "centre_mm": [0.0, 0.0, 0.0],
+    "patient_position": "HFS",
+    "castor_image": False,
+}
 
 
 def _cams(scene: Scene, t: float | None, names=None):
@@ -63,18 +79,32 @@ def true_stereo_calibration(scene: Scene, t: float | None = None, names=None) ->
     c1, c2 = _cams(scene, t, names)
     R = c2.R @ c1.R.T
     size = (int(c1.width), int(c1.height))
-    fits = [CameraFit(names[0], c1.K, c1.dist, np.eye(3), np.zeros(3), size),
-            CameraFit(names[1], c2.K, c2.dist, R, c2.t - R @ c1.t, (int(c2.width), int(c2.height)))]
-    return CameraCalibration(fits, (9, 6), 1.0, "mm", 0.0, [], NOTE, method="truth",
-                             created=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-                             software=__version__)
+    fits = [
+        CameraFit(names[0], c1.K, c1.dist, np.eye(3), np.zeros(3), size),
+        CameraFit(names[1], c2.K, c2.dist, R, c2.t - R @ c1.t, (int(c2.width), int(c2.height))),
+    ]
+    return CameraCalibration(
+        fits,
+        (9, 6),
+        1.0,
+        "mm",
+        0.0,
+        [],
+        NOTE,
+        method="truth",
+        created=_dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        software=__version__,
+    )
 
 
 def true_spect_mapping(scene: Scene, t: float | None = None, names=None) -> RigidTransform:
     """VTS frame (camera 1's) → SPECT frame (the scene's world frame), the truth."""
     c1 = _cams(scene, t, names)[0]
-    return RigidTransform(c1.R.T, -c1.R.T @ c1.t, {"note": NOTE, "spect_volume": SCENE_VOLUME,
-                                                    "spheres_spect_mm": phantom_centres().tolist()})
+    return RigidTransform(
+        c1.R.T,
+        -c1.R.T @ c1.t,
+        {"note": NOTE, "spect_volume": SCENE_VOLUME, "spheres_spect_mm": phantom_centres().tolist()},
+    )
 
 
 def write_true_calibration(scene: Scene, folder, t: float | None = None) -> tuple[Path, Path]:
@@ -98,7 +128,7 @@ def true_cameras(scene: Scene, t: float | None = None, frame: str = "world") -> 
         return cams
     first = cams[scene.camera_names[0]]
     out = {}
-    for n, c in cams.items():            # x_c = R x_w + t, x_w = R1^T (x_1 - t1)
+    for n, c in cams.items():  # x_c = R x_w + t, x_w = R1^T (x_1 - t1)
         R = c.R @ first.R.T
         out[n] = PinholeCamera(c.K, c.dist, R, c.t - R @ first.t, n)
     return out
@@ -111,17 +141,36 @@ def write_true_cameras(scene: Scene, folder, t: float | None = None, frame: str 
 
     Path(folder).mkdir(parents=True, exist_ok=True)
     path = Path(folder) / CAMERAS_FILE
-    write_json_atomic(path, {"format": "vts-hw cameras", "unit": "mm", "note": NOTE, "frame": frame,
-                             "cameras": [{"name": n, "K": c.K.tolist(), "dist": c.dist.tolist(),
-                                          "R": c.R.tolist(), "t": c.t.tolist()}
-                                         for n, c in true_cameras(scene, t, frame).items()]})
+    write_json_atomic(
+        path,
+        {
+            "format": "vts-hw cameras",
+            "unit": "mm",
+            "note": NOTE,
+            "frame": frame,
+            "cameras": [
+                {"name": n, "K": c.K.tolist(), "dist": c.dist.tolist(), "R": c.R.tolist(), "t": c.t.tolist()}
+                for n, c in true_cameras(scene, t, frame).items()
+            ],
+        },
+    )
     return path
 
 
-def plan_sync_moves(t_fire: float, duration_s: float, n: int = 4, seed: int = 0, *,
-                    margin_s: float = 2.0, clear_s: float = 1.2, stop_s: float = 20.0,
-                    rotate_s: float = 2.0, max_start_delay_s: float = 0.4,
-                    min_mm: float = 10.0, max_mm: float = 30.0) -> tuple[list[float], list[float]]:
+def plan_sync_moves(
+    t_fire: float,
+    duration_s: float,
+    n: int = 4,
+    seed: int = 0,
+    *,
+    margin_s: float = 2.0,
+    clear_s: float = 1.2,
+    stop_s: float = 20.0,
+    rotate_s: float = 2.0,
+    max_start_delay_s: float = 0.4,
+    min_mm: float = 10.0,
+    max_mm: float = 30.0,
+) -> tuple[list[float], list[float]]:
     """``n`` move start times (host s) and steps (mm, alternating sign) over a scan fired at
     ``t_fire`` lasting ``duration_s``: spread evenly over the time that is at least
     ``clear_s`` away from every possible head rotation (the k-th starts between
@@ -134,7 +183,7 @@ def plan_sync_moves(t_fire: float, duration_s: float, n: int = 4, seed: int = 0,
     while k * stop_s < duration_s:
         a = t_fire + k * stop_s + (k - 1) * 0.9 * rotate_s
         b = t_fire + k * stop_s + (k - 1) * 1.1 * rotate_s + max_start_delay_s + 1.1 * rotate_s
-        forbidden.append((a - clear_s - 0.3, b + clear_s))   # 0.3: the move itself
+        forbidden.append((a - clear_s - 0.3, b + clear_s))  # 0.3: the move itself
         k += 1
     allowed, cur = [], lo
     for a, b in forbidden:
@@ -163,13 +212,13 @@ def plan_sync_moves(t_fire: float, duration_s: float, n: int = 4, seed: int = 0,
     return times, [float(s) for s in steps]
 
 
-def place_source_marker(scene: Scene, *, name: str = "source", marker_id: str = "SRC",
-                        position=(10.0, -20.0, 5.0), rate_cps: float = 3000.0):
+def place_source_marker(
+    scene: Scene, *, name: str = "source", marker_id: str = "SRC", position=(10.0, -20.0, 5.0), rate_cps: float = 3000.0
+):
     """Put a source marker at rest into a running scene (before a scan starts: adding a body
     while cameras render is not safe). Its moves come later, from :func:`schedule_source_moves`.
     Returns the truth so far (no moves)."""
-    return add_source_marker(scene, [], [], name=name, marker_id=marker_id, position=position,
-                             rate_cps=rate_cps)
+    return add_source_marker(scene, [], [], name=name, marker_id=marker_id, position=position, rate_cps=rate_cps)
 
 
 def schedule_source_moves(scene: Scene, marker, move_times, steps_mm, move_s: float = 0.3):
@@ -178,7 +227,15 @@ def schedule_source_moves(scene: Scene, marker, move_times, steps_mm, move_s: fl
     :func:`~.source_marker.add_source_marker` and its pose schedule replaces the body's in one
     assignment (the rendering threads see either the old or the new one). Returns the truth."""
     scratch = Scene([], {}, {}, {}, [], scene.start_epoch)
-    truth = add_source_marker(scratch, move_times, steps_mm, name=marker.body, marker_id=marker.marker_id,
-                              position=marker.position, move_s=move_s, rate_cps=marker.rate_cps)
+    truth = add_source_marker(
+        scratch,
+        move_times,
+        steps_mm,
+        name=marker.body,
+        marker_id=marker.marker_id,
+        position=marker.position,
+        move_s=move_s,
+        rate_cps=marker.rate_cps,
+    )
     scene.bodies[marker.body].pose = scratch.bodies[marker.body].pose
     return truth

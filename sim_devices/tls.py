@@ -33,11 +33,28 @@ def self_signed(folder: str | Path, days: int = 30) -> tuple[Path, Path]:
     check_target(key)
     with tempfile.TemporaryDirectory(prefix="vts-sim-tls-") as work:
         made_cert, made_key = Path(work) / CERT_NAME, Path(work) / KEY_NAME
-        cmd = [openssl, "req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes",
-               "-keyout", str(made_key), "-out", str(made_cert), "-days", str(days),
-               "-subj", "/O=vts-hw simulated rig/CN=127.0.0.1",
-               "-addext", "subjectAltName=IP:127.0.0.1,DNS:localhost",
-               "-addext", "basicConstraints=critical,CA:TRUE"]
+        cmd = [
+            openssl,
+            "req",
+            "-x509",
+            "-newkey",
+            "ec",
+            "-pkeyopt",
+            "ec_paramgen_curve:prime256v1",
+            "-nodes",
+            "-keyout",
+            str(made_key),
+            "-out",
+            str(made_cert),
+            "-days",
+            str(days),
+            "-subj",
+            "/O=vts-hw simulated rig/CN=127.0.0.1",
+            "-addext",
+            "subjectAltName=IP:127.0.0.1,DNS:localhost",
+            "-addext",
+            "basicConstraints=critical,CA:TRUE",
+        ]
         done = subprocess.run(cmd, capture_output=True, text=True, **child_options())
         if done.returncode != 0:
             raise VtsError(f"openssl could not make the simulated cameras' certificate: {done.stderr.strip()[-200:]}")

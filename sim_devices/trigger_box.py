@@ -81,14 +81,21 @@ def build(quiet: bool = True) -> tuple[Path, Path]:
     make's output if the build fails. Concurrent callers are serialised by a lock file."""
     fw = firmware_dir()
     if not (fw / "Makefile").is_file():
-        raise RuntimeError(f"trigger box firmware sources not found in {fw} (an installed vts-hw has none: "
-                           "set VTS_FIRMWARE_DIR to the firmware/ folder of a checkout)")
+        raise RuntimeError(
+            f"trigger box firmware sources not found in {fw} (an installed vts-hw has none: "
+            "set VTS_FIRMWARE_DIR to the firmware/ folder of a checkout)"
+        )
     lock_dir = Path(tempfile.gettempdir())
     # in the temporary folder everyone writes: never emptied, never opened through a link (files.py)
     with open_writable(lock_dir / f"vts-trigger-box-build-{os.getuid()}.lock", "a") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        proc = subprocess.run(["make", "-C", str(fw)] + (["--quiet"] if quiet else []),
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, **child_options())
+        proc = subprocess.run(
+            ["make", "-C", str(fw)] + (["--quiet"] if quiet else []),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            **child_options(),
+        )
     if proc.returncode != 0:
         raise RuntimeError(f"building the trigger box firmware failed:\n{proc.stdout}")
     return fw / "build" / "tbsim", fw / "build" / "trigger_box.elf"
@@ -98,14 +105,20 @@ class SimTriggerBox:
     """The firmware in the emulator behind a pty. Use as a context manager, or call
     :meth:`start` and :meth:`stop`."""
 
-    def __init__(self, speed: float = 1.0, workdir: str | os.PathLike | None = None,
-                 log_uart: bool = True, startup_timeout: float = 20.0,
-                 firmware: str = "trigger_box", elf: str | os.PathLike | None = None):
+    def __init__(
+        self,
+        speed: float = 1.0,
+        workdir: str | os.PathLike | None = None,
+        log_uart: bool = True,
+        startup_timeout: float = 20.0,
+        firmware: str = "trigger_box",
+        elf: str | os.PathLike | None = None,
+    ):
         if speed < 0:
             raise ValueError("speed must be >= 0 (0 = as fast as possible)")
         self.speed = speed
-        self.firmware = firmware      # build/<firmware>.elf; "trigger_box_late" for tests
-        self.elf = Path(elf) if elf is not None else None   # any other image (a flashed one) instead
+        self.firmware = firmware  # build/<firmware>.elf; "trigger_box_late" for tests
+        self.elf = Path(elf) if elf is not None else None  # any other image (a flashed one) instead
         self.log_uart = log_uart
         self.startup_timeout = startup_timeout
         self._own_dir = workdir is None
@@ -117,10 +130,10 @@ class SimTriggerBox:
         self._uart: list[UartByte] = []
         self._log_pos = 0
         self._log_path: Path | None = None
-        self._anchor: tuple[int, float, float] | None = None   # (cycle, host epoch s, speed)
+        self._anchor: tuple[int, float, float] | None = None  # (cycle, host epoch s, speed)
 
     # ------------------------------------------------------------------ life cycle
-    def start(self) -> "SimTriggerBox":
+    def start(self) -> SimTriggerBox:
         harness, elf = build()
         elf = self.elf or elf.with_name(f"{self.firmware}.elf")
         if not elf.is_file():
@@ -135,23 +148,36 @@ class SimTriggerBox:
         self._anchor = None
         pty_file = self.dir / f"{tag}.pty"
         self._status_path = self.dir / f"{tag}.status"
-        cmd = [str(harness), "--edges", str(self._log_path), "--pty-file", str(pty_file),
-               "--status", str(self._status_path), "--speed", repr(float(self.speed))]
+        cmd = [
+            str(harness),
+            "--edges",
+            str(self._log_path),
+            "--pty-file",
+            str(pty_file),
+            "--status",
+            str(self._status_path),
+            "--speed",
+            repr(float(self.speed)),
+        ]
         if not self.log_uart:
             cmd.append("--no-uart-log")
         cmd.append(str(elf))
         self._stdout = open_writable(self.dir / f"{tag}.out", "w")
         # ends with the thread that starts it (the rig's, or a test's), kill -9 of the rig included:
         # SIGTERM, on which the harness flushes its log and removes its pty file
-        self.proc = subprocess.Popen(cmd, stdout=self._stdout, stderr=subprocess.STDOUT,
-                                     stdin=subprocess.DEVNULL, start_new_session=True,
-                                     **child_options(signal.SIGTERM))
+        self.proc = subprocess.Popen(
+            cmd,
+            stdout=self._stdout,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            start_new_session=True,
+            **child_options(signal.SIGTERM),
+        )
         deadline = time.monotonic() + self.startup_timeout
         while not pty_file.exists():
             if self.proc.poll() is not None:
                 out = (self.dir / f"{tag}.out").read_text(errors="replace")
-                raise RuntimeError(f"the trigger box emulator exited at start "
-                                   f"({self.proc.returncode}): {out.strip()}")
+                raise RuntimeError(f"the trigger box emulator exited at start ({self.proc.returncode}): {out.strip()}")
             if time.monotonic() > deadline:
                 self._kill()
                 raise RuntimeError("the trigger box emulator did not open its pty in time")
@@ -177,7 +203,7 @@ class SimTriggerBox:
         their defaults) on a new pty. Returns the new :attr:`port`."""
         self._terminate()
         self.start()
-        if self.port is None:       # start() makes it (or raises)
+        if self.port is None:  # start() makes it (or raises)
             raise RuntimeError("the simulated trigger box started without a port")
         return self.port
 
@@ -203,7 +229,7 @@ class SimTriggerBox:
             self.proc.kill()
             self.proc.wait()
 
-    def __enter__(self) -> "SimTriggerBox":
+    def __enter__(self) -> SimTriggerBox:
         return self.start()
 
     def __exit__(self, *exc) -> None:
@@ -222,10 +248,10 @@ class SimTriggerBox:
         with open(self._log_path, "rb") as f:
             f.seek(self._log_pos)
             data = f.read()
-        end = data.rfind(b"\n") + 1      # only whole lines; the rest comes next time
+        end = data.rfind(b"\n") + 1  # only whole lines; the rest comes next time
         self._log_pos += end
         for line in data[:end].decode("ascii", "replace").splitlines():
-            if line.startswith("# t0 "):      # the pacing's host-time anchor (tbsim.c)
+            if line.startswith("# t0 "):  # the pacing's host-time anchor (tbsim.c)
                 cycle, realtime, _mono, speed = line.split()[2:6]
                 self._anchor = (int(cycle), float(realtime), float(speed))
             if not line or line.startswith("#"):

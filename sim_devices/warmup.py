@@ -22,8 +22,8 @@ import numpy as np
 
 __all__ = ["WarmupDrift", "declare_warmups", "AMPLITUDE_PX", "TAU_MIN"]
 
-AMPLITUDE_PX = (2.0, 4.0)     # seeded per camera: how far the picture is off right after the start
-TAU_MIN = (8.0, 15.0)         # ... and the time constant of its settling, minutes
+AMPLITUDE_PX = (2.0, 4.0)  # seeded per camera: how far the picture is off right after the start
+TAU_MIN = (8.0, 15.0)  # ... and the time constant of its settling, minutes
 
 
 @dataclass(frozen=True)
@@ -32,7 +32,7 @@ class WarmupDrift:
 
     amplitude_px: float
     tau_s: float
-    direction: tuple[float, float]     # unit vector in the image (u right, v down)
+    direction: tuple[float, float]  # unit vector in the image (u right, v down)
     focal_px: float
 
     def __post_init__(self):
@@ -87,7 +87,10 @@ def declare_warmups(scene, seed: int, cameras: dict | bool) -> dict[str, WarmupD
     for i, name, given in declared(scene, cameras, ("amplitude_px", "tau_min"), "warm-up drift"):
         rng = np.random.default_rng([seed, 24, i])
         amp, tau, phi = rng.uniform(*AMPLITUDE_PX), rng.uniform(*TAU_MIN), rng.uniform(0, 2 * math.pi)
-        scene.warmups[name] = WarmupDrift(float(given.get("amplitude_px", amp)),
-                                          60.0 * float(given.get("tau_min", tau)),
-                                          (math.cos(phi), math.sin(phi)), scene.cameras[name].focal)
+        scene.warmups[name] = WarmupDrift(
+            float(given.get("amplitude_px", amp)),
+            60.0 * float(given.get("tau_min", tau)),
+            (math.cos(phi), math.sin(phi)),
+            scene.cameras[name].focal,
+        )
     return dict(scene.warmups)

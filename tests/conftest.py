@@ -3,9 +3,9 @@ import re
 import tempfile
 from pathlib import Path
 
-import vts_hw  # noqa: F401  (first: one BLAS thread, decision 0075, before anything loads NumPy)
 import pytest
 
+import vts_hw  # noqa: F401  (first: one BLAS thread, decision 0075, before anything loads NumPy)
 from module_order import longest_first
 from timeline import pytest_runtest_protocol  # noqa: F401  (VTS_TIMELINE=FILE: where the time goes)
 
@@ -48,14 +48,22 @@ def cam1(sim_rig):
         yield cam
 
 
-from fsfaults import readonly_dir, small_disk  # noqa: E402  (fixtures: a full disk, a read-only folder)
 from console_live import browser  # noqa: E402  (fixture: Debian's Chromium, one per test module)
+from fsfaults import readonly_dir, small_disk  # noqa: E402  (fixtures: a full disk, a read-only folder)
 from store_kit import db, sqlite_store, store  # noqa: E402  (fixtures: a fresh results store, its SQLite file)
 
-SHARED_FIXTURES = (readonly_dir, small_disk, browser, db, sqlite_store, store)    # every test's, though written in those modules
+SHARED_FIXTURES = (
+    readonly_dir,
+    small_disk,
+    browser,
+    db,
+    sqlite_store,
+    store,
+)  # every test's, though written in those modules
 
 
 # -- PostgreSQL: one throwaway server for the session, a fresh database per test ----------------
+
 
 @pytest.fixture(scope="session")
 def pg_server():
@@ -98,6 +106,7 @@ def _real_qatrack():
     global _REAL_QATRACK
     if _REAL_QATRACK is None:
         from qatrack_real import RealQATrack
+
         _REAL_QATRACK = RealQATrack()
     return _REAL_QATRACK
 
@@ -110,7 +119,7 @@ def _xdist_controller(config) -> bool:
     return not _xdist_worker(config) and bool(getattr(config.option, "numprocesses", None))
 
 
-REAL_QATRACK_MARKS = {"real_qatrack", "interop", "xdist_group", "timeout", "parametrize"}   # its module's
+REAL_QATRACK_MARKS = {"real_qatrack", "interop", "xdist_group", "timeout", "parametrize"}  # its module's
 
 
 def _selects(expr: str, marks: set[str]) -> bool:
@@ -122,7 +131,7 @@ def _selects(expr: str, marks: set[str]) -> bool:
     if not re.fullmatch(r"(?:\s|\(|\)|\bTrue\b|\bFalse\b|\band\b|\bor\b|\bnot\b)*", words):
         return True
     try:
-        return bool(eval(words, {"__builtins__": {}}))      # (only True, False, and, or, not, parentheses)
+        return bool(eval(words, {"__builtins__": {}}))  # (only True, False, and, or, not, parentheses)
     except SyntaxError:
         return True
 
@@ -131,7 +140,7 @@ def _may_select_real_qatrack(config) -> bool:
     """Whether the session's arguments can reach tests/test_qatrack_real.py (the controller of
     an xdist session collects nothing, so it judges by the arguments and -m)."""
     if not _selects(config.option.markexpr or "", REAL_QATRACK_MARKS):
-        return False                 # (-m unit, -m "not real_qatrack", ...)
+        return False  # (-m unit, -m "not real_qatrack", ...)
     target = (Path(__file__).parent / "test_qatrack_real.py").resolve()
     args = [a.split("::")[0] for a in config.args] or [str(Path(__file__).parent)]
     for a in args:
@@ -157,7 +166,7 @@ def pytest_sessionstart(session):
         _real_qatrack().note_when_started()
 
 
-@pytest.hookimpl(trylast=True)      # after -m has deselected (pytest -m unit starts no QATrack+)
+@pytest.hookimpl(trylast=True)  # after -m has deselected (pytest -m unit starts no QATrack+)
 def pytest_collection_modifyitems(session, config, items):
     """The longest modules first (tests/module_order.py), the real QATrack+'s where half the
     time is handed out; the real server starts installing now (unless an xdist controller

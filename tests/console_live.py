@@ -27,8 +27,16 @@ import time
 import pytest
 
 CHROMIUM = "/usr/bin/chromium"
-ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+ARGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
 VTS = [sys.executable, "-m", "vts_hw.cli"]
 
 
@@ -53,7 +61,7 @@ def wait_js(page, js: str, arg=None, timeout: float = 30_000):
             return got
         if time.monotonic() > end:
             raise TimeoutError(f"not true within {timeout / 1000:g} s: {js}")
-        page.wait_for_timeout(100)            # (Playwright tells its events meanwhile)
+        page.wait_for_timeout(100)  # (Playwright tells its events meanwhile)
 
 
 class LiveConsole:
@@ -62,8 +70,17 @@ class LiveConsole:
     pages that run procedures (Daily QA) run them on. On leaving, a daily QA still running is
     waited for (30 s at most) before the hub closes."""
 
-    def __init__(self, cameras: dict, rig: str, open_store=None, *, marker_hz: float = 5.0,
-                 idle_close_s: float = 2.0, facts_tick_s: float = 0.5, rig_config=None):
+    def __init__(
+        self,
+        cameras: dict,
+        rig: str,
+        open_store=None,
+        *,
+        marker_hz: float = 5.0,
+        idle_close_s: float = 2.0,
+        facts_tick_s: float = 0.5,
+        rig_config=None,
+    ):
         from vts_hw.console.app import Console
         from vts_hw.console.hub import FramesHub
         from vts_hw.console.markers import MarkerWorker
@@ -81,7 +98,7 @@ class LiveConsole:
         self._tick = facts_tick_s
         self._stop = threading.Event()
 
-    def __enter__(self) -> "LiveConsole":
+    def __enter__(self) -> LiveConsole:
         import uvicorn
 
         from vts_hw.console.app import create_app
@@ -92,8 +109,9 @@ class LiveConsole:
         self.sock = bind("127.0.0.1", 0)
         self.url = f"http://127.0.0.1:{self.sock.getsockname()[1]}/"
         started = threading.Event()
-        config = uvicorn.Config(create_app(self.console), log_level="warning", access_log=False,
-                                lifespan="off", timeout_graceful_shutdown=2)
+        config = uvicorn.Config(
+            create_app(self.console), log_level="warning", access_log=False, lifespan="off", timeout_graceful_shutdown=2
+        )
         self.server = _Server(config, started.set, self.console.closing.set)
         self._serve = threading.Thread(target=self.server.run, args=([self.sock],), daemon=True)
         self._serve.start()
@@ -104,7 +122,7 @@ class LiveConsole:
         while not self._stop.is_set():
             try:
                 self.facts.refresh_due()
-            except Exception:           # as serve() does: the page says what it could not read
+            except Exception:  # as serve() does: the page says what it could not read
                 pass
             self._stop.wait(self._tick)
 
@@ -126,6 +144,7 @@ def served_room(rig, cams: dict, db, **kw):
     results store ``db`` (read-only), as `vts console` serves them; on leaving, the cameras are
     closed and the rig's faults put back."""
     from vts_hw.store import ResultsStore
+
     name = (kw.get("rig_config") or rig.config()).rig
     try:
         with LiveConsole(cams, name, lambda: ResultsStore(db, mode="read"), **kw) as live:
@@ -144,14 +163,20 @@ def led_form_from_another_site(browser_or_context, url: str, on: bool) -> list[i
     text/plain), opened in the browser; the statuses of the console's answers to it."""
     other = "http://localhost:9/elsewhere"
     pg = browser_or_context.new_page()
-    pg.route(other, lambda route: route.fulfill(content_type="text/html", body=f"""
+    pg.route(
+        other,
+        lambda route: route.fulfill(
+            content_type="text/html",
+            body=f"""
         <form id=f method=post action="{url}camera/cam1/led" enctype="text/plain">
         <input name='{{"on": {str(on).lower()}, "x": "' value='"}}'></form>
-        <script>document.getElementById("f").submit()</script>"""))
+        <script>document.getElementById("f").submit()</script>""",
+        ),
+    )
     statuses: list[int] = []
     pg.on("response", lambda resp: statuses.append(resp.status) if resp.url.endswith("/camera/cam1/led") else None)
     pg.goto(other)
-    for _ in range(100):                      # (Playwright tells its events while it is called)
+    for _ in range(100):  # (Playwright tells its events while it is called)
         if statuses:
             break
         pg.wait_for_timeout(200)
@@ -181,8 +206,12 @@ def log_in(client, name: str, password: str, next_: str = "/", **kw):
     shown = client.get("/login")
     m = FORM_TOKEN.search(shown.text)
     assert m, (shown.status_code, shown.text[:200])
-    return client.post("/login", data={"name": name, "password": password, "next": next_,
-                                       "csrf_token": m.group(1)}, follow_redirects=False, **kw)
+    return client.post(
+        "/login",
+        data={"name": name, "password": password, "next": next_, "csrf_token": m.group(1)},
+        follow_redirects=False,
+        **kw,
+    )
 
 
 def log_in_over_http(session, url: str, name: str, password: str, **kw):
@@ -190,14 +219,14 @@ def log_in_over_http(session, url: str, name: str, password: str, **kw):
     shown = session.get(url + "login", timeout=30, **kw)
     m = FORM_TOKEN.search(shown.text)
     assert m, (shown.status_code, shown.text[:200])
-    return session.post(url + "login", data={"name": name, "password": password, "csrf_token": m.group(1)},
-                        timeout=30, **kw)
+    return session.post(
+        url + "login", data={"name": name, "password": password, "csrf_token": m.group(1)}, timeout=30, **kw
+    )
 
 
 def start_console(args, env, timeout=60.0):
     """`vts console ARGS` in the background; (process, url) once it printed its address."""
-    p = subprocess.Popen([*VTS, "console", *args], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                         text=True)
+    p = subprocess.Popen([*VTS, "console", *args], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     sel = selectors.DefaultSelector()
     sel.register(p.stdout, selectors.EVENT_READ)
     end = time.monotonic() + timeout
@@ -227,6 +256,7 @@ def stop_console(p) -> tuple[int, str, str]:
 def chromium(*extra_args):
     """Debian's Chromium, headless, through Playwright (closed on leaving)."""
     from playwright.sync_api import sync_playwright
+
     with sync_playwright() as pw:
         b = pw.chromium.launch(executable_path=CHROMIUM, args=[*ARGS, *extra_args])
         try:

@@ -18,7 +18,7 @@ class Answers:
         answer = self.answers.pop(0)
         status, body = answer if isinstance(answer, tuple) else (200, answer)
         r = requests.Response()
-        r.status_code, r._content, r._content_consumed = status, body, True   # read whole, as requests leaves it
+        r.status_code, r._content, r._content_consumed = status, body, True  # read whole, as requests leaves it
         r.headers["Content-Type"] = "application/json"
         r.request = requests.Request(method, url, params=params).prepare()
         r.url = r.request.url

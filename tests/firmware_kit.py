@@ -7,12 +7,12 @@ import serial
 
 from vts_hw.sim_devices.trigger_box import F_CPU, SimTriggerBox
 
-US = F_CPU // 1_000_000   # cycles per microsecond
+US = F_CPU // 1_000_000  # cycles per microsecond
 # A pin change made by a timer is logged when simavr next checks its timers, at an
 # instruction boundary: up to a few cycles after the exact cycle (no drift: the timer
 # itself runs on the exact cycle). Per-edge comparisons allow this much.
 JITTER = 5
-ALIGN = 16                # *TRG: all three rising edges within 1 us
+ALIGN = 16  # *TRG: all three rising edges within 1 us
 
 
 # ---------------------------------------------------------------------------- helpers

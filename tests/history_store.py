@@ -30,6 +30,7 @@ N_DAILY = 56
 @dataclass
 class Result:
     """An analysed result as a procedure hands it to the recorder (the Analysis protocol)."""
+
     procedure: str
     measures: list = field(default_factory=list)
     state_given: State | None = None
@@ -54,8 +55,10 @@ def judged(subject, metric, value, unit) -> Measure:
 
 def png(path: Path) -> Path:
     import matplotlib
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     fig, ax = plt.subplots(figsize=(4, 3), dpi=60)
     ax.plot([0, 1, 2], [0, 12, 8], "o-")
     ax.set_title("sync check: |dt| per event")
@@ -75,33 +78,62 @@ def fill(url: str | Path, folder: Path, now: float | None = None) -> dict:
             t = now - (N_DAILY - i) * DAY
             late = N_DAILY - i
             y = 2.6 if late <= 3 else (1.2 if late <= 7 else 0.1)
-            ms = [judged(cam, m, v, u) for cam in ("cam1", "cam2")
-                  for m, v, u in (("drift_x_px", 0.05, "px"), ("drift_y_px", y if cam == "cam1" else 0.1, "px"),
-                                  ("led_off_visible", 0, "markers"))]
-            ids["daily"].append(record(store, Result("daily", ms), rig=RIG, operator="tech", started=t,
-                                       finished=t + 40).run_id)
+            ms = [
+                judged(cam, m, v, u)
+                for cam in ("cam1", "cam2")
+                for m, v, u in (
+                    ("drift_x_px", 0.05, "px"),
+                    ("drift_y_px", y if cam == "cam1" else 0.1, "px"),
+                    ("led_off_visible", 0, "markers"),
+                )
+            ]
+            ids["daily"].append(
+                record(store, Result("daily", ms), rig=RIG, operator="tech", started=t, finished=t + 40).run_id
+            )
         sync_png = png(folder / "sync.png")
         sync_csv = folder / "sync.csv"
         sync_csv.write_text("event,dt_ms\n1,12.0\n")
         gone = folder / "gone.csv"
         gone.write_text("gone\n")
         t = now - 2 * DAY + 3600
-        ids["sync"] = record(store, Result("sync", [judged("vts-spect", "sync_max_abs_dt_ms", 12.0, "ms"),
-                                                    Measure("vts-spect", "sync_offset_ms", 3.0, "ms", State.OK)]),
-                             rig=RIG, operator="physicist", notes="after the gantry service", started=t,
-                             finished=t + 300, artifacts=[sync_png, sync_csv, gone]).run_id
+        ids["sync"] = record(
+            store,
+            Result(
+                "sync",
+                [
+                    judged("vts-spect", "sync_max_abs_dt_ms", 12.0, "ms"),
+                    Measure("vts-spect", "sync_offset_ms", 3.0, "ms", State.OK),
+                ],
+            ),
+            rig=RIG,
+            operator="physicist",
+            notes="after the gantry service",
+            started=t,
+            finished=t + 300,
+            artifacts=[sync_png, sync_csv, gone],
+        ).run_id
         gone.unlink()
         t = now - DAY + 7200
-        ids["motion"] = record(store, Result("motion", [Measure("body", "motion_body_max_mm", 7.5, "mm", State.ACTION)]),
-                               rig=RIG, operator="tech", started=t, finished=t + 900).run_id
+        ids["motion"] = record(
+            store,
+            Result("motion", [Measure("body", "motion_body_max_mm", 7.5, "mm", State.ACTION)]),
+            rig=RIG,
+            operator="tech",
+            started=t,
+            finished=t + 900,
+        ).run_id
         rec = Recorder(store, "sphere-steps", rig=RIG, operator="physicist", started=now - 3 * DAY).begin()
         rec.abort("the phantom slipped")
         ids["aborted"] = rec.run_id
         running = Recorder(store, "sync", rig=RIG, started=now - 3600).begin()
         ids["running"] = running.run_id
-        ids["other_rig"] = record(store, Result("calibration", [Measure("set", "calibration_rms_px", 0.3, "px",
-                                                                         State.OK)]),
-                                  rig="room-z", started=now - 3 * DAY, finished=now - 3 * DAY + 60).run_id
+        ids["other_rig"] = record(
+            store,
+            Result("calibration", [Measure("set", "calibration_rms_px", 0.3, "px", State.OK)]),
+            rig="room-z",
+            started=now - 3 * DAY,
+            finished=now - 3 * DAY + 60,
+        ).run_id
         with store.begin_run("sync", rig=RIG, started=now - 4 * DAY + 60) as h:
             h.finish(status="error", finished=now - 4 * DAY + 70, notes="the SPECT list-mode file was empty")
             ids["error"] = h.run_id

@@ -82,5 +82,5 @@ def run(*args, env: dict | None = None, cwd=None, input: str | None = None) -> s
         except SystemExit as exc:
             code = exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 1
             if isinstance(exc.code, str):
-                print(exc.code, file=err)       # as Python prints a message exit
+                print(exc.code, file=err)  # as Python prints a message exit
     return subprocess.CompletedProcess(["vts", *argv], code, _text(out), _text(err))

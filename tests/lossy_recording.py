@@ -25,8 +25,17 @@ import numpy as np
 from vts_hw.recording.folder import load_manifest, read_index
 from vts_hw.recording.writer import Recording
 
-__all__ = ["lossy_copy", "bursts", "random_frames", "camera_gone", "cut_mjpeg", "remove_camera", "host_times",
-           "slots_lost", "copy_recording"]
+__all__ = [
+    "lossy_copy",
+    "bursts",
+    "random_frames",
+    "camera_gone",
+    "cut_mjpeg",
+    "remove_camera",
+    "host_times",
+    "slots_lost",
+    "copy_recording",
+]
 
 REASON = "simulated: camera skipped frames under load"
 
@@ -38,8 +47,9 @@ def host_times(folder) -> dict[str, np.ndarray]:
     return {n: np.array([r.host_time for r in read_index(folder / f"{n}.index.csv")], float) for n in m["cameras"]}
 
 
-def bursts(folder, loss: float, burst_s: float = 1.0, seed: int = 0, start_after_s: float = 0.0,
-           end_before_s: float = 1.0) -> tuple:
+def bursts(
+    folder, loss: float, burst_s: float = 1.0, seed: int = 0, start_after_s: float = 0.0, end_before_s: float = 1.0
+) -> tuple:
     """``(masks, intervals)``: bursts of about ``burst_s`` (0.7-1.3 x) in which every camera
     loses its frames, spaced (0.6-1.4 x the mean) so that about ``loss`` of the time is lost;
     the first at least ``start_after_s`` after the first frame, the last ending at least
@@ -76,8 +86,9 @@ def camera_gone(folder, camera: str, a_s: float, b_s: float) -> dict:
     """``camera`` has no frames from ``a_s`` to ``b_s`` seconds after the recording's first frame."""
     times = host_times(folder)
     t0 = min(float(t[0]) for t in times.values())
-    return {n: ((ht >= t0 + a_s) & (ht < t0 + b_s)) if n == camera else np.zeros(len(ht), bool)
-            for n, ht in times.items()}
+    return {
+        n: ((ht >= t0 + a_s) & (ht < t0 + b_s)) if n == camera else np.zeros(len(ht), bool) for n, ht in times.items()
+    }
 
 
 def lossy_copy(src, dst, drop: dict, reason: str = REASON) -> dict:
@@ -87,8 +98,11 @@ def lossy_copy(src, dst, drop: dict, reason: str = REASON) -> dict:
     src, dst = Path(src), Path(dst)
     manifest = load_manifest(src)
     names = list(manifest["cameras"])
-    meta = {k: v for k, v in manifest.items()
-            if k not in ("cameras", "status", "started", "finished", "format", "software", "problems")}
+    meta = {
+        k: v
+        for k, v in manifest.items()
+        if k not in ("cameras", "status", "started", "finished", "format", "software", "problems")
+    }
     out = {}
     with Recording(dst, names, meta) as rec:
         for name in names:
@@ -101,11 +115,19 @@ def lossy_copy(src, dst, drop: dict, reason: str = REASON) -> dict:
                     pending += 1
                     continue
                 if pending and last is not None:
-                    rec.add_gap(name, {"after_frame": written - 1, "camera_t0": last.camera_time,
-                                       "camera_t1": row.camera_time, "missing": pending, "reason": reason,
-                                       "host_time": row.host_time})
+                    rec.add_gap(
+                        name,
+                        {
+                            "after_frame": written - 1,
+                            "camera_t0": last.camera_time,
+                            "camera_t1": row.camera_time,
+                            "missing": pending,
+                            "reason": reason,
+                            "host_time": row.host_time,
+                        },
+                    )
                 pending = 0
-                rec.write_frame(name, data[row.offset:row.offset + row.length], row.camera_time, row.host_time)
+                rec.write_frame(name, data[row.offset : row.offset + row.length], row.camera_time, row.host_time)
                 written += 1
                 last = row
             out[name] = int(mask.sum())
@@ -147,5 +169,5 @@ def slots_lost(full, damaged, cameras=("cam1", "cam2")) -> np.ndarray:
             size = (damaged / f"{cam}.mjpeg").stat().st_size
             have = {r.camera_time for r in read_index(damaged / f"{cam}.index.csv") if r.offset + r.length <= size}
         gone = np.array([r.camera_time not in have for r in rows])
-        lost = gone if lost is None else lost[:len(gone)] | gone[:len(lost)]
+        lost = gone if lost is None else lost[: len(gone)] | gone[: len(lost)]
     return lost

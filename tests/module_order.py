@@ -18,7 +18,7 @@ import json
 from pathlib import Path
 
 TABLE = Path(__file__).with_name("durations.json")
-PER_TEST_S = 0.7          # a module not in the table: its tests at the suite's median pace
+PER_TEST_S = 0.7  # a module not in the table: its tests at the suite's median pace
 
 
 def estimates() -> dict[str, float]:

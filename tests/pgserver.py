@@ -30,8 +30,10 @@ from pathlib import Path
 
 import psycopg
 
-INSTALL_HELP = ("PostgreSQL's server programs (initdb, postgres) were not found: install Debian's "
-                "postgresql package (`apt-get install -y postgresql`; make test does this)")
+INSTALL_HELP = (
+    "PostgreSQL's server programs (initdb, postgres) were not found: install Debian's "
+    "postgresql package (`apt-get install -y postgresql`; make test does this)"
+)
 PASSWORD_ENV = "VTS_TEST_PG_PASSWORD"
 
 
@@ -49,6 +51,7 @@ def find_bindir() -> Path:
             return float(Path(p).parent.name)
         except ValueError:
             return 0.0
+
     candidates += [Path(p) for p in sorted(glob.glob("/usr/lib/postgresql/*/bin"), key=version, reverse=True)]
     for d in candidates:
         if (d / "initdb").is_file() and (d / "postgres").is_file():
@@ -77,31 +80,68 @@ class PgServer:
         self.proc: subprocess.Popen | None = None
         self._names = itertools.count(1)
         self._as = {}
-        if os.geteuid() == 0:   # postgres refuses root: run it as nobody
+        if os.geteuid() == 0:  # postgres refuses root: run it as nobody
             nobody = pwd.getpwnam("nobody")
             os.chown(self.dir, nobody.pw_uid, nobody.pw_gid)
             self._as = dict(user=nobody.pw_uid, group=nobody.pw_gid, extra_groups=[])
 
     # -- life -------------------------------------------------------------------------------
 
-    def start(self) -> "PgServer":
+    def start(self) -> PgServer:
         atexit.register(self.stop)
-        out = subprocess.run([str(self.bindir / "initdb"), "-D", str(self.data), "-U", "postgres",
-                              "--auth-local=trust", "--auth-host=scram-sha-256", "-E", "UTF8",
-                              "--no-locale", "--no-sync"],
-                             capture_output=True, text=True, cwd=self.dir, **self._as)
+        out = subprocess.run(
+            [
+                str(self.bindir / "initdb"),
+                "-D",
+                str(self.data),
+                "-U",
+                "postgres",
+                "--auth-local=trust",
+                "--auth-host=scram-sha-256",
+                "-E",
+                "UTF8",
+                "--no-locale",
+                "--no-sync",
+            ],
+            capture_output=True,
+            text=True,
+            cwd=self.dir,
+            **self._as,
+        )
         if out.returncode != 0:
             raise RuntimeError(f"initdb failed: {out.stderr.strip()}")
         for _attempt in range(5):
             self.port = _free_port()
             log = open(self.dir / "server.log", "ab")
             self.proc = subprocess.Popen(
-                [str(self.bindir / "postgres"), "-D", str(self.data), "-p", str(self.port),
-                 "-c", "listen_addresses=127.0.0.1", "-c", f"unix_socket_directories={self.dir}",
-                 *([] if self.durable else ["-c", "fsync=off", "-c", "full_page_writes=off",
-                                            "-c", "synchronous_commit=off"]),
-                 "-c", "max_connections=200", "-c", "shared_buffers=32MB", "-c", "log_min_messages=warning"],
-                stdout=log, stderr=subprocess.STDOUT, cwd=self.dir, start_new_session=True, **self._as)
+                [
+                    str(self.bindir / "postgres"),
+                    "-D",
+                    str(self.data),
+                    "-p",
+                    str(self.port),
+                    "-c",
+                    "listen_addresses=127.0.0.1",
+                    "-c",
+                    f"unix_socket_directories={self.dir}",
+                    *(
+                        []
+                        if self.durable
+                        else ["-c", "fsync=off", "-c", "full_page_writes=off", "-c", "synchronous_commit=off"]
+                    ),
+                    "-c",
+                    "max_connections=200",
+                    "-c",
+                    "shared_buffers=32MB",
+                    "-c",
+                    "log_min_messages=warning",
+                ],
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                cwd=self.dir,
+                start_new_session=True,
+                **self._as,
+            )
             log.close()
             if self._wait_ready():
                 break
@@ -126,7 +166,7 @@ class PgServer:
 
     def _terminate(self) -> None:
         if self.proc is not None and self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)     # fast shutdown: ends every session
+            self.proc.send_signal(signal.SIGINT)  # fast shutdown: ends every session
             try:
                 self.proc.wait(timeout=20)
             except subprocess.TimeoutExpired:

@@ -10,8 +10,8 @@ any exchange the driver never made.
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from typing import Iterator, Sequence
 
 
 class ProtocolMismatch(AssertionError):
@@ -26,14 +26,18 @@ class ProtocolResource:
 
     def __init__(self, exchanges: Sequence[tuple[str, str | None]], resource_name: str = "PROTOCOL::INSTR"):
         for ex in exchanges:
-            if not (isinstance(ex, tuple) and len(ex) == 2 and isinstance(ex[0], str)
-                    and (ex[1] is None or isinstance(ex[1], str))):
+            if not (
+                isinstance(ex, tuple)
+                and len(ex) == 2
+                and isinstance(ex[0], str)
+                and (ex[1] is None or isinstance(ex[1], str))
+            ):
                 raise TypeError(f"each exchange is (command, reply or None), not {ex!r}")
         self.exchanges = list(exchanges)
         self.resource_name = resource_name
-        self.sent: list[str] = []          # every command, as written
-        self.done = 0                      # exchanges completed
-        self._reply: str | None = None     # the reply waiting to be read
+        self.sent: list[str] = []  # every command, as written
+        self.done = 0  # exchanges completed
+        self._reply: str | None = None  # the reply waiting to be read
         self.timeout = 2000
         self.closed = False
 
@@ -42,15 +46,17 @@ class ProtocolResource:
         if self.closed:
             raise ProtocolMismatch(f"write {message!r} after close")
         if self._reply is not None:
-            raise ProtocolMismatch(f"write {message!r} while the reply {self._reply!r} to "
-                                   f"{self.sent[-1]!r} was never read")
+            raise ProtocolMismatch(
+                f"write {message!r} while the reply {self._reply!r} to {self.sent[-1]!r} was never read"
+            )
         if not isinstance(message, str) or not message.isascii() or "\n" in message:
             raise ProtocolMismatch(f"a command must be one ASCII line without its terminator, not {message!r}")
         self.sent.append(message)
         i = self.done
         if i >= len(self.exchanges):
-            raise ProtocolMismatch(f"exchange {i + 1}: {message!r} sent, but the protocol ended after "
-                                   f"{len(self.exchanges)} exchanges")
+            raise ProtocolMismatch(
+                f"exchange {i + 1}: {message!r} sent, but the protocol ended after {len(self.exchanges)} exchanges"
+            )
         want, reply = self.exchanges[i]
         if message != want:
             raise ProtocolMismatch(f"exchange {i + 1}: expected {want!r}, got {message!r}")
@@ -70,8 +76,9 @@ class ProtocolResource:
     def query(self, message: str) -> str:
         self.write(message)
         if self._reply is None:
-            raise ProtocolMismatch(f"exchange {self.done}: {message!r} was queried, but the protocol "
-                                   f"expects no reply to it")
+            raise ProtocolMismatch(
+                f"exchange {self.done}: {message!r} was queried, but the protocol expects no reply to it"
+            )
         return self.read()
 
     def close(self) -> None:
@@ -82,7 +89,7 @@ class ProtocolResource:
         if self._reply is not None:
             raise ProtocolMismatch(f"the reply {self._reply!r} to {self.sent[-1]!r} was never read")
         if self.done != len(self.exchanges):
-            left = self.exchanges[self.done:]
+            left = self.exchanges[self.done :]
             raise ProtocolMismatch(f"{len(left)} exchange(s) never made, first {left[0]!r}")
 
 

@@ -11,6 +11,7 @@ from vts_hw.store.recorder import record
 def save_baselines(store, baselines, rig: str = "", started: float | None = None) -> int:
     """Store ``baselines`` (procedures.drift.Baseline) as one baseline run; its id."""
     from vts_hw.procedures.baseline import BaselineSet
+
     started = time.time() if started is None else started
     stored = record(store, BaselineSet(list(baselines)), rig=rig, started=started, finished=started)
     assert stored.ok, stored.error
@@ -23,6 +24,7 @@ def baselines_now(rig, store, frames: int = 2) -> int:
     from vts_hw.drivers.registry import open_camera
     from vts_hw.procedures.drift import acquire_led_frames
     from vts_hw.vision.wall_markers import baseline_from_frames
+
     bs = []
     for c in rig.cameras:
         with open_camera(c) as cam:
@@ -33,6 +35,7 @@ def baselines_now(rig, store, frames: int = 2) -> int:
 
 def run_qa(rig, store, **kw):
     """A QARun(rig, **kw) recorded in ``store``; the QAResult (run_id, store_error set)."""
-    from vts_hw.store.qa_record import record_qa
     from vts_hw.procedures.daily import QARun
+    from vts_hw.store.qa_record import record_qa
+
     return record_qa(store, QARun(rig, **kw), rig)[0]

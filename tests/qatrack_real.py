@@ -28,8 +28,8 @@ SCRIPT = Path(os.environ.get("VTS_QATRACK_SCRIPT", REPO.parent / "shared" / "int
 QAT = Path(os.environ.get("QAT", "/tmp/qatrack-real"))
 PORT = int(os.environ.get("VTS_QATRACK_PORT", "8765"))
 START_TIMEOUT_S = 25 * 60
-SITE_ZONE = "America/Toronto"   # the zone the server is first started in (QATrack+'s own default)
-LATE_START_S = 300          # beyond the script's own 60 s for the server to answer (a loaded machine)
+SITE_ZONE = "America/Toronto"  # the zone the server is first started in (QATrack+'s own default)
+LATE_START_S = 300  # beyond the script's own 60 s for the server to answer (a loaded machine)
 
 
 class RealQATrack:
@@ -40,7 +40,7 @@ class RealQATrack:
         self.zone = None
         self._starter: subprocess.Popen | None = None
         self.log = QAT.parent / f"{QAT.name}-start.log"
-        self.done = QAT.parent / f"{QAT.name}-start.done"    # the start's outcome, for xdist workers
+        self.done = QAT.parent / f"{QAT.name}-start.done"  # the start's outcome, for xdist workers
         self.was_running = self.answering()
         self.started_by_us = False
 
@@ -58,15 +58,20 @@ class RealQATrack:
             return
         assert SCRIPT.is_file(), f"the real QATrack+ script is missing: {SCRIPT} (../shared beside the checkout)"
         QAT.parent.mkdir(parents=True, exist_ok=True)
-        if self.was_running:        # someone's server: restart it in our zone so that we know its zone
+        if self.was_running:  # someone's server: restart it in our zone so that we know its zone
             self.stop()
         self.zone = zone
         self.started_by_us = True
         with open(self.log, "w") as log:
-            self._starter = subprocess.Popen([str(SCRIPT), "start"], env=self._env(zone), stdout=log,
-                                             stderr=subprocess.STDOUT, start_new_session=True)
+            self._starter = subprocess.Popen(
+                [str(SCRIPT), "start"],
+                env=self._env(zone),
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+            )
 
-    def wait(self) -> "RealQATrack":
+    def wait(self) -> RealQATrack:
         """Until the background start has ended and the API answers; AssertionError with the
         script's last lines when it failed."""
         if self._starter is None:
@@ -77,8 +82,9 @@ class RealQATrack:
             self._starter.kill()
             code = "timeout"
         tail = self.log.read_text(errors="replace").splitlines()[-15:] if self.log.exists() else []
-        assert code == 0 or self._late_but_up("\n".join(tail)), \
-            f"run-qatrack.sh start failed ({code}):\n" + "\n".join(tail)
+        assert code == 0 or self._late_but_up("\n".join(tail)), f"run-qatrack.sh start failed ({code}):\n" + "\n".join(
+            tail
+        )
         assert self.answering(), "QATrack+ was started but does not answer:\n" + "\n".join(tail)
         return self
 
@@ -108,9 +114,10 @@ class RealQATrack:
             except AssertionError as e:
                 text = f"failed: {e}"
             self.done.write_text(text)
+
         threading.Thread(target=note, daemon=True).start()
 
-    def wait_for_other(self) -> "RealQATrack":
+    def wait_for_other(self) -> RealQATrack:
         """In an xdist worker: until the start the controller began has ended (``self.done``),
         then the server must answer."""
         deadline = time.monotonic() + START_TIMEOUT_S + LATE_START_S
@@ -127,8 +134,7 @@ class RealQATrack:
         if zone == self.zone and self.answering():
             return
         self.stop()
-        out = subprocess.run([str(SCRIPT), "start"], env=self._env(zone), capture_output=True, text=True,
-                             timeout=600)
+        out = subprocess.run([str(SCRIPT), "start"], env=self._env(zone), capture_output=True, text=True, timeout=600)
         assert out.returncode == 0 or self._late_but_up(out.stderr), out.stdout[-2000:] + out.stderr[-2000:]
         self.zone = zone
 
@@ -168,15 +174,19 @@ class RealQATrack:
 
     def get(self, url: str, **params) -> dict:
         """A GET as the site's administrator (what the site shows)."""
-        r = requests.get(url if url.startswith("http") else self.url + "api/" + url, params=params or None,
-                         headers={"Authorization": f"Token {self.tokens['QATRACK_ADMIN_TOKEN']}"}, timeout=30)
+        r = requests.get(
+            url if url.startswith("http") else self.url + "api/" + url,
+            params=params or None,
+            headers={"Authorization": f"Token {self.tokens['QATRACK_ADMIN_TOKEN']}"},
+            timeout=30,
+        )
         r.raise_for_status()
         return r.json()
 
     def instances(self, user_key: str) -> list[dict]:
         return self.get("qa/testlistinstances/", user_key=user_key)["results"]
 
-    def values(self, instance: dict, _slugs: dict = {}) -> dict[str, dict]:   # noqa: B006 (a cache)
+    def values(self, instance: dict, _slugs: dict = {}) -> dict[str, dict]:  # noqa: B006 (a cache)
         """macro -> {value, skipped, comment} of an instance, each test's macro read from the site."""
         out = {}
         for ti in instance["test_instances"]:

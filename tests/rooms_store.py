@@ -19,7 +19,7 @@ from vts_hw.store import ResultsStore
 from vts_hw.tolerance import DEFAULT_TOLERANCES
 
 DAY = 86400.0
-T0 = dt.datetime(2026, 10, 1, tzinfo=dt.timezone.utc).timestamp()
+T0 = dt.datetime(2026, 10, 1, tzinfo=dt.UTC).timestamp()
 N_DAYS = 20
 NOW = T0 + N_DAYS * DAY
 RIGS = ("room-a", "room-b", "room-c")
@@ -47,9 +47,14 @@ def _daily(store, rig, day, drift):
     t = T0 + day * DAY + 7 * 3600
     ms = []
     for cam, (x, y, led) in drift.items():
-        ms += [(cam, "drift_x_px", x, "px"), (cam, "drift_y_px", y, "px"), (cam, "drift_x_mm", 1.25 * x, "mm"),
-               (cam, "drift_y_mm", 1.25 * y, "mm"), (cam, "led_off_visible", led, "markers"),
-               (f"{cam}/M1", "marker_dx_px", x, "px")]
+        ms += [
+            (cam, "drift_x_px", x, "px"),
+            (cam, "drift_y_px", y, "px"),
+            (cam, "drift_x_mm", 1.25 * x, "mm"),
+            (cam, "drift_y_mm", 1.25 * y, "mm"),
+            (cam, "led_off_visible", led, "markers"),
+            (f"{cam}/M1", "marker_dx_px", x, "px"),
+        ]
     return _run(store, "daily", rig, t, ms)
 
 
@@ -65,23 +70,61 @@ def populate_rooms(store: ResultsStore) -> None:
     steps_ok = [("x", "steps_diff_max_mm", 0.9, "mm"), ("x", "steps_slope", 1.001, "")]
     _run(store, "sphere-steps", "room-a", T0 + 5 * DAY + 9 * 3600, steps_ok)
     _run(store, "sphere-steps", "room-b", T0 + 1 * DAY + 9 * 3600, [("x", "steps_diff_max_mm", 3.1, "mm")])
-    _run(store, "calibration", "room-a", T0 + 2 * DAY + 8 * 3600,
-         [("left", "calibration_rms_px", 0.21, "px"), ("right", "calibration_rms_px", 0.24, "px"),
-          ("set", "calibration_rms_px", 0.3, "px")])
+    _run(
+        store,
+        "calibration",
+        "room-a",
+        T0 + 2 * DAY + 8 * 3600,
+        [
+            ("left", "calibration_rms_px", 0.21, "px"),
+            ("right", "calibration_rms_px", 0.24, "px"),
+            ("set", "calibration_rms_px", 0.3, "px"),
+        ],
+    )
     for i, dt_ms in enumerate((8.0, 12.0, 35.0)):
-        _run(store, "sync", "room-a", T0 + (4 + 5 * i) * DAY + 11 * 3600,
-             [("vts-spect", "sync_max_abs_dt_ms", dt_ms, "ms"), ("vts-spect", "sync_events_both", 6, "events"),
-              ("vts-spect", "sync_events_one_system", 0, "events")])
-    _run(store, "spect_mapping", "room-a", T0 + 3 * DAY + 10 * 3600,
-         [("phantom", "mapping_fre_mm", 0.05, "mm"), ("phantom", "mapping_tre_rms_mm", 0.08, "mm")])
+        _run(
+            store,
+            "sync",
+            "room-a",
+            T0 + (4 + 5 * i) * DAY + 11 * 3600,
+            [
+                ("vts-spect", "sync_max_abs_dt_ms", dt_ms, "ms"),
+                ("vts-spect", "sync_events_both", 6, "events"),
+                ("vts-spect", "sync_events_one_system", 0, "events"),
+            ],
+        )
+    _run(
+        store,
+        "spect_mapping",
+        "room-a",
+        T0 + 3 * DAY + 10 * 3600,
+        [("phantom", "mapping_fre_mm", 0.05, "mm"), ("phantom", "mapping_tre_rms_mm", 0.08, "mm")],
+    )
     for i, mm in enumerate((1.0, 7.5)):
-        _run(store, "motion", "room-a", T0 + (8 + i) * DAY + 14 * 3600,
-             [("body", "motion_body_max_mm", mm, "mm"), ("body", "motion_body_max_deg", 0.3, "deg"),
-              ("tracking", "motion_pose_coverage", 0.99, "fraction")])
-    _run(store, "calibration_cameras", "room-c", T0 + 12 * DAY,
-         [("cam1", "calibration_rms_px", 0.3, "px"), ("cam2", "calibration_rms_px", 0.35, "px"),
-          ("cam3", "calibration_rms_px", 0.32, "px"), ("set", "calibration_rms_px", 0.4, "px"),
-          ("set", "calibration_converged", 1, "")])
+        _run(
+            store,
+            "motion",
+            "room-a",
+            T0 + (8 + i) * DAY + 14 * 3600,
+            [
+                ("body", "motion_body_max_mm", mm, "mm"),
+                ("body", "motion_body_max_deg", 0.3, "deg"),
+                ("tracking", "motion_pose_coverage", 0.99, "fraction"),
+            ],
+        )
+    _run(
+        store,
+        "calibration_cameras",
+        "room-c",
+        T0 + 12 * DAY,
+        [
+            ("cam1", "calibration_rms_px", 0.3, "px"),
+            ("cam2", "calibration_rms_px", 0.35, "px"),
+            ("cam3", "calibration_rms_px", 0.32, "px"),
+            ("set", "calibration_rms_px", 0.4, "px"),
+            ("set", "calibration_converged", 1, ""),
+        ],
+    )
 
 
 def rooms_store(path) -> str:

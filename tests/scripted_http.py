@@ -74,5 +74,6 @@ class ScriptedHTTP:
 
     def assert_complete(self) -> None:
         assert self.mismatch is None, self.mismatch
-        assert self.done == len(self.exchanges), f"{len(self.exchanges) - self.done} exchange(s) never made, " \
-                                                 f"first {self.exchanges[self.done][0]!r}"
+        assert self.done == len(self.exchanges), (
+            f"{len(self.exchanges) - self.done} exchange(s) never made, first {self.exchanges[self.done][0]!r}"
+        )

@@ -12,13 +12,13 @@ from __future__ import annotations
 from contextlib import contextmanager
 from dataclasses import dataclass
 
-
 from vts_hw.drivers.trigger_box import TriggerBox
 
 PORT = "/dev/ttyFAKE0"
 
 
 # ---- the scripted port ----------------------------------------------------------------------------
+
 
 class ProtocolMismatch(AssertionError):
     pass
@@ -37,15 +37,16 @@ class ScriptedSerial:
 
     def __init__(self, pairs, port, **kwargs):
         for p in pairs:
-            if not (isinstance(p, tuple) and len(p) == 2 and isinstance(p[0], bytes)
-                    and isinstance(p[1], (bytes, Fail))):
+            if not (
+                isinstance(p, tuple) and len(p) == 2 and isinstance(p[0], bytes) and isinstance(p[1], (bytes, Fail))
+            ):
                 raise TypeError(f"each pair is (bytes written, bytes answered or Fail), not {p!r}")
         self.pairs = list(pairs)
         self.port = port
         self.kwargs = kwargs
-        self.done = 0               # pairs completed
-        self.written = b""          # bytes of the current pair written so far
-        self.rx = bytearray()       # bytes the "box" sent that the driver has not read
+        self.done = 0  # pairs completed
+        self.written = b""  # bytes of the current pair written so far
+        self.rx = bytearray()  # bytes the "box" sent that the driver has not read
         self.pending_fail: BaseException | None = None
         self.is_open = True
         self.errors: list[str] = []  # every mismatch, even if the driver swallowed the exception
@@ -118,8 +119,9 @@ class ScriptedSerial:
         if self.written:
             raise ProtocolMismatch(f"a partial line {self.written!r} was written")
         if self.done != len(self.pairs):
-            raise ProtocolMismatch(f"{len(self.pairs) - self.done} exchange(s) never made, first "
-                                   f"{self.pairs[self.done]!r}")
+            raise ProtocolMismatch(
+                f"{len(self.pairs) - self.done} exchange(s) never made, first {self.pairs[self.done]!r}"
+            )
 
 
 class FakeClock:
@@ -163,5 +165,11 @@ def lines(*pairs):
     return [(c.encode() + b"\n", r.encode() + b"\n") for c, r in pairs]
 
 
-STATUS_OFF = [("OUTP?", "OFF"), ("FREQ?", "10"), ("DUTY?", "0.25"), ("EDGES?", "0,0,0"),
-              ("WDOG?", "10.000000,IDLE,0"), ("SYST:ERR?", '0,"No error"')]
+STATUS_OFF = [
+    ("OUTP?", "OFF"),
+    ("FREQ?", "10"),
+    ("DUTY?", "0.25"),
+    ("EDGES?", "0,0,0"),
+    ("WDOG?", "10.000000,IDLE,0"),
+    ("SYST:ERR?", '0,"No error"'),
+]

@@ -98,8 +98,10 @@ def auth_header(cam, path: str, method: str = "GET", password: str = PASSWORD) -
     ha1 = _md5(f"root:{fields['realm']}:{password}")
     ha2 = _md5(f"{method}:{path}")
     response = _md5(f"{ha1}:{fields['nonce']}:{nc}:{cnonce}:auth:{ha2}")
-    return (f'Digest username="root", realm="{fields["realm"]}", nonce="{fields["nonce"]}", uri="{path}", '
-            f'response="{response}", qop=auth, nc={nc}, cnonce="{cnonce}", opaque="{fields["opaque"]}"')
+    return (
+        f'Digest username="root", realm="{fields["realm"]}", nonce="{fields["nonce"]}", uri="{path}", '
+        f'response="{response}", qop=auth, nc={nc}, cnonce="{cnonce}", opaque="{fields["opaque"]}"'
+    )
 
 
 class Raw:
@@ -158,10 +160,10 @@ def walk_parts(body: bytes) -> list[tuple[int, bytes]]:
     parts, pos = [], 0
     while pos < len(body):
         m = PART_RE.match(body, pos)
-        assert m, f"no part header at byte {pos}: {body[pos:pos + 80]!r}"
+        assert m, f"no part header at byte {pos}: {body[pos : pos + 80]!r}"
         n = int(m.group(1))
-        jpeg = body[m.end():m.end() + n]
-        assert body[m.end() + n:m.end() + n + 2] == b"\r\n", "a part must end with CRLF"
+        jpeg = body[m.end() : m.end() + n]
+        assert body[m.end() + n : m.end() + n + 2] == b"\r\n", "a part must end with CRLF"
         parts.append((n, jpeg))
         pos = m.end() + n + 2
     return parts

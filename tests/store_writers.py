@@ -48,13 +48,13 @@ def writer_main(url: str, seed: int, count: int, done_file: str, frame: str) -> 
 
 @dataclass
 class Outcome:
-    finished_reported: int = 0      # runs the writers were told finished
-    complete: int = 0               # finished runs in the store with all their data
-    aborted: int = 0                # aborted runs (operator or dead writer), no data
-    dead: int = 0                   # of those: a killed writer's, marked aborted on the reopen
-    lost: int = 0                   # reported finished, not in the store
-    duplicated: int = 0             # reported finished, more than once in the store
-    half_written: int = 0           # in the store with part of its data, or still "running"
+    finished_reported: int = 0  # runs the writers were told finished
+    complete: int = 0  # finished runs in the store with all their data
+    aborted: int = 0  # aborted runs (operator or dead writer), no data
+    dead: int = 0  # of those: a killed writer's, marked aborted on the reopen
+    lost: int = 0  # reported finished, not in the store
+    duplicated: int = 0  # reported finished, more than once in the store
+    half_written: int = 0  # in the store with part of its data, or still "running"
     kills: int = 0
     wall_s: float = 0.0
     latencies: list[float] = field(default_factory=list)
@@ -70,12 +70,15 @@ class Outcome:
 
 
 def _spawn(url, seed, count, done, frame) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, str(HERE), url, str(seed), str(count), str(done), str(frame)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(
+        [sys.executable, str(HERE), url, str(seed), str(count), str(done), str(frame)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
 
-def run_writers(url: str, folder: Path, n_procs: int = 8, per_proc: int = 50, kills: int = 0,
-                seed: int = 1) -> Outcome:
+def run_writers(url: str, folder: Path, n_procs: int = 8, per_proc: int = 50, kills: int = 0, seed: int = 1) -> Outcome:
     """``n_procs`` writers of ``per_proc`` runs each at once; with ``kills``, that many SIGKILLs
     at random moments (each killed writer replaced by a fresh one), then the check."""
     from vts_hw.store import ResultsStore
@@ -84,7 +87,7 @@ def run_writers(url: str, folder: Path, n_procs: int = 8, per_proc: int = 50, ki
     folder.mkdir(parents=True, exist_ok=True)
     frame = folder / "frame.jpg"
     frame.write_bytes(os.urandom(2048))
-    ResultsStore(url).close()       # the schema first: the writers measure writing, not creating
+    ResultsStore(url).close()  # the schema first: the writers measure writing, not creating
     done = folder / "done.txt"
     done.write_text("")
     out = Outcome()
@@ -96,11 +99,11 @@ def run_writers(url: str, folder: Path, n_procs: int = 8, per_proc: int = 50, ki
         alive = [p for p in procs if p.poll() is None]
         if not alive:
             break
-        victim = rng.choice(alive)      # anywhere: starting, opening, inside a run, between runs
+        victim = rng.choice(alive)  # anywhere: starting, opening, inside a run, between runs
         victim.kill()
         victim.wait()
         out.kills += 1
-        procs.append(_spawn(url, next_seed, per_proc // 2, done, frame))   # the load goes on
+        procs.append(_spawn(url, next_seed, per_proc // 2, done, frame))  # the load goes on
         next_seed += 1
     for p in procs:
         _, err = p.communicate(timeout=300)
@@ -140,8 +143,9 @@ def check(url: str, frame: Path, reported: list[str], out: Outcome) -> None:
                     out.dead += "ended without finishing" in r.notes
             elif r.status == "running" or ms.get(r.id, 0) != n or [a.sha256 for a in arts] != [sha]:
                 out.half_written += 1
-                out.problems.append(f"run {r.uid}: {r.status}, {ms.get(r.id, 0)} of {n} measurements, "
-                                    f"{len(arts)} artifacts")
+                out.problems.append(
+                    f"run {r.uid}: {r.status}, {ms.get(r.id, 0)} of {n} measurements, {len(arts)} artifacts"
+                )
             else:
                 out.complete += 1
     for uid in reported:

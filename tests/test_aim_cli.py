@@ -29,11 +29,12 @@ def test_once_good_writes_the_overlay_and_the_verdicts(capsys, rig_yaml, tmp_pat
 
 
 def test_misaimed_against_the_drift_baseline_exits_10_and_says_which_way(capsys, sim_rig, rig_yaml):
-    code, _, err = vts(capsys, "qa", "drift", "--set-baseline", "--camera", "cam2", "--frames", "1",
-                       "--config", rig_yaml)
+    code, _, err = vts(
+        capsys, "qa", "drift", "--set-baseline", "--camera", "cam2", "--frames", "1", "--config", rig_yaml
+    )
     assert code == 0, err
     url = f"http://127.0.0.1:{sim_rig.servers['cam2'].port}/sim/optics"
-    assert requests.post(url, json={"yaw_deg": -2.5}, timeout=10).ok       # turned 2.5° left
+    assert requests.post(url, json={"yaw_deg": -2.5}, timeout=10).ok  # turned 2.5° left
     code, out, err = vts(capsys, "camera", "aim", "cam2", "--json", "--config", rig_yaml)
     assert code == 10, err
     aim = {i["item"]: i for i in json.loads(out)["items"]}["aim"]
@@ -46,6 +47,7 @@ def test_another_rooms_baseline_is_not_this_cameras(capsys, rig_yaml):
     from qa_runs import baselines_now
     from vts_hw.config import load_rig
     from vts_hw.store import ResultsStore
+
     cfg = load_rig(rig_yaml)
     with ResultsStore(cfg.store.url) as store:
         baselines_now(cfg.model_copy(update={"rig": "another-room"}), store, frames=1)

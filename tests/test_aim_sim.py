@@ -33,24 +33,26 @@ def test_defocus_and_misaim_turn_good_into_adjust(sim_rig, mapped):
         first = check(cam, mapped)
         assert first.state == "good", [v.text for v in first.items]
         assert {v.item: v.state for v in first.items}["fov"] == "good"
-        reference = [(m.x, m.y) for m in first.markers]          # as a drift baseline would hold them
+        reference = [(m.x, m.y) for m in first.markers]  # as a drift baseline would hold them
 
-        assert optics(sim_rig, "cam1", focus_blur_px=1.5) == (200, {"focus_blur_px": 1.5, "yaw_deg": 0.0,
-                                                                    "pitch_deg": 0.0})
+        assert optics(sim_rig, "cam1", focus_blur_px=1.5) == (
+            200,
+            {"focus_blur_px": 1.5, "yaw_deg": 0.0, "pitch_deg": 0.0},
+        )
         blurred = check(cam, mapped, reference=reference)
         focus = blurred.item("focus")
         assert focus.state == "adjust" and focus.text.startswith("turn the focus ring")
         assert focus.value > 2 * first.item("focus").value
-        assert blurred.item("aim").state == "good"           # defocus moves nothing
+        assert blurred.item("aim").state == "good"  # defocus moves nothing
 
-        optics(sim_rig, "cam1", focus_blur_px=0.0, yaw_deg=3.0)    # the mount turned 3° to the right
+        optics(sim_rig, "cam1", focus_blur_px=0.0, yaw_deg=3.0)  # the mount turned 3° to the right
         turned = check(cam, mapped, reference=reference)
         aim = turned.item("aim")
         assert turned.item("focus").state == "good"
         assert aim.state == "adjust" and aim.text.startswith("aim 3.0° left"), aim.text
         assert aim.turn["right_deg"] == pytest.approx(-3.0, abs=0.2) and abs(aim.turn["up_deg"]) < 0.2
 
-        optics(sim_rig, "cam1", yaw_deg=0.0, pitch_deg=-2.0)     # tilted 2° down
+        optics(sim_rig, "cam1", yaw_deg=0.0, pitch_deg=-2.0)  # tilted 2° down
         tilted = check(cam, mapped, reference=reference).item("aim")
         assert tilted.state == "adjust" and tilted.text.startswith("aim 2.0° up"), tilted.text
 
@@ -93,11 +95,11 @@ def test_fov_lands_where_the_mapping_says(sim_rig, mapped):
     assert front.all() and np.abs(uv - truth.project(pts)).max() < 0.05
     with open_camera(mapped.camera("cam1")) as cam:
         verdicts, png = aim_page(cam, mapped)
-    json.dumps(verdicts)                                     # JSON-able, for a page
+    json.dumps(verdicts)  # JSON-able, for a page
     assert png.startswith(b"\x89PNG") and verdicts["camera"] == "cam1"
     img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
     x, y = np.round(uv[0]).astype(int)
-    patch = img[y - 3:y + 4, x - 3:x + 4].reshape(-1, 3).astype(int)
+    patch = img[y - 3 : y + 4, x - 3 : x + 4].reshape(-1, 3).astype(int)
     assert (np.abs(patch - COLOURS["fov"]).sum(axis=1) < 40).any(), "no FOV cross at the FOV centre"
     assert {i["item"]: i["state"] for i in verdicts["items"]}["gantry"] == "good"
 

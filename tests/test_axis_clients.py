@@ -20,7 +20,6 @@ import httpx
 import numpy as np
 import pytest
 import requests
-
 from axis.device import AxisDevice  # axis==60 from the dev extra
 from axis.models.configuration import Configuration
 
@@ -56,8 +55,7 @@ def test_axis_library_reads_identity_and_switches_the_output_port():
             async with httpx.AsyncClient() as session:
                 device = await _connect(server.port, rig.password, session)
                 vapix = device.vapix
-                identity = (vapix.serial_number, vapix.product_number, vapix.product_type,
-                            vapix.firmware_version)
+                identity = (vapix.serial_number, vapix.product_number, vapix.product_type, vapix.firmware_version)
                 # the identity came from basicdeviceinfo.cgi, listed by apidiscovery.cgi ...
                 assert vapix.basic_device_info.initialized
                 assert "basic-device-info" in vapix.api_discovery
@@ -95,6 +93,7 @@ def test_axis_library_on_the_legacy_camera_finds_no_v3_api():
     """On the AXIS 211 (VAPIX 2) the library's VAPIX 3 requests get 404s, as from the real
     camera: it reports no identity rather than crashing."""
     with SimRig(n_cameras=1, firmware="axis211") as rig:
+
         async def scenario():
             async with httpx.AsyncClient() as session:
                 device = await _connect(rig.servers["cam1"].port, rig.password, session)
@@ -152,8 +151,23 @@ def test_curl_and_requests_over_https(https_rig, certificate, tmp_path):
     if shutil.which("curl") is None:
         pytest.fail("curl is missing: make test installs it (TEST_DEBS)")
     out = tmp_path / "snap.jpg"
-    done = subprocess.run(["curl", "-sS", "--fail", "--cacert", str(certificate[0]), "-u", f"root:{https_rig.password}",
-                           "-o", str(out), url], capture_output=True, text=True, timeout=30)
+    done = subprocess.run(
+        [
+            "curl",
+            "-sS",
+            "--fail",
+            "--cacert",
+            str(certificate[0]),
+            "-u",
+            f"root:{https_rig.password}",
+            "-o",
+            str(out),
+            url,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
     assert done.returncode == 0, done.stderr
     assert out.read_bytes().startswith(b"\xff\xd8")
 
@@ -208,8 +222,9 @@ def test_vts_against_a_legacy_https_rig(tmp_path):
     from vts_hw.sim_devices.rig import load_env_file
 
     def vts(*args, env=None):
-        return subprocess.run([sys.executable, "-m", "vts_hw.cli.__main__", *args], capture_output=True,
-                              text=True, env=env, timeout=90)
+        return subprocess.run(
+            [sys.executable, "-m", "vts_hw.cli.__main__", *args], capture_output=True, text=True, env=env, timeout=90
+        )
 
     d = tmp_path / "sim"
     up = vts("sim", "up", "--model", "axis211", "--https", "--cameras", "1", "--detach", "--dir", str(d))
@@ -228,8 +243,14 @@ def test_vts_against_a_legacy_https_rig(tmp_path):
         assert p.returncode == 0 and p.stdout.strip() == "cam1: LED on (output port 1): read back: on", p.stderr
         # the same rig without the certificate: one sentence, exit 4
         (d / "no-cert.yaml").write_text("\n".join(line for line in rig_yaml.splitlines() if "ca_cert" not in line))
-        p = vts("camera", "snapshot", "cam1", "-o", str(tmp_path / "x.jpg"),
-                env=dict(env, VTS_CONFIG=str(d / "no-cert.yaml")))
+        p = vts(
+            "camera",
+            "snapshot",
+            "cam1",
+            "-o",
+            str(tmp_path / "x.jpg"),
+            env=dict(env, VTS_CONFIG=str(d / "no-cert.yaml")),
+        )
         assert p.returncode == 4 and "Traceback" not in p.stderr
         assert p.stderr.strip().splitlines() == [p.stderr.strip()]
         assert "could not be verified" in p.stderr and "ca_cert" in p.stderr

@@ -8,8 +8,7 @@ import pytest
 
 from fake_http import Answers
 from vts_hw.camera import NotWhole
-from vts_hw.drivers.axis import (AxisCamera, BadReply, CameraUnauthorized, CameraUnreachable,
-                                 TooManyViewers)
+from vts_hw.drivers.axis import AxisCamera, BadReply, CameraUnauthorized, CameraUnreachable, TooManyViewers
 
 
 def _bright(jpeg):
@@ -100,6 +99,7 @@ def test_wrong_password_is_a_clear_error_without_the_password(sim_rig):
 
 def test_unreachable_camera():
     import socket
+
     s = socket.socket()
     s.bind(("127.0.0.1", 0))
     port = s.getsockname()[1]
@@ -127,8 +127,11 @@ def test_snapshot_cut_mid_answer_is_one_sentence(sim_rig, cam1):
     sentence, not a library exception; a torn JPEG of the stated length is refused as not whole."""
     server = sim_rig.servers["cam1"]
     server.set_faults(torn_jpeg_at=0, torn_mode="cut")
-    with pytest.raises(CameraUnreachable, match=r"^camera cam1 at http://127\.0\.0\.1:\d+ closed the connection "
-                                                r"in the middle of its answer to /axis-cgi/jpg/image\.cgi$"):
+    with pytest.raises(
+        CameraUnreachable,
+        match=r"^camera cam1 at http://127\.0\.0\.1:\d+ closed the connection "
+        r"in the middle of its answer to /axis-cgi/jpg/image\.cgi$",
+    ):
         cam1.snapshot()
     server.set_faults(reset=True, torn_jpeg_at=0, torn_mode="short")
     # a torn JPEG of the stated length is never handed on as a snapshot (issue 21 round 2)
@@ -137,11 +140,14 @@ def test_snapshot_cut_mid_answer_is_one_sentence(sim_rig, cam1):
     assert cam1.snapshot().complete  # the next one is whole
 
 
-@pytest.mark.parametrize("call, body", [
-    ("device_info", b'{"data": {"propertyList": ["Brand", "AXIS"]}}'),
-    ("device_info", b"[" * 5000 + b"]" * 5000),
-    ("clock_offset", b'{"apiVersion": "1.0", "data": {"dateTime": 1795000000}}'),
-])
+@pytest.mark.parametrize(
+    "call, body",
+    [
+        ("device_info", b'{"data": {"propertyList": ["Brand", "AXIS"]}}'),
+        ("device_info", b"[" * 5000 + b"]" * 5000),
+        ("clock_offset", b'{"apiVersion": "1.0", "data": {"dateTime": 1795000000}}'),
+    ],
+)
 def test_device_info_and_time_json_of_the_wrong_shape_are_bad_replies(call, body):
     # found by bench/fuzz.py (axis_vapix): AttributeError and RecursionError went through
     cam = AxisCamera("cam1", "http://127.0.0.1:9", "root", "pw")

@@ -3,7 +3,8 @@
 import cv2
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from vts_hw.recording.axis_jpeg import AxisProduct, AxisTime, JpegError, axis_timestamp, inspect_jpeg, stamp_jpeg
 
@@ -52,7 +53,7 @@ PRODUCT = AxisProduct(0x01A2, (5, 55, 1), bytes.fromhex("ACCC8E19256D"))
 def test_stamp_matches_real_layout(axis_frames):
     stamped = stamp_jpeg(_jpeg(), 1445859308.91, PRODUCT)
     real = (axis_frames / "t.mjpg").read_bytes()
-    real_jpeg = real[real.index(b"\xff\xd8"):]
+    real_jpeg = real[real.index(b"\xff\xd8") :]
     # the 34 bytes of the two segments, as a firmware 5.55 camera wrote them for that second
     assert stamped[20:54] == real_jpeg[20:54]
     decoded = cv2.imdecode(np.frombuffer(stamped, np.uint8), cv2.IMREAD_UNCHANGED)

@@ -43,11 +43,12 @@ def test_vapix2_firmware_is_asked_through_output_cgi_check():
     script = [(PORT_CGI, None, not_found), (OUTPUT_CGI, None, "output1=0\r\n"), (OUTPUT_CGI, None, "output1=1\r\n")]
     with ScriptedHTTP(script) as wire, AxisCamera("cam1", wire.url, user=None, led_port=1) as cam:
         assert cam.led_state() is False
-        assert cam.led_state() is True          # remembered: output.cgi straight away
+        assert cam.led_state() is True  # remembered: output.cgi straight away
         assert wire.lines == [
             "GET /axis-cgi/io/port.cgi?checkactive=1 HTTP/1.1",
             "GET /axis-cgi/io/output.cgi?check=1 HTTP/1.1",
-            "GET /axis-cgi/io/output.cgi?check=1 HTTP/1.1"]
+            "GET /axis-cgi/io/output.cgi?check=1 HTTP/1.1",
+        ]
     wire.assert_complete()
 
 
@@ -81,8 +82,10 @@ def test_the_simulated_p1375_answers_the_state_as_the_firmware_and_the_driver_re
         with AxisCamera.from_config(rig.config().camera("cam1")) as cam:
             cam.led_off()
             assert cam.led_state() is False
-            assert _body(server, "/axis-cgi/io/port.cgi?checkactive=1")[::2] == (b"HTTP/1.1 200 OK\r\n",
-                                                                               b"port1=inactive\r\n")
+            assert _body(server, "/axis-cgi/io/port.cgi?checkactive=1")[::2] == (
+                b"HTTP/1.1 200 OK\r\n",
+                b"port1=inactive\r\n",
+            )
             cam.led_on()
             assert cam.led_state() is True
             assert _body(server, "/axis-cgi/io/port.cgi?checkactive=1")[2] == b"port1=active\r\n"
@@ -119,16 +122,21 @@ def test_vts_camera_led_reads_the_switch_back_and_one_that_did_not_take_is_exit_
         led = ["camera", "led", "--config", y, "cam1"]
         code, out, err = vts(capsys, *led, "on")
         assert (code, out.strip()) == (0, "cam1: LED on (output port 1): read back: on"), err
-        rig.servers["cam1"].faults.led_held = True          # an action rule on the camera holds the output on
+        rig.servers["cam1"].faults.led_held = True  # an action rule on the camera holds the output on
         code, out, err = vts(capsys, *led, "off")
         assert (code, out) == (4, ""), out
-        assert err == ("vts: camera cam1 accepted the switch off but its LED output (port 1) still reads on after 1 s: "
-                       "the switch did not take (an action rule on the camera may hold the port)\n")
+        assert err == (
+            "vts: camera cam1 accepted the switch off but its LED output (port 1) still reads on after 1 s: "
+            "the switch did not take (an action rule on the camera may hold the port)\n"
+        )
         assert rig.sources["cam1"].led_on()
         code, out, err = vts(capsys, *led, "pulse", "200")
-        assert code == 4 and err.startswith("vts: camera cam1 accepted a pulse of 200 ms but its LED output (port 1) "
-                                            "still reads on "), err
+        assert code == 4 and err.startswith(
+            "vts: camera cam1 accepted a pulse of 200 ms but its LED output (port 1) still reads on "
+        ), err
         rig.servers["cam1"].faults.led_held = False
         code, out, err = vts(capsys, *led, "pulse", "200")
-        assert code == 0 and "OK" not in out and out.startswith("cam1: LED pulse 200 ms (output port 1): read back: "), out
+        assert (
+            code == 0 and "OK" not in out and out.startswith("cam1: LED pulse 200 ms (output port 1): read back: ")
+        ), out
         assert not rig.sources["cam1"].led_on()

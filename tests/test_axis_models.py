@@ -13,22 +13,22 @@ import pytest
 import requests
 from requests.auth import HTTPDigestAuth
 
-from vts_hw.recording.axis_jpeg import inspect_jpeg
-from vts_hw.vision.detect import detect, detect_jpeg
 from vts_hw.drivers.axis import AxisCamera
+from vts_hw.recording.axis_jpeg import inspect_jpeg
 from vts_hw.sim_devices.axis_params import MODELS, Profile
 from vts_hw.sim_devices.axis_streaming import restamp
 from vts_hw.sim_devices.render import Renderer, encode
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.sim_devices.scene import Scene
+from vts_hw.vision.detect import detect, detect_jpeg
 
 
 def segments(jpeg: bytes) -> list[tuple[int, bytes]]:
     """(marker, payload) of every header segment up to the start of scan."""
     out, i = [], 2
     while jpeg[i] == 0xFF and jpeg[i + 1] != 0xDA:
-        (length,) = struct.unpack(">H", jpeg[i + 2:i + 4])
-        out.append((jpeg[i + 1], jpeg[i + 4:i + 2 + length]))
+        (length,) = struct.unpack(">H", jpeg[i + 2 : i + 4])
+        out.append((jpeg[i + 1], jpeg[i + 4 : i + 2 + length]))
         i += 2 + length
     return out
 
@@ -81,19 +81,49 @@ def test_parameter_tree_has_every_group_a_client_reads(rig_p1375):
     text = _get(rig_p1375, "/axis-cgi/param.cgi?action=list").text
     tree = dict(line.split("=", 1) for line in text.splitlines())
     serial = rig_p1375.servers["cam1"].product.mac.hex().upper()
-    for key in ("Brand.Brand", "Brand.ProdFullName", "Brand.ProdNbr", "Brand.ProdShortName", "Brand.ProdType",
-                "Brand.ProdVariant", "Brand.WebURL", "Properties.API.HTTP.Version", "Properties.API.HTTP.AdminPath",
-                "Properties.API.Metadata.Metadata", "Properties.API.Metadata.Version",
-                "Properties.Firmware.BuildDate", "Properties.Firmware.BuildNumber", "Properties.Firmware.Version",
-                "Properties.Image.Format", "Properties.Image.NbrOfViews", "Properties.Image.Resolution",
-                "Properties.Image.Rotation", "Properties.System.Architecture", "Properties.System.HardwareID",
-                "Properties.System.SerialNumber", "Properties.System.Soc", "Image.I0.Name",
-                "Image.I0.Appearance.Resolution", "Image.I0.Appearance.Compression", "Image.I0.Stream.FPS",
-                "StreamProfile.MaxGroups", "StreamProfile.S0.Name", "StreamProfile.S0.Parameters",
-                "IOPort.I0.Direction", "IOPort.I0.Output.Active", "IOPort.I0.Output.Name",
-                "IOPort.I1.Direction", "IOPort.I1.Input.Trig", "Input.NbrOfInputs", "Output.NbrOfOutputs",
-                "Network.eth0.MACAddress", "Network.HostName", "Time.SyncSource", "Time.NTP.Server",
-                "Time.TimeZone"):
+    for key in (
+        "Brand.Brand",
+        "Brand.ProdFullName",
+        "Brand.ProdNbr",
+        "Brand.ProdShortName",
+        "Brand.ProdType",
+        "Brand.ProdVariant",
+        "Brand.WebURL",
+        "Properties.API.HTTP.Version",
+        "Properties.API.HTTP.AdminPath",
+        "Properties.API.Metadata.Metadata",
+        "Properties.API.Metadata.Version",
+        "Properties.Firmware.BuildDate",
+        "Properties.Firmware.BuildNumber",
+        "Properties.Firmware.Version",
+        "Properties.Image.Format",
+        "Properties.Image.NbrOfViews",
+        "Properties.Image.Resolution",
+        "Properties.Image.Rotation",
+        "Properties.System.Architecture",
+        "Properties.System.HardwareID",
+        "Properties.System.SerialNumber",
+        "Properties.System.Soc",
+        "Image.I0.Name",
+        "Image.I0.Appearance.Resolution",
+        "Image.I0.Appearance.Compression",
+        "Image.I0.Stream.FPS",
+        "StreamProfile.MaxGroups",
+        "StreamProfile.S0.Name",
+        "StreamProfile.S0.Parameters",
+        "IOPort.I0.Direction",
+        "IOPort.I0.Output.Active",
+        "IOPort.I0.Output.Name",
+        "IOPort.I1.Direction",
+        "IOPort.I1.Input.Trig",
+        "Input.NbrOfInputs",
+        "Output.NbrOfOutputs",
+        "Network.eth0.MACAddress",
+        "Network.HostName",
+        "Time.SyncSource",
+        "Time.NTP.Server",
+        "Time.TimeZone",
+    ):
         assert "root." + key in tree, key
     assert tree["root.Properties.System.SerialNumber"] == serial
     assert tree["root.Network.eth0.MACAddress"].replace(":", "") == serial
@@ -107,11 +137,17 @@ def test_param_cgi_by_post_with_a_form_body(rig_p1375, content_type):
     r = _post(rig_p1375, "/axis-cgi/param.cgi", data=body, headers={"Content-Type": content_type})
     assert r.status_code == 200 and "root.Brand.ProdNbr=P1375\r\n" in r.text
     assert all(line.startswith("root.Brand.") for line in r.text.splitlines())
-    r = _post(rig_p1375, "/axis-cgi/param.cgi", data="action=update&root.Image.I0.Appearance.Compression=40",
-              headers={"Content-Type": content_type})
+    r = _post(
+        rig_p1375,
+        "/axis-cgi/param.cgi",
+        data="action=update&root.Image.I0.Appearance.Compression=40",
+        headers={"Content-Type": content_type},
+    )
     assert r.text == "OK\r\n"
-    assert _get(rig_p1375, "/axis-cgi/param.cgi?action=list&group=Image.I0.Appearance.Compression").text == \
-        "root.Image.I0.Appearance.Compression=40\r\n"
+    assert (
+        _get(rig_p1375, "/axis-cgi/param.cgi?action=list&group=Image.I0.Appearance.Compression").text
+        == "root.Image.I0.Appearance.Compression=40\r\n"
+    )
 
 
 def test_api_discovery_lists_apis_that_answer(rig_p1375):
@@ -121,16 +157,35 @@ def test_api_discovery_lists_apis_that_answer(rig_p1375):
     ids = {api["id"]: api for api in reply["data"]["apiList"]}
     assert {"api-discovery", "basic-device-info", "param-cgi", "time-service"} <= set(ids)
     assert all(api["version"] and api["name"] for api in ids.values())
-    info = _post(rig_p1375, "/axis-cgi/basicdeviceinfo.cgi",
-                 json={"apiVersion": ids["basic-device-info"]["version"], "context": "c",
-                       "method": "getAllProperties"}).json()
+    info = _post(
+        rig_p1375,
+        "/axis-cgi/basicdeviceinfo.cgi",
+        json={"apiVersion": ids["basic-device-info"]["version"], "context": "c", "method": "getAllProperties"},
+    ).json()
     props = info["data"]["propertyList"]
-    for key in ("Architecture", "Brand", "BuildDate", "HardwareID", "ProdFullName", "ProdNbr", "ProdShortName",
-                "ProdType", "ProdVariant", "SerialNumber", "Soc", "SocSerialNumber", "Version", "WebURL"):
+    for key in (
+        "Architecture",
+        "Brand",
+        "BuildDate",
+        "HardwareID",
+        "ProdFullName",
+        "ProdNbr",
+        "ProdShortName",
+        "ProdType",
+        "ProdVariant",
+        "SerialNumber",
+        "Soc",
+        "SocSerialNumber",
+        "Version",
+        "WebURL",
+    ):
         assert key in props, key
     assert props["ProdNbr"] == "P1375" and props["HardwareID"] == "931"
-    assert _post(rig_p1375, "/axis-cgi/time.cgi", json={"apiVersion": "1.0", "method": "getDateTimeInfo"}) \
-        .json()["data"]["dateTime"].endswith("Z")
+    assert (
+        _post(rig_p1375, "/axis-cgi/time.cgi", json={"apiVersion": "1.0", "method": "getDateTimeInfo"})
+        .json()["data"]["dateTime"]
+        .endswith("Z")
+    )
     bad = _post(rig_p1375, "/axis-cgi/apidiscovery.cgi", json={"method": "nope"}).json()
     assert bad["error"]["code"] == 2004
     assert _post(rig_p1375, "/axis-cgi/apidiscovery.cgi", data=b"{not json").json()["error"]["code"] == 4000
@@ -164,8 +219,11 @@ def test_legacy_frame_is_laid_out_like_the_real_447_frame(rig_211, axis_frames):
         assert time_seg[7:12] == b"\x00" * 5 and time_seg[12] == 1
     real_info, sim_info = inspect_jpeg(real), inspect_jpeg(sim)
     assert sim_info.problems == () and sim_info.timestamp is not None
-    assert (sim_info.product.hardware_id, sim_info.product.firmware) == \
-        (real_info.product.hardware_id, real_info.product.firmware) == (0x15B, (4, 47, 13))
+    assert (
+        (sim_info.product.hardware_id, sim_info.product.firmware)
+        == (real_info.product.hardware_id, real_info.product.firmware)
+        == (0x15B, (4, 47, 13))
+    )
     assert sim_info.product.mac[:3] == real_info.product.mac[:3] == bytes.fromhex("00408C")
 
 
@@ -225,8 +283,11 @@ def test_restamp_replaces_the_segments_in_place():
 # The AXIS 211 (firmware 4.47, VAPIX 2)
 # ----------------------------------------------------------------------------------------
 def test_legacy_camera_has_vapix2_paths_only_and_closes_every_connection(rig_211):
-    for path in ("/axis-cgi/param.cgi?action=list&group=Brand", "/axis-cgi/io/port.cgi?action=1%3A%2F",
-                 "/axis-cgi/date.cgi?action=get"):
+    for path in (
+        "/axis-cgi/param.cgi?action=list&group=Brand",
+        "/axis-cgi/io/port.cgi?action=1%3A%2F",
+        "/axis-cgi/date.cgi?action=get",
+    ):
         assert _get(rig_211, path).status_code == 404, path
     for path in ("/axis-cgi/basicdeviceinfo.cgi", "/axis-cgi/apidiscovery.cgi", "/axis-cgi/time.cgi"):
         assert _post(rig_211, path, json={"apiVersion": "1.0", "method": "getApiList"}).status_code == 404, path

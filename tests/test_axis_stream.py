@@ -21,7 +21,7 @@ def test_stream_frames_are_consecutive_and_paced(cam1):
 def test_duration_ends_the_stream(cam1):
     s = FrameStream(cam1, duration=1.0)
     frames, _ = collect(s)
-    assert not s.stop_event.is_set()          # it ended by itself, not by the test's limit
+    assert not s.stop_event.is_set()  # it ended by itself, not by the test's limit
     assert 15 <= len(frames) <= 30
     assert frames[-1].camera_time - frames[0].camera_time <= 1.0
 
@@ -49,7 +49,7 @@ def test_stall_reconnects(sim_rig, cam1):
     frames, gaps = collect(s, limit_s=60)
     assert len(frames) == 12 and not s.stop_event.is_set()
     gap = next(g for g in gaps if "stall" in g.reason)
-    assert gap.seconds < 30                   # reconnected, rather than waited out the 30 s stall
+    assert gap.seconds < 30  # reconnected, rather than waited out the 30 s stall
 
 
 def test_torn_jpeg_is_counted_not_yielded(sim_rig, cam1):

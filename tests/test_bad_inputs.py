@@ -17,29 +17,51 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 ROUND3 = {"root writes", "killed", "console full disk", "web"}
-WEB_FAMILIES = {"anonymous", "host", "origin", "token", "script", "numbers", "traversal", "bodies", "repeated",
-                "headers", "many clients", "stop"}
+WEB_FAMILIES = {
+    "anonymous",
+    "host",
+    "origin",
+    "token",
+    "script",
+    "numbers",
+    "traversal",
+    "bodies",
+    "repeated",
+    "headers",
+    "many clients",
+    "stop",
+}
 
 
 @pytest.mark.timeout(1500)
 def test_every_command_answers_bad_input_in_one_sentence():
-    p = subprocess.run([sys.executable, str(REPO / "bench" / "bad_inputs.py"), "--json", "--timeout", "120"],
-                       capture_output=True, text=True, timeout=1500)
+    p = subprocess.run(
+        [sys.executable, str(REPO / "bench" / "bad_inputs.py"), "--json", "--timeout", "120"],
+        capture_output=True,
+        text=True,
+        timeout=1500,
+    )
     r = json.loads(p.stdout)
     print(f"{r['cases']} bad inputs, {r['passed']} passed")
     for cls, c in r["classes"].items():
         print(f"  {cls}: {c}")
     for f in r["failures"]:
         print(f"  FAILED {f}")
-    assert r["cases"] >= 1000                     # every command was swept
+    assert r["cases"] >= 1000  # every command was swept
     per = r["classes"]
     assert set(per) == {"paths", "numbers", "floats", "configs", "foreign stores", "full disk"} | ROUND3
     for cls, c in per.items():
         assert c["cases"] > 0, cls
-        assert (c["tracebacks"], c["hangs"], c["false_oks"], c["damaged"], c["security"], c["other"]) == \
-            (0, 0, 0, 0, 0, 0), (cls, c, [f for f in r["failures"] if cls in f or cls == "web"][:10])
-    assert per["floats"]["cases"] >= 14 * 5       # every float option, nan/inf/-inf/1e309/NaN at least
-    assert per["full disk"]["cases"] >= 19        # every writing command on a real full disk (CI runs as root)
+        assert (c["tracebacks"], c["hangs"], c["false_oks"], c["damaged"], c["security"], c["other"]) == (
+            0,
+            0,
+            0,
+            0,
+            0,
+            0,
+        ), (cls, c, [f for f in r["failures"] if cls in f or cls == "web"][:10])
+    assert per["floats"]["cases"] >= 14 * 5  # every float option, nan/inf/-inf/1e309/NaN at least
+    assert per["full disk"]["cases"] >= 19  # every writing command on a real full disk (CI runs as root)
     # round 3: every writing command's outputs, every long command and console job, each console
     # action the issue names, every family of the web over the console's routes
     assert per["root writes"]["cases"] >= 25
@@ -48,7 +70,16 @@ def test_every_command_answers_bad_input_in_one_sentence():
     assert per["web"]["cases"] >= 200 and WEB_FAMILIES <= set(per["web"]["families"]), per["web"]
     # the store was reached, and refused, by the commands that open one
     assert per["foreign stores"]["opened"] >= 30
-    for cmd in ("store info", "store migrate", "store init", "report drift", "report rooms", "qa daily",
-                "qa push", "qa import", "calibrate stereo"):
+    for cmd in (
+        "store info",
+        "store migrate",
+        "store init",
+        "report drift",
+        "report rooms",
+        "qa daily",
+        "qa push",
+        "qa import",
+        "calibrate stereo",
+    ):
         assert cmd in r["opened_by"], (cmd, r["opened_by"])
     assert r["failures"] == [] and r["passed"] == r["cases"] and p.returncode == 0

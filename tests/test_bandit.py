@@ -22,18 +22,28 @@ JUSTIFIED = re.compile(r"^\s*(B\d{3})(,\s*B\d{3})*:\s*\S.{8,}")
 
 
 def test_bandit_finds_nothing_high_or_medium_and_every_exception_says_why():
-    p = subprocess.run([sys.executable, "-m", "bandit", "-c", "pyproject.toml", "-r", *FOLDERS, "-f", "json", "-q"],
-                       cwd=REPO, capture_output=True, text=True, timeout=300)
+    p = subprocess.run(
+        [sys.executable, "-m", "bandit", "-c", "pyproject.toml", "-r", *FOLDERS, "-f", "json", "-q"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert p.stdout.strip(), f"bandit printed nothing (exit {p.returncode}): {p.stderr[-500:]}"
     r = json.loads(p.stdout)
     assert not r["errors"], r["errors"]
     totals = r["metrics"]["_totals"]
-    print(f"bandit: {totals['loc']} lines, high {totals['SEVERITY.HIGH']}, medium {totals['SEVERITY.MEDIUM']}, "
-          f"low {totals['SEVERITY.LOW']}, # nosec {totals['nosec']}")
-    serious = [f"{x['issue_severity']} {x['test_id']} {x['filename']}:{x['line_number']}: {x['issue_text']}"
-               for x in r["results"] if x["issue_severity"] in ("HIGH", "MEDIUM")]
+    print(
+        f"bandit: {totals['loc']} lines, high {totals['SEVERITY.HIGH']}, medium {totals['SEVERITY.MEDIUM']}, "
+        f"low {totals['SEVERITY.LOW']}, # nosec {totals['nosec']}"
+    )
+    serious = [
+        f"{x['issue_severity']} {x['test_id']} {x['filename']}:{x['line_number']}: {x['issue_text']}"
+        for x in r["results"]
+        if x["issue_severity"] in ("HIGH", "MEDIUM")
+    ]
     assert serious == []
-    assert totals["loc"] > 20_000                  # the whole package was read
+    assert totals["loc"] > 20_000  # the whole package was read
     # every `# nosec` names the check it silences and why, in one line
     bare = []
     for folder in FOLDERS:
@@ -51,9 +61,11 @@ def test_bandit_finds_nothing_high_or_medium_and_every_exception_says_why():
 
 
 def test_the_xml_justification_holds_expat_refuses_entity_amplification_and_external_entities():
-    laughs = ('<?xml version="1.0"?><!DOCTYPE l [<!ENTITY a "aaaaaaaaaa">'
-              + "".join(f'<!ENTITY {chr(98 + i)} "' + f"&{chr(97 + i)};" * 10 + '">' for i in range(9))
-              + ']><root>&j;</root>')
+    laughs = (
+        '<?xml version="1.0"?><!DOCTYPE l [<!ENTITY a "aaaaaaaaaa">'
+        + "".join(f'<!ENTITY {chr(98 + i)} "' + f"&{chr(97 + i)};" * 10 + '">' for i in range(9))
+        + "]><root>&j;</root>"
+    )
     with pytest.raises(ET.ParseError, match="amplification"):
         ET.fromstring(laughs)
     with pytest.raises(ET.ParseError):

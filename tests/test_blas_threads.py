@@ -21,7 +21,9 @@ def blas_threads_here() -> list[int]:
 
     numpy.linalg.svd(numpy.ones((40, 30)))
     scipy.linalg.svd(numpy.ones((40, 30)))
-    libs = sorted({ln.split()[-1] for ln in open("/proc/self/maps") if "openblas" in ln and ln.rstrip().endswith(".so")})
+    libs = sorted(
+        {ln.split()[-1] for ln in open("/proc/self/maps") if "openblas" in ln and ln.rstrip().endswith(".so")}
+    )
     counts = []
     for path in libs:
         lib = ctypes.CDLL(path)
@@ -31,12 +33,15 @@ def blas_threads_here() -> list[int]:
 
 
 def blas_threads_in_a_process(vts_first: bool, **env) -> set[int]:
-    code = (f"import sys; sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
-            + ("import vts_hw\n" if vts_first else "")
-            + "from test_blas_threads import blas_threads_here\nprint(*blas_threads_here())")
+    code = (
+        f"import sys; sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+        + ("import vts_hw\n" if vts_first else "")
+        + "from test_blas_threads import blas_threads_here\nprint(*blas_threads_here())"
+    )
     base = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")}
-    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
-                       env={**base, **env}, check=True)
+    p = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env={**base, **env}, check=True
+    )
     return {int(x) for x in p.stdout.split()}
 
 

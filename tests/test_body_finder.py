@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from vts_hw.vision.body_finder import candidate_points, find_body, locate_body
 from vts_hw.errors import DataError
-from vts_hw.vision.registration import RigidTransform
 from vts_hw.sim_devices.scene import PHANTOM_LAYOUT, Scene
 from vts_hw.sim_devices.step_table import sphere_centres
+from vts_hw.vision.body_finder import candidate_points, find_body, locate_body
+from vts_hw.vision.registration import RigidTransform
 from vts_hw.vision.triangulate import as_camera
 
 TEMPLATE = np.array([PHANTOM_LAYOUT[f"S{k}"] for k in range(1, 8)], float)
@@ -53,7 +53,7 @@ def test_detections_shared_by_two_spheres_are_refused():
     body = moved()
     pts = np.vstack([body, [[9000.0, 0, 0]]])
     exclusive = np.array([[i, i] for i in range(8)])
-    exclusive[1] = exclusive[0]            # spheres 1 and 2 built from the same detections
+    exclusive[1] = exclusive[0]  # spheres 1 and 2 built from the same detections
     with pytest.raises(DataError, match="same detection"):
         find_body(pts, TEMPLATE, exclusive=exclusive)
 
@@ -63,12 +63,12 @@ def test_locate_body_settles_pairings_the_epipolar_constraint_leaves_open():
     phantom's shape picks the right ones, with the true cameras, to well under a millimetre."""
     scene = Scene.reference(0, start_epoch=0.0)
     scene.add_phantom()
-    scene.move_table(60.0, 0.0)                  # a position with epipolar ambiguities
+    scene.move_table(60.0, 0.0)  # a position with epipolar ambiguities
     cams = [as_camera(scene.camera_at(c, 0.0)) for c in ("cam1", "cam2")]
     truth = np.array([m.center for m in scene.markers_world(0.0)])
     uv = [c.project(truth) for c in cams]
     hyp = candidate_points(cams, uv[0], uv[1], max_px=2.0)
-    assert len(hyp.points) > len(truth)          # more hypotheses than markers: some pairings are open
+    assert len(hyp.points) > len(truth)  # more hypotheses than markers: some pairings are open
     spheres = sphere_centres(scene, 0.0)
     fit = locate_body(cams, uv[0], uv[1], spheres - [0.0, 0.0, 0.0])
     assert np.abs(fit.points - spheres).max() < 1e-6

@@ -55,7 +55,7 @@ def outside(f, truth) -> bool:
         return abs(f.rate_per_min - truth) > 0.5
     if f.status == "bounded":
         return not (f.rate_range[0] <= truth <= f.rate_range[1])
-    return f.rate_per_min is not None        # unknown carries no number
+    return f.rate_per_min is not None  # unknown carries no number
 
 
 @pytest.mark.parametrize("loss", [0.0, 0.05, 0.2])
@@ -67,7 +67,7 @@ def test_over_sixty_patients_a_rate_is_within_its_claim(loss):
         statuses.append(f.status)
         if outside(f, truth):
             missed.append((seed, f.status, f.rate_per_min, f.rate_range, round(truth, 2)))
-    assert len(missed) <= 3, missed                       # a 99 % range, and the breaths' own landmarks
+    assert len(missed) <= 3, missed  # a 99 % range, and the breaths' own landmarks
     if loss == 0.0:
         assert statuses.count("measured") >= 25, statuses  # with no loss most patients are measured
     if loss == 0.2:
@@ -118,11 +118,11 @@ def test_no_breath_is_chained_across_a_gap_through_a_body_move():
     (0089: a held-out scan with four moves read a wrong range through them)."""
     t, a, valid, truth, _, gaps = scan(3, 60.0, 0.2)
     free = find_breaths(t, a, valid, PERIOD)
-    assert free.periods and len(free.breaths) > len(free.cycles)       # breaths measured across gaps
+    assert free.periods and len(free.breaths) > len(free.cycles)  # breaths measured across gaps
     moving = np.zeros(len(t), bool)
-    for g0, g1 in gaps:                       # the body moving around every gap
+    for g0, g1 in gaps:  # the body moving around every gap
         moving |= (t >= g0 - 0.5) & (t < g1 + 0.5)
     held = find_breaths(t, a, valid, PERIOD, moving=moving)
-    assert [c.t_start for c in held.cycles] == [c.t_start for c in free.cycles]   # the whole ones stand
-    assert not held.periods                                                  # none across a gap
+    assert [c.t_start for c in held.cycles] == [c.t_start for c in free.cycles]  # the whole ones stand
+    assert not held.periods  # none across a gap
     assert all(any(abs(b[0] - c.t_start) < 0.5 for c in held.cycles) for b in held.breaths)

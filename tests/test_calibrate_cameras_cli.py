@@ -40,18 +40,22 @@ def test_real_pairs_equal_the_stereo_calibration(boards, stereo, tmp_path):
     d = json.loads(r.stdout)
     assert d["n_cameras"] == 2 and [c["name"] for c in d["cameras"]] == ["left", "right"]
     assert d["rms"] == pytest.approx(stereo["rms"], rel=0.01)
-    baseline = sum(x * x for x in stereo["cameras"][1]["t"]) ** 0.5      # camera 1 is the frame
+    baseline = sum(x * x for x in stereo["cameras"][1]["t"]) ** 0.5  # camera 1 is the frame
     assert load_calibration(out).baseline == pytest.approx(baseline, rel=0.005)
     assert d["outliers"] == ["02"] and d["view_graph"]["connected"] and "change" not in d
     # stored as a run: no rig config here, so the per-user store and an empty rig name
     from vts_hw.store import ResultsStore
+
     with ResultsStore(None) as store:
         run = store.run(d["stored"]["run_id"])
         got = {(m.subject, m.metric): m.value for m in store.measurements(run_id=run.id)}
-    assert (run.procedure, run.rig, run.status) == ("calibration", "", "OK")     # one name, as stereo's
-    assert got == {("left", "calibration_rms_px"): pytest.approx(d["cameras"][0]["rms"]),
-                   ("right", "calibration_rms_px"): pytest.approx(d["cameras"][1]["rms"]),
-                   ("set", "calibration_rms_px"): pytest.approx(d["rms"]), ("set", "calibration_converged"): 1.0}
+    assert (run.procedure, run.rig, run.status) == ("calibration", "", "OK")  # one name, as stereo's
+    assert got == {
+        ("left", "calibration_rms_px"): pytest.approx(d["cameras"][0]["rms"]),
+        ("right", "calibration_rms_px"): pytest.approx(d["cameras"][1]["rms"]),
+        ("set", "calibration_rms_px"): pytest.approx(d["rms"]),
+        ("set", "calibration_converged"): 1.0,
+    }
     # a second run reports the change from the file it replaces
     r = vts(boards, "-o", out, cwd=tmp_path)
     assert r.returncode == 0, r.stderr
@@ -87,9 +91,9 @@ def test_sim_four_cameras_against_the_truth(tmp_path):
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
     assert d["n_cameras"] == 4 and d["unit"] == "mm" and d["view_graph"]["connected"]
-    assert max(len(c) for c in d["view_graph"]["views"].values()) == 2      # no view needs all four
+    assert max(len(c) for c in d["view_graph"]["views"].values()) == 2  # no view needs all four
     across = [p for p in d["sim"]["pairs"] if len(head & set(p["cameras"])) == 1]
-    assert across, d["sim"]["pairs"]                    # boards seen by a head and a foot camera
+    assert across, d["sim"]["pairs"]  # boards seen by a head and a foot camera
     assert d["adjustment"]["converged"], d["adjustment"]
     assert d["warnings"] == [] and r.stderr == ""
     # measured (seed 0, 5 poses per pair): RMS 0.09 px; about 1.5 mm in camera 1's frame (the
@@ -115,13 +119,24 @@ def _views(boards, tmp_path, plan):
     return files
 
 
-@pytest.mark.parametrize("plan, words", [
-    ({"cam1": ("left", (1, 3, 4)), "cam2": ("right", (1, 3, 4)), "cam3": ("left", (5, 6, 7)),
-      "cam4": ("right", (5, 6, 7))},
-     "the checkerboard views do not connect the cameras: cam1, cam2 | cam3, cam4 share no view across the groups"),
-    ({"cam1": ("left", (1, 3, 4)), "cam2": ("right", (1, 3, 4)), "cam3": ("left", (5, 6, 7))},
-     "camera cam3 found the board in no view that another camera also saw"),
-])
+@pytest.mark.parametrize(
+    "plan, words",
+    [
+        (
+            {
+                "cam1": ("left", (1, 3, 4)),
+                "cam2": ("right", (1, 3, 4)),
+                "cam3": ("left", (5, 6, 7)),
+                "cam4": ("right", (5, 6, 7)),
+            },
+            "the checkerboard views do not connect the cameras: cam1, cam2 | cam3, cam4 share no view across the groups",
+        ),
+        (
+            {"cam1": ("left", (1, 3, 4)), "cam2": ("right", (1, 3, 4)), "cam3": ("left", (5, 6, 7))},
+            "camera cam3 found the board in no view that another camera also saw",
+        ),
+    ],
+)
 def test_view_graphs_refused_in_one_sentence(boards, tmp_path, plan, words):
     r = vts(*_views(boards, tmp_path, plan), "-o", tmp_path / "out.json", cwd=tmp_path)
     assert r.returncode == 3 and r.stdout == ""
@@ -137,8 +152,9 @@ def test_bad_inputs(boards, tmp_path):
     assert vts(cwd=tmp_path).returncode == 2
     assert vts("--sim", boards, cwd=tmp_path).returncode == 2
     r = vts(boards, "--reference", "cam9", "-o", tmp_path / "o.json", cwd=tmp_path)
-    assert r.returncode == 2 and r.stderr == ("vts: the reference camera 'cam9' is not among the cameras of"
-                                              " the images: left, right.\n")
+    assert r.returncode == 2 and r.stderr == (
+        "vts: the reference camera 'cam9' is not among the cameras of the images: left, right.\n"
+    )
     r = vts(tmp_path / "missing", cwd=tmp_path)
     assert r.returncode == 3 and r.stderr == f"vts: {tmp_path / 'missing'}: no such file or directory.\n"
 
@@ -152,18 +168,18 @@ def test_stereo_and_n_camera_files_replace_and_compare_with_each_other(boards, t
     from pathlib import Path
 
     out = tmp_path / "calibration.json"
-    old = Path(__file__).parent / "data" / "calibration-stereo-v1.json"   # as `stereo` wrote it before
+    old = Path(__file__).parent / "data" / "calibration-stereo-v1.json"  # as `stereo` wrote it before
     out.write_bytes(old.read_bytes())
-    r = vts(boards, "-o", out, cwd=tmp_path)                    # N cameras over an old stereo file
+    r = vts(boards, "-o", out, cwd=tmp_path)  # N cameras over an old stereo file
     assert r.returncode == 0, r.stderr
     assert "(cameras matched by order (a stereo file)):" in r.stdout
     assert isinstance(load_calibration(out), CameraCalibration)
     r = vts(boards, "-o", out, cwd=tmp_path, command="stereo")  # and the pair over N cameras
     assert r.returncode == 0, r.stderr
     assert f"Change from the previous calibration {out}" in r.stdout
-    assert "rotation between cameras changed by" in r.stdout    # judged as a pair
+    assert "rotation between cameras changed by" in r.stdout  # judged as a pair
     assert load_calibration(out).pair is not None
-    r = vts(boards, "-o", out, cwd=tmp_path)                    # N cameras over the pair: one kind of file
+    r = vts(boards, "-o", out, cwd=tmp_path)  # N cameras over the pair: one kind of file
     assert r.returncode == 0, r.stderr
     assert "(cameras matched by name):" in r.stdout
 

@@ -27,7 +27,7 @@ def test_real_pairs_from_a_directory(boards, tmp_path):
     assert r.returncode == 0, r.stderr
     calib = load_calibration(out)
     assert calib.unit == "squares" and len(calib.per_view) + len(calib.skipped) == 13
-    assert calib.names == ["left", "right"] and calib.pair is not None      # the two-camera case of one record
+    assert calib.names == ["left", "right"] and calib.pair is not None  # the two-camera case of one record
     assert "RMS reprojection error" in r.stdout and f"RMS reprojection error {calib.rms:.3f} px" in r.stdout
     assert f"left: RMS {calib.camera_fits[0].rms:.3f} px" in r.stdout and "rotation between left and right" in r.stdout
     assert f"wrote {out}" in r.stdout
@@ -54,22 +54,27 @@ def test_stored_as_a_run_of_the_rig(boards, tmp_path):
     d = json.loads(r.stdout)
     with ResultsStore(url) as store:
         (run,) = store.runs()
-        got = {m.subject: (m.value, str(m.status)) for m in store.measurements(run_id=run.id)
-               if m.metric == "calibration_rms_px"}
+        got = {
+            m.subject: (m.value, str(m.status))
+            for m in store.measurements(run_id=run.id)
+            if m.metric == "calibration_rms_px"
+        }
     assert d["stored"] == {"run_id": run.id, "unsaved_file": None}
     assert (run.procedure, run.rig, run.status) == ("calibration", "room-x", "OK")
     assert run.notes == f"saved to {tmp_path / 'cal.json'}"
     own = {c["name"]: c["rms"] for c in d["cameras"]}
-    assert got == {"left": (pytest.approx(own["left"]), "OK"), "right": (pytest.approx(own["right"]), "OK"),
-                   "set": (pytest.approx(d["rms"]), "OK")}
+    assert got == {
+        "left": (pytest.approx(own["left"]), "OK"),
+        "right": (pytest.approx(own["right"]), "OK"),
+        "set": (pytest.approx(d["rms"]), "OK"),
+    }
 
 
 def test_real_pairs_from_files_json_and_previous(boards, tmp_path):
     files = [boards / f"{side}{n:02d}.jpg" for n in (1, 3, 4, 5, 6) for side in ("right", "left")]
     first = tmp_path / "first.json"
     assert vts(boards, "-o", first, cwd=tmp_path).returncode == 0
-    r = vts(*files, "--square", "25", "-o", tmp_path / "b.json", "--previous", first, "--json",
-            cwd=tmp_path)
+    r = vts(*files, "--square", "25", "-o", tmp_path / "b.json", "--previous", first, "--json", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     data = json.loads(r.stdout)
     assert data["unit"] == "mm" and data["square"] == 25.0
@@ -90,7 +95,7 @@ def test_sim_recovers_the_simulated_cameras(tmp_path):
     # alone is fitted. Measured (seed 0, 15 poses): stereo RMS 0.06 px, principal points within
     # 2.5 px, focal lengths within 0.1 %, k1 within 0.02, stereo rotation off by 0.03 deg (with
     # OpenCV's five terms: cx off by 9-22 px, k1 -0.20 for -0.05, rotation 0.3 deg).
-    assert [c["name"] for c in data["cameras"]] == ["cam1", "cam2"]     # the scene's cameras
+    assert [c["name"] for c in data["cameras"]] == ["cam1", "cam2"]  # the scene's cameras
     assert data["cameras"][0]["distortion_model"]["fitted"] == ["k1"]
     assert data["rms"] < 0.1
     for cam in ("cam1", "cam2"):
@@ -116,13 +121,17 @@ def test_sim_off_from_the_truth_is_a_warning(tmp_path):
     assert r.returncode == 0, r.stderr
     assert "WARNING: cx1 differs from the truth by -18.8" in r.stdout
     assert "x its standard deviation" in r.stdout
-    assert "warning(s) above; the calibration was still saved (a warning does not fail the run: exit code 0)" in r.stdout
+    assert (
+        "warning(s) above; the calibration was still saved (a warning does not fail the run: exit code 0)" in r.stdout
+    )
     assert load_calibration(tmp_path / "sim.json").camera_fits[0].distortion_model["fitted"][-1] == "k3"
 
 
 def test_sim_text_output(tmp_path):
-    (tmp_path / "rig.yaml").write_text(f"rig: room-x\ncameras:\n  - name: cam1\n    host: 127.0.0.1\n"
-                                       f"results:\n  url: sqlite:///{tmp_path / 'room.sqlite'}\n")
+    (tmp_path / "rig.yaml").write_text(
+        f"rig: room-x\ncameras:\n  - name: cam1\n    host: 127.0.0.1\n"
+        f"results:\n  url: sqlite:///{tmp_path / 'room.sqlite'}\n"
+    )
     r = vts("--sim", "--sim-poses", 6, "--sim-seed", 2, cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     # a simulated calibration is a demonstration, not the room's history: not stored
@@ -132,12 +141,15 @@ def test_sim_text_output(tmp_path):
     assert (tmp_path / "calibration.json").is_file()
 
 
-@pytest.mark.parametrize("make_args, words", [
-    (lambda p, b: [p], "no leftNN/rightNN image pairs"),
-    (lambda p, b: [p / "left01.jpg", p / "right01.jpg"], "no such file"),
-    (lambda p, b: [b / "left01.jpg"], "no matching right image"),
-    (lambda p, b: [b, "--previous", p / "missing.json"], "cannot read the calibration file"),
-])
+@pytest.mark.parametrize(
+    "make_args, words",
+    [
+        (lambda p, b: [p], "no leftNN/rightNN image pairs"),
+        (lambda p, b: [p / "left01.jpg", p / "right01.jpg"], "no such file"),
+        (lambda p, b: [b / "left01.jpg"], "no matching right image"),
+        (lambda p, b: [b, "--previous", p / "missing.json"], "cannot read the calibration file"),
+    ],
+)
 def test_bad_inputs_end_in_one_line(boards, tmp_path, make_args, words):
     r = vts(*make_args(tmp_path, boards), "-o", tmp_path / "out.json", cwd=tmp_path)
     assert r.returncode == 3
@@ -166,7 +178,7 @@ def test_forgotten_square_over_a_calibration_in_mm_is_refused(boards, tmp_path):
     out = tmp_path / "calibration.json"
     assert vts(boards, "--square", "25", "-o", out, cwd=tmp_path).returncode == 0
     before = out.read_bytes()
-    r = vts(boards, "-o", out, cwd=tmp_path)           # --square forgotten
+    r = vts(boards, "-o", out, cwd=tmp_path)  # --square forgotten
     assert r.returncode == 2 and r.stdout == ""
     assert r.stderr.count("\n") == 1 and "Traceback" not in r.stderr
     assert r.stderr.startswith(f"vts: {out} holds a calibration in mm (squares of 25 mm)")
@@ -205,7 +217,12 @@ def test_moved_beyond_the_uncertainty_is_a_warning(boards, tmp_path):
     assert len(d["change"]["warnings"]) == 1 and d["warnings"] == d["change"]["warnings"]
     assert d["change"]["warnings"][0].startswith("WARNING: cx1 moved by +8 px, 5.8 x its combined")
     # the warning, then where the run was stored (stderr under --json)
-    assert r.stderr == d["change"]["warnings"][0] + "\n" + f"stored: run {d['stored']['run_id']} (calibration) in the results store\n"
+    assert (
+        r.stderr
+        == d["change"]["warnings"][0]
+        + "\n"
+        + f"stored: run {d['stored']['run_id']} (calibration) in the results store\n"
+    )
     row = next(x for x in d["change"]["judged"] if x["parameter"] == "cx1")
     assert row["change"] == pytest.approx(8.0) and row["ratio"] > 3
     assert load_calibration(out).K1[0, 2] == pytest.approx(data["cameras"][0]["K"][0][2] + 8.0)
@@ -230,8 +247,10 @@ def test_bad_images_end_in_one_sentence(boards, tmp_path):
     cases = [
         ([bad], f"{bad / 'left01.jpg'}: cannot be read as an image."),
         ([blank], "only 0 pair(s) show the board in both images; the stereo calibration needs at least 3."),
-        ([boards / f"{s}0{i}.jpg" for i in (1, 3) for s in ("left", "right")],
-         "only 2 pair(s) show the board in both images; the stereo calibration needs at least 3."),
+        (
+            [boards / f"{s}0{i}.jpg" for i in (1, 3) for s in ("left", "right")],
+            "only 2 pair(s) show the board in both images; the stereo calibration needs at least 3.",
+        ),
     ]
     for args, message in cases:
         r = vts(*args, "-o", tmp_path / "out.json", cwd=tmp_path)
@@ -251,19 +270,22 @@ def test_disk_full_keeps_the_previous_file_and_saves_the_new_one_here(boards, tm
     work.mkdir()
     r = vts(boards, "-o", out, "--json", cwd=work)
     assert r.returncode == 3
-    data = json.loads(r.stdout)                          # the figures are still given
+    data = json.loads(r.stdout)  # the figures are still given
     assert data["rms"] > 0 and data["output"] is None
     fallback = work / data["saved_to"].rsplit("/", 1)[-1]
     assert data["saved_to"] == str(fallback) and fallback.name.startswith("calibration-")
-    stored, err = r.stderr.split("\n", 1)               # the run is stored all the same (stderr under --json)
+    stored, err = r.stderr.split("\n", 1)  # the run is stored all the same (stderr under --json)
     assert stored == f"stored: run {data['stored']['run_id']} (calibration) in the results store"
-    assert err == (f"vts: {out}: could not be written (no space left on device); the previous"
-                   f" version is unchanged; the calibration was saved to {fallback} instead\n")
+    assert err == (
+        f"vts: {out}: could not be written (no space left on device); the previous"
+        f" version is unchanged; the calibration was saved to {fallback} instead\n"
+    )
     assert data["write_error"] == err[5:-1]
     assert load_calibration(fallback).results_data() == {
-        k: v for k, v in data.items() if k not in ("output", "saved_to", "write_error", "change", "warnings", "stored")}
+        k: v for k, v in data.items() if k not in ("output", "saved_to", "write_error", "change", "warnings", "stored")
+    }
     assert out.read_bytes() == before
-    assert disk.files() == {"calibration.json": len(before)}     # no .tmp, no 0-byte file
+    assert disk.files() == {"calibration.json": len(before)}  # no .tmp, no 0-byte file
 
 
 def test_disk_full_everywhere_but_tmpdir(boards, tmp_path, small_disk):
@@ -275,15 +297,22 @@ def test_disk_full_everywhere_but_tmpdir(boards, tmp_path, small_disk):
     disk.fill()
     tmpdir = tmp_path / "tmpdir"
     tmpdir.mkdir()
-    r = subprocess.run([sys.executable, "-m", "vts_hw.cli.__main__", "calibrate", "stereo", str(boards),
-                        "-o", "new.json"], capture_output=True, text=True, cwd=disk.path, timeout=600,
-                       env={**os.environ, "TMPDIR": str(tmpdir)})
+    r = subprocess.run(
+        [sys.executable, "-m", "vts_hw.cli.__main__", "calibrate", "stereo", str(boards), "-o", "new.json"],
+        capture_output=True,
+        text=True,
+        cwd=disk.path,
+        timeout=600,
+        env={**os.environ, "TMPDIR": str(tmpdir)},
+    )
     assert r.returncode == 3
     assert "RMS reprojection error 0.448 px" in r.stdout and "wrote" not in r.stdout
     saved = list(tmpdir.glob("new-*.json"))
     assert len(saved) == 1
-    assert r.stderr == (f"vts: new.json: could not be written (no space left on device); nothing was"
-                        f" written there; the calibration was saved to {saved[0]} instead\n")
+    assert r.stderr == (
+        f"vts: new.json: could not be written (no space left on device); nothing was"
+        f" written there; the calibration was saved to {saved[0]} instead\n"
+    )
     assert load_calibration(saved[0]).rms == pytest.approx(0.448, abs=5e-4)
     assert disk.files() == {}
 
@@ -293,5 +322,7 @@ def test_read_only_output_folder(boards, tmp_path, readonly_dir):
     assert r.returncode == 3 and "RMS reprojection error" in r.stdout
     saved = list(tmp_path.glob("cal-*.json"))
     assert len(saved) == 1 and load_calibration(saved[0]).unit == "squares"
-    assert r.stderr == (f"vts: {readonly_dir / 'cal.json'}: could not be written (read-only file system);"
-                        f" nothing was written there; the calibration was saved to {saved[0]} instead\n")
+    assert r.stderr == (
+        f"vts: {readonly_dir / 'cal.json'}: could not be written (read-only file system);"
+        f" nothing was written there; the calibration was saved to {saved[0]} instead\n"
+    )

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from inprocess_cli import run
-from vts_hw.vision.registration import RigidTransform
 from vts_hw.sim_devices.spect import SimSpect, phantom_centres
+from vts_hw.vision.registration import RigidTransform
 
 
 def vts(*args, cwd):
@@ -61,7 +61,7 @@ def test_files_csv(tmp_path, session):
     # the volume that places the SPECT frame is kept with the mapping (CASToR's centre: decision 0043)
     vol = T.meta["spect_volume"]
     assert vol["file"] == "phantom.npz" and vol["format"] == "npz" and vol["shape"] == [64, 64, 64]
-    assert np.allclose(vol["centre_mm"], 0.0, atol=1e-9)          # SimSpect centres its FOV on the origin
+    assert np.allclose(vol["centre_mm"], 0.0, atol=1e-9)  # SimSpect centres its FOV on the origin
 
 
 def test_files_json(tmp_path, session):
@@ -76,11 +76,15 @@ def test_files_json(tmp_path, session):
     RigidTransform.load(out)
     # stored as a run, the one way every QA result is (no rig config: the per-user store)
     from vts_hw.store import ResultsStore
+
     with ResultsStore(None) as store:
         run = store.run(data["stored"]["run_id"])
         ms = {m.metric: m.value for m in store.measurements(run_id=run.id)}
     assert run.procedure == "spect_mapping" and run.status == "OK"
-    assert ms == {"mapping_fre_mm": pytest.approx(data["fre_mm"]), "mapping_tre_rms_mm": pytest.approx(data["tre_rms_mm"])}
+    assert ms == {
+        "mapping_fre_mm": pytest.approx(data["fre_mm"]),
+        "mapping_tre_rms_mm": pytest.approx(data["tre_rms_mm"]),
+    }
 
 
 @pytest.mark.parametrize("text", ["a,b,c\n1,2,3\n", "x,y,z\n1,2,oops\n", ""])
@@ -118,17 +122,18 @@ def test_usage(tmp_path):
     assert vts("--sim", "--vts", "x.csv", cwd=tmp_path).returncode == 2
 
 
-@pytest.mark.parametrize("n_cameras, calibrate", [(2, ["stereo"]), (4, ["cameras", "--cameras", "4"])],
-                         ids=["stereo pair", "four cameras"])
+@pytest.mark.parametrize(
+    "n_cameras, calibrate", [(2, ["stereo"]), (4, ["cameras", "--cameras", "4"])], ids=["stereo pair", "four cameras"]
+)
 def test_from_cameras_on_a_live_simulated_rig(tmp_path, n_cameras, calibrate):
     """The real-rig path: the rig's cameras over HTTP, a calibration from rendered
     checkerboards (a stereo pair, or N cameras: then every calibrated camera measures, and the
     mapping names them), a SPECT volume of the phantom; the spheres picked out by shape."""
     import os
 
-    from vts_hw.vision.registration import difference
     from vts_hw.sim_devices.rig import SimRig
     from vts_hw.sim_devices.step_table import sphere_centres
+    from vts_hw.vision.registration import difference
 
     cal = tmp_path / "cal.json"
     r = run("calibrate", *calibrate, "--sim", "--sim-seed", "2", "-o", cal)
@@ -139,8 +144,23 @@ def test_from_cameras_on_a_live_simulated_rig(tmp_path, n_cameras, calibrate):
         vol = SimSpect(seed=2).write(tmp_path / "phantom.npz", sphere_centres(rig.scene, rig.clock.now()))
         out = tmp_path / "map.json"
         env = {**os.environ, **rig.env_vars()}
-        r = run("calibrate", "spect", "--from-cameras", "--volume", vol, "--calibration", cal, "--config", cfg,
-                "--frames", "4", "--json", "-o", out, env=env)
+        r = run(
+            "calibrate",
+            "spect",
+            "--from-cameras",
+            "--volume",
+            vol,
+            "--calibration",
+            cal,
+            "--config",
+            cfg,
+            "--frames",
+            "4",
+            "--json",
+            "-o",
+            out,
+            env=env,
+        )
         assert r.returncode == 0, r.stderr
         c1 = rig.scene.camera_at("cam1", rig.clock.now())
     d = json.loads(r.stdout)
@@ -176,8 +196,10 @@ def test_disk_full_keeps_the_mapping(tmp_path, session, small_disk):
     assert "FRE (RMS fit residual)" in r.stdout and "wrote" not in r.stdout
     saved = list(tmp_path.glob("spect_mapping-*.json"))
     assert len(saved) == 1
-    assert r.stderr == (f"vts: {out}: could not be written (no space left on device); the previous"
-                        f" version is unchanged; the mapping was saved to {saved[0]} instead\n")
+    assert r.stderr == (
+        f"vts: {out}: could not be written (no space left on device); the previous"
+        f" version is unchanged; the mapping was saved to {saved[0]} instead\n"
+    )
     T = RigidTransform.load(saved[0])
     assert np.linalg.norm(T.apply(vts_pts) - truth.apply(vts_pts), axis=1).max() < 1.5
     assert out.read_bytes() == before and disk.files() == {"spect_mapping.json": len(before)}
@@ -185,8 +207,9 @@ def test_disk_full_keeps_the_mapping(tmp_path, session, small_disk):
 
 @pytest.mark.parametrize("doc", ["[" * 5000, "[[1, 2, " + "9" * 400 + "]]", "[[1, 2, 1" + "0" * 5000 + "]]"])
 def test_a_points_file_json_beyond_syntax_is_a_data_error(tmp_path, doc):
-    from vts_hw.procedures.mapping_points import read_points
     from vts_hw.errors import DataError
+    from vts_hw.procedures.mapping_points import read_points
+
     p = tmp_path / "pts.json"
     p.write_text(doc)
     with pytest.raises(DataError, match="pts.json"):
@@ -202,14 +225,16 @@ def test_the_cameras_a_calibration_covers(tmp_path):
     from vts_hw.vision.triangulate import PinholeCamera
 
     cfg = tmp_path / "rig.yaml"
-    cfg.write_text("cameras:\n" + "".join(f"  - {{name: {n}, host: 127.0.0.1, port: 9}}\n"
-                                          for n in ("head-l", "head-r", "foot-l", "foot-r")))
+    cfg.write_text(
+        "cameras:\n"
+        + "".join(f"  - {{name: {n}, host: 127.0.0.1, port: 9}}\n" for n in ("head-l", "head-r", "foot-l", "foot-r"))
+    )
     rig = load_rig(cfg)
 
     def cams(*names):
         return [PinholeCamera(np.eye(3), np.zeros(5), np.eye(3), np.zeros(3), n) for n in names]
 
-    names = lambda calib: [c.name for c in calibrated_cameras(rig, calib)]   # noqa: E731
+    names = lambda calib: [c.name for c in calibrated_cameras(rig, calib)]  # noqa: E731
     assert names(cams("foot-r", "head-l", "foot-l")) == ["head-l", "foot-l", "foot-r"]
     assert names(cams("IMG_a", "IMG_b", "IMG_c")) == ["head-l", "head-r", "foot-l"]
     assert names(cams("", "")) == ["head-l", "head-r"]
@@ -227,13 +252,15 @@ def test_an_output_that_is_not_a_mapping_is_refused_before_the_work(tmp_path, se
     cfg.write_text("rig: room1\ncameras:\n  - {name: cam1, host: 127.0.0.1}\n")
     before = cfg.read_bytes()
     r = vts("--vts", csv, "--volume", volume, "-o", cfg, cwd=tmp_path)
-    assert r.returncode == 3 and r.stderr == (f"vts: {cfg} exists and is not a VTS → SPECT mapping file;"
-                                              " give another -o, move it away, or give --force to replace it.\n")
+    assert r.returncode == 3 and r.stderr == (
+        f"vts: {cfg} exists and is not a VTS → SPECT mapping file;"
+        " give another -o, move it away, or give --force to replace it.\n"
+    )
     assert "FRE" not in r.stdout and cfg.read_bytes() == before
     assert not list(tmp_path.glob("spect_mapping*"))
     out = tmp_path / "m.json"
     assert vts("--vts", csv, "--volume", volume, "-o", out, cwd=tmp_path).returncode == 0
-    assert vts("--vts", csv, "--volume", volume, "-o", out, cwd=tmp_path).returncode == 0   # a mapping: replaced
+    assert vts("--vts", csv, "--volume", volume, "-o", out, cwd=tmp_path).returncode == 0  # a mapping: replaced
     r = vts("--vts", csv, "--volume", volume, "-o", cfg, "--force", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     RigidTransform.load(cfg)

@@ -9,11 +9,11 @@ import cv2
 import numpy as np
 import pytest
 
+from vts_hw.errors import DataError
 from vts_hw.vision.calibration import calibrate_from_corners, calibrate_stereo
 from vts_hw.vision.calibration_io import load_calibration
 from vts_hw.vision.calibration_uncertainty import compare_pair, rotation_angle_deg
 from vts_hw.vision.checkerboard import board_points, find_corners, find_pairs
-from vts_hw.errors import DataError
 
 PATTERN = (9, 6)
 NAMES = [f"{i:02d}" for i in range(1, 15) if i != 10]
@@ -64,8 +64,7 @@ def plain_reference(pairs):
     rms1, k1, d1, _, _ = cv2.calibrateCamera(objs, left, size, None, None)
     rms2, k2, d2, _, _ = cv2.calibrateCamera(objs, right, size, None, None)
     rms_s, *_, t, _e, _f = cv2.stereoCalibrate(objs, left, right, k1, d1, k2, d2, size)
-    return {"n": len(objs), "left": rms1, "right": rms2, "stereo": rms_s,
-            "baseline": float(np.linalg.norm(t))}
+    return {"n": len(objs), "left": rms1, "right": rms2, "stereo": rms_s, "baseline": float(np.linalg.norm(t))}
 
 
 def _rotate_x(deg):
@@ -340,7 +339,7 @@ def test_uncertainty_of_intrinsics_is_opencvs(calib, pairs, corners):
         for i, name in enumerate(("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")):
             assert ours[name] == pytest.approx(sd[i], rel=1e-3), name
     st = calib.uncertainty["stereo"]
-    assert 0.01 < max(st["rx"], st["ry"], st["rz"]) < 1.0      # degrees
+    assert 0.01 < max(st["rx"], st["ry"], st["rz"]) < 1.0  # degrees
     assert 0 < st["baseline"] < 0.01 * calib.baseline
 
 
@@ -357,8 +356,7 @@ def test_uncertainty_matches_the_spread_of_repeated_calibrations():
     est, predicted = [], []
     for _ in range(30):
         noisy = [[c + rng.normal(0, 0.1, c.shape) for c in side] for side in exact]
-        cal = calibrate_from_corners(*noisy, (640, 480), square=cb.SQUARE_MM, unit="mm",
-                                     distortion="k1")
+        cal = calibrate_from_corners(*noisy, (640, 480), square=cb.SQUARE_MM, unit="mm", distortion="k1")
         est.append([cal.K1[0, 2], cal.K2[0, 0], cal.d1[0], rotation_angle_deg(cal.R)])
         u = cal.uncertainty
         predicted.append([u["camera1"]["cx"], u["camera2"]["fx"], u["camera1"]["k1"], u["stereo"]["ry"]])
@@ -381,7 +379,7 @@ def test_old_file_without_uncertainty_still_loads_and_compares(calib, tmp_path):
     assert diff["previous_has_uncertainty"] is False and diff["warnings"] == []
     cx1 = next(r for r in diff["judged"] if r["parameter"] == "cx1")
     assert cx1["sd"] == pytest.approx(np.sqrt(2) * calib.uncertainty["camera1"]["cx"])
-    assert compare_pair(old, calib)["judged"] == []      # nothing to judge with: no warnings made up
+    assert compare_pair(old, calib)["judged"] == []  # nothing to judge with: no warnings made up
 
 
 def _moved(calib, **changes):
@@ -410,10 +408,15 @@ def test_a_turned_camera_is_a_rotation_warning(calib):
     assert diff["rotation_deg"] == pytest.approx(1.0)
     assert any(w.startswith("WARNING: rotation moved by +1 deg") for w in diff["warnings"]), diff["warnings"]
     assert not any("cx1" in w or "fx1" in w for w in diff["warnings"])
-@pytest.mark.parametrize("text, words", [
-    ("[" * 5000 + "]" * 5000, "not a JSON calibration file (nested too deeply)."),
-    ('{"format": ' + "9" * 5000 + "}", "not a JSON calibration file (Exceeds the limit (4300 digits)"),
-])
+
+
+@pytest.mark.parametrize(
+    "text, words",
+    [
+        ("[" * 5000 + "]" * 5000, "not a JSON calibration file (nested too deeply)."),
+        ('{"format": ' + "9" * 5000 + "}", "not a JSON calibration file (Exceeds the limit (4300 digits)"),
+    ],
+)
 def test_json_that_the_json_module_refuses_beyond_syntax(tmp_path, text, words):
     """RecursionError and the int-digits ValueError of json.loads: a DataError naming the file."""
     path = tmp_path / "calibration.json"
@@ -429,17 +432,16 @@ def test_a_number_no_float_can_hold(calib, tmp_path, key):
     of the old format, the others today's)."""
     data = json.loads(OLD_STEREO.read_text()) if key == "K1" else calib.results_data()
     if key == "K1":
-        data["K1"][0][0] = 10 ** 400
+        data["K1"][0][0] = 10**400
     elif key == "cameras[0].K":
-        data["cameras"][0]["K"][0][0] = 10 ** 400
+        data["cameras"][0]["K"][0][0] = 10**400
     elif key == "cameras[1].rms":
-        data["cameras"][1]["rms"] = 10 ** 400
+        data["cameras"][1]["rms"] = 10**400
     else:
-        data[key] = 10 ** 400
+        data[key] = 10**400
     path = tmp_path / "calibration.json"
     path.write_text(json.dumps(data))
     with pytest.raises(DataError) as err:
         load_calibration(path)
     msg = str(err.value)
     assert msg.startswith(f"{path}: key '{key}' must be") and len(msg) < len(str(path)) + 120
-

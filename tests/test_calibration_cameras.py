@@ -67,7 +67,7 @@ def test_stereo_is_the_two_camera_case(real, real_calib, shared_data):
     assert st.names == real_calib.names and st.pair is not None and real_calib.pair is None
     fixed = calibrate_cameras(real, {"left": SIZE, "right": SIZE}, intrinsics="fixed", loss="linear")
     assert fixed.rms == pytest.approx(st.rms, rel=1e-6)
-    assert [c.rms for c in fixed.camera_fits] == pytest.approx([c.rms for c in st.camera_fits], rel=1e-9)   # own fits
+    assert [c.rms for c in fixed.camera_fits] == pytest.approx([c.rms for c in st.camera_fits], rel=1e-9)  # own fits
     assert fixed.baseline == pytest.approx(st.baseline, rel=1e-5)
     np.testing.assert_allclose(fixed.R, st.R, atol=1e-6)
 
@@ -119,27 +119,30 @@ def test_simulated_rooms_against_the_truth(layout):
     from vts_hw.sim_devices.scenarios.calibration_views import cameras_against_truth, fov_points, true_cameras
     from vts_hw.sim_devices.scene import Scene
 
-    scene = _head_and_foot() if layout.startswith("head") else Scene.reference(3, n_cameras=int(layout[-1]),
-                                                                              start_epoch=0.0)
+    scene = (
+        _head_and_foot()
+        if layout.startswith("head")
+        else Scene.reference(3, n_cameras=int(layout[-1]), start_epoch=0.0)
+    )
     ends = {int(np.sign(c.center[2])) for c in scene.cameras.values()}
-    assert ends == {-1, 1}            # the reference rooms too: cameras at the head and at the foot end
+    assert ends == {-1, 1}  # the reference rooms too: cameras at the head and at the foot end
     corners = _sim_corners(scene, 6, 3)
     graph = ViewGraph(list(corners), {c: list(v) for c, v in corners.items()})
     assert graph.connected
-    assert max(len(cams) for cams in graph.seen_by.values()) < len(corners)     # no view spans all
+    assert max(len(cams) for cams in graph.seen_by.values()) < len(corners)  # no view spans all
     calib = calibrate_cameras(corners, {c: SIZE for c in corners}, square=50.0, unit="mm", distortion="k1")
     truth = true_cameras(scene, square_mm=50.0)
     t = cameras_against_truth(calib, truth, fov_points(scene))
     print(layout, json.dumps(t["points_3d"]))
     assert calib.rms < 0.2 and calib.outliers == []
     assert t["points_3d"]["n"] > 300
-    assert t["points_3d"]["rms_after_rigid_fit"] < 0.1          # mm: the shape of the field is right
+    assert t["points_3d"]["rms_after_rigid_fit"] < 0.1  # mm: the shape of the field is right
     # mm, mostly the scale along the view: a focal length 0.1 % off is 4 mm at 3.7 m (0024)
     assert t["points_3d"]["rms"] < 25.0
     for name, rows in t["cameras"].items():
         sd = calib.camera(name).sd
         assert abs(rows["fx"]["error_percent"]) < 0.5, (name, rows["fx"])
-        for key in ("fx", "cx", "cy", "k1"):      # honest standard deviations (measured: within 2.5)
+        for key in ("fx", "cx", "cy", "k1"):  # honest standard deviations (measured: within 2.5)
             assert abs(rows[key]["error"]) < 4 * rows[key]["sd"], (name, key, rows[key])
         if name != calib.reference:
             assert rows["rotation_error_deg"] < 4 * np.hypot(sd["rx"], np.hypot(sd["ry"], sd["rz"])), name
@@ -151,8 +154,10 @@ def test_disconnected_views_are_refused(real):
     corners = {"a": {"1": 0, "2": 0}, "b": {"1": 0, "2": 0}, "c": {"3": 0, "4": 0}, "d": {"3": 0, "4": 0}}
     with pytest.raises(DataError) as err:
         calibrate_cameras(corners, {c: SIZE for c in corners})
-    assert str(err.value) == ("the checkerboard views do not connect the cameras: a, b | c, d share no view"
-                              " across the groups; add views that a camera of each group sees together.")
+    assert str(err.value) == (
+        "the checkerboard views do not connect the cameras: a, b | c, d share no view"
+        " across the groups; add views that a camera of each group sees together."
+    )
 
 
 def test_a_camera_in_no_shared_view_is_named():
@@ -180,24 +185,35 @@ def test_n_camera_file_round_trip_and_readers(real_calib, tmp_path):
     assert set(cameras_from_calibration(mm, ["cam1", "cam2"])) == {"cam1", "cam2"}
     assert set(cameras_from_calibration(mm, ["left", "right", "x"])) == {"left", "right"}
     # every camera of an N-camera file reaches tracking (not only the first two)
-    third = type(back.camera_fits[0])("third", back.camera_fits[1].K, back.camera_fits[1].d,
-                                       back.camera_fits[1].R, back.camera_fits[1].t + 100.0, back.camera_fits[1].image_size)
-    three = CameraCalibration([*mm.camera_fits, third], back.pattern, 25.0, "mm", back.rms, back.per_view,
-                              back.outlier_rule)
+    third = type(back.camera_fits[0])(
+        "third",
+        back.camera_fits[1].K,
+        back.camera_fits[1].d,
+        back.camera_fits[1].R,
+        back.camera_fits[1].t + 100.0,
+        back.camera_fits[1].image_size,
+    )
+    three = CameraCalibration(
+        [*mm.camera_fits, third], back.pattern, 25.0, "mm", back.rms, back.per_view, back.outlier_rule
+    )
     assert list(cameras_from_calibration(three, ["cam1", "cam2", "cam3"])) == ["cam1", "cam2", "cam3"]
     from vts_hw.vision.camera_set import load_cameras
+
     cams3 = load_cameras(three.save(tmp_path / "three.json"))
     assert list(cams3) == ["left", "right", "third"] and np.allclose(cams3["third"].t, third.t)
 
 
-@pytest.mark.parametrize("change, key", [
-    (lambda d: d["cameras"][1].pop("K"), "'cameras[1].K'"),
-    (lambda d: d["cameras"][0].update(t=[0, "x", 1]), "'cameras[0].t'"),
-    (lambda d: d.update(cameras=d["cameras"][:1]), "'cameras'"),
-    (lambda d: d.update(unit="inch"), "'unit'"),
-    (lambda d: d["per_view"][0]["errors"].update(left=None), "'per_view[0].errors.left'"),
-    (lambda d: d.update(format="x"), "'format'"),
-])
+@pytest.mark.parametrize(
+    "change, key",
+    [
+        (lambda d: d["cameras"][1].pop("K"), "'cameras[1].K'"),
+        (lambda d: d["cameras"][0].update(t=[0, "x", 1]), "'cameras[0].t'"),
+        (lambda d: d.update(cameras=d["cameras"][:1]), "'cameras'"),
+        (lambda d: d.update(unit="inch"), "'unit'"),
+        (lambda d: d["per_view"][0]["errors"].update(left=None), "'per_view[0].errors.left'"),
+        (lambda d: d.update(format="x"), "'format'"),
+    ],
+)
 def test_bad_n_camera_file_names_file_and_key(real_calib, tmp_path, change, key):
     data = real_calib.results_data()
     change(data)
@@ -208,16 +224,29 @@ def test_bad_n_camera_file_names_file_and_key(real_calib, tmp_path, change, key)
     assert str(err.value).startswith(f"{path}: key {key}")
 
 
-OLD_STEREO_FILE = {   # a stereo file as vts-hw wrote it before N cameras (and before 0024's keys)
-    "format": "vts-hw stereo calibration", "format_version": 1,
-    "K1": [[3370.0, 0.0, 320.0], [0.0, 3370.0, 240.0], [0.0, 0.0, 1.0]], "d1": [-0.05, 0.0, 0.0, 0.0, 0.0],
-    "K2": [[3360.0, 0.0, 318.0], [0.0, 3360.0, 241.0], [0.0, 0.0, 1.0]], "d2": [-0.05, 0.0, 0.0, 0.0, 0.0],
+OLD_STEREO_FILE = {  # a stereo file as vts-hw wrote it before N cameras (and before 0024's keys)
+    "format": "vts-hw stereo calibration",
+    "format_version": 1,
+    "K1": [[3370.0, 0.0, 320.0], [0.0, 3370.0, 240.0], [0.0, 0.0, 1.0]],
+    "d1": [-0.05, 0.0, 0.0, 0.0, 0.0],
+    "K2": [[3360.0, 0.0, 318.0], [0.0, 3360.0, 241.0], [0.0, 0.0, 1.0]],
+    "d2": [-0.05, 0.0, 0.0, 0.0, 0.0],
     "R": [[0.98, 0.0, -0.19899748742132398], [0.0, 1.0, 0.0], [0.19899748742132398, 0.0, 0.98]],
-    "T": [-1190.0, 2.0, 120.0], "image_size": [640, 480], "pattern": [9, 6], "square": 50.0,
-    "unit": "mm", "baseline": 1196.05, "rms_left": 0.06, "rms_right": 0.07, "rms_stereo": 0.065,
+    "T": [-1190.0, 2.0, 120.0],
+    "image_size": [640, 480],
+    "pattern": [9, 6],
+    "square": 50.0,
+    "unit": "mm",
+    "baseline": 1196.05,
+    "rms_left": 0.06,
+    "rms_right": 0.07,
+    "rms_stereo": 0.065,
     "per_view": [{"name": "sim01", "left": 0.05, "right": 0.07, "outlier": False}],
-    "outlier_rule": "pair RMS (both images) > 3 x median of the pairs", "outliers": [], "skipped": {},
-    "created": "2026-10-01T08:00:00+00:00", "software": "0.1.0",
+    "outlier_rule": "pair RMS (both images) > 3 x median of the pairs",
+    "outliers": [],
+    "skipped": {},
+    "created": "2026-10-01T08:00:00+00:00",
+    "software": "0.1.0",
 }
 
 

@@ -5,17 +5,16 @@ import numpy as np
 import pytest
 from scipy.optimize import linprog
 
-from vts_hw.timing.camera_clock import ClockFit, fit_camera_clock, fit_recording_clocks, lower_envelope
 from vts_hw.errors import DataError
 from vts_hw.sim_devices.recording_sim import simulate_recording
 from vts_hw.sim_devices.scene import CameraClock
+from vts_hw.timing.camera_clock import ClockFit, fit_camera_clock, fit_recording_clocks, lower_envelope
 
 START = 1_790_000_000.0
 FLOOR = 0.004
 
 
-def synthetic(clock: CameraClock, seconds: float, fps: float = 25.0, seed: int = 0,
-              outlier_rate: float = 0.01):
+def synthetic(clock: CameraClock, seconds: float, fps: float = 25.0, seed: int = 0, outlier_rate: float = 0.01):
     """Exposures on a host-time grid, truncated 10 ms stamps, receive times with a delay floor,
     exponential jitter, rare large outliers and head-of-line blocking (like the recorder)."""
     rng = np.random.default_rng(seed)
@@ -34,8 +33,13 @@ def test_envelope_is_the_linear_programme_solution():
         x = np.unique(np.round(rng.uniform(-60, 60, n), 2))
         y = 2e-5 * x + rng.exponential(0.004, x.size) + (rng.random(x.size) < 0.05) * 0.2
         a, k = lower_envelope(x, y)
-        lp = linprog(c=[-x.size, -x.sum()], A_ub=np.column_stack([np.ones(x.size), x]), b_ub=y,
-                     bounds=[(None, None)] * 2, method="highs")
+        lp = linprog(
+            c=[-x.size, -x.sum()],
+            A_ub=np.column_stack([np.ones(x.size), x]),
+            b_ub=y,
+            bounds=[(None, None)] * 2,
+            method="highs",
+        )
         assert lp.success
         assert a == pytest.approx(lp.x[0], abs=1e-9) and k == pytest.approx(lp.x[1], abs=1e-10)
         assert (y - (a + k * x)).min() > -1e-12  # below every point
@@ -88,8 +92,9 @@ def test_late_frames_do_not_move_the_fit():
     fit = fit_camera_clock(stamps, worse)
     assert np.abs(fit.host_time(stamps) - clean.host_time(stamps)).max() < 0.001
     # an ordinary least-squares line would be pulled by about the mean extra delay
-    assert np.polyfit(stamps - stamps[0], worse - stamps, 1)[1] - np.polyfit(
-        stamps - stamps[0], recv - stamps, 1)[1] > 0.1
+    assert (
+        np.polyfit(stamps - stamps[0], worse - stamps, 1)[1] - np.polyfit(stamps - stamps[0], recv - stamps, 1)[1] > 0.1
+    )
 
 
 def test_simulated_recording_against_the_scene_clocks(tmp_path):
@@ -133,16 +138,17 @@ def test_frames_coming_later_and_later_do_not_bend_the_clock():
     delayed frames with the host's rate, within a plausible skew's error over the span."""
     clock = CameraClock(offset_s=1.37, skew_ppm=30.0, ref_epoch=START)
     t, stamps, recv, _ = synthetic(clock, 22.0, outlier_rate=0.0)
-    behind = 8.0 * ((t - t[0]) / (t[-1] - t[0])) ** 1.5       # the lag grows to the end
+    behind = 8.0 * ((t - t[0]) / (t[-1] - t[0])) ** 1.5  # the lag grows to the end
     recv = np.maximum.accumulate(recv + behind)
     free_a, free_k = lower_envelope(stamps - np.median(stamps), recv - stamps)
-    assert abs(free_k) > 0.01                                   # the free fit would bend
+    assert abs(free_k) > 0.01  # the free fit would bend
     fit = fit_camera_clock(stamps, recv, latency_s=FLOOR)
     assert fit.summary()["rate_measured"] is False and fit.skew_ppm == 0.0
     err = fit.frame_host_times() - t
-    assert np.abs(err).max() < 0.003                            # 30 ppm over 22 s, and the floor
+    assert np.abs(err).max() < 0.003  # 30 ppm over 22 s, and the floor
     assert fit.uncertainty_s >= 1e-4 * (stamps[-1] - stamps[0]) - 1e-12
     # a clock that is truly skewed, with frames on time, is still measured
-    ok = fit_camera_clock(*synthetic(CameraClock(offset_s=1.37, skew_ppm=400.0, ref_epoch=START), 120.0)[1:3],
-                          latency_s=FLOOR)
+    ok = fit_camera_clock(
+        *synthetic(CameraClock(offset_s=1.37, skew_ppm=400.0, ref_epoch=START), 120.0)[1:3], latency_s=FLOOR
+    )
     assert ok.rate_measured and ok.skew_ppm == pytest.approx(400.0, abs=5.0)

@@ -26,8 +26,9 @@ def _rig(cameras: list[dict], **extra) -> object:
 
 
 def _replay_entries(folder, names=("cam1", "cam2"), speed=8.0) -> list[dict]:
-    return [{"name": n, "kind": "replay", "options": {"folder": str(folder), "camera": n, "speed": speed}}
-            for n in names]
+    return [
+        {"name": n, "kind": "replay", "options": {"folder": str(folder), "camera": n, "speed": speed}} for n in names
+    ]
 
 
 def _record(cameras, folder, seconds=None):
@@ -45,9 +46,11 @@ def test_every_kind_implements_the_contract(sim_rig, tmp_path):
     assert set(CAMERA_KINDS) >= {"axis", "mjpeg", "replay"}
     cfg = sim_rig.config()
     _record(open_cameras(cfg.cameras[:1]), tmp_path / "rec", seconds=1.0)
-    entries = [cfg.cameras[0].model_dump(mode="json", exclude_none=True),
-               {**cfg.cameras[1].model_dump(mode="json", exclude_none=True), "kind": "mjpeg"},
-               *_replay_entries(tmp_path / "rec", ("cam1",))]
+    entries = [
+        cfg.cameras[0].model_dump(mode="json", exclude_none=True),
+        {**cfg.cameras[1].model_dump(mode="json", exclude_none=True), "kind": "mjpeg"},
+        *_replay_entries(tmp_path / "rec", ("cam1",)),
+    ]
     entries[2]["name"] = "cam3"
     entries[2]["options"]["camera"] = "cam1"
     rig = _rig(entries)
@@ -94,15 +97,17 @@ def test_the_simulated_camera_can_switch_its_stamps_off(sim_rig, cam1):
     jpeg = cam1.snapshot().jpeg
     info = inspect_jpeg(jpeg)
     assert info.time is None and info.product is None
-    assert cam1.snapshot().camera_time is None   # the Axis driver finds no time either
+    assert cam1.snapshot().camera_time is None  # the Axis driver finds no time either
 
 
 def test_mjpeg_kind_records_a_camera_without_stamps(sim_rig, tmp_path):
     for s in sim_rig.servers.values():
         s.faults.no_axis_stamps = True
     cfg = sim_rig.config()
-    entries = [{**c.model_dump(mode="json", exclude_none=True), "kind": "mjpeg", "options": {"led": "vapix"}}
-               for c in cfg.cameras]
+    entries = [
+        {**c.model_dump(mode="json", exclude_none=True), "kind": "mjpeg", "options": {"led": "vapix"}}
+        for c in cfg.cameras
+    ]
     rig = _rig(entries)
     with open_camera(rig.cameras[0]) as cam:
         t0 = time.time()
@@ -131,8 +136,13 @@ def test_mjpeg_kind_runs_the_drift_qa(sim_rig, tmp_path):
     for s in sim_rig.servers.values():
         s.faults.no_axis_stamps = True
     cfg = sim_rig.config()
-    rig = _rig([{**c.model_dump(mode="json", exclude_none=True), "kind": "mjpeg", "options": {"led": "vapix"}}
-                for c in cfg.cameras], results={"url": f"sqlite:///{tmp_path / 'r.sqlite'}"})
+    rig = _rig(
+        [
+            {**c.model_dump(mode="json", exclude_none=True), "kind": "mjpeg", "options": {"led": "vapix"}}
+            for c in cfg.cameras
+        ],
+        results={"url": f"sqlite:///{tmp_path / 'r.sqlite'}"},
+    )
     with ResultsStore(rig.results.url) as store:
         cams = open_cameras(rig.cameras)
         save_baselines(store, take_baselines(cams, frames=2).baselines)
@@ -141,7 +151,7 @@ def test_mjpeg_kind_runs_the_drift_qa(sim_rig, tmp_path):
         res = run_qa(rig, store, steps=("clock", "drift"), n_frames=2, open_camera=open_camera)
     assert res.state == State.OK, res.results()
     for c in res.cameras:
-        assert c.drift.led_off_visible == 0   # the LED is switched through the camera's port
+        assert c.drift.led_off_visible == 0  # the LED is switched through the camera's port
 
 
 # -- replay: a recording played back as live cameras ----------------------------------------
@@ -159,7 +169,7 @@ def test_replay_recorded_again_is_the_same_recording(sim_session, tmp_path):
     cams = open_cameras(rig.cameras)
     assert all(not isinstance(c, Illumination) and "no-op" in c.device_info()["LED"] for c in cams)
     t0 = time.monotonic()
-    rec, manifest = _record(cams, tmp_path / "again")       # until the replay ends
+    rec, manifest = _record(cams, tmp_path / "again")  # until the replay ends
     elapsed = time.monotonic() - t0
     assert manifest["status"] == "complete", rec.problems()
     for name in ("cam1", "cam2"):
@@ -169,7 +179,7 @@ def test_replay_recorded_again_is_the_same_recording(sim_session, tmp_path):
         ja, jb = (folder / f"{name}.mjpeg").read_bytes(), (tmp_path / "again" / f"{name}.mjpeg").read_bytes()
         assert ja == jb
     span = max(r.host_time for r in a) - min(r.host_time for r in a)
-    assert elapsed >= span / 6.0 * 0.9   # played at the speed asked, not dumped at once (a lower bound)
+    assert elapsed >= span / 6.0 * 0.9  # played at the speed asked, not dumped at once (a lower bound)
 
 
 def test_replay_processes_as_the_original(sim_session, tmp_path):
@@ -194,7 +204,7 @@ def test_replay_snapshot_is_the_frame_at_the_playback_time(sim_session):
         assert first.camera_time == rows[0].camera_time and first.time_source == "recording"
         time.sleep(0.5)
         later = cam.snapshot()
-        assert later.camera_time - first.camera_time >= 2.0 * 0.5 - 0.05   # at least as far as played
+        assert later.camera_time - first.camera_time >= 2.0 * 0.5 - 0.05  # at least as far as played
         off = cam.clock_offset()
         d = [r.camera_time - r.host_time for r in rows]
         assert off.source == "recording" and min(d) <= off.offset_s <= max(d)
@@ -233,7 +243,7 @@ def test_replay_runs_the_daily_drift_qa(rig_recording, tmp_path):
         assert all(len(b.markers) == 5 for b in baselines)
         for c in cams:
             c.close()
-        res = run_qa(rig, store, n_frames=3, open_camera=open_camera)   # the whole daily set
+        res = run_qa(rig, store, n_frames=3, open_camera=open_camera)  # the whole daily set
         assert res.run_id is not None and store.run(res.run_id).procedure == "daily"
     assert res.state == State.OK, res.results()
     for c in res.cameras:
@@ -254,7 +264,7 @@ def test_replay_runs_a_scan_session(rig_recording, tmp_path):
         assert m["cameras"][name]["frames"] >= 10
         assert m["cameras"][name]["clock_offset_before"]["source"] == "recording"
         assert "no parameters" in m["cameras"][name]["parameters"]
-        assert m["cameras"][name]["led"] == "none (this kind of camera cannot switch an LED)"   # not "on"
+        assert m["cameras"][name]["led"] == "none (this kind of camera cannot switch an LED)"  # not "on"
     assert load_manifest(tmp_path / "scan")["status"] == "complete"
 
 
@@ -277,7 +287,12 @@ def test_only_the_registry_builds_cameras():
 
     root = Path(__file__).resolve().parents[1]
     builds = re.compile(r"\b(AxisCamera|MjpegCamera|ReplayCamera)(\.from_config)?\(")
-    found = [f"{p.relative_to(root)}:{n}" for folder in ("vts_hw", "procedures", "sim_devices", "drivers", "bench")
-             for p in sorted((root / folder).rglob("*.py")) if p.name not in ("axis.py", "mjpeg.py", "replay.py")
-             for n, line in enumerate(p.read_text().splitlines(), 1) if builds.search(line)]
+    found = [
+        f"{p.relative_to(root)}:{n}"
+        for folder in ("vts_hw", "procedures", "sim_devices", "drivers", "bench")
+        for p in sorted((root / folder).rglob("*.py"))
+        if p.name not in ("axis.py", "mjpeg.py", "replay.py")
+        for n, line in enumerate(p.read_text().splitlines(), 1)
+        if builds.search(line)
+    ]
     assert found == []

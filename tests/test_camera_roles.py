@@ -23,10 +23,12 @@ from vts_hw.recording.folder import INDEX_HEADER
 
 EVERY = ("frames", "device information", "clock")
 #: the roles each kind (and option) claims
-CLAIMED = {"axis": EVERY + ("illumination", "parameters", "running time"),
-           "mjpeg": EVERY,
-           "mjpeg led vapix": EVERY + ("illumination",),
-           "replay": EVERY}
+CLAIMED = {
+    "axis": EVERY + ("illumination", "parameters", "running time"),
+    "mjpeg": EVERY,
+    "mjpeg led vapix": EVERY + ("illumination",),
+    "replay": EVERY,
+}
 
 
 @pytest.fixture(scope="module")
@@ -42,11 +44,18 @@ def recording(tmp_path_factory):
 
 
 def _entries(folder) -> dict[str, dict]:
-    return {"axis": {"name": "cam1", "host": "127.0.0.1", "port": 9},
-            "mjpeg": {"name": "cam2", "kind": "mjpeg", "host": "127.0.0.1", "port": 9},
-            "mjpeg led vapix": {"name": "cam3", "kind": "mjpeg", "host": "127.0.0.1", "port": 9,
-                                "options": {"led": "vapix"}},
-            "replay": {"name": "cam1", "kind": "replay", "options": {"folder": str(folder)}}}
+    return {
+        "axis": {"name": "cam1", "host": "127.0.0.1", "port": 9},
+        "mjpeg": {"name": "cam2", "kind": "mjpeg", "host": "127.0.0.1", "port": 9},
+        "mjpeg led vapix": {
+            "name": "cam3",
+            "kind": "mjpeg",
+            "host": "127.0.0.1",
+            "port": 9,
+            "options": {"led": "vapix"},
+        },
+        "replay": {"name": "cam1", "kind": "replay", "options": {"folder": str(folder)}},
+    }
 
 
 def _camera(entry: dict):
@@ -65,6 +74,7 @@ def test_each_kind_implements_exactly_the_roles_it_claims(recording):
 def test_a_planted_role_is_seen(recording):
     """The check above fails on a kind that fakes a role: a replay given no-op LED calls (as it
     had before the roles) is Illumination, and no longer what the replay kind claims."""
+
     class FakingReplay(ReplayCamera):
         def led_on(self): ...
 
@@ -89,18 +99,30 @@ def test_roles_asked_of_a_kind_before_opening(recording):
 def test_each_kind_checks_its_own_settings(recording):
     def rig(entry):
         return parse_rig({"rig": "roles", "cameras": [entry]}, "test rig.yaml").cameras[0]
+
     assert camera_settings(rig(_entries(recording)["mjpeg led vapix"])).led == "vapix"
     assert camera_settings(rig(_entries(recording)["replay"])).speed == 1.0
-    for entry, said in (({"name": "cam1"}, r"camera 'cam1' \(kind axis\) needs a host \(network cameras: address\)"),
-                        ({"name": "cam1", "kind": "mjpeg"}, r"camera 'cam1' \(kind mjpeg\) needs a host"),
-                        ({"name": "cam1", "host": "h", "options": {"speed": 2}},
-                         r"camera 'cam1' \(kind axis\): options.speed: Extra inputs"),
-                        ({"name": "cam1", "kind": "mjpeg", "host": "h", "options": {"led": "usb"}},
-                         r"camera 'cam1' \(kind mjpeg\): options.led: Input should be 'none' or 'vapix'"),
-                        ({"name": "cam1", "kind": "mjpeg", "host": "h", "options": {"host": "k"}},
-                         r"options.host: host is a key of the camera entry itself"),
-                        ({"name": "cam1", "kind": "replay"}, r"camera 'cam1' \(kind replay\): options.folder: "
-                                                             r"Field required")):
+    for entry, said in (
+        ({"name": "cam1"}, r"camera 'cam1' \(kind axis\) needs a host \(network cameras: address\)"),
+        ({"name": "cam1", "kind": "mjpeg"}, r"camera 'cam1' \(kind mjpeg\) needs a host"),
+        (
+            {"name": "cam1", "host": "h", "options": {"speed": 2}},
+            r"camera 'cam1' \(kind axis\): options.speed: Extra inputs",
+        ),
+        (
+            {"name": "cam1", "kind": "mjpeg", "host": "h", "options": {"led": "usb"}},
+            r"camera 'cam1' \(kind mjpeg\): options.led: Input should be 'none' or 'vapix'",
+        ),
+        (
+            {"name": "cam1", "kind": "mjpeg", "host": "h", "options": {"host": "k"}},
+            r"options.host: host is a key of the camera entry itself",
+        ),
+        (
+            {"name": "cam1", "kind": "replay"},
+            r"camera 'cam1' \(kind replay\): options.folder: "
+            r"Field required",
+        ),
+    ):
         with pytest.raises(ConfigError, match=said):
             camera_settings(rig(entry))
 

@@ -30,7 +30,6 @@ import yaml
 from starlette.testclient import TestClient
 
 from inprocess_cli import vts
-from vts_hw import catalog
 from vts_hw.config import parse_rig
 from vts_hw.console.app import Console, create_app
 from vts_hw.qatrack import push_runs, select_runs
@@ -42,14 +41,19 @@ from vts_hw.tolerance import State, Window
 ROOT = Path(__file__).resolve().parents[1]
 CHECKLISTS = ROOT / "docs" / "develop" / "checklists.md"
 #: the checkout's folders installed under another package name (pyproject.toml's package-dir)
-PACKAGES = {"vts_hw/": "vts_hw.", "procedures/": "vts_hw.procedures.", "drivers/": "vts_hw.drivers.",
-            "sim_devices/": "vts_hw.sim_devices."}
+PACKAGES = {
+    "vts_hw/": "vts_hw.",
+    "procedures/": "vts_hw.procedures.",
+    "drivers/": "vts_hw.drivers.",
+    "sim_devices/": "vts_hw.sim_devices.",
+}
 
 
 @dataclass(frozen=True)
 class Change:
     """One file of a checklist's patch set: ``path`` from the checkout's top, ``text`` the new
     file's whole text (``new``) or the lines added at the end of the existing module."""
+
     path: str
     text: str
     new: bool = False
@@ -58,7 +62,7 @@ class Change:
     def module(self) -> str:
         for folder, package in PACKAGES.items():
             if self.path.startswith(folder) and self.path.endswith(".py"):
-                return package + self.path[len(folder):-3].replace("/", ".")
+                return package + self.path[len(folder) : -3].replace("/", ".")
         raise AssertionError(f"{self.path}: not a module of the package")
 
 
@@ -81,7 +85,7 @@ def apply(changes, monkeypatch, tmp_path) -> None:
             monkeypatch.setattr(importlib.import_module(parent), leaf, mod, raising=False)
             continue
         mod = importlib.import_module(c.module)
-        for name, value in list(vars(mod).items()):   # what the lines add to a table or a group is undone
+        for name, value in list(vars(mod).items()):  # what the lines add to a table or a group is undone
             if name.isupper() and isinstance(value, (dict, list)):
                 monkeypatch.setattr(mod, name, type(value)(value))
             elif isinstance(value, click.Group) and getattr(value.callback, "__module__", None) == c.module:
@@ -101,6 +105,7 @@ def _template_beside_the_others(c: Change, monkeypatch, tmp_path) -> None:
     """A new console template: the console's folder seen through tmp_path (its templates and
     static files linked, the new template written beside them), the app's HERE pointing there."""
     from vts_hw.console import app
+
     here = tmp_path / "console"
     if not here.exists():
         (here / "templates").mkdir(parents=True)
@@ -108,7 +113,7 @@ def _template_beside_the_others(c: Change, monkeypatch, tmp_path) -> None:
         for t in (app.HERE / "templates").iterdir():
             (here / "templates" / t.name).symlink_to(t)
         monkeypatch.setattr(app, "HERE", here)
-    (here / "templates" / c.path[len(TEMPLATES):]).write_text(textwrap.dedent(c.text))
+    (here / "templates" / c.path[len(TEMPLATES) :]).write_text(textwrap.dedent(c.text))
 
 
 def files_named(section: str) -> list[str]:
@@ -136,7 +141,10 @@ def assert_files(changes, section: str) -> None:
 # the console's history and QATrack+'s push show it, and `vts qa --help` and the command
 # reference list it, all by reading the catalog and the command tree.
 
-LED_MODULE = Change("procedures/led_check.py", new=True, text='''
+LED_MODULE = Change(
+    "procedures/led_check.py",
+    new=True,
+    text='''
     """The LED ring's brightness per camera: the wall markers' level with the LED on over their
     level with it off (the toy QA procedure of tests/test_checklists.py)."""
 
@@ -175,16 +183,22 @@ LED_MODULE = Change("procedures/led_check.py", new=True, text='''
 
         def plot(self, path=None):
             return None
-''')
+''',
+)
 
-LED_ENTRY = Change("vts_hw/catalog.py", text='''
+LED_ENTRY = Change(
+    "vts_hw/catalog.py",
+    text="""
     LED_CHECK = Procedure("led-check", "LED check", "room", (("led_level_ratio", ""),),
                           figures=(Figure("led_level_ratio", "LED level, largest of the cameras", ".2f"),),
                           history="LED checks", windows=(("led_level_ratio", Window(action_low=0.5, tolerance_low=0.8)),))
     PROCEDURES = (*PROCEDURES, LED_CHECK)
-''')
+""",
+)
 
-LED_COMMAND = Change("vts_hw/cli/qa.py", text='''
+LED_COMMAND = Change(
+    "vts_hw/cli/qa.py",
+    text='''
     from vts_hw.cli.common import config_option, finish_analysis, rig_if_any
     from vts_hw.procedures.led_check import LedCheck
 
@@ -202,7 +216,8 @@ LED_COMMAND = Change("vts_hw/cli/qa.py", text='''
             raise click.BadParameter("each is CAMERA=RATIO, the ratio a number", param_hint="RATIOS") from None
         result = LedCheck(levels).analyze(rig.tolerances if rig is not None else None)
         finish_analysis(rig, result, result.results_data(), "LED check", as_json)
-''')
+''',
+)
 
 QA_PROCEDURE = (LED_MODULE, LED_ENTRY, LED_COMMAND)
 LED_TOKEN = "tok-led-1"
@@ -216,14 +231,28 @@ def _docs_site():
 
 
 def _led_rig(tmp_path, peer_url: str = "http://127.0.0.1:9/") -> tuple[Path, dict]:
-    cfg = {"rig": "room1", "cameras": [{"name": "cam1", "host": "127.0.0.1"}, {"name": "cam2", "host": "127.0.0.1"}],
-           "store": {"url": f"sqlite:///{tmp_path / 'results.sqlite'}"},
-           # the rig's own window for the new metric: cam1's 0.85 is OK by the catalog's, TOLERANCE by this
-           "tolerances": {"led_level_ratio": {"action_low": 0.4, "tolerance_low": 0.9}},
-           "qatrack": {"url": peer_url, "unit": "SPECT 1", "time_zone": "America/Toronto",
-                       "token_env": "QATRACK_TOKEN", "report": "none", "plots": False, "timeout_s": 5.0,
-                       "lists": {"led-check": {"test_list": "VTS LED", "macros": {
-                           "cam1/led_level_ratio": "cam1_led", "cam2/led_level_ratio": "cam2_led"}}}}}
+    cfg = {
+        "rig": "room1",
+        "cameras": [{"name": "cam1", "host": "127.0.0.1"}, {"name": "cam2", "host": "127.0.0.1"}],
+        "store": {"url": f"sqlite:///{tmp_path / 'results.sqlite'}"},
+        # the rig's own window for the new metric: cam1's 0.85 is OK by the catalog's, TOLERANCE by this
+        "tolerances": {"led_level_ratio": {"action_low": 0.4, "tolerance_low": 0.9}},
+        "qatrack": {
+            "url": peer_url,
+            "unit": "SPECT 1",
+            "time_zone": "America/Toronto",
+            "token_env": "QATRACK_TOKEN",
+            "report": "none",
+            "plots": False,
+            "timeout_s": 5.0,
+            "lists": {
+                "led-check": {
+                    "test_list": "VTS LED",
+                    "macros": {"cam1/led_level_ratio": "cam1_led", "cam2/led_level_ratio": "cam2_led"},
+                }
+            },
+        },
+    }
     path = tmp_path / "rig.yaml"
     path.write_text(yaml.safe_dump(cfg))
     return path, cfg
@@ -231,7 +260,7 @@ def _led_rig(tmp_path, peer_url: str = "http://127.0.0.1:9/") -> tuple[Path, dic
 
 def test_the_qa_procedure_checklist_names_its_three_files():
     assert_files(QA_PROCEDURE, "A QA procedure")
-    assert len({Path(c.path).parts[0] for c in QA_PROCEDURE}) == 2     # procedures/ and vts_hw/
+    assert len({Path(c.path).parts[0] for c in QA_PROCEDURE}) == 2  # procedures/ and vts_hw/
 
 
 def test_a_qa_procedure_is_its_module_one_catalog_entry_and_its_command(monkeypatch, tmp_path, capsys):
@@ -253,7 +282,9 @@ def test_a_qa_procedure_is_its_module_one_catalog_entry_and_its_command(monkeypa
         with ResultsStore(cfg["store"]["url"]) as store:
             (first,) = store.runs(procedure="led-check")
             ms = store.measurements(run_id=first.id)
-            assert set(store.windows(m.tolerance_id for m in ms).values()) == {Window(action_low=0.5, tolerance_low=0.8)}
+            assert set(store.windows(m.tolerance_id for m in ms).values()) == {
+                Window(action_low=0.5, tolerance_low=0.8)
+            }
         # ... and by the rig's own window for it
         code, out, err = vts(capsys, "qa", "led", "cam1=0.85", "cam2=0.3", "--config", rig_yaml)
         assert code == 20, (out, err)
@@ -262,8 +293,10 @@ def test_a_qa_procedure_is_its_module_one_catalog_entry_and_its_command(monkeypa
             (_, run) = store.runs(procedure="led-check")
             assert (run.rig, run.status) == ("room1", "ACTION")
             ms = store.measurements(run_id=run.id)
-            assert {m.subject: (m.value, m.status) for m in ms} == {"cam1": (0.85, State.TOLERANCE),
-                                                                     "cam2": (0.3, State.ACTION)}
+            assert {m.subject: (m.value, m.status) for m in ms} == {
+                "cam1": (0.85, State.TOLERANCE),
+                "cam2": (0.3, State.ACTION),
+            }
             # ... with the window that judged it, as every metric's
             windows = store.windows(m.tolerance_id for m in ms)
             assert set(windows.values()) == {Window(action_low=0.4, tolerance_low=0.9)}
@@ -282,7 +315,7 @@ def test_a_qa_procedure_is_its_module_one_catalog_entry_and_its_command(monkeypa
     with TestClient(create_app(console), base_url="http://127.0.0.1:8040") as client:
         page = client.get("/history", params={"procedure": "LED check"})
         assert page.status_code == 200 and f'<tr data-run="{run.id}"' in page.text
-        assert "<option value=\"LED check\" selected>" in page.text, re.findall(r"<option[^>]*>[^<]*", page.text)
+        assert '<option value="LED check" selected>' in page.text, re.findall(r"<option[^>]*>[^<]*", page.text)
         one = client.get(f"/history/run/{run.id}")
         assert one.status_code == 200 and "LED check" in one.text and "led_level_ratio" in one.text
         rooms = client.get("/history/rooms/")
@@ -314,7 +347,10 @@ def test_a_qa_procedure_without_its_command_is_not_in_vts(monkeypatch, tmp_path,
 # ================================================================ a trigger backend
 # A trigger generator in memory, with one key of its own: its module and one registry line.
 
-TOY_TRIGGER = Change("drivers/toy_trigger.py", new=True, text='''
+TOY_TRIGGER = Change(
+    "drivers/toy_trigger.py",
+    new=True,
+    text='''
     """A trigger generator in memory (the toy backend of tests/test_checklists.py): what it
     starts and stops, it writes to the trigger log as neutral rows."""
 
@@ -362,20 +398,30 @@ TOY_TRIGGER = Change("drivers/toy_trigger.py", new=True, text='''
 
     BACKEND = TriggerBackend("toy", "a toy in memory", Settings,
                              lambda cfg, settings, log: ToyTrigger(cfg.address, settings.flavour, log))
-''')
+''',
+)
 
-TOY_TRIGGER_LINE = Change("drivers/registry.py", text='''
+TOY_TRIGGER_LINE = Change(
+    "drivers/registry.py",
+    text="""
     TRIGGER_BACKENDS["toy"] = "vts_hw.drivers.toy_trigger:BACKEND"
-''')
+""",
+)
 
 TRIGGER_BACKEND = (TOY_TRIGGER, TOY_TRIGGER_LINE)
 
 
 def _trigger_rig(tmp_path, **keys) -> Path:
     path = tmp_path / "rig.yaml"
-    path.write_text(yaml.safe_dump({"rig": "t", "cameras": [{"name": "cam1", "host": "127.0.0.1"}],
-                                    "trigger": {"backend": "toy", "address": "mem://1", "frequency_hz": 2.0,
-                                                "duty": 0.25, **keys}}))
+    path.write_text(
+        yaml.safe_dump(
+            {
+                "rig": "t",
+                "cameras": [{"name": "cam1", "host": "127.0.0.1"}],
+                "trigger": {"backend": "toy", "address": "mem://1", "frequency_hz": 2.0, "duty": 0.25, **keys},
+            }
+        )
+    )
     return path
 
 
@@ -385,6 +431,7 @@ def test_the_trigger_backend_checklist_names_its_two_files():
 
 def test_a_trigger_backend_is_its_module_and_one_registry_line(monkeypatch, tmp_path, capsys):
     from vts_hw.drivers.trigger import read_log
+
     apply(TRIGGER_BACKEND, monkeypatch, tmp_path)
     rig_yaml = _trigger_rig(tmp_path, flavour="sour")
     code, out, err = vts(capsys, "trigger", "start", "--config", rig_yaml, "--log", tmp_path / "trigger.csv")
@@ -403,6 +450,7 @@ def test_a_trigger_backend_is_its_module_and_one_registry_line(monkeypatch, tmp_
 
 def test_a_trigger_backend_without_its_module_is_not_opened(monkeypatch, tmp_path):
     from vts_hw.drivers import registry
+
     apply((TOY_TRIGGER_LINE,), monkeypatch, tmp_path)
     with pytest.raises(ModuleNotFoundError, match="vts_hw.drivers.toy_trigger"):
         registry.open_trigger(parse_rig(yaml.safe_load(_trigger_rig(tmp_path).read_text()), "rig.yaml"))
@@ -418,7 +466,10 @@ def test_a_trigger_backend_without_its_registry_line_is_refused(monkeypatch, tmp
 # ================================================================ a console page
 # The procedures the catalog holds, as a page: its module, its template and one line in PAGES.
 
-TOY_PAGE = Change("vts_hw/console/procedures_page.py", new=True, text='''
+TOY_PAGE = Change(
+    "vts_hw/console/procedures_page.py",
+    new=True,
+    text='''
     """The Procedures page: every QA procedure the catalog holds, what it judges and measures
     (the toy console page of tests/test_checklists.py)."""
 
@@ -435,9 +486,13 @@ TOY_PAGE = Change("vts_hw/console/procedures_page.py", new=True, text='''
             return templates.TemplateResponse(request, "procedures.html", {
                 "rig": console.rig_name, "here": "procedures", "procedures": catalog.PROCEDURES})
         return [Route("/procedures", page)]
-''')
+''',
+)
 
-TOY_TEMPLATE = Change("vts_hw/console/templates/procedures.html", new=True, text='''
+TOY_TEMPLATE = Change(
+    "vts_hw/console/templates/procedures.html",
+    new=True,
+    text="""
     {% extends "page.html" %}
     {% block title %}Procedures{% endblock %}
     {% block content %}
@@ -451,20 +506,30 @@ TOY_TEMPLATE = Change("vts_hw/console/templates/procedures.html", new=True, text
       </tbody>
     </table>
     {% endblock %}
-''')
+""",
+)
 
-TOY_PAGE_LINE = Change("vts_hw/console/app.py", text='''
+TOY_PAGE_LINE = Change(
+    "vts_hw/console/app.py",
+    text="""
     from vts_hw.console.procedures_page import procedures_routes
     PAGES = [*PAGES, Page(procedures_routes, "procedures", "Procedures", "/procedures")]
-''')
+""",
+)
 
 CONSOLE_PAGE = (TOY_PAGE, TOY_TEMPLATE, TOY_PAGE_LINE)
 
 
 def _console_client(store_url: str | None = None) -> TestClient:
     from vts_hw.console import app
-    console = app.Console("room1", SimpleNamespace(names=[]), None, None,     # a room without cameras
-                          open_store=(lambda: ResultsStore(store_url, mode="read")) if store_url else None)
+
+    console = app.Console(
+        "room1",
+        SimpleNamespace(names=[]),
+        None,
+        None,  # a room without cameras
+        open_store=(lambda: ResultsStore(store_url, mode="read")) if store_url else None,
+    )
     return TestClient(app.create_app(console), base_url="http://127.0.0.1:8040")
 
 
@@ -511,7 +576,10 @@ def test_a_console_page_without_its_line_is_neither_served_nor_linked(monkeypatc
 # A camera that makes its own pictures (a grey field, its level an option of its own): frames,
 # device information and a clock, the roles every camera has, and no LED or parameters.
 
-TOY_CAMERA = Change("drivers/pattern.py", new=True, text='''
+TOY_CAMERA = Change(
+    "drivers/pattern.py",
+    new=True,
+    text='''
     """A camera that makes its own pictures: a grey field of one level (the toy camera kind of
     tests/test_checklists.py). No LED, no parameters: it has the roles every camera has."""
 
@@ -593,19 +661,26 @@ TOY_CAMERA = Change("drivers/pattern.py", new=True, text='''
                 yield self.cam._frame(self.seq)
                 self.seq += 1
                 self.left = None if self.left is None else self.left - 1
-''')
+''',
+)
 
-TOY_CAMERA_LINE = Change("drivers/registry.py", text='''
+TOY_CAMERA_LINE = Change(
+    "drivers/registry.py",
+    text="""
     CAMERA_KINDS["pattern"] = "vts_hw.drivers.pattern:PatternCamera"
-''')
+""",
+)
 
 CAMERA_KIND = (TOY_CAMERA, TOY_CAMERA_LINE)
 
 
 def _camera_rig(tmp_path, **options) -> Path:
     path = tmp_path / "rig.yaml"
-    path.write_text(yaml.safe_dump({"rig": "t", "cameras": [{"name": "cam1", "kind": "pattern", "resolution": [64, 48],
-                                                             "options": options}]}))
+    path.write_text(
+        yaml.safe_dump(
+            {"rig": "t", "cameras": [{"name": "cam1", "kind": "pattern", "resolution": [64, 48], "options": options}]}
+        )
+    )
     return path
 
 
@@ -616,6 +691,7 @@ def test_the_camera_kind_checklist_names_its_two_files():
 def test_a_camera_kind_is_its_module_and_one_registry_line(monkeypatch, tmp_path, capsys):
     from vts_hw.camera import Camera, roles_of
     from vts_hw.drivers.registry import open_cameras
+
     apply(CAMERA_KIND, monkeypatch, tmp_path)
     rig_yaml = _camera_rig(tmp_path, level=200)
     (cam,) = open_cameras(parse_rig(yaml.safe_load(rig_yaml.read_text()), "rig.yaml").cameras)
@@ -632,8 +708,11 @@ def test_a_camera_kind_is_its_module_and_one_registry_line(monkeypatch, tmp_path
     assert code == 0 and "  ProdNbr: pattern" in out and "no camera clock" in out, err
     # its own key checked by its own model: one sentence naming the camera, the kind and the key
     code, out, err = vts(capsys, "camera", "info", "cam1", "--config", _camera_rig(tmp_path, level=300))
-    assert code == 2 and err.startswith("vts: camera 'cam1' (kind pattern): options.level: ") and \
-        len(err.strip().splitlines()) == 1, err
+    assert (
+        code == 2
+        and err.startswith("vts: camera 'cam1' (kind pattern): options.level: ")
+        and len(err.strip().splitlines()) == 1
+    ), err
     # listed with its keys in the rig.yaml reference, from its settings model
     page = _docs_site().rig_yaml_page()
     assert "### `kind: pattern`" in page and "`cameras[].options.level`" in page and "`cameras[].fps`" in page
@@ -641,6 +720,7 @@ def test_a_camera_kind_is_its_module_and_one_registry_line(monkeypatch, tmp_path
 
 def test_a_camera_kind_without_its_module_is_not_opened(monkeypatch, tmp_path):
     from vts_hw.drivers.registry import open_cameras
+
     apply((TOY_CAMERA_LINE,), monkeypatch, tmp_path)
     with pytest.raises(ModuleNotFoundError, match="vts_hw.drivers.pattern"):
         open_cameras(parse_rig(yaml.safe_load(_camera_rig(tmp_path).read_text()), "rig.yaml").cameras)

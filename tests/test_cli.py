@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from vts_hw.recording.mjpeg import split_jpegs
 from vts_hw.recording.folder import read_index
+from vts_hw.recording.mjpeg import split_jpegs
 from vts_hw.sim_devices.rig import load_env_file
 
 VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
@@ -70,14 +70,19 @@ def test_record_info_reindex(env, tmp_path):
     manifest = (rec / "manifest.json").read_text()
     assert env["VTS_SIM_CAM1_PASSWORD"] not in manifest
     import hashlib
+
     digest = hashlib.sha256(Path(env["VTS_CONFIG"]).read_bytes()).hexdigest()
     assert json.loads(manifest)["rig_digest"] == digest
 
 
 def test_kill_9_loses_at_most_the_frame_in_flight(env, tmp_path):
     rec = tmp_path / "killed"
-    proc = subprocess.Popen([*VTS, "camera", "record", "--all", "--seconds", "60", "-o", str(rec)],
-                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [*VTS, "camera", "record", "--all", "--seconds", "60", "-o", str(rec)],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline:
@@ -102,11 +107,14 @@ def test_kill_9_loses_at_most_the_frame_in_flight(env, tmp_path):
     assert json.loads((rec / "manifest.json").read_text())["status"] == "recovered"
 
 
-@pytest.mark.parametrize("args, code, words", [
-    (("camera", "snapshot", "cam9", "-o", "x.jpg"), 2, "no camera named 'cam9'"),
-    (("--config", "/nonexistent/rig.yaml", "camera", "info", "cam1"), 2, "no such config file"),
-    (("recording", "info", "/nonexistent"), 3, "no such file"),
-])
+@pytest.mark.parametrize(
+    "args, code, words",
+    [
+        (("camera", "snapshot", "cam9", "-o", "x.jpg"), 2, "no camera named 'cam9'"),
+        (("--config", "/nonexistent/rig.yaml", "camera", "info", "cam1"), 2, "no such config file"),
+        (("recording", "info", "/nonexistent"), 3, "no such file"),
+    ],
+)
 def test_user_errors_are_one_sentence(env, args, code, words):
     if args[0] == "--config":
         args = args[2:4] + ("--config", args[1]) + args[4:]
@@ -136,8 +144,12 @@ def test_stream_prints_frames_for_the_time_asked(env):
 
 
 def test_sim_up_in_the_foreground_stops_cleanly_on_ctrl_c(tmp_path):
-    proc = subprocess.Popen([*VTS, "sim", "up", "--cameras", "1", "--dir", str(tmp_path)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [*VTS, "sim", "up", "--cameras", "1", "--dir", str(tmp_path)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         deadline = time.monotonic() + 30
         while not (tmp_path / "rig.yaml").exists() and time.monotonic() < deadline:

@@ -40,8 +40,11 @@ def test_the_demo_numbers_its_sections_in_the_order_shown(monkeypatch, tmp_path)
     def fake_run_demo(out, days, frames, on_day, on_step):
         on_step("day 0: baseline set")
         for d in range(1, days + 1):
-            on_day(demo_days.DayRow(d, 0.0, "OK", {"cam1": {"dx": 0.0, "dy": 0.0, "truth_dx": 0.0, "truth_dy": 0.0,
-                                                              "state": "OK"}}))
+            on_day(
+                demo_days.DayRow(
+                    d, 0.0, "OK", {"cam1": {"dx": 0.0, "dy": 0.0, "truth_dx": 0.0, "truth_dy": 0.0, "state": "OK"}}
+                )
+            )
         on_step(demo_days.STEPS_START)
         on_step("7-sphere step test: OK")
         on_step(demo_days.REPORTS_START)

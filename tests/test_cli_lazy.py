@@ -42,7 +42,7 @@ def _run(code: str, *args: str) -> dict:
 def test_every_command_and_subcommand_is_reached_through_the_map():
     got = _run(TREE)
     assert got["lazy"] == got["all"], "a module of vts_hw.cli defines a command the COMMANDS map does not load"
-    assert {"aim", "setup", "snapshot"} <= set(got["lazy"]["camera"])     # from three modules
+    assert {"aim", "setup", "snapshot"} <= set(got["lazy"]["camera"])  # from three modules
     assert "flash" in got["lazy"]["trigger"] and "daily" in got["lazy"]["qa"]
 
 
@@ -58,6 +58,7 @@ def test_help_of_vts_lists_every_command_and_an_unknown_one_is_refused():
     assert r.returncode == 0
     listed = r.stdout.split("Commands:")[1].split()
     from vts_hw.cli import COMMANDS
+
     assert all(name in listed for name in COMMANDS), r.stdout
     r = subprocess.run([sys.executable, "-m", "vts_hw.cli", "scna"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "No such command 'scna'" in r.stderr and "Traceback" not in r.stderr
@@ -66,10 +67,16 @@ def test_help_of_vts_lists_every_command_and_an_unknown_one_is_refused():
 def test_a_refused_console_loads_none_of_its_pages():
     """`vts console` refuses what the command line alone says is wrong (serve_checks.py) before
     the console's server and pages are imported: a refusal is one sentence, not a start-up."""
-    code = SEEN.replace('"cli": sorted(m for m in sys.modules if m.startswith("vts_hw.cli."))',
-                        '"cli": sorted(m for m in sys.modules if m.startswith("vts_hw.console"))')
-    r = subprocess.run([sys.executable, "-c", code, "console", "--host", "0.0.0.0", "--port", "0"],
-                       capture_output=True, text=True, timeout=120)
+    code = SEEN.replace(
+        '"cli": sorted(m for m in sys.modules if m.startswith("vts_hw.cli."))',
+        '"cli": sorted(m for m in sys.modules if m.startswith("vts_hw.console"))',
+    )
+    r = subprocess.run(
+        [sys.executable, "-c", code, "console", "--host", "0.0.0.0", "--port", "0"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 2 and "refused to serve the console on 0.0.0.0" in r.stderr, r.stderr[-2000:]
     loaded = set(json.loads(r.stdout.strip().splitlines()[-1])["cli"])
     assert "vts_hw.console.serve_checks" in loaded
@@ -79,8 +86,10 @@ def test_a_refused_console_loads_none_of_its_pages():
 def test_the_consoles_pages_load_no_plotting_library_until_a_plot_is_drawn():
     """The console's server and every page import without matplotlib (0.6 s of every console
     start): the QA page's drift plot takes the report package's name, loaded when first drawn."""
-    code = ("import json, sys\nimport vts_hw.console.app, vts_hw.console.serve\n"
-            "print(json.dumps(sorted(m for m in ('matplotlib', 'vts_hw.report.plots') if m in sys.modules)))")
+    code = (
+        "import json, sys\nimport vts_hw.console.app, vts_hw.console.serve\n"
+        "print(json.dumps(sorted(m for m in ('matplotlib', 'vts_hw.report.plots') if m in sys.modules)))"
+    )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]
     assert json.loads(r.stdout.strip().splitlines()[-1]) == []

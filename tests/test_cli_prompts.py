@@ -29,12 +29,16 @@ def test_every_question_goes_through_the_one_door():
     assert found == []
 
 
-@pytest.mark.parametrize("ask", [lambda: common.ask_a_person("Press Enter.", "the step test", "use --analyze DIR"),
-                                 lambda: common.ask_password("password for ann", "give --password-env NAME")],
-                         ids=["enter", "password"])
+@pytest.mark.parametrize(
+    "ask",
+    [
+        lambda: common.ask_a_person("Press Enter.", "the step test", "use --analyze DIR"),
+        lambda: common.ask_password("password for ann", "give --password-env NAME"),
+    ],
+    ids=["enter", "password"],
+)
 def test_without_a_terminal_a_question_is_one_sentence_and_exit_2(ask, monkeypatch):
     monkeypatch.setattr(common, "_terminal", lambda: False)
     with pytest.raises(common.NoTerminal) as got:
         ask()
     assert got.value.exit_code == 2 and "stdin is not" in str(got.value) and "\n" not in str(got.value)
-

@@ -39,6 +39,7 @@ class Operator:
     def __init__(self, rig, volumes: Path, vertical: int, axial: int):
         from vts_hw.procedures.steps import step_plan
         from vts_hw.sim_devices.step_table import SimSpectSource, SimTable
+
         self.plan = {p.label: p for p in step_plan(vertical, axial)}
         self.table = SimTable(rig.scene, rig.clock.now, seed=2)
         self.spect = SimSpectSource(rig.scene, rig.clock.now, volumes, seed=2)
@@ -56,8 +57,7 @@ class Operator:
 
 @pytest.fixture()
 def room(tmp_path):
-    rig = SimRig(n_cameras=2, seed=4, trigger="triggerbox", announce=True,
-                 optics={"cam2": {"yaw_deg": 6.0}}).start()
+    rig = SimRig(n_cameras=2, seed=4, trigger="triggerbox", announce=True, optics={"cam2": {"yaw_deg": 6.0}}).start()
     try:
         rig.ntp_sync()
         rig.scene.add_phantom()
@@ -66,57 +66,97 @@ def room(tmp_path):
         # the warm-up watched for a second (3 samples): this room runs in real time, where a second cannot
         # tell 0.05 px/min from noise (a few px/min), so its limit is loose; the warm-up's judgement is
         # tests/test_commission_warmup.py's, on a clock that runs fast
-        rig_yaml.write_text("# room 1, as `vts discover -o rig.yaml` wrote it\n"
-                            + dump_rig(rig.config(rig_name="room1", results_url=store))
-                            + "warmup: {interval_s: 0.4, samples: 3, frames: 1}\n"
-                              "tolerances: {warmup_rate_px_min: {tolerance_high: 5, unit: px/min}}\n")
+        rig_yaml.write_text(
+            "# room 1, as `vts discover -o rig.yaml` wrote it\n"
+            + dump_rig(rig.config(rig_name="room1", results_url=store))
+            + "warmup: {interval_s: 0.4, samples: 3, frames: 1}\n"
+            "tolerances: {warmup_rate_px_min: {tolerance_high: 5, unit: px/min}}\n"
+        )
         with rig.env():
             yield rig, rig_yaml, store
     finally:
         rig.stop()
 
 
-def test_commissioning_stops_at_a_mis_aimed_camera_resumes_and_ends_with_the_report(room, tmp_path, capsys,
-                                                                                  monkeypatch):
+def test_commissioning_stops_at_a_mis_aimed_camera_resumes_and_ends_with_the_report(
+    room, tmp_path, capsys, monkeypatch
+):
     from vts_hw.sim_devices.scenarios import sync_session as sync_sim
 
     rig, rig_yaml, store_url = room
     out = tmp_path / "commission"
-    base = ["commission", "--config", rig_yaml, "-o", out, "--listen", "1", "--interface", "127.0.0.1",
-            "--frames", "2", "--vertical", "1", "--axial", "1"]
+    base = [
+        "commission",
+        "--config",
+        rig_yaml,
+        "-o",
+        out,
+        "--listen",
+        "1",
+        "--interface",
+        "127.0.0.1",
+        "--frames",
+        "2",
+        "--vertical",
+        "1",
+        "--axial",
+        "1",
+    ]
 
     # 1. cam2's mount is turned: the aim step stops the sequence with the way to turn it
     code, so, se = vts(capsys, *base)
     assert code == 10, se
-    assert "commissioning stopped at aim and focus" in so and re.search(r"cam2 aim: aim (about )?\d+\.\d° (left|right)", so), so
+    assert "commissioning stopped at aim and focus" in so and re.search(
+        r"cam2 aim: aim (about )?\d+\.\d° (left|right)", so
+    ), so
     assert "locked_params written" in se and "firmware" in se and "announced: " in se
-    assert "locked_params:" in rig_yaml.read_text() and "# room 1" in rig_yaml.read_text()   # comments kept
+    assert "locked_params:" in rig_yaml.read_text() and "# room 1" in rig_yaml.read_text()  # comments kept
 
     # 2. turned back; the operator takes the checkerboard views and the SPECT images the phantom
     rig.sources["cam2"].set_optics(yaw_deg=0.0)
     boards = _boards(rig, tmp_path / "boards")
     from vts_hw.sim_devices.spect import SimSpect
     from vts_hw.sim_devices.step_table import SPECT_MATRIX, sphere_centres
-    phantom = SimSpect(matrix=SPECT_MATRIX, seed=7).write(tmp_path / "phantom.npz",
-                                                          sphere_centres(rig.scene, rig.clock.now()))
+
+    phantom = SimSpect(matrix=SPECT_MATRIX, seed=7).write(
+        tmp_path / "phantom.npz", sphere_centres(rig.scene, rig.clock.now())
+    )
     operator = Operator(rig, tmp_path / "volumes", 1, 1)
     monkeypatch.setattr("vts_hw.cli.commission._ask", operator)
-    inputs = ["--checkerboards", boards, "--square", cb.SQUARE_MM, "--phantom-volume", phantom,
-              "--step-volumes", tmp_path / "volumes"]
+    inputs = [
+        "--checkerboards",
+        boards,
+        "--square",
+        cb.SQUARE_MM,
+        "--phantom-volume",
+        phantom,
+        "--step-volumes",
+        tmp_path / "volumes",
+    ]
     code, so, se = vts(capsys, *base, "--resume", *inputs)
-    assert code == 2, se          # the sync check needs a scan: said, with how
+    assert code == 2, se  # the sync check needs a scan: said, with how
     assert "needs --sync-session DIR and --listmode FILE" in se and "vts scan start" in se
-    assert "== discover and set up" not in se and "== aim and focus" in se    # resumed after the last good step
+    assert "== discover and set up" not in se and "== aim and focus" in se  # resumed after the last good step
     assert [a[:10] for a in operator.asked] == ["[baseline]", "[V01] Rais", "[A01] Move", "[free] Tur"]
-    cal = load_rig(rig_yaml).calibration     # what the step test, scans and `vts camera aim` now read
+    cal = load_rig(rig_yaml).calibration  # what the step test, scans and `vts camera aim` now read
     assert (cal.stereo, cal.spect) == (out / "calibration.json", out / "spect_mapping.json")
     assert rig_yaml.read_text().startswith("# room 1")
 
     # 3. the scan with a source marker moved; then resume: sync check, baseline, the report
     marker = sync_sim.prepare(rig)
     scan = sync_sim.cli_scan(rig, rig_yaml, tmp_path / "scan", 14.0, marker, n=2, seed=1)
-    code, so, se = vts(capsys, *base, "--resume", *inputs, "--sync-session", scan.session,
-                       "--listmode", scan.listmode, "--sign-off", "A. Physicist")
+    code, so, se = vts(
+        capsys,
+        *base,
+        "--resume",
+        *inputs,
+        "--sync-session",
+        scan.session,
+        "--listmode",
+        scan.listmode,
+        "--sign-off",
+        "A. Physicist",
+    )
     assert code in (0, 10), se
     assert "== sync check" in se and "== drift baseline" in se and "== step test" not in se
     html, pdf = out / "commissioning.html", out / "commissioning.pdf"
@@ -124,18 +164,35 @@ def test_commissioning_stops_at_a_mis_aimed_camera_resumes_and_ends_with_the_rep
 
     with ResultsStore(store_url) as store:
         from vts_hw.store.commission import load_state
+
         state = load_state(store, "room1")
-        assert set(state.steps) == {"cameras", "trigger", "aim", "warmup", "calibration", "mapping", "steps", "sync",
-                                    "baseline"}
+        assert set(state.steps) == {
+            "cameras",
+            "trigger",
+            "aim",
+            "warmup",
+            "calibration",
+            "mapping",
+            "steps",
+            "sync",
+            "baseline",
+        }
         assert all(s.passed for s in state.steps.values())
         aims = [r for r in store.runs("commission-step") if "step aim" in r.notes]
-        assert [("stopped" in r.notes) for r in aims] == [True, False]      # the failed run stays in history
+        assert [("stopped" in r.notes) for r in aims] == [True, False]  # the failed run stays in history
         assert {store.run(s.step_run).procedure for s in state.steps.values() if s.step_run} == {
-            "calibration", "spect_mapping", "sphere-steps", "sync", "drift-baseline"}
+            "calibration",
+            "spect_mapping",
+            "sphere-steps",
+            "sync",
+            "drift-baseline",
+        }
         report_run = store.run(state.report_run)
         assert report_run.procedure == "commissioning" and report_run.operator == "A. Physicist"
-        assert {Path(a.path).name for a in store.artifacts(report_run.id)} == {"commissioning.html",
-                                                                              "commissioning.pdf"}
+        assert {Path(a.path).name for a in store.artifacts(report_run.id)} == {
+            "commissioning.html",
+            "commissioning.pdf",
+        }
         status = report_run.status
 
     _check_pdf(pdf)
@@ -147,19 +204,22 @@ def test_commissioning_stops_at_a_mis_aimed_camera_resumes_and_ends_with_the_rep
 
 def _check_pdf(pdf: Path) -> None:
     import subprocess
+
     if shutil.which("pdfinfo") is None:
         pytest.fail("pdfinfo (poppler-utils) is needed: make debs")
     info = subprocess.run(["pdfinfo", str(pdf)], capture_output=True, text=True, check=True).stdout
     pages = int(re.search(r"Pages:\s+(\d+)", info).group(1))
     assert 1 <= pages <= 6, info
     from test_report_faults import assert_pdf_fits
-    assert_pdf_fits(pdf, overlap_pages=range(pages))          # nothing drawn over anything else
+
+    assert_pdf_fits(pdf, overlap_pages=range(pages))  # nothing drawn over anything else
     text = subprocess.run(["pdftotext", str(pdf), "-"], capture_output=True, text=True, check=True).stdout
     assert "Signed off by A. Physicist" in text and "Devices" in text and "step test" in text
 
 
 def _check_in_browser(html: Path, status: str) -> None:
     from playwright.sync_api import sync_playwright
+
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
         try:

@@ -37,23 +37,27 @@ def _yaml(rig, tmp_path, port=None):
 
 def test_a_skip_needs_a_why(capsys, tmp_path):
     code, _, err = vts(capsys, "commission", "--config", tmp_path / "none.yaml", "--skip", "sync")
-    assert code == 2 and err.strip() == ("vts: --skip STEP needs --why TEXT (and --why a --skip): the report says why "
-                                         "a step was left out")
+    assert code == 2 and err.strip() == (
+        "vts: --skip STEP needs --why TEXT (and --why a --skip): the report says why a step was left out"
+    )
 
 
 def test_an_input_not_given_stops_with_what_to_give(rig, capsys, tmp_path):
     y, url = _yaml(rig, tmp_path)
     code, _, err = vts(capsys, "commission", "--config", y, "-o", tmp_path / "c", "--from", "calibration")
     assert code == 2
-    assert err.strip().endswith("vts: the calibration needs --checkerboards DIR: checkerboard images of every camera "
-                                "(DIR/cam1/01.png, ... or cam1_01.png; each view seen by two cameras or more, 15-20 "
-                                "poses over the field of view); then `vts commission --resume` with it")
+    assert err.strip().endswith(
+        "vts: the calibration needs --checkerboards DIR: checkerboard images of every camera "
+        "(DIR/cam1/01.png, ... or cam1_01.png; each view seen by two cameras or more, 15-20 "
+        "poses over the field of view); then `vts commission --resume` with it"
+    )
     with ResultsStore(url) as store:
         runs = store.runs("commission-step")
         assert [r.status for r in runs] == ["aborted"]
-        assert runs[0].notes.startswith("commissioning (new) step calibration\naborted: the calibration needs "
-                                        "--checkerboards DIR")
-        (s,) = load_state(store, "room2").steps.values()     # the newest attempt of the step: aborted, never passed
+        assert runs[0].notes.startswith(
+            "commissioning (new) step calibration\naborted: the calibration needs --checkerboards DIR"
+        )
+        (s,) = load_state(store, "room2").steps.values()  # the newest attempt of the step: aborted, never passed
         assert s.step == "calibration" and s.aborted and not s.passed and s.why().startswith("the calibration needs")
 
 

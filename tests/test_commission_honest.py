@@ -35,8 +35,10 @@ from vts_hw.store.commission import load_state
 pytestmark = pytest.mark.timeout(180)
 
 SKIPPED = ("trigger", "aim", "warmup", "calibration", "mapping", "steps", "sync")
-SKIPPED_WORDS = "7 of 9 steps skipped (trigger box, aim and focus, warm-up, calibration, VTS → SPECT mapping, " \
-                "step test, sync check)"
+SKIPPED_WORDS = (
+    "7 of 9 steps skipped (trigger box, aim and focus, warm-up, calibration, VTS → SPECT mapping, "
+    "step test, sync check)"
+)
 VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
 
 
@@ -65,8 +67,19 @@ def _rooms_text(url: str) -> str:
 
 def test_the_newest_attempt_of_each_step_decides_and_the_rooms_page_says_the_state(rig, tmp_path, capsys):
     y, url = _room(rig, tmp_path)
-    base = ["commission", "--config", y, "-o", tmp_path / "c", "--listen", "0.2", "--interface", "127.0.0.1",
-            "--frames", "1"]
+    base = [
+        "commission",
+        "--config",
+        y,
+        "-o",
+        tmp_path / "c",
+        "--listen",
+        "0.2",
+        "--interface",
+        "127.0.0.1",
+        "--frames",
+        "1",
+    ]
     skips = [a for s in SKIPPED for a in ("--skip", s)] + ["--why", "not part of this test"]
 
     # the drift baseline asks a person to clear the room: no terminal here (pytest's stdin), so it says so
@@ -75,7 +88,8 @@ def test_the_newest_attempt_of_each_step_decides_and_the_rooms_page_says_the_sta
     assert err.strip().splitlines()[-1] == (
         "vts: commissioning asks a person at the table ('Clear the table and the room (phantom and source marker "
         "away), LED rings on. Press Enter.') and stdin is not a terminal: run it at a terminal (`vts commission "
-        "--resume`), or for the drift baseline give --room-clear")
+        "--resume`), or for the drift baseline give --room-clear"
+    )
     with ResultsStore(url) as store:
         b = load_state(store, "room5").steps["baseline"]
         assert b.aborted and b.why().startswith("commissioning asks a person at the table")
@@ -88,8 +102,9 @@ def test_the_newest_attempt_of_each_step_decides_and_the_rooms_page_says_the_sta
     assert f"of room5: TOLERANCE ({SKIPPED_WORDS.replace(' (', ': ', 1)[:-1]}) (not signed off)" in out, out
     with ResultsStore(url) as store:
         report = store.run(load_state(store, "room5").report_run)
-    assert _rooms_text(url) == (f"commissioned on {fmt_date(report.started)}: TOLERANCE, {SKIPPED_WORDS} "
-                                "(not signed off)")
+    assert _rooms_text(url) == (
+        f"commissioned on {fmt_date(report.started)}: TOLERANCE, {SKIPPED_WORDS} (not signed off)"
+    )
 
     # a redo of the mapping that fails: --resume runs the mapping again and writes no report from the old runs
     code, out, err = vts(capsys, *base, "--from", "mapping")
@@ -110,19 +125,27 @@ def test_the_newest_attempt_of_each_step_decides_and_the_rooms_page_says_the_sta
         rig.servers["cam2"].faults.offline = False
     assert code == 4 and "== discover and set up the cameras" in err and "TOLERANCE" not in out, err
     assert "its discover and set up the cameras step of " in err and "did not finish (camera cam2 at " in err, err
-    assert _rooms_text(url) == (       # the mapping no longer skipped: aborted
+    assert _rooms_text(url) == (  # the mapping no longer skipped: aborted
         "commissioning incomplete, not commissioned: discover and set up the cameras aborted; VTS → SPECT mapping "
         "aborted; 6 of 9 steps skipped (trigger box, aim and focus, warm-up, calibration, step test, sync check) "
-        f"(its report of {fmt_date(report.started)}, TOLERANCE, no longer stands)")
+        f"(its report of {fmt_date(report.started)}, TOLERANCE, no longer stands)"
+    )
     with ResultsStore(url) as store:
-        cams = [r for r in store.runs("commission-step") if r.notes.startswith("commissioning ")
-                and " step cameras" in r.notes.splitlines()[0]]
-        assert [r.status for r in cams][-2:] == ["aborted", "aborted"]     # both attempts kept, each with why
+        cams = [
+            r
+            for r in store.runs("commission-step")
+            if r.notes.startswith("commissioning ") and " step cameras" in r.notes.splitlines()[0]
+        ]
+        assert [r.status for r in cams][-2:] == ["aborted", "aborted"]  # both attempts kept, each with why
 
 
 def _start(y: Path, err: Path, *args) -> subprocess.Popen:
-    return subprocess.Popen([*VTS, "commission", "--config", str(y), "-o", str(y.parent / "c"), "--from", "warmup",
-                             *args], stdout=subprocess.DEVNULL, stderr=err.open("w"), stdin=subprocess.DEVNULL)
+    return subprocess.Popen(
+        [*VTS, "commission", "--config", str(y), "-o", str(y.parent / "c"), "--from", "warmup", *args],
+        stdout=subprocess.DEVNULL,
+        stderr=err.open("w"),
+        stdin=subprocess.DEVNULL,
+    )
 
 
 def _wait_for(p: subprocess.Popen, err: Path, text: str, deadline_s: float = 90.0) -> None:
@@ -134,7 +157,7 @@ def _wait_for(p: subprocess.Popen, err: Path, text: str, deadline_s: float = 90.
 
 
 def test_sigterm_and_kill_9_in_the_warmup_are_recorded_and_the_next_start_says_so(rig, tmp_path, capsys):
-    y, url = _room(rig, tmp_path, "{interval_s: 600, samples: 3, frames: 1}")     # a sample, then a long wait
+    y, url = _room(rig, tmp_path, "{interval_s: 600, samples: 3, frames: 1}")  # a sample, then a long wait
     err = tmp_path / "err.txt"
 
     p = _start(y, err)
@@ -145,8 +168,11 @@ def test_sigterm_and_kill_9_in_the_warmup_are_recorded_and_the_next_start_says_s
     finally:
         p.kill()
     said = err.read_text()
-    assert "stopped by SIGTERM: the step under way is recorded as aborted; `vts commission --resume` runs it " \
-           "again" in said and said.strip().endswith("vts: interrupted") and "Traceback" not in said, said
+    assert (
+        "stopped by SIGTERM: the step under way is recorded as aborted; `vts commission --resume` runs it again" in said
+        and said.strip().endswith("vts: interrupted")
+        and "Traceback" not in said
+    ), said
     with ResultsStore(url) as store:
         w = load_state(store, "room5").steps["warmup"]
         assert w.aborted and w.why() == "stopped by SIGTERM"
@@ -162,7 +188,7 @@ def test_sigterm_and_kill_9_in_the_warmup_are_recorded_and_the_next_start_says_s
     # killed process left running is marked aborted, and the start says the warm-up did not finish
     code, out, said = vts(capsys, "commission", "--config", y, "-o", tmp_path / "c", "--from", "mapping")
     assert code == 2, said
-    assert f"its warm-up step of " in said and f"did not finish (its process (pid {p.pid} " in said, said
+    assert "its warm-up step of " in said and f"did not finish (its process (pid {p.pid} " in said, said
     with ResultsStore(url) as store:
         w = load_state(store, "room5").steps["warmup"]
         assert w.aborted and w.why().startswith(f"its process (pid {p.pid} ") and "ended without finishing" in w.why()

@@ -44,8 +44,9 @@ def room(tmp_path_factory):
             for cam, img in (("cam1", left), ("cam2", right)):
                 (d / "boards" / cam).mkdir(parents=True, exist_ok=True)
                 cv2.imwrite(str(d / "boards" / cam / f"{name}.png"), img)
-        phantom = SimSpect(matrix=SPECT_MATRIX, seed=7).write(d / "phantom.npz",
-                                                              sphere_centres(rig.scene, rig.clock.now()))
+        phantom = SimSpect(matrix=SPECT_MATRIX, seed=7).write(
+            d / "phantom.npz", sphere_centres(rig.scene, rig.clock.now())
+        )
         truth = write_true_calibration(rig.scene, d / "truth")
         with rig.env():
             yield rig, d / "boards", phantom, truth
@@ -57,8 +58,13 @@ def _rig_yaml(rig, truth, folder: Path, store: Path, extra: str = "") -> tuple[P
     """rig.yaml in ``folder`` naming copies of the true calibration files (old/), with comments."""
     (folder / "old").mkdir(parents=True, exist_ok=True)
     old_cal, old_map = (Path(shutil.copy(f, folder / "old" / Path(f).name)) for f in truth)
-    text = dump_rig(rig.config(rig_name="room1", results_url=f"sqlite:///{store}",
-                               calibration={"stereo": str(old_cal), "spect": str(old_map)}))
+    text = dump_rig(
+        rig.config(
+            rig_name="room1",
+            results_url=f"sqlite:///{store}",
+            calibration={"stereo": str(old_cal), "spect": str(old_map)},
+        )
+    )
     assert text.count("calibration:\n") == 1
     y = folder / "rig.yaml"
     y.write_text(HEAD + text.replace("calibration:\n", CAL_COMMENT) + extra)
@@ -66,8 +72,23 @@ def _rig_yaml(rig, truth, folder: Path, store: Path, extra: str = "") -> tuple[P
 
 
 def _commission(capsys, y, out, boards, phantom, *more):
-    return vts(capsys, "commission", "--config", y, "-o", out, "--frames", "2",
-               "--checkerboards", boards, "--square", cb.SQUARE_MM, "--phantom-volume", phantom, *more)
+    return vts(
+        capsys,
+        "commission",
+        "--config",
+        y,
+        "-o",
+        out,
+        "--frames",
+        "2",
+        "--checkerboards",
+        boards,
+        "--square",
+        cb.SQUARE_MM,
+        "--phantom-volume",
+        phantom,
+        *more,
+    )
 
 
 def _fov(capsys, config: Path) -> dict:
@@ -88,22 +109,22 @@ def test_a_commissioning_points_rig_yaml_at_its_calibration_and_mapping(room, tm
     cal, mp = out / "calibration.json", out / "spect_mapping.json"
 
     code, so, se = _commission(capsys, y, out, boards, phantom, "--from", "calibration")
-    assert code == 2 and "the step test needs --step-volumes DIR" in se, se     # stopped after the mapping
+    assert code == 2 and "the step test needs --step-volumes DIR" in se, se  # stopped after the mapping
     assert f"rig.yaml now points at {cal} (calibration.cameras; the previous text is in {y}.bak)" in se
     assert f"rig.yaml now points at {mp} (calibration.mapping; the previous text is in {y}.bak)" in se
     now = load_rig(y).calibration
     assert (now.stereo, now.spect) == (cal, mp) and cal.is_file() and mp.is_file()
     text = y.read_text()
-    assert text.startswith(HEAD) and CAL_COMMENT in text                        # the comments kept
-    assert _without_paths(text) == _without_paths(before)                       # and nothing else changed
+    assert text.startswith(HEAD) and CAL_COMMENT in text  # the comments kept
+    assert _without_paths(text) == _without_paths(before)  # and nothing else changed
     bak = Path(f"{y}.bak")
     assert load_rig(bak).calibration.stereo == cal and load_rig(bak).calibration.spect == old_map
-    assert bak.read_text().startswith(HEAD)                                      # the text before the last write
+    assert bak.read_text().startswith(HEAD)  # the text before the last write
 
     with ResultsStore(f"sqlite:///{tmp_path / 'r.sqlite'}") as store:
         steps = load_state(store, "room1").steps
         assert steps["calibration"].passed and steps["mapping"].passed
-        assert f"rig.yaml now points at {cal}" in steps["calibration"].notes     # the report's notes column
+        assert f"rig.yaml now points at {cal}" in steps["calibration"].notes  # the report's notes column
         assert f"rig.yaml now points at {mp}" in steps["mapping"].notes
 
     # `vts camera aim` reads the new files: with the old ones gone, rig.yaml.bak (the old mapping)
@@ -128,18 +149,19 @@ def test_a_mapping_in_action_leaves_the_spect_entry_as_it_was(room, tmp_path, ca
     before = y.read_text()
     out = tmp_path / "commission"
     out.mkdir()
-    shutil.copy(truth[0], out / "calibration.json")       # a calibration made before: the mapping's input
+    shutil.copy(truth[0], out / "calibration.json")  # a calibration made before: the mapping's input
     code, so, se = _commission(capsys, y, out, boards, phantom, "--from", "mapping")
     assert code == 20, se
     assert "commissioning stopped at VTS → SPECT mapping: the mapping is in ACTION" in so
-    assert (out / "spect_mapping.json").is_file()          # saved, as `vts calibrate spect` saves it
+    assert (out / "spect_mapping.json").is_file()  # saved, as `vts calibrate spect` saves it
     assert y.read_text() == before and not Path(f"{y}.bak").exists()
     assert "now points at" not in se
     assert load_rig(y).calibration.spect == old_map
 
 
-def test_rig_yaml_on_a_read_only_folder_is_one_sentence_keeps_the_calibration_and_goes_on(room, tmp_path, capsys,
-                                                                                      small_disk):
+def test_rig_yaml_on_a_read_only_folder_is_one_sentence_keeps_the_calibration_and_goes_on(
+    room, tmp_path, capsys, small_disk
+):
     rig, boards, phantom, truth = room
     disk = small_disk(512)
     y, old_cal, _ = _rig_yaml(rig, truth, disk.path, tmp_path / "r.sqlite")
@@ -150,17 +172,19 @@ def test_rig_yaml_on_a_read_only_folder_is_one_sentence_keeps_the_calibration_an
     code, so, se = _commission(capsys, y, out, boards, phantom, "--from", "calibration")
     last = se.strip().splitlines()[-1]
     assert code == 3, se
-    assert last == (f"vts: {y}.bak: could not be written (read-only file system); {y} is unchanged "
-                    f"(calibration.cameras: {old_cal}); the new calibration is kept in {cal}: "
-                    f"`vts commission --from calibration` once {y} can be written"), se
+    assert last == (
+        f"vts: {y}.bak: could not be written (read-only file system); {y} is unchanged "
+        f"(calibration.cameras: {old_cal}); the new calibration is kept in {cal}: "
+        f"`vts commission --from calibration` once {y} can be written"
+    ), se
     assert "Traceback" not in se and y.read_text() == before and not Path(f"{y}.bak").exists()
-    assert json.loads(cal.read_text())                     # the calibration kept, whole
+    assert json.loads(cal.read_text())  # the calibration kept, whole
     with ResultsStore(f"sqlite:///{tmp_path / 'r.sqlite'}") as store:
         s = load_state(store, "room1").steps["calibration"]
         assert not s.passed and "could not be written" in s.notes
-        assert store.run(s.step_run).procedure == "calibration"   # its figures stored all the same
+        assert store.run(s.step_run).procedure == "calibration"  # its figures stored all the same
 
-    disk.read_only(False)                                  # the folder writable again: as it says
+    disk.read_only(False)  # the folder writable again: as it says
     code, so, se = _commission(capsys, y, out, boards, phantom, "--from", "calibration")
     assert code == 2 and "== calibration" in se and f"rig.yaml now points at {cal}" in se, se
     now = load_rig(y).calibration
@@ -168,29 +192,33 @@ def test_rig_yaml_on_a_read_only_folder_is_one_sentence_keeps_the_calibration_an
     assert _without_paths(y.read_text()) == _without_paths(before) and y.read_text().startswith(HEAD)
 
 
-def test_set_calibration_on_a_full_disk_or_a_file_changed_meanwhile_writes_nothing(tmp_path, small_disk,
-                                                                                  monkeypatch):
+def test_set_calibration_on_a_full_disk_or_a_file_changed_meanwhile_writes_nothing(tmp_path, small_disk, monkeypatch):
     disk = small_disk(256)
     y = disk.path / "rig.yaml"
     y.write_text(HEAD + "rig: r\ncameras:\n- name: cam1\n  host: 127.0.0.1\n  port: 80\n")
     disk.fill()
-    with pytest.raises(WriteFailed, match=r"rig\.yaml\.bak: could not be written \(no space left on device\); "
-                                          r".*rig\.yaml is unchanged"):
+    with pytest.raises(
+        WriteFailed,
+        match=r"rig\.yaml\.bak: could not be written \(no space left on device\); "
+        r".*rig\.yaml is unchanged",
+    ):
         set_calibration(y, {"stereo": tmp_path / "c.json"})
     assert y.read_text().startswith(HEAD) and sorted(disk.files()) == ["rig.yaml"]
     disk.free_up()
 
     import vts_hw.rig_file as rf
+
     reads = []
 
     def read(p):
         reads.append(p)
         return Path(p).read_text() + ("# someone else\n" if len(reads) > 1 else "")
+
     monkeypatch.setattr(rf, "_read_text", read)
     with pytest.raises(UsageError, match="was changed while its calibration paths were being set: it is left as it is"):
         set_calibration(y, {"stereo": tmp_path / "c.json"})
     assert "calibration" not in y.read_text() and sorted(disk.files()) == ["rig.yaml"]
-    monkeypatch.undo()            # a relative file name: written as the absolute path (every reader's same file)
+    monkeypatch.undo()  # a relative file name: written as the absolute path (every reader's same file)
     monkeypatch.chdir(tmp_path)
-    set_calibration(y, {"spect": "m.json"})     # the old name taken; the new one written
+    set_calibration(y, {"spect": "m.json"})  # the old name taken; the new one written
     assert load_rig(y).calibration.mapping == tmp_path / "m.json" and f"mapping: {tmp_path / 'm.json'}" in y.read_text()

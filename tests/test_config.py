@@ -49,19 +49,25 @@ def test_good_file(tmp_path, monkeypatch):
     assert rig.digest and len(rig.digest) == 64
 
 
-@pytest.mark.parametrize("change, key, expected", [
-    (("port: 8080", "port: eighty"), "cameras[1].port", "integer"),
-    (("port: 8080", "port: 70000"), "cameras[1].port", "less than or equal to 65535"),
-    (("resolution: 640x480", "resolution: big"), "cameras[1].resolution", "WIDTHxHEIGHT"),
-    (("frequency_hz: 10", "frequency_hz: 5000"), "trigger.frequency_hz", "1000"),
-    (("host: 192.0.2.10\n", "host: 192.0.2.10\n    password: hunter2\n"), "cameras[0].password", "not a known key"),
-    (("tolerance_high: 1", "tolerance_high: 3"), "tolerances.drift_x_px", "action_low <= tolerance_low"),
-    (("drift_x_px:", "drift_z_px:"), "tolerances", "'drift_z_px', which is not a metric with a tolerance"),
-    (("name: cam2", "name: cam1"), "(top level)", "unique"),
-    (("rig: room-1\n", "rig: room-1\nmotion:\n  blind_alert_s: 0\n"), "motion.blind_alert_s", "greater than 0"),
-    (("rig: room-1\n", "rig: room-1\nmotion:\n  blind_max_share: 1.5\n"), "motion.blind_max_share",
-     "less than or equal to 1"),
-])
+@pytest.mark.parametrize(
+    "change, key, expected",
+    [
+        (("port: 8080", "port: eighty"), "cameras[1].port", "integer"),
+        (("port: 8080", "port: 70000"), "cameras[1].port", "less than or equal to 65535"),
+        (("resolution: 640x480", "resolution: big"), "cameras[1].resolution", "WIDTHxHEIGHT"),
+        (("frequency_hz: 10", "frequency_hz: 5000"), "trigger.frequency_hz", "1000"),
+        (("host: 192.0.2.10\n", "host: 192.0.2.10\n    password: hunter2\n"), "cameras[0].password", "not a known key"),
+        (("tolerance_high: 1", "tolerance_high: 3"), "tolerances.drift_x_px", "action_low <= tolerance_low"),
+        (("drift_x_px:", "drift_z_px:"), "tolerances", "'drift_z_px', which is not a metric with a tolerance"),
+        (("name: cam2", "name: cam1"), "(top level)", "unique"),
+        (("rig: room-1\n", "rig: room-1\nmotion:\n  blind_alert_s: 0\n"), "motion.blind_alert_s", "greater than 0"),
+        (
+            ("rig: room-1\n", "rig: room-1\nmotion:\n  blind_max_share: 1.5\n"),
+            "motion.blind_max_share",
+            "less than or equal to 1",
+        ),
+    ],
+)
 def test_bad_values_name_file_key_and_expectation(tmp_path, change, key, expected):
     p = _write(tmp_path, GOOD.replace(*change))
     with pytest.raises(ConfigError) as ei:
@@ -100,17 +106,24 @@ def test_unset_password_variable_is_named(tmp_path, monkeypatch):
 
 # ---- files that are not YAML text at all (found by bench/fuzz.py): one sentence, never a traceback
 
+
 def _write_bytes(tmp_path, data: bytes):
     p = tmp_path / "rig.yaml"
     p.write_bytes(data)
     return p
 
 
-@pytest.mark.parametrize("data, expected", [
-    (b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR", r"not a YAML text file \(a NUL byte at byte 8"),
-    ("rig: x\n".encode("utf-16"), r"not a YAML text file \(a NUL byte at byte \d+: a binary file, or text saved as UTF-16\)"),
-    (b"rig: caf\xe9\n", r"not UTF-8 text \(byte 8 cannot be decoded\)"),
-])
+@pytest.mark.parametrize(
+    "data, expected",
+    [
+        (b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR", r"not a YAML text file \(a NUL byte at byte 8"),
+        (
+            "rig: x\n".encode("utf-16"),
+            r"not a YAML text file \(a NUL byte at byte \d+: a binary file, or text saved as UTF-16\)",
+        ),
+        (b"rig: caf\xe9\n", r"not UTF-8 text \(byte 8 cannot be decoded\)"),
+    ],
+)
 def test_a_binary_or_non_utf8_file(tmp_path, data, expected):
     p = _write_bytes(tmp_path, data)
     with pytest.raises(ConfigError, match=expected) as ei:
@@ -120,10 +133,11 @@ def test_a_binary_or_non_utf8_file(tmp_path, data, expected):
 
 def test_yaml_bombs_are_refused_before_they_expand(tmp_path):
     laughs = 'a: &a ["x","x","x","x","x","x","x","x","x","x"]\n' + "".join(
-        f"{chr(98 + i)}: &{chr(98 + i)} [" + ",".join([f"*{chr(97 + i)}"] * 10) + "]\n" for i in range(9))
+        f"{chr(98 + i)}: &{chr(98 + i)} [" + ",".join([f"*{chr(97 + i)}"] * 10) + "]\n" for i in range(9)
+    )
     merges = "a: &a {x: 1, y: 2, z: 3}\n" + "".join(
-        f"{chr(98 + i)}: &{chr(98 + i)} {{<<: [" + ",".join([f"*{chr(97 + i)}"] * 3) + "]}\n"
-        for i in range(20))  # 3**20 keys once merged
+        f"{chr(98 + i)}: &{chr(98 + i)} {{<<: [" + ",".join([f"*{chr(97 + i)}"] * 3) + "]}\n" for i in range(20)
+    )  # 3**20 keys once merged
     for text in (laughs, merges):
         with pytest.raises(ConfigError, match=r"aliases \(\*name\) expand to more than 100,000 values"):
             load_rig(_write(tmp_path, text))
@@ -151,11 +165,16 @@ def test_vts_with_a_binary_rig_yaml_is_one_sentence_and_exit_2(tmp_path, axis_fr
 
     p = tmp_path / "rig.yaml"
     p.write_bytes((axis_frames / "tst.jpg").read_bytes())
-    r = subprocess.run([sys.executable, "-m", "vts_hw.cli.__main__", "qa", "daily", "--config", str(p)],
-                       capture_output=True, text=True, timeout=60)
+    r = subprocess.run(
+        [sys.executable, "-m", "vts_hw.cli.__main__", "qa", "daily", "--config", str(p)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert r.returncode == 2
-    assert r.stderr.strip() == (f"vts: {p}: not a YAML text file (a NUL byte at byte 4: a binary file, "
-                                "or text saved as UTF-16)")
+    assert r.stderr.strip() == (
+        f"vts: {p}: not a YAML text file (a NUL byte at byte 4: a binary file, or text saved as UTF-16)"
+    )
 
 
 def test_a_file_too_large_to_be_a_rig_config(tmp_path):
@@ -178,8 +197,8 @@ def test_a_relative_calibration_path_is_the_file_beside_rig_yaml_from_any_folder
     rig = load_rig(p)
     assert rig.calibration.stereo == room / "calib" / "cameras.json"
     assert rig.calibration.spect == absolute
-    monkeypatch.chdir(tmp_path)            # rig.yaml named relative to the working folder
+    monkeypatch.chdir(tmp_path)  # rig.yaml named relative to the working folder
     rig = load_rig("room/rig.yaml")
     assert rig.calibration.stereo.resolve() == (room / "calib" / "cameras.json").resolve()
     data = yaml.safe_load(GOOD + "calibration:\n  stereo: calib/cameras.json\n")
-    assert parse_rig(data, "x").calibration.stereo.as_posix() == "calib/cameras.json"   # not read from a file
+    assert parse_rig(data, "x").calibration.stereo.as_posix() == "calib/cameras.json"  # not read from a file

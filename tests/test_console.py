@@ -22,8 +22,16 @@ import numpy as np
 import pytest
 import requests
 
-from console_live import (cam, click_led, led_form_from_another_site, run_vts, start_console, stop_console, until,
-                          wait_js)
+from console_live import (
+    cam,
+    click_led,
+    led_form_from_another_site,
+    run_vts,
+    start_console,
+    stop_console,
+    until,
+    wait_js,
+)
 from vts_hw.camera import StreamGap
 from vts_hw.drivers.registry import open_camera
 from vts_hw.sim_devices.rig import SimRig
@@ -59,16 +67,25 @@ def page(browser, room):
 
 def test_the_pictures_update_with_the_markers_drawn_where_the_scene_has_them(room, page):
     rig, url, _ = room
-    click_led(page, rig, "cam1", True)         # the markers shine with the LED ring on
+    click_led(page, rig, "cam1", True)  # the markers shine with the LED ring on
     try:
         for name in ("cam1", "cam2"):
             first = until(lambda name=name: cam(page, name, "e => e.querySelector('img').dataset.seq"), 30)
             assert first, name
-            assert until(lambda first=first, name=name: int(cam(page, name, "e => e.querySelector('img').dataset.seq") or 0) > int(first), 30)
+            assert until(
+                lambda first=first, name=name: (
+                    int(cam(page, name, "e => e.querySelector('img').dataset.seq") or 0) > int(first)
+                ),
+                30,
+            )
             assert until(lambda name=name: cam(page, name, "e => e.dataset.live") == "yes", 10)
         wait_js(page, "document.querySelectorAll('section[data-camera=\"cam1\"] circle').length >= 4", timeout=30_000)
         # (read once a picture is in place: while the next one loads, its natural size is 0)
-        drawn = until(lambda: cam(page, "cam1", """e => {
+        drawn = until(
+            lambda: cam(
+                page,
+                "cam1",
+                """e => {
             const img = e.querySelector('img'), r = img.getBoundingClientRect();
             if (!img.complete || !img.naturalWidth || !img.naturalHeight) return null;
             const W = img.naturalWidth, H = img.naturalHeight, s = Math.min(r.width / W, r.height / H);
@@ -79,7 +96,10 @@ def test_the_pictures_update_with_the_markers_drawn_where_the_scene_has_them(roo
                         sx: (b.left + b.width / 2 - r.left - (r.width - W * s) / 2) / s,
                         sy: (b.top + b.height / 2 - r.top - (r.height - H * s) / 2) / s};
             });
-        }"""), 30)
+        }""",
+            ),
+            30,
+        )
         assert drawn, "no picture of cam1 in place with its markers"
         _, _, uv, visible = rig.scene.project_markers("cam1", rig.clock.now())
         truth = uv[visible]
@@ -87,14 +107,18 @@ def test_the_pictures_update_with_the_markers_drawn_where_the_scene_has_them(roo
         on_screen = np.array([[d["sx"], d["sy"]] for d in drawn])
         assert len(got) == len(truth)
         assert np.linalg.norm(got[:, None] - truth[None], axis=2).min(axis=1).max() < 1.0
-        assert np.abs(on_screen - got).max() < 1.5          # drawn over the picture where they are in it
-        labels = cam(page, "cam1", "e => [...e.querySelectorAll('svg circle')].map(c => [c.dataset.kind, c.dataset.n, "
-                                   "c.nextElementSibling.textContent])")
+        assert np.abs(on_screen - got).max() < 1.5  # drawn over the picture where they are in it
+        labels = cam(
+            page,
+            "cam1",
+            "e => [...e.querySelectorAll('svg circle')].map(c => [c.dataset.kind, c.dataset.n, "
+            "c.nextElementSibling.textContent])",
+        )
         assert [n for _, n, _ in labels] == [str(i + 1) for i in range(len(truth))]
         # numbered where not known to be a wall marker, a sphere or a band's (tests/test_console_room.py names them)
         assert all(text == f"? {n}" for kind, n, text in labels if kind == "unidentified")
         assert "found" in cam(page, "cam1", "e => e.querySelector('.marks').textContent")
-    finally:                                   # (the next tests expect it off)
+    finally:  # (the next tests expect it off)
         click_led(page, rig, "cam1", False)
 
 
@@ -103,7 +127,7 @@ def test_the_led_switch_switches_the_cameras_led_and_the_page_says_so(room, page
     assert cam(page, "cam2", "e => e.dataset.led") in (None, "unknown", "off")
     click_led(page, rig, "cam2", True)
     assert "ON (read from the camera" in cam(page, "cam2", "e => e.querySelector('.led').textContent")
-    assert not rig.servers["cam1"].source.led_on()       # the other camera's untouched
+    assert not rig.servers["cam1"].source.led_on()  # the other camera's untouched
     click_led(page, rig, "cam2", False)
 
 
@@ -125,11 +149,15 @@ def test_a_camera_off_the_network_is_not_answering_and_its_picture_never_live(ro
         # (2 s) plus the page's tick and one room event; then the words say so
         late = [s for s in samples if s[0] > 4.0]
         assert all(live == "no" for _, live, _ in late), late
-        veil = cam(page, "cam2", "e => [e.querySelector('.veil-word').textContent, e.querySelector('.veil-age').textContent,"
-                                 " e.querySelector('.frame').className, e.querySelector('.doing .word').textContent]")
+        veil = cam(
+            page,
+            "cam2",
+            "e => [e.querySelector('.veil-word').textContent, e.querySelector('.veil-age').textContent,"
+            " e.querySelector('.frame').className, e.querySelector('.doing .word').textContent]",
+        )
         assert veil[0] == "NOT ANSWERING" and veil[1].startswith("last picture") and "stale" in veil[2]
         assert veil[3] == "NOT ANSWERING"
-        assert cam(page, "cam1", "e => e.dataset.live") == "yes"          # the other camera goes on
+        assert cam(page, "cam1", "e => e.dataset.live") == "yes"  # the other camera goes on
     finally:
         rig.servers["cam2"].faults.offline = False
     assert until(lambda: cam(page, "cam2", "e => e.dataset.live") == "yes", 30)
@@ -160,9 +188,10 @@ def stuck_viewer(url, n_pictures=300):
     """A viewer that asks for many pictures and an event stream, and reads nothing."""
     u = urlparse(url)
     socks = []
-    for request in [b"".join(f"GET /frame/cam1 HTTP/1.1\r\nHost: {u.netloc}\r\n\r\n".encode()
-                             for _ in range(n_pictures)),
-                    f"GET /events HTTP/1.1\r\nHost: {u.netloc}\r\n\r\n".encode()]:
+    for request in [
+        b"".join(f"GET /frame/cam1 HTTP/1.1\r\nHost: {u.netloc}\r\n\r\n".encode() for _ in range(n_pictures)),
+        f"GET /events HTTP/1.1\r\nHost: {u.netloc}\r\n\r\n".encode(),
+    ]:
         s = socket.socket()
         s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
         s.connect((u.hostname, u.port))
@@ -172,15 +201,16 @@ def stuck_viewer(url, n_pictures=300):
 
 
 def received(url, name):
-    return next(c for c in requests.get(url + "api/room", timeout=10).json()["cameras"]
-                if c["camera"] == name)["received"]
+    return next(c for c in requests.get(url + "api/room", timeout=10).json()["cameras"] if c["camera"] == name)[
+        "received"
+    ]
 
 
 def test_a_viewer_that_stops_reading_costs_the_reader_nothing(room):
     """Frames the console's reader received while a plain reader of the same camera received
     ~60: as many, with or without a viewer that reads nothing (a count, not a time)."""
     rig, url, _ = room
-    events = requests.get(url + "events?cameras=cam1", stream=True, timeout=30)   # a page watching cam1
+    events = requests.get(url + "events?cameras=cam1", stream=True, timeout=30)  # a page watching cam1
     ref = Reference(rig, "cam1")
     socks = []
     try:
@@ -214,8 +244,12 @@ def test_a_post_from_another_site_is_refused(room, browser):
     assert not rig.servers["cam1"].source.led_on()
     # a script, with the page's token but another site's Origin; and one from the page's own origin without it
     token = requests.get(url, timeout=10).text.split('name="console-token" content="')[1].split('"')[0]
-    r = requests.post(url + "camera/cam1/led", json={"on": True}, timeout=10,
-                      headers={"Origin": "http://elsewhere.example", "X-Console-Token": token})
+    r = requests.post(
+        url + "camera/cam1/led",
+        json={"on": True},
+        timeout=10,
+        headers={"Origin": "http://elsewhere.example", "X-Console-Token": token},
+    )
     assert r.status_code == 403 and "another site" in r.json()["error"]
     r = requests.post(url + "camera/cam1/led", json={"on": True}, timeout=10)
     assert r.status_code == 403
@@ -229,8 +263,9 @@ def test_bad_ports_hosts_and_configs_are_one_sentence_exit_2(room, tmp_path):
     _, url, env = room
     taken = urlparse(url).port
     p = run_vts(["console", "--port", str(taken)], env)
-    assert p.returncode == 2 and p.stderr.strip() == (f"vts: port {taken} on 127.0.0.1 is in use by another "
-                                                       f"program: give another with --port"), p.stderr
+    assert p.returncode == 2 and p.stderr.strip() == (
+        f"vts: port {taken} on 127.0.0.1 is in use by another program: give another with --port"
+    ), p.stderr
     # (another --host: tests/test_console_network.py::test_the_command_refuses_plain_http_off_this_machine_...)
     bad = tmp_path / "rig.yaml"
     bad.write_text("rig: r\ncameras: []\n")

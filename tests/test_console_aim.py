@@ -39,7 +39,7 @@ def live(tmp_path_factory):
         cal, mp = write_true_calibration(rig.scene, folder)
         mapped = rig.config(calibration={"stereo": str(cal), "spect": str(mp)})
         cams = {c.name: open_camera(c) for c in mapped.cameras}
-        with ResultsStore(db) as store:           # each camera's wall markers: the aim's reference (LED left on)
+        with ResultsStore(db) as store:  # each camera's wall markers: the aim's reference (LED left on)
             record(store, take_baselines(list(cams.values()), frames=2), rig="sim", operator="test")
         with served_room(rig, cams, db, rig_config=mapped) as lc:
             yield lc
@@ -50,22 +50,27 @@ def page(browser, live):
     pg = browser.new_page(viewport={"width": 1366, "height": 768})
     pg.goto(live.url)
     yield pg
-    for name in live.console.hub.names:           # every test leaves the checks off (and ended)
+    for name in live.console.hub.names:  # every test leaves the checks off (and ended)
         live.console.aim.switch(name, False)
         until(lambda name=name: not live.console.aim.view(name)["busy"], 30)
     pg.close()
 
 
 def optics(live, name, **changes):
-    r = requests.post(f"http://127.0.0.1:{live.rig.servers[name].port}/sim/optics", data=json.dumps(changes),
-                      timeout=10)
+    r = requests.post(
+        f"http://127.0.0.1:{live.rig.servers[name].port}/sim/optics", data=json.dumps(changes), timeout=10
+    )
     assert r.status_code == 200, r.text
 
 
 def verdicts(page, name):
     """{item: (state, the words shown, its colour)} as the page shows them, and the check's number."""
-    got = cam(page, name, """e => [+(e.dataset.aimCheck || 0), [...e.querySelectorAll('.aim-items li')].map(li =>
-        [li.dataset.item, li.dataset.state, li.textContent, getComputedStyle(li).borderLeftColor])]""")
+    got = cam(
+        page,
+        name,
+        """e => [+(e.dataset.aimCheck || 0), [...e.querySelectorAll('.aim-items li')].map(li =>
+        [li.dataset.item, li.dataset.state, li.textContent, getComputedStyle(li).borderLeftColor])]""",
+    )
     return got[0], {item: (state, text, colour) for item, state, text, colour in got[1]}
 
 
@@ -79,6 +84,7 @@ def why(live, name):
     """What the check of ``name`` is doing, and where its thread is (for a failure's message)."""
     import sys
     import traceback
+
     view = {k: v for k, v in live.console.aim.view(name).items() if k != "verdicts"}
     t = live.console.aim._thread
     frame = sys._current_frames().get(t.ident) if t is not None else None
@@ -105,21 +111,34 @@ def test_verdicts_show_and_turn_to_adjust_when_defocused_and_turned(live, page):
     got = after_a_new_check(page, "cam1", lambda v: len(v) >= 7, 60)
     assert got, verdicts(page, "cam1")
     assert {item: state for item, (state, _, _) in got.items()} == {
-        "focus": "good", "size": "good", "contrast": "good", "background": "good", "led_off": "good",
-        "aim": "good", "fov": "good", "gantry": "good"}, got
+        "focus": "good",
+        "size": "good",
+        "contrast": "good",
+        "background": "good",
+        "led_off": "good",
+        "aim": "good",
+        "fov": "good",
+        "gantry": "good",
+    }, got
     assert all(text.startswith("GOOD") for _, text, _ in got.values())
     assert cam(page, "cam1", "e => [e.dataset.aim, e.querySelector('.aim-word').textContent]")[0] == "good"
     # the check's picture in place of the live one (a PNG the console drew: markers, FOV, table, gantry)
     assert until(lambda: cam(page, "cam1", "e => e.querySelector('img.aim-picture').naturalWidth") == 640, 20)
-    assert cam(page, "cam1", "e => [getComputedStyle(e.querySelector('.frame')).display, "
-                             "getComputedStyle(e.querySelector('.aim-view')).display]") == ["none", "grid"]
+    assert cam(
+        page,
+        "cam1",
+        "e => [getComputedStyle(e.querySelector('.frame')).display, "
+        "getComputedStyle(e.querySelector('.aim-view')).display]",
+    ) == ["none", "grid"]
     # cam2 not switched on: its live picture, no check
-    assert cam(page, "cam2", "e => [e.dataset.aim, getComputedStyle(e.querySelector('.frame')).display]") == \
-        ["off", "block"]
+    assert cam(page, "cam2", "e => [e.dataset.aim, getComputedStyle(e.querySelector('.frame')).display]") == [
+        "off",
+        "block",
+    ]
     assert checks_done(live, "cam2") == 0
     good_colour = got["focus"][2]
 
-    optics(live, "cam1", focus_blur_px=1.5)               # the lens put out of focus
+    optics(live, "cam1", focus_blur_px=1.5)  # the lens put out of focus
     blurred = after_a_new_check(page, "cam1", lambda v: v.get("focus", ("",))[0] == "adjust")
     assert blurred, verdicts(page, "cam1")
     state, text, colour = blurred["focus"]
@@ -128,13 +147,12 @@ def test_verdicts_show_and_turn_to_adjust_when_defocused_and_turned(live, page):
     assert cam(page, "cam1", "e => e.dataset.aim") == "adjust"
     assert cam(page, "cam1", "e => e.querySelector('.aim-word').textContent").startswith("ADJUST")
 
-    optics(live, "cam1", focus_blur_px=0.0, yaw_deg=3.0)   # in focus, the mount turned 3° to the right
-    turned = after_a_new_check(page, "cam1", lambda v: v.get("aim", ("",))[0] == "adjust" and
-                               v["focus"][0] == "good")
+    optics(live, "cam1", focus_blur_px=0.0, yaw_deg=3.0)  # in focus, the mount turned 3° to the right
+    turned = after_a_new_check(page, "cam1", lambda v: v.get("aim", ("",))[0] == "adjust" and v["focus"][0] == "good")
     assert turned, verdicts(page, "cam1")
     assert "aim: aim 3.0° left" in turned["aim"][1], turned["aim"]
 
-    optics(live, "cam1", yaw_deg=0.0)                      # set back
+    optics(live, "cam1", yaw_deg=0.0)  # set back
     back = after_a_new_check(page, "cam1", lambda v: all(s == "good" for s, _, _ in v.values()))
     assert back, verdicts(page, "cam1")
     did = [a for a in live.console.actions.recent(5) if a.what.startswith("aim check")]
@@ -169,13 +187,15 @@ def test_a_camera_a_recording_feeds_is_refused_in_one_sentence(live, page):
     # an action from elsewhere (no page token) is refused before anything
     r = requests.post(live.url + "aim/cam2", json={"on": True}, timeout=10)
     assert r.status_code == 403 and not live.console.aim.view("cam2")["on"]
-    hub.attach(["cam2"])                                  # a scan (or the daily QA) records cam2
+    hub.attach(["cam2"])  # a scan (or the daily QA) records cam2
     try:
         page.click('section[data-camera="cam2"] button.aim-on')
         assert until(lambda: cam(page, "cam2", "e => e.querySelector('.aim-error').textContent"), 10)
         said = cam(page, "cam2", "e => e.querySelector('.aim-error').textContent")
-        assert said == ("not checked: cam2 is recording (a scan or the daily QA has its frames and its LED); "
-                        "the check goes on when that is done"), said
+        assert said == (
+            "not checked: cam2 is recording (a scan or the daily QA has its frames and its LED); "
+            "the check goes on when that is done"
+        ), said
         assert "\n" not in said and not live.console.aim.view("cam2")["on"]
     finally:
         hub.detach(["cam2"])
@@ -202,21 +222,25 @@ def test_a_camera_a_recording_feeds_is_refused_in_one_sentence(live, page):
 def test_an_led_that_does_not_switch_or_a_camera_that_does_not_say_is_not_checked_and_said(live, page):
     src, server = live.rig.sources["cam2"], live.rig.servers["cam2"]
     src.set_led(True)
-    server.faults.led_held = True            # an action rule holds the output: the camera answers OK, the LED stays on
+    server.faults.led_held = True  # an action rule holds the output: the camera answers OK, the LED stays on
     try:
         click_aim(page, live, "cam2", True)
         assert until(lambda: cam(page, "cam2", "e => e.dataset.aim") == "not-checked", 30), why(live, "cam2")
         said = cam(page, "cam2", "e => e.querySelector('.aim-problem').textContent")
-        assert said.startswith("not checked: switched off here, but the camera says its LED output is on: "
-                               "the switch did not take"), said
+        assert said.startswith(
+            "not checked: switched off here, but the camera says its LED output is on: the switch did not take"
+        ), said
         assert src.led_on()
     finally:
         server.faults.led_held = False
-    server.faults.offline = True             # off the network: its LED state is not known, nothing is switched
+    server.faults.offline = True  # off the network: its LED state is not known, nothing is switched
     try:
-        assert until(lambda: cam(page, "cam2", "e => e.querySelector('.aim-problem').textContent")
-                     .startswith("not checked: the LED state of cam2 is not known (the camera did not say"), 40), \
-            cam(page, "cam2", "e => e.querySelector('.aim-problem').textContent")
+        assert until(
+            lambda: cam(page, "cam2", "e => e.querySelector('.aim-problem').textContent").startswith(
+                "not checked: the LED state of cam2 is not known (the camera did not say"
+            ),
+            40,
+        ), cam(page, "cam2", "e => e.querySelector('.aim-problem').textContent")
     finally:
         server.faults.offline = False
     click_aim(page, live, "cam2", False)

@@ -63,10 +63,18 @@ def sim():
 
 def _served(sim, db, scans):
     cfg, cams, hub, markers, names = sim
-    read = lambda: ResultsStore(db, mode="read")       # noqa: E731
-    console = Console(cfg.rig, hub, markers, RoomFacts(cams, cfg.rig, read, names=names), open_store=read,
-                      token=TOKEN, rig_config=cfg, scans_dir=scans,
-                      actions=StoreActions(lambda: ResultsStore(db), read, cfg.rig))
+    read = lambda: ResultsStore(db, mode="read")  # noqa: E731
+    console = Console(
+        cfg.rig,
+        hub,
+        markers,
+        RoomFacts(cams, cfg.rig, read, names=names),
+        open_store=read,
+        token=TOKEN,
+        rig_config=cfg,
+        scans_dir=scans,
+        actions=StoreActions(lambda: ResultsStore(db), read, cfg.rig),
+    )
     return console, TestClient(create_app(console), base_url=BASE)
 
 
@@ -94,7 +102,7 @@ def test_a_scan_on_a_full_disk_is_recorded_as_not_started_and_leaves_no_folder(s
         assert state.status_code == 200 and state.json()["phase"] == "failed"
         assert "no space left on device" in state.json()["error"]
         acts = [a for a in console.actions.recent(20) if a.detail.get("scan") == scan]
-        assert [a.what for a in acts] == ["scan not started"]                  # never "scan started"
+        assert [a.what for a in acts] == ["scan not started"]  # never "scan started"
         assert "no space left on device" in acts[0].detail["why"] and acts[0].user == "local"
         assert acts[0].detail["folder"] == "none left (nothing was written)"
         assert list(scans.iterdir()) == [] and disk.files() == {}
@@ -113,7 +121,7 @@ def test_a_baseline_whose_store_is_on_a_full_disk_is_recorded_as_not_set(sim, sm
         console.qa_jobs.wait(120)
         job = console.qa_jobs.snapshot()
         assert job["state"] == "failed" and job["error"]
-        (act,) = console.actions.pending                        # the store cannot take it yet: kept
+        (act,) = console.actions.pending  # the store cannot take it yet: kept
         assert act.what == "drift baseline not set" and act.detail["why"] == job["error"]
         assert act.detail["cameras"] == ["cam1", "cam2"]
         disk.free_up()
@@ -128,34 +136,44 @@ def test_a_baseline_whose_store_is_on_a_full_disk_is_recorded_as_not_set(sim, sm
 
 def _with_users(db, user: str, password: str, monkeypatch, hub=None) -> Console:
     """A console of room3 whose store ``db`` holds one operator, ``user`` (scrypt made cheap)."""
-    monkeypatch.setattr(users, "SCRYPT_N", 2 ** 10)
+    monkeypatch.setattr(users, "SCRYPT_N", 2**10)
     with ResultsStore(db) as store:
         add_user(store, user, "operator", password)
 
     def load():
         with ResultsStore(db, mode="read") as store:
             return store.users(active_only=True)
+
     auth = Auth(required=True, load_users=load)
     auth.refresh_users()
-    read = lambda: ResultsStore(db, mode="read")       # noqa: E731
-    return Console("room3", hub, None, None, open_store=read, auth=auth,
-                   actions=StoreActions(lambda: ResultsStore(db), read, "room3"))
+    read = lambda: ResultsStore(db, mode="read")  # noqa: E731
+    return Console(
+        "room3",
+        hub,
+        None,
+        None,
+        open_store=read,
+        auth=auth,
+        actions=StoreActions(lambda: ResultsStore(db), read, "room3"),
+    )
 
 
 def test_each_lock_out_and_each_try_while_locked_is_in_the_action_log(tmp_path, monkeypatch):
     db = tmp_path / "results.sqlite"
     console = _with_users(db, "ann", "ann-password-1", monkeypatch)
     with TestClient(create_app(console), base_url=BASE) as client:
+
         def login(name, password, next_="/"):
             return log_in(client, name, password, next_)
+
         for sly in ("/\t/evil.example", "/\n/evil.example", "/ /evil.example", "//evil.example", "/\\evil.example"):
-            r = login("ann", "ann-password-1", sly)                # a browser drops a tab: //evil.example
+            r = login("ann", "ann-password-1", sly)  # a browser drops a tab: //evil.example
             assert r.status_code == 303 and r.headers["location"] == "/", (sly, r.headers["location"])
         assert login("ann", "ann-password-1", "/history?page=2").headers["location"] == "/history?page=2"
         for _ in range(LOCK_AFTER):
             assert login("ann", "wrong-password").status_code == 401
-            assert login("mallory-ann-password-1", "x").status_code == 401    # a password typed as a name
-        r = login("ann", "ann-password-1")                     # the right one, while locked
+            assert login("mallory-ann-password-1", "x").status_code == 401  # a password typed as a name
+        r = login("ann", "ann-password-1")  # the right one, while locked
         assert r.status_code == 429 and "too many wrong passwords" in r.text
         assert login("ann", "ann-password-1").status_code == 429
     with ResultsStore(db, mode="read") as store:
@@ -165,7 +183,7 @@ def test_each_lock_out_and_each_try_while_locked_is_in_the_action_log(tmp_path, 
     assert acts.count(("ann", "login refused")) == LOCK_AFTER and acts.count(("ann", "locked out")) == 1
     assert acts.index(("ann", "locked out")) == acts.index(("ann", "login refused")) + 2 * LOCK_AFTER - 1
     assert acts.count(("ann", "login refused: locked")) == 2
-    assert acts.count(("(not a user)", "locked out")) == 1       # the name never logged: not a user's
+    assert acts.count(("(not a user)", "locked out")) == 1  # the name never logged: not a user's
     assert not any("mallory" in u for u, _ in acts)
     assert detail["locked out"]["for_s"] == 60 and detail["login refused: locked"]["locked_for_s"] > 0
 
@@ -173,6 +191,7 @@ def test_each_lock_out_and_each_try_while_locked_is_in_the_action_log(tmp_path, 
 def test_a_store_that_is_not_ours_or_cannot_be_written_refuses_the_console(tmp_path, small_disk, monkeypatch):
     from vts_hw.console import serve as srv
     from vts_hw.room import Room
+
     monkeypatch.setattr(Room, "cameras", property(lambda self: pytest.fail("opened the cameras before refusing")))
     rig = SimpleNamespace(rig="room3", cameras=[])
     foreign = tmp_path / "notes.sqlite"
@@ -191,22 +210,29 @@ def test_a_store_that_is_not_ours_or_cannot_be_written_refuses_the_console(tmp_p
 
     def refused(db, exc=StoreError, code=3):
         with pytest.raises(exc) as info:
-            srv.serve(rig, port=0, open_store=lambda: ResultsStore(db, mode="read"),
-                      open_write_store=None if db is None else lambda: ResultsStore(db), scans_dir=str(tmp_path / "s"))
+            srv.serve(
+                rig,
+                port=0,
+                open_store=lambda: ResultsStore(db, mode="read"),
+                open_write_store=None if db is None else lambda: ResultsStore(db),
+                scans_dir=str(tmp_path / "s"),
+            )
         assert info.value.exit_code == code and "\n" not in str(info.value)
-        assert bound and bound[-1].fileno() == -1                    # the port let go
+        assert bound and bound[-1].fileno() == -1  # the port let go
         return str(info.value)
+
     said = refused(foreign)
     assert said.startswith("refused to serve the console: its action log cannot be kept in the results store")
     assert "is not a vts-hw results store" in said and str(foreign) in said
     assert hashlib.sha256(foreign.read_bytes()).hexdigest() == before
-    said = refused(ours)                                           # a store of ours on a read-only mount
+    said = refused(ours)  # a store of ours on a read-only mount
     assert said.startswith("refused to serve the console: its action log cannot be kept") and str(ours) in said
     assert "needs a results store to keep its action log" in refused(None, UsageError, 2)
 
     good = tmp_path / "good.sqlite"
-    log = durable_actions(lambda: ResultsStore(good), lambda: ResultsStore(good, mode="read"), "room3",
-                          "http://127.0.0.1:8040/")
+    log = durable_actions(
+        lambda: ResultsStore(good), lambda: ResultsStore(good, mode="read"), "room3", "http://127.0.0.1:8040/"
+    )
     with ResultsStore(good, mode="read") as store:
         (act,), _ = store.actions()
     assert (act.user, act.what, act.detail) == ("local", "console started", {"address": "http://127.0.0.1:8040/"})
@@ -216,8 +242,9 @@ def test_a_store_that_is_not_ours_or_cannot_be_written_refuses_the_console(tmp_p
 
 def test_a_spray_of_names_keeps_the_lock_outs_and_bounded_memory(monkeypatch):
     import vts_hw.console.sessions as sessions
+
     monkeypatch.setattr(sessions, "FAILS_KEPT", 20)
-    monkeypatch.setattr(sessions, "dummy_check", lambda password: False)     # (no user: the cost is not tested here)
+    monkeypatch.setattr(sessions, "dummy_check", lambda password: False)  # (no user: the cost is not tested here)
     auth = Auth(required=True, load_users=lambda: [])
     for _ in range(LOCK_AFTER):
         auth.login("ann", "guess")
@@ -235,16 +262,18 @@ def test_every_refused_action_is_in_the_log_and_a_flood_of_them_is_counted_not_c
     console = _with_users(db, "olga", "olga-password-1", monkeypatch, hub=SimpleNamespace(names=["cam1"]))
     console.refusals = refusals.Refusals(console.actions, clock=lambda: now[0])
     with TestClient(create_app(console), base_url=BASE) as client:
-        for _ in range(200):                                   # no session: the door refuses
+        for _ in range(200):  # no session: the door refuses
             assert client.post("/camera/cam1/led", json={"on": False}).status_code == 401
         r = log_in(client, "olga", "olga-password-1")
         assert r.status_code == 303
-        assert client.post("/camera/cam1/led", json={"on": False}).status_code == 403          # no token
-        assert client.post("/camera/cam1/led", json={"on": False},
-                           headers={"Origin": "http://evil.example"}).status_code == 403      # another site
+        assert client.post("/camera/cam1/led", json={"on": False}).status_code == 403  # no token
+        assert (
+            client.post("/camera/cam1/led", json={"on": False}, headers={"Origin": "http://evil.example"}).status_code
+            == 403
+        )  # another site
         now[0] += refusals.EVERY_S + 1
         client.cookies.clear()
-        assert client.post("/scan/stop", json={}).status_code == 401    # after EVERY_S: a line, with the count
+        assert client.post("/scan/stop", json={}).status_code == 401  # after EVERY_S: a line, with the count
     with ResultsStore(db, mode="read") as store:
         refused = [a for a in reversed(store.actions(limit=100)[0]) if a.what == refusals.WHAT]
     kinds = [(a.user, a.detail["kind"]) for a in refused]
@@ -252,6 +281,7 @@ def test_every_refused_action_is_in_the_log_and_a_flood_of_them_is_counted_not_c
     assert ("olga", refusals.NOT_THE_PAGE) in kinds and ("(no session)", refusals.ANOTHER_SITE) in kinds
     last = refused[-1]
     assert last.detail["kind"] == refusals.NO_SESSION and last.detail["asked"] == "POST /scan/stop"
-    assert last.detail["held back since the last"] == 199        # the flood: counted, not copied
-    assert len(refused) <= 5 and "evil.example" in next(a.detail["why"] for a in refused
-                                                         if a.detail["kind"] == refusals.ANOTHER_SITE)
+    assert last.detail["held back since the last"] == 199  # the flood: counted, not copied
+    assert len(refused) <= 5 and "evil.example" in next(
+        a.detail["why"] for a in refused if a.detail["kind"] == refusals.ANOTHER_SITE
+    )

@@ -46,9 +46,17 @@ def firefox(tmp_path_factory):
     import logging
 
     from marionette_driver.marionette import Marionette
+
     logging.getLogger("mozversion").setLevel(logging.WARNING)
-    m = Marionette(host="127.0.0.1", port=free_port(), bin=FIREFOX, headless=True, app_args=["-no-remote"],
-                   startup_timeout=120, gecko_log=str(tmp_path_factory.mktemp("firefox-log") / "gecko.log"))
+    m = Marionette(
+        host="127.0.0.1",
+        port=free_port(),
+        bin=FIREFOX,
+        headless=True,
+        app_args=["-no-remote"],
+        startup_timeout=120,
+        gecko_log=str(tmp_path_factory.mktemp("firefox-log") / "gecko.log"),
+    )
     m.start_session()
     try:
         m.set_window_rect(width=1366, height=768)
@@ -62,10 +70,10 @@ def firefox(tmp_path_factory):
 def live(tmp_path_factory):
     folder = tmp_path_factory.mktemp("firefox")
     db = folder / "results.sqlite"
-    ids = fill(db, folder)                              # the History page's runs (rig room-h)
+    ids = fill(db, folder)  # the History page's runs (rig room-h)
     with SimRig(n_cameras=2, seed=5) as rig, rig.env():
         cams = {c.name: open_camera(c) for c in rig.config().cameras}
-        with ResultsStore(db) as store:                  # cam1's wall markers, this rig's ("sim")
+        with ResultsStore(db) as store:  # cam1's wall markers, this rig's ("sim")
             record(store, BaselineSet([take_baseline(cams["cam1"], frames=2)]), rig="sim", operator="test")
         try:
             with LiveConsole(cams, "sim", lambda: ResultsStore(db, mode="read")) as lc:
@@ -89,21 +97,35 @@ def test_the_room_page_in_firefox(firefox, live):
         first = until(lambda name=name: js(m, seq, name), 60)
         assert first, name
         assert until(lambda first=first, name=name: int(js(m, seq, name) or 0) > int(first), 30), name
-        assert until(lambda name=name: js(m, "return document.querySelector('section[data-camera=\"' + arguments[0] + "
-                                   "'\"]').dataset.live", name) == "yes", 20)
+        assert until(
+            lambda name=name: (
+                js(
+                    m,
+                    "return document.querySelector('section[data-camera=\"' + arguments[0] + '\"]').dataset.live",
+                    name,
+                )
+                == "yes"
+            ),
+            20,
+        )
     kinds = "return [...document.querySelectorAll('section[data-camera=\"cam1\"] svg circle')].map(c => c.dataset.kind)"
     assert until(lambda: (js(m, kinds) or []).count("wall") >= 3, 30), js(m, kinds)
-    labels = js(m, "return [...document.querySelectorAll('section[data-camera=\"cam1\"] svg text.k-wall')]"
-                   ".map(t => t.textContent)")
+    labels = js(
+        m,
+        "return [...document.querySelectorAll('section[data-camera=\"cam1\"] svg text.k-wall')]"
+        ".map(t => t.textContent)",
+    )
     assert labels and all(t.startswith("M") for t in labels)
     # the LED switch, read back (the baseline left it on)
     led = "return document.querySelector('section[data-camera=\"cam1\"]').dataset.led"
     assert until(lambda: js(m, led) == "on", 20)
     from marionette_driver.by import By
+
     m.find_element(By.CSS_SELECTOR, 'section[data-camera="cam1"] button.led-off').click()
     assert until(lambda: js(m, led) == "off", 15) and not live.rig.sources["cam1"].led_on()
-    assert "OFF (read from the camera" in js(m, "return document.querySelector('section[data-camera=\"cam1\"] .led')"
-                                               ".textContent")
+    assert "OFF (read from the camera" in js(
+        m, "return document.querySelector('section[data-camera=\"cam1\"] .led').textContent"
+    )
     m.find_element(By.CSS_SELECTOR, 'section[data-camera="cam1"] button.led-on').click()
     assert until(lambda: js(m, led) == "on", 15) and live.rig.sources["cam1"].led_on()
     # both cameras fit the 1366 x 768 screen, side by side, without scrolling
@@ -113,6 +135,7 @@ def test_the_room_page_in_firefox(firefox, live):
 
 def test_the_history_page_in_firefox(firefox, live):
     from marionette_driver.by import By
+
     m = firefox
     m.navigate(live.url + "history")
     assert until(lambda: js(m, "return document.querySelectorAll('table.runs tbody tr').length") > 0, 20)
@@ -128,5 +151,7 @@ def test_the_history_page_in_firefox(firefox, live):
     loaded = "const i = document.querySelector('img.plot'); return i && i.complete ? i.naturalWidth : 0"
     assert until(lambda: js(m, loaded) == 240, 20)
     assert "12" in js(m, "return document.querySelector('tr[data-metric=\"sync_max_abs_dt_ms\"] td.num').textContent")
-    state = js(m, "const e = document.getElementById('run-state'); return [e.textContent, getComputedStyle(e).backgroundColor]")
+    state = js(
+        m, "const e = document.getElementById('run-state'); return [e.textContent, getComputedStyle(e).backgroundColor]"
+    )
     assert state == ["OK", "rgb(220, 252, 231)"]

@@ -19,14 +19,14 @@ from pathlib import Path
 import pytest
 from starlette.testclient import TestClient
 
+from history_store import N_DAILY, RIG, fill
 from vts_hw import catalog
 from vts_hw.console.app import Console, create_app
 from vts_hw.console.history import PAGE_SIZE
 from vts_hw.store import ResultsStore
-from history_store import N_DAILY, RIG, fill
 
 pytestmark = pytest.mark.timeout(120)
-N_RUNS = 1 + N_DAILY + 1 + 1 + 1 + 1 + 1 + 1    # baseline, daily, sync, motion, aborted, running, other rig, error
+N_RUNS = 1 + N_DAILY + 1 + 1 + 1 + 1 + 1 + 1  # baseline, daily, sync, motion, aborted, running, other rig, error
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +40,7 @@ def filled(tmp_path_factory):
 @pytest.fixture()
 def client(filled, tmp_path, monkeypatch):
     db, _ = filled
-    monkeypatch.chdir(tmp_path)        # the console must write nothing here
+    monkeypatch.chdir(tmp_path)  # the console must write nothing here
     console = Console(RIG, None, None, None, open_store=lambda: ResultsStore(db, mode="read"))
     with TestClient(create_app(console), base_url="http://127.0.0.1:8040") as c:
         yield c
@@ -50,6 +50,7 @@ def client(filled, tmp_path, monkeypatch):
 def rows(html: str) -> list[int]:
     """The run ids listed, in the page's order."""
     import re
+
     return [int(m) for m in re.findall(r'<tr data-run="(\d+)"', html)]
 
 
@@ -78,10 +79,14 @@ def test_the_history_queries_compile_for_postgresql():
     from sqlalchemy.dialects import postgresql
 
     from vts_hw.store import queries
+
     pg = postgresql.dialect()
     lit = {"literal_binds": True}
-    sql = str(queries.select_runs_newest(("daily", "drift"), "ACTION", 10.0, 20.0, 50, 100).compile(
-        dialect=pg, compile_kwargs=lit))
+    sql = str(
+        queries.select_runs_newest(("daily", "drift"), "ACTION", 10.0, 20.0, 50, 100).compile(
+            dialect=pg, compile_kwargs=lit
+        )
+    )
     assert "runs.procedure IN ('daily', 'drift')" in sql and "runs.status = 'ACTION'" in sql
     assert "runs.started >= 10.0" in sql and "runs.started < 20.0" in sql
     assert "ORDER BY runs.started DESC, runs.id DESC" in sql and "LIMIT 50 OFFSET 100" in sql
@@ -125,10 +130,11 @@ def test_history_filters_by_procedure_state_and_dates(client, filled):
     assert rows(client.get("/history?procedure=sync+check").text) == [ids["running"], ids["sync"], ids["error"]]
     assert rows(client.get("/history?state=aborted").text) == [ids["aborted"]]
     with ResultsStore(filled[0], mode="read") as store:
-        day = dt.datetime.fromtimestamp(store.run(ids["motion"]).started, dt.timezone.utc).date().isoformat()
-        in_day = sorted((r.id for r in store.runs() if
-                         dt.datetime.fromtimestamp(r.started, dt.timezone.utc).date().isoformat() == day),
-                        reverse=True)
+        day = dt.datetime.fromtimestamp(store.run(ids["motion"]).started, dt.UTC).date().isoformat()
+        in_day = sorted(
+            (r.id for r in store.runs() if dt.datetime.fromtimestamp(r.started, dt.UTC).date().isoformat() == day),
+            reverse=True,
+        )
     got = rows(client.get(f"/history?from={day}&to={day}").text)
     assert ids["motion"] in got and sorted(got, reverse=True) == in_day
     assert rows(client.get(f"/history?procedure=motion+analysis&from={day}").text) == [ids["motion"]]
@@ -136,23 +142,27 @@ def test_history_filters_by_procedure_state_and_dates(client, filled):
     assert empty.status_code == 200 and rows(empty.text) == [] and "no runs match" in empty.text
 
 
-@pytest.mark.parametrize("query, says", [
-    ("procedure=daily", "no procedure called 'daily'"),
-    ("procedure=nonsense", "no procedure called 'nonsense'"),
-    ("state=FINE", "no run state 'FINE'"),
-    ("from=yesterday", "the from date 'yesterday' is not a date"),
-    ("to=2026-02-30", "the to date '2026-02-30' is not a date"),
-    ("from=2026-03-02&to=2026-03-01", "the from date 2026-03-02 is after the to date 2026-03-01"),
-    ("page=0", "page '0' is not a page number"),
-    ("page=two", "page 'two' is not a page number"),
-])
+@pytest.mark.parametrize(
+    "query, says",
+    [
+        ("procedure=daily", "no procedure called 'daily'"),
+        ("procedure=nonsense", "no procedure called 'nonsense'"),
+        ("state=FINE", "no run state 'FINE'"),
+        ("from=yesterday", "the from date 'yesterday' is not a date"),
+        ("to=2026-02-30", "the to date '2026-02-30' is not a date"),
+        ("from=2026-03-02&to=2026-03-01", "the from date 2026-03-02 is after the to date 2026-03-01"),
+        ("page=0", "page '0' is not a page number"),
+        ("page=two", "page 'two' is not a page number"),
+    ],
+)
 def test_a_bad_filter_is_one_sentence_and_400(client, query, says):
     r = client.get(f"/history?{query}")
     assert r.status_code == 400
     import html
+
     assert says in html.unescape(r.text) and "Traceback" not in r.text and rows(r.text) == []
     assert r.text.count('class="error message"') == 1
-    assert '<form class="filters"' in r.text       # the form stays, to be put right
+    assert '<form class="filters"' in r.text  # the form stays, to be put right
 
 
 def test_a_run_page_shows_its_figures_windows_and_files(client, filled):
@@ -162,9 +172,9 @@ def test_a_run_page_shows_its_figures_windows_and_files(client, filled):
     t = r.text
     assert f"Run {ids['sync']:d}: sync check" in t and "physicist" in t and "after the gantry service" in t
     assert "room-h" in t and "vts-hw " in t and " UTC" in t
-    assert '<tr data-metric="sync_max_abs_dt_ms">' in t and "<td class=\"num\">12</td>" in t
-    assert "OK ≤ 20, ACTION above 100 ms" in t             # the window that judged it, in words
-    assert "none stored: judged by its procedure" in t      # sync_offset_ms has no window
+    assert '<tr data-metric="sync_max_abs_dt_ms">' in t and '<td class="num">12</td>' in t
+    assert "OK ≤ 20, ACTION above 100 ms" in t  # the window that judged it, in words
+    assert "none stored: judged by its procedure" in t  # sync_offset_ms has no window
     assert f'class="plot" src="/history/run/{ids["sync"]:d}/file/' in t
     assert "sync.csv</a>" in t and "gone.csv: file no longer there" in t
     daily = client.get(f"/history/run/{ids['daily'][-1]}").text
@@ -177,6 +187,7 @@ def test_a_run_page_shows_its_figures_windows_and_files(client, filled):
 
 def _artifact_ids(client, run_id) -> list[int]:
     import re
+
     return [int(a) for a in re.findall(r'<li data-artifact="(\d+)"', client.get(f"/history/run/{run_id}").text)]
 
 
@@ -192,22 +203,24 @@ def test_only_the_runs_own_listed_files_are_served(client, filled):
     assert "attachment" in r.headers["content-disposition"] and r.headers["x-content-type-options"] == "nosniff"
     gone = client.get(f"/history/run/{ids['sync']}/file/{gone_id}")
     assert gone.status_code == 404 and gone.text.startswith("file no longer there: gone.csv")
-    other = client.get(f"/history/run/{ids['motion']}/file/{png_id}")    # another run's file
+    other = client.get(f"/history/run/{ids['motion']}/file/{png_id}")  # another run's file
     assert other.status_code == 404 and "has no file" in other.text
     secret = Path(files["png"]).parent / "results.sqlite"
-    for url in (f"/history/run/{ids['sync']}/file/../../../../etc/passwd",
-                f"/history/run/{ids['sync']}/file/..%2F..%2Fetc%2Fpasswd",
-                f"/history/run/{ids['sync']}/file/{secret}",
-                f"/history/run/{ids['sync']}/file/sync.png",
-                f"/history/run/{ids['sync']}/file/-1"):
+    for url in (
+        f"/history/run/{ids['sync']}/file/../../../../etc/passwd",
+        f"/history/run/{ids['sync']}/file/..%2F..%2Fetc%2Fpasswd",
+        f"/history/run/{ids['sync']}/file/{secret}",
+        f"/history/run/{ids['sync']}/file/sync.png",
+        f"/history/run/{ids['sync']}/file/-1",
+    ):
         r = client.get(url)
         assert r.status_code == 404, url
         assert b"root:" not in r.content and b"SQLite format" not in r.content
 
 
-def test_the_reports_are_rendered_from_the_store_into_a_temporary_folder(client, filled, tmp_path_factory,
-                                                                         monkeypatch):
+def test_the_reports_are_rendered_from_the_store_into_a_temporary_folder(client, filled, tmp_path_factory, monkeypatch):
     import tempfile
+
     # a temporary folder of this test's own: another worker's console renders its rooms into /tmp too
     private = tmp_path_factory.mktemp("own-tmp")
     monkeypatch.setattr(tempfile, "tempdir", str(private))
@@ -215,10 +228,11 @@ def test_the_reports_are_rendered_from_the_store_into_a_temporary_folder(client,
     r = client.get("/history/drift-report")
     assert r.status_code == 200 and r.headers["content-type"].startswith("text/html")
     assert RIG in r.text and "cam1" in r.text and "data:image/png;base64," in r.text
-    assert "room-z" not in r.text                   # the console's rig only
+    assert "room-z" not in r.text  # the console's rig only
     rooms = client.get("/history/rooms/")
     assert rooms.status_code == 200 and RIG in rooms.text and "room-z" in rooms.text
     import re
+
     links = re.findall(r'href="(rooms-[^"]+\.html)"', rooms.text)
     assert links, rooms.text[:2000]
     linked = client.get(f"/history/rooms/{links[0]}")
@@ -235,6 +249,7 @@ def test_the_reports_are_rendered_from_the_store_into_a_temporary_folder(client,
 def test_a_store_that_cannot_be_read_is_said_so(tmp_path):
     def broken():
         return ResultsStore(tmp_path / "no-such-folder" / "results.sqlite", mode="read")
+
     console = Console(RIG, None, None, None, open_store=broken)
     with TestClient(create_app(console), base_url="http://127.0.0.1:8040") as c:
         r = c.get("/history")
@@ -245,6 +260,7 @@ def test_a_store_that_cannot_be_read_is_said_so(tmp_path):
 
 
 # -- in a real browser ---------------------------------------------------------------------------------
+
 
 def test_history_in_chromium(filled, tmp_path):
     """`vts console` as users run it, its store the filled one; Chromium opens the Room page,
@@ -273,8 +289,12 @@ def test_history_in_chromium(filled, tmp_path):
                 assert pg.inner_text("table.runs tbody tr .st") == "OK"
                 pg.click(f'tr[data-run="{ids["sync"]}"] td a >> nth=0')
                 pg.wait_for_url(f"**/history/run/{ids['sync']}")
-                wait_js(pg, "() => { const i = document.querySelector('img.plot');"
-                            " return i && i.complete && i.naturalWidth > 0; }", timeout=15000)
+                wait_js(
+                    pg,
+                    "() => { const i = document.querySelector('img.plot');"
+                    " return i && i.complete && i.naturalWidth > 0; }",
+                    timeout=15000,
+                )
                 assert pg.eval_on_selector("img.plot", "i => i.naturalWidth") == 240
                 assert "12" in pg.inner_text('tr[data-metric="sync_max_abs_dt_ms"] td.num')
                 color = pg.eval_on_selector("#run-state", "e => getComputedStyle(e).backgroundColor")
@@ -288,6 +308,7 @@ def test_the_qa_pages_drift_plot_is_drawn_through_the_report_packages_name(fille
     """The QA page's drift plot (qa_view.drift_plot_png) takes the plot through the report
     package's name loaded when first asked for (the console starts without matplotlib): drawn, a PNG."""
     from vts_hw.console.qa_view import drift_plot_png
+
     db, _ = filled
     png = drift_plot_png(lambda: ResultsStore(db, mode="read"), RIG, "cam1")
     assert png is not None and png.startswith(b"\x89PNG\r\n\x1a\n") and len(png) > 10_000

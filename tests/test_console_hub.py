@@ -51,13 +51,13 @@ def test_a_stream_only_while_watched_and_one_for_many_viewers(rig, cameras):
         time.sleep(0.5)
         assert streams(rig, "cam1") == 0 and hub.status("cam1")["doing"] == "idle"
         hub.watch("cam1")
-        hub.watch("cam1")                    # a second page: the same stream
+        hub.watch("cam1")  # a second page: the same stream
         assert until(lambda: (hub.latest("cam1") or 0) and hub.latest("cam1").seq >= 5)
         assert streams(rig, "cam1") == 1 and streams(rig, "cam2") == 0
         assert hub.status("cam1")["doing"] == "streaming" and hub.status("cam1")["viewers"] == 2
         hub.unwatch("cam1")
         time.sleep(1.0)
-        assert streams(rig, "cam1") == 1      # one viewer left
+        assert streams(rig, "cam1") == 1  # one viewer left
         hub.unwatch("cam1")
         assert until(lambda: streams(rig, "cam1") == 0, 10)
         assert until(lambda: hub.status("cam1")["doing"] == "idle", 5)
@@ -76,7 +76,7 @@ def test_a_recording_feeds_the_hub_and_the_camera_never_sees_a_second_viewer(rig
     try:
         hub.watch("cam1")
         assert until(lambda: hub.latest("cam1") is not None)
-        hub.attach(["cam1"])                  # what the Scan page will do before its recording starts
+        hub.attach(["cam1"])  # what the Scan page will do before its recording starts
         assert until(lambda: streams(rig, "cam1") == 0, 5)
         before = hub.counts("cam1")["received"]
         with tempfile.TemporaryDirectory() as folder:
@@ -98,9 +98,9 @@ def test_a_recording_feeds_the_hub_and_the_camera_never_sees_a_second_viewer(rig
             assert prog.frames >= 10 and prog.error == "" and prog.reconnects == 0
             # every frame the recording wrote reached the hub's slot, and nothing else did
             assert hub.counts("cam1")["received"] - before == prog.frames
-        assert max(seen) == 1                 # the recording's stream alone, all along
+        assert max(seen) == 1  # the recording's stream alone, all along
         assert until(lambda: streams(rig, "cam1") == 0, 5)
-        hub.detach(["cam1"])                  # the recording ended: the hub's own stream again
+        hub.detach(["cam1"])  # the recording ended: the hub's own stream again
         assert until(lambda: streams(rig, "cam1") == 1, 10)
         assert until(lambda: hub.status("cam1")["doing"] == "streaming", 10)
     finally:

@@ -34,7 +34,7 @@ from vts_hw.vision.phantom_locator import PhantomLocator, phantom_template
 from vts_hw.vision.registration import RigidTransform
 
 pytestmark = pytest.mark.timeout(240)
-PINK = "rgb(244, 114, 182)"        # console.css: .overlay circle.k-phantom
+PINK = "rgb(244, 114, 182)"  # console.css: .overlay circle.k-phantom
 
 
 def seen(scene: Scene, t: float, seed: int = 0, drop=()):
@@ -58,7 +58,7 @@ def true_name(template: np.ndarray, scene: Scene, t: float) -> dict[str, str]:
     out = {}
     for k, p in enumerate(template):
         d = np.linalg.norm(true - p, axis=1)
-        assert d.min() < 2.0, d          # the mapping measured the spheres where they were
+        assert d.min() < 2.0, d  # the mapping measured the spheres where they were
         out[f"S{k + 1}"] = f"S{int(np.argmin(d)) + 1}"
     return out
 
@@ -150,19 +150,31 @@ def test_not_confident_names_nothing_and_says_why(mapped, tmp_path):
     with pytest.raises(DataError, match="keeps no sphere centres .* run the mapping again"):
         phantom_template(old_path)
 
-    class Rig:               # what locator_for reads of a RigConfig
+    class Rig:  # what locator_for reads of a RigConfig
         def __init__(self, stereo, spect):
             self.calibration = type("C", (), {"stereo": stereo, "spect": spect})()
             self.cameras = [type("K", (), {"name": n})() for n in ("cam1", "cam2")]
+
     assert locator_for(Rig(cameras, old_path))[1].startswith(f"the mapping {old_path} keeps no sphere centres")
-    assert locator_for(Rig(cameras, None)) == (None, "no VTS → SPECT mapping (calibration.mapping in rig.yaml): "
-                                                     "it keeps the phantom's shape")
+    assert locator_for(Rig(cameras, None)) == (
+        None,
+        "no VTS → SPECT mapping (calibration.mapping in rig.yaml): it keeps the phantom's shape",
+    )
     assert locator_for(None)[1] == "the console was started without a rig config"
 
 
 def found_of(det: dict, t: float) -> dict:
-    return {n: Found(n, 1, 640, 480, tuple({"n": i + 1, "x": float(x), "y": float(y), "d": 12.0}
-                                           for i, (x, y) in enumerate(p)), t=t) for n, p in det.items()}
+    return {
+        n: Found(
+            n,
+            1,
+            640,
+            480,
+            tuple({"n": i + 1, "x": float(x), "y": float(y), "d": 12.0} for i, (x, y) in enumerate(p)),
+            t=t,
+        )
+        for n, p in det.items()
+    }
 
 
 def test_the_console_names_a_good_fit_and_clears_at_once_when_it_is_not(mapped):
@@ -199,6 +211,7 @@ def test_the_console_names_a_good_fit_and_clears_at_once_when_it_is_not(mapped):
     class Broken:
         def locate(self, detections):
             raise RuntimeError("out of memory")
+
     ph2 = PhantomNames(names, Broken())
     names.set("cam1", "phantom", [("S1", 1.0, 2.0)], source="x")
     ph2._named = {"cam1"}
@@ -212,6 +225,7 @@ def test_the_worker_does_not_look_for_the_phantom_while_a_recording_feeds_the_hu
     """A scan started from the console records in the console's process: its live path is not
     made to share the process with the phantom's search (and a patient is on the table)."""
     import time
+
     from vts_hw.console.markers import MarkerWorker
 
     class Hub:
@@ -243,9 +257,9 @@ def test_the_worker_does_not_look_for_the_phantom_while_a_recording_feeds_the_hu
     try:
         assert until(lambda: phantom.looks >= 2, 10)
         hub.fed = True
-        time.sleep(0.1)                       # a look under way ends
+        time.sleep(0.1)  # a look under way ends
         n = phantom.looks
-        time.sleep(0.3)                       # 15 rounds at 50 Hz
+        time.sleep(0.3)  # 15 rounds at 50 Hz
         assert phantom.looks == n
         assert worker.phantom_said() == "phantom not looked for while a recording feeds the cameras"
         hub.fed = False
@@ -268,7 +282,7 @@ def live(tmp_path_factory):
     db = folder / "results.sqlite"
     ResultsStore(db).close()
     with SimRig(n_cameras=2, seed=5) as rig, rig.env():
-        rig.scene.add_phantom()                   # before any camera serves a picture
+        rig.scene.add_phantom()  # before any camera serves a picture
         cal, mp = write_true_calibration(rig.scene, folder)
         mapped = rig.config(calibration={"stereo": str(cal), "spect": str(mp)})
         cams = {c.name: open_camera(c) for c in mapped.cameras}
@@ -280,8 +294,12 @@ def live(tmp_path_factory):
 
 def spheres_on(page, name):
     """The page's phantom circles of camera ``name``: [(label, x, y, stroke colour)]."""
-    return cam(page, name, """e => [...e.querySelectorAll('svg circle[data-kind="phantom"]')].map(c =>
-        [c.nextSibling.textContent, +c.dataset.x, +c.dataset.y, getComputedStyle(c).stroke])""")   # its label follows it
+    return cam(
+        page,
+        name,
+        """e => [...e.querySelectorAll('svg circle[data-kind="phantom"]')].map(c =>
+        [c.nextSibling.textContent, +c.dataset.x, +c.dataset.y, getComputedStyle(c).stroke])""",
+    )  # its label follows it
 
 
 def test_the_room_page_names_the_spheres_in_pink_where_they_are_and_none_once_removed(live, browser):
@@ -294,7 +312,7 @@ def test_the_room_page_names_the_spheres_in_pink_where_they_are_and_none_once_re
             assert sorted(label for label, _, _, _ in got) == [f"S{k}" for k in range(1, 8)]
             assert {colour for _, _, _, colour in got} == {PINK}
             truth = {m: (u, v) for m, u, v in live.rig.scene.truth(name, live.rig.clock.now())}
-            for label, x, y, _ in got:        # each where the true sphere of that name projects
+            for label, x, y, _ in got:  # each where the true sphere of that name projects
                 assert np.hypot(x - truth[label][0], y - truth[label][1]) < 1.5, (name, label, x, y, truth[label])
             legend = cam(page, name, "e => e.querySelector('.legend li[data-kind=\"phantom\"]').textContent")
             assert "phantom spheres: 7 of 7 named here, from phantom fitted, RMS " in legend, legend
@@ -308,12 +326,21 @@ def test_the_room_page_names_the_spheres_in_pink_where_they_are_and_none_once_re
         # the phantom taken off the table: no sphere named, on either picture, and no phantom in the legend
         live.rig.scene.set_phantom_pose((0.0, 0.0, 0.0), (4000.0, 0.0, 0.0), live.rig.clock.now())
         for name in ("cam1", "cam2"):
-            assert until(lambda name=name: cam(page, name, """e => e.querySelectorAll('svg circle').length === 5
+            assert until(
+                lambda name=name: cam(
+                    page,
+                    name,
+                    """e => e.querySelectorAll('svg circle').length === 5
                 && !e.querySelector('svg circle[data-kind="phantom"]')
-                && !e.querySelector('.legend li[data-kind="phantom"]')"""), 30, poll=0.3), \
-                (spheres_on(page, name), live.phantom.why)
+                && !e.querySelector('.legend li[data-kind="phantom"]')""",
+                ),
+                30,
+                poll=0.3,
+            ), (spheres_on(page, name), live.phantom.why)
         assert live.phantom.why
-        assert until(lambda: said.text_content() == "Phantom not named: " + live.phantom.why, 10, poll=0.3), \
-            (said.text_content(), live.phantom.why)
+        assert until(lambda: said.text_content() == "Phantom not named: " + live.phantom.why, 10, poll=0.3), (
+            said.text_content(),
+            live.phantom.why,
+        )
     finally:
         page.close()

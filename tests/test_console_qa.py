@@ -44,7 +44,7 @@ def qa_room(tmp_path_factory):
     with SimRig(n_cameras=2, seed=5, qatrack=True) as rig, rig.env():
         rig_yaml = qa_rig_yaml(rig, folder)
         db = folder / "results.sqlite"
-        ResultsStore(db).close()          # the console updates a store; `vts qa` made this one
+        ResultsStore(db).close()  # the console updates a store; `vts qa` made this one
         cfg = load_rig(str(rig_yaml))
         cams = {c.name: c for c in open_cameras(cfg.cameras)}
         with served_room(rig, cams, db, marker_hz=1.0, idle_close_s=1.0, rig_config=cfg) as served:
@@ -54,7 +54,7 @@ def qa_room(tmp_path_factory):
 @pytest.fixture()
 def qa_page(browser, qa_room):
     _, served, _ = qa_room
-    served.console.qa_jobs.wait(QA_S)      # a test starts with no QA running (one that timed out is not left to the next)
+    served.console.qa_jobs.wait(QA_S)  # a test starts with no QA running (one that timed out is not left to the next)
     pg = browser.new_page(viewport={"width": 1366, "height": 768})
     pg.goto(served.url + "qa")
     wait_js(pg, "document.getElementById('r-facts').textContent !== 'reading the results store…'")
@@ -72,8 +72,9 @@ def baselined(qa_room):
     """The module is one morning told in file order (make test keeps a module's order and worker):
     the baseline set by the first test is what the later ones measure against. Run alone, a later
     test says so at once rather than waiting QA_S for a QA that failed for want of a baseline."""
-    assert runs(qa_room[2], "drift-baseline"), \
+    assert runs(qa_room[2], "drift-baseline"), (
         "no drift baseline in this module's store: run test_baseline_needs_the_confirm... first (the whole module)"
+    )
 
 
 def said(page, contains, timeout=QA_S * 1000):
@@ -100,8 +101,9 @@ def test_baseline_needs_the_confirm_and_a_qa_before_it_fails_in_one_sentence(qa_
     assert "camera cam1 has no drift baseline" in text and "--set-baseline" in text, text
     assert runs(db, "daily") == [] and "Set a baseline first" in page.inner_text("#r-facts")
     # a POST without the page's confirmation changes nothing
-    r = requests.post(served.url + "qa/baseline", json={"frames": 2},
-                      headers={"X-Console-Token": served.console.token}, timeout=10)
+    r = requests.post(
+        served.url + "qa/baseline", json={"frames": 2}, headers={"X-Console-Token": served.console.token}, timeout=10
+    )
     assert r.status_code == 400 and "only when confirmed" in r.json()["error"]
     page.click("#baseline")
     assert page.is_visible("#confirm-baseline")
@@ -136,8 +138,10 @@ class Sampler:
 
     def _run(self):
         while not self.stop.is_set():
-            row = {n: (s.counter("snapshots_served"), s.counter("active_streams"), self.hub.status(n)["doing"])
-                   for n, s in self.rig.servers.items()}
+            row = {
+                n: (s.counter("snapshots_served"), s.counter("active_streams"), self.hub.status(n)["doing"])
+                for n, s in self.rig.servers.items()
+            }
             self.rows.append(row)
             time.sleep(0.003)
 
@@ -149,20 +153,24 @@ class Sampler:
 def test_the_daily_qa_runs_from_the_page_and_the_hub_steps_aside(qa_room, baselined, qa_page, browser):
     rig, served, db = qa_room
     for srv in rig.servers.values():
-        srv.set_faults(max_viewers=1)                  # a second viewer would be refused (503)
+        srv.set_faults(max_viewers=1)  # a second viewer would be refused (503)
     room = browser.new_page(viewport={"width": 1366, "height": 768})
-    room.goto(served.url)                              # the Room page streams both cameras
+    room.goto(served.url)  # the Room page streams both cameras
     try:
         for name in ("cam1", "cam2"):
-            assert until(lambda name=name: room.eval_on_selector(f'section[data-camera="{name}"]', "e => e.dataset.live") == "yes",
-                         30), name
+            assert until(
+                lambda name=name: (
+                    room.eval_on_selector(f'section[data-camera="{name}"]', "e => e.dataset.live") == "yes"
+                ),
+                30,
+            ), name
             assert rig.servers[name].counter("active_streams") == 1
         page = qa_page
         page.fill("#frames", str(FRAMES))
         sampler = Sampler(rig, served.hub)
         try:
             page.click("#run")
-            page.click("#run")                          # a second click while it runs
+            page.click("#run")  # a second click while it runs
             assert "a daily QA is already running (started by local" in said(page, "already running")
             said(page, "Daily QA done")
         finally:
@@ -171,23 +179,33 @@ def test_the_daily_qa_runs_from_the_page_and_the_hub_steps_aside(qa_room, baseli
         seen = page.evaluate("window.seen")
         # (the page shows the latest state at each event: a short step may pass unseen; the drift
         # step's first state lasts while the hub steps aside)
-        assert any(re.fullmatch(rf"camera cam1 \(1 of 2\): LED frames for the drift, frames \d of {FRAMES + 1}.*", s)
-                   for s in seen), seen
+        assert any(
+            re.fullmatch(rf"camera cam1 \(1 of 2\): LED frames for the drift, frames \d of {FRAMES + 1}.*", s)
+            for s in seen
+        ), seen
         assert any(s.startswith("camera cam2 (2 of 2): ") for s in seen), seen
         assert re.match(r"\d+\.\d s since \d\d:\d\d:\d\d UTC, by local", page.inner_text("#p-elapsed"))
         # the result: each camera's state in colour and words, its figures in their windows, its plot
         run_id = int(page.get_attribute("#r-title", "data-run"))
-        (daily,) = runs(db, "daily")                    # started once
+        (daily,) = runs(db, "daily")  # started once
         assert daily.id == run_id and daily.status == "OK" and daily.operator == "local"
         for name in ("cam1", "cam2"):
             card = f'section.qa-cam[data-camera="{name}"]'
             assert page.get_attribute(card, "data-state") == "OK" and page.get_attribute(card, "data-measured") == "yes"
             assert page.inner_text(f"{card} h3 .st") == "OK"
-            assert page.eval_on_selector(f"{card} h3 .st", "e => getComputedStyle(e).backgroundColor") == "rgb(220, 252, 231)"
+            assert (
+                page.eval_on_selector(f"{card} h3 .st", "e => getComputedStyle(e).backgroundColor")
+                == "rgb(220, 252, 231)"
+            )
             row = page.inner_text(f'{card} tr[data-metric="drift_x_px"]')
             assert "px" in row and "OK within ±1" in row and "ACTION beyond ±2 px" in row, row
-            wait_js(page, "c => { const i = document.querySelector(c + ' img.drift');"
-                          " return i && i.complete && i.naturalWidth > 0; }", card, 120_000)
+            wait_js(
+                page,
+                "c => { const i = document.querySelector(c + ' img.drift');"
+                " return i && i.complete && i.naturalWidth > 0; }",
+                card,
+                120_000,
+            )
         assert page.get_attribute("#history-link", "href") == f"/history/run/{run_id}"
         with ResultsStore(db, mode="read") as store:
             stored = {(m.subject, m.metric) for m in store.measurements(run_id=run_id)}
@@ -201,8 +219,12 @@ def test_the_daily_qa_runs_from_the_page_and_the_hub_steps_aside(qa_room, baseli
             assert pairs, name
             assert all(a[1] == 0 or b[1] == 0 for a, b in pairs), [p for p in pairs if p[0][1] and p[1][1]]
             assert any(r[name][2] == "recording" for r in sampler.rows), name
-            assert until(lambda name=name: rig.servers[name].counter("active_streams") == 1
-                         and served.hub.status(name)["doing"] == "streaming", 20), name
+            assert until(
+                lambda name=name: (
+                    rig.servers[name].counter("active_streams") == 1 and served.hub.status(name)["doing"] == "streaming"
+                ),
+                20,
+            ), name
     finally:
         room.close()
         for srv in rig.servers.values():

@@ -59,7 +59,7 @@ def test_the_led_is_what_the_camera_says_and_a_switch_that_did_not_take_is_said(
     src.set_led(False)
     assert until(lambda: cam(page, "cam2", "e => e.dataset.led") == "off", 20)
     assert "OFF (read from the camera" in cam(page, "cam2", "e => e.querySelector('.led').textContent")
-    src.set_led(True)                    # behind the console's back (the daily QA switches it so)
+    src.set_led(True)  # behind the console's back (the daily QA switches it so)
     assert until(lambda: cam(page, "cam2", "e => e.dataset.led") == "on", 20)
     # the switch: off, read back at once
     page.click('section[data-camera="cam2"] button.led-off')
@@ -85,8 +85,10 @@ def test_the_led_is_what_the_camera_says_and_a_switch_that_did_not_take_is_said(
     try:
         assert until(lambda: cam(page, "cam2", "e => e.dataset.led") == "unknown", 20)
         said = cam(page, "cam2", "e => e.querySelector('.led').textContent")
-        assert said.startswith("not known: the camera did not say (camera cam2 at http://127.0.0.1:") and "password" \
-            not in said, said
+        assert (
+            said.startswith("not known: the camera did not say (camera cam2 at http://127.0.0.1:")
+            and "password" not in said
+        ), said
     finally:
         server.faults.offline = False
     assert until(lambda: cam(page, "cam2", "e => e.dataset.led") == "on", 20)
@@ -97,27 +99,38 @@ def test_times_are_iso_and_utc_whatever_the_browsers_locale_and_zone(browser, li
     locale and zone: opened as a browser in New York with the en-US locale (11/29/2026, 9:03 AM)."""
     import datetime
     import re
+
     ctx = browser.new_context(locale="en-US", timezone_id="America/New_York")
     try:
         pg = ctx.new_page()
         pg.goto(live.url)
-        assert until(lambda: re.fullmatch(r"\d\d:\d\d:\d\d UTC", pg.inner_text("#clock") or ""), 10), \
-            pg.inner_text("#clock")
+        assert until(lambda: re.fullmatch(r"\d\d:\d\d:\d\d UTC", pg.inner_text("#clock") or ""), 10), pg.inner_text(
+            "#clock"
+        )
         shown = datetime.datetime.strptime(pg.inner_text("#clock")[:8], "%H:%M:%S").time()
-        now = datetime.datetime.now(datetime.timezone.utc)
-        gap = abs((now.hour * 3600 + now.minute * 60 + now.second)
-                  - (shown.hour * 3600 + shown.minute * 60 + shown.second)) % 86400
-        assert min(gap, 86400 - gap) < 120, (shown, now)           # UTC, not New York's hour
+        now = datetime.datetime.now(datetime.UTC)
+        gap = (
+            abs(
+                (now.hour * 3600 + now.minute * 60 + now.second)
+                - (shown.hour * 3600 + shown.minute * 60 + shown.second)
+            )
+            % 86400
+        )
+        assert min(gap, 86400 - gap) < 120, (shown, now)  # UTC, not New York's hour
         assert pg.evaluate("window.vtsClock.stamp(1764406987)") == "2025-11-29 09:03:07 UTC"
     finally:
         ctx.close()
 
 
 def circles(page, name):
-    return cam(page, name, """e => [...e.querySelectorAll('svg circle')].map(c => {
+    return cam(
+        page,
+        name,
+        """e => [...e.querySelectorAll('svg circle')].map(c => {
         const t = c.nextElementSibling;
         return {x: +c.dataset.x, y: +c.dataset.y, kind: c.dataset.kind, label: t.textContent,
-                cls: c.getAttribute('class')}; })""")
+                cls: c.getAttribute('class')}; })""",
+    )
 
 
 def test_markers_are_named_wall_from_the_baseline_band_from_the_scan_unidentified_otherwise(live, page):
@@ -141,15 +154,23 @@ def test_markers_are_named_wall_from_the_baseline_band_from_the_scan_unidentifie
     legend = cam(page, "cam1", "e => [...e.querySelectorAll('.legend li')].map(l => [l.dataset.kind, l.textContent])")
     assert legend[0][0] == "wall" and f"{len(base)} of {len(base)} named here, from drift baseline run" in legend[0][1]
     assert legend[-1][0] == "unidentified"
-    assert f"{len(base)} wall markers, 1 unidentified" in cam(page, "cam1", "e => e.querySelector('.marks').textContent")
+    assert f"{len(base)} wall markers, 1 unidentified" in cam(
+        page, "cam1", "e => e.querySelector('.marks').textContent"
+    )
     # cam2 has no baseline (nor another room's): nothing named, and the legend says why
     assert until(lambda: circles(page, "cam2"), 30)
     assert {c["kind"] for c in circles(page, "cam2")} == {"unidentified"}
-    assert "no names known" in cam(page, "cam2", "e => e.querySelector('.legend').textContent") or \
-        cam(page, "cam2", "e => [...e.querySelectorAll('.legend li')].map(l => l.dataset.kind)") == ["unidentified"]
+    assert "no names known" in cam(page, "cam2", "e => e.querySelector('.legend').textContent") or cam(
+        page, "cam2", "e => [...e.querySelectorAll('.legend li')].map(l => l.dataset.kind)"
+    ) == ["unidentified"]
     # the Scan page names the band markers the live tracker follows (the hook: per camera, in pixels)
-    live.console.names.set("cam1", "band", [("chest 1", stray[0]["x"] + 3.0, stray[0]["y"] - 2.0)],
-                           source="the live tracker (scan 7)", hold_s=60)
+    live.console.names.set(
+        "cam1",
+        "band",
+        [("chest 1", stray[0]["x"] + 3.0, stray[0]["y"] - 2.0)],
+        source="the live tracker (scan 7)",
+        hold_s=60,
+    )
     assert until(lambda: [c["label"] for c in circles(page, "cam1") if c["kind"] == "band"] == ["chest 1"], 10)
     legend = cam(page, "cam1", "e => [...e.querySelectorAll('.legend li')].map(l => [l.dataset.kind, l.textContent])")
     assert legend[0][0] == "band" and "1 of 1 named here, from the live tracker (scan 7)" in legend[0][1]
@@ -171,7 +192,7 @@ def test_names_are_matched_one_to_one_within_the_gate_and_expire():
     assert sorted(v for v in kinds.values() if v[0] != "unidentified") == [("band", "B1"), ("wall", "M1")]
     assert kinds[3] == ("unidentified", "3")
     assert [(entry["kind"], entry["found"], entry["known"]) for entry in legend] == [("band", 1, 1), ("wall", 1, 2)]
-    t[0] += 1.5                                           # the band's names held 1 s
+    t[0] += 1.5  # the band's names held 1 s
     out, legend = names.label("cam1", marks)
     assert [entry["kind"] for entry in legend] == ["wall"] and sum(m["kind"] == "wall" for m in out) == 1
     assert names.label("cam2", marks)[1] == []

@@ -14,25 +14,24 @@ shown as known meanwhile, a NOT TRACKING alert, and the scan partial with the ga
 from __future__ import annotations
 
 import json
-import re
 import os
+import re
 import time
 
 import numpy as np
 import pytest
 import requests
 
+from console_live import chromium, start_console, stop_console, until
 from vts_hw.recording.folder import read_index
 from vts_hw.sim_devices.patient import BodyMove, add_patient
 from vts_hw.sim_devices.rig import SimRig
-
-from console_live import chromium, start_console, stop_console, until
 
 # frames are made ahead (minutes on a loaded machine at worst): the timeout is a hang detector
 pytestmark = pytest.mark.timeout(600)
 REFERENCE_S = 4.0
 DURATION_S = 20.0
-MOVE_AT_S = 13.0          # after the first frame: the reference is learned and breathing traced by then
+MOVE_AT_S = 13.0  # after the first frame: the reference is learned and breathing traced by then
 
 
 @pytest.fixture(scope="module")
@@ -43,8 +42,12 @@ def desk(tmp_path_factory):
         rig.ntp_sync()
         rig_yaml, _ = rig.write(folder / "rig")
         patient = add_patient(rig.scene, time.time(), 600.0, seed=5, moves=[])
-        env = {**os.environ, **rig.env_vars(), "VTS_CONFIG": str(rig_yaml),
-               "VTS_STORE": f"sqlite:///{folder / 'results.sqlite'}"}
+        env = {
+            **os.environ,
+            **rig.env_vars(),
+            "VTS_CONFIG": str(rig_yaml),
+            "VTS_STORE": f"sqlite:///{folder / 'results.sqlite'}",
+        }
         p, url = start_console(["--port", "0", "--scans-dir", str(scans)], env)
         try:
             yield rig, patient, url, scans
@@ -77,15 +80,19 @@ def start(page, duration=None):
 
 def post(page, path, body):
     """A POST from the page (its token), as its buttons make them: [status, error]."""
-    return page.evaluate("""([path, body]) => fetch(path, {method: "POST", body: JSON.stringify(body),
+    return page.evaluate(
+        """([path, body]) => fetch(path, {method: "POST", body: JSON.stringify(body),
         headers: {"Content-Type": "application/json", "X-Console-Token": document.getElementById("scan").dataset.token}})
-        .then(r => r.json().then(d => [r.status, d.error]))""", [path, body])
+        .then(r => r.json().then(d => [r.status, d.error]))""",
+        [path, body],
+    )
 
 
 def trace_rate(page, band=1):
     """The breathing rate of the trace drawn on the page (its polylines: x s, y -mm)."""
-    pts = page.eval_on_selector_all(f'.band[data-band="{band}"] svg polyline',
-                                    "ls => ls.map(l => l.getAttribute('points'))")
+    pts = page.eval_on_selector_all(
+        f'.band[data-band="{band}"] svg polyline', "ls => ls.map(l => l.getAttribute('points'))"
+    )
     xy = np.array([[float(v) for v in p.split(",")] for line in pts for p in line.split()])
     return _drawn_rate(xy[:, 0], -xy[:, 1]), xy
 
@@ -118,10 +125,11 @@ def test_a_scan_from_the_page_records_shows_breathing_and_alerts_on_a_move(desk,
     room = page.context.browser.new_page(viewport={"width": 1366, "height": 768})
     room.goto(url)
     band_labels = lambda: room.eval_on_selector_all(  # noqa: E731
-        'section[data-camera="cam1"] svg text.k-band', "ts => ts.map(t => t.textContent)")
+        'section[data-camera="cam1"] svg text.k-band', "ts => ts.map(t => t.textContent)"
+    )
     assert until(lambda: len(band_labels()) >= 3, 30), band_labels()
     assert all(re.fullmatch(r"(chest|abdomen) \d+", t) for t in band_labels()), band_labels()
-    assert rig.servers["cam1"].state()["active_streams"] == 1          # still the recording's one stream
+    assert rig.servers["cam1"].state()["active_streams"] == 1  # still the recording's one stream
     room.close()
 
     # the patient moves: a banner that stays, and the alarm sounding, until acknowledged
@@ -129,18 +137,18 @@ def test_a_scan_from_the_page_records_shows_breathing_and_alerts_on_a_move(desk,
     assert "PATIENT MOVED" in page.inner_text('.alert[data-kind="motion"] .text')
     assert until(lambda: attr(page, "#alerts", "data-sound") == "played", 5)
     beeps = int(attr(page, "#alerts", "data-beeps"))
-    assert until(lambda: int(attr(page, "#alerts", "data-beeps")) > beeps, 5)       # still sounding
+    assert until(lambda: int(attr(page, "#alerts", "data-beeps")) > beeps, 5)  # still sounding
     page.click('.alert[data-kind="motion"] button')
     assert until(lambda: attr(page, '.alert[data-kind="motion"]', "data-acked-by") == "local", 10)
     assert "acknowledged by local at" in page.inner_text('.alert[data-kind="motion"] .who')
     beeps = int(attr(page, "#alerts", "data-beeps"))
     time.sleep(2.0)
-    assert int(attr(page, "#alerts", "data-beeps")) == beeps                      # silent once acknowledged
+    assert int(attr(page, "#alerts", "data-beeps")) == beeps  # silent once acknowledged
 
     assert until(lambda: attr(page, "#scan", "data-phase") == "stopped", 60)
     # breathing: the trace drawn over the scan has the patient's rate
     rate, xy = trace_rate(page)
-    assert len(xy) > 40 and np.ptp(xy[:, 0]) > 10.0 and np.ptp(xy[:, 1]) > 1.0   # 10 s and more, mm of breathing
+    assert len(xy) > 40 and np.ptp(xy[:, 0]) > 10.0 and np.ptp(xy[:, 1]) > 1.0  # 10 s and more, mm of breathing
     t_end = rig.clock.now()
     truth = np.nanmean([patient.breathing.rate_per_min(t) for t in np.arange(t_end - 15.0, t_end, 0.5)])
     assert abs(rate - truth) < 0.2 * truth, (rate, truth)
@@ -170,8 +178,12 @@ def test_a_scan_from_the_page_records_shows_breathing_and_alerts_on_a_move(desk,
     assert (session / "motion" / "motion-report.html").read_bytes() == got.content
     assert (session / "motion" / "export" / "motion_6dof.csv").exists()
     assert "stored: run" in page.inner_text("#analysis")
-    for bad in (f"scan/files/{session.name}/../../rig/rig.yaml", f"scan/files/{session.name}/..%2F..%2Frig%2Frig.yaml",
-                "scan/files/..%2Frig/rig.yaml", f"scan/files/{session.name}/nothing.txt"):
+    for bad in (
+        f"scan/files/{session.name}/../../rig/rig.yaml",
+        f"scan/files/{session.name}/..%2F..%2Frig%2Frig.yaml",
+        "scan/files/..%2Frig/rig.yaml",
+        f"scan/files/{session.name}/nothing.txt",
+    ):
         assert requests.get(url + bad, timeout=10).status_code == 404, bad
 
 
@@ -181,8 +193,10 @@ def test_a_camera_switched_off_is_not_tracking_and_the_scan_partial(desk, page):
     start(page)
     assert until(lambda: attr(page, "#status", "data-status") == "TRACKING", 30)
     # while it runs: a second start, a bad reference, an alert that does not exist: one sentence each
-    assert post(page, "/scan/start", {}) == [409, "a scan is already running (" + attr(page, "#scan", "data-folder")
-                                             + "): stop it first"]
+    assert post(page, "/scan/start", {}) == [
+        409,
+        "a scan is already running (" + attr(page, "#scan", "data-folder") + "): stop it first",
+    ]
     assert post(page, "/scan/start", {"reference_s": "ten"})[0] == 400
     assert post(page, "/scan/alert/99/ack", {}) == [404, "no alert '99' in this scan"]
     assert post(page, "/scan/analyse", {}) == [409, "no finished scan to analyse"]
@@ -190,12 +204,16 @@ def test_a_camera_switched_off_is_not_tracking_and_the_scan_partial(desk, page):
     seen = []
 
     def sample():
-        s = page.eval_on_selector("#scan", """e => [e.dataset.status, document.querySelector('#status .reason').textContent,
+        s = page.eval_on_selector(
+            "#scan",
+            """e => [e.dataset.status, document.querySelector('#status .reason').textContent,
             document.querySelector('#six').dataset.known,
             [...document.querySelectorAll('.band')].map(b => b.dataset.known).join(','),
-            document.querySelector('#six').innerText]""")
+            document.querySelector('#six').innerText]""",
+        )
         seen.append(s)
         return s[0] == "NOT TRACKING" and "camera lost" in s[1] and "cam2" in s[1]
+
     assert until(sample, 15, poll=0.1), seen[-3:]
     page.wait_for_selector('.alert[data-kind="not tracking"]', timeout=15_000)
     assert "PATIENT NOT TRACKED" in page.inner_text('.alert[data-kind="not tracking"] .text')

@@ -104,6 +104,7 @@ def make(port, clock, **kw):
 
 # ---- our logic against the fake port ---------------------------------------------------------------
 
+
 def test_the_fake_is_a_port_and_the_trigger_keeps_the_contract(port, clock):
     assert isinstance(port, DaqmxPort)
     trig = make(port, clock)
@@ -113,7 +114,7 @@ def test_the_fake_is_a_port_and_the_trigger_keeps_the_contract(port, clock):
 
 
 def test_configure_start_stop(port, clock):
-    port.coerce = lambda f, d: (f * (1 + 1e-7), 0.5000001)        # DAQmx coerces to its timebase
+    port.coerce = lambda f, d: (f * (1 + 1e-7), 0.5000001)  # DAQmx coerces to its timebase
     trig = make(port, clock)
     st = trig.configure(1.0, 0.5)
     assert port.calls[0][:5] == ("configure", "Dev1/ctr0", 1.0, 0.5, None)
@@ -124,19 +125,22 @@ def test_configure_start_stop(port, clock):
     assert not trig.stop().running and names(port.calls) == ["configure", "start", "stop"]
 
 
-@pytest.mark.parametrize("call", [
-    pytest.param(lambda t: t.configure(0.001), id="frequency below 0.01 Hz"),
-    pytest.param(lambda t: t.configure(6e6), id="frequency above 5 MHz"),
-    pytest.param(lambda t: t.configure(float("inf")), id="frequency inf"),
-    pytest.param(lambda t: t.configure("1 Hz"), id="frequency text"),
-    pytest.param(lambda t: t.configure(1.0, 0.0), id="duty 0"),
-    pytest.param(lambda t: t.configure(1.0, 1.0), id="duty 1"),
-    pytest.param(lambda t: t.configure(1.0, 50), id="duty given in percent"),
-    pytest.param(lambda t: t.configure(4e6, 0.2), id="duty 0.2 at 4 MHz (50 ns high)"),
-    pytest.param(lambda t: t.pulse(1, 0), id="pulse 0 ms"),
-    pytest.param(lambda t: t.pulse(2, 10_001), id="pulse over 10 s"),
-    pytest.param(lambda t: t.pulse(1, 2.5), id="pulse 2.5 ms"),
-])
+@pytest.mark.parametrize(
+    "call",
+    [
+        pytest.param(lambda t: t.configure(0.001), id="frequency below 0.01 Hz"),
+        pytest.param(lambda t: t.configure(6e6), id="frequency above 5 MHz"),
+        pytest.param(lambda t: t.configure(float("inf")), id="frequency inf"),
+        pytest.param(lambda t: t.configure("1 Hz"), id="frequency text"),
+        pytest.param(lambda t: t.configure(1.0, 0.0), id="duty 0"),
+        pytest.param(lambda t: t.configure(1.0, 1.0), id="duty 1"),
+        pytest.param(lambda t: t.configure(1.0, 50), id="duty given in percent"),
+        pytest.param(lambda t: t.configure(4e6, 0.2), id="duty 0.2 at 4 MHz (50 ns high)"),
+        pytest.param(lambda t: t.pulse(1, 0), id="pulse 0 ms"),
+        pytest.param(lambda t: t.pulse(2, 10_001), id="pulse over 10 s"),
+        pytest.param(lambda t: t.pulse(1, 2.5), id="pulse 2.5 ms"),
+    ],
+)
 def test_a_value_out_of_range_is_refused_before_any_call(port, clock, call):
     trig = make(port, clock)
     with pytest.raises(OutOfRange, match="nothing was sent"):
@@ -186,10 +190,10 @@ def test_fire_with_a_hardware_start_trigger_arms_the_counter_before_the_lines_ri
     st = trig.fire()
     assert [c[:-1] for c in port.calls] == [
         ("configure", "Dev1/ctr0", 1.0, 0.5, None),
-        ("lines", BOTH, (False, False)),                           # so there is a rising edge
-        ("configure", "Dev1/ctr0", 1.0, 0.5, "/Dev1/PFI0"),        # armed on the line's edge
+        ("lines", BOTH, (False, False)),  # so there is a rising edge
+        ("configure", "Dev1/ctr0", 1.0, 0.5, "/Dev1/PFI0"),  # armed on the line's edge
         ("start",),
-        ("lines", BOTH, (True, True)),                             # both start pulses, one write
+        ("lines", BOTH, (True, True)),  # both start pulses, one write
         ("lines", BOTH, (False, False)),
     ]
     assert port.calls[-1][-1] - port.calls[-2][-1] == pytest.approx(0.2)
@@ -204,7 +208,7 @@ def test_fire_with_a_software_start_reports_its_skew(port, clock):
     trig = make(port, clock)
     trig.configure(2.0, 0.25)
 
-    def slow_start():                                             # the counter start takes 3 ms
+    def slow_start():  # the counter start takes 3 ms
         FakePort.start_pulse_train(port)
         clock.t += 0.003
 
@@ -245,11 +249,11 @@ def test_close_stops_the_wave_lowers_the_lines_and_closes_the_port(port, clock):
     trig = make(port, clock)
     trig.configure(1.0, 0.5)
     trig.start()
-    trig._line_state = [True, False]      # as if a pulse had been interrupted mid-way
+    trig._line_state = [True, False]  # as if a pulse had been interrupted mid-way
     trig.close()
     assert [c[0] for c in port.calls[-3:]] == ["stop", "lines", "close"]
     assert port.calls[-2][2] == (False, False)
-    trig.close()                          # twice is fine
+    trig.close()  # twice is fine
     assert port.calls[-1][0] == "close" and len([c for c in port.calls if c[0] == "close"]) == 1
 
 
@@ -259,15 +263,22 @@ def test_trigger_csv_lines(tmp_path, port, clock):
         trig.configure(1.0, 0.5)
         trig.pulse(1, 100)
     rows = [(r["device"], r["kind"], r["text"]) for r in read_log(path)]
-    assert rows[0] == ("daqmx", "event", "open NI-DAQmx counter Dev1/ctr0, start-pulse lines "
-                                         "Dev1/port0/line0 (1), Dev1/port0/line1 (2)")
+    assert rows[0] == (
+        "daqmx",
+        "event",
+        "open NI-DAQmx counter Dev1/ctr0, start-pulse lines Dev1/port0/line0 (1), Dev1/port0/line1 (2)",
+    )
     assert rows[1:5] == [
         ("daqmx", "cmd", "CO Dev1/ctr0 pulse train freq=1.0 Hz duty=0.5 continuous idle low"),
         ("daqmx", "reply", "CO Dev1/ctr0 actual freq=1.0 Hz duty=0.5"),
         ("daqmx", "cmd", f"DO {BOTH} = 1,0"),
         ("daqmx", "cmd", f"DO {BOTH} = 0,0"),
     ]
-    assert rows[5] == ("daqmx", "event", "pulse channel 1 (VTS start) 100 ms: 100.000 ms between the writes (host clock)")
+    assert rows[5] == (
+        "daqmx",
+        "event",
+        "pulse channel 1 (VTS start) 100 ms: 100.000 ms between the writes (host clock)",
+    )
     assert rows[-1] == ("daqmx", "event", "closed")
 
 
@@ -284,12 +295,13 @@ def test_bad_construction_is_refused():
 
 # ---- the real nidaqmx package ------------------------------------------------------------------------
 
+
 def test_without_nidaqmx_the_port_says_how_to_install_it(monkeypatch):
-    monkeypatch.setitem(sys.modules, "nidaqmx", None)         # import nidaqmx -> ImportError
+    monkeypatch.setitem(sys.modules, "nidaqmx", None)  # import nidaqmx -> ImportError
     with pytest.raises(TriggerError, match=r"needs the nidaqmx package: pip install vts-hw\[daqmx\]"):
         NidaqmxPort()
     with pytest.raises(TriggerError, match=r"pip install vts-hw\[daqmx\]"):
-        DaqmxTrigger("Dev1/ctr0")                               # the default port is the real one
+        DaqmxTrigger("Dev1/ctr0")  # the default port is the real one
     assert "vts-hw[daqmx]" in INSTALL_HINT
 
 
@@ -358,10 +370,10 @@ def test_nidaqmx_port_calls_the_nidaqmx_api_as_its_signatures_say(monkeypatch):
     assert port.configure_pulse_train("Dev1/ctr0", 1.0, 0.5, "/Dev1/PFI0") == (0.99999996, 0.5)
     co = tasks[0]
     co.co_channels.add_co_pulse_chan_freq.assert_called_once_with(
-        "Dev1/ctr0", idle_state=Level.LOW, initial_delay=0.0, freq=1.0, duty_cycle=0.5)
+        "Dev1/ctr0", idle_state=Level.LOW, initial_delay=0.0, freq=1.0, duty_cycle=0.5
+    )
     co.timing.cfg_implicit_timing.assert_called_once_with(sample_mode=AcquisitionType.CONTINUOUS)
-    co.triggers.start_trigger.cfg_dig_edge_start_trig.assert_called_once_with(
-        "/Dev1/PFI0", trigger_edge=Edge.RISING)
+    co.triggers.start_trigger.cfg_dig_edge_start_trig.assert_called_once_with("/Dev1/PFI0", trigger_edge=Edge.RISING)
     co.control.assert_called_once_with(TaskMode.TASK_COMMIT)
     assert not port.pulse_train_running()
     port.start_pulse_train()
@@ -371,14 +383,14 @@ def test_nidaqmx_port_calls_the_nidaqmx_api_as_its_signatures_say(monkeypatch):
     port.write_lines(BOTH, [True, False])
     port.write_lines(BOTH, [False, False])
     do = tasks[1]
-    assert len(tasks) == 2                                        # one static DO task, reused
+    assert len(tasks) == 2  # one static DO task, reused
     do.do_channels.add_do_chan.assert_called_once_with(BOTH, line_grouping=LineGrouping.CHAN_PER_LINE)
     do.start.assert_called_once_with()
     assert do.write.call_args_list == [mock.call([True, False]), mock.call([False, False])]
     with pytest.raises(TriggerError, match="has 2 lines, 1 values given"):
         port.write_lines(BOTH, [True])
 
-    port.configure_pulse_train("Dev1/ctr0", 2.0, 0.25)            # a new task replaces the old one
+    port.configure_pulse_train("Dev1/ctr0", 2.0, 0.25)  # a new task replaces the old one
     co.close.assert_called_once_with()
     tasks[2].triggers.start_trigger.cfg_dig_edge_start_trig.assert_not_called()
     tasks[2].start.side_effect = nidaqmx.errors.DaqError("Resource is reserved", -50103)
@@ -413,9 +425,11 @@ def daq_device():
             continue
         if counters and len(lines) >= 2:
             return dev.name, counters[0], (lines[0], lines[1])
-    pytest.skip("NI-DAQmx has no device with a counter output and two digital lines (add a simulated "
-                "one, e.g. a PCIe-6363, in NI MAX or with nidaqmx's device tools; VTS_DAQMX_DEVICE "
-                "picks one by name)")
+    pytest.skip(
+        "NI-DAQmx has no device with a counter output and two digital lines (add a simulated "
+        "one, e.g. a PCIe-6363, in NI MAX or with nidaqmx's device tools; VTS_DAQMX_DEVICE "
+        "picks one by name)"
+    )
 
 
 def test_real_nidaqmx_configure_start_pulse_fire_stop(daq_device, tmp_path):
@@ -428,7 +442,7 @@ def test_real_nidaqmx_configure_start_pulse_fire_stop(daq_device, tmp_path):
         assert not trig.stop().running
         trig.pulse(1, 10)
         trig.pulse(2, 10)
-        st = trig.fire()                      # software start: simulated devices do not route triggers
+        st = trig.fire()  # software start: simulated devices do not route triggers
         assert st.running and st.extra["fire"] == "software start"
         assert st.extra["fire_skew_bound_s"] >= 0
         assert not trig.stop().running
@@ -447,7 +461,7 @@ def test_the_rig_configs_pulse_width_reaches_the_daqmx_fire(monkeypatch, clock):
     monkeypatch.setattr(daqmx, "NidaqmxPort", lambda: port)
     trig = open_trigger(TriggerConfig(backend="daqmx", address="Dev1/ctr0", lines=LINES, pulse_ms=250))
     assert trig.fire_pulse_ms == 250
-    trig._sleep, trig._clock = clock.sleep, clock     # the fake clock moves only when it sleeps
+    trig._sleep, trig._clock = clock.sleep, clock  # the fake clock moves only when it sleeps
     trig.configure(1.0, 0.5)
     trig.fire()
     rises = [c for c in port.calls if c[0] == "lines" and c[2] == (True, True)]

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from vts_hw.cli.demo import console_hint
-from vts_hw.sim_devices.scenarios.demo_days import DAY, FAST_CAMERA, run_demo
 from vts_hw.report import build_drift_report
+from vts_hw.sim_devices.scenarios.demo_days import DAY, FAST_CAMERA, run_demo
 from vts_hw.store import ResultsStore
 
 # 60 simulated days: ~40 s on an idle 2-core machine, several minutes on a loaded one; the
@@ -43,7 +43,9 @@ def test_the_fast_camera_passes_its_tolerance_along_the_way(demo):
     rooms = demo.rooms_html.read_text()
     assert re.search(r'<tr class="room" data-rig="sim-demo" data-state="TOLERANCE">', rooms)
     assert f'<div class="cam" data-camera="{FAST_CAMERA}" data-state="TOLERANCE">' in rooms
-    assert 'href="rooms-sim-demo-drift.html"' in rooms and (demo.rooms_html.parent / "rooms-sim-demo-drift.html").is_file()
+    assert (
+        'href="rooms-sim-demo-drift.html"' in rooms and (demo.rooms_html.parent / "rooms-sim-demo-drift.html").is_file()
+    )
 
 
 def test_forecast_agrees_with_the_injected_trend(demo):
@@ -75,10 +77,10 @@ def test_the_step_test_follows_the_daily_qa_and_is_in_the_report(demo):
         assert runs[0].started > max(r.when for r in demo.rows)
     html = demo.report_html.read_text()
     assert f'alt="7-sphere step test, run {steps.run_id}"' in html
-    assert 'data-plots-expected="3"' in html     # two cameras' drift and the step test
+    assert 'data-plots-expected="3"' in html  # two cameras' drift and the step test
 
 
-@pytest.mark.timeout(2400)          # a hang detector: about 3 minutes idle, much longer on a loaded machine
+@pytest.mark.timeout(2400)  # a hang detector: about 3 minutes idle, much longer on a loaded machine
 def test_vts_demo_command_end_to_end_with_a_scan(tmp_path):
     """`make demo` runs this command: every section, the step test and a short scan with the
     sync check (events against the truth) included."""
@@ -87,21 +89,45 @@ def test_vts_demo_command_end_to_end_with_a_scan(tmp_path):
     import sys
 
     out = tmp_path / "demo"
-    r = subprocess.run([sys.executable, "-m", "vts_hw.cli.__main__", "demo", "-o", str(out), "--days", "1",
-                        "--seconds", "1", "--scan-seconds", "16", "--patient-seconds", "24"],
-                       capture_output=True, text=True, timeout=2000)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "vts_hw.cli.__main__",
+            "demo",
+            "-o",
+            str(out),
+            "--days",
+            "1",
+            "--seconds",
+            "1",
+            "--scan-seconds",
+            "16",
+            "--patient-seconds",
+            "24",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=2000,
+    )
     assert r.returncode == 0, r.stderr
-    for heading in ("== 1. the cameras", "== 2. the daily QA", "== 3. the 7-sphere step test",
-                    "== 5. a scan of 16 s and the sync check", "== 6. a patient scan of 24 s"):
+    for heading in (
+        "== 1. the cameras",
+        "== 2. the daily QA",
+        "== 3. the 7-sphere step test",
+        "== 5. a scan of 16 s and the sync check",
+        "== 6. a patient scan of 24 s",
+    ):
         assert heading in r.stdout
-    assert r.stdout.rstrip().endswith(console_hint(out))    # how to see the room live (issue 23)
+    assert r.stdout.rstrip().endswith(console_hint(out))  # how to see the room live (issue 23)
     # the patient: one live alert, the move found near its true start, the pose near the truth
     patient = r.stdout.split("== 6.")[1]
     # one live alert; or, on a machine so busy that the live path fell behind its frames during the
     # move, none with the NOT TRACKING it said live (issue 20) -- never a silent or unexplained miss
     alerts = re.findall(r"live alert (\d+\.\d+) s after the move started", patient)
-    assert len(alerts) == 1 or (not alerts and re.search(r"^  no live alert: NOT TRACKING for .*said so live$",
-                                                         patient, re.M)), patient
+    assert len(alerts) == 1 or (
+        not alerts and re.search(r"^  no live alert: NOT TRACKING for .*said so live$", patient, re.M)
+    ), patient
     assert "NO LIVE ALERT" not in patient
     start_ms = re.search(r"found by the analysis: start ([+-]\d+) ms off the truth", patient)
     assert start_ms and abs(int(start_ms.group(1))) < 500, patient
@@ -111,11 +137,15 @@ def test_vts_demo_command_end_to_end_with_a_scan(tmp_path):
     # hold the truth is scored over 60 patients in test_breathing_rate.py)
     # (the line, not "a breathing patient" in the scan's command line above it)
     # (a measured rate may carry its narrow range too: "measured 16.2-16.8 /min"; a bounded one always does)
-    rate = re.search(r"^  breathing (\d+\.\d) /min, (measured( \d+\.\d-\d+\.\d /min)?|bounded( \d+\.\d-\d+\.\d /min)) "
-                     r"\(true (\d+\.\d) /min\)", patient, re.M)
+    rate = re.search(
+        r"^  breathing (\d+\.\d) /min, (measured( \d+\.\d-\d+\.\d /min)?|bounded( \d+\.\d-\d+\.\d /min)) "
+        r"\(true (\d+\.\d) /min\)",
+        patient,
+        re.M,
+    )
     assert rate or re.search(r"^  breathing [a-z][^(]* \(true \d+\.\d /min\)", patient, re.M), patient
     assert (out / "patient-export" / "castor_motion_rigid.txt").exists() and (out / "motion-report.html").exists()
-    r.stdout = r.stdout.split("== 6.")[0]      # the sync figures below are the scan's
+    r.stdout = r.stdout.split("== 6.")[0]  # the sync figures below are the scan's
     errors = [abs(float(x)) for x in re.findall(r"(?:VTS|SPECT) ([+-]\d+\.\d) ms", r.stdout)]
     assert errors and max(errors) <= 20.0
     assert "not found" not in r.stdout
@@ -128,7 +158,8 @@ def test_the_demo_ends_saying_how_to_open_the_console_on_its_rig_and_store(tmp_p
     from click.testing import CliRunner
 
     from vts_hw.cli import _register, cli
-    _register()                     # the commands, as `vts` registers them
+
+    _register()  # the commands, as `vts` registers them
     hint = console_hint(tmp_path / "demo")
     lines = hint.splitlines()
     assert lines[0].startswith("the room console") and "Firefox" in lines[0]
@@ -136,8 +167,13 @@ def test_the_demo_ends_saying_how_to_open_the_console_on_its_rig_and_store(tmp_p
     # rig it wrote with the store the demo fills (run_demo's results.sqlite), the address
     assert lines[1].split("#")[0].split() == ["vts", "sim", "up", "--dir", str(tmp_path / "demo" / "live"), "--detach"]
     assert lines[2].split() == ["source", str(tmp_path / "demo" / "live" / "sim.env")]
-    assert lines[3].split() == [f"VTS_STORE={tmp_path / 'demo' / 'results.sqlite'}", "vts", "console", "--config",
-                                str(tmp_path / "demo" / "live" / "rig.yaml")]
+    assert lines[3].split() == [
+        f"VTS_STORE={tmp_path / 'demo' / 'results.sqlite'}",
+        "vts",
+        "console",
+        "--config",
+        str(tmp_path / "demo" / "live" / "rig.yaml"),
+    ]
     assert "http://127.0.0.1:8040/" in hint and "vts sim down --dir" in hint
     # each command and option it names exists as written
     runner = CliRunner()
@@ -146,7 +182,6 @@ def test_the_demo_ends_saying_how_to_open_the_console_on_its_rig_and_store(tmp_p
         assert got.exit_code == 0, (args, got.output)
     assert "--detach" in runner.invoke(cli, ["sim", "up", "--help"]).output
     assert "--config" in runner.invoke(cli, ["console", "--help"]).output
-
 
 
 def test_a_demo_move_without_a_live_alert_says_why():

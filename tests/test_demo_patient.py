@@ -61,9 +61,9 @@ def busy_demo(tmp_path_factory):
     finally:
         done.set()
         watcher.join()
-    (t0, t1, n), = spans
+    ((t0, t1, n),) = spans
     times = _scan_times(res.session)
-    assert n >= 4 and t0 <= times["scan_started"] and times["stopped"] <= t1     # the scan ran under the load
+    assert n >= 4 and t0 <= times["scan_started"] and times["stopped"] <= t1  # the scan ran under the load
     return res, said
 
 
@@ -94,7 +94,7 @@ def test_what_degrades_a_recording_is_said_in_plain_words(busy_demo, tmp_path):
 
     t = m["scan"]["times"]
 
-    class Bank:         # frames rendered live: 40 during the scan, 8 after its stop (those do not count)
+    class Bank:  # frames rendered live: 40 during the scan, 8 after its stop (those do not count)
         def missed_between(self, t0, t1):
             times = [t["scan_started"] + 0.04 * k for k in range(40)] + [t["stopped"] + 0.04 * k for k in range(1, 9)]
             return {"outside the stretch": sum(t0 <= x <= t1 for x in times)}
@@ -103,4 +103,4 @@ def test_what_degrades_a_recording_is_said_in_plain_words(busy_demo, tmp_path):
     assert notes[0] == "the recording is partial: camera cam2: 26 frame(s) missing in 1 gap(s), 0 reconnect(s)"
     assert notes[1].startswith("camera cam2 lost 26 frame(s) in 1 gap(s): the figures below rest on the time")
     assert notes[2].startswith("40 frame(s) of the scan were rendered live, not ahead (outside the stretch: 40)")
-    assert len(notes) == 3 and len(recording_notes(res.session, Bank())) == 1     # the real session: whole
+    assert len(notes) == 3 and len(recording_notes(res.session, Bank())) == 1  # the real session: whole

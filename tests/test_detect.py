@@ -6,10 +6,17 @@ import cv2
 import numpy as np
 import pytest
 
-from vts_hw.vision.detect import (Blob, DetectionResult, DetectorSettings, auto_threshold,
-                                  candidate_boxes, detect, detect_jpeg)
 from vts_hw.sim_devices.render import Renderer, encode, polygon_centroid, polygon_coverage
 from vts_hw.sim_devices.scene import Scene
+from vts_hw.vision.detect import (
+    Blob,
+    DetectionResult,
+    DetectorSettings,
+    auto_threshold,
+    candidate_boxes,
+    detect,
+    detect_jpeg,
+)
 
 T_OFFSET = 100.0  # seconds after the scene's start
 
@@ -26,8 +33,7 @@ def rig(seed: int = 0, phantom: bool = False, led: bool = True):
 
 def jpeg_frame(renderer: Renderer, cam: str, t: float, quality: int = 75) -> np.ndarray:
     """A noisy frame as the camera would send it: JPEG-encoded, decoded to grey."""
-    return cv2.imdecode(np.frombuffer(encode(renderer.render(cam, t), quality), np.uint8),
-                        cv2.IMREAD_GRAYSCALE)
+    return cv2.imdecode(np.frombuffer(encode(renderer.render(cam, t), quality), np.uint8), cv2.IMREAD_GRAYSCALE)
 
 
 def match(blobs: list[Blob], truth, tol: float = 1.0) -> dict[str, Blob]:
@@ -151,7 +157,7 @@ def add_disk(img: np.ndarray, cx: float, cy: float, radius: float, level: float 
     poly = np.stack([cx + radius * np.cos(a), cy + radius * np.sin(a)], axis=1)
     x0, y0 = int(cx - radius) - 2, int(cy - radius) - 2
     n = int(2 * radius) + 5
-    img[y0:y0 + n, x0:x0 + n] += level * polygon_coverage(poly, x0, y0, n, n)
+    img[y0 : y0 + n, x0 : x0 + n] += level * polygon_coverage(poly, x0, y0, n, n)
     return polygon_centroid(poly)
 
 
@@ -199,8 +205,10 @@ def test_phantom_spheres_found(cam):
     assert (thr, median) == (res.threshold, res.background) and len(boxes) == 12
     step = DetectorSettings().step
     for _, u, v in truth:
-        assert sum((x - 1) * step < u < (x + w) * step and (y - 1) * step < v < (y + h) * step
-                   for x, y, w, h in boxes) == 1
+        assert (
+            sum((x - 1) * step < u < (x + w) * step and (y - 1) * step < v < (y + h) * step for x, y, w, h in boxes)
+            == 1
+        )
 
 
 def test_detect_jpeg_decodes_then_detects():
@@ -227,8 +235,7 @@ def test_bad_input_is_refused():
 def test_tiny_and_odd_frames(shape):
     """No crash on frames smaller than an ROI, all dark, all white or full of speckle."""
     rng = np.random.default_rng(3)
-    for img in (np.zeros(shape, np.uint8), np.full(shape, 255, np.uint8),
-                rng.integers(0, 256, shape).astype(np.uint8)):
+    for img in (np.zeros(shape, np.uint8), np.full(shape, 255, np.uint8), rng.integers(0, 256, shape).astype(np.uint8)):
         res = detect(img)
         assert res.blobs == [] or all(isinstance(b, Blob) for b in res.blobs)
 

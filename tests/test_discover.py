@@ -48,22 +48,25 @@ def test_discover_finds_the_four_cameras_and_writes_a_rig_that_vts_loads(rig4, t
     out = tmp_path / "rig.yaml"
     code, stdout, err = vts(capsys, "discover", "--interface", LO, "--timeout", "3", "-o", out)
     assert code == 0, err
-    for srv in rig4.servers.values():   # the table: every camera, its serial, model and firmware
+    for srv in rig4.servers.values():  # the table: every camera, its serial, model and firmware
         line = next(x for x in stdout.splitlines() if srv.serial in x)
         assert f"{LO}:{srv.port}" in line and "confirmed" in line and "NOT" not in line, line
-        assert ("AXIS 211" in line and "4.47" in line) if srv.model == "axis211" else \
-            ("AXIS P1375" in line and "10.12.240" in line), line
+        assert (
+            ("AXIS 211" in line and "4.47" in line)
+            if srv.model == "axis211"
+            else ("AXIS P1375" in line and "10.12.240" in line)
+        ), line
         assert "mdns+ssdp" in line, line
-    rig = load_rig(out)                      # the skeleton loads as a rig config ...
+    rig = load_rig(out)  # the skeleton loads as a rig config ...
     by_serial = {c.port: c for c in rig.cameras}
     for srv in rig4.servers.values():
         cfg = by_serial[srv.port]
         assert (cfg.host, cfg.password_env, cfg.user) == (LO, "VTS_CAMERA_PASSWORD", "root")
     text = out.read_text()
-    assert all(srv.serial in text for srv in rig4.servers.values())   # each entry says what it is
+    assert all(srv.serial in text for srv in rig4.servers.values())  # each entry says what it is
     first_211 = next(srv for srv in rig4.servers.values() if srv.model == "axis211")
     name = next(c.name for c in rig.cameras if c.port == first_211.port)
-    code, stdout, err = vts(capsys, "camera", "info", name, "--config", out, "--json")   # ... and vts talks to it
+    code, stdout, err = vts(capsys, "camera", "info", name, "--config", out, "--json")  # ... and vts talks to it
     assert code == 0, err
     assert yaml.safe_load(stdout)["device"]["SerialNumber"] == first_211.serial
 
@@ -105,13 +108,14 @@ def test_without_the_password_the_cameras_are_listed_but_not_confirmed(tmp_path,
     with SimRig(n_cameras=1, seed=31, announce=True) as rig:
         srv = rig.servers["cam1"]
         out = tmp_path / "rig.yaml"
-        code, stdout, err = vts(capsys, "discover", "--interface", LO, "--timeout", "2", "-o", out,
-                                "--password-env", "VTS_NO_SUCH_PASSWORD")
+        code, stdout, err = vts(
+            capsys, "discover", "--interface", LO, "--timeout", "2", "-o", out, "--password-env", "VTS_NO_SUCH_PASSWORD"
+        )
     assert code == 4, err
     line = next(x for x in stdout.splitlines() if srv.serial in x)
-    assert "NOT confirmed" in line and "?" in line      # the firmware is not known
+    assert "NOT confirmed" in line and "?" in line  # the firmware is not known
     assert "set VTS_NO_SUCH_PASSWORD" in err and "Traceback" not in err
-    text = out.read_text()                              # written all the same, saying so
+    text = out.read_text()  # written all the same, saying so
     assert "NOT confirmed over VAPIX" in text and load_rig(out).cameras
 
 
@@ -121,10 +125,19 @@ def test_no_camera_found_writes_nothing(tmp_path):
     if os.geteuid() != 0 or not shutil.which("unshare") or not shutil.which("ip"):
         pytest.skip("a network namespace of its own needs root, unshare and ip (CI has them)")
     out = tmp_path / "rig.yaml"
-    r = subprocess.run(["unshare", "-n", "sh", "-c",
-                        f'ip link set lo up && exec "{sys.executable}" -m vts_hw.cli.__main__ discover '
-                        f'--interface {LO} --timeout 1 -o "{out}"'],
-                       capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        [
+            "unshare",
+            "-n",
+            "sh",
+            "-c",
+            f'ip link set lo up && exec "{sys.executable}" -m vts_hw.cli.__main__ discover '
+            f'--interface {LO} --timeout 1 -o "{out}"',
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 4 and "no Axis camera announced itself within 1 s on 127.0.0.1" in r.stderr, r.stderr
     assert not out.exists() and f"{out} was not written" in r.stderr and "Traceback" not in r.stderr
 
@@ -137,8 +150,9 @@ def test_bad_interface_and_timeout_are_bad_input(capsys):
 
 # -- the protocols byte for byte ------------------------------------------------------------
 def test_m_search_is_the_ssdp_request_byte_for_byte():
-    assert m_search(2) == (b'M-SEARCH * HTTP/1.1\r\nHOST: 239.255.255.250:1900\r\nMAN: "ssdp:discover"\r\n'
-                           b"MX: 2\r\nST: ssdp:all\r\n\r\n")
+    assert m_search(2) == (
+        b'M-SEARCH * HTTP/1.1\r\nHOST: 239.255.255.250:1900\r\nMAN: "ssdp:discover"\r\nMX: 2\r\nST: ssdp:all\r\n\r\n'
+    )
 
 
 def test_the_simulated_cameras_answer_an_m_search_as_axis_cameras_do(rig4):
@@ -170,17 +184,28 @@ def test_the_simulated_cameras_answer_an_m_search_as_axis_cameras_do(rig4):
     assert a == Announcement("ssdp", LO, a.port, want[a.port], a.model) and a.model.startswith("AXIS")
 
 
-@pytest.mark.parametrize("datagram", [b"", b"\xff\xfe", b"HTTP/1.1 200\r\n\r\n", b"NOTIFY * HTTP/1.1\r\n\r\n",
-                                      b"HTTP/1.1 404 Not Found\r\nLOCATION: http://x/\r\n\r\n",
-                                      b"HTTP/1.1 200 OK\r\nLOCATION: file:///etc/passwd\r\n\r\n"])
+@pytest.mark.parametrize(
+    "datagram",
+    [
+        b"",
+        b"\xff\xfe",
+        b"HTTP/1.1 200\r\n\r\n",
+        b"NOTIFY * HTTP/1.1\r\n\r\n",
+        b"HTTP/1.1 404 Not Found\r\nLOCATION: http://x/\r\n\r\n",
+        b"HTTP/1.1 200 OK\r\nLOCATION: file:///etc/passwd\r\n\r\n",
+    ],
+)
 def test_what_is_not_an_ssdp_answer_with_a_location_is_left_out(datagram):
     assert location(datagram) is None
 
 
 def test_a_description_that_is_not_an_axis_camera_is_left_out():
-    bodies = {"/tv.xml": '<root xmlns="urn:schemas-upnp-org:device-1-0"><device><manufacturer>Samsung</manufacturer>'
-                         "<serialNumber>1</serialNumber></device></root>",
-              "/bad.xml": "<root><device", "/bomb.xml": "<a>" + "x" * (300 * 1024) + "</a>"}
+    bodies = {
+        "/tv.xml": '<root xmlns="urn:schemas-upnp-org:device-1-0"><device><manufacturer>Samsung</manufacturer>'
+        "<serialNumber>1</serialNumber></device></root>",
+        "/bad.xml": "<root><device",
+        "/bomb.xml": "<a>" + "x" * (300 * 1024) + "</a>",
+    }
     with ScriptedHTTP([(f"GET {path}", None, body) for path, body in bodies.items()]) as peer:
         for path in bodies:
             assert describe(peer.url + path) is None, path
@@ -189,12 +214,18 @@ def test_a_description_that_is_not_an_axis_camera_is_left_out():
 
 
 def test_merge_takes_one_camera_per_serial_and_notes_a_second_address():
-    found = merge([Announcement("mdns", "10.0.0.5", 80, "accc8e000001", "AXIS P1375"),
-                   Announcement("ssdp", "10.0.0.5", 80, "ACCC8E000001", ""),
-                   Announcement("ssdp", "10.0.1.5", 80, "ACCC8E000001", "AXIS P1375"),
-                   Announcement("ssdp", "10.0.0.4", 8080, "00408C000002", "AXIS 211")])
-    assert [(f.host, f.serial, f.sources) for f in found] == [("10.0.0.4", "00408C000002", ("ssdp",)),
-                                                              ("10.0.0.5", "ACCC8E000001", ("mdns", "ssdp"))]
+    found = merge(
+        [
+            Announcement("mdns", "10.0.0.5", 80, "accc8e000001", "AXIS P1375"),
+            Announcement("ssdp", "10.0.0.5", 80, "ACCC8E000001", ""),
+            Announcement("ssdp", "10.0.1.5", 80, "ACCC8E000001", "AXIS P1375"),
+            Announcement("ssdp", "10.0.0.4", 8080, "00408C000002", "AXIS 211"),
+        ]
+    )
+    assert [(f.host, f.serial, f.sources) for f in found] == [
+        ("10.0.0.4", "00408C000002", ("ssdp",)),
+        ("10.0.0.5", "ACCC8E000001", ("mdns", "ssdp")),
+    ]
     assert found[1].notes == ["ssdp also announced it at 10.0.1.5:80"]
 
 

@@ -39,9 +39,14 @@ def _generator():
 
 def _build(config: Path, site: Path) -> subprocess.CompletedProcess:
     env = {**os.environ, "NO_MKDOCS_2_WARNING": "1"}
-    return subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--config-file", str(config),
-                           "--site-dir", str(site)], cwd=ROOT, env=env, capture_output=True, text=True,
-                          timeout=240)
+    return subprocess.run(
+        [sys.executable, "-m", "mkdocs", "build", "--strict", "--config-file", str(config), "--site-dir", str(site)],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=240,
+    )
 
 
 def _text(page: Path) -> str:
@@ -154,13 +159,19 @@ def _messages_naming_pages(root: Path, folders) -> list[tuple[str, int, str]]:
     """(file, line, page) of every page of this project (`docs/...md`, `README...`) a string of
     the code names: its messages and help, not its docstrings (which may cite other projects')."""
     import ast
+
     out = []
     for folder in folders:
         for path in sorted((root / folder).rglob("*.py")):
             tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
-            docs = {id(n.body[0].value) for n in ast.walk(tree)
-                    if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
-                    and n.body and isinstance(n.body[0], ast.Expr) and isinstance(n.body[0].value, ast.Constant)}
+            docs = {
+                id(n.body[0].value)
+                for n in ast.walk(tree)
+                if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+                and n.body
+                and isinstance(n.body[0], ast.Expr)
+                and isinstance(n.body[0].value, ast.Constant)
+            }
             for node in ast.walk(tree):
                 if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docs:
                     for page in re.findall(r"docs/[\w/.-]+\.md|README[^\s\"')]*", node.value):
@@ -174,8 +185,11 @@ def test_every_page_a_message_names_exists(tmp_path):
     reader nowhere). Planted: a message naming a page that is not there is found."""
     named = _messages_naming_pages(ROOT, ("vts_hw", "drivers", "procedures", "sim_devices"))
     assert named, "no message names a page: the scan reads nothing"
-    missing = [(f, line, page) for f, line, page in named
-               if page.startswith("README") or not (ROOT / page.split("#")[0]).is_file()]
+    missing = [
+        (f, line, page)
+        for f, line, page in named
+        if page.startswith("README") or not (ROOT / page.split("#")[0]).is_file()
+    ]
     assert missing == [], missing
     planted = tmp_path / "planted"
     planted.mkdir()

@@ -6,11 +6,11 @@ import cv2
 import numpy as np
 import pytest
 
-from vts_hw.procedures.drift import Baseline, DriftAnalysis
-from vts_hw.vision.wall_markers import baseline_from_frames
+from vts_hw.procedures.drift import DriftAnalysis
 from vts_hw.sim_devices.render import Renderer, encode
 from vts_hw.sim_devices.scene import Scene
 from vts_hw.tolerance import State
+from vts_hw.vision.wall_markers import baseline_from_frames
 
 DAY = 86400.0
 
@@ -65,7 +65,7 @@ def test_missing_marker_stray_blob_and_stuck_led(world):
 
     def edit(img):
         cv2.circle(img, (int(round(hide.x)), int(round(hide.y))), 16, 20, -1)  # covered marker
-        cv2.circle(img, (320, 240), 9, 230, -1)                                # a new bright thing
+        cv2.circle(img, (320, 240), 9, 230, -1)  # a new bright thing
         return img
 
     on = _jpegs(r, cam, t0 + 60, 5, edit=edit)
@@ -85,6 +85,7 @@ def test_missing_marker_stray_blob_and_stuck_led(world):
 
 def test_tolerances_from_config_change_the_state(world):
     from vts_hw.tolerance import Window
+
     scene, r = world
     cam, t0 = "cam2", scene.start_epoch + 5.0
     base = baseline_from_frames(cam, _jpegs(r, cam, t0, 3), t0)
@@ -92,7 +93,8 @@ def test_tolerances_from_config_change_the_state(world):
     off = _jpegs(r, cam, t0 + 60 * DAY + 1, 1, led=False)[0]
     loose = DriftAnalysis.from_frames(cam, base, on, off).analyze()
     tight = DriftAnalysis.from_frames(cam, base, on, off).analyze(
-        {"drift_x_px": Window.symmetric(0.01, 0.02, "px"), "drift_y_px": Window.symmetric(0.01, 0.02, "px")})
+        {"drift_x_px": Window.symmetric(0.01, 0.02, "px"), "drift_y_px": Window.symmetric(0.01, 0.02, "px")}
+    )
     assert loose.state == State.OK and tight.state == State.ACTION
 
 
@@ -100,8 +102,9 @@ def test_results_data_and_plot(world, tmp_path):
     scene, r = world
     cam, t0 = "cam1", scene.start_epoch + 5.0
     base = baseline_from_frames(cam, _jpegs(r, cam, t0, 3), t0)
-    d = DriftAnalysis.from_frames(cam, base, _jpegs(r, cam, t0 + 30 * DAY, 3),
-                                  _jpegs(r, cam, t0 + 30 * DAY + 1, 1, led=False)[0]).analyze()
+    d = DriftAnalysis.from_frames(
+        cam, base, _jpegs(r, cam, t0 + 30 * DAY, 3), _jpegs(r, cam, t0 + 30 * DAY + 1, 1, led=False)[0]
+    ).analyze()
     data = json.loads(json.dumps(d.results_data()))
     assert data["software_version"] and data["analyzed"] and data["state"] == "OK"
     assert len(data["markers"]) == 5 and data["drift_mm"]["x"] == pytest.approx(data["drift_px"]["x"] * 1.25, abs=1e-3)

@@ -23,7 +23,7 @@ import pytest
 from vts_hw.bounded import TooLarge, read_bytes
 
 VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
-CAP = 4 * 2 ** 30
+CAP = 4 * 2**30
 
 
 def _capped():
@@ -35,14 +35,15 @@ def vts(*args, cwd=None, timeout=60):
     for k in ("VTS_CONFIG", "VTS_STORE"):
         env.pop(k, None)
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    p = subprocess.run([*VTS, *map(str, args)], capture_output=True, text=True, timeout=timeout, cwd=cwd,
-                       env=env, preexec_fn=_capped)
+    p = subprocess.run(
+        [*VTS, *map(str, args)], capture_output=True, text=True, timeout=timeout, cwd=cwd, env=env, preexec_fn=_capped
+    )
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     p.cpu_seconds = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
     return p
 
 
-def _sparse(path: Path, size: int = 8 * 2 ** 30) -> Path:
+def _sparse(path: Path, size: int = 8 * 2**30) -> Path:
     with open(path, "wb") as f:
         f.truncate(size)
     return path
@@ -71,8 +72,9 @@ def files(tmp_path_factory):
     rec.mkdir()
     (rec / "cam1.mjpeg").write_bytes(b"")
     (rec / "cam1.index.csv").symlink_to("/dev/zero")
-    (d / "rig.yaml").write_text(f"rig: t\ncameras:\n  - name: cam1\n    host: 127.0.0.1\n"
-                                f"results:\n  url: sqlite:///{d / 'results.sqlite'}\n")
+    (d / "rig.yaml").write_text(
+        f"rig: t\ncameras:\n  - name: cam1\n    host: 127.0.0.1\nresults:\n  url: sqlite:///{d / 'results.sqlite'}\n"
+    )
     (d / "bad_trigger_log.csv").symlink_to("/dev/zero")
     return d
 
@@ -81,25 +83,69 @@ CASES = {
     "recording info /dev/zero": lambda d: ["recording", "info", "/dev/zero"],
     "recording info FIFO": lambda d: ["recording", "info", d / "fifo"],
     "recording info 8 GiB .mjpg": lambda d: ["recording", "info", d / "huge.mjpg"],
-    "motion analyze, manifest /dev/zero": lambda d: ["motion", "analyze", d / "zero_manifest", "--calibration",
-                                                    d / "huge.json", "--config", d / "rig.yaml"],
+    "motion analyze, manifest /dev/zero": lambda d: [
+        "motion",
+        "analyze",
+        d / "zero_manifest",
+        "--calibration",
+        d / "huge.json",
+        "--config",
+        d / "rig.yaml",
+    ],
     "recording info, index /dev/zero": lambda d: ["recording", "info", d / "zero_index"],
     "recording reindex, manifest /dev/zero": lambda d: ["recording", "reindex", d / "zero_manifest"],
-    "motion analyze, manifest 8 GiB": lambda d: ["motion", "analyze", d / "huge_manifest", "--calibration",
-                                                 d / "huge.json", "--config", d / "rig.yaml"],
-    "motion analyze --calibration /dev/zero": lambda d: ["motion", "analyze", d / "zero_index", "--calibration",
-                                                         "/dev/zero", "--config", d / "rig.yaml"],
-    "sync analyze --mapping /dev/zero": lambda d: ["sync", "analyze", d / "zero_index", "--mapping", "/dev/zero",
-                                                   "--config", d / "rig.yaml"],
+    "motion analyze, manifest 8 GiB": lambda d: [
+        "motion",
+        "analyze",
+        d / "huge_manifest",
+        "--calibration",
+        d / "huge.json",
+        "--config",
+        d / "rig.yaml",
+    ],
+    "motion analyze --calibration /dev/zero": lambda d: [
+        "motion",
+        "analyze",
+        d / "zero_index",
+        "--calibration",
+        "/dev/zero",
+        "--config",
+        d / "rig.yaml",
+    ],
+    "sync analyze --mapping /dev/zero": lambda d: [
+        "sync",
+        "analyze",
+        d / "zero_index",
+        "--mapping",
+        "/dev/zero",
+        "--config",
+        d / "rig.yaml",
+    ],
     "--config /dev/zero": lambda d: ["store", "info", "--config", "/dev/zero"],
     "--config 8 GiB": lambda d: ["store", "info", "--config", d / "huge.yaml"],
     "--config FIFO": lambda d: ["store", "info", "--config", d / "fifo"],
     "qa import /dev/zero": lambda d: ["qa", "import", "/dev/zero", "--config", d / "rig.yaml"],
     "qa import 8 GiB": lambda d: ["qa", "import", d / "huge.json", "--config", d / "rig.yaml"],
-    "calibrate spect --vts /dev/zero": lambda d: ["calibrate", "spect", "--vts", "/dev/zero", "--volume",
-                                                  d / "huge.json", "--config", d / "rig.yaml", "-o", d / "o.json"],
-    "trigger status --log /dev/zero": lambda d: ["trigger", "status", "--log", d / "bad_trigger_log.csv",
-                                                 "--config", d / "rig.yaml"],
+    "calibrate spect --vts /dev/zero": lambda d: [
+        "calibrate",
+        "spect",
+        "--vts",
+        "/dev/zero",
+        "--volume",
+        d / "huge.json",
+        "--config",
+        d / "rig.yaml",
+        "-o",
+        d / "o.json",
+    ],
+    "trigger status --log /dev/zero": lambda d: [
+        "trigger",
+        "status",
+        "--log",
+        d / "bad_trigger_log.csv",
+        "--config",
+        d / "rig.yaml",
+    ],
     # found by bench/bad_inputs.py --classes endless: appending to a FIFO blocked for ever
     "trigger status --log FIFO": lambda d: ["trigger", "status", "--log", d / "fifo", "--config", d / "rig.yaml"],
     # ... and a device as the images folder was a traceback (NotADirectoryError)
@@ -120,22 +166,23 @@ def test_an_endless_or_huge_input_is_refused_in_one_sentence(files, case):
     assert p.returncode in (2, 3, 4), (p.returncode, p.stderr)
     last = (p.stderr.strip().splitlines() or [""])[-1]
     assert last.startswith(("vts: ", "Error: ")), p.stderr
-    assert p.cpu_seconds < 15, f"took {p.cpu_seconds:.0f} s of CPU"        # /dev/zero reads ~1 GB/s
+    assert p.cpu_seconds < 15, f"took {p.cpu_seconds:.0f} s of CPU"  # /dev/zero reads ~1 GB/s
     assert not list(files.glob("*.tmp")) and not (files / "o.json").exists()
 
 
 def test_a_bounded_read_is_interrupted_by_ctrl_c(tmp_path):
     """A big file within the bound is read a chunk at a time: Ctrl-C stops it at once."""
-    big = _sparse(tmp_path / "big.mjpg", 2 ** 30)
+    big = _sparse(tmp_path / "big.mjpg", 2**30)
 
     def alarm(signum, frame):
         raise KeyboardInterrupt
+
     old = signal.signal(signal.SIGALRM, alarm)
     t0 = time.monotonic()
     try:
         signal.setitimer(signal.ITIMER_REAL, 0.05)
         with pytest.raises(KeyboardInterrupt):
-            read_bytes(big, limit=2 ** 31, what="capture")
+            read_bytes(big, limit=2**31, what="capture")
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, old)
@@ -162,6 +209,7 @@ def test_a_replay_camera_over_a_fifo_mjpeg_is_refused_not_waited_on(files, tmp_p
     """A recording replayed as a camera (kind replay) whose .mjpeg is a FIFO: refused in one
     sentence (its open blocked for ever)."""
     from vts_hw.drivers.replay import ReplayCamera
+
     rec = tmp_path / "rec"
     rec.mkdir()
     (rec / "cam1.index.csv").write_text("frame,offset,length,camera_time,host_time\n0,0,10,1.00,1000.000000\n")
@@ -175,7 +223,12 @@ def test_no_reader_checks_a_name_then_opens_it_again():
     opens it by name may open another file, a FIFO swapped in meanwhile blocking it for ever. Every
     reader opens through bounded.open_checked (checked, opened without waiting, checked again)."""
     repo = Path(__file__).resolve().parents[1]
-    found = [f"{p.relative_to(repo)}:{n}" for folder in ("vts_hw", "drivers", "procedures", "sim_devices")
-             for p in (repo / folder).rglob("*.py") if p.name != "bounded.py"
-             for n, line in enumerate(p.read_text().splitlines(), 1) if "check_file(" in line]
+    found = [
+        f"{p.relative_to(repo)}:{n}"
+        for folder in ("vts_hw", "drivers", "procedures", "sim_devices")
+        for p in (repo / folder).rglob("*.py")
+        if p.name != "bounded.py"
+        for n, line in enumerate(p.read_text().splitlines(), 1)
+        if "check_file(" in line
+    ]
     assert found == []

@@ -47,12 +47,21 @@ def apt_state(tmp_path):
     for d in ("lists/partial", "cache/archives/partial", "sources.list.d", "dpkg/updates"):
         (tmp_path / d).mkdir(parents=True)
     (tmp_path / "dpkg" / "status").write_text(STATUS)
-    opts = " ".join(f"-o {k}={v}" for k, v in {
-        "Dir::State::Lists": tmp_path / "lists", "Dir::Cache": tmp_path / "cache",
-        "Dir::Etc::SourceList": os.devnull, "Dir::Etc::SourceParts": tmp_path / "sources.list.d",
-        "Dir::State::status": tmp_path / "dpkg" / "status"}.items())
-    locks = {"lists": tmp_path / "lists" / "lock", "frontend": tmp_path / "dpkg" / "lock-frontend",
-             "dpkg": tmp_path / "dpkg" / "lock"}
+    opts = " ".join(
+        f"-o {k}={v}"
+        for k, v in {
+            "Dir::State::Lists": tmp_path / "lists",
+            "Dir::Cache": tmp_path / "cache",
+            "Dir::Etc::SourceList": os.devnull,
+            "Dir::Etc::SourceParts": tmp_path / "sources.list.d",
+            "Dir::State::status": tmp_path / "dpkg" / "status",
+        }.items()
+    )
+    locks = {
+        "lists": tmp_path / "lists" / "lock",
+        "frontend": tmp_path / "dpkg" / "lock-frontend",
+        "dpkg": tmp_path / "dpkg" / "lock",
+    }
     return opts, locks
 
 
@@ -61,8 +70,9 @@ def hold():
     procs = []
 
     def start(seconds: float, *paths: Path) -> subprocess.Popen:
-        p = subprocess.Popen([sys.executable, "-c", HOLDER, str(seconds), *map(str, paths)],
-                             stdout=subprocess.PIPE, text=True)
+        p = subprocess.Popen(
+            [sys.executable, "-c", HOLDER, str(seconds), *map(str, paths)], stdout=subprocess.PIPE, text=True
+        )
         procs.append(p)
         assert p.stdout.readline().strip() == "locked"
         return p
@@ -90,8 +100,11 @@ def test_nothing_held_installs_at_once(apt_state):
     assert p.stderr.splitlines() == [f"ensure-debs: installing {PACKAGE}", f"ensure-debs: installed {PACKAGE}"]
 
 
-@pytest.mark.parametrize("held", [("lists",), ("frontend", "dpkg"), ("dpkg",)],
-                         ids=["apt-get update running", "apt-get install running", "dpkg alone running"])
+@pytest.mark.parametrize(
+    "held",
+    [("lists",), ("frontend", "dpkg"), ("dpkg",)],
+    ids=["apt-get update running", "apt-get install running", "dpkg alone running"],
+)
 def test_another_apt_or_dpkg_is_waited_for_then_the_install_goes_on(apt_state, hold, held):
     opts, locks = apt_state
     holder = hold(3.0, *(locks[k] for k in held))
@@ -99,11 +112,13 @@ def test_another_apt_or_dpkg_is_waited_for_then_the_install_goes_on(apt_state, h
     assert p.returncode == 0, p.stderr
     lines = p.stderr.splitlines()
     assert lines[0] == f"ensure-debs: installing {PACKAGE}"
-    assert lines[1] == (f"ensure-debs: another apt or dpkg is running (Could not get lock {locks[held[0]]}. "
-                        f"It is held by process {holder.pid} ({name(holder)})): waiting up to 60 s for it to finish")
+    assert lines[1] == (
+        f"ensure-debs: another apt or dpkg is running (Could not get lock {locks[held[0]]}. "
+        f"It is held by process {holder.pid} ({name(holder)})): waiting up to 60 s for it to finish"
+    )
     assert lines[2].startswith("ensure-debs: the lock is free after ") and lines[2].endswith(" s; going on")
     assert lines[-1] == f"ensure-debs: installed {PACKAGE}"
-    assert took >= 2.0            # it waited for the holder (3 s from before it started)
+    assert took >= 2.0  # it waited for the holder (3 s from before it started)
     assert holder.poll() is not None
 
 
@@ -115,7 +130,8 @@ def test_a_lock_held_past_the_wait_gives_up_in_one_sentence(apt_state, hold):
     assert p.stderr.splitlines()[-1] == (
         f"ensure-debs: gave up after 3 s: another apt or dpkg still holds the lock (Could not get lock "
         f"{locks['frontend']}. It is held by process {holder.pid} ({name(holder)})); let it finish (or stop it), "
-        "then run make again (ENSURE_DEBS_WAIT=SECONDS waits longer)")
+        "then run make again (ENSURE_DEBS_WAIT=SECONDS waits longer)"
+    )
     assert "Traceback" not in p.stderr and 3 <= took < 30
     assert holder.poll() is None  # the holder was left alone
 

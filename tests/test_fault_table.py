@@ -42,7 +42,7 @@ def test_every_exit_code_is_documented():
     for cells in rows():
         codes = set(re.findall(r"\d+|–|-", cells[2]))
         assert codes, cells
-        assert codes <= allowed | {"1"}, cells   # 1 only for a sim that fails for an unforeseen reason
+        assert codes <= allowed | {"1"}, cells  # 1 only for a sim that fails for an unforeseen reason
 
 
 def _table_text() -> str:
@@ -53,8 +53,9 @@ def test_every_fault_the_simulated_camera_injects_has_a_row():
     from dataclasses import fields
 
     from vts_hw.sim_devices.faults import Faults
+
     text = _table_text()
-    settings = {"version", "stall_s", "torn_mode", "wrong_content_length_extra", "trickle_s"}   # they tune a fault
+    settings = {"version", "stall_s", "torn_mode", "wrong_content_length_extra", "trickle_s"}  # they tune a fault
     knobs = [f.name for f in fields(Faults) if f.name not in settings]
     assert len(knobs) >= 10
     missing = [k for k in knobs if f"`{k}`" not in text]
@@ -63,6 +64,7 @@ def test_every_fault_the_simulated_camera_injects_has_a_row():
 
 def test_every_fault_the_simulated_qatrack_injects_has_a_row():
     from vts_hw.sim_devices.qatrack_server import FAULTS
+
     text = _table_text()
     missing = [k for k in FAULTS if not re.search(rf"sim `[^`]*\b{re.escape(k)}\b", text)]
     assert not missing, f"docs/faults.md has no row for the QATrack+ fault(s) {missing}"
@@ -79,7 +81,7 @@ def test_every_test_the_threat_model_names_exists():
     for line in text.splitlines():
         m = ROW.match(line)
         if not m:
-            header = None            # a table ended
+            header = None  # a table ended
             continue
         if set(line) <= set("|-: "):
             continue
@@ -87,7 +89,7 @@ def test_every_test_the_threat_model_names_exists():
         if header is None:
             header = cells[0]
             continue
-        if header != "threat":       # (the roles' table)
+        if header != "threat":  # (the roles' table)
             continue
         assert len(cells) == 3, cells
         last = None

@@ -25,7 +25,7 @@ def test_disk_full_keeps_the_previous_file_and_leaves_no_tmp(small_disk):
     msg = str(err.value)
     assert str(p) in msg and "no space left on device" in msg and "previous version is unchanged" in msg
     assert p.read_bytes() == b"old contents\n"
-    assert disk.files() == {"cal.json": 13}          # no .tmp, no 0-byte file
+    assert disk.files() == {"cal.json": 13}  # no .tmp, no 0-byte file
 
 
 def test_disk_full_new_file_leaves_nothing(small_disk):
@@ -52,12 +52,12 @@ def test_ensure_dir_file_in_the_way(tmp_path):
 def test_a_folder_made_for_a_write_that_failed_is_not_left_empty(tmp_path):
     """Found by the sweep's console full disk class: the daily QA's artifacts folder made for a
     run on a full disk was left empty (`unsaved-T-cam1/`), a folder that looks like a result."""
-    made = tmp_path / "artifacts" / "unsaved-1-cam1"     # (its parent made for it too)
+    made = tmp_path / "artifacts" / "unsaved-1-cam1"  # (its parent made for it too)
     with pytest.raises(WriteFailed):
         with filled_folder(made, "artifacts folder"):
             raise WriteFailed(made / "cam1-led-on.jpg", "no space left on device")
     assert not (tmp_path / "artifacts").exists()
-    there = tmp_path / "run000001"                 # a folder that was there stays, and so does what was written
+    there = tmp_path / "run000001"  # a folder that was there stays, and so does what was written
     there.mkdir()
     with pytest.raises(OSError):
         with filled_folder(there):

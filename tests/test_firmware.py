@@ -7,6 +7,7 @@ host is (waits are in emulated cycles, assertions never on wall-clock time).
 Two boxes per module: one in real time (the serial tests) and one ten times faster than
 real time, for periods of seconds (0.1 Hz is 10 s a period).
 """
+
 from __future__ import annotations
 
 import os
@@ -14,9 +15,8 @@ import os
 import pytest
 import serial
 
-from vts_hw.sim_devices.trigger_box import F_CPU, SimTriggerBox
-
 from firmware_kit import ALIGN, JITTER, US, Link, check_whole_periods, falls, ppm_error, rises, run_wave
+from vts_hw.sim_devices.trigger_box import F_CPU, SimTriggerBox
 
 # The first test may build the firmware, and on a fresh machine install the AVR toolchain
 # and simavr from Debian first (make -C firmware): give it room.
@@ -48,7 +48,7 @@ def tb(box):
 def tb10(box10):
     link = Link(box10)
     link.reset()
-    link.ok("WDOG 0")   # periods of seconds, runs of up to 25 s without a command: the host watchdog off
+    link.ok("WDOG 0")  # periods of seconds, runs of up to 25 s without a command: the host watchdog off
     yield link
     link.close()
 
@@ -62,7 +62,7 @@ def test_identity_defaults_and_forms(tb):
     assert tb.ask("PULSE:WIDTH?") == "100"
     assert tb.ask("SYST:ERR?") == '0,"No error"'
     assert tb.ask("EDGES?").count(",") == 2
-    assert tb.ask("WDOG?") == "10.000000,IDLE,0"      # the host watchdog: on, 10 s
+    assert tb.ask("WDOG?") == "10.000000,IDLE,0"  # the host watchdog: on, 10 s
     # lines may end in \r\n; headers are case-insensitive; SCPI long forms
     tb.s.write(b"*idn?\r\n")
     assert tb.line() == "VTS,TRIGGERBOX,0000,1.1.0"
@@ -101,11 +101,14 @@ def test_frequency_exact_low(tb10, freq, seconds):
 
 # 16 MHz / f is not a whole number of cycles: the device makes the nearest whole number
 # (the best a 16 MHz clock can do) and reports the frequency it really makes
-@pytest.mark.parametrize("freq,seconds,bound_ppm,box_name", [
-    ("333", 1.0, 1.01, "tb"),       # 48048 cycles, fast PWM at clk/1: +1.0 ppm
-    ("7", 2.0, 0.13, "tb10"),       # 2285714 cycles in CTC laps: +0.125 ppm
-    ("0.13", 8.5, 0.01, "tb10"),    # 123076923 cycles in CTC laps: +0.0006 ppm
-])
+@pytest.mark.parametrize(
+    "freq,seconds,bound_ppm,box_name",
+    [
+        ("333", 1.0, 1.01, "tb"),  # 48048 cycles, fast PWM at clk/1: +1.0 ppm
+        ("7", 2.0, 0.13, "tb10"),  # 2285714 cycles in CTC laps: +0.125 ppm
+        ("0.13", 8.5, 0.01, "tb10"),  # 123076923 cycles in CTC laps: +0.0006 ppm
+    ],
+)
 def test_frequency_awkward(request, freq, seconds, bound_ppm, box_name):
     link = request.getfixturevalue(box_name)
     link.ok(f"FREQ {freq}")
@@ -116,19 +119,28 @@ def test_frequency_awkward(request, freq, seconds, bound_ppm, box_name):
     edges = run_wave(link, freq, "0.5", seconds)
     r = rises(edges)
     err = ppm_error(r, round(period))
-    print(f"{freq} Hz: makes {actual} Hz ({requested_ppm:+.3f} ppm from the request); "
-          f"measured vs reported {err:+.4f} ppm over {len(r)} periods")
+    print(
+        f"{freq} Hz: makes {actual} Hz ({requested_ppm:+.3f} ppm from the request); "
+        f"measured vs reported {err:+.4f} ppm over {len(r)} periods"
+    )
     assert abs(err) <= 1.0
 
 
 # ---------------------------------------------------------------------------- duty
-@pytest.mark.parametrize("freq,duty,box_name", [
-    ("1000", "0.01", "tb"), ("1000", "0.99", "tb"), ("10", "0.25", "tb"),
-    ("7", "0.01", "tb10"), ("0.5", "0.7", "tb10"), ("0.1", "0.01", "tb10"),
-])
+@pytest.mark.parametrize(
+    "freq,duty,box_name",
+    [
+        ("1000", "0.01", "tb"),
+        ("1000", "0.99", "tb"),
+        ("10", "0.25", "tb"),
+        ("7", "0.01", "tb10"),
+        ("0.5", "0.7", "tb10"),
+        ("0.1", "0.01", "tb10"),
+    ],
+)
 def test_duty(request, freq, duty, box_name):
     link = request.getfixturevalue(box_name)
-    seconds = max(0.5, 1.6 / float(freq))   # two rising edges at least (OUTP OFF ends the period)
+    seconds = max(0.5, 1.6 / float(freq))  # two rising edges at least (OUTP OFF ends the period)
     edges = run_wave(link, freq, duty, seconds)
     r, f = rises(edges), falls(edges)
     assert len(r) >= 2
@@ -141,11 +153,14 @@ def test_duty(request, freq, duty, box_name):
 
 
 # ---------------------------------------------------------------------------- *TRG
-@pytest.mark.parametrize("freq,duty,width,box_name", [
-    ("100", "0.5", 20, "tb"),        # fast PWM, clk/1
-    ("0.5", "0.1", 50, "tb10"),      # fast PWM, clk/1024
-    ("0.1", "0.01", 30, "tb10"),     # CTC laps
-])
+@pytest.mark.parametrize(
+    "freq,duty,width,box_name",
+    [
+        ("100", "0.5", 20, "tb"),  # fast PWM, clk/1
+        ("0.5", "0.1", 50, "tb10"),  # fast PWM, clk/1024
+        ("0.1", "0.01", 30, "tb10"),  # CTC laps
+    ],
+)
 def test_trg_aligns_wave_and_pulses(request, freq, duty, width, box_name):
     link = request.getfixturevalue(box_name)
     box = link.box
@@ -169,7 +184,7 @@ def test_trg_aligns_wave_and_pulses(request, freq, duty, width, box_name):
         print(f"{freq} Hz: {ch} rises {delta:+d} cycles from OC1A")
         assert abs(delta) <= ALIGN
         got = pulse[1].cycle - pulse[0].cycle
-        assert abs(got - width * 1000 * US) <= 20 * US, (ch, got)   # within 20 us
+        assert abs(got - width * 1000 * US) <= 20 * US, (ch, got)  # within 20 us
     check_whole_periods(wave, round(F_CPU / float(freq)), round(F_CPU / float(freq) * float(duty)))
     # EDGES? counts what the pin did, and times it to the microsecond
     n, first, last = map(int, link.ask("EDGES?").split(","))
@@ -187,14 +202,17 @@ def test_trg_refused_while_running(tb):
 
 
 # ---------------------------------------------------------------------------- OUTP OFF
-@pytest.mark.parametrize("freq,duty,delays,box_name", [
-    ("1000", "0.99", (0.2, 0.2003, 0.2007), "tb"),  # 160-cycle low phase
-    ("1000", "0.01", (0.2, 0.2005), "tb"),
-    ("50", "0.5", (0.21, 0.205), "tb"),
-    ("0.5", "0.5", (0.5, 1.5), "tb10"),             # clk/1024: stop decided on TCNT1
-    ("7", "0.9", (0.3, 0.4), "tb10"),               # CTC laps, short low phase
-    ("0.1", "0.3", (1.0, 5.0), "tb10"),             # CTC laps: OFF in high and low phase
-])
+@pytest.mark.parametrize(
+    "freq,duty,delays,box_name",
+    [
+        ("1000", "0.99", (0.2, 0.2003, 0.2007), "tb"),  # 160-cycle low phase
+        ("1000", "0.01", (0.2, 0.2005), "tb"),
+        ("50", "0.5", (0.21, 0.205), "tb"),
+        ("0.5", "0.5", (0.5, 1.5), "tb10"),  # clk/1024: stop decided on TCNT1
+        ("7", "0.9", (0.3, 0.4), "tb10"),  # CTC laps, short low phase
+        ("0.1", "0.3", (1.0, 5.0), "tb10"),  # CTC laps: OFF in high and low phase
+    ],
+)
 def test_outp_off_ends_on_a_whole_period(request, freq, duty, delays, box_name):
     link = request.getfixturevalue(box_name)
     box = link.box
@@ -215,10 +233,10 @@ def test_outp_on_while_finishing_keeps_running(tb10):
     tb10.ok("FREQ 0.5")
     tb10.ok("DUTY 0.9")
     tb10.ok("OUTP ON")
-    box.wait_cycles(F_CPU // 2)        # in the high phase
+    box.wait_cycles(F_CPU // 2)  # in the high phase
     tb10.ok("OUTP OFF")
-    assert tb10.ask("OUTP?") == "ON"   # still finishing its period
-    tb10.ok("OUTP ON")                 # changed our mind: keep going
+    assert tb10.ask("OUTP?") == "ON"  # still finishing its period
+    tb10.ok("OUTP ON")  # changed our mind: keep going
     box.wait_cycles(5 * F_CPU)
     assert tb10.ask("OUTP?") == "ON"
     tb10.ok("OUTP OFF")
@@ -233,7 +251,7 @@ def test_pulse_widths_and_refusals(tb):
     n0 = len(box.edges())
     tb.ok("PULSE 1 5")
     tb.ok("PULSE 2 250")
-    assert tb.ask("PULSE 2 10") == "ERR -221 Settings conflict"   # still closed
+    assert tb.ask("PULSE 2 10") == "ERR -221 Settings conflict"  # still closed
     box.wait_cycles(300 * 1000 * US)
     tb.ok("PULSE 2 1")
     box.wait_cycles(10 * 1000 * US)
@@ -246,9 +264,17 @@ def test_pulse_widths_and_refusals(tb):
         for g, w in zip(got, widths):
             print(f"{ch} {w} ms: {g - w * 1000:+.2f} us")
             assert abs(g - w * 1000) <= 5.0
-    for bad, code in (("PULSE 3 10", -222), ("PULSE 0 10", -222), ("PULSE 1 0", -222),
-                      ("PULSE 1 10001", -222), ("PULSE 1 1.5", -104), ("PULSE 1", -109),
-                      ("PULSE 1 2 3", -108), ("PULSE x 10", -104), ("PULSE 1,,2", -102)):
+    for bad, code in (
+        ("PULSE 3 10", -222),
+        ("PULSE 0 10", -222),
+        ("PULSE 1 0", -222),
+        ("PULSE 1 10001", -222),
+        ("PULSE 1 1.5", -104),
+        ("PULSE 1", -109),
+        ("PULSE 1 2 3", -108),
+        ("PULSE x 10", -104),
+        ("PULSE 1,,2", -102),
+    ):
         assert tb.ask(bad).startswith(f"ERR {code} "), bad
     tb.ask("*CLS")
 
@@ -268,7 +294,7 @@ BAD = [
     ("DUTY 0.005", "ERR -222 Data out of range"),
     ("OUTP MAYBE", "ERR -224 Illegal parameter value"),
     ("*IDN? x", "ERR -108 Parameter not allowed"),
-    ("FREQ 10", "ERR -221 Settings conflict"),    # valid, but not while the wave is on
+    ("FREQ 10", "ERR -221 Settings conflict"),  # valid, but not while the wave is on
     ("DUTY 0.5", "ERR -221 Settings conflict"),
     ("*TRG", "ERR -221 Settings conflict"),
 ]
@@ -295,7 +321,7 @@ def test_bad_and_garbled_input_change_nothing(tb):
     assert tb.ask("*IDN?") == "VTS,TRIGGERBOX,0000,1.1.0"
     # random junk with line ends in it: every non-blank line answers ERR, none executes
     junk = bytes(os.urandom(300)).replace(b"\n", b"\r")
-    junk = b"\n".join(junk[i:i + 30] for i in range(0, 300, 30))
+    junk = b"\n".join(junk[i : i + 30] for i in range(0, 300, 30))
     tb.s.write(junk + b"\n*IDN?\n")
     while True:
         r = tb.line()
@@ -367,7 +393,7 @@ def test_time_and_edges_past_32_bits():
         link = Link(box)
         t = int(link.ask("TIME?"))
         assert t > 2**32
-        assert abs(t - offset_us - box.cycles_now() / US) < 0.5e6   # same clock, give or take
+        assert abs(t - offset_us - box.cycles_now() / US) < 0.5e6  # same clock, give or take
         edges = run_wave(link, "1000", "0.5", 0.05)
         n, first, last = map(int, link.ask("EDGES?").split(","))
         r = rises(edges)
@@ -409,12 +435,11 @@ def test_rst_stops_on_a_whole_period_and_restores_defaults(tb):
     tb.wait_off()
     new = box.edges()[n0:]
     check_whole_periods([e for e in new if e.pin == "OC1A"], 800_000, 640_000)
-    for ch in ("CH1", "CH2"):   # *RST opens the contacts at once
+    for ch in ("CH1", "CH2"):  # *RST opens the contacts at once
         e = [x for x in new if x.pin == ch]
         assert [x.value for x in e] == [1, 0]
         assert e[1].cycle - e[0].cycle < 500 * 1000 * US
-    assert (tb.ask("FREQ?"), tb.ask("DUTY?"), tb.ask("PULSE:WIDTH?")) == (
-        "1.000000000", "0.500000", "100")
+    assert (tb.ask("FREQ?"), tb.ask("DUTY?"), tb.ask("PULSE:WIDTH?")) == ("1.000000000", "0.500000", "100")
 
 
 # ---------------------------------------------------------------------------- unplug
@@ -431,14 +456,14 @@ def test_unplug_and_replug():
         link = Link(box)
         assert port == link.s.port
         assert link.ask("*IDN?").startswith("VTS,TRIGGERBOX,")
-        assert link.ask("FREQ?") == "1.000000000"      # a fresh power-up ...
+        assert link.ask("FREQ?") == "1.000000000"  # a fresh power-up ...
         assert abs(int(link.ask("TIME?")) - box.cycles_now() / US) < 0.5e6  # ... and clock
         link.close()
 
 
 # ---------------------------------------------------------------------------- host watchdog
-TICK = 125 * US          # the tick that counts the host's silence
-ISR_LATE = 16 * US       # the cut is made within the tick's interrupt, well inside 16 us
+TICK = 125 * US  # the tick that counts the host's silence
+ISR_LATE = 16 * US  # the cut is made within the tick's interrupt, well inside 16 us
 
 
 def _heartbeat(box, u0, before, nth=-1):
@@ -463,16 +488,21 @@ def _check_cut(tb, n0, seconds, heartbeat):
     edges = box.edges("OC1A")[n0:]
     r, f = rises(edges), falls(edges)
     assert edges[0].value == 1 and edges[-1].value == 0 and len(r) == len(f)
-    assert f[-1] <= cut + ISR_LATE                      # nothing after the cut ...
+    assert f[-1] <= cut + ISR_LATE  # nothing after the cut ...
     period = round(F_CPU / float(tb.ask("FREQ?")))
-    assert r[-1] + period > cut - ISR_LATE              # ... and no rising edge missing before it
+    assert r[-1] + period > cut - ISR_LATE  # ... and no rising edge missing before it
     n, first, _ = map(int, tb.ask("EDGES?").split(","))
     assert n == len(r) and abs(first - r[0] / US) <= 1
     return cut
 
 
-@pytest.mark.parametrize("freq,duty", [("1", "0.99"),      # fast PWM clk/256, cut in a high phase
-                                       ("0.13", "0.5")])   # CTC laps, cut in a high phase
+@pytest.mark.parametrize(
+    "freq,duty",
+    [
+        ("1", "0.99"),  # fast PWM clk/256, cut in a high phase
+        ("0.13", "0.5"),
+    ],
+)  # CTC laps, cut in a high phase
 # (a cut wherever it falls, at 20 Hz: tests/test_trigger_box_watchdog.py)
 def test_watchdog_cuts_the_wave_when_the_host_falls_silent(tb, freq, duty):
     box = tb.box
@@ -480,23 +510,25 @@ def test_watchdog_cuts_the_wave_when_the_host_falls_silent(tb, freq, duty):
     tb.ok("WDOG 0.5")
     tb.ok(f"FREQ {freq}")
     tb.ok(f"DUTY {duty}")
-    tb.ok("OUTP ON")                                  # the last heartbeat
+    tb.ok("OUTP ON")  # the last heartbeat
     box.wait_cycles(int(0.6 * F_CPU))
     assert tb.ask("OUTP?") == "OFF"
     cut = _check_cut(tb, n0, 0.5, _heartbeat(box, u0, box.edges("OC1A")[-1].cycle))
     edges = box.edges("OC1A")[n0:]
-    if float(freq) < 10:                              # mid-period: the high phase cut short, at the cut
+    if float(freq) < 10:  # mid-period: the high phase cut short, at the cut
         assert [e.value for e in edges] == [1, 0] and abs(edges[1].cycle - cut) <= ISR_LATE
-    print(f"{freq} Hz: cut {(cut - _heartbeat(box, u0, cut)[0]) / US - 500_000:+.1f} us after T from the end of "
-          f"the last command line")
+    print(
+        f"{freq} Hz: cut {(cut - _heartbeat(box, u0, cut)[0]) / US - 500_000:+.1f} us after T from the end of "
+        f"the last command line"
+    )
     assert tb.ask("SYST:ERR?") == '-310,"Watchdog: host silent, output off"'
-    assert tb.ask("SYST:ERR?") == '0,"No error"'      # queued once
+    assert tb.ask("SYST:ERR?") == '0,"No error"'  # queued once
     assert len(box.edges("OC1A")) == n0 + len(edges), "edges after the cut"
-    assert tb.ask("WDOG?").split(",")[1] == "TRIPPED"   # kept until the next start ...
+    assert tb.ask("WDOG?").split(",")[1] == "TRIPPED"  # kept until the next start ...
     tb.ok("WDOG 0")
-    tb.ok("FREQ 1000")                                # (a short last period to finish)
+    tb.ok("FREQ 1000")  # (a short last period to finish)
     tb.ok("OUTP ON")
-    assert tb.ask("WDOG?") == "0.000000,OFF,0"        # ... which forgets it
+    assert tb.ask("WDOG?") == "0.000000,OFF,0"  # ... which forgets it
     tb.ok("OUTP OFF")
     tb.wait_off()
 
@@ -509,14 +541,14 @@ def test_watchdog_heartbeats_are_command_lines_only(tb):
     tb.ok("WDOG 0.3")
     tb.ok("FREQ 100")
     tb.ok("OUTP ON")
-    tb.s.write(b"FROB\n\n  \n\x01X\nOUTP\x7f?\n" * 2)      # each non-blank line: ERR, no heartbeat
+    tb.s.write(b"FROB\n\n  \n\x01X\nOUTP\x7f?\n" * 2)  # each non-blank line: ERR, no heartbeat
     assert [tb.line()[:8] for _ in range(6)] == ["ERR -113", "ERR -101", "ERR -101"] * 2
     box.wait_cycles(int(0.4 * F_CPU))
     assert tb.ask("OUTP?") == "OFF"
     ends = [u.cycle for u in box.uart()[u0:] if u.direction == "RX" and u.value == 0x0A]
-    cut = _check_cut(tb, n0, 0.3, _heartbeat(box, u0, ends[3]))   # OUTP ON's line (after WDOG, FREQ)
-    assert sum(ends[2] < c < cut for c in ends) == 10                # the junk came in between
-    assert tb.ask("SYST:ERR?").startswith("-113,")     # the junk's errors, then the cut's
+    cut = _check_cut(tb, n0, 0.3, _heartbeat(box, u0, ends[3]))  # OUTP ON's line (after WDOG, FREQ)
+    assert sum(ends[2] < c < cut for c in ends) == 10  # the junk came in between
+    assert tb.ask("SYST:ERR?").startswith("-113,")  # the junk's errors, then the cut's
     while (r := tb.ask("SYST:ERR?")) != '0,"No error"':
         last = r
     assert last == '-310,"Watchdog: host silent, output off"'
@@ -530,15 +562,22 @@ def test_watchdog_settings_and_silence_while_off(tb):
     assert tb.ask("WATCHDOG?") == "2.500000,IDLE,0"
     tb.ok("WDOG 0")
     assert tb.ask("WDOG?") == "0.000000,OFF,0"
-    for bad, code in (("WDOG 0.05", -222), ("WDOG 3600.001", -222), ("WDOG -1", -222), ("WDOG x", -104),
-                      ("WDOG", -109), ("WDOG 1 2", -108), ("WDOG? 1", -108)):
+    for bad, code in (
+        ("WDOG 0.05", -222),
+        ("WDOG 3600.001", -222),
+        ("WDOG -1", -222),
+        ("WDOG x", -104),
+        ("WDOG", -109),
+        ("WDOG 1 2", -108),
+        ("WDOG? 1", -108),
+    ):
         assert tb.ask(bad).startswith(f"ERR {code} "), bad
-    assert tb.ask("WDOG?") == "0.000000,OFF,0"        # refusals change nothing
+    assert tb.ask("WDOG?") == "0.000000,OFF,0"  # refusals change nothing
     tb.ok("*CLS")
     tb.ok("WDOG 0.1")
-    box.wait_cycles(int(0.3 * F_CPU))                  # silent for 3 T with the output off
-    assert tb.ask("WDOG?") == "0.100000,IDLE,0"        # nothing to cut, nothing queued
+    box.wait_cycles(int(0.3 * F_CPU))  # silent for 3 T with the output off
+    assert tb.ask("WDOG?") == "0.100000,IDLE,0"  # nothing to cut, nothing queued
     assert tb.ask("SYST:ERR?") == '0,"No error"'
     assert len(box.edges("OC1A")) == n0 and tb.ask("OUTP?") == "OFF"
     tb.ok("*RST")
-    assert tb.ask("WDOG?") == "10.000000,IDLE,0"       # *RST: the default again
+    assert tb.ask("WDOG?") == "10.000000,IDLE,0"  # *RST: the default again

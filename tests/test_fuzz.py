@@ -12,18 +12,41 @@ from pathlib import Path
 import pytest
 
 FUZZ = Path(__file__).resolve().parents[1] / "bench" / "fuzz.py"
-TARGETS = ["mjpeg", "axis_jpeg", "recording_index", "manifest", "listmode", "interfile", "dicom",
-           "npz", "calibration", "camera_calibration", "mapping", "rig_yaml",
-           # the devices' replies, and the files a user may hand back
-           "axis_vapix", "qatrack", "trigger_box", "function_generator", "trigger_log", "spect_points",
-           "tracks", "step_positions", "unsaved", "listmode_failures"]
+TARGETS = [
+    "mjpeg",
+    "axis_jpeg",
+    "recording_index",
+    "manifest",
+    "listmode",
+    "interfile",
+    "dicom",
+    "npz",
+    "calibration",
+    "camera_calibration",
+    "mapping",
+    "rig_yaml",
+    # the devices' replies, and the files a user may hand back
+    "axis_vapix",
+    "qatrack",
+    "trigger_box",
+    "function_generator",
+    "trigger_log",
+    "spect_points",
+    "tracks",
+    "step_positions",
+    "unsaved",
+    "listmode_failures",
+]
 ROW = re.compile(r"^(\w+)\s+(\d+)\s+(\d+)\s+(\d+)\s+(\d+)\s+([\d.]+)$", re.M)
 
 
 def fuzz(tmp_path, *args, timeout=900):
-    p = subprocess.run([sys.executable, str(FUZZ), "--work", str(tmp_path / "work"),
-                        "--crashes", str(tmp_path / "crashes"), *args],
-                       capture_output=True, text=True, timeout=timeout)
+    p = subprocess.run(
+        [sys.executable, str(FUZZ), "--work", str(tmp_path / "work"), "--crashes", str(tmp_path / "crashes"), *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
     rows = {m[0]: tuple(int(x) for x in m[1:5]) for m in ROW.findall(p.stdout) if m[0] != "total"}
     return p, rows
 
@@ -43,8 +66,9 @@ def test_every_parser_survives_2000_fuzzed_inputs_with_typed_errors_only(tmp_pat
 
 @pytest.mark.timeout(300)
 def test_the_hypothesis_fallback_runs_the_same_targets(tmp_path, axis_frames):
-    p, rows = fuzz(tmp_path, "--engine", "hypothesis", "--runs", "300", "--only", "manifest,rig_yaml",
-                   "--frames", str(axis_frames))
+    p, rows = fuzz(
+        tmp_path, "--engine", "hypothesis", "--runs", "300", "--only", "manifest,rig_yaml", "--frames", str(axis_frames)
+    )
     assert "engine hypothesis" in p.stdout
     assert sorted(rows) == ["manifest", "rig_yaml"], p.stdout + p.stderr
     for inputs, typed, sites, crashes in rows.values():

@@ -49,7 +49,7 @@ REPO = Path(__file__).resolve().parents[1]
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 
 # run inside the installed venv: import every module of the installed package
-IMPORT_ALL = r'''
+IMPORT_ALL = r"""
 import importlib, json, pkgutil, sys, traceback
 import vts_hw
 out = {"file": vts_hw.__file__, "modules": ["vts_hw"], "errors": {}}
@@ -64,10 +64,10 @@ for m in pkgutil.walk_packages(vts_hw.__path__, "vts_hw.", onerror=failed):
     except Exception:
         failed(m.name)
 json.dump(out, sys.stdout)
-'''
+"""
 
 # run inside the installed venv: `--help` of every command, through vts's own main()
-HELP_ALL = r'''
+HELP_ALL = r"""
 import contextlib, io, json, sys
 import click
 from vts_hw.cli import cli, main
@@ -92,12 +92,11 @@ def walk(cmd, path):
             walk(cmd.get_command(ctx, name), [*path, name])
 walk(cli, [])
 json.dump(out, sys.stdout)
-'''
+"""
 
 
 def run(argv, *, env, cwd, timeout=300) -> subprocess.CompletedProcess:
-    return subprocess.run([str(a) for a in argv], env=env, cwd=cwd, capture_output=True, text=True,
-                          timeout=timeout)
+    return subprocess.run([str(a) for a in argv], env=env, cwd=cwd, capture_output=True, text=True, timeout=timeout)
 
 
 def ok(p: subprocess.CompletedProcess, codes=(0,)) -> subprocess.CompletedProcess:
@@ -109,8 +108,11 @@ def ok(p: subprocess.CompletedProcess, codes=(0,)) -> subprocess.CompletedProces
 def clean_env(venv: Path | None = None) -> dict[str, str]:
     """No PYTHONPATH, no venv, no pip config (no find-links to fetch a missing requirement from),
     no VTS_* setting; the venv's bin/ first on PATH."""
-    env = {k: v for k, v in os.environ.items()
-           if k not in ("PYTHONPATH", "PYTHONHOME", "VIRTUAL_ENV") and not k.startswith(("PIP_", "VTS_"))}
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("PYTHONPATH", "PYTHONHOME", "VIRTUAL_ENV") and not k.startswith(("PIP_", "VTS_"))
+    }
     env["PIP_CONFIG_FILE"] = os.devnull
     if venv is not None:
         env["PATH"] = f"{venv / 'bin'}{os.pathsep}{env.get('PATH', '')}"
@@ -121,15 +123,28 @@ def source_copy(dest: Path) -> Path:
     """What a clone of the checkout holds (tracked files and new ones not ignored), copied, so
     the build writes nothing into the checkout."""
     try:
-        names = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
-                               cwd=REPO, capture_output=True, check=True).stdout.decode().split("\0")
-    except (OSError, subprocess.CalledProcessError):       # not a git checkout: all but the build output
-        shutil.copytree(REPO, dest, ignore=shutil.ignore_patterns(
-            ".git", ".venv", "build", "dist", "*.egg-info", "__pycache__", ".pytest_cache", ".hypothesis"))
+        names = (
+            subprocess.run(
+                ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+                cwd=REPO,
+                capture_output=True,
+                check=True,
+            )
+            .stdout.decode()
+            .split("\0")
+        )
+    except (OSError, subprocess.CalledProcessError):  # not a git checkout: all but the build output
+        shutil.copytree(
+            REPO,
+            dest,
+            ignore=shutil.ignore_patterns(
+                ".git", ".venv", "build", "dist", "*.egg-info", "__pycache__", ".pytest_cache", ".hypothesis"
+            ),
+        )
         return dest
     for name in filter(None, names):
         src = REPO / name
-        if src.is_file():                                   # (a tracked file deleted in the work tree: not there)
+        if src.is_file():  # (a tracked file deleted in the work tree: not there)
             (dest / name).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(src, dest / name)
     return dest
@@ -183,8 +198,14 @@ def empty_venv(path: Path, requires: list[str]) -> tuple[Path, Path]:
     """A venv without pip, its site-packages holding links to the closure of ``requires`` only."""
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(path)], check=True)
     python = path / "bin" / "python"
-    site = Path(subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_path('purelib'))"],
-                               capture_output=True, text=True, check=True).stdout.strip())
+    site = Path(
+        subprocess.run(
+            [str(python), "-c", "import sysconfig; print(sysconfig.get_path('purelib'))"],
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+    )
     for dist in requirement_closure(requires):
         root = Path(dist.locate_file(""))
         tops = {PurePath(f).parts[0] for f in dist.files or ()} - {"..", "__pycache__"}
@@ -197,13 +218,34 @@ def empty_venv(path: Path, requires: list[str]) -> tuple[Path, Path]:
 
 def pip_install(python: Path, what: Path, *extra: str) -> None:
     """The current venv's pip installing into ``python``'s venv: no index, nothing but ``what``."""
-    ok(run([sys.executable, "-m", "pip", "--python", python, "install", "--no-index", "--no-cache-dir",
-            "--disable-pip-version-check", "--quiet", *extra, what], env=clean_env(), cwd=what.parent))
+    ok(
+        run(
+            [
+                sys.executable,
+                "-m",
+                "pip",
+                "--python",
+                python,
+                "install",
+                "--no-index",
+                "--no-cache-dir",
+                "--disable-pip-version-check",
+                "--quiet",
+                *extra,
+                what,
+            ],
+            env=clean_env(),
+            cwd=what.parent,
+        )
+    )
 
 
 def installed_files(site: Path) -> set[str]:
-    return {f.relative_to(site).as_posix() for f in (site / "vts_hw").rglob("*")
-            if f.is_file() and "__pycache__" not in f.parts}
+    return {
+        f.relative_to(site).as_posix()
+        for f in (site / "vts_hw").rglob("*")
+        if f.is_file() and "__pycache__" not in f.parts
+    }
 
 
 @pytest.fixture(scope="module")
@@ -238,10 +280,15 @@ def from_wheel(built, requires, tmp_path_factory):
 def test_the_wheel_installs_and_imports_every_module_and_data_file(built, from_wheel):
     venv, site, env, work = from_wheel
     modules, data = expected_files(built[0])
-    assert {"vts_hw.tracking.live", "vts_hw.motion", "vts_hw.qatrack", "vts_hw.drivers",
-            "vts_hw.sim_devices.scenarios"} <= modules                   # the walk of the source is whole
+    assert {
+        "vts_hw.tracking.live",
+        "vts_hw.motion",
+        "vts_hw.qatrack",
+        "vts_hw.drivers",
+        "vts_hw.sim_devices.scenarios",
+    } <= modules  # the walk of the source is whole
     out = json.loads(ok(run([venv / "bin" / "python", "-c", IMPORT_ALL], env=env, cwd=work)).stdout)
-    assert Path(out["file"]).is_relative_to(site), out["file"]          # the install, not the checkout
+    assert Path(out["file"]).is_relative_to(site), out["file"]  # the install, not the checkout
     missing = sorted(modules - set(out["modules"]))
     assert not missing, f"{len(missing)} module(s) missing from the installed package: {', '.join(missing)}"
     assert sorted(set(out["modules"]) - modules) == []
@@ -256,11 +303,14 @@ def test_the_wheel_installs_and_imports_every_module_and_data_file(built, from_w
 
 def test_every_command_shows_its_help_from_the_wheel(from_wheel):
     venv, _, env, work = from_wheel
-    p = ok(run([venv / "bin" / "vts", "--help"], env=env, cwd=work))      # the installed entry point
+    p = ok(run([venv / "bin" / "vts", "--help"], env=env, cwd=work))  # the installed entry point
     assert p.stdout.startswith("Usage: vts") and "scan" in p.stdout and "motion" in p.stdout
     rows = json.loads(ok(run([venv / "bin" / "python", "-c", HELP_ALL], env=env, cwd=work)).stdout)
-    bad = [(r["command"], r["exit"], r["text"][-500:]) for r in rows
-           if r["exit"] != 0 or not r["text"].startswith(f"Usage: {r['command']}")]
+    bad = [
+        (r["command"], r["exit"], r["text"][-500:])
+        for r in rows
+        if r["exit"] != 0 or not r["text"].startswith(f"Usage: {r['command']}")
+    ]
     assert bad == []
     names = {r["command"] for r in rows}
     assert {"vts scan start", "vts motion analyze", "vts qa push", "vts sim up"} <= names
@@ -271,30 +321,73 @@ def test_a_simulated_scan_with_live_tracking_motion_analysis_and_qa_push_from_th
     venv, _, env, work = from_wheel
     vts = venv / "bin" / "vts"
     sim = work / "sim"
-    ok(run([vts, "sim", "up", "--detach", "--dir", sim, "--trigger", "visa", "--patient", "--patient-moves", "0",
-            "--patient-minutes", "1", "--seed", "3"], env=env, cwd=work))
+    ok(
+        run(
+            [
+                vts,
+                "sim",
+                "up",
+                "--detach",
+                "--dir",
+                sim,
+                "--trigger",
+                "visa",
+                "--patient",
+                "--patient-moves",
+                "0",
+                "--patient-minutes",
+                "1",
+                "--seed",
+                "3",
+            ],
+            env=env,
+            cwd=work,
+        )
+    )
     rig = yaml.safe_load((sim / "rig.yaml").read_text())
     for cam in rig["cameras"]:
-        cam["fps"] = 10                 # a lighter load on a busy machine; the same code runs
+        cam["fps"] = 10  # a lighter load on a busy machine; the same code runs
     (sim / "rig.yaml").write_text(yaml.safe_dump(rig))
     try:
         rig_env = {**env, **load_env_file(sim / "sim.env"), "VTS_CONFIG": str(sim / "rig.yaml")}
-        p = ok(run([vts, "scan", "start", "--duration", "10", "--reference", "2", "-o", work / "scan"],
-                   env=rig_env, cwd=work), codes=(0, 4))
+        p = ok(
+            run(
+                [vts, "scan", "start", "--duration", "10", "--reference", "2", "-o", work / "scan"],
+                env=rig_env,
+                cwd=work,
+            ),
+            codes=(0, 4),
+        )
     finally:
         ok(run([vts, "sim", "down", "--dir", sim], env=env, cwd=work))
     manifest = json.loads((work / "scan" / "manifest.json").read_text())
-    if p.returncode == 4:   # partial only as a busy machine makes it: the simulated camera skipped frames
+    if p.returncode == 4:  # partial only as a busy machine makes it: the simulated camera skipped frames
         assert manifest["status"] == "partial" and manifest["trigger"]["fired"], p.stderr
         assert {g["reason"] for c in manifest["cameras"].values() for g in c["gaps"]} == {"camera skipped frames"}
     else:
         assert manifest["status"] == "complete"
     assert all(c["frames"] >= 50 for c in manifest["cameras"].values()), manifest["cameras"]
-    live = manifest["live_motion"]      # the live tracking ran (on a busy machine it may still be learning)
+    live = manifest["live_motion"]  # the live tracking ran (on a busy machine it may still be learning)
     assert live["status"] == "on" and live["summary"]["sets"] >= 20 and live["summary"]["undecodable"] == 0
 
-    p = ok(run([vts, "motion", "analyze", work / "scan", "-o", work / "motion.html", "--export", work / "export",
-                "--json"], env=rig_env, cwd=work), codes=(0, 10, 20))
+    p = ok(
+        run(
+            [
+                vts,
+                "motion",
+                "analyze",
+                work / "scan",
+                "-o",
+                work / "motion.html",
+                "--export",
+                work / "export",
+                "--json",
+            ],
+            env=rig_env,
+            cwd=work,
+        ),
+        codes=(0, 10, 20),
+    )
     motion = json.loads(p.stdout)
     assert motion["procedure"] == "motion" and motion["summary"]["motion_pose_coverage"] > 0.5
     assert (work / "motion.html").stat().st_size > 10_000
@@ -303,15 +396,25 @@ def test_a_simulated_scan_with_live_tracking_motion_analysis_and_qa_push_from_th
     assert not (work / "export" / "castor_motion.dyn").exists()
     assert any(n.startswith("CASToR files not written") for n in motion["export_notes"]), motion.get("export_notes")
 
-    rig["qatrack"] = {"url": "http://127.0.0.1:9/", "unit": "SPECT 1", "time_zone": "Europe/Berlin",
-                      "token_env": "QATRACK_TOKEN",
-                      "report": "none", "plots": False,
-                      "lists": {"motion": {"test_list": "VTS motion", "ignore": ["tracking/*"],
-                                           "macros": {"body/motion_body_max_mm": "body_mm",
-                                                      "body/motion_body_max_deg": "body_deg"}}}}
+    rig["qatrack"] = {
+        "url": "http://127.0.0.1:9/",
+        "unit": "SPECT 1",
+        "time_zone": "Europe/Berlin",
+        "token_env": "QATRACK_TOKEN",
+        "report": "none",
+        "plots": False,
+        "lists": {
+            "motion": {
+                "test_list": "VTS motion",
+                "ignore": ["tracking/*"],
+                "macros": {"body/motion_body_max_mm": "body_mm", "body/motion_body_max_deg": "body_deg"},
+            }
+        },
+    }
     (work / "rig-qatrack.yaml").write_text(yaml.safe_dump(rig))
-    p = ok(run([vts, "qa", "push", "--dry-run", "--json", "--config", work / "rig-qatrack.yaml"],
-               env=rig_env, cwd=work))
+    p = ok(
+        run([vts, "qa", "push", "--dry-run", "--json", "--config", work / "rig-qatrack.yaml"], env=rig_env, cwd=work)
+    )
     (planned,) = json.loads(p.stdout)["runs"]
     assert planned["procedure"] == "motion" and "error" not in planned
     assert planned["values"]["body_mm"] == pytest.approx(motion["summary"]["motion_body_max_mm"])
@@ -320,7 +423,7 @@ def test_a_simulated_scan_with_live_tracking_motion_analysis_and_qa_push_from_th
 def test_the_sdist_installs_the_same_files_as_the_wheel(built, requires, from_wheel, tmp_path):
     src, sdist, _ = built
     build_requires = tomllib.loads((src / "pyproject.toml").read_text())["build-system"]["requires"]
-    python, site = empty_venv(tmp_path / "venv", requires + build_requires)   # pip builds it here
+    python, site = empty_venv(tmp_path / "venv", requires + build_requires)  # pip builds it here
     pip_install(python, sdist, "--no-build-isolation")
     assert installed_files(site) == installed_files(from_wheel[1])
     assert len(installed_files(site)) >= 200

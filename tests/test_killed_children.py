@@ -53,7 +53,7 @@ def _children(pid: int, name: str, arg: str = "") -> list[int]:
             argv = (d / "cmdline").read_bytes().split(b"\0")
         except OSError:
             continue
-        comm, rest = stat[stat.index("(") + 1:stat.rindex(")")], stat[stat.rindex(")") + 2:].split()
+        comm, rest = stat[stat.index("(") + 1 : stat.rindex(")")], stat[stat.rindex(")") + 2 :].split()
         if comm == name and int(rest[1]) == pid and (not arg or arg.encode() in argv):
             out.append(int(d.name))
     return out
@@ -69,11 +69,13 @@ def _gone_or_kill(pid: int) -> bool:
 
 
 def test_a_child_started_with_child_options_dies_with_its_command_killed_by_kill_9():
-    code = ("import subprocess, sys\n"
-            "from vts_hw.lifeline import child_options\n"
-            "p = subprocess.Popen(['sleep', '600'], **child_options())\n"
-            "print(p.pid, flush=True)\n"
-            "p.wait()\n")
+    code = (
+        "import subprocess, sys\n"
+        "from vts_hw.lifeline import child_options\n"
+        "p = subprocess.Popen(['sleep', '600'], **child_options())\n"
+        "print(p.pid, flush=True)\n"
+        "p.wait()\n"
+    )
     cmd = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
     child = int(cmd.stdout.readline())
     os.kill(child, signal.SIGSTOP)
@@ -96,18 +98,22 @@ def test_kill_9_of_trigger_flash_takes_its_avrdude_and_frees_the_port(hex_file):
     and the port can be opened and locked again."""
     master, slave = os.openpty()
     port = os.ttyname(slave)
-    p = subprocess.Popen([*VTS, "trigger", "flash", "--port", port, "--hex", str(hex_file), "--attempts", "10"],
-                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL)
+    p = subprocess.Popen(
+        [*VTS, "trigger", "flash", "--port", port, "--hex", str(hex_file), "--attempts", "10"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        stdin=subprocess.DEVNULL,
+    )
     try:
         found = _until(lambda: _children(p.pid, "avrdude", "-U") or p.poll() is not None)
-        avr = _children(p.pid, "avrdude", "-U")     # the upload (not `avrdude -?`, asked for its version)
+        avr = _children(p.pid, "avrdude", "-U")  # the upload (not `avrdude -?`, asked for its version)
         assert avr, f"no avrdude started (exit {p.poll()}): {p.stderr.read().decode()[-1000:] if p.poll() else ''}"
         assert found
         os.kill(avr[0], signal.SIGSTOP)
         p.kill()
         p.wait(timeout=30)
         assert _gone_or_kill(avr[0]), "avrdude outlived `vts trigger flash` killed with SIGKILL"
-        fd = check_port(port)            # opened and flock'ed as pyserial's exclusive mode does
+        fd = check_port(port)  # opened and flock'ed as pyserial's exclusive mode does
         os.close(fd)
     finally:
         if p.poll() is None:
@@ -137,9 +143,13 @@ def _starts_without_child_options():
                     for node in ast.walk(fn):
                         funcs.setdefault(id(node), fn.name)
             for node in ast.walk(tree):
-                if not (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
-                        and node.func.attr in STARTS and isinstance(node.func.value, ast.Name)
-                        and node.func.value.id == "subprocess"):
+                if not (
+                    isinstance(node, ast.Call)
+                    and isinstance(node.func, ast.Attribute)
+                    and node.func.attr in STARTS
+                    and isinstance(node.func.value, ast.Name)
+                    and node.func.value.id == "subprocess"
+                ):
                     continue
                 rel = str(path.relative_to(ROOT))
                 if (rel, funcs.get(id(node))) in MEANT_TO_OUTLIVE:
@@ -158,8 +168,9 @@ def test_every_program_the_product_starts_dies_with_its_command():
 
 def test_the_check_sees_a_start_without_child_options(tmp_path, monkeypatch):
     (tmp_path / "vts_hw").mkdir()
-    (tmp_path / "vts_hw" / "x.py").write_text("import subprocess\nsubprocess.run(['true'])\n"
-                                             "subprocess.run(['true'], **child_options())\n")
+    (tmp_path / "vts_hw" / "x.py").write_text(
+        "import subprocess\nsubprocess.run(['true'])\nsubprocess.run(['true'], **child_options())\n"
+    )
     monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
     assert _starts_without_child_options() == ["vts_hw/x.py:2"]
 

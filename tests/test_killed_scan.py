@@ -25,9 +25,12 @@ import numpy as np
 import pytest
 import requests
 
+from console_live import start_console
+from inprocess_cli import vts as vts_here
 from vts_hw.config import load_rig
 from vts_hw.drivers.trigger_box import TriggerBox
 from vts_hw.errors import DataError, UsageError
+from vts_hw.procedures.sync_inputs import load_calibration
 from vts_hw.recording.folder import load_manifest, read_index
 from vts_hw.recording.reindex import reindex
 from vts_hw.recording.writer import Recording, RecordingExists
@@ -36,10 +39,6 @@ from vts_hw.sim_devices.spect_follower import SpectFollower
 from vts_hw.sim_devices.spect_listmode import ListModeTruth
 from vts_hw.sim_devices.trigger_box import F_CPU
 from vts_hw.tracking.processing import process_recording
-from vts_hw.procedures.sync_inputs import load_calibration
-
-from console_live import start_console
-from inprocess_cli import vts as vts_here
 
 VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
 HANG_S = 300.0
@@ -80,14 +79,19 @@ def _recorded(folder, n: int) -> bool:
     try:
         counts = [len(read_index(folder / f"{c}.index.csv")) for c in ("cam1", "cam2")]
         fired = _manifest(folder)["trigger"].get("fired")
-    except (OSError, ValueError, KeyError, DataError):   # not there yet, or being written
+    except (OSError, ValueError, KeyError, DataError):  # not there yet, or being written
         return False
     return min(counts) >= n and bool(fired)
 
 
 def _scan(env, folder, seconds=60):
-    return subprocess.Popen([*VTS, "scan", "start", "--duration", str(seconds), "--no-live", "-o", str(folder)],
-                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    return subprocess.Popen(
+        [*VTS, "scan", "start", "--duration", str(seconds), "--no-live", "-o", str(folder)],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
 
 
 def _signalled(p: subprocess.Popen, sig: int, ready, what: str) -> str:
@@ -123,12 +127,14 @@ def test_kill_9_of_a_scan_is_read_as_interrupted_by_every_reader(box_rig, tmp_pa
         p.kill()
         p.wait()
     raw = _manifest(folder)
-    assert raw["status"] == "recording" and raw["writer"]["pid"] == p.pid   # on disk: as the kill left it
+    assert raw["status"] == "recording" and raw["writer"]["pid"] == p.pid  # on disk: as the kill left it
 
-    m = load_manifest(folder)                       # every reader reads through it
+    m = load_manifest(folder)  # every reader reads through it
     assert m["status"] == "interrupted"
-    assert m["unfinished"] == (f"its recording was interrupted: vts (pid {p.pid}), which wrote it on this computer, "
-                               f"ended without closing it (killed, or the computer stopped)")
+    assert m["unfinished"] == (
+        f"its recording was interrupted: vts (pid {p.pid}), which wrote it on this computer, "
+        f"ended without closing it (killed, or the computer stopped)"
+    )
 
     code, out, err = vts_here(capsys, "recording", "info", folder)
     assert code == 3, (out, err)
@@ -151,8 +157,11 @@ def test_kill_9_of_a_scan_is_read_as_interrupted_by_every_reader(box_rig, tmp_pa
         rows = read_index(folder / f"{name}.index.csv")
         assert after["cameras"][name]["frames"] == len(rows) >= 40 and all(r.camera_time is not None for r in rows)
         data = (folder / f"{name}.mjpeg").read_bytes()
-        assert all(cv2.imdecode(np.frombuffer(data[r.offset:r.offset + r.length], np.uint8), cv2.IMREAD_GRAYSCALE)
-                   is not None for r in rows), f"{name}: an indexed frame does not decode"
+        assert all(
+            cv2.imdecode(np.frombuffer(data[r.offset : r.offset + r.length], np.uint8), cv2.IMREAD_GRAYSCALE)
+            is not None
+            for r in rows
+        ), f"{name}: an indexed frame does not decode"
         # the bytes after the last indexed frame, if any, are one torn frame at most
         assert len(data) == rows[-1].offset + rows[-1].length or after["cameras"][name]["torn_at_end"] == 1
     code, out, err = vts_here(capsys, "recording", "info", folder)
@@ -183,10 +192,11 @@ def test_a_recording_written_elsewhere_or_by_an_older_vts_is_never_read_as_finis
     path = tmp_path / "rec" / "manifest.json"
     data = json.loads(path.read_text())
     data["status"] = "recording"
-    for writer, words in (({**data["writer"], "host": "scanner-2\x1b[2J"}, "written on scanner-2[2J, which cannot be "
-                                                                         "asked from here"),
-                          (None, "names no writer to ask whether it still runs"),
-                          ({**data["writer"], "pid": 2 ** 22 + 1}, "ended without closing it")):
+    for writer, words in (
+        ({**data["writer"], "host": "scanner-2\x1b[2J"}, "written on scanner-2[2J, which cannot be asked from here"),
+        (None, "names no writer to ask whether it still runs"),
+        ({**data["writer"], "pid": 2**22 + 1}, "ended without closing it"),
+    ):
         data.pop("writer", None)
         if writer is not None:
             data["writer"] = writer
@@ -230,15 +240,21 @@ def test_sigterm_of_any_command_is_ctrl_c_a_recording_closed_as_interrupted(box_
     rig, cfg, env, _ = box_rig
     folder = tmp_path / "rec"
     rig.prerender(8.0)
-    p = subprocess.Popen([*VTS, "camera", "record", "--all", "--seconds", "60", "-o", str(folder)], env=env,
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    p = subprocess.Popen(
+        [*VTS, "camera", "record", "--all", "--seconds", "60", "-o", str(folder)],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     indexed = [folder / f"{n}.index.csv" for n in ("cam1", "cam2")]
-    err = _signalled(p, signal.SIGTERM, lambda: all(i.exists() and len(read_index(i)) >= 10 for i in indexed),
-                     "10 frames recorded")
+    err = _signalled(
+        p, signal.SIGTERM, lambda: all(i.exists() and len(read_index(i)) >= 10 for i in indexed), "10 frames recorded"
+    )
     assert p.returncode == 130 and "Traceback" not in err, err[-2000:]
     assert err.strip().splitlines()[-1] == f"vts: interrupted; what was recorded is kept in {folder}", err
     m = load_manifest(folder)
-    assert m["status"] == "interrupted" and "unfinished" not in m      # closed by its writer, not judged dead
+    assert m["status"] == "interrupted" and "unfinished" not in m  # closed by its writer, not judged dead
     assert m["finished"] is not None
 
 
@@ -253,8 +269,12 @@ def test_the_console_stopped_during_a_scan_closes_it_with_the_wave_off(box_rig, 
     try:
         page = requests.get(url + "scan", timeout=30).text
         token = re.search(r'id="scan"[^>]*data-token="([^"]+)"', page)
-        r = requests.post(url + "scan/start", json={"reference_s": 2}, timeout=30,
-                          headers={"X-Console-Token": token.group(1), "Origin": url.rstrip("/")})
+        r = requests.post(
+            url + "scan/start",
+            json={"reference_s": 2},
+            timeout=30,
+            headers={"X-Console-Token": token.group(1), "Origin": url.rstrip("/")},
+        )
         assert r.status_code == 200, r.text
         folder = _until(lambda: next(scans.glob("scan-*"), None), "the scan's folder")
         _until(lambda: _recorded(folder, 25) or p.poll() is not None, "25 frames recorded")
@@ -283,11 +303,11 @@ def test_the_simulated_spect_follows_a_wave_left_on_to_the_next_scans_start(box_
     box = rig.trigger_box
     try:
         first = TriggerBox(box.port)
-        first.stop()                           # a wave an earlier test's host left on, if any
+        first.stop()  # a wave an earlier test's host left on, if any
         first.configure(cfg.trigger.frequency_hz, cfg.trigger.duty)
         first.fire(pulse_ms=cfg.trigger.pulse_ms)
         box.wait_cycles(2 * F_CPU)
-        first.close()                          # the host is gone; the wave runs on
+        first.close()  # the host is gone; the wave runs on
         second = TriggerBox(box.port)
         second.stop()
         second.fire(pulse_ms=cfg.trigger.pulse_ms)

@@ -9,19 +9,22 @@ import pytest
 from conftest import REAL_QATRACK_MARKS, _selects
 
 
-@pytest.mark.parametrize("expr, reaches", [
-    ("", True),
-    ("interop", True),
-    ("real_qatrack", True),
-    ("not slow", True),
-    ("unit or interop", True),
-    ("not (unit or console)", True),
-    ("unit", False),
-    ("console", False),
-    ("(unit or house) and not slow", False),
-    ("not real_qatrack", False),
-    ("interop and not real_qatrack", False),
-    ("unit and", True),                      # not an expression it reads: as if it could
-])
+@pytest.mark.parametrize(
+    "expr, reaches",
+    [
+        ("", True),
+        ("interop", True),
+        ("real_qatrack", True),
+        ("not slow", True),
+        ("unit or interop", True),
+        ("not (unit or console)", True),
+        ("unit", False),
+        ("console", False),
+        ("(unit or house) and not slow", False),
+        ("not real_qatrack", False),
+        ("interop and not real_qatrack", False),
+        ("unit and", True),  # not an expression it reads: as if it could
+    ],
+)
 def test_the_mark_expression_is_read_for_the_real_qatrack_module(expr, reaches):
     assert _selects(expr, REAL_QATRACK_MARKS) is reaches

@@ -27,11 +27,13 @@ import functools
 import re
 from pathlib import Path
 
-import pytest
-
 ROOT = Path(__file__).resolve().parents[1]
-FOLDERS = {"vts_hw": "vts_hw", "drivers": "vts_hw.drivers", "procedures": "vts_hw.procedures",
-           "sim_devices": "vts_hw.sim_devices"}
+FOLDERS = {
+    "vts_hw": "vts_hw",
+    "drivers": "vts_hw.drivers",
+    "procedures": "vts_hw.procedures",
+    "sim_devices": "vts_hw.sim_devices",
+}
 # what each layer may import, besides itself
 ALLOWED = {
     "core": set(),
@@ -40,16 +42,27 @@ ALLOWED = {
     "procedures": {"core", "drivers", "tracking"},
     "store": {"core"},
     "report": {"core", "store"},
-    "qatrack": {"core", "store", "report"},   # pushing to QATrack+ reads the store and builds reports
-    "sim": {"core", "tracking"},               # the simulated patient's marker tracks are Tracks
+    "qatrack": {"core", "store", "report"},  # pushing to QATrack+ reads the store and builds reports
+    "sim": {"core", "tracking"},  # the simulated patient's marker tracks are Tracks
     # the room with its devices (vts_hw/room/): it opens drivers and the store; procedures get its parts
     "room": {"core", "tracking", "drivers", "store"},
     "scenarios": {"core", "tracking", "drivers", "procedures", "store", "report", "sim", "room"},
     # the room console (vts_hw/console/): an application as the CLI is, beside it, never under it
     # nor over it: it opens devices and calls procedures, the store and reports; no CLI, no simulator
     "console": {"core", "tracking", "drivers", "procedures", "store", "report", "qatrack", "room"},
-    "cli": {"core", "tracking", "drivers", "procedures", "store", "report", "qatrack", "sim", "scenarios",
-            "console", "room"},
+    "cli": {
+        "core",
+        "tracking",
+        "drivers",
+        "procedures",
+        "store",
+        "report",
+        "qatrack",
+        "sim",
+        "scenarios",
+        "console",
+        "room",
+    },
 }
 
 
@@ -57,9 +70,18 @@ def layer(module: str) -> str:
     parts = module.split(".")
     if parts[:3] == ["vts_hw", "sim_devices", "scenarios"]:
         return "scenarios"
-    return {"drivers": "drivers", "procedures": "procedures", "sim_devices": "sim", "cli": "cli",
-            "store": "store", "report": "report", "qatrack": "qatrack",
-            "tracking": "tracking", "console": "console", "room": "room"}.get(parts[1] if len(parts) > 1 else "", "core")
+    return {
+        "drivers": "drivers",
+        "procedures": "procedures",
+        "sim_devices": "sim",
+        "cli": "cli",
+        "store": "store",
+        "report": "report",
+        "qatrack": "qatrack",
+        "tracking": "tracking",
+        "console": "console",
+        "room": "room",
+    }.get(parts[1] if len(parts) > 1 else "", "core")
 
 
 def modules():
@@ -69,7 +91,7 @@ def modules():
             yield path, ".".join([package, *[p for p in rel if p != "__init__"]])
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def tree(path: Path) -> ast.Module:
     """A module's syntax tree, read once for all the checks of this file."""
     return ast.parse(path.read_text(), str(path))
@@ -88,10 +110,22 @@ def test_the_rules_see_every_layer():
     """The check reads real code: every layer has modules, and the CLI imports every other one."""
     seen = {layer(m) for _, m in modules()}
     assert seen == set(ALLOWED)
-    cli_imports = {layer(t) for p, m in modules() if layer(m) == "cli"
-                   for _, _, t in imports(p) if t.startswith("vts_hw.")}
-    assert cli_imports >= {"core", "tracking", "drivers", "procedures", "store", "report", "qatrack", "sim",
-                           "scenarios", "console", "room"}
+    cli_imports = {
+        layer(t) for p, m in modules() if layer(m) == "cli" for _, _, t in imports(p) if t.startswith("vts_hw.")
+    }
+    assert cli_imports >= {
+        "core",
+        "tracking",
+        "drivers",
+        "procedures",
+        "store",
+        "report",
+        "qatrack",
+        "sim",
+        "scenarios",
+        "console",
+        "room",
+    }
 
 
 def test_imports_go_one_way():
@@ -110,8 +144,13 @@ def test_imports_go_one_way():
 def test_procedures_never_hold_a_store():
     """Procedures receive what they need (a baseline, a calibration) and return their analyses;
     the recorder stores them. Any import of vts_hw.store from procedures/ fails this."""
-    found = [f"{p.relative_to(ROOT)}:{line} imports {target}" for p, m in modules() if layer(m) == "procedures"
-             for line, _, target in imports(p) if target == "vts_hw.store" or target.startswith("vts_hw.store.")]
+    found = [
+        f"{p.relative_to(ROOT)}:{line} imports {target}"
+        for p, m in modules()
+        if layer(m) == "procedures"
+        for line, _, target in imports(p)
+        if target == "vts_hw.store" or target.startswith("vts_hw.store.")
+    ]
     assert found == []
     # nor is one handed to them: no parameter and no attribute named store
     held = []
@@ -147,8 +186,11 @@ GUIDE = ROOT / "docs" / "decisions" / "0096-imports-show-the-design.md"
 def long_modules_named(text: str) -> dict[str, str]:
     """The modules the guide names as over 500 lines, with their one job: the lines of its
     section "Modules over 500 lines" of the form ``- `path/to/module.py`: its one job``."""
-    section = text.split("## Modules over 500 lines", 1)[1].split("\n## ", 1)[0] if "## Modules over 500 lines" in text \
+    section = (
+        text.split("## Modules over 500 lines", 1)[1].split("\n## ", 1)[0]
+        if "## Modules over 500 lines" in text
         else ""
+    )
     return dict(re.findall(r"^- `([^`]+\.py)`: *(\S.*)$", section, re.M))
 
 
@@ -156,8 +198,12 @@ def off_the_guide(root: Path, guide: Path) -> tuple[dict[str, int], list[str]]:
     """The modules over 500 lines the guide does not name (with their lengths), and the modules
     it names that are not there."""
     named = long_modules_named(guide.read_text())
-    long = {str(p.relative_to(root)): n for folder in FOLDERS for p in (root / folder).rglob("*.py")
-            if (n := len(p.read_text().splitlines())) > 500}
+    long = {
+        str(p.relative_to(root)): n
+        for folder in FOLDERS
+        for p in (root / folder).rglob("*.py")
+        if (n := len(p.read_text().splitlines())) > 500
+    }
     return {m: n for m, n in long.items() if m not in named}, [m for m in named if not (root / m).is_file()]
 
 
@@ -178,11 +224,15 @@ def test_the_guide_check_sees_a_long_module_and_a_name_gone(tmp_path):
     (tmp_path / "procedures" / "named.py").write_text("x = 1\n" * 600)
     (tmp_path / "procedures" / "short.py").write_text("x = 1\n" * 500)
     guide = tmp_path / "0096.md"
-    guide.write_text("# 0096\n\n## Modules over 500 lines\n\n- `procedures/named.py`: a scan, start to end\n"
-                     "- `procedures/gone.py`: was here\nand `procedures/long.py` in prose\n\n## After\n"
-                     "- `procedures/long.py`: not in the section\n")
-    assert long_modules_named(guide.read_text()) == {"procedures/named.py": "a scan, start to end",
-                                                     "procedures/gone.py": "was here"}
+    guide.write_text(
+        "# 0096\n\n## Modules over 500 lines\n\n- `procedures/named.py`: a scan, start to end\n"
+        "- `procedures/gone.py`: was here\nand `procedures/long.py` in prose\n\n## After\n"
+        "- `procedures/long.py`: not in the section\n"
+    )
+    assert long_modules_named(guide.read_text()) == {
+        "procedures/named.py": "a scan, start to end",
+        "procedures/gone.py": "was here",
+    }
     assert off_the_guide(tmp_path, guide) == ({"procedures/long.py": 501}, ["procedures/gone.py"])
 
 
@@ -205,9 +255,13 @@ def own_imports_inside_functions(path: Path) -> list[tuple[int, str]]:
         for child in ast.iter_child_nodes(node):
             if isinstance(child, (ast.Import, ast.ImportFrom)) and inside:
                 names = [child.module or ""] if isinstance(child, ast.ImportFrom) else [a.name for a in child.names]
-                found.extend((child.lineno, n) for n in names if n == "vts_hw" or n.startswith("vts_hw.")
-                             or isinstance(child, ast.ImportFrom) and child.level)
+                found.extend(
+                    (child.lineno, n)
+                    for n in names
+                    if n == "vts_hw" or n.startswith("vts_hw.") or isinstance(child, ast.ImportFrom) and child.level
+                )
             visit(child, inside or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)))
+
     visit(tree(path), False)
     return found
 
@@ -216,10 +270,17 @@ def test_own_modules_are_imported_at_the_top():
     """An import hidden in a function hides laziness, a circle or a layer crossed; only the CLI's
     command map imports its command modules when asked (and heavy third-party packages stay lazy
     where they are, which this does not look at)."""
-    found = {(str(p.relative_to(ROOT)), t): line for p, m in modules() if layer(m) != "cli"
-             for line, t in own_imports_inside_functions(p)}
-    assert [f"{f}:{line} imports {t} inside a function" for (f, t), line in sorted(found.items())
-            if (f, t) not in INSIDE_ALLOWED] == []
+    found = {
+        (str(p.relative_to(ROOT)), t): line
+        for p, m in modules()
+        if layer(m) != "cli"
+        for line, t in own_imports_inside_functions(p)
+    }
+    assert [
+        f"{f}:{line} imports {t} inside a function"
+        for (f, t), line in sorted(found.items())
+        if (f, t) not in INSIDE_ALLOWED
+    ] == []
     assert [k for k in INSIDE_ALLOWED if k not in found] == [], "an allowed import is gone: remove its entry"
     assert all(len(why) > 10 for why in INSIDE_ALLOWED.values())
 
@@ -227,6 +288,7 @@ def test_own_modules_are_imported_at_the_top():
 def resolved_imports(path: Path, module: str, names: set[str]) -> set[str]:
     """The project's modules ``module`` imports, at any depth (inside functions too; not under
     ``if TYPE_CHECKING``, which never runs): ``from P import x`` is the module P.x when there is one."""
+
     def owner(name: str) -> str | None:
         while name and name not in names:
             name = name.rpartition(".")[0]
@@ -243,6 +305,7 @@ def resolved_imports(path: Path, module: str, names: set[str]) -> set[str]:
             elif isinstance(child, ast.Import):
                 out.update(owner(a.name) for a in child.names if a.name.startswith("vts_hw"))
             visit(child)
+
     visit(tree(path))
     return out - {None, module}
 
@@ -252,7 +315,7 @@ def circles(graph: dict[str, set[str]]) -> list[list[str]]:
     goes round it: [a, b, ..., a]."""
     index, low, stack, on, found = {}, {}, [], set(), []
 
-    def connect(v):                                  # Tarjan's strongly connected components
+    def connect(v):  # Tarjan's strongly connected components
         index[v] = low[v] = len(index)
         stack.append(v)
         on.add(v)
@@ -272,6 +335,7 @@ def circles(graph: dict[str, set[str]]) -> list[list[str]]:
                     break
             if len(comp) > 1:
                 found.append(_round(graph, comp))
+
     for v in sorted(graph):
         if v not in index:
             connect(v)
@@ -306,7 +370,9 @@ def test_the_import_graph_has_no_circle():
     """Imports inside functions count: a circle they close is a circle of the design."""
     graph = import_graph(modules())
     assert len(graph) > 300 and graph["vts_hw.procedures.commission_sequence"] >= {
-        "vts_hw.procedures.commission_steps", "vts_hw.procedures.commission"}
+        "vts_hw.procedures.commission_steps",
+        "vts_hw.procedures.commission",
+    }
     assert [" -> ".join(c) for c in circles(graph)] == []
 
 
@@ -315,11 +381,14 @@ def test_the_checks_see_an_import_in_a_function_and_a_circle(tmp_path):
     by imports inside functions (found, named), a type-only import (not a circle)."""
     pkg = tmp_path / "vts_hw"
     pkg.mkdir()
-    (pkg / "a.py").write_text("from vts_hw import b\n\n\nclass A:\n    def f(self):\n"
-                              "        from vts_hw.d import g\n        return g\n")
+    (pkg / "a.py").write_text(
+        "from vts_hw import b\n\n\nclass A:\n    def f(self):\n        from vts_hw.d import g\n        return g\n"
+    )
     (pkg / "b.py").write_text("import json\n\n\ndef f():\n    import vts_hw.c as c\n    return c\n")
-    (pkg / "c.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from vts_hw.b import f\n\n\n"
-                              "def g():\n    from vts_hw import a\n    return a\n")
+    (pkg / "c.py").write_text(
+        "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from vts_hw.b import f\n\n\n"
+        "def g():\n    from vts_hw import a\n    return a\n"
+    )
     (pkg / "d.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from vts_hw.e import x\n")
     (pkg / "e.py").write_text("from vts_hw.d import y\n")
     assert own_imports_inside_functions(pkg / "a.py") == [(6, "vts_hw.d")]
@@ -333,13 +402,18 @@ def test_the_checks_see_an_import_in_a_function_and_a_circle(tmp_path):
 def test_tracking_is_a_room_of_its_own_between_vision_and_the_procedures():
     """Tracking reads the recording and builds on vision; the procedures and the CLI use it; the
     recording (its format, writer, capture, index, reindex) and vision never import it."""
+
     def targets(prefix):
         return {t for p, m in modules() if m.startswith(prefix) for _, _, t in imports(p) if t.startswith("vts_hw.")}
+
     ups = targets("vts_hw.tracking")
     assert any(t.startswith("vts_hw.vision.") for t in ups) and any(t.startswith("vts_hw.recording.") for t in ups)
     assert any(t.startswith("vts_hw.tracking.") for t in targets("vts_hw.procedures"))
-    below = {m: sorted(t for _, _, t in imports(p) if t.startswith("vts_hw.tracking"))
-             for p, m in modules() if m.startswith(("vts_hw.recording", "vts_hw.vision"))}
+    below = {
+        m: sorted(t for _, _, t in imports(p) if t.startswith("vts_hw.tracking"))
+        for p, m in modules()
+        if m.startswith(("vts_hw.recording", "vts_hw.vision"))
+    }
     assert len(below) > 20 and {m: t for m, t in below.items() if t} == {}
 
 
@@ -350,15 +424,29 @@ def test_the_console_is_an_application_beside_the_cli():
     the console's serve() and prints: the one name it takes from vts_hw.console is serve (and
     the host check it makes before reading the rig, from serve_checks: a refusal loads no page),
     and the user functions of `vts console user`."""
-    users = sorted({layer(m) for p, m in modules() for _, _, t in imports(p)
-                    if t == "vts_hw.console" or t.startswith("vts_hw.console.")} - {"console"})
+    users = sorted(
+        {
+            layer(m)
+            for p, m in modules()
+            for _, _, t in imports(p)
+            if t == "vts_hw.console" or t.startswith("vts_hw.console.")
+        }
+        - {"console"}
+    )
     assert users == ["cli"]
     console = {t for p, m in modules() if layer(m) == "console" for _, _, t in imports(p) if t.startswith("vts_hw.")}
     assert console and not {t for t in console if layer(t) in ("cli", "sim", "scenarios")}
     assert {t for t in console if layer(t) == "drivers"} == {"vts_hw.drivers.registry"}
     cli_console = ROOT / "vts_hw" / "cli" / "console.py"
-    taken = {(n.module, a.name) for n in ast.walk(ast.parse(cli_console.read_text()))
-             if isinstance(n, ast.ImportFrom) and (n.module or "").startswith("vts_hw.console") for a in n.names}
-    assert taken == {("vts_hw.console.serve", "serve"), ("vts_hw.console.serve_checks", "check_host"),
-                     # `vts console user ...`: the console's users (hashing lives beside the login)
-                     *(("vts_hw.console.users", n) for n in ("add_user", "check_name", "list_users", "remove_user"))}
+    taken = {
+        (n.module, a.name)
+        for n in ast.walk(ast.parse(cli_console.read_text()))
+        if isinstance(n, ast.ImportFrom) and (n.module or "").startswith("vts_hw.console")
+        for a in n.names
+    }
+    assert taken == {
+        ("vts_hw.console.serve", "serve"),
+        ("vts_hw.console.serve_checks", "check_host"),
+        # `vts console user ...`: the console's users (hashing lives beside the login)
+        *(("vts_hw.console.users", n) for n in ("add_user", "check_name", "list_users", "remove_user")),
+    }

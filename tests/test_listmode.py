@@ -11,9 +11,16 @@ import numpy as np
 import pytest
 
 from vts_hw.errors import DataError
-from vts_hw.spect.listmode import (ListMode, VtslmWriter, list_readers, read_listmode, read_vtslm,
-                             reader_for, write_vtslm)
-from vts_hw.spect.listmode import vtslm
+from vts_hw.spect.listmode import (
+    ListMode,
+    VtslmWriter,
+    list_readers,
+    read_listmode,
+    read_vtslm,
+    reader_for,
+    vtslm,
+    write_vtslm,
+)
 
 START = 1_795_000_000.123456
 
@@ -29,8 +36,7 @@ def make_file(path: Path, seed: int = 0, n_events: int = 5000, **header) -> dict
     frames = np.arange(0, 10.0, 0.1)
     angles = np.repeat([0.0, 6.0], 50)
     gate = np.where((np.arange(20000) // 1000) % 2 == 0, 0.0, 5.0) + rng.normal(0, 0.02, 20000)
-    kw = dict(start_time=START, duration_s=10.0, gate_rate_hz=2000.0, dead_time_recorded=True,
-              scanner="test scanner")
+    kw = dict(start_time=START, duration_s=10.0, gate_rate_hz=2000.0, dead_time_recorded=True, scanner="test scanner")
     kw.update(header)
     with VtslmWriter(path, **kw) as w:
         for part in np.array_split(np.arange(n_events), 3):
@@ -53,15 +59,16 @@ def good(tmp_path):
 
 # --------------------------------------------------------------------------------- round trip
 
+
 def test_write_read_round_trip(good):
     path, d = good
     lm = read_listmode(path)
     assert isinstance(lm, ListMode) and lm.format == "vtslm" and lm.source == path
     assert lm.start_time == START and lm.duration_s == 10.0
     assert lm.n_events == d["t"].size
-    assert np.max(np.abs(lm.t - d["t"])) <= 0.6e-9             # stored to the nanosecond
-    assert np.array_equal(lm.z, d["z"])                          # float32 as written
-    assert np.max(np.abs(lm.u - d["u"])) <= 0.05 + 1e-4          # 0.1 mm steps
+    assert np.max(np.abs(lm.t - d["t"])) <= 0.6e-9  # stored to the nanosecond
+    assert np.array_equal(lm.z, d["z"])  # float32 as written
+    assert np.max(np.abs(lm.u - d["u"])) <= 0.05 + 1e-4  # 0.1 mm steps
     assert np.array_equal(lm.head, d["head"])
     assert np.allclose(lm.timing_marks, d["marks"], atol=1e-9)
     assert np.allclose(lm.frame_starts, d["frames"], atol=1e-9)
@@ -107,6 +114,7 @@ def test_blocks_of_an_unknown_kind_are_skipped(good, tmp_path):
 
 # --------------------------------------------------------------------------------- registry
 
+
 def test_the_reader_is_chosen_by_content_then_by_suffix(good, tmp_path):
     path, _ = good
     renamed = tmp_path / "scan.dat"
@@ -118,6 +126,7 @@ def test_the_reader_is_chosen_by_content_then_by_suffix(good, tmp_path):
 
 
 # --------------------------------------------------------------------------------- bad files
+
 
 def one_line_error(path: Path, match: str, fmt: str | None = None) -> str:
     with pytest.raises(DataError) as e:
@@ -132,11 +141,11 @@ def one_line_error(path: Path, match: str, fmt: str | None = None) -> str:
 def with_header(good_path: Path, out: Path, change) -> Path:
     raw = good_path.read_bytes()
     magic, major, minor, length = vtslm.PREAMBLE.unpack_from(raw)
-    header = json.loads(raw[16:16 + length])
+    header = json.loads(raw[16 : 16 + length])
     change(header)
     text = json.dumps(header).encode()
     text += b" " * (-(16 + len(text)) % 8)
-    out.write_bytes(vtslm.PREAMBLE.pack(magic, major, minor, len(text)) + text + raw[16 + length:])
+    out.write_bytes(vtslm.PREAMBLE.pack(magic, major, minor, len(text)) + text + raw[16 + length :])
     return out
 
 
@@ -204,14 +213,17 @@ def test_each_required_header_key_missing(good, tmp_path, key):
     one_line_error(p, f"header key '{key}' is missing")
 
 
-@pytest.mark.parametrize("key, value, what", [
-    ("gate_rate_hz", "fast", "must be a positive number"),
-    ("gate_rate_hz", -2000, "must be a positive number"),
-    ("heads", 0, "must be a whole number from 1 to 255"),
-    ("start_time", None, "must be a number"),
-    ("dead_time_recorded", "yes", "must be true or false"),
-    ("gate_t0_ns", 0.5, "must be a whole number"),
-])
+@pytest.mark.parametrize(
+    "key, value, what",
+    [
+        ("gate_rate_hz", "fast", "must be a positive number"),
+        ("gate_rate_hz", -2000, "must be a positive number"),
+        ("heads", 0, "must be a whole number from 1 to 255"),
+        ("start_time", None, "must be a number"),
+        ("dead_time_recorded", "yes", "must be true or false"),
+        ("gate_t0_ns", 0.5, "must be a whole number"),
+    ],
+)
 def test_bad_header_values(good, tmp_path, key, value, what):
     path, _ = good
     p = with_header(path, tmp_path / f"bad-{key}.vtslm", lambda h: h.__setitem__(key, value))
@@ -223,7 +235,7 @@ def test_truncated_in_the_records(good, tmp_path):
     path, _ = good
     raw = path.read_bytes()
     p = tmp_path / "cut.vtslm"
-    p.write_bytes(raw[:len(raw) // 2])
+    p.write_bytes(raw[: len(raw) // 2])
     one_line_error(p, "truncated: block")
 
 
@@ -232,7 +244,7 @@ def test_truncated_in_a_block_header(good, tmp_path):
     raw = path.read_bytes()
     end = raw.rfind(b"END ")
     p = tmp_path / "cut.vtslm"
-    p.write_bytes(raw[:end + 6])
+    p.write_bytes(raw[: end + 6])
     one_line_error(p, "truncated: a block header")
 
 
@@ -240,7 +252,7 @@ def test_no_end_block_is_an_unclosed_file(good, tmp_path):
     path, _ = good
     raw = path.read_bytes()
     p = tmp_path / "open.vtslm"
-    p.write_bytes(raw[:raw.rfind(b"END ")])              # cut at a block boundary
+    p.write_bytes(raw[: raw.rfind(b"END ")])  # cut at a block boundary
     one_line_error(p, "no END block")
 
 
@@ -274,7 +286,7 @@ def test_a_garbled_block_tag(good, tmp_path):
     path, _ = good
     raw = bytearray(path.read_bytes())
     i = raw.find(b"TMRK")
-    raw[i:i + 4] = b"\x00\xff\x01\x02"
+    raw[i : i + 4] = b"\x00\xff\x01\x02"
     p = tmp_path / "tag.vtslm"
     p.write_bytes(bytes(raw))
     one_line_error(p, "bad block tag")
@@ -301,10 +313,13 @@ def test_the_writer_refuses_a_bad_header_before_writing(tmp_path):
     assert not (tmp_path / "x.vtslm").exists()
 
 
-@pytest.mark.parametrize("header, words", [
-    (b"[" * 5000 + b"]" * 5000, "the header is not valid JSON (nested too deeply)"),
-    (b'{"heads": ' + b"9" * 5000 + b"}", "the header is not valid JSON (Exceeds the limit (4300 digits)"),
-])
+@pytest.mark.parametrize(
+    "header, words",
+    [
+        (b"[" * 5000 + b"]" * 5000, "the header is not valid JSON (nested too deeply)"),
+        (b'{"heads": ' + b"9" * 5000 + b"}", "the header is not valid JSON (Exceeds the limit (4300 digits)"),
+    ],
+)
 def test_a_header_json_refuses_beyond_syntax(tmp_path, header, words):
     p = tmp_path / "deep.vtslm"
     p.write_bytes(vtslm.PREAMBLE.pack(vtslm.MAGIC, 1, 0, len(header)) + header)
@@ -317,12 +332,12 @@ def test_a_header_number_no_float_can_hold(good, tmp_path, key):
     path, _ = good
     raw = path.read_bytes()
     _, _, _, length = vtslm.PREAMBLE.unpack_from(raw)
-    header = json.loads(raw[16:16 + length])
-    header[key] = 10 ** 400
+    header = json.loads(raw[16 : 16 + length])
+    header[key] = 10**400
     text = json.dumps(header).encode()
     text += b" " * (-(16 + len(text)) % 8)
     p = tmp_path / "huge.vtslm"
-    p.write_bytes(vtslm.PREAMBLE.pack(vtslm.MAGIC, 1, 0, len(text)) + text + raw[16 + length:])
+    p.write_bytes(vtslm.PREAMBLE.pack(vtslm.MAGIC, 1, 0, len(text)) + text + raw[16 + length :])
     one_line_error(p, f"header key '{key}' must be a")
 
 
@@ -330,8 +345,9 @@ def test_failure_records_with_times_no_date_can_hold_are_left_out(tmp_path):
     # found by bench/fuzz.py (listmode_failures): OverflowError from float() and from the date of describe()
     from vts_hw.spect.listmode.failures import read_failure_records, write_failure_record
 
-    write_failure_record(tmp_path, "good.vtslm", "the disk was full", by="the SPECT", start=1_795_000_000.0,
-                         end=1_795_000_060.0)
+    write_failure_record(
+        tmp_path, "good.vtslm", "the disk was full", by="the SPECT", start=1_795_000_000.0, end=1_795_000_060.0
+    )
     head = '{"format": "vts-listmode-failure/1", "by": "x", "listmode": "a.vtslm", "reason": "r", '
     (tmp_path / "huge.failed.json").write_text(head + '"failed_at": 1' + "0" * 400 + "}")
     (tmp_path / "far.failed.json").write_text(head + '"start": 1e300, "failed_at": 1795000000}')

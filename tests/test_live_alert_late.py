@@ -34,8 +34,8 @@ def test_a_motion_alert_raised_late_says_how_late_and_why():
     session = _Session()
     est = LiveEstimate(phase="tracking", frame="vts", time=None, six_dof=tuple(np.zeros(6)))
     now = time.time()
-    lm._motion_alert(session, Alert(now - 1.2, now - 3.0, 6.0, 1.0), est)       # its frame 1.2 s ago
-    lm._motion_alert(session, Alert(time.time(), now - 2.0, 6.0, 1.0), est)     # on time
+    lm._motion_alert(session, Alert(now - 1.2, now - 3.0, 6.0, 1.0), est)  # its frame 1.2 s ago
+    lm._motion_alert(session, Alert(time.time(), now - 2.0, 6.0, 1.0), est)  # on time
     late, on_time = session.meta["live_motion"]["alerts"]
     assert late["late_s"] >= 1.2 and "s after its frame: this computer is behind" in late["text"]
     assert "raised 1.2 s after" in said[0] or "raised 1.3 s after" in said[0]

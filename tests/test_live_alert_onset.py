@@ -14,16 +14,18 @@ from vts_hw.tracking.live.alerts import GAP_S, AlertRule
 
 ALERT_MM, ALERT_DEG, AFTER_S = 3.0, 2.0, 1.0
 RATE = 25.0
-CENTRE = np.array([0.0, 80.0, 90.0])       # the markers' reference centre, SPECT frame (mm)
+CENTRE = np.array([0.0, 80.0, 90.0])  # the markers' reference centre, SPECT frame (mm)
 # (start, duration, rotation deg, translation mm): small and large, slow and sudden, turns alone
-MOVES = [(15.0, 0.6, (0.0, 0.8, 0.0), (0.0, 4.0, 1.0)),
-         (22.0, 1.0, (1.0, 0.0, 0.5), (5.0, -2.0, 3.0)),
-         (29.0, 0.4, (0.0, 0.0, 0.0), (0.0, 0.0, 8.0)),
-         (36.0, 1.2, (0.0, 2.5, 0.0), (-6.0, 3.0, -9.0)),
-         (43.0, 1.5, (0.0, 0.0, 0.0), (2.8, -2.2, 0.0)),
-         (50.0, 0.3, (0.0, 0.0, 0.0), (0.0, -12.0, -6.0)),
-         (57.0, 0.8, (0.0, -2.6, 0.0), (0.0, 0.0, 0.0)),
-         (64.0, 1.4, (1.5, 0.0, 1.5), (9.0, 4.0, -4.0))]
+MOVES = [
+    (15.0, 0.6, (0.0, 0.8, 0.0), (0.0, 4.0, 1.0)),
+    (22.0, 1.0, (1.0, 0.0, 0.5), (5.0, -2.0, 3.0)),
+    (29.0, 0.4, (0.0, 0.0, 0.0), (0.0, 0.0, 8.0)),
+    (36.0, 1.2, (0.0, 2.5, 0.0), (-6.0, 3.0, -9.0)),
+    (43.0, 1.5, (0.0, 0.0, 0.0), (2.8, -2.2, 0.0)),
+    (50.0, 0.3, (0.0, 0.0, 0.0), (0.0, -12.0, -6.0)),
+    (57.0, 0.8, (0.0, -2.6, 0.0), (0.0, 0.0, 0.0)),
+    (64.0, 1.4, (1.5, 0.0, 1.5), (9.0, 4.0, -4.0)),
+]
 
 
 def _poses(moves, ts):
@@ -70,7 +72,10 @@ def test_the_onset_is_the_moves_start_and_the_alert_comes_as_the_hold_ends():
 
 def _twitch(start, out_s, hold_s, back_s, size_mm):
     go = (0.0, size_mm, 0.0)
-    return [(start, out_s, (0.0, 0.0, 0.0), go), (start + out_s + hold_s, back_s, (0.0, 0.0, 0.0), tuple(-x for x in go))]
+    return [
+        (start, out_s, (0.0, 0.0, 0.0), go),
+        (start + out_s + hold_s, back_s, (0.0, 0.0, 0.0), tuple(-x for x in go)),
+    ]
 
 
 def test_a_twitch_back_within_the_hold_never_alerts_and_one_beyond_it_does():
@@ -78,11 +83,18 @@ def test_a_twitch_back_within_the_hold_never_alerts_and_one_beyond_it_does():
     no alert (an onset found early would shorten the hold); beyond it until 1.15 s (6 mm out
     over 0.6 s, 8 mm over 0.8 s), each alerts: the hold counts from the start, not from where
     the onset levels were crossed (0.12-0.15 s later: no alert from the rule before 0088)."""
-    back = [_twitch(15.0 + 6 * i, o, h, b, s) for i, (o, h, b, s) in
-            enumerate([(0.3, 0.3, 0.3, 6.0), (0.5, 0.1, 0.3, 12.0), (0.4, 0.25, 0.4, 8.0), (0.2, 0.5, 0.2, 6.0)])]
+    back = [
+        _twitch(15.0 + 6 * i, o, h, b, s)
+        for i, (o, h, b, s) in enumerate(
+            [(0.3, 0.3, 0.3, 6.0), (0.5, 0.1, 0.3, 12.0), (0.4, 0.25, 0.4, 8.0), (0.2, 0.5, 0.2, 6.0)]
+        )
+    ]
     _, alerts = _feed([m for tw in back for m in tw], 42.0, seed=2)
     assert alerts == []
-    late = [_twitch(15.0 + 6 * i, o, h, b, s) for i, (o, h, b, s) in enumerate([(0.6, 0.4, 0.3, 6.0), (0.8, 0.18, 0.3, 8.0)])]
+    late = [
+        _twitch(15.0 + 6 * i, o, h, b, s)
+        for i, (o, h, b, s) in enumerate([(0.6, 0.4, 0.3, 6.0), (0.8, 0.18, 0.3, 8.0)])
+    ]
     _, alerts = _feed([m for tw in late for m in tw], 28.0, seed=3)
     assert [int((a.onset - 14.0) // 6.0) for a in alerts] == [0, 1]
 

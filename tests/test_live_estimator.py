@@ -9,9 +9,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from vts_hw.sim_devices.patient import BodyMotion, BodyMove, Breathing, Patient
 from vts_hw.tracking.live.breathing import breathing_rate
 from vts_hw.tracking.live.estimator import LiveEstimator, LiveSettings
-from vts_hw.sim_devices.patient import BodyMotion, BodyMove, Breathing, Patient
 
 MOTION = SimpleNamespace(alert_mm=3.0, alert_deg=2.0, alert_after_s=1.0)
 WALL = np.array([[-400.0, 900.0, 4000.0], [300.0, 1100.0, 4100.0], [0.0, 1500.0, 4050.0]])
@@ -36,12 +36,12 @@ def _run(patient, duration, rate_hz=25.0, noise_mm=0.1, seed=0, settings=None):
     return est, alerts, np.array(errors)
 
 
-@pytest.mark.timeout(600)          # 6000 estimates: minutes on a busy 2-core machine (a guard, not a figure)
+@pytest.mark.timeout(600)  # 6000 estimates: minutes on a busy 2-core machine (a guard, not a figure)
 def test_breathing_alone_never_alerts_and_the_pose_stays_put():
     """Ten minutes of breathing (deep breaths, pauses, a wandering baseline): no alert, and the
     body's 6-DOF stays within a fraction of the thresholds of the truth (which is still)."""
     p = _patient(600.0, seed=4)
-    assert any(c.kind == "deep" for c in p.breathing.cycles)        # the hard cases are in
+    assert any(c.kind == "deep" for c in p.breathing.cycles)  # the hard cases are in
     est, alerts, err = _run(p, 600.0, rate_hz=10.0)
     assert est.phase == "tracking"
     assert alerts == []
@@ -78,9 +78,9 @@ def test_a_body_move_raises_one_alert_after_its_onset_and_the_pose_follows_the_t
     a = alerts[0]
     assert a.move_mm > MOTION.alert_mm
     assert a.time - a.onset > MOTION.alert_after_s
-    assert abs(a.onset - move.t_start) <= 0.1                       # the onset is the move's start (0088)
-    assert a.time <= move.t_start + MOTION.alert_after_s + 0.1 + 0.04   # ... and the alert as the hold ends
-    assert err[:, :3].max() < 1.0 and err[:, 3:].max() < 0.3      # the 6-DOF, breathing excluded
+    assert abs(a.onset - move.t_start) <= 0.1  # the onset is the move's start (0088)
+    assert a.time <= move.t_start + MOTION.alert_after_s + 0.1 + 0.04  # ... and the alert as the hold ends
+    assert err[:, :3].max() < 1.0 and err[:, 3:].max() < 0.3  # the 6-DOF, breathing excluded
     final = np.array(est.snapshot().six_dof)
     assert np.allclose(final, p.six_dof(39.9), atol=[0.5, 0.5, 0.5, 0.15, 0.15, 0.15])
 
@@ -106,7 +106,7 @@ def test_the_live_view_prints_what_the_estimator_says():
 
     from vts_hw.cli.live_view import live_line, live_table, sparkline
 
-    p = _patient(30.0, seed=2)     # 20 s after the reference: the 3 breaths seen whole a rate needs
+    p = _patient(30.0, seed=2)  # 20 s after the reference: the 3 breaths seen whole a rate needs
     est = LiveEstimator(MOTION, LiveSettings(reference_s=10.0))
     for t in np.arange(0.0, 5.0, 0.04):
         est.update(float(t), np.array([m.center for m in p.markers_at(float(t), np.zeros(3))]))
@@ -130,7 +130,7 @@ def test_a_move_during_the_reference_restarts_it_and_raises_no_alert():
     move = BodyMove(4.0, 4.6, (0.0, 0.0, 0.0), (0.0, 5.0, 0.0))
     est, alerts, _ = _run(_patient(40.0, [move], seed=6), 40.0)
     assert est.phase == "tracking" and alerts == []
-    assert abs(est.snapshot().six_dof[1]) < 0.5          # 0 from the settled pose, not 5 mm
+    assert abs(est.snapshot().six_dof[1]) < 0.5  # 0 from the settled pose, not 5 mm
 
 
 def test_a_rate_only_bounded_is_shown_with_its_range_never_as_a_plain_figure():
@@ -148,6 +148,7 @@ def test_a_rate_only_bounded_is_shown_with_its_range_never_as_a_plain_figure():
         assert f"/min ({b.rate_range[0]:.1f}-{b.rate_range[1]:.1f})" in live_line(snap)
     else:
         assert b.rate_range is None
-    bounded = dataclasses.replace(snap, bands=tuple(dataclasses.replace(x, rate_range=(12.04, 16.31))
-                                                    for x in snap.bands))
+    bounded = dataclasses.replace(
+        snap, bands=tuple(dataclasses.replace(x, rate_range=(12.04, 16.31)) for x in snap.bands)
+    )
     assert "/min (12.0-16.3)" in live_line(bounded)

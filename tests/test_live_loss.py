@@ -10,11 +10,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from vts_hw.sim_devices.patient import BodyMotion, BodyMove, Breathing, Patient
+from vts_hw.sim_devices.scene import Scene
 from vts_hw.tracking.live.estimator import LiveEstimator, LiveSettings
 from vts_hw.vision.aim_settings import AimSettings
 from vts_hw.vision.marker_roles import TableSpace
-from vts_hw.sim_devices.patient import BodyMotion, BodyMove, Breathing, Patient
-from vts_hw.sim_devices.scene import Scene
 
 MOTION = SimpleNamespace(alert_mm=3.0, alert_deg=2.0, alert_after_s=1.0)
 # the reference room's wall markers: behind the gantry, 0.38-0.49 m from the FOV centre along
@@ -56,7 +56,7 @@ def test_the_reference_is_learned_through_bursts_of_lost_frames_and_the_move_ale
     reference is learned as soon as it spans its 10 s, and a move of the issue's size (8.4 mm,
     2.6 deg) that starts inside a burst alerts at the first frames after it, with the onset
     bounded by the gap."""
-    move = BodyMove(24.8, 25.4, (0.0, 2.6, 0.0), (2.0, 7.5, 3.0))      # inside the burst 24.7-25.74
+    move = BodyMove(24.8, 25.4, (0.0, 2.6, 0.0), (2.0, 7.5, 3.0))  # inside the burst 24.7-25.74
     p = Patient(Breathing(0.0, 60.0, 1), BodyMotion([move]), 1)
     est, alerts, err, learned = _run(p, 40.0, bursts, drop=0.1)
     assert est.phase == "tracking" and learned < 12.0, est.note
@@ -64,10 +64,10 @@ def test_the_reference_is_learned_through_bursts_of_lost_frames_and_the_move_ale
     assert len(alerts) == 1
     a = alerts[0]
     assert a.move_mm > MOTION.alert_mm
-    assert 24.5 <= a.onset <= move.t_start <= a.onset + a.onset_known_s      # the start is bounded by the gap
+    assert 24.5 <= a.onset <= move.t_start <= a.onset + a.onset_known_s  # the start is bounded by the gap
     assert a.onset_known_s > 0.5 and "without a pose" in a.text(3.0, 2.0)
     assert a.time < move.t_end + MOTION.alert_after_s + 0.2
-    assert err[:, :3].max() < 1.0 and err[:, 3:].max() < 0.3            # breathing excluded, whatever was lost
+    assert err[:, :3].max() < 1.0 and err[:, 3:].max() < 0.3  # breathing excluded, whatever was lost
 
 
 def test_breathing_through_bursts_never_alerts():
@@ -85,7 +85,7 @@ def test_a_patient_who_does_not_breathe_is_tracked_rigidly_and_alerted_for():
     p = Patient(Breathing(0.0, 60.0, 2, enabled=False), BodyMotion([move]), 2)
     est, alerts, err, learned = _run(p, 30.0, bursts)
     assert est.phase == "tracking" and learned < 12.0, est.note
-    assert est.model.n_markers == 8                                      # the patient's, not the wall's
+    assert est.model.n_markers == 8  # the patient's, not the wall's
     snap = est.snapshot()
     assert [b.breathes for b in snap.bands] == [False, False]
     assert all(np.isnan(b.rate_per_min) for b in snap.bands) and "no breathing seen" in est.reference_note

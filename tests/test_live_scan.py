@@ -18,18 +18,17 @@ import numpy as np
 import pytest
 import yaml
 
+from inprocess_cli import vts
 from vts_hw.recording.folder import read_index
-from vts_hw.tracking.live.pose_log import read_poses
 from vts_hw.sim_devices.patient import BodyMove, add_patient
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.sim_devices.scenarios.sync_session import run_scan_cli
-
-from inprocess_cli import vts
+from vts_hw.tracking.live.pose_log import read_poses
 
 DURATION_S = 12.0
 REFERENCE_S = 4.0
-MOVE_AT_S = 6.5          # after the first frame (the scan starts a moment later); the reference is learned by then
-AHEAD_S = DURATION_S + 5.0   # frames made ahead: the scan, its start and its stop
+MOVE_AT_S = 6.5  # after the first frame (the scan starts a moment later); the reference is learned by then
+AHEAD_S = DURATION_S + 5.0  # frames made ahead: the scan, its start and its stop
 # making the frames ahead takes minutes on a loaded machine: the timeout is a hang detector
 pytestmark = pytest.mark.timeout(600)
 # the alert command: appends its last argument (the alert's text) to a file, then fails
@@ -58,8 +57,9 @@ def _scan(rig, rig_yaml, session, patient, move: BodyMove | None):
         placed = BodyMove(now + move.t_start, now + move.t_end, move.rotation_deg, move.translation_mm)
         patient.motion.moves.append(placed)
     rig.prerender(AHEAD_S)
-    run = run_scan_cli(rig, rig_yaml, session, DURATION_S, args=("--reference", f"{REFERENCE_S:g}"), event="scan",
-                       check=False)
+    run = run_scan_cli(
+        rig, rig_yaml, session, DURATION_S, args=("--reference", f"{REFERENCE_S:g}"), event="scan", check=False
+    )
     assert rig.bank.playing and rig.bank.served >= 0.9 * 2 * 25 * DURATION_S, (rig.bank.served, rig.bank.missed)
     return run.returncode, run.out, run.err, json.loads((session / "manifest.json").read_text()), placed
 
@@ -79,15 +79,16 @@ def _recording_whole(session, manifest):
         data = (session / f"{name}.mjpeg").read_bytes()
         assert rows[-1].offset + rows[-1].length == len(data)
         for r in rows[::10]:
-            img = cv2.imdecode(np.frombuffer(data[r.offset:r.offset + r.length], np.uint8), cv2.IMREAD_GRAYSCALE)
+            img = cv2.imdecode(np.frombuffer(data[r.offset : r.offset + r.length], np.uint8), cv2.IMREAD_GRAYSCALE)
             assert img is not None and img.shape == (480, 640)
 
 
 def test_a_body_move_raises_one_alert(patient_rig, tmp_path, capsys):
     rig, rig_yaml, patient = patient_rig
     session = tmp_path / "scan"
-    rc, out, err, m, move = _scan(rig, rig_yaml, session, patient,
-                                  BodyMove(MOVE_AT_S, MOVE_AT_S + 0.6, (0.0, 1.0, 0.0), (2.0, 5.0, 2.0)))
+    rc, out, err, m, move = _scan(
+        rig, rig_yaml, session, patient, BodyMove(MOVE_AT_S, MOVE_AT_S + 0.6, (0.0, 1.0, 0.0), (2.0, 5.0, 2.0))
+    )
     assert rc == 0, err
     _recording_whole(session, m)
     live = m["live_motion"]
@@ -109,10 +110,10 @@ def test_a_body_move_raises_one_alert(patient_rig, tmp_path, capsys):
     # one model (issue 33): the session keeps the live model and poses; the offline analysis fits
     # that model, its poses agree with the live ones, and it explains the alert
     assert live["model_file"] == "live_model.json" and live["summary"]["poses_kept"] > 0
-    poses = read_poses(session)          # each pose names the recorded frames it was made from
+    poses = read_poses(session)  # each pose names the recorded frames it was made from
     rows = {name: read_index(session / f"{name}.index.csv") for name in live["cameras"]}
     offset = {name: m["cameras"][name]["clock_offset_before"]["offset_s"] for name in live["cameras"]}
-    for t, used in zip(poses.t[::20], poses.frames[::20]):   # a set's frames within half a period of it
+    for t, used in zip(poses.t[::20], poses.frames[::20]):  # a set's frames within half a period of it
         for name, k in zip(live["cameras"], used):
             assert k == -1 or abs(rows[name][k].camera_time - offset[name] - t) < 0.025, (name, k, t)
     assert sum(k >= 0 for used in poses.frames for k in used) >= len(poses) * 2
@@ -178,7 +179,7 @@ def test_a_failing_live_path_never_costs_the_recording(tmp_path, where):
     rig = SimRig(n_cameras=2, seed=3).start()
     try:
         rig.ntp_sync()
-        rig.prerender(7.0)          # 40 frames in 2 s however busy the machine is
+        rig.prerender(7.0)  # 40 frames in 2 s however busy the machine is
         cfg = load_rig(rig.write(tmp_path / "rig")[0])
         with rig.env():
             live = _BrokenLive(where)
@@ -192,7 +193,7 @@ def test_a_failing_live_path_never_costs_the_recording(tmp_path, where):
         assert cam["frames"] >= 40 and cam["dropped_frames"] == 0
     if where == "start":
         assert "no worker today" in m["scan"]["live_error"]
-        assert live.frames == 0      # it was unhooked when it failed to start
+        assert live.frames == 0  # it was unhooked when it failed to start
     else:
         assert "nothing to stop" in m["scan"]["live_error"]
-        assert live.frames == sum(frames) == s.recorder.on_frame_errors   # every frame recorded all the same
+        assert live.frames == sum(frames) == s.recorder.on_frame_errors  # every frame recorded all the same

@@ -16,15 +16,14 @@ import time
 
 import yaml
 
+from inprocess_cli import vts
+from test_live_scan import COMMAND
 from vts_hw.sim_devices.patient import BodyMove, add_patient
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.sim_devices.scenarios.sync_session import run_scan_cli
 
-from inprocess_cli import vts
-from test_live_scan import COMMAND
-
 REFERENCE_S = 4.0
-FPS = 10.0        # cameras at 10 fps: the simulator renders in this process on a busy machine
+FPS = 10.0  # cameras at 10 fps: the simulator renders in this process on a busy machine
 
 
 def _rig(tmp_path, breathing: bool):
@@ -39,8 +38,17 @@ def _rig(tmp_path, breathing: bool):
 
 
 def _scan(rig, rig_yaml, session, duration, on_fire):
-    run = run_scan_cli(rig, rig_yaml, session, duration, args=("--reference", f"{REFERENCE_S:g}"), event="scan",
-                       on_fire=on_fire, check=False, timeout=duration + 120)
+    run = run_scan_cli(
+        rig,
+        rig_yaml,
+        session,
+        duration,
+        args=("--reference", f"{REFERENCE_S:g}"),
+        event="scan",
+        on_fire=on_fire,
+        check=False,
+        timeout=duration + 120,
+    )
     return run, json.loads((session / "manifest.json").read_text())
 
 
@@ -134,7 +142,7 @@ def test_a_still_patient_through_bursts_of_lost_frames(tmp_path):
     assert m["scan"]["problems"], "the gaps are listed"
     _never_still_while_blind(run.err)
     _last_line_says(run, m, tmp_path / "scan")
-    assert "live motion: TRACKING " in run.out and "NOT TRACKING alert(s)" in run.out   # the summary's line
+    assert "live motion: TRACKING " in run.out and "NOT TRACKING alert(s)" in run.out  # the summary's line
 
 
 def test_a_camera_switched_off_mid_scan_is_not_tracking_and_alerts(tmp_path, capsys):
@@ -150,7 +158,7 @@ def test_a_camera_switched_off_mid_scan_is_not_tracking_and_alerts(tmp_path, cap
         # 6 s after the start, or later: once the live path says TRACKING (its reference
         # learned; on a busy machine that takes longer than the reference's 4 s), so that the
         # camera's absence is a lost camera, not a reference never learned
-        deadline = start + DURATION_S - 5.0 - 3.0          # room for 5 s off and 3 s tracked again
+        deadline = start + DURATION_S - 5.0 - 3.0  # room for 5 s off and 3 s tracked again
         while time.time() < deadline:
             if time.time() >= start + 6.0 and _live_status(session) == "TRACKING":
                 off.append(time.time())
@@ -165,8 +173,10 @@ def test_a_camera_switched_off_mid_scan_is_not_tracking_and_alerts(tmp_path, cap
         run, m = _scan(rig, rig_yaml, session, DURATION_S, on_fire)
     finally:
         rig.stop()
-    assert off, ("the live path was not TRACKING 8 s before the end: no camera was switched off",
-                 m["live_motion"]["state"])
+    assert off, (
+        "the live path was not TRACKING 8 s before the end: no camera was switched off",
+        m["live_motion"]["state"],
+    )
     t_off = off[0]
     lm = m["live_motion"]
     assert lm["summary"]["phase"] == "tracking"
@@ -184,12 +194,12 @@ def test_a_camera_switched_off_mid_scan_is_not_tracking_and_alerts(tmp_path, cap
     assert "PATIENT NOT TRACKED" in (tmp_path / "alerts.txt").read_text()
     assert "tracked again after" in run.err
     assert lm["state"]["status"] in ("TRACKING", "NOT TRACKING")
-    assert lm["alerts"] == []                         # breathing and a lost camera are no move
+    assert lm["alerts"] == []  # breathing and a lost camera are no move
     _never_still_while_blind(run.err)
     _last_line_says(run, m, tmp_path / "scan")
-    assert m["status"] == "partial"                    # the camera's gap in the recording
+    assert m["status"] == "partial"  # the camera's gap in the recording
     code, out, _ = vts(capsys, "motion", "analyze", session, "--config", rig_yaml, "--json", "--workers", "1")
-    agree = json.loads(out)["live"]                   # one model (issue 33): live = offline, frames lost or not
+    agree = json.loads(out)["live"]  # one model (issue 33): live = offline, frames lost or not
     assert agree["compared"] >= 0.9 * lm["summary"]["poses_kept"], agree
     assert agree["rms_mm"] <= 0.1 and agree["rms_deg"] <= 0.05, agree
 
@@ -211,8 +221,10 @@ def test_a_scan_that_learned_no_reference_says_so_and_exits_4(tmp_path):
     assert lm["status"] == "on" and lm["frame"] == "vts" and lm["summary"]["phase"] == "reference"
     assert m["scan"]["live_problem"].startswith("the patient was not watched: no reference was learned")
     assert lm["summary"]["watched"] is False and lm["summary"]["tracking"]["tracking_s"] == 0.0
-    assert lm["blind_alerts"] and any("no reference" in b["reason"] or "camera lost" in b["reason"]
-                                      or "frames too late" in b["reason"] for b in lm["blind_alerts"])
+    assert lm["blind_alerts"] and any(
+        "no reference" in b["reason"] or "camera lost" in b["reason"] or "frames too late" in b["reason"]
+        for b in lm["blind_alerts"]
+    )
     assert run.returncode == 4
     assert f"problem: {m['scan']['live_problem']}" in run.out
     _last_line_says(run, m, tmp_path / "scan")

@@ -24,21 +24,21 @@ import numpy as np
 import pytest
 
 from vts_hw.cli.live_view import live_line
-from vts_hw.tracking.live.estimator import LiveSettings
-from vts_hw.tracking.live.tracker import PARTS, LiveTracker
-from vts_hw.tracking.live.watch import NOT_TRACKING, TRACKING, Episode
 from vts_hw.recording.folder import read_index
 from vts_hw.sim_devices.patient import BodyMove
 from vts_hw.sim_devices.recording_sim import received_frames, simulate_recording
 from vts_hw.sim_devices.sync_truth import true_cameras
+from vts_hw.tracking.live.estimator import LiveSettings
+from vts_hw.tracking.live.tracker import PARTS, LiveTracker
+from vts_hw.tracking.live.watch import NOT_TRACKING, TRACKING, Episode
 from vts_hw.vision.registration import RigidTransform
 
 SEED = 1
-START = 1_790_000_000.0 + 1000.0 * SEED + 5.0        # simulate_recording's default start
+START = 1_790_000_000.0 + 1000.0 * SEED + 5.0  # simulate_recording's default start
 DURATION = 16.0
 MOVE = BodyMove(START + 13.0, START + 13.6, (0.0, 1.5, 0.0), (2.0, 6.0, 2.0))
 MOTION = SimpleNamespace(alert_mm=3.0, alert_deg=2.0, alert_after_s=1.0, blind_alert_s=3.0)
-MONO0 = 10_000.0          # the made-up monotonic clock at the recording's first receipt
+MONO0 = 10_000.0  # the made-up monotonic clock at the recording's first receipt
 
 
 @pytest.fixture(scope="module")
@@ -50,8 +50,14 @@ def rendered(tmp_path_factory):
 
 
 def _tracker(sim, offsets, **kw) -> LiveTracker:
-    return LiveTracker(true_cameras(sim.scene, START), MOTION, mapping=RigidTransform.identity(),
-                       clock_offsets=offsets, settings=LiveSettings(reference_s=4.0), **kw)
+    return LiveTracker(
+        true_cameras(sim.scene, START),
+        MOTION,
+        mapping=RigidTransform.identity(),
+        clock_offsets=offsets,
+        settings=LiveSettings(reference_s=4.0),
+        **kw,
+    )
 
 
 def _feed(tracker, frames, lost, after: float = -1.0, until: float | None = None):
@@ -76,8 +82,8 @@ def _feed(tracker, frames, lost, after: float = -1.0, until: float | None = None
     return t_first
 
 
-BURST = (6.0, 7.04)       # both cameras, s after the first frame
-CAM2_OFF = (8.0, 12.5)    # camera 2 switched off
+BURST = (6.0, 7.04)  # both cameras, s after the first frame
+CAM2_OFF = (8.0, 12.5)  # camera 2 switched off
 
 
 def _lost(name, rel):
@@ -89,7 +95,7 @@ def test_not_tracking_stretches_are_the_time_without_frames_with_their_reasons(r
     events, alerts = [], []
     tr = _tracker(sim, offsets, on_event=events.append, on_alert=lambda a, est: alerts.append(a))
     t_first = _feed(tr, frames, _lost, until=10.0)
-    mid = tr.snapshot(now=MONO0 + 10.0)                   # camera 2 off for 2 s
+    mid = tr.snapshot(now=MONO0 + 10.0)  # camera 2 off for 2 s
     _feed(tr, frames, _lost, after=10.0)
     end = MONO0 + frames[-1][0] - t_first
     tr.tick(end)
@@ -102,7 +108,9 @@ def test_not_tracking_stretches_are_the_time_without_frames_with_their_reasons(r
     # from the last frame set before the gap to the first after it: the time truly without a pose
     assert BURST[0] - 0.08 <= burst.start - MONO0 <= BURST[0] and BURST[1] <= burst.end - MONO0 <= BURST[1] + 0.08
     assert burst.reasons[0].startswith("camera lost: no frames from any camera") and not burst.alerted
-    assert CAM2_OFF[0] - 0.08 <= off.start - MONO0 <= CAM2_OFF[0] and CAM2_OFF[1] <= off.end - MONO0 <= CAM2_OFF[1] + 0.08
+    assert (
+        CAM2_OFF[0] - 0.08 <= off.start - MONO0 <= CAM2_OFF[0] and CAM2_OFF[1] <= off.end - MONO0 <= CAM2_OFF[1] + 0.08
+    )
     assert off.reasons[0].startswith("camera lost: cam2 (no frame for") and off.alerted
     (blind,) = tr.blind_alerts
     assert 3.0 < blind.raised - blind.start <= 3.1 and "cam2" in blind.reason
@@ -152,6 +160,7 @@ def test_the_breathing_figures_are_worked_out_after_a_sets_latency_never_inside_
     set's markers are in the published estimate and its latency taken, never inside the
     published snapshot (which is within the latency); the next snapshot shows them."""
     from vts_hw.tracking.live import breathing
+
     sim, _, frames, offsets = rendered
     ticks = itertools.count()
 
@@ -172,6 +181,7 @@ def test_the_breathing_figures_are_worked_out_after_a_sets_latency_never_inside_
             return snapshot(*a, **kw)
         finally:
             inside[0] = False
+
     monkeypatch.setattr(breathing, "figures_of", counted)
     monkeypatch.setattr(est, "snapshot", published)
     for host, name, frame in frames:
@@ -180,11 +190,11 @@ def test_the_breathing_figures_are_worked_out_after_a_sets_latency_never_inside_
         tr.tap.put(name, frame, arrival=clock())
         tr.step(0.0)
     assert est.phase == "tracking" and len(calls) >= 4, (est.note, calls)
-    assert not any(during for during, _, _ in calls), calls          # never within a published snapshot
-    assert all(n == sets for _, n, sets in calls), calls             # each after its set's latency was taken
-    fig = est.traces[est.lead].figures(fresh=False)               # the last worked out ...
+    assert not any(during for during, _, _ in calls), calls  # never within a published snapshot
+    assert all(n == sets for _, n, sets in calls), calls  # each after its set's latency was taken
+    fig = est.traces[est.lead].figures(fresh=False)  # the last worked out ...
     assert fig is not None and len(calls) == len({sets for _, _, sets in calls})
-    shown = est.snapshot(fresh=False).bands[0].rate_per_min          # ... is what a snapshot shows
+    shown = est.snapshot(fresh=False).bands[0].rate_per_min  # ... is what a snapshot shows
     known = fig.status in ("measured", "bounded") and fig.rate_per_min is not None
     assert shown == pytest.approx(fig.rate_per_min) if known else np.isnan(shown)
 
@@ -205,34 +215,44 @@ def test_under_cpu_load_the_live_path_drops_its_own_oldest_frames_never_a_record
     hogs = [ctx.Process(target=_spin, args=(stop,), daemon=True) for _ in range(2 * (os.cpu_count() or 2))]
     for h in hogs:
         h.start()
-    rig = parse_rig({"rig": "load", "cameras": [{"name": n, "kind": "replay", "options": {
-        "folder": str(folder), "camera": n, "speed": 1.0}} for n in sim.cameras]}, "test rig.yaml")
+    rig = parse_rig(
+        {
+            "rig": "load",
+            "cameras": [
+                {"name": n, "kind": "replay", "options": {"folder": str(folder), "camera": n, "speed": 1.0}}
+                for n in sim.cameras
+            ],
+        },
+        "test rig.yaml",
+    )
     cams = open_cameras(rig.cameras)
     tr = _tracker(sim, offsets)
     hold, held = threading.Event(), threading.Event()
     update = tr.estimator.update
 
-    def held_update(t, pts, *more):   # the worker held up inside an estimate (as a busy host would)
+    def held_update(t, pts, *more):  # the worker held up inside an estimate (as a busy host would)
         if hold.is_set():
             held.set()
             while hold.is_set():
                 time.sleep(0.01)
         return update(t, pts, *more)
+
     tr.estimator.update = held_update
     seen: list = []
     done = threading.Event()
 
-    def view():                      # a display reading the tracker as often as it likes
+    def view():  # a display reading the tracker as often as it likes
         while not done.is_set():
             seen.append((held.is_set() and hold.is_set(), tr.snapshot()))
             time.sleep(0.02)
+
     viewer = threading.Thread(target=view, daemon=True)
     rec = Recorder(cams, tmp_path / "again", seconds=None, on_frame=tr.on_frame)
     try:
         tr.start()
         rec.start()
         viewer.start()
-        deadline = time.monotonic() + 120          # failure guards only: never a figure asserted on time
+        deadline = time.monotonic() + 120  # failure guards only: never a figure asserted on time
         while tr.estimator.phase != "tracking" and time.monotonic() < deadline:
             time.sleep(0.05)
         hold.set()
@@ -242,13 +262,17 @@ def test_under_cpu_load_the_live_path_drops_its_own_oldest_frames_never_a_record
         while time.monotonic() < deadline:
             if held.is_set() and held_from is None:
                 held_from = time.monotonic()
-            if (sum(tr.tap.dropped.values()) >= 10 and sum(1 for h, s in seen if h) >= 10
-                    and held_from is not None and time.monotonic() - held_from > 3 * tr.late_s):
+            if (
+                sum(tr.tap.dropped.values()) >= 10
+                and sum(1 for h, s in seen if h) >= 10
+                and held_from is not None
+                and time.monotonic() - held_from > 3 * tr.late_s
+            ):
                 break
             time.sleep(0.05)
         hold.clear()
         sets_at_release = tr.sets
-        rec.wait()                                   # until the replay ends
+        rec.wait()  # until the replay ends
         manifest = rec.finish()
         done.set()
         viewer.join(10)
@@ -267,7 +291,7 @@ def test_under_cpu_load_the_live_path_drops_its_own_oldest_frames_never_a_record
         assert st["tapped"][name] == manifest["cameras"][name]["frames"]
         assert st["processed"][name] + st["live_dropped"][name] + st["queued"][name] == st["tapped"][name]
     assert sum(st["live_dropped"].values()) >= 10 and rec.on_frame_errors == 0
-    assert tr.sets > sets_at_release                   # it went on after being held up
+    assert tr.sets > sets_at_release  # it went on after being held up
     # what the view read while the worker was held: at once, ever older, never TRACKING on old figures
     during = [s for h, s in seen if h]
     assert len(during) >= 10

@@ -40,7 +40,7 @@ class Run:
                         resumed = self.t
                     seen = self.t
                 f = Facts(phase or f.phase, 0.0, seen, resumed, self.t, "" if observed else why, f.learned)
-            self.f = f                                          # the watch ticks at each step
+            self.f = f  # the watch ticks at each step
             self.events += self.w.tick(self.t, f, {c: self.t - v for c, v in self.last.items()})
         self.f = f
         return self
@@ -50,11 +50,11 @@ class Run:
 
 
 def test_a_gap_of_both_cameras_is_one_stretch_from_the_last_pose_to_the_next_with_one_alert():
-    r = Run().go(10.0).go(14.52, cams=(), sets=False).go(20.0)      # nothing from 10.04 to 14.52
+    r = Run().go(10.0).go(14.52, cams=(), sets=False).go(20.0)  # nothing from 10.04 to 14.52
     (ep,) = r.of(Episode)
-    assert ep.start == pytest.approx(10.0) and ep.end == pytest.approx(14.56)    # the time without a pose
+    assert ep.start == pytest.approx(10.0) and ep.end == pytest.approx(14.56)  # the time without a pose
     assert ep.reasons[0].startswith("camera lost: no frames from any camera")
-    (alert,) = r.of(BlindAlert)                                                  # once, after 3 s
+    (alert,) = r.of(BlindAlert)  # once, after 3 s
     assert alert.start == pytest.approx(10.0) and 13.0 < alert.raised <= 13.04
     assert "PATIENT NOT TRACKED for 3.0 s: camera lost" in alert.text()
     assert [c.status for c in r.of(Change)] == [TRACKING, NOT_TRACKING, TRACKING]
@@ -66,12 +66,12 @@ def test_a_gap_of_both_cameras_is_one_stretch_from_the_last_pose_to_the_next_wit
 
 def test_gaps_shorter_than_late_s_stay_tracking_and_short_stretches_raise_no_alert():
     r = Run()
-    for k in range(6):        # a frame set lost now and then, and 1 s bursts every 3 s (the issue's host)
+    for k in range(6):  # a frame set lost now and then, and 1 s bursts every 3 s (the issue's host)
         r.go(3.0 * k + 1.0).go(3.0 * k + 1.4, sets=False).go(3.0 * k + 2.0).go(3.0 * k + 3.04, cams=(), sets=False)
     r.go(20.0)
     eps = r.of(Episode)
     assert len(eps) == 6 and r.of(BlindAlert) == []
-    assert all(e.duration(0) == pytest.approx(1.08) for e in eps)            # 1.04 s without frames + a frame
+    assert all(e.duration(0) == pytest.approx(1.08) for e in eps)  # 1.04 s without frames + a frame
     assert all(e.reasons[0].startswith("camera lost") for e in eps)
 
 
@@ -84,7 +84,7 @@ def test_one_camera_lost_names_it():
 
 
 def test_frames_arriving_but_estimates_behind_are_frames_too_late():
-    r = Run().go(5.0).go(8.0, sets=False)          # both cameras deliver, the live path is stuck
+    r = Run().go(5.0).go(8.0, sets=False)  # both cameras deliver, the live path is stuck
     status, reason = r.w.classify(8.0, r.f, {"cam1": 0.0, "cam2": 0.0})
     assert status == NOT_TRACKING and reason == "frames too late: the newest frame set estimated is 3.0 s old"
     assert r.w.episodes[-1].start == pytest.approx(5.0)
@@ -135,7 +135,10 @@ def test_a_camera_that_sent_nothing_since_the_last_pose_is_lost_even_before_late
     frames too late (which is for frames that come, but late)."""
     w = Watch(CAMS, late_s=LATE)
     f = Facts("tracking", 0.0, seen=10.0, resumed=0.0, estimate=10.0, learned=0.0, seen_arrival=10.1)
-    assert w.classify(10.55, f, {"cam1": 0.46, "cam2": 0.46})[1] == "camera lost: no frames from any camera since the last pose"
+    assert (
+        w.classify(10.55, f, {"cam1": 0.46, "cam2": 0.46})[1]
+        == "camera lost: no frames from any camera since the last pose"
+    )
     assert w.classify(10.55, f, {"cam1": 0.01, "cam2": 0.46})[1] == "camera lost: cam2 (no frame since the last pose)"
     assert w.classify(10.65, f, {"cam1": 0.01, "cam2": 0.56})[1] == "camera lost: cam2 (no frame for 0.6 s)"
     assert w.classify(10.55, f, {"cam1": 0.01, "cam2": 0.02})[1].startswith("frames too late")
@@ -151,7 +154,7 @@ def test_a_break_shorter_than_the_watch_could_see_is_a_stretch_all_the_same():
     assert w.tick(5.5, Facts("tracking", 0.0, 5.0, 0.0, 5.0, "", 0.0), alive) == []
     (ep,) = w.tick(5.6, Facts("tracking", 0.0, 5.55, 5.55, 5.55, "", 0.0, broke=5.0), alive)
     assert (ep.start, ep.end) == (5.0, 5.55) and ep.reasons[0].startswith("no pose: 0.55 s without one")
-    assert w.tick(5.7, Facts("tracking", 0.0, 5.65, 5.55, 5.65, "", 0.0, broke=5.0), alive) == []   # once
+    assert w.tick(5.7, Facts("tracking", 0.0, 5.65, 5.55, 5.65, "", 0.0, broke=5.0), alive) == []  # once
     w.finish(6.0)
     assert w.totals()["not_tracking_s"] == pytest.approx(0.55) and w.totals()["tracking_s"] == pytest.approx(5.45)
 
@@ -167,6 +170,9 @@ def test_frames_late_not_lost_make_a_stretch_until_the_view_is_current_again():
     w.tick(5.6, Facts("tracking", 0.0, 5.0, 0.0, 5.0, "", 0.0, seen_arrival=5.0), alive)
     assert w.status == NOT_TRACKING and w.reason.startswith("frames too late")
     w.tick(5.8, Facts("tracking", 0.0, 5.2, 0.0, 5.2, "", 0.0, seen_arrival=5.8), alive)
-    (ep,) = [e for e in w.tick(6.0, Facts("tracking", 0.0, 5.6, 0.0, 5.6, "", 0.0, seen_arrival=6.0), alive)
-             if isinstance(e, Episode)]
+    (ep,) = [
+        e
+        for e in w.tick(6.0, Facts("tracking", 0.0, 5.6, 0.0, 5.6, "", 0.0, seen_arrival=6.0), alive)
+        if isinstance(e, Episode)
+    ]
     assert (ep.start, ep.end) == (5.0, 6.0) and w.status == TRACKING

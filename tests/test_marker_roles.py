@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from vts_hw.console.names import MarkerNames, wall_points
 from vts_hw.console.markers import find_markers
+from vts_hw.console.names import MarkerNames, wall_points
 from vts_hw.drivers.registry import open_camera
 from vts_hw.procedures.baseline import NoMarkers, take_baselines
 from vts_hw.procedures.daily import QARun
@@ -18,7 +18,7 @@ from vts_hw.sim_devices.sync_truth import write_true_calibration
 from vts_hw.tolerance import State
 from vts_hw.vision.marker_roles import PATIENT, PHANTOM, WALL, roles_of_positions
 
-PX_DEG = math.degrees(math.atan(1.0 / 3370.0))     # one pixel of the reference camera's focal length
+PX_DEG = math.degrees(math.atan(1.0 / 3370.0))  # one pixel of the reference camera's focal length
 
 
 def _mapped(rig, folder):
@@ -57,18 +57,19 @@ def breathing(tmp_path_factory):
 def test_baseline_with_the_patient_breathing_keeps_the_wall_markers_and_the_qa_is_ok(breathing):
     rig, cfg, baselines = breathing
     import time
+
     for name, b in baselines.items():
         walls = _truth_walls(rig, name, time.time())
         assert len(b.markers) == len(walls) >= 3, b
-        for m in b.markers:      # every baseline marker is a wall marker (none of the patient's)
+        for m in b.markers:  # every baseline marker is a wall marker (none of the patient's)
             assert np.min(np.hypot(*(walls - (m.x, m.y)).T)) < 1.0, (name, m)
-        assert sum(r.role == PATIENT for _, _, r in b.others) >= 4   # the patient's markers, left out with why
+        assert sum(r.role == PATIENT for _, _, r in b.others) >= 4  # the patient's markers, left out with why
     res = _drift(cfg, baselines)
     assert res.state == State.OK, res.results()
     for c in res.cameras:
         assert abs(c.drift.drift_px[0]) < 0.1 and abs(c.drift.drift_px[1]) < 0.1 and not c.drift.strays
         assert any(r.role == PATIENT for _, _, r in c.drift.others)
-    _console_agrees(res, baselines)       # (4) the console names the same markers the same way
+    _console_agrees(res, baselines)  # (4) the console names the same markers the same way
 
 
 def test_a_camera_whose_markers_are_all_the_patients_sets_no_baseline(breathing):
@@ -87,7 +88,7 @@ def test_a_camera_whose_markers_are_all_the_patients_sets_no_baseline(breathing)
 
 def test_a_wall_drift_of_1_px_is_found_with_the_patient_breathing(breathing):
     rig, cfg, baselines = breathing
-    rig.sources["cam1"].set_optics(yaw_deg=PX_DEG)      # cam1 turns 1 px to its right: the wall moves left
+    rig.sources["cam1"].set_optics(yaw_deg=PX_DEG)  # cam1 turns 1 px to its right: the wall moves left
     try:
         res = _drift(cfg, baselines)
     finally:
@@ -112,7 +113,7 @@ def _console_agrees(res, baselines):
         last = np.array([(b.x, b.y) for b in d.detections[-1].blobs])
         near = {i: int(np.argmin(np.hypot(*(last - p).T))) for i, p in enumerate(base.points())}
         console = {int(np.argmin(np.hypot(*(last - (mk["x"], mk["y"])).T))): mk for mk in marks}
-        for i, j in near.items():        # the QA's wall markers in its last frame
+        for i, j in near.items():  # the QA's wall markers in its last frame
             assert console[j]["kind"] == "wall" and console[j]["name"] == base.markers[i].id
         moving = [(x, y) for x, y, r in d.others if r.role == PATIENT]
         patient = [mk for mk in marks if mk["kind"] == "band" and mk["name"] == PATIENT]
@@ -126,6 +127,7 @@ def test_the_phantom_on_the_table_is_not_a_wall_marker(tmp_path):
         cfg = _mapped(rig, tmp_path)
         baselines = _baselines(cfg)
         import time
+
         for name, b in baselines.items():
             walls = _truth_walls(rig, name, time.time())
             assert len(b.markers) == len(walls), b
@@ -142,12 +144,13 @@ def test_roles_of_positions_for_the_patient_paths():
     t = np.linspace(0, 6, 60)
     breath = 3.0 * np.sin(2 * np.pi * t / 4)[:, None]
     xyz = np.zeros((60, 4, 3))
-    xyz[:, 0] = (-222, 6, 486)                       # a wall marker beyond the gantry (the sim's W1)
-    xyz[:, 1] = (0, -50, -20)                        # a still sphere on the table
+    xyz[:, 0] = (-222, 6, 486)  # a wall marker beyond the gantry (the sim's W1)
+    xyz[:, 1] = (0, -50, -20)  # a still sphere on the table
     xyz[:, 2] = np.column_stack([np.zeros(60), 80 + breath[:, 0], np.full(60, -40.0)])
     xyz[:, 3] = np.column_stack([np.zeros(60), 85 + 3 * breath[:, 0], np.full(60, 200.0)])
     from vts_hw.vision.aim_settings import AimSettings
     from vts_hw.vision.marker_roles import TableSpace
+
     space = TableSpace.from_settings(AimSettings(table_z_mm=(-1200.0, 330.0)))
     roles = roles_of_positions(xyz, space=space)
     assert [r.role for r in roles] == [WALL, "unknown", "chest", "abdomen"], roles

@@ -3,7 +3,8 @@
 import random
 import re
 
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from vts_hw.recording.axis_jpeg import inspect_jpeg
 from vts_hw.recording.mjpeg import MultipartParser, boundary_from_content_type, jpeg_end, read_frames_file, split_jpegs
@@ -41,7 +42,7 @@ def _parse(data, boundary=b"myboundary", chunk=None):
         i = 0
         while i < len(data):
             k = rng.randint(1, 700)
-            out += p.feed(data[i:i + k])
+            out += p.feed(data[i : i + k])
             i += k
     last = p.flush()
     if last is not None and last.body:
@@ -95,7 +96,7 @@ def test_split_concatenated_jpegs_with_a_torn_one(axis_frames):
     blob = frames[0] + frames[1][:1500] + frames[2] + frames[3]
     spans = split_jpegs(blob)
     assert [s.complete for s in spans] == [True, False, True, True]
-    assert blob[spans[2].offset:spans[2].offset + spans[2].length] == frames[2]
+    assert blob[spans[2].offset : spans[2].offset + spans[2].length] == frames[2]
 
 
 @settings(max_examples=200, deadline=None)

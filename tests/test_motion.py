@@ -6,12 +6,11 @@ import json
 import numpy as np
 import pytest
 
+from motion_truth import patient_tracks, pose_errors, true_moves
 from vts_hw.errors import DataError
 from vts_hw.motion import MotionSettings, analyze_motion, marker_series
-from vts_hw.vision.registration import kabsch_batch
 from vts_hw.sim_devices.patient import BodyMove
-
-from motion_truth import patient_tracks, pose_errors, true_moves
+from vts_hw.vision.registration import kabsch_batch
 
 
 @pytest.fixture(scope="module")
@@ -23,7 +22,7 @@ def moving():
 def test_the_patient_markers_are_found_by_behaviour_and_grouped_in_bands(moving):
     patient, truth, r = moving
     names = [truth["ids"][ids[0]] for ids in r.patient.ids]
-    assert sorted(names) == sorted(m.id for m in patient.rest)          # the 8 band markers, no wall marker
+    assert sorted(names) == sorted(m.id for m in patient.rest)  # the 8 band markers, no wall marker
     groups = [sorted(truth["ids"][r.series.ids[m][0]][0] for m in g) for g in r.bands.groups]
     assert sorted(groups) == [["A"] * 4, ["C"] * 4]
     walls = [m for m in range(len(r.series.ids)) if m not in r.bands.patient]
@@ -60,8 +59,9 @@ def test_respiratory_signal_follows_the_true_breathing(moving):
     b = patient.breathing.value(r.pose.t)
     ok = r.pose.valid
     assert np.corrcoef(r.respiration.amplitude[ok], b[ok])[0, 1] >= 0.98
-    errs = [abs(c.rate_per_min - patient.breathing.rate_per_min(0.5 * (c.t_start + c.t_end)))
-            for c in r.respiration.cycles]
+    errs = [
+        abs(c.rate_per_min - patient.breathing.rate_per_min(0.5 * (c.t_start + c.t_end))) for c in r.respiration.cycles
+    ]
     assert len(errs) >= 8 and np.nanmedian(errs) <= 0.5
     # the amplitude is in mm of the marker that breathes most, inhaling upwards (positive)
     most = max(np.linalg.norm(v) for v in patient.breath_dir.values())
@@ -80,7 +80,7 @@ def test_a_slow_creep_makes_states_but_no_event():
     patient, tracks, _, _ = patient_tracks(seed=2, duration_s=60.0, n_moves=0, creep_mm=5.0)
     r = analyze_motion(marker_series(tracks), MotionSettings(state_mm=2.0))
     assert r.events == []
-    assert len(r.states) >= 2                     # 5 mm of drift in states of 2 mm
+    assert len(r.states) >= 2  # 5 mm of drift in states of 2 mm
     mm, _ = pose_errors(r, patient)
     assert mm < 0.3
 
@@ -107,11 +107,12 @@ def test_kabsch_batch_finds_a_known_transform_with_missing_markers():
     rng = np.random.default_rng(0)
     ref = rng.normal(0, 100, (6, 3))
     from scipy.spatial.transform import Rotation
+
     Rs = Rotation.random(5, random_state=1).as_matrix()
     Ts = rng.normal(0, 50, (5, 3))
     P = np.einsum("fij,mj->fmi", Rs, ref) + Ts[:, None]
-    P[0, :3] = np.nan                                   # frame 0: 3 markers left
-    P[1, :4] = np.nan                                   # frame 1: 2 left: no pose
+    P[0, :3] = np.nan  # frame 0: 3 markers left
+    P[1, :4] = np.nan  # frame 1: 2 left: no pose
     R, T, rms = kabsch_batch(ref, P)
     ok = [0, 2, 3, 4]
     assert np.allclose(R[ok], Rs[ok], atol=1e-9) and np.allclose(T[ok], Ts[ok], atol=1e-6)
@@ -129,7 +130,7 @@ def test_a_ghost_point_does_not_drag_the_pose():
     base = {f: p for f, m, p in zip(tracks.point_frame, tracks.marker, tracks.xyz) if m == a1}
     pf, mk, xyz = [], [], []
     next_id = int(tracks.marker.max()) + 1
-    for start in np.arange(0.0, 50.0, 5.0):                   # a piece every 5 s, 2.5 s long
+    for start in np.arange(0.0, 50.0, 5.0):  # a piece every 5 s, 2.5 s long
         off = rng.normal(size=3)
         off *= rng.uniform(10.0, 20.0) / np.linalg.norm(off)
         for f in np.flatnonzero((host >= t0 + start) & (host < t0 + start + 2.5)):
@@ -162,7 +163,7 @@ def test_no_breathing_is_said_and_no_respiratory_figures_or_subsets_come_from_no
     moves = [BodyMove(t0 + 15.0, t0 + 15.8, (0.7, -0.7, -0.4), (9.0, 4.3, 7.9))]
     patient, tracks, _, _ = patient_tracks(seed=2, duration_s=40.0, breathing=False, moves=moves, noise_mm=0.1)
     r = analyze_motion(marker_series(tracks))
-    assert np.all(r.bands.breath_rms_mm[r.bands.patient] >= 0.25)        # the marker gate alone would pass it
+    assert np.all(r.bands.breath_rms_mm[r.bands.patient] >= 0.25)  # the marker gate alone would pass it
     f = r.respiration.figures
     assert f.status == "none" and "no breathing above the noise" in f.why
     assert f.rate_per_min is None and f.amplitude_mm is None and r.respiration.cycles == []
@@ -194,6 +195,7 @@ def test_weighted_kabsch_is_exact_on_a_rigid_body_whatever_the_weights():
     rng = np.random.default_rng(3)
     ref = rng.normal(0, 150, (8, 3))
     from scipy.spatial.transform import Rotation
+
     Rs = Rotation.from_euler("xyz", [[1.0, -0.5, 0.8], [0.0, 0.0, 0.0]], degrees=True).as_matrix()
     Ts = np.array([[7.5, -3.1, -0.6], [0.0, 0.0, 0.0]])
     P = np.einsum("fij,mj->fmi", Rs, ref) + Ts[:, None]
@@ -209,8 +211,15 @@ def test_a_band_that_breathed_deep_across_a_gap_keeps_its_markers():
     patient's, and the pose from the abdomen alone jittered into false motion (0055). Joined now,
     as one another's unambiguous nearest; a piece with two ends about as near stays apart."""
     from vts_hw.motion.markers import join_pieces
-    wall = [[-222.0, 39.0, -496.8], [-222.0, 5.6, 486.2], [212.0, 19.9, -490.8], [212.0, 24.7, 492.2],
-            [-35.0, 58.1, -502.7], [-268.8, -157.9, 6.3]]
+
+    wall = [
+        [-222.0, 39.0, -496.8],
+        [-222.0, 5.6, 486.2],
+        [212.0, 19.9, -490.8],
+        [212.0, 24.7, 492.2],
+        [-35.0, 58.1, -502.7],
+        [-268.8, -157.9, 6.3],
+    ]
     abd_end = [[-33.9, 93.9, -52.1], [74.5, 90.0, -15.8], [-120.5, 59.5, -80.2], [156.8, 49.4, 12.1]]
     abd_start = [[-32.6, 85.5, -51.1], [72.4, 81.8, -14.9], [-116.0, 52.9, -78.9], [151.6, 43.2, 12.8]]
     chest_end = [[-44.6, 117.7, 220.7], [-132.0, 89.1, 238.3], [61.3, 113.2, 199.0], [145.2, 77.1, 182.6]]
@@ -220,7 +229,7 @@ def test_a_band_that_breathed_deep_across_a_gap_keeps_its_markers():
     n = len(before)
     first = np.array([0.0] * n + [48.28] * n)
     last = np.array([47.08] * n + [52.88] * n)
-    xyz0 = np.array(before + after)            # where each piece starts (the early ones: irrelevant)
+    xyz0 = np.array(before + after)  # where each piece starts (the early ones: irrelevant)
     xyz1 = np.array(before + after)
     chains = join_pieces(first, last, xyz0, xyz1, list(range(2 * n)))
     assert sorted(map(sorted, chains)) == [[k, k + n] for k in range(n)]
@@ -242,6 +251,7 @@ def _jittery_pose(seed, moves, jitter_mm=0.12, noisy=((22.0, 30.0), (31.0, 36.0)
     the markers showed before a move in the bench (seed 2, 20 %: 0.1-0.15 mm, speed spikes of
     1.0-1.6 mm/s over the 1 mm/s floor)."""
     from vts_hw.motion.body_pose import BodyPose
+
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, 60.0, 0.04)
     T = np.zeros((len(t), 3))
@@ -254,8 +264,9 @@ def _jittery_pose(seed, moves, jitter_mm=0.12, noisy=((22.0, 30.0), (31.0, 36.0)
     T += rng.normal(size=T.shape) * sd[:, None]
     ref = np.array([[100.0, 0, 200], [-100, 0, 200], [100, 0, -50], [-100, 0, -50]])
     F = len(t)
-    return BodyPose(t, np.repeat(np.eye(3)[None], F, 0), T, np.zeros(F), np.full(F, 0.03), np.full(F, 8),
-                    ref.mean(axis=0)), ref
+    return BodyPose(
+        t, np.repeat(np.eye(3)[None], F, 0), T, np.zeros(F), np.full(F, 0.03), np.full(F, 8), ref.mean(axis=0)
+    ), ref
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -265,6 +276,7 @@ def test_pose_jitter_before_a_move_neither_starts_it_early_nor_makes_an_event(se
     is quiet is still found, its start within 0.5 s; and a 2 mm move inside the jitter, whose
     start the jitter hides, has its start bounded (with the reason), never a wrong measured one."""
     from vts_hw.motion.events import find_events
+
     pose, ref = _jittery_pose(seed, [(30.0, 0.8, 3.0, 1), (45.0, 1.0, 2.0, 0)])
     events, *_ = find_events(pose, ref)
     assert [e.start_bounds for e in events] == [None, None]
@@ -284,6 +296,7 @@ def test_a_pose_the_model_cannot_explain_is_marked_poor_fit_not_ok():
     a model gone wrong leaves them) leave a residual; those frames are 'poor fit' in the exports
     and the analysis says how much of the scan (0055). A clean patient has none."""
     from vts_hw.motion.exports import frame_quality
+
     patient, tracks, truth, t0 = patient_tracks(seed=5, duration_s=40.0, n_moves=0)
     clean = analyze_motion(marker_series(tracks))
     assert "ok" in set(frame_quality(clean)) and "poor fit" not in set(frame_quality(clean))

@@ -9,44 +9,64 @@ import sys
 import numpy as np
 import pytest
 
-from vts_hw.tracking.tracks import Tracks
 from vts_hw.sim_devices.patient import BodyMove
 from vts_hw.sim_devices.recording_sim import simulate_recording
 from vts_hw.store import ResultsStore
 from vts_hw.tolerance import DEFAULT_TOLERANCES, worst
+from vts_hw.tracking.tracks import Tracks
 from vts_hw.vision.registration import RigidTransform
 
 # rendering the recording (no real time) takes minutes on a loaded machine: the timeout is a hang detector
 pytestmark = pytest.mark.timeout(600)
 SEED = 0
-START = 1_790_000_000.0 + 1000.0 * SEED + 5.0        # simulate_recording's default start
+START = 1_790_000_000.0 + 1000.0 * SEED + 5.0  # simulate_recording's default start
 MOVE = BodyMove(START + 12.0, START + 12.8, (0.3, 0.2, 0.7), (1.0, 2.0, 1.0))
 
 
 def _vts(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "vts_hw.cli", *map(str, args)], capture_output=True,
-                          text=True, cwd=cwd, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "vts_hw.cli", *map(str, args)], capture_output=True, text=True, cwd=cwd, timeout=600
+    )
 
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("motion_e2e")
     sim = simulate_recording(tmp / "session", duration_s=24.0, seed=SEED, patient={"moves": [MOVE]})
-    cams = [{"name": n, **{k: np.asarray(getattr(c, k)).tolist() for k in ("K", "dist", "R", "t")}}
-            for n, c in ((n, sim.scene.camera_at(n, START)) for n in sim.cameras)]
+    cams = [
+        {"name": n, **{k: np.asarray(getattr(c, k)).tolist() for k in ("K", "dist", "R", "t")}}
+        for n, c in ((n, sim.scene.camera_at(n, START)) for n in sim.cameras)
+    ]
     (tmp / "cameras.json").write_text(json.dumps({"unit": "mm", "cameras": cams}))
-    RigidTransform.identity().save(tmp / "mapping.json")     # the true cameras are in the SPECT frame
-    (tmp / "rig.yaml").write_text(f"rig: sim\ncameras:\n  - name: cam1\n    host: 127.0.0.1\n"
-                                  f"results:\n  url: sqlite:///{tmp / 'results.sqlite'}\n"
-                                  f"motion:\n  state_mm: 2.0\n  state_deg: 1.0\n")
+    RigidTransform.identity().save(tmp / "mapping.json")  # the true cameras are in the SPECT frame
+    (tmp / "rig.yaml").write_text(
+        f"rig: sim\ncameras:\n  - name: cam1\n    host: 127.0.0.1\n"
+        f"results:\n  url: sqlite:///{tmp / 'results.sqlite'}\n"
+        f"motion:\n  state_mm: 2.0\n  state_deg: 1.0\n"
+    )
     return sim, tmp
 
 
 def test_motion_analyze_end_to_end(session):
     sim, tmp = session
-    out = _vts("motion", "analyze", tmp / "session", "--calibration", tmp / "cameras.json", "--mapping",
-               tmp / "mapping.json", "--config", tmp / "rig.yaml", "-o", tmp / "report.html", "--export",
-               tmp / "export", "--workers", "2", "--json")
+    out = _vts(
+        "motion",
+        "analyze",
+        tmp / "session",
+        "--calibration",
+        tmp / "cameras.json",
+        "--mapping",
+        tmp / "mapping.json",
+        "--config",
+        tmp / "rig.yaml",
+        "-o",
+        tmp / "report.html",
+        "--export",
+        tmp / "export",
+        "--workers",
+        "2",
+        "--json",
+    )
     assert out.returncode in (0, 10, 20), out.stderr
     data = json.loads(out.stdout)
     # the state the true motion deserves, by the default windows (the rig.yaml sets none)
@@ -56,11 +76,19 @@ def test_motion_analyze_end_to_end(session):
     true_deg = float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))))
     assert data["summary"]["motion_body_max_mm"] == pytest.approx(true_mm, abs=0.3)
     assert data["summary"]["motion_body_max_deg"] == pytest.approx(true_deg, abs=0.2)
-    want = worst([DEFAULT_TOLERANCES["motion_body_max_mm"].state(true_mm),
-                  DEFAULT_TOLERANCES["motion_body_max_deg"].state(true_deg)])
-    assert data["summary"]["state"] == str(want) and out.returncode == {"OK": 0, "TOLERANCE": 10, "ACTION": 20}[str(want)]
+    want = worst(
+        [
+            DEFAULT_TOLERANCES["motion_body_max_mm"].state(true_mm),
+            DEFAULT_TOLERANCES["motion_body_max_deg"].state(true_deg),
+        ]
+    )
+    assert (
+        data["summary"]["state"] == str(want) and out.returncode == {"OK": 0, "TOLERANCE": 10, "ACTION": 20}[str(want)]
+    )
     assert "host clock" in data["clock"] and data["frame"]["name"] == "SPECT frame"
-    assert len(data["events"]) == 1 and abs(data["events"][0]["t_start"] - (MOVE.t_start - sim.exposure["cam1"][0])) < 0.5
+    assert (
+        len(data["events"]) == 1 and abs(data["events"][0]["t_start"] - (MOVE.t_start - sim.exposure["cam1"][0])) < 0.5
+    )
     assert len(data["states"]) == 2
     truth = sim.patient.six_dof(START + 20.0)
     assert np.allclose(data["states"][1]["six_dof"][:3], truth[:3], atol=0.3)
@@ -73,8 +101,9 @@ def test_motion_analyze_end_to_end(session):
     assert {"motion_6dof.csv", "motion_6dof.json", "subsets.json", "trajectories.csv"} <= names
     # no list-mode: host-clock seconds, which CASToR would take for list-mode seconds -- no CASToR file
     assert not (tmp / "export" / "castor_motion.dyn").exists() and "castor_motion.dyn" not in names
-    assert len(data["export_notes"]) == 2 and data["export_notes"][0].startswith("CASToR files not written: the "
-                                                                                  "times are host-clock seconds")
+    assert len(data["export_notes"]) == 2 and data["export_notes"][0].startswith(
+        "CASToR files not written: the times are host-clock seconds"
+    )
     assert data["export_notes"][1].startswith("YRT-PET LOR motion file not written: the times are host-clock")
     six = json.loads((tmp / "export" / "motion_6dof.json").read_text())
     assert "host clock" in six["clock"] and six["castor"]["written"] is False
@@ -85,6 +114,7 @@ def test_motion_analyze_end_to_end(session):
 
 def test_motion_pose_against_the_truth(session):
     from vts_hw.procedures.motion import MotionAnalysis
+
     sim, tmp = session
     a = MotionAnalysis(tmp / "session", None, tmp / "cameras.json", tmp / "mapping.json", workers=2).analyze()
     r = a.result
@@ -100,8 +130,18 @@ def test_motion_pose_against_the_truth(session):
 
 def test_recording_process_writes_the_tracks(session):
     _, tmp = session
-    out = _vts("recording", "process", tmp / "session", "--calibration", tmp / "cameras.json",
-               "-o", tmp / "tracks", "--workers", "2", "--json")
+    out = _vts(
+        "recording",
+        "process",
+        tmp / "session",
+        "--calibration",
+        tmp / "cameras.json",
+        "-o",
+        tmp / "tracks",
+        "--workers",
+        "2",
+        "--json",
+    )
     assert out.returncode == 0, out.stderr
     tr = Tracks.load(tmp / "tracks" / "trajectories.csv")
     assert len(tr) == json.loads(out.stdout)["frames"] > 500 and len(tr.marker_ids()) >= 8
@@ -109,8 +149,9 @@ def test_recording_process_writes_the_tracks(session):
 
 def test_bad_inputs_are_one_sentence(session, tmp_path):
     _, tmp = session
-    out = _vts("motion", "analyze", tmp_path / "nowhere", "--calibration", tmp / "cameras.json",
-               "--config", tmp / "rig.yaml")
+    out = _vts(
+        "motion", "analyze", tmp_path / "nowhere", "--calibration", tmp / "cameras.json", "--config", tmp / "rig.yaml"
+    )
     assert out.returncode == 3 and out.stderr.startswith("vts: ") and "Traceback" not in out.stderr
     assert "nowhere" in out.stderr
     out = _vts("motion", "analyze", tmp / "session", "--config", tmp / "rig.yaml")
@@ -123,12 +164,28 @@ def test_export_onto_a_full_disk_keeps_the_analysis_and_no_cut_file(session, sma
     analysis is printed and stored all the same, and one sentence names the files (exit 3)."""
     _, tmp = session
     disk = small_disk(1024)
-    disk.fill(leave=300_000)                 # motion_6dof.* (~150 kB) fit, trajectories.csv (~900 kB) does not
+    disk.fill(leave=300_000)  # motion_6dof.* (~150 kB) fit, trajectories.csv (~900 kB) does not
     with ResultsStore(f"sqlite:///{tmp / 'results.sqlite'}") as store:
         before = len(store.runs(procedure="motion"))
-    out = _vts("motion", "analyze", tmp / "session", "--calibration", tmp / "cameras.json", "--mapping",
-               tmp / "mapping.json", "--config", tmp / "rig.yaml", "--export", disk.path / "export",
-               "-o", disk.path / "report.html", "--plot", disk.path / "plot.png", "--workers", "2")
+    out = _vts(
+        "motion",
+        "analyze",
+        tmp / "session",
+        "--calibration",
+        tmp / "cameras.json",
+        "--mapping",
+        tmp / "mapping.json",
+        "--config",
+        tmp / "rig.yaml",
+        "--export",
+        disk.path / "export",
+        "-o",
+        disk.path / "report.html",
+        "--plot",
+        disk.path / "plot.png",
+        "--workers",
+        "2",
+    )
     err = out.stderr.strip().splitlines()[-1]
     assert out.returncode == 3 and "Traceback" not in out.stderr, out.stderr
     assert err.startswith("vts: ") and "trajectories.csv: could not be written (no space left on device)" in err
@@ -139,7 +196,7 @@ def test_export_onto_a_full_disk_keeps_the_analysis_and_no_cut_file(session, sma
     left = disk.files()
     assert not any(".tmp" in name for name in left), left
     assert "export/trajectories.csv" not in left and "export/trajectories.json" not in left
-    for name in ("report.html", "plot.png"):   # written whole (then not named), or absent and named
+    for name in ("report.html", "plot.png"):  # written whole (then not named), or absent and named
         assert (name in left) != (f"{name}: could not be written" in err), (name, left, err)
     if "report.html" in left:
         assert (disk.path / "report.html").read_text().rstrip().endswith("</html>")

@@ -4,20 +4,19 @@ list-mode subsets, and CASToR's two files through a reader written here from CAS
 trigger 0. On the host clock no CASToR file is written (CASToR reads list-mode seconds)."""
 
 import csv
-import os
 import json
+import os
 import re
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from motion_truth import patient_tracks
 from vts_hw.motion import analyze_motion, marker_series
 from vts_hw.motion.castor import write_castor
 from vts_hw.motion.exports import export_motion
 from vts_hw.sim_devices.sync_truth import SCENE_VOLUME
-
-from motion_truth import patient_tracks
 
 
 def read_castor_keyword(path, key):
@@ -30,7 +29,7 @@ def read_castor_keyword(path, key):
             if rest:
                 return [[float(x) for x in re.split(r"[,\s]+", rest) if x]]
             rows = []
-            for nxt in lines[i + 1:]:
+            for nxt in lines[i + 1 :]:
                 if not nxt.strip() or ":" in nxt:
                     break
                 rows.append([float(x) for x in re.split(r"[,\s]+", nxt.strip()) if x])
@@ -38,7 +37,7 @@ def read_castor_keyword(path, key):
     raise KeyError(key)
 
 
-LEAD = 2.5          # the SPECT started 2.5 s before the first frame
+LEAD = 2.5  # the SPECT started 2.5 s before the first frame
 
 
 @pytest.fixture(scope="module")
@@ -47,8 +46,10 @@ def exported(tmp_path_factory):
     patient, tracks, _, t0 = patient_tracks(seed=5, duration_s=60.0, n_moves=2)
     r = analyze_motion(marker_series(tracks))
     out = tmp_path_factory.mktemp("export")
-    (out / "castor_motion.dyn").write_text("nb_motion_triggers: 1\ntimestamp_motion_triggers: 0\n")  # an earlier export's
-    (out / "yrtpet_lor_motion.csv").write_text("0,1,0,0,0,0,1,0,0,0,0,1,0,0\n")                         # ... too
+    (out / "castor_motion.dyn").write_text(
+        "nb_motion_triggers: 1\ntimestamp_motion_triggers: 0\n"
+    )  # an earlier export's
+    (out / "yrtpet_lor_motion.csv").write_text("0,1,0,0,0,0,1,0,0,0,0,1,0,0\n")  # ... too
     paths = export_motion(r, out, n_bins=4, volume=SCENE_VOLUME)
     return patient, r, out, paths, t0
 
@@ -83,12 +84,12 @@ def test_castor_files_have_whole_second_triggers_one_line_each(synced):
     dyn, rig = out / "castor_motion.dyn", out / "castor_motion_rigid.txt"
     n = int(read_castor_keyword(dyn, "nb_motion_triggers")[0][0])
     text = [ln for ln in dyn.read_text().splitlines() if ln.startswith("timestamp_motion_triggers:")][0]
-    assert re.fullmatch(r"timestamp_motion_triggers: 0(,\d+)*", text)      # integers: what CASToR reads
+    assert re.fullmatch(r"timestamp_motion_triggers: 0(,\d+)*", text)  # integers: what CASToR reads
     stamps = read_castor_keyword(dyn, "timestamp_motion_triggers")[0]
     params = read_castor_keyword(rig, "Transformation_parameters")
     assert n == len(r.states) == len(stamps) == len(params) == 3
     assert all(b > a for a, b in zip(stamps, stamps[1:]))
-    assert params[0] == [0.0] * 6          # the state at the acquisition start: CASToR's reference
+    assert params[0] == [0.0] * 6  # the state at the acquisition start: CASToR's reference
     assert rig.read_text().count("Rotation_convention: XYZ") == 1
     assert read_castor_keyword(rig, "Transformation_mode")[0] == [0.0]
     # each state starts at the whole second nearest its start (list-mode seconds)
@@ -121,11 +122,11 @@ def test_castor_parameters_undo_the_true_pose_of_each_state(synced):
     patient, r, out, _, t0 = synced
     params = read_castor_keyword(out / "castor_motion_rigid.txt", "Transformation_parameters")
     flip = np.diag([1.0, 1.0, -1.0])
-    R0, T0 = patient.body_transform(t0 - LEAD)            # the pose at the acquisition start
+    R0, T0 = patient.body_transform(t0 - LEAD)  # the pose at the acquisition start
     x_start = np.array([[0.0, 0.0, 0.0], [100.0, 50.0, -80.0], [-120.0, 80.0, 150.0]])
     for s, p in zip(r.states, params):
         R, T = patient.body_transform(t0 - LEAD + 0.5 * (s.t_start + s.t_end))
-        x_state = (x_start - T0) @ R0 @ R.T + T          # the start pose undone, the state's applied
+        x_state = (x_start - T0) @ R0 @ R.T + T  # the start pose undone, the state's applied
         M = castor_matrix_from_source_rules(p)
         back = (x_state @ flip) @ M[:3, :3].T + M[:3, 3]
         assert np.abs(back - x_start @ flip).max() < 0.5, (s.index, back - x_start @ flip)
@@ -176,11 +177,11 @@ def test_castor_writer_refuses_what_castor_would_misread(tmp_path):
     with pytest.raises(ValueError, match="without a pose"):
         write_castor([0, 5], [[0] * 6, [np.nan] * 6], tmp_path)
     with pytest.raises(ValueError, match="whole seconds"):
-        write_castor([0, 8.5], [[0] * 6, [1, 2, 3, 0.5, 0, 0]], tmp_path)     # CASToR would read 8
+        write_castor([0, 8.5], [[0] * 6, [1, 2, 3, 0.5, 0, 0]], tmp_path)  # CASToR would read 8
     with pytest.raises(ValueError, match="whole seconds"):
-        write_castor([3, 8], [[0] * 6, [1, 2, 3, 0.5, 0, 0]], tmp_path)       # CASToR refuses a first not 0
+        write_castor([3, 8], [[0] * 6, [1, 2, 3, 0.5, 0, 0]], tmp_path)  # CASToR refuses a first not 0
     with pytest.raises(ValueError, match="increase"):
-        write_castor([0, 8, 8], [[0] * 6] * 3, tmp_path)                       # CASToR would skip a line
+        write_castor([0, 8, 8], [[0] * 6] * 3, tmp_path)  # CASToR would skip a line
     p1, p2 = write_castor([0, 8], [[0] * 6, [1, 2, 3, 0.5, 0, 0]], tmp_path, comment="a # note")
     assert read_castor_keyword(p1, "timestamp_motion_triggers") == [[0.0, 8.0]]
     assert p1.read_text().startswith("# a note\n") and p2.read_text().startswith("# a note\n")
@@ -212,8 +213,8 @@ def read_lor_motion_by_yrtpet_rules(path):
         if not line:
             continue
         m = re.match(r"\d+", line)
-        if m is None or int(m.group()) > 2 ** 32 - 1 or line[m.end():m.end() + 1] not in (",", " ", ""):
-            skipped.append(k)                          # (a '.' after the digits would shift the columns)
+        if m is None or int(m.group()) > 2**32 - 1 or line[m.end() : m.end() + 1] not in (",", " ", ""):
+            skipped.append(k)  # (a '.' after the digits would shift the columns)
             continue
         pos, vals = m.end(), []
         for _ in range(13):
@@ -240,22 +241,22 @@ def test_yrtpet_lor_motion_undoes_the_true_pose_on_the_list_mode_clock(synced):
     patient, r, out, _, t0 = synced
     ms, M, e, skipped = read_lor_motion_by_yrtpet_rules(out / "yrtpet_lor_motion.csv")
     assert skipped == [] and not (out / "yrtpet_lor_motion.csv").read_text().startswith(("t", "#"))
-    assert ms[0] == 0 and np.all(np.diff(ms) > 0) and ms[1] == round(LEAD * 1000)     # list-mode ms
-    assert e[0] == 1.0 and np.all((e >= 0) & (e <= 1))       # no frame before 2.5 s: no pose there
+    assert ms[0] == 0 and np.all(np.diff(ms) > 0) and ms[1] == round(LEAD * 1000)  # list-mode ms
+    assert e[0] == 1.0 and np.all((e >= 0) & (e <= 1))  # no frame before 2.5 s: no pose there
     doc = json.loads((out / "motion_6dof.json").read_text())
     conf = np.array(doc["columns"]["confidence"])
     assert e[1:] == pytest.approx(1 - conf, abs=6e-5) and doc["yrtpet"]["lines"] == len(ms)
     a, b = r.reference_period
-    R0, T0 = patient.body_transform(0.5 * (a + b) + t0 - LEAD)     # the reference pose (truth)
+    R0, T0 = patient.body_transform(0.5 * (a + b) + t0 - LEAD)  # the reference pose (truth)
     x_ref = np.array([[0.0, 0.0, 0.0], [100.0, 50.0, -80.0], [-120.0, 80.0, 150.0]])
     worst = 0.0
     for k in range(1, len(ms), 37):
         R, T = patient.body_transform(ms[k] / 1000.0 + t0 - LEAD)
-        x_now = (x_ref - T0) @ R0 @ R.T + T                    # the reference pose undone, this one applied
+        x_now = (x_ref - T0) @ R0 @ R.T + T  # the reference pose undone, this one applied
         back = x_now @ M[k][:, :3].T + M[k][:, 3]
         worst = max(worst, float(np.abs(back - x_ref).max()))
     assert worst < 0.5, worst
-    assert np.allclose(np.einsum("kij,kil->kjl", M[:, :, :3], M[:, :, :3]), np.eye(3), atol=1e-6)   # rotations
+    assert np.allclose(np.einsum("kij,kil->kjl", M[:, :, :3], M[:, :, :3]), np.eye(3), atol=1e-6)  # rotations
 
 
 def test_every_pose_says_how_sure_it_is_in_the_exports(synced):
@@ -279,6 +280,7 @@ def test_every_pose_says_how_sure_it_is_in_the_exports(synced):
 def test_yrtpet_writer_refuses_what_yrtpet_would_misread_and_targets_not_files(tmp_path):
     from vts_hw.files import NotReplaced
     from vts_hw.motion.yrtpet import LorMotionPlan, lor_motion_text, write_lor_motion
+
     eye = [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0]
     with pytest.raises(ValueError, match="unsigned 32-bit"):
         lor_motion_text(np.array([-40, 0]), [eye, eye], [0, 0])
@@ -306,13 +308,15 @@ def test_a_fifo_or_folder_named_as_yrtpets_file_is_left_as_it_is(exported, synce
     earlier export's and is not removed; on the SPECT clock the export stops there in one sentence
     (exit 3 through the CLI), the FIFO kept, the files before it whole."""
     from vts_hw.files import NotReplaced
+
     host, spect = tmp_path / "host", tmp_path / "spect"
     for d in (host, spect):
         d.mkdir()
         os.mkfifo(d / "yrtpet_lor_motion.csv")
     paths = export_motion(exported[1], host, volume=SCENE_VOLUME)
-    assert paths.notes[1].endswith("(yrtpet_lor_motion.csv there is a named pipe (FIFO), no earlier export's "
-                                   "file: left as it is)")
+    assert paths.notes[1].endswith(
+        "(yrtpet_lor_motion.csv there is a named pipe (FIFO), no earlier export's file: left as it is)"
+    )
     with pytest.raises(NotReplaced, match=r"yrtpet_lor_motion.csv: could not be written \(it is a named pipe"):
         export_motion(synced[1], spect, volume=SCENE_VOLUME)
     for d in (host, spect):

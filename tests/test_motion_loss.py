@@ -13,21 +13,29 @@ import sys
 import numpy as np
 import pytest
 
-from lossy_recording import (bursts, camera_gone, cut_mjpeg, host_times, lossy_copy, random_frames,
-                             remove_camera, slots_lost)
+from lossy_recording import (
+    bursts,
+    camera_gone,
+    cut_mjpeg,
+    host_times,
+    lossy_copy,
+    random_frames,
+    remove_camera,
+    slots_lost,
+)
 from vts_hw.errors import DataError
 from vts_hw.motion.timeline import MAX_HOLE_S, runs
 from vts_hw.procedures.motion import MotionAnalysis
-from vts_hw.tracking.processing import process_recording
 from vts_hw.sim_devices.patient import BodyMove
 from vts_hw.sim_devices.recording_sim import simulate_recording
 from vts_hw.sim_devices.scene import Scene
 from vts_hw.tolerance import State
+from vts_hw.tracking.processing import process_recording
 
 pytestmark = pytest.mark.slow
 
 SEED = 0
-START = 1_790_000_000.0 + 1000.0 * SEED + 5.0        # simulate_recording's default start
+START = 1_790_000_000.0 + 1000.0 * SEED + 5.0  # simulate_recording's default start
 DURATION = 30.0
 MOVE = BodyMove(START + 17.0, START + 17.8, (0.5, -1.0, 1.5), (4.0, -3.0, 6.0))
 FPS = 25.0
@@ -37,8 +45,10 @@ FPS = 25.0
 def full(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("motion_loss")
     sim = simulate_recording(tmp / "full", duration_s=DURATION, seed=SEED, patient={"moves": [MOVE]})
-    cams = [{"name": n, **{k: np.asarray(getattr(c, k)).tolist() for k in ("K", "dist", "R", "t")}}
-            for n, c in ((n, sim.scene.camera_at(n, START)) for n in sim.cameras)]
+    cams = [
+        {"name": n, **{k: np.asarray(getattr(c, k)).tolist() for k in ("K", "dist", "R", "t")}}
+        for n, c in ((n, sim.scene.camera_at(n, START)) for n in sim.cameras)
+    ]
     (tmp / "cameras.json").write_text(json.dumps({"unit": "mm", "cameras": cams}))
     return sim, tmp
 
@@ -54,8 +64,11 @@ def analysed(full, name, masks=None, cut=None):
 
 
 def true_rate(sim, t):
-    cyc = [c for c in sim.patient.breathing.cycles
-           if t[0] <= c.t_start and c.t_start + c.period_s <= t[-1] and c.kind != "pause"]
+    cyc = [
+        c
+        for c in sim.patient.breathing.cycles
+        if t[0] <= c.t_start and c.t_start + c.period_s <= t[-1] and c.kind != "pause"
+    ]
     return float(np.median([60.0 / c.period_s for c in cyc]))
 
 
@@ -67,7 +80,7 @@ def check_breathing_is_true_or_flagged(r, sim):
     """Every breath counted lies in one stretch with frames; the rate is within 0.5 /min of the
     truth, or bounded with the truth inside its range, or unknown."""
     t = r.pose.t
-    for c in r.respiration.cycles:                  # never across a gap; holes of a few frames allowed
+    for c in r.respiration.cycles:  # never across a gap; holes of a few frames allowed
         inside = (t >= c.t_start) & (t <= c.t_end)
         assert all((b - a) / FPS <= MAX_HOLE_S + 1e-9 for a, b in runs(inside & ~r.pose.valid)), c
     f = r.respiration.figures
@@ -115,8 +128,10 @@ def test_bursts_like_a_busy_machine_are_time_without_a_pose(full, tmp_path):
     assert a.figures()["motion_pose_coverage"] == pytest.approx(cov["share"])
     assert {m.metric: m for m in a.measures}["motion_pose_coverage"].state == State.ACTION
     text = a.results()
-    assert f"pose known {100 * cov['share']:.1f} % of {DURATION:.1f} s; {cov['no_frames_s']:.1f} s without " \
-           f"frames in {cov['no_frames_gaps']} gap(s)" in text
+    assert (
+        f"pose known {100 * cov['share']:.1f} % of {DURATION:.1f} s; {cov['no_frames_s']:.1f} s without "
+        f"frames in {cov['no_frames_gaps']} gap(s)" in text
+    )
     assert cov["no_frames_gaps"] == len(iv)
     check_breathing_is_true_or_flagged(r, sim)
     check_move(r)
@@ -130,7 +145,7 @@ def test_bursts_like_a_busy_machine_are_time_without_a_pose(full, tmp_path):
     assert len(gap_rows) == pytest.approx(lost_s * FPS, abs=0.01 * DURATION * FPS)
     assert all(row["tx_mm"] == "" for row in gap_rows)
     t0 = r.series.t[0]
-    for row in gap_rows:      # each in a burst (frames were left out by their receive time: up to 0.35 s late)
+    for row in gap_rows:  # each in a burst (frames were left out by their receive time: up to 0.35 s late)
         t = float(row["time_s"]) + t0
         assert any(a_ - 0.35 <= t <= b_ + 0.05 for a_, b_ in iv), t
     sub = json.loads((tmp_path / "out" / "subsets.json").read_text())
@@ -139,7 +154,8 @@ def test_bursts_like_a_busy_machine_are_time_without_a_pose(full, tmp_path):
     # every stretch without a pose is either in no state, or bridged: short, away from the move,
     # the same pose on both sides (docs/motion-formats.md's rule)
     assert sum(b - a for a, b in unknown + bridged) == pytest.approx(
-        cov["no_frames_s"] + cov["few_markers_s"], abs=0.05)
+        cov["no_frames_s"] + cov["few_markers_s"], abs=0.05
+    )
     events = json.loads((tmp_path / "out" / "motion_6dof.json").read_text())["events"]
     for a_, b_ in bridged:
         assert b_ - a_ <= 2.0 + 1e-6
@@ -149,7 +165,7 @@ def test_bursts_like_a_busy_machine_are_time_without_a_pose(full, tmp_path):
         assert covered + st["unknown_s"] == pytest.approx(st["interval_s"][1] - st["interval_s"][0], abs=0.05)
         for a_, b_ in st["intervals_s"]:
             assert not any(a_ < ub - 1e-6 and ua < b_ - 1e-6 for ua, ub in unknown)
-    for row in gap_rows:       # a gap row has a state only where the gap was bridged
+    for row in gap_rows:  # a gap row has a state only where the gap was bridged
         if row["state"]:
             t = float(row["time_s"])
             assert any(a_ - 1e-6 <= t <= b_ + 1e-6 for a_, b_ in bridged)
@@ -173,7 +189,7 @@ def test_a_move_in_a_gap_has_its_start_bounded_by_the_gap(full):
     assert d["events"][0]["start"] == "bounded" and d["summary"]["events_start_bounded"] == 1
     assert "start between" in a.results() and "known only to within it" in a.results()
     gap = [u for u in r.unknown if u["why"] == "no frames"]
-    assert len(gap) == 1 and not r.covered[gap[0]["rows"][0]:gap[0]["rows"][1]].any()
+    assert len(gap) == 1 and not r.covered[gap[0]["rows"][0] : gap[0]["rows"][1]].any()
     assert len(r.states) == 2 and gap[0]["t_start"] - 0.05 <= r.states[1].t_start <= gap[0]["t_end"] + 0.05
     check_pose(r, sim)
 
@@ -199,6 +215,7 @@ def test_a_mjpeg_cut_short_is_analysed_for_what_it_holds_and_says_what_is_missin
     assert six["columns"]["quality"][-1] == "no frames" and six["columns"]["tx_mm"][-1] is None
     assert six["columns"]["time_s"][-1] == pytest.approx(DURATION - 1 / FPS, abs=0.05)
     from vts_hw.report.motion_html import render_motion_html
+
     html = render_motion_html(a.results_data(), b"\x89PNG")
     assert "cam1.mjpeg holds" in html and "Time without a pose" in html
     check_breathing_is_true_or_flagged(r, sim)
@@ -213,8 +230,11 @@ def test_single_frames_lost_at_random_leave_every_breath_whole(full):
     # a missing frame hides no breath: every true breath lying whole in the scan is a cycle (but
     # one at an end); on 30 s the median of 5-7 breaths is known to +-0.5-0.7 /min (0059)
     t = r.pose.t
-    whole = [c for c in sim.patient.breathing.cycles
-             if t[0] + 0.3 <= c.t_start and c.t_start + c.period_s <= t[-1] - 0.3 and c.kind != "pause"]
+    whole = [
+        c
+        for c in sim.patient.breathing.cycles
+        if t[0] + 0.3 <= c.t_start and c.t_start + c.period_s <= t[-1] - 0.3 and c.kind != "pause"
+    ]
     assert len(r.respiration.cycles) >= max(5, len(whole) - 1), (r.respiration.cycles, whole)
     assert f.status in ("measured", "bounded") and f.rate_range[1] - f.rate_range[0] <= 1.5, f
     check_move(r)
@@ -229,7 +249,7 @@ def test_one_camera_gone_for_a_stretch_is_no_pose_and_in_no_state(full):
     (gap,) = [u for u in r.unknown if u["seconds"] > 1.0]
     assert gap["why"] == "no frames" and gap["seconds"] == pytest.approx(8.0, abs=0.1)
     a_, b_ = gap["rows"]
-    assert not r.covered[a_:b_].any()               # longer than any bridge: no state claims it
+    assert not r.covered[a_:b_].any()  # longer than any bridge: no state claims it
     assert any("camera cam2" in p and "missing" in p for p in a.problems)
     check_breathing_is_true_or_flagged(r, sim)
     check_move(r)
@@ -243,8 +263,12 @@ def test_a_camera_whose_files_are_missing_is_named(full, tmp_path):
     remove_camera(dst, "cam2")
     with pytest.raises(DataError, match=r"cam2\.mjpeg and cam2\.index\.csv missing \(the manifest lists 750"):
         MotionAnalysis(dst, None, tmp / "cameras.json", None, workers=1).analyze()
-    p = subprocess.run([sys.executable, "-m", "vts_hw.cli", "motion", "analyze", dst, "--calibration",
-                        tmp / "cameras.json"], capture_output=True, text=True, timeout=300)
+    p = subprocess.run(
+        [sys.executable, "-m", "vts_hw.cli", "motion", "analyze", dst, "--calibration", tmp / "cameras.json"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert p.returncode == 3 and "Traceback" not in p.stderr and "cam2.mjpeg and cam2.index.csv missing" in p.stderr
 
 
@@ -266,10 +290,28 @@ def test_the_printed_summary_and_the_report_say_coverage_as_time(full, tmp_path)
     sim, tmp = full
     masks, _ = bursts(tmp / "full", 0.2, seed=11, start_after_s=0.5)
     lossy_copy(tmp / "full", tmp_path / "s", masks)
-    p = subprocess.run([sys.executable, "-m", "vts_hw.cli", "motion", "analyze", tmp_path / "s", "--calibration",
-                        tmp / "cameras.json", "-o", tmp_path / "r.html", "--export", tmp_path / "out",
-                        "--workers", "1"], capture_output=True, text=True, timeout=300)
-    assert p.returncode in (10, 20), p.stderr                   # ~80 % known: not OK
+    p = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "vts_hw.cli",
+            "motion",
+            "analyze",
+            tmp_path / "s",
+            "--calibration",
+            tmp / "cameras.json",
+            "-o",
+            tmp_path / "r.html",
+            "--export",
+            tmp_path / "out",
+            "--workers",
+            "1",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert p.returncode in (10, 20), p.stderr  # ~80 % known: not OK
     assert "time: pose known " in p.stdout and " s without frames in " in p.stdout and "gap(s)" in p.stdout
     assert "motion_pose_coverage" in p.stdout
     html = (tmp_path / "r.html").read_text()
@@ -292,5 +334,7 @@ def test_a_scan_whose_cameras_stopped_early_counts_the_time_to_its_stop(full):
     a = MotionAnalysis(dst, None, tmp / "cameras.json", None, workers=1).analyze()
     cov = a.result.coverage
     assert cov["duration_s"] == pytest.approx(DURATION + 3.0, abs=0.1)
-    assert cov["no_frames_s"] == pytest.approx(3.0, abs=0.1) and cov["share"] == pytest.approx(DURATION / 33.0, abs=0.01)
+    assert cov["no_frames_s"] == pytest.approx(3.0, abs=0.1) and cov["share"] == pytest.approx(
+        DURATION / 33.0, abs=0.01
+    )
     assert any("no frames for the last 3" in p for p in a.problems)

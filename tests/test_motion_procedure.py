@@ -5,11 +5,10 @@ import json
 
 import numpy as np
 
+from motion_truth import patient_tracks
 from vts_hw.procedures.motion import MotionAnalysis
 from vts_hw.results import Analysis
 from vts_hw.tolerance import State, Window
-
-from motion_truth import patient_tracks
 
 
 def test_result_shape_measures_and_states(tmp_path):
@@ -36,10 +35,22 @@ def test_result_shape_measures_and_states(tmp_path):
     paths = a.export(tmp_path / "out")
     names = sorted(p.name for p in paths)
     # host-clock times (no list-mode): no CASToR file, and one sentence says why
-    assert names == sorted(["motion_6dof.csv", "motion_6dof.json", "respiration.csv", "subsets.json",
-                            "trajectories.csv", "trajectories.json"])
-    assert len(a.export_notes) == 2 and a.export_notes[0].startswith("CASToR files not written") \
-        and "--listmode" in a.export_notes[0] and a.export_notes[1].startswith("YRT-PET LOR motion file not written")
+    assert names == sorted(
+        [
+            "motion_6dof.csv",
+            "motion_6dof.json",
+            "respiration.csv",
+            "subsets.json",
+            "trajectories.csv",
+            "trajectories.json",
+        ]
+    )
+    assert (
+        len(a.export_notes) == 2
+        and a.export_notes[0].startswith("CASToR files not written")
+        and "--listmode" in a.export_notes[0]
+        and a.export_notes[1].startswith("YRT-PET LOR motion file not written")
+    )
 
 
 def test_breathing_only_is_ok_and_the_rig_windows_judge(tmp_path):

@@ -5,11 +5,10 @@ The list-mode is given as the sync page's glob (docs/physics/sync.md) over two s
 `vts sync analyze` takes it: the session's own is picked (issue 21)."""
 
 import dataclasses
-import shutil
-
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
 
@@ -23,6 +22,7 @@ from vts_hw.sim_devices.scenarios import sync_session as sync_sim
 @pytest.fixture(scope="module")
 def synced_scan(tmp_path_factory):
     import time
+
     tmp = tmp_path_factory.mktemp("motion_synced")
     rig = SimRig(n_cameras=2, seed=3, trigger="triggerbox").start()
     try:
@@ -34,10 +34,11 @@ def synced_scan(tmp_path_factory):
         run = sync_sim.cli_scan(rig, rig_yaml, tmp / "scan", 22.0, marker, n=2, seed=1)
     finally:
         rig.stop()
-    spect = tmp / "spect"          # the scan's list-mode and the next scan's (10 minutes later)
+    spect = tmp / "spect"  # the scan's list-mode and the next scan's (10 minutes later)
     spect.mkdir()
     shutil.copy(run.listmode, spect / "scan-1.vtslm")
     from vts_hw.spect.listmode.vtslm import read_vtslm, write_vtslm
+
     lm = read_vtslm(run.listmode)
     write_vtslm(spect / "scan-2.vtslm", dataclasses.replace(lm, start_time=lm.start_time + 600.0))
     return run, rig_yaml, patient, move, tmp
@@ -45,8 +46,13 @@ def synced_scan(tmp_path_factory):
 
 def _shell(line: str, rig_yaml):
     vts = f"{sys.executable} -m vts_hw.cli"
-    return subprocess.run(["bash", "-c", line.replace("vts ", vts + " ", 1)], capture_output=True, text=True,
-                          timeout=600, env={**os.environ, "VTS_CONFIG": str(rig_yaml)})
+    return subprocess.run(
+        ["bash", "-c", line.replace("vts ", vts + " ", 1)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env={**os.environ, "VTS_CONFIG": str(rig_yaml)},
+    )
 
 
 def test_another_scans_listmode_alone_is_refused_before_any_work(synced_scan):
@@ -58,22 +64,28 @@ def test_another_scans_listmode_alone_is_refused_before_any_work(synced_scan):
 @pytest.mark.timeout(600)
 def test_motion_on_the_spect_clock(synced_scan):
     run, rig_yaml, patient, move, tmp = synced_scan
-    p = _shell(f"vts motion analyze {run.session} --listmode {tmp}/spect/scan-*.vtslm --export {tmp / 'export'} "
-               "--json", rig_yaml)
+    p = _shell(
+        f"vts motion analyze {run.session} --listmode {tmp}/spect/scan-*.vtslm --export {tmp / 'export'} --json",
+        rig_yaml,
+    )
     assert p.returncode in (0, 10, 20), p.stderr
     data = json.loads(p.stdout)
-    assert data["listmode"] == str(tmp / "spect" / "scan-1.vtslm")      # the session's own of the glob's two
+    assert data["listmode"] == str(tmp / "spect" / "scan-1.vtslm")  # the session's own of the glob's two
     assert "SPECT list-mode" in data["clock"] and data["time_origin"] == 0.0 and data["frame"]["name"] == "SPECT frame"
     # the move's true start, on the list-mode clock: host time minus the fire, plus nothing
     # more than the SPECT's start delay (< 0.5 s): within a second of the true start
     # (a busy machine's cameras may skip frames: a start that fell in a gap is bounded by it)
     true_list = move.t_start - run.fire_host
     starts = [(e["t_start"], e["start_bounds_s"]) for e in data["events"]]
-    assert any(abs(s - true_list) < 1.0 if b is None else b[0] - 0.5 <= true_list <= b[1]
-               for s, b in starts), (starts, true_list, data["summary"]["time"], data["problems"])
+    assert any(abs(s - true_list) < 1.0 if b is None else b[0] - 0.5 <= true_list <= b[1] for s, b in starts), (
+        starts,
+        true_list,
+        data["summary"]["time"],
+        data["problems"],
+    )
     dyn = (tmp / "export" / "castor_motion.dyn").read_text()
     stamps = [ln for ln in dyn.splitlines() if ln.startswith("timestamp_motion_triggers:")]
-    assert len(stamps) == 1 and re.fullmatch(r"timestamp_motion_triggers: 0(,\d+)+", stamps[0])   # whole seconds
+    assert len(stamps) == 1 and re.fullmatch(r"timestamp_motion_triggers: 0(,\d+)+", stamps[0])  # whole seconds
     triggers = [int(n) for n in stamps[0].split(": ")[1].split(",")]
     assert len(triggers) == len(data["states"]) and data["export_notes"] == []
     assert all(abs(n - st["t_start"]) <= 0.5 for n, st in zip(triggers[1:], data["states"][1:]))

@@ -46,7 +46,7 @@ def test_every_marker_from_every_camera_that_sees_it(room):
     got = {}
     for p in m.points:
         seen = {ids[c][d] for c, d in enumerate(p.detections) if d >= 0}
-        assert len(seen) == 1, seen                     # one marker's detections, never mixed
+        assert len(seen) == 1, seen  # one marker's detections, never mixed
         got[seen.pop()] = p
     # the phantom from all four cameras; each wall only from the pair at its end
     assert sorted(got) == sorted(truth)
@@ -61,10 +61,11 @@ def test_every_marker_from_every_camera_that_sees_it(room):
     # four cameras at both ends beat the head pair alone on the phantom (measured: ~3x)
     sph = [f"S{k}" for k in range(1, 8)]
     err4 = np.array([np.linalg.norm(got[s].xyz - truth[s]) for s in sph])
-    pair = triangulate([geo.cams[0], geo.cams[1]],
-                       [np.array([pts[c][ids[c].index(s)] for s in sph]) for c in (0, 1)]).points
+    pair = triangulate(
+        [geo.cams[0], geo.cams[1]], [np.array([pts[c][ids[c].index(s)] for s in sph]) for c in (0, 1)]
+    ).points
     err2 = np.linalg.norm(pair - np.array([truth[s] for s in sph]), axis=1)
-    assert np.sqrt(np.mean(err4 ** 2)) < 0.06 and np.sqrt(np.mean(err4 ** 2)) < np.sqrt(np.mean(err2 ** 2))
+    assert np.sqrt(np.mean(err4**2)) < 0.06 and np.sqrt(np.mean(err4**2)) < np.sqrt(np.mean(err2**2))
 
 
 def test_noise_free_points_are_exact(room):
@@ -116,8 +117,8 @@ def test_an_ambiguity_is_reported_never_guessed_and_a_further_view_settles_it(ro
     new = {(0, n[0]), (0, n[0] + 1), (1, n[1]), (1, n[1] + 1)}
     assert withheld == new
     used = {(c, d) for p in m.points for c, d in enumerate(p.detections) if d >= 0}
-    assert not used & new and len(m.points) == 17     # everything else still matched
-    assert all(v == [] for v in m.single.values())    # withheld, not "seen by one camera"
+    assert not used & new and len(m.points) == 17  # everything else still matched
+    assert all(v == [] for v in m.single.values())  # withheld, not "seen by one camera"
     # the foot pair sees them too: four views settle what two could not
     m4 = match_views(geo, [np.vstack([pts[c], extra[c]]) for c in range(4)], min_sep_px=0.1)
     assert m4.ambiguous == [] and len(m4.points) == 19
@@ -140,6 +141,7 @@ def test_n_cameras_from_any_calibration_form(room, tmp_path):
     assert list(named_cameras([scene.cameras[n] for n in names])) == names
     # the rig's file is in camera 1's frame, as calibration.json; the sync analysis reads either
     from vts_hw.procedures.sync_inputs import load_calibration
+
     rig_file = write_true_cameras(scene, tmp_path / "rig", frame="cam1")
     by_cam1 = load_calibration(rig_file)
     assert list(by_cam1) == names and np.allclose(by_cam1["cam1"].R, np.eye(3), atol=1e-12)

@@ -14,10 +14,9 @@ import time
 import numpy as np
 import pytest
 
+from test_motion_exports import read_castor_keyword
 from vts_hw.sim_devices.rig import load_env_file
 from vts_hw.sim_devices.spect_listmode import ListModeTruth
-
-from test_motion_exports import read_castor_keyword
 
 VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
 SCAN_S = 34.0
@@ -34,8 +33,27 @@ def analysed(tmp_path_factory):
     d = tmp / "sim"
     # 36 s of plan: 15 s still, then 2 moves 8 s apart or more, inside a 34 s scan; the frames made
     # ahead (the scan's whole on a busy machine), the plan starts playing with the scan's first stream
-    p = vts("sim", "up", "--detach", "--cameras", "2", "--seed", "4", "--trigger", "triggerbox", "--spect",
-            "--patient", "--patient-moves", "2", "--patient-minutes", "0.6", "--ahead", SCAN_S + 5, "--dir", d)
+    p = vts(
+        "sim",
+        "up",
+        "--detach",
+        "--cameras",
+        "2",
+        "--seed",
+        "4",
+        "--trigger",
+        "triggerbox",
+        "--spect",
+        "--patient",
+        "--patient-moves",
+        "2",
+        "--patient-minutes",
+        "0.6",
+        "--ahead",
+        SCAN_S + 5,
+        "--dir",
+        d,
+    )
     assert p.returncode == 0, p.stderr
     try:
         env = {**os.environ, **load_env_file(d / "sim.env"), "VTS_CONFIG": str(d / "rig.yaml")}
@@ -44,13 +62,26 @@ def analysed(tmp_path_factory):
         assert p.returncode == 0, p.stderr
         deadline = time.time() + 30
         while not list((d / "spect").glob("*.vtslm")) and time.time() < deadline:
-            time.sleep(0.2)      # the SPECT writes its list-mode when the square wave stops
+            time.sleep(0.2)  # the SPECT writes its list-mode when the square wave stops
         (listmode,) = (d / "spect").glob("*.vtslm")
     finally:
         assert vts("sim", "down", "--dir", d).returncode == 0
     export = tmp / "export"
-    p = vts("motion", "analyze", session, "--listmode", listmode, "--config", d / "rig.yaml", "--json",
-            "--export", export, "-o", tmp / "motion.html", env=env)
+    p = vts(
+        "motion",
+        "analyze",
+        session,
+        "--listmode",
+        listmode,
+        "--config",
+        d / "rig.yaml",
+        "--json",
+        "--export",
+        export,
+        "-o",
+        tmp / "motion.html",
+        env=env,
+    )
     assert p.returncode in (0, 10, 20), p.stderr
     truth = json.loads((d / "truth" / "patient.json").read_text())
     spect = ListModeTruth.load(listmode.with_name(listmode.name + ".truth.json"))
@@ -67,7 +98,7 @@ def test_every_body_move_of_the_truth_is_found_on_the_spect_clock(analysed):
     for m in moves:
         t = float(spect.list_time(m["t_start"]))
         k = int(np.argmin(np.abs(starts - t)))
-        b = data["events"][k]["start_bounds_s"]      # a start in frames a busy machine lost: bounded
+        b = data["events"][k]["start_bounds_s"]  # a start in frames a busy machine lost: bounded
         if b is None:
             assert abs(starts[k] - t) < 0.5, (t, starts)
         else:
@@ -77,15 +108,18 @@ def test_every_body_move_of_the_truth_is_found_on_the_spect_clock(analysed):
         e = data["events"][k]
         assert e["rotation_deg"] == pytest.approx(turn, abs=0.3)
         assert e["max_marker_shift_mm"] >= min(shift, 2.0)
-    assert len(data["events"]) == len(moves)                 # nothing found that did not happen
+    assert len(data["events"]) == len(moves)  # nothing found that did not happen
     assert code == {"OK": 0, "TOLERANCE": 10, "ACTION": 20}[data["summary"]["state"]]
 
 
 def test_the_live_tracking_alerted_during_the_scan_for_each_move(analysed):
     _, truth, _, manifest, _, _ = analysed
     live = manifest["live_motion"]
-    big = [m for m in truth["moves"] if np.linalg.norm(m["translation_mm"]) > 5.0
-           or np.linalg.norm(m["rotation_deg"]) > 3.0]
+    big = [
+        m
+        for m in truth["moves"]
+        if np.linalg.norm(m["translation_mm"]) > 5.0 or np.linalg.norm(m["rotation_deg"]) > 3.0
+    ]
     assert 1 <= len(live["alerts"]) <= len(truth["moves"]) and len(live["alerts"]) >= len(big)
     assert manifest["status"] == "complete"
 

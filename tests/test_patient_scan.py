@@ -25,8 +25,12 @@ pytestmark = pytest.mark.timeout(600)
 @pytest.fixture(scope="module")
 def scan(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("patient-scan")
-    rig = SimRig(n_cameras=2, seed=2, trigger="triggerbox",
-                 patient=PatientOptions(seed=1, moves=1, minutes=1.5, still_s=5.0, move_at_s=(9.0,))).start()
+    rig = SimRig(
+        n_cameras=2,
+        seed=2,
+        trigger="triggerbox",
+        patient=PatientOptions(seed=1, moves=1, minutes=1.5, still_s=5.0, move_at_s=(9.0,)),
+    ).start()
     try:
         rig_yaml, _ = rig.write(tmp / "rig")
         run = patient_scan(rig, rig_yaml, tmp / "scan", SCAN_S, truth_dir=tmp / "truth")
@@ -43,14 +47,14 @@ def test_the_recording_is_complete_and_the_truth_covers_it(scan):
     for name in ("cam1", "cam2"):
         rows = read_index(run.session / f"{name}.index.csv")
         assert len(rows) >= 0.9 * 25 * SCAN_S, name
-    a, b = run.window            # the recording covers the scan: from before the fire to its end
+    a, b = run.window  # the recording covers the scan: from before the fire to its end
     assert a <= run.fire_host and b >= run.fire_host + SCAN_S - 0.2 and b - a <= SCAN_S + 10.0
     t0 = run.patient.breathing.t0
-    assert t0 < a and b < t0 + run.patient.breathing.duration_s          # the plan covers the scan
-    (move,) = run.moves_in_window()                                      # the move happened while recording
+    assert t0 < a and b < t0 + run.patient.breathing.duration_s  # the plan covers the scan
+    (move,) = run.moves_in_window()  # the move happened while recording
     assert move.t_start == pytest.approx(t0 + 9.0) and move.t_end < b
     assert not np.allclose(run.patient.six_dof(a), run.patient.six_dof(b))
-    assert not any(p.name.startswith("patient") for p in run.session.iterdir())   # no truth in the session
+    assert not any(p.name.startswith("patient") for p in run.session.iterdir())  # no truth in the session
     assert [p.name for p in run.truth_files] == ["patient.json", "patient_motion.csv"]
     rows = (tmp / "truth" / "patient_motion.csv").read_text().splitlines()
     assert len(rows) - 1 == pytest.approx((b - a + 2.0) * 25, abs=2)
@@ -63,8 +67,8 @@ def test_the_recorded_frames_show_the_patient_where_the_truth_says(scan):
         data = (run.session / f"{name}.mjpeg").read_bytes()
         clock = rig.scene.clocks[name]
         for row in (rows[3], rows[len(rows) // 2], rows[-3]):
-            blobs = np.array([(b.x, b.y) for b in detect_jpeg(data[row.offset:row.offset + row.length]).blobs])
-            t = clock.host_time(row.camera_time) + 0.005          # the stamp is truncated to 10 ms
+            blobs = np.array([(b.x, b.y) for b in detect_jpeg(data[row.offset : row.offset + row.length]).blobs])
+            t = clock.host_time(row.camera_time) + 0.005  # the stamp is truncated to 10 ms
             truth = {k: np.array((u, v)) for k, u, v in rig.scene.truth(name, t) if k in BAND}
             assert set(truth) == BAND
             for k, uv in truth.items():

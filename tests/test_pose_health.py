@@ -6,7 +6,8 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from vts_hw.motion.body_pose import POOR_FIT_MM as BODY_POOR_FIT_MM
 from vts_hw.pose_health import BOUNDED, KNOWN, NOT_KNOWN, POOR_FIT_MM, health_series, pose_health
@@ -18,12 +19,14 @@ def test_states_and_why():
     assert (h.state, h.why, h.confidence) == (NOT_KNOWN, "fewer than 3 markers (2 of 8)", 0.0)
     assert pose_health(8, 8, float("nan")).why == "no pose fitted"
     assert pose_health(8, 8, 0.05, frames=False).why == "no frames"
-    assert pose_health(8, 8, 0.05, age_s=6.0).state == NOT_KNOWN and "6.00 s old" in pose_health(8, 8, 0.05, age_s=6).why
+    assert (
+        pose_health(8, 8, 0.05, age_s=6.0).state == NOT_KNOWN and "6.00 s old" in pose_health(8, 8, 0.05, age_s=6).why
+    )
     assert pose_health(8, 8, 0.45) == pose_health(8, 8, 0.45) and pose_health(8, 8, 0.45).state == BOUNDED
     assert pose_health(8, 8, 0.45).why == "fit residual 0.45 mm over 0.3 mm"
     assert pose_health(3, 8, 0.05).why == "3 markers of 8: a wrong point cannot show"
     assert pose_health(8, 8, 0.05, age_s=0.8).state == BOUNDED
-    assert pose_health(8, 8, 0.5, poor_fit_mm=1.0).state == KNOWN        # the live model's own line
+    assert pose_health(8, 8, 0.5, poor_fit_mm=1.0).state == KNOWN  # the live model's own line
     for h in (pose_health(2, 8, 0.1), pose_health(8, 8, 0.1, frames=False)):
         assert "," not in h.why and h.to_json()["confidence"] == 0.0
 
@@ -32,8 +35,8 @@ def test_the_documented_formula():
     # 8 of 8 markers, 0.15 mm, 3 cameras, 0.1 s: 1 * 1/(1+0.25) * (1-0.4/3) * exp(-0.05)
     assert pose_health(8, 8, 0.15, 3, 0.1).confidence == pytest.approx(0.8 * (1 - 0.4 / 3) * math.exp(-0.05))
     assert pose_health(3, 8, 0.0, 2, 0.0).confidence == pytest.approx(math.sqrt(1 / 6) * 0.8)
-    assert pose_health(8, 8, 0.0, None, 0.0).confidence == pytest.approx(0.8)    # cameras unknown: 2
-    assert POOR_FIT_MM == BODY_POOR_FIT_MM        # one poor-fit line for the offline pose's quality and its health
+    assert pose_health(8, 8, 0.0, None, 0.0).confidence == pytest.approx(0.8)  # cameras unknown: 2
+    assert POOR_FIT_MM == BODY_POOR_FIT_MM  # one poor-fit line for the offline pose's quality and its health
 
 
 def test_a_series_gives_one_row_each_and_counts():

@@ -7,10 +7,16 @@ import numpy as np
 import pytest
 
 from vts_hw.errors import DataError
-from vts_hw.tracking.processing import (ProcessSettings, Tracks, group_frames, process_recording,
-                               track_identities, triangulate_fast)
-from vts_hw.vision.registration import RigidTransform
 from vts_hw.sim_devices.recording_sim import BAND_LAYOUT, simulate_recording
+from vts_hw.tracking.processing import (
+    ProcessSettings,
+    Tracks,
+    group_frames,
+    process_recording,
+    track_identities,
+    triangulate_fast,
+)
+from vts_hw.vision.registration import RigidTransform
 from vts_hw.vision.triangulate import as_camera, triangulate
 
 FLOOR = 0.004  # the simulated receive delay's floor (recording_sim default)
@@ -34,8 +40,9 @@ def processed(tmp_path_factory):
     folder = tmp_path_factory.mktemp("rec") / "session"
     sim = simulate_recording(folder, duration_s=8.0, seed=1)
     calls = []
-    tracks = process_recording(folder, true_cameras(sim), workers=2,
-                               progress=lambda done, total: calls.append((done, total)))
+    tracks = process_recording(
+        folder, true_cameras(sim), workers=2, progress=lambda done, total: calls.append((done, total))
+    )
     return sim, tracks, calls
 
 
@@ -44,7 +51,7 @@ def test_tracks_against_the_scene_truth(processed):
     n = len(sim.exposure["cam1"])
     assert len(tracks) == n and tracks.meta["unpaired_frames"] == {"cam1": 0, "cam2": 0}
     err, which = errors_against_truth(sim, tracks)
-    rms = float(np.sqrt(np.mean(err ** 2)))
+    rms = float(np.sqrt(np.mean(err**2)))
     assert rms < 0.5 and err.max() < 1.5  # measured: RMS 0.08 mm, max 0.4 mm
     band = np.isin(which, list(BAND_LAYOUT))
     assert float(np.sqrt(np.mean(err[band] ** 2))) < 0.5
@@ -62,8 +69,7 @@ def test_tracks_against_the_scene_truth(processed):
     wall = int(tracks.marker[which == "W1"][0])
     assert max(summary[wall]["range_mm"]) < 1.5  # a wall marker stays put
     # host time of each pair: the mean of the two exposures plus the delay floor
-    expo = 0.5 * (sim.exposure["cam1"][tracks.camera_frame[:, 0]]
-                  + sim.exposure["cam2"][tracks.camera_frame[:, 1]])
+    expo = 0.5 * (sim.exposure["cam1"][tracks.camera_frame[:, 0]] + sim.exposure["cam2"][tracks.camera_frame[:, 1]])
     assert np.abs(tracks.host_time - expo - FLOOR).max() < 0.001
     assert calls and calls[-1] == (n, n) and len(calls) >= 2
 
@@ -92,14 +98,14 @@ def test_fast_triangulation_agrees_with_the_reference(processed):
 
 def test_gap_and_torn_tail_still_process(tmp_path):
     folder = tmp_path / "gap"
-    sim = simulate_recording(folder, duration_s=5.0, seed=2, gaps={"cam2": [(2.0, 2.6)]},
-                             torn_tail=("cam1",))
+    sim = simulate_recording(folder, duration_s=5.0, seed=2, gaps={"cam2": [(2.0, 2.6)]}, torn_tail=("cam1",))
     # and an index line whose frame is cut short in the .mjpeg (bytes lost at a power cut)
     mj = folder / "cam2.mjpeg"
     with open(mj, "r+b") as f:
         f.truncate(mj.stat().st_size - 100)
     # and a frame whose bytes were damaged (not a JPEG any more)
     from vts_hw.recording.folder import read_index
+
     row = read_index(folder / "cam1.index.csv")[10]
     with open(folder / "cam1.mjpeg", "r+b") as f:
         f.seek(row.offset)
@@ -121,32 +127,30 @@ def test_gap_and_torn_tail_still_process(tmp_path):
     gap_t = sim.band.start + np.array([2.0, 2.6])
     assert not ((tracks.host_time > gap_t[0] + 0.02) & (tracks.host_time < gap_t[1] - 0.02)).any()
     err, which = errors_against_truth(sim, tracks)
-    assert float(np.sqrt(np.mean(err ** 2))) < 0.5
+    assert float(np.sqrt(np.mean(err**2))) < 0.5
     assert len(tracks.xyz) == 9 * (len(tracks) - 1)
     # a 0.6 s gap is shorter than max_gap_s: every marker keeps its identity across it
     assert tracks.meta["markers"] == 9
     # with a shorter max_gap_s, identities end at the gap and new ones start after it
-    short = process_recording(folder, true_cameras(sim), workers=1,
-                              settings=ProcessSettings(max_gap_s=0.3))
+    short = process_recording(folder, true_cameras(sim), workers=1, settings=ProcessSettings(max_gap_s=0.3))
     assert short.meta["markers"] == 18
 
 
 def test_pairing_when_camera_clocks_differ_by_seconds(tmp_path):
     folder = tmp_path / "clocks"
-    sim = simulate_recording(folder, duration_s=4.0, seed=3,
-                             clock_offsets_s={"cam1": -2.7, "cam2": 1.9},
-                             phases_s={"cam2": 0.017})
+    sim = simulate_recording(
+        folder, duration_s=4.0, seed=3, clock_offsets_s={"cam1": -2.7, "cam2": 1.9}, phases_s={"cam2": 0.017}
+    )
     stamps = {c: sim.camera_time[c] for c in sim.cameras}
     assert abs((stamps["cam2"][0] - stamps["cam1"][0]) - 4.6) < 0.05  # 4.6 s apart
     tracks = process_recording(folder, true_cameras(sim), workers=2)
     n = len(sim.exposure["cam1"])
     assert len(tracks) == n
-    dt = (sim.exposure["cam1"][tracks.camera_frame[:, 0]]
-          - sim.exposure["cam2"][tracks.camera_frame[:, 1]])
+    dt = sim.exposure["cam1"][tracks.camera_frame[:, 0]] - sim.exposure["cam2"][tracks.camera_frame[:, 1]]
     assert np.abs(dt + 0.017).max() < 1e-6  # each frame with the frame exposed 17 ms later
     assert np.array_equal(tracks.camera_frame[:, 0], tracks.camera_frame[:, 1])
     err, _ = errors_against_truth(sim, tracks)
-    assert float(np.sqrt(np.mean(err ** 2))) < 0.5
+    assert float(np.sqrt(np.mean(err**2))) < 0.5
 
 
 def test_two_cameras_frames_join_in_time_order_within_the_tolerance():
@@ -175,8 +179,7 @@ def test_identities_gate_and_new_markers():
     assert set(ids[(np.array(pts)[:, 0] >= 100)].tolist()) == {2}
     assert ids_by[(50.0, 50.0, 0.0)] == 3
     # a jump beyond the gate is a new marker
-    ids = track_identities(np.array([0, 1]), np.array([0.0, 0.04]),
-                           np.array([(0.0, 0, 0), (20.0, 0, 0)]), gate_mm=5.0)
+    ids = track_identities(np.array([0, 1]), np.array([0.0, 0.04]), np.array([(0.0, 0, 0), (20.0, 0, 0)]), gate_mm=5.0)
     assert ids.tolist() == [1, 2]
 
 
@@ -186,9 +189,27 @@ def test_trajectory_files_round_trip_with_spect_columns(processed, tmp_path):
     spect = tracks.with_spect(T, lambda h: h - 1_790_000_000.0 + 0.0123)
     csv_path, json_path = spect.save(tmp_path / "traj")
     header = csv_path.read_text().splitlines()[0].split(",")
-    assert header == ["frame", "host_time", "cam1_frame", "cam1_time", "cam2_frame", "cam2_time",
-                      "spect_time", "marker", "x_mm", "y_mm", "z_mm", "reproj_px", "cam1_u",
-                      "cam1_v", "cam2_u", "cam2_v", "x_spect_mm", "y_spect_mm", "z_spect_mm"]
+    assert header == [
+        "frame",
+        "host_time",
+        "cam1_frame",
+        "cam1_time",
+        "cam2_frame",
+        "cam2_time",
+        "spect_time",
+        "marker",
+        "x_mm",
+        "y_mm",
+        "z_mm",
+        "reproj_px",
+        "cam1_u",
+        "cam1_v",
+        "cam2_u",
+        "cam2_v",
+        "x_spect_mm",
+        "y_spect_mm",
+        "z_spect_mm",
+    ]
     back = Tracks.load(csv_path)
     assert np.allclose(back.xyz, spect.xyz, atol=1e-4)
     assert np.allclose(back.xyz_spect, T.apply(tracks.xyz), atol=1e-4)
@@ -223,8 +244,9 @@ def test_reindexed_and_recovered_recordings(tmp_path):
     from vts_hw.recording.reindex import reindex
 
     folder = tmp_path / "killed"
-    sim = simulate_recording(folder, duration_s=3.0, seed=4, torn_tail=("cam2",),
-                             clock_offsets_s={"cam1": 0.0, "cam2": 5.0})
+    sim = simulate_recording(
+        folder, duration_s=3.0, seed=4, torn_tail=("cam2",), clock_offsets_s={"cam1": 0.0, "cam2": 5.0}
+    )
     before = process_recording(folder, true_cameras(sim), workers=1)
     report = reindex(folder)  # what `vts recording reindex` does after a kill -9
     assert report["cam2"].torn == 1 and report["cam2"].host_times_kept == 75 and report["cam2"].replaced
@@ -284,21 +306,36 @@ def test_stereo_calibration_and_export_in_the_spect_frame(processed):
     c1, c2 = (as_camera(c) for c in true_cameras(sim).values())
     R = c2.R @ c1.R.T
     # a two-camera calibration in camera 1's frame, its cameras named after its images
-    calib = CameraCalibration([CameraFit("left", c1.K, c1.dist, np.eye(3), np.zeros(3), (640, 480)),
-                               CameraFit("right", c2.K, c2.dist, R, c2.t - R @ c1.t, (640, 480))],
-                              (9, 6), 1.0, "mm", 0.0, [], "")
+    calib = CameraCalibration(
+        [
+            CameraFit("left", c1.K, c1.dist, np.eye(3), np.zeros(3), (640, 480)),
+            CameraFit("right", c2.K, c2.dist, R, c2.t - R @ c1.t, (640, 480)),
+        ],
+        (9, 6),
+        1.0,
+        "mm",
+        0.0,
+        [],
+        "",
+    )
     to_spect = RigidTransform(c1.R.T, -c1.R.T @ c1.t)  # camera 1's frame -> world (SPECT)
     spect_start = sim.band.start - 1.0
-    out = process_recording(sim.folder, calib, workers=2, mapping=to_spect,
-                            host_to_spect=lambda h: h - spect_start)
+    out = process_recording(sim.folder, calib, workers=2, mapping=to_spect, host_to_spect=lambda h: h - spect_start)
     assert np.abs(out.xyz_spect - tracks.xyz).max() < 1e-6  # the same points, back in SPECT
-    assert np.abs(out.xyz - tracks.xyz).max() > 100.0       # ... from camera 1's frame
+    assert np.abs(out.xyz - tracks.xyz).max() > 100.0  # ... from camera 1's frame
     assert np.allclose(out.spect_time, out.host_time - spect_start)
     assert out.meta["spect_mapping"]["meta"] == {} and out.meta["cameras"] == ["cam1", "cam2"]
 
 
-@pytest.mark.parametrize("doc", ["[]", '{"format": "vts-trajectory/1"}',
-                                 '{"format": "vts-trajectory/1", "cameras": [1, 2], "frames": {}}', "[" * 5000])
+@pytest.mark.parametrize(
+    "doc",
+    [
+        "[]",
+        '{"format": "vts-trajectory/1"}',
+        '{"format": "vts-trajectory/1", "cameras": [1, 2], "frames": {}}',
+        "[" * 5000,
+    ],
+)
 def test_a_trajectory_file_of_the_wrong_shape_is_a_data_error(tmp_path, doc):
     (tmp_path / "t.json").write_text(doc)
     (tmp_path / "t.csv").write_text("frame,marker,x_mm,y_mm,z_mm\n")
@@ -308,10 +345,13 @@ def test_a_trajectory_file_of_the_wrong_shape_is_a_data_error(tmp_path, doc):
 
 def test_a_trajectory_point_on_a_frame_the_json_lacks_is_a_data_error(tmp_path):
     # found by bench/fuzz.py (tracks): the point of frame 5 of a 1-frame table made trajectory() an IndexError
-    (tmp_path / "t.json").write_text('{"format": "vts-trajectory/1", "cameras": ["cam1", "cam2"], "frames": '
-                                     '{"host_time": [1.0], "cam1_time": [1.0], "cam2_time": [1.0], "cam1_frame": [0], '
-                                     '"cam2_frame": [0], "cam1_blobs": [1], "cam2_blobs": [1]}}')
-    (tmp_path / "t.csv").write_text("frame,marker,x_mm,y_mm,z_mm,reproj_px,cam1_u,cam1_v,cam2_u,cam2_v\n"
-                                    "5,1,0,0,0,0,1,1,1,1\n")
+    (tmp_path / "t.json").write_text(
+        '{"format": "vts-trajectory/1", "cameras": ["cam1", "cam2"], "frames": '
+        '{"host_time": [1.0], "cam1_time": [1.0], "cam2_time": [1.0], "cam1_frame": [0], '
+        '"cam2_frame": [0], "cam1_blobs": [1], "cam2_blobs": [1]}}'
+    )
+    (tmp_path / "t.csv").write_text(
+        "frame,marker,x_mm,y_mm,z_mm,reproj_px,cam1_u,cam1_v,cam2_u,cam2_v\n5,1,0,0,0,0,1,1,1,1\n"
+    )
     with pytest.raises(DataError, match="not one of the 1 frames"):
         Tracks.load(tmp_path / "t.csv")

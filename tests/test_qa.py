@@ -13,15 +13,15 @@ import pytest
 import yaml
 
 from inprocess_cli import run
-from vts_hw.config import parse_rig
 from qa_runs import run_qa, save_baselines
+from vts_hw.config import parse_rig
+from vts_hw.drivers.registry import open_camera
+from vts_hw.procedures.drift import acquire_led_frames
+from vts_hw.store import ResultsStore
 from vts_hw.store.baselines import load_baseline
+from vts_hw.tolerance import State
 from vts_hw.vision.wall_baseline import NoBaseline
 from vts_hw.vision.wall_markers import baseline_from_frames
-from vts_hw.procedures.drift import Baseline, acquire_led_frames
-from vts_hw.drivers.registry import open_camera
-from vts_hw.store import ResultsStore
-from vts_hw.tolerance import State
 
 VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
 
@@ -69,8 +69,17 @@ def test_daily_set_all_ok_and_stored(rig_cfg, store, tmp_path):
     rows = store.measurements(run_id=res.run_id)
     metrics = {(m.subject, m.metric) for m in rows}
     for cam in ("cam1", "cam2"):
-        for metric in ("camera_reachable", "params_changed", "clock_offset_s", "drift_x_px", "drift_y_px",
-                       "drift_x_mm", "led_off_visible", "markers_missing", "stray_blobs"):
+        for metric in (
+            "camera_reachable",
+            "params_changed",
+            "clock_offset_s",
+            "drift_x_px",
+            "drift_y_px",
+            "drift_x_mm",
+            "led_off_visible",
+            "markers_missing",
+            "stray_blobs",
+        ):
             assert (cam, metric) in metrics
     judged = [m for m in rows if m.metric == "drift_x_px"]
     assert all(m.tolerance_id is not None for m in judged)  # the window in effect is kept with the value
@@ -90,6 +99,7 @@ def test_changed_parameter_and_dead_camera_are_actions(rig_cfg, store, sim_rig):
     assert res.state == State.ACTION and res.exit_code == 20
     # the overview says which camera is in which state, and why, where a person looks
     from vts_hw.procedures.daily_plot import daily_figure
+
     fig = daily_figure(res, res.windows)
     assert [ax.get_title() for ax in fig.axes] == ["cam1: ACTION", "cam2: ACTION"]
     texts = [t.get_text() for ax in fig.axes for t in ax.texts]
@@ -105,6 +115,7 @@ def test_changed_parameter_and_dead_camera_are_actions(rig_cfg, store, sim_rig):
 
 def test_tolerance_change_never_rewrites_history(rig_cfg, store):
     from vts_hw.tolerance import Window
+
     _baseline(rig_cfg, store)
     first = run_qa(rig_cfg, store, open_camera=open_camera, n_frames=2, steps=("drift",))
     assert first.state == State.OK
@@ -129,7 +140,7 @@ def test_cli_baseline_daily_report_and_exit_codes(sim_rig, sqlite_rig_cfg, tmp_p
     env = _cli_env(sim_rig, rig_cfg, tmp_path)
 
     def vts(*a):
-        return run(*a, env=env)         # in this process (tests/inprocess_cli.py)
+        return run(*a, env=env)  # in this process (tests/inprocess_cli.py)
 
     p = vts("qa", "daily", "--dry-run")
     assert p.returncode == 0 and "LED on" in p.stdout and not (tmp_path / "results.sqlite").exists()
@@ -155,8 +166,9 @@ def test_cli_baseline_daily_report_and_exit_codes(sim_rig, sqlite_rig_cfg, tmp_p
 def test_kill_9_during_a_qa_run_leaves_it_aborted(sim_rig, rig_cfg, store, tmp_path):
     _baseline(rig_cfg, store)
     env = _cli_env(sim_rig, rig_cfg, tmp_path)
-    proc = subprocess.Popen([*VTS, "qa", "daily", "--frames", "20"], env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [*VTS, "qa", "daily", "--frames", "20"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
     try:
         deadline = time.monotonic() + 30
         running = None
@@ -172,5 +184,5 @@ def test_kill_9_during_a_qa_run_leaves_it_aborted(sim_rig, rig_cfg, store, tmp_p
         assert run.status == "aborted"
         assert again.measurements(run_id=run.id) == []
     if rig_cfg.store.url.startswith("sqlite:///"):
-        con = sqlite3.connect(rig_cfg.store.url[len("sqlite:///"):])
+        con = sqlite3.connect(rig_cfg.store.url[len("sqlite:///") :])
         assert con.execute("pragma integrity_check").fetchone()[0] == "ok"

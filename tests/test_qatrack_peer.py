@@ -21,11 +21,17 @@ RECORDED = json.loads(conv.FIXTURE.read_text())
 
 @pytest.fixture(scope="module")
 def stand_in_answers():
-    with QATrackSim({conv.DAILY_LIST: conv.DAILY, "VTS step test": ["x_slope", "y_slope", "z_slope", "diff_max"]},
-                    {conv.UNIT: [conv.DAILY_LIST, "VTS step test"]}, token="t-vts", users={"vts": "pw-vts"},
-                    time_zone=RECORDED["time_zone"]) as sim:
+    with QATrackSim(
+        {conv.DAILY_LIST: conv.DAILY, "VTS step test": ["x_slope", "y_slope", "z_slope", "diff_max"]},
+        {conv.UNIT: [conv.DAILY_LIST, "VTS step test"]},
+        token="t-vts",
+        users={"vts": "pw-vts"},
+        time_zone=RECORDED["time_zone"],
+    ) as sim:
         sim.add_user("noperm", token="t-noperm", perms=())
-        yield {a["step"]: a["answer"] for a in conv.converse(conv.Context(sim.url, "t-vts", "t-noperm", "vts", "pw-vts"))}
+        yield {
+            a["step"]: a["answer"] for a in conv.converse(conv.Context(sim.url, "t-vts", "t-noperm", "vts", "pw-vts"))
+        }
 
 
 def test_the_recording_covers_every_step_of_the_conversation():

@@ -21,28 +21,46 @@ from vts_hw.store import ResultsStore
 TOKEN = "tok-5f1c9e0a7d3b4e2a9c8d"
 PASSWORD = "pw-Zq8!secret-77"
 DAILY = ["cam1_dx", "cam1_dy", "cam2_dx", "cam2_dy"]
-MACROS = {"cam1/drift_x_px": "cam1_dx", "cam1/drift_y_px": "cam1_dy",
-          "cam2/drift_x_px": "cam2_dx", "cam2/drift_y_px": "cam2_dy"}
+MACROS = {
+    "cam1/drift_x_px": "cam1_dx",
+    "cam1/drift_y_px": "cam1_dy",
+    "cam2/drift_x_px": "cam2_dx",
+    "cam2/drift_y_px": "cam2_dy",
+}
 
 
 def qatrack_section(url, **over):
-    q = {"url": url, "unit": "SPECT 1", "time_zone": "America/Toronto", "token_env": "QATRACK_TOKEN",
-         "timeout_s": 2.0, "report": "none",
-         "plots": False, "lists": {"daily": {"test_list": "VTS daily", "macros": dict(MACROS),
-                                             "ignore": ["*/M*/*", "*/clock_offset_s"]}}}
+    q = {
+        "url": url,
+        "unit": "SPECT 1",
+        "time_zone": "America/Toronto",
+        "token_env": "QATRACK_TOKEN",
+        "timeout_s": 2.0,
+        "report": "none",
+        "plots": False,
+        "lists": {
+            "daily": {"test_list": "VTS daily", "macros": dict(MACROS), "ignore": ["*/M*/*", "*/clock_offset_s"]}
+        },
+    }
     q.update(over)
     return q
 
 
 def rig(url, **over):
-    return parse_rig({"rig": "room1", "cameras": [{"name": "cam1", "host": "127.0.0.1"}],
-                      "qatrack": qatrack_section(url, **over)}, "test rig")
+    return parse_rig(
+        {"rig": "room1", "cameras": [{"name": "cam1", "host": "127.0.0.1"}], "qatrack": qatrack_section(url, **over)},
+        "test rig",
+    )
 
 
 @pytest.fixture()
 def peer():
-    with QATrackSim({"VTS daily": DAILY}, {"SPECT 1": ["VTS daily"], "SPECT 2": ["VTS daily"]},
-                    token=TOKEN, users={"physicist": PASSWORD}) as sim:
+    with QATrackSim(
+        {"VTS daily": DAILY},
+        {"SPECT 1": ["VTS daily"], "SPECT 2": ["VTS daily"]},
+        token=TOKEN,
+        users={"physicist": PASSWORD},
+    ) as sim:
         sim.slow_s = 1.5
         yield sim
 
@@ -113,7 +131,7 @@ def test_down_then_back_sends_each_exactly_once(peer, env, store):
     out = push_runs(store, cfg.qatrack, select_runs(store, cfg.qatrack, "room1"))
     assert exit_code(out) == 3 and states(store) == ["pending"] * 4
     assert "not reachable" in out[0].message and "connection refused" in out[0].message
-    assert [o.how for o in out[1:]] == ["not tried"] * 3        # the batch stops: no waiting 4 times
+    assert [o.how for o in out[1:]] == ["not tried"] * 3  # the batch stops: no waiting 4 times
     assert store.outbox_items("qatrack")[0].attempts == 1
     peer.up()
     retry = push_runs(store, cfg.qatrack, select_runs(store, cfg.qatrack, "room1", pending=True))
@@ -136,12 +154,13 @@ def test_a_trickling_answer_ends_at_the_whole_request_deadline(peer, env, store)
     """A QATrack+ that answers its headers and then one byte at a time: the request ends at
     timeout_s as a whole (not per read), the run stays pending, and the batch stops."""
     import time
+
     cfg = rig(peer.url, timeout_s=1.0)
     fill(store, 2)
     peer.fault, peer.trickle_s = "trickle", 0.2
     t0 = time.monotonic()
     out = push_runs(store, cfg.qatrack, select_runs(store, cfg.qatrack, "room1"))
-    assert time.monotonic() - t0 < 30           # bounded, whatever the machine's load (per read it never ends)
+    assert time.monotonic() - t0 < 30  # bounded, whatever the machine's load (per read it never ends)
     assert [o.how for o in out] == ["failed", "not tried"] and "did not answer within 1 s" in out[0].message
     assert states(store) == ["pending"] * 2 and exit_code(out) == 3
 
@@ -149,12 +168,11 @@ def test_a_trickling_answer_ends_at_the_whole_request_deadline(peer, env, store)
 def test_site_times_are_sent_as_its_wall_clock_and_read_back(env, store):
     """The push sends naive wall-clock times of qatrack.time_zone (QATrack+ takes no offset) and
     they land at the run's instant, in a zone south of the equator and across its clock change."""
-    with QATrackSim({"VTS daily": DAILY}, {"SPECT 1": ["VTS daily"]}, token=TOKEN,
-                    time_zone="Australia/Sydney") as sim:
+    with QATrackSim({"VTS daily": DAILY}, {"SPECT 1": ["VTS daily"]}, token=TOKEN, time_zone="Australia/Sydney") as sim:
         cfg = rig(sim.url, time_zone="Australia/Sydney")
         # 2026-04-04 15:59:30 UTC is 02:59:30 AEDT on the 5th; at 16:00 UTC the clocks go back from 03:00 to 02:00
         ids = fill(store, 1, t0=1775318370.0 - 86400 * 3)  # three days before, in summer time (UTC+11)
-        ids += fill(store, 1, t0=1775318370.0 + 7200)     # 03:59:30 AEST (UTC+10): after the repeated hour
+        ids += fill(store, 1, t0=1775318370.0 + 7200)  # 03:59:30 AEST (UTC+10): after the repeated hour
         out = push_runs(store, cfg.qatrack, [store.run(i) for i in ids])
         assert [o.how for o in out] == ["posted", "posted"]
         assert sim.last_post["work_started"] == "2026-04-05 03:59:30"
@@ -165,28 +183,38 @@ def test_a_run_within_one_second_ends_at_the_next_second_not_a_minute_later(peer
     """QATrack+ (TestListInstance.save) moves an end equal to the start 60 s on (the stand-in
     does as the real server: tests/test_qatrack_real.py posts such times there); a run that
     starts and ends within one second is sent with its end at the next second and lands there."""
-    t0 = 1790000000.0                        # 2026-09-21 14:13:20 UTC: 10:13:20 in Toronto
+    t0 = 1790000000.0  # 2026-09-21 14:13:20 UTC: 10:13:20 in Toronto
     with store.begin_run("daily", rig="room1", started=t0 + 0.2) as h:
         h.measure("cam1", "drift_x_px", 0.1, "px")
         h.finish(finished=t0 + 0.7)
     out = push_runs(store, rig(peer.url).qatrack, [store.run(h.run_id)])
     assert [o.how for o in out] == ["posted"], out[0].line()
-    assert (peer.last_post["work_started"], peer.last_post["work_completed"]) == \
-        ("2026-09-21 10:13:20", "2026-09-21 10:13:21")
+    assert (peer.last_post["work_started"], peer.last_post["work_completed"]) == (
+        "2026-09-21 10:13:20",
+        "2026-09-21 10:13:21",
+    )
     shown = peer.instances[-1]
-    assert (shown["work_started"], shown["work_completed"]) == \
-        ("2026-09-21T10:13:20-04:00", "2026-09-21T10:13:21-04:00")
+    assert (shown["work_started"], shown["work_completed"]) == (
+        "2026-09-21T10:13:20-04:00",
+        "2026-09-21T10:13:21-04:00",
+    )
     # the site's own rule, as the real server has it: equal times sent, the end shown 60 s later
-    r = requests.post(peer.url + "api/qa/testlistinstances/", headers={"Authorization": f"Token {TOKEN}"},
-                      json={**{k: v for k, v in peer.last_post.items() if k != "user_key"},
-                            "work_completed": peer.last_post["work_started"]}, timeout=30)
+    r = requests.post(
+        peer.url + "api/qa/testlistinstances/",
+        headers={"Authorization": f"Token {TOKEN}"},
+        json={
+            **{k: v for k, v in peer.last_post.items() if k != "user_key"},
+            "work_completed": peer.last_post["work_started"],
+        },
+        timeout=30,
+    )
     assert r.status_code == 201, r.text
     assert r.json()["work_completed"] == "2026-09-21T10:14:20-04:00"
 
 
 def test_a_run_in_the_repeated_hour_is_refused_in_one_sentence_before_posting(peer, env, store):
     cfg = rig(peer.url)
-    (rid,) = fill(store, 1, t0=1793511000.0)     # 2026-11-01 05:30 UTC: 01:30 in Toronto, an hour that happens twice
+    (rid,) = fill(store, 1, t0=1793511000.0)  # 2026-11-01 05:30 UTC: 01:30 in Toronto, an hour that happens twice
     out = push_runs(store, cfg.qatrack, [store.run(rid)])
     assert out[0].state == "refused" and out[0].how == "repeated hour" and exit_code(out) == 4
     assert "2026-11-01 01:30:00 happens twice in America/Toronto" in out[0].message and "\n" not in out[0].message
@@ -196,7 +224,7 @@ def test_a_run_in_the_repeated_hour_is_refused_in_one_sentence_before_posting(pe
 def test_a_wrong_time_zone_stops_the_batch_before_posting(peer, env, store):
     """The site shows its times at another offset than qatrack.time_zone gives: nothing posted."""
     cfg = rig(peer.url, time_zone="Europe/Berlin")
-    peer.add_instance("someone-else")     # an instance of the site, shown at Toronto's offset
+    peer.add_instance("someone-else")  # an instance of the site, shown at Toronto's offset
     fill(store, 2)
     out = push_runs(store, cfg.qatrack, select_runs(store, cfg.qatrack, "room1"))
     assert [o.how for o in out] == ["wrong time zone", "not tried"] and exit_code(out) == 4
@@ -216,7 +244,7 @@ def test_an_instance_shown_at_a_wrong_time_is_said_and_stops_the_batch(env, stor
 
 
 def test_no_permission_and_a_wrong_base_url_are_one_clear_sentence(peer, env, store):
-    peer.add_user("vts", token=TOKEN, perms=())      # the user lost its permission to add instances
+    peer.add_user("vts", token=TOKEN, perms=())  # the user lost its permission to add instances
     cfg = rig(peer.url)
     fill(store, 1)
     out = push_runs(store, cfg.qatrack, select_runs(store, cfg.qatrack, "room1"))
@@ -234,7 +262,7 @@ def test_an_answer_lost_after_the_instance_was_made_is_not_posted_twice(peer, en
     (rid,) = fill(store, 1)
     peer.fault = "lose_answer"
     out = push_runs(store, cfg.qatrack, [store.run(rid)])
-    assert out[0].state == "pending" and len(peer.instances) == 1   # made there, the answer lost
+    assert out[0].state == "pending" and len(peer.instances) == 1  # made there, the answer lost
     peer.fault = None
     out = push_runs(store, cfg.qatrack, select_runs(store, cfg.qatrack, "room1", pending=True))
     assert out[0].how == "already there" and out[0].remote == peer.instances[0]["url"]
@@ -263,7 +291,7 @@ def test_a_refusal_is_one_sentence_in_qatracks_words_and_kept(peer, env, store):
     item = store.outbox_items("qatrack")[0]
     assert item.state == "refused" and "Test list is not active" in item.last_error
     peer.fault = None
-    assert select_runs(store, cfg.qatrack, "room1", pending=True) == []     # --pending leaves it
+    assert select_runs(store, cfg.qatrack, "room1", pending=True) == []  # --pending leaves it
     assert [r.id for r in select_runs(store, cfg.qatrack, "room1")] == [rid]  # a push without: retries it
     named = push_runs(store, cfg.qatrack, select_runs(store, cfg.qatrack, "room1", run_ids=[rid]))
     assert named[0].how == "posted" and peer.posts == 1 and states(store) == ["sent"]
@@ -272,20 +300,38 @@ def test_a_refusal_is_one_sentence_in_qatracks_words_and_kept(peer, env, store):
 def test_qatrack_missing_a_test_is_refused_with_its_message(peer, env, store):
     macros = dict(MACROS)
     del macros["cam2/drift_y_px"]
-    cfg = rig(peer.url, lists={"daily": {"test_list": "VTS daily", "macros": macros,
-                                         "ignore": ["*/M*/*", "*/clock_offset_s", "cam2/drift_y_px"]}})
+    cfg = rig(
+        peer.url,
+        lists={
+            "daily": {
+                "test_list": "VTS daily",
+                "macros": macros,
+                "ignore": ["*/M*/*", "*/clock_offset_s", "cam2/drift_y_px"],
+            }
+        },
+    )
     fill(store, 1)
     out = push_runs(store, cfg.qatrack, select_runs(store, cfg.qatrack, "room1"))
     assert out[0].state == "refused" and "Missing data for tests: cam2_dy" in out[0].message
 
 
 def test_a_macro_qatrack_does_not_have_is_noted_on_the_sent_run(peer, env, store):
-    cfg = rig(peer.url, lists={"daily": {"test_list": "VTS daily", "macros": {**MACROS, "cam1/clock_offset_s": "cam1_clk"},
-                                         "ignore": ["*/M*/*", "cam2/clock_offset_s"]}})
+    cfg = rig(
+        peer.url,
+        lists={
+            "daily": {
+                "test_list": "VTS daily",
+                "macros": {**MACROS, "cam1/clock_offset_s": "cam1_clk"},
+                "ignore": ["*/M*/*", "cam2/clock_offset_s"],
+            }
+        },
+    )
     fill(store, 1)
     out = push_runs(store, cfg.qatrack, select_runs(store, cfg.qatrack, "room1"))
     assert out[0].how == "posted" and "kept no value for cam1_clk" in out[0].message
-    assert "cam1_clk" not in peer.instances[0]["tests"] and "kept no value" in store.outbox_items("qatrack")[0].last_error
+    assert (
+        "cam1_clk" not in peer.instances[0]["tests"] and "kept no value" in store.outbox_items("qatrack")[0].last_error
+    )
 
 
 def test_an_unmapped_measurement_is_refused_before_anything_is_posted(peer, env, store):
@@ -294,15 +340,17 @@ def test_an_unmapped_measurement_is_refused_before_anything_is_posted(peer, env,
     out = push_runs(store, cfg.qatrack, select_runs(store, cfg.qatrack, "room1"))
     assert out[0].state == "refused" and out[0].how == "not mapped"
     assert "cam1/clock_offset_s, cam2/clock_offset_s" in out[0].message and "ignore" in out[0].message
-    assert peer.requests == []   # not even asked
+    assert peer.requests == []  # not even asked
 
 
 def test_no_assignment_for_the_unit_is_refused(peer, env, store):
     cfg = rig(peer.url, unit="SPECT 9")
     fill(store, 1)
     out = push_runs(store, cfg.qatrack, select_runs(store, cfg.qatrack, "room1"))
-    assert out[0].state == "refused" and "no active assignment of test list 'VTS daily' to unit 'SPECT 9'" \
-        in out[0].message
+    assert (
+        out[0].state == "refused"
+        and "no active assignment of test list 'VTS daily' to unit 'SPECT 9'" in out[0].message
+    )
 
 
 def test_bad_token_stops_the_batch_and_no_secret_is_kept(peer, monkeypatch, store, tmp_path):
@@ -347,6 +395,7 @@ def test_attachments_are_the_drift_plots_and_the_report(peer, env, store):
     names = peer.instances[0]["attachments"]
     assert names == ["vts-drift-run3-cam1.png", "vts-drift-run3-cam2.png", "vts-report-run3.html"]
     import base64
+
     files = {a["filename"]: base64.b64decode(a["value"]) for a in peer.last_post["attachments"]}
     assert files["vts-drift-run3-cam1.png"][:8] == b"\x89PNG\r\n\x1a\n"
     assert b"<html" in files["vts-report-run3.html"][:500].lower()
@@ -366,13 +415,17 @@ def test_config_is_strict_and_names_no_secret():
 
 def test_drf_error_bodies_become_one_line():
     assert drf_words({"detail": "Invalid token."}) == "Invalid token."
-    assert drf_words({"non_field_errors": ["Missing data for tests: a, b\nWrong value"]}) == \
-        "Missing data for tests: a, b Wrong value"
-    assert drf_words({"unit_test_collection": ["Invalid hyperlink - Object does not exist."]}) == \
-        "unit_test_collection: Invalid hyperlink - Object does not exist."
+    assert (
+        drf_words({"non_field_errors": ["Missing data for tests: a, b\nWrong value"]})
+        == "Missing data for tests: a, b Wrong value"
+    )
+    assert (
+        drf_words({"unit_test_collection": ["Invalid hyperlink - Object does not exist."]})
+        == "unit_test_collection: Invalid hyperlink - Object does not exist."
+    )
 
 
-@pytest.mark.timeout(600)          # a hang detector: several vts commands, slow on a loaded machine
+@pytest.mark.timeout(600)  # a hang detector: several vts commands, slow on a loaded machine
 def test_cli_daily_push_then_push_pending_and_dry_run(peer, sim_rig, tmp_path):
     """End to end: `vts qa daily --push` on the simulated rig with QATrack+ down (the QA's exit
     status stands, the run waits in the outbox), `vts qa push --pending` once it is back,
@@ -380,13 +433,14 @@ def test_cli_daily_push_then_push_pending_and_dry_run(peer, sim_rig, tmp_path):
     data = sim_rig.config().model_dump(mode="json", exclude_none=True)
     data["results"] = {"url": f"sqlite:///{tmp_path / 'results.sqlite'}"}
     data["rig"] = "room1"
-    data["qatrack"] = qatrack_section(peer.url, lists={"daily": {
-        "test_list": "VTS daily", "macros": dict(MACROS), "ignore": ["*/M*/*", "cam?/*"]}})  # mapped ones are sent; the rest of cam?/ not
+    data["qatrack"] = qatrack_section(
+        peer.url, lists={"daily": {"test_list": "VTS daily", "macros": dict(MACROS), "ignore": ["*/M*/*", "cam?/*"]}}
+    )  # mapped ones are sent; the rest of cam?/ not
     (tmp_path / "rig.yaml").write_text(yaml.safe_dump(data))
     env = dict(os.environ, VTS_CONFIG=str(tmp_path / "rig.yaml"), QATRACK_TOKEN=TOKEN, **sim_rig.env_vars())
 
     def vts(*a):
-        p = run(*a, env=env)            # in this process (tests/inprocess_cli.py)
+        p = run(*a, env=env)  # in this process (tests/inprocess_cli.py)
         assert TOKEN not in p.stdout + p.stderr and "Traceback" not in p.stderr
         return p
 
@@ -417,31 +471,45 @@ def test_cli_usage_errors_are_one_sentence(tmp_path, monkeypatch, capsys):
         with pytest.raises(SystemExit) as e:
             main(list(a))
         err = capsys.readouterr().err
-        assert "Traceback" not in err and len([ln for ln in err.splitlines() if "vts:" in ln or "Error:" in ln]) == 1, err
+        assert "Traceback" not in err and len([ln for ln in err.splitlines() if "vts:" in ln or "Error:" in ln]) == 1, (
+            err
+        )
         return e.value.code, err
 
     plain = tmp_path / "plain.yaml"
-    plain.write_text(yaml.safe_dump({"rig": "room1", "cameras": [{"name": "cam1", "host": "127.0.0.1"}],
-                                     "results": {"url": f"sqlite:///{tmp_path / 'r.sqlite'}"}}))
+    plain.write_text(
+        yaml.safe_dump(
+            {
+                "rig": "room1",
+                "cameras": [{"name": "cam1", "host": "127.0.0.1"}],
+                "results": {"url": f"sqlite:///{tmp_path / 'r.sqlite'}"},
+            }
+        )
+    )
     code, err = vts("qa", "push", "--config", str(plain))
     assert code == 2 and "no qatrack: section" in err and str(plain) in err
     full = tmp_path / "rig.yaml"
-    full.write_text(yaml.safe_dump({**yaml.safe_load(plain.read_text()),
-                                    "qatrack": qatrack_section("http://127.0.0.1:9/")}))
+    full.write_text(
+        yaml.safe_dump({**yaml.safe_load(plain.read_text()), "qatrack": qatrack_section("http://127.0.0.1:9/")})
+    )
     monkeypatch.setenv("QATRACK_TOKEN", TOKEN)
     code, err = vts("qa", "push", "--config", str(full), "--pending", "3")
     assert code == 2 and "not both" in err
 
 
-@pytest.mark.parametrize("body, words", [
-    (b'{"results": [{"name": "VTS daily"}]}', "without its url"),
-    (b'{"results": {"url": "x"}}', "not a list of objects"),
-    (b'{"results": [5]}', "not a list of objects"),
-    (b'{"results": [{"url": "u"}], "next": 7}', "next page that is not a link"),
-])
+@pytest.mark.parametrize(
+    "body, words",
+    [
+        (b'{"results": [{"name": "VTS daily"}]}', "without its url"),
+        (b'{"results": {"url": "x"}}', "not a list of objects"),
+        (b'{"results": [5]}', "not a list of objects"),
+        (b'{"results": [{"url": "u"}], "next": 7}', "next page that is not a link"),
+    ],
+)
 def test_an_assignment_list_of_the_wrong_shape_is_one_sentence(body, words):
     # found by bench/fuzz.py (qatrack): KeyError, TypeError from urljoin went through
     from vts_hw.qatrack.client import QATrackClient, Unreachable
+
     client = QATrackClient("http://127.0.0.1:9/", ("token", "t"), session=Answers(body))
     with pytest.raises(Unreachable, match=words):
         client.assignment("SPECT 1", "VTS daily")
@@ -450,11 +518,11 @@ def test_an_assignment_list_of_the_wrong_shape_is_one_sentence(body, words):
 def test_instances_and_errors_of_the_wrong_shape_are_one_sentence():
     # found by bench/fuzz.py (qatrack): results[0] of a dict was a KeyError; a deep body a RecursionError
     from vts_hw.qatrack.client import QATrackClient, Refused, Unreachable
+
     client = QATrackClient("http://127.0.0.1:9/", ("token", "t"), session=Answers(b'{"results": {"a": 1}}'))
     with pytest.raises(Unreachable, match="not a list of objects"):
         client.instance_with_key("k")
-    client = QATrackClient("http://127.0.0.1:9/", ("token", "t"),
-                           session=Answers((400, b"[" * 5000 + b"]" * 5000)))
+    client = QATrackClient("http://127.0.0.1:9/", ("token", "t"), session=Answers((400, b"[" * 5000 + b"]" * 5000)))
     with pytest.raises(Refused, match=r"refused POST .*\(400\)"):
         client.create_instance({})
     deep = "deep"

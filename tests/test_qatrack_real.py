@@ -27,30 +27,51 @@ from vts_hw.store import ResultsStore
 pytestmark = [pytest.mark.real_qatrack, pytest.mark.xdist_group("real_qatrack"), pytest.mark.timeout(900)]
 
 UNIT, LIST = "SPECT room 1", "VTS daily"
-MACROS = {"cam1/drift_x_px": "cam1_dx", "cam1/drift_y_px": "cam1_dy", "cam2/drift_x_px": "cam2_dx",
-          "cam2/drift_y_px": "cam2_dy", "cam1/drift_sd_px": "cam1_sd", "cam2/drift_sd_px": "cam2_sd",
-          "cam1/markers_missing": "cam1_missing", "cam2/markers_missing": "cam2_missing", "cam3/drift_x_px": "cam3_dx"}
+MACROS = {
+    "cam1/drift_x_px": "cam1_dx",
+    "cam1/drift_y_px": "cam1_dy",
+    "cam2/drift_x_px": "cam2_dx",
+    "cam2/drift_y_px": "cam2_dy",
+    "cam1/drift_sd_px": "cam1_sd",
+    "cam2/drift_sd_px": "cam2_sd",
+    "cam1/markers_missing": "cam1_missing",
+    "cam2/markers_missing": "cam2_missing",
+    "cam3/drift_x_px": "cam3_dx",
+}
 VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
 
 
 def qatrack_cfg(site, zone: str, **over) -> dict:
-    q = {"url": site.url, "unit": UNIT, "time_zone": zone, "token_env": "QATRACK_TOKEN", "timeout_s": 30,
-         "report": "none", "plots": False,
-         "lists": {"daily": {"test_list": LIST, "macros": dict(MACROS), "ignore": ["*/M*/*"]}}}
+    q = {
+        "url": site.url,
+        "unit": UNIT,
+        "time_zone": zone,
+        "token_env": "QATRACK_TOKEN",
+        "timeout_s": 30,
+        "report": "none",
+        "plots": False,
+        "lists": {"daily": {"test_list": LIST, "macros": dict(MACROS), "ignore": ["*/M*/*"]}},
+    }
     q.update(over)
     return q
 
 
 def rig(site, zone: str, **over):
-    return parse_rig({"rig": "room1", "cameras": [{"name": "cam1", "host": "127.0.0.1"}],
-                      "qatrack": qatrack_cfg(site, zone, **over)}, "test rig").qatrack
+    return parse_rig(
+        {
+            "rig": "room1",
+            "cameras": [{"name": "cam1", "host": "127.0.0.1"}],
+            "qatrack": qatrack_cfg(site, zone, **over),
+        },
+        "test rig",
+    ).qatrack
 
 
 def transitions(zone: str, year: int = 2026) -> list[tuple[float, _dt.timedelta]]:
     """(UTC epoch s, offset change) of the zone's clock changes in ``year``."""
     z, out = ZoneInfo(zone), []
-    t = _dt.datetime(year, 1, 1, tzinfo=_dt.timezone.utc).timestamp()
-    end = _dt.datetime(year + 1, 1, 1, tzinfo=_dt.timezone.utc).timestamp()
+    t = _dt.datetime(year, 1, 1, tzinfo=_dt.UTC).timestamp()
+    end = _dt.datetime(year + 1, 1, 1, tzinfo=_dt.UTC).timestamp()
     off = _dt.datetime.fromtimestamp(t, z).utcoffset()
     while t < end:
         nxt = _dt.datetime.fromtimestamp(t + 3600, z).utcoffset()
@@ -101,21 +122,22 @@ def check_landed(site, store, run_ids):
 
 
 @pytest.mark.parametrize("zone", ["America/Toronto", "Australia/Sydney", "Europe/Berlin"])
-def test_runs_land_at_their_true_instants_in_the_sites_zone_across_its_clock_changes(real_qatrack, tmp_path,
-                                                                                      monkeypatch, zone):
+def test_runs_land_at_their_true_instants_in_the_sites_zone_across_its_clock_changes(
+    real_qatrack, tmp_path, monkeypatch, zone
+):
     site = real_qatrack
     site.restart(zone)
     monkeypatch.setenv("QATRACK_TOKEN", site.tokens["QATRACK_TOKEN"])
-    starts, repeated = [_dt.datetime(2026, 6, 15, 6, 5, 30, 700000, tzinfo=_dt.timezone.utc).timestamp()], []
+    starts, repeated = [_dt.datetime(2026, 6, 15, 6, 5, 30, 700000, tzinfo=_dt.UTC).timestamp()], []
     for t, change in transitions(zone):
-        if change > _dt.timedelta(0):      # clocks go forward: the hour skipped is never a run's time
-            starts += [t - 45, t + 30]       # the run crosses the jump: its end an hour "later" on the wall
-        else:                               # clocks go back: the hour after t - |change| happens twice
+        if change > _dt.timedelta(0):  # clocks go forward: the hour skipped is never a run's time
+            starts += [t - 45, t + 30]  # the run crosses the jump: its end an hour "later" on the wall
+        else:  # clocks go back: the hour after t - |change| happens twice
             starts += [t - 2 * 3600, t + 3600 + 60]
             repeated += [t - 1800, t + 1200]
     with ResultsStore(tmp_path / "r.sqlite") as store:
         ids = fill(store, starts + repeated)
-        ids += fill(store, [starts[0] + 86400 + 0.1], seconds=0.5)     # a run within one second
+        ids += fill(store, [starts[0] + 86400 + 0.1], seconds=0.5)  # a run within one second
         out = push_runs(store, rig(site, zone), select_runs(store, rig(site, zone), "room1"))
         by_id = {o.run_id: o for o in out}
         landed = [i for i in ids if store.run(i).started not in repeated]
@@ -126,24 +148,39 @@ def test_runs_land_at_their_true_instants_in_the_sites_zone_across_its_clock_cha
                 o = by_id[i]
                 assert o.state == "refused" and o.how == "repeated hour" and "happens twice" in o.message
                 assert "\n" not in o.message and site.instances(run_key(store.run(i))) == []
-        assert exit_code(out) == 4      # a run refused: a person enters it by hand
+        assert exit_code(out) == 4  # a run refused: a person enters it by hand
     # the real site itself cannot take those wall-clock times: QATrack+ refuses them
     wall = _dt.datetime.fromtimestamp(repeated[0], ZoneInfo(zone)).strftime("%Y-%m-%d %H:%M:%S")
-    r = requests.post(site.url + "api/qa/testlistinstances/", timeout=30,
-                      headers={"Authorization": f"Token {site.tokens['QATRACK_TOKEN']}"},
-                      json={"unit_test_collection": site.url + "api/qc/unittestcollections/1/", "work_started": wall,
-                            "work_completed": wall, "tests": {m: {"value": 0} for m in MACROS.values()}})
+    r = requests.post(
+        site.url + "api/qa/testlistinstances/",
+        timeout=30,
+        headers={"Authorization": f"Token {site.tokens['QATRACK_TOKEN']}"},
+        json={
+            "unit_test_collection": site.url + "api/qc/unittestcollections/1/",
+            "work_started": wall,
+            "work_completed": wall,
+            "tests": {m: {"value": 0} for m in MACROS.values()},
+        },
+    )
     assert r.status_code == 400 and "Invalid datetime for the timezone" in r.text
     # and an end equal to the start is moved 60 s on (as the stand-in does: test_qatrack_push.py)
     wall = _dt.datetime.fromtimestamp(starts[0] + 2 * 86400, ZoneInfo(zone)).strftime("%Y-%m-%d %H:%M:%S")
-    r = requests.post(site.url + "api/qa/testlistinstances/", timeout=30,
-                      headers={"Authorization": f"Token {site.tokens['QATRACK_TOKEN']}"},
-                      json={"unit_test_collection": site.url + "api/qc/unittestcollections/1/", "work_started": wall,
-                            "work_completed": wall, "tests": {m: {"value": 0} for m in MACROS.values()}})
+    r = requests.post(
+        site.url + "api/qa/testlistinstances/",
+        timeout=30,
+        headers={"Authorization": f"Token {site.tokens['QATRACK_TOKEN']}"},
+        json={
+            "unit_test_collection": site.url + "api/qc/unittestcollections/1/",
+            "work_started": wall,
+            "work_completed": wall,
+            "tests": {m: {"value": 0} for m in MACROS.values()},
+        },
+    )
     assert r.status_code == 201, r.text
     made = r.json()
-    assert _dt.datetime.fromisoformat(made["work_completed"]) - _dt.datetime.fromisoformat(made["work_started"]) \
-        == _dt.timedelta(seconds=60)
+    assert _dt.datetime.fromisoformat(made["work_completed"]) - _dt.datetime.fromisoformat(
+        made["work_started"]
+    ) == _dt.timedelta(seconds=60)
 
 
 def test_a_wrong_time_zone_in_rig_yaml_is_refused_before_anything_is_posted(real_qatrack, tmp_path, monkeypatch):
@@ -151,7 +188,7 @@ def test_a_wrong_time_zone_in_rig_yaml_is_refused_before_anything_is_posted(real
     site.restart("Australia/Sydney")
     monkeypatch.setenv("QATRACK_TOKEN", site.tokens["QATRACK_TOKEN"])
     with ResultsStore(tmp_path / "r.sqlite") as store:
-        fill(store, [1.79e9])          # the site holds instances of earlier pushes: their times tell its zone
+        fill(store, [1.79e9])  # the site holds instances of earlier pushes: their times tell its zone
         qcfg = rig(site, "Europe/Berlin")
         out = push_runs(store, qcfg, select_runs(store, qcfg, "room1"))
         assert out[0].how == "wrong time zone" and exit_code(out) == 4
@@ -160,8 +197,9 @@ def test_a_wrong_time_zone_in_rig_yaml_is_refused_before_anything_is_posted(real
         assert site.instances(out[0].key) == [] and store.outbox_items("qatrack")[0].state == "pending"
 
 
-def test_attachments_a_second_push_a_copy_of_the_store_and_a_server_stopped_mid_push(real_qatrack, tmp_path,
-                                                                                    monkeypatch):
+def test_attachments_a_second_push_a_copy_of_the_store_and_a_server_stopped_mid_push(
+    real_qatrack, tmp_path, monkeypatch
+):
     site = real_qatrack
     site.restart("America/Toronto")
     monkeypatch.setenv("QATRACK_TOKEN", site.tokens["QATRACK_TOKEN"])
@@ -185,11 +223,12 @@ def test_attachments_a_second_push_a_copy_of_the_store_and_a_server_stopped_mid_
         check_landed(site, store, ids)
         tli = site.instances(run_key(store.run(ids[0])))[0]
         labels = sorted(a["label"] for a in tli["attachments"])
-        assert labels == sorted([f"vts-report-run{ids[0]}.html"] + [f"vts-drift-run{ids[0]}-{c}.png"
-                                                                      for c in ("cam1", "cam2")])
+        assert labels == sorted(
+            [f"vts-report-run{ids[0]}.html"] + [f"vts-drift-run{ids[0]}-{c}.png" for c in ("cam1", "cam2")]
+        )
         second = push_runs(store, qcfg, select_runs(store, qcfg, "room1", run_ids=ids))
         assert [o.how for o in second] == ["already sent"] * 5
-    with ResultsStore(tmp_path / "copy.sqlite") as copy:        # a copy taken before any push
+    with ResultsStore(tmp_path / "copy.sqlite") as copy:  # a copy taken before any push
         out = push_runs(copy, qcfg, select_runs(copy, qcfg, "room1"))
         assert [o.how for o in out] == ["already there"] * 5 and exit_code(out) == 0
     for rid in ids:
@@ -209,9 +248,15 @@ def test_vts_qa_daily_push_and_vts_qa_push_against_the_real_server(real_qatrack,
         (rid,) = fill(store, [1.76e9])
         key = run_key(store.run(rid))
     data = sim_rig.config().model_dump(mode="json", exclude_none=True)
-    data.update(rig="room1", results={"url": f"sqlite:///{db}"},
-                qatrack=qatrack_cfg(site, "America/Toronto", lists={"daily": {
-                    "test_list": LIST, "macros": dict(MACROS), "ignore": ["*/M*/*", "cam?/*"]}}))
+    data.update(
+        rig="room1",
+        results={"url": f"sqlite:///{db}"},
+        qatrack=qatrack_cfg(
+            site,
+            "America/Toronto",
+            lists={"daily": {"test_list": LIST, "macros": dict(MACROS), "ignore": ["*/M*/*", "cam?/*"]}},
+        ),
+    )
     cfg = tmp_path / "rig.yaml"
     cfg.write_text(yaml.safe_dump(data))
     token = site.tokens["QATRACK_TOKEN"]

@@ -13,8 +13,8 @@ import shutil
 import pytest
 
 from inprocess_cli import run
-from vts_hw.recording.mjpeg import split_jpegs
 from vts_hw.recording.folder import read_index
+from vts_hw.recording.mjpeg import split_jpegs
 from vts_hw.sim_devices.rig import SimRig
 
 
@@ -106,11 +106,14 @@ def test_append_after_a_crash_asks_for_reindex(rig, tmp_path):
     assert p.returncode == 3 and "reindex" in p.stderr and "Traceback" not in p.stderr
 
 
-@pytest.mark.parametrize("fault, cause", [
-    ({"offline": True}, "recorded nothing"),
-    ({"too_many_viewers": True}, "too many viewers"),
-    ({"stall_after_frames": 0, "stall_s": 30.0}, "recorded nothing"),
-])
+@pytest.mark.parametrize(
+    "fault, cause",
+    [
+        ({"offline": True}, "recorded nothing"),
+        ({"too_many_viewers": True}, "too many viewers"),
+        ({"stall_after_frames": 0, "stall_s": 30.0}, "recorded nothing"),
+    ],
+)
 def test_record_of_a_camera_that_records_nothing_is_not_complete(rig, tmp_path, fault, cause):
     r, env = rig
     r.servers["cam2"].set_faults(**fault)
@@ -127,7 +130,7 @@ def test_record_of_a_camera_that_records_nothing_is_not_complete(rig, tmp_path, 
 
 def test_record_unreachable_and_wrong_password(rig, tmp_path):
     r, env = rig
-    r.servers["cam1"].stop()   # nothing listens on its port any more
+    r.servers["cam1"].stop()  # nothing listens on its port any more
     p = vts(env, "camera", "record", "cam1", "--seconds", "1", "-o", str(tmp_path / "a"))
     assert p.returncode == 4 and "status failed" in p.stdout
     assert "camera cam1: recorded nothing" in p.stderr and "connection refused" in p.stderr
@@ -137,8 +140,9 @@ def test_record_unreachable_and_wrong_password(rig, tmp_path):
     assert "cam2" in p.stderr and "password" in p.stderr and "Traceback" not in p.stderr
 
 
-@pytest.mark.parametrize("args", [["--seconds", "nan"], ["--seconds", "inf"], ["--seconds", "-1"],
-                                  ["--seconds", "0"], ["--seconds", "ten"]])
+@pytest.mark.parametrize(
+    "args", [["--seconds", "nan"], ["--seconds", "inf"], ["--seconds", "-1"], ["--seconds", "0"], ["--seconds", "ten"]]
+)
 def test_record_refuses_durations_that_are_not(rig, tmp_path, args):
     _, env = rig
     p = vts(env, "camera", "record", "cam1", *args, "-o", str(tmp_path / "r"))
@@ -218,10 +222,10 @@ def _recorded(one_second, folder):
 
 
 def test_reindex_never_makes_an_index_worse(one_second, tmp_path):
-    env = dict(os.environ)      # (reindex reads the folder alone)
+    env = dict(os.environ)  # (reindex reads the folder alone)
     out = tmp_path / "rec"
     index = _recorded(one_second, out)
-    (out / "cam1.mjpeg").write_bytes(b"\0" * 5000)     # no readable frame any more
+    (out / "cam1.mjpeg").write_bytes(b"\0" * 5000)  # no readable frame any more
     p = vts(env, "recording", "reindex", str(out))
     assert p.returncode == 3 and "old index is kept" in p.stderr and "cam1.index.rebuilt.csv" in p.stderr
     assert (out / "cam1.index.csv").read_bytes() == index
@@ -230,7 +234,7 @@ def test_reindex_never_makes_an_index_worse(one_second, tmp_path):
 
 @pytest.mark.parametrize("manifest", ["[]", '{"cameras": []}', '{"cameras": {"cam1": 3}}', "\xff\xfe"])
 def test_reindex_of_a_manifest_of_the_wrong_shape(one_second, tmp_path, manifest):
-    env = dict(os.environ)      # (reindex reads the folder alone)
+    env = dict(os.environ)  # (reindex reads the folder alone)
     out = tmp_path / "rec"
     _recorded(one_second, out)
     (out / "manifest.json").write_bytes(manifest.encode("latin-1"))
@@ -244,7 +248,7 @@ def test_reindex_of_a_manifest_of_the_wrong_shape(one_second, tmp_path, manifest
 
 
 def test_disk_full_during_reindex_changes_nothing(one_second, small_disk):
-    env = dict(os.environ)      # (reindex reads the folder alone)
+    env = dict(os.environ)  # (reindex reads the folder alone)
     disk = small_disk(1024)
     out = disk.path / "rec"
     _recorded(one_second, out)
@@ -257,11 +261,11 @@ def test_disk_full_during_reindex_changes_nothing(one_second, small_disk):
 
 
 def test_reindex_replaces_a_damaged_index_and_keeps_it_beside(one_second, tmp_path):
-    env = dict(os.environ)      # (reindex reads the folder alone)
+    env = dict(os.environ)  # (reindex reads the folder alone)
     out = tmp_path / "rec"
     index = _recorded(one_second, out)
     lines = index.decode().splitlines()
-    lines[5] = "garbage,in,the,middle"                 # a bad line before the last
+    lines[5] = "garbage,in,the,middle"  # a bad line before the last
     damaged = ("\n".join(lines) + "\n").encode()
     (out / "cam1.index.csv").write_bytes(damaged)
     p = vts(env, "recording", "reindex", str(out))

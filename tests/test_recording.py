@@ -4,13 +4,13 @@ import json
 
 import pytest
 
-from vts_hw.recording.axis_jpeg import inspect_jpeg
 from vts_hw.errors import DataError
-from vts_hw.recording.mjpeg import read_frames_file
+from vts_hw.recording.axis_jpeg import inspect_jpeg
 from vts_hw.recording.folder import load_manifest, read_index
+from vts_hw.recording.mjpeg import read_frames_file
 from vts_hw.recording.promised import info
-from vts_hw.recording.writer import Recording
 from vts_hw.recording.reindex import reindex
+from vts_hw.recording.writer import Recording
 
 
 @pytest.fixture()
@@ -34,7 +34,7 @@ def test_byte_exact_mjpeg_and_index(tmp_path, real_frames):
     rows = read_index(tmp_path / "cam1.index.csv")
     assert len(rows) == 16
     for r, f in zip(rows, real_frames):
-        assert data[r.offset:r.offset + r.length] == f
+        assert data[r.offset : r.offset + r.length] == f
         assert r.camera_time == pytest.approx(inspect_jpeg(f).timestamp)
     m = json.loads((tmp_path / "manifest.json").read_text())
     assert m["status"] == "complete" and m["cameras"]["cam1"]["frames"] == 16
@@ -43,7 +43,9 @@ def test_byte_exact_mjpeg_and_index(tmp_path, real_frames):
 def test_reindex_from_mjpeg_alone_keeps_host_times(tmp_path, real_frames):
     _record(tmp_path, real_frames)
     before = (tmp_path / "cam1.index.csv").read_text()
-    (tmp_path / "cam1.index.csv").write_text(before.splitlines()[0] + "\n" + "\n".join(before.splitlines()[1:6]) + "\n3,99")
+    (tmp_path / "cam1.index.csv").write_text(
+        before.splitlines()[0] + "\n" + "\n".join(before.splitlines()[1:6]) + "\n3,99"
+    )
     report = reindex(tmp_path)
     c = report["cam1"]
     assert (c.frames, c.host_times_kept, c.torn, c.replaced) == (16, 5, 0, True)
@@ -91,6 +93,7 @@ def test_info_on_files_and_bad_paths(tmp_path, axis_frames):
 
 # ---- bad index files (found by bench/fuzz.py): a DataError naming the file, never a traceback
 
+
 def test_an_index_that_is_not_ascii_text(tmp_path, real_frames):
     _record(tmp_path, real_frames[:3])
     idx = tmp_path / "cam1.index.csv"
@@ -107,7 +110,9 @@ def test_a_bad_line_before_the_last_is_an_error_not_the_end(tmp_path, real_frame
     idx = tmp_path / "cam1.index.csv"
     lines = idx.read_text().splitlines()
     idx.write_text("\n".join(lines[:2] + [bad] + lines[2:]) + "\n")
-    with pytest.raises(DataError, match=r"cam1.index.csv: line 3 is not a frame,offset,length,camera_time,host_time row"):
+    with pytest.raises(
+        DataError, match=r"cam1.index.csv: line 3 is not a frame,offset,length,camera_time,host_time row"
+    ):
         read_index(idx)
     idx.write_text("\n".join(lines + [bad]))  # the same line last: the frame in flight at a kill
     assert len(read_index(idx)) == 3
@@ -116,20 +121,30 @@ def test_a_bad_line_before_the_last_is_an_error_not_the_end(tmp_path, real_frame
 def test_info_of_camera_times_with_an_absurd_frame_step(tmp_path):
     # a median step of 1e-310 s: the gap in frames is not a finite number
     s = __import__("vts_hw.recording.folder", fromlist=["summarize_times"]).summarize_times(
-        "cam1", [0.0, 1e-310, 2e-310, 5.0])
+        "cam1", [0.0, 1e-310, 2e-310, 5.0]
+    )
     assert len(s.gaps) == 1 and s.gaps[0]["missing"] >= 1
 
 
-@pytest.mark.parametrize("text, words", [
-    (b"[]", "not a recording manifest (expected a JSON object, got a list)"),
-    (b'{"cameras": []}', 'not a recording manifest ("cameras" must map each camera name to its entry)'),
-    (b'{"cameras": {"cam1": 3}}', 'not a recording manifest ("cameras" must map each camera name to its entry)'),
-    (b'{"cameras": {"cam1": {"gaps": {"missing": 3}}}}', "not a recording manifest (cameras.cam1.gaps must be a list of gaps"),
-    (b'{"cameras": {"cam1": {"gaps": [{"missing": "3"}]}}}', "not a recording manifest (cameras.cam1.gaps must be a list of gaps"),
-    (b'{"cameras": {"cam1"', "not a recording manifest (not valid JSON)"),
-    (b"\xff\xd8\xff\xe0", "not a recording manifest (not valid JSON)"),
-    (b"[" * 100_000, "not a recording manifest (not valid JSON)"),
-])
+@pytest.mark.parametrize(
+    "text, words",
+    [
+        (b"[]", "not a recording manifest (expected a JSON object, got a list)"),
+        (b'{"cameras": []}', 'not a recording manifest ("cameras" must map each camera name to its entry)'),
+        (b'{"cameras": {"cam1": 3}}', 'not a recording manifest ("cameras" must map each camera name to its entry)'),
+        (
+            b'{"cameras": {"cam1": {"gaps": {"missing": 3}}}}',
+            "not a recording manifest (cameras.cam1.gaps must be a list of gaps",
+        ),
+        (
+            b'{"cameras": {"cam1": {"gaps": [{"missing": "3"}]}}}',
+            "not a recording manifest (cameras.cam1.gaps must be a list of gaps",
+        ),
+        (b'{"cameras": {"cam1"', "not a recording manifest (not valid JSON)"),
+        (b"\xff\xd8\xff\xe0", "not a recording manifest (not valid JSON)"),
+        (b"[" * 100_000, "not a recording manifest (not valid JSON)"),
+    ],
+)
 def test_load_manifest_of_the_wrong_shape(tmp_path, text, words):
     (tmp_path / "manifest.json").write_bytes(text)
     with pytest.raises(DataError) as ei:
@@ -172,8 +187,13 @@ def test_info_counts_what_is_readable_and_names_what_is_missing(tmp_path):
     simulate_recording(rec, duration_s=2.0, seed=1, add_band=False)
 
     def info(*extra):
-        return subprocess.run([sys.executable, "-m", "vts_hw.cli", "recording", "info", str(rec), *extra],
-                              capture_output=True, text=True, timeout=120)
+        return subprocess.run(
+            [sys.executable, "-m", "vts_hw.cli", "recording", "info", str(rec), *extra],
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+
     whole = info("--json")
     assert whole.returncode == 0, whole.stderr
     n = {s["source"]: s["frames"] for s in json.loads(whole.stdout)}
@@ -208,9 +228,10 @@ def test_ctrl_c_between_a_frames_two_writes_leaves_no_part_of_it(tmp_path, monke
 
         def interrupted(fd, data):
             calls.append(fd)
-            if len(calls) == 2:              # the index line, after the frame's bytes
+            if len(calls) == 2:  # the index line, after the frame's bytes
                 raise KeyboardInterrupt
             real(fd, data)
+
         monkeypatch.setattr(writer, "_write_all", interrupted)
         with pytest.raises(KeyboardInterrupt):
             rec.write_frame("cam1", b"\xff\xd8two\xff\xd9", 100.04, 1.04)

@@ -8,15 +8,14 @@ from scipy.spatial.transform import Rotation
 
 import vts_hw
 from vts_hw.errors import DataError
-from vts_hw.vision.registration import RigidTransform, difference, fre, kabsch, loo_tre
 from vts_hw.sim_devices.scene import PHANTOM_LAYOUT
+from vts_hw.vision.registration import RigidTransform, difference, fre, kabsch, loo_tre
 
 PHANTOM = np.array(list(PHANTOM_LAYOUT.values()))
 
 
 def random_transform(rng, shift=500.0) -> RigidTransform:
-    return RigidTransform(Rotation.random(random_state=rng).as_matrix(),
-                          rng.uniform(-shift, shift, 3))
+    return RigidTransform(Rotation.random(random_state=rng).as_matrix(), rng.uniform(-shift, shift, 3))
 
 
 # ---------------------------------------------------------------- Kabsch
@@ -44,7 +43,7 @@ def test_coplanar_points_give_a_rotation_not_a_reflection():
 
 def test_mirrored_data_gives_the_best_proper_rotation():
     A = PHANTOM - PHANTOM.mean(axis=0)
-    B = A * np.array([-1.0, 1.0, 1.0])           # a mirror image: no rotation maps A onto B
+    B = A * np.array([-1.0, 1.0, 1.0])  # a mirror image: no rotation maps A onto B
     est = kabsch(A, B)
     assert np.linalg.det(est.R) == pytest.approx(1.0, abs=1e-12)
     assert np.allclose(est.R @ est.R.T, np.eye(3), atol=1e-12)
@@ -52,7 +51,7 @@ def test_mirrored_data_gives_the_best_proper_rotation():
     U, _, Vt = np.linalg.svd(A.T @ B)
     naive = Vt.T @ U.T
     assert np.linalg.det(naive) < 0
-    assert fre(A, B, est) > 10.0                  # it cannot fit, and says so
+    assert fre(A, B, est) > 10.0  # it cannot fit, and says so
 
 
 def test_bad_inputs():
@@ -76,10 +75,10 @@ def test_fre_and_loo_tre_known_values_for_a_uniform_scaling():
     T = kabsch(A, B)
     assert np.allclose(T.R, np.eye(3), atol=1e-12) and np.allclose(T.t, 0, atol=1e-12)
     r = np.linalg.norm(A, axis=1)
-    assert fre(A, B, T) == pytest.approx((s - 1) * np.sqrt(np.mean(r ** 2)), rel=1e-9)
+    assert fre(A, B, T) == pytest.approx((s - 1) * np.sqrt(np.mean(r**2)), rel=1e-9)
     tre = loo_tre(A, B)
     assert np.allclose(tre.per_point, (s - 1) * r * n / (n - 1), rtol=1e-9)
-    assert tre.rms == pytest.approx((s - 1) * np.sqrt(np.mean(r ** 2)) * n / (n - 1), rel=1e-9)
+    assert tre.rms == pytest.approx((s - 1) * np.sqrt(np.mean(r**2)) * n / (n - 1), rel=1e-9)
     assert tre.max == pytest.approx(tre.per_point.max())
 
 
@@ -95,15 +94,17 @@ def test_fre_and_tre_on_noisy_points_follow_theory():
         B = T.apply(PHANTOM) + rng.normal(0, sigma, PHANTOM.shape)
         f = fre(A, B, kabsch(A, B))
         t = loo_tre(A, B).rms
-        fre2.append(f ** 2)
-        tre2.append(t ** 2)
+        fre2.append(f**2)
+        tre2.append(t**2)
         tre_ge_fre += t >= f
     # noise on both sets: FLE^2 = 2 * 3 sigma^2
-    expected = (1 - 2 / n) * 6 * sigma ** 2
+    expected = (1 - 2 / n) * 6 * sigma**2
     assert np.mean(fre2) == pytest.approx(expected, rel=0.1)
     assert tre_ge_fre == 400
-    print(f"sigma {sigma} mm per axis per set: FRE {np.sqrt(np.mean(fre2)):.3f} mm "
-          f"(theory {np.sqrt(expected):.3f}), LOO-TRE {np.sqrt(np.mean(tre2)):.3f} mm")
+    print(
+        f"sigma {sigma} mm per axis per set: FRE {np.sqrt(np.mean(fre2)):.3f} mm "
+        f"(theory {np.sqrt(expected):.3f}), LOO-TRE {np.sqrt(np.mean(tre2)):.3f} mm"
+    )
 
 
 def test_loo_tre_needs_four_points():
@@ -138,8 +139,7 @@ def test_euler_round_trip_and_convention():
 
 
 def test_rotation_angle_small_and_large():
-    assert RigidTransform.from_rotvec([0, 0, 1e-7]).rotation_angle_deg == pytest.approx(
-        np.degrees(1e-7), rel=1e-6)
+    assert RigidTransform.from_rotvec([0, 0, 1e-7]).rotation_angle_deg == pytest.approx(np.degrees(1e-7), rel=1e-6)
     big = RigidTransform.from_euler_xyz_deg([0, 0, 179.0])
     assert big.rotation_angle_deg == pytest.approx(179.0)
 
@@ -189,7 +189,7 @@ def test_load_rejects_bad_files(tmp_path):
     bad.write_text(json.dumps(d))
     with pytest.raises(DataError, match="rotation"):
         RigidTransform.load(bad)
-    d["R"] = np.diag([-1.0, 1.0, 1.0]).tolist()   # a reflection
+    d["R"] = np.diag([-1.0, 1.0, 1.0]).tolist()  # a reflection
     bad.write_text(json.dumps(d))
     with pytest.raises(DataError):
         RigidTransform.load(bad)
@@ -227,20 +227,25 @@ def test_phantom_motion_from_triangulated_spheres():
     measured = kabsch(P0, P1)
     truth = RigidTransform(rot.as_matrix(), shift - rot.as_matrix() @ np.array(PHANTOM_PLACEMENT))
     d = difference(truth, measured)
-    print(f"phantom motion: rotation error {d.angle_deg:.4f} deg, translation error "
-          f"{d.translation_norm_mm:.3f} mm, FRE {fre(P0, P1, measured):.3f} mm, "
-          f"LOO-TRE {loo_tre(P0, P1).rms:.3f} mm")
+    print(
+        f"phantom motion: rotation error {d.angle_deg:.4f} deg, translation error "
+        f"{d.translation_norm_mm:.3f} mm, FRE {fre(P0, P1, measured):.3f} mm, "
+        f"LOO-TRE {loo_tre(P0, P1).rms:.3f} mm"
+    )
     assert d.angle_deg < 0.1
     assert d.translation_norm_mm < 0.3
     assert np.allclose(measured.as_euler_xyz_deg(), [2.0, -4.0, 6.0], atol=0.1)
 
 
-@pytest.mark.parametrize("text, words", [
-    ("[" * 5000 + "]" * 5000, "nested too deeply"),
-    ('{"R": ' + "9" * 5000 + "}", "Exceeds the limit (4300 digits) for integer string conversion"),
-    ('{"R": [[1,0,0],[0,1,0],[0,0,1]], "t_mm": [0,0,0], "meta": 5}', "'meta' must be a JSON object, not int"),
-    ('{"R": [[1,0,0],[0,1,0],[0,0,1]], "t_mm": [0,0,0], "meta": "ab"}', "'meta' must be a JSON object, not str"),
-])
+@pytest.mark.parametrize(
+    "text, words",
+    [
+        ("[" * 5000 + "]" * 5000, "nested too deeply"),
+        ('{"R": ' + "9" * 5000 + "}", "Exceeds the limit (4300 digits) for integer string conversion"),
+        ('{"R": [[1,0,0],[0,1,0],[0,0,1]], "t_mm": [0,0,0], "meta": 5}', "'meta' must be a JSON object, not int"),
+        ('{"R": [[1,0,0],[0,1,0],[0,0,1]], "t_mm": [0,0,0], "meta": "ab"}', "'meta' must be a JSON object, not str"),
+    ],
+)
 def test_load_of_json_beyond_syntax_and_a_bad_meta(tmp_path, text, words):
     path = tmp_path / "spect_mapping.json"
     path.write_text(text)

@@ -24,7 +24,7 @@ from vts_hw.report.trend import DAY, control_limits, fit_trend, forecast
 from vts_hw.store import ResultsStore
 from vts_hw.tolerance import DEFAULT_TOLERANCES, Window
 
-T0 = dt.datetime(2026, 7, 1, tzinfo=dt.timezone.utc).timestamp()
+T0 = dt.datetime(2026, 7, 1, tzinfo=dt.UTC).timestamp()
 N_DAYS = 60
 NEW_BASELINE_DAY = 10
 WINDOW_CHANGE_DAY = 35
@@ -32,24 +32,26 @@ ABORTED_DAY = 40
 LED_FAIL_DAY = 45
 MISSING_MARKER_DAY = 50
 STRAY_BLOB_DAY = 52
-CAM2_Y_SLOPE = 0.02         # px/day since the day-10 baseline
-CAM2_X_SLOPE = 0.003        # px/day: far from any limit within a year
+CAM2_Y_SLOPE = 0.02  # px/day since the day-10 baseline
+CAM2_X_SLOPE = 0.003  # px/day: far from any limit within a year
 NOW = T0 + (N_DAYS - 1) * DAY + 12 * 3600
 OLD_WINDOW = Window.symmetric(1.0, 2.0, "px")
 NEW_WINDOW = Window.symmetric(0.75, 1.5, "px")
-WINDOW_CHANGE_T = T0 + WINDOW_CHANGE_DAY * DAY + 10 * 3600   # after that day's run
+WINDOW_CHANGE_T = T0 + WINDOW_CHANGE_DAY * DAY + 10 * 3600  # after that day's run
 BASELINE_T = T0 + NEW_BASELINE_DAY * DAY + 6.5 * 3600
 MM_PER_PX = 1.25
 
-CHROMIUM_HELP = ("chromium is not installed: install the Debian package with "
-                 "`apt-get install -y --no-install-recommends chromium` (make test does this)")
+CHROMIUM_HELP = (
+    "chromium is not installed: install the Debian package with "
+    "`apt-get install -y --no-install-recommends chromium` (make test does this)"
+)
 
 
 def _truth(cam: str, t: float) -> tuple[float, float]:
     """The true drift (x, y) in px of a camera at time t."""
     if cam == "cam1":
         return 0.0, 0.0
-    if t < BASELINE_T:   # before the new baseline: drifting from the old one, already large
+    if t < BASELINE_T:  # before the new baseline: drifting from the old one, already large
         d = (t - T0) / DAY
         return 0.2 + 0.01 * d, 0.6 + 0.05 * d
     d = (t - BASELINE_T) / DAY
@@ -67,8 +69,7 @@ def populate(store: ResultsStore, seed: int = 7) -> None:
         store.set_tolerance(metric, NEW_WINDOW, effective_from=WINDOW_CHANGE_T, note="tightened")
 
     for day in (0, NEW_BASELINE_DAY):
-        h = store.begin_run("drift-baseline", rig="vts", operator="physicist",
-                            started=T0 + day * DAY + 6.5 * 3600)
+        h = store.begin_run("drift-baseline", rig="vts", operator="physicist", started=T0 + day * DAY + 6.5 * 3600)
         for cam in ("cam1", "cam2"):
             h.measure(cam, "markers_found", 5, status="OK")
         h.finish(finished=T0 + day * DAY + 6.6 * 3600)
@@ -80,7 +81,7 @@ def populate(store: ResultsStore, seed: int = 7) -> None:
             h = store.begin_run(procedure, rig="vts", operator="physicist", started=t)
             h.measure("cam1", "drift_x_px", 0.0)
             h.abort("camera cam2 did not answer (HTTP 503 too many viewers)")
-            t += 1800   # repeated half an hour later
+            t += 1800  # repeated half an hour later
         h = store.begin_run(procedure, rig="vts", operator="physicist", started=t)
         for cam in ("cam1", "cam2"):
             tx, ty = _truth(cam, t)
@@ -158,6 +159,7 @@ def pdf_report(sqlite_store, out_dir):
 
 # --- numbers ------------------------------------------------------------------------------
 
+
 def test_forecast_matches_the_injected_trend(html_report):
     report, _ = html_report
     cam2 = report.cameras["cam2"]
@@ -167,7 +169,7 @@ def test_forecast_matches_the_injected_trend(html_report):
     assert cam2.axes["y"].trend.slope_per_30d == pytest.approx(CAM2_Y_SLOPE * 30, abs=0.02)
     assert 0 < cam2.axes["y"].trend.slope_se_per_30d < 0.01
     f = cam2.axes["y"].forecast
-    assert f.status == "date" and f.level == NEW_WINDOW.action_high   # the window in effect now
+    assert f.status == "date" and f.level == NEW_WINDOW.action_high  # the window in effect now
     expected = BASELINE_T + NEW_WINDOW.action_high / CAM2_Y_SLOPE * DAY
     assert abs(f.t - expected) < 3 * DAY, (f.t - expected) / DAY
     assert cam2.nearest_forecast()[0] == "y"
@@ -194,7 +196,7 @@ def test_bands_follow_the_window_change(html_report):
     for axis in ("x", "y"):
         segs = report.bands[axis]
         assert [s.window for s in segs] == [OLD_WINDOW, NEW_WINDOW]
-        assert abs(segs[1].start - WINDOW_CHANGE_T) <= 60      # found by bisection
+        assert abs(segs[1].start - WINDOW_CHANGE_T) <= 60  # found by bisection
         assert segs[0].end == segs[1].start and segs[1].end == NOW
     # the QA judged each run with the window of its day
     cam2 = report.cameras["cam2"]
@@ -242,9 +244,9 @@ def test_since_limits_the_period_but_not_the_fit(store, tmp_path):
     report = collect(store, since=since, now=NOW, rig="vts")
     cam2 = report.cameras["cam2"]
     assert all(p.t >= since for p in cam2.points) and len(cam2.points) in (30, 31)
-    assert cam2.axes["y"].trend.n == N_DAYS - NEW_BASELINE_DAY   # still from the baseline on
+    assert cam2.axes["y"].trend.n == N_DAYS - NEW_BASELINE_DAY  # still from the baseline on
     assert report.baselines == [] and report.period_start == since
-    assert len(report.bands["y"]) == 2                           # the change is within 30 days
+    assert len(report.bands["y"]) == 2  # the change is within 30 days
 
 
 def test_empty_store_and_bad_suffix(tmp_path):
@@ -263,8 +265,8 @@ def test_parse_since():
     assert parse_since("60d", now=now) == now - 60 * DAY
     assert parse_since("8w", now=now) == now - 56 * DAY
     assert parse_since("12h", now=now) == now - 12 * 3600
-    assert parse_since("2026-09-01") == dt.datetime(2026, 9, 1, tzinfo=dt.timezone.utc).timestamp()
-    assert parse_since("2026-09-01T08:30+02:00") == dt.datetime(2026, 9, 1, 6, 30, tzinfo=dt.timezone.utc).timestamp()
+    assert parse_since("2026-09-01") == dt.datetime(2026, 9, 1, tzinfo=dt.UTC).timestamp()
+    assert parse_since("2026-09-01T08:30+02:00") == dt.datetime(2026, 9, 1, 6, 30, tzinfo=dt.UTC).timestamp()
     assert parse_since("all", now=now) is None and parse_since(" ALL ") is None
     for bad in ("", "sixty days", "60x", "2026-13-01", "-5d", "1e400d", "nan", "2026-02-30"):
         with pytest.raises(BadSince, match="expected a duration"):
@@ -317,7 +319,7 @@ def test_a_trend_needs_five_runs_over_seven_days():
 def test_no_forecast_without_a_significant_slope():
     rng = np.random.default_rng(11)
     t = T0 + np.arange(12) * DAY
-    v = rng.normal(0, 0.2, 12)                 # a camera that does not move, measured noisily
+    v = rng.normal(0, 0.2, 12)  # a camera that does not move, measured noisily
     tr = fit_trend(t, v)
     assert tr.ok and not tr.significant
     f = forecast(tr, -2.0, 2.0, now=t[-1])
@@ -329,6 +331,7 @@ def test_no_forecast_without_a_significant_slope():
 
 
 # --- files --------------------------------------------------------------------------------
+
 
 def _pdf_pages(path: Path) -> int:
     if shutil.which("pdfinfo"):
@@ -352,7 +355,9 @@ def test_html_is_self_contained(rendered_html):
     report, out = rendered_html
     html = out.read_text(encoding="utf-8")
     refs = re.findall(r"""(?:src|href|action|poster)\s*=\s*["']?([^"'\s>]+)""", html, re.I)
-    assert refs and all(r.startswith(("data:", "#")) for r in refs), [r for r in refs if not r.startswith(("data:", "#"))]
+    assert refs and all(r.startswith(("data:", "#")) for r in refs), [
+        r for r in refs if not r.startswith(("data:", "#"))
+    ]
     assert not re.search(r"https?://|//[a-z0-9.-]+\.[a-z]{2,}/|@import|<link\b|url\(", html, re.I)
     assert html.count('<img class="plot"') == report.plot_count == 2
     for text in ("not within a year", "aborted", "control limits", "cam1", "cam2", "LED check failed"):
@@ -360,6 +365,7 @@ def test_html_is_self_contained(rendered_html):
 
 
 # --- in a real browser --------------------------------------------------------------------
+
 
 def _chromium() -> str:
     exe = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -369,9 +375,21 @@ def _chromium() -> str:
 
 def _run_chromium(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
     profile = tmp_path / "chromium-profile"
-    cmd = [_chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-           "--disable-background-networking", "--disable-component-update", "--disable-sync",
-           "--disable-dev-shm-usage", "--hide-scrollbars", f"--user-data-dir={profile}", *args]
+    cmd = [
+        _chromium(),
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-quic",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--disable-dev-shm-usage",
+        "--hide-scrollbars",
+        f"--user-data-dir={profile}",
+        *args,
+    ]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=90)
 
 
@@ -390,15 +408,20 @@ def test_html_screenshot_is_not_blank(rendered_html, tmp_path):
 
     _, out = rendered_html
     shot = tmp_path / "report.png"
-    r = _run_chromium(tmp_path, "--window-size=1280,2400", "--virtual-time-budget=5000", f"--screenshot={shot}",
-                      out.resolve().as_uri())
+    r = _run_chromium(
+        tmp_path,
+        "--window-size=1280,2400",
+        "--virtual-time-budget=5000",
+        f"--screenshot={shot}",
+        out.resolve().as_uri(),
+    )
     assert r.returncode == 0 and shot.exists(), r.stderr[-2000:]
     img = np.asarray(Image.open(shot).convert("RGB")).astype(int)
     assert img.shape[0] >= 2000 and img.shape[1] >= 1200
     dark = (img.sum(axis=2) < 300).mean()
-    assert 0.005 < dark < 0.5, dark                      # text and plot lines, not a blank page
+    assert 0.005 < dark < 0.5, dark  # text and plot lines, not a blank page
     red = ((img[..., 0] > 170) & (img[..., 1] < 90) & (img[..., 2] < 90)).sum()
     green = ((img[..., 1] > 100) & (img[..., 0] < 80) & (img[..., 2] < 80)).sum()
-    assert red > 200 and green > 200, (red, green)       # the state colours are drawn
+    assert red > 200 and green > 200, (red, green)  # the state colours are drawn
     if dest := os.environ.get("VTS_REPORT_SCREENSHOT"):
         shutil.copy(shot, dest)

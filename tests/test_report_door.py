@@ -38,7 +38,7 @@ def test_every_report_has_a_renderer_for_every_suffix():
     assert set(RENDERERS) == {"drift", "drift-every-rig", "department", "sync", "motion", "commission"}
     for name, by_suffix in RENDERERS.items():
         assert tuple(by_suffix) == FORMATS, name
-        assert all(callable(f.target()) for f in by_suffix.values()), name     # each names a function
+        assert all(callable(f.target()) for f in by_suffix.values()), name  # each names a function
     assert [report_format(n) for n in ("a.html", "a.HTM", "b.Pdf")] == [".html", ".html", ".pdf"]
     with pytest.raises(ReportError, match=r"r\.txt: the report is written as \.html or \.pdf, not \.txt"):
         report_format("r.txt")
@@ -46,21 +46,43 @@ def test_every_report_has_a_renderer_for_every_suffix():
 
 def test_the_sync_report_as_pdf_says_what_the_html_says(tmp_path):
     data = _sync_data(["cam1: a gap of 5.0 s"], 0.045)
-    data["events"] = [{"event": i, "t_rel_s": 2.0 + i, "t_list_s": 1.5 + i, "step_spect_mm": 10.0, "step_vts_mm": 9.8,
-                       "seen_by": "both", "dt_s": 0.004 * i, "vts_fit": {"t_err_s": 0.001},
-                       "spect_fit": {"t_err_s": 0.002}, "note": ""} for i in range(1, 61)]   # over a page
+    data["events"] = [
+        {
+            "event": i,
+            "t_rel_s": 2.0 + i,
+            "t_list_s": 1.5 + i,
+            "step_spect_mm": 10.0,
+            "step_vts_mm": 9.8,
+            "seen_by": "both",
+            "dt_s": 0.004 * i,
+            "vts_fit": {"t_err_s": 0.001},
+            "spect_fit": {"t_err_s": 0.002},
+            "note": "",
+        }
+        for i in range(1, 61)
+    ]  # over a page
     png = _png()
     html = write_report("sync", tmp_path / "s.html", data, png).read_text()
-    stamp = re.compile(r"generated [\d-]+ [\d:]+")                     # the one line that differs
+    stamp = re.compile(r"generated [\d-]+ [\d:]+")  # the one line that differs
     assert stamp.sub("", html) == stamp.sub("", render_sync_html(data, png))
     pdf = write_report("sync", tmp_path / "s.pdf", data, png)
     raw = pdf.read_bytes()
-    assert raw.startswith(b"%PDF") and b"/Subtype /Image" in raw         # the plot is in it
+    assert raw.startswith(b"%PDF") and b"/Subtype /Image" in raw  # the plot is in it
     pages = assert_pdf_fits(pdf, overlap_pages=range(3))
-    assert len(pages) >= 3                                              # the long table went on
+    assert len(pages) >= 3  # the long table went on
     words = _text(pages)
-    for said in ("TOLERANCE", "more than the 20 ms goal", "cam1: a gap of 5.0 s", "offset VTS − SPECT",
-                 "Motion events", "+240.0", "Gating and dead time", "triggerbox", "SPECT Z", "(continued)"):
+    for said in (
+        "TOLERANCE",
+        "more than the 20 ms goal",
+        "cam1: a gap of 5.0 s",
+        "offset VTS − SPECT",
+        "Motion events",
+        "+240.0",
+        "Gating and dead time",
+        "triggerbox",
+        "SPECT Z",
+        "(continued)",
+    ):
         assert said.split()[0] in words and all(w in words for w in said.split()), said
 
 
@@ -75,8 +97,17 @@ def test_the_motion_report_as_pdf_says_what_the_html_says(tmp_path):
     pages = assert_pdf_fits(pdf, overlap_pages=range(1))
     words = _text(pages)
     s = data["summary"]
-    for said in (s["state"], "pose known", f"{100 * s['motion_pose_coverage']:.1f}", "Body-motion events",
-                 "Motion states", "Markers and cameras", "chest", "abdomen", "motion_pose_coverage"):
+    for said in (
+        s["state"],
+        "pose known",
+        f"{100 * s['motion_pose_coverage']:.1f}",
+        "Body-motion events",
+        "Motion states",
+        "Markers and cameras",
+        "chest",
+        "abdomen",
+        "motion_pose_coverage",
+    ):
         assert all(w in words for w in said.split()), said
 
 
@@ -88,14 +119,22 @@ def test_an_analysis_report_in_another_format_is_refused_before_anything_is_read
     assert not (tmp_path / "r.txt").exists()
 
 
-@pytest.mark.parametrize("argv, code", [(["report", "drift", "-o", "r.txt"], "2"), (["report", "rooms", "-o", "r.doc"], "2"),
-                                        (["sync", "analyze", "no-such-session", "--listmode", "x.vtslm"], "3")])
+@pytest.mark.parametrize(
+    "argv, code",
+    [
+        (["report", "drift", "-o", "r.txt"], "2"),
+        (["report", "rooms", "-o", "r.doc"], "2"),
+        (["sync", "analyze", "no-such-session", "--listmode", "x.vtslm"], "3"),
+    ],
+)
 def test_a_bad_input_is_said_before_the_plotting_and_fitting_libraries_load(tmp_path, argv, code):
     """The renderers are imported when a report is written (renderers.Renderer) and the packages
     give their names on first use (vts_hw.lazy): a bad -o or session is said at once."""
-    prog = ("import sys\nfrom vts_hw.cli import main\ntry:\n    main(sys.argv[1:])\nexcept SystemExit as e:\n"
-            "    heavy = sorted(m for m in ('matplotlib', 'scipy.stats', 'scipy.optimize', 'fontTools') if m in sys.modules)\n"
-            "    print(e.code, heavy)\n")
+    prog = (
+        "import sys\nfrom vts_hw.cli import main\ntry:\n    main(sys.argv[1:])\nexcept SystemExit as e:\n"
+        "    heavy = sorted(m for m in ('matplotlib', 'scipy.stats', 'scipy.optimize', 'fontTools') if m in sys.modules)\n"
+        "    print(e.code, heavy)\n"
+    )
     p = subprocess.run([sys.executable, "-c", prog, *argv], capture_output=True, text=True, cwd=tmp_path, timeout=120)
     assert p.stdout.split(None, 1) == [code, "[]\n"], (p.stdout, p.stderr)
     assert p.stderr.startswith("vts: ") and p.stderr.count("\n") == 1, p.stderr

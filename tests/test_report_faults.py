@@ -32,8 +32,7 @@ from vts_hw.store import ResultsStore
 from vts_hw.tolerance import DEFAULT_TOLERANCES
 
 VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
-OLD_NOTE = ("NoBaseline: camera cam1 has no drift baseline in the results store: "
-            "run `vts qa drift --set-baseline` first")
+OLD_NOTE = "NoBaseline: camera cam1 has no drift baseline in the results store: run `vts qa drift --set-baseline` first"
 
 
 def vts(*args, env=None) -> subprocess.CompletedProcess:
@@ -59,8 +58,12 @@ def pdf_words(path: Path) -> list[tuple[float, float, list[tuple[float, float, f
     out = subprocess.run(["pdftotext", "-bbox", str(path), "-"], capture_output=True, text=True, check=True).stdout
     pages = []
     for m in re.finditer(r'<page width="([\d.]+)" height="([\d.]+)">(.*?)</page>', out, re.S):
-        words = [(float(a), float(b), float(c), float(d), w) for a, b, c, d, w in re.findall(
-            r'<word xMin="([-\d.]+)" yMin="([-\d.]+)" xMax="([-\d.]+)" yMax="([-\d.]+)">(.*?)</word>', m.group(3))]
+        words = [
+            (float(a), float(b), float(c), float(d), w)
+            for a, b, c, d, w in re.findall(
+                r'<word xMin="([-\d.]+)" yMin="([-\d.]+)" xMax="([-\d.]+)" yMax="([-\d.]+)">(.*?)</word>', m.group(3)
+            )
+        ]
         pages.append((float(m.group(1)), float(m.group(2)), words))
     assert pages, out[:500]
     return pages
@@ -70,7 +73,7 @@ def overlaps(words) -> list[tuple[str, str]]:
     """Pairs of words whose boxes overlap by more than half a point both ways."""
     bad = []
     for i, (a0, b0, a1, b1, w) in enumerate(words):
-        for c0, d0, c1, d1, v in words[i + 1:]:
+        for c0, d0, c1, d1, v in words[i + 1 :]:
             if min(a1, c1) - max(a0, c0) > 0.5 and min(b1, d1) - max(b0, d0) > 0.5:
                 bad.append((w, v))
     return bad
@@ -94,13 +97,14 @@ def rig_yaml(folder: Path, store: Path) -> Path:
 
 # --- a simulated rig, as a user drives it -------------------------------------------------
 
+
 @pytest.fixture(scope="module")
 def sim(tmp_path_factory):
     d = tmp_path_factory.mktemp("sim")
     p = vts_process("sim", "up", "--detach", "--dir", str(d))
     assert p.returncode == 0, p.stderr
     with open(d / "rig.yaml", "a") as f:
-        f.write(f"store:\n  url: sqlite:///{d / 'results.sqlite'}\n")   # (sim up wrote one: the last wins)
+        f.write(f"store:\n  url: sqlite:///{d / 'results.sqlite'}\n")  # (sim up wrote one: the last wins)
     env = dict(os.environ)
     env.update(load_env_file(d / "sim.env"))
     yield d, env
@@ -160,10 +164,11 @@ def test_no_baseline_then_two_runs_minutes_apart(sim):
             lo, hi = ax.get_ylim()
             assert -2.6 < lo < -2.0 and 2.0 < hi < 2.6, (cam.name, lo, hi)
         t0, t1 = ax_x.get_xlim()
-        assert t1 - t0 < 1.0, (t1 - t0)        # matplotlib dates: days
+        assert t1 - t0 < 1.0, t1 - t0  # matplotlib dates: days
 
 
 # --- the PDF fits its pages ---------------------------------------------------------------
+
 
 def test_pdf_summary_table_fits_with_many_long_rows(tmp_path):
     """Eight cameras with long names, noisy steep drifts (wide slope texts), LED failures
@@ -189,7 +194,7 @@ def test_pdf_summary_table_fits_with_many_long_rows(tmp_path):
     pages = assert_pdf_fits(tmp_path / "many.pdf")
     first = " ".join(w[4] for w in pages[0][2])
     for name in names:
-        assert name in first                   # every row is on the title page
+        assert name in first  # every row is on the title page
     assert "n.s." in first and "failed" in first
 
 
@@ -202,6 +207,7 @@ def test_the_60_day_report_fits_its_pages(tmp_path):
 
 # --- old notes, the sync banner -----------------------------------------------------------
 
+
 def test_an_old_note_with_a_class_name_reads_plainly(tmp_path):
     """A run stored by an older version, aborted with "aborted: NoBaseline: ...": the store
     keeps it as it is, the report shows it without the Python name."""
@@ -210,12 +216,14 @@ def test_an_old_note_with_a_class_name_reads_plainly(tmp_path):
         h.abort(OLD_NOTE)
         h = s.begin_run("daily", rig="vts", started=NOW - 1800)
         h.abort("KeyboardInterrupt")
-        assert s.run(h.run_id).notes == "aborted: KeyboardInterrupt"          # history unchanged
+        assert s.run(h.run_id).notes == "aborted: KeyboardInterrupt"  # history unchanged
         html = build_drift_report(s, tmp_path / "r.html", now=NOW).out.read_text()
         data = build_drift_report(s, tmp_path / "r.pdf", now=NOW).results_data()
     notes = [r["notes"] for r in data["not_completed"]]
-    assert notes == ["aborted: camera cam1 has no drift baseline in the results store: run "
-                     "`vts qa drift --set-baseline` first", "aborted: interrupted (Ctrl-C)"]
+    assert notes == [
+        "aborted: camera cam1 has no drift baseline in the results store: run `vts qa drift --set-baseline` first",
+        "aborted: interrupted (Ctrl-C)",
+    ]
     assert data["not_completed"][0]["stored_notes"] == "aborted: " + OLD_NOTE
     pdf = subprocess.run(["pdftotext", str(tmp_path / "r.pdf"), "-"], capture_output=True, text=True).stdout
     for text in (html, pdf):
@@ -226,20 +234,35 @@ def test_an_old_note_with_a_class_name_reads_plainly(tmp_path):
 def _sync_data(problems: list[str], max_dt: float) -> dict:
     """A sync check's data as the analysis gives it, its verdict from the tolerance table."""
     from vts_hw.procedures.sync_verdict import sync_verdict, sync_windows
-    summary = {"events": 3, "events_both": 3, "events_spect_only": 0, "events_vts_only": 0,
-               "offset_s": 0.002, "spread_sd_s": 0.003, "max_abs_dt_s": max_dt, "start_delay_s": 0.01,
-               "start_delay_modulo_s": 1.0, "spect_clock_offset_s": 0.1, "spect_skew_ppm": 3.0}
+
+    summary = {
+        "events": 3,
+        "events_both": 3,
+        "events_spect_only": 0,
+        "events_vts_only": 0,
+        "offset_s": 0.002,
+        "spread_sd_s": 0.003,
+        "max_abs_dt_s": max_dt,
+        "start_delay_s": 0.01,
+        "start_delay_modulo_s": 1.0,
+        "spect_clock_offset_s": 0.1,
+        "spect_skew_ppm": 3.0,
+    }
     state, reason = sync_verdict(summary, problems=problems)
     summary.update(state=state.value, state_reason=reason)
     return {
-        "summary": summary, "windows": {m: w.as_dict() for m, w in sync_windows().items()},
-        "events": [], "trigger": {"start_host": 0.0, "device": "triggerbox", "period_s": 1.0, "duty": 0.5,
-                                  "how": "the box's clock"},
-        "gating": {"rising_edges": 20, "falling_edges": 20, "gate_low_v": 0.0, "gate_high_v": 5.0,
-                   "fit_rms_s": 0.0001},
-        "dead_time_host": [], "vts": {"markers": [1], "trace": "SPECT Z", "samples": 500, "gaps_host": []},
-        "calibration": {"stereo": "cal.json", "spect": "map.json"}, "problems": problems,
-        "session": "scan1", "listmode": "scan1.vtslm"}
+        "summary": summary,
+        "windows": {m: w.as_dict() for m, w in sync_windows().items()},
+        "events": [],
+        "trigger": {"start_host": 0.0, "device": "triggerbox", "period_s": 1.0, "duty": 0.5, "how": "the box's clock"},
+        "gating": {"rising_edges": 20, "falling_edges": 20, "gate_low_v": 0.0, "gate_high_v": 5.0, "fit_rms_s": 0.0001},
+        "dead_time_host": [],
+        "vts": {"markers": [1], "trace": "SPECT Z", "samples": 500, "gaps_host": []},
+        "calibration": {"stereo": "cal.json", "spect": "map.json"},
+        "problems": problems,
+        "session": "scan1",
+        "listmode": "scan1.vtslm",
+    }
 
 
 def test_sync_banner_says_no_problems_in_words():
@@ -254,14 +277,18 @@ def test_sync_banner_says_no_problems_in_words():
 
 # --- the command line: bad --since, an empty store, a full disk -------------------------------
 
-@pytest.mark.parametrize("since,words", [
-    ("1000000d", "reaches back before 1970-01-01"),
-    ("99999999999999999999w", "reaches back before 1970-01-01"),
-    ("-5d", "expected a duration such as 12h, 60d or 8w"),
-    ("sixty days", "expected a duration such as 12h, 60d or 8w"),
-    ("0001-01-01", "is before 1970-01-01"),
-    ("9999-12-31", "is in the future"),
-])
+
+@pytest.mark.parametrize(
+    "since,words",
+    [
+        ("1000000d", "reaches back before 1970-01-01"),
+        ("99999999999999999999w", "reaches back before 1970-01-01"),
+        ("-5d", "expected a duration such as 12h, 60d or 8w"),
+        ("sixty days", "expected a duration such as 12h, 60d or 8w"),
+        ("0001-01-01", "is before 1970-01-01"),
+        ("9999-12-31", "is in the future"),
+    ],
+)
 def test_absurd_since_is_one_sentence_and_exit_2(tmp_path, since, words):
     env = dict(os.environ, VTS_CONFIG=str(rig_yaml(tmp_path, tmp_path / "s.sqlite")))
     p = vts("report", "drift", "--since", since, "-o", str(tmp_path / "r.html"), env=env)
@@ -280,7 +307,7 @@ def test_bad_output_suffix_is_one_sentence_and_exit_2(tmp_path):
 @pytest.mark.parametrize("name", ["r.html", "r.pdf"])
 def test_empty_store_writes_a_report_that_says_so(tmp_path, name):
     env = dict(os.environ, VTS_CONFIG=str(rig_yaml(tmp_path, tmp_path / "empty.sqlite")))
-    ResultsStore(tmp_path / "empty.sqlite").close()      # a store without runs (a report makes none)
+    ResultsStore(tmp_path / "empty.sqlite").close()  # a store without runs (a report makes none)
     p = vts("report", "drift", "--since", "all", "-o", str(tmp_path / name), env=env)
     assert p.returncode == 0, p.stderr
     assert p.stdout.strip() == f"wrote {tmp_path / name} (no completed drift runs in the period)"
@@ -300,7 +327,7 @@ def test_disk_full_keeps_the_previous_report(tmp_path, small_disk, name):
     disk = small_disk(1024)
     out = disk.path / name
     p = vts("report", "drift", "--since", "all", "-o", str(out), env=env)
-    assert p.returncode == 0, p.stderr                      # it fits while there is room
+    assert p.returncode == 0, p.stderr  # it fits while there is room
     previous = out.read_bytes()
     assert len(previous) > 20_000
     disk.fill(leave=4096)
@@ -309,7 +336,7 @@ def test_disk_full_keeps_the_previous_report(tmp_path, small_disk, name):
     err = one_sentence(p)
     assert err == f"vts: {out}: could not be written (no space left on device); the previous version is unchanged"
     assert out.read_bytes() == previous
-    assert disk.files() == {name: len(previous)}          # no .tmp, no 0-byte file
+    assert disk.files() == {name: len(previous)}  # no .tmp, no 0-byte file
     # a new file on the full disk: nothing is left there
     p = vts("report", "drift", "-o", str(disk.path / f"new-{name}"), env=env)
     assert p.returncode == 3 and "nothing was written there" in one_sentence(p)

@@ -67,7 +67,7 @@ def _drift_report_overall_is_action_and_says_why(offline_day, capsys):
     assert rep["state"] == "ACTION"
     cam2 = rep["cameras"]["cam2"]
     assert cam2["state"] == "ACTION"
-    assert cam2["latest"]["values"].get("drift_x_px") is None     # the drift of that run is not known
+    assert cam2["latest"]["values"].get("drift_x_px") is None  # the drift of that run is not known
     assert any(a.startswith("cam2: ACTION") and "camera_reachable" in a for a in rep["attention"])
     html = out.read_text()
     overall = re.search(r"Overall\s*<span class=\"badge (\w+)\"", html)

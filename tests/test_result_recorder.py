@@ -13,20 +13,22 @@ from vts_hw.procedures.baseline import BaselineSet
 from vts_hw.procedures.steps_analysis import StepAnalysis
 from vts_hw.results import Measure, overall_state
 from vts_hw.store import ResultsStore
-from vts_hw.store.recorder import Recorder, record
-from vts_hw.store.recorder import import_unsaved
+from vts_hw.store.recorder import Recorder, import_unsaved, record
 from vts_hw.tolerance import State, Window
 from vts_hw.vision.wall_baseline import Baseline, BaselineMarker
 
 
 class Verdict:
     """A sync-like result: one figure its window judges (TOLERANCE), one its own rule judges."""
+
     procedure = "sync"
 
     @property
     def measures(self):
-        return [Measure.judged("vts-spect", "sync_max_abs_dt_ms", 35.0, "ms", Window(tolerance_high=20, action_high=100)),
-                Measure("vts-spect", "sync_events_both", 3.0, "events", State.TOLERANCE)]   # not its window's state
+        return [
+            Measure.judged("vts-spect", "sync_max_abs_dt_ms", 35.0, "ms", Window(tolerance_high=20, action_high=100)),
+            Measure("vts-spect", "sync_events_both", 3.0, "events", State.TOLERANCE),
+        ]  # not its window's state
 
     @property
     def state(self):
@@ -52,12 +54,14 @@ def test_a_sync_check_in_tolerance_keeps_its_window_as_a_step_test_does(tmp_path
     with ResultsStore(url) as store:
         sync = record(store, Verdict(), rig="r", started=1000.0)
         step = record(store, steps, rig="r", started=1000.0)
-        assert _rows(store, sync.run_id) == {"sync_max_abs_dt_ms": (State.TOLERANCE, True),
-                                             "sync_events_both": (State.TOLERANCE, False)}
+        assert _rows(store, sync.run_id) == {
+            "sync_max_abs_dt_ms": (State.TOLERANCE, True),
+            "sync_events_both": (State.TOLERANCE, False),
+        }
         assert store.run(sync.run_id).status == "TOLERANCE"
         got = store.measurements(run_id=step.run_id)
         assert store.run(step.run_id).status == "TOLERANCE" == str(steps.state)
-        assert all(m.tolerance_id is not None for m in got)          # every steps figure has a window
+        assert all(m.tolerance_id is not None for m in got)  # every steps figure has a window
         assert [str(m.status) for m in got] == [str(m.state) for m in steps.measures]
 
 
@@ -65,7 +69,7 @@ def test_an_exception_while_measuring_aborts_the_running_run(tmp_path):
     with ResultsStore(tmp_path / "r.sqlite") as store:
         with pytest.raises(RuntimeError):
             with Recorder(store, "daily", rig="r", started=5.0) as rec:
-                assert store.run(rec.run_id).status == "running"     # the row is there before the work
+                assert store.run(rec.run_id).status == "running"  # the row is there before the work
                 raise RuntimeError("camera on fire")
         run = store.run(rec.run_id)
         assert run.status == "aborted" and "camera on fire" in run.notes and store.measurements(run_id=run.id) == []
@@ -89,8 +93,9 @@ def test_a_full_disk_keeps_a_step_test_or_a_baseline_and_imports_it_with_its_win
     with ResultsStore(tmp_path / "later.sqlite") as store:
         run_id = import_unsaved(store, stored.unsaved)
         rows = store.measurements(run_id=run_id)
-        assert [(m.subject, m.metric, m.value, str(m.status)) for m in rows] == \
-            [(m.subject, m.metric, m.value, str(m.state)) for m in result.measures]
+        assert [(m.subject, m.metric, m.value, str(m.status)) for m in rows] == [
+            (m.subject, m.metric, m.value, str(m.state)) for m in result.measures
+        ]
         windowed = [m.tolerance_id is not None for m in rows]
-        assert all(windowed) if what == "steps" else not any(windowed)   # baselines have no window
+        assert all(windowed) if what == "steps" else not any(windowed)  # baselines have no window
         assert store.run(run_id).started == 7000.0

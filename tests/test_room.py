@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 import yaml
 
@@ -22,23 +23,31 @@ from vts_hw.sim_devices.axis_camera import SimAxisCamera
 from vts_hw.sim_devices.trigger_box import SimTriggerBox
 from vts_hw.vision.registration import RigidTransform
 
-import numpy as np
-
 
 @pytest.fixture(scope="module")
 def peers():
     """Two simulated cameras and the trigger box, shared by the module's tests."""
-    with SimAxisCamera(FakeSource("cam1"), password=PASSWORD) as c1, \
-            SimAxisCamera(FakeSource("cam2"), password=PASSWORD) as c2, SimTriggerBox() as box:
+    with (
+        SimAxisCamera(FakeSource("cam1"), password=PASSWORD) as c1,
+        SimAxisCamera(FakeSource("cam2"), password=PASSWORD) as c2,
+        SimTriggerBox() as box,
+    ):
         yield c1, c2, box
 
 
 def _rig(folder, peers, **more) -> dict:
     c1, c2, box = peers
-    cams = [{"name": n, "host": "127.0.0.1", "port": c.port, "password_env": "VTS_ROOM_TEST_PW"}
-            for n, c in (("cam1", c1), ("cam2", c2))]
-    return {"rig": "room", "cameras": cams, "trigger": {"backend": "triggerbox", "address": box.port},
-            "store": {"url": f"sqlite:///{folder / 'r.sqlite'}"}, **more}
+    cams = [
+        {"name": n, "host": "127.0.0.1", "port": c.port, "password_env": "VTS_ROOM_TEST_PW"}
+        for n, c in (("cam1", c1), ("cam2", c2))
+    ]
+    return {
+        "rig": "room",
+        "cameras": cams,
+        "trigger": {"backend": "triggerbox", "address": box.port},
+        "store": {"url": f"sqlite:///{folder / 'r.sqlite'}"},
+        **more,
+    }
 
 
 def _write(folder, data: dict):
@@ -56,6 +65,7 @@ def _wait_closed(cam, limit_s: float = 20.0) -> int:
     """The simulated camera's open connections once the client's are gone (the server notices a
     closed socket on its own thread: waited for, not timed)."""
     import time
+
     end = time.monotonic() + limit_s
     while cam.counter("connections") and time.monotonic() < end:
         time.sleep(0.02)
@@ -66,19 +76,19 @@ def test_parts_open_when_first_used_and_close_closes_what_was_opened(tmp_path, p
     c1, c2, box = peers
     requests_before = c2.counter("requests")
     room = Room.open(_write(tmp_path, _rig(tmp_path, peers)))
-    assert room.opened() == []                                   # nothing opened by Room.open
+    assert room.opened() == []  # nothing opened by Room.open
     cam = room.camera("cam1")
     assert room.camera("cam1") is cam and room.opened() == ["camera cam1"]
     assert cam.snapshot().jpeg.startswith(b"\xff\xd8") and c1.counter("connections") >= 1
     gen = room.trigger
     assert gen.status().device and room.opened() == ["camera cam1", "trigger"]
     assert gen._serial.is_open
-    assert room.calibration is None and room.mapping is None     # none named: the room still opens
+    assert room.calibration is None and room.mapping is None  # none named: the room still opens
     room.close()
-    assert room.opened() == [] and not gen._serial.is_open        # the serial port closed
-    assert _wait_closed(c1) == 0                                  # the camera's connection closed
-    assert c2.counter("requests") == requests_before              # cam2 was never opened
-    assert not (tmp_path / "r.sqlite").exists()                   # nor the store
+    assert room.opened() == [] and not gen._serial.is_open  # the serial port closed
+    assert _wait_closed(c1) == 0  # the camera's connection closed
+    assert c2.counter("requests") == requests_before  # cam2 was never opened
+    assert not (tmp_path / "r.sqlite").exists()  # nor the store
 
 
 def test_all_cameras_and_the_store(tmp_path, peers, env):
@@ -88,7 +98,7 @@ def test_all_cameras_and_the_store(tmp_path, peers, env):
         store = room.store
     assert (tmp_path / "r.sqlite").exists()
     with pytest.raises(RuntimeError, match="is closed"):
-        store.runs()                                              # closed with the room
+        store.runs()  # closed with the room
 
 
 def test_an_error_closing_one_part_does_not_stop_the_others(tmp_path, peers, env):
@@ -99,10 +109,11 @@ def test_an_error_closing_one_part_does_not_stop_the_others(tmp_path, peers, env
 
     def broken():
         raise DeviceError("camera cam2 would not let go")
+
     cam2.close = broken
     with pytest.raises(DeviceError, match="cam2 would not let go"):
         room.close()
-    assert not gen._serial.is_open and _wait_closed(c1) == 0      # closed before and after the failing one
+    assert not gen._serial.is_open and _wait_closed(c1) == 0  # closed before and after the failing one
 
     # an error on its way out of `with` is never masked by one while closing: said beside it
     room = Room.open(_write(tmp_path, _rig(tmp_path, peers)))
@@ -114,17 +125,25 @@ def test_an_error_closing_one_part_does_not_stop_the_others(tmp_path, peers, env
 
 
 def test_the_calibration_and_the_mapping_through_the_one_loaders(tmp_path, peers):
-    rows = [{"name": n, "K": [[800, 0, 320], [0, 800, 240], [0, 0, 1]], "dist": [0, 0, 0, 0, 0],
-             "R": np.eye(3).tolist(), "t": [i * 100.0, 0, 0]} for i, n in enumerate(("cam1", "cam2"))]
+    rows = [
+        {
+            "name": n,
+            "K": [[800, 0, 320], [0, 800, 240], [0, 0, 1]],
+            "dist": [0, 0, 0, 0, 0],
+            "R": np.eye(3).tolist(),
+            "t": [i * 100.0, 0, 0],
+        }
+        for i, n in enumerate(("cam1", "cam2"))
+    ]
     (tmp_path / "cameras.json").write_text(json.dumps({"cameras": rows, "unit": "mm"}))
     RigidTransform(np.eye(3), np.array([1.0, 2.0, 3.0])).save(tmp_path / "map.json")
     rig = _rig(tmp_path, peers, calibration={"cameras": "cameras.json", "mapping": "map.json"})
     with Room.open(_write(tmp_path, rig)) as room:
         assert sorted(room.calibration) == ["cam1", "cam2"] and room.calibration is room.calibration
-        assert np.allclose(room.mapping.t, [1, 2, 3]) and room.opened() == []   # files, not devices
+        assert np.allclose(room.mapping.t, [1, 2, 3]) and room.opened() == []  # files, not devices
     (tmp_path / "cameras.json").write_text("{")
     with Room.open(_write(tmp_path, rig)) as room, pytest.raises(DataError, match="not a JSON calibration file"):
-        room.calibration                                          # there but unreadable: exit 3
+        room.calibration  # there but unreadable: exit 3
 
 
 def test_a_calibration_path_that_names_no_file_is_one_sentence_exit_2(tmp_path, peers, capsys):
@@ -133,8 +152,18 @@ def test_a_calibration_path_that_names_no_file_is_one_sentence_exit_2(tmp_path, 
         room.calibration
     assert str(err.value) == f"{rig}: calibration.cameras names {tmp_path / 'gone.json'}, which does not exist"
     (tmp_path / "v.npz").write_bytes(b"")
-    code, out, se = vts(capsys, "calibrate", "spect", "--from-cameras", "--volume", tmp_path / "v.npz",
-                        "--config", rig, "-o", tmp_path / "m.json")
+    code, out, se = vts(
+        capsys,
+        "calibrate",
+        "spect",
+        "--from-cameras",
+        "--volume",
+        tmp_path / "v.npz",
+        "--config",
+        rig,
+        "-o",
+        tmp_path / "m.json",
+    )
     assert code == 2 and se.strip() == f"vts: {err.value}", se
     assert not (tmp_path / "m.json").exists()
 
@@ -144,9 +173,14 @@ def test_a_calibration_path_that_names_no_file_is_one_sentence_exit_2(tmp_path, 
 CAMS = [{"name": "cam1", "host": "127.0.0.1"}]
 
 
-@pytest.mark.parametrize("section", [{"cameras": "c.json", "mapping": "m.json"},
-                                     {"stereo": "c.json", "spect": "m.json"},
-                                     {"cameras": "c.json", "spect": "m.json"}])
+@pytest.mark.parametrize(
+    "section",
+    [
+        {"cameras": "c.json", "mapping": "m.json"},
+        {"stereo": "c.json", "spect": "m.json"},
+        {"cameras": "c.json", "spect": "m.json"},
+    ],
+)
 def test_calibration_keys_new_and_old_names(tmp_path, section):
     rig = load_rig(_write(tmp_path, {"cameras": CAMS, "calibration": section}))
     assert (rig.calibration.cameras, rig.calibration.mapping) == (tmp_path / "c.json", tmp_path / "m.json")
@@ -155,8 +189,13 @@ def test_calibration_keys_new_and_old_names(tmp_path, section):
     assert written == {"cameras": str(tmp_path / "c.json"), "mapping": str(tmp_path / "m.json")}
 
 
-@pytest.mark.parametrize("section, new, old", [({"cameras": "a.json", "stereo": "b.json"}, "cameras", "stereo"),
-                                               ({"mapping": "a.json", "spect": "b.json"}, "mapping", "spect")])
+@pytest.mark.parametrize(
+    "section, new, old",
+    [
+        ({"cameras": "a.json", "stereo": "b.json"}, "cameras", "stereo"),
+        ({"mapping": "a.json", "spect": "b.json"}, "mapping", "spect"),
+    ],
+)
 def test_both_names_of_one_calibration_entry_is_one_error_exit_2(tmp_path, capsys, section, new, old):
     p = _write(tmp_path, {"cameras": CAMS, "calibration": section})
     want = f"{p}: calibration has both {new} and {old} (the old name of {new}); keep only {new}"

@@ -11,10 +11,10 @@ from urllib.parse import urljoin
 
 import pytest
 
-from rooms_store import DAY, NOW, RIGS, T0, rooms_store
 from inprocess_cli import vts
-from vts_hw.report.drift import collect
+from rooms_store import DAY, NOW, RIGS, T0, rooms_store
 from vts_hw.report.build import build_rooms_report
+from vts_hw.report.drift import collect
 from vts_hw.report.rooms import collect_rooms, open_items
 from vts_hw.store import ResultsStore
 
@@ -44,6 +44,7 @@ def rig_yaml(folder: Path, url: str, rig: str = "room-a") -> Path:
 
 # --- the store and the rules ---------------------------------------------------------------
 
+
 def test_runs_carry_their_rig(store_url):
     with ResultsStore(store_url) as store:
         assert store.rigs() == list(RIGS)
@@ -68,7 +69,7 @@ def test_open_item_closed_by_a_later_ok_of_the_same_check(store_url):
         runs = [r for r in store.runs() if r.rig == "room-b"]
         meas = store.measurements()
     day6 = [r for r in runs if r.procedure == "daily" and r.started < T0 + 7 * DAY]
-    items = open_items(meas, day6)           # history up to day 6: the LED ACTION is still open
+    items = open_items(meas, day6)  # history up to day 6: the LED ACTION is still open
     assert [(i.subject, i.metrics) for i in items] == [("cam1", ["led_off_visible"])]
 
 
@@ -84,10 +85,10 @@ def test_room_states_and_never_ok_without_data(rooms_page, store_url):
     html = out.read_text()
     row_c = re.search(r'<tr class="room" data-rig="room-c" data-state="(\w+)">(.*?)</tr>', html, re.S)
     assert row_c and row_c.group(1) == "none" and "no daily QA yet" in row_c.group(2)
-    assert ">OK<" not in row_c.group(2).split("<td", 3)[2]       # the cameras cell says no state at all
-    with ResultsStore(store_url) as store:                       # runs before the period: said so, not OK
+    assert ">OK<" not in row_c.group(2).split("<td", 3)[2]  # the cameras cell says no state at all
+    with ResultsStore(store_url) as store:  # runs before the period: said so, not OK
         late = collect_rooms(store, since=NOW - 0.5 * DAY, now=NOW, rigs=["room-a"])
-    assert str(late.rooms[0].state) == "TOLERANCE" and not late.rooms[0].has_daily   # the sync check, never OK
+    assert str(late.rooms[0].state) == "TOLERANCE" and not late.rooms[0].has_daily  # the sync check, never OK
     assert late.rooms[0].daily_missing_text() == "no daily QA in the period (last 2026-10-20)"
 
 
@@ -98,7 +99,7 @@ def test_days_since_the_last_step_test_and_calibration(rooms_page):
     assert _room(rep, "room-b").last_calibration is None
     html = out.read_text()
     row_a = re.search(r'<tr class="room" data-rig="room-a".*?</tr>', html, re.S).group(0)
-    assert "14 days ago" in row_a and "17 days ago" in row_a          # step test day 5, calibration day 2
+    assert "14 days ago" in row_a and "17 days ago" in row_a  # step test day 5, calibration day 2
     row_b = re.search(r'<tr class="room" data-rig="room-b".*?</tr>', html, re.S).group(0)
     assert "no calibration recorded" in row_b and "ACTION since 2026-10-18" in row_b
 
@@ -107,7 +108,7 @@ def test_page_is_self_contained_with_sparklines_and_relative_links(rooms_page):
     rep, out = rooms_page
     html = out.read_text()
     assert not re.search(r'(src|href)="(https?:)?//', html) and "@import" not in html
-    assert html.count('<svg class="spark"') == 4               # cam1 and cam2 of room-a and room-b
+    assert html.count('<svg class="spark"') == 4  # cam1 and cam2 of room-a and room-b
     links = re.findall(r'<a class="drift-link" href="([^"]+)"', html)
     assert links == [f"rooms-{r}-drift.html" for r in RIGS]
     for link in links:
@@ -119,6 +120,7 @@ def test_page_is_self_contained_with_sparklines_and_relative_links(rooms_page):
 
 # --- the history of the other QA runs in the drift report --------------------------------------
 
+
 def test_drift_report_has_the_history_and_lists_the_sync_check(store_url):
     with ResultsStore(store_url) as store:
         rep = collect(store, since=None, now=NOW, rig="room-a")
@@ -126,31 +128,46 @@ def test_drift_report_has_the_history_and_lists_the_sync_check(store_url):
     keys = [h.spec.key for h in rep.history]
     assert keys == ["sync", "spect_mapping", "calibration", "motion"]
     sync = rep.history[0]
-    assert [r.values[0][0] for r in sync.shown] == [35.0, 12.0, 8.0]        # newest first
+    assert [r.values[0][0] for r in sync.shown] == [35.0, 12.0, 8.0]  # newest first
     assert sync.latest.status == "TOLERANCE"
     att = rep.attention()
     assert any(a.startswith("sync check (room-a): TOLERANCE in run") and "sync_max_abs_dt_ms" in a for a in att)
-    assert not any("motion" in a for a in att)              # a patient who moved is not the room's fault
-    assert rep.plot_count == 2 + 2                          # two cameras; the sync and motion trends
+    assert not any("motion" in a for a in att)  # a patient who moved is not the room's fault
+    assert rep.plot_count == 2 + 2  # two cameras; the sync and motion trends
     assert [h.spec.key for h in other.history] == ["calibration"] and other.attention()[-1].startswith("no drift")
-    assert other.history[0].shown[0].values[:2] == [(0.4, "OK"), (0.35, "OK")]   # the set; the worst camera
+    assert other.history[0].shown[0].values[:2] == [(0.4, "OK"), (0.35, "OK")]  # the set; the worst camera
 
 
 # --- the commands ------------------------------------------------------------------------------
 
+
 def test_report_drift_rig_all_keeps_rooms_apart(store_url, tmp_path, capsys):
     cfg = rig_yaml(tmp_path, store_url)
-    code, out, err = vts(capsys, "report", "drift", "--config", cfg, "--rig", "all", "--since", "all",
-                         "-o", tmp_path / "all.html")
+    code, out, err = vts(
+        capsys, "report", "drift", "--config", cfg, "--rig", "all", "--since", "all", "-o", tmp_path / "all.html"
+    )
     assert code == 0, err
     assert out.strip() == f"wrote {tmp_path / 'all.html'} (3 rig(s))"
     html = (tmp_path / "all.html").read_text()
     for i, rig in enumerate(RIGS):
         assert f'id="room-{i}"' in html and f"VTS camera drift — {rig}" in html
-    assert 'id="room-0-cam-cam1"' in html and 'id="room-1-cam-cam1"' in html     # cam1 of each room apart
-    code, out, _ = vts(capsys, "report", "drift", "--config", cfg, "--rig", "room-b", "--since", "all", "--json",
-                       "-o", tmp_path / "b.html")
+    assert 'id="room-0-cam-cam1"' in html and 'id="room-1-cam-cam1"' in html  # cam1 of each room apart
+    code, out, _ = vts(
+        capsys,
+        "report",
+        "drift",
+        "--config",
+        cfg,
+        "--rig",
+        "room-b",
+        "--since",
+        "all",
+        "--json",
+        "-o",
+        tmp_path / "b.html",
+    )
     import json
+
     data = json.loads(out)
     assert code == 0 and data["rig"] == "room-b" and data["cameras"]["cam2"]["state"] == "ACTION"
 
@@ -167,7 +184,7 @@ def test_report_commands_refuse_bad_options(store_url, tmp_path, capsys):
 
 
 def test_a_department_workstation_needs_no_rig_config(store_url, tmp_path, capsys, monkeypatch):
-    monkeypatch.chdir(tmp_path)              # no ./rig.yaml here
+    monkeypatch.chdir(tmp_path)  # no ./rig.yaml here
     monkeypatch.delenv("VTS_CONFIG", raising=False)
     code, out, err = vts(capsys, "--store", store_url, "report", "rooms", "--since", "all", "-o", "rooms.html")
     assert code == 0, err
@@ -181,15 +198,17 @@ def test_a_department_workstation_needs_no_rig_config(store_url, tmp_path, capsy
 
 def test_report_rooms_pdf_and_a_folder_that_cannot_be_written(store_url, tmp_path, capsys, readonly_dir):
     cfg = rig_yaml(tmp_path, store_url)
-    code, out, err = vts(capsys, "report", "rooms", "--config", cfg, "--since", "all", "--rig", "room-b",
-                         "-o", tmp_path / "rooms.pdf")
+    code, out, err = vts(
+        capsys, "report", "rooms", "--config", cfg, "--since", "all", "--rig", "room-b", "-o", tmp_path / "rooms.pdf"
+    )
     assert code == 0, err
     assert out.strip() == f"wrote {tmp_path / 'rooms.pdf'} (1 room(s))"
-    assert err.strip() == f"wrote {tmp_path / 'rooms-room-b-drift.pdf'} (room-b)"      # progress
+    assert err.strip() == f"wrote {tmp_path / 'rooms-room-b-drift.pdf'} (room-b)"  # progress
     for name in ("rooms.pdf", "rooms-room-b-drift.pdf"):
         assert (tmp_path / name).read_bytes()[:5] == b"%PDF-"
-    text = subprocess.run(["pdftotext", "-layout", str(tmp_path / "rooms.pdf"), "-"], capture_output=True,
-                          text=True).stdout
+    text = subprocess.run(
+        ["pdftotext", "-layout", str(tmp_path / "rooms.pdf"), "-"], capture_output=True, text=True
+    ).stdout
     assert "Department ACTION" in text and "ACTION since 2026-10-18" in text and "rooms-room-b-drift.pdf" in text
     assert "An ACTION item is open while the latest" in " ".join(text.split())
     code, _, err = vts(capsys, "report", "rooms", "--config", cfg, "-o", readonly_dir / "rooms.html")
@@ -199,7 +218,7 @@ def test_report_rooms_pdf_and_a_folder_that_cannot_be_written(store_url, tmp_pat
 
 def test_an_empty_store_says_so_in_every_form(tmp_path, capsys):
     cfg = rig_yaml(tmp_path, f"sqlite:///{tmp_path / 'empty.sqlite'}")
-    ResultsStore(tmp_path / "empty.sqlite").close()      # a store without runs (reports make none)
+    ResultsStore(tmp_path / "empty.sqlite").close()  # a store without runs (reports make none)
     for args in (("rooms", "-o", tmp_path / "rooms.html"), ("drift", "--rig", "all", "-o", tmp_path / "all.pdf")):
         code, out, err = vts(capsys, "report", *args, "--config", cfg)
         assert code == 0, err
@@ -211,6 +230,7 @@ def test_an_empty_store_says_so_in_every_form(tmp_path, capsys):
 
 # --- in a real browser -------------------------------------------------------------------------
 
+
 def test_rooms_page_in_chromium_and_a_link_followed(rooms_page, tmp_path):
     from test_report import _run_chromium
 
@@ -221,9 +241,11 @@ def test_rooms_page_in_chromium_and_a_link_followed(rooms_page, tmp_path):
     assert rows == [("room-a", "TOLERANCE"), ("room-b", "ACTION"), ("room-c", "none")]
     assert len(re.findall(r'<svg class="spark"', r.stdout)) == 4
     href = re.search(r'<tr class="room" data-rig="room-b".*?<a class="drift-link" href="([^"]+)"', r.stdout, re.S)
-    target = urljoin(out.resolve().as_uri(), href.group(1))      # where the browser goes on a click
+    target = urljoin(out.resolve().as_uri(), href.group(1))  # where the browser goes on a click
     r = _run_chromium(tmp_path, "--virtual-time-budget=5000", "--dump-dom", target)
     assert r.returncode == 0, r.stderr[-2000:]
     assert "<title>VTS camera drift — room-b</title>" in r.stdout
-    m = re.search(r'<body[^>]*data-plots-expected="(\d+)"[^>]*data-state="ACTION"[^>]*data-plots-loaded="(\d+)"', r.stdout)
+    m = re.search(
+        r'<body[^>]*data-plots-expected="(\d+)"[^>]*data-state="ACTION"[^>]*data-plots-loaded="(\d+)"', r.stdout
+    )
     assert m and m.group(1) == m.group(2) and int(m.group(1)) >= 2, r.stdout[:600]

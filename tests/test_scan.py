@@ -20,9 +20,9 @@ import pytest
 from inprocess_cli import run as vts_run
 from vts_hw import __version__
 from vts_hw.config import load_rig
+from vts_hw.drivers.registry import open_cameras
 from vts_hw.drivers.trigger import read_log
 from vts_hw.errors import DataError
-from vts_hw.drivers.registry import open_cameras
 from vts_hw.procedures.scan import ScanError, ScanSession
 from vts_hw.recording.folder import read_index
 from vts_hw.sim_devices.rig import SimRig
@@ -30,7 +30,7 @@ from vts_hw.sim_devices.trigger_box import F_CPU
 
 VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
 FPS = 25.0
-HANG_S = 300.0      # a hang detector for a `vts` subprocess: minutes on a loaded machine, seconds when idle
+HANG_S = 300.0  # a hang detector for a `vts` subprocess: minutes on a loaded machine, seconds when idle
 # a scan's frames are made ahead (SimRig.prerender): its recording is whole however busy the machine is
 pytestmark = pytest.mark.timeout(600)
 
@@ -77,7 +77,7 @@ def _frames_decode(folder, cam):
     rows = read_index(folder / f"{cam}.index.csv")
     data = (folder / f"{cam}.mjpeg").read_bytes()
     for r in rows:
-        img = cv2.imdecode(np.frombuffer(data[r.offset:r.offset + r.length], np.uint8), cv2.IMREAD_GRAYSCALE)
+        img = cv2.imdecode(np.frombuffer(data[r.offset : r.offset + r.length], np.uint8), cv2.IMREAD_GRAYSCALE)
         assert img is not None and img.shape == (480, 640), f"{cam} frame {r.frame} does not decode"
     return rows
 
@@ -117,11 +117,13 @@ def test_session_with_the_trigger_box(box_rig, tmp_path):
         assert len(rows) == c["frames"] >= 4.0 * FPS and c["gaps"] == [] and c["reconnects"] == 0
         assert rows[0].host_time < fire < rows[-1].host_time - 4.0
         before, after = _check_offsets(rig, c, name)
-        print(f"{name}: {c['frames']} frames, offset {c['clock_offset_before']['offset_s']:+.4f} s, error "
-              f"before {before * 1e3:+.2f} ms, after {after * 1e3:+.2f} ms "
-              f"(uncertainty {c['clock_offset_before']['uncertainty_s'] * 1e3:.2f} ms)")
+        print(
+            f"{name}: {c['frames']} frames, offset {c['clock_offset_before']['offset_s']:+.4f} s, error "
+            f"before {before * 1e3:+.2f} ms, after {after * 1e3:+.2f} ms "
+            f"(uncertainty {c['clock_offset_before']['uncertainty_s'] * 1e3:.2f} ms)"
+        )
 
-    assert "no_watchdog" not in tr          # the box stops its own wave if this computer dies
+    assert "no_watchdog" not in tr  # the box stops its own wave if this computer dies
     # what the box really emitted: both start pulses on the square wave's first rising edge
     sim = rig.trigger_box
     up = [e.cycle for e in sim.edges("OC1A") if e.value == 1]
@@ -134,8 +136,10 @@ def test_session_with_the_trigger_box(box_rig, tmp_path):
         assert abs((e[1].cycle - e[0].cycle) / F_CPU - cfg.trigger.pulse_ms / 1000) < 0.001
     period = np.diff(up) / F_CPU
     assert np.allclose(period, 1 / cfg.trigger.frequency_hz, atol=1e-5)
-    print(f"trigger: {len(up)} rising edges, period {period.mean():.6f} s, fire - sent "
-          f"{(fire - tr['fire_sent_host_time']) * 1e3:.1f} ms")
+    print(
+        f"trigger: {len(up)} rising edges, period {period.mean():.6f} s, fire - sent "
+        f"{(fire - tr['fire_sent_host_time']) * 1e3:.1f} ms"
+    )
 
     # the log holds the fire and the edges
     log = read_log(folder / "trigger.csv")
@@ -164,7 +168,9 @@ def test_session_with_the_function_generator(tmp_path):
     assert m["status"] == "complete" and tr["fired"]
     assert tr["mode"] == "square wave only" and tr["start_pulses"] is False and "start pulses" in tr["note"]
     # a 33500 has no watchdog: the scan says so before it starts, and keeps it (decision 0083)
-    assert "cannot switch its square wave off by itself" in tr["no_watchdog"] and "vts trigger stop" in tr["no_watchdog"]
+    assert (
+        "cannot switch its square wave off by itself" in tr["no_watchdog"] and "vts trigger stop" in tr["no_watchdog"]
+    )
     assert tr["confirmed"]["high_v"] == 2.5 and tr["confirmed"]["low_v"] == 0.0
     assert tr["fire_status"]["running"] and not tr["stop_status"]["running"]
     assert "clock_mapping_before" not in tr  # a 33500 has no clock to map
@@ -199,8 +205,10 @@ def test_a_camera_off_the_network_for_5_s(plain_rig, tmp_path):
     assert len(_frames_decode(folder, "cam1")) == c1["frames"]
     assert any(p.startswith("camera cam1:") and "missing" in p for p in m["scan"]["problems"])
     assert not any("cam2" in p for p in m["scan"]["problems"])
-    print(f"cam2 {c2['frames']} frames in {duration:g} s; cam1 {c1['frames']} frames, gap {secs:.2f} s "
-          f"({gap['missing']} missing), {c1['reconnects']} reconnect(s)")
+    print(
+        f"cam2 {c2['frames']} frames in {duration:g} s; cam1 {c1['frames']} frames, gap {secs:.2f} s "
+        f"({gap['missing']} missing), {c1['reconnects']} reconnect(s)"
+    )
 
 
 def test_trigger_unplugged_during_the_scan_keeps_the_recordings(box_rig, tmp_path):
@@ -266,8 +274,13 @@ def test_cli_scan_with_duration(box_rig, tmp_path):
     folder = tmp_path / "scan"
     # no patient in the room: nothing to track live (with --live, exit 0 means the patient was watched)
     _ahead(rig, 3.0)
-    p = subprocess.run([*VTS, "scan", "start", "--duration", "3", "--no-live", "-o", str(folder)],
-                       env=_env(rig, rig_yaml), capture_output=True, text=True, timeout=HANG_S)
+    p = subprocess.run(
+        [*VTS, "scan", "start", "--duration", "3", "--no-live", "-o", str(folder)],
+        env=_env(rig, rig_yaml),
+        capture_output=True,
+        text=True,
+        timeout=HANG_S,
+    )
     assert p.returncode == 0, p.stderr
     assert f"{folder}: status complete (stopped: duration)" in p.stdout
     assert "cam1:" in p.stdout and "trigger: triggerbox fired at" in p.stdout
@@ -285,18 +298,24 @@ def test_ctrl_c_stops_cleanly(plain_rig, tmp_path):
     # PYTHONFAULTHANDLER: a scan that does not stop is aborted and says where every thread was.
     # Started with SIGINT ignored, as a shell starts a background job (or nohup, a service):
     # Python then installs no KeyboardInterrupt, and Ctrl-C must still stop the scan.
-    p = subprocess.Popen([*VTS, "scan", "start", "--json", "--no-live", "-o", str(folder)],
-                         env={**_env(rig, rig_yaml), "PYTHONFAULTHANDLER": "1"},
-                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    p = subprocess.Popen(
+        [*VTS, "scan", "start", "--json", "--no-live", "-o", str(folder)],
+        env={**_env(rig, rig_yaml), "PYTHONFAULTHANDLER": "1"},
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     _wait_frames(folder, 50, p)
     p.send_signal(signal.SIGINT)
     try:
-        out, err = p.communicate(timeout=HANG_S)    # a hang detector: stopping takes ~1 s when idle
+        out, err = p.communicate(timeout=HANG_S)  # a hang detector: stopping takes ~1 s when idle
     except subprocess.TimeoutExpired:
         p.send_signal(signal.SIGABRT)
         out, err = p.communicate(timeout=30)
-        raise AssertionError(f"the scan did not stop within {HANG_S:g} s of Ctrl-C; its threads:\n{err[-6000:]}") from None
+        raise AssertionError(
+            f"the scan did not stop within {HANG_S:g} s of Ctrl-C; its threads:\n{err[-6000:]}"
+        ) from None
     assert p.returncode == 0, err
     m = json.loads(out)
     assert m["status"] == "complete" and m["scan"]["stop_reason"] == "interrupted"
@@ -308,7 +327,9 @@ def test_ctrl_c_stops_cleanly(plain_rig, tmp_path):
 def test_dry_run_touches_nothing(box_rig, tmp_path):
     rig, cfg, rig_yaml = box_rig
     folder = tmp_path / "scan"
-    p = vts_run("scan", "start", "--dry-run", "--duration", "60", "-o", folder, env=_env(rig, rig_yaml))   # (in this process)
+    p = vts_run(
+        "scan", "start", "--dry-run", "--duration", "60", "-o", folder, env=_env(rig, rig_yaml)
+    )  # (in this process)
     assert p.returncode == 0, p.stderr
     assert "dry run" in p.stdout and "fire:" in p.stdout and "record for 60 s" in p.stdout
     assert not folder.exists()
@@ -338,8 +359,13 @@ def test_disk_full_during_a_scan_stops_it_and_keeps_every_whole_frame(plain_rig,
     disk = small_disk(1536)
     folder = disk.path / "scan"
     _ahead(rig, 6.0)
-    p = subprocess.run([*VTS, "scan", "start", "--duration", "30", "-o", str(folder)], env=_env(rig, rig_yaml),
-                       capture_output=True, text=True, timeout=HANG_S)
+    p = subprocess.run(
+        [*VTS, "scan", "start", "--duration", "30", "-o", str(folder)],
+        env=_env(rig, rig_yaml),
+        capture_output=True,
+        text=True,
+        timeout=HANG_S,
+    )
     assert p.returncode == 3, p.stdout + p.stderr
     assert "no space left on device" in p.stderr and "whole frame(s)" in p.stderr and "Traceback" not in p.stderr
     m = _manifest(folder)
@@ -355,6 +381,8 @@ def test_disk_full_during_a_scan_stops_it_and_keeps_every_whole_frame(plain_rig,
 def test_scan_refuses_durations_that_are_not(plain_rig, tmp_path):
     rig, cfg, rig_yaml = plain_rig
     for bad in ("nan", "inf", "-1", "0"):
-        p = vts_run("scan", "start", "--duration", bad, "-o", tmp_path / "s", env=_env(rig, rig_yaml))   # (in this process)
+        p = vts_run(
+            "scan", "start", "--duration", bad, "-o", tmp_path / "s", env=_env(rig, rig_yaml)
+        )  # (in this process)
         assert p.returncode == 2 and "--duration" in p.stderr, (bad, p.stderr)
     assert not (tmp_path / "s").exists()

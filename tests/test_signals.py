@@ -20,8 +20,14 @@ VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
 
 def _background(env, *args, cwd=None):
     """`vts ARGS &` from `sh -c`, as a script starts it: (the shell, the pid of vts)."""
-    sh = subprocess.Popen(["sh", "-c", '"$@" & echo $! >&2; wait $!', "sh", *VTS, *map(str, args)],
-                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=cwd)
+    sh = subprocess.Popen(
+        ["sh", "-c", '"$@" & echo $! >&2; wait $!', "sh", *VTS, *map(str, args)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        cwd=cwd,
+    )
     pid = int(sh.stderr.readline())
     return sh, pid
 
@@ -59,6 +65,7 @@ def test_a_background_recording_stops_on_sigint_and_keeps_its_frames(tmp_path):
     m = json.loads((out / "manifest.json").read_text())
     assert m["status"] == "interrupted" and m["cameras"]["cam1"]["frames"] > 0
     from vts_hw.recording.folder import read_index
+
     rows = read_index(out / "cam1.index.csv")
     assert len(rows) == m["cameras"]["cam1"]["frames"]
     assert mjpeg.stat().st_size == rows[-1].offset + rows[-1].length
@@ -67,10 +74,10 @@ def test_a_background_recording_stops_on_sigint_and_keeps_its_frames(tmp_path):
 def test_the_shell_really_starts_it_with_sigint_ignored(tmp_path):
     """The premise of the test above, checked on this machine's sh: a background job of a
     non-interactive shell starts with SIGINT ignored."""
-    sh = subprocess.Popen(["sh", "-c", 'sleep 30 & echo $! >&2; wait $!'], stderr=subprocess.PIPE, text=True)
+    sh = subprocess.Popen(["sh", "-c", "sleep 30 & echo $! >&2; wait $!"], stderr=subprocess.PIPE, text=True)
     pid = int(sh.stderr.readline())
     try:
-        deadline = time.monotonic() + 10    # the shell's child ignores SIGINT before it execs sleep
+        deadline = time.monotonic() + 10  # the shell's child ignores SIGINT before it execs sleep
         while not _sigint_ignored(pid) and time.monotonic() < deadline:
             time.sleep(0.05)
         assert _sigint_ignored(pid)
@@ -80,6 +87,7 @@ def test_the_shell_really_starts_it_with_sigint_ignored(tmp_path):
 
 
 # -- workers die with their parent ----------------------------------------------------------------
+
 
 def _descendants(pid: int) -> set[int]:
     kids = {}
@@ -108,24 +116,45 @@ def _alive(pid: int) -> bool:
 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
-    from vts_hw.sim_devices.recording_sim import simulate_recording
     import numpy as np
+
+    from vts_hw.sim_devices.recording_sim import simulate_recording
+
     tmp = tmp_path_factory.mktemp("orphans")
     sim = simulate_recording(tmp / "session", duration_s=8.0, seed=1)
     start = min(v[0] for v in sim.exposure.values())
-    cams = [{"name": n, **{k: np.asarray(getattr(c, k)).tolist() for k in ("K", "dist", "R", "t")}}
-            for n, c in ((n, sim.scene.camera_at(n, start)) for n in sim.cameras)]
+    cams = [
+        {"name": n, **{k: np.asarray(getattr(c, k)).tolist() for k in ("K", "dist", "R", "t")}}
+        for n, c in ((n, sim.scene.camera_at(n, start)) for n in sim.cameras)
+    ]
     (tmp / "cameras.json").write_text(json.dumps({"unit": "mm", "cameras": cams}))
-    (tmp / "rig.yaml").write_text(f"rig: sim\ncameras:\n  - name: cam1\n    host: 127.0.0.1\n"
-                                  f"results:\n  url: sqlite:///{tmp / 'results.sqlite'}\n")
+    (tmp / "rig.yaml").write_text(
+        f"rig: sim\ncameras:\n  - name: cam1\n    host: 127.0.0.1\n"
+        f"results:\n  url: sqlite:///{tmp / 'results.sqlite'}\n"
+    )
     return tmp
 
 
 def test_kill_9_of_motion_analyze_leaves_no_worker(session):
     tmp = session
-    p = subprocess.Popen([*VTS, "motion", "analyze", str(tmp / "session"), "--calibration", str(tmp / "cameras.json"),
-                          "--config", str(tmp / "rig.yaml"), "-o", str(tmp / "r.html"), "--workers", "2"],
-                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    p = subprocess.Popen(
+        [
+            *VTS,
+            "motion",
+            "analyze",
+            str(tmp / "session"),
+            "--calibration",
+            str(tmp / "cameras.json"),
+            "--config",
+            str(tmp / "rig.yaml"),
+            "-o",
+            str(tmp / "r.html"),
+            "--workers",
+            "2",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     seen: set[int] = set()
     try:
         deadline = time.monotonic() + 120
@@ -161,17 +190,18 @@ def test_ctrl_c_while_workers_start_is_held_until_they_have(tmp_path, sig):
     interrupt (found by the killed class: `recording process` under SIGTERM, a worker's
     FileNotFoundError traceback)."""
     from vts_hw.lifeline import interrupts_deferred
-    handler = signal.default_int_handler if sig == signal.SIGINT else _interrupt    # as `vts` runs
+
+    handler = signal.default_int_handler if sig == signal.SIGINT else _interrupt  # as `vts` runs
     before = signal.signal(sig, handler)
     try:
         reached = []
         with pytest.raises(KeyboardInterrupt):
             with interrupts_deferred():
                 os.kill(os.getpid(), sig)
-                time.sleep(0.2)            # the signal is in; nothing was raised here
+                time.sleep(0.2)  # the signal is in; nothing was raised here
                 reached.append(True)
         assert reached == [True]
-        with interrupts_deferred():     # and without a signal, nothing is raised
+        with interrupts_deferred():  # and without a signal, nothing is raised
             pass
         assert signal.getsignal(sig) is handler
     finally:
@@ -188,7 +218,7 @@ def test_ctrl_c_ends_a_stream_with_its_counts(tmp_path):
         try:
             deadline = time.monotonic() + 60
             lines = 0
-            while lines < 10 and time.monotonic() < deadline:   # frames are being printed
+            while lines < 10 and time.monotonic() < deadline:  # frames are being printed
                 line = sh.stdout.readline()
                 lines += bool(line.strip()[:1].isdigit())
             os.kill(pid, signal.SIGINT)

@@ -13,19 +13,32 @@ import re
 import shutil
 import subprocess
 import time
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 
 import cv2
 import numpy as np
 import requests
 from requests.auth import HTTPDigestAuth
 
+from sim_axis_kit import (  # noqa: F401  (fixtures: cameras and the source they serve)
+    AUTH,
+    PASSWORD,
+    FakeSource,
+    auth_header,
+    cam,
+    cam2,
+    get,
+    raw_request,
+    read_all,
+    read_head,
+    source,
+    stream,
+    walk_parts,
+)
 from vts_hw.recording.axis_jpeg import AxisProduct, inspect_jpeg
 from vts_hw.sim_devices.axis_camera import SimAxisCamera
 from vts_hw.sim_devices.clock import VirtualClock
 from vts_hw.sim_devices.digest import parse_auth_params
-from sim_axis_kit import AUTH, PASSWORD, FakeSource, auth_header, get, raw_request, read_all, read_head, stream, walk_parts
-from sim_axis_kit import cam, cam2, source  # noqa: F401  (fixtures: cameras and the source they serve)
 
 
 # ----------------------------------------------------------------------------------------
@@ -85,10 +98,14 @@ def test_digest_for_another_uri_is_refused(cam):
 
 
 def test_digest_header_parsing_of_the_clients_we_meet():
-    ffmpeg = ('username="root",realm="AXIS_1",nonce="a.b.c",uri="/x?a=1,2",response="ff",'
-              'algorithm=MD5,opaque="o",qop="auth",cnonce="c1",nc=00000001')
-    curl = ('username="root", realm="AXIS_1", nonce="a.b.c", uri="/x?a=1,2", cnonce="c1", '
-            'nc=00000001, qop=auth, response="ff", opaque="o", algorithm=MD5')
+    ffmpeg = (
+        'username="root",realm="AXIS_1",nonce="a.b.c",uri="/x?a=1,2",response="ff",'
+        'algorithm=MD5,opaque="o",qop="auth",cnonce="c1",nc=00000001'
+    )
+    curl = (
+        'username="root", realm="AXIS_1", nonce="a.b.c", uri="/x?a=1,2", cnonce="c1", '
+        'nc=00000001, qop=auth, response="ff", opaque="o", algorithm=MD5'
+    )
     assert parse_auth_params(ffmpeg) == parse_auth_params(curl)
     assert parse_auth_params(curl)["uri"] == "/x?a=1,2" and parse_auth_params(curl)["qop"] == "auth"
     assert parse_auth_params(r'realm="a \"quoted\" b", x=1')["realm"] == 'a "quoted" b'
@@ -98,21 +115,54 @@ def test_curl_digest(cam, tmp_path):
     curl = shutil.which("curl")
     assert curl is not None, "curl is missing: `make test` installs Debian's curl"
     out = tmp_path / "snap.jpg"
-    run = subprocess.run([curl, "-sS", "--fail", "--digest", "-u", f"root:{PASSWORD}", "-o", str(out),
-                          cam.url + "/axis-cgi/jpg/image.cgi?resolution=640x480"], capture_output=True, timeout=10)
+    run = subprocess.run(
+        [
+            curl,
+            "-sS",
+            "--fail",
+            "--digest",
+            "-u",
+            f"root:{PASSWORD}",
+            "-o",
+            str(out),
+            cam.url + "/axis-cgi/jpg/image.cgi?resolution=640x480",
+        ],
+        capture_output=True,
+        timeout=10,
+    )
     assert run.returncode == 0, run.stderr
     assert inspect_jpeg(out.read_bytes()).problems == ()
-    run = subprocess.run([curl, "-sS", "--digest", "-u", f"root:{PASSWORD}",
-                          cam.url + "/axis-cgi/io/port.cgi?action=1%3A%2F"], capture_output=True, timeout=10)
+    run = subprocess.run(
+        [curl, "-sS", "--digest", "-u", f"root:{PASSWORD}", cam.url + "/axis-cgi/io/port.cgi?action=1%3A%2F"],
+        capture_output=True,
+        timeout=10,
+    )
     assert run.stdout == b"OK\r\n"
-    run = subprocess.run([curl, "-sS", "-o", "/dev/null", "-w", "%{http_code}", "--digest", "-u", "root:wrong",
-                          cam.url + "/axis-cgi/jpg/image.cgi"], capture_output=True, timeout=10)
+    run = subprocess.run(
+        [
+            curl,
+            "-sS",
+            "-o",
+            "/dev/null",
+            "-w",
+            "%{http_code}",
+            "--digest",
+            "-u",
+            "root:wrong",
+            cam.url + "/axis-cgi/jpg/image.cgi",
+        ],
+        capture_output=True,
+        timeout=10,
+    )
     assert run.stdout == b"401"
 
 
 def test_opencv_ffmpeg_reads_the_stream_with_credentials_in_the_url(cam):
-    cap = cv2.VideoCapture(f"http://root:{PASSWORD.replace(' ', '%20')}@127.0.0.1:{cam.port}"
-                           "/axis-cgi/mjpg/video.cgi?resolution=640x480&fps=25", cv2.CAP_FFMPEG)
+    cap = cv2.VideoCapture(
+        f"http://root:{PASSWORD.replace(' ', '%20')}@127.0.0.1:{cam.port}"
+        "/axis-cgi/mjpg/video.cgi?resolution=640x480&fps=25",
+        cv2.CAP_FFMPEG,
+    )
     try:
         assert cap.isOpened()
         frames = [cap.read() for _ in range(5)]
@@ -146,7 +196,7 @@ def test_stream_layout_is_byte_exact_like_the_real_capture(cam, axis_frames):
     assert len(parts) == 4
     for n, jpeg in parts:
         assert n == len(jpeg) and inspect_jpeg(jpeg).problems == ()
-    assert body.startswith(real[:real.index(b"\r\n\r\n") - len(str(real_parts[0][0]))])  # same header text
+    assert body.startswith(real[: real.index(b"\r\n\r\n") - len(str(real_parts[0][0]))])  # same header text
 
 
 def test_nbrofframes_ends_the_stream(cam):
@@ -156,13 +206,13 @@ def test_nbrofframes_ends_the_stream(cam):
 
 def test_duration_ends_the_stream(cam):
     t0 = time.monotonic()
-    _, _, body = stream(cam, "?duration=1&fps=10")   # returns at the end of the body: the stream ended
+    _, _, body = stream(cam, "?duration=1&fps=10")  # returns at the end of the body: the stream ended
     elapsed = time.monotonic() - t0
     parts = walk_parts(body)
     assert 9 <= len(parts) <= 11
     stamps = [inspect_jpeg(j).timestamp for _, j in parts]
-    assert 0.8 <= stamps[-1] - stamps[0] <= 1.0      # one second of the camera's own clock
-    assert elapsed >= 0.8                            # paced, not sent at once (only a lower bound:
+    assert 0.8 <= stamps[-1] - stamps[0] <= 1.0  # one second of the camera's own clock
+    assert elapsed >= 0.8  # paced, not sent at once (only a lower bound:
     # a loaded host may be slower, never faster)
 
 
@@ -243,7 +293,7 @@ def test_stop_ends_running_streams(source):
     reader.read1(1000)
     camera.stop()
     with sock:
-        read_all(reader, limit_s=30)   # returns at the end of the stream; fails if it never ends
+        read_all(reader, limit_s=30)  # returns at the end of the stream; fails if it never ends
 
 
 # ----------------------------------------------------------------------------------------
@@ -273,8 +323,10 @@ def test_param_list_groups(cam, source):
 def test_param_update_and_errors(cam):
     r = get(cam, "/axis-cgi/param.cgi?action=update&Image.I0.Appearance.Compression=30")
     assert (r.status_code, r.text) == (200, "OK\r\n")
-    assert get(cam, "/axis-cgi/param.cgi?action=list&group=Image.I0.Appearance.Compression").text == \
-        "root.Image.I0.Appearance.Compression=30\r\n"
+    assert (
+        get(cam, "/axis-cgi/param.cgi?action=list&group=Image.I0.Appearance.Compression").text
+        == "root.Image.I0.Appearance.Compression=30\r\n"
+    )
     r = get(cam, "/axis-cgi/param.cgi?action=list&group=Nonsense")
     assert (r.status_code, r.text) == (200, "# Error: Error -1 getting param in group 'Nonsense'\r\n")
     for bad in ("Image.I0.NoSuch=1", "Image.I0.Appearance.Compression=200", "Brand.ProdNbr=X"):
@@ -311,8 +363,11 @@ def test_vapix3_keeps_the_old_param_paths(cam):
 
 
 def test_basic_device_info(cam, source):
-    r = requests.post(cam.url + "/axis-cgi/basicdeviceinfo.cgi", auth=AUTH,
-                      json={"apiVersion": "1.0", "context": "t", "method": "getAllProperties"})
+    r = requests.post(
+        cam.url + "/axis-cgi/basicdeviceinfo.cgi",
+        auth=AUTH,
+        json={"apiVersion": "1.0", "context": "t", "method": "getAllProperties"},
+    )
     assert r.status_code == 200 and r.headers["Content-Type"] == "application/json"
     reply = r.json()
     assert reply["apiVersion"] == "1.0" and reply["context"] == "t"
@@ -339,6 +394,7 @@ def test_led_state_shows_in_the_next_frame(cam):
     def disk_level():
         img = cv2.imdecode(np.frombuffer(get(cam, "/axis-cgi/jpg/image.cgi").content, np.uint8), 0)
         return img[120, 160]
+
     get(cam, "/axis-cgi/io/port.cgi?action=1%3A%2F")
     assert disk_level() > 200
     get(cam, "/axis-cgi/io/port.cgi?action=1%3A%5C")
@@ -348,16 +404,17 @@ def test_led_state_shows_in_the_next_frame(cam):
 def test_date_and_time_are_the_camera_clock(cam, source):
     text = get(cam, "/axis-cgi/date.cgi?action=get").text
     assert re.fullmatch(r"[A-Z][a-z]{2} \d\d, \d{4} \d\d:\d\d:\d\d\r\n", text)
-    shown = datetime.strptime(text.strip(), "%b %d, %Y %H:%M:%S").replace(tzinfo=timezone.utc).timestamp()
+    shown = datetime.strptime(text.strip(), "%b %d, %Y %H:%M:%S").replace(tzinfo=UTC).timestamp()
     assert abs(shown - source.camera_time()) < 2.0
     assert get(cam, "/axis-cgi/date.cgi?action=set").text.startswith("# Error:")
     before = source.camera_time()
-    r = requests.post(cam.url + "/axis-cgi/time.cgi", auth=AUTH,
-                      json={"apiVersion": "1.0", "method": "getDateTimeInfo"})
+    r = requests.post(
+        cam.url + "/axis-cgi/time.cgi", auth=AUTH, json={"apiVersion": "1.0", "method": "getDateTimeInfo"}
+    )
     after = source.camera_time()
     iso = r.json()["data"]["dateTime"]
     assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z", iso)
-    t = datetime.strptime(iso, "%Y-%m-%dT%H:%M:%S.%fZ").replace(tzinfo=timezone.utc).timestamp()
+    t = datetime.strptime(iso, "%Y-%m-%dT%H:%M:%S.%fZ").replace(tzinfo=UTC).timestamp()
     assert before - 0.002 <= t <= after + 0.002
     assert abs(t - time.time() - source.offset_s) < 0.5  # the camera's clock, not the host's
 

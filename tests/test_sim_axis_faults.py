@@ -13,11 +13,22 @@ import numpy as np
 import pytest
 import requests
 
+from sim_axis_kit import (  # noqa: F401  (fixtures: cam and the source it serves)
+    PART_RE,
+    PASSWORD,
+    auth_header,
+    cam,
+    get,
+    raw_request,
+    read_all,
+    read_head,
+    source,
+    stream,
+    walk_parts,
+)
 from vts_hw.recording.axis_jpeg import inspect_jpeg
 from vts_hw.sim_devices.axis_camera import SimAxisCamera
 from vts_hw.sim_devices.faults import Faults
-from sim_axis_kit import PART_RE, PASSWORD, auth_header, get, raw_request, read_all, read_head, stream, walk_parts
-from sim_axis_kit import cam, source  # noqa: F401  (fixtures: cam and the source it serves)
 
 
 # ----------------------------------------------------------------------------------------
@@ -41,7 +52,7 @@ def test_control_endpoint_faults_and_state(cam):
     with sock:
         read_head(reader)
         got = b""
-        while got.count(b"\xff\xd9") < 2:     # two whole frames received (JPEG end markers)
+        while got.count(b"\xff\xd9") < 2:  # two whole frames received (JPEG end markers)
             chunk = reader.read1(65536)
             assert chunk, "the stream ended before two frames"
             got += chunk
@@ -84,9 +95,9 @@ def test_fault_stall_keeps_the_connection_open(cam):
     assert len(parts) == 4
     t2 = min(t for t, n in arrivals if n >= 2)
     t3 = min(t for t, n in arrivals if n >= 3)
-    assert t3 - t2 >= 0.9                        # nothing came during the stall (a lower bound)
+    assert t3 - t2 >= 0.9  # nothing came during the stall (a lower bound)
     stamps = [inspect_jpeg(j).timestamp for _, j in parts]
-    assert 0.9 <= stamps[2] - stamps[1] <= 1.2   # and the frames of the stall are lost, as a camera's
+    assert 0.9 <= stamps[2] - stamps[1] <= 1.2  # and the frames of the stall are lost, as a camera's
 
 
 def test_fault_too_many_viewers(cam):
@@ -222,8 +233,9 @@ def test_real_source_snapshot_stamp_and_stream(real_cam):
     assert before - 0.05 <= info.timestamp <= after + 0.05
     _, _, body = stream(real_cam, "?nbrofframes=3")
     assert len(walk_parts(body)) == 3
-    cap = cv2.VideoCapture(f"http://root:{PASSWORD.replace(' ', '%20')}@127.0.0.1:{real_cam.port}"
-                           "/axis-cgi/mjpg/video.cgi", cv2.CAP_FFMPEG)
+    cap = cv2.VideoCapture(
+        f"http://root:{PASSWORD.replace(' ', '%20')}@127.0.0.1:{real_cam.port}/axis-cgi/mjpg/video.cgi", cv2.CAP_FFMPEG
+    )
     try:
         ok, img = cap.read()
     finally:

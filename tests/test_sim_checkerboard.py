@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from vts_hw.vision.checkerboard import find_corners
 from vts_hw.sim_devices import checkerboard as cb
 from vts_hw.sim_devices.scene import Scene
+from vts_hw.vision.checkerboard import find_corners
 
 
 @pytest.fixture(scope="module")
@@ -77,7 +77,7 @@ def test_render_is_grey_jpeg_with_board_brighter_than_background(scene, poses):
     uv = cb.truth_corners(scene, "cam1", poses[0])
     u, v = np.rint(uv.mean(axis=0)).astype(int)
     assert img[:20, :20].mean() < 40  # dim room
-    patch = img[v - 20:v + 20, u - 20:u + 20]
+    patch = img[v - 20 : v + 20, u - 20 : u + 20]
     assert patch.max() > 150 and patch.min() < 70  # white paper and black squares
     clean = cb.render_clean(scene, "cam1", poses[0])
     assert clean.dtype == np.float32 and clean.shape == (480, 640)

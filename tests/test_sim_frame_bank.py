@@ -21,7 +21,7 @@ from vts_hw.sim_devices.rig import SimRig
 from vts_hw.vision.detect import detect_jpeg
 
 BAND = set(BAND_MARKERS["chest"]) | set(BAND_MARKERS["abdomen"])
-pytestmark = pytest.mark.timeout(300)      # a hang detector: making frames takes long on a loaded machine
+pytestmark = pytest.mark.timeout(300)  # a hang detector: making frames takes long on a loaded machine
 SPIN = "import signal, sys\nsignal.signal(signal.SIGTERM, lambda *a: sys.exit(0))\nwhile True:\n    pass\n"
 
 
@@ -35,8 +35,11 @@ def _rig_with_patient(move_in_s: float | None = None):
     rig = SimRig(n_cameras=2, seed=4).start()
     rig.ntp_sync()
     now = rig.clock.now()
-    moves = [] if move_in_s is None else [BodyMove(now + move_in_s, now + move_in_s + 0.6, (0.0, 2.0, 0.0),
-                                                   (6.0, 4.0, 3.0))]
+    moves = (
+        []
+        if move_in_s is None
+        else [BodyMove(now + move_in_s, now + move_in_s + 0.6, (0.0, 2.0, 0.0), (6.0, 4.0, 3.0))]
+    )
     patient = add_patient(rig.scene, now, 120.0, seed=2, moves=moves)
     for src in rig.sources.values():
         src.set_led(True)
@@ -69,7 +72,7 @@ def test_frames_made_ahead_show_the_patient_where_the_truth_says(monkeypatch):
     assert during
     for f in (frames[2], during[len(during) // 2], frames[-2]):
         blobs = np.array([(b.x, b.y) for b in detect_jpeg(f.jpeg).blobs])
-        t = clock.host_time(f.camera_time) + 0.005           # the stamp is truncated to 10 ms
+        t = clock.host_time(f.camera_time) + 0.005  # the stamp is truncated to 10 ms
         truth = {k: np.array((u, v)) for k, u, v in rig.scene.truth("cam1", t) if k in BAND}
         assert len(truth) >= 6
         for k, uv in truth.items():
@@ -93,7 +96,7 @@ def test_a_rewound_stretch_plays_again_from_the_next_stream_with_the_patient_mov
         again, _ = _stream(rig, "cam1", frames=10)
     finally:
         rig.stop()
-    assert len(played) == 2 and played[1] > played[0] + 0.2        # started anew, later
+    assert len(played) == 2 and played[1] > played[0] + 0.2  # started anew, later
     assert move.t_start == pytest.approx(planned[0] + played[1]) and rig.bank.served == 10
     assert rig.bank.missed == {}
     # the second stream shows the patient where the truth (moved by the second start) says
@@ -115,7 +118,9 @@ def test_frames_made_ahead_come_whole_and_on_time_while_every_core_is_busy(monke
         monkeypatch.setattr(os, "environ", {**os.environ, **rig.env_vars()})
         load = [subprocess.Popen([sys.executable, "-c", SPIN]) for _ in range(2 * (os.cpu_count() or 2))]
         got = {}
-        threads = [threading.Thread(target=lambda n=n: got.__setitem__(n, _stream(rig, n, 4.0))) for n in ("cam1", "cam2")]
+        threads = [
+            threading.Thread(target=lambda n=n: got.__setitem__(n, _stream(rig, n, 4.0))) for n in ("cam1", "cam2")
+        ]
         for t in threads:
             t.start()
         for t in threads:
@@ -127,19 +132,19 @@ def test_frames_made_ahead_come_whole_and_on_time_while_every_core_is_busy(monke
             p.wait()
         rig.stop()
     for name, (frames, gaps) in got.items():
-        assert gaps == [], (name, [g.reason for g in gaps])          # not one frame skipped
+        assert gaps == [], (name, [g.reason for g in gaps])  # not one frame skipped
         steps = [b.camera_time - a.camera_time for a, b in zip(frames, frames[1:])]
         assert len(frames) >= 85 and max(steps) < 0.05, name
         clock = rig.scene.clocks[name]
         late = sorted(f.host_time - clock.host_time(f.camera_time) for f in frames)
-        assert late[len(late) // 2] < 0.25, (name, late[len(late) // 2])   # and sent when their time came
+        assert late[len(late) // 2] < 0.25, (name, late[len(late) // 2])  # and sent when their time came
 
 
 def test_what_the_bank_cannot_stand_for_is_rendered_live(monkeypatch):
     rig, _ = _rig_with_patient()
     try:
         rig.prerender(2.0)
-        rig.sources["cam2"].set_led(False)       # the frames were made with the LED on
+        rig.sources["cam2"].set_led(False)  # the frames were made with the LED on
         monkeypatch.setattr(os, "environ", {**os.environ, **rig.env_vars()})
         lit, _ = _stream(rig, "cam1", frames=10)
         dark, _ = _stream(rig, "cam2", frames=10)

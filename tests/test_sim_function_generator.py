@@ -59,12 +59,14 @@ def errors(inst) -> list[str]:
 
 # ---- the instrument over the socket ----------------------------------------------------------------
 
+
 def test_it_answers_as_a_33522b_after_rst(server, rm):
     inst = session(rm, server)
     assert server.resource == f"TCPIP::127.0.0.1::{server.port}::SOCKET" and server.port > 0
     assert inst.query("*IDN?") == IDN
-    assert inst.query("FUNC?;FREQ?;FUNC:SQU:DCYC?;:VOLT:HIGH?;LOW?;:OUTP?") == \
-        ";".join(["SIN", e(1000), e(50), e(0.05), e(-0.05), "0"])
+    assert inst.query("FUNC?;FREQ?;FUNC:SQU:DCYC?;:VOLT:HIGH?;LOW?;:OUTP?") == ";".join(
+        ["SIN", e(1000), e(50), e(0.05), e(-0.05), "0"]
+    )
     assert inst.query("SYST:ERR?") == OK
     inst.close()
 
@@ -74,40 +76,48 @@ def test_its_state_lasts_between_sessions(server, rm):
     a.write("FUNC SQU;FREQ 1;FUNC:SQU:DCYC 25;:VOLT:HIGH 2.5;LOW 0;:OUTP ON")
     assert a.query("*OPC?") == "1"
     a.close()
-    b = session(pyvisa.ResourceManager("@py"), server)      # a new connection, as the next command makes
-    assert b.query("FUNC?;FREQ?;FUNC:SQU:DCYC?;:VOLT:HIGH?;LOW?;:OUTP?") == \
-        ";".join(["SQU", e(1), e(25), e(2.5), e(0), "1"])
+    b = session(pyvisa.ResourceManager("@py"), server)  # a new connection, as the next command makes
+    assert b.query("FUNC?;FREQ?;FUNC:SQU:DCYC?;:VOLT:HIGH?;LOW?;:OUTP?") == ";".join(
+        ["SQU", e(1), e(25), e(2.5), e(0), "1"]
+    )
     b.close()
 
 
 def test_long_forms_any_case_and_the_scpi_path(server, rm):
     inst = session(rm, server)
     inst.write("source2:frequency 2.5KHZ;function:square:dcycle 30")  # DCYC under SOURce2
-    inst.write(":SOUR2:VOLT:HIGH 1;LOW -1")                            # LOW under SOUR2:VOLT
+    inst.write(":SOUR2:VOLT:HIGH 1;LOW -1")  # LOW under SOUR2:VOLT
     inst.write("OUTPut2 1;OUTPut1 OFF")
-    assert inst.query("SOUR2:FREQ?;:SOUR2:FUNC:SQU:DCYC?;:SOUR2:VOLT:HIGH?;LOW?") == \
-        ";".join([e(2500), e(30), e(1), e(-1)])
-    assert inst.query("OUTP2?;OUTP?;FREQ?") == f"1;0;{e(1000)}"      # channel 1 untouched
+    assert inst.query("SOUR2:FREQ?;:SOUR2:FUNC:SQU:DCYC?;:SOUR2:VOLT:HIGH?;LOW?") == ";".join(
+        [e(2500), e(30), e(1), e(-1)]
+    )
+    assert inst.query("OUTP2?;OUTP?;FREQ?") == f"1;0;{e(1000)}"  # channel 1 untouched
     assert inst.query("FREQ? MAX;FREQ? MIN") == f"{e(30e6)};{e(1e-6)}"
     assert errors(inst) == []
-    inst.write("FUNC:SQU:DCYC 40;FREQ 5")          # FREQ under FUNC:SQU: does not exist
+    inst.write("FUNC:SQU:DCYC 40;FREQ 5")  # FREQ under FUNC:SQU: does not exist
     assert errors(inst) == ['-113,"Undefined header"']
 
 
-@pytest.mark.parametrize("command, want, queued", [
-    ("FREQ 4E7", ("FREQ?", e(30e6)), [UP]),
-    ("FREQ 1E-7", ("FREQ?", e(1e-6)), [DOWN]),
-    ("VOLT:HIGH 6", ("VOLT:HIGH?", e(5)), [UP]),
-    ("VOLT:LOW -5.5", ("VOLT:LOW?", e(-5)), [DOWN]),
-    ("FUNC SQU;FUNC:SQU:DCYC 0", ("FUNC:SQU:DCYC?", e(0.01)), [DOWN]),
-    ("FUNC SQU;FREQ 10E6;FUNC:SQU:DCYC 5", ("FUNC:SQU:DCYC?", e(16)), [DOWN]),   # 16 ns at 10 MHz
-    ("FUNC SQU;FUNC:SQU:DCYC 10;FREQ 10E6", ("FREQ?", e(1000)), ['-113,"Undefined header"']),  # FUNC:SQU:FREQ
-    ("FUNC SQU;FUNC:SQU:DCYC 10;:FREQ 10E6", ("FUNC:SQU:DCYC?", e(16)),
-     ['-221,"Settings conflict;frequency forced duty cycle change"']),
-    ("VOLT:HIGH -1", ("VOLT:LOW?", e(-1.001)), ['-221,"Settings conflict;low level changed due to high level"']),
-    ("VOLT:LOW 3", ("VOLT:HIGH?", e(3.001)), ['-221,"Settings conflict;high level changed due to low level"']),
-    ("FREQ 1E6;FUNC RAMP", ("FREQ?", e(200e3)), ['-221,"Settings conflict;frequency changed due to function"']),
-])
+@pytest.mark.parametrize(
+    "command, want, queued",
+    [
+        ("FREQ 4E7", ("FREQ?", e(30e6)), [UP]),
+        ("FREQ 1E-7", ("FREQ?", e(1e-6)), [DOWN]),
+        ("VOLT:HIGH 6", ("VOLT:HIGH?", e(5)), [UP]),
+        ("VOLT:LOW -5.5", ("VOLT:LOW?", e(-5)), [DOWN]),
+        ("FUNC SQU;FUNC:SQU:DCYC 0", ("FUNC:SQU:DCYC?", e(0.01)), [DOWN]),
+        ("FUNC SQU;FREQ 10E6;FUNC:SQU:DCYC 5", ("FUNC:SQU:DCYC?", e(16)), [DOWN]),  # 16 ns at 10 MHz
+        ("FUNC SQU;FUNC:SQU:DCYC 10;FREQ 10E6", ("FREQ?", e(1000)), ['-113,"Undefined header"']),  # FUNC:SQU:FREQ
+        (
+            "FUNC SQU;FUNC:SQU:DCYC 10;:FREQ 10E6",
+            ("FUNC:SQU:DCYC?", e(16)),
+            ['-221,"Settings conflict;frequency forced duty cycle change"'],
+        ),
+        ("VOLT:HIGH -1", ("VOLT:LOW?", e(-1.001)), ['-221,"Settings conflict;low level changed due to high level"']),
+        ("VOLT:LOW 3", ("VOLT:HIGH?", e(3.001)), ['-221,"Settings conflict;high level changed due to low level"']),
+        ("FREQ 1E6;FUNC RAMP", ("FREQ?", e(200e3)), ['-221,"Settings conflict;frequency changed due to function"']),
+    ],
+)
 def test_a_value_it_cannot_make_is_clipped_or_adjusted_and_an_error_queued(server, rm, command, want, queued):
     inst = session(rm, server)
     inst.write(command)
@@ -115,19 +125,22 @@ def test_a_value_it_cannot_make_is_clipped_or_adjusted_and_an_error_queued(serve
     assert errors(inst) == queued
 
 
-@pytest.mark.parametrize("command, queued", [
-    ("BOGUS 1", '-113,"Undefined header"'),
-    ("FREQUENC 5", '-113,"Undefined header"'),          # neither the short nor the long form
-    ("*IDN", '-113,"Undefined header"'),                # a query-only header as a command
-    ("FREQ", '-109,"Missing parameter"'),
-    ("FREQ 1,2", '-108,"Parameter not allowed"'),
-    ("OUTP? 1", '-108,"Parameter not allowed"'),
-    ("FREQ fast", '-104,"Data type error"'),
-    ("FREQ 5 V", '-131,"Invalid suffix"'),
-    ("FUNC SAW", '-224,"Illegal parameter value"'),
-    ("OUTP MAYBE", '-224,"Illegal parameter value"'),
-    ("OUTP3 1", '-114,"Header suffix out of range"'),
-])
+@pytest.mark.parametrize(
+    "command, queued",
+    [
+        ("BOGUS 1", '-113,"Undefined header"'),
+        ("FREQUENC 5", '-113,"Undefined header"'),  # neither the short nor the long form
+        ("*IDN", '-113,"Undefined header"'),  # a query-only header as a command
+        ("FREQ", '-109,"Missing parameter"'),
+        ("FREQ 1,2", '-108,"Parameter not allowed"'),
+        ("OUTP? 1", '-108,"Parameter not allowed"'),
+        ("FREQ fast", '-104,"Data type error"'),
+        ("FREQ 5 V", '-131,"Invalid suffix"'),
+        ("FUNC SAW", '-224,"Illegal parameter value"'),
+        ("OUTP MAYBE", '-224,"Illegal parameter value"'),
+        ("OUTP3 1", '-114,"Header suffix out of range"'),
+    ],
+)
 def test_bad_input_is_refused_with_the_scpi_error_and_changes_nothing(server, rm, command, queued):
     inst = session(rm, server)
     state = "FUNC?;FREQ?;FUNC:SQU:DCYC?;:VOLT:HIGH?;LOW?;:OUTP?;OUTP2?"
@@ -170,24 +183,30 @@ def test_rst_restores_the_defaults_but_keeps_the_errors(server, rm):
 def test_the_output_log_says_when_the_wave_ran(tmp_path, rm):
     with SimFunctionGenerator(Keysight33500(clock=Ticks())) as srv:
         inst = session(rm, srv)
-        inst.write("FUNC SQU;FREQ 2;VOLT:HIGH 2.5;LOW 0")        # output off: nothing to log
-        inst.write("OUTP 1")                                      # t=100
-        path = srv.log_to(tmp_path / "fgen_output.csv")           # earlier events are written too
-        inst.write("FREQ 4")                                      # t=101: the wave changed while on
-        inst.write("OUTP 0")                                      # t=102
-        inst.write("FREQ 9")                                      # off: not logged
+        inst.write("FUNC SQU;FREQ 2;VOLT:HIGH 2.5;LOW 0")  # output off: nothing to log
+        inst.write("OUTP 1")  # t=100
+        path = srv.log_to(tmp_path / "fgen_output.csv")  # earlier events are written too
+        inst.write("FREQ 4")  # t=101: the wave changed while on
+        inst.write("OUTP 0")  # t=102
+        inst.write("FREQ 9")  # off: not logged
         assert inst.query("*OPC?") == "1"
         runs = srv.instrument.runs(1)
     assert [(r.start, r.stop, r.function, r.frequency_hz, r.high_v, r.low_v) for r in runs] == [
-        (100.0, 101.0, "SQU", 2.0, 2.5, 0.0), (101.0, 102.0, "SQU", 4.0, 2.5, 0.0)]
+        (100.0, 101.0, "SQU", 2.0, 2.5, 0.0),
+        (101.0, 102.0, "SQU", 4.0, 2.5, 0.0),
+    ]
     assert path.read_text().splitlines()[0] == ",".join(OUTPUT_LOG_HEADER)
     events = read_output_log(path)
-    assert [(ev.host_time, ev.output, ev.frequency_hz) for ev in events] == [(100.0, True, 2.0), (101.0, True, 4.0),
-                                                                            (102.0, False, 4.0)]
+    assert [(ev.host_time, ev.output, ev.frequency_hz) for ev in events] == [
+        (100.0, True, 2.0),
+        (101.0, True, 4.0),
+        (102.0, False, 4.0),
+    ]
     assert srv.instrument.runs(2) == []
 
 
 # ---- the driver against it ---------------------------------------------------------------------------
+
 
 def test_the_driver_configures_and_starts_it_and_a_new_driver_sees_that(server, tmp_path):
     with FunctionGenerator(server.resource, log=TriggerLog(tmp_path / "trigger.csv")) as fg:
@@ -196,8 +215,14 @@ def test_the_driver_configures_and_starts_it_and_a_new_driver_sees_that(server, 
         assert fg.start().running
     with FunctionGenerator(server.resource) as again:
         st = again.status()
-        assert (st.running, st.frequency_hz, st.duty, st.high_v, st.low_v, st.extra["function"]) == \
-            (True, 1.0, 0.5, 2.5, 0.0, "SQU")
+        assert (st.running, st.frequency_hz, st.duty, st.high_v, st.low_v, st.extra["function"]) == (
+            True,
+            1.0,
+            0.5,
+            2.5,
+            0.0,
+            "SQU",
+        )
         assert again.stale_errors == ()
     (run,) = server.instrument.runs(1)
     assert run.stop is None and (run.frequency_hz, run.duty_percent) == (1.0, 50.0)
@@ -214,9 +239,12 @@ def test_channel_2_through_the_driver(server):
 
 def test_an_instrument_side_conflict_reaches_the_user_in_its_words(server):
     with FunctionGenerator(server.resource) as fg:
-        with pytest.raises(TriggerError, match=r"^fgen refused 'VOLT:HIGH -1': -221,\"Settings conflict;"
-                                               r"low level changed due to high level\"$"):
-            fg.high_v = -1.0          # the driver has not read the low level: the instrument adjusts it
+        with pytest.raises(
+            TriggerError,
+            match=r"^fgen refused 'VOLT:HIGH -1': -221,\"Settings conflict;"
+            r"low level changed due to high level\"$",
+        ):
+            fg.high_v = -1.0  # the driver has not read the low level: the instrument adjusts it
         assert fg.low_v == pytest.approx(-1.001)
 
 
@@ -231,8 +259,10 @@ def test_nothing_listening_is_one_sentence_naming_the_address(server):
     server.stop()
     with pytest.raises(TriggerError) as err:
         FunctionGenerator(address, timeout_ms=500)
-    assert str(err.value) == (f"fgen: the instrument at {address} refused the connection (nothing listens "
-                              f"there: is it switched on, and are the address and port right?)")
+    assert str(err.value) == (
+        f"fgen: the instrument at {address} refused the connection (nothing listens "
+        f"there: is it switched on, and are the address and port right?)"
+    )
 
 
 def test_a_hung_instrument_is_a_timeout_naming_the_address_and_command(server):
@@ -246,19 +276,28 @@ def test_an_instrument_that_goes_away_mid_session(server, tmp_path):
     log = TriggerLog(tmp_path / "trigger.csv")
     fg = FunctionGenerator(server.resource, log=log, timeout_ms=500)
     server.stop()
-    with pytest.raises(TriggerError, match=rf"^fgen: the instrument at {server.resource} (closed the connection|"
-                                           rf"did not answer)"):
+    with pytest.raises(
+        TriggerError,
+        match=rf"^fgen: the instrument at {server.resource} (closed the connection|"
+        rf"did not answer)",
+    ):
         fg.status()
     fg.close()
     assert any(r[3] == "event" and server.resource in r[4] for r in log.lines)  # the failure is in trigger.csv
 
 
-@pytest.mark.parametrize("address, message", [
-    ("TCPIP:192.168.1.20:5025", r"^fgen: 'TCPIP:192.168.1.20:5025' is not a VISA address \(e.g. TCPIP::"),
-    ("TCPIP::nowhere.invalid::5025::SOCKET", r"^fgen: cannot reach TCPIP::nowhere.invalid::5025::SOCKET: no host "
-                                             r"is called 'nowhere.invalid' \(check the trigger address in rig.yaml\)$"),
-    ("TCPIP::nowhere.invalid::INSTR", r"^fgen: cannot reach TCPIP::nowhere.invalid::INSTR: no host is called"),
-])
+@pytest.mark.parametrize(
+    "address, message",
+    [
+        ("TCPIP:192.168.1.20:5025", r"^fgen: 'TCPIP:192.168.1.20:5025' is not a VISA address \(e.g. TCPIP::"),
+        (
+            "TCPIP::nowhere.invalid::5025::SOCKET",
+            r"^fgen: cannot reach TCPIP::nowhere.invalid::5025::SOCKET: no host "
+            r"is called 'nowhere.invalid' \(check the trigger address in rig.yaml\)$",
+        ),
+        ("TCPIP::nowhere.invalid::INSTR", r"^fgen: cannot reach TCPIP::nowhere.invalid::INSTR: no host is called"),
+    ],
+)
 def test_a_wrong_address_is_one_sentence(address, message):
     with pytest.raises(TriggerError, match=message):
         FunctionGenerator(address, visa_library="@py")

@@ -13,7 +13,7 @@ T0 = 1_700_000_000.0
 
 def test_step_and_shoot_turns_in_steps_and_stays():
     g = Gantry()
-    assert g.angle_at(T0) == g.park_deg and g.radius_at(T0) == 400.0      # parked, drawn back
+    assert g.angle_at(T0) == g.park_deg and g.radius_at(T0) == 400.0  # parked, drawn back
     acq = g.step_and_shoot(T0 + 10, step_deg=3.0, n_steps=4, dwell_s=2.0, move_s=1.0, radius_mm=230.0)
     assert g.angle_at(T0 + 9.9) == 0.0 and g.radius_at(T0 + 9.9) == 400.0
     assert g.angle_at(T0 + 10) == 0.0 and g.angle_at(T0 + 11.9) == 0.0 and g.radius_at(T0 + 10) == 230.0
@@ -30,15 +30,16 @@ def test_heads_are_the_size_of_real_ones_and_face_the_axis():
     g.step_and_shoot(T0, start_deg=90.0, radius_mm=250.0)
     for corners, sign in zip(g.corners(T0), (1, -1)):
         size = np.ptp(corners, axis=0)
-        assert size == pytest.approx([200.0, 540.0, 400.0])       # at 90 deg: thickness along X
+        assert size == pytest.approx([200.0, 540.0, 400.0])  # at 90 deg: thickness along X
         assert np.abs(corners[:, 0]).min() == pytest.approx(250.0)  # the face 250 mm from the axis
         assert np.sign(corners[:, 0].mean()) == sign
 
 
 def band_scene(n_cameras=4):
     s = Scene.reference(seed=0, n_cameras=n_cameras, start_epoch=T0, gantry=True)
-    s.add_body(RigidBody("band", [Marker("B1", np.array([0.0, 170.0, 0.0]), np.array([0.0, 1.0, 0.0]),
-                                         13.0, "sphere")]))
+    s.add_body(
+        RigidBody("band", [Marker("B1", np.array([0.0, 170.0, 0.0]), np.array([0.0, 1.0, 0.0]), 13.0, "sphere")])
+    )
     for c in s.camera_names:
         s.set_led(c, True)
     return s
@@ -48,12 +49,12 @@ def test_a_marker_hidden_from_a_camera_at_one_angle_is_seen_at_another():
     s = band_scene()
     s.gantry.step_and_shoot(T0, step_deg=3.0, n_steps=120, dwell_s=1.0, move_s=0.5, radius_mm=230.0)
     seen = {c: [] for c in s.camera_names}
-    times = T0 + np.arange(120) * 1.5             # one instant per stop: 0, 3, 6 ... 357 deg
+    times = T0 + np.arange(120) * 1.5  # one instant per stop: 0, 3, 6 ... 357 deg
     for t in times:
         for c in s.camera_names:
             seen[c].append("B1" in {m for m, _, _ in s.truth(c, t)})
     seen = {c: np.array(v) for c, v in seen.items()}
-    for c in s.camera_names:        # every camera loses the marker at some angles, not at all
+    for c in s.camera_names:  # every camera loses the marker at some angles, not at all
         assert 0 < (~seen[c]).sum() < len(times) // 2, c
     both = np.array([sum(seen[c][k] for c in s.camera_names) for k in range(len(times))])
     assert both.min() < 4 and both.max() == 4
@@ -76,9 +77,10 @@ def test_parked_heads_hide_no_wall_marker(seed, n_cameras):
     s = Scene.reference(seed=seed, n_cameras=n_cameras, start_epoch=T0, gantry=True)
     for c in s.camera_names:
         assert len([m for m, _, _ in s.truth(c, T0) if m.startswith("W")]) == 5
-    s.gantry.step_and_shoot(T0 + 1, start_deg=30.0, radius_mm=230.0)   # on the orbit some are hidden
-    assert sum(len([m for m, _, _ in s.truth(c, T0 + 1.5) if m.startswith("W")])
-               for c in s.camera_names) < 5 * n_cameras
+    s.gantry.step_and_shoot(T0 + 1, start_deg=30.0, radius_mm=230.0)  # on the orbit some are hidden
+    assert (
+        sum(len([m for m, _, _ in s.truth(c, T0 + 1.5) if m.startswith("W")]) for c in s.camera_names) < 5 * n_cameras
+    )
 
 
 def test_two_cameras_keep_the_reference_rig():

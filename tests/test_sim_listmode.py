@@ -12,13 +12,19 @@ import json
 import numpy as np
 import pytest
 
-from vts_hw.spect.listmode import read_listmode
 from vts_hw.sim_devices.scene import Scene
-from vts_hw.sim_devices.source_marker import (add_source_marker, min_jerk, plan_moves,
-                                              source_marker_from_json)
-from vts_hw.sim_devices.spect_listmode import (ListModeTruth, SimListModeSpect, SimSpectSettings,
-                                               Source, TriggerEdges, edges_from_trigger_log,
-                                               truth_path, write_sim_listmode)
+from vts_hw.sim_devices.source_marker import add_source_marker, min_jerk, plan_moves, source_marker_from_json
+from vts_hw.sim_devices.spect_listmode import (
+    ListModeTruth,
+    SimListModeSpect,
+    SimSpectSettings,
+    Source,
+    TriggerEdges,
+    edges_from_trigger_log,
+    truth_path,
+    write_sim_listmode,
+)
+from vts_hw.spect.listmode import read_listmode
 
 T0 = 1_795_000_000.0
 
@@ -37,8 +43,7 @@ def sim60(tmp_path_factory):
     times, steps = plan_moves(fire, 60.0, n=3, seed=4)
     src = add_source_marker(scene, times, steps, position=(10.0, -20.0, 5.0), rate_cps=3000.0)
     settings = SimSpectSettings(gate_gain=0.5)
-    truth = write_sim_listmode(tmp / "a.vtslm", scene, [src], square_wave(fire, 1.0, 0.5, 70),
-                               60.0, settings, seed=11)
+    truth = write_sim_listmode(tmp / "a.vtslm", scene, [src], square_wave(fire, 1.0, 0.5, 70), 60.0, settings, seed=11)
     return tmp / "a.vtslm", truth, src, read_listmode(tmp / "a.vtslm")
 
 
@@ -62,17 +67,17 @@ def test_the_truth_is_kept_apart_from_the_list_mode(sim60):
 def test_event_rate_and_no_events_in_dead_time(sim60):
     _, truth, src, lm = sim60
     dead = np.array(truth.dead)
-    assert dead.shape == (2, 2)                                   # rotations at ~20 s and ~42 s
+    assert dead.shape == (2, 2)  # rotations at ~20 s and ~42 s
     assert np.allclose(dead[:, 1] - dead[:, 0], 2.0, atol=0.2)
     assert dead[0, 0] == pytest.approx(20.0)
     live = 60.0 - np.sum(dead[:, 1] - dead[:, 0])
     expected = 3000.0 * live
-    assert abs(lm.n_events - expected) < 5 * np.sqrt(expected)     # Poisson
+    assert abs(lm.n_events - expected) < 5 * np.sqrt(expected)  # Poisson
     for d0, d1 in dead:
         assert not np.any((lm.t >= d0) & (lm.t < d1))
-    assert np.allclose(lm.dead, dead, rtol=0, atol=1e-9)          # the file records them too (ns)
+    assert np.allclose(lm.dead, dead, rtol=0, atol=1e-9)  # the file records them too (ns)
     assert lm.t.min() >= 0 and lm.t.max() < 60.0
-    gaps = np.diff(lm.t[(lm.t > 1) & (lm.t < 19)])                # exponential inter-arrival times
+    gaps = np.diff(lm.t[(lm.t > 1) & (lm.t < 19)])  # exponential inter-arrival times
     assert np.mean(gaps) == pytest.approx(1 / 3000, rel=0.03)
     assert set(np.unique(lm.head)) == {0, 1}
 
@@ -80,7 +85,7 @@ def test_event_rate_and_no_events_in_dead_time(sim60):
 def test_detected_positions_are_the_source_plus_4_mm_blur(sim60):
     _, truth, src, lm = sim60
     host = truth.host_time(lm.t)
-    z_true = src.z_at(host) + 0.0                                 # the table never moved
+    z_true = src.z_at(host) + 0.0  # the table never moved
     still = np.ones(lm.t.size, bool)
     for m in src.moves:
         still &= (host < m.t_start - 0.01) | (host > m.t_end + 0.01)
@@ -108,14 +113,14 @@ def test_timing_marks_frames_and_angles(sim60):
 
 def test_the_gating_voltage_is_the_wave_as_sent(sim60):
     _, truth, _, lm = sim60
-    assert lm.gate_t.size == 120_000                              # 2 kHz on the SPECT clock
+    assert lm.gate_t.size == 120_000  # 2 kHz on the SPECT clock
     v = lm.gate_v
     high = v[v > 1.25]
     low = v[v <= 1.25]
-    assert np.median(high) == pytest.approx(2.5, abs=0.01)        # 5 V sent, gain 0.5
+    assert np.median(high) == pytest.approx(2.5, abs=0.01)  # 5 V sent, gain 0.5
     assert np.median(low) == pytest.approx(0.0, abs=0.01)
     mad = np.median(np.abs(low - np.median(low)))
-    assert 1.4826 * mad == pytest.approx(0.02, rel=0.1)           # the noise
+    assert 1.4826 * mad == pytest.approx(0.02, rel=0.1)  # the noise
     # high exactly while the wave is high (away from the edges)
     host = truth.host_time(lm.gate_t)
     phase = (host - truth.start_pulse_host) % 1.0
@@ -126,8 +131,7 @@ def test_the_gating_voltage_is_the_wave_as_sent(sim60):
 def test_a_background_spreads_over_the_field_of_view(tmp_path):
     scene = Scene.reference(seed=0, start_epoch=T0)
     settings = SimSpectSettings(background_cps=2000.0, stop_s=100.0)
-    truth = write_sim_listmode(tmp_path / "bg.vtslm", scene, [], square_wave(T0, 1.0, 0.5, 12),
-                               10.0, settings, seed=1)
+    truth = write_sim_listmode(tmp_path / "bg.vtslm", scene, [], square_wave(T0, 1.0, 0.5, 12), 10.0, settings, seed=1)
     lm = read_listmode(tmp_path / "bg.vtslm")
     assert abs(lm.n_events - 20000) < 5 * np.sqrt(20000)
     assert lm.z.min() >= -200 and lm.z.max() <= 200
@@ -138,10 +142,16 @@ def test_a_background_spreads_over_the_field_of_view(tmp_path):
 def test_a_phantom_sphere_can_be_a_source(tmp_path):
     scene = Scene.reference(seed=0, start_epoch=T0)
     scene.add_phantom()
-    scene.move_table(0.0, 40.0)                                   # the table moved 40 mm in Z
-    truth = write_sim_listmode(tmp_path / "ph.vtslm", scene, [Source("phantom", "S3", 2000.0)],
-                               square_wave(T0, 1.0, 0.5, 8), 5.0,
-                               SimSpectSettings(start_delay_s=0.1, clock_skew_ppm=0.0), seed=2)
+    scene.move_table(0.0, 40.0)  # the table moved 40 mm in Z
+    truth = write_sim_listmode(
+        tmp_path / "ph.vtslm",
+        scene,
+        [Source("phantom", "S3", 2000.0)],
+        square_wave(T0, 1.0, 0.5, 8),
+        5.0,
+        SimSpectSettings(start_delay_s=0.1, clock_skew_ppm=0.0),
+        seed=2,
+    )
     lm = read_listmode(tmp_path / "ph.vtslm")
     s3_z = -71.0 + 40.0
     assert np.mean(lm.z) == pytest.approx(s3_z, abs=0.2)
@@ -151,14 +161,14 @@ def test_a_phantom_sphere_can_be_a_source(tmp_path):
     write_sim_listmode(tmp_path / "far.vtslm", scene, [src], square_wave(T0, 1.0, 0.5, 8), 5.0)
     assert read_listmode(tmp_path / "far.vtslm").n_events == 0
     with pytest.raises(ValueError, match="no marker 'S9'"):
-        write_sim_listmode(tmp_path / "x.vtslm", scene, [Source("phantom", "S9", 10.0)],
-                           square_wave(T0, 1.0, 0.5, 8), 1.0)
+        write_sim_listmode(
+            tmp_path / "x.vtslm", scene, [Source("phantom", "S9", 10.0)], square_wave(T0, 1.0, 0.5, 8), 1.0
+        )
 
 
 def test_source_marker_moves_along_z_in_the_scene():
     scene = Scene.reference(seed=0, start_epoch=T0)
-    src = add_source_marker(scene, [T0 + 2.0, T0 + 5.0], [20.0, -12.5], position=(0, 0, 3.0),
-                            move_s=0.3)
+    src = add_source_marker(scene, [T0 + 2.0, T0 + 5.0], [20.0, -12.5], position=(0, 0, 3.0), move_s=0.3)
     assert [m.z_to for m in src.moves] == [23.0, 10.5]
     assert src.moves[0].t_mid == pytest.approx(T0 + 2.15)
     body = scene.bodies["source"]
@@ -170,8 +180,8 @@ def test_source_marker_moves_along_z_in_the_scene():
     # the scheduled staircase follows the smooth truth to within a 5 ms step of a 0.3 s move
     ts = np.linspace(T0 + 1.95, T0 + 2.35, 200)
     diff = np.array([z_scene(t) for t in ts]) - src.z_at(ts)
-    assert np.max(np.abs(diff)) < 20.0 * 1.9 * 0.005 / 0.3 + 1e-9   # max slope 1.875 * step/move_s
-    assert src.z_at(T0 + 2.15) == pytest.approx(13.0, abs=1e-4)   # epoch floats: 0.2 us
+    assert np.max(np.abs(diff)) < 20.0 * 1.9 * 0.005 / 0.3 + 1e-9  # max slope 1.875 * step/move_s
+    assert src.z_at(T0 + 2.15) == pytest.approx(13.0, abs=1e-4)  # epoch floats: 0.2 us
     assert min_jerk(0.5) == pytest.approx(0.5)
     with pytest.raises(ValueError, match="overlap"):
         add_source_marker(scene, [T0 + 1.0, T0 + 1.1], [10, 10], name="other")
@@ -179,9 +189,17 @@ def test_source_marker_moves_along_z_in_the_scene():
 
 def test_a_source_marker_rebuilt_from_its_truth_moves_the_same(tmp_path):
     scene = Scene.reference(seed=0, start_epoch=T0)
-    src = add_source_marker(scene, [T0 + 2.0, T0 + 5.0], [20.0, -12.5], position=(5, -3, 1),
-                            move_s=0.25, rate_cps=1234.0, name="band", marker_id="B1")
-    data = json.loads(json.dumps(src.to_json()))              # as a truth file keeps it
+    src = add_source_marker(
+        scene,
+        [T0 + 2.0, T0 + 5.0],
+        [20.0, -12.5],
+        position=(5, -3, 1),
+        move_s=0.25,
+        rate_cps=1234.0,
+        name="band",
+        marker_id="B1",
+    )
+    data = json.loads(json.dumps(src.to_json()))  # as a truth file keeps it
     other = Scene.reference(seed=0, start_epoch=T0)
     again = source_marker_from_json(other, data)
     assert again == src
@@ -209,10 +227,11 @@ def test_edges_from_a_function_generator_log_stop_at_outp_0(tmp_path):
         f"{T0 + 0.03:.6f},,fgen,cmd,VOLT:HIGH 2.5\n"
         f"{T0 + 0.04:.6f},,fgen,cmd,VOLT:LOW 0\n"
         f"{T0 + 1.0:.6f},,fgen,cmd,OUTP 1\n"
-        f"{T0 + 3.6:.6f},,fgen,cmd,OUTP 0\n")
+        f"{T0 + 3.6:.6f},,fgen,cmd,OUTP 0\n"
+    )
     e = edges_from_trigger_log(log)
     assert np.allclose(e.rising - T0, [1.0, 1.5, 2.0, 2.5, 3.0, 3.5])
-    assert np.allclose(e.falling - T0, [1.125, 1.625, 2.125, 2.625, 3.125, 3.6])   # cut at OUTP 0
+    assert np.allclose(e.falling - T0, [1.125, 1.625, 2.125, 2.625, 3.125, 3.6])  # cut at OUTP 0
     assert (e.high_v, e.low_v, e.start_pulse) == (2.5, 0.0, None)
     # the SPECT then starts on the wave's first edge (no start pulse from a 33500)
     scene = Scene.reference(seed=0, start_epoch=T0)
@@ -231,5 +250,5 @@ def test_a_list_mode_that_does_not_fit_leaves_nothing_behind(small_disk):
     src = add_source_marker(scene, [T0 + 5.0], [12.0], position=(10.0, -20.0, 5.0), rate_cps=3000.0)
     with pytest.raises(OSError) as e:
         write_sim_listmode(disk.path / "a.vtslm", scene, [src], square_wave(T0 + 1.0, 1.0, 0.5, 12), 10.0, seed=1)
-    assert e.value.errno == 28                     # ENOSPC
+    assert e.value.errno == 28  # ENOSPC
     assert disk.files() == {}

@@ -8,12 +8,21 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from vts_hw.sim_devices.patient import (BAND_MARKERS, PLACEMENT, TORSO_HALF_DEPTH, BodyMotion, BodyMove,
-                                        Breathing, Patient, add_patient, write_truth)
+from vts_hw.sim_devices.patient import (
+    BAND_MARKERS,
+    PLACEMENT,
+    TORSO_HALF_DEPTH,
+    BodyMotion,
+    BodyMove,
+    Breathing,
+    Patient,
+    add_patient,
+    write_truth,
+)
 from vts_hw.sim_devices.scene import Marker, RigidBody, Scene
 
 T0 = 1_700_000_000.0
-LONG_S = 1800.0     # half an hour of breathing: deep breaths and pauses occur
+LONG_S = 1800.0  # half an hour of breathing: deep breaths and pauses occur
 
 
 @pytest.fixture(scope="module")
@@ -34,6 +43,7 @@ def _no_breath_patient(moves, creep_mm=0.0):
 
 # ------------------------------------------------------------------------------ breathing
 
+
 def test_breathing_period_is_3_to_6_s_and_varies_cycle_to_cycle(long_breathing):
     for b in long_breathing:
         normal = [c for c in b.cycles if c.kind == "normal"]
@@ -44,7 +54,7 @@ def test_breathing_period_is_3_to_6_s_and_varies_cycle_to_cycle(long_breathing):
         for c in normal[:40]:
             t = np.arange(c.t_start, c.t_start + c.period_s, 0.01)
             v = b.value(t)
-            assert t[np.argmax(v)] == pytest.approx(c.t_start + 0.4 * c.period_s, abs=0.15)   # the baseline tilts it
+            assert t[np.argmax(v)] == pytest.approx(c.t_start + 0.4 * c.period_s, abs=0.15)  # the baseline tilts it
             assert v.max() - v[0] == pytest.approx(c.amplitude, abs=0.06)
             assert 60.0 / b.rate_per_min(c.t_start + 1.0) == pytest.approx(c.period_s)
 
@@ -61,7 +71,7 @@ def test_deep_breaths_and_pauses_occur_over_long_runs(long_breathing):
         for c in pauses:
             assert 2.0 <= c.period_s <= 5.0
             t = np.arange(c.t_start + 0.02, c.t_start + c.period_s - 0.02, 0.01)
-            assert np.ptp(b.value(t)) < 0.03 * c.period_s       # held: only the baseline drifts
+            assert np.ptp(b.value(t)) < 0.03 * c.period_s  # held: only the baseline drifts
             assert np.all(b.phase(t) == 0.0)
 
 
@@ -88,7 +98,7 @@ def test_breathing_amplitudes_per_band():
         for band, ids in BAND_MARKERS.items():
             d = np.array([p.breath_dir[i] for i in ids])
             assert d[:, 1].max() == pytest.approx(p.breath_mm[band])
-            assert np.all(d[:, 1] > 0.3 * p.breath_mm[band])          # the flanks move too, less
+            assert np.all(d[:, 1] > 0.3 * p.breath_mm[band])  # the flanks move too, less
             assert np.all(0 < np.abs(d[:, 2])) and np.all(np.abs(d[:, 2]) < 0.5 * d[:, 1].max())
         c = next(c for c in p.breathing.cycles if c.kind == "normal" and c.t_start > T0)
         t_a, t_b = c.t_start, c.t_start + 0.4 * c.period_s
@@ -102,25 +112,30 @@ def test_breathing_amplitudes_per_band():
 
 # ------------------------------------------------------------------------------ body motion
 
+
 def test_a_pure_translation_is_the_six_dof_change():
     p = _no_breath_patient([BodyMove(T0 + 20, T0 + 21, (0.0, 0.0, 0.0), (4.0, -3.0, 12.0))])
     assert np.allclose(p.six_dof(T0 + 19.99), 0.0)
-    assert np.allclose(p.six_dof(T0 + 20.5), [2.0, -1.5, 6.0, 0, 0, 0])     # min-jerk: half at the middle
+    assert np.allclose(p.six_dof(T0 + 20.5), [2.0, -1.5, 6.0, 0, 0, 0])  # min-jerk: half at the middle
     assert np.allclose(p.six_dof(T0 + 30), [4.0, -3.0, 12.0, 0, 0, 0])
 
 
 def test_a_rotation_turns_about_the_body_origin_and_moves_compose():
     rot = (1.0, -2.5, 3.0)
-    p = _no_breath_patient([BodyMove(T0 + 20, T0 + 21, rot, (0.0, 0.0, 0.0)),
-                            BodyMove(T0 + 30, T0 + 31, (0.0, 0.0, 0.0), (10.0, 0.0, 0.0)),
-                            BodyMove(T0 + 40, T0 + 41, (0.0, 4.0, 0.0), (0.0, 0.0, -5.0))])
+    p = _no_breath_patient(
+        [
+            BodyMove(T0 + 20, T0 + 21, rot, (0.0, 0.0, 0.0)),
+            BodyMove(T0 + 30, T0 + 31, (0.0, 0.0, 0.0), (10.0, 0.0, 0.0)),
+            BodyMove(T0 + 40, T0 + 41, (0.0, 4.0, 0.0), (0.0, 0.0, -5.0)),
+        ]
+    )
     origin = np.array(PLACEMENT)
     R, t = p.body_transform(T0 + 25)
-    assert np.allclose(R @ origin + t, origin)                  # the origin stays where it was
+    assert np.allclose(R @ origin + t, origin)  # the origin stays where it was
     six = p.six_dof(T0 + 25)
     assert np.allclose(Rotation.from_euler("xyz", six[3:], degrees=True).as_rotvec(), np.deg2rad(rot))
     R, t = p.body_transform(T0 + 50)
-    assert np.allclose(R @ origin + t, origin + [10.0, 0.0, -5.0])   # turns never swing earlier shifts
+    assert np.allclose(R @ origin + t, origin + [10.0, 0.0, -5.0])  # turns never swing earlier shifts
     expect = Rotation.from_rotvec(np.deg2rad([0, 4.0, 0])) * Rotation.from_rotvec(np.deg2rad(rot))
     assert np.allclose(R, expect.as_matrix())
 
@@ -164,10 +179,12 @@ def test_body_transform_takes_the_rest_markers_to_where_they_are():
 
 # ------------------------------------------------------------------------------ the torso
 
+
 def test_the_torso_hides_a_marker_behind_it_and_not_one_on_top():
     s = _scene()
-    p = add_patient(s, T0, 120.0, seed=0, breathing=False,
-                    moves=[BodyMove(T0 + 20, T0 + 21, (0, 0, 0), (450.0, 0.0, 0.0))])
+    p = add_patient(
+        s, T0, 120.0, seed=0, breathing=False, moves=[BodyMove(T0 + 20, T0 + 21, (0, 0, 0), (450.0, 0.0, 0.0))]
+    )
     below = np.array(PLACEMENT) + [0.0, -TORSO_HALF_DEPTH - 40.0, 0.0]
     s.add_body(RigidBody("under", [Marker("U", below, np.array([0, 1.0, 0]), 15.0, "sphere")]))
     for cam in s.cameras:
@@ -199,6 +216,7 @@ def test_no_two_band_markers_share_an_epipolar_line_at_rest():
 
 # ------------------------------------------------------------------------------ truth files
 
+
 def test_truth_files_are_readable_and_agree_with_the_model(tmp_path):
     s = _scene()
     p = add_patient(s, T0, 60.0, seed=5, n_moves=2, still_s=10.0)
@@ -213,8 +231,9 @@ def test_truth_files_are_readable_and_agree_with_the_model(tmp_path):
     for row in rows[::37]:
         t = float(row["t"])
         six = p.six_dof(t)
-        assert [float(row[k]) for k in ("tx_mm", "ty_mm", "tz_mm", "rx_deg", "ry_deg", "rz_deg")] == \
-            pytest.approx(six, abs=1e-4)
+        assert [float(row[k]) for k in ("tx_mm", "ty_mm", "tz_mm", "rx_deg", "ry_deg", "rz_deg")] == pytest.approx(
+            six, abs=1e-4
+        )
         assert float(row["breath"]) == pytest.approx(float(p.breathing.value(t)), abs=1e-4)
         truth = p.marker_truth(t)
         assert [float(row[f"A3_{a}"]) for a in "xyz"] == pytest.approx(truth["A3"], abs=1e-4)

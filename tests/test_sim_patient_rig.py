@@ -42,15 +42,21 @@ def test_a_snapshot_through_the_driver_shows_the_eight_band_markers():
             for m, uv in truth.items():
                 d = np.linalg.norm(blobs - uv, axis=1)
                 assert d.min() < 0.5, (name, m, d.min())
-            assert len(blobs) == len(rig.scene.truth(name, t))     # the wall markers the torso leaves in view
+            assert len(blobs) == len(rig.scene.truth(name, t))  # the wall markers the torso leaves in view
 
 
 def test_the_listmode_source_follows_the_body(tmp_path):
     """A body move of 30 mm along the table shifts the mean axial position of the heart's
     counts by that much; counts before the move sit where the heart was."""
     scene = Scene.reference(seed=0, start_epoch=T0)
-    patient = add_patient(scene, T0, 60.0, seed=2, breathing=True,
-                          moves=[BodyMove(T0 + 10.0, T0 + 10.8, (0.0, 0.0, 0.0), (0.0, 0.0, 30.0))])
+    patient = add_patient(
+        scene,
+        T0,
+        60.0,
+        seed=2,
+        breathing=True,
+        moves=[BodyMove(T0 + 10.0, T0 + 10.8, (0.0, 0.0, 0.0), (0.0, 0.0, 30.0))],
+    )
     heart = heart_source(patient, rate_cps=4000.0)
     rising = T0 + 0.5 + np.arange(0, 20, 0.5)
     trig = TriggerEdges(rising, rising + 0.25, start_pulse=T0 + 0.5, source="by hand")
@@ -75,7 +81,7 @@ def test_the_heart_moves_with_body_turns_and_a_little_with_breathing():
         b = float(p.breathing.value(t))
         rest = p.placement + np.array(h.point_mm)
         assert np.allclose(h.at(t), R @ (rest + b * np.array(h.breath_mm)) + tr)
-    assert 0 < h.breath_mm[1] < h.breath_mm[2]        # more head-foot than anterior-posterior
+    assert 0 < h.breath_mm[1] < h.breath_mm[2]  # more head-foot than anterior-posterior
     times = T0 + np.linspace(19.0, 23.0, 401)
     exact = np.array([h.at(float(t)) for t in times])
     assert np.abs(h.positions(scene, times) - exact).max() < 0.05
@@ -83,9 +89,28 @@ def test_the_heart_moves_with_body_turns_and_a_little_with_breathing():
 
 def test_sim_up_patient_writes_the_truth_beside_rig_yaml(tmp_path):
     d = tmp_path / "sim"
-    up = subprocess.run([sys.executable, "-m", "vts_hw.cli.__main__", "sim", "up", "--patient", "--patient-seed",
-                         "4", "--patient-minutes", "1", "--patient-moves", "2", "--detach", "--dir", str(d)],
-                        capture_output=True, text=True, timeout=120)
+    up = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "vts_hw.cli.__main__",
+            "sim",
+            "up",
+            "--patient",
+            "--patient-seed",
+            "4",
+            "--patient-minutes",
+            "1",
+            "--patient-moves",
+            "2",
+            "--detach",
+            "--dir",
+            str(d),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     try:
         assert up.returncode == 0, up.stderr
         meta = json.loads((d / "truth" / "patient.json").read_text())
@@ -96,17 +121,23 @@ def test_sim_up_patient_writes_the_truth_beside_rig_yaml(tmp_path):
         t = np.array([float(r["t"]) for r in rows])
         assert np.allclose(np.diff(t), 0.04, atol=1.5e-3)
         assert meta["moves"][0]["t_start"] > t[0] + 15.0 and meta["moves"][-1]["t_end"] < t[-1]
-        assert "truth" not in (d / "rig.yaml").read_text()       # nothing a procedure reads points at it
+        assert "truth" not in (d / "rig.yaml").read_text()  # nothing a procedure reads points at it
     finally:
-        subprocess.run([sys.executable, "-m", "vts_hw.cli.__main__", "sim", "down", "--dir", str(d)],
-                       capture_output=True, timeout=60)
+        subprocess.run(
+            [sys.executable, "-m", "vts_hw.cli.__main__", "sim", "down", "--dir", str(d)],
+            capture_output=True,
+            timeout=60,
+        )
 
 
-@pytest.mark.parametrize("args, words", [
-    (["--patient-moves", "3"], "--patient-moves needs --patient"),
-    (["--no-breathing", "--patient-seed", "2"], "--patient-seed, --no-breathing needs --patient"),
-    (["--patient", "--patient-minutes", "0.2", "--patient-moves", "2"], "too short for 2 body moves"),
-])
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--patient-moves", "3"], "--patient-moves needs --patient"),
+        (["--no-breathing", "--patient-seed", "2"], "--patient-seed, --no-breathing needs --patient"),
+        (["--patient", "--patient-minutes", "0.2", "--patient-moves", "2"], "too short for 2 body moves"),
+    ],
+)
 def test_bad_patient_options_are_one_line_and_exit_2(args, words):
     res = CliRunner().invoke(cli, ["sim", "up", *args])
     assert res.exit_code == 2
@@ -119,13 +150,16 @@ def test_patient_options_travel_to_the_detached_rig_and_are_checked():
     assert PatientOptions.from_arg(PatientOptions().to_arg()) == PatientOptions()
     scene = Scene.reference(seed=0, start_epoch=T0)
     from vts_hw.sim_devices.patient_rig import put_patient
+
     p = put_patient(scene, o, T0)
     assert [m.t_start - T0 for m in p.motion.moves] == pytest.approx([6.0, 20.5])
     assert not p.breathing.enabled and len(p.motion.creeps) == 1
-    for bad, words in ((PatientOptions(moves=2, move_at_s=(5.0,)), "one start time per body move"),
-                       (PatientOptions(moves=2, move_at_s=(9.0, 5.0)), "in order"),
-                       (PatientOptions(moves=3, minutes=0.5), "too short for 3 body moves"),
-                       (PatientOptions(moves=-1), "0 or more")):
+    for bad, words in (
+        (PatientOptions(moves=2, move_at_s=(5.0,)), "one start time per body move"),
+        (PatientOptions(moves=2, move_at_s=(9.0, 5.0)), "in order"),
+        (PatientOptions(moves=3, minutes=0.5), "too short for 3 body moves"),
+        (PatientOptions(moves=-1), "0 or more"),
+    ):
         with pytest.raises(ValueError, match=words):
             put_patient(scene, bad, T0)
 
@@ -137,7 +171,7 @@ def test_with_a_patient_the_simulated_spect_counts_its_heart_not_a_source_marker
     heart = heart_source(with_patient.patient)
     follower = SpectFollower(with_patient, tmp_path / "spect", sources=[heart], log=lambda m: None)
     assert follower.sources == [heart] and follower.marker is None
-    assert list(with_patient.scene.bodies) == ["patient"]           # no source marker on the table
+    assert list(with_patient.scene.bodies) == ["patient"]  # no source marker on the table
     plain = SimRig(n_cameras=2, trigger="triggerbox")
     assert SpectFollower(plain, tmp_path / "spect2", log=lambda m: None).marker is not None
     assert "source" in plain.scene.bodies

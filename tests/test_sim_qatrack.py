@@ -21,7 +21,7 @@ def test_sim_qatrack_in_rig_yaml_and_a_push_from_the_readme(tmp_path, capsys, mo
         text = rig_yaml.read_text()
         env = load_env_file(env_file)
         token = rig.qatrack_site.token
-        assert token not in text and env[TOKEN_ENV] == token          # the token: in sim.env only
+        assert token not in text and env[TOKEN_ENV] == token  # the token: in sim.env only
         q = yaml.safe_load(text)["qatrack"]
         assert q["url"] == rig.qatrack_site.url and q["time_zone"] and q["token_env"] == TOKEN_ENV
         cfg = load_rig(rig_yaml)
@@ -38,9 +38,9 @@ def test_sim_qatrack_in_rig_yaml_and_a_push_from_the_readme(tmp_path, capsys, mo
         assert len(rig.qatrack_site.instances) == 1
         inst = rig.qatrack_site.instances[0]
         assert {"cam1_dx", "cam2_dy", "cam2_missing"} <= set(inst["tests"])
-        code, out, err = vts(capsys, "qa", "push")                # never twice
+        code, out, err = vts(capsys, "qa", "push")  # never twice
         assert code == 0 and len(rig.qatrack_site.instances) == 1
-    assert rig.qatrack_site is None                                 # stopped with the rig
+    assert rig.qatrack_site is None  # stopped with the rig
 
 
 def test_without_the_flag_there_is_no_qatrack_section(tmp_path):

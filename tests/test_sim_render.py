@@ -28,8 +28,8 @@ def scene():
 def centroid(img, u, v, half=14):
     """Intensity-weighted centroid of ``img`` in a window around (u, v)."""
     u0, v0 = int(round(u)), int(round(v))
-    win = img[v0 - half:v0 + half + 1, u0 - half:u0 + half + 1]
-    yy, xx = np.mgrid[v0 - half:v0 + half + 1, u0 - half:u0 + half + 1]
+    win = img[v0 - half : v0 + half + 1, u0 - half : u0 + half + 1]
+    yy, xx = np.mgrid[v0 - half : v0 + half + 1, u0 - half : u0 + half + 1]
     return np.array([(win * xx).sum(), (win * yy).sum()]) / win.sum()
 
 
@@ -55,8 +55,8 @@ def test_markers_are_bright_only_while_the_led_is_on(scene):
     assert 10 < bg.mean() < 30 and bg.max() - bg.min() < 15
     for mid, u, v in scene.truth("cam1", T0 + 5):
         u0, v0 = int(round(u)), int(round(v))
-        assert on[v0, u0] >= 200, mid                       # bright
-        assert 0 < off[v0, u0] - bg[v0, u0] <= 6, mid       # barely above background
+        assert on[v0, u0] >= 200, mid  # bright
+        assert 0 < off[v0, u0] - bg[v0, u0] <= 6, mid  # barely above background
     assert (on - bg).max() >= 195 and (off - bg).max() <= 5
     # far from any marker nothing changes with the LED
     assert np.array_equal(on[:20, :20], off[:20, :20])
@@ -86,8 +86,9 @@ def test_perspective_bias_is_tiny(scene):
     """Centroid of the projected outline minus projected centre: < 0.01 px (see ADR 0002)."""
     for cam in scene.cameras:
         camera, markers, uv, _ = scene.project_markers(cam, T0)
-        bias = np.array([polygon_centroid(camera.project(m.outline(camera.center, 4096))) - p
-                         for m, p in zip(markers, uv)])
+        bias = np.array(
+            [polygon_centroid(camera.project(m.outline(camera.center, 4096))) - p for m, p in zip(markers, uv)]
+        )
         assert np.abs(bias).max() < 0.01
         assert np.abs(bias[:5]).max() > 1e-3  # the tilted wall disks do show it
 
@@ -121,8 +122,10 @@ def test_cache_follows_table_moves_and_drift(scene):
     # 60 days later the camera has drifted; the image follows the truth, not the cache
     late = T0 + 60 * DAY
     d = r.render("cam2", late).astype(float) - r.background("cam2")
-    shifted = [np.hypot(u - u0, v - v0) for (_, u, v), (_, u0, v0)
-               in zip(scene.truth("cam2", late), scene.truth("cam2", T0 + 3))]
+    shifted = [
+        np.hypot(u - u0, v - v0)
+        for (_, u, v), (_, u0, v0) in zip(scene.truth("cam2", late), scene.truth("cam2", T0 + 3))
+    ]
     assert min(shifted) > 0.5
     for mid, u, v in scene.truth("cam2", late):
         assert np.abs(centroid(d, u, v) - (u, v)).max() < 0.02, mid
@@ -223,5 +226,5 @@ def test_markers_partly_outside_the_image_are_clipped(scene):
     assert "S1" not in [mid for mid, _, _ in scene.truth("cam1", T0 + 1)]  # centre outside
     img = r.render("cam1", T0 + 1).astype(int) - r.background("cam1")
     v = int(round(camera.project([[x_out, 0.0, 0.0]])[0, 1]))
-    assert img[v - 2:v + 3, 0].max() > 50   # the part inside the image is drawn at the edge
-    assert img[v - 2:v + 3, 6].max() == 0   # and nothing beyond its radius (~6 px)
+    assert img[v - 2 : v + 3, 0].max() > 50  # the part inside the image is drawn at the edge
+    assert img[v - 2 : v + 3, 6].max() == 0  # and nothing beyond its radius (~6 px)

@@ -27,8 +27,15 @@ def test_projection_round_trip(scene):
         pts = rng.uniform(-300, 300, (50, 3))
         uv = cam.project(pts)
         depth = cam.to_camera(pts)[:, 2]
-        norm = cv2.undistortPoints(uv.reshape(-1, 1, 2), cam.K, cam.dist, None, None, None,
-                                       (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12))
+        norm = cv2.undistortPoints(
+            uv.reshape(-1, 1, 2),
+            cam.K,
+            cam.dist,
+            None,
+            None,
+            None,
+            (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12),
+        )
         xc = np.column_stack([norm.reshape(-1, 2) * depth[:, None], depth])
         back = (xc - cam.t) @ cam.R  # R^T (x_c - t)
         assert np.abs(back - pts).max() < 1e-6
@@ -124,10 +131,10 @@ def test_phantom_spheres(scene):
     assert [m.id for m in spheres] == [f"S{i}" for i in range(1, 8)]
     pts = np.array([m.center for m in spheres])
     assert all(m.diameter_mm == 13.0 for m in spheres)
-    assert 120 < np.ptp(pts, axis=0).max() < 200                   # spread about 15 cm
-    assert np.linalg.norm(pts.mean(axis=0)) < 60                    # near the FOV centre
+    assert 120 < np.ptp(pts, axis=0).max() < 200  # spread about 15 cm
+    assert np.linalg.norm(pts.mean(axis=0)) < 60  # near the FOV centre
     sv = np.linalg.svd(pts - pts.mean(axis=0), compute_uv=False)
-    assert sv[-1] > 20 * np.sqrt(len(pts)) / 2                      # not coplanar
+    assert sv[-1] > 20 * np.sqrt(len(pts)) / 2  # not coplanar
     for name in scene.cameras:
         truth = {mid: np.array([u, v]) for mid, u, v in scene.truth(name, T0)}
         assert set(truth) == {f"W{i}" for i in range(1, 6)} | {f"S{i}" for i in range(1, 8)}

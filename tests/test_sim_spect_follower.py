@@ -36,8 +36,14 @@ def _vts(cwd, env, *args, timeout=180):
 
 def _shell(cwd, env, line, timeout=180):
     """``line`` as a user types it (``vts`` …) in bash: globs are the shell's."""
-    return subprocess.run(["bash", "-c", line.replace("vts ", SHELL_VTS + " ", 1)], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=timeout)
+    return subprocess.run(
+        ["bash", "-c", line.replace("vts ", SHELL_VTS + " ", 1)],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
 
 
 def _sim_up(cwd) -> dict:
@@ -81,7 +87,7 @@ def two_scans(tmp_path_factory):
 
 def test_a_scan_is_recorded_by_the_simulated_spect_and_lines_up(two_scans):
     cwd, env, (lm, _), down = two_scans
-    assert "failed" not in down                     # `vts sim down` lists failures: there were none
+    assert "failed" not in down  # `vts sim down` lists failures: there were none
     cfg = load_rig(cwd / "sim" / "rig.yaml")
     truth = ListModeTruth.load(str(lm) + ".truth.json")
     t0, t1 = truth.acquisition_start_host, truth.acquisition_start_host + truth.duration_s
@@ -89,10 +95,10 @@ def test_a_scan_is_recorded_by_the_simulated_spect_and_lines_up(two_scans):
     a = SyncAnalysis(cwd / "scan1", lm, cfg.calibration.stereo, cfg.calibration.spect, workers=1).analyze()
     assert a.gating.start_delay_s == pytest.approx(truth.start_delay_s, abs=0.010)
     both = [e for e in a.events if e.seen_by == "both"]
-    assert len(moves) >= 1 and len(both) == len(moves)     # a move every ~15 s: one or two in 20 s
+    assert len(moves) >= 1 and len(both) == len(moves)  # a move every ~15 s: one or two in 20 s
     for e, t_mid in zip(both, moves):
         assert abs(e.t - t_mid) <= 0.020 and abs(e.dt_s) <= 0.020
-    assert not list((cwd / "sim" / "spect").glob(".*.part"))   # nothing half-written left behind
+    assert not list((cwd / "sim" / "spect").glob(".*.part"))  # nothing half-written left behind
 
 
 def test_the_readme_glob_takes_each_sessions_own_listmode(two_scans):
@@ -117,8 +123,11 @@ def test_another_scans_listmode_is_refused(two_scans):
     assert r.returncode == 3 and r.stdout == "", (r.stdout, r.stderr)
     msg = r.stderr.strip()
     assert len(msg.splitlines()) == 1 and "Traceback" not in msg
-    assert msg.startswith(f"vts: sim/spect/{lm2.name} and scan1 do not belong together: the list-mode was "
-                          f"acquired ") and "(SPECT clock), the session recorded " in msg and ", its start pulse at " in msg
+    assert (
+        msg.startswith(f"vts: sim/spect/{lm2.name} and scan1 do not belong together: the list-mode was acquired ")
+        and "(SPECT clock), the session recorded " in msg
+        and ", its start pulse at " in msg
+    )
     assert "no motion event" not in msg
 
 
@@ -138,11 +147,13 @@ def test_a_glob_that_matches_nothing_and_a_truncated_listmode(two_scans, tmp_pat
     (tmp_path / "elsewhere").mkdir()
     r = _shell(cwd, env, f"vts sync analyze scan1 --listmode {tmp_path}/elsewhere/scan-*.vtslm")
     assert r.returncode == 3 and len(r.stderr.strip().splitlines()) == 1, r.stderr
-    assert r.stderr.startswith(f"vts: {tmp_path}/elsewhere/scan-*.vtslm: no list-mode file matches, and no "
-                               f"failure record there covers scan1 (recorded ")
+    assert r.stderr.startswith(
+        f"vts: {tmp_path}/elsewhere/scan-*.vtslm: no list-mode file matches, and no "
+        f"failure record there covers scan1 (recorded "
+    )
     cut = tmp_path / "cut.vtslm"
     data = lm1.read_bytes()
-    cut.write_bytes(data[: len(data) // 2])          # a copy cut short: its header is whole
+    cut.write_bytes(data[: len(data) // 2])  # a copy cut short: its header is whole
     r = _shell(cwd, env, f"vts sync analyze scan1 --listmode {cut}")
     assert r.returncode == 3 and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert r.stderr.startswith(f"vts: {cut}: ") and "truncated" in r.stderr
@@ -153,16 +164,24 @@ def test_a_failure_record_beside_other_scans_listmodes_is_the_answer(two_scans, 
     (its start is this session's start pulse): the record is the answer, not "do not belong"."""
     cwd, env, (lm1, lm2), _ = two_scans
     from vts_hw.spect.listmode.failures import write_failure_record
+
     shutil.copy(lm2, tmp_path / lm2.name)
     fire = json.loads((cwd / "scan1" / "manifest.json").read_text())["trigger"]["fire_time"]
-    write_failure_record(tmp_path, lm1.name, "could not write it (read-only file system)",
-                         by="the simulated SPECT", start=fire, end=fire + 20.0)
-    (tmp_path / "junk.failed.json").write_text("{not json")          # not a record: ignored
+    write_failure_record(
+        tmp_path,
+        lm1.name,
+        "could not write it (read-only file system)",
+        by="the simulated SPECT",
+        start=fire,
+        end=fire + 20.0,
+    )
+    (tmp_path / "junk.failed.json").write_text("{not json")  # not a record: ignored
     r = _shell(cwd, env, f"vts sync analyze scan1 --listmode {tmp_path}/scan-*.vtslm")
     assert r.returncode == 3 and len(r.stderr.strip().splitlines()) == 1, r.stderr
     assert r.stderr.startswith("vts: the simulated SPECT failed to record this scan (")
-    assert r.stderr.strip().endswith(f"could not write it (read-only file system) (record {tmp_path}/"
-                                     f"{lm1.name.removesuffix('.vtslm')}.failed.json)")
+    assert r.stderr.strip().endswith(
+        f"could not write it (read-only file system) (record {tmp_path}/{lm1.name.removesuffix('.vtslm')}.failed.json)"
+    )
 
 
 def test_a_spect_that_cannot_record_says_so_where_the_user_looks(tmp_path, small_disk):
@@ -176,10 +195,10 @@ def test_a_spect_that_cannot_record_says_so_where_the_user_looks(tmp_path, small
     try:
         r = _vts(tmp_path, env, "scan", "start", "--duration", "8", "--no-live", "-o", "scan1")
         assert r.returncode == 0, r.stderr
-        record, = _wait_for(disk.path, "*.failed.json", 1, WAVE_ENDED_S + 60)
+        (record,) = _wait_for(disk.path, "*.failed.json", 1, WAVE_ENDED_S + 60)
     finally:
         down = _vts(tmp_path, env, "sim", "down", "--dir", "sim")
-    assert list(disk.files()) == [record.name]          # no list-mode, no partial file
+    assert list(disk.files()) == [record.name]  # no list-mode, no partial file
     rec = json.loads(record.read_text())
     assert rec["format"] == "vts-listmode-failure/1" and "no space left on device" in rec["reason"]
     manifest = json.loads((tmp_path / "scan1" / "manifest.json").read_text())
@@ -201,6 +220,7 @@ def test_a_spect_that_cannot_record_says_so_where_the_user_looks(tmp_path, small
 
 
 def test_the_simulated_spect_needs_the_trigger_box_and_a_folder(tmp_path):
-    r = subprocess.run([*VTS, "sim", "up", "--spect", "--dir", str(tmp_path)], capture_output=True, text=True,
-                       timeout=60)
+    r = subprocess.run(
+        [*VTS, "sim", "up", "--spect", "--dir", str(tmp_path)], capture_output=True, text=True, timeout=60
+    )
     assert r.returncode == 2 and "--spect needs --trigger triggerbox" in r.stderr

@@ -27,8 +27,9 @@ def test_a_dir_that_cannot_be_created_is_one_sentence_and_exit_3(readonly_dir, d
     d = readonly_dir / "sim"
     p = vts("sim", "up", "--cameras", "1", "--dir", str(d), *(["--detach"] if detach else []))
     assert p.returncode == 3, p.stderr
-    assert p.stderr == (f"vts: {d}: could not be written (cannot create the simulated rig folder: "
-                        f"read-only file system)\n")
+    assert p.stderr == (
+        f"vts: {d}: could not be written (cannot create the simulated rig folder: read-only file system)\n"
+    )
     assert p.stdout == "" and not d.exists()
 
 
@@ -43,17 +44,19 @@ def test_a_read_only_dir_is_one_sentence_and_exit_3(readonly_dir, detach):
 def test_a_detached_rig_that_fails_to_start_says_why(tmp_path):
     d = tmp_path / "sim"
     missing = tmp_path / "no-firmware"
-    env = {**os.environ, "VTS_FIRMWARE_DIR": str(missing)}     # the trigger box cannot be built
+    env = {**os.environ, "VTS_FIRMWARE_DIR": str(missing)}  # the trigger box cannot be built
     (d).mkdir()
-    (d / "sim.log").write_text("an older run's line\n")         # sim.log is appended to: not this run's cause
+    (d / "sim.log").write_text("an older run's line\n")  # sim.log is appended to: not this run's cause
     p = vts("sim", "up", "--detach", "--cameras", "1", "--trigger", "triggerbox", "--dir", str(d), env=env)
     assert p.returncode == 1, p.stderr
-    assert p.stderr == (f"vts: the simulated rig failed to start (exit 1): RuntimeError: trigger box firmware "
-                        f"sources not found in {missing} (an installed vts-hw has none: set VTS_FIRMWARE_DIR to "
-                        f"the firmware/ folder of a checkout) (the whole log: {d / 'sim.log'})\n")
+    assert p.stderr == (
+        f"vts: the simulated rig failed to start (exit 1): RuntimeError: trigger box firmware "
+        f"sources not found in {missing} (an installed vts-hw has none: set VTS_FIRMWARE_DIR to "
+        f"the firmware/ folder of a checkout) (the whole log: {d / 'sim.log'})\n"
+    )
     assert not (d / "rig.yaml").exists() and not (d / "sim.pid").exists()
     log = (d / "sim.log").read_text()
-    assert log.startswith("an older run's line\n") and "Traceback" in log   # the details stay in the log
+    assert log.startswith("an older run's line\n") and "Traceback" in log  # the details stay in the log
 
 
 def test_the_simulated_function_generator_keeps_its_state_between_commands(tmp_path):
@@ -62,7 +65,7 @@ def test_the_simulated_function_generator_keeps_its_state_between_commands(tmp_p
     assert p.returncode == 0, p.stderr
     try:
         env = {**os.environ, **load_env_file(d / "sim.env")}
-        trigger = load_rig(d / "rig.yaml").trigger           # reached as a real 33500 on the LAN
+        trigger = load_rig(d / "rig.yaml").trigger  # reached as a real 33500 on the LAN
         assert trigger.backend == "visa" and not trigger.options.get("simulated", False)
         assert re.fullmatch(r"TCPIP::127\.0\.0\.1::\d+::SOCKET", trigger.address)
         log = str(tmp_path / "trigger.csv")
@@ -103,11 +106,11 @@ def test_warmup_drift_starts_the_cameras_now_and_their_pictures_drift_as_they_wa
             cam.led_on()
             watch = Watch(cam, frames=2)
             first = watch.sample()
-            age0 = cam.uptime().seconds           # a camera started a day before would say 86400 s
-            time.sleep(6.0)                       # at least 6 simulated minutes (more on a busy machine)
+            age0 = cam.uptime().seconds  # a camera started a day before would say 86400 s
+            time.sleep(6.0)  # at least 6 simulated minutes (more on a busy machine)
             last = watch.sample()
         assert age0 < 15 * 60, age0
-        truth = SimRig(n_cameras=1, seed=3, warmup_drift=True).scene.warmups["cam1"]   # what --seed 3 declares
+        truth = SimRig(n_cameras=1, seed=3, warmup_drift=True).scene.warmups["cam1"]  # what --seed 3 declares
         a0, a1 = age0, age0 + (last.t - first.t)  # the uptime read just after the first sample
         want = truth.amplitude_px * (math.exp(-a0 / truth.tau_s) - math.exp(-a1 / truth.tau_s))
         moved = math.hypot(last.dx, last.dy)
@@ -120,10 +123,12 @@ def test_warmup_drift_starts_the_cameras_now_and_their_pictures_drift_as_they_wa
 def test_stopping_a_detached_rig_loads_none_of_the_scene(tmp_path):
     """Finding and stopping a detached rig (sim_devices/rig_detached.py) needs its pid file, not
     the scene, the renderer or the devices that rig.py imports (numpy, cv2, scipy): decision 0095."""
-    code = ("import json, sys\nfrom vts_hw.sim_devices.rig_detached import stop_detached\n"
-            f"stopped = stop_detached({str(tmp_path)!r})\n"
-            "print(json.dumps([stopped, sorted(m for m in sys.modules if m.startswith('vts_hw.sim_devices.')"
-            " or m in ('numpy', 'cv2', 'scipy'))]))")
+    code = (
+        "import json, sys\nfrom vts_hw.sim_devices.rig_detached import stop_detached\n"
+        f"stopped = stop_detached({str(tmp_path)!r})\n"
+        "print(json.dumps([stopped, sorted(m for m in sys.modules if m.startswith('vts_hw.sim_devices.')"
+        " or m in ('numpy', 'cv2', 'scipy'))]))"
+    )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout) == [False, ["vts_hw.sim_devices.rig_detached", "vts_hw.sim_devices.rig_log"]]
@@ -141,8 +146,17 @@ def test_the_simulated_cameras_announce_themselves_and_vts_discover_finds_them(t
     try:
         env = {**os.environ, **load_env_file(folder / "sim.env")}
         rig = load_rig(folder / "rig.yaml")
-        found = vts("discover", "--interface", "127.0.0.1", "--timeout", "3", "--password-env", "VTS_SIM_CAM1_PASSWORD",
-                    "--json", env=env)                       # as the line of `sim up` says
+        found = vts(
+            "discover",
+            "--interface",
+            "127.0.0.1",
+            "--timeout",
+            "3",
+            "--password-env",
+            "VTS_SIM_CAM1_PASSWORD",
+            "--json",
+            env=env,
+        )  # as the line of `sim up` says
         assert found.returncode == 0, found.stderr
         rows = {r["port"]: r for r in json.loads(found.stdout)["cameras"] if r["host"] == "127.0.0.1"}
         for cam in rig.cameras:

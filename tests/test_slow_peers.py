@@ -43,9 +43,14 @@ def _one_sentence_about_cam1(p):
     return last
 
 
-@pytest.mark.parametrize("args", [["camera", "snapshot", "cam1", "-o", "{tmp}/s.jpg"],
-                                  ["camera", "info", "cam1"],
-                                  ["camera", "stream", "cam1", "--seconds", "3"]])
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["camera", "snapshot", "cam1", "-o", "{tmp}/s.jpg"],
+        ["camera", "info", "cam1"],
+        ["camera", "stream", "cam1", "--seconds", "3"],
+    ],
+)
 def test_a_trickling_camera_ends_at_the_deadline(rig, tmp_path, args):
     """A 200 and its headers at once, then a byte a second: each read returns, so only a
     deadline on the whole answer ends it."""
@@ -69,11 +74,14 @@ def test_a_trickling_camera_ends_a_recording_on_time(rig, tmp_path):
     assert m["status"] == "failed" and m["cameras"]["cam1"]["frames"] == 0
 
 
-@pytest.mark.parametrize("fault, words", [
-    ({"too_many_viewers": True}, "too many viewers"),
-    ({"stall_after_frames": 0, "stall_s": 30.0}, "stall"),
-    ({"drop_after_frames": 0}, "no frames"),
-])
+@pytest.mark.parametrize(
+    "fault, words",
+    [
+        ({"too_many_viewers": True}, "too many viewers"),
+        ({"stall_after_frames": 0, "stall_s": 30.0}, "stall"),
+        ({"drop_after_frames": 0}, "no frames"),
+    ],
+)
 def test_a_stream_that_delivers_nothing_is_not_ok(rig, fault, words):
     r, env = rig
     r.servers["cam1"].set_faults(**fault)
@@ -81,7 +89,7 @@ def test_a_stream_that_delivers_nothing_is_not_ok(rig, fault, words):
     assert p.returncode == 4, p.stdout + p.stderr
     last = _one_sentence_about_cam1(p)
     assert words in last, last
-    assert "0 frames" in p.stderr     # the counts are still shown
+    assert "0 frames" in p.stderr  # the counts are still shown
 
 
 def test_a_stream_that_lost_frames_on_the_way_says_so(rig):
@@ -118,16 +126,19 @@ def test_a_torn_snapshot_is_never_saved(rig, tmp_path, mode):
     assert p.returncode == 0, p.stderr
     import cv2
     import numpy as np
+
     assert cv2.imdecode(np.frombuffer(out.read_bytes(), np.uint8), cv2.IMREAD_UNCHANGED) is not None
 
 
 # -- qa daily, the function generator (VISA), PostgreSQL ---------------------------------------
+
 
 def test_qa_daily_with_a_trickling_camera_ends_naming_it(tmp_path):
     """The daily QA ends on time: the trickling camera is ACTION (not reachable), with why."""
     from qa_runs import baselines_now
     from test_qa_faults import _setup
     from vts_hw.store import ResultsStore
+
     with SimRig(n_cameras=2, seed=5) as r, r.env():
         url = f"sqlite:///{tmp_path / 'r.sqlite'}"
         cfg, env = _setup(r, tmp_path / "a", url)
@@ -147,14 +158,26 @@ def test_a_trickling_function_generator_ends_at_its_timeout(tmp_path):
     `*IDN?`, as long for each query after it); the driver now reads the reply against one
     deadline: `vts trigger status` ends at the generator's timeout naming it, exit 4."""
     import yaml
+
     from vts_hw.sim_devices.scpi_server import SimFunctionGenerator
+
     with SimFunctionGenerator() as fgen:
-        cfg = {"rig": "t", "cameras": [{"name": "cam1", "host": "127.0.0.1"}],
-               "trigger": {"backend": "visa", "address": fgen.resource}}
+        cfg = {
+            "rig": "t",
+            "cameras": [{"name": "cam1", "host": "127.0.0.1"}],
+            "trigger": {"backend": "visa", "address": fgen.resource},
+        }
         (tmp_path / "rig.yaml").write_text(yaml.safe_dump(cfg))
         fgen.go_trickle(0.3)
-        p = vts(dict(os.environ), "trigger", "status", "--config", str(tmp_path / "rig.yaml"),
-                "--log", str(tmp_path / "t.csv"))
+        p = vts(
+            dict(os.environ),
+            "trigger",
+            "status",
+            "--config",
+            str(tmp_path / "rig.yaml"),
+            "--log",
+            str(tmp_path / "t.csv"),
+        )
     assert p.returncode == 4, p.stdout + p.stderr
     assert p.stderr.startswith("vts: fgen: ") and "did not answer" in p.stderr and "Traceback" not in p.stderr
     assert p.seconds < 30
@@ -165,6 +188,7 @@ def test_a_postgresql_that_accepts_and_says_nothing_ends_at_connect_timeout(tmp_
     swallows): the store is given up on within its connect timeout, one sentence naming it."""
     import socket
     import threading
+
     lst = socket.socket()
     lst.bind(("127.0.0.1", 0))
     lst.listen(8)
@@ -178,6 +202,7 @@ def test_a_postgresql_that_accepts_and_says_nothing_ends_at_connect_timeout(tmp_
                 held.append(lst.accept()[0])
             except OSError:
                 pass
+
     t = threading.Thread(target=accept, daemon=True)
     t.start()
     try:

@@ -5,16 +5,14 @@ from __future__ import annotations
 import shutil
 
 import numpy as np
+import pydicom  # a dependency of vts-hw: never skipped
 import pytest
 
 from vts_hw.errors import DataError
 from vts_hw.sim_devices.spect import SimSpect, phantom_centres, write_volume
-from vts_hw.spect import (Volume, VolumeReader, find_spheres, read_volume, reader_for,
-                          register_reader)
+from vts_hw.spect import Volume, VolumeReader, find_spheres, read_volume, reader_for, register_reader
 from vts_hw.spect.readers import list_readers
 from vts_hw.spect.volume import CANONICAL_DIRECTION
-
-import pydicom  # a dependency of vts-hw: never skipped
 
 EXTENSIONS = [".h33", ".hdr", ".dcm", ".npz"]
 OFFGRID = (1.37, -0.81, 2.06)  # mm: the phantom is not aligned with the voxel grid
@@ -25,6 +23,7 @@ def rms(err) -> float:
 
 
 # --- Volume ---------------------------------------------------------------------------------
+
 
 def test_index_to_mm_canonical_layout():
     v = Volume(np.zeros((4, 5, 6)), (3.0, 4.0, 5.0), (10.0, 20.0, 30.0))
@@ -65,8 +64,7 @@ def test_round_trip_keeps_data_and_geometry(tmp_path, ext):
 @pytest.mark.parametrize("ext", EXTENSIONS)
 def test_non_canonical_volume_is_written_in_place(tmp_path, ext):
     data = np.random.default_rng(3).integers(0, 100, size=(3, 4, 5)).astype(np.float32)
-    v = Volume(data, (2.0, 3.0, 4.0), (5.0, 6.0, 7.0),
-               np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, -1]]))
+    v = Volume(data, (2.0, 3.0, 4.0), (5.0, 6.0, 7.0), np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, -1]]))
     back = read_volume(write_volume(v, tmp_path / f"v{ext}"))
     for idx in [(0, 0, 0), (2, 3, 4), (1, 0, 3)]:
         where = np.round(back.mm_to_index(v.index_to_mm(idx))).astype(int)
@@ -77,12 +75,12 @@ def test_dicom_is_standard_transaxial(tmp_path):
     v = Volume(np.ones((3, 4, 5), np.float32), (4.4, 4.4, 4.4), (0.0, 0.0, 0.0))
     ds = pydicom.dcmread(write_volume(v, tmp_path / "v.dcm"))
     assert ds.Modality == "NM" and ds.NumberOfFrames == 3
-    assert [float(x) for x in ds.DetectorInformationSequence[0].ImageOrientationPatient] == \
-        [1, 0, 0, 0, 1, 0]
+    assert [float(x) for x in ds.DetectorInformationSequence[0].ImageOrientationPatient] == [1, 0, 0, 0, 1, 0]
     assert float(ds.SpacingBetweenSlices) == pytest.approx(4.4)
 
 
 # --- sphere centroids against the truth -----------------------------------------------------
+
 
 @pytest.mark.parametrize("ext", EXTENSIONS)
 def test_seven_spheres_found_at_the_truth(tmp_path, ext):
@@ -98,18 +96,18 @@ def test_seven_spheres_found_at_the_truth(tmp_path, ext):
     assert result.ok, result.problem
     assert result.centroids.shape == (7, 3)
     err = rms(result.centroids - truth)
-    print(f"{ext}: centroid RMS error vs truth {err:.3f} mm "
-          f"(max {np.linalg.norm(result.centroids - truth, axis=1).max():.3f} mm)")
+    print(
+        f"{ext}: centroid RMS error vs truth {err:.3f} mm "
+        f"(max {np.linalg.norm(result.centroids - truth, axis=1).max():.3f} mm)"
+    )
     assert err < 0.5  # measured ≈ 0.05 mm; 0.5 mm = 0.11 voxel
 
 
 def test_translation_moves_the_centroids_by_the_translation(tmp_path):
     base = phantom_centres(translation=OFFGRID)
     shift = np.array([3.3, 10.0, -7.1])
-    a = find_spheres(read_volume(SimSpect(seed=1).write(tmp_path / "a.npz", base)), 7,
-                     reference=base)
-    b = find_spheres(read_volume(SimSpect(seed=2).write(tmp_path / "b.dcm", base + shift)), 7,
-                     reference=base + shift)
+    a = find_spheres(read_volume(SimSpect(seed=1).write(tmp_path / "a.npz", base)), 7, reference=base)
+    b = find_spheres(read_volume(SimSpect(seed=2).write(tmp_path / "b.dcm", base + shift)), 7, reference=base + shift)
     moved = b.centroids - a.centroids
     print(f"translation error RMS {rms(moved - shift):.3f} mm")
     assert rms(moved - shift) < 0.3
@@ -141,14 +139,14 @@ def test_extra_blob_is_reported_and_the_hottest_kept():
     sim = SimSpect(seed=6, activity_spread=0.0)
     hot = sim.expected(truth)
     weak = SimSpect(seed=6, counts_per_sphere=1.5e4, background=0.0).expected(stray)
-    vol = Volume(np.random.default_rng(6).poisson(hot.data + weak.data).astype(np.float32),
-                 hot.voxel_size, hot.origin)
+    vol = Volume(np.random.default_rng(6).poisson(hot.data + weak.data).astype(np.float32), hot.voxel_size, hot.origin)
     result = find_spheres(vol, 7, reference=truth)
     assert result.n_blobs == 8 and "found 8 blobs" in result.problem
     assert rms(result.centroids - truth) < 0.5
 
 
 # --- bad files --------------------------------------------------------------------------------
+
 
 def _one_line_error(path, call=read_volume):
     with pytest.raises(DataError) as info:
@@ -164,8 +162,16 @@ def interfile(tmp_path):
     return write_volume(v, tmp_path / "v.h33")
 
 
-@pytest.mark.parametrize("key", ["!matrix size [3]", "!number format", "!name of data file",
-                                 "scaling factor (mm/pixel) [1]", "!number of bytes per pixel"])
+@pytest.mark.parametrize(
+    "key",
+    [
+        "!matrix size [3]",
+        "!number format",
+        "!name of data file",
+        "scaling factor (mm/pixel) [1]",
+        "!number of bytes per pixel",
+    ],
+)
 def test_interfile_missing_key(interfile, key):
     lines = [ln for ln in interfile.read_text().splitlines() if not ln.startswith(key)]
     interfile.write_text("\n".join(lines))
@@ -192,24 +198,38 @@ def test_interfile_bad_number_and_missing_data_file(interfile):
     assert "cannot read the data file" in _one_line_error(interfile)
 
 
-@pytest.mark.parametrize("change, expected", [
-    (("!name of data file := v.img", "!name of data file := v\x00.img"),
-     "key '!name of data file' holds a NUL byte"),
-    (("!name of data file := v.img", "!name of data file := /dev/zero"),
-     "the data file /dev/zero is not a regular file"),
-    (("!name of data file := v.img", "!name of data file := ."), "is not a regular file"),
-    (("!name of data file := v.img", "!name of data file := " + "v" * 300 + ".img"),
-     "cannot read the data file 'vvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvv'... (304 characters) "
-     "(File name too long)"),
-    (("scaling factor (mm/pixel) [1] := 4.4", "scaling factor (mm/pixel) [1] := 0"),
-     "key 'scaling factor (mm/pixel) [1]' is 0.0, not a positive number of mm"),
-    (("scaling factor (mm/pixel) [2] := 4.4", "scaling factor (mm/pixel) [2] := nan"),
-     "key 'scaling factor (mm/pixel) [2]' is nan"),
-    (("!data offset in bytes := 0", "!data offset in bytes := -8"),
-     "key '!data offset in bytes' is -8, not a byte count"),
-    (("first pixel offset (mm) [3] := ", "first pixel offset (mm) [3] := inf ;"),
-     "'first pixel offset (mm)' is"),
-])
+@pytest.mark.parametrize(
+    "change, expected",
+    [
+        (
+            ("!name of data file := v.img", "!name of data file := v\x00.img"),
+            "key '!name of data file' holds a NUL byte",
+        ),
+        (
+            ("!name of data file := v.img", "!name of data file := /dev/zero"),
+            "the data file /dev/zero is not a regular file",
+        ),
+        (("!name of data file := v.img", "!name of data file := ."), "is not a regular file"),
+        (
+            ("!name of data file := v.img", "!name of data file := " + "v" * 300 + ".img"),
+            "cannot read the data file 'vvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvvv'... (304 characters) "
+            "(File name too long)",
+        ),
+        (
+            ("scaling factor (mm/pixel) [1] := 4.4", "scaling factor (mm/pixel) [1] := 0"),
+            "key 'scaling factor (mm/pixel) [1]' is 0.0, not a positive number of mm",
+        ),
+        (
+            ("scaling factor (mm/pixel) [2] := 4.4", "scaling factor (mm/pixel) [2] := nan"),
+            "key 'scaling factor (mm/pixel) [2]' is nan",
+        ),
+        (
+            ("!data offset in bytes := 0", "!data offset in bytes := -8"),
+            "key '!data offset in bytes' is -8, not a byte count",
+        ),
+        (("first pixel offset (mm) [3] := ", "first pixel offset (mm) [3] := inf ;"), "'first pixel offset (mm)' is"),
+    ],
+)
 def test_interfile_values_the_reader_cannot_use(interfile, change, expected):
     """Header values found by bench/fuzz.py that used to end in a traceback."""
     text = interfile.read_text()
@@ -243,8 +263,7 @@ def test_dicom_not_nm(dicom):
     assert "not a DICOM NM image (Modality is CT)" in _one_line_error(dicom)
 
 
-@pytest.mark.parametrize("key", ["PixelSpacing", "DetectorInformationSequence",
-                                 "SpacingBetweenSlices"])
+@pytest.mark.parametrize("key", ["PixelSpacing", "DetectorInformationSequence", "SpacingBetweenSlices"])
 def test_dicom_missing_geometry(dicom, key):
     ds = pydicom.dcmread(dicom)
     delattr(ds, key)
@@ -261,17 +280,22 @@ def test_dicom_frames_not_matching(dicom):
     _one_line_error(dicom)
 
 
-@pytest.mark.parametrize("old, new, expected", [
-    # an element with an unknown value representation: pydicom's NotImplementedError
-    (b"\x28\x00\x30\x00DS", b"\x28\x00\x30\x00D2",
-     "a corrupt DICOM data element after element (0028,0011) (NotImplementedError: Unknown Value "
-     "Representation '0x44 0x32' in tag (0028,0030))"),
-    # a decimal string that is not a number
-    (b"4.4\\4.4", b"4.4\\4'4", "DICOM PixelSpacing is ['4.4', \"4'4\"], not 2 finite numbers"),
-    # the Detector Information Sequence's VR garbled into bytes (its item then is an int)
-    (b"\x54\x00\x22\x00SQ", b"\x54\x00\x22\x00OB",
-     "DICOM NM without ImagePositionPatient/ImageOrientationPatient"),
-])
+@pytest.mark.parametrize(
+    "old, new, expected",
+    [
+        # an element with an unknown value representation: pydicom's NotImplementedError
+        (
+            b"\x28\x00\x30\x00DS",
+            b"\x28\x00\x30\x00D2",
+            "a corrupt DICOM data element after element (0028,0011) (NotImplementedError: Unknown Value "
+            "Representation '0x44 0x32' in tag (0028,0030))",
+        ),
+        # a decimal string that is not a number
+        (b"4.4\\4.4", b"4.4\\4'4", "DICOM PixelSpacing is ['4.4', \"4'4\"], not 2 finite numbers"),
+        # the Detector Information Sequence's VR garbled into bytes (its item then is an int)
+        (b"\x54\x00\x22\x00SQ", b"\x54\x00\x22\x00OB", "DICOM NM without ImagePositionPatient/ImageOrientationPatient"),
+    ],
+)
 def test_dicom_corrupt_elements(dicom, old, new, expected):
     """Corrupt elements found by bench/fuzz.py: pydicom decodes lazily, so they used to raise
     pydicom's or float()'s own exceptions from deep in the reader."""
@@ -302,8 +326,7 @@ def test_npz_bad_content(tmp_path):
 
 def _npz_bytes(tmp_path) -> bytearray:
     p = tmp_path / "good.npz"
-    np.savez_compressed(p, data=np.arange(64.0).reshape(4, 4, 4), voxel_size=np.ones(3),
-                        origin=np.zeros(3))
+    np.savez_compressed(p, data=np.arange(64.0).reshape(4, 4, 4), voxel_size=np.ones(3), origin=np.zeros(3))
     return bytearray(p.read_bytes())
 
 
@@ -322,7 +345,7 @@ def test_npz_broken_archives(tmp_path):
     assert "compressed patched data" in _one_line_error(p)
     deflate = raw.copy()
     start = 30 + int.from_bytes(raw[26:28], "little") + int.from_bytes(raw[28:30], "little")
-    deflate[start:start + 8] = b"\xff" * 8  # the first member's compressed data garbled
+    deflate[start : start + 8] = b"\xff" * 8  # the first member's compressed data garbled
     p.write_bytes(deflate)
     assert "not a readable .npz archive (error: Error -3 while decompressing" in _one_line_error(p)
 
@@ -332,8 +355,7 @@ def test_npz_header_claiming_more_than_the_member_holds(tmp_path):
     import zipfile
 
     head = io.BytesIO()
-    np.lib.format.write_array_header_1_0(
-        head, {"descr": "<f8", "fortran_order": False, "shape": (4000, 4000, 4000)})
+    np.lib.format.write_array_header_1_0(head, {"descr": "<f8", "fortran_order": False, "shape": (4000, 4000, 4000)})
     p = tmp_path / "v.npz"
     with zipfile.ZipFile(p, "w") as z:
         z.writestr("data.npy", head.getvalue() + b"\0" * 64)  # 512 GB claimed, 64 bytes held
@@ -349,10 +371,10 @@ def test_missing_file_and_unknown_format(tmp_path):
 
 # --- the registry -----------------------------------------------------------------------------
 
+
 def test_registry_by_extension_then_content(tmp_path):
     v = Volume(np.arange(24, dtype=np.float32).reshape(2, 3, 4), (4.4,) * 3, (0.0, 0.0, 0.0))
-    for ext, name in [(".h33", "interfile"), (".hdr", "interfile"), (".dcm", "dicom"),
-                      (".npz", "npz")]:
+    for ext, name in [(".h33", "interfile"), (".hdr", "interfile"), (".dcm", "dicom"), (".npz", "npz")]:
         path = write_volume(v, tmp_path / f"a{ext}")
         assert reader_for(path).name == name
         renamed = tmp_path / f"renamed_{ext[1:]}.dat"  # no telling extension: content decides
@@ -370,11 +392,11 @@ def test_a_vendor_reader_can_be_added(tmp_path):
     p.write_bytes(b"VENDOR")
     vol = Volume(np.zeros((2, 2, 2)), (1.0, 1.0, 1.0), (0.0, 0.0, 0.0))
     try:
-        register_reader(VolumeReader("vendor", (".vnd",), lambda h: h.startswith(b"VENDOR"),
-                                     lambda path: vol))
+        register_reader(VolumeReader("vendor", (".vnd",), lambda h: h.startswith(b"VENDOR"), lambda path: vol))
         assert read_volume(p) is vol
     finally:
         from vts_hw.spect import readers as mod
+
         mod._REGISTRY.unregister("vendor")
     assert list_readers() == before
 
@@ -390,8 +412,10 @@ def test_interfile_big_endian_float(interfile):
     header = interfile.read_text()
     data = np.fromfile(interfile.with_suffix(".img"), "<u2").astype(">f4")
     interfile.with_suffix(".img").write_bytes(data.tobytes())
-    interfile.write_text(header.replace("LITTLEENDIAN", "BIGENDIAN")
-                         .replace("unsigned integer", "float")
-                         .replace("bytes per pixel := 2", "bytes per pixel := 4"))
+    interfile.write_text(
+        header.replace("LITTLEENDIAN", "BIGENDIAN")
+        .replace("unsigned integer", "float")
+        .replace("bytes per pixel := 2", "bytes per pixel := 4")
+    )
     back = read_volume(interfile)
     assert np.array_equal(back.data, np.arange(60, dtype=np.float32).reshape(3, 4, 5))

@@ -11,14 +11,13 @@ import pytest
 
 from vts_hw import __version__
 from vts_hw.errors import DataError
-from vts_hw.procedures.spect_mapping import (FRE_LIMIT_MM, SpectMapping, correspond,
-                                             correspondence)
-from vts_hw.vision.registration import RigidTransform, difference
+from vts_hw.procedures.spect_mapping import FRE_LIMIT_MM, SpectMapping, correspond, correspondence
 from vts_hw.sim_devices.spect import SimSpect, phantom_centres
 from vts_hw.spect import find_spheres, read_volume
+from vts_hw.vision.registration import RigidTransform, difference
 
-POSE_T = (5.0, -3.0, 12.0)        # phantom pose in the SPECT frame (mm)
-POSE_RVEC = (0.05, -0.1, 0.2)     # rad
+POSE_T = (5.0, -3.0, 12.0)  # phantom pose in the SPECT frame (mm)
+POSE_RVEC = (0.05, -0.1, 0.2)  # rad
 # SPECT → made-up VTS frame: the VTS frame sits ~3.7 m from the FOV centre, like the cameras.
 SPECT_TO_VTS_FAR = RigidTransform.from_euler_xyz_deg((20.0, -35.0, 110.0), (300.0, -1200.0, 2500.0))
 # A VTS frame whose origin is near the phantom: the transform's translation is then not
@@ -84,8 +83,7 @@ def test_correspondence_despite_shuffling_both_sides(phantom):
     assert isinstance(order, list) and all(isinstance(k, int) for k in order)
     # VTS point i is sphere perm[i], found in spect_shuffled at the j with q[j] == perm[i].
     assert order == [int(np.argsort(q)[p]) for p in perm]
-    np.testing.assert_allclose(
-        np.sort(np.linalg.norm(spect_shuffled[order] - spect[perm], axis=1)), 0.0)
+    np.testing.assert_allclose(np.sort(np.linalg.norm(spect_shuffled[order] - spect[perm], axis=1)), 0.0)
 
 
 def test_from_volume(phantom):
@@ -99,8 +97,9 @@ def test_from_volume(phantom):
 
 def test_near_symmetric_phantom_is_resolved_by_kabsch():
     # Two-fold symmetric about the y axis (signatures pair up), broken by 3 mm at one sphere.
-    a = np.array([[60, 0, 20], [-60, 0, -20], [30, 50, -70], [-30, 50, 70], [10, 120, 40],
-                  [-10, 120, -40], [0, 80, 0]], float)
+    a = np.array(
+        [[60, 0, 20], [-60, 0, -20], [30, 50, -70], [-30, 50, 70], [10, 120, 40], [-10, 120, -40], [0, 80, 0]], float
+    )
     a[4] += (0.0, 0.0, 3.0)
     rng = np.random.default_rng(1)
     T = RigidTransform.from_euler_xyz_deg((10, 20, 30), (5, 6, 7))
@@ -114,8 +113,9 @@ def test_near_symmetric_phantom_is_resolved_by_kabsch():
 
 
 def test_exactly_symmetric_phantom_is_flagged_ambiguous():
-    a = np.array([[60, 0, 20], [-60, 0, -20], [30, 50, -70], [-30, 50, 70], [10, 120, 40],
-                  [-10, 120, -40], [0, 80, 0]], float)
+    a = np.array(
+        [[60, 0, 20], [-60, 0, -20], [30, 50, -70], [-30, 50, 70], [10, 120, 40], [-10, 120, -40], [0, 80, 0]], float
+    )
     m = SpectMapping(a, RigidTransform.from_euler_xyz_deg((0, 45, 0), (1, 2, 3)).apply(a)).analyze()
     assert m.fre_mm < 1e-6
     assert m.results_data()["ambiguous"] is True
@@ -135,8 +135,11 @@ def test_non_rigid_set_is_refused(phantom):
     truth, _, spect = phantom
     vts, _ = vts_points(truth, SPECT_TO_VTS_FAR, seed=0)
     vts[3] += (20.0, 0.0, 0.0)  # one sphere 20 mm off: not the same rigid body
-    with pytest.raises(DataError, match=r"no consistent correspondence.*FRE of [\d.]+ mm "
-                                        rf"\(limit {FRE_LIMIT_MM:.1f} mm"):
+    with pytest.raises(
+        DataError,
+        match=r"no consistent correspondence.*FRE of [\d.]+ mm "
+        rf"\(limit {FRE_LIMIT_MM:.1f} mm",
+    ):
         SpectMapping(vts, spect).analyze()
 
 

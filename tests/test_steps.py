@@ -11,7 +11,7 @@ import pytest
 
 from inprocess_cli import run
 from vts_hw.errors import DataError
-from vts_hw.procedures.steps import (OperatorPositioner, VolumeFolder, load_positions, step_plan)
+from vts_hw.procedures.steps import OperatorPositioner, VolumeFolder, load_positions, step_plan
 from vts_hw.sim_devices.scenarios.step_chain import run_sim_steps
 from vts_hw.store import ResultsStore
 
@@ -49,10 +49,12 @@ def test_regression_r2_at_least_0999_and_the_chain_meets_its_accuracy_goals(chai
 
 def test_the_simulated_table_made_real_steps_of_9_5_to_10_5_mm(chain):
     truth = chain.truth
-    ys = [truth[f"V{i:02d}"][:, 1].mean() - truth[f"V{i - 1:02d}" if i > 1 else "baseline"][:, 1].mean()
-          for i in range(1, 11)]
+    ys = [
+        truth[f"V{i:02d}"][:, 1].mean() - truth[f"V{i - 1:02d}" if i > 1 else "baseline"][:, 1].mean()
+        for i in range(1, 11)
+    ]
     assert all(9.5 <= d <= 10.5 for d in ys)
-    assert len(set(np.round(ys, 3))) > 5       # not all the same: the table is not perfect
+    assert len(set(np.round(ys, 3))) > 5  # not all the same: the table is not perfect
 
 
 def test_the_run_is_stored_with_its_windows_and_plot(chain):
@@ -62,7 +64,7 @@ def test_the_run_is_stored_with_its_windows_and_plot(chain):
         assert runs[0].status == str(chain.analysis.state) and runs[0].operator == "sim"
         ms = store.measurements(run_id=chain.run_id)
         assert len(ms) == len(chain.analysis.measures) == 3 * 3 + 3 + 2 * 3
-        assert all(m.tolerance_id is not None for m in ms)       # judged by the stored windows
+        assert all(m.tolerance_id is not None for m in ms)  # judged by the stored windows
         r2 = {m.subject: m.value for m in ms if m.metric == "steps_r2"}
         assert r2 == pytest.approx({ax: r.r2 for ax, r in chain.analysis.regressions.items()})
         arts = store.artifacts(chain.run_id)
@@ -79,9 +81,11 @@ def test_what_the_vts_saw_is_on_disk_position_by_position(chain):
 
 def _rig_yaml(tmp_path):
     cfg = tmp_path / "rig.yaml"
-    cfg.write_text("rig: steps-test\ncameras:\n"
-                   "  - {name: cam1, host: 127.0.0.1, port: 9, password_env: VTS_T_PW}\n"
-                   "  - {name: cam2, host: 127.0.0.1, port: 9, password_env: VTS_T_PW}\n")
+    cfg.write_text(
+        "rig: steps-test\ncameras:\n"
+        "  - {name: cam1, host: 127.0.0.1, port: 9, password_env: VTS_T_PW}\n"
+        "  - {name: cam2, host: 127.0.0.1, port: 9, password_env: VTS_T_PW}\n"
+    )
     return cfg
 
 
@@ -93,9 +97,20 @@ def _files(chain):
 def test_analyze_again_from_disk_gives_the_same_figures(chain, tmp_path):
     session = tmp_path / "session"
     shutil.copytree(chain.out_dir, session, ignore=shutil.ignore_patterns("results.sqlite*", "spect"))
-    r = vts("qa", "steps", "--config", str(_rig_yaml(tmp_path)), "--analyze", str(session),
-            "--volumes", str(chain.out_dir / "spect"), *_files(chain),
-            "--store", f"sqlite:///{tmp_path / 'r.sqlite'}", "--json")
+    r = vts(
+        "qa",
+        "steps",
+        "--config",
+        str(_rig_yaml(tmp_path)),
+        "--analyze",
+        str(session),
+        "--volumes",
+        str(chain.out_dir / "spect"),
+        *_files(chain),
+        "--store",
+        f"sqlite:///{tmp_path / 'r.sqlite'}",
+        "--json",
+    )
     assert r.returncode == 0, r.stderr
     data = json.loads(r.stdout)
     for ax, reg in chain.analysis.regressions.items():
@@ -107,15 +122,31 @@ def test_analyze_again_from_disk_gives_the_same_figures(chain, tmp_path):
 def test_analyze_with_push_posts_the_step_test_to_qatrack(chain, tmp_path):
     """`vts qa steps ... --push`: the stored run goes to (the simulated) QATrack+ with its plot."""
     from vts_hw.sim_devices.qatrack_server import QATrackSim
+
     macros = {"x/steps_slope": "x_slope", "y/steps_slope": "y_slope", "z/steps_slope": "z_slope"}
     with QATrackSim({"VTS steps": list(macros.values())}, {"SPECT 1": ["VTS steps"]}, token="t-123") as peer:
         cfg = _rig_yaml(tmp_path)
-        cfg.write_text(cfg.read_text() + f"qatrack:\n  url: {peer.url}\n  unit: SPECT 1\n  time_zone: America/Toronto\n  token_env: QT_TOKEN\n"
-                       f"  report: none\n  lists:\n    sphere-steps:\n      test_list: VTS steps\n"
-                       f"      macros: {json.dumps(macros)}\n      ignore: ['*']\n")
-        r = vts("qa", "steps", "--config", str(cfg), "--analyze", str(chain.out_dir), "--volumes",
-                str(chain.out_dir / "spect"), *_files(chain), "--store", f"sqlite:///{tmp_path / 'r.sqlite'}",
-                "--push", env={"QT_TOKEN": "t-123"})
+        cfg.write_text(
+            cfg.read_text()
+            + f"qatrack:\n  url: {peer.url}\n  unit: SPECT 1\n  time_zone: America/Toronto\n  token_env: QT_TOKEN\n"
+            f"  report: none\n  lists:\n    sphere-steps:\n      test_list: VTS steps\n"
+            f"      macros: {json.dumps(macros)}\n      ignore: ['*']\n"
+        )
+        r = vts(
+            "qa",
+            "steps",
+            "--config",
+            str(cfg),
+            "--analyze",
+            str(chain.out_dir),
+            "--volumes",
+            str(chain.out_dir / "spect"),
+            *_files(chain),
+            "--store",
+            f"sqlite:///{tmp_path / 'r.sqlite'}",
+            "--push",
+            env={"QT_TOKEN": "t-123"},
+        )
         assert r.returncode == 0 and "posted in QATrack+" in r.stderr, r.stderr
         (tli,) = peer.instances
         assert tli["tests"]["x_slope"]["value"] == pytest.approx(chain.analysis.regressions["x"].slope)
@@ -128,8 +159,21 @@ def test_a_plot_on_a_full_disk_never_costs_the_step_test(chain, tmp_path, small_
     disk = small_disk(64)
     disk.fill()
     url = f"sqlite:///{tmp_path / 'r.sqlite'}"
-    r = vts("qa", "steps", "--config", str(_rig_yaml(tmp_path)), "--analyze", str(chain.out_dir),
-            "--volumes", str(chain.out_dir / "spect"), *_files(chain), "--store", url, "--out", str(disk.path))
+    r = vts(
+        "qa",
+        "steps",
+        "--config",
+        str(_rig_yaml(tmp_path)),
+        "--analyze",
+        str(chain.out_dir),
+        "--volumes",
+        str(chain.out_dir / "spect"),
+        *_files(chain),
+        "--store",
+        url,
+        "--out",
+        str(disk.path),
+    )
     line = r.stderr.strip().splitlines()[-1]
     assert r.returncode == 3 and "Traceback" not in r.stderr, r.stderr
     assert line.startswith("vts: ") and "steps.png: could not be written (no space left on device)" in line
@@ -144,10 +188,21 @@ def test_a_missing_volume_names_the_position_and_keeps_the_vts_part(chain, tmp_p
     vols = tmp_path / "vols"
     shutil.copytree(chain.out_dir / "spect", vols)
     (vols / "A03.npz").unlink()
-    r = vts("qa", "steps", "--config", str(_rig_yaml(tmp_path)), "--analyze", str(chain.out_dir),
-            "--volumes", str(vols), *_files(chain), "--store", f"sqlite:///{tmp_path / 'r.sqlite'}")
+    r = vts(
+        "qa",
+        "steps",
+        "--config",
+        str(_rig_yaml(tmp_path)),
+        "--analyze",
+        str(chain.out_dir),
+        "--volumes",
+        str(vols),
+        *_files(chain),
+        "--store",
+        f"sqlite:///{tmp_path / 'r.sqlite'}",
+    )
     assert r.returncode == 3
-    line = r.stderr.strip().splitlines()[-1]      # after the progress lines: one line, no traceback
+    line = r.stderr.strip().splitlines()[-1]  # after the progress lines: one line, no traceback
     assert line.startswith("vts: ") and "A03" in line and "--analyze" in line
     assert "Traceback" not in r.stderr
 
@@ -158,8 +213,21 @@ def test_real_rig_without_a_calibration_is_a_config_error(tmp_path):
 
 
 def test_real_rig_dry_run_lists_the_plan_and_touches_nothing(chain, tmp_path):
-    r = vts("qa", "steps", "--config", str(_rig_yaml(tmp_path)), "--volumes", str(tmp_path),
-            *_files(chain), "--dry-run", "--vertical", "2", "--axial", "1", env={"VTS_T_PW": "x"})
+    r = vts(
+        "qa",
+        "steps",
+        "--config",
+        str(_rig_yaml(tmp_path)),
+        "--volumes",
+        str(tmp_path),
+        *_files(chain),
+        "--dry-run",
+        "--vertical",
+        "2",
+        "--axial",
+        "1",
+        env={"VTS_T_PW": "x"},
+    )
     assert r.returncode == 0, r.stderr
     assert "Raise the table 10 mm (vertical step 2 of 2)" in r.stdout and "free" in r.stdout
     assert not any(tmp_path.glob("steps-*"))
@@ -169,8 +237,9 @@ def test_operator_positioner_asks_and_waits():
     asked = []
     plan = step_plan(2, 1, 10.0)
     OperatorPositioner(asked.append).move_to(plan[3])
-    assert asked == ["[A01] Move the table 10 mm into the gantry (axial step 1 of 1). Press Enter when "
-                     "the table has stopped."]
+    assert asked == [
+        "[A01] Move the table 10 mm into the gantry (axial step 1 of 1). Press Enter when the table has stopped."
+    ]
 
 
 def test_volume_folder_finds_each_position_and_names_what_is_missing(tmp_path):
@@ -185,8 +254,22 @@ def test_volume_folder_finds_each_position_and_names_what_is_missing(tmp_path):
 
 def test_cli_sim_short_plan_json(tmp_path):
     out = tmp_path / "sim"
-    r = vts("qa", "steps", "--sim", "--seed", "1", "--vertical", "1", "--axial", "1", "--frames", "3",
-            "-o", str(out), "--json")
+    r = vts(
+        "qa",
+        "steps",
+        "--sim",
+        "--seed",
+        "1",
+        "--vertical",
+        "1",
+        "--axial",
+        "1",
+        "--frames",
+        "3",
+        "-o",
+        str(out),
+        "--json",
+    )
     assert r.returncode == 0, r.stderr
     data = json.loads(r.stdout)
     assert [p["label"] for p in data["positions"]] == ["baseline", "V01", "A01", "free"]

@@ -7,9 +7,9 @@ import pytest
 
 from vts_hw.errors import DataError
 from vts_hw.procedures.steps_analysis import StepAnalysis, six_dof
-from vts_hw.vision.registration import RigidTransform
 from vts_hw.sim_devices.scene import PHANTOM_LAYOUT
 from vts_hw.tolerance import State, Window
+from vts_hw.vision.registration import RigidTransform
 
 TEMPLATE = np.array([PHANTOM_LAYOUT[f"S{k}"] for k in range(1, 8)], float) + [0.0, -80.0, 0.0]
 FINAL = RigidTransform.from_euler_xyz_deg((2.0, -5.0, 3.0), (12.0, 100.0, 95.0))
@@ -48,14 +48,14 @@ def test_identical_systems_give_a_perfect_result():
 
 def test_a_scale_error_shows_in_the_slope_and_an_offset_in_the_distances():
     spect = positions()
-    vts = spect * [1.0, 1.03, 1.0] + [0.0, 0.0, 0.8]       # 3 % vertical scale, 0.8 mm axial shift
+    vts = spect * [1.0, 1.03, 1.0] + [0.0, 0.0, 0.8]  # 3 % vertical scale, 0.8 mm axial shift
     a = StepAnalysis(labels(len(spect)), vts, spect).analyze()
     assert a.regressions["y"].slope == pytest.approx(1.03, abs=1e-9)
     assert a.regressions["z"].intercept_mm == pytest.approx(0.8, abs=1e-9)
     states = {(m.subject, m.metric): m.state for m in a.measures}
-    assert states[("y", "steps_slope")] == State.ACTION        # beyond the 1.02 action limit
+    assert states[("y", "steps_slope")] == State.ACTION  # beyond the 1.02 action limit
     assert states[("x", "steps_slope")] == State.OK
-    assert states[("z", "steps_intercept_mm")] == State.OK     # 0.8 < 1 mm
+    assert states[("z", "steps_intercept_mm")] == State.OK  # 0.8 < 1 mm
     assert a.diffs.min() >= 0.8 - 1e-9
     assert a.state == State.ACTION
 
@@ -63,7 +63,7 @@ def test_a_scale_error_shows_in_the_slope_and_an_offset_in_the_distances():
 def test_rotation_difference_of_the_free_move_is_measured():
     spect = positions()
     vts = spect.copy()
-    extra = RigidTransform.from_euler_xyz_deg((0.0, 0.0, 1.0))   # the VTS sees 1 deg more about z
+    extra = RigidTransform.from_euler_xyz_deg((0.0, 0.0, 1.0))  # the VTS sees 1 deg more about z
     c = spect[-1].mean(axis=0)
     vts[-1] = extra.apply(spect[-1] - c) + c
     a = StepAnalysis(labels(len(spect)), vts, spect).analyze()
@@ -118,12 +118,12 @@ def test_six_dof_of_a_pure_translation():
 
 
 def test_the_qa_report_shows_the_latest_step_test_and_refuses_a_changed_plot(tmp_path):
-    from vts_hw.store.recorder import record
     from vts_hw.report import build_drift_report
     from vts_hw.store import ResultsStore
+    from vts_hw.store.recorder import record
 
     spect = positions()
-    vts = spect + [0.0, 0.0, 0.8]                     # the VTS 0.8 mm off axially: TOLERANCE
+    vts = spect + [0.0, 0.0, 0.8]  # the VTS 0.8 mm off axially: TOLERANCE
     a = StepAnalysis(labels(len(spect)), vts, spect).analyze()
     png = tmp_path / "steps.png"
     a.plot(png)
@@ -145,11 +145,13 @@ def test_the_qa_report_shows_the_latest_step_test_and_refuses_a_changed_plot(tmp
         assert 'data-plots-expected="0"' in (tmp_path / "report2.html").read_text()
 
 
-@pytest.mark.parametrize("doc", [b"[]", b'{"plan": [{"x": 1}], "positions": []}', b"\xff\xfe", b"[" * 5000,
-                                 b'{"plan": 1e999999}'])
+@pytest.mark.parametrize(
+    "doc", [b"[]", b'{"plan": [{"x": 1}], "positions": []}', b"\xff\xfe", b"[" * 5000, b'{"plan": 1e999999}']
+)
 def test_a_step_session_file_of_the_wrong_shape_is_a_data_error(tmp_path, doc):
     from vts_hw.errors import DataError
     from vts_hw.procedures.steps import load_positions
+
     (tmp_path / "positions.json").write_bytes(doc)
     with pytest.raises(DataError, match="positions.json"):
         load_positions(tmp_path)

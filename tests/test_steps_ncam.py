@@ -28,13 +28,15 @@ def session(tmp_path_factory):
 
     table, spect = SimTable(scene, clock, seed=1), SimSpectSource(scene, clock, out / "spect", seed=1)
     rng = np.random.default_rng(2)
-    plan = step_plan(2, 2)[:-1]   # no hand-made free move: its view check is for the stereo pair
+    plan = step_plan(2, 2)[:-1]  # no hand-made free move: its view check is for the stereo pair
     seen = []
     for pos in plan:
         table.move_to(pos)
         t = clock()
-        pts = {c: (np.array([(u, v) for _, u, v in scene.truth(c, t)]) + rng.normal(0, 0.05, (1, 2))
-                   ).tolist() for c in scene.camera_names}
+        pts = {
+            c: (np.array([(u, v) for _, u, v in scene.truth(c, t)]) + rng.normal(0, 0.05, (1, 2))).tolist()
+            for c in scene.camera_names
+        }
         spect.acquired(pos)
         seen.append(SeenPosition(pos.label, pos.kind, t, pts))
     cams = {c: scene.camera_at(c, T0) for c in scene.camera_names}
@@ -45,15 +47,19 @@ def test_four_cameras_find_the_phantom_and_agree_with_the_spect(session):
     seen, plan, cams, spect = session
     identity = RigidTransform(np.eye(3), np.zeros(3))
     four = analyze_positions(seen, plan, cams, identity, spect)
-    pair = analyze_positions([SeenPosition(s.label, s.kind, s.host_time,
-                                           {c: s.points_px[c] for c in ("cam1", "cam2")}) for s in seen],
-                             plan, {c: cams[c] for c in ("cam1", "cam2")}, identity, spect)
+    pair = analyze_positions(
+        [SeenPosition(s.label, s.kind, s.host_time, {c: s.points_px[c] for c in ("cam1", "cam2")}) for s in seen],
+        plan,
+        {c: cams[c] for c in ("cam1", "cam2")},
+        identity,
+        spect,
+    )
     truth = np.array([spect.truth[s.label] for s in seen])
     # the analysis orders spheres as the SPECT found them: each against its nearest true centre
     err4 = np.linalg.norm(four.vts[:, :, None] - truth[:, None], axis=3).min(axis=2)
     err2 = np.linalg.norm(pair.vts[:, :, None] - truth[:, None], axis=3).min(axis=2)
-    assert err4.max() < 0.5 and np.sqrt(np.mean(err4 ** 2)) < np.sqrt(np.mean(err2 ** 2))
-    assert four.diffs.mean() < 1.0       # VTS against the SPECT's own centroids (voxel noise)
+    assert err4.max() < 0.5 and np.sqrt(np.mean(err4**2)) < np.sqrt(np.mean(err2**2))
+    assert four.diffs.mean() < 1.0  # VTS against the SPECT's own centroids (voxel noise)
     assert len(four.labels) == len(plan) and four.vts.shape == (len(plan), 7, 3)
 
 

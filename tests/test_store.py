@@ -19,30 +19,31 @@ from pathlib import Path
 
 import pytest
 
+from store_kit import _check_file, _is_pg, _raw, _sql
 from vts_hw.store import SCHEMA_VERSION, ResultsStore, RunHandle, default_url
 from vts_hw.tolerance import State, Window
 
-from store_kit import _check_file, _is_pg, _raw, _sql
-
-DRIFT = Window.symmetric(1.0, 2.0, "px")          # |x| <= 1 OK, <= 2 TOLERANCE, else ACTION
+DRIFT = Window.symmetric(1.0, 2.0, "px")  # |x| <= 1 OK, <= 2 TOLERANCE, else ACTION
 MISSING = Window(tolerance_high=0, action_high=1, unit="markers")
-T0 = 1_700_000_000.0                              # a fixed epoch for reproducible histories
+T0 = 1_700_000_000.0  # a fixed epoch for reproducible histories
 
 
 # -- round trip -----------------------------------------------------------------------------
+
 
 def test_round_trip_with_statuses_from_windows_and_artifacts(store, store_url, tmp_path):
     store.set_tolerance("drift_x_px", DRIFT, effective_from=T0)
     store.set_tolerance("markers_missing", MISSING, effective_from=T0)
     frame = tmp_path / "cam1.jpg"
     frame.write_bytes(b"\xff\xd8 not really a jpeg \xff\xd9" * 100)
-    with store.begin_run("drift", rig="room3", operator="ak", notes="morning", config_digest="c0ffee",
-                         started=T0 + 100) as run:
+    with store.begin_run(
+        "drift", rig="room3", operator="ak", notes="morning", config_digest="c0ffee", started=T0 + 100
+    ) as run:
         assert isinstance(run, RunHandle)
         assert run.measure("cam1", "drift_x_px", 0.4) is State.OK
         assert run.measure("cam2", "drift_x_px", -1.5) is State.TOLERANCE
         assert run.measure("cam1", "markers_missing", 0, unit="markers") is State.OK
-        assert run.measure("cam1", "brightness", 17.0, unit="DN") is State.OK     # no window
+        assert run.measure("cam1", "brightness", 17.0, unit="DN") is State.OK  # no window
         assert run.measure("cam2", "brightness", 3.0, status="ACTION") is State.ACTION  # given
         sha = run.artifact(frame)
         run.artifact(frame, kind="snapshot")
@@ -52,14 +53,15 @@ def test_round_trip_with_statuses_from_windows_and_artifacts(store, store_url, t
     assert r == store.run(run.run_id)
     assert (r.procedure, r.rig, r.operator, r.notes, r.config_digest) == ("drift", "room3", "ak", "morning", "c0ffee")
     assert r.started == T0 + 100 and r.finished >= r.started
-    assert r.status == "ACTION"                     # worst of the five
+    assert r.status == "ACTION"  # worst of the five
     import vts_hw
+
     assert r.software_version == vts_hw.__version__
 
     ms = store.measurements(run_id=r.id)
     drift_id = store.tolerance("drift_x_px", at=T0)[0]
     assert [(m.subject, m.metric, m.value, m.unit, m.status, m.tolerance_id, m.started) for m in ms] == [
-        ("cam1", "drift_x_px", 0.4, "px", State.OK, drift_id, T0 + 100),            # unit from the window
+        ("cam1", "drift_x_px", 0.4, "px", State.OK, drift_id, T0 + 100),  # unit from the window
         ("cam2", "drift_x_px", -1.5, "px", State.TOLERANCE, drift_id, T0 + 100),
         ("cam1", "markers_missing", 0.0, "markers", State.OK, store.tolerance("markers_missing")[0], T0 + 100),
         ("cam1", "brightness", 17.0, "DN", State.OK, None, T0 + 100),
@@ -89,33 +91,36 @@ def test_runs_and_measurements_come_oldest_first_by_run_start(store):
     assert [m.value for m in store.measurements(metric="m")] == [10, 10.5, 20, 20.5, 30, 30.5]
 
 
-@pytest.mark.parametrize("values, expected", [
-    ([], "OK"),
-    ([0.1, -0.9], "OK"),
-    ([0.1, 1.5, -0.2], "TOLERANCE"),
-    ([1.5, -2.5, 0.0], "ACTION"),
-    ([None], "ACTION"),               # could not be measured
-    ([float("nan"), 0.0], "ACTION"),
-])
+@pytest.mark.parametrize(
+    "values, expected",
+    [
+        ([], "OK"),
+        ([0.1, -0.9], "OK"),
+        ([0.1, 1.5, -0.2], "TOLERANCE"),
+        ([1.5, -2.5, 0.0], "ACTION"),
+        ([None], "ACTION"),  # could not be measured
+        ([float("nan"), 0.0], "ACTION"),
+    ],
+)
 def test_run_status_is_the_worst_of_its_measurements(store, values, expected):
     store.set_tolerance("drift_x_px", DRIFT, effective_from=T0)
     run = store.begin_run("drift")
     for v in values:
         run.measure("cam1", "drift_x_px", v)
     assert run.finish().status == expected
-    assert all(m.value is None or m.value == m.value for m in store.measurements())   # NaN stored as None
+    assert all(m.value is None or m.value == m.value for m in store.measurements())  # NaN stored as None
 
 
 def test_finish_status_given_and_handle_closed_after(store):
     run = store.begin_run("sync")
     run.measure("cam1", "m", 1.0, status=State.TOLERANCE)
     with pytest.raises(ValueError):
-        run.finish(status="aborted")                 # abort() is the way to abort
+        run.finish(status="aborted")  # abort() is the way to abort
     with pytest.raises(ValueError):
         run.measure("cam1", "m", 1.0, status="BAD")
     r = run.finish(status="error", notes="camera 2 unreachable")
     assert (r.status, r.notes) == ("error", "camera 2 unreachable")
-    assert len(store.measurements(run_id=r.id)) == 1   # an error run keeps what it measured
+    assert len(store.measurements(run_id=r.id)) == 1  # an error run keeps what it measured
     assert run.done
     for call in (lambda: run.measure("a", "m", 1.0), run.finish, lambda: run.abort("late")):
         with pytest.raises(RuntimeError):
@@ -127,11 +132,12 @@ def test_begin_run_commits_a_running_row_at_once(store, store_url):
     # another connection sees it before finish
     [row] = _sql(store_url, "SELECT status, host, pid FROM runs WHERE id = :id", params={"id": run.run_id})
     assert row[0] == "running" and row[2] == os.getpid() and row[1]
-    assert store.mark_dead_runs_aborted() == 0        # our own, live process
+    assert store.mark_dead_runs_aborted() == 0  # our own, live process
     run.finish()
 
 
 # -- tolerance history ---------------------------------------------------------------------
+
 
 def test_a_later_tolerance_change_leaves_old_results_and_windows_alone(store):
     first = store.set_tolerance("drift_x_px", DRIFT, effective_from=T0, note="commissioning")
@@ -146,7 +152,7 @@ def test_a_later_tolerance_change_leaves_old_results_and_windows_alone(store):
     assert store.set_tolerance("drift_x_px", wider, effective_from=T0 + 3 * 86400) == second
     assert store.set_tolerance("drift_x_px", DRIFT, effective_from=T0 + 100) == first
 
-    assert store.measurements() == before                      # status and window id unchanged
+    assert store.measurements() == before  # status and window id unchanged
     assert store.runs()[0].status == "TOLERANCE"
     assert store.tolerance("drift_x_px", at=T0 + 86400) == (first, DRIFT)
     assert store.tolerance("drift_x_px", at=T0 + 2 * 86400) == (second, wider)
@@ -167,25 +173,32 @@ def test_sync_tolerances_adds_only_what_changed(store, store_url):
     assert store.sync_tolerances(windows, at=T0 + 10) == []
     changed = dict(windows, markers_missing=Window(tolerance_high=1, action_high=2, unit="markers"))
     assert store.sync_tolerances(changed, at=T0 + 20) == ["markers_missing"]
-    assert store.sync_tolerances({"drift_x_px": DRIFT}, at=T0 + 30) == []   # others keep theirs
+    assert store.sync_tolerances({"drift_x_px": DRIFT}, at=T0 + 30) == []  # others keep theirs
     now = store.tolerances(at=T0 + 30)
     assert now["markers_missing"][1] == changed["markers_missing"] and now["drift_x_px"][1] == DRIFT
     assert store.tolerances(at=T0 + 10)["markers_missing"][1] == MISSING
-    assert _sql(store_url, "SELECT count(*) FROM tolerances") == [(3,)]    # append-only
+    assert _sql(store_url, "SELECT count(*) FROM tolerances") == [(3,)]  # append-only
 
 
 # -- one transaction ----------------------------------------------------------------------
+
 
 def _fail_artifact_inserts(url: str) -> None:
     """A database-level failure in the middle of finish(): after the run update and the
     measurements are written, the artifact insert is refused by the database itself."""
     if _is_pg(url):
-        _sql(url, "CREATE FUNCTION fail() RETURNS trigger LANGUAGE plpgsql AS "
-                  "$$ BEGIN RAISE EXCEPTION 'injected failure'; END $$",
-             "CREATE TRIGGER fail_artifacts BEFORE INSERT ON artifacts FOR EACH ROW EXECUTE FUNCTION fail()")
+        _sql(
+            url,
+            "CREATE FUNCTION fail() RETURNS trigger LANGUAGE plpgsql AS "
+            "$$ BEGIN RAISE EXCEPTION 'injected failure'; END $$",
+            "CREATE TRIGGER fail_artifacts BEFORE INSERT ON artifacts FOR EACH ROW EXECUTE FUNCTION fail()",
+        )
     else:
-        _sql(url, "CREATE TRIGGER fail_artifacts BEFORE INSERT ON artifacts "
-                  "BEGIN SELECT RAISE(ABORT, 'injected failure'); END")
+        _sql(
+            url,
+            "CREATE TRIGGER fail_artifacts BEFORE INSERT ON artifacts "
+            "BEGIN SELECT RAISE(ABORT, 'injected failure'); END",
+        )
 
 
 def _allow_artifact_inserts(url: str) -> None:
@@ -240,6 +253,7 @@ def test_context_manager_aborts_on_exception(store):
 
 def test_a_users_error_is_noted_by_its_sentence_not_its_class(store):
     from vts_hw.errors import DataError
+
     with pytest.raises(DataError):
         with store.begin_run("drift") as run:
             raise DataError("camera cam2 has no drift baseline")
@@ -263,12 +277,12 @@ def test_explicit_abort_and_finish_inside_the_block(store):
     with store.begin_run("drift") as run:
         run.measure("c", "m", 1.0)
         r = run.finish(status="TOLERANCE")
-    assert store.run(run.run_id) == r and r.status == "TOLERANCE"   # not finished twice
+    assert store.run(run.run_id) == r and r.status == "TOLERANCE"  # not finished twice
 
 
 # -- kill -9 --------------------------------------------------------------------------------
 
-WRITER = r'''
+WRITER = r"""
 import random, sys, time
 from vts_hw.store import ResultsStore
 from vts_hw.tolerance import Window
@@ -296,7 +310,7 @@ while count < 0 or i < count:
     else:
         run.finish()
     print("ended", run.run_id, flush=True)
-'''
+"""
 
 
 def _writer(tmp_path: Path, url: str, seed: int, count: int) -> subprocess.Popen:
@@ -305,8 +319,13 @@ def _writer(tmp_path: Path, url: str, seed: int, count: int) -> subprocess.Popen
     frame = tmp_path / "frame.jpg"
     if not frame.exists():
         frame.write_bytes(os.urandom(4096))
-    return subprocess.Popen([sys.executable, str(script), url, str(seed), str(frame), str(count)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    return subprocess.Popen(
+        [sys.executable, str(script), url, str(seed), str(frame), str(count)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=tmp_path,
+    )
 
 
 def _n_of(run) -> int:
@@ -352,7 +371,7 @@ def test_store_survives_kill_9_at_random_moments(tmp_path):
         else:
             assert proc.stdout.readline() == "open\n", f"{where}: {proc.stderr.read()}"
             time.sleep(rng.uniform(0.0, 0.4))
-        proc.kill()                             # SIGKILL
+        proc.kill()  # SIGKILL
         out, err = proc.communicate()
         assert proc.returncode == -9, f"{where}: writer ended by itself: {err}"
         begun = [int(x) for x in re.findall(r"^begun (\d+)$", out, re.M)]
@@ -360,7 +379,7 @@ def test_store_survives_kill_9_at_random_moments(tmp_path):
         if not db.exists():
             continue
         _check_file(db)
-        with ResultsStore(url) as store:       # opening marks the killed run aborted
+        with ResultsStore(url) as store:  # opening marks the killed run aborted
             assert store.schema_version == SCHEMA_VERSION
             assert store.runs(status="running") == []
             complete = _check_runs_whole(store, frame, where)
@@ -375,16 +394,21 @@ def test_store_survives_kill_9_at_random_moments(tmp_path):
 
 
 def test_a_run_left_running_by_a_dead_process_is_aborted_on_open(store_url):
-    code = ("import sys; from vts_hw.store import ResultsStore\n"
-            "s = ResultsStore(sys.argv[1]); h = s.begin_run('drift', notes='left behind')\n"
-            "h.measure('cam1', 'm', 1.0); print(h.run_id)\n"
-            "import os; os._exit(0)\n")      # exits without finishing or aborting
+    code = (
+        "import sys; from vts_hw.store import ResultsStore\n"
+        "s = ResultsStore(sys.argv[1]); h = s.begin_run('drift', notes='left behind')\n"
+        "h.measure('cam1', 'm', 1.0); print(h.run_id)\n"
+        "import os; os._exit(0)\n"
+    )  # exits without finishing or aborting
     out = subprocess.run([sys.executable, "-c", code, store_url], capture_output=True, text=True, check=True)
     run_id = int(out.stdout)
     assert _sql(store_url, "SELECT status FROM runs WHERE id = :id", params={"id": run_id}) == [("running",)]
     # one more "running" row from another host: not ours to judge
-    _sql(store_url, "INSERT INTO runs (procedure, started, status, host, pid, uid) "
-                    "VALUES ('x', 0, 'running', 'elsewhere', 1, 'elsewhere1')")
+    _sql(
+        store_url,
+        "INSERT INTO runs (procedure, started, status, host, pid, uid) "
+        "VALUES ('x', 0, 'running', 'elsewhere', 1, 'elsewhere1')",
+    )
     with ResultsStore(store_url) as store:
         r = store.run(run_id)
         assert r.status == "aborted" and r.finished is None
@@ -396,15 +420,18 @@ def test_a_run_left_running_by_a_dead_process_is_aborted_on_open(store_url):
 
 # -- concurrency ---------------------------------------------------------------------------
 
+
 def test_readers_are_not_blocked_by_a_writer_holding_a_big_transaction(sqlite_store, db):
     store = sqlite_store
     with store.begin_run("drift") as run:
         run.measure("cam1", "m", 1.0)
     writer = _raw(db)
-    writer.execute("PRAGMA cache_size = 1")   # forces the writer to spill pages before commit
+    writer.execute("PRAGMA cache_size = 1")  # forces the writer to spill pages before commit
     writer.execute("BEGIN IMMEDIATE")
-    writer.executemany("INSERT INTO runs (procedure, started, status, notes, uid) VALUES ('big', 0, 'OK', ?, ?)",
-                       [("x" * 500, f"big{i}") for i in range(3000)])
+    writer.executemany(
+        "INSERT INTO runs (procedure, started, status, notes, uid) VALUES ('big', 0, 'OK', ?, ?)",
+        [("x" * 500, f"big{i}") for i in range(3000)],
+    )
     try:
         # a reader that would give up after 0.2 s sees the committed state at once
         with ResultsStore(str(db), busy_timeout=0.2) as reader:
@@ -441,7 +468,7 @@ def test_concurrent_readers_see_whole_runs_while_a_writer_writes(tmp_path, store
                     for run_id, n in by_run.items():
                         assert n == _n_of(reader.run(run_id)), f"run {run_id}: partial"
                     seen.append(len(ended))
-        except BaseException as exc:    # reported by the main thread
+        except BaseException as exc:  # reported by the main thread
             errors.append(exc)
 
     threads = [threading.Thread(target=read_loop) for _ in range(3)]
@@ -460,6 +487,7 @@ def test_concurrent_readers_see_whole_runs_while_a_writer_writes(tmp_path, store
 
 # -- where it lives ---------------------------------------------------------------------------
 
+
 def test_default_path_honours_xdg_data_home(tmp_path, monkeypatch):
     monkeypatch.setenv("HOME", str(tmp_path / "home"))
     monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
@@ -469,7 +497,7 @@ def test_default_path_honours_xdg_data_home(tmp_path, monkeypatch):
         assert repr(store) == f"ResultsStore('{default_url()}')"
     assert (tmp_path / "xdg" / "vts-hw" / "results.sqlite").is_file()
 
-    monkeypatch.setenv("XDG_DATA_HOME", "relative/dir")   # the spec says: ignore it
+    monkeypatch.setenv("XDG_DATA_HOME", "relative/dir")  # the spec says: ignore it
     assert default_url() == f"sqlite:///{tmp_path}/home/.local/share/vts-hw/results.sqlite"
     monkeypatch.delenv("XDG_DATA_HOME")
     assert default_url() == f"sqlite:///{tmp_path}/home/.local/share/vts-hw/results.sqlite"

@@ -33,9 +33,11 @@ def foreign(tmp_path) -> Path:
     """Someone else's SQLite database (rollback journal, two tables)."""
     p = tmp_path / "clinic.sqlite"
     con = sqlite3.connect(p)
-    con.executescript("CREATE TABLE patients (id INTEGER PRIMARY KEY, name TEXT);"
-                      "INSERT INTO patients (name) VALUES ('A'), ('B');"
-                      "CREATE TABLE runs (id INTEGER PRIMARY KEY, what TEXT);")
+    con.executescript(
+        "CREATE TABLE patients (id INTEGER PRIMARY KEY, name TEXT);"
+        "INSERT INTO patients (name) VALUES ('A'), ('B');"
+        "CREATE TABLE runs (id INTEGER PRIMARY KEY, what TEXT);"
+    )
     con.commit()
     con.close()
     return p
@@ -93,10 +95,22 @@ def test_every_store_command_leaves_a_foreign_sqlite_file_byte_identical(foreign
 def test_a_command_that_writes_results_never_writes_into_a_foreign_store(foreign, tmp_path, capsys):
     """`vts qa import` (a writer) keeps the run file and names the foreign database."""
     from vts_hw.store.unsaved import FORMAT
+
     run = tmp_path / "run.json"
-    run.write_text(json.dumps({"format": FORMAT, "procedure": "daily", "started": 1.8e9, "finished": 1.8e9 + 5,
-                               "state": "OK", "measurements": [{"subject": "cam1", "metric": "drift_x_px",
-                                                                "value": 0.1, "unit": "px", "state": "OK"}]}))
+    run.write_text(
+        json.dumps(
+            {
+                "format": FORMAT,
+                "procedure": "daily",
+                "started": 1.8e9,
+                "finished": 1.8e9 + 5,
+                "state": "OK",
+                "measurements": [
+                    {"subject": "cam1", "metric": "drift_x_px", "value": 0.1, "unit": "px", "state": "OK"}
+                ],
+            }
+        )
+    )
     cfg = tmp_path / "rig.yaml"
     cfg.write_text(f"rig: room-1\ncameras:\n  - name: cam1\n    host: 127.0.0.1\nstore:\n  url: sqlite:///{foreign}\n")
     before = sha(foreign)
@@ -110,8 +124,11 @@ def test_reading_never_creates_a_store(tmp_path, capsys):
     zero.write_bytes(b"")
     empty_sha = sha(empty)
     for p, words in ((missing, "does not exist"), (zero, "0 bytes"), (empty, "is an empty database")):
-        for args in (("--store", p, "store", "info"), ("store", "migrate", "--from", p, "--to", tmp_path / "n.sqlite"),
-                     ("--store", p, "report", "rooms", "-o", tmp_path / "r.html")):
+        for args in (
+            ("--store", p, "store", "info"),
+            ("store", "migrate", "--from", p, "--to", tmp_path / "n.sqlite"),
+            ("--store", p, "report", "rooms", "-o", tmp_path / "r.html"),
+        ):
             code, _, err = vts(capsys, *args)
             assert code == 3 and words in err and str(p) in err and "Traceback" not in err, (args, err)
     assert not missing.exists() and zero.stat().st_size == 0 and sha(empty) == empty_sha
@@ -135,7 +152,7 @@ def test_store_init_and_writers_make_new_files_stores(tmp_path, capsys):
     for p in (empty, zero, tmp_path / "sub" / "new.sqlite"):
         code, out, err = vts(capsys, "store", "init", p)
         assert code == 0 and "results store created" in out, err
-        code, out, err = vts(capsys, "store", "init", p)             # twice: nothing changes
+        code, out, err = vts(capsys, "store", "init", p)  # twice: nothing changes
         assert code == 0 and "already a results store" in out, err
         code, out, err = vts(capsys, "--store", p, "store", "info", "--json")
         assert code == 0 and json.loads(out)["rows"]["runs"] == 0, err
@@ -150,11 +167,13 @@ def test_store_init_and_writers_make_new_files_stores(tmp_path, capsys):
 
 # --- PostgreSQL --------------------------------------------------------------------------------
 
+
 def _pg_tables(url: str) -> list[tuple]:
     dsn = to_url(url).set(drivername="postgresql").render_as_string(hide_password=False)
     with psycopg.connect(dsn) as con:
-        tables = con.execute("SELECT table_name FROM information_schema.tables WHERE table_schema = 'public' "
-                             "ORDER BY table_name").fetchall()
+        tables = con.execute(
+            "SELECT table_name FROM information_schema.tables WHERE table_schema = 'public' ORDER BY table_name"
+        ).fetchall()
         rows = con.execute("SELECT id, name FROM patients ORDER BY id").fetchall() if ("patients",) in tables else []
     return tables + rows
 
@@ -165,10 +184,13 @@ def test_a_foreign_postgresql_database_is_never_written(pg_url, good, tmp_path, 
         con.execute("CREATE TABLE patients (id serial PRIMARY KEY, name text)")
         con.execute("INSERT INTO patients (name) VALUES ('A'), ('B')")
     before = _pg_tables(pg_url)
-    for args in (("--store", pg_url, "store", "info"), ("store", "init", pg_url),
-                 ("store", "migrate", "--from", good, "--to", pg_url),
-                 ("store", "migrate", "--from", pg_url, "--to", tmp_path / "n.sqlite"),
-                 ("--store", pg_url, "report", "rooms", "-o", tmp_path / "r.html")):
+    for args in (
+        ("--store", pg_url, "store", "info"),
+        ("store", "init", pg_url),
+        ("store", "migrate", "--from", good, "--to", pg_url),
+        ("store", "migrate", "--from", pg_url, "--to", tmp_path / "n.sqlite"),
+        ("--store", pg_url, "report", "rooms", "-o", tmp_path / "r.html"),
+    ):
         code, _, err = vts(capsys, *args)
         assert code == 3 and "is not a vts-hw results store" in err and "patients" in err, (args, err)
         assert _pg_tables(pg_url) == before, args

@@ -18,6 +18,7 @@ from vts_hw.store import ResultsStore
 from vts_hw.store.copy import copy_store, table_counts, verify
 from vts_hw.store.paths import to_url
 
+
 @pytest.fixture(scope="module")
 def demo_store(tmp_path_factory) -> str:
     """The drift report tests' 60 days, plus artifact records, outbox rows and a run still
@@ -35,11 +36,21 @@ def demo_store(tmp_path_factory) -> str:
         with s.begin_run("steps", rig="vts", started=NOW) as h:
             h.measure("spheres", "slope_z", 1.001)
             h.artifact(frame, kind="plot")
-        s.begin_run("daily", rig="vts", notes="still going")   # left running, by a live process
+        s.begin_run("daily", rig="vts", notes="still going")  # left running, by a live process
         # the console's action log (copied) and a user (not copied: its hash stays here)
-        s.log_actions([{"at": NOW - 60, "user": "ann", "role": "operator", "what": "LED on",
-                        "detail": {"camera": "cam1"}, "rig": "vts"},
-                       {"at": NOW - 30, "user": "ann", "role": "operator", "what": "scan started", "rig": "vts"}])
+        s.log_actions(
+            [
+                {
+                    "at": NOW - 60,
+                    "user": "ann",
+                    "role": "operator",
+                    "what": "LED on",
+                    "detail": {"camera": "cam1"},
+                    "rig": "vts",
+                },
+                {"at": NOW - 30, "user": "ann", "role": "operator", "what": "scan started", "rig": "vts"},
+            ]
+        )
         s.put_user("ann", "operator", "scrypt$32768$8$1$c2FsdA==$aGFzaA==")
     return url
 
@@ -84,12 +95,19 @@ def test_sqlite_to_postgresql_and_back_whole_and_verified_twice_adds_nothing(dem
     with ResultsStore(demo_store) as a, ResultsStore(back) as b:
         assert table_counts(b) == counts
         for ra, rb in zip(a.runs(), b.runs()):
-            assert (ra.uid, ra.status, ra.notes, ra.started, ra.finished) == (rb.uid, rb.status, rb.notes,
-                                                                               rb.started, rb.finished)
-            assert [(m.subject, m.metric, m.value, m.status) for m in a.measurements(run_id=ra.id)] == \
-                   [(m.subject, m.metric, m.value, m.status) for m in b.measurements(run_id=rb.id)]
-        assert [(o.key, o.state, o.remote) for o in a.outbox_items("qatrack", states=("pending", "sent"))] == \
-               [(o.key, o.state, o.remote) for o in b.outbox_items("qatrack", states=("pending", "sent"))]
+            assert (ra.uid, ra.status, ra.notes, ra.started, ra.finished) == (
+                rb.uid,
+                rb.status,
+                rb.notes,
+                rb.started,
+                rb.finished,
+            )
+            assert [(m.subject, m.metric, m.value, m.status) for m in a.measurements(run_id=ra.id)] == [
+                (m.subject, m.metric, m.value, m.status) for m in b.measurements(run_id=rb.id)
+            ]
+        assert [(o.key, o.state, o.remote) for o in a.outbox_items("qatrack", states=("pending", "sent"))] == [
+            (o.key, o.state, o.remote) for o in b.outbox_items("qatrack", states=("pending", "sent"))
+        ]
         # every measurement's window is the same window (by content) in the copy
         wa = {w: win for w, win in a.tolerances(at=NOW).values()}
         wb = {w: win for w, win in b.tolerances(at=NOW).values()}
@@ -105,7 +123,7 @@ def test_room_stores_merge_into_one_department_store(tmp_path, pg_url):
                 with s.begin_run("daily", rig=room, started=1e9 + day * 86400) as h:
                     h.measure("cam1", "drift_x_px", day * 0.1)
         rooms.append(url)
-    with ResultsStore(pg_url) as dept:   # the department store already holds another room's run
+    with ResultsStore(pg_url) as dept:  # the department store already holds another room's run
         with dept.begin_run("daily", rig="room3", started=1e9) as h:
             h.measure("cam1", "drift_x_px", 0.5)
         for url in rooms:
@@ -128,7 +146,7 @@ def test_a_copy_that_differs_is_named_and_exits_3(tmp_path):
             h.measure("cam1", "drift_x_px", 0.25)
     assert _vts("store", "migrate", "--from", src, "--to", dst).returncode == 0
     engine = create_engine(to_url(dst))
-    with engine.begin() as conn:      # the copy's value changed behind our back
+    with engine.begin() as conn:  # the copy's value changed behind our back
         conn.execute(text("UPDATE measurements SET value = 0.26"))
     engine.dispose()
     p = _vts("store", "migrate", "--from", src, "--to", dst)
@@ -163,8 +181,8 @@ def test_the_drift_report_from_the_postgresql_copy_has_the_same_numbers(demo_sto
         a = build_drift_report(src, tmp_path / "sqlite.html", now=NOW, rig="vts").results_data()
         b = build_drift_report(pg, tmp_path / "pg.html", now=NOW, rig="vts").results_data()
     assert a.pop("out") != b.pop("out")
-    assert a["cameras"] and a["cameras"]["cam2"]      # the report has its numbers ...
-    assert json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)   # ... the same on both
+    assert a["cameras"] and a["cameras"]["cam2"]  # the report has its numbers ...
+    assert json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)  # ... the same on both
 
 
 def test_a_store_being_written_is_copied_in_whole_runs(pg_url, tmp_path):
@@ -175,8 +193,12 @@ def test_a_store_being_written_is_copied_in_whole_runs(pg_url, tmp_path):
     frame = tmp_path / "frame.jpg"
     frame.write_bytes(b"x" * 100)
     ResultsStore(pg_url).close()
-    writer = subprocess.Popen([sys.executable, str(HERE), pg_url, "3", "150", str(tmp_path / "done"), str(frame)],
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    writer = subprocess.Popen(
+        [sys.executable, str(HERE), pg_url, "3", "150", str(tmp_path / "done"), str(frame)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     copy = f"sqlite:///{tmp_path / 'copy.sqlite'}"
     try:
         assert writer.stdout.readline().startswith("open")
@@ -206,7 +228,7 @@ def test_a_later_copy_brings_a_run_that_has_ended_and_a_push_that_went_on(tmp_pa
             h.measure("cam1", "drift_x_px", 0.1)
         done = s.run(h.run_id)
         item = s.outbox_add(done.id, "qatrack", f"vts-run-{done.uid}")
-        live = s.begin_run("daily", rig="room1", started=1e9 + 86400)     # still going at the first copy
+        live = s.begin_run("daily", rig="room1", started=1e9 + 86400)  # still going at the first copy
         live.measure("cam1", "drift_x_px", 0.2)
         p = _vts("store", "migrate", "--from", src, "--to", pg_url, "--json")
         assert p.returncode == 0, p.stderr
@@ -214,7 +236,7 @@ def test_a_later_copy_brings_a_run_that_has_ended_and_a_push_that_went_on(tmp_pa
         assert first["running_copied"] == 1 and first["new"]["measurements"] == 1 and first["ok"]
 
         live.artifact(__file__, kind="plot")
-        live.finish()                                  # the run ends, and the push of the other goes on
+        live.finish()  # the run ends, and the push of the other goes on
         s.outbox_record(item.id, "sent", remote="http://qa.example/api/qa/testlistinstances/7/")
         p = _vts("store", "migrate", "--from", src, "--to", pg_url)
         assert p.returncode == 0, p.stdout + p.stderr
@@ -226,8 +248,9 @@ def test_a_later_copy_brings_a_run_that_has_ended_and_a_push_that_went_on(tmp_pa
             assert [m.value for m in t.measurements(run_id=copied.id)] == [0.2]
             assert [a.kind for a in t.artifacts(copied.id)] == ["plot"]
             sent = t.outbox_items("qatrack")
-            assert [(o.state, o.remote, o.attempts) for o in sent] == \
-                   [("sent", "http://qa.example/api/qa/testlistinstances/7/", 1)]
+            assert [(o.state, o.remote, o.attempts) for o in sent] == [
+                ("sent", "http://qa.example/api/qa/testlistinstances/7/", 1)
+            ]
             assert table_counts(t) == table_counts(s)
 
         p = _vts("store", "migrate", "--from", src, "--to", pg_url)

@@ -8,8 +8,8 @@ import json
 
 from vts_hw.results import Analysis, Measure, overall_state
 from vts_hw.store import ResultsStore
-from vts_hw.store.recorder import record as store_result
 from vts_hw.store.recorder import import_unsaved
+from vts_hw.store.recorder import record as store_result
 from vts_hw.tolerance import State, Window
 
 
@@ -20,8 +20,10 @@ class TwoFigures:
 
     @property
     def measures(self):
-        return [Measure.judged("cam1", "drift_x_px", 0.2, "px", Window.symmetric(1.0, 2.0, "px")),
-                Measure.judged("cam1", "drift_y_px", 1.4, "px", Window.symmetric(1.0, 2.0, "px"))]
+        return [
+            Measure.judged("cam1", "drift_x_px", 0.2, "px", Window.symmetric(1.0, 2.0, "px")),
+            Measure.judged("cam1", "drift_y_px", 1.4, "px", Window.symmetric(1.0, 2.0, "px")),
+        ]
 
     @property
     def state(self):
@@ -58,7 +60,7 @@ def test_a_full_disk_keeps_every_figure_for_later(tmp_path, small_disk):
     disk.fill()
     stored = store_result(url, TwoFigures(), rig="room1", started=2000.0)
     assert not stored.ok and stored.error and stored.unsaved is not None
-    assert not str(stored.unsaved).startswith(str(disk.path))       # the full disk could not take it
+    assert not str(stored.unsaved).startswith(str(disk.path))  # the full disk could not take it
     doc = json.loads(stored.unsaved.read_text())
     assert [m["value"] for m in doc["measurements"]] == [0.2, 1.4] and doc["state"] == "TOLERANCE"
     other = f"sqlite:///{tmp_path / 'later.sqlite'}"
@@ -84,9 +86,10 @@ def test_a_database_server_that_is_down_keeps_every_figure_for_later(pg_server, 
 
 def _closed_port() -> int:
     import socket
+
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]    # nothing listens there once the socket is closed
+        return s.getsockname()[1]  # nothing listens there once the socket is closed
 
 
 def test_an_unsaved_run_naming_a_folder_as_its_artifact_imports_without_it(tmp_path):
@@ -94,8 +97,18 @@ def test_an_unsaved_run_naming_a_folder_as_its_artifact_imports_without_it(tmp_p
     plot = tmp_path / "plot.png"
     plot.write_bytes(b"\x89PNG")
     p = tmp_path / "run.json"
-    p.write_text(json.dumps({"format": "vts-unsaved-run/1", "procedure": "drift", "started": 2000.0,
-                             "state": "OK", "measurements": [], "artifacts": [str(tmp_path), str(plot)]}))
+    p.write_text(
+        json.dumps(
+            {
+                "format": "vts-unsaved-run/1",
+                "procedure": "drift",
+                "started": 2000.0,
+                "state": "OK",
+                "measurements": [],
+                "artifacts": [str(tmp_path), str(plot)],
+            }
+        )
+    )
     with ResultsStore(f"sqlite:///{tmp_path / 'r.sqlite'}") as store:
         run_id = import_unsaved(store, p)
         assert [a.path for a in store.artifacts(run_id=run_id)] == [str(plot)]
@@ -108,13 +121,14 @@ def test_a_store_that_cannot_be_created_on_a_full_disk_leaves_no_empty_file(smal
     import pytest
 
     from vts_hw.store.errors import StoreError
+
     disk = small_disk(64)
     disk.fill()
     with pytest.raises(StoreError) as e:
         ResultsStore(f"sqlite:///{disk.path / 'results.sqlite'}")
     assert "results.sqlite" in str(e.value) and "full" in str(e.value)
     assert disk.files() == {}
-    (disk.path / "other.sqlite").write_bytes(b"")        # an empty file someone made: kept
+    (disk.path / "other.sqlite").write_bytes(b"")  # an empty file someone made: kept
     with pytest.raises(StoreError):
         ResultsStore(f"sqlite:///{disk.path / 'other.sqlite'}")
     assert disk.files() == {"other.sqlite": 0}

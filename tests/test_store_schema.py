@@ -14,14 +14,12 @@ import pytest
 from sqlalchemy.dialects import postgresql
 from sqlalchemy.schema import CreateIndex, CreateTable
 
-from vts_hw.store import SCHEMA_VERSION, ResultsStore, StoreError
-from vts_hw.store import migrations, queries, schema
+from store_kit import _check_file, _raw, _sql
+from vts_hw.store import SCHEMA_VERSION, ResultsStore, StoreError, migrations, queries, schema
 from vts_hw.tolerance import State, Window
 
-from store_kit import _check_file, _raw, _sql
-
-DRIFT = Window.symmetric(1.0, 2.0, "px")          # the v1 window of the V1 store below
-T0 = 1_700_000_000.0                              # a fixed epoch for reproducible histories
+DRIFT = Window.symmetric(1.0, 2.0, "px")  # the v1 window of the V1 store below
+T0 = 1_700_000_000.0  # a fixed epoch for reproducible histories
 
 
 # -- schema version and upgrades --------------------------------------------------------------
@@ -61,8 +59,10 @@ INSERT INTO artifacts VALUES (1, 1, '/data/cam1.jpg', '%s');
 def _dump(db: Path) -> dict:
     con = _raw(db)
     try:
-        return {t: con.execute(f"SELECT * FROM {t} ORDER BY 1").fetchall()
-                for t in ("runs", "tolerances", "measurements", "artifacts")}
+        return {
+            t: con.execute(f"SELECT * FROM {t} ORDER BY 1").fetchall()
+            for t in ("runs", "tolerances", "measurements", "artifacts")
+        }
     finally:
         con.close()
 
@@ -71,9 +71,13 @@ def _layout(db: Path) -> dict:
     con = _raw(db)
     try:
         tables = [r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type='table' ORDER BY name")]
-        return {t: ([r[1:6] for r in con.execute(f"PRAGMA table_info({t})")],
-                    sorted(r[1] for r in con.execute(f"PRAGMA index_list({t})")))
-                for t in tables}
+        return {
+            t: (
+                [r[1:6] for r in con.execute(f"PRAGMA table_info({t})")],
+                sorted(r[1] for r in con.execute(f"PRAGMA index_list({t})")),
+            )
+            for t in tables
+        }
     finally:
         con.close()
 
@@ -90,12 +94,12 @@ def test_a_version_1_database_is_upgraded_on_open_without_losing_rows(tmp_path, 
         after = _dump(db)
         # every old row is there with its old values; only the new columns were appended
         for table, rows in before.items():
-            assert [row[:len(rows[0])] for row in after[table]] == rows, table
+            assert [row[: len(rows[0])] for row in after[table]] == rows, table
         assert store.artifacts(1)[0].kind == "frame"
         assert [m.status for m in store.measurements()] == [State.TOLERANCE, State.OK]
         assert store.tolerance("drift_x_px", at=1600000100) == (1, DRIFT)
-        assert store.run(2).status == "running"   # written before runs had a pid: cannot be judged
-        with store.begin_run("drift") as run:    # and the upgraded store takes new runs
+        assert store.run(2).status == "running"  # written before runs had a pid: cannot be judged
+        with store.begin_run("drift") as run:  # and the upgraded store takes new runs
             run.measure("cam1", "drift_x_px", 2.5)
         assert store.run(run.run_id).status == "ACTION"
         # every run has a uid of its own, the old ones given one by the upgrade
@@ -122,7 +126,7 @@ def test_a_version_3_store_gets_users_and_actions_keeping_its_runs(tmp_path):
         with store.begin_run("drift", rig="room3", operator="ak") as run:
             run.measure("cam1", "drift_x_px", 0.4, status="OK")
         store.outbox_add(run.run_id, "qatrack", "k1")
-    con = _raw(db)      # back to version 3 as it was: version 4 only added these
+    con = _raw(db)  # back to version 3 as it was: version 4 only added these
     con.executescript("DROP TABLE actions; DROP TABLE users; UPDATE schema_migrations SET version = 3;")
     con.close()
     before = _dump(db)
@@ -133,8 +137,18 @@ def test_a_version_3_store_gets_users_and_actions_keeping_its_runs(tmp_path):
         assert store.outbox_items("qatrack")[0].key == "k1"
         assert store.users() == [] and store.actions() == ([], 0)
         store.put_user("ann", "operator", "scrypt$hash-made-by-the-console")
-        store.log_actions([{"at": 1.0, "user": "ann", "role": "operator", "what": "LED on",
-                            "detail": {"camera": "cam1"}, "rig": "room3"}])
+        store.log_actions(
+            [
+                {
+                    "at": 1.0,
+                    "user": "ann",
+                    "role": "operator",
+                    "what": "LED on",
+                    "detail": {"camera": "cam1"},
+                    "rig": "room3",
+                }
+            ]
+        )
         acts, n = store.actions()
         assert n == 1 and (acts[0].user, acts[0].what, acts[0].detail) == ("ann", "LED on", {"camera": "cam1"})
         with pytest.raises(ValueError, match="already exists"):
@@ -151,8 +165,9 @@ def test_a_version_3_store_gets_users_and_actions_keeping_its_runs(tmp_path):
 
 def test_processes_opening_a_new_store_at_once_create_it_once(store_url):
     code = "import sys; from vts_hw.store import ResultsStore; ResultsStore(sys.argv[1]).close()"
-    procs = [subprocess.Popen([sys.executable, "-c", code, store_url], stderr=subprocess.PIPE, text=True)
-             for _ in range(6)]
+    procs = [
+        subprocess.Popen([sys.executable, "-c", code, store_url], stderr=subprocess.PIPE, text=True) for _ in range(6)
+    ]
     for p in procs:
         assert p.wait(timeout=60) == 0, p.stderr.read()
     assert _sql(store_url, "SELECT version FROM schema_migrations") == [(SCHEMA_VERSION,)]
@@ -181,24 +196,25 @@ def test_a_fresh_store_records_its_version_and_sqlite_settings(sqlite_store, db)
     store = sqlite_store
     assert store.schema_version == SCHEMA_VERSION
     con = _raw(db)
-    assert con.execute("PRAGMA journal_mode").fetchone() == ("wal",)   # stored in the file
+    assert con.execute("PRAGMA journal_mode").fetchone() == ("wal",)  # stored in the file
     con.close()
-    with store._read() as conn:    # per-connection settings of the store's own connections
+    with store._read() as conn:  # per-connection settings of the store's own connections
         assert conn.exec_driver_sql("PRAGMA foreign_keys").scalar() == 1
         assert conn.exec_driver_sql("PRAGMA busy_timeout").scalar() == 30000
-        assert conn.exec_driver_sql("PRAGMA synchronous").scalar() == 2           # FULL
+        assert conn.exec_driver_sql("PRAGMA synchronous").scalar() == 2  # FULL
 
 
 def test_foreign_keys_are_enforced(store):
     run = store.begin_run("drift")
     run.measure("cam1", "m", 1.0, status="OK")
-    run._measurements[0]["tolerance_id"] = 12345       # no such window
+    run._measurements[0]["tolerance_id"] = 12345  # no such window
     with pytest.raises(Exception, match="(?i)foreign key"):
         run.finish()
     assert store.measurements() == []
 
 
 # -- portability: PostgreSQL, compiled without a server -------------------------------------------
+
 
 def test_the_schema_and_queries_compile_for_postgresql():
     pg = postgresql.dialect()
@@ -207,16 +223,22 @@ def test_the_schema_and_queries_compile_for_postgresql():
         ddl.append(str(CreateTable(table).compile(dialect=pg)))
         ddl.extend(str(CreateIndex(ix).compile(dialect=pg)) for ix in table.indexes)
     text = "\n".join(ddl)
-    for expected in ("CREATE TABLE runs", "id SERIAL NOT NULL", "started DOUBLE PRECISION NOT NULL",
-                     "CONSTRAINT ck_runs_status CHECK (status IN ('running', 'OK'",
-                     "FOREIGN KEY(run_id) REFERENCES runs (id)", "CHECK (length(sha256) = 64)",
-                     "CREATE INDEX ix_runs_procedure_started ON runs (procedure, started)"):
+    for expected in (
+        "CREATE TABLE runs",
+        "id SERIAL NOT NULL",
+        "started DOUBLE PRECISION NOT NULL",
+        "CONSTRAINT ck_runs_status CHECK (status IN ('running', 'OK'",
+        "FOREIGN KEY(run_id) REFERENCES runs (id)",
+        "CHECK (length(sha256) = 64)",
+        "CREATE INDEX ix_runs_procedure_started ON runs (procedure, started)",
+    ):
         assert expected in text
     for sqlite_only in ("AUTOINCREMENT", "PRAGMA", "DOUBLE,", "IMMEDIATE", "WITHOUT ROWID"):
         assert sqlite_only not in text
 
-    q = queries.select_measurements(procedure=("drift", "steps"), metric="drift_x_px", subject="cam1",
-                                    since=T0, run_id=3)
+    q = queries.select_measurements(
+        procedure=("drift", "steps"), metric="drift_x_px", subject="cam1", since=T0, run_id=3
+    )
     sql = str(q.compile(dialect=pg))
     assert "JOIN runs ON measurements.run_id = runs.id" in sql
     assert "runs.procedure IN (__[POSTCOMPILE_procedure_1])" in sql
@@ -227,29 +249,38 @@ def test_the_schema_and_queries_compile_for_postgresql():
     assert "row_number() OVER (PARTITION BY tolerances.metric ORDER BY tolerances.effective_from DESC" in sql
     sql = str(queries.select_tolerance_at("m", T0).compile(dialect=pg))
     assert "LIMIT %(param_1)s" in sql
-    for q in (queries.select_runs(("a", "b"), T0, "OK"), queries.select_artifacts(1),
-              queries.select_running_runs("host")):
+    for q in (
+        queries.select_runs(("a", "b"), T0, "OK"),
+        queries.select_artifacts(1),
+        queries.select_running_runs("host"),
+    ):
         assert str(q.compile(dialect=pg))
 
     # every migration step renders for PostgreSQL too
     for step in migrations.MIGRATIONS.values():
         for stmt in step.statements(pg):
             if callable(stmt) and not hasattr(stmt, "compile"):
-                continue   # a fill of a new column: runs on a real server (tests/test_store_postgres.py)
+                continue  # a fill of a new column: runs on a real server (tests/test_store_postgres.py)
             rendered = stmt if isinstance(stmt, str) else str(stmt.compile(dialect=pg))
             assert rendered.strip().startswith(("ALTER TABLE", "CREATE")), rendered
-    assert ("ALTER TABLE runs ADD COLUMN host TEXT DEFAULT '' NOT NULL"
-            in migrations.MIGRATIONS[2].statements(pg))
+    assert "ALTER TABLE runs ADD COLUMN host TEXT DEFAULT '' NOT NULL" in migrations.MIGRATIONS[2].statements(pg)
     v4 = "\n".join(str(st.compile(dialect=pg)) for st in migrations.MIGRATIONS[4].statements(pg))
-    for expected in ("CREATE TABLE users", "id SERIAL NOT NULL", "CONSTRAINT uq_users_name UNIQUE (name)",
-                     "CONSTRAINT ck_users_role CHECK (role IN ('operator', 'physicist'))", "CREATE TABLE actions",
-                     "at DOUBLE PRECISION NOT NULL", "detail TEXT DEFAULT '{}' NOT NULL",
-                     "CREATE INDEX ix_actions_at ON actions (at)"):
+    for expected in (
+        "CREATE TABLE users",
+        "id SERIAL NOT NULL",
+        "CONSTRAINT uq_users_name UNIQUE (name)",
+        "CONSTRAINT ck_users_role CHECK (role IN ('operator', 'physicist'))",
+        "CREATE TABLE actions",
+        "at DOUBLE PRECISION NOT NULL",
+        "detail TEXT DEFAULT '{}' NOT NULL",
+        "CREATE INDEX ix_actions_at ON actions (at)",
+    ):
         assert expected in v4, v4
     # the step makes what schema.py makes for a fresh store
     assert str(CreateTable(schema.users).compile(dialect=pg)).strip() in v4
     assert str(CreateTable(schema.actions).compile(dialect=pg)).strip() in v4
     from vts_hw.store import people
+
     sql = str(people.select_actions(start=T0, end=T0 + 1, user="ann", limit=5, offset=5).compile(dialect=pg))
     assert "ORDER BY actions.at DESC, actions.id DESC" in sql and "actions.user_name = %(user_name_1)s" in sql
     assert str(people.count_actions(T0, None, "ann").compile(dialect=pg))

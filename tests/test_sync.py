@@ -21,19 +21,18 @@ import numpy as np
 import pytest
 
 from inprocess_cli import run as vts_run
-from vts_hw.store import ResultsStore
-
 from vts_hw.config import load_rig
-from vts_hw.tracking.processing import Tracks
-from vts_hw.sim_devices.scenarios import sync_session as sync_sim
 from vts_hw.drivers.registry import open_cameras
 from vts_hw.procedures.scan import ScanSession
 from vts_hw.procedures.sync import SyncAnalysis
-from vts_hw.vision.registration import RigidTransform
 from vts_hw.sim_devices.rig import SimRig
+from vts_hw.sim_devices.scenarios import sync_session as sync_sim
 from vts_hw.sim_devices.source_marker import min_jerk
 from vts_hw.sim_devices.sync_truth import plan_sync_moves
+from vts_hw.store import ResultsStore
 from vts_hw.timing.marker_steps import find_steps, fit_step, match_events
+from vts_hw.tracking.processing import Tracks
+from vts_hw.vision.registration import RigidTransform
 
 VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
 EVENT_GOAL_S = 0.020
@@ -42,6 +41,7 @@ FPS = 25.0
 
 
 # ------------------------------------------------------------------------ the parts, offline
+
 
 def _staircase(times, steps, t, move_s=0.3, z0=5.0):
     z = np.full(t.shape, z0)
@@ -56,7 +56,7 @@ def test_steps_found_and_timed_to_a_millisecond_from_25_fps_samples():
     moves = [4.1, 11.37, 14.9, 19.9]
     steps = [15.0, -22.0, 8.0, 11.0]
     z = _staircase(moves, steps, t) + rng.normal(0, 0.1, t.size)
-    z[(t > 14) & (t < 16)] = np.nan                       # a gap: the move in it is not found
+    z[(t > 14) & (t < 16)] = np.nan  # a gap: the move in it is not found
     found = find_steps(t, z)
     del moves[2], steps[2]
     assert len(found) == 3 and all(abs(c.t - (t0 + 0.15)) < 0.05 for c, t0 in zip(found, moves))
@@ -88,7 +88,7 @@ def test_moves_are_planned_clear_of_the_head_rotations():
         times, steps = plan_sync_moves(fire, 60.0, n=4, seed=seed)
         rel = np.array(times) - fire
         assert len(times) == 4 and np.all(np.diff(rel) >= 2.0) and 2.0 <= rel[0] and rel[-1] <= 57.7
-        for k, (a, b) in enumerate(((20.0, 22.6), (41.8, 45.0)), 1):   # every possible rotation
+        for k, (a, b) in enumerate(((20.0, 22.6), (41.8, 45.0)), 1):  # every possible rotation
             assert np.all((rel + 0.3 < a - 1.0) | (rel > b + 1.0)), (seed, k, rel)
         assert np.all(np.abs(steps) >= 10) and np.all(np.sign(steps) == [1, -1, 1, -1])
     with pytest.raises(ValueError, match="too short"):
@@ -99,11 +99,12 @@ def test_when_a_list_mode_was_acquired_is_read_from_its_ends(tmp_path):
     """read_listmode_span: the header's start and the END block's time, as the whole file says;
     a file cut short gives the planned duration (reading it whole says what is wrong)."""
     from vts_hw.spect.listmode import VtslmWriter, read_listmode, read_listmode_span
+
     path = tmp_path / "a.vtslm"
     with VtslmWriter(path, start_time=1_795_000_000.5, duration_s=30.0, gate_rate_hz=2000.0) as w:
         w.events(np.linspace(0, 20, 5000), np.zeros(5000), np.zeros(5000), np.zeros(5000, np.uint8))
         w.gate(np.zeros(40000))
-        w.close(20.25)                                   # stopped before the planned 30 s
+        w.close(20.25)  # stopped before the planned 30 s
     lm = read_listmode(path)
     assert read_listmode_span(path) == (lm.start_time, lm.duration_s) == (1_795_000_000.5, 20.25)
     cut = tmp_path / "cut.vtslm"
@@ -112,6 +113,7 @@ def test_when_a_list_mode_was_acquired_is_read_from_its_ends(tmp_path):
 
 
 # ------------------------------------------------------------------- on the simulated rig
+
 
 @pytest.fixture()
 def box_rig(tmp_path):
@@ -126,11 +128,15 @@ def box_rig(tmp_path):
 
 
 def _analyze_cli(run, rig_yaml, *extra):
-    p = subprocess.run([*VTS, "sync", "analyze", str(run.session), "--listmode", str(run.listmode),
-                        "--json", *extra], env={**os.environ, "VTS_CONFIG": str(rig_yaml)},
-                       capture_output=True, text=True, timeout=120)
+    p = subprocess.run(
+        [*VTS, "sync", "analyze", str(run.session), "--listmode", str(run.listmode), "--json", *extra],
+        env={**os.environ, "VTS_CONFIG": str(rig_yaml)},
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert p.returncode == 0, p.stderr
-    assert "Traceback" not in p.stderr and "frame pairs" in p.stderr    # progress on stderr
+    assert "Traceback" not in p.stderr and "frame pairs" in p.stderr  # progress on stderr
     return json.loads(p.stdout), p.stderr
 
 
@@ -171,18 +177,19 @@ def test_scan_then_sync_analyze_meets_the_goals(scan22, tmp_path):
         ev = _event_near(data["events"], mv.t_mid)
         assert ev is not None and ev["seen_by"] == "both", (mv, data["events"])
         errs = (ev["t_vts"] - mv.t_mid, ev["t_spect"] - mv.t_mid, ev["dt_s"])
-        assert max(abs(e) for e in errs) < EVENT_GOAL_S, errs      # measured: under 5 ms
-        assert np.sign(ev["step_spect_mm"]) == np.sign(mv.step_mm) and \
-            ev["step_vts_mm"] == pytest.approx(mv.step_mm, abs=1.0)
+        assert max(abs(e) for e in errs) < EVENT_GOAL_S, errs  # measured: under 5 ms
+        assert np.sign(ev["step_spect_mm"]) == np.sign(mv.step_mm) and ev["step_vts_mm"] == pytest.approx(
+            mv.step_mm, abs=1.0
+        )
         lines.append(" ".join(f"{e * 1e3:+.1f}" for e in errs))
     assert len(data["events"]) == len(run.source.moves)
     delay_err = data["summary"]["start_delay_s"] - run.spect.start_delay_s
-    assert abs(delay_err) < DELAY_GOAL_S                           # measured: about 0.2 ms
+    assert abs(delay_err) < DELAY_GOAL_S  # measured: about 0.2 ms
     assert data["summary"]["state"] == "OK" and abs(data["summary"]["offset_s"]) < EVENT_GOAL_S
     assert data["calibration"]["note"].startswith("simulated rig: the scene's true cameras")
     # the dead time (the first head rotation, 20 s into the acquisition) mapped to host time
-    (d0, d1), = data["dead_time_host"]
-    assert abs(d0 - run.spect.host_time(run.spect.dead[0][0])) < 5e-3   # ~0.2 ms idle, 3 ms seen under heavy load
+    ((d0, d1),) = data["dead_time_host"]
+    assert abs(d0 - run.spect.host_time(run.spect.dead[0][0])) < 5e-3  # ~0.2 ms idle, 3 ms seen under heavy load
     print("events (VTS, SPECT, VTS-SPECT ms):", "; ".join(lines), f"start delay error {delay_err * 1e3:+.2f} ms")
 
     html = report.read_text()
@@ -208,8 +215,11 @@ def test_scan_then_sync_analyze_meets_the_goals(scan22, tmp_path):
         stored = store.run(run_id)
         assert stored.procedure == "sync" and stored.status == "OK"
         ms = {m.metric: m.value for m in store.measurements(run_id=run_id)}
-    assert ms == {"sync_max_abs_dt_ms": pytest.approx(data["summary"]["max_abs_dt_s"] * 1e3),
-                  "sync_events_one_system": 0, "sync_events_both": len(run.source.moves)}
+    assert ms == {
+        "sync_max_abs_dt_ms": pytest.approx(data["summary"]["max_abs_dt_s"] * 1e3),
+        "sync_events_one_system": 0,
+        "sync_events_both": len(run.source.moves),
+    }
 
 
 def test_a_report_on_a_full_disk_never_costs_the_check(scan22, small_disk):
@@ -222,8 +232,20 @@ def test_a_report_on_a_full_disk_never_costs_the_check(scan22, small_disk):
     disk.fill()
     with ResultsStore(cfg.results.url) as store:
         before = len(store.runs(procedure="sync"))
-    p = vts_run("sync", "analyze", run.session, "--listmode", run.listmode, "-o", disk.path / "sync.html",
-            "--plot", disk.path / "sync.png", "--export", disk.path / "x", env={**os.environ, "VTS_CONFIG": str(rig_yaml)})
+    p = vts_run(
+        "sync",
+        "analyze",
+        run.session,
+        "--listmode",
+        run.listmode,
+        "-o",
+        disk.path / "sync.html",
+        "--plot",
+        disk.path / "sync.png",
+        "--export",
+        disk.path / "x",
+        env={**os.environ, "VTS_CONFIG": str(rig_yaml)},
+    )
     err = p.stderr.strip().splitlines()[-1]
     assert p.returncode == 3 and "Traceback" not in p.stderr, p.stderr
     assert err.startswith("vts: ") and "sync.html: could not be written (no space left on device)" in err, err
@@ -250,16 +272,31 @@ def test_without_a_mapping_and_with_a_named_marker(scan22):
     for mv, ev in zip(run.source.moves, data["events"]):
         assert abs(ev["t_vts"] - mv.t_mid) < EVENT_GOAL_S and abs(ev["t_spect"] - mv.t_mid) < EVENT_GOAL_S
     source = data["vts"]["markers"][0]
-    wall = next(d["marker"] for d in data["vts"]["marker_summary"] if d["marker"] != source
-                and d["points"] > 0.9 * data["vts"]["samples"])
-    b = SyncAnalysis(run.session, run.listmode, cfg.calibration.stereo, cfg.calibration.spect,
-                     marker=wall, workers=1).analyze()
+    wall = next(
+        d["marker"]
+        for d in data["vts"]["marker_summary"]
+        if d["marker"] != source and d["points"] > 0.9 * data["vts"]["samples"]
+    )
+    b = SyncAnalysis(
+        run.session, run.listmode, cfg.calibration.stereo, cfg.calibration.spect, marker=wall, workers=1
+    ).analyze()
     d = b.results_data()
     assert d["vts"]["markers"] == [wall] and d["summary"]["events_both"] == 0
     assert d["summary"]["state"] == "ACTION" and "no motion event seen by both" in b.results()
     assert {e["seen_by"] for e in d["events"]} == {"SPECT only"}
-    p = vts_run("sync", "analyze", run.session, "--listmode", run.listmode, "--config", rig_yaml, "--marker", wall,
-            "--workers", "1")
+    p = vts_run(
+        "sync",
+        "analyze",
+        run.session,
+        "--listmode",
+        run.listmode,
+        "--config",
+        rig_yaml,
+        "--marker",
+        wall,
+        "--workers",
+        "1",
+    )
     assert p.returncode == 20 and "state: ACTION" in p.stdout and "Traceback" not in p.stderr
     png = b.plot(None)
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
@@ -298,7 +335,7 @@ def test_a_camera_offline_for_5_s_still_analyses(box_rig, tmp_path):
             assert abs(ev["t_vts"] - mv.t_mid) < EVENT_GOAL_S
     assert seen == ["both", "SPECT only", "both"]
     assert _event_near(data["events"], src.moves[1].t_mid)["note"] == "in a gap of the VTS recording"
-    assert len(data["vts"]["markers"]) >= 2        # the source's track re-joined across the gap
+    assert len(data["vts"]["markers"]) >= 2  # the source's track re-joined across the gap
     assert abs(a.gating.start_delay_s - truth.start_delay_s) < DELAY_GOAL_S
     print(f"camera offline: cam1 gap {gap['camera_t1'] - gap['camera_t0']:.2f} s; events seen by {seen}")
 
@@ -308,8 +345,9 @@ def test_kill_9_of_the_scan_leaves_a_session_that_reindexes_and_analyses(box_rig
     the manifest says "recording"): `vts recording reindex` makes it whole and `vts sync
     analyze` finds both moves within 20 ms of the truth."""
     rig, rig_yaml, marker = box_rig
-    run = sync_sim.cli_scan(rig, rig_yaml, tmp_path / "scan", 60.0, marker, times_rel=[2.5, 6.0],
-                            steps=[15.0, -20.0], kill_after_s=9.0)
+    run = sync_sim.cli_scan(
+        rig, rig_yaml, tmp_path / "scan", 60.0, marker, times_rel=[2.5, 6.0], steps=[15.0, -20.0], kill_after_s=9.0
+    )
     assert json.loads((run.session / "manifest.json").read_text())["status"] == "recording"
     r = vts_run("recording", "reindex", run.session)
     assert r.returncode == 0, r.stderr
@@ -326,6 +364,7 @@ def test_kill_9_of_the_scan_leaves_a_session_that_reindexes_and_analyses(box_rig
 
 # ---------------------------------------------------------------------------- clear errors
 
+
 def test_bad_inputs_end_in_one_sentence(tmp_path):
     env = {k: v for k, v in os.environ.items() if k != "VTS_CONFIG"}
     (tmp_path / "empty").mkdir()
@@ -334,28 +373,33 @@ def test_bad_inputs_end_in_one_sentence(tmp_path):
     (tmp_path / "session").mkdir()
     (tmp_path / "session" / "manifest.json").write_text(json.dumps({"cameras": {"cam1": {}}}))
     (tmp_path / "session" / "trigger.csv").write_text("host_time,device_time_us,device,kind,text\n")
-    (tmp_path / "untriggered").mkdir()       # recorded with trigger backend none: no trigger log
+    (tmp_path / "untriggered").mkdir()  # recorded with trigger backend none: no trigger log
     (tmp_path / "untriggered" / "manifest.json").write_text(json.dumps({"cameras": {"cam1": {}}}))
     cal = tmp_path / "calibration.json"
     cal.write_text("{}")
     cases = [
         ([str(tmp_path / "nope"), "--listmode", str(junk)], 3, "no such session folder"),
         ([str(tmp_path / "empty"), "--listmode", str(junk)], 3, "not a session folder (no manifest.json)"),
-        ([str(tmp_path / "untriggered"), "--listmode", str(junk)], 3,
-         f"vts: {tmp_path / 'untriggered'}: no trigger.csv: the session has no trigger log to time the SPECT "
-         f"against (was it recorded with trigger backend none?)"),
+        (
+            [str(tmp_path / "untriggered"), "--listmode", str(junk)],
+            3,
+            f"vts: {tmp_path / 'untriggered'}: no trigger.csv: the session has no trigger log to time the SPECT "
+            f"against (was it recorded with trigger backend none?)",
+        ),
         ([str(tmp_path / "session")], 2, "give the scan's list-mode: --listmode FILE"),
         ([str(tmp_path / "session"), "--listmode", str(junk)], 2, "no camera calibration: give --calibration"),
-        ([str(tmp_path / "session"), "--listmode", str(junk), "--calibration", str(cal)], 3,
-         f"{junk}: "),
-        ([str(tmp_path / "session"), "--listmode", str(tmp_path / "none.vtslm"), "--calibration", str(cal)], 3,
-         "none.vtslm: no such file"),
+        ([str(tmp_path / "session"), "--listmode", str(junk), "--calibration", str(cal)], 3, f"{junk}: "),
+        (
+            [str(tmp_path / "session"), "--listmode", str(tmp_path / "none.vtslm"), "--calibration", str(cal)],
+            3,
+            "none.vtslm: no such file",
+        ),
     ]
     for args, code, text in cases:
         p = vts_run("sync", "analyze", *args, env=env, cwd=tmp_path)
         assert p.returncode == code and text in p.stderr, (args, p.stderr)
         one_line = len(p.stderr.strip().splitlines()) == 1
-        assert "Traceback" not in p.stderr and (one_line or p.stderr.startswith("Usage:"))   # click's usage
+        assert "Traceback" not in p.stderr and (one_line or p.stderr.startswith("Usage:"))  # click's usage
 
 
 def test_the_sim_rig_writes_its_true_calibration(tmp_path):
@@ -365,14 +409,17 @@ def test_the_sim_rig_writes_its_true_calibration(tmp_path):
     mp = RigidTransform.load(cfg.calibration.spect)
     c1 = rig.scene.camera_at("cam1", rig.scene.start_epoch)
     world = np.array([[10.0, -20.0, 5.0], [100.0, 50.0, -80.0]])
-    assert np.allclose(mp.apply(c1.to_camera(world)), world, atol=1e-9)   # VTS (camera 1) -> SPECT
+    assert np.allclose(mp.apply(c1.to_camera(world)), world, atol=1e-9)  # VTS (camera 1) -> SPECT
 
 
-@pytest.mark.parametrize("manifest, words", [
-    ("[]", "not a recording manifest (expected a JSON object, got a list)"),
-    ('{"cameras": []}', 'not a recording manifest ("cameras" must map each camera name to its entry)'),
-    ('{"cameras": {"cam1": 3}}', 'not a recording manifest ("cameras" must map each camera name to its entry)'),
-])
+@pytest.mark.parametrize(
+    "manifest, words",
+    [
+        ("[]", "not a recording manifest (expected a JSON object, got a list)"),
+        ('{"cameras": []}', 'not a recording manifest ("cameras" must map each camera name to its entry)'),
+        ('{"cameras": {"cam1": 3}}', 'not a recording manifest ("cameras" must map each camera name to its entry)'),
+    ],
+)
 def test_a_manifest_of_the_wrong_shape_is_one_sentence(tmp_path, manifest, words):
     """`vts sync analyze` on a session whose manifest.json is not a recording manifest."""
     session = tmp_path / "session"

@@ -14,8 +14,8 @@ import yaml
 
 from vts_hw.config import load_rig
 from vts_hw.drivers import daqmx
-from vts_hw.drivers.trigger import read_log
 from vts_hw.drivers.registry import open_cameras
+from vts_hw.drivers.trigger import read_log
 from vts_hw.procedures.scan import ScanSession
 from vts_hw.procedures.sync import SyncAnalysis
 from vts_hw.recording.trigger_wave import wave_from_trigger_log
@@ -65,8 +65,14 @@ def test_a_daqmx_scan_is_sync_checked_end_to_end(tmp_path, monkeypatch):
     try:
         rig_yaml, _ = rig.write(tmp_path / "rig")
         data = yaml.safe_load(rig_yaml.read_text())
-        data["trigger"] = {"backend": "daqmx", "address": "Dev1/ctr0", "lines": LINES,
-                           "fire_trigger": "/Dev1/PFI0", "frequency_hz": 1.0, "duty": 0.5}
+        data["trigger"] = {
+            "backend": "daqmx",
+            "address": "Dev1/ctr0",
+            "lines": LINES,
+            "fire_trigger": "/Dev1/PFI0",
+            "frequency_hz": 1.0,
+            "duty": 0.5,
+        }
         rig_yaml.write_text(yaml.safe_dump(data))
         marker = sync_sim.prepare(rig)
         with rig.env():
@@ -74,8 +80,9 @@ def test_a_daqmx_scan_is_sync_checked_end_to_end(tmp_path, monkeypatch):
             s = ScanSession(cfg, tmp_path / "scan", open_cameras(cfg.cameras), duration=duration)
             s.start()
             fire = s.trigger.info["fire_time"]
-            src = sync_sim.start_moves(rig, marker, fire, duration, times_rel=[2.5, 6.0, 9.5],
-                                       steps=[16.0, -14.0, 12.0])
+            src = sync_sim.start_moves(
+                rig, marker, fire, duration, times_rel=[2.5, 6.0, 9.5], steps=[16.0, -14.0, 12.0]
+            )
             manifest = s.stop(s.wait())
     finally:
         rig.stop()
@@ -95,8 +102,7 @@ def test_a_daqmx_scan_is_sync_checked_end_to_end(tmp_path, monkeypatch):
     assert abs(wave.start_host - fire) < 0.05 and wave.stop_host - wave.start_host > duration - 0.5
 
     lm = tmp_path / "scan.vtslm"
-    truth = SimListModeSpect(rig.scene, [src], seed=4).follow_trigger_log(session / "trigger.csv", lm,
-                                                                         duration - 0.6)
+    truth = SimListModeSpect(rig.scene, [src], seed=4).follow_trigger_log(session / "trigger.csv", lm, duration - 0.6)
     assert truth.start_pulse_host == wave.start_host
     a = SyncAnalysis(session, lm, cfg.calibration.stereo, cfg.calibration.spect, workers=2).analyze()
     data = a.results_data()

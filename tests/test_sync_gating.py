@@ -15,16 +15,25 @@ from vts_hw.drivers.function_generator import SIM_RESOURCE, FunctionGenerator
 from vts_hw.drivers.trigger import TriggerLog
 from vts_hw.drivers.trigger_box import TriggerBox
 from vts_hw.errors import DataError
-from vts_hw.spect.listmode import GATE_TRANSITIONS, ListMode, read_listmode, register_reader
-from vts_hw.spect.listmode import base
+from vts_hw.recording.trigger_wave import square_wave_edges, wave_from_trigger_log
 from vts_hw.sim_devices.scene import Scene
 from vts_hw.sim_devices.source_marker import add_source_marker
-from vts_hw.sim_devices.spect_listmode import (SimListModeSpect, SimSpectSettings, TriggerEdges,
-                                               edges_from_trigger_box, write_sim_listmode)
+from vts_hw.sim_devices.spect_listmode import (
+    SimListModeSpect,
+    SimSpectSettings,
+    TriggerEdges,
+    edges_from_trigger_box,
+    write_sim_listmode,
+)
 from vts_hw.sim_devices.trigger_box import F_CPU, SimTriggerBox
-from vts_hw.recording.trigger_wave import square_wave_edges, wave_from_trigger_log
-from vts_hw.spect.gating import (analyze_gating, axial_centre_of_mass, dead_time_from_events,
-                                find_gate_edges, fit_spect_clock)
+from vts_hw.spect.gating import (
+    analyze_gating,
+    axial_centre_of_mass,
+    dead_time_from_events,
+    find_gate_edges,
+    fit_spect_clock,
+)
+from vts_hw.spect.listmode import GATE_TRANSITIONS, ListMode, base, read_listmode, register_reader
 
 T0 = 1_795_000_000.0
 
@@ -34,37 +43,40 @@ def square_wave(start, period, duty, n, high=5.0, low=0.0, pulse=True):
     return TriggerEdges(rising, rising + duty * period, start if pulse else None, high, low, "test")
 
 
-def simulate(tmp_path: Path, *, period=1.0, duty=0.5, duration=60.0, seed=0, moves=None,
-             rate=2000.0, name="a.vtslm", **settings):
+def simulate(
+    tmp_path: Path, *, period=1.0, duty=0.5, duration=60.0, seed=0, moves=None, rate=2000.0, name="a.vtslm", **settings
+):
     scene = Scene.reference(seed=seed, start_epoch=T0)
     fire = T0 + 2.0
     move_times, steps = moves if moves is not None else ([], [])
     src = add_source_marker(scene, [fire + m for m in move_times], steps, rate_cps=rate)
     wave = square_wave(fire, period, duty, int(duration / period) + 3)
-    truth = write_sim_listmode(tmp_path / name, scene, [src], wave, duration,
-                               SimSpectSettings(**settings), seed=seed)
+    truth = write_sim_listmode(tmp_path / name, scene, [src], wave, duration, SimSpectSettings(**settings), seed=seed)
     return read_listmode(tmp_path / name), truth, wave, src
 
 
 # ------------------------------------------------------------------- start delay and clock
 
-@pytest.mark.parametrize("period, duty, gain, delay, seed", [
-    (1.0, 0.5, 1.0, None, 1),       # the default wave, random delay, offset and skew
-    (0.5, 0.25, 0.5, None, 2),      # 0/2.5 V recorded
-    (2.0, 0.1, 1.0, None, 3),
-    (0.1, 0.5, 1.0, 0.07, 4),       # 10 Hz: a delay under one period (see the module docstring)
-])
+
+@pytest.mark.parametrize(
+    "period, duty, gain, delay, seed",
+    [
+        (1.0, 0.5, 1.0, None, 1),  # the default wave, random delay, offset and skew
+        (0.5, 0.25, 0.5, None, 2),  # 0/2.5 V recorded
+        (2.0, 0.1, 1.0, None, 3),
+        (0.1, 0.5, 1.0, 0.07, 4),  # 10 Hz: a delay under one period (see the module docstring)
+    ],
+)
 def test_start_delay_skew_and_offset_recovered(tmp_path, period, duty, gain, delay, seed):
-    lm, truth, wave, _ = simulate(tmp_path, period=period, duty=duty, seed=seed, gate_gain=gain,
-                                  start_delay_s=delay)
+    lm, truth, wave, _ = simulate(tmp_path, period=period, duty=duty, seed=seed, gate_gain=gain, start_delay_s=delay)
     r = analyze_gating(lm, period_s=period, fire_host=wave.start_pulse)
-    assert abs(r.start_delay_s - truth.start_delay_s) < 1e-3          # measured: -0.17 +- 0.03 ms
+    assert abs(r.start_delay_s - truth.start_delay_s) < 1e-3  # measured: -0.17 +- 0.03 ms
     # the skew over 60 s: the edges' sub-sample timing (+-0.1 ms, depending on where they
     # fall between samples) allows a few ppm; what matters is the mapping over the run
-    assert abs(r.clock.skew_ppm - truth.clock_skew_ppm) < 5           # measured: SD 0.9 ppm
+    assert abs(r.clock.skew_ppm - truth.clock_skew_ppm) < 5  # measured: SD 0.9 ppm
     assert abs(float(r.clock.to_host(lm.duration_s)) - float(truth.host_time(lm.duration_s))) < 1e-3
     assert abs(r.clock_offset_s - truth.clock_offset_s) < 1e-3
-    assert r.clock.residual_s < 0.1e-3      # sub-sample edges (whole samples: 0.14 ms RMS)
+    assert r.clock.residual_s < 0.1e-3  # sub-sample edges (whole samples: 0.14 ms RMS)
     assert r.clock.duty == pytest.approx(duty, abs=2e-3)
     assert r.edges.high_v == pytest.approx(5.0 * gain, abs=0.01) and abs(r.edges.low_v) < 0.01
     # every rising edge the SPECT saw, each mapped back to the host time it was sent
@@ -75,8 +87,9 @@ def test_start_delay_skew_and_offset_recovered(tmp_path, period, duty, gain, del
 
 
 def test_a_20_minute_scan_needs_the_skew(tmp_path):
-    lm, truth, wave, _ = simulate(tmp_path, duration=1200.0, rate=100.0, clock_skew_ppm=45.0,
-                                  seed=5, gate_rate_hz=1000.0)
+    lm, truth, wave, _ = simulate(
+        tmp_path, duration=1200.0, rate=100.0, clock_skew_ppm=45.0, seed=5, gate_rate_hz=1000.0
+    )
     r = analyze_gating(lm, period_s=1.0, fire_host=wave.start_pulse)
     assert abs(r.start_delay_s - truth.start_delay_s) < 1e-3
     assert r.clock.skew_ppm == pytest.approx(45.0, abs=0.5)
@@ -92,7 +105,7 @@ def test_a_20_minute_scan_needs_the_skew(tmp_path):
 def test_a_start_delay_longer_than_a_period_is_known_modulo_the_period(tmp_path):
     lm, truth, wave, _ = simulate(tmp_path, period=0.25, duration=20.0, start_delay_s=0.3, seed=6)
     r = analyze_gating(lm, period_s=0.25, fire_host=wave.start_pulse)
-    assert r.start_delay_s == pytest.approx(0.3 - 0.25, abs=1e-3)     # the default assumption
+    assert r.start_delay_s == pytest.approx(0.3 - 0.25, abs=1e-3)  # the default assumption
     r2 = analyze_gating(lm, period_s=0.25, fire_host=wave.start_pulse, edges_before_start=2)
     assert r2.start_delay_s == pytest.approx(0.3, abs=1e-3)
     assert r2.clock_offset_s == pytest.approx(truth.clock_offset_s, abs=1e-3)
@@ -101,9 +114,10 @@ def test_a_start_delay_longer_than_a_period_is_known_modulo_the_period(tmp_path)
 def test_a_wave_started_after_the_acquisition_gives_a_negative_delay(tmp_path):
     scene = Scene.reference(seed=0, start_epoch=T0)
     wave = square_wave(T0 + 3.0, 1.0, 0.5, 20)
-    wave.start_pulse = T0                                # the SPECT was started first
-    truth = write_sim_listmode(tmp_path / "late.vtslm", scene, [], wave, 15.0,
-                               SimSpectSettings(background_cps=500.0), seed=3)
+    wave.start_pulse = T0  # the SPECT was started first
+    truth = write_sim_listmode(
+        tmp_path / "late.vtslm", scene, [], wave, 15.0, SimSpectSettings(background_cps=500.0), seed=3
+    )
     lm = read_listmode(tmp_path / "late.vtslm")
     r = analyze_gating(lm, period_s=1.0, fire_host=T0 + 3.0)
     assert r.clock.first_index == 0 and "started" in r.problems[0]
@@ -115,17 +129,18 @@ def test_a_wave_started_after_the_acquisition_gives_a_negative_delay(tmp_path):
 def test_without_the_period_or_the_host_time_the_result_says_what_is_missing(tmp_path):
     lm, truth, wave, _ = simulate(tmp_path, duration=20.0, clock_skew_ppm=30.0, seed=7)
     r = analyze_gating(lm)
-    assert abs(r.start_delay_s - truth.start_delay_s) < 1e-3          # 30 ppm of 1 s: 30 us
+    assert abs(r.start_delay_s - truth.start_delay_s) < 1e-3  # 30 ppm of 1 s: 30 us
     assert r.clock.skew == 0.0 and r.clock_offset_s is None
     assert len(r.problems) == 2 and "skew is not measured" in r.problems[0]
     with pytest.raises(ValueError, match="fire_host"):
         r.clock.to_host(1.0)
-    summary = json.loads(json.dumps(r.to_json(), allow_nan=False))   # strict JSON
+    summary = json.loads(json.dumps(r.to_json(), allow_nan=False))  # strict JSON
     assert summary["start_delay_s"] == pytest.approx(r.start_delay_s)
     assert summary["period_s"] is None and summary["clock_offset_s"] is None
 
 
 # ----------------------------------------------------------------------------- edges
+
 
 def test_noise_makes_no_extra_edges(tmp_path):
     lm, truth, wave, _ = simulate(tmp_path, duration=20.0, gate_noise_v=0.4, seed=8)
@@ -139,10 +154,9 @@ def test_noise_makes_no_extra_edges(tmp_path):
 
 def test_no_square_wave_is_one_clear_error(tmp_path):
     scene = Scene.reference(seed=0, start_epoch=T0)
-    wave = square_wave(T0 + 100.0, 1.0, 0.5, 3)             # starts after the acquisition
+    wave = square_wave(T0 + 100.0, 1.0, 0.5, 3)  # starts after the acquisition
     wave.start_pulse = T0
-    write_sim_listmode(tmp_path / "flat.vtslm", scene, [], wave, 5.0,
-                       SimSpectSettings(background_cps=100.0))
+    write_sim_listmode(tmp_path / "flat.vtslm", scene, [], wave, 5.0, SimSpectSettings(background_cps=100.0))
     lm = read_listmode(tmp_path / "flat.vtslm")
     with pytest.raises(DataError, match="no square wave in the gating signal") as e:
         analyze_gating(lm, period_s=1.0)
@@ -155,12 +169,13 @@ def test_no_square_wave_is_one_clear_error(tmp_path):
 
 # ------------------------------------------------------------------------ dead time, COM
 
+
 def test_dead_time_intervals_recovered_from_the_events(tmp_path):
     lm, truth, _, _ = simulate(tmp_path, duration=70.0, rate=3000.0, seed=9, record_dead_time=False)
-    assert lm.dead is None                                   # the file does not say
+    assert lm.dead is None  # the file does not say
     found = dead_time_from_events(lm)
     assert found.shape == (3, 2)
-    assert np.max(np.abs(found - np.array(truth.dead))) < 10e-3      # measured: about 1 ms
+    assert np.max(np.abs(found - np.array(truth.dead))) < 10e-3  # measured: about 1 ms
     r = analyze_gating(lm, period_s=1.0)
     assert np.array_equal(r.dead, found) and r.dead_recorded is None
 
@@ -193,7 +208,7 @@ def test_motion_in_the_axial_centre_of_mass_on_host_time(tmp_path):
         errors.append(when - m.t_mid)
         assert before == pytest.approx(m.z_from, abs=0.5)
         assert after == pytest.approx(m.z_to, abs=0.5)
-    assert np.max(np.abs(errors)) < 20e-3                   # measured: a few ms
+    assert np.max(np.abs(errors)) < 20e-3  # measured: a few ms
     # nan while the heads rotate, numbers everywhere else
     dead = np.array(truth.dead)
     in_dead = np.zeros(t.size, bool)
@@ -203,6 +218,7 @@ def test_motion_in_the_axial_centre_of_mass_on_host_time(tmp_path):
 
 
 # ----------------------------------------------------------------- another reader, same analysis
+
 
 class ToyReader:
     """A 'vendor' format: a text header line and the gate as level transitions."""
@@ -220,20 +236,30 @@ class ToyReader:
         start, duration = map(float, lines[0].split()[1:3])
         trans = np.array([[float(x) for x in ln.split()] for ln in lines[1:]])
         empty = np.empty(0)
-        return ListMode(start_time=start, duration_s=duration, t=np.sort(np.random.default_rng(0)
-                        .uniform(0, duration, 1000)), z=np.zeros(1000, np.float32),
-                        u=np.zeros(1000, np.float32), head=np.zeros(1000, np.uint8),
-                        timing_marks=empty, frame_starts=empty, frame_angles=empty,
-                        gate_t=trans[:, 0], gate_v=trans[:, 1].astype(np.float32),
-                        gate_kind=GATE_TRANSITIONS, source=path, format="toy")
+        return ListMode(
+            start_time=start,
+            duration_s=duration,
+            t=np.sort(np.random.default_rng(0).uniform(0, duration, 1000)),
+            z=np.zeros(1000, np.float32),
+            u=np.zeros(1000, np.float32),
+            head=np.zeros(1000, np.uint8),
+            timing_marks=empty,
+            frame_starts=empty,
+            frame_angles=empty,
+            gate_t=trans[:, 0],
+            gate_v=trans[:, 1].astype(np.float32),
+            gate_kind=GATE_TRANSITIONS,
+            source=path,
+            format="toy",
+        )
 
 
 def test_a_vendor_reader_is_added_and_the_analysis_does_not_change(tmp_path, monkeypatch):
     monkeypatch.setattr(base._REGISTRY, "_readers", dict(base._REGISTRY._readers))
     register_reader(ToyReader())
     delay = 0.23
-    lines = [f"TOYLM {T0 + 50:.3f} 10.0", "0.0 5.0"]      # high at the start (delay < duty*P)
-    for k in range(10):                                   # falling, then rising, edges
+    lines = [f"TOYLM {T0 + 50:.3f} 10.0", "0.0 5.0"]  # high at the start (delay < duty*P)
+    for k in range(10):  # falling, then rising, edges
         lines += [f"{k + 0.5 - delay:.6f} 0.0", f"{k + 1 - delay:.6f} 5.0"]
     (tmp_path / "scan.toylm").write_text("\n".join(lines) + "\n")
     lm = read_listmode(tmp_path / "scan.toylm")
@@ -244,6 +270,7 @@ def test_a_vendor_reader_is_added_and_the_analysis_does_not_change(tmp_path, mon
 
 
 # ------------------------------------------------------------------ following real triggers
+
 
 def test_firmware_in_the_loop_start_delay(tmp_path):
     """The real driver fires *TRG on the firmware in the emulator (real time); the simulated
@@ -257,18 +284,18 @@ def test_firmware_in_the_loop_start_delay(tmp_path):
             box.clock_mapping(samples=10, over_s=0.3)
             sent = time.time()
             box.fire()
-            sim.wait_cycles(int(3.6 * F_CPU))       # the wave ends at 4.0 s, the SPECT by 3.4 s
+            sim.wait_cycles(int(3.6 * F_CPU))  # the wave ends at 4.0 s, the SPECT by 3.4 s
             box.stop()
         finally:
             box.close()
         emitted = edges_from_trigger_box(sim)
-        with pytest.raises(ValueError, match="let it run longer"):    # beyond the emulator's now
+        with pytest.raises(ValueError, match="let it run longer"):  # beyond the emulator's now
             SimListModeSpect(Scene.reference(seed=0, start_epoch=sent), []).follow_trigger_box(
-                sim, tmp_path / "long.vtslm", 30.0)
+                sim, tmp_path / "long.vtslm", 30.0
+            )
         scene = Scene.reference(seed=0, start_epoch=sent)
         src = add_source_marker(scene, [sent + 1.2, sent + 2.2], [15.0, -20.0])
-        truth = SimListModeSpect(scene, [src], seed=5).follow_trigger_box(
-            sim, tmp_path / "scan.vtslm", 3.0)
+        truth = SimListModeSpect(scene, [src], seed=5).follow_trigger_box(sim, tmp_path / "scan.vtslm", 3.0)
     # the emulator's pins: *TRG closed CH2 and started OC1A together, after the command went
     assert abs(emitted.start_pulse - emitted.rising[0]) < 2e-6
     # (the pins' host times are the emulator's cycles mapped to host time, which on a busy
@@ -278,12 +305,12 @@ def test_firmware_in_the_loop_start_delay(tmp_path):
     wave = wave_from_trigger_log(log_path)
     assert (wave.period_s, wave.duty, wave.n_rising, wave.start_pulse) == (0.5, 0.5, 8, True)
     assert wave.time_source == "device_clock_mapped" and "mapped from the device clock" in wave.how
-    assert not wave.converted and 0 < wave.uncertainty_s < 3e-3      # from the neutral rows
-    assert wave.drift_ppm is not None and wave.drift_se_ppm > 0    # from the driver's mapping
-    assert abs(wave.start_host - emitted.rising[0]) < 3e-3   # driver vs emulator: 0.03-0.9 ms
+    assert not wave.converted and 0 < wave.uncertainty_s < 3e-3  # from the neutral rows
+    assert wave.drift_ppm is not None and wave.drift_se_ppm > 0  # from the driver's mapping
+    assert abs(wave.start_host - emitted.rising[0]) < 3e-3  # driver vs emulator: 0.03-0.9 ms
     lm = read_listmode(tmp_path / "scan.vtslm")
     r = analyze_gating(lm, period_s=wave.period_s, fire_host=wave.start_host)
-    assert abs(r.start_delay_s - truth.start_delay_s) < 10e-3   # measured: about 0.1 ms
+    assert abs(r.start_delay_s - truth.start_delay_s) < 10e-3  # measured: about 0.1 ms
     assert abs(r.clock_offset_s - truth.clock_offset_s) < 5e-3
     assert r.edges.rising.size == truth.rising_edges_recorded
 
@@ -303,7 +330,8 @@ def test_following_the_simulated_function_generator_through_its_log(tmp_path):
     scene = Scene.reference(seed=3, start_epoch=before)
     src = add_source_marker(scene, [wave.start_host + 5.0], [20.0])
     truth = SimListModeSpect(scene, [src], seed=12).follow_trigger_log(
-        log_path, tmp_path / "fg.vtslm", 20.0, until=wave.start_host + 30.0)
+        log_path, tmp_path / "fg.vtslm", 20.0, until=wave.start_host + 30.0
+    )
     assert truth.start_pulse_host is None and truth.wave_start_host == wave.start_host
     lm = read_listmode(tmp_path / "fg.vtslm")
     r = analyze_gating(lm, period_s=wave.period_s, fire_host=wave.start_host)
@@ -313,24 +341,41 @@ def test_following_the_simulated_function_generator_through_its_log(tmp_path):
 
 
 def test_a_trigger_box_log_gives_the_wave_and_the_box_drift(tmp_path):
-    rows = [(0.0, "cmd", "*IDN?"), (0.001, "reply", "VTS,TRIGGERBOX,0000,1.0.0"),
-            (0.01, "cmd", "FREQ 2"), (0.011, "reply", "OK"), (0.02, "cmd", "DUTY 0.25"),
-            (0.021, "reply", "OK"), (0.03, "cmd", "FREQ?"), (0.031, "reply", "2"),
-            (0.5, "event", "clock mapping: host = 1.0 + (device_us - 5) * 1e-6 * (1 + 12.0e-6); "
-                           "drift +12.000 ± 0.500 ppm, residual 40.0 us, uncertainty 90.0 us"),
-            (1.0, "cmd", "*TRG"), (1.002, "reply", "OK"), (1.003, "cmd", "EDGES?"),
-            (1.004, "reply", "1,100,100"),
-            (1.0006, "edge", "first rising edge (1 of 1); host time mapped from the box clock"),
-            (3.2, "cmd", "OUTP OFF"), (3.201, "reply", "OK"), (3.202, "cmd", "EDGES?"),
-            (3.203, "reply", "4,100,1500100")]                # read before the last period ended
+    rows = [
+        (0.0, "cmd", "*IDN?"),
+        (0.001, "reply", "VTS,TRIGGERBOX,0000,1.0.0"),
+        (0.01, "cmd", "FREQ 2"),
+        (0.011, "reply", "OK"),
+        (0.02, "cmd", "DUTY 0.25"),
+        (0.021, "reply", "OK"),
+        (0.03, "cmd", "FREQ?"),
+        (0.031, "reply", "2"),
+        (
+            0.5,
+            "event",
+            "clock mapping: host = 1.0 + (device_us - 5) * 1e-6 * (1 + 12.0e-6); "
+            "drift +12.000 ± 0.500 ppm, residual 40.0 us, uncertainty 90.0 us",
+        ),
+        (1.0, "cmd", "*TRG"),
+        (1.002, "reply", "OK"),
+        (1.003, "cmd", "EDGES?"),
+        (1.004, "reply", "1,100,100"),
+        (1.0006, "edge", "first rising edge (1 of 1); host time mapped from the box clock"),
+        (3.2, "cmd", "OUTP OFF"),
+        (3.201, "reply", "OK"),
+        (3.202, "cmd", "EDGES?"),
+        (3.203, "reply", "4,100,1500100"),
+    ]  # read before the last period ended
     p = tmp_path / "trigger.csv"
-    p.write_text("host_time,device_time_us,device,kind,text\n" + "".join(
-        f'{T0 + h:.6f},,triggerbox,{k},"{text}"\n' for h, k, text in rows))
-    w = wave_from_trigger_log(p)       # written before the neutral rows: converted on read
+    p.write_text(
+        "host_time,device_time_us,device,kind,text\n"
+        + "".join(f'{T0 + h:.6f},,triggerbox,{k},"{text}"\n' for h, k, text in rows)
+    )
+    w = wave_from_trigger_log(p)  # written before the neutral rows: converted on read
     assert w.converted and w.time_source == "device_clock_mapped"
     assert w.start_host == pytest.approx(T0 + 1.0006, abs=1e-6) and "mapped" in w.how
     assert (w.period_s, w.duty, w.start_pulse, w.high_v, w.low_v) == (0.5, 0.25, True, 5.0, 0.0)
-    assert w.n_rising == 5                      # OFF at 2.2 s into the wave: it ends at 2.5 s
+    assert w.n_rising == 5  # OFF at 2.2 s into the wave: it ends at 2.5 s
     assert w.stop_host == pytest.approx(T0 + 1.0006 + 2.5, abs=1e-6)
     assert (w.drift_ppm, w.drift_se_ppm) == (12.0, 0.5)
     assert w.host_period_s == pytest.approx(0.5 * (1 + 12e-6), rel=1e-12)

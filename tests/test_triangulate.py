@@ -4,11 +4,18 @@ import numpy as np
 import pytest
 
 from vts_hw.sim_devices.scene import DAY, CameraModel, Scene
-from vts_hw.vision.triangulate import (PinholeCamera, as_camera, epipolar_distances, match_epipolar,
-                                predicted_covariance, triangulate, undistort)
+from vts_hw.vision.triangulate import (
+    PinholeCamera,
+    as_camera,
+    epipolar_distances,
+    match_epipolar,
+    predicted_covariance,
+    triangulate,
+    undistort,
+)
 
 T0 = 1_700_000_000.0
-T = T0 + 30 * DAY          # cameras have drifted: use the drifted (= freshly calibrated) models
+T = T0 + 30 * DAY  # cameras have drifted: use the drifted (= freshly calibrated) models
 SPHERES = [f"S{k}" for k in range(1, 8)]
 
 
@@ -99,16 +106,17 @@ def test_noisy_phantom_is_matched_and_error_follows_the_geometry(scene):
         assert not m.ambiguous
         sq.append(np.sum((tri.points - truth) ** 2, axis=1))
         # reprojection RMS is of the order of the pixel noise
-        assert 0.001 < float(np.sqrt(np.mean(tri.rms_px ** 2))) < 0.05
+        assert 0.001 < float(np.sqrt(np.mean(tri.rms_px**2))) < 0.05
     rms = float(np.sqrt(np.mean(sq)))
     expected = predicted_rms(cams, truth, 0.02)
-    axes = np.sqrt(np.mean(np.diagonal(predicted_covariance(cams, truth, 0.02),
-                                       axis1=1, axis2=2), axis=0))
-    print(f"3D RMS at 0.02 px: {rms * 1000:.1f} um (predicted {expected * 1000:.1f} um; "
-          f"per axis x/y/z {axes[0] * 1000:.0f}/{axes[1] * 1000:.0f}/{axes[2] * 1000:.0f} um)")
+    axes = np.sqrt(np.mean(np.diagonal(predicted_covariance(cams, truth, 0.02), axis1=1, axis2=2), axis=0))
+    print(
+        f"3D RMS at 0.02 px: {rms * 1000:.1f} um (predicted {expected * 1000:.1f} um; "
+        f"per axis x/y/z {axes[0] * 1000:.0f}/{axes[1] * 1000:.0f}/{axes[2] * 1000:.0f} um)"
+    )
     assert 0.75 * expected < rms < 1.25 * expected
     assert rms < 0.15
-    assert axes[2] > 2 * axes[1] > 2 * axes[0]       # depth dominates
+    assert axes[2] > 2 * axes[1] > 2 * axes[0]  # depth dominates
 
 
 def test_moved_and_rotated_phantom(scene):
@@ -125,8 +133,10 @@ def test_refinement_improves_on_the_linear_solution_with_strong_distortion():
     rng = np.random.default_rng(3)
     K = np.array([[3370.0, 0, 320.0], [0, 3370.0, 240.0], [0, 0, 1]])
     dist = np.array([-0.3, 0.1, 0.002, -0.001, 0.0])
-    cams = [CameraModel.look_at(f"c{k}", (x, 1100.0, -3530.0), (0.0, 0.0, 0.0), K, dist)
-            for k, x in enumerate((-600.0, 600.0))]
+    cams = [
+        CameraModel.look_at(f"c{k}", (x, 1100.0, -3530.0), (0.0, 0.0, 0.0), K, dist)
+        for k, x in enumerate((-600.0, 600.0))
+    ]
     lin_sq, ref_sq = [], []
     for _ in range(25):
         X = rng.uniform(-150, 150, (7, 3))
@@ -135,7 +145,7 @@ def test_refinement_improves_on_the_linear_solution_with_strong_distortion():
         assert np.all(tri.rms_px <= tri.linear_rms_px + 1e-12)
         lin_sq.append(np.sum((tri.linear - X) ** 2, axis=1))
         ref_sq.append(np.sum((tri.points - X) ** 2, axis=1))
-        assert np.sum(tri.rms_px ** 2) < np.sum(tri.linear_rms_px ** 2)
+        assert np.sum(tri.rms_px**2) < np.sum(tri.linear_rms_px**2)
     lin, ref = np.sqrt(np.mean(lin_sq)), np.sqrt(np.mean(ref_sq))
     print(f"strong distortion, 0.3 px: 3D RMS linear {lin:.4f} mm, refined {ref:.4f} mm")
     # The DLT on undistorted points is already close to the maximum-likelihood point here:
@@ -159,12 +169,13 @@ def test_three_cameras():
     tri2 = triangulate(cams[:2], pts[:2])
     e3, e2 = rms3d(tri3.points, truth), rms3d(tri2.points, truth)
     p3, p2 = predicted_rms(cams, truth, 0.02), predicted_rms(cams[:2], truth, 0.02)
-    print(f"3 cameras: {e3 * 1000:.1f} um (predicted {p3 * 1000:.1f}), "
-          f"cam1+cam2 (600 mm baseline): {e2 * 1000:.1f} um (predicted {p2 * 1000:.1f})")
+    print(
+        f"3 cameras: {e3 * 1000:.1f} um (predicted {p3 * 1000:.1f}), "
+        f"cam1+cam2 (600 mm baseline): {e2 * 1000:.1f} um (predicted {p2 * 1000:.1f})"
+    )
     assert p3 < p2 and e3 < e2
     assert e3 < 0.15
-    assert np.abs(triangulate(cams, [s.camera_at(c, T).project(truth) for c in names]).points
-                  - truth).max() < 1e-6
+    assert np.abs(triangulate(cams, [s.camera_at(c, T).project(truth) for c in names]).points - truth).max() < 1e-6
 
 
 # ---------------------------------------------------------------- ambiguity and gating
@@ -173,7 +184,7 @@ def test_two_points_on_one_epipolar_plane_are_ambiguous_not_guessed(scene):
     X = truth_3d(scene, T, SPHERES)
     ca, cb = cams[0].center, cams[1].center
     p = np.array([30.0, -60.0, 120.0])
-    q = p + 0.02 * (p - ca) + 0.03 * (cb - ca)     # in the plane through ca, cb and p
+    q = p + 0.02 * (p - ca) + 0.03 * (cb - ca)  # in the plane through ca, cb and p
     allX = np.vstack([X, p, q])
     pa, pb = cams[0].project(allX), cams[1].project(allX)
     assert epipolar_distances(cams[0], pa[7:], cams[1], pb[7:]).max() < 1e-6
@@ -187,8 +198,8 @@ def test_two_points_on_one_epipolar_plane_are_ambiguous_not_guessed(scene):
 
 def test_stray_detections_are_unmatched(scene):
     cams, (pa, pb), (ids_a, ids_b) = stereo(scene, T, 0.02, seed=2)
-    pa = np.vstack([pa, [100.0, 40.0]])            # a reflection seen by cam1 only
-    pb = np.vstack([[600.0, 20.0], pb])            # and another by cam2 only
+    pa = np.vstack([pa, [100.0, 40.0]])  # a reflection seen by cam1 only
+    pb = np.vstack([[600.0, 20.0], pb])  # and another by cam2 only
     m = match_epipolar(cams[0], pa, cams[1], pb)
     assert m.unmatched_a == [7] and m.unmatched_b == [0]
     assert [(ids_a[i], ids_b[j - 1]) for i, j in m.pairs] == [(s, s) for s in SPHERES]

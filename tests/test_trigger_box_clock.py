@@ -8,47 +8,68 @@ import random
 
 import pytest
 
+from scripted_serial import PORT, FakeClock, ScriptedSerial, expected_protocol, lines
 from vts_hw.drivers.trigger import TriggerError, TriggerLog, read_log
 from vts_hw.drivers.trigger_box import RoundTrip, TriggerBox, best_round_trips, fit_clock, wire_skew, wire_time
-from scripted_serial import PORT, FakeClock, ScriptedSerial, expected_protocol, lines
-
 
 # ---- trigger.csv ------------------------------------------------------------------------------------
+
 
 def test_trigger_csv_lines(tmp_path):
     path = tmp_path / "trigger.csv"
     clock = FakeClock(1_700_000_000.0, step=0.001)
     log = TriggerLog(path, clock=clock)
-    pairs = lines(("*IDN?", "VTS,TRIGGERBOX,0042,1.0.0"), ("WDOG 10", "OK"), ("OUTP ON", "OK"),
-                  ("OUTP?", "ON"), ("FREQ?", "10"), ("DUTY?", "0.25"), ("EDGES?", "1,5000000,5000000"),
-                  ("WDOG?", "10.000000,ARMED,0"), ("SYST:ERR?", '0,"No error"'),
-                  ("EDGES?", "1,5000000,5000000"),
-                  ("EDGES?", "4,5000000,5300000"))
+    pairs = lines(
+        ("*IDN?", "VTS,TRIGGERBOX,0042,1.0.0"),
+        ("WDOG 10", "OK"),
+        ("OUTP ON", "OK"),
+        ("OUTP?", "ON"),
+        ("FREQ?", "10"),
+        ("DUTY?", "0.25"),
+        ("EDGES?", "1,5000000,5000000"),
+        ("WDOG?", "10.000000,ARMED,0"),
+        ("SYST:ERR?", '0,"No error"'),
+        ("EDGES?", "1,5000000,5000000"),
+        ("EDGES?", "4,5000000,5300000"),
+    )
     with expected_protocol(pairs, log=log, clock=clock) as box:
         box.identify()
         box.start()
-        box.edges()       # the same edge again: not logged twice
-        box.edges()       # a new last edge
+        box.edges()  # the same edge again: not logged twice
+        box.edges()  # a new last edge
         box.close()
     rows = read_log(path)
     assert [(r["kind"], r["text"]) for r in rows] == [
         ("event", "open /dev/ttyFAKE0 115200 baud"),
-        ("cmd", "*IDN?"), ("reply", "VTS,TRIGGERBOX,0042,1.0.0"),
-        ("cmd", "WDOG 10"), ("reply", "OK"),
-        ("cmd", "OUTP ON"), ("reply", "OK"),
-        ("cmd", "OUTP?"), ("reply", "ON"),
-        ("cmd", "FREQ?"), ("reply", "10"),
-        ("cmd", "DUTY?"), ("reply", "0.25"),
-        ("cmd", "EDGES?"), ("reply", "1,5000000,5000000"),
+        ("cmd", "*IDN?"),
+        ("reply", "VTS,TRIGGERBOX,0042,1.0.0"),
+        ("cmd", "WDOG 10"),
+        ("reply", "OK"),
+        ("cmd", "OUTP ON"),
+        ("reply", "OK"),
+        ("cmd", "OUTP?"),
+        ("reply", "ON"),
+        ("cmd", "FREQ?"),
+        ("reply", "10"),
+        ("cmd", "DUTY?"),
+        ("reply", "0.25"),
+        ("cmd", "EDGES?"),
+        ("reply", "1,5000000,5000000"),
         ("edge", "first rising edge (1 of 1); host time = when reported (no clock mapping)"),
-        ("cmd", "WDOG?"), ("reply", "10.000000,ARMED,0"),
-        ("cmd", "SYST:ERR?"), ("reply", '0,"No error"'),
+        ("cmd", "WDOG?"),
+        ("reply", "10.000000,ARMED,0"),
+        ("cmd", "SYST:ERR?"),
+        ("reply", '0,"No error"'),
         # the neutral row (docs/trigger-log-format.md): no clock mapping, so the host time of
         # the write plus the command's 8 bytes on the wire, ± until its reply came
-        ("wave_start", "period_s=0.1 duty=0.25 high_v=5.0 low_v=0.0 start_pulse=no time=host_write "
-                       "uncertainty_s=0.001"),
-        ("cmd", "EDGES?"), ("reply", "1,5000000,5000000"),
-        ("cmd", "EDGES?"), ("reply", "4,5000000,5300000"),
+        (
+            "wave_start",
+            "period_s=0.1 duty=0.25 high_v=5.0 low_v=0.0 start_pulse=no time=host_write uncertainty_s=0.001",
+        ),
+        ("cmd", "EDGES?"),
+        ("reply", "1,5000000,5000000"),
+        ("cmd", "EDGES?"),
+        ("reply", "4,5000000,5300000"),
         ("edge", "last rising edge (4 of 4); host time = when reported (no clock mapping)"),
         ("event", "closed /dev/ttyFAKE0"),
     ]
@@ -88,44 +109,65 @@ def test_edges_are_logged_in_host_time_once_the_clock_is_mapped(tmp_path):
     edge_rows = [r for r in read_log(tmp_path / "trigger.csv") if r["kind"] == "edge"]
     assert [(r["device_time_us"], float(r["host_time"])) for r in edge_rows] == [
         ("10500000", pytest.approx(1000.5 + skew, abs=1e-5)),
-        ("10600000", pytest.approx(1000.6 + skew, abs=1e-5))]
+        ("10600000", pytest.approx(1000.6 + skew, abs=1e-5)),
+    ]
     assert all("mapped from the box clock" in r["text"] for r in edge_rows)
-    event = [r for r in read_log(tmp_path / "trigger.csv")
-             if r["kind"] == "event" and "clock mapping" in r["text"]]
+    event = [r for r in read_log(tmp_path / "trigger.csv") if r["kind"] == "event" and "clock mapping" in r["text"]]
     assert len(event) == 1 and "drift +0.000" in event[0]["text"]
-
 
 
 def test_neutral_rows_of_a_fire_and_its_stop(tmp_path):
     """What the box started and stopped, in the rows every backend writes: the start at the
     first edge through the clock mapping, the end after the rising edges it counted once off."""
     from vts_hw.recording.trigger_wave import wave_from_trigger_log
+
     clock = FakeClock(1000.0)
     trips = [("TIME?", str(round((1000.0 + 0.25 * i - 990.0) * 1e6))) for i in range(4)]
-    pairs = lines(*trips, ("WDOG 10", "OK"), ("*TRG", "OK"), ("OUTP?", "ON"), ("FREQ?", "2"),
-                  ("DUTY?", "0.25"), ("EDGES?", "1,11000000,11000000"), ("WDOG?", "10.000000,ARMED,0"),
-                  ("SYST:ERR?", '0,"No error"'),
-                  ("OUTP OFF", "OK"), ("OUTP?", "ON"), ("FREQ?", "2"), ("DUTY?", "0.25"),
-                  ("EDGES?", "6,11000000,13500000"), ("WDOG?", "10.000000,ARMED,0"),
-                  ("SYST:ERR?", '0,"No error"'),
-                  ("OUTP?", "OFF"), ("OUTP?", "OFF"), ("FREQ?", "2"), ("DUTY?", "0.25"),
-                  ("EDGES?", "7,11000000,14000000"), ("WDOG?", "10.000000,IDLE,0"),
-                  ("SYST:ERR?", '0,"No error"'))
+    pairs = lines(
+        *trips,
+        ("WDOG 10", "OK"),
+        ("*TRG", "OK"),
+        ("OUTP?", "ON"),
+        ("FREQ?", "2"),
+        ("DUTY?", "0.25"),
+        ("EDGES?", "1,11000000,11000000"),
+        ("WDOG?", "10.000000,ARMED,0"),
+        ("SYST:ERR?", '0,"No error"'),
+        ("OUTP OFF", "OK"),
+        ("OUTP?", "ON"),
+        ("FREQ?", "2"),
+        ("DUTY?", "0.25"),
+        ("EDGES?", "6,11000000,13500000"),
+        ("WDOG?", "10.000000,ARMED,0"),
+        ("SYST:ERR?", '0,"No error"'),
+        ("OUTP?", "OFF"),
+        ("OUTP?", "OFF"),
+        ("FREQ?", "2"),
+        ("DUTY?", "0.25"),
+        ("EDGES?", "7,11000000,14000000"),
+        ("WDOG?", "10.000000,IDLE,0"),
+        ("SYST:ERR?", '0,"No error"'),
+    )
     path = tmp_path / "trigger.csv"
     with expected_protocol(pairs, log=TriggerLog(path, clock=clock), clock=clock) as box:
         m = box.clock_mapping(samples=4, over_s=0.75, keep=1.0)
         box.fire()
         box.stop()
     rows = read_log(path)
-    assert [r["kind"] for r in rows if r["kind"] in ("wave_start", "wave_stop", "clock")] == \
-        ["clock", "wave_start", "wave_stop"]
+    assert [r["kind"] for r in rows if r["kind"] in ("wave_start", "wave_stop", "clock")] == [
+        "clock",
+        "wave_start",
+        "wave_stop",
+    ]
     w = wave_from_trigger_log(path)
     assert w.start_host == pytest.approx(m.to_host(11_000_000), abs=1e-6) and w.time_source == "device_clock_mapped"
     assert (w.period_s, w.duty, w.high_v, w.low_v, w.start_pulse) == (0.5, 0.25, 5.0, 0.0, True)
-    assert w.n_rising == 7 and w.stop_host == pytest.approx(w.start_host + 3.5, abs=1e-6)   # the count once off
+    assert w.n_rising == 7 and w.stop_host == pytest.approx(w.start_host + 3.5, abs=1e-6)  # the count once off
     assert w.uncertainty_s == pytest.approx(m.uncertainty_s, rel=1e-2) and w.drift_ppm == pytest.approx(0, abs=1e-3)
 
+
 # ---- the clock mapping --------------------------------------------------------------------------------
+
 
 class SyntheticBox:
     """TIME? replies of a box whose clock reads 0 at host ``boot`` and maps to host time with
@@ -230,8 +272,9 @@ def test_clock_mapping_history_fits_the_drift_over_the_whole_session():
 def test_clock_mapping_with_64_bit_device_times_keeps_microseconds():
     # a box whose count is past 2^62 us (it never wraps; floats of that size lose whole ms)
     boot = 1_700_000_000.0 - 2**62 * 1e-6
-    trips = [RoundTrip(1_700_000_000.0 + i, 1_700_000_000.0 + i + 0.001,
-                       2**62 + i * 1_000_000 + 500) for i in range(10)]
+    trips = [
+        RoundTrip(1_700_000_000.0 + i, 1_700_000_000.0 + i + 0.001, 2**62 + i * 1_000_000 + 500) for i in range(10)
+    ]
     m, se = fit_clock(trips)
     assert m.drift_ppm == pytest.approx(0.0, abs=1e-3)
     assert isinstance(m.ref_device_us, int) and m.ref_device_us > 2**62
@@ -262,24 +305,36 @@ def test_clock_fit_rejects_outliers_and_weights_short_round_trips():
 # stall, its clock 14 ms behind. With weight 1/rtt² it tilted the fit to +17 000 ppm and the
 # fire (device 11495130 us) mapped 23 ms after its own confirmation, 36 ms late.
 STALLED_BOX = [
-    (1795807508.347953, 1795807508.349805, 9146070), (1795807508.401521, 1795807508.404476, 9199807),
-    (1795807508.453489, 1795807508.455782, 9251548), (1795807508.505968, 1795807508.510974, 9306066),
-    (1795807508.560477, 1795807508.578727, 9374919), (1795807508.611260, 1795807508.619908, 9414928),
-    (1795807508.663862, 1795807508.667012, 9463196), (1795807508.734112, 1795807508.752779, 9548967),
-    (1795807508.786951, 1795807508.839368, 9587078), (1795807508.839517, 1795807508.853962, 9623105),
-    (1795807508.882366, 1795807508.917300, 9677970), (1795807508.931477, 1795807508.950372, 9730764),
-    (1795807508.993455, 1795807509.007283, 9803588), (1795807509.041915, 1795807509.043632, 9839962),
-    (1795807509.098138, 1795807509.177604, 9911583), (1795807509.177754, 1795807509.206122, 9986589),
-    (1795807509.206278, 1795807509.226243, 10004733), (1795807509.243020, 1795807509.243527, 10026436),
-    (1795807509.295477, 1795807509.300637, 10096841), (1795807509.348161, 1795807509.354395, 10150578),
+    (1795807508.347953, 1795807508.349805, 9146070),
+    (1795807508.401521, 1795807508.404476, 9199807),
+    (1795807508.453489, 1795807508.455782, 9251548),
+    (1795807508.505968, 1795807508.510974, 9306066),
+    (1795807508.560477, 1795807508.578727, 9374919),
+    (1795807508.611260, 1795807508.619908, 9414928),
+    (1795807508.663862, 1795807508.667012, 9463196),
+    (1795807508.734112, 1795807508.752779, 9548967),
+    (1795807508.786951, 1795807508.839368, 9587078),
+    (1795807508.839517, 1795807508.853962, 9623105),
+    (1795807508.882366, 1795807508.917300, 9677970),
+    (1795807508.931477, 1795807508.950372, 9730764),
+    (1795807508.993455, 1795807509.007283, 9803588),
+    (1795807509.041915, 1795807509.043632, 9839962),
+    (1795807509.098138, 1795807509.177604, 9911583),
+    (1795807509.177754, 1795807509.206122, 9986589),
+    (1795807509.206278, 1795807509.226243, 10004733),
+    (1795807509.243020, 1795807509.243527, 10026436),
+    (1795807509.295477, 1795807509.300637, 10096841),
+    (1795807509.348161, 1795807509.354395, 10150578),
 ]
 FIRE_DEVICE_US, FIRE_SENT, FIRE_CONFIRMED = 11495130, 1795807510.6931355, 1795807510.7130306
 
 
 def test_a_round_trip_shorter_than_the_line_allows_does_not_tilt_the_mapping():
     def trips(wire: bool):
-        return [RoundTrip(s, r, d, wire_skew("TIME?", str(d), 115200),
-                          wire_time("TIME?", str(d), 115200) if wire else 0.0) for s, r, d in STALLED_BOX]
+        return [
+            RoundTrip(s, r, d, wire_skew("TIME?", str(d), 115200), wire_time("TIME?", str(d), 115200) if wire else 0.0)
+            for s, r, d in STALLED_BOX
+        ]
 
     assert wire_time("TIME?", "9146070", 115200) == pytest.approx((6 + 8) * 10 / 115200)
     # a sample far outside its own spread from the line of the others is dropped: that one, and
@@ -288,7 +343,7 @@ def test_a_round_trip_shorter_than_the_line_allows_does_not_tilt_the_mapping():
     for wire in (True, False):
         m, se = fit_clock(best_round_trips(trips(wire), 0.5))
         assert m.samples == 9, wire
-        assert abs(m.drift_ppm) < 5000, wire             # an AVR board's resonator: within 0.5 %
+        assert abs(m.drift_ppm) < 5000, wire  # an AVR board's resonator: within 0.5 %
         assert FIRE_SENT < m.to_host(FIRE_DEVICE_US) < FIRE_CONFIRMED, wire
 
 
@@ -302,9 +357,9 @@ def test_a_reboot_between_mappings_drops_the_history():
     box, clock, synth, fake = synthetic_box(37.0, 40)
     box.clock_mapping(samples=20, over_s=0.5)
     clock.t += 600.0
-    synth.boot = clock.t - 30.0   # it rebooted 30 s ago: its clock is far ahead of nothing
+    synth.boot = clock.t - 30.0  # it rebooted 30 s ago: its clock is far ahead of nothing
     m = box.clock_mapping(samples=20, over_s=0.5)
-    assert m.samples == 10        # this call's samples only
+    assert m.samples == 10  # this call's samples only
     assert any("clock jumped" in r[4] for r in box.log.lines)
 
 

@@ -24,7 +24,7 @@ from vts_hw.drivers.trigger_box import BoxGone, BoxRefused, TriggerBox
 from vts_hw.sim_devices.trigger_box import F_CPU, SimTriggerBox
 
 CYCLES_PER_US = F_CPU // 1_000_000
-TICK_CYCLES = 2000                     # the firmware's 125 us tick (Timer2)
+TICK_CYCLES = 2000  # the firmware's 125 us tick (Timer2)
 # simavr runs its timers between instructions, so it logs a pin change up to an instruction
 # (a few cycles) late: a 1 600 000-cycle period shows as 1 600 000 or 1 600 001
 EMU_JITTER = 4
@@ -62,8 +62,10 @@ def falling(sim, pin):
 
 def periods_exact(edges, period) -> bool:
     """Every period ``period`` cycles, to the emulator's granularity, with no drift over the run."""
-    return (all(abs(b - a - period) <= EMU_JITTER for a, b in zip(edges, edges[1:]))
-            and abs(edges[-1] - edges[0] - (len(edges) - 1) * period) <= EMU_JITTER)
+    return (
+        all(abs(b - a - period) <= EMU_JITTER for a, b in zip(edges, edges[1:]))
+        and abs(edges[-1] - edges[0] - (len(edges) - 1) * period) <= EMU_JITTER
+    )
 
 
 def rx_bytes(sim) -> bytes:
@@ -72,10 +74,11 @@ def rx_bytes(sim) -> bytes:
 
 # ---- identity and settings --------------------------------------------------------------------------
 
+
 def test_identify(box):
     idn = box.identify()
     assert (idn.vendor, idn.model) == ("VTS", "TRIGGERBOX")
-    assert idn.serial == "0000"                       # the build's default serial number
+    assert idn.serial == "0000"  # the build's default serial number
     assert re.fullmatch(r"\d+\.\d+\.\d+", idn.firmware)
     assert "TRIGGERBOX serial 0000" in repr(box)
 
@@ -87,8 +90,9 @@ def test_configure_10_hz_25_percent_reads_back(sim, box):
     assert not st.running and st.errors == ()
     assert (box.frequency_hz, box.duty) == (st.frequency_hz, st.duty)
     # the exact lines that reached the device's UART, in order
-    assert rx_bytes(sim) == (b'SYST:ERR?\nFREQ 10\nDUTY 0.25\nOUTP?\nFREQ?\nDUTY?\nEDGES?\n'
-                             b'WDOG?\nSYST:ERR?\nFREQ?\nDUTY?\n')
+    assert rx_bytes(sim) == (
+        b"SYST:ERR?\nFREQ 10\nDUTY 0.25\nOUTP?\nFREQ?\nDUTY?\nEDGES?\nWDOG?\nSYST:ERR?\nFREQ?\nDUTY?\n"
+    )
 
 
 def test_configure_returns_the_frequency_the_timer_makes(box):
@@ -101,6 +105,7 @@ def test_configure_returns_the_frequency_the_timer_makes(box):
 
 # ---- the square wave and the start pulses --------------------------------------------------------------
 
+
 def test_start_makes_the_square_wave_the_log_shows(sim, box, csv_path):
     box.configure(10, 0.25)
     st = box.start()
@@ -110,19 +115,18 @@ def test_start_makes_the_square_wave_the_log_shows(sim, box, csv_path):
     assert not end.running
 
     up, down = rising(sim, "OC1A"), falling(sim, "OC1A")
-    assert len(up) == end.edges >= 5                       # 0.52 s at 10 Hz, plus the stop
-    assert periods_exact(up, ms(100))                      # 100 ms periods, Timer1-exact
-    assert len(down) == len(up)                            # it ended on a whole period ...
-    assert all(abs(d - u - ms(25)) <= EMU_JITTER for u, d in zip(up, down))   # ... each high 25 ms
+    assert len(up) == end.edges >= 5  # 0.52 s at 10 Hz, plus the stop
+    assert periods_exact(up, ms(100))  # 100 ms periods, Timer1-exact
+    assert len(down) == len(up)  # it ended on a whole period ...
+    assert all(abs(d - u - ms(25)) <= EMU_JITTER for u, d in zip(up, down))  # ... each high 25 ms
     # the box's edge times are the emulator's, to the microsecond
     assert st.first_edge_device_us == end.first_edge_device_us
     assert abs(end.first_edge_device_us - up[0] / CYCLES_PER_US) <= 1
     assert abs(end.last_edge_device_us - up[-1] / CYCLES_PER_US) <= 1
-    assert not rising(sim, "CH1") and not rising(sim, "CH2")      # start() is the wave alone
+    assert not rising(sim, "CH1") and not rising(sim, "CH2")  # start() is the wave alone
 
     edge_rows = [r for r in read_log(csv_path) if r["kind"] == "edge"]
-    assert [int(r["device_time_us"]) for r in edge_rows] == [end.first_edge_device_us,
-                                                              end.last_edge_device_us]
+    assert [int(r["device_time_us"]) for r in edge_rows] == [end.first_edge_device_us, end.last_edge_device_us]
 
 
 def test_fire_starts_the_wave_and_both_start_pulses_together(sim, box):
@@ -133,7 +137,7 @@ def test_fire_starts_the_wave_and_both_start_pulses_together(sim, box):
     end = box.stop()
 
     wave, ch1, ch2 = rising(sim, "OC1A")[0], rising(sim, "CH1")[0], rising(sim, "CH2")[0]
-    assert max(wave, ch1, ch2) - min(wave, ch1, ch2) <= 16            # within 1 us
+    assert max(wave, ch1, ch2) - min(wave, ch1, ch2) <= 16  # within 1 us
     # the pulses are the default 100 ms wide (to the 125 us tick)
     for pin, start in (("CH1", ch1), ("CH2", ch2)):
         (stop,) = falling(sim, pin)
@@ -153,13 +157,13 @@ def test_fire_with_a_pulse_width_and_a_lone_pulse(sim, box):
     assert abs(c1_down - c1_up - ms(20)) <= TICK_CYCLES
     c2_up, c2_down = rising(sim, "CH2"), falling(sim, "CH2")
     assert len(c2_up) == 2 and abs(c2_down[1] - c2_up[1] - ms(5)) <= TICK_CYCLES
-    assert c2_up[1] > rising(sim, "OC1A")[-1]          # the lone pulse after the wave ended
+    assert c2_up[1] > rising(sim, "OC1A")[-1]  # the lone pulse after the wave ended
 
 
 def test_reset_restores_the_defaults(box):
     box.configure(50, 0.3)
     box.start()
-    box.reset()                     # waits for the last period, then the box is at its defaults
+    box.reset()  # waits for the last period, then the box is at its defaults
     st = box.status()
     assert not st.running
     assert (st.frequency_hz, st.duty) == (pytest.approx(1.0), pytest.approx(0.5))
@@ -167,21 +171,24 @@ def test_reset_restores_the_defaults(box):
 
 # ---- refusals ------------------------------------------------------------------------------------------
 
+
 def test_bad_values_are_refused_before_anything_is_sent_and_bad_commands_change_nothing(sim, box):
     box.configure(10, 0.25)
     box.start()
     sent = rx_bytes(sim)
-    refused = [(ValueError, lambda: setattr(box, "frequency_hz", 5000)),
-               (ValueError, lambda: setattr(box, "duty", 1.5)),
-               (ValueError, lambda: box.configure(0.01, 0.5)),
-               (Unsupported, lambda: box.configure(10, 0.5, high_v=3.3)),
-               (ValueError, lambda: box.pulse(3, 10)),
-               (ValueError, lambda: box.pulse(1, 0)),
-               (ValueError, lambda: box.fire(pulse_ms=0))]
+    refused = [
+        (ValueError, lambda: setattr(box, "frequency_hz", 5000)),
+        (ValueError, lambda: setattr(box, "duty", 1.5)),
+        (ValueError, lambda: box.configure(0.01, 0.5)),
+        (Unsupported, lambda: box.configure(10, 0.5, high_v=3.3)),
+        (ValueError, lambda: box.pulse(3, 10)),
+        (ValueError, lambda: box.pulse(1, 0)),
+        (ValueError, lambda: box.fire(pulse_ms=0)),
+    ]
     for exc, bad in refused:
         with pytest.raises(exc):
             bad()
-    assert rx_bytes(sim) == sent                     # not one byte reached the device
+    assert rx_bytes(sim) == sent  # not one byte reached the device
 
     # the same mistakes sent raw: the firmware refuses them itself and the wave runs on
     t_bad = sim.cycles_now()
@@ -189,20 +196,21 @@ def test_bad_values_are_refused_before_anything_is_sent_and_bad_commands_change_
         box.query("FREQ 5000")
     assert e.value.code == -222
     with pytest.raises(BoxRefused, match=r"ERR -221 Settings conflict \(.*stop\(\) first\)"):
-        box.query("FREQ 5")                          # a good value, but not while running
+        box.query("FREQ 5")  # a good value, but not while running
     with pytest.raises(BoxRefused, match=r"refused 'WOBBLE 3': ERR -113 Undefined header"):
         box.query("WOBBLE 3")
     sim.wait_cycles(ms(250))
     st = box.status()
     assert st.running and st.frequency_hz == pytest.approx(10.0) and st.duty == pytest.approx(0.25)
-    assert st.errors == ()                           # the three were raised already
+    assert st.errors == ()  # the three were raised already
     up = rising(sim, "OC1A")
     assert any(c > t_bad for c in up)
-    assert periods_exact(up, ms(100))                # the wave never missed a beat
+    assert periods_exact(up, ms(100))  # the wave never missed a beat
     box.stop()
 
 
 # ---- the clock ---------------------------------------------------------------------------------------
+
 
 def test_clock_mapping_over_5_s(box, csv_path):
     m = box.clock_mapping(samples=100, over_s=5.0)
@@ -217,9 +225,9 @@ def test_clock_mapping_over_5_s(box, csv_path):
     # (standard errors up to 112 ppm were seen with the load at 5 busy processes per core)
     assert box.drift_se_ppm < 250
     assert abs(m.drift_ppm) < 50 + 6 * box.drift_se_ppm
-    assert m.residual_s < 1e-3           # 120-280 us idle (0011); 0.62 ms seen on a busy machine
+    assert m.residual_s < 1e-3  # 120-280 us idle (0011); 0.62 ms seen on a busy machine
     assert 0 < m.uncertainty_s < 2e-3
-    assert 40 <= m.samples <= 50      # the best half of 100, less any outliers of the fit
+    assert 40 <= m.samples <= 50  # the best half of 100, less any outliers of the fit
     # the mapping predicts fresh round trips to within their own half round trip + the wander
     for _ in range(5):
         reply, sent, received = box._exchange("TIME?")
@@ -259,7 +267,7 @@ def test_64_bit_device_time_past_2_to_the_32_us():
             go()
             sim.wait_cycles(ms(50))
             st = box.stop()
-            up = rising(sim, "OC1A")[sum(r[1] for r in runs):]
+            up = rising(sim, "OC1A")[sum(r[1] for r in runs) :]
             runs.append((st, len(up), up[0]))
         for st, n, _first_cycle in runs:
             assert st.edges == n and st.first_edge_device_us > 2**32
@@ -271,6 +279,7 @@ def test_64_bit_device_time_past_2_to_the_32_us():
 
 
 # ---- a box that vanishes -------------------------------------------------------------------------------
+
 
 def test_unplug_mid_session_is_one_clear_error_and_the_log_survives(sim, box, csv_path):
     box.identify()
@@ -286,13 +295,13 @@ def test_unplug_mid_session_is_one_clear_error_and_the_log_survives(sim, box, cs
     box.close()
 
     rows = read_log(csv_path)
-    assert rows[:len(before)] == before              # nothing written before was lost or changed
-    after = rows[len(before):]
+    assert rows[: len(before)] == before  # nothing written before was lost or changed
+    after = rows[len(before) :]
     assert [r["kind"] for r in after] == ["cmd", "event", "event"]
     assert after[0]["text"] == "OUTP?" and after[1]["text"].startswith("port gone during OUTP?")
     assert after[2]["text"].startswith("closed")
     with open(csv_path, "rb") as f:
-        assert f.read().endswith(b"\n")              # whole lines only
+        assert f.read().endswith(b"\n")  # whole lines only
     # every command before the unplug has its reply
     kinds = [r["kind"] for r in before if r["kind"] in ("cmd", "reply")]
     assert kinds == ["cmd", "reply"] * (len(kinds) // 2)

@@ -7,7 +7,6 @@ kept on while the host lived and cut within the stated bound of the last command
 
 from __future__ import annotations
 
-import os
 import signal
 import subprocess
 import sys
@@ -15,14 +14,13 @@ import sys
 import pytest
 import yaml
 
-from vts_hw.sim_devices.trigger_box import F_CPU, SimTriggerBox
-
 from firmware_kit import US, Link, falls, rises
 from inprocess_cli import vts
+from vts_hw.sim_devices.trigger_box import F_CPU, SimTriggerBox
 
 pytestmark = pytest.mark.timeout(300)
 
-T_S = 1.0                 # the watchdog time the host asks for (its heartbeat: every 0.25 s)
+T_S = 1.0  # the watchdog time the host asks for (its heartbeat: every 0.25 s)
 TICK = 125 * US
 ISR_LATE = 16 * US
 FREQ_HZ = 20.0
@@ -40,12 +38,16 @@ time.sleep(600)            # the heartbeat thread keeps the box fed until this p
 
 def test_a_killed_host_leaves_no_wave_behind(tmp_path, capsys):
     with SimTriggerBox(speed=1) as box:
-        host = subprocess.Popen([sys.executable, "-c", HOST, box.port, str(T_S), str(FREQ_HZ)],
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        host = subprocess.Popen(
+            [sys.executable, "-c", HOST, box.port, str(T_S), str(FREQ_HZ)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         try:
             assert host.stdout.readline() == "fired\n", host.stderr.read()
             first = rises(box.edges("OC1A"))[0]
-            box.wait_until(first + int(2.5 * T_S * F_CPU))        # the host alive for 2.5 T
+            box.wait_until(first + int(2.5 * T_S * F_CPU))  # the host alive for 2.5 T
             alive = box.edges("OC1A")
         finally:
             host.send_signal(signal.SIGKILL)
@@ -58,25 +60,38 @@ def test_a_killed_host_leaves_no_wave_behind(tmp_path, capsys):
         ends = [u.cycle for u in box.uart() if u.direction == "RX" and u.value == 0x0A]
         beats = [c for c in ends if first < c < r[-1]]
         gaps = [(b - a) / F_CPU for a, b in zip(beats, beats[1:])]
-        alive_said = (f"host alive {(r[-1] - first) / F_CPU:.2f} s: {len(beats)} command lines, longest gap "
-                      f"{max(gaps):.3f} s (T = {T_S:g} s)")
+        alive_said = (
+            f"host alive {(r[-1] - first) / F_CPU:.2f} s: {len(beats)} command lines, longest gap "
+            f"{max(gaps):.3f} s (T = {T_S:g} s)"
+        )
 
-        box.wait_cycles(int(1.25 * T_S * F_CPU))                 # dead for longer than T
+        box.wait_cycles(int(1.25 * T_S * F_CPU))  # dead for longer than T
         # a new connection: what a user runs next, in this process
         rig = tmp_path / "rig.yaml"
-        rig.write_text(yaml.safe_dump({"rig": "t", "cameras": [{"name": "cam1", "host": "127.0.0.1"}],
-                                       "trigger": {"backend": "triggerbox", "address": box.port}}))
+        rig.write_text(
+            yaml.safe_dump(
+                {
+                    "rig": "t",
+                    "cameras": [{"name": "cam1", "host": "127.0.0.1"}],
+                    "trigger": {"backend": "triggerbox", "address": box.port},
+                }
+            )
+        )
         code, out, err = vts(capsys, "trigger", "status", "--config", rig, "--log", tmp_path / "t.csv")
         lines = out.splitlines()
         assert lines[0].startswith("triggerbox: output OFF, 20 Hz, duty 50 %, "), out
-        assert lines[1].startswith("  watchdog TRIPPED: the box heard nothing from its host for 1 s and cut the "
-                                   "square wave (output off) at device time "), out
+        assert lines[1].startswith(
+            "  watchdog TRIPPED: the box heard nothing from its host for 1 s and cut the "
+            "square wave (output off) at device time "
+        ), out
         assert '  device error: -310,"Watchdog: host silent, output off"' in lines, out
-        assert code == 4 and err == ('vts: triggerbox reports 1 error(s) in its queue (read off it now): '
-                                     '-310,"Watchdog: host silent, output off"\n'), err
+        assert code == 4 and err == (
+            "vts: triggerbox reports 1 error(s) in its queue (read off it now): "
+            '-310,"Watchdog: host silent, output off"\n'
+        ), err
         link = Link(box)
         assert link.ask("OUTP?") == "OFF"
-        state, cut_us = link.ask("WDOG?").split(",")[1:]      # still says so, after the queue was read
+        state, cut_us = link.ask("WDOG?").split(",")[1:]  # still says so, after the queue was read
         assert state == "TRIPPED"
         link.close()
 
@@ -90,10 +105,12 @@ def test_a_killed_host_leaves_no_wave_behind(tmp_path, capsys):
         assert rx + t - TICK < cut <= tx + t + ISR_LATE, ((cut - rx) / US, (tx - rx) / US)
         edges = box.edges("OC1A")
         assert edges[-1].value == 0 and falls(edges)[-1] <= cut + ISR_LATE
-        assert rises(edges)[-1] + period > cut - ISR_LATE       # no rising edge after the cut
+        assert rises(edges)[-1] + period > cut - ISR_LATE  # no rising edge after the cut
         print(alive_said)
-        print(f"cut {(cut - rx) / US / 1e6 - T_S:+.6f} s after T from the end of the last command line "
-              f"(its reply left {(tx - rx) / US:.0f} us after it)")
+        print(
+            f"cut {(cut - rx) / US / 1e6 - T_S:+.6f} s after T from the end of the last command line "
+            f"(its reply left {(tx - rx) / US:.0f} us after it)"
+        )
 
 
 def test_a_scan_whose_host_stalled_past_the_watchdog_is_not_complete(tmp_path):
@@ -103,17 +120,29 @@ def test_a_scan_whose_host_stalled_past_the_watchdog_is_not_complete(tmp_path):
     from vts_hw.config import load_rig
     from vts_hw.drivers.trigger import read_log
     from vts_hw.procedures.scan_trigger import ScanTrigger
+
     with SimTriggerBox(speed=1) as box:
         path = tmp_path / "rig.yaml"
-        path.write_text(yaml.safe_dump({"rig": "t", "cameras": [{"name": "cam1", "host": "127.0.0.1"}],
-                                        "trigger": {"backend": "triggerbox", "address": box.port,
-                                                    "frequency_hz": FREQ_HZ, "watchdog_s": 0.5}}))
+        path.write_text(
+            yaml.safe_dump(
+                {
+                    "rig": "t",
+                    "cameras": [{"name": "cam1", "host": "127.0.0.1"}],
+                    "trigger": {
+                        "backend": "triggerbox",
+                        "address": box.port,
+                        "frequency_hz": FREQ_HZ,
+                        "watchdog_s": 0.5,
+                    },
+                }
+            )
+        )
         trig = ScanTrigger(load_rig(path))
         trig.check()
         trig.attach_log(tmp_path / "trigger.csv")
         trig.fire()
         assert trig.info["fire_status"]["extra"]["watchdog"]["state"] == "armed"
-        trig.gen.heartbeat.stop()                   # the host stalls: nothing reaches the box
+        trig.gen.heartbeat.stop()  # the host stalls: nothing reaches the box
         box.wait_cycles(int(0.8 * F_CPU))
         trig.stop()
         trig.close()

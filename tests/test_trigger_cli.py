@@ -43,6 +43,7 @@ def _fgen_rig(tmp_path, srv, **trigger):
 
 # ---- the function generator on its socket -----------------------------------------------------------
 
+
 def test_the_state_lasts_between_commands(tmp_path, fgen):
     rig = _fgen_rig(tmp_path, fgen, frequency_hz=1.0, duty=0.25, high_v=2.5, low_v=0.0)
     log = tmp_path / "trigger.csv"
@@ -50,10 +51,10 @@ def test_the_state_lasts_between_commands(tmp_path, fgen):
     assert p.returncode == 0, p.stderr
     assert p.stdout.strip() == "fgen: output ON, 1 Hz, duty 25 %, 0..2.5 V"
 
-    p = vts("trigger", "status", "--config", str(rig), "--log", str(log))   # a new process, a new connection
+    p = vts("trigger", "status", "--config", str(rig), "--log", str(log))  # a new process, a new connection
     assert p.returncode == 0, p.stderr
     assert p.stdout.strip() == "fgen: output ON, 1 Hz, duty 25 %, 0..2.5 V"
-    (run,) = fgen.instrument.runs(1)                                        # and the instrument agrees
+    (run,) = fgen.instrument.runs(1)  # and the instrument agrees
     assert run.stop is None and (run.function, run.frequency_hz, run.duty_percent) == ("SQU", 1.0, 25.0)
 
     p = vts("trigger", "stop", "--config", str(rig), "--log", str(log))
@@ -79,9 +80,10 @@ def test_fire_says_no_start_pulses_went_out_and_changes_nothing(tmp_path, fgen):
         "vts: fgen cannot start the square wave and the start pulses together: a Keysight 33500 has no "
         "contact-closure outputs; send the start pulses from the trigger box or an NI-DAQmx digital line "
         "(backend daqmx); nothing was sent, so no start pulses went out and the square wave was not "
-        "started (the square wave alone: vts trigger start)")
+        "started (the square wave alone: vts trigger start)"
+    )
     ch = fgen.instrument.channels[1]
-    assert (ch.function, ch.frequency_hz, ch.output) == ("SIN", 1000.0, False)   # as it was
+    assert (ch.function, ch.frequency_hz, ch.output) == ("SIN", 1000.0, False)  # as it was
     assert [r["text"] for r in read_log(log) if r["kind"] == "cmd"] == ["*IDN?", "SYST:ERR?"]
 
 
@@ -97,8 +99,10 @@ def test_a_generator_that_is_off_is_one_sentence_naming_it(tmp_path, fgen):
     fgen.stop()
     p = vts("trigger", "status", "--config", str(rig), "--log", str(tmp_path / "t.csv"))
     assert p.returncode == 4, p.stderr
-    assert p.stderr == (f"vts: fgen: the instrument at {fgen.resource} refused the connection (nothing "
-                        f"listens there: is it switched on, and are the address and port right?)\n")
+    assert p.stderr == (
+        f"vts: fgen: the instrument at {fgen.resource} refused the connection (nothing "
+        f"listens there: is it switched on, and are the address and port right?)\n"
+    )
 
 
 def test_a_generator_that_hangs_is_a_timeout_naming_it(tmp_path, fgen):
@@ -108,18 +112,18 @@ def test_a_generator_that_hangs_is_a_timeout_naming_it(tmp_path, fgen):
     assert p.returncode == 4, p.stderr
     assert p.stderr == f"vts: fgen: the instrument at {fgen.resource} did not answer '*IDN?' within 2 s\n"
     rows = read_log(tmp_path / "t.csv")
-    assert rows[-1]["kind"] == "event" and "did not answer" in rows[-1]["text"]   # kept in trigger.csv
+    assert rows[-1]["kind"] == "event" and "did not answer" in rows[-1]["text"]  # kept in trigger.csv
 
 
 def test_the_pyvisa_sim_model_still_works_from_the_config(tmp_path):
-    rig = _rig(tmp_path, backend="visa", address=SIM_RESOURCE, simulated=True, frequency_hz=1.0, high_v=2.5,
-               low_v=0.0)
+    rig = _rig(tmp_path, backend="visa", address=SIM_RESOURCE, simulated=True, frequency_hz=1.0, high_v=2.5, low_v=0.0)
     p = vts("trigger", "start", "--config", str(rig), "--log", str(tmp_path / "t.csv"))
     assert p.returncode == 0, p.stderr
     assert p.stdout.strip() == "fgen: output ON, 1 Hz, duty 50 %, 0..2.5 V"
 
 
 # ---- the trigger box ------------------------------------------------------------------------------
+
 
 def test_fire_on_the_trigger_box_says_what_went_out(tmp_path):
     with SimTriggerBox() as box:
@@ -130,10 +134,11 @@ def test_fire_on_the_trigger_box_says_what_went_out(tmp_path):
         assert lines[0].startswith("triggerbox: output ON, 2 Hz, duty 50 %, ") and "rising edge(s)" in lines[0]
         assert lines[1:] == [
             "  watchdog off: the box keeps its output as it is whatever happens to its host (vts trigger stop "
-            "switches it off)",      # the wave outlives `vts trigger fire` by design
+            "switches it off)",  # the wave outlives `vts trigger fire` by design
             "  square wave at the device's fixed TTL levels",
             "start pulses: channel 1 (VTS start) and channel 2 (SPECT start), 50 ms each, sent with the square "
-            "wave's first rising edge (triggerbox accepted the fire; the device confirms 50 ms)"]
+            "wave's first rising edge (triggerbox accepted the fire; the device confirms 50 ms)",
+        ]
         p = vts("trigger", "stop", "--config", str(rig), "--log", str(tmp_path / "t.csv"))
         assert p.returncode == 0, p.stderr
         # what the firmware really put on its pins: both contacts closed 50 ms, with the first edge
@@ -146,11 +151,10 @@ def test_fire_on_the_trigger_box_says_what_went_out(tmp_path):
 
 
 def test_a_level_the_generator_cannot_make_is_refused_before_anything_is_sent(tmp_path, fgen):
-    rig = _fgen_rig(tmp_path, fgen, high_v=8.0, low_v=0.0)     # rig.yaml allows ±10 V; a 33500 into 50 ohm ±5 V
+    rig = _fgen_rig(tmp_path, fgen, high_v=8.0, low_v=0.0)  # rig.yaml allows ±10 V; a 33500 into 50 ohm ±5 V
     p = vts("trigger", "start", "--config", str(rig), "--log", str(tmp_path / "t.csv"))
     assert p.returncode == 4, p.stderr
-    assert p.stderr == ("vts: fgen: high level 8.0 V is outside the instrument's range -5 to 5 V; "
-                        "nothing was sent\n")
+    assert p.stderr == ("vts: fgen: high level 8.0 V is outside the instrument's range -5 to 5 V; nothing was sent\n")
     assert fgen.instrument.channels[1].high_v == 0.05 and fgen.instrument.events == []
 
 
@@ -166,12 +170,12 @@ def test_a_trigger_log_that_cannot_be_written(tmp_path, fgen, small_disk):
     head = "host_time,device_us,device,kind,text\n"
     row = "1.000000,,fgen,event,earlier\n"
     log.write_text(head + row * ((4096 - len(head)) // len(row)) + "#" * ((4096 - len(head)) % len(row) - 1) + "\n")
-    assert log.stat().st_size == 4096                                       # its page is full
+    assert log.stat().st_size == 4096  # its page is full
     disk.fill(leave=0)
     p = vts("trigger", "start", "--config", str(rig), "--log", str(log))
     assert p.returncode == 3 and str(log) in p.stderr and "no space left on device" in p.stderr
-    assert p.stdout.strip().startswith("fgen: output ON")                   # said what the device did
-    assert fgen.instrument.runs(1)[0].stop is None                         # and it did it
+    assert p.stdout.strip().startswith("fgen: output ON")  # said what the device did
+    assert fgen.instrument.runs(1)[0].stop is None  # and it did it
     assert "Traceback" not in p.stderr
 
 
@@ -185,7 +189,7 @@ def test_a_log_that_is_not_a_trigger_log_is_never_appended_to(tmp_path, fgen):
         p = vts("trigger", "start", "--config", str(rig), "--log", str(other))
         assert p.returncode == 2 and "is not a trigger log" in p.stderr and str(other) in p.stderr, p.stderr
         assert other.read_bytes() == data
-    assert fgen.instrument.runs(1) == []                      # nothing was sent
+    assert fgen.instrument.runs(1) == []  # nothing was sent
     empty = tmp_path / "empty.csv"
     empty.write_bytes(b"")
     p = vts("trigger", "start", "--config", str(rig), "--log", str(empty))

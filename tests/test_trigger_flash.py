@@ -46,7 +46,7 @@ def _with_version(src: Path, dst: Path, old: bytes, new: bytes) -> Path:
     data = bytearray(_hex_bytes(src))
     at = data.find(b"," + old + b"\x00")
     assert at > 0
-    data[at + 1:at + 1 + len(new)] = new
+    data[at + 1 : at + 1 + len(new)] = new
     ih = IntelHex()
     ih.frombytes(bytes(data), offset=0)
     ih.write_hex_file(str(dst))
@@ -61,7 +61,7 @@ def test_flash_builds_uploads_verifies_and_the_flashed_firmware_answers(tmp_path
         want = _hex_bytes(built)
         got = board.image()
         # every page written equals the hex; the padding of the last page is erased flash
-        assert got[:len(want)] == want and set(got[len(want):]) <= {0xFF}
+        assert got[: len(want)] == want and set(got[len(want) :]) <= {0xFF}
         assert board.uploads == 1 and board.app is not None, board.app_error
         assert f"{board.port}: wrote {len(want)} bytes of trigger_box.hex and verified {len(want)}" in out
         assert "firmware 1.1.0 confirmed, serial 0000" in out
@@ -79,6 +79,7 @@ def test_flash_of_a_given_hex_and_json(tmp_path, hex_file):
         rc, out, err = vts("trigger", "flash", "--port", board.port, "--hex", hex_file, "--json")
         assert rc == 0, err
     import json
+
     doc = json.loads(out)
     assert doc["version"] == "1.1.0" and doc["identity"] == "VTS,TRIGGERBOX,0000,1.1.0"
     assert doc["written"] == doc["verified"] == len(_hex_bytes(hex_file))
@@ -111,9 +112,11 @@ def test_a_verify_mismatch_fails_and_says_so(tmp_path, hex_file):
         rc, out, err = vts("trigger", "flash", "--port", board.port, "--hex", hex_file)
     assert rc == 4, err
     last = err.strip().splitlines()[-1]
-    was = _hex_bytes(hex_file)[0x1C0]   # page 3 (0x180..0x1ff), its middle byte stored with bit 0 flipped
-    assert last.startswith(f"vts: verify failed: the flash of the box on {board.port} differs from {hex_file} at byte 0x01c0 "
-                           f"(the box holds 0x{was ^ 1:02x}, the file 0x{was:02x})")
+    was = _hex_bytes(hex_file)[0x1C0]  # page 3 (0x180..0x1ff), its middle byte stored with bit 0 flipped
+    assert last.startswith(
+        f"vts: verify failed: the flash of the box on {board.port} differs from {hex_file} at byte 0x01c0 "
+        f"(the box holds 0x{was ^ 1:02x}, the file 0x{was:02x})"
+    )
     assert "flash again" in last and "confirmed" not in out
     assert "verification mismatch" in hex_file.with_name("trigger_box.avrdude.log").read_text()
 
@@ -124,10 +127,9 @@ def test_a_box_answering_another_version_fails(tmp_path, hex_file):
     elf = firmware_dir() / "build" / "trigger_box.elf"
     with SimArduinoBoard(runs=elf, workdir=tmp_path / "board") as board:
         rc, out, err = vts("trigger", "flash", "--port", board.port, "--hex", patched)
-        assert board.image()[:len(_hex_bytes(patched))] == _hex_bytes(patched)   # written and verified
+        assert board.image()[: len(_hex_bytes(patched))] == _hex_bytes(patched)  # written and verified
     assert rc == 4, err
-    assert (f"vts: the box on {board.port} answers firmware version 1.1.0 after flashing, not 1.1.9 just written"
-            in err)
+    assert f"vts: the box on {board.port} answers firmware version 1.1.0 after flashing, not 1.1.9 just written" in err
 
 
 def test_a_missing_port_is_a_device_failure(tmp_path, hex_file):

@@ -110,7 +110,7 @@ def test_a_type_error_planted_in_the_clean_part_fails_the_check(typecheck, tree)
         planted.symlink_to(source)
     line = len((text + "\n\n").splitlines()) + 1
     assert p.returncode == 1, p.stdout + p.stderr
-    assert f'vts_hw/save_or_keep.py:{line}: error: Incompatible types in assignment' in p.stdout, p.stdout
+    assert f"vts_hw/save_or_keep.py:{line}: error: Incompatible types in assignment" in p.stdout, p.stdout
     assert "[assignment]" in p.stdout and "Found 1 error in 1 file" in p.stdout, p.stdout
 
 
@@ -122,5 +122,7 @@ def test_the_link_tree_maps_each_folder_where_the_package_has_it(typecheck, tree
     assert typecheck.in_tree("drivers/axis.py", prefixes) == "vts_hw/drivers/axis.py"
     with pytest.raises(ValueError, match="tests/test_typing.py: not in the package's folders"):
         typecheck.in_tree("tests/test_typing.py", prefixes)
-    assert typecheck.back_to_checkout("vts_hw/drivers/axis.py:3: error: x\nvts_hw/cli/qa.py:1: note: y",
-                                      prefixes) == "drivers/axis.py:3: error: x\nvts_hw/cli/qa.py:1: note: y"
+    assert (
+        typecheck.back_to_checkout("vts_hw/drivers/axis.py:3: error: x\nvts_hw/cli/qa.py:1: note: y", prefixes)
+        == "drivers/axis.py:3: error: x\nvts_hw/cli/qa.py:1: note: y"
+    )

@@ -57,9 +57,9 @@ FOLDER_WRITERS = {
     "commission -o": lambda t: ["commission", "-o", t],
     "recording process -o": lambda t: ["recording", "process", "session", "-o", t],
 }
-KINDS = ("char device", "FIFO", "symlink", "wrong kind")    # wrong kind: a folder for a file, a file for a folder
+KINDS = ("char device", "FIFO", "symlink", "wrong kind")  # wrong kind: a folder for a file, a file for a folder
 AS_ROOT = os.geteuid() == 0
-NULL = os.makedev(1, 3)   # /dev/null's numbers: writing to the copy is harmless
+NULL = os.makedev(1, 3)  # /dev/null's numbers: writing to the copy is harmless
 
 
 def make_target(root: Path, kind: str, folder: bool) -> tuple[Path, callable]:
@@ -73,7 +73,7 @@ def make_target(root: Path, kind: str, folder: bool) -> tuple[Path, callable]:
         os.mknod(t, stat.S_IFCHR | 0o666, NULL)
     elif kind == "FIFO":
         os.mkfifo(t)
-    elif kind == "symlink":   # to a file (or folder) another user may care about
+    elif kind == "symlink":  # to a file (or folder) another user may care about
         real = elsewhere / ("folder" if folder else "passwd")
         if folder:
             real.mkdir()
@@ -88,18 +88,24 @@ def make_target(root: Path, kind: str, folder: bool) -> tuple[Path, callable]:
 
     def state():
         st = os.lstat(t)
-        inside = sorted(p.relative_to(root).as_posix() for p in root.rglob("*"))   # no temporary file anywhere
-        content = {p: (root / p).read_bytes() for p in inside if (root / p).is_file() and not (root / p).is_symlink()
-                   and stat.S_ISREG(os.lstat(root / p).st_mode)}
+        inside = sorted(p.relative_to(root).as_posix() for p in root.rglob("*"))  # no temporary file anywhere
+        content = {
+            p: (root / p).read_bytes()
+            for p in inside
+            if (root / p).is_file() and not (root / p).is_symlink() and stat.S_ISREG(os.lstat(root / p).st_mode)
+        }
         return (stat.S_IFMT(st.st_mode), st.st_rdev, os.readlink(t) if t.is_symlink() else None, inside, content)
+
     return t, state
 
 
 @pytest.fixture()
 def no_hang():
     """A case that blocks (opening a FIFO to write with no reader) fails instead of hanging."""
+
     def ring(signum, frame):
         raise TimeoutError("the command blocked: a FIFO opened to write?")
+
     old = signal.signal(signal.SIGALRM, ring)
     signal.setitimer(signal.ITIMER_REAL, 60)
     yield
@@ -112,8 +118,9 @@ CASES = [(c, k, False) for c in FILE_WRITERS for k in KINDS] + [(c, k, True) for
 
 @pytest.mark.parametrize("command,kind,folder", CASES, ids=[f"{c} onto {k}" for c, k, _ in CASES])
 def test_a_writer_refuses_a_target_that_is_not_its_kind_and_leaves_it_as_it_was(
-        tmp_path, capsys, monkeypatch, no_hang, command, kind, folder):
-    monkeypatch.chdir(tmp_path)              # no rig.yaml: the refusal comes before one is looked for
+    tmp_path, capsys, monkeypatch, no_hang, command, kind, folder
+):
+    monkeypatch.chdir(tmp_path)  # no rig.yaml: the refusal comes before one is looked for
     target, state = make_target(tmp_path, kind, folder)
     before = state()
     args = (FOLDER_WRITERS if folder else FILE_WRITERS)[command](str(target))
@@ -122,7 +129,7 @@ def test_a_writer_refuses_a_target_that_is_not_its_kind_and_leaves_it_as_it_was(
     assert code == 3, (code, err)
     assert len(lines) == 1 and lines[0].startswith("vts: ") and str(target) in lines[0], err
     assert "Traceback" not in err and out == ""
-    assert state() == before               # the node, the link and what it points to, byte for byte
+    assert state() == before  # the node, the link and what it points to, byte for byte
 
 
 #: the names of the options (and arguments) that name what a command writes
@@ -158,6 +165,7 @@ def test_every_output_of_every_command_is_checked_when_the_command_line_is_read(
 
 # -- the writers themselves: checked again when they write (the target may change meanwhile) --
 
+
 def test_write_atomic_refuses_a_target_that_became_a_fifo_while_it_wrote(tmp_path, monkeypatch):
     """The race: a regular file when the command started, a FIFO by the time of the rename."""
     target = tmp_path / "report.html"
@@ -168,13 +176,14 @@ def test_write_atomic_refuses_a_target_that_became_a_fifo_while_it_wrote(tmp_pat
         real_fsync(fd)
         target.unlink()
         os.mkfifo(target)
+
     monkeypatch.setattr(os, "fsync", swap)
     with pytest.raises(NotReplaced) as err:
         write_atomic(target, "new\n")
     assert isinstance(err.value, DataError) and err.value.exit_code == 3
     assert "named pipe (FIFO)" in str(err.value) and str(target) in str(err.value)
     assert stat.S_ISFIFO(os.lstat(target).st_mode)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["report.html"]      # no temporary file left
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["report.html"]  # no temporary file left
 
 
 def test_a_temporary_name_planted_beforehand_is_never_opened(tmp_path, monkeypatch):
@@ -225,8 +234,8 @@ def test_a_calibration_whose_target_is_refused_at_write_time_goes_to_the_fallbac
     """save_or_keep (calibrations, mappings): the work is not lost to a target that is not a file."""
     monkeypatch.chdir(tmp_path)
     os.mkfifo(tmp_path / "calibration.json")
-    saved = save_or_keep(tmp_path / "calibration.json", "{\"rms\": 0.2}\n", "calibration")
-    assert saved.written is None and saved.fallback is not None and saved.fallback.read_text() == "{\"rms\": 0.2}\n"
+    saved = save_or_keep(tmp_path / "calibration.json", '{"rms": 0.2}\n', "calibration")
+    assert saved.written is None and saved.fallback is not None and saved.fallback.read_text() == '{"rms": 0.2}\n'
     assert "named pipe" in str(saved.error) and f"saved to {saved.fallback} instead" in str(saved.error)
     assert stat.S_ISFIFO(os.lstat(tmp_path / "calibration.json").st_mode)
 

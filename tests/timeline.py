@@ -27,8 +27,13 @@ def pytest_runtest_protocol(item, nextitem):
         return
     t0, s0, c0 = time.time(), _cpu(resource.RUSAGE_SELF), _cpu(resource.RUSAGE_CHILDREN)
     yield
-    line = {"worker": os.environ.get("PYTEST_XDIST_WORKER", "main"), "test": item.nodeid,
-            "start": t0, "end": time.time(), "self_cpu": _cpu(resource.RUSAGE_SELF) - s0,
-            "child_cpu": _cpu(resource.RUSAGE_CHILDREN) - c0}
+    line = {
+        "worker": os.environ.get("PYTEST_XDIST_WORKER", "main"),
+        "test": item.nodeid,
+        "start": t0,
+        "end": time.time(),
+        "self_cpu": _cpu(resource.RUSAGE_SELF) - s0,
+        "child_cpu": _cpu(resource.RUSAGE_CHILDREN) - c0,
+    }
     with open(path, "a", encoding="utf-8") as f:
         f.write(json.dumps(line) + "\n")

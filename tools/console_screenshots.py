@@ -22,9 +22,9 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Union
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
@@ -37,31 +37,36 @@ class Stage:
     rig: object
     live: object
     ids: dict
-    folder: Path | None = None                         # a temporary folder of the stage's own
+    folder: Path | None = None  # a temporary folder of the stage's own
 
 
 @dataclass(frozen=True)
 class Shot:
-    path: Union[str, Callable[[Stage], str]]          # the page, from the console's root
-    file: str                                          # in the output folder
-    ready: str = "true"                                # a JS expression: true once the page shows what it should
-    setup: Callable[[Stage], None] | None = None      # done before the page is opened
+    path: str | Callable[[Stage], str]  # the page, from the console's root
+    file: str  # in the output folder
+    ready: str = "true"  # a JS expression: true once the page shows what it should
+    setup: Callable[[Stage], None] | None = None  # done before the page is opened
     act: Callable[[Stage, object], None] | None = None  # done on the page (a Playwright Page), once opened
 
 
-ROOM_READY = ("[...document.querySelectorAll('section.camera')].every(s => s.dataset.live === 'yes'"
-              " && s.querySelectorAll('svg circle').length >= 3 && s.dataset.led === 'on'"
-              " && s.querySelector('.offset').textContent.includes('ms'))")
+ROOM_READY = (
+    "[...document.querySelectorAll('section.camera')].every(s => s.dataset.live === 'yes'"
+    " && s.querySelectorAll('svg circle').length >= 3 && s.dataset.led === 'on'"
+    " && s.querySelector('.offset').textContent.includes('ms'))"
+)
 
-AIM_READY = ("[...document.querySelectorAll('section.camera')].every(s => ['good', 'adjust'].includes(s.dataset.aim)"
-             " && s.querySelector('img.aim-picture').naturalWidth > 0"
-             " && s.querySelector('img.aim-picture').dataset.check === s.dataset.aimCheck)")
+AIM_READY = (
+    "[...document.querySelectorAll('section.camera')].every(s => ['good', 'adjust'].includes(s.dataset.aim)"
+    " && s.querySelector('img.aim-picture').naturalWidth > 0"
+    " && s.querySelector('img.aim-picture').dataset.check === s.dataset.aimCheck)"
+)
 
 
 def aim_on(st: Stage) -> None:
     """The Room page's aim & focus on both cameras, with the rig's true calibration and mapping (the
     FOV, table and gantry drawn) and cam2's lens put out of focus (an ADJUST to show)."""
     from vts_hw.sim_devices.sync_truth import write_true_calibration
+
     cal, mp = write_true_calibration(st.rig.scene, st.folder)
     st.live.console.rig_config = st.rig.config(calibration={"stereo": str(cal), "spect": str(mp)})
     st.rig.sources["cam2"].set_optics(focus_blur_px=1.5)
@@ -69,14 +74,17 @@ def aim_on(st: Stage) -> None:
         st.live.console.aim.switch(name, True, "screenshots")
 
 
-QA_READY = ("[...document.querySelectorAll('img.drift')].length === 2 && "
-            "[...document.querySelectorAll('img.drift')].every(i => i.complete && i.naturalWidth > 0)")
+QA_READY = (
+    "[...document.querySelectorAll('img.drift')].length === 2 && "
+    "[...document.querySelectorAll('img.drift')].every(i => i.complete && i.naturalWidth > 0)"
+)
 
 
 def daily_qa(st: Stage, page) -> None:
     """The Daily QA page: the daily QA run from it (on the stage's drift baselines), then pushed to
     the QATrack+ stand-in."""
     from console_live import wait_js
+
     said = "t => document.getElementById('said').textContent.includes(t)"
     page.fill("#frames", "3")
     page.click("#run")
@@ -88,10 +96,13 @@ def daily_qa(st: Stage, page) -> None:
 SHOTS: list[Shot] = [
     Shot("/", "room.png", ROOM_READY),
     Shot("/history", "history.png", "document.querySelectorAll('table.runs tbody tr').length > 0"),
-    Shot(lambda st: f"/history/run/{st.ids['sync']}", "history-run.png",
-         "(() => { const i = document.querySelector('img.plot'); return i && i.complete && i.naturalWidth > 0; })()"),
+    Shot(
+        lambda st: f"/history/run/{st.ids['sync']}",
+        "history-run.png",
+        "(() => { const i = document.querySelector('img.plot'); return i && i.complete && i.naturalWidth > 0; })()",
+    ),
     Shot("/qa", "daily-qa.png", QA_READY, act=daily_qa),  # after History's: its run would be listed there
-    Shot("/", "room-aim.png", AIM_READY, setup=aim_on),    # last: it leaves the checks on and cam2 blurred
+    Shot("/", "room-aim.png", AIM_READY, setup=aim_on),  # last: it leaves the checks on and cam2 blurred
 ]
 
 
@@ -113,10 +124,10 @@ def stage(folder: Path):
         db = folder / "results.sqlite"
         ids = fill(db, folder)
         with SimRig(n_cameras=2, seed=5, qatrack=True) as rig, rig.env():
-            cfg = load_rig(str(qa_rig_yaml(rig, folder)))       # its store: db
+            cfg = load_rig(str(qa_rig_yaml(rig, folder)))  # its store: db
             cams = {c.name: open_camera(c) for c in cfg.cameras}
             try:
-                with ResultsStore(db) as store:       # each camera's wall markers (the LED is left on)
+                with ResultsStore(db) as store:  # each camera's wall markers (the LED is left on)
                     record(store, take_baselines(list(cams.values()), frames=2), rig="sim", operator="screenshots")
                 with LiveConsole(cams, cfg.rig, lambda: ResultsStore(db, mode="read"), rig_config=cfg) as live:
                     yield Stage(rig, live, ids, folder)
@@ -138,12 +149,13 @@ def main(argv=None) -> int:
     shots = [s for s in SHOTS if a.only is None or s.file in a.only]
     unknown = sorted(set(a.only or ()) - {s.file for s in SHOTS})
     if unknown:
-        print(f"console_screenshots: no page makes {', '.join(unknown)} (known: "
-              f"{', '.join(s.file for s in SHOTS)})", file=sys.stderr)
+        print(
+            f"console_screenshots: no page makes {', '.join(unknown)} (known: {', '.join(s.file for s in SHOTS)})",
+            file=sys.stderr,
+        )
         return 2
     a.out.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix="vts-console-shots-") as tmp, stage(Path(tmp)) as st, \
-            chromium() as browser:
+    with tempfile.TemporaryDirectory(prefix="vts-console-shots-") as tmp, stage(Path(tmp)) as st, chromium() as browser:
         for shot in shots:
             if shot.setup is not None:
                 shot.setup(st)
@@ -153,7 +165,7 @@ def main(argv=None) -> int:
             if shot.act is not None:
                 shot.act(st, page)
             wait_js(page, shot.ready, timeout=a.timeout * 1000)
-            page.wait_for_timeout(500)            # the next picture and its markers drawn
+            page.wait_for_timeout(500)  # the next picture and its markers drawn
             page.screenshot(path=str(a.out / shot.file))
             page.close()
             print(f"wrote {a.out / shot.file} ({path})")

@@ -32,7 +32,7 @@ from pydantic import BaseModel
 from pydantic_core import PydanticUndefined
 
 from vts_hw import catalog
-from vts_hw.cli import COMMANDS, cli, command_tree
+from vts_hw.cli import COMMANDS, command_tree
 from vts_hw.config import RigConfig, TriggerConfig
 from vts_hw.drivers import registry
 from vts_hw.errors import VtsError
@@ -60,16 +60,23 @@ EXIT_MEANINGS = {
 
 # ---- every command ------------------------------------------------------------------------------
 
+
 def commands_page() -> str:
-    out = ["# Commands", "",
-           "Every command of `vts`, as `vts COMMAND --help` prints it. This page is made from the "
-           "command tree when the site is built (`tools/docs_site.py`).", "",
-           "Top-level commands: " + ", ".join(f"[`{n}`](#vts-{n})" for n in sorted(COMMANDS)) + ".", ""]
+    out = [
+        "# Commands",
+        "",
+        "Every command of `vts`, as `vts COMMAND --help` prints it. This page is made from the "
+        "command tree when the site is built (`tools/docs_site.py`).",
+        "",
+        "Top-level commands: " + ", ".join(f"[`{n}`](#vts-{n})" for n in sorted(COMMANDS)) + ".",
+        "",
+    ]
     contexts: dict[tuple[str, ...], click.Context] = {}
     for path, command in command_tree():
         parent = contexts.get(path[:-1]) if path else None
-        ctx = click.Context(command, info_name=path[-1] if path else "vts", parent=parent,
-                            max_content_width=80, terminal_width=80)
+        ctx = click.Context(
+            command, info_name=path[-1] if path else "vts", parent=parent, max_content_width=80, terminal_width=80
+        )
         contexts[path] = ctx
         name = " ".join(("vts", *path))
         level = "#" * min(2 + max(len(path) - 1, 0), 4)
@@ -79,6 +86,7 @@ def commands_page() -> str:
 
 # ---- rig.yaml ------------------------------------------------------------------------------------
 
+
 def _type_name(annotation: Any) -> str:
     origin = get_origin(annotation)
     if origin is None:
@@ -87,7 +95,9 @@ def _type_name(annotation: Any) -> str:
         return str(annotation).replace("typing.", "")
     args = [a for a in get_args(annotation) if a is not type(None)]
     if origin is Union:
-        return " or ".join(_type_name(a) for a in args) + (" (or null)" if len(args) < len(get_args(annotation)) else "")
+        return " or ".join(_type_name(a) for a in args) + (
+            " (or null)" if len(args) < len(get_args(annotation)) else ""
+        )
     name = getattr(origin, "__name__", str(origin).replace("typing.", ""))
     if name == "Literal":
         return " | ".join(repr(a) for a in get_args(annotation))
@@ -97,8 +107,14 @@ def _type_name(annotation: Any) -> str:
 def _limits(field) -> str:
     parts = []
     for m in field.metadata:
-        for attr, sign in (("ge", ">="), ("gt", ">"), ("le", "<="), ("lt", "<"), ("min_length", "length >="),
-                           ("pattern", "matches")):
+        for attr, sign in (
+            ("ge", ">="),
+            ("gt", ">"),
+            ("le", "<="),
+            ("lt", "<"),
+            ("min_length", "length >="),
+            ("pattern", "matches"),
+        ):
             v = getattr(m, attr, None)
             if v is not None:
                 parts.append(f"{sign} `{v}`" if attr == "pattern" else f"{sign} {v}")
@@ -149,17 +165,23 @@ def _model_table(model: type[BaseModel], prefix: str, out: list[str], sections: 
             doc = (nested[1].__doc__ or "").strip() if nested[1].__module__.startswith("vts_hw") else ""
             first = re.split(r"(?<=\.)\s", " ".join(doc.split("\n\n")[0].split()), maxsplit=1)[0] if doc else ""
             what = what or (first + " " if len(first) <= 160 else "") + "(its keys below)"
-        out.append(f"| `{key}` | {_cell(_type_name(field.annotation))} | {_cell(_default(field))} | "
-                   f"{_cell(_limits(field))} | {_cell(what)} |")
+        out.append(
+            f"| `{key}` | {_cell(_type_name(field.annotation))} | {_cell(_default(field))} | "
+            f"{_cell(_limits(field))} | {_cell(what)} |"
+        )
     out.append("")
 
 
 def rig_yaml_page() -> str:
-    out = ["# rig.yaml: every key", "",
-           "Made from the settings models (`vts_hw/config.py` and the models it names; each trigger "
-           "backend's own model) when the site is built (`tools/docs_site.py`). How to write the file, "
-           "with an example: [The rig config](rig-config.md). A key that is not listed here is refused "
-           "when the file is read (one sentence naming the file and the key, exit 2).", ""]
+    out = [
+        "# rig.yaml: every key",
+        "",
+        "Made from the settings models (`vts_hw/config.py` and the models it names; each trigger "
+        "backend's own model) when the site is built (`tools/docs_site.py`). How to write the file, "
+        "with an example: [The rig config](rig-config.md). A key that is not listed here is refused "
+        "when the file is read (one sentence naming the file and the key, exit 2).",
+        "",
+    ]
     sections: list = [("", RigConfig)]
     seen = set()
     while sections:
@@ -175,10 +197,14 @@ def rig_yaml_page() -> str:
         sub: list = []
         _model_table(model, f"{prefix}." if prefix else "", out, sub)
         sections[0:0] = sub
-    out += ["## `trigger` keys of each backend", "",
-            "Beside the keys every backend shares (above), `trigger:` holds the keys of the backend it "
-            "names (`trigger: backend:`), checked by that backend's own settings model when it is opened "
-            "(`drivers/registry.py`, `TRIGGER_BACKENDS`).", ""]
+    out += [
+        "## `trigger` keys of each backend",
+        "",
+        "Beside the keys every backend shares (above), `trigger:` holds the keys of the backend it "
+        "names (`trigger: backend:`), checked by that backend's own settings model when it is opened "
+        "(`drivers/registry.py`, `TRIGGER_BACKENDS`).",
+        "",
+    ]
     for name in sorted(registry.TRIGGER_BACKENDS):
         backend = registry.trigger_backend(TriggerConfig(backend=name, address="-"))
         out += [f"### `backend: {name}`", "", _cell(getattr(backend, "what", "")), ""]
@@ -186,32 +212,46 @@ def rig_yaml_page() -> str:
             _model_table(backend.settings, "trigger.", out, [])
         else:
             out += ["No keys of its own.", ""]
-    out += ["## Camera kinds", "",
-            "`cameras[].kind` names the driver of a camera (`drivers/registry.py`, `CAMERA_KINDS`). Each "
-            "kind has its own settings model: the keys of the entry (above) it uses, and its own keys under "
-            "`options:`, checked when the camera is opened (and before a QA run or a scan touches anything).",
-            ""]
+    out += [
+        "## Camera kinds",
+        "",
+        "`cameras[].kind` names the driver of a camera (`drivers/registry.py`, `CAMERA_KINDS`). Each "
+        "kind has its own settings model: the keys of the entry (above) it uses, and its own keys under "
+        "`options:`, checked when the camera is opened (and before a QA run or a scan touches anything).",
+        "",
+    ]
     for kind in sorted(registry.CAMERA_KINDS):
         model = registry.camera_class(kind).settings
         out += [f"### `kind: {kind}`", "", f"`{registry.CAMERA_KINDS[kind]}`. {_cell(model.__doc__ or '')}", ""]
         rows: list[str] = []
         _model_table(model, "cameras[].", rows, [])
         own = {k for k in model.model_fields if k not in model.entry_keys}
-        out += [re.sub(r"^\| `cameras\[\]\.(\w+)`", lambda m, own=own: f"| `cameras[].options.{m.group(1)}`"
-                       if m.group(1) in own else m.group(0), row) for row in rows]
-    out += ["", "## Metrics with a tolerance window", "",
-            "`tolerances:` takes these names (`vts_hw/tolerance.py`'s `DEFAULT_TOLERANCES` and the "
-            "`windows` of the entries of `vts_hw/catalog.py`), each with its default window:", "",
-            "| metric | action low | tolerance low | tolerance high | action high | unit |",
-            "| --- | --- | --- | --- | --- | --- |"]
+        out += [
+            re.sub(
+                r"^\| `cameras\[\]\.(\w+)`",
+                lambda m, own=own: f"| `cameras[].options.{m.group(1)}`" if m.group(1) in own else m.group(0),
+                row,
+            )
+            for row in rows
+        ]
+    out += [
+        "",
+        "## Metrics with a tolerance window",
+        "",
+        "`tolerances:` takes these names (`vts_hw/tolerance.py`'s `DEFAULT_TOLERANCES` and the "
+        "`windows` of the entries of `vts_hw/catalog.py`), each with its default window:",
+        "",
+        "| metric | action low | tolerance low | tolerance high | action high | unit |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
     for metric, window in catalog.windows().items():
         cells = [getattr(window, k) for k in ("action_low", "tolerance_low", "tolerance_high", "action_high")]
-        out.append(f"| `{metric}` | " + " | ".join("" if c is None else str(c) for c in cells) +
-                   f" | {window.unit} |")
+        out.append(f"| `{metric}` | " + " | ".join("" if c is None else str(c) for c in cells) + f" | {window.unit} |")
     return "\n".join(out) + "\n"
 
 
 # ---- exit codes ----------------------------------------------------------------------------------
+
 
 def _modules():
     for folder in PACKAGES:
@@ -237,7 +277,7 @@ def exit_code_sources() -> dict[int, list[str]]:
         for node in ast.walk(tree):
             if isinstance(node, ast.ClassDef):
                 for item in node.body:
-                    if (isinstance(item, ast.Assign) and any(getattr(t, "id", "") == "exit_code" for t in item.targets)):
+                    if isinstance(item, ast.Assign) and any(getattr(t, "id", "") == "exit_code" for t in item.targets):
                         doc = (ast.get_docstring(node) or "").split("\n\n")[0]
                         add(_int(item.value), f"`{node.name}` ({rel}): {_cell(doc)}".rstrip(": "))
             elif isinstance(node, ast.Assign) and len(node.targets) == 1:
@@ -253,8 +293,12 @@ def exit_code_sources() -> dict[int, list[str]]:
                 elif len(names) == len(values):
                     for n, v in zip(names, values):
                         add(_int(v), f"`{n}` ({rel})")
-            elif (isinstance(node, ast.Call) and ast.unparse(node.func) == "sys.exit" and node.args
-                  and _int(node.args[0]) is not None):
+            elif (
+                isinstance(node, ast.Call)
+                and ast.unparse(node.func) == "sys.exit"
+                and node.args
+                and _int(node.args[0]) is not None
+            ):
                 add(_int(node.args[0]), f"`sys.exit({node.args[0].value})` ({rel}:{node.lineno})")
     return found
 
@@ -263,14 +307,21 @@ def exit_codes_page() -> str:
     sources = exit_code_sources()
     unknown = sorted(set(sources) - set(EXIT_MEANINGS))
     if unknown:
-        raise PluginError(f"tools/docs_site.py: exit code {unknown[0]} is set by the code "
-                         f"({sources[unknown[0]][0]}) but has no meaning in EXIT_MEANINGS")
-    out = ["# Exit codes", "",
-           "Every command ends with one of these. An error is one sentence starting `vts:`, never a "
-           "traceback. Made from the code when the site is built (`tools/docs_site.py`): the error "
-           "classes (`vts_hw/errors.py` and their kin), the tables named `EXIT_*` and the literal "
-           "`sys.exit` calls.", "",
-           "| code | meaning |", "| --- | --- |"]
+        raise PluginError(
+            f"tools/docs_site.py: exit code {unknown[0]} is set by the code "
+            f"({sources[unknown[0]][0]}) but has no meaning in EXIT_MEANINGS"
+        )
+    out = [
+        "# Exit codes",
+        "",
+        "Every command ends with one of these. An error is one sentence starting `vts:`, never a "
+        "traceback. Made from the code when the site is built (`tools/docs_site.py`): the error "
+        "classes (`vts_hw/errors.py` and their kin), the tables named `EXIT_*` and the literal "
+        "`sys.exit` calls.",
+        "",
+        "| code | meaning |",
+        "| --- | --- |",
+    ]
     out += [f"| **{code}** | {meaning} |" for code, meaning in sorted(EXIT_MEANINGS.items())]
     out += ["", "## Where the code sets each", ""]
     for code in sorted(EXIT_MEANINGS):
@@ -281,6 +332,7 @@ def exit_codes_page() -> str:
 
 
 # ---- layers --------------------------------------------------------------------------------------
+
 
 def _literal(path: Path, name: str):
     for node in ast.parse(path.read_text()).body:
@@ -293,10 +345,15 @@ def layers_page() -> str:
     test = ROOT / "tests" / "test_layers.py"
     allowed = _literal(test, "ALLOWED")
     doc = ast.get_docstring(ast.parse(test.read_text())) or ""
-    out = ["# The layers", "",
-           "What each layer may import, read from `tests/test_layers.py` (its `ALLOWED` table) when the "
-           "site is built: that test fails on any import that breaks it. A layer always imports itself.", "",
-           "| layer | may import |", "| --- | --- |"]
+    out = [
+        "# The layers",
+        "",
+        "What each layer may import, read from `tests/test_layers.py` (its `ALLOWED` table) when the "
+        "site is built: that test fails on any import that breaks it. A layer always imports itself.",
+        "",
+        "| layer | may import |",
+        "| --- | --- |",
+    ]
     out += [f"| {layer} | {', '.join(sorted(may)) or '(nothing of the project)'} |" for layer, may in allowed.items()]
     out += ["", "## The rules, as the test states them", ""]
     out += [doc, "", "Where each module is and what it holds: [Where things are](where-things-are.md).", ""]
@@ -305,12 +362,18 @@ def layers_page() -> str:
 
 # ---- benchmarks ----------------------------------------------------------------------------------
 
+
 def benches_page() -> str:
-    out = ["# Benchmarks", "",
-           "`make bench` runs every one (`bench/run_all.py`); each prints figures measured in one run "
-           "(ratios, never timed assertions). Run one with `.venv/bin/python bench/NAME.py` (`--help` for "
-           "its options). This list is made from each script's docstring when the site is built.", "",
-           "| bench | what it measures |", "| --- | --- |"]
+    out = [
+        "# Benchmarks",
+        "",
+        "`make bench` runs every one (`bench/run_all.py`); each prints figures measured in one run "
+        "(ratios, never timed assertions). Run one with `.venv/bin/python bench/NAME.py` (`--help` for "
+        "its options). This list is made from each script's docstring when the site is built.",
+        "",
+        "| bench | what it measures |",
+        "| --- | --- |",
+    ]
     for path in sorted((ROOT / "bench").glob("*.py")):
         doc = ast.get_docstring(ast.parse(path.read_text())) or ""
         out.append(f"| `bench/{path.name}` | {_cell(doc.split(chr(10) * 2)[0])} |")
@@ -318,6 +381,7 @@ def benches_page() -> str:
 
 
 # ---- decisions -----------------------------------------------------------------------------------
+
 
 def decision_notes() -> list[tuple[str, str, str]]:
     """(number, title, file name) of every note in docs/decisions/, by number."""
@@ -330,10 +394,15 @@ def decision_notes() -> list[tuple[str, str, str]]:
 
 
 def decisions_page() -> str:
-    out = ["# Decisions", "",
-           "Short notes on the choices behind the code, one per choice, by number. This index is made "
-           "from the notes' titles when the site is built.", "",
-           "| # | decision |", "| --- | --- |"]
+    out = [
+        "# Decisions",
+        "",
+        "Short notes on the choices behind the code, one per choice, by number. This index is made "
+        "from the notes' titles when the site is built.",
+        "",
+        "| # | decision |",
+        "| --- | --- |",
+    ]
     out += [f"| {num} | [{_cell(title)}]({name}) |" for num, title, name in decision_notes()]
     return "\n".join(out) + "\n"
 

@@ -36,16 +36,21 @@ def main(out: Path) -> None:
         rig.ntp_sync()
         rig_yaml, _ = rig.write(tmp / "rig")
         patient = add_patient(rig.scene, time.time(), 600.0, seed=5, moves=[])
-        env = {**os.environ, **rig.env_vars(), "VTS_CONFIG": str(rig_yaml),
-               "VTS_STORE": f"sqlite:///{tmp / 'results.sqlite'}"}
+        env = {
+            **os.environ,
+            **rig.env_vars(),
+            "VTS_CONFIG": str(rig_yaml),
+            "VTS_STORE": f"sqlite:///{tmp / 'results.sqlite'}",
+        }
         p, url = start_console(["--port", "0", "--scans-dir", str(tmp / "scans")], env)
         try:
             with chromium() as b:
                 pg = b.new_page(viewport={"width": 1366, "height": 768})
                 pg.goto(url + "scan")
                 now = rig.clock.now()
-                patient.motion.moves.append(BodyMove(now + MOVE_AT_S, now + MOVE_AT_S + 0.6, (0.0, 1.0, 0.0),
-                                                     (2.0, 5.0, 2.0)))
+                patient.motion.moves.append(
+                    BodyMove(now + MOVE_AT_S, now + MOVE_AT_S + 0.6, (0.0, 1.0, 0.0), (2.0, 5.0, 2.0))
+                )
                 rig.prerender(SCAN_S + 5.0)
                 pg.fill("#reference", "5")
                 pg.fill("#duration", f"{SCAN_S:g}")

@@ -32,8 +32,9 @@ REPO = Path(__file__).resolve().parents[1]
 def package_dir(setup_py: Path = REPO / "setup.py") -> dict[str, str]:
     """setup.py's PACKAGE_DIR (package name -> folder), read without running setup.py."""
     for node in ast.parse(setup_py.read_text(encoding="utf-8")).body:
-        if isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "PACKAGE_DIR"
-                                                for t in node.targets):
+        if isinstance(node, ast.Assign) and any(
+            isinstance(t, ast.Name) and t.id == "PACKAGE_DIR" for t in node.targets
+        ):
             return dict(ast.literal_eval(node.value))
     raise ValueError(f"{setup_py}: no PACKAGE_DIR assignment to read the package's folders from")
 
@@ -71,32 +72,47 @@ def in_tree(path: str, prefixes: dict[str, Path], repo: Path = REPO) -> str:
     for prefix, folder in prefixes.items():
         if real == folder or folder in real.parents:
             return (Path(prefix) / real.relative_to(folder)).as_posix()
-    raise ValueError(f"{path}: not in the package's folders ({', '.join(str(f.relative_to(repo)) for f in prefixes.values())})")
+    raise ValueError(
+        f"{path}: not in the package's folders ({', '.join(str(f.relative_to(repo)) for f in prefixes.values())})"
+    )
 
 
 def back_to_checkout(text: str, prefixes: dict[str, Path], repo: Path = REPO) -> str:
     """mypy's messages with the link tree's paths written as the checkout's."""
+
     def one(m: re.Match[str]) -> str:
         path = m.group(0)
         for prefix, folder in prefixes.items():
             if path == prefix or path.startswith(prefix + "/"):
-                return (folder.relative_to(repo) / path[len(prefix):].lstrip("/")).as_posix()
+                return (folder.relative_to(repo) / path[len(prefix) :].lstrip("/")).as_posix()
         return path
+
     pattern = "|".join(re.escape(p) for p in prefixes)
     return re.sub(rf"(?:{pattern})(?:/[\w./-]*)?", one, text)
 
 
-def mypy(paths: list[str], tree: Path, prefixes: dict[str, Path],
-         extra: list[str] | None = None) -> subprocess.CompletedProcess[str]:
+def mypy(
+    paths: list[str], tree: Path, prefixes: dict[str, Path], extra: list[str] | None = None
+) -> subprocess.CompletedProcess[str]:
     """mypy on PATHS (checkout paths; none: the whole package) in the link tree at TREE (made by
     link_tree, which gave PREFIXES), with its cache there; its output mapped back to the checkout."""
     targets = [in_tree(p, prefixes) for p in paths] if paths else ["vts_hw"]
-    cmd = [sys.executable, "-m", "mypy", "--config-file", str(REPO / "pyproject.toml"),
-           "--cache-dir", str(tree / ".mypy_cache"), "--follow-imports=silent",
-           *(extra or []), *targets]
+    cmd = [
+        sys.executable,
+        "-m",
+        "mypy",
+        "--config-file",
+        str(REPO / "pyproject.toml"),
+        "--cache-dir",
+        str(tree / ".mypy_cache"),
+        "--follow-imports=silent",
+        *(extra or []),
+        *targets,
+    ]
     p = subprocess.run(cmd, cwd=tree, capture_output=True, text=True)
-    return subprocess.CompletedProcess(cmd, p.returncode, back_to_checkout(p.stdout, prefixes),
-                                       back_to_checkout(p.stderr, prefixes))
+    return subprocess.CompletedProcess(
+        cmd, p.returncode, back_to_checkout(p.stdout, prefixes), back_to_checkout(p.stderr, prefixes)
+    )
 
 
 def run(paths: list[str], tree: Path, extra: list[str] | None = None) -> subprocess.CompletedProcess[str]:

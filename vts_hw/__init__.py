@@ -1,7 +1,8 @@
 """vts-hw: control and QA of a stereo Visual Tracking System (VTS) for SPECT."""
 
 import os
-from importlib.metadata import PackageNotFoundError, version as _version
+from importlib.metadata import PackageNotFoundError
+from importlib.metadata import version as _version
 
 # Linear algebra on one thread unless the user set it (docs/decisions/0075-one-blas-thread.md):
 # vts-hw's matrices are small, and OpenBLAS's idle threads wait spinning, taking a busy machine's

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from vts_hw.errors import DataError
 
-MiB = 2 ** 20
+MiB = 2**20
 #: JSON and YAML a person or this suite writes: configs, calibrations, manifests, imports
 SMALL = 64 * MiB
 #: tables that grow with a recording: frame indexes, trigger logs (a year of frames at 25 fps fits)
@@ -32,7 +32,7 @@ CAPTURE = 2048 * MiB
 #: list-mode data read whole (an acquisition of hours is some GiB)
 LISTMODE = 8192 * MiB
 #: only a device or pipe refused (a file appended to, or sniffed by its first bytes)
-ANY_SIZE = 2 ** 62
+ANY_SIZE = 2**62
 CHUNK = MiB
 
 
@@ -55,11 +55,13 @@ def _check_stat(st: os.stat_result, path, limit: int, what: str) -> os.stat_resu
     if stat.S_ISDIR(st.st_mode):
         raise IsADirectoryError(21, "Is a directory", str(path))
     if not stat.S_ISREG(st.st_mode):
-        raise TooLarge(f"{path}: not a regular file but a device, pipe or socket, which may never end; "
-                       f"a {what} must be a file")
+        raise TooLarge(
+            f"{path}: not a regular file but a device, pipe or socket, which may never end; a {what} must be a file"
+        )
     if st.st_size > limit:
-        raise TooLarge(f"{path}: {st.st_size / MiB:,.0f} MiB, more than a {what} can be "
-                       f"({_mib(limit)}); nothing was read")
+        raise TooLarge(
+            f"{path}: {st.st_size / MiB:,.0f} MiB, more than a {what} can be ({_mib(limit)}); nothing was read"
+        )
     return st
 
 
@@ -84,17 +86,19 @@ def read_bytes(path: str | os.PathLike, limit: int = SMALL, what: str = "file") 
     out = bytearray()
     with open_checked(path, limit, what) as f:
         while True:
-            chunk = f.read(CHUNK)   # a chunk at a time: Ctrl-C is seen between two
+            chunk = f.read(CHUNK)  # a chunk at a time: Ctrl-C is seen between two
             if not chunk:
                 return bytes(out)
             out += chunk
             if len(out) > limit:
-                raise TooLarge(f"{path}: more than {_mib(limit)} and still coming, more than a {what} can be; "
-                               f"stopped reading")
+                raise TooLarge(
+                    f"{path}: more than {_mib(limit)} and still coming, more than a {what} can be; stopped reading"
+                )
 
 
-def read_text(path: str | os.PathLike, limit: int = SMALL, what: str = "file", encoding: str = "utf-8",
-              errors: str = "strict") -> str:
+def read_text(
+    path: str | os.PathLike, limit: int = SMALL, what: str = "file", encoding: str = "utf-8", errors: str = "strict"
+) -> str:
     """:func:`read_bytes` decoded (universal newlines, as ``Path.read_text``)."""
     data = read_bytes(path, limit, what).decode(encoding, errors)
     return data.replace("\r\n", "\n").replace("\r", "\n") if "\r" in data else data
@@ -113,8 +117,9 @@ class _Capped(io.RawIOBase):
         n = self._f.readinto(b)
         self._n += n or 0
         if self._n > self._limit:
-            raise TooLarge(f"{self._path}: more than {_mib(self._limit)}, more than a {self._what} can be; "
-                           f"stopped reading")
+            raise TooLarge(
+                f"{self._path}: more than {_mib(self._limit)}, more than a {self._what} can be; stopped reading"
+            )
         return n
 
     def close(self) -> None:
@@ -122,8 +127,15 @@ class _Capped(io.RawIOBase):
         super().close()
 
 
-def open_bounded(path: str | os.PathLike, limit: int = TABLE, what: str = "file", mode: str = "r",
-                 encoding: str = "utf-8", newline: str | None = None, errors: str = "strict"):
+def open_bounded(
+    path: str | os.PathLike,
+    limit: int = TABLE,
+    what: str = "file",
+    mode: str = "r",
+    encoding: str = "utf-8",
+    newline: str | None = None,
+    errors: str = "strict",
+):
     """``open(path, mode)`` for streaming (``"r"`` text, ``"rb"`` binary) that refuses what
     :func:`check_file` refuses and stops at ``limit`` bytes."""
     raw = _Capped(open_checked(path, limit, what), Path(path), limit, what)
@@ -133,5 +145,16 @@ def open_bounded(path: str | os.PathLike, limit: int = TABLE, what: str = "file"
     return io.TextIOWrapper(buffered, encoding=encoding, newline=newline, errors=errors)
 
 
-__all__ = ["read_bytes", "read_text", "open_bounded", "open_checked", "check_file", "TooLarge", "SMALL", "TABLE",
-           "CAPTURE", "LISTMODE", "ANY_SIZE"]
+__all__ = [
+    "read_bytes",
+    "read_text",
+    "open_bounded",
+    "open_checked",
+    "check_file",
+    "TooLarge",
+    "SMALL",
+    "TABLE",
+    "CAPTURE",
+    "LISTMODE",
+    "ANY_SIZE",
+]

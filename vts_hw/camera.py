@@ -20,10 +20,20 @@ Where a frame's time comes from is part of the frame (``time_source``) and of th
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Iterator, Mapping
 from copy import copy
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Callable, ClassVar, Iterator, Protocol, Self, Union, get_args, get_origin, runtime_checkable
+from typing import (
+    TYPE_CHECKING,
+    Any,
+    ClassVar,
+    Protocol,
+    Self,
+    Union,
+    get_args,
+    get_origin,
+    runtime_checkable,
+)
 
 from pydantic import BaseModel, ConfigDict, ValidationError, create_model
 from pydantic_core import PydanticUndefined
@@ -31,10 +41,10 @@ from pydantic_core import PydanticUndefined
 from vts_hw.config import CameraConfig
 from vts_hw.errors import ConfigError, DeviceError
 
-if TYPE_CHECKING:       # camera_stream.py builds on this module's Frame and StreamGap
+if TYPE_CHECKING:  # camera_stream.py builds on this module's Frame and StreamGap
     from vts_hw.camera_stream import FrameStream
 
-TORN = "torn"   # what a connection yields for a frame that arrived cut short (never a Frame)
+TORN = "torn"  # what a connection yields for a frame that arrived cut short (never a Frame)
 TIME_SOURCES = ("camera", "receipt", "recording")
 
 
@@ -146,6 +156,7 @@ class Connection(Protocol):
 
 # -- the roles: a camera kind implements the ones it has (docs/decisions/0100-camera-roles.md) ----------
 
+
 @runtime_checkable
 class Frames(Protocol):
     """Frames: one now, or a stream. Every camera has this role."""
@@ -159,8 +170,9 @@ class Frames(Protocol):
         """One frame, now. ``compression`` (0-100) is a hint for this request only; a kind
         that cannot change it ignores it."""
 
-    def open_stream(self, *, fps: float, duration: float | None, nbrofframes: int | None,
-                    first_seq: int, stall_timeout: float) -> Connection:
+    def open_stream(
+        self, *, fps: float, duration: float | None, nbrofframes: int | None, first_seq: int, stall_timeout: float
+    ) -> Connection:
         """One connection of the camera's stream (the reconnecting stream is built on it)."""
 
     def stream(self, **kwargs) -> FrameStream:
@@ -226,14 +238,20 @@ class Camera(Frames, DeviceInformation, CameraClock, Protocol):
 
     def close(self) -> None: ...
 
-    def __enter__(self) -> "Camera": ...
+    def __enter__(self) -> Camera: ...
 
     def __exit__(self, *exc) -> None: ...
 
 
 #: the roles, by the name a report or a test gives them
-ROLES: dict[str, type] = {"frames": Frames, "device information": DeviceInformation, "clock": CameraClock,
-                          "illumination": Illumination, "parameters": Parameters, "running time": RunningTime}
+ROLES: dict[str, type] = {
+    "frames": Frames,
+    "device information": DeviceInformation,
+    "clock": CameraClock,
+    "illumination": Illumination,
+    "parameters": Parameters,
+    "running time": RunningTime,
+}
 
 
 def roles_of(cam) -> tuple[str, ...]:
@@ -261,12 +279,14 @@ def check_whole(frame: Frame, camera: str) -> None:
     else:
         import cv2
         import numpy as np
+
         img = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_UNCHANGED)
         if img is None or img.size == 0:
             why = "it does not decode"
     if why:
-        raise NotWhole(camera, f"camera {camera} sent a JPEG that is not whole ({len(jpeg)} bytes: {why}); "
-                               f"nothing was kept")
+        raise NotWhole(
+            camera, f"camera {camera} sent a JPEG that is not whole ({len(jpeg)} bytes: {why}); nothing was kept"
+        )
 
 
 class KindSettings(BaseModel):
@@ -284,8 +304,9 @@ class KindSettings(BaseModel):
         opts = dict(cfg.options)
         for key in opts:
             if key in cls.entry_keys:
-                raise ConfigError(f"{where}: options.{key}: {key} is a key of the camera entry itself, "
-                                  f"not of its options")
+                raise ConfigError(
+                    f"{where}: options.{key}: {key} is a key of the camera entry itself, not of its options"
+                )
         data = {k: getattr(cfg, k) for k in cls.entry_keys if getattr(cfg, k) is not None}
         try:
             return cls.model_validate({**data, **opts})
@@ -301,8 +322,14 @@ class KindSettings(BaseModel):
             raise ConfigError(f"{where}: options.{'.'.join(loc) or 'options'}: {msg}") from None
 
 
-def kind_settings(name: str, doc: str, entry_keys: tuple[str, ...] = (), *, required: tuple[str, ...] = (),
-                  options: type[BaseModel] | None = None) -> Any:
+def kind_settings(
+    name: str,
+    doc: str,
+    entry_keys: tuple[str, ...] = (),
+    *,
+    required: tuple[str, ...] = (),
+    options: type[BaseModel] | None = None,
+) -> Any:
     """A camera kind's settings model (its driver's ``settings``): the entry keys it uses, as
     :class:`~vts_hw.config.CameraConfig` defines them (those in ``required`` must be given), and
     the fields of ``options``, its own keys under ``options:``. The rig.yaml reference page shows it.
@@ -314,10 +341,11 @@ def kind_settings(name: str, doc: str, entry_keys: tuple[str, ...] = (), *, requ
             info.default = PydanticUndefined
             info.annotation = _not_none(info.annotation)
         fields[key] = (info.annotation, info)
-    for key, info in (options.model_fields.items() if options is not None else ()):
+    for key, info in options.model_fields.items() if options is not None else ():
         fields[key] = (info.annotation, info)
-    model = create_model(name, __base__=KindSettings, __doc__=doc, __module__=options.__module__ if options
-                         else __name__, **fields)
+    model = create_model(
+        name, __base__=KindSettings, __doc__=doc, __module__=options.__module__ if options else __name__, **fields
+    )
     model.entry_keys = tuple(entry_keys)
     return model
 
@@ -327,6 +355,30 @@ def _not_none(annotation):
     return args[0] if get_origin(annotation) is Union and len(args) == 1 else annotation
 
 
-__all__ = ["Frames", "DeviceInformation", "CameraClock", "Illumination", "Parameters",
-           "RunningTime", "ROLES", "roles_of", "check_whole", "NotWhole", "StreamFellShort", "Camera", "CameraError", "ClockOffset", "Connection", "Frame", "Refused", "SourceEnded",
-           "StreamGap", "StreamStats", "TORN", "TIME_SOURCES", "Uptime", "KindSettings", "kind_settings"]
+__all__ = [
+    "Frames",
+    "DeviceInformation",
+    "CameraClock",
+    "Illumination",
+    "Parameters",
+    "RunningTime",
+    "ROLES",
+    "roles_of",
+    "check_whole",
+    "NotWhole",
+    "StreamFellShort",
+    "Camera",
+    "CameraError",
+    "ClockOffset",
+    "Connection",
+    "Frame",
+    "Refused",
+    "SourceEnded",
+    "StreamGap",
+    "StreamStats",
+    "TORN",
+    "TIME_SOURCES",
+    "Uptime",
+    "KindSettings",
+    "kind_settings",
+]

@@ -14,13 +14,13 @@ docs/decisions/0084-commissioning-honest-state.md.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 from vts_hw.camera import Camera, CameraError, Illumination
 
-READ_BACK_S = 1.0        # a switch the camera's output shows within this long has taken
-PULSE_SEEN_MS = 1000     # a pulse at least this long must be seen on while it lasts
+READ_BACK_S = 1.0  # a switch the camera's output shows within this long has taken
+PULSE_SEEN_MS = 1000  # a pulse at least this long must be seen on while it lasts
 POLL_S = 0.1
 
 
@@ -39,12 +39,16 @@ class LedReadBack:
     seen_on: bool | None = None
 
     def words(self) -> str:
-        return "not known (this camera cannot tell its LED's state)" if self.state is None else \
-            ("on" if self.state else "off")
+        return (
+            "not known (this camera cannot tell its LED's state)"
+            if self.state is None
+            else ("on" if self.state else "off")
+        )
 
 
-def _read_until(cam: Illumination, want: bool, within_s: float, sleep: Callable[[float], None],
-                clock: Callable[[], float]) -> bool | None:
+def _read_until(
+    cam: Illumination, want: bool, within_s: float, sleep: Callable[[float], None], clock: Callable[[], float]
+) -> bool | None:
     end = clock() + within_s
     while True:
         state = cam.led_state()
@@ -58,8 +62,9 @@ def _where(cam) -> str:
     return f"its LED output (port {port})" if port is not None else "its LED output"
 
 
-def switch_led(cam: Camera, on: bool, *, within_s: float = READ_BACK_S, sleep=time.sleep,
-               clock=time.monotonic) -> LedReadBack:
+def switch_led(
+    cam: Camera, on: bool, *, within_s: float = READ_BACK_S, sleep=time.sleep, clock=time.monotonic
+) -> LedReadBack:
     """Switch ``cam``'s LED ring on or off and read it back; :class:`LedNotTaken` when the camera
     still says otherwise after ``within_s``; not known (nothing sent) for a camera without an LED."""
     if not isinstance(cam, Illumination):
@@ -68,9 +73,12 @@ def switch_led(cam: Camera, on: bool, *, within_s: float = READ_BACK_S, sleep=ti
     state = _read_until(cam, on, within_s, sleep, clock)
     want = "on" if on else "off"
     if state is not None and state != on:
-        raise LedNotTaken(cam.name, f"camera {cam.name} accepted the switch {want} but {_where(cam)} still reads "
-                                    f"{'on' if state else 'off'} after {within_s:g} s: the switch did not take (an "
-                                    f"action rule on the camera may hold the port)")
+        raise LedNotTaken(
+            cam.name,
+            f"camera {cam.name} accepted the switch {want} but {_where(cam)} still reads "
+            f"{'on' if state else 'off'} after {within_s:g} s: the switch did not take (an "
+            f"action rule on the camera may hold the port)",
+        )
     return LedReadBack(state)
 
 
@@ -84,8 +92,9 @@ def light(cam: Camera) -> str:
     return "on"
 
 
-def pulse_led(cam: Camera, ms: int, *, within_s: float = READ_BACK_S, sleep=time.sleep,
-              clock=time.monotonic) -> LedReadBack:
+def pulse_led(
+    cam: Camera, ms: int, *, within_s: float = READ_BACK_S, sleep=time.sleep, clock=time.monotonic
+) -> LedReadBack:
     """Pulse ``cam``'s LED ring for ``ms`` and read it back: seen on while it lasts (required for
     a pulse of :data:`PULSE_SEEN_MS` or more), off once it has ended; :class:`LedNotTaken` else;
     not known (nothing sent) for a camera without an LED."""
@@ -96,16 +105,22 @@ def pulse_led(cam: Camera, ms: int, *, within_s: float = READ_BACK_S, sleep=time
     seen = _read_until(cam, True, min(ms / 1000.0, within_s), sleep, clock)
     if seen is None:
         return LedReadBack(None)
-    sleep(max(0.0, ms / 1000.0 - (clock() - started)))        # its end, then read
+    sleep(max(0.0, ms / 1000.0 - (clock() - started)))  # its end, then read
     end = _read_until(cam, False, within_s, sleep, clock)
     if end:
-        raise LedNotTaken(cam.name, f"camera {cam.name} accepted a pulse of {ms} ms but {_where(cam)} still reads on "
-                                    f"{within_s:g} s after its end: the pulse did not take (an action rule on the "
-                                    f"camera may hold the port)")
+        raise LedNotTaken(
+            cam.name,
+            f"camera {cam.name} accepted a pulse of {ms} ms but {_where(cam)} still reads on "
+            f"{within_s:g} s after its end: the pulse did not take (an action rule on the "
+            f"camera may hold the port)",
+        )
     if not seen and ms >= PULSE_SEEN_MS:
-        raise LedNotTaken(cam.name, f"camera {cam.name} accepted a pulse of {ms} ms but {_where(cam)} never read on "
-                                    f"while it lasted: the pulse did not take (an action rule on the camera may hold "
-                                    f"the port)")
+        raise LedNotTaken(
+            cam.name,
+            f"camera {cam.name} accepted a pulse of {ms} ms but {_where(cam)} never read on "
+            f"while it lasted: the pulse did not take (an action rule on the camera may hold "
+            f"the port)",
+        )
     return LedReadBack(end, seen)
 
 

@@ -29,10 +29,19 @@ class FrameStream:
     remainder is asked for. ``stop()`` (from any thread) ends the iteration promptly.
     """
 
-    def __init__(self, camera, *, fps: float | None = None, duration: float | None = None,
-                 nbrofframes: int | None = None, reconnect: bool = True, stall_timeout: float | None = None,
-                 max_backoff: float = 5.0, give_up_after: float | None = None,
-                 stop_event: threading.Event | None = None):
+    def __init__(
+        self,
+        camera,
+        *,
+        fps: float | None = None,
+        duration: float | None = None,
+        nbrofframes: int | None = None,
+        reconnect: bool = True,
+        stall_timeout: float | None = None,
+        max_backoff: float = 5.0,
+        give_up_after: float | None = None,
+        stop_event: threading.Event | None = None,
+    ):
         self.camera = camera
         self.fps = float(fps or camera.fps)
         self.duration = duration
@@ -66,14 +75,16 @@ class FrameStream:
             asked = f" in {self.duration:g} s" if self.duration is not None else ""
             return f"camera {name}: no frames{asked} ({cause})"
         if st.reconnects:
-            return (f"camera {name}: the stream was not whole: {st.reconnects} reconnect(s) after {cause}; "
-                    f"{st.frames} frame(s), {st.missing} missing")
+            return (
+                f"camera {name}: the stream was not whole: {st.reconnects} reconnect(s) after {cause}; "
+                f"{st.frames} frame(s), {st.missing} missing"
+            )
         return None
 
     # -- iteration -------------------------------------------------------------------
     def __iter__(self):
         cam = self.camera
-        error = getattr(cam, "error_class", CameraError)   # the kind's own error class, if it has one
+        error = getattr(cam, "error_class", CameraError)  # the kind's own error class, if it has one
         started = time.monotonic()
         last_ok = started
         backoff = 0.25
@@ -132,24 +143,30 @@ class FrameStream:
             if self.stop_event.is_set():
                 return
             if ended_normally:
-                asked_end = (self.duration is not None and time.monotonic() - started >= self.duration - 0.5)
+                asked_end = self.duration is not None and time.monotonic() - started >= self.duration - 0.5
                 if asked_end:
                     return
                 if not self.reconnect:
                     return
                 pending_reason = pending_reason or "reconnect after the camera ended the stream"
             if self.give_up_after is not None and time.monotonic() - last_ok > self.give_up_after:
-                raise error(cam.name, f"camera {cam.name}: no frames for {self.give_up_after:g} s "
-                                            f"({self.stats.last_error or 'stream ended'}); giving up")
+                raise error(
+                    cam.name,
+                    f"camera {cam.name}: no frames for {self.give_up_after:g} s "
+                    f"({self.stats.last_error or 'stream ended'}); giving up",
+                )
             self.stats.reconnects += 1
             self.stop_event.wait(backoff)
             backoff = min(backoff * 2, self.max_backoff)
 
     def _one_connection(self, remaining: float | None, seq: int):
         conn = self.camera.open_stream(
-            fps=self.fps, duration=remaining,
+            fps=self.fps,
+            duration=remaining,
             nbrofframes=None if self.nbrofframes is None else self.nbrofframes - seq,
-            first_seq=seq, stall_timeout=self.stall_timeout)
+            first_seq=seq,
+            stall_timeout=self.stall_timeout,
+        )
         with self._lock:
             self._conn = conn
         try:

@@ -26,24 +26,25 @@ JUDGES = ("room", "patient", "none")
 class Figure:
     """A figure of a procedure in the reports: a metric (of one subject, or the largest over
     its subjects), its label and format."""
+
     metric: str
     label: str
     fmt: str
-    subject: str | None = None          # None: the largest value over the subjects
-    exclude: str | None = None          # with subject None: a subject left out (the set's figure)
+    subject: str | None = None  # None: the largest value over the subjects
+    exclude: str | None = None  # with subject None: a subject left out (the set's figure)
 
 
 @dataclass(frozen=True)
 class Procedure:
-    name: str                               # as stored (runs.procedure)
-    label: str                              # one run, as a person says it ("step test")
-    judges: str                             # one of JUDGES
-    measures: tuple[tuple[str, str], ...]   # (metric, unit) of its measurements
-    figures: tuple[Figure, ...] = ()        # report figures; the first is the trend's
-    family: str = ""                        # procedures that count as one check share it ("" : its name)
-    history: str = ""                       # the title of its section in the drift report's history
-    aliases: tuple[str, ...] = ()           # spellings stored earlier that read as this procedure
-    windows: tuple[tuple[str, Window], ...] = ()   # (metric, default window) of a metric of its own
+    name: str  # as stored (runs.procedure)
+    label: str  # one run, as a person says it ("step test")
+    judges: str  # one of JUDGES
+    measures: tuple[tuple[str, str], ...]  # (metric, unit) of its measurements
+    figures: tuple[Figure, ...] = ()  # report figures; the first is the trend's
+    family: str = ""  # procedures that count as one check share it ("" : its name)
+    history: str = ""  # the title of its section in the drift report's history
+    aliases: tuple[str, ...] = ()  # spellings stored earlier that read as this procedure
+    windows: tuple[tuple[str, Window], ...] = ()  # (metric, default window) of a metric of its own
 
     def __post_init__(self):
         if self.judges not in JUDGES:
@@ -67,70 +68,158 @@ class Procedure:
         return dict(self.measures).get(metric)
 
 
-_DRIFT = (("drift_x_px", "px"), ("drift_y_px", "px"), ("drift_x_mm", "mm"), ("drift_y_mm", "mm"),
-          ("drift_sd_px", "px"), ("markers_missing", "markers"), ("stray_blobs", "blobs"),
-          ("led_off_visible", "markers"))
-_CALIBRATION_FIGURES = (Figure("calibration_rms_px", "RMS of the set px", ".3f", subject="set"),
-                        Figure("calibration_rms_px", "worst camera px", ".3f", exclude="set"),
-                        Figure("calibration_converged", "converged", "g", subject="set"))
+_DRIFT = (
+    ("drift_x_px", "px"),
+    ("drift_y_px", "px"),
+    ("drift_x_mm", "mm"),
+    ("drift_y_mm", "mm"),
+    ("drift_sd_px", "px"),
+    ("markers_missing", "markers"),
+    ("stray_blobs", "blobs"),
+    ("led_off_visible", "markers"),
+)
+_CALIBRATION_FIGURES = (
+    Figure("calibration_rms_px", "RMS of the set px", ".3f", subject="set"),
+    Figure("calibration_rms_px", "worst camera px", ".3f", exclude="set"),
+    Figure("calibration_converged", "converged", "g", subject="set"),
+)
 _CALIBRATION = (("calibration_rms_px", "px"), ("calibration_converged", ""))
 
-DAILY = Procedure("daily", "daily QA", "room", (("camera_reachable", ""), ("params_changed", "params"),
-                                                ("clock_offset_s", "s"), *_DRIFT), family="daily")
+DAILY = Procedure(
+    "daily",
+    "daily QA",
+    "room",
+    (("camera_reachable", ""), ("params_changed", "params"), ("clock_offset_s", "s"), *_DRIFT),
+    family="daily",
+)
 DRIFT = Procedure("drift", "daily QA", "room", _DRIFT, family="daily")
-BASELINE = Procedure("drift-baseline", "drift baseline", "none",
-                     (("baseline_markers", "markers"), ("baseline_x_px", "px"), ("baseline_y_px", "px")))
-STEPS = Procedure("sphere-steps", "step test", "room", (
-    ("steps_slope", ""), ("steps_intercept_mm", "mm"), ("steps_r2", ""), ("steps_diff_max_mm", "mm"),
-    ("steps_diff_mean_mm", "mm"), ("steps_diff_sd_mm", "mm"), ("steps_rotation_diff_deg", "deg"),
-    ("steps_translation_diff_mm", "mm")), figures=(
-    Figure("steps_slope", "regression slope", ".5f"),
-    Figure("steps_intercept_mm", "regression intercept (mm)", "+.3f"),
-    Figure("steps_r2", "regression R²", ".6f"),
-    Figure("steps_diff_max_mm", "VTS–SPECT distance, max (mm)", ".3f"),
-    Figure("steps_diff_mean_mm", "VTS–SPECT distance, mean (mm)", ".3f"),
-    Figure("steps_diff_sd_mm", "VTS–SPECT distance, SD (mm)", ".3f"),
-    Figure("steps_rotation_diff_deg", "6-DOF move, rotation VTS − SPECT (°)", "+.3f"),
-    Figure("steps_translation_diff_mm", "6-DOF move, translation VTS − SPECT (mm)", "+.3f")))
-SYNC = Procedure("sync", "sync check", "room", (
-    ("sync_max_abs_dt_ms", "ms"), ("sync_events_one_system", "events"), ("sync_events_both", "events")),
-    figures=(Figure("sync_max_abs_dt_ms", "max |Δt| ms", ".1f"), Figure("sync_events_both", "events seen by both", "g"),
-             Figure("sync_events_one_system", "seen by one only", "g")),
-    history="Sync checks (VTS against SPECT)")
-MAPPING = Procedure("spect_mapping", "SPECT mapping", "room", (("mapping_fre_mm", "mm"), ("mapping_tre_rms_mm", "mm")),
-                    figures=(Figure("mapping_tre_rms_mm", "TRE RMS mm", ".3f"), Figure("mapping_fre_mm", "FRE mm", ".3f")),
-                    history="SPECT mappings (VTS → SPECT)")
+BASELINE = Procedure(
+    "drift-baseline",
+    "drift baseline",
+    "none",
+    (("baseline_markers", "markers"), ("baseline_x_px", "px"), ("baseline_y_px", "px")),
+)
+STEPS = Procedure(
+    "sphere-steps",
+    "step test",
+    "room",
+    (
+        ("steps_slope", ""),
+        ("steps_intercept_mm", "mm"),
+        ("steps_r2", ""),
+        ("steps_diff_max_mm", "mm"),
+        ("steps_diff_mean_mm", "mm"),
+        ("steps_diff_sd_mm", "mm"),
+        ("steps_rotation_diff_deg", "deg"),
+        ("steps_translation_diff_mm", "mm"),
+    ),
+    figures=(
+        Figure("steps_slope", "regression slope", ".5f"),
+        Figure("steps_intercept_mm", "regression intercept (mm)", "+.3f"),
+        Figure("steps_r2", "regression R²", ".6f"),
+        Figure("steps_diff_max_mm", "VTS–SPECT distance, max (mm)", ".3f"),
+        Figure("steps_diff_mean_mm", "VTS–SPECT distance, mean (mm)", ".3f"),
+        Figure("steps_diff_sd_mm", "VTS–SPECT distance, SD (mm)", ".3f"),
+        Figure("steps_rotation_diff_deg", "6-DOF move, rotation VTS − SPECT (°)", "+.3f"),
+        Figure("steps_translation_diff_mm", "6-DOF move, translation VTS − SPECT (mm)", "+.3f"),
+    ),
+)
+SYNC = Procedure(
+    "sync",
+    "sync check",
+    "room",
+    (("sync_max_abs_dt_ms", "ms"), ("sync_events_one_system", "events"), ("sync_events_both", "events")),
+    figures=(
+        Figure("sync_max_abs_dt_ms", "max |Δt| ms", ".1f"),
+        Figure("sync_events_both", "events seen by both", "g"),
+        Figure("sync_events_one_system", "seen by one only", "g"),
+    ),
+    history="Sync checks (VTS against SPECT)",
+)
+MAPPING = Procedure(
+    "spect_mapping",
+    "SPECT mapping",
+    "room",
+    (("mapping_fre_mm", "mm"), ("mapping_tre_rms_mm", "mm")),
+    figures=(Figure("mapping_tre_rms_mm", "TRE RMS mm", ".3f"), Figure("mapping_fre_mm", "FRE mm", ".3f")),
+    history="SPECT mappings (VTS → SPECT)",
+)
 #: one calibration of N cameras, the stereo pair among them (decision 0056); N-camera runs were
 #: stored as "calibration_cameras" before it
-CALIBRATION = Procedure("calibration", "camera calibration", "room", _CALIBRATION, figures=_CALIBRATION_FIGURES,
-                        history="Camera calibrations", aliases=("calibration_cameras",))
-MOTION = Procedure("motion", "motion analysis", "patient", (
-    ("motion_body_max_mm", "mm"), ("motion_body_max_deg", "deg"), ("motion_pose_coverage", "fraction")),
-    figures=(Figure("motion_body_max_mm", "max shift mm", ".2f"), Figure("motion_body_max_deg", "max turn °", ".2f"),
-             Figure("motion_pose_coverage", "pose known (share of time)", ".3f")),
-    history="Motion analyses (patient scans)")
+CALIBRATION = Procedure(
+    "calibration",
+    "camera calibration",
+    "room",
+    _CALIBRATION,
+    figures=_CALIBRATION_FIGURES,
+    history="Camera calibrations",
+    aliases=("calibration_cameras",),
+)
+MOTION = Procedure(
+    "motion",
+    "motion analysis",
+    "patient",
+    (("motion_body_max_mm", "mm"), ("motion_body_max_deg", "deg"), ("motion_pose_coverage", "fraction")),
+    figures=(
+        Figure("motion_body_max_mm", "max shift mm", ".2f"),
+        Figure("motion_body_max_deg", "max turn °", ".2f"),
+        Figure("motion_pose_coverage", "pose known (share of time)", ".3f"),
+    ),
+    history="Motion analyses (patient scans)",
+)
 
 #: commissioning a room (decision 0069): each step of the sequence recorded as a run of
 #: ``commission-step`` (the step is its subject: ``commission_id`` names the commissioning,
 #: ``step_run`` the step's own run when it is a procedure of its own, ``step_passed``), and the
 #: commissioning's report as a run of ``commissioning`` (operator: who signed it off). Records,
 #: not checks of the room: the steps that measure are stored as their own procedures' runs.
-COMMISSION_STEP = Procedure("commission-step", "commissioning step", "none", (
-    ("commission_id", ""), ("step_passed", ""), ("step_run", ""), ("step_skipped", ""),
-    ("camera_confirmed", ""), ("params_locked", "params"), ("trigger_answered", ""), ("aim_adjust", "items"),
-    ("uptime_min", "min"), ("warming_up", "")))
-COMMISSIONING = Procedure("commissioning", "commissioning", "none", (
-    ("commission_id", ""), ("step_run", ""), ("signed_off", "")))
+COMMISSION_STEP = Procedure(
+    "commission-step",
+    "commissioning step",
+    "none",
+    (
+        ("commission_id", ""),
+        ("step_passed", ""),
+        ("step_run", ""),
+        ("step_skipped", ""),
+        ("camera_confirmed", ""),
+        ("params_locked", "params"),
+        ("trigger_answered", ""),
+        ("aim_adjust", "items"),
+        ("uptime_min", "min"),
+        ("warming_up", ""),
+    ),
+)
+COMMISSIONING = Procedure(
+    "commissioning", "commissioning", "none", (("commission_id", ""), ("step_run", ""), ("signed_off", ""))
+)
 #: the steps of commissioning, in their order: (name, label); procedures/commission.py says how each
 #: runs, the store's ledger and the reports name them from here
 COMMISSION_STEPS: tuple[tuple[str, str], ...] = (
-    ("cameras", "discover and set up the cameras"), ("trigger", "trigger box"), ("aim", "aim and focus"),
-    ("warmup", "warm-up"), ("calibration", "calibration"), ("mapping", "VTS → SPECT mapping"),
-    ("steps", "step test"), ("sync", "sync check"), ("baseline", "drift baseline"))
+    ("cameras", "discover and set up the cameras"),
+    ("trigger", "trigger box"),
+    ("aim", "aim and focus"),
+    ("warmup", "warm-up"),
+    ("calibration", "calibration"),
+    ("mapping", "VTS → SPECT mapping"),
+    ("steps", "step test"),
+    ("sync", "sync check"),
+    ("baseline", "drift baseline"),
+)
 
 #: every procedure, in the order the reports list them
-PROCEDURES: tuple[Procedure, ...] = (DAILY, DRIFT, BASELINE, STEPS, SYNC, MAPPING, CALIBRATION,
-                                     MOTION, COMMISSION_STEP, COMMISSIONING)
+PROCEDURES: tuple[Procedure, ...] = (
+    DAILY,
+    DRIFT,
+    BASELINE,
+    STEPS,
+    SYNC,
+    MAPPING,
+    CALIBRATION,
+    MOTION,
+    COMMISSION_STEP,
+    COMMISSIONING,
+)
 
 #: a QA run of a chosen set of the daily checks is stored as ``qa:STEP+STEP`` (qa_set_name)
 QA_SET_PREFIX = "qa:"
@@ -228,9 +317,24 @@ def sections() -> list[tuple[str, str, tuple[str, ...], Procedure]]:
     return list(out.values())
 
 
-by_name()   # a catalog naming one stored name twice fails at import
-windows()   # ... and so does one giving a metric a second default window
+by_name()  # a catalog naming one stored name twice fails at import
+windows()  # ... and so does one giving a metric a second default window
 
 
-__all__ = ["Procedure", "Figure", "PROCEDURES", "JUDGES", "by_name", "by_label", "find", "label", "family", "not_room_checks",
-           "qa_set_name", "sections", "stored_name_pattern", "stored_names_text", "windows"]
+__all__ = [
+    "Procedure",
+    "Figure",
+    "PROCEDURES",
+    "JUDGES",
+    "by_name",
+    "by_label",
+    "find",
+    "label",
+    "family",
+    "not_room_checks",
+    "qa_set_name",
+    "sections",
+    "stored_name_pattern",
+    "stored_names_text",
+    "windows",
+]

@@ -11,19 +11,19 @@ import hashlib
 import os
 import re
 from pathlib import Path
-from typing import Any, Literal, Optional, Union
+from typing import Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationError, field_validator, model_validator
 from pydantic_core import ErrorDetails
 
+from vts_hw.bounded import ANY_SIZE, TooLarge, open_checked, read_bytes
+from vts_hw.catalog import windows as default_windows
 from vts_hw.config_base import Strict as _Strict
 from vts_hw.config_qatrack import QATrackConfig
 from vts_hw.config_setup import CameraSetupConfig
 from vts_hw.config_warmup import WarmupSettings
-from vts_hw.bounded import ANY_SIZE, TooLarge, open_checked, read_bytes
 from vts_hw.errors import ConfigError
-from vts_hw.catalog import windows as default_windows
 from vts_hw.vision.aim_settings import AimSettings
 
 ENV_CONFIG = "VTS_CONFIG"
@@ -34,32 +34,45 @@ class CameraConfig(_Strict):
     """One camera: an Axis camera by default, or another ``kind`` (drivers/registry.py)."""
 
     name: str = Field(pattern=_NAME_RE, description="short name used on the command line and in files")
-    kind: str = Field(default="axis", pattern=r"^[a-z][a-z0-9_]*$",
-                      description="which driver: axis (the default), mjpeg, replay (drivers/registry.py)")
+    kind: str = Field(
+        default="axis",
+        pattern=r"^[a-z][a-z0-9_]*$",
+        description="which driver: axis (the default), mjpeg, replay (drivers/registry.py)",
+    )
     options: dict[str, Any] = Field(
-        default_factory=dict, description="settings of the kind, checked by its driver (e.g. replay: folder, "
-                                          "camera, speed)")
-    host: Optional[str] = Field(default=None, min_length=1, description="network cameras: address")
+        default_factory=dict,
+        description="settings of the kind, checked by its driver (e.g. replay: folder, camera, speed)",
+    )
+    host: str | None = Field(default=None, min_length=1, description="network cameras: address")
     port: int = Field(default=80, ge=1, le=65535)
     scheme: Literal["http", "https"] = "http"
     user: str = "root"
-    password_env: Optional[str] = Field(
-        default=None, pattern=r"^[A-Za-z_][A-Za-z0-9_]*$",
-        description="name of the environment variable holding the password")
+    password_env: str | None = Field(
+        default=None,
+        pattern=r"^[A-Za-z_][A-Za-z0-9_]*$",
+        description="name of the environment variable holding the password",
+    )
     led_port: int = Field(default=1, ge=1, le=8, description="I/O output port of the LED ring, 1-based")
     resolution: tuple[int, int] = (640, 480)
     fps: float = Field(default=25.0, gt=0, le=60)
-    compression: int = Field(default=25, ge=0, le=100, description="Axis compression; JPEG quality is 100 - compression")
+    compression: int = Field(
+        default=25, ge=0, le=100, description="Axis compression; JPEG quality is 100 - compression"
+    )
     timeout_s: float = Field(default=5.0, gt=0, le=120)
-    wall_mm_per_px: float = Field(default=1.25, gt=0, le=100,
-                                  description="scale at the wall markers, for drift in mm")
-    locked_params: dict[str, Union[str, int, float]] = Field(
-        default_factory=dict, description="further VAPIX parameters the daily QA checks, e.g. exposure")
-    ca_cert: Optional[Path] = Field(
-        default=None, description="https: a PEM certificate to trust for this camera (e.g. its self-signed one)")
-    warmup_min: float = Field(default=30.0, ge=0, le=24 * 60,
-                              description="minutes after it starts before its drift has settled (daily QA warns; "
-                                          "commissioning waits at least this long)")
+    wall_mm_per_px: float = Field(default=1.25, gt=0, le=100, description="scale at the wall markers, for drift in mm")
+    locked_params: dict[str, str | int | float] = Field(
+        default_factory=dict, description="further VAPIX parameters the daily QA checks, e.g. exposure"
+    )
+    ca_cert: Path | None = Field(
+        default=None, description="https: a PEM certificate to trust for this camera (e.g. its self-signed one)"
+    )
+    warmup_min: float = Field(
+        default=30.0,
+        ge=0,
+        le=24 * 60,
+        description="minutes after it starts before its drift has settled (daily QA warns; "
+        "commissioning waits at least this long)",
+    )
 
     @field_validator("ca_cert")
     @classmethod
@@ -99,7 +112,7 @@ class CameraConfig(_Strict):
     def resolution_str(self) -> str:
         return f"{self.resolution[0]}x{self.resolution[1]}"
 
-    def password(self) -> Optional[str]:
+    def password(self) -> str | None:
         """The password from the environment, or None when no variable is named.
 
         Raises ConfigError when the variable is named but not set."""
@@ -108,8 +121,8 @@ class CameraConfig(_Strict):
         value = os.environ.get(self.password_env)
         if value is None:
             raise ConfigError(
-                f"camera {self.name!r}: environment variable {self.password_env} "
-                f"(its password_env) is not set")
+                f"camera {self.name!r}: environment variable {self.password_env} (its password_env) is not set"
+            )
         return value
 
 
@@ -121,9 +134,10 @@ class TriggerConfig(BaseModel):
 
     model_config = ConfigDict(extra="allow", frozen=True)
 
-    backend: str = Field(default="none", pattern=_NAME_RE,
-                         description="none, or a name in vts_hw.drivers.registry.TRIGGER_BACKENDS")
-    address: Optional[str] = Field(default=None, description="serial port, VISA resource or DAQmx device")
+    backend: str = Field(
+        default="none", pattern=_NAME_RE, description="none, or a name in vts_hw.drivers.registry.TRIGGER_BACKENDS"
+    )
+    address: str | None = Field(default=None, description="serial port, VISA resource or DAQmx device")
     frequency_hz: float = Field(default=1.0, ge=0.1, le=1000.0)
     duty: float = Field(default=0.5, ge=0.01, le=0.99)
     high_v: float = Field(default=5.0, ge=-10, le=10)
@@ -147,16 +161,17 @@ class TriggerConfig(BaseModel):
 class ToleranceWindow(_Strict):
     """QATrack+-style window: action low <= tolerance low <= tolerance high <= action high."""
 
-    action_low: Optional[float] = None
-    tolerance_low: Optional[float] = None
-    tolerance_high: Optional[float] = None
-    action_high: Optional[float] = None
+    action_low: float | None = None
+    tolerance_low: float | None = None
+    tolerance_high: float | None = None
+    action_high: float | None = None
     unit: str = ""
 
     @model_validator(mode="after")
     def _ordered(self):
-        vals = [v for v in (self.action_low, self.tolerance_low, self.tolerance_high, self.action_high)
-                if v is not None]
+        vals = [
+            v for v in (self.action_low, self.tolerance_low, self.tolerance_high, self.action_high) if v is not None
+        ]
         if vals != sorted(vals):
             raise ValueError("expected action_low <= tolerance_low <= tolerance_high <= action_high")
         return self
@@ -171,10 +186,10 @@ class CalibrationPaths(_Strict):
     is the file beside rig.yaml). The old names ``stereo`` and ``spect`` are still read (both
     names of one entry at once is an error); ``dump_rig`` writes the new ones."""
 
-    cameras: Optional[Path] = Field(
-        default=None, description="the camera calibration file (any number of cameras; old name: stereo)")
-    mapping: Optional[Path] = Field(
-        default=None, description="the VTS -> SPECT mapping file (old name: spect)")
+    cameras: Path | None = Field(
+        default=None, description="the camera calibration file (any number of cameras; old name: stereo)"
+    )
+    mapping: Path | None = Field(default=None, description="the VTS -> SPECT mapping file (old name: spect)")
 
     @model_validator(mode="before")
     @classmethod
@@ -191,12 +206,12 @@ class CalibrationPaths(_Strict):
         return data
 
     @property
-    def stereo(self) -> Optional[Path]:
+    def stereo(self) -> Path | None:
         """The camera calibration by its old name (``rig.calibration.stereo``)."""
         return self.cameras
 
     @property
-    def spect(self) -> Optional[Path]:
+    def spect(self) -> Path | None:
         """The VTS -> SPECT mapping by its old name (``rig.calibration.spect``)."""
         return self.mapping
 
@@ -204,13 +219,17 @@ class CalibrationPaths(_Strict):
 class StoreConfig(_Strict):
     """Where results go: ``store:`` in rig.yaml (``results:`` is its old name, still read)."""
 
-    url: Optional[str] = Field(
-        default=None, min_length=1,
+    url: str | None = Field(
+        default=None,
+        min_length=1,
         description="database URL: sqlite:////path/results.sqlite or postgresql://user@host[:port]/db; "
-                    "default a per-user SQLite file")
-    password_env: Optional[str] = Field(
-        default=None, pattern=r"^[A-Za-z_][A-Za-z0-9_]*$",
-        description="name of the environment variable holding the database password (never in the URL)")
+        "default a per-user SQLite file",
+    )
+    password_env: str | None = Field(
+        default=None,
+        pattern=r"^[A-Za-z_][A-Za-z0-9_]*$",
+        description="name of the environment variable holding the database password (never in the URL)",
+    )
 
     @field_validator("url")
     @classmethod
@@ -218,14 +237,18 @@ class StoreConfig(_Strict):
         if v is not None and "://" in v:
             from sqlalchemy.engine import make_url
             from sqlalchemy.exc import ArgumentError
+
             try:
                 url = make_url(v)
             except ArgumentError:
-                raise ValueError("is not a database URL (expected e.g. sqlite:////path/results.sqlite or "
-                                 "postgresql://user@host/db)") from None
+                raise ValueError(
+                    "is not a database URL (expected e.g. sqlite:////path/results.sqlite or postgresql://user@host/db)"
+                ) from None
             if url.password is not None:
-                raise ValueError("holds a password; remove it from the URL and name the environment "
-                                 "variable that holds it in store.password_env") from None
+                raise ValueError(
+                    "holds a password; remove it from the URL and name the environment "
+                    "variable that holds it in store.password_env"
+                ) from None
         return v
 
 
@@ -236,23 +259,36 @@ ResultsConfig = StoreConfig
 class MotionConfig(_Strict):
     """Patient motion: when the live view alerts, and what counts as one motion state."""
 
-    alert_mm: float = Field(default=3.0, gt=0, le=100,
-                            description="alert when the body has moved more than this (mm, breathing excluded)")
+    alert_mm: float = Field(
+        default=3.0, gt=0, le=100, description="alert when the body has moved more than this (mm, breathing excluded)"
+    )
     alert_deg: float = Field(default=2.0, gt=0, le=90, description="... or turned more than this (deg)")
-    alert_after_s: float = Field(default=1.0, ge=0, le=60,
-                                 description="for longer than this (s): a cough or a twitch does not alert")
-    alert_command: Optional[list[str]] = Field(
-        default=None, min_length=1,
+    alert_after_s: float = Field(
+        default=1.0, ge=0, le=60, description="for longer than this (s): a cough or a twitch does not alert"
+    )
+    alert_command: list[str] | None = Field(
+        default=None,
+        min_length=1,
         description="a command run on each alert (argv list, no shell), e.g. [notify-send, VTS]; the alert's "
-                    "text is its last argument")
-    blind_alert_s: float = Field(default=3.0, gt=0, le=600,
-                                 description="an alert of its own when the patient has not been tracked for longer "
-                                             "than this (s): a camera lost, too few markers, frames too late")
-    blind_max_share: float = Field(default=0.2, ge=0, le=1,
-                                   description="a scan whose patient was not tracked for more than this share of the "
-                                               "live time, or that learned no reference, was not watched: exit 4")
-    state_mm: float = Field(default=2.0, gt=0, le=100,
-                            description="a motion state: an interval of body pose within this (mm) ...")
+        "text is its last argument",
+    )
+    blind_alert_s: float = Field(
+        default=3.0,
+        gt=0,
+        le=600,
+        description="an alert of its own when the patient has not been tracked for longer "
+        "than this (s): a camera lost, too few markers, frames too late",
+    )
+    blind_max_share: float = Field(
+        default=0.2,
+        ge=0,
+        le=1,
+        description="a scan whose patient was not tracked for more than this share of the "
+        "live time, or that learned no reference, was not watched: exit 4",
+    )
+    state_mm: float = Field(
+        default=2.0, gt=0, le=100, description="a motion state: an interval of body pose within this (mm) ..."
+    )
     state_deg: float = Field(default=1.0, gt=0, le=90, description="... and this (deg)")
 
 
@@ -271,12 +307,12 @@ class RigConfig(_Strict):
     calibration: CalibrationPaths = CalibrationPaths()
     store: StoreConfig = StoreConfig()
     motion: MotionConfig = MotionConfig()
-    aim: AimSettings = AimSettings()          # goals of `vts camera aim` (vision/aim_settings.py)
-    qatrack: Optional[QATrackConfig] = None   # pushing results to QATrack+ (config_qatrack.py)
-    camera_setup: CameraSetupConfig = CameraSetupConfig()   # what `vts camera setup` sets (config_setup.py)
-    warmup: WarmupSettings = WarmupSettings()   # how commissioning watches the pictures settle (config_warmup.py)
-    recordings_dir: Optional[Path] = None
-    _source: Optional[Path] = PrivateAttr(default=None)   # the file it was read from
+    aim: AimSettings = AimSettings()  # goals of `vts camera aim` (vision/aim_settings.py)
+    qatrack: QATrackConfig | None = None  # pushing results to QATrack+ (config_qatrack.py)
+    camera_setup: CameraSetupConfig = CameraSetupConfig()  # what `vts camera setup` sets (config_setup.py)
+    warmup: WarmupSettings = WarmupSettings()  # how commissioning watches the pictures settle (config_warmup.py)
+    recordings_dir: Path | None = None
+    _source: Path | None = PrivateAttr(default=None)  # the file it was read from
 
     @model_validator(mode="before")
     @classmethod
@@ -285,7 +321,7 @@ class RigConfig(_Strict):
         if isinstance(data, dict) and "results" in data:
             if _set(data.get("store")) and _set(data["results"]):
                 raise ValueError("store and results (the old name of store) are both given; keep only store")
-            if _set(data.get("store")):    # an empty results: section beside store: is nothing
+            if _set(data.get("store")):  # an empty results: section beside store: is nothing
                 return {k: v for k, v in data.items() if k != "results"}
             data = {("store" if k == "results" else k): v for k, v in data.items() if k != "store"}
         return data
@@ -303,11 +339,12 @@ class RigConfig(_Strict):
     @field_validator("tolerances")
     @classmethod
     def _known_metrics(cls, v: dict):
-        known = default_windows()      # the tolerance table's and the catalog entries' own
+        known = default_windows()  # the tolerance table's and the catalog entries' own
         unknown = sorted(set(v) - set(known))
         if unknown:
-            raise ValueError(f"names {unknown[0]!r}, which is not a metric with a tolerance window "
-                             f"(known: {', '.join(known)})")
+            raise ValueError(
+                f"names {unknown[0]!r}, which is not a metric with a tolerance window (known: {', '.join(known)})"
+            )
         return v
 
     @model_validator(mode="after")
@@ -357,7 +394,8 @@ def parse_rig(data, source: str = "rig.yaml") -> RigConfig:
     """Validate an already-parsed mapping; errors name ``source``."""
     if not isinstance(data, dict):
         got = {type(None): "an empty document", list: "a list", str: "a single string"}.get(
-            type(data), f"a single {type(data).__name__}")
+            type(data), f"a single {type(data).__name__}"
+        )
         raise ConfigError(f"{source}: expected a mapping (rig:, cameras:, ...) at the top level, got {got}")
     try:
         return RigConfig.model_validate(data)
@@ -374,15 +412,15 @@ def validation_message(source: str, exc: ValidationError, prefix: tuple = ()) ->
     return f"{source}: {_loc(tuple(prefix) + tuple(first['loc']))} {_describe(first)}{tail}"
 
 
-MAX_CONFIG_BYTES = 1 << 20   # a rig.yaml is a few kB; anything this large is not one
-MAX_YAML_DEPTH = 32          # rig.yaml nests 4 levels deep
-MAX_YAML_NODES = 100_000    # a rig.yaml has some hundred; aliases that expand beyond: a YAML bomb
+MAX_CONFIG_BYTES = 1 << 20  # a rig.yaml is a few kB; anything this large is not one
+MAX_YAML_DEPTH = 32  # rig.yaml nests 4 levels deep
+MAX_YAML_NODES = 100_000  # a rig.yaml has some hundred; aliases that expand beyond: a YAML bomb
 
 
 def _read_text(p: Path) -> str:
     """The config file's text; ConfigError naming the file when it is not UTF-8 YAML text."""
     try:
-        with open_checked(p, ANY_SIZE, "rig config") as f:   # a FIFO would block for ever; a device never ends
+        with open_checked(p, ANY_SIZE, "rig config") as f:  # a FIFO would block for ever; a device never ends
             raw = f.read(MAX_CONFIG_BYTES + 1)
     except TooLarge as exc:
         raise ConfigError(str(exc)) from None
@@ -394,13 +432,15 @@ def _read_text(p: Path) -> str:
         raise ConfigError(f"{p}: larger than {MAX_CONFIG_BYTES >> 20} MB, so not a rig config file")
     nul = raw.find(b"\x00")
     if nul >= 0:
-        raise ConfigError(f"{p}: not a YAML text file (a NUL byte at byte {nul}: a binary file, "
-                          f"or text saved as UTF-16)")
+        raise ConfigError(
+            f"{p}: not a YAML text file (a NUL byte at byte {nul}: a binary file, or text saved as UTF-16)"
+        )
     try:
         return raw.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise ConfigError(f"{p}: not UTF-8 text (byte {exc.start} cannot be decoded); "
-                          f"save the config as UTF-8") from None
+        raise ConfigError(
+            f"{p}: not UTF-8 text (byte {exc.start} cannot be decoded); save the config as UTF-8"
+        ) from None
 
 
 def _check_depth(text: str, p: Path) -> None:
@@ -441,8 +481,10 @@ def _load_yaml(text: str, p: Path):
         if node is None:
             return None
         if _expanded_size(node, {}) > MAX_YAML_NODES:
-            raise ConfigError(f"{p}: its aliases (*name) expand to more than {MAX_YAML_NODES:,} "
-                              f"values, which no rig config needs (a YAML bomb?)")
+            raise ConfigError(
+                f"{p}: its aliases (*name) expand to more than {MAX_YAML_NODES:,} "
+                f"values, which no rig config needs (a YAML bomb?)"
+            )
         return loader.construct_document(node)
     finally:
         loader.dispose()
@@ -467,8 +509,13 @@ def load_rig(path: str | os.PathLike | None = None) -> RigConfig:
     # a relative calibration path is the file beside rig.yaml, for every command that reads it
     # (they once took it from the working folder or from rig.yaml's, each its own way)
     cal = rig.calibration
-    rig = rig.model_copy(update={"calibration": CalibrationPaths(cameras=_beside(p.parent, cal.cameras),
-                                                                  mapping=_beside(p.parent, cal.mapping))})
+    rig = rig.model_copy(
+        update={
+            "calibration": CalibrationPaths(
+                cameras=_beside(p.parent, cal.cameras), mapping=_beside(p.parent, cal.mapping)
+            )
+        }
+    )
     rig._source = p
     return rig
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import os
 import re
-from typing import Literal, Optional
+from typing import Literal
 from urllib.parse import urlsplit
 
 from pydantic import Field, field_validator, model_validator
@@ -33,7 +33,7 @@ from vts_hw.errors import ConfigError
 from vts_hw.site_time import site_zone
 
 _ENV_RE = r"^[A-Za-z_][A-Za-z0-9_]*$"
-_MACRO_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")   # QATrack+ macro names are identifiers
+_MACRO_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")  # QATrack+ macro names are identifiers
 _METRIC_RE = re.compile(r"^[A-Za-z0-9_.:-]+$")
 #: what a ``lists:`` key may be: the procedure names runs are stored under (as the catalog holds
 #: them at import; the check reads the catalog itself)
@@ -45,8 +45,9 @@ class QATrackList(Strict):
 
     test_list: str = Field(min_length=1, description="the name of the test list assigned to the unit")
     macros: dict[str, str] = Field(min_length=1, description="SUBJECT/METRIC (or METRIC) -> QATrack+ macro name")
-    ignore: list[str] = Field(default_factory=list,
-                              description="glob patterns of SUBJECT/METRIC not sent (e.g. '*/M*/*')")
+    ignore: list[str] = Field(
+        default_factory=list, description="glob patterns of SUBJECT/METRIC not sent (e.g. '*/M*/*')"
+    )
 
     @field_validator("macros")
     @classmethod
@@ -70,17 +71,23 @@ class QATrackConfig(Strict):
 
     url: str = Field(description="root of the QATrack+ site, http(s)://host[:port]/[path/]")
     unit: str = Field(min_length=1, description="the unit's name in QATrack+")
-    time_zone: str = Field(description="the site's TIME_ZONE setting (an IANA name such as America/Toronto): "
-                                       "QATrack+ reads the work times it is sent as wall-clock times of that zone")
-    token_env: Optional[str] = Field(default=None, pattern=_ENV_RE,
-                                     description="environment variable holding an API token")
-    user_env: Optional[str] = Field(default=None, pattern=_ENV_RE,
-                                    description="... or the variables holding a user name and ...")
-    password_env: Optional[str] = Field(default=None, pattern=_ENV_RE,
-                                        description="... password, exchanged at /api/get-token/")
+    time_zone: str = Field(
+        description="the site's TIME_ZONE setting (an IANA name such as America/Toronto): "
+        "QATrack+ reads the work times it is sent as wall-clock times of that zone"
+    )
+    token_env: str | None = Field(
+        default=None, pattern=_ENV_RE, description="environment variable holding an API token"
+    )
+    user_env: str | None = Field(
+        default=None, pattern=_ENV_RE, description="... or the variables holding a user name and ..."
+    )
+    password_env: str | None = Field(
+        default=None, pattern=_ENV_RE, description="... password, exchanged at /api/get-token/"
+    )
     timeout_s: float = Field(default=10.0, gt=0, le=300, description="per request")
     report: Literal["html", "pdf", "none"] = Field(
-        default="html", description="attach the drift report as of the run (html or pdf), or none")
+        default="html", description="attach the drift report as of the run (html or pdf), or none"
+    )
     plots: bool = Field(default=True, description="attach the run's drift plot(s) as PNG")
     lists: dict[str, QATrackList] = Field(min_length=1, description="procedure -> test list and macros")
 
@@ -99,7 +106,7 @@ class QATrackConfig(Strict):
     @field_validator("time_zone")
     @classmethod
     def _zone(cls, v: str):
-        site_zone(v)   # ValueError naming the zone when it is not one
+        site_zone(v)  # ValueError naming the zone when it is not one
         return v
 
     @field_validator("lists")
@@ -131,7 +138,9 @@ class QATrackConfig(Strict):
         for name in names:
             value = os.environ.get(name)
             if not value:
-                raise ConfigError(f"qatrack: environment variable {name} is not set "
-                                  f"(it holds the QATrack+ {'token' if self.token_env else 'login'})")
+                raise ConfigError(
+                    f"qatrack: environment variable {name} is not set "
+                    f"(it holds the QATrack+ {'token' if self.token_env else 'login'})"
+                )
             values.append(value)
         return ("token", *values) if self.token_env else ("login", *values)

@@ -9,7 +9,7 @@ camera clock on NTP in UTC. A key left empty (``max_exposure_us``, ``max_gain_db
 
 from __future__ import annotations
 
-from typing import Literal, Optional
+from typing import Literal
 
 from pydantic import Field
 
@@ -20,19 +20,39 @@ WHITE_BALANCES = ("hold", "auto", "fixed_indoor", "fixed_outdoor1", "fixed_outdo
 
 
 class CameraSetupConfig(Strict):
-
     exposure: Literal[EXPOSURES] = Field(  # type: ignore[valid-type]
-        default="hold", description="ImageSource.I0.Sensor.Exposure: hold keeps shutter and gain where they are")
+        default="hold", description="ImageSource.I0.Sensor.Exposure: hold keeps shutter and gain where they are"
+    )
     white_balance: Literal[WHITE_BALANCES] = Field(  # type: ignore[valid-type]
-        default="hold", description="ImageSource.I0.Sensor.WhiteBalance")
-    max_exposure_us: Optional[int] = Field(
-        default=None, ge=100, le=1_000_000,
-        description="ImageSource.I0.Sensor.MaxExposureTime in microseconds (firmware that has it)")
-    max_gain_db: Optional[int] = Field(default=None, ge=0, le=48,
-                                       description="ImageSource.I0.Sensor.MaxGain in dB (firmware that has it)")
-    ntp_server: Optional[str] = Field(default=None, min_length=1, max_length=253, pattern=r"^[A-Za-z0-9.:-]+$",
-                                      description="Time.NTP.Server (the clock is always set to sync from NTP)")
-    time_zone: str = Field(default="Etc/UTC", min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_+./-]+$",
-                           description="IANA time zone, set through the Time API (current firmware)")
-    posix_time_zone: str = Field(default="UTC0", min_length=1, max_length=64, pattern=r"^[A-Za-z0-9+,./:<>-]+$",
-                                 description="POSIX TZ string: the Time.TimeZone parameter of VAPIX 2 firmware")
+        default="hold", description="ImageSource.I0.Sensor.WhiteBalance"
+    )
+    max_exposure_us: int | None = Field(
+        default=None,
+        ge=100,
+        le=1_000_000,
+        description="ImageSource.I0.Sensor.MaxExposureTime in microseconds (firmware that has it)",
+    )
+    max_gain_db: int | None = Field(
+        default=None, ge=0, le=48, description="ImageSource.I0.Sensor.MaxGain in dB (firmware that has it)"
+    )
+    ntp_server: str | None = Field(
+        default=None,
+        min_length=1,
+        max_length=253,
+        pattern=r"^[A-Za-z0-9.:-]+$",
+        description="Time.NTP.Server (the clock is always set to sync from NTP)",
+    )
+    time_zone: str = Field(
+        default="Etc/UTC",
+        min_length=1,
+        max_length=64,
+        pattern=r"^[A-Za-z0-9_+./-]+$",
+        description="IANA time zone, set through the Time API (current firmware)",
+    )
+    posix_time_zone: str = Field(
+        default="UTC0",
+        min_length=1,
+        max_length=64,
+        pattern=r"^[A-Za-z0-9+,./:<>-]+$",
+        description="POSIX TZ string: the Time.TimeZone parameter of VAPIX 2 firmware",
+    )

@@ -15,8 +15,10 @@ from vts_hw.config_base import Strict
 
 
 class WarmupSettings(Strict):
-    interval_s: float = Field(default=60.0, gt=0, le=3600,
-                              description="seconds between two samples of the wall markers' position")
-    samples: int = Field(default=6, ge=3, le=100,
-                         description="samples in the window the rate (px/min) is fitted over (3 or more)")
+    interval_s: float = Field(
+        default=60.0, gt=0, le=3600, description="seconds between two samples of the wall markers' position"
+    )
+    samples: int = Field(
+        default=6, ge=3, le=100, description="samples in the window the rate (px/min) is fitted over (3 or more)"
+    )
     frames: int = Field(default=3, ge=1, le=25, description="snapshots averaged in each sample")

@@ -12,6 +12,7 @@ def figure_png(fig, path=None, dpi: float = 110) -> bytes:
     ``path`` when given (what every result's ``plot(path)`` does), whole or not at all
     (:func:`vts_hw.files.write_atomic`: on a full disk WriteFailed names the file, no cut PNG)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
+
     FigureCanvasAgg(fig)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi, metadata={"Software": None})

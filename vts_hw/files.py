@@ -73,9 +73,14 @@ def kind_of(path: str | os.PathLike[str], st: os.stat_result) -> str:
             return f"a symbolic link to {os.readlink(path)}"
         except OSError:
             return "a symbolic link"
-    for test, words in ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
-                        (stat.S_ISFIFO, "a named pipe (FIFO)"), (stat.S_ISSOCK, "a socket"),
-                        (stat.S_ISDIR, "a folder"), (stat.S_ISREG, "a regular file")):
+    for test, words in (
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISFIFO, "a named pipe (FIFO)"),
+        (stat.S_ISSOCK, "a socket"),
+        (stat.S_ISDIR, "a folder"),
+        (stat.S_ISREG, "a regular file"),
+    ):
         if test(m):
             return words
     return "not a regular file"
@@ -157,8 +162,14 @@ def _keep_owner_and_mode(fd: int, old: os.stat_result | None, mode: int | None) 
     os.fchmod(fd, bits)
 
 
-def write_atomic(path: str | os.PathLike, data: bytes | str, *, encoding: str = "utf-8",
-                 kept: str | None = None, mode: int | None = None) -> Path:
+def write_atomic(
+    path: str | os.PathLike,
+    data: bytes | str,
+    *,
+    encoding: str = "utf-8",
+    kept: str | None = None,
+    mode: int | None = None,
+) -> Path:
     """Write ``data`` to ``path`` whole, or not at all (see the module docstring).
 
     ``kept`` is what the error message says was kept (default: the previous file, if there
@@ -180,7 +191,7 @@ def write_atomic(path: str | os.PathLike, data: bytes | str, *, encoding: str = 
             os.fsync(fd)
         finally:
             os.close(fd)
-        check_target(path, NOTHING_WRITTEN if kept is None else kept)   # it may have changed meanwhile
+        check_target(path, NOTHING_WRITTEN if kept is None else kept)  # it may have changed meanwhile
         os.replace(tmp, path)
     except NotReplaced:
         if tmp is not None:
@@ -204,15 +215,22 @@ def check_private_folder(folder: str | os.PathLike, what: str) -> None:
     try:
         st = os.stat(folder)
     except OSError:
-        return          # the write itself says why
+        return  # the write itself says why
     if st.st_uid not in (os.geteuid(), 0):
-        raise WriteFailed(Path(folder) / what, f"its folder {folder} belongs to another user (uid {st.st_uid}), "
-                                               "who could replace it; a file holding a secret goes into a "
-                                               "folder of your own", NOTHING_WRITTEN)
+        raise WriteFailed(
+            Path(folder) / what,
+            f"its folder {folder} belongs to another user (uid {st.st_uid}), "
+            "who could replace it; a file holding a secret goes into a "
+            "folder of your own",
+            NOTHING_WRITTEN,
+        )
     if st.st_mode & stat.S_IWOTH and not st.st_mode & stat.S_ISVTX:
-        raise WriteFailed(Path(folder) / what, f"anyone may write into its folder {folder}, and replace it; a "
-                                               "file holding a secret goes into a folder of your own",
-                          NOTHING_WRITTEN)
+        raise WriteFailed(
+            Path(folder) / what,
+            f"anyone may write into its folder {folder}, and replace it; a "
+            "file holding a secret goes into a folder of your own",
+            NOTHING_WRITTEN,
+        )
 
 
 def write_secret(path: str | os.PathLike, data: bytes | str, *, kept: str | None = None) -> Path:
@@ -224,8 +242,14 @@ def write_secret(path: str | os.PathLike, data: bytes | str, *, kept: str | None
     return write_atomic(path, data, kept=kept, mode=PRIVATE)
 
 
-def open_fd(path: str | os.PathLike, *, append: bool = True, exclusive: bool = False, perms: int = 0o666,
-            kept: str = NOTHING_WRITTEN) -> int:
+def open_fd(
+    path: str | os.PathLike,
+    *,
+    append: bool = True,
+    exclusive: bool = False,
+    perms: int = 0o666,
+    kept: str = NOTHING_WRITTEN,
+) -> int:
     """A descriptor to write the regular file ``path`` (created when absent with ``perms``; ``append``
     at its end, else emptied; ``exclusive``: it must not exist). Never a device, FIFO, socket or
     folder, never through a symbolic link: :class:`NotReplaced`, checked before the open and on
@@ -236,7 +260,7 @@ def open_fd(path: str | os.PathLike, *, append: bool = True, exclusive: bool = F
     try:
         fd = os.open(path, flags, perms)
     except OSError as exc:
-        if exc.errno in (errno.ELOOP, errno.ENXIO, errno.EISDIR, errno.EEXIST):   # changed meanwhile
+        if exc.errno in (errno.ELOOP, errno.ENXIO, errno.EISDIR, errno.EEXIST):  # changed meanwhile
             st = _lstat(path)
             if st is not None and not stat.S_ISREG(st.st_mode):
                 raise NotReplaced(path, kind_of(path, st), False, kept) from None
@@ -254,8 +278,15 @@ def open_fd(path: str | os.PathLike, *, append: bool = True, exclusive: bool = F
     return fd
 
 
-def open_writable(path: str | os.PathLike, mode: str = "ab", *, encoding: str | None = None,
-                  newline: str | None = None, perms: int = 0o666, kept: str = NOTHING_WRITTEN):
+def open_writable(
+    path: str | os.PathLike,
+    mode: str = "ab",
+    *,
+    encoding: str | None = None,
+    newline: str | None = None,
+    perms: int = 0o666,
+    kept: str = NOTHING_WRITTEN,
+):
     """:func:`open_fd` as a file object: ``mode`` is ``w``/``a`` (text, with ``encoding`` and
     ``newline``) or ``wb``/``ab``, as :func:`open` takes them."""
     if mode not in ("w", "a", "wb", "ab"):
@@ -268,14 +299,14 @@ def open_writable(path: str | os.PathLike, mode: str = "ab", *, encoding: str | 
         raise
 
 
-def write_json_atomic(path: str | os.PathLike, data, *, kept: str | None = None, indent: int | None = 2,
-                      mode: int | None = None) -> Path:
+def write_json_atomic(
+    path: str | os.PathLike, data, *, kept: str | None = None, indent: int | None = 2, mode: int | None = None
+) -> Path:
     """JSON text of ``data`` written with :func:`write_atomic`."""
     return write_atomic(path, json.dumps(data, indent=indent, default=str) + "\n", kept=kept, mode=mode)
 
 
-def ensure_dir(folder: str | os.PathLike, what: str = "folder", *, link_ok: bool = False,
-               mode: int = 0o777) -> Path:
+def ensure_dir(folder: str | os.PathLike, what: str = "folder", *, link_ok: bool = False, mode: int = 0o777) -> Path:
     """Create ``folder`` (and parents; new ones with ``mode``, less the umask); one sentence naming
     it when that is impossible. A device, FIFO or socket of that name is refused
     (:class:`NotReplaced`), and so is a symbolic link unless ``link_ok`` (the folder of a file
@@ -301,7 +332,7 @@ def filled_folder(folder: str | os.PathLike, what: str = "folder"):
     that no empty folder is left to be taken for a result (an empty ``unsaved-...`` artifacts
     folder looks like a run's)."""
     folder = Path(folder)
-    made = []                            # the folders ensure_dir makes, deepest first
+    made = []  # the folders ensure_dir makes, deepest first
     for f in (folder, *folder.parents):
         if os.path.lexists(f):
             break
@@ -312,7 +343,7 @@ def filled_folder(folder: str | os.PathLike, what: str = "folder"):
     except BaseException:
         for f in made:
             try:
-                f.rmdir()                # only when empty: what was written is kept
+                f.rmdir()  # only when empty: what was written is kept
             except OSError:
                 break
         raise
@@ -336,7 +367,7 @@ class Outputs:
             self.failed.append(exc)
             return None
 
-    def __bool__(self) -> bool:          # true when every output was written
+    def __bool__(self) -> bool:  # true when every output was written
         return not self.failed
 
     def sentence(self) -> str:
@@ -351,6 +382,8 @@ def export_stopped(exc: WriteFailed, out) -> WriteFailed:
     """``exc`` from one file of an export into the folder ``out``, saying what that means for the
     others: those before it are whole, the rest were not written (an export stops at its first
     file that cannot be written; each file is whole or absent)."""
-    kept = (f"{exc.kept}; the export into {out} stopped there: the files written before it are whole, "
-            "the rest were not written")
+    kept = (
+        f"{exc.kept}; the export into {out} stopped there: the files written before it are whole, "
+        "the rest were not written"
+    )
     return WriteFailed(exc.path, exc.reason, kept)

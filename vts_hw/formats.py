@@ -16,7 +16,6 @@ from vts_hw.bounded import ANY_SIZE, open_checked
 from vts_hw.errors import DataError
 
 
-
 class Reader(Protocol):
     """What every reader of a registry has (each kind's reader says what its ``read`` returns)."""
 
@@ -40,8 +39,7 @@ class FormatRegistry(Generic[R]):
     ``content_first`` tries ``sniff`` before the extensions; ``check(reader)`` (optional)
     refuses a reader that lacks what the kind needs."""
 
-    def __init__(self, kind: str, content_first: bool = False, check=None,
-                 sniff_bytes: int = SNIFF_BYTES):
+    def __init__(self, kind: str, content_first: bool = False, check=None, sniff_bytes: int = SNIFF_BYTES):
         self.kind = kind
         self.content_first = content_first
         self.check = check
@@ -67,7 +65,7 @@ class FormatRegistry(Generic[R]):
 
     def head(self, path: Path) -> bytes:
         try:
-            with open_checked(path, ANY_SIZE, "list-mode file") as f:   # a FIFO would block; a device never ends
+            with open_checked(path, ANY_SIZE, "list-mode file") as f:  # a FIFO would block; a device never ends
                 return f.read(self.sniff_bytes)
         except OSError as e:
             raise DataError(f"{path}: cannot read ({e.strerror})") from None
@@ -84,7 +82,7 @@ class FormatRegistry(Generic[R]):
             if r.sniff(head):
                 return r
         if by_ext is not None:
-            return by_ext      # it will say what is wrong with the content
+            return by_ext  # it will say what is wrong with the content
         raise DataError(f"{path}: not a {self.kind} file of a known format (known: {self._known()})")
 
     def read(self, path, fmt: str | None = None):

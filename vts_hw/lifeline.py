@@ -56,7 +56,7 @@ def _stat_fields(pid: int) -> list[str] | None:
     except OSError:
         return None
     # the command name is in parentheses and may itself hold spaces or parentheses
-    return text[text.rfind(")") + 2:].split()
+    return text[text.rfind(")") + 2 :].split()
 
 
 def process_start(pid: int | None = None) -> str:
@@ -131,7 +131,7 @@ def die_with(command_pid: int) -> None:
     prctl = _prctl()
     if prctl is not None:
         prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
-    if os.getppid() != parent or not alive(command_pid):   # gone before the request took
+    if os.getppid() != parent or not alive(command_pid):  # gone before the request took
         os._exit(1)
 
     def watch() -> None:
@@ -139,6 +139,7 @@ def die_with(command_pid: int) -> None:
             threading.Event().wait(WATCH_EVERY_S)
             if os.getppid() != parent or not alive(command_pid):
                 os._exit(1)
+
     threading.Thread(target=watch, name="lifeline", daemon=True).start()
 
 
@@ -147,15 +148,16 @@ def child_options(sig: int = signal.SIGKILL) -> dict:
     (SIGKILL; SIGTERM for one that cleans up after itself quickly) when the thread starting it
     ends, whatever ends it. Start it from a thread that lives as long as the program should.
     No option on a system without ``prctl``."""
-    prctl = _prctl()          # looked up here: the child only calls it (no lookup after the fork)
+    prctl = _prctl()  # looked up here: the child only calls it (no lookup after the fork)
     if prctl is None:
         return {}
     parent = os.getpid()
 
     def in_child() -> None:
         prctl(PR_SET_PDEATHSIG, int(sig), 0, 0, 0)
-        if os.getppid() != parent:     # the command ended between the fork and the request
+        if os.getppid() != parent:  # the command ended between the fork and the request
             os._exit(1)
+
     return {"preexec_fn": in_child}
 
 
@@ -177,8 +179,8 @@ def interrupts_deferred():
     finally:
         for s in held:
             signal.signal(s, old[s])
-    for s in dict.fromkeys(got):          # each signal held back, once, as it would have come
+    for s in dict.fromkeys(got):  # each signal held back, once, as it would have come
         if callable(old[s]):
             old[s](s, None)
-        elif old[s] == signal.SIG_DFL:    # the default: end as the signal would have ended it
+        elif old[s] == signal.SIG_DFL:  # the default: end as the signal would have ended it
             os.kill(os.getpid(), s)

@@ -39,17 +39,29 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["PoseHealth", "HealthSeries", "pose_health", "health_series", "KNOWN", "BOUNDED", "NOT_KNOWN",
-           "MIN_MARKERS", "POOR_FIT_MM", "FRESH_S", "STALE_S", "AGE_S"]
+__all__ = [
+    "PoseHealth",
+    "HealthSeries",
+    "pose_health",
+    "health_series",
+    "KNOWN",
+    "BOUNDED",
+    "NOT_KNOWN",
+    "MIN_MARKERS",
+    "POOR_FIT_MM",
+    "FRESH_S",
+    "STALE_S",
+    "AGE_S",
+]
 
 KNOWN, BOUNDED, NOT_KNOWN = "known", "bounded", "not known"
-MIN_MARKERS = 3       # a rigid pose needs 3 points
-POOR_FIT_MM = 0.3     # a fit residual over this: the pose is bounded by it, not measured (a good fit leaves
-                      # 0.02-0.1 mm; vts_hw.motion.body_pose.POOR_FIT_MM is the same line)
-FRESH_S = 0.5         # frames older than this: the pose is bounded (the body may have moved since)
-STALE_S = 5.0         # ... older than this: not known
-AGE_S = 2.0           # the age factor's scale
-MIN_CAMERAS = 2.0     # a point is triangulated from at least 2 cameras (cameras not known: taken as 2)
+MIN_MARKERS = 3  # a rigid pose needs 3 points
+POOR_FIT_MM = 0.3  # a fit residual over this: the pose is bounded by it, not measured (a good fit leaves
+# 0.02-0.1 mm; vts_hw.motion.body_pose.POOR_FIT_MM is the same line)
+FRESH_S = 0.5  # frames older than this: the pose is bounded (the body may have moved since)
+STALE_S = 5.0  # ... older than this: not known
+AGE_S = 2.0  # the age factor's scale
+MIN_CAMERAS = 2.0  # a point is triangulated from at least 2 cameras (cameras not known: taken as 2)
 
 
 @dataclass(frozen=True)
@@ -89,8 +101,9 @@ def _arr(x, n: int, fill: float) -> np.ndarray:
     return np.broadcast_to(a, (n,)).astype(float) if a.ndim == 0 else a.reshape(-1).astype(float)
 
 
-def health_series(markers, model_markers, residual_mm, cameras=None, age_s=None, frames=None,
-                  poor_fit_mm: float = POOR_FIT_MM) -> HealthSeries:
+def health_series(
+    markers, model_markers, residual_mm, cameras=None, age_s=None, frames=None, poor_fit_mm: float = POOR_FIT_MM
+) -> HealthSeries:
     """The health of every row (arrays of one length, or scalars for all): see the module.
     ``frames`` (bool per row, None: all): whether frames were recorded at that row's time;
     ``poor_fit_mm``: the residual line of the model that fitted (the live model's may differ)."""
@@ -117,6 +130,7 @@ def health_series(markers, model_markers, residual_mm, cameras=None, age_s=None,
         for k in np.flatnonzero(sel):
             state[k] = st
             why[k] = text(k)
+
     mark(~fr, NOT_KNOWN, lambda k: "no frames")
     mark(n_ok < MIN_MARKERS, NOT_KNOWN, lambda k: f"fewer than {MIN_MARKERS} markers ({int(n_ok[k])} of {int(M[k])})")
     mark(~np.isfinite(rms), NOT_KNOWN, lambda k: "no pose fitted")
@@ -128,8 +142,16 @@ def health_series(markers, model_markers, residual_mm, cameras=None, age_s=None,
     return HealthSeries(state.astype(str), why.astype(str), conf)
 
 
-def pose_health(markers: int, model_markers: int, residual_mm: float, cameras: float | None = None,
-                age_s: float = 0.0, frames: bool = True, poor_fit_mm: float = POOR_FIT_MM) -> PoseHealth:
+def pose_health(
+    markers: int,
+    model_markers: int,
+    residual_mm: float,
+    cameras: float | None = None,
+    age_s: float = 0.0,
+    frames: bool = True,
+    poor_fit_mm: float = POOR_FIT_MM,
+) -> PoseHealth:
     """One pose's health (see the module): what the live estimate gives each instant."""
-    return health_series([markers], model_markers, [residual_mm], None if cameras is None else [cameras],
-                         [age_s], [frames], poor_fit_mm)[0]
+    return health_series(
+        [markers], model_markers, [residual_mm], None if cameras is None else [cameras], [age_s], [frames], poor_fit_mm
+    )[0]

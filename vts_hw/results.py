@@ -26,16 +26,20 @@ class Measure(NamedTuple):
     state: State
 
     @classmethod
-    def judged(cls, subject: str, metric: str, value: float | None, unit: str,
-               window: Window | None) -> "Measure":
+    def judged(cls, subject: str, metric: str, value: float | None, unit: str, window: Window | None) -> Measure:
         """A measure whose state its window gives (OK without a window; ACTION when unmeasured)."""
         if value is None:
             return cls(subject, metric, None, unit, State.ACTION)
         return cls(subject, metric, float(value), unit, window.state(value) if window else State.OK)
 
     def as_dict(self) -> dict:
-        return {"subject": self.subject, "metric": self.metric, "value": self.value, "unit": self.unit,
-                "state": str(self.state)}
+        return {
+            "subject": self.subject,
+            "metric": self.metric,
+            "value": self.value,
+            "unit": self.unit,
+            "state": str(self.state),
+        }
 
 
 def overall_state(measures) -> State:
@@ -51,7 +55,7 @@ class Analysis(Protocol):
 
     procedure: str
 
-    @property        # read only: a procedure may work its measures out when asked (BaselineSet)
+    @property  # read only: a procedure may work its measures out when asked (BaselineSet)
     def measures(self) -> list[Measure]: ...
 
     @property

@@ -33,18 +33,29 @@ from vts_hw.files import WriteFailed, check_target, os_reason, write_atomic
 BACKUP_SUFFIX = ".bak"
 
 
-def skeleton(cameras: list[dict], *, password_env: str, user: str = "root", rig: str = "vts",
-             when: float | None = None) -> str:
+def skeleton(
+    cameras: list[dict], *, password_env: str, user: str = "root", rig: str = "vts", when: float | None = None
+) -> str:
     """The text of a rig.yaml for ``cameras`` (dicts: name, host, port, scheme, model, serial,
     firmware, confirmed), with a comment per camera saying what it is; checked to load."""
     stamp = time.strftime("%Y-%m-%d %H:%M", time.localtime(time.time() if when is None else when))
-    lines = [f"# rig.yaml written by `vts discover` on {stamp}: the Axis cameras that announced themselves.",
-             "# Check each entry (name, led_port), set the password variable, then run `vts camera setup --all`",
-             "# (it sets each camera and writes what it set as the camera's locked_params, which the daily QA checks).",
-             f"rig: {rig}", "cameras:"]
+    lines = [
+        f"# rig.yaml written by `vts discover` on {stamp}: the Axis cameras that announced themselves.",
+        "# Check each entry (name, led_port), set the password variable, then run `vts camera setup --all`",
+        "# (it sets each camera and writes what it set as the camera's locked_params, which the daily QA checks).",
+        f"rig: {rig}",
+        "cameras:",
+    ]
     for c in cameras:
-        what = ", ".join(x for x in (c.get("model") or "Axis camera", f"serial {c.get('serial') or '?'}",
-                                     f"firmware {c.get('firmware') or '?'}") if x)
+        what = ", ".join(
+            x
+            for x in (
+                c.get("model") or "Axis camera",
+                f"serial {c.get('serial') or '?'}",
+                f"firmware {c.get('firmware') or '?'}",
+            )
+            if x
+        )
         how = "confirmed over VAPIX" if c.get("confirmed") else "as announced, NOT confirmed over VAPIX"
         lines += [f"  # {what} ({how})", f"  - name: {c['name']}", f"    host: {c['host']}"]
         if c.get("scheme", "http") != "http":
@@ -52,7 +63,7 @@ def skeleton(cameras: list[dict], *, password_env: str, user: str = "root", rig:
         lines += [f"    port: {int(c['port'])}", f"    user: {user}", f"    password_env: {password_env}"]
     lines += ["trigger:", "  backend: none"]
     text = "\n".join(lines) + "\n"
-    parse_rig(yaml.safe_load(text), "the rig.yaml skeleton")   # what is written loads
+    parse_rig(yaml.safe_load(text), "the rig.yaml skeleton")  # what is written loads
     return text
 
 
@@ -71,11 +82,11 @@ def write_new(path: str | os.PathLike, text: str) -> Path:
     is written); WriteFailed (exit 3) when it cannot be written."""
     path = Path(path)
     refuse_existing(path)
-    tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.new")    # a name no one had
+    tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.new")  # a name no one had
     try:
         write_atomic(tmp, text)
         try:
-            os.link(tmp, path)          # fails if the name was taken meanwhile: never replaces a file
+            os.link(tmp, path)  # fails if the name was taken meanwhile: never replaces a file
         except FileExistsError:
             raise _exists(path) from None
         except OSError as exc:
@@ -125,7 +136,7 @@ def _rewrite(path: str | os.PathLike, edit, *, what: str, during: str, again: st
     new_text = out.getvalue()
     if len(new_text.encode("utf-8")) > MAX_CONFIG_BYTES:
         raise ConfigError(f"{path}: the config with its {what} would be larger than a rig config can be")
-    parse_rig(yaml.safe_load(new_text), str(path))   # never write a file that would not load
+    parse_rig(yaml.safe_load(new_text), str(path))  # never write a file that would not load
     if hashlib.sha256(_read_text(path).encode("utf-8")).hexdigest() != digest:
         raise UsageError(f"{path} was changed while {during}: it is left as it is; {again}")
     backup = path.with_name(path.name + BACKUP_SUFFIX)
@@ -147,16 +158,18 @@ def set_locked_params(path: str | os.PathLike, params: dict[str, dict[str, str]]
             if name not in entries:
                 raise ConfigError(f"{path}: no camera named {name!r} in cameras")
             # quoted: a YAML 1.1 reader (PyYAML: how rig.yaml is loaded) would read no, yes, on, off as booleans
-            entries[name]["locked_params"] = CommentedMap((k, SingleQuotedScalarString(str(v)))
-                                                          for k, v in values.items())
+            entries[name]["locked_params"] = CommentedMap(
+                (k, SingleQuotedScalarString(str(v))) for k, v in values.items()
+            )
 
-    backup = _rewrite(path, edit, what="locked parameters", during="the cameras were being set",
-                      again="run the setup again")
+    backup = _rewrite(
+        path, edit, what="locked parameters", during="the cameras were being set", again="run the setup again"
+    )
     assert backup is not None, "edit never returns False: the parameters are always written"
     return backup
 
 
-CALIBRATION_KEYS = ("cameras", "mapping")    # rig.yaml's calibration: entries (config.CalibrationPaths)
+CALIBRATION_KEYS = ("cameras", "mapping")  # rig.yaml's calibration: entries (config.CalibrationPaths)
 
 
 def names_file(path: str | os.PathLike, entry, file: str | os.PathLike) -> bool:
@@ -190,19 +203,36 @@ def set_calibration(path: str | os.PathLike, files: dict[str, str | os.PathLike]
         old_name = {new: old for old, new in OLD_CALIBRATION_KEYS.items()}
         # the file's own name of each entry: an old rig.yaml keeps its old key (not both at once)
         written = {k: old_name[k] if hasattr(section, "get") and old_name[k] in section else k for k in files}
-        todo = {k: f for k, f in files.items()
-                if not names_file(path, section.get(written[k]) if hasattr(section, "get") else None, f)}
+        todo = {
+            k: f
+            for k, f in files.items()
+            if not names_file(path, section.get(written[k]) if hasattr(section, "get") else None, f)
+        }
         if not todo:
             return False
-        if not isinstance(section, CommentedMap):      # absent, or `calibration:` with nothing under it
+        if not isinstance(section, CommentedMap):  # absent, or `calibration:` with nothing under it
             section = data["calibration"] = CommentedMap()
         for key, f in todo.items():
-            section[written[key]] = os.path.abspath(f)      # one no reader need resolve
+            section[written[key]] = os.path.abspath(f)  # one no reader need resolve
         return True
 
-    return _rewrite(path, edit, what="calibration paths", during="its calibration paths were being set",
-                    again="run the step again (`vts commission --from STEP`)")
+    return _rewrite(
+        path,
+        edit,
+        what="calibration paths",
+        during="its calibration paths were being set",
+        again="run the step again (`vts commission --from STEP`)",
+    )
 
 
-__all__ = ["skeleton", "refuse_existing", "check_rewritable", "write_new", "set_locked_params", "set_calibration", "names_file",
-           "CALIBRATION_KEYS", "BACKUP_SUFFIX"]
+__all__ = [
+    "skeleton",
+    "refuse_existing",
+    "check_rewritable",
+    "write_new",
+    "set_locked_params",
+    "set_calibration",
+    "names_file",
+    "CALIBRATION_KEYS",
+    "BACKUP_SUFFIX",
+]

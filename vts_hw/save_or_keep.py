@@ -14,7 +14,7 @@ from __future__ import annotations
 import os
 import tempfile
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 from vts_hw.files import WriteFailed, write_atomic
@@ -32,9 +32,11 @@ class Saved:
 
     def data(self) -> dict:
         """For --json: ``output`` (None if not written), ``saved_to``, ``write_error``."""
-        return {"output": str(self.written) if self.written else None,
-                "saved_to": str(self.written or self.fallback) if (self.written or self.fallback) else None,
-                "write_error": str(self.error) if self.error else None}
+        return {
+            "output": str(self.written) if self.written else None,
+            "saved_to": str(self.written or self.fallback) if (self.written or self.fallback) else None,
+            "write_error": str(self.error) if self.error else None,
+        }
 
 
 def fallback_folders() -> list[Path]:
@@ -55,12 +57,12 @@ def save_or_keep(path: str | os.PathLike, text: str, what: str = "result") -> Sa
         return Saved(path, written=write_atomic(path, text))
     except WriteFailed as exc:
         reason, kept = exc.reason, exc.kept
-    stamp = datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
     tried = []
     for folder in fallback_folders():
         other = folder / f"{path.stem}-{stamp}{path.suffix or '.json'}"
         n = 2
-        while os.path.lexists(other):       # whatever is there, a link or a FIFO too, is someone else's
+        while os.path.lexists(other):  # whatever is there, a link or a FIFO too, is someone else's
             other = folder / f"{path.stem}-{stamp}-{n}{path.suffix or '.json'}"
             n += 1
         try:
@@ -68,8 +70,15 @@ def save_or_keep(path: str | os.PathLike, text: str, what: str = "result") -> Sa
         except WriteFailed:
             tried.append(str(other))
             continue
-        return Saved(path, fallback=other,
-                     error=WriteFailed(path, reason, f"{kept}; the {what} was saved to {other} instead"))
-    return Saved(path, error=WriteFailed(
-        path, reason, f"{kept}; the {what} could not be saved anywhere else either (tried"
-                      f" {', '.join(tried)}), so only the figures printed here are left"))
+        return Saved(
+            path, fallback=other, error=WriteFailed(path, reason, f"{kept}; the {what} was saved to {other} instead")
+        )
+    return Saved(
+        path,
+        error=WriteFailed(
+            path,
+            reason,
+            f"{kept}; the {what} could not be saved anywhere else either (tried"
+            f" {', '.join(tried)}), so only the figures printed here are left",
+        ),
+    )

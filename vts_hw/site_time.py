@@ -31,8 +31,9 @@ def site_zone(name: str) -> ZoneInfo:
             raise ValueError
         return ZoneInfo(name)
     except (ZoneInfoNotFoundError, ValueError, OSError):
-        raise ValueError(f"{name!r} is not a time zone name (an IANA name such as America/Toronto, "
-                         f"Australia/Sydney or UTC)") from None
+        raise ValueError(
+            f"{name!r} is not a time zone name (an IANA name such as America/Toronto, Australia/Sydney or UTC)"
+        ) from None
 
 
 def offset_text(delta: _dt.timedelta | None) -> str:
@@ -45,14 +46,15 @@ def offset_text(delta: _dt.timedelta | None) -> str:
 def wall_clock(t: float, zone: ZoneInfo) -> _dt.datetime:
     """The naive wall-clock time of the instant ``t`` (UTC epoch s, taken to the whole second
     below) in ``zone``; RepeatedWallTime when that wall-clock time happens twice there."""
-    utc = _dt.datetime.fromtimestamp(math.floor(float(t)), _dt.timezone.utc)
+    utc = _dt.datetime.fromtimestamp(math.floor(float(t)), _dt.UTC)
     naive = utc.astimezone(zone).replace(tzinfo=None)
     first = naive.replace(tzinfo=zone, fold=0).utcoffset()
     second = naive.replace(tzinfo=zone, fold=1).utcoffset()
     if first != second:
         raise RepeatedWallTime(
             f"{naive:%Y-%m-%d %H:%M:%S} happens twice in {zone.key} (the clocks go back from "
-            f"{offset_text(first)} to {offset_text(second)} that night)")
+            f"{offset_text(first)} to {offset_text(second)} that night)"
+        )
     return naive
 
 
@@ -77,6 +79,8 @@ def zone_disagreement(zone: ZoneInfo, shown: list[str]) -> str | None:
             continue
         ours = value.astimezone(zone).utcoffset()
         if ours != value.utcoffset():
-            return (f"the site shows {text}, at {offset_text(value.utcoffset())}, where {zone.key} is at "
-                    f"{offset_text(ours)}")
+            return (
+                f"the site shows {text}, at {offset_text(value.utcoffset())}, where {zone.key} is at "
+                f"{offset_text(ours)}"
+            )
     return None

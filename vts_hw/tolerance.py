@@ -51,8 +51,9 @@ class Window:
     unit: str = ""
 
     def __post_init__(self):
-        vals = [v for v in (self.action_low, self.tolerance_low, self.tolerance_high, self.action_high)
-                if v is not None]
+        vals = [
+            v for v in (self.action_low, self.tolerance_low, self.tolerance_high, self.action_high) if v is not None
+        ]
         if vals != sorted(vals):
             raise ValueError("a tolerance window needs action_low <= tolerance_low <= tolerance_high <= action_high")
 
@@ -60,11 +61,13 @@ class Window:
         """The state of a value; a value that could not be measured (None or NaN) is ACTION."""
         if value is None or (isinstance(value, float) and math.isnan(value)):
             return State.ACTION
-        if (self.action_low is not None and value < self.action_low) or \
-                (self.action_high is not None and value > self.action_high):
+        if (self.action_low is not None and value < self.action_low) or (
+            self.action_high is not None and value > self.action_high
+        ):
             return State.ACTION
-        if (self.tolerance_low is not None and value < self.tolerance_low) or \
-                (self.tolerance_high is not None and value > self.tolerance_high):
+        if (self.tolerance_low is not None and value < self.tolerance_low) or (
+            self.tolerance_high is not None and value > self.tolerance_high
+        ):
             return State.TOLERANCE
         return State.OK
 
@@ -84,8 +87,9 @@ class Window:
         elif tl is not None:
             parts.append(f"OK ≥ {tl:g}")
         if al is not None and ah is not None:
-            parts.append(f"ACTION beyond ±{ah:g}" if ah > 0 and math.isclose(al, -ah)
-                         else f"ACTION outside {al:g} … {ah:g}")
+            parts.append(
+                f"ACTION beyond ±{ah:g}" if ah > 0 and math.isclose(al, -ah) else f"ACTION outside {al:g} … {ah:g}"
+            )
         elif ah is not None:
             parts.append(f"ACTION above {ah:g}")
         elif al is not None:
@@ -93,7 +97,7 @@ class Window:
         return (", ".join(parts) + f" {self.unit or ''}").strip()
 
     @classmethod
-    def symmetric(cls, tolerance: float, action: float, unit: str = "") -> "Window":
+    def symmetric(cls, tolerance: float, action: float, unit: str = "") -> Window:
         return cls(-action, -tolerance, tolerance, action, unit)
 
 

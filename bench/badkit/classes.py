@@ -12,9 +12,9 @@ from __future__ import annotations
 import hashlib
 import json
 import sqlite3
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import click
 
@@ -32,9 +32,9 @@ class Verdict:
     hang: bool = False
     false_ok: bool = False
     damaged: bool = False
-    other: bool = False          # an undocumented exit code, or bad input not refused as such
-    opened: bool = False         # the command opened the store it was given
-    security: bool = False       # a secret served, a foreign request obeyed, a script sent back unescaped
+    other: bool = False  # an undocumented exit code, or bad input not refused as such
+    opened: bool = False  # the command opened the store it was given
+    security: bool = False  # a secret served, a foreign request obeyed, a script sent back unescaped
     why: str = ""
 
     @property
@@ -67,6 +67,7 @@ def plain(argv: list[str]) -> Callable[[Path], list[str]]:
 
 
 # --- numbers that are not finite, or out of range -------------------------------------------
+
 
 def float_values(p: click.Parameter) -> list[str]:
     """The values a float option must refuse: not finite, and below its minimum where it has one."""
@@ -104,9 +105,12 @@ def float_cases(cmd_path: tuple[str, ...], cmd: click.Command, base: Callable[[P
             continue
         opt = p.opts[-1] if p.opts[-1].startswith("--") else p.opts[0]
         for v in float_values(p):
-            yield Case("floats", f"{opt} {v}",
-                       lambda wd, opt=opt, v=v, opts=tuple(p.opts): [*cmd_path, f"{opt}={v}", *without(base(wd), opts)],
-                       lambda wd, code, out, err, opt=opt: _refused(code, err, opt))
+            yield Case(
+                "floats",
+                f"{opt} {v}",
+                lambda wd, opt=opt, v=v, opts=tuple(p.opts): [*cmd_path, f"{opt}={v}", *without(base(wd), opts)],
+                lambda wd, code, out, err, opt=opt: _refused(code, err, opt),
+            )
 
 
 def _refused(code, err, opt) -> Verdict:
@@ -116,8 +120,10 @@ def _refused(code, err, opt) -> Verdict:
     if code == 0:
         return Verdict(false_ok=True, why="accepted")
     if code != 2 or opt not in err:
-        return Verdict(other=True, why=f"not refused as bad input naming {opt} (exit {code}): "
-                                       f"{(err.strip().splitlines() or [''])[-1]}")
+        return Verdict(
+            other=True,
+            why=f"not refused as bad input naming {opt} (exit {code}): {(err.strip().splitlines() or [''])[-1]}",
+        )
     return Verdict()
 
 
@@ -127,16 +133,20 @@ def number_judge(value: str):
         if v.passed and code == 0 and value in NONSENSE:
             return Verdict(false_ok=True, why=f"{value} accepted")
         return v
+
     return judge
 
 
 # --- databases that are not a vts-hw results store -----------------------------------------
 
+
 def _foreign_sqlite(p: Path) -> None:
     con = sqlite3.connect(p)
-    con.executescript("CREATE TABLE patients (id INTEGER PRIMARY KEY, name TEXT, dob TEXT);"
-                      "INSERT INTO patients (name, dob) VALUES ('A B', '1950-01-01'), ('C D', '1961-02-03');"
-                      "CREATE TABLE visits (id INTEGER PRIMARY KEY, patient INTEGER, at REAL);")
+    con.executescript(
+        "CREATE TABLE patients (id INTEGER PRIMARY KEY, name TEXT, dob TEXT);"
+        "INSERT INTO patients (name, dob) VALUES ('A B', '1950-01-01'), ('C D', '1961-02-03');"
+        "CREATE TABLE visits (id INTEGER PRIMARY KEY, patient INTEGER, at REAL);"
+    )
     con.commit()
     con.close()
 
@@ -187,61 +197,143 @@ def foreign_judge(wd: Path, code, out, err) -> Verdict:
 def foreign_cases(cmd_path: tuple[str, ...], base: Callable[[Path], list[str]], extra: list[str]):
     """The command with ``--store`` naming each kind of database that is not a store."""
     for kind in FOREIGN_KINDS:
-        yield Case("foreign stores", f"--store {kind}",
-                   lambda wd, kind=kind: ["--store", str(_foreign_file(wd, kind)), *cmd_path, *base(wd), *extra],
-                   foreign_judge)
+        yield Case(
+            "foreign stores",
+            f"--store {kind}",
+            lambda wd, kind=kind: ["--store", str(_foreign_file(wd, kind)), *cmd_path, *base(wd), *extra],
+            foreign_judge,
+        )
 
 
 def store_command_cases(fx) -> list[Case]:
     """The store's own commands and the ones that reach the store only with good inputs."""
     out = []
     for kind in FOREIGN_KINDS:
+
         def good(wd):
             from vts_hw.store import ResultsStore
+
             with ResultsStore(wd / "ours.sqlite") as s, s.begin_run("daily", rig="dead") as h:
                 h.measure("cam1", "drift_x_px", 0.1, "px")
             return str(wd / "ours.sqlite")
+
         out += [
-            Case("foreign stores", f"store migrate --from {kind}",
-                 lambda wd, kind=kind: ["store", "migrate", "--from", str(_foreign_file(wd, kind)),
-                                        "--to", str(wd / "new.sqlite")], foreign_judge),
-            Case("foreign stores", f"store migrate --to {kind}",
-                 lambda wd, kind=kind, good=good: ["store", "migrate", "--from", good(wd), "--to",
-                                                   str(_foreign_file(wd, kind))], foreign_judge),
-            Case("foreign stores", f"qa drift --set-baseline, {kind}",
-                 lambda wd, kind=kind: ["--store", str(_foreign_file(wd, kind)), "qa", "drift", "--set-baseline",
-                                        "--config", fx.dead_config], foreign_judge),
-            Case("foreign stores", f"qa import (a good run file), {kind}",
-                 lambda wd, kind=kind: ["--store", str(_foreign_file(wd, kind)), "qa", "import", _unsaved(wd),
-                                        "--config", fx.dead_config], foreign_judge),
+            Case(
+                "foreign stores",
+                f"store migrate --from {kind}",
+                lambda wd, kind=kind: [
+                    "store",
+                    "migrate",
+                    "--from",
+                    str(_foreign_file(wd, kind)),
+                    "--to",
+                    str(wd / "new.sqlite"),
+                ],
+                foreign_judge,
+            ),
+            Case(
+                "foreign stores",
+                f"store migrate --to {kind}",
+                lambda wd, kind=kind, good=good: [
+                    "store",
+                    "migrate",
+                    "--from",
+                    good(wd),
+                    "--to",
+                    str(_foreign_file(wd, kind)),
+                ],
+                foreign_judge,
+            ),
+            Case(
+                "foreign stores",
+                f"qa drift --set-baseline, {kind}",
+                lambda wd, kind=kind: [
+                    "--store",
+                    str(_foreign_file(wd, kind)),
+                    "qa",
+                    "drift",
+                    "--set-baseline",
+                    "--config",
+                    fx.dead_config,
+                ],
+                foreign_judge,
+            ),
+            Case(
+                "foreign stores",
+                f"qa import (a good run file), {kind}",
+                lambda wd, kind=kind: [
+                    "--store",
+                    str(_foreign_file(wd, kind)),
+                    "qa",
+                    "import",
+                    _unsaved(wd),
+                    "--config",
+                    fx.dead_config,
+                ],
+                foreign_judge,
+            ),
         ]
-        if kind != "empty SQLite":   # `store init` makes an empty one a store: that is its job
-            out.append(Case("foreign stores", f"store init {kind}",
-                            lambda wd, kind=kind: ["store", "init", str(_foreign_file(wd, kind))], foreign_judge))
+        if kind != "empty SQLite":  # `store init` makes an empty one a store: that is its job
+            out.append(
+                Case(
+                    "foreign stores",
+                    f"store init {kind}",
+                    lambda wd, kind=kind: ["store", "init", str(_foreign_file(wd, kind))],
+                    foreign_judge,
+                )
+            )
     # a command that stores its result only after its work: a calibration from the real
     # checkerboard pairs (../shared/data, as the tests find them)
     boards = shared_data() / "stereo-checkerboard"
     if boards.is_dir():
-        out.append(Case("foreign stores", "calibrate stereo (the real pairs), foreign SQLite",
-                        lambda wd: ["--store", str(_foreign_file(wd, "foreign SQLite")), "calibrate", "stereo",
-                                    str(boards), "--square", "30", "-o", str(wd / "cal.json")], foreign_judge))
+        out.append(
+            Case(
+                "foreign stores",
+                "calibrate stereo (the real pairs), foreign SQLite",
+                lambda wd: [
+                    "--store",
+                    str(_foreign_file(wd, "foreign SQLite")),
+                    "calibrate",
+                    "stereo",
+                    str(boards),
+                    "--square",
+                    "30",
+                    "-o",
+                    str(wd / "cal.json"),
+                ],
+                foreign_judge,
+            )
+        )
     return out
 
 
 def shared_data() -> Path:
     """The real data the tests read: $VTS_SHARED_DATA, else ../shared/data beside the checkout."""
     import os
+
     env = os.environ.get("VTS_SHARED_DATA")
     return Path(env) if env else Path(__file__).resolve().parents[3] / "shared" / "data"
 
 
 def _unsaved(wd: Path) -> str:
     from vts_hw.store.unsaved import FORMAT
+
     p = wd / "unsaved-run.json"
-    p.write_text(json.dumps({"format": FORMAT, "procedure": "daily", "rig": "dead", "started": 1.8e9,
-                             "finished": 1.8e9 + 5, "state": "OK",
-                             "measurements": [{"subject": "cam1", "metric": "drift_x_px", "value": 0.1, "unit": "px",
-                                               "state": "OK"}]}))
+    p.write_text(
+        json.dumps(
+            {
+                "format": FORMAT,
+                "procedure": "daily",
+                "rig": "dead",
+                "started": 1.8e9,
+                "finished": 1.8e9 + 5,
+                "state": "OK",
+                "measurements": [
+                    {"subject": "cam1", "metric": "drift_x_px", "value": 0.1, "unit": "px", "state": "OK"}
+                ],
+            }
+        )
+    )
     return str(p)
 
 
@@ -259,5 +351,16 @@ def probe_stores() -> None:
     module.ResultsStore.__init__ = init
 
 
-__all__ = ["Case", "Verdict", "common", "plain", "float_cases", "number_judge", "foreign_cases",
-           "store_command_cases", "probe_stores", "EXIT_OK", "NONSENSE"]
+__all__ = [
+    "Case",
+    "Verdict",
+    "common",
+    "plain",
+    "float_cases",
+    "number_judge",
+    "foreign_cases",
+    "store_command_cases",
+    "probe_stores",
+    "EXIT_OK",
+    "NONSENSE",
+]

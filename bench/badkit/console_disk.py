@@ -68,15 +68,28 @@ def _job_end(port: int, path: str, busy, deadline: float) -> dict:
 
 ACTIONS = {
     # what: (the request, where the job's state is read, whether it is still busy, what is on the disk)
-    "Scan-page scan": ("/scan/start", b'{"duration_s": 4}', "/scan/state",
-                       lambda s: s.get("phase") in ("starting", "reference", "recording", "stopping", "running"),
-                       "scans"),
-    "drift baseline set": ("/qa/baseline", b'{"confirm": true, "frames": 3}', "/qa/state",
-                           lambda s: (s.get("job") or s).get("state") == "running", "store"),
-    "Daily QA": ("/qa/run", b'{"frames": 3}', "/qa/state",
-                 lambda s: (s.get("job") or s).get("state") == "running", "store"),
-    "push to QATrack+": ("/qa/push", b"{}", "/qa/state",
-                         lambda s: (s.get("job") or s).get("pushing") is True, "store"),
+    "Scan-page scan": (
+        "/scan/start",
+        b'{"duration_s": 4}',
+        "/scan/state",
+        lambda s: s.get("phase") in ("starting", "reference", "recording", "stopping", "running"),
+        "scans",
+    ),
+    "drift baseline set": (
+        "/qa/baseline",
+        b'{"confirm": true, "frames": 3}',
+        "/qa/state",
+        lambda s: (s.get("job") or s).get("state") == "running",
+        "store",
+    ),
+    "Daily QA": (
+        "/qa/run",
+        b'{"frames": 3}',
+        "/qa/state",
+        lambda s: (s.get("job") or s).get("state") == "running",
+        "store",
+    ),
+    "push to QATrack+": ("/qa/push", b"{}", "/qa/state", lambda s: (s.get("job") or s).get("pushing") is True, "store"),
     "LED off": ("/camera/cam1/led", b'{"on": false}', "/api/room", lambda s: False, "store"),
 }
 SUBSET = ("Scan-page scan", "drift baseline set")
@@ -87,10 +100,12 @@ LEAVE = 40_000
 def _whats(page: str) -> list[str]:
     """The "What" of each row of the History page's "Who did what" (lower case)."""
     import html
+
     out = []
     for row in re.findall(r"<tr.*?</tr>", page, re.S):
-        cells = [html.unescape(re.sub(r"<[^>]+>", " ", c)).strip().lower()
-                 for c in re.findall(r"<td.*?</td>", row, re.S)]
+        cells = [
+            html.unescape(re.sub(r"<[^>]+>", " ", c)).strip().lower() for c in re.findall(r"<td.*?</td>", row, re.S)
+        ]
         if len(cells) >= 4:
             out.append(" ".join(cells[3].split()))
     return out
@@ -126,21 +141,28 @@ def _during(holder: dict, action: str):
             os.kill(pid, signal.SIGINT)
         except OSError:
             pass
+
     return during
 
 
 def _judge(holder: dict, action: str):
     def judge(wd: Path, code, out, err) -> Verdict:
         if os.environ.get("BAD_INPUTS_DEBUG"):
-            Path(os.environ["BAD_INPUTS_DEBUG"], f"console-disk-{action}.json").write_text(json.dumps(
-                {**{k: (v if not isinstance(v, (bytes, tuple, Path)) else repr(v)) for k, v in holder.items()},
-                 "code": code, "err": err[-3000:]}))
+            Path(os.environ["BAD_INPUTS_DEBUG"], f"console-disk-{action}.json").write_text(
+                json.dumps(
+                    {
+                        **{k: (v if not isinstance(v, (bytes, tuple, Path)) else repr(v)) for k, v in holder.items()},
+                        "code": code,
+                        "err": err[-3000:],
+                    }
+                )
+            )
         v = common(code, err)
         disk = wd / full_disk.DISK
         if v.hang or v.traceback:
             return v
         if holder.get("ended") and code in (2, 3) and (err.strip().splitlines() or [""])[-1].startswith("vts: "):
-            return v                     # it refused to serve on a store or folder it cannot write: one sentence
+            return v  # it refused to serve on a store or folder it cannot write: one sentence
         if "said" in holder:
             return Verdict(other=True, why=holder["said"])
         status, body = holder.get("answer", (0, b""))
@@ -151,19 +173,26 @@ def _judge(holder: dict, action: str):
         if 200 <= status < 300 and not FAILED.search(text):
             v.false_ok, v.why = True, f"HTTP {status} and the job ended {json.dumps(state)[:200]} on a full disk"
         failed = not (200 <= status < 300) or bool(FAILED.search(json.dumps(state)))
-        told = [w for w in _whats(holder.get("actions", "")) if any(d in w for d in DONE_WORDS)
-                and not re.search(r"\bnot\b|failed|refused", w)]
+        told = [
+            w
+            for w in _whats(holder.get("actions", ""))
+            if any(d in w for d in DONE_WORDS) and not re.search(r"\bnot\b|failed|refused", w)
+        ]
         if told and failed:
             v.false_ok, v.why = True, f"the action log says {told} for an action that failed: {json.dumps(state)[:160]}"
-        (disk / ".filler").unlink(missing_ok=True)     # (room to read the store: SQLite opens its -shm)
+        (disk / ".filler").unlink(missing_ok=True)  # (room to read the store: SQLite opens its -shm)
         half = [h for h in full_disk.half_files(disk) if not h.split(":")[0].endswith(("-wal", "-shm", "-journal"))]
-        empty = [str(p.relative_to(disk)) for p in disk.rglob("*")
-                 if p.is_dir() and p.name != "scans" and not any(p.iterdir())]     # (the scans folder: ours)
+        empty = [
+            str(p.relative_to(disk))
+            for p in disk.rglob("*")
+            if p.is_dir() and p.name != "scans" and not any(p.iterdir())
+        ]  # (the scans folder: ours)
         if half or empty:
             v.damaged, v.why = True, "; ".join(half + [f"{e}: an empty folder left" for e in empty])
         if code != 0 and v.passed:
             v.other, v.why = True, f"exit {code} on Ctrl-C: {(err.strip().splitlines() or [''])[-1][:160]}"
         return v
+
     return judge
 
 
@@ -186,14 +215,31 @@ def cases(root: Path, only: str | None = None, full: bool = False) -> list[Case]
             scans.mkdir(mode=0o700, parents=True, exist_ok=True)
             store = disk / "results.sqlite" if where == "store" else wd / "results.sqlite"
             shutil.copy(inp.baseline_store(), store)
-            holder["disk"] = disk                  # filled once the console serves (as a disk fills up in use)
-            return ["--store", f"sqlite:///{store}", "console", "--config", str(inp.config), "--port", "0",
-                    "--scans-dir", str(scans)]
+            holder["disk"] = disk  # filled once the console serves (as a disk fills up in use)
+            return [
+                "--store",
+                f"sqlite:///{store}",
+                "console",
+                "--config",
+                str(inp.config),
+                "--port",
+                "0",
+                "--scans-dir",
+                str(scans),
+            ]
 
         def run(argv, timeout, wd, holder=holder, action=action):
             return fork_vts(argv, timeout, wd, during=_during(holder, action))
-        out.append(Case(CLASS, f"console: {action}, its {where} on a full disk", make, _judge(holder, action),
-                        extra={"run": run}))
+
+        out.append(
+            Case(
+                CLASS,
+                f"console: {action}, its {where} on a full disk",
+                make,
+                _judge(holder, action),
+                extra={"run": run},
+            )
+        )
     return out
 
 

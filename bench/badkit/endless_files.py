@@ -25,7 +25,7 @@ from badkit.classes import Case, Verdict, common
 from badkit.signals import fork_vts
 
 CLASS = "endless files"
-MEMORY_CAP = 4 * 2 ** 30
+MEMORY_CAP = 4 * 2**30
 #: parameters that name what a command writes, or a folder it creates (never read)
 WRITTEN = {"out", "output", "export_dir", "plot_path", "folder", "out_dir"}
 
@@ -44,7 +44,7 @@ def make_inputs(root: Path) -> dict[str, str]:
     d.mkdir(parents=True, exist_ok=True)
     os.mkfifo(d / "fifo")
     with open(d / "huge.bin", "wb") as f:
-        f.truncate(8 * 2 ** 30)
+        f.truncate(8 * 2**30)
     files = {"/dev/zero": "/dev/zero", "FIFO": str(d / "fifo"), "8 GiB sparse": str(d / "huge.bin")}
     for part, link in (("manifest", "manifest.json"), ("index", "cam1.index.csv"), ("mjpeg", "cam1.mjpeg")):
         rec = d / f"rec-{part}"
@@ -63,6 +63,7 @@ def _judge(strict: bool):
     """``strict``: the endless file itself was given, so exit 0 is a false OK; a recording folder
     with one endless part may end 0 when the command does not read that part (recording info
     reads no manifest)."""
+
     def judge(wd: Path, code, out, err) -> Verdict:
         v = common(code, err)
         if code is not None and code < 0:
@@ -70,6 +71,7 @@ def _judge(strict: bool):
         elif v.passed and code == 0 and strict:
             v.false_ok, v.why = True, "exit 0 on an endless or huge input"
         return v
+
     return judge
 
 
@@ -77,8 +79,9 @@ def _read(p: click.Parameter) -> bool:
     return isinstance(p.type, (click.Path, click.File)) and p.name not in WRITTEN
 
 
-def cases(cmd_path: tuple[str, ...], cmd: click.Command, base: list[str], cfg: list[str],
-          inputs: dict[str, str], replace) -> list[Case]:
+def cases(
+    cmd_path: tuple[str, ...], cmd: click.Command, base: list[str], cfg: list[str], inputs: dict[str, str], replace
+) -> list[Case]:
     """One command's cases: each read path parameter, and --config, given each endless input."""
     out = []
     for p in cmd.params:
@@ -93,8 +96,9 @@ def cases(cmd_path: tuple[str, ...], cmd: click.Command, base: list[str], cfg: l
                 continue
             rest = cfg if p.name != "config_path" else []
             argv = [*cmd_path, *replace(base, p, opt, value), *rest]
-            out.append(Case(CLASS, f"{p.name}: {what}", lambda wd, a=argv: list(a), _judge(not is_rec),
-                            extra={"run": _run}))
+            out.append(
+                Case(CLASS, f"{p.name}: {what}", lambda wd, a=argv: list(a), _judge(not is_rec), extra={"run": _run})
+            )
     return out
 
 

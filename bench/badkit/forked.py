@@ -13,25 +13,29 @@ import sys
 import threading
 import time
 import traceback
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
-
 
 #: Held around each fork, and by this process's threads while they call into a C library that has
 #: locks of its own (SQLite: a judge reading a case's store, a readiness check): a child forked
 #: while another thread held SQLite's mutex inherits it held, and its first store call waits for
 #: ever (found: `store init` and `report rooms` on a full disk "hung" in 1 sweep of 3, never alone).
-FORK_LOCK = threading.RLock()      # (a judge may itself fork a reader: `vts recording info`)
+FORK_LOCK = threading.RLock()  # (a judge may itself fork a reader: `vts recording info`)
 
 
-def fork_vts(argv: list[str], timeout: float, workdir: Path, before: Callable[[], None] | None = None,
-             during: Callable[[int], None] | None = None) -> tuple[int | None, str, str]:
+def fork_vts(
+    argv: list[str],
+    timeout: float,
+    workdir: Path,
+    before: Callable[[], None] | None = None,
+    during: Callable[[int], None] | None = None,
+) -> tuple[int | None, str, str]:
     """`vts ARGV` in a forked child in its own session (``before()`` run in the child first);
     ``during(pid)`` runs in the parent while it does (it may signal it). (exit code, or None
     when it outlived ``timeout``; stdout; stderr). A child killed by a signal gives -signum."""
     out_r, out_w = os.pipe()
     err_r, err_w = os.pipe()
-    with FORK_LOCK:                  # (no thread of ours is inside SQLite meanwhile)
+    with FORK_LOCK:  # (no thread of ours is inside SQLite meanwhile)
         pid = os.fork()
     if pid == 0:
         code = 98
@@ -52,6 +56,7 @@ def fork_vts(argv: list[str], timeout: float, workdir: Path, before: Callable[[]
             if before:
                 before()
             from vts_hw.cli import main
+
             code = 0
             try:
                 main(argv)

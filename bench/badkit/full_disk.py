@@ -46,8 +46,11 @@ def available() -> str:
 
 def _mount(path: Path, size_kb: int) -> None:
     path.mkdir(parents=True, exist_ok=True)
-    subprocess.run([*root_cmd(), "mount", "-t", "tmpfs", "-o", f"size={size_kb}k,mode=0777", "tmpfs", str(path)],
-                   check=True, capture_output=True)
+    subprocess.run(
+        [*root_cmd(), "mount", "-t", "tmpfs", "-o", f"size={size_kb}k,mode=0777", "tmpfs", str(path)],
+        check=True,
+        capture_output=True,
+    )
 
 
 def _fill(path: Path, leave: int = 0) -> None:
@@ -104,11 +107,16 @@ class Inputs:
         self.dir = d = root / "fd-inputs"
         d.mkdir(parents=True, exist_ok=True)
         self.sim = d / "sim"
-        p = subprocess.run([PY, "-m", "vts_hw.cli", "sim", "up", "--detach", "--dir", str(self.sim)],
-                           capture_output=True, text=True, timeout=180)
+        p = subprocess.run(
+            [PY, "-m", "vts_hw.cli", "sim", "up", "--detach", "--dir", str(self.sim)],
+            capture_output=True,
+            text=True,
+            timeout=180,
+        )
         if p.returncode != 0:
             raise RuntimeError(f"vts sim up failed: {p.stderr.strip()}")
         from vts_hw.sim_devices.rig import load_env_file
+
         self.env = load_env_file(self.sim / "sim.env")
         self.config = str(self.sim / "rig.yaml")
         subprocess.run([PY, "-c", _SESSION, str(d)], check=True, capture_output=True, timeout=600)
@@ -123,8 +131,24 @@ class Inputs:
         """A store holding a drift baseline of the rig (made on first use): what `qa daily` needs."""
         db = self.dir / "baseline.sqlite"
         if not db.exists():
-            p = subprocess.run([PY, "-m", "vts_hw.cli", "--store", f"sqlite:///{db}", "qa", "drift", "--set-baseline",
-                                "--config", self.config], capture_output=True, text=True, timeout=300, env=self.env_all)
+            p = subprocess.run(
+                [
+                    PY,
+                    "-m",
+                    "vts_hw.cli",
+                    "--store",
+                    f"sqlite:///{db}",
+                    "qa",
+                    "drift",
+                    "--set-baseline",
+                    "--config",
+                    self.config,
+                ],
+                capture_output=True,
+                text=True,
+                timeout=300,
+                env=self.env_all,
+            )
             if p.returncode != 0:
                 raise RuntimeError(f"vts qa drift --set-baseline failed: {p.stderr.strip()[-300:]}")
         return db
@@ -135,8 +159,11 @@ class Inputs:
 
     def _digest(self) -> dict[str, str]:
         """Every input file's sha256: no case may change one."""
-        return {str(p): sha(p) for p in sorted(self.dir.rglob("*"))
-                if p.is_file() and "sim" not in p.relative_to(self.dir).parts}
+        return {
+            str(p): sha(p)
+            for p in sorted(self.dir.rglob("*"))
+            if p.is_file() and "sim" not in p.relative_to(self.dir).parts
+        }
 
     def changed(self) -> list[str]:
         now = self._digest()
@@ -144,6 +171,7 @@ class Inputs:
 
 
 # -- what a full disk may leave behind -------------------------------------------------------
+
 
 def half_files(disk: Path) -> list[str]:
     """Files on the disk that look whole but are not (or are temporary, or empty)."""
@@ -160,9 +188,10 @@ def half_files(disk: Path) -> list[str]:
             folders.add(p.parent)
     for f in folders:
         from vts_hw.recording.promised import folder_summaries, shortfall
+
         try:
             short = shortfall(folder_summaries(f))
-        except Exception as exc:   # noqa: BLE001 -- any failure to read it is what is reported
+        except Exception as exc:  # noqa: BLE001 -- any failure to read it is what is reported
             short = f"unreadable ({exc})"
         if short:
             bad.append(f"{f.relative_to(disk)}: not whole ({short})")
@@ -178,7 +207,9 @@ def _not_whole(p: Path) -> str:
     try:
         if name.endswith(".json"):
             json.loads(data)
-        elif name.endswith((".jpg", ".jpeg")) and not (data[:2] == b"\xff\xd8" and data.rstrip(b"\0")[-2:] == b"\xff\xd9"):
+        elif name.endswith((".jpg", ".jpeg")) and not (
+            data[:2] == b"\xff\xd8" and data.rstrip(b"\0")[-2:] == b"\xff\xd9"
+        ):
             return "a cut JPEG"
         elif name.endswith(".png") and not data.endswith(b"IEND\xaeB`\x82"):
             return "a cut PNG"
@@ -188,6 +219,7 @@ def _not_whole(p: Path) -> str:
             return "a cut HTML page"
         elif name.endswith((".yaml", ".yml")):
             import yaml
+
             yaml.safe_load(data)
         elif name.endswith(".csv") and not name.endswith(".index.csv"):
             if not data.endswith(b"\n") or len({line.count(b",") for line in data.splitlines()[1:] if line}) > 1:
@@ -200,22 +232,24 @@ def _not_whole(p: Path) -> str:
                 con.close()
             if ok != "ok":
                 return f"a damaged database ({ok})"
-    except Exception as exc:   # noqa: BLE001 -- a file that does not read is the finding
+    except Exception as exc:  # noqa: BLE001 -- a file that does not read is the finding
         return f"does not read whole ({type(exc).__name__})"
     return ""
 
 
 # -- the cases ---------------------------------------------------------------------------------
 
+
 def _judge(extra=None):
     """Exit 3, one sentence naming a file on the disk, no half file there, inputs unchanged, and
     ``extra(wd, out, err) -> str`` (what was acquired and lost; '' when nothing)."""
+
     def judge(wd: Path, code, out, err) -> Verdict:
         v = common(code, err)
         disk = wd / DISK
         if v.hang:
             return v
-        if v.traceback:       # counted, and what it left on the disk too
+        if v.traceback:  # counted, and what it left on the disk too
             half = half_files(disk)
             if half:
                 v.damaged, v.why = True, f"{v.why}; {'; '.join(half)}"
@@ -227,12 +261,22 @@ def _judge(extra=None):
         lost = extra(wd, out, err) if extra else ""
         changed = INPUTS.changed() if INPUTS else []
         if half or lost or changed:
-            return Verdict(damaged=True, why="; ".join([*half, *([lost] if lost else []),
-                                                        *([f"input(s) changed: {', '.join(changed)}"] if changed else [])]))
+            return Verdict(
+                damaged=True,
+                why="; ".join(
+                    [
+                        *half,
+                        *([lost] if lost else []),
+                        *([f"input(s) changed: {', '.join(changed)}"] if changed else []),
+                    ]
+                ),
+            )
         if code != 3 or not last.startswith("vts: ") or str(disk) not in last:
-            return Verdict(other=True, why=f"exit {code} without one sentence naming a file on the full disk: "
-                                           f"{last[:200]}")
+            return Verdict(
+                other=True, why=f"exit {code} without one sentence naming a file on the full disk: {last[:200]}"
+            )
         return v
+
     return judge
 
 
@@ -248,10 +292,12 @@ def _runs(db: Path, procedure: str) -> int:
 
 def _stored(procedure: str):
     """The result reached the case's own store (beside the disk), or an unsaved file."""
+
     def check(wd, out, err):
         if _runs(wd / "own.sqlite", procedure) == 1 or list(wd.rglob("unsaved/*.json")):
             return ""
         return f"the {procedure} result was neither stored nor kept in an unsaved file"
+
     return check
 
 
@@ -261,6 +307,7 @@ def _fallback(stem: str):
         if found and not _not_whole(found[0]):
             return ""
         return f"the {stem} was not kept in a fallback file ({stem}-<time>.json in the current folder)"
+
     return check
 
 
@@ -301,9 +348,10 @@ def cases(root: Path, only: str | None = None) -> list[Case]:
         def make(wd: Path, argv=argv, size_kb=size_kb, leave=leave) -> list[str]:
             disk = wd / DISK
             _mount(disk, size_kb)
-            args = argv(wd, disk)        # may put its input on the disk first (reindex)
+            args = argv(wd, disk)  # may put its input on the disk first (reindex)
             _fill(disk, leave)
             return args
+
         out.append(Case(CLASS, what, make, _judge(extra)))
     return out
 
@@ -312,46 +360,160 @@ def table(inp: Inputs) -> list[tuple]:
     """Every writing command with good inputs, its outputs in a folder D: (what, argv(wd, D),
     size of the disk in kB, bytes left free on it, the check of what was acquired)."""
     cfg = ["--config", inp.config]
-    own = lambda wd: ["--store", f"sqlite:///{wd / 'own.sqlite'}"]   # noqa: E731
+    own = lambda wd: ["--store", f"sqlite:///{wd / 'own.sqlite'}"]  # noqa: E731
     from vts_hw.store.unsaved import FORMAT
-    unsaved = json.dumps({"format": FORMAT, "procedure": "daily", "rig": "dead", "started": 1.8e9,
-                          "finished": 1.8e9 + 5, "state": "OK",
-                          "measurements": [{"subject": "cam1", "metric": "drift_x_px", "value": 0.1, "unit": "px",
-                                            "state": "OK"}]})
+
+    unsaved = json.dumps(
+        {
+            "format": FORMAT,
+            "procedure": "daily",
+            "rig": "dead",
+            "started": 1.8e9,
+            "finished": 1.8e9 + 5,
+            "state": "OK",
+            "measurements": [{"subject": "cam1", "metric": "drift_x_px", "value": 0.1, "unit": "px", "state": "OK"}],
+        }
+    )
     return [
         # (what, argv(wd, D), size kB, bytes left free, extra check)
         ("camera snapshot", lambda wd, D: ["camera", "snapshot", "cam1", "-o", f"{D}/a.jpg", *cfg], 64, 0, None),
-        ("camera record, the disk full before the first frame",
-         lambda wd, D: ["camera", "record", "cam1", "--seconds", "2", "-o", f"{D}/rec", *cfg], 64, 0, None),
-        ("camera record, the disk filling while recording",
-         lambda wd, D: ["camera", "record", "cam1", "--seconds", "4", "-o", f"{D}/rec", *cfg], 2048, 600_000, _recorded),
-        ("scan start", lambda wd, D: ["scan", "start", "--duration", "2", "--no-live", "-o", f"{D}/scan", *cfg],
-         64, 0, None),
-        ("qa daily, the store on the full disk",
-         lambda wd, D: ["--store", f"sqlite:///{D}/results.sqlite", "qa", "daily", *cfg], 64, 0, None),
-        ("qa steps --sim", lambda wd, D: ["qa", "steps", "--sim", "--vertical", "1", "--axial", "1", "--frames", "1",
-                                          "-o", f"{D}/steps"], 64, 0, None),
-        ("calibrate stereo", lambda wd, D: [*own(wd), "calibrate", "stereo", str(inp.boards), "--square", "30",
-                                            "-o", f"{D}/cal.json"], 64, 0, _fallback("cal")),
-        ("motion analyze --export -o --plot",
-         lambda wd, D: [*own(wd), "motion", "analyze", str(inp.session), "--calibration", str(inp.cameras),
-                        "--mapping", str(inp.mapping), "--export", f"{D}/exp", "-o", f"{D}/motion.html",
-                        "--plot", f"{D}/motion.png", "--workers", "1"], 1024, 200_000, _stored("motion")),
-        ("recording process", lambda wd, D: ["recording", "process", str(inp.session), "--calibration",
-                                             str(inp.cameras), "-o", f"{D}/tracks", "--workers", "1"], 64, 0, None),
-        ("report drift -o html", lambda wd, D: ["--store", f"sqlite:///{inp.store}", "report", "drift",
-                                                "-o", f"{D}/drift.html"], 64, 0, None),
-        ("report drift -o pdf", lambda wd, D: ["--store", f"sqlite:///{inp.store}", "report", "drift",
-                                               "-o", f"{D}/drift.pdf"], 64, 0, None),
-        ("report rooms", lambda wd, D: ["--store", f"sqlite:///{inp.store}", "report", "rooms",
-                                        "-o", f"{D}/rooms.html"], 64, 0, None),
+        (
+            "camera record, the disk full before the first frame",
+            lambda wd, D: ["camera", "record", "cam1", "--seconds", "2", "-o", f"{D}/rec", *cfg],
+            64,
+            0,
+            None,
+        ),
+        (
+            "camera record, the disk filling while recording",
+            lambda wd, D: ["camera", "record", "cam1", "--seconds", "4", "-o", f"{D}/rec", *cfg],
+            2048,
+            600_000,
+            _recorded,
+        ),
+        (
+            "scan start",
+            lambda wd, D: ["scan", "start", "--duration", "2", "--no-live", "-o", f"{D}/scan", *cfg],
+            64,
+            0,
+            None,
+        ),
+        (
+            "qa daily, the store on the full disk",
+            lambda wd, D: ["--store", f"sqlite:///{D}/results.sqlite", "qa", "daily", *cfg],
+            64,
+            0,
+            None,
+        ),
+        (
+            "qa steps --sim",
+            lambda wd, D: [
+                "qa",
+                "steps",
+                "--sim",
+                "--vertical",
+                "1",
+                "--axial",
+                "1",
+                "--frames",
+                "1",
+                "-o",
+                f"{D}/steps",
+            ],
+            64,
+            0,
+            None,
+        ),
+        (
+            "calibrate stereo",
+            lambda wd, D: [*own(wd), "calibrate", "stereo", str(inp.boards), "--square", "30", "-o", f"{D}/cal.json"],
+            64,
+            0,
+            _fallback("cal"),
+        ),
+        (
+            "motion analyze --export -o --plot",
+            lambda wd, D: [
+                *own(wd),
+                "motion",
+                "analyze",
+                str(inp.session),
+                "--calibration",
+                str(inp.cameras),
+                "--mapping",
+                str(inp.mapping),
+                "--export",
+                f"{D}/exp",
+                "-o",
+                f"{D}/motion.html",
+                "--plot",
+                f"{D}/motion.png",
+                "--workers",
+                "1",
+            ],
+            1024,
+            200_000,
+            _stored("motion"),
+        ),
+        (
+            "recording process",
+            lambda wd, D: [
+                "recording",
+                "process",
+                str(inp.session),
+                "--calibration",
+                str(inp.cameras),
+                "-o",
+                f"{D}/tracks",
+                "--workers",
+                "1",
+            ],
+            64,
+            0,
+            None,
+        ),
+        (
+            "report drift -o html",
+            lambda wd, D: ["--store", f"sqlite:///{inp.store}", "report", "drift", "-o", f"{D}/drift.html"],
+            64,
+            0,
+            None,
+        ),
+        (
+            "report drift -o pdf",
+            lambda wd, D: ["--store", f"sqlite:///{inp.store}", "report", "drift", "-o", f"{D}/drift.pdf"],
+            64,
+            0,
+            None,
+        ),
+        (
+            "report rooms",
+            lambda wd, D: ["--store", f"sqlite:///{inp.store}", "report", "rooms", "-o", f"{D}/rooms.html"],
+            64,
+            0,
+            None,
+        ),
         ("store init", lambda wd, D: ["store", "init", f"{D}/new.sqlite"], 64, 0, None),
-        ("store migrate --to", lambda wd, D: ["store", "migrate", "--from", str(inp.store), "--to",
-                                              f"{D}/new.sqlite"], 64, 0, None),
-        ("qa import, the store on the full disk",
-         lambda wd, D: ["--store", f"sqlite:///{D}/results.sqlite", "qa", "import", _write(wd / "unsaved-run.json",
-                                                                                          unsaved)],
-         64, 0, _unsaved_kept),
+        (
+            "store migrate --to",
+            lambda wd, D: ["store", "migrate", "--from", str(inp.store), "--to", f"{D}/new.sqlite"],
+            64,
+            0,
+            None,
+        ),
+        (
+            "qa import, the store on the full disk",
+            lambda wd, D: [
+                "--store",
+                f"sqlite:///{D}/results.sqlite",
+                "qa",
+                "import",
+                _write(wd / "unsaved-run.json", unsaved),
+            ],
+            64,
+            0,
+            _unsaved_kept,
+        ),
         ("recording reindex", lambda wd, D: ["recording", "reindex", _copy(inp.small, D / "small")], 2048, 0, None),
         ("sim up --detach", lambda wd, D: ["sim", "up", "--detach", "--dir", f"{D}/sim"], 64, 0, None),
         ("sim up (foreground)", lambda wd, D: ["sim", "up", "--dir", f"{D}/sim"], 64, 0, None),

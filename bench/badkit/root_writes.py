@@ -47,7 +47,7 @@ READ_ONLY = {("sim", "down")}
 WHOLE_JOB = {("demo",), ("sim", "up")}
 #: files a command writes inside a folder output, by name (issue 33 §2): (the folder's parameter, names)
 INSIDE = {("motion", "analyze"): ("export_dir", ("yrtpet_lor_motion.csv", "castor_motion.dyn"))}
-NULL_DEV = os.makedev(1, 3)      # the numbers of /dev/null: a twin made in the case's folder
+NULL_DEV = os.makedev(1, 3)  # the numbers of /dev/null: a twin made in the case's folder
 TARGET_TEXT = b"the file a link points at: not the command's\n"
 KEEP_TEXT = b"a file of the folder's own\n"
 
@@ -108,8 +108,15 @@ def node_fate(wd: Path, kind: str, node: Path) -> str:
 
 
 def _what(st) -> str:
-    return ("a regular file" if stat.S_ISREG(st.st_mode) else "a folder" if stat.S_ISDIR(st.st_mode)
-            else "a link" if stat.S_ISLNK(st.st_mode) else "something else")
+    return (
+        "a regular file"
+        if stat.S_ISREG(st.st_mode)
+        else "a folder"
+        if stat.S_ISDIR(st.st_mode)
+        else "a link"
+        if stat.S_ISLNK(st.st_mode)
+        else "something else"
+    )
 
 
 def _judge(kind: str, folder: bool, opt: str):
@@ -134,17 +141,19 @@ def _judge(kind: str, folder: bool, opt: str):
                 return Verdict(damaged=True, why=f"exit {code}, yet the link's target was changed: {last[:120]}")
             return v
         if kind == "directory" and folder:
-            return v                      # a folder where a folder is wanted: its own file kept (node_fate)
+            return v  # a folder where a folder is wanted: its own file kept (node_fate)
         if code == 0:
             return Verdict(false_ok=True, why=f"exit 0 with {opt} a {kind}")
-        if not last.startswith(("vts: ", "Error: ")):     # (click's usage errors start "Error:")
+        if not last.startswith(("vts: ", "Error: ")):  # (click's usage errors start "Error:")
             return Verdict(other=True, why=f"exit {code} without one sentence: {last[:160]}")
         return v
+
     return judge
 
 
 def sha_text(data: bytes) -> str:
     import hashlib
+
     return hashlib.sha256(data).hexdigest()
 
 
@@ -162,6 +171,7 @@ def cases(cmd_path: tuple[str, ...], cmd: click.Command, base: list[str], good, 
         for j, kind in enumerate(kinds):
             if not full and j != (i + len(cmd_path[0])) % len(kinds):
                 continue
+
             def make(wd: Path, p=p, opt=opt, kind=kind, folder=folder) -> list[str]:
                 D = wd / "D"
                 D.mkdir(exist_ok=True)
@@ -169,8 +179,10 @@ def cases(cmd_path: tuple[str, ...], cmd: click.Command, base: list[str], good, 
                 node = make_node(wd, kind, "out.d" if folder else f"out{_suffix(argv, p)}")
                 (wd / ".node").write_text(str(node))
                 return _put(argv, p, opt, str(node), replace)
-            out.append(Case(CLASS, f"{' '.join(cmd_path)} {opt or p.name}: {kind}", make,
-                            _judge(kind, folder, opt or p.name)))
+
+            out.append(
+                Case(CLASS, f"{' '.join(cmd_path)} {opt or p.name}: {kind}", make, _judge(kind, folder, opt or p.name))
+            )
     if full and good is not None and cmd_path in INSIDE:
         out += _inside_cases(cmd_path, cmd, good, replace)
     return out
@@ -185,14 +197,17 @@ def _inside_cases(cmd_path, cmd, good, replace) -> list[Case]:
     out = []
     for name in names:
         for kind in KINDS:
+
             def make(wd: Path, name=name, kind=kind) -> list[str]:
                 D = wd / "D"
                 D.mkdir(exist_ok=True)
-                node = make_node(wd, kind, name)          # wd/target/<name>: wd/target is the folder
+                node = make_node(wd, kind, name)  # wd/target/<name>: wd/target is the folder
                 (wd / ".node").write_text(str(node))
                 return _put(good(wd, D), p, opt, str(node.parent), replace)
-            out.append(Case(CLASS, f"{' '.join(cmd_path)} {opt} holding {name}: {kind}", make,
-                            _judge_inside(kind, name)))
+
+            out.append(
+                Case(CLASS, f"{' '.join(cmd_path)} {opt} holding {name}: {kind}", make, _judge_inside(kind, name))
+            )
     return out
 
 
@@ -206,6 +221,7 @@ def _judge_inside(kind: str, name: str):
         if v.passed and code in (0, 10, 20) and f"{name} there is" not in out + err:
             return Verdict(other=True, why=f"exit {code}, {name} in the export folder ({kind}) left unsaid")
         return v
+
     return judge
 
 
@@ -227,8 +243,8 @@ def _put(argv: list[str], p: click.Parameter, opt: str | None, value: str, repla
             return out
     if isinstance(p, click.Argument):
         n = next((i for i, a in enumerate(argv) if a == "--store"), None)
-        head = argv[:n + 2] if n == 0 else []
-        rest = argv[len(head):]
+        head = argv[: n + 2] if n == 0 else []
+        rest = argv[len(head) :]
         k = len(_words(rest))
         return [*head, *rest[:k], *replace(rest[k:], p, opt, value)]
     return [*argv, opt, value]

@@ -19,17 +19,29 @@ import os
 from pathlib import Path
 
 from badkit.classes import Case, Verdict, common
-from vts_hw.tracking.live.pose_log import COLUMNS, MODEL_FILE as MODEL, POSES_FILE as POSES
+from vts_hw.tracking.live.pose_log import COLUMNS
+from vts_hw.tracking.live.pose_log import MODEL_FILE as MODEL
+from vts_hw.tracking.live.pose_log import POSES_FILE as POSES
 
 CLASS = "session files"
 HEADER = ",".join(COLUMNS)
 
 
 def _model(**change) -> str:
-    d = {"format": "vts-hw patient model v1", "frame": "spect", "clock": "host",
-         "reference_mm": [[9000.0 + 100 * k, 9000.0, 9000.0] for k in range(4)],
-         "breathing_vectors": [[0.0, 1.0, 0.0]] * 4, "bands": [[0, 1, 2, 3]], "band_names": ["band 1"],
-         "period": [1.0, 2.0], "noise_mm": 0.1, "pose_noise_mm": 0.05, "pose_noise_deg": 0.01, "breathes": True}
+    d = {
+        "format": "vts-hw patient model v1",
+        "frame": "spect",
+        "clock": "host",
+        "reference_mm": [[9000.0 + 100 * k, 9000.0, 9000.0] for k in range(4)],
+        "breathing_vectors": [[0.0, 1.0, 0.0]] * 4,
+        "bands": [[0, 1, 2, 3]],
+        "band_names": ["band 1"],
+        "period": [1.0, 2.0],
+        "noise_mm": 0.1,
+        "pose_noise_mm": 0.05,
+        "pose_noise_deg": 0.01,
+        "breathes": True,
+    }
     d.update(change)
     return json.dumps(d)
 
@@ -38,6 +50,7 @@ def _write(name: str, text: str | bytes):
     def make(folder: Path) -> None:
         p = folder / name
         p.write_bytes(text) if isinstance(text, bytes) else p.write_text(text)
+
     return make
 
 
@@ -56,7 +69,8 @@ def _folder(name: str):
 def _sparse(name: str):
     def make(folder: Path) -> None:
         with open(folder / name, "wb") as f:
-            f.truncate(8 * 2 ** 30)
+            f.truncate(8 * 2**30)
+
     return make
 
 
@@ -78,8 +92,11 @@ KINDS = [
     ("poses a folder", "live poses not compared", _folder(POSES)),
     ("poses binary", "live poses not compared", _write(POSES, b"\xff\xfe" + bytes(range(256)) * 8)),
     ("poses another header", "live poses not compared", _write(POSES, "t,x,y\n1,2,3\n")),
-    ("poses NaN rows and a torn row", "live poses:", _write(POSES, HEADER + "\n" + ",".join(["nan"] * len(COLUMNS)) + "\n"
-                                                        + "1790000010.0,1,0,0")),
+    (
+        "poses NaN rows and a torn row",
+        "live poses:",
+        _write(POSES, HEADER + "\n" + ",".join(["nan"] * len(COLUMNS)) + "\n" + "1790000010.0,1,0,0"),
+    ),
 ]
 
 
@@ -93,6 +110,7 @@ def _judge(words: str):
         elif words not in out:
             v.other, v.why = True, f"the bad live file is not named among the analysis' problems ({words!r} not said)"
         return v
+
     return judge
 
 
@@ -103,6 +121,7 @@ def cases(inp, only: str | None) -> list[Case]:
     session, cams, mapping = Path(inp.session), str(inp.cameras), str(inp.mapping)
     out = []
     for what, words, bad in KINDS:
+
         def make(wd: Path, bad=bad) -> list[str]:
             folder = wd / "session"
             folder.mkdir()
@@ -110,8 +129,19 @@ def cases(inp, only: str | None) -> list[Case]:
                 if part.name not in (MODEL, POSES):
                     (folder / part.name).symlink_to(part.resolve())
             bad(folder)
-            return ["motion", "analyze", str(folder), "--calibration", cams, "--mapping", mapping, "--workers", "1",
-                    "--json"]
+            return [
+                "motion",
+                "analyze",
+                str(folder),
+                "--calibration",
+                cams,
+                "--mapping",
+                mapping,
+                "--workers",
+                "1",
+                "--json",
+            ]
+
         out.append(Case(CLASS, f"motion analyze: {what}", make, _judge(words)))
     return out
 

@@ -47,15 +47,16 @@ from badkit.forked import FORK_LOCK, fork_vts
 CLASS = "killed"
 KINDS = ("SIGINT", "SIGTERM", "SIGKILL")
 MOMENTS = ("starting", "under way", "later")
-AFTER_SIGNAL_S = 60.0      # how long a command may take to stop after SIGINT or SIGTERM
-ORPHAN_WAIT_S = 20.0       # how long its processes may take to go after it ended
-WAVE_OFF_S = 90.0          # how long the trigger box may keep its square wave on after its host died
-QUIET_S = 3.0              # no edge on the wave's pin for this long (wall clock): it is off
+AFTER_SIGNAL_S = 60.0  # how long a command may take to stop after SIGINT or SIGTERM
+ORPHAN_WAIT_S = 20.0  # how long its processes may take to go after it ended
+WAVE_OFF_S = 90.0  # how long the trigger box may keep its square wave on after its host died
+QUIET_S = 3.0  # no edge on the wave's pin for this long (wall clock): it is off
 MARK = "VTS_SWEEP_KILLED_CASE"
 VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
 
 
 # -- what is running -------------------------------------------------------------------------------
+
 
 def session_members(sid: int) -> list[int]:
     """Live processes of session ``sid`` (the child's own session: its workers, fork servers)."""
@@ -119,9 +120,10 @@ def _comm(pid: int) -> str:
 
 def _before(tag: str, env: dict | None = None):
     def hook() -> None:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)   # as `cmd &` in a script starts it
-        os.environ.update(env or {})                    # a rig of the case's own: its passwords
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # as `cmd &` in a script starts it
+        os.environ.update(env or {})  # a rig of the case's own: its passwords
         os.environ[MARK] = tag
+
     return hook
 
 
@@ -129,19 +131,20 @@ class _Signaller:
     """``during``: wait for the moment (``ready(wd, pid)``, then ``extra_s``; or ``wait_s``), send
     ``signum``; then note what of it is left running once it has ended."""
 
-    def __init__(self, wd: Path, signum: int, ready, wait_s: float, extra_s: float, tag: str, moment: str = "",
-                 job_ended=None):
+    def __init__(
+        self, wd: Path, signum: int, ready, wait_s: float, extra_s: float, tag: str, moment: str = "", job_ended=None
+    ):
         self.wd, self.signum, self.ready, self.wait_s, self.extra_s, self.tag = wd, signum, ready, wait_s, extra_s, tag
         self.moment, self._job_ended = moment, job_ended
         self.sent_after: float | None = None
         self.ended_first = False
-        self.job_ended = False      # (a console's job ended before the signal: what it stored is its own)
+        self.job_ended = False  # (a console's job ended before the signal: what it stored is its own)
         self.left: list[str] = []
 
     def __call__(self, pid: int) -> None:
         t0 = time.monotonic()
         while time.monotonic() - t0 < self.wait_s:
-            with FORK_LOCK:          # a readiness check may read a store (SQLite): never across a fork
+            with FORK_LOCK:  # a readiness check may read a store (SQLite): never across a fork
                 if self.ready(self.wd, pid):
                     break
             if not Path(f"/proc/{pid}").exists() or _state(pid) == "Z":
@@ -166,14 +169,14 @@ class _Signaller:
         while _state(pid) not in ("Z", "X") and time.monotonic() < end:
             time.sleep(0.05)
         if _state(pid) not in ("Z", "X"):
-            return                                       # still running: the runner's time limit says so
+            return  # still running: the runner's time limit says so
         end = time.monotonic() + ORPHAN_WAIT_S
         left = self._left(pid)
         while left and time.monotonic() < end:
             time.sleep(0.2)
             left = self._left(pid)
         self.left = [f"{p} {_comm(p)}" for p in left]
-        for p in left:   # never leave them running
+        for p in left:  # never leave them running
             try:
                 os.kill(p, signal.SIGKILL)
             except OSError:
@@ -184,6 +187,7 @@ class _Signaller:
 
 
 # -- when it is under way --------------------------------------------------------------------------
+
 
 def _frames_on_disk(wd: Path, pid: int) -> bool:
     return any(p.stat().st_size > 100_000 for p in wd.rglob("*.mjpeg"))
@@ -196,6 +200,7 @@ def _workers_up(wd: Path, pid: int) -> bool:
 def _runs(name: str):
     def ready(wd: Path, pid: int) -> bool:
         return any(_comm(p) == name for p in _descendants(pid))
+
     return ready
 
 
@@ -205,13 +210,16 @@ def _file(rel: str):
 
 def _after(seconds: float):
     """A readiness test true ``seconds`` after it is first asked (a factory: one per case)."""
+
     def factory():
         t = {}
 
         def ready(wd, pid):
             t.setdefault("t0", time.monotonic())
             return time.monotonic() - t["t0"] >= seconds
+
         return ready
+
     return factory
 
 
@@ -221,13 +229,14 @@ def _always(test):
 
 # -- what is switched on ---------------------------------------------------------------------------
 
+
 class Box:
     """A rig of the case's own: simulated cameras (`vts sim up --detach` in its folder: their LEDs
     are this case's alone) and a trigger box (its firmware in the emulator), in a rig.yaml."""
 
     def __init__(self, wd: Path):
         self.wd, self.box, self.env = wd, None, {}
-        self.config = wd / "rig-box.yaml"          # written by start()
+        self.config = wd / "rig-box.yaml"  # written by start()
 
     def start(self) -> None:
         """Started when the case runs (not when it is planned): the cameras, the box, rig-box.yaml."""
@@ -237,8 +246,13 @@ class Box:
 
         from vts_hw.sim_devices.rig import load_env_file
         from vts_hw.sim_devices.trigger_box import SimTriggerBox
-        p = subprocess.run([sys.executable, "-m", "vts_hw.cli", "sim", "up", "--detach", "--dir", str(self.wd / "sim")],
-                           capture_output=True, text=True, timeout=300)
+
+        p = subprocess.run(
+            [sys.executable, "-m", "vts_hw.cli", "sim", "up", "--detach", "--dir", str(self.wd / "sim")],
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
         if p.returncode != 0:
             raise RuntimeError(f"vts sim up: {p.stderr.strip()[-200:]}")
         self.env = load_env_file(self.wd / "sim" / "sim.env")
@@ -267,12 +281,14 @@ class Box:
     def _period(self) -> float:
         """The square wave's half period (emulated seconds between its last edges)."""
         from vts_hw.sim_devices.trigger_box import F_CPU
+
         e = self.box.edges("OC1A")[-6:]
         gaps = sorted(b.cycle - a.cycle for a, b in zip(e, e[1:]))
         return gaps[len(gaps) // 2] / F_CPU if gaps else 0.0
 
     def ask(self, what: str) -> str:
         import serial
+
         try:
             with serial.Serial(self.box.port, 115200, timeout=2) as s:
                 s.write(what.encode() + b"\n")
@@ -282,15 +298,20 @@ class Box:
 
     def stop(self) -> None:
         import subprocess
+
         if self.box is not None:
             self.box.stop()
-        subprocess.run([sys.executable, "-m", "vts_hw.cli", "sim", "down", "--dir", str(self.wd / "sim")],
-                       capture_output=True, timeout=60)
+        subprocess.run(
+            [sys.executable, "-m", "vts_hw.cli", "sim", "down", "--dir", str(self.wd / "sim")],
+            capture_output=True,
+            timeout=60,
+        )
 
 
 def leds(config: Path) -> dict[str, bool | None]:
     """Each simulated camera's LED, read from the camera itself (/sim/state)."""
     import yaml
+
     out = {}
     for cam in yaml.safe_load(config.read_text()).get("cameras", []):
         try:
@@ -307,16 +328,18 @@ def leds(config: Path) -> dict[str, bool | None]:
 
 # -- what is on disk ---------------------------------------------------------------------------------
 
+
 def _recording_whole(folder: Path) -> str:
     """'' when every frame each index lists is whole in its .mjpeg, else what is wrong."""
     from vts_hw.recording.folder import read_index
     from vts_hw.recording.mjpeg import split_jpegs
+
     problems = []
     for idx in folder.glob("*.index.csv"):
         mj = folder / idx.name.replace(".index.csv", ".mjpeg")
         try:
             rows = read_index(idx, lenient=True)
-        except Exception as exc:   # noqa: BLE001 -- judged, not raised
+        except Exception as exc:  # noqa: BLE001 -- judged, not raised
             problems.append(f"{idx.name}: {exc}")
             continue
         data = mj.read_bytes() if mj.exists() else b""
@@ -356,13 +379,14 @@ def _store_after(wd: Path, procedure: str, must_have_row: bool, judge_verdicts: 
     if not db.exists():
         return f"no store left: the {procedure} run it began is nowhere" if must_have_row else ""
     import sqlite3
+
     con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
     try:
         rows = con.execute("SELECT procedure, status FROM runs WHERE procedure LIKE ?", (f"%{procedure}%",)).fetchall()
     except sqlite3.OperationalError as exc:
         if "no such table" not in str(exc):
             return f"the store could not be read ({exc})"
-        rows = []                       # killed before the store had its tables: nothing claimed
+        rows = []  # killed before the store had its tables: nothing claimed
     finally:
         con.close()
     ours = [r for r in rows if r not in _BASE_ROWS.get(str(db), [])]
@@ -379,8 +403,10 @@ _BASE_ROWS: dict[str, list] = {}
 
 # -- the judge ----------------------------------------------------------------------------------------
 
-def _judge(kind: str, holder: dict, ends, procedure: str | None, must_have_row: bool, what: str = "",
-           leds_kept: bool = True):
+
+def _judge(
+    kind: str, holder: dict, ends, procedure: str | None, must_have_row: bool, what: str = "", leds_kept: bool = True
+):
     def judge(wd: Path, code, out, err) -> Verdict:
         signaller: _Signaller = holder["signaller"]
         box: Box | None = holder.get("box")
@@ -407,8 +433,12 @@ def _judge(kind: str, holder: dict, ends, procedure: str | None, must_have_row: 
                 if procedure:
                     # a run begun is there once under way (not half a second in); a commissioning's steps
                     # done before the kill keep their verdicts; a job that had ended before it, too
-                    wrong = _store_after(wd, procedure, must_have_row and kind != "SIGINT" and signaller.moment
-                                         != "starting", not must_have_row and not signaller.job_ended)
+                    wrong = _store_after(
+                        wd,
+                        procedure,
+                        must_have_row and kind != "SIGINT" and signaller.moment != "starting",
+                        not must_have_row and not signaller.job_ended,
+                    )
                     if wrong:
                         v.false_ok, v.why = True, wrong
             if box is not None:
@@ -416,7 +446,8 @@ def _judge(kind: str, holder: dict, ends, procedure: str | None, must_have_row: 
                 if os.environ.get("BAD_INPUTS_DEBUG"):
                     Path(os.environ["BAD_INPUTS_DEBUG"], f"{kind}-{what}.edges").write_text(
                         f"{len(box.box.edges('OC1A'))} OC1A edges; said {on!r}; "
-                        f"{[round(e.cycle / 16e6, 3) for e in box.box.edges()][-30:]} {box.box.edges()[-3:]}\n")
+                        f"{[round(e.cycle / 16e6, 3) for e in box.box.edges()][-30:]} {box.box.edges()[-3:]}\n"
+                    )
                 if on:
                     v.other, v.why = True, on
             if "leds" in holder and leds_kept:
@@ -427,6 +458,7 @@ def _judge(kind: str, holder: dict, ends, procedure: str | None, must_have_row: 
         finally:
             if box is not None:
                 box.stop()
+
     return judge
 
 
@@ -444,10 +476,11 @@ def _verdict(wd, code, err, kind, s: _Signaller, ends) -> Verdict:
         if v.hang or v.traceback:
             pass
         elif code not in allowed:
-            v = Verdict(other=True, why=f"exit {code} after {kind}, not {' or '.join(map(str, sorted(allowed)))}: "
-                                        f"{last}")
+            v = Verdict(
+                other=True, why=f"exit {code} after {kind}, not {' or '.join(map(str, sorted(allowed)))}: {last}"
+            )
         else:
-            v = Verdict()           # (130 is no exit of common()'s: here it is the one expected)
+            v = Verdict()  # (130 is no exit of common()'s: here it is the one expected)
             if code == 130 and "interrupted" not in err:
                 v.other, v.why = True, f"exit 130 after {kind} without saying 'interrupted'"
     if s.left:
@@ -455,12 +488,26 @@ def _verdict(wd, code, err, kind, s: _Signaller, ends) -> Verdict:
     return v
 
 
-def _case(what: str, argv_of, kind: str, moment: str, ready, wait_s: float, *, ends=frozenset({130}),
-          box: bool = False, procedure: str | None = None, must_have_row: bool = False, config=None,
-          during=None, job_ended=None, leds_kept: bool = True) -> Case:
+def _case(
+    what: str,
+    argv_of,
+    kind: str,
+    moment: str,
+    ready,
+    wait_s: float,
+    *,
+    ends=frozenset({130}),
+    box: bool = False,
+    procedure: str | None = None,
+    must_have_row: bool = False,
+    config=None,
+    during=None,
+    job_ended=None,
+    leds_kept: bool = True,
+) -> Case:
     signum = getattr(signal, kind)
     holder: dict = {}
-    tag = f"{os.getpid()}-{abs(hash((what, kind, moment))) % 10 ** 9}"
+    tag = f"{os.getpid()}-{abs(hash((what, kind, moment))) % 10**9}"
 
     def make(wd: Path) -> list[str]:
         rd = ready() if moment != "starting" else (lambda wd, pid: True)
@@ -472,6 +519,7 @@ def _case(what: str, argv_of, kind: str, moment: str, ready, wait_s: float, *, e
             cfg = b.config
         if wd.joinpath("own.sqlite").exists():
             import sqlite3
+
             con = sqlite3.connect(wd / "own.sqlite")
             _BASE_ROWS[str(wd / "own.sqlite")] = con.execute("SELECT procedure, status FROM runs").fetchall()
             con.close()
@@ -481,24 +529,27 @@ def _case(what: str, argv_of, kind: str, moment: str, ready, wait_s: float, *, e
         if "box" in holder:
             try:
                 holder["box"].start()
-            except Exception as exc:   # noqa: BLE001 -- the case says why it could not run
+            except Exception as exc:  # noqa: BLE001 -- the case says why it could not run
                 return 2, "", f"vts: (sweep) the trigger box emulator did not start: {exc}"
-        if "box" in holder:          # the LEDs of its own cameras (those of a shared rig others switch)
+        if "box" in holder:  # the LEDs of its own cameras (those of a shared rig others switch)
             holder["config"] = holder["box"].config
             holder["leds"] = leds(holder["config"])
         s = holder["signaller"]
         hook = s if during is None else (lambda pid: during(wd, pid, s))
-        return fork_vts(argv, timeout, wd, before=_before(tag, holder["box"].env if "box" in holder else None),
-                        during=hook)
+        return fork_vts(
+            argv, timeout, wd, before=_before(tag, holder["box"].env if "box" in holder else None), during=hook
+        )
 
     def judge(wd, code, out, err):
         if os.environ.get("BAD_INPUTS_DEBUG"):
             Path(os.environ["BAD_INPUTS_DEBUG"], f"{kind}-{what}.err").write_text(err)
         return _judge(kind, holder, ends, procedure, must_have_row, what, leds_kept)(wd, code, out, err)
+
     return Case(CLASS, f"{kind} {moment}: {what}", make, judge, extra={"run": run})
 
 
 # -- the console and its pages' jobs ----------------------------------------------------------------
+
 
 def listening_port(pid: int, deadline: float) -> int | None:
     """The TCP port process ``pid`` listens on (a console started with --port 0: no port picked ahead
@@ -516,7 +567,7 @@ def listening_port(pid: int, deadline: float) -> int | None:
             for table in ("tcp", "tcp6"):
                 for line in Path(f"/proc/{pid}/net/{table}").read_text().splitlines()[1:]:
                     f = line.split()
-                    if f[3] == "0A" and f[9] in inodes:          # LISTEN
+                    if f[3] == "0A" and f[9] in inodes:  # LISTEN
                         return int(f[1].rsplit(":", 1)[1], 16)
         except OSError:
             pass
@@ -525,9 +576,11 @@ def listening_port(pid: int, deadline: float) -> int | None:
 
 
 def _http(port: int, method: str, path: str, body: bytes = b"", token: str = "") -> tuple[int, bytes]:
-    head = (f"{method} {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nConnection: close\r\n"
-            f"Origin: http://127.0.0.1:{port}\r\nContent-Type: application/json\r\n"
-            f"Content-Length: {len(body)}\r\n" + (f"X-Console-Token: {token}\r\n" if token else "") + "\r\n")
+    head = (
+        f"{method} {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nConnection: close\r\n"
+        f"Origin: http://127.0.0.1:{port}\r\nContent-Type: application/json\r\n"
+        f"Content-Length: {len(body)}\r\n" + (f"X-Console-Token: {token}\r\n" if token else "") + "\r\n"
+    )
     with socket.create_connection(("127.0.0.1", port), timeout=30) as s:
         s.sendall(head.encode() + body)
         data = b""
@@ -541,6 +594,7 @@ def _console_job(job: str):
     """``during`` of a console case: wait for the console to answer, start ``job`` (a Scan-page
     scan, a Daily QA) from its page as the person at the console would, then the signaller (whose
     readiness is the job under way)."""
+
     def during(wd: Path, pid: int, signaller: _Signaller) -> None:
         port = listening_port(pid, time.monotonic() + 120) or 0
         (wd / ".port").write_text(str(port))
@@ -565,6 +619,7 @@ def _console_job(job: str):
             except OSError:
                 pass
         signaller(pid)
+
     return during
 
 
@@ -590,6 +645,7 @@ def _qa_running(wd: Path, pid: int) -> bool:
 
 # -- every long command ---------------------------------------------------------------------------------
 
+
 def cases(inp, only: str | None = None, full: bool = False) -> list[Case]:
     """Every long command with each signal at each moment (``full``), or each command once, the
     signals and moments taken in turn (make test's share: SIGTERM and SIGKILL under way first).
@@ -597,7 +653,7 @@ def cases(inp, only: str | None = None, full: bool = False) -> list[Case]:
     cfg = str(inp.config)
     rec, cams = str(inp.session), str(inp.cameras)
     fw = Path(__file__).resolve().parents[2] / "firmware" / "build" / "trigger_box.hex"
-    own = lambda wd: ["--store", f"sqlite:///{wd / 'own.sqlite'}"]   # noqa: E731
+    own = lambda wd: ["--store", f"sqlite:///{wd / 'own.sqlite'}"]  # noqa: E731
 
     def with_baseline(wd: Path) -> list[str]:
         shutil.copy(inp.baseline_store(), wd / "own.sqlite")
@@ -614,58 +670,162 @@ def cases(inp, only: str | None = None, full: bool = False) -> list[Case]:
 
     def console_argv(job):
         def argv(wd: Path, c) -> list[str]:
-            (wd / ".port").write_text("0")           # (its port, once it listens: during())
+            (wd / ".port").write_text("0")  # (its port, once it listens: during())
             (wd / "scans").mkdir(mode=0o700, exist_ok=True)
             return [*with_baseline(wd), "console", "--config", str(c), "--port", "0", "--scans-dir", str(wd / "scans")]
+
         return argv
 
     # name: (argv(wd, config), when it is under way, how long to wait for that, the exits a SIGINT may
     # end it with, options: box (a trigger box of its own), procedure (its store row), the config)
     long = {
-        "scan start": (lambda wd, c: ["scan", "start", "--no-live", "--duration", "60", "-o", str(wd / "scan"),
-                                      "--config", str(c)],
-                       _always(_frames_on_disk), 60, {0, 130}, dict(box=True, leds_kept=False)),
-        "camera record": (lambda wd, c: ["camera", "record", "cam1", "cam2", "--seconds", "60", "-o", str(wd / "rec"),
-                                         "--config", str(c)], _always(_frames_on_disk), 60, {130}, {}),
+        "scan start": (
+            lambda wd, c: [
+                "scan",
+                "start",
+                "--no-live",
+                "--duration",
+                "60",
+                "-o",
+                str(wd / "scan"),
+                "--config",
+                str(c),
+            ],
+            _always(_frames_on_disk),
+            60,
+            {0, 130},
+            dict(box=True, leds_kept=False),
+        ),
+        "camera record": (
+            lambda wd, c: [
+                "camera",
+                "record",
+                "cam1",
+                "cam2",
+                "--seconds",
+                "60",
+                "-o",
+                str(wd / "rec"),
+                "--config",
+                str(c),
+            ],
+            _always(_frames_on_disk),
+            60,
+            {130},
+            {},
+        ),
         "camera stream": (lambda wd, c: ["camera", "stream", "cam1", "--config", str(c)], _after(3), 30, {0, 130}, {}),
-        "qa daily": (lambda wd, c: [*with_baseline(wd), "qa", "daily", "--frames", "50", "--config", str(c)],
-                     _after(3), 30, {130}, dict(procedure="daily")),
-        "motion analyze": (lambda wd, c: ["motion", "analyze", rec, "--calibration", cams, "--config", str(c),
-                                          "--workers", "2", "-o", str(wd / "r.html")],
-                           _always(_workers_up), 60, {130}, {}),
-        "recording process": (lambda wd, c: ["recording", "process", rec, "--calibration", cams, "--config", str(c),
-                                             "-o", str(wd / "tracks"), "--workers", "2"],
-                              _always(_workers_up), 60, {130}, {}),
-        "calibrate stereo": (lambda wd, c: ["calibrate", "stereo", "--sim", "--sim-poses", "60",
-                                            "-o", str(wd / "calib.json")], _after(3), 20, {130}, dict(config=None)),
-        "commission": (lambda wd, c: [*own(wd), "commission", "--config", str(c), "--listen", "0.2",
-                                      "--skip", "trigger", "--why", "the sweep's rig has no trigger box"],
-                       _after(4), 30, {130}, dict(procedure="commission", must_have_row=True)),
-        "trigger flash": (lambda wd, c: ["trigger", "flash", "--port", silent_port(wd), "--hex", str(fw),
-                                         "--attempts", "10"], _always(_runs("avrdude")), 30, {130},
-                          dict(config=None)),
-        "sim up": (lambda wd, c: ["sim", "up", "--dir", str(wd / "sim"), "--trigger", "triggerbox"],
-                   _always(_file("sim/rig.yaml")), 90, {0, 130}, dict(config=None)),
-        "console, a Scan-page scan": (console_argv("scan"), _always(_frames_on_disk), 90, {0, 130},
-                                      dict(box=True, during=_console_job("scan"), leds_kept=False)),
-        "console, a Daily QA": (console_argv("qa"), _always(_qa_running), 90, {0, 130},
-                                dict(procedure="daily", during=_console_job("qa"),
-                                     job_ended=_qa_ended)),
+        "qa daily": (
+            lambda wd, c: [*with_baseline(wd), "qa", "daily", "--frames", "50", "--config", str(c)],
+            _after(3),
+            30,
+            {130},
+            dict(procedure="daily"),
+        ),
+        "motion analyze": (
+            lambda wd, c: [
+                "motion",
+                "analyze",
+                rec,
+                "--calibration",
+                cams,
+                "--config",
+                str(c),
+                "--workers",
+                "2",
+                "-o",
+                str(wd / "r.html"),
+            ],
+            _always(_workers_up),
+            60,
+            {130},
+            {},
+        ),
+        "recording process": (
+            lambda wd, c: [
+                "recording",
+                "process",
+                rec,
+                "--calibration",
+                cams,
+                "--config",
+                str(c),
+                "-o",
+                str(wd / "tracks"),
+                "--workers",
+                "2",
+            ],
+            _always(_workers_up),
+            60,
+            {130},
+            {},
+        ),
+        "calibrate stereo": (
+            lambda wd, c: ["calibrate", "stereo", "--sim", "--sim-poses", "60", "-o", str(wd / "calib.json")],
+            _after(3),
+            20,
+            {130},
+            dict(config=None),
+        ),
+        "commission": (
+            lambda wd, c: [
+                *own(wd),
+                "commission",
+                "--config",
+                str(c),
+                "--listen",
+                "0.2",
+                "--skip",
+                "trigger",
+                "--why",
+                "the sweep's rig has no trigger box",
+            ],
+            _after(4),
+            30,
+            {130},
+            dict(procedure="commission", must_have_row=True),
+        ),
+        "trigger flash": (
+            lambda wd, c: ["trigger", "flash", "--port", silent_port(wd), "--hex", str(fw), "--attempts", "10"],
+            _always(_runs("avrdude")),
+            30,
+            {130},
+            dict(config=None),
+        ),
+        "sim up": (
+            lambda wd, c: ["sim", "up", "--dir", str(wd / "sim"), "--trigger", "triggerbox"],
+            _always(_file("sim/rig.yaml")),
+            90,
+            {0, 130},
+            dict(config=None),
+        ),
+        "console, a Scan-page scan": (
+            console_argv("scan"),
+            _always(_frames_on_disk),
+            90,
+            {0, 130},
+            dict(box=True, during=_console_job("scan"), leds_kept=False),
+        ),
+        "console, a Daily QA": (
+            console_argv("qa"),
+            _always(_qa_running),
+            90,
+            {0, 130},
+            dict(procedure="daily", during=_console_job("qa"), job_ended=_qa_ended),
+        ),
     }
     out = []
     for i, (name, (argv_of, ready, wait_s, ends, opts)) in enumerate(long.items()):
         if only and not name.startswith(only):
             continue
         config = opts.pop("config", cfg)
-        combos = [(k, m) for k in KINDS for m in MOMENTS] if full else \
-                 [(("SIGKILL", "SIGTERM")[i % 2], "under way")]
+        combos = [(k, m) for k in KINDS for m in MOMENTS] if full else [(("SIGKILL", "SIGTERM")[i % 2], "under way")]
         for kind, moment in combos:
-            out.append(_case(name, argv_of, kind, moment, ready, wait_s, ends=frozenset(ends), config=config,
-                             **opts))
+            out.append(_case(name, argv_of, kind, moment, ready, wait_s, ends=frozenset(ends), config=config, **opts))
     return out
 
 
-_HELD: list[int] = []      # the silent ports' other ends, held while the sweep runs
+_HELD: list[int] = []  # the silent ports' other ends, held while the sweep runs
 
 
 __all__ = ["CLASS", "cases", "fork_vts", "session_members", "marked"]

@@ -54,34 +54,77 @@ from urllib.parse import quote
 
 if __name__ == "__main__":
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from badkit.web_peer import SCAN, SECRET_NAMES, Answer, Console, Room, Who, PASSWORDS  # noqa: E402
+from badkit.web_peer import PASSWORDS, SCAN, SECRET_NAMES, Answer, Console, Room, Who  # noqa: E402
 from badkit.web_surface import Endpoint, surface  # noqa: E402
 
 CLASS = "web"
 SCRIPTS = ['<script>alert("vts-xss")</script>', '"><img src=x onerror=alert(1)>']
-RAW_SCRIPT = ("<script>alert(\"vts-xss\")", "<img src=x onerror")
-NUMBERS = ["1e309", "nan", "inf", "-inf", str(2 ** 64), "-1", "9" * 23]
+RAW_SCRIPT = ('<script>alert("vts-xss")', "<img src=x onerror")
+NUMBERS = ["1e309", "nan", "inf", "-inf", str(2**64), "-1", "9" * 23]
 #: how a bad number shows up once taken (in an answer or the action log's detail, as JSON writes it)
-TAKEN = {"1e309": ["Infinity", "inf", "1e+309"], "nan": ["NaN", "nan"], "inf": ["Infinity", "inf"],
-         "-inf": ["-Infinity", "-inf"], str(2 ** 64): [str(2 ** 64), "1.8446744073709552e+19"], "-1": [": -1"],
-         "9" * 23: ["9" * 23, "1e+23"]}
+TAKEN = {
+    "1e309": ["Infinity", "inf", "1e+309"],
+    "nan": ["NaN", "nan"],
+    "inf": ["Infinity", "inf"],
+    "-inf": ["-Infinity", "-inf"],
+    str(2**64): [str(2**64), "1.8446744073709552e+19"],
+    "-1": [": -1"],
+    "9" * 23: ["9" * 23, "1e+23"],
+}
 JSON_NUMBER = {"nan": "NaN", "inf": "Infinity", "-inf": "-Infinity"}
-TRAVERSAL = ["..", "%2e%2e", "../../sim.env", "..%2f..%2fsim.env", "%2e%2e%2f%2e%2e%2fid_rsa", "/etc/passwd",
-             "..\\..\\sim.env", "....//....//sim.env", "%00", "link.env", *SECRET_NAMES]
+TRAVERSAL = [
+    "..",
+    "%2e%2e",
+    "../../sim.env",
+    "..%2f..%2fsim.env",
+    "%2e%2e%2f%2e%2e%2fid_rsa",
+    "/etc/passwd",
+    "..\\..\\sim.env",
+    "....//....//sim.env",
+    "%00",
+    "link.env",
+    *SECRET_NAMES,
+]
 HOSTS = ["evil.example", "evil.example:{port}", "127.0.0.1.evil.example:{port}", "localhost.evil.example"]
-ORIGINS = [{"Origin": "http://evil.example"}, {"Origin": "null"},
-           {"Origin": None, "Referer": "http://evil.example/page"},
-           {"Origin": None, "Sec-Fetch-Site": "cross-site"},
-           {"Origin": "http://127.0.0.1:{port}.evil.example"}]
-BODIES = [("{", "application/json"), ("[]", "application/json"), ('"on"', "application/json"),
-          ("null", "application/json"), ("1", "application/json"), ("[" * 100_000 + "]" * 100_000, "application/json"),
-          ("{" + '"k":1,' * 300_000 + '"z":1}', "application/json"), ("\xff\xfe\x00junk", "application/json"),
-          ('{"on": true, "frames": 5, "confirm": true}', "text/plain"),
-          ('{"on": true, "frames": 5}', "application/x-www-form-urlencoded"),
-          ("--b\r\nContent-Disposition: form-data; name=\"on\"\r\n\r\ntrue\r\n--b--\r\n",
-           "multipart/form-data; boundary=b")]
-REPEAT_CANDIDATES = ["1", "2", "OK", "ACTION", "TOLERANCE", "cam1", "cam2", "2026-01-01", "2026-01-02", "30d", "60d",
-                     "/", "/history", "daily", "ann", "phil", "0"]
+ORIGINS = [
+    {"Origin": "http://evil.example"},
+    {"Origin": "null"},
+    {"Origin": None, "Referer": "http://evil.example/page"},
+    {"Origin": None, "Sec-Fetch-Site": "cross-site"},
+    {"Origin": "http://127.0.0.1:{port}.evil.example"},
+]
+BODIES = [
+    ("{", "application/json"),
+    ("[]", "application/json"),
+    ('"on"', "application/json"),
+    ("null", "application/json"),
+    ("1", "application/json"),
+    ("[" * 100_000 + "]" * 100_000, "application/json"),
+    ("{" + '"k":1,' * 300_000 + '"z":1}', "application/json"),
+    ("\xff\xfe\x00junk", "application/json"),
+    ('{"on": true, "frames": 5, "confirm": true}', "text/plain"),
+    ('{"on": true, "frames": 5}', "application/x-www-form-urlencoded"),
+    ('--b\r\nContent-Disposition: form-data; name="on"\r\n\r\ntrue\r\n--b--\r\n', "multipart/form-data; boundary=b"),
+]
+REPEAT_CANDIDATES = [
+    "1",
+    "2",
+    "OK",
+    "ACTION",
+    "TOLERANCE",
+    "cam1",
+    "cam2",
+    "2026-01-01",
+    "2026-01-02",
+    "30d",
+    "60d",
+    "/",
+    "/history",
+    "daily",
+    "ann",
+    "phil",
+    "0",
+]
 OPEN = ("/login", "/static/")
 CLIENTS = 50
 SECURITY_HEADERS = ("content-security-policy", "x-content-type-options", "referrer-policy")
@@ -117,21 +160,24 @@ class Case:
     body: bytes | None = None
     ctype: str | None = None
     script: bool = False
-    foreign: bool = False          # from elsewhere: host, origin, token, anonymous
-    must_refuse: bool = False      # a 2xx is a false OK (or, foreign, a security finding), as is any change
-    taken: str = ""                # a bad number in a body: a false OK if it shows up taken (answer, action log)
+    foreign: bool = False  # from elsewhere: host, origin, token, anonymous
+    must_refuse: bool = False  # a 2xx is a false OK (or, foreign, a security finding), as is any change
+    taken: str = ""  # a bad number in a body: a false OK if it shows up taken (answer, action log)
     note: str = ""
 
     @property
     def what(self) -> str:
-        return (f"[{self.family}] {self.ep.method} {self.path[:120]} as {self.who.name}"
-                + (f" ({self.note})" if self.note else ""))
+        return f"[{self.family}] {self.ep.method} {self.path[:120]} as {self.who.name}" + (
+            f" ({self.note})" if self.note else ""
+        )
 
 
 # -- building requests ---------------------------------------------------------------------------
 
+
 def _static_file() -> str:
     from vts_hw.console import app
+
     files = sorted(p.name for p in (Path(app.__file__).parent / "static").iterdir() if p.is_file())
     return files[0] if files else "x"
 
@@ -149,8 +195,9 @@ def default(ep: Endpoint, slot: str, kind: str) -> str:
     return "1" if slot == "alert" else "index.html"
 
 
-def build(ep: Endpoint, path_values: dict | None = None, query: list[tuple[str, str]] | None = None,
-          raw: bool = False) -> str:
+def build(
+    ep: Endpoint, path_values: dict | None = None, query: list[tuple[str, str]] | None = None, raw: bool = False
+) -> str:
     """The request path of ``ep`` with its path slots filled (``path_values`` as given when ``raw``,
     else percent-encoded) and the query."""
     out = ep.path
@@ -178,9 +225,11 @@ def form_body(ep: Endpoint, key: str, value: str) -> bytes:
 #: make test's share of the families (without --full): each console the families that need it, so that
 #: every family meets every endpoint once (the Host, Origin and token checks on the console without
 #: users, which DNS rebinding and other sites aim at; the rest as each role and as nobody)
-SUBSET = {False: {"host", "origin", "token", "bodies"},
-          True: {"anonymous", "script", "numbers", "traversal", "repeated", "headers", "many clients"}}
-REPEATED_SUBSET = 3      # endpoints with query slots given a repeated one (their first slot), without --full
+SUBSET = {
+    False: {"host", "origin", "token", "bodies"},
+    True: {"anonymous", "script", "numbers", "traversal", "repeated", "headers", "many clients"},
+}
+REPEATED_SUBSET = 3  # endpoints with query slots given a repeated one (their first slot), without --full
 
 
 def families(ep: Endpoint, who: Who, users: bool, full: bool, port: int):
@@ -200,34 +249,67 @@ def _families(ep: Endpoint, who: Who, users: bool, full: bool, port: int):
         if not full:
             return
     for h in pick(HOSTS):
-        yield Case("host", ep, who, build(ep), headers={"Host": h.format(port=port)}, foreign=True, must_refuse=True,
-                   note=f"Host {h.format(port=port)}")
+        yield Case(
+            "host",
+            ep,
+            who,
+            build(ep),
+            headers={"Host": h.format(port=port)},
+            foreign=True,
+            must_refuse=True,
+            note=f"Host {h.format(port=port)}",
+        )
     if post:
         for o in pick(ORIGINS):
             hs = {k: (v.format(port=port) if v else v) for k, v in o.items()}
-            yield Case("origin", ep, who, build(ep), headers=hs, foreign=True, must_refuse=True,
-                       note=", ".join(f"{k}: {v}" for k, v in hs.items()))
-        for what, tok in pick([("no token", None), ("a wrong token", "not-the-token"),
-                               ("a token of bytes beyond ASCII", "\xe9t\xe9\xff"),   # (a TypeError, a 500, once)
-                               ("another session's token", who.extra.get("other_token"))]):
+            yield Case(
+                "origin",
+                ep,
+                who,
+                build(ep),
+                headers=hs,
+                foreign=True,
+                must_refuse=True,
+                note=", ".join(f"{k}: {v}" for k, v in hs.items()),
+            )
+        for what, tok in pick(
+            [
+                ("no token", None),
+                ("a wrong token", "not-the-token"),
+                ("a token of bytes beyond ASCII", "\xe9t\xe9\xff"),  # (a TypeError, a 500, once)
+                ("another session's token", who.extra.get("other_token")),
+            ]
+        ):
             if what.startswith("another") and not tok:
                 continue
-            yield Case("token", ep, who, build(ep), headers={"X-Console-Token": tok}, foreign=True,
-                       must_refuse=True, note=what)
-    slots = [("path", s, k) for s, k in ep.params.items()] + [("query", q, "str") for q in ep.query] + \
-            ([("body", b, "str") for b in ep.body] + [("form", f, "str") for f in ep.form] if post else [])
+            yield Case(
+                "token", ep, who, build(ep), headers={"X-Console-Token": tok}, foreign=True, must_refuse=True, note=what
+            )
+    slots = (
+        [("path", s, k) for s, k in ep.params.items()]
+        + [("query", q, "str") for q in ep.query]
+        + ([("body", b, "str") for b in ep.body] + [("form", f, "str") for f in ep.form] if post else [])
+    )
     for where, slot, kind in slots:
         for s in pick(SCRIPTS):
             yield _slot_case("script", ep, who, where, slot, s, script=True)
         for n in pick(NUMBERS):
             yield _slot_case("numbers", ep, who, where, slot, n, number=True)
         if where == "path" and kind != "int":
-            for t in (TRAVERSAL if full else TRAVERSAL[:3] + ["sim.env"]):
+            for t in TRAVERSAL if full else TRAVERSAL[:3] + ["sim.env"]:
                 yield Case("traversal", ep, who, build(ep, {slot: t}, raw=True), note=f"{slot}={t}")
     if post and (ep.reads_body or full):
         for b, ct in pick(BODIES) if full else BODIES[:1] + BODIES[5:6]:
-            yield Case("bodies", ep, who, build(ep), body=b.encode("utf-8", "surrogateescape"), ctype=ct,
-                       must_refuse=ep.reads_body, note=f"{ct}: {b[:24]!r}{'...' if len(b) > 24 else ''} ({len(b)} B)")
+            yield Case(
+                "bodies",
+                ep,
+                who,
+                build(ep),
+                body=b.encode("utf-8", "surrogateescape"),
+                ctype=ct,
+                must_refuse=ep.reads_body,
+                note=f"{ct}: {b[:24]!r}{'...' if len(b) > 24 else ''} ({len(b)} B)",
+            )
 
 
 def _slot_case(family, ep, who, where, slot, value, script=False, number=False) -> Case:
@@ -237,13 +319,30 @@ def _slot_case(family, ep, who, where, slot, value, script=False, number=False) 
     if where == "query":
         return Case(family, ep, who, build(ep, query=[(slot, value)]), script=script, note=note)
     if where == "form":
-        return Case(family, ep, who, build(ep), body=form_body(ep, slot, value),
-                    ctype="application/x-www-form-urlencoded", script=script, note=note)
-    return Case(family, ep, who, build(ep), body=json_body(slot, value, number), script=script,
-                taken=value if number else "", note=note)
+        return Case(
+            family,
+            ep,
+            who,
+            build(ep),
+            body=form_body(ep, slot, value),
+            ctype="application/x-www-form-urlencoded",
+            script=script,
+            note=note,
+        )
+    return Case(
+        family,
+        ep,
+        who,
+        build(ep),
+        body=json_body(slot, value, number),
+        script=script,
+        taken=value if number else "",
+        note=note,
+    )
 
 
 # -- judging ---------------------------------------------------------------------------------------
+
 
 class Judge:
     """Sends cases to one console and judges them (see the module docstring)."""
@@ -260,8 +359,10 @@ class Judge:
         if w.cookie and (c.send("GET", "/session", who=w) or Answer(0, {}, b"")).status != 200:
             login(c, w)
         out = {"led": {n: self.room.led(n) for n in self.cams}}
-        for key, path, fields in (("scan", "/scan/state", ("phase", "folder")),
-                                  ("qa", "/qa/state", ("state", "version", "pushing"))):
+        for key, path, fields in (
+            ("scan", "/scan/state", ("phase", "folder")),
+            ("qa", "/qa/state", ("state", "version", "pushing")),
+        ):
             a = c.send("GET", path, who=w)
             try:
                 d = json.loads(a.body) if a is not None and a.status == 200 else {}
@@ -278,8 +379,9 @@ class Judge:
         rows = self.room.store_rows()
         out["actions"] = rows.pop("actions")
         out["store"] = rows
-        out["sessions"] = {x.name: (c.send("GET", "/session", who=x) or Answer(0, {}, b"")).status
-                           for x in self.all if x.cookie}
+        out["sessions"] = {
+            x.name: (c.send("GET", "/session", who=x) or Answer(0, {}, b"")).status for x in self.all if x.cookie
+        }
         return out
 
     def judge(self, case: Case, ans: Answer | None, errs: str, before: dict | None, after: dict | None) -> Verdict:
@@ -288,7 +390,7 @@ class Judge:
             v.flag("hang", f"no answer within {60:.0f} s")
             return v
         if ans.status == 0 and not (b"reset" in ans.body and self.console.proc.poll() is None):
-            v.flag("other", ans.body.decode(errors="replace")[:160])     # (reset: refused before the body was read)
+            v.flag("other", ans.body.decode(errors="replace")[:160])  # (reset: refused before the body was read)
         if ans.status == 500 or "Traceback (most recent call last)" in errs or b"Traceback (most recent" in ans.body:
             last = [ln for ln in errs.strip().splitlines() if ln.strip()][-1:] or [""]
             v.flag("traceback", f"HTTP {ans.status}; {last[0][:160]}")
@@ -307,8 +409,11 @@ class Judge:
             ctype = ans.header("content-type")
             sniff = "nosniff" not in ans.header("x-content-type-options").lower()
             if "html" in ctype or sniff:
-                v.flag("security", f"the script came back unescaped ({ctype or 'no content type'}, "
-                                   f"{'no nosniff' if sniff else 'nosniff'})")
+                v.flag(
+                    "security",
+                    f"the script came back unescaped ({ctype or 'no content type'}, "
+                    f"{'no nosniff' if sniff else 'nosniff'})",
+                )
         ok = 200 <= ans.status < 300 or (300 <= ans.status < 400 and "/login" not in loc)
         if case.must_refuse and ok:
             kind = "security" if case.foreign else "false_ok"
@@ -325,22 +430,34 @@ class Judge:
                 what = "; ".join(f"{k}: {before.get(k)} -> {after.get(k)}" if k in before else k for k in changed)
                 v.flag("security" if case.foreign else "false_ok", f"changed {what[:300]}")
             if claims and strict:
-                v.flag("security" if case.foreign else "false_ok",
-                       f"the action log says {', '.join(repr(a[2]) for a in claims)} (HTTP {ans.status})")
+                v.flag(
+                    "security" if case.foreign else "false_ok",
+                    f"the action log says {', '.join(repr(a[2]) for a in claims)} (HTTP {ans.status})",
+                )
             if case.taken and 200 <= ans.status < 300:
                 seen = ans.body.decode(errors="replace") + " ".join(a[3] or "" for a in new)
                 if any(t in seen for t in TAKEN.get(case.taken, [case.taken])):
-                    v.flag("false_ok", f"{case.note} taken (HTTP {ans.status}): "
-                                       f"{[a[2] + ' ' + (a[3] or '') for a in new][:2] or ans.body[:100]}")
+                    v.flag(
+                        "false_ok",
+                        f"{case.note} taken (HTTP {ans.status}): "
+                        f"{[a[2] + ' ' + (a[3] or '') for a in new][:2] or ans.body[:100]}",
+                    )
         return v
 
     def run(self, case: Case) -> Verdict:
         post = case.ep.method != "GET"
         before = self.state() if post else None
         self.console.new_errors()
-        ans = self.console.send(case.ep.method, case.path, who=case.who, headers=case.headers, body=case.body,
-                                ctype=case.ctype, stream=case.ep.stream)
-        time.sleep(0.05 if post else 0)          # (an answer's log line written before it: a margin only)
+        ans = self.console.send(
+            case.ep.method,
+            case.path,
+            who=case.who,
+            headers=case.headers,
+            body=case.body,
+            ctype=case.ctype,
+            stream=case.ep.stream,
+        )
+        time.sleep(0.05 if post else 0)  # (an answer's log line written before it: a margin only)
         errs = self.console.new_errors()
         after = self.state() if post else None
         v = self.judge(case, ans, errs, before, after)
@@ -378,14 +495,18 @@ def _until(check, timeout: float) -> bool:
 
 def login(console: Console, who: Who) -> None:
     """Log ``who`` in through the form, as a browser does; its cookie and its pages' token."""
-    shown = console.send("GET", "/login")        # the form first, as a browser: its token and its cookie
+    shown = console.send("GET", "/login")  # the form first, as a browser: its token and its cookie
     m = re.search(rb'name="csrf_token" value="([^"]+)"', shown.body if shown is not None else b"")
     if not m:
         raise RuntimeError(f"no login form for {who.name}: {None if shown is None else shown.status}")
     form_cookie = shown.header("set-cookie").split(";", 1)[0]
-    a = console.send("POST", "/login", body=f"name={who.name}&password={quote(who.password)}&next=/"
-                                            f"&csrf_token={m.group(1).decode()}".encode(),
-                     ctype="application/x-www-form-urlencoded", headers={"Cookie": form_cookie})
+    a = console.send(
+        "POST",
+        "/login",
+        body=f"name={who.name}&password={quote(who.password)}&next=/&csrf_token={m.group(1).decode()}".encode(),
+        ctype="application/x-www-form-urlencoded",
+        headers={"Cookie": form_cookie},
+    )
     if a is None or a.status != 303 or f"{console.cookie_name}=" not in a.header("set-cookie"):
         raise RuntimeError(f"{who.name} could not log in: {None if a is None else (a.status, a.body[:200])}")
     who.cookie = a.header("set-cookie").split(f"{console.cookie_name}=", 1)[1].split(";", 1)[0]
@@ -401,6 +522,7 @@ def page_token(console: Console, who: Who) -> str:
 
 
 # -- the families that are not one request ---------------------------------------------------------
+
 
 def repeated(judge: Judge, eps: list[Endpoint], who_of, full: bool) -> list[Verdict]:
     """Each query slot of each GET endpoint given twice, with two values it accepts alone."""
@@ -425,8 +547,13 @@ def repeated(judge: Judge, eps: list[Endpoint], who_of, full: bool) -> list[Verd
             (a1, _), (a2, _) = good
             c.new_errors()
             ans = c.send("GET", build(ep, query=[(slot, a1), (slot, a2)]), who=who)
-            v = judge.judge(Case("repeated", ep, who, build(ep, query=[(slot, a1), (slot, a2)]),
-                                 note=f"{slot}={a1}&{slot}={a2}"), ans, c.new_errors(), None, None)
+            v = judge.judge(
+                Case("repeated", ep, who, build(ep, query=[(slot, a1), (slot, a2)]), note=f"{slot}={a1}&{slot}={a2}"),
+                ans,
+                c.new_errors(),
+                None,
+                None,
+            )
             if ans is not None and ans.status == 200:
                 v.flag("other", f"?{slot}={a1}&{slot}={a2} answered 200: one of them taken silently")
             out.append(v)
@@ -460,6 +587,7 @@ def many_clients(judge: Judge, eps: list[Endpoint], who: Who) -> Verdict:
     """CLIENTS event streams held open and CLIENTS requests at once: every request answered (< 500),
     and, once the streams are closed, the cameras' streams and the console's sockets let go of."""
     import socket
+
     c, v = judge.console, Verdict(f"[many clients] {CLIENTS} event streams + {CLIENTS} requests at once as {who.name}")
     streams = [e for e in eps if e.stream]
     base_streams, base_fds = judge.room.streams(), _fds(c.proc.pid)
@@ -468,8 +596,13 @@ def many_clients(judge: Judge, eps: list[Endpoint], who: Who) -> Verdict:
         ep = streams[i % len(streams)]
         try:
             s = socket.create_connection(("127.0.0.1", c.port), timeout=60)
-            s.sendall((f"GET {build(ep)} HTTP/1.1\r\nHost: {c.host}\r\nAccept: text/event-stream\r\n"
-                       + (f"Cookie: {c.cookie_name}={who.cookie}\r\n" if who.cookie else "") + "\r\n").encode())
+            s.sendall(
+                (
+                    f"GET {build(ep)} HTTP/1.1\r\nHost: {c.host}\r\nAccept: text/event-stream\r\n"
+                    + (f"Cookie: {c.cookie_name}={who.cookie}\r\n" if who.cookie else "")
+                    + "\r\n"
+                ).encode()
+            )
             held.append(s)
         except OSError as exc:
             v.flag("other", f"stream {i} not opened: {exc}")
@@ -478,27 +611,38 @@ def many_clients(judge: Judge, eps: list[Endpoint], who: Who) -> Verdict:
 
     def ask(i):
         answers[i] = c.send("GET", build(gets[i % len(gets)]), who=who, deadline=120)
+
     threads = [threading.Thread(target=ask, args=(i,)) for i in range(CLIENTS)]
     for t in threads:
         t.start()
     for t in threads:
         t.join()
-    bad = [(gets[i % len(gets)].path, a.status if a else None) for i, a in enumerate(answers)
-           if a is None or a.status == 500]
+    bad = [
+        (gets[i % len(gets)].path, a.status if a else None)
+        for i, a in enumerate(answers)
+        if a is None or a.status == 500
+    ]
     if bad:
-        v.flag("hang" if any(s is None for _, s in bad) else "traceback",
-               f"{len(bad)} of {CLIENTS} requests unanswered or failed while {len(held)} streams were open: {bad[:3]}")
+        v.flag(
+            "hang" if any(s is None for _, s in bad) else "traceback",
+            f"{len(bad)} of {CLIENTS} requests unanswered or failed while {len(held)} streams were open: {bad[:3]}",
+        )
     opened = [s for s in held if _first_bytes(s)]
     if len(opened) < len(held):
         v.flag("other", f"{len(held) - len(opened)} of {len(held)} event streams never started")
     for s in held:
         s.close()
     if not _until(lambda: judge.room.streams() <= base_streams, 120):
-        v.flag("other", f"the cameras still serve {judge.room.streams()} streams (before: {base_streams}) "
-                        "2 min after every page closed")
+        v.flag(
+            "other",
+            f"the cameras still serve {judge.room.streams()} streams (before: {base_streams}) "
+            "2 min after every page closed",
+        )
     if not _until(lambda: _fds(c.proc.pid) <= base_fds + 8, 120):
-        v.flag("other", f"the console holds {_fds(c.proc.pid)} files/sockets (before: {base_fds}) 2 min after "
-                        "the clients closed")
+        v.flag(
+            "other",
+            f"the console holds {_fds(c.proc.pid)} files/sockets (before: {base_fds}) 2 min after the clients closed",
+        )
     a = c.send("GET", "/api/room", who=who)
     if a is None or a.status >= 500:
         v.flag("hang" if a is None else "traceback", "the console no longer answers /api/room after the crowd")
@@ -522,6 +666,7 @@ def _fds(pid: int) -> int:
 
 # -- the sweep ---------------------------------------------------------------------------------------
 
+
 def sweep(root: Path, full: bool = False, log=print) -> list[Verdict]:
     t0 = time.monotonic()
     room = Room(root)
@@ -535,7 +680,7 @@ def sweep(root: Path, full: bool = False, log=print) -> list[Verdict]:
             try:
                 c = Console(room, args, cwd, label)
             except RuntimeError as exc:
-                if label == "no users":          # refused to serve its own folder as scans: as told, then
+                if label == "no users":  # refused to serve its own folder as scans: as told, then
                     out.append(Verdict(f"[start] vts console in a folder of secrets (refused: {str(exc)[:120]})"))
                     c = Console(room, ["--scans-dir", str(room.scans)], cwd, label)
                 else:
@@ -547,8 +692,9 @@ def sweep(root: Path, full: bool = False, log=print) -> list[Verdict]:
                 v = Verdict(f"[stop] vts console ({label}) stopped with Ctrl-C")
                 if code != 0:
                     v.flag("hang" if code is None else "other", f"exit {code}: {tail.strip()[-200:]}")
-                if "Traceback (most recent call last)" in c.log.read_text(errors="replace")[-20000:] and \
-                        not any(x.traceback for x in out):
+                if "Traceback (most recent call last)" in c.log.read_text(errors="replace")[-20000:] and not any(
+                    x.traceback for x in out
+                ):
                     v.flag("traceback", "a traceback on the console's stderr no case accounted for")
                 out.append(v)
     finally:
@@ -564,7 +710,7 @@ def _one_console(room: Room, c: Console, eps: list[Endpoint], users: bool, full:
         whos[1].extra["other_token"], whos[2].extra["other_token"] = whos[2].token, whos[1].token
         settle_as = whos[2]
         carl = Who("carl", password=PASSWORDS["carl"][1])
-        login(c, carl)              # the state's reader
+        login(c, carl)  # the state's reader
     else:
         local = Who("local")
         local.token = page_token(c, local)
@@ -579,14 +725,17 @@ def _one_console(room: Room, c: Console, eps: list[Endpoint], users: bool, full:
                 v = judge.run(case)
                 out.append(v)
                 dt = time.monotonic() - t0
-                spent[case.family + (" POST" if case.ep.method != "GET" else "")] = \
+                spent[case.family + (" POST" if case.ep.method != "GET" else "")] = (
                     spent.get(case.family + (" POST" if case.ep.method != "GET" else ""), 0.0) + dt
+                )
                 if not v.passed or dt > 2:
                     log(f"  {'FAILED' if not v.passed else 'ok'} ({dt:.1f} s) {v.what}: {v.why}")
     active = [w for w in whos if w.cookie or not users]
-    log(f"-- {c.label}: {len(out)} cases sent; seconds per family: "
-        f"{', '.join(f'{k} {v:.1f}' for k, v in sorted(spent.items(), key=lambda x: -x[1]))}")
-    if not full and not users:       # (SUBSET: these on the console with users)
+    log(
+        f"-- {c.label}: {len(out)} cases sent; seconds per family: "
+        f"{', '.join(f'{k} {v:.1f}' for k, v in sorted(spent.items(), key=lambda x: -x[1]))}"
+    )
+    if not full and not users:  # (SUBSET: these on the console with users)
         return out
     t0 = time.monotonic()
     out += repeated(judge, eps, lambda i: active[i % len(active)], full)
@@ -594,7 +743,7 @@ def _one_console(room: Room, c: Console, eps: list[Endpoint], users: bool, full:
     out += header_cases(judge, eps, active[-1])
     if users:
         out += header_cases(judge, [e for e in eps if e.path.startswith("/login")], Who("anon"))
-        login(c, Who("carl", password=PASSWORDS["carl"][1]))   # the login form's own user is sound afterwards
+        login(c, Who("carl", password=PASSWORDS["carl"][1]))  # the login form's own user is sound afterwards
     t0 = time.monotonic()
     out.append(many_clients(judge, eps, active[0]))
     log(f"-- many clients: {time.monotonic() - t0:.1f} s")
@@ -603,6 +752,7 @@ def _one_console(room: Room, c: Console, eps: list[Endpoint], users: bool, full:
 
 def main() -> int:
     import argparse
+
     ap = argparse.ArgumentParser(description="The class web of bench/bad_inputs.py: prints JSON verdicts")
     ap.add_argument("root")
     ap.add_argument("--full", action="store_true")

@@ -33,17 +33,21 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 PY = sys.executable
-PASSWORDS = {"ann": ("operator", "ann-runs-the-scans-7"), "phil": ("physicist", "phil-sets-baselines-9"),
-             "carl": ("operator", "carl-fills-the-form-3")}
-MARKER = "VTS-SWEEP-SECRET-7f3a9c"          # in every planted secret file (id_rsa, .env)
+PASSWORDS = {
+    "ann": ("operator", "ann-runs-the-scans-7"),
+    "phil": ("physicist", "phil-sets-baselines-9"),
+    "carl": ("operator", "carl-fills-the-form-3"),
+}
+MARKER = "VTS-SWEEP-SECRET-7f3a9c"  # in every planted secret file (id_rsa, .env)
 SECRET_NAMES = ("sim.env", "results.sqlite", "id_rsa", ".env", "rig.yaml")
 SCAN = "scan-20260101T000000Z"
-DEADLINE_S = 60.0                            # one answer, on a busy machine: else a hang
+DEADLINE_S = 60.0  # one answer, on a busy machine: else a hang
 
 
 def vts(*args, cwd=None, env=None, timeout=300) -> subprocess.CompletedProcess:
-    return subprocess.run([PY, "-m", "vts_hw.cli", *map(str, args)], capture_output=True, text=True, cwd=cwd,
-                          env=env, timeout=timeout)
+    return subprocess.run(
+        [PY, "-m", "vts_hw.cli", *map(str, args)], capture_output=True, text=True, cwd=cwd, env=env, timeout=timeout
+    )
 
 
 @dataclass
@@ -66,17 +70,19 @@ class Room:
         if p.returncode != 0:
             raise RuntimeError(f"vts sim up failed: {p.stderr.strip()[-300:]}")
         from vts_hw.sim_devices.rig import load_env_file
+
         # (the console's default scans folder is beside the per-user store: this sweep's own)
         self.env = {**os.environ, **load_env_file(self.sim / "sim.env"), "XDG_DATA_HOME": str(root / "xdg")}
         self.rig_yaml = self.sim / "rig.yaml"
         import yaml
+
         rig = yaml.safe_load(self.rig_yaml.read_text())
         self.cameras = {c["name"]: c["port"] for c in rig["cameras"]}
         self.store = self.sim / "results.sqlite"
         self._users_and_a_run()
         self.scans = root / "scans"
         self.scans.mkdir(mode=0o700)
-        self.plant(self.sim)            # the store's folder (and the folder the console is started in)
+        self.plant(self.sim)  # the store's folder (and the folder the console is started in)
         self.secrets = self._secrets()
 
     def plant(self, folder: Path) -> None:
@@ -94,6 +100,7 @@ class Room:
         """The users (as `vts console user add` adds them) and a daily run with a plot."""
         from vts_hw.console.users import add_user
         from vts_hw.store import ResultsStore
+
         png = self.root / "plot.png"
         png.write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 64 + b"IEND\xaeB`\x82")
         with ResultsStore(f"sqlite:///{self.store}") as s:
@@ -119,8 +126,8 @@ class Room:
         """What no answer may hold: every password and token of sim.env, the users' password hashes
         (their salt and digest), the marker of the planted files, a SQLite file's header."""
         from vts_hw.sim_devices.rig import load_env_file
-        out = {k: v.encode() for k, v in load_env_file(self.sim / "sim.env").items()
-               if "PASSWORD" in k or "TOKEN" in k}
+
+        out = {k: v.encode() for k, v in load_env_file(self.sim / "sim.env").items() if "PASSWORD" in k or "TOKEN" in k}
         for name, (_, pw) in PASSWORDS.items():
             out[f"{name}'s password"] = pw.encode()
         con = sqlite3.connect(f"file:{self.store}?mode=ro", uri=True)
@@ -201,15 +208,22 @@ class Console:
         self.scans_dir = Path(args[args.index("--scans-dir") + 1]) if "--scans-dir" in args else cwd
         self.log = room.root / f"console-{label}.stderr"
         self._err = open(self.log, "wb")
-        self.proc = subprocess.Popen([PY, "-m", "vts_hw.cli", "console", "--config", str(room.rig_yaml),
-                                      "--port", "0", *args], cwd=cwd, env=room.env, stdout=subprocess.PIPE,
-                                     stderr=self._err, stdin=subprocess.DEVNULL)
+        self.proc = subprocess.Popen(
+            [PY, "-m", "vts_hw.cli", "console", "--config", str(room.rig_yaml), "--port", "0", *args],
+            cwd=cwd,
+            env=room.env,
+            stdout=subprocess.PIPE,
+            stderr=self._err,
+            stdin=subprocess.DEVNULL,
+        )
         line = self.proc.stdout.readline().decode(errors="replace")
         m = re.search(r"(https?)://127\.0\.0\.1:(\d+)/", line)
         if not m:
             self.proc.wait(30)
-            raise RuntimeError(f"vts console {' '.join(args)} did not start: {line.strip()} "
-                               f"{self.log.read_text(errors='replace')[-400:]}")
+            raise RuntimeError(
+                f"vts console {' '.join(args)} did not start: {line.strip()} "
+                f"{self.log.read_text(errors='replace')[-400:]}"
+            )
         self.scheme, self.port = m.group(1), int(m.group(2))
         self.host = f"127.0.0.1:{self.port}"
         self.origin = f"{self.scheme}://{self.host}"
@@ -217,7 +231,7 @@ class Console:
         self.cookie_name = "__Host-vts_session" if self.scheme == "https" else "vts_session"
         self._tls = ssl._create_unverified_context() if self.scheme == "https" else None  # nosec B323: a test's own
         self._seen = 0
-        if "--scans-dir" not in args:    # its default: as its Scan page says
+        if "--scans-dir" not in args:  # its default: as its Scan page says
             a = self.send("GET", "/scan/state")
             try:
                 self.scans_dir = Path(json.loads(a.body)["scans"])
@@ -229,12 +243,13 @@ class Console:
     def new_errors(self) -> str:
         """What the console wrote on stderr since the last call."""
         data = self.log.read_bytes()
-        new, self._seen = data[self._seen:], len(data)
+        new, self._seen = data[self._seen :], len(data)
         return new.decode(errors="replace")
 
     def stop(self) -> tuple[int | None, str]:
         """Ctrl-C, as a user stops it: (its exit code, None if it did not stop; its stderr tail)."""
         import signal
+
         self.proc.send_signal(signal.SIGINT)
         try:
             code = self.proc.wait(60)
@@ -250,14 +265,26 @@ class Console:
         return self._tls.wrap_socket(s, server_hostname="127.0.0.1") if self._tls is not None else s
 
     # -- one request -----------------------------------------------------------------------
-    def send(self, method: str, path: str, *, who: Who | None = None, headers: dict | None = None,
-             body: bytes | None = None, ctype: str | None = None, stream: bool = False,
-             deadline: float = DEADLINE_S) -> Answer | None:
+    def send(
+        self,
+        method: str,
+        path: str,
+        *,
+        who: Who | None = None,
+        headers: dict | None = None,
+        body: bytes | None = None,
+        ctype: str | None = None,
+        stream: bool = False,
+        deadline: float = DEADLINE_S,
+    ) -> Answer | None:
         """One request, exactly as given; ``who``'s cookie (and, on a POST, this console's Origin and
         ``who``'s token) unless ``headers`` says otherwise (a value None leaves a header out).
         ``stream``: an event stream: the head and its first event only. None: no answer in time."""
-        hs: dict[str, str | None] = {"Host": self.host, "Accept": "text/html,application/json;q=0.9,*/*;q=0.8",
-                                     "Connection": "close"}
+        hs: dict[str, str | None] = {
+            "Host": self.host,
+            "Accept": "text/html,application/json;q=0.9,*/*;q=0.8",
+            "Connection": "close",
+        }
         if who is not None and who.cookie:
             hs["Cookie"] = f"{self.cookie_name}={who.cookie}"
         if method != "GET":
@@ -279,7 +306,7 @@ class Console:
                 data = b""
                 try:
                     s.sendall(head.encode("latin-1", errors="replace") + b"\r\n" + (body or b""))
-                except (BrokenPipeError, ConnectionResetError):     # answered (and closed) before the body was read
+                except (BrokenPipeError, ConnectionResetError):  # answered (and closed) before the body was read
                     data = _drain(s)
                     if not data:
                         raise
@@ -296,10 +323,10 @@ class Console:
                         break
                     data += chunk
                     if stream and b"\r\n\r\n" in data and len(data.split(b"\r\n\r\n", 1)[1]) > 0:
-                        break               # an event stream: its head and first chunk
+                        break  # an event stream: its head and first chunk
                 else:
                     return None
-        except socket.timeout:
+        except TimeoutError:
             return None
         except OSError as exc:
             return Answer(0, {}, f"connection failed: {exc}".encode())
@@ -344,7 +371,7 @@ def _unchunk(body: bytes) -> bytes:
             return out + rest
         if n == 0:
             break
-        out, rest = out + rest[:n], rest[n + 2:]
+        out, rest = out + rest[:n], rest[n + 2 :]
     return out
 
 

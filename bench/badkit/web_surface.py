@@ -22,8 +22,17 @@ from starlette.routing import Mount, Route
 QUERY_RECEIVERS = {"params", "query", "query_params", "qs"}
 BODY_RECEIVERS = {"body", "data", "payload", "asked"}
 FORM_RECEIVERS = {"form", "fields"}
-BODY_READERS = ("json_object", "json_body", "body_bytes", ".json(", ".body(", ".form(", "switch_asked", "_form(",
-                "model_validate")
+BODY_READERS = (
+    "json_object",
+    "json_body",
+    "body_bytes",
+    ".json(",
+    ".body(",
+    ".form(",
+    "switch_asked",
+    "_form(",
+    "model_validate",
+)
 
 
 @dataclass
@@ -38,7 +47,7 @@ class Endpoint:
     body: list[str] = field(default_factory=list)
     form: list[str] = field(default_factory=list)
     reads_body: bool = False
-    stream: bool = False            # an event stream (text/event-stream): read its start only
+    stream: bool = False  # an event stream (text/event-stream): read its start only
 
     @property
     def name(self) -> str:
@@ -87,8 +96,11 @@ def _reached(fn, depth: int = 3, seen=None) -> list:
                 target = getattr(owner, node.func.attr, None)
             elif node.func.value.id in names and inspect.ismodule(names[node.func.value.id]):
                 target = getattr(names[node.func.value.id], node.func.attr, None)
-        if target is not None and (inspect.isfunction(target) or inspect.ismethod(target)) \
-                and getattr(target, "__module__", "").startswith("vts_hw"):
+        if (
+            target is not None
+            and (inspect.isfunction(target) or inspect.ismethod(target))
+            and getattr(target, "__module__", "").startswith("vts_hw")
+        ):
             out += _reached(target, depth - 1, seen)
     return out
 
@@ -105,8 +117,11 @@ def _tuple_strings(tree: ast.AST) -> list[str]:
     """The strings of every tuple or list literal of strings in ``tree`` (the keys a loop reads)."""
     out = []
     for n in ast.walk(tree):
-        if isinstance(n, (ast.Tuple, ast.List)) and n.elts and all(
-                isinstance(e, ast.Constant) and isinstance(e.value, str) for e in n.elts):
+        if (
+            isinstance(n, (ast.Tuple, ast.List))
+            and n.elts
+            and all(isinstance(e, ast.Constant) and isinstance(e.value, str) for e in n.elts)
+        ):
             out += [e.value for e in n.elts]
     return out
 
@@ -121,11 +136,17 @@ def _query_readers(fns) -> dict[str, tuple[str, int, object]]:
         if node is None:
             continue
         params = [a.arg for a in node.args.args]
-        defaults = dict(zip(params[len(params) - len(node.args.defaults):], node.args.defaults))
+        defaults = dict(zip(params[len(params) - len(node.args.defaults) :], node.args.defaults))
         for n in ast.walk(node):
-            if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and n.func.attr in ("get", "getlist") \
-                    and "query_params" in ast.unparse(n.func.value) and n.args and isinstance(n.args[0], ast.Name) \
-                    and n.args[0].id in params:
+            if (
+                isinstance(n, ast.Call)
+                and isinstance(n.func, ast.Attribute)
+                and n.func.attr in ("get", "getlist")
+                and "query_params" in ast.unparse(n.func.value)
+                and n.args
+                and isinstance(n.args[0], ast.Name)
+                and n.args[0].id in params
+            ):
                 name = n.args[0].id
                 d = defaults.get(name)
                 out[node.name] = (name, params.index(name), d.value if isinstance(d, ast.Constant) else None)
@@ -139,17 +160,21 @@ def _query_readers(fns) -> dict[str, tuple[str, int, object]]:
             if node is None or node.name in out:
                 continue
             params = [a.arg for a in node.args.args]
-            defaults = dict(zip(params[len(params) - len(node.args.defaults):], node.args.defaults))
+            defaults = dict(zip(params[len(params) - len(node.args.defaults) :], node.args.defaults))
             for n in ast.walk(node):
                 callee = n.func.id if isinstance(n, ast.Call) and isinstance(n.func, ast.Name) else ""
                 if callee in out and callee != node.name:
                     pname, pos, _ = out[callee]
-                    given = next((k.value for k in n.keywords if k.arg == pname),
-                                 n.args[pos] if len(n.args) > pos else None)
+                    given = next(
+                        (k.value for k in n.keywords if k.arg == pname), n.args[pos] if len(n.args) > pos else None
+                    )
                     if isinstance(given, ast.Name) and given.id in params:
                         d = defaults.get(given.id)
-                        out[node.name] = (given.id, params.index(given.id),
-                                          d.value if isinstance(d, ast.Constant) else None)
+                        out[node.name] = (
+                            given.id,
+                            params.index(given.id),
+                            d.value if isinstance(d, ast.Constant) else None,
+                        )
                         changed = True
                         break
     return out
@@ -161,8 +186,11 @@ def _models(fn) -> list:
         cv = inspect.getclosurevars(getattr(fn, "__func__", fn))
     except (TypeError, ValueError):
         return []
-    return [v for v in {**cv.globals, **cv.nonlocals}.values()
-            if inspect.isclass(v) and isinstance(getattr(v, "model_fields", None), dict)]
+    return [
+        v
+        for v in {**cv.globals, **cv.nonlocals}.values()
+        if inspect.isclass(v) and isinstance(getattr(v, "model_fields", None), dict)
+    ]
 
 
 def _keys(fns) -> tuple[list[str], list[str], list[str], bool, bool]:
@@ -174,13 +202,14 @@ def _keys(fns) -> tuple[list[str], list[str], list[str], bool, bool]:
         tree = _source(fn)
         if tree is None:
             continue
-        for m in _models(fn):                       # a body read as a model: its fields
+        for m in _models(fn):  # a body read as a model: its fields
             body += list(m.model_fields)
-        for n in ast.walk(tree):                    # a helper reading the query parameter it is named
+        for n in ast.walk(tree):  # a helper reading the query parameter it is named
             if not isinstance(n, ast.Call):
                 continue
-            callee = n.func.id if isinstance(n.func, ast.Name) else n.func.attr if isinstance(n.func, ast.Attribute) \
-                else ""
+            callee = (
+                n.func.id if isinstance(n.func, ast.Name) else n.func.attr if isinstance(n.func, ast.Attribute) else ""
+            )
             if callee not in readers:
                 continue
             pname, pos, default = readers[callee]
@@ -189,19 +218,27 @@ def _keys(fns) -> tuple[list[str], list[str], list[str], bool, bool]:
                 query += [default] if isinstance(default, str) else []
             elif isinstance(given, ast.Constant) and isinstance(given.value, str):
                 query.append(given.value)
-            else:                                   # a key from a loop: the keys of the tuples it loops over
+            else:  # a key from a loop: the keys of the tuples it loops over
                 query += _tuple_strings(tree)
         text = ast.unparse(tree)
         reads = reads or any(r in text for r in BODY_READERS)
         stream = stream or "event_stream(" in text or "text/event-stream" in text
         for node in ast.walk(tree):
             key, recv = None, None
-            if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) \
-                    and node.func.attr in ("get", "getlist", "pop") and node.args \
-                    and isinstance(node.args[0], ast.Constant) and isinstance(node.args[0].value, str):
+            if (
+                isinstance(node, ast.Call)
+                and isinstance(node.func, ast.Attribute)
+                and node.func.attr in ("get", "getlist", "pop")
+                and node.args
+                and isinstance(node.args[0], ast.Constant)
+                and isinstance(node.args[0].value, str)
+            ):
                 key, recv = node.args[0].value, node.func.value
-            elif isinstance(node, ast.Subscript) and isinstance(node.slice, ast.Constant) \
-                    and isinstance(node.slice.value, str):
+            elif (
+                isinstance(node, ast.Subscript)
+                and isinstance(node.slice, ast.Constant)
+                and isinstance(node.slice.value, str)
+            ):
                 key, recv = node.slice.value, node.value
             if key is None:
                 continue
@@ -215,18 +252,27 @@ def _keys(fns) -> tuple[list[str], list[str], list[str], bool, bool]:
                 body.append(key)
             elif last in FORM_RECEIVERS:
                 form.append(key)
-        for n in ast.walk(tree):                    # query_params.get(k), k from a loop over a tuple
-            if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and n.func.attr in ("get", "getlist") \
-                    and "query_params" in ast.unparse(n.func.value) and n.args and isinstance(n.args[0], ast.Name) \
-                    and fn.__name__ not in readers:
+        for n in ast.walk(tree):  # query_params.get(k), k from a loop over a tuple
+            if (
+                isinstance(n, ast.Call)
+                and isinstance(n.func, ast.Attribute)
+                and n.func.attr in ("get", "getlist")
+                and "query_params" in ast.unparse(n.func.value)
+                and n.args
+                and isinstance(n.args[0], ast.Name)
+                and fn.__name__ not in readers
+            ):
                 query += _tuple_strings(tree)
         # a pydantic model a handler validates its body with: its fields are body keys
         for node in ast.walk(tree):
-            if isinstance(node, ast.Attribute) and node.attr in ("model_validate", "model_validate_json") \
-                    and isinstance(node.value, ast.Name):
+            if (
+                isinstance(node, ast.Attribute)
+                and node.attr in ("model_validate", "model_validate_json")
+                and isinstance(node.value, ast.Name)
+            ):
                 model = getattr(inspect.getmodule(fn), node.value.id, None)
                 body += list(getattr(model, "model_fields", {}) or {})
-    uniq = lambda xs: list(dict.fromkeys(xs))   # noqa: E731
+    uniq = lambda xs: list(dict.fromkeys(xs))  # noqa: E731
     return uniq(query), uniq(body), uniq(form), reads, stream
 
 
@@ -243,8 +289,18 @@ def endpoints(app) -> list[Endpoint]:
             continue
         q, b, f, reads, stream = _keys(_reached(r.endpoint))
         for m in sorted((r.methods or {"GET"}) - {"HEAD"}):
-            out.append(Endpoint(r.path, m, params, q, b if m != "GET" else [], f if m != "GET" else [],
-                                reads and m != "GET", stream and m == "GET"))
+            out.append(
+                Endpoint(
+                    r.path,
+                    m,
+                    params,
+                    q,
+                    b if m != "GET" else [],
+                    f if m != "GET" else [],
+                    reads and m != "GET",
+                    stream and m == "GET",
+                )
+            )
     return out
 
 
@@ -253,20 +309,26 @@ def console_apps():
     built on a Console with no rig, as the pages' code builds its routes without one."""
     from vts_hw.console.app import Console, create_app
     from vts_hw.console.sessions import Auth
-    return {"no users": create_app(Console("sweep", None, None, None)),
-            "users": create_app(Console("sweep", None, None, None, auth=Auth(required=True, load_users=list)))}
+
+    return {
+        "no users": create_app(Console("sweep", None, None, None)),
+        "users": create_app(Console("sweep", None, None, None, auth=Auth(required=True, load_users=list))),
+    }
 
 
 def surface() -> dict[str, list[Endpoint]]:
     return {k: endpoints(app) for k, app in console_apps().items()}
 
 
-if __name__ == "__main__":      # what the sweep will walk
+if __name__ == "__main__":  # what the sweep will walk
     import sys
     from pathlib import Path
+
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     for kind, eps in surface().items():
         print(f"-- {kind}: {len(eps)} endpoints")
         for e in eps:
-            print(f"  {e.name:<40} path={e.params} query={e.query} body={e.body} form={e.form}"
-                  f"{' reads a body' if e.reads_body else ''}{' stream' if e.stream else ''}")
+            print(
+                f"  {e.name:<40} path={e.params} query={e.query} body={e.body} form={e.form}"
+                f"{' reads a body' if e.reads_body else ''}{' stream' if e.stream else ''}"
+            )

@@ -39,6 +39,7 @@ class FakeClock:
 
 # ---- HTTP ----------------------------------------------------------------------------------
 
+
 def http_reply(piece: bytes, method: str, url: str, params=None):
     """A :class:`requests.Response` as requests builds it, from one reply of a transcript."""
     import requests
@@ -73,6 +74,7 @@ class ScriptedHTTP:
 
     def request(self, method, url, params=None, **_):
         import requests
+
         piece = next(self.replies, None)
         if piece is None:
             raise requests.ConnectionError("[Errno 111] Connection refused")
@@ -111,9 +113,18 @@ def drive_axis(s, session) -> None:
     from vts_hw.drivers.registry import open_camera
 
     os.environ.setdefault("VTS_FUZZ_CAM1_PASSWORD", "pw")
-    cam = open_camera(CameraConfig(name="cam1", host="127.0.0.1", port=9, password_env="VTS_FUZZ_CAM1_PASSWORD",
-                                   timeout_s=1.0, resolution=(160, 120), compression=90))
-    cam._session = session   # the scripted transport in place of the camera's HTTP session
+    cam = open_camera(
+        CameraConfig(
+            name="cam1",
+            host="127.0.0.1",
+            port=9,
+            password_env="VTS_FUZZ_CAM1_PASSWORD",
+            timeout_s=1.0,
+            resolution=(160, 120),
+            compression=90,
+        )
+    )
+    cam._session = session  # the scripted transport in place of the camera's HTTP session
     s.call(lambda: cam.vapix_version)
     s.call(cam.get_params, "Image.I0")
     s.call(cam.set_params, {"Image.I0.Appearance.Compression": 30})
@@ -137,6 +148,7 @@ def drive_qatrack(s, session) -> None:
 
 
 # ---- serial: the trigger box ------------------------------------------------------------------
+
 
 class ScriptedSerial:
     """A serial port whose lines are the replies of a transcript; then silence (a timeout)."""
@@ -210,9 +222,14 @@ class BoxResponder:
                 return "ERR -221 Settings conflict; output on"
             setattr(self, head.lower(), float(arg))
             return "OK"
-        replies = {"FREQ?": f"{self.freq:.6g}", "DUTY?": f"{self.duty:.6g}", "OUTP?": "ON" if self.on else "OFF",
-                   "PULSE:WIDTH?": str(self.width), "TIME?": str(self.us),
-                   "EDGES?": f"{self.n},{self.first},{self.first + max(self.n - 1, 0) * 100_000}"}
+        replies = {
+            "FREQ?": f"{self.freq:.6g}",
+            "DUTY?": f"{self.duty:.6g}",
+            "OUTP?": "ON" if self.on else "OFF",
+            "PULSE:WIDTH?": str(self.width),
+            "TIME?": str(self.us),
+            "EDGES?": f"{self.n},{self.first},{self.first + max(self.n - 1, 0) * 100_000}",
+        }
         if cmd in replies:
             return replies[cmd]
         if cmd == "SYST:ERR?":
@@ -229,8 +246,14 @@ def drive_box(s, ser) -> None:
     mapping, start, edges, stop, fire, a pulse, the error queue, reset."""
     from vts_hw.drivers.trigger_box import TriggerBox
 
-    box = TriggerBox("fuzz", timeout=0.1, clock=FakeClock(), sleep=lambda _s: None,
-                     serial_factory=lambda *a, **k: ser, heartbeat=False)   # no thread reading the script
+    box = TriggerBox(
+        "fuzz",
+        timeout=0.1,
+        clock=FakeClock(),
+        sleep=lambda _s: None,
+        serial_factory=lambda *a, **k: ser,
+        heartbeat=False,
+    )  # no thread reading the script
     s.call(box.identify)
     s.call(box.status)
     s.call(box.configure, 10.0, 0.5)
@@ -247,6 +270,7 @@ def drive_box(s, ser) -> None:
 
 
 # ---- SCPI: the function generator --------------------------------------------------------------
+
 
 class ScriptedVisa:
     """A pyvisa message resource whose replies are the lines of a transcript, decoded as
@@ -306,6 +330,7 @@ def drive_fgen(s, resource) -> None:
 
 # ---- the seeds: the same sessions against the simulators ----------------------------------------
 
+
 class _Quiet:
     """Scratch.call's stand-in while recording: the answers are the simulators' own."""
 
@@ -313,6 +338,7 @@ class _Quiet:
 
     def call(self, fn, *args, **kw):
         from vts_hw.errors import VtsError
+
         try:
             return fn(*args, **kw)
         except VtsError:
@@ -332,22 +358,50 @@ def device_seeds(put) -> None:
         with SimRig(n_cameras=1, firmware=model, password="fuzz-seed") as rig:
             cfg = rig.config().cameras[0]
             from vts_hw.drivers.axis_client import _AxisAuth
+
             rec = RecordingHTTP(_Rebase(requests.Session(), cfg.base_url, _AxisAuth(cfg.user, "fuzz-seed")))
             drive_axis(_Quiet(), rec)
             put("axis_vapix", f"{model}.txt", rec.transcript())
-    put("axis_vapix", "refused.txt", SEP.join([b"HTTP 404 text/plain\nNot found", b"# Error: Error -1 getting param in group 'Brand'",
-                                               b"HTTP 200 text/plain\nroot.Brand.Brand=AXIS\n",
-                                               b"HTTP 200 application/json\n" + b'{"apiVersion": "1.0", "data": {"dateTime": "2026-11-24T06:00:00Z"}}']))
+    put(
+        "axis_vapix",
+        "refused.txt",
+        SEP.join(
+            [
+                b"HTTP 404 text/plain\nNot found",
+                b"# Error: Error -1 getting param in group 'Brand'",
+                b"HTTP 200 text/plain\nroot.Brand.Brand=AXIS\n",
+                b"HTTP 200 application/json\n" + b'{"apiVersion": "1.0", "data": {"dateTime": "2026-11-24T06:00:00Z"}}',
+            ]
+        ),
+    )
 
     deep = b"[" * 1200 + b"]" * 1200
     js = b"HTTP 200 application/json\n"
-    put("axis_vapix", "edge-json.txt", SEP.join([b"root.Brand.Brand=AXIS", b"OK", b"OK", b"OK",
-                                                 js + b'{"data": {"propertyList": ["Brand", "AXIS"]}}',
-                                                 js + b'{"data": {"dateTime": 1795000000}}', js + deep]))
-    put("qatrack", "edge-json.txt", SEP.join([js + b'{"token": 5}', js + b'{"results": {"url": 1}, "next": 7}',
-                                              js + b'{"results": [5, "x"]}', js + deep]))
-    with QATrackSim({"VTS daily": ["vts_drift"]}, {"SPECT 1": ["VTS daily"]}, token="t-fuzz",
-                    users={"vts": "pw"}) as site:
+    put(
+        "axis_vapix",
+        "edge-json.txt",
+        SEP.join(
+            [
+                b"root.Brand.Brand=AXIS",
+                b"OK",
+                b"OK",
+                b"OK",
+                js + b'{"data": {"propertyList": ["Brand", "AXIS"]}}',
+                js + b'{"data": {"dateTime": 1795000000}}',
+                js + deep,
+            ]
+        ),
+    )
+    put(
+        "qatrack",
+        "edge-json.txt",
+        SEP.join(
+            [js + b'{"token": 5}', js + b'{"results": {"url": 1}, "next": 7}', js + b'{"results": [5, "x"]}', js + deep]
+        ),
+    )
+    with QATrackSim(
+        {"VTS daily": ["vts_drift"]}, {"SPECT 1": ["VTS daily"]}, token="t-fuzz", users={"vts": "pw"}
+    ) as site:
         session = requests.Session()
         rec = RecordingHTTP(_Rebase(session, site.url))
         drive_qatrack(_Quiet(), rec)
@@ -356,21 +410,31 @@ def device_seeds(put) -> None:
         rec = RecordingHTTP(_Rebase(requests.Session(), site.url))
         drive_qatrack(_Quiet(), rec)
         put("qatrack", "again.txt", rec.transcript())
-    put("qatrack", "refused.txt", SEP.join([
-        b'HTTP 200 application/json\n{"token": "abc"}',
-        b'HTTP 200 application/json\n{"count": 2, "next": "/api/qa/unittestcollections/?page=2", '
-        b'"results": [{"url": "http://127.0.0.1:9/api/qa/unittestcollections/1/"}]}',
-        b'HTTP 400 application/json\n{"tests": {"drift": ["not a number"]}, "non_field_errors": ["x"]}',
-        b'HTTP 403 application/json\n{"detail": "Authentication credentials were not provided."}']))
+    put(
+        "qatrack",
+        "refused.txt",
+        SEP.join(
+            [
+                b'HTTP 200 application/json\n{"token": "abc"}',
+                b'HTTP 200 application/json\n{"count": 2, "next": "/api/qa/unittestcollections/?page=2", '
+                b'"results": [{"url": "http://127.0.0.1:9/api/qa/unittestcollections/1/"}]}',
+                b'HTTP 400 application/json\n{"tests": {"drift": ["not a number"]}, "non_field_errors": ["x"]}',
+                b'HTTP 403 application/json\n{"detail": "Authentication credentials were not provided."}',
+            ]
+        ),
+    )
 
     for name, responder in (("session", BoxResponder()), ("refused", BoxResponder(refuse_freq=True))):
         drive_box(_Quiet(), responder)
         put("trigger_box", f"{name}.txt", b"".join(responder.lines))
-    put("trigger_box", "edges.txt", b"VTS,TRIGGERBOX,1,2\nON\n1000\n0.5\n18446744073709551615,0,99\n"
-                                    b'-350,"Queue overflow"\n0,"No error"\nERR\nERR x\n')
+    put(
+        "trigger_box",
+        "edges.txt",
+        b"VTS,TRIGGERBOX,1,2\nON\n1000\n0.5\n18446744073709551615,0,99\n"
+        b'-350,"Queue overflow"\n0,"No error"\nERR\nERR x\n',
+    )
 
-    for idn in ("Agilent Technologies,33522B,MY00000000,4.00-1.19-2.00-58-00",
-                "Keysight Technologies,33511B,MY0,5.01"):
+    for idn in ("Agilent Technologies,33522B,MY00000000,4.00-1.19-2.00-58-00", "Keysight Technologies,33511B,MY0,5.01"):
         rec = RecordingVisa(Keysight33500(idn=idn))
         drive_fgen(_Quiet(), rec)
         put("function_generator", f"{idn.split(',')[1]}.txt", b"\n".join(rec.lines))
@@ -385,16 +449,25 @@ class _Rebase:
 
     def request(self, method, url, **kw):
         from urllib.parse import urlsplit
+
         parts = urlsplit(url)
         kw.pop("verify", None)
         if self.auth is not None:
             kw["auth"] = self.auth
-        return self.session.request(method, self.base + parts.path + (f"?{parts.query}" if parts.query else ""),
-                                    **kw)
+        return self.session.request(method, self.base + parts.path + (f"?{parts.query}" if parts.query else ""), **kw)
 
     def close(self) -> None:
         self.session.close()
 
 
-__all__ = ["SEP", "ScriptedHTTP", "ScriptedSerial", "ScriptedVisa", "drive_axis", "drive_box", "drive_fgen",
-           "drive_qatrack", "device_seeds"]
+__all__ = [
+    "SEP",
+    "ScriptedHTTP",
+    "ScriptedSerial",
+    "ScriptedVisa",
+    "drive_axis",
+    "drive_box",
+    "drive_fgen",
+    "drive_qatrack",
+    "device_seeds",
+]

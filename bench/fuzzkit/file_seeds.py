@@ -31,8 +31,14 @@ def file_seeds(put, fixture, work: Path, rec_dir: Path) -> None:
 
     box_log = work / "box" / "trigger.csv"
     log = TriggerLog(box_log, clock=FakeClock())
-    box = TriggerBox("fuzz", clock=FakeClock(), sleep=lambda _s: None, log=log,
-                     serial_factory=lambda *a, **k: BoxResponder(), heartbeat=False)
+    box = TriggerBox(
+        "fuzz",
+        clock=FakeClock(),
+        sleep=lambda _s: None,
+        log=log,
+        serial_factory=lambda *a, **k: BoxResponder(),
+        heartbeat=False,
+    )
     q = _Quiet()
     q.call(box.configure, 10.0, 0.5)
     q.call(box.clock_mapping, 4, over_s=0.0)
@@ -50,8 +56,11 @@ def file_seeds(put, fixture, work: Path, rec_dir: Path) -> None:
     gen.close()
     put("trigger_log", "fgen.csv", fgen_log.read_bytes())
     neutral = (b",wave_start,", b",wave_stop,", b",clock,")
-    put("trigger_log", "legacy.csv", b"".join(line for line in box_log.read_bytes().splitlines(True)
-                                              if not any(k in line for k in neutral)))
+    put(
+        "trigger_log",
+        "legacy.csv",
+        b"".join(line for line in box_log.read_bytes().splitlines(True) if not any(k in line for k in neutral)),
+    )
     fixture("trigger_log", "manifest.json", (rec_dir / "manifest.json").read_bytes())
     fixture("trigger_log", "cam1.index.csv", (rec_dir / "cam1.index.csv").read_bytes())
 
@@ -82,33 +91,66 @@ def file_seeds(put, fixture, work: Path, rec_dir: Path) -> None:
     from vts_hw.procedures.steps import SeenPosition, step_plan
 
     plan = step_plan(2, 2, 10.0)
-    seen = [SeenPosition(p.label, p.kind, 1_795_000_000.0 + i, {"cam1": [[320.5, 240.25]] * 3,
-                                                                "cam2": [[300.0, 200.0]] * 3},
-                         f"vol{i}.h33") for i, p in enumerate(plan)]
-    put("step_positions", "positions.json", json.dumps(
-        {"plan": [asdict(p) for p in plan], "positions": [asdict(s) for s in seen]}, indent=1).encode())
+    seen = [
+        SeenPosition(
+            p.label,
+            p.kind,
+            1_795_000_000.0 + i,
+            {"cam1": [[320.5, 240.25]] * 3, "cam2": [[300.0, 200.0]] * 3},
+            f"vol{i}.h33",
+        )
+        for i, p in enumerate(plan)
+    ]
+    put(
+        "step_positions",
+        "positions.json",
+        json.dumps({"plan": [asdict(p) for p in plan], "positions": [asdict(s) for s in seen]}, indent=1).encode(),
+    )
 
     # ---- a list-mode acquisition that was not recorded
     from vts_hw.spect.listmode.failures import write_failure_record
 
     (work / "failed").mkdir()
-    put("listmode_failures", "scan.failed.json", write_failure_record(
-        work / "failed", "scan.vtslm", "the disk was full", by="the simulated SPECT", start=1_795_000_000.0,
-        end=1_795_000_060.0, log=work / "failed" / "spect.log").read_bytes())
-    put("listmode_failures", "edge-huge.json", b'{"format": "vts-listmode-failure/1", "by": "x", "listmode": "a", '
-        b'"reason": "r", "start": null, "end": null, "failed_at": 1' + b"0" * 400 + b"}")
+    put(
+        "listmode_failures",
+        "scan.failed.json",
+        write_failure_record(
+            work / "failed",
+            "scan.vtslm",
+            "the disk was full",
+            by="the simulated SPECT",
+            start=1_795_000_000.0,
+            end=1_795_000_060.0,
+            log=work / "failed" / "spect.log",
+        ).read_bytes(),
+    )
+    put(
+        "listmode_failures",
+        "edge-huge.json",
+        b'{"format": "vts-listmode-failure/1", "by": "x", "listmode": "a", '
+        b'"reason": "r", "start": null, "end": null, "failed_at": 1' + b"0" * 400 + b"}",
+    )
 
     # ---- an unsaved run, as the recorder keeps it when the store refuses
     from vts_hw.store.unsaved import save_unsaved
 
-    record = {"procedure": "drift", "rig": "fuzz", "operator": "qa", "config_digest": "0" * 64,
-              "software_version": "0.0", "started": 1_795_000_000.0, "finished": 1_795_000_060.0,
-              "state": "TOLERANCE", "store_error": "database is locked",
-              "measurements": [{"subject": "cam1", "metric": "drift_px", "value": 0.4, "unit": "px",
-                                "state": "OK"},
-                               {"subject": "cam2", "metric": "drift_px", "value": None, "unit": "px",
-                                "state": "ACTION"}],
-              "artifacts": [str(work / "plot.png")], "results": {"drift_px": [0.4, None]}}
+    record = {
+        "procedure": "drift",
+        "rig": "fuzz",
+        "operator": "qa",
+        "config_digest": "0" * 64,
+        "software_version": "0.0",
+        "started": 1_795_000_000.0,
+        "finished": 1_795_000_060.0,
+        "state": "TOLERANCE",
+        "store_error": "database is locked",
+        "measurements": [
+            {"subject": "cam1", "metric": "drift_px", "value": 0.4, "unit": "px", "state": "OK"},
+            {"subject": "cam2", "metric": "drift_px", "value": None, "unit": "px", "state": "ACTION"},
+        ],
+        "artifacts": [str(work / "plot.png")],
+        "results": {"drift_px": [0.4, None]},
+    }
     path, _ = save_unsaved(f"sqlite:///{work / 'store' / 'results.db'}", record)
     if path is None:
         raise SystemExit("fuzz seeds: save_unsaved wrote nowhere")

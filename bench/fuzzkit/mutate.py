@@ -12,9 +12,23 @@ from __future__ import annotations
 import signal
 from pathlib import Path
 
-INTERESTING = (b"\x00", b"\xff", b"\x7f", b"\x80", b"\x00\x00", b"\xff\xff", b"\x7f\xff",
-               b"\x00\x00\x00\x00", b"\xff\xff\xff\xff", b"\x7f\xff\xff\xff", b"0", b"-1",
-               b"9" * 20, b"nan", b"inf")
+INTERESTING = (
+    b"\x00",
+    b"\xff",
+    b"\x7f",
+    b"\x80",
+    b"\x00\x00",
+    b"\xff\xff",
+    b"\x7f\xff",
+    b"\x00\x00\x00\x00",
+    b"\xff\xff\xff\xff",
+    b"\x7f\xff\xff\xff",
+    b"0",
+    b"-1",
+    b"9" * 20,
+    b"nan",
+    b"inf",
+)
 
 
 def _mutate(data: bytes, draw, st, seeds: list[bytes], tokens) -> bytes:
@@ -29,33 +43,35 @@ def _mutate(data: bytes, draw, st, seeds: list[bytes], tokens) -> bytes:
         elif op == 2:
             buf[pos:pos] = draw(st.binary(min_size=1, max_size=16))
         elif op == 3 and buf:
-            del buf[pos:pos + draw(st.integers(1, 64))]
+            del buf[pos : pos + draw(st.integers(1, 64))]
         elif op == 4 and buf:
             n = draw(st.integers(1, 64))
-            buf[pos:pos] = buf[pos:pos + n] * draw(st.integers(1, 8))
+            buf[pos:pos] = buf[pos : pos + n] * draw(st.integers(1, 8))
         elif op == 5 and seeds:
             other = draw(st.sampled_from(seeds))
             a = draw(st.integers(0, len(other)))
-            buf[pos:] = other[a:a + draw(st.integers(0, 4096))] + buf[pos:]
+            buf[pos:] = other[a : a + draw(st.integers(0, 4096))] + buf[pos:]
         elif op == 6 and tokens:
             buf[pos:pos] = draw(st.sampled_from(tokens))
         elif op == 7:
             v = draw(st.sampled_from(INTERESTING))
-            buf[pos:pos + len(v)] = v
+            buf[pos : pos + len(v)] = v
     return bytes(buf)
 
 
 def run_hypothesis(recorder, seed_dir: Path, target, runs: int, seed: int, timeout: int) -> None:
-    from hypothesis import HealthCheck, Phase, given, seed as hseed, settings, strategies as st
+    from hypothesis import HealthCheck, Phase, given, settings
+    from hypothesis import seed as hseed
+    from hypothesis import strategies as st
 
-    seeds = [p.read_bytes()[:target.max_len] for p in sorted(seed_dir.iterdir())]
+    seeds = [p.read_bytes()[: target.max_len] for p in sorted(seed_dir.iterdir())]
     tokens = list(target.tokens)
 
     @st.composite
     def inputs(draw):
         if not seeds or draw(st.integers(0, 9)) == 0:
             return draw(st.binary(max_size=min(target.max_len, 2048)))
-        return _mutate(draw(st.sampled_from(seeds)), draw, st, seeds, tokens)[:target.max_len]
+        return _mutate(draw(st.sampled_from(seeds)), draw, st, seeds, tokens)[: target.max_len]
 
     def on_alarm(*_):
         raise TimeoutError(f"one input took more than {timeout} s")
@@ -63,8 +79,14 @@ def run_hypothesis(recorder, seed_dir: Path, target, runs: int, seed: int, timeo
     signal.signal(signal.SIGALRM, on_alarm)
 
     @hseed(seed)
-    @settings(max_examples=max(1, runs - len(seeds)), deadline=None, database=None, derandomize=False,
-              phases=[Phase.generate], suppress_health_check=list(HealthCheck))
+    @settings(
+        max_examples=max(1, runs - len(seeds)),
+        deadline=None,
+        database=None,
+        derandomize=False,
+        phases=[Phase.generate],
+        suppress_health_check=list(HealthCheck),
+    )
     @given(inputs())
     def run(data):
         signal.alarm(timeout)  # a hang is a crash (recorded), not the end of the run

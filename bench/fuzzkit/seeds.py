@@ -83,6 +83,7 @@ def make_seeds(out: Path, axis_frames: Path) -> dict[str, int]:
     # ---- real Axis frames, and a recording written from them
     from vts_hw.recording.axis_jpeg import inspect_jpeg
     from vts_hw.recording.mjpeg import read_frames_file
+
     try:
         from vts_hw.recording.writer import Recording  # where the writer lives after the split
     except ImportError:
@@ -91,7 +92,7 @@ def make_seeds(out: Path, axis_frames: Path) -> dict[str, int]:
     capture = (axis_frames / "t.mjpg").read_bytes()
     frames = [b for b, _ in read_frames_file(axis_frames / "t.mjpg")]
     put("mjpeg", "t.mjpg", capture)
-    put("mjpeg", "t-3-parts.mjpg", capture[:capture.find(b"--myboundary", capture.find(frames[3]))])
+    put("mjpeg", "t-3-parts.mjpg", capture[: capture.find(b"--myboundary", capture.find(frames[3]))])
     for jpg in sorted(axis_frames.glob("*.jpg")):
         put("axis_jpeg", jpg.name, jpg.read_bytes())
         put("mjpeg", jpg.name, jpg.read_bytes())
@@ -104,8 +105,7 @@ def make_seeds(out: Path, axis_frames: Path) -> dict[str, int]:
     put("recording_index", "cam1.index.csv", (rec_dir / "cam1.index.csv").read_bytes())
     put("recording_index", "empty.index.csv", (rec_dir / "cam2.index.csv").read_bytes())
     put("manifest", "manifest.json", (rec_dir / "manifest.json").read_bytes())
-    put("manifest", "recording.json", (rec_dir / "manifest.json").read_bytes().replace(
-        b'"complete"', b'"recording"'))
+    put("manifest", "recording.json", (rec_dir / "manifest.json").read_bytes().replace(b'"complete"', b'"recording"'))
     fixture("recording_index", "cam1.mjpeg", (rec_dir / "cam1.mjpeg").read_bytes())
     fixture("manifest", "cam1.index.csv", (rec_dir / "cam1.index.csv").read_bytes())
     fixture("manifest", "trigger.csv", b"device,event,host_time\n")  # check_session wants one
@@ -113,20 +113,27 @@ def make_seeds(out: Path, axis_frames: Path) -> dict[str, int]:
     # ---- list-mode: the simulated SPECT, and a hand-made file with every block kind
     import numpy as np
 
-    from vts_hw.spect.listmode import VtslmWriter
     from vts_hw.sim_devices.scene import Scene
     from vts_hw.sim_devices.spect_listmode import SimSpectSettings, TriggerEdges, write_sim_listmode
+    from vts_hw.spect.listmode import VtslmWriter
 
     t0 = 1_795_000_000.0
     rising = t0 + np.arange(4) * 0.5
     trig = TriggerEdges(rising, rising + 0.25, t0, 5.0, 0.0, "fuzz seed")
-    settings = SimSpectSettings(background_cps=300.0, gate_rate_hz=100.0, stop_s=0.6, rotate_s=0.2,
-                                start_delay_s=0.1, clock_offset_s=0.5, clock_skew_ppm=20.0)
-    write_sim_listmode(work / "sim.vtslm", Scene.reference(seed=1, start_epoch=t0), [], trig, 1.2,
-                       settings, seed=3)
+    settings = SimSpectSettings(
+        background_cps=300.0,
+        gate_rate_hz=100.0,
+        stop_s=0.6,
+        rotate_s=0.2,
+        start_delay_s=0.1,
+        clock_offset_s=0.5,
+        clock_skew_ppm=20.0,
+    )
+    write_sim_listmode(work / "sim.vtslm", Scene.reference(seed=1, start_epoch=t0), [], trig, 1.2, settings, seed=3)
     put("listmode", "sim.vtslm", (work / "sim.vtslm").read_bytes())
-    with VtslmWriter(work / "small.vtslm", start_time=t0, duration_s=0.2, gate_rate_hz=50.0,
-                     dead_time_recorded=True, scanner="fuzz") as w:
+    with VtslmWriter(
+        work / "small.vtslm", start_time=t0, duration_s=0.2, gate_rate_hz=50.0, dead_time_recorded=True, scanner="fuzz"
+    ) as w:
         w.events([0.01, 0.02, 0.15], [1.0, 2.0, 3.0], [-1.0, 0.0, 1.5], [0, 1, 1])
         w.timing_marks([0.0, 0.01, 0.02])
         w.frames([0.0, 0.1], [0, 1], [0.0, 3.0])
@@ -134,11 +141,10 @@ def make_seeds(out: Path, axis_frames: Path) -> dict[str, int]:
         w.dead([0.05], [0.08])
     put("listmode", "small.vtslm", (work / "small.vtslm").read_bytes())
     raw = (work / "small.vtslm").read_bytes()  # its start_time made a 400-digit integer
-    head = raw[16:16 + int.from_bytes(raw[12:16], "little")]
+    head = raw[16 : 16 + int.from_bytes(raw[12:16], "little")]
     huge = head.replace(b'"start_time": ', b'"start_time": 1' + b"0" * 400 + b', "was": ')
     huge += b" " * (-(16 + len(huge)) % 8)
-    put("listmode", "edge-huge.vtslm", raw[:12] + len(huge).to_bytes(4, "little") + huge
-        + raw[16 + len(head):])
+    put("listmode", "edge-huge.vtslm", raw[:12] + len(huge).to_bytes(4, "little") + huge + raw[16 + len(head) :])
 
     # ---- volumes: the simulated SPECT, small, through the code's writers
     from vts_hw.sim_devices.spect import SimSpect, phantom_centres
@@ -164,8 +170,7 @@ def make_seeds(out: Path, axis_frames: Path) -> dict[str, int]:
         put(target, p.name, p.read_bytes())
         if target == "calibration":  # the stereo form written before; its square size made a 400-digit integer
             put(target, "stereo-v1.json", stereo_bytes(rig_dir))
-            put(target, "edge-huge.json", re.sub(rb'"square": [^,]+', b'"square": 1' + b"0" * 400,
-                                                 p.read_bytes()))
+            put(target, "edge-huge.json", re.sub(rb'"square": [^,]+', b'"square": 1' + b"0" * 400, p.read_bytes()))
     # ---- a calibration file: the rig's two cameras, three cameras, and the stereo form written before
     from vts_hw.vision.calibration_io import load_calibration
 
@@ -178,6 +183,7 @@ def make_seeds(out: Path, axis_frames: Path) -> dict[str, int]:
     put("camera_calibration", "three.json", json.dumps(data).encode())
     put("camera_calibration", "stereo.json", stereo_bytes(rig_dir))
     from fuzzkit.file_seeds import file_seeds
+
     file_seeds(put, fixture, work, rec_dir)
     edge_seeds(put)
     return {d.name: len(list(d.iterdir())) for d in sorted(seeds.iterdir())}
@@ -198,11 +204,12 @@ def edge_seeds(put) -> None:
     put("manifest", "edge-gaps.json", b'{"cameras": {"cam1": {"gaps": [{"missing": "3"}, 5]}}}')
     put("calibration", "edge-deep.json", b'{"format": "vts-hw stereo calibration", "K1": ' + deep + b"}")
     put("mapping", "edge-deep.json", b'{"R": ' + deep + b"}")
-    put("mapping", "edge-meta.json", b'{"R": [[1,0,0],[0,1,0],[0,0,1]], "t_mm": [0,0,' + big
-        + b'], "meta": 5}')
+    put("mapping", "edge-meta.json", b'{"R": [[1,0,0],[0,1,0],[0,0,1]], "t_mm": [0,0,' + big + b'], "meta": 5}')
     put("rig_yaml", "edge-deep.yaml", b"rig: x\ncameras: " + b"[" * 40 + b"]" * 40 + b"\n")
-    put("rig_yaml", "edge-bomb.yaml", b"a: &a [x, x, x, x, x, x, x, x, x, x]\n" + b"".join(
-        b"%c: &%c [" % (98 + i, 98 + i) + b", ".join([b"*%c" % (97 + i)] * 10) + b"]\n"
-        for i in range(9)))
+    put(
+        "rig_yaml",
+        "edge-bomb.yaml",
+        b"a: &a [x, x, x, x, x, x, x, x, x, x]\n"
+        + b"".join(b"%c: &%c [" % (98 + i, 98 + i) + b", ".join([b"*%c" % (97 + i)] * 10) + b"]\n" for i in range(9)),
+    )
     put("rig_yaml", "edge-date.yaml", b"rig: x\nrecordings_dir: 2024-02-30\ncameras: []\n")
-

@@ -16,13 +16,20 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from losskit.truth import (
+    MOVE_MIN,
+    POSE_GOAL,
+    match_moves,
+    observed_instants,
+    overlap,
+    rate_figures,
+    stretches_without,
+    true_rate,
+)
 from vts_hw.recording.folder import read_index
 
-from losskit.truth import (MOVE_MIN, POSE_GOAL, match_moves, observed_instants, overlap, rate_figures, stretches_without,
-                    true_rate)
-
-LATE_S = 0.5             # the live path's allowance (decision 0048): shorter holes are not NOT TRACKING
-EDGE_S = 0.15            # a reported stretch may start or end this much off the frames' times
+LATE_S = 0.5  # the live path's allowance (decision 0048): shorter holes are not NOT TRACKING
+EDGE_S = 0.15  # a reported stretch may start or end this much off the frames' times
 SIX = ("tx_mm", "ty_mm", "tz_mm", "rx_deg", "ry_deg", "rz_deg")
 
 
@@ -93,14 +100,26 @@ def offline(scan, moves) -> dict:
         bad.append(f"pose {mm:.3f} mm {deg:.3f} deg")
     result = SimpleNamespace(
         pose=SimpleNamespace(t=t, valid=ok),
-        events=[SimpleNamespace(t_start=e["t_start"] + origin,
-                                start_bounds=None if not e.get("start_bounds_s") else
-                                (e["start_bounds_s"][0] + origin, e["start_bounds_s"][1] + origin))
-                for e in d["events"]])
+        events=[
+            SimpleNamespace(
+                t_start=e["t_start"] + origin,
+                start_bounds=None
+                if not e.get("start_bounds_s")
+                else (e["start_bounds_s"][0] + origin, e["start_bounds_s"][1] + origin),
+            )
+            for e in d["events"]
+        ],
+    )
     mv = match_moves(result, [m for m in moves if a <= m.t_start <= b])
     bad += mv["bad"]
-    return {"covered": cov["share"], "true_covered": 1.0 - true_no / cov["duration_s"], "rate": rate,
-            "pose": (mm, deg), "moves": mv, "bad": bad}
+    return {
+        "covered": cov["share"],
+        "true_covered": 1.0 - true_no / cov["duration_s"],
+        "rate": rate,
+        "pose": (mm, deg),
+        "moves": mv,
+        "bad": bad,
+    }
 
 
 def centre_shift(patient, m) -> tuple[float, float]:
@@ -109,7 +128,9 @@ def centre_shift(patient, m) -> tuple[float, float]:
     R0, t0 = patient.body_transform(m.t_start - 0.01)
     R1, t1 = patient.body_transform(m.t_end + 0.01)
     cos = (np.trace(R1 @ R0.T) - 1.0) / 2.0
-    return float(np.linalg.norm((R1 @ centre + t1) - (R0 @ centre + t0))), float(np.degrees(np.arccos(np.clip(cos, -1, 1))))
+    return float(np.linalg.norm((R1 @ centre + t1) - (R0 @ centre + t0))), float(
+        np.degrees(np.arccos(np.clip(cos, -1, 1)))
+    )
 
 
 def live(scan, moves) -> dict:
@@ -122,14 +143,25 @@ def live(scan, moves) -> dict:
     a, b = st.get("first_frames"), st.get("stopped")
     bad = []
     if a is None or b is None or not summ:
-        return {"reported": None, "truly": None, "unreported": None, "latency": [], "bad": ["the scan did not run live"],
-                "flagged": 0, "other_alerts": 0, "phase": None}
+        return {
+            "reported": None,
+            "truly": None,
+            "unreported": None,
+            "latency": [],
+            "bad": ["the scan did not run live"],
+            "flagged": 0,
+            "other_alerts": 0,
+            "phase": None,
+        }
     seen = observed_instants(scan.truth.times, 2, 0.02)
     truly = stretches_without(seen, a, b, LATE_S)
     rep = [(e["start"], e["end"]) for e in lm.get("not_tracking", [])]
     # stretches the live path was behind the frames, not without them: the host's doing
-    late = sum(e["end"] - e["start"] for e in lm.get("not_tracking", [])
-               if all(r.startswith("frames too late") for r in e.get("reasons", [])))
+    late = sum(
+        e["end"] - e["start"]
+        for e in lm.get("not_tracking", [])
+        if all(r.startswith("frames too late") for r in e.get("reasons", []))
+    )
     unrep = [(s0, s1, (s1 - s0) - overlap(rep, s0, s1)) for s0, s1 in truly]
     for s0, s1, u in unrep:
         if u > EDGE_S:
@@ -179,10 +211,20 @@ def live(scan, moves) -> dict:
                 flagged += 1
             else:
                 bad.append(f"alert {delay:.2f} s after the move at {mv.t_start - a:.1f} s")
-    return {"reported": sum(e1 - e0 for e0, e1 in rep), "late": late, "truly": sum(s1 - s0 for s0, s1 in truly),
-            "stretches": (len(rep), len(truly)), "unreported": sum(max(0.0, u) for *_, u in unrep), "latency": lat,
-            "after": after, "bad": bad, "flagged": flagged, "other_alerts": other, "phase": summ.get("phase"),
-            "live_dropped": sum((summ.get("live_dropped") or {}).values())}
+    return {
+        "reported": sum(e1 - e0 for e0, e1 in rep),
+        "late": late,
+        "truly": sum(s1 - s0 for s0, s1 in truly),
+        "stretches": (len(rep), len(truly)),
+        "unreported": sum(max(0.0, u) for *_, u in unrep),
+        "latency": lat,
+        "after": after,
+        "bad": bad,
+        "flagged": flagged,
+        "other_alerts": other,
+        "phase": summ.get("phase"),
+        "live_dropped": sum((summ.get("live_dropped") or {}).values()),
+    }
 
 
 def slot_truth(prig, scan) -> SimpleNamespace:
@@ -193,8 +235,9 @@ def slot_truth(prig, scan) -> SimpleNamespace:
     names = list(scan.manifest.get("cameras") or {})
     times = exposures(prig.rig.scene, scan.session, names) if names else {}
     dropped, extra = frame_loss(prig.lost, 1.0 / prig.rig.fps, times) if times else (float("nan"), 0)
-    return SimpleNamespace(patient=copy.deepcopy(prig.patient), times=times, period=1.0 / prig.rig.fps,
-                           dropped=dropped, extra=extra)
+    return SimpleNamespace(
+        patient=copy.deepcopy(prig.patient), times=times, period=1.0 / prig.rig.fps, dropped=dropped, extra=extra
+    )
 
 
 def score(scan, loss: float, load: bool, seed: int, bank_live: int) -> dict:
@@ -202,14 +245,27 @@ def score(scan, loss: float, load: bool, seed: int, bank_live: int) -> dict:
     asked; ``bank_live``: frames of the slot the simulated cameras had to render live, not from
     those made ahead)."""
     tr = scan.truth
-    moves = [mv for mv in tr.patient.motion.moves
-             if np.linalg.norm(mv.translation_mm) >= MOVE_MIN[0] or np.linalg.norm(mv.rotation_deg) >= MOVE_MIN[1]]
-    row = {"seed": seed, "cameras": scan.cameras, "loss": loss, "load": load, "dropped": tr.dropped, "extra": tr.extra,
-           "bank_live": bank_live, "wall_s": scan.wall_s, "analysis_s": scan.analysis_wall_s, "exit": scan.returncode,
-           "status": scan.manifest.get("status"),
-           "watched": ((scan.manifest.get("live_motion") or {}).get("summary") or {}).get("watched")}
+    moves = [
+        mv
+        for mv in tr.patient.motion.moves
+        if np.linalg.norm(mv.translation_mm) >= MOVE_MIN[0] or np.linalg.norm(mv.rotation_deg) >= MOVE_MIN[1]
+    ]
+    row = {
+        "seed": seed,
+        "cameras": scan.cameras,
+        "loss": loss,
+        "load": load,
+        "dropped": tr.dropped,
+        "extra": tr.extra,
+        "bank_live": bank_live,
+        "wall_s": scan.wall_s,
+        "analysis_s": scan.analysis_wall_s,
+        "exit": scan.returncode,
+        "status": scan.manifest.get("status"),
+        "watched": ((scan.manifest.get("live_motion") or {}).get("summary") or {}).get("watched"),
+    }
     row["live"] = live(scan, moves)
-    row["agree"] = (scan.analysis or {}).get("live")       # live poses against offline ones (issue 33)
+    row["agree"] = (scan.analysis or {}).get("live")  # live poses against offline ones (issue 33)
     if scan.analysis is None:
         row["offline"] = None
         row["bad"] = row["live"]["bad"] + [scan.analysis_error or "no analysis"]
@@ -217,6 +273,9 @@ def score(scan, loss: float, load: bool, seed: int, bank_live: int) -> dict:
         row["offline"] = offline(scan, moves)
         row["bad"] = row["offline"]["bad"] + row["live"]["bad"]
     off = row["offline"]
-    row["flagged"] = row["live"]["flagged"] + (0 if off is None else (
-        (off["rate"]["status"] in ("unknown", "bounded")) + off["moves"]["bounded"] + off["moves"]["unseen"]))
+    row["flagged"] = row["live"]["flagged"] + (
+        0
+        if off is None
+        else ((off["rate"]["status"] in ("unknown", "bounded")) + off["moves"]["bounded"] + off["moves"]["unseen"])
+    )
     return row

@@ -34,10 +34,10 @@ from vts_hw.sim_devices.patient import BodyMove, add_patient
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.sim_devices.scenarios.sync_session import run_scan_cli
 
-REFERENCE_S = 10.0          # the live reference (vts scan start --reference)
-AHEAD_MARGIN_S = 8.0        # frames made ahead beyond the scan: its start, and scans starting apart
+REFERENCE_S = 10.0  # the live reference (vts scan start --reference)
+AHEAD_MARGIN_S = 8.0  # frames made ahead beyond the scan: its start, and scans starting apart
 SPIN = "import signal, sys\nsignal.signal(signal.SIGTERM, lambda *a: sys.exit(0))\nwhile True:\n    pass\n"
-MOTION_EXIT = (0, 10, 20)   # vts motion analyze ran: OK, TOLERANCE, ACTION
+MOTION_EXIT = (0, 10, 20)  # vts motion analyze ran: OK, TOLERANCE, ACTION
 
 
 @contextlib.contextmanager
@@ -101,11 +101,11 @@ class Scan:
     err: str = ""
     wall_s: float = 0.0
     manifest: dict = field(default_factory=dict)
-    analysis: dict | None = None        # `vts motion analyze --json`, or None
+    analysis: dict | None = None  # `vts motion analyze --json`, or None
     export: Path | None = None
     analysis_error: str = ""
     analysis_wall_s: float = 0.0
-    truth: object = None                # rows.slot_truth: the truth of this scan
+    truth: object = None  # rows.slot_truth: the truth of this scan
 
 
 class PatientRig:
@@ -124,13 +124,16 @@ class PatientRig:
             self.yamls = {}
             for n in self.cameras:
                 c = dict(cfg, cameras=cfg["cameras"][:n])
-                c["calibration"] = dict(cfg["calibration"], cameras=str(self.work / "rig" / (
-                    "calibration.json" if n == 2 else "cameras.json")))
+                c["calibration"] = dict(
+                    cfg["calibration"],
+                    cameras=str(self.work / "rig" / ("calibration.json" if n == 2 else "cameras.json")),
+                )
                 self.yamls[n] = self.work / f"rig-{n}cams.yaml"
                 self.yamls[n].write_text(yaml.safe_dump(c))
             now = self.rig.clock.now()
-            self.patient = add_patient(self.rig.scene, now, self.seconds + 600.0, seed=seed,
-                                       moves=plan_moves(now, self.seconds, seed))
+            self.patient = add_patient(
+                self.rig.scene, now, self.seconds + 600.0, seed=seed, moves=plan_moves(now, self.seconds, seed)
+            )
         except BaseException:
             self.rig.stop()
             raise
@@ -171,8 +174,16 @@ class PatientRig:
     def _one(self, s: Scan) -> None:
         t0 = time.monotonic()
         try:
-            run = run_scan_cli(self.rig, s.rig_yaml, s.session, self.seconds, args=("--reference", f"{REFERENCE_S:g}"),
-                               event="scan", check=False, timeout=self.seconds + 240.0)
+            run = run_scan_cli(
+                self.rig,
+                s.rig_yaml,
+                s.session,
+                self.seconds,
+                args=("--reference", f"{REFERENCE_S:g}"),
+                event="scan",
+                check=False,
+                timeout=self.seconds + 240.0,
+            )
             s.returncode, s.err = run.returncode, run.err
         except (RuntimeError, TimeoutError, subprocess.SubprocessError) as exc:
             s.err = str(exc)
@@ -191,11 +202,30 @@ def analyze(s: Scan, env: dict, nice: int = 10, procs: list | None = None) -> Sc
     priority; fills ``s.analysis`` (its JSON) or ``s.analysis_error``. ``procs``: the running
     process is kept there while it runs (to be ended on Ctrl-C)."""
     s.export = s.session.parent / (s.session.name + "-export")
-    cmd = [sys.executable, "-m", "vts_hw.cli.__main__", "motion", "analyze", str(s.session), "--config",
-           str(s.rig_yaml), "--export", str(s.export), "--json", "--workers", "1"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "vts_hw.cli.__main__",
+        "motion",
+        "analyze",
+        str(s.session),
+        "--config",
+        str(s.rig_yaml),
+        "--export",
+        str(s.export),
+        "--json",
+        "--workers",
+        "1",
+    ]
     t0 = time.monotonic()
-    p = subprocess.Popen(cmd, env={**os.environ, **env}, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         preexec_fn=lambda: os.nice(nice))
+    p = subprocess.Popen(
+        cmd,
+        env={**os.environ, **env},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: os.nice(nice),
+    )
     if procs is not None:
         procs.append(p)
     try:

@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
-RATE_GOAL = 0.5                # /min
-POSE_GOAL = (0.3, 0.2)         # mm, deg RMS in still frames
-MOVE_MIN = (2.0, 1.0)          # a move to be found: mm or deg
-START_GOAL = 0.5               # s
+RATE_GOAL = 0.5  # /min
+POSE_GOAL = (0.3, 0.2)  # mm, deg RMS in still frames
+MOVE_MIN = (2.0, 1.0)  # a move to be found: mm or deg
+START_GOAL = 0.5  # s
 
 
 def true_rate(patient, a: float, b: float) -> float:
@@ -49,14 +49,20 @@ def pose_rms(result, patient) -> tuple[float, float]:
     if not sel.any():
         return float("nan"), float("nan")
     err = result.pose.six_dof()[sel] - np.array([patient.six_dof(float(x)) for x in t[sel]])
-    return (float(np.sqrt(np.mean(np.sum(err[:, :3] ** 2, axis=1)))),
-            float(np.sqrt(np.mean(np.sum(err[:, 3:] ** 2, axis=1)))))
+    return (
+        float(np.sqrt(np.mean(np.sum(err[:, :3] ** 2, axis=1)))),
+        float(np.sqrt(np.mean(np.sum(err[:, 3:] ** 2, axis=1)))),
+    )
 
 
 def true_moves(patient, a: float = -np.inf, b: float = np.inf) -> list:
     """The patient's moves of ``MOVE_MIN`` or more starting in [a, b]."""
-    return [m for m in patient.motion.moves if a <= m.t_start <= b
-            and (np.linalg.norm(m.translation_mm) >= MOVE_MIN[0] or np.linalg.norm(m.rotation_deg) >= MOVE_MIN[1])]
+    return [
+        m
+        for m in patient.motion.moves
+        if a <= m.t_start <= b
+        and (np.linalg.norm(m.translation_mm) >= MOVE_MIN[0] or np.linalg.norm(m.rotation_deg) >= MOVE_MIN[1])
+    ]
 
 
 def match_moves(result, moves) -> dict:
@@ -66,8 +72,16 @@ def match_moves(result, moves) -> dict:
     ``max_err``: the largest start error of those found; ``ranges``: the bounds given;
     ``false``: events matching no true move."""
     t = result.pose.t
-    out = {"moves": len(moves), "found": 0, "bounded": 0, "unseen": 0, "max_err": None, "ranges": [], "false": 0,
-           "bad": []}
+    out = {
+        "moves": len(moves),
+        "found": 0,
+        "bounded": 0,
+        "unseen": 0,
+        "max_err": None,
+        "ranges": [],
+        "false": 0,
+        "bad": [],
+    }
     used = set()
     for m in moves:
         ok = None

@@ -12,8 +12,9 @@ from __future__ import annotations
 
 import os
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Callable, Literal
+from typing import Literal
 
 from vts_hw.camera import CameraError
 from vts_hw.config import CameraConfig
@@ -82,7 +83,7 @@ def search(timeout: float, interfaces: list[str] | None = None, *, mdns: bool = 
     def run(name, job):
         try:
             results[name] = job()
-        except BaseException as exc:   # re-raised below, in the caller's thread
+        except BaseException as exc:  # re-raised below, in the caller's thread
             errors[name] = exc
 
     threads = [threading.Thread(target=run, args=job, name=f"discover-{job[0]}", daemon=True) for job in jobs]
@@ -102,14 +103,24 @@ def confirm(found: Found, user: str | None, password_env: str | None, timeout: f
     ``confirmed`` is False (and ``problem`` says why) when it cannot be asked or does not agree
     with its announcement."""
     has_password = bool(password_env and os.environ.get(password_env) is not None)
-    cfg = CameraConfig(name=found.serial or "camera", host=found.host, port=found.port, scheme=found.scheme,
-                       user=user or "root", password_env=password_env if has_password else None, timeout_s=timeout)
+    cfg = CameraConfig(
+        name=found.serial or "camera",
+        host=found.host,
+        port=found.port,
+        scheme=found.scheme,
+        user=user or "root",
+        password_env=password_env if has_password else None,
+        timeout_s=timeout,
+    )
     try:
         with open_camera(cfg) as cam:
             info = cam.device_info()
     except CameraUnauthorized as exc:
-        why = (f"it asks for a password: set {password_env} (the cameras' password)" if not has_password
-               and password_env else str(exc))
+        why = (
+            f"it asks for a password: set {password_env} (the cameras' password)"
+            if not has_password and password_env
+            else str(exc)
+        )
         return replace(found, confirmed=False, problem=why)
     except CameraError as exc:
         return replace(found, confirmed=False, problem=str(exc))
@@ -117,11 +128,14 @@ def confirm(found: Found, user: str | None, password_env: str | None, timeout: f
     model = info.get("ProdShortName") or info.get("ProdNbr") or found.model
     firmware = info.get("Version", "")
     if found.serial and serial and serial != found.serial:
-        return replace(found, firmware=firmware, confirmed=False,
-                       problem=f"the camera at {found.address} says its serial number is {serial}, "
-                               f"not {found.serial} as announced")
-    return replace(found, serial=serial or found.serial, model=model, firmware=firmware, confirmed=True,
-                   problem="")
+        return replace(
+            found,
+            firmware=firmware,
+            confirmed=False,
+            problem=f"the camera at {found.address} says its serial number is {serial}, "
+            f"not {found.serial} as announced",
+        )
+    return replace(found, serial=serial or found.serial, model=model, firmware=firmware, confirmed=True, problem="")
 
 
 __all__ = ["Announcement", "DiscoveryFailed", "Found", "merge", "search", "confirm"]

@@ -18,8 +18,15 @@ RESOLVE_MS = 2000
 
 def browse(timeout: float, interfaces: list[str] | None = None) -> list[Announcement]:
     """Every ``_axis-video._tcp`` instance heard within ``timeout`` seconds."""
-    from zeroconf import (DNSQuestionType, InterfaceChoice, IPVersion, ServiceBrowser, ServiceInfo, ServiceStateChange,
-                          Zeroconf)
+    from zeroconf import (
+        DNSQuestionType,
+        InterfaceChoice,
+        IPVersion,
+        ServiceBrowser,
+        ServiceInfo,
+        ServiceStateChange,
+        Zeroconf,
+    )
 
     names: set[str] = set()
     lock = threading.Lock()
@@ -46,7 +53,7 @@ def browse(timeout: float, interfaces: list[str] | None = None) -> list[Announce
         for name in heard:
             info = ServiceInfo(SERVICE, name)
             if not info.request(zc, RESOLVE_MS, question_type=DNSQuestionType.QM):
-                continue   # gone between its announcement and now: not a camera to set up
+                continue  # gone between its announcement and now: not a camera to set up
             found = from_info(name, info)
             if found is not None:
                 out.append(found)
@@ -64,9 +71,12 @@ def from_info(name: str, info) -> Announcement | None:
         return None
     instance = name[: -len(SERVICE) - 1] if name.endswith("." + SERVICE) else name
     model, sep, tail = instance.rpartition(" - ")
-    props = {(k.decode("utf-8", "replace") if isinstance(k, bytes) else str(k)).lower():
-             (v.decode("utf-8", "replace") if isinstance(v, bytes) else (v or ""))
-             for k, v in (info.properties or {}).items()}
+    props = {
+        (k.decode("utf-8", "replace") if isinstance(k, bytes) else str(k)).lower(): (
+            v.decode("utf-8", "replace") if isinstance(v, bytes) else (v or "")
+        )
+        for k, v in (info.properties or {}).items()
+    }
     serial = props.get("macaddress", "") or (tail if sep else "")
     serial = "".join(ch for ch in serial if ch.isalnum()).upper()
     return Announcement("mdns", addresses[0], int(info.port), serial, model.strip() if sep else instance)

@@ -30,14 +30,25 @@ _NS = "{urn:schemas-upnp-org:device-1-0}"
 def all_ipv4() -> list[str]:
     """Every IPv4 address of this host (ifaddr: zeroconf's own dependency)."""
     import ifaddr
-    return sorted({ip.ip for adapter in ifaddr.get_adapters() for ip in adapter.ips
-                   if isinstance(ip.ip, str) and not ip.ip.startswith("169.254.")})
+
+    return sorted(
+        {
+            ip.ip
+            for adapter in ifaddr.get_adapters()
+            for ip in adapter.ips
+            if isinstance(ip.ip, str) and not ip.ip.startswith("169.254.")
+        }
+    )
 
 
 def m_search(mx: int, port: int = PORT) -> bytes:
     """The request, byte for byte."""
-    return bytes(SSDPRequest("M-SEARCH", headers=[("HOST", f"{GROUP}:{port}"), ("MAN", '"ssdp:discover"'),
-                                                  ("MX", str(mx)), ("ST", SEARCH_TARGET)]))
+    return bytes(
+        SSDPRequest(
+            "M-SEARCH",
+            headers=[("HOST", f"{GROUP}:{port}"), ("MAN", '"ssdp:discover"'), ("MX", str(mx)), ("ST", SEARCH_TARGET)],
+        )
+    )
 
 
 def search(timeout: float, interfaces: list[str] | None = None, *, port: int = PORT) -> list[Announcement]:

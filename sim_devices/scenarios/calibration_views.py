@@ -27,7 +27,7 @@ from vts_hw.vision.detect import detect
 from vts_hw.vision.multi_compare import against_truth
 from vts_hw.vision.registration import difference
 
-SIM_FRAMES = 5          # noisy frames averaged per camera in `vts calibrate spect --sim`
+SIM_FRAMES = 5  # noisy frames averaged per camera in `vts calibrate spect --sim`
 
 
 def sim_square_mm() -> float:
@@ -39,8 +39,9 @@ def sim_views(seed: int, n: int, pattern=(9, 6), square_mm: float | None = None)
     """``n`` rendered stereo views of the board held before the reference rig of ``seed``:
     (pairs, names, truth) with ``truth`` the rig's two true cameras (cam1, cam2) as a calibration in mm."""
     scene = Scene.reference(seed, start_epoch=0.0)
-    pairs, names = cb.render_pairs(scene, n=n, seed=seed, pattern=pattern,
-                                   square_mm=cb.SQUARE_MM if square_mm is None else square_mm)
+    pairs, names = cb.render_pairs(
+        scene, n=n, seed=seed, pattern=pattern, square_mm=cb.SQUARE_MM if square_mm is None else square_mm
+    )
     return pairs, names, true_stereo_calibration(scene)
 
 
@@ -60,8 +61,7 @@ def sim_spect_inputs(seed: int, workdir: Path) -> tuple[np.ndarray, Path, dict]:
     for cam in names:
         scene.set_led(cam, True, t - 1)
     renderer = Renderer(scene, seed=seed)
-    pts = [average_centroids([detect(renderer.render(cam, t)) for _ in range(SIM_FRAMES)])
-           for cam in names]
+    pts = [average_centroids([detect(renderer.render(cam, t)) for _ in range(SIM_FRAMES)]) for cam in names]
     # the true cameras in camera 1's frame, as a perfect stereo calibration would give them
     cams = true_stereo_calibration(scene, t, names).cameras(names)
     spheres_true = sphere_centres(scene, t)
@@ -79,8 +79,7 @@ def sim_spect_inputs(seed: int, workdir: Path) -> tuple[np.ndarray, Path, dict]:
         "vts_frame": "camera 1",
         "spheres_found_by": "the shape of the SPECT centroids among the stereo hypotheses",
         "shape_rms_mm": fit.rms_mm,
-        "triangulation_error_mm": {"rms": float(np.sqrt(np.mean(tri_err ** 2))),
-                                   "max": float(tri_err.max())},
+        "triangulation_error_mm": {"rms": float(np.sqrt(np.mean(tri_err**2))), "max": float(tri_err.max())},
         "phantom_centre_spect_mm": spheres_true.mean(axis=0),
         "truth": truth,
     }
@@ -93,14 +92,16 @@ def compare_mapping_with_truth(mapping, info: dict) -> dict:
     d = difference(truth, est)
     centre_vts = truth.inverse().apply(info["phantom_centre_spect_mm"])
     at_phantom = np.linalg.norm(est.apply(centre_vts) - truth.apply(centre_vts))
-    return {"rotation_error_deg": d.angle_deg,
-            "translation_error_at_phantom_mm": float(at_phantom),
-            "translation_error_at_origin_mm": d.translation_norm_mm,
-            "true_transform": {"R": truth.R.tolist(), "t_mm": truth.t.tolist()}}
+    return {
+        "rotation_error_deg": d.angle_deg,
+        "translation_error_at_phantom_mm": float(at_phantom),
+        "translation_error_at_origin_mm": d.translation_norm_mm,
+        "true_transform": {"R": truth.R.tolist(), "t_mm": truth.t.tolist()},
+    }
 
 
 # ------------------------------------------------------------------ N cameras
-FOV_BOX_MM = (250.0, 150.0, 250.0)   # half-sizes (X, Y, Z) of the box of points the 3D error is measured on
+FOV_BOX_MM = (250.0, 150.0, 250.0)  # half-sizes (X, Y, Z) of the box of points the 3D error is measured on
 FOV_POINTS = 400
 
 
@@ -113,8 +114,9 @@ def true_cameras(scene, names=None, square_mm: float = 1.0, pattern=(9, 6)):
         c = scene.cameras[n]
         R = c.R @ ref.R.T
         fits.append(CameraFit(n, c.K, c.dist, R, c.t - R @ ref.t, (int(c.width), int(c.height))))
-    return CameraCalibration(fits, tuple(pattern), float(square_mm), "mm", 0.0, [],
-                             "simulated rig: the scene's true cameras", method="truth")
+    return CameraCalibration(
+        fits, tuple(pattern), float(square_mm), "mm", 0.0, [], "simulated rig: the scene's true cameras", method="truth"
+    )
 
 
 def fov_points(scene, names=None, seed: int = 99) -> np.ndarray:
@@ -126,8 +128,9 @@ def fov_points(scene, names=None, seed: int = 99) -> np.ndarray:
     return ref.to_camera(world)
 
 
-def sim_camera_views(seed: int, n_cameras: int, per_pair: int, pattern=(9, 6), square_mm: float | None = None,
-                     scene=None):
+def sim_camera_views(
+    seed: int, n_cameras: int, per_pair: int, pattern=(9, 6), square_mm: float | None = None, scene=None
+):
     """Checkerboard views for an N-camera calibration of the reference rig with ``n_cameras``
     (or of ``scene``): the board held ``per_pair`` times towards each pair of cameras that
     :func:`vts_hw.sim_devices.board_plan.plan_views` chooses, rendered (JPEG, noise) in those
@@ -144,11 +147,17 @@ def sim_camera_views(seed: int, n_cameras: int, per_pair: int, pattern=(9, 6), s
             k += 1
             view = f"v{k:02d}"
             for i, cam in enumerate((a, b)):
-                images[cam][view] = cb.decode(cb.render_board(scene, cam, pose, pattern, square_mm,
-                                                              seed=seed * 10007 + 2 * k + i))
-    info = {"seed": seed, "n_cameras": len(names), "pairs": [{"cameras": list(p), "views": len(v)} for p, v in plan],
-            "held_for": "each view is rendered in the two cameras it is held towards",
-            "fov_box_mm": list(FOV_BOX_MM), "fov_points": fov_points(scene, names)}
+                images[cam][view] = cb.decode(
+                    cb.render_board(scene, cam, pose, pattern, square_mm, seed=seed * 10007 + 2 * k + i)
+                )
+    info = {
+        "seed": seed,
+        "n_cameras": len(names),
+        "pairs": [{"cameras": list(p), "views": len(v)} for p, v in plan],
+        "held_for": "each view is rendered in the two cameras it is held towards",
+        "fov_box_mm": list(FOV_BOX_MM),
+        "fov_points": fov_points(scene, names),
+    }
     return images, true_cameras(scene, names, square_mm, pattern), info
 
 
@@ -156,7 +165,9 @@ def cameras_against_truth(calib, truth, points) -> dict:
     """The calibration's errors against the simulated truth (:func:`vts_hw.vision.multi_compare.against_truth`
     on the FOV points ``info["fov_points"]`` of :func:`sim_camera_views`), with what the points were."""
     out = against_truth(calib, truth, points)
-    out["points_3d"]["where"] = (f"{FOV_POINTS} points uniform in ±{FOV_BOX_MM[0]:g} x ±{FOV_BOX_MM[1]:g} x"
-                                 f" ±{FOV_BOX_MM[2]:g} mm about the FOV centre, projected exactly by the true"
-                                 " cameras, triangulated with the calibrated ones in the reference camera's frame")
+    out["points_3d"]["where"] = (
+        f"{FOV_POINTS} points uniform in ±{FOV_BOX_MM[0]:g} x ±{FOV_BOX_MM[1]:g} x"
+        f" ±{FOV_BOX_MM[2]:g} mm about the FOV centre, projected exactly by the true"
+        " cameras, triangulated with the calibrated ones in the reference camera's frame"
+    )
     return out

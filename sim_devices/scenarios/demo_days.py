@@ -11,18 +11,18 @@ drift trend report is written (HTML and PDF).
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 from vts_hw.config import parse_rig
-from vts_hw.room import Room
 from vts_hw.procedures.baseline import BaselineSet, take_baseline
 from vts_hw.procedures.daily import QARun
 from vts_hw.report import build_drift_report
 from vts_hw.report.build import build_rooms_report
+from vts_hw.room import Room
 from vts_hw.sim_devices.clock import VirtualClock
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.sim_devices.scenarios.step_chain import run_sim_steps
@@ -67,8 +67,15 @@ def injected_drift(scene, cam: str, t0: float, t1: float) -> tuple[float, float]
     return float(d[:, 0].mean()), float(d[:, 1].mean())
 
 
-def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 5, seed: int = 0,
-             on_day: Callable[[DayRow], None] | None = None, on_step: Callable[[str], None] | None = None) -> DemoResult:
+def run_demo(
+    out: str | Path,
+    days: int = 60,
+    n_cameras: int = 2,
+    frames: int = 5,
+    seed: int = 0,
+    on_day: Callable[[DayRow], None] | None = None,
+    on_step: Callable[[str], None] | None = None,
+) -> DemoResult:
     say = on_step or (lambda m: None)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -76,8 +83,12 @@ def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 
     for p in out.glob("results.sqlite*"):
         p.unlink()  # a fresh store each demo: its history is the demo's 60 days
     clock = VirtualClock(time.time() - days * DAY)  # the demo's last day is today
-    with SimRig(n_cameras=n_cameras, seed=seed, clock=clock,
-                drift_px_per_60_days={FAST_CAMERA: FAST_DRIFT_PX_PER_60_DAYS}) as rig, rig.env():
+    with (
+        SimRig(
+            n_cameras=n_cameras, seed=seed, clock=clock, drift_px_per_60_days={FAST_CAMERA: FAST_DRIFT_PX_PER_60_DAYS}
+        ) as rig,
+        rig.env(),
+    ):
         base = rig.config().model_dump(mode="json", exclude_none=True)
         base["results"] = {"url": f"sqlite:///{db.resolve()}"}
         base["rig"] = "sim-demo"
@@ -90,21 +101,45 @@ def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 
             with Room(cfg, clock=clock.now) as room:
                 for c in cfg.cameras:
                     baselines.append(take_baseline(room.camera(c.name), frames, clock.now))
-            record(store, BaselineSet(baselines), rig=cfg.rig, operator="demo", tolerances=cfg.tolerances,
-                   started=t_base, finished=t_base, clock=clock.now)
+            record(
+                store,
+                BaselineSet(baselines),
+                rig=cfg.rig,
+                operator="demo",
+                tolerances=cfg.tolerances,
+                started=t_base,
+                finished=t_base,
+                clock=clock.now,
+            )
             stored_baselines = load_baselines(store, [c.name for c in cfg.cameras], cfg.rig)
             say(f"day 0: baseline set ({', '.join(f'{b.camera}: {len(b.markers)} markers' for b in baselines)})")
             rows: list[DayRow] = []
             for day in range(1, days + 1):
                 clock.advance(t_base + day * DAY - clock.now())  # day `day` after the baseline
                 rig.ntp_sync(clock.now() - 1800.0)  # the cameras' NTP synced their clocks half an hour ago
-                day_room = Room(cfg, clock=clock.now)       # the day's cameras, closed with it
-                qa = QARun(cfg, baselines=stored_baselines, n_frames=frames, clock=clock.now,
-                           open_camera=lambda c, room=day_room: room.camera(c.name),
-                           artifacts_dir=out / "artifacts", plots=(day == days))
+                day_room = Room(cfg, clock=clock.now)  # the day's cameras, closed with it
+                qa = QARun(
+                    cfg,
+                    baselines=stored_baselines,
+                    n_frames=frames,
+                    clock=clock.now,
+                    open_camera=lambda c, room=day_room: room.camera(c.name),
+                    artifacts_dir=out / "artifacts",
+                    plots=(day == days),
+                )
                 now = clock.now()
-                with day_room, Recorder(store, qa.procedure, rig=cfg.rig, operator="demo", tolerances=cfg.tolerances,
-                                        started=now, clock=clock.now) as rec:
+                with (
+                    day_room,
+                    Recorder(
+                        store,
+                        qa.procedure,
+                        rig=cfg.rig,
+                        operator="demo",
+                        tolerances=cfg.tolerances,
+                        started=now,
+                        clock=clock.now,
+                    ) as rec,
+                ):
                     res = qa.run(started=now, run_id=rec.run_id)
                     rec.finish(res, artifacts=res.artifacts, finished=res.finished)
                 row = DayRow(day, res.started, str(res.state))
@@ -114,19 +149,27 @@ def run_demo(out: str | Path, days: int = 60, n_cameras: int = 2, frames: int = 
                         row.cameras[c.camera] = {"state": str(c.state)}
                         continue
                     tx, ty = injected_drift(scene, c.camera, t_base, res.started)
-                    row.cameras[c.camera] = {"dx": d.drift_px[0], "dy": d.drift_px[1], "truth_dx": tx,
-                                             "truth_dy": ty, "state": str(c.state)}
+                    row.cameras[c.camera] = {
+                        "dx": d.drift_px[0],
+                        "dy": d.drift_px[1],
+                        "truth_dx": tx,
+                        "truth_dy": ty,
+                        "state": str(c.state),
+                    }
                 rows.append(row)
                 if on_day:
                     on_day(row)
             say(STEPS_START)
-            steps = run_sim_steps(out / "steps", seed, store=store, rig=rig, operator="demo",
-                                  tolerances=cfg.tolerances, rig_name=cfg.rig)
+            steps = run_sim_steps(
+                out / "steps", seed, store=store, rig=rig, operator="demo", tolerances=cfg.tolerances, rig_name=cfg.rig
+            )
             sc = steps.scores
             say(steps.analysis.results())
-            say(f"against the truth: VTS 3D RMS {sc['position_rms_mm']:.3f} mm (goal <= 0.15), 6-DOF move "
+            say(
+                f"against the truth: VTS 3D RMS {sc['position_rms_mm']:.3f} mm (goal <= 0.15), 6-DOF move "
                 f"rotation {sc['move_rotation_error_deg']:.4f} deg (goal <= 0.05), translation "
-                f"{sc['move_translation_error_mm']:.3f} mm (goal <= 0.1)")
+                f"{sc['move_translation_error_mm']:.3f} mm (goal <= 0.1)"
+            )
             now = clock.now()
             say(REPORTS_START)
             html = out / "drift-report.html"

@@ -21,9 +21,9 @@ import json
 import shutil
 import subprocess
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -32,7 +32,7 @@ from vts_hw.sim_devices.patient_rig import PatientOptions
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.sim_devices.scenarios.patient_scan import patient_scan
 
-MOTION_EXIT_CODES = (0, 10, 20)      # OK, TOLERANCE, ACTION: the analysis ran
+MOTION_EXIT_CODES = (0, 10, 20)  # OK, TOLERANCE, ACTION: the analysis ran
 
 
 @dataclass
@@ -40,36 +40,40 @@ class DemoPatientScan:
     session: Path
     report: Path
     export: Path
-    data: dict                   # `vts motion analyze --json`
-    move: dict                   # the true move: start (host s, list-mode s), translation, rotation
-    found: dict | None           # the event matching it: start error (s), size errors
-    alerts: list[dict]           # the live alerts in the manifest, with their delay after the move
-    rate_per_min: tuple[float, float]       # breathing rate: measured, true
-    pose_error: tuple[float, float]         # body 6-DOF RMS in still frames: mm, deg
-    notes: tuple[str, ...] = ()             # what degraded the recording, in plain words (none: whole)
-    no_alert_why: str = ""       # with no live alert: why, from the manifest ("" : the live path watched and raised none)
+    data: dict  # `vts motion analyze --json`
+    move: dict  # the true move: start (host s, list-mode s), translation, rotation
+    found: dict | None  # the event matching it: start error (s), size errors
+    alerts: list[dict]  # the live alerts in the manifest, with their delay after the move
+    rate_per_min: tuple[float, float]  # breathing rate: measured, true
+    pose_error: tuple[float, float]  # body 6-DOF RMS in still frames: mm, deg
+    notes: tuple[str, ...] = ()  # what degraded the recording, in plain words (none: whole)
+    no_alert_why: str = ""  # with no live alert: why, from the manifest ("" : the live path watched and raised none)
 
 
-def demo_patient_scan(out_dir, seconds: float = 30.0, *, say: Callable[[str], None] = lambda m: None
-                      ) -> DemoPatientScan:
+def demo_patient_scan(
+    out_dir, seconds: float = 30.0, *, say: Callable[[str], None] = lambda m: None
+) -> DemoPatientScan:
     """The patient scan of ``seconds`` (at least 24), its analysis, scored against the truth.
     RuntimeError with the command's own message when a step fails."""
     out_dir = Path(out_dir)
     session = out_dir / "patient-scan"
     for old in (session, out_dir / "patient-scan.vtslm", out_dir / "patient-export"):
         if old.is_dir():
-            shutil.rmtree(old)        # the demo's own files from an earlier run
+            shutil.rmtree(old)  # the demo's own files from an earlier run
         elif old.exists():
             old.unlink()
-    move_at = max(16.0, 0.6 * seconds)     # after the live reference (10 s of tracking, from ~3 s into the plan)
-    options = PatientOptions(seed=3, moves=1, minutes=max(1.0, (seconds + 60.0) / 60.0), still_s=6.0,
-                             move_at_s=(move_at,))
+    move_at = max(16.0, 0.6 * seconds)  # after the live reference (10 s of tracking, from ~3 s into the plan)
+    options = PatientOptions(
+        seed=3, moves=1, minutes=max(1.0, (seconds + 60.0) / 60.0), still_s=6.0, move_at_s=(move_at,)
+    )
     rig = SimRig(n_cameras=2, seed=5, trigger="triggerbox", patient=options).start()
     try:
         rig_yaml, _ = rig.write(out_dir / "patient-rig")
         say(f"making the cameras' frames for the scan ahead of time ({seconds:g} s, 2 cameras) ...")
-        say(f"vts scan start --duration {seconds:g} -o {session}  (a breathing patient on the table, live "
-            "tracking on; the body moves once)")
+        say(
+            f"vts scan start --duration {seconds:g} -o {session}  (a breathing patient on the table, live "
+            "tracking on; the body moves once)"
+        )
         run = patient_scan(rig, rig_yaml, session, seconds, truth_dir=out_dir / "patient-truth")
         notes = recording_notes(session, rig.bank)
     finally:
@@ -79,8 +83,23 @@ def demo_patient_scan(out_dir, seconds: float = 30.0, *, say: Callable[[str], No
     for note in notes:
         say(f"  DEGRADED: {note}")
     report, export = out_dir / "motion-report.html", out_dir / "patient-export"
-    cmd = [sys.executable, "-m", "vts_hw.cli.__main__", "motion", "analyze", str(session), "--listmode",
-           str(run.listmode), "--config", str(rig_yaml), "-o", str(report), "--export", str(export), "--json"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "vts_hw.cli.__main__",
+        "motion",
+        "analyze",
+        str(session),
+        "--listmode",
+        str(run.listmode),
+        "--config",
+        str(rig_yaml),
+        "-o",
+        str(report),
+        "--export",
+        str(export),
+        "--json",
+    ]
     say(f"vts motion analyze {session} --listmode {run.listmode} -o {report} --export {export}")
     p = subprocess.run(cmd, capture_output=True, text=True, **child_options())
     if p.returncode not in MOTION_EXIT_CODES:
@@ -101,15 +120,19 @@ def recording_notes(session: Path, bank=None) -> list[str]:
         notes.append(f"the recording is {m.get('status')}: {problems}")
     for name, cam in sorted((m.get("cameras") or {}).items()):
         if cam.get("dropped_frames"):
-            notes.append(f"camera {name} lost {cam['dropped_frames']} frame(s) in {len(cam.get('gaps') or [])} "
-                         "gap(s): the figures below rest on the time it saw, not the whole scan")
+            notes.append(
+                f"camera {name} lost {cam['dropped_frames']} frame(s) in {len(cam.get('gaps') or [])} "
+                "gap(s): the figures below rest on the time it saw, not the whole scan"
+            )
     times = (m.get("scan") or {}).get("times") or {}
     if bank is not None:
         live = bank.missed_between(times.get("scan_started", float("-inf")), times.get("stopped", float("inf")))
         if live:
             why = ", ".join(f"{k}: {v}" for k, v in sorted(live.items()))
-            notes.append(f"{sum(live.values())} frame(s) of the scan were rendered live, not ahead ({why}): "
-                         "on a busy machine they come late")
+            notes.append(
+                f"{sum(live.values())} frame(s) of the scan were rendered live, not ahead ({why}): "
+                "on a busy machine they come late"
+            )
     return notes
 
 
@@ -117,8 +140,12 @@ def _score(run, data, session, report, export, notes=()) -> DemoPatientScan:
     spect, patient = run.spect, run.patient
     (m,) = run.moves_in_window()
     t_list = float(spect.list_time(m.t_start))
-    move = {"t_start_host": m.t_start, "t_start_list": t_list,
-            "translation_mm": float(np.linalg.norm(m.translation_mm)), "rotation_deg": float(np.linalg.norm(m.rotation_deg))}
+    move = {
+        "t_start_host": m.t_start,
+        "t_start_list": t_list,
+        "translation_mm": float(np.linalg.norm(m.translation_mm)),
+        "rotation_deg": float(np.linalg.norm(m.rotation_deg)),
+    }
     found = None
     if data["events"]:
         e = min(data["events"], key=lambda e: abs(e["t_start"] + data["time_origin"] - t_list))
@@ -126,22 +153,34 @@ def _score(run, data, session, report, export, notes=()) -> DemoPatientScan:
         after = patient.six_dof(m.t_end + 0.1)
         change = np.asarray(e["change_6dof"], float)
         true_change = after - before
-        found = {"start_error_s": e["t_start"] + data["time_origin"] - t_list,
-                 "translation_error_mm": float(np.linalg.norm(change[:3] - true_change[:3])),
-                 "rotation_error_deg": float(np.linalg.norm(change[3:] - true_change[3:])),
-                 "events": len(data["events"])}
+        found = {
+            "start_error_s": e["t_start"] + data["time_origin"] - t_list,
+            "translation_error_mm": float(np.linalg.norm(change[:3] - true_change[:3])),
+            "rotation_error_deg": float(np.linalg.norm(change[3:] - true_change[3:])),
+            "events": len(data["events"]),
+        }
     manifest = json.loads((session / "manifest.json").read_text())
-    alerts = [{**a, "delay_s": a["raised"] - m.t_start}
-              for a in manifest.get("live_motion", {}).get("alerts", [])]
+    alerts = [{**a, "delay_s": a["raised"] - m.t_start} for a in manifest.get("live_motion", {}).get("alerts", [])]
     # breathing rate: the truth's cycles inside the recording
     a, b = run.window
-    true_cycles = [c for c in patient.breathing.cycles if a <= c.t_start and c.t_start + c.period_s <= b
-                   and c.kind != "pause"]
+    true_cycles = [
+        c for c in patient.breathing.cycles if a <= c.t_start and c.t_start + c.period_s <= b and c.kind != "pause"
+    ]
     true_rate = float(np.mean([60.0 / c.period_s for c in true_cycles])) if true_cycles else float("nan")
     rate = data["summary"].get("breathing_rate_per_min") or float("nan")
-    return DemoPatientScan(session, report, export, data, move, found, alerts, (float(rate), true_rate),
-                           _pose_error(export / "motion_6dof.csv", spect, patient, m), notes,
-                           "" if alerts else unwatched_move(manifest.get("live_motion") or {}, m.t_start))
+    return DemoPatientScan(
+        session,
+        report,
+        export,
+        data,
+        move,
+        found,
+        alerts,
+        (float(rate), true_rate),
+        _pose_error(export / "motion_6dof.csv", spect, patient, m),
+        notes,
+        "" if alerts else unwatched_move(manifest.get("live_motion") or {}, m.t_start),
+    )
 
 
 def unwatched_move(lm: dict, t_start: float) -> str:
@@ -159,8 +198,10 @@ def unwatched_move(lm: dict, t_start: float) -> str:
     if blind:
         secs = sum(min(e["end"], due) - max(e["start"], t_start) for e in blind)
         reasons = sorted({r for e in blind for r in e.get("reasons", [])})
-        return (f"NOT TRACKING for {secs:.1f} s of the {due - t_start:.1f} s its alert was due in "
-                f"({'; '.join(reasons)}), and said so live")
+        return (
+            f"NOT TRACKING for {secs:.1f} s of the {due - t_start:.1f} s its alert was due in "
+            f"({'; '.join(reasons)}), and said so live"
+        )
     return ""
 
 
@@ -173,5 +214,7 @@ def _pose_error(path: Path, spect, patient, move) -> tuple[float, float]:
     keep = (t_host < move.t_start - 1.0) | (t_host > move.t_end + 1.0)
     truth = np.array([patient.six_dof(float(t)) for t in t_host[keep]])
     err = six[keep] - truth
-    return (float(np.sqrt(np.mean(np.sum(err[:, :3] ** 2, axis=1)))),
-            float(np.sqrt(np.mean(np.sum(err[:, 3:] ** 2, axis=1)))))
+    return (
+        float(np.sqrt(np.mean(np.sum(err[:, :3] ** 2, axis=1)))),
+        float(np.sqrt(np.mean(np.sum(err[:, 3:] ** 2, axis=1)))),
+    )

@@ -15,19 +15,19 @@ import shutil
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
-from vts_hw.room import Room
 from vts_hw.files import check_folder, write_atomic
 from vts_hw.lifeline import child_options
 from vts_hw.recording.capture import Recorder
 from vts_hw.recording.promised import info
+from vts_hw.room import Room
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.sim_devices.scenarios import sync_session as sync_sim
 
-SYNC_EXIT_CODES = (0, 10, 20)      # OK, TOLERANCE, ACTION: the analysis ran
+SYNC_EXIT_CODES = (0, 10, 20)  # OK, TOLERANCE, ACTION: the analysis ran
 
 
 @dataclass
@@ -37,9 +37,9 @@ class CameraLook:
     firmware: str
     vapix: str
     clock_offset_s: float
-    lit: Path                # the LED-on snapshot
-    dark: Path               # the LED-off snapshot
-    lit_bright_px: int       # pixels above 128 in each
+    lit: Path  # the LED-on snapshot
+    dark: Path  # the LED-off snapshot
+    lit_bright_px: int  # pixels above 128 in each
     dark_bright_px: int
 
 
@@ -49,7 +49,7 @@ class CameraTour:
     cameras: list[CameraLook]
     recording: Path
     manifest: dict
-    streams: list = field(default_factory=list)     # recording.promised.info(): per camera frames, fps, gaps
+    streams: list = field(default_factory=list)  # recording.promised.info(): per camera frames, fps, gaps
 
 
 def _record_plainly(rec, seconds: float) -> dict:
@@ -58,8 +58,9 @@ def _record_plainly(rec, seconds: float) -> dict:
     return rec.finish()
 
 
-def camera_tour(out_dir, seconds: float, *, record: Callable | None = None,
-                say: Callable[[str], None] = lambda m: None) -> CameraTour:
+def camera_tour(
+    out_dir, seconds: float, *, record: Callable | None = None, say: Callable[[str], None] = lambda m: None
+) -> CameraTour:
     """Two simulated cameras through the real driver: info, clock, LED snapshots, a recording of
     ``seconds``. ``record(recorder, seconds) -> manifest`` runs the recording (default: to its
     end, silently; the CLI passes its progress display)."""
@@ -70,7 +71,7 @@ def camera_tour(out_dir, seconds: float, *, record: Callable | None = None,
         cfg = rig.config()
         urls = {c.name: c.base_url for c in cfg.cameras}
         say(f"simulated rig up: {', '.join(f'{n} at {u}' for n, u in urls.items())}")
-        with Room(cfg) as room:                        # its cameras closed with it
+        with Room(cfg) as room:  # its cameras closed with it
             cams = room.cameras
             for cam in cams:
                 dev = cam.device_info()
@@ -83,32 +84,46 @@ def camera_tour(out_dir, seconds: float, *, record: Callable | None = None,
                 lit_path, dark_path = out_dir / f"{cam.name}-led-on.jpg", out_dir / f"{cam.name}-led-off.jpg"
                 write_atomic(dark_path, dark.jpeg)
                 write_atomic(lit_path, lit.jpeg)
-                looks.append(CameraLook(cam.name, dev.get("ProdNbr", "?"), dev.get("Version", "?"),
-                                        str(cam.vapix_version), off.offset_s, lit_path, dark_path,
-                                        bright_pixels(lit.jpeg), bright_pixels(dark.jpeg)))
+                looks.append(
+                    CameraLook(
+                        cam.name,
+                        dev.get("ProdNbr", "?"),
+                        dev.get("Version", "?"),
+                        str(cam.vapix_version),
+                        off.offset_s,
+                        lit_path,
+                        dark_path,
+                        bright_pixels(lit.jpeg),
+                        bright_pixels(dark.jpeg),
+                    )
+                )
             rec_dir = out_dir / "recording"
-            if check_folder(rec_dir, "demo's recording folder"):   # a link, FIFO or device there: refused
-                shutil.rmtree(rec_dir)   # the demo's own recording from an earlier run: a recording refuses a full folder
+            if check_folder(rec_dir, "demo's recording folder"):  # a link, FIFO or device there: refused
+                shutil.rmtree(
+                    rec_dir
+                )  # the demo's own recording from an earlier run: a recording refuses a full folder
             say(f"recording {seconds:g} s from {len(cams)} cameras into {rec_dir} ...")
-            manifest = (record or _record_plainly)(Recorder(cams, rec_dir, seconds=seconds,
-                                                            meta={"rig": cfg.rig}), seconds)
+            manifest = (record or _record_plainly)(
+                Recorder(cams, rec_dir, seconds=seconds, meta={"rig": cfg.rig}), seconds
+            )
     return CameraTour(urls, looks, rec_dir, manifest, list(info(rec_dir)))
 
 
 def bright_pixels(jpeg: bytes) -> int:
     import cv2
     import numpy as np
+
     img = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_GRAYSCALE)
     return int((img > 128).sum())
 
 
 @dataclass
 class DemoScan:
-    run: object                  # sync_session.SimSyncScan: the session, list-mode and truth
+    run: object  # sync_session.SimSyncScan: the session, list-mode and truth
     rig_yaml: Path
     report: Path
-    data: dict                   # `vts sync analyze --json`
-    moves: list[dict]            # per true move: found, errors of each system (s), seen_by
+    data: dict  # `vts sync analyze --json`
+    moves: list[dict]  # per true move: found, errors of each system (s), seen_by
 
 
 def demo_scan(out_dir, seconds: float, *, say: Callable[[str], None] = lambda m: None) -> DemoScan:
@@ -117,20 +132,36 @@ def demo_scan(out_dir, seconds: float, *, say: Callable[[str], None] = lambda m:
     out_dir = Path(out_dir)
     scan_dir = out_dir / "scan"
     if scan_dir.exists():
-        shutil.rmtree(scan_dir)      # a scan refuses a folder that is not empty
+        shutil.rmtree(scan_dir)  # a scan refuses a folder that is not empty
     rig = SimRig(n_cameras=2, seed=3, trigger="triggerbox").start()
     try:
         rig_yaml, _ = rig.write(out_dir / "scan-rig")
         marker = sync_sim.prepare(rig)
-        say(f"vts scan start --duration {seconds:g} -o {scan_dir}  (trigger box firmware in the "
-            "emulator; a source marker moved along the table)")
+        say(
+            f"vts scan start --duration {seconds:g} -o {scan_dir}  (trigger box firmware in the "
+            "emulator; a source marker moved along the table)"
+        )
         run = sync_sim.cli_scan(rig, rig_yaml, scan_dir, seconds, marker, n=3, seed=1)
     finally:
         rig.stop()
     report = out_dir / "sync-report.html"
-    cmd = [sys.executable, "-m", "vts_hw.cli.__main__", "sync", "analyze", str(run.session),
-           "--listmode", str(run.listmode), "--config", str(rig_yaml), "-o", str(report),
-           "--export", str(out_dir / "trajectories"), "--json"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "vts_hw.cli.__main__",
+        "sync",
+        "analyze",
+        str(run.session),
+        "--listmode",
+        str(run.listmode),
+        "--config",
+        str(rig_yaml),
+        "-o",
+        str(report),
+        "--export",
+        str(out_dir / "trajectories"),
+        "--json",
+    ]
     say(f"vts sync analyze {run.session} --listmode {run.listmode} -o {report}")
     p = subprocess.run(cmd, capture_output=True, text=True, **child_options())
     if p.returncode not in SYNC_EXIT_CODES:

@@ -48,14 +48,14 @@ PRERENDER_MARGIN_S = 5.0
 class PatientScan:
     """What a simulated patient scan did."""
 
-    session: Path                       # the recording folder `vts scan start` wrote
-    listmode: Path | None               # the simulated SPECT's list-mode (None: no trigger box)
-    spect: ListModeTruth | None         # its truth (start delay, clock, counts' sources)
-    patient: Patient                    # the truth: poses, breathing, moves, marker positions
-    fire_host: float                    # when the trigger fired (host s)
-    window: tuple[float, float]         # host s of the first and last frame recorded (any camera)
-    truth_files: list[Path]             # what write_truth wrote (empty without truth_dir)
-    render: object = None               # BankStats: what making the frames ahead cost (None: live)
+    session: Path  # the recording folder `vts scan start` wrote
+    listmode: Path | None  # the simulated SPECT's list-mode (None: no trigger box)
+    spect: ListModeTruth | None  # its truth (start delay, clock, counts' sources)
+    patient: Patient  # the truth: poses, breathing, moves, marker positions
+    fire_host: float  # when the trigger fired (host s)
+    window: tuple[float, float]  # host s of the first and last frame recorded (any camera)
+    truth_files: list[Path]  # what write_truth wrote (empty without truth_dir)
+    render: object = None  # BankStats: what making the frames ahead cost (None: live)
 
     def moves_in_window(self) -> list:
         """The body moves that start inside :attr:`window`."""
@@ -63,9 +63,21 @@ class PatientScan:
         return [m for m in self.patient.motion.moves if a <= m.t_start <= b]
 
 
-def patient_scan(rig, rig_yaml, session_dir, duration_s: float, *, spect: bool = True, seed: int = 0,
-                 truth_dir=None, truth_rate_hz: float = 25.0, ntp_sync: bool = True,
-                 timeout: float | None = None, prerender: bool = True, progress=None) -> PatientScan:
+def patient_scan(
+    rig,
+    rig_yaml,
+    session_dir,
+    duration_s: float,
+    *,
+    spect: bool = True,
+    seed: int = 0,
+    truth_dir=None,
+    truth_rate_hz: float = 25.0,
+    ntp_sync: bool = True,
+    timeout: float | None = None,
+    prerender: bool = True,
+    progress=None,
+) -> PatientScan:
     """Run ``vts scan start --duration D -o SESSION`` in a subprocess against the running
     ``rig`` (which has a patient), wait for it, and return the session and the truth.
 
@@ -85,8 +97,10 @@ def patient_scan(rig, rig_yaml, session_dir, duration_s: float, *, spect: bool =
     session = Path(session_dir)
     plan_end = patient.breathing.t0 + patient.breathing.duration_s
     if time.time() + duration_s + 10.0 > plan_end:
-        raise ValueError(f"the patient's plan ends {plan_end - time.time():.0f} s from now: too soon for a "
-                         f"{duration_s:g} s scan (give PatientOptions(minutes=...) more)")
+        raise ValueError(
+            f"the patient's plan ends {plan_end - time.time():.0f} s from now: too soon for a "
+            f"{duration_s:g} s scan (give PatientOptions(minutes=...) more)"
+        )
     if truth_dir is not None and _inside(Path(truth_dir), session):
         raise ValueError(f"{truth_dir}: the truth must not go into the session {session}")
     if ntp_sync:
@@ -97,8 +111,9 @@ def patient_scan(rig, rig_yaml, session_dir, duration_s: float, *, spect: bool =
     listmode, spect_truth = None, None
     if spect and getattr(rig, "trigger_box", None) is not None:
         listmode = session.parent / (session.name + ".vtslm")
-        spect_truth = SimListModeSpect(rig.scene, [heart_source(patient)], seed=seed) \
-            .follow_trigger_box(rig.trigger_box, listmode, duration_s - SPECT_TAIL_S)
+        spect_truth = SimListModeSpect(rig.scene, [heart_source(patient)], seed=seed).follow_trigger_box(
+            rig.trigger_box, listmode, duration_s - SPECT_TAIL_S
+        )
     files = []
     if truth_dir is not None:
         files = write_truth(patient, truth_dir, window[0] - 1.0, window[1] + 1.0, truth_rate_hz)

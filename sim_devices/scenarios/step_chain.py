@@ -20,16 +20,16 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
-from vts_hw.room import Room
 from vts_hw.procedures.spect_mapping import SpectMapping
 from vts_hw.procedures.steps import LED_SETTLE_S, SNAPSHOT_COMPRESSION, StepSession, average_centroids, step_plan
 from vts_hw.procedures.steps_analysis import StepAnalysis, six_dof
+from vts_hw.room import Room
 from vts_hw.sim_devices import checkerboard as cb
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.sim_devices.spect import SimSpect
@@ -50,12 +50,12 @@ class SimStepsResult:
     out_dir: Path
     run_id: int | None = None
     artifacts: list[Path] = field(default_factory=list)
-    stored: object = None        # where the run went (store.recorder.Stored), when a store was given
+    stored: object = None  # where the run went (store.recorder.Stored), when a store was given
 
 
 def score(analysis: StepAnalysis, truth: dict[str, np.ndarray], mapping_transform) -> dict:
     """How the VTS did against the truth (see the module's doc)."""
-    true = np.array([truth[lab] for lab in analysis.labels])          # P×7×3, S1..S7
+    true = np.array([truth[lab] for lab in analysis.labels])  # P×7×3, S1..S7
     # the analysis orders the spheres as the SPECT found them: each to its nearest true sphere
     order = np.argmin(np.linalg.norm(analysis.spect[0][:, None, :] - true[0][None, :, :], axis=2), axis=1)
     if len(set(order.tolist())) != true.shape[1]:
@@ -71,21 +71,36 @@ def score(analysis: StepAnalysis, truth: dict[str, np.ndarray], mapping_transfor
     angle = float(np.degrees(np.arccos(np.clip((np.trace(d_rot) - 1) / 2, -1.0, 1.0))))
     spect_err = np.linalg.norm(analysis.spect - true, axis=2)
     return {
-        "position_rms_mm": float(np.sqrt(np.mean(rigid_err ** 2))),
+        "position_rms_mm": float(np.sqrt(np.mean(rigid_err**2))),
         "position_max_mm": float(rigid_err.max()),
-        "mapped_rms_mm": float(np.sqrt(np.mean(mapped_err ** 2))),
+        "mapped_rms_mm": float(np.sqrt(np.mean(mapped_err**2))),
         "move_rotation_error_deg": angle,
         "move_translation_error_mm": float(np.linalg.norm(mv_vts.translation_mm - mv_true.translation_mm)),
-        "true_move": {"rotation_xyz_deg": mv_true.rotation_xyz_deg.tolist(),
-                      "translation_mm": mv_true.translation_mm.tolist()},
-        "spect_centroid_rms_mm": float(np.sqrt(np.mean(spect_err ** 2))),
+        "true_move": {
+            "rotation_xyz_deg": mv_true.rotation_xyz_deg.tolist(),
+            "translation_mm": mv_true.translation_mm.tolist(),
+        },
+        "spect_centroid_rms_mm": float(np.sqrt(np.mean(spect_err**2))),
     }
 
 
-def run_sim_steps(out_dir, seed: int = 0, *, frames: int = 10, n_vertical: int = 10, n_axial: int = 10,
-                  poses: int = 20, store=None, tolerances=None, operator: str = "sim",
-                  progress: Callable[[str], None] | None = None, plot: bool = True,
-                  rig=None, compression: int | None = None, rig_name: str | None = None) -> SimStepsResult:
+def run_sim_steps(
+    out_dir,
+    seed: int = 0,
+    *,
+    frames: int = 10,
+    n_vertical: int = 10,
+    n_axial: int = 10,
+    poses: int = 20,
+    store=None,
+    tolerances=None,
+    operator: str = "sim",
+    progress: Callable[[str], None] | None = None,
+    plot: bool = True,
+    rig=None,
+    compression: int | None = None,
+    rig_name: str | None = None,
+) -> SimStepsResult:
     """Calibrate, map and run the step test on a simulated rig (``rig``, a running SimRig, or
     one of its own); score it."""
     import contextlib
@@ -106,22 +121,24 @@ def run_sim_steps(out_dir, seed: int = 0, *, frames: int = 10, n_vertical: int =
         clock = rig.clock.now
         say(f"stereo calibration from {poses} rendered checkerboard views")
         pairs, names = cb.render_pairs(scene, n=poses, seed=seed, t=clock())
-        calib = calibrate_stereo(pairs, square=cb.SQUARE_MM, unit="mm", names=names,
-                                 cameras=tuple(c.name for c in cfg.cameras[:2]))
+        calib = calibrate_stereo(
+            pairs, square=cb.SQUARE_MM, unit="mm", names=names, cameras=tuple(c.name for c in cfg.cameras[:2])
+        )
         calib.save(out / "calibration.json")
         own = [c.rms for c in calib.camera_fits]
         say(f"  RMS {own[0]:.3f} / {own[1]:.3f} / {calib.rms:.3f} px")
-        with Room(cfg, clock=clock) as room:          # its cameras closed with it
+        with Room(cfg, clock=clock) as room:  # its cameras closed with it
             cams = [room.camera(c.name) for c in cfg.cameras[:2]]
             for cam in cams:
                 cam.led_on()
             time.sleep(LED_SETTLE_S)
             say("VTS -> SPECT mapping from the phantom at its placement")
-            pts = [average_centroids([detect_jpeg(cam.snapshot(compression).jpeg)
-                                      for _ in range(frames)])
-                   for cam in cams]
+            pts = [
+                average_centroids([detect_jpeg(cam.snapshot(compression).jpeg) for _ in range(frames)]) for cam in cams
+            ]
             vol = SimSpect(matrix=SPECT_MATRIX, seed=seed * 1009 + 999).write(
-                out / "mapping-volume.npz", sphere_centres(scene, clock()))
+                out / "mapping-volume.npz", sphere_centres(scene, clock())
+            )
             mapping = SpectMapping.from_stereo(calib, pts[0], pts[1], vol).analyze()
             mapping.save(out / "spect_mapping.json")
             say(f"  FRE {mapping.fre_mm:.2f} mm, leave-one-out TRE {mapping.tre.rms:.2f} mm")
@@ -130,19 +147,39 @@ def run_sim_steps(out_dir, seed: int = 0, *, frames: int = 10, n_vertical: int =
             table = SimTable(scene, clock, seed=seed, settle=settle)
             spect = SimSpectSource(scene, clock, out / "spect", seed=seed)
             started = clock()
-            session = StepSession(cams, calib, mapping.transform, table, spect, out,
-                                  plan=step_plan(n_vertical, n_axial), frames=frames, progress=say,
-                                  clock=clock, compression=compression)
+            session = StepSession(
+                cams,
+                calib,
+                mapping.transform,
+                table,
+                spect,
+                out,
+                plan=step_plan(n_vertical, n_axial),
+                frames=frames,
+                progress=say,
+                clock=clock,
+                compression=compression,
+            )
             session.acquire()
     analysis = session.analyze(tolerances)
-    result = SimStepsResult(analysis, calib, mapping, dict(table.truth),
-                            score(analysis, spect.truth, mapping.transform), out)
+    result = SimStepsResult(
+        analysis, calib, mapping, dict(table.truth), score(analysis, spect.truth, mapping.transform), out
+    )
     if plot:
         png = out / "steps.png"
         analysis.plot(png)
         result.artifacts.append(png)
     if store is not None:
-        result.stored = record(store, analysis, tolerances=tolerances, rig=rig_name or cfg.rig, operator=operator,
-                               started=started, config_digest=cfg.digest, artifacts=result.artifacts, clock=clock)
+        result.stored = record(
+            store,
+            analysis,
+            tolerances=tolerances,
+            rig=rig_name or cfg.rig,
+            operator=operator,
+            started=started,
+            config_digest=cfg.digest,
+            artifacts=result.artifacts,
+            clock=clock,
+        )
         result.run_id = result.stored.run_id
     return result

@@ -25,10 +25,19 @@ from vts_hw.lifeline import child_options
 from vts_hw.sim_devices.spect_listmode import ListModeTruth, SimListModeSpect
 from vts_hw.sim_devices.sync_truth import place_source_marker, plan_sync_moves, schedule_source_moves
 
-__all__ = ["SimSyncScan", "prepare", "start_moves", "simulate_spect", "match_moves", "cli_scan", "fire_time_of",
-           "run_scan_cli", "ScanCli"]
+__all__ = [
+    "SimSyncScan",
+    "prepare",
+    "start_moves",
+    "simulate_spect",
+    "match_moves",
+    "cli_scan",
+    "fire_time_of",
+    "run_scan_cli",
+    "ScanCli",
+]
 
-SPECT_TAIL_S = 0.6   # the SPECT acquisition ends this long before the scan (start delay ≤ 0.4 s)
+SPECT_TAIL_S = 0.6  # the SPECT acquisition ends this long before the scan (start delay ≤ 0.4 s)
 
 
 @dataclass
@@ -38,7 +47,7 @@ class SimSyncScan:
     session: Path
     listmode: Path | None
     fire_host: float
-    source: object              # SourceMarker: the moves (host s)
+    source: object  # SourceMarker: the moves (host s)
     spect: ListModeTruth | None
 
 
@@ -51,8 +60,9 @@ def prepare(rig, position=(10.0, -20.0, 5.0), rate_cps: float = 3000.0):
     return place_source_marker(rig.scene, position=position, rate_cps=rate_cps)
 
 
-def start_moves(rig, marker, fire_host: float, duration_s: float, n: int = 4, seed: int = 0,
-                times_rel=None, steps=None):
+def start_moves(
+    rig, marker, fire_host: float, duration_s: float, n: int = 4, seed: int = 0, times_rel=None, steps=None
+):
     """Schedule the source marker's moves for a scan fired at ``fire_host``: planned clear of
     the head rotations (``n``, ``seed``), or at ``times_rel`` s after the fire with ``steps``
     mm. Returns the truth."""
@@ -100,8 +110,19 @@ class ScanCli:
     err: str
 
 
-def run_scan_cli(rig, rig_yaml, session, duration_s: float, *, args=(), event: str = "fire", on_fire=None,
-                 kill_after_s: float | None = None, timeout: float = 120.0, check: bool = True) -> ScanCli:
+def run_scan_cli(
+    rig,
+    rig_yaml,
+    session,
+    duration_s: float,
+    *,
+    args=(),
+    event: str = "fire",
+    on_fire=None,
+    kill_after_s: float | None = None,
+    timeout: float = 120.0,
+    check: bool = True,
+) -> ScanCli:
     """``vts scan start --duration D [ARGS] -o SESSION`` in a subprocess against the running
     ``rig`` (this process's simulated cameras and trigger box). ``on_fire(start)`` runs as soon
     as the manifest says the scan started (``event``: the trigger fired, or ``"scan"``: the
@@ -110,10 +131,19 @@ def run_scan_cli(rig, rig_yaml, session, duration_s: float, *, args=(), event: s
     nothing closed). ``check``: RuntimeError with the scan's stderr when it exits other than
     0 or 4 (partial, a gap in the manifest: still analysable)."""
     env = {**os.environ, **rig.env_vars(), "VTS_CONFIG": str(rig_yaml)}
-    cmd = [sys.executable, "-m", "vts_hw.cli.__main__", "scan", "start", "--duration", f"{duration_s:g}",
-           *map(str, args), "-o", str(session)]
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            **child_options())
+    cmd = [
+        sys.executable,
+        "-m",
+        "vts_hw.cli.__main__",
+        "scan",
+        "start",
+        "--duration",
+        f"{duration_s:g}",
+        *map(str, args),
+        "-o",
+        str(session),
+    ]
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **child_options())
     out = err = ""
     try:
         fire = fire_time_of(session, 60.0, proc, event)
@@ -136,8 +166,9 @@ def run_scan_cli(rig, rig_yaml, session, duration_s: float, *, args=(), event: s
     return ScanCli(fire, planned, proc.returncode, out, err)
 
 
-def simulate_spect(rig, source, session: Path, duration_s: float, out: Path | None = None,
-                   seed: int = 0) -> tuple[Path, ListModeTruth]:
+def simulate_spect(
+    rig, source, session: Path, duration_s: float, out: Path | None = None, seed: int = 0
+) -> tuple[Path, ListModeTruth]:
     """The simulated SPECT's list-mode of the scan: it follows the trigger box's pins (the
     start pulse and square wave the emulator actually emitted) for ``duration_s`` list-mode s."""
     out = Path(out) if out else Path(session).parent / (Path(session).name + ".vtslm")
@@ -156,10 +187,17 @@ def match_moves(events: list[dict], moves, window_s: float = 0.5) -> list[dict]:
         if ev is None or abs(_event_time(ev) - mv.t_mid) > window_s:
             rows.append({"t_mid": mv.t_mid, "step_mm": mv.step_mm, "found": False})
             continue
-        rows.append({"t_mid": mv.t_mid, "step_mm": mv.step_mm, "found": True, "seen_by": ev["seen_by"],
-                     "vts_err_s": None if ev["t_vts"] is None else ev["t_vts"] - mv.t_mid,
-                     "spect_err_s": None if ev["t_spect"] is None else ev["t_spect"] - mv.t_mid,
-                     "dt_s": ev["dt_s"]})
+        rows.append(
+            {
+                "t_mid": mv.t_mid,
+                "step_mm": mv.step_mm,
+                "found": True,
+                "seen_by": ev["seen_by"],
+                "vts_err_s": None if ev["t_vts"] is None else ev["t_vts"] - mv.t_mid,
+                "spect_err_s": None if ev["t_spect"] is None else ev["t_spect"] - mv.t_mid,
+                "dt_s": ev["dt_s"],
+            }
+        )
     return rows
 
 
@@ -167,9 +205,21 @@ def _event_time(e: dict) -> float:
     return e["t_spect"] if e["t_spect"] is not None else e["t_vts"]
 
 
-def cli_scan(rig, rig_yaml, session, duration_s: float, marker, *, n: int = 4, seed: int = 0,
-             times_rel=None, steps=None, kill_after_s: float | None = None,
-             spect_s: float | None = None, timeout: float = 120.0) -> SimSyncScan:
+def cli_scan(
+    rig,
+    rig_yaml,
+    session,
+    duration_s: float,
+    marker,
+    *,
+    n: int = 4,
+    seed: int = 0,
+    times_rel=None,
+    steps=None,
+    kill_after_s: float | None = None,
+    spect_s: float | None = None,
+    timeout: float = 120.0,
+) -> SimSyncScan:
     """``vts scan start --duration D -o SESSION`` in a subprocess against the running ``rig``
     (this process's simulated cameras and trigger box); the source marker's moves are
     scheduled as soon as the manifest says the trigger fired. ``kill_after_s``: SIGKILL the
@@ -178,10 +228,16 @@ def cli_scan(rig, rig_yaml, session, duration_s: float, marker, *, n: int = 4, s
     draws both the move plan and the SPECT (start delay, clock, counts)."""
     session = Path(session)
     run = run_scan_cli(
-        rig, rig_yaml, session, duration_s, kill_after_s=kill_after_s, timeout=timeout,
-        on_fire=lambda fire: start_moves(rig, marker, fire, kill_after_s or duration_s, n=n, seed=seed,
-                                         times_rel=times_rel, steps=steps))
+        rig,
+        rig_yaml,
+        session,
+        duration_s,
+        kill_after_s=kill_after_s,
+        timeout=timeout,
+        on_fire=lambda fire: start_moves(
+            rig, marker, fire, kill_after_s or duration_s, n=n, seed=seed, times_rel=times_rel, steps=steps
+        ),
+    )
     fire, truth = run.fire, run.planned
-    lm, spect = simulate_spect(rig, truth, session, spect_s or (kill_after_s or duration_s) - SPECT_TAIL_S,
-                               seed=seed)
+    lm, spect = simulate_spect(rig, truth, session, spect_s or (kill_after_s or duration_s) - SPECT_TAIL_S, seed=seed)
     return SimSyncScan(session, lm, fire, truth, spect)

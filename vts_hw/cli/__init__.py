@@ -24,11 +24,21 @@ CONFIG_META = "vts.config"
 #: imported when the command is asked for: `vts scan start` loads what a scan needs, not the
 #: calibration's numerics (decision 0076; tests/test_cli_lazy.py checks the map is whole)
 COMMANDS: dict[str, tuple[str, ...]] = {
-    "calibrate": ("calibrate",), "camera": ("camera", "camera_aim", "camera_setup"),
-    "commission": ("commission",), "console": ("console",), "demo": ("demo",),
-    "discover": ("discover",), "motion": ("motion",), "qa": ("qa", "qa_steps"),
-    "recording": ("recording",), "report": ("report",), "scan": ("scan",), "sim": ("sim",),
-    "store": ("store",), "sync": ("sync",), "trigger": ("trigger", "trigger_flash"),
+    "calibrate": ("calibrate",),
+    "camera": ("camera", "camera_aim", "camera_setup"),
+    "commission": ("commission",),
+    "console": ("console",),
+    "demo": ("demo",),
+    "discover": ("discover",),
+    "motion": ("motion",),
+    "qa": ("qa", "qa_steps"),
+    "recording": ("recording",),
+    "report": ("report",),
+    "scan": ("scan",),
+    "sim": ("sim",),
+    "store": ("store",),
+    "sync": ("sync",),
+    "trigger": ("trigger", "trigger_flash"),
 }
 
 
@@ -47,20 +57,36 @@ class _CommandsOnDemand(click.Group):
 @click.group(cls=_CommandsOnDemand, context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
 @click.version_option(__version__, prog_name="vts")
 @click.option("-v", "--verbose", count=True, help="More log output (-vv for debug).")
-@click.option("--config", "config_path", metavar="FILE", type=click.Path(dir_okay=False), default=None,
-              help="rig.yaml of the room, for a command that reads one (its own --config wins; default: "
-                   "$VTS_CONFIG, then ./rig.yaml). A command that reads no rig.yaml refuses it (exit 2).")
-@click.option("--store", "store_url", metavar="URL", default=None,
-              help="Results store for every command: sqlite:////path/results.sqlite or "
-                   "postgresql://user@host[:port]/db (default: $VTS_STORE, then rig.yaml's store.url, then "
-                   "a per-user SQLite file). Never with a password in it (refused, exit 2).")
-@click.option("--store-password-env", metavar="NAME", default=None,
-              help="Environment variable holding the store's database password (default: "
-                   "$VTS_STORE_PASSWORD_ENV with --store/$VTS_STORE, else rig.yaml's store.password_env; "
-                   "else libpq's PGPASSWORD or ~/.pgpass).")
+@click.option(
+    "--config",
+    "config_path",
+    metavar="FILE",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="rig.yaml of the room, for a command that reads one (its own --config wins; default: "
+    "$VTS_CONFIG, then ./rig.yaml). A command that reads no rig.yaml refuses it (exit 2).",
+)
+@click.option(
+    "--store",
+    "store_url",
+    metavar="URL",
+    default=None,
+    help="Results store for every command: sqlite:////path/results.sqlite or "
+    "postgresql://user@host[:port]/db (default: $VTS_STORE, then rig.yaml's store.url, then "
+    "a per-user SQLite file). Never with a password in it (refused, exit 2).",
+)
+@click.option(
+    "--store-password-env",
+    metavar="NAME",
+    default=None,
+    help="Environment variable holding the store's database password (default: "
+    "$VTS_STORE_PASSWORD_ENV with --store/$VTS_STORE, else rig.yaml's store.password_env; "
+    "else libpq's PGPASSWORD or ~/.pgpass).",
+)
 @click.pass_context
-def cli(ctx: click.Context, verbose: int, config_path: str | None, store_url: str | None,
-        store_password_env: str | None) -> None:
+def cli(
+    ctx: click.Context, verbose: int, config_path: str | None, store_url: str | None, store_password_env: str | None
+) -> None:
     """Control and QA of the stereo Visual Tracking System (VTS) used with SPECT.
 
     Every command that talks to the rig reads the room from --config FILE (the command's own,
@@ -74,7 +100,8 @@ def cli(ctx: click.Context, verbose: int, config_path: str | None, store_url: st
     ctx.meta[STORE_META] = (store_url, store_password_env)
     if store_url or store_password_env or os.environ.get("VTS_STORE"):
         from vts_hw.store.target import resolve_target
-        resolve_target(store_url, store_password_env)   # a bad URL (or one with a password): exit 2 now
+
+        resolve_target(store_url, store_password_env)  # a bad URL (or one with a password): exit 2 now
     level = logging.WARNING - 10 * verbose
     logging.basicConfig(level=max(level, logging.DEBUG), format="%(levelname)s %(name)s: %(message)s")
 
@@ -121,7 +148,7 @@ def _interruptible():
     SIGINT ignored: a background job of a non-interactive shell is, and Python then installs no
     handler of its own (`kill -INT` would do nothing). A command may still install its own
     (uvicorn does while it serves); the handlers are as they were once the command ends."""
-    if threading.current_thread() is not threading.main_thread():   # (signals are the main thread's)
+    if threading.current_thread() is not threading.main_thread():  # (signals are the main thread's)
         yield
         return
     old_int, old_term = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)

@@ -11,10 +11,18 @@ from pathlib import Path
 
 import click
 
-from vts_hw.errors import DataError
 from vts_hw.cli import cli
-from vts_hw.cli.common import (OutputFile, config_option, echo_json, json_option, positive, rig_if_any,
-                               say_stored, store_qa_result)
+from vts_hw.cli.common import (
+    OutputFile,
+    config_option,
+    echo_json,
+    json_option,
+    positive,
+    rig_if_any,
+    say_stored,
+    store_qa_result,
+)
+from vts_hw.errors import DataError
 from vts_hw.procedures.mapping_points import read_points  # noqa: F401  (the points file, as `--vts` reads it)
 
 
@@ -32,41 +40,93 @@ def _pattern(ctx, param, value: str) -> tuple[int, int]:
 
 def _board_options(f):
     """The checkerboard and simulation options every calibration from boards takes."""
-    for option in reversed([
-        click.option("--sim-seed", type=int, default=0, show_default=True,
-                     help="Seed of the simulated rig, poses and noise."),
-        click.option("--pattern", default="9x6", show_default=True, callback=_pattern,
-                     help="Inner corners of the board, COLSxROWS."),
-        click.option("--square", type=positive("a length"), default=None,
-                     help="Side of a square (default: the simulated board's 50 mm with --sim, else 1 square)."),
-        click.option("--unit", type=click.Choice(["mm", "squares"]), default=None,
-                     help="Unit of --square (default: mm when --square or --sim is given, else squares)."),
-    ]):
+    for option in reversed(
+        [
+            click.option(
+                "--sim-seed", type=int, default=0, show_default=True, help="Seed of the simulated rig, poses and noise."
+            ),
+            click.option(
+                "--pattern",
+                default="9x6",
+                show_default=True,
+                callback=_pattern,
+                help="Inner corners of the board, COLSxROWS.",
+            ),
+            click.option(
+                "--square",
+                type=positive("a length"),
+                default=None,
+                help="Side of a square (default: the simulated board's 50 mm with --sim, else 1 square).",
+            ),
+            click.option(
+                "--unit",
+                type=click.Choice(["mm", "squares"]),
+                default=None,
+                help="Unit of --square (default: mm when --square or --sim is given, else squares).",
+            ),
+        ]
+    ):
         f = option(f)
     return f
 
 
 @calibrate.command()
 @click.argument("images", nargs=-1, type=click.Path())
-@click.option("--sim", is_flag=True, help="Calibrate from checkerboard views rendered by the simulator"
-              " (no IMAGES) and compare with the simulated cameras.")
-@click.option("--sim-poses", type=click.IntRange(3, 200), default=20, show_default=True,
-              help="Number of simulated board poses.")
+@click.option(
+    "--sim",
+    is_flag=True,
+    help="Calibrate from checkerboard views rendered by the simulator"
+    " (no IMAGES) and compare with the simulated cameras.",
+)
+@click.option(
+    "--sim-poses", type=click.IntRange(3, 200), default=20, show_default=True, help="Number of simulated board poses."
+)
 @_board_options
-@click.option("-o", "--output", type=OutputFile(), default="calibration.json",
-              show_default=True, help="Calibration file to write.")
-@click.option("--previous", type=click.Path(dir_okay=False), default=None,
-              help="Calibration to compare with (default: the existing -o file, if any).")
-@click.option("--distortion", type=click.Choice(["auto", "k1", "opencv"]), default="auto",
-              show_default=True, help="Lens distortion fitted: k1 alone, OpenCV's five terms (k1, k2,"
-              " p1, p2, k3), or auto: whichever the data support (BIC), per camera.")
-@click.option("--force", is_flag=True, help="Replace the -o file even if it holds a calibration in mm"
-              " and this one is in squares, or is not a calibration file; write a fit whose RMS is above 1 px.")
+@click.option(
+    "-o",
+    "--output",
+    type=OutputFile(),
+    default="calibration.json",
+    show_default=True,
+    help="Calibration file to write.",
+)
+@click.option(
+    "--previous",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Calibration to compare with (default: the existing -o file, if any).",
+)
+@click.option(
+    "--distortion",
+    type=click.Choice(["auto", "k1", "opencv"]),
+    default="auto",
+    show_default=True,
+    help="Lens distortion fitted: k1 alone, OpenCV's five terms (k1, k2,"
+    " p1, p2, k3), or auto: whichever the data support (BIC), per camera.",
+)
+@click.option(
+    "--force",
+    is_flag=True,
+    help="Replace the -o file even if it holds a calibration in mm"
+    " and this one is in squares, or is not a calibration file; write a fit whose RMS is above 1 px.",
+)
 @config_option
 @json_option
-def stereo(images: tuple[str, ...], sim: bool, sim_poses: int, sim_seed: int,
-           pattern: tuple[int, int], square: float | None, unit: str | None, output: str,
-           previous: str | None, distortion: str, force: bool, config_path: str | None, as_json: bool) -> None:
+def stereo(
+    images: tuple[str, ...],
+    sim: bool,
+    sim_poses: int,
+    sim_seed: int,
+    pattern: tuple[int, int],
+    square: float | None,
+    unit: str | None,
+    output: str,
+    previous: str | None,
+    distortion: str,
+    force: bool,
+    config_path: str | None,
+    as_json: bool,
+) -> None:
     """Calibrate the two cameras from IMAGES: leftNN/rightNN checkerboard pairs (files or a
     directory), or from simulated views with --sim. The two-camera case of `vts calibrate
     cameras`: each camera's intrinsics from OpenCV on its own views, then the pair with those
@@ -93,7 +153,7 @@ def stereo(images: tuple[str, ...], sim: bool, sim_poses: int, sim_seed: int,
         raise click.UsageError("give either IMAGES or --sim, not both")
     if not sim and not images:
         raise click.UsageError("give the checkerboard IMAGES (or a directory of them), or --sim")
-    rig = None if sim else rig_if_any(config_path)   # a --config that cannot be read: before the work
+    rig = None if sim else rig_if_any(config_path)  # a --config that cannot be read: before the work
     if unit is None:
         unit = "mm" if (square is not None or sim) else "squares"
     if square is None:
@@ -103,7 +163,9 @@ def stereo(images: tuple[str, ...], sim: bool, sim_poses: int, sim_seed: int,
 
     names = truth = score = None
     cameras = ("left", "right")
-    proc.replaceable(Path(output), unit, force, "stereo calibration")  # before the work: a forgotten --square, a wrong -o
+    proc.replaceable(
+        Path(output), unit, force, "stereo calibration"
+    )  # before the work: a forgotten --square, a wrong -o
     if sim:
         from vts_hw.sim_devices.scenarios.calibration_views import sim_views
         from vts_hw.vision.calibration_uncertainty import compare_with_truth
@@ -111,13 +173,25 @@ def stereo(images: tuple[str, ...], sim: bool, sim_poses: int, sim_seed: int,
         square_mm = square if unit == "mm" else None  # "squares": the simulated board's size
         pairs, names, truth = sim_views(sim_seed, sim_poses, pattern, square_mm)
         truth = truth if unit == "mm" else None
-        cameras = tuple(truth.names) if truth is not None else ("cam1", "cam2")   # the scene's cameras
+        cameras = tuple(truth.names) if truth is not None else ("cam1", "cam2")  # the scene's cameras
         score = compare_with_truth
     else:
         pairs = proc.image_pairs(list(images))
-    run = proc.run(pairs=pairs, output=output, pattern=pattern, square=square, unit=unit, names=names,
-                   cameras=cameras, previous=previous, force=force, truth=truth, score=score,
-                   distortion=distortion, what="stereo calibration")
+    run = proc.run(
+        pairs=pairs,
+        output=output,
+        pattern=pattern,
+        square=square,
+        unit=unit,
+        names=names,
+        cameras=cameras,
+        previous=previous,
+        force=force,
+        truth=truth,
+        score=score,
+        distortion=distortion,
+        what="stereo calibration",
+    )
     _end_calibration(run, rig, sim, as_json)
     if run.refused:
         raise DataError(run.refused)
@@ -125,30 +199,78 @@ def stereo(images: tuple[str, ...], sim: bool, sim_poses: int, sim_seed: int,
 
 @calibrate.command()
 @click.argument("images", nargs=-1, type=click.Path())
-@click.option("--sim", is_flag=True, help="Calibrate from checkerboard views rendered by the simulator"
-              " (no IMAGES) and compare with the simulated cameras.")
-@click.option("--cameras", "n_cameras", type=click.IntRange(2, 8), default=4, show_default=True,
-              help="Cameras of the simulated room (with --sim).")
-@click.option("--sim-poses", type=click.IntRange(3, 50), default=8, show_default=True,
-              help="Simulated board poses held towards each chosen pair of cameras.")
+@click.option(
+    "--sim",
+    is_flag=True,
+    help="Calibrate from checkerboard views rendered by the simulator"
+    " (no IMAGES) and compare with the simulated cameras.",
+)
+@click.option(
+    "--cameras",
+    "n_cameras",
+    type=click.IntRange(2, 8),
+    default=4,
+    show_default=True,
+    help="Cameras of the simulated room (with --sim).",
+)
+@click.option(
+    "--sim-poses",
+    type=click.IntRange(3, 50),
+    default=8,
+    show_default=True,
+    help="Simulated board poses held towards each chosen pair of cameras.",
+)
 @_board_options
-@click.option("--reference", default=None, help="The camera whose frame is the calibration's"
-              " (default: the first camera by name).")
-@click.option("-o", "--output", type=OutputFile(), default="calibration.json",
-              show_default=True, help="Calibration file to write (compared with first if it exists).")
-@click.option("--previous", type=click.Path(dir_okay=False), default=None,
-              help="Calibration to compare with (default: the existing -o file, if any).")
-@click.option("--distortion", type=click.Choice(["auto", "k1", "opencv"]), default="auto",
-              show_default=True, help="Lens distortion fitted per camera (as for `stereo`).")
-@click.option("--force", is_flag=True, help="Replace the -o file even if it holds a calibration in mm"
-              " and this one is in squares, or is not a calibration file; write a fit that did not"
-              " converge or whose RMS is above 1 px.")
+@click.option(
+    "--reference", default=None, help="The camera whose frame is the calibration's (default: the first camera by name)."
+)
+@click.option(
+    "-o",
+    "--output",
+    type=OutputFile(),
+    default="calibration.json",
+    show_default=True,
+    help="Calibration file to write (compared with first if it exists).",
+)
+@click.option(
+    "--previous",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Calibration to compare with (default: the existing -o file, if any).",
+)
+@click.option(
+    "--distortion",
+    type=click.Choice(["auto", "k1", "opencv"]),
+    default="auto",
+    show_default=True,
+    help="Lens distortion fitted per camera (as for `stereo`).",
+)
+@click.option(
+    "--force",
+    is_flag=True,
+    help="Replace the -o file even if it holds a calibration in mm"
+    " and this one is in squares, or is not a calibration file; write a fit that did not"
+    " converge or whose RMS is above 1 px.",
+)
 @config_option
 @json_option
-def cameras(images: tuple[str, ...], sim: bool, n_cameras: int, sim_poses: int, sim_seed: int,
-            pattern: tuple[int, int], square: float | None, unit: str | None, reference: str | None,
-            output: str, previous: str | None, distortion: str, force: bool, config_path: str | None,
-            as_json: bool) -> None:
+def cameras(
+    images: tuple[str, ...],
+    sim: bool,
+    n_cameras: int,
+    sim_poses: int,
+    sim_seed: int,
+    pattern: tuple[int, int],
+    square: float | None,
+    unit: str | None,
+    reference: str | None,
+    output: str,
+    previous: str | None,
+    distortion: str,
+    force: bool,
+    config_path: str | None,
+    as_json: bool,
+) -> None:
     """Calibrate N >= 2 cameras into one frame (the reference camera's) from checkerboard IMAGES,
     or from simulated views with --sim.
 
@@ -198,14 +320,25 @@ def cameras(images: tuple[str, ...], sim: bool, n_cameras: int, sim_poses: int, 
     if sim:
         from vts_hw.sim_devices.scenarios.calibration_views import cameras_against_truth, sim_camera_views
 
-        imgs, truth, info = sim_camera_views(sim_seed, n_cameras, sim_poses, pattern,
-                                             square if unit == "mm" else None)
+        imgs, truth, info = sim_camera_views(sim_seed, n_cameras, sim_poses, pattern, square if unit == "mm" else None)
         truth = truth if unit == "mm" else None
         score = functools.partial(cameras_against_truth, points=info.pop("fov_points"))
     else:
         imgs = proc.camera_images(list(images))
-    run = proc.run(images=imgs, output=output, pattern=pattern, square=square, unit=unit, previous=previous,
-                   force=force, distortion=distortion, reference=reference, truth=truth, score=score, sim=info)
+    run = proc.run(
+        images=imgs,
+        output=output,
+        pattern=pattern,
+        square=square,
+        unit=unit,
+        previous=previous,
+        force=force,
+        distortion=distortion,
+        reference=reference,
+        truth=truth,
+        score=score,
+        sim=info,
+    )
     _end_calibration(run, rig, sim, as_json)
     if run.refused:
         raise DataError(run.refused)
@@ -215,14 +348,18 @@ def _end_calibration(run, rig, sim: bool, as_json: bool) -> None:
     """Store a calibration from images as a run (not a simulated one: a demonstration, not the
     room's history), print it, say where it was stored; -o's error, else exit 3 when the store
     did not take it."""
-    run.tolerances = rig.tolerances if rig is not None else None   # the rig's windows judge it
+    run.tolerances = rig.tolerances if rig is not None else None  # the rig's windows judge it
     data = run.results_data()
     stored = None
     if not sim:
         sv = run.saved
-        notes = (f"saved to {sv.written}" if sv.written else
-                 f"saved to {sv.fallback} ({sv.path} could not be written)" if sv.fallback else
-                 f"not written: {getattr(run, 'refused', None) or sv.error or sv.path}")
+        notes = (
+            f"saved to {sv.written}"
+            if sv.written
+            else f"saved to {sv.fallback} ({sv.path} could not be written)"
+            if sv.fallback
+            else f"not written: {getattr(run, 'refused', None) or sv.error or sv.path}"
+        )
         stored = store_qa_result(rig, run, data, notes=notes)
     if as_json:
         echo_json(data)
@@ -240,6 +377,7 @@ def _end_calibration(run, rig, sim: bool, as_json: bool) -> None:
 
 def _sim_square_mm() -> float:
     from vts_hw.sim_devices.scenarios.calibration_views import sim_square_mm
+
     return sim_square_mm()
 
 
@@ -249,46 +387,85 @@ def _sim_square_mm() -> float:
 def _from_cameras(config_path, calibration_path, volume, frames: int, quiet: bool):
     """The mapping with the VTS side measured now by every camera the calibration covers."""
     from vts_hw.drivers.registry import check_camera_kinds
-    from vts_hw.procedures.mapping_inputs import calibrated_cameras, mapping_from_cameras, camera_calibration_for
+    from vts_hw.procedures.mapping_inputs import calibrated_cameras, camera_calibration_for, mapping_from_cameras
     from vts_hw.room import Room
 
-    with Room.open(config_path) as room:     # the cameras it opens are closed with it
+    with Room.open(config_path) as room:  # the cameras it opens are closed with it
         calib = camera_calibration_for(room.rig, calibration_path or room.calibration_file)
         cfgs = calibrated_cameras(room.rig, calib)
         check_camera_kinds(cfgs)
         cams = [room.camera(c.name) for c in cfgs]
-        return mapping_from_cameras(cams, calib, volume, frames,
-                                    progress=None if quiet else (lambda m: click.echo(m, err=True)))
+        return mapping_from_cameras(
+            cams, calib, volume, frames, progress=None if quiet else (lambda m: click.echo(m, err=True))
+        )
 
 
 @calibrate.command()
-@click.option("--vts", "vts_path", type=click.Path(dir_okay=False), default=None,
-              help="Phantom sphere centres in the VTS frame: CSV with a header x,y,z (mm), or a"
-                   " JSON list of [x, y, z].")
-@click.option("--volume", type=click.Path(), default=None,
-              help="Reconstructed SPECT volume of the phantom (any format `read_volume` reads).")
-@click.option("--from-cameras", is_flag=True,
-              help="Take the VTS side from the rig's cameras now (every camera the calibration covers: LED"
-                   " on, --frames snapshots each, triangulated); the spheres are picked out by the"
-                   " shape of the SPECT's. Needs --volume.")
-@click.option("--calibration", "calibration_path", type=click.Path(dir_okay=False), default=None,
-              help="Camera calibration (stereo or N cameras) for --from-cameras (default: the config's"
-                   " calibration.cameras).")
-@click.option("--frames", type=click.IntRange(1, 100), default=10, show_default=True,
-              help="Snapshots per camera with --from-cameras.")
+@click.option(
+    "--vts",
+    "vts_path",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Phantom sphere centres in the VTS frame: CSV with a header x,y,z (mm), or a JSON list of [x, y, z].",
+)
+@click.option(
+    "--volume",
+    type=click.Path(),
+    default=None,
+    help="Reconstructed SPECT volume of the phantom (any format `read_volume` reads).",
+)
+@click.option(
+    "--from-cameras",
+    is_flag=True,
+    help="Take the VTS side from the rig's cameras now (every camera the calibration covers: LED"
+    " on, --frames snapshots each, triangulated); the spheres are picked out by the"
+    " shape of the SPECT's. Needs --volume.",
+)
+@click.option(
+    "--calibration",
+    "calibration_path",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Camera calibration (stereo or N cameras) for --from-cameras (default: the config's calibration.cameras).",
+)
+@click.option(
+    "--frames",
+    type=click.IntRange(1, 100),
+    default=10,
+    show_default=True,
+    help="Snapshots per camera with --from-cameras.",
+)
 @config_option
-@click.option("--sim", is_flag=True, help="Map a simulated session (stereo VTS + SimSpect volume)"
-              " and compare with the simulated truth.")
-@click.option("--sim-seed", type=int, default=0, show_default=True,
-              help="Seed of the simulated rig, noise and volume.")
-@click.option("-o", "--output", type=OutputFile(), default="spect_mapping.json",
-              show_default=True, help="VTS → SPECT transform file to write (an earlier mapping there is"
-              " replaced; any other file is refused, exit 3, unless --force).")
+@click.option(
+    "--sim",
+    is_flag=True,
+    help="Map a simulated session (stereo VTS + SimSpect volume) and compare with the simulated truth.",
+)
+@click.option("--sim-seed", type=int, default=0, show_default=True, help="Seed of the simulated rig, noise and volume.")
+@click.option(
+    "-o",
+    "--output",
+    type=OutputFile(),
+    default="spect_mapping.json",
+    show_default=True,
+    help="VTS → SPECT transform file to write (an earlier mapping there is"
+    " replaced; any other file is refused, exit 3, unless --force).",
+)
 @click.option("--force", is_flag=True, help="Replace the -o file even if it is not a mapping file.")
 @json_option
-def spect(vts_path: str | None, volume: str | None, from_cameras: bool, calibration_path: str | None,
-          frames: int, config_path: str | None, sim: bool, sim_seed: int, output: str, force: bool,
-          as_json: bool) -> None:
+def spect(
+    vts_path: str | None,
+    volume: str | None,
+    from_cameras: bool,
+    calibration_path: str | None,
+    frames: int,
+    config_path: str | None,
+    sim: bool,
+    sim_seed: int,
+    output: str,
+    force: bool,
+    as_json: bool,
+) -> None:
     """VTS → SPECT mapping from the 7-sphere phantom: its sphere centres in the VTS frame
     (--vts, or --from-cameras to measure them now) and its reconstructed SPECT volume
     (--volume), or a simulated session (--sim).
@@ -316,7 +493,7 @@ def spect(vts_path: str | None, volume: str | None, from_cameras: bool, calibrat
         raise click.UsageError("give --vts POINTS (or --from-cameras) and --volume VOLUME, or --sim")
 
     out_path = Path(output)
-    replaceable(out_path, force)   # before the work: a rig.yaml given as -o by mistake
+    replaceable(out_path, force)  # before the work: a rig.yaml given as -o by mistake
     info = None
     if sim:
         from vts_hw.sim_devices.scenarios.calibration_views import compare_mapping_with_truth, sim_spect_inputs
@@ -335,13 +512,13 @@ def spect(vts_path: str | None, volume: str | None, from_cameras: bool, calibrat
         mapping = SpectMapping.from_volume(points, volume).analyze()
     compare = compare_mapping_with_truth(mapping, info) if info is not None else None
     rig = None if sim else rig_if_any(config_path)
-    mapping.tolerances = rig.tolerances if rig is not None else None   # the rig's windows judge it
+    mapping.tolerances = rig.tolerances if rig is not None else None  # the rig's windows judge it
     # the transform file as RigidTransform.save writes it, but kept if -o cannot be written
     saved = save_or_keep(out_path, json.dumps(mapping.fitted().transform.to_dict(), indent=2) + "\n", "mapping")
 
     data = mapping.results_data()
     stored = None
-    if not sim:   # a simulated session is a demonstration, not the room's history
+    if not sim:  # a simulated session is a demonstration, not the room's history
         stored = store_qa_result(rig, mapping, data, notes=f"saved to {saved.path}")
     if as_json:
         data.update(saved.data())
@@ -361,14 +538,18 @@ def spect(vts_path: str | None, volume: str | None, from_cameras: bool, calibrat
 def _spect_text(mapping, info, compare, saved) -> None:
     if info is not None:
         err = info["triangulation_error_mm"]
-        click.echo(f"Simulated session (seed {info['seed']}): VTS = the two simulated cameras with"
-                   f" their TRUE models (as if perfectly calibrated), detections averaged over"
-                   f" {info['frames_averaged']} noisy frames, VTS frame = camera 1;"
-                   f" triangulation error RMS {err['rms']:.3f} mm, max {err['max']:.3f} mm.")
+        click.echo(
+            f"Simulated session (seed {info['seed']}): VTS = the two simulated cameras with"
+            f" their TRUE models (as if perfectly calibrated), detections averaged over"
+            f" {info['frames_averaged']} noisy frames, VTS frame = camera 1;"
+            f" triangulation error RMS {err['rms']:.3f} mm, max {err['max']:.3f} mm."
+        )
     click.echo(mapping.results())
     if compare is not None:
-        click.echo(f"Compared with the simulated truth (camera 1's pose inverse): rotation off by"
-                   f" {compare['rotation_error_deg']:.4f} deg, translation off by"
-                   f" {compare['translation_error_at_phantom_mm']:.3f} mm at the phantom.")
+        click.echo(
+            f"Compared with the simulated truth (camera 1's pose inverse): rotation off by"
+            f" {compare['rotation_error_deg']:.4f} deg, translation off by"
+            f" {compare['translation_error_at_phantom_mm']:.3f} mm at the phantom."
+        )
     if saved.written:
         click.echo(f"wrote {saved.written}")

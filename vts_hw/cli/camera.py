@@ -4,17 +4,17 @@ from __future__ import annotations
 
 import contextlib
 import sys
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 import click
 
 from vts_hw.camera import Camera, CameraError, Illumination, Parameters, StreamFellShort, StreamGap
 from vts_hw.camera_led import pulse_led, switch_led
-from vts_hw.drivers.registry import check_camera_kinds
-from vts_hw.files import write_atomic
 from vts_hw.cli import cli
 from vts_hw.cli.common import OutputFile, OutputFolder, PositiveSeconds, echo_json, fmt_time, json_option, with_rig
+from vts_hw.drivers.registry import check_camera_kinds
+from vts_hw.files import write_atomic
 from vts_hw.room import Room
 
 
@@ -39,8 +39,10 @@ def snapshot(name: str, output: str, rig) -> None:
     with _open(rig, name) as cam:
         frame = cam.snapshot()
     write_atomic(output, frame.jpeg)  # whole or not at all: never a 0-byte or cut JPEG
-    click.echo(f"{output}: {len(frame.jpeg)} bytes, camera time {fmt_time(frame.camera_time)}, "
-               f"received {fmt_time(frame.host_time)}")
+    click.echo(
+        f"{output}: {len(frame.jpeg)} bytes, camera time {fmt_time(frame.camera_time)}, "
+        f"received {fmt_time(frame.host_time)}"
+    )
     for p in frame.problems:
         click.echo(f"  warning: {p}", err=True)
 
@@ -48,8 +50,9 @@ def snapshot(name: str, output: str, rig) -> None:
 @camera.command()
 @click.argument("name")
 @click.option("--seconds", type=PositiveSeconds(), default=None, help="Stop after this long (default: until Ctrl-C).")
-@click.option("--fps", type=PositiveSeconds("a frame rate"), default=None,
-              help="Frame rate to ask for (default: the config's).")
+@click.option(
+    "--fps", type=PositiveSeconds("a frame rate"), default=None, help="Frame rate to ask for (default: the config's)."
+)
 @with_rig
 def stream(name: str, seconds: float | None, fps: float | None, rig) -> None:
     """Print a line per frame of camera NAME's MJPEG stream: sequence, times, latency, size.
@@ -60,10 +63,15 @@ def stream(name: str, seconds: float | None, fps: float | None, rig) -> None:
     """
     with _open(rig, name) as cam:
         off = cam.clock_offset()
-        click.echo(f"# clock: camera - host = {off.offset_s:+.4f} s (± {off.uncertainty_s * 1000:.0f} ms, "
-                   f"{off.method}); latency = receive - capture with that offset taken out", err=True)
+        click.echo(
+            f"# clock: camera - host = {off.offset_s:+.4f} s (± {off.uncertainty_s * 1000:.0f} ms, "
+            f"{off.method}); latency = receive - capture with that offset taken out",
+            err=True,
+        )
         # without --seconds, a camera that sends nothing is given up on, not waited for for ever
-        s = cam.stream(fps=fps, duration=seconds, give_up_after=None if seconds else max(10.0, 3 * getattr(cam, "timeout", 5.0)))
+        s = cam.stream(
+            fps=fps, duration=seconds, give_up_after=None if seconds else max(10.0, 3 * getattr(cam, "timeout", 5.0))
+        )
         interrupted, given_up = False, None
         click.echo(f"{'frame':>6}  {'camera time':<23}  {'host receive time':<23}  {'latency':>10}  {'size':>9}")
         try:
@@ -71,18 +79,26 @@ def stream(name: str, seconds: float | None, fps: float | None, rig) -> None:
                 if isinstance(item, StreamGap):
                     click.echo(f"GAP   after frame {item.after_seq}: {item.missing} frame(s) missing ({item.reason})")
                     continue
-                lat = "-" if item.camera_time is None else \
-                    f"{(item.host_time - item.camera_time + off.offset_s) * 1000:+7.1f} ms"
-                click.echo(f"{item.seq:6d}  {fmt_time(item.camera_time)}  {fmt_time(item.host_time)}  "
-                           f"{lat:>10}  {len(item.jpeg):7d} B")
+                lat = (
+                    "-"
+                    if item.camera_time is None
+                    else f"{(item.host_time - item.camera_time + off.offset_s) * 1000:+7.1f} ms"
+                )
+                click.echo(
+                    f"{item.seq:6d}  {fmt_time(item.camera_time)}  {fmt_time(item.host_time)}  "
+                    f"{lat:>10}  {len(item.jpeg):7d} B"
+                )
         except KeyboardInterrupt:
             s.stop()
             interrupted = True
-        except CameraError as exc:   # gave up: the counts first, then why
+        except CameraError as exc:  # gave up: the counts first, then why
             given_up = exc
         st = s.stats
-        click.echo(f"{st.frames} frames, {st.missing} missing in {st.gaps} gap(s), {st.torn} torn, "
-                   f"{st.reconnects} reconnect(s)", err=True)
+        click.echo(
+            f"{st.frames} frames, {st.missing} missing in {st.gaps} gap(s), {st.torn} torn, "
+            f"{st.reconnects} reconnect(s)",
+            err=True,
+        )
         for note in st.problems:
             click.echo(f"  note: {note}", err=True)
     if given_up is not None:
@@ -109,8 +125,11 @@ def led(name: str, state: str, ms: int | None, rig) -> None:
     if got.state is None:
         said = f"sent; whether it took is {got.words()}"
     elif state == "pulse":
-        said = (f"read back: seen on, then {got.words()}" if got.seen_on else
-                f"read back: {got.words()} after it; not seen on while it lasted (too short to read), not confirmed")
+        said = (
+            f"read back: seen on, then {got.words()}"
+            if got.seen_on
+            else f"read back: {got.words()} after it; not seen on while it lasted (too short to read), not confirmed"
+        )
     else:
         said = f"read back: {got.words()}"
     click.echo(f"{name}: LED {state}{f' {ms} ms' if state == 'pulse' else ''} ({where}): {said}{noop}")
@@ -128,9 +147,18 @@ def info(name: str, as_json: bool, rig) -> None:
         vapix = getattr(cam, "vapix_version", None) or None
         image = cam.get_params("Image.I0") if isinstance(cam, Parameters) else {}
         off = cam.clock_offset()
-    data = {"camera": name, "kind": cfg.kind, "url": cfg.base_url, "vapix": vapix, "device": dev, "image": image,
-            "clock_offset_s": round(off.offset_s, 4), "clock_offset_uncertainty_s": round(off.uncertainty_s, 4),
-            "clock_method": off.method, "clock_source": off.source}
+    data = {
+        "camera": name,
+        "kind": cfg.kind,
+        "url": cfg.base_url,
+        "vapix": vapix,
+        "device": dev,
+        "image": image,
+        "clock_offset_s": round(off.offset_s, 4),
+        "clock_offset_uncertainty_s": round(off.uncertainty_s, 4),
+        "clock_method": off.method,
+        "clock_source": off.source,
+    }
     if as_json:
         echo_json(data)
         return
@@ -139,8 +167,10 @@ def info(name: str, as_json: bool, rig) -> None:
         click.echo(f"  {k}: {v}")
     for k, v in image.items():
         click.echo(f"  {k}: {v}")
-    click.echo(f"  clock: camera - host = {off.offset_s:+.3f} s (± {off.uncertainty_s:.3f} s, {off.method})"
-               + ("; no camera clock: times are host receipt times" if off.source == "receipt" else ""))
+    click.echo(
+        f"  clock: camera - host = {off.offset_s:+.3f} s (± {off.uncertainty_s:.3f} s, {off.method})"
+        + ("; no camera clock: times are host receipt times" if off.source == "receipt" else "")
+    )
 
 
 EXIT_CODES = {"complete": 0, "partial": 4, "failed": 4, "interrupted": 130}
@@ -150,10 +180,12 @@ EXIT_CODES = {"complete": 0, "partial": 4, "failed": 4, "interrupted": 130}
 @click.argument("names", nargs=-1)
 @click.option("--all", "all_cameras", is_flag=True, help="Record every camera of the rig.")
 @click.option("--seconds", type=PositiveSeconds(), required=True, help="How long to record.")
-@click.option("-o", "--output", "out", type=OutputFolder("recording folder"), required=True,
-              help="Recording folder to create.")
-@click.option("--append", is_flag=True,
-              help="Add to the recording already in the folder, keeping every entry of its manifest.")
+@click.option(
+    "-o", "--output", "out", type=OutputFolder("recording folder"), required=True, help="Recording folder to create."
+)
+@click.option(
+    "--append", is_flag=True, help="Add to the recording already in the folder, keeping every entry of its manifest."
+)
 @with_rig
 def record(names: tuple[str, ...], all_cameras: bool, seconds: float, out: str, append: bool, rig) -> None:
     """Record cameras NAMES... at once into a recording folder.
@@ -168,19 +200,19 @@ def record(names: tuple[str, ...], all_cameras: bool, seconds: float, out: str, 
     or lost its stream: one sentence per camera says why); 3 a file could not be written
     (e.g. disk full: what was kept is said); 2 bad input; 130 interrupted.
     """
-    from vts_hw.recording.capture import Recorder
     from vts_hw.cli.progress import record_with_progress
+    from vts_hw.recording.capture import Recorder
 
     if all_cameras:
         names = tuple(c.name for c in rig.cameras)
     if not names:
         raise click.UsageError("name at least one camera, or give --all")
-    cfgs = [rig.camera(n) for n in names]           # unknown names and unset passwords: before any file
+    cfgs = [rig.camera(n) for n in names]  # unknown names and unset passwords: before any file
     for cfg in cfgs:
         cfg.password()
     check_camera_kinds(cfgs)
     meta = {"rig": rig.rig, "seconds_asked": seconds, "rig_digest": rig.digest}
-    with Room(rig) as room:          # the cameras closed with it, however the recording ends
+    with Room(rig) as room:  # the cameras closed with it, however the recording ends
         rec = Recorder([room.camera(c.name) for c in cfgs], out, seconds=seconds, meta=meta, append=append)
         manifest = record_with_progress(rec, seconds)
     status = manifest["status"]
@@ -188,9 +220,11 @@ def record(names: tuple[str, ...], all_cameras: bool, seconds: float, out: str, 
     for name in names:
         m = manifest["cameras"][name]
         added = f" (+{rec.recording.writers[name].frames_added})" if append else ""
-        click.echo(f"  {name}: {m['frames']} frames{added}, {m['dropped_frames']} dropped, "
-                   f"{m.get('torn_frames_discarded', 0)} torn, {m.get('reconnects', 0)} reconnect(s) "
-                   f"-> {Path(out) / m['mjpeg']}")
+        click.echo(
+            f"  {name}: {m['frames']} frames{added}, {m['dropped_frames']} dropped, "
+            f"{m.get('torn_frames_discarded', 0)} torn, {m.get('reconnects', 0)} reconnect(s) "
+            f"-> {Path(out) / m['mjpeg']}"
+        )
     for problem in rec.problems():
         click.echo(f"vts: {problem}", err=True)
     if rec.write_failure is not None:

@@ -29,6 +29,7 @@ def _reference(rig, name: str):
     from vts_hw.cli.common import open_store
     from vts_hw.store.baselines import NoBaseline, load_baseline
     from vts_hw.store.errors import NoStore
+
     try:
         store = open_store(rig, "read")
     except NoStore:
@@ -45,6 +46,7 @@ def _reference(rig, name: str):
 def _table(report, when: str):
     from rich.table import Table
     from rich.text import Text
+
     state = report.state
     title = Text.assemble((f"{report.camera}: ", "bold"), (state.upper(), STYLE[state]), f"  ({when})")
     t = Table(title=title, title_justify="left", expand=False)
@@ -60,6 +62,7 @@ def _write(out: Path | None, report) -> list[Path]:
     if out is None:
         return []
     from vts_hw.files import ensure_dir, write_atomic
+
     folder = ensure_dir(out, "aim output folder")
     png = write_atomic(folder / f"{report.camera}-aim.png", report.overlay_png())
     js = write_atomic(folder / f"{report.camera}-aim.json", json.dumps(report.to_dict(), indent=2) + "\n")
@@ -73,11 +76,20 @@ def _code(report) -> int:
 @camera.command("aim")
 @click.argument("name")
 @click.option("--once", is_flag=True, help="Check once, print the verdicts and exit (default: live until Ctrl-C).")
-@click.option("--out", type=OutputFolder("aim output folder"), default=None,
-              help="Folder for NAME-aim.png (the picture with the markers, the SPECT FOV, the table and the "
-                   "gantry's opening drawn) and NAME-aim.json (the verdicts); live: rewritten each check.")
-@click.option("--interval", type=FiniteFloat(min=0.0, max=60.0), default=1.0, show_default=True,
-              help="Live: seconds between checks.")
+@click.option(
+    "--out",
+    type=OutputFolder("aim output folder"),
+    default=None,
+    help="Folder for NAME-aim.png (the picture with the markers, the SPECT FOV, the table and the "
+    "gantry's opening drawn) and NAME-aim.json (the verdicts); live: rewritten each check.",
+)
+@click.option(
+    "--interval",
+    type=FiniteFloat(min=0.0, max=60.0),
+    default=1.0,
+    show_default=True,
+    help="Live: seconds between checks.",
+)
 @click.option("--json", "as_json", is_flag=True, help="With --once: the verdicts as JSON on stdout.")
 @with_rig
 def aim(name: str, once: bool, out: str | None, interval: float, as_json: bool, rig) -> None:
@@ -101,7 +113,7 @@ def aim(name: str, once: bool, out: str | None, interval: float, as_json: bool, 
     from vts_hw.procedures.aim import check
     from vts_hw.room import Room
 
-    cfg = rig.camera(name)              # an unknown camera: one sentence, exit 2, before anything
+    cfg = rig.camera(name)  # an unknown camera: one sentence, exit 2, before anything
     cfg.password()
     out_dir = Path(out) if out else None
     reference = _reference(rig, name)
@@ -120,6 +132,7 @@ def aim(name: str, once: bool, out: str | None, interval: float, as_json: bool, 
 
 def _print_once(report, written) -> None:
     from rich.console import Console
+
     console = Console()
     console.print(_table(report, "once"))
     unknown = f"; not known: {', '.join(report.unknown)}" if report.unknown else ""
@@ -133,6 +146,7 @@ def _live(cam, rig, out_dir, interval, reference) -> int:
     from rich.live import Live
 
     from vts_hw.procedures.aim import check
+
     console = Console()
     report, n = None, 0
     try:

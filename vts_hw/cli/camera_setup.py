@@ -45,13 +45,14 @@ def setup(names: tuple[str, ...], all_cameras: bool, dry_run: bool, as_json: boo
     cfgs = [rig.camera(n) for n in names]
     for cfg in cfgs:
         if not kind_has(cfg, Parameters):
-            raise UsageError(f"camera {cfg.name} is of kind {cfg.kind}, which has no parameters: only Axis cameras "
-                             f"are set up")
+            raise UsageError(
+                f"camera {cfg.name} is of kind {cfg.kind}, which has no parameters: only Axis cameras are set up"
+            )
         cfg.password()
     source = getattr(rig, "_source", None)
     if source is None:
         raise UsageError("the rig config was not read from a file: nowhere to write locked_params")
-    if not dry_run:   # a rig.yaml that cannot be replaced is said before any camera is set
+    if not dry_run:  # a rig.yaml that cannot be replaced is said before any camera is set
         check_rewritable(source)
     if dry_run:
         with Room(rig) as room:
@@ -64,16 +65,26 @@ def setup(names: tuple[str, ...], all_cameras: bool, dry_run: bool, as_json: boo
     written = backup = None
     if results:
         from vts_hw.rig_file import set_locked_params
+
         backup = set_locked_params(source, {r.camera: r.locked for r in results})
         written = source
     if as_json:
-        echo_json({"cameras": [{"camera": r.camera, "locked_params": r.locked, "changed": r.changed,
-                                "notes": r.notes} for r in results],
-                   "failed": [{"camera": n, "error": e} for n, e in failures],
-                   "written": str(written) if written else None, "backup": str(backup) if backup else None})
+        echo_json(
+            {
+                "cameras": [
+                    {"camera": r.camera, "locked_params": r.locked, "changed": r.changed, "notes": r.notes}
+                    for r in results
+                ],
+                "failed": [{"camera": n, "error": e} for n, e in failures],
+                "written": str(written) if written else None,
+                "backup": str(backup) if backup else None,
+            }
+        )
     elif written:
-        click.echo(f"{written}: locked_params of {', '.join(r.camera for r in results)} written "
-                   f"(the previous file is {backup})")
+        click.echo(
+            f"{written}: locked_params of {', '.join(r.camera for r in results)} written "
+            f"(the previous file is {backup})"
+        )
     for _name, error in failures:
         click.echo(f"vts: {error}", err=True)
     if failures:
@@ -94,8 +105,7 @@ def _set_all(room, cfgs, setup_cfg, quiet: bool):
             continue
         results.append(r)
         if not quiet:
-            click.echo(f"{cfg.name}: {len(r.locked)} parameters set and read back "
-                       f"({len(r.changed)} changed)")
+            click.echo(f"{cfg.name}: {len(r.locked)} parameters set and read back ({len(r.changed)} changed)")
             for k, v in r.locked.items():
                 click.echo(f"    {k} = {v}" + ("   (changed)" if k in r.changed else ""))
             for note in r.notes:

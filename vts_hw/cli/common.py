@@ -17,6 +17,7 @@ from vts_hw.config import ENV_CONFIG, RigConfig, load_rig
 from vts_hw.errors import UsageError
 from vts_hw.files import check_folder, check_target
 
+
 def _config_or_global(ctx: click.Context, param: click.Parameter, value):
     """A command's --config, else `vts --config` (before the command's name), else
     $VTS_CONFIG (None: ./rig.yaml)."""
@@ -27,8 +28,14 @@ def _config_or_global(ctx: click.Context, param: click.Parameter, value):
 
 
 config_option = click.option(
-    "--config", "config_path", type=click.Path(dir_okay=False), envvar=ENV_CONFIG, default=None,
-    callback=_config_or_global, help=f"rig.yaml of the room (default: vts --config, ${ENV_CONFIG}, then ./rig.yaml).")
+    "--config",
+    "config_path",
+    type=click.Path(dir_okay=False),
+    envvar=ENV_CONFIG,
+    default=None,
+    callback=_config_or_global,
+    help=f"rig.yaml of the room (default: vts --config, ${ENV_CONFIG}, then ./rig.yaml).",
+)
 
 json_option = click.option("--json", "as_json", is_flag=True, help="Machine-readable JSON on stdout.")
 
@@ -41,8 +48,14 @@ class FiniteFloat(click.FloatRange):
 
     name = "number"
 
-    def __init__(self, min: float | None = None, max: float | None = None, min_open: bool = False,
-                 max_open: bool = False, what: str = "a number"):
+    def __init__(
+        self,
+        min: float | None = None,
+        max: float | None = None,
+        min_open: bool = False,
+        max_open: bool = False,
+        what: str = "a number",
+    ):
         super().__init__(min, max, min_open=min_open, max_open=max_open, clamp=False)
         self.what = what
 
@@ -67,8 +80,9 @@ class FiniteFloat(click.FloatRange):
                 self.fail(f"{value!r} is not a number (expected {self._expected()})", param, ctx)
         if not math.isfinite(v):
             self.fail(f"{value!r} is not a finite number (expected {self._expected()})", param, ctx)
-        if (self.min is not None and (v < self.min or (self.min_open and v == self.min))) or \
-                (self.max is not None and (v > self.max or (self.max_open and v == self.max))):
+        if (self.min is not None and (v < self.min or (self.min_open and v == self.min))) or (
+            self.max is not None and (v > self.max or (self.max_open and v == self.max))
+        ):
             self.fail(f"{value!r} is out of range (expected {self._expected()})", param, ctx)
         return v
 
@@ -123,13 +137,24 @@ def listmode_options(f):
     expansion of `--listmode sim/spect/scan-*.vtslm` parses as it reads; the one whose
     acquisition belongs to the session is taken (`--clock-slack`). The command gets ``more``,
     ``listmode`` and ``clock_slack``; :func:`listmode_candidates` joins them."""
-    f = click.option("--clock-slack", type=FiniteFloat(0, 3600, what="seconds"), default=None, metavar="SECONDS",
-                     help="How far the SPECT's wall clock may be off the host's when matching a list-mode to "
-                          "the session (default: 10 s).")(f)
-    f = click.option("--listmode", "listmode", type=click.Path(), multiple=True, metavar="FILE",
-                     help="The SPECT list-mode file of the same scan. Several files may follow it (a shell "
-                          "glob such as sim/spect/scan-*.vtslm): the one whose acquisition started on the "
-                          "session's start pulse (or overlaps it) is taken; none or two is refused (exit 3).")(f)
+    f = click.option(
+        "--clock-slack",
+        type=FiniteFloat(0, 3600, what="seconds"),
+        default=None,
+        metavar="SECONDS",
+        help="How far the SPECT's wall clock may be off the host's when matching a list-mode to "
+        "the session (default: 10 s).",
+    )(f)
+    f = click.option(
+        "--listmode",
+        "listmode",
+        type=click.Path(),
+        multiple=True,
+        metavar="FILE",
+        help="The SPECT list-mode file of the same scan. Several files may follow it (a shell "
+        "glob such as sim/spect/scan-*.vtslm): the one whose acquisition started on the "
+        "session's start pulse (or overlaps it) is taken; none or two is refused (exit 3).",
+    )(f)
     return click.argument("more", nargs=-1, type=click.Path(), metavar="[LISTMODE]...")(f)
 
 
@@ -140,11 +165,13 @@ def listmode_candidates(listmode, more) -> list[str]:
 
 def with_rig(f):
     """Load the rig config named by --config and pass it as ``rig``."""
+
     @config_option
     @functools.wraps(f)
     def wrapper(*args, config_path=None, **kwargs):
         rig: RigConfig = load_rig(config_path)
         return f(*args, rig=rig, **kwargs)
+
     return wrapper
 
 
@@ -156,13 +183,15 @@ def fmt_time(t: float | None) -> str:
     if t is None:
         return "-"
     import datetime as _dt
-    return _dt.datetime.fromtimestamp(t, _dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S.%f")[:-4] + "Z"
+
+    return _dt.datetime.fromtimestamp(t, _dt.UTC).strftime("%Y-%m-%d %H:%M:%S.%f")[:-4] + "Z"
 
 
 def rig_if_any(config_path) -> RigConfig | None:
     """The rig config when there is one (--config, $VTS_CONFIG, ./rig.yaml); None when none was
     named and none is found. A config named explicitly that cannot be read is its error."""
     from vts_hw.errors import VtsError
+
     try:
         return load_rig(config_path)
     except VtsError:
@@ -177,6 +206,7 @@ def store_target(rig: RigConfig | None = None, url: str | None = None):
     default (vts_hw.store.target). UsageError for a URL holding a password."""
     from vts_hw.cli import STORE_META
     from vts_hw.store.target import resolve_target
+
     ctx = click.get_current_context(silent=True)
     g_url, g_pw = ctx.meta.get(STORE_META, (None, None)) if ctx is not None else (None, None)
     return resolve_target(url or g_url, g_pw, rig)
@@ -188,6 +218,7 @@ def open_store(rig, mode: str = "create"):
     command that only reads (or updates) an existing store, ``create`` for one that writes
     results (a new file becomes a store); a database that is not a vts-hw store is never used."""
     from vts_hw.store import ResultsStore
+
     return ResultsStore(store_target(rig), mode=mode)
 
 
@@ -196,10 +227,15 @@ def store_qa_result(rig: RigConfig | None, result, data: dict | None = None, **k
     one without a rig config), judged by the rig's tolerance windows; ``data`` (the --json
     output) gets a ``stored`` key."""
     from vts_hw.store.recorder import record
-    stored = record(store_target(rig), result,
-                    rig=rig.rig if rig is not None else "",
-                    config_digest=rig.digest if rig is not None else "",
-                    tolerances=rig.tolerances if rig is not None else None, **kw)
+
+    stored = record(
+        store_target(rig),
+        result,
+        rig=rig.rig if rig is not None else "",
+        config_digest=rig.digest if rig is not None else "",
+        tolerances=rig.tolerances if rig is not None else None,
+        **kw,
+    )
     if data is not None:
         data["stored"] = {"run_id": stored.run_id, "unsaved_file": str(stored.unsaved) if stored.unsaved else None}
     return stored
@@ -211,8 +247,11 @@ def say_stored(stored, result, what: str, as_json: bool) -> int:
     if stored.ok:
         click.echo(f"stored: run {stored.run_id} ({result.procedure}) in the results store", err=as_json)
         return 0
-    where = (f"its figures are above and in {stored.unsaved} (`vts qa import {stored.unsaved}` stores them "
-             "later)" if stored.unsaved else "its figures are above only: no fallback file could be written")
+    where = (
+        f"its figures are above and in {stored.unsaved} (`vts qa import {stored.unsaved}` stores them later)"
+        if stored.unsaved
+        else "its figures are above only: no fallback file could be written"
+    )
     click.echo(f"vts: the {what} was NOT stored: {stored.error}; {where}", err=True)
     return 3
 
@@ -229,7 +268,7 @@ def calibration_files(config_path, calibration, mapping):
     try:
         rig = load_rig(config_path)
     except VtsError as exc:
-        if config_path is not None:   # named explicitly: its error is the answer
+        if config_path is not None:  # named explicitly: its error is the answer
             raise
         why = f" (no rig config: {exc})"
     if calibration and mapping:
@@ -238,8 +277,7 @@ def calibration_files(config_path, calibration, mapping):
     cal = Path(calibration) if calibration else (rig.calibration.stereo if rig else None)
     mp = Path(mapping) if mapping else (rig.calibration.spect if rig else None)
     if cal is None:
-        raise ConfigError("no camera calibration: give --calibration FILE or set calibration.cameras in "
-                          f"rig.yaml{why}")
+        raise ConfigError(f"no camera calibration: give --calibration FILE or set calibration.cameras in rig.yaml{why}")
     return cal, mp, rig
 
 
@@ -254,12 +292,23 @@ class FramesProgress:
         step = int(10 * done / max(total, 1))
         if step != self.last or done == total:
             self.last = step
-            click.echo(f"processing the recording: {done}/{total} frame pairs "
-                       f"({time.monotonic() - self.t0:.1f} s)", err=True)
+            click.echo(
+                f"processing the recording: {done}/{total} frame pairs ({time.monotonic() - self.t0:.1f} s)", err=True
+            )
 
 
-def finish_analysis(rig: RigConfig | None, result, data: dict, what: str, as_json: bool, *,
-                    notes: str = "", artifacts=(), lines=(), outputs=None) -> None:
+def finish_analysis(
+    rig: RigConfig | None,
+    result,
+    data: dict,
+    what: str,
+    as_json: bool,
+    *,
+    notes: str = "",
+    artifacts=(),
+    lines=(),
+    outputs=None,
+) -> None:
     """The end of every `... analyze` command: store the result the one way, print it (the
     --json data, or its text and ``lines``), say where it was stored, and exit by its state
     (procedures.daily's codes: 0 OK, 10 TOLERANCE, 20 ACTION; 3 when the store did not take it).
@@ -286,8 +335,11 @@ def finish_analysis(rig: RigConfig | None, result, data: dict, what: str, as_jso
     sys.stdout.flush()
     store_failed = say_stored(stored, result, what, as_json)
     if failed:
-        kept = (f"the {what} is stored as run {stored.run_id} and its figures are above" if stored.ok
-                else f"the {what}'s figures are above")
+        kept = (
+            f"the {what} is stored as run {stored.run_id} and its figures are above"
+            if stored.ok
+            else f"the {what}'s figures are above"
+        )
         click.echo(f"vts: {outputs.sentence()}; {kept}", err=True)
         sys.exit(3)
     if store_failed:
@@ -331,4 +383,3 @@ def ask_password(text: str, instead: str) -> str:
         return click.prompt(text, hide_input=True, confirmation_prompt=True, err=True)
     except click.exceptions.Abort:
         raise KeyboardInterrupt("interrupted at the prompt") from None
-

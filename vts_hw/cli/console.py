@@ -8,52 +8,111 @@ import os
 import click
 
 from vts_hw.cli import cli
-from vts_hw.cli.common import (PositiveSeconds, ask_password, config_option, echo_json, json_option, rig_if_any,
-                              store_target)
+from vts_hw.cli.common import (
+    PositiveSeconds,
+    ask_password,
+    config_option,
+    echo_json,
+    json_option,
+    rig_if_any,
+    store_target,
+)
 from vts_hw.errors import UsageError
 
 
 @cli.group(invoke_without_command=True)
 @config_option
-@click.option("--host", default="127.0.0.1", show_default=True,
-              help="Address to serve on. Off this machine (not 127.0.0.1, ::1, localhost) the console needs "
-                   "users in the results store (`vts console user add`) and HTTPS: --certfile/--keyfile, or a TLS "
-                   "reverse proxy at --proxy ADDR; else it is refused (exit 2).")
-@click.option("--port", type=click.IntRange(0, 65535), default=8040, show_default=True,
-              help="Port to serve on (0: any free one; the address is printed).")
-@click.option("--login", is_flag=True,
-              help="Require a login on this machine too (the users of the results store).")
-@click.option("--certfile", type=click.Path(dir_okay=False), default=None,
-              help="Serve HTTPS with this PEM certificate (with --keyfile).")
-@click.option("--keyfile", type=click.Path(dir_okay=False), default=None,
-              help="The certificate's PEM private key, unencrypted (with --certfile).")
-@click.option("--behind-proxy", is_flag=True,
-              help="A TLS reverse proxy (nginx, Caddy) on this machine serves the console to others: --host "
-                   "stays on loopback, login required, the session cookie Secure, the proxy's X-Forwarded-For/-Proto "
-                   "trusted from this machine only. Needs --server-name.")
-@click.option("--proxy", "proxy", metavar="ADDR", default=None,
-              help="The TLS reverse proxy is at IP address ADDR (another computer): the console serves plain HTTP "
-                   "to it and to this machine only (every other address refused), its X-Forwarded-* trusted from "
-                   "ADDR only. Implies --behind-proxy.")
-@click.option("--server-name", "server_names", metavar="NAME[:PORT]", multiple=True,
-              help="A name (or address) the browsers reach the console by, besides 127.0.0.1, localhost, ::1, "
-                   "--host and the certificate's names; the console answers no other (DNS rebinding). Behind a "
-                   "proxy: the proxy's name (:PORT when not 443). Repeat for more.")
-@click.option("--session-idle", type=PositiveSeconds(), default=None,
-              help="End a session after this many seconds without a request from any of its pages "
-                   "[default: 900, 15 min].")
-@click.option("--session-max", type=PositiveSeconds(), default=None,
-              help="End every session this many seconds after its login [default: 43200, 12 h].")
-@click.option("--scans-dir", type=click.Path(file_okay=False), default=None,
-              help="Folder the Scan page's scans go into, each a new scan-YYYYmmddTHHMMSSZ folder as `vts scan "
-                   "start` names it; the motion report and exports go into the scan's folder. A folder of scans "
-                   "only: one holding anything else (a rig.yaml, a *.env, a store) is refused (exit 2); a new one "
-                   "is created 0700. [default: scans/ beside the per-user results store, "
-                   "~/.local/share/vts-hw/scans]")
+@click.option(
+    "--host",
+    default="127.0.0.1",
+    show_default=True,
+    help="Address to serve on. Off this machine (not 127.0.0.1, ::1, localhost) the console needs "
+    "users in the results store (`vts console user add`) and HTTPS: --certfile/--keyfile, or a TLS "
+    "reverse proxy at --proxy ADDR; else it is refused (exit 2).",
+)
+@click.option(
+    "--port",
+    type=click.IntRange(0, 65535),
+    default=8040,
+    show_default=True,
+    help="Port to serve on (0: any free one; the address is printed).",
+)
+@click.option("--login", is_flag=True, help="Require a login on this machine too (the users of the results store).")
+@click.option(
+    "--certfile",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Serve HTTPS with this PEM certificate (with --keyfile).",
+)
+@click.option(
+    "--keyfile",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="The certificate's PEM private key, unencrypted (with --certfile).",
+)
+@click.option(
+    "--behind-proxy",
+    is_flag=True,
+    help="A TLS reverse proxy (nginx, Caddy) on this machine serves the console to others: --host "
+    "stays on loopback, login required, the session cookie Secure, the proxy's X-Forwarded-For/-Proto "
+    "trusted from this machine only. Needs --server-name.",
+)
+@click.option(
+    "--proxy",
+    "proxy",
+    metavar="ADDR",
+    default=None,
+    help="The TLS reverse proxy is at IP address ADDR (another computer): the console serves plain HTTP "
+    "to it and to this machine only (every other address refused), its X-Forwarded-* trusted from "
+    "ADDR only. Implies --behind-proxy.",
+)
+@click.option(
+    "--server-name",
+    "server_names",
+    metavar="NAME[:PORT]",
+    multiple=True,
+    help="A name (or address) the browsers reach the console by, besides 127.0.0.1, localhost, ::1, "
+    "--host and the certificate's names; the console answers no other (DNS rebinding). Behind a "
+    "proxy: the proxy's name (:PORT when not 443). Repeat for more.",
+)
+@click.option(
+    "--session-idle",
+    type=PositiveSeconds(),
+    default=None,
+    help="End a session after this many seconds without a request from any of its pages [default: 900, 15 min].",
+)
+@click.option(
+    "--session-max",
+    type=PositiveSeconds(),
+    default=None,
+    help="End every session this many seconds after its login [default: 43200, 12 h].",
+)
+@click.option(
+    "--scans-dir",
+    type=click.Path(file_okay=False),
+    default=None,
+    help="Folder the Scan page's scans go into, each a new scan-YYYYmmddTHHMMSSZ folder as `vts scan "
+    "start` names it; the motion report and exports go into the scan's folder. A folder of scans "
+    "only: one holding anything else (a rig.yaml, a *.env, a store) is refused (exit 2); a new one "
+    "is created 0700. [default: scans/ beside the per-user results store, "
+    "~/.local/share/vts-hw/scans]",
+)
 @click.pass_context
-def console(ctx: click.Context, config_path: str | None, host: str, port: int, login: bool, certfile: str | None,
-            keyfile: str | None, behind_proxy: bool, proxy: str | None, server_names: tuple[str, ...],
-            session_idle: float | None, session_max: float | None, scans_dir: str | None) -> None:
+def console(
+    ctx: click.Context,
+    config_path: str | None,
+    host: str,
+    port: int,
+    login: bool,
+    certfile: str | None,
+    keyfile: str | None,
+    behind_proxy: bool,
+    proxy: str | None,
+    server_names: tuple[str, ...],
+    session_idle: float | None,
+    session_max: float | None,
+    scans_dir: str | None,
+) -> None:
     """Serve the room console: a web page of the room's cameras, live.
 
     The Room page shows every camera's live picture with the markers found on it (named where
@@ -88,9 +147,11 @@ def console(ctx: click.Context, config_path: str | None, host: str, port: int, l
     from vts_hw.console.serve_checks import check_host
     from vts_hw.store import ResultsStore
 
-    check_host(host, certfile=certfile, keyfile=keyfile, behind_proxy=behind_proxy, proxy=proxy,
-               server_names=server_names)
-    from vts_hw.console.serve import serve      # the console's pages: loaded once nothing is refused
+    check_host(
+        host, certfile=certfile, keyfile=keyfile, behind_proxy=behind_proxy, proxy=proxy, server_names=server_names
+    )
+    from vts_hw.console.serve import serve  # the console's pages: loaded once nothing is refused
+
     rig = load_rig(config_path)
     target = store_target(rig)
 
@@ -100,10 +161,23 @@ def console(ctx: click.Context, config_path: str | None, host: str, port: int, l
     def open_write_store():
         return ResultsStore(target, mode="create")
 
-    serve(rig, host=host, port=port, open_store=open_store, open_write_store=open_write_store, login=login,
-          behind_proxy=behind_proxy, certfile=certfile, keyfile=keyfile, session_idle_s=session_idle,
-          session_max_s=session_max, scans_dir=scans_dir, proxy=proxy, server_names=server_names,
-          on_ready=lambda url: click.echo(f"room console of rig {rig.rig}: open {url} (Ctrl-C stops it)"))
+    serve(
+        rig,
+        host=host,
+        port=port,
+        open_store=open_store,
+        open_write_store=open_write_store,
+        login=login,
+        behind_proxy=behind_proxy,
+        certfile=certfile,
+        keyfile=keyfile,
+        session_idle_s=session_idle,
+        session_max_s=session_max,
+        scans_dir=scans_dir,
+        proxy=proxy,
+        server_names=server_names,
+        on_ready=lambda url: click.echo(f"room console of rig {rig.rig}: open {url} (Ctrl-C stops it)"),
+    )
     click.echo("room console stopped")
 
 
@@ -119,6 +193,7 @@ def user() -> None:
 
 def _store(config_path, mode):
     from vts_hw.store import ResultsStore
+
     return ResultsStore(store_target(rig_if_any(config_path)), mode=mode)
 
 
@@ -126,9 +201,13 @@ def _store(config_path, mode):
 @config_option
 @click.argument("name")
 @click.option("--role", type=click.Choice(["operator", "physicist"]), required=True, help="What the user may do.")
-@click.option("--password-env", metavar="NAME", default=None,
-              help="Read the password from this environment variable (for scripts); else it is asked for, "
-                   "twice, without showing it. Never on the command line.")
+@click.option(
+    "--password-env",
+    metavar="NAME",
+    default=None,
+    help="Read the password from this environment variable (for scripts); else it is asked for, "
+    "twice, without showing it. Never on the command line.",
+)
 def user_add(config_path: str | None, name: str, role: str, password_env: str | None) -> None:
     """Add user NAME with a role (a disabled one is enabled again with the new password).
 
@@ -136,14 +215,16 @@ def user_add(config_path: str | None, name: str, role: str, password_env: str | 
     already there, an unset variable; 3 the store cannot be written.
     """
     from vts_hw.console.users import add_user, check_name
+
     check_name(name)
     if password_env:
         password = os.environ.get(password_env)
         if not password:
             raise UsageError(f"the environment variable {password_env} (--password-env) is not set")
     else:
-        password = ask_password(f"password for {name}", "give --password-env NAME, the environment variable "
-                                                          "that holds it")
+        password = ask_password(
+            f"password for {name}", "give --password-env NAME, the environment variable that holds it"
+        )
     with _store(config_path, "create") as store:
         click.echo(add_user(store, name, role, password))
 
@@ -159,6 +240,7 @@ def user_list(config_path: str | None, as_json: bool) -> None:
     import datetime as dt
 
     from vts_hw.console.users import list_users
+
     with _store(config_path, "read") as store:
         rows, where = list_users(store), store.url
     if as_json:
@@ -167,9 +249,12 @@ def user_list(config_path: str | None, as_json: bool) -> None:
     if not rows:
         click.echo(f"no console users in {where}")
     for u in rows:
-        since = dt.datetime.fromtimestamp(u["changed"], dt.timezone.utc).strftime("%Y-%m-%d")
-        state = "may log in" if u["active"] else "disabled " + dt.datetime.fromtimestamp(
-            u["disabled"], dt.timezone.utc).strftime("%Y-%m-%d")
+        since = dt.datetime.fromtimestamp(u["changed"], dt.UTC).strftime("%Y-%m-%d")
+        state = (
+            "may log in"
+            if u["active"]
+            else "disabled " + dt.datetime.fromtimestamp(u["disabled"], dt.UTC).strftime("%Y-%m-%d")
+        )
         click.echo(f"{u['name']:<20} {u['role']:<10} {state} (changed {since})")
 
 
@@ -184,5 +269,6 @@ def user_remove(config_path: str | None, name: str) -> None:
     Exit status: 0; 2 no such user; 3 the store cannot be read or written.
     """
     from vts_hw.console.users import remove_user
+
     with _store(config_path, "read") as store:
         click.echo(remove_user(store, name))

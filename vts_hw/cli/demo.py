@@ -11,18 +11,36 @@ from vts_hw.cli.common import FiniteFloat, OutputFolder, PositiveSeconds
 
 
 @cli.command()
-@click.option("-o", "--output", "out", type=OutputFolder("demo folder"), default="demo-out", show_default=True,
-              help="Folder for what the demo writes (its results store is made afresh).")
-@click.option("--days", type=click.IntRange(1, 730), default=60, show_default=True,
-              help="Simulated days of daily QA.")
-@click.option("--seconds", type=PositiveSeconds(max=600), default=3.0, show_default=True,
-              help="Length of the camera recording.")
-@click.option("--frames", type=click.IntRange(1, 50), default=5, show_default=True,
-              help="LED-on snapshots per camera and day.")
-@click.option("--scan-seconds", type=FiniteFloat(0, 600, what="seconds"), default=20.0, show_default=True,
-              help="Length of the simulated scan (0: no scan).")
-@click.option("--patient-seconds", type=FiniteFloat(0, 600, what="seconds"), default=30.0, show_default=True,
-              help="Length of the simulated patient scan (0: none; else at least 24).")
+@click.option(
+    "-o",
+    "--output",
+    "out",
+    type=OutputFolder("demo folder"),
+    default="demo-out",
+    show_default=True,
+    help="Folder for what the demo writes (its results store is made afresh).",
+)
+@click.option("--days", type=click.IntRange(1, 730), default=60, show_default=True, help="Simulated days of daily QA.")
+@click.option(
+    "--seconds", type=PositiveSeconds(max=600), default=3.0, show_default=True, help="Length of the camera recording."
+)
+@click.option(
+    "--frames", type=click.IntRange(1, 50), default=5, show_default=True, help="LED-on snapshots per camera and day."
+)
+@click.option(
+    "--scan-seconds",
+    type=FiniteFloat(0, 600, what="seconds"),
+    default=20.0,
+    show_default=True,
+    help="Length of the simulated scan (0: no scan).",
+)
+@click.option(
+    "--patient-seconds",
+    type=FiniteFloat(0, 600, what="seconds"),
+    default=30.0,
+    show_default=True,
+    help="Length of the simulated patient scan (0: none; else at least 24).",
+)
 def demo(out: str, days: int, seconds: float, frames: int, scan_seconds: float, patient_seconds: float) -> None:
     """The simulated rig, end to end, in six numbered sections (those skipped by --scan-seconds 0
     or --patient-seconds 0 leave the numbering consecutive):
@@ -67,14 +85,16 @@ def console_hint(out_dir: Path) -> str:
     simulated rig left running, and `vts console` on it with the demo's results store, so the
     History page holds the demo's runs."""
     live = out_dir / "live"
-    return "\n".join([
-        "the room console, live in a browser (Chromium or Firefox):",
-        f"  vts sim up --dir {live} --detach      # simulated cameras, left running",
-        f"  source {live / 'sim.env'}",
-        f"  VTS_STORE={out_dir / 'results.sqlite'} vts console --config {live / 'rig.yaml'}",
-        "  then open the address vts console prints (http://127.0.0.1:8040/): Room shows the cameras live,",
-        f"  History the demo's runs and reports; Ctrl-C stops vts console, vts sim down --dir {live} the cameras",
-    ])
+    return "\n".join(
+        [
+            "the room console, live in a browser (Chromium or Firefox):",
+            f"  vts sim up --dir {live} --detach      # simulated cameras, left running",
+            f"  source {live / 'sim.env'}",
+            f"  VTS_STORE={out_dir / 'results.sqlite'} vts console --config {live / 'rig.yaml'}",
+            "  then open the address vts console prints (http://127.0.0.1:8040/): Room shows the cameras live,",
+            f"  History the demo's runs and reports; Ctrl-C stops vts console, vts sim down --dir {live} the cameras",
+        ]
+    )
 
 
 class _Sections:
@@ -94,8 +114,10 @@ def _cameras(out_dir: Path, seconds: float) -> None:
 
     tour = camera_tour(out_dir, seconds, record=record_with_progress, say=click.echo)
     for c in tour.cameras:
-        click.echo(f"{c.name}: {c.product} firmware {c.firmware}, VAPIX {c.vapix}, clock "
-                   f"{c.clock_offset_s:+.3f} s against this host")
+        click.echo(
+            f"{c.name}: {c.product} firmware {c.firmware}, VAPIX {c.vapix}, clock "
+            f"{c.clock_offset_s:+.3f} s against this host"
+        )
         click.echo(f"  wrote {c.lit} and {c.dark.name} ({c.lit_bright_px} vs {c.dark_bright_px} bright pixels)")
     for s in tour.streams:
         gaps = sum(g["missing"] for g in s.gaps)
@@ -124,8 +146,10 @@ def _daily(out_dir: Path, days: int, frames: int, section) -> None:
             for c in cams:
                 v = row.cameras.get(c, {})
                 if "dx" in v:
-                    cells.append(f"{v['dx']:+.3f}, {v['dy']:+.3f} ({v['truth_dx']:+.3f}, {v['truth_dy']:+.3f}) "
-                                 f"{v['state'][:3]:<3}")
+                    cells.append(
+                        f"{v['dx']:+.3f}, {v['dy']:+.3f} ({v['truth_dx']:+.3f}, {v['truth_dy']:+.3f}) "
+                        f"{v['state'][:3]:<3}"
+                    )
                 else:
                     cells.append(f"{v.get('state', '?')}")
             click.echo(f"  {row.day:>3}  {row.state:<9} " + "".join(f"{x:<40}" for x in cells))
@@ -141,8 +165,10 @@ def _daily(out_dir: Path, days: int, frames: int, section) -> None:
         for cam, (ex, ey) in err.items():
             click.echo(f"  {cam}: x {ex:.4f} px, y {ey:.4f} px  {'OK' if max(ex, ey) <= 0.05 else 'OVER'}")
         states = [r.state for r in rows]
-        click.echo(f"\n{len(states)} daily runs: {states.count('OK')} OK, {states.count('TOLERANCE')} TOLERANCE, "
-                   f"{states.count('ACTION')} ACTION")
+        click.echo(
+            f"\n{len(states)} daily runs: {states.count('OK')} OK, {states.count('TOLERANCE')} TOLERANCE, "
+            f"{states.count('ACTION')} ACTION"
+        )
 
     summarised = []
 
@@ -179,8 +205,10 @@ def _scan(out_dir: Path, seconds: float) -> None:
     res = _scenario(demo_scan, out_dir, seconds)
     data, run = res.data, res.run
     g = data["gating"]
-    click.echo(f"  state {data['summary']['state']}; {len(data['events'])} motion event(s); SPECT start delay "
-               f"{g['start_delay_s'] * 1e3:.2f} ms (true {run.spect.start_delay_s * 1e3:.2f} ms)")
+    click.echo(
+        f"  state {data['summary']['state']}; {len(data['events'])} motion event(s); SPECT start delay "
+        f"{g['start_delay_s'] * 1e3:.2f} ms (true {run.spect.start_delay_s * 1e3:.2f} ms)"
+    )
     click.echo("  per move, event time minus the true mid-move time (host clock; goal within 20 ms):")
     ms = lambda v: "  -  " if v is None else f"{v * 1e3:+.1f} ms"  # noqa: E731
     for k, row in enumerate(res.moves, 1):
@@ -198,27 +226,41 @@ def _patient(out_dir: Path, seconds: float) -> None:
     res = _scenario(demo_patient_scan, out_dir, seconds)
     d, mv = res.data, res.move
     click.echo(f"  {d['summary']['state']}; times: {d['clock']}")
-    click.echo(f"  the true move: {mv['translation_mm']:.1f} mm and {mv['rotation_deg']:.1f} deg at "
-               f"{mv['t_start_list']:.2f} s (list-mode)")
+    click.echo(
+        f"  the true move: {mv['translation_mm']:.1f} mm and {mv['rotation_deg']:.1f} deg at "
+        f"{mv['t_start_list']:.2f} s (list-mode)"
+    )
     for a in res.alerts:
         click.echo(f"  live alert {a['delay_s']:.2f} s after the move started: {a['text']}")
     if not res.alerts:
-        click.echo(f"  no live alert: {res.no_alert_why}" if res.no_alert_why else
-                   "  NO LIVE ALERT for the move although the live tracking was watching: a missed alert")
+        click.echo(
+            f"  no live alert: {res.no_alert_why}"
+            if res.no_alert_why
+            else "  NO LIVE ALERT for the move although the live tracking was watching: a missed alert"
+        )
     if res.found:
         f = res.found
-        click.echo(f"  found by the analysis: start {f['start_error_s'] * 1e3:+.0f} ms off the truth, 6-DOF change off "
-                   f"by {f['translation_error_mm']:.2f} mm and {f['rotation_error_deg']:.2f} deg "
-                   f"({f['events']} event(s) in all)")
+        click.echo(
+            f"  found by the analysis: start {f['start_error_s'] * 1e3:+.0f} ms off the truth, 6-DOF change off "
+            f"by {f['translation_error_mm']:.2f} mm and {f['rotation_error_deg']:.2f} deg "
+            f"({f['events']} event(s) in all)"
+        )
     else:
         click.echo("  the analysis found no body-motion event")
     rate, true_rate = res.rate_per_min
     sm = d["summary"]
     rng = sm.get("breathing_rate_range_per_min")
-    said = (f"{rate:.1f} /min, {sm.get('breathing')}" + (f" {rng[0]:.1f}-{rng[1]:.1f} /min" if rng else "")
-            if rate == rate else sm.get("breathing_why", "unknown"))
+    said = (
+        f"{rate:.1f} /min, {sm.get('breathing')}" + (f" {rng[0]:.1f}-{rng[1]:.1f} /min" if rng else "")
+        if rate == rate
+        else sm.get("breathing_why", "unknown")
+    )
     click.echo(f"  time: {d['summary'].get('time', '')}")
-    click.echo(f"  breathing {said} (true {true_rate:.1f} /min); body pose against the truth in still frames: "
-               f"RMS {res.pose_error[0]:.3f} mm, {res.pose_error[1]:.3f} deg (goals 0.3 mm, 0.2 deg)")
-    click.echo(f"  report: {res.report}; for reconstruction: {res.export}/castor_motion.dyn, castor_motion_rigid.txt, "
-               "motion_6dof.csv, respiration.csv, subsets.json")
+    click.echo(
+        f"  breathing {said} (true {true_rate:.1f} /min); body pose against the truth in still frames: "
+        f"RMS {res.pose_error[0]:.3f} mm, {res.pose_error[1]:.3f} deg (goals 0.3 mm, 0.2 deg)"
+    )
+    click.echo(
+        f"  report: {res.report}; for reconstruction: {res.export}/castor_motion.dyn, castor_motion_rigid.txt, "
+        "motion_6dof.csv, respiration.csv, subsets.json"
+    )

@@ -23,15 +23,36 @@ def _ipv4(ctx, param, values):
 
 
 @cli.command()
-@click.option("-o", "--output", type=OutputFile(), default=None,
-              help="Write a rig.yaml skeleton for the cameras found (never over an existing file).")
-@click.option("--timeout", type=PositiveSeconds(max=120), default=5.0, show_default=True,
-              help="How long to listen for announcements, in seconds.")
-@click.option("--interface", "interfaces", multiple=True, callback=_ipv4, metavar="ADDRESS",
-              help="Search from this IPv4 address of this host only (repeatable; default: every interface).")
+@click.option(
+    "-o",
+    "--output",
+    type=OutputFile(),
+    default=None,
+    help="Write a rig.yaml skeleton for the cameras found (never over an existing file).",
+)
+@click.option(
+    "--timeout",
+    type=PositiveSeconds(max=120),
+    default=5.0,
+    show_default=True,
+    help="How long to listen for announcements, in seconds.",
+)
+@click.option(
+    "--interface",
+    "interfaces",
+    multiple=True,
+    callback=_ipv4,
+    metavar="ADDRESS",
+    help="Search from this IPv4 address of this host only (repeatable; default: every interface).",
+)
 @click.option("--user", default="root", show_default=True, help="User to confirm each camera with over VAPIX.")
-@click.option("--password-env", default=DEFAULT_PASSWORD_ENV, show_default=True, metavar="NAME",
-              help="Environment variable holding the cameras' password (and written into the skeleton).")
+@click.option(
+    "--password-env",
+    default=DEFAULT_PASSWORD_ENV,
+    show_default=True,
+    metavar="NAME",
+    help="Environment variable holding the cameras' password (and written into the skeleton).",
+)
 @json_option
 def discover(output, timeout, interfaces, user, password_env, as_json) -> None:
     """Find the Axis cameras on the network as they announce themselves.
@@ -60,9 +81,22 @@ def discover(output, timeout, interfaces, user, password_env, as_json) -> None:
         click.echo(f"listening {timeout:g} s on {where} for Axis cameras (mDNS _axis-video._tcp, SSDP) ...", err=True)
     found = search(timeout, interfaces or None)
     found = [confirm(f, user, password_env) for f in found]
-    rows = [{"name": f"cam{i}", "host": f.host, "port": f.port, "scheme": f.scheme, "model": f.model,
-             "serial": f.serial, "firmware": f.firmware, "confirmed": f.confirmed, "announced_by": list(f.sources),
-             "problem": f.problem, "notes": f.notes} for i, f in enumerate(found, 1)]
+    rows = [
+        {
+            "name": f"cam{i}",
+            "host": f.host,
+            "port": f.port,
+            "scheme": f.scheme,
+            "model": f.model,
+            "serial": f.serial,
+            "firmware": f.firmware,
+            "confirmed": f.confirmed,
+            "announced_by": list(f.sources),
+            "problem": f.problem,
+            "notes": f.notes,
+        }
+        for i, f in enumerate(found, 1)
+    ]
     written = None
     if output and rows:
         written = write_new(output, skeleton(rows, password_env=password_env, user=user))
@@ -73,9 +107,11 @@ def discover(output, timeout, interfaces, user, password_env, as_json) -> None:
         if written:
             click.echo(f"{written}: a rig.yaml for {len(rows)} camera(s); check it, then `vts camera setup --all`")
     if not rows:
-        raise DeviceError(f"no Axis camera announced itself within {timeout:g} s on "
-                          f"{', '.join(interfaces) if interfaces else 'any interface'}"
-                          + (f"; {output} was not written" if output else ""))
+        raise DeviceError(
+            f"no Axis camera announced itself within {timeout:g} s on "
+            f"{', '.join(interfaces) if interfaces else 'any interface'}"
+            + (f"; {output} was not written" if output else "")
+        )
     unconfirmed = [r for r in rows if not r["confirmed"]]
     for r in unconfirmed:
         click.echo(f"vts: {r['name']} ({r['host']}:{r['port']}) not confirmed: {r['problem']}", err=True)
@@ -85,8 +121,18 @@ def discover(output, timeout, interfaces, user, password_env, as_json) -> None:
 
 def _table(rows: list[dict]) -> None:
     head = ("name", "address", "model", "serial", "firmware", "announced by", "VAPIX")
-    body = [(r["name"], f"{r['host']}:{r['port']}", r["model"] or "?", r["serial"] or "?", r["firmware"] or "?",
-             "+".join(r["announced_by"]), "confirmed" if r["confirmed"] else "NOT confirmed") for r in rows]
+    body = [
+        (
+            r["name"],
+            f"{r['host']}:{r['port']}",
+            r["model"] or "?",
+            r["serial"] or "?",
+            r["firmware"] or "?",
+            "+".join(r["announced_by"]),
+            "confirmed" if r["confirmed"] else "NOT confirmed",
+        )
+        for r in rows
+    ]
     widths = [max(len(str(x)) for x in col) for col in zip(head, *body)]
     for line in (head, *body):
         click.echo("  ".join(str(x).ljust(w) for x, w in zip(line, widths)).rstrip())

@@ -5,8 +5,17 @@ from __future__ import annotations
 import click
 
 from vts_hw.cli import cli
-from vts_hw.cli.common import (FramesProgress, OutputFile, OutputFolder, calibration_files, config_option,
-                               finish_analysis, json_option, listmode_candidates, listmode_options)
+from vts_hw.cli.common import (
+    FramesProgress,
+    OutputFile,
+    OutputFolder,
+    calibration_files,
+    config_option,
+    finish_analysis,
+    json_option,
+    listmode_candidates,
+    listmode_options,
+)
 
 
 @cli.group()
@@ -17,26 +26,65 @@ def motion() -> None:
 @motion.command()
 @click.argument("session", type=click.Path())
 @listmode_options
-@click.option("--calibration", type=click.Path(dir_okay=False), default=None,
-              help="Camera calibration file (default: the rig config's calibration.cameras).")
-@click.option("--mapping", type=click.Path(dir_okay=False), default=None,
-              help="VTS -> SPECT transform file (default: the rig config's calibration.mapping); without one "
-                   "poses are in the VTS frame.")
-@click.option("-o", "--output", "out", type=OutputFile(), default=None,
-              help="Write the report here: NAME.html (self-contained: the plot inline) or NAME.pdf.")
+@click.option(
+    "--calibration",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Camera calibration file (default: the rig config's calibration.cameras).",
+)
+@click.option(
+    "--mapping",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="VTS -> SPECT transform file (default: the rig config's calibration.mapping); without one "
+    "poses are in the VTS frame.",
+)
+@click.option(
+    "-o",
+    "--output",
+    "out",
+    type=OutputFile(),
+    default=None,
+    help="Write the report here: NAME.html (self-contained: the plot inline) or NAME.pdf.",
+)
 @click.option("--plot", "plot_path", type=OutputFile(), default=None, help="Also write the plot as a PNG.")
-@click.option("--export", "export_dir", type=OutputFolder("export folder"), default=None,
-              help="Write the motion files to DIR (docs/motion-formats.md): motion_6dof.csv/.json, respiration.csv, "
-                   "subsets.json, trajectories.csv/.json, CASToR's castor_motion.dyn and castor_motion_rigid.txt "
-                   "and YRT-PET's yrtpet_lor_motion.csv (these three only with --listmode and a mapping made from a "
-                   "volume: they are read on the list-mode clock); every pose with its health and confidence.")
-@click.option("--bins", type=click.IntRange(2, 20), default=4, show_default=True,
-              help="Respiratory bins (by amplitude and by phase) in subsets.json.")
-@click.option("--workers", type=click.IntRange(1, 256), default=None, help="Processes for the recording (default: every core).")
+@click.option(
+    "--export",
+    "export_dir",
+    type=OutputFolder("export folder"),
+    default=None,
+    help="Write the motion files to DIR (docs/motion-formats.md): motion_6dof.csv/.json, respiration.csv, "
+    "subsets.json, trajectories.csv/.json, CASToR's castor_motion.dyn and castor_motion_rigid.txt "
+    "and YRT-PET's yrtpet_lor_motion.csv (these three only with --listmode and a mapping made from a "
+    "volume: they are read on the list-mode clock); every pose with its health and confidence.",
+)
+@click.option(
+    "--bins",
+    type=click.IntRange(2, 20),
+    default=4,
+    show_default=True,
+    help="Respiratory bins (by amplitude and by phase) in subsets.json.",
+)
+@click.option(
+    "--workers", type=click.IntRange(1, 256), default=None, help="Processes for the recording (default: every core)."
+)
 @json_option
 @config_option
-def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plot_path, export_dir, bins, workers, as_json,
-            config_path) -> None:
+def analyze(
+    session,
+    more,
+    listmode,
+    clock_slack,
+    calibration,
+    mapping,
+    out,
+    plot_path,
+    export_dir,
+    bins,
+    workers,
+    as_json,
+    config_path,
+) -> None:
     """Breathing, body 6-DOF pose, motion events and motion states of a scan SESSION.
 
     The patient's markers are found by behaviour (they breathe or move); breathing is taken out
@@ -58,12 +106,21 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
     from vts_hw.report.renderers import report_format, write_report
 
     if out:
-        report_format(out)           # -o x.txt: one sentence, exit 2, before anything is read
+        report_format(out)  # -o x.txt: one sentence, exit 2, before anything is read
     cal, mp, rig = calibration_files(config_path, calibration, mapping)
     candidates = listmode_candidates(listmode, more)
-    from vts_hw.procedures.motion import MotionAnalysis    # (its libraries load once the inputs are named)
-    a = MotionAnalysis(session, candidates or None, cal, mp, motion_config=rig.motion if rig is not None else None,
-                       workers=workers, progress=FramesProgress(), clock_slack_s=clock_slack)
+    from vts_hw.procedures.motion import MotionAnalysis  # (its libraries load once the inputs are named)
+
+    a = MotionAnalysis(
+        session,
+        candidates or None,
+        cal,
+        mp,
+        motion_config=rig.motion if rig is not None else None,
+        workers=workers,
+        progress=FramesProgress(),
+        clock_slack_s=clock_slack,
+    )
     a.analyze(tolerances=rig.tolerances if rig is not None else None)
     data = a.results_data()
     # the report, the plot and the export are each written whole or not at all; one that cannot
@@ -78,8 +135,19 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
     report_ok = bool(out) and outs.attempt(write_report, "motion", out, data, png) is not None
     if report_ok:
         data["report"] = str(out)
-    finish_analysis(rig, a, data, "motion analysis", as_json, notes=f"session {session}",
-                    artifacts=[plot_path] if plot_ok else [], outputs=outs,
-                    lines=[*([f"report: {out}"] if report_ok else []), *([f"plot: {plot_path}"] if plot_ok else []),
-                           *([f"exported ({data['clock']}): {', '.join(data['export'])}"] if exported else []),
-                           *(data.get("export_notes") or [])])
+    finish_analysis(
+        rig,
+        a,
+        data,
+        "motion analysis",
+        as_json,
+        notes=f"session {session}",
+        artifacts=[plot_path] if plot_ok else [],
+        outputs=outs,
+        lines=[
+            *([f"report: {out}"] if report_ok else []),
+            *([f"plot: {plot_path}"] if plot_ok else []),
+            *([f"exported ({data['clock']}): {', '.join(data['export'])}"] if exported else []),
+            *(data.get("export_notes") or []),
+        ],
+    )

@@ -42,6 +42,7 @@ def record_with_progress(rec: Recorder, seconds: float | None) -> dict:
                     last[0] = time.monotonic()
                     parts = [f"{p.name} {p.frames} frames" for p in r.progress.values()]
                     print(f"[{time.monotonic() - t0:5.1f} s] " + ", ".join(parts), file=sys.stderr)
+
             rec.wait(on_tick=tick)
     except KeyboardInterrupt:
         status = "interrupted"

@@ -22,8 +22,9 @@ qa.add_command(push)
 
 def _common(f):
     f = click.option("--camera", "cameras", multiple=True, help="Only this camera (repeatable).")(f)
-    f = click.option("--frames", type=click.IntRange(1, 50), default=5, show_default=True,
-                     help="LED-on snapshots per camera.")(f)
+    f = click.option(
+        "--frames", type=click.IntRange(1, 50), default=5, show_default=True, help="LED-on snapshots per camera."
+    )(f)
     f = click.option("--plots", is_flag=True, help="Save a drift plot per camera next to the saved frames.")(f)
     f = click.option("--dry-run", is_flag=True, help="List the steps without touching the rig or the store.")(f)
     f = click.option("--operator", default=lambda: os.environ.get("USER", ""), help="Who runs it.")(f)
@@ -41,7 +42,9 @@ def drift(rig, cameras, frames, plots, dry_run, operator, as_json, set_baseline)
     baseline markers, mean and SD of the displacement in x and y (px and mm at the wall); an
     LED-off frame checks that the markers vanish. Stored in the results store.
     """
-    from vts_hw.cli.qa_run import run_qa, set_baseline as do_baseline
+    from vts_hw.cli.qa_run import run_qa
+    from vts_hw.cli.qa_run import set_baseline as do_baseline
+
     if set_baseline:
         do_baseline(rig, list(cameras), frames, dry_run, operator, as_json)
         return
@@ -50,18 +53,33 @@ def drift(rig, cameras, frames, plots, dry_run, operator, as_json, set_baseline)
 
 @qa.command()
 @_common
-@click.option("--push", "push_after", is_flag=True,
-              help="Then post the stored run to QATrack+ (rig.yaml's qatrack: section, see `vts qa push`); a "
-                   "failed push is one line on stderr and stays in the outbox; the exit status stays the QA's.")
+@click.option(
+    "--push",
+    "push_after",
+    is_flag=True,
+    help="Then post the stored run to QATrack+ (rig.yaml's qatrack: section, see `vts qa push`); a "
+    "failed push is one line on stderr and stays in the outbox; the exit status stays the QA's.",
+)
 @with_rig
 def daily(rig, cameras, frames, plots, dry_run, operator, as_json, push_after) -> None:
     """The daily set: each camera reachable, its parameters still locked, its clock, the LED, the drift."""
     from vts_hw.cli.qa_run import run_qa
+
     if push_after and not dry_run:
         check_push_config(rig)
-    sys.exit(run_qa(rig, ("reachable", "params", "clock", "drift"), list(cameras), frames, plots, dry_run,
-                    operator, as_json, push=push_after))
-
+    sys.exit(
+        run_qa(
+            rig,
+            ("reachable", "params", "clock", "drift"),
+            list(cameras),
+            frames,
+            plots,
+            dry_run,
+            operator,
+            as_json,
+            push=push_after,
+        )
+    )
 
 
 @qa.command("import")
@@ -76,5 +94,6 @@ def import_(rig, files) -> None:
     file ``*.imported`` so it is never stored twice.
     """
     from vts_hw.cli.qa_run import import_runs
+
     for f, run_id in import_runs(rig, files):
         click.echo(f"{f}: stored as run {run_id}")

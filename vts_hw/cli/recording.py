@@ -6,9 +6,9 @@ import os
 
 import click
 
-from vts_hw.recording import promised as rec_mod
 from vts_hw.cli import cli
 from vts_hw.cli.common import OutputFolder, config_option, echo_json, fmt_time, json_option
+from vts_hw.recording import promised as rec_mod
 
 
 @cli.group()
@@ -35,8 +35,13 @@ def reindex(folder: str, as_json: bool) -> None:
 
     report = do_reindex(folder)
     if as_json:
-        echo_json({"folder": str(report.folder), "cameras": [c.as_dict() for c in report.cameras],
-                   "problems": report.problems})
+        echo_json(
+            {
+                "folder": str(report.folder),
+                "cameras": [c.as_dict() for c in report.cameras],
+                "problems": report.problems,
+            }
+        )
     else:
         for r in report.cameras:
             torn = f", {r.torn} torn frame(s) at the end left out" if r.torn else ""
@@ -88,11 +93,14 @@ def _print_info(summaries) -> None:
         dur = (s.last_time - s.first_time) if s.first_time is not None and s.last_time is not None else None
         promised = f" of {s.promised} promised" if s.promised is not None and s.promised != s.frames else ""
         missing = f" ({' and '.join(s.missing_files)} missing)" if s.missing_files else ""
-        click.echo(f"{s.source}: {s.frames}{promised} frame(s) readable{missing}, {s.with_time} with Axis time, "
-                   f"{s.torn} torn")
+        click.echo(
+            f"{s.source}: {s.frames}{promised} frame(s) readable{missing}, {s.with_time} with Axis time, {s.torn} torn"
+        )
         if s.first_time is not None:
-            click.echo(f"  camera time {fmt_time(s.first_time)} .. {fmt_time(s.last_time)}"
-                       f" ({dur:.2f} s{f', {s.fps:g} fps' if s.fps else ''})")
+            click.echo(
+                f"  camera time {fmt_time(s.first_time)} .. {fmt_time(s.last_time)}"
+                f" ({dur:.2f} s{f', {s.fps:g} fps' if s.fps else ''})"
+            )
         if s.gaps:
             missing = sum(g["missing"] for g in s.gaps)
             click.echo(f"  {len(s.gaps)} gap(s), {missing} frame(s) missing:")
@@ -104,13 +112,26 @@ def _print_info(summaries) -> None:
 
 @recording.command()
 @click.argument("session", type=click.Path(file_okay=False))
-@click.option("-o", "--output", "out", type=OutputFolder("output folder"), required=True,
-              help="Folder for trajectories.csv and trajectories.json (docs/trajectory-format.md).")
-@click.option("--calibration", type=click.Path(dir_okay=False), default=None,
-              help="Camera calibration file (default: the rig config's calibration.cameras).")
-@click.option("--mapping", type=click.Path(dir_okay=False), default=None,
-              help="VTS -> SPECT transform file (default: the rig config's calibration.mapping): adds SPECT-frame "
-                   "positions.")
+@click.option(
+    "-o",
+    "--output",
+    "out",
+    type=OutputFolder("output folder"),
+    required=True,
+    help="Folder for trajectories.csv and trajectories.json (docs/trajectory-format.md).",
+)
+@click.option(
+    "--calibration",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Camera calibration file (default: the rig config's calibration.cameras).",
+)
+@click.option(
+    "--mapping",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="VTS -> SPECT transform file (default: the rig config's calibration.mapping): adds SPECT-frame positions.",
+)
 @click.option("--workers", type=click.IntRange(1, 256), default=None, help="Processes (default: every core).")
 @json_option
 @config_option
@@ -125,14 +146,24 @@ def process(session, out, calibration, mapping, workers, as_json, config_path) -
     from vts_hw.tracking.processing import process_recording
 
     cal, mp, _ = calibration_files(config_path, calibration, mapping)
-    tracks = process_recording(session, load_calibration(cal), workers=workers, mapping=load_mapping(mp),
-                               progress=FramesProgress())
+    tracks = process_recording(
+        session, load_calibration(cal), workers=workers, mapping=load_mapping(mp), progress=FramesProgress()
+    )
     folder = ensure_dir(out, "output folder")
     paths = tracks.save(folder / "trajectories.csv")
     if as_json:
-        echo_json({"session": str(session), "files": [str(p) for p in paths], "frames": len(tracks),
-                   "points": int(len(tracks.marker)), "markers": tracks.marker_summary(),
-                   "warnings": tracks.meta.get("warnings", [])})
+        echo_json(
+            {
+                "session": str(session),
+                "files": [str(p) for p in paths],
+                "frames": len(tracks),
+                "points": int(len(tracks.marker)),
+                "markers": tracks.marker_summary(),
+                "warnings": tracks.meta.get("warnings", []),
+            }
+        )
     else:
-        click.echo(f"{session}: {len(tracks)} frame sets, {len(tracks.marker)} points, "
-                   f"{len(tracks.marker_ids())} marker ids -> {', '.join(str(p) for p in paths)}")
+        click.echo(
+            f"{session}: {len(tracks)} frame sets, {len(tracks.marker)} points, "
+            f"{len(tracks.marker_ids())} marker ids -> {', '.join(str(p) for p in paths)}"
+        )

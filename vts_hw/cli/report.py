@@ -10,14 +10,21 @@ from vts_hw.cli.common import OutputFile, config_option, echo_json, json_option,
 ALL_RIGS = "all"
 
 rig_option = click.option(
-    "--rig", "rig_name", default=None, metavar="NAME|all",
+    "--rig",
+    "rig_name",
+    default=None,
+    metavar="NAME|all",
     help="The rig (room) whose runs the report shows: a rig name as runs are stored with it "
-         "(rig.yaml's `rig:`), or `all` for every rig in the store (default: the config's rig).")
+    "(rig.yaml's `rig:`), or `all` for every rig in the store (default: the config's rig).",
+)
 
 since_option = click.option(
-    "--since", default="60d", show_default=True,
+    "--since",
+    default="60d",
+    show_default=True,
     help="Period to show: 60d, 8w, 12h, a UTC date such as 2026-09-01, or all. A period "
-         "reaching back before 1970 or starting in the future is refused (exit 2).")
+    "reaching back before 1970 or starting in the future is refused (exit 2).",
+)
 
 
 @cli.group()
@@ -27,8 +34,15 @@ def report() -> None:
 
 @report.command()
 @since_option
-@click.option("-o", "--output", "out", type=OutputFile(), default="drift-report.html",
-              show_default=True, help="report.html (self-contained) or report.pdf.")
+@click.option(
+    "-o",
+    "--output",
+    "out",
+    type=OutputFile(),
+    default="drift-report.html",
+    show_default=True,
+    help="report.html (self-contained) or report.pdf.",
+)
 @rig_option
 @json_option
 @config_option
@@ -49,13 +63,14 @@ def drift(since: str, out: str, rig_name: str | None, as_json: bool, config_path
     Without a rig config (a department's workstation: `vts --store URL report drift --rig
     NAME`), --rig is needed.
     """
+    from vts_hw.cli.common import open_store
     from vts_hw.report.renderers import report_format
     from vts_hw.report.times import parse_since
-    from vts_hw.cli.common import open_store
 
-    report_format(out)                  # ReportError: one sentence, exit 2 (before the plots' libraries load)
-    start = parse_since(since)          # BadSince: one sentence, exit 2
+    report_format(out)  # ReportError: one sentence, exit 2 (before the plots' libraries load)
+    start = parse_since(since)  # BadSince: one sentence, exit 2
     from vts_hw.report.build import build_drift_report, build_drift_report_every_rig
+
     rig = rig_if_any(config_path)
     if rig_name is not None:
         name = rig_name
@@ -63,6 +78,7 @@ def drift(since: str, out: str, rig_name: str | None, as_json: bool, config_path
         name = rig.rig
     else:
         from vts_hw.errors import UsageError
+
         raise UsageError("no rig config (--config, $VTS_CONFIG or ./rig.yaml), so give --rig NAME or --rig all")
     with open_store(rig, mode="read") as store:
         if name == ALL_RIGS:
@@ -71,12 +87,18 @@ def drift(since: str, out: str, rig_name: str | None, as_json: bool, config_path
             _known_rig(store, name, rig_name)
             reps = [build_drift_report(store, out, since=start, rig=name)]
     if as_json:
-        echo_json(reps[0].results_data() if name != ALL_RIGS else
-                  {"report": "drift", "rig": ALL_RIGS, "out": out, "rooms": [r.results_data() for r in reps]})
+        echo_json(
+            reps[0].results_data()
+            if name != ALL_RIGS
+            else {"report": "drift", "rig": ALL_RIGS, "out": out, "rooms": [r.results_data() for r in reps]}
+        )
     else:
         empty = not any(r.cameras for r in reps)
-        click.echo(f"wrote {out}" + (f" ({len(reps)} rig(s))" if name == ALL_RIGS else "")
-                   + (" (no completed drift runs in the period)" if empty else ""))
+        click.echo(
+            f"wrote {out}"
+            + (f" ({len(reps)} rig(s))" if name == ALL_RIGS else "")
+            + (" (no completed drift runs in the period)" if empty else "")
+        )
 
 
 def _known_rig(store, name: str, given: str | None) -> None:
@@ -87,16 +109,25 @@ def _known_rig(store, name: str, given: str | None) -> None:
     rigs = store.rigs()
     if name not in rigs:
         from vts_hw.errors import UsageError
+
         known = ", ".join(repr(r) for r in rigs) or "none: the store holds no runs"
-        raise UsageError(f"--rig {name!r}: the store has no runs of that rig (rigs in the store: {known}; "
-                          "or give --rig all)")
+        raise UsageError(
+            f"--rig {name!r}: the store has no runs of that rig (rigs in the store: {known}; or give --rig all)"
+        )
 
 
 @report.command()
 @since_option
-@click.option("-o", "--output", "out", type=OutputFile(), default="rooms.html",
-              show_default=True, help="rooms.html (self-contained) or rooms.pdf; each room's drift report is "
-                                      "written beside it as <name>-<rig>-drift.html (or .pdf) and linked.")
+@click.option(
+    "-o",
+    "--output",
+    "out",
+    type=OutputFile(),
+    default="rooms.html",
+    show_default=True,
+    help="rooms.html (self-contained) or rooms.pdf; each room's drift report is "
+    "written beside it as <name>-<rig>-drift.html (or .pdf) and linked.",
+)
 @rig_option
 @json_option
 @config_option
@@ -117,24 +148,29 @@ def rooms(since: str, out: str, rig_name: str | None, as_json: bool, config_path
     Exit status: 0 written; 2 a bad --since, -o or --rig; 3 the store or a file could not be
     read or written (a previous file is left as it was).
     """
+    from vts_hw.cli.common import open_store
     from vts_hw.report.renderers import report_format
     from vts_hw.report.times import parse_since
-    from vts_hw.cli.common import open_store
 
     report_format(out)
     start = parse_since(since)
     from vts_hw.report.build import build_rooms_report
+
     rig = rig_if_any(config_path)
     with open_store(rig, mode="read") as store:
         rigs = None
         if rig_name not in (None, ALL_RIGS):
             _known_rig(store, rig_name, rig_name)
             rigs = [rig_name]
-        rep = build_rooms_report(store, out, since=start, rigs=rigs,
-                                 progress=None if as_json else (lambda m: click.echo(m, err=True)))
+        rep = build_rooms_report(
+            store, out, since=start, rigs=rigs, progress=None if as_json else (lambda m: click.echo(m, err=True))
+        )
     if as_json:
         echo_json(rep.results_data())
     else:
         no_daily = [r.label for r in rep.rooms if not r.has_daily]
-        click.echo(f"wrote {out} ({len(rep.rooms)} room(s)"
-                   + (f"; no daily QA in the period: {', '.join(no_daily)}" if no_daily else "") + ")")
+        click.echo(
+            f"wrote {out} ({len(rep.rooms)} room(s)"
+            + (f"; no daily QA in the period: {', '.join(no_daily)}" if no_daily else "")
+            + ")"
+        )

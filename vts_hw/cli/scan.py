@@ -19,8 +19,8 @@ from vts_hw.cli.common import OutputFolder, PositiveSeconds, echo_json, fmt_time
 from vts_hw.cli.live_view import live_line, live_table
 from vts_hw.room import Room
 
-REFRESH_S = 0.5          # the live table, about twice a second
-PLAIN_EVERY_S = 2.0      # a status line this often when stderr is not a terminal
+REFRESH_S = 0.5  # the live table, about twice a second
+PLAIN_EVERY_S = 2.0  # a status line this often when stderr is not a terminal
 
 
 @cli.group()
@@ -29,21 +29,42 @@ def scan() -> None:
 
 
 @scan.command()
-@click.option("-o", "--output", "out", type=OutputFolder("recording folder"), default=None,
-              help="Session folder to create (default: ./scan-YYYYmmddTHHMMSSZ).")
-@click.option("--duration", type=PositiveSeconds(), default=None,
-              help="Stop after S seconds from the trigger (default: until Ctrl-C).")
+@click.option(
+    "-o",
+    "--output",
+    "out",
+    type=OutputFolder("recording folder"),
+    default=None,
+    help="Session folder to create (default: ./scan-YYYYmmddTHHMMSSZ).",
+)
+@click.option(
+    "--duration",
+    type=PositiveSeconds(),
+    default=None,
+    help="Stop after S seconds from the trigger (default: until Ctrl-C).",
+)
 @click.option("--dry-run", is_flag=True, help="List the steps for this rig without touching it.")
-@click.option("--live/--no-live", default=True, show_default=True,
-              help="Track the patient's markers live while recording (needs the rig's calibration): "
-                   "motion alerts per the rig's motion: section. With it on, a scan whose patient was not "
-                   "watched exits 4; --no-live for a scan without a patient (a sync check).")
-@click.option("--reference", "reference_s", type=PositiveSeconds(), default=10.0, show_default=True,
-              help="Seconds of the first still period the live tracking learns as the reference.")
+@click.option(
+    "--live/--no-live",
+    default=True,
+    show_default=True,
+    help="Track the patient's markers live while recording (needs the rig's calibration): "
+    "motion alerts per the rig's motion: section. With it on, a scan whose patient was not "
+    "watched exits 4; --no-live for a scan without a patient (a sync check).",
+)
+@click.option(
+    "--reference",
+    "reference_s",
+    type=PositiveSeconds(),
+    default=10.0,
+    show_default=True,
+    help="Seconds of the first still period the live tracking learns as the reference.",
+)
 @json_option
 @with_rig
-def start(out: str | None, duration: float | None, dry_run: bool, live: bool, reference_s: float,
-          as_json: bool, rig) -> None:
+def start(
+    out: str | None, duration: float | None, dry_run: bool, live: bool, reference_s: float, as_json: bool, rig
+) -> None:
     """Check cameras and trigger, record every camera, fire the trigger, show live status.
 
     Ctrl-C (or the duration) stops the square wave, closes the recordings, measures the
@@ -67,21 +88,28 @@ def start(out: str | None, duration: float | None, dry_run: bool, live: bool, re
 
     folder = Path(out) if out else default_folder()
     check_camera_kinds(rig.cameras)
-    with Room(rig) as room:       # the cameras and the trigger the session uses: closed with it, whatever happens
+    with Room(rig) as room:  # the cameras and the trigger the session uses: closed with it, whatever happens
         _start(room, folder, duration, dry_run, live, reference_s, as_json)
 
 
-def _start(room, folder: Path, duration: float | None, dry_run: bool, live: bool, reference_s: float,
-           as_json: bool) -> None:
+def _start(
+    room, folder: Path, duration: float | None, dry_run: bool, live: bool, reference_s: float, as_json: bool
+) -> None:
     from vts_hw.procedures.scan import ScanSession
 
     rig = room.rig
     err = Console(stderr=True, highlight=False)
-    cameras = [] if dry_run else room.cameras   # a dry run touches nothing
+    cameras = [] if dry_run else room.cameras  # a dry run touches nothing
     motion = None if dry_run or not live else _live_motion(rig, reference_s, err)
-    session = ScanSession(rig, folder, cameras, duration=duration, live=motion, trigger=lambda: room.trigger,
-                          on_step=lambda name, text: err.print(f"[green]ok[/]  {escape(name)}: {escape(text)}",
-                                                              soft_wrap=True))
+    session = ScanSession(
+        rig,
+        folder,
+        cameras,
+        duration=duration,
+        live=motion,
+        trigger=lambda: room.trigger,
+        on_step=lambda name, text: err.print(f"[green]ok[/]  {escape(name)}: {escape(text)}", soft_wrap=True),
+    )
     if dry_run:
         steps = session.plan()
         if as_json:
@@ -96,10 +124,13 @@ def _start(room, folder: Path, duration: float | None, dry_run: bool, live: bool
     except KeyboardInterrupt:
         with _no_interrupts():
             session.stop("interrupted")
-        click.echo(f"vts: interrupted before the scan started"
-                   f"{f'; what was recorded is in {folder}' if session.recorder else ''}", err=True)
+        click.echo(
+            f"vts: interrupted before the scan started"
+            f"{f'; what was recorded is in {folder}' if session.recorder else ''}",
+            err=True,
+        )
         sys.exit(130)
-    if session.trigger.info.get("no_watchdog"):      # a trigger that cannot stop its wave by itself
+    if session.trigger.info.get("no_watchdog"):  # a trigger that cannot stop its wave by itself
         click.echo(f"vts: note: {session.trigger.info['no_watchdog']}", err=True)
     reason = "error"
     try:
@@ -115,6 +146,7 @@ def _start(room, folder: Path, duration: float | None, dry_run: bool, live: bool
     else:
         _summary(folder, manifest)
     from vts_hw.procedures.scan_summary import verdict
+
     last, code = verdict(folder, manifest, session.recorder.write_failure if session.recorder is not None else None)
     if code:
         click.echo(f"vts: {last}", err=True)
@@ -123,19 +155,24 @@ def _start(room, folder: Path, duration: float | None, dry_run: bool, live: bool
 
 # -- live status -------------------------------------------------------------------------------------
 
-def _live_motion(rig, reference_s: float, err: Console):
-    from vts_hw.tracking.live.estimator import LiveSettings
-    from vts_hw.procedures.scan_live import LiveMotion
 
-    def alert(text: str) -> None:   # one line and the bell
+def _live_motion(rig, reference_s: float, err: Console):
+    from vts_hw.procedures.scan_live import LiveMotion
+    from vts_hw.tracking.live.estimator import LiveSettings
+
+    def alert(text: str) -> None:  # one line and the bell
         if err.is_terminal:
             err.print(f"[bold red]ALERT[/] {escape(text)}", soft_wrap=True)
             err.bell()
         else:
             click.echo(f"ALERT {text}\a", err=True)
 
-    return LiveMotion(rig, settings=LiveSettings(reference_s=reference_s), on_alert_text=alert,
-                      on_note=lambda text: click.echo(f"vts: {text}", err=True))
+    return LiveMotion(
+        rig,
+        settings=LiveSettings(reference_s=reference_s),
+        on_alert_text=alert,
+        on_note=lambda text: click.echo(f"vts: {text}", err=True),
+    )
 
 
 def _views(session):
@@ -149,8 +186,9 @@ def _views(session):
 
 def _live(session, console: Console) -> str:
     if console.is_terminal:
-        with Live(console=console, get_renderable=lambda: _views(session),
-                  refresh_per_second=1 / REFRESH_S, transient=False):
+        with Live(
+            console=console, get_renderable=lambda: _views(session), refresh_per_second=1 / REFRESH_S, transient=False
+        ):
             return session.wait(None, REFRESH_S)
     last = [0.0]
 
@@ -161,13 +199,18 @@ def _live(session, console: Console) -> str:
             click.echo(f"[{st.elapsed_s:6.1f} s] {cams}; {_trigger_text(st.trigger)}", err=True)
             if session.live is not None:
                 click.echo(f"[{st.elapsed_s:6.1f} s] {live_line(session.live.snapshot())}", err=True)
+
     return session.wait(plain, REFRESH_S)
 
 
 def _table(st, folder) -> Table:
     of = f" of {st.duration_s:g} s" if st.duration_s else ""
-    t = Table(title=f"scan {folder}  {st.elapsed_s:6.1f} s{of}  (Ctrl-C stops)", title_justify="left",
-              caption=_trigger_text(st.trigger), caption_justify="left")
+    t = Table(
+        title=f"scan {folder}  {st.elapsed_s:6.1f} s{of}  (Ctrl-C stops)",
+        title_justify="left",
+        caption=_trigger_text(st.trigger),
+        caption_justify="left",
+    )
     for col in ("camera", "frames", "fps", "dropped", "reconnects", "state"):
         t.add_column(col, justify="left" if col in ("camera", "state") else "right")
     for c in st.cameras:
@@ -195,11 +238,13 @@ def _trigger_text(tr: dict) -> str:
 
 def _summary(folder: Path, m: dict) -> None:
     from vts_hw.procedures.scan_summary import summary_lines
+
     for line in summary_lines(folder, m):
         click.echo(line)
 
 
 # -- signals -----------------------------------------------------------------------------------------
+
 
 @contextlib.contextmanager
 def _no_interrupts():

@@ -62,15 +62,33 @@ def info(config_path, as_json) -> None:
 
 
 @store.command()
-@click.option("--from", "src", required=True, metavar="URL",
-              help="The store to copy from (URL or SQLite file; it must be a vts-hw results store).")
-@click.option("--to", "dst", required=True, metavar="URL",
-              help="The store to copy into: a vts-hw results store (it may hold other rooms' runs), a new "
-                   "SQLite file, or an empty PostgreSQL database.")
-@click.option("--from-password-env", metavar="NAME", default=None,
-              help="Environment variable holding the source database's password.")
-@click.option("--to-password-env", metavar="NAME", default=None,
-              help="Environment variable holding the target database's password.")
+@click.option(
+    "--from",
+    "src",
+    required=True,
+    metavar="URL",
+    help="The store to copy from (URL or SQLite file; it must be a vts-hw results store).",
+)
+@click.option(
+    "--to",
+    "dst",
+    required=True,
+    metavar="URL",
+    help="The store to copy into: a vts-hw results store (it may hold other rooms' runs), a new "
+    "SQLite file, or an empty PostgreSQL database.",
+)
+@click.option(
+    "--from-password-env",
+    metavar="NAME",
+    default=None,
+    help="Environment variable holding the source database's password.",
+)
+@click.option(
+    "--to-password-env",
+    metavar="NAME",
+    default=None,
+    help="Environment variable holding the target database's password.",
+)
 @json_option
 def migrate(src, dst, from_password_env, to_password_env, as_json) -> None:
     """Copy every run, measurement, tolerance window, artifact record and outbox row of one
@@ -99,56 +117,93 @@ def migrate(src, dst, from_password_env, to_password_env, as_json) -> None:
     """
     from vts_hw.store.copy import copy_store
 
-    with _open(src, from_password_env, "--from", mode="read") as source, \
-            _open(dst, to_password_env, "--to", mode="create") as target:
+    with (
+        _open(src, from_password_env, "--from", mode="read") as source,
+        _open(dst, to_password_env, "--to", mode="create") as target,
+    ):
         if source.url == target.url:
             raise UsageError(f"--from and --to are the same store ({source.url})")
 
         def progress(done, total):
             if not as_json:
                 click.echo(f"copying runs: {done}/{total}", err=True)
+
         if not as_json:
             click.echo(f"copying {source.url} -> {target.url}", err=True)
         rep = copy_store(source, target, progress=progress)
-        users_left = len(source.users())      # the console's users are not copied (copy.py)
+        users_left = len(source.users())  # the console's users are not copied (copy.py)
         where = (source.url, target.url)
     new_total = sum(rep.new.values())
     if as_json:
-        echo_json({"from": where[0], "to": where[1], "new": rep.new, "skipped_runs": rep.skipped_runs,
-                   "running_copied": rep.running_copied, "ended_runs": rep.ended_runs,
-                   "outbox_updated": rep.outbox_updated, "ok": rep.ok, "users_not_copied": users_left,
-                   "tables": [{"table": c.table, "source": c.source, "in_target": c.found, "new": c.new,
-                               "checksum_source": c.source_sum, "checksum_target": c.target_sum, "ok": c.ok}
-                              for c in rep.checks]})
+        echo_json(
+            {
+                "from": where[0],
+                "to": where[1],
+                "new": rep.new,
+                "skipped_runs": rep.skipped_runs,
+                "running_copied": rep.running_copied,
+                "ended_runs": rep.ended_runs,
+                "outbox_updated": rep.outbox_updated,
+                "ok": rep.ok,
+                "users_not_copied": users_left,
+                "tables": [
+                    {
+                        "table": c.table,
+                        "source": c.source,
+                        "in_target": c.found,
+                        "new": c.new,
+                        "checksum_source": c.source_sum,
+                        "checksum_target": c.target_sum,
+                        "ok": c.ok,
+                    }
+                    for c in rep.checks
+                ],
+            }
+        )
     else:
-        click.echo(f"{'table':<13} {'source':>8} {'in target':>10} {'new':>7}  {'checksum source':<17} "
-                   f"{'checksum target':<17}")
+        click.echo(
+            f"{'table':<13} {'source':>8} {'in target':>10} {'new':>7}  {'checksum source':<17} {'checksum target':<17}"
+        )
         for c in rep.checks:
-            click.echo(f"{c.table:<13} {c.source:>8} {c.found:>10} {c.new:>7}  {c.source_sum:<17} "
-                       f"{c.target_sum:<17} {'ok' if c.ok else 'MISMATCH'}")
+            click.echo(
+                f"{c.table:<13} {c.source:>8} {c.found:>10} {c.new:>7}  {c.source_sum:<17} "
+                f"{c.target_sum:<17} {'ok' if c.ok else 'MISMATCH'}"
+            )
         if rep.ended_runs or rep.outbox_updated:
-            click.echo(f"brought over: {rep.ended_runs} run(s) that have ended since an earlier copy, "
-                       f"{rep.outbox_updated} outbox row(s) whose push went on")
+            click.echo(
+                f"brought over: {rep.ended_runs} run(s) that have ended since an earlier copy, "
+                f"{rep.outbox_updated} outbox row(s) whose push went on"
+            )
         if new_total == 0:
             click.echo(f"0 new: the target already held all {rep.skipped_runs} run(s) and their windows")
         else:
             click.echo(f"{rep.new['runs']} new run(s) copied ({rep.skipped_runs} already there)")
         if rep.running_copied:
-            click.echo(f"note: {rep.running_copied} run(s) still running in the source were copied as running; "
-                       "a later copy brings their end", err=True)
+            click.echo(
+                f"note: {rep.running_copied} run(s) still running in the source were copied as running; "
+                "a later copy brings their end",
+                err=True,
+            )
         if users_left:
-            click.echo(f"note: the source's {users_left} console user(s) were not copied (their password hashes "
-                       "stay where they were made): add them on the target with `vts console user add`", err=True)
+            click.echo(
+                f"note: the source's {users_left} console user(s) were not copied (their password hashes "
+                "stay where they were made): add them on the target with `vts console user add`",
+                err=True,
+            )
     if not rep.ok:
-        click.echo(f"vts: the copy does not match its source in table(s) {', '.join(rep.mismatched)} "
-                   "(rows of the source missing or different in the target)", err=True)
+        click.echo(
+            f"vts: the copy does not match its source in table(s) {', '.join(rep.mismatched)} "
+            "(rows of the source missing or different in the target)",
+            err=True,
+        )
         sys.exit(3)
 
 
 @store.command()
 @click.argument("url", metavar="URL")
-@click.option("--password-env", metavar="NAME", default=None,
-              help="Environment variable holding the database's password.")
+@click.option(
+    "--password-env", metavar="NAME", default=None, help="Environment variable holding the database's password."
+)
 @json_option
 def init(url, password_env, as_json) -> None:
     """Make URL a results store: an SQLite file (new, or an empty database) or an empty
@@ -170,6 +225,12 @@ def init(url, password_env, as_json) -> None:
     if as_json:
         echo_json(data)
         return
-    click.echo(f"{data['url']}: " + ("results store created" if data["created"] else
-                                     f"already a results store ({data['rows'].get('runs', 0)} run(s))")
-               + f", schema version {data['schema_version']}")
+    click.echo(
+        f"{data['url']}: "
+        + (
+            "results store created"
+            if data["created"]
+            else f"already a results store ({data['rows'].get('runs', 0)} run(s))"
+        )
+        + f", schema version {data['schema_version']}"
+    )

@@ -5,8 +5,17 @@ from __future__ import annotations
 import click
 
 from vts_hw.cli import cli
-from vts_hw.cli.common import (FramesProgress, OutputFile, OutputFolder, calibration_files, config_option,
-                               finish_analysis, json_option, listmode_candidates, listmode_options)
+from vts_hw.cli.common import (
+    FramesProgress,
+    OutputFile,
+    OutputFolder,
+    calibration_files,
+    config_option,
+    finish_analysis,
+    json_option,
+    listmode_candidates,
+    listmode_options,
+)
 
 
 @cli.group()
@@ -17,25 +26,58 @@ def sync() -> None:
 @sync.command()
 @click.argument("session", type=click.Path())
 @listmode_options
-@click.option("--calibration", type=click.Path(dir_okay=False), default=None,
-              help="Camera calibration file (default: the rig config's calibration.cameras).")
-@click.option("--mapping", type=click.Path(dir_okay=False), default=None,
-              help="VTS -> SPECT transform file (default: the rig config's calibration.mapping).")
-@click.option("-o", "--output", "out", type=OutputFile(), default=None,
-              help="Write the report here: NAME.html (self-contained: the plot inline) or NAME.pdf.")
-@click.option("--plot", "plot_path", type=OutputFile(), default=None,
-              help="Also write the plot as a PNG here.")
-@click.option("--export", "export_dir", type=OutputFolder("export folder"), default=None,
-              help="Export the marker trajectories in the SPECT frame on SPECT time to DIR "
-                   "(trajectories.csv and .json, docs/trajectory-format.md).")
-@click.option("--marker", type=int, default=None,
-              help="The marker id to follow (default: the one with the largest axial range).")
-@click.option("--workers", type=click.IntRange(1, 256), default=None,
-              help="Processes for the recording (default: every core).")
+@click.option(
+    "--calibration",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="Camera calibration file (default: the rig config's calibration.cameras).",
+)
+@click.option(
+    "--mapping",
+    type=click.Path(dir_okay=False),
+    default=None,
+    help="VTS -> SPECT transform file (default: the rig config's calibration.mapping).",
+)
+@click.option(
+    "-o",
+    "--output",
+    "out",
+    type=OutputFile(),
+    default=None,
+    help="Write the report here: NAME.html (self-contained: the plot inline) or NAME.pdf.",
+)
+@click.option("--plot", "plot_path", type=OutputFile(), default=None, help="Also write the plot as a PNG here.")
+@click.option(
+    "--export",
+    "export_dir",
+    type=OutputFolder("export folder"),
+    default=None,
+    help="Export the marker trajectories in the SPECT frame on SPECT time to DIR "
+    "(trajectories.csv and .json, docs/trajectory-format.md).",
+)
+@click.option(
+    "--marker", type=int, default=None, help="The marker id to follow (default: the one with the largest axial range)."
+)
+@click.option(
+    "--workers", type=click.IntRange(1, 256), default=None, help="Processes for the recording (default: every core)."
+)
 @json_option
 @config_option
-def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plot_path, export_dir, marker,
-            workers, as_json, config_path) -> None:
+def analyze(
+    session,
+    more,
+    listmode,
+    clock_slack,
+    calibration,
+    mapping,
+    out,
+    plot_path,
+    export_dir,
+    marker,
+    workers,
+    as_json,
+    config_path,
+) -> None:
     """Put a scan SESSION and its SPECT list-mode on one clock.
 
     The gating signal gives the SPECT start delay, clock and dead time; the recording gives the
@@ -58,15 +100,24 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
     from vts_hw.report.renderers import report_format, write_report
 
     if out:
-        report_format(out)           # -o x.txt: one sentence, exit 2, before anything is read
+        report_format(out)  # -o x.txt: one sentence, exit 2, before anything is read
     candidates = listmode_candidates(listmode, more)
     if not candidates:
         raise click.UsageError("give the scan's list-mode: --listmode FILE")
-    check_session(session)           # a bad folder says so before anything else is read
+    check_session(session)  # a bad folder says so before anything else is read
     cal, mp, rig = calibration_files(config_path, calibration, mapping)
-    from vts_hw.procedures.sync import SyncAnalysis, export_trajectories    # (its libraries load now)
-    a = SyncAnalysis(session, candidates, cal, mp, marker=marker, workers=workers, progress=FramesProgress(),
-                     clock_slack_s=CLOCK_SLACK_S if clock_slack is None else clock_slack)
+    from vts_hw.procedures.sync import SyncAnalysis, export_trajectories  # (its libraries load now)
+
+    a = SyncAnalysis(
+        session,
+        candidates,
+        cal,
+        mp,
+        marker=marker,
+        workers=workers,
+        progress=FramesProgress(),
+        clock_slack_s=CLOCK_SLACK_S if clock_slack is None else clock_slack,
+    )
     a.analyze(tolerances=rig.tolerances if rig is not None else None)
     data = a.results_data()
     # the report, the plot and the export are each written whole or not at all; one that cannot
@@ -80,8 +131,18 @@ def analyze(session, more, listmode, clock_slack, calibration, mapping, out, plo
     exported = outs.attempt(export_trajectories, a.tracks, a.gating, export_dir, mp) if export_dir else None
     if exported is not None:
         data["export"] = [str(p) for p in exported]
-    finish_analysis(rig, a, data, "sync check", as_json, notes=f"session {session}",
-                    artifacts=[plot_path] if plot_ok else [], outputs=outs,
-                    lines=[*([f"report: {out}"] if report_ok else []), *([f"plot: {plot_path}"] if plot_ok else []),
-                           *([f"trajectories (SPECT frame, SPECT time): {', '.join(data['export'])}"]
-                             if exported else [])])
+    finish_analysis(
+        rig,
+        a,
+        data,
+        "sync check",
+        as_json,
+        notes=f"session {session}",
+        artifacts=[plot_path] if plot_ok else [],
+        outputs=outs,
+        lines=[
+            *([f"report: {out}"] if report_ok else []),
+            *([f"plot: {plot_path}"] if plot_ok else []),
+            *([f"trajectories (SPECT frame, SPECT time): {', '.join(data['export'])}"] if exported else []),
+        ],
+    )

@@ -11,8 +11,14 @@ from vts_hw.cli.common import OutputFile, echo_json, json_option, with_rig
 from vts_hw.errors import DeviceError
 from vts_hw.room import Room
 
-log_option = click.option("--log", "log_path", type=OutputFile(), default="trigger.csv",
-                          show_default=True, help="trigger.csv to append every command, reply and edge to.")
+log_option = click.option(
+    "--log",
+    "log_path",
+    type=OutputFile(),
+    default="trigger.csv",
+    show_default=True,
+    help="trigger.csv to append every command, reply and edge to.",
+)
 
 
 @cli.group()
@@ -45,8 +51,9 @@ def _no_errors(st) -> None:
     """A device that reports errors in its queue failed at something: exit 4 in one sentence (the
     status printed above lists them), never a status that looks fine."""
     if st.errors:
-        raise DeviceError(f"{st.device} reports {len(st.errors)} error(s) in its queue (read off it now): "
-                          f"{'; '.join(st.errors)}")
+        raise DeviceError(
+            f"{st.device} reports {len(st.errors)} error(s) in its queue (read off it now): {'; '.join(st.errors)}"
+        )
 
 
 @contextlib.contextmanager
@@ -65,6 +72,7 @@ def _configure(gen, t) -> None:
     outlives this command by design, so a device's watchdog is switched off for it (the trigger
     box's status says so; `vts trigger stop` ends the wave)."""
     from vts_hw.drivers.trigger import LEVELS, WATCHDOG
+
     if WATCHDOG in gen.capabilities:
         gen.watchdog_s = 0
     levels = (t.high_v, t.low_v) if LEVELS in gen.capabilities else (None, None)
@@ -115,8 +123,10 @@ def pulse(channel, ms, log_path, rig) -> None:
     ms = ms or rig.trigger.pulse_ms
     with _session(rig, log_path) as gen:
         gen.pulse(channel, ms)
-    click.echo(f"{gen.name}: start pulse on channel {channel} for {ms} ms sent: the device accepted it (a pulse "
-               "is not read back)")
+    click.echo(
+        f"{gen.name}: start pulse on channel {channel} for {ms} ms sent: the device accepted it (a pulse "
+        "is not read back)"
+    )
 
 
 @trigger.command()
@@ -131,6 +141,7 @@ def fire(log_path, as_json, rig) -> None:
 
     from vts_hw.drivers.settings import Setting
     from vts_hw.drivers.trigger import CHANNELS, FIRE, LEVELS
+
     t = rig.trigger
     with _session(rig, log_path) as gen:
         if FIRE in gen.capabilities:  # else fire() below refuses, in the driver's words, before anything is sent
@@ -151,6 +162,8 @@ def fire(log_path, as_json, rig) -> None:
         click.echo("  square wave at the device's fixed TTL levels")
     both = " and ".join(f"channel {c} ({what})" for c, what in CHANNELS.items())
     how = f"the device confirms {width} ms" if confirmed else f"{width} ms timed by the host"
-    click.echo(f"start pulses: {both}, {width} ms each, sent with the square wave's first rising edge "
-               f"({st.device} accepted the fire; {how})")
+    click.echo(
+        f"start pulses: {both}, {width} ms each, sent with the square wave's first rising edge "
+        f"({st.device} accepted the fire; {how})"
+    )
     _no_errors(st)

@@ -18,8 +18,8 @@ import math
 import re
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from typing import Callable
 
 from vts_hw.console.guard import LOCAL_USER
 from vts_hw.console.sessions import current
@@ -34,11 +34,11 @@ URL_USERINFO = re.compile(r"([A-Za-z][A-Za-z0-9+.-]*://)[^/@\s]*@")
 
 @dataclass(frozen=True)
 class Action:
-    at: float                      # unix time
+    at: float  # unix time
     user: str
-    what: str                      # a short verb phrase: "scan started", "alert acknowledged", ...
-    detail: dict = field(default_factory=dict)   # never a password, token or camera URL
-    role: str = ""                 # the role the user had then
+    what: str  # a short verb phrase: "scan started", "alert acknowledged", ...
+    detail: dict = field(default_factory=dict)  # never a password, token or camera URL
+    role: str = ""  # the role the user had then
     rig: str = ""
 
     def as_dict(self) -> dict:
@@ -54,7 +54,7 @@ def clean(value):
     if isinstance(value, str):
         return URL_USERINFO.sub(r"\1***@", value)
     if isinstance(value, float) and not math.isfinite(value):
-        return str(value)                  # (JSON has no inf or nan: the store's and the pages' JSON stays JSON)
+        return str(value)  # (JSON has no inf or nan: the store's and the pages' JSON stays JSON)
     if value is None or isinstance(value, (bool, int, float)):
         return value
     return clean(str(value))
@@ -70,7 +70,7 @@ def new_action(rig: str, user: str, what: str, detail: dict | None, role: str) -
 
 
 def _keep(a: Action, start, end, user) -> bool:
-    return ((start is None or a.at >= start) and (end is None or a.at < end) and (not user or a.user == user))
+    return (start is None or a.at >= start) and (end is None or a.at < end) and (not user or a.user == user)
 
 
 class MemoryActions:
@@ -85,12 +85,18 @@ class MemoryActions:
             self._items.append(act)
         return act
 
-    def page(self, start: float | None = None, end: float | None = None, user: str | None = None,
-             limit: int = 50, offset: int = 0) -> tuple[list[Action], int]:
+    def page(
+        self,
+        start: float | None = None,
+        end: float | None = None,
+        user: str | None = None,
+        limit: int = 50,
+        offset: int = 0,
+    ) -> tuple[list[Action], int]:
         """Newest first, done in [start, end), by ``user``; and how many the filters keep."""
         with self._lock:
             kept = [a for a in reversed(self._items) if _keep(a, start, end, user)]
-        return kept[offset:offset + limit], len(kept)
+        return kept[offset : offset + limit], len(kept)
 
     def recent(self, limit: int = 50) -> list[Action]:
         return self.page(limit=limit)[0]
@@ -110,7 +116,7 @@ class StoreActions:
         self._open_read = open_read
         self._lock = threading.Lock()
         self.pending: list[Action] = []
-        self._recent: tuple[float, int, list[Action]] | None = None    # (when read, limit, actions)
+        self._recent: tuple[float, int, list[Action]] | None = None  # (when read, limit, actions)
 
     def record_now(self, user: str, what: str, detail: dict | None = None, *, role: str = "") -> Action:
         """Record an action that must reach the store now (with any waiting): StoreError (or the
@@ -134,12 +140,19 @@ class StoreActions:
                 self.pending = []
             except VtsError as exc:
                 self.pending = todo
-                log.warning("the action %r by %s is kept in memory: the results store did not take it (%s)",
-                            what, user, exc)
+                log.warning(
+                    "the action %r by %s is kept in memory: the results store did not take it (%s)", what, user, exc
+                )
         return act
 
-    def page(self, start: float | None = None, end: float | None = None, user: str | None = None,
-             limit: int = 50, offset: int = 0) -> tuple[list[Action], int]:
+    def page(
+        self,
+        start: float | None = None,
+        end: float | None = None,
+        user: str | None = None,
+        limit: int = 50,
+        offset: int = 0,
+    ) -> tuple[list[Action], int]:
         """As MemoryActions.page, from the store (and any action waiting to be written)."""
         with self._lock:
             waiting = [a for a in reversed(self.pending) if _keep(a, start, end, user)]
@@ -163,7 +176,7 @@ class StoreActions:
         return acts
 
 
-RECENT_S = 5.0       # actions of other consoles on the same store reach a page within this
+RECENT_S = 5.0  # actions of other consoles on the same store reach a page within this
 
 
 def durable_actions(open_write, open_read, rig: str, address: str) -> StoreActions:
@@ -174,15 +187,16 @@ def durable_actions(open_write, open_read, rig: str, address: str) -> StoreActio
     writes), StoreError (exit 3) in one sentence naming it: the action log is never only in
     memory, to be lost when the console stops. docs/decisions/0080-console-inputs-and-audit.md."""
     if open_write is None or open_read is None:
-        raise UsageError("the console needs a results store to keep its action log in (who did what): none "
-                         "was given")
+        raise UsageError("the console needs a results store to keep its action log in (who did what): none was given")
     log_ = StoreActions(open_write, open_read, rig)
     try:
         log_.record_now(LOCAL_USER, "console started", {"address": address})
     except VtsError as exc:
-        raise StoreError(f"refused to serve the console: its action log cannot be kept in the results store "
-                         f"({exc}); name a vts-hw results store this user can write (vts --store, $VTS_STORE, "
-                         f"rig.yaml's store:)") from None
+        raise StoreError(
+            f"refused to serve the console: its action log cannot be kept in the results store "
+            f"({exc}); name a vts-hw results store this user can write (vts --store, $VTS_STORE, "
+            f"rig.yaml's store:)"
+        ) from None
     return log_
 
 

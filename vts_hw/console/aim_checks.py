@@ -34,10 +34,10 @@ from vts_hw.camera import NotWhole, check_whole
 from vts_hw.errors import VtsError
 from vts_hw.procedures.aim import aim_page_of
 
-EVERY_S = 2.0             # pause between two rounds of checks
-FRAME_WAIT_S = 6.0        # a camera that gives no new frame for this long: not checked, and why
-AFTER_S = 0.15            # a frame counts as taken after an instant when stamped this long after it
-FRESH_FRAMES = 2          # ... or, with no camera stamp / offset, this many frames arrived after it and AFTER_S
+EVERY_S = 2.0  # pause between two rounds of checks
+FRAME_WAIT_S = 6.0  # a camera that gives no new frame for this long: not checked, and why
+AFTER_S = 0.15  # a frame counts as taken after an instant when stamped this long after it
+FRESH_FRAMES = 2  # ... or, with no camera stamp / offset, this many frames arrived after it and AFTER_S
 
 
 class NotChecked(Exception):
@@ -50,19 +50,28 @@ class AimState:
 
     on: bool = False
     busy: bool = False
-    n: int = 0                        # checks done since the console started
-    at: float | None = None           # host epoch s of the last check's pictures
-    verdicts: dict | None = None      # the last check's (procedures.aim.aim_page_of)
-    png: bytes | None = None          # its overlay
-    problem: str = ""                 # why the last round made no check ("" when it did)
-    led_found: str = ""               # the LED's state found (and left) by the last check
-    by: str = ""                      # who switched it on
+    n: int = 0  # checks done since the console started
+    at: float | None = None  # host epoch s of the last check's pictures
+    verdicts: dict | None = None  # the last check's (procedures.aim.aim_page_of)
+    png: bytes | None = None  # its overlay
+    problem: str = ""  # why the last round made no check ("" when it did)
+    led_found: str = ""  # the LED's state found (and left) by the last check
+    by: str = ""  # who switched it on
     version: int = 0
 
     def as_dict(self, camera: str) -> dict:
-        return {"camera": camera, "on": self.on, "busy": self.busy, "n": self.n, "at": self.at,
-                "verdicts": self.verdicts, "problem": self.problem, "led_found": self.led_found,
-                "by": self.by, "version": self.version}
+        return {
+            "camera": camera,
+            "on": self.on,
+            "busy": self.busy,
+            "n": self.n,
+            "at": self.at,
+            "verdicts": self.verdicts,
+            "problem": self.problem,
+            "led_found": self.led_found,
+            "by": self.by,
+            "version": self.version,
+        }
 
 
 class AimChecks:
@@ -95,8 +104,10 @@ class AimChecks:
         """Why camera ``name`` cannot be checked now (one sentence), or ''."""
         src = self.console.hub.source(name)
         if src == "fed":
-            return (f"not checked: {name} is recording (a scan or the daily QA has its frames and its LED); "
-                    f"the check goes on when that is done")
+            return (
+                f"not checked: {name} is recording (a scan or the daily QA has its frames and its LED); "
+                f"the check goes on when that is done"
+            )
         if src == "off" or self.console.facts.cameras.get(name) is None:
             return f"not checked: the console leaves {name} alone (no stream of it here)"
         return ""
@@ -149,13 +160,12 @@ class AimChecks:
                     verdicts, png, at, found = self.check(name)
                 except NotChecked as exc:
                     self._update(name, busy=False, problem=str(exc))
-                except Exception as exc:     # one odd picture never stops the checks of every camera
+                except Exception as exc:  # one odd picture never stops the checks of every camera
                     self._update(name, busy=False, problem=f"not checked: {type(exc).__name__}: {exc}")
                 else:
                     with self._lock:
                         n = self._state[name].n + 1
-                    self._update(name, busy=False, problem="", verdicts=verdicts, png=png, at=at, n=n,
-                                 led_found=found)
+                    self._update(name, busy=False, problem="", verdicts=verdicts, png=png, at=at, n=n, led_found=found)
             self._wake.clear()
             self._wake.wait(self.every_s)
 
@@ -180,8 +190,10 @@ class AimChecks:
         cf = facts.facts[name]
         found, why = cf.led, cf.led_why
         if found not in ("on", "off"):
-            raise NotChecked(f"not checked: the LED state of {name} is not known ({why or 'not read'}), "
-                             f"so it could not be put back as it was")
+            raise NotChecked(
+                f"not checked: the LED state of {name} is not known ({why or 'not read'}), "
+                f"so it could not be put back as it was"
+            )
         first = self._frame_after(name, time.time())
         other = found != "on"
         result = facts.switch_led(name, other)
@@ -190,7 +202,7 @@ class AimChecks:
                 raise NotChecked(f"not checked: {result['led_error']}")
             second = self._frame_after(name, time.time())
         finally:
-            if self.console.hub.source(name) != "fed":     # fed: the recording's LED now
+            if self.console.hub.source(name) != "fed":  # fed: the recording's LED now
                 back = facts.switch_led(name, found == "on")
                 if back["led_error"]:
                     raise NotChecked(f"the LED of {name} could not be put back {found}: {back['led_error']}")
@@ -223,11 +235,13 @@ class AimChecks:
                         check_whole(fr, name)
                         return fr
                     except (NotWhole, VtsError):
-                        pass                  # a torn picture: the next one
+                        pass  # a torn picture: the next one
             time.sleep(0.03)
         st = hub.status(name)
-        raise NotChecked(f"not checked: no new picture from {name} within {FRAME_WAIT_S:g} s"
-                         + (f" ({st['why']})" if st.get("why") else ""))
+        raise NotChecked(
+            f"not checked: no new picture from {name} within {FRAME_WAIT_S:g} s"
+            + (f" ({st['why']})" if st.get("why") else "")
+        )
 
     def _reference(self, name: str):
         """The drift baseline's wall markers of ``name`` (the names the page holds), or None."""

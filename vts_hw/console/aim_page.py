@@ -47,8 +47,9 @@ def aim_routes(console, templates=None) -> list:
             if why:
                 return JSONResponse({"error": why, **checks.view(name)}, status_code=409)
         view = checks.switch(name, on, user)
-        await asyncio.to_thread(lambda: console.actions.record(
-            user, f"aim check {'on' if on else 'off'}", {"camera": name}, role=role))
+        await asyncio.to_thread(
+            lambda: console.actions.record(user, f"aim check {'on' if on else 'off'}", {"camera": name}, role=role)
+        )
         return JSONResponse(view)
 
     async def state(request: Request):
@@ -79,8 +80,12 @@ def aim_routes(console, templates=None) -> list:
 
         return event_stream(console, TICK_S, poll)
 
-    return [Route("/aim/events", events), Route("/aim/{camera}", switch, methods=["POST"]),
-            Route("/aim/{camera}", state), Route("/aim/{camera}/overlay.png", overlay)]
+    return [
+        Route("/aim/events", events),
+        Route("/aim/{camera}", switch, methods=["POST"]),
+        Route("/aim/{camera}", state),
+        Route("/aim/{camera}/overlay.png", overlay),
+    ]
 
 
 __all__ = ["aim_routes"]

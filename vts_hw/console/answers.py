@@ -21,8 +21,9 @@ from starlette.responses import HTMLResponse, JSONResponse, Response
 
 log = logging.getLogger("vts_hw.console")
 
-UNEXPECTED = ("the console could not answer this request: an unexpected error (what it was is in the "
-              "console's log, not here)")
+UNEXPECTED = (
+    "the console could not answer this request: an unexpected error (what it was is in the console's log, not here)"
+)
 
 
 def wants_page(method: str, accept: str) -> bool:
@@ -34,9 +35,13 @@ def answer(request: Request, sentence: str, status: int) -> Response:
     """``sentence`` with HTTP ``status``, as the asker reads it (module docstring)."""
     headers = {"Cache-Control": "no-store"}
     if wants_page(request.method, request.headers.get("accept", "")):
-        return HTMLResponse(f"<!doctype html><meta charset='utf-8'><title>Not served</title>"
-                            f"<p class='error' role='alert'>{html.escape(sentence)}</p>"
-                            f"<p><a href='/'>Back to the room</a></p>", status_code=status, headers=headers)
+        return HTMLResponse(
+            f"<!doctype html><meta charset='utf-8'><title>Not served</title>"
+            f"<p class='error' role='alert'>{html.escape(sentence)}</p>"
+            f"<p><a href='/'>Back to the room</a></p>",
+            status_code=status,
+            headers=headers,
+        )
     return JSONResponse({"error": sentence}, status_code=status, headers=headers)
 
 
@@ -51,8 +56,13 @@ async def unexpected(request: Request, exc: Exception) -> Response:
     exception's type and where it was raised (never its words: they might hold what the request
     carried); the exception then ends in app.py (after_answer), never in the server's traceback."""
     where = traceback.extract_tb(exc.__traceback__)[-1] if exc.__traceback__ is not None else None
-    log.error("the console could not answer %s %s: %s at %s", request.method, request.url.path[:200],
-              type(exc).__name__, f"{where.filename}:{where.lineno}" if where else "?")
+    log.error(
+        "the console could not answer %s %s: %s at %s",
+        request.method,
+        request.url.path[:200],
+        type(exc).__name__,
+        f"{where.filename}:{where.lineno}" if where else "?",
+    )
     return answer(request, UNEXPECTED, 500)
 
 
@@ -60,8 +70,11 @@ def after_answer(exc: BaseException) -> None:
     """An unexpected exception already answered by :func:`unexpected`: its frames (files, lines,
     functions; never its words) to the debug log, in place of the server's traceback."""
     frames = traceback.extract_tb(exc.__traceback__) if exc.__traceback__ is not None else []
-    log.debug("%s raised through: %s", type(exc).__name__,
-              " <- ".join(f"{f.filename}:{f.lineno} {f.name}" for f in reversed(frames)) or "?")
+    log.debug(
+        "%s raised through: %s",
+        type(exc).__name__,
+        " <- ".join(f"{f.filename}:{f.lineno} {f.name}" for f in reversed(frames)) or "?",
+    )
 
 
 __all__ = ["answer", "refused_input", "unexpected", "after_answer", "wants_page", "UNEXPECTED"]

@@ -55,18 +55,31 @@ from vts_hw.console.sessions import current
 from vts_hw.console.web import event_stream, no_camera, sse, switch_asked, wanted_cameras
 
 HERE = Path(__file__).resolve().parent
-EVENT_TICK_S = 0.04           # how often an event stream looks for new frames (25 Hz)
-ROOM_EVERY_S = 1.0            # ... and sends the room's state
+EVENT_TICK_S = 0.04  # how often an event stream looks for new frames (25 Hz)
+ROOM_EVERY_S = 1.0  # ... and sends the room's state
 
 
 class Console:
     """What the pages need: the hub, the marker worker, the room's facts, the rig (its name, its config)."""
 
-    aim: AimChecks          # made by the aim checks' routes (aim_page.py), closed by whoever serves the console
-    reports: Reports        # made by the History page's routes (history.py), closed likewise
+    aim: AimChecks  # made by the aim checks' routes (aim_page.py), closed by whoever serves the console
+    reports: Reports  # made by the History page's routes (history.py), closed likewise
 
-    def __init__(self, rig_name: str, hub, markers, facts, *, token: str | None = None, open_store=None,
-                 actions=None, auth=None, rig_config=None, scans_dir=None, reach: Reach | None = None):
+    def __init__(
+        self,
+        rig_name: str,
+        hub,
+        markers,
+        facts,
+        *,
+        token: str | None = None,
+        open_store=None,
+        actions=None,
+        auth=None,
+        rig_config=None,
+        scans_dir=None,
+        reach: Reach | None = None,
+    ):
         self.rig_name = rig_name
         #: the RigConfig the pages that run procedures run them on (Daily QA, Scan, aim checks);
         #: None: those pages say the console was started without one
@@ -110,7 +123,8 @@ class Page:
     """A page of the console after the Room page: ``routes(console, templates)`` gives its Starlette
     routes (from its module), ``nav`` its link's text in the nav bar and ``href`` where it goes
     (none: a part of another page), ``here`` what its templates set ``here`` to (its link marked)."""
-    routes: Callable[["Console", Jinja2Templates], list]
+
+    routes: Callable[[Console, Jinja2Templates], list]
     here: str = ""
     nav: str = ""
     href: str = ""
@@ -122,7 +136,7 @@ PAGES: list[Page] = [
     Page(scan_routes, "scan", "Scan", "/scan"),
     Page(qa_routes, "qa", "Daily QA", "/qa"),
     Page(history_routes, "history", "History", "/history"),
-    Page(aim_routes),                           # the Room page's aim & focus (aim_checks.py)
+    Page(aim_routes),  # the Room page's aim & focus (aim_checks.py)
 ]
 
 
@@ -151,9 +165,11 @@ def create_app(console: Console) -> Starlette:
     templates.env.globals["nav_pages"] = nav_pages()
 
     async def room_page(request: Request):
-        return templates.TemplateResponse(request, "room.html", {
-            "rig": console.rig_name, "cameras": console.hub.names, "token": console.token,
-            "version": __version__})
+        return templates.TemplateResponse(
+            request,
+            "room.html",
+            {"rig": console.rig_name, "cameras": console.hub.names, "token": console.token, "version": __version__},
+        )
 
     async def room_json(request: Request):
         return JSONResponse(await asyncio.to_thread(console.room))
@@ -166,14 +182,20 @@ def create_app(console: Console) -> Starlette:
         latest = console.hub.latest(name)
         if latest is None:
             return JSONResponse({"error": f"camera {name}: no picture yet"}, status_code=503)
-        return Response(latest.frame.jpeg, media_type="image/jpeg",
-                        headers={"Cache-Control": "no-store", "X-Frame-Seq": str(latest.seq),
-                                 "X-Frame-Arrival": f"{latest.arrival:.3f}"})
+        return Response(
+            latest.frame.jpeg,
+            media_type="image/jpeg",
+            headers={
+                "Cache-Control": "no-store",
+                "X-Frame-Seq": str(latest.seq),
+                "X-Frame-Arrival": f"{latest.arrival:.3f}",
+            },
+        )
 
     async def events(request: Request):
         wanted = wanted_cameras(console, request)
         sent_seq: dict[str, int | None] = {n: None for n in wanted}
-        sent_marks: dict[str, object] = {n: None for n in wanted}     # the Found sent (a new picture, or named again)
+        sent_marks: dict[str, object] = {n: None for n in wanted}  # the Found sent (a new picture, or named again)
         next_room = 0.0
 
         async def poll(now: float) -> list[bytes]:
@@ -208,29 +230,51 @@ def create_app(console: Console) -> Starlette:
         if refused is not None:
             return refused
         facts = await asyncio.to_thread(console.facts.switch_led, name, on)
-        user, role = guard.user_of(console, request)    # asked, whether it took or not (the camera says)
-        await asyncio.to_thread(lambda: console.actions.record(
-            user, f"LED {'on' if on else 'off'}",
-            {"camera": name, "took": not facts["led_error"], "read back": facts["led"]}, role=role))
+        user, role = guard.user_of(console, request)  # asked, whether it took or not (the camera says)
+        await asyncio.to_thread(
+            lambda: console.actions.record(
+                user,
+                f"LED {'on' if on else 'off'}",
+                {"camera": name, "took": not facts["led_error"], "read back": facts["led"]},
+                role=role,
+            )
+        )
         return JSONResponse(facts, status_code=200 if not facts["led_error"] else 502)
 
-    routes = [Route("/", room_page), Route("/api/room", room_json), Route("/frame/{camera}", frame),
-              Route("/events", events), Route("/camera/{camera}/led", led, methods=["POST"]),
-              *(login_routes(console, templates) if console.auth is not None and console.auth.required
-                else no_login_routes(console)),
-              *(r for page in PAGES for r in page.routes(console, templates)),   # each a module of its own
-              Mount("/static", StaticFiles(directory=str(HERE / "static")), name="static")]
+    routes = [
+        Route("/", room_page),
+        Route("/api/room", room_json),
+        Route("/frame/{camera}", frame),
+        Route("/events", events),
+        Route("/camera/{camera}/led", led, methods=["POST"]),
+        *(
+            login_routes(console, templates)
+            if console.auth is not None and console.auth.required
+            else no_login_routes(console)
+        ),
+        *(r for page in PAGES for r in page.routes(console, templates)),  # each a module of its own
+        Mount("/static", StaticFiles(directory=str(HERE / "static")), name="static"),
+    ]
     reach = console.reach
     middleware = [Middleware(SecurityHeaders)]
     if reach.proxied:
         from uvicorn.middleware.proxy_headers import ProxyHeadersMiddleware
-        middleware += [Middleware(PeerGate, reach=reach),
-                       Middleware(ProxyHeadersMiddleware, trusted_hosts=reach.trusted_proxies())]
-    middleware += [Middleware(HostGate, reach=reach), Middleware(SessionDoor, console=console),
-                   Middleware(StrictRequests)]      # inputs.py: no parameter twice, no body too large
-    app = _ConsoleApp(routes=routes, middleware=middleware,   # answers.py: one sentence, never a traceback
-                      exception_handlers={BadInput: refused_input, Exception: unexpected})
-    app.state.reach = reach             # guard.same_origin's origins
+
+        middleware += [
+            Middleware(PeerGate, reach=reach),
+            Middleware(ProxyHeadersMiddleware, trusted_hosts=reach.trusted_proxies()),
+        ]
+    middleware += [
+        Middleware(HostGate, reach=reach),
+        Middleware(SessionDoor, console=console),
+        Middleware(StrictRequests),
+    ]  # inputs.py: no parameter twice, no body too large
+    app = _ConsoleApp(
+        routes=routes,
+        middleware=middleware,  # answers.py: one sentence, never a traceback
+        exception_handlers={BadInput: refused_input, Exception: unexpected},
+    )
+    app.state.reach = reach  # guard.same_origin's origins
     return app
 
 

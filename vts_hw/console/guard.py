@@ -108,17 +108,27 @@ def refuse(console, request: Request, role: str = OPERATOR) -> Response | None:
     why = same_origin(request)
     if why:
         return _refused(console, request, ANOTHER_SITE, why, 403)
-    user, has, want = _acting(console, request)      # the session looked up once
+    user, has, want = _acting(console, request)  # the session looked up once
     if not user:
         return _refused(console, request, NO_SESSION, "refused: log in first (no session, or it has ended)", 401)
     # (as bytes: a header may carry any byte, and str compare_digest refuses non-ASCII with a TypeError)
     if not want or not secrets.compare_digest(request.headers.get("x-console-token", "").encode(), want.encode()):
-        return _refused(console, request, NOT_THE_PAGE, "refused: the request did not come from the console's page",
-                        403, user)
+        return _refused(
+            console, request, NOT_THE_PAGE, "refused: the request did not come from the console's page", 403, user
+        )
     if ROLE_RANK.get(has, 0) < ROLE_RANK[role]:
         return _refused(console, request, ROLE, f"refused: {user} is {_a(has)}; this needs {_a(role)}", 403, user)
     return None
 
 
-__all__ = ["refuse", "user_of", "session_of", "same_origin", "users_required", "OPERATOR",
-           "PHYSICIST", "ROLE_RANK", "LOCAL_USER"]
+__all__ = [
+    "refuse",
+    "user_of",
+    "session_of",
+    "same_origin",
+    "users_required",
+    "OPERATOR",
+    "PHYSICIST",
+    "ROLE_RANK",
+    "LOCAL_USER",
+]

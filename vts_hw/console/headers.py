@@ -24,18 +24,27 @@ A response that sets one of these itself keeps its own.
 
 from __future__ import annotations
 
-PAGE_CSP = ("default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data: blob:; "
-            "connect-src 'self'; font-src 'self'; base-uri 'none'; form-action 'self'; frame-ancestors 'none'")
-DOCUMENT_CSP = ("default-src 'none'; img-src data:; style-src 'unsafe-inline'; script-src 'unsafe-inline'; "
-                "base-uri 'none'; form-action 'none'; frame-ancestors 'none'; sandbox allow-scripts")
+PAGE_CSP = (
+    "default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data: blob:; "
+    "connect-src 'self'; font-src 'self'; base-uri 'none'; form-action 'self'; frame-ancestors 'none'"
+)
+DOCUMENT_CSP = (
+    "default-src 'none'; img-src data:; style-src 'unsafe-inline'; script-src 'unsafe-inline'; "
+    "base-uri 'none'; form-action 'none'; frame-ancestors 'none'; sandbox allow-scripts"
+)
 DOCUMENT_PATHS = ("/history/drift-report", "/history/rooms/", "/scan/files/")
 STATIC_PREFIX = "/static/"
 HSTS = "max-age=31536000"
 
-_ALWAYS = ((b"x-frame-options", b"DENY"), (b"x-content-type-options", b"nosniff"),
-           (b"referrer-policy", b"same-origin"), (b"cross-origin-opener-policy", b"same-origin"),
-           (b"cross-origin-resource-policy", b"same-origin"), (b"x-xss-protection", b"1; mode=block"),
-           (b"permissions-policy", b"camera=(), microphone=(), geolocation=(), usb=(), serial=()"))
+_ALWAYS = (
+    (b"x-frame-options", b"DENY"),
+    (b"x-content-type-options", b"nosniff"),
+    (b"referrer-policy", b"same-origin"),
+    (b"cross-origin-opener-policy", b"same-origin"),
+    (b"cross-origin-resource-policy", b"same-origin"),
+    (b"x-xss-protection", b"1; mode=block"),
+    (b"permissions-policy", b"camera=(), microphone=(), geolocation=(), usb=(), serial=()"),
+)
 
 
 def csp_for(path: str) -> str:
@@ -59,7 +68,7 @@ class SecurityHeaders:
                 headers = list(message.get("headers", ()))
                 have = {k.lower() for k, _ in headers}
                 add = [*_ALWAYS, (b"content-security-policy", csp_for(path).encode())]
-                if scope.get("scheme") == "https":          # read now: a trusted proxy may have set it
+                if scope.get("scheme") == "https":  # read now: a trusted proxy may have set it
                     add.append((b"strict-transport-security", HSTS.encode()))
                 if not path.startswith(STATIC_PREFIX):
                     add.append((b"cache-control", b"no-store"))

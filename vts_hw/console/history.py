@@ -50,20 +50,26 @@ class BadFilter(BadInput):
 @dataclass
 class Filters:
     """The History page's filters as the URL gives them, and what they mean for the store."""
-    label: str = ""                 # a catalog label ("" : every procedure)
-    state: str = ""                 # one of RUN_STATUSES ("" : every state)
-    date_from: str = ""             # YYYY-MM-DD (UTC)
+
+    label: str = ""  # a catalog label ("" : every procedure)
+    state: str = ""  # one of RUN_STATUSES ("" : every state)
+    date_from: str = ""  # YYYY-MM-DD (UTC)
     date_to: str = ""
     page: int = 1
-    names: tuple[str, ...] | None = None    # the stored names of ``label``
+    names: tuple[str, ...] | None = None  # the stored names of ``label``
     start: float | None = None
     end: float | None = None
     errors: list[str] = field(default_factory=list)
 
     def query(self, **change) -> str:
         """This view's URL query, with ``change`` applied (the pager's and the bookmark's)."""
-        q = {"procedure": self.label, "state": self.state, "from": self.date_from, "to": self.date_to,
-             "page": self.page}
+        q = {
+            "procedure": self.label,
+            "state": self.state,
+            "from": self.date_from,
+            "to": self.date_to,
+            "page": self.page,
+        }
         q.update(change)
         return urlencode({k: v for k, v in q.items() if v not in ("", None, 1)})
 
@@ -73,7 +79,7 @@ def _day(text: str, which: str) -> float:
         day = dt.date.fromisoformat(text)
     except (ValueError, OverflowError):
         raise BadFilter(f"the {which} date {text!r} is not a date: give it as YYYY-MM-DD (e.g. 2026-09-01)") from None
-    return dt.datetime(day.year, day.month, day.day, tzinfo=dt.timezone.utc).timestamp()
+    return dt.datetime(day.year, day.month, day.day, tzinfo=dt.UTC).timestamp()
 
 
 def shown_filters(request: Request) -> Filters:
@@ -89,8 +95,13 @@ def parse_filters(request: Request, keys=("procedure", "state", "from", "to", "p
         page = query_page(request, PAGE_SIZE) if "page" in keys else 1
     except BadInput as exc:
         raise BadFilter(str(exc)) from None
-    f = Filters(label=given.get("procedure", ""), state=given.get("state", ""), date_from=given.get("from", ""),
-                date_to=given.get("to", ""), page=page)
+    f = Filters(
+        label=given.get("procedure", ""),
+        state=given.get("state", ""),
+        date_from=given.get("from", ""),
+        date_to=given.get("to", ""),
+        page=page,
+    )
     labels = catalog.by_label()
     if f.label:
         if f.label not in labels:
@@ -111,7 +122,7 @@ def when(t: float | None) -> str:
     """A UTC epoch time as the page shows it ('' for none)."""
     if t is None:
         return ""
-    return dt.datetime.fromtimestamp(t, dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
+    return dt.datetime.fromtimestamp(t, dt.UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
 
 
 def number(v: float | None) -> str:
@@ -123,9 +134,18 @@ def is_plot(artifact) -> bool:
 
 
 def _view_run(run) -> dict:
-    return {"id": run.id, "label": catalog.label(run.procedure), "rig": run.rig, "operator": run.operator,
-            "started": when(run.started), "finished": when(run.finished), "status": run.status,
-            "software_version": run.software_version, "notes": run.notes, "uid": run.uid}
+    return {
+        "id": run.id,
+        "label": catalog.label(run.procedure),
+        "rig": run.rig,
+        "operator": run.operator,
+        "started": when(run.started),
+        "finished": when(run.finished),
+        "status": run.status,
+        "software_version": run.software_version,
+        "notes": run.notes,
+        "uid": run.uid,
+    }
 
 
 class History:
@@ -134,7 +154,7 @@ class History:
     def __init__(self, console, templates):
         self.console = console
         self.templates = templates
-        self.reports = console.reports = Reports(console)   # (closed with the console: serve.py)
+        self.reports = console.reports = Reports(console)  # (closed with the console: serve.py)
 
     # -- reading the store (in a thread) ------------------------------------------------------------
     def _store(self):
@@ -144,8 +164,14 @@ class History:
 
     def read_page(self, f: Filters) -> tuple[list[dict], int]:
         with self._store() as store:
-            runs, total = store.runs_page(procedure=f.names, status=f.state or None, start=f.start, end=f.end,
-                                          limit=PAGE_SIZE, offset=(f.page - 1) * PAGE_SIZE)
+            runs, total = store.runs_page(
+                procedure=f.names,
+                status=f.state or None,
+                start=f.start,
+                end=f.end,
+                limit=PAGE_SIZE,
+                offset=(f.page - 1) * PAGE_SIZE,
+            )
         return [_view_run(r) for r in runs], total
 
     def read_run(self, run_id: int) -> dict | None:
@@ -157,12 +183,28 @@ class History:
             measures = store.measurements(run_id=run_id)
             windows = store.windows(m.tolerance_id for m in measures)
             files = store.artifacts(run_id)
-        rows = [{"subject": m.subject, "metric": m.metric, "value": number(m.value), "unit": m.unit,
-                 "state": str(m.status),
-                 "window": windows[m.tolerance_id].describe() if m.tolerance_id in windows else ""}
-                for m in measures]
-        arts = [{"id": a.id, "name": os.path.basename(a.path), "path": a.path, "kind": a.kind,
-                 "plot": is_plot(a), "there": os.path.isfile(a.path)} for a in files]
+        rows = [
+            {
+                "subject": m.subject,
+                "metric": m.metric,
+                "value": number(m.value),
+                "unit": m.unit,
+                "state": str(m.status),
+                "window": windows[m.tolerance_id].describe() if m.tolerance_id in windows else "",
+            }
+            for m in measures
+        ]
+        arts = [
+            {
+                "id": a.id,
+                "name": os.path.basename(a.path),
+                "path": a.path,
+                "kind": a.kind,
+                "plot": is_plot(a),
+                "there": os.path.isfile(a.path),
+            }
+            for a in files
+        ]
         return {"run": _view_run(run), "measures": rows, "artifacts": arts}
 
     def artifact_path(self, run_id: int, artifact_id: int) -> str | None:
@@ -179,8 +221,14 @@ class History:
         return self.templates.TemplateResponse(request, name, {**base, **ctx}, status_code=status)
 
     async def history(self, request: Request):
-        ctx = {"labels": list(catalog.by_label()), "states": RUN_STATUSES, "runs": [], "total": 0,
-               "error": "", "page_size": PAGE_SIZE}
+        ctx = {
+            "labels": list(catalog.by_label()),
+            "states": RUN_STATUSES,
+            "runs": [],
+            "total": 0,
+            "error": "",
+            "page_size": PAGE_SIZE,
+        }
         try:
             f = parse_filters(request)
         except BadFilter as exc:
@@ -188,11 +236,15 @@ class History:
         try:
             runs, total = await asyncio.to_thread(self.read_page, f)
         except VtsError as exc:
-            return self._page(request, "history.html", {**ctx, "f": f,
-                                                        "error": f"the results store could not be read: {exc}"}, 503)
+            return self._page(
+                request, "history.html", {**ctx, "f": f, "error": f"the results store could not be read: {exc}"}, 503
+            )
         pages = max(1, -(-total // PAGE_SIZE))
-        return self._page(request, "history.html", {**ctx, "f": f, "runs": runs, "total": total, "pages": pages,
-                                                    "first": (f.page - 1) * PAGE_SIZE + 1})
+        return self._page(
+            request,
+            "history.html",
+            {**ctx, "f": f, "runs": runs, "total": total, "pages": pages, "first": (f.page - 1) * PAGE_SIZE + 1},
+        )
 
     async def run_page(self, request: Request):
         try:
@@ -204,8 +256,9 @@ class History:
         except VtsError as exc:
             return self._page(request, "message.html", {"message": f"the results store could not be read: {exc}"}, 503)
         if got is None:
-            return self._page(request, "message.html", {"message": f"there is no run {run_id} in the results store"},
-                              404)
+            return self._page(
+                request, "message.html", {"message": f"there is no run {run_id} in the results store"}, 404
+            )
         return self._page(request, "history_run.html", got)
 
     async def artifact(self, request: Request):
@@ -217,38 +270,61 @@ class History:
         if path is None:
             return PlainTextResponse(f"run {run_id} has no file {aid} in the results store", status_code=404)
         if not os.path.isfile(path):
-            return PlainTextResponse(f"file no longer there: {os.path.basename(path)} (run {run_id})",
-                                     status_code=404)
+            return PlainTextResponse(f"file no longer there: {os.path.basename(path)} (run {run_id})", status_code=404)
         headers = {"X-Content-Type-Options": "nosniff", "Cache-Control": "no-store"}
         if path.lower().endswith(".png"):
             return FileResponse(path, media_type="image/png", headers=headers)
-        return FileResponse(path, media_type="application/octet-stream", filename=os.path.basename(path),
-                            headers=headers)
+        return FileResponse(
+            path, media_type="application/octet-stream", filename=os.path.basename(path), headers=headers
+        )
 
     def read_actions(self, f: Filters, user: str) -> tuple[list[dict], int]:
-        acts, total = self.console.actions.page(start=f.start, end=f.end, user=user or None, limit=PAGE_SIZE,
-                                                offset=(f.page - 1) * PAGE_SIZE)
-        return [{"at": when(a.at), "user": a.user, "role": a.role, "what": a.what, "rig": a.rig,
-                 "detail": ", ".join(f"{k}: {v}" for k, v in sorted(a.detail.items()))} for a in acts], total
+        acts, total = self.console.actions.page(
+            start=f.start, end=f.end, user=user or None, limit=PAGE_SIZE, offset=(f.page - 1) * PAGE_SIZE
+        )
+        return [
+            {
+                "at": when(a.at),
+                "user": a.user,
+                "role": a.role,
+                "what": a.what,
+                "rig": a.rig,
+                "detail": ", ".join(f"{k}: {v}" for k, v in sorted(a.detail.items())),
+            }
+            for a in acts
+        ], total
 
     async def actions(self, request: Request):
-        ctx = {"acts": [], "total": 0, "error": "", "user": (request.query_params.get("user") or "")[:200],
-               "page_size": PAGE_SIZE}
+        ctx = {
+            "acts": [],
+            "total": 0,
+            "error": "",
+            "user": (request.query_params.get("user") or "")[:200],
+            "page_size": PAGE_SIZE,
+        }
         try:
             user = query_text(request, "user")
             f = parse_filters(request, ("from", "to", "page"))
         except BadInput as exc:
-            return self._page(request, "history_actions.html", {**ctx, "f": shown_filters(request), "error": str(exc)},
-                              400)
+            return self._page(
+                request, "history_actions.html", {**ctx, "f": shown_filters(request), "error": str(exc)}, 400
+            )
         ctx["user"] = user
         try:
             acts, total = await asyncio.to_thread(self.read_actions, f, user)
         except VtsError as exc:
-            return self._page(request, "history_actions.html",
-                              {**ctx, "f": f, "error": f"the results store could not be read: {exc}"}, 503)
+            return self._page(
+                request,
+                "history_actions.html",
+                {**ctx, "f": f, "error": f"the results store could not be read: {exc}"},
+                503,
+            )
         pages = max(1, -(-total // PAGE_SIZE))
-        return self._page(request, "history_actions.html", {**ctx, "f": f, "acts": acts, "total": total,
-                                                            "pages": pages, "first": (f.page - 1) * PAGE_SIZE + 1})
+        return self._page(
+            request,
+            "history_actions.html",
+            {**ctx, "f": f, "acts": acts, "total": total, "pages": pages, "first": (f.page - 1) * PAGE_SIZE + 1},
+        )
 
     async def drift_report(self, request: Request):
         return await self.reports.drift(query_text(request, "since", "60d"))
@@ -260,13 +336,15 @@ class History:
         return self.reports.rooms_file(request.path_params["name"])
 
     def routes(self) -> list[Route]:
-        return [Route("/history", self.history),
-                Route("/history/run/{run}", self.run_page),
-                Route("/history/run/{run}/file/{artifact}", self.artifact),
-                Route("/history/actions", self.actions),
-                Route("/history/drift-report", self.drift_report),
-                Route("/history/rooms/", self.rooms_page),
-                Route("/history/rooms/{name}", self.rooms_file)]
+        return [
+            Route("/history", self.history),
+            Route("/history/run/{run}", self.run_page),
+            Route("/history/run/{run}/file/{artifact}", self.artifact),
+            Route("/history/actions", self.actions),
+            Route("/history/drift-report", self.drift_report),
+            Route("/history/rooms/", self.rooms_page),
+            Route("/history/rooms/{name}", self.rooms_file),
+        ]
 
 
 def history_routes(console, templates) -> list[Route]:
@@ -274,4 +352,3 @@ def history_routes(console, templates) -> list[Route]:
 
 
 __all__ = ["History", "history_routes", "parse_filters", "shown_filters", "Filters", "BadFilter", "PAGE_SIZE"]
-

@@ -31,9 +31,12 @@ ROOMS_NAME = "rooms.html"
 
 def _page(sentence: str, status: int) -> HTMLResponse:
     from html import escape
-    return HTMLResponse(f"<!doctype html><meta charset='utf-8'><title>Report not made</title>"
-                        f"<p class='error'>{escape(sentence)}</p><p><a href='/history'>Back to the history</a></p>",
-                        status_code=status)
+
+    return HTMLResponse(
+        f"<!doctype html><meta charset='utf-8'><title>Report not made</title>"
+        f"<p class='error'>{escape(sentence)}</p><p><a href='/history'>Back to the history</a></p>",
+        status_code=status,
+    )
 
 
 class Reports:
@@ -79,7 +82,7 @@ class Reports:
     async def _render(self, fn, since_text: str):
         try:
             since = self._since(since_text)
-        except ValueError as exc:           # BadSince: its sentence
+        except ValueError as exc:  # BadSince: its sentence
             return _page(str(exc), 400)
         try:
             return HTMLResponse(await asyncio.to_thread(fn, since), headers={"Cache-Control": "no-store"})
@@ -97,8 +100,9 @@ class Reports:
             folder = self._rooms_dir.name if self._rooms_dir is not None else None
             known = name in self._rooms_files
         if folder is None or not known:
-            return PlainTextResponse(f"no report {name!r} here: open the rooms page again (/history/rooms/)",
-                                     status_code=404)
+            return PlainTextResponse(
+                f"no report {name!r} here: open the rooms page again (/history/rooms/)", status_code=404
+            )
         path = Path(folder) / name
         if not path.is_file():
             return PlainTextResponse(f"report no longer there: {name}: open the rooms page again", status_code=404)

@@ -50,7 +50,7 @@ def parse_host(value: str) -> tuple[str, int | None] | None:
         end = value.find("]")
         if end < 0:
             return None
-        name, rest = value[1:end], value[end + 1:]
+        name, rest = value[1:end], value[end + 1 :]
         try:
             if ipaddress.ip_address(name).version != 6:
                 return None
@@ -82,8 +82,10 @@ def server_name(value: str) -> tuple[str, int | None]:
     UsageError in one sentence."""
     got = parse_host(value)
     if got is None or got[0] in WILDCARD_HOSTS:
-        raise UsageError(f"--server-name {_shown(value)} is not a host name or address (NAME or NAME:PORT, "
-                         f"one name each, no wildcards)")
+        raise UsageError(
+            f"--server-name {_shown(value)} is not a host name or address (NAME or NAME:PORT, "
+            f"one name each, no wildcards)"
+        )
     return got
 
 
@@ -92,11 +94,13 @@ def proxy_address(value: str) -> str:
     try:
         ip = ipaddress.ip_address(value.strip())
     except ValueError:
-        raise UsageError(f"--proxy {_shown(value)} is not an IP address: give the address the reverse proxy "
-                         f"connects from") from None
+        raise UsageError(
+            f"--proxy {_shown(value)} is not an IP address: give the address the reverse proxy connects from"
+        ) from None
     if ip.is_unspecified or ip.is_multicast:
-        raise UsageError(f"--proxy {value} is not the address of one machine: give the address the reverse proxy "
-                         f"connects from")
+        raise UsageError(
+            f"--proxy {value} is not the address of one machine: give the address the reverse proxy connects from"
+        )
     return str(ip)
 
 
@@ -106,7 +110,7 @@ def cert_names(certfile: str) -> set[str]:
         with open(certfile, "rb") as f:
             cert = x509.load_pem_x509_certificate(f.read())
         san = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
-    except (OSError, ValueError, x509.ExtensionNotFound):     # (serve_checks.check_tls has said what is wrong)
+    except (OSError, ValueError, x509.ExtensionNotFound):  # (serve_checks.check_tls has said what is wrong)
         return set()
     names = {n.lower() for n in san.get_values_for_type(x509.DNSName) if "*" not in n}
     return names | {str(ip) for ip in san.get_values_for_type(x509.IPAddress)}
@@ -149,13 +153,20 @@ class Reach:
         object.__setattr__(self, "_all", frozenset(self.names) | {n for n, _ in self.served_as})
 
     @classmethod
-    def local(cls) -> "Reach":
+    def local(cls) -> Reach:
         """The console on this machine alone: the loopback names, plain HTTP."""
         return cls()
 
     @classmethod
-    def build(cls, host: str, *, certfile: str | None = None, server_names=(), behind_proxy: bool = False,
-              proxy: str | None = None) -> "Reach":
+    def build(
+        cls,
+        host: str,
+        *,
+        certfile: str | None = None,
+        server_names=(),
+        behind_proxy: bool = False,
+        proxy: str | None = None,
+    ) -> Reach:
         names = set(LOOPBACK_NAMES)
         h = parse_host(host if ":" not in host or host.startswith("[") else f"[{host}]")
         if h is not None and h[0] not in WILDCARD_HOSTS:
@@ -163,8 +174,13 @@ class Reach:
         if certfile:
             names |= cert_names(certfile)
         served = frozenset(server_name(s) for s in server_names)
-        return cls(names=frozenset(names), served_as=served, tls=bool(certfile),
-                   proxied=bool(behind_proxy or proxy), proxy=proxy_address(proxy) if proxy else None)
+        return cls(
+            names=frozenset(names),
+            served_as=served,
+            tls=bool(certfile),
+            proxied=bool(behind_proxy or proxy),
+            proxy=proxy_address(proxy) if proxy else None,
+        )
 
     def off_loopback_names(self) -> set[str]:
         return set(self._all) - LOOPBACK_NAMES
@@ -178,8 +194,10 @@ class Reach:
         if got is None:
             return f"refused: the Host header {_shown(host_header)} is not a host name"
         if got[0] not in self._all:
-            return (f"refused: this console does not answer to the name {_shown(got[0])}: open it at the address "
-                    f"it printed, or start it with --server-name for that name")
+            return (
+                f"refused: this console does not answer to the name {_shown(got[0])}: open it at the address "
+                f"it printed, or start it with --server-name for that name"
+            )
         return ""
 
     # -- origins ------------------------------------------------------------------------------------------
@@ -197,9 +215,10 @@ class Reach:
         direct = "https" if self.tls else "http"
         if scheme == direct and name in self.names and port == server_port:
             return True
-        for n, p in self.served_as:      # through the proxy: https on its port; else as the console serves
-            if n == name and ((scheme, port) == ("https", p or 443) if self.proxied
-                              else (scheme, port) == (direct, p or server_port)):
+        for n, p in self.served_as:  # through the proxy: https on its port; else as the console serves
+            if n == name and (
+                (scheme, port) == ("https", p or 443) if self.proxied else (scheme, port) == (direct, p or server_port)
+            ):
                 return True
         return False
 
@@ -225,8 +244,11 @@ class HostGate:
             await self.app(scope, receive, send)
             return
         hosts = [v.decode("latin-1") for k, v in scope.get("headers", ()) if k == b"host"]
-        why = ("refused: a request with more than one Host header" if len(hosts) > 1
-               else self.reach.answers(hosts[0] if hosts else None))
+        why = (
+            "refused: a request with more than one Host header"
+            if len(hosts) > 1
+            else self.reach.answers(hosts[0] if hosts else None)
+        )
         if not why:
             await self.app(scope, receive, send)
         elif scope["type"] == "websocket":
@@ -248,9 +270,20 @@ class PeerGate:
         elif scope["type"] == "websocket":
             await send({"type": "websocket.close", "code": 1008})
         else:
-            await PlainTextResponse(f"refused: this console is served to other computers through its HTTPS proxy "
-                                    f"only ({self.reach.proxy})", status_code=403)(scope, receive, send)
+            await PlainTextResponse(
+                f"refused: this console is served to other computers through its HTTPS proxy only ({self.reach.proxy})",
+                status_code=403,
+            )(scope, receive, send)
 
 
-__all__ = ["Reach", "HostGate", "PeerGate", "parse_host", "server_name", "proxy_address", "cert_names",
-           "LOOPBACK_NAMES", "WILDCARD_HOSTS"]
+__all__ = [
+    "Reach",
+    "HostGate",
+    "PeerGate",
+    "parse_host",
+    "server_name",
+    "proxy_address",
+    "cert_names",
+    "LOOPBACK_NAMES",
+    "WILDCARD_HOSTS",
+]

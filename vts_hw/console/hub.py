@@ -28,11 +28,11 @@ from vts_hw.camera import Camera, Frame, StreamGap
 from vts_hw.camera_stream import FrameStream
 
 SOURCES = ("stream", "fed", "off")
-IDLE_CLOSE_S = 5.0          # a stream nobody watches is closed after this long
-RETRY_AFTER_S = 3.0         # a reader that ended (a camera refused us for good) is tried again after this
-QUIET_MIN_S = 2.0           # no frame for max(this, QUIET_FRAMES / fps): the camera is NOT ANSWERING
+IDLE_CLOSE_S = 5.0  # a stream nobody watches is closed after this long
+RETRY_AFTER_S = 3.0  # a reader that ended (a camera refused us for good) is tried again after this
+QUIET_MIN_S = 2.0  # no frame for max(this, QUIET_FRAMES / fps): the camera is NOT ANSWERING
 QUIET_FRAMES = 10
-SETTLE_MIN_S = 0.2          # after closing its stream for a recording, before the recording opens its own
+SETTLE_MIN_S = 0.2  # after closing its stream for a recording, before the recording opens its own
 
 
 @dataclass(frozen=True)
@@ -52,15 +52,15 @@ class CameraFeed:
     fps: float
     source: str = "stream"
     latest: Latest | None = None
-    received: int = 0            # frames the hub got (reader or feed), since it started
-    missing: int = 0             # frames the camera's stamps say were skipped (own stream only)
+    received: int = 0  # frames the hub got (reader or feed), since it started
+    missing: int = 0  # frames the camera's stamps say were skipped (own stream only)
     viewers: int = 0
     unwatched_since: float = field(default_factory=time.monotonic)
     stream: FrameStream | None = None
     thread: threading.Thread | None = None
-    opened_at: float | None = None       # monotonic s the current reader (or the feeding) started
-    reader_ended: float | None = None    # monotonic s the last reader ended on its own (an error)
-    error: str = ""                      # why the camera is not answering (the reader's last error)
+    opened_at: float | None = None  # monotonic s the current reader (or the feeding) started
+    reader_ended: float | None = None  # monotonic s the last reader ended on its own (an error)
+    error: str = ""  # why the camera is not answering (the reader's last error)
     fed_since: float | None = None
 
     @property
@@ -72,15 +72,19 @@ class FramesHub:
     """The cameras' latest frames. ``cameras``: name -> an open camera (``vts_hw.camera.Camera``)
     or None (a camera only ever fed). Thread-safe; ``close()`` stops every reader."""
 
-    def __init__(self, cameras: dict, *, idle_close_s: float = IDLE_CLOSE_S, clock=time.time,
-                 stream_options: dict | None = None):
+    def __init__(
+        self, cameras: dict, *, idle_close_s: float = IDLE_CLOSE_S, clock=time.time, stream_options: dict | None = None
+    ):
         self.idle_close_s = float(idle_close_s)
         self.clock = clock
         self.stream_options = dict(stream_options or {})
         self._lock = threading.Lock()
-        self._feeds = {name: CameraFeed(name, cam, float(getattr(cam, "fps", 25.0) or 25.0),
-                                        source="stream" if cam is not None else "off")
-                       for name, cam in cameras.items()}
+        self._feeds = {
+            name: CameraFeed(
+                name, cam, float(getattr(cam, "fps", 25.0) or 25.0), source="stream" if cam is not None else "off"
+            )
+            for name, cam in cameras.items()
+        }
         self._closed = threading.Event()
         self._janitor = threading.Thread(target=self._tend, name="console-hub", daemon=True)
         self._janitor.start()
@@ -107,8 +111,11 @@ class FramesHub:
         feed = self._feeds[name]
         with self._lock:
             st = feed.stream.stats if feed.stream is not None else None
-            return {"received": feed.received, "missing": feed.missing,
-                    "reconnects": st.reconnects if st is not None else 0}
+            return {
+                "received": feed.received,
+                "missing": feed.missing,
+                "reconnects": st.reconnects if st is not None else 0,
+            }
 
     def status(self, name: str) -> dict:
         """What the camera is doing, as a word the page shows (``doing``): ``idle`` (nobody
@@ -139,9 +146,17 @@ class FramesHub:
             fresh = age is not None and age <= feed.quiet_after
             if not fresh and (started is None or now_m - started > feed.quiet_after):
                 doing = "not answering"
-        return {"camera": name, "source": src, "doing": doing, "viewers": viewers,
-                "seq": None if lt is None else lt.seq, "age": age, "why": error if doing == "not answering" else "",
-                "received": feed.received, "fresh_within": feed.quiet_after}
+        return {
+            "camera": name,
+            "source": src,
+            "doing": doing,
+            "viewers": viewers,
+            "seq": None if lt is None else lt.seq,
+            "age": age,
+            "why": error if doing == "not answering" else "",
+            "received": feed.received,
+            "fresh_within": feed.quiet_after,
+        }
 
     # -- viewers ----------------------------------------------------------------------------------
     def watch(self, name: str) -> None:
@@ -176,7 +191,7 @@ class FramesHub:
             f = self._feeds[name]
             with self._lock:
                 f.source, f.fed_since, f.error = "fed", time.monotonic(), ""
-                f.latest = None            # a picture of before the recording is not the recording's
+                f.latest = None  # a picture of before the recording is not the recording's
                 stream, thread = f.stream, f.thread
             if stream is not None:
                 stream.stop()
@@ -184,7 +199,7 @@ class FramesHub:
                 threads.append(thread)
         for t in threads:
             t.join(timeout)
-        if threads:   # a camera notices a viewer gone when it next writes to it: a frame interval or so
+        if threads:  # a camera notices a viewer gone when it next writes to it: a frame interval or so
             time.sleep(max(SETTLE_MIN_S, max(self._feeds[n].quiet_after / QUIET_FRAMES for n in names) * 3))
 
     def detach(self, names) -> None:
@@ -219,7 +234,7 @@ class FramesHub:
                         f.error = item.reason
                     continue
                 self._put(f, item)
-        except Exception as exc:        # a refused password, a reply that is not a stream: say so
+        except Exception as exc:  # a refused password, a reply that is not a stream: say so
             with self._lock:
                 f.error = str(exc)
         finally:
@@ -233,7 +248,7 @@ class FramesHub:
         stream = camera.stream(**opts)
         t = threading.Thread(target=self._read, args=(f, stream), name=f"console-{f.name}", daemon=True)
         f.stream, f.thread = stream, t
-        if f.reader_ended is None:      # a retry after a reader that failed keeps its first start
+        if f.reader_ended is None:  # a retry after a reader that failed keeps its first start
             f.opened_at = time.monotonic()
         t.start()
 

@@ -25,7 +25,7 @@ from __future__ import annotations
 import json
 import re
 from collections import Counter
-from typing import Annotated, Any, Optional, TypeVar
+from typing import Annotated, Any, TypeVar
 from urllib.parse import parse_qsl
 
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError
@@ -34,10 +34,10 @@ from starlette.requests import Request
 from vts_hw.console.answers import answer
 from vts_hw.errors import UsageError
 
-MAX_BODY = 16 * 1024          # the console's JSON bodies are some tens of bytes; the login form 8 KiB at most
+MAX_BODY = 16 * 1024  # the console's JSON bodies are some tens of bytes; the login form 8 KiB at most
 MAX_QUERY = 4096
-MAX_TEXT = 200                # a filter's text (a user name, a period)
-INT_MAX = 2 ** 63 - 1         # the largest integer SQLite and PostgreSQL (BIGINT) hold
+MAX_TEXT = 200  # a filter's text (a user name, a period)
+INT_MAX = 2**63 - 1  # the largest integer SQLite and PostgreSQL (BIGINT) hold
 _DIGITS = re.compile(r"[0-9]{1,19}")
 _CONTROL = re.compile(r"[\x00-\x1f\x7f]")
 
@@ -53,10 +53,11 @@ class BadInput(UsageError):
 def shown(value, limit: int = 60) -> str:
     """``value`` as a sentence quotes it: its repr, cut to ``limit`` characters."""
     text = repr(value)
-    return text if len(text) <= limit else text[:limit - 3] + "..."
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 # -- every request ------------------------------------------------------------------------------------
+
 
 class StrictRequests:
     """The ASGI middleware of the module docstring (before any route reads the request)."""
@@ -86,12 +87,14 @@ def _refusal(scope) -> BadInput | None:
             if not value.isdigit():
                 return BadInput("the request's Content-Length is not a number of bytes")
             if int(value) > MAX_BODY:
-                return BadInput(f"the request's body is {int(value)} bytes: the console takes at most "
-                                f"{MAX_BODY} bytes", 413)
+                return BadInput(
+                    f"the request's body is {int(value)} bytes: the console takes at most {MAX_BODY} bytes", 413
+                )
     return None
 
 
 # -- query values and path parts --------------------------------------------------------------------------
+
 
 def query_text(request: Request, name: str, default: str = "", limit: int = MAX_TEXT) -> str:
     """The query parameter ``name`` (stripped), ``default`` when absent; BadInput for one longer
@@ -140,6 +143,7 @@ def path_id(request: Request, name: str, what: str) -> int:
 
 # -- JSON bodies ----------------------------------------------------------------------------------------
 
+
 class Body(BaseModel):
     """A route's JSON body: unknown keys refused, each field's ``description`` the sentence of
     what it must be ("a whole number from 1 to 50")."""
@@ -161,12 +165,12 @@ def _not_bool(value):
         raise ValueError("a truth value is not a number of seconds")
     if isinstance(value, str):
         value = value.strip()
-        return float(value) if value else None      # ValueError for text that is not a number
+        return float(value) if value else None  # ValueError for text that is not a number
     return value
 
 
 #: a body's optional number of seconds (a JSON number or a form field's text; its bounds: seconds())
-Seconds = Annotated[Optional[float], BeforeValidator(_not_bool)]
+Seconds = Annotated[float | None, BeforeValidator(_not_bool)]
 
 
 def seconds(high: float, description: str) -> Any:
@@ -180,8 +184,7 @@ async def body_bytes(request: Request, limit: int = MAX_BODY) -> bytes:
     async for chunk in request.stream():
         got += chunk
         if len(got) > limit:
-            raise BadInput(f"the request's body is larger than {limit} bytes: the console takes at most {limit}",
-                           413)
+            raise BadInput(f"the request's body is larger than {limit} bytes: the console takes at most {limit}", 413)
     return bytes(got)
 
 
@@ -202,7 +205,7 @@ def _sentence(exc: ValidationError, model: type[Body]) -> str:
     err = exc.errors()[0]
     key = str(err["loc"][0]) if err["loc"] else ""
     fields = model.model_fields
-    takes = (f"it takes {', '.join(fields)}" if fields else "it takes none: send {} or no body")
+    takes = f"it takes {', '.join(fields)}" if fields else "it takes none: send {} or no body"
     if err["type"] == "extra_forbidden":
         return f"the body's key {shown(key)} is not one this takes: {takes}"
     what = fields[key].description if key in fields and fields[key].description else "a valid value"
@@ -219,13 +222,15 @@ async def json_body(request: Request, model: type[B], example: str = "{}") -> B:
     if raw.strip():
         media = request.headers.get("content-type", "").split(";")[0].strip().lower()
         if media != "application/json":
-            raise BadInput(f"the body must be sent as JSON (Content-Type: application/json), not as "
-                           f"{shown(media or 'no type')}", 415)
+            raise BadInput(
+                f"the body must be sent as JSON (Content-Type: application/json), not as {shown(media or 'no type')}",
+                415,
+            )
         try:
             data = json.loads(raw.decode("utf-8"), parse_constant=_no_constant, object_pairs_hook=_no_twice)
         except UnicodeDecodeError:
             raise BadInput(f"the body is not UTF-8 text: send a JSON object, e.g. {example}") from None
-        except (ValueError, RecursionError) as exc:      # (a JSONDecodeError is a ValueError)
+        except (ValueError, RecursionError) as exc:  # (a JSONDecodeError is a ValueError)
             why = exc.args[0] if isinstance(exc, ValueError) and exc.args else "nested too deep"
             raise BadInput(f"the body is not JSON ({str(why)[:80]}): send a JSON object, e.g. {example}") from None
     if not isinstance(data, dict):
@@ -236,5 +241,22 @@ async def json_body(request: Request, model: type[B], example: str = "{}") -> B:
         raise BadInput(_sentence(exc, model)) from None
 
 
-__all__ = ["BadInput", "StrictRequests", "Body", "NoBody", "Seconds", "seconds", "json_body", "body_bytes", "query_text",
-           "query_id", "query_page", "path_id", "whole", "shown", "MAX_BODY", "MAX_QUERY", "INT_MAX"]
+__all__ = [
+    "BadInput",
+    "StrictRequests",
+    "Body",
+    "NoBody",
+    "Seconds",
+    "seconds",
+    "json_body",
+    "body_bytes",
+    "query_text",
+    "query_id",
+    "query_page",
+    "path_id",
+    "whole",
+    "shown",
+    "MAX_BODY",
+    "MAX_QUERY",
+    "INT_MAX",
+]

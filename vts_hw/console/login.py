@@ -39,7 +39,7 @@ OPEN_PATHS = ("/login",)
 OPEN_PREFIXES = ("/static/",)
 PROBE = "/session"
 FORM_MAX = 8192
-FORM_COOKIE = "vts_login_form"     # the login form's own token (login CSRF), sent to /login only
+FORM_COOKIE = "vts_login_form"  # the login form's own token (login CSRF), sent to /login only
 
 
 class _SessionEnded(Exception):
@@ -60,8 +60,13 @@ class SessionDoor:
     async def __call__(self, scope, receive, send):
         auth = self.console.auth
         path = scope.get("path", "")
-        if (scope["type"] != "http" or auth is None or not auth.required or path in OPEN_PATHS
-                or path.startswith(OPEN_PREFIXES)):
+        if (
+            scope["type"] != "http"
+            or auth is None
+            or not auth.required
+            or path in OPEN_PATHS
+            or path.startswith(OPEN_PREFIXES)
+        ):
             await self.app(scope, receive, send)
             return
         request = Request(scope)
@@ -98,7 +103,7 @@ class SessionDoor:
             await self.app(scope, receive, watched)
         except _SessionEnded:
             pass
-        except BaseExceptionGroup as group:        # (a task group's, around a stream)
+        except BaseExceptionGroup as group:  # (a task group's, around a stream)
             if not ended or group.subgroup(_SessionEnded) is None:
                 raise
         finally:
@@ -113,12 +118,12 @@ async def _form(request: Request) -> dict[str, str] | None:
     it: no extra package)."""
     if request.headers.get("content-type", "").split(";")[0].strip() != "application/x-www-form-urlencoded":
         return None
-    body = await body_bytes(request, FORM_MAX)     # (413 beyond it)
+    body = await body_bytes(request, FORM_MAX)  # (413 beyond it)
     try:
         fields = parse_qs(body.decode("utf-8"), keep_blank_values=True)
     except UnicodeDecodeError:
         return None
-    if any(len(v) > 1 for v in fields.values()):      # a field twice: not the page's form
+    if any(len(v) > 1 for v in fields.values()):  # a field twice: not the page's form
         return None
     return {k: v[0] for k, v in fields.items()}
 
@@ -127,8 +132,12 @@ def _safe_next(value: str) -> str:
     """A path of this console to go to after login ('/' for anything else: no other site). A
     control character or a space is refused too: a browser drops tabs and newlines from a URL,
     so ``/<TAB>/evil.example`` would lead to ``//evil.example``, another site."""
-    if (not value.startswith("/") or value.startswith("//") or "\\" in value
-            or any(c <= " " or c == "\x7f" for c in value)):
+    if (
+        not value.startswith("/")
+        or value.startswith("//")
+        or "\\" in value
+        or any(c <= " " or c == "\x7f" for c in value)
+    ):
         return "/"
     return value
 
@@ -139,10 +148,21 @@ def login_routes(console, templates) -> list[Route]:
     def page(request: Request, *, error: str = "", status: int = 200, next_: str = "/", name: str = ""):
         ended = request.query_params.get("ended") == "1"
         note = "" if error else ("your session has ended: log in again" if ended else "")
-        csrf_token = secrets.token_urlsafe(24)      # each form shown its own: the POST must bring it back
-        resp = templates.TemplateResponse(request, "login.html", {
-            "rig": console.rig_name, "error": error, "note": note, "next": _safe_next(next_), "name": name,
-            "csrf_token": csrf_token}, status_code=status, headers={"Cache-Control": "no-store"})
+        csrf_token = secrets.token_urlsafe(24)  # each form shown its own: the POST must bring it back
+        resp = templates.TemplateResponse(
+            request,
+            "login.html",
+            {
+                "rig": console.rig_name,
+                "error": error,
+                "note": note,
+                "next": _safe_next(next_),
+                "name": name,
+                "csrf_token": csrf_token,
+            },
+            status_code=status,
+            headers={"Cache-Control": "no-store"},
+        )
         resp.set_cookie(FORM_COOKIE, csrf_token, httponly=True, samesite="strict", secure=auth.secure, path="/login")
         return resp
 
@@ -158,34 +178,62 @@ def login_routes(console, templates) -> list[Route]:
             return page(request, error="the login form could not be read: send it from this page", status=400)
         # the form this console showed (its token, also in a cookie only this site's pages send
         # back): a login from anywhere else is not taken, whatever its Origin says (login CSRF)
-        if not secrets.compare_digest(form.get("csrf_token", "").encode(),
-                                      (request.cookies.get(FORM_COOKIE) or "\0").encode()):
-            return page(request, error="this login form is not one the console gave (or it is old): log in "
-                                       "from the form shown here", status=400, next_=form.get("next", "/"))
+        if not secrets.compare_digest(
+            form.get("csrf_token", "").encode(), (request.cookies.get(FORM_COOKIE) or "\0").encode()
+        ):
+            return page(
+                request,
+                error="this login form is not one the console gave (or it is old): log in from the form shown here",
+                status=400,
+                next_=form.get("next", "/"),
+            )
         name, password, next_ = form.get("name", "").strip(), form.get("password", ""), form.get("next", "/")
         known = name in auth.known_names()
         who, where = name if known else "(not a user)", {"from": request.client.host if request.client else ""}
         locked = auth.locked_for(name)
         if locked > 0:
-            await asyncio.to_thread(functools.partial(
-                console.actions.record, who, "login refused: locked", {**where, "locked_for_s": round(locked)},
-                role=""))
-            return page(request, error=f"too many wrong passwords for {name}: try again in {locked:.0f} s",
-                        status=429, next_=next_, name=name)
+            await asyncio.to_thread(
+                functools.partial(
+                    console.actions.record,
+                    who,
+                    "login refused: locked",
+                    {**where, "locked_for_s": round(locked)},
+                    role="",
+                )
+            )
+            return page(
+                request,
+                error=f"too many wrong passwords for {name}: try again in {locked:.0f} s",
+                status=429,
+                next_=next_,
+                name=name,
+            )
         s = await asyncio.to_thread(auth.login, name, password)
         if s is None:
-            locked = auth.locked_for(name)        # this wrong password locked the name
-            await asyncio.to_thread(functools.partial(
-                console.actions.record, who, "login refused", where, role=""))
+            locked = auth.locked_for(name)  # this wrong password locked the name
+            await asyncio.to_thread(functools.partial(console.actions.record, who, "login refused", where, role=""))
             if locked > 0:
-                await asyncio.to_thread(functools.partial(
-                    console.actions.record, who, "locked out",
-                    {**where, "after": f"{LOCK_AFTER} wrong passwords in a row", "for_s": round(locked)}, role=""))
-            return page(request, error="wrong user name or password", status=401, next_=next_,
-                        name=name if known else "")
-        await asyncio.to_thread(functools.partial(
-            console.actions.record, s.user, "logged in", {"from": request.client.host if request.client else ""},
-            role=s.role))
+                await asyncio.to_thread(
+                    functools.partial(
+                        console.actions.record,
+                        who,
+                        "locked out",
+                        {**where, "after": f"{LOCK_AFTER} wrong passwords in a row", "for_s": round(locked)},
+                        role="",
+                    )
+                )
+            return page(
+                request, error="wrong user name or password", status=401, next_=next_, name=name if known else ""
+            )
+        await asyncio.to_thread(
+            functools.partial(
+                console.actions.record,
+                s.user,
+                "logged in",
+                {"from": request.client.host if request.client else ""},
+                role=s.role,
+            )
+        )
         resp = RedirectResponse(_safe_next(next_), status_code=303)
         resp.set_cookie(auth.cookie_name, s.key, httponly=True, samesite="strict", secure=auth.secure, path="/")
         return resp
@@ -195,14 +243,13 @@ def login_routes(console, templates) -> list[Route]:
         if why:
             return JSONResponse({"error": why}, status_code=403)
         s = guard.session_of(console, request)
-        if s is not None and not secrets.compare_digest(request.headers.get("x-console-token", "").encode(),
-                                                        s.token.encode()):
-            return JSONResponse({"error": "refused: the request did not come from the console's page"},
-                                status_code=403)
+        if s is not None and not secrets.compare_digest(
+            request.headers.get("x-console-token", "").encode(), s.token.encode()
+        ):
+            return JSONResponse({"error": "refused: the request did not come from the console's page"}, status_code=403)
         if s is not None:
             auth.logout(s.key)
-            await asyncio.to_thread(functools.partial(console.actions.record, s.user, "logged out", {},
-                                                      role=s.role))
+            await asyncio.to_thread(functools.partial(console.actions.record, s.user, "logged out", {}, role=s.role))
         resp = RedirectResponse("/login", status_code=303)
         resp.delete_cookie(auth.cookie_name, path="/", secure=auth.secure, httponly=True, samesite="strict")
         return resp
@@ -211,17 +258,32 @@ def login_routes(console, templates) -> list[Route]:
         s = guard.session_of(console, request)
         if s is None:
             return JSONResponse({"error": "refused: log in first (no session, or it has ended)"}, status_code=401)
-        return JSONResponse({"required": True, "user": s.user, "role": s.role, "ends": auth.ends(s),
-                             "idle_s": auth.idle_s, "token": s.token}, headers={"Cache-Control": "no-store"})
+        return JSONResponse(
+            {
+                "required": True,
+                "user": s.user,
+                "role": s.role,
+                "ends": auth.ends(s),
+                "idle_s": auth.idle_s,
+                "token": s.token,
+            },
+            headers={"Cache-Control": "no-store"},
+        )
 
-    return [Route("/login", login_page, methods=["GET"]), Route("/login", login_post, methods=["POST"]),
-            Route("/logout", logout, methods=["POST"]), Route(PROBE, session)]
+    return [
+        Route("/login", login_page, methods=["GET"]),
+        Route("/login", login_post, methods=["POST"]),
+        Route("/logout", logout, methods=["POST"]),
+        Route(PROBE, session),
+    ]
 
 
 def no_login_routes(console) -> list[Route]:
     """Without users: ``/session`` says so (the pages' script then shows nothing)."""
+
     async def session(request: Request):
         return JSONResponse({"required": False, "user": guard.LOCAL_USER, "role": guard.PHYSICIST})
+
     return [Route(PROBE, session)]
 
 

@@ -40,12 +40,19 @@ class Found:
     height: int
     markers: tuple[dict, ...]
     problem: str = ""
-    legend: tuple[dict, ...] = ()        # what named the markers (names.MarkerNames.label)
-    t: float = 0.0                       # host epoch s of the detection (which frames are of one instant)
+    legend: tuple[dict, ...] = ()  # what named the markers (names.MarkerNames.label)
+    t: float = 0.0  # host epoch s of the detection (which frames are of one instant)
 
     def as_dict(self) -> dict:
-        return {"camera": self.camera, "seq": self.seq, "width": self.width, "height": self.height,
-                "markers": list(self.markers), "problem": self.problem, "legend": list(self.legend)}
+        return {
+            "camera": self.camera,
+            "seq": self.seq,
+            "width": self.width,
+            "height": self.height,
+            "markers": list(self.markers),
+            "problem": self.problem,
+            "legend": list(self.legend),
+        }
 
 
 def find_markers(camera: str, seq: int, jpeg: bytes) -> Found:
@@ -55,9 +62,10 @@ def find_markers(camera: str, seq: int, jpeg: bytes) -> Found:
     if gray is None:
         return Found(camera, seq, 0, 0, (), "the frame does not decode: markers not looked for", t=time.time())
     result = detect(gray)
-    marks = tuple({"n": i + 1, "x": round(b.x, 2), "y": round(b.y, 2),
-                   "d": round(2.0 * math.sqrt(max(b.area, 1) / math.pi), 1)}
-                  for i, b in enumerate(result.blobs))
+    marks = tuple(
+        {"n": i + 1, "x": round(b.x, 2), "y": round(b.y, 2), "d": round(2.0 * math.sqrt(max(b.area, 1) / math.pi), 1)}
+        for i, b in enumerate(result.blobs)
+    )
     return Found(camera, seq, int(gray.shape[1]), int(gray.shape[0]), marks, t=time.time())
 
 
@@ -74,7 +82,7 @@ class MarkerWorker:
         self._found: dict[str, Found] = {}
         self._lock = threading.Lock()
         self._stop = threading.Event()
-        self.looked = 0          # frames looked at (all cameras)
+        self.looked = 0  # frames looked at (all cameras)
         self._thread = threading.Thread(target=self._run, name="console-markers", daemon=True)
         self._thread.start()
 
@@ -87,8 +95,7 @@ class MarkerWorker:
             self._round()
             # not while a recording feeds the hub: its live path shares this process (and a
             # patient, not the phantom, is on the table)
-            if (self.phantom is not None and self.names is not None and self.phantom.due()
-                    and not self._recording()):
+            if self.phantom is not None and self.names is not None and self.phantom.due() and not self._recording():
                 self._look_for_phantom()
 
     def _recording(self) -> bool:
@@ -108,11 +115,11 @@ class MarkerWorker:
             found = dict(self._found)
         try:
             changed = self.phantom.look(found)
-        except Exception:              # PhantomNames keeps its own errors; nothing stops the markers
+        except Exception:  # PhantomNames keeps its own errors; nothing stops the markers
             return
         if not changed:
             return
-        for name, got in found.items():     # this round's pictures named now, not a round later
+        for name, got in found.items():  # this round's pictures named now, not a round later
             if got.problem:
                 continue
             try:
@@ -140,7 +147,7 @@ class MarkerWorker:
                     self.names.seen(name, [(m["x"], m["y"]) for m in got.markers])
                     marks, legend = self.names.label(name, list(got.markers))
                     got = replace(got, markers=tuple(marks), legend=tuple(legend))
-            except Exception as exc:     # never let one odd frame stop the markers of every camera
+            except Exception as exc:  # never let one odd frame stop the markers of every camera
                 got = Found(name, latest.seq, 0, 0, (), f"detection failed: {type(exc).__name__}: {exc}")
             with self._lock:
                 self._found[name] = got

@@ -35,12 +35,11 @@ from typing import Any
 
 import numpy as np
 
-from vts_hw.vision.marker_roles import PATIENT, follow, roles_of_tracks
-from vts_hw.vision.marker_roles import GATE_PX, match_markers
+from vts_hw.vision.marker_roles import GATE_PX, PATIENT, follow, match_markers, roles_of_tracks
 
-KINDS = ("band", "phantom", "wall")          # the order detections are matched in
+KINDS = ("band", "phantom", "wall")  # the order detections are matched in
 UNIDENTIFIED = "unidentified"
-HISTORY = 9        # pictures a camera's markers are followed over: about 3 s at the marker worker's 3 a second
+HISTORY = 9  # pictures a camera's markers are followed over: about 3 s at the marker worker's 3 a second
 MOVED = "moved over the camera's last pictures: breathing or a body (as the daily QA tells them)"
 
 
@@ -82,8 +81,13 @@ class MarkerNames:
         if len(history) < 2 or not len(pts):
             return out
         tracks = follow(history)
-        moved = np.array([t.points[-1] for t, r in zip(tracks, roles_of_tracks(tracks))
-                          if r is not None and r.role == PATIENT and len(t.points) >= 2]).reshape(-1, 2)
+        moved = np.array(
+            [
+                t.points[-1]
+                for t, r in zip(tracks, roles_of_tracks(tracks))
+                if r is not None and r.role == PATIENT and len(t.points) >= 2
+            ]
+        ).reshape(-1, 2)
         for i, p in enumerate(pts):
             out[i] = bool(len(moved)) and float(np.min(np.hypot(*(moved - p).T))) < 0.5
         return out
@@ -98,7 +102,8 @@ class MarkerNames:
         pts = tuple((str(n), float(x), float(y)) for n, x, y in points)
         with self._lock:
             self._named.setdefault(camera, {})[kind] = NamedPoints(
-                kind, pts, source, now, None if hold_s is None else now + float(hold_s))
+                kind, pts, source, now, None if hold_s is None else now + float(hold_s)
+            )
 
     def clear(self, camera: str, kind: str) -> None:
         with self._lock:
@@ -145,8 +150,11 @@ class MarkerNames:
                 if band is None:
                     legend.insert(0, {"kind": "band", "source": MOVED, "known": n_moved, "found": n_moved})
                 else:
-                    band.update(known=band["known"] + n_moved, found=band["found"] + n_moved,
-                                source=f"{band['source']}; {n_moved} more {MOVED}")
+                    band.update(
+                        known=band["known"] + n_moved,
+                        found=band["found"] + n_moved,
+                        source=f"{band['source']}; {n_moved} more {MOVED}",
+                    )
         return out, legend
 
 

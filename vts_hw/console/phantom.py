@@ -22,9 +22,9 @@ import numpy as np
 from vts_hw.errors import VtsError
 from vts_hw.vision.phantom_locator import PhantomLocator
 
-EVERY_S = 1.0           # one look a second at most (the shape search costs a few ms to tens of ms)
-FRESH_S = 1.0           # detections older than this (host s) than the newest are left out
-HOLD_S = 3.0            # names given hold this long unless a later look clears or replaces them
+EVERY_S = 1.0  # one look a second at most (the shape search costs a few ms to tens of ms)
+FRESH_S = 1.0  # detections older than this (host s) than the newest are left out
+HOLD_S = 3.0  # names given hold this long unless a later look clears or replaces them
 
 
 def locator_for(rig):
@@ -45,20 +45,28 @@ def locator_for(rig):
 class PhantomNames:
     """Feed ``names`` (a :class:`~.names.MarkerNames`) the spheres ``locator`` finds (None: ``why``)."""
 
-    def __init__(self, names, locator=None, why: str = "", *, every_s: float = EVERY_S, hold_s: float = HOLD_S,
-                 clock=time.monotonic):
+    def __init__(
+        self,
+        names,
+        locator=None,
+        why: str = "",
+        *,
+        every_s: float = EVERY_S,
+        hold_s: float = HOLD_S,
+        clock=time.monotonic,
+    ):
         self.names = names
         self.locator = locator
         self.why = why if locator is None else ""
         self.every_s, self.hold_s, self.clock = float(every_s), float(hold_s), clock
-        self.looks = 0              # looks made
-        self.last = None            # the last PhantomSeen
+        self.looks = 0  # looks made
+        self.last = None  # the last PhantomSeen
         self._named: set[str] = set()
         self._at: float | None = None
         self._lock = threading.Lock()
 
     @classmethod
-    def for_rig(cls, names, rig, **kw) -> "PhantomNames":
+    def for_rig(cls, names, rig, **kw) -> PhantomNames:
         locator, why = locator_for(rig)
         return cls(names, locator, why, **kw)
 
@@ -85,7 +93,7 @@ class PhantomNames:
             self.looks += 1
             try:
                 seen = self.locator.locate(_detections(found))
-            except Exception as exc:        # never into the worker: the page shows no sphere, the reason is kept
+            except Exception as exc:  # never into the worker: the page shows no sphere, the reason is kept
                 self.why, self.last = f"the locator failed: {type(exc).__name__}: {exc}", None
                 return self._clear()
             self.last = seen
@@ -116,8 +124,7 @@ def _detections(found: dict) -> dict:
     if not ok:
         return {}
     newest = max(f.t for f in ok.values())
-    return {n: np.array([(m["x"], m["y"]) for m in f.markers], float)
-            for n, f in ok.items() if newest - f.t <= FRESH_S}
+    return {n: np.array([(m["x"], m["y"]) for m in f.markers], float) for n, f in ok.items() if newest - f.t <= FRESH_S}
 
 
 __all__ = ["PhantomNames", "locator_for", "EVERY_S", "HOLD_S", "FRESH_S"]

@@ -57,14 +57,13 @@ class Jobs:
         self._push_lock = threading.Lock()
         self._thread: threading.Thread | None = None
         self.version = 0
-        self.ended = 0               # jobs ended since the console started (a plot drawn before is old)
+        self.ended = 0  # jobs ended since the console started (a plot drawn before is old)
         self._job: dict = {"state": "idle"}
 
     # -- what the page reads -----------------------------------------------------------------------
     def snapshot(self) -> dict:
         with self._lock:
-            return {**self._job, "version": self.version, "now": self.clock(),
-                    "pushing": self._push_lock.locked()}
+            return {**self._job, "version": self.version, "now": self.clock(), "pushing": self._push_lock.locked()}
 
     def _set(self, **changes) -> None:
         with self._lock:
@@ -91,25 +90,42 @@ class Jobs:
     def start(self, kind: str, user: str, frames: int, cameras: list[str] | None = None) -> dict:
         """Start job ``kind`` (daily / baseline) for ``user``; Busy when one is running or a
         camera is held by a recording of the console."""
-        _ = self.rig      # none: ConfigError (400) before anything starts
+        _ = self.rig  # none: ConfigError (400) before anything starts
         names = list(cameras or self.cameras())
         hub = self.console.hub
         with self._lock:
             job = self._job
             if job["state"] == "running":
-                raise Busy(f"a {KINDS[job['kind']]} is already running (started by {job['user']} at "
-                           f"{time.strftime('%H:%M:%S', time.gmtime(job['started']))} UTC): wait for it to end")
+                raise Busy(
+                    f"a {KINDS[job['kind']]} is already running (started by {job['user']} at "
+                    f"{time.strftime('%H:%M:%S', time.gmtime(job['started']))} UTC): wait for it to end"
+                )
             held = [n for n in names if hub is not None and n in hub.names and hub.source(n) == "fed"]
             if held:
                 raise Busy(f"camera {held[0]} is recording (a scan): the {KINDS[kind]} can run once it has ended")
-            self._job = {"state": "running", "kind": kind, "what": KINDS[kind], "user": user,
-                         "started": self.clock(), "cameras": names, "frames": frames, "camera": "",
-                         "index": 0, "step": "starting", "taken": 0, "needed": 0, "done": {},
-                         "error": "", "result": None, "run": None}
+            self._job = {
+                "state": "running",
+                "kind": kind,
+                "what": KINDS[kind],
+                "user": user,
+                "started": self.clock(),
+                "cameras": names,
+                "frames": frames,
+                "camera": "",
+                "index": 0,
+                "step": "starting",
+                "taken": 0,
+                "needed": 0,
+                "done": {},
+                "error": "",
+                "result": None,
+                "run": None,
+            }
             self.version += 1
             target = self._daily if kind == "daily" else self._baseline
-            self._thread = threading.Thread(target=self._run, args=(target, user, frames, names),
-                                            name=f"console-{kind}", daemon=True)
+            self._thread = threading.Thread(
+                target=self._run, args=(target, user, frames, names), name=f"console-{kind}", daemon=True
+            )
             self._thread.start()
             return dict(self._job)
 
@@ -129,10 +145,13 @@ class Jobs:
         except VtsError as exc:
             detail, what = {"why": str(exc)}, failed
             ended = {"state": "failed", "error": str(exc), "finished": self.clock()}
-        except Exception as exc:      # a bug must still end the job with its sentence, never hang the page
+        except Exception as exc:  # a bug must still end the job with its sentence, never hang the page
             detail, what = {"why": f"{type(exc).__name__}: {exc}"}, failed
-            ended = {"state": "failed", "error": f"the {KINDS.get(kind, 'job')} stopped: "
-                                                  f"{type(exc).__name__}: {exc}", "finished": self.clock()}
+            ended = {
+                "state": "failed",
+                "error": f"the {KINDS.get(kind, 'job')} stopped: {type(exc).__name__}: {exc}",
+                "finished": self.clock(),
+            }
         finally:
             self._release(attached)
         self.ended += 1
@@ -141,14 +160,14 @@ class Jobs:
         facts = getattr(self.console, "facts", None)
         if facts is not None and hasattr(facts, "read_daily_qa"):
             try:
-                facts.read_daily_qa()        # the Room page's daily QA state, now rather than in 30 s
+                facts.read_daily_qa()  # the Room page's daily QA state, now rather than in 30 s
             except Exception:
                 pass
 
     def _record(self, user: str, what: str, detail: dict) -> None:
         try:
             self.console.actions.record(user, what, detail)
-        except Exception as exc:      # the log failing costs the run nothing; the page hears of it
+        except Exception as exc:  # the log failing costs the run nothing; the page hears of it
             self._set(log_error=f"the action could not be logged: {exc}")
 
     # -- the hub steps aside for a camera, and takes it back --------------------------------------
@@ -169,7 +188,7 @@ class Jobs:
 
     def _frame(self, name, frame, taken, needed, attached) -> None:
         if frame is None and taken == 0:
-            self._take(name, attached)      # before the LED is switched and the first frame taken
+            self._take(name, attached)  # before the LED is switched and the first frame taken
         elif frame is not None and name in attached:
             self.console.hub.feed(name, frame)
         self._set(camera=name, step="drift", taken=taken, needed=needed)
@@ -189,10 +208,17 @@ class Jobs:
                     self._job["done"] = {**self._job["done"], st.camera: st.state}
             self._set(camera=st.camera, index=st.index, step=st.step, taken=0, needed=0)
 
-        with self._store() as store, Room(rig, clock=self.clock) as room:   # each camera when its turn comes
-            run = QARun(rig, steps=STEPS, cameras=names, n_frames=frames, artifacts_dir=artifacts_dir(store),
-                        open_camera=lambda cfg: room.camera(cfg.name), clock=self.clock,
-                        on_step=on_step)
+        with self._store() as store, Room(rig, clock=self.clock) as room:  # each camera when its turn comes
+            run = QARun(
+                rig,
+                steps=STEPS,
+                cameras=names,
+                n_frames=frames,
+                artifacts_dir=artifacts_dir(store),
+                open_camera=lambda cfg: room.camera(cfg.name),
+                clock=self.clock,
+                on_step=on_step,
+            )
             self._set(step="reading the baselines")
             result, stored = record_qa(store, run, rig, operator=user, clock=self.clock)
             self._set(step="stored", run=result.run_id)
@@ -203,9 +229,11 @@ class Jobs:
                 view = view_of_run(store, result.run_id, names, problems)
         note = ""
         if result.store_error:
-            where = (f"its figures are below and in {stored.unsaved} (`vts qa import {stored.unsaved}` stores them "
-                     f"later)" if stored.unsaved else "its figures are below only: no fallback file could be "
-                     "written either")
+            where = (
+                f"its figures are below and in {stored.unsaved} (`vts qa import {stored.unsaved}` stores them later)"
+                if stored.unsaved
+                else "its figures are below only: no fallback file could be written either"
+            )
             note = f"the daily QA ran but was NOT stored: {result.store_error}; {where}"
         self._set(result=view, note=note)
         return {"run": result.run_id, "state": str(result.state), **({"not_stored": note} if note else {})}
@@ -214,7 +242,7 @@ class Jobs:
     def _baseline(self, user, frames, names, attached) -> dict:
         rig = self.rig
         cfgs = [rig.camera(n) for n in names]
-        for cfg in cfgs:      # unset password variables: before anything is touched
+        for cfg in cfgs:  # unset password variables: before anything is touched
             cfg.password()
         check_camera_kinds(cfgs)
         done: list[str] = []
@@ -232,12 +260,22 @@ class Jobs:
             result = take_baselines(cams, frames=frames, clock=self.clock, on_frame=on_frame, rig=rig)
             self._release(attached)
             started = self.clock()
-            stored = record(store, result, rig=rig.rig, operator=user, config_digest=rig.digest,
-                            tolerances=rig.tolerances, started=started, finished=started, clock=self.clock)
+            stored = record(
+                store,
+                result,
+                rig=rig.rig,
+                operator=user,
+                config_digest=rig.digest,
+                tolerances=rig.tolerances,
+                started=started,
+                finished=started,
+                clock=self.clock,
+            )
         if not stored.ok:
-            raise VtsError(f"the baseline was NOT stored: {stored.error}"
-                           + (f"; it is kept in {stored.unsaved} (`vts qa import` stores it later)"
-                              if stored.unsaved else ""))
+            raise VtsError(
+                f"the baseline was NOT stored: {stored.error}"
+                + (f"; it is kept in {stored.unsaved} (`vts qa import` stores it later)" if stored.unsaved else "")
+            )
         made = {b.camera: len(b.markers) for b in result.baselines}
         self._set(run=stored.run_id, result={"baseline": made, "run": stored.run_id})
         return {"run": stored.run_id, "markers": made}
@@ -252,9 +290,11 @@ class Jobs:
             self._set()
             rig = self.rig
             if rig.qatrack is None:
-                raise ConfigError(f"{rig._source or 'rig.yaml'}: no qatrack: section (url, unit, token_env or "
-                                  f"user_env/password_env, lists); see docs/operate/qatrack.md")
-            rig.qatrack.credentials()     # an unset variable: one sentence before anything is sent
+                raise ConfigError(
+                    f"{rig._source or 'rig.yaml'}: no qatrack: section (url, unit, token_env or "
+                    f"user_env/password_env, lists); see docs/operate/qatrack.md"
+                )
+            rig.qatrack.credentials()  # an unset variable: one sentence before anything is sent
             with self._store() as store:
                 chosen = select_runs(store, rig.qatrack, rig.rig, ())
                 outcomes = push_runs(store, rig.qatrack, chosen)
@@ -263,9 +303,17 @@ class Jobs:
             self._set()
         rows = [{**o.as_dict(), "line": o.line()} for o in outcomes]
         counts = {s: sum(1 for o in outcomes if o.state == s) for s in ("sent", "pending", "refused")}
-        return {"outcomes": rows, "counts": counts, "exit_code": exit_code(outcomes),
-                "summary": (f"QATrack+: {counts['sent']} of {len(outcomes)} sent, {counts['pending']} pending, "
-                            f"{counts['refused']} refused") if outcomes else "QATrack+: nothing to push"}
+        return {
+            "outcomes": rows,
+            "counts": counts,
+            "exit_code": exit_code(outcomes),
+            "summary": (
+                f"QATrack+: {counts['sent']} of {len(outcomes)} sent, {counts['pending']} pending, "
+                f"{counts['refused']} refused"
+            )
+            if outcomes
+            else "QATrack+: nothing to push",
+        }
 
 
 __all__ = ["Jobs", "Busy", "KINDS"]

@@ -40,7 +40,7 @@ from vts_hw.console.qa_view import drift_plot_png, latest_view
 from vts_hw.console.web import event_stream, sse
 from vts_hw.errors import ConfigError, UsageError, VtsError
 
-DEFAULT_FRAMES = 5            # `vts qa daily --frames`'s default
+DEFAULT_FRAMES = 5  # `vts qa daily --frames`'s default
 MAX_FRAMES = 50
 TICK_S = 0.1
 RUNNING_EVERY_S = 1.0
@@ -54,8 +54,10 @@ class DailyBody(Body):
 
 
 class BaselineBody(DailyBody):
-    confirm: StrictBool = Field(False, description="true, once the page has asked (a baseline changes what "
-                                                   "every later daily QA is compared with)")
+    confirm: StrictBool = Field(
+        False,
+        description="true, once the page has asked (a baseline changes what every later daily QA is compared with)",
+    )
 
 
 def _refused(exc: VtsError) -> JSONResponse:
@@ -101,21 +103,34 @@ class QAPage:
         self.templates = templates
         self.jobs = Jobs(console)
         self.plots = Plots()
-        console.qa_jobs = self.jobs          # (the tests and a closing console can reach it)
+        console.qa_jobs = self.jobs  # (the tests and a closing console can reach it)
 
     async def page(self, request: Request):
         user, role = guard.user_of(self.console, request)
-        return self.templates.TemplateResponse(request, "qa.html", {
-            "rig": self.console.rig_name, "here": "qa", "token": self.console.token, "cameras": self.jobs.cameras(),
-            "frames": DEFAULT_FRAMES, "max_frames": MAX_FRAMES, "user": user,
-            "physicist": guard.ROLE_RANK.get(role, 0) >= guard.ROLE_RANK[guard.PHYSICIST],
-            "has_rig": self.console.rig_config is not None})
+        return self.templates.TemplateResponse(
+            request,
+            "qa.html",
+            {
+                "rig": self.console.rig_name,
+                "here": "qa",
+                "token": self.console.token,
+                "cameras": self.jobs.cameras(),
+                "frames": DEFAULT_FRAMES,
+                "max_frames": MAX_FRAMES,
+                "user": user,
+                "physicist": guard.ROLE_RANK.get(role, 0) >= guard.ROLE_RANK[guard.PHYSICIST],
+                "has_rig": self.console.rig_config is not None,
+            },
+        )
 
     async def state(self, request: Request):
         out = {"job": self.jobs.snapshot()}
         try:
-            out.update(await asyncio.to_thread(latest_view, self.console.open_store, self.console.rig_name,
-                                               self.jobs.cameras()))
+            out.update(
+                await asyncio.to_thread(
+                    latest_view, self.console.open_store, self.console.rig_name, self.jobs.cameras()
+                )
+            )
         except VtsError as exc:
             out["store_error"] = f"the results store could not be read: {exc}"
         return JSONResponse(out, headers={"Cache-Control": "no-store"})
@@ -139,12 +154,17 @@ class QAPage:
         if refused is not None:
             return refused
         user, _ = guard.user_of(self.console, request)
-        body = await json_body(request, BaselineBody if kind == "baseline" else DailyBody,
-                               '{"confirm": true, "frames": 5}' if kind == "baseline" else '{"frames": 5}')
+        body = await json_body(
+            request,
+            BaselineBody if kind == "baseline" else DailyBody,
+            '{"confirm": true, "frames": 5}' if kind == "baseline" else '{"frames": 5}',
+        )
         try:
             if kind == "baseline" and not (isinstance(body, BaselineBody) and body.confirm is True):
-                raise UsageError("a baseline is set only when confirmed on the page (the body needs "
-                                 '"confirm": true): it changes what every later daily QA is compared with')
+                raise UsageError(
+                    "a baseline is set only when confirmed on the page (the body needs "
+                    '"confirm": true): it changes what every later daily QA is compared with'
+                )
             job = await asyncio.to_thread(self.jobs.start, kind, user, body.frames)
         except VtsError as exc:
             return _refused(exc)
@@ -164,13 +184,17 @@ class QAPage:
         user, _ = guard.user_of(self.console, request)
         try:
             got = await asyncio.to_thread(self.jobs.push, user)
-        except Busy as exc:            # not tried: another push is running
+        except Busy as exc:  # not tried: another push is running
             return _refused(exc)
         except VtsError as exc:
             await asyncio.to_thread(self.console.actions.record, user, "push to QATrack+ failed", {"why": str(exc)})
             return _refused(exc)
-        await asyncio.to_thread(self.console.actions.record, user, "push to QATrack+",
-                                {"runs": [o["run_id"] for o in got["outcomes"]], **got["counts"]})
+        await asyncio.to_thread(
+            self.console.actions.record,
+            user,
+            "push to QATrack+",
+            {"runs": [o["run_id"] for o in got["outcomes"]], **got["counts"]},
+        )
         return JSONResponse(got)
 
     async def plot(self, request: Request):
@@ -180,10 +204,11 @@ class QAPage:
         run = query_id(request, "run", "run id")
         if self.console.open_store is None:
             return PlainTextResponse("no results store is named for this console", status_code=503)
-        key = (name, run, self.jobs.ended)   # a new baseline: drawn anew
+        key = (name, run, self.jobs.ended)  # a new baseline: drawn anew
         try:
-            png = await asyncio.to_thread(self.plots.get, key, lambda: drift_plot_png(
-                self.console.open_store, self.console.rig_name, name))
+            png = await asyncio.to_thread(
+                self.plots.get, key, lambda: drift_plot_png(self.console.open_store, self.console.rig_name, name)
+            )
         except VtsError as exc:
             return PlainTextResponse(f"the results store could not be read: {exc}", status_code=503)
         if png is None:
@@ -191,9 +216,15 @@ class QAPage:
         return Response(png, media_type="image/png", headers={"Cache-Control": "no-store"})
 
     def routes(self) -> list[Route]:
-        return [Route("/qa", self.page), Route("/qa/state", self.state), Route("/qa/events", self.events),
-                Route("/qa/run", self.run, methods=["POST"]), Route("/qa/baseline", self.baseline, methods=["POST"]),
-                Route("/qa/push", self.push, methods=["POST"]), Route("/qa/plot/{camera}.png", self.plot)]
+        return [
+            Route("/qa", self.page),
+            Route("/qa/state", self.state),
+            Route("/qa/events", self.events),
+            Route("/qa/run", self.run, methods=["POST"]),
+            Route("/qa/baseline", self.baseline, methods=["POST"]),
+            Route("/qa/push", self.push, methods=["POST"]),
+            Route("/qa/plot/{camera}.png", self.plot),
+        ]
 
 
 def qa_routes(console, templates) -> list[Route]:

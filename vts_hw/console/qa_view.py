@@ -16,8 +16,8 @@ import math
 import time
 
 from vts_hw import catalog
-from vts_hw import report as reports      # the package: its names load when first asked for (vts_hw.lazy)
-from vts_hw.console.history import when     # (the History page's wording of a time)
+from vts_hw import report as reports  # the package: its names load when first asked for (vts_hw.lazy)
+from vts_hw.console.history import when  # (the History page's wording of a time)
 from vts_hw.errors import VtsError
 from vts_hw.figures import figure_png
 from vts_hw.qatrack import TARGET
@@ -25,8 +25,8 @@ from vts_hw.report.drift import collect
 from vts_hw.store.baselines import load_baseline
 from vts_hw.vision.wall_baseline import NoBaseline
 
-DAILY_NAMES = catalog.by_label()[catalog.DAILY.label]     # daily and drift QA: one check
-PLOT_SINCE_S = 60 * 86400.0                                  # the drift plot's period, as the History page's report
+DAILY_NAMES = catalog.by_label()[catalog.DAILY.label]  # daily and drift QA: one check
+PLOT_SINCE_S = 60 * 86400.0  # the drift plot's period, as the History page's report
 STATE_ORDER = {"OK": 0, "TOLERANCE": 1, "ACTION": 2}
 
 
@@ -49,12 +49,18 @@ def camera_view(name: str, rows: list[tuple], problems: list[str], run_id: int |
     if not measured:
         why = "the camera did not answer" + (f": {problems[0]}" if problems else "")
     drift_known = values.get("drift_x_px") is not None and values.get("drift_y_px") is not None
-    return {"camera": name, "state": state, "measured": measured, "why": why,
-            "drift_measured": measured and drift_known,
-            "figures": [{"metric": m, "value": value_text(v), "unit": u, "state": str(st), "window": w}
-                        for m, v, u, st, w in rows],
-            "problems": list(problems),
-            "plot": f"/qa/plot/{name}.png?run={run_id}" if run_id is not None else f"/qa/plot/{name}.png"}
+    return {
+        "camera": name,
+        "state": state,
+        "measured": measured,
+        "why": why,
+        "drift_measured": measured and drift_known,
+        "figures": [
+            {"metric": m, "value": value_text(v), "unit": u, "state": str(st), "window": w} for m, v, u, st, w in rows
+        ],
+        "problems": list(problems),
+        "plot": f"/qa/plot/{name}.png?run={run_id}" if run_id is not None else f"/qa/plot/{name}.png",
+    }
 
 
 def _own(subject: str) -> bool:
@@ -66,14 +72,23 @@ def view_of_result(result, cameras: list[str]) -> dict:
     windows = result.windows or {}
     cams = []
     for c in result.cameras:
-        rows = [(m, v, u, st, windows[m].describe() if m in windows else "")
-                for s, m, v, u, st in c.measures if _own(s)]
+        rows = [
+            (m, v, u, st, windows[m].describe() if m in windows else "") for s, m, v, u, st in c.measures if _own(s)
+        ]
         cams.append(camera_view(c.camera, rows, c.problems, None))
     seen = {c["camera"] for c in cams}
     cams += [camera_view(n, [], ["no figure of it in this run"], None) for n in cameras if n not in seen]
-    return {"run": None, "procedure": catalog.label(result.procedure), "state": str(result.state),
-            "started": when(result.started), "finished": when(result.finished), "status": str(result.state),
-            "cameras": cams, "push": None, "stored": False}
+    return {
+        "run": None,
+        "procedure": catalog.label(result.procedure),
+        "state": str(result.state),
+        "started": when(result.started),
+        "finished": when(result.finished),
+        "status": str(result.state),
+        "cameras": cams,
+        "push": None,
+        "stored": False,
+    }
 
 
 def view_of_run(store, run_id: int, cameras: list[str], problems: dict | None = None) -> dict:
@@ -94,9 +109,18 @@ def view_of_run(store, run_id: int, cameras: list[str], problems: dict | None = 
         rows = by_cam.get(n, [])
         probs = problems.get(n) or ([] if rows else ["no figure of it in this run"])
         cams.append(camera_view(n, rows, probs, run_id))
-    return {"run": run_id, "procedure": catalog.label(run.procedure), "state": str(run.status),
-            "started": when(run.started), "finished": when(run.finished), "status": str(run.status),
-            "operator": run.operator, "cameras": cams, "push": push_state(store, run_id), "stored": True}
+    return {
+        "run": run_id,
+        "procedure": catalog.label(run.procedure),
+        "state": str(run.status),
+        "started": when(run.started),
+        "finished": when(run.finished),
+        "status": str(run.status),
+        "operator": run.operator,
+        "cameras": cams,
+        "push": push_state(store, run_id),
+        "stored": True,
+    }
 
 
 def push_state(store, run_id: int) -> dict | None:
@@ -133,8 +157,10 @@ def latest_view(open_store, rig: str, cameras: list[str]) -> dict:
         raise VtsError("no results store is named for this console")
     with open_store() as store:
         rid = latest_run_id(store, rig)
-        return {"latest": view_of_run(store, rid, cameras) if rid is not None else None,
-                "baselines": baselines(store, cameras, rig)}
+        return {
+            "latest": view_of_run(store, rid, cameras) if rid is not None else None,
+            "baselines": baselines(store, cameras, rig),
+        }
 
 
 def drift_plot_png(open_store, rig: str, camera: str, now: float | None = None) -> bytes | None:
@@ -147,7 +173,7 @@ def drift_plot_png(open_store, rig: str, camera: str, now: float | None = None) 
     if cam is None or not cam.points:
         return None
     # through the report package's name loaded when first asked for: the console starts without matplotlib
-    return figure_png(reports.camera_figure(report, cam), dpi=80)     # the report's own size: its titles fit
+    return figure_png(reports.camera_figure(report, cam), dpi=80)  # the report's own size: its titles fit
 
 
 __all__ = ["latest_view", "view_of_run", "view_of_result", "drift_plot_png", "baselines", "push_state"]

@@ -46,8 +46,12 @@ class Refusals:
                 return None
             self._next[kind] = now + EVERY_S
             held = self._held.pop(kind, 0)
-        detail: dict[str, str | int] = {"asked": f"{request.method} {request.url.path}"[:200], "why": why[:200], "kind": kind,
-                  "from": request.client.host if request.client else ""}
+        detail: dict[str, str | int] = {
+            "asked": f"{request.method} {request.url.path}"[:200],
+            "why": why[:200],
+            "kind": kind,
+            "from": request.client.host if request.client else "",
+        }
         if held:
             detail["held back since the last"] = held
         return BackgroundTask(self._record, user or "(no session)", detail)
@@ -55,7 +59,7 @@ class Refusals:
     def _record(self, user: str, detail: dict) -> None:
         try:
             self.actions.record(user, WHAT, detail, role="")
-        except Exception as exc:        # the store away: said in the log, the answer already sent
+        except Exception as exc:  # the store away: said in the log, the answer already sent
             log.warning("a refused request could not be recorded (%s)", type(exc).__name__)
 
 

@@ -40,18 +40,18 @@ OFFSET_SAMPLES = 3
 
 @dataclass
 class CameraFacts:
-    led: str = "unknown"             # "on", "off" (as the camera says), "unknown"
-    led_at: float | None = None      # host epoch s the camera said so
-    led_why: str = ""                # why the state is not known
-    led_asked: str | None = None     # "on"/"off": the last switch asked here ...
+    led: str = "unknown"  # "on", "off" (as the camera says), "unknown"
+    led_at: float | None = None  # host epoch s the camera said so
+    led_why: str = ""  # why the state is not known
+    led_asked: str | None = None  # "on"/"off": the last switch asked here ...
     led_asked_at: float | None = None
-    led_error: str = ""              # ... and why it failed or did not take ("" when it did)
+    led_error: str = ""  # ... and why it failed or did not take ("" when it did)
     offset_s: float | None = None
     offset_unc_s: float | None = None
     offset_at: float | None = None
     offset_source: str = ""
     offset_error: str = ""
-    qa_state: str | None = None      # OK / TOLERANCE / ACTION, None: no daily QA
+    qa_state: str | None = None  # OK / TOLERANCE / ACTION, None: no daily QA
     qa_at: float | None = None
     qa_run: int | None = None
     lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
@@ -69,10 +69,10 @@ class RoomFacts:
         self.rig = rig
         self.open_store = open_store
         self.clock = clock
-        self.names = names                    # names.MarkerNames: the wall markers go there
+        self.names = names  # names.MarkerNames: the wall markers go there
         self._led_read_at: float | None = None
         self.facts = {name: CameraFacts() for name in cameras}
-        self.qa_note = "not read yet"         # why there is no daily QA state, in words
+        self.qa_note = "not read yet"  # why there is no daily QA state, in words
         self._qa_read_at: float | None = None
         self._offsets_at: float | None = None
 
@@ -80,7 +80,7 @@ class RoomFacts:
     def _read_led(self, cam, facts: CameraFacts) -> None:
         """The LED's state as the camera says it (under ``facts.lock``)."""
         try:
-            state = cam.led_state() if isinstance(cam, Illumination) else None   # no LED: cannot tell
+            state = cam.led_state() if isinstance(cam, Illumination) else None  # no LED: cannot tell
         except VtsError as exc:
             facts.led, facts.led_at, facts.led_why = "unknown", self.clock(), f"the camera did not say ({exc})"
             return
@@ -108,13 +108,14 @@ class RoomFacts:
             try:
                 switch_led(cam, on, within_s=settle_s)
             except LedNotTaken:
-                facts.led_error = ""      # worded below from the state read
+                facts.led_error = ""  # worded below from the state read
             except VtsError as exc:
                 facts.led_error = f"switching it {want} failed: {exc}"
             self._read_led(cam, facts)
             if not facts.led_error and facts.led not in (want, "unknown"):
-                facts.led_error = (f"switched {want} here, but the camera says its LED output is {facts.led}: "
-                                   f"the switch did not take")
+                facts.led_error = (
+                    f"switched {want} here, but the camera says its LED output is {facts.led}: the switch did not take"
+                )
             return facts.as_dict()
 
     # -- clock offsets --------------------------------------------------------------------------------

@@ -1,4 +1,4 @@
-""""Analyse motion" on the Scan page: what `vts motion analyze SESSION -o ... --plot ... --export
+""" "Analyse motion" on the Scan page: what `vts motion analyze SESSION -o ... --plot ... --export
 ...` runs, in a worker thread, with its progress, its report and exports written into the scan
 folder (``motion/``), and its result stored in the results store as the command stores it.
 
@@ -47,13 +47,13 @@ class MotionJob:
     def __init__(self, rig, folder: Path, store_target, *, user: str = "", on_said=None):
         self.rig, self.folder, self.store_target, self.user = rig, Path(folder), store_target, user
         self.on_said = on_said
-        self.state = "running"          # running | done | failed
+        self.state = "running"  # running | done | failed
         self.progress: tuple[int, int] | None = None
         self.stage = "reading the recording"
         self.error = ""
-        self.text = ""                  # the analysis's own words (what the command prints)
-        self.result_state: str | None = None        # OK / TOLERANCE / ACTION
-        self.files: list[str] = []      # written, relative to the scan folder
+        self.text = ""  # the analysis's own words (what the command prints)
+        self.result_state: str | None = None  # OK / TOLERANCE / ACTION
+        self.files: list[str] = []  # written, relative to the scan folder
         self.not_written = ""
         self.notes: list[str] = []
         self.stored = ""
@@ -61,7 +61,7 @@ class MotionJob:
         self.finished: float | None = None
         self.thread = threading.Thread(target=self._run, name="console-motion", daemon=True)
 
-    def start(self) -> "MotionJob":
+    def start(self) -> MotionJob:
         self.thread.start()
         return self
 
@@ -74,8 +74,15 @@ class MotionJob:
             cal = rig.calibration.stereo
             if cal is None:
                 raise VtsError("no camera calibration: set calibration.cameras in rig.yaml")
-            a = MotionAnalysis(self.folder, None, cal, rig.calibration.spect,
-                               motion_config=rig.motion, workers=1, progress=self._progress)
+            a = MotionAnalysis(
+                self.folder,
+                None,
+                cal,
+                rig.calibration.spect,
+                motion_config=rig.motion,
+                workers=1,
+                progress=self._progress,
+            )
             a.analyze(tolerances=rig.tolerances)
             self.stage = "writing the report and the exports"
             data = a.results_data()
@@ -89,8 +96,11 @@ class MotionJob:
             png = a.plot()
             plot_ok = outs.attempt(write_atomic, out / PLOT, png) is not None
             report_ok = outs.attempt(write_report, "motion", out / REPORT, data, png) is not None
-            self.files = ([f"{OUT_DIR}/{REPORT}"] if report_ok else []) + ([f"{OUT_DIR}/{PLOT}"] if plot_ok else []) \
+            self.files = (
+                ([f"{OUT_DIR}/{REPORT}"] if report_ok else [])
+                + ([f"{OUT_DIR}/{PLOT}"] if plot_ok else [])
                 + [str(Path(p).resolve().relative_to(self.folder.resolve())) for p in (exported or [])]
+            )
             self.notes = list(a.export_notes)
             self.not_written = outs.sentence()
             self.stage = "storing the result"
@@ -101,8 +111,10 @@ class MotionJob:
         except VtsError as exc:
             self.error, self.state = str(exc), "failed"
         except Exception as exc:
-            self.error, self.state = f"the analysis stopped on an unexpected error: {type(exc).__name__}: {exc}", \
-                "failed"
+            self.error, self.state = (
+                f"the analysis stopped on an unexpected error: {type(exc).__name__}: {exc}",
+                "failed",
+            )
         finally:
             self.finished = time.time()
         self._say()
@@ -111,33 +123,60 @@ class MotionJob:
         if self.on_said is None:
             return
         if self.state == "done":
-            what, detail = "motion analysed", {"state": self.result_state, "stored": self.stored,
-                                               **({"not written": self.not_written} if self.not_written else {})}
+            what, detail = (
+                "motion analysed",
+                {
+                    "state": self.result_state,
+                    "stored": self.stored,
+                    **({"not written": self.not_written} if self.not_written else {}),
+                },
+            )
         else:
             what, detail = "motion analysis failed", {"why": self.error}
         try:
             self.on_said(what, {"scan": self.folder.name, **detail})
-        except Exception:        # (the log's own failures are its to keep: actions.StoreActions)
+        except Exception:  # (the log's own failures are its to keep: actions.StoreActions)
             pass
 
     def _store(self, a, data, artifacts, outs) -> None:
         notes = f"session {self.folder}" + (f"; not written: {outs.sentence()}" if outs.failed else "")
         try:
             store = self.store_target()
-        except VtsError:        # none yet: made where the command would make it ($VTS_STORE, rig.yaml, per-user)
+        except VtsError:  # none yet: made where the command would make it ($VTS_STORE, rig.yaml, per-user)
             store = resolve_target(None, None, self.rig)
         try:
-            stored = record(store, a, rig=self.rig.rig, operator=self.user, config_digest=self.rig.digest,
-                            tolerances=self.rig.tolerances, notes=notes, artifacts=artifacts)
+            stored = record(
+                store,
+                a,
+                rig=self.rig.rig,
+                operator=self.user,
+                config_digest=self.rig.digest,
+                tolerances=self.rig.tolerances,
+                notes=notes,
+                artifacts=artifacts,
+            )
         finally:
             if hasattr(store, "close"):
                 store.close()
-        self.stored = (f"stored: run {stored.run_id} in the results store" if stored.ok else
-                       f"NOT stored: {stored.error}; its figures are in {stored.unsaved} (`vts qa import` stores "
-                       f"them later)" if stored.unsaved else f"NOT stored: {stored.error}")
+        self.stored = (
+            f"stored: run {stored.run_id} in the results store"
+            if stored.ok
+            else f"NOT stored: {stored.error}; its figures are in {stored.unsaved} (`vts qa import` stores them later)"
+            if stored.unsaved
+            else f"NOT stored: {stored.error}"
+        )
 
     def view(self) -> dict:
-        return {"state": self.state, "stage": self.stage, "progress": list(self.progress) if self.progress else None,
-                "error": self.error, "text": self.text, "result_state": self.result_state, "files": self.files,
-                "not_written": self.not_written, "notes": self.notes, "stored": self.stored,
-                "elapsed_s": round((self.finished or time.time()) - self.started, 1)}
+        return {
+            "state": self.state,
+            "stage": self.stage,
+            "progress": list(self.progress) if self.progress else None,
+            "error": self.error,
+            "text": self.text,
+            "result_state": self.result_state,
+            "files": self.files,
+            "not_written": self.not_written,
+            "notes": self.notes,
+            "stored": self.stored,
+            "elapsed_s": round((self.finished or time.time()) - self.started, 1),
+        }

@@ -46,22 +46,28 @@ from vts_hw.room import Room
 from vts_hw.store.errors import StoreError
 
 STATE_EVERY_S = 0.25
-TICK_S = 0.02            # how often an event stream looks for alerts, frames and a new view
+TICK_S = 0.02  # how often an event stream looks for alerts, frames and a new view
 #: a camera's "new picture" event at most this often per page: the page fetches at most 2 pictures
 #: a second (scan.js: thumbnails; the Room page is the live view), and an event per frame (100 a
 #: second for 4 cameras) cost the browsers and the live path beside them for nothing (bench/console.py)
 FRAME_EVENT_S = 0.5
 MAX_REFERENCE_S = 120.0
-MAX_DURATION_S = 86400.0      # a day: a scan is minutes long; more is a typing error, not a scan
+MAX_DURATION_S = 86400.0  # a day: a scan is minutes long; more is a typing error, not a scan
 DEFAULT_REFERENCE_S = 10.0
 
 
 class StartBody(Body):
-    reference_s: Seconds = seconds(MAX_REFERENCE_S, (
-        f"a number of seconds more than 0 and at most {MAX_REFERENCE_S:g} (the still period learned first), "
-        f"or null for {DEFAULT_REFERENCE_S:g}"))
-    duration_s: Seconds = seconds(MAX_DURATION_S, (
-        f"a number of seconds more than 0 and at most {MAX_DURATION_S:g} (a day), or null to scan until stopped"))
+    reference_s: Seconds = seconds(
+        MAX_REFERENCE_S,
+        (
+            f"a number of seconds more than 0 and at most {MAX_REFERENCE_S:g} (the still period learned first), "
+            f"or null for {DEFAULT_REFERENCE_S:g}"
+        ),
+    )
+    duration_s: Seconds = seconds(
+        MAX_DURATION_S,
+        (f"a number of seconds more than 0 and at most {MAX_DURATION_S:g} (a day), or null to scan until stopped"),
+    )
 
 
 class ScanDesk:
@@ -84,7 +90,7 @@ class ScanDesk:
             if self.viewers > 0:
                 try:
                     data = sse("scan", self.view())
-                except Exception as exc:      # said on the page; the publisher goes on
+                except Exception as exc:  # said on the page; the publisher goes on
                     data = sse("scan", {"phase": "failed", "error": f"the page's view failed: {exc}"})
                 n += 1
                 self.published = (n, data)
@@ -94,19 +100,33 @@ class ScanDesk:
         return self.run is not None and self.run.phase in ("starting", "running", "stopping")
 
     def start(self, user: str, reference_s: float, duration: float | None, role: str = "") -> ScanRun:
-        def said(what: str, detail: dict) -> None:       # the scan's worker: its outcome, in the action log
+        def said(what: str, detail: dict) -> None:  # the scan's worker: its outcome, in the action log
             self.console.actions.record(user, what, detail, role=role)
 
-        run = ScanRun(self.rig, default_folder(parent=self.scans), self.console.hub, lambda: Room(self.rig), user=user,
-                      reference_s=reference_s, duration=duration, marker_names=self.console.names, on_said=said)
+        run = ScanRun(
+            self.rig,
+            default_folder(parent=self.scans),
+            self.console.hub,
+            lambda: Room(self.rig),
+            user=user,
+            reference_s=reference_s,
+            duration=duration,
+            marker_names=self.console.names,
+            on_said=said,
+        )
         self.run, self.job = run, None
         return run.start()
 
     def analyse(self, user: str, role: str = "") -> MotionJob:
-        if self.run is None:          # the page refuses it before (409)
+        if self.run is None:  # the page refuses it before (409)
             raise RuntimeError("no scan to analyse")
-        self.job = MotionJob(self.rig, self.run.folder, self.console.open_store or _no_store, user=user,
-                             on_said=lambda what, detail: self.console.actions.record(user, what, detail, role=role))
+        self.job = MotionJob(
+            self.rig,
+            self.run.folder,
+            self.console.open_store or _no_store,
+            user=user,
+            on_said=lambda what, detail: self.console.actions.record(user, what, detail, role=role),
+        )
         return self.job.start()
 
     def view(self) -> dict:
@@ -116,14 +136,17 @@ class ScanDesk:
         out["fed"] = [n for n in self.console.hub.names if self.console.hub.source(n) == "fed"]
         try:
             out["actions"] = [] if self.run is None else self.actions(self.run.folder.name)
-        except VtsError as exc:          # the store away (a full disk): the scan's view goes on without
+        except VtsError as exc:  # the store away (a full disk): the scan's view goes on without
             out["actions"], out["actions_error"] = [], f"the action log could not be read: {exc}"
         return out
 
     def actions(self, scan: str) -> list[dict]:
         """Who did what to this scan (console.actions), newest first."""
-        return [clean({"at": a.at, "user": a.user, "what": a.what, "detail": dict(a.detail)})
-                for a in self.console.actions.recent(200) if (a.detail or {}).get("scan") == scan]
+        return [
+            clean({"at": a.at, "user": a.user, "what": a.what, "detail": dict(a.detail)})
+            for a in self.console.actions.recent(200)
+            if (a.detail or {}).get("scan") == scan
+        ]
 
 
 def _no_store():
@@ -141,9 +164,18 @@ def scan_routes(console, templates):
         return JSONResponse({"error": "this console was started without a rig to scan with"}, status_code=503)
 
     async def page(request: Request):
-        return templates.TemplateResponse(request, "scan.html", {
-            "rig": console.rig_name, "cameras": console.hub.names, "token": console.token, "here": "scan",
-            "version": __version__, "scans": str(desk.scans) if desk else ""})
+        return templates.TemplateResponse(
+            request,
+            "scan.html",
+            {
+                "rig": console.rig_name,
+                "cameras": console.hub.names,
+                "token": console.token,
+                "here": "scan",
+                "version": __version__,
+                "scans": str(desk.scans) if desk else "",
+            },
+        )
 
     async def state(request: Request):
         if desk is None:
@@ -168,7 +200,7 @@ def scan_routes(console, templates):
                 sent_view = n
                 out.append(data)
             for name in sent_seq:
-                if now - sent_at[name] < FRAME_EVENT_S:    # the page shows at most 2 a second
+                if now - sent_at[name] < FRAME_EVENT_S:  # the page shows at most 2 a second
                     continue
                 lt = console.hub.latest(name)
                 if lt is not None and lt.seq != sent_seq[name] and console.hub.source(name) == "fed":
@@ -192,8 +224,9 @@ def scan_routes(console, templates):
             return no_desk()
         body = await json_body(request, StartBody, '{"reference_s": 10, "duration_s": null}')
         if desk.busy():
-            return JSONResponse({"error": f"a scan is already running ({desk.run.folder.name}): stop it first"},
-                                status_code=409)
+            return JSONResponse(
+                {"error": f"a scan is already running ({desk.run.folder.name}): stop it first"}, status_code=409
+            )
         user, role = guard.user_of(console, request)
         run = desk.start(user, body.reference_s or DEFAULT_REFERENCE_S, body.duration_s, role)
         return JSONResponse({"scan": run.folder.name, "phase": run.phase})
@@ -217,15 +250,20 @@ def scan_routes(console, templates):
         try:
             alert_id = path_id(request, "alert", "alert")
         except BadInput:
-            alert_id = None                  # no such alert: said as any other that is not there
+            alert_id = None  # no such alert: said as any other that is not there
         await json_body(request, NoBody)
         user, _ = guard.user_of(console, request)
         got = None if desk is None or desk.run is None or alert_id is None else desk.run.acknowledge(alert_id, user)
         if got is None:
-            return JSONResponse({"error": f"no alert {shown(request.path_params['alert'])} in this scan"},
-                                status_code=404)
-        await asyncio.to_thread(console.actions.record, user, "alert acknowledged",
-                                {"scan": desk.run.folder.name, "alert": got["text"], "raised": got["raised"]})
+            return JSONResponse(
+                {"error": f"no alert {shown(request.path_params['alert'])} in this scan"}, status_code=404
+            )
+        await asyncio.to_thread(
+            console.actions.record,
+            user,
+            "alert acknowledged",
+            {"scan": desk.run.folder.name, "alert": got["text"], "raised": got["raised"]},
+        )
         return JSONResponse(got)
 
     async def analyse(request: Request):
@@ -238,7 +276,7 @@ def scan_routes(console, templates):
         if desk.job is not None and desk.job.state == "running":
             return JSONResponse({"error": "the motion analysis is running already"}, status_code=409)
         user, role = guard.user_of(console, request)
-        job = desk.analyse(user, role)          # its outcome is recorded when it ends (scan_analysis.py)
+        job = desk.analyse(user, role)  # its outcome is recorded when it ends (scan_analysis.py)
         return JSONResponse(job.view())
 
     async def file(request: Request):
@@ -246,18 +284,29 @@ def scan_routes(console, templates):
             return no_desk()
         run, job, n = desk.run, desk.job, request.path_params["n"]
         path = None
-        if run is not None and job is not None and run.folder.name == request.path_params["scan"] \
-                and job.state == "done" and n < len(job.files) and not run.folder.is_symlink():
+        if (
+            run is not None
+            and job is not None
+            and run.folder.name == request.path_params["scan"]
+            and job.state == "done"
+            and n < len(job.files)
+            and not run.folder.is_symlink()
+        ):
             path = inside(run.folder, job.files[n])
         if path is None:
             return PlainTextResponse("no such file in that scan", status_code=404)
         return FileResponse(path, filename=path.name, content_disposition_type="inline")
 
-    return [Route("/scan", page), Route("/scan/state", state), Route("/scan/events", events),
-            Route("/scan/start", start, methods=["POST"]), Route("/scan/stop", stop, methods=["POST"]),
-            Route("/scan/alert/{alert}/ack", ack, methods=["POST"]),
-            Route("/scan/analyse", analyse, methods=["POST"]),
-            Route("/scan/files/{scan}/{n:int}", file)]
+    return [
+        Route("/scan", page),
+        Route("/scan/state", state),
+        Route("/scan/events", events),
+        Route("/scan/start", start, methods=["POST"]),
+        Route("/scan/stop", stop, methods=["POST"]),
+        Route("/scan/alert/{alert}/ack", ack, methods=["POST"]),
+        Route("/scan/analyse", analyse, methods=["POST"]),
+        Route("/scan/files/{scan}/{n:int}", file),
+    ]
 
 
 def inside(folder: Path, rel: str) -> Path | None:

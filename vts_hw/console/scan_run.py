@@ -28,8 +28,9 @@ import os
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from vts_hw.drivers.registry import check_camera_kinds
 from vts_hw.errors import VtsError
@@ -39,9 +40,9 @@ from vts_hw.procedures.scan_summary import summary_lines, verdict
 from vts_hw.room import Room
 from vts_hw.tracking.live.estimator import LiveSettings
 
-TRACE_S = 30.0          # the breathing trace shown: the last this many seconds
-SAMPLE_S = 0.1          # how often the live estimate is sampled for the traces
-STATS_S = 2.0           # how often the view's latency figures are computed
+TRACE_S = 30.0  # the breathing trace shown: the last this many seconds
+SAMPLE_S = 0.1  # how often the live estimate is sampled for the traces
+STATS_S = 2.0  # how often the view's latency figures are computed
 NOTES_KEPT = 50
 
 log = logging.getLogger(__name__)
@@ -96,8 +97,20 @@ class ScanRun:
     hub; ``open_room()``: the scan's room (``Room(rig)``: its cameras and trigger, opened for the
     scan and closed when it ends)."""
 
-    def __init__(self, rig, folder: Path, hub, open_room: Callable[[], Room], *, user: str, reference_s: float = 10.0,
-                 duration: float | None = None, clock=time.time, marker_names=None, on_said=None):
+    def __init__(
+        self,
+        rig,
+        folder: Path,
+        hub,
+        open_room: Callable[[], Room],
+        *,
+        user: str,
+        reference_s: float = 10.0,
+        duration: float | None = None,
+        clock=time.time,
+        marker_names=None,
+        on_said=None,
+    ):
         self.rig, self.folder, self.hub, self.user = rig, Path(folder), hub, user
         #: the console's MarkerNames (names.py): the live tracker names the patient's band markers there
         self.marker_names = marker_names
@@ -107,7 +120,7 @@ class ScanRun:
         self.reference_s, self.duration = float(reference_s), duration
         self.clock = clock
         self.names = [c.name for c in rig.cameras]
-        self.phase = "starting"          # starting | running | stopping | stopped | failed
+        self.phase = "starting"  # starting | running | stopping | stopped | failed
         # the end (stopped or failed) is published as the phase only once the scan's devices are
         # closed and its outcome is in the action log: whoever sees it sees the whole end
         self._end_phase = "failed"
@@ -126,12 +139,12 @@ class ScanRun:
         self._stats: dict[str, Any] = {}
         self._lock = threading.Lock()
         self._stop = threading.Event()
-        self.stop_reason = "stopped"     # "interrupted": the console itself was stopped
+        self.stop_reason = "stopped"  # "interrupted": the console itself was stopped
         self._status: ScanStatus | None = None
         self.thread = threading.Thread(target=self._run, name="console-scan", daemon=True)
 
     # -- the worker ---------------------------------------------------------------------------------
-    def start(self) -> "ScanRun":
+    def start(self) -> ScanRun:
         self.thread.start()
         return self
 
@@ -155,16 +168,27 @@ class ScanRun:
             check_camera_kinds(self.rig.cameras)
             room = self.open_room()
             cameras = room.cameras
-            self.live = LiveMotion(self.rig, settings=LiveSettings(reference_s=self.reference_s),
-                                   on_alert_text=self._alert, on_note=self.notes.append,
-                                   on_names=None if self.marker_names is None else self._band_names)
-            self.hub.attach(self.names)       # before the session opens its streams
+            self.live = LiveMotion(
+                self.rig,
+                settings=LiveSettings(reference_s=self.reference_s),
+                on_alert_text=self._alert,
+                on_note=self.notes.append,
+                on_names=None if self.marker_names is None else self._band_names,
+            )
+            self.hub.attach(self.names)  # before the session opens its streams
             attached = True
             hub = self.hub
             scan_room = room
-            self.session = ScanSession(self.rig, self.folder, cameras, duration=self.duration, live=self.live,
-                                       on_step=lambda name, text: self.steps.append((name, text)),
-                                       on_frame=hub.feed, trigger=lambda: scan_room.trigger)
+            self.session = ScanSession(
+                self.rig,
+                self.folder,
+                cameras,
+                duration=self.duration,
+                live=self.live,
+                on_step=lambda name, text: self.steps.append((name, text)),
+                on_frame=hub.feed,
+                trigger=lambda: scan_room.trigger,
+            )
             if self._stop.is_set():
                 raise VtsError("the scan was stopped before it started")
             self.session.start()
@@ -186,7 +210,7 @@ class ScanRun:
                 self._finish()
             else:
                 self._close(cameras)
-        except Exception as exc:       # a bug: said on the page, what was recorded is closed and kept
+        except Exception as exc:  # a bug: said on the page, what was recorded is closed and kept
             self.error = f"the scan stopped on an unexpected error: {type(exc).__name__}: {exc}"
             if self.session is not None and self.session.recorder is not None:
                 self.manifest = self.session.stop("error")
@@ -196,7 +220,7 @@ class ScanRun:
         finally:
             if room is not None:
                 try:
-                    room.close()          # what the session did not close already (a scan that did not start)
+                    room.close()  # what the session did not close already (a scan that did not start)
                 except Exception as exc:
                     self.notes.append(f"closing the scan's devices: {exc}")
             if attached:
@@ -211,19 +235,31 @@ class ScanRun:
         """The outcome in the action log; a folder the scan made and left empty is removed."""
         if self._end_phase == "stopped" and self.manifest is not None:
             s = self.summary or {}
-            self._say("scan ended", {"status": s.get("status"), "verdict": s.get("verdict"), "exit": s.get("exit"),
-                                     **({"error": self.error} if self.error else {})})
+            self._say(
+                "scan ended",
+                {
+                    "status": s.get("status"),
+                    "verdict": s.get("verdict"),
+                    "exit": s.get("exit"),
+                    **({"error": self.error} if self.error else {}),
+                },
+            )
             return
         kept = not drop_if_empty(self.folder)
-        self._say("scan not started", {"why": self.error or "it stopped before recording",
-                                       "folder": "kept" if kept else "none left (nothing was written)"})
+        self._say(
+            "scan not started",
+            {
+                "why": self.error or "it stopped before recording",
+                "folder": "kept" if kept else "none left (nothing was written)",
+            },
+        )
 
     def _say(self, what: str, detail: dict) -> None:
         if self.on_said is None:
             return
         try:
             self.on_said(what, clean({"scan": self.folder.name, **detail}))
-        except Exception as exc:       # the log's failures are its own (actions.StoreActions keeps them)
+        except Exception as exc:  # the log's failures are its own (actions.StoreActions keeps them)
             log.warning("the scan's action %r could not be logged: %s", what, exc)
 
     def _band_names(self, camera: str, points) -> None:
@@ -243,16 +279,27 @@ class ScanRun:
     def _finish(self) -> None:
         rec = self.session.recorder if self.session is not None else None
         last, code = verdict(self.folder, self.manifest, rec.write_failure if rec is not None else None)
-        self.summary = {"status": (self.manifest or {}).get("status", "nothing recorded"),
-                        "lines": summary_lines(self.folder, self.manifest or {}), "verdict": last, "exit": code}
+        self.summary = {
+            "status": (self.manifest or {}).get("status", "nothing recorded"),
+            "lines": summary_lines(self.folder, self.manifest or {}),
+            "verdict": last,
+            "exit": code,
+        }
         self._end_phase = "stopped"
 
     # -- alerts ---------------------------------------------------------------------------------------
     def _alert(self, text: str) -> None:
         """LiveMotion's ``on_alert_text`` (its own thread): kept until acknowledged."""
         with self._lock:
-            alert = {"id": len(self.alerts) + 1, "scan": self.folder.name, "kind": "not tracking" if "NOT TRACKED" in text else "motion",
-                     "text": text, "raised": self.clock(), "acked_by": None, "acked_at": None}
+            alert = {
+                "id": len(self.alerts) + 1,
+                "scan": self.folder.name,
+                "kind": "not tracking" if "NOT TRACKED" in text else "motion",
+                "text": text,
+                "raised": self.clock(),
+                "acked_by": None,
+                "acked_at": None,
+            }
             self.alerts.append(alert)
 
     def acknowledge(self, alert_id: int, user: str) -> dict | None:
@@ -279,52 +326,105 @@ class ScanRun:
             tr = self.traces.setdefault(b.band, deque())
             v = b.breathing_mm if tracked and b.breathes and math.isfinite(b.breathing_mm) else None
             if v is None and tr and tr[-1][1] is None:
-                continue                     # one gap marker per stretch not tracked
+                continue  # one gap marker per stretch not tracked
             tr.append((est.time, v))
             while tr and est.time - tr[0][0] > TRACE_S:
                 tr.popleft()
 
     # -- what the page shows --------------------------------------------------------------------------
     def view(self) -> dict:
-        st = self._status          # the session's status as of its last tick (status() is not for two threads)
-        cams = [] if st is None else [{"name": c.name, "frames": c.frames, "fps": round(c.fps, 1),
-                                       "dropped": c.dropped, "reconnects": c.reconnects, "state": c.state}
-                                      for c in st.cameras]
+        st = self._status  # the session's status as of its last tick (status() is not for two threads)
+        cams = (
+            []
+            if st is None
+            else [
+                {
+                    "name": c.name,
+                    "frames": c.frames,
+                    "fps": round(c.fps, 1),
+                    "dropped": c.dropped,
+                    "reconnects": c.reconnects,
+                    "state": c.state,
+                }
+                for c in st.cameras
+            ]
+        )
         if self.manifest and self.phase == "stopped":
-            cams = [{"name": n, "frames": c["frames"], "fps": None, "dropped": c["dropped_frames"],
-                     "reconnects": c.get("reconnects", 0), "state": "closed"}
-                    for n, c in self.manifest.get("cameras", {}).items()]
+            cams = [
+                {
+                    "name": n,
+                    "frames": c["frames"],
+                    "fps": None,
+                    "dropped": c["dropped_frames"],
+                    "reconnects": c.get("reconnects", 0),
+                    "state": "closed",
+                }
+                for n, c in self.manifest.get("cameras", {}).items()
+            ]
         with self._lock:
             alerts = [dict(a) for a in self.alerts]
-        return clean({"phase": self.phase, "folder": self.folder.name, "user": self.user,
-                      "started_at": self.started_at, "error": self.error, "steps": list(self.steps),
-                      "notes": list(self.notes), "elapsed_s": None if st is None else st.elapsed_s,
-                      "duration_s": self.duration, "reference_s": self.reference_s, "cameras": cams,
-                      "live": self._live_view(), "alerts": alerts, "summary": self.summary,
-                      "traces": {str(k): list(v) for k, v in self.traces.items()}})
+        return clean(
+            {
+                "phase": self.phase,
+                "folder": self.folder.name,
+                "user": self.user,
+                "started_at": self.started_at,
+                "error": self.error,
+                "steps": list(self.steps),
+                "notes": list(self.notes),
+                "elapsed_s": None if st is None else st.elapsed_s,
+                "duration_s": self.duration,
+                "reference_s": self.reference_s,
+                "cameras": cams,
+                "live": self._live_view(),
+                "alerts": alerts,
+                "summary": self.summary,
+                "traces": {str(k): list(v) for k, v in self.traces.items()},
+            }
+        )
 
     def _live_view(self) -> dict | None:
         live = self.live
         if live is None:
             return None
-        now = time.monotonic()           # the latency figures (percentiles) every STATS_S, not every view
+        now = time.monotonic()  # the latency figures (percentiles) every STATS_S, not every view
         with_stats = now - self._stats_at >= STATS_S
         est = live.snapshot(stats=with_stats)
-        if est is None:                  # no tracker yet
+        if est is None:  # no tracker yet
             return {"status": "OFF", "reason": live.off_reason or "live tracking not started yet"}
         if with_stats:
             self._stats_at, self._stats = now, dict(est.stats or {})
         tracked = est.status == "TRACKING" and est.six_dof is not None
-        bands = [{"band": b.band, "markers": b.markers, "seen": b.seen, "breathes": b.breathes,
-                  "known": tracked and b.seen > 0 and math.isfinite(b.distance_mm),
-                  "displacement_mm": list(b.displacement_mm), "distance_mm": b.distance_mm,
-                  "breathing_mm": b.breathing_mm, "rate_per_min": b.rate_per_min,
-                  "rate_range_per_min": None if b.rate_range is None else list(b.rate_range)} for b in est.bands]
-        return {"status": est.status, "reason": est.reason, "for_s": est.status_for_s, "age_s": est.age_s,
-                "phase": est.phase, "note": est.note, "frame": est.frame, "state": est.state,
-                "six_dof": None if est.six_dof is None else list(est.six_dof), "six_known": tracked,
-                "move_mm": est.move_mm if est.six_dof is not None else None,
-                "turn_deg": est.turn_deg if est.six_dof is not None else None,
-                "alerts": est.alerts, "bands": bands,
-                "latency_ms_p95": self._stats.get("latency_ms_p95"),
-                "live_dropped": sum((self._stats.get("live_dropped") or {}).values())}
+        bands = [
+            {
+                "band": b.band,
+                "markers": b.markers,
+                "seen": b.seen,
+                "breathes": b.breathes,
+                "known": tracked and b.seen > 0 and math.isfinite(b.distance_mm),
+                "displacement_mm": list(b.displacement_mm),
+                "distance_mm": b.distance_mm,
+                "breathing_mm": b.breathing_mm,
+                "rate_per_min": b.rate_per_min,
+                "rate_range_per_min": None if b.rate_range is None else list(b.rate_range),
+            }
+            for b in est.bands
+        ]
+        return {
+            "status": est.status,
+            "reason": est.reason,
+            "for_s": est.status_for_s,
+            "age_s": est.age_s,
+            "phase": est.phase,
+            "note": est.note,
+            "frame": est.frame,
+            "state": est.state,
+            "six_dof": None if est.six_dof is None else list(est.six_dof),
+            "six_known": tracked,
+            "move_mm": est.move_mm if est.six_dof is not None else None,
+            "turn_deg": est.turn_deg if est.six_dof is not None else None,
+            "alerts": est.alerts,
+            "bands": bands,
+            "latency_ms_p95": self._stats.get("latency_ms_p95"),
+            "live_dropped": sum((self._stats.get("live_dropped") or {}).values()),
+        }

@@ -60,16 +60,17 @@ def check_scans_dir(folder: Path) -> None:
     if not stat.S_ISDIR(st.st_mode):
         raise UsageError(f"{where} is not a folder: give the folder the Scan page's scans go into")
     if st.st_uid not in (os.geteuid(), 0):
-        raise UsageError(f"{where} belongs to another user (uid {st.st_uid}): the scans go into a folder of "
-                         f"your own")
+        raise UsageError(f"{where} belongs to another user (uid {st.st_uid}): the scans go into a folder of your own")
     if st.st_mode & stat.S_IWOTH and not st.st_mode & stat.S_ISVTX:
         raise UsageError(f"{where}: anyone may write into it: the scans go into a folder of your own")
     try:
         with os.scandir(folder) as entries:
             for entry in entries:
                 if not _is_scan(entry):
-                    raise UsageError(f"{where} holds {entry.name!r}, {_what(entry)}: the scans folder holds scans "
-                                     f"only (give a folder of its own, e.g. a new one: it is created 0700)")
+                    raise UsageError(
+                        f"{where} holds {entry.name!r}, {_what(entry)}: the scans folder holds scans "
+                        f"only (give a folder of its own, e.g. a new one: it is created 0700)"
+                    )
     except OSError as exc:
         raise UsageError(f"{where}: cannot be read ({os_reason(exc)})") from None
 

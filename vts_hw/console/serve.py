@@ -30,7 +30,7 @@ from vts_hw.errors import UsageError, VtsError
 from vts_hw.room import Room
 
 FACTS_TICK_S = 2.0
-SCAN_STOP_S = 120.0     # a scan running when the console stops: closed within this (docs/decisions/0082)
+SCAN_STOP_S = 120.0  # a scan running when the console stops: closed within this (docs/decisions/0082)
 
 
 def bind(host: str, port: int) -> socket.socket:
@@ -43,11 +43,11 @@ def bind(host: str, port: int) -> socket.socket:
     except OSError as exc:
         sock.close()
         if exc.errno == errno.EADDRINUSE:
-            raise UsageError(f"port {port} on {host} is in use by another program: give another with --port") \
-                from None
+            raise UsageError(f"port {port} on {host} is in use by another program: give another with --port") from None
         if exc.errno == errno.EACCES:
-            raise UsageError(f"port {port} on {host} may not be used by this user: give one above 1023 "
-                             f"with --port") from None
+            raise UsageError(
+                f"port {port} on {host} may not be used by this user: give one above 1023 with --port"
+            ) from None
         raise UsageError(f"cannot serve on {host} port {port}: {exc.strerror or exc}") from None
     sock.listen(64)
     sock.setblocking(False)
@@ -73,9 +73,14 @@ def _auth(host, login, behind_proxy, tls, open_store, session_idle_s, session_ma
         with open_store() as store:
             where = store.url
             return store.users(active_only=True)
-    auth = Auth(required=True, secure=tls or behind_proxy, load_users=load_users,
-                idle_s=IDLE_S if session_idle_s is None else session_idle_s,
-                max_s=MAX_S if session_max_s is None else session_max_s)
+
+    auth = Auth(
+        required=True,
+        secure=tls or behind_proxy,
+        load_users=load_users,
+        idle_s=IDLE_S if session_idle_s is None else session_idle_s,
+        max_s=MAX_S if session_max_s is None else session_max_s,
+    )
     try:
         n = auth.refresh_users()
     except VtsError as exc:
@@ -84,11 +89,26 @@ def _auth(host, login, behind_proxy, tls, open_store, session_idle_s, session_ma
     return auth
 
 
-def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, open_write_store=None,
-          on_ready=None, idle_close_s: float | None = None, marker_hz: float | None = None, login: bool = False,
-          behind_proxy: bool = False, certfile: str | None = None, keyfile: str | None = None,
-          session_idle_s: float | None = None, session_max_s: float | None = None, scans_dir=None,
-          proxy: str | None = None, server_names=()) -> None:
+def serve(
+    rig,
+    *,
+    host: str = "127.0.0.1",
+    port: int = 8040,
+    open_store=None,
+    open_write_store=None,
+    on_ready=None,
+    idle_close_s: float | None = None,
+    marker_hz: float | None = None,
+    login: bool = False,
+    behind_proxy: bool = False,
+    certfile: str | None = None,
+    keyfile: str | None = None,
+    session_idle_s: float | None = None,
+    session_max_s: float | None = None,
+    scans_dir=None,
+    proxy: str | None = None,
+    server_names=(),
+) -> None:
     """Serve the console of ``rig`` (a RigConfig) on ``host:port`` until Ctrl-C (or SIGTERM),
     then close every stream and camera and return. ``open_store()`` gives the results store
     read-only (None: the page says there is none), ``open_write_store()`` the same store to
@@ -102,32 +122,43 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, op
     into, a folder of scans only (scans_folder.py; default: ``scans/`` beside the per-user store)."""
     import uvicorn
 
-
-    reach = check_host(host, certfile=certfile, keyfile=keyfile, behind_proxy=behind_proxy, proxy=proxy,
-                       server_names=server_names)
+    reach = check_host(
+        host, certfile=certfile, keyfile=keyfile, behind_proxy=behind_proxy, proxy=proxy, server_names=server_names
+    )
     tls = reach.tls
     auth = _auth(host, login, reach.proxied, tls, open_store, session_idle_s, session_max_s)
     scans = scans_folder(scans_dir)
     sock = bind(host, port)
-    try:        # the action log is the store's, its first action written now, before any camera opens (actions.py)
+    try:  # the action log is the store's, its first action written now, before any camera opens (actions.py)
         actions = durable_actions(open_write_store, open_store, rig.rig, url_of(host, sock.getsockname()[1], tls))
     except BaseException:
         sock.close()
         raise
-    room = Room(rig)            # the room's cameras, closed with it when the console stops
+    room = Room(rig)  # the room's cameras, closed with it when the console stops
     try:
         cameras = {c.name: c for c in room.cameras}
     except BaseException as exc:
-        room.__exit__(type(exc), exc, exc.__traceback__)     # what was opened closed; this error goes on
+        room.__exit__(type(exc), exc, exc.__traceback__)  # what was opened closed; this error goes on
         sock.close()
         raise
     hub = FramesHub(cameras, idle_close_s=IDLE_CLOSE_S if idle_close_s is None else idle_close_s)
     names = MarkerNames()
-    markers = MarkerWorker(hub, RATE_HZ if marker_hz is None else marker_hz, names,
-                           phantom=PhantomNames.for_rig(names, rig))
+    markers = MarkerWorker(
+        hub, RATE_HZ if marker_hz is None else marker_hz, names, phantom=PhantomNames.for_rig(names, rig)
+    )
     facts = RoomFacts(cameras, rig.rig, open_store, names=names)
-    console = Console(rig.rig, hub, markers, facts, open_store=open_store, actions=actions, auth=auth,
-                      rig_config=rig, scans_dir=scans, reach=reach)
+    console = Console(
+        rig.rig,
+        hub,
+        markers,
+        facts,
+        open_store=open_store,
+        actions=actions,
+        auth=auth,
+        rig_config=rig,
+        scans_dir=scans,
+        reach=reach,
+    )
     stop_facts = threading.Event()
 
     def keep_facts():
@@ -135,14 +166,14 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, op
         while not stop_facts.is_set():
             try:
                 facts.refresh_due()
-            except Exception:           # the page says what it could not read; the thread goes on
+            except Exception:  # the page says what it could not read; the thread goes on
                 pass
             if auth is not None and time.monotonic() >= users_due:
                 users_due = time.monotonic() + USERS_EVERY_S
-                try:                    # a user disabled (or with another role) is logged out within USERS_EVERY_S
+                try:  # a user disabled (or with another role) is logged out within USERS_EVERY_S
                     auth.refresh_users()
                     auth.sweep()
-                except Exception:       # the store away a moment: the users as they were
+                except Exception:  # the store away a moment: the users as they were
                     pass
             stop_facts.wait(FACTS_TICK_S)
 
@@ -150,9 +181,17 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, op
     facts_thread.start()
     # the proxy's X-Forwarded-* are taken by the app (create_app: from the proxy only), never by uvicorn
     # ($FORWARDED_ALLOW_IPS would widen it); no Server header
-    config = uvicorn.Config(create_app(console), log_level="warning", access_log=False,
-                            timeout_graceful_shutdown=2, lifespan="off", proxy_headers=False, server_header=False,
-                            ssl_certfile=certfile if tls else None, ssl_keyfile=keyfile if tls else None)
+    config = uvicorn.Config(
+        create_app(console),
+        log_level="warning",
+        access_log=False,
+        timeout_graceful_shutdown=2,
+        lifespan="off",
+        proxy_headers=False,
+        server_header=False,
+        ssl_certfile=certfile if tls else None,
+        ssl_keyfile=keyfile if tls else None,
+    )
 
     def finish_scan() -> None:
         """A Scan-page scan still running when the console stops (Ctrl-C, SIGTERM): stopped as
@@ -163,23 +202,27 @@ def serve(rig, *, host: str = "127.0.0.1", port: int = 8040, open_store=None, op
         if run is not None and run.thread.is_alive():
             run.stop_and_wait("interrupted", SCAN_STOP_S)
 
-    server = _Server(config, lambda: on_ready and on_ready(url_of(host, sock.getsockname()[1], tls)),
-                     console.closing.set, finish_scan)
+    server = _Server(
+        config,
+        lambda: on_ready and on_ready(url_of(host, sock.getsockname()[1], tls)),
+        console.closing.set,
+        finish_scan,
+    )
     try:
         server.run(sockets=[sock])
-    except KeyboardInterrupt:          # uvicorn stops on Ctrl-C, then raises it again: stopping is the way out
+    except KeyboardInterrupt:  # uvicorn stops on Ctrl-C, then raises it again: stopping is the way out
         pass
     finally:
         stop_facts.set()
-        console.aim.close()             # the aim checks (aim_page.py) end before the hub and cameras
-        console.reports.close()         # the rooms report's temporary folder (history_reports.py)
+        console.aim.close()  # the aim checks (aim_page.py) end before the hub and cameras
+        console.reports.close()  # the rooms report's temporary folder (history_reports.py)
         markers.close()
         hub.close()
         try:
             room.close()
         finally:
             sock.close()
-        facts_thread.join(FACTS_TICK_S + 1)   # (a daemon: a camera call it waits on cannot hold the exit)
+        facts_thread.join(FACTS_TICK_S + 1)  # (a daemon: a camera call it waits on cannot hold the exit)
 
 
 class _Server:

@@ -30,8 +30,15 @@ def is_loopback(host: str) -> bool:
         return False
 
 
-def check_host(host: str, *, certfile: str | None = None, keyfile: str | None = None,
-               behind_proxy: bool = False, proxy: str | None = None, server_names=()) -> Reach:
+def check_host(
+    host: str,
+    *,
+    certfile: str | None = None,
+    keyfile: str | None = None,
+    behind_proxy: bool = False,
+    proxy: str | None = None,
+    server_names=(),
+) -> Reach:
     """What can be refused from the command line alone (before the store or the rig is read), in
     one sentence each (exit 2): --certfile without --keyfile, a certificate or key that is not one
     (check_tls); plain HTTP anywhere but on this machine and to the proxy (a login never travels
@@ -40,20 +47,27 @@ def check_host(host: str, *, certfile: str | None = None, keyfile: str | None = 
     browsers reach it under; on every address (0.0.0.0) without any name to answer to. The names
     and origins the console then answers to (hosts.Reach)."""
     tls = check_tls(certfile, keyfile)
-    reach = Reach.build(host, certfile=certfile if tls else None, server_names=server_names,
-                        behind_proxy=behind_proxy, proxy=proxy)
+    reach = Reach.build(
+        host, certfile=certfile if tls else None, server_names=server_names, behind_proxy=behind_proxy, proxy=proxy
+    )
     if not is_loopback(host) and not tls and reach.proxy is None:
-        raise NotOnLoopback(f"refused to serve the console on {host} in plain HTTP: off this machine it needs users "
-                            f"and login over HTTPS: give --certfile and --keyfile, or serve it behind a TLS reverse "
-                            f"proxy on this machine (a loopback --host and --behind-proxy) or at --proxy ADDR "
-                            f"(docs/operate/console.md: Console users and HTTPS)")
+        raise NotOnLoopback(
+            f"refused to serve the console on {host} in plain HTTP: off this machine it needs users "
+            f"and login over HTTPS: give --certfile and --keyfile, or serve it behind a TLS reverse "
+            f"proxy on this machine (a loopback --host and --behind-proxy) or at --proxy ADDR "
+            f"(docs/operate/console.md: Console users and HTTPS)"
+        )
     if reach.proxied and not reach.served_as:
-        raise UsageError("refused: behind a proxy the console needs the name the browsers reach the proxy under: "
-                         "give --server-name NAME (NAME:PORT when not 443)")
+        raise UsageError(
+            "refused: behind a proxy the console needs the name the browsers reach the proxy under: "
+            "give --server-name NAME (NAME:PORT when not 443)"
+        )
     if host in WILDCARD_HOSTS and not reach.off_loopback_names():
-        raise NotOnLoopback(f"refused to serve the console on every address ({host}) with no name to answer to from "
-                            f"other computers: give --server-name NAME (the name or address they reach this one "
-                            f"by), or a certificate naming it")
+        raise NotOnLoopback(
+            f"refused to serve the console on every address ({host}) with no name to answer to from "
+            f"other computers: give --server-name NAME (the name or address they reach this one "
+            f"by), or a certificate naming it"
+        )
     return reach
 
 
@@ -67,12 +81,16 @@ def check_users(host: str, n_users: int, where: str, why_not: str = "") -> None:
     """Refuse (exit 2) a console that needs a login when the store has no user who may log in."""
     if n_users:
         return
-    what = (f"the results store could not be read for its users ({why_not})" if why_not
-            else f"the results store {where} has no console user who may log in")
+    what = (
+        f"the results store could not be read for its users ({why_not})"
+        if why_not
+        else f"the results store {where} has no console user who may log in"
+    )
     if is_loopback(host):
         raise UsageError(f"refused to require a login (--login, --behind-proxy): {what}; {HOW_TO_ADD}")
-    raise NotOnLoopback(f"refused to serve the console on {host}: off this machine it needs users and login, "
-                        f"and {what}; {HOW_TO_ADD}")
+    raise NotOnLoopback(
+        f"refused to serve the console on {host}: off this machine it needs users and login, and {what}; {HOW_TO_ADD}"
+    )
 
 
 def check_tls(certfile: str | None, keyfile: str | None) -> bool:
@@ -97,12 +115,14 @@ def check_tls(certfile: str | None, keyfile: str | None) -> bool:
     def no_passphrase():
         asked.append(1)
         return b""
+
     try:
         ctx.load_cert_chain(certfile, keyfile, password=no_passphrase)
     except (ssl.SSLError, ValueError) as exc:
         if asked:
-            raise UsageError(f"{keyfile}: the private key is encrypted: give it unencrypted, readable by this "
-                             f"user only (--keyfile)") from None
+            raise UsageError(
+                f"{keyfile}: the private key is encrypted: give it unencrypted, readable by this user only (--keyfile)"
+            ) from None
         if "KEY_VALUES_MISMATCH" in str(exc) or "key values mismatch" in str(exc):
             raise UsageError(f"{keyfile}: not the private key of the certificate {certfile} (--keyfile)") from None
         raise UsageError(f"{keyfile}: not a PEM private key (--keyfile)") from None

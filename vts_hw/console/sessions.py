@@ -23,30 +23,30 @@ import contextvars
 import secrets
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 from vts_hw.console.users import dummy_check, verify_password
 from vts_hw.store.records import User
 
 IDLE_S = 15 * 60.0
 MAX_S = 12 * 3600.0
-USERS_EVERY_S = 10.0          # how often serve() reads the users again (a disabled user is out within it)
+USERS_EVERY_S = 10.0  # how often serve() reads the users again (a disabled user is out within it)
 LOCK_AFTER = 5
 LOCK_S = 60.0
-FAILS_KEPT = 10_000           # names with wrong passwords remembered; beyond, those not locked are forgotten
+FAILS_KEPT = 10_000  # names with wrong passwords remembered; beyond, those not locked are forgotten
 
 #: the session of the request being served (set by the login middleware; None without users):
 #: it lets ``Console.token`` give each session's page its own token
-current: contextvars.ContextVar["Session | None"] = contextvars.ContextVar("console_session", default=None)
+current: contextvars.ContextVar[Session | None] = contextvars.ContextVar("console_session", default=None)
 
 
 @dataclass
 class Session:
-    key: str          # the cookie's value: never logged, stored or shown
+    key: str  # the cookie's value: never logged, stored or shown
     user: str
     role: str
-    token: str        # this session's page token
+    token: str  # this session's page token
     created: float
     seen: float
 
@@ -58,8 +58,16 @@ class Auth:
     ``secure``: the console is reached over HTTPS (the cookie is then Secure);
     ``load_users()``: the store's active users (blocking: call from a thread)."""
 
-    def __init__(self, *, required: bool, secure: bool = False, load_users: Callable[[], list[User]] | None = None,
-                 idle_s: float = IDLE_S, max_s: float = MAX_S, clock: Callable[[], float] = time.time):
+    def __init__(
+        self,
+        *,
+        required: bool,
+        secure: bool = False,
+        load_users: Callable[[], list[User]] | None = None,
+        idle_s: float = IDLE_S,
+        max_s: float = MAX_S,
+        clock: Callable[[], float] = time.time,
+    ):
         self.required = required
         self.secure = secure
         self.idle_s = float(idle_s)
@@ -69,7 +77,7 @@ class Auth:
         self._lock = threading.Lock()
         self._users: dict[str, User] = {}
         self._sessions: dict[str, Session] = {}
-        self._fails: dict[str, tuple[int, float]] = {}     # name -> (wrong in a row, locked until)
+        self._fails: dict[str, tuple[int, float]] = {}  # name -> (wrong in a row, locked until)
 
     @property
     def cookie_name(self) -> str:
@@ -111,11 +119,11 @@ class Auth:
         ok = verify_password(user.password, password) if user is not None else dummy_check(password)
         now = self._clock()
         with self._lock:
-            if not ok or user is None:        # no user: dummy_check said no
+            if not ok or user is None:  # no user: dummy_check said no
                 n, _ = self._fails.get(name, (0, 0.0))
                 n += 1
                 self._fails[name] = (0, now + LOCK_S) if n >= LOCK_AFTER else (n, 0.0)
-                if len(self._fails) > FAILS_KEPT:       # many names tried (a spray): memory stays bounded
+                if len(self._fails) > FAILS_KEPT:  # many names tried (a spray): memory stays bounded
                     self._fails = {k: v for k, v in self._fails.items() if v[1] > now}
                 return None
             self._fails.pop(name, None)
@@ -130,8 +138,7 @@ class Auth:
     # -- checking ---------------------------------------------------------------------------------------
     def alive(self, s: Session) -> bool:
         now = self._clock()
-        return (self._sessions.get(s.key) is s and now - s.seen <= self.idle_s
-                and now - s.created <= self.max_s)
+        return self._sessions.get(s.key) is s and now - s.seen <= self.idle_s and now - s.created <= self.max_s
 
     def session(self, key: str | None) -> Session | None:
         """The live session of cookie value ``key`` (an expired one is forgotten), without touching it."""

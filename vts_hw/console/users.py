@@ -20,12 +20,12 @@ from vts_hw.errors import UsageError
 from vts_hw.store.records import ROLES
 
 #: scrypt's cost (N), block size (r) and parallelism (p): 32 MiB and ~0.1 s per hash
-SCRYPT_N, SCRYPT_R, SCRYPT_P = 2 ** 15, 8, 1
+SCRYPT_N, SCRYPT_R, SCRYPT_P = 2**15, 8, 1
 SALT_BYTES, HASH_BYTES = 16, 32
 MIN_PASSWORD = 8
 MAX_PASSWORD = 1024
 NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
-RESERVED = ("local",)         # the console's name for the person at 127.0.0.1 without users
+RESERVED = ("local",)  # the console's name for the person at 127.0.0.1 without users
 
 
 def _b64(b: bytes) -> str:
@@ -33,8 +33,9 @@ def _b64(b: bytes) -> str:
 
 
 def _scrypt(password: str, salt: bytes, n: int, r: int, p: int, dklen: int) -> bytes:
-    return hashlib.scrypt(password.encode("utf-8"), salt=salt, n=n, r=r, p=p, dklen=dklen,
-                          maxmem=2 * 128 * r * n + (1 << 20))
+    return hashlib.scrypt(
+        password.encode("utf-8"), salt=salt, n=n, r=r, p=p, dklen=dklen, maxmem=2 * 128 * r * n + (1 << 20)
+    )
 
 
 def hash_password(password: str) -> str:
@@ -52,7 +53,7 @@ def verify_password(stored: str, password: str) -> bool:
         if kind != "scrypt":
             return False
         n, r, p = int(n_text), int(r_text), int(p_text)
-        if not (2 <= n <= 2 ** 20 and 1 <= r <= 32 and 1 <= p <= 16):
+        if not (2 <= n <= 2**20 and 1 <= r <= 32 and 1 <= p <= 16):
             return False
         salt_b, want = base64.b64decode(salt, validate=True), base64.b64decode(digest, validate=True)
         if len(want) != HASH_BYTES or len(salt_b) < 8:
@@ -78,11 +79,15 @@ def dummy_check(password: str) -> bool:
 
 def check_name(name: str) -> str:
     if not NAME.match(name or ""):
-        raise UsageError(f"user name {name!r} is not allowed: use 1 to 64 letters, digits, '.', '_' or '-', "
-                         "starting with a letter or digit")
+        raise UsageError(
+            f"user name {name!r} is not allowed: use 1 to 64 letters, digits, '.', '_' or '-', "
+            "starting with a letter or digit"
+        )
     if name.lower() in RESERVED:
-        raise UsageError(f"user name {name!r} is reserved (the console's name for the person at this "
-                         "machine when there are no users): pick another")
+        raise UsageError(
+            f"user name {name!r} is reserved (the console's name for the person at this "
+            "machine when there are no users): pick another"
+        )
     return name
 
 
@@ -124,9 +129,28 @@ def remove_user(store, name: str) -> str:
 
 def list_users(store) -> list[dict]:
     """The users as plain data (never the hash)."""
-    return [{"name": u.name, "role": u.role, "active": u.active, "created": u.created, "changed": u.changed,
-             "disabled": u.disabled} for u in store.users()]
+    return [
+        {
+            "name": u.name,
+            "role": u.role,
+            "active": u.active,
+            "created": u.created,
+            "changed": u.changed,
+            "disabled": u.disabled,
+        }
+        for u in store.users()
+    ]
 
 
-__all__ = ["hash_password", "verify_password", "dummy_check", "add_user", "remove_user", "list_users",
-           "check_name", "check_role", "check_password", "ROLES"]
+__all__ = [
+    "hash_password",
+    "verify_password",
+    "dummy_check",
+    "add_user",
+    "remove_user",
+    "list_users",
+    "check_name",
+    "check_role",
+    "check_password",
+    "ROLES",
+]

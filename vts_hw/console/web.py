@@ -12,10 +12,9 @@ from __future__ import annotations
 
 import asyncio
 import json
-from typing import Awaitable, Callable
+from collections.abc import Awaitable, Callable
 
 from pydantic import Field, StrictBool
-
 from starlette.requests import Request
 from starlette.responses import JSONResponse, Response, StreamingResponse
 
@@ -31,9 +30,14 @@ def sse(event: str, data) -> bytes:
     return f"event: {event}\ndata: {json.dumps(data, separators=(',', ':'))}\n\n".encode()
 
 
-def event_stream(console, tick_s: float, poll: Callable[[float], Awaitable[list[bytes]]], *,
-                 opened: Callable[[], None] | None = None,
-                 closed: Callable[[], None] | None = None) -> StreamingResponse:
+def event_stream(
+    console,
+    tick_s: float,
+    poll: Callable[[float], Awaitable[list[bytes]]],
+    *,
+    opened: Callable[[], None] | None = None,
+    closed: Callable[[], None] | None = None,
+) -> StreamingResponse:
     """The page's event stream: ``poll(now)`` (``now``: the loop's clock) every ``tick_s``;
     ``opened()`` when the stream begins, ``closed()`` when it ends (the browser gone, the console
     closing)."""
@@ -52,7 +56,7 @@ def event_stream(console, tick_s: float, poll: Callable[[float], Awaitable[list[
                     out = [b": keep-alive\n\n"]
                 if out:
                     last_sent = now
-                    yield b"".join(out)       # waits while the browser does not read: it then misses events
+                    yield b"".join(out)  # waits while the browser does not read: it then misses events
                 await asyncio.sleep(tick_s)
         finally:
             if closed is not None:

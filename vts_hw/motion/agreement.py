@@ -50,24 +50,39 @@ class Agreement:
         def f(x, n):
             return None if x is None or not np.isfinite(x) else round(float(x), n)
 
-        return {"compared": self.compared, "live_poses": self.live, "unpaired": self.unpaired,
-                "no_offline_pose": self.no_offline_pose, "rms_mm": f(self.rms_mm, 4), "worst_mm": f(self.worst_mm, 4),
-                "rms_deg": f(self.rms_deg, 5), "worst_deg": f(self.worst_deg, 5),
-                "worst_mm_at_s": None if self.worst_mm_at is None else round(self.worst_mm_at - t0, 3),
-                "worst_deg_at_s": None if self.worst_deg_at is None else round(self.worst_deg_at - t0, 3),
-                "alerts": [{**a, **{k: round(a[k] - t0, 3) for k in ("onset", "time", "event_start") if k in a}}
-                           for a in self.alerts]}
+        return {
+            "compared": self.compared,
+            "live_poses": self.live,
+            "unpaired": self.unpaired,
+            "no_offline_pose": self.no_offline_pose,
+            "rms_mm": f(self.rms_mm, 4),
+            "worst_mm": f(self.worst_mm, 4),
+            "rms_deg": f(self.rms_deg, 5),
+            "worst_deg": f(self.worst_deg, 5),
+            "worst_mm_at_s": None if self.worst_mm_at is None else round(self.worst_mm_at - t0, 3),
+            "worst_deg_at_s": None if self.worst_deg_at is None else round(self.worst_deg_at - t0, 3),
+            "alerts": [
+                {**a, **{k: round(a[k] - t0, 3) for k in ("onset", "time", "event_start") if k in a}}
+                for a in self.alerts
+            ],
+        }
 
     def text(self) -> str:
         if not self.compared:
-            return (f"live and offline poses: none compared ({self.live} live pose(s), {self.unpaired} without an "
-                    f"offline frame, {self.no_offline_pose} whose frame has no offline pose)")
-        out = (f"live and offline poses agree to {self.rms_mm:.3f} mm RMS (worst {self.worst_mm:.3f} mm) and "
-               f"{self.rms_deg:.4f} deg RMS (worst {self.worst_deg:.4f} deg) over {self.compared} of {self.live} "
-               f"live poses")
+            return (
+                f"live and offline poses: none compared ({self.live} live pose(s), {self.unpaired} without an "
+                f"offline frame, {self.no_offline_pose} whose frame has no offline pose)"
+            )
+        out = (
+            f"live and offline poses agree to {self.rms_mm:.3f} mm RMS (worst {self.worst_mm:.3f} mm) and "
+            f"{self.rms_deg:.4f} deg RMS (worst {self.worst_deg:.4f} deg) over {self.compared} of {self.live} "
+            f"live poses"
+        )
         left = self.unpaired + self.no_offline_pose
         if left:
-            out += f" ({self.unpaired} without an offline frame, {self.no_offline_pose} whose frame has no offline pose)"
+            out += (
+                f" ({self.unpaired} without an offline frame, {self.no_offline_pose} whose frame has no offline pose)"
+            )
         return out
 
 
@@ -96,17 +111,28 @@ def compare_live(t_live, R_live, T_live, t_off, R_off, T_off, centre, tolerance_
     out = Agreement(int(has.sum()), n, int((~near).sum()), int((near & ~has).sum()))
     if not has.any():
         return out
-    mm, deg = _pose_gap(np.asarray(R_live)[has], np.asarray(T_live)[has], R_off[k[has]], T_off[k[has]],
-                        np.asarray(centre, float))
+    mm, deg = _pose_gap(
+        np.asarray(R_live)[has], np.asarray(T_live)[has], R_off[k[has]], T_off[k[has]], np.asarray(centre, float)
+    )
     tt = t_live[has]
-    out.rms_mm, out.worst_mm = float(np.sqrt(np.mean(mm ** 2))), float(mm.max())
-    out.rms_deg, out.worst_deg = float(np.sqrt(np.mean(deg ** 2))), float(deg.max())
+    out.rms_mm, out.worst_mm = float(np.sqrt(np.mean(mm**2))), float(mm.max())
+    out.rms_deg, out.worst_deg = float(np.sqrt(np.mean(deg**2))), float(deg.max())
     out.worst_mm_at, out.worst_deg_at = float(tt[np.argmax(mm)]), float(tt[np.argmax(deg)])
     return out
 
 
-def explain_alerts(alerts, events, t_off, R_off, T_off, centre, alert_mm: float, alert_deg: float,
-                   margin_s: float = 1.0, t0: float = 0.0) -> list[dict]:
+def explain_alerts(
+    alerts,
+    events,
+    t_off,
+    R_off,
+    T_off,
+    centre,
+    alert_mm: float,
+    alert_deg: float,
+    margin_s: float = 1.0,
+    t0: float = 0.0,
+) -> list[dict]:
     """Per live alert (``onset``, ``time``: on the offline clock), whether the offline poses
     explain it: ``explained`` True with ``by`` (the event's start and size, or the offline move),
     else False with ``why`` (times in the sentences from ``t0``)."""
@@ -117,26 +143,45 @@ def explain_alerts(alerts, events, t_off, R_off, T_off, centre, alert_mm: float,
         ev = [e for e in events if e.t_end >= onset - margin_s and e.t_start <= at + margin_s]
         if ev:
             e = max(ev, key=lambda e: e.centre_mm)
-            entry.update(explained=True, by=(f"the offline body move from {e.t_start - t0:.2f} to {e.t_end - t0:.2f} s: "
-                                             f"{e.centre_mm:.1f} mm at the centre, {e.angle_deg:.1f} deg"),
-                         event_start=e.t_start)
+            entry.update(
+                explained=True,
+                by=(
+                    f"the offline body move from {e.t_start - t0:.2f} to {e.t_end - t0:.2f} s: "
+                    f"{e.centre_mm:.1f} mm at the centre, {e.angle_deg:.1f} deg"
+                ),
+                event_start=e.t_start,
+            )
             out.append(entry)
             continue
         sel = (t_off >= onset - margin_s) & (t_off <= at + margin_s) & np.isfinite(T_off[:, 0])
         if sel.sum() < 2:
-            entry.update(explained=False, why="the offline analysis has no pose between the alert's onset and the "
-                                              "alert (frames missing from the recording there)")
+            entry.update(
+                explained=False,
+                why="the offline analysis has no pose between the alert's onset and the "
+                "alert (frames missing from the recording there)",
+            )
             out.append(entry)
             continue
         i = np.flatnonzero(sel)
         c = np.asarray(centre, float)
-        mm, deg = _pose_gap(R_off[i], T_off[i], np.repeat(R_off[i[:1]], len(i), 0), np.repeat(T_off[i[:1]], len(i), 0),
-                            c)
+        mm, deg = _pose_gap(
+            R_off[i], T_off[i], np.repeat(R_off[i[:1]], len(i), 0), np.repeat(T_off[i[:1]], len(i), 0), c
+        )
         if mm.max() > alert_mm or deg.max() > alert_deg:
-            entry.update(explained=True, by=(f"the offline poses moved {mm.max():.1f} mm, {deg.max():.1f} deg from the "
-                                             f"onset (no event: shorter than an event's rules)"))
+            entry.update(
+                explained=True,
+                by=(
+                    f"the offline poses moved {mm.max():.1f} mm, {deg.max():.1f} deg from the "
+                    f"onset (no event: shorter than an event's rules)"
+                ),
+            )
         else:
-            entry.update(explained=False, why=(f"offline the body moved at most {mm.max():.2f} mm and {deg.max():.2f} deg "
-                                               f"from the onset to the alert (limits {alert_mm:g} mm, {alert_deg:g} deg)"))
+            entry.update(
+                explained=False,
+                why=(
+                    f"offline the body moved at most {mm.max():.2f} mm and {deg.max():.2f} deg "
+                    f"from the onset to the alert (limits {alert_mm:g} mm, {alert_deg:g} deg)"
+                ),
+            )
         out.append(entry)
     return out

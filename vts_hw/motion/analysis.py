@@ -34,18 +34,19 @@ from scipy.ndimage import uniform_filter1d
 from vts_hw.errors import DataError
 from vts_hw.motion.bands import Bands, find_bands
 from vts_hw.motion.body_pose import POOR_FIT_MM, BodyPose
-from vts_hw.motion.patient_model import PatientModel, back_to_reference, model_columns, orient, rigid_poses
 from vts_hw.motion.cycles import breathing_figures, find_breaths, signal_noise
 from vts_hw.motion.events import MotionEvent, find_events
 from vts_hw.motion.markers import MarkerSeries
+from vts_hw.motion.patient_model import PatientModel, back_to_reference, model_columns, orient, rigid_poses
 from vts_hw.motion.respiration import Respiration, breathing_vectors, principal_signal
 from vts_hw.motion.signal import fill_gaps, highpass
 from vts_hw.motion.states import BRIDGE_S, MotionState, cover_states, motion_states
-from vts_hw.motion.timeline import Timeline, on_grid, runs as _runs
+from vts_hw.motion.timeline import Timeline, on_grid
+from vts_hw.motion.timeline import runs as _runs
 
 __all__ = ["MotionResult", "MotionSettings", "analyze_motion", "MotionEvent", "MotionState"]
 
-BREATH_MM = 0.25      # a marker breathes above this RMS at 0.08-1 Hz (bands.find_bands's default)
+BREATH_MM = 0.25  # a marker breathes above this RMS at 0.08-1 Hz (bands.find_bands's default)
 
 
 @dataclass(frozen=True)
@@ -81,7 +82,7 @@ class MotionResult:
     series: MarkerSeries
     bands: Bands
     patient: MarkerSeries
-    reference: np.ndarray           # (M, 3) the patient's markers in the reference pose
+    reference: np.ndarray  # (M, 3) the patient's markers in the reference pose
     reference_period: tuple
     pose: BodyPose
     respiration: Respiration
@@ -94,9 +95,9 @@ class MotionResult:
     settings: MotionSettings
     notes: list = field(default_factory=list)
     timeline: Timeline | None = None
-    covered: np.ndarray | None = None     # (F,) rows some motion state covers (states.cover_states)
+    covered: np.ndarray | None = None  # (F,) rows some motion state covers (states.cover_states)
     bridged: list = field(default_factory=list)
-    model: PatientModel | None = None     # the patient model the poses were fitted with (learned here or given)
+    model: PatientModel | None = None  # the patient model the poses were fitted with (learned here or given)
 
     @property
     def unknown(self) -> list[dict]:
@@ -114,7 +115,7 @@ class MotionResult:
         return self._timeline().coverage(self.pose.valid)
 
     def _timeline(self) -> Timeline:
-        if self.timeline is None:     # analyze_motion always gives one
+        if self.timeline is None:  # analyze_motion always gives one
             raise ValueError("this motion result was made without its timeline")
         return self.timeline
 
@@ -157,8 +158,9 @@ def _segment_poses(t, P, seen, ref, still):
     """Positions in the body frame with one pose per still run (NaN elsewhere)."""
     D = np.full(P.shape, np.nan)
     for a, b in _runs(still):
-        mean = np.array([P[a:b, m][seen[a:b, m]].mean(axis=0) if seen[a:b, m].any() else [np.nan] * 3
-                         for m in range(P.shape[1])])
+        mean = np.array(
+            [P[a:b, m][seen[a:b, m]].mean(axis=0) if seen[a:b, m].any() else [np.nan] * 3 for m in range(P.shape[1])]
+        )
         ok = np.isfinite(mean[:, 0])
         if ok.sum() < 3:
             continue
@@ -178,14 +180,16 @@ def _provisional_moving(t, pose_pts, s, settings, fs):
     hx = highpass(t, np.where(ok[:, None], X, np.nan), 0.1)
     hs = highpass(t, np.where(ok, s, np.nan)[:, None], 0.1)[:, 0]
     k = (hs[ok] @ hx[ok]) / max(float(hs[ok] @ hs[ok]), 1e-12)
-    Xc = (X - np.outer(np.nan_to_num(s), k))
+    Xc = X - np.outer(np.nan_to_num(s), k)
     clean = np.where(ok[:, None], Xc, np.nan).reshape(pose_pts.shape)
     h = max(1, int(round(0.2 * fs)))
-    Xs = uniform_filter1d(fill_gaps(t, Xc), 2 * h + 1, axis=0).reshape(pose_pts.shape)   # provisional: smearing is harmless
+    Xs = uniform_filter1d(fill_gaps(t, Xc), 2 * h + 1, axis=0).reshape(
+        pose_pts.shape
+    )  # provisional: smearing is harmless
     sp = np.zeros(len(t))
     if len(t) > 2 * h:
-        sp[h:-h] = np.linalg.norm(Xs[2 * h:] - Xs[:-2 * h], axis=2).max(axis=1) / (t[2 * h:] - t[:-2 * h])
-    near = uniform_filter1d((~ok).astype(float), 4 * h + 1) > 0      # within 2 h rows of unknown time
+        sp[h:-h] = np.linalg.norm(Xs[2 * h :] - Xs[: -2 * h], axis=2).max(axis=1) / (t[2 * h :] - t[: -2 * h])
+    near = uniform_filter1d((~ok).astype(float), 4 * h + 1) > 0  # within 2 h rows of unknown time
     sp = np.where(near, 0.0, np.nan_to_num(sp))
     sig = 1.4826 * np.median(np.abs(sp - np.median(sp)))
     return sp > max(2.0 * settings.min_speed, np.median(sp) + 6 * sig), clean
@@ -229,8 +233,10 @@ def _not_with_the_body(P, seen, ref, bands, bad, limit_mm: float = 5.0, share: f
         res = np.linalg.norm(P[ok, m] - (np.einsum("fij,j->fi", R[ok], ref[m]) + T[ok]), axis=1)
         off = float(np.mean(res > limit_mm))
         if off > share:
-            out[m] = (f"moved, but not with the body: off the rigid fit of the others by over {limit_mm:g} mm "
-                      f"in {100 * off:.0f} % of its frames: not the patient's")
+            out[m] = (
+                f"moved, but not with the body: off the rigid fit of the others by over {limit_mm:g} mm "
+                f"in {100 * off:.0f} % of its frames: not the patient's"
+            )
     return out
 
 
@@ -240,8 +246,14 @@ def _inliers(P, seen, model, limit_mm):
     return seen & ~(np.nan_to_num(res, nan=np.inf) > limit_mm)
 
 
-def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None, *, span: tuple | None = None,
-                   missing=(), model: PatientModel | None = None) -> MotionResult:
+def analyze_motion(
+    series: MarkerSeries,
+    settings: MotionSettings | None = None,
+    *,
+    span: tuple | None = None,
+    missing=(),
+    model: PatientModel | None = None,
+) -> MotionResult:
     """The whole analysis (see the module). ``span``: (first, last) frame time the recording
     should hold, on the series' clock (:mod:`vts_hw.recording.extent`; None: the first and last
     frame); ``missing``: sentences on what the recording lacks, kept with the result. DataError
@@ -269,8 +281,14 @@ def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None,
     # a marker the robust fit leaves out in most frames is not one of the patient's (a wrong
     # match, a ghost made of pieces); a single point far off the fit is left out of its frame
     out_share = 1.0 - (seen & (w > 0)).sum(axis=0) / np.maximum(seen.sum(axis=0), 1)
-    bad = {m: (f"off the rigid fit of the others in {100 * out_share[m]:.0f} % of its frames: not the "
-               f"patient's (a wrong match?)") for m in range(P.shape[1]) if out_share[m] > st.max_outlier_share}
+    bad = {
+        m: (
+            f"off the rigid fit of the others in {100 * out_share[m]:.0f} % of its frames: not the "
+            f"patient's (a wrong match?)"
+        )
+        for m in range(P.shape[1])
+        if out_share[m] > st.max_outlier_share
+    }
     bad.update(_not_with_the_body(P, seen, ref, bands, bad))
     if bad and P.shape[1] - len(bad) >= 3:
         for m, why in bad.items():
@@ -292,7 +310,7 @@ def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None,
     s, _, _ = principal_signal(t, D)
     pts = np.einsum("fij,mj->fmi", R0, ref) + T0[:, None]
     moving, X_still = _provisional_moving(t, pts, s, st, fs)
-    tol = 2.0 * st.event_mm           # the first pose still holds some breathing
+    tol = 2.0 * st.event_mm  # the first pose still holds some breathing
     v = np.zeros_like(ref)
     R, T = R0, T0
     ref_period = (t_first, t_first)
@@ -300,11 +318,16 @@ def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None,
         valid = np.isfinite(R[:, 0, 0])
         still = valid & ~_dilate(moving, int(round(st.margin_s * fs)))
         still_b = _bridged(t, still, valid, X_still, period, st.bridge_s, tol)
-        runs = [(a, b) for a, b in _runs(still_b)
-                if t[b - 1] - t[a] >= st.ref_min_s and still[a:b].sum() * period >= 0.5 * st.ref_min_s]
+        runs = [
+            (a, b)
+            for a, b in _runs(still_b)
+            if t[b - 1] - t[a] >= st.ref_min_s and still[a:b].sum() * period >= 0.5 * st.ref_min_s
+        ]
         if not runs:
-            raise DataError(f"no still period of {st.ref_min_s:g} s for the reference: the patient moved "
-                            f"all the time (or the markers were not seen)")
+            raise DataError(
+                f"no still period of {st.ref_min_s:g} s for the reference: the patient moved "
+                f"all the time (or the markers were not seen)"
+            )
         a, b = runs[0]
         b = min(b, a + int(round(st.ref_max_s * fs)))
         ref_sel = np.zeros(len(t), bool)
@@ -322,8 +345,9 @@ def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None,
             R, T, s, rms, _ = model.fit(P, seen, R0, T0, s)
         known = ref[np.isfinite(ref).all(axis=1)]
         pose = BodyPose(t, R, T, s, rms, seen.sum(axis=1), known.mean(axis=0))
-        events, speed, moving, thr = find_events(pose, known, min_speed=st.min_speed, event_mm=st.event_mm,
-                                                 event_deg=st.event_deg)
+        events, speed, moving, thr = find_events(
+            pose, known, min_speed=st.min_speed, event_mm=st.event_mm, event_deg=st.event_deg
+        )
         X_still = np.where(pose.valid[:, None, None], pose.points(known), np.nan)
         tol = st.event_mm
     # scale and sign of the respiratory signal: mm of the marker that breathes most, + = inhaled
@@ -332,9 +356,17 @@ def analyze_motion(series: MarkerSeries, settings: MotionSettings | None = None,
         v, s, _ = orient(v, s, series.frame)
         mean_s = float(np.nanmean(s[ref_sel]))
         s = s - mean_s
-        ref = ref + v * mean_s          # the model's reference: the period's mean breath (s = 0)
-    model = PatientModel(ref, v, series.frame, [[bands.patient.index(c) for c in g] for g in bands.groups],
-                         [], ref_period, series.clock, breathes=breathes)
+        ref = ref + v * mean_s  # the model's reference: the period's mean breath (s = 0)
+    model = PatientModel(
+        ref,
+        v,
+        series.frame,
+        [[bands.patient.index(c) for c in g] for g in bands.groups],
+        [],
+        ref_period,
+        series.clock,
+        breathes=breathes,
+    )
     return _finish(series, timeline, bands, S, model, pose, s, events, speed, moving, still, thr, st, notes)
 
 
@@ -343,14 +375,18 @@ def with_model(series, timeline, model: PatientModel, st: MotionSettings) -> Mot
     among the series' columns (:func:`.patient_model.model_columns`), every frame fitted with it,
     then the events, breaths and states as when the model is learned here."""
     if model.frame != series.frame:
-        raise DataError(f"the patient model is in the {model.frame.upper()} frame and the marker tracks in the "
-                        f"{series.frame.upper()} frame: they cannot be fitted together")
+        raise DataError(
+            f"the patient model is in the {model.frame.upper()} frame and the marker tracks in the "
+            f"{series.frame.upper()} frame: they cannot be fitted together"
+        )
     t, F = series.t, len(series.t)
     cols = model_columns(t, series.P, model)
     matched = [m for m, cs in enumerate(cols) if cs]
     if len(matched) < 3:
-        raise DataError(f"only {len(matched)} of the patient model's {model.n_markers} markers were found in the "
-                        f"recording's tracks (3 needed): the model does not belong to this recording?")
+        raise DataError(
+            f"only {len(matched)} of the patient model's {model.n_markers} markers were found in the "
+            f"recording's tracks (3 needed): the model does not belong to this recording?"
+        )
     P = np.full((F, model.n_markers, 3), np.nan)
     for m, cs in enumerate(cols):
         for c in cs:
@@ -364,8 +400,9 @@ def with_model(series, timeline, model: PatientModel, st: MotionSettings) -> Mot
         R, T, s, rms, used = model.fit(P, seen_in, R0, T0, s)
     known = model.reference[model.known]
     pose = BodyPose(t, R, T, s, rms, used.sum(axis=1), model.centre)
-    events, speed, moving, thr = find_events(pose, known, min_speed=st.min_speed, event_mm=st.event_mm,
-                                             event_deg=st.event_deg)
+    events, speed, moving, thr = find_events(
+        pose, known, min_speed=st.min_speed, event_mm=st.event_mm, event_deg=st.event_deg
+    )
     still = pose.valid & ~_dilate(moving, int(round(st.margin_s / timeline.period)))
     first = [cs[0] if cs else None for cs in cols]
     n = series.P.shape[1]
@@ -373,18 +410,34 @@ def with_model(series, timeline, model: PatientModel, st: MotionSettings) -> Mot
     for m, cs in enumerate(cols):
         for c in cs:
             why[c] = f"the patient model's marker {m + 1}"
-    bands = Bands([c for c in first if c is not None],
-                  [[first[m] for m in g if first[m] is not None] for g in model.bands],
-                  np.zeros(n), np.zeros(n), series.seen[timeline.frames].mean(axis=0) if n else np.zeros(0), why)
-    S = MarkerSeries(t, P, [[i for c in cs for i in series.ids[c]] for cs in cols], series.clock, series.frame,
-                     None, list(series.camera_names), [], [series.number(cs[0]) if cs else 0 for cs in cols])
+    bands = Bands(
+        [c for c in first if c is not None],
+        [[first[m] for m in g if first[m] is not None] for g in model.bands],
+        np.zeros(n),
+        np.zeros(n),
+        series.seen[timeline.frames].mean(axis=0) if n else np.zeros(0),
+        why,
+    )
+    S = MarkerSeries(
+        t,
+        P,
+        [[i for c in cs for i in series.ids[c]] for cs in cols],
+        series.clock,
+        series.frame,
+        None,
+        list(series.camera_names),
+        [],
+        [series.number(cs[0]) if cs else 0 for cs in cols],
+    )
     if series.cameras is not None:
         S.cameras = np.zeros((F, model.n_markers), int)
         for m, cs in enumerate(cols):
             for c in cs:
                 S.cameras[:, m] = np.maximum(S.cameras[:, m], series.cameras[:, c])
-    notes = [f"poses fitted with the patient model learned live during the scan ({len(matched)} of its "
-             f"{model.n_markers} markers found in the tracks)"]
+    notes = [
+        f"poses fitted with the patient model learned live during the scan ({len(matched)} of its "
+        f"{model.n_markers} markers found in the tracks)"
+    ]
     return _finish(series, timeline, bands, S, model, pose, s, events, speed, moving, still, thr, st, notes)
 
 
@@ -395,7 +448,7 @@ def _finish(series, timeline, bands, S, model, pose, s, events, speed, moving, s
     known = model.reference[model.known]
     valid = pose.valid
     v = model.vectors
-    br = find_breaths(t, s, valid, period, moving=moving)     # no breath chained through a move (0089)
+    br = find_breaths(t, s, valid, period, moving=moving)  # no breath chained through a move (0089)
     cycles, phase, rate = br.cycles, br.phase, br.rate
     figures = breathing_figures(br, period, timeline.duration_s, signal_noise(s, valid), model.breathes)
     if figures.status == "none":
@@ -407,12 +460,34 @@ def _finish(series, timeline, bands, S, model, pose, s, events, speed, moving, s
     poor = pose.poor_fit & ~moving
     still_pose = pose.valid & ~moving
     if still_pose.any() and poor.sum() > 0.05 * still_pose.sum():
-        notes.append(f"pose degraded in {100 * poor.sum() / still_pose.sum():.0f} % of the still frames with a pose: "
-                     f"the body model leaves over {POOR_FIT_MM:g} mm of residual there (median "
-                     f"{float(np.nanmedian(pose.rms_mm[poor])):.2f} mm; a good fit leaves under 0.1 mm): those "
-                     f"frames are marked 'poor fit', their pose not measured to {POOR_FIT_MM:g} mm")
+        notes.append(
+            f"pose degraded in {100 * poor.sum() / still_pose.sum():.0f} % of the still frames with a pose: "
+            f"the body model leaves over {POOR_FIT_MM:g} mm of residual there (median "
+            f"{float(np.nanmedian(pose.rms_mm[poor])):.2f} mm; a good fit leaves under 0.1 mm): those "
+            f"frames are marked 'poor fit', their pose not measured to {POOR_FIT_MM:g} mm"
+        )
     states = motion_states(pose, events, moving, known, state_mm=st.state_mm, state_deg=st.state_deg)
-    covered, bridged = cover_states(states, pose, moving, known, period, event_mm=st.event_mm,
-                                    event_deg=st.event_deg, bridge_s=st.bridge_s)
-    return MotionResult(series, bands, S, model.reference, model.period, pose, resp, events, states, speed, moving,
-                        still, thr, st, notes, timeline, covered, bridged, model)
+    covered, bridged = cover_states(
+        states, pose, moving, known, period, event_mm=st.event_mm, event_deg=st.event_deg, bridge_s=st.bridge_s
+    )
+    return MotionResult(
+        series,
+        bands,
+        S,
+        model.reference,
+        model.period,
+        pose,
+        resp,
+        events,
+        states,
+        speed,
+        moving,
+        still,
+        thr,
+        st,
+        notes,
+        timeline,
+        covered,
+        bridged,
+        model,
+    )

@@ -25,8 +25,8 @@ __all__ = ["Bands", "find_bands", "band_names", "split_bands"]
 #: the head end of the table in the SPECT frame: -Z (docs/design.md's room: the patient supine, head
 #: first, towards the cameras over the head end)
 HEAD_DIRECTION = np.array([0.0, 0.0, -1.0])
-SMOOTH_HZ = 1.0       # positions low-passed at this before the identity is asked (breathing is under 1 Hz)
-NAME_MIN_MM = 50.0    # two bands are told apart when their centres are this far apart along the body
+SMOOTH_HZ = 1.0  # positions low-passed at this before the identity is asked (breathing is under 1 Hz)
+NAME_MIN_MM = 50.0  # two bands are told apart when their centres are this far apart along the body
 
 
 @dataclass
@@ -47,8 +47,9 @@ def _fs(t) -> int:
     return max(1, int(round(sample_rate(t))))
 
 
-def find_bands(series, *, breath_mm: float = 0.25, min_seen: float = 0.3,
-               band_gap_mm: float = 60.0, frames=None) -> Bands:
+def find_bands(
+    series, *, breath_mm: float = 0.25, min_seen: float = 0.3, band_gap_mm: float = 60.0, frames=None
+) -> Bands:
     """``frames``: (F,) the rows that had frames (a marker is seen in a share of those: time
     without frames is no marker's fault); None: every row."""
     t, P = series.t, series.P
@@ -69,9 +70,9 @@ def find_bands(series, *, breath_mm: float = 0.25, min_seen: float = 0.3,
         first, last = np.flatnonzero(ok)[[0, -1]]
         sl = slice(first, last + 1)
         bp = bandpass(t[sl], P[sl, m])
-        e2 = np.where(ok[sl], np.sum(bp ** 2, axis=1), np.nan)
+        e2 = np.where(ok[sl], np.sum(bp**2, axis=1), np.nan)
         # the median over 10 s windows: a body move rings in the filter for a few seconds only
-        win = [e2[k:k + 10 * _fs(t)] for k in range(0, len(e2), 10 * _fs(t))]
+        win = [e2[k : k + 10 * _fs(t)] for k in range(0, len(e2), 10 * _fs(t))]
         rms[m] = float(np.sqrt(np.nanmedian([float(np.nanmean(w)) for w in win if np.isfinite(w).sum() > 10] or [0.0])))
         slow = lowpass(t[sl], P[sl, m], 0.1)[ok[sl]]
         rng[m] = float(np.max(np.linalg.norm(slow - np.median(slow, axis=0), axis=1)))
@@ -84,14 +85,20 @@ def find_bands(series, *, breath_mm: float = 0.25, min_seen: float = 0.3,
         r = roles[m]
         if r.role in PATIENT_ROLES:
             patient.append(m)
-            why[m] = (f"breathes ({rms[m]:.2f} mm RMS at 0.08-1 Hz)" if rms[m] >= breath_mm else
-                      f"moved ({rng[m]:.1f} mm) without breathing") + f": {r.reason}"
+            why[m] = (
+                f"breathes ({rms[m]:.2f} mm RMS at 0.08-1 Hz)"
+                if rms[m] >= breath_mm
+                else f"moved ({rng[m]:.1f} mm) without breathing"
+            ) + f": {r.reason}"
         else:
             why[m] = f"{r.role}: {r.reason}: not the patient's"
     if len(patient) < 3:
-        raise DataError(f"only {len(patient)} marker(s) breathe or move: the patient's band markers need "
-                        f"at least 3 seen in {100 * min_seen:.0f} % of the frames (markers: "
-                        + "; ".join(f"{series.label(m)} {why[m]}" for m in range(M)) + ")")
+        raise DataError(
+            f"only {len(patient)} marker(s) breathe or move: the patient's band markers need "
+            f"at least 3 seen in {100 * min_seen:.0f} % of the frames (markers: "
+            + "; ".join(f"{series.label(m)} {why[m]}" for m in range(M))
+            + ")"
+        )
     mean = np.array([np.nanmedian(P[:, m], axis=0) for m in patient])
     groups = [[patient[i] for i in g] for g in split_bands(mean, band_gap_mm)]
     return Bands(patient, groups, rms, rng, frac, why)
@@ -111,7 +118,7 @@ def split_bands(mean, band_gap_mm: float = 60.0) -> list[list[int]]:
     vt = np.linalg.svd(c, full_matrices=False)[2]
     ang = np.radians(np.arange(0.0, 180.0, 2.0))
     dirs = np.concatenate([vt, np.cos(ang)[:, None] * vt[0] + np.sin(ang)[:, None] * vt[1]])
-    for axis in dirs:          # the largest gap along any direction in the markers' main plane
+    for axis in dirs:  # the largest gap along any direction in the markers' main plane
         pos = c @ axis
         order = np.argsort(pos)
         gaps = np.diff(pos[order])
@@ -131,15 +138,21 @@ def band_names(centres, frame: str) -> tuple[list[str], str]:
     ... in order along the body."""
     generic = [f"band {k}" for k in range(1, len(centres) + 1)]
     if frame != "spect":
-        return generic, ("positions in the VTS frame, where the head end is not known (with a VTS -> SPECT "
-                         "mapping the bands are named chest and abdomen)")
+        return generic, (
+            "positions in the VTS frame, where the head end is not known (with a VTS -> SPECT "
+            "mapping the bands are named chest and abdomen)"
+        )
     if len(centres) != 2:
         return generic, f"{len(centres)} band(s): chest and abdomen are told apart with two"
     along = [float(np.dot(np.asarray(c, float), HEAD_DIRECTION)) for c in centres]
     if not all(np.isfinite(along)) or abs(along[0] - along[1]) < NAME_MIN_MM:
-        return generic, (f"the bands' centres are less than {NAME_MIN_MM:g} mm apart along the table: which is "
-                         "nearer the head is not clear")
+        return generic, (
+            f"the bands' centres are less than {NAME_MIN_MM:g} mm apart along the table: which is "
+            "nearer the head is not clear"
+        )
     chest = int(np.argmax(along))
-    return (["chest" if k == chest else "abdomen" for k in range(2)],
-            "the band nearer the head end of the table (-Z in the SPECT frame; the patient supine, head first) "
-            "is the chest")
+    return (
+        ["chest" if k == chest else "abdomen" for k in range(2)],
+        "the band nearer the head end of the table (-Z in the SPECT frame; the patient supine, head first) "
+        "is the chest",
+    )

@@ -12,8 +12,8 @@ from scipy.spatial.transform import Rotation
 
 __all__ = ["BodyPose", "POOR_FIT_MM"]
 
-POOR_FIT_MM = 0.3     # a frame's fit residual over this: the model does not explain its markers (a good
-                      # fit is 0.02-0.1 mm; the pose error is of the residual's order): pose degraded
+POOR_FIT_MM = 0.3  # a frame's fit residual over this: the model does not explain its markers (a good
+# fit is 0.02-0.1 mm; the pose error is of the residual's order): pose degraded
 
 
 @dataclass

@@ -53,18 +53,33 @@ import numpy as np
 
 from vts_hw.files import ensure_dir, write_atomic
 
-__all__ = ["write_castor", "castor_parameters", "castor_matrix", "castor_backward_matrix",
-           "castor_schedule", "castor_frame", "fov_centre", "to_castor_frame", "plan_castor", "CastorPlan",
-           "CASTOR_DYNAMIC", "CASTOR_RIGID", "CASTOR_FRAME", "CASTOR_FROM_SPECT"]
+__all__ = [
+    "write_castor",
+    "castor_parameters",
+    "castor_matrix",
+    "castor_backward_matrix",
+    "castor_schedule",
+    "castor_frame",
+    "fov_centre",
+    "to_castor_frame",
+    "plan_castor",
+    "CastorPlan",
+    "CASTOR_DYNAMIC",
+    "CASTOR_RIGID",
+    "CASTOR_FRAME",
+    "CASTOR_FROM_SPECT",
+]
 
 CASTOR_DYNAMIC = "castor_motion.dyn"
 CASTOR_RIGID = "castor_motion_rigid.txt"
-CASTOR_FROM_SPECT = np.diag([1.0, 1.0, -1.0])   # CASToR axes from SPECT axes (both origin-free)
-CASTOR_FRAME = ("CASToR image frame: mm, left-handed as CASToR documents it; x towards the patient's left "
-                "(right as seen from the front of the gantry), y anterior (up), z towards the head (into the "
-                "gantry), for a head-first supine patient; origin at the centre of CASToR's image matrix, "
-                "taken as the centre of the volume the VTS -> SPECT mapping was made from; x = SPECT X, "
-                "y = SPECT Y, z = -SPECT Z")
+CASTOR_FROM_SPECT = np.diag([1.0, 1.0, -1.0])  # CASToR axes from SPECT axes (both origin-free)
+CASTOR_FRAME = (
+    "CASToR image frame: mm, left-handed as CASToR documents it; x towards the patient's left "
+    "(right as seen from the front of the gantry), y anterior (up), z towards the head (into the "
+    "gantry), for a head-first supine patient; origin at the centre of CASToR's image matrix, "
+    "taken as the centre of the volume the VTS -> SPECT mapping was made from; x = SPECT X, "
+    "y = SPECT Y, z = -SPECT Z"
+)
 
 
 def _num(x: float, digits: int) -> str:
@@ -77,9 +92,10 @@ def castor_parameters(R, T) -> np.ndarray:
     matrix (:func:`castor_matrix`) is the inverse of the body pose ``x -> R x + T`` (both in
     CASToR's image frame)."""
     from scipy.spatial.transform import Rotation
+
     R = np.asarray(R, float)
     Rc = R.T
-    t = Rc @ np.asarray(T, float)          # M x = Rc x - t = R^T (x - T)
+    t = Rc @ np.asarray(T, float)  # M x = Rc x - t = R^T (x - T)
     return np.concatenate([t, Rotation.from_matrix(Rc).as_euler("XYZ", degrees=True)])
 
 
@@ -115,13 +131,17 @@ def fov_centre(volume: dict | None, program: str = "CASToR's image") -> np.ndarr
     field of view is centred), for a head-first supine patient; ValueError with one sentence
     naming ``program``'s frame when it is not known (also for vts_hw.motion.yrtpet)."""
     if not volume or volume.get("centre_mm") is None:
-        raise ValueError("the VTS -> SPECT mapping does not say which SPECT volume it was made from (it was "
-                         f"made before mappings recorded it), so the centre of {program} is not known in "
-                         "its frame: make the mapping again with `vts calibrate spect`")
+        raise ValueError(
+            "the VTS -> SPECT mapping does not say which SPECT volume it was made from (it was "
+            f"made before mappings recorded it), so the centre of {program} is not known in "
+            "its frame: make the mapping again with `vts calibrate spect`"
+        )
     position = volume.get("patient_position")
     if position not in (None, "HFS"):
-        raise ValueError(f"the mapping volume {volume.get('file')} says PatientPosition {position}; the turn "
-                         f"into {program} frame is known here for head-first supine (HFS) only")
+        raise ValueError(
+            f"the mapping volume {volume.get('file')} says PatientPosition {position}; the turn "
+            f"into {program} frame is known here for head-first supine (HFS) only"
+        )
     c = np.asarray(volume["centre_mm"], float).reshape(3)
     if not np.all(np.isfinite(c)):
         raise ValueError(f"the mapping volume's centre {volume['centre_mm']} is not three finite numbers")
@@ -164,7 +184,7 @@ def castor_schedule(starts) -> tuple[list[tuple[int, int]], list[int]]:
     first: dict[int, int] = {}
     for n in sorted(seconds):
         held = np.clip(np.minimum(hi, n + 1) - np.maximum(lo, n), 0.0, None)
-        k = int(np.argmax(held))             # the first of equal holders: the earlier state
+        k = int(np.argmax(held))  # the first of equal holders: the earlier state
         first.setdefault(k, n)
     lines = sorted(((k, n) for k, n in first.items()), key=lambda kn: kn[1])
     merged = [k for k in range(len(s)) if k not in first]
@@ -189,18 +209,27 @@ class CastorPlan:
     def to_json(self, files=()) -> dict:
         if self.why:
             return {"written": False, "why": self.why}
-        if self.A is None or self.c is None:     # set whenever there is no why
+        if self.A is None or self.c is None:  # set whenever there is no why
             raise ValueError("a CASToR motion without its frame to write")
         nxt = self.triggers[1:] + [None]
-        return {"written": True, "files": [str(Path(f).name) for f in files], "frame": CASTOR_FRAME,
-                "from_spect": {"axes": self.A.tolist(), "centre_mm": self.c.tolist(),
-                               "rule": "x_castor = axes @ (x_spect - centre_mm)"},
-                "reference_state": self.reference,
-                "time": "triggers in whole seconds of the SPECT list-mode from the acquisition start: CASToR "
-                        "reads them as integers; each whole second goes to the state that holds most of it",
-                "lines": [{"line": i + 1, "state": k, "trigger_s": n, "interval_s": [n, m], "parameters": list(p)}
-                          for i, (k, n, m, p) in enumerate(zip(self.states, self.triggers, nxt, self.params))],
-                "merged": list(self.merged)}
+        return {
+            "written": True,
+            "files": [str(Path(f).name) for f in files],
+            "frame": CASTOR_FRAME,
+            "from_spect": {
+                "axes": self.A.tolist(),
+                "centre_mm": self.c.tolist(),
+                "rule": "x_castor = axes @ (x_spect - centre_mm)",
+            },
+            "reference_state": self.reference,
+            "time": "triggers in whole seconds of the SPECT list-mode from the acquisition start: CASToR "
+            "reads them as integers; each whole second goes to the state that holds most of it",
+            "lines": [
+                {"line": i + 1, "state": k, "trigger_s": n, "interval_s": [n, m], "parameters": list(p)}
+                for i, (k, n, m, p) in enumerate(zip(self.states, self.triggers, nxt, self.params))
+            ],
+            "merged": list(self.merged),
+        }
 
 
 def not_on_the_scanner(what: str, clock: str, frame: str, takes: str, its_frame: str) -> str:
@@ -208,8 +237,10 @@ def not_on_the_scanner(what: str, clock: str, frame: str, takes: str, its_frame:
     list-mode clock (the program ``takes`` them so), or its poses not in the SPECT frame (not
     ``its_frame``); "" when both are. The one rule of CASToR's files and YRT-PET's."""
     if clock != "spect":
-        return (f"{what} not written: the times are host-clock seconds (no --listmode), and {takes}; give the "
-                f"scan's list-mode")
+        return (
+            f"{what} not written: the times are host-clock seconds (no --listmode), and {takes}; give the "
+            f"scan's list-mode"
+        )
     if frame != "spect":
         return f"{what} not written: no VTS -> SPECT mapping, so the poses are in the VTS frame, not {its_frame}"
     return ""
@@ -219,8 +250,9 @@ def plan_castor(states, t0: float, *, clock: str, frame: str, volume: dict | Non
     """Decide the CASToR files for ``states`` (MotionState, times on ``clock``; ``t0`` the
     acquisition start on it): the whole-second schedule, each line's parameters in CASToR's
     image frame from the pose at the acquisition start; or why none are written."""
-    why = not_on_the_scanner("CASToR files", clock, frame, "CASToR takes its triggers as SPECT list-mode seconds",
-                             "CASToR's image frame")
+    why = not_on_the_scanner(
+        "CASToR files", clock, frame, "CASToR takes its triggers as SPECT list-mode seconds", "CASToR's image frame"
+    )
     if why:
         return CastorPlan(why=why)
     try:
@@ -229,13 +261,15 @@ def plan_castor(states, t0: float, *, clock: str, frame: str, volume: dict | Non
         return CastorPlan(why=f"CASToR files not written: {e}")
     try:
         lines, merged = castor_schedule([s.t_start - t0 for s in states])
-    except ValueError as e:                       # no state, or two starting at once
+    except ValueError as e:  # no state, or two starting at once
         return CastorPlan(why=f"CASToR files not written: {e}")
     for k, _ in lines:
         if states[k].R is None:
             s = states[k]
-            return CastorPlan(why=f"CASToR files not written: state {s.index} ({s.t_start - t0:.2f}-{s.t_end - t0:.2f} s) "
-                                  "has no pose (no frame with 3 markers)")
+            return CastorPlan(
+                why=f"CASToR files not written: state {s.index} ({s.t_start - t0:.2f}-{s.t_end - t0:.2f} s) "
+                "has no pose (no frame with 3 markers)"
+            )
     ref = states[lines[0][0]]
     notes = []
     for k in merged:
@@ -244,17 +278,18 @@ def plan_castor(states, t0: float, *, clock: str, frame: str, volume: dict | Non
         if b <= 0:
             notes.append(f"state {s.index} ({a:.2f}-{b:.2f} s) ended before the acquisition start: no CASToR line")
         else:
-            notes.append(f"state {s.index} ({a:.2f}-{b:.2f} s) holds most of no whole second: CASToR's triggers "
-                         "are whole seconds, so its data go to its neighbours' lines")
+            notes.append(
+                f"state {s.index} ({a:.2f}-{b:.2f} s) holds most of no whole second: CASToR's triggers "
+                "are whole seconds, so its data go to its neighbours' lines"
+            )
     params = []
     for k, _ in lines:
         s = states[k]
-        R = s.R @ ref.R.T                                  # the pose at the acquisition start -> state k
+        R = s.R @ ref.R.T  # the pose at the acquisition start -> state k
         T = s.T - R @ ref.T
         Rc, Tc = to_castor_frame(R, T, A, c)
-        params.append([round(float(v), 4) + 0.0 for v in castor_parameters(Rc, Tc)])   # + 0.0: no -0.0
-    return CastorPlan(None, [states[k].index for k, _ in lines], [n for _, n in lines], params, notes,
-                      ref.index, A, c)
+        params.append([round(float(v), 4) + 0.0 for v in castor_parameters(Rc, Tc)])  # + 0.0: no -0.0
+    return CastorPlan(None, [states[k].index for k, _ in lines], [n for _, n in lines], params, notes, ref.index, A, c)
 
 
 def write_castor(triggers, params, out, *, comment: str | None = None) -> tuple[Path, Path]:
@@ -273,10 +308,18 @@ def write_castor(triggers, params, out, *, comment: str | None = None) -> tuple[
         raise ValueError("a motion state without a pose cannot be written for CASToR")
     out = ensure_dir(out, "export folder")
     head = "" if not comment else "# " + " ".join(comment.replace("#", " ").split()) + "\n"
-    dyn = (head + f"nb_motion_triggers: {len(trig)}\n"
-           + "timestamp_motion_triggers: " + ",".join(str(int(n)) for n in trig) + "\n")
-    rig = (head + "Transformation_mode: 0\nRotation_convention: XYZ\nTransformation_parameters:\n"
-           + "".join(",".join(_num(v, 4) for v in p) + "\n" for p in params))
+    dyn = (
+        head
+        + f"nb_motion_triggers: {len(trig)}\n"
+        + "timestamp_motion_triggers: "
+        + ",".join(str(int(n)) for n in trig)
+        + "\n"
+    )
+    rig = (
+        head
+        + "Transformation_mode: 0\nRotation_convention: XYZ\nTransformation_parameters:\n"
+        + "".join(",".join(_num(v, 4) for v in p) + "\n" for p in params)
+    )
     p1, p2 = out / CASTOR_DYNAMIC, out / CASTOR_RIGID
     write_atomic(p1, dyn.encode("ascii"))
     write_atomic(p2, rig.encode("ascii"))

@@ -48,22 +48,32 @@ from scipy.signal import find_peaks
 from vts_hw.motion.signal import bandpass
 from vts_hw.motion.timeline import seen_runs
 
-__all__ = ["Cycle", "Breaths", "BreathingFigures", "find_breaths", "signal_noise", "breathing_figures",
-           "EDGE_S", "MIN_CYCLES", "NOISE_K", "MIN_BREATH_MM"]
+__all__ = [
+    "Cycle",
+    "Breaths",
+    "BreathingFigures",
+    "find_breaths",
+    "signal_noise",
+    "breathing_figures",
+    "EDGE_S",
+    "MIN_CYCLES",
+    "NOISE_K",
+    "MIN_BREATH_MM",
+]
 
-EDGE_S = 0.3            # seen time needed on both sides of a peak or trough ...
-CROSS_EDGE_S = 0.1      # ... and of a crossing of the middle (a steep, well-placed landmark)
-MIN_CYCLES = 3          # breaths a rate (half breaths an amplitude) needs
-NOISE_K = 6.0           # a breath must be this many times the signal's frame noise ...
-MIN_BREATH_MM = 0.2     # ... and at least this deep
-RATE_GOAL = 0.5         # /min: a rate whose 95 % range is wider is "bounded"
-SPREAD_MIN = 0.10       # breath-to-breath spread of the rate assumed at least (a few breaths show less)
-SPAN_K = 0.8            # a period may span gaps up to this share of the shortest half breath seen ...
-MIN_HALVES = 3          # ... when at least this many half breaths were seen in one stretch (0059: 6; no chain
-                        # through a body move: 0089)
-DOUBLED = 1.6           # a period spanning a gap this many times the typical breath held two
-RATE_FLOOR = 0.2        # /min: the scan's first and last breaths, counted by the truth, not always seen
-Z_RANGE = 2.58          # the range is 99 % (1.96 left 7 % of 150 simulated 60-s scans at 20 % loss outside)
+EDGE_S = 0.3  # seen time needed on both sides of a peak or trough ...
+CROSS_EDGE_S = 0.1  # ... and of a crossing of the middle (a steep, well-placed landmark)
+MIN_CYCLES = 3  # breaths a rate (half breaths an amplitude) needs
+NOISE_K = 6.0  # a breath must be this many times the signal's frame noise ...
+MIN_BREATH_MM = 0.2  # ... and at least this deep
+RATE_GOAL = 0.5  # /min: a rate whose 95 % range is wider is "bounded"
+SPREAD_MIN = 0.10  # breath-to-breath spread of the rate assumed at least (a few breaths show less)
+SPAN_K = 0.8  # a period may span gaps up to this share of the shortest half breath seen ...
+MIN_HALVES = 3  # ... when at least this many half breaths were seen in one stretch (0059: 6; no chain
+# through a body move: 0089)
+DOUBLED = 1.6  # a period spanning a gap this many times the typical breath held two
+RATE_FLOOR = 0.2  # /min: the scan's first and last breaths, counted by the truth, not always seen
+Z_RANGE = 2.58  # the range is 99 % (1.96 left 7 % of 150 simulated 60-s scans at 20 % loss outside)
 
 
 @dataclass
@@ -126,10 +136,19 @@ class BreathingFigures:
     noise_mm: float | None = None
 
     def to_json(self) -> dict:
-        return {"status": self.status, "why": self.why, "rate_per_min": self.rate_per_min,
-                "rate_range_per_min": self.rate_range, "amplitude_mm": self.amplitude_mm,
-                "whole_cycles": self.cycles, "periods_seen": self.periods, "half_breaths_seen": self.halves,
-                "rate_rests_on_s": self.breaths_s, "share_of_scan": self.share, "noise_mm": self.noise_mm}
+        return {
+            "status": self.status,
+            "why": self.why,
+            "rate_per_min": self.rate_per_min,
+            "rate_range_per_min": self.rate_range,
+            "amplitude_mm": self.amplitude_mm,
+            "whole_cycles": self.cycles,
+            "periods_seen": self.periods,
+            "half_breaths_seen": self.halves,
+            "rate_rests_on_s": self.breaths_s,
+            "share_of_scan": self.share,
+            "noise_mm": self.noise_mm,
+        }
 
 
 def _crossings(t, x, ok, h):
@@ -151,7 +170,7 @@ def _crossings(t, x, ok, h):
     for sign, k in events:
         j = k
         while j > 0 and ok[j - 1] and sign * x[j - 1] > 0:
-            j -= 1                      # back to the first row past the middle
+            j -= 1  # back to the first row past the middle
         if j > 0 and ok[j - 1]:
             a, b = x[j - 1], x[j]
             out.append((sign, float(t[j - 1] + (t[j] - t[j - 1]) * (-a / (b - a))), j))
@@ -160,8 +179,9 @@ def _crossings(t, x, ok, h):
     return out
 
 
-def find_breaths(t, a, valid, period: float, min_period_s: float = 1.5, max_period_s: float = 12.0,
-                 moving=None) -> Breaths:
+def find_breaths(
+    t, a, valid, period: float, min_period_s: float = 1.5, max_period_s: float = 12.0, moving=None
+) -> Breaths:
     """Cycles, periods and half breaths of the signal ``a`` where ``valid`` (see the module).
     ``moving`` (F,): frames where the body moves. A breath seen whole (trough to trough in one
     stretch) stands then too, but no period or fitted breath is chained across a gap through
@@ -186,7 +206,8 @@ def find_breaths(t, a, valid, period: float, min_period_s: float = 1.5, max_peri
     seg = np.full(F, -1)
     for k, (s0, s1) in enumerate(bounds):
         seg[s0:s1] = k
-    def seen(i, edge_s=EDGE_S):                 # in a stretch (maybe on a hole of a frame or two)
+
+    def seen(i, edge_s=EDGE_S):  # in a stretch (maybe on a hole of a frame or two)
         k, edge = seg[i], int(np.ceil(edge_s / period))
         return k >= 0 and i - edge >= bounds[k][0] and i + edge < bounds[k][1]
 
@@ -202,12 +223,15 @@ def find_breaths(t, a, valid, period: float, min_period_s: float = 1.5, max_peri
         def c_seen(i, edge_s=EDGE_S):
             k, edge = c_seg[i], int(np.ceil(edge_s / period))
             return k >= 0 and i - edge >= c_bounds[k][0] and i + edge < c_bounds[k][1]
+
     out.span_s = _span_s(cross, c_seen, c_seg)
     for (sign, t0, i0), (_, t1, i1) in zip(cross[:-2], cross[2:]):  # an up-crossing to the next
         if sign < 0 or t0 is None or t1 is None or not (c_seen(i0, CROSS_EDGE_S) and c_seen(i1, CROSS_EDGE_S)):
             continue
-        if (min_period_s <= t1 - t0 <= max_period_s
-                and _longest_gap_s(c_bounds, c_seg[i0], c_seg[i1], period) <= out.span_s):
+        if (
+            min_period_s <= t1 - t0 <= max_period_s
+            and _longest_gap_s(c_bounds, c_seg[i0], c_seg[i1], period) <= out.span_s
+        ):
             out.periods.append((t0, t1))
     ext = sorted([(int(i), 1) for i in peaks] + [(int(i), -1) for i in troughs])
     for (i0, s0), (i1, s1) in zip(ext[:-1], ext[1:]):
@@ -215,7 +239,7 @@ def find_breaths(t, a, valid, period: float, min_period_s: float = 1.5, max_peri
             out.halves.append(float(abs(x[i1] - x[i0])))
     for i0, i1 in zip(troughs[:-1], troughs[1:]):
         if not (seen(i0) and seen(i1) and seg[i0] == seg[i1]):
-            continue            # not seen whole: it spans a gap, or a trough is a gap's edge
+            continue  # not seen whole: it spans a gap, or a trough is a gap's edge
         per = t[i1] - t[i0]
         inside = peaks[(peaks > i0) & (peaks < i1)]
         if not (min_period_s <= per <= max_period_s) or inside.size == 0:
@@ -224,11 +248,12 @@ def find_breaths(t, a, valid, period: float, min_period_s: float = 1.5, max_peri
         out.cycles.append(Cycle(float(t[i0]), float(t[j]), float(t[i1]), float(x[j] - 0.5 * (x[i0] + x[i1]))))
         phase[i0:i1] = (t[i0:i1] - t[i0]) / per
         rate[i0:i1] = 60.0 / per
-    phase[~ok] = np.nan                         # no pose, no phase (even inside a whole breath)
+    phase[~ok] = np.nan  # no pose, no phase (even inside a whole breath)
     rate[~ok] = np.nan
     out.bounds, out.n_rows = bounds, F
-    out.breaths = _with_cycles(_breath_bounds(t, x, cross, troughs, c_seen, c_seg, c_bounds, out.span_s, period),
-                               out.cycles)
+    out.breaths = _with_cycles(
+        _breath_bounds(t, x, cross, troughs, c_seen, c_seg, c_bounds, out.span_s, period), out.cycles
+    )
     return out
 
 
@@ -256,9 +281,15 @@ def _span_s(cross, seen, seg) -> float:
     gap shorter than any excursion past the middle cannot hide one, so the crossings on its two
     sides are one breath apart however many are hidden; 0 when fewer than :data:`MIN_HALVES`
     half breaths were seen (then no period spans a gap)."""
-    halves = [t1 - t0 for (_, t0, i0), (_, t1, i1) in zip(cross[:-1], cross[1:])
-              if t0 is not None and t1 is not None and seg[i0] == seg[i1]
-              and seen(i0, CROSS_EDGE_S) and seen(i1, CROSS_EDGE_S)]
+    halves = [
+        t1 - t0
+        for (_, t0, i0), (_, t1, i1) in zip(cross[:-1], cross[1:])
+        if t0 is not None
+        and t1 is not None
+        and seg[i0] == seg[i1]
+        and seen(i0, CROSS_EDGE_S)
+        and seen(i1, CROSS_EDGE_S)
+    ]
     return SPAN_K * min(halves) if len(halves) >= MIN_HALVES else 0.0
 
 
@@ -288,55 +319,73 @@ def _union_s(intervals) -> float:
     return total
 
 
-def breathing_figures(br: Breaths, period: float, duration_s: float, noise_mm: float,
-                      breathes: bool = True) -> BreathingFigures:
+def breathing_figures(
+    br: Breaths, period: float, duration_s: float, noise_mm: float, breathes: bool = True
+) -> BreathingFigures:
     """The figures of the module's rules. ``breathes``: False when no marker moves at breathing
     rates at all (then ``none`` whatever the signal)."""
     noise = float(noise_mm) if np.isfinite(noise_mm) else None
     breaths = [(a, b) for a, b, _ in br.breaths]
     sig = np.array([s for *_, s in br.breaths])
-    if breaths:             # a pause, or two breaths after all: not one breath
+    if breaths:  # a pause, or two breaths after all: not one breath
         typical = float(np.median([b - a for a, b in breaths]))
         keep = [k for k, (a, b) in enumerate(breaths) if b - a <= DOUBLED * typical]
         breaths, sig = [breaths[k] for k in keep], sig[keep]
     span_s = _union_s(breaths)
     n_ind = len(breaths)
-    base: dict[str, Any] = dict(cycles=len(br.cycles), periods=n_ind, halves=len(br.halves), breaths_s=span_s,
-                share=span_s / duration_s if duration_s > 0 else 0.0, noise_mm=noise)
+    base: dict[str, Any] = dict(
+        cycles=len(br.cycles),
+        periods=n_ind,
+        halves=len(br.halves),
+        breaths_s=span_s,
+        share=span_s / duration_s if duration_s > 0 else 0.0,
+        noise_mm=noise,
+    )
     floor = max(NOISE_K * (noise or 0.0), MIN_BREATH_MM)
     if not breathes:
         return BreathingFigures("none", "no marker moves at breathing rates: no breathing found", **base)
     depth = float(np.median(br.halves)) if br.halves else float(br.depth_mm)
     if depth < floor:
-        return BreathingFigures("none", f"no breathing above the noise (breaths of {depth:.2f} mm against "
-                                        f"{floor:.2f} mm: {NOISE_K:g} x the {noise or 0:.3f} mm noise, at least "
-                                        f"{MIN_BREATH_MM:g} mm)", **base)
+        return BreathingFigures(
+            "none",
+            f"no breathing above the noise (breaths of {depth:.2f} mm against "
+            f"{floor:.2f} mm: {NOISE_K:g} x the {noise or 0:.3f} mm noise, at least "
+            f"{MIN_BREATH_MM:g} mm)",
+            **base,
+        )
     amp = float(np.median(br.halves)) if len(br.halves) >= MIN_CYCLES else None
     if n_ind < MIN_CYCLES:
         longest = max(br.stretches_s, default=0.0)
-        return BreathingFigures("unknown", f"rate unknown: {n_ind} breath(s) seen whole, over {span_s:.1f} s of "
-                                           f"{duration_s:.1f} s (the longest stretch seen {longest:.1f} s); a rate "
-                                           f"needs {MIN_CYCLES}", amplitude_mm=amp, **base)
+        return BreathingFigures(
+            "unknown",
+            f"rate unknown: {n_ind} breath(s) seen whole, over {span_s:.1f} s of "
+            f"{duration_s:.1f} s (the longest stretch seen {longest:.1f} s); a rate "
+            f"needs {MIN_CYCLES}",
+            amplitude_mm=amp,
+            **base,
+        )
     lengths = np.array([b - a for a, b in breaths])
     rates = 60.0 / lengths
     rate = float(np.median(rates))
     spread = max(1.4826 * float(np.median(np.abs(rates - rate))), SPREAD_MIN * rate)
-    expected = duration_s * rate / 60.0 - 1.0               # whole breaths in the scan (its ends cut two)
+    expected = duration_s * rate / 60.0 - 1.0  # whole breaths in the scan (its ends cut two)
     fpc = np.sqrt(max(0.0, 1.0 - n_ind / max(expected, 1.0)))
-    meas = 1.2533 * float(np.sqrt(np.mean((60.0 * sig / lengths ** 2) ** 2))) / np.sqrt(n_ind)
+    meas = 1.2533 * float(np.sqrt(np.mean((60.0 * sig / lengths**2) ** 2))) / np.sqrt(n_ind)
     half = float(np.hypot(Z_RANGE * np.hypot(1.2533 * spread / np.sqrt(n_ind) * fpc, meas), RATE_FLOOR))
     rng = [round(rate - half, 2), round(rate + half, 2)]
     status = "measured" if half <= RATE_GOAL else "bounded"
-    why = (f"from {n_ind} breaths seen whole over {span_s:.1f} s ({100 * base['share']:.0f} % of the scan)"
-           + ("" if status == "measured" else f": the rate is known only to {rng[0]:.1f}-{rng[1]:.1f} /min"))
+    why = f"from {n_ind} breaths seen whole over {span_s:.1f} s ({100 * base['share']:.0f} % of the scan)" + (
+        "" if status == "measured" else f": the rate is known only to {rng[0]:.1f}-{rng[1]:.1f} /min"
+    )
     return BreathingFigures(status, why, rate, rng, amp, **base)
 
-TROUGH_S = 0.06         # s: a trough's time (the flat end of an exhalation) is known to this, 1 sigma
-CROSS_S = 0.03          # s: a crossing of the middle (steep) at least this
-PRIOR_K = 0.35          # a breath with nothing seen of it: its length the typical one to this share, 1 sigma
-OUTLIER_K = 4.0         # a landmark this many sigma off the breaths' fit is not of a normal breath
-SAME_S = 0.4           # s: a fitted breath and a cycle seen whole whose ends are this close are one
-KEEP_S = 0.30           # s: a breath whose length is known to worse than this (1 sigma) is not used
+
+TROUGH_S = 0.06  # s: a trough's time (the flat end of an exhalation) is known to this, 1 sigma
+CROSS_S = 0.03  # s: a crossing of the middle (steep) at least this
+PRIOR_K = 0.35  # a breath with nothing seen of it: its length the typical one to this share, 1 sigma
+OUTLIER_K = 4.0  # a landmark this many sigma off the breaths' fit is not of a normal breath
+SAME_S = 0.4  # s: a fitted breath and a cycle seen whole whose ends are this close are one
+KEEP_S = 0.30  # s: a breath whose length is known to worse than this (1 sigma) is not used
 
 
 def _breath_bounds(t, x, cross, troughs, seen, seg, bounds, span_s: float, period: float) -> list:
@@ -356,14 +405,14 @@ def _breath_bounds(t, x, cross, troughs, seen, seg, bounds, span_s: float, perio
             g += 1
         chain[k] = g
     lows = np.asarray(troughs, int)
-    slots = []                       # per chain: [[trough time|None, up time|None, down time|None], ...]
+    slots = []  # per chain: [[trough time|None, up time|None, down time|None], ...]
     for c in range(g + 1):
         cs = [(s, tt, j) for s, tt, j in cross if seg[j] >= 0 and chain[seg[j]] == c]
         if not cs:
             continue
         rows = [r for k in np.flatnonzero(chain == c) for r in range(*bounds[k])]
         lo_row, hi_row = rows[0], rows[-1]
-        breaths = []                 # one per up-crossing: [trough before it, up, down after it]
+        breaths = []  # one per up-crossing: [trough before it, up, down after it]
         prev_row = lo_row
         for s, tt, j in cs:
             if s > 0:
@@ -378,7 +427,7 @@ def _breath_bounds(t, x, cross, troughs, seen, seg, bounds, span_s: float, perio
                 if breaths:
                     breaths[-1][2] = tt if tt is not None and seen(j, CROSS_EDGE_S) else None
             prev_row = j
-        if cs[-1][0] < 0 and breaths:            # the trough after the last down-crossing
+        if cs[-1][0] < 0 and breaths:  # the trough after the last down-crossing
             tr = lows[(lows > prev_row) & (lows <= hi_row)]
             end_t = None
             if tr.size:
@@ -406,7 +455,7 @@ def _breath_bounds(t, x, cross, troughs, seen, seg, bounds, span_s: float, perio
         sd = max(1.4826 * float(np.median(np.abs(np.array(d_s) - fd))) * L, CROSS_S)
     out = []
     for br in slots:
-        n = len(br)                  # boundaries B_0 .. B_{n-1}; breath i from B_i to B_{i+1}
+        n = len(br)  # boundaries B_0 .. B_{n-1}; breath i from B_i to B_{i+1}
         if n < 2:
             continue
         coefs: list[list[float]] = []
@@ -414,8 +463,17 @@ def _breath_bounds(t, x, cross, troughs, seen, seg, bounds, span_s: float, perio
         weights: list[float] = []
         own: list = []
 
-        def obs(coef, value, sigma, tag,    # one landmark: sum(coef[k] * B_k) = value, to sigma
-                n=n, coefs=coefs, values=values, weights=weights, own=own):
+        def obs(
+            coef,
+            value,
+            sigma,
+            tag,  # one landmark: sum(coef[k] * B_k) = value, to sigma
+            n=n,
+            coefs=coefs,
+            values=values,
+            weights=weights,
+            own=own,
+        ):
             coefs.append([coef.get(k, 0.0) for k in range(n)])
             values.append(value)
             weights.append(1.0 / sigma)
@@ -431,14 +489,14 @@ def _breath_bounds(t, x, cross, troughs, seen, seg, bounds, span_s: float, perio
                     obs({i: 1.0 - fd, i + 1: fd}, d, sd, ("c", i))
         if not coefs:
             continue
-        for i in range(n - 1):       # a weak prior: a breath is about the typical length
+        for i in range(n - 1):  # a weak prior: a breath is about the typical length
             obs({i: -1.0, i + 1: 1.0}, L, PRIOR_K * L, None)
         # the chain's place, when only the prior speaks of a boundary: keeps the fit solvable
         obs({0: 1.0}, float(next(v for b in br for v in b if v is not None)), 1e6, None)
         A, y, w = np.array(coefs), np.array(values), np.array(weights)
         use = np.ones(len(y), bool)
         bad = set()
-        for _ in range(len(y)):         # the landmark furthest off one breath's shape out, until all fit
+        for _ in range(len(y)):  # the landmark furthest off one breath's shape out, until all fit
             Aw = A[use] * w[use, None]
             cov = np.linalg.pinv(Aw.T @ Aw)
             B = cov @ (Aw.T @ (y[use] * w[use]))
@@ -455,4 +513,3 @@ def _breath_bounds(t, x, cross, troughs, seen, seg, bounds, span_s: float, perio
                 continue
             out.append((float(B[i]), float(B[i + 1]), s))
     return out
-

@@ -35,13 +35,13 @@ __all__ = ["MotionEvent", "body_speed", "find_events", "relative_six_dof", "medi
 class MotionEvent:
     t_start: float
     t_end: float
-    change: list            # tx, ty, tz mm, rx, ry, rz deg: pose after relative to before
-    shift_mm: float         # largest displacement of a reference marker
+    change: list  # tx, ty, tz mm, rx, ry, rz deg: pose after relative to before
+    shift_mm: float  # largest displacement of a reference marker
     angle_deg: float
-    centre_mm: float        # displacement of the markers' centroid
-    start_bounds: tuple | None = None    # (earliest, latest) when the start fell in unknown time
+    centre_mm: float  # displacement of the markers' centroid
+    start_bounds: tuple | None = None  # (earliest, latest) when the start fell in unknown time
     end_bounds: tuple | None = None
-    start_why: str = "no pose"           # why the start is bounded: "no pose", "noisy pose"
+    start_why: str = "no pose"  # why the start is bounded: "no pose", "noisy pose"
 
     @property
     def t_mid(self) -> float:
@@ -53,14 +53,26 @@ class MotionEvent:
 
     def to_json(self, t0: float = 0.0) -> dict:
         b = lambda x: None if x is None else [float(x[0]) - t0, float(x[1]) - t0]  # noqa: E731
-        return {"t_start": self.t_start - t0, "t_end": self.t_end - t0, "duration_s": self.t_end - self.t_start,
-                "start": self.start_known, "start_bounds_s": b(self.start_bounds),
-                "start_bounded_why": None if self.start_bounds is None else (
-                    "in time without a pose" if self.start_why == "no pose" else
-                    "the pose too noisy there to time it (its speed's jitter as high as the move's)"),
-                "end": "measured" if self.end_bounds is None else "bounded", "end_bounds_s": b(self.end_bounds),
-                "change_6dof": [float(x) for x in self.change], "max_marker_shift_mm": self.shift_mm,
-                "centroid_shift_mm": self.centre_mm, "rotation_deg": self.angle_deg}
+        return {
+            "t_start": self.t_start - t0,
+            "t_end": self.t_end - t0,
+            "duration_s": self.t_end - self.t_start,
+            "start": self.start_known,
+            "start_bounds_s": b(self.start_bounds),
+            "start_bounded_why": None
+            if self.start_bounds is None
+            else (
+                "in time without a pose"
+                if self.start_why == "no pose"
+                else "the pose too noisy there to time it (its speed's jitter as high as the move's)"
+            ),
+            "end": "measured" if self.end_bounds is None else "bounded",
+            "end_bounds_s": b(self.end_bounds),
+            "change_6dof": [float(x) for x in self.change],
+            "max_marker_shift_mm": self.shift_mm,
+            "centroid_shift_mm": self.centre_mm,
+            "rotation_deg": self.angle_deg,
+        }
 
 
 def _mad_sigma(x):
@@ -76,7 +88,7 @@ def body_speed(pose, markers_ref, half_window_s: float = 0.2, min_span_s: float 
     lie in the frame's stretch of seen time (holes of a few frames are stepped over, as long as
     ``min_span_s`` of it is left)."""
     t = pose.t
-    X = pose.points(markers_ref)                       # (F, K, 3)
+    X = pose.points(markers_ref)  # (F, K, 3)
     valid = pose.valid
     F = len(t)
     sp = np.full(F, np.nan)
@@ -85,12 +97,12 @@ def body_speed(pose, markers_ref, half_window_s: float = 0.2, min_span_s: float 
     fs = sample_rate(t)
     h = max(1, int(round(half_window_s * fs)))
     idx = np.arange(F)
-    prev_ok = np.maximum.accumulate(np.where(valid, idx, -1))                  # last valid <= k
-    next_ok = np.minimum.accumulate(np.where(valid, idx, F)[::-1])[::-1]       # first valid >= k
+    prev_ok = np.maximum.accumulate(np.where(valid, idx, -1))  # last valid <= k
+    next_ok = np.minimum.accumulate(np.where(valid, idx, F)[::-1])[::-1]  # first valid >= k
     for a, b in seen_runs(valid, 1.0 / fs, MAX_HOLE_S):
-        k = np.arange(a + h, b - h)          # the whole window inside the stretch: a frame at a
-        if k.size == 0:                       # gap's edge (its pose fitted from fewer markers,
-            continue                          # views not time-aligned) never makes a speed
+        k = np.arange(a + h, b - h)  # the whole window inside the stretch: a frame at a
+        if k.size == 0:  # gap's edge (its pose fitted from fewer markers,
+            continue  # views not time-aligned) never makes a speed
         lo = next_ok[k - h]
         hi = prev_ok[k + h]
         dt = t[hi] - t[lo]
@@ -160,13 +172,25 @@ def _local_noise(t, sp, window_s: float, step: int = 5, least: int = 25):
         if w.sum() >= least:
             x = sp[w]
             m = float(np.median(x))
-            med[k:k + step], sig[k:k + step] = m, 1.4826 * float(np.median(np.abs(x - m)))
+            med[k : k + step], sig[k : k + step] = m, 1.4826 * float(np.median(np.abs(x - m)))
     return med, sig
 
 
-def find_events(pose, markers_ref, *, min_speed: float = 1.0, k_hi: float = 6.0, k_lo: float = 2.5,
-                merge_s: float = 0.5, settle_s: float = 1.0, event_mm: float = 1.0, event_deg: float = 0.5,
-                min_duration_s: float = 0.1, half_window_s: float = 0.2, noise_window_s: float = 5.0):
+def find_events(
+    pose,
+    markers_ref,
+    *,
+    min_speed: float = 1.0,
+    k_hi: float = 6.0,
+    k_lo: float = 2.5,
+    merge_s: float = 0.5,
+    settle_s: float = 1.0,
+    event_mm: float = 1.0,
+    event_deg: float = 0.5,
+    min_duration_s: float = 0.1,
+    half_window_s: float = 0.2,
+    noise_window_s: float = 5.0,
+):
     """(events, speed, moving mask, thresholds dict). See the module."""
     t = pose.t
     sp = body_speed(pose, markers_ref, half_window_s)
@@ -182,7 +206,7 @@ def find_events(pose, markers_ref, *, min_speed: float = 1.0, k_hi: float = 6.0,
     hi_f = np.maximum(hi, l_med + k_hi * l_sig)
     lo_f = np.maximum(lo, l_med + k_lo * l_sig)
     measured = sp
-    sp = _step_over_holes(sp, period)             # a missing frame or two is no unknown time
+    sp = _step_over_holes(sp, period)  # a missing frame or two is no unknown time
     known = np.isfinite(sp)
     x = np.nan_to_num(sp, nan=0.0)
 
@@ -196,7 +220,7 @@ def find_events(pose, markers_ref, *, min_speed: float = 1.0, k_hi: float = 6.0,
                 a -= 1
             while b < hi_i and x[b] > low[b]:
                 b += 1
-            if out and (t[a] - t[out[-1][1] - 1] < merge_s or not known[out[-1][1]:a].any()):
+            if out and (t[a] - t[out[-1][1] - 1] < merge_s or not known[out[-1][1] : a].any()):
                 out[-1] = (out[-1][0], max(b, out[-1][1]))
             else:
                 out.append((a, b))
@@ -211,7 +235,7 @@ def find_events(pose, markers_ref, *, min_speed: float = 1.0, k_hi: float = 6.0,
         inner = spans_of(x > hi_f, lo_f, a, b)
         spans += inner if inner else [(a, b)]
         if not inner and (hi_f[a:b] > hi + 1e-9).any():
-            noisy.add((a, b))         # its start cannot be told from the jitter: bounded (by its peak)
+            noisy.add((a, b))  # its start cannot be told from the jitter: bounded (by its peak)
     events = []
     moving = np.zeros(F, bool)
     centre = pose.centre
@@ -221,8 +245,8 @@ def find_events(pose, markers_ref, *, min_speed: float = 1.0, k_hi: float = 6.0,
         and from row ``i1`` differ by event_mm or event_deg."""
         before = (t >= t[i0] - settle_s) & (t <= t[i0])
         after = (t >= t[i1]) & (t <= t[i1] + settle_s)
-        if jump:                                   # no frame seen moving on either side (a stretch
-            still = ~(np.nan_to_num(sp) > lo_f) & ~moving   # too short for a speed counts)
+        if jump:  # no frame seen moving on either side (a stretch
+            still = ~(np.nan_to_num(sp) > lo_f) & ~moving  # too short for a speed counts)
             before, after = before & still & pose.valid, after & still & pose.valid
             if min(before.sum(), after.sum()) * period < 0.2:
                 return None
@@ -236,7 +260,7 @@ def find_events(pose, markers_ref, *, min_speed: float = 1.0, k_hi: float = 6.0,
             moving[(t >= ta) & (t <= tb)] = True
         if kept:
             if start_b is not None and start_b[1] > tb:
-                start_b = (start_b[0], tb)         # a move starts before it ends
+                start_b = (start_b[0], tb)  # a move starts before it ends
             return MotionEvent(ta, tb, relative_six_dof(R0, T0, R1, T1).tolist(), shift, ang, c, start_b, end_b)
         return None
 
@@ -246,40 +270,50 @@ def find_events(pose, markers_ref, *, min_speed: float = 1.0, k_hi: float = 6.0,
     touched = np.zeros(F, bool)
     for a, b in spans:
         if a == 0 or b == F:
-            continue                               # no pose before (after) it to compare with
+            continue  # no pose before (after) it to compare with
         start_b = end_b = None
         i0, i1 = a - 1, b
-        if not known[a - 1]:                       # it began in time without a pose
+        if not known[a - 1]:  # it began in time without a pose
             i0 = _known_before(sp, a)
             if i0 < 0:
                 continue
             start_b = (float(t[i0]) - h, float(t[a]) + h)
-        if not known[b]:                           # it ended in time without a pose
+        if not known[b]:  # it ended in time without a pose
             i1 = _known_after(sp, b)
             if i1 < 0:
                 continue
             end_b = (float(t[b - 1]) - h, float(t[i1]) + h)
-        touched[i0:i1 + 1] = True
+        touched[i0 : i1 + 1] = True
         if t[b - 1] - t[a] < min_duration_s and start_b is None and end_b is None:
             continue
         why = "no pose"
-        if start_b is None and (a, b) in noisy:    # begun by its fastest frame, at the latest
+        if start_b is None and (a, b) in noisy:  # begun by its fastest frame, at the latest
             start_b, why = (float(t[a]) - h, float(t[a + int(np.argmax(x[a:b]))]) + h), "noisy pose"
-        e = judge(i0, i1, start_b[0] if start_b else float(t[a]), end_b[1] if end_b else float(t[b - 1]),
-                  start_b, end_b)
+        e = judge(
+            i0, i1, start_b[0] if start_b else float(t[a]), end_b[1] if end_b else float(t[b - 1]), start_b, end_b
+        )
         if e is not None:
             e.start_why = why
             events.append(e)
     # a pose that changed across time without a pose, with no motion seen at its edges
     for a, b in runs(~pose.valid):
-        if a == 0 or b == F or (b - a) * period <= MAX_HOLE_S + 1e-9 or touched[a - 1:b + 1].any():
-            continue                               # (a move takes longer than a hole of a few frames)
+        if a == 0 or b == F or (b - a) * period <= MAX_HOLE_S + 1e-9 or touched[a - 1 : b + 1].any():
+            continue  # (a move takes longer than a hole of a few frames)
         bound = (float(t[a - 1]) - h, float(t[b]) + h)
         e = judge(a - 1, b, bound[0], bound[1], bound, bound, jump=True)
         if e is not None:
             events.append(e)
     events.sort(key=lambda e: e.t_start)
     raised = hi_f > hi + 1e-9
-    return events, measured, moving, {"hi_mm_s": hi, "lo_mm_s": lo, "noise_mm_s": sigma,
-                                      "hi_max_mm_s": float(hi_f.max()) if F else hi,
-                                      "raised_s": float(raised.sum() * period)}
+    return (
+        events,
+        measured,
+        moving,
+        {
+            "hi_mm_s": hi,
+            "lo_mm_s": lo,
+            "noise_mm_s": sigma,
+            "hi_max_mm_s": float(hi_f.max()) if F else hi,
+            "raised_s": float(raised.sum() * period),
+        },
+    )

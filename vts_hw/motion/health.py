@@ -18,7 +18,7 @@ def body_pose_health(pose, patient, frames=None) -> HealthSeries:
     MarkerSeries of the patient's markers it was fitted to (same rows); ``frames``: per row
     whether a frame set was recorded (None: every row)."""
     n = np.asarray(pose.n_markers, float)
-    rms = np.where(np.isfinite(np.asarray(pose.T, float)[:, 0]), pose.rms_mm, np.nan)   # no pose: not known
+    rms = np.where(np.isfinite(np.asarray(pose.T, float)[:, 0]), pose.rms_mm, np.nan)  # no pose: not known
     cams = None
     if getattr(patient, "cameras", None) is not None and patient.cameras.size:
         c = np.asarray(patient.cameras, float)

@@ -22,14 +22,14 @@ from vts_hw.vision.registration import kabsch
 
 __all__ = ["MarkerSeries", "marker_series", "join_pieces"]
 
-JOIN_MM = 25.0        # pieces of one marker meet within this across a gap
-JOIN_GAP_S = 10.0     # ... and follow one another within this
-COHORT_S = 0.5        # pieces starting this close together after a gap are matched as one body
+JOIN_MM = 25.0  # pieces of one marker meet within this across a gap
+JOIN_GAP_S = 10.0  # ... and follow one another within this
+COHORT_S = 0.5  # pieces starting this close together after a gap are matched as one body
 COHORT_GAP_S = 600.0  # ... after a gap of up to this (a rigid match of 3 or more does not happen by chance)
 RIGID_GATE_MM = 12.0  # ... each within this of its marker after the body's rigid motion (breathing
-                      # changes the band's shape by a few mm between two breath levels)
-BAND_GATE_MM = 50.0   # a piece and a marker no rigid motion pairs: one another's nearest within this,
-BAND_RATIO = 2.5      # ... any other this many times as far (_band_pairs)
+# changes the band's shape by a few mm between two breath levels)
+BAND_GATE_MM = 50.0  # a piece and a marker no rigid motion pairs: one another's nearest within this,
+BAND_RATIO = 2.5  # ... any other this many times as far (_band_pairs)
 
 
 @dataclass
@@ -47,19 +47,26 @@ class MarkerSeries:
     cameras: np.ndarray | None = None
     camera_names: list = field(default_factory=list)
     camera_sets: list = field(default_factory=list)
-    numbers: list = field(default_factory=list)   # per column: the marker's number in the whole series
+    numbers: list = field(default_factory=list)  # per column: the marker's number in the whole series
 
     @property
     def seen(self) -> np.ndarray:
         """(F, M) bool."""
         return np.isfinite(self.P[..., 0])
 
-    def subset(self, cols) -> "MarkerSeries":
+    def subset(self, cols) -> MarkerSeries:
         cols = list(cols)
-        return MarkerSeries(self.t, self.P[:, cols], [self.ids[c] for c in cols], self.clock, self.frame,
-                            None if self.cameras is None else self.cameras[:, cols], list(self.camera_names),
-                            [self.camera_sets[c] for c in cols] if self.camera_sets else [],
-                            [self.number(c) for c in cols])
+        return MarkerSeries(
+            self.t,
+            self.P[:, cols],
+            [self.ids[c] for c in cols],
+            self.clock,
+            self.frame,
+            None if self.cameras is None else self.cameras[:, cols],
+            list(self.camera_names),
+            [self.camera_sets[c] for c in cols] if self.camera_sets else [],
+            [self.number(c) for c in cols],
+        )
 
     def number(self, m: int) -> int:
         """Marker m's number (1, 2, ... in the order the markers were first seen; kept by subset)."""
@@ -100,7 +107,7 @@ def rigid_match(starts, ends, gate_mm: float = RIGID_GATE_MM, start_gate_mm: flo
             return []
         try:
             tr = kabsch(S[[i for i, _ in pairs]], E[[a for _, a in pairs]])
-        except ValueError:      # the pairs on one line: no turn can be told
+        except ValueError:  # the pairs on one line: no turn can be told
             return []
         moved = tr.apply(S)
     return pairs
@@ -211,12 +218,21 @@ def marker_series(tracks, *, join_mm: float = JOIN_MM, use_spect: bool = True) -
     ncam = np.zeros((F, M), int)
     cams = tracks.point_cameras
     c_of = np.array([col[m] for m in mk.tolist()])
-    P[pf, c_of] = xyz            # a second point of one marker in one frame: the last wins
+    P[pf, c_of] = xyz  # a second point of one marker in one frame: the last wins
     ncam[pf, c_of] = cams.sum(axis=1)
     names = list(tracks.camera_names)
     sets = []
     for c in range(M):
         sel = c_of == c
         sets.append({n: int(cams[sel, k].sum()) for k, n in enumerate(names)})
-    return MarkerSeries(t_frames, P, chains, "spect" if spect_clock else "host",
-                        "spect" if spect_frame else "vts", ncam, names, sets, list(range(1, M + 1)))
+    return MarkerSeries(
+        t_frames,
+        P,
+        chains,
+        "spect" if spect_clock else "host",
+        "spect" if spect_frame else "vts",
+        ncam,
+        names,
+        sets,
+        list(range(1, M + 1)),
+    )

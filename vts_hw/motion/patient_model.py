@@ -31,19 +31,28 @@ from vts_hw.errors import DataError
 from vts_hw.motion.markers import rigid_match
 from vts_hw.vision.registration import kabsch_batch
 
-__all__ = ["PatientModel", "InstantPose", "learn_model", "rigid_poses", "back_to_reference", "orient",
-           "model_columns", "MIN_MARKERS", "MODEL_FORMAT"]
+__all__ = [
+    "PatientModel",
+    "InstantPose",
+    "learn_model",
+    "rigid_poses",
+    "back_to_reference",
+    "orient",
+    "model_columns",
+    "MIN_MARKERS",
+    "MODEL_FORMAT",
+]
 
 MIN_MARKERS = 3
 MODEL_FORMAT = "vts-hw patient model v1"
-ROBUST_MM = (10.0, 5.0, 3.0)     # Tukey scales of the fit's iterations (the last from then on)
+ROBUST_MM = (10.0, 5.0, 3.0)  # Tukey scales of the fit's iterations (the last from then on)
 #: a frame's fit stops, at the last robust scale, once its step is below these: rad of the turn,
 #: mm of the shift and of the breathing signal (docs/decisions/0093)
 CONVERGED = (1e-10, 1e-8)
-MAX_MM = 1e5          # a model read back: positions further than this from the origin are not a room's
-MAX_VECTOR = 100.0    # ... nor breathing vectors longer than this (they are scaled to the largest: 1)
-MIN_BREATH_MM = 0.6   # the marker that breathes most moves at least this (5th to 95th percentile) in
-                      # the reference period, or the model has no breathing term (a still patient)
+MAX_MM = 1e5  # a model read back: positions further than this from the origin are not a room's
+MAX_VECTOR = 100.0  # ... nor breathing vectors longer than this (they are scaled to the largest: 1)
+MIN_BREATH_MM = 0.6  # the marker that breathes most moves at least this (5th to 95th percentile) in
+# the reference period, or the model has no breathing term (a still patient)
 
 
 def back_to_reference(R, T, P):
@@ -62,10 +71,11 @@ def rigid_poses(P, seen, ref, scales=(60.0, 40.0), weights=None):
     R = T = None
     for c in scales:
         R, T, _ = kabsch_batch(ref0, P, use, w)
-        res = np.linalg.norm(np.where(use[..., None], P - (np.einsum("fij,mj->fmi", R, ref0) + T[:, None]), 0.0),
-                             axis=2)
+        res = np.linalg.norm(
+            np.where(use[..., None], P - (np.einsum("fij,mj->fmi", R, ref0) + T[:, None]), 0.0), axis=2
+        )
         u = np.clip(np.nan_to_num(res, nan=np.inf) / c, 0.0, 1.0)
-        w = np.where(use, (1 - u ** 2) ** 2, 0.0)
+        w = np.where(use, (1 - u**2) ** 2, 0.0)
     if R is None:
         R, T, _ = kabsch_batch(ref0, P, use, w)
     return R, T, w
@@ -74,7 +84,7 @@ def rigid_poses(P, seen, ref, scales=(60.0, 40.0), weights=None):
 _EYE3 = np.eye(3)
 _EYE7 = np.eye(7)
 _TOL7 = np.array([CONVERGED[0]] * 3 + [CONVERGED[1]] * 4)
-_CROSS = np.zeros((3, 9))            # q @ _CROSS: [q]x row by row
+_CROSS = np.zeros((3, 9))  # q @ _CROSS: [q]x row by row
 _CROSS[2, 1] = _CROSS[0, 5] = _CROSS[1, 6] = -1.0
 _CROSS[1, 2] = _CROSS[2, 3] = _CROSS[0, 7] = 1.0
 
@@ -185,19 +195,19 @@ class PatientModel:
         Pz = np.where(seen[..., None], P, 0.0)
         seen_f = seen.astype(float)
         wm = seen_f
-        active = ok.copy()                   # frames still iterating
+        active = ok.copy()  # frames still iterating
         last_scale = max(len(robust_mm) - 1, 0) if robust_mm else 0
         J = np.zeros((F, M, 3, 7))
         J[..., 3:6] = _EYE3
         for it in range(iterations):
             Rt = R.transpose(0, 2, 1)
-            q = (ref[None] + v[None] * s[:, None, None]) @ Rt               # (F, M, 3): R (r + v s)
+            q = (ref[None] + v[None] * s[:, None, None]) @ Rt  # (F, M, 3): R (r + v s)
             e = Pz - q - T[:, None]
             c = robust_mm[min(it, len(robust_mm) - 1)] if robust_mm else np.inf
             w = np.where(seen, (1.0 - np.minimum(np.sum(e * e, axis=2) / (c * c), 1.0)) ** 2, 0.0)
             enough = np.count_nonzero(w, axis=1) >= MIN_MARKERS
-            w = np.where(enough[:, None], w, seen_f)                      # too few left: unweighted
-            wm = np.where(active[:, None], w, wm)                         # a frame stopped keeps its own
+            w = np.where(enough[:, None], w, seen_f)  # too few left: unweighted
+            wm = np.where(active[:, None], w, wm)  # a frame stopped keeps its own
             # J = [-[q]x, I, R v] per point, its rows weighted by w
             J[..., :3] = -_skew(q)
             J[..., 6] = v @ Rt
@@ -223,10 +233,11 @@ class PatientModel:
                 if not active.any():
                     break
         used = seen & (wm > 0)
-        res = np.where(used[..., None], P - (ref[None] + v[None] * s[:, None, None]) @ R.transpose(0, 2, 1)
-                       - T[:, None], 0.0)
-        rms = np.sqrt(np.sum(res ** 2, axis=(1, 2)) / np.maximum(used.sum(axis=1), 1))
-        if not ok.all():                      # (R, T, s, rms are this call's own arrays)
+        res = np.where(
+            used[..., None], P - (ref[None] + v[None] * s[:, None, None]) @ R.transpose(0, 2, 1) - T[:, None], 0.0
+        )
+        rms = np.sqrt(np.sum(res**2, axis=(1, 2)) / np.maximum(used.sum(axis=1), 1))
+        if not ok.all():  # (R, T, s, rms are this call's own arrays)
             R, T, s = R.copy(), T.copy(), s.copy()
             R[~ok], T[~ok], s[~ok], rms[~ok] = np.nan, np.nan, np.nan, np.nan
             used[~ok] = False
@@ -259,22 +270,29 @@ class PatientModel:
         def f(x):
             return None if x is None or not np.isfinite(x) else round(float(x), 6)
 
-        return {"format": MODEL_FORMAT, "frame": self.frame, "clock": self.clock,
-                "reference_mm": r(self.reference), "breathing_vectors": r(self.vectors),
-                "bands": [list(map(int, g)) for g in self.bands], "band_names": list(self.band_names),
-                "period": [f(self.period[0]), f(self.period[1])], "noise_mm": f(self.noise_mm),
-                "pose_noise_mm": f(self.pose_noise_mm), "pose_noise_deg": f(self.pose_noise_deg),
-                "breathes": bool(self.breathes)}
+        return {
+            "format": MODEL_FORMAT,
+            "frame": self.frame,
+            "clock": self.clock,
+            "reference_mm": r(self.reference),
+            "breathing_vectors": r(self.vectors),
+            "bands": [list(map(int, g)) for g in self.bands],
+            "band_names": list(self.band_names),
+            "period": [f(self.period[0]), f(self.period[1])],
+            "noise_mm": f(self.noise_mm),
+            "pose_noise_mm": f(self.pose_noise_mm),
+            "pose_noise_deg": f(self.pose_noise_deg),
+            "breathes": bool(self.breathes),
+        }
 
     @classmethod
-    def from_dict(cls, d) -> "PatientModel":
+    def from_dict(cls, d) -> PatientModel:
         """The model a session saved (DataError naming what is wrong)."""
         if not isinstance(d, dict) or d.get("format") != MODEL_FORMAT:
             raise DataError(f"not a patient model (format {MODEL_FORMAT!r} expected)")
         try:
             ref = np.array([[np.nan if x is None else float(x) for x in row] for row in d["reference_mm"]], float)
-            vec = np.array([[np.nan if x is None else float(x) for x in row] for row in d["breathing_vectors"]],
-                           float)
+            vec = np.array([[np.nan if x is None else float(x) for x in row] for row in d["breathing_vectors"]], float)
             if ref.ndim != 2 or ref.shape[1:] != (3,) or vec.shape != ref.shape or len(ref) < MIN_MARKERS:
                 raise ValueError("reference_mm and breathing_vectors must be the same list of 3 or more [x, y, z]")
             if np.isfinite(ref).all(axis=1).sum() < MIN_MARKERS or not (np.abs(ref[np.isfinite(ref)]) <= MAX_MM).all():
@@ -284,6 +302,7 @@ class PatientModel:
             bands = [[int(i) for i in g] for g in d["bands"]]
             if any(i < 0 or i >= len(ref) for g in bands for i in g):
                 raise ValueError("a band names a marker the model does not have")
+
             def num(x):
                 return float("nan") if x is None else float(x)
 
@@ -293,8 +312,19 @@ class PatientModel:
             frame = str(d["frame"])
             if frame not in ("spect", "vts"):
                 raise ValueError(f"frame {frame!r} is not spect or vts")
-            return cls(ref, vec, frame, bands, [str(n) for n in d["band_names"]], period, str(d["clock"]),
-                       num(d["noise_mm"]), num(d["pose_noise_mm"]), num(d["pose_noise_deg"]), bool(d["breathes"]))
+            return cls(
+                ref,
+                vec,
+                frame,
+                bands,
+                [str(n) for n in d["band_names"]],
+                period,
+                str(d["clock"]),
+                num(d["noise_mm"]),
+                num(d["pose_noise_mm"]),
+                num(d["pose_noise_deg"]),
+                bool(d["breathes"]),
+            )
         except (KeyError, TypeError, ValueError) as exc:
             raise DataError(f"patient model: {exc}") from None
 
@@ -341,8 +371,18 @@ def orient(vectors, s, frame: str):
     return vectors / (scale * sign), s * scale * sign, scale
 
 
-def learn_model(t, P, seen=None, *, frame: str = "spect", bands=None, band_names=None, clock: str = "host",
-                iterations: int = 3, min_breath_mm: float = MIN_BREATH_MM) -> PatientModel:
+def learn_model(
+    t,
+    P,
+    seen=None,
+    *,
+    frame: str = "spect",
+    bands=None,
+    band_names=None,
+    clock: str = "host",
+    iterations: int = 3,
+    min_breath_mm: float = MIN_BREATH_MM,
+) -> PatientModel:
     """The model from one still period: positions ``P`` (S, M, 3) at times ``t`` (S,) (NaN where a
     marker was not seen; each marker needs a few instants). The reference is the markers' mean
     (their breathing's mean level), the breathing vectors each marker's displacement per unit of
@@ -355,14 +395,16 @@ def learn_model(t, P, seen=None, *, frame: str = "spect", bands=None, band_names
     seen = np.isfinite(P[..., 0]) if seen is None else np.asarray(seen, bool) & np.isfinite(P[..., 0])
     if P.ndim != 3 or P.shape[1] < MIN_MARKERS:
         raise DataError(f"a patient model needs {MIN_MARKERS} or more markers")
-    ref = np.array([P[seen[:, m], m].mean(axis=0) if seen[:, m].sum() >= 3 else [np.nan] * 3
-                    for m in range(P.shape[1])])
+    ref = np.array(
+        [P[seen[:, m], m].mean(axis=0) if seen[:, m].sum() >= 3 else [np.nan] * 3 for m in range(P.shape[1])]
+    )
     if np.isfinite(ref[:, 0]).sum() < MIN_MARKERS:
         raise DataError(f"fewer than {MIN_MARKERS} markers were seen often enough for a patient model")
     # the body keeps still over the period: one pose for all of it (the reference's), so that
     # the rigid part of breathing (the chest lifting) goes into the vectors, not into the pose
-    model = PatientModel(ref, np.zeros_like(ref), frame, bands or [], band_names or [], (float(t[0]), float(t[-1])),
-                         clock)
+    model = PatientModel(
+        ref, np.zeros_like(ref), frame, bands or [], band_names or [], (float(t[0]), float(t[-1])), clock
+    )
     D = P - ref[None]
     s = _principal(D, seen)
     a, v = _regress(D, seen, s)
@@ -370,8 +412,11 @@ def learn_model(t, P, seen=None, *, frame: str = "spect", bands=None, band_names
     model.vectors = v
     s = s - np.nanmean(s)
     R, T, s, _, _ = model.fit(P, seen, None, None, s, iterations=max(6, iterations))
-    proj = np.where(seen, np.einsum("fmi,mi->fm", back_to_reference(R, T, P) - model.reference[None],
-                                    np.nan_to_num(model.vectors)), np.nan)
+    proj = np.where(
+        seen,
+        np.einsum("fmi,mi->fm", back_to_reference(R, T, P) - model.reference[None], np.nan_to_num(model.vectors)),
+        np.nan,
+    )
     lead = int(np.argmax(np.linalg.norm(model.vectors, axis=1)))
     lp = proj[:, lead][np.isfinite(proj[:, lead])]
     spread = float(np.percentile(lp, 95) - np.percentile(lp, 5)) if len(lp) >= 3 else 0.0
@@ -389,6 +434,7 @@ def learn_model(t, P, seen=None, *, frame: str = "spect", bands=None, band_names
     c = model.centre
     moves = np.linalg.norm(np.einsum("fij,j->fi", R[ok], c) + T[ok] - c, axis=1)
     turns = np.degrees(Rotation.from_matrix(R[ok]).magnitude()) if ok.any() else np.zeros(0)
+
     def q(x):
         return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float("nan")
 
@@ -411,7 +457,7 @@ def model_columns(t, P, model: PatientModel, first_s: float = 10.0, gate_mm: flo
     if C == 0 or not seen.any():
         return out
     t0 = float(t[np.flatnonzero(seen.any(axis=1))[0]])
-    early = (t <= t0 + first_s)
+    early = t <= t0 + first_s
     cols = [c for c in range(C) if (seen[early, c]).sum() >= 3]
     starts = np.array([np.median(P[early & seen[:, c], c], axis=0) for c in cols]).reshape(-1, 3)
     ref = model.reference
@@ -426,7 +472,7 @@ def model_columns(t, P, model: PatientModel, first_s: float = 10.0, gate_mm: flo
         for c in cs:
             Pm[:, m] = P[:, c]
     R, T, s, _, _ = model.fit(Pm)
-    body = back_to_reference(R, T, P)                                    # (F, C, 3)
+    body = back_to_reference(R, T, P)  # (F, C, 3)
     for c in range(C):
         if c in taken:
             continue
@@ -434,8 +480,9 @@ def model_columns(t, P, model: PatientModel, first_s: float = 10.0, gate_mm: flo
         if ok.sum() < 3:
             continue
         # its points in the body frame, less each candidate's breathing at that instant
-        d = np.linalg.norm(body[ok, c][:, None, :] - (ref[None] + model.vectors[None] * np.nan_to_num(s[ok])[:, None, None]),
-                           axis=2)
+        d = np.linalg.norm(
+            body[ok, c][:, None, :] - (ref[None] + model.vectors[None] * np.nan_to_num(s[ok])[:, None, None]), axis=2
+        )
         med = np.nanmedian(d, axis=0)
         for m in np.argsort(med):
             if not np.isfinite(med[m]) or med[m] > gate_mm:

@@ -40,7 +40,7 @@ def _filt(t, x, btype, cut, order=2):
     fs = sample_rate(t)
     nyq = fs / 2.0
     wn = np.clip(np.atleast_1d(np.asarray(cut, float)) / nyq, 1e-4, 0.99)
-    sos = _design(order, tuple(float(w) for w in wn), btype).copy()     # (the filter wants its own)
+    sos = _design(order, tuple(float(w) for w in wn), btype).copy()  # (the filter wants its own)
     x = fill_gaps(t, x)
     if len(x) < 15:
         return x - x.mean(axis=0) if btype != "lowpass" else x

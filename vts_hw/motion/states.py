@@ -34,28 +34,43 @@ class MotionState:
     index: int
     t_start: float
     t_end: float
-    six_dof: list = field(default_factory=list)    # from the reference
+    six_dof: list = field(default_factory=list)  # from the reference
     R: np.ndarray | None = None
     T: np.ndarray | None = None
     frames: int = 0
     moving_frames: int = 0
     intervals: list = field(default_factory=list)  # [start, end) the state covers (see cover_states)
-    unknown_s: float = 0.0                         # time of its span it does not cover
+    unknown_s: float = 0.0  # time of its span it does not cover
 
     def to_json(self, t0: float = 0.0) -> dict:
-        return {"state": self.index, "t_start": self.t_start - t0, "t_end": self.t_end - t0,
-                "intervals_s": [[a - t0, b - t0] for a, b in self.intervals], "unknown_s": self.unknown_s,
-                "six_dof": [float(x) for x in self.six_dof], "frames": self.frames,
-                "moving_frames": self.moving_frames}
+        return {
+            "state": self.index,
+            "t_start": self.t_start - t0,
+            "t_end": self.t_end - t0,
+            "intervals_s": [[a - t0, b - t0] for a, b in self.intervals],
+            "unknown_s": self.unknown_s,
+            "six_dof": [float(x) for x in self.six_dof],
+            "frames": self.frames,
+            "moving_frames": self.moving_frames,
+        }
 
 
-def motion_states(pose, events, moving, markers_ref, *, state_mm: float = 2.0, state_deg: float = 1.0,
-                  persist_s: float = 1.0, settle_s: float = 1.0):
+def motion_states(
+    pose,
+    events,
+    moving,
+    markers_ref,
+    *,
+    state_mm: float = 2.0,
+    state_deg: float = 1.0,
+    persist_s: float = 1.0,
+    settle_s: float = 1.0,
+):
     """The motion states (see the module), in time order, their spans tiling every row."""
     t = pose.t
     valid = pose.valid
     centre = pose.centre
-    C = pose.points(centre[None])[:, 0]                      # (F, 3) the centroid carried
+    C = pose.points(centre[None])[:, 0]  # (F, 3) the centroid carried
     ang_ref = lambda R0, k: np.degrees(Rotation.from_matrix(pose.R[k] @ R0.T).magnitude())  # noqa: E731
     bounds = [float(t[0])]
     t_first = float(t[valid][0]) if valid.any() else float(t[0])
@@ -112,8 +127,18 @@ def state_rows(states, t) -> np.ndarray:
     return out
 
 
-def cover_states(states, pose, moving, markers_ref, period: float, *, event_mm: float = 1.0,
-                 event_deg: float = 0.5, bridge_s: float = BRIDGE_S, settle_s: float = 1.0):
+def cover_states(
+    states,
+    pose,
+    moving,
+    markers_ref,
+    period: float,
+    *,
+    event_mm: float = 1.0,
+    event_deg: float = 0.5,
+    bridge_s: float = BRIDGE_S,
+    settle_s: float = 1.0,
+):
     """Fill each state's ``intervals`` and ``unknown_s`` (see the module). Returns ``(covered,
     bridged)``: (F,) the rows some state covers, and the bridged stretches as [start, end) s."""
     t = pose.t
@@ -125,7 +150,7 @@ def cover_states(states, pose, moving, markers_ref, period: float, *, event_mm: 
     for a, b in runs(~valid):
         if a == 0 or b == F or (b - a) * period > bridge_s + 1e-9 or rows[a - 1] != rows[b]:
             continue
-        if moving[max(0, a - 1):min(F, b + 1)].any():
+        if moving[max(0, a - 1) : min(F, b + 1)].any():
             continue
         R0, T0 = median_pose(pose, (t >= t[a - 1] - settle_s) & (t < t[a]))
         R1, T1 = median_pose(pose, (t > t[b - 1]) & (t <= t[b] + settle_s))
@@ -137,7 +162,8 @@ def cover_states(states, pose, moving, markers_ref, period: float, *, event_mm: 
             bridged.append([float(t[a] - period / 2), float(t[b - 1] + period / 2)])
     for s in states:
         sel = covered & (rows == s.index)
-        s.intervals = [[max(float(t[a] - period / 2), s.t_start), min(float(t[b - 1] + period / 2), s.t_end)]
-                       for a, b in runs(sel)]
+        s.intervals = [
+            [max(float(t[a] - period / 2), s.t_start), min(float(t[b - 1] + period / 2), s.t_end)] for a, b in runs(sel)
+        ]
         s.unknown_s = float(np.count_nonzero((rows == s.index) & ~covered) * period)
     return covered, bridged

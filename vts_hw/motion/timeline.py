@@ -25,7 +25,7 @@ from vts_hw.motion.markers import MarkerSeries
 
 __all__ = ["Timeline", "on_grid", "runs", "seen_runs", "MAX_HOLE_S"]
 
-MAX_HOLE_S = 0.2        # a hole this short inside seen time hides no breath and no move's shape
+MAX_HOLE_S = 0.2  # a hole this short inside seen time hides no breath and no move's shape
 
 
 def runs(mask) -> list[tuple[int, int]]:
@@ -75,8 +75,15 @@ class Timeline:
             nf = bool((~self.frames[a:b]).any())
             fm = bool(self.frames[a:b].any())
             why = "no frames / fewer than 3 markers" if nf and fm else ("no frames" if nf else "fewer than 3 markers")
-            out.append({"t_start": float(self.t[a] - self.period / 2), "t_end": float(self.t[b - 1] + self.period / 2),
-                        "seconds": float((b - a) * self.period), "why": why, "rows": (a, b)})
+            out.append(
+                {
+                    "t_start": float(self.t[a] - self.period / 2),
+                    "t_end": float(self.t[b - 1] + self.period / 2),
+                    "seconds": float((b - a) * self.period),
+                    "why": why,
+                    "rows": (a, b),
+                }
+            )
         return out
 
     def coverage(self, valid) -> dict:
@@ -85,11 +92,16 @@ class Timeline:
         nf = ~self.frames
         few = self.frames & ~valid
         gaps = runs(nf)
-        return {"duration_s": self.duration_s, "pose_s": self.seconds(valid),
-                "share": float(valid.mean()) if len(valid) else 0.0,
-                "no_frames_s": self.seconds(nf), "no_frames_gaps": len(gaps),
-                "longest_gap_s": max(((b - a) * self.period for a, b in gaps), default=0.0),
-                "few_markers_s": self.seconds(few), "few_markers_stretches": len(runs(few))}
+        return {
+            "duration_s": self.duration_s,
+            "pose_s": self.seconds(valid),
+            "share": float(valid.mean()) if len(valid) else 0.0,
+            "no_frames_s": self.seconds(nf),
+            "no_frames_gaps": len(gaps),
+            "longest_gap_s": max(((b - a) * self.period for a, b in gaps), default=0.0),
+            "few_markers_s": self.seconds(few),
+            "few_markers_stretches": len(runs(few)),
+        }
 
 
 def _grid_times(t, period, start, end):
@@ -104,7 +116,7 @@ def _grid_times(t, period, start, end):
     cut = np.flatnonzero(d > 1.5 * period)
     prev = 0
     for i in cut:
-        parts.append(t[prev:i + 1])
+        parts.append(t[prev : i + 1])
         real.append(np.ones(i + 1 - prev, bool))
         n = int(round(d[i] / period)) - 1
         if n > 0:
@@ -137,6 +149,7 @@ def on_grid(series: MarkerSeries, span: tuple | None = None, missing=()) -> tupl
     if series.cameras is not None:
         cams = np.zeros((F,) + series.cameras.shape[1:], series.cameras.dtype)
         cams[real] = series.cameras
-    out = MarkerSeries(grid, P, series.ids, series.clock, series.frame, cams, list(series.camera_names),
-                       list(series.camera_sets))
+    out = MarkerSeries(
+        grid, P, series.ids, series.clock, series.frame, cams, list(series.camera_names), list(series.camera_sets)
+    )
     return out, Timeline(grid, real, period, list(missing))

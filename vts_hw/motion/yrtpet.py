@@ -40,15 +40,24 @@ import numpy as np
 from vts_hw.files import write_atomic
 from vts_hw.motion.castor import fov_centre, not_on_the_scanner
 
-__all__ = ["LOR_MOTION_CSV", "YRTPET_FRAME", "LorMotionPlan", "plan_lor_motion", "lor_motion_text",
-           "write_lor_motion", "UINT32_MAX"]
+__all__ = [
+    "LOR_MOTION_CSV",
+    "YRTPET_FRAME",
+    "LorMotionPlan",
+    "plan_lor_motion",
+    "lor_motion_text",
+    "write_lor_motion",
+    "UINT32_MAX",
+]
 
 LOR_MOTION_CSV = "yrtpet_lor_motion.csv"
-UINT32_MAX = 2 ** 32 - 1
-YRTPET_FRAME = ("YRT-PET's scanner frame, as the list-mode's detector positions have it: mm, the SPECT frame's "
-                "axes (right-handed; X towards the patient's left, Y anterior, Z towards the feet, for a head-first "
-                "supine patient), origin at the centre of the field of view, taken as the centre of the volume "
-                "the VTS -> SPECT mapping was made from")
+UINT32_MAX = 2**32 - 1
+YRTPET_FRAME = (
+    "YRT-PET's scanner frame, as the list-mode's detector positions have it: mm, the SPECT frame's "
+    "axes (right-handed; X towards the patient's left, Y anterior, Z towards the feet, for a head-first "
+    "supine patient), origin at the centre of the field of view, taken as the centre of the volume "
+    "the VTS -> SPECT mapping was made from"
+)
 
 
 @dataclass
@@ -67,23 +76,30 @@ class LorMotionPlan:
     def to_json(self, written: bool) -> dict:
         if self.why:
             return {"written": False, "why": self.why}
-        if self.centre is None:                  # set whenever there is no why
+        if self.centre is None:  # set whenever there is no why
             raise ValueError("a YRT-PET motion without its centre")
-        return {"written": written, "file": LOR_MOTION_CSV, "reader": "YRT-PET (lor_motion)", "frame": YRTPET_FRAME,
-                "centre_mm": [float(v) for v in self.centre],
-                "transform": "per line the inverse of the body pose about the FOV centre: each LOR's detector "
-                             "positions p -> R p + t land where they were in the reference pose",
-                "time": "each line's start, integer ms of the SPECT list-mode from the acquisition start",
-                "error": "1 - confidence (vts_hw.pose_health); 1 where the line has no pose of its own",
-                "lines": int(len(self.ms)), "held_lines": int(self.held)}
+        return {
+            "written": written,
+            "file": LOR_MOTION_CSV,
+            "reader": "YRT-PET (lor_motion)",
+            "frame": YRTPET_FRAME,
+            "centre_mm": [float(v) for v in self.centre],
+            "transform": "per line the inverse of the body pose about the FOV centre: each LOR's detector "
+            "positions p -> R p + t land where they were in the reference pose",
+            "time": "each line's start, integer ms of the SPECT list-mode from the acquisition start",
+            "error": "1 - confidence (vts_hw.pose_health); 1 where the line has no pose of its own",
+            "lines": int(len(self.ms)),
+            "held_lines": int(self.held),
+        }
 
 
 def plan_lor_motion(t, R, T, confidence, *, clock: str, frame: str, volume: dict | None) -> LorMotionPlan:
     """The lines for the pose ``R`` (F,3,3), ``T`` (F,3) (reference -> now, SPECT frame, NaN without
     a pose) at ``t`` (F,) list-mode s from the acquisition start, each with its ``confidence``; or why
     none are written."""
-    why = not_on_the_scanner("YRT-PET LOR motion file", clock, frame, "YRT-PET takes list-mode milliseconds",
-                             "the scanner's")
+    why = not_on_the_scanner(
+        "YRT-PET LOR motion file", clock, frame, "YRT-PET takes list-mode milliseconds", "the scanner's"
+    )
     if why:
         return LorMotionPlan(why=why)
     try:
@@ -110,14 +126,16 @@ def plan_lor_motion(t, R, T, confidence, *, clock: str, frame: str, volume: dict
     ms, Ri, ti, err, own = ms[keep], Ri[keep], ti[keep], err[keep], valid[keep]
     if len(before):
         ms[0] = 0
-    else:                                    # no frame before the first: the time to it has no pose
+    else:  # no frame before the first: the time to it has no pose
         ms, Ri, ti = np.concatenate([[0], ms]), np.concatenate([Ri[:1], Ri]), np.concatenate([ti[:1], ti])
         err, own = np.concatenate([[1.0], err]), np.concatenate([[False], own])
-    first = np.concatenate([[True], np.diff(ms) > 0])      # two frames in one ms: the first
+    first = np.concatenate([[True], np.diff(ms) > 0])  # two frames in one ms: the first
     ms, Ri, ti, err, own = ms[first], Ri[first], ti[first], err[first], own[first]
     if ms[-1] > UINT32_MAX:
-        return LorMotionPlan(why=f"YRT-PET LOR motion file not written: the scan lasts {ms[-1] / 1000:.0f} s, "
-                                 "past what its unsigned 32-bit milliseconds hold")
+        return LorMotionPlan(
+            why=f"YRT-PET LOR motion file not written: the scan lasts {ms[-1] / 1000:.0f} s, "
+            "past what its unsigned 32-bit milliseconds hold"
+        )
     M = np.concatenate([Ri, ti[:, :, None]], axis=2).reshape(-1, 12)
     return LorMotionPlan(None, ms, M, err, int(np.count_nonzero(~own)), c)
 
@@ -139,8 +157,9 @@ def lor_motion_text(ms, matrix, error) -> str:
         raise ValueError("a line without a pose cannot be written for YRT-PET")
     if error.min() < 0 or error.max() > 1:
         raise ValueError("YRT-PET's error is between 0 and 1")
-    return "".join(f"{int(m)}," + ",".join(f"{v:.9f}" for v in row) + f",{e:.9f}\n"
-                   for m, row, e in zip(ms, matrix, error))
+    return "".join(
+        f"{int(m)}," + ",".join(f"{v:.9f}" for v in row) + f",{e:.9f}\n" for m, row, e in zip(ms, matrix, error)
+    )
 
 
 def write_lor_motion(path, plan: LorMotionPlan):

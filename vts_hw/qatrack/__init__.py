@@ -13,5 +13,19 @@ from vts_hw.qatrack.client import AuthRefused, QATrackClient, QATrackError, Refu
 from vts_hw.qatrack.payload import NotMapped, build_payload, run_key
 from vts_hw.qatrack.push import TARGET, Outcome, dry_run, exit_code, push_runs, select_runs
 
-__all__ = ["QATrackClient", "QATrackError", "Unreachable", "Refused", "AuthRefused", "NotMapped",
-           "build_payload", "run_key", "TARGET", "Outcome", "push_runs", "select_runs", "dry_run", "exit_code"]
+__all__ = [
+    "QATrackClient",
+    "QATrackError",
+    "Unreachable",
+    "Refused",
+    "AuthRefused",
+    "NotMapped",
+    "build_payload",
+    "run_key",
+    "TARGET",
+    "Outcome",
+    "push_runs",
+    "select_runs",
+    "dry_run",
+    "exit_code",
+]

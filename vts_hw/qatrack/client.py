@@ -26,7 +26,6 @@ import requests
 
 from vts_hw.errors import VtsError
 
-
 #: the longest answer read from QATrack+ (its pages of instances are far shorter)
 MAX_ANSWER = 32 * 2**20
 
@@ -42,7 +41,7 @@ class Unreachable(QATrackError):
 
     def __init__(self, message: str, down: bool = False):
         super().__init__(message)
-        self.down = down   # not listening / not answering at all (vs. one request failing)
+        self.down = down  # not listening / not answering at all (vs. one request failing)
 
 
 class Refused(QATrackError):
@@ -65,12 +64,11 @@ def drf_words(body, limit: int = 400) -> str:
     parts: list[str] = []
 
     def walk(value, field="", depth=0):
-        if depth > 20:         # QATrack+'s errors are shallow; a deeper body is not one
+        if depth > 20:  # QATrack+'s errors are shallow; a deeper body is not one
             return
         if isinstance(value, dict):
             for k, v in value.items():
-                walk(v, "" if k in ("detail", "non_field_errors") else (f"{field}.{k}" if field else str(k)),
-                     depth + 1)
+                walk(v, "" if k in ("detail", "non_field_errors") else (f"{field}.{k}" if field else str(k)), depth + 1)
         elif isinstance(value, list):
             for v in value:
                 walk(v, field, depth + 1)
@@ -80,7 +78,7 @@ def drf_words(body, limit: int = 400) -> str:
 
     walk(body)
     words = "; ".join(parts) or "(no message)"
-    return words if len(words) <= limit else words[:limit - 3] + "..."
+    return words if len(words) <= limit else words[: limit - 3] + "..."
 
 
 class QATrackClient:
@@ -123,53 +121,70 @@ class QATrackClient:
             headers["Authorization"] = f"Token {self.token()}"
         deadline = time.monotonic() + self.timeout
         try:
-            resp = self._session.request(method, url, headers=headers, timeout=self.timeout,
-                                         allow_redirects=False, stream=True, **kw)
-            if resp._content is False:       # not read yet (a session that answers from memory has read it)
+            resp = self._session.request(
+                method, url, headers=headers, timeout=self.timeout, allow_redirects=False, stream=True, **kw
+            )
+            if resp._content is False:  # not read yet (a session that answers from memory has read it)
                 with resp:
                     body = bytearray()
-                    while chunk := resp.raw.read1(65536, decode_content=True):   # what has come, not a block
+                    while chunk := resp.raw.read1(65536, decode_content=True):  # what has come, not a block
                         body += chunk
                         if time.monotonic() > deadline:
                             raise requests.Timeout()
                         if len(body) > MAX_ANSWER:
-                            raise Unreachable(f"QATrack+ answered {method} {where} with more than "
-                                              f"{MAX_ANSWER // 2**20} MiB", down=False)
+                            raise Unreachable(
+                                f"QATrack+ answered {method} {where} with more than {MAX_ANSWER // 2**20} MiB",
+                                down=False,
+                            )
                     resp._content = bytes(body)
         except requests.Timeout:
-            raise Unreachable(f"QATrack+ did not answer within {self.timeout:g} s ({method} {where})",
-                              down=True) from None
+            raise Unreachable(
+                f"QATrack+ did not answer within {self.timeout:g} s ({method} {where})", down=True
+            ) from None
         except requests.ConnectionError as exc:
             reason = self._scrub(str(exc))
             short = "connection refused" if "refused" in reason.lower() else "cannot connect"
             raise Unreachable(f"QATrack+ is not reachable at {self.url} ({short})", down=True) from None
         except requests.RequestException as exc:
-            raise Unreachable(f"QATrack+ request failed ({method} {where}: "
-                              f"{self._scrub(type(exc).__name__)})", down=True) from None
+            raise Unreachable(
+                f"QATrack+ request failed ({method} {where}: {self._scrub(type(exc).__name__)})", down=True
+            ) from None
         if resp.status_code >= 500 or resp.status_code == 429:
-            raise Unreachable(f"QATrack+ answered {resp.status_code} {resp.reason or ''}".rstrip()
-                              + f" to {method} {where}: {self._scrub(drf_words(_json(resp)))}")
+            raise Unreachable(
+                f"QATrack+ answered {resp.status_code} {resp.reason or ''}".rstrip()
+                + f" to {method} {where}: {self._scrub(drf_words(_json(resp)))}"
+            )
         if 300 <= resp.status_code < 400:
             target = resp.headers.get("Location", "?")
             if "/accounts/login" in target or not urlsplit(target).path.startswith(urlsplit(self.api).path):
-                why = (f"qatrack.url {self.url} is not the QATrack+ site's root: the site sent {method} {where} "
-                       f"to {target} (its login page) instead of answering its API")
+                why = (
+                    f"qatrack.url {self.url} is not the QATrack+ site's root: the site sent {method} {where} "
+                    f"to {target} (its login page) instead of answering its API"
+                )
             else:
-                why = (f"QATrack+ redirected {method} {where} to {target} (is qatrack.url the site's root, "
-                       f"with the right scheme?)")
+                why = (
+                    f"QATrack+ redirected {method} {where} to {target} (is qatrack.url the site's root, "
+                    f"with the right scheme?)"
+                )
             raise Refused(why, resp.status_code, "redirect")
         if resp.status_code >= 400:
             words = self._scrub(drf_words(_json(resp)))
             if resp.status_code == 403:
-                raise AuthRefused(f"QATrack+ does not let this user {method} {where} (403): {words} "
-                                  f"(the user of the token needs the permission qa.add_testlistinstance)",
-                                  403, words, _json(resp))
+                raise AuthRefused(
+                    f"QATrack+ does not let this user {method} {where} (403): {words} "
+                    f"(the user of the token needs the permission qa.add_testlistinstance)",
+                    403,
+                    words,
+                    _json(resp),
+                )
             if resp.status_code == 404 and not isinstance(_json(resp, None), dict):
-                raise Refused(f"QATrack+ has no {where} (404: {words}): is qatrack.url the root of a "
-                              f"QATrack+ 3 site?", 404, words)
+                raise Refused(
+                    f"QATrack+ has no {where} (404: {words}): is qatrack.url the root of a QATrack+ 3 site?", 404, words
+                )
             kind = AuthRefused if resp.status_code == 401 else Refused
-            raise kind(f"QATrack+ refused {method} {where} ({resp.status_code}): {words}",
-                       resp.status_code, words, _json(resp))
+            raise kind(
+                f"QATrack+ refused {method} {where} ({resp.status_code}): {words}", resp.status_code, words, _json(resp)
+            )
         return resp
 
     def _get_json(self, url: str, params=None) -> dict:
@@ -189,7 +204,7 @@ class QATrackClient:
                 raise Unreachable(f"QATrack+ answered GET {url} with a next page that is not a link")
             nxt = urljoin(self.api, body["next"])
             if urlsplit(nxt).netloc != urlsplit(self.api).netloc:
-                break   # never send the token to another host
+                break  # never send the token to another host
             body = self._get_json(nxt)
             out += _results(body, url)
             pages += 1
@@ -202,11 +217,15 @@ class QATrackClient:
         if self._token is None:
             _, user, password = self._credentials
             try:
-                resp = self._send("POST", self.api + "get-token/", auth=False,
-                                  data={"username": user, "password": password})
+                resp = self._send(
+                    "POST", self.api + "get-token/", auth=False, data={"username": user, "password": password}
+                )
             except Refused as exc:
-                raise AuthRefused(f"QATrack+ refused the user and password at api/get-token/ "
-                                  f"({exc.status}): {exc.words}", exc.status, exc.words) from None
+                raise AuthRefused(
+                    f"QATrack+ refused the user and password at api/get-token/ ({exc.status}): {exc.words}",
+                    exc.status,
+                    exc.words,
+                ) from None
             token = _json(resp).get("token") if isinstance(_json(resp), dict) else None
             if not token:
                 raise Unreachable("QATrack+ answered api/get-token/ without a token")
@@ -218,17 +237,28 @@ class QATrackClient:
         none or more than one."""
         key = (unit, test_list)
         if key not in self._utc:
-            found = self._all(self.api + "qa/unittestcollections/",
-                              {"unit__name": unit, "test_list__name": test_list, "active": "true"})
+            found = self._all(
+                self.api + "qa/unittestcollections/",
+                {"unit__name": unit, "test_list__name": test_list, "active": "true"},
+            )
             if not found:
-                raise Refused(f"QATrack+ has no active assignment of test list {test_list!r} to unit "
-                              f"{unit!r} (check qatrack.unit and the test_list name)", 404, "not found")
+                raise Refused(
+                    f"QATrack+ has no active assignment of test list {test_list!r} to unit "
+                    f"{unit!r} (check qatrack.unit and the test_list name)",
+                    404,
+                    "not found",
+                )
             if len(found) > 1:
-                raise Refused(f"QATrack+ has {len(found)} active assignments of test list {test_list!r} to "
-                              f"unit {unit!r}; the push needs exactly one", 409, "ambiguous")
+                raise Refused(
+                    f"QATrack+ has {len(found)} active assignments of test list {test_list!r} to "
+                    f"unit {unit!r}; the push needs exactly one",
+                    409,
+                    "ambiguous",
+                )
             if not isinstance(found[0].get("url"), str) or not found[0]["url"]:
-                raise Unreachable(f"QATrack+ listed the assignment of test list {test_list!r} to unit {unit!r} "
-                                  f"without its url")
+                raise Unreachable(
+                    f"QATrack+ listed the assignment of test list {test_list!r} to unit {unit!r} without its url"
+                )
             self._utc[key] = str(found[0]["url"])
             self._shown_times += [t for t in (found[0].get("due_date"),) if isinstance(t, str)]
         return self._utc[key]
@@ -272,7 +302,7 @@ def _json(resp, fallback=_NOT_JSON):
     ``{"detail": ...}`` with its HTML title or first words."""
     try:
         return resp.json()
-    except (ValueError, RecursionError):   # not JSON, or nested too deeply to read
+    except (ValueError, RecursionError):  # not JSON, or nested too deeply to read
         if fallback is not _NOT_JSON:
             return fallback
         text = resp.text or ""

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from vts_hw import catalog
-from vts_hw import report as reports   # its builders and plots load when first used (vts_hw/report/__init__.py)
+from vts_hw import report as reports  # its builders and plots load when first used (vts_hw/report/__init__.py)
 from vts_hw.errors import VtsError
 from vts_hw.figures import figure_png
 from vts_hw.site_time import WALL_FORMAT, RepeatedWallTime, site_zone, wall_clock
@@ -63,8 +63,10 @@ def work_times(qcfg, run) -> tuple[str, str]:
         try:
             out.append(wall_clock(t, zone).strftime(WALL_FORMAT))
         except RepeatedWallTime as exc:
-            raise RepeatedHour(f"the run's {what} time, {exc}: QATrack+ reads times in its own zone and cannot "
-                               f"be told which is meant, so it is not pushed (enter it in QATrack+ by hand)") from None
+            raise RepeatedHour(
+                f"the run's {what} time, {exc}: QATrack+ reads times in its own zone and cannot "
+                f"be told which is meant, so it is not pushed (enter it in QATrack+ by hand)"
+            ) from None
     return out[0], out[1]
 
 
@@ -75,12 +77,13 @@ def measurement_name(m) -> str:
 @dataclass
 class Payload:
     """A test list instance to post, and what it is made of (for --dry-run and the outcome)."""
+
     run_id: int
     key: str
     test_list: str
-    data: dict                      # the JSON body, minus unit_test_collection until it is known
-    values: dict[str, object]       # macro -> value (None: skipped, not measured)
-    attachments: list[str] = field(default_factory=list)   # file names
+    data: dict  # the JSON body, minus unit_test_collection until it is known
+    values: dict[str, object]  # macro -> value (None: skipped, not measured)
+    attachments: list[str] = field(default_factory=list)  # file names
 
     def body(self, utc_url: str) -> dict:
         return {"unit_test_collection": utc_url, **self.data}
@@ -91,24 +94,31 @@ def tests_of(store, qcfg, run) -> tuple[str, dict[str, dict], dict[str, object]]
     measurement has neither a macro nor an ignore pattern, or a macro has nothing to send."""
     lst = qcfg.lists.get(run.procedure)
     if lst is None:
-        raise NotMapped(f"rig.yaml has no qatrack.lists.{run.procedure} "
-                        f"entry (mapped: {', '.join(qcfg.lists)})")
+        raise NotMapped(f"rig.yaml has no qatrack.lists.{run.procedure} entry (mapped: {', '.join(qcfg.lists)})")
     by_name = {measurement_name(m): m for m in store.measurements(run_id=run.id)}
-    unmapped = sorted(n for n in by_name if n not in lst.macros and n.rsplit("/", 1)[-1] not in lst.macros
-                      and not any(fnmatch.fnmatchcase(n, p) for p in lst.ignore))
+    unmapped = sorted(
+        n
+        for n in by_name
+        if n not in lst.macros
+        and n.rsplit("/", 1)[-1] not in lst.macros
+        and not any(fnmatch.fnmatchcase(n, p) for p in lst.ignore)
+    )
     if unmapped:
         shown = ", ".join(unmapped[:5]) + (f" and {len(unmapped) - 5} more" if len(unmapped) > 5 else "")
-        raise NotMapped(f"no macro for {shown} in "
-                        f"qatrack.lists.{run.procedure}.macros (map each, or match it with an ignore pattern)")
+        raise NotMapped(
+            f"no macro for {shown} in "
+            f"qatrack.lists.{run.procedure}.macros (map each, or match it with an ignore pattern)"
+        )
     tests: dict[str, dict] = {}
     values: dict[str, object] = {}
     for name, macro in lst.macros.items():
         m = by_name.get(name)
-        if m is None and "/" not in name:   # a bare METRIC: the run's only measurement of it
+        if m is None and "/" not in name:  # a bare METRIC: the run's only measurement of it
             same = [x for n, x in by_name.items() if n.rsplit("/", 1)[-1] == name]
             if len(same) > 1:
-                raise NotMapped(f"{name} (macro {macro}) is measured for "
-                                f"{len(same)} subjects; map SUBJECT/{name} instead")
+                raise NotMapped(
+                    f"{name} (macro {macro}) is measured for {len(same)} subjects; map SUBJECT/{name} instead"
+                )
             m = same[0] if same else None
         if m is None or m.value is None:
             tests[macro] = {"skipped": True, "comment": f"{name}: not measured by the VTS in this run"}
@@ -120,8 +130,11 @@ def tests_of(store, qcfg, run) -> tuple[str, dict[str, dict], dict[str, object]]
 
 
 def comment_of(run) -> str:
-    return (f"VTS {run.procedure} run {run.id} on rig {run.rig or '-'}: {run.status}. "
-            f"Pushed by vts-hw {run.software_version or ''}".rstrip() + f"; key {run_key(run)}")
+    return (
+        f"VTS {run.procedure} run {run.id} on rig {run.rig or '-'}: {run.status}. "
+        f"Pushed by vts-hw {run.software_version or ''}".rstrip()
+        + f"; key {run_key(run)}"
+    )
 
 
 def build_payload(store, qcfg, run, attach: bool = True, workdir: str | Path | None = None) -> Payload:
@@ -140,8 +153,10 @@ def build_payload(store, qcfg, run, attach: bool = True, workdir: str | Path | N
     }
     if attach:
         files = attachments(store, qcfg, run, workdir)
-        data["attachments"] = [{"filename": name, "value": base64.b64encode(blob).decode("ascii"),
-                                "encoding": "base64"} for name, blob in files]
+        data["attachments"] = [
+            {"filename": name, "value": base64.b64encode(blob).decode("ascii"), "encoding": "base64"}
+            for name, blob in files
+        ]
         names = [name for name, _ in files]
     else:
         names = list(planned_attachments(store, qcfg, run))
@@ -160,8 +175,7 @@ def planned_attachments(store, qcfg, run) -> list[str]:
         if stored:
             names += [p.name for p in stored]
         elif run.procedure in DRIFT_PROCEDURES:
-            cams = sorted({m.subject for m in store.measurements(run_id=run.id)
-                           if m.subject and "/" not in m.subject})
+            cams = sorted({m.subject for m in store.measurements(run_id=run.id) if m.subject and "/" not in m.subject})
             names += [f"vts-drift-run{run.id}-{c}.png" for c in cams]
     if qcfg.report != "none":
         names.append(f"vts-report-run{run.id}.{qcfg.report}")
@@ -176,7 +190,7 @@ def attachments(store, qcfg, run, workdir=None) -> list[tuple[str, bytes]]:
     plots: list[tuple[str, bytes]] = []
     files: list[tuple[str, bytes]] = []
     now = run.finished if run.finished is not None else run.started
-    report = None   # the drift report as of the run's end, collected once for the report and the plots
+    report = None  # the drift report as of the run's end, collected once for the report and the plots
     if qcfg.report != "none":
         with tempfile.TemporaryDirectory(prefix="vts-qatrack-", dir=workdir) as tmp:
             path = Path(tmp) / f"vts-report-run{run.id}.{qcfg.report}"

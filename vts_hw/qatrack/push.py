@@ -19,13 +19,21 @@ See docs/decisions/0042-qatrack-push.md.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from typing import Callable
 
 from vts_hw.errors import UsageError, VtsError
 from vts_hw.qatrack.client import AuthRefused, QATrackClient, Refused, Unreachable
-from vts_hw.qatrack.payload import (PUSHABLE_STATUSES, NotMapped, RepeatedHour, build_payload, work_instants, run_key, tests_of,
-                                    work_times)
+from vts_hw.qatrack.payload import (
+    PUSHABLE_STATUSES,
+    NotMapped,
+    RepeatedHour,
+    build_payload,
+    run_key,
+    tests_of,
+    work_instants,
+    work_times,
+)
 from vts_hw.site_time import instant_of, site_zone, zone_disagreement
 
 TARGET = "qatrack"
@@ -48,6 +56,7 @@ class Outcome:
     """What became of one run: ``state`` is the outbox state after the attempt ("sent",
     "pending", "refused"); ``how`` says more ("posted", "already there", "already sent",
     "not mapped", "not tried", "failed", "refused", "credentials refused")."""
+
     run_id: int
     procedure: str
     key: str
@@ -62,8 +71,9 @@ class Outcome:
     def line(self) -> str:
         head = f"run {self.run_id} ({self.procedure})"
         if self.state == "sent":
-            return f"{head}: {self.how} in QATrack+ {self.remote}".rstrip() + (f" ({self.message})"
-                                                                               if self.message else "")
+            return f"{head}: {self.how} in QATrack+ {self.remote}".rstrip() + (
+                f" ({self.message})" if self.message else ""
+            )
         if self.state == "refused":
             return f"{head}: refused, kept in the outbox: {self.message}"
         return f"{head}: left pending ({self.how}): {self.message}"
@@ -94,11 +104,14 @@ def select_runs(store, qcfg, rig_name: str, run_ids=(), pending: bool = False) -
             except KeyError:
                 raise UsageError(f"no run {rid} in the results store {store.url}") from None
             if run.rig != rig_name:
-                raise UsageError(f"run {rid} is rig {run.rig!r}'s, not {rig_name!r}'s: push it with that "
-                                 f"rig's config (its QATrack+ unit)")
+                raise UsageError(
+                    f"run {rid} is rig {run.rig!r}'s, not {rig_name!r}'s: push it with that "
+                    f"rig's config (its QATrack+ unit)"
+                )
             if run.status not in PUSHABLE_STATUSES:
-                raise UsageError(f"run {rid} is {run.status}: only finished QA results "
-                                 f"({', '.join(PUSHABLE_STATUSES)}) are pushed")
+                raise UsageError(
+                    f"run {rid} is {run.status}: only finished QA results ({', '.join(PUSHABLE_STATUSES)}) are pushed"
+                )
             out.append(run)
         return out
     if pending:
@@ -106,8 +119,11 @@ def select_runs(store, qcfg, rig_name: str, run_ids=(), pending: bool = False) -
         runs = [store.run(i) for i in ids]
         return [r for r in runs if r.rig == rig_name]
     sent = {i.run_id for i in store.outbox_items(TARGET, states=("sent",))}
-    return [r for r in store.runs(procedure=tuple(qcfg.lists), status=PUSHABLE_STATUSES)
-            if r.rig == rig_name and r.id not in sent]
+    return [
+        r
+        for r in store.runs(procedure=tuple(qcfg.lists), status=PUSHABLE_STATUSES)
+        if r.rig == rig_name and r.id not in sent
+    ]
 
 
 def _record(store, item, state: str, how: str, run, message: str = "", remote: str | None = None) -> Outcome:
@@ -124,7 +140,7 @@ def push_one(store, qcfg, client: QATrackClient, run, item=None, before_post=Non
     if item.state == "sent":
         return Outcome(run.id, run.procedure, item.key, "sent", "already sent", remote=item.remote)
     try:
-        tests_of(store, qcfg, run)   # the mapping and the times first: cheap, and before any request
+        tests_of(store, qcfg, run)  # the mapping and the times first: cheap, and before any request
         work_times(qcfg, run)
     except RepeatedHour as exc:
         return _record(store, item, "refused", "repeated hour", run, str(exc))
@@ -139,20 +155,26 @@ def push_one(store, qcfg, client: QATrackClient, run, item=None, before_post=Non
         if before_post is not None:
             before_post()
         try:
-            payload = build_payload(store, qcfg, run)   # the attachments are rendered only to be posted
-        except (VtsError, OSError) as exc:   # e.g. no room for the report in the temporary folder
+            payload = build_payload(store, qcfg, run)  # the attachments are rendered only to be posted
+        except (VtsError, OSError) as exc:  # e.g. no room for the report in the temporary folder
             return _record(store, item, "pending", "failed", run, f"the attachments could not be made: {exc}")
         try:
             made = client.create_instance(payload.body(utc))
         except Refused as exc:
-            if exc.status == 400 and "user key" in exc.words.lower():   # posted meanwhile
+            if exc.status == 400 and "user key" in exc.words.lower():  # posted meanwhile
                 there = client.instance_with_key(item.key)
                 if there:
                     return _record(store, item, "sent", "already there", run, remote=there)
             raise
         dropped = sorted(set(payload.data["tests"]) - set(made.get("tests") or payload.data["tests"]))
-        note = (f"QATrack+ kept no value for {', '.join(dropped)}: not tests of its list "
-                f"{lst.test_list!r} (check the macro names)") if dropped else ""
+        note = (
+            (
+                f"QATrack+ kept no value for {', '.join(dropped)}: not tests of its list "
+                f"{lst.test_list!r} (check the macro names)"
+            )
+            if dropped
+            else ""
+        )
         wrong = landed_wrong(qcfg, run, made)
         if wrong:
             return _record(store, item, "sent", "posted at a wrong time", run, wrong, remote=str(made.get("url") or ""))
@@ -173,29 +195,42 @@ def push_one(store, qcfg, client: QATrackClient, run, item=None, before_post=Non
 
 
 def landed_wrong(qcfg, run, made: dict) -> str:
-    """"" when QATrack+ shows the new instance's work times at the run's true instants (to the
+    """ "" when QATrack+ shows the new instance's work times at the run's true instants (to the
     second); else one sentence (qatrack.time_zone is not the site's zone, or its clock rules differ)."""
     for what, key, t in zip(("start", "end"), ("work_started", "work_completed"), work_instants(run)):
         try:
-            shown = instant_of(str(made.get(key)))     # "None" when missing: a ValueError
+            shown = instant_of(str(made.get(key)))  # "None" when missing: a ValueError
         except (TypeError, ValueError):
             return f"QATrack+ answered the new instance without its {key} as a time with an offset"
         if abs(shown - t) >= 1.0:
-            return (f"QATrack+ shows the run's {what} as {made.get(key)}, {shown - t:+.0f} s from the "
-                    f"true instant: qatrack.time_zone {qcfg.time_zone} is not the site's TIME_ZONE (correct "
-                    f"rig.yaml, and this instance's times in QATrack+)")
+            return (
+                f"QATrack+ shows the run's {what} as {made.get(key)}, {shown - t:+.0f} s from the "
+                f"true instant: qatrack.time_zone {qcfg.time_zone} is not the site's TIME_ZONE (correct "
+                f"rig.yaml, and this instance's times in QATrack+)"
+            )
     return ""
 
 
 def check_zone(qcfg, client: QATrackClient) -> str:
-    """"" when the times the site shows agree with ``qatrack.time_zone``; else one sentence."""
+    """ "" when the times the site shows agree with ``qatrack.time_zone``; else one sentence."""
     differs = zone_disagreement(site_zone(qcfg.time_zone), client.shown_times())
-    return (f"qatrack.time_zone {qcfg.time_zone} is not the site's TIME_ZONE: {differs}; set qatrack.time_zone to "
-            f"the site's zone so that the work times land at their true instants") if differs else ""
+    return (
+        (
+            f"qatrack.time_zone {qcfg.time_zone} is not the site's TIME_ZONE: {differs}; set qatrack.time_zone to "
+            f"the site's zone so that the work times land at their true instants"
+        )
+        if differs
+        else ""
+    )
 
 
-def push_runs(store, qcfg, runs: list, client: QATrackClient | None = None,
-              progress: Callable[[int, int, Outcome], None] | None = None) -> list[Outcome]:
+def push_runs(
+    store,
+    qcfg,
+    runs: list,
+    client: QATrackClient | None = None,
+    progress: Callable[[int, int, Outcome], None] | None = None,
+) -> list[Outcome]:
     """Push ``runs`` one by one; every run gets its outbox row before the first request.
     Before the first post, the times the site shows are checked against ``qatrack.time_zone``.
     Stops at the first run QATrack+ does not answer at all or whose credentials it refuses, or
@@ -215,7 +250,7 @@ def push_runs(store, qcfg, runs: list, client: QATrackClient | None = None,
         except Unreachable as exc:
             if exc.down:
                 raise
-            return                      # asked again before the next post; each post is checked too
+            return  # asked again before the next post; each post is checked too
         zone["checked"] = True
         if wrong:
             raise ZoneMismatch(wrong)
@@ -230,19 +265,31 @@ def push_runs(store, qcfg, runs: list, client: QATrackClient | None = None,
                 if isinstance(exc, ZoneMismatch) and exc.outcome is not None:
                     out.append(exc.outcome)
                 else:
-                    why = ("credentials refused" if isinstance(exc, AuthRefused) else
-                           "wrong time zone" if isinstance(exc, ZoneMismatch) else "failed")
+                    why = (
+                        "credentials refused"
+                        if isinstance(exc, AuthRefused)
+                        else "wrong time zone"
+                        if isinstance(exc, ZoneMismatch)
+                        else "failed"
+                    )
                     out.append(Outcome(run.id, run.procedure, items[run.id].key, "pending", why, str(exc)))
                 if progress:
                     progress(n, len(runs), out[-1])
                 for rest in runs[n:]:
                     it = items[rest.id]
                     if it.state != "sent":
-                        out.append(Outcome(rest.id, rest.procedure, it.key, it.state if it.state == "refused"
-                                           else "pending", "not tried", f"not tried: {exc}"))
+                        out.append(
+                            Outcome(
+                                rest.id,
+                                rest.procedure,
+                                it.key,
+                                it.state if it.state == "refused" else "pending",
+                                "not tried",
+                                f"not tried: {exc}",
+                            )
+                        )
                     else:
-                        out.append(Outcome(rest.id, rest.procedure, it.key, "sent", "already sent",
-                                           remote=it.remote))
+                        out.append(Outcome(rest.id, rest.procedure, it.key, "sent", "already sent", remote=it.remote))
                 break
             out.append(o)
             if progress:
@@ -258,16 +305,27 @@ def dry_run(store, qcfg, runs: list) -> list[dict]:
     rows = []
     for run in runs:
         item = next(iter(store.outbox_items(TARGET, run_ids=[run.id])), None)
-        row = {"run_id": run.id, "procedure": run.procedure, "key": run_key(run),
-               "outbox": item.state if item else "not in the outbox", "qatrack": qcfg.url, "unit": qcfg.unit,
-               "time_zone": qcfg.time_zone}
+        row = {
+            "run_id": run.id,
+            "procedure": run.procedure,
+            "key": run_key(run),
+            "outbox": item.state if item else "not in the outbox",
+            "qatrack": qcfg.url,
+            "unit": qcfg.unit,
+            "time_zone": qcfg.time_zone,
+        }
         try:
             p = build_payload(store, qcfg, run, attach=False)
         except NotMapped as exc:
             row.update(error=str(exc))
         else:
-            row.update(test_list=p.test_list, work_started=p.data["work_started"],
-                       work_completed=p.data["work_completed"], comment=p.data["comment"],
-                       values=p.values, attachments=p.attachments)
+            row.update(
+                test_list=p.test_list,
+                work_started=p.data["work_started"],
+                work_completed=p.data["work_completed"],
+                comment=p.data["comment"],
+                values=p.values,
+                attachments=p.attachments,
+            )
         rows.append(row)
     return rows

@@ -46,7 +46,7 @@ class AxisTime:
         return _TIME_TAG + struct.pack(">IB", self.seconds, self.hundredths) + self.extra + b"\x01"
 
     @classmethod
-    def from_epoch(cls, epoch: float) -> "AxisTime":
+    def from_epoch(cls, epoch: float) -> AxisTime:
         """The stamp a camera writes at ``epoch`` (truncated to 10 ms, as the camera does)."""
         ticks = int(epoch * 100.0 + 1e-6)
         sec, hund = divmod(ticks, 100)
@@ -141,11 +141,11 @@ def inspect_jpeg(data: bytes) -> JpegInfo:
         if i + 4 > n:
             problems.append("the header is cut short")
             break
-        (length,) = struct.unpack(">H", data[i + 2:i + 4])
+        (length,) = struct.unpack(">H", data[i + 2 : i + 4])
         if length < 2 or i + 2 + length > n:
             problems.append("the header is cut short" if length >= 2 else f"bad segment length at byte {i}")
             break
-        body = data[i + 4:i + 2 + length]
+        body = data[i + 4 : i + 2 + length]
         if marker == _COM and length == _SEG_LEN:
             seg = _axis_payload(body)
             if isinstance(seg, AxisTime):

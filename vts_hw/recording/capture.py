@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 from vts_hw.camera import Camera, CameraError, StreamGap
 from vts_hw.camera_stream import FrameStream
@@ -36,8 +36,8 @@ class CameraProgress:
     dropped: int = 0
     torn: int = 0
     reconnects: int = 0
-    error: str = ""    # why this camera recorded nothing more (one sentence naming it)
-    lost: str = ""     # the stream was lost and came back (frames missing in between)
+    error: str = ""  # why this camera recorded nothing more (one sentence naming it)
+    lost: str = ""  # the stream was lost and came back (frames missing in between)
     started: float = field(default_factory=time.monotonic)
     last_frame: float | None = None
 
@@ -51,10 +51,17 @@ class Recorder:
     """Record ``cameras`` (any :class:`vts_hw.camera.Camera`) for ``seconds`` (None: until
     stop()) into ``folder``."""
 
-    def __init__(self, cameras: list[Camera], folder: str | Path, seconds: float | None = None,
-                 meta: dict | None = None, give_up_after: float | None = None,
-                 max_backoff: float = 5.0, append: bool = False,
-                 on_frame: Callable[[str, object], None] | None = None):
+    def __init__(
+        self,
+        cameras: list[Camera],
+        folder: str | Path,
+        seconds: float | None = None,
+        meta: dict | None = None,
+        give_up_after: float | None = None,
+        max_backoff: float = 5.0,
+        append: bool = False,
+        on_frame: Callable[[str, object], None] | None = None,
+    ):
         self.cameras = cameras
         # on_frame(camera, frame): told of each frame after it is written (the live path's tap);
         # it must return at once, and its failure never stops the recording (counted below)
@@ -73,8 +80,12 @@ class Recorder:
 
     def start(self) -> None:
         for cam in self.cameras:
-            stream = cam.stream(duration=self.seconds, stop_event=self.stop_event,
-                                give_up_after=self.give_up_after, max_backoff=self.max_backoff)
+            stream = cam.stream(
+                duration=self.seconds,
+                stop_event=self.stop_event,
+                give_up_after=self.give_up_after,
+                max_backoff=self.max_backoff,
+            )
             self._streams[cam.name] = stream
             t = threading.Thread(target=self._run, args=(cam, stream), name=f"rec-{cam.name}", daemon=True)
             self._threads.append(t)
@@ -85,9 +96,17 @@ class Recorder:
         try:
             for item in stream:
                 if isinstance(item, StreamGap):
-                    self.recording.add_gap(cam.name, {
-                        "after_frame": item.after_seq, "camera_t0": item.camera_t0, "camera_t1": item.camera_t1,
-                        "missing": item.missing, "reason": item.reason, "host_time": item.host_time})
+                    self.recording.add_gap(
+                        cam.name,
+                        {
+                            "after_frame": item.after_seq,
+                            "camera_t0": item.camera_t0,
+                            "camera_t1": item.camera_t1,
+                            "missing": item.missing,
+                            "reason": item.reason,
+                            "host_time": item.host_time,
+                        },
+                    )
                     prog.dropped += item.missing
                     continue
                 self.recording.write_frame(cam.name, item.jpeg, item.camera_time, item.host_time)
@@ -111,12 +130,16 @@ class Recorder:
             prog.reconnects = stream.stats.reconnects
             if not prog.error and prog.frames == 0 and not self._interrupted:
                 why = stream.stats.last_error or "no frame arrived"
-                prog.error = (f"camera {cam.name}: recorded nothing in {self.seconds:g} s" if self.seconds
-                              else f"camera {cam.name}: recorded nothing") + f"; last error: {why}"
+                prog.error = (
+                    f"camera {cam.name}: recorded nothing in {self.seconds:g} s"
+                    if self.seconds
+                    else f"camera {cam.name}: recorded nothing"
+                ) + f"; last error: {why}"
             elif not prog.error and stream.stats.reconnects:
                 why = stream.stats.last_error or "the camera ended the stream early"
-                prog.lost = (f"camera {cam.name}: stream lost and reconnected {stream.stats.reconnects} time(s) "
-                             f"(last: {why})")
+                prog.lost = (
+                    f"camera {cam.name}: stream lost and reconnected {stream.stats.reconnects} time(s) (last: {why})"
+                )
             notes = self.recording.notes[cam.name]
             notes.update(torn_frames_discarded=stream.stats.torn, reconnects=stream.stats.reconnects)
             if stream.stats.problems:
@@ -135,7 +158,7 @@ class Recorder:
         for s in self._streams.values():
             s.stop()
 
-    def wait(self, poll: float = 0.25, on_tick: Callable[["Recorder"], None] | None = None) -> None:
+    def wait(self, poll: float = 0.25, on_tick: Callable[[Recorder], None] | None = None) -> None:
         while self.running:
             for t in self._threads:
                 t.join(timeout=poll / max(1, len(self._threads)))

@@ -46,8 +46,11 @@ def available_cameras(folder: Path, manifest: dict | None) -> tuple[list[str], d
         if n in mj and n not in idx:
             why = f"camera {n}: no {n}.index.csv (run 'vts recording reindex'): left out"
         else:
-            why = (f"camera {n}: {' and '.join(lacks)} missing"
-                   + (f" (the manifest lists {listed} frames)" if isinstance(listed, int) else "") + ": left out")
+            why = (
+                f"camera {n}: {' and '.join(lacks)} missing"
+                + (f" (the manifest lists {listed} frames)" if isinstance(listed, int) else "")
+                + ": left out"
+            )
         missing[n] = why
     return [n for n in names if n in found] + [n for n in found if n not in names], missing
 
@@ -70,14 +73,15 @@ def _fin(v):
     return None if v is None or not math.isfinite(v) else float(v)
 
 
-def recording_extent(folder, manifest: dict | None, frames, times, fits, missing: dict[str, str],
-                     period: float) -> dict:
+def recording_extent(
+    folder, manifest: dict | None, frames, times, fits, missing: dict[str, str], period: float
+) -> dict:
     """See the module. ``frames``: the :class:`~vts_hw.recording.frames.CameraFrames` used;
     ``times``: their mapped host times; ``fits``: per camera its ClockFit or None;
     ``missing``: :func:`available_cameras`'s sentences; ``period``: the frame period (s)."""
     mcams = (manifest or {}).get("cameras", {})
     cams, problems = {}, list(missing.values())
-    unfinished = (manifest or {}).get("unfinished")   # load_manifest's word: being recorded, or interrupted
+    unfinished = (manifest or {}).get("unfinished")  # load_manifest's word: being recorded, or interrupted
     if unfinished:
         problems.insert(0, f"{unfinished}; analysed up to the last frame written")
     firsts, lasts = [], []
@@ -97,23 +101,37 @@ def recording_extent(folder, manifest: dict | None, frames, times, fits, missing
         if fit is not None and isinstance(mlast, (int, float)) and listed is not None and listed > indexed:
             last = max(last, float(fit.host_time(float(mlast))))
         if fit is not None and isinstance(mfirst, (int, float)):
-            first = min(first, float(fit.host_time(float(mfirst)))) if math.isfinite(first) else \
-                float(fit.host_time(float(mfirst)))
+            first = (
+                min(first, float(fit.host_time(float(mfirst))))
+                if math.isfinite(first)
+                else float(fit.host_time(float(mfirst)))
+            )
         gaps = [g for g in entry.get("gaps") or [] if isinstance(g, dict)]
-        cams[cf.name] = {"frames_manifest": listed, "frames_indexed": indexed, "frames_readable": len(cf.frame),
-                         "first_s": _fin(first), "last_readable_s": _fin(last_read), "last_s": _fin(last),
-                         "gaps": len(gaps), "frames_missing_in_gaps": int(sum(g.get("missing") or 0 for g in gaps))}
+        cams[cf.name] = {
+            "frames_manifest": listed,
+            "frames_indexed": indexed,
+            "frames_readable": len(cf.frame),
+            "first_s": _fin(first),
+            "last_readable_s": _fin(last_read),
+            "last_s": _fin(last),
+            "gaps": len(gaps),
+            "frames_missing_in_gaps": int(sum(g.get("missing") or 0 for g in gaps)),
+        }
         if math.isfinite(first):
             firsts.append(first)
         if math.isfinite(last):
             lasts.append(last)
         span = (last - first) if math.isfinite(first) and math.isfinite(last) else math.nan
         if cf.beyond_end:
-            problems.append(f"{cf.mjpeg.name} holds {len(cf.frame)} of the {indexed} frames its index lists "
-                            f"(cut short): its last {last - last_read:.1f} s of {span:.1f} s are not readable")
+            problems.append(
+                f"{cf.mjpeg.name} holds {len(cf.frame)} of the {indexed} frames its index lists "
+                f"(cut short): its last {last - last_read:.1f} s of {span:.1f} s are not readable"
+            )
         if listed is not None and listed > indexed:
-            problems.append(f"{cf.name}.index.csv lists {indexed} frames, the manifest {listed}: "
-                            f"{listed - indexed} frame(s) of {cf.name} are not in the folder")
+            problems.append(
+                f"{cf.name}.index.csv lists {indexed} frames, the manifest {listed}: "
+                f"{listed - indexed} frame(s) of {cf.name} are not in the folder"
+            )
     start = min(firsts) if firsts else math.nan
     end = max(lasts) if lasts else math.nan
     # a scan session says when the scan began (the trigger fired) and when the recording stopped:
@@ -126,5 +144,11 @@ def recording_extent(folder, manifest: dict | None, frames, times, fits, missing
     if _number(stopped) and math.isfinite(end) and stopped > end + 1.5 * period:
         problems.append(f"no frames for the last {stopped - end:.1f} s before the recording stopped")
         end = float(stopped) - 0.5 * period
-    return {"first_s": _fin(start), "last_s": _fin(end), "frame_period_s": float(period),
-            "cameras": cams, "cameras_missing": dict(missing), "problems": problems}
+    return {
+        "first_s": _fin(start),
+        "last_s": _fin(end),
+        "frame_period_s": float(period),
+        "cameras": cams,
+        "cameras_missing": dict(missing),
+        "problems": problems,
+    }

@@ -18,9 +18,9 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from vts_hw.recording.axis_jpeg import inspect_jpeg
 from vts_hw.bounded import SMALL, TABLE, read_bytes
 from vts_hw.errors import DataError
+from vts_hw.recording.axis_jpeg import inspect_jpeg
 from vts_hw.recording.mjpeg import read_frames_file
 from vts_hw.recording.unfinished import judge
 
@@ -57,14 +57,17 @@ def load_manifest(folder: str | Path, *, missing_ok: bool = False) -> dict | Non
         raise DataError(f"{path}: not a recording manifest (expected a JSON object, got {_json_kind(data)})")
     cams = data.get("cameras", {})
     if not isinstance(cams, dict) or not all(isinstance(k, str) and isinstance(v, dict) for k, v in cams.items()):
-        raise DataError(f"{path}: not a recording manifest (\"cameras\" must map each camera name to its entry)")
+        raise DataError(f'{path}: not a recording manifest ("cameras" must map each camera name to its entry)')
     for name, cam in cams.items():
         gaps = cam.get("gaps", [])
         if not isinstance(gaps, list) or not all(
-                isinstance(g, dict) and _count_or_none(g.get("missing")) for g in gaps):
-            raise DataError(f"{path}: not a recording manifest (cameras.{name}.gaps must be a list of "
-                            f"gaps, each with a whole number of frames missing)")
-    data.pop("unfinished", None)     # said by this reader only, never taken from the file
+            isinstance(g, dict) and _count_or_none(g.get("missing")) for g in gaps
+        ):
+            raise DataError(
+                f"{path}: not a recording manifest (cameras.{name}.gaps must be a list of "
+                f"gaps, each with a whole number of frames missing)"
+            )
+    data.pop("unfinished", None)  # said by this reader only, never taken from the file
     state = judge(data)
     if state is not None:
         data["status"], data["unfinished"] = state.status, state.why
@@ -76,8 +79,14 @@ def _count_or_none(v) -> bool:
 
 
 def _json_kind(v) -> str:
-    return {list: "a list", str: "a string", int: "a number", float: "a number", bool: "true/false",
-            type(None): "null"}.get(type(v), type(v).__name__)
+    return {
+        list: "a list",
+        str: "a string",
+        int: "a number",
+        float: "a number",
+        bool: "true/false",
+        type(None): "null",
+    }.get(type(v), type(v).__name__)
 
 
 @dataclass
@@ -114,8 +123,10 @@ def read_index(path: Path, *, lenient: bool = False) -> list[FrameRow]:
             if lenient or k == len(body) - 1:
                 continue  # the last: a line cut short by a kill; everything before it stands
             shown = line if len(line) <= 60 else line[:57] + "..."
-            raise DataError(f"{path}: line {lineno} is not a frame,offset,length,camera_time,"
-                            f"host_time row ({shown!r}); run 'vts recording reindex'")
+            raise DataError(
+                f"{path}: line {lineno} is not a frame,offset,length,camera_time,"
+                f"host_time row ({shown!r}); run 'vts recording reindex'"
+            )
         rows.append(row)
     return rows
 
@@ -166,8 +177,9 @@ class FramesSummary:
         return {**self.__dict__, "whole": self.whole}
 
 
-def summarize_times(source: str, times: list[float | None], torn: int = 0, problems=None,
-                    fps: float | None = None) -> FramesSummary:
+def summarize_times(
+    source: str, times: list[float | None], torn: int = 0, problems=None, fps: float | None = None
+) -> FramesSummary:
     """Count, first/last camera time, frame rate and gaps (an interval over 1.5 × the median)."""
     ts = [t for t in times if t is not None]
     gaps: list[dict] = []
@@ -183,13 +195,37 @@ def summarize_times(source: str, times: list[float | None], torn: int = 0, probl
                 if d > 1.5 * med + 0.011:
                     frames = d / med  # huge (not finite) for a median step of 1e-300 s
                     missing = int(round(frames)) - 1 if math.isfinite(frames) else len(times)
-                    gaps.append({"after_frame": i, "camera_t0": ts[i], "camera_t1": ts[i + 1],
-                                 "seconds": round(d, 3), "missing": max(1, missing)})
+                    gaps.append(
+                        {
+                            "after_frame": i,
+                            "camera_t0": ts[i],
+                            "camera_t1": ts[i + 1],
+                            "seconds": round(d, 3),
+                            "missing": max(1, missing),
+                        }
+                    )
                 elif d < 0:
-                    gaps.append({"after_frame": i, "camera_t0": ts[i], "camera_t1": ts[i + 1],
-                                 "seconds": round(d, 3), "missing": 0, "note": "time went backwards"})
-    return FramesSummary(source, len(times), len(ts), torn, ts[0] if ts else None, ts[-1] if ts else None,
-                         round(est, 3) if est else None, gaps, list(problems or []))
+                    gaps.append(
+                        {
+                            "after_frame": i,
+                            "camera_t0": ts[i],
+                            "camera_t1": ts[i + 1],
+                            "seconds": round(d, 3),
+                            "missing": 0,
+                            "note": "time went backwards",
+                        }
+                    )
+    return FramesSummary(
+        source,
+        len(times),
+        len(ts),
+        torn,
+        ts[0] if ts else None,
+        ts[-1] if ts else None,
+        round(est, 3) if est else None,
+        gaps,
+        list(problems or []),
+    )
 
 
 def _summarize_file(p: Path, name: str, extra=None) -> FramesSummary:

@@ -46,13 +46,31 @@ def load_camera_frames(folder: Path, name: str) -> CameraFrames:
     rows = read_index(idx)
     size = mj.stat().st_size
     nan = math.nan
-    arr = np.array([(r.frame, r.offset, r.length,
-                     nan if r.camera_time is None else r.camera_time,
-                     nan if r.host_time is None else r.host_time) for r in rows],
-                   float).reshape(-1, 5)
+    arr = np.array(
+        [
+            (
+                r.frame,
+                r.offset,
+                r.length,
+                nan if r.camera_time is None else r.camera_time,
+                nan if r.host_time is None else r.host_time,
+            )
+            for r in rows
+        ],
+        float,
+    ).reshape(-1, 5)
     inside = arr[:, 1] + arr[:, 2] <= size
     out = arr[~inside]
     arr = arr[inside]
-    return CameraFrames(name, mj, arr[:, 0].astype(np.int64), arr[:, 1].astype(np.int64),
-                        arr[:, 2].astype(np.int64), arr[:, 3], arr[:, 4], int((~inside).sum()),
-                        out[:, 3], out[:, 4])
+    return CameraFrames(
+        name,
+        mj,
+        arr[:, 0].astype(np.int64),
+        arr[:, 1].astype(np.int64),
+        arr[:, 2].astype(np.int64),
+        arr[:, 3],
+        arr[:, 4],
+        int((~inside).sum()),
+        out[:, 3],
+        out[:, 4],
+    )

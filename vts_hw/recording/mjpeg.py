@@ -17,9 +17,9 @@ import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from vts_hw.recording.axis_jpeg import EOI, SOI
 from vts_hw.bounded import CAPTURE, read_bytes
 from vts_hw.errors import DataError
+from vts_hw.recording.axis_jpeg import EOI, SOI
 
 _MAX_HEADER = 4096
 
@@ -119,14 +119,14 @@ class MultipartParser:
         problems: list[str] = []
         if self._length is not None:
             n = self._length
-            if len(buf) >= n and n >= 4 and buf[n - 2:n] == EOI and buf[:2] == SOI:
+            if len(buf) >= n and n >= 4 and buf[n - 2 : n] == EOI and buf[:2] == SOI:
                 # the usual case: a whole JPEG of the declared length; hand it over at once
                 body = bytes(buf[:n])
                 del buf[:n]
                 return self._finish(body, problems)
             if len(buf) < n + 2 + len(self.delim):
                 return None
-            after = bytes(buf[n:n + 2 + len(self.delim)]).lstrip(b"\r\n")
+            after = bytes(buf[n : n + 2 + len(self.delim)]).lstrip(b"\r\n")
             if self.delim.startswith(after) or after.startswith(self.delim):
                 body = bytes(buf[:n])  # declared length right, the JPEG itself torn
                 del buf[:n]
@@ -148,7 +148,7 @@ class MultipartParser:
             if i < 0:
                 return None
             # a delimiter stands at the start of a line
-            if i == 0 or buf[i - 1:i] == b"\n":
+            if i == 0 or buf[i - 1 : i] == b"\n":
                 return i
             start = i + 1
 
@@ -206,7 +206,7 @@ def jpeg_end(data: bytes, start: int = 0) -> int | None:
     and then the entropy-coded data, where 0xFF is always followed by 0x00, RSTn or a marker.
     """
     n = len(data)
-    if data[start:start + 2] != SOI:
+    if data[start : start + 2] != SOI:
         return None
     i = start + 2
     while i + 4 <= n:
@@ -221,7 +221,7 @@ def jpeg_end(data: bytes, start: int = 0) -> int | None:
         if 0xD0 <= marker <= 0xD7 or marker == 0x01:
             i += 2
             continue
-        (length,) = struct.unpack(">H", data[i + 2:i + 4])
+        (length,) = struct.unpack(">H", data[i + 2 : i + 4])
         i += 2 + length
         if marker == 0xDA:
             break
@@ -240,7 +240,7 @@ def jpeg_end(data: bytes, start: int = 0) -> int | None:
         # another marker inside the scan (DHT/DQT/SOS of a progressive JPEG): skip it
         if j + 4 > n:
             return None
-        (length,) = struct.unpack(">H", data[j + 2:j + 4])
+        (length,) = struct.unpack(">H", data[j + 2 : j + 4])
         i = j + 2 + length
 
 
@@ -299,6 +299,10 @@ def read_frames_file(path: str | Path) -> list[tuple[bytes, list[str]]]:
     spans = split_jpegs(data)
     if not spans:
         raise DataError(f"{p}: no JPEG frames in this file (no start-of-image marker)")
-    return [(data[s.offset:s.offset + s.length],
-             [] if s.complete else ["the frame is cut short (no end-of-image marker)"])
-            for s in spans]
+    return [
+        (
+            data[s.offset : s.offset + s.length],
+            [] if s.complete else ["the frame is cut short (no end-of-image marker)"],
+        )
+        for s in spans
+    ]

@@ -36,7 +36,7 @@ def folder_summaries(folder: Path) -> list[FramesSummary]:
     note = []
     try:
         manifest = load_manifest(folder, missing_ok=True)
-    except DataError as exc:        # the frames are still worth counting; the manifest's promise is unknown
+    except DataError as exc:  # the frames are still worth counting; the manifest's promise is unknown
         manifest, note = None, [f"manifest not read: {exc}"]
     if manifest is None and not note:
         note = [f"no {MANIFEST}: what the recording promised is not known"]
@@ -64,15 +64,18 @@ def folder_summaries(folder: Path) -> list[FramesSummary]:
         out.append(s)
     for name in missing:
         mj, idx = folder / f"{name}.mjpeg", folder / f"{name}.index.csv"
-        if mj.exists() and not idx.exists():      # the frames are there, only the index is gone
+        if mj.exists() and not idx.exists():  # the frames are there, only the index is gone
             s = _summarize_file(mj, name, [*note, "no index: run 'vts recording reindex'"])
             s.promised = _listed(manifest, name)
         else:
             s = summarize_times(name, [])
             s.promised = _listed(manifest, name)
             s.missing_files = [p.name for p in (mj, idx) if not p.exists()]
-            s.problems = [*note, f"{' and '.join(s.missing_files)} missing"
-                          + (f" (the manifest lists {s.promised} frames)" if s.promised is not None else "")]
+            s.problems = [
+                *note,
+                f"{' and '.join(s.missing_files)} missing"
+                + (f" (the manifest lists {s.promised} frames)" if s.promised is not None else ""),
+            ]
         out.append(s)
     return out
 
@@ -87,8 +90,10 @@ def manifest_problem(folder: str | Path) -> str:
     except DataError as exc:
         return f"{exc} ('vts recording reindex {folder}' keeps it aside and writes a fresh one)"
     if manifest is None:
-        return (f"{folder}: no {MANIFEST}, so what the recording promised is not known ('vts recording reindex "
-                f"{folder}' writes a fresh one from the frames)")
+        return (
+            f"{folder}: no {MANIFEST}, so what the recording promised is not known ('vts recording reindex "
+            f"{folder}' writes a fresh one from the frames)"
+        )
     if manifest.get("unfinished") and manifest.get("status") != "recording":
         return f"{folder}: {manifest['unfinished']} ('vts recording reindex {folder}' marks it recovered)"
     return ""
@@ -101,8 +106,10 @@ def shortfall(summaries: list[FramesSummary]) -> str:
         if s.whole:
             continue
         if s.missing_files:
-            parts.append(f"{s.source}: {' and '.join(s.missing_files)} missing"
-                         + (f" ({s.promised} frames promised)" if s.promised is not None else ""))
+            parts.append(
+                f"{s.source}: {' and '.join(s.missing_files)} missing"
+                + (f" ({s.promised} frames promised)" if s.promised is not None else "")
+            )
         else:
             parts.append(f"{s.source}: {s.frames} of {s.promised} frames promised are readable")
     return "; ".join(parts)

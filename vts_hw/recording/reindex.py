@@ -28,13 +28,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from vts_hw.bounded import ANY_SIZE, TABLE, open_checked, read_bytes
-from vts_hw.recording.axis_jpeg import inspect_jpeg
 from vts_hw.errors import DataError, UsageError
 from vts_hw.files import WriteFailed, check_target, os_reason, write_atomic, write_json_atomic
-from vts_hw.recording.mjpeg import split_jpegs
+from vts_hw.recording.axis_jpeg import inspect_jpeg
 from vts_hw.recording.folder import INDEX_HEADER, MANIFEST, FrameRow, load_manifest, read_index
+from vts_hw.recording.mjpeg import split_jpegs
 
-RESERVE_NAME = ".vts-reserve"   # the recording writer's reserve, left behind by a killed recorder
+RESERVE_NAME = ".vts-reserve"  # the recording writer's reserve, left behind by a killed recorder
 REBUILT_SUFFIX = ".index.rebuilt.csv"
 DAMAGED_SUFFIX = ".index.damaged.csv"
 UNREADABLE_MANIFEST = "manifest.unreadable.json"
@@ -43,12 +43,12 @@ UNREADABLE_MANIFEST = "manifest.unreadable.json"
 @dataclass
 class CameraReindex:
     name: str
-    frames: int                 # frames in the rebuilt index
+    frames: int  # frames in the rebuilt index
     host_times_kept: int
-    torn: int                   # frames cut short at the end, left out
-    old_frames: int | None      # frames the old index listed (None: there was none, or unreadable)
-    replaced: bool              # the rebuilt index is now the index
-    note: str = ""              # why the old index was kept, or what was odd
+    torn: int  # frames cut short at the end, left out
+    old_frames: int | None  # frames the old index listed (None: there was none, or unreadable)
+    replaced: bool  # the rebuilt index is now the index
+    note: str = ""  # why the old index was kept, or what was odd
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -74,7 +74,7 @@ class ReindexReport:
 
 def _read_mjpeg(path: Path):
     """The file's bytes as a read-only map (no copy of a recording of gigabytes in memory)."""
-    try:        # a regular file only: a FIFO of that name would block the open for ever (bounded.py)
+    try:  # a regular file only: a FIFO of that name would block the open for ever (bounded.py)
         with open_checked(path, ANY_SIZE, "recording's .mjpeg") as f:
             if os.fstat(f.fileno()).st_size == 0:
                 return b""
@@ -108,15 +108,16 @@ def _rebuild(data, old: dict[int, FrameRow]) -> tuple[str, int, int, int, set]:
             torn += 1
             continue
         try:
-            ct = inspect_jpeg(bytes(data[span.offset:span.offset + span.length])).timestamp
+            ct = inspect_jpeg(bytes(data[span.offset : span.offset + span.length])).timestamp
         except DataError:
             ct = None
         prev = old.get(span.offset)
         ht = prev.host_time if prev is not None and prev.length == span.length else None
         kept += ht is not None
         found.add((span.offset, span.length))
-        buf.write(f"{n},{span.offset},{span.length},{'' if ct is None else f'{ct:.2f}'},"
-                  f"{'' if ht is None else f'{ht:.6f}'}\n")
+        buf.write(
+            f"{n},{span.offset},{span.length},{'' if ct is None else f'{ct:.2f}'},{'' if ht is None else f'{ht:.6f}'}\n"
+        )
         n += 1
     return buf.getvalue(), n, kept, torn, found
 
@@ -136,17 +137,23 @@ def reindex_camera(folder: Path, mjpeg: Path) -> CameraReindex:
     rebuilt = folder / f"{name}{REBUILT_SUFFIX}"
     if lost and not old_problem:
         write_atomic(rebuilt, text, encoding="ascii")
-        note = (f"the rebuilt index would lose {len(lost)} of the {len(listed)} frame(s) the old one lists "
-                f"({mjpeg.name} holds {n} whole frame(s)): the old index is kept as it was and the rebuilt "
-                f"one is beside it as {rebuilt.name}")
+        note = (
+            f"the rebuilt index would lose {len(lost)} of the {len(listed)} frame(s) the old one lists "
+            f"({mjpeg.name} holds {n} whole frame(s)): the old index is kept as it was and the rebuilt "
+            f"one is beside it as {rebuilt.name}"
+        )
         return CameraReindex(name, n, kept, torn, len(listed), False, note)
     note = ""
-    if old_problem:   # a damaged index is replaced, and kept beside for whoever wants to look
+    if old_problem:  # a damaged index is replaced, and kept beside for whoever wants to look
         damaged = folder / f"{name}{DAMAGED_SUFFIX}"
         write_atomic(damaged, read_bytes(index_path, TABLE, "recording index"), kept="the old index is unchanged")
         note = f"the old index was damaged ({old_problem}); it is kept as {damaged.name}"
-    write_atomic(index_path, text, encoding="ascii",
-                 kept="the old index is unchanged" if index_path.exists() else "no index was written")
+    write_atomic(
+        index_path,
+        text,
+        encoding="ascii",
+        kept="the old index is unchanged" if index_path.exists() else "no index was written",
+    )
     with contextlib.suppress(FileNotFoundError):
         rebuilt.unlink()  # an earlier rebuilt copy is now the index
     return CameraReindex(name, n, kept, torn, None if old_rows is None else len(old_rows), True, note)
@@ -176,8 +183,9 @@ def _not_being_recorded(folder: Path) -> None:
     with contextlib.suppress(DataError):
         manifest = load_manifest(folder, missing_ok=True)
         if manifest is not None and manifest.get("status") == "recording" and manifest.get("unfinished"):
-            raise UsageError(f"{folder}: {manifest['unfinished']}: reindex it once that recording has stopped; "
-                             f"nothing was changed")
+            raise UsageError(
+                f"{folder}: {manifest['unfinished']}: reindex it once that recording has stopped; nothing was changed"
+            )
 
 
 def _mark_reindexed(folder: Path, report: ReindexReport) -> None:
@@ -186,17 +194,19 @@ def _mark_reindexed(folder: Path, report: ReindexReport) -> None:
         manifest = load_manifest(folder, missing_ok=True)
     except DataError as exc:
         keep = folder / UNREADABLE_MANIFEST
-        check_target(keep, f"{MANIFEST} is unchanged")    # a device, FIFO or link there is never replaced
+        check_target(keep, f"{MANIFEST} is unchanged")  # a device, FIFO or link there is never replaced
         try:
             os.replace(mpath, keep)
         except OSError as err:
             raise WriteFailed(keep, os_reason(err), f"{MANIFEST} is unchanged") from None
-        report.manifest_note = (f"{exc}; it is kept as {keep.name} and a fresh manifest was written from the "
-                                f".mjpeg files (camera times and frame counts only)")
+        report.manifest_note = (
+            f"{exc}; it is kept as {keep.name} and a fresh manifest was written from the "
+            f".mjpeg files (camera times and frame counts only)"
+        )
         manifest = None
     if manifest is None:
         manifest = {"format": "vts-recording/1", "status": "recovered", "cameras": {}}
-    unfinished = manifest.pop("unfinished", None)     # load_manifest's word, not the file's
+    unfinished = manifest.pop("unfinished", None)  # load_manifest's word, not the file's
     if unfinished:
         manifest["status"] = "recovered"  # the recorder never closed it
         manifest["interrupted"] = unfinished

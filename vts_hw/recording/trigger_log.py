@@ -35,9 +35,22 @@ from pathlib import Path
 from vts_hw.bounded import TABLE, open_bounded
 from vts_hw.errors import DataError
 
-__all__ = ["WAVE_START", "WAVE_STOP", "CLOCK", "NEUTRAL_KINDS", "DEVICE_CLOCK_MAPPED", "HOST_WRITE",
-           "TIME_SOURCES", "LOG_HEADER", "wave_start_text", "wave_stop_text", "clock_text",
-           "parse_fields", "read_trigger_rows", "finite_float"]
+__all__ = [
+    "WAVE_START",
+    "WAVE_STOP",
+    "CLOCK",
+    "NEUTRAL_KINDS",
+    "DEVICE_CLOCK_MAPPED",
+    "HOST_WRITE",
+    "TIME_SOURCES",
+    "LOG_HEADER",
+    "wave_start_text",
+    "wave_stop_text",
+    "clock_text",
+    "parse_fields",
+    "read_trigger_rows",
+    "finite_float",
+]
 
 LOG_HEADER = ["host_time", "device_time_us", "device", "kind", "text"]
 
@@ -47,8 +60,8 @@ CLOCK = "clock"
 NEUTRAL_KINDS = (WAVE_START, WAVE_STOP, CLOCK)
 
 #: how a neutral row's host time is known
-DEVICE_CLOCK_MAPPED = "device_clock_mapped"   # the device timed the edge; its clock fitted to the host's
-HOST_WRITE = "host_write"                     # the host time of the write that made it happen
+DEVICE_CLOCK_MAPPED = "device_clock_mapped"  # the device timed the edge; its clock fitted to the host's
+HOST_WRITE = "host_write"  # the host time of the write that made it happen
 TIME_SOURCES = {
     DEVICE_CLOCK_MAPPED: "the device's own time of the edge, mapped to host time through a fitted clock mapping",
     HOST_WRITE: "the host time just before the write that started or stopped it",
@@ -59,6 +72,7 @@ DRIFT_SE_MAX_PPM = 2.0
 
 
 # ---------------------------------------------------------------------------------- writing
+
 
 def _num(v: float) -> str:
     return repr(float(v))
@@ -93,37 +107,72 @@ def _check_time(time_source: str) -> None:
         raise ValueError(f"time must be one of {', '.join(TIME_SOURCES)}, not {time_source!r}")
 
 
-def wave_start_text(*, period_s: float, duty: float, high_v: float, low_v: float, start_pulse: bool,
-                    time_source: str, uncertainty_s: float | None) -> str:
+def wave_start_text(
+    *,
+    period_s: float,
+    duty: float,
+    high_v: float,
+    low_v: float,
+    start_pulse: bool,
+    time_source: str,
+    uncertainty_s: float | None,
+) -> str:
     """The ``text`` of a ``wave_start`` row (``uncertainty_s`` None: not known, left out)."""
     _check_time(time_source)
     if not (period_s > 0 and 0 < duty < 1 and math.isfinite(high_v) and math.isfinite(low_v)):
         raise ValueError(f"not a square wave: period {period_s!r} s, duty {duty!r}, levels {low_v!r}..{high_v!r} V")
-    return _fields({"period_s": float(period_s), "duty": float(duty), "high_v": float(high_v),
-                    "low_v": float(low_v), "start_pulse": bool(start_pulse), "time": time_source,
-                    "uncertainty_s": _short(uncertainty_s)})
+    return _fields(
+        {
+            "period_s": float(period_s),
+            "duty": float(duty),
+            "high_v": float(high_v),
+            "low_v": float(low_v),
+            "start_pulse": bool(start_pulse),
+            "time": time_source,
+            "uncertainty_s": _short(uncertainty_s),
+        }
+    )
 
 
 def wave_stop_text(*, rising_edges: int | None, time_source: str, uncertainty_s: float | None) -> str:
     """The ``text`` of a ``wave_stop`` row (``rising_edges`` None: the device does not count them)."""
     _check_time(time_source)
-    return _fields({"rising_edges": None if rising_edges is None else int(rising_edges),
-                    "time": time_source,
-                    "uncertainty_s": _short(uncertainty_s)})
+    return _fields(
+        {
+            "rising_edges": None if rising_edges is None else int(rising_edges),
+            "time": time_source,
+            "uncertainty_s": _short(uncertainty_s),
+        }
+    )
 
 
-def clock_text(*, drift_ppm: float, drift_se_ppm: float | None, residual_s: float | None,
-               uncertainty_s: float | None, samples: int | None) -> str:
+def clock_text(
+    *,
+    drift_ppm: float,
+    drift_se_ppm: float | None,
+    residual_s: float | None,
+    uncertainty_s: float | None,
+    samples: int | None,
+) -> str:
     """The ``text`` of a ``clock`` row (None: not known, left out; an infinite standard error,
     a drift not measurable from the samples, is written ``inf``)."""
+
     def opt(v):
         return None if v is None else _short(v) if math.isfinite(v) else "inf"
-    return _fields({"drift_ppm": float(drift_ppm), "drift_se_ppm": opt(drift_se_ppm),
-                    "residual_s": opt(residual_s), "uncertainty_s": opt(uncertainty_s),
-                    "samples": None if samples is None else int(samples)})
+
+    return _fields(
+        {
+            "drift_ppm": float(drift_ppm),
+            "drift_se_ppm": opt(drift_se_ppm),
+            "residual_s": opt(residual_s),
+            "uncertainty_s": opt(uncertainty_s),
+            "samples": None if samples is None else int(samples),
+        }
+    )
 
 
 # ---------------------------------------------------------------------------------- reading
+
 
 def parse_fields(text: str | None) -> dict[str, str]:
     """``key=value key=value`` -> dict (values as text); a token without ``=`` is skipped."""

@@ -27,15 +27,24 @@ import math
 import re
 from typing import Any
 
-from vts_hw.recording.trigger_log import (CLOCK, DEVICE_CLOCK_MAPPED, HOST_WRITE, WAVE_START, WAVE_STOP,
-                                          clock_text, finite_float, wave_start_text, wave_stop_text)
+from vts_hw.recording.trigger_log import (
+    CLOCK,
+    DEVICE_CLOCK_MAPPED,
+    HOST_WRITE,
+    WAVE_START,
+    WAVE_STOP,
+    clock_text,
+    finite_float,
+    wave_start_text,
+    wave_stop_text,
+)
 
 __all__ = ["neutral_rows"]
 
 _FG_CMD = re.compile(r"^(?:SOUR\d:)?(FREQ|FUNC:SQU:DCYC|VOLT:HIGH|VOLT:LOW)\s+(\S+)$", re.I)
 _FG_QUERY = re.compile(r"^(?:SOUR\d:)?(FREQ|FUNC:SQU:DCYC|VOLT:HIGH|VOLT:LOW)\?$", re.I)
 _FG_OUTP = re.compile(r"^OUTP\d?\s+(1|0|ON|OFF)$", re.I)
-_BOX_BYTE_S = 10 / 115200          # one 8N1 byte at 115200 baud
+_BOX_BYTE_S = 10 / 115200  # one 8N1 byte at 115200 baud
 _DRIFT = re.compile(r"drift ([+-]?[\d.]+) ± (\S+) ppm")
 
 
@@ -47,8 +56,9 @@ def _is_box(rows: list[dict], dev: str | None) -> bool:
         text = (row.get("text") or "").strip().upper()
         if row.get("kind") == "reply" and text.startswith("VTS,TRIGGERBOX"):
             return True
-        if row.get("kind") == "cmd" and (text in ("*TRG", "OUTP ON", "OUTP OFF", "EDGES?", "TIME?")
-                                         or text.startswith(("PULSE", "DUTY"))):
+        if row.get("kind") == "cmd" and (
+            text in ("*TRG", "OUTP ON", "OUTP OFF", "EDGES?", "TIME?") or text.startswith(("PULSE", "DUTY"))
+        ):
             return True
     return False
 
@@ -57,8 +67,9 @@ def _fg_set(st: dict[str, Any], key: str, text: str) -> None:
     v = finite_float(text)
     if v is None:
         return
-    st[{"FREQ": "FREQ", "FUNC:SQU:DCYC": "DUTY", "VOLT:HIGH": "HIGH", "VOLT:LOW": "LOW"}[key]] = \
+    st[{"FREQ": "FREQ", "FUNC:SQU:DCYC": "DUTY", "VOLT:HIGH": "HIGH", "VOLT:LOW": "LOW"}[key]] = (
         v / 100.0 if key == "FUNC:SQU:DCYC" else v
+    )
 
 
 def _row(host: float, device: str | None, kind: str, text: str) -> dict:
@@ -73,7 +84,8 @@ def neutral_rows(rows: list[dict]) -> list[dict]:
     box = {d: _is_box(rows, d) for d in devices}
     # (a row without a device, a short CSV line, is the device None's: as the log has it)
     settings: dict[str | None, dict[str, Any]] = {
-        d: {"FREQ": None, "DUTY": 0.5, "HIGH": None, "LOW": None} for d in devices}
+        d: {"FREQ": None, "DUTY": 0.5, "HIGH": None, "LOW": None} for d in devices
+    }
     last_cmd: dict[str | None, str] = {}
     waves: list[dict] = []
     current: dict[str | None, dict | None] = {d: None for d in devices}
@@ -92,9 +104,15 @@ def neutral_rows(rows: list[dict]) -> list[dict]:
                 if key in ("FREQ", "DUTY") and finite_float(value) is not None:
                     st[key] = finite_float(value)
                 elif up in ("*TRG", "OUTP ON"):
-                    w = current[dev] = {"start": h + (len(text) + 1) * _BOX_BYTE_S, "mapped": False,
-                                        "stop_cmd": None, "n": None, "pulse": up == "*TRG",
-                                        "set": dict(st), "device": dev}
+                    w = current[dev] = {
+                        "start": h + (len(text) + 1) * _BOX_BYTE_S,
+                        "mapped": False,
+                        "stop_cmd": None,
+                        "n": None,
+                        "pulse": up == "*TRG",
+                        "set": dict(st),
+                        "device": dev,
+                    }
                     waves.append(w)
                 elif up in ("OUTP OFF", "*RST") and w is not None and w["stop_cmd"] is None:
                     w["stop_cmd"] = h
@@ -104,8 +122,14 @@ def neutral_rows(rows: list[dict]) -> list[dict]:
                     _fg_set(st, m.group(1).upper(), m.group(2))
                 m = _FG_OUTP.match(text)
                 if m and m.group(1).upper() in ("1", "ON"):
-                    w = current[dev] = {"start": h, "mapped": False, "stop": None, "pulse": False,
-                                        "set": dict(st), "device": dev}
+                    w = current[dev] = {
+                        "start": h,
+                        "mapped": False,
+                        "stop": None,
+                        "pulse": False,
+                        "set": dict(st),
+                        "device": dev,
+                    }
                     waves.append(w)
                 elif m and w is not None and w["stop"] is None:
                     w["stop"] = h
@@ -122,22 +146,33 @@ def neutral_rows(rows: list[dict]) -> list[dict]:
                 m = _FG_QUERY.match(cmd)
                 if m:
                     _fg_set(st, m.group(1).upper(), text)
-            if w is not None and w["set"]["FREQ"] is None:   # read back after the start
+            if w is not None and w["set"]["FREQ"] is None:  # read back after the start
                 w["set"] = dict(st)
         elif kind == "event" and box[dev] and text.startswith("clock mapping:"):
             m = _DRIFT.search(text)
             if m and finite_float(m.group(1)) is not None:
                 st["DRIFT"] = (h, finite_float(m.group(1)), finite_float(m.group(2)))
-        elif kind == "edge" and box[dev] and w is not None and text.startswith("first rising edge") \
-                and "mapped from the box clock" in text:
+        elif (
+            kind == "edge"
+            and box[dev]
+            and w is not None
+            and text.startswith("first rising edge")
+            and "mapped from the box clock" in text
+        ):
             w["start"] = h
             w["mapped"] = True
     out: list[dict] = []
     for dev in devices:
         if "DRIFT" in settings[dev]:
             h, drift, se = settings[dev]["DRIFT"]
-            out.append(_row(h, dev, CLOCK, clock_text(drift_ppm=drift, drift_se_ppm=se, residual_s=None,
-                                                      uncertainty_s=None, samples=None)))
+            out.append(
+                _row(
+                    h,
+                    dev,
+                    CLOCK,
+                    clock_text(drift_ppm=drift, drift_se_ppm=se, residual_s=None, uncertainty_s=None, samples=None),
+                )
+            )
     for k, w in enumerate(waves):
         dev, freq, duty = w["device"], w["set"]["FREQ"], w["set"]["DUTY"]
         if not freq or freq <= 0 or not 0 < duty < 1:
@@ -148,19 +183,44 @@ def neutral_rows(rows: list[dict]) -> list[dict]:
         if box[dev]:
             high, low = 5.0, 0.0
         else:
-            high = w["set"]["HIGH"] if w["set"]["HIGH"] is not None else 0.05   # the 33500's *RST
+            high = w["set"]["HIGH"] if w["set"]["HIGH"] is not None else 0.05  # the 33500's *RST
             low = w["set"]["LOW"] if w["set"]["LOW"] is not None else -0.05
         time_source = DEVICE_CLOCK_MAPPED if w["mapped"] else HOST_WRITE
-        out.append(_row(w["start"], dev, WAVE_START, wave_start_text(
-            period_s=period, duty=duty, high_v=high, low_v=low, start_pulse=w["pulse"],
-            time_source=time_source, uncertainty_s=None)))
+        out.append(
+            _row(
+                w["start"],
+                dev,
+                WAVE_START,
+                wave_start_text(
+                    period_s=period,
+                    duty=duty,
+                    high_v=high,
+                    low_v=low,
+                    start_pulse=w["pulse"],
+                    time_source=time_source,
+                    uncertainty_s=None,
+                ),
+            )
+        )
         if box[dev] and w["stop_cmd"] is not None:
             # it finishes the period under way; the box's own count, read once it has
             # stopped, is exact (a count read before then is too low, hence the max)
             n = max(w["n"] or 0, math.ceil((w["stop_cmd"] - w["start"]) / period - 1e-9))
-            out.append(_row(w["start"] + n * period, dev, WAVE_STOP,
-                            wave_stop_text(rising_edges=n, time_source=time_source, uncertainty_s=None)))
+            out.append(
+                _row(
+                    w["start"] + n * period,
+                    dev,
+                    WAVE_STOP,
+                    wave_stop_text(rising_edges=n, time_source=time_source, uncertainty_s=None),
+                )
+            )
         elif not box[dev] and w["stop"] is not None:
-            out.append(_row(w["stop"], dev, WAVE_STOP,
-                            wave_stop_text(rising_edges=None, time_source=HOST_WRITE, uncertainty_s=None)))
+            out.append(
+                _row(
+                    w["stop"],
+                    dev,
+                    WAVE_STOP,
+                    wave_stop_text(rising_edges=None, time_source=HOST_WRITE, uncertainty_s=None),
+                )
+            )
     return out

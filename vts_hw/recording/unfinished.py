@@ -19,7 +19,7 @@ from vts_hw.lifeline import host_name, is_alive
 
 __all__ = ["Unfinished", "judge", "RUNNING", "INTERRUPTED"]
 
-RUNNING = "recording"        # its writer runs
+RUNNING = "recording"  # its writer runs
 INTERRUPTED = "interrupted"  # its writer died without closing it, or cannot be asked
 
 
@@ -42,22 +42,30 @@ def judge(manifest: dict) -> Unfinished | None:
         return None
     w = manifest.get("writer")
     if not isinstance(w, dict):
-        return Unfinished(INTERRUPTED, "its recording was never closed (status 'recording') and names no "
-                                       "writer to ask whether it still runs: read as interrupted")
+        return Unfinished(
+            INTERRUPTED,
+            "its recording was never closed (status 'recording') and names no "
+            "writer to ask whether it still runs: read as interrupted",
+        )
     pid, host, token = w.get("pid"), w.get("host"), w.get("process")
     pid = pid if isinstance(pid, int) and not isinstance(pid, bool) else None
     host = host if isinstance(host, str) else None
     token = token if isinstance(token, str) else ""
     if host != host_name():
         shown = "".join(c for c in host or "" if c.isprintable())[:80] or "another computer"
-        return Unfinished(INTERRUPTED, f"its recording was never closed, and it was written on {shown}, which "
-                                       f"cannot be asked from here whether it still records: read as interrupted",
-                          pid)
+        return Unfinished(
+            INTERRUPTED,
+            f"its recording was never closed, and it was written on {shown}, which "
+            f"cannot be asked from here whether it still records: read as interrupted",
+            pid,
+        )
     alive = is_alive(pid, token)
     if alive:
         return Unfinished(RUNNING, f"it is being recorded now by vts (pid {pid}) on this computer", pid)
     who = f"vts (pid {pid})" if pid is not None else "its writer"
-    how = "ended without closing it (killed, or the computer stopped)" if alive is False \
+    how = (
+        "ended without closing it (killed, or the computer stopped)"
+        if alive is False
         else "cannot be asked whether it still runs"
-    return Unfinished(INTERRUPTED, f"its recording was interrupted: {who}, which wrote it on this computer, {how}",
-                      pid)
+    )
+    return Unfinished(INTERRUPTED, f"its recording was interrupted: {who}, which wrote it on this computer, {how}", pid)

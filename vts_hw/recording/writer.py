@@ -38,7 +38,7 @@ from vts_hw.files import WriteFailed, check_folder, ensure_dir, open_fd, os_reas
 from vts_hw.lifeline import process_record
 from vts_hw.recording.folder import INDEX_HEADER, MANIFEST, load_manifest, read_index
 
-FSYNC_EVERY_S = 1.0        # write() per frame survives a killed process; fsync bounds a power cut
+FSYNC_EVERY_S = 1.0  # write() per frame survives a killed process; fsync bounds a power cut
 RESERVE_NAME = ".vts-reserve"
 RESERVE_BYTES = 256 * 1024  # room for the last manifest (and its temporary copy) on a full disk
 STATUS_ORDER = ("complete", "recovered", "partial", "interrupted", "failed")
@@ -54,15 +54,17 @@ class FrameNotWritten(WriteFailed):
 
 def worse_status(a: str | None, b: str | None) -> str:
     """The worse of two recording statuses (unknown ones count as worst)."""
+
     def rank(s):
         return STATUS_ORDER.index(s) if s in STATUS_ORDER else len(STATUS_ORDER)
+
     return max((s for s in (a, b) if s), key=rank, default="complete")
 
 
 def _write_all(fd: int, data: bytes) -> None:
     view = memoryview(data)
     while view:
-        view = view[os.write(fd, view):]
+        view = view[os.write(fd, view) :]
 
 
 class CameraWriter:
@@ -81,8 +83,10 @@ class CameraWriter:
             end = rows[-1].offset + rows[-1].length if rows else 0
             size = self.mjpeg_path.stat().st_size if self.mjpeg_path.exists() else 0
             if size != end:
-                raise DataError(f"{self.mjpeg_path}: holds {size} bytes but its index ends at byte {end}: "
-                                f"run 'vts recording reindex {folder}' before adding to it")
+                raise DataError(
+                    f"{self.mjpeg_path}: holds {size} bytes but its index ends at byte {end}: "
+                    f"run 'vts recording reindex {folder}' before adding to it"
+                )
         self.frames_before = len(rows)
         # regular files only, never through a symbolic link; a FIFO of that name is refused, not waited on
         self._mjpeg = open_fd(self.mjpeg_path, perms=0o644)
@@ -116,13 +120,14 @@ class CameraWriter:
         ct = "" if camera_time is None else f"{camera_time:.2f}"
         line = f"{self.frames},{self._offset},{len(jpeg)},{ct},{host_time:.6f}\n"
         try:
-            _write_all(self._mjpeg, jpeg)       # the bytes first: an index line never points past them
+            _write_all(self._mjpeg, jpeg)  # the bytes first: an index line never points past them
             _write_all(self._index, line.encode("ascii"))
         except OSError as exc:
             self._take_back()
-            raise FrameNotWritten(self.mjpeg_path, os_reason(exc),
-                                  f"kept {self.frames} whole frame(s) of {self.name}") from None
-        except BaseException:     # Ctrl-C between the two writes: neither file keeps a part of this frame
+            raise FrameNotWritten(
+                self.mjpeg_path, os_reason(exc), f"kept {self.frames} whole frame(s) of {self.name}"
+            ) from None
+        except BaseException:  # Ctrl-C between the two writes: neither file keeps a part of this frame
             self._take_back()
             raise
         self._index_size += len(line)
@@ -158,8 +163,9 @@ class CameraWriter:
 
 
 def holds_recording(folder: Path) -> bool:
-    return folder.is_dir() and ((folder / MANIFEST).exists() or any(folder.glob("*.mjpeg"))
-                                or any(folder.glob("*.index.csv")))
+    return folder.is_dir() and (
+        (folder / MANIFEST).exists() or any(folder.glob("*.mjpeg")) or any(folder.glob("*.index.csv"))
+    )
 
 
 class Recording:
@@ -174,11 +180,12 @@ class Recording:
         self.meta = dict(meta or {})
         self.append = append
         self.base: dict = {}
-        check_folder(self.folder, "recording folder")   # a FIFO, device or symbolic link of that name: refused
+        check_folder(self.folder, "recording folder")  # a FIFO, device or symbolic link of that name: refused
         if holds_recording(self.folder):
             if not append:
-                raise RecordingExists(f"{self.folder} already holds a recording: record into a new folder, "
-                                      f"or add to it with --append")
+                raise RecordingExists(
+                    f"{self.folder} already holds a recording: record into a new folder, or add to it with --append"
+                )
             self.base = self._existing()
         else:
             ensure_dir(self.folder, "recording folder")
@@ -192,8 +199,9 @@ class Recording:
         self.writer = process_record()
         self._lock = threading.Lock()
         self.writers: dict[str, CameraWriter] = {}
-        created = [] if append else [self.folder / f"{n}{ext}" for n in self.cameras
-                                     for ext in (".mjpeg", ".index.csv")]
+        created = (
+            [] if append else [self.folder / f"{n}{ext}" for n in self.cameras for ext in (".mjpeg", ".index.csv")]
+        )
         try:
             for name in self.cameras:
                 self.writers[name] = CameraWriter(self.folder, name, append=append)
@@ -205,7 +213,7 @@ class Recording:
             self._free_reserve()
             for p in created:  # empty files of a recording that never started
                 with contextlib.suppress(OSError):
-                    st = os.lstat(p)   # ours are regular files: anything else of that name is left alone
+                    st = os.lstat(p)  # ours are regular files: anything else of that name is left alone
                     if stat.S_ISREG(st.st_mode) and st.st_size <= len(",".join(INDEX_HEADER)) + 1:
                         p.unlink()
             if isinstance(exc, WriteFailed):
@@ -215,14 +223,19 @@ class Recording:
     def _existing(self) -> dict:
         base = load_manifest(self.folder, missing_ok=True)
         if base is None:
-            raise DataError(f"{self.folder}: holds recording files but no {MANIFEST}: run "
-                            f"'vts recording reindex {self.folder}' before adding to it")
-        if base.get("unfinished") and base.get("status") == "recording":   # its writer runs (unfinished.py)
-            raise RecordingExists(f"{self.folder}: {base['unfinished']}: add to it once that recording has "
-                                  f"stopped, or record into a new folder")
+            raise DataError(
+                f"{self.folder}: holds recording files but no {MANIFEST}: run "
+                f"'vts recording reindex {self.folder}' before adding to it"
+            )
+        if base.get("unfinished") and base.get("status") == "recording":  # its writer runs (unfinished.py)
+            raise RecordingExists(
+                f"{self.folder}: {base['unfinished']}: add to it once that recording has "
+                f"stopped, or record into a new folder"
+            )
         if base.get("unfinished"):
-            raise DataError(f"{self.folder}: {base['unfinished']}: run 'vts recording reindex {self.folder}' "
-                            f"before adding to it")
+            raise DataError(
+                f"{self.folder}: {base['unfinished']}: run 'vts recording reindex {self.folder}' before adding to it"
+            )
         return base
 
     # -- the reserve -------------------------------------------------------------------------
@@ -272,19 +285,32 @@ class Recording:
             cams = {name: self._camera_entry(name, w) for name, w in self.writers.items()}
         finished = None if self.status == "recording" else time.time()
         if not self.base:
-            return {"format": "vts-recording/1", "software": {"name": "vts-hw", "version": __version__},
-                    "status": self.status, "started": self.started, "finished": finished,
-                    **({"problems": list(self.problems)} if self.problems else {}),
-                    **self.meta, "writer": self.writer, "cameras": cams}
+            return {
+                "format": "vts-recording/1",
+                "software": {"name": "vts-hw", "version": __version__},
+                "status": self.status,
+                "started": self.started,
+                "finished": finished,
+                **({"problems": list(self.problems)} if self.problems else {}),
+                **self.meta,
+                "writer": self.writer,
+                "cameras": cams,
+            }
         out = dict(self.base)
         out["writer"] = self.writer
-        addition = {"started": self.started, "finished": finished, "status": self.status,
-                    "software": {"name": "vts-hw", "version": __version__},
-                    "frames_added": {n: w.frames_added for n, w in self.writers.items()},
-                    **({"problems": list(self.problems)} if self.problems else {}), **self.meta}
+        addition = {
+            "started": self.started,
+            "finished": finished,
+            "status": self.status,
+            "software": {"name": "vts-hw", "version": __version__},
+            "frames_added": {n: w.frames_added for n, w in self.writers.items()},
+            **({"problems": list(self.problems)} if self.problems else {}),
+            **self.meta,
+        }
         out["appended"] = list(self.base.get("appended") or []) + [addition]
-        out["status"] = "recording" if self.status == "recording" else \
-            worse_status(self.base.get("status"), self.status)
+        out["status"] = (
+            "recording" if self.status == "recording" else worse_status(self.base.get("status"), self.status)
+        )
         out["cameras"] = {**self.base.get("cameras", {}), **cams}
         return out
 
@@ -314,8 +340,9 @@ class Recording:
 
     def __exit__(self, exc_type, exc, tb):
         if self.status == "recording":
-            self.close("complete" if exc_type is None else
-                       ("interrupted" if exc_type is KeyboardInterrupt else "failed"))
+            self.close(
+                "complete" if exc_type is None else ("interrupted" if exc_type is KeyboardInterrupt else "failed")
+            )
         return False
 
 

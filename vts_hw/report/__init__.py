@@ -15,8 +15,17 @@ of renderers (:mod:`vts_hw.report.renderers`); the builders that read the store 
 from vts_hw.lazy import exports
 
 # imported when first asked for: `vts report drift -o x.txt` says no before the plots' libraries load
-__getattr__ = exports(__name__, {"build_drift_report": "build", "collect": "drift", "DriftReport": "model",
-                                 "ReportError": "renderers", "parse_since": "times", "BadSince": "times",
-                                 "camera_figure": "plots"})
+__getattr__ = exports(
+    __name__,
+    {
+        "build_drift_report": "build",
+        "collect": "drift",
+        "DriftReport": "model",
+        "ReportError": "renderers",
+        "parse_since": "times",
+        "BadSince": "times",
+        "camera_figure": "plots",
+    },
+)
 
 __all__ = ["build_drift_report", "collect", "DriftReport", "ReportError", "parse_since", "BadSince", "camera_figure"]

@@ -17,8 +17,14 @@ from vts_hw.report.renderers import report_format, write_report
 from vts_hw.report.rooms import RoomsReport, collect_rooms
 
 
-def build_drift_report(store, out: str | Path, since: float | None = None, now: float | None = None,
-                       rig: str | None = None, title: str | None = None) -> DriftReport:
+def build_drift_report(
+    store,
+    out: str | Path,
+    since: float | None = None,
+    now: float | None = None,
+    rig: str | None = None,
+    title: str | None = None,
+) -> DriftReport:
     """Compute the drift report from ``store`` and write it to ``out``.
 
     ``out`` ending in ``.html`` gives one self-contained HTML file (plots as inline PNG, no
@@ -38,8 +44,9 @@ def build_drift_report(store, out: str | Path, since: float | None = None, now: 
     return report
 
 
-def build_drift_report_every_rig(store, out: str | Path, since: float | None = None, now: float | None = None,
-                                 rigs=None) -> list[DriftReport]:
+def build_drift_report_every_rig(
+    store, out: str | Path, since: float | None = None, now: float | None = None, rigs=None
+) -> list[DriftReport]:
     """The drift report of every rig in the store (or of ``rigs``) in one file: per rig its own
     section (HTML) or pages (PDF), numbers computed per rig (cam1 of one rig is not cam1 of
     another). Written whole, as :func:`build_drift_report`."""
@@ -53,8 +60,9 @@ def build_drift_report_every_rig(store, out: str | Path, since: float | None = N
     return reports
 
 
-def build_rooms_report(store, out: str | Path, since: float | None = None, now: float | None = None,
-                       rigs=None, progress=None) -> RoomsReport:
+def build_rooms_report(
+    store, out: str | Path, since: float | None = None, now: float | None = None, rigs=None, progress=None
+) -> RoomsReport:
     """Write each rig's drift report beside ``out`` and then the rooms page (``.html`` or
     ``.pdf``); every file is written whole (``files.write_atomic``). ``progress(text)`` hears
     of each file written."""

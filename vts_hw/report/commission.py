@@ -19,15 +19,18 @@ from vts_hw.tolerance import State, worst
 NOT_FIGURES = {"commission_id", "step_passed", "step_run", "step_skipped", "baseline_x_px", "baseline_y_px"}
 #: a step's row when its newest attempt did not pass
 NOT_PASSED = ("NOT RUN", "NOT PASSED", "ABORTED")
-WORDS = {"OK": "OK: within tolerance", "TOLERANCE": "TOLERANCE: within the action limits; review it",
-         "ACTION": "ACTION: outside the action limits; act before the room is used"}
+WORDS = {
+    "OK": "OK: within tolerance",
+    "TOLERANCE": "TOLERANCE: within the action limits; review it",
+    "ACTION": "ACTION: outside the action limits; act before the room is used",
+}
 
 
 @dataclass
 class StepRow:
     name: str
     label: str
-    state: str            # OK / TOLERANCE / ACTION, "SKIPPED", "NOT RUN", "NOT PASSED", "ABORTED"
+    state: str  # OK / TOLERANCE / ACTION, "SKIPPED", "NOT RUN", "NOT PASSED", "ABORTED"
     run_id: int | None
     started: float | None
     notes: str = ""
@@ -41,7 +44,7 @@ class FigureRow:
     value: float | None
     unit: str
     state: str
-    window: str           # the tolerance window in words, or why none
+    window: str  # the tolerance window in words, or why none
 
 
 @dataclass
@@ -67,15 +70,26 @@ class CommissionReport:
     def state(self) -> State:
         """The worst step and figure; a step skipped counts as TOLERANCE, one not passed (not run,
         stopped, aborted: its newest attempt) as ACTION."""
-        got = [State.ACTION if s.state in NOT_PASSED else
-               State.TOLERANCE if s.state == "SKIPPED" else State(s.state) for s in self.steps]
+        got = [
+            State.ACTION if s.state in NOT_PASSED else State.TOLERANCE if s.state == "SKIPPED" else State(s.state)
+            for s in self.steps
+        ]
         return worst(got + [State(f.state) for f in self.figures]) if got else State.ACTION
 
     def as_dict(self) -> dict:
-        return {"rig": self.rig, "commission_id": self.cid, "state": str(self.state), "complete": self.complete,
-                "signed_by": self.signed_by or None, "signed_at": self.signed_at,
-                "steps": [s.__dict__ for s in self.steps], "figures": [f.__dict__ for f in self.figures],
-                "cameras": self.cameras, "trigger": self.trigger, "skipped": self.skipped}
+        return {
+            "rig": self.rig,
+            "commission_id": self.cid,
+            "state": str(self.state),
+            "complete": self.complete,
+            "signed_by": self.signed_by or None,
+            "signed_at": self.signed_at,
+            "steps": [s.__dict__ for s in self.steps],
+            "figures": [f.__dict__ for f in self.figures],
+            "cameras": self.cameras,
+            "trigger": self.trigger,
+            "skipped": self.skipped,
+        }
 
 
 def _artifact_json(store, run_id: int, name: str) -> dict | None:
@@ -92,8 +106,15 @@ def _window_text(w) -> str:
     return "no window (the procedure's own verdict)" if w is None else w.describe()
 
 
-def build_commission_report(store, state, steps: list[tuple[str, str]], *, signed_by: str = "",
-                            signed_at: float | None = None, now: float | None = None) -> CommissionReport:
+def build_commission_report(
+    store,
+    state,
+    steps: list[tuple[str, str]],
+    *,
+    signed_by: str = "",
+    signed_at: float | None = None,
+    now: float | None = None,
+) -> CommissionReport:
     """The report of the commissioning ``state`` (vts_hw.store.commission.CommissionState);
     ``steps``: (name, label) of every step in order."""
     rows, figures, skipped = [], [], []
@@ -108,7 +129,7 @@ def build_commission_report(store, state, steps: list[tuple[str, str]], *, signe
             rows.append(StepRow(name, label, "SKIPPED", s.run_id, s.started, why))
             skipped.append((label, why))
             continue
-        if s.aborted:          # the newest attempt raised or its process died: no figures of it
+        if s.aborted:  # the newest attempt raised or its process died: no figures of it
             rows.append(StepRow(name, label, "ABORTED", s.run_id, s.started, s.why()))
             continue
         own = s.step_run or s.run_id
@@ -123,8 +144,18 @@ def build_commission_report(store, state, steps: list[tuple[str, str]], *, signe
             cameras = (_artifact_json(store, s.run_id, "devices.json") or {}).get("cameras", [])
         if name == "trigger":
             trigger = _artifact_json(store, s.run_id, "trigger.json")
-    return CommissionReport(state.rig, state.cid, time.time() if now is None else now, rows, figures, cameras,
-                            trigger, skipped, signed_by, signed_at)
+    return CommissionReport(
+        state.rig,
+        state.cid,
+        time.time() if now is None else now,
+        rows,
+        figures,
+        cameras,
+        trigger,
+        skipped,
+        signed_by,
+        signed_at,
+    )
 
 
 __all__ = ["CommissionReport", "StepRow", "FigureRow", "build_commission_report", "WORDS", "NOT_PASSED"]

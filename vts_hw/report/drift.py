@@ -26,13 +26,12 @@ from collections import defaultdict
 import numpy as np
 
 from vts_hw import __version__, catalog
-from vts_hw.tolerance import DEFAULT_TOLERANCES, worst
-from vts_hw.report.model import (AXES, AxisSummary, BandSegment, CameraDrift, DriftReport,
-                    RunInfo, RunPoint)
+from vts_hw.report.model import AXES, AxisSummary, BandSegment, CameraDrift, DriftReport, RunInfo, RunPoint
 from vts_hw.report.times import parse_since  # noqa: F401  (re-exported for the CLI)
 from vts_hw.report.trend import CONTROL_METHOD, control_limits, fit_trend, forecast
+from vts_hw.tolerance import DEFAULT_TOLERANCES, worst
 
-DRIFT_PROCEDURES = catalog.family(catalog.DAILY.key)      # daily and drift QA: one check
+DRIFT_PROCEDURES = catalog.family(catalog.DAILY.key)  # daily and drift QA: one check
 BASELINE_PROCEDURE = catalog.BASELINE.name
 COMPLETED = {"OK", "TOLERANCE", "ACTION"}
 BAND_METRICS = {"x": "drift_x_px", "y": "drift_y_px"}
@@ -48,6 +47,7 @@ def _is_camera(subject: str) -> bool:
 
 
 # --- tolerance windows ---------------------------------------------------------------------
+
 
 class _Windows:
     """The window of a metric in effect at a time, from the store (cached per time)."""
@@ -93,6 +93,7 @@ class _Windows:
 
 # --- reading the store ---------------------------------------------------------------------
 
+
 def _baseline_cameras(store, baseline_runs) -> dict[int, set[str] | None]:
     """Baseline run id -> the cameras it reset (None: all of them)."""
     ids = {r.id for r in baseline_runs}
@@ -122,12 +123,16 @@ from vts_hw.report.history import collect_history  # noqa: E402
 from vts_hw.report.steps import collect_steps  # noqa: E402
 
 
-def collect(store, since: float | None = None, now: float | None = None, rig: str | None = None,
-            title: str | None = None) -> DriftReport:
+def collect(
+    store, since: float | None = None, now: float | None = None, rig: str | None = None, title: str | None = None
+) -> DriftReport:
     """Read the store and compute the report's data (nothing is written)."""
     now = time.time() if now is None else float(now)
-    runs = [r for r in store.runs(procedure=(*DRIFT_PROCEDURES, BASELINE_PROCEDURE))
-            if r.started <= now and (rig is None or (r.rig or "") == rig)]
+    runs = [
+        r
+        for r in store.runs(procedure=(*DRIFT_PROCEDURES, BASELINE_PROCEDURE))
+        if r.started <= now and (rig is None or (r.rig or "") == rig)
+    ]
     in_period = [r for r in runs if since is None or r.started >= since]
 
     baseline_runs = [r for r in runs if r.procedure == BASELINE_PROCEDURE and _completed(r)]
@@ -162,7 +167,7 @@ def collect(store, since: float | None = None, now: float | None = None, rig: st
             st = m.status
             if not st and m.metric in windows:
                 st = windows[m.metric].state(v, run.started)
-            if st:   # a metric measured twice in a run (reachable, then lost): its worst
+            if st:  # a metric measured twice in a run (reachable, then lost): its worst
                 got = status[(m.subject, run.id)]
                 got[m.metric] = str(worst([got.get(m.metric, "OK"), str(st)]))
         else:
@@ -177,8 +182,11 @@ def collect(store, since: float | None = None, now: float | None = None, rig: st
         points_of[cam].append(RunPoint(run_id, run.started, run.procedure, vals, status[(cam, run_id)]))
 
     shown_times = [p.t for pts in points_of.values() for p in pts if since is None or p.t >= since]
-    period_start = since if since is not None else (min(shown_times + [r.started for r in in_period])
-                                                    if (shown_times or in_period) else None)
+    period_start = (
+        since
+        if since is not None
+        else (min(shown_times + [r.started for r in in_period]) if (shown_times or in_period) else None)
+    )
     band_start = period_start if period_start is not None else now
     bands = {a: windows[m].segments(shown_times, band_start, now) for a, m in BAND_METRICS.items()}
 
@@ -194,30 +202,42 @@ def collect(store, since: float | None = None, now: float | None = None, rig: st
             drift = np.array([p.value(f"drift_{a}_px") for p in fit_pts])
             trend = fit_trend(t, drift)
             w = bands[a][-1].window
-            axes[a] = AxisSummary(control_limits(t, drift), trend,
-                                  forecast(trend, w.action_low, w.action_high, now))
+            axes[a] = AxisSummary(control_limits(t, drift), trend, forecast(trend, w.action_low, w.action_high, now))
         latest_id = shown[-1].run_id if shown else None
         cameras[cam] = CameraDrift(
-            name=cam, points=shown,
+            name=cam,
+            points=shown,
             baselines=[b for b in baselines_of(cam) if (since is None or b >= since) and b <= now],
-            baseline_t=bl, axes=axes, mm_per_px={a: _mm_per_px(pts, a) for a in AXES},
-            markers={k: dict(v) for k, v in sorted(markers.get((cam, latest_id), {}).items())} if latest_id is not None
-            else {})
+            baseline_t=bl,
+            axes=axes,
+            mm_per_px={a: _mm_per_px(pts, a) for a in AXES},
+            markers={k: dict(v) for k, v in sorted(markers.get((cam, latest_id), {}).items())}
+            if latest_id is not None
+            else {},
+        )
 
     return DriftReport(
         title=title or ("VTS camera drift" + (f" — {rig}" if rig else "")),
-        rig=rig, since=since, now=now, period_start=period_start, cameras=cameras, bands=bands,
+        rig=rig,
+        since=since,
+        now=now,
+        period_start=period_start,
+        cameras=cameras,
+        bands=bands,
         baselines=[RunInfo.of(r) for r in in_period if r.id in baseline_ids],
         not_completed=[RunInfo.of(r) for r in in_period if not _completed(r) and r.id not in baseline_ids],
-        software_version=__version__, control_method=CONTROL_METHOD,
-        steps=collect_steps(store, since, now, rig), has_baseline=bool(baseline_runs),
-        history=collect_history(store, since, now, rig))
+        software_version=__version__,
+        control_method=CONTROL_METHOD,
+        steps=collect_steps(store, since, now, rig),
+        has_baseline=bool(baseline_runs),
+        history=collect_history(store, since, now, rig),
+    )
 
 
 def _camera_sort_key(name: str):
     """cam2 before cam10."""
     head = name.rstrip("0123456789")
-    tail = name[len(head):]
+    tail = name[len(head) :]
     return (head, int(tail) if tail else -1, name)
 
 

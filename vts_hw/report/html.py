@@ -11,16 +11,24 @@ from __future__ import annotations
 import base64
 from html import escape
 
-from vts_hw.tolerance import worst
-from vts_hw.report.model import AXES, WARMING_METRIC, CameraDrift, DriftReport, RunPoint
 from vts_hw.figures import figure_png
-from vts_hw.report.plots import STATE_COLOURS, camera_figure
-from vts_hw.report.text import (camera_forecast_text, fmt_num, fmt_slope, forecast_detail, latest_text, led_text,
-                   period_text, trend_detail)
-from vts_hw.report.steps import steps_html
 from vts_hw.report.history_view import history_html
+from vts_hw.report.model import AXES, WARMING_METRIC, CameraDrift, DriftReport, RunPoint
+from vts_hw.report.plots import STATE_COLOURS, camera_figure
+from vts_hw.report.steps import steps_html
+from vts_hw.report.text import (
+    camera_forecast_text,
+    fmt_num,
+    fmt_slope,
+    forecast_detail,
+    latest_text,
+    led_text,
+    period_text,
+    trend_detail,
+)
 from vts_hw.report.times import fmt_date, fmt_datetime
 from vts_hw.report.trend import CONTROL_RUNS, HORIZON_DAYS, MIN_TREND_DAYS, MIN_TREND_RUNS, SIGNIFICANCE
+from vts_hw.tolerance import worst
 
 # the page's CSS, its state colours filled in by %: str.format would need each of its braces doubled
 _CSS_TEMPLATE = """
@@ -124,20 +132,26 @@ def _summary(report: DriftReport, prefix: str = "") -> str:
             f"{_cell(fmt_slope(cam.axes['x'].trend, html=True))}{_cell(fmt_slope(cam.axes['y'].trend, html=True))}"
             f"{_forecast_cell(cam)}"
             f"{_cell(escape(led_text(cam)), 'ACTION' if cam.events('led_off_visible') else None, num=False)}"
-            "</tr>")
+            "</tr>"
+        )
     if not rows:
         return '<p class="muted">No completed drift runs in this period.</p>'
-    return ('<div class="scroll"><table><thead><tr><th>Camera</th><th class=num>Latest run</th>'
-            "<th class=num>Drift x px (mm)</th><th class=num>Drift y px (mm)</th><th>State</th>"
-            "<th class=num>Trend x px/30 d</th><th class=num>Trend y px/30 d</th>"
-            "<th>Action level forecast</th><th>LED check</th></tr></thead><tbody>"
-            + "".join(rows) + "</tbody></table></div>")
+    return (
+        '<div class="scroll"><table><thead><tr><th>Camera</th><th class=num>Latest run</th>'
+        "<th class=num>Drift x px (mm)</th><th class=num>Drift y px (mm)</th><th>State</th>"
+        "<th class=num>Trend x px/30 d</th><th class=num>Trend y px/30 d</th>"
+        "<th>Action level forecast</th><th>LED check</th></tr></thead><tbody>"
+        + "".join(rows)
+        + "</tbody></table></div>"
+    )
 
 
 def kpi(label, value, unit="") -> str:
     """One figure of a report's summary cards (``value`` is HTML already)."""
-    return (f'<div class="kpi"><div class="k">{escape(label)}</div><div class="v">{value}'
-            f' <span class="u">{escape(unit)}</span></div></div>')
+    return (
+        f'<div class="kpi"><div class="k">{escape(label)}</div><div class="v">{value}'
+        f' <span class="u">{escape(unit)}</span></div></div>'
+    )
 
 
 _kpi = kpi
@@ -171,23 +185,33 @@ def _axis_table(report: DriftReport, cam: CameraDrift) -> str:
     for a in AXES:
         s = cam.axes[a]
         c = s.control
-        ctrl = (f"{c.mean:+.3f} ± {3 * c.sd:.3f} ({fmt_num(c.lower, '+.3f')} … {fmt_num(c.upper, '+.3f')})"
-                if c.mean is not None and c.sd is not None else f"pending ({c.n}/{CONTROL_RUNS} runs)")
+        ctrl = (
+            f"{c.mean:+.3f} ± {3 * c.sd:.3f} ({fmt_num(c.lower, '+.3f')} … {fmt_num(c.upper, '+.3f')})"
+            if c.mean is not None and c.sd is not None
+            else f"pending ({c.n}/{CONTROL_RUNS} runs)"
+        )
         w = report.window_now(a)
         fit = trend_detail(s.trend)
         action = fmt_num(w.action_low, "+g") + " / " + fmt_num(w.action_high, "+g")
         soon = ' class="soon"' if s.forecast.within_year else ""
-        rows.append(f"<tr><td><b>{a}</b></td>{_cell(escape(ctrl))}{_cell(fmt_slope(s.trend, html=True))}"
-                    f"<td>{escape(fit)}</td>{_cell(action)}<td{soon}>{escape(forecast_detail(s.forecast))}</td></tr>")
-    return ("<table><thead><tr><th>Axis</th><th class=num>Control limits px (mean ± 3 SD)</th>"
-            "<th class=num>Trend px/30 d</th><th>Fit</th><th class=num>Action level now px</th>"
-            "<th>Reaches action level</th></tr></thead><tbody>" + "".join(rows) + "</tbody></table>")
+        rows.append(
+            f"<tr><td><b>{a}</b></td>{_cell(escape(ctrl))}{_cell(fmt_slope(s.trend, html=True))}"
+            f"<td>{escape(fit)}</td>{_cell(action)}<td{soon}>{escape(forecast_detail(s.forecast))}</td></tr>"
+        )
+    return (
+        "<table><thead><tr><th>Axis</th><th class=num>Control limits px (mean ± 3 SD)</th>"
+        "<th class=num>Trend px/30 d</th><th>Fit</th><th class=num>Action level now px</th>"
+        "<th>Reaches action level</th></tr></thead><tbody>" + "".join(rows) + "</tbody></table>"
+    )
 
 
 def _checks(report: DriftReport, cam: CameraDrift) -> str:
     items = []
-    for metric, what in (("led_off_visible", "LED check failed (markers visible with the LED off)"),
-                         ("markers_missing", "baseline markers missing"), ("stray_blobs", "stray blobs")):
+    for metric, what in (
+        ("led_off_visible", "LED check failed (markers visible with the LED off)"),
+        ("markers_missing", "baseline markers missing"),
+        ("stray_blobs", "stray blobs"),
+    ):
         ev = cam.events(metric)
         if ev:
             when = ", ".join(f"{fmt_date(p.t)} ({p.values[metric]:g})" for p in ev[-12:])
@@ -195,23 +219,38 @@ def _checks(report: DriftReport, cam: CameraDrift) -> str:
             items.append(f"<li><b>{escape(what)}</b>: {len(ev)} run(s) — {escape(when + more)}</li>")
     warm = cam.events(WARMING_METRIC)
     if warm:
-        when = ", ".join(fmt_datetime(p.t) for p in warm[-12:]) + (f" and {len(warm) - 12} earlier" if len(warm) > 12 else "")
-        items.append(f"<li><b>camera warming up</b>: {len(warm)} run(s) taken less than its warm-up time after the "
-                     f"camera started; their drift may not have settled (marked in the runs below) — {escape(when)}</li>")
+        when = ", ".join(fmt_datetime(p.t) for p in warm[-12:]) + (
+            f" and {len(warm) - 12} earlier" if len(warm) > 12 else ""
+        )
+        items.append(
+            f"<li><b>camera warming up</b>: {len(warm)} run(s) taken less than its warm-up time after the "
+            f"camera started; their drift may not have settled (marked in the runs below) — {escape(when)}</li>"
+        )
     if not items:
         return '<p class="muted">LED, missing-marker and stray-blob checks passed on every run shown.</p>'
     return "<ul>" + "".join(items) + "</ul>"
 
 
-_RUN_COLS = (("drift_x_px", "x px", ".3f"), ("drift_y_px", "y px", ".3f"), ("drift_x_mm", "x mm", ".2f"),
-             ("drift_y_mm", "y mm", ".2f"), ("drift_sd_px", "SD px", ".3f"), ("markers_missing", "missing", "g"),
-             ("stray_blobs", "stray", "g"), ("led_off_visible", "LED off seen", "g"),
-             ("clock_offset_s", "clock s", "+.2f"), ("params_changed", "params", "g"),
-             ("camera_reachable", "answered", "g"), ("uptime_min", "up min", ".0f"))
+_RUN_COLS = (
+    ("drift_x_px", "x px", ".3f"),
+    ("drift_y_px", "y px", ".3f"),
+    ("drift_x_mm", "x mm", ".2f"),
+    ("drift_y_mm", "y mm", ".2f"),
+    ("drift_sd_px", "SD px", ".3f"),
+    ("markers_missing", "missing", "g"),
+    ("stray_blobs", "stray", "g"),
+    ("led_off_visible", "LED off seen", "g"),
+    ("clock_offset_s", "clock s", "+.2f"),
+    ("params_changed", "params", "g"),
+    ("camera_reachable", "answered", "g"),
+    ("uptime_min", "up min", ".0f"),
+)
 
 
-WARMING_MARK = (' <span class="meta" title="taken less than the camera\'s warm-up time after it started: its drift '
-                'may not have settled">warming up</span>')
+WARMING_MARK = (
+    ' <span class="meta" title="taken less than the camera\'s warm-up time after it started: its drift '
+    'may not have settled">warming up</span>'
+)
 
 
 def _runs_table(cam: CameraDrift) -> str:
@@ -220,11 +259,16 @@ def _runs_table(cam: CameraDrift) -> str:
     rows = []
     for p in reversed(cam.points):
         cells = "".join(_cell(fmt_num(p.values.get(m), f), p.status.get(m)) for m, _, f in cols)
-        rows.append(f"<tr><td>{fmt_datetime(p.t)}</td><td>{escape(p.procedure)}</td><td>{p.run_id}</td>"
-                    f"<td>{_badge(p.state)}{WARMING_MARK if p.warming_up else ''}</td>{cells}</tr>")
-    return (f"<details><summary>All {len(cam.points)} runs shown (newest first)</summary><div class=scroll><table><thead><tr>"
-            f"<th>Started</th><th>Procedure</th><th>Run</th><th>State</th>{head}</tr></thead><tbody>"
-            + "".join(rows) + "</tbody></table></div></details>")
+        rows.append(
+            f"<tr><td>{fmt_datetime(p.t)}</td><td>{escape(p.procedure)}</td><td>{p.run_id}</td>"
+            f"<td>{_badge(p.state)}{WARMING_MARK if p.warming_up else ''}</td>{cells}</tr>"
+        )
+    return (
+        f"<details><summary>All {len(cam.points)} runs shown (newest first)</summary><div class=scroll><table><thead><tr>"
+        f"<th>Started</th><th>Procedure</th><th>Run</th><th>State</th>{head}</tr></thead><tbody>"
+        + "".join(rows)
+        + "</tbody></table></div></details>"
+    )
 
 
 def _markers_table(cam: CameraDrift) -> str:
@@ -232,40 +276,52 @@ def _markers_table(cam: CameraDrift) -> str:
         return ""
     metrics = sorted({m for d in cam.markers.values() for m in d})
     head = "".join(f"<th class=num>{escape(m)}</th>" for m in metrics)
-    rows = "".join(f"<tr><td>{escape(name)}</td>" + "".join(_cell(fmt_num(d.get(m), '.3f')) for m in metrics)
-                   + "</tr>" for name, d in cam.markers.items())
-    return (f"<details><summary>Per-marker values of the latest run ({len(cam.markers)} markers)</summary>"
-            f"<table><thead><tr><th>Marker</th>{head}</tr></thead><tbody>{rows}</tbody></table></details>")
+    rows = "".join(
+        f"<tr><td>{escape(name)}</td>" + "".join(_cell(fmt_num(d.get(m), ".3f")) for m in metrics) + "</tr>"
+        for name, d in cam.markers.items()
+    )
+    return (
+        f"<details><summary>Per-marker values of the latest run ({len(cam.markers)} markers)</summary>"
+        f"<table><thead><tr><th>Marker</th>{head}</tr></thead><tbody>{rows}</tbody></table></details>"
+    )
 
 
 def _camera_section(report: DriftReport, cam: CameraDrift, prefix: str = "") -> str:
-    p = cam.points[-1]      # a camera with runs shown (the page's sections)
+    p = cam.points[-1]  # a camera with runs shown (the page's sections)
     png = base64.b64encode(figure_png(camera_figure(report, cam))).decode("ascii")
-    kpis = "".join((
-        _kpi("latest drift x", escape(latest_text(cam, p, "x")), "px (mm)"),
-        _kpi("latest drift y", escape(latest_text(cam, p, "y")), "px (mm)"),
-        _kpi("trend x", fmt_slope(cam.axes["x"].trend, html=True), "px / 30 d"),
-        _kpi("trend y", fmt_slope(cam.axes["y"].trend, html=True), "px / 30 d"),
-        _kpi("action level", escape(camera_forecast_text(cam)[0])),
-        _kpi("baseline", fmt_date(cam.baseline_t) if cam.baseline_t else "none recorded"),
-    ))
-    return (f'<section class="card" id="{escape(prefix)}cam-{escape(cam.name)}"><h2>{escape(cam.name)} {_badge(cam.state)}'
-            f' <span class="meta">latest run {fmt_datetime(p.t)} · {len(cam.points)} runs shown</span></h2>'
-            f'<div class="cards">{kpis}</div>'
-            f'<img class="plot" alt="{escape(cam.name)}: drift in x and y over time with tolerance and action '
-            f'bands, control limits, trend and forecast; LED and marker checks" src="data:image/png;base64,{png}">'
-            f"<h3>Control limits, trend and forecast</h3>{_axis_table(report, cam)}"
-            f"<h3>Checks</h3>{_checks(report, cam)}{_runs_table(cam)}{_markers_table(cam)}</section>")
+    kpis = "".join(
+        (
+            _kpi("latest drift x", escape(latest_text(cam, p, "x")), "px (mm)"),
+            _kpi("latest drift y", escape(latest_text(cam, p, "y")), "px (mm)"),
+            _kpi("trend x", fmt_slope(cam.axes["x"].trend, html=True), "px / 30 d"),
+            _kpi("trend y", fmt_slope(cam.axes["y"].trend, html=True), "px / 30 d"),
+            _kpi("action level", escape(camera_forecast_text(cam)[0])),
+            _kpi("baseline", fmt_date(cam.baseline_t) if cam.baseline_t else "none recorded"),
+        )
+    )
+    return (
+        f'<section class="card" id="{escape(prefix)}cam-{escape(cam.name)}"><h2>{escape(cam.name)} {_badge(cam.state)}'
+        f' <span class="meta">latest run {fmt_datetime(p.t)} · {len(cam.points)} runs shown</span></h2>'
+        f'<div class="cards">{kpis}</div>'
+        f'<img class="plot" alt="{escape(cam.name)}: drift in x and y over time with tolerance and action '
+        f'bands, control limits, trend and forecast; LED and marker checks" src="data:image/png;base64,{png}">'
+        f"<h3>Control limits, trend and forecast</h3>{_axis_table(report, cam)}"
+        f"<h3>Checks</h3>{_checks(report, cam)}{_runs_table(cam)}{_markers_table(cam)}</section>"
+    )
 
 
 def _run_list(runs, empty: str) -> str:
     if not runs:
         return f'<p class="muted">{escape(empty)}</p>'
-    rows = "".join(f"<tr><td>{fmt_datetime(r.started)}</td><td>{escape(r.procedure)}</td><td>{r.id}</td>"
-                   f"<td>{escape(r.status)}</td><td>{escape(r.operator)}</td><td>{escape(r.notes)}</td></tr>"
-                   for r in runs)
-    return ("<table><thead><tr><th>Started</th><th>Procedure</th><th>Run</th><th>Status</th><th>Operator</th>"
-            f"<th>Notes</th></tr></thead><tbody>{rows}</tbody></table>")
+    rows = "".join(
+        f"<tr><td>{fmt_datetime(r.started)}</td><td>{escape(r.procedure)}</td><td>{r.id}</td>"
+        f"<td>{escape(r.status)}</td><td>{escape(r.operator)}</td><td>{escape(r.notes)}</td></tr>"
+        for r in runs
+    )
+    return (
+        "<table><thead><tr><th>Started</th><th>Procedure</th><th>Run</th><th>Status</th><th>Operator</th>"
+        f"<th>Notes</th></tr></thead><tbody>{rows}</tbody></table>"
+    )
 
 
 def _windows_table(report: DriftReport) -> str:
@@ -275,13 +331,18 @@ def _windows_table(report: DriftReport) -> str:
             w = seg.window
             src = "built-in default" if seg.window_id is None else f"store window {seg.window_id}"
             start = "start of the period" if i == 0 else fmt_datetime(seg.start)
-            rows.append(f"<tr><td>drift_{a}_px</td><td>{start}</td>"
-                        + "".join(_cell(fmt_num(v, "+g")) for v in (w.action_low, w.tolerance_low,
-                                                                     w.tolerance_high, w.action_high))
-                        + f"<td>{src}</td></tr>")
-    return ("<table><thead><tr><th>Metric</th><th>In effect from</th><th class=num>Action low</th>"
-            "<th class=num>Tolerance low</th><th class=num>Tolerance high</th><th class=num>Action high</th>"
-            "<th>Source</th></tr></thead><tbody>" + "".join(rows) + "</tbody></table>")
+            rows.append(
+                f"<tr><td>drift_{a}_px</td><td>{start}</td>"
+                + "".join(
+                    _cell(fmt_num(v, "+g")) for v in (w.action_low, w.tolerance_low, w.tolerance_high, w.action_high)
+                )
+                + f"<td>{src}</td></tr>"
+            )
+    return (
+        "<table><thead><tr><th>Metric</th><th>In effect from</th><th class=num>Action low</th>"
+        "<th class=num>Tolerance low</th><th class=num>Tolerance high</th><th class=num>Action high</th>"
+        "<th>Source</th></tr></thead><tbody>" + "".join(rows) + "</tbody></table>"
+    )
 
 
 def _method(report: DriftReport) -> str:
@@ -305,7 +366,8 @@ def _method(report: DriftReport) -> str:
         "results store, as a step function of the date each took effect.</li>"
         "<li><b>Baselines</b> (dashed vertical lines) reset the drift to zero for the cameras they "
         "measured (all cameras when they hold no measurements).</li>"
-        "</ul>")
+        "</ul>"
+    )
 
 
 def render_drift_html(report: DriftReport) -> str:
@@ -320,14 +382,25 @@ def render_drift_html_every_rig(reports: list[DriftReport], title: str = "VTS ca
     (its own banner, cameras, step test and history: numbers never mixed between rooms)."""
     states = [r.state for r in reports if r.cameras]
     state = worst(states) if states else None
-    links = "".join(f'<li><a href="#room-{i}">{escape(r.rig or "(no rig name)")}</a> '
-                    f'{_badge(r.state if r.cameras else None)}</li>' for i, r in enumerate(reports))
-    body = (f'<section class="card"><h2>Rooms</h2><ul id="rooms">{links}</ul><p class="muted">Each room below is '
-            "its own report: cam1 of one room is not cam1 of another.</p></section>"
-            + "".join(f'<section class="card room-head" id="room-{i}"><h2>{escape(r.title)}</h2></section>'
-                      + report_body(r, prefix=f"room-{i}-") for i, r in enumerate(reports)))
-    meta = (f"{len(reports)} room(s) · {escape(period_text(reports[0]))} · generated {fmt_datetime(reports[0].now)} · "
-            f"vts-hw {escape(reports[0].software_version)}" if reports else "no runs in the store")
+    links = "".join(
+        f'<li><a href="#room-{i}">{escape(r.rig or "(no rig name)")}</a> {_badge(r.state if r.cameras else None)}</li>'
+        for i, r in enumerate(reports)
+    )
+    body = (
+        f'<section class="card"><h2>Rooms</h2><ul id="rooms">{links}</ul><p class="muted">Each room below is '
+        "its own report: cam1 of one room is not cam1 of another.</p></section>"
+        + "".join(
+            f'<section class="card room-head" id="room-{i}"><h2>{escape(r.title)}</h2></section>'
+            + report_body(r, prefix=f"room-{i}-")
+            for i, r in enumerate(reports)
+        )
+    )
+    meta = (
+        f"{len(reports)} room(s) · {escape(period_text(reports[0]))} · generated {fmt_datetime(reports[0].now)} · "
+        f"vts-hw {escape(reports[0].software_version)}"
+        if reports
+        else "no runs in the store"
+    )
     return page(title, str(state or "none"), meta, body, plots_expected=sum(r.plot_count for r in reports))
 
 
@@ -335,12 +408,15 @@ def report_body(report: DriftReport, prefix: str = "") -> str:
     """The report's cards (``prefix`` makes the anchors unique when several share a page)."""
     state = report.state if report.cameras else None
     attention = report.attention()
-    items = (f'<ul>{"".join(f"<li>{escape(a)}</li>" for a in attention)}</ul>' if attention
-             else '<p class="quiet">Nothing needs attention.</p>')
+    items = (
+        f"<ul>{''.join(f'<li>{escape(a)}</li>' for a in attention)}</ul>"
+        if attention
+        else '<p class="quiet">Nothing needs attention.</p>'
+    )
     cams = "".join(_camera_section(report, c, prefix) for c in report.cameras.values() if c.points)
     steps = steps_html(report.steps) if report.steps is not None else ""
     steps += history_html(report.history)
-    return f"""<section class="card banner {escape(str(state or 'OK'))}">
+    return f"""<section class="card banner {escape(str(state or "OK"))}">
 <div class="big">Overall {_badge(state)} <span class="meta">worst state of each camera's latest run</span></div>
 {items}
 </section>

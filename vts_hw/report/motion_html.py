@@ -8,10 +8,10 @@ from __future__ import annotations
 import base64
 from html import escape
 
-from vts_hw.report.html import kpi as _kpi, page
+from vts_hw.report.html import kpi as _kpi
+from vts_hw.report.html import page
 
 __all__ = ["render_motion_html", "kpi_rows", "event_rows", "state_rows"]
-
 
 
 def _f(v, fmt=".2f") -> str:
@@ -45,10 +45,18 @@ def kpi_rows(data: dict) -> list[tuple[str, str, str]]:
     s = data["summary"]
     b = data["breathing"]
     rate = {"measured": _f(b["rate_per_min"], ".1f"), "none": "none"}.get(
-        b["status"], "unknown" if b["rate_per_min"] is None else
-        f"{b['rate_range_per_min'][0]:.1f}–{b['rate_range_per_min'][1]:.1f}")
-    amp = ("none" if b["status"] == "none" else "unknown" if s["breathing_amplitude_mm"] is None
-           else _f(s["breathing_amplitude_mm"], ".1f"))
+        b["status"],
+        "unknown"
+        if b["rate_per_min"] is None
+        else f"{b['rate_range_per_min'][0]:.1f}–{b['rate_range_per_min'][1]:.1f}",
+    )
+    amp = (
+        "none"
+        if b["status"] == "none"
+        else "unknown"
+        if s["breathing_amplitude_mm"] is None
+        else _f(s["breathing_amplitude_mm"], ".1f")
+    )
     return [
         ("pose known", _f(100 * s["motion_pose_coverage"], ".1f"), f"% of {s['duration_s']:.1f} s"),
         ("without frames", _f(s["no_frames_s"], ".1f"), f"s in {s['no_frames_gaps']} gap(s)"),
@@ -62,16 +70,32 @@ def kpi_rows(data: dict) -> list[tuple[str, str, str]]:
 
 def event_rows(data: dict) -> list[list[str]]:
     """The body-motion events' table rows, plain text."""
-    return [[str(k), _event_start(e), _event_end(e), f"{e['centroid_shift_mm']:.2f}",
-             f"{e['rotation_deg']:.2f}", " ".join(f"{x:+.2f}" for x in e["change_6dof"])]
-            for k, e in enumerate(data["events"], 1)]
+    return [
+        [
+            str(k),
+            _event_start(e),
+            _event_end(e),
+            f"{e['centroid_shift_mm']:.2f}",
+            f"{e['rotation_deg']:.2f}",
+            " ".join(f"{x:+.2f}" for x in e["change_6dof"]),
+        ]
+        for k, e in enumerate(data["events"], 1)
+    ]
 
 
 def state_rows(data: dict) -> list[list[str]]:
     """The motion states' table rows, plain text."""
-    return [[str(st["state"]), f"{st['t_start']:.2f}", f"{st['t_end']:.2f}",
-             f"{st['unknown_s']:.1f}" if st["unknown_s"] else "0",
-             " ".join(f"{x:+.2f}" for x in st["six_dof"]), str(st["frames"])] for st in data["states"]]
+    return [
+        [
+            str(st["state"]),
+            f"{st['t_start']:.2f}",
+            f"{st['t_end']:.2f}",
+            f"{st['unknown_s']:.1f}" if st["unknown_s"] else "0",
+            " ".join(f"{x:+.2f}" for x in st["six_dof"]),
+            str(st["frames"]),
+        ]
+        for st in data["states"]
+    ]
 
 
 def render_motion_html(data: dict, png: bytes, title: str = "Patient motion") -> str:
@@ -82,22 +106,45 @@ def render_motion_html(data: dict, png: bytes, title: str = "Patient motion") ->
     events = event_rows(data)
     states = state_rows(data)
     cov = data["coverage"]
-    unknown = [[f"{u['interval_s'][0]:.2f}", f"{u['interval_s'][1]:.2f}", f"{u['seconds']:.2f}", escape(u["why"])]
-               for u in cov["unknown_s"]]
-    markers = [[escape(m["marker"]), "yes" if m["patient"] else "no", escape(m["band"] or ""),
-                f"{100 * m['seen_fraction']:.0f} %", escape(", ".join(f"{k} {v}" for k, v in m["points_by_camera"].items())),
-                escape(m["why"])] for m in data["markers"]]
-    measures = [[escape(m["metric"]), _f(m["value"], ".3g"), escape(m["unit"]),
-                 f'<span class="badge {m["state"]}">{m["state"]}</span>'] for m in data["measures"]]
+    unknown = [
+        [f"{u['interval_s'][0]:.2f}", f"{u['interval_s'][1]:.2f}", f"{u['seconds']:.2f}", escape(u["why"])]
+        for u in cov["unknown_s"]
+    ]
+    markers = [
+        [
+            escape(m["marker"]),
+            "yes" if m["patient"] else "no",
+            escape(m["band"] or ""),
+            f"{100 * m['seen_fraction']:.0f} %",
+            escape(", ".join(f"{k} {v}" for k, v in m["points_by_camera"].items())),
+            escape(m["why"]),
+        ]
+        for m in data["markers"]
+    ]
+    measures = [
+        [
+            escape(m["metric"]),
+            _f(m["value"], ".3g"),
+            escape(m["unit"]),
+            f'<span class="badge {m["state"]}">{m["state"]}</span>',
+        ]
+        for m in data["measures"]
+    ]
     problems = "".join(f"<li>{escape(p)}</li>" for p in data["problems"])
     img = base64.b64encode(png).decode("ascii")
-    meta = (f"session {escape(data['session'])} · list-mode {escape(str(data['listmode'] or 'none'))} · "
-            f"analysed {escape(str(data['date']))} UTC · vts-hw {escape(data['vts_hw_version'])}")
-    return page(title, state, meta, f"""<section class="card banner {state}">
+    meta = (
+        f"session {escape(data['session'])} · list-mode {escape(str(data['listmode'] or 'none'))} · "
+        f"analysed {escape(str(data['date']))} UTC · vts-hw {escape(data['vts_hw_version'])}"
+    )
+    return page(
+        title,
+        state,
+        meta,
+        f"""<section class="card banner {state}">
 <div class="big"><span class="badge {state}">{state}</span></div>
-<p><b>Time:</b> {escape(s['time'])}. <b>Breathing:</b> {escape(b['why'])}.</p>
-<p class="quiet">Times: {escape(data['clock'])}. Positions: {escape(data['frame']['definition'])}. Breathing is taken
-out of the body pose; the reference is the first still period ({data['reference_period_s'][0]:.1f}–{data['reference_period_s'][1]:.1f} s).</p>
+<p><b>Time:</b> {escape(s["time"])}. <b>Breathing:</b> {escape(b["why"])}.</p>
+<p class="quiet">Times: {escape(data["clock"])}. Positions: {escape(data["frame"]["definition"])}. Breathing is taken
+out of the body pose; the reference is the first still period ({data["reference_period_s"][0]:.1f}–{data["reference_period_s"][1]:.1f} s).</p>
 {f"<ul>{problems}</ul>" if problems else ""}
 </section>
 <section class="card"><h2>Summary</h2><div class="cards">{kpis}</div>
@@ -108,8 +155,8 @@ out of the body pose; the reference is the first still period ({data['reference_
 <p class="muted">A start given as a range fell in time without a pose: the move began somewhere in it.</p></section>
 <section class="card"><h2>Motion states</h2>{_table(["state", "start s", "end s", "without a pose s (in no state)", "pose from the reference (tx ty tz mm, rx ry rz deg)", "frames with a pose"], states)}</section>
 <section class="card"><h2>Time without a pose</h2>{_table(["start s", "end s", "seconds", "why"], unknown)}
-<p class="muted">No motion state covers this time (a stretch of at most {data['settings'].get('bridge_s', 2.0):g} s with the same pose on both sides is covered by its state; {len(cov['bridged_s'])} such). It is not still and not OK: nothing was seen.</p></section>
+<p class="muted">No motion state covers this time (a stretch of at most {data["settings"].get("bridge_s", 2.0):g} s with the same pose on both sides is covered by its state; {len(cov["bridged_s"])} such). It is not still and not OK: nothing was seen.</p></section>
 <section class="card"><h2>Markers and cameras</h2>{_table(["marker", "patient", "band", "seen", "points by camera", "why"], markers)}
 <p class="muted">Bands: {escape(data.get("band_naming", ""))}.</p></section>
-<footer>vts-hw patient motion. Method: docs/decisions/0035-breathing-and-body-motion.md; files: docs/motion-formats.md.</footer>""")
-
+<footer>vts-hw patient motion. Method: docs/decisions/0035-breathing-and-body-motion.md; files: docs/motion-formats.md.</footer>""",
+    )

@@ -18,23 +18,39 @@ from matplotlib.backends.backend_pdf import PdfPages
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
+from vts_hw.report.history_view import history_figure
 from vts_hw.report.model import AXES, WARMING_METRIC, CameraDrift, DriftReport
 from vts_hw.report.plots import FONT, STATE_COLOURS, ZONE_COLOURS, camera_figure
-from vts_hw.report.text import (camera_forecast_text, fmt_slope, forecast_detail, latest_text, led_text, period_text,
-                   trend_detail)
+from vts_hw.report.steps import steps_figure
+from vts_hw.report.text import (
+    camera_forecast_text,
+    fmt_slope,
+    forecast_detail,
+    latest_text,
+    led_text,
+    period_text,
+    trend_detail,
+)
 from vts_hw.report.times import fmt_date, fmt_datetime, utc
 from vts_hw.report.trend import CONTROL_RUNS, TREND_RULE
-from vts_hw.report.history_view import history_figure
-from vts_hw.report.steps import steps_figure
 
 A4_LANDSCAPE = (11.69, 8.27)
-MARGIN = 0.05                      # left and right, as a fraction of the page width
+MARGIN = 0.05  # left and right, as a fraction of the page width
 TABLE_FONTS = (8.0, 7.5, 7.0, 6.5, 6.0, 5.5)
-TABLE_WRAPS = (22, 16, 11)         # characters per line a cell is wrapped at, tried in turn
+TABLE_WRAPS = (22, 16, 11)  # characters per line a cell is wrapped at, tried in turn
 CELL_PAD_PT = 4.0
-HEADER_WIDTH_CHARS = 150           # monospace lines of a camera page's header
-SUMMARY_COLUMNS = ["Camera", "Latest run", "Drift x px (mm)", "Drift y px (mm)", "State",
-                   "Trend x px/30 d", "Trend y px/30 d", "Action level forecast", "LED check"]
+HEADER_WIDTH_CHARS = 150  # monospace lines of a camera page's header
+SUMMARY_COLUMNS = [
+    "Camera",
+    "Latest run",
+    "Drift x px (mm)",
+    "Drift y px (mm)",
+    "State",
+    "Trend x px/30 d",
+    "Trend y px/30 d",
+    "Action level forecast",
+    "LED check",
+]
 
 
 def _summary_rows(report: DriftReport):
@@ -42,17 +58,37 @@ def _summary_rows(report: DriftReport):
     for cam in report.cameras.values():
         p = cam.latest
         nf = cam.nearest_forecast()
-        rows.append([cam.name, fmt_date(p.t) if p else "–", latest_text(cam, p, "x"), latest_text(cam, p, "y"),
-                     str(cam.state) if p else "no data", fmt_slope(cam.axes["x"].trend),
-                     fmt_slope(cam.axes["y"].trend), camera_forecast_text(cam)[0], led_text(cam)])
+        rows.append(
+            [
+                cam.name,
+                fmt_date(p.t) if p else "–",
+                latest_text(cam, p, "x"),
+                latest_text(cam, p, "y"),
+                str(cam.state) if p else "no data",
+                fmt_slope(cam.axes["x"].trend),
+                fmt_slope(cam.axes["y"].trend),
+                camera_forecast_text(cam)[0],
+                led_text(cam),
+            ]
+        )
 
         def bg(status):
             return ZONE_COLOURS.get(status, "white") if status and status != "OK" else "white"
+
         st = str(cam.state)
-        colours.append(["white", "white", bg(p.status.get("drift_x_px")) if p else "white",
-                        bg(p.status.get("drift_y_px")) if p else "white", STATE_COLOURS.get(st, "white"),
-                        "white", "white", ZONE_COLOURS["ACTION"] if nf else "white",
-                        ZONE_COLOURS["ACTION"] if cam.events("led_off_visible") else "white"])
+        colours.append(
+            [
+                "white",
+                "white",
+                bg(p.status.get("drift_x_px")) if p else "white",
+                bg(p.status.get("drift_y_px")) if p else "white",
+                STATE_COLOURS.get(st, "white"),
+                "white",
+                "white",
+                ZONE_COLOURS["ACTION"] if nf else "white",
+                ZONE_COLOURS["ACTION"] if cam.events("led_off_visible") else "white",
+            ]
+        )
     return rows, colours
 
 
@@ -79,8 +115,10 @@ def _layout_table(fig, renderer, header, rows, width, height):
     for wrap in TABLE_WRAPS:
         cells = [[_wrap(h, min(wrap, 12)) for h in header]] + [[_wrap(c, wrap) for c in r] for r in rows]
         for fs in TABLE_FONTS:
-            sizes = [[_text_size(fig, renderer, c, fs, "bold" if i == 0 else "normal") for c in row]
-                     for i, row in enumerate(cells)]
+            sizes = [
+                [_text_size(fig, renderer, c, fs, "bold" if i == 0 else "normal") for c in row]
+                for i, row in enumerate(cells)
+            ]
             col_w = [max(sz[j][0] for sz in sizes) + 2 * pad_x for j in range(len(header))]
             row_h = [max(w_h[1] for w_h in sz) + 2 * pad_y for sz in sizes]
             layout = (cells, fs, col_w, row_h)
@@ -104,8 +142,17 @@ def _draw_rows(fig, top, cells, fs, col_w, row_h, colours, left=MARGIN) -> float
             fig.add_artist(Rectangle((x, y), w, h, transform=fig.transFigure, fc=fc, ec="#dfe3e8", lw=0.6))
             bold = i == 0 or j == 4
             colour = "white" if (i > 0 and j == 4 and fc != "white") else "#1d2733"
-            fig.text(x + w / 2, y + h / 2, text, fontsize=fs, ha="center", va="center", ma="center",
-                     fontweight="bold" if bold else "normal", color=colour)
+            fig.text(
+                x + w / 2,
+                y + h / 2,
+                text,
+                fontsize=fs,
+                ha="center",
+                va="center",
+                ma="center",
+                fontweight="bold" if bold else "normal",
+                color=colour,
+            )
             x += w
     return y
 
@@ -116,10 +163,12 @@ def _page(report: DriftReport, continued: bool = False):
     renderer = FigureCanvasAgg(fig).get_renderer()
     if continued:
         fig.text(MARGIN, 0.93, f"{report.title} — summary (continued)", fontsize=14, fontweight="bold")
-    method = (f"Control limits: {report.control_method} (pending until {CONTROL_RUNS} runs). Trend: least "
-              f"squares since each camera's latest baseline, ± its standard error; {TREND_RULE}. "
-              "Forecast: the date the line reaches the action level now in effect. "
-              "n.s.: not significant. All times UTC.")
+    method = (
+        f"Control limits: {report.control_method} (pending until {CONTROL_RUNS} runs). Trend: least "
+        f"squares since each camera's latest baseline, ± its standard error; {TREND_RULE}. "
+        "Forecast: the date the line reaches the action level now in effect. "
+        "n.s.: not significant. All times UTC."
+    )
     foot = fig.text(MARGIN, 0.04, textwrap.fill(method, 170), fontsize=7.5, color="#5f6b7a", va="bottom")
     return fig, renderer, _top(fig, renderer, foot)
 
@@ -134,8 +183,11 @@ def _bottom(fig, renderer, text) -> float:
 
 def _closing_text(report: DriftReport) -> str:
     nc = report.not_completed
-    listed = [f"  {fmt_datetime(r.started)}  {r.procedure:<15} run {r.id:<5} {r.status:<9} "
-              f"{textwrap.shorten(r.notes.replace(chr(10), ' '), 90)}" for r in nc[:8]]
+    listed = [
+        f"  {fmt_datetime(r.started)}  {r.procedure:<15} run {r.id:<5} {r.status:<9} "
+        f"{textwrap.shorten(r.notes.replace(chr(10), ' '), 90)}"
+        for r in nc[:8]
+    ]
     if len(nc) > 8:
         listed.append(f"  … and {len(nc) - 8} more")
     body = "Runs that did not complete: " + ("none" if not nc else "") + "".join("\n" + x for x in listed)
@@ -152,19 +204,39 @@ def title_pages(report: DriftReport) -> list[Figure]:
         pages = [fig]
         state = str(report.state) if report.cameras else "no data"
         fig.text(MARGIN, 0.93, report.title, fontsize=20, fontweight="bold")
-        fig.text(MARGIN, 0.895, f"{period_text(report)} · generated {fmt_datetime(report.now)} · "
-                                f"vts-hw {report.software_version}", fontsize=9, color="#5f6b7a")
-        fig.text(MARGIN, 0.84, " Overall " + state + " ", fontsize=13, fontweight="bold", color="white",
-                 bbox={"boxstyle": "round,pad=0.35", "fc": STATE_COLOURS.get(state, "#9aa3ad"), "ec": "none"})
+        fig.text(
+            MARGIN,
+            0.895,
+            f"{period_text(report)} · generated {fmt_datetime(report.now)} · vts-hw {report.software_version}",
+            fontsize=9,
+            color="#5f6b7a",
+        )
+        fig.text(
+            MARGIN,
+            0.84,
+            " Overall " + state + " ",
+            fontsize=13,
+            fontweight="bold",
+            color="white",
+            bbox={"boxstyle": "round,pad=0.35", "fc": STATE_COLOURS.get(state, "#9aa3ad"), "ec": "none"},
+        )
         lines = report.attention()
         shown = ["• " + textwrap.fill(a, 140, subsequent_indent="  ") for a in lines[:8]]
         if len(lines) > 8:
             shown.append(f"  … and {len(lines) - 8} more (see the camera pages)")
-        text = fig.text(MARGIN, 0.80, "\n".join(shown) or "Nothing needs attention.", fontsize=9.5,
-                        va="top", linespacing=1.5, color="#1d2733" if shown else "#5f6b7a")
+        text = fig.text(
+            MARGIN,
+            0.80,
+            "\n".join(shown) or "Nothing needs attention.",
+            fontsize=9.5,
+            va="top",
+            linespacing=1.5,
+            color="#1d2733" if shown else "#5f6b7a",
+        )
         y = _bottom(fig, renderer, text) - gap
-        closing = fig.text(MARGIN, 0, _closing_text(report), fontsize=8.5, va="bottom", family="monospace",
-                           linespacing=1.4)
+        closing = fig.text(
+            MARGIN, 0, _closing_text(report), fontsize=8.5, va="bottom", family="monospace", linespacing=1.4
+        )
         closing_h = _top(fig, renderer, closing)
         closing.remove()
         rows, colours = _summary_rows(report)
@@ -172,18 +244,34 @@ def title_pages(report: DriftReport) -> list[Figure]:
             fig.text(MARGIN, y, "No completed drift runs in this period.", fontsize=11, va="top")
             y -= 0.05
         else:
-            cells, fs, col_w, row_h = _layout_table(fig, renderer, SUMMARY_COLUMNS, rows, 1 - 2 * MARGIN,
-                                                    y - floor - 2 * gap - closing_h)
+            cells, fs, col_w, row_h = _layout_table(
+                fig, renderer, SUMMARY_COLUMNS, rows, 1 - 2 * MARGIN, y - floor - 2 * gap - closing_h
+            )
             col_w = [w + max(0.0, (1 - 2 * MARGIN - sum(col_w)) / len(col_w)) for w in col_w]
             head, body, body_h, todo = cells[0], cells[1:], row_h[1:], list(range(len(rows)))
             while todo:
                 room = y - floor - gap - row_h[0]
                 last = sum(body_h[i] for i in todo) <= room - gap - closing_h
-                n = len(todo) if last else max(1, next((k for k in range(len(todo), 0, -1)
-                                                        if sum(body_h[i] for i in todo[:k]) <= room), 1))
+                n = (
+                    len(todo)
+                    if last
+                    else max(
+                        1, next((k for k in range(len(todo), 0, -1) if sum(body_h[i] for i in todo[:k]) <= room), 1)
+                    )
+                )
                 take, todo = todo[:n], todo[n:]
-                y = _draw_rows(fig, y, [head] + [body[i] for i in take], fs, col_w,
-                               [row_h[0]] + [body_h[i] for i in take], [colours[i] for i in take]) - gap
+                y = (
+                    _draw_rows(
+                        fig,
+                        y,
+                        [head] + [body[i] for i in take],
+                        fs,
+                        col_w,
+                        [row_h[0]] + [body_h[i] for i in take],
+                        [colours[i] for i in take],
+                    )
+                    - gap
+                )
                 if todo:
                     fig, renderer, floor = _page(report, continued=True)
                     pages.append(fig)
@@ -192,34 +280,49 @@ def title_pages(report: DriftReport) -> list[Figure]:
             fig, renderer, floor = _page(report, continued=True)
             pages.append(fig)
             y = 0.89
-        fig.text(MARGIN, y - gap, _closing_text(report), fontsize=8.5, va="top", family="monospace",
-                 linespacing=1.4)
+        fig.text(MARGIN, y - gap, _closing_text(report), fontsize=8.5, va="top", family="monospace", linespacing=1.4)
     return pages
 
 
 def _camera_header(report: DriftReport, cam: CameraDrift) -> list[str]:
-    p = cam.points[-1]      # a camera with runs shown (report_pages)
+    p = cam.points[-1]  # a camera with runs shown (report_pages)
     base = fmt_date(cam.baseline_t) if cam.baseline_t else "none recorded (the trend uses every run)"
-    lines = [f"{cam.name} — {cam.state}",
-             f"latest run {fmt_datetime(p.t)} · {len(cam.points)} runs shown · baseline {base}"]
+    lines = [
+        f"{cam.name} — {cam.state}",
+        f"latest run {fmt_datetime(p.t)} · {len(cam.points)} runs shown · baseline {base}",
+    ]
     for a in AXES:
         s = cam.axes[a]
         c = s.control
-        ctrl = (f"control {c.mean:+.3f} ± {3 * c.sd:.3f}" if c.mean is not None and c.sd is not None
-                else f"control pending ({c.n}/{CONTROL_RUNS})")
-        trend = (f"trend {fmt_slope(s.trend)} px/30 d ({trend_detail(s.trend)})" if s.trend.ok
-                 else f"no trend yet: {trend_detail(s.trend)}")
-        line = (f"{a}: latest {latest_text(cam, p, a)} px (mm) · {ctrl} · {trend} · "
-                f"action level: {forecast_detail(s.forecast)}")
+        ctrl = (
+            f"control {c.mean:+.3f} ± {3 * c.sd:.3f}"
+            if c.mean is not None and c.sd is not None
+            else f"control pending ({c.n}/{CONTROL_RUNS})"
+        )
+        trend = (
+            f"trend {fmt_slope(s.trend)} px/30 d ({trend_detail(s.trend)})"
+            if s.trend.ok
+            else f"no trend yet: {trend_detail(s.trend)}"
+        )
+        line = (
+            f"{a}: latest {latest_text(cam, p, a)} px (mm) · {ctrl} · {trend} · "
+            f"action level: {forecast_detail(s.forecast)}"
+        )
         lines.append(textwrap.fill(line, HEADER_WIDTH_CHARS, subsequent_indent="   "))
-    lines.append(f"LED check: {led_text(cam)} · markers missing on {len(cam.events('markers_missing'))} run(s) · "
-                 f"stray blobs on {len(cam.events('stray_blobs'))} run(s)")
+    lines.append(
+        f"LED check: {led_text(cam)} · markers missing on {len(cam.events('markers_missing'))} run(s) · "
+        f"stray blobs on {len(cam.events('stray_blobs'))} run(s)"
+    )
     warm = cam.events(WARMING_METRIC)
     if warm:
-        lines.append(textwrap.fill(f"Warming up: {len(warm)} run(s) taken less than the camera's warm-up time after it "
-                                   f"started (drift may not have settled): "
-                                   + ", ".join(fmt_datetime(p.t) for p in warm[-6:]), HEADER_WIDTH_CHARS,
-                                   subsequent_indent="   "))
+        lines.append(
+            textwrap.fill(
+                f"Warming up: {len(warm)} run(s) taken less than the camera's warm-up time after it "
+                f"started (drift may not have settled): " + ", ".join(fmt_datetime(p.t) for p in warm[-6:]),
+                HEADER_WIDTH_CHARS,
+                subsequent_indent="   ",
+            )
+        )
     return lines
 
 
@@ -251,8 +354,12 @@ def render_drift_pdf_every_rig(reports: list[DriftReport]) -> bytes:
 
 
 def _meta(report: DriftReport) -> dict:
-    return {"Title": report.title, "Subject": "VTS camera drift trend", "Creator": f"vts-hw {report.software_version}",
-            "CreationDate": utc(report.now).replace(microsecond=0) if report.now else _dt.datetime.now(_dt.timezone.utc)}
+    return {
+        "Title": report.title,
+        "Subject": "VTS camera drift trend",
+        "Creator": f"vts-hw {report.software_version}",
+        "CreationDate": utc(report.now).replace(microsecond=0) if report.now else _dt.datetime.now(_dt.UTC),
+    }
 
 
 def report_pages(report: DriftReport):

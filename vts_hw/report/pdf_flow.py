@@ -25,9 +25,9 @@ from vts_hw.report.plots import FONT, STATE_COLOURS
 TOP, FLOOR = 0.93, 0.05
 GAP = 0.018
 TEXT_PT, TABLE_PT = 9.0, 7.0
-KEEP_WITH_NEXT = 0.15         # a heading needs this much of the page below it
-TABLE_CHARS = 175            # monospace characters across the page at TABLE_PT
-CELL_MAX = 48                # a column is at most this wide; longer cells wrap
+KEEP_WITH_NEXT = 0.15  # a heading needs this much of the page below it
+TABLE_CHARS = 175  # monospace characters across the page at TABLE_PT
+CELL_MAX = 48  # a column is at most this wide; longer cells wrap
 MUTED = "#5f6b7a"
 
 
@@ -73,8 +73,10 @@ def table_lines(header: list[str], rows: list[list[str]], width: int = TABLE_CHA
     def lines_of(cells) -> list[str]:
         wrapped = [textwrap.wrap(str(c), w, break_long_words=True) or [""] for c, w in zip(cells, widths)]
         depth = max(len(x) for x in wrapped)
-        return ["  ".join((x[k] if k < len(x) else "").ljust(w) for x, w in zip(wrapped, widths)).rstrip()
-                for k in range(depth)]
+        return [
+            "  ".join((x[k] if k < len(x) else "").ljust(w) for x, w in zip(wrapped, widths)).rstrip()
+            for k in range(depth)
+        ]
 
     head = lines_of(header) + [""] if any(h.strip() for h in header) else []
     return head, [line for r in rows for line in lines_of(r)]
@@ -130,7 +132,7 @@ class _Flow:
             if room < 3 and self.page.y < TOP:
                 self.new_page()
                 continue
-            take, body = body[:max(room, 1)], body[max(room, 1):]
+            take, body = body[: max(room, 1)], body[max(room, 1) :]
             self.put(MARGIN, "\n".join(head + take), fontsize=TABLE_PT, family="monospace", linespacing=1.25)
 
     def image(self, block: Image) -> None:
@@ -158,18 +160,29 @@ def render_pages(title: str, state: str, meta: str, blocks: list, pdf_meta: dict
         flow.put(MARGIN, title, fontsize=20, fontweight="bold")
         flow.put(MARGIN, textwrap.fill(meta, 160), fontsize=8.5, color=MUTED)
         flow.page.y -= GAP / 2
-        flow.put(MARGIN, f" {state} ", fontsize=13, fontweight="bold", color="white",
-                 bbox={"boxstyle": "round,pad=0.35", "fc": STATE_COLOURS.get(state, "#9aa3ad"), "ec": "none"})
+        flow.put(
+            MARGIN,
+            f" {state} ",
+            fontsize=13,
+            fontweight="bold",
+            color="white",
+            bbox={"boxstyle": "round,pad=0.35", "fc": STATE_COLOURS.get(state, "#9aa3ad"), "ec": "none"},
+        )
         flow.page.y -= GAP / 2
         for b in blocks:
             if isinstance(b, Heading):
-                if flow.page.y - FLOOR < KEEP_WITH_NEXT:       # never a heading alone at a page's foot
+                if flow.page.y - FLOOR < KEEP_WITH_NEXT:  # never a heading alone at a page's foot
                     flow.new_page()
                 flow.page.y -= GAP / 2
                 flow.put(MARGIN, b.text, fontsize=12.5, fontweight="bold")
             elif isinstance(b, Text):
-                flow.put(MARGIN, textwrap.fill(b.text, 150), fontsize=TEXT_PT, linespacing=1.4,
-                         color=MUTED if b.muted else "#1d2733")
+                flow.put(
+                    MARGIN,
+                    textwrap.fill(b.text, 150),
+                    fontsize=TEXT_PT,
+                    linespacing=1.4,
+                    color=MUTED if b.muted else "#1d2733",
+                )
             elif isinstance(b, Table):
                 flow.table(b)
             elif isinstance(b, Image):

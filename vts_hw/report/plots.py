@@ -23,15 +23,21 @@ from vts_hw.report.model import CameraDrift, DriftReport
 from vts_hw.report.times import fmt_date, utc
 from vts_hw.report.trend import CONTROL_K, CONTROL_RUNS, DAY, MIN_TREND_DAYS, MIN_TREND_RUNS
 
-MIN_SPAN_S = 3600.0   # the narrowest time axis: an hour
+MIN_SPAN_S = 3600.0  # the narrowest time axis: an hour
 
 STATE_COLOURS = {"OK": "#2e7d32", "TOLERANCE": "#e08a00", "ACTION": "#c62828"}
 ZONE_COLOURS = {"OK": "#e6f4e7", "TOLERANCE": "#fff0d6", "ACTION": "#fde4e4"}
 CONTROL_COLOUR = "#1f5fa8"
 TREND_COLOUR = "#5b2a86"
 BASELINE_COLOUR = "#6b6b6b"
-FONT: dict[RcKeyType, Any] = {"font.size": 9, "axes.titlesize": 10, "axes.labelsize": 9, "legend.fontsize": 8,
-        "xtick.labelsize": 8, "ytick.labelsize": 8}
+FONT: dict[RcKeyType, Any] = {
+    "font.size": 9,
+    "axes.titlesize": 10,
+    "axes.labelsize": 9,
+    "legend.fontsize": 8,
+    "xtick.labelsize": 8,
+    "ytick.labelsize": 8,
+}
 
 
 def _d(t):
@@ -90,15 +96,22 @@ def _bands(ax, report, axis, t1, ylo, yhi):
         tlo = alo if w.tolerance_low is None else w.tolerance_low
         thi = ahi if w.tolerance_high is None else w.tolerance_high
         x = [_d(a), _d(b)]
-        for lo, hi, zone in ((ylo, alo, "ACTION"), (alo, tlo, "TOLERANCE"), (tlo, thi, "OK"),
-                             (thi, ahi, "TOLERANCE"), (ahi, yhi, "ACTION")):
+        for lo, hi, zone in (
+            (ylo, alo, "ACTION"),
+            (alo, tlo, "TOLERANCE"),
+            (tlo, thi, "OK"),
+            (thi, ahi, "TOLERANCE"),
+            (ahi, yhi, "ACTION"),
+        ):
             if hi > lo:
                 ax.fill_between(x, lo, hi, color=ZONE_COLOURS[zone], lw=0, zorder=0)
     xs = [_d(s.start) for s in segs] + [_d(t1)]
-    for attr, colour, style in (("tolerance_low", STATE_COLOURS["TOLERANCE"], (0, (4, 2))),
-                                ("tolerance_high", STATE_COLOURS["TOLERANCE"], (0, (4, 2))),
-                                ("action_low", STATE_COLOURS["ACTION"], "-"),
-                                ("action_high", STATE_COLOURS["ACTION"], "-")):
+    for attr, colour, style in (
+        ("tolerance_low", STATE_COLOURS["TOLERANCE"], (0, (4, 2))),
+        ("tolerance_high", STATE_COLOURS["TOLERANCE"], (0, (4, 2))),
+        ("action_low", STATE_COLOURS["ACTION"], "-"),
+        ("action_high", STATE_COLOURS["ACTION"], "-"),
+    ):
         ys = [getattr(s.window, attr) for s in segs]
         ys = [np.nan if y is None else y for y in ys]
         ax.step(xs, ys + [ys[-1]], where="post", color=colour, lw=1.1, ls=style, zorder=1)
@@ -127,20 +140,36 @@ def _drift_panel(ax, report, cam, axis, t0, t1):
                 ax.plot([_d(s.trend.t_end), _d(b)], s.trend.at([s.trend.t_end, b]), ls=(0, (5, 3)), **style)
             if f.t <= t1:
                 ax.plot([_d(f.t)], [f.level], marker="D", ms=6, color=STATE_COLOURS["ACTION"], mec="white", zorder=5)
-                ax.annotate(f"action level\n{fmt_date(f.t)}", (_d(f.t), f.level), xytext=(-8, 0),
-                            textcoords="offset points", ha="right", va="bottom" if f.level > 0 else "top",
-                            fontsize=8, color=STATE_COLOURS["ACTION"], fontweight="bold")
+                ax.annotate(
+                    f"action level\n{fmt_date(f.t)}",
+                    (_d(f.t), f.level),
+                    xytext=(-8, 0),
+                    textcoords="offset points",
+                    ha="right",
+                    va="bottom" if f.level > 0 else "top",
+                    fontsize=8,
+                    color=STATE_COLOURS["ACTION"],
+                    fontweight="bold",
+                )
             else:
-                ax.text(0.99, 0.04 if f.level < 0 else 0.96, f"action level {fmt_date(f.t)} →",
-                        transform=ax.transAxes, ha="right", va="bottom" if f.level < 0 else "top",
-                        fontsize=8, color=TREND_COLOUR)
+                ax.text(
+                    0.99,
+                    0.04 if f.level < 0 else 0.96,
+                    f"action level {fmt_date(f.t)} →",
+                    transform=ax.transAxes,
+                    ha="right",
+                    va="bottom" if f.level < 0 else "top",
+                    fontsize=8,
+                    color=TREND_COLOUR,
+                )
     # the runs, coloured by the state the QA gave them
     t = cam.times()
     v = cam.series(f"drift_{axis}_px")
     ok = np.isfinite(v)
     ax.plot(_d(t[ok]), v[ok], color="#555555", lw=0.7, zorder=4)
-    colours = [STATE_COLOURS.get(p.status.get(f"drift_{axis}_px", "OK"), "#555555")
-               for p, good in zip(cam.points, ok) if good]
+    colours = [
+        STATE_COLOURS.get(p.status.get(f"drift_{axis}_px", "OK"), "#555555") for p, good in zip(cam.points, ok) if good
+    ]
     ax.scatter(_d(t[ok]), v[ok], s=16, c=colours, edgecolors="white", linewidths=0.5, zorder=6)
     for b in cam.baselines:
         ax.axvline(_d(b), color=BASELINE_COLOUR, ls="--", lw=1.0, zorder=2)
@@ -162,8 +191,11 @@ def _drift_panel(ax, report, cam, axis, t0, t1):
     ax.set_title("   ".join(x for x in (f"{cam.name} — drift {axis}", slope, pend) if x), loc="left")
 
 
-_STRIP = (("led_off_visible", "LED off: markers seen"), ("markers_missing", "markers missing"),
-          ("stray_blobs", "stray blobs"))
+_STRIP = (
+    ("led_off_visible", "LED off: markers seen"),
+    ("markers_missing", "markers missing"),
+    ("stray_blobs", "stray blobs"),
+)
 
 
 def _strip_panel(ax, report, cam):
@@ -177,8 +209,15 @@ def _strip_panel(ax, report, cam):
         for p in bad:
             colour = STATE_COLOURS.get(p.status.get(metric, "ACTION"), STATE_COLOURS["ACTION"])
             ax.scatter([_d(p.t)], [y], s=46, marker="X", color=colour, lw=0.4, edgecolors="white", zorder=3)
-            ax.annotate(f"{p.values[metric]:g}", (_d(p.t), y), xytext=(0, 6), textcoords="offset points",
-                        ha="center", fontsize=7, color=colour)
+            ax.annotate(
+                f"{p.values[metric]:g}",
+                (_d(p.t), y),
+                xytext=(0, 6),
+                textcoords="offset points",
+                ha="center",
+                fontsize=7,
+                color=colour,
+            )
     nc = [r.started for r in report.not_completed]
     if nc:
         ax.scatter(_d(np.array(nc)), [0] * len(nc), s=40, marker="x", color="#444444", lw=1.4)
@@ -215,11 +254,13 @@ def header_height_in(header: list[str]) -> float:
     return (HEADER_TITLE_PT * 1.6 + lines * HEADER_LINE_PT * HEADER_LINESPACING + 10) / 72
 
 
-def camera_figure(report: DriftReport, cam: CameraDrift, figsize=(10.0, 7.6),
-                  header: list[str] | None = None) -> Figure:
+def camera_figure(
+    report: DriftReport, cam: CameraDrift, figsize=(10.0, 7.6), header: list[str] | None = None
+) -> Figure:
     """The figure of one camera; ``header`` lines (PDF pages) go in a text block on top, as
     tall as its lines (the plots take the rest of the page)."""
     import matplotlib
+
     with matplotlib.rc_context(FONT):
         fig = Figure(figsize=figsize, layout="constrained")
         body = fig
@@ -227,8 +268,15 @@ def camera_figure(report: DriftReport, cam: CameraDrift, figsize=(10.0, 7.6),
             hh = header_height_in(header)
             top, body = fig.subfigures(2, 1, squeeze=False, height_ratios=[hh, figsize[1] - hh])[:, 0]
             top.text(0.035, 1 - 6 / 72 / hh, header[0], fontsize=HEADER_TITLE_PT, fontweight="bold", va="top")
-            top.text(0.035, 1 - (6 + HEADER_TITLE_PT * 1.6) / 72 / hh, "\n".join(header[1:]),
-                     fontsize=HEADER_LINE_PT, va="top", family="monospace", linespacing=HEADER_LINESPACING)
+            top.text(
+                0.035,
+                1 - (6 + HEADER_TITLE_PT * 1.6) / 72 / hh,
+                "\n".join(header[1:]),
+                fontsize=HEADER_LINE_PT,
+                va="top",
+                family="monospace",
+                linespacing=HEADER_LINESPACING,
+            )
         ax_x, ax_y, ax_s = body.subplots(3, 1, gridspec_kw={"height_ratios": [3, 3, 1.45]})
         t0, t1 = time_range(report, cam)
         _drift_panel(ax_x, report, cam, "x", t0, t1)
@@ -243,6 +291,12 @@ def camera_figure(report: DriftReport, cam: CameraDrift, figsize=(10.0, 7.6),
         ax_y.sharex(ax_s)
         ax_x.tick_params(labelbottom=False)
         ax_y.tick_params(labelbottom=False)
-        body.legend(handles=_legend_handles(), loc="outside lower center", ncol=7, frameon=False,
-                    handlelength=1.8, columnspacing=1.2)
+        body.legend(
+            handles=_legend_handles(),
+            loc="outside lower center",
+            ncol=7,
+            frameon=False,
+            handlelength=1.8,
+            columnspacing=1.2,
+        )
     return fig

@@ -50,15 +50,23 @@ class Renderer:
 FORMATS = (".html", ".pdf")
 RENDERERS: dict[str, dict[str, Renderer]] = {
     "drift": {".html": Renderer("html", "render_drift_html"), ".pdf": Renderer("pdf", "render_drift_pdf")},
-    "drift-every-rig": {".html": Renderer("html", "render_drift_html_every_rig"),
-                        ".pdf": Renderer("pdf", "render_drift_pdf_every_rig")},
-    "department": {".html": Renderer("rooms_html", "render_department_html"),
-                   ".pdf": Renderer("rooms_pdf", "render_department_pdf")},
+    "drift-every-rig": {
+        ".html": Renderer("html", "render_drift_html_every_rig"),
+        ".pdf": Renderer("pdf", "render_drift_pdf_every_rig"),
+    },
+    "department": {
+        ".html": Renderer("rooms_html", "render_department_html"),
+        ".pdf": Renderer("rooms_pdf", "render_department_pdf"),
+    },
     "sync": {".html": Renderer("sync_html", "render_sync_html"), ".pdf": Renderer("sync_pdf", "render_sync_pdf")},
-    "motion": {".html": Renderer("motion_html", "render_motion_html"),
-               ".pdf": Renderer("motion_pdf", "render_motion_pdf")},
-    "commission": {".html": Renderer("commission_html", "render_commission_html"),
-                   ".pdf": Renderer("commission_pdf", "render_commission_pdf")},
+    "motion": {
+        ".html": Renderer("motion_html", "render_motion_html"),
+        ".pdf": Renderer("motion_pdf", "render_motion_pdf"),
+    },
+    "commission": {
+        ".html": Renderer("commission_html", "render_commission_html"),
+        ".pdf": Renderer("commission_pdf", "render_commission_pdf"),
+    },
 }
 
 
@@ -73,8 +81,10 @@ def report_format(out: str | Path) -> str:
     if suffix == ".htm":
         return ".html"
     if suffix not in FORMATS:
-        raise ReportError(f"{out}: the report is written as .html or .pdf, not {suffix or 'a name without suffix'}: "
-                          f"give -o report.html or -o report.pdf")
+        raise ReportError(
+            f"{out}: the report is written as .html or .pdf, not {suffix or 'a name without suffix'}: "
+            f"give -o report.html or -o report.pdf"
+        )
     return suffix
 
 
@@ -87,7 +97,7 @@ def write_report(report: str, out: str | Path, *content) -> Path:
     """Render ``report`` by the suffix of ``out`` and write it whole; returns the path."""
     out = Path(out)
     data = render(report, out, *content)
-    ensure_dir(out.parent, "report folder", link_ok=True)   # the file's folder, as the kernel resolves it
+    ensure_dir(out.parent, "report folder", link_ok=True)  # the file's folder, as the kernel resolves it
     return write_atomic(out, data)
 
 

@@ -23,11 +23,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from vts_hw import __version__, catalog
-from vts_hw.tolerance import State, worst
 from vts_hw.report.drift import COMPLETED, DRIFT_PROCEDURES, collect
 from vts_hw.report.model import DriftReport, RunInfo
 from vts_hw.report.times import fmt_date
-from vts_hw.store.commission import LABELS as STEP_LABELS, Standing, load_state
+from vts_hw.store.commission import LABELS as STEP_LABELS
+from vts_hw.store.commission import Standing, load_state
+from vts_hw.tolerance import State, worst
 
 STEPS_PROCEDURES = catalog.family(catalog.STEPS.key)
 CALIBRATION_PROCEDURES = catalog.family(catalog.CALIBRATION.key)
@@ -35,26 +36,31 @@ MAPPING_PROCEDURES = catalog.family(catalog.MAPPING.key)
 COMMISSIONING_PROCEDURES = catalog.family(catalog.COMMISSIONING.key)
 #: never open ACTION items (see the docstring): a patient's scan, and baselines (no state)
 NOT_ROOM_CHECKS = catalog.not_room_checks()
-OPEN_RULE = ("An ACTION item is open while the latest completed result of the same check — the same "
-             "procedure (daily and drift QA count as one), the same camera or subject, the same quantity — "
-             "is ACTION; a later OK or TOLERANCE result of that check closes it. Motion analyses judge a "
-             "patient's scan, not the room, and are not listed.")
+OPEN_RULE = (
+    "An ACTION item is open while the latest completed result of the same check — the same "
+    "procedure (daily and drift QA count as one), the same camera or subject, the same quantity — "
+    "is ACTION; a later OK or TOLERANCE result of that check closes it. Motion analyses judge a "
+    "patient's scan, not the room, and are not listed."
+)
 
 
 @dataclass
 class OpenItem:
     """A check whose latest result is ACTION."""
-    check: str                  # "daily QA", "sync check", ...
+
+    check: str  # "daily QA", "sync check", ...
     subject: str
     metrics: list[str]
-    since: float                # the first ACTION result of the unbroken run
+    since: float  # the first ACTION result of the unbroken run
     last_run: int
     last_t: float
-    runs: int                   # ACTION runs since `since`
+    runs: int  # ACTION runs since `since`
 
     def text(self) -> str:
-        return (f"{self.check} · {self.subject}: {', '.join(self.metrics)} — ACTION since {fmt_date(self.since)}"
-                f" ({self.runs} run{'s' if self.runs != 1 else ''}, last run {self.last_run})")
+        return (
+            f"{self.check} · {self.subject}: {', '.join(self.metrics)} — ACTION since {fmt_date(self.since)}"
+            f" ({self.runs} run{'s' if self.runs != 1 else ''}, last run {self.last_run})"
+        )
 
     def as_dict(self) -> dict:
         return {**self.__dict__, "since_date": fmt_date(self.since), "text": self.text()}
@@ -64,20 +70,20 @@ class OpenItem:
 class Room:
     rig: str
     drift: DriftReport
-    last_daily: RunInfo | None          # the latest completed daily/drift run, any time
+    last_daily: RunInfo | None  # the latest completed daily/drift run, any time
     last_steps: RunInfo | None
     last_calibration: RunInfo | None
     last_mapping: RunInfo | None
     open_items: list[OpenItem] = field(default_factory=list)
-    drift_file: str = ""                # the room's drift report, relative to the rooms page
+    drift_file: str = ""  # the room's drift report, relative to the rooms page
     commissioned: RunInfo | None = None  # the latest completed commissioning (its operator signed it off)
-    commission: Standing | None = None   # where its current commissioning stands (the newest attempt of each step)
+    commission: Standing | None = None  # where its current commissioning stands (the newest attempt of each step)
 
     @property
     def label(self) -> str:
         return self.rig or "(no rig name)"
 
-    latest: dict = field(default_factory=dict)   # (check, subject, metric) -> its latest state (any date)
+    latest: dict = field(default_factory=dict)  # (check, subject, metric) -> its latest state (any date)
 
     @property
     def has_daily(self) -> bool:
@@ -102,15 +108,26 @@ class Room:
         c = self.commission
         if c is None:
             return "not commissioned"
-        skipped = (f"{len(c.skipped)} of {len(STEP_LABELS)} steps skipped ("
-                   + ", ".join(STEP_LABELS.get(n, n) for n in c.skipped) + ")") if c.skipped else ""
-        if c.complete and c.report is not None:     # complete: a report stands
+        skipped = (
+            (
+                f"{len(c.skipped)} of {len(STEP_LABELS)} steps skipped ("
+                + ", ".join(STEP_LABELS.get(n, n) for n in c.skipped)
+                + ")"
+            )
+            if c.skipped
+            else ""
+        )
+        if c.complete and c.report is not None:  # complete: a report stands
             who = f"signed off by {c.report.operator}" if c.report.operator else "not signed off"
             return f"commissioned on {fmt_date(c.report.started)}: {c.word}{', ' + skipped if skipped else ''} ({who})"
-        parts = c.not_passed_text(why=False) or ["every step passed, no report since (`vts commission --resume` "
-                                                 "writes it)"]
-        last = (f" (its report of {fmt_date(c.last_report.started)}, {c.last_report.status}, no longer stands)"
-                if c.last_report is not None else "")
+        parts = c.not_passed_text(why=False) or [
+            "every step passed, no report since (`vts commission --resume` writes it)"
+        ]
+        last = (
+            f" (its report of {fmt_date(c.last_report.started)}, {c.last_report.status}, no longer stands)"
+            if c.last_report is not None
+            else ""
+        )
         return "commissioning incomplete, not commissioned: " + "; ".join(parts + ([skipped] if skipped else [])) + last
 
     def daily_missing_text(self) -> str:
@@ -122,18 +139,33 @@ class Room:
     def as_dict(self) -> dict:
         def info(r):
             return None if r is None else r.as_dict()
-        return {"rig": self.rig, "state": str(self.state) if self.state else None,
-                "daily": None if self.has_daily else self.daily_missing_text(),
-                "cameras": {n: {"state": str(c.state), "latest": c.latest.as_dict() if c.latest else None}
-                            for n, c in self.drift.cameras.items() if c.points},
-                "last_daily": info(self.last_daily), "last_steps": info(self.last_steps),
-                "last_calibration": info(self.last_calibration), "last_mapping": info(self.last_mapping),
-                "open_items": [i.as_dict() for i in self.open_items], "drift_report": self.drift_file,
-                "commissioned": self.commissioned_text(),
-                "commissioning": None if self.commission is None else {
-                    "id": self.commission.cid, "state": self.commission.word, "skipped": self.commission.skipped,
-                    "not_passed": self.commission.not_passed},
-                "attention": self.drift.attention()}
+
+        return {
+            "rig": self.rig,
+            "state": str(self.state) if self.state else None,
+            "daily": None if self.has_daily else self.daily_missing_text(),
+            "cameras": {
+                n: {"state": str(c.state), "latest": c.latest.as_dict() if c.latest else None}
+                for n, c in self.drift.cameras.items()
+                if c.points
+            },
+            "last_daily": info(self.last_daily),
+            "last_steps": info(self.last_steps),
+            "last_calibration": info(self.last_calibration),
+            "last_mapping": info(self.last_mapping),
+            "open_items": [i.as_dict() for i in self.open_items],
+            "drift_report": self.drift_file,
+            "commissioned": self.commissioned_text(),
+            "commissioning": None
+            if self.commission is None
+            else {
+                "id": self.commission.cid,
+                "state": self.commission.word,
+                "skipped": self.commission.skipped,
+                "not_passed": self.commission.not_passed,
+            },
+            "attention": self.drift.attention(),
+        }
 
 
 @dataclass
@@ -151,10 +183,17 @@ class RoomsReport:
         return worst(states) if states else None
 
     def results_data(self) -> dict:
-        return {"report": "rooms", "title": self.title, "since": self.since, "now": self.now,
-                "state": str(self.state) if self.state else None, "open_rule": OPEN_RULE,
-                "out": str(self.out) if self.out else None, "software_version": self.software_version,
-                "rooms": [r.as_dict() for r in self.rooms]}
+        return {
+            "report": "rooms",
+            "title": self.title,
+            "since": self.since,
+            "now": self.now,
+            "state": str(self.state) if self.state else None,
+            "open_rule": OPEN_RULE,
+            "out": str(self.out) if self.out else None,
+            "software_version": self.software_version,
+            "rooms": [r.as_dict() for r in self.rooms],
+        }
 
 
 def days_since(t: float | None, now: float) -> str:
@@ -247,8 +286,9 @@ def drift_file_names(out: Path, rigs: list[str]) -> dict[str, str]:
     return names
 
 
-def collect_rooms(store, since: float | None = None, now: float | None = None, rigs=None,
-                  out: Path | None = None) -> RoomsReport:
+def collect_rooms(
+    store, since: float | None = None, now: float | None = None, rigs=None, out: Path | None = None
+) -> RoomsReport:
     """Every rig's (or ``rigs``') room data; nothing is written."""
     now = time.time() if now is None else float(now)
     rigs = store.rigs() if rigs is None else list(rigs)
@@ -260,14 +300,21 @@ def collect_rooms(store, since: float | None = None, now: float | None = None, r
     rooms = []
     for rig in rigs:
         runs = [r for r in all_runs if (r.rig or "") == rig]
-        rooms.append(Room(rig=rig, drift=collect(store, since=since, now=now, rig=rig),
-                          last_daily=_latest(runs, DRIFT_PROCEDURES), last_steps=_latest(runs, STEPS_PROCEDURES),
-                          last_calibration=_latest(runs, CALIBRATION_PROCEDURES),
-                          last_mapping=_latest(runs, MAPPING_PROCEDURES),
-                          open_items=open_items(measurements, runs), drift_file=names[rig],
-                          commissioned=_latest(runs, COMMISSIONING_PROCEDURES),
-                          commission=load_state(store, rig).standing(store),
-                          latest=latest_states(measurements, runs)))
+        rooms.append(
+            Room(
+                rig=rig,
+                drift=collect(store, since=since, now=now, rig=rig),
+                last_daily=_latest(runs, DRIFT_PROCEDURES),
+                last_steps=_latest(runs, STEPS_PROCEDURES),
+                last_calibration=_latest(runs, CALIBRATION_PROCEDURES),
+                last_mapping=_latest(runs, MAPPING_PROCEDURES),
+                open_items=open_items(measurements, runs),
+                drift_file=names[rig],
+                commissioned=_latest(runs, COMMISSIONING_PROCEDURES),
+                commission=load_state(store, rig).standing(store),
+                latest=latest_states(measurements, runs),
+            )
+        )
     return RoomsReport("VTS rooms — department QA overview", since, now, rooms)
 
 

@@ -18,15 +18,29 @@ from vts_hw.report.rooms_html import X_COLOUR, Y_COLOUR
 from vts_hw.report.times import fmt_date, fmt_datetime, utc
 
 NONE_COLOUR = "#9aa3ad"
-COLUMNS = (("Room", 0.05), ("Cameras: latest daily QA, drift x/y", 0.14), ("Step test", 0.46),
-           ("Calibration", 0.56), ("SPECT mapping", 0.66), ("Open ACTION items", 0.76))
+COLUMNS = (
+    ("Room", 0.05),
+    ("Cameras: latest daily QA, drift x/y", 0.14),
+    ("Step test", 0.46),
+    ("Calibration", 0.56),
+    ("SPECT mapping", 0.66),
+    ("Open ACTION items", 0.76),
+)
 CAM_ROW = 0.045
 FLOOR = 0.13
 
 
 def _word(fig, x, y, text, state) -> None:
-    fig.text(x, y, f" {text} ", fontsize=7.5, fontweight="bold", color="white", va="center",
-             bbox={"boxstyle": "round,pad=0.25", "fc": STATE_COLOURS.get(str(state), NONE_COLOUR), "ec": "none"})
+    fig.text(
+        x,
+        y,
+        f" {text} ",
+        fontsize=7.5,
+        fontweight="bold",
+        color="white",
+        va="center",
+        bbox={"boxstyle": "round,pad=0.25", "fc": STATE_COLOURS.get(str(state), NONE_COLOUR), "ec": "none"},
+    )
 
 
 def _spark(fig, x, y, cam, tol, start, end) -> None:
@@ -59,15 +73,31 @@ def _last(fig, x, y, run, what, now) -> None:
 def _new_page(report: RoomsReport, pages: list, first: bool) -> tuple[Figure, float]:
     fig = Figure(figsize=A4_LANDSCAPE)
     pages.append(fig)
-    fig.text(MARGIN, 0.94, report.title + ("" if first else " (continued)"), fontsize=17 if first else 13,
-             fontweight="bold")
+    fig.text(
+        MARGIN, 0.94, report.title + ("" if first else " (continued)"), fontsize=17 if first else 13, fontweight="bold"
+    )
     period = "all runs" if report.since is None else f"since {fmt_datetime(report.since)}"
-    fig.text(MARGIN, 0.905, f"{len(report.rooms)} room(s) · drift {period} · generated {fmt_datetime(report.now)}"
-                            f" · vts-hw {report.software_version}", fontsize=8.5, color="#5f6b7a")
-    fig.text(MARGIN, 0.03, textwrap.fill("Open ACTION items: " + OPEN_RULE + " A room without daily QA shows no "
-                                         "state, never OK. Sparklines: drift x (blue) and y (orange) in px, dashed "
-                                         "the ±tolerance level now. All times UTC.", 190),
-             fontsize=6.5, color="#5f6b7a", va="bottom")
+    fig.text(
+        MARGIN,
+        0.905,
+        f"{len(report.rooms)} room(s) · drift {period} · generated {fmt_datetime(report.now)}"
+        f" · vts-hw {report.software_version}",
+        fontsize=8.5,
+        color="#5f6b7a",
+    )
+    fig.text(
+        MARGIN,
+        0.03,
+        textwrap.fill(
+            "Open ACTION items: " + OPEN_RULE + " A room without daily QA shows no "
+            "state, never OK. Sparklines: drift x (blue) and y (orange) in px, dashed "
+            "the ±tolerance level now. All times UTC.",
+            190,
+        ),
+        fontsize=6.5,
+        color="#5f6b7a",
+        va="bottom",
+    )
     y = 0.86
     if first:
         state = report.state
@@ -87,14 +117,20 @@ def render_department_pdf(report: RoomsReport) -> bytes:
             cams = [c for c in room.drift.cameras.values() if c.points]
             lines = [textwrap.fill(i.text(), 34) for i in room.open_items]
             commissioned = textwrap.fill(room.commissioned_text(), 24)
-            height = max(len(cams) * CAM_ROW, 0.08, 0.018 * sum(t.count("\n") + 1 for t in lines),
-                         0.022 + 0.0125 * (commissioned.count("\n") + 1)) + 0.015
+            height = (
+                max(
+                    len(cams) * CAM_ROW,
+                    0.08,
+                    0.018 * sum(t.count("\n") + 1 for t in lines),
+                    0.022 + 0.0125 * (commissioned.count("\n") + 1),
+                )
+                + 0.015
+            )
             if y - height < FLOOR:
                 fig, y = _new_page(report, pages, False)
             fig.add_artist(matplotlib.lines.Line2D([MARGIN, 1 - MARGIN], [y + 0.008] * 2, color="#dfe3e8", lw=0.6))
             fig.text(COLUMNS[0][1], y, room.label, fontsize=8.5, fontweight="bold", va="top")
-            fig.text(COLUMNS[0][1], y - 0.022, commissioned, fontsize=6, va="top",
-                     color="#5f6b7a")
+            fig.text(COLUMNS[0][1], y - 0.022, commissioned, fontsize=6, va="top", color="#5f6b7a")
             if not cams:
                 _word(fig, COLUMNS[1][1], y - 0.012, room.daily_missing_text(), None)
             tol = room.drift.window_now("x").tolerance_high
@@ -108,16 +144,32 @@ def render_department_pdf(report: RoomsReport) -> bytes:
             _last(fig, COLUMNS[2][1], y, room.last_steps, "step test", report.now)
             _last(fig, COLUMNS[3][1], y, room.last_calibration, "calibration", report.now)
             _last(fig, COLUMNS[4][1], y, room.last_mapping, "SPECT mapping", report.now)
-            fig.text(COLUMNS[5][1], y, "\n".join(lines) or "none", fontsize=6.5, va="top",
-                     color=STATE_COLOURS["ACTION"] if lines else "#5f6b7a")
-            link = fig.text(0.90, y, "\n".join(textwrap.wrap(room.drift_file, 22, break_long_words=True)), fontsize=6,
-                            va="top", color="#1f5fa8")
+            fig.text(
+                COLUMNS[5][1],
+                y,
+                "\n".join(lines) or "none",
+                fontsize=6.5,
+                va="top",
+                color=STATE_COLOURS["ACTION"] if lines else "#5f6b7a",
+            )
+            link = fig.text(
+                0.90,
+                y,
+                "\n".join(textwrap.wrap(room.drift_file, 22, break_long_words=True)),
+                fontsize=6,
+                va="top",
+                color="#1f5fa8",
+            )
             link.set_url(room.drift_file)
             y -= height
         if not report.rooms:
             fig.text(MARGIN, y, "The store holds no runs yet.", fontsize=11, va="top")
-    meta = {"Title": report.title, "Subject": "VTS rooms overview", "Creator": f"vts-hw {report.software_version}",
-            "CreationDate": utc(report.now).replace(microsecond=0)}
+    meta = {
+        "Title": report.title,
+        "Subject": "VTS rooms overview",
+        "Creator": f"vts-hw {report.software_version}",
+        "CreationDate": utc(report.now).replace(microsecond=0),
+    }
     return pdf_bytes(pages, meta)
 
 

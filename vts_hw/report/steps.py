@@ -14,8 +14,8 @@ from html import escape
 from pathlib import Path
 
 from vts_hw import catalog
-from vts_hw.tolerance import State
 from vts_hw.report.times import fmt_datetime
+from vts_hw.tolerance import State
 
 PROCEDURE = catalog.STEPS.name
 
@@ -33,9 +33,9 @@ class StepRun:
 
 @dataclass
 class StepsSummary:
-    runs: list[StepRun]                               # in the period, oldest first
-    measures: list = field(default_factory=list)      # the latest completed run's Measurements
-    plot_png: bytes | None = None                     # its plot, when the file is still there and intact
+    runs: list[StepRun]  # in the period, oldest first
+    measures: list = field(default_factory=list)  # the latest completed run's Measurements
+    plot_png: bytes | None = None  # its plot, when the file is still there and intact
     plot_problem: str = ""
 
     @property
@@ -59,18 +59,29 @@ class StepsSummary:
 
     def results_data(self) -> dict:
         latest = self.latest
-        return {"runs": [r.__dict__ for r in self.runs],
-                "latest": None if latest is None else {
-                    **latest.__dict__,
-                    "measurements": [{"subject": m.subject, "metric": m.metric, "value": m.value,
-                                      "unit": m.unit, "state": str(m.status)} for m in self.measures]},
-                "plot": self.plot_png is not None, "plot_problem": self.plot_problem}
+        return {
+            "runs": [r.__dict__ for r in self.runs],
+            "latest": None
+            if latest is None
+            else {
+                **latest.__dict__,
+                "measurements": [
+                    {"subject": m.subject, "metric": m.metric, "value": m.value, "unit": m.unit, "state": str(m.status)}
+                    for m in self.measures
+                ],
+            },
+            "plot": self.plot_png is not None,
+            "plot_problem": self.plot_problem,
+        }
 
 
 def collect_steps(store, since: float | None, now: float, rig: str | None) -> StepsSummary | None:
     """The step-test runs of the period (None when there are none)."""
-    runs = [r for r in store.runs(procedure=catalog.STEPS.stored_as, since=since)
-            if r.started <= now and (rig is None or (r.rig or "") == rig)]
+    runs = [
+        r
+        for r in store.runs(procedure=catalog.STEPS.stored_as, since=since)
+        if r.started <= now and (rig is None or (r.rig or "") == rig)
+    ]
     if not runs:
         return None
     out = StepsSummary([StepRun(r.id, r.started, str(r.status), r.operator or "") for r in runs])
@@ -98,27 +109,35 @@ def steps_html(s: StepsSummary) -> str:
     """The report's section on the step test."""
     latest = s.latest
     if latest is None:
-        return ('<section class="card"><h2>7-sphere step test</h2><p class="muted">No completed '
-                'step test in this period.</p></section>')
-    rows = "".join(f"<tr><td>{escape(q)}</td><td>{escape(sub)}</td><td class=\"num s-{escape(st)}\">"
-                   f"{escape(v)}</td><td><span class=\"badge {escape(st)}\">{escape(st)}</span></td></tr>"
-                   for q, sub, v, st in s.rows())
+        return (
+            '<section class="card"><h2>7-sphere step test</h2><p class="muted">No completed '
+            "step test in this period.</p></section>"
+        )
+    rows = "".join(
+        f'<tr><td>{escape(q)}</td><td>{escape(sub)}</td><td class="num s-{escape(st)}">'
+        f'{escape(v)}</td><td><span class="badge {escape(st)}">{escape(st)}</span></td></tr>'
+        for q, sub, v, st in s.rows()
+    )
     img = ""
     if s.plot_png is not None:
         b64 = base64.b64encode(s.plot_png).decode("ascii")
         img = f'<img class="plot" alt="7-sphere step test, run {latest.id}" src="data:image/png;base64,{b64}">'
     elif s.plot_problem:
         img = f'<p class="muted">{escape(s.plot_problem)}</p>'
-    history = "".join(f"<li>{fmt_datetime(r.started)} · run {r.id} · "
-                      f"<span class=\"badge {escape(r.status)}\">{escape(r.status)}</span></li>"
-                      for r in s.runs)
-    return (f'<section class="card"><h2>7-sphere step test</h2>'
-            f'<div class="meta">latest: run {latest.id}, {fmt_datetime(latest.started)}'
-            f'{", " + escape(latest.operator) if latest.operator else ""} · '
-            f'<span class="badge {escape(latest.status)}">{escape(latest.status)}</span></div>'
-            f'{img}<div class="scroll"><table><tr><th>quantity</th><th>axis</th>'
-            f'<th class="num">value</th><th>state</th></tr>{rows}</table></div>'
-            f'<h3>Step tests in the period</h3><ul>{history}</ul></section>')
+    history = "".join(
+        f"<li>{fmt_datetime(r.started)} · run {r.id} · "
+        f'<span class="badge {escape(r.status)}">{escape(r.status)}</span></li>'
+        for r in s.runs
+    )
+    return (
+        f'<section class="card"><h2>7-sphere step test</h2>'
+        f'<div class="meta">latest: run {latest.id}, {fmt_datetime(latest.started)}'
+        f"{', ' + escape(latest.operator) if latest.operator else ''} · "
+        f'<span class="badge {escape(latest.status)}">{escape(latest.status)}</span></div>'
+        f'{img}<div class="scroll"><table><tr><th>quantity</th><th>axis</th>'
+        f'<th class="num">value</th><th>state</th></tr>{rows}</table></div>'
+        f"<h3>Step tests in the period</h3><ul>{history}</ul></section>"
+    )
 
 
 def steps_figure(s: StepsSummary, figsize=(11.69, 8.27)):
@@ -134,8 +153,14 @@ def steps_figure(s: StepsSummary, figsize=(11.69, 8.27)):
     if latest is None:
         fig.text(0.05, 0.88, "No completed step test in this period.", fontsize=11)
         return fig
-    fig.text(0.05, 0.905, f"latest: run {latest.id}, {fmt_datetime(latest.started)} · {latest.status} · "
-                          f"{len(s.runs)} step test(s) in the period", fontsize=9, color="#5f6b7a")
+    fig.text(
+        0.05,
+        0.905,
+        f"latest: run {latest.id}, {fmt_datetime(latest.started)} · {latest.status} · "
+        f"{len(s.runs)} step test(s) in the period",
+        fontsize=9,
+        color="#5f6b7a",
+    )
     if s.plot_png is not None:
         ax = fig.add_axes((0.03, 0.52, 0.94, 0.36))
         ax.imshow(mpimg.imread(io.BytesIO(s.plot_png), format="png"))
@@ -145,10 +170,14 @@ def steps_figure(s: StepsSummary, figsize=(11.69, 8.27)):
         ax = fig.add_axes((0.05, 0.04, 0.9, 0.44))
         ax.axis("off")
         colours = {"OK": "#e8f5ec", "TOLERANCE": "#fff0d6", "ACTION": "#fde4e4"}
-        tab = ax.table(cellText=[list(r) for r in rows], colLabels=["quantity", "axis", "value", "state"],
-                       cellColours=[["white", "white", colours.get(r[3], "white"), colours.get(r[3], "white")]
-                                    for r in rows],
-                       colWidths=[0.55, 0.15, 0.15, 0.15], loc="upper left", cellLoc="left")
+        tab = ax.table(
+            cellText=[list(r) for r in rows],
+            colLabels=["quantity", "axis", "value", "state"],
+            cellColours=[["white", "white", colours.get(r[3], "white"), colours.get(r[3], "white")] for r in rows],
+            colWidths=[0.55, 0.15, 0.15, 0.15],
+            loc="upper left",
+            cellLoc="left",
+        )
         tab.auto_set_font_size(False)
         tab.set_fontsize(8)
     return fig

@@ -15,7 +15,7 @@ def fmt_num(v, spec: str = ".3f") -> str:
     if v is None or (isinstance(v, float) and not math.isfinite(v)):
         return "–"
     text = format(v, spec)
-    if text.startswith("-") and not any(c in "123456789" for c in text):   # no "-0.00"
+    if text.startswith("-") and not any(c in "123456789" for c in text):  # no "-0.00"
         text = ("+" if "+" in spec else "") + text[1:]
     return text
 
@@ -33,14 +33,16 @@ def fmt_slope(trend: Trend, html: bool = False) -> str:
 
 def trend_detail(trend: Trend) -> str:
     """The fit in words: runs, dates, 95 % CI and p-value; or why there is no trend."""
-    p_value, slope, ci = trend.p_value, trend.slope_per_30d, trend.ci95_per_30d    # set together by fit_trend
+    p_value, slope, ci = trend.p_value, trend.slope_per_30d, trend.ci95_per_30d  # set together by fit_trend
     if p_value is None or slope is None or ci is None:
         return trend.reason
     p = "p < 0.001" if p_value < 0.001 else f"p = {p_value:.3f}"
     sig = "" if trend.significant else f", not significant (p ≥ {SIGNIFICANCE:g})"
-    return (f"{trend.n} runs, {fmt_date(trend.t0)} – {fmt_date(trend.t_end)} ({trend.span_days:.1f} days); "
-            f"95 % CI {slope - ci:+.3f} … {slope + ci:+.3f}"
-            f" px/30 d, {p}{sig}; residual SD {trend.residual_sd:.3f} px")
+    return (
+        f"{trend.n} runs, {fmt_date(trend.t0)} – {fmt_date(trend.t_end)} ({trend.span_days:.1f} days); "
+        f"95 % CI {slope - ci:+.3f} … {slope + ci:+.3f}"
+        f" px/30 d, {p}{sig}; residual SD {trend.residual_sd:.3f} px"
+    )
 
 
 def forecast_text(f: Forecast) -> str:

@@ -24,7 +24,7 @@ def _shown(text: str) -> str:
     return t if len(t) <= 40 else t[:36] + "…" + t[-1]
 
 
-EARLIEST = 0.0   # 1970-01-01: no run can be older; a period reaching further back is a typo
+EARLIEST = 0.0  # 1970-01-01: no run can be older; a period reaching further back is a typo
 
 
 def parse_since(text: str, now: float | None = None) -> float | None:
@@ -45,29 +45,36 @@ def parse_since(text: str, now: float | None = None) -> float | None:
         back = float(m.group(1)) * _UNITS[m.group(2).lower()]
         start = now - back
         if not math.isfinite(start) or start < EARLIEST:
-            raise BadSince(f"--since {_shown(text)} reaches back before 1970-01-01, earlier than any run can be: "
-                           f"give at most {int((now - EARLIEST) // 86400)}d, a date, or --since all")
+            raise BadSince(
+                f"--since {_shown(text)} reaches back before 1970-01-01, earlier than any run can be: "
+                f"give at most {int((now - EARLIEST) // 86400)}d, a date, or --since all"
+            )
         return start
     try:
         dt = _dt.datetime.fromisoformat(s.replace("Z", "+00:00"))
         if dt.tzinfo is None:
-            dt = dt.replace(tzinfo=_dt.timezone.utc)
+            dt = dt.replace(tzinfo=_dt.UTC)
         start = dt.timestamp()
     except (ValueError, OverflowError, OSError):
-        raise BadSince(f"--since {_shown(text)}: expected a duration such as 12h, 60d or 8w, "
-                       f"a UTC date such as 2026-09-01, or all") from None
+        raise BadSince(
+            f"--since {_shown(text)}: expected a duration such as 12h, 60d or 8w, a UTC date such as 2026-09-01, or all"
+        ) from None
     if start < EARLIEST:
-        raise BadSince(f"--since {_shown(text)} is before 1970-01-01, earlier than any run can be: "
-                       f"give a later date, or --since all")
+        raise BadSince(
+            f"--since {_shown(text)} is before 1970-01-01, earlier than any run can be: "
+            f"give a later date, or --since all"
+        )
     if start > now:
-        raise BadSince(f"--since {_shown(text)} is in the future (now is {fmt_datetime(now)}): "
-                       f"give a date up to today, or a duration such as 60d")
+        raise BadSince(
+            f"--since {_shown(text)} is in the future (now is {fmt_datetime(now)}): "
+            f"give a date up to today, or a duration such as 60d"
+        )
     return start
 
 
 def utc(t: float) -> _dt.datetime:
     """Epoch seconds as an aware UTC datetime."""
-    return _dt.datetime.fromtimestamp(t, _dt.timezone.utc)
+    return _dt.datetime.fromtimestamp(t, _dt.UTC)
 
 
 def fmt_date(t: float | None) -> str:

@@ -28,22 +28,26 @@ CONTROL_RUNS = 10
 CONTROL_K = 3.0
 HORIZON_DAYS = 365.0
 SLOPE_PERIOD_DAYS = 30.0
-MIN_TREND_RUNS = 5          # a working week of daily QA
-MIN_TREND_DAYS = 7.0        # a calendar week: longer than any one day's noise or a weekend gap
-SIGNIFICANCE = 0.05         # a forecast only when p(slope = 0) is below this
+MIN_TREND_RUNS = 5  # a working week of daily QA
+MIN_TREND_DAYS = 7.0  # a calendar week: longer than any one day's noise or a weekend gap
+SIGNIFICANCE = 0.05  # a forecast only when p(slope = 0) is below this
 
-CONTROL_METHOD = (f"mean ± {CONTROL_K:g} SD of the first {CONTROL_RUNS} completed runs after the "
-                  f"latest baseline, per axis")
-TREND_RULE = (f"a trend needs {MIN_TREND_RUNS} runs over {MIN_TREND_DAYS:g} days since the latest "
-              f"baseline; a forecast needs a significant slope (p < {SIGNIFICANCE:g}) and a crossing "
-              f"within {HORIZON_DAYS:g} days")
+CONTROL_METHOD = (
+    f"mean ± {CONTROL_K:g} SD of the first {CONTROL_RUNS} completed runs after the latest baseline, per axis"
+)
+TREND_RULE = (
+    f"a trend needs {MIN_TREND_RUNS} runs over {MIN_TREND_DAYS:g} days since the latest "
+    f"baseline; a forecast needs a significant slope (p < {SIGNIFICANCE:g}) and a crossing "
+    f"within {HORIZON_DAYS:g} days"
+)
 
 
 @dataclass(frozen=True)
 class ControlLimits:
     """Control limits of one axis. ``mean``/``lower``/``upper`` are None while pending."""
-    n: int                      # runs used (at most CONTROL_RUNS)
-    start: float | None         # time of the first and last run used
+
+    n: int  # runs used (at most CONTROL_RUNS)
+    start: float | None  # time of the first and last run used
     end: float | None
     mean: float | None = None
     sd: float | None = None
@@ -65,6 +69,7 @@ class Trend:
     ``ok`` False (no slope) when the runs are too few or span too short a time: ``reason`` says
     which, in words.
     """
+
     n: int
     span_days: float = 0.0
     t0: float | None = None
@@ -72,8 +77,8 @@ class Trend:
     intercept: float | None = None
     slope_per_day: float | None = None
     slope_se_per_day: float | None = None
-    ci95_per_day: float | None = None      # half-width of the slope's 95 % confidence interval
-    p_value: float | None = None           # of the hypothesis "slope = 0" (two-sided t-test)
+    ci95_per_day: float | None = None  # half-width of the slope's 95 % confidence interval
+    p_value: float | None = None  # of the hypothesis "slope = 0" (two-sided t-test)
     residual_sd: float | None = None
 
     @property
@@ -86,14 +91,15 @@ class Trend:
         if self.ok:
             return ""
         runs = "1 run" if self.n == 1 else f"{self.n} runs"
-        return (f"{runs} over {self.span_days:.1f} days: a trend needs {MIN_TREND_RUNS} runs over "
-                f"{MIN_TREND_DAYS:g} days")
+        return (
+            f"{runs} over {self.span_days:.1f} days: a trend needs {MIN_TREND_RUNS} runs over {MIN_TREND_DAYS:g} days"
+        )
 
     @property
     def short_reason(self) -> str:
         """``3 runs / 0.0 d`` (for a table cell)."""
         runs = "1 run" if self.n == 1 else f"{self.n} runs"
-        return "" if self.ok else f"{runs} / {self.span_days:.1f}\u00a0d"   # no line break before "d"
+        return "" if self.ok else f"{runs} / {self.span_days:.1f}\u00a0d"  # no line break before "d"
 
     def _per_30d(self, v):
         return None if v is None else v * SLOPE_PERIOD_DAYS
@@ -120,9 +126,14 @@ class Trend:
         return self.intercept + self.slope_per_day * (np.asarray(t, dtype=float) - self.t0) / DAY
 
     def as_dict(self) -> dict:
-        return {**asdict(self), "slope_per_30d": self.slope_per_30d,
-                "slope_se_per_30d": self.slope_se_per_30d, "ci95_per_30d": self.ci95_per_30d,
-                "significant": self.significant, "reason": self.reason}
+        return {
+            **asdict(self),
+            "slope_per_30d": self.slope_per_30d,
+            "slope_se_per_30d": self.slope_se_per_30d,
+            "ci95_per_30d": self.ci95_per_30d,
+            "significant": self.significant,
+            "reason": self.reason,
+        }
 
 
 @dataclass(frozen=True)
@@ -135,6 +146,7 @@ class Forecast:
     (a slope that may be noise: no date is given), ``no fit`` (no trend). ``reason`` says in
     words why there is no date.
     """
+
     status: str
     t: float | None = None
     level: float | None = None  # the action level aimed at (px)
@@ -181,8 +193,7 @@ def control_limits(t, v, n_runs: int = CONTROL_RUNS, k: float = CONTROL_K) -> Co
         return ControlLimits(n=len(v), start=start, end=end)
     mean = float(np.mean(v))
     sd = float(np.std(v, ddof=1))
-    return ControlLimits(n=len(v), start=start, end=end, mean=mean, sd=sd,
-                         lower=mean - k * sd, upper=mean + k * sd)
+    return ControlLimits(n=len(v), start=start, end=end, mean=mean, sd=sd, lower=mean - k * sd, upper=mean + k * sd)
 
 
 def fit_trend(t, v, min_runs: int = MIN_TREND_RUNS, min_days: float = MIN_TREND_DAYS) -> Trend:
@@ -201,26 +212,39 @@ def fit_trend(t, v, min_runs: int = MIN_TREND_RUNS, min_days: float = MIN_TREND_
     fit = stats.linregress(d, v)
     slope, se = float(fit.slope), float(fit.stderr)
     resid = v - (fit.intercept + slope * d)
-    s2 = float(np.sum(resid ** 2) / (n - 2))
+    s2 = float(np.sum(resid**2) / (n - 2))
     p = float(fit.pvalue) if math.isfinite(fit.pvalue) else (0.0 if se == 0 and slope != 0 else 1.0)
-    return Trend(n=n, span_days=span, t0=t0, t_end=float(t.max()), intercept=float(fit.intercept),
-                 slope_per_day=slope, slope_se_per_day=se,
-                 ci95_per_day=float(stats.t.ppf(0.975, n - 2)) * se, p_value=p,
-                 residual_sd=math.sqrt(s2))
+    return Trend(
+        n=n,
+        span_days=span,
+        t0=t0,
+        t_end=float(t.max()),
+        intercept=float(fit.intercept),
+        slope_per_day=slope,
+        slope_se_per_day=se,
+        ci95_per_day=float(stats.t.ppf(0.975, n - 2)) * se,
+        p_value=p,
+        residual_sd=math.sqrt(s2),
+    )
 
 
-def forecast(trend: Trend, action_low: float | None, action_high: float | None, now: float,
-             horizon_days: float = HORIZON_DAYS) -> Forecast:
+def forecast(
+    trend: Trend, action_low: float | None, action_high: float | None, now: float, horizon_days: float = HORIZON_DAYS
+) -> Forecast:
     """When the fitted line meets the action level in the direction of its slope.
 
     No date unless the trend exists and its slope is significant."""
-    b, t0, intercept = trend.slope_per_day, trend.t0, trend.intercept    # set together by fit_trend
+    b, t0, intercept = trend.slope_per_day, trend.t0, trend.intercept  # set together by fit_trend
     if b is None or t0 is None or intercept is None:
         return Forecast("no fit", reason=trend.reason)
     if not trend.significant:
-        return Forecast("not significant", reason=(
-            f"the slope {trend.slope_per_30d:+.3f} ± {trend.slope_se_per_30d:.3f} px/30 d is not "
-            f"significant (p = {trend.p_value:.2f}, needs < {SIGNIFICANCE:g})"))
+        return Forecast(
+            "not significant",
+            reason=(
+                f"the slope {trend.slope_per_30d:+.3f} ± {trend.slope_se_per_30d:.3f} px/30 d is not "
+                f"significant (p = {trend.p_value:.2f}, needs < {SIGNIFICANCE:g})"
+            ),
+        )
     if b == 0:
         return Forecast("away", reason="the slope is zero")
     level = action_high if b > 0 else action_low
@@ -231,6 +255,10 @@ def forecast(trend: Trend, action_low: float | None, action_high: float | None, 
         # moving towards this level, the line has met it already (possibly before the fit began)
         return Forecast("reached", t=float(t_cross), level=level)
     if t_cross - now > horizon_days * DAY:
-        return Forecast("beyond horizon", t=float(t_cross), level=level,
-                        reason=f"the line reaches {level:+g} px more than {horizon_days:g} days ahead")
+        return Forecast(
+            "beyond horizon",
+            t=float(t_cross),
+            level=level,
+            reason=f"the line reaches {level:+g} px more than {horizon_days:g} days ahead",
+        )
     return Forecast("date", t=float(t_cross), level=level)

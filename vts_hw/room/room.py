@@ -27,8 +27,9 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
 
 from vts_hw.camera import Camera
 from vts_hw.config import RigConfig, load_rig
@@ -55,7 +56,7 @@ def _read_mapping():
 
 
 def _open_store(rig: RigConfig, target, mode: str) -> ResultsStore:
-    if target is None:     # as every command resolves it: $VTS_STORE, rig.yaml's store:, the per-user file
+    if target is None:  # as every command resolves it: $VTS_STORE, rig.yaml's store:, the per-user file
         target = load("vts_hw.store.target", "resolve_target")(None, None, rig)
     return load("vts_hw.store", "ResultsStore")(target, mode=mode)
 
@@ -70,9 +71,15 @@ class Room:
     per-user file) and ``store_mode`` (vts_hw.store.identity: ``read`` or ``create``);
     ``trigger_log``: the trigger.csv the trigger writes, when one is wanted."""
 
-    def __init__(self, rig: RigConfig, *, clock: Callable[[], float] | None = None,
-                 store: str | os.PathLike | StoreTarget | None = None, store_mode: str = "create",
-                 trigger_log: str | Path | None = None):
+    def __init__(
+        self,
+        rig: RigConfig,
+        *,
+        clock: Callable[[], float] | None = None,
+        store: str | os.PathLike | StoreTarget | None = None,
+        store_mode: str = "create",
+        trigger_log: str | Path | None = None,
+    ):
         self.rig = rig
         self.clock = clock or time.time
         self._store_target = store
@@ -80,7 +87,7 @@ class Room:
         self._trigger_log = trigger_log
         self._cameras: dict[str, Camera] = {}
         self._parts: dict[str, Any] = {}
-        self._opened: list[tuple[str, Any]] = []   # (what, the part: closed by its close()), in opening order
+        self._opened: list[tuple[str, Any]] = []  # (what, the part: closed by its close()), in opening order
         self._closed = False
 
     @classmethod
@@ -138,8 +145,13 @@ class Room:
         """The VTS -> SPECT mapping rig.yaml's ``calibration.mapping`` names (a RigidTransform);
         None when none is named."""
         path = self.rig.calibration.mapping
-        return None if path is None else self._part("mapping", lambda: _read_mapping()(
-            self._named_file(path, "calibration.mapping")), closes=False)
+        return (
+            None
+            if path is None
+            else self._part(
+                "mapping", lambda: _read_mapping()(self._named_file(path, "calibration.mapping")), closes=False
+            )
+        )
 
     @property
     def store(self) -> ResultsStore:
@@ -169,7 +181,7 @@ class Room:
         if exc is None:
             self.close()
             return
-        for err in self._close_all():     # never over the error on its way out: said beside it
+        for err in self._close_all():  # never over the error on its way out: said beside it
             exc.add_note(f"while closing the room after it: {err}")
 
     # ---- inside ------------------------------------------------------------------------------
@@ -180,7 +192,7 @@ class Room:
             what, part = self._opened.pop()
             try:
                 part.close()
-            except Exception as exc:      # every part is closed, whatever one of them does
+            except Exception as exc:  # every part is closed, whatever one of them does
                 errors.append(exc)
         self._cameras.clear()
         self._parts.clear()

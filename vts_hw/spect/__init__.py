@@ -9,10 +9,23 @@
 from vts_hw.lazy import exports
 
 # imported when first asked for: reading a list-mode file (spect.listmode) loads no volume reader
-__getattr__ = exports(__name__, {**dict.fromkeys(["VolumeReader", "read_volume", "list_readers", "reader_for",
-                                                  "register_reader"], "readers"),
-                                 **dict.fromkeys(["SphereResult", "SphereSettings", "find_spheres"], "spheres"),
-                                 "Volume": "volume"})
+__getattr__ = exports(
+    __name__,
+    {
+        **dict.fromkeys(["VolumeReader", "read_volume", "list_readers", "reader_for", "register_reader"], "readers"),
+        **dict.fromkeys(["SphereResult", "SphereSettings", "find_spheres"], "spheres"),
+        "Volume": "volume",
+    },
+)
 
-__all__ = ["Volume", "VolumeReader", "read_volume", "reader_for", "list_readers", "register_reader",
-           "SphereResult", "SphereSettings", "find_spheres"]
+__all__ = [
+    "Volume",
+    "VolumeReader",
+    "read_volume",
+    "reader_for",
+    "list_readers",
+    "register_reader",
+    "SphereResult",
+    "SphereSettings",
+    "find_spheres",
+]

@@ -61,22 +61,21 @@ def _decode_all(ds, path: Path) -> None:
             tag = elem.tag
     except Exception as e:  # noqa: BLE001 - pydicom's decoders raise many kinds; none is documented
         after = f" after element {tag}" if tag is not None else ""
-        raise DataError(f"{path}: a corrupt DICOM data element{after} "
-                        f"({type(e).__name__}: {' '.join(str(e).split())[:120]})") from None
+        raise DataError(
+            f"{path}: a corrupt DICOM data element{after} ({type(e).__name__}: {' '.join(str(e).split())[:120]})"
+        ) from None
 
 
 def _numbers(path: Path, ds, key: str, n: int) -> list[float]:
     """``n`` finite numbers from element ``key``; DataError naming the file and the key."""
     value = ds.get(key)
-    values = list(value) if isinstance(value, Sequence) and not isinstance(value, (str, bytes)) \
-        else [value]
+    values = list(value) if isinstance(value, Sequence) and not isinstance(value, (str, bytes)) else [value]
     try:
         out = [float(v) for v in values]
     except (TypeError, ValueError, OverflowError):
         out = []
     if len(out) != n or not all(math.isfinite(v) for v in out):
-        raise DataError(f"{path}: DICOM {key} is {repr(value)[:60]}, not {n} finite "
-                        f"number{'s' * (n > 1)}")
+        raise DataError(f"{path}: DICOM {key} is {repr(value)[:60]}, not {n} finite number{'s' * (n > 1)}")
     return out
 
 
@@ -128,8 +127,7 @@ def read_dicom_nm(path, patient_to_spect=PATIENT_TO_SPECT) -> Volume:
     if arr.ndim == 2:
         arr = arr[None]
     if arr.shape != (frames, rows, cols):
-        raise DataError(f"{path}: pixel data shape {arr.shape} does not match "
-                        f"{frames} frames of {rows}×{cols}")
+        raise DataError(f"{path}: pixel data shape {arr.shape} does not match {frames} frames of {rows}×{cols}")
     data = arr.astype(np.float32) * np.float32(slope) + np.float32(intercept)
     row_cos, col_cos = iop[:3], iop[3:]
     normal = np.cross(row_cos, col_cos)

@@ -32,12 +32,16 @@ from vts_hw.spect.readers import reader_for
 
 __all__ = ["SPECT_FRAME", "VTS_FRAME", "VTS_AXES", "volume_record", "frame_description"]
 
-SPECT_FRAME = ("SPECT frame: mm, right-handed; X towards the patient's left, Y towards the patient's "
-               "anterior (up for a supine patient), Z towards the patient's feet; origin where the volume "
-               "the VTS -> SPECT mapping was made from puts it (DICOM NM: the patient-coordinate origin; "
-               "Interfile: by its first pixel offset, else the volume's centre; npz: its origin)")
-VTS_AXES = ("VTS frame: camera 1's, mm, right-handed (OpenCV: x right and y down in its image, z along "
-            "its optical axis, origin at its optical centre)")
+SPECT_FRAME = (
+    "SPECT frame: mm, right-handed; X towards the patient's left, Y towards the patient's "
+    "anterior (up for a supine patient), Z towards the patient's feet; origin where the volume "
+    "the VTS -> SPECT mapping was made from puts it (DICOM NM: the patient-coordinate origin; "
+    "Interfile: by its first pixel offset, else the volume's centre; npz: its origin)"
+)
+VTS_AXES = (
+    "VTS frame: camera 1's, mm, right-handed (OpenCV: x right and y down in its image, z along "
+    "its optical axis, origin at its optical centre)"
+)
 VTS_FRAME = VTS_AXES + "; no VTS -> SPECT mapping was given"
 
 
@@ -50,10 +54,15 @@ def volume_record(path, volume, fmt: str | None = None) -> dict:
     if fmt is None:
         fmt = reader_for(path).name
     centre = volume.index_to_mm((np.asarray(volume.data.shape, float) - 1) / 2)
-    rec = {"file": path.name, "format": fmt, "shape": [int(n) for n in volume.data.shape],
-           "voxel_size_mm": [float(v) for v in volume.voxel_size],
-           "centre_mm": [round(float(v), 6) for v in centre], "patient_position": None,
-           "castor_image": False}
+    rec = {
+        "file": path.name,
+        "format": fmt,
+        "shape": [int(n) for n in volume.data.shape],
+        "voxel_size_mm": [float(v) for v in volume.voxel_size],
+        "centre_mm": [round(float(v), 6) for v in centre],
+        "patient_position": None,
+        "castor_image": False,
+    }
     if fmt == "dicom":
         rec["patient_position"] = _dicom_patient_position(path)
     elif fmt == "interfile":
@@ -64,6 +73,7 @@ def volume_record(path, volume, fmt: str | None = None) -> dict:
 def _dicom_patient_position(path: Path) -> str | None:
     try:
         import pydicom
+
         ds = pydicom.dcmread(path, stop_before_pixels=True)
         value = ds.get("PatientPosition")
     except Exception:  # noqa: BLE001 - the volume was read already; this is only a label

@@ -41,11 +41,20 @@ import numpy as np
 from vts_hw.errors import DataError
 from vts_hw.spect.listmode.base import GATE_TRANSITIONS, ListMode
 
-__all__ = ["GateEdges", "SpectClock", "GatingResult", "find_gate_edges", "fit_spect_clock",
-           "dead_time_from_events", "axial_centre_of_mass", "analyze_gating"]
+__all__ = [
+    "GateEdges",
+    "SpectClock",
+    "GatingResult",
+    "find_gate_edges",
+    "fit_spect_clock",
+    "dead_time_from_events",
+    "axial_centre_of_mass",
+    "analyze_gating",
+]
 
 
 # ------------------------------------------------------------------------------------ edges
+
 
 @dataclass(frozen=True)
 class GateEdges:
@@ -55,7 +64,7 @@ class GateEdges:
     falling: np.ndarray
     low_v: float
     high_v: float
-    noise_v: float          # robust SD of the low level
+    noise_v: float  # robust SD of the low level
 
     @property
     def mid_v(self) -> float:
@@ -79,8 +88,7 @@ def _two_levels(v: np.ndarray) -> tuple[float, float, float]:
     return lo, hi, noise
 
 
-def find_gate_edges(lm: ListMode, *, hysteresis: float = 0.25,
-                    min_swing_v: float = 0.2) -> GateEdges:
+def find_gate_edges(lm: ListMode, *, hysteresis: float = 0.25, min_swing_v: float = 0.2) -> GateEdges:
     """Rising and falling edges of the gating signal (list-mode s).
 
     Sampled voltage: a sample is "high" above ``low + (0.5 + hysteresis)·swing``, "low" below
@@ -108,22 +116,22 @@ def find_gate_edges(lm: ListMode, *, hysteresis: float = 0.25,
     state = np.where(v > upper, 1, np.where(v < lower, 0, -1))
     decided = np.where(state >= 0, np.arange(v.size), 0)
     np.maximum.accumulate(decided, out=decided)
-    state = state[decided]                 # undecided samples keep the last decided state
-    if state[0] < 0:                       # undecided from the first sample: the first decision
+    state = state[decided]  # undecided samples keep the last decided state
+    if state[0] < 0:  # undecided from the first sample: the first decision
         first = np.flatnonzero(state >= 0)
         if first.size == 0:
             return GateEdges(empty, empty, low, high, noise)
         state[: first[0]] = state[first[0]]
-    change = np.flatnonzero(state[1:] != state[:-1]) + 1     # first sample in the new state
+    change = np.flatnonzero(state[1:] != state[:-1]) + 1  # first sample in the new state
     above = v >= mid
-    cross = np.flatnonzero(above[1:] != above[:-1]) + 1       # v[k-1], v[k] on either side
+    cross = np.flatnonzero(above[1:] != above[:-1]) + 1  # v[k-1], v[k] on either side
 
     def timed(kinds_up: bool) -> np.ndarray:
         j = change[(state[change] == 1) == kinds_up]
         c = cross[above[cross] == kinds_up]
         if j.size == 0 or c.size == 0:
             return empty
-        i = np.searchsorted(c, j, side="right") - 1          # the last crossing at or before j
+        i = np.searchsorted(c, j, side="right") - 1  # the last crossing at or before j
         ok = i >= 0
         k = c[i[ok]]
         frac = (mid - v[k - 1]) / (v[k] - v[k - 1])
@@ -133,6 +141,7 @@ def find_gate_edges(lm: ListMode, *, hysteresis: float = 0.25,
 
 
 # ------------------------------------------------------------------------------ clock fit
+
 
 @dataclass(frozen=True)
 class SpectClock:
@@ -144,13 +153,13 @@ class SpectClock:
     not given: then it cannot be told from the edges alone).
     """
 
-    t_wave: float                 # list-mode time of the start edge (negative: before t = 0)
+    t_wave: float  # list-mode time of the start edge (negative: before t = 0)
     skew: float
-    period_spect: float           # the period as the list-mode clock measured it, s
-    duty: float                   # nan without falling edges
-    first_index: int              # index of the first recorded rising edge (start edge = 0)
-    n_edges: int                  # rising + falling edges used
-    residual_s: float             # RMS of the fit
+    period_spect: float  # the period as the list-mode clock measured it, s
+    duty: float  # nan without falling edges
+    first_index: int  # index of the first recorded rising edge (start edge = 0)
+    n_edges: int  # rising + falling edges used
+    residual_s: float  # RMS of the fit
     max_residual_s: float
     fire_host: float | None = None
     period_s: float | None = None  # the known period (host s), if given
@@ -178,9 +187,15 @@ class SpectClock:
         return self.t_wave + (np.asarray(host_t, dtype=np.float64) - self.fire_host) * (1.0 + self.skew)
 
 
-def fit_spect_clock(rising, falling=(), *, period_s: float | None = None,
-                    edges_before_start: int | None = None, fire_host: float | None = None,
-                    where: str = "list-mode") -> SpectClock:
+def fit_spect_clock(
+    rising,
+    falling=(),
+    *,
+    period_s: float | None = None,
+    edges_before_start: int | None = None,
+    fire_host: float | None = None,
+    where: str = "list-mode",
+) -> SpectClock:
     """Fit the square wave's edges (list-mode s) to ``t_wave + (k + duty·is_falling)·β``.
 
     ``period_s``: the square wave's period in host seconds (from the trigger's settings);
@@ -192,8 +207,9 @@ def fit_spect_clock(rising, falling=(), *, period_s: float | None = None,
     r = np.sort(np.asarray(rising, dtype=np.float64))
     f = np.sort(np.asarray(falling, dtype=np.float64))
     if r.size < 2:
-        raise DataError(f"{where}: {r.size} rising edge(s) in the gating signal, need at least 2 "
-                        f"to time the square wave")
+        raise DataError(
+            f"{where}: {r.size} rising edge(s) in the gating signal, need at least 2 to time the square wave"
+        )
     n0 = 1 if edges_before_start is None else int(edges_before_start)
     if n0 < 0:
         raise ValueError("edges_before_start must be >= 0")
@@ -215,22 +231,34 @@ def fit_spect_clock(rising, falling=(), *, period_s: float | None = None,
     res = y - A @ coef
     alpha, beta = float(coef[0]), float(coef[1])
     duty = float(coef[2] / beta) if f.size else math.nan
-    rms = float(np.sqrt(np.mean(res ** 2)))
+    rms = float(np.sqrt(np.mean(res**2)))
     worst = float(np.max(np.abs(res)))
     if worst > 0.25 * beta or (f.size and not 0 < duty < 1):
-        raise DataError(f"{where}: the gating edges are not one steady square wave (worst edge "
-                        f"{worst * 1e3:.1f} ms off a period of {beta * 1e3:.1f} ms)")
+        raise DataError(
+            f"{where}: the gating edges are not one steady square wave (worst edge "
+            f"{worst * 1e3:.1f} ms off a period of {beta * 1e3:.1f} ms)"
+        )
     # k counts the recorded rising edges from the first one (k = 0 there, up to rounding),
     # which is edge n0 of the wave; the start edge is n0 periods before it
     k_first = float(np.round((r[0] - alpha) / beta))
     t_wave = alpha + (k_first - n0) * beta
     skew = beta / float(period_s) - 1.0 if period_s else 0.0
-    return SpectClock(t_wave=t_wave, skew=skew, period_spect=beta, duty=duty, first_index=n0,
-                      n_edges=int(y.size), residual_s=rms, max_residual_s=worst,
-                      fire_host=fire_host, period_s=float(period_s) if period_s else None)
+    return SpectClock(
+        t_wave=t_wave,
+        skew=skew,
+        period_spect=beta,
+        duty=duty,
+        first_index=n0,
+        n_edges=int(y.size),
+        residual_s=rms,
+        max_residual_s=worst,
+        fire_host=fire_host,
+        period_s=float(period_s) if period_s else None,
+    )
 
 
 # ------------------------------------------------------------------------------ dead time
+
 
 def dead_time_from_events(lm: ListMode, min_gap_s: float | None = None) -> np.ndarray:
     """Intervals without events, ``(k, 2)`` [start, end) list-mode s: the gaps between
@@ -286,15 +314,16 @@ def axial_centre_of_mass(lm: ListMode, bin_s: float = 0.1, dead=None):
 
 # ------------------------------------------------------------------------------- together
 
+
 @dataclass
 class GatingResult:
     """What the gating signal and the events of one list-mode say (list-mode s unless named)."""
 
     edges: GateEdges
     clock: SpectClock
-    dead: np.ndarray                  # from the events
+    dead: np.ndarray  # from the events
     dead_recorded: np.ndarray | None  # as the file records it (None: it does not)
-    start_time: float                 # the SPECT wall clock at t = 0, as the header says
+    start_time: float  # the SPECT wall clock at t = 0, as the header says
     problems: list[str] = field(default_factory=list)
 
     @property
@@ -312,18 +341,31 @@ class GatingResult:
     def to_json(self) -> dict:
         """A JSON-ready summary (non-finite numbers as null)."""
         c = self.clock
-        return _finite({"start_delay_s": self.start_delay_s, "start_delay_modulo_s": c.period_spect,
+        return _finite(
+            {
+                "start_delay_s": self.start_delay_s,
+                "start_delay_modulo_s": c.period_spect,
                 "edges_before_start": c.first_index,
-                "rising_edges": int(self.edges.rising.size), "falling_edges": int(self.edges.falling.size),
-                "gate_low_v": self.edges.low_v, "gate_high_v": self.edges.high_v,
+                "rising_edges": int(self.edges.rising.size),
+                "falling_edges": int(self.edges.falling.size),
+                "gate_low_v": self.edges.low_v,
+                "gate_high_v": self.edges.high_v,
                 "gate_noise_v": self.edges.noise_v,
-                "period_spect_s": c.period_spect, "period_s": c.period_s, "duty": c.duty,
-                "skew_ppm": c.skew_ppm, "t_wave_s": c.t_wave, "fire_host": c.fire_host,
-                "clock_offset_s": self.clock_offset_s, "spect_start_time": self.start_time,
-                "fit_rms_s": c.residual_s, "fit_max_s": c.max_residual_s,
+                "period_spect_s": c.period_spect,
+                "period_s": c.period_s,
+                "duty": c.duty,
+                "skew_ppm": c.skew_ppm,
+                "t_wave_s": c.t_wave,
+                "fire_host": c.fire_host,
+                "clock_offset_s": self.clock_offset_s,
+                "spect_start_time": self.start_time,
+                "fit_rms_s": c.residual_s,
+                "fit_max_s": c.max_residual_s,
                 "dead_time": self.dead.tolist(),
                 "dead_time_recorded": None if self.dead_recorded is None else self.dead_recorded.tolist(),
-                "problems": list(self.problems)})
+                "problems": list(self.problems),
+            }
+        )
 
 
 def _finite(x):
@@ -339,8 +381,14 @@ def _finite(x):
     return x
 
 
-def analyze_gating(lm: ListMode, *, period_s: float | None = None, fire_host: float | None = None,
-                   edges_before_start: int | None = None, min_gap_s: float | None = None) -> GatingResult:
+def analyze_gating(
+    lm: ListMode,
+    *,
+    period_s: float | None = None,
+    fire_host: float | None = None,
+    edges_before_start: int | None = None,
+    min_gap_s: float | None = None,
+) -> GatingResult:
     """Edges, SPECT clock (start delay, skew, host mapping) and dead time of one list-mode.
 
     ``period_s`` (host s) and ``fire_host`` (host epoch s of the wave's first rising edge)
@@ -351,8 +399,10 @@ def analyze_gating(lm: ListMode, *, period_s: float | None = None, fire_host: fl
     where = lm.where()
     edges = find_gate_edges(lm)
     if edges.rising.size < 2:
-        raise DataError(f"{where}: no square wave in the gating signal ({edges.rising.size} rising "
-                        f"edges; levels {edges.low_v:.3g} to {edges.high_v:.3g} V)")
+        raise DataError(
+            f"{where}: no square wave in the gating signal ({edges.rising.size} rising "
+            f"edges; levels {edges.low_v:.3g} to {edges.high_v:.3g} V)"
+        )
     problems = []
     if edges_before_start is None and lm.gate_kind != GATE_TRANSITIONS and lm.gate_t.size:
         # a running wave shows a rising edge within one period of the first sample: a first
@@ -361,16 +411,25 @@ def analyze_gating(lm: ListMode, *, period_s: float | None = None, fire_host: fl
         late = edges.rising[0] - float(lm.gate_t[0])
         if late > 1.5 * (period_s or spacing):
             edges_before_start = 0
-            problems.append(f"the square wave started {late:.3f} s after the acquisition: its "
-                            f"first edge is in the file and the start delay is negative")
-    clock = fit_spect_clock(edges.rising, edges.falling, period_s=period_s,
-                            edges_before_start=edges_before_start, fire_host=fire_host, where=where)
+            problems.append(
+                f"the square wave started {late:.3f} s after the acquisition: its "
+                f"first edge is in the file and the start delay is negative"
+            )
+    clock = fit_spect_clock(
+        edges.rising,
+        edges.falling,
+        period_s=period_s,
+        edges_before_start=edges_before_start,
+        fire_host=fire_host,
+        where=where,
+    )
     if period_s is None:
         problems.append("no square-wave period given: the SPECT clock's skew is not measured")
     if fire_host is None:
         problems.append("no host time of the trigger: list-mode time maps to trigger time only")
     if period_s is not None and abs(clock.skew) > 1e-3:
-        problems.append(f"the SPECT clock runs {clock.skew_ppm:+.0f} ppm against the trigger: "
-                        f"is the period {period_s} s right?")
+        problems.append(
+            f"the SPECT clock runs {clock.skew_ppm:+.0f} ppm against the trigger: is the period {period_s} s right?"
+        )
     dead = dead_time_from_events(lm, min_gap_s)
     return GatingResult(edges, clock, dead, lm.dead, lm.start_time, problems)

@@ -40,9 +40,16 @@ from vts_hw.spect.volume import Volume, triple
 
 # (number format, bytes per pixel) -> numpy kind+size; byte order added later
 _FORMATS = {
-    ("unsigned integer", 1): "u1", ("unsigned integer", 2): "u2", ("unsigned integer", 4): "u4",
-    ("signed integer", 1): "i1", ("signed integer", 2): "i2", ("signed integer", 4): "i4",
-    ("float", 4): "f4", ("float", 8): "f8", ("short float", 4): "f4", ("long float", 8): "f8",
+    ("unsigned integer", 1): "u1",
+    ("unsigned integer", 2): "u2",
+    ("unsigned integer", 4): "u4",
+    ("signed integer", 1): "i1",
+    ("signed integer", 2): "i2",
+    ("signed integer", 4): "i4",
+    ("float", 4): "f4",
+    ("float", 8): "f8",
+    ("short float", 4): "f4",
+    ("long float", 8): "f8",
 }
 _BYTE_ORDERS = {"littleendian": "<", "bigendian": ">"}
 _DIRECTION = np.array([[0.0, 0.0, 1.0], [0.0, -1.0, 0.0], [1.0, 0.0, 0.0]])  # [3], [2], [1]
@@ -104,8 +111,7 @@ def read_interfile(path) -> Volume:
     size = [_number(h, path, f"scaling factor (mm/pixel) [{i}]") for i in (1, 2, 3)]
     for i, v in enumerate(size, 1):
         if not (math.isfinite(v) and v > 0):
-            raise DataError(f"{path}: key 'scaling factor (mm/pixel) [{i}]' is {v}, not a positive "
-                            f"number of mm")
+            raise DataError(f"{path}: key 'scaling factor (mm/pixel) [{i}]' is {v}, not a positive number of mm")
     fmt = _norm(_get(h, path, "!number format"))
     nbytes = _number(h, path, "!number of bytes per pixel", int)
     if (fmt, nbytes) not in _FORMATS:
@@ -130,20 +136,20 @@ def read_interfile(path) -> Volume:
         raise DataError(f"{path}: cannot read the data file {shown} ({e.strerror})") from None
     expected = math.prod(shape) * nbytes
     if len(raw) - offset != expected:
-        raise DataError(f"{path}: data file {data_path.name} holds {len(raw) - offset} bytes "
-                        f"after the offset, the header says {expected} ({shape[0]}×{shape[1]}×"
-                        f"{shape[2]} × {nbytes} bytes)")
+        raise DataError(
+            f"{path}: data file {data_path.name} holds {len(raw) - offset} bytes "
+            f"after the offset, the header says {expected} ({shape[0]}×{shape[1]}×"
+            f"{shape[2]} × {nbytes} bytes)"
+        )
     data = np.frombuffer(raw, dtype=dtype, offset=offset).reshape(shape[2], shape[1], shape[0])
     if _castor(h):
         return _castor_volume(h, path, data.astype(dtype.newbyteorder("=")), shape, size)
     centre = [(n - 1) / 2 * s for n, s in zip(shape, size)]  # default: centred on the origin
     default_xyz = (-centre[0], centre[1], -centre[2])
-    xyz = [_number(h, path, f"first pixel offset (mm) [{i}]", float, repr(default_xyz[i - 1]))
-           for i in (1, 2, 3)]
+    xyz = [_number(h, path, f"first pixel offset (mm) [{i}]", float, repr(default_xyz[i - 1])) for i in (1, 2, 3)]
     if not all(math.isfinite(v) for v in xyz):
         raise DataError(f"{path}: 'first pixel offset (mm)' is {xyz}, not three finite numbers")
-    vol = Volume(data.astype(dtype.newbyteorder("=")), (size[2], size[1], size[0]), triple(xyz),
-                 _DIRECTION, path)
+    vol = Volume(data.astype(dtype.newbyteorder("=")), (size[2], size[1], size[0]), triple(xyz), _DIRECTION, path)
     return vol.canonical()
 
 
@@ -178,7 +184,7 @@ def write_interfile(volume: Volume, path, number_format: str = "float") -> Path:
     dz, dy, dx = v.voxel_size
     first = v.index_to_mm((0, ny - 1, 0))  # the first voxel in the file: top row of slice 0
     data_path = path.with_suffix(".img")
-    write_atomic(data_path, raw.tobytes())   # whole or not at all; never over a device, FIFO or link
+    write_atomic(data_path, raw.tobytes())  # whole or not at all; never over a device, FIFO or link
     lines = [
         "!INTERFILE :=",
         "!imaging modality := nucmed",

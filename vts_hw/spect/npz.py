@@ -23,12 +23,20 @@ from vts_hw.errors import DataError
 from vts_hw.files import write_atomic
 from vts_hw.spect.volume import CANONICAL_DIRECTION, Volume, triple
 
-
 KEYS = ("data", "voxel_size", "origin", "direction")
 MAX_ARRAY_BYTES = 4 << 30  # 4 GiB: far above any reconstructed volume
 # what a broken zip archive or .npy member raises from zipfile, zlib and numpy.lib.format
-_BROKEN = (OSError, EOFError, ValueError, KeyError, NotImplementedError, RuntimeError,
-           zipfile.BadZipFile, zlib.error, struct.error)
+_BROKEN = (
+    OSError,
+    EOFError,
+    ValueError,
+    KeyError,
+    NotImplementedError,
+    RuntimeError,
+    zipfile.BadZipFile,
+    zlib.error,
+    struct.error,
+)
 
 
 def _arrays(path: Path) -> dict[str, np.ndarray]:
@@ -48,8 +56,10 @@ def _arrays(path: Path) -> dict[str, np.ndarray]:
                 raise DataError(f"{path}: '{key}' holds Python objects, not numbers")
             size = math.prod(shape) * dtype.itemsize
             if size > min(info.file_size, MAX_ARRAY_BYTES):
-                raise DataError(f"{path}: '{key}' claims {size} bytes of {dtype} {tuple(shape)}, "
-                                f"but its member holds {info.file_size}")
+                raise DataError(
+                    f"{path}: '{key}' claims {size} bytes of {dtype} {tuple(shape)}, "
+                    f"but its member holds {info.file_size}"
+                )
             with zf.open(info) as f:
                 arrays[key] = fmt.read_array(f, allow_pickle=False)
     return arrays
@@ -84,6 +94,6 @@ def write_npz(volume: Volume, path) -> Path:
     """Write ``volume`` (canonical layout) as a compressed ``.npz``; returns the path."""
     path = Path(path)
     v = volume.canonical()
-    buf = io.BytesIO()   # keeps the exact name (np.savez adds .npz otherwise); written whole (files.py)
+    buf = io.BytesIO()  # keeps the exact name (np.savez adds .npz otherwise); written whole (files.py)
     np.savez_compressed(buf, data=v.data, voxel_size=np.asarray(v.voxel_size), origin=np.asarray(v.origin))
     return write_atomic(path, buf.getvalue())

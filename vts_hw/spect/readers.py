@@ -10,15 +10,16 @@ name replaces the earlier one).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 from vts_hw.formats import FormatRegistry
 from vts_hw.spect.dicom_nm import read_dicom_nm
 from vts_hw.spect.interfile import read_interfile
 from vts_hw.spect.npz import read_npz
 from vts_hw.spect.volume import Volume
+
 
 @dataclass(frozen=True)
 class VolumeReader:
@@ -53,15 +54,13 @@ def read_volume(path, fmt: str | None = None) -> Volume:
     return _REGISTRY.read(path, fmt)
 
 
-register_reader(VolumeReader(
-    "interfile", (".h33", ".hdr", ".hv"),
-    lambda head: head.lstrip().lstrip(b"!").upper().startswith(b"INTERFILE"),
-    read_interfile))
-register_reader(VolumeReader(
-    "dicom", (".dcm", ".dicom", ".ima"),
-    lambda head: head[128:132] == b"DICM",
-    read_dicom_nm))
-register_reader(VolumeReader(
-    "npz", (".npz",),
-    lambda head: head[:4] == b"PK\x03\x04",
-    read_npz))
+register_reader(
+    VolumeReader(
+        "interfile",
+        (".h33", ".hdr", ".hv"),
+        lambda head: head.lstrip().lstrip(b"!").upper().startswith(b"INTERFILE"),
+        read_interfile,
+    )
+)
+register_reader(VolumeReader("dicom", (".dcm", ".dicom", ".ima"), lambda head: head[128:132] == b"DICM", read_dicom_nm))
+register_reader(VolumeReader("npz", (".npz",), lambda head: head[:4] == b"PK\x03\x04", read_npz))

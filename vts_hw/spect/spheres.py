@@ -69,7 +69,7 @@ def _centroid(data: np.ndarray, vox: np.ndarray, start: np.ndarray, s: SphereSet
     for _ in range(max(1, s.iterations)):
         lo = np.maximum(np.floor(c - reach).astype(int), 0)
         hi = np.minimum(np.ceil(c + reach).astype(int) + 1, data.shape)
-        box = data[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]].astype(float)
+        box = data[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]].astype(float)
         grids = np.meshgrid(*[np.arange(a, b) for a, b in zip(lo, hi)], indexing="ij")
         dist = np.sqrt(sum(((g - ci) * v) ** 2 for g, ci, v in zip(grids, c, vox)))
         inside = dist <= s.window_radius
@@ -83,8 +83,9 @@ def _centroid(data: np.ndarray, vox: np.ndarray, start: np.ndarray, s: SphereSet
     return c, total
 
 
-def find_spheres(volume: Volume, n_expected: int = 7, settings: SphereSettings | None = None,
-                 reference=None, strict: bool = False) -> SphereResult:
+def find_spheres(
+    volume: Volume, n_expected: int = 7, settings: SphereSettings | None = None, reference=None, strict: bool = False
+) -> SphereResult:
     """Centroids of the ``n_expected`` hottest spheres of ``volume`` (mm, SPECT frame).
 
     ``reference`` (n_expected, 3) orders the result like it. With ``strict`` a count other than
@@ -97,8 +98,7 @@ def find_spheres(volume: Volume, n_expected: int = 7, settings: SphereSettings |
     smooth = ndimage.gaussian_filter(data, s.smooth_sigma) if s.smooth_sigma > 0 else data
     bg = float(np.median(smooth))
     top = float(smooth.max())
-    labels, n = ndimage.label(smooth > bg + s.threshold_fraction * (top - bg),
-                              structure=np.ones((3, 3, 3)))
+    labels, n = ndimage.label(smooth > bg + s.threshold_fraction * (top - bg), structure=np.ones((3, 3, 3)))
     sizes = np.bincount(labels.ravel(), minlength=n + 1)[1:] if n else np.zeros(0, int)
     keep_labels = [k + 1 for k in range(n) if sizes[k] >= s.min_voxels]
     peaks_at = ndimage.maximum_position(smooth, labels, keep_labels) if keep_labels else []
@@ -119,8 +119,7 @@ def find_spheres(volume: Volume, n_expected: int = 7, settings: SphereSettings |
     if n_blobs < n_expected:
         problem = f"{where}: found {n_blobs} spheres, expected {n_expected}"
     elif n_blobs > n_expected:
-        problem = (f"{where}: found {n_blobs} blobs, expected {n_expected} spheres "
-                   f"(kept the {n_expected} hottest)")
+        problem = f"{where}: found {n_blobs} blobs, expected {n_expected} spheres (kept the {n_expected} hottest)"
     if problem and strict:
         raise DataError(problem)
 

@@ -81,7 +81,7 @@ class Volume:
         p = np.asarray(point, dtype=float) - np.asarray(self.origin)
         return (p @ self.direction.T) / np.asarray(self.voxel_size)
 
-    def canonical(self) -> "Volume":
+    def canonical(self) -> Volume:
         """The same volume as ``data[z, y, x]`` with indices increasing along +Z, +Y, +X."""
         d = np.round(self.direction)
         if not (np.allclose(d, self.direction, atol=1e-6) and np.allclose(np.abs(d).sum(0), 1)):
@@ -96,5 +96,4 @@ class Volume:
                 data = np.flip(data, axis=new_axis)
                 first[a] = self.data.shape[a] - 1
         origin = self.index_to_mm(first)
-        return Volume(np.ascontiguousarray(data), vs, triple(origin), CANONICAL_DIRECTION.copy(),
-                      self.source)
+        return Volume(np.ascontiguousarray(data), vs, triple(origin), CANONICAL_DIRECTION.copy(), self.source)

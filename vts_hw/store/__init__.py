@@ -23,5 +23,17 @@ from vts_hw.store.records import MEASUREMENT_STATUSES, RUN_STATUSES, Artifact, M
 from vts_hw.store.schema import SCHEMA_VERSION
 from vts_hw.store.store import ResultsStore
 
-__all__ = ["ResultsStore", "StoreTarget", "RunHandle", "Run", "Measurement", "Artifact", "StoreError",
-           "default_url", "default_path", "RUN_STATUSES", "MEASUREMENT_STATUSES", "SCHEMA_VERSION"]
+__all__ = [
+    "ResultsStore",
+    "StoreTarget",
+    "RunHandle",
+    "Run",
+    "Measurement",
+    "Artifact",
+    "StoreError",
+    "default_url",
+    "default_path",
+    "RUN_STATUSES",
+    "MEASUREMENT_STATUSES",
+    "SCHEMA_VERSION",
+]

@@ -24,8 +24,9 @@ def load_baseline(store, camera: str, rig: str | None = None) -> Baseline:
         found = _latest(store, camera, candidates)
         if found is not None:
             return found
-    raise NoBaseline(f"camera {camera} has no drift baseline in the results store: "
-                     f"run `vts qa drift --set-baseline` first")
+    raise NoBaseline(
+        f"camera {camera} has no drift baseline in the results store: run `vts qa drift --set-baseline` first"
+    )
 
 
 def _latest(store, camera: str, runs) -> Baseline | None:
@@ -37,9 +38,11 @@ def _latest(store, camera: str, runs) -> Baseline | None:
         pos: dict[str, dict[str, float]] = {}
         for m in mine:
             pos.setdefault(m.subject.split("/", 1)[1], {})[m.metric] = m.value
-        markers = tuple(BaselineMarker(mid, p["baseline_x_px"], p["baseline_y_px"])
-                        for mid, p in sorted(pos.items(), key=lambda kv: int(kv[0][1:]) if kv[0][1:].isdigit() else 0)
-                        if "baseline_x_px" in p and "baseline_y_px" in p)
+        markers = tuple(
+            BaselineMarker(mid, p["baseline_x_px"], p["baseline_y_px"])
+            for mid, p in sorted(pos.items(), key=lambda kv: int(kv[0][1:]) if kv[0][1:].isdigit() else 0)
+            if "baseline_x_px" in p and "baseline_y_px" in p
+        )
         return Baseline(camera, markers, run.started, run.id)
     return None
 

@@ -54,6 +54,7 @@ def _aborted_reason(notes: str) -> str:
 @dataclass
 class _Entry:
     """A ledger run's content, in the one result shape the recorder takes."""
+
     procedure: str
     measures: list
     data: dict = field(default_factory=dict)
@@ -75,12 +76,12 @@ class _Entry:
 @dataclass
 class StepState:
     step: str
-    run_id: int            # the commission-step run
+    run_id: int  # the commission-step run
     started: float
-    status: str            # the run's: OK / TOLERANCE / ACTION, or "aborted"
+    status: str  # the run's: OK / TOLERANCE / ACTION, or "aborted"
     passed: bool
     skipped: bool
-    step_run: int | None   # the step's own run (a procedure's), else None: its figures are in run_id
+    step_run: int | None  # the step's own run (a procedure's), else None: its figures are in run_id
     notes: str
 
     @property
@@ -119,15 +120,17 @@ class Standing:
     word: str
     skipped: list[str]
     not_passed: list[str]
-    report: Run | None             # the report run that stands, else None
-    last_report: Run | None        # the newest report run of this commissioning, standing or not
-    attempts: dict[str, StepState] = field(default_factory=dict)   # the newest attempt of each step run
+    report: Run | None  # the report run that stands, else None
+    last_report: Run | None  # the newest report run of this commissioning, standing or not
+    attempts: dict[str, StepState] = field(default_factory=dict)  # the newest attempt of each step run
 
     def not_passed_text(self, why: bool = True) -> list[str]:
         """Each step not passed in a few words: "warm-up aborted (stopped by SIGTERM)" ("warm-up aborted"
         without the why), "sync check not run"."""
-        return [f"{LABELS.get(n, n)} " + (self.attempts[n].outcome(why) if n in self.attempts else "not run")
-                for n in self.not_passed]
+        return [
+            f"{LABELS.get(n, n)} " + (self.attempts[n].outcome(why) if n in self.attempts else "not run")
+            for n in self.not_passed
+        ]
 
     @property
     def complete(self) -> bool:
@@ -137,6 +140,7 @@ class Standing:
 @dataclass
 class CommissionState:
     """A rig's current commissioning: its id, the newest run of each step, its newest report run."""
+
     rig: str
     cid: int | None = None
     steps: dict[str, StepState] = field(default_factory=dict)
@@ -177,7 +181,7 @@ def load_state(store, rig: str) -> CommissionState:
     entries: list[tuple[int, int, str]] = []
     for rid in sorted(runs):
         k, run = keyed[rid], runs[rid]
-        cid = k["commission_id"].value if "commission_id" in k else None    # always a number as the ledger writes it
+        cid = k["commission_id"].value if "commission_id" in k else None  # always a number as the ledger writes it
         if cid is not None:
             entries.append((rid, int(cid), k["commission_id"].subject))
         elif run.procedure == COMMISSION_STEP.name and run.status == "aborted":
@@ -196,10 +200,16 @@ def load_state(store, rig: str) -> CommissionState:
             st.report_run = rid
             continue
         ref = k.get("step_run")
-        st.steps[step] = StepState(step, rid, run.started, run.status,
-                                   bool(k.get("step_passed") and k["step_passed"].value == 1),
-                                   bool(k.get("step_skipped") and k["step_skipped"].value == 1),
-                                   int(ref.value) if ref is not None and ref.value is not None else None, run.notes)
+        st.steps[step] = StepState(
+            step,
+            rid,
+            run.started,
+            run.status,
+            bool(k.get("step_passed") and k["step_passed"].value == 1),
+            bool(k.get("step_skipped") and k["step_skipped"].value == 1),
+            int(ref.value) if ref is not None and ref.value is not None else None,
+            run.notes,
+        )
     return st
 
 
@@ -208,12 +218,17 @@ class Ledger:
 
     def __init__(self, store, rig, *, cid: int | None = None, operator: str = "", clock=time.time):
         self.store, self.rig, self.cid, self.operator, self.clock = store, rig, cid, operator, clock
-        self._open: dict[str, Recorder] = {}      # step -> its run, written "running" by begin()
+        self._open: dict[str, Recorder] = {}  # step -> its run, written "running" by begin()
 
     def _kw(self, started=None):
-        return dict(rig=self.rig.rig, operator=self.operator, config_digest=self.rig.digest,
-                    tolerances=self.rig.tolerances, clock=self.clock,
-                    **({} if started is None else {"started": started}))
+        return dict(
+            rig=self.rig.rig,
+            operator=self.operator,
+            config_digest=self.rig.digest,
+            tolerances=self.rig.tolerances,
+            clock=self.clock,
+            **({} if started is None else {"started": started}),
+        )
 
     def begin(self, step: str, started: float | None = None) -> int:
         """The step's run, written "running" now (its notes name the commissioning and the step):
@@ -223,7 +238,7 @@ class Ledger:
         if rec.run_id is None:
             raise StoreError(f"the commissioning step {step} could not be recorded ({rec.error}); it was not started")
         if self.cid is None:
-            self.cid = rec.run_id            # the first step's run names the commissioning
+            self.cid = rec.run_id  # the first step's run names the commissioning
         self._open[step] = rec
         return rec.run_id
 
@@ -241,8 +256,9 @@ class Ledger:
         ms = [Measure(step, "commission_id", float(self._known_cid()), "", State.OK), *measures]
         stored = rec.finish(_Entry(COMMISSION_STEP.name, ms), artifacts=[str(a) for a in artifacts], notes=notes)
         if stored.run_id is None:
-            raise StoreError(f"the commissioning step {step} was not stored ({stored.error}); "
-                             f"its figures are in {stored.unsaved}")
+            raise StoreError(
+                f"the commissioning step {step} was not stored ({stored.error}); its figures are in {stored.unsaved}"
+            )
         return stored.run_id
 
     def record(self, outcome) -> int:
@@ -256,19 +272,33 @@ class Ledger:
         if res.procedure == COMMISSION_STEP.name:
             ms = [*res.measures, Measure(step, "step_passed", 1.0 if passed else 0.0, "", flag)]
             return self._write(step, ms, notes, outcome.artifacts, outcome.started)
-        stored = record(self.store, res, notes=outcome.notes, artifacts=[str(a) for a in outcome.artifacts],
-                        **self._kw(outcome.started))
+        stored = record(
+            self.store,
+            res,
+            notes=outcome.notes,
+            artifacts=[str(a) for a in outcome.artifacts],
+            **self._kw(outcome.started),
+        )
         if stored.run_id is None:
-            raise StoreError(f"the {res.procedure} run of commissioning step {step} was not stored "
-                             f"({stored.error}); its figures are in {stored.unsaved}")
-        ms = [Measure(step, "step_passed", 1.0 if passed else 0.0, "", flag),
-              Measure(step, "step_run", float(stored.run_id), "", res.state)]
+            raise StoreError(
+                f"the {res.procedure} run of commissioning step {step} was not stored "
+                f"({stored.error}); its figures are in {stored.unsaved}"
+            )
+        ms = [
+            Measure(step, "step_passed", 1.0 if passed else 0.0, "", flag),
+            Measure(step, "step_run", float(stored.run_id), "", res.state),
+        ]
         return self._write(step, ms, notes)
 
     def skip(self, step: str, why: str) -> int:
-        return self._write(step, [Measure(step, "step_passed", 0.0, "", State.TOLERANCE),
-                                  Measure(step, "step_skipped", 1.0, "", State.TOLERANCE)],
-                           f"commissioning step {step}: skipped: {why}")
+        return self._write(
+            step,
+            [
+                Measure(step, "step_passed", 0.0, "", State.TOLERANCE),
+                Measure(step, "step_skipped", 1.0, "", State.TOLERANCE),
+            ],
+            f"commissioning step {step}: skipped: {why}",
+        )
 
     def failed(self, step: str, reason: str, started: float) -> None:
         """A step that raised: its run aborted with the reason (never counted as passed). When
@@ -276,17 +306,21 @@ class Ledger:
         try:
             rec = self._open.pop(step, None)
             if rec is None:
-                rec = Recorder(self.store, COMMISSION_STEP.name, notes=_mark(self.cid, step),
-                               **self._kw(started)).begin()
+                rec = Recorder(
+                    self.store, COMMISSION_STEP.name, notes=_mark(self.cid, step), **self._kw(started)
+                ).begin()
             rec.abort(reason)
-        except Exception:   # noqa: BLE001 -- the step's own error is the one to say
+        except Exception:  # noqa: BLE001 -- the step's own error is the one to say
             pass
 
-    def finish_report(self, state: State, steps: dict[str, StepState], *, signed_by: str, artifacts, notes: str
-                      ) -> int | None:
+    def finish_report(
+        self, state: State, steps: dict[str, StepState], *, signed_by: str, artifacts, notes: str
+    ) -> int | None:
         """The commissioning's report as a run of ``commissioning`` (operator: who signed it off)."""
-        ms = [Measure("commissioning", "commission_id", float(self._known_cid()), "", State.OK),
-              Measure("commissioning", "signed_off", 1.0 if signed_by else 0.0, "", State.OK)]
+        ms = [
+            Measure("commissioning", "commission_id", float(self._known_cid()), "", State.OK),
+            Measure("commissioning", "signed_off", 1.0 if signed_by else 0.0, "", State.OK),
+        ]
         for name, s in steps.items():
             st = State.TOLERANCE if s.skipped else State(s.status) if s.status in State.__members__ else State.ACTION
             ms.append(Measure(name, "step_run", float(s.step_run or s.run_id), "", st))
@@ -295,8 +329,10 @@ class Ledger:
         kw["operator"] = signed_by
         stored = record(self.store, entry, notes=notes, artifacts=[str(a) for a in artifacts], **kw)
         if stored.run_id is None:
-            raise StoreError(f"the commissioning report was written but not stored ({stored.error}); "
-                             f"its record is in {stored.unsaved}")
+            raise StoreError(
+                f"the commissioning report was written but not stored ({stored.error}); "
+                f"its record is in {stored.unsaved}"
+            )
         return stored.run_id
 
 

@@ -32,8 +32,8 @@ from __future__ import annotations
 
 import hashlib
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 from sqlalchemy import Connection, insert, select, update
 
@@ -44,8 +44,17 @@ TABLES = ("runs", "tolerances", "measurements", "artifacts", "outbox", "actions"
 #: runs per write transaction of the target
 BATCH = 200
 
-_WINDOW_COLS = ("metric", "action_low", "tolerance_low", "tolerance_high", "action_high", "unit",
-                "effective_from", "recorded", "note")
+_WINDOW_COLS = (
+    "metric",
+    "action_low",
+    "tolerance_low",
+    "tolerance_high",
+    "action_high",
+    "unit",
+    "effective_from",
+    "recorded",
+    "note",
+)
 _RUN_COLS = tuple(c.name for c in runs.c if c.name != "id")
 _MEAS_COLS = ("subject", "metric", "value", "unit", "status")
 _ART_COLS = ("path", "sha256", "kind")
@@ -57,6 +66,7 @@ _ACT_COLS = ("at", "user_name", "role", "what", "detail", "rig")
 class TableCheck:
     """One table of the verification: the source's rows, how many of them the target holds,
     how many this copy added, and each side's checksum."""
+
     table: str
     source: int
     found: int
@@ -72,10 +82,10 @@ class TableCheck:
 @dataclass
 class CopyReport:
     new: dict[str, int] = field(default_factory=lambda: {t: 0 for t in TABLES})
-    skipped_runs: int = 0          # already in the target (by uid), nothing to bring
-    running_copied: int = 0        # copied while still "running" in the source
-    ended_runs: int = 0            # copied running before, ended since: their end brought now
-    outbox_updated: int = 0        # outbox rows whose push went on in the source since
+    skipped_runs: int = 0  # already in the target (by uid), nothing to bring
+    running_copied: int = 0  # copied while still "running" in the source
+    ended_runs: int = 0  # copied running before, ended since: their end brought now
+    outbox_updated: int = 0  # outbox rows whose push went on in the source since
     checks: list[TableCheck] = field(default_factory=list)
 
     @property
@@ -93,8 +103,9 @@ def _num(v):
 
 
 def _window_key(row) -> tuple:
-    return tuple(_num(row._mapping[c]) if c not in ("metric", "unit", "note") else row._mapping[c]
-                 for c in _WINDOW_COLS)
+    return tuple(
+        _num(row._mapping[c]) if c not in ("metric", "unit", "note") else row._mapping[c] for c in _WINDOW_COLS
+    )
 
 
 def _pick(row, cols) -> dict:
@@ -128,12 +139,13 @@ def copy_store(source, target, progress: Callable[[int, int], None] | None = Non
     todo = [r for r in src_runs if r.uid not in have or (have[r.uid][1] == "running" and r.status != "running")]
     rep.skipped_runs = len(src_runs) - len(todo)
     for start in range(0, len(todo), BATCH):
-        ids = [r.id for r in todo[start:start + BATCH]]
+        ids = [r.id for r in todo[start : start + BATCH]]
         with source._read() as conn:
-            conn = _snapshot(conn)   # a run and its rows as of one moment (a writer may be finishing it)
+            conn = _snapshot(conn)  # a run and its rows as of one moment (a writer may be finishing it)
             batch = conn.execute(select(runs).where(runs.c.id.in_(ids)).order_by(runs.c.id)).all()
-            ms = conn.execute(select(measurements).where(measurements.c.run_id.in_(ids))
-                              .order_by(measurements.c.id)).all()
+            ms = conn.execute(
+                select(measurements).where(measurements.c.run_id.in_(ids)).order_by(measurements.c.id)
+            ).all()
             arts = conn.execute(select(artifacts).where(artifacts.c.run_id.in_(ids)).order_by(artifacts.c.id)).all()
             outs = conn.execute(select(outbox).where(outbox.c.run_id.in_(ids)).order_by(outbox.c.id)).all()
         with target._write() as conn:
@@ -144,18 +156,30 @@ def copy_store(source, target, progress: Callable[[int, int], None] | None = Non
                     added.add(r.id)
                     rep.running_copied += r.status == "running"
                     continue
-                tid = have[r.uid][0]   # running in the target, ended in the source: its end, once
-                done = conn.execute(update(runs).where(runs.c.id == tid, runs.c.status == "running")
-                                    .values(status=r.status, finished=r.finished, notes=r.notes))
+                tid = have[r.uid][0]  # running in the target, ended in the source: its end, once
+                done = conn.execute(
+                    update(runs)
+                    .where(runs.c.id == tid, runs.c.status == "running")
+                    .values(status=r.status, finished=r.finished, notes=r.notes)
+                )
                 if done.rowcount == 1:
                     run_ids[r.id] = tid
                     ended += 1
             ms = [m for m in ms if m.run_id in run_ids]
             arts = [a for a in arts if a.run_id in run_ids]
-            outs = [o for o in outs if o.run_id in added]   # an ended run's: _bring_outbox
-            _insert_many(conn, measurements, [
-                dict(_pick(m, _MEAS_COLS), run_id=run_ids[m.run_id],
-                     tolerance_id=None if m.tolerance_id is None else window_ids[m.tolerance_id]) for m in ms])
+            outs = [o for o in outs if o.run_id in added]  # an ended run's: _bring_outbox
+            _insert_many(
+                conn,
+                measurements,
+                [
+                    dict(
+                        _pick(m, _MEAS_COLS),
+                        run_id=run_ids[m.run_id],
+                        tolerance_id=None if m.tolerance_id is None else window_ids[m.tolerance_id],
+                    )
+                    for m in ms
+                ],
+            )
             _insert_many(conn, artifacts, [dict(_pick(a, _ART_COLS), run_id=run_ids[a.run_id]) for a in arts])
             _insert_many(conn, outbox, [dict(_pick(o, _OUT_COLS), run_id=run_ids[o.run_id]) for o in outs])
         rep.new["runs"] += len(added)
@@ -179,8 +203,14 @@ def _bring_outbox(source, target, rep: CopyReport) -> None:
         src = conn.execute(q).all()
     with target._write() as conn:
         tgt = {(r.uid, r.target): r for r in conn.execute(q)}
-        run_of = {r.uid: r.id for r in conn.execute(select(runs.c.uid, runs.c.id)
-                                                     .where(runs.c.uid.in_({o.uid for o in src})))} if src else {}
+        run_of = (
+            {
+                r.uid: r.id
+                for r in conn.execute(select(runs.c.uid, runs.c.id).where(runs.c.uid.in_({o.uid for o in src})))
+            }
+            if src
+            else {}
+        )
         for o in src:
             t = tgt.get((o.uid, o.target))
             if t is None and o.uid in run_of:
@@ -230,6 +260,7 @@ def _insert_many(conn: Connection, table, rows: list[dict]) -> None:
 
 # -- verification ------------------------------------------------------------------------------
 
+
 def _content(store, uids: set[str] | None, windows: set[tuple] | None) -> dict[str, Counter]:
     """Per table, the multiset of rows without local ids; restricted to runs whose uid is in
     ``uids`` and windows whose content is in ``windows`` when those are given."""
@@ -246,17 +277,28 @@ def _content(store, uids: set[str] | None, windows: set[tuple] | None) -> dict[s
 
     def mine(run_id) -> bool:
         return uids is None or uid_of[run_id] in uids
+
     out = {
-        "runs": Counter(tuple(_num(r._mapping[c]) if c in ("started", "finished") else r._mapping[c]
-                              for c in _RUN_COLS) for r in run_rows if mine(r.id)),
+        "runs": Counter(
+            tuple(_num(r._mapping[c]) if c in ("started", "finished") else r._mapping[c] for c in _RUN_COLS)
+            for r in run_rows
+            if mine(r.id)
+        ),
         "tolerances": Counter(k for k in win_key.values() if windows is None or k in windows),
-        "measurements": Counter((uid_of[m.run_id], m.subject, m.metric, _num(m.value), m.unit, m.status,
-                                 win_key.get(m.tolerance_id)) for m in meas_rows if mine(m.run_id)),
-        "artifacts": Counter((uid_of[a.run_id],) + tuple(_pick(a, _ART_COLS).values())
-                             for a in art_rows if mine(a.run_id)),
-        "outbox": Counter((uid_of[o.run_id],) + tuple(_num(v) if k in ("created", "updated") else v
-                                                      for k, v in _pick(o, _OUT_COLS).items())
-                          for o in out_rows if mine(o.run_id)),
+        "measurements": Counter(
+            (uid_of[m.run_id], m.subject, m.metric, _num(m.value), m.unit, m.status, win_key.get(m.tolerance_id))
+            for m in meas_rows
+            if mine(m.run_id)
+        ),
+        "artifacts": Counter(
+            (uid_of[a.run_id],) + tuple(_pick(a, _ART_COLS).values()) for a in art_rows if mine(a.run_id)
+        ),
+        "outbox": Counter(
+            (uid_of[o.run_id],)
+            + tuple(_num(v) if k in ("created", "updated") else v for k, v in _pick(o, _OUT_COLS).items())
+            for o in out_rows
+            if mine(o.run_id)
+        ),
         "actions": Counter(_action_key(a) for a in act_rows),
     }
     return out
@@ -278,19 +320,27 @@ def verify(source, target, new: dict[str, int] | None = None) -> list[TableCheck
     # windows are one row per content in a copy; a target holding the same window twice (its own
     # history, before any copy) still holds the source's one
     tgt["tolerances"] = tgt["tolerances"] & src["tolerances"]
-    tgt["actions"] = tgt["actions"] & src["actions"]      # the target's own actions are not the source's
+    tgt["actions"] = tgt["actions"] & src["actions"]  # the target's own actions are not the source's
     checks = []
     for t in TABLES:
         found = sum((src[t] & tgt[t]).values())
-        checks.append(TableCheck(t, sum(src[t].values()), found, (new or {}).get(t, 0),
-                                 _checksum(src[t]), _checksum(tgt[t])))
+        checks.append(
+            TableCheck(t, sum(src[t].values()), found, (new or {}).get(t, 0), _checksum(src[t]), _checksum(tgt[t]))
+        )
     return checks
 
 
 def table_counts(store) -> dict[str, int]:
     """Rows per table of a store."""
     from sqlalchemy import func
-    tables = {"runs": runs, "tolerances": tolerances, "measurements": measurements,
-              "artifacts": artifacts, "outbox": outbox, "actions": actions}
+
+    tables = {
+        "runs": runs,
+        "tolerances": tolerances,
+        "measurements": measurements,
+        "artifacts": artifacts,
+        "outbox": outbox,
+        "actions": actions,
+    }
     with store._read() as conn:
         return {name: conn.scalar(select(func.count()).select_from(t)) for name, t in tables.items()}

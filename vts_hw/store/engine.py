@@ -52,11 +52,12 @@ def make_engine(url: URL, busy_timeout: float, password_env: str | None = None) 
             args["connect_timeout"] = max(1, min(10, int(busy_timeout)))
         engine = create_engine(url, pool_pre_ping=True, connect_args=args)
         if password_env:
-            password_from_env(url, password_env)      # unset: one sentence now, not at first use
+            password_from_env(url, password_env)  # unset: one sentence now, not at first use
 
             @event.listens_for(engine, "do_connect")
             def _password(_dialect, _conn_rec, _cargs, cparams):
                 cparams["password"] = password_from_env(url, password_env)
+
         return engine
     path = sqlite_file(url)
     if path is None:
@@ -87,7 +88,7 @@ def owner_only(path: Path) -> None:
             st = os.lstat(p)
             if stat.S_ISREG(st.st_mode) and st.st_uid == os.geteuid() and st.st_mode & 0o077:
                 os.chmod(p, stat.S_IMODE(st.st_mode) & PRIVATE)
-        except OSError:        # absent, or not ours to change: SQLite says what it cannot open
+        except OSError:  # absent, or not ours to change: SQLite says what it cannot open
             continue
 
 
@@ -95,8 +96,10 @@ def password_from_env(url: URL, name: str) -> str:
     """The password in environment variable ``name``; StoreError naming it when it is not set."""
     value = os.environ.get(name)
     if not value:
-        raise StoreError(f"{masked(url)}: the environment variable {name}, named to hold the database "
-                         f"password (store.password_env), is not set")
+        raise StoreError(
+            f"{masked(url)}: the environment variable {name}, named to hold the database "
+            f"password (store.password_env), is not set"
+        )
     return value
 
 
@@ -113,8 +116,9 @@ def _sqlite_setup(engine: Engine, busy_timeout: float, wal: bool, where: str) ->
                 if str(mode).lower() != "wal":
                     mode = cur.execute("PRAGMA journal_mode = WAL").fetchone()[0]
                     if str(mode).lower() != "wal":
-                        log.warning("%s: cannot use the WAL journal (got %s); readers may wait for writers",
-                                    where, mode)
+                        log.warning(
+                            "%s: cannot use the WAL journal (got %s); readers may wait for writers", where, mode
+                        )
             cur.execute("PRAGMA synchronous = FULL")
         finally:
             cur.close()

@@ -25,10 +25,10 @@ from typing import Literal, Protocol
 from sqlalchemy import insert, select, update
 
 from vts_hw.errors import VtsError
-from vts_hw.tolerance import State, Window, worst
 from vts_hw.store.errors import StoreError
 from vts_hw.store.records import FINISH_STATUSES, Run, run_from_row
 from vts_hw.store.schema import artifacts, measurements, runs
+from vts_hw.tolerance import State, Window, worst
 
 log = logging.getLogger(__name__)
 
@@ -73,8 +73,15 @@ class RunHandle:
         if self._done:
             raise RuntimeError(f"run {self.run_id} has already ended")
 
-    def measure(self, subject: str, metric: str, value: float | None, unit: str = "",
-                status: State | str | None = None, at: float | None = None) -> State:
+    def measure(
+        self,
+        subject: str,
+        metric: str,
+        value: float | None,
+        unit: str = "",
+        status: State | str | None = None,
+        at: float | None = None,
+    ) -> State:
         """Buffer one measurement and return its state.
 
         With ``status`` None the state is judged with the window of ``metric`` in effect at
@@ -102,8 +109,16 @@ class RunHandle:
                 unit = unit or window.unit
         else:
             state = State(status)
-        self._measurements.append(dict(subject=str(subject), metric=metric, value=v, unit=str(unit),
-                                       status=state.value, tolerance_id=tolerance_id))
+        self._measurements.append(
+            dict(
+                subject=str(subject),
+                metric=metric,
+                value=v,
+                unit=str(unit),
+                status=state.value,
+                tolerance_id=tolerance_id,
+            )
+        )
         return state
 
     def artifact(self, path, kind: str = "frame") -> str:
@@ -115,8 +130,7 @@ class RunHandle:
         self._artifacts.append(dict(path=p, sha256=digest, kind=str(kind)))
         return digest
 
-    def finish(self, status: State | str | None = None, finished: float | None = None,
-               notes: str | None = None) -> Run:
+    def finish(self, status: State | str | None = None, finished: float | None = None, notes: str | None = None) -> Run:
         """Store everything in one transaction and return the run as stored.
 
         ``status`` defaults to the worst of the measurements' states (OK when none); it may
@@ -129,18 +143,21 @@ class RunHandle:
         else:
             final = status.value if isinstance(status, State) else str(status)
             if final not in FINISH_STATUSES:
-                raise ValueError(f"finish status must be one of {', '.join(FINISH_STATUSES)}, not {final!r}"
-                                 " (use abort() to abort)")
+                raise ValueError(
+                    f"finish status must be one of {', '.join(FINISH_STATUSES)}, not {final!r} (use abort() to abort)"
+                )
         values = {"status": final, "finished": time.time() if finished is None else float(finished)}
         if notes is not None:
             values["notes"] = str(notes)
         with self._store._write() as conn:
-            done = conn.execute(update(runs).where(runs.c.id == self.run_id, runs.c.status == "running")
-                                .values(**values))
+            done = conn.execute(
+                update(runs).where(runs.c.id == self.run_id, runs.c.status == "running").values(**values)
+            )
             if done.rowcount != 1:
                 now = conn.scalar(select(runs.c.status).where(runs.c.id == self.run_id))
-                raise StoreError(f"{self._store.url}: run {self.run_id} is no longer running "
-                                 f"(status {now}); nothing was stored")
+                raise StoreError(
+                    f"{self._store.url}: run {self.run_id} is no longer running (status {now}); nothing was stored"
+                )
             if self._measurements:
                 conn.execute(insert(measurements), [dict(m, run_id=self.run_id) for m in self._measurements])
             if self._artifacts:
@@ -161,7 +178,7 @@ class RunHandle:
         self._store._end_run(self.run_id, "aborted", text, finished=time.time())
         self._done = True
 
-    def __enter__(self) -> "RunHandle":
+    def __enter__(self) -> RunHandle:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> Literal[False]:
@@ -171,17 +188,23 @@ class RunHandle:
             try:
                 self.finish()
             except BaseException as err:
-                self._abort_quietly(f"finish failed: {err}" if isinstance(err, VtsError) else
-                                    f"finish failed: unexpected error ({type(err).__name__}): {err}")
+                self._abort_quietly(
+                    f"finish failed: {err}"
+                    if isinstance(err, VtsError)
+                    else f"finish failed: unexpected error ({type(err).__name__}): {err}"
+                )
                 raise
             return False
         if issubclass(exc_type, KeyboardInterrupt):
             reason = "interrupted (KeyboardInterrupt)"
         elif isinstance(exc, VtsError):  # a user's error: its sentence says it all
             reason = str(exc) or "stopped by an error"
-        else:                             # a bug: its type helps whoever reads the notes
-            reason = f"unexpected error ({exc_type.__name__}): {exc}" if str(exc) else \
-                f"unexpected error ({exc_type.__name__})"
+        else:  # a bug: its type helps whoever reads the notes
+            reason = (
+                f"unexpected error ({exc_type.__name__}): {exc}"
+                if str(exc)
+                else f"unexpected error ({exc_type.__name__})"
+            )
         self._abort_quietly(reason)
         return False  # never swallow the exception
 

@@ -49,8 +49,8 @@ OUR_VERSION_COLUMNS = {"version", "applied", "description"}
 
 @dataclass(frozen=True)
 class Found:
-    kind: str          # NEW, EMPTY, OURS or FOREIGN
-    detail: str = ""   # why, in words ("the file does not exist", "it holds the table(s) users, posts")
+    kind: str  # NEW, EMPTY, OURS or FOREIGN
+    detail: str = ""  # why, in words ("the file does not exist", "it holds the table(s) users, posts")
 
 
 def _tables_text(names) -> str:
@@ -76,31 +76,36 @@ def sqlite_file_kind(path: Path, busy_timeout: float = 30.0) -> Found:
         return Found(NEW, "the file does not exist")
     except OSError as exc:
         raise StoreError(f"{path}: cannot read the results store ({exc.strerror or exc})") from None
-    if stat.S_ISLNK(st.st_mode):   # as every writer: a link is not followed (decision 0081)
+    if stat.S_ISLNK(st.st_mode):  # as every writer: a link is not followed (decision 0081)
         return Found(FOREIGN, f"it is {kind_of(path, st)}, which is never followed: name the store file itself")
-    if not stat.S_ISREG(st.st_mode):   # a folder, or a device or FIFO SQLite would write into or wait on
+    if not stat.S_ISREG(st.st_mode):  # a folder, or a device or FIFO SQLite would write into or wait on
         return Found(FOREIGN, f"it is {kind_of(path, st)}, not a regular file")
     size = st.st_size
     if size == 0:
         return Found(NEW, "the file is empty (0 bytes)")
-    try:   # mode=rw: never creates the file; no journal switch, a read transaction rolled back
-        con = sqlite3.connect(f"file:{quote(str(path.absolute()))}?mode=rw", uri=True, timeout=busy_timeout,
-                              isolation_level=None)
+    try:  # mode=rw: never creates the file; no journal switch, a read transaction rolled back
+        con = sqlite3.connect(
+            f"file:{quote(str(path.absolute()))}?mode=rw", uri=True, timeout=busy_timeout, isolation_level=None
+        )
     except sqlite3.Error as exc:
         raise StoreError(f"{path}: cannot open the results store ({exc})") from None
     try:
         con.execute("BEGIN")
         rows = con.execute("SELECT type, name FROM sqlite_master").fetchall()
         tables = {name for kind, name in rows if kind in ("table", "view") and not name.startswith("sqlite_")}
-        cols = {r[1] for r in con.execute("PRAGMA table_info(schema_migrations)")} \
-            if "schema_migrations" in tables else set()
+        cols = (
+            {r[1] for r in con.execute("PRAGMA table_info(schema_migrations)")}
+            if "schema_migrations" in tables
+            else set()
+        )
         if not rows:
             journal = con.execute("PRAGMA journal_mode").fetchone()[0]
             pages = con.execute("PRAGMA page_count").fetchone()[0]
-            tagged = con.execute("PRAGMA user_version").fetchone()[0] or con.execute(
-                "PRAGMA application_id").fetchone()[0]
+            tagged = (
+                con.execute("PRAGMA user_version").fetchone()[0] or con.execute("PRAGMA application_id").fetchone()[0]
+            )
             if str(journal).lower() == "wal" and pages <= 1 and not tagged:
-                return Found(NEW, "a store being created")   # what a 0-byte file becomes in our hands
+                return Found(NEW, "a store being created")  # what a 0-byte file becomes in our hands
         con.execute("ROLLBACK")
     except sqlite3.DatabaseError as exc:
         text = str(exc)
@@ -127,19 +132,30 @@ def allowed(found: Found, mode: str, where: str, backend: str) -> None:
     if found.kind == OURS:
         return
     if found.kind == FOREIGN:
-        raise StoreError(f"{where} is not a vts-hw results store ({found.detail}), so it was left untouched: "
-                         "name the results store, or a new file for one")
+        raise StoreError(
+            f"{where} is not a vts-hw results store ({found.detail}), so it was left untouched: "
+            "name the results store, or a new file for one"
+        )
     init = f"`vts store init {where}` makes it one"
     if found.kind == NEW:
         if mode in ("create", "init"):
             return
-        raise NoStore(f"{where}: there is no results store there ({found.detail}); a QA run creates it, "
-                         f"or {init}")
+        raise NoStore(f"{where}: there is no results store there ({found.detail}); a QA run creates it, or {init}")
     # EMPTY
     if mode == "init" or (mode == "create" and backend != "sqlite"):
         return
     raise StoreError(f"{where} is an empty database, not a vts-hw results store ({found.detail}); {init}")
 
 
-__all__ = ["Found", "sqlite_file_kind", "connection_kind", "allowed", "judge_tables", "MODES",
-           "NEW", "EMPTY", "OURS", "FOREIGN"]
+__all__ = [
+    "Found",
+    "sqlite_file_kind",
+    "connection_kind",
+    "allowed",
+    "judge_tables",
+    "MODES",
+    "NEW",
+    "EMPTY",
+    "OURS",
+    "FOREIGN",
+]

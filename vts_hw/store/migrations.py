@@ -30,11 +30,28 @@ from __future__ import annotations
 
 import time
 import uuid
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
-from sqlalchemy import (CheckConstraint, Column, Connection, Double, ForeignKey, Index, Integer, MetaData,
-                        String, Table, Text, UniqueConstraint, func, inspect, insert, select, update)
+from sqlalchemy import (
+    CheckConstraint,
+    Column,
+    Connection,
+    Double,
+    ForeignKey,
+    Index,
+    Integer,
+    MetaData,
+    String,
+    Table,
+    Text,
+    UniqueConstraint,
+    func,
+    insert,
+    inspect,
+    select,
+    update,
+)
 from sqlalchemy.engine import Dialect
 from sqlalchemy.schema import CreateColumn, CreateIndex, CreateTable, DDLElement
 
@@ -73,10 +90,18 @@ def _v2(dialect: Dialect) -> list:
 
 def _v3(dialect: Dialect) -> list:
     md = MetaData(naming_convention=schema.NAMING)
-    runs_v3 = Table("runs", md, Column("id", Integer, primary_key=True), Column("uid", String(32)),
-                    Column("rig", Text), Column("procedure", Text), Column("started", Double))
+    runs_v3 = Table(
+        "runs",
+        md,
+        Column("id", Integer, primary_key=True),
+        Column("uid", String(32)),
+        Column("rig", Text),
+        Column("procedure", Text),
+        Column("started", Double),
+    )
     outbox_v3 = Table(
-        "outbox", md,
+        "outbox",
+        md,
         Column("id", Integer, primary_key=True),
         Column("run_id", Integer, ForeignKey(runs_v3.c.id), nullable=False),
         Column("target", Text, nullable=False),
@@ -100,8 +125,7 @@ def _v3(dialect: Dialect) -> list:
         add_column(dialect, "runs", Column("uid", String(32), nullable=False, server_default="")),
         fill_uids,
         CreateIndex(Index("uq_runs_uid", runs_v3.c.uid, unique=True)),
-        CreateIndex(Index("ix_runs_rig_procedure_started", runs_v3.c.rig, runs_v3.c.procedure,
-                          runs_v3.c.started)),
+        CreateIndex(Index("ix_runs_rig_procedure_started", runs_v3.c.rig, runs_v3.c.procedure, runs_v3.c.started)),
         CreateTable(outbox_v3),
         CreateIndex(Index("ix_outbox_state", outbox_v3.c.state)),
     ]
@@ -110,7 +134,8 @@ def _v3(dialect: Dialect) -> list:
 def _v4(dialect: Dialect) -> list:
     md = MetaData(naming_convention=schema.NAMING)
     users_v4 = Table(
-        "users", md,
+        "users",
+        md,
         Column("id", Integer, primary_key=True),
         Column("name", Text, nullable=False),
         Column("role", String(16), nullable=False),
@@ -122,7 +147,8 @@ def _v4(dialect: Dialect) -> list:
         UniqueConstraint("name", name="uq_users_name"),
     )
     actions_v4 = Table(
-        "actions", md,
+        "actions",
+        md,
         Column("id", Integer, primary_key=True),
         Column("at", Double, nullable=False),
         Column("user_name", Text, nullable=False),
@@ -152,8 +178,7 @@ def stored_version(conn: Connection) -> int | None:
 
 
 def _record(conn: Connection, version: int, description: str) -> None:
-    conn.execute(insert(schema.schema_migrations).values(
-        version=version, applied=time.time(), description=description))
+    conn.execute(insert(schema.schema_migrations).values(version=version, applied=time.time(), description=description))
 
 
 def ensure_schema(conn: Connection, where: str) -> tuple[int, int]:
@@ -161,7 +186,7 @@ def ensure_schema(conn: Connection, where: str) -> tuple[int, int]:
 
     Returns (version found, version now); found is 0 for a fresh database. ``where`` (the
     masked URL) names the database in errors."""
-    kind = connection_kind(conn)   # again, under the write lock
+    kind = connection_kind(conn)  # again, under the write lock
     if kind.kind == FOREIGN:
         raise StoreError(f"{where} is not a vts-hw results store ({kind.detail}), so it was left untouched")
     if kind.kind == EMPTY:
@@ -172,8 +197,10 @@ def ensure_schema(conn: Connection, where: str) -> tuple[int, int]:
     if found is None or found < 1:
         raise StoreError(f"{where}: its schema_migrations table is empty; cannot tell its schema version")
     if found > schema.SCHEMA_VERSION:
-        raise StoreError(f"{where}: schema version {found} is newer than this vts-hw understands "
-                         f"({schema.SCHEMA_VERSION}); upgrade vts-hw to use it")
+        raise StoreError(
+            f"{where}: schema version {found} is newer than this vts-hw understands "
+            f"({schema.SCHEMA_VERSION}); upgrade vts-hw to use it"
+        )
     for version in range(found + 1, schema.SCHEMA_VERSION + 1):
         step = MIGRATIONS[version]
         for stmt in step.statements(conn.dialect):

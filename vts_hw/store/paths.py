@@ -47,7 +47,7 @@ class StoreTarget:
 _PG_NAMES = {"postgresql": "postgresql+psycopg", "postgres": "postgresql+psycopg"}
 
 
-def to_url(url: "str | os.PathLike | StoreTarget | None") -> URL:
+def to_url(url: str | os.PathLike | StoreTarget | None) -> URL:
     """A SQLAlchemy URL from a URL string, a plain file path (taken as SQLite), a StoreTarget or
     None (default). ``postgresql://`` (and ``postgres://``) mean PostgreSQL through psycopg 3."""
     if isinstance(url, StoreTarget):

@@ -29,8 +29,15 @@ def action_from_row(row) -> LoggedAction:
         detail = json.loads(row.detail or "{}")
     except ValueError:
         detail = {"unreadable": row.detail}
-    return LoggedAction(row.id, row.at, row.user_name, row.role, row.what,
-                        detail if isinstance(detail, dict) else {"detail": detail}, row.rig)
+    return LoggedAction(
+        row.id,
+        row.at,
+        row.user_name,
+        row.role,
+        row.what,
+        detail if isinstance(detail, dict) else {"detail": detail},
+        row.rig,
+    )
 
 
 def _filtered(q: Select, start: float | None, end: float | None, user: str | None) -> Select:
@@ -44,11 +51,16 @@ def _filtered(q: Select, start: float | None, end: float | None, user: str | Non
     return q
 
 
-def select_actions(start: float | None = None, end: float | None = None, user: str | None = None,
-                   limit: int = 50, offset: int = 0) -> Select:
+def select_actions(
+    start: float | None = None, end: float | None = None, user: str | None = None, limit: int = 50, offset: int = 0
+) -> Select:
     """Actions newest first, done in [start, end) when given, by ``user`` when given."""
-    return (_filtered(select(actions), start, end, user)
-            .order_by(actions.c.at.desc(), actions.c.id.desc()).limit(int(limit)).offset(int(offset)))
+    return (
+        _filtered(select(actions), start, end, user)
+        .order_by(actions.c.at.desc(), actions.c.id.desc())
+        .limit(int(limit))
+        .offset(int(offset))
+    )
 
 
 def count_actions(start: float | None = None, end: float | None = None, user: str | None = None) -> Select:
@@ -58,7 +70,8 @@ def count_actions(start: float | None = None, end: float | None = None, user: st
 class PeopleMixin:
     """Users and actions; needs the store's ``_read``/``_write`` and ``url``."""
 
-    if TYPE_CHECKING:    # ResultsStore's own (store.py), said here for the type checker
+    if TYPE_CHECKING:  # ResultsStore's own (store.py), said here for the type checker
+
         def _read(self) -> AbstractContextManager[Connection]: ...
 
         def _write(self, windows: bool = False) -> AbstractContextManager[Connection]: ...
@@ -86,15 +99,21 @@ class PeopleMixin:
         with self._write() as conn:
             row = conn.execute(select(users).where(users.c.name == name)).first()
             if row is None:
-                conn.execute(insert(users).values(name=name, role=role, password=password_hash, created=now,
-                                                  changed=now, disabled=None))
+                conn.execute(
+                    insert(users).values(
+                        name=name, role=role, password=password_hash, created=now, changed=now, disabled=None
+                    )
+                )
                 how = "added"
             elif row.disabled is None:
                 article = "an" if row.role[:1] in "aeiou" else "a"
                 raise ValueError(f"user {name} already exists ({article} {row.role}); remove it first to replace it")
             else:
-                conn.execute(update(users).where(users.c.id == row.id)
-                             .values(role=role, password=password_hash, changed=now, disabled=None))
+                conn.execute(
+                    update(users)
+                    .where(users.c.id == row.id)
+                    .values(role=role, password=password_hash, changed=now, disabled=None)
+                )
                 how = "enabled again"
             return user_from_row(conn.execute(select(users).where(users.c.name == name)).one()), how
 
@@ -113,15 +132,29 @@ class PeopleMixin:
         """Append actions (dicts with at, user, role, what, detail, rig) in one transaction."""
         if not items:
             return 0
-        rows = [dict(at=float(a["at"]), user_name=str(a["user"]), role=str(a.get("role", "")), what=str(a["what"]),
-                     detail=json.dumps(a.get("detail") or {}, sort_keys=True, default=str), rig=str(a.get("rig", "")))
-                for a in items]
+        rows = [
+            dict(
+                at=float(a["at"]),
+                user_name=str(a["user"]),
+                role=str(a.get("role", "")),
+                what=str(a["what"]),
+                detail=json.dumps(a.get("detail") or {}, sort_keys=True, default=str),
+                rig=str(a.get("rig", "")),
+            )
+            for a in items
+        ]
         with self._write() as conn:
             conn.execute(insert(actions), rows)
         return len(rows)
 
-    def actions(self, start: float | None = None, end: float | None = None, user: str | None = None,
-                limit: int = 50, offset: int = 0) -> tuple[list[LoggedAction], int]:
+    def actions(
+        self,
+        start: float | None = None,
+        end: float | None = None,
+        user: str | None = None,
+        limit: int = 50,
+        offset: int = 0,
+    ) -> tuple[list[LoggedAction], int]:
         """One page of the action log, newest first, and how many the filters keep (one snapshot)."""
         with self._read() as conn:
             total = conn.execute(count_actions(start, end, user)).scalar_one()

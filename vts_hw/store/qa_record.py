@@ -21,7 +21,7 @@ def artifacts_dir(store) -> Path:
     """Saved frames go beside an SQLite file, else into the per-user data folder."""
     url = str(getattr(store, "url", ""))
     if url.startswith("sqlite:///"):
-        return Path(url[len("sqlite:///"):]).parent / "artifacts"
+        return Path(url[len("sqlite:///") :]).parent / "artifacts"
     base = os.environ.get("XDG_DATA_HOME") or os.path.join(os.path.expanduser("~"), ".local", "share")
     return Path(base) / "vts-hw" / "artifacts"
 
@@ -35,8 +35,16 @@ def record_qa(store, qa, rig, *, operator: str = "", clock=time.time):
     if qa.needs_baselines:
         qa.baselines = {**load_baselines(store, qa.camera_names, rig.rig), **qa.baselines}
     now = clock()
-    with Recorder(store, qa.procedure, rig=rig.rig, operator=operator, config_digest=rig.digest,
-                  tolerances=rig.tolerances, started=now, clock=clock) as rec:
+    with Recorder(
+        store,
+        qa.procedure,
+        rig=rig.rig,
+        operator=operator,
+        config_digest=rig.digest,
+        tolerances=rig.tolerances,
+        started=now,
+        clock=clock,
+    ) as rec:
         result = qa.run(started=now, run_id=rec.run_id)
         stored = rec.finish(result, artifacts=result.artifacts, finished=result.finished)
     result.run_id, result.store_error = stored.run_id, stored.error

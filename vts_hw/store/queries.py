@@ -44,8 +44,9 @@ def _history_filter(q, procedure=None, status=None, start: float | None = None, 
     return q
 
 
-def select_runs_newest(procedure=None, status=None, start: float | None = None, end: float | None = None,
-                       limit: int = 50, offset: int = 0) -> Select:
+def select_runs_newest(
+    procedure=None, status=None, start: float | None = None, end: float | None = None, limit: int = 50, offset: int = 0
+) -> Select:
     """One page of runs, newest first (by start, then id), started in [start, end) when given."""
     q = _history_filter(select(runs), procedure, status, start, end)
     return q.order_by(runs.c.started.desc(), runs.c.id.desc()).limit(int(limit)).offset(int(offset))
@@ -66,11 +67,11 @@ def select_rigs() -> Select:
     return select(runs.c.rig).distinct().order_by(runs.c.rig)
 
 
-def select_measurements(procedure=None, metric=None, subject: str | None = None,
-                        since: float | None = None, run_id: int | None = None) -> Select:
+def select_measurements(
+    procedure=None, metric=None, subject: str | None = None, since: float | None = None, run_id: int | None = None
+) -> Select:
     """Measurements with their run's start time, ordered by run start, then id."""
-    q = (select(measurements, runs.c.started)
-         .join_from(measurements, runs, measurements.c.run_id == runs.c.id))
+    q = select(measurements, runs.c.started).join_from(measurements, runs, measurements.c.run_id == runs.c.id)
     if procedure is not None:
         q = q.where(_one_or_many(runs.c.procedure, procedure))
     if metric is not None:
@@ -91,25 +92,28 @@ def select_artifacts(run_id: int) -> Select:
 def select_tolerance_at(metric: str, at: float) -> Select:
     """The window of one metric in effect at ``at``: the latest effective_from <= at
     (the later-recorded row wins a tie)."""
-    return (select(tolerances)
-            .where(tolerances.c.metric == metric, tolerances.c.effective_from <= at)
-            .order_by(tolerances.c.effective_from.desc(), tolerances.c.id.desc())
-            .limit(1))
+    return (
+        select(tolerances)
+        .where(tolerances.c.metric == metric, tolerances.c.effective_from <= at)
+        .order_by(tolerances.c.effective_from.desc(), tolerances.c.id.desc())
+        .limit(1)
+    )
 
 
 def select_tolerances_at(at: float) -> Select:
     """The window in effect at ``at`` for every metric (a window function: SQLite >= 3.25, PostgreSQL)."""
-    rank = (func.row_number()
-            .over(partition_by=tolerances.c.metric,
-                  order_by=(tolerances.c.effective_from.desc(), tolerances.c.id.desc()))
-            .label("rank"))
+    rank = (
+        func.row_number()
+        .over(partition_by=tolerances.c.metric, order_by=(tolerances.c.effective_from.desc(), tolerances.c.id.desc()))
+        .label("rank")
+    )
     inner = select(tolerances, rank).where(tolerances.c.effective_from <= at).subquery()
-    return (select(*[inner.c[c.name] for c in tolerances.c])
-            .where(inner.c.rank == 1)
-            .order_by(inner.c.metric))
+    return select(*[inner.c[c.name] for c in tolerances.c]).where(inner.c.rank == 1).order_by(inner.c.metric)
 
 
 def select_running_runs(host: str) -> Select:
-    return (select(runs.c.id, runs.c.pid, runs.c.process_start)
-            .where(and_(runs.c.status == "running", runs.c.host == host))
-            .order_by(runs.c.id))
+    return (
+        select(runs.c.id, runs.c.pid, runs.c.process_start)
+        .where(and_(runs.c.status == "running", runs.c.host == host))
+        .order_by(runs.c.id)
+    )

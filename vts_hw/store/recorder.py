@@ -31,14 +31,14 @@ from pathlib import Path
 from typing import Literal
 
 from vts_hw import __version__, catalog
-from vts_hw.results import Analysis, Measure
-from vts_hw.store.errors import StoreError
 from vts_hw.errors import DataError
 from vts_hw.files import check_target
-from vts_hw.store.unsaved import load_unsaved, save_unsaved
-from vts_hw.tolerance import State, Window
+from vts_hw.results import Analysis, Measure
+from vts_hw.store.errors import StoreError
 from vts_hw.store.handle import RunHandle
 from vts_hw.store.store import ResultsStore
+from vts_hw.store.unsaved import load_unsaved, save_unsaved
+from vts_hw.tolerance import State, Window
 
 log = logging.getLogger(__name__)
 
@@ -72,15 +72,26 @@ class Recorder:
     """One run of ``procedure`` on its way to the store ``target`` (a URL, a StoreTarget, None
     for the default, or an open ResultsStore, then left open). See the module docstring."""
 
-    def __init__(self, target, procedure: str, *, rig: str = "", operator: str = "", config_digest: str = "",
-                 tolerances=None, started: float | None = None, notes: str = "", clock=time.time):
+    def __init__(
+        self,
+        target,
+        procedure: str,
+        *,
+        rig: str = "",
+        operator: str = "",
+        config_digest: str = "",
+        tolerances=None,
+        started: float | None = None,
+        notes: str = "",
+        clock=time.time,
+    ):
         self.target = target
         self.procedure = procedure
         self.rig, self.operator, self.config_digest, self.notes = rig, operator, config_digest, notes
-        self.windows: dict[str, Window] = catalog.windows(tolerances)   # the catalog's, the rig's on top
+        self.windows: dict[str, Window] = catalog.windows(tolerances)  # the catalog's, the rig's on top
         self.clock = clock
         self.started = clock() if started is None else float(started)
-        self.error: str | None = None      # why the store could not be written (then: unsaved)
+        self.error: str | None = None  # why the store could not be written (then: unsaved)
         self._store: ResultsStore | None = None
         self._own_store = False
         self._handle: RunHandle | None = None
@@ -94,7 +105,7 @@ class Recorder:
     def url(self):
         return self._store.url if self._store is not None else self.target
 
-    def begin(self) -> "Recorder":
+    def begin(self) -> Recorder:
         """Sync the windows and commit the "running" row; a store that cannot take them is
         remembered (``error``), never raised: the figures go to the unsaved file at the end."""
         try:
@@ -103,15 +114,21 @@ class Recorder:
             else:
                 self._store, self._own_store = ResultsStore(self.target), True
             self._store.sync_tolerances(self.windows, at=self.started)
-            self._handle = self._store.begin_run(self.procedure, rig=self.rig, operator=self.operator,
-                                                 started=self.started, config_digest=self.config_digest,
-                                                 notes=self.notes)
+            self._handle = self._store.begin_run(
+                self.procedure,
+                rig=self.rig,
+                operator=self.operator,
+                started=self.started,
+                config_digest=self.config_digest,
+                notes=self.notes,
+            )
         except StoreError as exc:
             self.error = str(exc)
         return self
 
-    def finish(self, result: Analysis, *, artifacts=(), finished: float | None = None,
-               notes: str | None = None) -> Stored:
+    def finish(
+        self, result: Analysis, *, artifacts=(), finished: float | None = None, notes: str | None = None
+    ) -> Stored:
         """Store ``result`` in one transaction, else keep it in the unsaved file; never raises
         for a store that cannot be written."""
         if self._done:
@@ -131,19 +148,29 @@ class Recorder:
                 return Stored(run_id=run.id)
             except StoreError as exc:
                 self.error = str(exc)
-                try:   # likely to fail too; else the next open marks it aborted (its process is gone)
+                try:  # likely to fail too; else the next open marks it aborted (its process is gone)
                     h.abort(f"the run could not be stored ({exc}); its figures were kept elsewhere")
                 except StoreError:
                     pass
         self._done = True
-        if hasattr(result, "store_error"):   # a result that says whether it was stored hears it first
+        if hasattr(result, "store_error"):  # a result that says whether it was stored hears it first
             result.store_error = self.error
-        record = {"procedure": self.procedure, "rig": self.rig, "operator": self.operator,
-                  "config_digest": self.config_digest, "software_version": __version__, "started": self.started,
-                  "finished": finished, "state": str(state), "store_error": self.error, "notes": self.notes,
-                  "measurements": [m.as_dict() for m in measures],
-                  "tolerances": {k: w.as_dict() for k, w in self.windows.items()},
-                  "artifacts": artifacts, "results": result.results_data()}
+        record = {
+            "procedure": self.procedure,
+            "rig": self.rig,
+            "operator": self.operator,
+            "config_digest": self.config_digest,
+            "software_version": __version__,
+            "started": self.started,
+            "finished": finished,
+            "state": str(state),
+            "store_error": self.error,
+            "notes": self.notes,
+            "measurements": [m.as_dict() for m in measures],
+            "tolerances": {k: w.as_dict() for k, w in self.windows.items()},
+            "artifacts": artifacts,
+            "results": result.results_data(),
+        }
         path, tried = save_unsaved(self.url, record)
         self._close()
         return Stored(unsaved=path, error=self.error, tried=tuple(tried))
@@ -160,7 +187,7 @@ class Recorder:
             self._store.close()
             self._own_store = False
 
-    def __enter__(self) -> "Recorder":
+    def __enter__(self) -> Recorder:
         return self.begin()
 
     def __exit__(self, exc_type, exc, tb) -> Literal[False]:
@@ -168,18 +195,38 @@ class Recorder:
             if exc_type is None:
                 self.abort("the procedure ended without a result to store")
             elif self._handle is not None and not self._handle.done:
-                self._handle.__exit__(exc_type, exc, tb)     # aborted with the reason
+                self._handle.__exit__(exc_type, exc, tb)  # aborted with the reason
                 self._done = True
         self._close()
         return False
 
 
-def record(target, result: Analysis, *, rig: str = "", operator: str = "", config_digest: str = "",
-           tolerances=None, started: float | None = None, finished: float | None = None, notes: str = "",
-           artifacts=(), clock=time.time) -> Stored:
+def record(
+    target,
+    result: Analysis,
+    *,
+    rig: str = "",
+    operator: str = "",
+    config_digest: str = "",
+    tolerances=None,
+    started: float | None = None,
+    finished: float | None = None,
+    notes: str = "",
+    artifacts=(),
+    clock=time.time,
+) -> Stored:
     """Record an analysed ``result`` as a run of ``result.procedure``: begin and finish at once."""
-    rec = Recorder(target, result.procedure, rig=rig, operator=operator, config_digest=config_digest,
-                   tolerances=tolerances, started=started, notes=notes, clock=clock).begin()
+    rec = Recorder(
+        target,
+        result.procedure,
+        rig=rig,
+        operator=operator,
+        config_digest=config_digest,
+        tolerances=tolerances,
+        started=started,
+        notes=notes,
+        clock=clock,
+    ).begin()
     try:
         return rec.finish(result, artifacts=artifacts, finished=finished)
     except BaseException as exc:
@@ -197,20 +244,29 @@ def import_unsaved(store, path: str | Path) -> int:
     p = Path(path)
     doc = load_unsaved(p)
     done = p.with_name(p.name + ".imported")
-    check_target(done, "nothing was stored")   # a device, FIFO or link there: refused before it is stored
+    check_target(done, "nothing was stored")  # a device, FIFO or link there: refused before it is stored
     try:
         procedure, started = str(doc["procedure"]), float(doc["started"])
         windows = {str(k): Window(**w) for k, w in (doc.get("tolerances") or {}).items()}
         if windows:
             store.sync_tolerances(windows, at=started)
-        note = (f"imported from {p.name}: the store could not take it when it ran "
-                f"({doc.get('store_error', 'unknown reason')})")
-        with store.begin_run(procedure, rig=doc.get("rig", ""), operator=doc.get("operator", ""),
-                             config_digest=doc.get("config_digest", ""), started=started,
-                             software_version=doc.get("software_version"),
-                             notes=f"{doc['notes']}\n{note}" if doc.get("notes") else note) as h:
-            measures = [Measure(m["subject"], m["metric"], m["value"], m.get("unit", ""), State(m["state"]))
-                        for m in doc["measurements"]]
+        note = (
+            f"imported from {p.name}: the store could not take it when it ran "
+            f"({doc.get('store_error', 'unknown reason')})"
+        )
+        with store.begin_run(
+            procedure,
+            rig=doc.get("rig", ""),
+            operator=doc.get("operator", ""),
+            config_digest=doc.get("config_digest", ""),
+            started=started,
+            software_version=doc.get("software_version"),
+            notes=f"{doc['notes']}\n{note}" if doc.get("notes") else note,
+        ) as h:
+            measures = [
+                Measure(m["subject"], m["metric"], m["value"], m.get("unit", ""), State(m["state"]))
+                for m in doc["measurements"]
+            ]
             # an artifact gone since (or a folder named instead) is left out
             _write(h, measures, [a for a in doc.get("artifacts", []) if Path(a).is_file()], windows, at=started)
             run = h.finish(status=doc["state"], finished=float(doc.get("finished") or started))

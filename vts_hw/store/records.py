@@ -63,6 +63,7 @@ class Artifact:
 @dataclass(frozen=True)
 class OutboxItem:
     """A run to push to ``target``: its state, tries, the last error, and what it created there."""
+
     id: int
     run_id: int
     target: str
@@ -77,16 +78,33 @@ class OutboxItem:
 
 def run_from_row(row) -> Run:
     """A Run from a ``runs`` row (any mapping-like row with those columns)."""
-    return Run(id=row.id, procedure=row.procedure, rig=row.rig, started=row.started,
-               finished=row.finished, status=row.status, software_version=row.software_version,
-               config_digest=row.config_digest, operator=row.operator, notes=row.notes,
-               uid=row.uid)
+    return Run(
+        id=row.id,
+        procedure=row.procedure,
+        rig=row.rig,
+        started=row.started,
+        finished=row.finished,
+        status=row.status,
+        software_version=row.software_version,
+        config_digest=row.config_digest,
+        operator=row.operator,
+        notes=row.notes,
+        uid=row.uid,
+    )
 
 
 def measurement_from_row(row) -> Measurement:
-    return Measurement(id=row.id, run_id=row.run_id, started=row.started, subject=row.subject,
-                       metric=row.metric, value=row.value, unit=row.unit, status=State(row.status),
-                       tolerance_id=row.tolerance_id)
+    return Measurement(
+        id=row.id,
+        run_id=row.run_id,
+        started=row.started,
+        subject=row.subject,
+        metric=row.metric,
+        value=row.value,
+        unit=row.unit,
+        status=State(row.status),
+        tolerance_id=row.tolerance_id,
+    )
 
 
 def artifact_from_row(row) -> Artifact:
@@ -94,21 +112,31 @@ def artifact_from_row(row) -> Artifact:
 
 
 def outbox_from_row(row) -> OutboxItem:
-    return OutboxItem(id=row.id, run_id=row.run_id, target=row.target, key=row.key, state=row.state,
-                      attempts=row.attempts, last_error=row.last_error, created=row.created,
-                      updated=row.updated, remote=row.remote)
+    return OutboxItem(
+        id=row.id,
+        run_id=row.run_id,
+        target=row.target,
+        key=row.key,
+        state=row.state,
+        attempts=row.attempts,
+        last_error=row.last_error,
+        created=row.created,
+        updated=row.updated,
+        remote=row.remote,
+    )
 
 
 @dataclass(frozen=True)
 class User:
     """A console user as stored: ``password`` is the salted hash, never the password."""
+
     id: int
     name: str
     role: str
     password: str
     created: float
     changed: float
-    disabled: float | None   # when disabled; None: may log in
+    disabled: float | None  # when disabled; None: may log in
 
     @property
     def active(self) -> bool:
@@ -118,6 +146,7 @@ class User:
 @dataclass(frozen=True)
 class LoggedAction:
     """One row of the console's action log."""
+
     id: int
     at: float
     user: str

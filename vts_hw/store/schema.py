@@ -28,8 +28,20 @@ they were.
 
 from __future__ import annotations
 
-from sqlalchemy import (CheckConstraint, Column, Double, ForeignKey, Index, Integer, MetaData,
-                        String, Table, Text, UniqueConstraint, func)
+from sqlalchemy import (
+    CheckConstraint,
+    Column,
+    Double,
+    ForeignKey,
+    Index,
+    Integer,
+    MetaData,
+    String,
+    Table,
+    Text,
+    UniqueConstraint,
+    func,
+)
 
 from vts_hw.store.records import MEASUREMENT_STATUSES, OUTBOX_STATES, ROLES, RUN_STATUSES
 
@@ -47,14 +59,16 @@ NAMING = {
 metadata = MetaData(naming_convention=NAMING)
 
 schema_migrations = Table(
-    "schema_migrations", metadata,
+    "schema_migrations",
+    metadata,
     Column("version", Integer, primary_key=True, autoincrement=False),
     Column("applied", Double, nullable=False),
     Column("description", Text, nullable=False, server_default=""),
 )
 
 runs = Table(
-    "runs", metadata,
+    "runs",
+    metadata,
     Column("id", Integer, primary_key=True),
     Column("procedure", Text, nullable=False),
     Column("rig", Text, nullable=False, server_default=""),
@@ -79,7 +93,8 @@ Index("uq_runs_uid", runs.c.uid, unique=True)  # version 3
 Index(None, runs.c.rig, runs.c.procedure, runs.c.started)  # version 3
 
 tolerances = Table(
-    "tolerances", metadata,
+    "tolerances",
+    metadata,
     Column("id", Integer, primary_key=True),
     Column("metric", Text, nullable=False),
     Column("action_low", Double),
@@ -94,7 +109,8 @@ tolerances = Table(
 Index(None, tolerances.c.metric, tolerances.c.effective_from)
 
 measurements = Table(
-    "measurements", metadata,
+    "measurements",
+    metadata,
     Column("id", Integer, primary_key=True),
     Column("run_id", Integer, ForeignKey(runs.c.id), nullable=False),
     Column("subject", Text, nullable=False, server_default=""),
@@ -109,7 +125,8 @@ Index(None, measurements.c.run_id)
 Index(None, measurements.c.metric)
 
 artifacts = Table(
-    "artifacts", metadata,
+    "artifacts",
+    metadata,
     Column("id", Integer, primary_key=True),
     Column("run_id", Integer, ForeignKey(runs.c.id), nullable=False),
     Column("path", Text, nullable=False),
@@ -122,17 +139,18 @@ Index(None, artifacts.c.run_id)
 
 # version 3: one row per (run, target) to push; its state changes as the push progresses
 outbox = Table(
-    "outbox", metadata,
+    "outbox",
+    metadata,
     Column("id", Integer, primary_key=True),
     Column("run_id", Integer, ForeignKey(runs.c.id), nullable=False),
-    Column("target", Text, nullable=False),              # e.g. "qatrack"
-    Column("key", Text, nullable=False),                 # idempotency key sent with the push
+    Column("target", Text, nullable=False),  # e.g. "qatrack"
+    Column("key", Text, nullable=False),  # idempotency key sent with the push
     Column("state", String(16), nullable=False),
     Column("attempts", Integer, nullable=False, server_default="0"),
     Column("last_error", Text, nullable=False, server_default=""),
     Column("created", Double, nullable=False),
     Column("updated", Double, nullable=False),
-    Column("remote", Text, nullable=False, server_default=""),   # what the push created there (URL)
+    Column("remote", Text, nullable=False, server_default=""),  # what the push created there (URL)
     CheckConstraint(Column("state").in_(OUTBOX_STATES), name="state"),
     UniqueConstraint("target", "run_id", name="uq_outbox_target_run_id"),
 )
@@ -142,7 +160,8 @@ Index(None, outbox.c.state)
 # "scrypt$N$r$p$salt$hash" (base64), never the password; ``disabled`` the time a user was
 # disabled (None: may log in)
 users = Table(
-    "users", metadata,
+    "users",
+    metadata,
     Column("id", Integer, primary_key=True),
     Column("name", Text, nullable=False),
     Column("role", String(16), nullable=False),
@@ -156,13 +175,14 @@ users = Table(
 
 # version 4: the console's action log, append-only (who did what, with the role they had)
 actions = Table(
-    "actions", metadata,
+    "actions",
+    metadata,
     Column("id", Integer, primary_key=True),
     Column("at", Double, nullable=False),
     Column("user_name", Text, nullable=False),
     Column("role", Text, nullable=False, server_default=""),
     Column("what", Text, nullable=False),
-    Column("detail", Text, nullable=False, server_default="{}"),    # JSON; never a secret
+    Column("detail", Text, nullable=False, server_default="{}"),  # JSON; never a secret
     Column("rig", Text, nullable=False, server_default=""),
 )
 Index(None, actions.c.at)

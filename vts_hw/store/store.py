@@ -23,21 +23,39 @@ from sqlalchemy import Connection, CursorResult, insert, select, text, update
 from sqlalchemy.exc import ArgumentError, DBAPIError, NoSuchModuleError, SQLAlchemyError
 
 from vts_hw import __version__
-from vts_hw.tolerance import Window
 from vts_hw.store.engine import WRITE_OPTION, make_engine
 from vts_hw.store.errors import StoreError
 from vts_hw.store.handle import RunHandle
 from vts_hw.store.identity import allowed, connection_kind, sqlite_file_kind
 from vts_hw.store.liveness import host_name, is_alive, process_start
 from vts_hw.store.migrations import ensure_schema, stored_version
-from vts_hw.store.people import PeopleMixin
 from vts_hw.store.paths import StoreTarget, masked, sqlite_file, to_url
-from vts_hw.store.queries import (count_runs, select_artifacts, select_measurements, select_rigs, select_running_runs,
-                                 select_runs, select_runs_newest, select_tolerance_at, select_tolerances_at,
-                                 select_tolerances_by_id)
-from vts_hw.store.records import (OUTBOX_STATES, Artifact, Measurement, OutboxItem, Run, artifact_from_row,
-                                  measurement_from_row, outbox_from_row, run_from_row)
+from vts_hw.store.people import PeopleMixin
+from vts_hw.store.queries import (
+    count_runs,
+    select_artifacts,
+    select_measurements,
+    select_rigs,
+    select_running_runs,
+    select_runs,
+    select_runs_newest,
+    select_tolerance_at,
+    select_tolerances_at,
+    select_tolerances_by_id,
+)
+from vts_hw.store.records import (
+    OUTBOX_STATES,
+    Artifact,
+    Measurement,
+    OutboxItem,
+    Run,
+    artifact_from_row,
+    measurement_from_row,
+    outbox_from_row,
+    run_from_row,
+)
 from vts_hw.store.schema import SCHEMA_VERSION, outbox, runs, tolerances
+from vts_hw.tolerance import Window
 
 log = logging.getLogger(__name__)
 
@@ -45,8 +63,9 @@ log = logging.getLogger(__name__)
 SCHEMA_LOCK = 7007007
 WINDOWS_LOCK = 7007008
 
-_BAD_URL = ("the results database URL is not valid (expected e.g. sqlite:////path/results.sqlite "
-            "or postgresql://user@host/db)")
+_BAD_URL = (
+    "the results database URL is not valid (expected e.g. sqlite:////path/results.sqlite or postgresql://user@host/db)"
+)
 
 
 def _reason(exc: BaseException) -> str:
@@ -81,8 +100,14 @@ class ResultsStore(PeopleMixin):
     StoreError, and it is left byte-identical. The console's users and action log are
     people.py's (PeopleMixin)."""
 
-    def __init__(self, url: str | os.PathLike | StoreTarget | None = None, *, busy_timeout: float = 30.0,
-                 password_env: str | None = None, mode: str = "create"):
+    def __init__(
+        self,
+        url: str | os.PathLike | StoreTarget | None = None,
+        *,
+        busy_timeout: float = 30.0,
+        password_env: str | None = None,
+        mode: str = "create",
+    ):
         if isinstance(url, StoreTarget):
             password_env = password_env or url.password_env
         try:
@@ -93,7 +118,7 @@ class ResultsStore(PeopleMixin):
         self._engine = None
         backend = self._url.get_backend_name()
         path = sqlite_file(self._url)
-        if path is not None:   # before any connection of ours: it would switch the file's journal
+        if path is not None:  # before any connection of ours: it would switch the file's journal
             allowed(sqlite_file_kind(path, busy_timeout), mode, str(path), backend)
         self._new_file = path if path is not None and not os.path.lexists(path) else None
         try:
@@ -121,7 +146,7 @@ class ResultsStore(PeopleMixin):
         except (SQLAlchemyError, OSError) as exc:
             self._close_failed()
             raise StoreError(f"{self.url}: cannot open the results store ({_reason(exc)})") from exc
-        self.created = found == 0          # this open made the database a store
+        self.created = found == 0  # this open made the database a store
         if found == 0:
             log.info("%s: created results store (schema version %d)", self.url, now)
         elif found != now:
@@ -159,7 +184,7 @@ class ResultsStore(PeopleMixin):
         if self._engine is not None:
             self._engine.dispose()
 
-    def __enter__(self) -> "ResultsStore":
+    def __enter__(self) -> ResultsStore:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -206,8 +231,9 @@ class ResultsStore(PeopleMixin):
     # -- tolerance windows ----------------------------------------------------------------
 
     @staticmethod
-    def _set_tolerance(conn: Connection, metric: str, window: Window, effective_from: float,
-                       note: str) -> tuple[int, bool]:
+    def _set_tolerance(
+        conn: Connection, metric: str, window: Window, effective_from: float, note: str
+    ) -> tuple[int, bool]:
         if not isinstance(metric, str) or not metric:
             raise ValueError("a tolerance window needs a metric name")
         if not isinstance(window, Window):
@@ -215,14 +241,22 @@ class ResultsStore(PeopleMixin):
         current = conn.execute(select_tolerance_at(metric, effective_from)).first()
         if current is not None and _window(current) == window:
             return current.id, False
-        new = conn.execute(insert(tolerances).values(
-            metric=metric, action_low=window.action_low, tolerance_low=window.tolerance_low,
-            tolerance_high=window.tolerance_high, action_high=window.action_high, unit=window.unit,
-            effective_from=effective_from, recorded=time.time(), note=note))
+        new = conn.execute(
+            insert(tolerances).values(
+                metric=metric,
+                action_low=window.action_low,
+                tolerance_low=window.tolerance_low,
+                tolerance_high=window.tolerance_high,
+                action_high=window.action_high,
+                unit=window.unit,
+                effective_from=effective_from,
+                recorded=time.time(),
+                note=note,
+            )
+        )
         return _new_id(new), True
 
-    def set_tolerance(self, metric: str, window: Window, effective_from: float | None = None,
-                      note: str = "") -> int:
+    def set_tolerance(self, metric: str, window: Window, effective_from: float | None = None, note: str = "") -> int:
         """Add a window for ``metric`` taking effect at ``effective_from`` (default now); return its id.
 
         History is append-only: nothing already stored changes. If the window in effect at
@@ -260,9 +294,16 @@ class ResultsStore(PeopleMixin):
 
     # -- runs -----------------------------------------------------------------------------
 
-    def begin_run(self, procedure: str, rig: str = "", operator: str = "", notes: str = "",
-                  config_digest: str = "", software_version: str | None = None,
-                  started: float | None = None) -> RunHandle:
+    def begin_run(
+        self,
+        procedure: str,
+        rig: str = "",
+        operator: str = "",
+        notes: str = "",
+        config_digest: str = "",
+        software_version: str | None = None,
+        started: float | None = None,
+    ) -> RunHandle:
         """Commit a "running" row for a new run (with this host, pid and process start, and a
         new uid) and return its handle. ``software_version`` None means vts_hw.__version__."""
         if not isinstance(procedure, str) or not procedure:
@@ -271,11 +312,23 @@ class ResultsStore(PeopleMixin):
             software_version = __version__
         when = time.time() if started is None else float(started)
         with self._write() as conn:
-            new = conn.execute(insert(runs).values(
-                procedure=procedure, rig=rig, started=when, finished=None, status="running",
-                software_version=software_version, config_digest=config_digest, operator=operator,
-                notes=notes, host=host_name(), pid=os.getpid(), process_start=process_start(),
-                uid=uuid.uuid4().hex))
+            new = conn.execute(
+                insert(runs).values(
+                    procedure=procedure,
+                    rig=rig,
+                    started=when,
+                    finished=None,
+                    status="running",
+                    software_version=software_version,
+                    config_digest=config_digest,
+                    operator=operator,
+                    notes=notes,
+                    host=host_name(),
+                    pid=os.getpid(),
+                    process_start=process_start(),
+                    uid=uuid.uuid4().hex,
+                )
+            )
             run_id = _new_id(new)
         return RunHandle(self, run_id, when)
 
@@ -286,8 +339,11 @@ class ResultsStore(PeopleMixin):
             if row is None or row.status != "running":
                 return False
             notes = f"{row.notes}\n{note}" if row.notes else note
-            conn.execute(update(runs).where(runs.c.id == run_id, runs.c.status == "running")
-                         .values(status=status, notes=notes, finished=finished))
+            conn.execute(
+                update(runs)
+                .where(runs.c.id == run_id, runs.c.status == "running")
+                .values(status=status, notes=notes, finished=finished)
+            )
         return True
 
     def mark_dead_runs_aborted(self) -> int:
@@ -301,23 +357,27 @@ class ResultsStore(PeopleMixin):
         n = 0
         for r in rows:
             if is_alive(r.pid, r.process_start) is False:
-                stamp = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-                note = (f"aborted: its process (pid {r.pid} on {me}) ended without finishing the run "
-                        f"(found {stamp})")
+                stamp = _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
+                note = f"aborted: its process (pid {r.pid} on {me}) ended without finishing the run (found {stamp})"
                 if self._end_run(r.id, "aborted", note, finished=None):
                     n += 1
-                    log.warning("%s: run %d was left running by a process that is gone; marked aborted",
-                                self.url, r.id)
+                    log.warning("%s: run %d was left running by a process that is gone; marked aborted", self.url, r.id)
         return n
 
-    def runs(self, procedure: str | tuple | None = None, since: float | None = None,
-             status=None) -> list[Run]:
+    def runs(self, procedure: str | tuple | None = None, since: float | None = None, status=None) -> list[Run]:
         """Runs, oldest first; procedure and status may be one value or a tuple."""
         with self._read() as conn:
             return [run_from_row(r) for r in conn.execute(select_runs(procedure, since, status))]
 
-    def runs_page(self, procedure=None, status=None, start: float | None = None, end: float | None = None,
-                  limit: int = 50, offset: int = 0) -> tuple[list[Run], int]:
+    def runs_page(
+        self,
+        procedure=None,
+        status=None,
+        start: float | None = None,
+        end: float | None = None,
+        limit: int = 50,
+        offset: int = 0,
+    ) -> tuple[list[Run], int]:
         """One page of runs, newest first, and how many runs the filters keep in all (one
         snapshot). ``procedure``/``status``: one value or a tuple; ``start``/``end``: the runs
         started in [start, end) (UTC epoch seconds)."""
@@ -353,9 +413,14 @@ class ResultsStore(PeopleMixin):
             row = conn.execute(select(runs).where(runs.c.uid == str(uid))).first()
         return None if row is None else run_from_row(row)
 
-    def measurements(self, procedure: str | tuple | None = None, metric: str | tuple | None = None,
-                     subject: str | None = None, since: float | None = None,
-                     run_id: int | None = None) -> list[Measurement]:
+    def measurements(
+        self,
+        procedure: str | tuple | None = None,
+        metric: str | tuple | None = None,
+        subject: str | None = None,
+        since: float | None = None,
+        run_id: int | None = None,
+    ) -> list[Measurement]:
         """Measurements, ordered by their run's start, then id."""
         q = select_measurements(procedure, metric, subject, since, run_id)
         with self._read() as conn:
@@ -375,9 +440,19 @@ class ResultsStore(PeopleMixin):
             q = select(outbox).where(outbox.c.target == target, outbox.c.run_id == run_id)
             row = conn.execute(q).first()
             if row is None:
-                conn.execute(insert(outbox).values(run_id=run_id, target=target, key=key, state="pending",
-                                                   attempts=0, last_error="", created=now, updated=now,
-                                                   remote=""))
+                conn.execute(
+                    insert(outbox).values(
+                        run_id=run_id,
+                        target=target,
+                        key=key,
+                        state="pending",
+                        attempts=0,
+                        last_error="",
+                        created=now,
+                        updated=now,
+                        remote="",
+                    )
+                )
                 row = conn.execute(q).one()
         return outbox_from_row(row)
 

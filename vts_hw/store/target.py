@@ -23,19 +23,24 @@ ENV_STORE_PASSWORD_ENV = "VTS_STORE_PASSWORD_ENV"
 _ENV_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 
-def checked(url: str | None, password_env: str | None, source: str,
-            password_option: str = "--store-password-env") -> StoreTarget:
+def checked(
+    url: str | None, password_env: str | None, source: str, password_option: str = "--store-password-env"
+) -> StoreTarget:
     """A StoreTarget for a URL given by a user (``source`` names where: "--store", ...);
     UsageError (exit 2) for a URL that does not parse, holds a password, or a bad variable name."""
     if url is not None and "://" in url:
         try:
             parsed = to_url(url)
         except ArgumentError:
-            raise UsageError(f"{source}: {url!r} is not a database URL (expected e.g. "
-                             "sqlite:////path/results.sqlite or postgresql://user@host/db)") from None
+            raise UsageError(
+                f"{source}: {url!r} is not a database URL (expected e.g. "
+                "sqlite:////path/results.sqlite or postgresql://user@host/db)"
+            ) from None
         if parsed.password is not None:
-            raise UsageError(f"{source}: the database URL holds a password; remove it and put the password "
-                             f"in an environment variable named by {password_option}")
+            raise UsageError(
+                f"{source}: the database URL holds a password; remove it and put the password "
+                f"in an environment variable named by {password_option}"
+            )
     if password_env is not None and not _ENV_NAME.match(password_env):
         raise UsageError(f"{source}: {password_env!r} is not an environment variable name")
     return StoreTarget(url=url or None, password_env=password_env or None, source=source)
@@ -53,6 +58,7 @@ def resolve_target(cli_url: str | None = None, cli_password_env: str | None = No
         return checked(env_url, cli_password_env or env_pw, f"${ENV_STORE}")
     section = getattr(rig, "store", None)
     if section is not None and section.url:
-        return StoreTarget(url=section.url, password_env=cli_password_env or section.password_env,
-                           source="rig.yaml store.url")
+        return StoreTarget(
+            url=section.url, password_env=cli_password_env or section.password_env, source="rig.yaml store.url"
+        )
     return StoreTarget(url=None, password_env=None, source="default")

@@ -42,7 +42,7 @@ def candidate_folders(url: str | None) -> list[Path]:
 def save_unsaved(url: str | None, run: dict) -> tuple[Path | None, list[str]]:
     """Write ``run`` (see :func:`vts_hw.store.recorder.import_unsaved` for its keys) to the first place that takes
     it; return the path (None if none did) and why the places before it failed."""
-    stamp = _dt.datetime.fromtimestamp(run.get("started") or 0, _dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    stamp = _dt.datetime.fromtimestamp(run.get("started") or 0, _dt.UTC).strftime("%Y%m%dT%H%M%SZ")
     name = f"{run.get('procedure', 'run')}-{stamp}-{socket.gethostname()}-{os.getpid()}.json"
     doc = {"format": FORMAT, **run}
     tried: list[str] = []
@@ -54,7 +54,7 @@ def save_unsaved(url: str | None, run: dict) -> tuple[Path | None, list[str]]:
             return write_json_atomic(folder / name, doc, mode=PRIVATE), tried
         except (OSError, WriteFailed) as exc:
             tried.append(f"{folder}: {exc}")
-            if made:                 # an empty unsaved/ made here would look like a place runs wait in
+            if made:  # an empty unsaved/ made here would look like a place runs wait in
                 with contextlib.suppress(OSError):
                     folder.rmdir()
     return None, tried

@@ -115,7 +115,7 @@ def _lower_hull(xs: np.ndarray, ys: np.ndarray) -> tuple[np.ndarray, np.ndarray]
             if i0 is not None and (v == n - 1).any():
                 ring = np.roll(v, -i0)  # from the leftmost point, counter-clockwise: the bottom
                 end = int(np.flatnonzero(ring == n - 1)[0])
-                idx = ring[:end + 1]
+                idx = ring[: end + 1]
                 if np.all(np.diff(idx) > 0):
                     return xs[idx], ys[idx]
         except Exception:  # noqa: BLE001 - Qhull's degenerate-input errors: use the fallback
@@ -228,20 +228,35 @@ class ClockFit:
         }
 
     @classmethod
-    def from_summary(cls, d: dict) -> "ClockFit":
+    def from_summary(cls, d: dict) -> ClockFit:
         """Rebuild the map (not the residuals) from :meth:`summary`."""
-        return cls(d["ref_camera_time"], d["intercept_s"], d["rate"], d.get("latency_s", 0.0),
-                   d.get("tick_s", TICK_S), d.get("frames", 0), d.get("frames_used", 0),
-                   _nan(d.get("first_camera_time")), _nan(d.get("last_camera_time")),
-                   _nan(d.get("uncertainty_s")), rate_measured=d.get("rate_measured", True))
+        return cls(
+            d["ref_camera_time"],
+            d["intercept_s"],
+            d["rate"],
+            d.get("latency_s", 0.0),
+            d.get("tick_s", TICK_S),
+            d.get("frames", 0),
+            d.get("frames_used", 0),
+            _nan(d.get("first_camera_time")),
+            _nan(d.get("last_camera_time")),
+            _nan(d.get("uncertainty_s")),
+            rate_measured=d.get("rate_measured", True),
+        )
 
 
 def _nan(v) -> float:
     return math.nan if v is None else float(v)
 
 
-def fit_camera_clock(camera_times, host_times, latency_s: float = 0.0, tick_s: float = TICK_S,
-                     blocks: int = 10, dequantise_stamps: bool = True) -> ClockFit:
+def fit_camera_clock(
+    camera_times,
+    host_times,
+    latency_s: float = 0.0,
+    tick_s: float = TICK_S,
+    blocks: int = 10,
+    dequantise_stamps: bool = True,
+) -> ClockFit:
     """Fit the camera → host map of one camera from its frames' times (see the module doc).
 
     ``camera_times``: the JPEG stamps (camera epoch s; None/NaN where a frame had none);
@@ -258,8 +273,9 @@ def fit_camera_clock(camera_times, host_times, latency_s: float = 0.0, tick_s: f
     ok = np.isfinite(c_all) & np.isfinite(h_all)
     c, h = c_all[ok], h_all[ok]
     if c.size < 2:
-        raise DataError(f"the camera clock fit needs at least 2 frames with both a camera time "
-                        f"and a host time, got {c.size}")
+        raise DataError(
+            f"the camera clock fit needs at least 2 frames with both a camera time and a host time, got {c.size}"
+        )
     est = dequantise(c, tick_s) if dequantise_stamps else None
     if est is not None:
         c = est
@@ -268,14 +284,27 @@ def fit_camera_clock(camera_times, host_times, latency_s: float = 0.0, tick_s: f
     y = h - c
     a, k = lower_envelope(x, y)
     measured = abs(k) <= MAX_RATE
-    if not measured:                  # a delay growing to the end, not a clock: see MAX_RATE
+    if not measured:  # a delay growing to the end, not a clock: see MAX_RATE
         a, k = lower_envelope(x, y, MAX_RATE)
     res = np.full(c_all.shape, np.nan)
     res[ok] = y - (a + k * x)
     frame_c = np.full(c_all.shape, np.nan)
     frame_c[ok] = c
-    fit = ClockFit(ref, a, k, float(latency_s), float(tick_s), int(c_all.size), int(c.size),
-                   float(c.min()), float(c.max()), math.nan, res, frame_c, est is not None)
+    fit = ClockFit(
+        ref,
+        a,
+        k,
+        float(latency_s),
+        float(tick_s),
+        int(c_all.size),
+        int(c.size),
+        float(c.min()),
+        float(c.max()),
+        math.nan,
+        res,
+        frame_c,
+        est is not None,
+    )
     fit.uncertainty_s = _jackknife(x, y, a, k, blocks)
     if not measured:
         fit.rate_measured = False
@@ -336,7 +365,7 @@ def _jackknife(x, y, a, k, blocks: int) -> float:
     preds = []
     for b in range(blocks):
         keep = np.ones(n, bool)
-        keep[edges[b]:edges[b + 1]] = False
+        keep[edges[b] : edges[b + 1]] = False
         if len(np.unique(x[keep])) < 2:
             continue
         ab, kb = lower_envelope(x[keep], y[keep], MAX_RATE)
@@ -357,8 +386,7 @@ def fit_recording_clocks(folder, latency_s: float = 0.0) -> dict[str, ClockFit]:
     for idx in sorted(folder.glob("*.index.csv")):
         name = idx.name[: -len(".index.csv")]
         rows = read_index(idx)
-        out[name] = fit_camera_clock([r.camera_time for r in rows], [r.host_time for r in rows],
-                                     latency_s)
+        out[name] = fit_camera_clock([r.camera_time for r in rows], [r.host_time for r in rows], latency_s)
     if not out:
         raise DataError(f"{folder}: no camera indexes (*.index.csv) in this folder")
     return out

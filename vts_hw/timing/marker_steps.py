@@ -35,8 +35,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.special import ndtr
 
-__all__ = ["StepCandidate", "StepFit", "find_steps", "fit_step", "mid_crossing", "match_events",
-           "robust_sd"]
+__all__ = ["StepCandidate", "StepFit", "find_steps", "fit_step", "mid_crossing", "match_events", "robust_sd"]
 
 
 @dataclass(frozen=True)
@@ -63,8 +62,7 @@ class StepFit:
     method: str
 
     def to_json(self) -> dict:
-        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
-                for k, v in asdict(self).items()}
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in asdict(self).items()}
 
 
 def robust_sd(x) -> float:
@@ -85,13 +83,21 @@ def _side_medians(t, z, grid, window_s, min_n):
     right = np.full(grid.size, np.nan)
     for i in range(grid.size):
         if mid[i] - lo[i] >= min_n and hi[i] - mid[i] >= min_n:
-            left[i] = np.median(z[lo[i]:mid[i]])
-            right[i] = np.median(z[mid[i]:hi[i]])
+            left[i] = np.median(z[lo[i] : mid[i]])
+            right[i] = np.median(z[mid[i] : hi[i]])
     return left, right
 
 
-def find_steps(t, z, *, window_s: float = 0.5, grid_s: float = 0.02, min_step_mm: float = 4.0,
-               min_separation_s: float = 1.0, min_fill: float = 0.5) -> list[StepCandidate]:
+def find_steps(
+    t,
+    z,
+    *,
+    window_s: float = 0.5,
+    grid_s: float = 0.02,
+    min_step_mm: float = 4.0,
+    min_separation_s: float = 1.0,
+    min_fill: float = 0.5,
+) -> list[StepCandidate]:
     """Steps in a trace ``z(t)`` (s, mm; NaN samples ignored), in time order.
 
     A grid time counts only when both sides hold at least ``min_fill`` of the samples the
@@ -127,9 +133,9 @@ def find_steps(t, z, *, window_s: float = 0.5, grid_s: float = 0.02, min_step_mm
         j = i
         while j + 1 < grid.size and above[j + 1] and sign[j + 1] == sign[i]:
             j += 1
-        seg = np.abs(d[i:j + 1])
-        top = seg >= 0.9 * seg.max()       # the plateau of the difference: centred on the step
-        cands.append(StepCandidate(float(np.mean(grid[i:j + 1][top])), float(d[i + int(np.argmax(seg))])))
+        seg = np.abs(d[i : j + 1])
+        top = seg >= 0.9 * seg.max()  # the plateau of the difference: centred on the step
+        cands.append(StepCandidate(float(np.mean(grid[i : j + 1][top])), float(d[i + int(np.argmax(seg))])))
         i = j + 1
     merged: list[StepCandidate] = []
     for c in cands:
@@ -141,8 +147,7 @@ def find_steps(t, z, *, window_s: float = 0.5, grid_s: float = 0.02, min_step_mm
     return merged
 
 
-def mid_crossing(t, z, t_guess: float, z_before: float, z_after: float,
-                 half_window_s: float = 0.5) -> float:
+def mid_crossing(t, z, t_guess: float, z_before: float, z_after: float, half_window_s: float = 0.5) -> float:
     """Where ``z`` first crosses half-way between the two levels near ``t_guess``, linearly
     interpolated between the two samples around the crossing (nan when it does not)."""
     t = np.asarray(t, float)
@@ -161,8 +166,17 @@ def mid_crossing(t, z, t_guess: float, z_before: float, z_after: float,
     return float(t[k] + f * (t[k + 1] - t[k]))
 
 
-def fit_step(t, z, t_guess: float, *, half_window_s: float = 0.8, noise_mm: float | None = None,
-             min_width_s: float = 0.002, max_width_s: float = 0.4, method: str = "") -> StepFit:
+def fit_step(
+    t,
+    z,
+    t_guess: float,
+    *,
+    half_window_s: float = 0.8,
+    noise_mm: float | None = None,
+    min_width_s: float = 0.002,
+    max_width_s: float = 0.4,
+    method: str = "",
+) -> StepFit:
     """Fit ``a + b·Φ((t − t0)/s)`` to the samples within ``half_window_s`` of ``t_guess``.
 
     ``noise_mm``: the samples' SD (sets the soft-L1 loss's scale; default from the data).
@@ -173,10 +187,16 @@ def fit_step(t, z, t_guess: float, *, half_window_s: float = 0.8, noise_mm: floa
     tt, zz = t[sel] - t_guess, z[sel]
     if tt.size < 8 or (tt < 0).sum() < 3 or (tt > 0).sum() < 3:
         raise ValueError(f"too few samples around {t_guess:.3f} s to fit a step")
-    before = float(np.median(zz[tt < -0.25 * half_window_s])) if (tt < -0.25 * half_window_s).sum() >= 3 \
+    before = (
+        float(np.median(zz[tt < -0.25 * half_window_s]))
+        if (tt < -0.25 * half_window_s).sum() >= 3
         else float(np.median(zz[tt < 0]))
-    after = float(np.median(zz[tt > 0.25 * half_window_s])) if (tt > 0.25 * half_window_s).sum() >= 3 \
+    )
+    after = (
+        float(np.median(zz[tt > 0.25 * half_window_s]))
+        if (tt > 0.25 * half_window_s).sum() >= 3
         else float(np.median(zz[tt > 0]))
+    )
     scale = noise_mm if noise_mm and noise_mm > 0 else max(robust_sd(np.diff(zz)) / math.sqrt(2.0), 1e-3)
 
     def model(p, x):
@@ -189,11 +209,17 @@ def fit_step(t, z, t_guess: float, *, half_window_s: float = 0.8, noise_mm: floa
     p0 = np.array([before, after - before, 0.0, 0.06])
     lo = [-np.inf, -np.inf, -half_window_s, min_width_s]
     hi = [np.inf, np.inf, half_window_s, max_width_s]
-    res = least_squares(resid, p0, bounds=(lo, hi), loss="soft_l1", f_scale=2.0 * scale,
-                        x_scale=[scale, max(abs(p0[1]), scale), 0.01, 0.01])
+    res = least_squares(
+        resid,
+        p0,
+        bounds=(lo, hi),
+        loss="soft_l1",
+        f_scale=2.0 * scale,
+        x_scale=[scale, max(abs(p0[1]), scale), 0.01, 0.01],
+    )
     a, b, t0, s = res.x
     r = resid(res.x)
-    rms = float(np.sqrt(np.mean(r ** 2)))
+    rms = float(np.sqrt(np.mean(r**2)))
     # standard error of t0: the Gauss-Newton covariance with a robust residual scale
     J = res.jac
     try:
@@ -201,9 +227,17 @@ def fit_step(t, z, t_guess: float, *, half_window_s: float = 0.8, noise_mm: floa
         err = float(math.sqrt(max(cov[2, 2], 0.0)))
     except np.linalg.LinAlgError:
         err = math.nan
-    return StepFit(t_mid=float(t_guess + t0), t_err_s=err, step_mm=float(b), z_before=float(a),
-                   z_after=float(a + b), width_s=float(s), n=int(tt.size), rms_mm=rms,
-                   method=method or "edge fit (normal-CDF step, soft-L1)")
+    return StepFit(
+        t_mid=float(t_guess + t0),
+        t_err_s=err,
+        step_mm=float(b),
+        z_before=float(a),
+        z_after=float(a + b),
+        width_s=float(s),
+        n=int(tt.size),
+        rms_mm=rms,
+        method=method or "edge fit (normal-CDF step, soft-L1)",
+    )
 
 
 def match_events(t_a, step_a, t_b, step_b, max_dt_s: float = 0.5) -> list[tuple[int | None, int | None]]:
@@ -231,4 +265,5 @@ def match_events(t_a, step_a, t_b, step_b, max_dt_s: float = 0.5) -> list[tuple[
     def when(p):
         i, j = p
         return t_a[i] if i is not None else t_b[j]
+
     return sorted(pairs, key=when)

@@ -26,8 +26,7 @@ __all__ = ["triangulate_fast"]
 
 # ------------------------------------------------------------------ stereo triangulation
 def _project_many(cam: PinholeCamera, X: np.ndarray) -> np.ndarray:
-    uv, _ = cv2.projectPoints(np.ascontiguousarray(X, float).reshape(-1, 1, 3), cam.rvec, cam.t,
-                              cam.K, cam.dist)
+    uv, _ = cv2.projectPoints(np.ascontiguousarray(X, float).reshape(-1, 1, 3), cam.rvec, cam.t, cam.K, cam.dist)
     return uv.reshape(-1, 2)
 
 
@@ -37,9 +36,15 @@ def _damped(N: np.ndarray) -> np.ndarray:
     return N + (1e-12 * np.trace(N, axis1=1, axis2=2))[:, None, None] * np.eye(3)
 
 
-def triangulate_fast(cam_a: PinholeCamera, cam_b: PinholeCamera, pts_a: np.ndarray, pts_b: np.ndarray,
-                     norm_a: np.ndarray | None = None, norm_b: np.ndarray | None = None,
-                     iterations: int = 1) -> tuple[np.ndarray, np.ndarray]:
+def triangulate_fast(
+    cam_a: PinholeCamera,
+    cam_b: PinholeCamera,
+    pts_a: np.ndarray,
+    pts_b: np.ndarray,
+    norm_a: np.ndarray | None = None,
+    norm_b: np.ndarray | None = None,
+    iterations: int = 1,
+) -> tuple[np.ndarray, np.ndarray]:
     """3D points (Mx3, mm) and reprojection RMS (M, px) of M point pairs (pixels, Mx2 each),
     vectorised: linear triangulation (DLT, inhomogeneous least squares) on normalized
     (undistorted) coordinates — given, or computed here — then ``iterations`` Gauss-Newton
@@ -86,7 +91,7 @@ def triangulate_fast(cam_a: PinholeCamera, cam_b: PinholeCamera, pts_a: np.ndarr
         dX = np.linalg.solve(_damped(JT @ J), -(JT @ r[..., None]))[..., 0]
         X = X + dX
     r = np.concatenate([_project_many(cam_a, X), _project_many(cam_b, X)], axis=1) - obs
-    return X, np.sqrt(np.mean(r ** 2, axis=1))
+    return X, np.sqrt(np.mean(r**2, axis=1))
 
 
 # ------------------------------------------------------------------ worker side
@@ -129,7 +134,7 @@ def _read_span(path: str, offsets: np.ndarray, lengths: np.ndarray) -> list[np.n
             out.append(np.zeros(0, np.uint8))
             continue
         a = o - start
-        out.append(buf[a:a + n] if a + n <= len(buf) else None)
+        out.append(buf[a : a + n] if a + n <= len(buf) else None)
     return out
 
 
@@ -138,7 +143,7 @@ def _detect_frames(path: str, offsets, lengths, settings: DetectorSettings):
     out: list[np.ndarray | None] = []
     for jpeg in _read_span(path, offsets, lengths):
         if jpeg is not None and len(jpeg) == 0:
-            out.append(np.zeros((0, 2)))   # this camera has no frame in the set
+            out.append(np.zeros((0, 2)))  # this camera has no frame in the set
             continue
         gray = cv2.imdecode(jpeg, cv2.IMREAD_GRAYSCALE) if jpeg is not None else None
         if gray is None:
@@ -153,8 +158,15 @@ def _ideal(cam: PinholeCamera, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     """Normalized and ideal-pixel (undistorted, K kept) coordinates of pixel points."""
     if len(pts) == 0:
         return np.zeros((0, 2)), np.zeros((0, 2))
-    n = cv2.undistortPoints(pts.reshape(-1, 1, 2), cam.K, cam.dist, None, None, None,
-                            (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14)).reshape(-1, 2)
+    n = cv2.undistortPoints(
+        pts.reshape(-1, 1, 2),
+        cam.K,
+        cam.dist,
+        None,
+        None,
+        None,
+        (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14),
+    ).reshape(-1, 2)
     return n, n @ cam.K[:2, :2].T + cam.K[:2, 2]
 
 
@@ -172,7 +184,7 @@ def _match_chunk(F, s, cams, flat, n: int, per_side: bool = False):
     (pa, _, xa, sa), (pb, _, xb, sb) = flat
     na, nb = np.diff(sa), np.diff(sb)
     fa = np.repeat(np.arange(n), na)  # frame of each point of a
-    rep = nb[fa]                       # same-frame b points per a point
+    rep = nb[fa]  # same-frame b points per a point
     ia = np.repeat(np.arange(len(xa)), rep)
     first = np.repeat(np.cumsum(rep) - rep, rep)
     ib = np.repeat(sb[:-1][fa], rep) + (np.arange(len(ia)) - first)
@@ -182,7 +194,7 @@ def _match_chunk(F, s, cams, flat, n: int, per_side: bool = False):
     ha = np.column_stack([xa, np.ones(len(xa))])
     hb = np.column_stack([xb, np.ones(len(xb))])
     la = ha @ F.T  # each a point's epipolar line in image b
-    lb = hb @ F    # each b point's line in image a
+    lb = hb @ F  # each b point's line in image a
     la /= np.hypot(la[:, 0], la[:, 1])[:, None]
     lb /= np.hypot(lb[:, 0], lb[:, 1])[:, None]
     d_b = np.abs(np.einsum("ij,ij->i", la[ia], hb[ib]))
@@ -197,8 +209,9 @@ def _match_chunk(F, s, cams, flat, n: int, per_side: bool = False):
     keep = gate & ~hard[fa[ia]]
     out_a, out_b = [ia[keep]], [ib[keep]]
     for k in np.flatnonzero(hard).tolist():
-        m = match_epipolar(cams[0], pa[sa[k]:sa[k + 1]], cams[1], pb[sb[k]:sb[k + 1]],
-                           s.max_px, s.ratio, s.min_sep_px)
+        m = match_epipolar(
+            cams[0], pa[sa[k] : sa[k + 1]], cams[1], pb[sb[k] : sb[k + 1]], s.max_px, s.ratio, s.min_sep_px
+        )
         ambiguous[k] = [sum(p.side == s for p in m.ambiguous) for s in "ab"]
         if m.pairs:
             pr = np.array(m.pairs, int)
@@ -225,7 +238,7 @@ def _process_chunk(task):
     counts = np.zeros((n, C), int)
     failed = np.zeros((n, C), bool)
     flat = []
-    for c, det in enumerate(dets):     # undistort every point of the chunk at once, per camera
+    for c, det in enumerate(dets):  # undistort every point of the chunk at once, per camera
         sizes = [0 if d is None else len(d) for d in det]
         counts[:, c] = np.where(spans[c][0] < 0, -1, sizes)
         failed[:, c] = [d is None for d in det]
@@ -240,10 +253,9 @@ def _process_chunk(task):
 def _stereo(k0, s, cams, flat, n, counts, failed):
     ia, ib, fk, ambiguous = _match_chunk(_W["F"], s, cams, flat, n, per_side=True)
     if len(ia):
-        X, rms = triangulate_fast(cams[0], cams[1], flat[0][0][ia], flat[1][0][ib],
-                                  flat[0][1][ia], flat[1][1][ib])
+        X, rms = triangulate_fast(cams[0], cams[1], flat[0][0][ia], flat[1][0][ib], flat[0][1][ia], flat[1][1][ib])
         uv = np.concatenate([flat[0][0][ia], flat[1][0][ib]], axis=1)
-        fit = rms <= s.max_rms_px        # a pair that fits this badly is no point (as N views)
+        fit = rms <= s.max_rms_px  # a pair that fits this badly is no point (as N views)
         X, rms, uv, fk = X[fit], rms[fit], uv[fit], fk[fit]
         pair = k0 + fk
     else:
@@ -260,8 +272,8 @@ def _multiview(k0, s, flat, n, counts, failed):
     single = np.zeros((n, C), int)
     pair, X, rms, uv = [], [], [], []
     for k in range(n):
-        pts = [f[0][f[3][k]:f[3][k + 1]] for f in flat]
-        norm = [f[1][f[3][k]:f[3][k + 1]] for f in flat]
+        pts = [f[0][f[3][k] : f[3][k + 1]] for f in flat]
+        norm = [f[1][f[3][k] : f[3][k + 1]] for f in flat]
         m = match_views(geo, pts, s.max_px, s.ratio, s.views_min_sep_px, norm=norm, max_rms_px=s.max_rms_px)
         for amb in m.ambiguous:
             for c in range(C):
@@ -271,10 +283,19 @@ def _multiview(k0, s, flat, n, counts, failed):
             row = np.full(2 * C, np.nan)
             for c, d in enumerate(p.detections):
                 if d >= 0:
-                    row[2 * c:2 * c + 2] = pts[c][d]
+                    row[2 * c : 2 * c + 2] = pts[c][d]
             pair.append(k0 + k)
             X.append(p.xyz)
             rms.append(p.rms_px)
             uv.append(row)
-    return (k0, np.array(pair, int), np.array(X).reshape(-1, 3), np.array(rms, float),
-            np.array(uv).reshape(-1, 2 * C), counts, failed, ambiguous, single)
+    return (
+        k0,
+        np.array(pair, int),
+        np.array(X).reshape(-1, 3),
+        np.array(rms, float),
+        np.array(uv).reshape(-1, 2 * C),
+        counts,
+        failed,
+        ambiguous,
+        single,
+    )

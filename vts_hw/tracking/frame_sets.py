@@ -57,11 +57,16 @@ def mapped_times(cf: CameraFrames, latency_s: float):
         fit = fit_camera_clock(cf.camera_time, cf.host_time, latency_s)
     except DataError:
         if np.isfinite(cf.host_time).sum() >= 2:
-            return cf.host_time - latency_s, None, [
-                f"{cf.name}: no camera clock fit (too few stamped frames with a receive time); "
-                "receive times used"]
-        return cf.camera_time.copy(), None, [
-            f"{cf.name}: no host receive times; the camera's own clock used as host time"]
+            return (
+                cf.host_time - latency_s,
+                None,
+                [f"{cf.name}: no camera clock fit (too few stamped frames with a receive time); receive times used"],
+            )
+        return (
+            cf.camera_time.copy(),
+            None,
+            [f"{cf.name}: no host receive times; the camera's own clock used as host time"],
+        )
     t = np.atleast_1d(fit.frame_host_times()).copy()
     missing = ~np.isfinite(t)
     if missing.any():
@@ -76,24 +81,25 @@ def mapped_times(cf: CameraFrames, latency_s: float):
 @dataclass(slots=True)
 class Pending:
     """One camera's frame waiting for its set."""
+
     camera: int
-    time: float              # host s
-    arrival: float           # monotonic s it arrived at the tap (offline: unused, 0)
-    uv: np.ndarray           # (k, 2) detections (px)
-    norm: np.ndarray | None = None   # their normalized (undistorted) coordinates
-    capture: float | None = None     # monotonic s it was captured (arrival less its extra delay)
-    index: int = -1                  # its place in its camera's frames (offline)
+    time: float  # host s
+    arrival: float  # monotonic s it arrived at the tap (offline: unused, 0)
+    uv: np.ndarray  # (k, 2) detections (px)
+    norm: np.ndarray | None = None  # their normalized (undistorted) coordinates
+    capture: float | None = None  # monotonic s it was captured (arrival less its extra delay)
+    index: int = -1  # its place in its camera's frames (offline)
 
 
 @dataclass(slots=True)
 class FrameSet:
-    time: float                      # mean host s of its frames
-    uv: list[np.ndarray | None]      # per camera its detections, None: not in the set
-    norm: list[np.ndarray | None]    # and their normalized coordinates
+    time: float  # mean host s of its frames
+    uv: list[np.ndarray | None]  # per camera its detections, None: not in the set
+    norm: list[np.ndarray | None]  # and their normalized coordinates
     first_arrival: float
     last_arrival: float
-    capture: float = 0.0             # monotonic s its frames were captured (mean; see Pending)
-    index: list = field(default_factory=list)   # per camera its frame's ``Pending.index``, -1: none
+    capture: float = 0.0  # monotonic s its frames were captured (mean; see Pending)
+    index: list = field(default_factory=list)  # per camera its frame's ``Pending.index``, -1: none
 
     @property
     def n_cameras(self) -> int:
@@ -111,8 +117,8 @@ class FrameGrouper:
         self.min_cameras = int(min_cameras)
         self.pending: list[deque[Pending]] = [deque() for _ in range(n_cameras)]
         self.last_arrival: list[float | None] = [None] * n_cameras
-        self.started: float | None = None    # the first frame's arrival (a camera that has sent
-        self.unmatched = 0                   # nothing is quiet from then on)
+        self.started: float | None = None  # the first frame's arrival (a camera that has sent
+        self.unmatched = 0  # nothing is quiet from then on)
 
     def add(self, p: Pending) -> None:
         self.pending[p.camera].append(p)
@@ -136,7 +142,7 @@ class FrameGrouper:
             members[c0] = got[0]
             total, k = t0, 1
             for t, c in heads[1:]:
-                if t - total / k > tol:      # later heads are further still
+                if t - total / k > tol:  # later heads are further still
                     break
                 members[c] = p = pending[c][0]
                 got.append(p)
@@ -151,10 +157,17 @@ class FrameGrouper:
                 continue
             arrival = [p.arrival for p in got]
             capture = [p.arrival if p.capture is None else p.capture for p in got]
-            out.append(FrameSet(total / k, [None if p is None else p.uv for p in members],
-                                [None if p is None else p.norm for p in members],
-                                min(arrival), max(arrival), sum(capture) / k,
-                                [-1 if p is None else p.index for p in members]))
+            out.append(
+                FrameSet(
+                    total / k,
+                    [None if p is None else p.uv for p in members],
+                    [None if p is None else p.norm for p in members],
+                    min(arrival),
+                    max(arrival),
+                    sum(capture) / k,
+                    [-1 if p is None else p.index for p in members],
+                )
+            )
 
     def _waits(self, now: float, got: list[Pending], alone: bool) -> bool:
         """Whether the set of ``got`` waits for a camera with nothing pending: one not quiet
@@ -164,9 +177,11 @@ class FrameGrouper:
         first = min(p.arrival for p in got)
         if now - first >= self.wait_s:
             return False
-        started = first if self.started is None else self.started     # None only before any frame came
-        return any(not q and (alone or now - (started if last is None else last) < self.wait_s)
-                   for q, last in zip(self.pending, self.last_arrival))
+        started = first if self.started is None else self.started  # None only before any frame came
+        return any(
+            not q and (alone or now - (started if last is None else last) < self.wait_s)
+            for q, last in zip(self.pending, self.last_arrival)
+        )
 
 
 def group_frames(times: list[np.ndarray], tolerance_s: float, min_cameras: int = 2) -> np.ndarray:

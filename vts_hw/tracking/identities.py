@@ -54,9 +54,9 @@ class MarkerTracks:
 
     def __init__(self, gate_mm: float = 15.0, max_gap_s: float = 1.0):
         self.gate_mm, self.max_gap_s = float(gate_mm), float(max_gap_s)
-        self.ids = np.zeros(0, int)          # the tracks alive: their ids,
-        self.pos = np.zeros((0, 3))          # last positions (mm)
-        self.last = np.zeros(0)              # and when they were last seen (s)
+        self.ids = np.zeros(0, int)  # the tracks alive: their ids,
+        self.pos = np.zeros((0, 3))  # last positions (mm)
+        self.last = np.zeros(0)  # and when they were last seen (s)
         self.next_id = 1
 
     def update(self, t: float, points: np.ndarray) -> np.ndarray:
@@ -81,8 +81,9 @@ class MarkerTracks:
         return got
 
 
-def track_identities(frame_of_point: np.ndarray, times: np.ndarray, points: np.ndarray,
-                     gate_mm: float = 15.0, max_gap_s: float = 1.0) -> np.ndarray:
+def track_identities(
+    frame_of_point: np.ndarray, times: np.ndarray, points: np.ndarray, gate_mm: float = 15.0, max_gap_s: float = 1.0
+) -> np.ndarray:
     """Marker ids (ints from 1) of points (Nx3, mm) grouped by ``frame_of_point`` (sorted),
     frames at ``times`` (s): :class:`MarkerTracks` run over the frames in order."""
     n = len(points)

@@ -39,34 +39,44 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import cv2
 import numpy as np
 
 from vts_hw.errors import DataError
 from vts_hw.lifeline import interrupts_deferred
-from vts_hw.tracking import chunks
-from vts_hw.tracking.chunks import triangulate_fast
 from vts_hw.recording.extent import available_cameras, recording_extent
 from vts_hw.recording.folder import load_manifest
 from vts_hw.recording.frames import CameraFrames, load_camera_frames
+from vts_hw.timing.camera_clock import ClockFit
+from vts_hw.tracking import chunks
+from vts_hw.tracking.chunks import triangulate_fast
 from vts_hw.tracking.frame_sets import frame_period, group_frames, mapped_times
 from vts_hw.tracking.identities import track_identities
 from vts_hw.tracking.time_align import align_views
 from vts_hw.tracking.tracks import TRACKS_FORMAT, Tracks
-from vts_hw.timing.camera_clock import ClockFit
 from vts_hw.vision.camera_set import named_cameras
-from vts_hw.vision.detect import DEFAULT as DEFAULT_DETECTOR, DetectorSettings
+from vts_hw.vision.detect import DEFAULT as DEFAULT_DETECTOR
+from vts_hw.vision.detect import DetectorSettings
 from vts_hw.vision.multiview import ViewGeometry
 from vts_hw.vision.triangulate import PinholeCamera
 
-__all__ = ["Tracks", "ProcessSettings", "process_recording", "cameras_from_calibration",
-           "group_frames", "triangulate_fast", "track_identities", "CameraFrames",
-           "load_camera_frames", "TRACKS_FORMAT"]
+__all__ = [
+    "Tracks",
+    "ProcessSettings",
+    "process_recording",
+    "cameras_from_calibration",
+    "group_frames",
+    "triangulate_fast",
+    "track_identities",
+    "CameraFrames",
+    "load_camera_frames",
+    "TRACKS_FORMAT",
+]
 
 
 @dataclass(frozen=True)
@@ -96,7 +106,7 @@ class ProcessSettings:
     max_gap_s: float = 1.0
     latency_s: float = 0.0
     chunk_pairs: int | None = None
-    max_rms_px: float = 0.5      # a point's largest reprojection RMS (px)
+    max_rms_px: float = 0.5  # a point's largest reprojection RMS (px)
     views_min_sep_px: float = 0.1  # three or more cameras: min_sep_px of match_views
     align_times: bool = True
     detector: DetectorSettings = DEFAULT_DETECTOR
@@ -108,14 +118,17 @@ def cameras_from_calibration(calib, names=("cam1", "cam2")) -> dict[str, Pinhole
     return named_cameras(calib, list(names))
 
 
-
-
 # ------------------------------------------------------------------ entry point
-def process_recording(folder, cameras, workers: int | None = None, mapping=None,
-                      host_to_spect: Callable | None = None,
-                      settings: ProcessSettings | None = None,
-                      progress: Callable[[int, int], None] | None = None,
-                      clock_fits: dict[str, ClockFit] | None = None) -> Tracks:
+def process_recording(
+    folder,
+    cameras,
+    workers: int | None = None,
+    mapping=None,
+    host_to_spect: Callable | None = None,
+    settings: ProcessSettings | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    clock_fits: dict[str, ClockFit] | None = None,
+) -> Tracks:
     """Marker tracks of a recording folder of two or more cameras (see the module docstring).
 
     ``cameras``: the calibrated cameras, any form :func:`vts_hw.vision.camera_set.named_cameras`
@@ -138,8 +151,10 @@ def process_recording(folder, cameras, workers: int | None = None, mapping=None,
     names = [n for n in cams if n in available]
     if len(names) < 2:
         lacks = "".join(f"; {why}" for why in missing.values())
-        raise DataError(f"{folder}: the recording has cameras {', '.join(available) or 'none'}, "
-                        f"but calibrated cameras are {', '.join(cams)}: two must be in both{lacks}")
+        raise DataError(
+            f"{folder}: the recording has cameras {', '.join(available) or 'none'}, "
+            f"but calibrated cameras are {', '.join(cams)}: two must be in both{lacks}"
+        )
     frames = [load_camera_frames(folder, n) for n in names]
     times, fits, warnings = [], {}, []
     for cf in frames:
@@ -165,8 +180,7 @@ def process_recording(folder, cameras, workers: int | None = None, mapping=None,
         return (np.where(idx >= 0, frames[c].offset[idx], -1), np.where(idx >= 0, frames[c].length[idx], 0))
 
     tasks = [(k, [span(c, slice(k, k + chunk)) for c in range(len(names))]) for k in range(0, n_sets, chunk)]
-    state = {"cams": [cams[n] for n in names], "names": names, "settings": s,
-             "paths": [str(cf.mjpeg) for cf in frames]}
+    state = {"cams": [cams[n] for n in names], "names": names, "settings": s, "paths": [str(cf.mjpeg) for cf in frames]}
     results = []
     done = 0
     if workers == 1 or len(tasks) <= 1:
@@ -181,23 +195,27 @@ def process_recording(folder, cameras, workers: int | None = None, mapping=None,
         finally:
             cv2.setNumThreads(before)
     else:
-        pool = ProcessPoolExecutor(min(workers, len(tasks)), mp_context=_pool_context(),
-                                   initializer=chunks._init_worker,
-                                   initargs=({**state, "command_pid": os.getpid()}, 1))
+        pool = ProcessPoolExecutor(
+            min(workers, len(tasks)),
+            mp_context=_pool_context(),
+            initializer=chunks._init_worker,
+            initargs=({**state, "command_pid": os.getpid()}, 1),
+        )
         try:
-            with interrupts_deferred():   # Ctrl-C while the workers are started: raised once they are
+            with interrupts_deferred():  # Ctrl-C while the workers are started: raised once they are
                 results_of = pool.map(chunks._process_chunk, tasks)
             for res in results_of:
                 results.append(res)
                 done += int(res[5].shape[0])
                 if progress:
                     progress(done, n_sets)
-        except BaseException:             # Ctrl-C, an error: the chunks not started are dropped
+        except BaseException:  # Ctrl-C, an error: the chunks not started are dropped
             pool.shutdown(wait=True, cancel_futures=True)
             raise
         pool.shutdown(wait=True)
-    tracks = _assemble(folder, names, frames, times, fits, sets, results, s, mapping,
-                       host_to_spect, period, cams, warnings)
+    tracks = _assemble(
+        folder, names, frames, times, fits, sets, results, s, mapping, host_to_spect, period, cams, warnings
+    )
     tracks.meta["extent"] = extent
     return tracks
 
@@ -208,6 +226,7 @@ def _pool_context():
     OpenCV's pool) may hold a lock at the moment of a fork, and the forked worker would wait on
     it for ever. Where there is no fork server, spawn."""
     import multiprocessing as mp
+
     if "forkserver" in mp.get_all_start_methods():
         ctx = mp.get_context("forkserver")
         ctx.set_forkserver_preload([chunks.__name__])
@@ -215,8 +234,9 @@ def _pool_context():
     return mp.get_context("spawn")
 
 
-def _assemble(folder, names, frames, times, fits, sets, results, s, mapping, host_to_spect,
-              period, cams, warnings) -> Tracks:
+def _assemble(
+    folder, names, frames, times, fits, sets, results, s, mapping, host_to_spect, period, cams, warnings
+) -> Tracks:
     n_sets, C = sets.shape[0], len(names)
     results.sort(key=lambda r: r[0])
 
@@ -232,8 +252,9 @@ def _assemble(folder, names, frames, times, fits, sets, results, s, mapping, hos
     ambiguous = cat(7, (0, C)).astype(int)
     single = cat(8, (0, C)).astype(int)
     present = sets >= 0
-    t_sets = np.column_stack([np.where(present[:, c], times[c][np.maximum(sets[:, c], 0)], np.nan)
-                              for c in range(C)]).reshape(-1, C)
+    t_sets = np.column_stack(
+        [np.where(present[:, c], times[c][np.maximum(sets[:, c], 0)], np.nan) for c in range(C)]
+    ).reshape(-1, C)
     host = np.nanmean(t_sets, axis=1) if n_sets else np.zeros(0)
     ids = track_identities(pair, host, X, s.gate_mm, s.max_gap_s)
     n_aligned = 0
@@ -243,10 +264,12 @@ def _assemble(folder, names, frames, times, fits, sets, results, s, mapping, hos
         moved = ~np.isnan(Xa[:, 0])
         X, rms = X.copy(), rms.copy()
         X[moved], rms[moved] = Xa[moved], ra[moved]
-    cam_time = np.column_stack([np.where(present[:, c], frames[c].camera_time[np.maximum(sets[:, c], 0)],
-                                         np.nan) for c in range(C)]).reshape(-1, C)
-    cam_frame = np.column_stack([np.where(present[:, c], frames[c].frame[np.maximum(sets[:, c], 0)], -1)
-                                 for c in range(C)]).reshape(-1, C)
+    cam_time = np.column_stack(
+        [np.where(present[:, c], frames[c].camera_time[np.maximum(sets[:, c], 0)], np.nan) for c in range(C)]
+    ).reshape(-1, C)
+    cam_frame = np.column_stack(
+        [np.where(present[:, c], frames[c].frame[np.maximum(sets[:, c], 0)], -1) for c in range(C)]
+    ).reshape(-1, C)
     unpaired = {}
     for c, cf in enumerate(frames):
         mask = np.ones(len(cf.frame), bool)
@@ -267,24 +290,52 @@ def _assemble(folder, names, frames, times, fits, sets, results, s, mapping, hos
         "paired_frames": int(n_sets),
         "unpaired_frames": {k: int(len(v)) for k, v in unpaired.items()},
         "undecodable_frames": {names[c]: int(failed[:, c].sum()) for c in range(C)},
-        "blobs_per_frame_mean": {names[c]: float(counts[present[:, c], c].mean()) if present[:, c].any()
-                                 else None for c in range(C)},
+        "blobs_per_frame_mean": {
+            names[c]: float(counts[present[:, c], c].mean()) if present[:, c].any() else None for c in range(C)
+        },
         "ambiguous_points": int(ambiguous.sum()),
         "ambiguous_detections": {names[c]: int(ambiguous[:, c].sum()) for c in range(C)},
         "single_camera_detections": {names[c]: int(single[:, c].sum()) for c in range(C)},
         "views_time_aligned": int(n_aligned),
         "points_by_cameras_seen": {str(k): int((seen_by == k).sum()) for k in range(2, C + 1)},
         "markers": int(ids.max()) if len(ids) else 0,
-        "settings": {"max_px": s.max_px, "ratio": s.ratio, "min_sep_px": s.min_sep_px,
-                     "pair_fraction": s.pair_fraction, "gate_mm": s.gate_mm,
-                     "max_gap_s": s.max_gap_s, "latency_s": s.latency_s, "max_rms_px": s.max_rms_px,
-                     "views_min_sep_px": s.views_min_sep_px, "align_times": s.align_times},
-        "calibration": {n: {"K": cams[n].K.tolist(), "dist": cams[n].dist.tolist(),
-                            "R": cams[n].R.tolist(), "t": cams[n].t.tolist()} for n in names},
+        "settings": {
+            "max_px": s.max_px,
+            "ratio": s.ratio,
+            "min_sep_px": s.min_sep_px,
+            "pair_fraction": s.pair_fraction,
+            "gate_mm": s.gate_mm,
+            "max_gap_s": s.max_gap_s,
+            "latency_s": s.latency_s,
+            "max_rms_px": s.max_rms_px,
+            "views_min_sep_px": s.views_min_sep_px,
+            "align_times": s.align_times,
+        },
+        "calibration": {
+            n: {
+                "K": cams[n].K.tolist(),
+                "dist": cams[n].dist.tolist(),
+                "R": cams[n].R.tolist(),
+                "t": cams[n].t.tolist(),
+            }
+            for n in names
+        },
     }
-    tracks = Tracks(host_time=host, camera_names=names, camera_time=cam_time,
-                    camera_frame=cam_frame, n_blobs=counts, point_frame=pair, marker=ids,
-                    xyz=X, reproj_px=rms, uv=uv, unpaired=unpaired, meta=meta, n_single=single)
+    tracks = Tracks(
+        host_time=host,
+        camera_names=names,
+        camera_time=cam_time,
+        camera_frame=cam_frame,
+        n_blobs=counts,
+        point_frame=pair,
+        marker=ids,
+        xyz=X,
+        reproj_px=rms,
+        uv=uv,
+        unpaired=unpaired,
+        meta=meta,
+        n_single=single,
+    )
     if mapping is not None or host_to_spect is not None:
         tracks = tracks.with_spect(mapping, host_to_spect)
     return tracks

@@ -38,8 +38,16 @@ def _interpolate(t: np.ndarray, uv: np.ndarray, target: np.ndarray, max_gap_s: f
     return out
 
 
-def align_views(geo: ViewGeometry, point_frame: np.ndarray, marker: np.ndarray, uv: np.ndarray,
-                view_time: np.ndarray, set_time: np.ndarray, max_gap_s: float, min_dt_s: float = 2e-4):
+def align_views(
+    geo: ViewGeometry,
+    point_frame: np.ndarray,
+    marker: np.ndarray,
+    uv: np.ndarray,
+    view_time: np.ndarray,
+    set_time: np.ndarray,
+    max_gap_s: float,
+    min_dt_s: float = 2e-4,
+):
     """``(xyz, rms_px, uv_aligned, aligned_views)`` of every point after alignment.
 
     ``uv`` (N, 2C) pixels per point (NaN where a camera did not see it), ``view_time`` (F, C)
@@ -66,10 +74,10 @@ def align_views(geo: ViewGeometry, point_frame: np.ndarray, marker: np.ndarray, 
             want = np.abs(tm - target[mine]) > min_dt_s
             if not want.any():
                 continue
-            val = _interpolate(tm, uv[mine, 2 * c:2 * c + 2], target[mine[want]], max_gap_s)
+            val = _interpolate(tm, uv[mine, 2 * c : 2 * c + 2], target[mine[want]], max_gap_s)
             got = ~np.isnan(val[:, 0])
             rows = mine[want][got]
-            uv_new[rows, 2 * c:2 * c + 2] = val[got]
+            uv_new[rows, 2 * c : 2 * c + 2] = val[got]
             aligned[rows, c] = True
     redo = np.flatnonzero(aligned.any(axis=1))
     xyz = np.full((n, 3), np.nan)
@@ -84,5 +92,5 @@ def align_views(geo: ViewGeometry, point_frame: np.ndarray, marker: np.ndarray, 
                 norm[sel, c] = geo.normalize(c, obs[sel, c])
         X, res = triangulate_groups(geo, np.nan_to_num(obs), norm, mask, iterations=2)
         xyz[redo] = X
-        rms[redo] = np.sqrt(np.nanmean(res ** 2, axis=1))
+        rms[redo] = np.sqrt(np.nanmean(res**2, axis=1))
     return xyz, rms, uv_new, int(aligned.sum())

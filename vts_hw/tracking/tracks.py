@@ -10,9 +10,9 @@ Clocks: ``host_time`` is the host's UTC epoch seconds as mapped from the cameras
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -85,7 +85,7 @@ class Tracks:
             raise ValueError("these tracks have no SPECT-frame positions (see with_spect)")
         return self.point_time[sel], xyz[sel]
 
-    def with_spect(self, mapping=None, host_to_spect: Callable | None = None) -> "Tracks":
+    def with_spect(self, mapping=None, host_to_spect: Callable | None = None) -> Tracks:
         """A copy with SPECT-frame positions (``mapping.apply``: VTS → SPECT, e.g. the
         ``RigidTransform`` saved by the SPECT mapping procedure, read back with
         ``RigidTransform.load``, or an analysed ``SpectMapping``) and/or SPECT times
@@ -103,10 +103,23 @@ class Tracks:
             except (TypeError, ValueError):
                 spect_time = np.array([float(host_to_spect(float(t))) for t in self.host_time])
             meta["spect_time"] = getattr(host_to_spect, "__doc__", None) or "host_to_spect"
-        return Tracks(self.host_time, list(self.camera_names), self.camera_time,
-                      self.camera_frame, self.n_blobs, self.point_frame, self.marker, self.xyz,
-                      self.reproj_px, self.uv, dict(self.unpaired), meta, xyz_spect, spect_time,
-                      self.n_single)
+        return Tracks(
+            self.host_time,
+            list(self.camera_names),
+            self.camera_time,
+            self.camera_frame,
+            self.n_blobs,
+            self.point_frame,
+            self.marker,
+            self.xyz,
+            self.reproj_px,
+            self.uv,
+            dict(self.unpaired),
+            meta,
+            xyz_spect,
+            spect_time,
+            self.n_single,
+        )
 
     def marker_summary(self) -> list[dict]:
         """Per marker id: points, first and last host time (s), mean position and range of
@@ -116,10 +129,14 @@ class Tracks:
         t = self.point_time
         for m in self.marker_ids():
             sel = self.marker == m
-            d = {"marker": m, "points": int(sel.sum()), "first_time": float(t[sel].min()),
-                 "last_time": float(t[sel].max()),
-                 "mean_mm": self.xyz[sel].mean(axis=0).tolist(),
-                 "range_mm": np.ptp(self.xyz[sel], axis=0).tolist()}
+            d = {
+                "marker": m,
+                "points": int(sel.sum()),
+                "first_time": float(t[sel].min()),
+                "last_time": float(t[sel].max()),
+                "mean_mm": self.xyz[sel].mean(axis=0).tolist(),
+                "range_mm": np.ptp(self.xyz[sel], axis=0).tolist(),
+            }
             if self.xyz_spect is not None:
                 d["mean_spect_mm"] = self.xyz_spect[sel].mean(axis=0).tolist()
                 d["range_spect_mm"] = np.ptp(self.xyz_spect[sel], axis=0).tolist()
@@ -148,12 +165,14 @@ class Tracks:
         csv_path, json_path = path.with_suffix(".csv"), path.with_suffix(".json")
         pf = self.point_frame
         C = len(self.camera_names)
-        ct = np.array(["" if not np.isfinite(v) else f"{v:.2f}" for v in self.camera_time.ravel()],
-                      dtype=object).reshape(-1, C)
-        cf = np.array(["" if v < 0 else str(int(v)) for v in self.camera_frame.ravel()],
-                      dtype=object).reshape(-1, C)
-        frame_txt = [f"{f},{self.host_time[f]:.6f}," + ",".join(f"{cf[f, c]},{ct[f, c]}" for c in range(C))
-                     for f in range(len(self.host_time))]
+        ct = np.array(
+            ["" if not np.isfinite(v) else f"{v:.2f}" for v in self.camera_time.ravel()], dtype=object
+        ).reshape(-1, C)
+        cf = np.array(["" if v < 0 else str(int(v)) for v in self.camera_frame.ravel()], dtype=object).reshape(-1, C)
+        frame_txt = [
+            f"{f},{self.host_time[f]:.6f}," + ",".join(f"{cf[f, c]},{ct[f, c]}" for c in range(C))
+            for f in range(len(self.host_time))
+        ]
         lines = [",".join(self._columns())]
         spect_time, xyz_spect = self.spect_time, self.xyz_spect
 
@@ -166,13 +185,14 @@ class Tracks:
             if spect_time is not None:
                 row += f",{spect_time[f]:.6f}"
             x, y, z = self.xyz[p]
-            row += (f",{self.marker[p]},{x:.4f},{y:.4f},{z:.4f},{self.reproj_px[p]:.4f},"
-                    + ",".join(num(v) for v in self.uv[p]))
+            row += f",{self.marker[p]},{x:.4f},{y:.4f},{z:.4f},{self.reproj_px[p]:.4f}," + ",".join(
+                num(v) for v in self.uv[p]
+            )
             if xyz_spect is not None:
                 xs, ys, zs = xyz_spect[p]
                 row += f",{xs:.4f},{ys:.4f},{zs:.4f}"
             lines.append(row)
-        write_atomic(csv_path, "\n".join(lines) + "\n", encoding="ascii")   # whole or not at all (disk full)
+        write_atomic(csv_path, "\n".join(lines) + "\n", encoding="ascii")  # whole or not at all (disk full)
 
         def fin(a):
             return [None if not np.isfinite(v) else float(v) for v in a]
@@ -188,38 +208,46 @@ class Tracks:
                 frames[f"{name}_single"] = self.n_single[:, c].tolist()
         if spect_time is not None:
             frames["spect_time"] = [round(float(v), 6) for v in spect_time]
-        doc = {"format": TRACKS_FORMAT, "csv": csv_path.name, "cameras": list(self.camera_names),
-               "units": {"position": "mm", "time": "s (UTC epoch)", "pixels": "px"},
-               "clock": "host_time: host UTC epoch s, mapped from the camera stamps by the "
-                        "camera clock model; <camera>_time: that camera's own clock; "
-                        "spect_time: SPECT clock",
-               "position_frame": f"x_mm..z_mm: {VTS_AXES}; x_spect_mm..: {SPECT_FRAME} "
-                                 "(the volume: meta.spect_mapping.meta.spect_volume)",
-               "meta": self.meta, "frames": frames,
-               "unpaired": {k: [int(x) for x in v] for k, v in self.unpaired.items()}}
+        doc = {
+            "format": TRACKS_FORMAT,
+            "csv": csv_path.name,
+            "cameras": list(self.camera_names),
+            "units": {"position": "mm", "time": "s (UTC epoch)", "pixels": "px"},
+            "clock": "host_time: host UTC epoch s, mapped from the camera stamps by the "
+            "camera clock model; <camera>_time: that camera's own clock; "
+            "spect_time: SPECT clock",
+            "position_frame": f"x_mm..z_mm: {VTS_AXES}; x_spect_mm..: {SPECT_FRAME} "
+            "(the volume: meta.spect_mapping.meta.spect_volume)",
+            "meta": self.meta,
+            "frames": frames,
+            "unpaired": {k: [int(x) for x in v] for k, v in self.unpaired.items()},
+        }
         write_json_atomic(json_path, doc)
         return csv_path, json_path
 
     @classmethod
-    def load(cls, path) -> "Tracks":
+    def load(cls, path) -> Tracks:
         """Read what :meth:`save` wrote (give the .csv, the .json or the common stem)."""
         path = Path(path)
         json_path, csv_path = path.with_suffix(".json"), path.with_suffix(".csv")
         try:
             doc = json.loads(read_text(json_path, SMALL, "trajectory metadata"))
         except (OSError, ValueError, RecursionError) as exc:
-            raise DataError(f"{json_path}: cannot read the trajectory metadata "
-                            f"({str(exc)[:120] or 'nested too deeply'})") from None
+            raise DataError(
+                f"{json_path}: cannot read the trajectory metadata ({str(exc)[:120] or 'nested too deeply'})"
+            ) from None
         if not isinstance(doc, dict) or doc.get("format") != TRACKS_FORMAT:
             raise DataError(f"{json_path}: not a {TRACKS_FORMAT} file")
         try:
             return cls._from_files(doc, json_path, csv_path)
         except (KeyError, TypeError, ValueError, IndexError, OverflowError, AttributeError) as exc:
-            raise DataError(f"{json_path} / {csv_path.name}: not a whole {TRACKS_FORMAT} trajectory "
-                            f"({type(exc).__name__}: {str(exc)[:80]})") from None
+            raise DataError(
+                f"{json_path} / {csv_path.name}: not a whole {TRACKS_FORMAT} trajectory "
+                f"({type(exc).__name__}: {str(exc)[:80]})"
+            ) from None
 
     @classmethod
-    def _from_files(cls, doc: dict, json_path: Path, csv_path: Path) -> "Tracks":
+    def _from_files(cls, doc: dict, json_path: Path, csv_path: Path) -> Tracks:
         names = [str(c) for c in doc["cameras"]]
         if len(names) < 2:
             raise ValueError("fewer than two cameras")
@@ -262,14 +290,27 @@ class Tracks:
         uv = np.column_stack([opt(f"{c}_{a}") for c in names for a in "uv"]).reshape(-1, 2 * C)
         xyz_spect = None
         if "x_spect_mm" in col:
-            xyz_spect = np.column_stack([get("x_spect_mm"), get("y_spect_mm"),
-                                         get("z_spect_mm")]).reshape(-1, 3)
+            xyz_spect = np.column_stack([get("x_spect_mm"), get("y_spect_mm"), get("z_spect_mm")]).reshape(-1, 3)
         unpaired = {k: np.array(v, int) for k, v in doc.get("unpaired", {}).items()}
         point_frame = get("frame", int)
         if len(point_frame) and not 0 <= point_frame.min() <= point_frame.max() < len(host):
             raise ValueError(f"a point's frame is not one of the {len(host)} frames of the .json")
         if not len(camera_time) == len(camera_frame) == len(n_blobs) == len(host):
             raise ValueError("the frame columns of the .json differ in length")
-        return cls(host, names, camera_time, camera_frame, n_blobs, point_frame,
-                   get("marker", int), xyz, get("reproj_px"), uv, unpaired, doc.get("meta", {}),
-                   xyz_spect, spect_time, n_single)
+        return cls(
+            host,
+            names,
+            camera_time,
+            camera_frame,
+            n_blobs,
+            point_frame,
+            get("marker", int),
+            xyz,
+            get("reproj_px"),
+            uv,
+            unpaired,
+            doc.get("meta", {}),
+            xyz_spect,
+            spect_time,
+            n_single,
+        )

@@ -32,11 +32,21 @@ import numpy as np
 
 from vts_hw.vision import aim_overlay
 from vts_hw.vision.aim_settings import DEFAULT_AIM, AimSettings
-from vts_hw.vision.aim_verdicts import (ADJUST, GOOD, UNKNOWN, Verdict, aim_verdict, fov_verdict,
-                                        gantry_verdict, level_verdicts, marker_verdicts, picture_shift)
-from vts_hw.vision.marker_roles import roles_by_reference
+from vts_hw.vision.aim_verdicts import (
+    ADJUST,
+    GOOD,
+    UNKNOWN,
+    Verdict,
+    aim_verdict,
+    fov_verdict,
+    gantry_verdict,
+    level_verdicts,
+    marker_verdicts,
+    picture_shift,
+)
 from vts_hw.vision.detect import DetectorSettings, detect
 from vts_hw.vision.focus import edge_profile
+from vts_hw.vision.marker_roles import roles_by_reference
 
 __all__ = ["Marker", "AimReport", "assess", "decode_grey", "GOOD", "ADJUST", "UNKNOWN", "Verdict"]
 
@@ -56,7 +66,7 @@ class Marker:
     contrast_off: float | None
     through_gantry: bool | None = None
     cut: bool = False
-    role: str = ""          # vision/marker_roles.py against the reference ("": no reference, not known)
+    role: str = ""  # vision/marker_roles.py against the reference ("": no reference, not known)
 
 
 @dataclass
@@ -67,8 +77,8 @@ class AimReport:
     size: tuple[int, int]
     items: list[Verdict]
     markers: list[Marker]
-    view: object | None = None                   # the RoomView, when there is a mapping
-    image: np.ndarray | None = field(default=None, repr=False)   # the LED-on picture
+    view: object | None = None  # the RoomView, when there is a mapping
+    image: np.ndarray | None = field(default=None, repr=False)  # the LED-on picture
     settings: AimSettings = DEFAULT_AIM
 
     @property
@@ -86,11 +96,16 @@ class AimReport:
 
     def to_dict(self) -> dict:
         """JSON-able: camera, state, every item, every marker."""
-        return {"camera": self.camera, "state": self.state, "unknown": self.unknown,
-                "picture": {"width": self.size[0], "height": self.size[1]},
-                "items": [v.to_dict() for v in self.items],
-                "markers": [{k: (round(v, 3) if isinstance(v, float) else v) for k, v in asdict(m).items()}
-                            for m in self.markers]}
+        return {
+            "camera": self.camera,
+            "state": self.state,
+            "unknown": self.unknown,
+            "picture": {"width": self.size[0], "height": self.size[1]},
+            "items": [v.to_dict() for v in self.items],
+            "markers": [
+                {k: (round(v, 3) if isinstance(v, float) else v) for k, v in asdict(m).items()} for m in self.markers
+            ],
+        }
 
     def overlay_png(self) -> bytes:
         """The LED-on picture with the markers, the FOV, the table and the gantry's opening drawn."""
@@ -120,8 +135,9 @@ def _local_contrast(gray: np.ndarray, x: float, y: float, r: float) -> float:
     return float(core.mean() - np.median(ring))
 
 
-def measure_markers(on: np.ndarray, off: np.ndarray | None, view=None,
-                    detector: DetectorSettings | None = None) -> tuple[list[Marker], float]:
+def measure_markers(
+    on: np.ndarray, off: np.ndarray | None, view=None, detector: DetectorSettings | None = None
+) -> tuple[list[Marker], float]:
     """The markers of the LED-on picture (those cut by its border too), and its background."""
     found = detect(on, detector or DetectorSettings())
     out = []
@@ -130,8 +146,11 @@ def measure_markers(on: np.ndarray, off: np.ndarray | None, view=None,
         e = edge_profile(on, b.x, b.y, r)
         radius = e.radius_px if e is not None else r
         off_c = _local_contrast(off, b.x, b.y, radius) if off is not None else None
-        out.append(Marker(b.x, b.y, 2 * radius, None if e is None else e.width_px,
-                          _local_contrast(on, b.x, b.y, radius), off_c))
+        out.append(
+            Marker(
+                b.x, b.y, 2 * radius, None if e is None else e.width_px, _local_contrast(on, b.x, b.y, radius), off_c
+            )
+        )
     for b, why in found.rejected:
         if why == "border":
             out.append(Marker(b.x, b.y, None, None, float(b.peak), None, cut=True))
@@ -141,10 +160,17 @@ def measure_markers(on: np.ndarray, off: np.ndarray | None, view=None,
     return out, float(found.background)
 
 
-def assess(camera: str, on: np.ndarray, off: np.ndarray | None, view=None,
-           settings: AimSettings = DEFAULT_AIM, no_view: str = "no mapping",
-           detector: DetectorSettings | None = None, reference=None,
-           reference_name: str = "the drift baseline") -> AimReport:
+def assess(
+    camera: str,
+    on: np.ndarray,
+    off: np.ndarray | None,
+    view=None,
+    settings: AimSettings = DEFAULT_AIM,
+    no_view: str = "no mapping",
+    detector: DetectorSettings | None = None,
+    reference=None,
+    reference_name: str = "the drift baseline",
+) -> AimReport:
     """The aim-and-focus check of ``camera`` from its LED-on picture ``on`` and LED-off picture
     ``off`` (None: the camera cannot switch its LED). ``view``: a RoomView (calibration and
     mapping), or None, and then ``no_view`` says why (``no mapping``, ``camera cam3 is not in
@@ -154,8 +180,10 @@ def assess(camera: str, on: np.ndarray, off: np.ndarray | None, view=None,
         if img is not None and (not isinstance(img, np.ndarray) or img.dtype != np.uint8 or img.ndim != 2):
             raise ValueError(f"the {name} picture must be a grey uint8 image")
     if off is not None and off.shape != on.shape:
-        raise ValueError(f"the LED-on and LED-off pictures differ in size ({on.shape[1]}x{on.shape[0]} "
-                         f"and {off.shape[1]}x{off.shape[0]})")
+        raise ValueError(
+            f"the LED-on and LED-off pictures differ in size ({on.shape[1]}x{on.shape[0]} "
+            f"and {off.shape[1]}x{off.shape[0]})"
+        )
     size = (int(on.shape[1]), int(on.shape[0]))
     markers, background = measure_markers(on, off, view, detector)
     if reference is not None and len(np.asarray(reference, float).reshape(-1, 2)) and markers:
@@ -170,4 +198,3 @@ def assess(camera: str, on: np.ndarray, off: np.ndarray | None, view=None,
     items.append(fov_verdict(view, settings, no_view))
     items.append(gantry_verdict(markers, view, settings, no_view))
     return AimReport(camera, size, items, markers, view, on, settings)
-

@@ -26,7 +26,7 @@ from vts_hw.vision.aim_settings import AimSettings
 
 __all__ = ["RoomView", "Outline", "fov_centre"]
 
-_N = 72   # points per circle
+_N = 72  # points per circle
 
 
 def fov_centre(mapping) -> np.ndarray:
@@ -54,8 +54,8 @@ class RoomView:
     """One calibrated camera and the VTS -> SPECT mapping (see the module docstring)."""
 
     def __init__(self, camera, mapping, size: tuple[int, int], settings: AimSettings):
-        self.camera = camera               # K, dist, R, t (VTS frame -> camera), mm
-        self.mapping = mapping             # RigidTransform VTS -> SPECT
+        self.camera = camera  # K, dist, R, t (VTS frame -> camera), mm
+        self.mapping = mapping  # RigidTransform VTS -> SPECT
         self.size = (int(size[0]), int(size[1]))
         self.settings = settings
         self.centre = fov_centre(mapping)
@@ -123,8 +123,9 @@ class RoomView:
     def bore(self) -> Outline:
         """The gantry's opening: its front and back rims."""
         s = self.settings
-        return self._outline("gantry", [self._circle(s.bore_diameter_mm / 2, z)
-                                        for z in (-s.bore_depth_mm / 2, s.bore_depth_mm / 2)])
+        return self._outline(
+            "gantry", [self._circle(s.bore_diameter_mm / 2, z) for z in (-s.bore_depth_mm / 2, s.bore_depth_mm / 2)]
+        )
 
     def table(self) -> Outline:
         """The table top at its nominal position: a rectangle and its centre line."""
@@ -144,7 +145,7 @@ class RoomView:
         if not len(px):
             return np.zeros(0, bool)
         norm = cv2.undistortPoints(px, self.K, self.dist).reshape(-1, 2)
-        rays = np.column_stack([norm, np.ones(len(norm))]) @ self.R   # camera -> SPECT directions (R^T d)
+        rays = np.column_stack([norm, np.ones(len(norm))]) @ self.R  # camera -> SPECT directions (R^T d)
         eye, c, s = self.eye, self.centre, self.settings
         ok = np.ones(len(rays), bool)
         for z in (-s.bore_depth_mm / 2, s.bore_depth_mm / 2):

@@ -14,9 +14,18 @@ import numpy as np
 
 __all__ = ["overlay_png", "overlay_image", "COLOURS"]
 
-COLOURS = {"fov": (60, 200, 60), "gantry": (230, 200, 40), "table": (40, 150, 255),
-           "sharp": (60, 220, 60), "blurred": (0, 165, 255), "cut": (40, 40, 230), "guide": (140, 140, 140),
-           "good": (60, 220, 60), "adjust": (0, 165, 255), "unknown": (170, 170, 170)}
+COLOURS = {
+    "fov": (60, 200, 60),
+    "gantry": (230, 200, 40),
+    "table": (40, 150, 255),
+    "sharp": (60, 220, 60),
+    "blurred": (0, 165, 255),
+    "cut": (40, 40, 230),
+    "guide": (140, 140, 140),
+    "good": (60, 220, 60),
+    "adjust": (0, 165, 255),
+    "unknown": (170, 170, 170),
+}
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
 
 
@@ -27,7 +36,7 @@ def _text(img, text, org, colour, scale=0.4) -> None:
 
 def _lines(img, outline, colour) -> None:
     for line in outline.lines:
-        pts = np.round(line * 16).astype(np.int32).reshape(-1, 1, 2)   # 4 fractional bits
+        pts = np.round(line * 16).astype(np.int32).reshape(-1, 1, 2)  # 4 fractional bits
         cv2.polylines(img, [pts], False, colour, 1, cv2.LINE_AA, shift=4)
 
 
@@ -59,8 +68,9 @@ def overlay_image(report) -> np.ndarray:
         if m.cut:
             colour = COLOURS["cut"]
         else:
-            colour = COLOURS["sharp"] if m.edge_width_px is not None and m.edge_width_px <= limit \
-                else COLOURS["blurred"]
+            colour = (
+                COLOURS["sharp"] if m.edge_width_px is not None and m.edge_width_px <= limit else COLOURS["blurred"]
+            )
         cv2.circle(img, p, r, colour, 1, cv2.LINE_AA)
         if m.edge_width_px is not None:
             _text(img, f"{m.edge_width_px:.1f}", (p[0] + r + 2, p[1] + 4), colour, 0.35)

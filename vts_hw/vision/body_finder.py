@@ -22,15 +22,15 @@ in depth, far outside the tolerance, so shape decides what the epipolar constrai
 from __future__ import annotations
 
 import itertools
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import Sequence
 
 import numpy as np
 
 from vts_hw.errors import DataError
+from vts_hw.vision.multiview import ViewGeometry, match_views
 from vts_hw.vision.registration import RigidTransform, kabsch
 from vts_hw.vision.triangulate import epipolar_distances, triangulate
-from vts_hw.vision.multiview import ViewGeometry, match_views
 
 __all__ = ["Hypotheses", "BodyFit", "candidate_points", "find_body", "locate_body", "locate_body_views"]
 
@@ -42,9 +42,9 @@ class Hypotheses:
     """3D points from every epipolar-allowed pairing: ``points[k]`` from detection
     ``pairs[k][0]`` of camera A and ``pairs[k][1]`` of camera B (reprojection RMS ``rms_px``)."""
 
-    points: np.ndarray          # (K, 3) mm, in the cameras' world frame
-    pairs: np.ndarray           # (K, 2) int
-    rms_px: np.ndarray          # (K,)
+    points: np.ndarray  # (K, 3) mm, in the cameras' world frame
+    pairs: np.ndarray  # (K, 2) int
+    rms_px: np.ndarray  # (K,)
 
 
 @dataclass(frozen=True)
@@ -54,12 +54,12 @@ class BodyFit:
     ``transform`` takes template coordinates onto them; ``detections[i]``: per camera, the
     detection that made point ``i`` (-1: none; set by :func:`locate_body`/:func:`locate_body_views`)."""
 
-    points: np.ndarray          # (M, 3)
-    index: np.ndarray           # (M,) int
+    points: np.ndarray  # (M, 3)
+    index: np.ndarray  # (M,) int
     transform: RigidTransform
-    rms_mm: float               # RMS distance template (moved) -> found points
+    rms_mm: float  # RMS distance template (moved) -> found points
     candidates_tried: int
-    detections: np.ndarray | None = None    # (M, n_cameras) int
+    detections: np.ndarray | None = None  # (M, n_cameras) int
 
     @property
     def found(self) -> int:
@@ -89,12 +89,13 @@ def _anchors(template: np.ndarray, spread: float = 0.2) -> list[tuple[int, int, 
     tri = []
     for i, j, k in itertools.combinations(range(len(template)), 3):
         tri.append((0.5 * np.linalg.norm(np.cross(template[j] - template[i], template[k] - template[i])), (i, j, k)))
-    tri.sort(key=lambda t: -t[0])          # stable: a tie keeps the combinations' order
+    tri.sort(key=lambda t: -t[0])  # stable: a tie keeps the combinations' order
     return [t for area, t in tri if area >= spread * tri[0][0]]
 
 
-def find_body(points, template, tol_mm: float = DEFAULT_TOL_MM,
-              exclusive: np.ndarray | None = None, min_points: int | None = None) -> BodyFit:
+def find_body(
+    points, template, tol_mm: float = DEFAULT_TOL_MM, exclusive: np.ndarray | None = None, min_points: int | None = None
+) -> BodyFit:
     """Where the rigid ``template`` (M×3) lies among ``points`` (N×3, N ≥ M).
 
     ``exclusive`` (N×k ints, optional) names what each point is made of (e.g. the two
@@ -115,7 +116,7 @@ def find_body(points, template, tol_mm: float = DEFAULT_TOL_MM,
     # the whole body: its best-spread triple is seen; a part of it: any well-spread triple may be the one seen
     anchors = _anchors(tpl)[:1] if need == m else _anchors(tpl)
     dist = np.linalg.norm(pts[:, None, :] - pts[None, :, :], axis=-1)
-    assignments: set[tuple] = set()   # template point -> point index (-1: not found)
+    assignments: set[tuple] = set()  # template point -> point index (-1: not found)
     tried = 0
     for a, b, c in anchors:
         dab, dac, dbc = (np.linalg.norm(tpl[p] - tpl[q]) for p, q in ((a, b), (a, c), (b, c)))
@@ -134,8 +135,10 @@ def find_body(points, template, tol_mm: float = DEFAULT_TOL_MM,
                 if ok.sum() >= 3:
                     assignments.add(tuple(int(x) for x in np.where(ok, near, -1)))
     if not assignments:
-        raise DataError(f"the {m}-point body was not found among the {len(pts)} points seen "
-                        f"(no three of them match its shape within {tol_mm:g} mm).")
+        raise DataError(
+            f"the {m}-point body was not found among the {len(pts)} points seen "
+            f"(no three of them match its shape within {tol_mm:g} mm)."
+        )
     # refit each distinct assignment on all its points, then rank: most points, then best fit
     ranked: dict[tuple, tuple[int, float, RigidTransform]] = {}
     for assign in assignments:
@@ -148,19 +151,28 @@ def find_body(points, template, tol_mm: float = DEFAULT_TOL_MM,
     assign, (n_in, rms, tr) = order[0]
     if n_in < need:
         missing = [str(i + 1) for i, p in enumerate(assign) if p < 0]
-        raise DataError(f"the body was found with {n_in} of its {m} points: point(s) "
-                        f"{', '.join(missing)} not seen within {tol_mm:g} mm of where they belong.")
+        raise DataError(
+            f"the body was found with {n_in} of its {m} points: point(s) "
+            f"{', '.join(missing)} not seen within {tol_mm:g} mm of where they belong."
+        )
     idx = np.array(assign, int)
     seen = idx[idx >= 0]
     if len(set(seen.tolist())) < n_in or (exclusive is not None and _shares(exclusive, seen)):
-        raise DataError("two points of the body were matched to the same detection: the view is "
-                        "ambiguous at this position.")
+        raise DataError(
+            "two points of the body were matched to the same detection: the view is ambiguous at this position."
+        )
     for other, (n2, rms2, _) in order[1:]:
         oth = np.array(other, int)
-        if n2 == n_in and other != assign and rms2 < max(2.0 * rms, 0.5 * tol_mm) \
-                and not (exclusive is not None and _shares(exclusive, oth[oth >= 0])):
-            raise DataError(f"the body fits two ways among the points seen (RMS {rms:.2f} and "
-                            f"{rms2:.2f} mm): ambiguous, not guessed.")
+        if (
+            n2 == n_in
+            and other != assign
+            and rms2 < max(2.0 * rms, 0.5 * tol_mm)
+            and not (exclusive is not None and _shares(exclusive, oth[oth >= 0]))
+        ):
+            raise DataError(
+                f"the body fits two ways among the points seen (RMS {rms:.2f} and "
+                f"{rms2:.2f} mm): ambiguous, not guessed."
+            )
     found = np.where(idx[:, None] >= 0, pts[np.maximum(idx, 0)], np.nan)
     return BodyFit(found, idx, tr, rms, tried)
 
@@ -173,8 +185,15 @@ def _shares(exclusive: np.ndarray, idx: np.ndarray) -> bool:
     return False
 
 
-def locate_body(cams: Sequence, pts_a, pts_b, template, tol_mm: float = DEFAULT_TOL_MM,
-                max_px: float = 2.0, min_points: int | None = None) -> BodyFit:
+def locate_body(
+    cams: Sequence,
+    pts_a,
+    pts_b,
+    template,
+    tol_mm: float = DEFAULT_TOL_MM,
+    max_px: float = 2.0,
+    min_points: int | None = None,
+) -> BodyFit:
     """The body ``template`` seen by a stereo pair: :func:`candidate_points` then
     :func:`find_body`, no detection used twice."""
     hyp = candidate_points(cams, pts_a, pts_b, max_px)
@@ -189,8 +208,14 @@ def _with_detections(fit: BodyFit, made_of: np.ndarray) -> BodyFit:
     return replace(fit, detections=det)
 
 
-def locate_body_views(cams: Sequence, pts: Sequence, template, tol_mm: float = DEFAULT_TOL_MM,
-                      max_px: float = 2.0, min_points: int | None = None) -> BodyFit:
+def locate_body_views(
+    cams: Sequence,
+    pts: Sequence,
+    template,
+    tol_mm: float = DEFAULT_TOL_MM,
+    max_px: float = 2.0,
+    min_points: int | None = None,
+) -> BodyFit:
     """The body ``template`` seen by N cameras (``pts``: each camera's detections): with two,
     :func:`locate_body`; with more, the points :func:`vts_hw.vision.multiview.match_views`
     makes from every camera that sees each marker (pairs one pair cannot tell apart are settled

@@ -25,8 +25,8 @@ from scipy.optimize import least_squares
 DIST_NAMES = ("k1", "k2", "p1", "p2", "k3")
 INTRINSIC_NAMES = ("fx", "fy", "cx", "cy")
 EXTRINSIC_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz")
-LOSS = "cauchy"        # SciPy's robust loss: redescending, so a wrong view stops pulling (0030)
-F_SCALE_PX = 4.0       # residual (px) from which a corner counts as a wrong one rather than noise
+LOSS = "cauchy"  # SciPy's robust loss: redescending, so a wrong view stops pulling (0030)
+F_SCALE_PX = 4.0  # residual (px) from which a corner counts as a wrong one rather than noise
 
 
 def rodrigues(rvecs: np.ndarray) -> np.ndarray:
@@ -75,7 +75,7 @@ class Problem:
     uv: np.ndarray
     n_cams: int
     n_views: int
-    fitted: list[list[str]]          # per camera, the distortion terms that are free
+    fitted: list[list[str]]  # per camera, the distortion terms that are free
     reference: int = 0
     fix_intrinsics: bool = False
     _free: np.ndarray = field(init=False, repr=False)
@@ -103,13 +103,14 @@ class Problem:
     def pack(self, intr: np.ndarray, cam_pose: np.ndarray, view_pose: np.ndarray) -> np.ndarray:
         """The full parameter vector: per camera 9 intrinsics + 6 pose (rvec, t world → camera),
         then per view 6 (rvec, t board → world)."""
-        cams = np.hstack([np.asarray(intr, float).reshape(self.n_cams, 9),
-                          np.asarray(cam_pose, float).reshape(self.n_cams, 6)])
+        cams = np.hstack(
+            [np.asarray(intr, float).reshape(self.n_cams, 9), np.asarray(cam_pose, float).reshape(self.n_cams, 6)]
+        )
         return np.r_[cams.ravel(), np.asarray(view_pose, float).ravel()]
 
     def unpack(self, p: np.ndarray):
-        cams = p[:15 * self.n_cams].reshape(self.n_cams, 15)
-        return cams[:, :9], cams[:, 9:], p[15 * self.n_cams:].reshape(self.n_views, 6)
+        cams = p[: 15 * self.n_cams].reshape(self.n_cams, 15)
+        return cams[:, :9], cams[:, 9:], p[15 * self.n_cams :].reshape(self.n_views, 6)
 
     def project(self, p: np.ndarray) -> np.ndarray:
         """Predicted corners (n_obs × n_pts × 2) for the full parameter vector ``p``."""
@@ -130,8 +131,10 @@ class Problem:
         n_pts = len(self.board)
         J = np.zeros((2 * n_pts * len(self.cam), self.n_full))
         rows = np.arange(2 * n_pts * len(self.cam)).reshape(len(self.cam), -1)
-        for group, count, width, owner in ((0, self.n_cams, 15, self.cam),
-                                           (15 * self.n_cams, self.n_views, 6, self.view)):
+        for group, count, width, owner in (
+            (0, self.n_cams, 15, self.cam),
+            (15 * self.n_cams, self.n_views, 6, self.view),
+        ):
             for j in range(width):
                 idx = group + width * np.arange(count) + j
                 h = 1e-6 * np.maximum(1.0, np.abs(p[idx]))
@@ -146,20 +149,21 @@ class Problem:
 
 @dataclass
 class Solution:
-    p: np.ndarray                  # the full parameter vector at the solution
-    residuals: np.ndarray          # n_obs × n_pts × 2, px
-    jac: object                    # the (loss-weighted) Jacobian wrt the free parameters
-    free: np.ndarray               # indices of the free parameters in p
+    p: np.ndarray  # the full parameter vector at the solution
+    residuals: np.ndarray  # n_obs × n_pts × 2, px
+    jac: object  # the (loss-weighted) Jacobian wrt the free parameters
+    free: np.ndarray  # indices of the free parameters in p
     cost_start: float
     cost_end: float
     nfev: int
     status: str
-    start_rms: float = 0.0         # RMS (px) at the starting point
-    converged: bool = True         # False: stopped at max_nfev before a tolerance was met
+    start_rms: float = 0.0  # RMS (px) at the starting point
+    converged: bool = True  # False: stopped at max_nfev before a tolerance was met
 
 
-def adjust(problem: Problem, p0: np.ndarray, loss: str = LOSS, f_scale: float | None = None,
-           max_nfev: int = 200) -> Solution:
+def adjust(
+    problem: Problem, p0: np.ndarray, loss: str = LOSS, f_scale: float | None = None, max_nfev: int = 200
+) -> Solution:
     """Least squares over the free parameters from ``p0`` (see the module docstring).
 
     ``f_scale``: the residual (px) beyond which the robust loss takes over (default ``F_SCALE_PX``),
@@ -177,19 +181,39 @@ def adjust(problem: Problem, p0: np.ndarray, loss: str = LOSS, f_scale: float | 
     r0 = fun(p0[free])
     if f_scale is None:
         f_scale = F_SCALE_PX
+
     def jac(x):
         p = p0.copy()
         p[free] = x
         return problem.jacobian(p)
 
-    res = least_squares(fun, p0[free], jac=jac, loss=loss,
-                        f_scale=f_scale, x_scale="jac", method="trf", tr_solver="exact", max_nfev=max_nfev,
-                        xtol=1e-12, ftol=1e-12, gtol=1e-10)
+    res = least_squares(
+        fun,
+        p0[free],
+        jac=jac,
+        loss=loss,
+        f_scale=f_scale,
+        x_scale="jac",
+        method="trf",
+        tr_solver="exact",
+        max_nfev=max_nfev,
+        xtol=1e-12,
+        ftol=1e-12,
+        gtol=1e-10,
+    )
     p = p0.copy()
     p[free] = res.x
-    return Solution(p, problem.project(p) - problem.uv, res.jac, free,
-                    float(0.5 * r0 @ r0), float(res.cost), int(res.nfev), str(res.message),
-                    converged=bool(res.status > 0))
+    return Solution(
+        p,
+        problem.project(p) - problem.uv,
+        res.jac,
+        free,
+        float(0.5 * r0 @ r0),
+        float(res.cost),
+        int(res.nfev),
+        str(res.message),
+        converged=bool(res.status > 0),
+    )
 
 
 def covariance(problem: Problem, sol: Solution) -> dict[int, dict[str, float]]:

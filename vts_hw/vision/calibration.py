@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -44,8 +44,8 @@ from vts_hw.vision.view_graph import ViewGraph
 
 __all__ = ["CameraCalibration", "calibrate_cameras", "calibrate_from_corners", "calibrate_stereo", "fit_camera"]
 
-MIN_PAIRS = 3          # pairs the stereo case needs
-OUTLIER_FACTOR = 3.0   # a view whose RMS is above this x the median of the views is flagged
+MIN_PAIRS = 3  # pairs the stereo case needs
+OUTLIER_FACTOR = 3.0  # a view whose RMS is above this x the median of the views is flagged
 # Lens models: "opencv" is OpenCV's default (k1, k2, p1, p2, k3); "k1" fits the first radial
 # term only. "auto" takes the one with the lower Bayesian information criterion (fit_camera).
 DISTORTION = {
@@ -67,7 +67,7 @@ def fit_camera(obj, corners, image_size, distortion: str = "auto"):
     if distortion not in ("auto", *DISTORTION):
         raise ValueError(f"distortion must be 'auto', 'k1' or 'opencv', not {distortion!r}")
     fits = {}
-    for name in (("k1", "opencv") if distortion == "auto" else (distortion,)):
+    for name in ("k1", "opencv") if distortion == "auto" else (distortion,):
         flags, fitted = DISTORTION[name]
         rms, K, d, rvecs, tvecs = cv2.calibrateCamera(obj, corners, image_size, None, None, flags=flags)
         fits[name] = (float(rms), K, d, fitted, (rvecs, tvecs))
@@ -81,24 +81,36 @@ def fit_camera(obj, corners, image_size, distortion: str = "auto"):
         bic[name] = n_obs * math.log(max(rms, 1e-300) ** 2 / 2) + n_par * math.log(n_obs)
     name = "opencv" if bic["opencv"] < bic["k1"] else "k1"
     rms, K, d, fitted, poses = fits[name]
-    why = ("its lower residual outweighs 4 more terms" if name == "opencv"
-           else "4 more terms do not lower the residual enough")
-    return rms, K, d, {
-        "fitted": fitted,
-        "chosen_by": (f"auto (BIC): RMS {fits['opencv'][0]:.4f} px with k1, k2, p1, p2, k3 vs"
-                      f" {fits['k1'][0]:.4f} px with k1 alone, BIC {bic['opencv']:.1f} vs {bic['k1']:.1f}:"
-                      f" {why}"),
-    }, poses
+    why = (
+        "its lower residual outweighs 4 more terms"
+        if name == "opencv"
+        else "4 more terms do not lower the residual enough"
+    )
+    return (
+        rms,
+        K,
+        d,
+        {
+            "fitted": fitted,
+            "chosen_by": (
+                f"auto (BIC): RMS {fits['opencv'][0]:.4f} px with k1, k2, p1, p2, k3 vs"
+                f" {fits['k1'][0]:.4f} px with k1 alone, BIC {bic['opencv']:.1f} vs {bic['k1']:.1f}:"
+                f" {why}"
+            ),
+        },
+        poses,
+    )
 
 
-MIN_VIEWS = 3   # views a camera needs for its own intrinsics
+MIN_VIEWS = 3  # views a camera needs for its own intrinsics
 
 
 def pair_pose(obj, corners_a, corners_b, Ka, da, Kb, db, image_size):
     """Camera b's pose from camera a's (x_b = R x_a + T) on views both saw, intrinsics fixed:
     (rms, R, T, per-view errors (n × 2), board rvecs, tvecs in camera a)."""
-    out = cv2.stereoCalibrateExtended(obj, corners_a, corners_b, Ka, da, Kb, db, image_size, None, None,
-                                      flags=cv2.CALIB_FIX_INTRINSIC)
+    out = cv2.stereoCalibrateExtended(
+        obj, corners_a, corners_b, Ka, da, Kb, db, image_size, None, None, flags=cv2.CALIB_FIX_INTRINSIC
+    )
     rms, R, T, per_view = out[0], out[5], out[6], out[-1]
     if len(out) >= 12:
         rvecs, tvecs = out[9], out[10]
@@ -119,25 +131,31 @@ class Start:
 
     names: list[str]
     graph: ViewGraph
-    board: np.ndarray                       # the board's corners in its plane (n × 3)
-    pts: dict[str, dict[str, np.ndarray]]   # camera → view → corners (n × 1 × 2 float32)
-    own: dict[str, dict[str, Any]]          # camera → its own fit: rms, K, d, model, pose per view
-    pose: dict[str, tuple[np.ndarray, np.ndarray]]   # camera → (R, t) in the reference frame
+    board: np.ndarray  # the board's corners in its plane (n × 3)
+    pts: dict[str, dict[str, np.ndarray]]  # camera → view → corners (n × 1 × 2 float32)
+    own: dict[str, dict[str, Any]]  # camera → its own fit: rms, K, d, model, pose per view
+    pose: dict[str, tuple[np.ndarray, np.ndarray]]  # camera → (R, t) in the reference frame
     board_in: dict[str, tuple[str, np.ndarray, np.ndarray]]  # view → (camera, rvec, tvec) to start from
     edges: list[dict[str, Any]]
 
 
-def start(corners: Mapping[str, Mapping[str, np.ndarray]], image_sizes: Mapping[str, tuple[int, int]],
-          pattern: tuple[int, int] = PATTERN, square: float = 1.0, distortion: str = "auto",
-          reference: str | None = None) -> Start:
+def start(
+    corners: Mapping[str, Mapping[str, np.ndarray]],
+    image_sizes: Mapping[str, tuple[int, int]],
+    pattern: tuple[int, int] = PATTERN,
+    square: float = 1.0,
+    distortion: str = "auto",
+    reference: str | None = None,
+) -> Start:
     """Steps 1-3 of the module docstring."""
     names = list(corners)
     if len(names) < 2:
         raise DataError(f"only {len(names)} camera(s) given; a camera calibration needs at least two.")
     if reference is not None:
         if reference not in corners:
-            raise UsageError(f"the reference camera {reference!r} is not among the cameras of the images:"
-                             f" {', '.join(names)}.")
+            raise UsageError(
+                f"the reference camera {reference!r} is not among the cameras of the images: {', '.join(names)}."
+            )
         names.remove(reference)
         names.insert(0, reference)
     graph = ViewGraph(names, {c: list(corners[c]) for c in names})
@@ -148,34 +166,52 @@ def start(corners: Mapping[str, Mapping[str, np.ndarray]], image_sizes: Mapping[
     for c in names:
         for v, x in pts[c].items():
             if len(x) != n_pts:
-                raise DataError(f"camera {c}, view {v}: {len(x)} corners, the {pattern[0]}x{pattern[1]} board"
-                                f" has {n_pts}.")
+                raise DataError(
+                    f"camera {c}, view {v}: {len(x)} corners, the {pattern[0]}x{pattern[1]} board has {n_pts}."
+                )
     own = {}
     for c in names:
         views = graph.seen[c]
         if len(views) < MIN_VIEWS:
-            raise DataError(f"camera {c} found the board in only {len(views)} view(s); its intrinsics need"
-                            f" at least {MIN_VIEWS}.")
-        rms, K, d, model, (rvecs, tvecs) = fit_camera([obj1] * len(views), [pts[c][v] for v in views],
-                                                      tuple(image_sizes[c]), distortion)
-        own[c] = {"rms": rms, "K": K, "d": d, "model": model, "size": tuple(int(x) for x in image_sizes[c]),
-                  "pose": {v: (np.ravel(r), np.ravel(t)) for v, r, t in zip(views, rvecs, tvecs)},
-                  "rvecs": rvecs, "tvecs": tvecs}
+            raise DataError(
+                f"camera {c} found the board in only {len(views)} view(s); its intrinsics need at least {MIN_VIEWS}."
+            )
+        rms, K, d, model, (rvecs, tvecs) = fit_camera(
+            [obj1] * len(views), [pts[c][v] for v in views], tuple(image_sizes[c]), distortion
+        )
+        own[c] = {
+            "rms": rms,
+            "K": K,
+            "d": d,
+            "model": model,
+            "size": tuple(int(x) for x in image_sizes[c]),
+            "pose": {v: (np.ravel(r), np.ravel(t)) for v, r, t in zip(views, rvecs, tvecs)},
+            "rvecs": rvecs,
+            "tvecs": tvecs,
+        }
     pose = {names[0]: (np.eye(3), np.zeros(3))}
     edges: list[dict[str, Any]] = []
     board_in: dict[str, tuple[str, np.ndarray, np.ndarray]] = {}
     for a, b in graph.spanning_tree(names[0]):
         shared = graph.shared(a, b)
-        rms, R, T, _, rvecs, tvecs = pair_pose([obj1] * len(shared), [pts[a][v] for v in shared],
-                                               [pts[b][v] for v in shared], own[a]["K"], own[a]["d"],
-                                               own[b]["K"], own[b]["d"], own[a]["size"])
+        rms, R, T, _, rvecs, tvecs = pair_pose(
+            [obj1] * len(shared),
+            [pts[a][v] for v in shared],
+            [pts[b][v] for v in shared],
+            own[a]["K"],
+            own[a]["d"],
+            own[b]["K"],
+            own[b]["d"],
+            own[a]["size"],
+        )
         Ra, ta = pose[a]
         pose[b] = (R @ Ra, R @ ta + T)
         for v, r, t in zip(shared, rvecs, tvecs):
             board_in.setdefault(v, (a, np.ravel(r), np.ravel(t)))
-        edges.append({"from": a, "to": b, "shared_views": len(shared), "rms": rms,
-                      "distance": float(np.linalg.norm(T))})
-    for v in graph.views:            # a view on no edge of the tree: the pose its camera's own fit gave
+        edges.append(
+            {"from": a, "to": b, "shared_views": len(shared), "rms": rms, "distance": float(np.linalg.norm(T))}
+        )
+    for v in graph.views:  # a view on no edge of the tree: the pose its camera's own fit gave
         if v not in board_in:
             c = next(c for c in names if v in own[c]["pose"])
             board_in[v] = (c, *own[c]["pose"][v])
@@ -194,12 +230,29 @@ def adjust(st: Start, intrinsics: str = "refine", loss: str = bundle.LOSS):
         Rw = Rc.T @ cv2.Rodrigues(r_bc)[0]
         vpose[i] = np.r_[cv2.Rodrigues(Rw)[0].ravel(), Rc.T @ (t_bc - tc)]
     obs = [(ci, vi) for vi, v in enumerate(views) for ci, c in enumerate(names) if v in st.pts[c]]
-    problem = bundle.Problem(st.board, np.array([o[0] for o in obs], int), np.array([o[1] for o in obs], int),
-                             np.stack([st.pts[names[ci]][views[vi]].reshape(-1, 2) for ci, vi in obs]),
-                             len(names), len(views), [st.own[c]["model"]["fitted"] for c in names],
-                             reference=0, fix_intrinsics=intrinsics == "fixed")
-    intr = np.array([[st.own[c]["K"][0, 0], st.own[c]["K"][1, 1], st.own[c]["K"][0, 2], st.own[c]["K"][1, 2],
-                      *np.r_[np.ravel(st.own[c]["d"]), np.zeros(5)][:5]] for c in names])
+    problem = bundle.Problem(
+        st.board,
+        np.array([o[0] for o in obs], int),
+        np.array([o[1] for o in obs], int),
+        np.stack([st.pts[names[ci]][views[vi]].reshape(-1, 2) for ci, vi in obs]),
+        len(names),
+        len(views),
+        [st.own[c]["model"]["fitted"] for c in names],
+        reference=0,
+        fix_intrinsics=intrinsics == "fixed",
+    )
+    intr = np.array(
+        [
+            [
+                st.own[c]["K"][0, 0],
+                st.own[c]["K"][1, 1],
+                st.own[c]["K"][0, 2],
+                st.own[c]["K"][1, 2],
+                *np.r_[np.ravel(st.own[c]["d"]), np.zeros(5)][:5],
+            ]
+            for c in names
+        ]
+    )
     cpose = np.array([np.r_[cv2.Rodrigues(st.pose[c][0])[0].ravel(), st.pose[c][1]] for c in names])
     p0 = problem.pack(intr, cpose, vpose)
     # the robust loss takes over beyond what a corner finder's noise can explain: 5 sigma of the
@@ -210,13 +263,19 @@ def adjust(st: Start, intrinsics: str = "refine", loss: str = bundle.LOSS):
     return problem, sol, obs
 
 
-def calibrate_cameras(corners: Mapping[str, Mapping[str, np.ndarray]],
-                      image_sizes: Mapping[str, tuple[int, int]],
-                      pattern: tuple[int, int] = PATTERN, square: float = 1.0, unit: str = "squares",
-                      distortion: str = "auto", reference: str | None = None,
-                      intrinsics: str = "refine", loss: str = bundle.LOSS,
-                      outlier_factor: float = OUTLIER_FACTOR,
-                      skipped: Mapping[str, str] | None = None) -> CameraCalibration:
+def calibrate_cameras(
+    corners: Mapping[str, Mapping[str, np.ndarray]],
+    image_sizes: Mapping[str, tuple[int, int]],
+    pattern: tuple[int, int] = PATTERN,
+    square: float = 1.0,
+    unit: str = "squares",
+    distortion: str = "auto",
+    reference: str | None = None,
+    intrinsics: str = "refine",
+    loss: str = bundle.LOSS,
+    outlier_factor: float = OUTLIER_FACTOR,
+    skipped: Mapping[str, str] | None = None,
+) -> CameraCalibration:
     """Calibrate the cameras of ``corners`` (camera → view name → the board's inner corners found
     in that camera's image of that view) into the frame of ``reference`` (default the first
     camera). ``image_sizes``: camera → (width, height). ``intrinsics``: "refine" (in the bundle
@@ -238,7 +297,7 @@ def calibrate_cameras(corners: Mapping[str, Mapping[str, np.ndarray]],
     else:
         sds = bundle.covariance(problem, sol)
     res = sol.residuals
-    per_obs = np.sqrt(np.mean(np.sum(res ** 2, axis=2), axis=1))
+    per_obs = np.sqrt(np.mean(np.sum(res**2, axis=2), axis=1))
     view_errors: dict[str, dict[str, float]] = {v: {} for v in views}
     for k, (ci, vi) in enumerate(obs):
         view_errors[views[vi]][names[ci]] = float(per_obs[k])
@@ -251,20 +310,43 @@ def calibrate_cameras(corners: Mapping[str, Mapping[str, np.ndarray]],
         K = np.array([[intr[ci, 0], 0, intr[ci, 2]], [0, intr[ci, 1], intr[ci, 3]], [0, 0, 1.0]])
         model = dict(own[c]["model"], own_rms=own[c]["rms"])
         rms = own[c]["rms"] if intrinsics == "fixed" else _rms(res[mine])
-        cam_fits.append(CameraFit(c, K, intr[ci, 4:9], cv2.Rodrigues(cpose[ci, :3])[0], cpose[ci, 3:],
-                                  own[c]["size"], rms, len(mine), model, sds[ci] or None))
+        cam_fits.append(
+            CameraFit(
+                c,
+                K,
+                intr[ci, 4:9],
+                cv2.Rodrigues(cpose[ci, :3])[0],
+                cpose[ci, 3:],
+                own[c]["size"],
+                rms,
+                len(mine),
+                model,
+                sds[ci] or None,
+            )
+        )
     rule = f"view RMS (every camera that saw it) > {outlier_factor:g} x median of the views"
-    method = (f"per-camera OpenCV intrinsics, poses chained along the view graph from {names[0]},"
-              f" one bundle adjustment ({'intrinsics refined' if intrinsics == 'refine' else 'intrinsics fixed'},"
-              f" {loss} loss); {sol.nfev} evaluations: {sol.status}")
-    return CameraCalibration(cam_fits, (int(pattern[0]), int(pattern[1])), float(square), unit, _rms(res),
-                             fits_v, rule, view_graph=st.graph.data(), skipped=dict(skipped or {}),
-                             initial={"rms": sol.start_rms, "edges": st.edges,
-                                      "own_rms": {c: own[c]["rms"] for c in names}},
-                             adjustment={"converged": sol.converged, "evaluations": sol.nfev, "status": sol.status},
-                             method=method,
-                             created=datetime.now(timezone.utc).isoformat(timespec="seconds"),
-                             software=vts_hw.__version__, pair=pair)
+    method = (
+        f"per-camera OpenCV intrinsics, poses chained along the view graph from {names[0]},"
+        f" one bundle adjustment ({'intrinsics refined' if intrinsics == 'refine' else 'intrinsics fixed'},"
+        f" {loss} loss); {sol.nfev} evaluations: {sol.status}"
+    )
+    return CameraCalibration(
+        cam_fits,
+        (int(pattern[0]), int(pattern[1])),
+        float(square),
+        unit,
+        _rms(res),
+        fits_v,
+        rule,
+        view_graph=st.graph.data(),
+        skipped=dict(skipped or {}),
+        initial={"rms": sol.start_rms, "edges": st.edges, "own_rms": {c: own[c]["rms"] for c in names}},
+        adjustment={"converged": sol.converged, "evaluations": sol.nfev, "status": sol.status},
+        method=method,
+        created=datetime.now(UTC).isoformat(timespec="seconds"),
+        software=vts_hw.__version__,
+        pair=pair,
+    )
 
 
 def _pair_uncertainty(st: Start, cpose: np.ndarray, vpose: np.ndarray):
@@ -274,12 +356,15 @@ def _pair_uncertainty(st: Start, cpose: np.ndarray, vpose: np.ndarray):
     views = st.graph.views
     obj = [st.board] * len(views)
     rot, t = cv2.Rodrigues(cpose[1, :3])[0], cpose[1, 3:].reshape(3, 1)
-    rvecs = [v[:3].reshape(3, 1) for v in vpose]      # board poses in camera 1 = the frame
+    rvecs = [v[:3].reshape(3, 1) for v in vpose]  # board poses in camera 1 = the frame
     tvecs = [v[3:].reshape(3, 1) for v in vpose]
-    cam_a, cam_b = ((st.own[c]["K"], st.own[c]["d"], st.own[c]["model"]["fitted"], st.own[c]["rvecs"],
-                     st.own[c]["tvecs"]) for c in (a, b))
-    unc = stereo_covariance(obj, [st.pts[a][v] for v in views], [st.pts[b][v] for v in views], cam_a, cam_b,
-                            rot, t, rvecs, tvecs)
+    cam_a, cam_b = (
+        (st.own[c]["K"], st.own[c]["d"], st.own[c]["model"]["fitted"], st.own[c]["rvecs"], st.own[c]["tvecs"])
+        for c in (a, b)
+    )
+    unc = stereo_covariance(
+        obj, [st.pts[a][v] for v in views], [st.pts[b][v] for v in views], cam_a, cam_b, rot, t, rvecs, tvecs
+    )
     return {0: unc["camera1"], 1: unc["camera2"]}, {"stereo": unc["stereo"], "stereo_cov": unc["stereo_cov"]}
 
 
@@ -313,8 +398,10 @@ def calibrate_stereo(
             if image_size is None:
                 image_size = size
             elif size != image_size:
-                raise DataError(f"{_label(src, name)} is {size[0]}x{size[1]} px, the other images"
-                                f" are {image_size[0]}x{image_size[1]} px.")
+                raise DataError(
+                    f"{_label(src, name)} is {size[0]}x{size[1]} px, the other images"
+                    f" are {image_size[0]}x{image_size[1]} px."
+                )
         cl, cr = find_corners(gl, pattern), find_corners(gr, pattern)
         if cl is None or cr is None:
             missing = " and ".join(s for s, c in (("left", cl), ("right", cr)) if c is None)
@@ -325,9 +412,19 @@ def calibrate_stereo(
         kept.append(name)
     if image_size is None:
         raise DataError("no image pairs given for the stereo calibration.")
-    return calibrate_from_corners(left_corners, right_corners, image_size, names=kept, pattern=pattern,
-                                  square=square, unit=unit, skipped=skipped, distortion=distortion,
-                                  outlier_factor=outlier_factor, cameras=cameras)
+    return calibrate_from_corners(
+        left_corners,
+        right_corners,
+        image_size,
+        names=kept,
+        pattern=pattern,
+        square=square,
+        unit=unit,
+        skipped=skipped,
+        distortion=distortion,
+        outlier_factor=outlier_factor,
+        cameras=cameras,
+    )
 
 
 def calibrate_from_corners(
@@ -353,13 +450,23 @@ def calibrate_from_corners(
     if len(set(names)) != n:
         raise ValueError("the pairs' names must differ")
     if n < MIN_PAIRS:
-        raise DataError(f"only {n} pair(s) show the board in both images; the stereo calibration"
-                        f" needs at least {MIN_PAIRS}.")
+        raise DataError(
+            f"only {n} pair(s) show the board in both images; the stereo calibration needs at least {MIN_PAIRS}."
+        )
     a, b = cameras
     corners = {a: dict(zip(names, left_corners)), b: dict(zip(names, right_corners))}
-    return calibrate_cameras(corners, {a: image_size, b: image_size}, pattern=pattern, square=square, unit=unit,
-                             distortion=distortion, intrinsics="fixed", loss="linear",
-                             outlier_factor=outlier_factor, skipped=skipped)
+    return calibrate_cameras(
+        corners,
+        {a: image_size, b: image_size},
+        pattern=pattern,
+        square=square,
+        unit=unit,
+        distortion=distortion,
+        intrinsics="fixed",
+        loss="linear",
+        outlier_factor=outlier_factor,
+        skipped=skipped,
+    )
 
 
 def _pair_name(i: int, left: ImageOrPath, right: ImageOrPath) -> str:

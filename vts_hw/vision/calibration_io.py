@@ -34,7 +34,7 @@ from vts_hw.vision.triangulate import PinholeCamera
 
 FORMAT = "vts-hw camera calibration"
 FORMAT_VERSION = 1
-STEREO_FORMAT = "vts-hw stereo calibration"   # the two-camera files written before one record
+STEREO_FORMAT = "vts-hw stereo calibration"  # the two-camera files written before one record
 UNITS = ("squares", "mm")
 
 
@@ -52,7 +52,7 @@ class CameraFit:
     rms: float = 0.0
     n_views: int = 0
     distortion_model: dict[str, Any] = field(default_factory=dict)
-    sd: dict[str, float] | None = None      # standard deviations of the fitted parameters
+    sd: dict[str, float] | None = None  # standard deviations of the fitted parameters
 
     def __post_init__(self) -> None:
         self.K = np.asarray(self.K, float).reshape(3, 3)
@@ -70,14 +70,23 @@ class CameraFit:
 
     def project(self, points) -> np.ndarray:
         """Pixels (n × 2) of points (n × 3) in the calibration's frame, distortion included."""
-        uv, _ = cv2.projectPoints(np.asarray(points, float).reshape(-1, 1, 3), cv2.Rodrigues(self.R)[0],
-                                  self.t, self.K, self.d)
+        uv, _ = cv2.projectPoints(
+            np.asarray(points, float).reshape(-1, 1, 3), cv2.Rodrigues(self.R)[0], self.t, self.K, self.d
+        )
         return uv.reshape(-1, 2)
 
     def data(self) -> dict[str, Any]:
-        out = {"name": self.name, "image_size": list(self.image_size), "K": self.K.tolist(),
-               "d": self.d.tolist(), "R": self.R.tolist(), "t": self.t.tolist(), "rms": float(self.rms),
-               "views": int(self.n_views), "distortion_model": dict(self.distortion_model)}
+        out = {
+            "name": self.name,
+            "image_size": list(self.image_size),
+            "K": self.K.tolist(),
+            "d": self.d.tolist(),
+            "R": self.R.tolist(),
+            "t": self.t.tolist(),
+            "rms": float(self.rms),
+            "views": int(self.n_views),
+            "distortion_model": dict(self.distortion_model),
+        }
         if self.sd is not None:
             out["sd"] = dict(self.sd)
         return out
@@ -109,7 +118,7 @@ class CameraCalibration:
     outlier_rule: str
     view_graph: dict[str, Any] = field(default_factory=dict)
     skipped: dict[str, str] = field(default_factory=dict)
-    initial: dict[str, Any] = field(default_factory=dict)     # figures before the bundle adjustment
+    initial: dict[str, Any] = field(default_factory=dict)  # figures before the bundle adjustment
     adjustment: dict[str, Any] = field(default_factory=dict)  # converged, evaluations, status
     method: str = ""
     created: str = ""
@@ -204,42 +213,59 @@ class CameraCalibration:
     # ---- reporting --------------------------------------------------------------------
     def results_data(self) -> dict[str, Any]:
         return {
-            "format": FORMAT, "format_version": FORMAT_VERSION,
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
             "frame": f"camera {self.reference}'s (x_cam = R x + t)",
-            "reference": self.reference, "n_cameras": len(self.camera_fits),
-            "pattern": list(self.pattern), "square": float(self.square), "unit": self.unit,
+            "reference": self.reference,
+            "n_cameras": len(self.camera_fits),
+            "pattern": list(self.pattern),
+            "square": float(self.square),
+            "unit": self.unit,
             "cameras": [c.data() for c in self.camera_fits],
             "rms": float(self.rms),
-            "per_view": [{"name": v.name, "errors": dict(v.errors), "rms": v.rms, "outlier": bool(v.outlier)}
-                         for v in self.per_view],
-            "outlier_rule": self.outlier_rule, "outliers": self.outliers,
-            "view_graph": self.view_graph, "skipped": dict(self.skipped),
-            "initial": dict(self.initial), "adjustment": dict(self.adjustment), "method": self.method,
-            "created": self.created, "software": self.software,
+            "per_view": [
+                {"name": v.name, "errors": dict(v.errors), "rms": v.rms, "outlier": bool(v.outlier)}
+                for v in self.per_view
+            ],
+            "outlier_rule": self.outlier_rule,
+            "outliers": self.outliers,
+            "view_graph": self.view_graph,
+            "skipped": dict(self.skipped),
+            "initial": dict(self.initial),
+            "adjustment": dict(self.adjustment),
+            "method": self.method,
+            "created": self.created,
+            "software": self.software,
         } | ({"pair_uncertainty": dict(self.pair)} if self.pair is not None else {})
 
     def results(self) -> str:
         u = self.unit
-        lines = [f"Camera calibration: {len(self.camera_fits)} cameras, {len(self.per_view)} views"
-                 f" (pattern {self.pattern[0]}x{self.pattern[1]}, square {self.square:g} {u}; frame of"
-                 f" {self.reference}; {self.created}, vts-hw {self.software})",
-                 f"  RMS reprojection error {self.rms:.3f} px over every corner"
-                 + (f" (after the pairwise start: {self.initial['rms']:.3f} px)" if "rms" in self.initial else "")]
+        lines = [
+            f"Camera calibration: {len(self.camera_fits)} cameras, {len(self.per_view)} views"
+            f" (pattern {self.pattern[0]}x{self.pattern[1]}, square {self.square:g} {u}; frame of"
+            f" {self.reference}; {self.created}, vts-hw {self.software})",
+            f"  RMS reprojection error {self.rms:.3f} px over every corner"
+            + (f" (after the pairwise start: {self.initial['rms']:.3f} px)" if "rms" in self.initial else ""),
+        ]
         for c in self.camera_fits:
             sd = c.sd or {}
             pm = {n: (f" ± {sd[n]:.2g}" if n in sd else "") for n in ("fx", "fy", "cx", "cy", "k1")}
             pos = c.center
             fitted = c.distortion_model.get("fitted")
-            lines.append(f"  {c.name}: RMS {c.rms:.3f} px over {c.n_views} views; fx {c.K[0, 0]:.2f}{pm['fx']}"
-                         f" fy {c.K[1, 1]:.2f}{pm['fy']} cx {c.K[0, 2]:.2f}{pm['cx']} cy {c.K[1, 2]:.2f}{pm['cy']}"
-                         f" px, k1 {c.d[0]:+.4f}{pm['k1']}; at ({pos[0]:.4g}, {pos[1]:.4g}, {pos[2]:.4g}) {u},"
-                         f" turned {rotation_angle_deg(c.R):.3f} deg from {self.reference}"
-                         + (f" (distortion fitted: {', '.join(fitted)})" if fitted else ""))
+            lines.append(
+                f"  {c.name}: RMS {c.rms:.3f} px over {c.n_views} views; fx {c.K[0, 0]:.2f}{pm['fx']}"
+                f" fy {c.K[1, 1]:.2f}{pm['fy']} cx {c.K[0, 2]:.2f}{pm['cx']} cy {c.K[1, 2]:.2f}{pm['cy']}"
+                f" px, k1 {c.d[0]:+.4f}{pm['k1']}; at ({pos[0]:.4g}, {pos[1]:.4g}, {pos[2]:.4g}) {u},"
+                f" turned {rotation_angle_deg(c.R):.3f} deg from {self.reference}"
+                + (f" (distortion fitted: {', '.join(fitted)})" if fitted else "")
+            )
         if self.pair is not None:
             st = self.pair["stereo"]
-            lines.append(f"  baseline {self.baseline:.4g} ± {st['baseline']:.2g} {u}, rotation between"
-                         f" {self.names[0]} and {self.names[1]} {rotation_angle_deg(self.R):.3f} deg"
-                         f" (± {max(st['rx'], st['ry'], st['rz']):.2g} deg about the least certain axis)")
+            lines.append(
+                f"  baseline {self.baseline:.4g} ± {st['baseline']:.2g} {u}, rotation between"
+                f" {self.names[0]} and {self.names[1]} {rotation_angle_deg(self.R):.3f} deg"
+                f" (± {max(st['rx'], st['ry'], st['rz']):.2g} deg about the least certain axis)"
+            )
         for v in self.per_view:
             errs = " ".join(f"{k} {e:.3f}" for k, e in v.errors.items())
             lines.append(f"    view {v.name}: {errs} px" + ("  OUTLIER" if v.outlier else ""))
@@ -276,8 +302,11 @@ def read_calibration(source):
         return source
     path = Path(source)
     data = _read_json(path)
-    if isinstance(data, dict) and data.get("format") not in (FORMAT, STEREO_FORMAT) \
-            and isinstance(data.get("cameras"), list):
+    if (
+        isinstance(data, dict)
+        and data.get("format") not in (FORMAT, STEREO_FORMAT)
+        and isinstance(data.get("cameras"), list)
+    ):
         return _camera_list(path, data)
     return _calibration(path, data)
 
@@ -299,7 +328,7 @@ def _read_json(path: Path):
         raise DataError(f"{path}: not a JSON calibration file ({exc.msg}, line {exc.lineno}).") from None
     except RecursionError:
         raise DataError(f"{path}: not a JSON calibration file (nested too deeply).") from None
-    except ValueError as exc:   # a 5000-digit number: "Exceeds the limit (4300 digits) for integer ..."
+    except ValueError as exc:  # a 5000-digit number: "Exceeds the limit (4300 digits) for integer ..."
         raise DataError(f"{path}: not a JSON calibration file ({str(exc).split(':')[0]}).") from None
 
 
@@ -316,8 +345,10 @@ def _camera_list(path: Path, data: dict) -> dict[str, PinholeCamera]:
             name = str(row.get("name") or f"cam{i + 1}")
             out[name] = PinholeCamera(row["K"], row["dist"], row["R"], row["t"], name)
         except (AttributeError, KeyError, TypeError, ValueError) as exc:
-            raise DataError(f"{path}: camera {i + 1} is not whole ({type(exc).__name__}: "
-                            f"{str(exc)[:80]}); each needs name, K, dist, R, t") from None
+            raise DataError(
+                f"{path}: camera {i + 1} is not whole ({type(exc).__name__}: "
+                f"{str(exc)[:80]}); each needs name, K, dist, R, t"
+            ) from None
     return out
 
 
@@ -327,11 +358,13 @@ def _calibration(path: Path, data) -> CameraCalibration:
         f = stereo_fields(path, data, UNITS)
         fits = [CameraFit(**c) for c in f.pop("cameras")]
         views = [ViewFit(*v) for v in f.pop("per_view")]
-        return CameraCalibration(fits, f.pop("pattern"), f.pop("square"), f.pop("unit"), f.pop("rms"), views,
-                                 f.pop("outlier_rule"), **f)
+        return CameraCalibration(
+            fits, f.pop("pattern"), f.pop("square"), f.pop("unit"), f.pop("rms"), views, f.pop("outlier_rule"), **f
+        )
     if kind != FORMAT:
-        raise DataError(f"{path}: key 'format' is neither {FORMAT!r} nor {STEREO_FORMAT!r}, so this is"
-                        " not a calibration file.")
+        raise DataError(
+            f"{path}: key 'format' is neither {FORMAT!r} nor {STEREO_FORMAT!r}, so this is not a calibration file."
+        )
     return _from_data(path, data)
 
 
@@ -352,13 +385,17 @@ def _from_data(path: Path, data: dict[str, Any]) -> CameraCalibration:
         except (TypeError, ValueError, OverflowError):
             raise DataError(f"{path}: key '{key}' must be a list of numbers.") from None
         if (shape is not None and arr.shape != shape) or arr.size == 0 or not np.all(np.isfinite(arr)):
-            raise DataError(f"{path}: key '{key}' must be a {' × '.join(map(str, shape or ('n',)))}"
-                            " list of finite numbers.")
+            raise DataError(
+                f"{path}: key '{key}' must be a {' × '.join(map(str, shape or ('n',)))} list of finite numbers."
+            )
         return arr
 
     def pair(value, key):
-        if (not isinstance(value, list) or len(value) != 2
-                or not all(isinstance(x, int) and not isinstance(x, bool) and x > 0 for x in value)):
+        if (
+            not isinstance(value, list)
+            or len(value) != 2
+            or not all(isinstance(x, int) and not isinstance(x, bool) and x > 0 for x in value)
+        ):
             raise DataError(f"{path}: key '{key}' must be two positive integers.")
         return int(value[0]), int(value[1])
 
@@ -375,18 +412,31 @@ def _from_data(path: Path, data: dict[str, Any]) -> CameraCalibration:
         if not isinstance(name, str) or not name:
             raise DataError(f"{path}: key '{w}name' must be a camera name.")
         sd = c.get("sd")
-        if sd is not None and (not isinstance(sd, dict) or not all(
+        if sd is not None and (
+            not isinstance(sd, dict)
+            or not all(
                 isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and x >= 0
-                for x in sd.values())):
+                for x in sd.values()
+            )
+        ):
             raise DataError(f"{path}: key '{w}sd' must hold finite, non-negative standard deviations.")
         model = c.get("distortion_model", {})
         if not isinstance(model, dict):
             raise DataError(f"{path}: key '{w}distortion_model' must be a mapping.")
-        fits.append(CameraFit(name, matrix(need(c, "K", w), w + "K", (3, 3)), matrix(need(c, "d", w), w + "d", None),
-                              matrix(need(c, "R", w), w + "R", (3, 3)), matrix(need(c, "t", w), w + "t", (3,)),
-                              pair(need(c, "image_size", w), w + "image_size"),
-                              number(need(c, "rms", w), w + "rms"), int(number(c.get("views", 0), w + "views")),
-                              model, sd))
+        fits.append(
+            CameraFit(
+                name,
+                matrix(need(c, "K", w), w + "K", (3, 3)),
+                matrix(need(c, "d", w), w + "d", None),
+                matrix(need(c, "R", w), w + "R", (3, 3)),
+                matrix(need(c, "t", w), w + "t", (3,)),
+                pair(need(c, "image_size", w), w + "image_size"),
+                number(need(c, "rms", w), w + "rms"),
+                int(number(c.get("views", 0), w + "views")),
+                model,
+                sd,
+            )
+        )
     if len({f.name for f in fits}) != len(fits):
         raise DataError(f"{path}: key 'cameras' names a camera twice.")
     views = need(data, "per_view")
@@ -397,8 +447,13 @@ def _from_data(path: Path, data: dict[str, Any]) -> CameraCalibration:
         errs = need(v, "errors", f"per_view[{i}].")
         if not isinstance(v.get("name"), str) or not isinstance(errs, dict) or not errs:
             raise DataError(f"{path}: key 'per_view[{i}]' must have a 'name' and 'errors' per camera.")
-        per_view.append(ViewFit(v["name"], {k: number(e, f"per_view[{i}].errors.{k}") for k, e in errs.items()},
-                                bool(v.get("outlier", False))))
+        per_view.append(
+            ViewFit(
+                v["name"],
+                {k: number(e, f"per_view[{i}].errors.{k}") for k, e in errs.items()},
+                bool(v.get("outlier", False)),
+            )
+        )
     texts = {}
     for key in ("outlier_rule", "created", "software"):
         texts[key] = need(data, key)
@@ -407,10 +462,20 @@ def _from_data(path: Path, data: dict[str, Any]) -> CameraCalibration:
     skipped = data.get("skipped", {})
     if not isinstance(skipped, dict):
         raise DataError(f"{path}: key 'skipped' must map views to reasons.")
-    return CameraCalibration(fits, pair(need(data, "pattern"), "pattern"), number(need(data, "square"), "square"),
-                             unit, number(need(data, "rms"), "rms"), per_view, texts["outlier_rule"],
-                             view_graph=data.get("view_graph") or {}, skipped=dict(skipped),
-                             initial=data.get("initial") or {}, adjustment=a if isinstance(a := data.get("adjustment"), dict) else {},
-                             method=str(data.get("method", "")),
-                             created=texts["created"], software=texts["software"],
-                             pair=check_pair_uncertainty(path, data.get("pair_uncertainty"), "pair_uncertainty"))
+    return CameraCalibration(
+        fits,
+        pair(need(data, "pattern"), "pattern"),
+        number(need(data, "square"), "square"),
+        unit,
+        number(need(data, "rms"), "rms"),
+        per_view,
+        texts["outlier_rule"],
+        view_graph=data.get("view_graph") or {},
+        skipped=dict(skipped),
+        initial=data.get("initial") or {},
+        adjustment=a if isinstance(a := data.get("adjustment"), dict) else {},
+        method=str(data.get("method", "")),
+        created=texts["created"],
+        software=texts["software"],
+        pair=check_pair_uncertainty(path, data.get("pair_uncertainty"), "pair_uncertainty"),
+    )

@@ -60,8 +60,11 @@ def stereo_fields(path: Path, data: dict[str, Any], units) -> dict[str, Any]:
 
     def int_pair(key: str) -> tuple[int, int]:
         value = need(key)
-        if (not isinstance(value, list) or len(value) != 2
-                or not all(isinstance(x, int) and not isinstance(x, bool) and x > 0 for x in value)):
+        if (
+            not isinstance(value, list)
+            or len(value) != 2
+            or not all(isinstance(x, int) and not isinstance(x, bool) and x > 0 for x in value)
+        ):
             raise DataError(f"{path}: key '{key}' must be two positive integers (got {_shown(value)}).")
         return int(value[0]), int(value[1])
 
@@ -85,23 +88,57 @@ def stereo_fields(path: Path, data: dict[str, Any], units) -> dict[str, Any]:
         key = f"per_view[{i}]"
         if not isinstance(v, dict) or not isinstance(v.get("name"), str):
             raise DataError(f"{path}: key '{key}' must have a 'name', 'left' and 'right'.")
-        per_view.append((v["name"], {a: number(f"{key}.left", v.get("left", "missing")),
-                                     b: number(f"{key}.right", v.get("right", "missing"))},
-                         bool(v.get("outlier", False))))
+        per_view.append(
+            (
+                v["name"],
+                {
+                    a: number(f"{key}.left", v.get("left", "missing")),
+                    b: number(f"{key}.right", v.get("right", "missing")),
+                },
+                bool(v.get("outlier", False)),
+            )
+        )
     skipped = need("skipped")
     if not isinstance(skipped, dict) or not all(isinstance(x, str) for x in skipped.values()):
         raise DataError(f"{path}: key 'skipped' must map view names to reasons.")
     extra = optional_keys(path, data)
     model = extra.get("distortion_model", {})
     unc = extra.get("uncertainty")
-    cams = [dict(name=a, K=m["K1"], d=m["d1"], R=np.eye(3), t=np.zeros(3), rms=number("rms_left"),
-                 distortion_model=dict(model.get("camera1", {})), sd=dict(unc["camera1"]) if unc else None),
-            dict(name=b, K=m["K2"], d=m["d2"], R=m["R"], t=m["T"], rms=number("rms_right"),
-                 distortion_model=dict(model.get("camera2", {})), sd=dict(unc["camera2"]) if unc else None)]
+    cams = [
+        dict(
+            name=a,
+            K=m["K1"],
+            d=m["d1"],
+            R=np.eye(3),
+            t=np.zeros(3),
+            rms=number("rms_left"),
+            distortion_model=dict(model.get("camera1", {})),
+            sd=dict(unc["camera1"]) if unc else None,
+        ),
+        dict(
+            name=b,
+            K=m["K2"],
+            d=m["d2"],
+            R=m["R"],
+            t=m["T"],
+            rms=number("rms_right"),
+            distortion_model=dict(model.get("camera2", {})),
+            sd=dict(unc["camera2"]) if unc else None,
+        ),
+    ]
     for c in cams:
         c.update(image_size=size, n_views=len(per_view))
-    return dict(cameras=cams, per_view=per_view, pattern=int_pair("pattern"), square=number("square"), unit=unit,
-                rms=number("rms_stereo"), outlier_rule=text("outlier_rule"), skipped=dict(skipped),
-                method="stereo calibration file (written before one calibration record)",
-                created=text("created"), software=text("software"),
-                pair=check_pair_uncertainty(path, unc, "uncertainty") if unc else None)
+    return dict(
+        cameras=cams,
+        per_view=per_view,
+        pattern=int_pair("pattern"),
+        square=number("square"),
+        unit=unit,
+        rms=number("rms_stereo"),
+        outlier_rule=text("outlier_rule"),
+        skipped=dict(skipped),
+        method="stereo calibration file (written before one calibration record)",
+        created=text("created"),
+        software=text("software"),
+        pair=check_pair_uncertainty(path, unc, "uncertainty") if unc else None,
+    )

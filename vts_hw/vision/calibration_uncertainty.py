@@ -25,7 +25,7 @@ import numpy as np
 
 from vts_hw.errors import DataError
 
-K_SIGMA = 3.0   # a change beyond this many combined standard deviations is reported
+K_SIGMA = 3.0  # a change beyond this many combined standard deviations is reported
 DIST_NAMES = ("k1", "k2", "p1", "p2", "k3")
 STEREO_NAMES = ("rx", "ry", "rz", "tx", "ty", "tz")  # rotation (deg) then translation (unit)
 
@@ -62,8 +62,13 @@ def stereo_covariance(obj, left, right, cam1, cam2, R, T, rvecs, tvecs) -> dict[
                 return cv2.projectPoints(obj[i], v[:3], v[3:], K, d)[0].ravel() - uv[ci][i]
 
             r0 = resid(c.params, v0)
-            blocks.append((r0, _jacobian(lambda th, v0=v0: resid(th, v0), c.params, c.steps()),
-                           _jacobian(lambda v, c=c: resid(c.params, v), v0, _pose_steps(v0))))
+            blocks.append(
+                (
+                    r0,
+                    _jacobian(lambda th, v0=v0: resid(th, v0), c.params, c.steps()),
+                    _jacobian(lambda v, c=c: resid(c.params, v), v0, _pose_steps(v0)),
+                )
+            )
         infl, rss = _influence(blocks)
         dof = sum(r.size for r, _, _ in blocks) - c.n - 6 * n_v
         if dof <= 0:
@@ -71,7 +76,7 @@ def stereo_covariance(obj, left, right, cam1, cam2, R, T, rvecs, tvecs) -> dict[
         s2 = rss / dof
         lo = sum(n_th[:ci])
         for i in range(n_v):
-            A[lo:lo + c.n, rows[i]] = infl[i]
+            A[lo : lo + c.n, rows[i]] = infl[i]
             var[rows[i]] = s2
         cov_c = s2 * sum(m @ m.T for m in infl)
         out[f"camera{ci + 1}"] = {n: float(math.sqrt(max(cov_c[j, j], 0.0))) for j, n in enumerate(c.names)}
@@ -90,10 +95,16 @@ def stereo_covariance(obj, left, right, cam1, cam2, R, T, rvecs, tvecs) -> dict[
 
         st0 = np.r_[np.zeros(3), T]
         r0 = pair_resid(th0, st0, v0)
-        blocks.append((r0, _jacobian(lambda st, v0=v0: pair_resid(th0, st, v0), st0, _stereo_steps(T)),
-                       _jacobian(lambda v, st0=st0: pair_resid(th0, st0, v), v0, _pose_steps(v0))))
-        J_th[offs[i]:offs[i + 1]] = _jacobian(lambda th, st0=st0, v0=v0: pair_resid(th, st0, v0), th0,
-                                              np.r_[cams[0].steps(), cams[1].steps()])
+        blocks.append(
+            (
+                r0,
+                _jacobian(lambda st, v0=v0: pair_resid(th0, st, v0), st0, _stereo_steps(T)),
+                _jacobian(lambda v, st0=st0: pair_resid(th0, st0, v), v0, _pose_steps(v0)),
+            )
+        )
+        J_th[offs[i] : offs[i + 1]] = _jacobian(
+            lambda th, st0=st0, v0=v0: pair_resid(th, st0, v0), th0, np.r_[cams[0].steps(), cams[1].steps()]
+        )
     E = np.hstack(_influence(blocks)[0])
     M = E - (E @ J_th) @ A
     st = (M * var) @ M.T
@@ -115,7 +126,7 @@ def _influence(blocks):
     for r, Jg, Jv in blocks:
         rss += float(r @ r)
         W = np.linalg.solve(Jv.T @ Jv, Jv.T)  # (6 × rows): the view's own least squares
-        P = Jg.T - (Jg.T @ Jv) @ W            # J_gᵀ after the view's parameters are projected out
+        P = Jg.T - (Jg.T @ Jv) @ W  # J_gᵀ after the view's parameters are projected out
         S = S + P @ Jg
         parts.append(P)
     S_inv = _inverse(S)
@@ -141,7 +152,7 @@ class _Camera:
     def __init__(self, K, d, free):
         self.K = np.asarray(K, float)
         self.d = np.zeros(max(5, np.size(d)))
-        self.d[:np.size(d)] = np.ravel(d)
+        self.d[: np.size(d)] = np.ravel(d)
         self.free = [DIST_NAMES.index(f) for f in free]
         self.names = ["fx", "fy", "cx", "cy", *free]
         self.n = len(self.names)
@@ -160,8 +171,8 @@ class _Camera:
 def _project_pair(cams, X, th, st, v, R0):
     """Both cameras' pixels of board points X at pose v (camera 1's frame), the stereo pose
     being a small rotation st[:3] applied to R0 and the translation st[3:]."""
-    K1, d1 = cams[0].matrices(th[:cams[0].n])
-    K2, d2 = cams[1].matrices(th[cams[0].n:])
+    K1, d1 = cams[0].matrices(th[: cams[0].n])
+    K2, d2 = cams[1].matrices(th[cams[0].n :])
     R = cv2.Rodrigues(st[:3])[0] @ R0
     Rv = cv2.Rodrigues(v[:3])[0]
     uv1 = cv2.projectPoints(X, v[:3], v[3:], K1, d1)[0]
@@ -213,8 +224,7 @@ def _stereo_block(unc, rows):
     return np.asarray(unc["stereo_cov"], float)[rows, rows]
 
 
-def differences(new, old, new_unc, old_unc, same_unit: bool = True,
-                old_exact: bool = False) -> list[dict[str, Any]]:
+def differences(new, old, new_unc, old_unc, same_unit: bool = True, old_exact: bool = False) -> list[dict[str, Any]]:
     """Every judged difference new − old with its combined standard deviation.
 
     Each row: ``parameter`` (``fx1``, ``k1 of camera 2``, ``rotation``, ``translation``), ``change``,
@@ -239,8 +249,12 @@ def differences(new, old, new_unc, old_unc, same_unit: bool = True,
         return math.hypot(a, _directional_sd(cov_new if cov_old is None else cov_old, vec))
 
     for cam, k_new, k_old, d_new, d_old in ((1, new.K1, old.K1, new.d1, old.d1), (2, new.K2, old.K2, new.d2, old.d2)):
-        vals = {"fx": (k_new[0, 0], k_old[0, 0]), "fy": (k_new[1, 1], k_old[1, 1]),
-                "cx": (k_new[0, 2], k_old[0, 2]), "cy": (k_new[1, 2], k_old[1, 2])}
+        vals = {
+            "fx": (k_new[0, 0], k_old[0, 0]),
+            "fy": (k_new[1, 1], k_old[1, 1]),
+            "cx": (k_new[0, 2], k_old[0, 2]),
+            "cy": (k_new[1, 2], k_old[1, 2]),
+        }
         for i, name in enumerate(DIST_NAMES):
             a = float(np.ravel(d_new)[i]) if np.size(d_new) > i else 0.0
             b = float(np.ravel(d_old)[i]) if np.size(d_old) > i else 0.0
@@ -280,8 +294,10 @@ def warning_text(row: dict[str, Any], what: str = "moved", sd_name: str = "combi
     """One line: 'WARNING: cx1 moved by -18.8 px, 3.4 x its combined standard deviation 5.5 px
     (limit 3)'."""
     u = f" {row['unit']}" if row["unit"] else ""
-    return (f"WARNING: {row['parameter']} {what} by {row['change']:+.4g}{u}, {row['ratio']:.1f} x its"
-            f" {sd_name} {row['sd']:.2g}{u} (limit {K_SIGMA:g})")
+    return (
+        f"WARNING: {row['parameter']} {what} by {row['change']:+.4g}{u}, {row['ratio']:.1f} x its"
+        f" {sd_name} {row['sd']:.2g}{u} (limit {K_SIGMA:g})"
+    )
 
 
 def compare_with_truth(calib, truth, names=("cam1", "cam2")) -> dict[str, Any]:
@@ -292,15 +308,24 @@ def compare_with_truth(calib, truth, names=("cam1", "cam2")) -> dict[str, Any]:
     unc = calib.uncertainty or {}
     out: dict[str, Any] = {"cameras": {}}
     for i, (name, k_est, k_true, d_est, d_true) in enumerate(
-            ((names[0], calib.K1, truth.K1, calib.d1, truth.d1),
-             (names[1], calib.K2, truth.K2, calib.d2, truth.d2)), start=1):
+        ((names[0], calib.K1, truth.K1, calib.d1, truth.d1), (names[1], calib.K2, truth.K2, calib.d2, truth.d2)),
+        start=1,
+    ):
         rows = {}
-        items = {"fx": (k_est[0, 0], k_true[0, 0]), "fy": (k_est[1, 1], k_true[1, 1]),
-                 "cx": (k_est[0, 2], k_true[0, 2]), "cy": (k_est[1, 2], k_true[1, 2]),
-                 "k1": (np.ravel(d_est)[0], np.ravel(d_true)[0])}
+        items = {
+            "fx": (k_est[0, 0], k_true[0, 0]),
+            "fy": (k_est[1, 1], k_true[1, 1]),
+            "cx": (k_est[0, 2], k_true[0, 2]),
+            "cy": (k_est[1, 2], k_true[1, 2]),
+            "k1": (np.ravel(d_est)[0], np.ravel(d_true)[0]),
+        }
         for key, (est, true) in items.items():
-            rows[key] = {"estimated": float(est), "true": float(true), "error": float(est - true),
-                         "sd": _sd(unc, i, key)}
+            rows[key] = {
+                "estimated": float(est),
+                "true": float(true),
+                "error": float(est - true),
+                "sd": _sd(unc, i, key),
+            }
             if key in ("fx", "fy"):
                 rows[key]["error_percent"] = 100.0 * rows[key]["error"] / float(true)
         out["cameras"][name] = rows
@@ -310,18 +335,24 @@ def compare_with_truth(calib, truth, names=("cam1", "cam2")) -> dict[str, Any]:
     base_err = calib.baseline - base_true
     cos = float(np.dot(np.ravel(calib.T), t_true) / (calib.baseline * base_true))
     cov = np.asarray(unc["stereo_cov"]) if "stereo_cov" in unc else None
-    out["rotation"] = {"estimated_deg": float(np.linalg.norm(rotation_vector_deg(calib.R))),
-                       "true_deg": float(np.linalg.norm(rotation_vector_deg(truth.R))),
-                       "error_deg": float(np.linalg.norm(rot_err)),
-                       "sd_deg": None if cov is None else _directional_sd(cov[:3, :3], rot_err)}
-    out["baseline"] = {"estimated": calib.baseline, "true": base_true, "error": base_err,
-                       "error_percent": 100.0 * base_err / base_true, "unit": calib.unit,
-                       "sd": unc.get("stereo", {}).get("baseline"),
-                       "direction_error_deg": float(np.degrees(np.arccos(min(1.0, cos))))}
+    out["rotation"] = {
+        "estimated_deg": float(np.linalg.norm(rotation_vector_deg(calib.R))),
+        "true_deg": float(np.linalg.norm(rotation_vector_deg(truth.R))),
+        "error_deg": float(np.linalg.norm(rot_err)),
+        "sd_deg": None if cov is None else _directional_sd(cov[:3, :3], rot_err),
+    }
+    out["baseline"] = {
+        "estimated": calib.baseline,
+        "true": base_true,
+        "error": base_err,
+        "error_percent": 100.0 * base_err / base_true,
+        "unit": calib.unit,
+        "sd": unc.get("stereo", {}).get("baseline"),
+        "direction_error_deg": float(np.degrees(np.arccos(min(1.0, cos)))),
+    }
     judged = differences(calib, truth, unc, None, old_exact=True)
     out["judged"] = judged
-    out["warnings"] = [warning_text(r, "differs from the truth", "standard deviation")
-                       for r in beyond(judged)]
+    out["warnings"] = [warning_text(r, "differs from the truth", "standard deviation") for r in beyond(judged)]
     return out
 
 
@@ -372,8 +403,11 @@ def check_pair_uncertainty(path, unc, key: str = "uncertainty") -> dict[str, Any
     if not isinstance(unc, dict):
         raise bad("*")
     sds = unc.get("stereo")
-    if not isinstance(sds, dict) or not all(_finite(v) and v >= 0 for v in sds.values()) \
-            or not {"rx", "ry", "rz", "baseline"} <= set(sds):
+    if (
+        not isinstance(sds, dict)
+        or not all(_finite(v) and v >= 0 for v in sds.values())
+        or not {"rx", "ry", "rz", "baseline"} <= set(sds)
+    ):
         raise bad("stereo")
     return {"stereo": dict(sds), "stereo_cov": _stereo_cov(unc, bad).tolist()}
 
@@ -401,9 +435,9 @@ def optional_keys(path, data: dict[str, Any]) -> dict[str, Any]:
         out["distortion_model"] = model
     unc = data.get("uncertainty")
     if unc is not None:
+
         def bad(key):
-            return DataError(f"{path}: key 'uncertainty.{key}' must hold finite, non-negative standard"
-                             " deviations.")
+            return DataError(f"{path}: key 'uncertainty.{key}' must hold finite, non-negative standard deviations.")
 
         if not isinstance(unc, dict):
             raise bad("*")

@@ -18,12 +18,13 @@ any JSON with a ``cameras`` list of ``{"name", "K", "dist", "R", "t"}``, ``unit`
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 from vts_hw.errors import DataError
-from vts_hw.vision.triangulate import PinholeCamera, as_camera
 from vts_hw.vision.calibration_io import read_calibration
+from vts_hw.vision.triangulate import PinholeCamera, as_camera
 
 __all__ = ["named_cameras", "load_cameras", "covered_names"]
 
@@ -31,8 +32,10 @@ __all__ = ["named_cameras", "load_cameras", "covered_names"]
 def _check_unit(obj: Any) -> None:
     unit = getattr(obj, "unit", "mm")
     if unit != "mm":
-        raise DataError(f"the calibration's translation is in {unit!r}, not mm: calibrate with the "
-                        "checkerboard's square size to get positions in mm")
+        raise DataError(
+            f"the calibration's translation is in {unit!r}, not mm: calibrate with the "
+            "checkerboard's square size to get positions in mm"
+        )
 
 
 def named_cameras(obj: Any, available: Sequence[str] = ()) -> dict[str, PinholeCamera]:
@@ -42,13 +45,13 @@ def named_cameras(obj: Any, available: Sequence[str] = ()) -> dict[str, PinholeC
     available = list(available)
     if isinstance(obj, dict):
         return {str(k): _named(v, str(k)) for k, v in obj.items()}
-    if hasattr(obj, "camera_fits"):      # a calibration (calibration_io): every camera
+    if hasattr(obj, "camera_fits"):  # a calibration (calibration_io): every camera
         _check_unit(obj)
         fits = list(obj.camera_fits)
         names = [c.name for c in fits]
-        unnamed = str(getattr(obj, "method", "")).startswith("stereo calibration file")   # cam1, cam2 by position
-        if available and (unnamed or not set(names) <= set(available)):   # the recording's names, in order
-            names = (available + names[len(available):])[:len(fits)]
+        unnamed = str(getattr(obj, "method", "")).startswith("stereo calibration file")  # cam1, cam2 by position
+        if available and (unnamed or not set(names) <= set(available)):  # the recording's names, in order
+            names = (available + names[len(available) :])[: len(fits)]
         return {n: PinholeCamera(c.K, c.d, c.R, c.t, n) for n, c in zip(names, fits)}
     if hasattr(obj, "cameras") and not isinstance(obj, (list, tuple)):
         _check_unit(obj)
@@ -57,7 +60,7 @@ def named_cameras(obj: Any, available: Sequence[str] = ()) -> dict[str, PinholeC
     cams = [as_camera(c) for c in obj]
     names = [c.name for c in cams]
     if not all(names) or len(set(names)) != len(names):
-        names = (available + [f"cam{i + 1}" for i in range(len(cams))][len(available):])[:len(cams)]
+        names = (available + [f"cam{i + 1}" for i in range(len(cams))][len(available) :])[: len(cams)]
     return {n: _named(c, n) for n, c in zip(names, cams)}
 
 
@@ -69,7 +72,7 @@ def covered_names(calibration: Any, rig_names: Sequence[str]) -> list[str]:
     rig_names = list(rig_names)
     if set(own) <= set(rig_names):
         return [n for n in rig_names if n in own]
-    return rig_names[:len(own)]
+    return rig_names[: len(own)]
 
 
 def in_rig_names(cameras: dict, rig_names: Sequence[str]) -> dict[str, PinholeCamera]:

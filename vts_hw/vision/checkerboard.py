@@ -57,8 +57,9 @@ def find_pairs(directory: str | Path) -> list[tuple[Path, Path]]:
         m = pattern.match(left.name)
         if not m:
             continue
-        right = next((p for p in sorted(directory.glob(f"right{m.group(1)}.*"))
-                      if p.suffix.lower() == left.suffix.lower()), None)
+        right = next(
+            (p for p in sorted(directory.glob(f"right{m.group(1)}.*")) if p.suffix.lower() == left.suffix.lower()), None
+        )
         if right is not None:
             pairs.append((left, right))
     return pairs

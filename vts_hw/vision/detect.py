@@ -114,7 +114,7 @@ DEFAULT = DetectorSettings()
 def auto_threshold(gray: np.ndarray, settings: DetectorSettings = DEFAULT) -> tuple[float, float]:
     """``(threshold, median)`` as :func:`detect` chooses them: from about 300 pixels on a
     regular grid of the decimated view ``gray[::step, ::step]``."""
-    small = gray[::settings.step, ::settings.step]
+    small = gray[:: settings.step, :: settings.step]
     return _threshold(small, max(1, int(math.sqrt(small.size / 300.0))), settings)
 
 
@@ -123,7 +123,7 @@ def _threshold(img: np.ndarray, stride: int, s: DetectorSettings) -> tuple[float
     ``max(k_sigma * (median - 16th percentile), min_contrast)``, floored to a whole grey level
     (so that ``pixel > threshold`` means the same for OpenCV and numpy)."""
     # A radix sort (numpy's stable sort of 8-bit data) is cheaper here than a partition.
-    ranked = img[stride // 2::stride, stride // 2::stride].flatten()
+    ranked = img[stride // 2 :: stride, stride // 2 :: stride].flatten()
     ranked.sort(kind="stable")
     n = ranked.size - 1
     median = ranked.item(n // 2)  # Python ints: no numpy scalar arithmetic below
@@ -143,15 +143,16 @@ def detect(gray: np.ndarray, settings: DetectorSettings = DEFAULT) -> DetectionR
     return result
 
 
-def candidate_boxes(gray: np.ndarray, settings: DetectorSettings = DEFAULT
-                    ) -> tuple[float, float, list[Sequence[int]]]:
+def candidate_boxes(gray: np.ndarray, settings: DetectorSettings = DEFAULT) -> tuple[float, float, list[Sequence[int]]]:
     """Steps 1 and 2 of :func:`detect` alone: ``(threshold, median, boxes)``, ``boxes`` the
     bounding boxes ``(x, y, w, h)`` of the above-threshold regions of the decimated view, in
     its samples. (bench/detect_speed.py times it: the floor under any measuring step.)"""
     if not isinstance(gray, np.ndarray) or gray.dtype.char != "B" or gray.ndim != 2:
-        raise ValueError("detect needs a grey uint8 image (H x W), got "
-                         f"{getattr(gray, 'dtype', type(gray).__name__)} "
-                         f"{getattr(gray, 'shape', '')}")
+        raise ValueError(
+            "detect needs a grey uint8 image (H x W), got "
+            f"{getattr(gray, 'dtype', type(gray).__name__)} "
+            f"{getattr(gray, 'shape', '')}"
+        )
     step = settings.step
     small = gray[::step, ::step].copy()  # contiguous, for OpenCV
     # The threshold's sample: about 300 pixels, taken from the decimated view.
@@ -177,9 +178,9 @@ def _measure(gray, boxes, thr, s: DetectorSettings, result: DetectionResult) -> 
     H, W = gray.shape
     step = s.step
     if len(boxes) > s.max_candidates:
-        for b in boxes[s.max_candidates:]:
+        for b in boxes[s.max_candidates :]:
             result.rejected.append((_coarse(gray, b, step), "too many"))
-        boxes = boxes[:s.max_candidates]
+        boxes = boxes[: s.max_candidates]
     # A candidate's samples bx..bx+bw-1 hold its pixels above the threshold, which therefore
     # lie within (bx-1)*step+1 .. (bx+bw)*step-1; its anti-aliased edge adds one pixel: its
     # "extent" is (bx-1)*step .. (bx+bw)*step. The ROI adds roi_margin clear pixels and the
@@ -206,11 +207,9 @@ def _measure(gray, boxes, thr, s: DetectorSettings, result: DetectionResult) -> 
     rois = []
     for bx, by, bw, bh in kept:  # centred on the extent, moved inside the image if need be
         ox, oy = (2 * bx + bw - 1) * step // 2 - need, (2 * by + bh - 1) * step // 2 - need
-        rois.append((0 if ox < 0 else xmax if ox > xmax else ox,
-                     0 if oy < 0 else ymax if oy > ymax else oy))
+        rois.append((0 if ox < 0 else xmax if ox > xmax else ox, 0 if oy < 0 else ymax if oy > ymax else oy))
     crowded = _crowded(rois, size - 2 - s.roi_margin) if len(rois) > 1 else ()
-    _measure_batch(gray, [r for i, r in enumerate(rois) if i not in crowded] if crowded else rois,
-                   size, thr, s, result)
+    _measure_batch(gray, [r for i, r in enumerate(rois) if i not in crowded] if crowded else rois, size, thr, s, result)
     for i in sorted(crowded):
         bx, by, bw, bh = kept[i]
         extent = ((bx - 1) * step, (by - 1) * step, (bx + bw) * step, (by + bh) * step)
@@ -224,7 +223,7 @@ def _crowded(rois, near) -> set[int]:
     out = set()
     order = sorted([(x, y, i) for i, (x, y) in enumerate(rois)])
     for a, (rx, ry, i) in enumerate(order):
-        for qx, qy, j in order[a + 1:]:
+        for qx, qy, j in order[a + 1 :]:
             if qx - rx > near:
                 break
             if -near <= qy - ry <= near:
@@ -236,9 +235,15 @@ def _crowded(rois, near) -> set[int]:
 def _coarse(gray, box, step) -> Blob:
     """A rough blob from the decimated view only, for candidates not worth measuring."""
     x, y, w, h = box
-    patch = gray[y * step:(y + h) * step:step, x * step:(x + w) * step:step]
-    return Blob(float((x + (w - 1) / 2) * step), float((y + (h - 1) / 2) * step),
-                int(w * h * step * step), float(patch.max()), NAN, NAN)
+    patch = gray[y * step : (y + h) * step : step, x * step : (x + w) * step : step]
+    return Blob(
+        float((x + (w - 1) / 2) * step),
+        float((y + (h - 1) / 2) * step),
+        int(w * h * step * step),
+        float(patch.max()),
+        NAN,
+        NAN,
+    )
 
 
 # ---------------------------------------------------------------- measurement
@@ -278,8 +283,7 @@ def _window(size: int, diameter: int, dx: int, dy: int) -> np.ndarray:
     x, y = xx.ravel(), yy.ravel()
     w = ((x - dx) ** 2 + (y - dy) ** 2 <= diameter * diameter / 4.0).astype(np.float64)
     P = _kernels(size)[1].astype(np.float64)
-    rows = [w * v - sum((w * v * u).sum() * p for u, p in zip((1.0, x, y), P))
-            for v in (1.0, x, y)]
+    rows = [w * v - sum((w * v * u).sum() * p for u, p in zip((1.0, x, y), P)) for v in (1.0, x, y)]
     hit = np.vstack(rows).astype(np.float32)
     if len(_WINDOWS) >= 512:  # bounded (a few MB): forget everything (rare; rebuilt as needed)
         _WINDOWS.clear()
@@ -316,7 +320,7 @@ def _measure_batch(gray, rois, size, thr, s: DetectorSettings, result: Detection
         return
     f = np.empty((n, size, size), np.float32)
     for k, (ox, oy) in enumerate(rois):
-        f[k] = gray[oy:oy + size, ox:ox + size]
+        f[k] = gray[oy : oy + size, ox : ox + size]
     f = f.reshape(n, -1)
     Q, P = _kernels(size)
     above = cv2.threshold(f, thr, 1.0, cv2.THRESH_BINARY)[1]
@@ -351,8 +355,9 @@ def _measure_batch(gray, rois, size, thr, s: DetectorSettings, result: Detection
         # Blob(...) without the frozen dataclass's __init__ (six object.__setattr__ calls, a
         # measurable share of the time budget): the same object, built directly.
         blob = new(Blob)
-        blob.__dict__.update(x=ox + c0 + x, y=oy + c0 + y, area=area,
-                             peak=peaks[k] - (a + b * x + c * y), roundness=rnd, sum=total)
+        blob.__dict__.update(
+            x=ox + c0 + x, y=oy + c0 + y, area=area, peak=peaks[k] - (a + b * x + c * y), roundness=rnd, sum=total
+        )
         if nring[k] > 0:
             edge = ox == 0 or oy == 0 or ox + size == W or oy + size == H
             result.rejected.append((blob, "border" if edge else "truncated"))
@@ -370,11 +375,11 @@ def _measure_alone(gray, e, step, thr, s: DetectorSettings, result: DetectionRes
     H, W = gray.shape
     m = s.roi_margin + 1
     xa, ya, xb, yb = max(e[0] - m, 0), max(e[1] - m, 0), min(e[2] + m, W - 1), min(e[3] + m, H - 1)
-    roi = gray[ya:yb + 1, xa:xb + 1].astype(np.float64)
-    yy, xx = np.mgrid[ya:yb + 1, xa:xb + 1]
+    roi = gray[ya : yb + 1, xa : xb + 1].astype(np.float64)
+    yy, xx = np.mgrid[ya : yb + 1, xa : xb + 1]
     count, labels = cv2.connectedComponents((roi > thr).astype(np.uint8), connectivity=8)
     # This candidate's component: the one with most pixels among its own samples' box.
-    own_box = labels[e[1] + step - ya:e[3] - step - ya + 1, e[0] + step - xa:e[2] - step - xa + 1]
+    own_box = labels[e[1] + step - ya : e[3] - step - ya + 1, e[0] + step - xa : e[2] - step - xa + 1]
     votes = np.bincount(own_box.ravel(), minlength=count)
     votes[0] = 0
     own = int(votes.argmax())
@@ -393,8 +398,7 @@ def _measure_alone(gray, e, step, thr, s: DetectorSettings, result: DetectionRes
     px, py = xx[mine] - cx, yy[mine] - cy
     rnd, _ = _shape(area, px.sum(), py.sum(), (px * px).sum(), (px * py).sum(), (py * py).sum())
     if int(ring.sum()) < 8:
-        result.rejected.append((Blob(cx + px.mean(), cy + py.mean(), area, float(roi.max()), rnd,
-                                     NAN), "crowded"))
+        result.rejected.append((Blob(cx + px.mean(), cy + py.mean(), area, float(roi.max()), rnd, NAN), "crowded"))
         return
     basis = np.stack([np.ones(int(ring.sum())), xx[ring] - cx, yy[ring] - cy], axis=1)
     a, b, c = np.linalg.lstsq(basis, roi[ring], rcond=None)[0]
@@ -405,8 +409,7 @@ def _measure_alone(gray, e, step, thr, s: DetectorSettings, result: DetectionRes
     else:
         x, y = cx + px.mean(), cy + py.mean()
     on_edge = bool((mine & ((xx == 0) | (yy == 0) | (xx == W - 1) | (yy == H - 1))).any())
-    reason = ("border" if on_edge else "crowded" if (mine & border).any()
-              else _reason(area, total, rnd, s))
+    reason = "border" if on_edge else "crowded" if (mine & border).any() else _reason(area, total, rnd, s)
     blob = Blob(x, y, area, float(w[mine].max()), rnd, total)
     if reason:
         result.rejected.append((blob, reason))

@@ -29,7 +29,7 @@ import numpy as np
 __all__ = ["EdgeProfile", "edge_profile", "GAUSS_10_90"]
 
 GAUSS_10_90 = 2.5631  # the 10-90 % width of a Gaussian-blurred step, in standard deviations
-HALF_WIDTH = 1.1774   # the half width at half maximum of a Gaussian, in standard deviations
+HALF_WIDTH = 1.1774  # the half width at half maximum of a Gaussian, in standard deviations
 _SMOOTH = np.array([0.25, 0.5, 0.25])
 
 
@@ -55,8 +55,7 @@ class EdgeProfile:
         return self.width_px / self.radius_px if self.radius_px > 0 else math.inf
 
 
-def edge_profile(gray: np.ndarray, x: float, y: float, radius_hint: float,
-                 bin_px: float = 0.25) -> EdgeProfile | None:
+def edge_profile(gray: np.ndarray, x: float, y: float, radius_hint: float, bin_px: float = 0.25) -> EdgeProfile | None:
     """The edge of the round marker centred at ``(x, y)`` (px) whose radius is about
     ``radius_hint`` px, in the grey image ``gray``; None when it has no clear edge (the
     profile never falls, or the marker reaches the picture's border)."""
@@ -65,8 +64,8 @@ def edge_profile(gray: np.ndarray, x: float, y: float, radius_hint: float,
     x0, y0 = int(round(x)) - half, int(round(y)) - half
     if x0 < 0 or y0 < 0 or x0 + 2 * half >= w_img or y0 + 2 * half >= h_img:
         return None
-    roi = gray[y0:y0 + 2 * half + 1, x0:x0 + 2 * half + 1].astype(np.float64)
-    yy, xx = np.mgrid[y0:y0 + 2 * half + 1, x0:x0 + 2 * half + 1]
+    roi = gray[y0 : y0 + 2 * half + 1, x0 : x0 + 2 * half + 1].astype(np.float64)
+    yy, xx = np.mgrid[y0 : y0 + 2 * half + 1, x0 : x0 + 2 * half + 1]
     dist = np.hypot(xx - x, yy - y).ravel()
     keep = dist <= half
     k = (dist[keep] / bin_px).astype(np.int64)
@@ -77,8 +76,8 @@ def edge_profile(gray: np.ndarray, x: float, y: float, radius_hint: float,
     p = sums[ok] / counts[ok]
     if p.size < 12:
         return None
-    ps = np.convolve(np.pad(p, 1, mode="edge"), _SMOOTH, mode="valid")   # about 0.2 px of smoothing
-    slope = -np.gradient(ps, r)                                             # the line spread (falling edge)
+    ps = np.convolve(np.pad(p, 1, mode="edge"), _SMOOTH, mode="valid")  # about 0.2 px of smoothing
+    slope = -np.gradient(ps, r)  # the line spread (falling edge)
     inner = r > 0.5
     e = int(np.argmax(np.where(inner, slope, -np.inf)))
     peak = float(slope[e])
@@ -99,11 +98,11 @@ def edge_profile(gray: np.ndarray, x: float, y: float, radius_hint: float,
     j = e + int(after[0])
     f = (slope[j - 1] - 0.5 * peak) / (slope[j - 1] - slope[j]) if slope[j - 1] != slope[j] else 0.5
     r_half = float(r[j - 1] + f * (r[j] - r[j - 1]))
-    tail = p[min(e + int(dead[0]) + int(round(1.0 / bin_px)), len(p)):]
+    tail = p[min(e + int(dead[0]) + int(round(1.0 / bin_px)), len(p)) :]
     if tail.size < 4:
         return None
     l0 = float(np.median(tail))
-    step = float(ps[:e + 1].max()) - l0
+    step = float(ps[: e + 1].max()) - l0
     if not step > 0:
         return None
     width = float(GAUSS_10_90 / HALF_WIDTH * max(r_half - r_e, 0.0))

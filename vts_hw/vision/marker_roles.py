@@ -25,8 +25,8 @@ Two entry points, one set of rules:
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Mapping, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -37,21 +37,42 @@ from vts_hw.vision.aim_settings import DEFAULT_AIM, AimSettings
 from vts_hw.vision.camera_set import named_cameras
 from vts_hw.vision.multiview import ViewGeometry, match_views
 
-__all__ = ["WALL", "PHANTOM", "CHEST", "ABDOMEN", "PATIENT", "UNKNOWN", "ROLES", "PATIENT_ROLES", "Role", "Track",
-           "TableSpace", "Room", "follow", "motion_range", "roles_of_tracks", "roles_of_positions", "roles_by_reference",
-           "match_markers",
-           "GATE_PX", "MOVE_FLOOR_PX", "MOVE_FLOOR_MM", "BAND_GAP_MM", "BODY_HEIGHT_MM"]
+__all__ = [
+    "WALL",
+    "PHANTOM",
+    "CHEST",
+    "ABDOMEN",
+    "PATIENT",
+    "UNKNOWN",
+    "ROLES",
+    "PATIENT_ROLES",
+    "Role",
+    "Track",
+    "TableSpace",
+    "Room",
+    "follow",
+    "motion_range",
+    "roles_of_tracks",
+    "roles_of_positions",
+    "roles_by_reference",
+    "match_markers",
+    "GATE_PX",
+    "MOVE_FLOOR_PX",
+    "MOVE_FLOOR_MM",
+    "BAND_GAP_MM",
+    "BODY_HEIGHT_MM",
+]
 
 WALL, PHANTOM, CHEST, ABDOMEN, PATIENT, UNKNOWN = "wall", "phantom", "chest", "abdomen", "patient", "unknown"
 ROLES = (WALL, PHANTOM, CHEST, ABDOMEN, PATIENT, UNKNOWN)
-PATIENT_ROLES = (PATIENT, CHEST, ABDOMEN)    # the roles of a patient's marker
+PATIENT_ROLES = (PATIENT, CHEST, ABDOMEN)  # the roles of a patient's marker
 
-GATE_PX = 12.0          # a marker further than this from where it was is not that marker
-MOVE_FLOOR_PX = 0.3     # a still marker's centre ranges ~0.1 px over a few frames (sensor noise, JPEG)
-MOVE_FLOOR_MM = 1.0     # a still marker's triangulated centre ranges well under 1 mm
+GATE_PX = 12.0  # a marker further than this from where it was is not that marker
+MOVE_FLOOR_PX = 0.3  # a still marker's centre ranges ~0.1 px over a few frames (sensor noise, JPEG)
+MOVE_FLOOR_MM = 1.0  # a still marker's triangulated centre ranges well under 1 mm
 BODY_HEIGHT_MM = 350.0  # the table's space reaches this high above the table top (a patient, the phantom)
-BAND_GAP_MM = 60.0      # the patient's markers are two bands when their axial positions part by this much
-PLACE_MAX_PX = 3.0      # looser than tracking's 2 px: a still marker is placed to tens of mm, a camera drifts
+BAND_GAP_MM = 60.0  # the patient's markers are two bands when their axial positions part by this much
+PLACE_MAX_PX = 3.0  # looser than tracking's 2 px: a still marker is placed to tens of mm, a camera drifts
 
 
 @dataclass(frozen=True)
@@ -134,8 +155,13 @@ def roles_of_tracks(tracks: Sequence[Track], floor_px: float = MOVE_FLOOR_PX) ->
     out: list[Role | None] = []
     for t in tracks:
         if t.seen >= 2 and t.range_px > floor_px:
-            out.append(Role(PATIENT, f"moved {t.range_px:.1f} px over {t.seen} frames (a still marker: under "
-                                     f"{floor_px:g} px): breathing or a body; its band not known from one camera"))
+            out.append(
+                Role(
+                    PATIENT,
+                    f"moved {t.range_px:.1f} px over {t.seen} frames (a still marker: under "
+                    f"{floor_px:g} px): breathing or a body; its band not known from one camera",
+                )
+            )
         elif t.seen < t.frames:
             out.append(Role(UNKNOWN, f"seen in {t.seen} of {t.frames} frames: not steady enough to be a wall marker"))
         else:
@@ -161,22 +187,35 @@ class TableSpace:
     table_z: tuple[float, float]
 
     @classmethod
-    def from_settings(cls, settings: AimSettings = DEFAULT_AIM, mapping=None,
-                      body_height: float = BODY_HEIGHT_MM) -> "TableSpace":
+    def from_settings(
+        cls, settings: AimSettings = DEFAULT_AIM, mapping=None, body_height: float = BODY_HEIGHT_MM
+    ) -> TableSpace:
         x, y, z = (float(v) for v in (fov_centre(mapping) if mapping is not None else np.zeros(3)))
         z0, z1 = settings.table_z_mm
-        return cls((x, y, z), settings.bore_diameter_mm / 2, settings.bore_depth_mm / 2,
-                   settings.table_width_mm / 2, settings.table_top_y_mm, float(body_height),
-                   (float(z0), float(z1)))
+        return cls(
+            (x, y, z),
+            settings.bore_diameter_mm / 2,
+            settings.bore_depth_mm / 2,
+            settings.table_width_mm / 2,
+            settings.table_top_y_mm,
+            float(body_height),
+            (float(z0), float(z1)),
+        )
 
     def inside(self, pts_spect) -> np.ndarray:
         """Whether each SPECT-frame point (N x 3, mm) lies in the volume."""
         p = np.asarray(pts_spect, float).reshape(-1, 3)
         cx, cy, cz = self.centre
-        bore = (np.hypot(p[:, 0] - cx, p[:, 1] - cy) <= self.bore_radius) & (np.abs(p[:, 2] - cz) <= self.bore_half_depth)
-        table = ((np.abs(p[:, 0] - cx) <= self.table_half_width) & (p[:, 1] >= self.table_top_y - 20.0)
-                 & (p[:, 1] <= self.table_top_y + self.body_height)
-                 & (p[:, 2] >= self.table_z[0]) & (p[:, 2] <= self.table_z[1]))
+        bore = (np.hypot(p[:, 0] - cx, p[:, 1] - cy) <= self.bore_radius) & (
+            np.abs(p[:, 2] - cz) <= self.bore_half_depth
+        )
+        table = (
+            (np.abs(p[:, 0] - cx) <= self.table_half_width)
+            & (p[:, 1] >= self.table_top_y - 20.0)
+            & (p[:, 1] <= self.table_top_y + self.body_height)
+            & (p[:, 2] >= self.table_z[0])
+            & (p[:, 2] <= self.table_z[1])
+        )
         return bore | table
 
 
@@ -217,11 +256,17 @@ class Room:
                 if not inside:
                     role = Role(WALL, f"still, and at {at}, outside the table-and-gantry volume")
                 elif (name, d) in spheres:
-                    role = Role(PHANTOM, f"still, at {at} inside the table-and-gantry volume, and the "
-                                         f"phantom's shape fits there", spheres[(name, d)])
+                    role = Role(
+                        PHANTOM,
+                        f"still, at {at} inside the table-and-gantry volume, and the phantom's shape fits there",
+                        spheres[(name, d)],
+                    )
                 else:
-                    role = Role(UNKNOWN, f"still, but at {at}, inside the table-and-gantry volume: on the "
-                                         f"table (the phantom, a patient holding still), never a wall marker")
+                    role = Role(
+                        UNKNOWN,
+                        f"still, but at {at}, inside the table-and-gantry volume: on the "
+                        f"table (the phantom, a patient holding still), never a wall marker",
+                    )
                 out[name][d] = role
         return out
 
@@ -231,7 +276,7 @@ class Room:
             return {}
         try:
             seen = self.locator.locate(dict(zip(names, views)))
-        except Exception:            # a phantom not found names nothing; it never stops the roles
+        except Exception:  # a phantom not found names nothing; it never stops the roles
             return {}
         out = {}
         for n, pts in seen.names.items():
@@ -254,8 +299,15 @@ def motion_range(p) -> float:
     return float(np.percentile(proj, 95) - np.percentile(proj, 5))
 
 
-def roles_of_positions(xyz, *, frame: str = "spect", mapping=None, space: TableSpace | None = None,
-                       floor_mm: float = MOVE_FLOOR_MM, head_end_low_z: bool = True) -> list[Role]:
+def roles_of_positions(
+    xyz,
+    *,
+    frame: str = "spect",
+    mapping=None,
+    space: TableSpace | None = None,
+    floor_mm: float = MOVE_FLOOR_MM,
+    head_end_low_z: bool = True,
+) -> list[Role]:
     """Rules 1 and 2 on 3D tracks, for the live path and the offline analysis: ``xyz`` is
     T x M x 3 (mm; NaN where marker ``m`` was not seen at sample ``t``), in the SPECT frame
     (``frame="spect"``) or the VTS frame (``frame="vts"``: ``mapping`` VTS -> SPECT needed for
@@ -291,11 +343,21 @@ def roles_of_positions(xyz, *, frame: str = "spect", mapping=None, space: TableS
         elif why_not:
             out.append(Role(WALL, f"still ({rng:.2f} mm over {len(p)} samples); {why_not}"))
         elif space.inside(mean)[0]:
-            out.append(Role(UNKNOWN, f"still, inside the table-and-gantry volume at ({mean[0]:.0f}, {mean[1]:.0f}, "
-                                     f"{mean[2]:.0f}) mm SPECT: on the table, never a wall marker"))
+            out.append(
+                Role(
+                    UNKNOWN,
+                    f"still, inside the table-and-gantry volume at ({mean[0]:.0f}, {mean[1]:.0f}, "
+                    f"{mean[2]:.0f}) mm SPECT: on the table, never a wall marker",
+                )
+            )
         else:
-            out.append(Role(WALL, f"still, outside the table-and-gantry volume at ({mean[0]:.0f}, {mean[1]:.0f}, "
-                                  f"{mean[2]:.0f}) mm SPECT"))
+            out.append(
+                Role(
+                    WALL,
+                    f"still, outside the table-and-gantry volume at ({mean[0]:.0f}, {mean[1]:.0f}, "
+                    f"{mean[2]:.0f}) mm SPECT",
+                )
+            )
     if len(moved) >= 2 and not why_not:
         order = sorted(moved, key=lambda mv: mv[1][2] if head_end_low_z else -mv[1][2])
         z = np.array([mv[1][2] for mv in order])
@@ -304,6 +366,9 @@ def roles_of_positions(xyz, *, frame: str = "spect", mapping=None, space: TableS
         if gaps[k] >= BAND_GAP_MM:
             for i, (m, mean) in enumerate(order):
                 band = CHEST if i <= k else ABDOMEN
-                out[m] = Role(band, f"{out[m].reason}; the {'head' if band == CHEST else 'foot'}-end band "
-                                    f"(Z {mean[2]:.0f} mm, the bands {gaps[k]:.0f} mm apart along the table)")
+                out[m] = Role(
+                    band,
+                    f"{out[m].reason}; the {'head' if band == CHEST else 'foot'}-end band "
+                    f"(Z {mean[2]:.0f} mm, the bands {gaps[k]:.0f} mm apart along the table)",
+                )
     return out

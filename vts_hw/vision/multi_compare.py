@@ -31,8 +31,13 @@ def _pairs(new: CameraCalibration, old: CameraCalibration) -> tuple[list[tuple[A
 
 
 def _values(cam) -> dict[str, float]:
-    return {"fx": cam.K[0, 0], "fy": cam.K[1, 1], "cx": cam.K[0, 2], "cy": cam.K[1, 2],
-            "k1": float(cam.d[0]) if cam.d.size else 0.0}
+    return {
+        "fx": cam.K[0, 0],
+        "fy": cam.K[1, 1],
+        "cx": cam.K[0, 2],
+        "cy": cam.K[1, 2],
+        "k1": float(cam.d[0]) if cam.d.size else 0.0,
+    }
 
 
 def _judge(name: str, key: str, change: float, sd_new, sd_old, exact_old: bool) -> dict[str, Any] | None:
@@ -40,20 +45,27 @@ def _judge(name: str, key: str, change: float, sd_new, sd_old, exact_old: bool) 
         return None
     sd = sd_new if exact_old else math.hypot(sd_new, sd_old if sd_old is not None else sd_new)
     ratio = abs(change) / sd if sd > 0 else (math.inf if change else 0.0)
-    return {"parameter": f"{key} of {name}", "change": float(change), "sd": sd, "ratio": ratio,
-            "unit": "" if key == "k1" else "px"}
+    return {
+        "parameter": f"{key} of {name}",
+        "change": float(change),
+        "sd": sd,
+        "ratio": ratio,
+        "unit": "" if key == "k1" else "px",
+    }
 
 
 def _warning(row: dict[str, Any], what: str, sd_name: str) -> str:
     u = f" {row['unit']}" if row["unit"] else ""
-    return (f"WARNING: {row['parameter']} {what} by {row['change']:+.4g}{u}, {row['ratio']:.1f} x its"
-            f" {sd_name} {row['sd']:.2g}{u} (limit {K_SIGMA:g})")
+    return (
+        f"WARNING: {row['parameter']} {what} by {row['change']:+.4g}{u}, {row['ratio']:.1f} x its"
+        f" {sd_name} {row['sd']:.2g}{u} (limit {K_SIGMA:g})"
+    )
 
 
 def compare_cameras(new: CameraCalibration, old: CameraCalibration) -> dict[str, Any]:
     """This minus previous, per camera (see the module docstring)."""
     pairs, matched = _pairs(new, old)
-    if old.method.startswith("stereo calibration file"):   # its cameras have no names of their own
+    if old.method.startswith("stereo calibration file"):  # its cameras have no names of their own
         pairs, matched = list(zip(new.camera_fits, old.camera_fits)), "order (a stereo file)"
     same_unit = new.unit == old.unit
     out: dict[str, Any] = {"matched_by": matched, "unit": new.unit if same_unit else None, "cameras": {}}
@@ -93,8 +105,12 @@ def against_truth(calib: CameraCalibration, truth: CameraCalibration, points: np
         fitted, true = _values(c), _values(t)
         rows: dict[str, Any] = {}
         for k in JUDGED:
-            rows[k] = {"estimated": float(fitted[k]), "true": float(true[k]), "error": float(fitted[k] - true[k]),
-                       "sd": (c.sd or {}).get(k)}
+            rows[k] = {
+                "estimated": float(fitted[k]),
+                "true": float(true[k]),
+                "error": float(fitted[k] - true[k]),
+                "sd": (c.sd or {}).get(k),
+            }
             j = _judge(c.name, k, rows[k]["error"], rows[k]["sd"], None, True)
             if j:
                 judged.append(j)
@@ -104,7 +120,7 @@ def against_truth(calib: CameraCalibration, truth: CameraCalibration, points: np
         out["cameras"][c.name] = rows
     pts = np.asarray(points, float).reshape(-1, 3)
     true_cams = [truth.camera(n) for n in calib.names]
-    seen = np.array([visible(t, pts) for t in true_cams])           # cameras × points
+    seen = np.array([visible(t, pts) for t in true_cams])  # cameras × points
     est = np.full(pts.shape, np.nan)
     for mask in {tuple(col) for col in seen.T if col.sum() >= 2}:
         idx = np.flatnonzero((seen.T == mask).all(axis=1))
@@ -115,13 +131,17 @@ def against_truth(calib: CameraCalibration, truth: CameraCalibration, points: np
     err = np.linalg.norm(est[ok] - pts[ok], axis=1)
     fit = kabsch(est[ok], pts[ok]).apply(est[ok]) if ok.sum() >= 3 else est[ok]
     rigid = np.linalg.norm(fit - pts[ok], axis=1)
-    out["points_3d"] = {"n": int(ok.sum()), "n_given": len(pts), "unit": calib.unit,
-                        "cameras_per_point": {str(k): int(np.sum(seen.sum(axis=0)[ok] == k))
-                                              for k in range(2, len(true_cams) + 1)},
-                        "rms": float(np.sqrt(np.mean(err ** 2))) if ok.any() else None,
-                        "max": float(err.max()) if ok.any() else None,
-                        "rms_after_rigid_fit": float(np.sqrt(np.mean(rigid ** 2))) if ok.any() else None}
+    out["points_3d"] = {
+        "n": int(ok.sum()),
+        "n_given": len(pts),
+        "unit": calib.unit,
+        "cameras_per_point": {str(k): int(np.sum(seen.sum(axis=0)[ok] == k)) for k in range(2, len(true_cams) + 1)},
+        "rms": float(np.sqrt(np.mean(err**2))) if ok.any() else None,
+        "max": float(err.max()) if ok.any() else None,
+        "rms_after_rigid_fit": float(np.sqrt(np.mean(rigid**2))) if ok.any() else None,
+    }
     out["judged"] = judged
-    out["warnings"] = [_warning(r, "differs from the truth", "standard deviation")
-                       for r in judged if r["ratio"] > K_SIGMA]
+    out["warnings"] = [
+        _warning(r, "differs from the truth", "standard deviation") for r in judged if r["ratio"] > K_SIGMA
+    ]
     return out

@@ -33,19 +33,18 @@ proportional); processing keeps its vectorised two-camera path for two cameras.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import cv2
 import numpy as np
 
 from vts_hw.vision.triangulate import PinholeCamera, as_camera, fundamental_matrix
 
-__all__ = ["MultiPoint", "Ambiguity", "ViewMatches", "ViewGeometry", "match_views",
-           "triangulate_groups"]
+__all__ = ["MultiPoint", "Ambiguity", "ViewMatches", "ViewGeometry", "match_views", "triangulate_groups"]
 
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14)
-MAX_RMS_PX = 0.5   # a point's reprojection RMS (per camera, px) above this is no point
+MAX_RMS_PX = 0.5  # a point's reprojection RMS (per camera, px) above this is no point
 
 
 @dataclass(frozen=True)
@@ -81,7 +80,7 @@ class ViewMatches:
     camera_names: list[str]
     points: list[MultiPoint] = field(default_factory=list)
     ambiguous: list[Ambiguity] = field(default_factory=list)
-    single: dict[str, list[int]] = field(default_factory=dict)   # detections no camera confirms
+    single: dict[str, list[int]] = field(default_factory=dict)  # detections no camera confirms
 
     @property
     def xyz(self) -> np.ndarray:
@@ -93,8 +92,7 @@ class ViewGeometry:
 
     def __init__(self, cameras: Sequence, names: Sequence[str] | None = None):
         self.cams: list[PinholeCamera] = [as_camera(c) for c in cameras]
-        self.names = list(names) if names is not None else [c.name or f"cam{i + 1}"
-                                                            for i, c in enumerate(self.cams)]
+        self.names = list(names) if names is not None else [c.name or f"cam{i + 1}" for i, c in enumerate(self.cams)]
         if len(self.cams) < 2 or len(self.names) != len(self.cams):
             raise ValueError("multi-view matching needs two or more cameras, one name each")
         self.pairs = list(itertools.combinations(range(len(self.cams)), 2))
@@ -104,32 +102,31 @@ class ViewGeometry:
         self.origin = centres.mean(axis=0)
         self.scale = float(np.mean(np.linalg.norm(centres - self.origin, axis=1))) or 1000.0
         # per camera, the 3x4 projection in the conditioned world frame (normalized coordinates)
-        self.P = np.array([np.column_stack([c.R, (c.R @ self.origin + c.t) / self.scale])
-                           for c in self.cams])
+        self.P = np.array([np.column_stack([c.R, (c.R @ self.origin + c.t) / self.scale]) for c in self.cams])
 
     def normalize(self, c: int, pts: np.ndarray) -> np.ndarray:
         pts = np.asarray(pts, float).reshape(-1, 2)
         if len(pts) == 0:
             return np.zeros((0, 2))
         cam = self.cams[c]
-        return cv2.undistortPoints(pts.reshape(-1, 1, 2), cam.K, cam.dist, None, None, None,
-                                   _CRITERIA).reshape(-1, 2)
+        return cv2.undistortPoints(pts.reshape(-1, 1, 2), cam.K, cam.dist, None, None, None, _CRITERIA).reshape(-1, 2)
 
     def project(self, c: int, X: np.ndarray) -> np.ndarray:
         cam = self.cams[c]
-        uv, _ = cv2.projectPoints(np.ascontiguousarray(X, float).reshape(-1, 1, 3), self.rvecs[c],
-                                  cam.t, cam.K, cam.dist)
+        uv, _ = cv2.projectPoints(
+            np.ascontiguousarray(X, float).reshape(-1, 1, 3), self.rvecs[c], cam.t, cam.K, cam.dist
+        )
         return uv.reshape(-1, 2)
 
 
 def _linear(geo: ViewGeometry, norm: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """DLT (inhomogeneous, batched 3x3 normal equations) of M points: ``norm`` (M, C, 2)
     normalized coordinates, ``mask`` (M, C) which cameras count."""
-    P = geo.P                                                     # (C, 3, 4)
-    r1 = norm[:, :, 0:1] * P[None, :, 2] - P[None, :, 0]          # (M, C, 4)
+    P = geo.P  # (C, 3, 4)
+    r1 = norm[:, :, 0:1] * P[None, :, 2] - P[None, :, 0]  # (M, C, 4)
     r2 = norm[:, :, 1:2] * P[None, :, 2] - P[None, :, 1]
     w = mask[:, :, None].astype(float)
-    A = np.concatenate([r1 * w, r2 * w], axis=1)                  # (M, 2C, 4)
+    A = np.concatenate([r1 * w, r2 * w], axis=1)  # (M, 2C, 4)
     A3, b = A[:, :, :3], -A[:, :, 3]
     At = A3.transpose(0, 2, 1)
     N = At @ A3
@@ -147,8 +144,9 @@ def _residuals(geo: ViewGeometry, X: np.ndarray, obs: np.ndarray, mask: np.ndarr
     return r
 
 
-def triangulate_groups(geo: ViewGeometry, obs: np.ndarray, norm: np.ndarray, mask: np.ndarray,
-                       iterations: int = 1) -> tuple[np.ndarray, np.ndarray]:
+def triangulate_groups(
+    geo: ViewGeometry, obs: np.ndarray, norm: np.ndarray, mask: np.ndarray, iterations: int = 1
+) -> tuple[np.ndarray, np.ndarray]:
     """3D points (M, 3) and per-camera residual norms (M, C; NaN where masked) of M points,
     each seen by the cameras of its ``mask`` row (≥ 2): pixels ``obs`` (M, C, 2), normalized
     ``norm`` (M, C, 2). Linear, then ``iterations`` Gauss-Newton steps on the pixel
@@ -158,13 +156,13 @@ def triangulate_groups(geo: ViewGeometry, obs: np.ndarray, norm: np.ndarray, mas
         return np.zeros((0, 3)), np.zeros((0, len(geo.cams)))
     X = _linear(geo, norm, mask)
     h = 1e-3
-    steps = np.vstack([np.zeros(3), h * np.eye(3)])[:, None, :]          # X, then X moved along x, y, z
+    steps = np.vstack([np.zeros(3), h * np.eye(3)])[:, None, :]  # X, then X moved along x, y, z
     obs4, mask4 = np.tile(obs, (4, 1, 1)), np.tile(mask, (4, 1))
     for _ in range(iterations):
         # the residuals at X and at its three moves in one projection per camera
         r = _residuals(geo, (X[None] + steps).reshape(-1, 3), obs4, mask4).reshape(4, m, -1)
-        r0 = r[0]                                                 # (M, 2C)
-        J = ((r[1:] - r0) / h).transpose(1, 2, 0)                 # (M, 2C, 3)
+        r0 = r[0]  # (M, 2C)
+        J = ((r[1:] - r0) / h).transpose(1, 2, 0)  # (M, 2C, 3)
         JT = J.transpose(0, 2, 1)
         N = JT @ J
         N = N + (1e-12 * np.trace(N, axis1=1, axis2=2) + 1e-300)[:, None, None] * np.eye(3)
@@ -173,9 +171,15 @@ def triangulate_groups(geo: ViewGeometry, obs: np.ndarray, norm: np.ndarray, mas
     return X, np.where(mask, res, np.nan)
 
 
-def match_views(geo: ViewGeometry, pts: Sequence, max_px: float = 2.0, ratio: float = 2.0,
-                min_sep_px: float = 0.0, norm: Sequence | None = None,
-                max_rms_px: float = MAX_RMS_PX) -> ViewMatches:
+def match_views(
+    geo: ViewGeometry,
+    pts: Sequence,
+    max_px: float = 2.0,
+    ratio: float = 2.0,
+    min_sep_px: float = 0.0,
+    norm: Sequence | None = None,
+    max_rms_px: float = MAX_RMS_PX,
+) -> ViewMatches:
     """Correspondence and 3D points of one instant's detections ``pts`` (per camera Nc x 2
     pixels; ``norm``: their normalized coordinates, if already known). A group whose
     reprojection RMS exceeds ``max_rms_px`` makes no point. See the module doc."""
@@ -183,8 +187,11 @@ def match_views(geo: ViewGeometry, pts: Sequence, max_px: float = 2.0, ratio: fl
     pts = [np.asarray(p, float).reshape(-1, 2) for p in pts]
     if len(pts) != C:
         raise ValueError(f"{C} cameras but detections of {len(pts)}")
-    norm = [geo.normalize(c, p) for c, p in enumerate(pts)] if norm is None else \
-        [np.asarray(n, float).reshape(-1, 2) for n in norm]
+    norm = (
+        [geo.normalize(c, p) for c, p in enumerate(pts)]
+        if norm is None
+        else [np.asarray(n, float).reshape(-1, 2) for n in norm]
+    )
     ideal = [n @ geo.cams[c].K[:2, :2].T + geo.cams[c].K[:2, 2] for c, n in enumerate(norm)]
     out = ViewMatches(list(geo.names))
     hom = [np.column_stack([u, np.ones(len(u))]) for u in ideal]
@@ -225,7 +232,7 @@ def _unique_rows(groups: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     its first occurrence) through one integer per row: detection indices are small."""
     base = int(groups.max(initial=-1)) + 2
     key = np.zeros(len(groups), np.int64)
-    for c in range(groups.shape[1]):              # the first camera the most significant digit
+    for c in range(groups.shape[1]):  # the first camera the most significant digit
         key = key * base + (groups[:, c] + 1)
     _, first = np.unique(key, return_index=True)
     return groups[first], first
@@ -269,8 +276,7 @@ def _grow(geo, pts, norm, seeds: np.ndarray, max_px: float) -> np.ndarray:
     return groups[~inside_other.any(axis=1)]
 
 
-def _select(geo, pts, norm, groups: np.ndarray, max_px, ratio, min_sep_px, max_rms_px,
-            out: ViewMatches) -> None:
+def _select(geo, pts, norm, groups: np.ndarray, max_px, ratio, min_sep_px, max_rms_px, out: ViewMatches) -> None:
     C = len(geo.cams)
     obs, mask = _gather(pts, groups)
     obs_n, _ = _gather(norm, groups)
@@ -287,7 +293,7 @@ def _select(geo, pts, norm, groups: np.ndarray, max_px, ratio, min_sep_px, max_r
         X[bad], res[bad] = Xb, rb
     fits = np.nanmax(np.where(mask, res, 0.0), axis=1) <= max_px
     groups, X, res, mask = groups[fits], X[fits], res[fits], mask[fits]
-    groups, first = _unique_rows(groups)                           # the same group twice is one
+    groups, first = _unique_rows(groups)  # the same group twice is one
     X, res, mask = X[first], res[first], mask[first]
     n = mask.sum(axis=1)
     rms = np.sqrt(np.nansum(np.where(mask, res, 0.0) ** 2, axis=1) / np.maximum(n, 1))
@@ -305,7 +311,7 @@ def _select(geo, pts, norm, groups: np.ndarray, max_px, ratio, min_sep_px, max_r
     blocks = [np.flatnonzero(row).tolist() if more else [] for row, more in zip(share, share.sum(axis=1) > 1)]
     order_l = order.tolist()
     dropped = [False] * len(groups)
-    blocked = [False] * len(groups)            # a detection of it is in a point or an ambiguity already
+    blocked = [False] * len(groups)  # a detection of it is in a point or an ambiguity already
     gl, rl, resl, ml = groups.tolist(), rms.tolist(), res.tolist(), mask.tolist()
     for k in order_l:
         if dropped[k]:

@@ -22,8 +22,8 @@ docs/decisions/0073-phantom-names.md says why this source and these limits.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -32,14 +32,21 @@ from vts_hw.vision.body_finder import locate_body_views
 from vts_hw.vision.camera_set import in_rig_names, load_cameras, named_cameras
 from vts_hw.vision.registration import RigidTransform
 
-__all__ = ["PhantomLocator", "PhantomSeen", "phantom_template", "RMS_LIMIT_MM", "MIN_SPHERES",
-           "MAX_DETECTIONS", "TEMPLATE_KEY"]
+__all__ = [
+    "PhantomLocator",
+    "PhantomSeen",
+    "phantom_template",
+    "RMS_LIMIT_MM",
+    "MIN_SPHERES",
+    "MAX_DETECTIONS",
+    "TEMPLATE_KEY",
+]
 
 TEMPLATE_KEY = "spheres_spect_mm"
-RMS_LIMIT_MM = 2.0       # the mapping's own FRE limit (spect_mapping.FRE_LIMIT_MM): a consistent set is far below it
-MIN_SPHERES = 4          # a rigid fit on 4 points has a residual to judge it by (3 fit any triangle exactly)
-MAX_DETECTIONS = 40      # per camera: more, and the shape search is not bounded enough for the console's tick
-TOL_MM = 3.0             # the step test's shape tolerance (body_finder.DEFAULT_TOL_MM)
+RMS_LIMIT_MM = 2.0  # the mapping's own FRE limit (spect_mapping.FRE_LIMIT_MM): a consistent set is far below it
+MIN_SPHERES = 4  # a rigid fit on 4 points has a residual to judge it by (3 fit any triangle exactly)
+MAX_DETECTIONS = 40  # per camera: more, and the shape search is not bounded enough for the console's tick
+TOL_MM = 3.0  # the step test's shape tolerance (body_finder.DEFAULT_TOL_MM)
 
 
 def phantom_template(mapping) -> np.ndarray:
@@ -49,8 +56,10 @@ def phantom_template(mapping) -> np.ndarray:
     raw = (t.meta or {}).get(TEMPLATE_KEY)
     where = "the mapping" if isinstance(mapping, RigidTransform) else f"the mapping {mapping}"
     if raw is None:
-        raise DataError(f"{where} keeps no sphere centres (made before they were kept): run the "
-                        "mapping again (`vts calibrate spect`) to name the phantom's spheres")
+        raise DataError(
+            f"{where} keeps no sphere centres (made before they were kept): run the "
+            "mapping again (`vts calibrate spect`) to name the phantom's spheres"
+        )
     try:
         pts = np.asarray(raw, float).reshape(-1, 3)
     except (TypeError, ValueError):
@@ -84,9 +93,17 @@ class PhantomLocator:
     """Find the phantom whose sphere centres are ``template`` (M×3, mm, any frame; sphere ``i``
     is named ``S{i+1}``) with the calibrated ``cameras`` (``{name: camera}``, one world frame, mm)."""
 
-    def __init__(self, cameras: Mapping, template, *, rms_limit_mm: float = RMS_LIMIT_MM,
-                 min_spheres: int = MIN_SPHERES, tol_mm: float = TOL_MM, max_px: float = 2.0,
-                 max_detections: int = MAX_DETECTIONS):
+    def __init__(
+        self,
+        cameras: Mapping,
+        template,
+        *,
+        rms_limit_mm: float = RMS_LIMIT_MM,
+        min_spheres: int = MIN_SPHERES,
+        tol_mm: float = TOL_MM,
+        max_px: float = 2.0,
+        max_detections: int = MAX_DETECTIONS,
+    ):
         self.cameras = named_cameras(dict(cameras))
         self.template = np.asarray(template, float).reshape(-1, 3)
         self.rms_limit_mm = float(rms_limit_mm)
@@ -96,7 +113,7 @@ class PhantomLocator:
         self.max_detections = int(max_detections)
 
     @classmethod
-    def from_files(cls, calibration, mapping, rig_cameras: Sequence[str] = (), **kw) -> "PhantomLocator":
+    def from_files(cls, calibration, mapping, rig_cameras: Sequence[str] = (), **kw) -> PhantomLocator:
         """From the rig's calibration file (stereo or N cameras, its cameras named as the rig's:
         :func:`~vts_hw.vision.camera_set.covered_names`) and its mapping file (the template)."""
         return cls(in_rig_names(load_cameras(calibration), list(rig_cameras)), phantom_template(mapping), **kw)
@@ -105,25 +122,35 @@ class PhantomLocator:
         """The spheres among ``detections`` (camera name -> N×2 px of about one instant; cameras
         the calibration does not hold are left out), or why not."""
         m = len(self.template)
-        views = {n: np.asarray(p, float).reshape(-1, 2) for n, p in detections.items()
-                 if n in self.cameras and len(p)}
+        views = {n: np.asarray(p, float).reshape(-1, 2) for n, p in detections.items() if n in self.cameras and len(p)}
         if len(views) < 2:
             return PhantomSeen(spheres=m, why=f"{len(views)} calibrated camera(s) see markers, two are needed")
         crowded = [n for n, p in views.items() if len(p) > self.max_detections]
         if crowded:
-            return PhantomSeen(spheres=m, why=f"{', '.join(crowded)} see(s) more than {self.max_detections} "
-                                              "markers: not searched")
+            return PhantomSeen(
+                spheres=m, why=f"{', '.join(crowded)} see(s) more than {self.max_detections} markers: not searched"
+            )
         names = list(views)
         try:
-            fit = locate_body_views([self.cameras[n] for n in names], [views[n] for n in names], self.template,
-                                    tol_mm=self.tol_mm, max_px=self.max_px, min_points=self.min_spheres)
+            fit = locate_body_views(
+                [self.cameras[n] for n in names],
+                [views[n] for n in names],
+                self.template,
+                tol_mm=self.tol_mm,
+                max_px=self.max_px,
+                min_points=self.min_spheres,
+            )
         except (VtsError, ValueError, np.linalg.LinAlgError) as exc:
             return PhantomSeen(spheres=m, why=str(exc).rstrip("."))
         if fit.rms_mm > self.rms_limit_mm:
-            return PhantomSeen(rms_mm=fit.rms_mm, found=fit.found, spheres=m,
-                               why=f"the best fit's RMS {fit.rms_mm:.1f} mm is above {self.rms_limit_mm:g} mm")
+            return PhantomSeen(
+                rms_mm=fit.rms_mm,
+                found=fit.found,
+                spheres=m,
+                why=f"the best fit's RMS {fit.rms_mm:.1f} mm is above {self.rms_limit_mm:g} mm",
+            )
         seen_by = fit.detections
-        if seen_by is None:      # locate_body_views gives them always
+        if seen_by is None:  # locate_body_views gives them always
             raise RuntimeError("the phantom's fit came without the detections that made it")
         out: dict[str, list[tuple[str, float, float]]] = {n: [] for n in names}
         for i in range(m):

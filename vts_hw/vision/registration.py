@@ -31,8 +31,18 @@ from vts_hw.bounded import SMALL, read_text
 from vts_hw.errors import DataError
 from vts_hw.files import write_json_atomic
 
-__all__ = ["RigidTransform", "kabsch", "kabsch_batch", "fre", "loo_tre", "LooTre", "difference",
-           "TransformDifference", "EULER_CONVENTION", "read_mapping"]
+__all__ = [
+    "RigidTransform",
+    "kabsch",
+    "kabsch_batch",
+    "fre",
+    "loo_tre",
+    "LooTre",
+    "difference",
+    "TransformDifference",
+    "EULER_CONVENTION",
+    "read_mapping",
+]
 
 EULER_CONVENTION = "extrinsic x-y-z (scipy Rotation.as_euler('xyz')), degrees"
 _FORMAT = "vts-hw rigid transform v1"
@@ -62,16 +72,16 @@ class RigidTransform:
 
     # ------------------------------------------------------------ construction
     @classmethod
-    def identity(cls) -> "RigidTransform":
+    def identity(cls) -> RigidTransform:
         return cls(np.eye(3), np.zeros(3))
 
     @classmethod
-    def from_euler_xyz_deg(cls, angles_deg, t=(0.0, 0.0, 0.0)) -> "RigidTransform":
+    def from_euler_xyz_deg(cls, angles_deg, t=(0.0, 0.0, 0.0)) -> RigidTransform:
         """From rotations about x, y, z (extrinsic, degrees) and a translation (mm)."""
         return cls(Rotation.from_euler("xyz", angles_deg, degrees=True).as_matrix(), t)
 
     @classmethod
-    def from_rotvec(cls, rotvec, t=(0.0, 0.0, 0.0)) -> "RigidTransform":
+    def from_rotvec(cls, rotvec, t=(0.0, 0.0, 0.0)) -> RigidTransform:
         """From a rotation vector (axis * angle, radians) and a translation (mm)."""
         return cls(Rotation.from_rotvec(np.asarray(rotvec, float)).as_matrix(), t)
 
@@ -82,10 +92,10 @@ class RigidTransform:
         out = p.reshape(-1, 3) @ self.R.T + self.t
         return out.reshape(p.shape)
 
-    def inverse(self) -> "RigidTransform":
+    def inverse(self) -> RigidTransform:
         return RigidTransform(self.R.T, -self.R.T @ self.t)
 
-    def compose(self, other: "RigidTransform") -> "RigidTransform":
+    def compose(self, other: RigidTransform) -> RigidTransform:
         """``self ∘ other``: apply ``other`` first, then ``self``."""
         return RigidTransform(self.R @ other.R, self.R @ other.t + self.t)
 
@@ -117,13 +127,13 @@ class RigidTransform:
             "euler_xyz_deg": self.as_euler_xyz_deg().tolist(),
             "rotation_angle_deg": self.rotation_angle_deg,
             "euler_convention": EULER_CONVENTION,
-            "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+            "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
             "vts_hw_version": __version__,
             "meta": dict(self.meta),
         }
 
     @classmethod
-    def from_dict(cls, d: dict) -> "RigidTransform":
+    def from_dict(cls, d: dict) -> RigidTransform:
         """Inverse of :meth:`to_dict`; a matrix that is not a rotation raises :class:`DataError`."""
         try:
             R = np.asarray(d["R"], float).reshape(3, 3)
@@ -144,7 +154,7 @@ class RigidTransform:
         return write_json_atomic(path, self.to_dict())
 
     @classmethod
-    def load(cls, path) -> "RigidTransform":
+    def load(cls, path) -> RigidTransform:
         """Read a file written by :meth:`save`; a bad file raises :class:`DataError`."""
         path = Path(path)
         try:
@@ -175,8 +185,7 @@ def kabsch(A, B) -> RigidTransform:
         raise ValueError("kabsch needs at least 3 point pairs")
     sv = np.linalg.svd(A - A.mean(axis=0), compute_uv=False)
     if sv[1] <= 1e-12 * max(sv[0], 1e-300):
-        raise ValueError("kabsch: the points are collinear "
-                         "(the rotation about their line is undefined)")
+        raise ValueError("kabsch: the points are collinear (the rotation about their line is undefined)")
     R, t, _ = kabsch_batch(A, B[None])
     return RigidTransform(R[0], t[0])
 
@@ -193,11 +202,11 @@ def kabsch_batch(ref, P, seen=None, weights=None):
     n = w.sum(axis=1)
     nn = np.where(ok, n, 1.0)[:, None]
     Pz = np.where(seen[..., None], P, 0.0)
-    ca = (np.broadcast_to(ref, P.shape) * w[..., None]).sum(axis=1) / nn     # both centroids weighted
-    cb = (Pz * w[..., None]).sum(axis=1) / nn                                  # alike (an unweighted one
-    a = (np.broadcast_to(ref, P.shape) - ca[:, None]) * w[..., None]           # here shifted the fit by
-    b = Pz - cb[:, None]                                                       # mm: 0055)
-    H = np.einsum("fmi,fmj->fij", a, b)                                        # sum of w a b^T
+    ca = (np.broadcast_to(ref, P.shape) * w[..., None]).sum(axis=1) / nn  # both centroids weighted
+    cb = (Pz * w[..., None]).sum(axis=1) / nn  # alike (an unweighted one
+    a = (np.broadcast_to(ref, P.shape) - ca[:, None]) * w[..., None]  # here shifted the fit by
+    b = Pz - cb[:, None]  # mm: 0055)
+    H = np.einsum("fmi,fmj->fij", a, b)  # sum of w a b^T
     U, _, Vt = np.linalg.svd(H)
     d = np.sign(np.linalg.det(np.einsum("fij,fjk->fik", U, Vt).transpose(0, 2, 1)))
     D = np.zeros((len(P), 3, 3))
@@ -207,7 +216,7 @@ def kabsch_batch(ref, P, seen=None, weights=None):
     R = np.einsum("fji,fjk,fkl->fil", Vt, D, U.transpose(0, 2, 1))
     T = cb - np.einsum("fij,fj->fi", R, ca)
     res = np.where(seen[..., None], P - np.einsum("fij,mj->fmi", R, ref) - T[:, None], 0.0)
-    rms = np.sqrt(np.sum(res ** 2, axis=(1, 2)) / np.maximum(seen.sum(axis=1), 1))
+    rms = np.sqrt(np.sum(res**2, axis=(1, 2)) / np.maximum(seen.sum(axis=1), 1))
     R[~ok] = np.nan
     T[~ok] = np.nan
     rms[~ok] = np.nan
@@ -244,7 +253,7 @@ def loo_tre(A, B) -> LooTre:
         keep = np.arange(n) != i
         T = kabsch(A[keep], B[keep])
         errs[i] = np.linalg.norm(T.apply(A[i]) - B[i])
-    return LooTre(errs, float(np.sqrt(np.mean(errs ** 2))), float(errs.max()))
+    return LooTre(errs, float(np.sqrt(np.mean(errs**2))), float(errs.max()))
 
 
 @dataclass(frozen=True)
@@ -271,8 +280,7 @@ def difference(T1: RigidTransform, T2: RigidTransform) -> TransformDifference:
     diff = T2.as_euler_xyz_deg() - T1.as_euler_xyz_deg()
     diff = -((-diff + 180.0) % 360.0 - 180.0)  # wrap to (-180, 180]
     dt = T2.t - T1.t
-    return TransformDifference(rel.rotation_angle_deg, rel.as_euler_xyz_deg(), diff, dt,
-                               float(np.linalg.norm(dt)))
+    return TransformDifference(rel.rotation_angle_deg, rel.as_euler_xyz_deg(), diff, dt, float(np.linalg.norm(dt)))
 
 
 def read_mapping(mapping):
@@ -280,8 +288,9 @@ def read_mapping(mapping):
     ``transform``), or read from a path (a RigidTransform file, or a saved SpectMapping whose
     ``transform`` it holds); DataError naming the file for anything else."""
     if mapping is None or not isinstance(mapping, (str, os.PathLike)):
-        return getattr(mapping, "transform", mapping) if mapping is not None and not hasattr(mapping, "apply") \
-            else mapping
+        return (
+            getattr(mapping, "transform", mapping) if mapping is not None and not hasattr(mapping, "apply") else mapping
+        )
     path = Path(mapping)
     try:
         return RigidTransform.load(path)

@@ -16,17 +16,30 @@ See docs/decisions/0013-triangulation-and-registration.md.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import cv2
 import numpy as np
+
 # scipy.optimize (0.3 s to load) where it is used: a command that only reads a calibration file
 # (calibration_io's PinholeCamera) says a bad input before it loads (tests/test_report_door.py)
 
-__all__ = ["PinholeCamera", "as_camera", "undistort", "fundamental_matrix", "epipolar_distances",
-           "Matches", "AmbiguousPoint", "match_epipolar", "Triangulation", "triangulate",
-           "reprojection_errors", "predicted_covariance"]
+__all__ = [
+    "PinholeCamera",
+    "as_camera",
+    "undistort",
+    "fundamental_matrix",
+    "epipolar_distances",
+    "Matches",
+    "AmbiguousPoint",
+    "match_epipolar",
+    "Triangulation",
+    "triangulate",
+    "reprojection_errors",
+    "predicted_covariance",
+]
 
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14)
 
@@ -85,8 +98,7 @@ def undistort(cam, pts_px) -> np.ndarray:
     pts = _pts(pts_px)
     if len(pts) == 0:
         return np.zeros((0, 2))
-    out = cv2.undistortPoints(pts.reshape(-1, 1, 2), cam.K, cam.dist, None, None, None,
-                              _UNDISTORT_CRITERIA)
+    out = cv2.undistortPoints(pts.reshape(-1, 1, 2), cam.K, cam.dist, None, None, None, _UNDISTORT_CRITERIA)
     return out.reshape(-1, 2)
 
 
@@ -127,8 +139,8 @@ def epipolar_distances(cam_a, pts_a, cam_b, pts_b) -> np.ndarray:
     F = fundamental_matrix(a, b)
     ha = np.column_stack([xa, np.ones(len(xa))])
     hb = np.column_stack([xb, np.ones(len(xb))])
-    d_in_b = _line_distance(ha @ F.T, xb)          # lines F x_a in image b
-    d_in_a = _line_distance(hb @ F, xa).T          # lines F^T x_b in image a
+    d_in_b = _line_distance(ha @ F.T, xb)  # lines F x_a in image b
+    d_in_a = _line_distance(hb @ F, xa).T  # lines F^T x_b in image a
     return np.maximum(d_in_a, d_in_b)
 
 
@@ -176,8 +188,9 @@ def _is_ambiguous(d_sorted: np.ndarray, ratio: float, min_sep_px: float) -> bool
     return bool(second < ratio * best or second - best < min_sep_px)
 
 
-def match_epipolar(cam_a, pts_a, cam_b, pts_b, max_px: float = 2.0, ratio: float = 2.0,
-                   min_sep_px: float = 0.0) -> Matches:
+def match_epipolar(
+    cam_a, pts_a, cam_b, pts_b, max_px: float = 2.0, ratio: float = 2.0, min_sep_px: float = 0.0
+) -> Matches:
     """Match detections of camera a with those of camera b by the epipolar constraint.
 
     A pair is a candidate when its symmetric epipolar distance (:func:`epipolar_distances`)
@@ -224,8 +237,7 @@ def match_epipolar(cam_a, pts_a, cam_b, pts_b, max_px: float = 2.0, ratio: float
     out = Matches()
     for side, k in sorted(withheld):
         idx, dist = cand_a[k] if side == "a" else cand_b[k]
-        out.ambiguous.append(AmbiguousPoint(side, k, tuple(int(x) for x in idx),
-                                            tuple(float(x) for x in dist)))
+        out.ambiguous.append(AmbiguousPoint(side, k, tuple(int(x) for x in idx), tuple(float(x) for x in dist)))
 
     free_a = [i for i in range(na) if ("a", i) not in withheld]
     free_b = [j for j in range(nb) if ("b", j) not in withheld]
@@ -271,8 +283,7 @@ class Triangulation:
 
 
 def _project(cam: PinholeCamera, X: np.ndarray) -> np.ndarray:
-    uv, _ = cv2.projectPoints(np.asarray(X, float).reshape(-1, 1, 3), cam.rvec, cam.t,
-                              cam.K, cam.dist)
+    uv, _ = cv2.projectPoints(np.asarray(X, float).reshape(-1, 1, 3), cam.rvec, cam.t, cam.K, cam.dist)
     return uv.reshape(-1, 2)
 
 
@@ -283,8 +294,8 @@ def reprojection_errors(cams: Sequence, pts: Sequence, points3d) -> list[np.ndar
 
 
 def _rms(residuals: list[np.ndarray]) -> np.ndarray:
-    stacked = np.stack(residuals)                 # cams x N x 2
-    return np.sqrt(np.mean(stacked ** 2, axis=(0, 2)))
+    stacked = np.stack(residuals)  # cams x N x 2
+    return np.sqrt(np.mean(stacked**2, axis=(0, 2)))
 
 
 def _dlt(cams: list[PinholeCamera], norm_pts: list[np.ndarray]) -> np.ndarray:
@@ -344,10 +355,11 @@ def triangulate(cams: Sequence, pts: Sequence, refine: bool = True) -> Triangula
             def residual(X, obs=obs):
                 return np.concatenate([_project(c, X)[0] - o for c, o in zip(cams, obs)])
 
-            sol = least_squares(residual, linear[k], method="lm", xtol=1e-15, ftol=1e-15,
-                                gtol=1e-15, x_scale=np.full(3, 1.0))
+            sol = least_squares(
+                residual, linear[k], method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, x_scale=np.full(3, 1.0)
+            )
             # Keep the linear point if refinement did not help (it never should).
-            if np.sum(sol.fun ** 2) <= np.sum(residual(linear[k]) ** 2):
+            if np.sum(sol.fun**2) <= np.sum(residual(linear[k]) ** 2):
                 refined[k] = sol.x
     res = reprojection_errors(cams, pts, refined)
     return Triangulation(refined, linear, _rms(res), _rms(lin_res), res)
@@ -373,5 +385,5 @@ def predicted_covariance(cams: Sequence, points3d, sigma_px: float) -> np.ndarra
             plus = np.concatenate([_project(c, x + dx)[0] for c in cams])
             minus = np.concatenate([_project(c, x - dx)[0] for c in cams])
             J[:, axis] = (plus - minus) / (2 * h)
-        out[k] = sigma_px ** 2 * np.linalg.inv(J.T @ J)
+        out[k] = sigma_px**2 * np.linalg.inv(J.T @ J)
     return out

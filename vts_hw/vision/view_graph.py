@@ -33,7 +33,7 @@ class ViewGraph:
         """(a, b) → the number of views both saw, for every pair that shares one."""
         out = {}
         for i, a in enumerate(self.cameras):
-            for b in self.cameras[i + 1:]:
+            for b in self.cameras[i + 1 :]:
                 n = len(self.shared(a, b))
                 if n:
                     out[(a, b)] = n
@@ -85,22 +85,28 @@ class ViewGraph:
         alone = [c for c in self.cameras if not any(len(self.seen_by[v]) >= 2 for v in self.seen[c])]
         if alone:
             which = ", ".join(alone)
-            raise DataError(f"camera{'s' if len(alone) > 1 else ''} {which} found the board in no view"
-                            " that another camera also saw, so it cannot be placed in the common frame:"
-                            " add views showing the board to it and a neighbour at once.")
+            raise DataError(
+                f"camera{'s' if len(alone) > 1 else ''} {which} found the board in no view"
+                " that another camera also saw, so it cannot be placed in the common frame:"
+                " add views showing the board to it and a neighbour at once."
+            )
         groups = self.components()
         if len(groups) > 1:
             parts = " | ".join(", ".join(g) for g in groups)
-            raise DataError(f"the checkerboard views do not connect the cameras: {parts} share no view"
-                            " across the groups; add views that a camera of each group sees together.")
+            raise DataError(
+                f"the checkerboard views do not connect the cameras: {parts} share no view"
+                " across the groups; add views that a camera of each group sees together."
+            )
 
     def data(self) -> dict:
         """JSON-ready: who saw what, the shared-view counts, connectedness."""
-        return {"cameras": {c: list(v) for c, v in self.seen.items()},
-                "views": {v: list(c) for v, c in self.seen_by.items()},
-                "edges": [{"cameras": [a, b], "shared_views": n} for (a, b), n in self.edges().items()],
-                "connected": self.connected,
-                "components": self.components()}
+        return {
+            "cameras": {c: list(v) for c, v in self.seen.items()},
+            "views": {v: list(c) for v, c in self.seen_by.items()},
+            "edges": [{"cameras": [a, b], "shared_views": n} for (a, b), n in self.edges().items()],
+            "connected": self.connected,
+            "components": self.components(),
+        }
 
     def text(self) -> str:
         lines = ["View graph (views each camera found the board in; shared views per pair):"]
@@ -109,6 +115,9 @@ class ViewGraph:
         for (a, b), n in self.edges().items():
             lines.append(f"  {a} - {b}: {n} shared")
         groups = self.components()
-        lines.append("  connected: yes" if len(groups) == 1 else
-                     "  connected: NO (" + " | ".join(", ".join(g) for g in groups) + ")")
+        lines.append(
+            "  connected: yes"
+            if len(groups) == 1
+            else "  connected: NO (" + " | ".join(", ".join(g) for g in groups) + ")"
+        )
         return "\n".join(lines)

@@ -42,13 +42,17 @@ class Baseline:
     others: tuple = ()
 
     @classmethod
-    def of_points(cls, camera: str, points, taken: float, others: tuple = ()) -> "Baseline":
+    def of_points(cls, camera: str, points, taken: float, others: tuple = ()) -> Baseline:
         """The wall markers at ``points`` (N x 2 px), IDs M1.. in reading order (rows, then columns)."""
         pts = np.asarray(points, float).reshape(-1, 2)
         order = sorted(range(len(pts)), key=lambda k: (round(pts[k][1] / 40), pts[k][0]))
-        return cls(camera, tuple(BaselineMarker(f"M{n + 1}", float(pts[k][0]), float(pts[k][1]))
-                                 for n, k in enumerate(order)), taken, None, tuple(others))
+        return cls(
+            camera,
+            tuple(BaselineMarker(f"M{n + 1}", float(pts[k][0]), float(pts[k][1])) for n, k in enumerate(order)),
+            taken,
+            None,
+            tuple(others),
+        )
 
     def points(self) -> np.ndarray:
         return np.array([(m.x, m.y) for m in self.markers]).reshape(-1, 2)
-

@@ -17,8 +17,10 @@ from vts_hw.vision.wall_baseline import Baseline
 
 def frame_points(jpegs: list[bytes], settings: DetectorSettings | None = None) -> list[np.ndarray]:
     """Each frame's marker centres (N x 2 px), as the drift QA detects them."""
-    return [np.array([(b.x, b.y) for b in detect_jpeg(j, settings or DetectorSettings()).blobs]).reshape(-1, 2)
-            for j in jpegs]
+    return [
+        np.array([(b.x, b.y) for b in detect_jpeg(j, settings or DetectorSettings()).blobs]).reshape(-1, 2)
+        for j in jpegs
+    ]
 
 
 def baseline_of_tracks(camera: str, tracks, taken: float, placed=None) -> Baseline:
@@ -33,8 +35,9 @@ def baseline_of_tracks(camera: str, tracks, taken: float, placed=None) -> Baseli
     return Baseline.of_points(camera, [(t.x, t.y) for t in wall], taken, others)
 
 
-def baseline_from_frames(camera: str, jpegs: list[bytes], taken: float,
-                         settings: DetectorSettings | None = None) -> Baseline:
+def baseline_from_frames(
+    camera: str, jpegs: list[bytes], taken: float, settings: DetectorSettings | None = None
+) -> Baseline:
     """One camera's wall markers by motion alone (rule 1) in ``jpegs``."""
     return baseline_of_tracks(camera, follow(frame_points(jpegs, settings)), taken)
 

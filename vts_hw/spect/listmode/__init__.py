@@ -9,13 +9,33 @@
   :func:`read_vtslm`.
 """
 
-from vts_hw.spect.listmode.base import (GATE_SAMPLES, GATE_TRANSITIONS, ListMode, ListModeReader,
-                                  list_readers, read_listmode, read_listmode_span, reader_for,
-                                  register_reader)
+from vts_hw.spect.listmode.base import (
+    GATE_SAMPLES,
+    GATE_TRANSITIONS,
+    ListMode,
+    ListModeReader,
+    list_readers,
+    read_listmode,
+    read_listmode_span,
+    reader_for,
+    register_reader,
+)
 from vts_hw.spect.listmode.vtslm import VtslmReader, VtslmWriter, read_vtslm, write_vtslm
 
 register_reader(VtslmReader())
 
-__all__ = ["ListMode", "ListModeReader", "read_listmode", "reader_for", "list_readers",
-           "register_reader", "read_listmode_span", "GATE_SAMPLES", "GATE_TRANSITIONS", "VtslmWriter", "VtslmReader",
-           "read_vtslm", "write_vtslm"]
+__all__ = [
+    "ListMode",
+    "ListModeReader",
+    "read_listmode",
+    "reader_for",
+    "list_readers",
+    "register_reader",
+    "read_listmode_span",
+    "GATE_SAMPLES",
+    "GATE_TRANSITIONS",
+    "VtslmWriter",
+    "VtslmReader",
+    "read_vtslm",
+    "write_vtslm",
+]

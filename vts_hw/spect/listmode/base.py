@@ -32,7 +32,7 @@ from vts_hw.formats import FormatRegistry
 
 SNIFF_BYTES = 64
 
-GATE_SAMPLES = "samples"          # gate_t/gate_v: the voltage sampled at (regular) times
+GATE_SAMPLES = "samples"  # gate_t/gate_v: the voltage sampled at (regular) times
 GATE_TRANSITIONS = "transitions"  # gate_t/gate_v: the times the level changed, the new level
 
 
@@ -41,21 +41,21 @@ class ListMode:
     """One list-mode acquisition, whatever file it came from. Times are list-mode seconds
     (see the module docstring); ``dead`` is ``None`` when the format records no dead time."""
 
-    start_time: float                      # SPECT wall clock at t = 0, UTC epoch s (its clock)
-    duration_s: float                      # list-mode time of the acquisition's end
-    t: np.ndarray                          # (n,) float64, event times, s, ascending
-    z: np.ndarray                          # (n,) float32, axial position on the detector, mm
-    u: np.ndarray                          # (n,) float32, transaxial position, mm
-    head: np.ndarray                       # (n,) uint8, detector head
-    timing_marks: np.ndarray               # (m,) float64, s (every 10 ms on the SPECT clock)
-    frame_starts: np.ndarray               # (f,) float64, s (every 100 ms)
-    frame_angles: np.ndarray               # (f,) float64, head-0 angle at each frame start, deg
-    gate_t: np.ndarray                     # float64, s
-    gate_v: np.ndarray                     # float32, V
+    start_time: float  # SPECT wall clock at t = 0, UTC epoch s (its clock)
+    duration_s: float  # list-mode time of the acquisition's end
+    t: np.ndarray  # (n,) float64, event times, s, ascending
+    z: np.ndarray  # (n,) float32, axial position on the detector, mm
+    u: np.ndarray  # (n,) float32, transaxial position, mm
+    head: np.ndarray  # (n,) uint8, detector head
+    timing_marks: np.ndarray  # (m,) float64, s (every 10 ms on the SPECT clock)
+    frame_starts: np.ndarray  # (f,) float64, s (every 100 ms)
+    frame_angles: np.ndarray  # (f,) float64, head-0 angle at each frame start, deg
+    gate_t: np.ndarray  # float64, s
+    gate_v: np.ndarray  # float32, V
     gate_kind: str = GATE_SAMPLES
-    dead: np.ndarray | None = None         # (k, 2) float64 [start, end) s, or None
+    dead: np.ndarray | None = None  # (k, 2) float64 [start, end) s, or None
     header: dict = field(default_factory=dict)
-    source: Path | None = None             # the file, for messages
+    source: Path | None = None  # the file, for messages
     format: str = ""
 
     @property
@@ -84,8 +84,8 @@ class ListModeReader(Protocol):
 
 
 _REGISTRY: FormatRegistry[ListModeReader] = FormatRegistry(
-    "list-mode", content_first=True, check=lambda r: isinstance(r, ListModeReader),
-    sniff_bytes=SNIFF_BYTES)
+    "list-mode", content_first=True, check=lambda r: isinstance(r, ListModeReader), sniff_bytes=SNIFF_BYTES
+)
 
 
 def register_reader(reader: ListModeReader) -> None:

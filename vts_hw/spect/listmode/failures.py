@@ -19,8 +19,7 @@ from pathlib import Path
 from vts_hw.bounded import SMALL, read_text
 from vts_hw.files import write_json_atomic
 
-__all__ = ["FORMAT", "SUFFIX", "FailureRecord", "write_failure_record", "read_failure_records",
-           "utc_span"]
+__all__ = ["FORMAT", "SUFFIX", "FailureRecord", "write_failure_record", "read_failure_records", "utc_span"]
 
 FORMAT = "vts-listmode-failure/1"
 SUFFIX = ".failed.json"
@@ -30,14 +29,14 @@ SUFFIX = ".failed.json"
 class FailureRecord:
     """One acquisition that was not recorded. Times UTC epoch s (None: not known)."""
 
-    by: str                         # who failed to record, e.g. "the simulated SPECT"
-    listmode: str                   # the file name it would have written
-    reason: str                     # one line
-    start: float | None             # the scan it should have recorded: start (start pulse)
-    end: float | None               # and end (the square wave's last edge)
+    by: str  # who failed to record, e.g. "the simulated SPECT"
+    listmode: str  # the file name it would have written
+    reason: str  # one line
+    start: float | None  # the scan it should have recorded: start (start pulse)
+    end: float | None  # and end (the square wave's last edge)
     failed_at: float
-    log: str | None = None          # the writer's log, where there is one
-    path: Path | None = None        # the record itself (when read)
+    log: str | None = None  # the writer's log, where there is one
+    path: Path | None = None  # the record itself (when read)
 
     @property
     def span(self) -> tuple[float, float]:
@@ -47,23 +46,45 @@ class FailureRecord:
         return start, end
 
     def to_json(self) -> dict:
-        return {"format": FORMAT, "by": self.by, "listmode": self.listmode, "reason": self.reason,
-                "start": self.start, "end": self.end, "failed_at": self.failed_at, "log": self.log}
+        return {
+            "format": FORMAT,
+            "by": self.by,
+            "listmode": self.listmode,
+            "reason": self.reason,
+            "start": self.start,
+            "end": self.end,
+            "failed_at": self.failed_at,
+            "log": self.log,
+        }
 
     def describe(self, scan: str = "the scan") -> str:
         """``<by> failed to record <scan> (<span>): <reason>`` (one clause, no full stop)."""
         return f"{self.by} failed to record {scan} ({utc_span(*self.span)}): {self.reason}"
 
 
-def write_failure_record(folder, listmode_name: str, reason: str, *, by: str,
-                         start: float | None = None, end: float | None = None,
-                         log: str | Path | None = None) -> Path:
+def write_failure_record(
+    folder,
+    listmode_name: str,
+    reason: str,
+    *,
+    by: str,
+    start: float | None = None,
+    end: float | None = None,
+    log: str | Path | None = None,
+) -> Path:
     """Write ``<folder>/<stem>.failed.json`` for the list-mode ``listmode_name`` that could not
     be recorded; whole or not at all (WriteFailed). Returns its path."""
     name = Path(listmode_name).name
     stem = name[: -len(Path(name).suffix)] if Path(name).suffix else name
-    rec = FailureRecord(by=by, listmode=name, reason=" ".join(str(reason).split()), start=start,
-                        end=end, failed_at=time.time(), log=None if log is None else str(log))
+    rec = FailureRecord(
+        by=by,
+        listmode=name,
+        reason=" ".join(str(reason).split()),
+        start=start,
+        end=end,
+        failed_at=time.time(),
+        log=None if log is None else str(log),
+    )
     return write_json_atomic(Path(folder) / f"{stem}{SUFFIX}", rec.to_json())
 
 
@@ -81,9 +102,16 @@ def read_failure_records(folder) -> list[FailureRecord]:
             d = json.loads(read_text(p, SMALL, "list-mode failure note"))
             if not isinstance(d, dict) or d.get("format") != FORMAT:
                 continue
-            rec = FailureRecord(by=str(d["by"]), listmode=str(d["listmode"]), reason=str(d["reason"]),
-                                start=_num(d.get("start")), end=_num(d.get("end")),
-                                failed_at=_time(d["failed_at"]), log=d.get("log"), path=p)
+            rec = FailureRecord(
+                by=str(d["by"]),
+                listmode=str(d["listmode"]),
+                reason=str(d["reason"]),
+                start=_num(d.get("start")),
+                end=_num(d.get("end")),
+                failed_at=_time(d["failed_at"]),
+                log=d.get("log"),
+                path=p,
+            )
         except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError, OverflowError, RecursionError):
             continue
         out.append(rec)
@@ -100,13 +128,13 @@ def _time(v) -> float:
     """A time of a record: a UTC epoch a date can be made of (else ValueError, OverflowError or
     TypeError: the file is not a record vts wrote)."""
     t = float(v)
-    _dt.datetime.fromtimestamp(t, _dt.timezone.utc)
+    _dt.datetime.fromtimestamp(t, _dt.UTC)
     return t
 
 
 def utc_span(start: float, end: float) -> str:
     """``2026-11-22 10:15:03 to 10:16:02 UTC`` (the date again at the end when it differs)."""
-    a = _dt.datetime.fromtimestamp(start, _dt.timezone.utc)
-    b = _dt.datetime.fromtimestamp(end, _dt.timezone.utc)
+    a = _dt.datetime.fromtimestamp(start, _dt.UTC)
+    b = _dt.datetime.fromtimestamp(end, _dt.UTC)
     tail = f"{b:%H:%M:%S}" if a.date() == b.date() else f"{b:%Y-%m-%d %H:%M:%S}"
     return f"{a:%Y-%m-%d %H:%M:%S} to {tail} UTC"

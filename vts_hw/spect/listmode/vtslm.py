@@ -28,8 +28,8 @@ NAME = "vtslm"
 EXTENSIONS = (".vtslm",)
 MAGIC = b"\x89VTSLM\r\n"
 VERSION = (1, 0)
-PREAMBLE = struct.Struct("<8sHHI")     # magic, major, minor, header length
-BLOCK = struct.Struct("<4sIII")        # tag, record count, record size, reserved (0)
+PREAMBLE = struct.Struct("<8sHHI")  # magic, major, minor, header length
+BLOCK = struct.Struct("<4sIII")  # tag, record count, record size, reserved (0)
 NS = 1_000_000_000
 
 EVENT = np.dtype([("t_ns", "<i8"), ("z_mm", "<f4"), ("u_01mm", "<i2"), ("head", "u1"), ("flags", "u1")])
@@ -39,6 +39,7 @@ GATE = np.dtype("<i2")
 DEAD = np.dtype([("start_ns", "<i8"), ("end_ns", "<i8")])
 END = np.dtype([("t_ns", "<i8")])
 RECORDS = {b"EVNT": EVENT, b"TMRK": MARK, b"FRAM": FRAME, b"GATE": GATE, b"DEAD": DEAD, b"END ": END}
+
 
 def _number(v):
     # a JSON integer of 400 digits is an int no float can hold: not a number here
@@ -50,7 +51,7 @@ def _positive(v):
 
 
 def _int(v):
-    return isinstance(v, int) and not isinstance(v, bool) and -2**63 <= v < 2**63
+    return isinstance(v, int) and not isinstance(v, bool) and -(2**63) <= v < 2**63
 
 
 # header keys every file must have: name -> (check, what it must be)
@@ -68,7 +69,7 @@ REQUIRED = {
 
 
 def sniff(head: bytes) -> bool:
-    return head[:len(MAGIC)] == MAGIC
+    return head[: len(MAGIC)] == MAGIC
 
 
 def _ns(seconds) -> np.ndarray:
@@ -76,6 +77,7 @@ def _ns(seconds) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------- writer
+
 
 class VtslmWriter:
     """Write a VTSLM file block by block. Times in list-mode seconds, positions in mm, volts.
@@ -87,17 +89,35 @@ class VtslmWriter:
     go into the header as they are (scanner name, software version, ...).
     """
 
-    def __init__(self, path, *, start_time: float, duration_s: float, gate_rate_hz: float,
-                 gate_volts_per_count: float = 10.0 / 32768, gate_t0_s: float = 0.0,
-                 timing_mark_s: float = 0.01, frame_s: float = 0.1, heads: int = 2,
-                 dead_time_recorded: bool = False, **extra):
+    def __init__(
+        self,
+        path,
+        *,
+        start_time: float,
+        duration_s: float,
+        gate_rate_hz: float,
+        gate_volts_per_count: float = 10.0 / 32768,
+        gate_t0_s: float = 0.0,
+        timing_mark_s: float = 0.01,
+        frame_s: float = 0.1,
+        heads: int = 2,
+        dead_time_recorded: bool = False,
+        **extra,
+    ):
         self.path = Path(path)
         header = dict(extra)
-        header.update(format="VTSLM", start_time=float(start_time), duration_s=float(duration_s),
-                      timing_mark_s=float(timing_mark_s), frame_s=float(frame_s), heads=int(heads),
-                      gate_rate_hz=float(gate_rate_hz), gate_t0_ns=int(_ns(gate_t0_s)),
-                      gate_volts_per_count=float(gate_volts_per_count),
-                      dead_time_recorded=bool(dead_time_recorded))
+        header.update(
+            format="VTSLM",
+            start_time=float(start_time),
+            duration_s=float(duration_s),
+            timing_mark_s=float(timing_mark_s),
+            frame_s=float(frame_s),
+            heads=int(heads),
+            gate_rate_hz=float(gate_rate_hz),
+            gate_t0_ns=int(_ns(gate_t0_s)),
+            gate_volts_per_count=float(gate_volts_per_count),
+            dead_time_recorded=bool(dead_time_recorded),
+        )
         for key, (ok, what) in REQUIRED.items():
             if not ok(header[key]):
                 raise ValueError(f"VTSLM header key {key!r} must be {what}, not {header[key]!r}")
@@ -105,7 +125,7 @@ class VtslmWriter:
         self.volts_per_count = header["gate_volts_per_count"]
         text = json.dumps(header, indent=1, sort_keys=True).encode("utf-8")
         text += b" " * (-(PREAMBLE.size + len(text)) % 8)
-        self._f = open_writable(self.path, "wb")   # a regular file: never a device, FIFO or symbolic link
+        self._f = open_writable(self.path, "wb")  # a regular file: never a device, FIFO or symbolic link
         self._f.write(PREAMBLE.pack(MAGIC, VERSION[0], VERSION[1], len(text)))
         self._f.write(text)
         self.closed = False
@@ -166,13 +186,13 @@ class VtslmWriter:
         self.closed = True
         self._f.close()
 
-    def __enter__(self) -> "VtslmWriter":
+    def __enter__(self) -> VtslmWriter:
         return self
 
     def __exit__(self, exc_type, *exc) -> None:
         if exc_type is None:
             self.close()
-        else:            # an interrupted write leaves a file without END: the reader says so
+        else:  # an interrupted write leaves a file without END: the reader says so
             self._f.close()
             self.closed = True
 
@@ -188,13 +208,19 @@ def write_vtslm(path, lm: ListMode, **extra) -> Path:
         rate = 1.0 / float(np.median(np.diff(lm.gate_t)))
     keep = {k: v for k, v in lm.header.items() if k not in REQUIRED and k != "format"}
     keep.update(extra)
-    with VtslmWriter(path, start_time=lm.start_time, duration_s=lm.duration_s, gate_rate_hz=rate,
-                     gate_volts_per_count=lm.header.get("gate_volts_per_count", 10.0 / 32768),
-                     gate_t0_s=float(lm.gate_t[0]) if lm.gate_t.size else 0.0,
-                     timing_mark_s=lm.header.get("timing_mark_s", 0.01),
-                     frame_s=lm.header.get("frame_s", 0.1),
-                     heads=int(lm.header.get("heads", int(lm.head.max()) + 1 if lm.head.size else 1)),
-                     dead_time_recorded=lm.dead is not None, **keep) as w:
+    with VtslmWriter(
+        path,
+        start_time=lm.start_time,
+        duration_s=lm.duration_s,
+        gate_rate_hz=rate,
+        gate_volts_per_count=lm.header.get("gate_volts_per_count", 10.0 / 32768),
+        gate_t0_s=float(lm.gate_t[0]) if lm.gate_t.size else 0.0,
+        timing_mark_s=lm.header.get("timing_mark_s", 0.01),
+        frame_s=lm.header.get("frame_s", 0.1),
+        heads=int(lm.header.get("heads", int(lm.head.max()) + 1 if lm.head.size else 1)),
+        dead_time_recorded=lm.dead is not None,
+        **keep,
+    ) as w:
         w.events(lm.t, lm.z, lm.u, lm.head)
         w.timing_marks(lm.timing_marks)
         w.frames(lm.frame_starts, np.arange(lm.frame_starts.size), lm.frame_angles)
@@ -207,23 +233,22 @@ def write_vtslm(path, lm: ListMode, **extra) -> Path:
 
 # ---------------------------------------------------------------------------------- reader
 
+
 def _header(path: Path, data: bytes) -> tuple[dict, int]:
     if len(data) < PREAMBLE.size:
-        raise DataError(f"{path}: truncated: {len(data)} bytes, shorter than the "
-                        f"{PREAMBLE.size}-byte VTSLM preamble")
+        raise DataError(f"{path}: truncated: {len(data)} bytes, shorter than the {PREAMBLE.size}-byte VTSLM preamble")
     magic, major, minor, length = PREAMBLE.unpack_from(data)
     if magic != MAGIC:
-        raise DataError(f"{path}: not a VTSLM list-mode file (starts with {magic!r}, "
-                        f"expected {MAGIC!r})")
+        raise DataError(f"{path}: not a VTSLM list-mode file (starts with {magic!r}, expected {MAGIC!r})")
     if major != VERSION[0]:
-        raise DataError(f"{path}: VTSLM version {major}.{minor} is not supported "
-                        f"(this reader reads {VERSION[0]}.x)")
+        raise DataError(f"{path}: VTSLM version {major}.{minor} is not supported (this reader reads {VERSION[0]}.x)")
     end = PREAMBLE.size + length
     if end > len(data):
-        raise DataError(f"{path}: truncated in the header ({length} header bytes announced, "
-                        f"{len(data) - PREAMBLE.size} present)")
+        raise DataError(
+            f"{path}: truncated in the header ({length} header bytes announced, {len(data) - PREAMBLE.size} present)"
+        )
     try:
-        header = json.loads(data[PREAMBLE.size:end].decode("utf-8"))
+        header = json.loads(data[PREAMBLE.size : end].decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
         raise DataError(f"{path}: the header is not valid JSON ({e})") from None
     except (ValueError, RecursionError) as e:  # a 5000-digit number, arrays nested 1000 deep
@@ -250,21 +275,25 @@ def _blocks(path: Path, data: bytes, pos: int) -> tuple[dict[bytes, list[tuple[i
         if end_ns is not None:
             raise DataError(f"{path}: {size - pos} bytes after the END block at byte {pos}")
         if size - pos < BLOCK.size:
-            raise DataError(f"{path}: truncated: a block header at byte {pos} has only "
-                            f"{size - pos} of {BLOCK.size} bytes")
+            raise DataError(
+                f"{path}: truncated: a block header at byte {pos} has only {size - pos} of {BLOCK.size} bytes"
+            )
         tag, n, rsize, _reserved = BLOCK.unpack_from(data, pos)
         name = tag.decode("ascii", "replace")
         if not (tag.isascii() and tag.decode("ascii").strip().isalnum()):
             raise DataError(f"{path}: bad block tag {tag!r} at byte {pos} (corrupt file?)")
         body = pos + BLOCK.size
         if body + n * rsize > size:
-            raise DataError(f"{path}: truncated: block {name!r} at byte {pos} needs {n * rsize} "
-                            f"bytes of records, only {size - body} left")
+            raise DataError(
+                f"{path}: truncated: block {name!r} at byte {pos} needs {n * rsize} "
+                f"bytes of records, only {size - body} left"
+            )
         dtype = RECORDS.get(tag)
         if dtype is not None:
             if rsize != dtype.itemsize:
-                raise DataError(f"{path}: block {name!r} at byte {pos} has {rsize}-byte records, "
-                                f"VTSLM 1 has {dtype.itemsize}")
+                raise DataError(
+                    f"{path}: block {name!r} at byte {pos} has {rsize}-byte records, VTSLM 1 has {dtype.itemsize}"
+                )
             if tag == b"END ":
                 if n != 1:
                     raise DataError(f"{path}: the END block at byte {pos} has {n} records, not 1")
@@ -274,8 +303,9 @@ def _blocks(path: Path, data: bytes, pos: int) -> tuple[dict[bytes, list[tuple[i
         # an unknown tag (a later minor version): skipped, its record size says how far
         pos = body + n * rsize
     if end_ns is None:
-        raise DataError(f"{path}: no END block: the file was not closed (truncated, or the "
-                        f"acquisition was interrupted)")
+        raise DataError(
+            f"{path}: no END block: the file was not closed (truncated, or the acquisition was interrupted)"
+        )
     return found, end_ns
 
 
@@ -312,8 +342,9 @@ def read_vtslm(path) -> ListMode:
     _ascending(path, "timing mark", marks["t_ns"])
     _ascending(path, "frame", frames["t_ns"])
     if ev.size and int(ev["head"].max()) >= header["heads"]:
-        raise DataError(f"{path}: an event on head {int(ev['head'].max())}, but the header says "
-                        f"{header['heads']} heads")
+        raise DataError(
+            f"{path}: an event on head {int(ev['head'].max())}, but the header says {header['heads']} heads"
+        )
     if np.any(dead["end_ns"] < dead["start_ns"]):
         raise DataError(f"{path}: a dead-time interval ends before it starts")
     rate = float(header["gate_rate_hz"])
@@ -331,9 +362,13 @@ def read_vtslm(path) -> ListMode:
         gate_t=gate_t,
         gate_v=gate.astype(np.float32) * np.float32(header["gate_volts_per_count"]),
         gate_kind=GATE_SAMPLES,
-        dead=(np.column_stack([dead["start_ns"] / 1e9, dead["end_ns"] / 1e9])
-              if header["dead_time_recorded"] else None),
-        header=header, source=path, format=NAME)
+        dead=(
+            np.column_stack([dead["start_ns"] / 1e9, dead["end_ns"] / 1e9]) if header["dead_time_recorded"] else None
+        ),
+        header=header,
+        source=path,
+        format=NAME,
+    )
 
 
 def vtslm_span(path) -> tuple[float, float]:

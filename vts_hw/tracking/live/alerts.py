@@ -33,37 +33,39 @@ import numpy as np
 
 __all__ = ["Alert", "AlertRule", "find_onset"]
 
-NOISE_FACTOR = 4.0   # onset levels at least this many times the still pose's RMS noise
+NOISE_FACTOR = 4.0  # onset levels at least this many times the still pose's RMS noise
 # the onset looked back for (decision 0088)
-BASELINE_S = 0.6     # the pose before the move: the poses over this long ...
-BACK_S = 0.4         # ... ending this long before the last instant within the onset levels; the
+BASELINE_S = 0.6  # the pose before the move: the poses over this long ...
+BACK_S = 0.4  # ... ending this long before the last instant within the onset levels; the
 #                      onset found at most this long before that instant
-RISE_SHARE = 0.15    # the first part of the rise fitted: up to this share of the deviation now
-RISE_MAX_S = 2.0     # ... and at most this long after the last instant within the onset levels
-RISE_MIN_POSES = 5   # ... and at least this many poses beyond the onset levels (a slow ramp
+RISE_SHARE = 0.15  # the first part of the rise fitted: up to this share of the deviation now
+RISE_MAX_S = 2.0  # ... and at most this long after the last instant within the onset levels
+RISE_MIN_POSES = 5  # ... and at least this many poses beyond the onset levels (a slow ramp
 #                      reaches them in a few poses: fewer let the noise tilt it) ...
-RISE_CAP = 0.5       # ... unless the deviation passed this share of now before them (a sudden
+RISE_CAP = 0.5  # ... unless the deviation passed this share of now before them (a sudden
 #                      move: past its half the rise bends over, and the fit would find it late)
 POWERS = (1.0, 2.0)  # its shapes: a ramp, a steady acceleration (a start smoother than that is
 #                      found late rather than early: an early onset would shorten a twitch's hold)
-STEP_S = 0.005       # the onsets tried
-GAP_S = 0.25         # poses further apart than this: a stretch without a pose
+STEP_S = 0.005  # the onsets tried
+GAP_S = 0.25  # poses further apart than this: a stretch without a pose
 
 
 @dataclass(frozen=True)
 class Alert:
-    time: float          # host s of the estimate that raised it
-    onset: float         # host s the move started: the body left its pose (found looking back)
+    time: float  # host s of the estimate that raised it
+    onset: float  # host s the move started: the body left its pose (found looking back)
     move_mm: float
     turn_deg: float
-    onset_known_s: float = 0.0   # the poses around the onset this far apart (the frame period when none
+    onset_known_s: float = 0.0  # the poses around the onset this far apart (the frame period when none
     #                              was lost); longer than GAP_S: no pose in that stretch, the onset the last
     #                              before it, and the move started between onset and onset + this
 
     def text(self, alert_mm: float, alert_deg: float) -> str:
-        gap = (f"; it started during {self.onset_known_s:.1f} s without a pose" if self.onset_known_s > GAP_S else "")
-        return (f"PATIENT MOVED: {self.move_mm:.1f} mm, {self.turn_deg:.1f} deg (limits {alert_mm:g} mm, "
-                f"{alert_deg:g} deg) for {self.time - self.onset:.1f} s, breathing excluded{gap}")
+        gap = f"; it started during {self.onset_known_s:.1f} s without a pose" if self.onset_known_s > GAP_S else ""
+        return (
+            f"PATIENT MOVED: {self.move_mm:.1f} mm, {self.turn_deg:.1f} deg (limits {alert_mm:g} mm, "
+            f"{alert_deg:g} deg) for {self.time - self.onset:.1f} s, breathing excluded{gap}"
+        )
 
 
 def _turn_deg(M: np.ndarray) -> float:
@@ -74,7 +76,7 @@ def _turn_deg(M: np.ndarray) -> float:
 def _turns_deg(M: np.ndarray) -> np.ndarray:
     """The rotation vectors (deg) of the rotations ``M`` (N, 3, 3), turns of less than 90 deg."""
     w = 0.5 * np.stack([M[:, 2, 1] - M[:, 1, 2], M[:, 0, 2] - M[:, 2, 0], M[:, 1, 0] - M[:, 0, 1]], axis=1)
-    s = np.linalg.norm(w, axis=1, keepdims=True)          # sin of the angle
+    s = np.linalg.norm(w, axis=1, keepdims=True)  # sin of the angle
     angle = np.arcsin(np.clip(s, 0.0, 1.0))
     return np.degrees(w * np.where(s > 1e-12, angle / np.where(s > 1e-12, s, 1.0), 1.0))
 
@@ -89,8 +91,9 @@ def _bracket(ts: np.ndarray, t0: float) -> tuple[float, float]:
     return float(t0), gap
 
 
-def find_onset(ts, centres, rotations, still_until: float, left: float, alert_mm: float,
-               alert_deg: float, powers=POWERS) -> tuple[float, float] | None:
+def find_onset(
+    ts, centres, rotations, still_until: float, left: float, alert_mm: float, alert_deg: float, powers=POWERS
+) -> tuple[float, float] | None:
     """When the body started to leave its pose, from the poses ``(ts, centres (N, 3),
     rotations (N, 3, 3))`` in time order: ``still_until`` the last estimate within the onset
     levels, ``left`` the first beyond them. Returns ``(onset, onset_known_s)``, or None when
@@ -107,7 +110,7 @@ def find_onset(ts, centres, rotations, still_until: float, left: float, alert_mm
     i_left = int(np.searchsorted(ts, left))
     if i_left == 0 or i_left >= len(ts):
         return None
-    if ts[i_left] - ts[i_left - 1] > GAP_S:         # it left its pose unseen: bounded by the stretch
+    if ts[i_left] - ts[i_left - 1] > GAP_S:  # it left its pose unseen: bounded by the stretch
         return float(ts[i_left - 1]), float(ts[i_left] - ts[i_left - 1])
     base = np.flatnonzero((ts >= still_until - BACK_S - BASELINE_S) & (ts <= still_until - BACK_S))
     if len(base) < 3:
@@ -121,14 +124,14 @@ def find_onset(ts, centres, rotations, still_until: float, left: float, alert_mm
     r = (v - v[base].mean(axis=0)) @ (d / size)
     beyond = np.flatnonzero((r > RISE_SHARE * r[-1]) & (ts >= left))
     end = min(int(beyond[0]) if len(beyond) else len(ts), int(np.searchsorted(ts, still_until + RISE_MAX_S)))
-    half = np.flatnonzero((r > RISE_CAP * r[-1]) & (ts >= left))   # a few poses beyond the levels at least,
-    end = max(end, min(i_left + RISE_MIN_POSES, int(half[0]) if len(half) else len(ts)))   # not past half
-    tt, rr = ts[base[0]:end], r[base[0]:end]
-    trial = np.arange(still_until - BACK_S, ts[i_left] - STEP_S / 2, STEP_S)   # before it was seen gone
+    half = np.flatnonzero((r > RISE_CAP * r[-1]) & (ts >= left))  # a few poses beyond the levels at least,
+    end = max(end, min(i_left + RISE_MIN_POSES, int(half[0]) if len(half) else len(ts)))  # not past half
+    tt, rr = ts[base[0] : end], r[base[0] : end]
+    trial = np.arange(still_until - BACK_S, ts[i_left] - STEP_S / 2, STEP_S)  # before it was seen gone
     best, onset = np.inf, None
     n, sy = len(tt), rr.sum()
     for p in powers:
-        X = np.maximum(0.0, tt[None, :] - trial[:, None]) ** p        # (trials, poses)
+        X = np.maximum(0.0, tt[None, :] - trial[:, None]) ** p  # (trials, poses)
         sx, sxx, sxy = X.sum(axis=1), (X * X).sum(axis=1), X @ rr
         den = n * sxx - sx * sx
         ok = den > 1e-12
@@ -145,8 +148,16 @@ def find_onset(ts, centres, rotations, still_until: float, left: float, alert_mm
 
 
 class AlertRule:
-    def __init__(self, alert_mm: float, alert_deg: float, after_s: float, onset_fraction: float = 0.15,
-                 settle_s: float = 2.0, noise_mm: float = 0.0, noise_deg: float = 0.0):
+    def __init__(
+        self,
+        alert_mm: float,
+        alert_deg: float,
+        after_s: float,
+        onset_fraction: float = 0.15,
+        settle_s: float = 2.0,
+        noise_mm: float = 0.0,
+        noise_deg: float = 0.0,
+    ):
         self.alert_mm, self.alert_deg, self.after_s = alert_mm, alert_deg, after_s
         # the onset levels: a fraction of the thresholds, but clear of the still pose's noise
         self.onset_mm = max(onset_fraction * alert_mm, NOISE_FACTOR * noise_mm)
@@ -154,9 +165,9 @@ class AlertRule:
         self.settle_s = settle_s
         self.R_ref = np.eye(3)
         self.c_ref: np.ndarray | None = None
-        self.still_until: float | None = None   # last time within the onset levels
-        self.left: float | None = None       # the first estimate after it
-        self.onset: float | None = None      # the excursion's onset, once looked back for
+        self.still_until: float | None = None  # last time within the onset levels
+        self.left: float | None = None  # the first estimate after it
+        self.onset: float | None = None  # the excursion's onset, once looked back for
         self.onset_known_s = 0.0
         self.alerted_at: float | None = None
         self.alerts: list[Alert] = []
@@ -194,7 +205,7 @@ class AlertRule:
         self.move_mm = float(np.linalg.norm(c - self.c_ref))
         self.turn_deg = _turn_deg(R @ self.R_ref.T)
         if self.alerted_at is not None:
-            if t - self.alerted_at <= self.settle_s:      # the rest of the move that alerted
+            if t - self.alerted_at <= self.settle_s:  # the rest of the move that alerted
                 self.R_ref, self.c_ref = R.copy(), c.copy()
                 self.move_mm = self.turn_deg = 0.0
                 self.still_until, self.left, self.onset = t, None, None
@@ -210,8 +221,8 @@ class AlertRule:
         # beyond the thresholds: the onset matters once the excursion may have lasted after_s
         if t - (self.still_until - BACK_S) <= self.after_s:
             return None
-        onset = self._look_back(self.still_until, self.left)   # (at each estimate until it alerts:
-        if t - onset > self.after_s:                             # the move seen further)
+        onset = self._look_back(self.still_until, self.left)  # (at each estimate until it alerts:
+        if t - onset > self.after_s:  # the move seen further)
             a = Alert(t, onset, self.move_mm, self.turn_deg, self.onset_known_s)
             self.alerts.append(a)
             self.alerted_at = t

@@ -19,7 +19,7 @@ from vts_hw.motion.cycles import BreathingFigures, breathing_figures, find_breat
 
 __all__ = ["BreathingTrace", "breathing_rate", "trace_grid"]
 
-MIN_SAMPLES = 20        # samples a window needs before a rate is looked for
+MIN_SAMPLES = 20  # samples a window needs before a rate is looked for
 
 
 def trace_grid(t, v) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
@@ -88,8 +88,13 @@ class BreathingTrace:
         """Whether the figures are to be worked out again: none yet, or ``every_s`` of samples
         came since (or the clock went back)."""
         last = self.samples[-1][0] if self.samples else None
-        return self._figures is None or last is None or self._at is None or last - self._at >= self.every_s \
+        return (
+            self._figures is None
+            or last is None
+            or self._at is None
+            or last - self._at >= self.every_s
             or last < self._at
+        )
 
     def refresh(self) -> None:
         """Work the figures out again, if :meth:`due`."""
@@ -117,7 +122,7 @@ class BreathingTrace:
         if not self.samples:
             return []
         end = self.samples[-1][0] - span_s
-        tail = []                       # the samples of the span (and the one before it), newest first
+        tail = []  # the samples of the span (and the one before it), newest first
         for sample in reversed(self.samples):
             tail.append(sample)
             if sample[0] < end:

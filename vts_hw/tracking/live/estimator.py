@@ -26,13 +26,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from vts_hw.tracking.live.alerts import Alert, AlertRule
-from vts_hw.tracking.live.breathing import BreathingTrace
-from vts_hw.tracking.identities import assign
 from vts_hw.motion.patient_model import InstantPose, PatientModel
 from vts_hw.pose_health import pose_health
-from vts_hw.vision.marker_roles import ABDOMEN, CHEST
+from vts_hw.tracking.identities import assign
+from vts_hw.tracking.live.alerts import Alert, AlertRule
+from vts_hw.tracking.live.breathing import BreathingTrace
 from vts_hw.tracking.live.reference import ReferenceCollector
+from vts_hw.vision.marker_roles import ABDOMEN, CHEST
 
 __all__ = ["LiveSettings", "LiveEstimator", "LiveEstimate", "BandEstimate", "LivePose"]
 
@@ -58,8 +58,8 @@ class LivePose:
     turn_deg: float
     health: str = ""
     confidence: float = float("nan")
-    frames: tuple = ()          # per camera (the tracker's order) the number of its frame in the set, -1: none
-    model_markers: int = 0      # the model's markers (what its health is judged against)
+    frames: tuple = ()  # per camera (the tracker's order) the number of its frame in the set, -1: none
+    model_markers: int = 0  # the model's markers (what its health is judged against)
 
 
 @dataclass(frozen=True)
@@ -67,33 +67,33 @@ class LiveSettings:
     reference_s: float = 10.0
     band_gap_mm: float = 60.0
     gate_mm: float = 15.0
-    min_seen_fraction: float = 0.6     # of the reference's instants (frame sets), not of its time
-    ref_min_observed: float = 0.5      # the reference's instants cover at least this share of reference_s
-    ref_max_span: float = 3.0          # ... within at most this many reference_s (older instants let go)
-    step_s: float = 0.5                # instants further apart than this: the time between is not observed
+    min_seen_fraction: float = 0.6  # of the reference's instants (frame sets), not of its time
+    ref_min_observed: float = 0.5  # the reference's instants cover at least this share of reference_s
+    ref_max_span: float = 3.0  # ... within at most this many reference_s (older instants let go)
+    step_s: float = 0.5  # instants further apart than this: the time between is not observed
     ref_max_rms_mm: float = 1.0
-    ref_max_move_fraction: float = 0.2   # the pose's RMS spread over the reference: at most this of the thresholds
-    min_breath_mm: float = 0.6     # the model's most breathing marker ranges this much (5th to 95th percentile),
-                                   # or the model has no breathing term (the patient's markers: vision.marker_roles)
+    ref_max_move_fraction: float = 0.2  # the pose's RMS spread over the reference: at most this of the thresholds
+    min_breath_mm: float = 0.6  # the model's most breathing marker ranges this much (5th to 95th percentile),
+    # or the model has no breathing term (the patient's markers: vision.marker_roles)
     onset_fraction: float = 0.15
     settle_s: float = 2.0
     trace_window_s: float = 30.0
-    iterations: int = 6           # of the alternating fit, from the last solution
-    iterations_after_gap: int = 30   # ... when that solution is older than gap_s (breathing went on meanwhile)
+    iterations: int = 6  # of the alternating fit, from the last solution
+    iterations_after_gap: int = 30  # ... when that solution is older than gap_s (breathing went on meanwhile)
     gap_s: float = 0.2
 
 
 @dataclass(frozen=True)
 class BandEstimate:
     band: int
-    markers: int                 # in the model
-    seen: int                    # in the last estimate
-    displacement_mm: tuple[float, float, float]   # centre of its seen markers minus the reference's
-    breathing_mm: float          # the band's breathing value now (mm along its markers' directions)
+    markers: int  # in the model
+    seen: int  # in the last estimate
+    displacement_mm: tuple[float, float, float]  # centre of its seen markers minus the reference's
+    breathing_mm: float  # the band's breathing value now (mm along its markers' directions)
     rate_per_min: float
-    trace: tuple[float, ...]     # the last seconds of breathing (for a sparkline)
-    breathes: bool = True        # False: no breathing seen in the reference (fitted rigidly)
-    rate_range: tuple | None = None   # (low, high) /min when the rate is only bounded (not known to 0.5 /min)
+    trace: tuple[float, ...]  # the last seconds of breathing (for a sparkline)
+    breathes: bool = True  # False: no breathing seen in the reference (fitted rigidly)
+    rate_range: tuple | None = None  # (low, high) /min when the rate is only bounded (not known to 0.5 /min)
 
     @property
     def distance_mm(self) -> float:
@@ -102,27 +102,27 @@ class BandEstimate:
 
 @dataclass(frozen=True)
 class LiveEstimate:
-    phase: str                   # waiting | reference | tracking
-    frame: str                   # spect | vts: the frame of positions and the 6-DOF
-    time: float | None           # host s of the last estimate
+    phase: str  # waiting | reference | tracking
+    frame: str  # spect | vts: the frame of positions and the 6-DOF
+    time: float | None  # host s of the last estimate
     bands: tuple[BandEstimate, ...] = ()
-    six_dof: tuple[float, ...] | None = None   # tx, ty, tz (mm), rx, ry, rz (deg, extrinsic x-y-z)
-    move_mm: float = 0.0         # the body's centre (its markers') from the reference, breathing excluded
-    turn_deg: float = 0.0        # the body's turn from the reference
-    state: str = ""              # still | off pose | moving | ALERT
+    six_dof: tuple[float, ...] | None = None  # tx, ty, tz (mm), rx, ry, rz (deg, extrinsic x-y-z)
+    move_mm: float = 0.0  # the body's centre (its markers') from the reference, breathing excluded
+    turn_deg: float = 0.0  # the body's turn from the reference
+    state: str = ""  # still | off pose | moving | ALERT
     alerts: int = 0
     note: str = ""
     stats: dict = field(default_factory=dict)
     # whether the patient is watched now (filled in by the tracker, vts_hw/tracking/live/watch.py):
-    status: str = ""             # TRACKING | REFERENCE | NOT TRACKING ("" : not known here)
-    reason: str = ""             # why NOT TRACKING (or what the reference is doing)
-    status_for_s: float | None = None   # how long it has been so
-    age_s: float | None = None   # how old the figures shown are (from the capture of their frames)
+    status: str = ""  # TRACKING | REFERENCE | NOT TRACKING ("" : not known here)
+    reason: str = ""  # why NOT TRACKING (or what the reference is doing)
+    status_for_s: float | None = None  # how long it has been so
+    age_s: float | None = None  # how old the figures shown are (from the capture of their frames)
     # how sure the pose is (vts_hw/pose_health.py; the tracker renews it with the age when read)
-    health: str = ""             # known | bounded | not known ("": no pose yet)
+    health: str = ""  # known | bounded | not known ("": no pose yet)
     health_why: str = ""
     confidence: float | None = None
-    fit_figures: tuple | None = None   # (markers used, model's markers, residual mm, cameras per marker or None)
+    fit_figures: tuple | None = None  # (markers used, model's markers, residual mm, cameras per marker or None)
 
 
 class LiveEstimator:
@@ -132,8 +132,9 @@ class LiveEstimator:
     :class:`~vts_hw.vision.marker_roles.TableSpace`; default the default room's) where a still
     patient's markers lie. ``axis``: the body's long axis (bands are ordered along it), in ``frame``."""
 
-    def __init__(self, motion, settings: LiveSettings | None = None, *, frame: str = "spect",
-                 axis=(0.0, 0.0, 1.0), space=None):
+    def __init__(
+        self, motion, settings: LiveSettings | None = None, *, frame: str = "spect", axis=(0.0, 0.0, 1.0), space=None
+    ):
         self.motion = motion
         self.s = settings or LiveSettings()
         self.frame = frame
@@ -144,21 +145,21 @@ class LiveEstimator:
         self.model: PatientModel | None = None
         self.rule: AlertRule | None = None
         self.fit: InstantPose | None = None
-        self.poses: list[LivePose] = []         # every pose, in time order (read by the session)
+        self.poses: list[LivePose] = []  # every pose, in time order (read by the session)
         self.time: float | None = None
         self.traces: list[BreathingTrace] = []
-        self.lead = 0                  # the band whose rate is the one respiratory signal's (set with the model)
-        self.observed = False          # whether the last update observed the patient
-        self.learned_at: float | None = None   # host s the reference was learned
+        self.lead = 0  # the band whose rate is the one respiratory signal's (set with the model)
+        self.observed = False  # whether the last update observed the patient
+        self.learned_at: float | None = None  # host s the reference was learned
         self.restarts = 0
         # the reference's collector, until the reference is learned (then model, rule and traces)
         self._ref: ReferenceCollector | None = ReferenceCollector(self.s, frame, self.axis, space)
         self._seen_idx = np.zeros(0, int)
         self._fit_t: float | None = None
         self._seen_x = np.zeros((0, 3))
-        self._seen_pts = np.zeros(0, int)        # where in that instant's points each seen marker was
-        self.marker_names: list[str] = []       # per model marker: "<band name> <n>" (set with the model)
-        self._cameras = float("nan")             # cameras per marker used in the last pose (mean)
+        self._seen_pts = np.zeros(0, int)  # where in that instant's points each seen marker was
+        self.marker_names: list[str] = []  # per model marker: "<band name> <n>" (set with the model)
+        self._cameras = float("nan")  # cameras per marker used in the last pose (mean)
 
     # -- input ---------------------------------------------------------------------------------
     def update(self, t: float, points, cameras=None, frames: tuple = ()) -> Alert | None:
@@ -171,7 +172,7 @@ class LiveEstimator:
             self._collect(t, pts)
             if self.phase != "tracking":
                 return None
-        return self._track(t, pts, cameras, frames)          # (the instant that completed the reference too)
+        return self._track(t, pts, cameras, frames)  # (the instant that completed the reference too)
 
     def _collect(self, t: float, pts: np.ndarray) -> None:
         self.observed = len(pts) >= 3
@@ -217,12 +218,19 @@ class LiveEstimator:
             return
         self.model = model
         self.marker_names = [""] * model.n_markers
-        for k, g in enumerate(model.bands):       # chest 1, abdomen 2: the roles' words (B1.1 where not told)
+        for k, g in enumerate(model.bands):  # chest 1, abdomen 2: the roles' words (B1.1 where not told)
             name = model.band_names[k] if k < len(model.band_names) else ""
             for n, i in enumerate(g):
                 self.marker_names[i] = f"{name} {n + 1}" if name in (CHEST, ABDOMEN) else f"B{k + 1}.{n + 1}"
-        self.rule = AlertRule(self.motion.alert_mm, self.motion.alert_deg, self.motion.alert_after_s,
-                              self.s.onset_fraction, self.s.settle_s, model.pose_noise_mm, model.pose_noise_deg)
+        self.rule = AlertRule(
+            self.motion.alert_mm,
+            self.motion.alert_deg,
+            self.motion.alert_after_s,
+            self.s.onset_fraction,
+            self.s.settle_s,
+            model.pose_noise_mm,
+            model.pose_noise_deg,
+        )
         self.traces = [BreathingTrace(self.s.trace_window_s) for _ in model.bands]
         # one respiratory signal: its rate worked out on the band that breathes most (the model's: fixed)
         self.lead = int(np.argmax([self._band_mm(k) for k in range(len(model.bands))])) if model.bands else 0
@@ -231,7 +239,8 @@ class LiveEstimator:
             f"reference: {model.n_markers} markers in {len(model.bands)} band(s)"
             + ("" if model.breathes else " (no breathing seen: fitted rigidly)")
             + f", {ref.observed():.1f} s of frames over {t - (t if ref.t0 is None else ref.t0):.1f} s, model residual "
-              f"{model.noise_mm:.2f} mm, still pose noise {model.pose_noise_mm:.2f} mm {model.pose_noise_deg:.3f} deg")
+            f"{model.noise_mm:.2f} mm, still pose noise {model.pose_noise_mm:.2f} mm {model.pose_noise_deg:.3f} deg"
+        )
         self.learned_at = t
         self._ref = None
 
@@ -251,8 +260,9 @@ class LiveEstimator:
         m, r = self._tracked()
         i_m, i_p = assign(self._predicted(), pts, self.s.gate_mm)
         after_gap = self._fit_t is None or t - self._fit_t > self.s.gap_s
-        fit = m.fit_instant(i_m, pts[i_p], self.fit,
-                            iterations=self.s.iterations_after_gap if after_gap else self.s.iterations)
+        fit = m.fit_instant(
+            i_m, pts[i_p], self.fit, iterations=self.s.iterations_after_gap if after_gap else self.s.iterations
+        )
         self._seen_idx, self._seen_x, self._seen_pts = i_m, pts[i_p], i_p
         self.observed = fit is not None
         if fit is None:
@@ -270,9 +280,22 @@ class LiveEstimator:
             c = np.broadcast_to(np.asarray(cameras, float), (len(pts),))[i_p]
             cams = float(c.mean()) if len(c) else float("nan")
         self._cameras = cams
-        self.poses.append(LivePose(t, fit.R, fit.T, fit.s, fit.rms_mm, fit.n_markers, cams, r.state,
-                                   r.move_mm, r.turn_deg, frames=tuple(int(i) for i in frames),
-                                   model_markers=m.n_markers))     # its health: worked out when kept (pose_log)
+        self.poses.append(
+            LivePose(
+                t,
+                fit.R,
+                fit.T,
+                fit.s,
+                fit.rms_mm,
+                fit.n_markers,
+                cams,
+                r.state,
+                r.move_mm,
+                r.turn_deg,
+                frames=tuple(int(i) for i in frames),
+                model_markers=m.n_markers,
+            )
+        )  # its health: worked out when kept (pose_log)
         return alert
 
     def health(self, age_s: float = 0.0):
@@ -316,10 +339,15 @@ class LiveEstimator:
         (:meth:`refresh`), not worked out again here."""
         if self.phase != "tracking" or self.fit is None:
             note = self.note
-            if self.phase == "reference" and self._ref is not None and self._ref.t0 is not None \
-                    and self.time is not None:
-                note = (f"learning the reference: {self.time - self._ref.t0:.1f} of {self.s.reference_s:g} s"
-                        + (f" ({self.note})" if self.note else ""))
+            if (
+                self.phase == "reference"
+                and self._ref is not None
+                and self._ref.t0 is not None
+                and self.time is not None
+            ):
+                note = f"learning the reference: {self.time - self._ref.t0:.1f} of {self.s.reference_s:g} s" + (
+                    f" ({self.note})" if self.note else ""
+                )
             return LiveEstimate(self.phase, self.frame, self.time, note=note, stats=dict(stats or {}))
         (m, r), f = self._tracked(), self.fit
         bands = []
@@ -336,16 +364,39 @@ class LiveEstimator:
             idx = self._seen_idx[sel]
             disp = (self._seen_x[sel].mean(axis=0) - m.reference[idx].mean(axis=0)) if len(idx) else np.full(3, np.nan)
             tr = self.traces[k]
-            bands.append(BandEstimate(k + 1, len(g), int(len(idx)),
-                                      (float(disp[0]), float(disp[1]), float(disp[2])), float(tr.last()),
-                                      rate, tuple(tr.recent()), m.breathes, rate_range))
+            bands.append(
+                BandEstimate(
+                    k + 1,
+                    len(g),
+                    int(len(idx)),
+                    (float(disp[0]), float(disp[1]), float(disp[2])),
+                    float(tr.last()),
+                    rate,
+                    tuple(tr.recent()),
+                    m.breathes,
+                    rate_range,
+                )
+            )
         c = m.centre
         move = float(np.linalg.norm(f.R @ c + f.T - c))
         rot = Rotation.from_matrix(f.R)
         turn = float(np.degrees(np.linalg.norm(rot.as_rotvec())))
         h, cams = self.health(), self._cameras
         figures = (f.n_markers, m.n_markers, f.rms_mm, None if np.isnan(cams) else cams)
-        return LiveEstimate(self.phase, self.frame, self.time, tuple(bands),
-                            tuple(float(x) for x in self.six_dof(rot)), move, turn, r.state,
-                            len(r.alerts), self.note, dict(stats or {}), health=h.state, health_why=h.why,
-                            confidence=h.confidence, fit_figures=figures)
+        return LiveEstimate(
+            self.phase,
+            self.frame,
+            self.time,
+            tuple(bands),
+            tuple(float(x) for x in self.six_dof(rot)),
+            move,
+            turn,
+            r.state,
+            len(r.alerts),
+            self.note,
+            dict(stats or {}),
+            health=h.state,
+            health_why=h.why,
+            confidence=h.confidence,
+            fit_figures=figures,
+        )

@@ -36,8 +36,25 @@ __all__ = ["POSES_FILE", "MODEL_FILE", "PoseLog", "LivePoses", "read_poses", "sa
 
 POSES_FILE = "live_poses.csv"
 MODEL_FILE = "live_model.json"
-COLUMNS = (["time"] + [f"r{i}{j}" for i in range(1, 4) for j in range(1, 4)] + ["tx", "ty", "tz", "s_mm", "rms_mm",
-           "markers", "cameras", "state", "move_mm", "turn_deg", "health", "confidence", "frames"])
+COLUMNS = (
+    ["time"]
+    + [f"r{i}{j}" for i in range(1, 4) for j in range(1, 4)]
+    + [
+        "tx",
+        "ty",
+        "tz",
+        "s_mm",
+        "rms_mm",
+        "markers",
+        "cameras",
+        "state",
+        "move_mm",
+        "turn_deg",
+        "health",
+        "confidence",
+        "frames",
+    ]
+)
 STATES = ("still", "off pose", "moving", "ALERT")
 HEALTH = ("known", "bounded", "not known")
 TEXT = (COLUMNS.index("state"), COLUMNS.index("health"), COLUMNS.index("frames"))
@@ -59,14 +76,26 @@ class PoseLog:
         """Append ``poses``; returns how many were written."""
         buf = io.StringIO()
         for p in poses:
-            if not p.health and p.model_markers:     # its health, from what its fit saw (age 0: when made)
+            if not p.health and p.model_markers:  # its health, from what its fit saw (age 0: when made)
                 h = pose_health(p.n_markers, p.model_markers, p.rms_mm, None if np.isnan(p.cameras) else p.cameras)
                 p = dataclasses.replace(p, health=h.state, confidence=h.confidence)
-            row = ([f"{p.time:.6f}"] + [f"{x:.9f}" for x in np.asarray(p.R).ravel()]
-                   + [f"{x:.5f}" for x in np.asarray(p.T)] + [f"{p.s:.5f}", f"{p.rms_mm:.5f}", str(p.n_markers),
-                                                              f"{p.cameras:.3f}", p.state, f"{p.move_mm:.4f}",
-                                                              f"{p.turn_deg:.5f}", p.health, f"{p.confidence:.4f}",
-                                                              ";".join(str(int(i)) for i in p.frames)])
+            row = (
+                [f"{p.time:.6f}"]
+                + [f"{x:.9f}" for x in np.asarray(p.R).ravel()]
+                + [f"{x:.5f}" for x in np.asarray(p.T)]
+                + [
+                    f"{p.s:.5f}",
+                    f"{p.rms_mm:.5f}",
+                    str(p.n_markers),
+                    f"{p.cameras:.3f}",
+                    p.state,
+                    f"{p.move_mm:.4f}",
+                    f"{p.turn_deg:.5f}",
+                    p.health,
+                    f"{p.confidence:.4f}",
+                    ";".join(str(int(i)) for i in p.frames),
+                ]
+            )
             buf.write(",".join(row) + "\n")
         if buf.tell():
             self._f.write(buf.getvalue())
@@ -117,8 +146,7 @@ def read_poses(folder) -> LivePoses | None:
     rows = csv.reader(io.StringIO(text))
     header = next(rows, None)
     if header != COLUMNS:
-        raise DataError(f"{path}: not a live pose file (its first line is not the header "
-                        f"{','.join(COLUMNS[:3])},...)")
+        raise DataError(f"{path}: not a live pose file (its first line is not the header {','.join(COLUMNS[:3])},...)")
     num, state, health, frames, skipped = [], [], [], [], 0
     for row in rows:
         try:
@@ -128,7 +156,7 @@ def read_poses(folder) -> LivePoses | None:
             if len(used) > 64 or any(i < -1 for i in used):
                 raise ValueError
             vals = [float(x) for i, x in enumerate(row) if i not in TEXT]
-            if not all(np.isfinite(vals[:16] + vals[17:19])):   # cameras and confidence may be nan (not known)
+            if not all(np.isfinite(vals[:16] + vals[17:19])):  # cameras and confidence may be nan (not known)
                 raise ValueError
         except ValueError:
             skipped += 1
@@ -138,9 +166,22 @@ def read_poses(folder) -> LivePoses | None:
         health.append(row[TEXT[1]])
         frames.append(used)
     a = np.array(num, float).reshape(-1, len(COLUMNS) - 3)
-    return LivePoses(a[:, 0], a[:, 1:10].reshape(-1, 3, 3), a[:, 10:13], a[:, 13], a[:, 14], a[:, 15].astype(int),
-                     a[:, 16], np.array(state, dtype=object), a[:, 17], a[:, 18], np.array(health, dtype=object),
-                     a[:, 19], frames, skipped)
+    return LivePoses(
+        a[:, 0],
+        a[:, 1:10].reshape(-1, 3, 3),
+        a[:, 10:13],
+        a[:, 13],
+        a[:, 14],
+        a[:, 15].astype(int),
+        a[:, 16],
+        np.array(state, dtype=object),
+        a[:, 17],
+        a[:, 18],
+        np.array(health, dtype=object),
+        a[:, 19],
+        frames,
+        skipped,
+    )
 
 
 def _reason(exc: BaseException) -> str:

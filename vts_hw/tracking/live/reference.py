@@ -36,7 +36,6 @@ from vts_hw.motion.patient_model import PatientModel, learn_model
 from vts_hw.tracking.identities import MarkerTracks
 from vts_hw.vision.marker_roles import PATIENT_ROLES, TableSpace, roles_of_positions
 
-
 __all__ = ["ReferenceCollector", "observed_s"]
 
 
@@ -52,7 +51,7 @@ class ReferenceCollector:
         self.s = settings
         self.frame = frame
         self.space = space or TableSpace.from_settings()
-        self.roles: list = []       # what each marker of the last try was (vision.marker_roles)
+        self.roles: list = []  # what each marker of the last try was (vision.marker_roles)
         self.axis = axis
         self.instants: deque[tuple[float, np.ndarray, np.ndarray]] = deque()
         self._tracks = MarkerTracks(settings.gate_mm, float("inf"))
@@ -86,8 +85,10 @@ class ReferenceCollector:
         self._next_try = t + 1.0
         covered = self.observed()
         if covered < self.s.ref_min_observed * self.s.reference_s:
-            return None, (f"{covered:.1f} s of the last {t - self.instants[0][0]:.1f} s had frames "
-                          f"(at least {self.s.ref_min_observed * self.s.reference_s:.1f} s needed)")
+            return None, (
+                f"{covered:.1f} s of the last {t - self.instants[0][0]:.1f} s had frames "
+                f"(at least {self.s.ref_min_observed * self.s.reference_s:.1f} s needed)"
+            )
         samples = self._samples()
         if samples.shape[1] == 0:
             return None, "no marker seen often enough"
@@ -99,13 +100,17 @@ class ReferenceCollector:
         if patient.sum() >= 3:
             pass
         elif still_in.sum() >= 3:
-            patient = still_in               # a patient holding still (markers on the head): on the table
+            patient = still_in  # a patient holding still (markers on the head): on the table
         elif self.frame == "spect":
-            return None, (f"fewer than three markers move ({int(patient.sum())}) and fewer than three are still "
-                          f"inside the table-and-gantry volume ({int(still_in.sum())})")
+            return None, (
+                f"fewer than three markers move ({int(patient.sum())}) and fewer than three are still "
+                f"inside the table-and-gantry volume ({int(still_in.sum())})"
+            )
         else:
-            return None, (f"fewer than three markers move ({int(patient.sum())}); without a SPECT mapping "
-                          f"(calibration.mapping) still markers cannot be told from the wall's")
+            return None, (
+                f"fewer than three markers move ({int(patient.sum())}); without a SPECT mapping "
+                f"(calibration.mapping) still markers cannot be told from the wall's"
+            )
         self.roles = roles
         mine = samples[:, patient]
         mean = np.nanmean(mine, axis=0)
@@ -114,8 +119,9 @@ class ReferenceCollector:
         bands.sort(key=lambda g: float(np.mean(mean[g] @ self.axis)))
         names, _ = band_names([mean[g].mean(axis=0) for g in bands], self.frame)
         try:
-            model = learn_model(self._times(), mine, frame=self.frame, bands=bands, band_names=names,
-                                min_breath_mm=self.s.min_breath_mm)
+            model = learn_model(
+                self._times(), mine, frame=self.frame, bands=bands, band_names=names, min_breath_mm=self.s.min_breath_mm
+            )
         except DataError as exc:
             return None, str(exc)
         return model, ""

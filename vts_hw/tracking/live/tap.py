@@ -23,8 +23,8 @@ class FrameTap:
         self._q: dict[str, deque] = {n: deque() for n in cameras}
         self.received = {n: 0 for n in cameras}
         self.dropped = {n: 0 for n in cameras}
-        self.last: dict[str, float | None] = {n: None for n in cameras}      # monotonic s of each camera's last frame
-        self.first: float | None = None              # ... of the first frame of any camera
+        self.last: dict[str, float | None] = {n: None for n in cameras}  # monotonic s of each camera's last frame
+        self.first: float | None = None  # ... of the first frame of any camera
         self._lock = threading.Lock()
         self._ready = threading.Event()
 

@@ -25,29 +25,31 @@ import threading
 import time
 import traceback
 from collections import deque
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import cv2
 import numpy as np
 
-from vts_hw.tracking.live.estimator import LiveEstimate, LiveEstimator, LiveSettings
-from vts_hw.tracking.frame_sets import FrameGrouper, FrameSet, Pending
 from vts_hw.pose_health import pose_health
+from vts_hw.tracking.frame_sets import FrameGrouper, FrameSet, Pending
+from vts_hw.tracking.live.estimator import LiveEstimate, LiveEstimator, LiveSettings
 from vts_hw.tracking.live.tap import FrameTap
 from vts_hw.tracking.live.watch import NOT_TRACKING, BlindAlert, Facts, Watch
-from vts_hw.vision.detect import DEFAULT as DEFAULT_DETECTOR, DetectorSettings, detect
+from vts_hw.vision.detect import DEFAULT as DEFAULT_DETECTOR
+from vts_hw.vision.detect import DetectorSettings, detect
 from vts_hw.vision.multiview import ViewGeometry, match_views
 
 __all__ = ["LiveTracker"]
 
 LATENCY_KEEP = 200_000
-DETECTED_KEEP = 64       # frames whose detection times are kept until their set (their set's last frame)
+DETECTED_KEEP = 64  # frames whose detection times are kept until their set (their set's last frame)
 #: the parts of a frame set's latency (s each; their sum is the latency from its last frame):
 #: that frame waiting for the worker, its decode and detection, the set waiting for its other
 #: cameras (and their frames' detection), matching across the views, the estimator's update (the
 #: model's fit among it), the published estimate
 PARTS = ("queued", "detect", "grouping", "match", "fit", "publish")
-GROUP_WAIT_S = 1.0      # a frame set waits this long at most for a camera that is not quiet (0048)
+GROUP_WAIT_S = 1.0  # a frame set waits this long at most for a camera that is not quiet (0048)
 
 
 class LiveTracker:
@@ -58,12 +60,27 @@ class LiveTracker:
     how long without a pose is still TRACKING; ``clock``: monotonic seconds; ``space``: the
     table-and-gantry volume in the SPECT frame (:class:`~vts_hw.vision.marker_roles.TableSpace`)."""
 
-    def __init__(self, cameras: dict, motion, *, mapping=None, clock_offsets: dict | None = None,
-                 fps: float = 25.0, settings: LiveSettings | None = None,
-                 detector: DetectorSettings = DEFAULT_DETECTOR, queue_len: int = 2,
-                 on_alert: Callable | None = None, on_event: Callable | None = None, max_px: float = 2.0,
-                 late_s: float = 0.5, publish_s: float = 0.1, clock: Callable[[], float] = time.monotonic,
-                 on_names: Callable | None = None, names_every_s: float = 0.25, space=None):
+    def __init__(
+        self,
+        cameras: dict,
+        motion,
+        *,
+        mapping=None,
+        clock_offsets: dict | None = None,
+        fps: float = 25.0,
+        settings: LiveSettings | None = None,
+        detector: DetectorSettings = DEFAULT_DETECTOR,
+        queue_len: int = 2,
+        on_alert: Callable | None = None,
+        on_event: Callable | None = None,
+        max_px: float = 2.0,
+        late_s: float = 0.5,
+        publish_s: float = 0.1,
+        clock: Callable[[], float] = time.monotonic,
+        on_names: Callable | None = None,
+        names_every_s: float = 0.25,
+        space=None,
+    ):
         self.names = list(cameras)
         self.geo = ViewGeometry([cameras[n] for n in self.names], self.names)
         self.mapping = mapping
@@ -86,22 +103,27 @@ class LiveTracker:
         self.tap = FrameTap(self.names, queue_len)
         self.grouper = FrameGrouper(len(self.names), 0.5 / fps, max(1.5 / fps, GROUP_WAIT_S))
         self._host_minus_mono = time.time() - time.monotonic()
-        self.watch = Watch(self.names, late_s=late_s, blind_alert_s=getattr(motion, "blind_alert_s", 3.0),
-                           reference_deadline_s=2.0 * est.s.reference_s, host_of=self.host_of)
+        self.watch = Watch(
+            self.names,
+            late_s=late_s,
+            blind_alert_s=getattr(motion, "blind_alert_s", 3.0),
+            reference_deadline_s=2.0 * est.s.reference_s,
+            host_of=self.host_of,
+        )
         self.facts = Facts()
         self.published: LiveEstimate = est.snapshot()
         self._published_capture: float | None = None
         self.blind_alerts: list[BlindAlert] = []
         self.latency: deque[tuple[float, float]] = deque(maxlen=LATENCY_KEEP)  # (from last, from first) s
-        self.parts: deque[tuple[float, ...]] = deque(maxlen=LATENCY_KEEP)    # per set, s of each of PARTS
-        self._detected: dict[float, tuple[float, float]] = {}   # a frame's arrival -> its detection's start, end
+        self.parts: deque[tuple[float, ...]] = deque(maxlen=LATENCY_KEEP)  # per set, s of each of PARTS
+        self._detected: dict[float, tuple[float, float]] = {}  # a frame's arrival -> its detection's start, end
         self.sets = 0
         self.processed = {n: 0 for n in self.names}
         self.undecodable = 0
         self.error = ""
         self._delay_floor: dict[str, float] = {}
         self._index = {n: i for i, n in enumerate(self.names)}
-        self._lock = threading.Lock()           # the latency list only (never held for long)
+        self._lock = threading.Lock()  # the latency list only (never held for long)
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._finished = False
@@ -115,9 +137,11 @@ class LiveTracker:
         """Called by the recorder after it wrote ``frame``: queue it for the live path."""
         self.tap.put(camera, frame)
 
-    def start(self) -> "LiveTracker":
-        self._threads = [threading.Thread(target=self._run, name="live-tracker", daemon=True),
-                         threading.Thread(target=self._watch_run, name="live-watch", daemon=True)]
+    def start(self) -> LiveTracker:
+        self._threads = [
+            threading.Thread(target=self._run, name="live-tracker", daemon=True),
+            threading.Thread(target=self._watch_run, name="live-watch", daemon=True),
+        ]
         for t in self._threads:
             t.start()
         return self
@@ -141,7 +165,7 @@ class LiveTracker:
         try:
             while not self._stop.is_set():
                 self.step(0.1)
-        except Exception as exc:   # the live path ends; the recording is not touched
+        except Exception as exc:  # the live path ends; the recording is not touched
             self.error = f"live tracking stopped: {type(exc).__name__}: {exc}"
             self.error_trace = traceback.format_exc()
 
@@ -159,7 +183,7 @@ class LiveTracker:
                 self._detected[arrival] = (t0, self.clock())
                 for fs in self.grouper.ready(self.clock() if now is None else now):
                     self._estimate(fs)
-        if len(self._detected) > 4 * DETECTED_KEEP:       # frames that went into no set, or not last
+        if len(self._detected) > 4 * DETECTED_KEEP:  # frames that went into no set, or not last
             for k in list(self._detected)[:-DETECTED_KEEP]:
                 del self._detected[k]
         for fs in self.grouper.ready(self.clock() if now is None else now):
@@ -203,18 +227,37 @@ class LiveTracker:
         learned = f.learned if f.learned is not None or est.phase != "tracking" else fs.capture
         # the figures first, then the facts that say they are current: a view reading in
         # between sees old facts with new figures (never TRACKING on old figures)
-        if alert is not None or est.phase != phase or self._published_capture is None \
-                or fs.capture - self._published_capture >= self.publish_s:
+        if (
+            alert is not None
+            or est.phase != phase
+            or self._published_capture is None
+            or fs.capture - self._published_capture >= self.publish_s
+        ):
             # the breathing figures as last worked out: refreshed below, after this set's latency
-            self.published = est.snapshot(fresh=False)   # then its capture: a reader in between overstates its age
+            self.published = est.snapshot(fresh=False)  # then its capture: a reader in between overstates its age
             self._published_capture = fs.capture
-        self.facts = Facts(est.phase, self.tap.first, seen, resumed, fs.capture,
-                           "" if est.observed else est.note, learned, seen_arrival, broke)
+        self.facts = Facts(
+            est.phase,
+            self.tap.first,
+            seen,
+            resumed,
+            fs.capture,
+            "" if est.observed else est.note,
+            learned,
+            seen_arrival,
+            broke,
+        )
         self.sets += 1
         now = self.clock()
         d0, d1 = self._detected.pop(fs.last_arrival, (math.nan, math.nan))
-        parts = (d0 - fs.last_arrival, d1 - d0, t_start - (fs.last_arrival if math.isnan(d1) else d1),
-                 t_matched - t_start, t_fitted - t_matched, now - t_fitted)
+        parts = (
+            d0 - fs.last_arrival,
+            d1 - d0,
+            t_start - (fs.last_arrival if math.isnan(d1) else d1),
+            t_matched - t_start,
+            t_fitted - t_matched,
+            now - t_fitted,
+        )
         with self._lock:
             self.latency.append((now - fs.last_arrival, now - fs.first_arrival))
             self.parts.append(parts)
@@ -242,7 +285,7 @@ class LiveTracker:
                         per[self.names[c]].append((name, float(x), float(y)))
             for cam, named in per.items():
                 self.on_names(cam, named)
-        except Exception:          # a page's labels are never worth the live path
+        except Exception:  # a page's labels are never worth the live path
             pass
 
     # -- the watch ------------------------------------------------------------------------------
@@ -278,33 +321,51 @@ class LiveTracker:
         """Counts, and the latency from a frame set's arrival (its last frame at the tap; and
         its first) to its markers being in the estimate: p50, p95 in ms over the ``last`` sets
         (None: all kept)."""
-        with self._lock:   # the worker appends to it
-            kept = list(self.latency) if last is None else \
-                [self.latency[i] for i in range(max(0, len(self.latency) - last), len(self.latency))]
+        with self._lock:  # the worker appends to it
+            kept = (
+                list(self.latency)
+                if last is None
+                else [self.latency[i] for i in range(max(0, len(self.latency) - last), len(self.latency))]
+            )
         lat = np.array(kept, float).reshape(-1, 2)
 
         def pct(col, q):
             return round(float(np.percentile(lat[:, col], q) * 1e3), 3) if len(lat) else None
-        return {"sets": self.sets, "live_dropped": dict(self.tap.dropped), "tapped": dict(self.tap.received),
-                "processed": dict(self.processed), "queued": self.tap.queued(),
-                "unmatched_frames": self.grouper.unmatched, "undecodable": self.undecodable,
-                "latency_ms_p50": pct(0, 50), "latency_ms_p95": pct(0, 95),
-                "latency_from_first_frame_ms_p50": pct(1, 50), "latency_from_first_frame_ms_p95": pct(1, 95),
-                "error": self.error}
+
+        return {
+            "sets": self.sets,
+            "live_dropped": dict(self.tap.dropped),
+            "tapped": dict(self.tap.received),
+            "processed": dict(self.processed),
+            "queued": self.tap.queued(),
+            "unmatched_frames": self.grouper.unmatched,
+            "undecodable": self.undecodable,
+            "latency_ms_p50": pct(0, 50),
+            "latency_ms_p95": pct(0, 95),
+            "latency_from_first_frame_ms_p50": pct(1, 50),
+            "latency_from_first_frame_ms_p95": pct(1, 95),
+            "error": self.error,
+        }
 
     def latency_parts(self, last: int | None = 500) -> dict:
         """Per part of the latency (:data:`PARTS`) its p50 and p95 in ms over the ``last`` sets
         (None: all kept); a part not measured for a set (its last frame's detection not kept)
         is left out of that part's figures."""
         with self._lock:
-            rows = list(self.parts) if last is None else \
-                [self.parts[i] for i in range(max(0, len(self.parts) - last), len(self.parts))]
+            rows = (
+                list(self.parts)
+                if last is None
+                else [self.parts[i] for i in range(max(0, len(self.parts) - last), len(self.parts))]
+            )
         a = np.array(rows, float).reshape(-1, len(PARTS))
         out = {}
         for k, name in enumerate(PARTS):
             col = a[:, k][np.isfinite(a[:, k])]
-            out[name] = (round(float(np.percentile(col, 50)) * 1e3, 3), round(float(np.percentile(col, 95)) * 1e3, 3)) \
-                if len(col) else (None, None)
+            out[name] = (
+                (round(float(np.percentile(col, 50)) * 1e3, 3), round(float(np.percentile(col, 95)) * 1e3, 3))
+                if len(col)
+                else (None, None)
+            )
         return out
 
     def snapshot(self, now: float | None = None, stats: bool = True) -> LiveEstimate:
@@ -316,7 +377,7 @@ class LiveTracker:
         w = self.watch
         if status == w.status and w.since is not None:
             since = w.since
-        else:                   # the watch has not ticked since: as it will see it
+        else:  # the watch has not ticked since: as it will see it
             since = (f.seen if status == NOT_TRACKING and f.seen is not None else f.started) or now
         if self.error:
             status, reason = NOT_TRACKING, self.error
@@ -324,9 +385,16 @@ class LiveTracker:
         age = None if cap is None else max(0.0, now - cap)
         snap = self.published
         health: dict[str, Any] = {}
-        if snap.fit_figures and age is not None:      # the pose shown, as sure as its age lets it be
+        if snap.fit_figures and age is not None:  # the pose shown, as sure as its age lets it be
             n, model_n, rms, cams = snap.fit_figures
             h = pose_health(n, model_n, rms, cams, age)
             health = {"health": h.state, "health_why": h.why, "confidence": h.confidence}
-        return dataclasses.replace(snap, status=status, reason=reason, status_for_s=max(0.0, now - since),
-                                   age_s=age, stats=self.stats() if stats else {}, **health)
+        return dataclasses.replace(
+            snap,
+            status=status,
+            reason=reason,
+            status_for_s=max(0.0, now - since),
+            age_s=age,
+            stats=self.stats() if stats else {},
+            **health,
+        )

@@ -40,15 +40,15 @@ TRACKING, REFERENCE, NOT_TRACKING = "TRACKING", "REFERENCE", "NOT TRACKING"
 class Facts:
     """What the live worker last published (monotonic s of capture)."""
 
-    phase: str = "waiting"              # the estimator's: waiting | reference | tracking
-    started: float | None = None        # the first frame at the live tap
-    seen: float | None = None           # the last instant that observed the patient
-    resumed: float | None = None        # the first observed instant after a break longer than late_s
-    estimate: float | None = None       # the last frame set estimated, whatever it gave
-    why: str = ""                       # why the last frame set did not observe the patient
-    learned: float | None = None        # when the reference was learned
-    seen_arrival: float | None = None   # when the last frame of the last observing set reached the tap
-    broke: float | None = None          # the last observed instant before ``resumed`` (the break's start)
+    phase: str = "waiting"  # the estimator's: waiting | reference | tracking
+    started: float | None = None  # the first frame at the live tap
+    seen: float | None = None  # the last instant that observed the patient
+    resumed: float | None = None  # the first observed instant after a break longer than late_s
+    estimate: float | None = None  # the last frame set estimated, whatever it gave
+    why: str = ""  # why the last frame set did not observe the patient
+    learned: float | None = None  # when the reference was learned
+    seen_arrival: float | None = None  # when the last frame of the last observing set reached the tap
+    broke: float | None = None  # the last observed instant before ``resumed`` (the break's start)
 
 
 @dataclass
@@ -69,21 +69,23 @@ class Episode:
 class BlindAlert:
     """NOT TRACKING for longer than ``blind_alert_s``: an alert of its own."""
 
-    start: float        # host s of the last instant the patient was observed
-    raised: float       # host s
+    start: float  # host s of the last instant the patient was observed
+    raised: float  # host s
     reason: str
 
     def text(self) -> str:
-        since = _dt.datetime.fromtimestamp(self.start, _dt.timezone.utc).strftime("%H:%M:%S")
-        return (f"PATIENT NOT TRACKED for {self.raised - self.start:.1f} s: {self.reason}; "
-                f"the patient's motion since {since} UTC is not known")
+        since = _dt.datetime.fromtimestamp(self.start, _dt.UTC).strftime("%H:%M:%S")
+        return (
+            f"PATIENT NOT TRACKED for {self.raised - self.start:.1f} s: {self.reason}; "
+            f"the patient's motion since {since} UTC is not known"
+        )
 
 
 @dataclass(frozen=True)
 class Change:
     status: str
     reason: str
-    at: float           # host s it became so
+    at: float  # host s it became so
 
 
 def _kind(reason: str) -> str:
@@ -99,19 +101,26 @@ def _kind(reason: str) -> str:
 class Watch:
     """``cameras``: the names; ``host_of(mono)``: host epoch s of a monotonic time."""
 
-    def __init__(self, cameras, *, late_s: float = 0.5, blind_alert_s: float = 3.0,
-                 reference_deadline_s: float = 20.0, host_of=lambda m: m):
+    def __init__(
+        self,
+        cameras,
+        *,
+        late_s: float = 0.5,
+        blind_alert_s: float = 3.0,
+        reference_deadline_s: float = 20.0,
+        host_of=lambda m: m,
+    ):
         self.cameras = list(cameras)
         self.late_s, self.blind_alert_s = float(late_s), float(blind_alert_s)
         self.reference_deadline_s = float(reference_deadline_s)
         self.host_of = host_of
         self.status: str | None = None
         self.reason = ""
-        self.since: float | None = None        # (None while status is: set together)
+        self.since: float | None = None  # (None while status is: set together)
         self.episodes: list[Episode] = []
         self._spent = {TRACKING: 0.0, REFERENCE: 0.0, NOT_TRACKING: 0.0}
         self._end: float | None = None
-        self._resumed: float | None = None      # the last break accounted for
+        self._resumed: float | None = None  # the last break accounted for
 
     # -- what it is now ---------------------------------------------------------------------------
     def classify(self, now: float, f: Facts, silent: dict) -> tuple[str, str]:
@@ -122,26 +131,37 @@ class Watch:
             return NOT_TRACKING, "no frames yet"
         late = self.late_s
         if f.seen is None and f.phase != "tracking" and now - f.started <= late:
-            return REFERENCE, "waiting for the first frame set"      # nothing is late yet
+            return REFERENCE, "waiting for the first frame set"  # nothing is late yet
         if f.seen is not None and now - f.seen <= late:
             if f.phase == "tracking":
                 return TRACKING, ""
             if now - f.started <= self.reference_deadline_s:
                 return REFERENCE, f.why
-            return NOT_TRACKING, f"no reference: none learned in {now - f.started:.0f} s" + (f" ({f.why})" if f.why else "")
+            return NOT_TRACKING, f"no reference: none learned in {now - f.started:.0f} s" + (
+                f" ({f.why})" if f.why else ""
+            )
         # lost: nothing since the last frame set that observed the patient, or quiet for late_s
-        lost = {n: s for n, s in silent.items()
-                if s is None or s > late or (f.seen_arrival is not None and now - s <= f.seen_arrival)}
+        lost = {
+            n: s
+            for n, s in silent.items()
+            if s is None or s > late or (f.seen_arrival is not None and now - s <= f.seen_arrival)
+        }
         if len(silent) - len(lost) < 2:
             if len(lost) == len(silent):
                 quiet = min((s for s in lost.values() if s is not None), default=None)
-                return NOT_TRACKING, ("camera lost: no frames from any camera"
-                                      + ("" if quiet is None else f" for {quiet:.1f} s" if quiet > late
-                                         else " since the last pose"))
+                return NOT_TRACKING, (
+                    "camera lost: no frames from any camera"
+                    + ("" if quiet is None else f" for {quiet:.1f} s" if quiet > late else " since the last pose")
+                )
             return NOT_TRACKING, "camera lost: " + ", ".join(
-                f"{n} (no frame yet)" if s is None else f"{n} (no frame for {s:.1f} s)" if s > late
-                else f"{n} (no frame since the last pose)" for n, s in lost.items())
-        lost = {n: s for n, s in lost.items() if s is None or s > late}     # the others are only behind
+                f"{n} (no frame yet)"
+                if s is None
+                else f"{n} (no frame for {s:.1f} s)"
+                if s > late
+                else f"{n} (no frame since the last pose)"
+                for n, s in lost.items()
+            )
+        lost = {n: s for n, s in lost.items() if s is None or s > late}  # the others are only behind
         if f.estimate is None:
             return NOT_TRACKING, "frames too late: no frame set estimated yet"
         if now - f.estimate > late:
@@ -164,15 +184,16 @@ class Watch:
         elif status != self.status:
             if status == NOT_TRACKING:
                 if f.seen is not None and now - f.seen > self.late_s:
-                    at = f.seen                       # blind since the last instant observed
+                    at = f.seen  # blind since the last instant observed
                 elif self.status == REFERENCE:
                     at = f.started + self.reference_deadline_s
                 else:
                     at = now
-            elif self.status == NOT_TRACKING:       # observed again since resumed (and learned, to track)
+            elif self.status == NOT_TRACKING:  # observed again since resumed (and learned, to track)
                 ep = self.episodes[-1]
-                back = [x for x in (f.resumed, f.learned if status == TRACKING else None)
-                        if x is not None and x >= ep.start]
+                back = [
+                    x for x in (f.resumed, f.learned if status == TRACKING else None) if x is not None and x >= ep.start
+                ]
                 # no break in the poses: frames came late, not lost; blind until the view had a
                 # fresh pose again (now, give or take a look of the watch)
                 at = max(back) if back else now
@@ -202,8 +223,11 @@ class Watch:
             return
         if f.resumed is None or f.broke is None or f.resumed == self._resumed or f.broke < self.since:
             return
-        ep = Episode(f.broke, [f"no pose: {f.resumed - f.broke:.2f} s without one (shorter than the live view "
-                               f"could show)"], end=f.resumed)
+        ep = Episode(
+            f.broke,
+            [f"no pose: {f.resumed - f.broke:.2f} s without one (shorter than the live view could show)"],
+            end=f.resumed,
+        )
         self._spent[self.status] += f.broke - self.since
         self._spent[NOT_TRACKING] += f.resumed - f.broke
         self.since = f.resumed
@@ -239,7 +263,10 @@ class Watch:
         if self.status is not None and self.since is not None and self._end is None and now is not None:
             spent[self.status] += max(0.0, now - self.since)
         total = sum(spent.values())
-        return {"tracking_s": spent[TRACKING], "reference_s": spent[REFERENCE],
-                "not_tracking_s": spent[NOT_TRACKING],
-                "not_tracking_share": spent[NOT_TRACKING] / total if total > 0 else None,
-                "watched_s": total}
+        return {
+            "tracking_s": spent[TRACKING],
+            "reference_s": spent[REFERENCE],
+            "not_tracking_s": spent[NOT_TRACKING],
+            "not_tracking_share": spent[NOT_TRACKING] / total if total > 0 else None,
+            "watched_s": total,
+        }
