@@ -12,7 +12,7 @@ STAMP  := $(VENV)/.installed
 # (the AVR toolchain and simavr are installed by firmware/Makefile, which `make test` runs)
 # (postgresql: the tests start a throwaway server of their own, tests/pgserver.py)
 # (chromium and firefox-esr: the console's pages in both browsers)
-# (avrdude: vts trigger flash uploads through the bootloader; tests/test_trigger_flash.py to a simulated board)
+# (avrdude: vts trigger flash uploads through the bootloader; tests/interop/test_trigger_flash.py to a simulated board)
 TEST_DEBS := curl openssl chromium firefox-esr fonts-dejavu-core poppler-utils postgresql avrdude
 # (wapiti: bench/web_scan.py, a web scanner written by others against the console)
 BENCH_DEBS := wapiti

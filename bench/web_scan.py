@@ -19,7 +19,7 @@ not ``brute_login_form``: it would lock the users out).
 Printed: per scan, the findings of each module (vulnerabilities and anomalies, each with its
 path and parameter; a module that does not end in its time is one), and the count; the exit
 status is 0 when there are none. Wapiti crawls once; each module then runs on what was crawled. Takes minutes:
-not in make test (tests/test_bad_inputs.py sweeps the same surface in seconds).
+not in make test (tests/integration/test_bad_inputs.py sweeps the same surface in seconds).
 
     .venv/bin/python bench/web_scan.py                 # the three scans
     .venv/bin/python bench/web_scan.py --minutes 3     # each scan's time limit

@@ -59,7 +59,7 @@ BAND_ANGLES = {"chest": BAND_ANGLES_DEG, "abdomen": (-42.0, -14.0, 17.0, 45.0)}
 # by hand does, and the markers sit off-centre: side by side and level they would lie on one
 # epipolar line of a camera pair. At rest, in both stereo pairs of the reference rig (head end
 # cam1-cam2, foot end cam3-cam4), every marker is >= 6 mm (~5 px) off the epipolar plane of
-# every other (tests/test_sim_patient.py); a turn of a few degrees can still bring two onto one
+# every other (tests/unit/test_sim_patient.py); a turn of a few degrees can still bring two onto one
 # line for a while (ambiguities the matching must report, not guess).
 BAND_TILT = {"chest": 0.3, "abdomen": -0.3}
 MARKER_DIAMETER = 15.0

@@ -1,6 +1,6 @@
 """A simulated QATrack+ 3.1 on 127.0.0.1: the part of its REST API the push uses, with faults.
 
-As strict as the real server on everything the push sends and reads: tests/test_qatrack_peer.py
+As strict as the real server on everything the push sends and reads: tests/interop/test_qatrack_peer.py
 sends the same conversation (tests/qatrack_conversation.py) to this stand-in and compares its
 answers with the real server's, recorded once into tests/data/qatrack_real_answers.json by
 ``python tests/qatrack_conversation.py record`` against ``../shared/interop/qatrack/run-qatrack.sh``.

@@ -137,11 +137,11 @@ def _selects(expr: str, marks: set[str]) -> bool:
 
 
 def _may_select_real_qatrack(config) -> bool:
-    """Whether the session's arguments can reach tests/test_qatrack_real.py (the controller of
+    """Whether the session's arguments can reach tests/interop/test_qatrack_real.py (the controller of
     an xdist session collects nothing, so it judges by the arguments and -m)."""
     if not _selects(config.option.markexpr or "", REAL_QATRACK_MARKS):
         return False  # (-m unit, -m "not real_qatrack", ...)
-    target = (Path(__file__).parent / "test_qatrack_real.py").resolve()
+    target = (Path(__file__).parent / "interop" / "test_qatrack_real.py").resolve()
     args = [a.split("::")[0] for a in config.args] or [str(Path(__file__).parent)]
     for a in args:
         p = Path(a).resolve()

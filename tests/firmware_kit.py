@@ -1,5 +1,5 @@
 """The firmware-in-the-loop tests' kit: a serial link to the trigger box firmware in simavr
-(tests/test_firmware.py), the edges of its output pins in emulated cycles, and how they are judged."""
+(tests/integration/test_firmware.py), the edges of its output pins in emulated cycles, and how they are judged."""
 
 from __future__ import annotations
 

@@ -9,7 +9,7 @@ status, the kind of body, the Location and WWW-Authenticate headers, and the JSO
 values, with what the site makes up itself (times of creation, ids, tokens, its references)
 reduced to its kind.
 
-Record the real server's answers once (tests/test_qatrack_peer.py compares the stand-in with them):
+Record the real server's answers once (tests/interop/test_qatrack_peer.py compares the stand-in with them):
 
     ../shared/interop/qatrack/run-qatrack.sh            # a real QATrack+ 3.1 on 127.0.0.1:8765
     .venv/bin/python tests/qatrack_conversation.py record [--qat /tmp/qatrack-real]

@@ -1,4 +1,4 @@
-"""The results store's test helpers shared by tests/test_store.py and tests/test_store_schema.py:
+"""The results store's test helpers shared by tests/integration/test_store.py and tests/integration/test_store_schema.py:
 a fresh store on each back end, an SQLite file, raw SQL beside the store, the file's integrity."""
 
 import sqlite3

@@ -1,7 +1,7 @@
 """Many processes writing runs into one store at once, some killed with SIGKILL at random
 moments; then a check that no run was lost, duplicated or half-written.
 
-Used by tests/test_store_writers.py and bench/store_writers.py. Run as a script it is one
+Used by tests/integration/test_store_writers.py and bench/store_writers.py. Run as a script it is one
 writer: ``python store_writers.py URL SEED COUNT DONE_FILE FRAME``. A writer opens the store,
 prints ``open``, then writes COUNT runs (a few measurements and an artifact each; one in 20
 aborted by the operator); after finish() returns it appends ``uid latency`` to DONE_FILE and

@@ -1,7 +1,7 @@
 """The documentation site's generated pages, written from the code when the site is built.
 
 mkdocs.yml names this file as a hook: at every build (``make docs``, ``mkdocs serve``, the test
-``tests/test_docs_site.py``) it adds these pages to the site, made from what the code holds now,
+``tests/house/test_docs_site.py``) it adds these pages to the site, made from what the code holds now,
 so they cannot go stale and are never copied by hand (docs/decisions/0097-docs-by-reader.md):
 
 - ``reference/commands.md``   every ``vts`` command, from the click command tree, with its help
@@ -9,7 +9,7 @@ so they cannot go stale and are never copied by hand (docs/decisions/0097-docs-b
                               trigger backends' own settings models and the metrics with a window
 - ``reference/exit-codes.md`` every exit code, and where the code sets each (the error classes of
                               vts_hw/errors.py and the others, the QA results' codes)
-- ``develop/layers.md``       the layers and what each may import, from tests/test_layers.py
+- ``develop/layers.md``       the layers and what each may import, from tests/house/test_layers.py
 - ``develop/benches.md``      every benchmark in bench/, from its docstring
 - ``decisions/index.md``      every note of docs/decisions/, by number, from its title
 
@@ -342,13 +342,13 @@ def _literal(path: Path, name: str):
 
 
 def layers_page() -> str:
-    test = ROOT / "tests" / "test_layers.py"
+    test = ROOT / "tests" / "house" / "test_layers.py"
     allowed = _literal(test, "ALLOWED")
     doc = ast.get_docstring(ast.parse(test.read_text())) or ""
     out = [
         "# The layers",
         "",
-        "What each layer may import, read from `tests/test_layers.py` (its `ALLOWED` table) when the "
+        "What each layer may import, read from `tests/house/test_layers.py` (its `ALLOWED` table) when the "
         "site is built: that test fails on any import that breaks it. A layer always imports itself.",
         "",
         "| layer | may import |",

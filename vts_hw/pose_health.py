@@ -30,7 +30,7 @@ of the frames the pose comes from (0 offline: each row's pose is fitted from its
 * age ``a = exp(-age / AGE_S)``: 0.95 at 0.1 s.
 
 Each factor is monotone in its input (more markers or cameras: never less confidence; more
-residual or age: never more), and so is the product; ``tests/test_pose_health.py`` checks it.
+residual or age: never more), and so is the product; ``tests/unit/test_pose_health.py`` checks it.
 """
 
 from __future__ import annotations

@@ -21,7 +21,7 @@
 
 /* Cycles from reset to the instruction that starts Timer2, counted from the listing
  * (a jmp to the startup code, then ldi/sts pairs) and checked in the emulator by
- * tests/test_firmware.py: device time 0 is the first instruction after reset. */
+ * tests/integration/test_firmware.py: device time 0 is the first instruction after reset. */
 #define CLOCK_BOOT_CYCLES 10u
 
 void clock_init(void);                 /* enable the tick interrupt */

@@ -1,7 +1,7 @@
 """The sync check on the simulated rig, end to end: a scan session with a moving source marker,
 the simulated SPECT following the trigger the box actually emitted, and the truth to score it.
 
-Used by tests/test_sync.py and bench/sync_accuracy.py. The rig must be a running
+Used by tests/integration/test_sync.py and bench/sync_accuracy.py. The rig must be a running
 ``SimRig(trigger="triggerbox")`` whose ``write(folder)`` has been called (rig.yaml with the
 true cameras' calibration files). Host UTC epoch seconds throughout.
 

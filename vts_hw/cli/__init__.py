@@ -22,7 +22,7 @@ CONFIG_META = "vts.config"
 
 #: each command of `vts` and the modules of vts_hw.cli that define it and its subcommands,
 #: imported when the command is asked for: `vts scan start` loads what a scan needs, not the
-#: calibration's numerics (decision 0076; tests/test_cli_lazy.py checks the map is whole)
+#: calibration's numerics (decision 0076; tests/house/test_cli_lazy.py checks the map is whole)
 COMMANDS: dict[str, tuple[str, ...]] = {
     "calibrate": ("calibrate",),
     "camera": ("camera", "camera_aim", "camera_setup"),

@@ -44,7 +44,7 @@ class FiniteFloat(click.FloatRange):
     """The type of every float option: a finite number, optionally within ``min``/``max``
     (``min_open``/``max_open`` leave the end out). ``nan``, ``inf``, ``1e309`` and numbers out of
     range are refused as bad input: click's one sentence naming the option, exit 2.
-    tests/test_cli_numbers.py walks the command tree: no float option has another type."""
+    tests/integration/test_cli_numbers.py walks the command tree: no float option has another type."""
 
     name = "number"
 

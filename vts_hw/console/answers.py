@@ -6,7 +6,7 @@
   sentence and status, 400, 413, 414 or 415).
 * :func:`unexpected` -- Starlette's handler of any other exception: one sentence, HTTP 500,
   never a traceback or the exception's words in the answer; logged (where, and the server's
-  traceback, by app.py: never the exception's words). The aim is that no input reaches it (tests/test_console_inputs.py walks every
+  traceback, by app.py: never the exception's words). The aim is that no input reaches it (tests/console/test_console_inputs.py walks every
   route with bad inputs): it is the floor, not the door.
 """
 

@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 # scipy.optimize (0.3 s to load) where it is used: a command that only reads a calibration file
-# (calibration_io's PinholeCamera) says a bad input before it loads (tests/test_report_door.py)
+# (calibration_io's PinholeCamera) says a bad input before it loads (tests/integration/test_report_door.py)
 
 __all__ = [
     "PinholeCamera",
