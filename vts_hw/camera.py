@@ -24,7 +24,6 @@ from collections.abc import Callable, Iterator, Mapping
 from copy import copy
 from dataclasses import dataclass, field
 from typing import (
-    TYPE_CHECKING,
     Any,
     ClassVar,
     Protocol,
@@ -40,9 +39,6 @@ from pydantic_core import PydanticUndefined
 
 from vts_hw.config import CameraConfig
 from vts_hw.errors import ConfigError, DeviceError
-
-if TYPE_CHECKING:  # camera_stream.py builds on this module's Frame and StreamGap
-    from vts_hw.camera_stream import FrameStream
 
 TORN = "torn"  # what a connection yields for a frame that arrived cut short (never a Frame)
 TIME_SOURCES = ("camera", "receipt", "recording")
@@ -158,6 +154,21 @@ class Connection(Protocol):
 
 
 @runtime_checkable
+class Stream(Protocol):
+    """A reconnecting stream over one camera, as ``Frames.stream`` gives it: frames and gaps until
+    it ends or is stopped (``vts_hw.camera_stream.FrameStream`` is the one there is; named here
+    by what it offers, so this contract does not import what is built on it)."""
+
+    stats: StreamStats
+
+    def __iter__(self) -> Iterator[Frame | StreamGap]: ...
+
+    def stop(self) -> None: ...
+
+    def shortfall(self, interrupted: bool = False) -> str | None: ...
+
+
+@runtime_checkable
 class Frames(Protocol):
     """Frames: one now, or a stream. Every camera has this role."""
 
@@ -175,7 +186,7 @@ class Frames(Protocol):
     ) -> Connection:
         """One connection of the camera's stream (the reconnecting stream is built on it)."""
 
-    def stream(self, **kwargs) -> FrameStream:
+    def stream(self, **kwargs) -> Stream:
         """A reconnecting stream (``vts_hw.camera_stream.FrameStream``) over this camera."""
 
 
@@ -357,6 +368,7 @@ def _not_none(annotation):
 
 __all__ = [
     "Frames",
+    "Stream",
     "DeviceInformation",
     "CameraClock",
     "Illumination",

@@ -24,8 +24,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-from vts_hw.camera import Camera, Frame, StreamGap
-from vts_hw.camera_stream import FrameStream
+from vts_hw.camera import Camera, Frame, Stream, StreamGap
 
 SOURCES = ("stream", "fed", "off")
 IDLE_CLOSE_S = 5.0  # a stream nobody watches is closed after this long
@@ -56,7 +55,7 @@ class CameraFeed:
     missing: int = 0  # frames the camera's stamps say were skipped (own stream only)
     viewers: int = 0
     unwatched_since: float = field(default_factory=time.monotonic)
-    stream: FrameStream | None = None
+    stream: Stream | None = None
     thread: threading.Thread | None = None
     opened_at: float | None = None  # monotonic s the current reader (or the feeding) started
     reader_ended: float | None = None  # monotonic s the last reader ended on its own (an error)
@@ -225,7 +224,7 @@ class FramesHub:
             f.received += 1
             f.error, f.reader_ended = "", None
 
-    def _read(self, f: CameraFeed, stream: FrameStream) -> None:
+    def _read(self, f: CameraFeed, stream: Stream) -> None:
         try:
             for item in stream:
                 if isinstance(item, StreamGap):

@@ -23,8 +23,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from vts_hw.camera import Camera, CameraError, StreamGap
-from vts_hw.camera_stream import FrameStream
+from vts_hw.camera import Camera, CameraError, Stream, StreamGap
 from vts_hw.files import WriteFailed
 from vts_hw.recording.writer import Recording
 
@@ -74,7 +73,7 @@ class Recorder:
         self.progress = {c.name: CameraProgress(c.name) for c in cameras}
         self.recording = Recording(Path(folder), [c.name for c in cameras], dict(meta or {}), append=append)
         self.write_failure: WriteFailed | None = None  # the first frame that could not be written
-        self._streams: dict[str, FrameStream] = {}
+        self._streams: dict[str, Stream] = {}
         self._interrupted = False
         self._threads: list[threading.Thread] = []
 
@@ -91,7 +90,7 @@ class Recorder:
             self._threads.append(t)
             t.start()
 
-    def _run(self, cam: Camera, stream: FrameStream) -> None:
+    def _run(self, cam: Camera, stream: Stream) -> None:
         prog = self.progress[cam.name]
         try:
             for item in stream:
