@@ -50,11 +50,6 @@ NOT_YET = {
     "sim_devices/scenarios/demo_rig.py": "waits on the room (issue 34 §1)",
     "sim_devices/scenarios/patient_scan.py": "waits on the room (issue 34 §1)",
     "sim_devices/scenarios/step_chain.py": "waits on the room (issue 34 §1)",
-    # the room gives a Camera; the setup's functions take an AxisCamera (the command refuses any
-    # other kind before): a Parameters role with what wanted() reads is where that is said
-    "vts_hw/cli/camera_setup.py": "waits on the setup's camera type (an Axis camera's parameters)",
-    # --volume is known given only through the usage check before the branches that read it
-    "vts_hw/cli/calibrate.py": "--volume narrowed after the usage check (the CLI's owner's wording)",
 }
 
 

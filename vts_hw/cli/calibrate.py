@@ -501,6 +501,8 @@ def spect(
         with tempfile.TemporaryDirectory(prefix="vts-spect-sim-") as tmp:
             points, vol_path, info = sim_spect_inputs(sim_seed, Path(tmp))
             mapping = SpectMapping.from_volume(points, vol_path).analyze()
+    elif volume is None:  # the usage check above refuses a run with neither --sim nor --volume
+        raise RuntimeError("--volume missing past the usage check")
     elif from_cameras:
         if not Path(volume).exists():
             raise DataError(f"{volume}: no such file or directory.")

@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import sys
+from typing import TYPE_CHECKING, cast
 
 import click
 
 from vts_hw.cli.camera import camera
 from vts_hw.cli.common import echo_json, json_option, with_rig
 from vts_hw.rig_file import check_rewritable
+
+if TYPE_CHECKING:
+    from vts_hw.drivers.axis import AxisCamera
 
 
 @camera.command("setup")
@@ -57,7 +61,8 @@ def setup(names: tuple[str, ...], all_cameras: bool, dry_run: bool, as_json: boo
     if dry_run:
         with Room(rig) as room:
             for cfg in cfgs:
-                plan = wanted(room.camera(cfg.name), cfg, rig.camera_setup)
+                # kind_has(cfg, Parameters) above refused every kind but axis: an AxisCamera
+                plan = wanted(cast("AxisCamera", room.camera(cfg.name)), cfg, rig.camera_setup)
                 click.echo(f"{cfg.name}: " + ", ".join(f"{k}={v}" for k, v, _ in plan))
         return
     with Room(rig) as room:
