@@ -51,7 +51,7 @@ OURS = ("vts_hw/", "drivers/", "procedures/", "sim_devices/")
 # ------------------------------------------------------------------------------ the child
 
 
-class Recorder:
+class CrashRecorder:
     """Runs one input through a target and keeps the counts where the parent can read them,
     also when libFuzzer ends the process without returning (it does, after -runs)."""
 
@@ -141,7 +141,7 @@ def child(args) -> None:
 
         with atheris.instrument_imports(include=list(target.instrument)):
             import_parsers(target.uses)
-        rec = Recorder(name, work, Path(args.crashes), args.runs, args.keep)
+        rec = CrashRecorder(name, work, Path(args.crashes), args.runs, args.keep)
         live = work / "live" / name
         live.mkdir(parents=True, exist_ok=True)
         art = work / "artifacts" / name
@@ -164,7 +164,7 @@ def child(args) -> None:
         atheris.Fuzz()  # does not return: libFuzzer exits after -runs
     else:
         import_parsers(target.uses)
-        rec = Recorder(name, work, Path(args.crashes), args.runs, args.keep)
+        rec = CrashRecorder(name, work, Path(args.crashes), args.runs, args.keep)
         from fuzzkit.mutate import run_hypothesis
 
         run_hypothesis(rec, work / "seeds" / name, target, args.runs, args.seed, args.timeout)

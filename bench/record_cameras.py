@@ -23,7 +23,7 @@ from pathlib import Path
 
 from vts_hw.config import load_rig
 from vts_hw.drivers.registry import open_cameras
-from vts_hw.recording.capture import Recorder
+from vts_hw.recording.capture import FrameRecorder
 from vts_hw.recording.promised import info
 from vts_hw.sim_devices.rig_detached import load_env_file, start_detached, stop_detached
 
@@ -41,7 +41,7 @@ def run(n: int, seconds: float, work: Path, ahead: bool = True) -> list[dict]:
         for cam in cams:
             cam.led_on()  # as a scan does (the frames made ahead have the LED rings on)
         rec_dir = work / f"rec{n}"
-        rec = Recorder(cams, rec_dir, seconds=seconds)
+        rec = FrameRecorder(cams, rec_dir, seconds=seconds)
         t0 = time.monotonic()
         rec.start()
         rec.wait()

@@ -40,7 +40,7 @@ from vts_hw.drivers.registry import trigger_backend
 from vts_hw.drivers.trigger import TriggerGenerator
 from vts_hw.errors import UsageError, VtsError
 from vts_hw.procedures.scan_trigger import ScanError, ScanTrigger, plain_dict
-from vts_hw.recording.capture import Recorder
+from vts_hw.recording.capture import FrameRecorder
 
 FIRST_FRAME_TIMEOUT_S = 10.0  # a camera silent this long after the recording started: no fire
 TRIGGER_POLL_S = 1.0  # how often the trigger's edges are read during the scan
@@ -134,7 +134,7 @@ class ScanSession:
         self.cameras: list[Camera] = list(cameras)
         self._configs = {c.name: c for c in rig.cameras}
         self.trigger = ScanTrigger(rig, clock, trigger)
-        self.recorder: Recorder | None = None
+        self.recorder: FrameRecorder | None = None
         self.phase = "planned"
         self.times: dict[str, float | None] = {}
         self.cam_notes: dict[str, dict] = {c.name: {} for c in self.cameras}
@@ -320,7 +320,7 @@ class ScanSession:
         meta = {"kind": "scan", "rig": self.rig.rig, "rig_digest": self.rig.digest, "duration_asked": self.duration}
         self.phase = "recording"
         self._live_call("prepare")
-        self.recorder = Recorder(
+        self.recorder = FrameRecorder(
             self.cameras,
             self.folder,
             seconds=None,

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from vts_hw.results import Measure, overall_state
 from vts_hw.store import ResultsStore
-from vts_hw.store.recorder import Recorder, record
+from vts_hw.store.recorder import ResultRecorder, record
 from vts_hw.tolerance import DEFAULT_TOLERANCES, State
 
 DAY = 86400.0
@@ -122,10 +122,10 @@ def fill(url: str | Path, folder: Path, now: float | None = None) -> dict:
             started=t,
             finished=t + 900,
         ).run_id
-        rec = Recorder(store, "sphere-steps", rig=RIG, operator="physicist", started=now - 3 * DAY).begin()
+        rec = ResultRecorder(store, "sphere-steps", rig=RIG, operator="physicist", started=now - 3 * DAY).begin()
         rec.abort("the phantom slipped")
         ids["aborted"] = rec.run_id
-        running = Recorder(store, "sync", rig=RIG, started=now - 3600).begin()
+        running = ResultRecorder(store, "sync", rig=RIG, started=now - 3600).begin()
         ids["running"] = running.run_id
         ids["other_rig"] = record(
             store,

@@ -2,7 +2,7 @@
 results_data(), plot(); each figure a :class:`Measure` judged by a tolerance window.
 
 A procedure's result keeps this shape (:class:`Analysis`) and is stored one way
-(:class:`vts_hw.store.recorder.Recorder`): a run of its ``procedure`` with one measurement
+(:class:`vts_hw.store.recorder.ResultRecorder`): a run of its ``procedure`` with one measurement
 per :class:`Measure`, the run's state the worst of them — or, when the store cannot take it,
 a file that ``vts qa import`` stores later.
 """

@@ -28,7 +28,7 @@ from vts_hw.sim_devices.rig import SimRig
 from vts_hw.sim_devices.scenarios.step_chain import run_sim_steps
 from vts_hw.store import ResultsStore
 from vts_hw.store.baselines import load_baselines
-from vts_hw.store.recorder import Recorder, record
+from vts_hw.store.recorder import ResultRecorder, record
 
 DAY = 86400.0
 FAST_CAMERA = "cam2"
@@ -130,7 +130,7 @@ def run_demo(
                 now = clock.now()
                 with (
                     day_room,
-                    Recorder(
+                    ResultRecorder(
                         store,
                         qa.procedure,
                         rig=cfg.rig,

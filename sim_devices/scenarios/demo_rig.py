@@ -21,7 +21,7 @@ from pathlib import Path
 
 from vts_hw.files import check_folder, write_atomic
 from vts_hw.lifeline import child_options
-from vts_hw.recording.capture import Recorder
+from vts_hw.recording.capture import FrameRecorder
 from vts_hw.recording.promised import info
 from vts_hw.room import Room
 from vts_hw.sim_devices.rig import SimRig
@@ -104,7 +104,7 @@ def camera_tour(
                 )  # the demo's own recording from an earlier run: a recording refuses a full folder
             say(f"recording {seconds:g} s from {len(cams)} cameras into {rec_dir} ...")
             manifest = (record or _record_plainly)(
-                Recorder(cams, rec_dir, seconds=seconds, meta={"rig": cfg.rig}), seconds
+                FrameRecorder(cams, rec_dir, seconds=seconds, meta={"rig": cfg.rig}), seconds
             )
     return CameraTour(urls, looks, rec_dir, manifest, list(info(rec_dir)))
 

@@ -18,7 +18,7 @@ from console_live import until
 from vts_hw.console.hub import FramesHub
 from vts_hw.console.markers import MarkerWorker
 from vts_hw.drivers.registry import open_camera
-from vts_hw.recording.capture import Recorder
+from vts_hw.recording.capture import FrameRecorder
 from vts_hw.sim_devices.rig import SimRig
 
 pytestmark = pytest.mark.timeout(120)
@@ -81,7 +81,7 @@ def test_a_recording_feeds_the_hub_and_the_camera_never_sees_a_second_viewer(rig
         before = hub.counts("cam1")["received"]
         with tempfile.TemporaryDirectory() as folder:
             rec_cam = open_camera(rig.config().cameras[0])
-            rec = Recorder([rec_cam], folder + "/r", seconds=None, on_frame=hub.feed)
+            rec = FrameRecorder([rec_cam], folder + "/r", seconds=None, on_frame=hub.feed)
             rec.start()
             try:
                 for _ in range(40):

@@ -16,7 +16,7 @@ from vts_hw.config import parse_rig
 from vts_hw.drivers.registry import CAMERA_KINDS, open_camera, open_cameras
 from vts_hw.errors import ConfigError, DataError
 from vts_hw.recording.axis_jpeg import inspect_jpeg
-from vts_hw.recording.capture import Recorder
+from vts_hw.recording.capture import FrameRecorder
 from vts_hw.recording.folder import load_manifest, read_index
 from vts_hw.tolerance import State
 
@@ -32,7 +32,7 @@ def _replay_entries(folder, names=("cam1", "cam2"), speed=8.0) -> list[dict]:
 
 
 def _record(cameras, folder, seconds=None):
-    rec = Recorder(cameras, folder, seconds=seconds)
+    rec = FrameRecorder(cameras, folder, seconds=seconds)
     rec.start()
     rec.wait()
     manifest = rec.finish()

@@ -207,7 +207,7 @@ def _spin(stop):
 def test_under_cpu_load_the_live_path_drops_its_own_oldest_frames_never_a_recorded_one(rendered, tmp_path):
     from vts_hw.config import parse_rig
     from vts_hw.drivers.registry import open_cameras
-    from vts_hw.recording.capture import Recorder
+    from vts_hw.recording.capture import FrameRecorder
 
     sim, folder, frames, offsets = rendered
     ctx = mp.get_context("spawn")
@@ -247,7 +247,7 @@ def test_under_cpu_load_the_live_path_drops_its_own_oldest_frames_never_a_record
             time.sleep(0.02)
 
     viewer = threading.Thread(target=view, daemon=True)
-    rec = Recorder(cams, tmp_path / "again", seconds=None, on_frame=tr.on_frame)
+    rec = FrameRecorder(cams, tmp_path / "again", seconds=None, on_frame=tr.on_frame)
     try:
         tr.start()
         rec.start()

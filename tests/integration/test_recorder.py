@@ -4,7 +4,7 @@ import json
 import threading
 
 from vts_hw.drivers.registry import open_cameras
-from vts_hw.recording.capture import Recorder
+from vts_hw.recording.capture import FrameRecorder
 from vts_hw.recording.folder import read_index
 from vts_hw.recording.promised import info
 
@@ -15,7 +15,7 @@ def _cams(rig):
 
 def test_drop_on_one_camera_keeps_everything_and_states_the_gap(sim_rig, tmp_path):
     sim_rig.servers["cam1"].faults.drop_after_frames = 20
-    rec = Recorder(_cams(sim_rig), tmp_path, seconds=3.0)
+    rec = FrameRecorder(_cams(sim_rig), tmp_path, seconds=3.0)
     rec.start()
     rec.wait()
     manifest = rec.finish()
@@ -39,7 +39,7 @@ def test_drop_on_one_camera_keeps_everything_and_states_the_gap(sim_rig, tmp_pat
 
 
 def test_camera_that_dies_does_not_stop_the_others(sim_rig, tmp_path):
-    rec = Recorder(_cams(sim_rig), tmp_path, seconds=4.0, give_up_after=1.0)
+    rec = FrameRecorder(_cams(sim_rig), tmp_path, seconds=4.0, give_up_after=1.0)
     threading.Timer(1.0, sim_rig.servers["cam2"].stop).start()
     rec.start()
     rec.wait()
@@ -58,7 +58,7 @@ def test_stalls_and_torn_frames_during_a_recording(sim_rig, tmp_path):
     g.stall_after_frames = 15
     g.stall_s = 10.0
     cams = _cams(sim_rig)
-    rec = Recorder(cams, tmp_path, seconds=5.0)
+    rec = FrameRecorder(cams, tmp_path, seconds=5.0)
     for cam in cams:
         cam.timeout = 1.0
     rec.start()

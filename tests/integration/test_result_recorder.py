@@ -13,7 +13,7 @@ from vts_hw.procedures.baseline import BaselineSet
 from vts_hw.procedures.steps_analysis import StepAnalysis
 from vts_hw.results import Measure, overall_state
 from vts_hw.store import ResultsStore
-from vts_hw.store.recorder import Recorder, import_unsaved, record
+from vts_hw.store.recorder import ResultRecorder, import_unsaved, record
 from vts_hw.tolerance import State, Window
 from vts_hw.vision.wall_baseline import Baseline, BaselineMarker
 
@@ -68,7 +68,7 @@ def test_a_sync_check_in_tolerance_keeps_its_window_as_a_step_test_does(tmp_path
 def test_an_exception_while_measuring_aborts_the_running_run(tmp_path):
     with ResultsStore(tmp_path / "r.sqlite") as store:
         with pytest.raises(RuntimeError):
-            with Recorder(store, "daily", rig="r", started=5.0) as rec:
+            with ResultRecorder(store, "daily", rig="r", started=5.0) as rec:
                 assert store.run(rec.run_id).status == "running"  # the row is there before the work
                 raise RuntimeError("camera on fire")
         run = store.run(rec.run_id)

@@ -168,12 +168,12 @@ def test_a_stream_that_falls_behind_sends_late_and_skips_only_as_a_declared_faul
 def test_a_recording_of_lossy_cameras_states_every_lost_frame(sim_rig, tmp_path):
     """Both cameras lose a burst of 4 frames every second, cam2 also 10 % at random: the
     recording holds every frame sent, the manifest's gaps are the frames lost, no more."""
-    from vts_hw.recording.capture import Recorder
+    from vts_hw.recording.capture import FrameRecorder
     from vts_hw.recording.promised import info
 
     for name, server in sim_rig.servers.items():
         server.set_faults(lose_burst_frames=4, lose_burst_every_s=1.0, lose_p=0.1 if name == "cam2" else 0.0)
-    rec = Recorder(open_cameras(sim_rig.config().cameras), tmp_path, seconds=3.0)
+    rec = FrameRecorder(open_cameras(sim_rig.config().cameras), tmp_path, seconds=3.0)
     rec.start()
     rec.wait()
     manifest = rec.finish()

@@ -201,7 +201,7 @@ def record(names: tuple[str, ...], all_cameras: bool, seconds: float, out: str, 
     (e.g. disk full: what was kept is said); 2 bad input; 130 interrupted.
     """
     from vts_hw.cli.progress import record_with_progress
-    from vts_hw.recording.capture import Recorder
+    from vts_hw.recording.capture import FrameRecorder
 
     if all_cameras:
         names = tuple(c.name for c in rig.cameras)
@@ -213,7 +213,7 @@ def record(names: tuple[str, ...], all_cameras: bool, seconds: float, out: str, 
     check_camera_kinds(cfgs)
     meta = {"rig": rig.rig, "seconds_asked": seconds, "rig_digest": rig.digest}
     with Room(rig) as room:  # the cameras closed with it, however the recording ends
-        rec = Recorder([room.camera(c.name) for c in cfgs], out, seconds=seconds, meta=meta, append=append)
+        rec = FrameRecorder([room.camera(c.name) for c in cfgs], out, seconds=seconds, meta=meta, append=append)
         manifest = record_with_progress(rec, seconds)
     status = manifest["status"]
     click.echo(f"{out}: status {status}" + (" (added to the recording already there)" if append else ""))

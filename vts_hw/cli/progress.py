@@ -9,10 +9,10 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from vts_hw.recording.capture import Recorder
+from vts_hw.recording.capture import FrameRecorder
 
 
-def _table(rec: Recorder, seconds: float | None, t0: float) -> Table:
+def _table(rec: FrameRecorder, seconds: float | None, t0: float) -> Table:
     elapsed = time.monotonic() - t0
     title = f"recording {elapsed:5.1f} s" + (f" of {seconds:g} s" if seconds else "") + "  (Ctrl-C stops)"
     t = Table(title=title, title_justify="left")
@@ -24,7 +24,7 @@ def _table(rec: Recorder, seconds: float | None, t0: float) -> Table:
     return t
 
 
-def record_with_progress(rec: Recorder, seconds: float | None) -> dict:
+def record_with_progress(rec: FrameRecorder, seconds: float | None) -> dict:
     """Run a recording to its end (or Ctrl-C) showing a live table on a terminal."""
     console = Console(stderr=True)
     t0 = time.monotonic()

@@ -46,7 +46,7 @@ class CameraProgress:
         return self.frames / dt if dt > 0 else 0.0
 
 
-class Recorder:
+class FrameRecorder:
     """Record ``cameras`` (any :class:`vts_hw.camera.Camera`) for ``seconds`` (None: until
     stop()) into ``folder``."""
 
@@ -157,7 +157,7 @@ class Recorder:
         for s in self._streams.values():
             s.stop()
 
-    def wait(self, poll: float = 0.25, on_tick: Callable[[Recorder], None] | None = None) -> None:
+    def wait(self, poll: float = 0.25, on_tick: Callable[[FrameRecorder], None] | None = None) -> None:
         while self.running:
             for t in self._threads:
                 t.join(timeout=poll / max(1, len(self._threads)))

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from vts_hw.catalog import COMMISSION_STEP, COMMISSION_STEPS, COMMISSIONING
 from vts_hw.results import Measure, overall_state
 from vts_hw.store.errors import StoreError
-from vts_hw.store.recorder import Recorder, record
+from vts_hw.store.recorder import ResultRecorder, record
 from vts_hw.store.records import Measurement, Run
 from vts_hw.tolerance import State
 
@@ -218,7 +218,7 @@ class Ledger:
 
     def __init__(self, store, rig, *, cid: int | None = None, operator: str = "", clock=time.time):
         self.store, self.rig, self.cid, self.operator, self.clock = store, rig, cid, operator, clock
-        self._open: dict[str, Recorder] = {}  # step -> its run, written "running" by begin()
+        self._open: dict[str, ResultRecorder] = {}  # step -> its run, written "running" by begin()
 
     def _kw(self, started=None):
         return dict(
@@ -234,7 +234,7 @@ class Ledger:
         """The step's run, written "running" now (its notes name the commissioning and the step):
         a commissioning killed in the step leaves it, and the next open of the store marks it
         aborted. A store that cannot take it stops the step before it starts (exit 3)."""
-        rec = Recorder(self.store, COMMISSION_STEP.name, notes=_mark(self.cid, step), **self._kw(started)).begin()
+        rec = ResultRecorder(self.store, COMMISSION_STEP.name, notes=_mark(self.cid, step), **self._kw(started)).begin()
         if rec.run_id is None:
             raise StoreError(f"the commissioning step {step} could not be recorded ({rec.error}); it was not started")
         if self.cid is None:
@@ -306,7 +306,7 @@ class Ledger:
         try:
             rec = self._open.pop(step, None)
             if rec is None:
-                rec = Recorder(
+                rec = ResultRecorder(
                     self.store, COMMISSION_STEP.name, notes=_mark(self.cid, step), **self._kw(started)
                 ).begin()
             rec.abort(reason)

@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 from vts_hw.store.baselines import load_baselines
-from vts_hw.store.recorder import Recorder
+from vts_hw.store.recorder import ResultRecorder
 
 
 def artifacts_dir(store) -> Path:
@@ -35,7 +35,7 @@ def record_qa(store, qa, rig, *, operator: str = "", clock=time.time):
     if qa.needs_baselines:
         qa.baselines = {**load_baselines(store, qa.camera_names, rig.rig), **qa.baselines}
     now = clock()
-    with Recorder(
+    with ResultRecorder(
         store,
         qa.procedure,
         rig=rig.rig,

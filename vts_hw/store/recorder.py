@@ -1,6 +1,6 @@
 """The one recorder of results: every QA result reaches the store this way.
 
-    with Recorder(store_or_url, "daily", rig="room1", tolerances=rig.tolerances) as rec:
+    with ResultRecorder(store_or_url, "daily", rig="room1", tolerances=rig.tolerances) as rec:
         result = ...                 # measure; rec.run_id is the run's id (None: not storable)
         stored = rec.finish(result)  # one transaction; or the unsaved file when the store refuses
 
@@ -68,7 +68,7 @@ def _write(h, measures, artifacts, windows: dict[str, Window], *, at: float) -> 
         h.artifact(a, kind="plot" if str(a).endswith(".png") else "frame")
 
 
-class Recorder:
+class ResultRecorder:
     """One run of ``procedure`` on its way to the store ``target`` (a URL, a StoreTarget, None
     for the default, or an open ResultsStore, then left open). See the module docstring."""
 
@@ -105,7 +105,7 @@ class Recorder:
     def url(self):
         return self._store.url if self._store is not None else self.target
 
-    def begin(self) -> Recorder:
+    def begin(self) -> ResultRecorder:
         """Sync the windows and commit the "running" row; a store that cannot take them is
         remembered (``error``), never raised: the figures go to the unsaved file at the end."""
         try:
@@ -187,7 +187,7 @@ class Recorder:
             self._store.close()
             self._own_store = False
 
-    def __enter__(self) -> Recorder:
+    def __enter__(self) -> ResultRecorder:
         return self.begin()
 
     def __exit__(self, exc_type, exc, tb) -> Literal[False]:
@@ -216,7 +216,7 @@ def record(
     clock=time.time,
 ) -> Stored:
     """Record an analysed ``result`` as a run of ``result.procedure``: begin and finish at once."""
-    rec = Recorder(
+    rec = ResultRecorder(
         target,
         result.procedure,
         rig=rig,
