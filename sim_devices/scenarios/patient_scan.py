@@ -32,6 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from vts_hw.recording.folder import load_manifest, read_index
+from vts_hw.sim_devices.frame_bank import BankStats
 from vts_hw.sim_devices.patient import Patient, write_truth
 from vts_hw.sim_devices.patient_source import heart_source
 from vts_hw.sim_devices.scenarios.sync_session import SPECT_TAIL_S, run_scan_cli
@@ -55,7 +56,7 @@ class PatientScan:
     fire_host: float  # when the trigger fired (host s)
     window: tuple[float, float]  # host s of the first and last frame recorded (any camera)
     truth_files: list[Path]  # what write_truth wrote (empty without truth_dir)
-    render: object = None  # BankStats: what making the frames ahead cost (None: live)
+    render: BankStats | None = None  # what making the frames ahead cost (None: live)
 
     def moves_in_window(self) -> list:
         """The body moves that start inside :attr:`window`."""
@@ -123,6 +124,8 @@ def patient_scan(
 def recorded_window(session) -> tuple[float, float]:
     """Host times of the first and last frame any camera of the session recorded."""
     manifest = load_manifest(session)
+    if manifest is None:  # only with missing_ok: a folder without one raised DataError
+        raise RuntimeError(f"{session}: no manifest")
     times = []
     for name in manifest.get("cameras", {}):
         rows = read_index(Path(session) / f"{name}.index.csv")

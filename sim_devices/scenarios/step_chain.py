@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vts_hw.camera import Illumination
 from vts_hw.procedures.spect_mapping import SpectMapping
 from vts_hw.procedures.steps import LED_SETTLE_S, SNAPSHOT_COMPRESSION, StepSession, average_centroids, step_plan
 from vts_hw.procedures.steps_analysis import StepAnalysis, six_dof
@@ -130,6 +131,8 @@ def run_sim_steps(
         with Room(cfg, clock=clock) as room:  # its cameras closed with it
             cams = [room.camera(c.name) for c in cfg.cameras[:2]]
             for cam in cams:
+                if not isinstance(cam, Illumination):  # a simulated rig's cameras are Axis cameras, with their LED
+                    raise RuntimeError(f"camera {cam.name}: no LED to switch on for the mapping")
                 cam.led_on()
             time.sleep(LED_SETTLE_S)
             say("VTS -> SPECT mapping from the phantom at its placement")
@@ -141,7 +144,7 @@ def run_sim_steps(
             )
             mapping = SpectMapping.from_stereo(calib, pts[0], pts[1], vol).analyze()
             mapping.save(out / "spect_mapping.json")
-            say(f"  FRE {mapping.fre_mm:.2f} mm, leave-one-out TRE {mapping.tre.rms:.2f} mm")
+            say(f"  FRE {mapping.fre_mm:.2f} mm, leave-one-out TRE {mapping.fitted().tre.rms:.2f} mm")
             # a virtual clock moves on a little per position, as the table would take time
             settle = (lambda: rig.clock.advance(20.0)) if hasattr(rig.clock, "advance") else None
             table = SimTable(scene, clock, seed=seed, settle=settle)

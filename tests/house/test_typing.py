@@ -46,10 +46,7 @@ NOT_YET = {
     "procedures/scan.py": "waits on the room (issue 34 §1): the session's recorder is None until it starts",
     # the scenarios open their rooms (issue 34 §1)
     "sim_devices/scenarios/demo_days.py": "waits on the room (issue 34 §1)",
-    "sim_devices/scenarios/demo_patient.py": "waits on the room (issue 34 §1)",
     "sim_devices/scenarios/demo_rig.py": "waits on the room (issue 34 §1)",
-    "sim_devices/scenarios/patient_scan.py": "waits on the room (issue 34 §1)",
-    "sim_devices/scenarios/step_chain.py": "waits on the room (issue 34 §1)",
 }
 
 
