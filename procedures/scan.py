@@ -163,10 +163,10 @@ class ScanSession:
                 f"{'/'.join(res)} offered, {'/'.join(fps)} fps asked; LED ring on",
             )
         ]
-        if t.backend == "none":
+        backend = trigger_backend(t, str(getattr(r, "_source", None) or "rig.yaml"))  # None: backend none
+        if backend is None:
             steps.append(Step("check trigger", "no trigger generator (trigger backend none): recording only"))
         else:
-            backend = trigger_backend(t, str(getattr(r, "_source", None) or "rig.yaml"))
             levels = f", levels {t.low_v:g}..{t.high_v:g} V" if backend.levels else ""
             steps += [
                 Step(
@@ -238,10 +238,11 @@ class ScanSession:
         self.on_step("check cameras", ", ".join(f"{c.name} ok" for c in self.cameras))
         self.trigger.check()
         if self.trigger.present:
+            gen = self.trigger.gen
+            if gen is None:  # check() opens the generator the rig names, or raises
+                raise RuntimeError("the trigger generator was not opened by its check")
             st = self.trigger.info.get("confirmed") or {}
-            self.on_step(
-                "check trigger", f"{self.trigger.gen.name}: {st.get('frequency_hz')} Hz, duty {st.get('duty')}"
-            )
+            self.on_step("check trigger", f"{gen.name}: {st.get('frequency_hz')} Hz, duty {st.get('duty')}")
         self._measure_offsets("clock_offset_before", strict=True)
         self.on_step(
             "measure offsets",
@@ -320,7 +321,7 @@ class ScanSession:
         meta = {"kind": "scan", "rig": self.rig.rig, "rig_digest": self.rig.digest, "duration_asked": self.duration}
         self.phase = "recording"
         self._live_call("prepare")
-        self.recorder = FrameRecorder(
+        self.recorder = recorder = FrameRecorder(
             self.cameras,
             self.folder,
             seconds=None,
@@ -328,16 +329,16 @@ class ScanSession:
             max_backoff=RECONNECT_BACKOFF_MAX_S,
             on_frame=self._frame_hook(),
         )
-        self.times["recording_started"] = self.recorder.recording.started
+        self.times["recording_started"] = recorder.recording.started
         self.trigger.attach_log(self.folder / "trigger.csv")
         self._live_call("start")
         self._write_manifest()
-        self.recorder.start()
+        recorder.start()
 
     def _wait_first_frames(self) -> None:
         deadline = time.monotonic() + self.first_frame_timeout
         while True:
-            prog = self.recorder.progress.values()
+            prog = self._started().progress.values()
             dead = [p for p in prog if p.error]
             if dead:
                 why = "; ".join(f"camera {p.name}: {p.error}" for p in dead)
@@ -425,13 +426,14 @@ class ScanSession:
                 self.phase = "stopped"
                 self.manifest = {}
                 return self.manifest
-            self.recorder.finish("recording")  # closed; the status is set below, last
+            recorder = self.recorder
+            recorder.finish("recording")  # closed; the status is set below, last
             self._note_trailing_gaps(stop_mono)
             self._measure_offsets("clock_offset_after", strict=False)
             self.trigger.finish()
             self.times["finished"] = self.clock()
             problems = self._problems()
-            rec = self.recorder.recording
+            rec = recorder.recording
             rec.status = "failed" if reason == "no first frame" else ("partial" if problems else "complete")
             self.manifest = self._write_manifest(problems)
             self._close_cameras()
@@ -441,9 +443,10 @@ class ScanSession:
     def _note_trailing_gaps(self, stop_mono: float) -> None:
         """A camera silent at the end (still off the network when the scan stopped) has a gap
         that no later frame reveals: it is added here."""
-        rec = self.recorder.recording
+        recorder = self._started()
+        rec = recorder.recording
         for cam in self.cameras:
-            p = self.recorder.progress[cam.name]
+            p = recorder.progress[cam.name]
             if p.last_frame is None:
                 continue
             silent = stop_mono - p.last_frame
@@ -463,9 +466,10 @@ class ScanSession:
 
     def _problems(self) -> list[str]:
         out = []
-        rec = self.recorder.recording
+        recorder = self._started()
+        rec = recorder.recording
         for name, gaps in rec.gaps.items():
-            p = self.recorder.progress[name]
+            p = recorder.progress[name]
             if p.error:
                 out.append(p.error if p.error.startswith(f"camera {name}") else f"camera {name}: {p.error}")
             if gaps:
@@ -476,9 +480,15 @@ class ScanSession:
             if "error" in (self.cam_notes[name].get("clock_offset_after") or {}):
                 out.append(f"camera {name}: clock offset after the scan not measured")
         out += [f"trigger: {e}" for e in self.trigger.info["errors"]]
-        if self.recorder.write_failure is not None:
-            out.append(f"recording stopped: {self.recorder.write_failure}")
+        if recorder.write_failure is not None:
+            out.append(f"recording stopped: {recorder.write_failure}")
         return out
+
+    def _started(self) -> FrameRecorder:
+        """The recorder, once :meth:`_start_recording` has made it (RuntimeError before)."""
+        if self.recorder is None:
+            raise RuntimeError("the recording has not started")
+        return self.recorder
 
     def _live_call(self, step: str) -> None:
         """``live.prepare/start/stop(self)``: a failure of the live path is noted and never stops
@@ -522,7 +532,7 @@ class ScanSession:
 
     def _write_manifest(self, problems: list[str] | None = None) -> dict:
         with self._manifest_lock:
-            rec = self.recorder.recording
+            rec = self._started().recording
             self._last_problems = list(problems or [])
             for name, notes in self.cam_notes.items():
                 rec.notes[name].update(notes)
@@ -536,13 +546,12 @@ class ScanSession:
                 **({"live_problem": self.live_problem} if self.live_problem else {}),
             }
             rec.meta["trigger"] = self.trigger.info
-            for attempt in range(3):  # a camera thread may be adding its notes at this very moment
+            for _attempt in range(2):  # a camera thread may be adding its notes at this very moment
                 try:
                     return rec.write_manifest()
                 except RuntimeError:
-                    if attempt == 2:
-                        raise
                     time.sleep(0.01)
+            return rec.write_manifest()  # the third time, its error raised
 
     def _close_cameras(self) -> None:
         for cam in self.cameras:

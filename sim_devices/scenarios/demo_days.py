@@ -143,18 +143,18 @@ def run_demo(
                     res = qa.run(started=now, run_id=rec.run_id)
                     rec.finish(res, artifacts=res.artifacts, finished=res.finished)
                 row = DayRow(day, res.started, str(res.state))
-                for c in res.cameras:
-                    d = c.drift
+                for found in res.cameras:
+                    d = found.drift
                     if d is None or not d.analyzed:
-                        row.cameras[c.camera] = {"state": str(c.state)}
+                        row.cameras[found.camera] = {"state": str(found.state)}
                         continue
-                    tx, ty = injected_drift(scene, c.camera, t_base, res.started)
-                    row.cameras[c.camera] = {
+                    tx, ty = injected_drift(scene, found.camera, t_base, res.started)
+                    row.cameras[found.camera] = {
                         "dx": d.drift_px[0],
                         "dy": d.drift_px[1],
                         "truth_dx": tx,
                         "truth_dy": ty,
-                        "state": str(c.state),
+                        "state": str(found.state),
                     }
                 rows.append(row)
                 if on_day:

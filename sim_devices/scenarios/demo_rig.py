@@ -19,6 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from vts_hw.drivers.axis import AxisCamera
 from vts_hw.files import check_folder, write_atomic
 from vts_hw.lifeline import child_options
 from vts_hw.recording.capture import FrameRecorder
@@ -26,6 +27,7 @@ from vts_hw.recording.promised import info
 from vts_hw.room import Room
 from vts_hw.sim_devices.rig import SimRig
 from vts_hw.sim_devices.scenarios import sync_session as sync_sim
+from vts_hw.sim_devices.source_marker import SourceMarker
 
 SYNC_EXIT_CODES = (0, 10, 20)  # OK, TOLERANCE, ACTION: the analysis ran
 
@@ -74,6 +76,8 @@ def camera_tour(
         with Room(cfg) as room:  # its cameras closed with it
             cams = room.cameras
             for cam in cams:
+                if not isinstance(cam, AxisCamera):  # a simulated rig's cameras are Axis cameras
+                    raise RuntimeError(f"camera {cam.name}: not an Axis camera, no LED or VAPIX version to show")
                 dev = cam.device_info()
                 off = cam.clock_offset()
                 cam.led_off()
@@ -114,7 +118,9 @@ def bright_pixels(jpeg: bytes) -> int:
     import numpy as np
 
     img = cv2.imdecode(np.frombuffer(jpeg, np.uint8), cv2.IMREAD_GRAYSCALE)
-    return int((img > 128).sum())
+    if img is None:
+        raise ValueError("the camera's snapshot is not a JPEG")
+    return int(np.count_nonzero(img > 128))
 
 
 @dataclass
@@ -167,4 +173,6 @@ def demo_scan(out_dir, seconds: float, *, say: Callable[[str], None] = lambda m:
     if p.returncode not in SYNC_EXIT_CODES:
         raise RuntimeError(f"the sync analysis failed (exit {p.returncode}): {p.stderr.strip()}")
     data = json.loads(p.stdout)
+    if not isinstance(run.source, SourceMarker):  # sync_session.prepare placed one
+        raise RuntimeError("the sync scan has no source marker to match the moves of")
     return DemoScan(run, Path(rig_yaml), report, data, sync_sim.match_moves(data["events"], run.source.moves))

@@ -43,10 +43,7 @@ CLEAN = (
 NOT_YET = {
     # the room (issue 34 §1) changed how these open the rig's devices
     "procedures/commission_steps.py": "waits on the room (issue 34 §1): a step's rig is typed object",
-    "procedures/scan.py": "waits on the room (issue 34 §1): the session's recorder is None until it starts",
     # the scenarios open their rooms (issue 34 §1)
-    "sim_devices/scenarios/demo_days.py": "waits on the room (issue 34 §1)",
-    "sim_devices/scenarios/demo_rig.py": "waits on the room (issue 34 §1)",
 }
 
 
