@@ -38,7 +38,7 @@ class CalibrationResult:
     """Mixin for the calibration runs: ``measures`` comes from :meth:`rms_figures`."""
 
     procedure = PROCEDURE
-    tolerances = None  # the rig config's windows, set by the caller; None: the defaults
+    tolerances: dict | None = None  # the rig config's windows, set by the caller; None: the defaults
 
     def rms_figures(self) -> tuple[dict[str, float], float, bool | None]:
         raise NotImplementedError

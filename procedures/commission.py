@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from vts_hw.catalog import COMMISSION_STEP, COMMISSION_STEPS
+from vts_hw.config import RigConfig
 from vts_hw.errors import UsageError
 from vts_hw.results import Analysis, Measure, overall_state
 from vts_hw.tolerance import State
@@ -147,13 +148,13 @@ class Inputs:
 class Context:
     """One commissioning's rig (read again after a step changes rig.yaml), inputs and hooks."""
 
-    rig: object
+    rig: RigConfig
     inputs: Inputs
     say: Callable[[str], None] = lambda m: None
     ask: Callable[[str], object] = input
     clock: Callable[[], float] = time.time
     sleep: Callable[[float], None] = time.sleep
-    reload: Callable[[], object] | None = None  # the rig config read again (after rig.yaml changed)
+    reload: Callable[[], RigConfig] | None = None  # the rig config read again (after rig.yaml changed)
     # the room's parts, given by the application that opened it (`vts commission`: the room's
     # camera(cfg) and trigger(), which the room closes); None: a step opens and closes its own
     camera: Callable[[Any], Any] | None = None

@@ -66,7 +66,7 @@ def _trigger(ctx: Context):
     if ctx.trigger is not None:
         yield ctx.trigger()
         return
-    with open_trigger(ctx.rig) as gen:
+    with contextlib.closing(open_trigger(ctx.rig)) as gen:  # what TriggerBase's __exit__ does
         yield gen
 
 
@@ -89,7 +89,7 @@ def cameras(ctx: Context) -> Outcome:
                 f"camera {cfg.name} is of kind {cfg.kind}, which has no parameters: only Axis cameras are commissioned"
             )
         cfg.password()
-    announced: dict[tuple[str, int], tuple[str, ...]] = {}
+    announced: dict[tuple[str | None, int], tuple[str, ...]] = {}  # looked up by the entry's host
     if inp.listen_s > 0:
         ctx.say(f"  listening {inp.listen_s:g} s for cameras announcing themselves (mDNS, SSDP)")
         for f in search(inp.listen_s, list(inp.interfaces) or None):
@@ -206,6 +206,19 @@ def aim(ctx: Context) -> Outcome:
 # ------------------------------------------------------------------ 4. warm-up
 
 
+def _young(uptime: float | None, warmup_min: float) -> bool:
+    """Whether a camera that has run ``uptime`` minutes (None: it does not tell) is still warming up."""
+    return uptime is not None and uptime < warmup_min
+
+
+def _upper(window, key: str) -> float:
+    """A warm-up window's upper limit: its tolerance's, else its action's."""
+    high = window.tolerance_high if window.tolerance_high is not None else window.action_high
+    if high is None:
+        raise ConfigError(f"tolerances: {key} has no upper limit (tolerance_high or action_high)")
+    return high
+
+
 def _uptime(cam, say) -> float | None:
     """Minutes the camera has run; None when it does not tell (a camera that does not answer
     is a device failure, raised)."""
@@ -238,9 +251,9 @@ def warmup(ctx: Context) -> Outcome:
     for the others."""
     st = ctx.rig.warmup
     window = merged_tolerances(ctx.rig.tolerances)["warmup_rate_px_min"]
-    limit = window.tolerance_high if window.tolerance_high is not None else window.action_high
+    limit = _upper(window, "warmup_rate_px_min")
     cwin = merged_tolerances(ctx.rig.tolerances)["warmup_clock_change_ppm_min"]
-    climit = cwin.tolerance_high if cwin.tolerance_high is not None else cwin.action_high
+    climit = _upper(cwin, "warmup_clock_change_ppm_min")
     warm = {c.name: float(c.warmup_min) for c in ctx.rig.cameras}
     with _cameras(ctx, ctx.rig.cameras, clock=ctx.clock) as cams:
         if not ctx.inputs.wait:  # no window measured for a camera that cannot have settled yet
@@ -279,7 +292,7 @@ def warmup(ctx: Context) -> Outcome:
             unsettled = {
                 n
                 for n, f in fits.items()  # an uptime not known: the rate alone tells
-                if window.state(f.rate) != OK or (up[n] is not None and up[n] < warm[n])
+                if window.state(f.rate) != OK or _young(up[n], warm[n])
             }
             ticking = {n for n, j in judged.items() if j.known and not j.settled}  # a clock not known: said, not waited
             unknown = {n for n, f in fits.items() if f.rate is None}
@@ -309,19 +322,20 @@ def warmup(ctx: Context) -> Outcome:
     measures, lines, data, advice, later = [], [], {}, [], []
     for n, f in fits.items():
         state = window.state(f.rate)
-        young = up[n] is not None and up[n] < warm[n]
+        uptime = up[n]
+        warming = _young(uptime, warm[n])
         measures.append(Measure(n, "warmup_rate_px_min", None if f.rate is None else round(f.rate, 4), "px/min", state))
         measures.append(
             Measure(
                 n,
                 "uptime_min",
-                None if up[n] is None else round(up[n], 1),
+                None if uptime is None else round(uptime, 1),
                 "min",
-                TOL if up[n] is None or young else OK,
+                TOL if uptime is None or warming else OK,
             )
         )
-        if up[n] is not None:
-            measures.append(Measure(n, "warming_up", 1.0 if young else 0.0, "", TOL if young else OK))
+        if uptime is not None:
+            measures.append(Measure(n, "warming_up", 1.0 if warming else 0.0, "", TOL if warming else OK))
         data[n] = {
             "rate_px_min": f.rate,
             "se_px_min": f.se,
@@ -548,6 +562,8 @@ def mapping(ctx: Context) -> Outcome:
     )
     notes, error = f"saved to {inp.mapping_file}", None
     if passed:  # a mapping in ACTION leaves calibration.mapping as it was
+        if saved.written is None:  # a Saved without its file has its error, raised above
+            raise RuntimeError(f"{inp.mapping_file}: not written")
         note, error = _point_rig(ctx, "mapping", "mapping", saved.written, "VTS → SPECT mapping")
         notes, passed, advice = f"{notes}; {note}", error is None, str(error) if error else advice
     return Outcome("mapping", m, passed, advice=advice, notes=notes, error=error)
