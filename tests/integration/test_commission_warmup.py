@@ -16,6 +16,7 @@ import pytest
 
 from inprocess_cli import vts
 from vts_hw.config import dump_rig, parse_rig
+from vts_hw.errors import ConfigError
 from vts_hw.procedures import commission_steps as steps
 from vts_hw.procedures.commission import Context, Inputs
 from vts_hw.sim_devices.clock import VirtualClock
@@ -233,3 +234,24 @@ def test_a_bad_warmup_setting_or_limit_is_one_sentence_naming_its_key(tmp_path, 
     y.write_text(f"rig: r\ncameras: [{{name: cam1, host: 127.0.0.1}}]\n{section}\n")
     code, out, err = vts(capsys, "commission", "--config", y, "--no-wait")
     assert code == 2 and err.strip() == f"vts: {y}: {says}", err
+
+
+@pytest.mark.parametrize("metric", ["warmup_rate_px_min", "warmup_clock_change_ppm_min"])
+def test_a_warmup_window_with_no_upper_limit_is_refused_naming_its_key_before_a_camera_is_opened(tmp_path, metric):
+    """A warm-up window judges how fast a picture or a clock still changes: with neither
+    tolerance_high nor action_high it has nothing to judge against (it passed None on, a
+    TypeError later, or a pass when every camera settled at once): one sentence naming the key,
+    before any camera is opened."""
+    rig = parse_rig(
+        {
+            "rig": "r",
+            "cameras": [{"name": "cam1", "host": "127.0.0.1"}],
+            "tolerances": {metric: {"tolerance_low": 0.0}},
+        },
+        "rig.yaml",
+    )
+    opened = []
+    ctx = Context(rig=rig, inputs=Inputs(out=tmp_path), camera=lambda cfg: opened.append(cfg) or pytest.fail("opened"))
+    with pytest.raises(ConfigError, match=rf"tolerances: {metric} has no upper limit"):
+        steps.warmup(ctx)
+    assert opened == []
