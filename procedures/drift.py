@@ -23,13 +23,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from vts_hw import __version__
+from vts_hw import __version__, catalog
 from vts_hw.camera import Frame, Illumination
 from vts_hw.catalog import DRIFT
 from vts_hw.errors import DataError
 from vts_hw.figures import figure_png
 from vts_hw.results import Measure
-from vts_hw.tolerance import DEFAULT_TOLERANCES, State, Window, worst
+from vts_hw.tolerance import State, Window, worst
 from vts_hw.vision.detect import DetectorSettings, detect_jpeg
 from vts_hw.vision.marker_roles import GATE_PX, MOVE_FLOOR_PX, PATIENT, Role, follow, roles_of_tracks  # noqa: F401
 from vts_hw.vision.marker_roles import match_markers as _match
@@ -97,9 +97,7 @@ class DriftAnalysis:
 
     # -- analyze -------------------------------------------------------------------------
     def analyze(self, tolerances: dict[str, Window] | None = None) -> DriftAnalysis:
-        tol = dict(DEFAULT_TOLERANCES)
-        tol.update(tolerances or {})
-        self.tolerances = tol
+        self.tolerances = catalog.windows(tolerances)  # the catalog's windows, the given ones on top
         ref = self.baseline.points()
         self.markers = [MarkerDrift(m.id, (m.x, m.y), 0) for m in self.baseline.markers]
         self.moved_near: list[str] = []

@@ -6,10 +6,11 @@ import cv2
 import numpy as np
 import pytest
 
+from vts_hw import catalog
 from vts_hw.procedures.drift import DriftAnalysis
 from vts_hw.sim_devices.render import Renderer, encode
 from vts_hw.sim_devices.scene import Scene
-from vts_hw.tolerance import State
+from vts_hw.tolerance import State, Window
 from vts_hw.vision.wall_markers import baseline_from_frames
 
 DAY = 86400.0
@@ -113,3 +114,26 @@ def test_results_data_and_plot(world, tmp_path):
     assert img is not None and img.shape[0] > 300
     with pytest.raises(RuntimeError):
         DriftAnalysis.from_frames(cam, base, [], None).results()
+
+
+def test_the_catalog_entries_own_windows_judge_the_drift(world, monkeypatch):
+    """The analysis reads its default windows from ``catalog.windows()`` (decision 0101), so a
+    window a catalog entry brings for a metric of its own is in its table like the tolerance
+    table's, and the rig's given windows still go on top."""
+    own = catalog.Procedure(
+        "drift-extra",
+        "extra drift",
+        "room",
+        (("drift_extra_px", "px"),),
+        windows=(("drift_extra_px", Window(action_high=3.0)),),
+    )
+    monkeypatch.setattr(catalog, "PROCEDURES", (*catalog.PROCEDURES, own))
+    scene, r = world
+    cam, t0 = "cam2", scene.start_epoch + 5.0
+    base = baseline_from_frames(cam, _jpegs(r, cam, t0, 3), t0)
+    on = _jpegs(r, cam, t0 + 1.0, 3)
+    off = _jpegs(r, cam, t0 + 2.0, 1, led=False)[0]
+    given = Window.symmetric(0.01, 0.02, "px")
+    d = DriftAnalysis.from_frames(cam, base, on, off).analyze({"drift_x_px": given})
+    assert d.tolerances["drift_extra_px"] == Window(action_high=3.0)
+    assert d.tolerances["drift_x_px"] == given

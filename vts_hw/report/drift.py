@@ -29,7 +29,7 @@ from vts_hw import __version__, catalog
 from vts_hw.report.model import AXES, AxisSummary, BandSegment, CameraDrift, DriftReport, RunInfo, RunPoint
 from vts_hw.report.times import parse_since  # noqa: F401  (re-exported for the CLI)
 from vts_hw.report.trend import CONTROL_METHOD, control_limits, fit_trend, forecast
-from vts_hw.tolerance import DEFAULT_TOLERANCES, worst
+from vts_hw.tolerance import Window, worst
 
 DRIFT_PROCEDURES = catalog.family(catalog.DAILY.key)  # daily and drift QA: one check
 BASELINE_PROCEDURE = catalog.BASELINE.name
@@ -52,14 +52,14 @@ def _is_camera(subject: str) -> bool:
 class _Windows:
     """The window of a metric in effect at a time, from the store (cached per time)."""
 
-    def __init__(self, store, metric: str):
-        self.store, self.metric = store, metric
+    def __init__(self, store, metric: str, default: Window):
+        self.store, self.metric, self.default = store, metric, default
         self._cache: dict[float, tuple] = {}
 
     def at(self, t: float):
         if t not in self._cache:
             got = self.store.tolerance(self.metric, at=t)
-            self._cache[t] = got if got is not None else (None, DEFAULT_TOLERANCES[self.metric])
+            self._cache[t] = got if got is not None else (None, self.default)
         return self._cache[t]
 
     def segments(self, times, start: float, end: float) -> list[BandSegment]:
@@ -156,7 +156,7 @@ def collect(
     values: dict[tuple[str, int], dict] = defaultdict(dict)
     status: dict[tuple[str, int], dict] = defaultdict(dict)
     markers: dict[tuple[str, int], dict] = defaultdict(lambda: defaultdict(dict))
-    windows = {m: _Windows(store, m) for m in DEFAULT_TOLERANCES}
+    windows = {m: _Windows(store, m, w) for m, w in catalog.windows().items()}  # the catalog's windows
     for m in store.measurements(procedure=DRIFT_PROCEDURES, since=fetch_since):
         run = drift_runs.get(m.run_id)
         if run is None or not m.subject:
