@@ -13,7 +13,6 @@ the Brand and Properties parameters for the device info, the JPEG stamps for the
 
 from __future__ import annotations
 
-import time
 from typing import TYPE_CHECKING
 
 from vts_hw.camera import ClockOffset, Frame, check_whole, kind_settings
@@ -29,11 +28,11 @@ from vts_hw.drivers.axis_errors import (
     TooManyViewers,
 )
 from vts_hw.drivers.axis_io import AxisIOPort
-from vts_hw.drivers.axis_stream import MultipartStream
+from vts_hw.drivers.axis_stream import HttpCamera
 from vts_hw.recording.axis_jpeg import inspect_jpeg
 
 if TYPE_CHECKING:
-    from vts_hw.config import CameraConfig
+    pass
 
 #: the keys of a camera entry an HTTP camera (this kind, and ``mjpeg``) uses; the host must be given
 HTTP_KEYS = (
@@ -73,58 +72,17 @@ def frame_from_bytes(seq: int, jpeg: bytes, host_time: float, problems=()) -> Fr
     return Frame(seq, jpeg, cam_t, host_time, tuple(probs))
 
 
-class AxisCamera(MultipartStream, AxisClock, AxisIOPort):
-    """One Axis camera: the ``axis`` kind, with every role of :mod:`vts_hw.camera` (the HTTP client,
-    its parameters, clock and I/O port are the mixins' common base and parts).
+class AxisCamera(HttpCamera, AxisClock, AxisIOPort):
+    """One Axis camera: the ``axis`` kind, with every role of :mod:`vts_hw.camera` (the HTTP camera
+    of :mod:`.axis_stream`, its parameters, clock and I/O port are the mixins over its client).
 
     ``AxisCamera.from_config(cfg)`` takes a rig.yaml camera entry and its password from the
     environment variable that entry names (``vts_hw.drivers.registry.open_camera`` calls it).
     """
 
-    def __init__(
-        self,
-        name: str,
-        base_url: str,
-        user: str | None = "root",
-        password: str | None = None,
-        *,
-        timeout: float = 5.0,
-        led_port: int = 1,
-        resolution: str = "640x480",
-        fps: float = 25.0,
-        compression: int = 25,
-        clock=time.time,
-        verify: bool | str = True,
-    ):
-        super().__init__(name, base_url, user, password, timeout=timeout, clock=clock, verify=verify)
-        self.led_port = led_port
-        self.resolution = resolution
-        self.fps = fps
-        self.compression = compression
-
     settings = AxisSettings
 
-    @classmethod
-    def from_config(cls, cfg: CameraConfig, clock=time.time) -> AxisCamera:
-        s = cls.settings.from_entry(cfg)
-        return cls(
-            cfg.name,
-            cfg.base_url,
-            s.user,
-            cfg.password(),
-            timeout=s.timeout_s,
-            led_port=s.led_port,
-            resolution=cfg.resolution_str,
-            fps=s.fps,
-            compression=s.compression,
-            clock=clock,
-            verify=s.ca_cert or True,
-        )
-
-    def __repr__(self) -> str:
-        return f"AxisCamera({self.name!r}, {self.base_url!r}, user={self.user!r})"
-
-    # -- frames (the stream: MultipartStream) ------------------------------------------
+    # -- frames (the stream: HttpCamera's) ------------------------------------------
     def snapshot(self, compression: int | None = None) -> Frame:
         """One JPEG from ``jpg/image.cgi``, with its camera time and host receive time.
 

@@ -12,11 +12,13 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
+from typing import Any, Self
 
 import urllib3
 
 from vts_hw.camera import TORN, Frame, StreamGap
 from vts_hw.camera_stream import FrameStream
+from vts_hw.drivers.axis_client import AxisClient
 from vts_hw.drivers.axis_errors import BadReply, CameraUnreachable
 from vts_hw.recording.mjpeg import MultipartParser, boundary_from_content_type
 
@@ -132,7 +134,7 @@ class MultipartConnection:
 
 class MultipartStream:
     """The streaming half of the :class:`~vts_hw.camera.Frames` role of an HTTP camera
-    (mixed into an :class:`~vts_hw.drivers.axis_client.AxisClient`): ``GET stream_path`` as one
+    (mixed into an :class:`~vts_hw.drivers.axis_client.AxisClient`: :class:`HttpCamera`): ``GET stream_path`` as one
     connection, and the reconnecting stream over it; each JPEG is made a Frame by the kind's
     ``make_frame`` (timed by its Axis stamp, or by its receipt)."""
 
@@ -168,8 +170,59 @@ class MultipartStream:
         return FrameStream(self, **kwargs)
 
 
+class HttpCamera(MultipartStream, AxisClient):
+    """What every HTTP camera kind is built on (the ``axis`` kind and the ``mjpeg`` kind): the
+    client, its image settings, the stream, and ``from_config`` from its kind's ``settings``."""
+
+    settings: Any  # the kind's vts_hw.camera.kind_settings model
+
+    def __init__(
+        self,
+        name: str,
+        base_url: str,
+        user: str | None = "root",
+        password: str | None = None,
+        *,
+        timeout: float = 5.0,
+        led_port: int = 1,
+        resolution: str = "640x480",
+        fps: float = 25.0,
+        compression: int = 25,
+        clock=time.time,
+        verify: bool | str = True,
+    ):
+        super().__init__(name, base_url, user, password, timeout=timeout, clock=clock, verify=verify)
+        self.led_port = led_port  # the I/O port of its LED, for a kind that has one (AxisIOPort)
+        self.resolution = resolution
+        self.fps = fps
+        self.compression = compression
+
+    @classmethod
+    def from_config(cls, cfg, clock=time.time, *, checked=None, **extra) -> Self:
+        """The camera of a rig.yaml entry, checked by ``cls.settings`` (or already: ``checked``),
+        its password from the environment variable the entry names; ``extra``: the kind's own arguments."""
+        s = checked if checked is not None else cls.settings.from_entry(cfg)
+        return cls(
+            cfg.name,
+            cfg.base_url,
+            s.user,
+            cfg.password(),
+            timeout=s.timeout_s,
+            led_port=s.led_port,
+            resolution=cfg.resolution_str,
+            fps=s.fps,
+            compression=s.compression,
+            clock=clock,
+            verify=s.ca_cert or True,
+            **extra,
+        )
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.name!r}, {self.base_url!r}, user={self.user!r})"
+
+
 def num(x: float) -> str:
     return str(int(x)) if float(x).is_integer() else f"{x:g}"
 
 
-__all__ = ["FrameStream", "MultipartConnection", "MultipartStream", "NotAStream", "StreamGap", "num"]
+__all__ = ["FrameStream", "HttpCamera", "MultipartConnection", "MultipartStream", "NotAStream", "StreamGap", "num"]

@@ -30,10 +30,9 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from vts_hw.camera import ClockOffset, Frame, check_whole, kind_settings
 from vts_hw.drivers.axis import HTTP_KEYS
-from vts_hw.drivers.axis_client import AxisClient
 from vts_hw.drivers.axis_errors import BadReply
 from vts_hw.drivers.axis_io import AxisIOPort
-from vts_hw.drivers.axis_stream import MultipartStream
+from vts_hw.drivers.axis_stream import HttpCamera
 
 
 class MjpegOptions(BaseModel):
@@ -69,59 +68,25 @@ def receipt_frame(seq: int, jpeg: bytes, host_time: float, problems=()) -> Frame
     return Frame(seq, jpeg, None, host_time, tuple(probs), time_source="receipt")
 
 
-class MjpegCamera(AxisClient, MultipartStream):
+class MjpegCamera(HttpCamera):
     """An MJPEG camera over HTTP, timed by receipt: frames, device information, the clock."""
 
     settings = MjpegSettings
 
-    def __init__(
-        self,
-        name: str,
-        base_url: str,
-        user: str | None = "root",
-        password: str | None = None,
-        *,
-        timeout: float = 5.0,
-        led_port: int = 1,
-        resolution: str = "640x480",
-        fps: float = 25.0,
-        compression: int = 25,
-        clock=time.time,
-        verify: bool | str = True,
-        options: MjpegOptions | None = None,
-    ):
-        super().__init__(name, base_url, user, password, timeout=timeout, clock=clock, verify=verify)
-        self.led_port = led_port
-        self.resolution = resolution
-        self.fps = fps
-        self.compression = compression
+    def __init__(self, *args, options: MjpegOptions | None = None, **kwargs):
+        """:class:`~vts_hw.drivers.axis_stream.HttpCamera`'s arguments, and the kind's ``options``."""
+        super().__init__(*args, **kwargs)
         self.options = options or MjpegOptions()
         self.stream_path = self.options.stream_path
         self._worst_rtt = 0.0
 
     @classmethod
-    def from_config(cls, cfg, clock=time.time) -> MjpegCamera:
+    def from_config(cls, cfg, clock=time.time, **extra) -> MjpegCamera:
         """The camera of an entry: :class:`MjpegLedCamera` when its LED hangs on an I/O port."""
-        s = cls.settings.from_entry(cfg)
-        opts = MjpegOptions.model_validate(cfg.options)
+        s = cls.settings.from_entry(cfg)  # checked once: the options are its fields
+        opts = MjpegOptions.model_construct(**{k: getattr(s, k) for k in MjpegOptions.model_fields})
         kind = MjpegLedCamera if opts.led == "vapix" else MjpegCamera
-        return kind(
-            cfg.name,
-            cfg.base_url,
-            s.user,
-            cfg.password(),
-            timeout=s.timeout_s,
-            led_port=s.led_port,
-            resolution=cfg.resolution_str,
-            fps=s.fps,
-            compression=s.compression,
-            clock=clock,
-            verify=s.ca_cert or True,
-            options=opts,
-        )
-
-    def __repr__(self) -> str:
-        return f"{type(self).__name__}({self.name!r}, {self.base_url!r}, user={self.user!r})"
+        return super(MjpegCamera, kind).from_config(cfg, clock, checked=s, options=opts, **extra)
 
     def make_frame(self, seq: int, jpeg: bytes, host_time: float, problems=()) -> Frame:
         return receipt_frame(seq, jpeg, host_time, problems)
