@@ -7,9 +7,13 @@ from typing import TYPE_CHECKING, cast
 
 import click
 
+from vts_hw.camera import CameraError, Parameters
 from vts_hw.cli.camera import camera
 from vts_hw.cli.common import echo_json, json_option, with_rig
+from vts_hw.drivers.registry import kind_has
+from vts_hw.errors import UsageError
 from vts_hw.rig_file import check_rewritable
+from vts_hw.room import Room
 
 if TYPE_CHECKING:
     from vts_hw.drivers.axis import AxisCamera
@@ -36,11 +40,7 @@ def setup(names: tuple[str, ...], all_cameras: bool, dry_run: bool, as_json: boo
     4 a camera refused a value or could not be reached (one sentence each says which and
     why; the cameras that took everything are written).
     """
-    from vts_hw.camera import Parameters
     from vts_hw.drivers.axis_setup import wanted
-    from vts_hw.drivers.registry import kind_has
-    from vts_hw.errors import UsageError
-    from vts_hw.room import Room
 
     if all_cameras:
         names = tuple(c.name for c in rig.cameras)
@@ -98,7 +98,6 @@ def setup(names: tuple[str, ...], all_cameras: bool, dry_run: bool, as_json: boo
 
 def _set_all(room, cfgs, setup_cfg, quiet: bool):
     """Each camera of the room in turn: a camera that fails does not stop the others."""
-    from vts_hw.camera import CameraError
     from vts_hw.drivers.axis_setup import setup_camera
 
     results, failures = [], []
