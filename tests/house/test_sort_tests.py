@@ -210,3 +210,40 @@ def test_stopped_half_way_it_puts_the_checkout_back(checkout, monkeypatch, capsy
     assert "stopped half-way ([Errno 28] No space left on device" in said and "the checkout is back as it was" in said
     assert _git(checkout, "status", "--porcelain") == ""
     assert (checkout / "tests" / "test_alpha.py").read_text() == ALPHA and not (checkout / "tests" / "unit").exists()
+
+
+KILLED_AFTER_THE_MOVES = """import importlib.machinery, importlib.util, os, signal, sys
+from pathlib import Path
+path = sys.argv[1]
+loader = importlib.machinery.SourceFileLoader("sort_tests_copy", path)
+spec = importlib.util.spec_from_file_location("sort_tests_copy", path, loader=loader)
+script = importlib.util.module_from_spec(spec)
+sys.modules[spec.name] = script
+spec.loader.exec_module(script)
+Path.write_bytes = lambda self, *a, **k: os.kill(os.getpid(), signal.SIGKILL)  # the first rewrite
+script.main([])
+"""
+
+
+def test_killed_after_its_moves_a_second_run_finishes_the_job(checkout):
+    """kill -9 between the `git mv`s and the rewrites: the modules moved (staged) as committed.
+    Run again, it rewrites what the first run did not, the moved modules' own paths too."""
+    killed = subprocess.run(
+        [sys.executable, "-c", KILLED_AFTER_THE_MOVES, str(checkout / "tools" / "sort-tests")],
+        cwd=checkout,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert killed.returncode == -9, killed.stderr
+    tests = checkout / "tests"
+    assert (tests / "unit" / "test_alpha.py").read_text() == ALPHA  # moved, not rewritten
+    p = _sort(checkout)
+    assert p.returncode == 0, p.stderr
+    alpha = (tests / "unit" / "test_alpha.py").read_text()
+    assert "REPO = Path(__file__).resolve().parents[2]" in alpha  # one folder deeper
+    assert 'Path(__file__).parents[1] / "data"' in alpha
+    assert "Run `tests/unit/test_alpha.py`" in (checkout / "docs" / "faults.md").read_text()
+    again = _sort(checkout)
+    assert again.returncode == 0 and "nothing to do" in again.stdout, again.stderr
+    assert (tests / "unit" / "test_alpha.py").read_text() == alpha
