@@ -152,3 +152,14 @@ def test_the_commands_ask_the_role(recording, tmp_path, capsys):
     code, out, err = vts(capsys, "camera", "setup", "cam1", "--config", path)
     assert code == 2 and "camera cam1 is of kind replay, which has no parameters" in err, err
     assert "Traceback" not in err
+
+
+def test_led_command_names_no_port_on_a_camera_without_an_led(recording, tmp_path, capsys):
+    """`vts camera led` on an MJPEG camera without an LED (it holds a led_port all the same)
+    names no output port: nothing is sent to one."""
+    path = tmp_path / "rig.yaml"
+    path.write_text(yaml.safe_dump({"rig": "roles", "cameras": [_entries(recording)["mjpeg"]]}))
+    code, out, err = vts(capsys, "camera", "led", "cam2", "on", "--config", path)
+    assert code == 0, err
+    assert "(no port)" in out and "output port" not in out, out
+    assert "a no-op on this camera: it cannot switch an LED" in out

@@ -120,7 +120,8 @@ def led(name: str, state: str, ms: int | None, rig) -> None:
         raise click.UsageError("pulse needs a duration in milliseconds, e.g. `led cam1 pulse 300`")
     with _open(rig, name) as cam:
         got = pulse_led(cam, ms) if state == "pulse" and ms is not None else switch_led(cam, state == "on")
-    where = f"output port {cam.led_port}" if hasattr(cam, "led_port") else "no port"
+    port = getattr(cam, "led_port", None) if isinstance(cam, Illumination) else None  # none sent to without the role
+    where = f"output port {port}" if port is not None else "no port"
     noop = "" if isinstance(cam, Illumination) else " (a no-op on this camera: it cannot switch an LED)"
     if got.state is None:
         said = f"sent; whether it took is {got.words()}"
