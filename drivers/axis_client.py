@@ -223,30 +223,32 @@ class AxisClient:
 
 
 def _tls_reason(exc: Exception) -> str:
-    text = str(exc)
-    for key, words in (
+    return _first_said(
+        exc,
+        "TLS error",
         ("CERTIFICATE_VERIFY_FAILED", "the camera's certificate could not be verified"),
         ("WRONG_VERSION_NUMBER", "the camera does not speak HTTPS on that port"),
         ("Hostname mismatch", "the certificate is for another host"),
         ("doesn't match", "the certificate is for another host"),
-    ):
-        if key in text:
-            return words
-    return "TLS error"
+    )
 
 
 def _reason(exc: Exception) -> str:
-    text = str(exc)
-    for key, words in (
+    return _first_said(
+        exc,
+        type(exc).__name__,
         ("Connection refused", "connection refused"),
         ("Name or service not known", "unknown host"),
         ("timed out", "timed out"),
         ("reset by peer", "connection reset"),
         ("RemoteDisconnected", "connection closed by the camera"),
-    ):
-        if key in text:
-            return words
-    return type(exc).__name__
+    )
+
+
+def _first_said(exc: Exception, otherwise: str, *table: tuple[str, str]) -> str:
+    """The words of the first key of ``table`` in ``exc``'s text, else ``otherwise``."""
+    text = str(exc)
+    return next((words for key, words in table if key in text), otherwise)
 
 
 __all__ = ["AxisClient", "MAX_ANSWER"]
