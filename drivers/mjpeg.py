@@ -39,8 +39,14 @@ class MjpegOptions(BaseModel):
     """The ``mjpeg`` kind's own keys (``options:``)."""
 
     model_config = ConfigDict(extra="forbid")
-    stream_path: str = Field(default="/axis-cgi/mjpg/video.cgi", description="the path of its MJPEG stream")
-    snapshot_path: str = Field(default="/axis-cgi/jpg/image.cgi", description="the path of one JPEG")
+    # a path from / only: anything else joins onto the host (http://cam + ".evil.example/x" is another
+    # host, "@evil.example/x" another host with this one as its user name), and the credentials go there
+    stream_path: str = Field(
+        default="/axis-cgi/mjpg/video.cgi", pattern=r"^/", description="the path of its MJPEG stream (from /)"
+    )
+    snapshot_path: str = Field(
+        default="/axis-cgi/jpg/image.cgi", pattern=r"^/", description="the path of one JPEG (from /)"
+    )
     led: Literal["none", "vapix"] = Field(
         default="none",
         description="vapix: its LED ring hangs on a VAPIX I/O port (`led_port`); none: it has no LED to switch",

@@ -113,6 +113,14 @@ def test_each_kind_checks_its_own_settings(recording):
             {"name": "cam1", "kind": "mjpeg", "host": "h", "options": {"led": "usb"}},
             r"camera 'cam1' \(kind mjpeg\): options.led: Input should be 'none' or 'vapix'",
         ),
+        (  # a path not from / would join onto the host: http://h + .evil.example/x is another host
+            {"name": "cam1", "kind": "mjpeg", "host": "h", "options": {"stream_path": ".evil.example/x"}},
+            r"camera 'cam1' \(kind mjpeg\): options.stream_path: String should match pattern",
+        ),
+        (
+            {"name": "cam1", "kind": "mjpeg", "host": "h", "options": {"snapshot_path": "@evil.example/x.jpg"}},
+            r"camera 'cam1' \(kind mjpeg\): options.snapshot_path: String should match pattern",
+        ),
         (
             {"name": "cam1", "kind": "mjpeg", "host": "h", "options": {"host": "k"}},
             r"options.host: host is a key of the camera entry itself",
