@@ -8,7 +8,7 @@ from __future__ import annotations
 from vts_hw import catalog
 from vts_hw.figures import figure_png
 from vts_hw.results import Measure, overall_state
-from vts_hw.tolerance import State, merged_tolerances
+from vts_hw.tolerance import State
 
 #: the one procedure name of a calibration run, whichever command made it (the catalog's)
 PROCEDURE = catalog.CALIBRATION.name
@@ -21,7 +21,7 @@ def rms_measures(
 ) -> list[Measure]:
     """One ``calibration_rms_px`` measure per camera and one for the set (``SET_SUBJECT``);
     with ``converged`` given, a ``calibration_converged`` measure (1 or 0) too."""
-    tol = merged_tolerances(tolerances)
+    tol = catalog.windows(tolerances)
     w = tol["calibration_rms_px"]
     out = [Measure.judged(name, "calibration_rms_px", rms, "px", w) for name, rms in per_camera.items()]
     out.append(Measure.judged(SET_SUBJECT, "calibration_rms_px", overall, "px", w))
@@ -56,7 +56,7 @@ class CalibrationResult:
         """The RMS per camera and of the set as bars, with the tolerance and action levels."""
         from matplotlib.figure import Figure
 
-        w = merged_tolerances(self.tolerances)["calibration_rms_px"]
+        w = catalog.windows(self.tolerances)["calibration_rms_px"]
         ms = [m for m in self.measures if m.metric == "calibration_rms_px"]
         fig = Figure(figsize=(6, 3.2))
         ax = fig.add_subplot()

@@ -9,6 +9,7 @@ import json
 import time
 from pathlib import Path
 
+from vts_hw import catalog
 from vts_hw.camera import Parameters, RunningTime
 from vts_hw.camera_led import switch_led
 from vts_hw.drivers.axis_setup import setup_camera
@@ -31,7 +32,7 @@ from vts_hw.procedures.warmup_clock import ClockWatch, judge_clock
 from vts_hw.results import Measure
 from vts_hw.rig_file import set_calibration, set_locked_params
 from vts_hw.save_or_keep import save_or_keep
-from vts_hw.tolerance import State, merged_tolerances
+from vts_hw.tolerance import State
 
 OK, TOL, ACT = State.OK, State.TOLERANCE, State.ACTION
 
@@ -250,9 +251,10 @@ def warmup(ctx: Context) -> Outcome:
     whatever its rate); after one window (``samples`` x ``interval_s``, needed to measure a rate)
     for the others."""
     st = ctx.rig.warmup
-    window = merged_tolerances(ctx.rig.tolerances)["warmup_rate_px_min"]
+    windows = catalog.windows(ctx.rig.tolerances)
+    window = windows["warmup_rate_px_min"]
     limit = _upper(window, "warmup_rate_px_min")
-    cwin = merged_tolerances(ctx.rig.tolerances)["warmup_clock_change_ppm_min"]
+    cwin = windows["warmup_clock_change_ppm_min"]
     climit = _upper(cwin, "warmup_clock_change_ppm_min")
     warm = {c.name: float(c.warmup_min) for c in ctx.rig.cameras}
     with _cameras(ctx, ctx.rig.cameras, clock=ctx.clock) as cams:

@@ -49,7 +49,7 @@ from vts_hw.figures import figure_png
 from vts_hw.results import Measure, overall_state
 from vts_hw.spect import find_spheres, read_volume
 from vts_hw.spect.frame import volume_record
-from vts_hw.tolerance import State, merged_tolerances
+from vts_hw.tolerance import State
 from vts_hw.vision.body_finder import locate_body, locate_body_views
 from vts_hw.vision.camera_set import named_cameras
 from vts_hw.vision.registration import LooTre, RigidTransform, fre, kabsch, loo_tre
@@ -343,7 +343,7 @@ class SpectMapping:
     def measures(self) -> list[Measure]:
         """FRE and leave-one-out TRE RMS, judged by the tolerance table (subject: the phantom)."""
         fit = self.fitted()
-        tol = merged_tolerances(self.tolerances)
+        tol = catalog.windows(self.tolerances)
         return [
             Measure.judged("phantom", "mapping_fre_mm", fit.match.fre_mm, "mm", tol["mapping_fre_mm"]),
             Measure.judged("phantom", "mapping_tre_rms_mm", fit.tre.rms, "mm", tol["mapping_tre_rms_mm"]),
@@ -358,7 +358,7 @@ class SpectMapping:
         from matplotlib.figure import Figure
 
         fit = self.fitted()
-        tol = merged_tolerances(self.tolerances)
+        tol = catalog.windows(self.tolerances)
         fig = Figure(figsize=(7, 3.6))
         ax = fig.add_subplot()
         k = np.arange(len(fit.residuals_mm))

@@ -7,14 +7,15 @@ state is the worst of the three, as for every QA procedure, and the reason says 
 
 from __future__ import annotations
 
-from vts_hw.tolerance import State, Window, merged_tolerances, worst
+from vts_hw import catalog
+from vts_hw.tolerance import State, Window, worst
 
 METRICS = ("sync_max_abs_dt_ms", "sync_events_one_system", "sync_events_both")
 
 
 def sync_windows(overrides: dict | None = None) -> dict[str, Window]:
-    """The sync windows of the tolerance table (the rig's overrides on top of the defaults)."""
-    table = merged_tolerances(overrides)
+    """The sync windows of the catalog's (the rig's overrides on top of the defaults)."""
+    table = catalog.windows(overrides)
     return {m: table[m] for m in METRICS}
 
 
