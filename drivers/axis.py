@@ -28,26 +28,11 @@ from vts_hw.drivers.axis_errors import (
     TooManyViewers,
 )
 from vts_hw.drivers.axis_io import AxisIOPort
-from vts_hw.drivers.axis_stream import HttpCamera
+from vts_hw.drivers.axis_stream import HTTP_KEYS, HttpCamera
 from vts_hw.recording.axis_jpeg import inspect_jpeg
 
 if TYPE_CHECKING:
     pass
-
-#: the keys of a camera entry an HTTP camera (this kind, and ``mjpeg``) uses; the host must be given
-HTTP_KEYS = (
-    "host",
-    "port",
-    "scheme",
-    "user",
-    "password_env",
-    "ca_cert",
-    "timeout_s",
-    "led_port",
-    "resolution",
-    "fps",
-    "compression",
-)
 
 AxisSettings = kind_settings(
     "AxisSettings",

@@ -4,7 +4,9 @@
 return: the frames of one HTTP response, or :data:`~vts_hw.camera.TORN` for a frame that
 arrived cut short. Failures of the wire become camera errors that say what happened (``a
 stall (no data)``, ``a dropped connection``); the reconnecting, gap-counting stream over any
-camera is :class:`vts_hw.camera_stream.FrameStream` (re-exported here).
+camera is :class:`vts_hw.camera_stream.FrameStream` (re-exported here). :class:`HttpCamera` is
+what the HTTP camera kinds (``axis``, ``mjpeg``) are built on: the client, the image settings
+of :data:`HTTP_KEYS`, this stream, and ``from_config``.
 """
 
 from __future__ import annotations
@@ -170,9 +172,26 @@ class MultipartStream:
         return FrameStream(self, **kwargs)
 
 
+#: the keys of a camera entry an HTTP camera (the ``axis`` and ``mjpeg`` kinds) uses; the host must be given
+HTTP_KEYS = (
+    "host",
+    "port",
+    "scheme",
+    "user",
+    "password_env",
+    "ca_cert",
+    "timeout_s",
+    "led_port",
+    "resolution",
+    "fps",
+    "compression",
+)
+
+
 class HttpCamera(MultipartStream, AxisClient):
     """What every HTTP camera kind is built on (the ``axis`` kind and the ``mjpeg`` kind): the
-    client, its image settings, the stream, and ``from_config`` from its kind's ``settings``."""
+    client, its image settings, the stream, and ``from_config`` from its kind's ``settings``
+    (whose entry keys are :data:`HTTP_KEYS`)."""
 
     settings: Any  # the kind's vts_hw.camera.kind_settings model
 
@@ -225,4 +244,13 @@ def num(x: float) -> str:
     return str(int(x)) if float(x).is_integer() else f"{x:g}"
 
 
-__all__ = ["FrameStream", "HttpCamera", "MultipartConnection", "MultipartStream", "NotAStream", "StreamGap", "num"]
+__all__ = [
+    "FrameStream",
+    "HTTP_KEYS",
+    "HttpCamera",
+    "MultipartConnection",
+    "MultipartStream",
+    "NotAStream",
+    "StreamGap",
+    "num",
+]

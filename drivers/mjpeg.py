@@ -29,10 +29,9 @@ from typing import Literal
 from pydantic import BaseModel, ConfigDict, Field
 
 from vts_hw.camera import ClockOffset, Frame, check_whole, kind_settings
-from vts_hw.drivers.axis import HTTP_KEYS
 from vts_hw.drivers.axis_errors import BadReply
 from vts_hw.drivers.axis_io import AxisIOPort
-from vts_hw.drivers.axis_stream import HttpCamera
+from vts_hw.drivers.axis_stream import HTTP_KEYS, HttpCamera
 
 
 class MjpegOptions(BaseModel):
