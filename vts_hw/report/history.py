@@ -157,6 +157,7 @@ def collect_history(store, since: float | None, now: float, rig: str | None) -> 
         if m.run_id in ids:
             v = None if m.value is None or (isinstance(m.value, float) and math.isnan(m.value)) else float(m.value)
             meas[m.run_id][(m.metric, m.subject)] = (v, str(m.status))
+    defaults = catalog.windows()  # a trend metric's window where the store has none
     out = []
     for spec in all_specs:
         mine = [r for r in runs if r.procedure in spec.procedures]
@@ -178,7 +179,7 @@ def collect_history(store, since: float | None, now: float, rig: str | None) -> 
             )
         metric = spec.figures[spec.trend].metric
         got = store.tolerance(metric, at=now)
-        out.append(ProcedureHistory(spec, hist, got[1] if got is not None else catalog.windows().get(metric)))
+        out.append(ProcedureHistory(spec, hist, got[1] if got is not None else defaults.get(metric)))
     return out
 
 
