@@ -23,7 +23,7 @@ from vts_hw.vision.detect import detect_jpeg
 def camera_calibration_for(rig, calibration_path=None, what: str = "--from-cameras"):
     """The camera calibration given, else the rig config's (stereo or N cameras); ConfigError
     when there is none or the rig has fewer than two cameras (``what`` needs them)."""
-    path = calibration_path or rig.calibration.stereo
+    path = calibration_path or rig.calibration.cameras
     if path is None:
         raise ConfigError(
             "no camera calibration: give --calibration or set calibration.cameras in the "

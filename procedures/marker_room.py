@@ -24,18 +24,18 @@ def room_of_rig(rig) -> tuple[Room | None, str]:
     if rig is None:
         return None, f"no rig configuration: {NO_ROOM}"
     cal = rig.calibration
-    if cal.spect is None:
+    if cal.mapping is None:
         return None, f"no VTS -> SPECT mapping (calibration.mapping in rig.yaml): {NO_ROOM}"
-    if cal.stereo is None:
+    if cal.cameras is None:
         return None, f"no camera calibration (calibration.cameras in rig.yaml): {NO_ROOM}"
     try:
-        mapping = load_mapping(cal.spect)
+        mapping = load_mapping(cal.mapping)
     except (VtsError, OSError) as exc:
-        return None, f"the mapping {cal.spect} cannot be read ({exc}): {NO_ROOM}"
+        return None, f"the mapping {cal.mapping} cannot be read ({exc}): {NO_ROOM}"
     try:
-        cams = in_rig_names(load_cameras(cal.stereo), [c.name for c in rig.cameras])
+        cams = in_rig_names(load_cameras(cal.cameras), [c.name for c in rig.cameras])
     except (VtsError, OSError) as exc:
-        return None, f"the calibration {cal.stereo} cannot be read ({exc}): {NO_ROOM}"
+        return None, f"the calibration {cal.cameras} cannot be read ({exc}): {NO_ROOM}"
     try:
         locator = PhantomLocator(cams, phantom_template(mapping))
     except VtsError:  # a mapping made before it kept the spheres: still a room, no sphere named

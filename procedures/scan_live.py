@@ -90,8 +90,8 @@ class LiveMotion:
     ):
         self.rig = rig
         self.motion = rig.motion
-        self.calibration = calibration if calibration is not None else rig.calibration.stereo
-        self.mapping = mapping if mapping is not None else rig.calibration.spect
+        self.calibration = calibration if calibration is not None else rig.calibration.cameras
+        self.mapping = mapping if mapping is not None else rig.calibration.mapping
         self.settings = settings
         self.on_alert_text = on_alert_text or (lambda text: None)
         self.on_note = on_note or (lambda text: None)

@@ -56,7 +56,7 @@ class StepRun:
 def step_test_inputs(rig, calibration_path=None, mapping_path=None, volumes=None) -> StepInputs:
     """Calibration, mapping and SPECT volume folder; ConfigError (exit 2) naming what is missing."""
     calibration = camera_calibration_for(rig, calibration_path, "the step test")
-    map_path = mapping_path or rig.calibration.spect
+    map_path = mapping_path or rig.calibration.mapping
     if map_path is None:
         raise ConfigError(
             "no VTS -> SPECT mapping: give --mapping or set calibration.mapping in the rig "

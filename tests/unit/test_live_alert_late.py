@@ -24,7 +24,7 @@ class _Session:
 def _live():
     motion = SimpleNamespace(alert_mm=3.0, alert_deg=2.0, alert_command=None)
     said = []
-    rig = SimpleNamespace(motion=motion, calibration=SimpleNamespace(stereo=None, spect=None))
+    rig = SimpleNamespace(motion=motion, calibration=SimpleNamespace(cameras=None, mapping=None))
     lm = LiveMotion(rig, calibration=None, mapping=None, on_alert_text=said.append)
     return lm, said
 

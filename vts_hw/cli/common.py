@@ -274,8 +274,8 @@ def calibration_files(config_path, calibration, mapping):
     if calibration and mapping:
         return Path(calibration), Path(mapping), rig
     # (a relative path in rig.yaml is beside it: config.load_rig)
-    cal = Path(calibration) if calibration else (rig.calibration.stereo if rig else None)
-    mp = Path(mapping) if mapping else (rig.calibration.spect if rig else None)
+    cal = Path(calibration) if calibration else (rig.calibration.cameras if rig else None)
+    mp = Path(mapping) if mapping else (rig.calibration.mapping if rig else None)
     if cal is None:
         raise ConfigError(f"no camera calibration: give --calibration FILE or set calibration.cameras in rig.yaml{why}")
     return cal, mp, rig
