@@ -4,8 +4,12 @@ while `-m "not slow"` (which does reach it) still does (tests/conftest.py)."""
 
 from __future__ import annotations
 
+import ast
+from pathlib import Path
+
 import pytest
 
+import conftest
 from conftest import REAL_QATRACK_MARKS, _selects
 
 
@@ -28,3 +32,16 @@ from conftest import REAL_QATRACK_MARKS, _selects
 )
 def test_the_mark_expression_is_read_for_the_real_qatrack_module(expr, reaches):
     assert _selects(expr, REAL_QATRACK_MARKS) is reaches
+
+
+def test_the_marks_it_reads_are_the_real_qatrack_modules_own():
+    """REAL_QATRACK_MARKS is what tests/interop/test_qatrack_real.py is marked with (its
+    pytest.mark.* and its kind): a mark added there and not here (slow, say) would make
+    `-m slow` select the module without starting the server its tests wait for."""
+    module = Path(conftest.__file__).parent / "interop" / "test_qatrack_real.py"
+    marks = {
+        node.attr
+        for node in ast.walk(ast.parse(module.read_text()))
+        if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Attribute) and node.value.attr == "mark"
+    }
+    assert marks | {module.parent.name} == REAL_QATRACK_MARKS
