@@ -144,16 +144,20 @@ def test_the_modules_move_to_their_kind_and_every_reference_follows(checkout):
 def test_a_module_the_table_does_not_know_stops_it_before_anything_changes(checkout):
     (checkout / "tests" / "test_gamma.py").write_text("def test_gamma():\n    assert True\n")
     (checkout / "tests" / "test_delta.py").write_text("from pathlib import Path\nHERE = Path(__file__).name\n")
+    (checkout / "elsewhere").mkdir()
+    (checkout / "elsewhere" / "test_epsilon.py").write_text("def test_epsilon():\n    assert True\n")
+    (checkout / "tests" / "test_epsilon.py").symlink_to("../elsewhere/test_epsilon.py")
     (checkout / "tools" / "test-kinds.toml").write_text(
-        TABLE.replace('["test_beta.py"]', '["test_beta.py", "test_delta.py"]')
+        TABLE.replace('["test_beta.py"]', '["test_beta.py", "test_delta.py", "test_epsilon.py"]')
     )
-    _git(checkout, "add", "tests/test_delta.py")
+    _git(checkout, "add", "tests/test_delta.py", "elsewhere", "tests/test_epsilon.py")
     before = _git(checkout, "status", "--short")
     p = _sort(checkout)
     assert p.returncode == 2, p.stdout
     assert "nothing changed" in p.stderr
     assert "tests/test_gamma.py: not in tools/test-kinds.toml" in p.stderr  # named
     assert "tests/test_delta.py:2: its own __file__ used in a way this script does not know" in p.stderr
+    assert "tests/test_epsilon.py: a symbolic link (moved one folder deeper" in p.stderr  # (it would dangle)
     assert "Traceback" not in p.stderr
     assert _git(checkout, "status", "--short") == before
     assert (checkout / "tests" / "test_alpha.py").read_text() == ALPHA
