@@ -32,7 +32,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from vts_hw.drivers.registry import check_camera_kinds
 from vts_hw.errors import VtsError
 from vts_hw.procedures.scan import ScanSession, ScanStatus
 from vts_hw.procedures.scan_live import LiveMotion
@@ -163,11 +162,10 @@ class ScanRun:
         return not self.thread.is_alive()
 
     def _run(self) -> None:
-        attached, cameras, room = False, [], None
+        attached, room = False, None
         try:
-            check_camera_kinds(self.rig.cameras)
             room = self.open_room()
-            cameras = room.cameras
+            cameras = room.cameras  # every kind checked before any is opened
             self.live = LiveMotion(
                 self.rig,
                 settings=LiveSettings(reference_s=self.reference_s),
@@ -208,19 +206,15 @@ class ScanRun:
             if self.session is not None and self.session.recorder is not None:
                 self.manifest = self.session.stop("error")
                 self._finish()
-            else:
-                self._close(cameras)
         except Exception as exc:  # a bug: said on the page, what was recorded is closed and kept
             self.error = f"the scan stopped on an unexpected error: {type(exc).__name__}: {exc}"
             if self.session is not None and self.session.recorder is not None:
                 self.manifest = self.session.stop("error")
                 self._finish()
-            else:
-                self._close(cameras)
         finally:
             if room is not None:
                 try:
-                    room.close()  # what the session did not close already (a scan that did not start)
+                    room.close()  # what the session did not close already (a scan that did not start: all of it)
                 except Exception as exc:
                     self.notes.append(f"closing the scan's devices: {exc}")
             if attached:
@@ -266,15 +260,6 @@ class ScanRun:
         """The live tracker's names of the patient's markers on ``camera`` (a second's hold: names
         that stop coming, because the patient is not tracked, fade rather than stay)."""
         self.marker_names.set(camera, "band", points, source="the scan's live tracking", hold_s=1.0)
-
-    def _close(self, cameras) -> None:
-        """The scan did not start: its cameras closed (a session closes them itself once it checked)."""
-        for cam in cameras:
-            try:
-                cam.close()
-            except Exception:
-                pass
-        self._end_phase = "failed"
 
     def _finish(self) -> None:
         rec = self.session.recorder if self.session is not None else None
