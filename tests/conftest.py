@@ -150,13 +150,17 @@ def _may_select_real_qatrack(config) -> bool:
     return False
 
 
+def kinds(config) -> set[str]:
+    """The kinds of test, each a folder of tests/: the markers pyproject.toml describes as "kind:"."""
+    return {m.split(":")[0] for m in config.getini("markers") if m.split(":")[1:2] == [" kind"]}
+
+
 def pytest_itemcollected(item):
-    """Each test marked with its kind, the folder it is in (tests/unit/, tests/console/, ...: the
-    markers pyproject.toml describes as "kind:"), so that `pytest -m console` runs the console's
-    tests (tools/sort-tests put the modules there; decision 0105)."""
-    kinds = {m.split(":")[0] for m in item.config.getini("markers") if m.split(":")[1:2] == [" kind"]}
+    """Each test marked with its kind, the folder it is in (tests/unit/, tests/console/, ...), so
+    that `pytest -m console` runs the console's tests (tools/sort-tests put the modules there;
+    decision 0105; tests/house/test_kind_markers.py: no test module outside them)."""
     folder = item.path.parent
-    if folder.parent == REPO / "tests" and folder.name in kinds:
+    if folder.parent == REPO / "tests" and folder.name in kinds(item.config):
         item.add_marker(folder.name)
 
 

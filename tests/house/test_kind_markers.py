@@ -45,3 +45,19 @@ def test_the_marks_it_reads_are_the_real_qatrack_modules_own():
         if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Attribute) and node.value.attr == "mark"
     }
     assert marks | {module.parent.name} == REAL_QATRACK_MARKS
+
+
+def _loose(tests: Path, kinds: set[str]) -> list[str]:
+    """The test modules under ``tests`` outside a kind's folder (tests/KIND/test_x.py): they would
+    be marked with no kind, so that `pytest -m unit or integration or ...` leaves them out."""
+    return sorted(
+        str(p.relative_to(tests)) for p in tests.rglob("test_*.py") if p.relative_to(tests).parts[0] not in kinds
+    )
+
+
+def test_every_test_module_is_in_a_kinds_folder(tmp_path, pytestconfig):
+    assert _loose(Path(conftest.__file__).parent, conftest.kinds(pytestconfig)) == []
+    (tmp_path / "unit").mkdir()
+    (tmp_path / "unit" / "test_a.py").write_text("")
+    (tmp_path / "test_b.py").write_text("")  # (a module added where they all were before decision 0105)
+    assert _loose(tmp_path, conftest.kinds(pytestconfig)) == ["test_b.py"]
