@@ -22,6 +22,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from vts_hw import catalog
 from vts_hw.camera import CameraError, Parameters, Refused, RunningTime
 from vts_hw.catalog import qa_set_name
 from vts_hw.errors import UsageError, VtsError
@@ -30,7 +31,7 @@ from vts_hw.procedures.daily_plot import daily_png
 from vts_hw.procedures.drift import DriftAnalysis
 from vts_hw.procedures.marker_room import room_of_rig
 from vts_hw.results import Measure
-from vts_hw.tolerance import State, Window, merged_tolerances, worst
+from vts_hw.tolerance import State, Window, worst
 from vts_hw.vision.wall_baseline import NoBaseline
 
 EXIT_CODES = {State.OK: 0, State.TOLERANCE: 10, State.ACTION: 20}
@@ -175,7 +176,7 @@ class QARun:
         self.progress = progress or (lambda msg: None)
         #: hears of each step and drift frame as it happens (QAStep); must return at once
         self.on_step = on_step or (lambda step: None)
-        self.tolerances: dict[str, Window] = merged_tolerances(rig.tolerances)
+        self.tolerances: dict[str, Window] = catalog.windows(rig.tolerances)
 
     @property
     def needs_baselines(self) -> bool:

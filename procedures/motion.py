@@ -45,7 +45,7 @@ from vts_hw.procedures.sync_inputs import CLOCK_SLACK_S, load_calibration, load_
 from vts_hw.recording.folder import load_manifest
 from vts_hw.results import Measure, overall_state
 from vts_hw.spect.frame import frame_description
-from vts_hw.tolerance import State, merged_tolerances
+from vts_hw.tolerance import State
 from vts_hw.tracking.processing import process_recording
 
 __all__ = ["MotionAnalysis", "METRICS", "event_time_text"]
@@ -111,7 +111,7 @@ class MotionAnalysis:
         self.manifest: dict = {}
         self.live: LiveRecord | None = None  # the scan's live path read back (procedures/motion_live.py)
         self.live_agreement: Agreement | None = None  # its poses against the offline ones (vts_hw/motion/agreement.py)
-        self.tolerances = merged_tolerances(None)
+        self.tolerances = catalog.windows()
         self.analyzed_at: str | None = None
 
     # ------------------------------------------------------------------ load
@@ -164,7 +164,7 @@ class MotionAnalysis:
     # ------------------------------------------------------------------ analysis
     def analyze(self, tolerances: dict | None = None) -> MotionAnalysis:
         """``tolerances``: the rig's windows (rig.yaml ``tolerances:``) over the defaults."""
-        self.tolerances = merged_tolerances(tolerances)
+        self.tolerances = catalog.windows(tolerances)
         self._load_tracks()
         series = marker_series(self.tracks)
         span, missing = self._span(series)

@@ -25,12 +25,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from vts_hw import __version__
+from vts_hw import __version__, catalog
 from vts_hw.catalog import STEPS
 from vts_hw.errors import DataError
 from vts_hw.figures import figure_png
 from vts_hw.results import Measure
-from vts_hw.tolerance import State, Window, merged_tolerances, worst
+from vts_hw.tolerance import State, Window, worst
 from vts_hw.vision.registration import RigidTransform, kabsch
 
 AXES = ("x", "y", "z")
@@ -108,7 +108,7 @@ class StepAnalysis:
 
     # ------------------------------------------------------------------ analysis
     def analyze(self, tolerances: dict | None = None) -> StepAnalysis:
-        tol: dict[str, Window] = merged_tolerances(tolerances)
+        tol: dict[str, Window] = catalog.windows(tolerances)
         v = self.vts.reshape(-1, 3)
         s = self.spect.reshape(-1, 3)
         self.regressions = {}

@@ -166,10 +166,11 @@ DEFAULT_TOLERANCES: dict[str, Window] = {
 }
 
 
-def merged_tolerances(overrides: dict | None, defaults: dict[str, Window] | None = None) -> dict[str, Window]:
-    """Defaults (``DEFAULT_TOLERANCES`` unless given; the catalog's ``windows()`` gives them with
-    its entries' own), with the rig config's windows (objects with the same fields) on top."""
-    out = dict(DEFAULT_TOLERANCES if defaults is None else defaults)
+def merged_tolerances(overrides: dict | None, defaults: dict[str, Window]) -> dict[str, Window]:
+    """``defaults`` with the rig config's windows (objects with the same fields) on top. Readers
+    ask ``vts_hw.catalog.windows(overrides)``, whose defaults are this table's and the catalog
+    entries' own (decision 0101)."""
+    out = dict(defaults)
     for metric, w in (overrides or {}).items():
         if isinstance(w, Window):
             out[metric] = w

@@ -4,6 +4,9 @@ pushed is its module, one catalog entry and its command (tests/house/test_checkl
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import pytest
 
 from vts_hw import catalog
@@ -112,6 +115,21 @@ def test_an_entrys_own_windows_are_every_readers_defaults_and_a_second_one_is_re
     monkeypatch.setattr(catalog, "PROCEDURES", (*catalog.PROCEDURES, again))
     with pytest.raises(ValueError, match="gives 'steps_r2' a second default window"):
         catalog.windows()
+
+
+def test_every_reader_of_default_windows_asks_the_catalog():
+    """``catalog.windows()`` is the one answer to "which windows judge this" (decision 0101): no
+    module of the product reads the tolerance table or merges the rig's windows on it itself, so
+    that a window a catalog entry brings is judged by every procedure and report alike."""
+    root = Path(__file__).resolve().parents[2]
+    own = {root / "vts_hw" / "tolerance.py", root / "vts_hw" / "catalog.py"}
+    readers = sorted(
+        str(f.relative_to(root))
+        for folder in ("vts_hw", "procedures", "drivers", "sim_devices")
+        for f in (root / folder).rglob("*.py")
+        if f not in own and re.search(r"\bDEFAULT_TOLERANCES\b|\bmerged_tolerances\b", f.read_text(encoding="utf-8"))
+    )
+    assert readers == []
 
 
 # A new procedure that is stored, reported, listed and pushed with its module, one catalog entry
