@@ -9,6 +9,7 @@ the CLI; rig.yaml's renamed calibration keys (old names still read, both at once
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 import pytest
@@ -64,8 +65,6 @@ def env(monkeypatch):
 def _wait_closed(cam, limit_s: float = 20.0) -> int:
     """The simulated camera's open connections once the client's are gone (the server notices a
     closed socket on its own thread: waited for, not timed)."""
-    import time
-
     end = time.monotonic() + limit_s
     while cam.counter("connections") and time.monotonic() < end:
         time.sleep(0.02)

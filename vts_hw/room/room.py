@@ -117,10 +117,6 @@ class Room:
         check_camera_kinds(self.rig.cameras)
         return [self.camera(c.name) for c in self.rig.cameras]
 
-    def opened_cameras(self) -> list[Camera]:
-        """The cameras opened so far (none is opened by asking)."""
-        return list(self._cameras.values())
-
     @property
     def trigger(self) -> TriggerGenerator:
         """The trigger generator of rig.yaml's ``trigger:`` (ConfigError when it is ``none``)."""
