@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vts_hw.camera import Illumination
+from vts_hw.camera_led import light
 from vts_hw.procedures.spect_mapping import SpectMapping
 from vts_hw.procedures.steps import LED_SETTLE_S, SNAPSHOT_COMPRESSION, StepSession, average_centroids, step_plan
 from vts_hw.procedures.steps_analysis import StepAnalysis, six_dof
@@ -131,9 +131,7 @@ def run_sim_steps(
         with Room(cfg, clock=clock) as room:  # its cameras closed with it
             cams = [room.camera(c.name) for c in cfg.cameras[:2]]
             for cam in cams:
-                if not isinstance(cam, Illumination):  # a simulated rig's cameras are Axis cameras, with their LED
-                    raise RuntimeError(f"camera {cam.name}: no LED to switch on for the mapping")
-                cam.led_on()
+                light(cam)  # a simulated rig's cameras are Axis cameras, with their LED
             time.sleep(LED_SETTLE_S)
             say("VTS -> SPECT mapping from the phantom at its placement")
             pts = [
