@@ -11,9 +11,12 @@ from __future__ import annotations
 
 import contextlib
 import io
+import logging
 import os
 import subprocess
 import sys
+import threading
+import warnings
 
 from vts_hw.cli import main
 
@@ -29,6 +32,16 @@ def vts(capsys, *args) -> tuple[int, str, str]:
     return code, got.out, got.err
 
 
+def _replace_environ(env: dict[str, str]) -> None:
+    """os.environ made ``env`` key by key: never empty on the way (a thread of the test, a
+    simulated device's, may read it meanwhile), unlike a clear() and an update()."""
+    for key in [k for k in os.environ if k not in env]:
+        os.environ.pop(key, None)
+    for key, value in env.items():
+        if os.environ.get(key) != value:
+            os.environ[key] = value
+
+
 @contextlib.contextmanager
 def _environment(env: dict | None, cwd=None):
     """os.environ as ``env`` (the whole of it, as subprocess's env= gives a child) and the
@@ -36,15 +49,46 @@ def _environment(env: dict | None, cwd=None):
     saved, here = dict(os.environ), os.getcwd()
     try:
         if env is not None:
-            os.environ.clear()
-            os.environ.update(env)
+            _replace_environ(env)
         if cwd is not None:
             os.chdir(cwd)
         yield
     finally:
         os.chdir(here)
-        os.environ.clear()
-        os.environ.update(saved)
+        _replace_environ(saved)
+
+
+def _show_on_stderr(message, category, filename, lineno, file=None, line=None) -> None:
+    sys.stderr.write(warnings.formatwarning(message, category, filename, lineno, line))
+
+
+@contextlib.contextmanager
+def _as_a_process():
+    """The log, Python's warnings and a thread's uncaught exception on the command's stderr, as
+    in a process of its own: the CLI's logging.basicConfig adds no handler while pytest's are on
+    the root logger, and pytest records the warnings and the threads' exceptions, so none would
+    reach stderr (a test's ``stderr == ""`` or ``"Traceback" not in stderr`` could not fail on
+    them). The root logger, the warnings and the hooks as they were afterwards."""
+    root = logging.getLogger()
+    handlers, level = root.handlers[:], root.level
+    hooks = threading.excepthook, sys.unraisablehook
+    root.handlers = []
+    root.setLevel(logging.WARNING)  # (a fresh process's)
+    threading.excepthook, sys.unraisablehook = threading.__excepthook__, sys.__unraisablehook__
+    try:
+        with warnings.catch_warnings():
+            warnings.resetwarnings()  # then a fresh interpreter's filters (no -W, no -X dev)
+            for category in (ResourceWarning, ImportWarning, PendingDeprecationWarning, DeprecationWarning):
+                warnings.simplefilter("ignore", category)
+            warnings.filterwarnings("default", category=DeprecationWarning, module="__main__")
+            warnings.showwarning = _show_on_stderr  # (restored by catch_warnings)
+            yield
+    finally:
+        for handler in root.handlers:  # (the one basicConfig added, on the command's stderr)
+            handler.close()
+        root.handlers = handlers
+        root.setLevel(level)
+        threading.excepthook, sys.unraisablehook = hooks
 
 
 @contextlib.contextmanager
@@ -69,13 +113,21 @@ def _text(stream: io.TextIOWrapper) -> str:
 
 def run(*args, env: dict | None = None, cwd=None, input: str | None = None) -> subprocess.CompletedProcess:
     """`vts ARGS` in this process with ``env`` and ``cwd`` as a child would have them and
-    ``input`` as what it reads from its standard input (none: an empty one): a CompletedProcess with its returncode, stdout and stderr (text), as subprocess.run's
-    capture_output=True, text=True gives. An exception main() does not turn into an exit is
-    raised here (in a subprocess it would be a traceback on stderr, which the tests refuse)."""
+    ``input`` as what it reads from its standard input (none: an empty one): a CompletedProcess
+    with its returncode, stdout and stderr (text), as subprocess.run's capture_output=True,
+    text=True gives; what the command logs and the warnings a process shows are on its stderr.
+    An exception main() does not turn into an exit is raised here (in a subprocess it would be
+    a traceback on stderr, which the tests refuse)."""
     argv = [str(a) for a in args]
     out, err = _stream(), _stream()
     stdin = io.TextIOWrapper(io.BytesIO((input or "").encode()), encoding="utf-8")
-    with _environment(env, cwd), _stdin(stdin), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+    with (
+        _environment(env, cwd),
+        _stdin(stdin),
+        contextlib.redirect_stdout(out),
+        contextlib.redirect_stderr(err),
+        _as_a_process(),
+    ):
         try:
             main(argv)
             code = 0
