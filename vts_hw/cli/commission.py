@@ -194,7 +194,7 @@ def commission(
     --resume (or --from STEP). Each step is recorded as it starts: a commissioning killed in
     a step is found by the next start and said; the newest attempt of each step decides.
     """
-    from vts_hw.cli.common import open_store
+    from vts_hw.cli.common import store_target
     from vts_hw.config import load_rig
     from vts_hw.procedures import commission as proc
     from vts_hw.procedures.commission_sequence import failure_reason, run_sequence  # the steps: numpy, scipy, cv2
@@ -236,7 +236,8 @@ def commission(
         room_clear=room_clear,
     )
     say = lambda m: click.echo(m, err=True)  # noqa: E731
-    with open_store(rig) as store, Room(rig) as room:  # the room's devices closed with it, however it ends
+    with Room(rig, store=store_target(rig)) as room:  # its store and devices closed with it, however it ends
+        store = room.store  # opened first, closed last (after the cameras and the trigger)
         state = load_state(store, rig.rig)
         for s in state.unfinished():  # killed, interrupted or failed in it: the next start says so
             say(f"commissioning {state.cid}: its {s.label} step of {_when(s.started)} did not finish ({s.why()})")
