@@ -90,11 +90,11 @@ def run_demo(
         rig.env(),
     ):
         base = rig.config().model_dump(mode="json", exclude_none=True)
-        base["results"] = {"url": f"sqlite:///{db.resolve()}"}
+        base["store"] = {"url": f"sqlite:///{db.resolve()}"}
         base["rig"] = "sim-demo"
         cfg = parse_rig(base, "demo rig")
         scene = rig.scene
-        with ResultsStore(cfg.results.url) as store:
+        with ResultsStore(cfg.store.url) as store:
             # day 0: the baseline
             t_base = clock.now()
             baselines = []
