@@ -16,11 +16,14 @@ import sys
 import threading
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
 from store_kit import _check_file, _is_pg, _raw, _sql
 from vts_hw.store import SCHEMA_VERSION, ResultsStore, RunHandle, default_url
+from vts_hw.store.errors import StoreError
+from vts_hw.store.store import _new_id
 from vts_hw.tolerance import State, Window
 
 DRIFT = Window.symmetric(1.0, 2.0, "px")  # |x| <= 1 OK, <= 2 TOLERANCE, else ACTION
@@ -513,3 +516,12 @@ def test_a_plain_path_is_a_sqlite_file(tmp_path, monkeypatch):
     store.close()
     with pytest.raises(RuntimeError, match="closed"):
         store.runs()
+
+
+def test_a_new_row_without_its_id_is_a_store_error():
+    """An insert whose primary key SQLAlchemy does not give back (no row, or None in it: a key
+    the database made without returning it) is one StoreError, not a TypeError from int(None)."""
+    assert _new_id(SimpleNamespace(inserted_primary_key=(7,))) == 7
+    for key in (None, (None,)):
+        with pytest.raises(StoreError, match="gave no id for the row just added"):
+            _new_id(SimpleNamespace(inserted_primary_key=key))

@@ -78,9 +78,10 @@ def _reason(exc: BaseException) -> str:
 
 
 def _new_id(result: CursorResult) -> int:
-    """The id of the one row an insert() just added (SQLAlchemy gives None when there is none)."""
+    """The id of the one row an insert() just added (SQLAlchemy gives None, or None in the row
+    for a key the database made without returning it)."""
     key = result.inserted_primary_key
-    if key is None:
+    if key is None or key[0] is None:
         raise StoreError("the results store gave no id for the row just added")
     return int(key[0])
 
