@@ -8,10 +8,10 @@ the markers are then told apart by motion alone (docs/decisions/0086-marker-role
 from __future__ import annotations
 
 from vts_hw.errors import VtsError
-from vts_hw.procedures.sync_inputs import load_mapping
 from vts_hw.vision.camera_set import in_rig_names, load_cameras
 from vts_hw.vision.marker_roles import Room, TableSpace
 from vts_hw.vision.phantom_locator import PhantomLocator, phantom_template
+from vts_hw.vision.registration import read_mapping
 
 __all__ = ["room_of_rig", "NO_ROOM"]
 
@@ -29,7 +29,7 @@ def room_of_rig(rig) -> tuple[Room | None, str]:
     if cal.cameras is None:
         return None, f"no camera calibration (calibration.cameras in rig.yaml): {NO_ROOM}"
     try:
-        mapping = load_mapping(cal.mapping)
+        mapping = read_mapping(cal.mapping)
     except (VtsError, OSError) as exc:
         return None, f"the mapping {cal.mapping} cannot be read ({exc}): {NO_ROOM}"
     try:

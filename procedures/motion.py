@@ -41,12 +41,14 @@ from vts_hw.motion.exports import clock_text, coverage_json, export_motion, time
 from vts_hw.procedures.motion_live import LiveRecord, agreement, host_to_series, read_live
 from vts_hw.procedures.motion_plot import motion_figure
 from vts_hw.procedures.sync import SyncAnalysis
-from vts_hw.procedures.sync_inputs import CLOCK_SLACK_S, load_calibration, load_mapping
+from vts_hw.procedures.sync_inputs import CLOCK_SLACK_S
 from vts_hw.recording.folder import load_manifest
 from vts_hw.results import Measure, overall_state
 from vts_hw.spect.frame import frame_description
 from vts_hw.tolerance import State
 from vts_hw.tracking.processing import process_recording
+from vts_hw.vision.calibration_io import read_calibration
+from vts_hw.vision.registration import read_mapping
 
 __all__ = ["MotionAnalysis", "METRICS", "event_time_text"]
 
@@ -142,9 +144,9 @@ class MotionAnalysis:
             raise DataError(f"{self.session}: not a recording folder (no manifest.json with cameras)")
         self.tracks = process_recording(
             self.session,
-            load_calibration(self.calibration),
+            read_calibration(self.calibration),
             workers=self.workers,
-            mapping=load_mapping(self.mapping),
+            mapping=read_mapping(self.mapping),
             progress=self.progress,
         )
         self.problems += [f"processing: {w}" for w in self.tracks.meta.get("warnings", [])]

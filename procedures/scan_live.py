@@ -44,13 +44,14 @@ from collections.abc import Callable
 
 from vts_hw.errors import VtsError
 from vts_hw.lifeline import child_options
-from vts_hw.procedures.sync_inputs import load_calibration, load_mapping
 from vts_hw.tracking.live.estimator import LiveEstimate, LiveSettings
 from vts_hw.tracking.live.pose_log import MODEL_FILE, POSES_FILE, PoseLog, save_model
 from vts_hw.tracking.live.tracker import LiveTracker
 from vts_hw.tracking.live.watch import TRACKING, BlindAlert, Change, Episode
+from vts_hw.vision.calibration_io import read_calibration
 from vts_hw.vision.camera_set import covered_names, named_cameras
 from vts_hw.vision.marker_roles import TableSpace
+from vts_hw.vision.registration import read_mapping
 
 __all__ = ["LiveMotion"]
 
@@ -120,12 +121,12 @@ class LiveMotion:
         try:
             if self.calibration is None:
                 raise VtsError("no camera calibration (calibration.cameras in rig.yaml)")
-            cal = load_calibration(self.calibration)
+            cal = read_calibration(self.calibration)
             cams = named_cameras(cal, covered_names(cal, [c.name for c in self.rig.cameras]))
             cams = {n: cams[n] for n in names if n in cams}
             if len(cams) < 2:
                 raise VtsError(f"the calibration covers fewer than two of the cameras {', '.join(names)}")
-            mapping = load_mapping(self.mapping) if self.mapping is not None else None
+            mapping = read_mapping(self.mapping) if self.mapping is not None else None
         except (VtsError, OSError, ValueError) as exc:
             self.off_reason = str(exc)
             self.on_note(f"live tracking off: {exc}")

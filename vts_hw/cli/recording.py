@@ -142,12 +142,13 @@ def process(session, out, calibration, mapping, workers, as_json, config_path) -
     or written."""
     from vts_hw.cli.common import FramesProgress, calibration_files
     from vts_hw.files import ensure_dir
-    from vts_hw.procedures.sync_inputs import load_calibration, load_mapping
     from vts_hw.tracking.processing import process_recording
+    from vts_hw.vision.calibration_io import read_calibration
+    from vts_hw.vision.registration import read_mapping
 
     cal, mp, _ = calibration_files(config_path, calibration, mapping)
     tracks = process_recording(
-        session, load_calibration(cal), workers=workers, mapping=load_mapping(mp), progress=FramesProgress()
+        session, read_calibration(cal), workers=workers, mapping=read_mapping(mp), progress=FramesProgress()
     )
     folder = ensure_dir(out, "output folder")
     paths = tracks.save(folder / "trajectories.csv")
