@@ -126,8 +126,9 @@ class Room:
     def calibration(self):
         """The camera calibration rig.yaml's ``calibration.cameras`` names, read by the one loader
         (a CameraCalibration, or named cameras for a plain list); None when none is named."""
-        path = self.calibration_file
-        return None if path is None else self._part("calibration", lambda: _read_calibration()(path), closes=False)
+        if self.rig.calibration.cameras is None:
+            return None
+        return self._part("calibration", lambda: _read_calibration()(self.calibration_file), closes=False)
 
     @property
     def calibration_file(self) -> Path | None:
@@ -141,12 +142,10 @@ class Room:
         """The VTS -> SPECT mapping rig.yaml's ``calibration.mapping`` names (a RigidTransform);
         None when none is named."""
         path = self.rig.calibration.mapping
-        return (
-            None
-            if path is None
-            else self._part(
-                "mapping", lambda: _read_mapping()(self._named_file(path, "calibration.mapping")), closes=False
-            )
+        if path is None:
+            return None
+        return self._part(
+            "mapping", lambda: _read_mapping()(self._named_file(path, "calibration.mapping")), closes=False
         )
 
     @property
