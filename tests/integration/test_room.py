@@ -150,6 +150,14 @@ def test_a_calibration_path_that_names_no_file_is_one_sentence_exit_2(tmp_path, 
     with Room.open(rig) as room, pytest.raises(ConfigError) as err:
         room.calibration
     assert str(err.value) == f"{rig}: calibration.cameras names {tmp_path / 'gone.json'}, which does not exist"
+    (tmp_path / "a_folder.json").mkdir()
+    gone_map = _write(tmp_path, _rig(tmp_path, peers, calibration={"mapping": "a_folder.json"}))
+    with Room.open(gone_map) as room, pytest.raises(ConfigError) as map_err:
+        room.mapping
+    assert (
+        str(map_err.value) == f"{gone_map}: calibration.mapping names {tmp_path / 'a_folder.json'}, which is not a file"
+    )
+    rig = _write(tmp_path, _rig(tmp_path, peers, calibration={"cameras": "gone.json"}))
     (tmp_path / "v.npz").write_bytes(b"")
     code, out, se = vts(
         capsys,
