@@ -30,6 +30,7 @@ import yaml
 from starlette.testclient import TestClient
 
 from inprocess_cli import vts
+from vts_hw.cli import COMMANDS, cli
 from vts_hw.config import parse_rig
 from vts_hw.console.app import Console, create_app
 from vts_hw.qatrack import push_runs, select_runs
@@ -84,6 +85,7 @@ def apply(changes, monkeypatch, tmp_path) -> None:
             parent, _, leaf = c.module.rpartition(".")
             monkeypatch.setattr(importlib.import_module(parent), leaf, mod, raising=False)
             continue
+        _command_as_vts_loads_it(c.module)
         mod = importlib.import_module(c.module)
         for name, value in list(vars(mod).items()):  # what the lines add to a table or a group is undone
             if name.isupper() and isinstance(value, (dict, list)):
@@ -96,6 +98,17 @@ def apply(changes, monkeypatch, tmp_path) -> None:
         for name, value in ns.items():
             if name != "__builtins__" and (name not in before or before[name] is not value):
                 monkeypatch.setattr(mod, name, value, raising=False)
+
+
+def _command_as_vts_loads_it(module: str) -> None:
+    """A module of vts_hw.cli: its command looked up as `vts` does, every module of it imported
+    (`qa` is vts_hw.cli.qa and qa_steps). Imported alone, the group would be registered without
+    the others' subcommands, and `vts qa steps` gone for the rest of the process: the lookup
+    imports a command's modules only while the command is not registered yet."""
+    leaf = module.removeprefix("vts_hw.cli.")
+    for name, modules in COMMANDS.items():
+        if module.startswith("vts_hw.cli.") and leaf in modules:
+            cli.get_command(click.Context(cli), name)
 
 
 TEMPLATES = "vts_hw/console/templates/"
