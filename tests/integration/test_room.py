@@ -123,6 +123,20 @@ def test_an_error_closing_one_part_does_not_stop_the_others(tmp_path, peers, env
     assert any("cam2 would not let go" in n for n in err.value.__notes__)
 
 
+def test_close_closes_the_last_opened_first(tmp_path, peers, env):
+    """The store opened first (as vts commission and vts qa open it) is closed last, after the
+    devices whose results went into it; the trigger before the camera opened before it."""
+    closed: list[str] = []
+    room = Room.open(_write(tmp_path, _rig(tmp_path, peers)))
+    parts = {"store": room.store, "camera cam2": room.camera("cam2"), "trigger": room.trigger}
+    for what, part in parts.items():
+        part.close = lambda close=part.close, what=what: (closed.append(what), close())[1]
+    room.close()
+    assert closed == ["trigger", "camera cam2", "store"] and room.opened() == []
+    room.close()  # a second close closes nothing again
+    assert closed == ["trigger", "camera cam2", "store"]
+
+
 def test_the_calibration_and_the_mapping_through_the_one_loaders(tmp_path, peers):
     rows = [
         {
