@@ -22,12 +22,14 @@ from vts_hw.cli import main
 
 
 def vts(capsys, *args) -> tuple[int, str, str]:
-    """`vts ARGS` in this process: (exit code, stdout, stderr)."""
+    """`vts ARGS` in this process: (exit code, stdout, stderr); its log, warnings and threads'
+    uncaught exceptions on stderr as run()'s are."""
     try:
-        main([str(a) for a in args])
+        with _as_a_process():
+            main([str(a) for a in args])
         code = 0
     except SystemExit as exc:
-        code = exc.code or 0
+        code = _exit_code(exc)
     got = capsys.readouterr()
     return code, got.out, got.err
 
@@ -40,6 +42,14 @@ def _replace_environ(env: dict[str, str]) -> None:
     for key, value in env.items():
         if os.environ.get(key) != value:
             os.environ[key] = value
+
+
+def _exit_code(exc: SystemExit) -> int:
+    """The exit status a process ending with ``exc`` has; a message exit's text on stderr, as
+    Python prints it."""
+    if isinstance(exc.code, str):
+        print(exc.code, file=sys.stderr)
+    return exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 1
 
 
 @contextlib.contextmanager
@@ -132,7 +142,5 @@ def run(*args, env: dict | None = None, cwd=None, input: str | None = None) -> s
             main(argv)
             code = 0
         except SystemExit as exc:
-            code = exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 1
-            if isinstance(exc.code, str):
-                print(exc.code, file=err)  # as Python prints a message exit
+            code = _exit_code(exc)
     return subprocess.CompletedProcess(["vts", *argv], code, _text(out), _text(err))

@@ -43,3 +43,21 @@ def test_what_the_command_logs_and_warns_is_on_its_stderr(monkeypatch, tmp_path)
     assert "RuntimeWarning: a number overflowed" in again.stderr
     assert root.handlers == handlers and dict(os.environ) == env and os.getcwd() == here
     assert (threading.excepthook, sys.unraisablehook) == hooks
+
+
+def test_vts_read_with_capsys_has_them_too(monkeypatch, capsys):
+    monkeypatch.setattr(inprocess_cli, "main", _command)
+    code, out, err = inprocess_cli.vts(capsys, "qa", "daily")
+    assert code == 4 and out.startswith("ran qa daily;")
+    assert "WARNING vts_hw.somewhere: the rig answered late\n" in err and "RuntimeWarning: a number overflowed" in err
+    assert "Exception in thread a worker" in err and "ZeroDivisionError" in err
+
+
+def test_a_message_exit_is_status_1_and_its_text_on_stderr(monkeypatch, capsys):
+    def message_exit(argv):
+        sys.exit("vts: gave up")
+
+    monkeypatch.setattr(inprocess_cli, "main", message_exit)
+    r = inprocess_cli.run("qa")
+    assert (r.returncode, r.stderr) == (1, "vts: gave up\n")
+    assert inprocess_cli.vts(capsys, "qa") == (1, "", "vts: gave up\n")
