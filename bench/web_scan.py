@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """A web scanner written by others against the room console (issue 32 §6): Debian's ``wapiti``
 (``apt install wapiti``; bookworm main) against `vts console` on a simulated rig, with the secrets
-planted where a careless server would serve them (bench/badkit/web_peer.py's Room: the rig's
+planted where a careless server would serve them (bench/badkit/web_peer.py's PlantedRig: the rig's
 passwords and QATrack+ token in ``sim.env``, the users' hashes in ``results.sqlite``, marker files
 in the scans folder, a scan folder and the store's folder).
 
@@ -39,7 +39,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from badkit.web import build, login, page_token  # noqa: E402
-from badkit.web_peer import PASSWORDS, Console, Room, Who  # noqa: E402
+from badkit.web_peer import PASSWORDS, Console, PlantedRig, Who  # noqa: E402
 from badkit.web_surface import surface  # noqa: E402
 from vts_hw.sim_devices.tls import self_signed  # noqa: E402
 
@@ -204,7 +204,7 @@ def main() -> int:
         return 2
     work = Path(tempfile.mkdtemp(prefix="vts-web-scan-"))
     results = []
-    room = Room(work / "room")
+    room = PlantedRig(work / "room")
     try:
         cert, key = self_signed(work)  # the console over HTTPS, as on a LAN (its HSTS, its Secure cookie)
         for label, args in (

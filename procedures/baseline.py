@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from vts_hw.catalog import BASELINE
 from vts_hw.errors import VtsError
 from vts_hw.procedures.drift import SPAN_S, acquire_led_frames
-from vts_hw.procedures.marker_room import room_of_rig
+from vts_hw.procedures.marker_room import room_geometry
 from vts_hw.results import Measure
 from vts_hw.tolerance import State
 from vts_hw.vision.marker_roles import follow, roles_of_tracks
@@ -117,7 +117,7 @@ def take_baselines(
     None or no mapping: motion alone, said in ``room_why``) and those on the table left out. NoMarkers when a camera keeps no wall marker (then
     nothing is to be stored for any camera). ``on_frame``: see :func:`take_baseline`."""
     room, why = (
-        room_of_rig(rig)
+        room_geometry(rig)
         if len(cameras) > 1
         else (None, "one camera: where a marker lies is not known, judged by motion alone")
     )

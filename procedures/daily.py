@@ -29,7 +29,7 @@ from vts_hw.errors import UsageError, VtsError
 from vts_hw.files import filled_folder, write_atomic
 from vts_hw.procedures.daily_plot import daily_png
 from vts_hw.procedures.drift import DriftAnalysis
-from vts_hw.procedures.marker_room import room_of_rig
+from vts_hw.procedures.marker_room import room_geometry
 from vts_hw.results import Measure
 from vts_hw.tolerance import State, Window, worst
 from vts_hw.vision.wall_baseline import NoBaseline
@@ -407,7 +407,7 @@ def place_others(results: list[CameraResult], rig) -> str:
     drifts = {r.camera: (r, r.drift) for r in results if r.drift is not None and r.drift.analyzed}
     if not any(d.candidates for _, d in drifts.values()):
         return ""
-    room, why = room_of_rig(rig)
+    room, why = room_geometry(rig)
     if room is None:
         return why
     placed = room.place({n: d.candidates for n, (_, d) in drifts.items()})

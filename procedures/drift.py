@@ -177,7 +177,7 @@ class DriftAnalysis:
 
     def place(self, roles) -> DriftAnalysis:
         """Rule 2 for the markers that are not the baseline's (:attr:`candidates`, in order;
-        ``roles`` from :meth:`vts_hw.vision.marker_roles.Room.place`): one on the table (the
+        ``roles`` from :meth:`vts_hw.vision.marker_roles.RoomGeometry.place`): one on the table (the
         phantom, a patient holding still) is no stray (one that moved is already the patient's);
         the measures are made again."""
         self._need()

@@ -9,17 +9,17 @@ from __future__ import annotations
 
 from vts_hw.errors import VtsError
 from vts_hw.vision.camera_set import in_rig_names, load_cameras
-from vts_hw.vision.marker_roles import Room, TableSpace
+from vts_hw.vision.marker_roles import RoomGeometry, TableSpace
 from vts_hw.vision.phantom_locator import PhantomLocator, phantom_template
 from vts_hw.vision.registration import read_mapping
 
-__all__ = ["room_of_rig", "NO_ROOM"]
+__all__ = ["room_geometry", "NO_ROOM"]
 
 NO_ROOM = "judged by motion alone"
 
 
-def room_of_rig(rig) -> tuple[Room | None, str]:
-    """``(Room, "")`` for ``rig`` (a RigConfig), or ``(None, why)``: no mapping, no calibration,
+def room_geometry(rig) -> tuple[RoomGeometry | None, str]:
+    """``(RoomGeometry, "")`` for ``rig`` (a RigConfig), or ``(None, why)``: no mapping, no calibration,
     a file that cannot be read (said, never raised: the QA still runs, by motion alone)."""
     if rig is None:
         return None, f"no rig configuration: {NO_ROOM}"
@@ -40,4 +40,4 @@ def room_of_rig(rig) -> tuple[Room | None, str]:
         locator = PhantomLocator(cams, phantom_template(mapping))
     except VtsError:  # a mapping made before it kept the spheres: still a room, no sphere named
         locator = None
-    return Room(cams, mapping, TableSpace.from_settings(rig.aim, mapping), locator), ""
+    return RoomGeometry(cams, mapping, TableSpace.from_settings(rig.aim, mapping), locator), ""

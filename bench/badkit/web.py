@@ -28,7 +28,7 @@ simulated rig started once, with secrets planted where a careless server would s
 * ``stop``: Ctrl-C stops it (exit 0).
 
 Every case is judged by: an answer (else a hang), status < 500 and no traceback (in the answer or
-on the console's stderr), no secret's bytes (badkit/web_peer.Room._secrets), no redirect off the
+on the console's stderr), no secret's bytes (badkit/web_peer.PlantedRig._secrets), no redirect off the
 console, and, for a POST, nothing changed (each LED read from the camera, the aim checks, the scan
 and QA jobs, the scans folder, the store's runs, outbox and users, the sessions) and no entry in
 the action log but a refusal. A change or an acceptance by a request from elsewhere (host, origin,
@@ -54,7 +54,7 @@ from urllib.parse import quote
 
 if __name__ == "__main__":
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from badkit.web_peer import PASSWORDS, SCAN, SECRET_NAMES, Answer, Console, Room, Who  # noqa: E402
+from badkit.web_peer import PASSWORDS, SCAN, SECRET_NAMES, Answer, Console, PlantedRig, Who  # noqa: E402
 from badkit.web_surface import Endpoint, surface  # noqa: E402
 
 CLASS = "web"
@@ -347,7 +347,9 @@ def _slot_case(family, ep, who, where, slot, value, script=False, number=False) 
 class Judge:
     """Sends cases to one console and judges them (see the module docstring)."""
 
-    def __init__(self, room: Room, console: Console, who_all: list[Who], settle_as: Who, reader: Who | None = None):
+    def __init__(
+        self, room: PlantedRig, console: Console, who_all: list[Who], settle_as: Who, reader: Who | None = None
+    ):
         self.room, self.console, self.all, self.settle_as = room, console, who_all, settle_as
         #: who reads the state: a session no case sends with (a case may end the others')
         self.reader = reader or settle_as
@@ -669,7 +671,7 @@ def _fds(pid: int) -> int:
 
 def sweep(root: Path, full: bool = False, log=print) -> list[Verdict]:
     t0 = time.monotonic()
-    room = Room(root)
+    room = PlantedRig(root)
     log(f"-- the room set up in {time.monotonic() - t0:.1f} s")
     out: list[Verdict] = []
     eps = surface()
@@ -702,7 +704,7 @@ def sweep(root: Path, full: bool = False, log=print) -> list[Verdict]:
     return out
 
 
-def _one_console(room: Room, c: Console, eps: list[Endpoint], users: bool, full: bool, log) -> list[Verdict]:
+def _one_console(room: PlantedRig, c: Console, eps: list[Endpoint], users: bool, full: bool, log) -> list[Verdict]:
     if users:
         whos = [Who("anon")] + [Who(n, password=PASSWORDS[n][1]) for n in ("ann", "phil")]
         for w in whos[1:]:

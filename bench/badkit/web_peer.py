@@ -1,6 +1,6 @@
 """The console the class "web" of bench/bad_inputs.py talks to, and how it talks (issue 32 §5).
 
-:class:`Room` sets up once: a simulated rig (`vts sim up --detach --qatrack`: two cameras, a
+:class:`PlantedRig` sets up once: a simulated rig (`vts sim up --detach --qatrack`: two cameras, a
 QATrack+, their passwords and token in ``sim.env``, its store ``results.sqlite`` beside them),
 users in that store (``ann`` an operator, ``phil`` a physicist, ``carl`` for the login form's
 cases), a run with an artifact (so the History pages have ids), and secrets where a careless
@@ -60,7 +60,7 @@ class Answer:
         return self.headers.get(name.lower(), "")
 
 
-class Room:
+class PlantedRig:
     """The simulated rig, its store with users and a run, and the planted secrets (see the module)."""
 
     def __init__(self, root: Path):
@@ -203,7 +203,7 @@ class Who:
 class Console:
     """`vts console ARGS` in ``cwd``, a subprocess (see the module docstring)."""
 
-    def __init__(self, room: Room, args: list[str], cwd: Path, label: str):
+    def __init__(self, room: PlantedRig, args: list[str], cwd: Path, label: str):
         self.room, self.label = room, label
         self.scans_dir = Path(args[args.index("--scans-dir") + 1]) if "--scans-dir" in args else cwd
         self.log = room.root / f"console-{label}.stderr"
@@ -375,4 +375,4 @@ def _unchunk(body: bytes) -> bytes:
     return out
 
 
-__all__ = ["Room", "Console", "Who", "Answer", "SCAN", "SECRET_NAMES", "MARKER"]
+__all__ = ["PlantedRig", "Console", "Who", "Answer", "SCAN", "SECRET_NAMES", "MARKER"]

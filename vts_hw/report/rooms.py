@@ -67,7 +67,7 @@ class OpenItem:
 
 
 @dataclass
-class Room:
+class RoomStatus:
     rig: str
     drift: DriftReport
     last_daily: RunInfo | None  # the latest completed daily/drift run, any time
@@ -173,7 +173,7 @@ class RoomsReport:
     title: str
     since: float | None
     now: float
-    rooms: list[Room]
+    rooms: list[RoomStatus]
     software_version: str = __version__
     out: Path | None = None
 
@@ -301,7 +301,7 @@ def collect_rooms(
     for rig in rigs:
         runs = [r for r in all_runs if (r.rig or "") == rig]
         rooms.append(
-            Room(
+            RoomStatus(
                 rig=rig,
                 drift=collect(store, since=since, now=now, rig=rig),
                 last_daily=_latest(runs, DRIFT_PROCEDURES),
@@ -318,4 +318,4 @@ def collect_rooms(
     return RoomsReport("VTS rooms — department QA overview", since, now, rooms)
 
 
-__all__ = ["collect_rooms", "open_items", "RoomsReport", "Room", "OpenItem", "OPEN_RULE"]
+__all__ = ["collect_rooms", "open_items", "RoomsReport", "RoomStatus", "OpenItem", "OPEN_RULE"]

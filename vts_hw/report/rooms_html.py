@@ -11,7 +11,7 @@ from urllib.parse import quote
 from vts_hw.report.html import page
 from vts_hw.report.model import CameraDrift
 from vts_hw.report.plots import STATE_COLOURS
-from vts_hw.report.rooms import OPEN_RULE, Room, RoomsReport, days_since
+from vts_hw.report.rooms import OPEN_RULE, RoomsReport, RoomStatus, days_since
 from vts_hw.report.times import fmt_date, fmt_datetime
 
 EXTRA_CSS = """
@@ -92,7 +92,7 @@ def sparkline_svg(
     )
 
 
-def _cameras_cell(room: Room) -> str:
+def _cameras_cell(room: RoomStatus) -> str:
     rep = room.drift
     cams = [c for c in rep.cameras.values() if c.points]
     if not cams:
@@ -118,14 +118,14 @@ def _last_cell(run, what: str, now: float) -> str:
     )
 
 
-def _open_cell(room: Room) -> str:
+def _open_cell(room: RoomStatus) -> str:
     if not room.open_items:
         return '<td class="open muted" data-open="0">none</td>'
     items = "".join(f"<li>{escape(i.text())}</li>" for i in room.open_items)
     return f'<td class="open" data-open="{len(room.open_items)}"><ul>{items}</ul></td>'
 
 
-def _row(room: Room, now: float) -> str:
+def _row(room: RoomStatus, now: float) -> str:
     state = str(room.state) if room.state else "none"
     return (
         f'<tr class="room" data-rig="{escape(room.rig)}" data-state="{escape(state)}">'

@@ -17,7 +17,7 @@ The rules, in the order they are applied:
 Two entry points, one set of rules:
 
 * pixels per camera over a few frames: :func:`follow` (tracks from each frame's detections),
-  :func:`roles_of_tracks` (rule 1), :meth:`Room.place` (rule 2, across cameras);
+  :func:`roles_of_tracks` (rule 1), :meth:`RoomGeometry.place` (rule 2, across cameras);
 * 3D positions over time, for the live path and the offline motion analysis:
   :func:`roles_of_positions` (T x M x 3, the SPECT frame, or the VTS frame with the mapping):
   rules 1 and 2, and the patient's markers split into chest and abdomen along the table.
@@ -49,7 +49,7 @@ __all__ = [
     "Role",
     "Track",
     "TableSpace",
-    "Room",
+    "RoomGeometry",
     "follow",
     "motion_range",
     "roles_of_tracks",
@@ -151,7 +151,7 @@ def roles_by_reference(reference, pts, shift=(0.0, 0.0), gate: float = GATE_PX) 
 
 def roles_of_tracks(tracks: Sequence[Track], floor_px: float = MOVE_FLOOR_PX) -> list[Role | None]:
     """Rule 1 on one camera's tracks: a :class:`Role` for each that moved or was not seen in
-    every frame; None for a still one (rule 2, :meth:`Room.place`, says where it lies)."""
+    every frame; None for a still one (rule 2, :meth:`RoomGeometry.place`, says where it lies)."""
     out: list[Role | None] = []
     for t in tracks:
         if t.seen >= 2 and t.range_px > floor_px:
@@ -219,7 +219,7 @@ class TableSpace:
         return bore | table
 
 
-class Room:
+class RoomGeometry:
     """Rule 2: the calibrated ``cameras`` (``{name: camera}``, the VTS frame, mm), the VTS ->
     SPECT ``mapping`` (a RigidTransform), the :class:`TableSpace`, and optionally the phantom's
     ``locator`` (a :class:`~vts_hw.vision.phantom_locator.PhantomLocator`) to name its spheres."""

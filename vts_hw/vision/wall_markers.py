@@ -25,7 +25,7 @@ def frame_points(jpegs: list[bytes], settings: DetectorSettings | None = None) -
 
 def baseline_of_tracks(camera: str, tracks, taken: float, placed=None) -> Baseline:
     """The wall markers among one camera's ``tracks`` (marker_roles.follow): rule 1, then
-    ``placed`` (rule 2, a Role or None per track, :meth:`Room.place`'s order: the still ones)."""
+    ``placed`` (rule 2, a Role or None per track, :meth:`RoomGeometry.place`'s order: the still ones)."""
     roles = roles_of_tracks(tracks)
     still = [k for k, r in enumerate(roles) if r is None]
     for k, r in zip(still, placed if placed is not None else [None] * len(still)):
