@@ -20,11 +20,11 @@ from __future__ import annotations
 from vts_hw.camera import check_whole
 from vts_hw.errors import VtsError
 from vts_hw.procedures.drift import acquire_led_frames
-from vts_hw.procedures.sync_inputs import load_mapping
 from vts_hw.vision.aim import AimReport, assess, decode_grey
 from vts_hw.vision.aim_geometry import RoomView
 from vts_hw.vision.aim_settings import DEFAULT_AIM, AimSettings
 from vts_hw.vision.camera_set import in_rig_names, load_cameras
+from vts_hw.vision.registration import read_mapping
 
 __all__ = ["room_view", "check", "check_pictures", "aim_page", "aim_page_of", "acquire_pictures"]
 
@@ -35,21 +35,21 @@ def room_view(
     """``(view, "")`` for camera ``name`` of ``rig``, or ``(None, why)``."""
     settings = settings or rig.aim
     cal = rig.calibration
-    if cal.spect is None:
+    if cal.mapping is None:
         return None, "no mapping"
-    if cal.stereo is None:
+    if cal.cameras is None:
         return None, "no calibration (the mapping needs one)"
     try:
-        mapping = load_mapping(cal.spect)
+        mapping = read_mapping(cal.mapping)
     except (VtsError, OSError) as exc:
-        return None, f"the mapping {cal.spect} cannot be read ({exc})"
+        return None, f"the mapping {cal.mapping} cannot be read ({exc})"
     try:
-        cams = load_cameras(cal.stereo)
+        cams = load_cameras(cal.cameras)
     except (VtsError, OSError) as exc:
-        return None, f"the calibration {cal.stereo} cannot be read ({exc})"
+        return None, f"the calibration {cal.cameras} cannot be read ({exc})"
     cams = in_rig_names(cams, [c.name for c in rig.cameras])
     if name not in cams:
-        return None, f"camera {name} is not in the calibration {cal.stereo}"
+        return None, f"camera {name} is not in the calibration {cal.cameras}"
     return RoomView(cams[name], mapping, size, settings), ""
 
 

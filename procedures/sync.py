@@ -48,7 +48,7 @@ from vts_hw import catalog
 from vts_hw.errors import DataError
 from vts_hw.figures import figure_png
 from vts_hw.files import WriteFailed, ensure_dir, export_stopped
-from vts_hw.procedures.sync_inputs import CLOCK_SLACK_S, check_session, choose_listmode, load_calibration, load_mapping
+from vts_hw.procedures.sync_inputs import CLOCK_SLACK_S, check_session, choose_listmode
 from vts_hw.procedures.sync_plot import sync_figure
 from vts_hw.procedures.sync_verdict import sync_measures, sync_verdict, sync_windows
 from vts_hw.recording.trigger_wave import WaveInfo, wave_from_trigger_log
@@ -59,13 +59,13 @@ from vts_hw.timing.marker_steps import StepFit, find_steps, fit_step, match_even
 from vts_hw.tolerance import State
 from vts_hw.tracking.processing import process_recording
 from vts_hw.tracking.tracks import Tracks
+from vts_hw.vision.calibration_io import read_calibration
+from vts_hw.vision.registration import read_mapping
 
 __all__ = [
     "SyncAnalysis",
     "SyncEvent",
     "export_trajectories",
-    "load_calibration",
-    "load_mapping",
     "check_session",
     "choose_listmode",
 ]
@@ -219,8 +219,8 @@ class SyncAnalysis:
         self.problems = notes + list(gating.problems)
         if self.calibration is None:
             raise DataError(f"{self.session}: no stereo calibration given: the marker cannot be triangulated")
-        cams = load_calibration(self.calibration)
-        mapping = load_mapping(self.mapping)
+        cams = read_calibration(self.calibration)
+        mapping = read_mapping(self.mapping)
         self.calibration_info = {
             "stereo": str(self.calibration) if isinstance(self.calibration, (str, Path)) else "given",
             "spect": (
@@ -555,7 +555,7 @@ def export_trajectories(
     list-mode seconds since the acquisition start, from host time through ``gating``'s clock;
     ``x_spect_mm``.. through ``mapping`` (VTS → SPECT), or the tracks' own SPECT positions.
     DataError when neither gives SPECT positions."""
-    mapping = load_mapping(mapping)
+    mapping = read_mapping(mapping)
     if mapping is None and tracks.xyz_spect is None:
         raise DataError(
             "no VTS -> SPECT mapping: the trajectories cannot be put in the SPECT frame "

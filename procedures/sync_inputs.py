@@ -13,9 +13,6 @@ and *which* list-mode belongs to it.
   writer left a failure record for this scan beside them (docs/listmode-format.md, "Failure
   records"), why it was not recorded. Several → one sentence asking to name one. The reasons:
   docs/decisions/0025-which-listmode.md.
-* :func:`load_calibration`, :func:`load_mapping` — the camera calibration and VTS → SPECT
-  transform, as given or from their files: the core's one loaders
-  (vts_hw.vision.calibration_io.read_calibration, vts_hw.vision.registration.read_mapping).
 """
 
 from __future__ import annotations
@@ -31,8 +28,6 @@ from vts_hw.recording.folder import load_manifest, read_index
 from vts_hw.recording.trigger_wave import wave_from_trigger_log
 from vts_hw.spect.listmode import read_listmode_span
 from vts_hw.spect.listmode.failures import read_failure_records, utc_span
-from vts_hw.vision.calibration_io import read_calibration
-from vts_hw.vision.registration import read_mapping
 
 __all__ = [
     "CLOCK_SLACK_S",
@@ -40,8 +35,6 @@ __all__ = [
     "check_session",
     "session_span",
     "choose_listmode",
-    "load_calibration",
-    "load_mapping",
 ]
 
 # How far the SPECT's wall clock (the list-mode header's start_time) may be off the host's when
@@ -276,10 +269,3 @@ def _nothing_belongs(
         + "; ".join(c.text() for c in cands)
         + (slack if span is not None else "")
     )
-
-
-# ----------------------------------------------------------------------------- calibration
-# The sync check, the motion analysis and the live scan read their calibration and mapping
-# through the core's one loaders (issue 34 §1, decision 0099); the names stay here for them.
-load_calibration = read_calibration
-load_mapping = read_mapping

@@ -205,16 +205,6 @@ class CalibrationPaths(_Strict):
                 data = {k: v for k, v in data.items() if k not in (old, new)} | {new: value}
         return data
 
-    @property
-    def stereo(self) -> Path | None:
-        """The camera calibration by its old name (``rig.calibration.stereo``)."""
-        return self.cameras
-
-    @property
-    def spect(self) -> Path | None:
-        """The VTS -> SPECT mapping by its old name (``rig.calibration.spect``)."""
-        return self.mapping
-
 
 class StoreConfig(_Strict):
     """Where results go: ``store:`` in rig.yaml (``results:`` is its old name, still read)."""

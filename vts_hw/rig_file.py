@@ -186,12 +186,12 @@ def names_file(path: str | os.PathLike, entry, file: str | os.PathLike) -> bool:
 
 def set_calibration(path: str | os.PathLike, files: dict[str, str | os.PathLike]) -> Path | None:
     """Point rig.yaml's ``calibration:`` entries (``cameras``: the camera calibration; ``mapping``:
-    the VTS -> SPECT mapping; their old names ``stereo``, ``spect`` taken too) at ``files``, in place as :func:`set_locked_params` writes (comments
+    the VTS -> SPECT mapping; each written under the name the file already uses for it, its old name
+    ``stereo`` or ``spect`` in an older file) at ``files``, in place as :func:`set_locked_params` writes (comments
     kept, rig.yaml.bak, atomic, a file changed meanwhile refused). Returns the backup's path, or
     None when rig.yaml names those files already (nothing written)."""
     from ruamel.yaml.comments import CommentedMap
 
-    files = {OLD_CALIBRATION_KEYS.get(k, k): f for k, f in files.items()}
     unknown = sorted(set(files) - set(CALIBRATION_KEYS))
     if unknown:
         raise ValueError(f"no calibration entry {unknown[0]!r} (known: {', '.join(CALIBRATION_KEYS)})")

@@ -151,8 +151,8 @@ def test_not_confident_names_nothing_and_says_why(mapped, tmp_path):
         phantom_template(old_path)
 
     class Rig:  # what locator_for reads of a RigConfig
-        def __init__(self, stereo, spect):
-            self.calibration = type("C", (), {"stereo": stereo, "spect": spect})()
+        def __init__(self, cameras, mapping):
+            self.calibration = type("C", (), {"cameras": cameras, "mapping": mapping})()
             self.cameras = [type("K", (), {"name": n})() for n in ("cam1", "cam2")]
 
     assert locator_for(Rig(cameras, old_path))[1].startswith(f"the mapping {old_path} keeps no sphere centres")

@@ -139,7 +139,7 @@ def test_commissioning_stops_at_a_mis_aimed_camera_resumes_and_ends_with_the_rep
     assert "== discover and set up" not in se and "== aim and focus" in se  # resumed after the last good step
     assert [a[:10] for a in operator.asked] == ["[baseline]", "[V01] Rais", "[A01] Move", "[free] Tur"]
     cal = load_rig(rig_yaml).calibration  # what the step test, scans and `vts camera aim` now read
-    assert (cal.stereo, cal.spect) == (out / "calibration.json", out / "spect_mapping.json")
+    assert (cal.cameras, cal.mapping) == (out / "calibration.json", out / "spect_mapping.json")
     assert rig_yaml.read_text().startswith("# room 1")
 
     # 3. the scan with a source marker moved; then resume: sync check, baseline, the report

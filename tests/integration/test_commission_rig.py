@@ -1,5 +1,5 @@
 """`vts commission` points rig.yaml's `calibration:` at what it made (decision 0069): a calibration
-step that passed sets `calibration.stereo`, a mapping that passed `calibration.spect`, in place
+step that passed sets `calibration.cameras`, a mapping that passed `calibration.mapping`, in place
 (comments kept, rig.yaml.bak, atomic), so that `vts camera aim` and every later command use them;
 a step that did not pass changes nothing; rig.yaml that cannot be written is one sentence, the
 new file kept, the commissioning resumable. On the simulated rig, its cameras over HTTP."""
@@ -113,12 +113,12 @@ def test_a_commissioning_points_rig_yaml_at_its_calibration_and_mapping(room, tm
     assert f"rig.yaml now points at {cal} (calibration.cameras; the previous text is in {y}.bak)" in se
     assert f"rig.yaml now points at {mp} (calibration.mapping; the previous text is in {y}.bak)" in se
     now = load_rig(y).calibration
-    assert (now.stereo, now.spect) == (cal, mp) and cal.is_file() and mp.is_file()
+    assert (now.cameras, now.mapping) == (cal, mp) and cal.is_file() and mp.is_file()
     text = y.read_text()
     assert text.startswith(HEAD) and CAL_COMMENT in text  # the comments kept
     assert _without_paths(text) == _without_paths(before)  # and nothing else changed
     bak = Path(f"{y}.bak")
-    assert load_rig(bak).calibration.stereo == cal and load_rig(bak).calibration.spect == old_map
+    assert load_rig(bak).calibration.cameras == cal and load_rig(bak).calibration.mapping == old_map
     assert bak.read_text().startswith(HEAD)  # the text before the last write
 
     with ResultsStore(f"sqlite:///{tmp_path / 'r.sqlite'}") as store:
@@ -156,7 +156,7 @@ def test_a_mapping_in_action_leaves_the_spect_entry_as_it_was(room, tmp_path, ca
     assert (out / "spect_mapping.json").is_file()  # saved, as `vts calibrate spect` saves it
     assert y.read_text() == before and not Path(f"{y}.bak").exists()
     assert "now points at" not in se
-    assert load_rig(y).calibration.spect == old_map
+    assert load_rig(y).calibration.mapping == old_map
 
 
 def test_rig_yaml_on_a_read_only_folder_is_one_sentence_keeps_the_calibration_and_goes_on(
@@ -188,7 +188,7 @@ def test_rig_yaml_on_a_read_only_folder_is_one_sentence_keeps_the_calibration_an
     code, so, se = _commission(capsys, y, out, boards, phantom, "--from", "calibration")
     assert code == 2 and "== calibration" in se and f"rig.yaml now points at {cal}" in se, se
     now = load_rig(y).calibration
-    assert (now.stereo, now.spect) == (cal, out / "spect_mapping.json")
+    assert (now.cameras, now.mapping) == (cal, out / "spect_mapping.json")
     assert _without_paths(y.read_text()) == _without_paths(before) and y.read_text().startswith(HEAD)
 
 
@@ -202,7 +202,7 @@ def test_set_calibration_on_a_full_disk_or_a_file_changed_meanwhile_writes_nothi
         match=r"rig\.yaml\.bak: could not be written \(no space left on device\); "
         r".*rig\.yaml is unchanged",
     ):
-        set_calibration(y, {"stereo": tmp_path / "c.json"})
+        set_calibration(y, {"cameras": tmp_path / "c.json"})
     assert y.read_text().startswith(HEAD) and sorted(disk.files()) == ["rig.yaml"]
     disk.free_up()
 
@@ -216,9 +216,9 @@ def test_set_calibration_on_a_full_disk_or_a_file_changed_meanwhile_writes_nothi
 
     monkeypatch.setattr(rf, "_read_text", read)
     with pytest.raises(UsageError, match="was changed while its calibration paths were being set: it is left as it is"):
-        set_calibration(y, {"stereo": tmp_path / "c.json"})
+        set_calibration(y, {"cameras": tmp_path / "c.json"})
     assert "calibration" not in y.read_text() and sorted(disk.files()) == ["rig.yaml"]
     monkeypatch.undo()  # a relative file name: written as the absolute path (every reader's same file)
     monkeypatch.chdir(tmp_path)
-    set_calibration(y, {"spect": "m.json"})  # the old name taken; the new one written
+    set_calibration(y, {"mapping": "m.json"})
     assert load_rig(y).calibration.mapping == tmp_path / "m.json" and f"mapping: {tmp_path / 'm.json'}" in y.read_text()

@@ -195,10 +195,10 @@ def test_a_relative_calibration_path_is_the_file_beside_rig_yaml_from_any_folder
     p = _write(room, GOOD + f"calibration:\n  stereo: calib/cameras.json\n  spect: {absolute}\n")
     monkeypatch.chdir(elsewhere)
     rig = load_rig(p)
-    assert rig.calibration.stereo == room / "calib" / "cameras.json"
-    assert rig.calibration.spect == absolute
+    assert rig.calibration.cameras == room / "calib" / "cameras.json"
+    assert rig.calibration.mapping == absolute
     monkeypatch.chdir(tmp_path)  # rig.yaml named relative to the working folder
     rig = load_rig("room/rig.yaml")
-    assert rig.calibration.stereo.resolve() == (room / "calib" / "cameras.json").resolve()
+    assert rig.calibration.cameras.resolve() == (room / "calib" / "cameras.json").resolve()
     data = yaml.safe_load(GOOD + "calibration:\n  stereo: calib/cameras.json\n")
-    assert parse_rig(data, "x").calibration.stereo.as_posix() == "calib/cameras.json"  # not read from a file
+    assert parse_rig(data, "x").calibration.cameras.as_posix() == "calib/cameras.json"  # not read from a file

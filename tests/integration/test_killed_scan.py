@@ -30,7 +30,6 @@ from inprocess_cli import vts as vts_here
 from vts_hw.config import load_rig
 from vts_hw.drivers.trigger_box import TriggerBox
 from vts_hw.errors import DataError, UsageError
-from vts_hw.procedures.sync_inputs import load_calibration
 from vts_hw.recording.folder import load_manifest, read_index
 from vts_hw.recording.reindex import reindex
 from vts_hw.recording.writer import Recording, RecordingExists
@@ -39,6 +38,7 @@ from vts_hw.sim_devices.spect_follower import SpectFollower
 from vts_hw.sim_devices.spect_listmode import ListModeTruth
 from vts_hw.sim_devices.trigger_box import F_CPU
 from vts_hw.tracking.processing import process_recording
+from vts_hw.vision.calibration_io import read_calibration as load_calibration
 
 VTS = [sys.executable, "-m", "vts_hw.cli.__main__"]
 HANG_S = 300.0
@@ -142,7 +142,7 @@ def test_kill_9_of_a_scan_is_read_as_interrupted_by_every_reader(box_rig, tmp_pa
     assert f"note: {m['unfinished']}" in out
 
     # the analyses (vts motion analyze, sync analyze, recording process, the console's) say it first
-    tracks = process_recording(folder, load_calibration(cfg.calibration.stereo), workers=1)
+    tracks = process_recording(folder, load_calibration(cfg.calibration.cameras), workers=1)
     assert tracks.meta["warnings"][0] == f"{m['unfinished']}; analysed up to the last frame written"
 
     with pytest.raises(DataError, match=re.escape(f"{folder}: {m['unfinished']}: run 'vts recording reindex")):

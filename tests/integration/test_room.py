@@ -205,7 +205,6 @@ CAMS = [{"name": "cam1", "host": "127.0.0.1"}]
 def test_calibration_keys_new_and_old_names(tmp_path, section):
     rig = load_rig(_write(tmp_path, {"cameras": CAMS, "calibration": section}))
     assert (rig.calibration.cameras, rig.calibration.mapping) == (tmp_path / "c.json", tmp_path / "m.json")
-    assert (rig.calibration.stereo, rig.calibration.spect) == (tmp_path / "c.json", tmp_path / "m.json")
     written = yaml.safe_load(dump_rig(rig))["calibration"]
     assert written == {"cameras": str(tmp_path / "c.json"), "mapping": str(tmp_path / "m.json")}
 

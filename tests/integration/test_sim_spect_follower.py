@@ -92,7 +92,7 @@ def test_a_scan_is_recorded_by_the_simulated_spect_and_lines_up(two_scans):
     truth = ListModeTruth.load(str(lm) + ".truth.json")
     t0, t1 = truth.acquisition_start_host, truth.acquisition_start_host + truth.duration_s
     moves = [m["t_mid"] for m in truth.sources[0]["moves"] if t0 + 0.5 < m["t_start"] and m["t_end"] < t1 - 0.5]
-    a = SyncAnalysis(cwd / "scan1", lm, cfg.calibration.stereo, cfg.calibration.spect, workers=1).analyze()
+    a = SyncAnalysis(cwd / "scan1", lm, cfg.calibration.cameras, cfg.calibration.mapping, workers=1).analyze()
     assert a.gating.start_delay_s == pytest.approx(truth.start_delay_s, abs=0.010)
     both = [e for e in a.events if e.seen_by == "both"]
     assert len(moves) >= 1 and len(both) == len(moves)  # a move every ~15 s: one or two in 20 s

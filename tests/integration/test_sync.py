@@ -166,7 +166,7 @@ def test_scan_then_sync_analyze_meets_the_goals(scan22, tmp_path):
     start delay within 10 ms; the report, plot and exported trajectories written."""
     run, rig_yaml, rig = scan22
     cfg = load_rig(rig_yaml)
-    assert cfg.calibration.stereo.name == "calibration.json" and cfg.calibration.spect.exists()
+    assert cfg.calibration.cameras.name == "calibration.json" and cfg.calibration.mapping.exists()
     m = json.loads((run.session / "manifest.json").read_text())
     assert m["status"] == "complete" and m["trigger"]["fired"]
 
@@ -264,7 +264,7 @@ def test_without_a_mapping_and_with_a_named_marker(scan22):
     events are still found (times within 20 ms); a named wall marker has no event at all."""
     run, rig_yaml, _ = scan22
     cfg = load_rig(rig_yaml)
-    a = SyncAnalysis(run.session, run.listmode, cfg.calibration.stereo, workers=1).analyze()
+    a = SyncAnalysis(run.session, run.listmode, cfg.calibration.cameras, workers=1).analyze()
     data = a.results_data()
     assert data["vts"]["trace"] == "main direction of motion"
     assert any("no VTS -> SPECT mapping" in p for p in data["problems"])
@@ -278,7 +278,7 @@ def test_without_a_mapping_and_with_a_named_marker(scan22):
         if d["marker"] != source and d["points"] > 0.9 * data["vts"]["samples"]
     )
     b = SyncAnalysis(
-        run.session, run.listmode, cfg.calibration.stereo, cfg.calibration.spect, marker=wall, workers=1
+        run.session, run.listmode, cfg.calibration.cameras, cfg.calibration.mapping, marker=wall, workers=1
     ).analyze()
     d = b.results_data()
     assert d["vts"]["markers"] == [wall] and d["summary"]["events_both"] == 0
@@ -321,7 +321,7 @@ def test_a_camera_offline_for_5_s_still_analyses(box_rig, tmp_path):
     gap = max(c1["gaps"], key=lambda g: g["missing"])
     assert gap["camera_t1"] - gap["camera_t0"] >= 5.0
 
-    a = SyncAnalysis(tmp_path / "scan", lm, cfg.calibration.stereo, cfg.calibration.spect, workers=2).analyze()
+    a = SyncAnalysis(tmp_path / "scan", lm, cfg.calibration.cameras, cfg.calibration.mapping, workers=2).analyze()
     data = a.results_data()
     assert any(b - a_ >= 5.0 for a_, b in data["vts"]["gaps_host"])
     assert any("cam1" in p and "gap" in p for p in data["problems"])
@@ -406,7 +406,7 @@ def test_the_sim_rig_writes_its_true_calibration(tmp_path):
     with SimRig(n_cameras=2, seed=2) as rig:
         rig_yaml, _ = rig.write(tmp_path)
     cfg = load_rig(rig_yaml)
-    mp = RigidTransform.load(cfg.calibration.spect)
+    mp = RigidTransform.load(cfg.calibration.mapping)
     c1 = rig.scene.camera_at("cam1", rig.scene.start_epoch)
     world = np.array([[10.0, -20.0, 5.0], [100.0, 50.0, -80.0]])
     assert np.allclose(mp.apply(c1.to_camera(world)), world, atol=1e-9)  # VTS (camera 1) -> SPECT

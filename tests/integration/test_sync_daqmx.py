@@ -104,7 +104,7 @@ def test_a_daqmx_scan_is_sync_checked_end_to_end(tmp_path, monkeypatch):
     lm = tmp_path / "scan.vtslm"
     truth = SimListModeSpect(rig.scene, [src], seed=4).follow_trigger_log(session / "trigger.csv", lm, duration - 0.6)
     assert truth.start_pulse_host == wave.start_host
-    a = SyncAnalysis(session, lm, cfg.calibration.stereo, cfg.calibration.spect, workers=2).analyze()
+    a = SyncAnalysis(session, lm, cfg.calibration.cameras, cfg.calibration.mapping, workers=2).analyze()
     data = a.results_data()
     assert data["trigger"]["device"] == "daqmx" and data["trigger"]["time_source"] == "host_write"
     assert len(data["events"]) == len(src.moves)

@@ -169,8 +169,8 @@ def test_a_camera_in_no_shared_view_is_named():
 
 # ---- the file ------------------------------------------------------------------------------
 def test_n_camera_file_round_trip_and_readers(real_calib, tmp_path):
-    from vts_hw.procedures.sync_inputs import load_calibration as sync_load
     from vts_hw.tracking.processing import cameras_from_calibration
+    from vts_hw.vision.calibration_io import read_calibration as sync_load
 
     path = real_calib.save(tmp_path / "cal.json")
     back = load_calibration(path)
@@ -251,8 +251,8 @@ OLD_STEREO_FILE = {  # a stereo file as vts-hw wrote it before N cameras (and be
 
 
 def test_old_two_camera_file_still_loads(tmp_path):
-    from vts_hw.procedures.sync_inputs import load_calibration as sync_load
     from vts_hw.tracking.processing import cameras_from_calibration
+    from vts_hw.vision.calibration_io import read_calibration as sync_load
 
     path = tmp_path / "calibration.json"
     path.write_text(json.dumps(OLD_STEREO_FILE))

@@ -140,7 +140,7 @@ def test_n_cameras_from_any_calibration_form(room, tmp_path):
     assert list(stereo) == ["cam1", "cam2"] and np.allclose(stereo["cam1"].R, np.eye(3))
     assert list(named_cameras([scene.cameras[n] for n in names])) == names
     # the rig's file is in camera 1's frame, as calibration.json; the sync analysis reads either
-    from vts_hw.procedures.sync_inputs import load_calibration
+    from vts_hw.vision.calibration_io import read_calibration as load_calibration
 
     rig_file = write_true_cameras(scene, tmp_path / "rig", frame="cam1")
     by_cam1 = load_calibration(rig_file)

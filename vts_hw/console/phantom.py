@@ -31,7 +31,7 @@ def locator_for(rig):
     """``(PhantomLocator, "")`` from the rig config's calibration and mapping, or ``(None, why)``."""
     if rig is None:
         return None, "the console was started without a rig config"
-    cal, mapping = rig.calibration.stereo, rig.calibration.spect
+    cal, mapping = rig.calibration.cameras, rig.calibration.mapping
     if cal is None:
         return None, "no camera calibration (calibration.cameras in rig.yaml)"
     if mapping is None:

@@ -71,14 +71,14 @@ class MotionJob:
     def _run(self) -> None:
         try:
             rig = self.rig
-            cal = rig.calibration.stereo
+            cal = rig.calibration.cameras
             if cal is None:
                 raise VtsError("no camera calibration: set calibration.cameras in rig.yaml")
             a = MotionAnalysis(
                 self.folder,
                 None,
                 cal,
-                rig.calibration.spect,
+                rig.calibration.mapping,
                 motion_config=rig.motion,
                 workers=1,
                 progress=self._progress,
