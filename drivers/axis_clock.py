@@ -36,6 +36,8 @@ class AxisClock(AxisParameters):
         taken before the image is sent, so the offset is biased low by up to the exposure
         and encode time; the uncertainty says so).
         """
+        if samples < 1:  # (a median of no snapshot: refused before anything is asked)
+            raise ValueError(f"clock_offset takes one sample or more, not {samples}")
         best = None
         try:
             for _ in range(samples):
@@ -48,7 +50,7 @@ class AxisClock(AxisParameters):
                 rtt = t1 - t0
                 if best is None or rtt < best[1]:
                     best = (cam - (t0 + t1) / 2, rtt, (t0 + t1) / 2)
-            if best is not None:  # (no sample asked: the snapshots' stamps below)
+            if best is not None:  # (always, samples >= 1: said for the type checker)
                 return ClockOffset(best[0], best[1] / 2 + 0.001, best[2], "time.cgi", samples)
         except NotFound:
             pass

@@ -11,7 +11,7 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from vts_hw.camera import Illumination
+from vts_hw.camera_led import light
 from vts_hw.errors import ConfigError, DataError
 from vts_hw.procedures.spect_mapping import SpectMapping
 from vts_hw.procedures.steps import LED_SETTLE_S, SNAPSHOT_COMPRESSION, average_centroids
@@ -56,8 +56,7 @@ def mapping_from_cameras(
         raise DataError(f"{volume}: no such file or directory.")
     pts = {}
     for k, cam in enumerate(cameras):
-        if isinstance(cam, Illumination):  # a camera without an LED (a replay) shows its frames as they are
-            cam.led_on()
+        if light(cam) == "on":  # a camera without an LED (a replay) shows its frames as they are
             time.sleep(LED_SETTLE_S)
         if progress:
             progress(f"{cam.name}: {frames} snapshots")

@@ -162,3 +162,12 @@ def test_a_refusal_without_a_reason_is_one_sentence():
     cam._session = Answers(b"# Error:  \n")
     with pytest.raises(BadReply, match=r"camera cam1 refused /axis-cgi/param.cgi: \(no reason given\)"):
         cam.vapix_version
+
+
+def test_a_clock_offset_of_no_sample_is_refused_before_anything_is_asked():
+    """Asking for no sample has no offset to give (its fallback's median of no snapshot was a
+    StatisticsError): refused before a request is sent."""
+    cam = AxisCamera("cam1", "http://127.0.0.1:9", "root", "pw")
+    cam._session = Answers(b'{"apiVersion": "1.0", "data": {"dateTime": "2026-01-01T00:00:00Z"}}')
+    with pytest.raises(ValueError, match="one sample or more, not 0"):
+        cam.clock_offset(samples=0)
