@@ -214,6 +214,18 @@ class Fixtures:
             ("hostless", {"name": "cam1"}),
             ("axis_options", {"name": "cam1", "host": "127.0.0.1", "port": port, "options": {"speed": 2}}),
             ("replay", {"name": "cam1", "kind": "replay", "options": {"folder": str(root / "emptydir")}}),
+            # a value that goes into the camera's URLs and would make another host the one asked
+            ("host_with_user", {"name": "cam1", "host": "127.0.0.1@evil.example", "port": port}),
+            (
+                "mjpeg_path_off_host",
+                {
+                    "name": "cam1",
+                    "kind": "mjpeg",
+                    "host": "127.0.0.1",
+                    "port": port,
+                    "options": {"stream_path": ".evil.example/x"},
+                },
+            ),
         ):
             (root / f"{name}.yaml").write_text(yaml.safe_dump({"rig": name, "cameras": [cam]}))
         # rig.yaml's calibration entries (decision 0099): one under its new and its old name; a
@@ -305,8 +317,9 @@ def global_config_cases(fx: Fixtures) -> list[Case]:
 
 
 def camera_kind_cases(fx: Fixtures) -> list[Case]:
-    """A camera entry that does not fit its kind's settings model, and `camera setup` of a kind
-    without the parameters role: refused in one sentence (docs/decisions/0100-camera-roles.md)."""
+    """A camera entry that does not fit its kind's settings model, `camera setup` of a kind
+    without the parameters role, and a value that goes into a camera's URLs and makes another host
+    the one asked (its host, an MJPEG path): refused in one sentence (docs/decisions/0100-camera-roles.md)."""
 
     def config(name: str) -> str:
         return str(fx.root / f"{name}.yaml")
@@ -328,6 +341,18 @@ def camera_kind_cases(fx: Fixtures) -> list[Case]:
             "configs",
             "camera kind: setup of a kind without parameters",
             plain(["camera", "setup", "cam1", "--config", config("replay")]),
+            _refused,
+        ),
+        Case(
+            "configs",
+            "camera URL: a host with a user part (another host asked, with the credentials)",
+            plain(["camera", "info", "cam1", "--config", config("host_with_user")]),
+            _refused,
+        ),
+        Case(
+            "configs",
+            "camera URL: an mjpeg stream path not from / (joined onto the host: another host)",
+            plain(["camera", "stream", "cam1", "--seconds", "1", "--config", config("mjpeg_path_off_host")]),
             _refused,
         ),
     ]

@@ -28,6 +28,8 @@ from vts_hw.vision.aim_settings import AimSettings
 
 ENV_CONFIG = "VTS_CONFIG"
 _NAME_RE = r"^[A-Za-z0-9][A-Za-z0-9_.-]*$"
+# a camera's host as it goes into its URLs: a name or an IPv4 address, or an IPv6 one in brackets
+_HOST_RE = re.compile(r"[A-Za-z0-9_]([A-Za-z0-9_.-]*[A-Za-z0-9_])?|\[[0-9A-Fa-f:.]+\]")
 
 
 class CameraConfig(_Strict):
@@ -73,6 +75,18 @@ class CameraConfig(_Strict):
         description="minutes after it starts before its drift has settled (daily QA warns; "
         "commissioning waits at least this long)",
     )
+
+    @field_validator("host")
+    @classmethod
+    def _host_alone(cls, v):
+        """A host name or address and nothing else: it is put into the camera's URLs, where a '/',
+        '@', ':', '?' or '#' would make another host the one asked, with the camera's credentials."""
+        if v is not None and not _HOST_RE.fullmatch(v):
+            raise ValueError(
+                "is not a host name or address alone (letters, digits, '.', '-', '_'; an IPv6 address in "
+                "[brackets]; the port is port:)"
+            )
+        return v
 
     @field_validator("ca_cert")
     @classmethod

@@ -60,6 +60,11 @@ def test_good_file(tmp_path, monkeypatch):
         (("tolerance_high: 1", "tolerance_high: 3"), "tolerances.drift_x_px", "action_low <= tolerance_low"),
         (("drift_x_px:", "drift_z_px:"), "tolerances", "'drift_z_px', which is not a metric with a tolerance"),
         (("name: cam2", "name: cam1"), "(top level)", "unique"),
+        # a host with another URL part in it: its credentials would go to another host
+        (("host: 192.0.2.10\n", "host: evil.example/x\n"), "cameras[0].host", "not a host name or address alone"),
+        (("host: 192.0.2.10\n", "host: 192.0.2.10@evil.example\n"), "cameras[0].host", "not a host name"),
+        (("host: 192.0.2.10\n", "host: '192.0.2.10:81'\n"), "cameras[0].host", "the port is port:"),
+        (("host: 192.0.2.10\n", "host: 'cam?x=1'\n"), "cameras[0].host", "not a host name"),
         (("rig: room-1\n", "rig: room-1\nmotion:\n  blind_alert_s: 0\n"), "motion.blind_alert_s", "greater than 0"),
         (
             ("rig: room-1\n", "rig: room-1\nmotion:\n  blind_max_share: 1.5\n"),
