@@ -28,6 +28,7 @@ from vts_hw.drivers.axis_errors import (
     TooManyViewers,
 )
 from vts_hw.drivers.axis_io import AxisIOPort
+from vts_hw.drivers.axis_setup import AxisSetup
 from vts_hw.drivers.axis_stream import HTTP_KEYS, HttpCamera
 from vts_hw.recording.axis_jpeg import inspect_jpeg
 
@@ -57,9 +58,9 @@ def frame_from_bytes(seq: int, jpeg: bytes, host_time: float, problems=()) -> Fr
     return Frame(seq, jpeg, cam_t, host_time, tuple(probs))
 
 
-class AxisCamera(HttpCamera, AxisClock, AxisIOPort):
+class AxisCamera(HttpCamera, AxisClock, AxisIOPort, AxisSetup):
     """One Axis camera: the ``axis`` kind, with every role of :mod:`vts_hw.camera` (the HTTP camera
-    of :mod:`.axis_stream`, its parameters, clock and I/O port are the mixins over its client).
+    of :mod:`.axis_stream`, its parameters, clock, I/O port and setup are the mixins over its client).
 
     ``AxisCamera.from_config(cfg)`` takes a rig.yaml camera entry and its password from the
     environment variable that entry names (``vts_hw.drivers.registry.open_camera`` calls it).

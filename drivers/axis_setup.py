@@ -26,11 +26,12 @@ listed again and each value compared. What was set and read back is the camera's
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from collections.abc import Callable
 
 from vts_hw.camera import Refused as ContractRefused
-from vts_hw.drivers.axis import AxisCamera
+from vts_hw.camera import SetupResult
 from vts_hw.drivers.axis_errors import NOT_THE_JSON, AxisError, NotFound, Refused
+from vts_hw.drivers.axis_params import AxisParameters
 
 TIME_API = "/axis-cgi/time.cgi"
 _ERROR_PARAM = re.compile(r"'(?:root\.)?([A-Za-z0-9_.]+)'")
@@ -42,17 +43,20 @@ class SetupRefused(AxisError, ContractRefused):
     retry = False
 
 
-@dataclass
-class SetupResult:
-    camera: str
-    locked: dict[str, str] = field(default_factory=dict)
-    """Every parameter set or locked as read: the camera's ``locked_params``."""
-    changed: list[str] = field(default_factory=list)
-    """The parameters whose value the setup changed."""
-    notes: list[str] = field(default_factory=list)
+class AxisSetup(AxisParameters):
+    """The :class:`~vts_hw.camera.Setup` role of an Axis camera: its parameters set for the VTS
+    and read back (the functions below), a mixin of :class:`~vts_hw.drivers.axis.AxisCamera`."""
+
+    device_info: Callable[[], dict[str, str]]  # the camera's own (AxisCamera.device_info)
+
+    def setup_plan(self, cfg, setup) -> list[tuple[str, str, bool]]:
+        return wanted(self, cfg, setup)
+
+    def set_up(self, cfg, setup) -> SetupResult:
+        return setup_camera(self, cfg, setup)
 
 
-def wanted(cam: AxisCamera, cfg, setup) -> list[tuple[str, str, bool]]:
+def wanted(cam: AxisSetup, cfg, setup) -> list[tuple[str, str, bool]]:
     """(parameter, value, required) to send, in order; ``cfg`` the camera entry, ``setup`` the
     rig's ``camera_setup``. A required parameter the firmware lacks is refused."""
     fps = cfg.fps
@@ -83,7 +87,7 @@ def wanted(cam: AxisCamera, cfg, setup) -> list[tuple[str, str, bool]]:
 LOCKED_AS_READ = ("ImageSource.I0.Sensor.MaxExposureTime", "ImageSource.I0.Sensor.MaxGain", "Time.NTP.Server")
 
 
-def setup_camera(cam: AxisCamera, cfg, setup) -> SetupResult:
+def setup_camera(cam: AxisSetup, cfg, setup) -> SetupResult:
     """Set ``cam`` up (see the module docstring) and read everything back."""
     result = SetupResult(cam.name)
     groups = ("Image.I0", "ImageSource.I0", "Time")
@@ -120,7 +124,7 @@ def setup_camera(cam: AxisCamera, cfg, setup) -> SetupResult:
     return result
 
 
-def _tree(cam: AxisCamera, groups) -> dict[str, str]:
+def _tree(cam: AxisSetup, groups) -> dict[str, str]:
     out: dict[str, str] = {}
     for g in groups:
         try:
@@ -130,7 +134,7 @@ def _tree(cam: AxisCamera, groups) -> dict[str, str]:
     return out
 
 
-def _firmware(cam: AxisCamera) -> str:
+def _firmware(cam: AxisSetup) -> str:
     try:
         info = cam.device_info()
         return f"{info.get('ProdShortName', 'Axis')} {info.get('Version', '?')}"
@@ -149,7 +153,7 @@ def _refusal(camera: str, sent: dict[str, str], words: str) -> str:
     return f"camera {camera} refused {name}={sent[name]}: {why} (the camera said: {said})"
 
 
-def _time_zone(cam: AxisCamera, zone: str, result: SetupResult, before: str | None) -> None:
+def _time_zone(cam: AxisSetup, zone: str, result: SetupResult, before: str | None) -> None:
     """Current firmware: the IANA zone through the Time API, read back with getDateTimeInfo."""
     try:
         reply = cam.request(

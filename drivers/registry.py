@@ -99,7 +99,7 @@ def camera_class(kind: str, camera: str = "?"):
 
 def kind_has(cfg: CameraConfig, role: type) -> bool:
     """Whether the cameras of an entry's kind have ``role`` (one of vts_hw.camera's roles that a
-    kind has whatever its options: Parameters, RunningTime), asked before anything is opened."""
+    kind has whatever its options: Parameters, RunningTime, Setup), asked before anything is opened."""
     return issubclass(camera_class(cfg.kind, cfg.name), role)
 
 

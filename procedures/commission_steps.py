@@ -10,9 +10,8 @@ import time
 from pathlib import Path
 
 from vts_hw import catalog
-from vts_hw.camera import Parameters, RunningTime
+from vts_hw.camera import Parameters, RunningTime, Setup
 from vts_hw.camera_led import switch_led
-from vts_hw.drivers.axis_setup import setup_camera
 from vts_hw.drivers.axis_uptime import NoUptime
 from vts_hw.drivers.discovery import search
 from vts_hw.drivers.registry import check_camera_kinds, kind_has, open_cameras, open_trigger
@@ -85,9 +84,10 @@ def cameras(ctx: Context) -> Outcome:
             "commissioning needs the rig config as a file (--config rig.yaml): locked_params are written into it"
         )
     for cfg in rig.cameras:
-        if not kind_has(cfg, Parameters):
+        if not kind_has(cfg, Setup):
+            lacks = "no setup" if kind_has(cfg, Parameters) else "no parameters"
             raise UsageError(
-                f"camera {cfg.name} is of kind {cfg.kind}, which has no parameters: only Axis cameras are commissioned"
+                f"camera {cfg.name} is of kind {cfg.kind}, which has {lacks}: only Axis cameras are commissioned"
             )
         cfg.password()
     announced: dict[tuple[str | None, int], tuple[str, ...]] = {}  # looked up by the entry's host
@@ -99,7 +99,8 @@ def cameras(ctx: Context) -> Outcome:
     for cfg in rig.cameras:
         with _cameras(ctx, [cfg]) as (cam,):
             info = cam.device_info()
-            result = setup_camera(cam, cfg, rig.camera_setup)
+            assert isinstance(cam, Setup)  # (its kind has the role: checked above)
+            result = cam.set_up(cfg, rig.camera_setup)
         locked[cfg.name] = result.locked
         seen = announced.get((cfg.host, cfg.port))
         dev = {

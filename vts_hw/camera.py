@@ -241,11 +241,34 @@ class RunningTime(Protocol):
     def uptime(self) -> Uptime: ...
 
 
+@dataclass
+class SetupResult:
+    """What a camera's setup set and read back (:class:`Setup`)."""
+
+    camera: str
+    locked: dict[str, str] = field(default_factory=dict)
+    """Every parameter set or locked as read: the camera's ``locked_params``."""
+    changed: list[str] = field(default_factory=list)
+    """The parameters whose value the setup changed."""
+    notes: list[str] = field(default_factory=list)
+
+
+@runtime_checkable
+class Setup(Protocol):
+    """Set for the VTS by ``vts camera setup`` and commissioning, and read back: ``setup_plan``
+    says what would be set (touching nothing), ``set_up`` sets it and returns what was locked.
+    ``cfg`` is the camera's rig.yaml entry, ``setup`` the rig's ``camera_setup:`` section."""
+
+    def setup_plan(self, cfg: Any, setup: Any) -> list[tuple[str, str, bool]]: ...
+
+    def set_up(self, cfg: Any, setup: Any) -> SetupResult: ...
+
+
 @runtime_checkable
 class Camera(Frames, DeviceInformation, CameraClock, Protocol):
     """What every camera kind offers: frames, what it is, its clock; and ``close()`` (a context
     manager). The roles some kinds have are asked for with ``isinstance``:
-    :class:`Illumination`, :class:`Parameters`, :class:`RunningTime`."""
+    :class:`Illumination`, :class:`Parameters`, :class:`RunningTime`, :class:`Setup`."""
 
     def close(self) -> None: ...
 
@@ -262,6 +285,7 @@ ROLES: dict[str, type] = {
     "illumination": Illumination,
     "parameters": Parameters,
     "running time": RunningTime,
+    "setup": Setup,
 }
 
 
@@ -375,6 +399,8 @@ __all__ = [
     "Parameters",
     "RunningTime",
     "ROLES",
+    "Setup",
+    "SetupResult",
     "roles_of",
     "check_whole",
     "NotWhole",

@@ -24,7 +24,7 @@ from vts_hw.recording.folder import INDEX_HEADER
 EVERY = ("frames", "device information", "clock")
 #: the roles each kind (and option) claims
 CLAIMED = {
-    "axis": EVERY + ("illumination", "parameters", "running time"),
+    "axis": EVERY + ("illumination", "parameters", "running time", "setup"),
     "mjpeg": EVERY,
     "mjpeg led vapix": EVERY + ("illumination",),
     "replay": EVERY,
@@ -160,6 +160,32 @@ def test_the_commands_ask_the_role(recording, tmp_path, capsys):
     code, out, err = vts(capsys, "camera", "setup", "cam1", "--config", path)
     assert code == 2 and "camera cam1 is of kind replay, which has no parameters" in err, err
     assert "Traceback" not in err
+
+
+class _ParametersOnly(ReplayCamera):
+    """A kind with named parameters but no setup of its own (what a second network camera kind
+    may well be): `vts camera setup` needs the Setup role, not parameters alone."""
+
+    def get_params(self, group: str) -> dict[str, str]:
+        return {}
+
+    def set_params(self, values) -> None:
+        raise AssertionError("setup sent parameters to a kind it cannot set up")
+
+
+def test_setup_asks_the_setup_role_not_parameters(recording, tmp_path, capsys, monkeypatch):
+    """A kind with Parameters but not Setup is refused by `vts camera setup` in one sentence,
+    exit 2, before anything is touched (the guard once asked for Parameters and let it through
+    to the Axis setup, an AttributeError)."""
+    monkeypatch.setitem(CAMERA_KINDS, "replay", f"{__name__}:_ParametersOnly")
+    entry = _entries(recording)["replay"]
+    assert kind_has(parse_rig({"cameras": [entry]}, "r").cameras[0], Parameters)
+    path = tmp_path / "rig.yaml"
+    path.write_text(yaml.safe_dump({"rig": "roles", "cameras": [entry]}))
+    for dry in ([], ["--dry-run"]):
+        code, out, err = vts(capsys, "camera", "setup", "cam1", *dry, "--config", path)
+        assert code == 2 and "camera cam1 is of kind replay, which has no setup: only Axis" in err, err
+        assert "Traceback" not in err
 
 
 def test_led_command_names_no_port_on_a_camera_without_an_led(recording, tmp_path, capsys):

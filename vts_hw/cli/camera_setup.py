@@ -3,20 +3,16 @@
 from __future__ import annotations
 
 import sys
-from typing import TYPE_CHECKING, cast
 
 import click
 
-from vts_hw.camera import CameraError, Parameters
+from vts_hw.camera import CameraError, Parameters, Setup
 from vts_hw.cli.camera import camera
 from vts_hw.cli.common import echo_json, json_option, with_rig
 from vts_hw.drivers.registry import kind_has
 from vts_hw.errors import UsageError
 from vts_hw.rig_file import check_rewritable
 from vts_hw.room import Room
-
-if TYPE_CHECKING:
-    from vts_hw.drivers.axis import AxisCamera
 
 
 @camera.command("setup")
@@ -40,17 +36,16 @@ def setup(names: tuple[str, ...], all_cameras: bool, dry_run: bool, as_json: boo
     4 a camera refused a value or could not be reached (one sentence each says which and
     why; the cameras that took everything are written).
     """
-    from vts_hw.drivers.axis_setup import wanted
-
     if all_cameras:
         names = tuple(c.name for c in rig.cameras)
     if not names:
         raise click.UsageError("name at least one camera, or give --all")
     cfgs = [rig.camera(n) for n in names]
     for cfg in cfgs:
-        if not kind_has(cfg, Parameters):
+        if not kind_has(cfg, Setup):
+            lacks = "no setup" if kind_has(cfg, Parameters) else "no parameters"
             raise UsageError(
-                f"camera {cfg.name} is of kind {cfg.kind}, which has no parameters: only Axis cameras are set up"
+                f"camera {cfg.name} is of kind {cfg.kind}, which has {lacks}: only Axis cameras are set up"
             )
         cfg.password()
     source = getattr(rig, "_source", None)
@@ -61,8 +56,9 @@ def setup(names: tuple[str, ...], all_cameras: bool, dry_run: bool, as_json: boo
     if dry_run:
         with Room(rig) as room:
             for cfg in cfgs:
-                # kind_has(cfg, Parameters) above refused every kind but axis: an AxisCamera
-                plan = wanted(cast("AxisCamera", room.camera(cfg.name)), cfg, rig.camera_setup)
+                cam = room.camera(cfg.name)
+                assert isinstance(cam, Setup)  # (its kind has the role: checked above)
+                plan = cam.setup_plan(cfg, rig.camera_setup)
                 click.echo(f"{cfg.name}: " + ", ".join(f"{k}={v}" for k, v, _ in plan))
         return
     with Room(rig) as room:
@@ -98,12 +94,12 @@ def setup(names: tuple[str, ...], all_cameras: bool, dry_run: bool, as_json: boo
 
 def _set_all(room, cfgs, setup_cfg, quiet: bool):
     """Each camera of the room in turn: a camera that fails does not stop the others."""
-    from vts_hw.drivers.axis_setup import setup_camera
-
     results, failures = [], []
     for cfg in cfgs:
         try:
-            r = setup_camera(room.camera(cfg.name), cfg, setup_cfg)
+            cam = room.camera(cfg.name)
+            assert isinstance(cam, Setup)  # (its kind has the role: checked before)
+            r = cam.set_up(cfg, setup_cfg)
         except CameraError as exc:
             failures.append((cfg.name, str(exc)))
             continue
