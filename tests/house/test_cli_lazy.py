@@ -46,6 +46,19 @@ def test_every_command_and_subcommand_is_reached_through_the_map():
     assert "flash" in got["lazy"]["trigger"] and "daily" in got["lazy"]["qa"]
 
 
+def test_a_command_whose_first_module_was_imported_alone_still_has_all_its_subcommands():
+    """Importing one module of a command (``vts_hw.cli.qa``, as a test or a plugin may) registers
+    the command; its other modules (``qa_steps``: ``vts qa steps``) are still loaded when it is
+    looked up (the map was followed only for a command not yet registered)."""
+    code = (
+        "import click, json, vts_hw.cli.qa, vts_hw.cli as c\n"
+        "print(json.dumps(sorted(c.cli.get_command(click.Context(c.cli), 'qa').commands)))"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "steps" in json.loads(r.stdout.strip().splitlines()[-1])
+
+
 def test_a_command_loads_its_own_modules_only():
     got = _run(SEEN, "scan", "--help")
     assert "vts_hw.cli.scan" in got["cli"]

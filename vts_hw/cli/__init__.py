@@ -49,7 +49,9 @@ class _CommandsOnDemand(click.Group):
         return sorted(set(COMMANDS) | set(self.commands))
 
     def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
-        for module in COMMANDS.get(name, ()) if name not in self.commands else ():
+        # every module of the command, each time (an imported one is a dict lookup): a command
+        # registered by one of its modules imported alone still gets the others' subcommands
+        for module in COMMANDS.get(name, ()):
             importlib.import_module(f"{__name__}.{module}")
         return self.commands.get(name)
 
